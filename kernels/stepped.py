@@ -1,0 +1,826 @@
+"""Warp kernels of the stepped terrain (paper 000, Glander, Trapp & Döllner 2010, §3.1-3.3).
+
+One pass quantizes every node to its level (§3.2, "vertex level"); a count -> scan -> emit pass over nodes
+and edges allocates the welded output vertices (each node once, a *twin* below a node that sits exactly on a
+threshold, and the wall bottom and top of every threshold crossing of every edge); a count -> scan -> emit
+pass over triangles tessellates each triangle into horizontal terraces and vertical walls (§3.2, Fig. 2-3).
+Both the count and the emit pass call :func:`step_triangle`, so they cannot disagree.
+
+Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
+
+* level(h) = the number of thresholds t_i <= h: a height exactly on a threshold belongs to the upper level.
+* The crossings of an edge are stored lowest threshold first, two vertices each (wall bottom at α_j, wall
+  top at α_j+1). When the upper endpoint lies exactly on its highest crossed threshold, that crossing's top
+  *is* the endpoint and its bottom is the endpoint's twin, so no two output vertices share a position.
+* Per triangle, for each band k from the lowest to the highest level: the band's polygon (the triangle cut by
+  the slab t_k-1 <= h < t_k, walked counter-clockwise from corner 0, repeated indices dropped) is fanned
+  from its first vertex; then the wall of threshold k, from the crossing on the ascending edge (u) to the
+  one on the descending edge (v): triangles (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+vec3l = wp.types.vector(length=3, dtype=wp.int64)
+
+
+@wp.struct
+class Isovalues:
+    """The levels α_i (strictly increasing) and the thresholds t_i = (α_i + α_i+1) / 2 between them."""
+
+    values: wp.array[wp.float32]
+    thresholds: wp.array[wp.float32]
+
+
+@wp.struct
+class HeightField:
+    """A regular grid: node n = i * cols + j sits at (j * dx, i * dy) in local coordinates."""
+
+    heights: wp.array[wp.float32]
+    levels: wp.array[wp.int32]
+    rows: wp.int32
+    cols: wp.int32
+    spacing: wp.vec2
+    flip: wp.int32  # 1 when dx * dy < 0: swap the winding so faces stay counter-clockwise seen from +z
+
+
+@wp.struct
+class TriangleNetwork:
+    """A TIN with its edge table: faces index points, face_edges[f][k] is the edge from corner k to k+1."""
+
+    points: wp.array[wp.vec3]
+    heights: wp.array[wp.float32]
+    levels: wp.array[wp.int32]
+    faces: wp.array[wp.vec3i]
+    face_edges: wp.array[wp.vec3i]
+    edges: wp.array[wp.vec2i]
+    point_used: wp.array[wp.int32]
+
+
+# ---------------------------------------------------------------------------------------------------------
+# shared device functions
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def level_of(h: wp.float32, thresholds: wp.array[wp.float32]) -> wp.int32:
+    """Number of thresholds <= h (binary search): a height on a threshold belongs to the upper level."""
+    lo = wp.int32(0)
+    hi = thresholds.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if thresholds[mid] <= h:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@wp.func
+def on_threshold(h: wp.float32, level: wp.int32, thresholds: wp.array[wp.float32]) -> wp.int32:
+    """1 when h lies exactly on the threshold just below its level."""
+    if level > 0:
+        if h == thresholds[level - 1]:
+            return 1
+    return 0
+
+
+@wp.func
+def edge_vertex_count(
+    a: wp.int32, b: wp.int32, heights: wp.array[wp.float32], levels: wp.array[wp.int32], iso: Isovalues
+) -> wp.int32:
+    """Output vertices an edge owns: two per crossed threshold, one fewer when its top aliases an endpoint."""
+    la = levels[a]
+    lb = levels[b]
+    if la == lb:
+        return 0
+    hi = b
+    lhi = lb
+    crossed = lb - la
+    if la > lb:
+        hi = a
+        lhi = la
+        crossed = la - lb
+    return 2 * crossed - on_threshold(heights[hi], lhi, iso.thresholds)
+
+
+@wp.func
+def crossing_vertex(
+    a: wp.int32,
+    b: wp.int32,
+    slot: wp.int32,
+    j: wp.int32,
+    top: wp.int32,
+    heights: wp.array[wp.float32],
+    levels: wp.array[wp.int32],
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+) -> wp.int32:
+    """Output index of the wall bottom (top=0) or top (top=1) where edge a-b crosses threshold j."""
+    la = levels[a]
+    lb = levels[b]
+    hi = b
+    llo = la
+    lhi = lb
+    if la > lb:
+        hi = a
+        llo = lb
+        lhi = la
+    if j == lhi - 1:
+        if heights[hi] == iso.thresholds[j]:
+            if top == 1:
+                return offsets[hi]
+            return offsets[hi] + 1
+    return offsets[slot] + 2 * (j - llo) + top
+
+
+@wp.func
+def write_face(
+    write: wp.int32,
+    slot: wp.int32,
+    a: wp.int32,
+    b: wp.int32,
+    c: wp.int32,
+    level: wp.int32,
+    wall: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+):
+    if write != 0:
+        faces_out[slot] = vec3l(wp.int64(a), wp.int64(b), wp.int64(c))
+        face_levels_out[slot] = level
+        face_walls_out[slot] = wp.uint8(wall)
+
+
+@wp.func
+def fan_push(
+    v: wp.int32,
+    state: wp.vec4i,
+    level: wp.int32,
+    write: wp.int32,
+    face_base: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+) -> wp.vec4i:
+    """Add vertex v to the terrace fan; state = (first, previous, vertices so far, faces so far)."""
+    first = state[0]
+    prev = state[1]
+    n = state[2]
+    count = state[3]
+    if n == 0:
+        return wp.vec4i(v, v, 1, count)
+    if v == prev or v == first:
+        return state
+    if n >= 2:
+        write_face(write, face_base + count, first, prev, v, level, 0, faces_out, face_levels_out, face_walls_out)
+        count = count + 1
+    return wp.vec4i(first, v, n + 1, count)
+
+
+@wp.func
+def walk_edge(
+    a: wp.int32,
+    b: wp.int32,
+    slot: wp.int32,
+    k: wp.int32,
+    state: wp.vec4i,
+    heights: wp.array[wp.float32],
+    levels: wp.array[wp.int32],
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    write: wp.int32,
+    face_base: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+) -> wp.vec4i:
+    """Push the vertices band k's polygon has on the directed edge a -> b (corner a, then crossings)."""
+    la = levels[a]
+    lb = levels[b]
+    s = state
+    if la == k:
+        s = fan_push(offsets[a], s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+    if la < lb:
+        if la <= k - 1 and k - 1 < lb:
+            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets)
+            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+        if la <= k and k < lb:
+            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets)
+            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+    if la > lb:
+        if lb <= k and k < la:
+            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets)
+            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+        if lb <= k - 1 and k - 1 < la:
+            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets)
+            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+    return s
+
+
+@wp.func
+def wall_end(
+    a: wp.int32,
+    b: wp.int32,
+    slot: wp.int32,
+    j: wp.int32,
+    ends: wp.vec4i,
+    heights: wp.array[wp.float32],
+    levels: wp.array[wp.int32],
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+) -> wp.vec4i:
+    """Record edge a -> b's crossing of threshold j as the wall's u (ascending) or v (descending) end."""
+    la = levels[a]
+    lb = levels[b]
+    e = ends
+    if la <= j and j < lb:
+        e[0] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets)
+        e[1] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets)
+    if lb <= j and j < la:
+        e[2] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets)
+        e[3] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets)
+    return e
+
+
+@wp.func
+def step_triangle(
+    c0: wp.int32,
+    c1: wp.int32,
+    c2: wp.int32,
+    s0: wp.int32,
+    s1: wp.int32,
+    s2: wp.int32,
+    heights: wp.array[wp.float32],
+    levels: wp.array[wp.int32],
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    write: wp.int32,
+    face_base: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+) -> wp.int32:
+    """Tessellate one counter-clockwise triangle into terraces and walls; return (and, if write, emit) its faces.
+
+    c0, c1, c2 are node ids; s0, s1, s2 the vertex-offset slots of edges c0c1, c1c2, c2c0.
+    """
+    l0 = levels[c0]
+    l1 = levels[c1]
+    l2 = levels[c2]
+    lmin = wp.min(l0, wp.min(l1, l2))
+    lmax = wp.max(l0, wp.max(l1, l2))
+    count = wp.int32(0)
+    if lmin == lmax:
+        write_face(write, face_base, offsets[c0], offsets[c1], offsets[c2], lmin, 0, faces_out, face_levels_out, face_walls_out)
+        return 1
+    for k in range(lmin, lmax + 1):
+        s = wp.vec4i(-1, -1, 0, count)
+        s = walk_edge(c0, c1, s0, k, s, heights, levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(c1, c2, s1, k, s, heights, levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(c2, c0, s2, k, s, heights, levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
+        count = s[3]
+        if k < lmax:
+            ends = wp.vec4i(-1, -1, -1, -1)
+            ends = wall_end(c0, c1, s0, k, ends, heights, levels, iso, offsets)
+            ends = wall_end(c1, c2, s1, k, ends, heights, levels, iso, offsets)
+            ends = wall_end(c2, c0, s2, k, ends, heights, levels, iso, offsets)
+            if ends[0] != ends[2]:
+                write_face(write, face_base + count, ends[0], ends[2], ends[3], k, 1, faces_out, face_levels_out, face_walls_out)
+                write_face(write, face_base + count + 1, ends[0], ends[3], ends[1], k, 1, faces_out, face_levels_out, face_walls_out)
+                count = count + 2
+    return count
+
+
+@wp.func
+def emit_edge_vertices(
+    a: wp.int32,
+    b: wp.int32,
+    pa: wp.vec3,
+    pb: wp.vec3,
+    edge_source: wp.vec2i,
+    first: wp.int32,
+    heights: wp.array[wp.float32],
+    levels: wp.array[wp.int32],
+    iso: Isovalues,
+    want_sources: wp.int32,
+    points_out: wp.array[wp.vec3],
+    step_heights_out: wp.array[wp.float32],
+    sources_out: wp.array[wp.vec2i],
+    betas_out: wp.array[wp.float32],
+):
+    """Write the wall bottom/top vertex pairs of edge a-b from index ``first``, lowest threshold first."""
+    la = levels[a]
+    lb = levels[b]
+    if la == lb:
+        return
+    lo = a
+    hi = b
+    llo = la
+    lhi = lb
+    plo = pa
+    phi = pb
+    src = edge_source
+    if la > lb:
+        lo = b
+        hi = a
+        llo = lb
+        lhi = la
+        plo = pb
+        phi = pa
+        src = wp.vec2i(edge_source[1], edge_source[0])
+    hlo = heights[lo]
+    hhi = heights[hi]
+    aliased = on_threshold(hhi, lhi, iso.thresholds)
+    slot = first
+    for j in range(llo, lhi - aliased):
+        t = iso.thresholds[j]
+        beta = (t - hlo) / (hhi - hlo)
+        x = plo[0] + beta * (phi[0] - plo[0])
+        y = plo[1] + beta * (phi[1] - plo[1])
+        p = wp.vec3(x, y, t)
+        points_out[slot] = p
+        step_heights_out[slot] = iso.values[j]
+        points_out[slot + 1] = p
+        step_heights_out[slot + 1] = iso.values[j + 1]
+        if want_sources != 0:
+            sources_out[slot] = src
+            sources_out[slot + 1] = src
+            betas_out[slot] = beta
+            betas_out[slot + 1] = beta
+        slot = slot + 2
+
+
+@wp.func
+def emit_node_vertices(
+    n_source: wp.int32,
+    p: wp.vec3,
+    level: wp.int32,
+    twin: wp.int32,
+    first: wp.int32,
+    iso: Isovalues,
+    want_sources: wp.int32,
+    points_out: wp.array[wp.vec3],
+    step_heights_out: wp.array[wp.float32],
+    sources_out: wp.array[wp.vec2i],
+    betas_out: wp.array[wp.float32],
+):
+    """Write a node's output vertex (and its twin one level below when it sits on a threshold)."""
+    points_out[first] = p
+    step_heights_out[first] = iso.values[level]
+    if want_sources != 0:
+        sources_out[first] = wp.vec2i(n_source, n_source)
+        betas_out[first] = 0.0
+    if twin != 0:
+        points_out[first + 1] = p
+        step_heights_out[first + 1] = iso.values[level - 1]
+        if want_sources != 0:
+            sources_out[first + 1] = wp.vec2i(n_source, n_source)
+            betas_out[first + 1] = 0.0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# quantization
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def quantize_levels(
+    heights: wp.array[wp.float32],
+    thresholds: wp.array[wp.float32],
+    # outputs
+    levels_out: wp.array[wp.int32],
+):
+    """One thread per node: its level, the index of the nearest isovalue (§3.2)."""
+    n = wp.tid()
+    levels_out[n] = level_of(heights[n], thresholds)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# regular grids: edges indexed implicitly (horizontal, then vertical, then diagonal)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def grid_finite(hf: HeightField, i: wp.int32, j: wp.int32) -> wp.int32:
+    if i < 0 or j < 0 or i >= hf.rows or j >= hf.cols:
+        return 0
+    if wp.isfinite(hf.heights[i * hf.cols + j]):
+        return 1
+    return 0
+
+
+@wp.func
+def grid_edge(hf: HeightField, e: wp.int32) -> wp.vec4i:
+    """Edge e -> (node a, node b, used, 0); used when both ends and one adjacent triangle are finite."""
+    cols = hf.cols
+    n_h = hf.rows * (cols - 1)
+    n_v = (hf.rows - 1) * cols
+    i = wp.int32(0)
+    j = wp.int32(0)
+    a = wp.int32(0)
+    b = wp.int32(0)
+    used = wp.int32(0)
+    if e < n_h:
+        i = e // (cols - 1)
+        j = e - i * (cols - 1)
+        a = i * cols + j
+        b = a + 1
+        third = grid_finite(hf, i + 1, j + 1) + grid_finite(hf, i - 1, j)
+        used = grid_finite(hf, i, j) * grid_finite(hf, i, j + 1) * wp.min(third, 1)
+    elif e < n_h + n_v:
+        e2 = e - n_h
+        i = e2 // cols
+        j = e2 - i * cols
+        a = i * cols + j
+        b = a + cols
+        third = grid_finite(hf, i + 1, j + 1) + grid_finite(hf, i, j - 1)
+        used = grid_finite(hf, i, j) * grid_finite(hf, i + 1, j) * wp.min(third, 1)
+    else:
+        e3 = e - n_h - n_v
+        i = e3 // (cols - 1)
+        j = e3 - i * (cols - 1)
+        a = i * cols + j
+        b = a + cols + 1
+        third = grid_finite(hf, i, j + 1) + grid_finite(hf, i + 1, j)
+        used = grid_finite(hf, i, j) * grid_finite(hf, i + 1, j + 1) * wp.min(third, 1)
+    return wp.vec4i(a, b, used, 0)
+
+
+@wp.func
+def grid_point(hf: HeightField, n: wp.int32) -> wp.vec3:
+    i = n // hf.cols
+    j = n - i * hf.cols
+    return wp.vec3(wp.float32(j) * hf.spacing[0], wp.float32(i) * hf.spacing[1], hf.heights[n])
+
+
+@wp.func
+def grid_incident(hf: HeightField, n: wp.int32, e: wp.int32, other: wp.int32, flags: wp.vec2i) -> wp.vec2i:
+    """Fold incident edge e (to node other) into flags = (node used, some used neighbour is lower)."""
+    f = flags
+    if grid_edge(hf, e)[2] != 0:
+        f[0] = 1
+        if hf.levels[other] < hf.levels[n]:
+            f[1] = 1
+    return f
+
+
+@wp.func
+def grid_node_flags(hf: HeightField, n: wp.int32) -> wp.vec2i:
+    """(used by a finite triangle, has a used neighbour on a lower level) for node n."""
+    cols = hf.cols
+    rows = hf.rows
+    n_h = rows * (cols - 1)
+    n_v = (rows - 1) * cols
+    i = n // cols
+    j = n - i * cols
+    f = wp.vec2i(0, 0)
+    if j < cols - 1:
+        f = grid_incident(hf, n, i * (cols - 1) + j, n + 1, f)
+    if j > 0:
+        f = grid_incident(hf, n, i * (cols - 1) + j - 1, n - 1, f)
+    if i < rows - 1:
+        f = grid_incident(hf, n, n_h + n, n + cols, f)
+        if j < cols - 1:
+            f = grid_incident(hf, n, n_h + n_v + i * (cols - 1) + j, n + cols + 1, f)
+    if i > 0:
+        f = grid_incident(hf, n, n_h + n - cols, n - cols, f)
+        if j > 0:
+            f = grid_incident(hf, n, n_h + n_v + (i - 1) * (cols - 1) + j - 1, n - cols - 1, f)
+    return f
+
+
+@wp.kernel
+def count_grid_vertices(
+    hf: HeightField,
+    iso: Isovalues,
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One thread per node, then per edge: count the output vertices it owns."""
+    tid = wp.tid()
+    n_nodes = hf.rows * hf.cols
+    if tid < n_nodes:
+        f = grid_node_flags(hf, tid)
+        twin = wp.int32(0)
+        if f[1] != 0:
+            twin = on_threshold(hf.heights[tid], hf.levels[tid], iso.thresholds)
+        counts_out[tid] = f[0] * (1 + twin)
+    else:
+        ab = grid_edge(hf, tid - n_nodes)
+        if ab[2] != 0:
+            counts_out[tid] = edge_vertex_count(ab[0], ab[1], hf.heights, hf.levels, iso)
+        else:
+            counts_out[tid] = 0
+
+
+@wp.kernel
+def emit_grid_vertices(
+    hf: HeightField,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    want_sources: wp.int32,
+    # outputs
+    points_out: wp.array[wp.vec3],
+    step_heights_out: wp.array[wp.float32],
+    sources_out: wp.array[wp.vec2i],
+    betas_out: wp.array[wp.float32],
+):
+    """One thread per node, then per edge: write its output vertices from its offset."""
+    tid = wp.tid()
+    n_nodes = hf.rows * hf.cols
+    first = offsets[tid]
+    if offsets[tid + 1] == first:
+        return
+    if tid < n_nodes:
+        twin = wp.int32(0)
+        if offsets[tid + 1] - first == 2:
+            twin = 1
+        emit_node_vertices(tid, grid_point(hf, tid), hf.levels[tid], twin, first, iso, want_sources,
+                           points_out, step_heights_out, sources_out, betas_out)
+    else:
+        ab = grid_edge(hf, tid - n_nodes)
+        emit_edge_vertices(ab[0], ab[1], grid_point(hf, ab[0]), grid_point(hf, ab[1]), wp.vec2i(ab[0], ab[1]), first,
+                           hf.heights, hf.levels, iso, want_sources, points_out, step_heights_out, sources_out, betas_out)
+
+
+@wp.func
+def grid_cell_faces(
+    hf: HeightField,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    cell: wp.int32,
+    write: wp.int32,
+    face_base: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+) -> wp.int32:
+    """Tessellate the two triangles (n00, n01, n11) and (n00, n11, n10) of a cell."""
+    cols = hf.cols
+    i = cell // (cols - 1)
+    j = cell - i * (cols - 1)
+    n_nodes = hf.rows * cols
+    n_h = hf.rows * (cols - 1)
+    n_v = (hf.rows - 1) * cols
+    n00 = i * cols + j
+    n01 = n00 + 1
+    n10 = n00 + cols
+    n11 = n10 + 1
+    h_top = n_nodes + i * (cols - 1) + j
+    h_bottom = h_top + (cols - 1)
+    v_left = n_nodes + n_h + n00
+    v_right = v_left + 1
+    diag = n_nodes + n_h + n_v + cell
+    f00 = grid_finite(hf, i, j)
+    f11 = grid_finite(hf, i + 1, j + 1)
+    count = wp.int32(0)
+    if f00 * f11 * grid_finite(hf, i, j + 1) != 0:
+        if hf.flip == 0:
+            count += step_triangle(n00, n01, n11, h_top, v_right, diag, hf.heights, hf.levels, iso, offsets,
+                                   write, face_base, faces_out, face_levels_out, face_walls_out)
+        else:
+            count += step_triangle(n00, n11, n01, diag, v_right, h_top, hf.heights, hf.levels, iso, offsets,
+                                   write, face_base, faces_out, face_levels_out, face_walls_out)
+    if f00 * f11 * grid_finite(hf, i + 1, j) != 0:
+        if hf.flip == 0:
+            count += step_triangle(n00, n11, n10, diag, h_bottom, v_left, hf.heights, hf.levels, iso, offsets,
+                                   write, face_base + count, faces_out, face_levels_out, face_walls_out)
+        else:
+            count += step_triangle(n00, n10, n11, v_left, h_bottom, diag, hf.heights, hf.levels, iso, offsets,
+                                   write, face_base + count, faces_out, face_levels_out, face_walls_out)
+    return count
+
+
+@wp.kernel
+def count_grid_faces(
+    hf: HeightField,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    faces_dummy: wp.array[vec3l],
+    levels_dummy: wp.array[wp.int32],
+    walls_dummy: wp.array[wp.uint8],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One thread per cell: count the terrace and wall faces its two triangles emit."""
+    cell = wp.tid()
+    counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+
+
+@wp.kernel
+def emit_grid_faces(
+    hf: HeightField,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    face_offsets: wp.array[wp.int32],
+    # outputs
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+):
+    """One thread per cell: write its terrace and wall faces from its face offset."""
+    cell = wp.tid()
+    if face_offsets[cell + 1] != face_offsets[cell]:
+        grid_cell_faces(hf, iso, offsets, cell, 1, face_offsets[cell], faces_out, face_levels_out, face_walls_out)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# triangulated irregular networks: a cached edge table
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def mark_tin_twins(
+    tin: TriangleNetwork,
+    iso: Isovalues,
+    # outputs
+    twins_out: wp.array[wp.int32],
+):
+    """One thread per edge: flag its upper end for a twin when it sits on the threshold the edge crosses."""
+    e = wp.tid()
+    ab = tin.edges[e]
+    la = tin.levels[ab[0]]
+    lb = tin.levels[ab[1]]
+    if la != lb:
+        hi = ab[1]
+        lhi = lb
+        if la > lb:
+            hi = ab[0]
+            lhi = la
+        if on_threshold(tin.heights[hi], lhi, iso.thresholds) != 0:
+            twins_out[hi] = 1
+
+
+@wp.kernel
+def count_tin_vertices(
+    tin: TriangleNetwork,
+    iso: Isovalues,
+    twins: wp.array[wp.int32],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One thread per point, then per edge: count the output vertices it owns."""
+    tid = wp.tid()
+    n_points = tin.points.shape[0]
+    if tid < n_points:
+        counts_out[tid] = tin.point_used[tid] * (1 + twins[tid])
+    else:
+        ab = tin.edges[tid - n_points]
+        counts_out[tid] = edge_vertex_count(ab[0], ab[1], tin.heights, tin.levels, iso)
+
+
+@wp.kernel
+def emit_tin_vertices(
+    tin: TriangleNetwork,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    want_sources: wp.int32,
+    # outputs
+    points_out: wp.array[wp.vec3],
+    step_heights_out: wp.array[wp.float32],
+    sources_out: wp.array[wp.vec2i],
+    betas_out: wp.array[wp.float32],
+):
+    """One thread per point, then per edge: write its output vertices from its offset."""
+    tid = wp.tid()
+    n_points = tin.points.shape[0]
+    first = offsets[tid]
+    if offsets[tid + 1] == first:
+        return
+    if tid < n_points:
+        twin = wp.int32(0)
+        if offsets[tid + 1] - first == 2:
+            twin = 1
+        emit_node_vertices(tid, tin.points[tid], tin.levels[tid], twin, first, iso, want_sources,
+                           points_out, step_heights_out, sources_out, betas_out)
+    else:
+        ab = tin.edges[tid - n_points]
+        emit_edge_vertices(ab[0], ab[1], tin.points[ab[0]], tin.points[ab[1]], ab, first, tin.heights, tin.levels,
+                           iso, want_sources, points_out, step_heights_out, sources_out, betas_out)
+
+
+@wp.func
+def tin_face_faces(
+    tin: TriangleNetwork,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    f: wp.int32,
+    write: wp.int32,
+    face_base: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+) -> wp.int32:
+    n_points = tin.points.shape[0]
+    c = tin.faces[f]
+    e = tin.face_edges[f]
+    return step_triangle(c[0], c[1], c[2], n_points + e[0], n_points + e[1], n_points + e[2], tin.heights,
+                         tin.levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
+
+
+@wp.kernel
+def count_tin_faces(
+    tin: TriangleNetwork,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    faces_dummy: wp.array[vec3l],
+    levels_dummy: wp.array[wp.int32],
+    walls_dummy: wp.array[wp.uint8],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One thread per triangle: count the terrace and wall faces it emits."""
+    f = wp.tid()
+    counts_out[f] = tin_face_faces(tin, iso, offsets, f, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+
+
+@wp.kernel
+def emit_tin_faces(
+    tin: TriangleNetwork,
+    iso: Isovalues,
+    offsets: wp.array[wp.int32],
+    face_offsets: wp.array[wp.int32],
+    # outputs
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+):
+    """One thread per triangle: write its terrace and wall faces from its face offset."""
+    f = wp.tid()
+    if face_offsets[f + 1] != face_offsets[f]:
+        tin_face_faces(tin, iso, offsets, f, 1, face_offsets[f], faces_out, face_levels_out, face_walls_out)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the γ blend (§3.3)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def blend_vertices(
+    points: wp.array[wp.vec3],
+    step_heights: wp.array[wp.float32],
+    gammas: wp.array[wp.float32],
+    gamma: wp.float32,
+    origin: wp.vec3d,
+    # outputs
+    vertices_out: wp.array[wp.vec3d],
+):
+    """One thread per output vertex: z = (1 - γ) z_original + γ z_step, shifted back to world coordinates.
+
+    ``gammas`` holds one γ per vertex, or is empty and the scalar ``gamma`` applies.
+    """
+    v = wp.tid()
+    g = gamma
+    if gammas.shape[0] > 0:
+        g = gammas[v]
+    p = points[v]
+    z = (1.0 - g) * p[2] + g * step_heights[v]
+    vertices_out[v] = wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
+
+
+@wp.kernel
+def interpolate_node_values(
+    node_values: wp.array[wp.float32],
+    sources: wp.array[wp.vec2i],
+    betas: wp.array[wp.float32],
+    # outputs
+    values_out: wp.array[wp.float32],
+):
+    """One thread per output vertex: its value lerped from its source nodes with the crossing's β."""
+    v = wp.tid()
+    s = sources[v]
+    b = betas[v]
+    values_out[v] = (1.0 - b) * node_values[s[0]] + b * node_values[s[1]]
+
+
+@wp.kernel
+def sample_lens(
+    mask: wp.array2d[wp.float32],
+    lower: wp.vec2,
+    size: wp.vec2,
+    points: wp.array[wp.vec3],
+    # outputs
+    values_out: wp.array[wp.float32],
+):
+    """One thread per output vertex: bilinear lookup of the lens mask (row 0 at lower y), clamped at the edges."""
+    v = wp.tid()
+    p = points[v]
+    rows = mask.shape[0]
+    cols = mask.shape[1]
+    u = wp.clamp((p[0] - lower[0]) / size[0], 0.0, 1.0) * wp.float32(cols - 1)
+    w = wp.clamp((p[1] - lower[1]) / size[1], 0.0, 1.0) * wp.float32(rows - 1)
+    j0 = wp.min(wp.int32(u), cols - 1)
+    i0 = wp.min(wp.int32(w), rows - 1)
+    j1 = wp.min(j0 + 1, cols - 1)
+    i1 = wp.min(i0 + 1, rows - 1)
+    fu = u - wp.float32(j0)
+    fw = w - wp.float32(i0)
+    top = (1.0 - fu) * mask[i0, j0] + fu * mask[i0, j1]
+    bottom = (1.0 - fu) * mask[i1, j0] + fu * mask[i1, j1]
+    values_out[v] = (1.0 - fw) * top + fw * bottom

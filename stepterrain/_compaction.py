@@ -1,0 +1,63 @@
+"""The one count -> scan -> emit helper.
+
+Every variable-size output (terrace faces, crossing vertices, refined triangles, culled primitives) is
+allocated in three steps: a ``count_*`` kernel writes one int32 per thread into ``counts`` (length n + 1,
+the last slot 0), :func:`exclusive_offsets` scans it and reads the total in the pass's single host sync,
+and an ``emit_*`` kernel writes thread i's items from ``offsets[i]``. Before anything is allocated the
+predicted size is checked against the memory budget (:func:`set_memory_budget`).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .errors import InvalidInputError, OutputTooLargeError
+
+__all__ = ["exclusive_offsets", "check_budget", "get_memory_budget", "set_memory_budget"]
+
+_memory_budget: int = 16 * 1024**3
+
+
+def get_memory_budget() -> int:
+    """The largest output, in bytes, a single call may allocate (default 16 GiB)."""
+    return _memory_budget
+
+
+def set_memory_budget(nbytes: int) -> int:
+    """Set the output memory budget in bytes; returns the previous value.
+
+    Examples
+    --------
+    >>> import stepterrain as st
+    >>> previous = st.set_memory_budget(1 << 30)
+    >>> st.get_memory_budget() == 1 << 30
+    True
+    >>> _ = st.set_memory_budget(previous)
+    """
+    global _memory_budget
+    if isinstance(nbytes, bool) or not isinstance(nbytes, int) or nbytes <= 0:
+        raise InvalidInputError(f"memory budget must be a positive int of bytes; got {nbytes!r}")
+    previous, _memory_budget = _memory_budget, nbytes
+    return previous
+
+
+def check_budget(nbytes: int, what: str, budget: int | None = None) -> None:
+    """Raise :class:`OutputTooLargeError` when ``nbytes`` exceeds the budget, naming the size."""
+    limit = _memory_budget if budget is None else budget
+    if nbytes > limit:
+        raise OutputTooLargeError(
+            f"{what} would need {nbytes / 1024**2:,.1f} MiB, over the memory budget of "
+            f"{limit / 1024**2:,.1f} MiB; coarsen the input or the isovalues, or raise the budget "
+            "(stepterrain.set_memory_budget or memory_budget=)"
+        )
+
+
+def exclusive_offsets(counts: wp.array) -> tuple[wp.array, int]:
+    """Exclusive prefix sum of ``counts`` (length n + 1) and the total ``offsets[n]``.
+
+    The one host sync of a count -> scan -> emit pass happens here.
+    """
+    offsets = wp.empty_like(counts)
+    wp.utils.array_scan(counts, offsets, inclusive=False)
+    total = int(offsets[counts.shape[0] - 1 : counts.shape[0]].numpy()[0])
+    return offsets, total

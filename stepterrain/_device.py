@@ -1,0 +1,114 @@
+"""Device resolution, numpy <-> ``wp.array`` conversion and the per-device table cache.
+
+Every kernel caller goes through here: ``resolve_device`` turns ``device=None | "cpu" | "cuda:0" | wp.Device``
+(or the device of an input that is already a ``wp.array``) into a ``wp.Device``; ``to_device`` converts once
+(contiguous float32/int32, no copy on the CPU when the layout already fits); ``cached_table`` uploads a
+module-level lookup table once per device.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from typing import Any
+
+import numpy as np
+import warp as wp
+
+from .errors import DeviceError
+
+_init_lock = threading.Lock()
+_initialised = False
+_tables: dict[tuple[str, str], wp.array] = {}
+_NP_DTYPES = {wp.float32: np.float32, wp.float64: np.float64, wp.int32: np.int32, wp.int64: np.int64,
+              wp.uint8: np.uint8, wp.int8: np.int8, wp.uint32: np.uint32, wp.int16: np.int16}
+
+
+def quiet_warp() -> None:
+    """Silence Warp's start-up and module-load lines (``log_level`` in Warp >= 1.12, ``quiet`` before)."""
+    if hasattr(wp, "LOG_ERROR") and hasattr(wp.config, "log_level"):
+        wp.config.log_level = wp.LOG_ERROR
+    else:  # pragma: no cover - older Warp
+        wp.config.quiet = True
+
+
+def init_warp() -> None:
+    """Initialise Warp once, quietly unless STEPTERRAIN_VERBOSE is set."""
+    global _initialised
+    if _initialised:
+        return
+    with _init_lock:
+        if not _initialised:
+            if not os.environ.get("STEPTERRAIN_VERBOSE"):
+                quiet_warp()
+            wp.init()
+            _initialised = True
+
+
+def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
+    """Return the Warp device to run on.
+
+    An input that already is a ``wp.array`` decides (device follows data); otherwise ``device`` is used,
+    and ``None`` means Warp's default device (``cuda:0`` where CUDA is present, else ``cpu``).
+
+    Raises
+    ------
+    DeviceError
+        The device name is unknown or not present, or the inputs live on different devices.
+    """
+    init_warp()
+    data_devices = {str(a.device) for a in arrays if isinstance(a, wp.array)}
+    if len(data_devices) > 1:
+        raise DeviceError(f"inputs live on different devices: {sorted(data_devices)}; move them to one device")
+    if data_devices:
+        name = data_devices.pop()
+        if device is not None and str(wp.get_device(device)) != name:
+            raise DeviceError(f"device={device!r} but the input arrays live on {name!r}")
+        return wp.get_device(name)
+    try:
+        return wp.get_device(device)
+    except Exception as exc:  # warp raises ValueError/RuntimeError depending on version
+        available = [str(d) for d in wp.get_devices()]
+        raise DeviceError(f"device must be one of {available} (or None); got {device!r}") from exc
+
+
+def to_device(array: Any, dtype: Any, device: wp.Device) -> wp.array:
+    """Convert ``array`` to a ``wp.array`` of ``dtype`` on ``device`` (no copy when it already fits)."""
+    if isinstance(array, wp.array):
+        if array.dtype == dtype and str(array.device) == str(device):
+            return array
+        array = array.numpy()
+    scalar = getattr(dtype, "_wp_scalar_type_", dtype)
+    np_dtype = _NP_DTYPES[scalar]
+    host = np.ascontiguousarray(array, dtype=np_dtype)
+    return wp.array(host, dtype=dtype, device=device, copy=not device.is_cpu)
+
+
+def empty_shared(shape: tuple[int, ...], np_dtype: Any, wp_dtype: Any, device: wp.Device) -> tuple[np.ndarray | None, wp.array]:
+    """Allocate an output that ends up in numpy.
+
+    On the CPU the ``wp.array`` wraps the numpy buffer (kernels write straight into it, no copy); on CUDA
+    the numpy half is ``None`` and the caller copies with ``.numpy()`` once the kernels are done.
+    """
+    if device.is_cpu:
+        host = np.empty(shape, dtype=np_dtype)
+        return host, wp.array(host, dtype=wp_dtype, device=device, copy=False)
+    n = shape[0]
+    return None, wp.empty(n, dtype=wp_dtype, device=device)
+
+
+def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -> np.ndarray:
+    """The numpy result of an :func:`empty_shared` pair."""
+    if host is not None:
+        return host
+    return array.numpy().reshape(shape)
+
+
+def cached_table(name: str, values: tuple, dtype: Any, device: wp.Device) -> wp.array:
+    """Upload a module-level lookup table once per device and cache it by ``str(device)``."""
+    key = (name, str(device))
+    table = _tables.get(key)
+    if table is None:
+        table = wp.array(np.asarray(values), dtype=dtype, device=device)
+        _tables[key] = table
+    return table

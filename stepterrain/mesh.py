@@ -1,0 +1,103 @@
+"""Device arrays -> ``trimesh.Trimesh``, and the mesh-level helpers every capability shares.
+
+``close_solid`` turns a stepped (or any height-function) surface into a watertight solid; ``weld`` merges
+vertices by exact position (to join tiles or check crack-freeness); ``boundary_edges`` lists the edges used
+by one face only. All vectorised numpy: no Python loop over faces or vertices.
+
+    solid_vertices, solid_faces, added = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import trimesh
+from numpy.typing import NDArray
+
+from .errors import InvalidInputError
+
+__all__ = ["close_solid", "boundary_edges", "weld", "exact_keys"]
+
+
+def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
+    """Group ids of rows that are bit-identical (e.g. vertices sharing an exact xy)."""
+    rows = np.ascontiguousarray(xy)
+    void = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).reshape(-1)
+    _, inverse = np.unique(void, return_inverse=True)
+    return inverse.reshape(-1).astype(np.int64)
+
+
+def boundary_edges(faces: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Directed edges (a, b), as wound in their face, that no other face uses: (B, 2)."""
+    faces = np.asarray(faces, dtype=np.int64)
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    if len(directed) == 0:
+        return directed
+    n = int(faces.max()) + 1
+    key = np.minimum(directed[:, 0], directed[:, 1]) * n + np.maximum(directed[:, 0], directed[:, 1])
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    return directed[counts[inverse] == 1]
+
+
+def weld(mesh: trimesh.Trimesh, digits: int | None = None) -> trimesh.Trimesh:
+    """Merge vertices at identical positions (rounded to ``digits`` decimals when given)."""
+    v = np.asarray(mesh.vertices)
+    key_source = v if digits is None else np.round(v, digits)
+    ids = exact_keys(key_source)
+    first = np.full(ids.max() + 1 if len(ids) else 0, -1, np.int64)
+    first[ids[::-1]] = np.arange(len(ids))[::-1]
+    faces = ids[np.asarray(mesh.faces)]
+    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
+    return trimesh.Trimesh(v[first], faces[keep], process=False)
+
+
+def close_solid(
+    vertices: NDArray[np.float64],
+    faces: NDArray[np.int64],
+    terrace_mask: NDArray[np.bool_],
+    floor: float,
+) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
+    """Close a height-function surface into a watertight solid with side skirts and a flat base at ``floor``.
+
+    The base is the terraces (faces whose projections tile the domain) flattened to ``floor`` and reversed;
+    each boundary edge gets a vertical skirt down to the base. A vertical boundary edge (a wall's side on the
+    domain boundary) joins the skirt of the boundary edge that follows it, so no zero-area face appears.
+
+    Returns the new vertices, faces, and the number of faces added (appended after the input faces).
+    """
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    if not np.isfinite(floor):
+        raise InvalidInputError(f"floor must be finite; got {floor}")
+    zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
+    if floor >= zmin:
+        raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
+    n = len(vertices)
+    column = exact_keys(vertices[:, :2])
+    n_columns = int(column.max()) + 1
+    base_xy = np.empty((n_columns, 2), dtype=np.float64)
+    base_xy[column] = vertices[:, :2]
+    base_vertices = np.column_stack([base_xy, np.full(n_columns, floor)])
+    base_index = n + column  # output index of each surface vertex's base copy
+
+    terraces = faces[terrace_mask]
+    base_faces = base_index[terraces][:, ::-1]
+    ok = (base_faces[:, 0] != base_faces[:, 1]) & (base_faces[:, 1] != base_faces[:, 2]) & (base_faces[:, 0] != base_faces[:, 2])
+    base_faces = base_faces[ok]
+
+    edges = boundary_edges(faces)
+    a, b = edges[:, 0], edges[:, 1]
+    vertical = column[a] == column[b]
+    # the vertical boundary edge arriving at a vertex, if any: pred[top_or_bottom] = its start
+    pred = np.full(n, -1, np.int64)
+    pred[b[vertical]] = a[vertical]
+    a, b = a[~vertical], b[~vertical]
+    x = pred[a]
+    has_x = x >= 0
+    A, B = base_index[a], base_index[b]
+    skirts = [np.stack([b, A, B], axis=1)]
+    plain = ~has_x
+    skirts.append(np.stack([b[plain], a[plain], A[plain]], axis=1))
+    skirts.append(np.stack([b[has_x], a[has_x], x[has_x]], axis=1))
+    skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
+    added = np.concatenate(skirts + [base_faces], axis=0)
+    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), len(added)

@@ -1,0 +1,329 @@
+"""Terrain inputs normalised once: a regular heightfield or a TIN, with extent, nodata and device caches.
+
+A :class:`Terrain` is what every capability consumes. Heightfields keep their grid (edges are indexed
+implicitly by the kernels); a TIN gets its edge table built once and cached. Coordinates are made relative
+to a local origin before they reach a kernel (float32 on the device), and shifted back in float64.
+
+    >>> import stepterrain as st
+    >>> t = st.Terrain.from_heights([[0.0, 1.0], [2.0, 3.0]], spacing=(10.0, 10.0))
+    >>> t.shape, t.extent
+    ((2, 2), (0.0, 10.0, 0.0, 10.0))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import trimesh
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import InvalidInputError
+
+__all__ = ["Terrain", "heightfield_mesh", "as_terrain"]
+
+
+def _pair(value: Any, name: str, *, nonzero: bool) -> tuple[float, float]:
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{name} must be a pair of numbers (x, y); got {value!r}") from exc
+    if arr.size == 1:
+        arr = np.repeat(arr, 2)
+    if arr.size != 2 or not np.all(np.isfinite(arr)):
+        raise InvalidInputError(f"{name} must be a pair of finite numbers (x, y); got {value!r}")
+    if nonzero and np.any(arr == 0):
+        raise InvalidInputError(f"{name} must be non-zero in x and y; got {tuple(arr.tolist())}")
+    return float(arr[0]), float(arr[1])
+
+
+def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
+    arr = np.asarray(heights)
+    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+        raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
+    if arr.ndim != 2:
+        raise InvalidInputError(f"{name} must be a 2-D (H, W) array; got shape {arr.shape}")
+    if arr.shape[0] < 2 or arr.shape[1] < 2:
+        raise InvalidInputError(f"{name} needs at least 2 x 2 nodes; got shape {arr.shape}")
+    out = np.ascontiguousarray(arr, dtype=np.float32)
+    if np.isinf(out).any():
+        bad = tuple(int(i) for i in np.argwhere(np.isinf(out))[0])
+        raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Terrain:
+    """A terrain surface ready for the kernels.
+
+    ``kind == "grid"``: ``heights`` (H, W) float32 (NaN = nodata); node (i, j) lies at
+    ``origin + (j * dx, i * dy)``; ``dx`` or ``dy`` may be negative (north-up rasters have ``dy < 0``).
+    ``kind == "tin"``: ``points`` (N, 3) float64 and ``faces`` (F, 3) int64, wound counter-clockwise seen
+    from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once.
+    """
+
+    kind: Literal["grid", "tin"]
+    heights: NDArray[np.float32]
+    spacing: tuple[float, float] = (1.0, 1.0)
+    origin: tuple[float, float] = (0.0, 0.0)
+    points: NDArray[np.float64] | None = None
+    faces: NDArray[np.int64] | None = None
+    edges: NDArray[np.int32] | None = None
+    face_edges: NDArray[np.int32] | None = None
+    point_used: NDArray[np.int32] | None = None
+    crs: str | None = None
+    source: str | None = None
+    visual: Any = None
+    _device_cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    # ------------------------------------------------------------------ constructors
+    @classmethod
+    def from_heights(
+        cls,
+        heights: ArrayLike,
+        *,
+        spacing: ArrayLike = (1.0, 1.0),
+        origin: ArrayLike = (0.0, 0.0),
+        crs: str | None = None,
+        source: str | None = None,
+    ) -> Terrain:
+        """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero."""
+        return cls(
+            kind="grid",
+            heights=_heights_array(heights),
+            spacing=_pair(spacing, "spacing", nonzero=True),
+            origin=_pair(origin, "origin", nonzero=False),
+            crs=crs,
+            source=source,
+        )
+
+    @classmethod
+    def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None) -> Terrain:
+        """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
+
+        Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped;
+        faces that fold over in projection, or edges shared by more than two faces, are refused.
+        """
+        if not isinstance(mesh, trimesh.Trimesh):
+            raise InvalidInputError(f"terrain mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+        points = np.array(mesh.vertices, dtype=np.float64)
+        faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
+        if len(faces) == 0:
+            raise InvalidInputError("terrain mesh has no faces; expected a triangulated surface")
+        if not np.all(np.isfinite(points[:, :2])):
+            raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
+        z_ok = np.isfinite(points[:, 2])
+        valid = z_ok[faces].all(axis=1)
+        faces = faces[valid]
+        if len(faces) == 0:
+            raise InvalidInputError("terrain mesh has no face with three finite heights")
+        xy = points[:, :2]
+        a, b, c = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]
+        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        scale = max(float(np.ptp(xy[:, 0]) * np.ptp(xy[:, 1])), 1e-300)
+        tol = 1e-12 * scale
+        positive, negative = area2 > tol, area2 < -tol
+        if negative.sum() > positive.sum():
+            faces = faces[:, ::-1].copy()
+            positive, negative = negative, positive
+        if negative.any():
+            bad = int(np.flatnonzero(valid)[np.flatnonzero(negative)[0]])
+            raise InvalidInputError(
+                f"terrain mesh faces must project one-to-one onto the xy plane; face {bad} folds over "
+                f"({int(negative.sum())} of {len(faces)} faces are wound against the rest)"
+            )
+        edges, face_edges = _edge_table(faces, len(points))
+        point_used = np.zeros(len(points), dtype=np.int32)
+        point_used[faces.reshape(-1)] = 1
+        visual = mesh.visual if mesh.visual.defined else None
+        return cls(
+            kind="tin",
+            heights=np.ascontiguousarray(points[:, 2], dtype=np.float32),
+            points=points,
+            faces=faces,
+            edges=edges,
+            face_edges=face_edges,
+            point_used=point_used,
+            source=source,
+            visual=visual,
+        )
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """(H, W) for a grid, (N,) points for a TIN."""
+        return tuple(self.heights.shape)
+
+    @property
+    def nodata_mask(self) -> NDArray[np.bool_]:
+        """True where the height is nodata (NaN)."""
+        return ~np.isfinite(self.heights)
+
+    @property
+    def height_range(self) -> tuple[float, float]:
+        """(min, max) of the finite heights."""
+        finite = self.heights[np.isfinite(self.heights)]
+        if finite.size == 0:
+            raise InvalidInputError("terrain has no finite height (all nodata)")
+        return float(finite.min()), float(finite.max())
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) in world units."""
+        if self.kind == "tin":
+            used = self.points[self.point_used.astype(bool)]
+            return (float(used[:, 0].min()), float(used[:, 0].max()), float(used[:, 1].min()), float(used[:, 1].max()))
+        h, w = self.heights.shape
+        xs = (self.origin[0], self.origin[0] + (w - 1) * self.spacing[0])
+        ys = (self.origin[1], self.origin[1] + (h - 1) * self.spacing[1])
+        return (min(xs), max(xs), min(ys), max(ys))
+
+    @property
+    def local_origin(self) -> tuple[float, float]:
+        """World position of local (0, 0): the grid origin, or the TIN's lower-left corner."""
+        if self.kind == "grid":
+            return self.origin
+        return (float(self.points[:, 0].min()), float(self.points[:, 1].min()))
+
+    def local_points(self) -> NDArray[np.float32]:
+        """TIN points relative to :attr:`local_origin`, float32 (N, 3)."""
+        ox, oy = self.local_origin
+        local = np.empty((len(self.points), 3), dtype=np.float32)
+        local[:, 0] = self.points[:, 0] - ox
+        local[:, 1] = self.points[:, 1] - oy
+        local[:, 2] = self.heights
+        return local
+
+    def cached(self, key: Any, build: Any) -> Any:
+        """Per-terrain cache (device uploads, edge tables): ``build()`` runs once per key."""
+        value = self._device_cache.get(key)
+        if value is None:
+            value = build()
+            self._device_cache[key] = value
+        return value
+
+    def mesh(self) -> trimesh.Trimesh:
+        """The terrain as a ``trimesh.Trimesh`` (see :func:`heightfield_mesh`)."""
+        if self.kind == "tin":
+            return trimesh.Trimesh(self.points, self.faces, process=False)
+        return heightfield_mesh(self.heights, spacing=self.spacing, origin=self.origin)
+
+
+def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
+    """Unique undirected edges and, per face, the edge from corner k to corner k+1."""
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    dkey = directed[:, 0] * n_points + directed[:, 1]
+    if len(np.unique(dkey)) != len(dkey):
+        raise InvalidInputError(
+            "terrain mesh faces must project one-to-one onto the xy plane; an edge is used twice in the same "
+            "direction (overlapping or inconsistently wound faces)"
+        )
+    lo = directed.min(axis=1)
+    hi = directed.max(axis=1)
+    key = lo * n_points + hi
+    unique, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    if (counts > 2).any():
+        raise InvalidInputError("terrain mesh has an edge shared by more than two faces; expected a 2-manifold TIN")
+    edges = np.stack([unique // n_points, unique % n_points], axis=1).astype(np.int32)
+    return edges, inverse.reshape(-1, 3).astype(np.int32)
+
+
+def grid_faces(rows: int, cols: int, flip: bool = False) -> NDArray[np.int64]:
+    """Two triangles per cell, (n00, n01, n11) and (n00, n11, n10), cells row-major (reversed when flip)."""
+    i, j = np.meshgrid(np.arange(rows - 1), np.arange(cols - 1), indexing="ij")
+    n00 = (i * cols + j).reshape(-1)
+    n01, n10, n11 = n00 + 1, n00 + cols, n00 + cols + 1
+    faces = np.empty((len(n00), 2, 3), dtype=np.int64)
+    faces[:, 0] = np.stack([n00, n01, n11], axis=1)
+    faces[:, 1] = np.stack([n00, n11, n10], axis=1)
+    faces = faces.reshape(-1, 3)
+    return faces[:, ::-1].copy() if flip else faces
+
+
+def heightfield_mesh(
+    heights: ArrayLike,
+    *,
+    spacing: ArrayLike = (1.0, 1.0),
+    origin: ArrayLike = (0.0, 0.0),
+) -> trimesh.Trimesh:
+    """Triangulate a regular heightfield.
+
+    Parameters
+    ----------
+    heights : (H, W) array_like
+        Heights; NaN marks nodata.
+    spacing : (dx, dy)
+        Node spacing; x runs along columns, y along rows. Either may be negative (then the winding is
+        swapped so faces stay counter-clockwise seen from +z).
+    origin : (x0, y0)
+        World position of node (0, 0).
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Vertex k is grid node k in row-major order, z = height; two triangles per cell, wound
+        counter-clockwise seen from +z. With nodata, no face touches a NaN node and the NaN nodes are
+        removed (``metadata["node_index"]`` maps vertices back to grid nodes).
+
+    Raises
+    ------
+    InvalidInputError
+        ``heights`` is not a real (H, W) array with H, W >= 2, has infinite values, or ``spacing`` has a zero.
+
+    Examples
+    --------
+    >>> import numpy as np, stepterrain as st
+    >>> m = st.heightfield_mesh(np.zeros((3, 4)), spacing=(2.0, 1.0))
+    >>> len(m.vertices), len(m.faces), float(m.area)
+    (12, 12, 12.0)
+    >>> bool((m.face_normals[:, 2] > 0).all())
+    True
+    """
+    t = Terrain.from_heights(heights, spacing=spacing, origin=origin)
+    rows, cols = t.heights.shape
+    dx, dy = t.spacing
+    faces = grid_faces(rows, cols, flip=dx * dy < 0)
+    j, i = np.meshgrid(np.arange(cols), np.arange(rows))
+    vertices = np.stack(
+        [t.origin[0] + j.reshape(-1) * dx, t.origin[1] + i.reshape(-1) * dy, t.heights.reshape(-1).astype(np.float64)],
+        axis=1,
+    )
+    metadata: dict[str, Any] = {"grid_shape": (rows, cols), "spacing": (dx, dy), "origin": t.origin}
+    finite = np.isfinite(vertices[:, 2])
+    if not finite.all():
+        faces = faces[finite[faces].all(axis=1)]
+        keep = np.zeros(len(vertices), dtype=bool)
+        keep[faces.reshape(-1)] = True
+        remap = np.cumsum(keep) - 1
+        faces = remap[faces]
+        metadata["node_index"] = np.flatnonzero(keep)
+        vertices = vertices[keep]
+    return trimesh.Trimesh(vertices, faces, process=False, metadata=metadata)
+
+
+def as_terrain(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    *,
+    spacing: ArrayLike | None = None,
+    origin: ArrayLike | None = None,
+) -> Terrain:
+    """Normalise any accepted terrain input: a :class:`Terrain`, a ``trimesh.Trimesh`` TIN or an (H, W) array."""
+    if isinstance(terrain, Terrain):
+        if spacing is not None or origin is not None:
+            raise InvalidInputError("spacing/origin apply to raw (H, W) arrays only; the Terrain already has them")
+        return terrain
+    if isinstance(terrain, trimesh.Trimesh):
+        if spacing is not None or origin is not None:
+            raise InvalidInputError("spacing/origin apply to raw (H, W) arrays only, not to a trimesh TIN")
+        return Terrain.from_mesh(terrain)
+    if isinstance(terrain, (str, bytes)) or hasattr(terrain, "__fspath__"):
+        raise InvalidInputError(
+            f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh; got a path {terrain!r} "
+            "(load it first with stepterrain.load_dem)"
+        )
+    return Terrain.from_heights(
+        terrain,
+        spacing=(1.0, 1.0) if spacing is None else spacing,
+        origin=(0.0, 0.0) if origin is None else origin,
+    )
