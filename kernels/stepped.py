@@ -11,7 +11,9 @@ Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
 * level(h) = the number of thresholds t_i <= h: a height exactly on a threshold belongs to the upper level.
 * The crossings of an edge are stored lowest threshold first, two vertices each (wall bottom at α_j, wall
   top at α_j+1). When the upper endpoint lies exactly on its highest crossed threshold, that crossing's top
-  *is* the endpoint and its bottom is the endpoint's twin, so no two output vertices share a position.
+  *is* the endpoint and its bottom is the endpoint's twin (the last vertex the node owns), so no two output
+  vertices share a position. A node on a threshold with every neighbour lower (a peak touching the
+  threshold) keeps only its twin: its own terrace would have zero area.
 * Per triangle, for each band k from the lowest to the highest level: the band's polygon (the triangle cut by
   the slab t_k-1 <= h < t_k, walked counter-clockwise from corner 0, repeated indices dropped) is fanned
   from its first vertex; then the wall of threshold k, from the crossing on the ascending edge (u) to the
@@ -92,7 +94,7 @@ def on_threshold(h: wp.float32, level: wp.int32, thresholds: wp.array[wp.float32
 def edge_vertex_count(
     a: wp.int32, b: wp.int32, heights: wp.array[wp.float32], levels: wp.array[wp.int32], iso: Isovalues
 ) -> wp.int32:
-    """Output vertices an edge owns: two per crossed threshold, one fewer when its top aliases an endpoint."""
+    """Output vertices an edge owns: two per crossed threshold, none for one whose top is the upper endpoint."""
     la = levels[a]
     lb = levels[b]
     if la == lb:
@@ -104,7 +106,7 @@ def edge_vertex_count(
         hi = a
         lhi = la
         crossed = la - lb
-    return 2 * crossed - on_threshold(heights[hi], lhi, iso.thresholds)
+    return 2 * (crossed - on_threshold(heights[hi], lhi, iso.thresholds))
 
 
 @wp.func
@@ -133,7 +135,7 @@ def crossing_vertex(
         if heights[hi] == iso.thresholds[j]:
             if top == 1:
                 return offsets[hi]
-            return offsets[hi] + 1
+            return offsets[hi + 1] - 1
     return offsets[slot] + 2 * (j - llo) + top
 
 
@@ -361,6 +363,7 @@ def emit_node_vertices(
     p: wp.vec3,
     level: wp.int32,
     twin: wp.int32,
+    peak: wp.int32,
     first: wp.int32,
     iso: Isovalues,
     want_sources: wp.int32,
@@ -370,6 +373,13 @@ def emit_node_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """Write a node's output vertex (and its twin one level below when it sits on a threshold)."""
+    if peak != 0:
+        points_out[first] = p
+        step_heights_out[first] = iso.values[level - 1]
+        if want_sources != 0:
+            sources_out[first] = wp.vec2i(n_source, n_source)
+            betas_out[first] = 0.0
+        return
     points_out[first] = p
     step_heights_out[first] = iso.values[level]
     if want_sources != 0:
@@ -459,26 +469,28 @@ def grid_point(hf: HeightField, n: wp.int32) -> wp.vec3:
 
 
 @wp.func
-def grid_incident(hf: HeightField, n: wp.int32, e: wp.int32, other: wp.int32, flags: wp.vec2i) -> wp.vec2i:
-    """Fold incident edge e (to node other) into flags = (node used, some used neighbour is lower)."""
+def grid_incident(hf: HeightField, n: wp.int32, e: wp.int32, other: wp.int32, flags: wp.vec3i) -> wp.vec3i:
+    """Fold incident edge e (to node other) into flags = (node used, a used neighbour is lower, one is not)."""
     f = flags
     if grid_edge(hf, e)[2] != 0:
         f[0] = 1
         if hf.levels[other] < hf.levels[n]:
             f[1] = 1
+        else:
+            f[2] = 1
     return f
 
 
 @wp.func
-def grid_node_flags(hf: HeightField, n: wp.int32) -> wp.vec2i:
-    """(used by a finite triangle, has a used neighbour on a lower level) for node n."""
+def grid_node_flags(hf: HeightField, n: wp.int32) -> wp.vec3i:
+    """(used by a finite triangle, has a used neighbour on a lower level, has one not lower) for node n."""
     cols = hf.cols
     rows = hf.rows
     n_h = rows * (cols - 1)
     n_v = (rows - 1) * cols
     i = n // cols
     j = n - i * cols
-    f = wp.vec2i(0, 0)
+    f = wp.vec3i(0, 0, 0)
     if j < cols - 1:
         f = grid_incident(hf, n, i * (cols - 1) + j, n + 1, f)
     if j > 0:
@@ -492,6 +504,16 @@ def grid_node_flags(hf: HeightField, n: wp.int32) -> wp.vec2i:
         if j > 0:
             f = grid_incident(hf, n, n_h + n_v + (i - 1) * (cols - 1) + j - 1, n - cols - 1, f)
     return f
+
+
+@wp.func
+def node_vertex_count(used: wp.int32, twin: wp.int32, has_peer: wp.int32) -> wp.int32:
+    """1 for a node, 2 with a twin, 1 for a peak on a threshold (its twin only), 0 when unused."""
+    if used == 0:
+        return 0
+    if twin != 0 and has_peer == 0:
+        return 1
+    return 1 + twin
 
 
 @wp.kernel
@@ -509,7 +531,7 @@ def count_grid_vertices(
         twin = wp.int32(0)
         if f[1] != 0:
             twin = on_threshold(hf.heights[tid], hf.levels[tid], iso.thresholds)
-        counts_out[tid] = f[0] * (1 + twin)
+        counts_out[tid] = node_vertex_count(f[0], twin, f[2])
     else:
         ab = grid_edge(hf, tid - n_nodes)
         if ab[2] != 0:
@@ -538,9 +560,14 @@ def emit_grid_vertices(
         return
     if tid < n_nodes:
         twin = wp.int32(0)
+        peak = wp.int32(0)
         if offsets[tid + 1] - first == 2:
             twin = 1
-        emit_node_vertices(tid, grid_point(hf, tid), hf.levels[tid], twin, first, iso, want_sources,
+        elif on_threshold(hf.heights[tid], hf.levels[tid], iso.thresholds) != 0:
+            f = grid_node_flags(hf, tid)
+            if f[1] != 0 and f[2] == 0:
+                peak = 1
+        emit_node_vertices(tid, grid_point(hf, tid), hf.levels[tid], twin, peak, first, iso, want_sources,
                            points_out, step_heights_out, sources_out, betas_out)
     else:
         ab = grid_edge(hf, tid - n_nodes)
@@ -640,12 +667,18 @@ def mark_tin_twins(
     iso: Isovalues,
     # outputs
     twins_out: wp.array[wp.int32],
+    peers_out: wp.array[wp.int32],
 ):
-    """One thread per edge: flag its upper end for a twin when it sits on the threshold the edge crosses."""
+    """One thread per edge: flag its upper end for a twin when it sits on the threshold the edge crosses,
+    and flag each end whose neighbour is not lower (a node without one is a peak)."""
     e = wp.tid()
     ab = tin.edges[e]
     la = tin.levels[ab[0]]
     lb = tin.levels[ab[1]]
+    if lb >= la:
+        peers_out[ab[0]] = 1
+    if la >= lb:
+        peers_out[ab[1]] = 1
     if la != lb:
         hi = ab[1]
         lhi = lb
@@ -661,6 +694,7 @@ def count_tin_vertices(
     tin: TriangleNetwork,
     iso: Isovalues,
     twins: wp.array[wp.int32],
+    peers: wp.array[wp.int32],
     # outputs
     counts_out: wp.array[wp.int32],
 ):
@@ -668,7 +702,7 @@ def count_tin_vertices(
     tid = wp.tid()
     n_points = tin.points.shape[0]
     if tid < n_points:
-        counts_out[tid] = tin.point_used[tid] * (1 + twins[tid])
+        counts_out[tid] = node_vertex_count(tin.point_used[tid], twins[tid], peers[tid])
     else:
         ab = tin.edges[tid - n_points]
         counts_out[tid] = edge_vertex_count(ab[0], ab[1], tin.heights, tin.levels, iso)
@@ -679,6 +713,7 @@ def emit_tin_vertices(
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
+    twins: wp.array[wp.int32],
     want_sources: wp.int32,
     # outputs
     points_out: wp.array[wp.vec3],
@@ -694,9 +729,12 @@ def emit_tin_vertices(
         return
     if tid < n_points:
         twin = wp.int32(0)
+        peak = wp.int32(0)
         if offsets[tid + 1] - first == 2:
             twin = 1
-        emit_node_vertices(tid, tin.points[tid], tin.levels[tid], twin, first, iso, want_sources,
+        elif twins[tid] != 0:
+            peak = 1
+        emit_node_vertices(tid, tin.points[tid], tin.levels[tid], twin, peak, first, iso, want_sources,
                            points_out, step_heights_out, sources_out, betas_out)
     else:
         ab = tin.edges[tid - n_points]

@@ -4,7 +4,7 @@
 vertices by exact position (to join tiles or check crack-freeness); ``boundary_edges`` lists the edges used
 by one face only. All vectorised numpy: no Python loop over faces or vertices.
 
-    solid_vertices, solid_faces, added = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
+    vertices, faces, kept, added = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
 """
 
 from __future__ import annotations
@@ -55,17 +55,41 @@ def close_solid(
     faces: NDArray[np.int64],
     terrace_mask: NDArray[np.bool_],
     floor: float,
-) -> tuple[NDArray[np.float64], NDArray[np.int64], int]:
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int]:
     """Close a height-function surface into a watertight solid with side skirts and a flat base at ``floor``.
 
     The base is the terraces (faces whose projections tile the domain) flattened to ``floor`` and reversed;
     each boundary edge gets a vertical skirt down to the base. A vertical boundary edge (a wall's side on the
     domain boundary) joins the skirt of the boundary edge that follows it, so no zero-area face appears.
 
-    Returns the new vertices, faces, and the number of faces added (appended after the input faces).
+    Zero-volume fins are removed first: where heights sit exactly on a threshold along a ridge line, two walls
+    stand back to back on the same vertices (a terrace of zero width); both go, and so do vertices no face
+    uses any more.
+
+    Returns the new vertices, the faces (kept input faces first, then the added ones), the mask of input faces
+    kept, and the number of faces added.
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
+    kept = np.ones(len(faces), bool)
+    walls = np.flatnonzero(~np.asarray(terrace_mask))
+    if len(walls) >= 4 and len(walls) % 2 == 0:
+        # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
+        first, second = walls[0::2], walls[1::2]
+        quads = np.sort(np.column_stack([faces[first], faces[second][:, 2]]), axis=1)
+        _, inverse, counts = np.unique(quads, axis=0, return_inverse=True, return_counts=True)
+        fin = counts[inverse.reshape(-1)] > 1
+        kept[first[fin]] = False
+        kept[second[fin]] = False
+    if not kept.all():
+        faces = faces[kept]
+        terrace_mask = np.asarray(terrace_mask)[kept]
+        used = np.zeros(len(vertices), bool)
+        used[faces.reshape(-1)] = True
+        if not used.all():
+            remap = np.cumsum(used) - 1
+            faces = remap[faces]
+            vertices = vertices[used]
     if not np.isfinite(floor):
         raise InvalidInputError(f"floor must be finite; got {floor}")
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
@@ -100,4 +124,4 @@ def close_solid(
     skirts.append(np.stack([b[has_x], a[has_x], x[has_x]], axis=1))
     skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
     added = np.concatenate(skirts + [base_faces], axis=0)
-    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), len(added)
+    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added)

@@ -16,6 +16,7 @@ result is crack-free by construction.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import Any, Union
@@ -212,9 +213,14 @@ class StepArrays:
     face_count: int
 
 
-def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_kernels.Isovalues:
+def thresholds_of(values: NDArray[np.float32]) -> NDArray[np.float32]:
+    """t_i = (α_i + α_i+1) / 2, computed in float64 and rounded once to float32."""
     v64 = values.astype(np.float64)
-    thresholds = ((v64[:-1] + v64[1:]) * 0.5).astype(np.float32)
+    return ((v64[:-1] + v64[1:]) * 0.5).astype(np.float32)
+
+
+def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_kernels.Isovalues:
+    thresholds = thresholds_of(values)
     iso = stepped_kernels.Isovalues()
     iso.values = wp.array(values, dtype=wp.float32, device=device)
     iso.thresholds = wp.array(thresholds, dtype=wp.float32, device=device)
@@ -278,8 +284,10 @@ def step_arrays(
         wp.launch(stepped_kernels.quantize_levels, dim=n_nodes, inputs=[topo.heights, iso.thresholds],
                   outputs=[topo.levels], device=device)
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
-        wp.launch(stepped_kernels.mark_tin_twins, dim=n_edges, inputs=[topo, iso], outputs=[twins], device=device)
-        count_inputs = [topo, iso, twins]
+        peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
+        wp.launch(stepped_kernels.mark_tin_twins, dim=n_edges, inputs=[topo, iso], outputs=[twins, peers],
+                  device=device)
+        count_inputs = [topo, iso, twins, peers]
     count_vertices, emit_vertices, count_faces, emit_faces = kernels
 
     # pass 1: vertices (nodes, their twins, wall bottom/top pairs per edge crossing)
@@ -307,7 +315,8 @@ def step_arrays(
     n_src = vertex_count if want_sources else 0
     sources = wp.empty(n_src, dtype=wp.vec2i, device=device)
     betas = wp.empty(n_src, dtype=wp.float32, device=device)
-    wp.launch(emit_vertices, dim=n_nodes + n_edges, inputs=[topo, iso, offsets, int(want_sources)],
+    emit_inputs = [topo, iso, offsets] + ([] if terrain.kind == "grid" else [count_inputs[2]])
+    wp.launch(emit_vertices, dim=n_nodes + n_edges, inputs=[*emit_inputs, int(want_sources)],
               outputs=[points, step_heights, sources, betas], device=device)
 
     faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device)
@@ -357,7 +366,8 @@ def blend(
     elif callable(gamma):
         original = np.empty((n, 3), dtype=np.float64)
         original[:] = arrays.points.numpy()
-        original += np.array([origin[0], origin[1], origin[2]])
+        original[:, 0] += terrain.local_origin[0]
+        original[:, 1] += terrain.local_origin[1]
         values = np.asarray(gamma(original), dtype=np.float64)
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
     elif np.ndim(gamma) == 0:
@@ -496,7 +506,11 @@ def stepped(
     -----
     Every node snaps to its nearest isovalue; a height exactly on a threshold t_i = (α_i + α_i+1) / 2
     belongs to the upper level (real DEMs with integer heights hit thresholds often; the rule is applied
-    identically in every pass). Each edge crossing a threshold owns a wall bottom and top vertex, shared by
+    identically in every pass). Where such heights line a ridge, the upper level's terrace has zero width
+    and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold); such
+    back-to-back fins are removed from solids. A solid is guaranteed watertight when no height sits
+    exactly on a threshold (a warning says so otherwise; shift ``base`` by a fraction of the interval,
+    e.g. 0.5 m for integer DEMs, to avoid it). Each edge crossing a threshold owns a wall bottom and top vertex, shared by
     both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
     terraces face +z and walls face the lower terrace. Cost: O(nodes + edges + output) on the device,
     two host syncs.
@@ -557,15 +571,26 @@ def _assemble(
     if solid:
         from .mesh import close_solid
 
+        heights = t.heights[np.isfinite(t.heights)]
+        if np.isin(heights, thresholds_of(values)).any():
+            warnings.warn(
+                "some heights sit exactly on a threshold (α_i + α_i+1) / 2; the solid may not be watertight "
+                "there. Shift base by a fraction of the interval (e.g. base=0.5 for integer heights).",
+                stacklevel=3,
+            )
+
         default_floor = float(values[0]) - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
         floor_z = default_floor if floor is None else float(floor)
-        vertices, faces, extra = close_solid(vertices, faces, ~face_walls, floor_z)
-        face_levels = np.concatenate([face_levels, np.full(extra, -1, np.int32)])
-        face_walls = np.concatenate([face_walls, np.zeros(extra, bool)])
+        n_before = len(vertices)
+        vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)
+        face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])
+        face_walls = np.concatenate([face_walls[kept], np.zeros(extra, bool)])
         if vertex_colors is not None:
-            n_new = len(vertices) - len(vertex_colors)
-            vertex_colors = np.concatenate([vertex_colors, np.repeat(vertex_colors[:1] * 0 + 96, n_new, axis=0)])
-            vertex_colors[-n_new:, 3] = 255
+            used = np.zeros(n_before, bool)
+            used[arrays.faces[kept].reshape(-1)] = True
+            n_new = len(vertices) - int(used.sum())
+            skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (n_new, 1))
+            vertex_colors = np.concatenate([vertex_colors[used], skirt])
         metadata["floor"] = floor_z
     elif floor is not None:
         raise InvalidInputError("floor applies only with solid=True")

@@ -238,7 +238,7 @@ def grid_faces(rows: int, cols: int, flip: bool = False) -> NDArray[np.int64]:
     faces[:, 0] = np.stack([n00, n01, n11], axis=1)
     faces[:, 1] = np.stack([n00, n11, n10], axis=1)
     faces = faces.reshape(-1, 3)
-    return faces[:, ::-1].copy() if flip else faces
+    return faces[:, [0, 2, 1]] if flip else faces
 
 
 def heightfield_mesh(

@@ -1,0 +1,452 @@
+"""Stepped terrain (paper 000): Warp against the NumPy reference, and the geometry's invariants."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given
+from hypothesis import strategies as st_
+from hypothesis.extra.numpy import arrays
+
+import stepterrain as st
+from stepterrain._device import resolve_device
+from stepterrain.stepped import isovalues, step_arrays
+from stepterrain.terrain import as_terrain
+
+from .conftest import assert_valid_mesh, real_dem
+from .reference import grid_tin, step_reference, thresholds_of
+
+# --------------------------------------------------------------------------------------------- helpers
+
+
+def compare_with_reference(heights, values, device, spacing=(1.0, 1.0)):
+    """Warp's arrays equal the reference: same vertices (matched by key), same faces in the same order."""
+    t = st.Terrain.from_heights(heights, spacing=spacing)
+    arrays = step_arrays(t, np.asarray(values, np.float32), device=resolve_device(device), want_sources=True)
+    points, faces = grid_tin(t.heights, t.spacing)
+    ref = step_reference(points, faces, values)
+    assert arrays.vertex_count == len(ref.points)
+    assert arrays.face_count == len(ref.faces)
+    src = arrays.sources.numpy().astype(np.float64)
+    pts = arrays.points.numpy().astype(np.float64)
+    keys = np.column_stack([src, pts[:, 2], arrays.step_heights.numpy().astype(np.float64)])
+    mine = np.lexsort(keys.T[::-1])
+    theirs = np.lexsort(ref.keys.T[::-1])
+    np.testing.assert_array_equal(keys[mine], ref.keys[theirs])
+    to_mine = np.empty(len(mine), np.int64)
+    to_mine[theirs] = mine  # reference vertex index -> warp vertex index
+    np.testing.assert_array_equal(arrays.faces, to_mine[ref.faces])
+    np.testing.assert_array_equal(arrays.face_levels, ref.face_levels)
+    np.testing.assert_array_equal(arrays.face_walls, ref.face_walls)
+    scale = max(1.0, float(np.abs(ref.points).max()))
+    np.testing.assert_allclose(pts[mine], ref.points[theirs], rtol=0, atol=1e-5 * scale)
+    return arrays
+
+
+def projected_area(mesh, mask=None):
+    tri = mesh.triangles if mask is None else mesh.triangles[mask]
+    a, b, c = tri[:, 0, :2], tri[:, 1, :2], tri[:, 2, :2]
+    return 0.5 * ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+
+
+def volume_under(mesh):
+    return float((projected_area(mesh) * mesh.triangles[:, :, 2].mean(axis=1)).sum())
+
+
+def area_below(tri_heights, tri_areas, t):
+    """Area of each triangle where the linear height is below t (closed form on sorted corner heights)."""
+    h = np.sort(tri_heights, axis=1).astype(np.float64)
+    h0, h1, h2 = h[:, 0], h[:, 1], h[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = np.where(h1 > h0, (t - h0) ** 2 / ((h2 - h0) * (h1 - h0)), 0.0)
+        high = np.where(h2 > h1, 1 - (h2 - t) ** 2 / ((h2 - h0) * (h2 - h1)), 1.0)
+    frac = np.where(t <= h0, 0.0, np.where(t >= h2, 1.0, np.where(t <= h1, low, high)))
+    return tri_areas * np.nan_to_num(frac)
+
+
+def contour_length(tri_xyz, t):
+    """Length of the level-t segment in each triangle (0 where t does not cut it)."""
+    total = 0.0
+    h = tri_xyz[:, :, 2].astype(np.float64)
+    pts = []
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        ha, hb = h[:, a], h[:, b]
+        lo, hi = np.minimum(ha, hb), np.maximum(ha, hb)
+        cut = (lo < t) & (t <= hi) & (hi > lo)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            beta = np.where(cut, (t - ha) / (hb - ha), 0.0)
+        p = tri_xyz[:, a, :2] + beta[:, None] * (tri_xyz[:, b, :2] - tri_xyz[:, a, :2])
+        pts.append((cut, p))
+    # exactly two edges are cut where t lies strictly inside the triangle's height range
+    (c0, p0), (c1, p1), (c2, p2) = pts
+    seg = np.where((c0 & c1)[:, None], p1 - p0, np.where((c1 & c2)[:, None], p2 - p1, p0 - p2))
+    use = (c0.astype(int) + c1 + c2) == 2
+    total = float(np.linalg.norm(seg[use], axis=1).sum())
+    return total
+
+
+# ----------------------------------------------------------------------- paper figures (Fig. 2 and 3)
+
+FIGURE_CASES = {
+    # one cell = two triangles; values chosen to reproduce the configurations of Fig. 3
+    "flat": [[1.0, 1.0], [1.0, 1.0]],
+    "one-step": [[0.0, 0.0], [0.0, 1.0]],
+    "single-vertex-in-between (Fig. 3c)": [[0.0, 1.0], [2.0, 3.0]],
+    "many levels (Fig. 2)": [[0.0, 7.0], [3.0, 12.0]],
+    "finishing triangles": [[0.0, 2.0], [2.0, 0.0]],
+    "vertex on threshold": [[0.5, 0.0], [1.5, 2.5]],
+    "all on thresholds": [[0.5, 0.5], [1.5, 0.5]],
+    "descending": [[9.0, 4.0], [2.0, 0.0]],
+}
+
+
+@pytest.mark.parametrize("name", list(FIGURE_CASES))
+def test_figure_configurations_match_reference(name, device):
+    heights = np.array(FIGURE_CASES[name], np.float32)
+    arrays = compare_with_reference(heights, np.arange(-1.0, 14.0, 1.0, dtype=np.float32), device)
+    assert arrays.face_count >= 2
+
+
+def test_single_vertex_in_between_has_terraces_and_walls():
+    mesh = st.stepped(np.array([[0.0, 1.0], [2.0, 3.0]]), interval=1.0)
+    assert_valid_mesh(mesh)
+    walls = mesh.face_attributes["wall"]
+    assert walls.any() and (~walls).any()
+    assert sorted(set(np.round(mesh.vertices[:, 2], 6))) == [0.0, 1.0, 2.0, 3.0]
+
+
+# --------------------------------------------------------------------------------- NumPy reference
+
+
+@pytest.mark.parametrize("interval", [50.0, 100.0, 250.0])
+def test_real_dem_matches_reference(interval, device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=64, step=6)
+    values = isovalues((float(heights.min()), float(heights.max())), interval=interval)
+    compare_with_reference(heights, values, device, spacing=(30.0, -30.0))
+
+
+def test_front_range_matches_reference(device):
+    heights = real_dem("front_range_srtmgl3_3arcsec.npz", size=64, step=8)
+    values = isovalues((float(heights.min()), float(heights.max())), interval=100.0, base=50.0)
+    compare_with_reference(heights, values, device, spacing=(70.8, -92.7))
+
+
+@given(
+    heights=arrays(np.int16, st_.tuples(st_.integers(2, 9), st_.integers(2, 9)), elements=st_.integers(-6, 6)),
+    interval=st_.sampled_from([1.0, 2.0, 3.0]),
+)
+def test_integer_heights_on_thresholds_match_reference(heights, interval):
+    # interval 1 puts thresholds at k + 0.5 (never hit), 2 and 3 make integer heights sit on thresholds
+    h = heights.astype(np.float32)
+    values = isovalues((float(h.min()), float(h.max())), interval=interval, base=0.0)
+    compare_with_reference(h, values, "cpu")
+
+
+@given(
+    heights=arrays(np.float32, st_.tuples(st_.integers(2, 8), st_.integers(2, 8)),
+                   elements=st_.floats(-100, 100, width=32, allow_nan=False)),
+    levels=st_.lists(st_.floats(-120, 120, width=32), min_size=1, max_size=12, unique=True),
+)
+def test_random_grids_nonuniform_levels_match_reference(heights, levels):
+    compare_with_reference(heights, np.sort(np.array(levels, np.float32)), "cpu")
+
+
+def test_repeated_runs_are_identical(device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=48, step=5)
+    a = st.stepped(heights, interval=75.0, device=device)
+    b = st.stepped(heights, interval=75.0, device=device)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+
+
+# ------------------------------------------------------------------------------------ invariants
+
+
+@pytest.fixture(scope="module")
+def dem():
+    return real_dem("big_tujunga_srtm_30m_utm11n.npz", size=80, step=5)
+
+
+@pytest.mark.parametrize("interval", [40.0, 125.0])
+def test_gamma_one_puts_every_vertex_on_an_isovalue(dem, interval):
+    mesh = st.stepped(dem, interval=interval, spacing=(30.0, 30.0))
+    values = isovalues((float(dem.min()), float(dem.max())), interval=interval)
+    assert np.isin(mesh.vertices[:, 2].astype(np.float32), values).all()
+    assert_valid_mesh(mesh)
+
+
+@pytest.mark.parametrize("interval", [40.0, 125.0])
+def test_terrace_areas_per_level_equal_the_input_bands(dem, interval):
+    mesh = st.stepped(dem, interval=interval, spacing=(30.0, 30.0))
+    source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
+    values = isovalues((float(dem.min()), float(dem.max())), interval=interval)
+    thr = thresholds_of(values).astype(np.float64)
+    terrace = ~mesh.face_attributes["wall"]
+    areas = projected_area(mesh)
+    assert np.all(areas[terrace] > -1e-9)
+    np.testing.assert_allclose(areas[terrace].sum(), projected_area(source).sum(), rtol=1e-6)
+    tri_h = source.triangles[:, :, 2]
+    tri_a = projected_area(source)
+    bounds = np.concatenate([[-np.inf], thr, [np.inf]])
+    for k in range(len(values)):
+        expected = area_below(tri_h, tri_a, bounds[k + 1]).sum() - area_below(tri_h, tri_a, bounds[k]).sum()
+        got = areas[terrace & (mesh.face_attributes["level"] == k)].sum()
+        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-3 * 900)
+
+
+def test_wall_area_equals_contour_length_times_step(dem):
+    interval = 60.0
+    mesh = st.stepped(dem, interval=interval, spacing=(30.0, 30.0))
+    source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
+    values = isovalues((float(dem.min()), float(dem.max())), interval=interval).astype(np.float64)
+    thr = thresholds_of(values.astype(np.float32)).astype(np.float64)
+    walls = mesh.face_attributes["wall"]
+    wall_area = float(mesh.area_faces[walls].sum())
+    expected = sum(contour_length(source.triangles, t) * (values[i + 1] - values[i]) for i, t in enumerate(thr))
+    np.testing.assert_allclose(wall_area, expected, rtol=1e-4)
+
+
+def test_volume_is_linear_in_gamma_and_equals_input_at_zero(dem):
+    source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
+    volumes = {g: volume_under(st.stepped(dem, interval=80.0, gamma=g, spacing=(30.0, 30.0))) for g in (0.0, 0.3, 0.7, 1.0)}
+    np.testing.assert_allclose(volumes[0.0], volume_under(source), rtol=1e-7)
+    for g in (0.3, 0.7):
+        np.testing.assert_allclose(volumes[g], volumes[0.0] + g * (volumes[1.0] - volumes[0.0]), rtol=1e-7)
+
+
+def test_welded_mesh_is_manifold_consistent_and_bounded_by_the_input(dem):
+    # 0.37 m offset: no DEM height (integers) sits on a threshold
+    mesh = st.stepped(dem, interval=70.0, base=0.37, spacing=(30.0, 30.0))
+    assert_valid_mesh(mesh)
+    assert mesh.is_winding_consistent
+    edges = np.sort(mesh.edges, axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert counts.max() == 2
+    from stepterrain.mesh import boundary_edges
+
+    b = boundary_edges(mesh.faces)
+    xy = mesh.vertices[b][:, :, :2]
+    xmax, ymax = 30.0 * (dem.shape[1] - 1), 30.0 * (dem.shape[0] - 1)
+    on_side = [np.isclose(xy[:, :, 0], 0).all(1), np.isclose(xy[:, :, 0], xmax).all(1),
+               np.isclose(xy[:, :, 1], 0).all(1), np.isclose(xy[:, :, 1], ymax).all(1)]
+    assert np.logical_or.reduce(on_side).all()
+    normals = mesh.face_normals
+    terrace = ~mesh.face_attributes["wall"]
+    assert (normals[terrace, 2] > 0.999).all()
+    assert np.abs(normals[~terrace, 2]).max() < 1e-6
+
+
+def test_walls_face_the_lower_terrace_on_a_ramp():
+    x = np.linspace(0.0, 10.0, 11)
+    heights = np.tile(x, (4, 1))  # rises towards +x
+    mesh = st.stepped(heights, interval=2.0, base=0.3)
+    walls = mesh.face_attributes["wall"]
+    assert walls.sum() == 5 * 3 * 2 * 2  # 5 thresholds x 3 cells x 2 triangles cut x 2 faces per wall piece
+    assert (mesh.face_normals[walls, 0] < -0.999).all()
+
+
+def test_nan_heights_are_holes(device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=40, step=6).copy()
+    heights[10:20, 12:25] = np.nan
+    heights[0, 0] = np.nan
+    mesh = st.stepped(heights, interval=90.0, device=device)
+    assert_valid_mesh(mesh)
+    xy = mesh.vertices[:, :2]
+    inside_hole = (xy[:, 0] > 12) & (xy[:, 0] < 24) & (xy[:, 1] > 10) & (xy[:, 1] < 19)
+    assert not inside_hole.any()
+    compare_with_reference(heights, isovalues((float(np.nanmin(heights)), float(np.nanmax(heights))), interval=90.0), device)
+
+
+def test_tin_input_gives_the_grid_geometry(dem):
+    small = dem[:30, :30]
+    grid = st.stepped(small, interval=70.0, spacing=(30.0, 30.0))
+    tin = st.stepped(st.heightfield_mesh(small, spacing=(30.0, 30.0)), interval=70.0)
+    assert len(grid.faces) == len(tin.faces) and len(grid.vertices) == len(tin.vertices)
+
+    def canonical(m):
+        tri = np.round(m.triangles, 6)
+        return np.sort(tri.reshape(len(tri), -1).view([("", tri.dtype)] * 9).reshape(-1))
+
+    assert np.array_equal(canonical(grid), canonical(tin))
+
+
+def test_clockwise_tin_is_flipped_and_folded_tin_refused():
+    base = st.heightfield_mesh(np.array([[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]))
+    clockwise = trimesh.Trimesh(base.vertices, base.faces[:, ::-1], process=False)
+    mesh = st.stepped(clockwise, interval=1.0)
+    assert (mesh.face_normals[~mesh.face_attributes["wall"], 2] > 0).all()
+    folded = base.faces.copy()
+    folded[0] = folded[0, ::-1]
+    with pytest.raises(st.InvalidInputError, match="fold"):
+        st.stepped(trimesh.Trimesh(base.vertices, folded, process=False), interval=1.0)
+
+
+def test_negative_dy_keeps_counter_clockwise_faces(dem):
+    mesh = st.stepped(dem[:20, :20], interval=50.0, spacing=(30.0, -30.0), origin=(376000.0, 3807900.0))
+    terrace = ~mesh.face_attributes["wall"]
+    assert (mesh.face_normals[terrace, 2] > 0.999).all()
+    assert mesh.vertices[:, 0].min() == pytest.approx(376000.0)
+    assert mesh.vertices[:, 1].max() == pytest.approx(3807900.0)
+
+
+def test_solid_is_watertight_with_the_expected_volume(dem):
+    small = dem[:40, :40]
+    floor = float(small.min()) - 100.0
+    mesh = st.stepped(small, interval=60.0, base=0.5, spacing=(30.0, 30.0), solid=True, floor=floor)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    surface = st.stepped(small, interval=60.0, base=0.5, spacing=(30.0, 30.0))
+    terrace = ~surface.face_attributes["wall"]
+    expected = float((projected_area(surface, terrace) * (surface.triangles[terrace, 0, 2] - floor)).sum())
+    np.testing.assert_allclose(mesh.volume, expected, rtol=1e-6)
+
+
+@given(heights=arrays(np.int16, st_.tuples(st_.integers(2, 7), st_.integers(2, 7)), elements=st_.integers(0, 8)))
+def test_solid_is_watertight_for_integer_heights(heights):
+    # base 0.5 keeps the thresholds (1.5, 3.5, ...) off the integer heights
+    mesh = st.stepped(heights.astype(np.float32), interval=2.0, base=0.5, solid=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume > 0
+
+
+def test_solid_warns_when_heights_sit_on_thresholds():
+    with pytest.warns(UserWarning, match="exactly on a threshold"):
+        st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
+
+
+def test_lens_shows_the_original_inside_and_steps_outside(dem):
+    small = dem[:41, :41]
+    t = st.Terrain.from_heights(small, spacing=(30.0, 30.0))
+    lens = st.circular_lens(t, (600.0, 600.0), 300.0, edge_width=60.0)
+    mesh = st.stepped(t, interval=100.0, gamma=lens)
+    values = isovalues(t.height_range, interval=100.0)
+    xy = mesh.vertices[:, :2]
+    d = np.hypot(xy[:, 0] - 600.0, xy[:, 1] - 600.0)
+    outside = d > 340.0
+    assert np.isin(mesh.vertices[outside, 2].astype(np.float32), values).all()
+    node = (np.abs(xy[:, 0] - 600) < 1e-6) & (np.abs(xy[:, 1] - 600) < 1e-6)
+    assert np.isclose(mesh.vertices[node, 2], small[20, 20]).any()
+
+
+def test_gamma_callable_and_array_agree_with_scalar(dem):
+    small = dem[:25, :25]
+    scalar = st.stepped(small, interval=70.0, gamma=0.4)
+    by_array = st.stepped(small, interval=70.0, gamma=np.full(small.shape, 0.4))
+    by_callable = st.stepped(small, interval=70.0, gamma=lambda p: np.full(len(p), 0.4))
+    np.testing.assert_allclose(by_array.vertices, scalar.vertices, atol=1e-4)
+    np.testing.assert_allclose(by_callable.vertices, scalar.vertices, atol=1e-4)
+
+
+def test_colors_by_level_and_face_attributes(dem):
+    mesh = st.stepped(dem[:20, :20], interval=50.0, colors="terrain")
+    assert mesh.visual.kind == "vertex"
+    assert mesh.visual.vertex_colors.shape == (len(mesh.vertices), 4)
+    levels = mesh.face_attributes["level"]
+    assert levels.dtype == np.int32 and levels.shape == (len(mesh.faces),)
+
+
+def test_input_vertex_colors_are_carried():
+    base = st.heightfield_mesh(np.array([[0.0, 1.0], [2.0, 3.0]]))
+    base.visual = trimesh.visual.ColorVisuals(base, vertex_colors=np.array(
+        [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255]], np.uint8))
+    mesh = st.stepped(base, interval=1.0)
+    assert mesh.visual.kind == "vertex"
+    colors = mesh.visual.vertex_colors
+    assert colors.shape == (len(mesh.vertices), 4)
+    assert (colors[:4] == base.visual.vertex_colors).all()
+
+
+def test_series_equals_frame_by_frame():
+    rng = np.random.default_rng(1)
+    frames = rng.random((4, 12, 12)).astype(np.float32) * 10
+    series = list(st.stepped_series(frames, interval=2.0))
+    for frame, mesh in zip(frames, series):
+        single = st.stepped(frame, levels=isovalues((float(frames.min()), float(frames.max())), interval=2.0))
+        np.testing.assert_array_equal(mesh.faces, single.faces)
+        np.testing.assert_array_equal(mesh.vertices, single.vertices)
+
+
+def test_heights_outside_the_levels_clamp_to_the_end_levels():
+    mesh = st.stepped(np.array([[-50.0, 0.0], [10.0, 90.0]]), levels=[0.0, 10.0, 20.0])
+    assert set(np.round(mesh.vertices[:, 2], 6)) <= {0.0, 10.0, 20.0}
+
+
+def test_empty_result_is_valid_not_an_error():
+    heights = np.full((3, 3), np.nan)
+    heights[0, 0] = 1.0
+    mesh = st.stepped(heights, interval=1.0)
+    assert len(mesh.faces) == 0 and len(mesh.vertices) == 0
+
+
+# ------------------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({}, "exactly one of interval"),
+        ({"interval": 1.0, "levels": [0, 1]}, "exactly one of interval"),
+        ({"interval": 0.0}, "interval must be a positive"),
+        ({"interval": -2.0}, "interval must be a positive"),
+        ({"interval": float("nan")}, "interval must be a positive"),
+        ({"interval": float("inf")}, "interval must be a positive"),
+        ({"levels": [0.0, 2.0, 2.0]}, r"strictly increasing; got \[0.0, 2.0, 2.0\] \(index 2\)"),
+        ({"levels": []}, "at least one"),
+        ({"interval": 1.0, "gamma": 1.5}, r"gamma must lie in \[0, 1\]"),
+        ({"interval": 1.0, "gamma": np.zeros((2, 2))}, "gamma must be shape"),
+        ({"interval": 1.0, "gamma": lambda p: np.ones(3)}, r"gamma\(points\) must be shape"),
+        ({"interval": 1.0, "colors": "not-a-colormap"}, "matplotlib colormap"),
+        ({"interval": 1.0, "floor": 0.0}, "floor applies only with solid=True"),
+        ({"interval": 1.0, "solid": True, "floor": 100.0}, "floor must lie below"),
+        ({"interval": 1e-9}, "levels; at most"),
+    ],
+)
+def test_bad_arguments_raise_clear_errors(kwargs, match):
+    with pytest.raises(st.InvalidInputError, match=match):
+        st.stepped(np.arange(16, dtype=np.float32).reshape(4, 4), **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("heights", "match"),
+    [
+        (np.zeros(5), "2-D"),
+        (np.zeros((1, 5)), "at least 2 x 2"),
+        (np.array([["a", "b"], ["c", "d"]]), "real-valued"),
+        (np.array([[0.0, np.inf], [0.0, 0.0]]), "infinite value at index"),
+        (np.full((3, 3), np.nan), "no finite height"),
+    ],
+)
+def test_bad_heights_raise_clear_errors(heights, match):
+    with pytest.raises(st.InvalidInputError, match=match):
+        st.stepped(heights, interval=1.0)
+
+
+def test_bad_spacing_and_paths():
+    with pytest.raises(st.InvalidInputError, match="spacing must be non-zero"):
+        st.stepped(np.zeros((3, 3)), interval=1.0, spacing=(0.0, 1.0))
+    with pytest.raises(st.InvalidInputError, match="load it first"):
+        st.stepped("terrain.tif", interval=1.0)
+    with pytest.raises(st.InvalidInputError, match="spacing/origin apply to raw"):
+        st.stepped(st.Terrain.from_heights(np.zeros((3, 3))), interval=1.0, spacing=(2.0, 2.0))
+
+
+def test_memory_budget_raises_before_allocating_and_names_the_size():
+    heights = np.add.outer(np.arange(64.0), np.arange(64.0))
+    with pytest.raises(st.OutputTooLargeError, match=r"MiB, over the memory budget"):
+        st.stepped(heights, interval=1.0, memory_budget=10_000)
+    previous = st.set_memory_budget(10_000)
+    try:
+        with pytest.raises(MemoryError):
+            st.stepped(heights, interval=1.0)
+    finally:
+        st.set_memory_budget(previous)
+
+
+def test_device_errors():
+    with pytest.raises(st.DeviceError, match="device must be one of"):
+        st.stepped(np.zeros((3, 3)), interval=1.0, device="tpu:7")
+
+
+def test_as_terrain_accepts_every_input_kind(dem):
+    assert as_terrain(dem).kind == "grid"
+    assert as_terrain(st.heightfield_mesh(dem[:5, :5])).kind == "tin"
