@@ -1,27 +1,62 @@
-"""Mesh export by file extension, written atomically (temporary file in the target folder + rename).
+"""Mesh and image export by file extension, written atomically (temporary file in the target folder + rename).
+
+Shared output room of every capability (papers 000-004): glTF/GLB (flat-shaded, metadata in ``extras``),
+OBJ, PLY, STL and 3MF meshes, and PNG images.
 
     from stepterrain.export import save_mesh
-    save_mesh(mesh, "out/steps.glb")
+    save_mesh(mesh, "out/steps.glb", metadata={"interval": 100.0})
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
+import importlib.util
+import math
 import os
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
-from .errors import DataFileError
+import numpy as np
+import trimesh
+from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["atomic_path"]
+from .errors import DataFileError, InvalidInputError, MissingDependencyError
+
+__all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS"]
+
+#: Mesh file extensions :func:`save_mesh` writes (lower case; matching is case-insensitive).
+MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3mf")
+
+# Arrays or lists with more elements than this are left out of glTF extras (a per-vertex array would
+# bloat the JSON header); scalars, strings and short lists go in.
+_MAX_EXTRAS_ITEMS = 4096
+# glTF accessors are float32: coordinates beyond this magnitude (UTM metres) move into the node translation.
+_LOCAL_ORIGIN_THRESHOLD = 65536.0
+_OMIT = object()
+
+
+@functools.cache
+def _file_mode() -> int:
+    """0o666 less the process umask: the mode ``open()`` would have given a new file."""
+    umask = os.umask(0o022)
+    os.umask(umask)
+    return 0o666 & ~umask
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
-    A failed or killed run never leaves a truncated file at ``path``.
+    A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
+    until the new content is complete. The new file gets the usual permissions (0o666 less the umask).
+
+    Raises
+    ------
+    DataFileError
+        The folder cannot be created or written, or the finished file cannot be moved onto ``path``.
     """
     target = Path(path)
     folder = target.parent if str(target.parent) else Path(".")
@@ -30,15 +65,381 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror}") from exc
+    if not folder.is_dir():
+        raise DataFileError(f"output folder {str(folder)!r} is not a folder")
     if not os.access(folder, os.W_OK):
         raise DataFileError(f"output folder {str(folder)!r} is not writable")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+    except OSError as exc:
+        raise DataFileError(f"cannot write in the output folder {str(folder)!r}: {exc.strerror}") from exc
     os.close(fd)
     tmp_path = Path(tmp)
     try:
         yield tmp_path
-        os.replace(tmp_path, target)
+        with contextlib.suppress(OSError):
+            os.chmod(tmp_path, _file_mode())
+        try:
+            os.replace(tmp_path, target)
+        except OSError as exc:
+            raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
     except BaseException:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def save_mesh(
+    mesh: trimesh.Trimesh,
+    path: str | os.PathLike[str],
+    *,
+    metadata: Mapping[str, Any] | None = None,
+) -> Path:
+    """Write a mesh to ``path`` in the format its extension names, atomically.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Any mesh; ``face_attributes`` (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and
+        vertex colours are kept where the format can hold them. The mesh is not modified.
+    path : str or path-like
+        Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
+        file, buffers embedded as base64 data URIs), ``.obj``, ``.ply`` (binary), ``.stl`` (binary),
+        ``.3mf``.
+    metadata : mapping, optional
+        Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    InvalidInputError
+        ``mesh`` is not a ``trimesh.Trimesh``, or the extension is unknown (the message lists the supported
+        ones).
+    MissingDependencyError
+        ``.3mf`` without ``lxml`` and ``networkx`` (trimesh's 3MF writer needs both).
+    DataFileError
+        The target folder cannot be created or written.
+
+    Notes
+    -----
+    glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
+    stay crisp. Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
+    non-finite floats ``null``, other objects their ``str``; arrays longer than 4096 elements and keys
+    starting with ``_`` are left out. glTF accessors are float32, so when coordinates exceed 65536 (UTM
+    metres) the vertices are stored relative to a node translation (float64 in the JSON) and loaders that
+    apply the scene graph get world coordinates back at full precision. Textured OBJ meshes also write
+    ``<stem>.mtl`` and their images beside ``path``. The file appears complete or not at all: the mesh is
+    written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
+    when anything fails.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile, trimesh
+    >>> from stepterrain.export import save_mesh
+    >>> out = save_mesh(trimesh.creation.box(), pathlib.Path(tempfile.mkdtemp()) / "box.stl")
+    >>> len(trimesh.load(out).faces)
+    12
+    """
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    if metadata is not None and not isinstance(metadata, Mapping):
+        raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    target = _target(path)
+    ext = target.suffix.lower()
+    writer = _WRITERS.get(ext)
+    if writer is None:
+        raise InvalidInputError(
+            f"cannot write {str(target)!r}: unknown mesh extension {target.suffix or '(none)'!r}; "
+            f"supported: {', '.join(MESH_EXTENSIONS)}"
+        )
+    if ext == ".3mf":
+        missing = [name for name in ("lxml", "networkx") if importlib.util.find_spec(name) is None]
+        if missing:
+            raise MissingDependencyError(
+                f"writing 3MF needs {' and '.join(missing)}: pip install lxml networkx"
+            )
+    prepared = _prepared_mesh(mesh, metadata)
+    with atomic_path(target) as tmp:
+        try:
+            writer(prepared, tmp, target)
+        except OSError as exc:
+            if isinstance(exc, DataFileError):
+                raise
+            raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+    return target
+
+
+def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
+    """Write an RGB or RGBA image to a PNG file, atomically.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W, 4) uint8
+        Row 0 is the top of the picture (what :mod:`stepterrain.render` returns).
+    path : str or path-like
+        Target ``.png`` file; missing folders are created.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    Raises
+    ------
+    InvalidInputError
+        ``image`` is not (H, W, 3|4) uint8, or ``path`` does not end in ``.png``.
+    DataFileError
+        The target folder cannot be created or written.
+
+    Examples
+    --------
+    >>> import numpy as np, pathlib, tempfile
+    >>> from PIL import Image
+    >>> from stepterrain.export import save_image
+    >>> out = save_image(np.zeros((4, 6, 3), np.uint8), pathlib.Path(tempfile.mkdtemp()) / "black.png")
+    >>> with Image.open(out) as picture:
+    ...     picture.size
+    (6, 4)
+    """
+    from PIL import Image
+
+    target = _target(path)
+    if target.suffix.lower() != ".png":
+        raise InvalidInputError(
+            f"cannot write {str(target)!r}: images are written as PNG; the path must end in .png"
+        )
+    array = np.asarray(image)
+    if array.dtype != np.uint8:
+        raise InvalidInputError(f"image must be uint8 (0-255); got dtype {array.dtype}")
+    if array.ndim != 3 or array.shape[2] not in (3, 4) or array.shape[0] < 1 or array.shape[1] < 1:
+        raise InvalidInputError(
+            f"image must be an (H, W, 3) RGB or (H, W, 4) RGBA array; got shape {array.shape}"
+        )
+    picture = Image.fromarray(np.ascontiguousarray(array))  # uint8 (H, W, 3|4) -> RGB or RGBA
+    with atomic_path(target) as tmp:
+        try:
+            picture.save(tmp, format="PNG")
+        except OSError as exc:
+            raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+    return target
+
+
+# ---------------------------------------------------------------------------------------------- writers
+def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target), include_normals=False)
+    tmp.write_bytes(data)
+
+
+def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    files = trimesh.exchange.gltf.export_gltf(
+        _gltf_scene(mesh, target), include_normals=False, merge_buffers=True, embed_buffers=True
+    )
+    tmp.write_bytes(files["model.gltf"])
+
+
+def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    text, sidecars = trimesh.exchange.obj.export_obj(
+        mesh, return_texture=True, mtl_name=f"{target.stem}.mtl", header="written by stepterrain"
+    )
+    for name, data in sidecars.items():
+        with atomic_path(target.parent / name) as side_tmp:
+            side_tmp.write_bytes(data)
+    tmp.write_text(text, encoding="utf-8")
+
+
+def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    tmp.write_bytes(_ply_bytes(mesh))
+
+
+def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
+
+
+def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    tmp.write_bytes(trimesh.exchange.threemf.export_3MF(mesh))
+
+
+# One writer per extension: (prepared mesh, temporary path to fill, final target) -> None.
+_WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path], None]] = {
+    ".glb": _write_glb,
+    ".gltf": _write_gltf,
+    ".obj": _write_obj,
+    ".ply": _write_ply,
+    ".stl": _write_stl,
+    ".3mf": _write_3mf,
+}
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _target(path: str | os.PathLike[str]) -> Path:
+    try:
+        return Path(os.fspath(path))
+    except TypeError as exc:
+        raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
+
+
+def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) -> trimesh.Trimesh:
+    """A copy of ``mesh`` with JSON-safe metadata and face/vertex attributes every exporter accepts."""
+    # built field by field: Trimesh.copy() would deep-copy metadata, which may hold objects that refuse it
+    out = trimesh.Trimesh(
+        vertices=np.array(mesh.vertices, dtype=np.float64),
+        faces=np.array(mesh.faces, dtype=np.int64).reshape(-1, 3),
+        process=False,
+        validate=False,
+    )
+    out.visual = mesh.visual.copy()
+    out.units = mesh.units
+    merged = dict(mesh.metadata)
+    if metadata:
+        merged.update(metadata)
+    out.metadata = _json_value(merged)
+    out.face_attributes = _attributes(mesh.face_attributes, len(mesh.faces))
+    out.vertex_attributes = _attributes(mesh.vertex_attributes, len(mesh.vertices))
+    return out
+
+
+def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
+    """Keep per-element numeric (N,) or (N, k) arrays of the right length; drop anything else."""
+    kept: dict[str, NDArray[Any]] = {}
+    for name, values in attributes.items():
+        array = np.asarray(values)
+        if array.ndim not in (1, 2) or len(array) != count or array.dtype.kind not in "biuf":
+            continue
+        kept[str(name)] = array
+    return kept
+
+
+def _ply_compatible(array: NDArray[Any]) -> NDArray[Any]:
+    """bool -> uint8, 64-bit ints -> 32-bit when they fit (else float64), float16 -> float32."""
+    if array.dtype.kind == "b":
+        return array.astype(np.uint8)
+    if array.dtype == np.float16:
+        return array.astype(np.float32)
+    if array.dtype.kind in "iu" and array.dtype.itemsize == 8:
+        narrow = np.dtype(np.int32 if array.dtype.kind == "i" else np.uint32)
+        info = np.iinfo(narrow)
+        if array.size == 0 or (array.min() >= info.min and array.max() <= info.max):
+            return array.astype(narrow)
+        return array.astype(np.float64)
+    return array
+
+
+# PLY's standard scalar types by numpy dtype string.
+_PLY_TYPES: dict[str, str] = {
+    "|i1": "char",
+    "|u1": "uchar",
+    "<i2": "short",
+    "<u2": "ushort",
+    "<i4": "int",
+    "<u4": "uint",
+    "<f4": "float",
+    "<f8": "double",
+}
+_PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vertex_indices"})
+
+
+def _ply_bytes(mesh: trimesh.Trimesh) -> bytes:
+    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA colours, attributes."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    large = len(vertices) > 0 and float(np.abs(vertices).max()) > _LOCAL_ORIGIN_THRESHOLD
+    coordinate = np.dtype("<f8" if large else "<f4")
+    vertex_columns: list[tuple[str, NDArray[Any]]] = [
+        ("x", vertices[:, 0].astype(coordinate)),
+        ("y", vertices[:, 1].astype(coordinate)),
+        ("z", vertices[:, 2].astype(coordinate)),
+    ]
+    if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
+        rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
+    vertex_columns += _ply_columns(mesh.vertex_attributes)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
+    face_columns = _ply_columns(mesh.face_attributes)
+
+    header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
+    header.append(f"element vertex {len(vertices)}")
+    header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
+    header.append(f"element face {len(faces)}")
+    header.append("property list uchar int vertex_indices")
+    header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in face_columns]
+    header.append("end_header")
+
+    vertex_block = np.empty(len(vertices), dtype=[(name, column.dtype) for name, column in vertex_columns])
+    for name, column in vertex_columns:
+        vertex_block[name] = column
+    face_dtype = [("count", "u1"), ("vertex_indices", "<i4", (3,))]
+    face_block = np.empty(
+        len(faces), dtype=face_dtype + [(name, column.dtype) for name, column in face_columns]
+    )
+    face_block["count"] = 3
+    face_block["vertex_indices"] = faces
+    for name, column in face_columns:
+        face_block[name] = column
+    return ("\n".join(header) + "\n").encode("ascii") + vertex_block.tobytes() + face_block.tobytes()
+
+
+def _ply_columns(attributes: Mapping[str, NDArray[Any]]) -> list[tuple[str, NDArray[Any]]]:
+    """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types."""
+    columns: list[tuple[str, NDArray[Any]]] = []
+    for name, values in attributes.items():
+        if not name.isidentifier() or name in _PLY_RESERVED:
+            continue
+        array = _ply_compatible(np.asarray(values))
+        array = array.astype(array.dtype.newbyteorder("<"), copy=False)
+        if array.ndim == 1:
+            columns.append((name, array))
+        else:
+            columns += [(f"{name}_{k}", array[:, k]) for k in range(array.shape[1])]
+    return columns
+
+
+def _json_value(value: Any) -> Any:
+    """``value`` as plain JSON types (see :func:`save_mesh` Notes), or ``_OMIT`` for a dropped item."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (int, np.integer)) and not isinstance(value, np.bool_):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, np.ndarray):
+        if value.size > _MAX_EXTRAS_ITEMS or value.dtype.kind not in "biufUS":
+            return _OMIT
+        return _json_value(value.tolist())
+    if isinstance(value, Mapping):
+        out = {}
+        for key, item in value.items():
+            if str(key).startswith("_"):
+                continue
+            converted = _json_value(item)
+            if converted is not _OMIT:
+                out[str(key)] = converted
+        return out
+    if isinstance(value, (list, tuple, set, frozenset)):
+        if len(value) > _MAX_EXTRAS_ITEMS:
+            return _OMIT
+        items = [_json_value(item) for item in value]
+        return [item for item in items if item is not _OMIT]
+    if isinstance(value, os.PathLike):
+        return os.fspath(value)
+    return str(value)
+
+
+def _gltf_scene(mesh: trimesh.Trimesh, target: Path) -> trimesh.Scene:
+    """One node holding ``mesh``; large coordinates move into the node translation (float64 in JSON)."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    transform = np.eye(4)
+    if len(vertices) and float(np.abs(vertices).max()) > _LOCAL_ORIGIN_THRESHOLD:
+        offset = np.floor(vertices.min(axis=0))
+        mesh = mesh.copy(include_cache=False)
+        mesh.vertices = vertices - offset
+        transform[:3, 3] = offset
+    scene = trimesh.Scene()
+    scene.add_geometry(
+        mesh, geom_name=target.stem or "mesh", node_name=target.stem or "mesh", transform=transform
+    )
+    return scene

@@ -1,5 +1,458 @@
-"""placeholder, replaced below"""
-def load_dem(path):
-    raise NotImplementedError
-def sample_dem():
-    raise NotImplementedError
+"""Elevation files -> :class:`~stepterrain.terrain.Terrain`: NumPy (.npy, .npz), PNG heightmaps and GeoTIFF.
+
+Shared input room of every capability (papers 000-004); the embedded Big Tujunga SRTM DEM is the default.
+
+    >>> import stepterrain as st
+    >>> st.sample_dem().shape
+    (643, 1197)
+"""
+
+from __future__ import annotations
+
+import importlib.resources
+import math
+import os
+import warnings
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import DataFileError, InvalidInputError, MissingDependencyError
+from .terrain import Terrain, as_terrain
+
+__all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
+
+#: File extensions :func:`load_dem` reads (lower case; matching is case-insensitive).
+SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", ".tif", ".tiff")
+
+#: Mean earth radius (IUGG R1, metres) used to turn geographic degrees into local metres.
+EARTH_RADIUS_M = 6371008.8
+
+_SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
+_GENERIC_KEYS = ("heights", "elevation", "z")
+_NPY_MAGIC = b"\x93NUMPY"
+_ZIP_MAGIC = b"PK\x03\x04"
+_GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
+
+
+# ---------------------------------------------------------------------------------------------- public API
+def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
+    """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
+
+    Parameters
+    ----------
+    path : str or path-like
+        ``.npy`` (one (H, W) array), ``.npz`` (the georeferenced layout of ``shared/data``: ``elevation``,
+        ``transform``, ``crs``, optional ``dx_m``/``dy_m``; or any archive holding one 2-D array or a key
+        ``heights``, ``elevation`` or ``z``), ``.png`` (8- or 16-bit greyscale heightmap, values are
+        heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+    band : int
+        1-based raster band to read; GeoTIFF only (other formats hold one band).
+
+    Returns
+    -------
+    Terrain
+        ``kind == "grid"``, float32 ``heights`` with NaN for nodata (a file's nodata value and any
+        non-finite value), rows north-first. Georeferenced files: node (0, 0) is the centre of the
+        top-left cell, ``origin`` its world position and ``spacing`` = (dx, -dy) from the geotransform,
+        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres on
+        a sphere of radius :data:`EARTH_RADIUS_M` (dx at the centre latitude): ``origin`` = (0, 0) at the
+        top-left node, ``crs`` the equivalent PROJ equidistant-cylindrical definition and ``source`` names
+        the node's longitude and latitude. Plain arrays and PNGs: ``spacing`` (1, -1), ``origin`` (0, 0).
+        ``source`` is the file name.
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown extension (the message lists the supported ones), or ``band`` not a valid band number.
+    DataFileError
+        The file does not exist, cannot be read, or is not elevation data (a colour image, a 1-D array,
+        text, an archive without a 2-D array, a rotated grid, nothing but nodata).
+    MissingDependencyError
+        A GeoTIFF is given and rasterio is not installed.
+
+    Examples
+    --------
+    >>> import numpy as np, pathlib, tempfile, stepterrain as st
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "ramp.npy"
+    >>> np.save(path, np.arange(12.0).reshape(3, 4))
+    >>> t = st.load_dem(path)
+    >>> t.shape, t.spacing, t.heights.dtype.name
+    ((3, 4), (1.0, -1.0), 'float32')
+    """
+    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
+        raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    try:
+        file = Path(os.fspath(path))
+    except TypeError as exc:
+        raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
+    ext = file.suffix.lower()
+    if ext not in SUPPORTED_EXTENSIONS:
+        raise InvalidInputError(
+            f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
+            f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
+        )
+    if not file.exists():
+        raise DataFileError(f"DEM file {str(file)!r} does not exist")
+    if not file.is_file():
+        raise DataFileError(f"DEM path {str(file)!r} is not a regular file")
+    if ext in (".tif", ".tiff"):
+        return _load_geotiff(file, int(band))
+    if band != 1:
+        raise InvalidInputError(
+            f"band applies to GeoTIFF only; {str(file)!r} holds one band, got band={band}"
+        )
+    if ext == ".npy":
+        return _load_npy(file)
+    if ext == ".npz":
+        return _load_npz(file)
+    return _load_png(file)
+
+
+def sample_dem() -> Terrain:
+    """The embedded default DEM: 30 m SRTM of the Big Tujunga catchment, San Gabriel Mountains, California.
+
+    Returns
+    -------
+    Terrain
+        643 x 1197 nodes, spacing (30, -30) m, EPSG:32611 (UTM 11N), heights 315-2295 m, no nodata.
+        A fresh object each call. Source, licence (public domain) and checksum:
+        ``stepterrain/data/README.md``.
+
+    Examples
+    --------
+    >>> import stepterrain as st
+    >>> t = st.sample_dem()
+    >>> t.spacing, t.crs, t.height_range
+    ((30.0, -30.0), 'EPSG:32611', (315.0, 2295.0))
+    """
+    resource = importlib.resources.files("stepterrain") / "data" / _SAMPLE_NAME
+    with importlib.resources.as_file(resource) as file:
+        return load_dem(file)
+
+
+def describe_dem(terrain: Terrain) -> dict[str, Any]:
+    """A plain-Python summary of a terrain, for ``stepterrain info`` and logs.
+
+    Parameters
+    ----------
+    terrain : Terrain
+        Or anything :func:`~stepterrain.terrain.as_terrain` accepts ((H, W) array, trimesh TIN).
+
+    Returns
+    -------
+    dict
+        ``kind`` ("grid" or "tin"), ``shape``, ``spacing`` (dx, dy) and ``origin`` (x0, y0) (None for a
+        TIN), ``extent`` (xmin, xmax, ymin, ymax), ``height_range`` (min, max) of the finite heights
+        (None when all are nodata), ``nodata_count``, ``crs`` and ``source`` (None when unknown).
+        Only ints, floats, strings, tuples and None, so ``json.dumps`` works.
+
+    Examples
+    --------
+    >>> import numpy as np, stepterrain as st
+    >>> from stepterrain.io import describe_dem
+    >>> info = describe_dem(st.Terrain.from_heights([[0.0, np.nan], [2.0, 3.0]], spacing=(10.0, -10.0)))
+    >>> info["shape"], info["extent"], info["height_range"], info["nodata_count"]
+    ((2, 2), (0.0, 10.0, -10.0, 0.0), (0.0, 3.0), 1)
+    """
+    t = as_terrain(terrain)
+    finite = np.isfinite(t.heights)
+    height_range = None
+    if finite.any():
+        height_range = (float(t.heights[finite].min()), float(t.heights[finite].max()))
+    grid = t.kind == "grid"
+    return {
+        "kind": t.kind,
+        "shape": tuple(int(n) for n in t.shape),
+        "spacing": tuple(float(v) for v in t.spacing) if grid else None,
+        "origin": tuple(float(v) for v in t.origin) if grid else None,
+        "extent": tuple(float(v) for v in t.extent),
+        "height_range": height_range,
+        "nodata_count": int(finite.size - np.count_nonzero(finite)),
+        "crs": t.crs,
+        "source": t.source,
+    }
+
+
+# ---------------------------------------------------------------------------------------------- readers
+def _load_npy(file: Path) -> Terrain:
+    _check_magic(file, (_NPY_MAGIC,), "a NumPy .npy array file")
+    try:
+        array = np.load(file, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a NumPy .npy array file; got unreadable content ({exc})"
+        ) from exc
+    if not isinstance(array, np.ndarray):  # an .npz archive saved under a .npy name
+        if hasattr(array, "close"):
+            array.close()
+        raise DataFileError(f"cannot read {str(file)!r}: expected a single .npy array; got an .npz archive")
+    heights = _elevation(array, file, "array")
+    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+
+
+def _load_npz(file: Path) -> Terrain:
+    _check_magic(file, (_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive")
+    try:
+        archive = np.load(file, allow_pickle=False)
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
+        ) from exc
+    if isinstance(archive, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array
+        return _grid(
+            file, _elevation(archive, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
+        )
+    try:
+        with archive:
+            keys = list(archive.files)
+            arrays = {key: _npz_member(archive, key, file) for key in keys}
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
+        ) from exc
+
+    if "elevation" in arrays and "transform" in arrays:
+        heights = _elevation(arrays["elevation"], file, "'elevation'")
+        transform = np.asarray(arrays["transform"], dtype=np.float64).reshape(-1)
+        if transform.size != 6 or not np.all(np.isfinite(transform)):
+            raise DataFileError(
+                f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "
+                f"(x0, dx, 0, y0, 0, -dy); got {transform.tolist()}"
+            )
+        crs = _scalar_str(arrays.get("crs"))
+        units_xy = _scalar_str(arrays.get("units_xy")) or ""
+        geographic = _is_geographic(crs) or "degree" in units_xy.lower()
+        metres = None
+        if geographic and "dx_m" in arrays and "dy_m" in arrays:
+            metres = (float(np.asarray(arrays["dx_m"])), float(np.asarray(arrays["dy_m"])))
+        return _georeferenced(file, heights, transform, crs, geographic=geographic, metres=metres)
+
+    for key in _GENERIC_KEYS:
+        if key in arrays:
+            return _grid(
+                file,
+                _elevation(arrays[key], file, repr(key)),
+                spacing=(1.0, -1.0),
+                origin=(0.0, 0.0),
+                crs=None,
+            )
+    two_d = [key for key, value in arrays.items() if value.ndim == 2]
+    if len(two_d) == 1:
+        key = two_d[0]
+        return _grid(
+            file, _elevation(arrays[key], file, repr(key)), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
+        )
+    described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
+    raise DataFileError(
+        f"cannot read {str(file)!r}: expected an .npz with 'elevation' + 'transform', a key "
+        f"{'/'.join(_GENERIC_KEYS)}, or exactly one 2-D array; got {described}"
+    )
+
+
+def _load_png(file: Path) -> Terrain:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(file) as image:
+            mode = image.mode
+            if mode not in ("L", "I", "I;16", "I;16B", "I;16L", "F"):
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "
+                    f"got a {mode} image (colour or palette images are not elevation data)"
+                )
+            array = np.array(image)
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
+        if isinstance(exc, DataFileError):
+            raise
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG heightmap; got unreadable content ({exc})"
+        ) from exc
+    heights = _elevation(array, file, f"{mode} image")
+    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+
+
+def _load_geotiff(file: Path, band: int) -> Terrain:
+    try:
+        import rasterio
+        from rasterio.enums import ColorInterp
+        from rasterio.errors import NotGeoreferencedWarning, RasterioError
+    except ImportError as exc:
+        raise MissingDependencyError(
+            "reading GeoTIFF needs rasterio: pip install 'stepterrain[geo]'"
+        ) from exc
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(file) as dataset:
+                if band > dataset.count:
+                    raise InvalidInputError(
+                        f"band must be between 1 and {dataset.count} for {str(file)!r}; got band={band}"
+                    )
+                interp = dataset.colorinterp[band - 1]
+                if interp in (ColorInterp.palette, ColorInterp.red, ColorInterp.green, ColorInterp.blue):
+                    raise DataFileError(
+                        f"cannot read {str(file)!r}: expected an elevation band; band {band} is a colour "
+                        f"image band ({interp.name}), not elevation data"
+                    )
+                masked = dataset.read(band, masked=True)
+                transform = dataset.transform
+                crs_obj = dataset.crs
+    except RasterioError as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
+        ) from exc
+
+    array = np.ma.filled(masked.astype(np.float32), np.nan)
+    heights = _elevation(array, file, f"band {band}")
+    if crs_obj is None and transform.is_identity:
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+    geotransform = np.array(transform.to_gdal(), dtype=np.float64)
+    crs = _crs_string(crs_obj)
+    geographic = bool(crs_obj is not None and crs_obj.is_geographic)
+    return _georeferenced(file, heights, geotransform, crs, geographic=geographic, metres=None)
+
+
+# ---------------------------------------------------------------------------------------------- helpers
+def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> None:
+    """Refuse a file whose first bytes match none of ``magics`` (text saved under a NumPy extension)."""
+    try:
+        with open(file, "rb") as handle:
+            head = handle.read(16)
+    except OSError as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: {exc.strerror}") from exc
+    if not head.startswith(magics):
+        got = "an empty file" if not head else f"content starting {head[:8]!r}"
+        raise DataFileError(f"cannot read {str(file)!r}: expected {expected}; got {got}")
+
+
+def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
+    try:
+        return np.asarray(archive[key])
+    except ValueError as exc:  # object arrays need pickle, which stays off
+        raise DataFileError(
+            f"cannot read {str(file)!r}: member {key!r} holds Python objects ({exc})"
+        ) from exc
+
+
+def _scalar_str(value: Any) -> str | None:
+    if value is None:
+        return None
+    arr = np.asarray(value)
+    if arr.ndim != 0 or arr.dtype.kind not in "US":
+        return None
+    text = arr.item()
+    text = text.decode() if isinstance(text, bytes) else str(text)
+    return text or None
+
+
+def _elevation(array: NDArray[Any], file: Path, what: str) -> NDArray[np.float32]:
+    """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata."""
+    where = f"cannot read {str(file)!r}"
+    if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
+        raise DataFileError(
+            f"{where}: expected real-valued elevation data; got {what} of dtype {array.dtype}"
+        )
+    if array.ndim != 2:
+        raise DataFileError(
+            f"{where}: expected a 2-D (H, W) elevation grid; got {what} of shape {array.shape}"
+        )
+    if array.shape[0] < 2 or array.shape[1] < 2:
+        raise DataFileError(
+            f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
+        )
+    heights = np.ascontiguousarray(array, dtype=np.float32)
+    finite = np.isfinite(heights)
+    if not finite.all():
+        heights[~finite] = np.nan
+        if not finite.any():
+            raise DataFileError(
+                f"cannot read {str(file)!r}: expected elevation data; got {what} that is all nodata"
+            )
+    return heights
+
+
+def _grid(
+    file: Path,
+    heights: NDArray[np.float32],
+    *,
+    spacing: tuple[float, float],
+    origin: tuple[float, float],
+    crs: str | None,
+    source: str | None = None,
+) -> Terrain:
+    try:
+        return Terrain.from_heights(
+            heights, spacing=spacing, origin=origin, crs=crs, source=source or file.name
+        )
+    except InvalidInputError as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
+
+
+def _georeferenced(
+    file: Path,
+    heights: NDArray[np.float32],
+    geotransform: NDArray[np.float64],
+    crs: str | None,
+    *,
+    geographic: bool,
+    metres: tuple[float, float] | None,
+) -> Terrain:
+    """Grid from a GDAL geotransform of the cell corners: node (0, 0) is the centre of the top-left cell."""
+    x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
+    if row_x != 0.0 or col_y != 0.0:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
+            f"{tuple(float(v) for v in geotransform)}"
+        )
+    if dx == 0.0 or dy == 0.0:
+        raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
+    node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
+    if not geographic:
+        return _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs)
+
+    rows = heights.shape[0]
+    centre_lat = y0 + 0.5 * rows * dy
+    if metres is None:
+        metres = (
+            EARTH_RADIUS_M * math.cos(math.radians(centre_lat)) * math.radians(abs(dx)),
+            EARTH_RADIUS_M * math.radians(abs(dy)),
+        )
+    spacing = (math.copysign(abs(metres[0]), dx), math.copysign(abs(metres[1]), dy))
+    local_crs = (
+        f"+proj=eqc +lat_ts={centre_lat:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
+        f"+x_0=0 +y_0=0 +R={EARTH_RADIUS_M} +units=m +no_defs"
+    )
+    source = (
+        f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
+        f"lat {node_y:.9f}; dx at lat {centre_lat:.6f}, R = {EARTH_RADIUS_M} m)"
+    )
+    return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
+
+
+def _is_geographic(crs: str | None) -> bool:
+    if not crs:
+        return False
+    if crs.strip().upper() in _GEOGRAPHIC_CODES:
+        return True
+    try:
+        from rasterio.crs import CRS
+    except ImportError:
+        return crs.lstrip().upper().startswith(("GEOGCS", "GEOGCRS", "+PROJ=LONGLAT", "+PROJ=LATLONG"))
+    try:
+        return bool(CRS.from_user_input(crs).is_geographic)
+    except Exception:  # an unparseable CRS string: keep the grid in its own units
+        return False
+
+
+def _crs_string(crs_obj: Any) -> str | None:
+    if crs_obj is None:
+        return None
+    epsg = crs_obj.to_epsg()
+    if epsg is not None:
+        return f"EPSG:{epsg}"
+    return crs_obj.to_string() or None

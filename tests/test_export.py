@@ -1,0 +1,295 @@
+"""save_mesh / save_image: every format round-trips, glTF extras, flat shading, atomic failures."""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from stepterrain import export
+from stepterrain.errors import DataFileError, InvalidInputError, MissingDependencyError
+from stepterrain.export import MESH_EXTENSIONS, atomic_path, save_image, save_mesh
+from stepterrain.terrain import heightfield_mesh
+
+
+def stepped_like_mesh(offset: tuple[float, float] = (0.0, 0.0)) -> trimesh.Trimesh:
+    """A small grid mesh with what stepped() attaches: face attributes (int32, bool), colours, metadata."""
+    z = np.add.outer(np.arange(5.0), np.arange(6.0)) * 10.0
+    mesh = heightfield_mesh(z, spacing=(30.0, -30.0), origin=offset)
+    n = len(mesh.faces)
+    mesh.face_attributes = {"level": np.arange(n, dtype=np.int32) % 3, "wall": np.arange(n) % 2 == 0}
+    mesh.visual = trimesh.visual.ColorVisuals(
+        mesh, vertex_colors=np.tile([10, 200, 30, 255], (len(mesh.vertices), 1))
+    )
+    mesh.metadata.update(
+        {"generator": "test", "isovalues": np.array([0.0, 10.0, 20.0], np.float32), "gamma": np.float64(1)}
+    )
+    return mesh
+
+
+def glb_json(path: Path) -> dict:
+    data = path.read_bytes()
+    magic, _version, _length = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF"
+    chunk_length, chunk_type = struct.unpack_from("<I4s", data, 12)
+    assert chunk_type == b"JSON"
+    return json.loads(data[20 : 20 + chunk_length])
+
+
+def no_leftovers(folder: Path, expected: set[str]) -> None:
+    assert {p.name for p in folder.iterdir()} == expected
+
+
+def needs_3mf() -> None:
+    for name in ("lxml", "networkx"):
+        pytest.importorskip(
+            name, reason="trimesh's 3MF writer needs lxml and networkx (pip install lxml networkx)"
+        )
+
+
+# ---------------------------------------------------------------------------------------------- formats
+@pytest.mark.parametrize("ext", MESH_EXTENSIONS)
+def test_round_trip(tmp_path, ext):
+    if ext == ".3mf":
+        needs_3mf()
+    mesh = stepped_like_mesh()
+    out = save_mesh(mesh, tmp_path / f"steps{ext}")
+    assert out == tmp_path / f"steps{ext}" and out.stat().st_size > 0
+    loaded = trimesh.load(out, force="mesh", process=False)
+    assert len(loaded.faces) == len(mesh.faces)
+    if ext == ".stl":  # STL stores three corners per face
+        assert len(loaded.vertices) == 3 * len(mesh.faces)
+    else:
+        assert len(loaded.vertices) == len(mesh.vertices)
+        np.testing.assert_allclose(loaded.vertices, mesh.vertices, atol=1e-4)
+    no_leftovers(tmp_path, {f"steps{ext}"})
+    # the caller's mesh is untouched
+    assert mesh.face_attributes["wall"].dtype == bool and isinstance(mesh.metadata["isovalues"], np.ndarray)
+
+
+def test_extension_is_case_insensitive(tmp_path):
+    out = save_mesh(stepped_like_mesh(), tmp_path / "UPPER.GLB")
+    assert glb_json(out)["asset"]["version"] == "2.0"
+
+
+def test_glb_extras_and_no_normals(tmp_path):
+    out = save_mesh(
+        stepped_like_mesh(), tmp_path / "m.glb", metadata={"interval": np.float32(10), "note": "hi"}
+    )
+    tree = glb_json(out)
+    (gltf_mesh,) = tree["meshes"]
+    extras = gltf_mesh["extras"]
+    assert extras["interval"] == 10.0 and extras["note"] == "hi"
+    assert (
+        extras["generator"] == "test" and extras["isovalues"] == [0.0, 10.0, 20.0] and extras["gamma"] == 1.0
+    )
+    for primitive in gltf_mesh["primitives"]:
+        assert "NORMAL" not in primitive["attributes"]
+        assert "COLOR_0" in primitive["attributes"]
+    loaded = trimesh.load(out)
+    (geometry,) = loaded.geometry.values()
+    assert geometry.metadata["interval"] == 10.0
+
+
+def test_gltf_is_self_contained(tmp_path):
+    out = save_mesh(stepped_like_mesh(), tmp_path / "m.gltf", metadata={"k": 1})
+    tree = json.loads(out.read_text())
+    for buffer in tree["buffers"]:
+        assert buffer["uri"].startswith("data:application/octet-stream;base64,")
+        assert len(base64.b64decode(buffer["uri"].split(",", 1)[1])) == buffer["byteLength"]
+    assert tree["meshes"][0]["extras"]["k"] == 1
+    assert all("NORMAL" not in p["attributes"] for p in tree["meshes"][0]["primitives"])
+    no_leftovers(tmp_path, {"m.gltf"})
+
+
+def test_extras_are_json_safe(tmp_path):
+    metadata = {
+        "nan": float("nan"),
+        "path": tmp_path,
+        "tuple": (np.int64(1), np.float32(2.5), np.bool_(True)),
+        "nested": {"a": np.arange(3)},
+        "huge": np.zeros(100_000),
+        "_private": 1,
+        "thing": object,
+    }
+    tree = glb_json(save_mesh(stepped_like_mesh(), tmp_path / "m.glb", metadata=metadata))
+    extras = tree["meshes"][0]["extras"]
+    assert extras["nan"] is None
+    assert extras["path"] == str(tmp_path)
+    assert extras["tuple"] == [1, 2.5, True]
+    assert extras["nested"] == {"a": [0, 1, 2]}
+    assert "huge" not in extras and "_private" not in extras
+    assert extras["thing"] == str(object)
+
+
+def test_large_coordinates_keep_precision_in_gltf(tmp_path):
+    mesh = stepped_like_mesh(offset=(376328.655, 3807902.827))
+    for ext in (".glb", ".gltf", ".ply"):
+        loaded = trimesh.load(save_mesh(mesh, tmp_path / f"utm{ext}"), force="mesh", process=False)
+        np.testing.assert_allclose(loaded.vertices, mesh.vertices, rtol=0, atol=1e-3)
+
+
+def test_ply_keeps_face_attributes(tmp_path):
+    mesh = stepped_like_mesh()
+    mesh.face_attributes["big"] = np.arange(len(mesh.faces), dtype=np.int64)
+    mesh.face_attributes["pair"] = np.ones((len(mesh.faces), 2), np.float16)
+    out = save_mesh(mesh, tmp_path / "m.ply")
+    header = out.read_bytes().split(b"end_header")[0].decode()
+    for line in ("property int level", "property uchar wall", "property int big", "property float pair_1"):
+        assert line in header
+    raw = trimesh.load(out, process=False).metadata["_ply_raw"]["face"]["data"]
+    np.testing.assert_array_equal(raw["wall"], mesh.face_attributes["wall"].astype(np.uint8))
+    np.testing.assert_array_equal(raw["level"], mesh.face_attributes["level"])
+
+
+def test_empty_mesh(tmp_path):
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    for ext in (".glb", ".obj", ".ply", ".stl"):
+        assert save_mesh(empty, tmp_path / f"e{ext}").exists()
+
+
+def test_unknown_extension(tmp_path):
+    with pytest.raises(
+        InvalidInputError, match=r"unknown mesh extension '\.fbx'; supported: \.glb, \.gltf, \.obj"
+    ):
+        save_mesh(stepped_like_mesh(), tmp_path / "m.fbx")
+    with pytest.raises(InvalidInputError, match=r"unknown mesh extension '\(none\)'"):
+        save_mesh(stepped_like_mesh(), tmp_path / "m")
+    no_leftovers(tmp_path, set())
+
+
+def test_not_a_mesh(tmp_path):
+    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh; got ndarray"):
+        save_mesh(np.zeros((3, 3)), tmp_path / "m.glb")
+
+
+def test_3mf_without_dependencies(tmp_path, monkeypatch):
+    real_find_spec = export.importlib.util.find_spec
+    monkeypatch.setattr(
+        export.importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "lxml" else real_find_spec(name, *a),
+    )
+    with pytest.raises(MissingDependencyError, match="writing 3MF needs lxml: pip install lxml networkx"):
+        save_mesh(stepped_like_mesh(), tmp_path / "m.3mf")
+
+
+# ---------------------------------------------------------------------------------------------- atomicity
+def failing_writer(mesh, tmp, target):
+    tmp.write_bytes(b"partial glb bytes")
+    raise RuntimeError("exporter died midway")
+
+
+def test_failed_export_leaves_nothing(tmp_path, monkeypatch):
+    monkeypatch.setitem(export._WRITERS, ".glb", failing_writer)
+    with pytest.raises(RuntimeError, match="midway"):
+        save_mesh(stepped_like_mesh(), tmp_path / "m.glb")
+    no_leftovers(tmp_path, set())
+
+
+def test_failed_export_keeps_existing_target(tmp_path, monkeypatch):
+    target = tmp_path / "m.glb"
+    target.write_bytes(b"previous good file")
+    monkeypatch.setitem(export._WRITERS, ".glb", failing_writer)
+    with pytest.raises(RuntimeError, match="midway"):
+        save_mesh(stepped_like_mesh(), target)
+    assert target.read_bytes() == b"previous good file"
+    no_leftovers(tmp_path, {"m.glb"})
+
+
+def test_os_error_in_writer_becomes_data_file_error(tmp_path, monkeypatch):
+    def disk_full(mesh, tmp, target):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setitem(export._WRITERS, ".stl", disk_full)
+    with pytest.raises(DataFileError, match=r"cannot write '.*m\.stl': .*No space left"):
+        save_mesh(stepped_like_mesh(), tmp_path / "m.stl")
+    no_leftovers(tmp_path, set())
+
+
+def test_overwrite_and_new_folders(tmp_path):
+    target = tmp_path / "a" / "b" / "m.obj"
+    save_mesh(stepped_like_mesh(), target)
+    first = target.read_bytes()
+    save_mesh(trimesh.creation.box(), target)
+    assert target.read_bytes() != first and len(trimesh.load(target).faces) == 12
+    assert target.stat().st_mode & 0o777 == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def test_folder_is_a_file(tmp_path):
+    blocker = tmp_path / "file.txt"
+    blocker.write_text("x")
+    with pytest.raises(DataFileError, match=r"output folder '.*file\.txt' is not a folder"):
+        save_mesh(stepped_like_mesh(), blocker / "m.glb")
+    with pytest.raises(DataFileError, match="cannot create the output folder"):
+        save_image(np.zeros((2, 2, 3), np.uint8), blocker / "sub" / "i.png")
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root can write into read-only folders")
+def test_read_only_folder(tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        with pytest.raises(DataFileError, match="is not writable"):
+            save_mesh(stepped_like_mesh(), folder / "m.glb")
+    finally:
+        folder.chmod(0o755)
+
+
+def test_unwritable_folder_reported(tmp_path, monkeypatch):
+    # root ignores permission bits, so stand in for a read-only folder by what os.access reports
+    monkeypatch.setattr(export.os, "access", lambda path, mode: False)
+    with pytest.raises(DataFileError, match=r"output folder '.*' is not writable"):
+        save_mesh(stepped_like_mesh(), tmp_path / "m.glb")
+    no_leftovers(tmp_path, set())
+
+
+def test_target_is_a_directory(tmp_path):
+    (tmp_path / "m.glb").mkdir()
+    with pytest.raises(DataFileError, match=r"cannot write '.*m\.glb'"):
+        save_mesh(stepped_like_mesh(), tmp_path / "m.glb")
+    no_leftovers(tmp_path, {"m.glb"})
+
+
+def test_atomic_path_removes_temp_on_error(tmp_path):
+    with pytest.raises(KeyError):
+        with atomic_path(tmp_path / "x.bin") as tmp:
+            tmp.write_bytes(b"half")
+            raise KeyError("boom")
+    no_leftovers(tmp_path, set())
+
+
+# ---------------------------------------------------------------------------------------------- images
+@pytest.mark.parametrize("channels", [3, 4])
+def test_save_image_round_trip(tmp_path, channels):
+    image = np.random.default_rng(1).integers(0, 256, (5, 7, channels), dtype=np.uint8)
+    out = save_image(image, tmp_path / "img.png")
+    with Image.open(out) as picture:
+        assert picture.mode == ("RGB" if channels == 3 else "RGBA")
+        back = np.asarray(picture)
+    np.testing.assert_array_equal(back, image)
+    no_leftovers(tmp_path, {"img.png"})
+
+
+def test_save_image_refusals(tmp_path):
+    with pytest.raises(InvalidInputError, match="must be uint8"):
+        save_image(np.zeros((2, 2, 3), np.float32), tmp_path / "i.png")
+    with pytest.raises(InvalidInputError, match=r"got shape \(2, 2\)"):
+        save_image(np.zeros((2, 2), np.uint8), tmp_path / "i.png")
+    with pytest.raises(InvalidInputError, match="must end in .png"):
+        save_image(np.zeros((2, 2, 3), np.uint8), tmp_path / "i.jpg")
+    no_leftovers(tmp_path, set())

@@ -1,0 +1,355 @@
+"""load_dem / sample_dem / describe_dem: real DEMs in shared/data, round-trips and every refused input."""
+
+from __future__ import annotations
+
+import builtins
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+import stepterrain as st
+from stepterrain.errors import DataFileError, InvalidInputError, MissingDependencyError
+from stepterrain.io import EARTH_RADIUS_M, describe_dem, load_dem, sample_dem
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+TUJUNGA = "big_tujunga_srtm_30m_utm11n"
+FRONT_RANGE = "front_range_srtmgl3_3arcsec"
+
+
+def data_file(name: str) -> Path:
+    path = DATA / name
+    if not path.exists():
+        pytest.skip(f"shared data file {name} not found in {DATA}")
+    return path
+
+
+def needs_rasterio():
+    return pytest.importorskip(
+        "rasterio", reason="GeoTIFF tests need rasterio (pip install 'stepterrain[geo]')"
+    )
+
+
+# ---------------------------------------------------------------------------------------------- real data
+@pytest.mark.parametrize("ext", ["npz", "tif"])
+def test_big_tujunga(ext):
+    if ext == "tif":
+        needs_rasterio()
+    t = load_dem(data_file(f"{TUJUNGA}.{ext}"))
+    assert t.kind == "grid" and t.shape == (643, 1197)
+    assert t.heights.dtype == np.float32 and not np.isnan(t.heights).any()
+    assert t.spacing == (30.0, -30.0)
+    assert t.crs == "EPSG:32611"
+    assert t.source == f"{TUJUNGA}.{ext}"
+    # node (0, 0) is the centre of the top-left cell: half a cell inside the corner bounds
+    x0, x1, y0, y1 = t.extent
+    assert x0 == pytest.approx(376313.66 + 15.0, abs=0.01)
+    assert x1 == pytest.approx(412223.66 - 15.0, abs=0.01)
+    assert y0 == pytest.approx(3788627.83 + 15.0, abs=0.01)
+    assert y1 == pytest.approx(3807917.83 - 15.0, abs=0.01)
+    assert t.origin == (x0, y1)
+    assert t.height_range == (315.0, 2295.0)
+
+
+@pytest.mark.parametrize("ext", ["npz", "tif"])
+def test_front_range_geographic_to_local_metres(ext):
+    if ext == "tif":
+        needs_rasterio()
+    t = load_dem(data_file(f"{FRONT_RANGE}.{ext}"))
+    assert t.shape == (758, 758)
+    assert not np.isnan(t.heights).any()
+    dx, dy = t.spacing
+    assert dx == pytest.approx(70.8, abs=0.05) and dy == pytest.approx(-92.66, abs=0.01)
+    # dy is the arc of 3 arc-seconds on the sphere; dx shrinks with the cosine of the centre latitude
+    assert -dy == pytest.approx(EARTH_RADIUS_M * math.radians(3 / 3600), rel=1e-6)
+    assert dx / -dy == pytest.approx(math.cos(math.radians(40.1504)), rel=1e-5)
+    assert t.origin == (0.0, 0.0)
+    assert t.extent == pytest.approx((0.0, 757 * dx, 757 * dy, 0.0))
+    assert "+proj=eqc" in t.crs and "+units=m" in t.crs
+    assert "lon -105.81583" in t.source and "lat 40.46583" in t.source
+    assert t.height_range == (1547.0, 4320.0)
+
+
+@pytest.mark.parametrize("name", [TUJUNGA, FRONT_RANGE])
+def test_tif_and_npz_agree(name):
+    needs_rasterio()
+    a = load_dem(data_file(f"{name}.npz"))
+    b = load_dem(data_file(f"{name}.tif"))
+    np.testing.assert_array_equal(a.heights, b.heights)
+    np.testing.assert_allclose(a.spacing, b.spacing, rtol=1e-9)
+    np.testing.assert_allclose(a.origin, b.origin, rtol=1e-9, atol=1e-6)
+    assert a.crs == b.crs
+
+
+def test_sample_dem():
+    t = sample_dem()
+    assert t.shape == (643, 1197)
+    assert t.spacing == (30.0, -30.0)
+    assert t.crs == "EPSG:32611"
+    assert t.height_range == (315.0, 2295.0)
+    assert t.source == "big_tujunga_srtm_30m_utm11n.npz"
+    assert sample_dem() is not t  # a fresh object each call
+    assert st.sample_dem().shape == t.shape
+
+
+def test_describe_dem_is_json_ready():
+    info = describe_dem(sample_dem())
+    assert info["shape"] == (643, 1197)
+    assert info["spacing"] == (30.0, -30.0)
+    assert info["height_range"] == (315.0, 2295.0)
+    assert info["nodata_count"] == 0
+    assert info["crs"] == "EPSG:32611"
+    assert info["extent"][1] - info["extent"][0] == pytest.approx(1196 * 30.0)
+    json.dumps(info)
+
+
+def test_describe_dem_all_nodata_and_tin():
+    grid = st.Terrain.from_heights(np.full((2, 3), np.nan), spacing=(2.0, 2.0))
+    info = describe_dem(grid)
+    assert info["height_range"] is None and info["nodata_count"] == 6
+    tin = describe_dem(st.heightfield_mesh(np.zeros((3, 3))))
+    assert tin["kind"] == "tin" and tin["spacing"] is None and tin["shape"] == (9,)
+
+
+# ---------------------------------------------------------------------------------------------- round-trips
+def test_npy_round_trip(tmp_path):
+    z = np.arange(20, dtype=np.int16).reshape(4, 5)
+    np.save(tmp_path / "z.npy", z)
+    t = load_dem(tmp_path / "z.npy")
+    np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    assert t.heights.dtype == np.float32
+    assert t.spacing == (1.0, -1.0) and t.origin == (0.0, 0.0) and t.source == "z.npy" and t.crs is None
+
+
+def test_npy_inf_becomes_nodata(tmp_path):
+    z = np.zeros((3, 3))
+    z[1, 2] = np.inf
+    np.save(tmp_path / "z.npy", z)
+    t = load_dem(tmp_path / "z.npy")
+    assert np.isnan(t.heights[1, 2]) and np.isfinite(t.heights).sum() == 8
+
+
+@pytest.mark.parametrize("key", ["heights", "elevation", "z", "anything"])
+def test_generic_npz(tmp_path, key):
+    z = np.random.default_rng(0).random((5, 4)).astype(np.float64)
+    np.savez(tmp_path / "g.npz", **{key: z, "meta": np.arange(3)})
+    t = load_dem(tmp_path / "g.npz")
+    np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    assert t.spacing == (1.0, -1.0)
+
+
+def test_georeferenced_npz_projected(tmp_path):
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.savez(
+        tmp_path / "p.npz",
+        elevation=z,
+        transform=np.array([1000.0, 10.0, 0, 5000.0, 0, -20.0]),
+        crs="EPSG:32633",
+    )
+    t = load_dem(tmp_path / "p.npz")
+    assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
+
+
+@pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
+def test_png_round_trip(tmp_path, dtype):
+    top = np.iinfo(dtype).max
+    z = np.linspace(0, top, 6 * 7).astype(dtype).reshape(6, 7)
+    Image.fromarray(z).save(tmp_path / "h.png")
+    t = load_dem(tmp_path / "h.png")
+    np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    assert t.heights.max() == top
+    assert t.spacing == (1.0, -1.0) and t.shape == (6, 7) and t.source == "h.png"
+
+
+def test_nan_nodata_geotiff_round_trip(tmp_path):
+    rasterio = needs_rasterio()
+    z = np.arange(30, dtype=np.int16).reshape(5, 6) + 100
+    z[2, 3] = -9999
+    path = tmp_path / "nodata.tif"
+    profile = dict(
+        driver="GTiff",
+        width=6,
+        height=5,
+        count=1,
+        dtype="int16",
+        crs="EPSG:32611",
+        nodata=-9999,
+        transform=rasterio.Affine(10.0, 0.0, 500000.0, 0.0, -10.0, 4000000.0),
+    )
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(z, 1)
+    t = load_dem(path)
+    assert np.isnan(t.heights[2, 3]) and np.isfinite(t.heights).sum() == 29
+    assert t.heights[0, 0] == 100.0 and t.heights.dtype == np.float32
+    assert t.origin == (500005.0, 3999995.0) and t.spacing == (10.0, -10.0) and t.crs == "EPSG:32611"
+    assert describe_dem(t)["nodata_count"] == 1
+
+    f = tmp_path / "float_nan.tif"
+    zf = z.astype(np.float32)
+    zf[2, 3] = np.nan
+    with rasterio.open(f, "w", **{**profile, "dtype": "float32", "nodata": np.nan}) as ds:
+        ds.write(zf, 1)
+    np.testing.assert_array_equal(load_dem(f).heights, zf)
+
+
+def test_geotiff_band_choice(tmp_path):
+    rasterio = needs_rasterio()
+    path = tmp_path / "two.tif"
+    z = np.stack([np.zeros((4, 4)), np.full((4, 4), 7.0)]).astype(np.float32)
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=4,
+        height=4,
+        count=2,
+        dtype="float32",
+        crs="EPSG:32611",
+        transform=rasterio.Affine(10.0, 0.0, 0.0, 0.0, -10.0, 40.0),
+    ) as ds:
+        ds.write(z)
+    assert load_dem(path, band=2).heights.max() == 7.0
+    with pytest.raises(InvalidInputError, match="band must be between 1 and 2"):
+        load_dem(path, band=3)
+
+
+# ---------------------------------------------------------------------------------------------- refusals
+def test_missing_file(tmp_path):
+    with pytest.raises(DataFileError, match=r"nope\.npz' does not exist"):
+        load_dem(tmp_path / "nope.npz")
+
+
+def test_unknown_extension(tmp_path):
+    (tmp_path / "dem.asc").write_text("ncols 2\n")
+    with pytest.raises(
+        InvalidInputError, match=r"unknown DEM extension '\.asc'; supported: \.npy, \.npz, \.png"
+    ):
+        load_dem(tmp_path / "dem.asc")
+
+
+def test_directory_is_refused(tmp_path):
+    (tmp_path / "d.npy").mkdir()
+    with pytest.raises(DataFileError, match="not a regular file"):
+        load_dem(tmp_path / "d.npy")
+
+
+@pytest.mark.parametrize("band", [0, -1, 1.5, True])
+def test_bad_band(tmp_path, band):
+    with pytest.raises(InvalidInputError, match="band must be a positive"):
+        load_dem(tmp_path / "x.npy", band=band)
+
+
+def test_band_on_single_band_format(tmp_path):
+    np.save(tmp_path / "z.npy", np.zeros((2, 2)))
+    with pytest.raises(InvalidInputError, match="band applies to GeoTIFF only"):
+        load_dem(tmp_path / "z.npy", band=2)
+
+
+def test_1d_array(tmp_path):
+    np.save(tmp_path / "line.npy", np.arange(5.0))
+    with pytest.raises(
+        DataFileError, match=r"line\.npy.*expected a 2-D \(H, W\) elevation grid; got array of shape \(5,\)"
+    ):
+        load_dem(tmp_path / "line.npy")
+
+
+def test_too_small_and_non_numeric(tmp_path):
+    np.save(tmp_path / "one.npy", np.zeros((1, 5)))
+    with pytest.raises(DataFileError, match="at least 2 x 2 nodes"):
+        load_dem(tmp_path / "one.npy")
+    np.save(tmp_path / "s.npy", np.array([["a", "b"], ["c", "d"]]))
+    with pytest.raises(DataFileError, match="expected real-valued elevation data; got array of dtype <U1"):
+        load_dem(tmp_path / "s.npy")
+    np.save(tmp_path / "b.npy", np.zeros((2, 2), bool))
+    with pytest.raises(DataFileError, match="dtype bool"):
+        load_dem(tmp_path / "b.npy")
+
+
+def test_all_nodata(tmp_path):
+    np.save(tmp_path / "nan.npy", np.full((3, 3), np.nan))
+    with pytest.raises(DataFileError, match="all nodata"):
+        load_dem(tmp_path / "nan.npy")
+
+
+@pytest.mark.parametrize("name", ["text.npy", "text.npz", "text.png", "text.tif"])
+def test_text_file(tmp_path, name):
+    if name.endswith(".tif"):
+        needs_rasterio()
+    (tmp_path / name).write_text("this is not elevation data\n")
+    with pytest.raises(DataFileError, match=rf"cannot read '.*{name}': expected a"):
+        load_dem(tmp_path / name)
+
+
+def test_pickled_npy(tmp_path):
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(DataFileError, match=r"obj\.npy.*expected a NumPy \.npy array file"):
+        load_dem(tmp_path / "obj.npy")
+
+
+def test_npz_without_elevation(tmp_path):
+    np.savez(tmp_path / "many.npz", a=np.zeros((2, 2)), b=np.ones((3, 3)), c=np.arange(3))
+    with pytest.raises(DataFileError, match=r"exactly one 2-D array; got a \(2, 2\), b \(3, 3\), c \(3,\)"):
+        load_dem(tmp_path / "many.npz")
+
+
+def test_npz_bad_transform(tmp_path):
+    np.savez(tmp_path / "t.npz", elevation=np.zeros((2, 2)), transform=np.array([0.0, 1.0, 0.0]))
+    with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
+        load_dem(tmp_path / "t.npz")
+    np.savez(
+        tmp_path / "r.npz", elevation=np.zeros((2, 2)), transform=np.array([0.0, 1.0, 0.5, 0.0, 0.0, -1.0])
+    )
+    with pytest.raises(DataFileError, match="rotated geotransform"):
+        load_dem(tmp_path / "r.npz")
+
+
+def test_rgb_png(tmp_path):
+    Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "rgb.png")
+    with pytest.raises(
+        DataFileError, match=r"rgb\.png.*expected a single-channel 8- or 16-bit greyscale.*got a RGB"
+    ):
+        load_dem(tmp_path / "rgb.png")
+
+
+def test_palette_geotiff(tmp_path):
+    rasterio = needs_rasterio()
+    from rasterio.enums import ColorInterp
+
+    path = tmp_path / "palette.tif"
+    with rasterio.open(
+        path,
+        "w",
+        driver="GTiff",
+        width=4,
+        height=4,
+        count=1,
+        dtype="uint8",
+        crs="EPSG:4326",
+        transform=rasterio.Affine(1.0, 0.0, 0.0, 0.0, -1.0, 4.0),
+    ) as ds:
+        ds.write(np.zeros((4, 4), np.uint8), 1)
+        ds.write_colormap(1, {0: (255, 0, 0, 255), 1: (0, 255, 0, 255)})
+        ds.colorinterp = [ColorInterp.palette]
+    with pytest.raises(
+        DataFileError, match=r"palette\.tif.*colour image band \(palette\), not elevation data"
+    ):
+        load_dem(path)
+
+
+def test_geotiff_without_rasterio(tmp_path, monkeypatch):
+    real_import = builtins.__import__
+
+    def no_rasterio(name, *args, **kwargs):
+        if name == "rasterio" or name.startswith("rasterio."):
+            raise ImportError("No module named 'rasterio'")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_rasterio)
+    (tmp_path / "dem.tif").write_bytes(b"II*\x00")
+    with pytest.raises(
+        MissingDependencyError, match=r"reading GeoTIFF needs rasterio: pip install 'stepterrain\[geo\]'"
+    ):
+        load_dem(tmp_path / "dem.tif")
