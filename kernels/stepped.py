@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 vec3l = wp.types.vector(length=3, dtype=wp.int64)
 
@@ -47,6 +47,7 @@ class HeightField:
     cols: wp.int32
     spacing: wp.vec2
     flip: wp.int32  # 1 when dx * dy < 0: swap the winding so faces stay counter-clockwise seen from +z
+    has_nodata: wp.int32  # 0 when every height is finite: every node and edge is used, no checks needed
 
 
 @wp.struct
@@ -120,8 +121,12 @@ def crossing_vertex(
     levels: wp.array[wp.int32],
     iso: Isovalues,
     offsets: wp.array[wp.int32],
+    stride: wp.int32,
 ) -> wp.int32:
-    """Output index of the wall bottom (top=0) or top (top=1) where edge a-b crosses threshold j."""
+    """Output index of the wall bottom (top=0) or top (top=1) where edge a-b crosses threshold j.
+
+    Node n's vertices start at ``offsets[n * stride]``; its twin is the last one, ``offsets[n * stride + 1] - 1``.
+    """
     la = levels[a]
     lb = levels[b]
     hi = b
@@ -134,8 +139,8 @@ def crossing_vertex(
     if j == lhi - 1:
         if heights[hi] == iso.thresholds[j]:
             if top == 1:
-                return offsets[hi]
-            return offsets[hi + 1] - 1
+                return offsets[hi * stride]
+            return offsets[hi * stride + 1] - 1
     return offsets[slot] + 2 * (j - llo) + top
 
 
@@ -195,6 +200,7 @@ def walk_edge(
     levels: wp.array[wp.int32],
     iso: Isovalues,
     offsets: wp.array[wp.int32],
+    stride: wp.int32,
     write: wp.int32,
     face_base: wp.int32,
     faces_out: wp.array[vec3l],
@@ -206,20 +212,20 @@ def walk_edge(
     lb = levels[b]
     s = state
     if la == k:
-        s = fan_push(offsets[a], s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = fan_push(offsets[a * stride], s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
     if la < lb:
         if la <= k - 1 and k - 1 < lb:
-            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets)
+            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets, stride)
             s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
         if la <= k and k < lb:
-            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets)
+            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets, stride)
             s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
     if la > lb:
         if lb <= k and k < la:
-            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets)
+            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets, stride)
             s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
         if lb <= k - 1 and k - 1 < la:
-            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets)
+            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets, stride)
             s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
     return s
 
@@ -235,17 +241,18 @@ def wall_end(
     levels: wp.array[wp.int32],
     iso: Isovalues,
     offsets: wp.array[wp.int32],
+    stride: wp.int32,
 ) -> wp.vec4i:
     """Record edge a -> b's crossing of threshold j as the wall's u (ascending) or v (descending) end."""
     la = levels[a]
     lb = levels[b]
     e = ends
     if la <= j and j < lb:
-        e[0] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets)
-        e[1] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets)
+        e[0] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets, stride)
+        e[1] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets, stride)
     if lb <= j and j < la:
-        e[2] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets)
-        e[3] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets)
+        e[2] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets, stride)
+        e[3] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets, stride)
     return e
 
 
@@ -261,6 +268,7 @@ def step_triangle(
     levels: wp.array[wp.int32],
     iso: Isovalues,
     offsets: wp.array[wp.int32],
+    stride: wp.int32,
     write: wp.int32,
     face_base: wp.int32,
     faces_out: wp.array[vec3l],
@@ -269,7 +277,9 @@ def step_triangle(
 ) -> wp.int32:
     """Tessellate one counter-clockwise triangle into terraces and walls; return (and, if write, emit) its faces.
 
-    c0, c1, c2 are node ids; s0, s1, s2 the vertex-offset slots of edges c0c1, c1c2, c2c0.
+    c0, c1, c2 are node ids; s0, s1, s2 the vertex-offset slots of edges c0c1, c1c2, c2c0. Without a corner
+    on a crossed threshold, band k's polygon has (corners at k) + 2 [k > lmin] + 2 [k < lmax] vertices, so
+    the triangle yields 1 + 4 (lmax - lmin) faces: the count pass uses that and walks only the rest.
     """
     l0 = levels[c0]
     l1 = levels[c1]
@@ -278,19 +288,30 @@ def step_triangle(
     lmax = wp.max(l0, wp.max(l1, l2))
     count = wp.int32(0)
     if lmin == lmax:
-        write_face(write, face_base, offsets[c0], offsets[c1], offsets[c2], lmin, 0, faces_out, face_levels_out, face_walls_out)
+        write_face(write, face_base, offsets[c0 * stride], offsets[c1 * stride], offsets[c2 * stride], lmin, 0,
+                   faces_out, face_levels_out, face_walls_out)
         return 1
+    if write == 0:
+        aliased = wp.int32(0)
+        if l0 > lmin:
+            aliased += on_threshold(heights[c0], l0, iso.thresholds)
+        if l1 > lmin:
+            aliased += on_threshold(heights[c1], l1, iso.thresholds)
+        if l2 > lmin:
+            aliased += on_threshold(heights[c2], l2, iso.thresholds)
+        if aliased == 0:
+            return 1 + 4 * (lmax - lmin)
     for k in range(lmin, lmax + 1):
         s = wp.vec4i(-1, -1, 0, count)
-        s = walk_edge(c0, c1, s0, k, s, heights, levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
-        s = walk_edge(c1, c2, s1, k, s, heights, levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
-        s = walk_edge(c2, c0, s2, k, s, heights, levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(c0, c1, s0, k, s, heights, levels, iso, offsets, stride, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(c1, c2, s1, k, s, heights, levels, iso, offsets, stride, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(c2, c0, s2, k, s, heights, levels, iso, offsets, stride, write, face_base, faces_out, face_levels_out, face_walls_out)
         count = s[3]
         if k < lmax:
             ends = wp.vec4i(-1, -1, -1, -1)
-            ends = wall_end(c0, c1, s0, k, ends, heights, levels, iso, offsets)
-            ends = wall_end(c1, c2, s1, k, ends, heights, levels, iso, offsets)
-            ends = wall_end(c2, c0, s2, k, ends, heights, levels, iso, offsets)
+            ends = wall_end(c0, c1, s0, k, ends, heights, levels, iso, offsets, stride)
+            ends = wall_end(c1, c2, s1, k, ends, heights, levels, iso, offsets, stride)
+            ends = wall_end(c2, c0, s2, k, ends, heights, levels, iso, offsets, stride)
             if ends[0] != ends[2]:
                 write_face(write, face_base + count, ends[0], ends[2], ends[3], k, 1, faces_out, face_levels_out, face_walls_out)
                 write_face(write, face_base + count + 1, ends[0], ends[3], ends[1], k, 1, faces_out, face_levels_out, face_walls_out)
@@ -411,7 +432,8 @@ def quantize_levels(
 
 
 # ---------------------------------------------------------------------------------------------------------
-# regular grids: edges indexed implicitly (horizontal, then vertical, then diagonal)
+# regular grids: node n owns four vertex slots, 4n (itself and its twin), 4n+1 (edge to n+1), 4n+2 (edge
+# to n+cols) and 4n+3 (diagonal to n+cols+1); edges are indexed implicitly, nothing is sorted
 # ---------------------------------------------------------------------------------------------------------
 
 
@@ -425,40 +447,29 @@ def grid_finite(hf: HeightField, i: wp.int32, j: wp.int32) -> wp.int32:
 
 
 @wp.func
-def grid_edge(hf: HeightField, e: wp.int32) -> wp.vec4i:
-    """Edge e -> (node a, node b, used, 0); used when both ends and one adjacent triangle are finite."""
-    cols = hf.cols
-    n_h = hf.rows * (cols - 1)
-    n_v = (hf.rows - 1) * cols
-    i = wp.int32(0)
-    j = wp.int32(0)
-    a = wp.int32(0)
-    b = wp.int32(0)
-    used = wp.int32(0)
-    if e < n_h:
-        i = e // (cols - 1)
-        j = e - i * (cols - 1)
-        a = i * cols + j
-        b = a + 1
+def grid_edge_used(hf: HeightField, i: wp.int32, j: wp.int32, kind: wp.int32) -> wp.int32:
+    """Edge ``kind`` (1 right, 2 down, 3 diagonal) of node (i, j): 1 when it exists, its ends are finite and
+    one of its triangles has a finite third node."""
+    if kind == 1:
+        if j + 1 >= hf.cols:
+            return 0
+        if hf.has_nodata == 0:
+            return 1
         third = grid_finite(hf, i + 1, j + 1) + grid_finite(hf, i - 1, j)
-        used = grid_finite(hf, i, j) * grid_finite(hf, i, j + 1) * wp.min(third, 1)
-    elif e < n_h + n_v:
-        e2 = e - n_h
-        i = e2 // cols
-        j = e2 - i * cols
-        a = i * cols + j
-        b = a + cols
+        return grid_finite(hf, i, j) * grid_finite(hf, i, j + 1) * wp.min(third, 1)
+    if kind == 2:
+        if i + 1 >= hf.rows:
+            return 0
+        if hf.has_nodata == 0:
+            return 1
         third = grid_finite(hf, i + 1, j + 1) + grid_finite(hf, i, j - 1)
-        used = grid_finite(hf, i, j) * grid_finite(hf, i + 1, j) * wp.min(third, 1)
-    else:
-        e3 = e - n_h - n_v
-        i = e3 // (cols - 1)
-        j = e3 - i * (cols - 1)
-        a = i * cols + j
-        b = a + cols + 1
-        third = grid_finite(hf, i, j + 1) + grid_finite(hf, i + 1, j)
-        used = grid_finite(hf, i, j) * grid_finite(hf, i + 1, j + 1) * wp.min(third, 1)
-    return wp.vec4i(a, b, used, 0)
+        return grid_finite(hf, i, j) * grid_finite(hf, i + 1, j) * wp.min(third, 1)
+    if i + 1 >= hf.rows or j + 1 >= hf.cols:
+        return 0
+    if hf.has_nodata == 0:
+        return 1
+    third = grid_finite(hf, i, j + 1) + grid_finite(hf, i + 1, j)
+    return grid_finite(hf, i, j) * grid_finite(hf, i + 1, j + 1) * wp.min(third, 1)
 
 
 @wp.func
@@ -469,10 +480,10 @@ def grid_point(hf: HeightField, n: wp.int32) -> wp.vec3:
 
 
 @wp.func
-def grid_incident(hf: HeightField, n: wp.int32, e: wp.int32, other: wp.int32, flags: wp.vec3i) -> wp.vec3i:
-    """Fold incident edge e (to node other) into flags = (node used, a used neighbour is lower, one is not)."""
+def grid_incident(hf: HeightField, n: wp.int32, used: wp.int32, other: wp.int32, flags: wp.vec3i) -> wp.vec3i:
+    """Fold an incident edge (to node other) into flags = (node used, a used neighbour is lower, one is not)."""
     f = flags
-    if grid_edge(hf, e)[2] != 0:
+    if used != 0:
         f[0] = 1
         if hf.levels[other] < hf.levels[n]:
             f[1] = 1
@@ -485,24 +496,18 @@ def grid_incident(hf: HeightField, n: wp.int32, e: wp.int32, other: wp.int32, fl
 def grid_node_flags(hf: HeightField, n: wp.int32) -> wp.vec3i:
     """(used by a finite triangle, has a used neighbour on a lower level, has one not lower) for node n."""
     cols = hf.cols
-    rows = hf.rows
-    n_h = rows * (cols - 1)
-    n_v = (rows - 1) * cols
     i = n // cols
     j = n - i * cols
     f = wp.vec3i(0, 0, 0)
-    if j < cols - 1:
-        f = grid_incident(hf, n, i * (cols - 1) + j, n + 1, f)
+    f = grid_incident(hf, n, grid_edge_used(hf, i, j, 1), n + 1, f)
+    f = grid_incident(hf, n, grid_edge_used(hf, i, j, 2), n + cols, f)
+    f = grid_incident(hf, n, grid_edge_used(hf, i, j, 3), n + cols + 1, f)
     if j > 0:
-        f = grid_incident(hf, n, i * (cols - 1) + j - 1, n - 1, f)
-    if i < rows - 1:
-        f = grid_incident(hf, n, n_h + n, n + cols, f)
-        if j < cols - 1:
-            f = grid_incident(hf, n, n_h + n_v + i * (cols - 1) + j, n + cols + 1, f)
+        f = grid_incident(hf, n, grid_edge_used(hf, i, j - 1, 1), n - 1, f)
     if i > 0:
-        f = grid_incident(hf, n, n_h + n - cols, n - cols, f)
+        f = grid_incident(hf, n, grid_edge_used(hf, i - 1, j, 2), n - cols, f)
         if j > 0:
-            f = grid_incident(hf, n, n_h + n_v + (i - 1) * (cols - 1) + j - 1, n - cols - 1, f)
+            f = grid_incident(hf, n, grid_edge_used(hf, i - 1, j - 1, 3), n - cols - 1, f)
     return f
 
 
@@ -516,6 +521,33 @@ def node_vertex_count(used: wp.int32, twin: wp.int32, has_peer: wp.int32) -> wp.
     return 1 + twin
 
 
+@wp.func
+def grid_node_count(hf: HeightField, iso: Isovalues, n: wp.int32) -> wp.vec2i:
+    """(vertices node n owns, 1 if it is a peak on its threshold)."""
+    on = on_threshold(hf.heights[n], hf.levels[n], iso.thresholds)
+    if hf.has_nodata == 0 and on == 0:
+        return wp.vec2i(1, 0)
+    f = grid_node_flags(hf, n)
+    twin = on * f[1]
+    peak = wp.int32(0)
+    if twin != 0 and f[2] == 0:
+        peak = 1
+    return wp.vec2i(node_vertex_count(f[0], twin, f[2]), peak)
+
+
+@wp.func
+def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, kind: wp.int32) -> wp.int32:
+    if grid_edge_used(hf, i, j, kind) == 0:
+        return 0
+    a = i * hf.cols + j
+    b = a + 1
+    if kind == 2:
+        b = a + hf.cols
+    if kind == 3:
+        b = a + hf.cols + 1
+    return edge_vertex_count(a, b, hf.heights, hf.levels, iso)
+
+
 @wp.kernel
 def count_grid_vertices(
     hf: HeightField,
@@ -523,21 +555,14 @@ def count_grid_vertices(
     # outputs
     counts_out: wp.array[wp.int32],
 ):
-    """One thread per node, then per edge: count the output vertices it owns."""
-    tid = wp.tid()
-    n_nodes = hf.rows * hf.cols
-    if tid < n_nodes:
-        f = grid_node_flags(hf, tid)
-        twin = wp.int32(0)
-        if f[1] != 0:
-            twin = on_threshold(hf.heights[tid], hf.levels[tid], iso.thresholds)
-        counts_out[tid] = node_vertex_count(f[0], twin, f[2])
-    else:
-        ab = grid_edge(hf, tid - n_nodes)
-        if ab[2] != 0:
-            counts_out[tid] = edge_vertex_count(ab[0], ab[1], hf.heights, hf.levels, iso)
-        else:
-            counts_out[tid] = 0
+    """One thread per node: count the vertices of its four slots (itself and its three owned edges)."""
+    n = wp.tid()
+    i = n // hf.cols
+    j = n - i * hf.cols
+    counts_out[4 * n] = grid_node_count(hf, iso, n)[0]
+    counts_out[4 * n + 1] = grid_edge_count(hf, iso, i, j, 1)
+    counts_out[4 * n + 2] = grid_edge_count(hf, iso, i, j, 2)
+    counts_out[4 * n + 3] = grid_edge_count(hf, iso, i, j, 3)
 
 
 @wp.kernel
@@ -552,27 +577,31 @@ def emit_grid_vertices(
     sources_out: wp.array[wp.vec2i],
     betas_out: wp.array[wp.float32],
 ):
-    """One thread per node, then per edge: write its output vertices from its offset."""
-    tid = wp.tid()
-    n_nodes = hf.rows * hf.cols
-    first = offsets[tid]
-    if offsets[tid + 1] == first:
-        return
-    if tid < n_nodes:
+    """One thread per node: write the vertices of its four slots from their offsets."""
+    n = wp.tid()
+    cols = hf.cols
+    p = grid_point(hf, n)
+    first = offsets[4 * n]
+    owned = offsets[4 * n + 1] - first
+    if owned > 0:
         twin = wp.int32(0)
         peak = wp.int32(0)
-        if offsets[tid + 1] - first == 2:
+        if owned == 2:
             twin = 1
-        elif on_threshold(hf.heights[tid], hf.levels[tid], iso.thresholds) != 0:
-            f = grid_node_flags(hf, tid)
-            if f[1] != 0 and f[2] == 0:
-                peak = 1
-        emit_node_vertices(tid, grid_point(hf, tid), hf.levels[tid], twin, peak, first, iso, want_sources,
+        elif hf.has_nodata != 0 or on_threshold(hf.heights[n], hf.levels[n], iso.thresholds) != 0:
+            peak = grid_node_count(hf, iso, n)[1]
+        emit_node_vertices(n, p, hf.levels[n], twin, peak, first, iso, want_sources,
                            points_out, step_heights_out, sources_out, betas_out)
-    else:
-        ab = grid_edge(hf, tid - n_nodes)
-        emit_edge_vertices(ab[0], ab[1], grid_point(hf, ab[0]), grid_point(hf, ab[1]), wp.vec2i(ab[0], ab[1]), first,
-                           hf.heights, hf.levels, iso, want_sources, points_out, step_heights_out, sources_out, betas_out)
+    for kind in range(1, 4):
+        start = offsets[4 * n + kind]
+        if offsets[4 * n + kind + 1] != start:
+            b = n + 1
+            if kind == 2:
+                b = n + cols
+            if kind == 3:
+                b = n + cols + 1
+            emit_edge_vertices(n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
+                               want_sources, points_out, step_heights_out, sources_out, betas_out)
 
 
 @wp.func
@@ -591,34 +620,36 @@ def grid_cell_faces(
     cols = hf.cols
     i = cell // (cols - 1)
     j = cell - i * (cols - 1)
-    n_nodes = hf.rows * cols
-    n_h = hf.rows * (cols - 1)
-    n_v = (hf.rows - 1) * cols
     n00 = i * cols + j
     n01 = n00 + 1
     n10 = n00 + cols
     n11 = n10 + 1
-    h_top = n_nodes + i * (cols - 1) + j
-    h_bottom = h_top + (cols - 1)
-    v_left = n_nodes + n_h + n00
-    v_right = v_left + 1
-    diag = n_nodes + n_h + n_v + cell
-    f00 = grid_finite(hf, i, j)
-    f11 = grid_finite(hf, i + 1, j + 1)
+    h_top = 4 * n00 + 1
+    h_bottom = 4 * n10 + 1
+    v_left = 4 * n00 + 2
+    v_right = 4 * n01 + 2
+    diag = 4 * n00 + 3
+    upper = wp.int32(1)
+    lower = wp.int32(1)
+    if hf.has_nodata != 0:
+        f00 = grid_finite(hf, i, j)
+        f11 = grid_finite(hf, i + 1, j + 1)
+        upper = f00 * f11 * grid_finite(hf, i, j + 1)
+        lower = f00 * f11 * grid_finite(hf, i + 1, j)
     count = wp.int32(0)
-    if f00 * f11 * grid_finite(hf, i, j + 1) != 0:
+    if upper != 0:
         if hf.flip == 0:
-            count += step_triangle(n00, n01, n11, h_top, v_right, diag, hf.heights, hf.levels, iso, offsets,
+            count += step_triangle(n00, n01, n11, h_top, v_right, diag, hf.heights, hf.levels, iso, offsets, 4,
                                    write, face_base, faces_out, face_levels_out, face_walls_out)
         else:
-            count += step_triangle(n00, n11, n01, diag, v_right, h_top, hf.heights, hf.levels, iso, offsets,
+            count += step_triangle(n00, n11, n01, diag, v_right, h_top, hf.heights, hf.levels, iso, offsets, 4,
                                    write, face_base, faces_out, face_levels_out, face_walls_out)
-    if f00 * f11 * grid_finite(hf, i + 1, j) != 0:
+    if lower != 0:
         if hf.flip == 0:
-            count += step_triangle(n00, n11, n10, diag, h_bottom, v_left, hf.heights, hf.levels, iso, offsets,
+            count += step_triangle(n00, n11, n10, diag, h_bottom, v_left, hf.heights, hf.levels, iso, offsets, 4,
                                    write, face_base + count, faces_out, face_levels_out, face_walls_out)
         else:
-            count += step_triangle(n00, n10, n11, v_left, h_bottom, diag, hf.heights, hf.levels, iso, offsets,
+            count += step_triangle(n00, n10, n11, v_left, h_bottom, diag, hf.heights, hf.levels, iso, offsets, 4,
                                    write, face_base + count, faces_out, face_levels_out, face_walls_out)
     return count
 
@@ -758,7 +789,7 @@ def tin_face_faces(
     c = tin.faces[f]
     e = tin.face_edges[f]
     return step_triangle(c[0], c[1], c[2], n_points + e[0], n_points + e[1], n_points + e[2], tin.heights,
-                         tin.levels, iso, offsets, write, face_base, faces_out, face_levels_out, face_walls_out)
+                         tin.levels, iso, offsets, 1, write, face_base, faces_out, face_levels_out, face_walls_out)
 
 
 @wp.kernel

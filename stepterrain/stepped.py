@@ -236,6 +236,7 @@ def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightF
     hf.cols = cols
     hf.spacing = wp.vec2(terrain.spacing[0], terrain.spacing[1])
     hf.flip = 1 if terrain.spacing[0] * terrain.spacing[1] < 0 else 0
+    hf.has_nodata = terrain.cached("has_nodata", lambda: int(bool(np.isnan(terrain.heights).any())))
     return hf
 
 
@@ -267,7 +268,7 @@ def step_arrays(
     if terrain.kind == "grid":
         topo = _grid_struct(terrain, device)
         n_nodes = topo.rows * topo.cols
-        n_edges = topo.rows * (topo.cols - 1) + (topo.rows - 1) * topo.cols + (topo.rows - 1) * (topo.cols - 1)
+        n_slots, n_threads = 4 * n_nodes, n_nodes
         n_cells = (topo.rows - 1) * (topo.cols - 1)
         kernels = (stepped_kernels.count_grid_vertices, stepped_kernels.emit_grid_vertices,
                    stepped_kernels.count_grid_faces, stepped_kernels.emit_grid_faces)
@@ -278,6 +279,7 @@ def step_arrays(
         topo = _tin_struct(terrain, device)
         n_nodes = len(terrain.heights)
         n_edges = len(terrain.edges)
+        n_slots = n_threads = n_nodes + n_edges
         n_cells = len(terrain.faces)
         kernels = (stepped_kernels.count_tin_vertices, stepped_kernels.emit_tin_vertices,
                    stepped_kernels.count_tin_faces, stepped_kernels.emit_tin_faces)
@@ -285,14 +287,14 @@ def step_arrays(
                   outputs=[topo.levels], device=device)
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
-        wp.launch(stepped_kernels.mark_tin_twins, dim=n_edges, inputs=[topo, iso], outputs=[twins, peers],
+        wp.launch(stepped_kernels.mark_tin_twins, dim=len(terrain.edges), inputs=[topo, iso], outputs=[twins, peers],
                   device=device)
         count_inputs = [topo, iso, twins, peers]
     count_vertices, emit_vertices, count_faces, emit_faces = kernels
 
     # pass 1: vertices (nodes, their twins, wall bottom/top pairs per edge crossing)
-    counts = wp.zeros(n_nodes + n_edges + 1, dtype=wp.int32, device=device)
-    wp.launch(count_vertices, dim=n_nodes + n_edges, inputs=count_inputs, outputs=[counts], device=device)
+    counts = wp.zeros(n_slots + 1, dtype=wp.int32, device=device)
+    wp.launch(count_vertices, dim=n_threads, inputs=count_inputs, outputs=[counts], device=device)
     offsets, vertex_count = exclusive_offsets(counts)
     del counts
 
@@ -316,7 +318,7 @@ def step_arrays(
     sources = wp.empty(n_src, dtype=wp.vec2i, device=device)
     betas = wp.empty(n_src, dtype=wp.float32, device=device)
     emit_inputs = [topo, iso, offsets] + ([] if terrain.kind == "grid" else [count_inputs[2]])
-    wp.launch(emit_vertices, dim=n_nodes + n_edges, inputs=[*emit_inputs, int(want_sources)],
+    wp.launch(emit_vertices, dim=n_threads, inputs=[*emit_inputs, int(want_sources)],
               outputs=[points, step_heights, sources, betas], device=device)
 
     faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device)
