@@ -1,0 +1,456 @@
+"""The ``stepterrain`` command: one subcommand per capability (``steps`` and ``info`` today).
+
+``steps`` is the main job of paper 000 (stepped terrain): load a DEM (default: the embedded Big Tujunga
+DEM), step it with Warp, write the mesh by extension and an off-screen render lit so that the steps read.
+
+    stepterrain steps -o out/terrain.glb --png out/terrain.png
+    stepterrain info out/terrain.glb
+
+Progress goes to stderr as short stage lines; errors from :mod:`stepterrain.errors` print one line and exit
+with status 2 (no traceback), as do usage errors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from .errors import InvalidInputError, StepTerrainError
+from .export import MESH_EXTENSIONS
+
+__all__ = ["main", "build_parser", "nice_interval"]
+
+#: Steps aimed at when neither --interval nor --levels is given.
+TARGET_STEPS = 15
+EXIT_USAGE = 2
+
+_STEPS_EPILOG = """\
+examples:
+  stepterrain steps -o out/terrain.glb --png out/terrain.png
+      the embedded Big Tujunga DEM (30 m SRTM), about 15 steps, GLB + render
+  stepterrain steps dem.tif --interval 50 --gamma 0.7 -o dem.ply
+  stepterrain steps --levels 400,800,1200,1600,2000 --colormap viridis -o levels.obj
+  stepterrain steps --lens-relative 0.5,0.5,0.2 -o lens.glb --png lens.png
+      original terrain inside a soft circular lens at the centre, steps outside (paper 000, Fig. 4)
+  stepterrain steps --interval 200 --solid --floor 0 -o print.stl
+      a watertight solid for 3D printing
+"""
+
+_MAIN_EPILOG = """\
+examples:
+  stepterrain steps -o out/terrain.glb --png out/terrain.png
+  stepterrain info                      (the embedded DEM)
+  stepterrain info out/terrain.glb
+run 'stepterrain COMMAND --help' for the options of a command.
+"""
+
+
+class _UsageError(Exception):
+    """A command-line value that argparse cannot check on its own (exit status 2)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise _UsageError(f"{self.prog}: error: {message}")
+
+
+class Progress:
+    """Short stage lines on stderr: ``stage("writing out.glb")`` ... ``done("1.2 MB")`` -> timing appended."""
+
+    def __init__(self, stream: TextIO | None = None, quiet: bool = False) -> None:
+        self.stream = stream if stream is not None else sys.stderr
+        self.quiet = quiet
+        self._start = 0.0
+        self.timings: dict[str, float] = {}
+
+    def say(self, message: str) -> None:
+        if not self.quiet:
+            print(f"stepterrain: {message}", file=self.stream, flush=True)
+
+    def stage(self, name: str, message: str) -> None:
+        self._name = name
+        self._start = time.perf_counter()
+        self.say(message)
+
+    def done(self, message: str = "") -> float:
+        elapsed = time.perf_counter() - self._start
+        self.timings[self._name] = elapsed
+        self.say(f"  {message + ' ' if message else ''}in {elapsed:.2f} s")
+        return elapsed
+
+
+# ------------------------------------------------------------------------------------------ argument types
+def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
+    def parse(text: str) -> tuple[float, ...]:
+        try:
+            values = tuple(float(v) for v in text.replace(" ", "").split(",") if v != "")
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}") from None
+        if (count is not None and len(values) != count) or not values:
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
+        if not all(math.isfinite(v) for v in values):
+            raise argparse.ArgumentTypeError(f"expected finite numbers for {what}; got {text!r}")
+        return values
+
+    return parse
+
+
+def _window(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 1280x800; got {text!r}") from None
+    return w, h
+
+
+def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS) -> float:
+    """A round interval (1, 2, 2.5 or 5 times a power of ten) giving about ``target`` steps over the range.
+
+    >>> nice_interval((315.0, 2295.0))
+    100.0
+    >>> nice_interval((0.0, 1.0))
+    0.05
+    """
+    lo, hi = height_range
+    span = hi - lo
+    if not math.isfinite(span) or span <= 0:
+        return 1.0
+    exponent = math.floor(math.log10(span / target))
+    candidates = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 2.5, 5.0)]
+    best = min(candidates, key=lambda c: abs(math.log(span / c / target)))
+    return float(f"{best:.6g}")
+
+
+# ------------------------------------------------------------------------------------------ parser
+def build_parser() -> argparse.ArgumentParser:
+    """The ``stepterrain`` parser; each subcommand sets ``run`` to its handler ``(args, progress) -> int``."""
+    from . import __version__
+
+    parser = _Parser(
+        prog="stepterrain",
+        description="Warp kernels that turn terrain data into meshes people can look at, measure and ship.",
+        epilog=_MAIN_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"stepterrain {__version__}")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+    _add_steps(commands)
+    _add_info(commands)
+    # later capabilities add their subcommand here: globe, closeup, texture, batch
+    return parser
+
+
+def _add_steps(commands: Any) -> None:
+    p = commands.add_parser(
+        "steps",
+        help="stepped terrain: terraces and walls at isovalues (paper 000)",
+        description="Step a DEM into terraces and walls (Glander et al. 2010), write the mesh by extension "
+        "(.glb .gltf .obj .ply .stl .3mf) and optionally an off-screen render.",
+        epilog=_STEPS_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("input", nargs="?", metavar="INPUT",
+                   help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+    iso = p.add_mutually_exclusive_group()
+    iso.add_argument("--interval", type=float, metavar="M",
+                     help=f"uniform isovalues base + k*M (default: a round M giving ~{TARGET_STEPS} steps)")
+    iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
+                     help="explicit, strictly increasing isovalues")
+    p.add_argument("--base", type=float, default=0.0, metavar="B",
+                   help="isovalue offset for --interval (default 0)")
+    p.add_argument("--gamma", type=float, default=1.0, metavar="G",
+                   help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
+    lens = p.add_mutually_exclusive_group()
+    lens.add_argument("--lens", type=_floats(3, "x,y,r"), metavar="x,y,r",
+                      help="circular lens in world coordinates: original terrain inside, steps outside")
+    lens.add_argument("--lens-relative", type=_floats(3, "fx,fy,fr"), metavar="fx,fy,fr",
+                      help="lens centre as fractions of the extent, radius as a fraction of its shorter side")
+    p.add_argument("--lens-edge", type=float, metavar="W", help="width of the lens' soft edge (default r/4)")
+    p.add_argument("--solid", action="store_true",
+                   help="close into a watertight solid (side skirts and a base)")
+    p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid (default one step below)")
+    p.add_argument("--colormap", default="terrain", metavar="NAME",
+                   help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
+    p.add_argument("--device", default=None, metavar="DEVICE",
+                   help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
+    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render")
+    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH",
+                   help="render size (default 1280x800)")
+    p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
+                   help="vertical exaggeration of the render only (default 2)")
+    p.set_defaults(run=_run_steps)
+
+
+def _add_info(commands: Any) -> None:
+    p = commands.add_parser(
+        "info",
+        help="describe a DEM or a mesh file",
+        description="Print a summary of a DEM (.npy .npz .png .tif) or a mesh "
+                    "(.glb .gltf .obj .ply .stl .3mf).",
+    )
+    p.add_argument("file", nargs="?", metavar="FILE", help="default: the embedded DEM")
+    p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
+    p.set_defaults(run=_run_info)
+
+
+# ------------------------------------------------------------------------------------------ steps
+def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
+    out = Path(path)
+    if out.suffix.lower() not in extensions:
+        raise InvalidInputError(
+            f"{what} {path!r} has an unknown extension {out.suffix!r}; "
+            f"expected one of {', '.join(extensions)}"
+        )
+    return out
+
+
+def _level_colors(name: str, n_levels: int) -> np.ndarray | None:
+    """(L, 4) float colors sampled from a matplotlib colormap; 'terrain' skips its sea-blue first quarter."""
+    if name.lower() == "none":
+        return None
+    import matplotlib
+
+    try:
+        cmap = matplotlib.colormaps[name]
+    except KeyError:
+        raise InvalidInputError(f"--colormap must name a matplotlib colormap (e.g. terrain, viridis) or "
+                                f"'none'; got {name!r}") from None
+    lo = 0.25 if name == "terrain" else 0.0
+    samples = np.linspace(lo, 1.0, n_levels) if n_levels > 1 else np.array([(lo + 1.0) / 2])
+    return np.asarray(cmap(samples), dtype=np.float64)
+
+
+def _kernel_cache_warm(device: Any) -> bool | None:
+    """True when the stepped kernels are already compiled for ``device`` in Warp's cache (None: unknown)."""
+    try:
+        import warp as wp
+
+        from .kernels import stepped as stepped_kernels
+
+        module = wp.get_module(stepped_kernels.__name__)
+        # Warp launches CPU kernels with block_dim 1, CUDA kernels with the module's default
+        block_dim = 1 if device.is_cpu else None
+        folder = Path(wp.config.kernel_cache_dir) / module.get_module_identifier(block_dim=block_dim)
+        if not folder.is_dir():
+            return False
+        suffixes = (".o",) if device.is_cpu else (".ptx", ".cubin")
+        return any(f.name.endswith(suffixes) for f in folder.iterdir())
+    except Exception:  # noqa: BLE001 - private cache layout; only used for a progress message
+        return None
+
+
+def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
+    import stepterrain as st
+
+    from . import render
+
+    out = _check_output(args.output, MESH_EXTENSIONS, "--output")
+    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    if not (0.0 <= args.gamma <= 1.0):
+        raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
+    if args.floor is not None and not args.solid:
+        raise InvalidInputError("--floor applies only with --solid")
+    if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
+        raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
+    if not (math.isfinite(args.z_scale) and args.z_scale > 0):
+        raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
+        raise InvalidInputError(
+            f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    if png is not None:
+        render.require_offscreen()  # fail before any work when no OpenGL context can exist here
+
+    # load
+    from .io import load_dem, sample_dem
+
+    progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
+    terrain = load_dem(args.input) if args.input else sample_dem()
+    lo, hi = terrain.height_range
+    progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes, heights {lo:g} to {hi:g},")
+
+    # isovalues
+    interval = args.interval
+    if interval is None and args.levels is None:
+        interval = nice_interval((lo, hi))
+    values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=args.base)
+    if args.interval is None and args.levels is None:
+        progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
+                     f"giving {len(values)} levels over heights {lo:g} to {hi:g} (aim ~{TARGET_STEPS} steps)")
+    colors = _level_colors(args.colormap, len(values))
+
+    # γ: scalar or a lens
+    gamma: Any = args.gamma
+    if args.lens is not None or args.lens_relative is not None:
+        xmin, xmax, ymin, ymax = terrain.extent
+        if args.lens is not None:
+            cx, cy, radius = args.lens
+        else:
+            fx, fy, fr = args.lens_relative
+            cx, cy = xmin + fx * (xmax - xmin), ymin + fy * (ymax - ymin)
+            radius = fr * min(xmax - xmin, ymax - ymin)
+        gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
+        progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
+                     f"gamma {args.gamma:g} outside")
+
+    # kernels: compile (first run on this machine) or load from Warp's cache
+    from ._device import resolve_device
+
+    device = resolve_device(args.device)
+    warm = _kernel_cache_warm(device)
+    if warm:
+        progress.stage("kernels", f"loading Warp kernels for {device}")
+    else:
+        progress.stage("kernels", f"compiling Warp kernels for {device} (first run on this machine only)...")
+    st.stepped(np.zeros((3, 3), np.float32), interval=1.0, device=device)
+    progress.done("kernels ready")
+
+    # step
+    gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
+    progress.stage("step", f"stepping on {device}: {len(values)} levels ({values[0]:g} to {values[-1]:g}), "
+                           f"gamma {gamma_text}")
+    mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=args.base, gamma=gamma,
+                      colors=colors, solid=args.solid, floor=args.floor, device=device)
+    progress.done(f"{len(mesh.faces):,} faces, {len(mesh.vertices):,} vertices")
+
+    # render first (in memory), so a run that fails anywhere writes neither file
+    image = None
+    if png is not None:
+        progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
+        image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
+        progress.done()
+
+    # write: each file atomically (temporary file + rename)
+    from . import export
+
+    progress.stage("write", f"writing {out}")
+    metadata = {
+        "generator": "stepterrain steps",
+        "input": args.input or "embedded Big Tujunga DEM",
+        "isovalues_count": int(len(values)),
+        "interval": interval,
+        "gamma": "lens" if isinstance(gamma, st.Lens) else float(args.gamma),
+        "solid": bool(args.solid),
+    }
+    written = export.save_mesh(mesh, out, metadata=metadata)
+    progress.done(_size(written))
+    if image is not None:
+        progress.stage("write_png", f"writing {png}")
+        export.save_image(image, png)
+        progress.done(_size(png))
+    return 0
+
+
+def _size(path: Path | str) -> str:
+    try:
+        n = os.path.getsize(path)
+    except OSError:
+        return "?"
+    return f"{n / 1e6:.1f} MB" if n >= 1e5 else f"{n / 1e3:.1f} kB"
+
+
+# ------------------------------------------------------------------------------------------ info
+def _run_info(args: argparse.Namespace, progress: Progress) -> int:
+    if args.file and Path(args.file).suffix.lower() in MESH_EXTENSIONS:
+        summary = _mesh_summary(Path(args.file))
+    else:
+        from .io import describe_dem, load_dem, sample_dem
+
+        terrain = load_dem(args.file) if args.file else sample_dem()
+        summary = describe_dem(terrain)
+    if args.json:
+        print(json.dumps(summary, indent=2, default=str))
+    else:
+        width = max(len(k) for k in summary)
+        for key, value in summary.items():
+            print(f"{key:<{width}}  {_fmt(value)}")
+    return 0
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    if isinstance(value, (tuple, list)):
+        return "(" + ", ".join(_fmt(v) for v in value) + ")"
+    return str(value)
+
+
+def _mesh_summary(path: Path) -> dict[str, Any]:
+    import trimesh
+
+    from .errors import DataFileError
+
+    if not path.is_file():
+        raise DataFileError(f"mesh file {str(path)!r} does not exist")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds for a bad file
+        raise DataFileError(f"cannot read {str(path)!r} as a mesh: {exc}") from exc
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise DataFileError(f"{str(path)!r} holds no triangle mesh")
+    bounds = np.asarray(mesh.bounds, dtype=np.float64)
+    summary: dict[str, Any] = {
+        "kind": "mesh",
+        "file": str(path),
+        "bytes": path.stat().st_size,
+        "vertices": int(len(mesh.vertices)),
+        "faces": int(len(mesh.faces)),
+        "bounds_min": tuple(float(v) for v in bounds[0]),
+        "bounds_max": tuple(float(v) for v in bounds[1]),
+        "watertight": bool(mesh.is_watertight),
+        "winding_consistent": bool(mesh.is_winding_consistent),
+        "vertex_colors": bool(mesh.visual.kind == "vertex"),
+    }
+    for key, value in (mesh.metadata or {}).items():
+        if isinstance(value, (str, int, float, bool)) and key not in summary:
+            summary[f"meta.{key}"] = value
+    return summary
+
+
+# ------------------------------------------------------------------------------------------ entry point
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the ``stepterrain`` command; return the exit status (0 ok, 2 bad input or usage, 130 interrupted).
+
+    ``argv`` defaults to ``sys.argv[1:]``. Errors derived from :class:`~stepterrain.errors.StepTerrainError`
+    print one line on stderr, without a traceback.
+    """
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+    except _UsageError as exc:
+        print(exc, file=sys.stderr)
+        return EXIT_USAGE
+    except SystemExit as exc:  # --help, --version
+        return int(exc.code or 0)
+    if getattr(args, "run", None) is None:
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
+    progress = Progress(quiet=args.quiet)
+    try:
+        return int(args.run(args, progress))
+    except StepTerrainError as exc:
+        print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except OSError as exc:  # a write failing below the library's own checks (disk full, permissions)
+        print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("stepterrain: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,206 @@
+"""The ``stepterrain`` command, run in-process on small DEMs: outputs, progress, exit codes, atomicity."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from stepterrain import cli, render
+from stepterrain.errors import MissingDependencyError
+
+AVAILABLE, REASON = render.offscreen_available()
+
+
+@pytest.fixture
+def dem(tmp_path):
+    """A 24 x 32 synthetic hill (heights 0-10) saved as .npy."""
+    y, x = np.mgrid[0:24, 0:32].astype(np.float32)
+    heights = 10.0 * np.exp(-((x - 15.0) ** 2 + (y - 11.0) ** 2) / 60.0) + 0.05 * x
+    path = tmp_path / "hill.npy"
+    np.save(path, heights.astype(np.float32))
+    return path
+
+
+def run(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def files_in(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_steps_writes_a_loadable_glb_and_reports_progress(dem, tmp_path, capsys):
+    out = tmp_path / "out" / "hill.glb"
+    code, _, err = run(capsys, "steps", dem, "--interval", "2", "-o", out)
+    assert code == 0, err
+    mesh = trimesh.load(out, force="mesh")
+    assert len(mesh.faces) > 0
+    z = np.unique(np.round(mesh.vertices[:, 2], 4))
+    assert set(z.tolist()) <= {0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0}
+    for stage in ("loading", "kernels ready", "stepping", "faces", "writing"):
+        assert stage in err
+    assert "Traceback" not in err
+
+
+def test_default_interval_is_round_and_announced(dem, tmp_path, capsys):
+    code, _, err = run(capsys, "steps", dem, "-o", tmp_path / "auto.ply")
+    assert code == 0, err
+    assert "using --interval 1," in err  # heights 0-11.4: 1 gives 11 steps, 0.5 would give 23
+    assert trimesh.load(tmp_path / "auto.ply").faces.shape[0] > 0
+
+
+@pytest.mark.parametrize("value", [(0.0, 10.0), (315.0, 2295.0), (0.0, 1e-3), (-5.0, 5.0)])
+def test_nice_interval_is_round_and_near_fifteen_steps(value):
+    interval = cli.nice_interval(value)
+    mantissa = interval / 10.0 ** np.floor(np.log10(interval))
+    assert any(np.isclose(mantissa, m) for m in (1.0, 2.0, 2.5, 5.0))
+    steps = (value[1] - value[0]) / interval
+    assert 7 <= steps <= 30
+
+
+@pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl", ".gltf"])
+def test_formats_by_extension(dem, tmp_path, capsys, suffix):
+    out = tmp_path / f"hill{suffix}"
+    code, _, err = run(capsys, "steps", dem, "--levels", "1,3,5,7,9", "--colormap", "viridis", "-o", out)
+    assert code == 0, err
+    assert len(trimesh.load(out, force="mesh").faces) > 0
+
+
+def test_solid_stl_is_watertight(dem, tmp_path, capsys):
+    out = tmp_path / "print.stl"
+    code, _, err = run(capsys, "steps", dem, "--interval", "2", "--solid", "--floor", "-2", "-o", out)
+    assert code == 0, err
+    mesh = trimesh.load(out)
+    assert mesh.is_watertight
+    assert mesh.bounds[0][2] == pytest.approx(-2.0)
+
+
+@pytest.mark.parametrize("lens", [["--lens", "15,-11,6"],  # .npy rows run north to south: y = -row
+                                  ["--lens-relative", "0.5,0.5,0.3", "--lens-edge", "2"]])
+def test_lens_keeps_original_heights_inside(dem, tmp_path, capsys, lens):
+    out = tmp_path / "lens.glb"
+    code, _, err = run(capsys, "steps", dem, "--interval", "2", *lens, "-o", out)
+    assert code == 0, err
+    assert "lens at" in err
+    z = trimesh.load(out, force="mesh").vertices[:, 2]
+    assert not np.all(np.isclose(z % 2.0, 0.0, atol=1e-4) | np.isclose(z % 2.0, 2.0, atol=1e-4))
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_png_render(dem, tmp_path, capsys):
+    from PIL import Image
+
+    out, png = tmp_path / "hill.glb", tmp_path / "img" / "hill.png"
+    code, _, err = run(capsys, "steps", dem, "--interval", "1", "-o", out, "--png", png, "--size", "160x120")
+    assert code == 0, err
+    assert "rendering 160x120" in err
+    with Image.open(png) as image:
+        assert image.size == (160, 120)
+        assert np.asarray(image).std() > 5
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--interval", "1", "--levels", "1,2"], "not allowed with argument"),
+        (["--interval", "-1"], "interval must be a positive"),
+        (["--interval", "nan"], "interval must be a positive"),
+        (["--levels", "3,2,1"], "strictly increasing"),
+        (["--levels", "a,b"], "comma-separated"),
+        (["--gamma", "2"], "--gamma must lie in [0, 1]"),
+        (["--lens", "1,2"], "x,y,r"),
+        (["--lens", "1,2,-3"], "radius must be a positive"),
+        (["--floor", "0"], "--floor applies only with --solid"),
+        (["--colormap", "no-such-map"], "colormap"),
+        (["--device", "tpu"], "device"),
+        (["--size", "huge"], "WIDTHxHEIGHT"),
+    ],
+)
+def test_bad_input_exits_2_with_a_message_and_no_output(dem, tmp_path, capsys, argv, message):
+    out = tmp_path / "bad.glb"
+    code, _, err = run(capsys, "steps", dem, *argv, "-o", out)
+    assert code == 2
+    assert message in err
+    assert "Traceback" not in err
+    assert files_in(tmp_path) == ["hill.npy"]
+
+
+def test_missing_file_and_unknown_extensions(dem, tmp_path, capsys):
+    code, _, err = run(capsys, "steps", tmp_path / "nope.npy", "-o", tmp_path / "x.glb")
+    assert code == 2 and "nope.npy" in err and "Traceback" not in err
+    code, _, err = run(capsys, "steps", dem, "-o", tmp_path / "x.xyz")
+    assert code == 2 and "unknown extension '.xyz'" in err
+    code, _, err = run(capsys, "steps", dem, "-o", tmp_path / "x.glb", "--png", tmp_path / "x.jpg")
+    assert code == 2 and "--png" in err
+    text = tmp_path / "notes.txt"
+    text.write_text("not elevation data")
+    code, _, err = run(capsys, "steps", text, "-o", tmp_path / "x.glb")
+    assert code == 2 and "Traceback" not in err
+    assert files_in(tmp_path) == ["hill.npy", "notes.txt"]
+
+
+def test_a_failing_render_leaves_no_partial_output(dem, tmp_path, capsys, monkeypatch):
+    def broken(*args, **kwargs):
+        raise MissingDependencyError("no OpenGL here (simulated)")
+
+    monkeypatch.setattr(render, "render_mesh", broken)
+    monkeypatch.setattr(render, "require_offscreen", lambda: "simulated")
+    code, _, err = run(capsys, "steps", dem, "--interval", "1", "-o", tmp_path / "a.glb",
+                       "--png", tmp_path / "a.png")
+    assert code == 2 and "simulated" in err
+    assert files_in(tmp_path) == ["hill.npy"]  # neither the mesh nor the image, and no temporary files
+
+
+def test_a_failing_write_leaves_no_partial_output(dem, tmp_path, capsys, monkeypatch):
+    def disk_full(self, data):
+        with open(self, "wb") as handle:
+            handle.write(bytes(data)[: len(data) // 2])
+        raise OSError(28, "No space left on device (simulated)")
+
+    monkeypatch.setattr(Path, "write_bytes", disk_full)
+    for name in ("w.stl", "w.glb"):
+        code, _, err = run(capsys, "steps", dem, "--interval", "1", "-o", tmp_path / name)
+        assert code == 2 and "No space left" in err and "Traceback" not in err
+        assert files_in(tmp_path) == ["hill.npy"]  # no truncated mesh, no temporary file
+
+
+def test_help_version_and_usage(capsys):
+    code, out, _ = run(capsys, "--help")
+    assert code == 0 and "steps" in out and "info" in out
+    code, out, _ = run(capsys, "steps", "--help")
+    assert code == 0 and "examples:" in out and "--lens-relative" in out
+    code, out, _ = run(capsys, "--version")
+    assert code == 0 and out.startswith("stepterrain ")
+    code, _, err = run(capsys)
+    assert code == 2
+    code, _, err = run(capsys, "frobnicate")
+    assert code == 2 and "invalid choice" in err
+    code, _, err = run(capsys, "steps")
+    assert code == 2 and "-o/--output" in err
+
+
+def test_info_on_a_dem_and_on_a_mesh(dem, tmp_path, capsys):
+    code, out, err = run(capsys, "info", dem, "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["shape"] == [24, 32] and summary["kind"] == "grid"
+    mesh_path = tmp_path / "hill.glb"
+    assert run(capsys, "steps", dem, "--interval", "2", "-o", mesh_path)[0] == 0
+    code, out, err = run(capsys, "info", mesh_path)
+    assert code == 0, err
+    assert "faces" in out and "vertices" in out
+    code, _, err = run(capsys, "info", tmp_path / "missing.glb")
+    assert code == 2 and "missing.glb" in err
+
+
+def test_default_input_is_the_embedded_dem(tmp_path, capsys):
+    code, out, err = run(capsys, "info")
+    assert code == 0, err
+    assert "643" in out and "1197" in out

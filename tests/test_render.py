@@ -1,0 +1,140 @@
+"""Off-screen renders: image shape and dtype, walls and terraces lit differently, reproducibility, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+import stepterrain as st
+from stepterrain import render
+from stepterrain.errors import InvalidInputError, MissingDependencyError
+
+AVAILABLE, REASON = render.offscreen_available()
+
+
+def needs_render(test):
+    """Mark ``test`` as a render test that skips, with the reason, where no off-screen context exists."""
+    test = pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")(test)
+    return pytest.mark.render(test)
+
+
+SIZE = (200, 200)
+
+
+def ramp(rows: int = 12, cols: int = 12) -> np.ndarray:
+    """Heights rising to the north (+y), so every wall faces south, towards the oblique camera."""
+    return np.repeat(np.linspace(0.0, 4.0, rows, dtype=np.float32)[:, None], cols, axis=1)
+
+
+def foreground(image: np.ndarray) -> np.ndarray:
+    """Gray levels of the pixels that are not the white background."""
+    gray = image.astype(np.float64).mean(axis=2)
+    return gray[(image < 250).any(axis=2)]
+
+
+def square(normal: str) -> trimesh.Trimesh:
+    """A unit square facing +z (a terrace) or -y (a wall turned to the camera)."""
+    if normal == "+z":
+        vertices = [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]]
+    else:
+        vertices = [[0, 0, 0], [1, 0, 0], [1, 0, 1], [0, 0, 1]]
+    return trimesh.Trimesh(np.array(vertices, float), [[0, 1, 2], [0, 2, 3]], process=False)
+
+
+@needs_render
+def test_stepped_render_shape_dtype_and_content():
+    mesh = st.stepped(ramp(), interval=1.0, spacing=(0.5, 0.5), device="cpu")
+    image = render.render_mesh(mesh, window_size=SIZE)
+    assert image.shape == (SIZE[1], SIZE[0], 3)
+    assert image.dtype == np.uint8
+    assert image.std() > 5, "the image is uniform"
+    fg = foreground(image)
+    assert fg.size > 0.05 * SIZE[0] * SIZE[1], "the mesh covers almost nothing: camera not fitted"
+
+
+@needs_render
+def test_walls_and_terraces_differ_in_brightness():
+    terrace = foreground(render.render_mesh(square("+z"), window_size=SIZE, camera="oblique"))
+    wall = foreground(render.render_mesh(square("-y"), window_size=SIZE, camera="oblique"))
+    assert terrace.size and wall.size
+    assert abs(np.median(terrace) - np.median(wall)) > 40, (np.median(terrace), np.median(wall))
+    # a stepped ramp shows exactly these two shades (flat shading: no smoothing across a step edge)
+    mesh = st.stepped(ramp(), interval=1.0, spacing=(0.5, 0.5), device="cpu")
+    image = render.render_mesh(mesh, window_size=SIZE)
+    shades = foreground(image)
+    near_terrace = np.abs(shades - np.median(terrace)) < 12
+    near_wall = np.abs(shades - np.median(wall)) < 12
+    assert near_terrace.mean() > 0.2 and near_wall.mean() > 0.1
+    assert (near_terrace | near_wall).mean() > 0.9
+
+
+@needs_render
+def test_vertex_colors_and_scalars():
+    mesh = st.stepped(ramp(), interval=1.0, colors="viridis", device="cpu")
+    image = render.render_mesh(mesh, window_size=SIZE)
+    chroma = image.max(axis=2).astype(int) - image.min(axis=2).astype(int)
+    assert chroma.max() > 60, "vertex colors were not used"
+    for scalars in ("level", "height"):
+        colored = render.render_mesh(mesh, window_size=SIZE, scalars=scalars, cmap="viridis")
+        assert colored.shape == (SIZE[1], SIZE[0], 3) and colored.std() > 5
+
+
+@needs_render
+def test_render_is_reproducible_and_handles_utm_coordinates():
+    heights = ramp() + 1500.0
+    mesh = st.stepped(heights, interval=1.0, spacing=(30.0, -30.0), origin=(376313.0, 3807917.0),
+                      device="cpu")
+    first = render.render_mesh(mesh, window_size=SIZE, z_scale=20.0)
+    second = render.render_mesh(mesh, window_size=SIZE, z_scale=20.0)
+    np.testing.assert_array_equal(first, second)
+    assert foreground(first).size > 0.05 * SIZE[0] * SIZE[1]
+    top = render.render_mesh(mesh, window_size=SIZE, camera="top")
+    assert top.std() > 5
+    fixed = render.render_mesh(mesh, window_size=SIZE, camera=(np.pi, 0.6),
+                               bounds=[(376313.0, 3807587.0, 1490.0), (376643.0, 3807917.0, 1510.0)])
+    assert fixed.std() > 5
+
+
+@needs_render
+def test_save_png_roundtrip(tmp_path):
+    from PIL import Image
+
+    image = render.render_mesh(square("+z"), window_size=(64, 48))
+    path = render.save_png(image, tmp_path / "square.png")
+    with Image.open(path) as loaded:
+        assert loaded.size == (64, 48)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"z_scale": 0.0}, "z_scale"),
+        ({"window_size": (4, 4)}, "window_size"),
+        ({"scalars": "slope"}, "scalars"),
+        ({"camera": "sideways"}, "camera"),
+        ({"bounds": [(1, 1, 1), (0, 0, 0)]}, "bounds"),
+    ],
+)
+def test_bad_arguments_raise_before_rendering(kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        render.render_mesh(square("+z"), **kwargs)
+
+
+def test_empty_mesh_and_wrong_type():
+    with pytest.raises(InvalidInputError, match="no faces"):
+        render.render_mesh(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int), process=False))
+    with pytest.raises(InvalidInputError, match="trimesh.Trimesh"):
+        render.render_mesh(np.zeros((3, 3)))
+
+
+def test_missing_opengl_raises_missing_dependency(monkeypatch):
+    monkeypatch.setattr(render, "_backend_checked", None)
+    monkeypatch.setattr(render.sys, "platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "VTK_DEFAULT_OPENGL_WINDOW"):
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setattr(render.ctypes.util, "find_library", lambda name: None)
+    with pytest.raises(MissingDependencyError, match="OpenGL"):
+        render.require_offscreen()
+    with pytest.raises(ImportError):  # MissingDependencyError is also an ImportError
+        render.require_offscreen()
