@@ -33,15 +33,15 @@ __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen"
 KEY_LIGHT_AZIMUTH = math.radians(315.0)
 #: Elevation of the key light above the horizon, radians.
 KEY_LIGHT_ELEVATION = math.radians(40.0)
-_KEY_INTENSITY = 0.9
-_FILL_INTENSITY = 0.35
+_KEY_INTENSITY = 0.8
+_FILL_INTENSITY = 0.45
 _FILL_ELEVATION = math.radians(30.0)
 _AMBIENT = 0.2
 _DIFFUSE = 0.9
 
 #: The fixed oblique view: camera azimuth (clockwise from north, radians; 180° = looking from the south
 #: towards the north) and elevation above the horizon.
-_OBLIQUE = (math.radians(190.0), math.radians(35.0))
+_OBLIQUE = (math.radians(190.0), math.radians(45.0))
 _VIEW_ANGLE = 30.0  # degrees, vertical field of view
 _DEFAULT_COLOR = (0.86, 0.82, 0.74)
 
@@ -246,7 +246,7 @@ def render_mesh(
     z_scale : float
         Vertical exaggeration applied for the render only (the mesh is not modified).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
-        "oblique" is the fixed reproducible view from just west of south at 35° elevation; a pair gives the
+        "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
         direction the camera looks from (radians, azimuth clockwise from north = +y); both are fitted to the
         bounds. An explicit pyvista camera position is used as given, in the mesh's coordinates minus the
         centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates precise).
