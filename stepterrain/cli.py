@@ -382,7 +382,7 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
 
 def _fmt(value: Any) -> str:
     if isinstance(value, float):
-        return f"{value:.6g}"
+        return f"{value:.2f}".rstrip("0").rstrip(".") if abs(value) >= 1e4 else f"{value:.6g}"
     if isinstance(value, (tuple, list)):
         return "(" + ", ".join(_fmt(v) for v in value) + ")"
     return str(value)
