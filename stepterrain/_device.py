@@ -9,6 +9,8 @@ module-level lookup table once per device.
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 import threading
 from typing import Any
 
@@ -39,10 +41,38 @@ def init_warp() -> None:
         return
     with _init_lock:
         if not _initialised:
-            if not os.environ.get("STEPTERRAIN_VERBOSE"):
+            if os.environ.get("STEPTERRAIN_VERBOSE"):
+                wp.init()
+            else:
                 quiet_warp()
-            wp.init()
+                _init_filtering_stderr()
             _initialised = True
+
+
+def _init_filtering_stderr() -> None:
+    """``wp.init()`` with the native "CUDA driver not found" line dropped on machines without a GPU.
+
+    Warp's native library writes it straight to file descriptor 2, past Python's logging and
+    ``wp.config.log_level``; every other line it writes is passed through unchanged.
+    """
+    try:
+        sys.stderr.flush()
+        saved = os.dup(2)
+    except (OSError, ValueError):  # no real stderr (embedded interpreters): nothing to filter
+        wp.init()
+        return
+    with tempfile.TemporaryFile(mode="w+b") as capture:
+        os.dup2(capture.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        capture.seek(0)
+        kept = [line for line in capture.read().decode(errors="replace").splitlines(keepends=True)
+                if "NVIDIA CUDA driver" not in line]
+    if kept:
+        sys.stderr.write("".join(kept))
 
 
 def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
