@@ -288,8 +288,18 @@ def step_triangle(
     lmax = wp.max(l0, wp.max(l1, l2))
     count = wp.int32(0)
     if lmin == lmax:
-        write_face(write, face_base, offsets[c0 * stride], offsets[c1 * stride], offsets[c2 * stride], lmin, 0,
-                   faces_out, face_levels_out, face_walls_out)
+        write_face(
+            write,
+            face_base,
+            offsets[c0 * stride],
+            offsets[c1 * stride],
+            offsets[c2 * stride],
+            lmin,
+            0,
+            faces_out,
+            face_levels_out,
+            face_walls_out,
+        )
         return 1
     if write == 0:
         aliased = wp.int32(0)
@@ -303,9 +313,57 @@ def step_triangle(
             return 1 + 4 * (lmax - lmin)
     for k in range(lmin, lmax + 1):
         s = wp.vec4i(-1, -1, 0, count)
-        s = walk_edge(c0, c1, s0, k, s, heights, levels, iso, offsets, stride, write, face_base, faces_out, face_levels_out, face_walls_out)
-        s = walk_edge(c1, c2, s1, k, s, heights, levels, iso, offsets, stride, write, face_base, faces_out, face_levels_out, face_walls_out)
-        s = walk_edge(c2, c0, s2, k, s, heights, levels, iso, offsets, stride, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(
+            c0,
+            c1,
+            s0,
+            k,
+            s,
+            heights,
+            levels,
+            iso,
+            offsets,
+            stride,
+            write,
+            face_base,
+            faces_out,
+            face_levels_out,
+            face_walls_out,
+        )
+        s = walk_edge(
+            c1,
+            c2,
+            s1,
+            k,
+            s,
+            heights,
+            levels,
+            iso,
+            offsets,
+            stride,
+            write,
+            face_base,
+            faces_out,
+            face_levels_out,
+            face_walls_out,
+        )
+        s = walk_edge(
+            c2,
+            c0,
+            s2,
+            k,
+            s,
+            heights,
+            levels,
+            iso,
+            offsets,
+            stride,
+            write,
+            face_base,
+            faces_out,
+            face_levels_out,
+            face_walls_out,
+        )
         count = s[3]
         if k < lmax:
             ends = wp.vec4i(-1, -1, -1, -1)
@@ -313,8 +371,30 @@ def step_triangle(
             ends = wall_end(c1, c2, s1, k, ends, heights, levels, iso, offsets, stride)
             ends = wall_end(c2, c0, s2, k, ends, heights, levels, iso, offsets, stride)
             if ends[0] != ends[2]:
-                write_face(write, face_base + count, ends[0], ends[2], ends[3], k, 1, faces_out, face_levels_out, face_walls_out)
-                write_face(write, face_base + count + 1, ends[0], ends[3], ends[1], k, 1, faces_out, face_levels_out, face_walls_out)
+                write_face(
+                    write,
+                    face_base + count,
+                    ends[0],
+                    ends[2],
+                    ends[3],
+                    k,
+                    1,
+                    faces_out,
+                    face_levels_out,
+                    face_walls_out,
+                )
+                write_face(
+                    write,
+                    face_base + count + 1,
+                    ends[0],
+                    ends[3],
+                    ends[1],
+                    k,
+                    1,
+                    faces_out,
+                    face_levels_out,
+                    face_walls_out,
+                )
                 count = count + 2
     return count
 
@@ -590,8 +670,20 @@ def emit_grid_vertices(
             twin = 1
         elif hf.has_nodata != 0 or on_threshold(hf.heights[n], hf.levels[n], iso.thresholds) != 0:
             peak = grid_node_count(hf, iso, n)[1]
-        emit_node_vertices(n, p, hf.levels[n], twin, peak, first, iso, want_sources,
-                           points_out, step_heights_out, sources_out, betas_out)
+        emit_node_vertices(
+            n,
+            p,
+            hf.levels[n],
+            twin,
+            peak,
+            first,
+            iso,
+            want_sources,
+            points_out,
+            step_heights_out,
+            sources_out,
+            betas_out,
+        )
     for kind in range(1, 4):
         start = offsets[4 * n + kind]
         if offsets[4 * n + kind + 1] != start:
@@ -600,8 +692,22 @@ def emit_grid_vertices(
                 b = n + cols
             if kind == 3:
                 b = n + cols + 1
-            emit_edge_vertices(n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
-                               want_sources, points_out, step_heights_out, sources_out, betas_out)
+            emit_edge_vertices(
+                n,
+                b,
+                p,
+                grid_point(hf, b),
+                wp.vec2i(n, b),
+                start,
+                hf.heights,
+                hf.levels,
+                iso,
+                want_sources,
+                points_out,
+                step_heights_out,
+                sources_out,
+                betas_out,
+            )
 
 
 @wp.func
@@ -639,18 +745,82 @@ def grid_cell_faces(
     count = wp.int32(0)
     if upper != 0:
         if hf.flip == 0:
-            count += step_triangle(n00, n01, n11, h_top, v_right, diag, hf.heights, hf.levels, iso, offsets, 4,
-                                   write, face_base, faces_out, face_levels_out, face_walls_out)
+            count += step_triangle(
+                n00,
+                n01,
+                n11,
+                h_top,
+                v_right,
+                diag,
+                hf.heights,
+                hf.levels,
+                iso,
+                offsets,
+                4,
+                write,
+                face_base,
+                faces_out,
+                face_levels_out,
+                face_walls_out,
+            )
         else:
-            count += step_triangle(n00, n11, n01, diag, v_right, h_top, hf.heights, hf.levels, iso, offsets, 4,
-                                   write, face_base, faces_out, face_levels_out, face_walls_out)
+            count += step_triangle(
+                n00,
+                n11,
+                n01,
+                diag,
+                v_right,
+                h_top,
+                hf.heights,
+                hf.levels,
+                iso,
+                offsets,
+                4,
+                write,
+                face_base,
+                faces_out,
+                face_levels_out,
+                face_walls_out,
+            )
     if lower != 0:
         if hf.flip == 0:
-            count += step_triangle(n00, n11, n10, diag, h_bottom, v_left, hf.heights, hf.levels, iso, offsets, 4,
-                                   write, face_base + count, faces_out, face_levels_out, face_walls_out)
+            count += step_triangle(
+                n00,
+                n11,
+                n10,
+                diag,
+                h_bottom,
+                v_left,
+                hf.heights,
+                hf.levels,
+                iso,
+                offsets,
+                4,
+                write,
+                face_base + count,
+                faces_out,
+                face_levels_out,
+                face_walls_out,
+            )
         else:
-            count += step_triangle(n00, n10, n11, v_left, h_bottom, diag, hf.heights, hf.levels, iso, offsets, 4,
-                                   write, face_base + count, faces_out, face_levels_out, face_walls_out)
+            count += step_triangle(
+                n00,
+                n10,
+                n11,
+                v_left,
+                h_bottom,
+                diag,
+                hf.heights,
+                hf.levels,
+                iso,
+                offsets,
+                4,
+                write,
+                face_base + count,
+                faces_out,
+                face_levels_out,
+                face_walls_out,
+            )
     return count
 
 
@@ -765,12 +935,38 @@ def emit_tin_vertices(
             twin = 1
         elif twins[tid] != 0:
             peak = 1
-        emit_node_vertices(tid, tin.points[tid], tin.levels[tid], twin, peak, first, iso, want_sources,
-                           points_out, step_heights_out, sources_out, betas_out)
+        emit_node_vertices(
+            tid,
+            tin.points[tid],
+            tin.levels[tid],
+            twin,
+            peak,
+            first,
+            iso,
+            want_sources,
+            points_out,
+            step_heights_out,
+            sources_out,
+            betas_out,
+        )
     else:
         ab = tin.edges[tid - n_points]
-        emit_edge_vertices(ab[0], ab[1], tin.points[ab[0]], tin.points[ab[1]], ab, first, tin.heights, tin.levels,
-                           iso, want_sources, points_out, step_heights_out, sources_out, betas_out)
+        emit_edge_vertices(
+            ab[0],
+            ab[1],
+            tin.points[ab[0]],
+            tin.points[ab[1]],
+            ab,
+            first,
+            tin.heights,
+            tin.levels,
+            iso,
+            want_sources,
+            points_out,
+            step_heights_out,
+            sources_out,
+            betas_out,
+        )
 
 
 @wp.func
@@ -788,8 +984,24 @@ def tin_face_faces(
     n_points = tin.points.shape[0]
     c = tin.faces[f]
     e = tin.face_edges[f]
-    return step_triangle(c[0], c[1], c[2], n_points + e[0], n_points + e[1], n_points + e[2], tin.heights,
-                         tin.levels, iso, offsets, 1, write, face_base, faces_out, face_levels_out, face_walls_out)
+    return step_triangle(
+        c[0],
+        c[1],
+        c[2],
+        n_points + e[0],
+        n_points + e[1],
+        n_points + e[2],
+        tin.heights,
+        tin.levels,
+        iso,
+        offsets,
+        1,
+        write,
+        face_base,
+        faces_out,
+        face_levels_out,
+        face_walls_out,
+    )
 
 
 @wp.kernel

@@ -22,8 +22,16 @@ from .errors import DeviceError
 _init_lock = threading.Lock()
 _initialised = False
 _tables: dict[tuple[str, str], wp.array] = {}
-_NP_DTYPES = {wp.float32: np.float32, wp.float64: np.float64, wp.int32: np.int32, wp.int64: np.int64,
-              wp.uint8: np.uint8, wp.int8: np.int8, wp.uint32: np.uint32, wp.int16: np.int16}
+_NP_DTYPES = {
+    wp.float32: np.float32,
+    wp.float64: np.float64,
+    wp.int32: np.int32,
+    wp.int64: np.int64,
+    wp.uint8: np.uint8,
+    wp.int8: np.int8,
+    wp.uint32: np.uint32,
+    wp.int16: np.int16,
+}
 
 
 def quiet_warp() -> None:
@@ -69,8 +77,11 @@ def _init_filtering_stderr() -> None:
             os.dup2(saved, 2)
             os.close(saved)
         capture.seek(0)
-        kept = [line for line in capture.read().decode(errors="replace").splitlines(keepends=True)
-                if "NVIDIA CUDA driver" not in line]
+        kept = [
+            line
+            for line in capture.read().decode(errors="replace").splitlines(keepends=True)
+            if "NVIDIA CUDA driver" not in line
+        ]
     if kept:
         sys.stderr.write("".join(kept))
 
@@ -114,7 +125,9 @@ def to_device(array: Any, dtype: Any, device: wp.Device) -> wp.array:
     return wp.array(host, dtype=dtype, device=device, copy=not device.is_cpu)
 
 
-def empty_shared(shape: tuple[int, ...], np_dtype: Any, wp_dtype: Any, device: wp.Device) -> tuple[np.ndarray | None, wp.array]:
+def empty_shared(
+    shape: tuple[int, ...], np_dtype: Any, wp_dtype: Any, device: wp.Device
+) -> tuple[np.ndarray | None, wp.array]:
     """Allocate an output that ends up in numpy.
 
     On the CPU the ``wp.array`` wraps the numpy buffer (kernels write straight into it, no copy); on CUDA

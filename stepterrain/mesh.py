@@ -105,7 +105,11 @@ def close_solid(
 
     terraces = faces[terrace_mask]
     base_faces = base_index[terraces][:, ::-1]
-    ok = (base_faces[:, 0] != base_faces[:, 1]) & (base_faces[:, 1] != base_faces[:, 2]) & (base_faces[:, 0] != base_faces[:, 2])
+    ok = (
+        (base_faces[:, 0] != base_faces[:, 1])
+        & (base_faces[:, 1] != base_faces[:, 2])
+        & (base_faces[:, 0] != base_faces[:, 2])
+    )
     base_faces = base_faces[ok]
 
     edges = boundary_edges(faces)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import Any, Union
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -57,7 +57,9 @@ class Lens:
     def __post_init__(self) -> None:
         mask = np.asarray(self.mask)
         if mask.ndim != 2 or min(mask.shape) < 1 or not np.issubdtype(mask.dtype, np.number):
-            raise InvalidInputError(f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}")
+            raise InvalidInputError(
+                f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
+            )
         mask = np.ascontiguousarray(mask, dtype=np.float32)
         if not np.all(np.isfinite(mask)) or mask.min() < 0.0 or mask.max() > 1.0:
             raise InvalidInputError(
@@ -67,11 +69,13 @@ class Lens:
         if self.extent is not None:
             ext = tuple(float(v) for v in self.extent)
             if len(ext) != 4 or not np.all(np.isfinite(ext)) or ext[1] <= ext[0] or ext[3] <= ext[2]:
-                raise InvalidInputError(f"lens extent must be (xmin, xmax, ymin, ymax) with max > min; got {self.extent!r}")
+                raise InvalidInputError(
+                    f"lens extent must be (xmin, xmax, ymin, ymax) with max > min; got {self.extent!r}"
+                )
             object.__setattr__(self, "extent", ext)
 
 
-GammaLike = Union[float, ArrayLike, Callable[[NDArray[np.float64]], ArrayLike], Lens]
+GammaLike = float | ArrayLike | Callable[[NDArray[np.float64]], ArrayLike] | Lens
 
 
 def circular_lens(
@@ -230,7 +234,9 @@ def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_
 def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightField:
     rows, cols = terrain.heights.shape
     hf = stepped_kernels.HeightField()
-    hf.heights = terrain.cached(("heights", str(device)), lambda: to_device(terrain.heights.reshape(-1), wp.float32, device))
+    hf.heights = terrain.cached(
+        ("heights", str(device)), lambda: to_device(terrain.heights.reshape(-1), wp.float32, device)
+    )
     hf.levels = terrain.cached(("levels", str(device)), lambda: wp.empty(rows * cols, dtype=wp.int32, device=device))
     hf.rows = rows
     hf.cols = cols
@@ -270,10 +276,19 @@ def step_arrays(
         n_nodes = topo.rows * topo.cols
         n_slots, n_threads = 4 * n_nodes, n_nodes
         n_cells = (topo.rows - 1) * (topo.cols - 1)
-        kernels = (stepped_kernels.count_grid_vertices, stepped_kernels.emit_grid_vertices,
-                   stepped_kernels.count_grid_faces, stepped_kernels.emit_grid_faces)
-        wp.launch(stepped_kernels.quantize_levels, dim=n_nodes, inputs=[topo.heights, iso.thresholds],
-                  outputs=[topo.levels], device=device)
+        kernels = (
+            stepped_kernels.count_grid_vertices,
+            stepped_kernels.emit_grid_vertices,
+            stepped_kernels.count_grid_faces,
+            stepped_kernels.emit_grid_faces,
+        )
+        wp.launch(
+            stepped_kernels.quantize_levels,
+            dim=n_nodes,
+            inputs=[topo.heights, iso.thresholds],
+            outputs=[topo.levels],
+            device=device,
+        )
         count_inputs: list[Any] = [topo, iso]
     else:
         topo = _tin_struct(terrain, device)
@@ -281,14 +296,28 @@ def step_arrays(
         n_edges = len(terrain.edges)
         n_slots = n_threads = n_nodes + n_edges
         n_cells = len(terrain.faces)
-        kernels = (stepped_kernels.count_tin_vertices, stepped_kernels.emit_tin_vertices,
-                   stepped_kernels.count_tin_faces, stepped_kernels.emit_tin_faces)
-        wp.launch(stepped_kernels.quantize_levels, dim=n_nodes, inputs=[topo.heights, iso.thresholds],
-                  outputs=[topo.levels], device=device)
+        kernels = (
+            stepped_kernels.count_tin_vertices,
+            stepped_kernels.emit_tin_vertices,
+            stepped_kernels.count_tin_faces,
+            stepped_kernels.emit_tin_faces,
+        )
+        wp.launch(
+            stepped_kernels.quantize_levels,
+            dim=n_nodes,
+            inputs=[topo.heights, iso.thresholds],
+            outputs=[topo.levels],
+            device=device,
+        )
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
-        wp.launch(stepped_kernels.mark_tin_twins, dim=len(terrain.edges), inputs=[topo, iso], outputs=[twins, peers],
-                  device=device)
+        wp.launch(
+            stepped_kernels.mark_tin_twins,
+            dim=len(terrain.edges),
+            inputs=[topo, iso],
+            outputs=[twins, peers],
+            device=device,
+        )
         count_inputs = [topo, iso, twins, peers]
     count_vertices, emit_vertices, count_faces, emit_faces = kernels
 
@@ -303,14 +332,22 @@ def step_arrays(
     empty_levels = wp.empty(0, dtype=wp.int32, device=device)
     empty_walls = wp.empty(0, dtype=wp.uint8, device=device)
     face_counts = wp.zeros(n_cells + 1, dtype=wp.int32, device=device)
-    wp.launch(count_faces, dim=n_cells, inputs=[topo, iso, offsets, empty_faces, empty_levels, empty_walls],
-              outputs=[face_counts], device=device)
+    wp.launch(
+        count_faces,
+        dim=n_cells,
+        inputs=[topo, iso, offsets, empty_faces, empty_levels, empty_walls],
+        outputs=[face_counts],
+        device=device,
+    )
     face_offsets, face_count = exclusive_offsets(face_counts)
     del face_counts
 
     vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0)
-    check_budget(vertex_count * vertex_bytes + face_count * _FACE_BYTES,
-                 f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)", memory_budget)
+    check_budget(
+        vertex_count * vertex_bytes + face_count * _FACE_BYTES,
+        f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
+        memory_budget,
+    )
 
     points = wp.empty(vertex_count, dtype=wp.vec3, device=device)
     step_heights = wp.empty(vertex_count, dtype=wp.float32, device=device)
@@ -318,14 +355,24 @@ def step_arrays(
     sources = wp.empty(n_src, dtype=wp.vec2i, device=device)
     betas = wp.empty(n_src, dtype=wp.float32, device=device)
     emit_inputs = [topo, iso, offsets] + ([] if terrain.kind == "grid" else [count_inputs[2]])
-    wp.launch(emit_vertices, dim=n_threads, inputs=[*emit_inputs, int(want_sources)],
-              outputs=[points, step_heights, sources, betas], device=device)
+    wp.launch(
+        emit_vertices,
+        dim=n_threads,
+        inputs=[*emit_inputs, int(want_sources)],
+        outputs=[points, step_heights, sources, betas],
+        device=device,
+    )
 
     faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device)
     levels_np, levels_wp = empty_shared((face_count,), np.int32, wp.int32, device)
     walls_np, walls_wp = empty_shared((face_count,), np.uint8, wp.uint8, device)
-    wp.launch(emit_faces, dim=n_cells, inputs=[topo, iso, offsets, face_offsets],
-              outputs=[faces_wp, levels_wp, walls_wp], device=device)
+    wp.launch(
+        emit_faces,
+        dim=n_cells,
+        inputs=[topo, iso, offsets, face_offsets],
+        outputs=[faces_wp, levels_wp, walls_wp],
+        device=device,
+    )
     return StepArrays(
         points=points,
         step_heights=step_heights,
@@ -360,11 +407,18 @@ def blend(
         xmin, xmax, ymin, ymax = gamma.extent if gamma.extent is not None else terrain.extent
         ox, oy = terrain.local_origin
         gammas = wp.empty(n, dtype=wp.float32, device=device)
-        wp.launch(stepped_kernels.sample_lens, dim=n,
-                  inputs=[to_device(gamma.mask, wp.float32, device).reshape(gamma.mask.shape),
-                          wp.vec2(xmin - ox, ymin - oy), wp.vec2(max(xmax - xmin, 1e-30), max(ymax - ymin, 1e-30)),
-                          arrays.points],
-                  outputs=[gammas], device=device)
+        wp.launch(
+            stepped_kernels.sample_lens,
+            dim=n,
+            inputs=[
+                to_device(gamma.mask, wp.float32, device).reshape(gamma.mask.shape),
+                wp.vec2(xmin - ox, ymin - oy),
+                wp.vec2(max(xmax - xmin, 1e-30), max(ymax - ymin, 1e-30)),
+                arrays.points,
+            ],
+            outputs=[gammas],
+            device=device,
+        )
     elif callable(gamma):
         original = np.empty((n, 3), dtype=np.float64)
         original[:] = arrays.points.numpy()
@@ -377,12 +431,21 @@ def blend(
     else:
         node_values = _check_gamma_values(np.asarray(gamma, dtype=np.float64), terrain.shape, "gamma")
         gammas = wp.empty(n, dtype=wp.float32, device=device)
-        wp.launch(stepped_kernels.interpolate_node_values, dim=n,
-                  inputs=[to_device(node_values.reshape(-1), wp.float32, device), arrays.sources, arrays.betas],
-                  outputs=[gammas], device=device)
+        wp.launch(
+            stepped_kernels.interpolate_node_values,
+            dim=n,
+            inputs=[to_device(node_values.reshape(-1), wp.float32, device), arrays.sources, arrays.betas],
+            outputs=[gammas],
+            device=device,
+        )
     vertices_np, vertices_wp = empty_shared((n, 3), np.float64, wp.vec3d, device)
-    wp.launch(stepped_kernels.blend_vertices, dim=n, inputs=[arrays.points, arrays.step_heights, gammas, scalar, origin],
-              outputs=[vertices_wp], device=device)
+    wp.launch(
+        stepped_kernels.blend_vertices,
+        dim=n,
+        inputs=[arrays.points, arrays.step_heights, gammas, scalar, origin],
+        outputs=[vertices_wp],
+        device=device,
+    )
     return to_numpy(vertices_np, vertices_wp, (n, 3))
 
 
@@ -418,7 +481,8 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
     table = np.asarray(colors)
     if table.ndim != 2 or table.shape[0] != n_levels or table.shape[1] not in (3, 4):
         raise InvalidInputError(
-            f"colors must be a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4); got shape {table.shape}"
+            f"colors must be a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4); "
+            f"got shape {table.shape}"
         )
     if np.issubdtype(table.dtype, np.floating):
         if table.min() < 0 or table.max() > 1:
@@ -512,8 +576,8 @@ def stepped(
     and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold); such
     back-to-back fins are removed from solids. A solid is guaranteed watertight when no height sits
     exactly on a threshold (a warning says so otherwise; shift ``base`` by a fraction of the interval,
-    e.g. 0.5 m for integer DEMs, to avoid it). Each edge crossing a threshold owns a wall bottom and top vertex, shared by
-    both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
+    e.g. 0.5 m for integer DEMs, to avoid it). Each edge crossing a threshold owns a wall bottom and top
+    vertex, shared by both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
     terraces face +z and walls face the lower terrace. Cost: O(nodes + edges + output) on the device,
     two host syncs.
 
@@ -534,11 +598,13 @@ def stepped(
     t = as_terrain(terrain, spacing=spacing, origin=origin)
     dev = resolve_device(device)
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
-    arrays = step_arrays(t, values, device=dev, want_sources=_needs_sources(t, gamma, colors),
-                         memory_budget=memory_budget)
+    arrays = step_arrays(
+        t, values, device=dev, want_sources=_needs_sources(t, gamma, colors), memory_budget=memory_budget
+    )
     vertices = blend(t, arrays, gamma, device=dev)
-    return _assemble(t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor,
-                     interval=interval)
+    return _assemble(
+        t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
+    )
 
 
 def _assemble(
@@ -559,7 +625,9 @@ def _assemble(
     metadata: dict[str, Any] = {
         "generator": "stepterrain.stepped",
         "isovalues": values.tolist() if values.size <= 4096 else [float(values[0]), float(values[-1])],
-        "gamma": float(gamma) if np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens) else "varying",
+        "gamma": float(gamma)
+        if np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens)
+        else "varying",
     }
     if t.source:
         metadata["source"] = t.source
@@ -664,8 +732,11 @@ def stepped_series(
             t._device_cache.update(reuse._device_cache)
             t._device_cache.pop(("heights", str(dev)), None)
         reuse = t
-        frame_values = values if values is not None else isovalues(t.height_range, interval=interval, levels=levels, base=base)
+        frame_values = (
+            values if values is not None else isovalues(t.height_range, interval=interval, levels=levels, base=base)
+        )
         arrays = step_arrays(t, frame_values, device=dev, want_sources=_needs_sources(t, gamma, colors))
         vertices = blend(t, arrays, gamma, device=dev)
-        yield _assemble(t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None,
-                        interval=interval)
+        yield _assemble(
+            t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None, interval=interval
+        )

@@ -51,7 +51,9 @@ def grid_tin(heights: NDArray[np.float32], spacing=(1.0, 1.0)) -> tuple[NDArray[
     return points.astype(np.float32), faces
 
 
-def step_reference(points: NDArray[np.float32], faces: NDArray[np.int64], values: NDArray[np.float32]) -> ReferenceResult:
+def step_reference(
+    points: NDArray[np.float32], faces: NDArray[np.int64], values: NDArray[np.float32]
+) -> ReferenceResult:
     """Stepped mesh of a TIN (points local float32, faces counter-clockwise) for isovalues ``values``."""
     values = np.asarray(values, np.float32)
     thr = thresholds_of(values)
@@ -173,8 +175,11 @@ def step_reference(points: NDArray[np.float32], faces: NDArray[np.int64], values
                 break
             rows = np.flatnonzero(has)
             out_faces.append(np.stack([poly[rows, 0], poly[rows, m], poly[rows, m + 1]], 1))
-            out_key.append(np.stack([fid[sel[rows]], np.full(len(rows), r), np.zeros(len(rows), np.int64),
-                                     np.full(len(rows), m)], 1))
+            out_key.append(
+                np.stack(
+                    [fid[sel[rows]], np.full(len(rows), r), np.zeros(len(rows), np.int64), np.full(len(rows), m)], 1
+                )
+            )
             out_level.append(k[rows])
             out_wall.append(np.zeros(len(rows), bool))
         # wall of threshold k where the triangle reaches above it
@@ -195,8 +200,17 @@ def step_reference(points: NDArray[np.float32], faces: NDArray[np.int64], values
             rows = np.flatnonzero(real)
             for part, tri in enumerate((np.stack([ut, vt, vb], 1), np.stack([ut, vb, ub], 1))):
                 out_faces.append(tri[rows])
-                out_key.append(np.stack([fid[sel[wsel[rows]]], np.full(len(rows), r), np.ones(len(rows), np.int64),
-                                         np.full(len(rows), part)], 1))
+                out_key.append(
+                    np.stack(
+                        [
+                            fid[sel[wsel[rows]]],
+                            np.full(len(rows), r),
+                            np.ones(len(rows), np.int64),
+                            np.full(len(rows), part),
+                        ],
+                        1,
+                    )
+                )
                 out_level.append(kk[rows])
                 out_wall.append(np.ones(len(rows), bool))
     if out_faces:

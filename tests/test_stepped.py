@@ -144,8 +144,11 @@ def test_integer_heights_on_thresholds_match_reference(heights, interval):
 
 
 @given(
-    heights=arrays(np.float32, st_.tuples(st_.integers(2, 8), st_.integers(2, 8)),
-                   elements=st_.floats(-100, 100, width=32, allow_nan=False)),
+    heights=arrays(
+        np.float32,
+        st_.tuples(st_.integers(2, 8), st_.integers(2, 8)),
+        elements=st_.floats(-100, 100, width=32, allow_nan=False),
+    ),
     levels=st_.lists(st_.floats(-120, 120, width=32), min_size=1, max_size=12, unique=True),
 )
 def test_random_grids_nonuniform_levels_match_reference(heights, levels):
@@ -209,7 +212,9 @@ def test_wall_area_equals_contour_length_times_step(dem):
 
 def test_volume_is_linear_in_gamma_and_equals_input_at_zero(dem):
     source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
-    volumes = {g: volume_under(st.stepped(dem, interval=80.0, gamma=g, spacing=(30.0, 30.0))) for g in (0.0, 0.3, 0.7, 1.0)}
+    volumes = {
+        g: volume_under(st.stepped(dem, interval=80.0, gamma=g, spacing=(30.0, 30.0))) for g in (0.0, 0.3, 0.7, 1.0)
+    }
     np.testing.assert_allclose(volumes[0.0], volume_under(source), rtol=1e-7)
     for g in (0.3, 0.7):
         np.testing.assert_allclose(volumes[g], volumes[0.0] + g * (volumes[1.0] - volumes[0.0]), rtol=1e-7)
@@ -228,8 +233,12 @@ def test_welded_mesh_is_manifold_consistent_and_bounded_by_the_input(dem):
     b = boundary_edges(mesh.faces)
     xy = mesh.vertices[b][:, :, :2]
     xmax, ymax = 30.0 * (dem.shape[1] - 1), 30.0 * (dem.shape[0] - 1)
-    on_side = [np.isclose(xy[:, :, 0], 0).all(1), np.isclose(xy[:, :, 0], xmax).all(1),
-               np.isclose(xy[:, :, 1], 0).all(1), np.isclose(xy[:, :, 1], ymax).all(1)]
+    on_side = [
+        np.isclose(xy[:, :, 0], 0).all(1),
+        np.isclose(xy[:, :, 0], xmax).all(1),
+        np.isclose(xy[:, :, 1], 0).all(1),
+        np.isclose(xy[:, :, 1], ymax).all(1),
+    ]
     assert np.logical_or.reduce(on_side).all()
     normals = mesh.face_normals
     terrace = ~mesh.face_attributes["wall"]
@@ -255,7 +264,9 @@ def test_nan_heights_are_holes(device):
     xy = mesh.vertices[:, :2]
     inside_hole = (xy[:, 0] > 12) & (xy[:, 0] < 24) & (xy[:, 1] > 10) & (xy[:, 1] < 19)
     assert not inside_hole.any()
-    compare_with_reference(heights, isovalues((float(np.nanmin(heights)), float(np.nanmax(heights))), interval=90.0), device)
+    compare_with_reference(
+        heights, isovalues((float(np.nanmin(heights)), float(np.nanmax(heights))), interval=90.0), device
+    )
 
 
 def test_tin_input_gives_the_grid_geometry(dem):
@@ -347,8 +358,10 @@ def test_colors_by_level_and_face_attributes(dem):
 
 def test_input_vertex_colors_are_carried():
     base = st.heightfield_mesh(np.array([[0.0, 1.0], [2.0, 3.0]]))
-    base.visual = trimesh.visual.ColorVisuals(base, vertex_colors=np.array(
-        [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255]], np.uint8))
+    base.visual = trimesh.visual.ColorVisuals(
+        base,
+        vertex_colors=np.array([[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [255, 255, 255, 255]], np.uint8),
+    )
     mesh = st.stepped(base, interval=1.0)
     assert mesh.visual.kind == "vertex"
     colors = mesh.visual.vertex_colors
@@ -360,7 +373,7 @@ def test_series_equals_frame_by_frame():
     rng = np.random.default_rng(1)
     frames = rng.random((4, 12, 12)).astype(np.float32) * 10
     series = list(st.stepped_series(frames, interval=2.0))
-    for frame, mesh in zip(frames, series):
+    for frame, mesh in zip(frames, series, strict=True):
         single = st.stepped(frame, levels=isovalues((float(frames.min()), float(frames.max())), interval=2.0))
         np.testing.assert_array_equal(mesh.faces, single.faces)
         np.testing.assert_array_equal(mesh.vertices, single.vertices)
