@@ -261,6 +261,17 @@ def _tin_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.Triangle
     return terrain.cached(("tin", str(device)), build)
 
 
+def _quantize(topo: Any, iso: stepped_kernels.Isovalues, n_nodes: int, device: wp.Device) -> None:
+    """Every node's level (paper 000 §3.2, vertex quantization) into ``topo.levels``."""
+    wp.launch(
+        stepped_kernels.quantize_levels,
+        dim=n_nodes,
+        inputs=[topo.heights, iso.thresholds],
+        outputs=[topo.levels],
+        device=device,
+    )
+
+
 def step_arrays(
     terrain: Terrain,
     values: NDArray[np.float32],
@@ -282,13 +293,7 @@ def step_arrays(
             stepped_kernels.count_grid_faces,
             stepped_kernels.emit_grid_faces,
         )
-        wp.launch(
-            stepped_kernels.quantize_levels,
-            dim=n_nodes,
-            inputs=[topo.heights, iso.thresholds],
-            outputs=[topo.levels],
-            device=device,
-        )
+        _quantize(topo, iso, n_nodes, device)
         count_inputs: list[Any] = [topo, iso]
     else:
         topo = _tin_struct(terrain, device)
@@ -302,13 +307,7 @@ def step_arrays(
             stepped_kernels.count_tin_faces,
             stepped_kernels.emit_tin_faces,
         )
-        wp.launch(
-            stepped_kernels.quantize_levels,
-            dim=n_nodes,
-            inputs=[topo.heights, iso.thresholds],
-            outputs=[topo.levels],
-            device=device,
-        )
+        _quantize(topo, iso, n_nodes, device)
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         wp.launch(
