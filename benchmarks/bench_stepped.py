@@ -9,7 +9,7 @@ output triangles per second.
 Not part of the test suite (``testpaths`` is tests and stepterrain, and pytest only collects ``test_*.py``
 from a directory, so name the file). The project's ``addopts`` disable benchmarking; enable it::
 
-    pytest benchmarks/bench_stepped.py -k small --benchmark-enable     # 257² only: about a minute
+    pytest benchmarks/bench_stepped.py -k small --benchmark-enable     # 257² only: ~30 s
     pytest benchmarks/bench_stepped.py --benchmark-enable              # everything (2049²: minutes)
     pytest benchmarks/bench_stepped.py -k "small and cpu and 20steps" --benchmark-enable
 

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import datetime as _dt
+import functools
 import gc
 import json
 import os
@@ -232,6 +233,15 @@ def time_contender(fn: Callable, heights, spacing, values, repeat: int, slow_s: 
     return times, result
 
 
+def median_time(fn: Callable[[], Any], repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
 def warp_stages(heights, spacing, values, device, repeat: int) -> dict[str, float]:
     """Median seconds of the Warp stages: terrain + count/scan/emit (step_arrays), blend (γ = 1)."""
     import warp as wp
@@ -368,7 +378,7 @@ def _s(x: float) -> str:
 def markdown(rows: list[Row], bw: dict[str, float], meta: dict[str, Any], restep_out: dict[str, float] | None) -> str:
     write_bw = bw["write_GBps"] * 1e9
     lines = [
-        f"### Run of {meta['date']}",
+        f"### Run started {meta['date']}",
         "",
         f"- command: `{meta['command']}`",
         f"- machine: {meta['cpu']}, {meta['cores']} cores ({meta['pinning']}), {meta['platform']}",
@@ -410,11 +420,13 @@ def markdown(rows: list[Row], bw: dict[str, float], meta: dict[str, Any], restep
         )
     lines += [
         "",
-        "Ratios (baseline median / Warp median; > 1 means Warp is faster), Warp stages and the write floor:",
+        "Ratios (baseline median / Warp median; > 1 means Warp is faster), Warp stages and the write floor "
+        "(`rest` = total - stages: terrain checks, trimesh; VTK surface build = ImageData -> warped, "
+        "triangulated surface, included in both VTK contenders' times):",
         "",
         "| case | steps | Warp total | step_arrays | blend | rest (trimesh, …) | floor | Warp / floor | "
-        "VTK banded / Warp | NumPy ref / Warp | clip-per-band / Warp |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "VTK banded / Warp | NumPy ref / Warp | clip-per-band / Warp | VTK surface build |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for (case, steps), w in warp_by_case.items():
         cells = []
@@ -428,7 +440,7 @@ def markdown(rows: list[Row], bw: dict[str, float], meta: dict[str, Any], restep
             f"| {case} | {steps} | {_s(w.median)} | {_s(st.get('step_arrays', float('nan')))} | "
             f"{_s(st.get('blend', float('nan')))} | {_s(rest)} | {_s(floor)} | {w.median / floor:,.0f}× | "
             + " | ".join(cells)
-            + " |"
+            + f" | {_s(meta.get('surface_s', {}).get(case, float('nan')))} |"
         )
     if restep_out:
         r = restep_out
@@ -528,6 +540,7 @@ def main(argv: list[str] | None = None) -> int:
     import vtk
     import warp as wp
 
+    started = _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z")
     pinning = "all cores" if args.all_cores else pin_to_one_core()
     device = warp_device(args.device)
     bw = memory_bandwidth()
@@ -541,8 +554,13 @@ def main(argv: list[str] | None = None) -> int:
     dems = [] if args.dems in ([], ["none"]) else args.dems
     cases = [Case(str(s), k) for s in args.sizes for k in args.steps] + [Case(d, k) for d in dems for k in args.steps]
     rows: list[Row] = []
+    surface_s: dict[str, float] = {}
     for case in cases:
         heights, spacing, values = case.inputs()
+        if case.label not in surface_s and any(c.startswith("vtk") for c in args.contenders):
+            surface_s[case.label] = median_time(
+                functools.partial(baselines.build_surface, heights, spacing), args.repeat
+            )
         for contender in args.contenders:
             row = Row(case.label, case.steps, len(values), contender)
             rows.append(row)
@@ -584,7 +602,7 @@ def main(argv: list[str] | None = None) -> int:
     if restep_out:
         print(f"re-step 512²: {restep_out}", flush=True)
     meta = {
-        "date": _dt.datetime.now().astimezone().strftime("%Y-%m-%d %H:%M %Z"),
+        "date": started,
         "command": "python benchmarks/run_stepped.py " + " ".join(sys.argv[1:] if argv is None else argv),
         "cpu": cpu_model(),
         "cores": os.cpu_count(),
@@ -597,6 +615,7 @@ def main(argv: list[str] | None = None) -> int:
         "pyvista": pv.__version__,
         "device": str(device),
         "device_name": getattr(device, "name", str(device)),
+        "surface_s": surface_s,
         "code": code_before,
         "repeat": args.repeat,
         "slow_s": args.slow_seconds,
