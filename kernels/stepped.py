@@ -301,101 +301,35 @@ def step_triangle(
             face_walls_out,
         )
         return 1
+    corners = wp.vec3i(c0, c1, c2)
+    slots = wp.vec3i(s0, s1, s2)
     if write == 0:
         aliased = wp.int32(0)
-        if l0 > lmin:
-            aliased += on_threshold(heights[c0], l0, iso.thresholds)
-        if l1 > lmin:
-            aliased += on_threshold(heights[c1], l1, iso.thresholds)
-        if l2 > lmin:
-            aliased += on_threshold(heights[c2], l2, iso.thresholds)
+        for e in range(3):
+            le = levels[corners[e]]
+            if le > lmin:
+                aliased += on_threshold(heights[corners[e]], le, iso.thresholds)
         if aliased == 0:
             return 1 + 4 * (lmax - lmin)
     for k in range(lmin, lmax + 1):
         s = wp.vec4i(-1, -1, 0, count)
-        s = walk_edge(
-            c0,
-            c1,
-            s0,
-            k,
-            s,
-            heights,
-            levels,
-            iso,
-            offsets,
-            stride,
-            write,
-            face_base,
-            faces_out,
-            face_levels_out,
-            face_walls_out,
-        )
-        s = walk_edge(
-            c1,
-            c2,
-            s1,
-            k,
-            s,
-            heights,
-            levels,
-            iso,
-            offsets,
-            stride,
-            write,
-            face_base,
-            faces_out,
-            face_levels_out,
-            face_walls_out,
-        )
-        s = walk_edge(
-            c2,
-            c0,
-            s2,
-            k,
-            s,
-            heights,
-            levels,
-            iso,
-            offsets,
-            stride,
-            write,
-            face_base,
-            faces_out,
-            face_levels_out,
-            face_walls_out,
-        )
+        ends = wp.vec4i(-1, -1, -1, -1)
+        for e in range(3):
+            a = corners[e]
+            b = corners[(e + 1) % 3]
+            s = walk_edge(
+                a, b, slots[e], k, s, heights, levels, iso, offsets, stride,
+                write, face_base, faces_out, face_levels_out, face_walls_out,
+            )  # fmt: skip
+            if k < lmax:
+                ends = wall_end(a, b, slots[e], k, ends, heights, levels, iso, offsets, stride)
         count = s[3]
-        if k < lmax:
-            ends = wp.vec4i(-1, -1, -1, -1)
-            ends = wall_end(c0, c1, s0, k, ends, heights, levels, iso, offsets, stride)
-            ends = wall_end(c1, c2, s1, k, ends, heights, levels, iso, offsets, stride)
-            ends = wall_end(c2, c0, s2, k, ends, heights, levels, iso, offsets, stride)
-            if ends[0] != ends[2]:
-                write_face(
-                    write,
-                    face_base + count,
-                    ends[0],
-                    ends[2],
-                    ends[3],
-                    k,
-                    1,
-                    faces_out,
-                    face_levels_out,
-                    face_walls_out,
-                )
-                write_face(
-                    write,
-                    face_base + count + 1,
-                    ends[0],
-                    ends[3],
-                    ends[1],
-                    k,
-                    1,
-                    faces_out,
-                    face_levels_out,
-                    face_walls_out,
-                )
-                count = count + 2
+        if k < lmax and ends[0] != ends[2]:
+            # wall of threshold k: (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
+            base = face_base + count
+            write_face(write, base, ends[0], ends[2], ends[3], k, 1, faces_out, face_levels_out, face_walls_out)
+            write_face(write, base + 1, ends[0], ends[3], ends[1], k, 1, faces_out, face_levels_out, face_walls_out)
+            count = count + 2
     return count
 
 

@@ -7,7 +7,6 @@
 from __future__ import annotations
 
 from ._compaction import get_memory_budget, set_memory_budget
-from ._device import init_warp as _init_warp
 from .errors import (
     DataFileError,
     DeviceError,
@@ -42,4 +41,3 @@ __all__ = [
     "stepped_series",
 ]
 
-_init_warp()

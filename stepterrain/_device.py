@@ -1,9 +1,9 @@
-"""Device resolution, numpy <-> ``wp.array`` conversion and the per-device table cache.
+"""Device resolution and numpy <-> ``wp.array`` conversion.
 
 Every kernel caller goes through here: ``resolve_device`` turns ``device=None | "cpu" | "cuda:0" | wp.Device``
 (or the device of an input that is already a ``wp.array``) into a ``wp.Device``; ``to_device`` converts once
-(contiguous float32/int32, no copy on the CPU when the layout already fits); ``cached_table`` uploads a
-module-level lookup table once per device.
+(contiguous float32/int32, no copy on the CPU when the layout already fits); ``empty_shared`` allocates outputs
+that kernels write straight into numpy memory on the CPU.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ from .errors import DeviceError
 
 _init_lock = threading.Lock()
 _initialised = False
-_tables: dict[tuple[str, str], wp.array] = {}
 _NP_DTYPES = {
     wp.float32: np.float32,
     wp.float64: np.float64,
@@ -145,13 +144,3 @@ def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -
     if host is not None:
         return host
     return array.numpy().reshape(shape)
-
-
-def cached_table(name: str, values: tuple, dtype: Any, device: wp.Device) -> wp.array:
-    """Upload a module-level lookup table once per device and cache it by ``str(device)``."""
-    key = (name, str(device))
-    table = _tables.get(key)
-    if table is None:
-        table = wp.array(np.asarray(values), dtype=dtype, device=device)
-        _tables[key] = table
-    return table

@@ -1,8 +1,8 @@
-"""Device arrays -> ``trimesh.Trimesh``, and the mesh-level helpers every capability shares.
+"""The mesh-level helpers every capability shares.
 
-``close_solid`` turns a stepped (or any height-function) surface into a watertight solid; ``weld`` merges
-vertices by exact position (to join tiles or check crack-freeness); ``boundary_edges`` lists the edges used
-by one face only. All vectorised numpy: no Python loop over faces or vertices.
+``close_solid`` turns a stepped (or any height-function) surface into a watertight solid; ``exact_keys``
+groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only.
+All vectorised numpy: no Python loop over faces or vertices.
 
     vertices, faces, kept, added = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
 """
@@ -10,12 +10,11 @@ by one face only. All vectorised numpy: no Python loop over faces or vertices.
 from __future__ import annotations
 
 import numpy as np
-import trimesh
 from numpy.typing import NDArray
 
 from .errors import InvalidInputError
 
-__all__ = ["close_solid", "boundary_edges", "weld", "exact_keys"]
+__all__ = ["close_solid", "boundary_edges", "exact_keys"]
 
 
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
@@ -36,18 +35,6 @@ def boundary_edges(faces: NDArray[np.int64]) -> NDArray[np.int64]:
     key = np.minimum(directed[:, 0], directed[:, 1]) * n + np.maximum(directed[:, 0], directed[:, 1])
     _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     return directed[counts[inverse] == 1]
-
-
-def weld(mesh: trimesh.Trimesh, digits: int | None = None) -> trimesh.Trimesh:
-    """Merge vertices at identical positions (rounded to ``digits`` decimals when given)."""
-    v = np.asarray(mesh.vertices)
-    key_source = v if digits is None else np.round(v, digits)
-    ids = exact_keys(key_source)
-    first = np.full(ids.max() + 1 if len(ids) else 0, -1, np.int64)
-    first[ids[::-1]] = np.arange(len(ids))[::-1]
-    faces = ids[np.asarray(mesh.faces)]
-    keep = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    return trimesh.Trimesh(v[first], faces[keep], process=False)
 
 
 def close_solid(

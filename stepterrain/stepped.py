@@ -261,17 +261,6 @@ def _tin_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.Triangle
     return terrain.cached(("tin", str(device)), build)
 
 
-def _quantize(topo: Any, iso: stepped_kernels.Isovalues, n_nodes: int, device: wp.Device) -> None:
-    """Every node's level (paper 000 §3.2, vertex quantization) into ``topo.levels``."""
-    wp.launch(
-        stepped_kernels.quantize_levels,
-        dim=n_nodes,
-        inputs=[topo.heights, iso.thresholds],
-        outputs=[topo.levels],
-        device=device,
-    )
-
-
 def step_arrays(
     terrain: Terrain,
     values: NDArray[np.float32],
@@ -282,9 +271,18 @@ def step_arrays(
 ) -> StepArrays:
     """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions."""
     iso = _isovalue_struct(values, device)
-    if terrain.kind == "grid":
-        topo = _grid_struct(terrain, device)
-        n_nodes = topo.rows * topo.cols
+    grid = terrain.kind == "grid"
+    topo: Any = _grid_struct(terrain, device) if grid else _tin_struct(terrain, device)
+    n_nodes = terrain.heights.size
+    # vertex quantization (§3.2): every node's level
+    wp.launch(
+        stepped_kernels.quantize_levels,
+        dim=n_nodes,
+        inputs=[topo.heights, iso.thresholds],
+        outputs=[topo.levels],
+        device=device,
+    )
+    if grid:
         n_slots, n_threads = 4 * n_nodes, n_nodes
         n_cells = (topo.rows - 1) * (topo.cols - 1)
         kernels = (
@@ -293,13 +291,9 @@ def step_arrays(
             stepped_kernels.count_grid_faces,
             stepped_kernels.emit_grid_faces,
         )
-        _quantize(topo, iso, n_nodes, device)
         count_inputs: list[Any] = [topo, iso]
     else:
-        topo = _tin_struct(terrain, device)
-        n_nodes = len(terrain.heights)
-        n_edges = len(terrain.edges)
-        n_slots = n_threads = n_nodes + n_edges
+        n_slots = n_threads = n_nodes + len(terrain.edges)
         n_cells = len(terrain.faces)
         kernels = (
             stepped_kernels.count_tin_vertices,
@@ -307,7 +301,6 @@ def step_arrays(
             stepped_kernels.count_tin_faces,
             stepped_kernels.emit_tin_faces,
         )
-        _quantize(topo, iso, n_nodes, device)
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         wp.launch(
@@ -353,7 +346,7 @@ def step_arrays(
     n_src = vertex_count if want_sources else 0
     sources = wp.empty(n_src, dtype=wp.vec2i, device=device)
     betas = wp.empty(n_src, dtype=wp.float32, device=device)
-    emit_inputs = [topo, iso, offsets] + ([] if terrain.kind == "grid" else [count_inputs[2]])
+    emit_inputs = [topo, iso, offsets] + ([] if grid else [count_inputs[2]])
     wp.launch(
         emit_vertices,
         dim=n_threads,
