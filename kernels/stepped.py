@@ -559,6 +559,8 @@ def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, k
         b = a + hf.cols
     if kind == 3:
         b = a + hf.cols + 1
+    if hf.levels[a] == hf.levels[b]:
+        return 0
     return edge_vertex_count(a, b, hf.heights, hf.levels, iso)
 
 
@@ -595,29 +597,27 @@ def emit_grid_vertices(
     n = wp.tid()
     cols = hf.cols
     p = grid_point(hf, n)
+    level = hf.levels[n]
     first = offsets[4 * n]
     owned = offsets[4 * n + 1] - first
-    if owned > 0:
+    if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
+        # a plain node, the common case: written here without the call
+        points_out[first] = p
+        step_heights_out[first] = iso.values[level]
+        if want_sources != 0:
+            sources_out[first] = wp.vec2i(n, n)
+            betas_out[first] = 0.0
+    elif owned > 0:
         twin = wp.int32(0)
         peak = wp.int32(0)
         if owned == 2:
             twin = 1
-        elif hf.has_nodata != 0 or on_threshold(hf.heights[n], hf.levels[n], iso.thresholds) != 0:
+        else:
             peak = grid_node_count(hf, iso, n)[1]
         emit_node_vertices(
-            n,
-            p,
-            hf.levels[n],
-            twin,
-            peak,
-            first,
-            iso,
-            want_sources,
-            points_out,
-            step_heights_out,
-            sources_out,
-            betas_out,
-        )
+            n, p, level, twin, peak, first, iso, want_sources,
+            points_out, step_heights_out, sources_out, betas_out,
+        )  # fmt: skip
     for kind in range(1, 4):
         start = offsets[4 * n + kind]
         if offsets[4 * n + kind + 1] != start:
@@ -627,21 +627,9 @@ def emit_grid_vertices(
             if kind == 3:
                 b = n + cols + 1
             emit_edge_vertices(
-                n,
-                b,
-                p,
-                grid_point(hf, b),
-                wp.vec2i(n, b),
-                start,
-                hf.heights,
-                hf.levels,
-                iso,
-                want_sources,
-                points_out,
-                step_heights_out,
-                sources_out,
-                betas_out,
-            )
+                n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
+                want_sources, points_out, step_heights_out, sources_out, betas_out,
+            )  # fmt: skip
 
 
 @wp.func
@@ -677,84 +665,41 @@ def grid_cell_faces(
         upper = f00 * f11 * grid_finite(hf, i, j + 1)
         lower = f00 * f11 * grid_finite(hf, i + 1, j)
     count = wp.int32(0)
-    if upper != 0:
-        if hf.flip == 0:
-            count += step_triangle(
-                n00,
-                n01,
-                n11,
-                h_top,
-                v_right,
-                diag,
-                hf.heights,
-                hf.levels,
-                iso,
-                offsets,
-                4,
-                write,
-                face_base,
-                faces_out,
-                face_levels_out,
-                face_walls_out,
-            )
-        else:
-            count += step_triangle(
-                n00,
-                n11,
-                n01,
-                diag,
-                v_right,
-                h_top,
-                hf.heights,
-                hf.levels,
-                iso,
-                offsets,
-                4,
-                write,
-                face_base,
-                faces_out,
-                face_levels_out,
-                face_walls_out,
-            )
-    if lower != 0:
-        if hf.flip == 0:
-            count += step_triangle(
-                n00,
-                n11,
-                n10,
-                diag,
-                h_bottom,
-                v_left,
-                hf.heights,
-                hf.levels,
-                iso,
-                offsets,
-                4,
-                write,
-                face_base + count,
-                faces_out,
-                face_levels_out,
-                face_walls_out,
-            )
-        else:
-            count += step_triangle(
-                n00,
-                n10,
-                n11,
-                v_left,
-                h_bottom,
-                diag,
-                hf.heights,
-                hf.levels,
-                iso,
-                offsets,
-                4,
-                write,
-                face_base + count,
-                faces_out,
-                face_levels_out,
-                face_walls_out,
-            )
+    triangles = wp.int32(2)  # a runtime bound: one call site of step_triangle, not two unrolled copies
+    for t in range(triangles):
+        a = n00
+        b = n01
+        c = n11
+        sa = h_top
+        sb = v_right
+        sc = diag
+        valid = upper
+        if t == 1:
+            b = n11
+            c = n10
+            sa = diag
+            sb = h_bottom
+            sc = v_left
+            valid = lower
+        if hf.flip != 0:  # (a, c, b): edges a-c, c-b, b-a
+            swap = b
+            b = c
+            c = swap
+            swap = sa
+            sa = sc
+            sc = swap
+        if valid != 0:
+            la = hf.levels[a]
+            if la == hf.levels[b] and la == hf.levels[c]:
+                # flat: the triangle itself, lifted to its level (step_triangle's first case, without the call)
+                write_face(write, face_base + count, offsets[4 * a], offsets[4 * b], offsets[4 * c], la, 0,
+                           faces_out, face_levels_out, face_walls_out)  # fmt: skip
+                count += 1
+            else:
+                count += step_triangle(
+                    a, b, c, sa, sb, sc, hf.heights, hf.levels, iso, offsets, 4,
+                    write, face_base + count, faces_out, face_levels_out, face_walls_out,
+                )  # fmt: skip
     return count
 
 
