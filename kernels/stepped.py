@@ -27,6 +27,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 vec3l = wp.types.vector(length=3, dtype=wp.int64)
+vec6i = wp.types.vector(length=6, dtype=wp.int32)
 
 
 @wp.struct
@@ -111,37 +112,48 @@ def edge_vertex_count(
 
 
 @wp.func
-def crossing_vertex(
+def edge_crossings(
     a: wp.int32,
     b: wp.int32,
     slot: wp.int32,
-    j: wp.int32,
-    top: wp.int32,
     heights: wp.array[wp.float32],
     levels: wp.array[wp.int32],
     iso: Isovalues,
     offsets: wp.array[wp.int32],
     stride: wp.int32,
-) -> wp.int32:
-    """Output index of the wall bottom (top=0) or top (top=1) where edge a-b crosses threshold j.
+) -> vec6i:
+    """Edge a -> b, read once into registers: (level a, level b, its first crossing vertex, 1 if its top
+    crossing is the upper end, that end's vertex, the end's twin).
 
     Node n's vertices start at ``offsets[n * stride]``; its twin is the last one, ``offsets[n * stride + 1] - 1``.
     """
     la = levels[a]
     lb = levels[b]
-    hi = b
-    llo = la
-    lhi = lb
-    if la > lb:
-        hi = a
-        llo = lb
-        lhi = la
-    if j == lhi - 1:
-        if heights[hi] == iso.thresholds[j]:
-            if top == 1:
-                return offsets[hi * stride]
-            return offsets[hi * stride + 1] - 1
-    return offsets[slot] + 2 * (j - llo) + top
+    info = vec6i(la, lb, 0, 0, 0, 0)
+    if la != lb:
+        info[2] = offsets[slot]
+        hi = b
+        lhi = lb
+        if la > lb:
+            hi = a
+            lhi = la
+        if on_threshold(heights[hi], lhi, iso.thresholds) != 0:
+            info[3] = 1
+            info[4] = offsets[hi * stride]
+            info[5] = offsets[hi * stride + 1] - 1
+    return info
+
+
+@wp.func
+def crossing_vertex(info: vec6i, j: wp.int32, top: wp.int32) -> wp.int32:
+    """Output index of the wall bottom (top=0) or top (top=1) where the edge crosses threshold j."""
+    llo = wp.min(info[0], info[1])
+    lhi = wp.max(info[0], info[1])
+    if info[3] != 0 and j == lhi - 1:
+        if top == 1:
+            return info[4]
+        return info[5]
+    return info[2] + 2 * (j - llo) + top
 
 
 @wp.func
@@ -191,68 +203,52 @@ def fan_push(
 
 @wp.func
 def walk_edge(
-    a: wp.int32,
-    b: wp.int32,
-    slot: wp.int32,
+    info: vec6i,
+    corner: wp.int32,
     k: wp.int32,
     state: wp.vec4i,
-    heights: wp.array[wp.float32],
-    levels: wp.array[wp.int32],
-    iso: Isovalues,
-    offsets: wp.array[wp.int32],
-    stride: wp.int32,
     write: wp.int32,
     face_base: wp.int32,
     faces_out: wp.array[vec3l],
     face_levels_out: wp.array[wp.int32],
     face_walls_out: wp.array[wp.uint8],
 ) -> wp.vec4i:
-    """Push the vertices band k's polygon has on the directed edge a -> b (corner a, then crossings)."""
-    la = levels[a]
-    lb = levels[b]
+    """Push the vertices band k's polygon has on the directed edge a -> b (vertex ``corner`` of a, then
+    the crossings)."""
+    la = info[0]
+    lb = info[1]
     s = state
     if la == k:
-        s = fan_push(offsets[a * stride], s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = fan_push(corner, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
     if la < lb:
         if la <= k - 1 and k - 1 < lb:
-            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets, stride)
-            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+            s = fan_push(crossing_vertex(info, k - 1, 1), s, k, write, face_base, faces_out, face_levels_out,
+                         face_walls_out)  # fmt: skip
         if la <= k and k < lb:
-            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets, stride)
-            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+            s = fan_push(crossing_vertex(info, k, 0), s, k, write, face_base, faces_out, face_levels_out,
+                         face_walls_out)  # fmt: skip
     if la > lb:
         if lb <= k and k < la:
-            v = crossing_vertex(a, b, slot, k, 0, heights, levels, iso, offsets, stride)
-            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+            s = fan_push(crossing_vertex(info, k, 0), s, k, write, face_base, faces_out, face_levels_out,
+                         face_walls_out)  # fmt: skip
         if lb <= k - 1 and k - 1 < la:
-            v = crossing_vertex(a, b, slot, k - 1, 1, heights, levels, iso, offsets, stride)
-            s = fan_push(v, s, k, write, face_base, faces_out, face_levels_out, face_walls_out)
+            s = fan_push(crossing_vertex(info, k - 1, 1), s, k, write, face_base, faces_out, face_levels_out,
+                         face_walls_out)  # fmt: skip
     return s
 
 
 @wp.func
-def wall_end(
-    a: wp.int32,
-    b: wp.int32,
-    slot: wp.int32,
-    j: wp.int32,
-    ends: wp.vec4i,
-    heights: wp.array[wp.float32],
-    levels: wp.array[wp.int32],
-    iso: Isovalues,
-    offsets: wp.array[wp.int32],
-    stride: wp.int32,
-) -> wp.vec4i:
-    """Record edge a -> b's crossing of threshold j as the wall's u (ascending) or v (descending) end."""
-    la = levels[a]
-    lb = levels[b]
+def wall_end(info: vec6i, j: wp.int32, ends: wp.vec4i) -> wp.vec4i:
+    """Record the edge's crossing of threshold j as the wall's u (ascending) or v (descending) end."""
+    la = info[0]
+    lb = info[1]
     e = ends
     if la <= j and j < lb:
-        e[0] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets, stride)
-        e[1] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets, stride)
+        e[0] = crossing_vertex(info, j, 1)
+        e[1] = crossing_vertex(info, j, 0)
     if lb <= j and j < la:
-        e[2] = crossing_vertex(a, b, slot, j, 1, heights, levels, iso, offsets, stride)
-        e[3] = crossing_vertex(a, b, slot, j, 0, heights, levels, iso, offsets, stride)
+        e[2] = crossing_vertex(info, j, 1)
+        e[3] = crossing_vertex(info, j, 0)
     return e
 
 
@@ -279,57 +275,49 @@ def step_triangle(
 
     c0, c1, c2 are node ids; s0, s1, s2 the vertex-offset slots of edges c0c1, c1c2, c2c0. Without a corner
     on a crossed threshold, band k's polygon has (corners at k) + 2 [k > lmin] + 2 [k < lmax] vertices, so
-    the triangle yields 1 + 4 (lmax - lmin) faces: the count pass uses that and walks only the rest.
+    the triangle yields 1 + 4 (lmax - lmin) faces: the count pass uses that and walks only the rest. The
+    walk reads each edge once (:func:`edge_crossings`) and then works in registers.
     """
     l0 = levels[c0]
     l1 = levels[c1]
     l2 = levels[c2]
     lmin = wp.min(l0, wp.min(l1, l2))
     lmax = wp.max(l0, wp.max(l1, l2))
-    count = wp.int32(0)
+    v0 = offsets[c0 * stride]
+    v1 = offsets[c1 * stride]
+    v2 = offsets[c2 * stride]
     if lmin == lmax:
-        write_face(
-            write,
-            face_base,
-            offsets[c0 * stride],
-            offsets[c1 * stride],
-            offsets[c2 * stride],
-            lmin,
-            0,
-            faces_out,
-            face_levels_out,
-            face_walls_out,
-        )
+        write_face(write, face_base, v0, v1, v2, lmin, 0, faces_out, face_levels_out, face_walls_out)
         return 1
-    corners = wp.vec3i(c0, c1, c2)
-    slots = wp.vec3i(s0, s1, s2)
     if write == 0:
         aliased = wp.int32(0)
-        for e in range(3):
-            le = levels[corners[e]]
-            if le > lmin:
-                aliased += on_threshold(heights[corners[e]], le, iso.thresholds)
+        if l0 > lmin:
+            aliased += on_threshold(heights[c0], l0, iso.thresholds)
+        if l1 > lmin:
+            aliased += on_threshold(heights[c1], l1, iso.thresholds)
+        if l2 > lmin:
+            aliased += on_threshold(heights[c2], l2, iso.thresholds)
         if aliased == 0:
             return 1 + 4 * (lmax - lmin)
+    e0 = edge_crossings(c0, c1, s0, heights, levels, iso, offsets, stride)
+    e1 = edge_crossings(c1, c2, s1, heights, levels, iso, offsets, stride)
+    e2 = edge_crossings(c2, c0, s2, heights, levels, iso, offsets, stride)
+    count = wp.int32(0)
     for k in range(lmin, lmax + 1):
         s = wp.vec4i(-1, -1, 0, count)
-        ends = wp.vec4i(-1, -1, -1, -1)
-        for e in range(3):
-            a = corners[e]
-            b = corners[(e + 1) % 3]
-            s = walk_edge(
-                a, b, slots[e], k, s, heights, levels, iso, offsets, stride,
-                write, face_base, faces_out, face_levels_out, face_walls_out,
-            )  # fmt: skip
-            if k < lmax:
-                ends = wall_end(a, b, slots[e], k, ends, heights, levels, iso, offsets, stride)
+        s = walk_edge(e0, v0, k, s, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(e1, v1, k, s, write, face_base, faces_out, face_levels_out, face_walls_out)
+        s = walk_edge(e2, v2, k, s, write, face_base, faces_out, face_levels_out, face_walls_out)
         count = s[3]
-        if k < lmax and ends[0] != ends[2]:
-            # wall of threshold k: (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
-            base = face_base + count
-            write_face(write, base, ends[0], ends[2], ends[3], k, 1, faces_out, face_levels_out, face_walls_out)
-            write_face(write, base + 1, ends[0], ends[3], ends[1], k, 1, faces_out, face_levels_out, face_walls_out)
-            count = count + 2
+        if k < lmax:
+            ends = wall_end(e2, k, wall_end(e1, k, wall_end(e0, k, wp.vec4i(-1, -1, -1, -1))))
+            if ends[0] != ends[2]:
+                # wall of threshold k: (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
+                base = face_base + count
+                write_face(write, base, ends[0], ends[2], ends[3], k, 1, faces_out, face_levels_out, face_walls_out)
+                write_face(write, base + 1, ends[0], ends[3], ends[1], k, 1, faces_out, face_levels_out,
+                           face_walls_out)  # fmt: skip
+                count = count + 2
     return count
 
 
