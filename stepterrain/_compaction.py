@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import warp as wp
 
+from ._device import scratch
 from .errors import InvalidInputError, OutputTooLargeError
 
-__all__ = ["exclusive_offsets", "check_budget", "get_memory_budget", "set_memory_budget"]
+__all__ = ["count_buffer", "exclusive_offsets", "check_budget", "get_memory_budget", "set_memory_budget"]
 
 _memory_budget: int = 16 * 1024**3
 
@@ -52,12 +53,21 @@ def check_budget(nbytes: int, what: str, budget: int | None = None) -> None:
         )
 
 
-def exclusive_offsets(counts: wp.array) -> tuple[wp.array, int]:
+def count_buffer(name: str, n: int, device: wp.Device) -> wp.array:
+    """``counts`` for n threads: n + 1 int32 from the scratch pool, the last slot 0 (count kernels write the rest)."""
+    counts = scratch(f"{name}.counts", n + 1, wp.int32, device)
+    counts[n : n + 1].zero_()
+    return counts
+
+
+def exclusive_offsets(counts: wp.array, name: str | None = None) -> tuple[wp.array, int]:
     """Exclusive prefix sum of ``counts`` (length n + 1) and the total ``offsets[n]``.
 
-    The one host sync of a count -> scan -> emit pass happens here.
+    With ``name`` the offsets live in the scratch pool (valid until the next pass of that name on this
+    thread). The one host sync of a count -> scan -> emit pass happens here.
     """
-    offsets = wp.empty_like(counts)
+    n1 = counts.shape[0]
+    offsets = wp.empty_like(counts) if name is None else scratch(f"{name}.offsets", n1, wp.int32, counts.device)
     wp.utils.array_scan(counts, offsets, inclusive=False)
-    total = int(offsets[counts.shape[0] - 1 : counts.shape[0]].numpy()[0])
+    total = int(offsets[n1 - 1 : n1].numpy()[0])
     return offsets, total

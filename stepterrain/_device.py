@@ -20,6 +20,7 @@ import warp as wp
 from .errors import DeviceError
 
 _init_lock = threading.Lock()
+_pools = threading.local()
 _initialised = False
 _NP_DTYPES = {
     wp.float32: np.float32,
@@ -144,3 +145,28 @@ def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -
     if host is not None:
         return host
     return array.numpy().reshape(shape)
+
+
+def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:
+    """A reusable work array of ``n`` elements (contents undefined), kept per thread, device and name.
+
+    Large fresh allocations cost page faults on every call (the allocator hands them back to the OS when
+    freed); counts, offsets and other intermediates of a pass reuse the same memory instead, growing it when
+    a larger input comes. The array is valid until the next request of the same name on this thread.
+    :func:`release_scratch` frees the pool.
+    """
+    pool = getattr(_pools, "arrays", None)
+    if pool is None:
+        pool = _pools.arrays = {}
+    key = (name, str(device))
+    array = pool.get(key)
+    if array is None or array.dtype != dtype or array.shape[0] < n:
+        array = wp.empty(max(int(n * 1.125), 1), dtype=dtype, device=device)
+        pool[key] = array
+    return array[:n]
+
+
+def release_scratch() -> None:
+    """Free this thread's scratch arrays (see :func:`scratch`)."""
+    _pools.arrays = {}
+

@@ -26,8 +26,8 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from ._compaction import check_budget, exclusive_offsets
-from ._device import empty_shared, resolve_device, to_device, to_numpy
+from ._compaction import check_budget, count_buffer, exclusive_offsets
+from ._device import empty_shared, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError
 from .kernels import stepped as stepped_kernels
 from .terrain import Terrain, as_terrain
@@ -237,7 +237,7 @@ def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightF
     hf.heights = terrain.cached(
         ("heights", str(device)), lambda: to_device(terrain.heights.reshape(-1), wp.float32, device)
     )
-    hf.levels = terrain.cached(("levels", str(device)), lambda: wp.empty(rows * cols, dtype=wp.int32, device=device))
+    hf.levels = scratch("stepped.levels", rows * cols, wp.int32, device)  # recomputed by every pass
     hf.rows = rows
     hf.cols = cols
     hf.spacing = wp.vec2(terrain.spacing[0], terrain.spacing[1])
@@ -269,7 +269,11 @@ def step_arrays(
     want_sources: bool = False,
     memory_budget: int | None = None,
 ) -> StepArrays:
-    """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions."""
+    """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions.
+
+    The device arrays of the result (points, step heights, sources, betas) are scratch buffers, valid until
+    the next call on this thread; the numpy face arrays are the caller's.
+    """
     iso = _isovalue_struct(values, device)
     grid = terrain.kind == "grid"
     topo: Any = _grid_struct(terrain, device) if grid else _tin_struct(terrain, device)
@@ -314,16 +318,15 @@ def step_arrays(
     count_vertices, emit_vertices, count_faces, emit_faces = kernels
 
     # pass 1: vertices (nodes, their twins, wall bottom/top pairs per edge crossing)
-    counts = wp.zeros(n_slots + 1, dtype=wp.int32, device=device)
+    counts = count_buffer("stepped.vertices", n_slots, device)
     wp.launch(count_vertices, dim=n_threads, inputs=count_inputs, outputs=[counts], device=device)
-    offsets, vertex_count = exclusive_offsets(counts)
-    del counts
+    offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
 
     # pass 2: faces (terraces and walls per triangle), counted against the vertex offsets
     empty_faces = wp.empty(0, dtype=stepped_kernels.vec3l, device=device)
     empty_levels = wp.empty(0, dtype=wp.int32, device=device)
     empty_walls = wp.empty(0, dtype=wp.uint8, device=device)
-    face_counts = wp.zeros(n_cells + 1, dtype=wp.int32, device=device)
+    face_counts = count_buffer("stepped.faces", n_cells, device)
     wp.launch(
         count_faces,
         dim=n_cells,
@@ -331,8 +334,7 @@ def step_arrays(
         outputs=[face_counts],
         device=device,
     )
-    face_offsets, face_count = exclusive_offsets(face_counts)
-    del face_counts
+    face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
 
     vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0)
     check_budget(
@@ -341,11 +343,11 @@ def step_arrays(
         memory_budget,
     )
 
-    points = wp.empty(vertex_count, dtype=wp.vec3, device=device)
-    step_heights = wp.empty(vertex_count, dtype=wp.float32, device=device)
+    points = scratch("stepped.points", vertex_count, wp.vec3, device)
+    step_heights = scratch("stepped.step_heights", vertex_count, wp.float32, device)
     n_src = vertex_count if want_sources else 0
-    sources = wp.empty(n_src, dtype=wp.vec2i, device=device)
-    betas = wp.empty(n_src, dtype=wp.float32, device=device)
+    sources = scratch("stepped.sources", n_src, wp.vec2i, device)
+    betas = scratch("stepped.betas", n_src, wp.float32, device)
     emit_inputs = [topo, iso, offsets] + ([] if grid else [count_inputs[2]])
     wp.launch(
         emit_vertices,
