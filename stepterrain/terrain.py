@@ -103,10 +103,23 @@ class Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
         Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped;
-        faces that fold over in projection, or edges shared by more than two faces, are refused.
+        faces that fold over in projection, or edges shared by more than two faces, are refused. The result
+        (edge table and device uploads included) is cached on the mesh and reused while its vertices, faces
+        and visual stay the same.
         """
         if not isinstance(mesh, trimesh.Trimesh):
             raise InvalidInputError(f"terrain mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+        visual = mesh.visual if mesh.visual.defined else None
+        key = hash(mesh)
+        cached = getattr(mesh, "_stepterrain_terrain", None)
+        if cached is not None and cached[0] == key and cached[1].visual is visual and cached[1].source == source:
+            return cached[1]
+        terrain = cls._build_tin(mesh, visual, source)
+        mesh._stepterrain_terrain = (key, terrain)
+        return terrain
+
+    @classmethod
+    def _build_tin(cls, mesh: trimesh.Trimesh, visual: Any, source: str | None) -> Terrain:
         points = np.array(mesh.vertices, dtype=np.float64)
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
@@ -136,7 +149,6 @@ class Terrain:
         edges, face_edges = _edge_table(faces, len(points))
         point_used = np.zeros(len(points), dtype=np.int32)
         point_used[faces.reshape(-1)] = 1
-        visual = mesh.visual if mesh.visual.defined else None
         return cls(
             kind="tin",
             heights=np.ascontiguousarray(points[:, 2], dtype=np.float32),

@@ -463,3 +463,27 @@ def test_device_errors():
 def test_as_terrain_accepts_every_input_kind(dem):
     assert as_terrain(dem).kind == "grid"
     assert as_terrain(st.heightfield_mesh(dem[:5, :5])).kind == "tin"
+
+
+def test_tin_edge_table_is_built_once_and_rebuilt_after_a_change():
+    tin = st.heightfield_mesh(np.add.outer(np.arange(6.0), np.arange(7.0)))
+    first = as_terrain(tin)
+    assert as_terrain(tin) is first
+    a = st.stepped(tin, interval=2.0)
+    assert as_terrain(tin) is first
+    tin.vertices[:, 2] += 0.5
+    assert as_terrain(tin) is not first
+    b = st.stepped(tin, interval=2.0)
+    assert not np.array_equal(a.vertices, b.vertices)
+
+
+def test_input_uvs_are_carried():
+    base = st.heightfield_mesh(np.array([[0.0, 1.0], [2.0, 3.0]]))
+    uv = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    base.visual = trimesh.visual.TextureVisuals(uv=uv)
+    mesh = st.stepped(base, interval=1.0)
+    assert mesh.visual.kind == "texture"
+    carried = np.asarray(mesh.visual.uv)
+    assert carried.shape == (len(mesh.vertices), 2)
+    # every output vertex's uv is the uv of its xy position (uv = x, y here)
+    np.testing.assert_allclose(carried, mesh.vertices[:, :2], atol=1e-6)
