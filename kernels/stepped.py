@@ -8,6 +8,8 @@ Both the count and the emit pass call :func:`step_triangle`, so they cannot disa
 
 Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
 
+* Every kernel takes ``thread_offset`` first: thread i handles element ``wp.tid() + thread_offset``, so the
+  CPU launcher can split one pass over several cores (``stepterrain._device.launch``).
 * level(h) = the number of thresholds t_i <= h: a height exactly on a threshold belongs to the upper level.
 * The crossings of an edge are stored lowest threshold first, two vertices each (wall bottom at α_j, wall
   top at α_j+1). When the upper endpoint lies exactly on its highest crossed threshold, that crossing's top
@@ -423,13 +425,14 @@ def emit_node_vertices(
 
 @wp.kernel
 def quantize_levels(
+    thread_offset: wp.int32,
     heights: wp.array[wp.float32],
     thresholds: wp.array[wp.float32],
     # outputs
     levels_out: wp.array[wp.int32],
 ):
     """One thread per node: its level, the index of the nearest isovalue (§3.2)."""
-    n = wp.tid()
+    n = wp.tid() + thread_offset
     levels_out[n] = level_of(heights[n], thresholds)
 
 
@@ -554,13 +557,14 @@ def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, k
 
 @wp.kernel
 def count_grid_vertices(
+    thread_offset: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     # outputs
     counts_out: wp.array[wp.int32],
 ):
     """One thread per node: count the vertices of its four slots (itself and its three owned edges)."""
-    n = wp.tid()
+    n = wp.tid() + thread_offset
     i = n // hf.cols
     j = n - i * hf.cols
     counts_out[4 * n] = grid_node_count(hf, iso, n)[0]
@@ -571,6 +575,7 @@ def count_grid_vertices(
 
 @wp.kernel
 def emit_grid_vertices(
+    thread_offset: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -582,7 +587,7 @@ def emit_grid_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """One thread per node: write the vertices of its four slots from their offsets."""
-    n = wp.tid()
+    n = wp.tid() + thread_offset
     cols = hf.cols
     p = grid_point(hf, n)
     level = hf.levels[n]
@@ -693,6 +698,7 @@ def grid_cell_faces(
 
 @wp.kernel
 def count_grid_faces(
+    thread_offset: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -703,12 +709,13 @@ def count_grid_faces(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per cell: count the terrace and wall faces its two triangles emit."""
-    cell = wp.tid()
+    cell = wp.tid() + thread_offset
     counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
 
 
 @wp.kernel
 def emit_grid_faces(
+    thread_offset: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -719,7 +726,7 @@ def emit_grid_faces(
     face_walls_out: wp.array[wp.uint8],
 ):
     """One thread per cell: write its terrace and wall faces from its face offset."""
-    cell = wp.tid()
+    cell = wp.tid() + thread_offset
     if face_offsets[cell + 1] != face_offsets[cell]:
         grid_cell_faces(hf, iso, offsets, cell, 1, face_offsets[cell], faces_out, face_levels_out, face_walls_out)
 
@@ -731,6 +738,7 @@ def emit_grid_faces(
 
 @wp.kernel
 def mark_tin_twins(
+    thread_offset: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     # outputs
@@ -739,7 +747,7 @@ def mark_tin_twins(
 ):
     """One thread per edge: flag its upper end for a twin when it sits on the threshold the edge crosses,
     and flag each end whose neighbour is not lower (a node without one is a peak)."""
-    e = wp.tid()
+    e = wp.tid() + thread_offset
     ab = tin.edges[e]
     la = tin.levels[ab[0]]
     lb = tin.levels[ab[1]]
@@ -759,6 +767,7 @@ def mark_tin_twins(
 
 @wp.kernel
 def count_tin_vertices(
+    thread_offset: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     twins: wp.array[wp.int32],
@@ -767,7 +776,7 @@ def count_tin_vertices(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per point, then per edge: count the output vertices it owns."""
-    tid = wp.tid()
+    tid = wp.tid() + thread_offset
     n_points = tin.points.shape[0]
     if tid < n_points:
         counts_out[tid] = node_vertex_count(tin.point_used[tid], twins[tid], peers[tid])
@@ -778,6 +787,7 @@ def count_tin_vertices(
 
 @wp.kernel
 def emit_tin_vertices(
+    thread_offset: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -790,7 +800,7 @@ def emit_tin_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """One thread per point, then per edge: write its output vertices from its offset."""
-    tid = wp.tid()
+    tid = wp.tid() + thread_offset
     n_points = tin.points.shape[0]
     first = offsets[tid]
     if offsets[tid + 1] == first:
@@ -873,6 +883,7 @@ def tin_face_faces(
 
 @wp.kernel
 def count_tin_faces(
+    thread_offset: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -883,12 +894,13 @@ def count_tin_faces(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per triangle: count the terrace and wall faces it emits."""
-    f = wp.tid()
+    f = wp.tid() + thread_offset
     counts_out[f] = tin_face_faces(tin, iso, offsets, f, 0, 0, faces_dummy, levels_dummy, walls_dummy)
 
 
 @wp.kernel
 def emit_tin_faces(
+    thread_offset: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -899,7 +911,7 @@ def emit_tin_faces(
     face_walls_out: wp.array[wp.uint8],
 ):
     """One thread per triangle: write its terrace and wall faces from its face offset."""
-    f = wp.tid()
+    f = wp.tid() + thread_offset
     if face_offsets[f + 1] != face_offsets[f]:
         tin_face_faces(tin, iso, offsets, f, 1, face_offsets[f], faces_out, face_levels_out, face_walls_out)
 
@@ -911,6 +923,7 @@ def emit_tin_faces(
 
 @wp.kernel
 def blend_vertices(
+    thread_offset: wp.int32,
     points: wp.array[wp.vec3],
     step_heights: wp.array[wp.float32],
     gammas: wp.array[wp.float32],
@@ -923,7 +936,7 @@ def blend_vertices(
 
     ``gammas`` holds one γ per vertex, or is empty and the scalar ``gamma`` applies.
     """
-    v = wp.tid()
+    v = wp.tid() + thread_offset
     g = gamma
     if gammas.shape[0] > 0:
         g = gammas[v]
@@ -934,6 +947,7 @@ def blend_vertices(
 
 @wp.kernel
 def interpolate_node_values(
+    thread_offset: wp.int32,
     node_values: wp.array[wp.float32],
     sources: wp.array[wp.vec2i],
     betas: wp.array[wp.float32],
@@ -941,7 +955,7 @@ def interpolate_node_values(
     values_out: wp.array[wp.float32],
 ):
     """One thread per output vertex: its value lerped from its source nodes with the crossing's β."""
-    v = wp.tid()
+    v = wp.tid() + thread_offset
     s = sources[v]
     b = betas[v]
     values_out[v] = (1.0 - b) * node_values[s[0]] + b * node_values[s[1]]
@@ -949,6 +963,7 @@ def interpolate_node_values(
 
 @wp.kernel
 def sample_lens(
+    thread_offset: wp.int32,
     mask: wp.array2d[wp.float32],
     lower: wp.vec2,
     size: wp.vec2,
@@ -957,7 +972,7 @@ def sample_lens(
     values_out: wp.array[wp.float32],
 ):
     """One thread per output vertex: bilinear lookup of the lens mask (row 0 at lower y), clamped at the edges."""
-    v = wp.tid()
+    v = wp.tid() + thread_offset
     p = points[v]
     rows = mask.shape[0]
     cols = mask.shape[1]

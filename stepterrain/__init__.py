@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 from ._compaction import get_memory_budget, set_memory_budget
+from ._device import get_cpu_threads, set_cpu_threads
 from .errors import (
     DataFileError,
     DeviceError,
@@ -31,11 +32,13 @@ __all__ = [
     "StepTerrainError",
     "Terrain",
     "circular_lens",
+    "get_cpu_threads",
     "get_memory_budget",
     "heightfield_mesh",
     "isovalues",
     "load_dem",
     "sample_dem",
+    "set_cpu_threads",
     "set_memory_budget",
     "stepped",
     "stepped_series",

@@ -12,15 +12,20 @@ import os
 import sys
 import tempfile
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 import warp as wp
 
-from .errors import DeviceError
+from .errors import DeviceError, InvalidInputError
 
 _init_lock = threading.Lock()
 _pools = threading.local()
+_cpu_threads: int | None = None
+_executor: ThreadPoolExecutor | None = None
+_loaded: set[tuple[int, str]] = set()
+MIN_THREAD_ELEMENTS = 1 << 15  # below this many elements per thread a launch stays on one thread
 _initialised = False
 _NP_DTYPES = {
     wp.float32: np.float32,
@@ -169,4 +174,58 @@ def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:
 def release_scratch() -> None:
     """Free this thread's scratch arrays (see :func:`scratch`)."""
     _pools.arrays = {}
+
+
+def get_cpu_threads() -> int:
+    """Threads a CPU pass is split over: :func:`set_cpu_threads`, else the cores this process may use."""
+    if _cpu_threads is not None:
+        return _cpu_threads
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def set_cpu_threads(threads: int | None) -> int | None:
+    """Split CPU passes over ``threads`` threads (``None``: every core this process may use); returns the old value.
+
+    Warp's CPU backend runs a launch on one thread; stepterrain's kernels take a ``thread_offset`` so one pass
+    can run as several launches on disjoint ranges at once (Warp releases the GIL while a kernel runs). The
+    output does not depend on the thread count.
+    """
+    global _cpu_threads, _executor
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise InvalidInputError(f"threads must be a positive int or None; got {threads!r}")
+    previous, _cpu_threads = _cpu_threads, threads
+    return previous
+
+
+def launch(kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device) -> None:
+    """``wp.launch`` of a stepterrain kernel (``thread_offset`` first) over ``dim`` elements.
+
+    On CUDA: one launch. On the CPU: split into up to :func:`get_cpu_threads` contiguous ranges that run at
+    once, each range's results written by its own threads only (count -> scan -> emit keeps them disjoint).
+    """
+    if dim <= 0:
+        return
+    workers = 1 if not device.is_cpu else min(get_cpu_threads(), dim // MIN_THREAD_ELEMENTS)
+    if workers <= 1:
+        wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=outputs, device=device)
+        return
+    global _executor
+    key = (id(kernel.module), str(device))
+    if key not in _loaded:  # compile/load once before several threads use the module
+        kernel.module.load(device)
+        _loaded.add(key)
+    if _executor is None or _executor._max_workers < workers - 1:
+        _executor = ThreadPoolExecutor(max_workers=workers - 1, thread_name_prefix="stepterrain")
+    bounds = [dim * k // workers for k in range(workers + 1)]
+    futures = [
+        _executor.submit(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs],
+                         outputs=outputs, device=device)
+        for k in range(1, workers)
+    ]  # fmt: skip
+    wp.launch(kernel, dim=bounds[1], inputs=[0, *inputs], outputs=outputs, device=device)
+    for future in futures:
+        future.result()
 

@@ -487,3 +487,28 @@ def test_input_uvs_are_carried():
     assert carried.shape == (len(mesh.vertices), 2)
     # every output vertex's uv is the uv of its xy position (uv = x, y here)
     np.testing.assert_allclose(carried, mesh.vertices[:, :2], atol=1e-6)
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, threads):
+    import stepterrain._device as device_module
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=60, step=5).copy()
+    heights[5:9, 30:40] = np.nan
+    tin = st.heightfield_mesh(heights[:30, :30])
+    single = [st.stepped(heights, interval=40.0, gamma=0.8, device="cpu"), st.stepped(tin, interval=40.0)]
+    monkeypatch.setattr(device_module, "MIN_THREAD_ELEMENTS", 16)
+    previous = st.set_cpu_threads(threads)
+    try:
+        split = [st.stepped(heights, interval=40.0, gamma=0.8, device="cpu"), st.stepped(tin, interval=40.0)]
+    finally:
+        st.set_cpu_threads(previous)
+    for a, b in zip(single, split, strict=True):
+        np.testing.assert_array_equal(a.faces, b.faces)
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.face_attributes["level"], b.face_attributes["level"])
+
+
+def test_cpu_threads_must_be_positive():
+    with pytest.raises(st.InvalidInputError, match="threads must be a positive int"):
+        st.set_cpu_threads(0)
