@@ -193,7 +193,7 @@ def set_cpu_threads(threads: int | None) -> int | None:
     can run as several launches on disjoint ranges at once (Warp releases the GIL while a kernel runs). The
     output does not depend on the thread count.
     """
-    global _cpu_threads, _executor
+    global _cpu_threads
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
         raise InvalidInputError(f"threads must be a positive int or None; got {threads!r}")
     previous, _cpu_threads = _cpu_threads, threads
