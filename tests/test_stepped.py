@@ -512,3 +512,17 @@ def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, thread
 def test_cpu_threads_must_be_positive():
     with pytest.raises(st.InvalidInputError, match="threads must be a positive int"):
         st.set_cpu_threads(0)
+
+
+def test_embedded_dem_steps_into_a_valid_welded_mesh():
+    dem = st.sample_dem()
+    mesh = st.stepped(dem, interval=250.0, base=0.5)
+    assert_valid_mesh(mesh)
+    values = isovalues(dem.height_range, interval=250.0, base=0.5)
+    assert np.isin(mesh.vertices[:, 2].astype(np.float32), values).all()
+    edges = np.sort(mesh.edges, axis=1)
+    _, counts = np.unique(edges[:, 0] * len(mesh.vertices) + edges[:, 1], return_counts=True)
+    assert counts.max() == 2  # no height sits on a threshold at base 0.5: edge-manifold
+    terrace = ~mesh.face_attributes["wall"]
+    source_area = (dem.extent[1] - dem.extent[0]) * (dem.extent[3] - dem.extent[2])
+    np.testing.assert_allclose(projected_area(mesh, terrace).sum(), source_area, rtol=1e-6)
