@@ -147,9 +147,27 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _add_steps(commands)
+    for name in CAPABILITY_COMMANDS:
+        module = _command_module(name)
+        if module is not None:
+            module.add_parser(commands)
     _add_info(commands)
-    # later capabilities add their subcommand here: globe, closeup, texture, batch
     return parser
+
+
+#: Subcommands that live in their capability's own module ``stepterrain._cli_<name>``; each module defines
+#: ``add_parser(commands)`` that adds one parser (its handler set as ``run``, signature ``(args, progress)``).
+CAPABILITY_COMMANDS = ("globe", "closeup", "texture", "batch")
+
+
+def _command_module(name: str) -> Any:
+    import importlib
+    import importlib.util
+
+    qualified = f"{__package__}._cli_{name}"
+    if importlib.util.find_spec(qualified) is None:
+        return None
+    return importlib.import_module(qualified)
 
 
 def _add_steps(commands: Any) -> None:
