@@ -15,6 +15,7 @@ __all__ = [
     "MissingDependencyError",
     "OutputTooLargeError",
     "DataFileError",
+    "SchedulerError",
 ]
 
 
@@ -40,3 +41,7 @@ class OutputTooLargeError(StepTerrainError, MemoryError):
 
 class DataFileError(StepTerrainError, OSError):
     """A file does not exist, cannot be read, is not elevation data, or cannot be written."""
+
+
+class SchedulerError(StepTerrainError, ConnectionError):
+    """A dask scheduler cannot be reached (address, timeout and cause in the message)."""

@@ -1,0 +1,782 @@
+"""Batch meshing on dask.distributed: many inputs, one stepped mesh file each, resumable and atomic.
+
+Scales paper 000 (Glander, Trapp & Döllner, *3D Isocontours*, Eurographics 2010) from one terrain to many:
+a folder of DEM tiles, a (T, H, W) time series (the paper's dynamic data, §4: every frame stepped with the
+same isovalues, so levels do not jump between frames) or tiles cut from one large raster (neighbouring tiles
+share their border nodes and their isovalues, so their stepped meshes weld without cracks, §3.2).
+
+    from stepterrain.batch import batch
+    report = batch("dem_tiles/", "out/", interval=50.0)                   # LocalCluster, one .glb per tile
+    report = batch(load_dem("big.tif"), "out/", tile_size=1024, interval=100.0, scheduler="tcp://host:8786")
+
+Each item runs as one dask task (``stepped`` + ``export.save_mesh``, written atomically). A manifest in the
+output folder records every finished item with a fingerprint of its input and options; a rerun skips items
+whose output is complete (recorded, same fingerprint, file present with the recorded size) and redoes the
+rest. Failures are retried, then reported with their reason; bad input data fails its item without retries.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import math
+import os
+import re
+import tempfile
+import time
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import warp as wp
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
+from .export import MESH_EXTENSIONS, atomic_path, save_mesh
+from .terrain import Terrain
+
+__all__ = [
+    "batch",
+    "BatchReport",
+    "BatchItem",
+    "ItemResult",
+    "plan_items",
+    "load_series",
+    "MANIFEST_NAME",
+]
+
+#: The sidecar manifest :func:`batch` keeps in the output folder (one JSON object, written atomically).
+MANIFEST_NAME = "stepterrain-batch.json"
+_MANIFEST_VERSION = 1
+_SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
+_DEM_EXTENSIONS = (".npy", ".npz", ".png", ".tif", ".tiff")
+_MANIFEST_FLUSH_S = 1.0
+
+
+# ---------------------------------------------------------------------------------------------- data types
+@dataclass(frozen=True)
+class BatchItem:
+    """One unit of work: an input (a file, a frame of a series, or a window of a raster) and its output name.
+
+    ``rows`` and ``cols`` are node ranges ``[start, stop)`` of a tile; neighbouring tiles overlap by one
+    node row or column (their shared border).
+    """
+
+    key: str
+    kind: Literal["file", "frame", "tile"]
+    path: str | None = None
+    index: int = 0
+    rows: tuple[int, int] = (0, 0)
+    cols: tuple[int, int] = (0, 0)
+    tile: tuple[int, int] = (0, 0)
+
+
+@dataclass(frozen=True)
+class ItemResult:
+    """What became of one item: ``status`` is ``"done"``, ``"skipped"`` (complete already) or ``"failed"``."""
+
+    key: str
+    status: Literal["done", "skipped", "failed"]
+    path: str | None = None
+    error: str | None = None
+    attempts: int = 0
+    seconds: float = 0.0
+    faces: int = 0
+    vertices: int = 0
+    bytes: int = 0
+
+
+@dataclass
+class BatchReport:
+    """Outcome of :func:`batch`: one :class:`ItemResult` per item, in item order."""
+
+    output_dir: Path
+    results: list[ItemResult] = field(default_factory=list)
+    seconds: float = 0.0
+    scheduler: str = "serial"
+
+    @property
+    def done(self) -> list[ItemResult]:
+        return [r for r in self.results if r.status == "done"]
+
+    @property
+    def skipped(self) -> list[ItemResult]:
+        return [r for r in self.results if r.status == "skipped"]
+
+    @property
+    def failed(self) -> list[ItemResult]:
+        return [r for r in self.results if r.status == "failed"]
+
+    @property
+    def ok(self) -> bool:
+        """True when every item is done or was complete already."""
+        return not self.failed
+
+    def summary(self) -> str:
+        """A few lines: counts, time, then one line per failure with its reason."""
+        lines = [
+            f"{len(self.done)} written, {len(self.skipped)} complete already (skipped), {len(self.failed)} failed "
+            f"of {len(self.results)} items in {self.seconds:.1f} s on {self.scheduler}; output {self.output_dir}"
+        ]
+        lines += [f"  failed {r.key}: {r.error} (after {r.attempts} attempt(s))" for r in self.failed]
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class _Options:
+    """The stepping and export options every item shares (part of each item's fingerprint)."""
+
+    interval: float | None
+    levels: tuple[float, ...] | None
+    base: float
+    gamma: float
+    colors: str | None
+    solid: bool
+    floor: float | None
+    ext: str
+    device: str | None
+    metadata: tuple[tuple[str, Any], ...]
+
+
+@dataclass(frozen=True)
+class _Source:
+    """Heights that frame and tile items slice: (H, W) or (T, H, W), with the raster's geometry."""
+
+    heights: NDArray[np.float32]
+    spacing: tuple[float, float]
+    origin: tuple[float, float]
+    crs: str | None
+    name: str
+
+
+# ---------------------------------------------------------------------------------------------- planning
+def plan_items(
+    source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | Terrain | ArrayLike,
+    *,
+    tile_size: int | tuple[int, int] | None = None,
+) -> tuple[list[BatchItem], _Source | None]:
+    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> items, _ = plan_items(np.zeros((9, 9), np.float32), tile_size=4)
+    >>> [(i.key, i.rows, i.cols) for i in items][:2]
+    [('tile_r0_c0', (0, 5), (0, 5)), ('tile_r0_c1', (0, 5), (4, 9))]
+    """
+    if isinstance(source, (str, os.PathLike)):
+        path = Path(os.fspath(source))
+        if path.is_dir():
+            if tile_size is not None:
+                raise InvalidInputError(
+                    f"tile_size applies to one raster, not to a folder of tiles; got a folder {str(path)!r}"
+                )
+            files = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _DEM_EXTENSIONS)
+            if not files:
+                raise InvalidInputError(
+                    f"source folder {str(path)!r} holds no DEM file; expected files ending in "
+                    f"{', '.join(_DEM_EXTENSIONS)}"
+                )
+            return _file_items(files), None
+        if not path.exists():
+            raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)")
+        from .io import load_dem
+
+        if tile_size is None:
+            series = load_series(path) if path.suffix.lower() in (".npy", ".npz") else None
+            if series is not None:
+                return _frame_items(series), _Source(series, (1.0, 1.0), (0.0, 0.0), None, path.name)
+            raise InvalidInputError(
+                f"source {str(path)!r} is one 2-D raster: give tile_size to cut it into tiles"
+            )
+        terrain = load_dem(path)
+        return _tile_items(terrain.heights.shape, tile_size), _terrain_source(terrain)
+    if isinstance(source, Terrain):
+        if source.kind != "grid":
+            raise InvalidInputError("batch tiles a grid Terrain; got a TIN (kind 'tin')")
+        if tile_size is None:
+            raise InvalidInputError("source is one raster (a Terrain): give tile_size to cut it into tiles")
+        return _tile_items(source.heights.shape, tile_size), _terrain_source(source)
+    if isinstance(source, Sequence) and not isinstance(source, np.ndarray) and source and all(
+        isinstance(s, (str, os.PathLike)) for s in source
+    ):
+        files = [Path(os.fspath(s)) for s in source]
+        bad = [str(f) for f in files if f.suffix.lower() not in _DEM_EXTENSIONS]
+        if bad:
+            raise InvalidInputError(
+                f"source files must end in {', '.join(_DEM_EXTENSIONS)}; got {bad[0]!r}"
+                + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
+            )
+        return _file_items(files), None
+    array = np.asarray(source)
+    if array.dtype.kind not in "biuf" or array.ndim not in (2, 3):
+        raise InvalidInputError(
+            "source must be a folder, a list of DEM files, a Terrain, an (H, W) raster or a (T, H, W) series; "
+            f"got {type(source).__name__} with shape {getattr(array, 'shape', None)}, dtype {array.dtype}"
+        )
+    heights = np.ascontiguousarray(array, dtype=np.float32)
+    if heights.ndim == 3:
+        if tile_size is not None:
+            raise InvalidInputError(f"tile_size applies to one (H, W) raster; got a (T, H, W) series {heights.shape}")
+        return _frame_items(heights), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
+    if tile_size is None:
+        raise InvalidInputError(f"source is one (H, W) raster {heights.shape}: give tile_size to cut it into tiles")
+    return _tile_items(heights.shape, tile_size), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster")
+
+
+def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
+    """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D."""
+    file = Path(os.fspath(path))
+    try:
+        with np.load(file, mmap_mode="r", allow_pickle=False) as data:  # type: ignore[union-attr]
+            arrays = [data[k] for k in data.files]
+    except AttributeError:  # a .npy gives an array, not an archive (no context manager)
+        arrays = [np.load(file, mmap_mode="r", allow_pickle=False)]
+    except (OSError, ValueError) as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
+    three = [a for a in arrays if getattr(a, "ndim", 0) == 3]
+    if not three:
+        return None
+    stack = three[0]
+    if stack.dtype.kind not in "biuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
+        raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
+                            "expected real heights with H, W >= 2")
+    return np.ascontiguousarray(stack, dtype=np.float32)
+
+
+def _terrain_source(terrain: Terrain) -> _Source:
+    return _Source(terrain.heights, terrain.spacing, terrain.origin, terrain.crs, terrain.source or "raster")
+
+
+def _file_items(files: Sequence[Path]) -> list[BatchItem]:
+    stems = [f.stem for f in files]
+    duplicated = {s for s in stems if stems.count(s) > 1}
+    keys = [f.name.replace(".", "_") if f.stem in duplicated else f.stem for f in files]
+    if len(set(keys)) != len(keys):
+        raise InvalidInputError("source files must have distinct names (outputs are named after them)")
+    return [BatchItem(key=k, kind="file", path=str(f)) for k, f in zip(keys, files, strict=True)]
+
+
+def _frame_items(stack: NDArray[np.float32]) -> list[BatchItem]:
+    width = max(4, len(str(len(stack) - 1)))
+    return [BatchItem(key=f"frame_{i:0{width}d}", kind="frame", index=i) for i in range(len(stack))]
+
+
+def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> list[BatchItem]:
+    rows, cols = int(shape[0]), int(shape[1])
+    try:
+        sizes = (int(tile_size), int(tile_size)) if np.ndim(tile_size) == 0 else tuple(int(s) for s in tile_size)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"tile_size must be an int or (rows, cols) of cells; got {tile_size!r}") from exc
+    if len(sizes) != 2 or min(sizes) < 1 or isinstance(tile_size, bool):
+        raise InvalidInputError(f"tile_size must be a positive int or (rows, cols) of cells; got {tile_size!r}")
+    if rows < 2 or cols < 2:
+        raise InvalidInputError(f"a raster to tile needs at least 2 x 2 nodes; got {rows} x {cols}")
+    th, tw = sizes
+    n_r, n_c = math.ceil((rows - 1) / th), math.ceil((cols - 1) / tw)
+    wr, wc = len(str(n_r - 1)), len(str(n_c - 1))
+    items = []
+    for r in range(n_r):  # tiles, not cells: a handful to thousands
+        for c in range(n_c):
+            r0, c0 = r * th, c * tw
+            items.append(BatchItem(
+                key=f"tile_r{r:0{wr}d}_c{c:0{wc}d}", kind="tile", rows=(r0, min(r0 + th, rows - 1) + 1),
+                cols=(c0, min(c0 + tw, cols - 1) + 1), tile=(r, c),
+            ))  # fmt: skip
+    return items
+
+
+# ---------------------------------------------------------------------------------------------- one item
+def _item_terrain(item: BatchItem, source: _Source | None) -> Terrain:
+    if item.kind == "file":
+        from .io import load_dem
+
+        return load_dem(item.path)  # type: ignore[arg-type]
+    assert source is not None
+    if item.kind == "frame":
+        return Terrain.from_heights(source.heights[item.index], spacing=source.spacing, origin=source.origin,
+                                    source=f"{source.name}[{item.index}]")  # fmt: skip
+    (r0, r1), (c0, c1) = item.rows, item.cols
+    dx, dy = source.spacing
+    return Terrain.from_heights(
+        source.heights[r0:r1, c0:c1],
+        spacing=source.spacing,
+        origin=(source.origin[0] + c0 * dx, source.origin[1] + r0 * dy),
+        crs=source.crs,
+        source=f"{source.name}[{r0}:{r1}, {c0}:{c1}]",
+    )
+
+
+def _item_metadata(item: BatchItem) -> dict[str, Any]:
+    meta: dict[str, Any] = {"batch_item": item.key}
+    if item.kind == "tile":
+        meta.update(tile_row=item.tile[0], tile_col=item.tile[1], node_rows=list(item.rows), node_cols=list(item.cols))
+    elif item.kind == "frame":
+        meta["frame"] = item.index
+    else:
+        meta["input"] = item.path
+    return meta
+
+
+def run_item(
+    item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None
+) -> ItemResult:
+    """Step one item and write its mesh (atomically); the task each dask worker runs.
+
+    Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once;
+    any other exception propagates so the scheduler retries the task.
+    """
+    from ._device import set_cpu_threads
+    from .stepped import stepped
+
+    start = time.perf_counter()
+    if cpu_threads is not None:
+        set_cpu_threads(cpu_threads)
+    target = Path(output_dir) / f"{item.key}{options.ext}"
+    try:
+        terrain = _item_terrain(item, source)
+        mesh = stepped(
+            terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
+            colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
+        )  # fmt: skip
+        metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
+        save_mesh(mesh, target, metadata=metadata)
+    except StepTerrainError as exc:
+        return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
+                          seconds=time.perf_counter() - start)  # fmt: skip
+    return ItemResult(
+        item.key, "done", path=str(target), attempts=1, seconds=time.perf_counter() - start,
+        faces=len(mesh.faces), vertices=len(mesh.vertices), bytes=target.stat().st_size,
+    )  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------- resume
+def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _Options) -> dict[str, str]:
+    """Per item: a hash of its input (file identity or the sliced heights) and the shared options."""
+    head = json.dumps([repr(options), _source_identity(source)], sort_keys=True).encode()
+    out = {}
+    for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
+        h = hashlib.blake2b(head, digest_size=16)
+        h.update(repr(item).encode())
+        if item.kind == "file":
+            try:
+                st = os.stat(item.path)  # type: ignore[arg-type]
+                h.update(f"{os.path.abspath(item.path)}|{st.st_size}|{st.st_mtime_ns}".encode())  # type: ignore[arg-type]
+            except OSError:
+                h.update(b"unreadable")
+        elif source is not None:
+            block = source.heights[item.index] if item.kind == "frame" else source.heights[
+                item.rows[0]:item.rows[1], item.cols[0]:item.cols[1]]  # fmt: skip
+            h.update(np.ascontiguousarray(block).tobytes())
+        out[item.key] = h.hexdigest()
+    return out
+
+
+def _source_identity(source: _Source | None) -> Any:
+    if source is None:
+        return None
+    return [list(source.heights.shape), list(source.spacing), list(source.origin), source.crs]
+
+
+def _read_manifest(output_dir: Path) -> dict[str, Any]:
+    path = output_dir / MANIFEST_NAME
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(data, dict) or data.get("version") != _MANIFEST_VERSION:
+        return {}
+    items = data.get("items")
+    return items if isinstance(items, dict) else {}
+
+
+def _write_manifest(output_dir: Path, entries: Mapping[str, Any]) -> None:
+    with atomic_path(output_dir / MANIFEST_NAME) as tmp:
+        tmp.write_text(json.dumps({"version": _MANIFEST_VERSION, "items": entries}, indent=1), encoding="utf-8")
+
+
+def _is_complete(entry: Any, fingerprint: str, output_dir: Path) -> bool:
+    """Recorded with the same fingerprint, and the file is there with the recorded size."""
+    if not isinstance(entry, dict) or entry.get("fingerprint") != fingerprint:
+        return False
+    try:
+        return (output_dir / str(entry.get("file"))).stat().st_size == entry.get("bytes")
+    except OSError:
+        return False
+
+
+def _check_output_dir(output_dir: str | os.PathLike[str]) -> Path:
+    try:
+        folder = Path(os.fspath(output_dir))
+    except TypeError as exc:
+        raise InvalidInputError(f"output_dir must be a str or os.PathLike; got {type(output_dir).__name__}") from exc
+    if folder.exists() and not folder.is_dir():
+        raise DataFileError(f"output_dir {str(folder)!r} exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
+    try:  # os.access says yes to root on read-only mounts: try a real file
+        fd, probe = tempfile.mkstemp(prefix=".stepterrain-probe.", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise DataFileError(f"output folder {str(folder)!r} is not writable: {exc.strerror or exc}") from exc
+    return folder
+
+
+def _check_ext(ext: str) -> str:
+    if not isinstance(ext, str):
+        raise InvalidInputError(f"format must be a mesh extension such as '.glb'; got {type(ext).__name__}")
+    norm = ext.lower() if ext.startswith(".") else f".{ext.lower()}"
+    if norm not in MESH_EXTENSIONS:
+        raise InvalidInputError(f"format must be one of {', '.join(MESH_EXTENSIONS)}; got {ext!r}")
+    return norm
+
+
+# ---------------------------------------------------------------------------------------------- schedulers
+def _connect(
+    scheduler: Any, workers: int, connect_timeout: float
+) -> tuple[Any, Any, str, bool]:
+    """(client, cluster to close or None, description, whether the workers are this machine's processes)."""
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError as exc:
+        raise MissingDependencyError(
+            "batch on dask needs dask and distributed: pip install 'stepterrain[batch]' "
+            "(or pass scheduler='serial')"
+        ) from exc
+    if isinstance(scheduler, Client):
+        return scheduler, None, f"dask client {scheduler.scheduler.address if scheduler.scheduler else '?'}", False
+    if scheduler is None:
+        cluster = LocalCluster(
+            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+            silence_logs=logging.ERROR,
+        )  # fmt: skip
+        client = Client(cluster, timeout=connect_timeout)
+        return client, cluster, f"LocalCluster ({workers} worker processes)", True
+    if not isinstance(scheduler, str) or not _SCHEDULER_RE.match(scheduler):
+        raise InvalidInputError(
+            "scheduler must be None (a LocalCluster), 'serial', a dask Client or an address such as "
+            f"'tcp://host:8786'; got {scheduler!r}"
+        )
+    try:
+        client = Client(scheduler, timeout=connect_timeout)
+    except (OSError, TimeoutError) as exc:
+        raise SchedulerError(
+            f"cannot reach the dask scheduler {scheduler!r} within connect_timeout={connect_timeout:g} s: "
+            f"{type(exc).__name__}: {exc}"
+        ) from exc
+    return client, None, f"dask scheduler {scheduler}", False
+
+
+# ---------------------------------------------------------------------------------------------- public API
+def batch(
+    source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | Terrain | ArrayLike,
+    output_dir: str | os.PathLike[str],
+    *,
+    format: str = ".glb",
+    tile_size: int | tuple[int, int] | None = None,
+    interval: float | None = None,
+    levels: ArrayLike | None = None,
+    base: float = 0.0,
+    gamma: float = 1.0,
+    colors: str | None = None,
+    solid: bool = False,
+    floor: float | None = None,
+    spacing: ArrayLike | None = None,
+    origin: ArrayLike | None = None,
+    scheduler: Any = None,
+    workers: int = 2,
+    retries: int = 2,
+    resume: bool = True,
+    connect_timeout: float = 10.0,
+    progress: bool = False,
+    metadata: Mapping[str, Any] | None = None,
+    device: wp.DeviceLike = None,
+) -> BatchReport:
+    """Step many terrains, one mesh file each, on dask.distributed (or serially).
+
+    Parameters
+    ----------
+    source
+        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it), a list of DEM files,
+        a ``.npy``/``.npz`` file holding one (T, H, W) series or a (T, H, W) array (one output per frame,
+        ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
+        array) cut into tiles of ``tile_size`` cells (``tile_r0_c0`` ...; neighbours share border nodes).
+    output_dir : str or path-like
+        Created if missing; must be writable. Also holds the manifest :data:`MANIFEST_NAME`.
+    format : str
+        Output extension: ``.glb`` ``.gltf`` ``.obj`` ``.ply`` ``.stl`` ``.3mf``.
+    tile_size : int or (rows, cols)
+        Cells per tile when ``source`` is one raster.
+    interval, levels, base, gamma, colors, solid, floor
+        As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
+        tiles the isovalues come from the whole source's height range, so every item shares them (tiles
+        weld, frames keep their levels). A folder needs ``interval`` or ``levels``.
+    spacing, origin : (dx, dy), (x0, y0)
+        Grid geometry of an array source (default (1, 1) and (0, 0)).
+    scheduler
+        ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no
+        dask. An address ``"tcp://host:port"``: an existing cluster, reached within ``connect_timeout``
+        seconds. A ``distributed.Client``: used as is, not closed.
+    workers : int
+        Worker processes of the LocalCluster.
+    retries : int
+        Extra attempts for an item whose task raised (worker lost, disk error). Bad input data (an
+        unreadable tile) fails at once.
+    resume : bool
+        Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
+    progress : bool
+        A tqdm progress bar on stderr.
+    metadata : mapping, optional
+        Added to every output's glTF ``extras``.
+    device : warp device, optional
+        Where each worker runs the kernels (default: Warp's default device on that worker).
+
+    Returns
+    -------
+    BatchReport
+        One :class:`ItemResult` per item; ``report.ok`` is False when any item failed.
+
+    Raises
+    ------
+    InvalidInputError
+        Unknown format, bad source, tile size, isovalues or scheduler address.
+    DataFileError
+        The source does not exist, or ``output_dir`` cannot be created or written (before any work).
+    SchedulerError
+        The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``.
+    MissingDependencyError
+        dask/distributed are not installed (``scheduler="serial"`` needs neither).
+
+    Notes
+    -----
+    An item is complete when the manifest records it with the same fingerprint (its input: file path, size
+    and mtime, or a hash of its heights; and the options) and its file exists with the recorded size. Every
+    file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
+    a killed run leaves complete outputs or none and a rerun redoes only what is missing. Cost per item: one
+    :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
+    run scales with the workers until the disk or the scheduler saturates.
+
+    References
+    ----------
+    T. Glander, M. Trapp, J. Döllner: 3D Isocontours - Real-time Generation and Visualization of 3D Stepped
+    Terrain Models. Eurographics 2010 (short papers), §3.2 and §4. doi:10.2312/egsh.20101049
+
+    Examples
+    --------
+    >>> import numpy as np, tempfile
+    >>> from stepterrain.batch import batch
+    >>> z = np.add.outer(np.arange(9.0), np.arange(9.0))
+    >>> report = batch(z, tempfile.mkdtemp(), tile_size=4, interval=2.0, format=".ply", scheduler="serial")
+    >>> report.ok, len(report.done)
+    (True, 4)
+    """
+    start = time.perf_counter()
+    ext = _check_ext(format)
+    for name, value in (("retries", retries), ("workers", workers)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < (0 if name == "retries" else 1):
+            raise InvalidInputError(f"{name} must be an int >= {0 if name == 'retries' else 1}; got {value!r}")
+    if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout) and connect_timeout > 0):
+        raise InvalidInputError(f"connect_timeout must be a positive number of seconds; got {connect_timeout!r}")
+    if not (isinstance(gamma, (int, float, np.floating)) and 0.0 <= float(gamma) <= 1.0):
+        raise InvalidInputError(f"gamma must be a number in [0, 1] for batch; got {gamma!r}")
+    if colors is not None and not isinstance(colors, str):
+        raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
+    if metadata is not None and not isinstance(metadata, Mapping):
+        raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    items, src = plan_items(source, tile_size=tile_size)
+    if src is not None and (spacing is not None or origin is not None):
+        if not isinstance(source, np.ndarray | list | tuple):
+            raise InvalidInputError("spacing and origin apply to an array source; a file or Terrain has its own")
+        probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
+                                     origin=origin if origin is not None else (0, 0))  # fmt: skip
+        src = _Source(src.heights, probe.spacing, probe.origin, src.crs, src.name)
+    level_values = _shared_levels(src, interval, levels, base)
+    if src is None and interval is None and levels is None:
+        raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
+    if colors is not None:
+        from .stepped import _level_colors
+
+        _level_colors(colors, 2)  # an unknown colormap fails here, not in every task
+    options = _Options(
+        interval=None if level_values is not None else (None if interval is None else float(interval)),
+        levels=level_values if level_values is not None else (
+            None if levels is None else tuple(float(v) for v in np.asarray(levels, np.float64).reshape(-1))),
+        base=float(base), gamma=float(gamma), colors=colors, solid=bool(solid),
+        floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
+        metadata=tuple(sorted((str(k), v) for k, v in dict(metadata or {}).items())),
+    )  # fmt: skip
+    if level_values is not None and interval is not None:
+        options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
+    folder = _check_output_dir(output_dir)
+
+    fingerprints = _fingerprints(items, src, options)
+    manifest = _read_manifest(folder) if resume else {}
+    results: dict[str, ItemResult] = {}
+    todo = []
+    for item in items:
+        if resume and _is_complete(manifest.get(item.key), fingerprints[item.key], folder):
+            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / manifest[item.key]["file"]),
+                                           bytes=int(manifest[item.key]["bytes"]))  # fmt: skip
+        else:
+            todo.append(item)
+            manifest.pop(item.key, None)
+
+    recorder = _Recorder(folder, manifest, fingerprints)
+    bar = _progress_bar(len(items), len(results), progress)
+    description = "serial"
+    try:
+        if todo:
+            if isinstance(scheduler, str) and scheduler == "serial":
+                for result in _run_serial(todo, src, options, folder, retries):
+                    results[result.key] = result
+                    recorder.add(result)
+                    _tick(bar, result)
+            else:
+                for result, description in _run_dask(todo, src, options, folder, scheduler, workers, retries,
+                                                     connect_timeout):  # fmt: skip
+                    results[result.key] = result
+                    recorder.add(result)
+                    _tick(bar, result)
+    finally:
+        recorder.flush()
+        if bar is not None:
+            bar.close()
+    report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
+                         time.perf_counter() - start, description)  # fmt: skip
+    return report
+
+
+def _shared_levels(
+    src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
+) -> tuple[float, ...] | None:
+    """Isovalues over the whole series or raster, so every frame or tile uses the same ones."""
+    if src is None:
+        return None
+    from .cli import nice_interval
+    from .stepped import isovalues
+
+    finite = src.heights[np.isfinite(src.heights)]
+    if finite.size == 0:
+        raise InvalidInputError(f"source {src.name!r} holds no finite height")
+    lo, hi = float(finite.min()), float(finite.max())
+    if interval is None and levels is None:
+        interval = nice_interval((lo, hi))
+    return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))
+
+
+class _Recorder:
+    """Keeps the manifest: finished items are added and the file is rewritten at most once a second."""
+
+    def __init__(self, folder: Path, entries: dict[str, Any], fingerprints: Mapping[str, str]) -> None:
+        self.folder, self.entries, self.fingerprints = folder, entries, fingerprints
+        self.dirty = False
+        self.last = 0.0
+
+    def add(self, result: ItemResult) -> None:
+        if result.status != "done" or result.path is None:
+            return
+        self.entries[result.key] = {
+            "fingerprint": self.fingerprints[result.key],
+            "file": Path(result.path).name,
+            "bytes": result.bytes,
+            "faces": result.faces,
+            "vertices": result.vertices,
+        }
+        self.dirty = True
+        if time.monotonic() - self.last > _MANIFEST_FLUSH_S:
+            self.flush()
+
+    def flush(self) -> None:
+        if self.dirty:
+            _write_manifest(self.folder, self.entries)
+            self.dirty = False
+            self.last = time.monotonic()
+
+
+def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
+    if not enabled:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, initial=initial, desc="stepterrain batch", unit="item")
+
+
+def _tick(bar: Any, result: ItemResult) -> None:
+    if bar is not None:
+        bar.update(1)
+        if result.status == "failed":
+            bar.write(f"failed {result.key}: {result.error}")
+
+
+def _run_serial(
+    todo: Iterable[BatchItem], src: _Source | None, options: _Options, folder: Path, retries: int
+) -> Iterable[ItemResult]:
+    for item in todo:
+        error = ""
+        for attempt in range(1, retries + 2):
+            try:
+                result = run_item(item, src, options, str(folder))
+            except Exception as exc:  # noqa: BLE001 - retried, then reported like a failed dask task
+                error = f"{type(exc).__name__}: {exc}"
+                continue
+            yield ItemResult(**{**result.__dict__, "attempts": attempt})
+            break
+        else:
+            yield ItemResult(item.key, "failed", error=error, attempts=retries + 1)
+
+
+def _run_dask(
+    todo: Sequence[BatchItem],
+    src: _Source | None,
+    options: _Options,
+    folder: Path,
+    scheduler: Any,
+    workers: int,
+    retries: int,
+    connect_timeout: float,
+) -> Iterable[tuple[ItemResult, str]]:
+    from distributed import as_completed
+
+    client, cluster, description, local = _connect(scheduler, workers, connect_timeout)
+    try:
+        src_ref = client.scatter(src, broadcast=True, hash=False) if src is not None else None
+        cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
+        futures = {
+            client.submit(run_item, item, src_ref, options, str(folder), cpu_threads, retries=retries, pure=False,
+                          key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
+            for item in todo
+        }  # fmt: skip
+        try:
+            for future in as_completed(futures):
+                item = futures[future]
+                if future.status == "error":
+                    exc = future.exception()
+                    yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}",
+                                     attempts=retries + 1), description  # fmt: skip
+                elif future.status == "cancelled":
+                    yield ItemResult(item.key, "failed", error="cancelled", attempts=0), description
+                else:
+                    yield future.result(), description
+        except BaseException:
+            client.cancel(list(futures))
+            raise
+    finally:
+        if cluster is not None:
+            client.close()
+            cluster.close()
+        elif scheduler is not None and not _is_client(scheduler):
+            client.close()
+
+
+def _is_client(obj: Any) -> bool:
+    try:
+        from distributed import Client
+    except ImportError:  # pragma: no cover
+        return False
+    return isinstance(obj, Client)
