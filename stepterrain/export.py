@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
 
-__all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS"]
+__all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
 
 #: Mesh file extensions :func:`save_mesh` writes (lower case; matching is case-insensitive).
 MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3mf")
@@ -36,6 +36,8 @@ _MAX_EXTRAS_ITEMS = 4096
 # glTF accessors are float32: coordinates beyond this magnitude (UTM metres) move into the node translation.
 _LOCAL_ORIGIN_THRESHOLD = 65536.0
 _OMIT = object()
+# Called with each path save_mesh has just written (see add_write_listener).
+_WRITE_LISTENERS: list[Callable[[Path], None]] = []
 
 
 @functools.cache
@@ -117,8 +119,8 @@ def save_mesh(
     Raises
     ------
     InvalidInputError
-        ``mesh`` is not a ``trimesh.Trimesh``, or the extension is unknown (the message lists the supported
-        ones).
+        ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices, or the extension is unknown (the
+        message lists the supported ones).
     MissingDependencyError
         ``.3mf`` without ``lxml`` and ``networkx`` (trimesh's 3MF writer needs both).
     DataFileError
@@ -150,6 +152,12 @@ def save_mesh(
         raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
     target = _target(path)
     ext = target.suffix.lower()
+    vertices = np.asarray(mesh.vertices)
+    if vertices.size and not np.isfinite(vertices).all():
+        bad = int((~np.isfinite(vertices).all(axis=1)).sum())
+        raise InvalidInputError(
+            f"mesh vertices must be finite to be written; got {bad} of {len(vertices)} vertices with NaN or inf"
+        )
     writer = _WRITERS.get(ext)
     if writer is None:
         raise InvalidInputError(
@@ -170,7 +178,34 @@ def save_mesh(
             if isinstance(exc, DataFileError):
                 raise
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+    for listener in tuple(_WRITE_LISTENERS):
+        listener(target)
     return target
+
+
+def add_write_listener(listener: Callable[[Path], None]) -> Callable[[], None]:
+    """Call ``listener(path)`` after every mesh :func:`save_mesh` writes in this process; returns the remover.
+
+    The test suite uses it to run the Khronos glTF validator over every GLB/glTF it writes.
+
+    Examples
+    --------
+    >>> import pathlib, tempfile, trimesh
+    >>> from stepterrain.export import add_write_listener, save_mesh
+    >>> seen = []
+    >>> remove = add_write_listener(seen.append)
+    >>> _ = save_mesh(trimesh.creation.box(), pathlib.Path(tempfile.mkdtemp()) / "box.ply")
+    >>> remove()
+    >>> [p.name for p in seen]
+    ['box.ply']
+    """
+    _WRITE_LISTENERS.append(listener)
+
+    def remove() -> None:
+        with contextlib.suppress(ValueError):
+            _WRITE_LISTENERS.remove(listener)
+
+    return remove
 
 
 def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:

@@ -56,3 +56,38 @@ def assert_valid_mesh(mesh: trimesh.Trimesh) -> None:
     referenced = np.zeros(len(vertices), bool)
     referenced[faces.reshape(-1)] = True
     assert referenced.all(), f"{(~referenced).sum()} unreferenced vertices"
+
+
+# ------------------------------------------------------------------ every glTF/GLB the suite writes is validated
+@pytest.fixture(scope="session", autouse=True)
+def gltf_written_files_are_valid(tmp_path_factory):
+    """Copy every .glb/.gltf written through export.save_mesh during the session, then run the Khronos glTF
+    validator over all of them at once (one node process) and fail the session on any error or warning.
+    Without node or the validator package the check is skipped (tests/test_gltf_validator.py says why)."""
+    import shutil
+
+    from stepterrain import export
+
+    from . import gltf_validator
+
+    ok, _reason = gltf_validator.available()
+    if not ok:
+        yield
+        return
+    folder = tmp_path_factory.mktemp("gltf_written")
+    copies: dict[Path, Path] = {}
+
+    def record(path: Path) -> None:
+        if path.suffix.lower() in (".glb", ".gltf") and path.is_file():
+            copy = folder / f"{len(copies):05d}_{path.name}"
+            shutil.copyfile(path, copy)
+            copies[copy] = path
+
+    remove = export.add_write_listener(record)
+    yield
+    remove()
+    reports = gltf_validator.validate(sorted(copies))
+    bad = gltf_validator.problems(reports)
+    if bad:
+        pytest.fail(f"{len(bad)} of {len(copies)} glTF/GLB files written by the tests fail the Khronos glTF "
+                    "validator:\n" + "\n".join(bad), pytrace=False)
