@@ -25,6 +25,7 @@ import os
 import re
 import tempfile
 import time
+import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +47,7 @@ __all__ = [
     "plan_items",
     "load_series",
     "MANIFEST_NAME",
+    "overview_image",
 ]
 
 #: The sidecar manifest :func:`batch` keeps in the output folder (one JSON object, written atomically).
@@ -231,11 +233,13 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D."""
     file = Path(os.fspath(path))
     try:
-        with np.load(file, mmap_mode="r", allow_pickle=False) as data:  # type: ignore[union-attr]
-            arrays = [data[k] for k in data.files]
-    except AttributeError:  # a .npy gives an array, not an archive (no context manager)
-        arrays = [np.load(file, mmap_mode="r", allow_pickle=False)]
-    except (OSError, ValueError) as exc:
+        loaded = np.load(file, mmap_mode="r", allow_pickle=False)
+        if isinstance(loaded, np.ndarray):
+            arrays = [loaded]
+        else:
+            with loaded as archive:
+                arrays = [archive[k] for k in archive.files]
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
     three = [a for a in arrays if getattr(a, "ndim", 0) == 3]
     if not three:
@@ -452,10 +456,13 @@ def _connect(
     if isinstance(scheduler, Client):
         return scheduler, None, f"dask client {scheduler.scheduler.address if scheduler.scheduler else '?'}", False
     if scheduler is None:
-        cluster = LocalCluster(
-            n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-            silence_logs=logging.ERROR,
-        )  # fmt: skip
+        try:
+            cluster = LocalCluster(
+                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                silence_logs=logging.ERROR,
+            )  # fmt: skip
+        except (OSError, RuntimeError, TimeoutError) as exc:
+            raise SchedulerError(f"cannot start a LocalCluster of {workers} worker processes: {exc}") from exc
         client = Client(cluster, timeout=connect_timeout)
         return client, cluster, f"LocalCluster ({workers} worker processes)", True
     if not isinstance(scheduler, str) or not _SCHEDULER_RE.match(scheduler):
@@ -628,25 +635,25 @@ def batch(
             manifest.pop(item.key, None)
 
     recorder = _Recorder(folder, manifest, fingerprints)
+    serial = isinstance(scheduler, str) and scheduler == "serial"
+    connection = None if serial or not todo else _connect(scheduler, workers, connect_timeout)
+    description = "serial" if connection is None else connection[2]
     bar = _progress_bar(len(items), len(results), progress)
-    description = "serial"
     try:
-        if todo:
-            if isinstance(scheduler, str) and scheduler == "serial":
-                for result in _run_serial(todo, src, options, folder, retries):
-                    results[result.key] = result
-                    recorder.add(result)
-                    _tick(bar, result)
-            else:
-                for result, description in _run_dask(todo, src, options, folder, scheduler, workers, retries,
-                                                     connect_timeout):  # fmt: skip
-                    results[result.key] = result
-                    recorder.add(result)
-                    _tick(bar, result)
+        if connection is None:
+            stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
+        else:
+            stream = _run_dask(todo, src, options, folder, connection, retries)
+        for result in stream:
+            results[result.key] = result
+            recorder.add(result)
+            _tick(bar, result)
     finally:
         recorder.flush()
         if bar is not None:
             bar.close()
+        if connection is not None:
+            _disconnect(scheduler, connection)
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description)  # fmt: skip
     return report
@@ -736,42 +743,43 @@ def _run_dask(
     src: _Source | None,
     options: _Options,
     folder: Path,
-    scheduler: Any,
-    workers: int,
+    connection: tuple[Any, Any, str, bool],
     retries: int,
-    connect_timeout: float,
-) -> Iterable[tuple[ItemResult, str]]:
+) -> Iterable[ItemResult]:
     from distributed import as_completed
 
-    client, cluster, description, local = _connect(scheduler, workers, connect_timeout)
+    client, _cluster, _description, local = connection
+    src_ref = client.scatter(src, broadcast=True, hash=False) if src is not None else None
+    workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
+    cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
+    futures = {
+        client.submit(run_item, item, src_ref, options, str(folder), cpu_threads, retries=retries, pure=False,
+                      key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
+        for item in todo
+    }  # fmt: skip
     try:
-        src_ref = client.scatter(src, broadcast=True, hash=False) if src is not None else None
-        cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
-        futures = {
-            client.submit(run_item, item, src_ref, options, str(folder), cpu_threads, retries=retries, pure=False,
-                          key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
-            for item in todo
-        }  # fmt: skip
-        try:
-            for future in as_completed(futures):
-                item = futures[future]
-                if future.status == "error":
-                    exc = future.exception()
-                    yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}",
-                                     attempts=retries + 1), description  # fmt: skip
-                elif future.status == "cancelled":
-                    yield ItemResult(item.key, "failed", error="cancelled", attempts=0), description
-                else:
-                    yield future.result(), description
-        except BaseException:
-            client.cancel(list(futures))
-            raise
-    finally:
-        if cluster is not None:
-            client.close()
-            cluster.close()
-        elif scheduler is not None and not _is_client(scheduler):
-            client.close()
+        for future in as_completed(futures):
+            item = futures[future]
+            if future.status == "error":
+                exc = future.exception()
+                yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=retries + 1)
+            elif future.status == "cancelled":
+                yield ItemResult(item.key, "failed", error="cancelled", attempts=0)
+            else:
+                yield future.result()
+    except BaseException:
+        client.cancel(list(futures))
+        raise
+
+
+def _disconnect(scheduler: Any, connection: tuple[Any, Any, str, bool]) -> None:
+    """Close what :func:`_connect` opened (a client handed in by the caller stays open)."""
+    client, cluster, _description, _local = connection
+    if cluster is not None:
+        client.close()
+        cluster.close()
+    elif not _is_client(scheduler):
+        client.close()
 
 
 def _is_client(obj: Any) -> bool:
@@ -780,3 +788,55 @@ def _is_client(obj: Any) -> bool:
     except ImportError:  # pragma: no cover
         return False
     return isinstance(obj, Client)
+
+
+# ---------------------------------------------------------------------------------------------- overview
+def overview_image(
+    report: BatchReport,
+    *,
+    window_size: tuple[int, int] = (1280, 800),
+    mosaic: bool | None = None,
+    max_items: int = 64,
+    z_scale: float = 2.0,
+) -> NDArray[np.uint8]:
+    """An off-screen picture of a batch's outputs: the welded mosaic of tiles, or a contact sheet of items.
+
+    ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
+    tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side.
+    At most ``max_items`` outputs are read.
+    """
+    import trimesh
+
+    from . import render
+
+    paths = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path][:max_items]
+    if not paths:
+        raise InvalidInputError("the batch wrote no output to show")
+    if mosaic is None:
+        mosaic = all(Path(p).stem.startswith("tile_") for p in paths)
+    meshes = [trimesh.load(p, force="mesh", process=False) for p in (paths if mosaic else paths[:16])]
+    if mosaic:
+        tints = np.array([[0.93, 0.93, 0.93], [1.0, 1.0, 1.0]])
+        parts = []
+        for k, mesh in enumerate(meshes):
+            rgb = _base_rgb(mesh) * tints[(k + k // max(1, int(math.isqrt(len(meshes))))) % 2]
+            mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.c_[rgb, np.full(len(rgb), 255)].astype(np.uint8))
+            parts.append(mesh)
+        return render.render_mesh(trimesh.util.concatenate(parts), window_size=window_size, z_scale=z_scale)
+    n = len(meshes)
+    cols = math.ceil(math.sqrt(n))
+    rows = math.ceil(n / cols)
+    w, h = max(16, window_size[0] // cols), max(16, window_size[1] // rows)
+    sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
+    for k, mesh in enumerate(meshes):
+        r, c = divmod(k, cols)
+        sheet[r * h:(r + 1) * h, c * w:(c + 1) * w] = render.render_mesh(mesh, window_size=(w, h), z_scale=z_scale)[..., :3]
+    return sheet
+
+
+def _base_rgb(mesh: Any) -> NDArray[np.float64]:
+    """(V, 3) colours in 0-255: the mesh's vertex colours, else a light tan."""
+    colors = getattr(mesh.visual, "vertex_colors", None) if mesh.visual.kind == "vertex" else None
+    if colors is not None and len(colors) == len(mesh.vertices):
+        return np.asarray(colors, np.float64)[:, :3]
+    return np.tile(np.array([[222.0, 205.0, 170.0]]), (len(mesh.vertices), 1))

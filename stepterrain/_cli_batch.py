@@ -1,0 +1,146 @@
+"""``stepterrain batch``: many inputs, one stepped mesh each, on dask.distributed (see :mod:`stepterrain.batch`).
+
+    stepterrain batch dem_tiles/ --interval 50 -o out/
+    stepterrain batch big.tif --tile 1024 --interval 100 --scheduler tcp://10.0.0.5:8786 -o out/
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+from .errors import InvalidInputError
+
+_EPILOG = """\
+examples:
+  stepterrain batch --tile 256 -o out/tiles
+      the embedded Big Tujunga DEM cut into 256-cell tiles (shared borders), one .glb each, 2 local workers
+  stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
+      every DEM file in a folder (.npy .npz .png .tif), one PLY each
+  stepterrain batch series.npy --interval 0.1 -o out/frames --png out/frames.png
+      a (T, H, W) time series, one mesh per frame with the same isovalues, and a contact sheet
+  stepterrain batch big.tif --tile 1024 --interval 100 --scheduler tcp://10.0.0.5:8786 -o out/
+      an existing dask cluster (connect timeout --connect-timeout, default 10 s)
+  stepterrain batch --tile 256 -o out/tiles            (again: complete outputs are skipped)
+
+exit status: 0 every item written or complete already; 1 some items failed (listed with their reasons);
+2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable).
+"""
+
+
+def _tile(text: str) -> int | tuple[int, int]:
+    try:
+        parts = [int(v) for v in text.lower().split("x")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected cells per tile N or RxC, e.g. 1024 or 512x1024; got {text!r}") from None
+    if len(parts) not in (1, 2) or min(parts) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive cells per tile N or RxC; got {text!r}")
+    return parts[0] if len(parts) == 1 else (parts[0], parts[1])
+
+
+def add_parser(commands: Any) -> None:
+    """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
+    from .cli import TARGET_STEPS, _floats, _window
+    from .export import MESH_EXTENSIONS
+
+    p = commands.add_parser(
+        "batch",
+        help="many DEMs (a folder, a time series, tiles of one raster) -> one stepped mesh each, on dask",
+        description="Step many terrains on dask.distributed (a LocalCluster, or --scheduler), one mesh file each, "
+        "written atomically; reruns skip complete outputs, failures are retried then reported.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("input", nargs="?", metavar="INPUT",
+                   help="a folder of DEM files, a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
+                        "default: the embedded Big Tujunga DEM")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument("--format", default=".glb", metavar="EXT",
+                   help="mesh format of every output: " + " ".join(MESH_EXTENSIONS) + " (default .glb)")
+    p.add_argument("--tile", type=_tile, metavar="N|RxC",
+                   help="cut one raster into tiles of N (or R x C) cells; neighbours share border nodes "
+                        "(default 256 for the embedded DEM)")
+    iso = p.add_mutually_exclusive_group()
+    iso.add_argument("--interval", type=float, metavar="M",
+                     help=f"uniform isovalues base + k*M (series and tiles: default a round M giving "
+                          f"~{TARGET_STEPS} steps over the whole source; a folder needs it or --levels)")
+    iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
+                     help="explicit, strictly increasing isovalues")
+    p.add_argument("--base", type=float, default=0.0, metavar="B", help="isovalue offset for --interval")
+    p.add_argument("--gamma", type=float, default=1.0, metavar="G",
+                   help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
+    p.add_argument("--colormap", default="none", metavar="NAME",
+                   help="matplotlib colormap for level colors, or 'none' (default none)")
+    p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
+    p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid")
+    p.add_argument("--scheduler", metavar="ADDR",
+                   help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
+                        "(default: a LocalCluster of --workers processes)")
+    p.add_argument("--workers", type=int, default=2, metavar="N", help="LocalCluster worker processes (default 2)")
+    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                   help="seconds to reach --scheduler before giving up (default 10)")
+    p.add_argument("--retries", type=int, default=2, metavar="N",
+                   help="extra attempts for an item whose task failed (default 2)")
+    p.add_argument("--no-resume", action="store_true", help="redo every item, even complete ones")
+    p.add_argument("--device", default=None, metavar="DEVICE",
+                   help="Warp device on the workers: cpu, cuda, cuda:0 (default: Warp's)")
+    p.add_argument("--png", metavar="OUT.png",
+                   help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
+    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")
+    p.set_defaults(run=_run_batch)
+
+
+def _run_batch(args: argparse.Namespace, progress: Any) -> int:
+    from . import render
+    from .batch import batch, overview_image
+    from .cli import _check_output
+
+    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    if not (0.0 <= args.gamma <= 1.0):
+        raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
+    if args.floor is not None and not args.solid:
+        raise InvalidInputError("--floor applies only with --solid")
+    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
+        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    if not math.isfinite(args.connect_timeout) or args.connect_timeout <= 0:
+        raise InvalidInputError(f"--connect-timeout must be a positive number of seconds; got {args.connect_timeout}")
+    if args.device is not None:
+        from ._device import resolve_device
+
+        resolve_device(args.device)  # an unknown device fails here, before any worker starts
+    if png is not None:
+        render.require_offscreen()
+
+    if args.input:
+        source: Any = args.input
+        what = args.input
+    else:
+        from .io import sample_dem
+
+        source = sample_dem()
+        what = "the embedded Big Tujunga DEM"
+    tile = args.tile if args.tile is not None else (256 if not args.input else None)
+    scheduler = args.scheduler
+    progress.stage("batch", f"stepping {what}" + (f" in tiles of {tile} cells" if tile else "")
+                   + f" -> {Path(args.output)}/*{args.format if args.format.startswith('.') else '.' + args.format}"
+                   + f" on {scheduler or f'a LocalCluster of {args.workers} workers'}")
+    report = batch(
+        source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
+        base=args.base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
+        solid=args.solid, floor=args.floor, scheduler=scheduler, workers=args.workers, retries=args.retries,
+        resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
+        metadata={"generator": "stepterrain batch", "input": args.input or "embedded Big Tujunga DEM"},
+        device=args.device,
+    )  # fmt: skip
+    progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
+    for line in report.summary().splitlines()[1:]:
+        progress.say(line.strip())
+    if png is not None and (report.done or report.skipped):
+        from .export import save_image
+
+        progress.stage("render", f"rendering an overview {args.size[0]}x{args.size[1]}")
+        save_image(overview_image(report, window_size=args.size), png)
+        progress.done(str(png))
+    return 0 if report.ok else 1

@@ -1,0 +1,407 @@
+"""stepterrain.batch: tiles weld without cracks, series share isovalues, resume, retries, failures, dask, CLI."""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given
+from hypothesis import strategies as hst
+
+from stepterrain import cli
+from stepterrain.batch import MANIFEST_NAME, BatchItem, batch, plan_items, run_item
+from stepterrain.errors import DataFileError, InvalidInputError, SchedulerError
+from stepterrain.mesh import boundary_edges
+from stepterrain.stepped import isovalues, stepped
+
+from . import reference
+from .conftest import assert_valid_mesh, real_dem
+
+TUJUNGA = "big_tujunga_srtm_30m_utm11n.npz"
+
+
+def load(path: Path | str) -> trimesh.Trimesh:
+    return trimesh.load(path, force="mesh", process=False)
+
+
+def weld(meshes: list[trimesh.Trimesh], decimals: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Concatenate meshes and merge vertices equal to ``decimals`` places: (vertices, faces)."""
+    vertices = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])[:-1]
+    faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
+    _, first, inverse = np.unique(np.round(vertices, decimals), axis=0, return_index=True, return_inverse=True)
+    return vertices[first], inverse.reshape(-1)[faces]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+# ---------------------------------------------------------------------------------------------- planning
+def test_tiles_share_border_nodes_and_cover_every_cell():
+    items, src = plan_items(np.zeros((10, 14), np.float32), tile_size=(4, 5))
+    assert [i.key for i in items][:3] == ["tile_r0_c0", "tile_r0_c1", "tile_r0_c2"]
+    assert (items[0].rows, items[0].cols) == ((0, 5), (0, 6))
+    assert (items[1].rows, items[1].cols) == ((0, 5), (5, 11))  # starts on the previous tile's last column
+    assert (items[-1].rows, items[-1].cols) == ((8, 10), (10, 14))
+    assert src.heights.shape == (10, 14)
+
+
+@given(rows=hst.integers(2, 40), cols=hst.integers(2, 40), th=hst.integers(1, 12), tw=hst.integers(1, 12))
+def test_tiles_partition_the_cells(rows, cols, th, tw):
+    items, _ = plan_items(np.zeros((rows, cols), np.float32), tile_size=(th, tw))
+    covered = np.zeros((rows - 1, cols - 1), np.int32)
+    for item in items:
+        (r0, r1), (c0, c1) = item.rows, item.cols
+        assert r1 - r0 >= 2 and c1 - c0 >= 2  # every tile is a valid grid
+        covered[r0 : r1 - 1, c0 : c1 - 1] += 1
+    assert (covered == 1).all()
+    assert len({i.key for i in items}) == len(items)
+
+
+@pytest.mark.parametrize(
+    ("source", "kwargs", "match"),
+    [
+        (np.zeros((5, 5)), {}, "give tile_size"),
+        (np.zeros((2, 5, 5)), {"tile_size": 2}, "tile_size applies"),
+        (np.zeros(5), {}, "source must be"),
+        (np.zeros((5, 5)), {"tile_size": 0}, "tile_size must be"),
+        (np.zeros((5, 5)), {"tile_size": "big"}, "tile_size must be"),
+        (["a.npy", "b.xyz"], {}, "must end in"),
+    ],
+)
+def test_bad_sources(source, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        plan_items(source, **kwargs)
+
+
+# ---------------------------------------------------------------------------------------------- tiles weld
+@pytest.mark.parametrize("spacing", [(1.0, 1.0), (30.0, -30.0)])
+def test_tiles_of_a_real_dem_weld_without_cracks(tmp_path, spacing):
+    heights = real_dem(TUJUNGA, size=49, step=3)
+    report = batch(heights, tmp_path, tile_size=(16, 12), interval=100.0, base=0.5, spacing=spacing,
+                   format=".ply", scheduler="serial")  # fmt: skip
+    assert report.ok and len(report.done) == 3 * 4
+    meshes = [load(r.path) for r in report.done]
+    for mesh in meshes:
+        assert_valid_mesh(mesh)
+    vertices, faces = weld(meshes)
+
+    # the welded mosaic is the whole raster stepped at once (independent NumPy reference)
+    values = isovalues((float(heights.min()), float(heights.max())), interval=100.0, base=0.5)
+    points, tin = reference.grid_tin(heights, spacing)
+    ref = reference.step_reference(points, tin, values)
+    assert len(faces) == len(ref.faces)
+    assert len(vertices) == len(np.unique(np.round(np.c_[ref.points[:, :2], ref.step_heights], 3), axis=0))
+    ref_xyz = np.c_[ref.points[:, :2], ref.step_heights]
+    from scipy.spatial import cKDTree
+
+    distance, nearest = cKDTree(ref_xyz[ref.faces].mean(axis=1)).query(vertices[faces].mean(axis=1))
+    assert distance.max() < 1e-3 and len(np.unique(nearest)) == len(faces)  # the same faces, one to one
+
+    # no boundary edge is left along the seams: only on the raster's own border
+    edges = boundary_edges(faces)
+    xy = vertices[edges][:, :, :2]  # (B, 2 ends, xy)
+    dx, dy = spacing
+    x_lo, x_hi = sorted((0.0, (heights.shape[1] - 1) * dx))
+    y_lo, y_hi = sorted((0.0, (heights.shape[0] - 1) * dy))
+    on_border = (
+        np.isclose(xy[:, :, 0], x_lo).all(1) | np.isclose(xy[:, :, 0], x_hi).all(1)
+        | np.isclose(xy[:, :, 1], y_lo).all(1) | np.isclose(xy[:, :, 1], y_hi).all(1)
+    )  # fmt: skip
+    assert on_border.all(), f"{(~on_border).sum()} boundary edges inside the mosaic (cracks at seams)"
+    # and the welded mosaic is edge-manifold along the seams: no edge shared by more than two faces
+    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    _, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    assert counts.max() <= 2
+
+
+def test_tile_metadata_and_levels_are_shared(tmp_path):
+    heights = real_dem(TUJUNGA, size=33, step=4)
+    report = batch(heights, tmp_path, tile_size=16, scheduler="serial")  # default: a round interval
+    assert report.ok
+    from .test_export import glb_json
+
+    extras = [glb_json(Path(r.path))["meshes"][0]["extras"] for r in report.done]
+    assert len({json.dumps(e["isovalues"]) for e in extras}) == 1  # one set of isovalues for every tile
+    assert {(e["tile_row"], e["tile_col"]) for e in extras} == {(0, 0), (0, 1), (1, 0), (1, 1)}
+    assert all(e["generator"] == "stepterrain.batch" and e["gamma"] == 1.0 for e in extras)
+
+
+# ---------------------------------------------------------------------------------------------- series
+def test_series_frames_share_isovalues(tmp_path):
+    rng = np.random.default_rng(3)
+    frames = np.cumsum(rng.random((4, 12, 12), dtype=np.float32), axis=0)
+    report = batch(frames, tmp_path, interval=0.5, format=".glb", scheduler="serial")
+    assert [r.key for r in report.done] == ["frame_0000", "frame_0001", "frame_0002", "frame_0003"]
+    values = isovalues((float(frames.min()), float(frames.max())), interval=0.5)
+    for k, result in enumerate(report.done):
+        expected = stepped(frames[k], levels=values)
+        assert result.faces == len(expected.faces) and result.vertices == len(expected.vertices)
+        assert set(np.round(load(result.path).vertices[:, 2], 4)) <= set(np.round(values.astype(float), 4))
+
+
+def test_series_from_a_npy_file(tmp_path):
+    frames = np.random.default_rng(0).random((3, 9, 9)).astype(np.float32)
+    np.save(tmp_path / "series.npy", frames)
+    report = batch(tmp_path / "series.npy", tmp_path / "out", interval=0.25, format=".stl", scheduler="serial")
+    assert report.ok and len(report.done) == 3
+
+
+# ---------------------------------------------------------------------------------------------- folders
+def make_folder(folder: Path, n: int = 3, corrupt: str | None = None) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(1)
+    for k in range(n):
+        np.save(folder / f"dem_{k}.npy", rng.random((10, 11)).astype(np.float32) * 100)
+    if corrupt:
+        (folder / corrupt).write_bytes(b"\x93NUMPY garbage")
+    (folder / "notes.txt").write_text("not a DEM")
+    return folder
+
+
+def test_unreadable_tile_is_reported_and_the_rest_proceed(tmp_path):
+    src = make_folder(tmp_path / "in", corrupt="dem_bad.npy")
+    report = batch(src, tmp_path / "out", interval=10.0, format=".obj", scheduler="serial")
+    assert not report.ok
+    assert [r.key for r in report.done] == ["dem_0", "dem_1", "dem_2"]
+    (bad,) = report.failed
+    assert bad.key == "dem_bad" and "DataFileError" in bad.error and "dem_bad.npy" in bad.error
+    assert bad.attempts == 1  # bad data is not retried
+    assert "failed dem_bad" in report.summary()
+    assert not (tmp_path / "out" / "dem_bad.obj").exists()
+
+
+def test_folder_needs_isovalues_and_dems(tmp_path):
+    src = make_folder(tmp_path / "in")
+    with pytest.raises(InvalidInputError, match="interval or levels"):
+        batch(src, tmp_path / "out", scheduler="serial")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InvalidInputError, match="holds no DEM file"):
+        batch(tmp_path / "empty", tmp_path / "out", interval=1.0, scheduler="serial")
+
+
+# ---------------------------------------------------------------------------------------------- bad input
+def test_unknown_extension_and_unwritable_output(tmp_path):
+    z = np.zeros((5, 5), np.float32)
+    with pytest.raises(InvalidInputError, match=r"format must be one of .*got '\.xyz'"):
+        batch(z, tmp_path, tile_size=2, format=".xyz", scheduler="serial")
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    with pytest.raises(DataFileError, match="exists and is not a folder"):
+        batch(z, blocker, tile_size=2, interval=1.0, scheduler="serial")
+    with pytest.raises(DataFileError, match="cannot create the output folder"):
+        batch(z, blocker / "sub", tile_size=2, interval=1.0, scheduler="serial")
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
+def test_read_only_output_folder(tmp_path):
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    folder.chmod(0o555)
+    try:
+        with pytest.raises(DataFileError, match="not writable"):
+            batch(np.zeros((5, 5)), folder, tile_size=2, interval=1.0, scheduler="serial")
+    finally:
+        folder.chmod(0o755)
+
+
+def test_unreachable_scheduler_is_a_clear_error_not_a_hang(tmp_path):
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    with pytest.raises(SchedulerError, match=r"cannot reach the dask scheduler .* within connect_timeout=1 s"):
+        batch(np.zeros((5, 5)), tmp_path, tile_size=2, interval=1.0, scheduler=address, connect_timeout=1.0)
+    with pytest.raises(InvalidInputError, match="scheduler must be"):
+        batch(np.zeros((5, 5)), tmp_path, tile_size=2, interval=1.0, scheduler="localhost:8786")
+    assert [p.name for p in tmp_path.iterdir()] == []  # nothing written
+
+
+# ---------------------------------------------------------------------------------------------- resume
+def test_resume_skips_complete_outputs_and_redoes_the_rest(tmp_path):
+    heights = real_dem(TUJUNGA, size=25, step=4)
+    out = tmp_path / "out"
+    first = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+    assert len(first.done) == 4
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert set(manifest["items"]) == {r.key for r in first.done}
+
+    again = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+    assert [r.status for r in again.results] == ["skipped"] * 4 and again.ok
+
+    # a truncated output and a deleted one are not complete; the rest stay skipped
+    (out / "tile_r0_c0.glb").write_bytes(b"glTF")
+    (out / "tile_r1_c1.glb").unlink()
+    third = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+    assert sorted(r.key for r in third.done) == ["tile_r0_c0", "tile_r1_c1"]
+    assert len(third.skipped) == 2
+    assert load(out / "tile_r0_c0.glb").faces.shape[0] == first.results[0].faces
+
+    # other options or other data: every item is redone
+    assert len(batch(heights, out, tile_size=12, interval=50.0, scheduler="serial").done) == 4
+    assert len(batch(heights + 1, out, tile_size=12, interval=50.0, scheduler="serial").done) == 4
+    assert len(batch(heights + 1, out, tile_size=12, interval=50.0, scheduler="serial", resume=False).done) == 4
+
+
+def test_killed_run_leaves_no_partial_file_and_resumes(tmp_path, monkeypatch):
+    import stepterrain.export as export
+
+    heights = real_dem(TUJUNGA, size=25, step=4)
+    out = tmp_path / "out"
+    real_writer = export._WRITERS[".glb"]
+    calls = {"n": 0}
+
+    def dying_writer(mesh, tmp, target):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            tmp.write_bytes(b"glTF half a file")
+            raise KeyboardInterrupt  # the run is killed while writing the third file
+        real_writer(mesh, tmp, target)
+
+    monkeypatch.setitem(export._WRITERS, ".glb", dying_writer)
+    with pytest.raises(KeyboardInterrupt):
+        batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+    names = sorted(p.name for p in out.iterdir())
+    assert names == [MANIFEST_NAME, "tile_r0_c0.glb", "tile_r0_c1.glb"]  # no temporary or truncated file
+    monkeypatch.setitem(export._WRITERS, ".glb", real_writer)
+    report = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
+    assert [r.status for r in report.results] == ["skipped", "skipped", "done", "done"]
+
+
+# ---------------------------------------------------------------------------------------------- retries
+def test_transient_failures_are_retried_then_reported(tmp_path, monkeypatch):
+    import sys
+
+    stepped_module = sys.modules["stepterrain.stepped"]  # the attribute stepterrain.stepped is the function
+    real = stepped_module.stepped
+    calls: dict[str, int] = {}
+
+    def flaky(terrain, **kwargs):
+        key = terrain.source
+        calls[key] = calls.get(key, 0) + 1
+        if key.endswith("[0:5, 0:5]") and calls[key] < 2:
+            raise OSError("disk hiccup")
+        if key.endswith("[0:5, 4:7]"):
+            raise RuntimeError("always broken")
+        return real(terrain, **kwargs)
+
+    monkeypatch.setattr(stepped_module, "stepped", flaky)
+    report = batch(np.add.outer(np.arange(7.0), np.arange(7.0)), tmp_path, tile_size=4, interval=1.0,
+                   scheduler="serial", retries=2)  # fmt: skip
+    by_key = {r.key: r for r in report.results}
+    assert by_key["tile_r0_c0"].status == "done" and by_key["tile_r0_c0"].attempts == 2
+    assert by_key["tile_r0_c1"].status == "failed" and by_key["tile_r0_c1"].attempts == 3
+    assert by_key["tile_r0_c1"].error == "RuntimeError: always broken"
+    assert not report.ok and len(report.done) == 3
+
+
+def test_run_item_reports_bad_data_without_raising(tmp_path):
+    bad = tmp_path / "bad.npy"
+    bad.write_text("not numpy")
+    from stepterrain.batch import _Options
+
+    options = _Options(1.0, None, 0.0, 1.0, None, False, None, ".ply", "cpu", ())
+    result = run_item(BatchItem("bad", "file", path=str(bad)), None, options, str(tmp_path))
+    assert result.status == "failed" and "DataFileError" in result.error
+
+
+# ---------------------------------------------------------------------------------------------- dask
+@pytest.fixture(scope="module")
+def threaded_client():
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0")
+    client = distributed.Client(cluster)
+    yield client
+    client.close()
+    cluster.close()
+
+
+def test_dask_matches_serial_and_reports_failures(tmp_path, threaded_client):
+    src = make_folder(tmp_path / "in", n=4, corrupt="dem_bad.npy")
+    serial = batch(src, tmp_path / "serial", interval=10.0, format=".ply", scheduler="serial")
+    on_dask = batch(src, tmp_path / "dask", interval=10.0, format=".ply", scheduler=threaded_client)
+    assert [(r.key, r.status) for r in on_dask.results] == [(r.key, r.status) for r in serial.results]
+    for a, b in zip(serial.done, on_dask.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+    assert "DataFileError" in on_dask.failed[0].error
+    assert not threaded_client.status == "closed"  # a client handed in stays open
+
+
+def test_dask_tiles_from_a_terrain(tmp_path, threaded_client):
+    from stepterrain.terrain import Terrain
+
+    terrain = Terrain.from_heights(real_dem(TUJUNGA, size=33, step=4), spacing=(120.0, -120.0),
+                                   origin=(376313.66, 3807917.83), crs="EPSG:32611")  # fmt: skip
+    report = batch(terrain, tmp_path, tile_size=16, interval=100.0, scheduler=threaded_client, progress=True)
+    assert report.ok and len(report.done) == 4
+    from .test_export import glb_json
+
+    extras = glb_json(Path(report.done[0].path))["meshes"][0]["extras"]
+    assert extras["crs"] == "EPSG:32611"
+    mesh = load(report.done[3].path)
+    assert mesh.bounds[0][0] > 376313.66 + 15 * 120  # UTM coordinates kept (node translation)
+
+
+def test_default_local_cluster_processes(tmp_path):
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    heights = real_dem(TUJUNGA, size=25, step=4)
+    report = batch(heights, tmp_path, tile_size=12, interval=100.0, workers=2)
+    assert report.ok and len(report.done) == 4 and report.scheduler.startswith("LocalCluster")
+    serial = batch(heights, tmp_path / "s", tile_size=12, interval=100.0, scheduler="serial")
+    assert [r.faces for r in report.done] == [r.faces for r in serial.done]
+
+
+# ---------------------------------------------------------------------------------------------- CLI
+def test_cli_batch_folder_exit_codes(tmp_path, capsys):
+    src = make_folder(tmp_path / "in")
+    out = tmp_path / "out"
+    assert cli.main(["-q", "batch", str(src), "--interval", "10", "-o", str(out), "--scheduler", "serial"]) == 0
+    assert sorted(p.name for p in out.glob("*.glb")) == ["dem_0.glb", "dem_1.glb", "dem_2.glb"]
+    (src / "dem_9.npy").write_bytes(b"broken")
+    assert cli.main(["batch", str(src), "--interval", "10", "-o", str(out), "--scheduler", "serial"]) == 1
+    err = capsys.readouterr().err
+    assert "3 complete already" in err and "failed dem_9" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "match"),
+    [
+        (["--format", ".xyz"], "format must be one of"),
+        (["--gamma", "2"], "--gamma must lie in"),
+        (["--scheduler", "nowhere"], "scheduler must be"),
+        (["--tile", "0"], "expected positive cells"),
+        (["--device", "tpu"], "device must be one of"),
+        (["--connect-timeout", "0"], "--connect-timeout must be"),
+    ],
+)
+def test_cli_batch_bad_input_exit_2(tmp_path, capsys, argv, match):
+    assert cli.main(["batch", "-o", str(tmp_path / "out"), *argv]) == 2
+    assert match in capsys.readouterr().err
+
+
+def test_cli_batch_unreachable_scheduler(tmp_path, capsys):
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    argv = ["batch", "-o", str(tmp_path / "o"), "--scheduler", f"tcp://127.0.0.1:{free_port()}",
+            "--connect-timeout", "1"]  # fmt: skip
+    assert cli.main(argv) == 2
+    assert "cannot reach the dask scheduler" in capsys.readouterr().err
+
+
+def test_cli_batch_help_has_examples(capsys):
+    assert cli.main(["batch", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text and "--scheduler tcp://" in text and "exit status" in text
+
+
+def test_cli_batch_series_file(tmp_path):
+    np.save(tmp_path / "s.npy", np.random.default_rng(0).random((2, 8, 8)).astype(np.float32))
+    argv = ["-q", "batch", str(tmp_path / "s.npy"), "-o", str(tmp_path / "o"), "--format", "ply",
+            "--scheduler", "serial"]  # fmt: skip
+    assert cli.main(argv) == 0
+    assert sorted(p.name for p in (tmp_path / "o").glob("*.ply")) == ["frame_0000.ply", "frame_0001.ply"]
