@@ -277,13 +277,33 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
 
 
 def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    mtl_name = f"{target.stem}.mtl"
     text, sidecars = trimesh.exchange.obj.export_obj(
-        mesh, return_texture=True, mtl_name=f"{target.stem}.mtl", header="written by stepterrain"
-    )
+        mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
+    )  # no vertex normals: viewers shade faces flat and stair edges stay crisp
+    sidecars = _own_texture_names(sidecars, mtl_name, target.stem)
     for name, data in sidecars.items():
         with atomic_path(target.parent / name) as side_tmp:
             side_tmp.write_bytes(data)
     tmp.write_text(text, encoding="utf-8")
+
+
+def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
+    """Prefix texture images with the OBJ's stem (``material_0.png`` -> ``<stem>_material_0.png``) and point
+    the MTL at them, so several textured OBJs in one folder keep their own images."""
+    renamed = {name: f"{stem}_{name}" for name in sidecars if name != mtl_name and not name.startswith(f"{stem}_")}
+    out: dict[str, bytes] = {}
+    for name, data in sidecars.items():
+        if name == mtl_name:
+            lines = data.decode("utf-8").splitlines()
+            for k, line in enumerate(lines):
+                parts = line.split()
+                if parts and parts[0].startswith("map_") and parts[-1] in renamed:
+                    lines[k] = " ".join(parts[:-1] + [renamed[parts[-1]]])
+            out[name] = ("\n".join(lines) + "\n").encode("utf-8")
+        else:
+            out[renamed.get(name, name)] = data
+    return out
 
 
 def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:

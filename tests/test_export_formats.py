@@ -1,0 +1,104 @@
+"""Exports of real stepped terrain by extension: colours, textures (OBJ + MTL + images), flat shading, extras."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+import stepterrain as st
+from stepterrain.errors import InvalidInputError
+from stepterrain.export import MESH_EXTENSIONS, save_mesh
+
+from .conftest import assert_valid_mesh, real_dem, shared_file
+from .test_export import glb_json, needs_3mf
+
+
+@pytest.fixture(scope="module")
+def real_stepped() -> trimesh.Trimesh:
+    terrain = st.load_dem(shared_file("big_tujunga_srtm_30m_utm11n.npz"))
+    crop = st.Terrain.from_heights(terrain.heights[:80:2, :80:2], spacing=(60.0, -60.0), origin=terrain.origin,
+                                   crs=terrain.crs, source=terrain.source)  # fmt: skip
+    return st.stepped(crop, interval=50.0, base=0.5, colors="terrain")
+
+
+def textured(n: int = 6, seed: int = 0) -> trimesh.Trimesh:
+    rng = np.random.default_rng(seed)
+    mesh = st.heightfield_mesh(rng.random((n, n)).astype(np.float32))
+    uv = np.c_[mesh.vertices[:, 0] / (n - 1), mesh.vertices[:, 1] / (n - 1)]
+    image = Image.fromarray((rng.random((8, 8, 3)) * 255).astype(np.uint8))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    return mesh
+
+
+@pytest.mark.parametrize("ext", MESH_EXTENSIONS)
+def test_real_stepped_terrain_round_trips_with_colors(tmp_path, real_stepped, ext):
+    if ext == ".3mf":
+        needs_3mf()
+    out = save_mesh(real_stepped, tmp_path / f"steps{ext}")
+    back = trimesh.load(out, force="mesh", process=False)
+    assert_valid_mesh(back)
+    if ext in (".stl", ".3mf", ".obj"):  # these formats weld or split vertices their own way
+        assert len(back.faces) == len(real_stepped.faces)
+    else:
+        assert back.vertices.shape == real_stepped.vertices.shape and len(back.faces) == len(real_stepped.faces)
+    np.testing.assert_allclose(back.bounds, real_stepped.bounds, atol=0.05)
+    if ext in (".glb", ".gltf", ".ply", ".obj"):
+        assert back.visual.kind == "vertex"
+        original = {tuple(c) for c in np.asarray(real_stepped.visual.vertex_colors)[:, :3]}
+        assert {tuple(c) for c in np.asarray(back.visual.vertex_colors)[:, :3]} == original
+
+
+def test_glb_extras_carry_source_isovalues_gamma_crs(tmp_path, real_stepped):
+    extras = glb_json(save_mesh(real_stepped, tmp_path / "s.glb", metadata={"batch": "x"}))["meshes"][0]["extras"]
+    assert extras["crs"] == "EPSG:32611" and "big_tujunga" in extras["source"]
+    assert extras["gamma"] == 1.0 and extras["batch"] == "x"
+    assert np.allclose(np.diff(extras["isovalues"]), 50.0)
+
+
+def test_flat_shading_no_normals(tmp_path, real_stepped):
+    real_stepped.vertex_normals  # noqa: B018 - normals in the cache must not leak into the files
+    gltf = glb_json(save_mesh(real_stepped, tmp_path / "s.glb"))
+    assert "NORMAL" not in gltf["meshes"][0]["primitives"][0]["attributes"]
+    text = save_mesh(real_stepped, tmp_path / "s.obj").read_text()
+    assert "\nvn " not in text
+
+
+def test_obj_with_texture_writes_mtl_and_its_own_image(tmp_path):
+    a, b = textured(seed=1), textured(seed=2)
+    save_mesh(a, tmp_path / "a.obj")
+    save_mesh(b, tmp_path / "b.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "a.mtl", "a.obj", "a_material_0.png", "b.mtl", "b.obj", "b_material_0.png"]  # fmt: skip
+    assert "map_Kd a_material_0.png" in (tmp_path / "a.mtl").read_text()
+    for name, mesh in (("a", a), ("b", b)):
+        back = trimesh.load(tmp_path / f"{name}.obj", process=False)
+        image = np.asarray(back.visual.material.image.convert("RGB"))
+        assert np.array_equal(image, np.asarray(mesh.visual.material.image))
+        assert back.visual.uv.shape[1] == 2
+
+
+def test_textured_glb_keeps_uv_and_image(tmp_path):
+    mesh = textured()
+    back = trimesh.load(save_mesh(mesh, tmp_path / "t.glb"), force="mesh", process=False)
+    assert back.visual.kind == "texture"
+    np.testing.assert_allclose(np.sort(back.visual.uv, axis=0), np.sort(mesh.visual.uv, axis=0), atol=1e-6)
+
+
+def test_solid_3mf_and_stl_are_watertight(tmp_path):
+    needs_3mf()
+    mesh = st.stepped(real_dem("big_tujunga_srtm_30m_utm11n.npz", size=24, step=6), interval=100.0, base=0.5,
+                      solid=True)  # fmt: skip
+    for ext in (".3mf", ".stl"):
+        back = trimesh.load(save_mesh(mesh, tmp_path / f"solid{ext}"), force="mesh")
+        assert back.is_watertight and back.volume > 0
+
+
+def test_non_finite_vertices_are_refused(tmp_path):
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], [[0, 1, 2]], process=False)
+    with pytest.raises(InvalidInputError, match="vertices must be finite.*1 of 3"):
+        save_mesh(mesh, tmp_path / "bad.glb")
+    assert list(tmp_path.iterdir()) == []
