@@ -1,0 +1,168 @@
+"""A pyvista dataset accessor: ``grid.stepterrain.stepped(interval=50)`` on ImageData and StructuredGrid.
+
+Paper 000 (Glander, Trapp & Döllner, *3D Isocontours*, Eurographics 2010, §3) for pyvista users: a grid that
+carries elevation (a point-data array, or the z of a StructuredGrid's points) steps into terraces and walls
+without leaving pyvista. Importing this module registers the accessor (``import stepterrain`` does it).
+
+    grid = pv.ImageData(dimensions=(W, H, 1), spacing=(30, 30, 1)); grid["elevation"] = heights.ravel()
+    steps = grid.stepterrain.stepped(interval=50)      # pv.PolyData, cell data "level" and "wall"
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import trimesh
+import warp as wp
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import InvalidInputError, MissingDependencyError
+from .terrain import Terrain, grid_faces
+
+__all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES"]
+
+#: Point-data names tried, in order, when ``elevation`` is not given and the grid has no active scalars.
+ELEVATION_NAMES = ("elevation", "Elevation", "height", "heights", "z", "Z")
+
+try:
+    import pyvista as pv
+except ImportError as exc:  # pragma: no cover - pyvista is a core dependency
+    raise MissingDependencyError("the pyvista accessor needs pyvista: pip install pyvista") from exc
+
+
+class StepTerrainAccessor:
+    """``dataset.stepterrain``: stepped terrain for a pyvista ``ImageData`` or ``StructuredGrid`` with elevation.
+
+    The grid must be one node thick in z (dimensions (W, H, 1)). Elevation is the point-data array named by
+    ``elevation``, else the active scalars, else the first of :data:`ELEVATION_NAMES`; a StructuredGrid
+    without any of them uses its points' z.
+    """
+
+    def __init__(self, dataset: Any) -> None:
+        self._dataset = dataset
+
+    # ------------------------------------------------------------------------------------------ inputs
+    def elevation(self, name: str | None = None) -> NDArray[np.float32]:
+        """The (H, W) elevation of the grid (row = y index, column = x index), float32, NaN for nodata."""
+        ds = self._dataset
+        nx, ny, nz = (int(d) for d in ds.dimensions)
+        if nz != 1 or nx < 2 or ny < 2:
+            raise InvalidInputError(
+                f"the grid must be a (W, H, 1) surface with W, H >= 2 to step; got dimensions {ds.dimensions}"
+            )
+        values = self._elevation_values(name)
+        return np.ascontiguousarray(values.reshape(ny, nx), dtype=np.float32)
+
+    def _elevation_values(self, name: str | None) -> NDArray[Any]:
+        ds = self._dataset
+        if name is not None:
+            if name not in ds.point_data:
+                raise InvalidInputError(
+                    f"elevation must name a point-data array; got {name!r}, available: {list(ds.point_data.keys())}"
+                )
+            chosen = name
+        else:
+            chosen = ds.point_data.active_scalars_name
+            if chosen is None:
+                chosen = next((n for n in ELEVATION_NAMES if n in ds.point_data), None)
+        if chosen is None:
+            if isinstance(ds, pv.StructuredGrid):
+                return np.asarray(ds.points[:, 2], dtype=np.float64)
+            raise InvalidInputError(
+                "the grid has no elevation: set a point-data array (e.g. grid['elevation'] = heights.ravel()) "
+                f"or pass elevation=NAME; point data: {list(ds.point_data.keys())}"
+            )
+        values = np.asarray(ds.point_data[chosen])
+        if values.ndim != 1 or values.dtype.kind not in "biuf":
+            raise InvalidInputError(
+                f"elevation array {chosen!r} must hold one real number per point; got shape {values.shape}, "
+                f"dtype {values.dtype}"
+            )
+        return values
+
+    def terrain(self, elevation: str | None = None) -> Terrain | trimesh.Trimesh:
+        """The grid as what :func:`~stepterrain.stepped` takes: a grid Terrain (ImageData) or a TIN mesh."""
+        ds = self._dataset
+        heights = self.elevation(elevation)
+        if isinstance(ds, pv.ImageData):
+            if np.any(np.asarray(ds.direction_matrix) != np.eye(3)):
+                raise InvalidInputError("a rotated ImageData (non-identity direction_matrix) cannot be stepped")
+            dx, dy, _ = (float(s) for s in ds.spacing)
+            ox, oy, oz = (float(o) for o in ds.origin)
+            if oz != 0.0:
+                heights = heights + np.float32(oz)
+            return Terrain.from_heights(heights, spacing=(dx, dy), origin=(ox, oy), source="pyvista.ImageData")
+        if isinstance(ds, pv.StructuredGrid):
+            ny, nx = heights.shape
+            points = np.asarray(ds.points, dtype=np.float64).copy()
+            points[:, 2] = heights.reshape(-1)
+            # Terrain.from_mesh flips a clockwise grid and refuses one that folds over in projection
+            mesh = trimesh.Trimesh(points, grid_faces(ny, nx), process=False)
+            return mesh
+        raise InvalidInputError(  # pragma: no cover - the accessor is registered on these two classes only
+            f"stepterrain steps ImageData and StructuredGrid; got {type(ds).__name__}"
+        )
+
+    # ------------------------------------------------------------------------------------------ stepping
+    def stepped(
+        self,
+        interval: float | None = None,
+        *,
+        levels: ArrayLike | None = None,
+        base: float = 0.0,
+        gamma: Any = 1.0,
+        colors: str | ArrayLike | None = None,
+        solid: bool = False,
+        floor: float | None = None,
+        elevation: str | None = None,
+        device: wp.DeviceLike = None,
+    ) -> Any:
+        """Stepped terrain of the grid as ``pyvista.PolyData`` (see :func:`stepterrain.stepped`).
+
+        Returns
+        -------
+        pyvista.PolyData
+            Triangles; cell data ``level`` (int32) and ``wall`` (bool as uint8); point data ``RGBA`` (uint8)
+            when ``colors`` is given; ``field_data["isovalues"]``.
+
+        Examples
+        --------
+        >>> import numpy as np, pyvista as pv
+        >>> import stepterrain.pyvista_accessor
+        >>> grid = pv.ImageData(dimensions=(4, 3, 1))
+        >>> grid["elevation"] = np.arange(12.0)
+        >>> steps = grid.stepterrain.stepped(interval=2.0)
+        >>> sorted(set(np.round(steps.points[:, 2], 3)))
+        [0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0]
+        """
+        from .stepped import stepped
+
+        if interval is None and levels is None:
+            raise InvalidInputError("give interval (uniform isovalues) or levels (explicit isovalues)")
+        mesh = stepped(self.terrain(elevation), interval=interval, levels=levels, base=base, gamma=gamma,
+                       colors=colors, solid=solid, floor=floor, device=device)  # fmt: skip
+        return to_polydata(mesh)
+
+
+def to_polydata(mesh: trimesh.Trimesh) -> Any:
+    """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, face attributes, vertex colours, isovalues."""
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    cells = np.hstack([np.full((len(faces), 1), 3, np.int64), faces]).reshape(-1)
+    poly = pv.PolyData(np.asarray(mesh.vertices, dtype=np.float64), cells if len(faces) else None)
+    for name, values in mesh.face_attributes.items():
+        array = np.asarray(values)
+        if array.shape[:1] == (len(faces),):
+            poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else array
+    if mesh.visual.kind == "vertex":
+        poly.point_data["RGBA"] = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+    if "isovalues" in mesh.metadata:
+        poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
+    return poly
+
+
+for _cls in (pv.ImageData, pv.StructuredGrid):
+    try:
+        pv.register_dataset_accessor("stepterrain", _cls)(StepTerrainAccessor)
+    except (ValueError, RuntimeError):  # already registered (module reloaded)
+        pass

@@ -1,0 +1,140 @@
+"""The pyvista accessor grid.stepterrain and the interactive example, driven offscreen through its widgets."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import pyvista as pv
+from hypothesis import given
+from hypothesis import strategies as hst
+from hypothesis.extra.numpy import arrays
+
+import stepterrain as st
+import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
+from stepterrain import render
+from stepterrain.errors import InvalidInputError
+
+from .conftest import real_dem
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+OFFSCREEN, REASON = render.offscreen_available()
+needs_offscreen = pytest.mark.skipif(not OFFSCREEN, reason=f"no off-screen OpenGL context: {REASON}")
+
+
+def image_grid(heights: np.ndarray, spacing=(30.0, 30.0), origin=(500.0, 900.0)) -> pv.ImageData:
+    grid = pv.ImageData(dimensions=(heights.shape[1], heights.shape[0], 1), spacing=(*spacing, 1.0),
+                        origin=(*origin, 0.0))  # fmt: skip
+    grid["elevation"] = heights.reshape(-1)
+    return grid
+
+
+def test_image_data_steps_like_the_api(device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=40, step=5)
+    steps = image_grid(heights).stepterrain.stepped(interval=100.0, device=device)
+    expected = st.stepped(heights, interval=100.0, spacing=(30.0, 30.0), origin=(500.0, 900.0), device=device)
+    assert isinstance(steps, pv.PolyData) and steps.is_all_triangles
+    np.testing.assert_allclose(steps.points, expected.vertices, atol=1e-6)
+    np.testing.assert_array_equal(steps.regular_faces, expected.faces)
+    np.testing.assert_array_equal(steps.cell_data["level"], expected.face_attributes["level"])
+    np.testing.assert_array_equal(steps.cell_data["wall"], expected.face_attributes["wall"].astype(np.uint8))
+    np.testing.assert_allclose(steps.field_data["isovalues"], expected.metadata["isovalues"])
+
+
+def test_structured_grid_uses_point_z_and_colors():
+    x, y = np.meshgrid(np.linspace(0, 100, 9), np.linspace(0, 60, 7))
+    z = 10 * np.sin(x / 30) + y / 3
+    grid = pv.StructuredGrid(x, y, z)
+    steps = grid.stepterrain.stepped(interval=5.0, colors="terrain")
+    z = steps.points[:, 2] / 5.0  # γ = 1: every vertex lies on an isovalue k * 5
+    assert np.allclose(z, np.round(z), atol=1e-5) and np.ptp(z) >= 4
+    assert steps.point_data["RGBA"].shape == (steps.n_points, 4)
+    x0, x1, y0, y1, _, _ = steps.bounds
+    assert (x0, x1, y0, y1) == pytest.approx((0, 100, 0, 60))
+
+
+def test_named_elevation_and_active_scalars():
+    heights = np.add.outer(np.arange(4.0), np.arange(5.0)).astype(np.float32)
+    grid = image_grid(heights)
+    grid["other"] = np.zeros(grid.n_points)
+    grid.set_active_scalars("other")
+    assert np.ptp(grid.stepterrain.elevation()) == 0  # the active scalars win
+    np.testing.assert_array_equal(grid.stepterrain.elevation("elevation"), heights)
+    steps = grid.stepterrain.stepped(levels=[0.0, 3.0, 6.0], elevation="elevation")
+    assert set(np.round(steps.points[:, 2], 4)) == {0.0, 3.0, 6.0}
+
+
+@pytest.mark.parametrize(
+    ("make", "kwargs", "match"),
+    [
+        (lambda: pv.ImageData(dimensions=(3, 3, 2)), {"interval": 1.0}, r"\(W, H, 1\) surface"),
+        (lambda: pv.ImageData(dimensions=(3, 3, 1)), {"interval": 1.0}, "has no elevation"),
+        (lambda: image_grid(np.zeros((3, 3))), {"interval": 1.0, "elevation": "nope"}, "must name a point-data"),
+        (lambda: image_grid(np.zeros((3, 3))), {}, "give interval"),
+    ],
+)
+def test_bad_grids(make, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        make().stepterrain.stepped(**kwargs)
+
+
+@given(arrays(np.float32, hst.tuples(hst.integers(2, 9), hst.integers(2, 9)),
+              elements=hst.floats(-50, 50, width=32)), hst.sampled_from([1.0, 2.5, 7.0]))  # fmt: skip
+def test_terrace_tops_lie_on_isovalues(heights, interval):
+    steps = image_grid(heights, origin=(0.0, 0.0)).stepterrain.stepped(interval=interval)
+    values = np.asarray(steps.field_data["isovalues"])
+    z = steps.points[:, 2]
+    assert np.min(np.abs(z[:, None] - values[None, :]), axis=1).max() < 1e-4
+    assert steps.n_cells == int(np.sum(steps.cell_data["wall"] == 0) + np.sum(steps.cell_data["wall"] == 1))
+
+
+# ---------------------------------------------------------------------------------------------- example
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@needs_offscreen
+def test_interactive_example_through_its_widgets():
+    example = load_example("interactive")
+    plotter = pv.Plotter(off_screen=True, window_size=(200, 150))
+    try:
+        scene = example.build(plotter, example.dem_grid(40), device="cpu")
+        interval_slider, gamma_slider = plotter.widgets.slider_widgets
+        (sphere,) = plotter.widgets.sphere_widgets
+        before = scene.mesh.n_cells
+
+        interval_slider.GetRepresentation().SetValue(4 * scene.interval)
+        interval_slider.InvokeEvent("EndInteractionEvent")
+        assert scene.mesh.n_cells < before  # fewer steps, fewer walls
+
+        gamma_slider.GetRepresentation().SetValue(0.0)
+        gamma_slider.InvokeEvent("EndInteractionEvent")
+        assert scene.gamma == 0.0
+        walls = scene.mesh.cell_data["wall"] == 1
+        wall_z = scene.mesh.points[scene.mesh.regular_faces[walls]][:, :, 2]
+        assert walls.any() and np.ptp(wall_z, axis=1).max() < 1e-3  # γ = 0: walls collapse onto the surface
+
+        updates = scene.updates
+        sphere.SetCenter(1000.0, 2000.0, 0.0)
+        sphere.InvokeEvent("EndInteractionEvent")
+        assert scene.lens_center == (1000.0, 2000.0) and scene.updates == updates + 1
+    finally:
+        plotter.close()
+
+
+@needs_offscreen
+def test_interactive_example_writes_a_png(tmp_path):
+    example = load_example("interactive")
+    assert example.__doc__ and "sphere widget" in example.__doc__
+    out = tmp_path / "interactive.png"
+    assert example.main(["--size", "40", "--window", "160", "120", "--output", str(out), "--device", "cpu"]) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        array = np.asarray(image)
+    assert array.shape[:2] == (120, 160) and array.std() > 5
