@@ -818,8 +818,10 @@ def overview_image(
     if mosaic:
         tints = np.array([[0.93, 0.93, 0.93], [1.0, 1.0, 1.0]])
         parts = []
-        for k, mesh in enumerate(meshes):
-            rgb = _base_rgb(mesh) * tints[(k + k // max(1, int(math.isqrt(len(meshes))))) % 2]
+        for k, (mesh, path) in enumerate(zip(meshes, paths, strict=True)):
+            found = re.match(r"tile_r(\d+)_c(\d+)$", Path(path).stem)
+            parity = (int(found[1]) + int(found[2])) % 2 if found else k % 2  # a checkerboard of tiles
+            rgb = _base_rgb(mesh) * tints[parity]
             mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.c_[rgb, np.full(len(rgb), 255)].astype(np.uint8))
             parts.append(mesh)
         return render.render_mesh(trimesh.util.concatenate(parts), window_size=window_size, z_scale=z_scale)

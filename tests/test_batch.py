@@ -405,3 +405,50 @@ def test_cli_batch_series_file(tmp_path):
             "--scheduler", "serial"]  # fmt: skip
     assert cli.main(argv) == 0
     assert sorted(p.name for p in (tmp_path / "o").glob("*.ply")) == ["frame_0000.ply", "frame_0001.ply"]
+
+
+# ---------------------------------------------------------------------------------------------- gallery
+def _offscreen():
+    from stepterrain import render
+
+    return render.offscreen_available()
+
+
+@pytest.mark.render
+def test_batch_tiles_example(tmp_path):
+    ok, reason = _offscreen()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    import importlib.util
+
+    from PIL import Image
+
+    path = Path(__file__).resolve().parents[1] / "examples" / "batch_tiles.py"
+    spec = importlib.util.spec_from_file_location("example_batch_tiles", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    assert example.__doc__ and "without cracks" in example.__doc__
+    out = tmp_path / "batch.png"
+    argv = ["--size", "100", "--tile", "24", "--scheduler", "serial", "--window", "200", "120",
+            "--output", str(out), "--device", "cpu"]  # fmt: skip
+    assert example.main(argv) == 0
+    with Image.open(out) as image:
+        array = np.asarray(image)
+    assert array.shape[:2] == (120, 200) and array.std() > 5
+    assert len(list((tmp_path / "batch_tiles").glob("tile_*.glb"))) == 3 * 5  # 59 x 109 nodes, 24-cell tiles
+
+
+@pytest.mark.render
+def test_cli_png_contact_sheet_of_frames(tmp_path):
+    ok, reason = _offscreen()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    from PIL import Image
+
+    frames = np.cumsum(np.random.default_rng(0).random((4, 10, 10)), axis=0).astype(np.float32)
+    np.save(tmp_path / "s.npy", frames)
+    argv = ["-q", "batch", str(tmp_path / "s.npy"), "-o", str(tmp_path / "o"), "--scheduler", "serial",
+            "--png", str(tmp_path / "sheet.png"), "--size", "160x120"]  # fmt: skip
+    assert cli.main(argv) == 0
+    with Image.open(tmp_path / "sheet.png") as image:
+        assert image.size == (160, 120)
