@@ -9,11 +9,14 @@ OBJ, PLY, STL and 3MF meshes, and PNG images.
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import functools
 import importlib.util
+import json
 import math
 import os
+import struct
 import tempfile
 from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
@@ -265,15 +268,108 @@ def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
 
 # ---------------------------------------------------------------------------------------------- writers
 def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    if _direct_gltf(mesh):
+        tree, blocks = _gltf_document(mesh, target)
+        header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
+        header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
+        length = tree["buffers"][0]["byteLength"]
+        with open(tmp, "wb") as f:
+            f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + 8 + length))
+            f.write(struct.pack("<I4s", len(header), b"JSON"))
+            f.write(header)
+            f.write(struct.pack("<I4s", length, b"BIN\x00"))
+            for block in blocks:
+                f.write(block)
+        return
     data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target), include_normals=False)
     tmp.write_bytes(data)
 
 
 def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+    if _direct_gltf(mesh):
+        tree, blocks = _gltf_document(mesh, target)
+        binary = b"".join(memoryview(block).cast("B") for block in blocks)
+        tree["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
+        tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
+        return
     files = trimesh.exchange.gltf.export_gltf(
         _gltf_scene(mesh, target), include_normals=False, merge_buffers=True, embed_buffers=True
     )
     tmp.write_bytes(files["model.gltf"])
+
+
+def _direct_gltf(mesh: trimesh.Trimesh) -> bool:
+    """Plain or vertex-coloured, non-empty meshes are written by :func:`_gltf_document`; textures go to trimesh."""
+    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+        return False
+    kind = mesh.visual.kind
+    return kind is None or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
+
+
+# glTF 2.0 constants (§3.6.2, §5.11): component types and buffer view targets
+_GL_UNSIGNED_BYTE, _GL_UNSIGNED_INT, _GL_FLOAT = 5121, 5125, 5126
+_GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+def _gltf_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any], list[Any]]:
+    """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
+    translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
+    colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``."""
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
+    # per column: a strided 1-D reduction is several times faster than numpy's (N, 3) axis-0 reduction
+    lo = np.array([vertices[:, k].min() for k in range(3)])
+    hi = np.array([vertices[:, k].max() for k in range(3)])
+    offset = np.zeros(3)
+    if max(float(np.abs(lo).max()), float(np.abs(hi).max())) > _LOCAL_ORIGIN_THRESHOLD:
+        offset = np.floor(lo)
+        vertices = vertices - offset
+        node["translation"] = [float(v) for v in offset]
+    positions = np.ascontiguousarray(vertices, dtype="<f4")
+    # v -> float32(v - offset) is monotonic, so the bounds of the stored values are the converted bounds
+    p_lo, p_hi = (lo - offset).astype(np.float32), (hi - offset).astype(np.float32)
+    indices = np.ascontiguousarray(mesh.faces, dtype="<u4").reshape(-1)
+    blocks: list[Any] = []  # contiguous arrays and padding, written in order without joining
+    views: list[dict[str, Any]] = []
+    offset_bytes = 0
+
+    def add_view(data: NDArray[Any], view_target: int) -> int:
+        nonlocal offset_bytes
+        views.append({"buffer": 0, "byteOffset": offset_bytes, "byteLength": data.nbytes, "target": view_target})
+        pad = -data.nbytes % 4
+        blocks.append(np.ascontiguousarray(data))
+        if pad:
+            blocks.append(b"\x00" * pad)
+        offset_bytes += data.nbytes + pad
+        return len(views) - 1
+
+    accessors: list[dict[str, Any]] = [
+        {"bufferView": add_view(indices, _GL_ELEMENT_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_INT,
+         "count": int(indices.size), "type": "SCALAR"},
+        {"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT, "count": len(positions),
+         "type": "VEC3", "min": [float(v) for v in p_lo], "max": [float(v) for v in p_hi]},
+    ]  # fmt: skip
+    attributes = {"POSITION": 1}
+    if mesh.visual.kind == "vertex":
+        colors = np.ascontiguousarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_BYTE,
+                          "normalized": True, "count": len(colors), "type": "VEC4"})  # fmt: skip
+        attributes["COLOR_0"] = 2
+    gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh",
+                                 "primitives": [{"attributes": attributes, "indices": 0, "mode": 4}]}  # fmt: skip
+    if mesh.metadata:
+        gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
+    tree = {
+        "asset": {"version": "2.0", "generator": "stepterrain"},
+        "scene": 0,
+        "scenes": [{"nodes": [0]}],
+        "nodes": [node],
+        "meshes": [gltf_mesh],
+        "accessors": accessors,
+        "bufferViews": views,
+        "buffers": [{"byteLength": offset_bytes}],
+    }
+    return tree, blocks
 
 
 def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
@@ -346,7 +442,11 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
         process=False,
         validate=False,
     )
-    out.visual = mesh.visual.copy()
+    kind = mesh.visual.kind
+    if kind == "vertex":  # ColorVisuals.copy() would also build face colours
+        out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=np.array(mesh.visual.vertex_colors))
+    elif kind is not None:
+        out.visual = mesh.visual.copy()
     out.units = mesh.units
     merged = dict(mesh.metadata)
     if metadata:
