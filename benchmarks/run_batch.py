@@ -187,8 +187,9 @@ def earth_estimate(cost: dict[str, float], workers: int, efficiency: float, tile
     faces = cells * cost["faces"] / cost["cells"]
     tiles_1024 = cells / (1024 * 1024)
     return [
-        f"- Land area of a 1 arc-second (≈ 30 m) global DEM (Copernicus GLO-30 / SRTM layout): {EARTH_LAND_TILES_1DEG:,} "
-        f"tiles of 1° × 1° at 3600² cells = {cells:.3g} cells ≈ {tiles_1024:,.0f} tiles of 1024².",
+        f"- Land area of a 1 arc-second (≈ 30 m) global DEM (Copernicus GLO-30 / SRTM layout): "
+        f"{EARTH_LAND_TILES_1DEG:,} tiles of 1° × 1° at 3600² cells = {cells:.3g} cells "
+        f"≈ {tiles_1024:,.0f} tiles of 1024².",
         f"- Measured cost per {tile}² tile on one core: {cost['total']:.2f} s (load {cost['load']:.2f}, step "
         f"{cost['step']:.2f}, write {cost['write']:.2f}) → {per_cell * 1e9:.0f} ns per cell, "
         f"{cost['faces'] / cost['cells']:.2f} faces and {cost['bytes'] / cost['cells']:.0f} output bytes per cell "
@@ -196,9 +197,9 @@ def earth_estimate(cost: dict[str, float], workers: int, efficiency: float, tile
         f"- Whole earth: {core_s / 3600:,.0f} core-hours; on a dask cluster of **{workers:,} single-threaded workers** "
         f"(e.g. 32 nodes × 32 cores) at {efficiency:.0%} parallel efficiency: **{wall_s / 3600:.1f} h** wall time.",
         f"- Output: {faces:.3g} triangles, {out_bytes / 1e12:.0f} TB of GLB: at that volume the shared file system "
-        f"(≈ {out_bytes / wall_s / 1e9:.1f} GB/s sustained during the run) and the scheduler ({tiles_1024 / wall_s:,.0f} "
-        "tasks/s, well under dask's few thousand per second) must keep up; coarser intervals or decimated tiles "
-        "shrink both in proportion to the faces.",
+        f"(≈ {out_bytes / wall_s / 1e9:.1f} GB/s sustained during the run) and the scheduler "
+        f"({tiles_1024 / wall_s:,.0f} tasks/s, well under dask's few thousand per second) must keep up; coarser "
+        "intervals or decimated tiles shrink both in proportion to the faces.",
     ]
 
 

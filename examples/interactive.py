@@ -87,8 +87,9 @@ def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None)
     plotter.add_sphere_widget(scene.move_lens, center=(*scene.lens_center, z), radius=radius * 0.3,
                               color="tomato", interaction_event="end")  # fmt: skip
     plotter.add_light(pv.Light(position=(-1, 1, 1), light_type="scene light", intensity=0.8))
-    plotter.camera_position = [((xmin + xmax) / 2 - 0.2 * (xmax - xmin), ymin - 1.2 * (ymax - ymin), 1.1 * (xmax - xmin)),
-                               ((xmin + xmax) / 2, (ymin + ymax) / 2, lo * scene.z_scale), (0, 0, 1)]  # fmt: skip
+    width = xmax - xmin
+    eye = ((xmin + xmax) / 2 - 0.2 * width, ymin - 1.2 * (ymax - ymin), 1.1 * width)
+    plotter.camera_position = [eye, ((xmin + xmax) / 2, (ymin + ymax) / 2, lo * scene.z_scale), (0, 0, 1)]
     return scene
 
 

@@ -34,7 +34,9 @@ def _tile(text: str) -> int | tuple[int, int]:
     try:
         parts = [int(v) for v in text.lower().split("x")]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected cells per tile N or RxC, e.g. 1024 or 512x1024; got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected cells per tile N or RxC, e.g. 1024 or 512x1024; got {text!r}"
+        ) from None
     if len(parts) not in (1, 2) or min(parts) < 1:
         raise argparse.ArgumentTypeError(f"expected positive cells per tile N or RxC; got {text!r}")
     return parts[0] if len(parts) == 1 else (parts[0], parts[1])

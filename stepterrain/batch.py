@@ -586,8 +586,9 @@ def batch(
     start = time.perf_counter()
     ext = _check_ext(format)
     for name, value in (("retries", retries), ("workers", workers)):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < (0 if name == "retries" else 1):
-            raise InvalidInputError(f"{name} must be an int >= {0 if name == 'retries' else 1}; got {value!r}")
+        least = 0 if name == "retries" else 1
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
+            raise InvalidInputError(f"{name} must be an int >= {least}; got {value!r}")
     if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout) and connect_timeout > 0):
         raise InvalidInputError(f"connect_timeout must be a positive number of seconds; got {connect_timeout!r}")
     if not (isinstance(gamma, (int, float, np.floating)) and 0.0 <= float(gamma) <= 1.0):
@@ -822,7 +823,8 @@ def overview_image(
             found = re.match(r"tile_r(\d+)_c(\d+)$", Path(path).stem)
             parity = (int(found[1]) + int(found[2])) % 2 if found else k % 2  # a checkerboard of tiles
             rgb = _base_rgb(mesh) * tints[parity]
-            mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.c_[rgb, np.full(len(rgb), 255)].astype(np.uint8))
+            rgba = np.c_[rgb, np.full(len(rgb), 255)].astype(np.uint8)
+            mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba)
             parts.append(mesh)
         return render.render_mesh(trimesh.util.concatenate(parts), window_size=window_size, z_scale=z_scale)
     n = len(meshes)
@@ -832,7 +834,8 @@ def overview_image(
     sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
         r, c = divmod(k, cols)
-        sheet[r * h:(r + 1) * h, c * w:(c + 1) * w] = render.render_mesh(mesh, window_size=(w, h), z_scale=z_scale)[..., :3]
+        picture = render.render_mesh(mesh, window_size=(w, h), z_scale=z_scale)
+        sheet[r * h : (r + 1) * h, c * w : (c + 1) * w] = picture[..., :3]
     return sheet
 
 

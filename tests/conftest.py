@@ -17,7 +17,9 @@ settings.register_profile("dev", deadline=None, max_examples=100)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 # STEPTERRAIN_SHARED_DATA points elsewhere (e.g. from a git worktree that has no ../shared beside it)
-SHARED_DATA = Path(os.environ.get("STEPTERRAIN_SHARED_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data")
+SHARED_DATA = Path(
+    os.environ.get("STEPTERRAIN_SHARED_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data"
+)
 
 wp.init()
 DEVICES = ["cpu"] + [str(d) for d in wp.get_cuda_devices()]
