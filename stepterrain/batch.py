@@ -567,7 +567,9 @@ def batch(
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
     a killed run leaves complete outputs or none and a rerun redoes only what is missing. Cost per item: one
     :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
-    run scales with the workers until the disk or the scheduler saturates.
+    run scales with the workers until the disk or the scheduler saturates. The default LocalCluster starts its
+    worker processes by *spawn*: a script that calls :func:`batch` needs the usual
+    ``if __name__ == "__main__":`` guard.
 
     References
     ----------
