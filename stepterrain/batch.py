@@ -78,7 +78,11 @@ class BatchItem:
 
 @dataclass(frozen=True)
 class ItemResult:
-    """What became of one item: ``status`` is ``"done"``, ``"skipped"`` (complete already) or ``"failed"``."""
+    """What became of one item: ``status`` is ``"done"``, ``"skipped"`` (complete already) or ``"failed"``.
+
+    ``seconds`` is the item's wall time on its worker, ``cpu_seconds`` the CPU time of the worker process
+    meanwhile (all its threads).
+    """
 
     key: str
     status: Literal["done", "skipped", "failed"]
@@ -86,6 +90,7 @@ class ItemResult:
     error: str | None = None
     attempts: int = 0
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     faces: int = 0
     vertices: int = 0
     bytes: int = 0
@@ -336,7 +341,7 @@ def run_item(
     from ._device import set_cpu_threads
     from .stepped import stepped
 
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
     target = Path(output_dir) / f"{item.key}{options.ext}"
@@ -350,10 +355,11 @@ def run_item(
         save_mesh(mesh, target, metadata=metadata)
     except StepTerrainError as exc:
         return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
-                          seconds=time.perf_counter() - start)  # fmt: skip
+                          seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu_start)  # fmt: skip
     return ItemResult(
         item.key, "done", path=str(target), attempts=1, seconds=time.perf_counter() - start,
-        faces=len(mesh.faces), vertices=len(mesh.vertices), bytes=target.stat().st_size,
+        cpu_seconds=time.process_time() - cpu_start, faces=len(mesh.faces), vertices=len(mesh.vertices),
+        bytes=target.stat().st_size,
     )  # fmt: skip
 
 
