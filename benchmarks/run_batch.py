@@ -133,15 +133,12 @@ def run_pool(files: list[Path], out: Path, interval: float, ext: str, workers: i
 
 def run_dask(folder: Path, out: Path, interval: float, ext: str, workers: int) -> tuple[float, float, float, object]:
     """(cluster start-up s, batch s, resume s, report)."""
-    import logging
+    from distributed import Client
 
-    from distributed import Client, LocalCluster
-
-    from stepterrain.batch import batch
+    from stepterrain.batch import batch, start_local_cluster
 
     t0 = time.perf_counter()
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                           silence_logs=logging.ERROR)  # fmt: skip
+    cluster = start_local_cluster(workers)  # what batch() starts by default
     client = Client(cluster)
     client.run(_pool_init)
     startup = time.perf_counter() - t0

@@ -48,6 +48,7 @@ __all__ = [
     "load_series",
     "MANIFEST_NAME",
     "overview_image",
+    "start_local_cluster",
 ]
 
 #: The sidecar manifest :func:`batch` keeps in the output folder (one JSON object, written atomically).
@@ -448,12 +449,36 @@ def _check_ext(ext: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- schedulers
+#: dask settings of the default LocalCluster: the workers' statistical profiler samples every thread's stack
+#: every 10 ms, which cost about 15 % of the CPU time of a 1024² tile; meshing tasks do not need it.
+LOCAL_CLUSTER_CONFIG: dict[str, Any] = {"distributed.worker.profile.enabled": False}
+
+
+def start_local_cluster(workers: int) -> Any:
+    """The default cluster of :func:`batch`: ``workers`` processes of one thread each, profiler off, quiet logs.
+
+    Raises
+    ------
+    SchedulerError
+        The worker processes cannot be started.
+    """
+    import dask
+    from distributed import LocalCluster
+
+    try:
+        with dask.config.set(LOCAL_CLUSTER_CONFIG):  # the nannies hand this configuration to their workers
+            return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                silence_logs=logging.ERROR)  # fmt: skip
+    except (OSError, RuntimeError, TimeoutError) as exc:
+        raise SchedulerError(f"cannot start a LocalCluster of {workers} worker processes: {exc}") from exc
+
+
 def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
     """(client, cluster to close or None, description, whether the workers are this machine's processes)."""
     try:
-        from distributed import Client, LocalCluster
+        from distributed import Client
     except ImportError as exc:
         raise MissingDependencyError(
             "batch on dask needs dask and distributed: pip install 'stepterrain[batch]' "
@@ -462,13 +487,7 @@ def _connect(
     if isinstance(scheduler, Client):
         return scheduler, None, f"dask client {scheduler.scheduler.address if scheduler.scheduler else '?'}", False
     if scheduler is None:
-        try:
-            cluster = LocalCluster(
-                n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                silence_logs=logging.ERROR,
-            )  # fmt: skip
-        except (OSError, RuntimeError, TimeoutError) as exc:
-            raise SchedulerError(f"cannot start a LocalCluster of {workers} worker processes: {exc}") from exc
+        cluster = start_local_cluster(workers)
         client = Client(cluster, timeout=connect_timeout)
         return client, cluster, f"LocalCluster ({workers} worker processes)", True
     if not isinstance(scheduler, str) or not _SCHEDULER_RE.match(scheduler):
