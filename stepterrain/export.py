@@ -273,13 +273,14 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
         header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
         header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
         length = tree["buffers"][0]["byteLength"]
-        with open(tmp, "wb") as f:
-            f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + 8 + length))
-            f.write(struct.pack("<I4s", len(header), b"JSON"))
-            f.write(header)
-            f.write(struct.pack("<I4s", length, b"BIN\x00"))
-            for block in blocks:
-                f.write(block)
+        parts = [
+            struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + 8 + length),
+            struct.pack("<I4s", len(header), b"JSON"),
+            header,
+            struct.pack("<I4s", length, b"BIN\x00"),
+            *(memoryview(block).cast("B") for block in blocks),
+        ]
+        tmp.write_bytes(b"".join(parts))
         return
     data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target), include_normals=False)
     tmp.write_bytes(data)

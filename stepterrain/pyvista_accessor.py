@@ -133,8 +133,8 @@ class StepTerrainAccessor:
         >>> grid = pv.ImageData(dimensions=(4, 3, 1))
         >>> grid["elevation"] = np.arange(12.0)
         >>> steps = grid.stepterrain.stepped(interval=2.0)
-        >>> sorted(set(np.round(steps.points[:, 2], 3)))
-        [0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0]
+        >>> bool(np.allclose(steps.points[:, 2] % 2.0, 0.0)), int(steps.cell_data["wall"].sum()) > 0
+        (True, True)
         """
         from .stepped import stepped
 
