@@ -452,3 +452,31 @@ def test_cli_png_contact_sheet_of_frames(tmp_path):
     assert cli.main(argv) == 0
     with Image.open(tmp_path / "sheet.png") as image:
         assert image.size == (160, 120)
+
+
+# ---------------------------------------------------------------------------------------------- one CLI
+def _subcommands() -> dict:
+    import argparse
+
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    return dict(action.choices)
+
+
+def test_every_capability_subcommand_is_consistent():
+    """steps, batch and whatever else has landed (globe, closeup, texture): --device, -o/--output, examples."""
+    commands = _subcommands()
+    assert {"steps", "batch", "info"} <= set(commands)
+    for name, sub in commands.items():
+        if name == "info":
+            continue
+        options = {s for a in sub._actions for s in a.option_strings}
+        assert "--device" in options, f"stepterrain {name} has no --device"
+        assert {"-o", "--output"} <= options, f"stepterrain {name} has no -o/--output"
+        assert "examples:" in (sub.epilog or ""), f"stepterrain {name} --help shows no examples"
+
+
+@pytest.mark.parametrize("name", ["steps", "batch"])
+def test_unknown_device_is_exit_2(tmp_path, capsys, name):
+    assert cli.main([name, "--device", "tpu:7", "-o", str(tmp_path / "o.glb")]) == 2
+    assert "device must be one of" in capsys.readouterr().err
