@@ -449,9 +449,15 @@ def _check_ext(ext: str) -> str:
 
 
 # ---------------------------------------------------------------------------------------------- schedulers
-#: dask settings of the default LocalCluster: the workers' statistical profiler samples every thread's stack
-#: every 10 ms, which cost about 15 % of the CPU time of a 1024² tile; meshing tasks do not need it.
-LOCAL_CLUSTER_CONFIG: dict[str, Any] = {"distributed.worker.profile.enabled": False}
+#: dask settings of the default LocalCluster. The workers' statistical profiler samples every thread's stack
+#: every 10 ms (about 15 % of the CPU time of a 1024² tile) and the event-loop tick, memory and system monitors
+#: wake up 50, 10 and 2 times a second; meshing tasks of a second or more need none of that.
+LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "200ms",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+}
 
 
 def start_local_cluster(workers: int) -> Any:
