@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as hst
 
 from stepterrain import cli
@@ -480,3 +480,25 @@ def test_every_capability_subcommand_is_consistent():
 def test_unknown_device_is_exit_2(tmp_path, capsys, name):
     assert cli.main([name, "--device", "tpu:7", "-o", str(tmp_path / "o.glb")]) == 2
     assert "device must be one of" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------- properties
+@settings(max_examples=20)
+@given(
+    heights=hst.integers(0, 2**32 - 1).map(lambda seed: np.random.default_rng(seed).random((13, 17)) * 40),
+    tile=hst.tuples(hst.integers(2, 9), hst.integers(2, 9)),
+    interval=hst.sampled_from([3.0, 7.5, 15.0]),
+)
+def test_welded_tiles_equal_the_whole_raster(heights, tile, interval):
+    """For any heights and tile shape, the tiles' stepped meshes weld into exactly the whole raster's mesh."""
+    from stepterrain.batch import _item_terrain
+
+    heights = heights.astype(np.float32)
+    items, src = plan_items(heights, tile_size=tile)
+    values = isovalues((float(heights.min()), float(heights.max())), interval=interval, base=0.5)
+    meshes = [stepped(_item_terrain(item, src), levels=values) for item in items]
+    whole = stepped(heights, levels=values)
+    vertices, faces = weld(meshes, decimals=4)
+    whole_vertices, whole_faces = weld([whole], decimals=4)  # welded the same way (merges coincident twins)
+    assert len(faces) == len(whole_faces) and len(vertices) == len(whole_vertices)
+    assert len(boundary_edges(faces)) == len(boundary_edges(whole_faces))  # no seam edge left open
