@@ -17,6 +17,7 @@ rest. Failures are retried, then reported with their reason; bad input data fail
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -158,6 +159,17 @@ class _Source:
     origin: tuple[float, float]
     crs: str | None
     name: str
+    #: (frame, row, col) of ``heights[0, 0(, 0)]`` in the whole source: a worker receives only its item's block
+    offset: tuple[int, int, int] = (0, 0, 0)
+
+
+def _item_source(source: _Source, item: BatchItem) -> _Source:
+    """The block of ``source`` that ``item`` reads (a view), so each dask task ships only its own heights."""
+    if item.kind == "frame":
+        return dataclasses.replace(source, heights=source.heights[item.index : item.index + 1],
+                                   offset=(item.index, 0, 0))  # fmt: skip
+    (r0, r1), (c0, c1) = item.rows, item.cols
+    return dataclasses.replace(source, heights=source.heights[r0:r1, c0:c1], offset=(0, r0, c0))
 
 
 # ---------------------------------------------------------------------------------------------- planning
@@ -306,13 +318,14 @@ def _item_terrain(item: BatchItem, source: _Source | None) -> Terrain:
 
         return load_dem(item.path)  # type: ignore[arg-type]
     assert source is not None
+    frame0, row0, col0 = source.offset
     if item.kind == "frame":
-        return Terrain.from_heights(source.heights[item.index], spacing=source.spacing, origin=source.origin,
-                                    source=f"{source.name}[{item.index}]")  # fmt: skip
+        return Terrain.from_heights(source.heights[item.index - frame0], spacing=source.spacing,
+                                    origin=source.origin, source=f"{source.name}[{item.index}]")  # fmt: skip
     (r0, r1), (c0, c1) = item.rows, item.cols
     dx, dy = source.spacing
     return Terrain.from_heights(
-        source.heights[r0:r1, c0:c1],
+        source.heights[r0 - row0 : r1 - row0, c0 - col0 : c1 - col0],
         spacing=source.spacing,
         origin=(source.origin[0] + c0 * dx, source.origin[1] + r0 * dy),
         crs=source.crs,
@@ -783,13 +796,15 @@ def _run_dask(
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
-    src_ref = client.scatter(src, broadcast=True, hash=False) if src is not None else None
+    # each task gets its own block of the heights (scattered once), not the whole raster on every worker
+    blocks = client.scatter([_item_source(src, item) for item in todo], hash=False) if src is not None else None
     workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     futures = {
-        client.submit(run_item, item, src_ref, options, str(folder), cpu_threads, retries=retries, pure=False,
+        client.submit(run_item, item, blocks[k] if blocks is not None else None, options, str(folder), cpu_threads,
+                      retries=retries, pure=False,
                       key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
-        for item in todo
+        for k, item in enumerate(todo)
     }  # fmt: skip
     try:
         for future in as_completed(futures):

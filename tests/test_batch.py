@@ -502,3 +502,23 @@ def test_welded_tiles_equal_the_whole_raster(heights, tile, interval):
     whole_vertices, whole_faces = weld([whole], decimals=4)  # welded the same way (merges coincident twins)
     assert len(faces) == len(whole_faces) and len(vertices) == len(whole_vertices)
     assert len(boundary_edges(faces)) == len(boundary_edges(whole_faces))  # no seam edge left open
+
+
+def test_a_task_ships_only_its_own_block():
+    from stepterrain.batch import _item_source, _item_terrain
+
+    for source, tile in ((np.random.default_rng(0).random((11, 14)), (4, 5)),
+                         (np.random.default_rng(1).random((3, 6, 7)), None)):  # fmt: skip
+        items, src = plan_items(source, tile_size=tile)
+        for item in items:
+            block = _item_source(src, item)
+            assert block.heights.size < src.heights.size
+            a, b = _item_terrain(item, src), _item_terrain(item, block)
+            assert np.array_equal(a.heights, b.heights) and (a.origin, a.source) == (b.origin, b.source)
+
+
+def test_dask_series(tmp_path, threaded_client):
+    frames = np.cumsum(np.random.default_rng(4).random((3, 9, 9), dtype=np.float32), axis=0)
+    on_dask = batch(frames, tmp_path / "d", interval=0.5, format=".ply", scheduler=threaded_client)
+    serial = batch(frames, tmp_path / "s", interval=0.5, format=".ply", scheduler="serial")
+    assert [r.faces for r in on_dask.done] == [r.faces for r in serial.done] and len(on_dask.done) == 3
