@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InvalidInputError, MissingDependencyError
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
-           "KEY_LIGHT_ELEVATION"]
+           "KEY_LIGHT_ELEVATION", "LayeredRenderer"]
 
 #: Direction the key light comes from: azimuth clockwise from north (+y), radians (north-west).
 KEY_LIGHT_AZIMUTH = math.radians(315.0)
@@ -396,3 +396,254 @@ def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
     from .export import save_image
 
     return save_image(image, path)
+
+
+# ------------------------------------------------------------------------------------------ layered passes
+class LayeredRenderer:
+    """Off-screen layered rendering (paper 001 §IV): one pass per layer into a color and a depth image.
+
+    Meshes are uploaded once under a name (:meth:`set_mesh`) and stay between passes and frames; a pass
+    (:meth:`render`) shows only the named meshes and reads back the color and the depth buffer without
+    rendering twice. Every pass of a frame shares the camera, lights and clipping range set by
+    :meth:`set_view`, so their depths compare. Lit meshes are drawn exactly as :func:`render_mesh` draws
+    them (same lights, flat shading, material); ``values`` meshes are unlit and carry a value in [0, 1] as
+    their gray level (read back from the red channel), for image-based mappings such as anchor opacity.
+
+        renderer = LayeredRenderer(window_size=(1280, 720))
+        renderer.set_mesh("overview", mesh.vertices, mesh.faces)
+        renderer.set_view("oblique", box)
+        color, depth = renderer.render(["overview"])   # depth: z-buffer in [0, 1), inf where empty
+    """
+
+    def __init__(self, *, window_size: tuple[int, int] = (1280, 720),
+                 background: str | tuple[float, float, float] = "white", z_scale: float = 1.0) -> None:
+        try:
+            width, height = (int(v) for v in window_size)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+        if not (8 <= width <= 16384 and 8 <= height <= 16384):
+            raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+        z_scale = float(z_scale)
+        if not math.isfinite(z_scale) or z_scale <= 0:
+            raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+        self.size = (width, height)
+        self.z_scale = z_scale
+        self.background = background
+        self._pv = _import_pyvista()
+        self._plotter = self._new_plotter(self.size)
+        self._actors: dict[str, Any] = {}
+        self._keys: dict[str, Any] = {}
+        self._bounds: dict[str, NDArray[np.float64]] = {}
+        self._local_bounds: dict[str, NDArray[np.float64]] = {}
+        self._origin: NDArray[np.float64] | None = None
+        self._box: NDArray[np.float64] | None = None
+        self._camera: Any = None
+
+    def _new_plotter(self, size: tuple[int, int]) -> Any:
+        plotter = self._pv.Plotter(off_screen=True, window_size=size, lighting="none")
+        if not plotter.render_window.SupportsOpenGL():
+            plotter.close()
+            raise MissingDependencyError(
+                "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
+                "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
+            )
+        plotter.disable_anti_aliasing()
+        plotter.set_background(self.background)
+        return plotter
+
+    # -------------------------------------------------------------------------- meshes
+    def has(self, name: str, key: Any) -> bool:
+        """True when ``name`` was uploaded with this ``key`` (e.g. the overview of the same terrain)."""
+        return name in self._actors and self._keys.get(name) == key
+
+    def bounds_of(self, name: str) -> NDArray[np.float64]:
+        """World bounds (2, 3) of an uploaded mesh."""
+        return self._bounds[name]
+
+    def _local(self, vertices: NDArray[np.float64]) -> NDArray[np.float64]:
+        local = np.asarray(vertices, dtype=np.float64) - self._origin
+        local[:, 2] *= self.z_scale
+        return local
+
+    def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,
+                 values: ArrayLike | None = None, key: Any = None) -> None:
+        """Upload (or replace) the mesh ``name``: lit, with vertex ``rgb`` (V, 3) uint8 or the default tan,
+        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin."""
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        finite = np.isfinite(vertices).all(axis=1)
+        if len(faces) == 0 or not finite.any():
+            raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
+        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
+        if self._origin is None:
+            self._origin = (lo + hi) / 2.0
+        self.remove(name)
+        local = self._local(vertices)
+        poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
+        kwargs: dict[str, Any] = {}
+        if values is not None:
+            gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
+            poly.point_data["rgb"] = np.repeat(gray[:, None], 3, axis=1)
+            kwargs.update(scalars="rgb", rgb=True, lighting=False, ambient=1.0, diffuse=0.0, specular=0.0)
+        else:
+            if rgb is not None:
+                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+                kwargs.update(scalars="rgb", rgb=True)
+            else:
+                kwargs.update(color=_DEFAULT_COLOR)
+            kwargs.update(ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0, lighting=True)
+        self._actors[name] = self._plotter.add_mesh(poly, smooth_shading=False, show_scalar_bar=False,
+                                                    reset_camera=False, **kwargs)
+        self._keys[name] = key
+        self._bounds[name] = np.array([lo, hi])
+        self._local_bounds[name] = np.array([local[finite].min(axis=0), local[finite].max(axis=0)])
+
+    def remove(self, name: str) -> None:
+        """Drop the mesh ``name`` if present."""
+        actor = self._actors.pop(name, None)
+        if actor is not None:
+            self._plotter.remove_actor(actor, render=False)
+        self._keys.pop(name, None)
+        self._bounds.pop(name, None)
+        self._local_bounds.pop(name, None)
+
+    # -------------------------------------------------------------------------- view
+    def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
+        """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range."""
+        if self._origin is None:
+            raise InvalidInputError("set_view needs a mesh first (set_mesh)")
+        box = np.asarray(box, dtype=np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+            raise InvalidInputError(f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)]; got {box!r}")
+        local = box - self._origin
+        local[:, 2] *= self.z_scale
+        width, height = self.size
+        position = _camera_position(camera, _box_corners(local), width / height)
+        look_from = np.subtract(position[0], position[1])
+        fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
+        self._plotter.remove_all_lights()
+        for light in _lights(self._pv, local, fill):
+            self._plotter.add_light(light)
+        self._plotter.camera_position = position
+        self._plotter.camera.view_angle = _VIEW_ANGLE
+        seen = [local] + list(self._local_bounds.values())
+        union = np.array([np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)])
+        self._plotter.camera.clipping_range = _clipping_range(self._plotter.camera_position, union)
+        self._box = local
+
+    # -------------------------------------------------------------------------- passes
+    def _read(self, plotter: Any) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+        from vtkmodules.vtkCommonCore import vtkFloatArray, vtkUnsignedCharArray
+
+        window = plotter.render_window
+        window.Render()
+        width, height = window.GetSize()
+        pixels = vtkUnsignedCharArray()
+        window.GetPixelData(0, 0, width - 1, height - 1, 0, pixels, 0)
+        depth = vtkFloatArray()
+        window.GetZbufferData(0, 0, width - 1, height - 1, depth)
+        color = vtk_to_numpy(pixels).reshape(height, width, -1)[::-1, :, :3]
+        z = vtk_to_numpy(depth).reshape(height, width)[::-1].astype(np.float32)
+        z[z >= 1.0] = np.inf
+        if color.size == 0:
+            raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
+        return np.ascontiguousarray(color, dtype=np.uint8), np.ascontiguousarray(z)
+
+    def render(self, names: Sequence[str]) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        """One pass with only ``names`` visible: (H, W, 3) uint8 color and (H, W) float32 depth (inf: empty)."""
+        if self._box is None:
+            raise InvalidInputError("render needs a view first (set_view)")
+        wanted = set(names)
+        unknown = wanted - set(self._actors)
+        if unknown:
+            raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")
+        for name, actor in self._actors.items():
+            actor.SetVisibility(name in wanted)
+        return self._read(self._plotter)
+
+    def project(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top)."""
+        points = self._local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        width, height = self.size
+        camera = self._plotter.renderer.GetActiveCamera()
+        matrix = camera.GetCompositeProjectionTransformMatrix(width / height, -1, 1)
+        m = np.array([[matrix.GetElement(i, j) for j in range(4)] for i in range(4)])
+        clip = np.column_stack([points, np.ones(len(points))]) @ m.T
+        ndc = clip[:, :3] / clip[:, 3:4]
+        col = (ndc[:, 0] + 1) / 2 * width
+        row = height - (ndc[:, 1] + 1) / 2 * height
+        return np.column_stack([col, row])
+
+    def render_billboard(self, vertices: ArrayLike, faces: ArrayLike, rgb: ArrayLike | None,
+                         view: tuple[float, float], anchor_points: ArrayLike
+                         ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], NDArray[np.float32]]:
+        """An overview-independent close-up (paper 001 §II.C): an orthographic render from the fixed direction
+        ``view`` (azimuth, elevation) pasted over the screen box of ``anchor_points`` (N, 3).
+
+        Returns the full-window color, coverage and depth (0 where covered: a billboard lies in front)."""
+        width, height = self.size
+        color = np.zeros((height, width, 3), np.uint8)
+        coverage = np.zeros((height, width), bool)
+        depth = np.full((height, width), np.inf, np.float32)
+        pixels = self.project(anchor_points)
+        pixels = pixels[np.isfinite(pixels).all(axis=1)]
+        if len(pixels) == 0:
+            return color, coverage, depth
+        c0, r0 = np.floor(pixels.min(axis=0)).astype(int)
+        c1, r1 = np.ceil(pixels.max(axis=0)).astype(int)
+        c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, width), min(r1, height)
+        bw, bh = c1 - c0, r1 - r0
+        if bw < 8 or bh < 8:
+            return color, coverage, depth
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        local = vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+        local[:, 2] *= self.z_scale
+        plotter = self._new_plotter((bw, bh))
+        try:
+            poly = self._pv.wrap(trimesh.Trimesh(local, np.asarray(faces).reshape(-1, 3), process=False))
+            kwargs: dict[str, Any] = {"color": _DEFAULT_COLOR}
+            if rgb is not None:
+                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+                kwargs = {"scalars": "rgb", "rgb": True}
+            plotter.add_mesh(poly, smooth_shading=False, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
+                             show_scalar_bar=False, **kwargs)
+            box = np.array([local.min(axis=0), local.max(axis=0)])
+            position = _camera_position(tuple(view), _box_corners(box), bw / bh)
+            look_from = np.subtract(position[0], position[1])
+            for light in _lights(self._pv, box, (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)):
+                plotter.add_light(light)
+            plotter.camera_position = position
+            plotter.enable_parallel_projection()
+            plotter.reset_camera(bounds=box.T.reshape(-1))
+            plotter.camera_position = position[:1] + [position[1], position[2]]
+            corners = _box_corners(box) - np.asarray(position[1])
+            forward = np.asarray(position[1]) - np.asarray(position[0])
+            forward /= np.linalg.norm(forward)
+            right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
+            right /= np.linalg.norm(right)
+            up = np.cross(right, forward)
+            half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * bh / bw) * 1.02
+            plotter.camera.parallel_scale = float(half_h)
+            plotter.camera.clipping_range = _clipping_range(plotter.camera_position, box)
+            image, z = self._read(plotter)
+        finally:
+            with contextlib.suppress(Exception):
+                plotter.close()
+        covered = np.isfinite(z)
+        color[r0:r1, c0:c1] = image
+        coverage[r0:r1, c0:c1] = covered
+        depth[r0:r1, c0:c1] = np.where(covered, 0.0, np.inf)
+        return color, coverage, depth
+
+    def close(self) -> None:
+        """Release the render window."""
+        with contextlib.suppress(Exception):
+            self._plotter.close()
+        self._actors.clear()
+
+    def __enter__(self) -> LayeredRenderer:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
