@@ -98,7 +98,8 @@ def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np
     """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between."""
     if edge_width <= 0:
         return (distance < 0).astype(np.float32)
-    x = np.clip(-distance / edge_width, 0.0, 1.0)
+    with np.errstate(over="ignore"):
+        x = np.clip(-distance / edge_width, 0.0, 1.0)
     return (x * x * (3.0 - 2.0 * x)).astype(np.float32)
 
 

@@ -17,6 +17,9 @@ settings.register_profile("dev", deadline=None, max_examples=100)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+if not SHARED_DATA.exists():  # a git worktree (e.g. /work/wt/NAME): look further up for shared/data
+    SHARED_DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[2:]
+                        if (p / "shared" / "data").is_dir()), SHARED_DATA)
 
 wp.init()
 DEVICES = ["cpu"] + [str(d) for d in wp.get_cuda_devices()]
