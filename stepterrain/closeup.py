@@ -682,7 +682,8 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
                                       origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
     else:
         window = terrain
-    mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=colors, device=device)
+    table = _colors_for(np.asarray(values, np.float32), colors, float(values[0]), float(values[-1]))
+    mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, device=device)
     ox, oy = terrain.local_origin
     points = np.asarray(mesh.vertices, dtype=np.float64) - [ox, oy, 0.0]
     rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
