@@ -319,6 +319,12 @@ class ROI:
 
     def outline(self, level: float = 0.5) -> list[NDArray[np.float64]]:
         """The ROI outline: polylines (P, 2) in world xy where m crosses ``level`` (closed ones repeat p0)."""
+        cache = self.__dict__.setdefault("_outlines", {})
+        if level not in cache:
+            cache[level] = self._outline(level)
+        return [line.copy() for line in cache[level]]
+
+    def _outline(self, level: float) -> list[NDArray[np.float64]]:
         import contourpy
 
         xmin, xmax, ymin, ymax = self.box
@@ -408,13 +414,17 @@ class AnchorStyle:
     ``transparency``: a :data:`TRANSFER_PRESETS` name or an opacity table over t in [0, 1] (t = 0 at the ROI,
     1 at the close-up). ``rungs``: strip rows between ROI and close-up. ``inactive``: how an inactive
     close-up's anchor looks: "hidden" (Fig. 5a), "gray" (Fig. 5b) or "faint" (Fig. 5c, a quarter of the
-    opacity). ``outline_level``: the mask value whose contour is the ROI outline.
+    opacity). ``outline_level``: the mask value whose contour is the ROI outline. ``band``: also draw the
+    soft-edge faces (0 < m < 1), stretched between ROI and close-up by C, as part of the anchor, as the
+    paper's SPFR does (its quality then depends on the vertex density, §IV.C); by default the anchor is the
+    strip alone and the close-up shows every face with a corner of m >= ``outline_level`` fully transformed.
     """
 
     transparency: str | tuple[float, ...] = "linear"
     rungs: int = 8
     inactive: Literal["hidden", "gray", "faint"] = "faint"
     outline_level: float = 0.5
+    band: bool = False
 
     def __post_init__(self) -> None:
         table = transfer_function(self.transparency)
@@ -424,6 +434,7 @@ class AnchorStyle:
             raise InvalidInputError(f"anchor rungs must be an int in [1, 256]; got {self.rungs!r}")
         if self.inactive not in ("hidden", "gray", "faint"):
             raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
+        object.__setattr__(self, "band", bool(self.band))
         if not 0 < float(self.outline_level) < 1:
             raise InvalidInputError(f"anchor outline_level must lie in (0, 1); got {self.outline_level}")
 
@@ -674,7 +685,7 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     """MPFR: the stepped terrain (paper 000) of the ROI window, hypsometric colors, isovalues of the whole terrain."""
     from .stepped import isovalues, stepped
 
-    values = isovalues(terrain.height_range, interval=cu.stepped)
+    values = isovalues(_height_range(terrain), interval=cu.stepped)
     if terrain.kind == "grid":
         i0, i1, j0, j1 = _grid_window(terrain, cu.roi.box)
         dx, dy = terrain.spacing
@@ -751,8 +762,13 @@ def _transfer_struct(closeups: Sequence[CloseUp], device: wp.Device) -> closeup_
     return tf
 
 
+def _height_range(terrain: Terrain) -> tuple[float, float]:
+    """The terrain's (min, max) height, computed once per terrain (frames re-use it)."""
+    return terrain.cached(("closeup", "height_range"), lambda: terrain.height_range)
+
+
 def _pivot_z(terrain: Terrain) -> float:
-    return terrain.height_range[0]
+    return _height_range(terrain)[0]
 
 
 def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: str) -> NDArray[np.float32]:
@@ -947,7 +963,7 @@ def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64
     bottom = h[i0, j0] + tx * (h[i0, j0 + 1] - h[i0, j0])
     top = h[i0 + 1, j0] + tx * (h[i0 + 1, j0 + 1] - h[i0 + 1, j0])
     z = bottom + ty * (top - bottom)
-    return np.where(np.isfinite(z), z, terrain.height_range[0])
+    return np.where(np.isfinite(z), z, _height_range(terrain)[0])
 
 
 def _closeup_color(cu: CloseUp, k: int) -> tuple[float, float, float]:
@@ -1082,16 +1098,21 @@ def composite(
     if depth.shape != shape:
         raise InvalidInputError(f"base_depth must be {shape}; got {depth.shape}")
     for i, (c, alpha, z, depth_test, writes_depth) in enumerate(layers):
-        c = np.asarray(c, dtype=np.float32)
+        c = np.asarray(c)
         alpha = np.asarray(alpha, dtype=np.float32)
         z = np.asarray(z, dtype=np.float32)
         if c.shape != out.shape or alpha.shape != shape or z.shape != shape:
             raise InvalidInputError(f"layer {i} must hold an {out.shape} color, {shape} alpha and depth; got "
                                     f"{c.shape}, {alpha.shape}, {z.shape}")
-        a = alpha * (z < depth) if depth_test else alpha
-        color += a[..., None] * (c - color)
+        rows = np.flatnonzero(alpha.any(axis=1))
+        if len(rows) == 0:
+            continue
+        cols = np.flatnonzero(alpha[rows[0]: rows[-1] + 1].any(axis=0))
+        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # only where the layer has pixels
+        a = alpha[box] * (z[box] < depth[box]) if depth_test else alpha[box]
+        color[box] += a[..., None] * (c[box].astype(np.float32) - color[box])
         if writes_depth:
-            depth = np.where(a > 0, z, depth)
+            depth[box] = np.where(a > 0, z[box], depth[box])
     return np.clip(np.rint(color), 0, 255).astype(np.uint8)
 
 
@@ -1112,7 +1133,7 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
 
 def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
     if kind == "height":
-        return terrain.height_range
+        return _height_range(terrain)
     if kind == "aspect":
         return 0.0, 2 * math.pi
     return 0.0, math.radians(60.0)
@@ -1154,6 +1175,7 @@ def render_closeups(
     time: float = 0.0,
     bounds: ArrayLike | None = None,
     renderer: Any = None,
+    reuse_overview: bool = False,
     timings: dict[str, float] | None = None,
     device: wp.DeviceLike = None,
 ) -> NDArray[np.uint8]:
@@ -1178,6 +1200,9 @@ def render_closeups(
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional
         Reuse a renderer (and its uploaded overview) across frames.
+    reuse_overview : bool
+        With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
+        frame box nor the overview changed (only the close-ups move); the images are the same either way.
     timings : dict, optional
         Filled with seconds spent in "transform", "render" and "composite".
 
@@ -1247,29 +1272,38 @@ def render_closeups(
         if bounds is not None:
             box = np.asarray(bounds, dtype=np.float64)
         renderer.set_view(camera, box)
-        base, base_depth = renderer.render(["overview"])
+        base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         passes = []
         for k, (cu, layer, strip) in enumerate(zip(items, layers, strips)):
             color = _closeup_color(cu, k)
             anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
             show_anchor = cu.active or cu.anchor.inactive != "hidden"
-            full = layer.mask_factor >= 1.0
-            content_faces = layer.faces[full[layer.faces].all(axis=1)]
-            band_faces = layer.faces[~full[layer.faces].all(axis=1)]
+            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+                full = layer.mask_factor >= 1.0
+                inner = full[layer.faces].all(axis=1)
+                content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
+                content_vertices = layer.vertices
+            else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
+                inner = (layer.mask_factor >= cu.anchor.outline_level)[layer.faces].any(axis=1)
+                content_faces, band_faces = layer.faces[inner], layer.faces[:0]
+                content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
             if show_anchor:
-                # soft-edge faces: their t from ‖V_C − V_O‖ normalized by the close-up's longest rung
-                d = np.linalg.norm(layer.vertices - layer.original, axis=1)
-                t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
                 nv = len(strip.vertices)
-                vertices = np.concatenate([strip.vertices, layer.vertices])
-                faces = np.concatenate([strip.faces, band_faces + nv])
-                tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
+                if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
+                    d = np.linalg.norm(layer.vertices - layer.original, axis=1)
+                    t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
+                    vertices = np.concatenate([strip.vertices, layer.vertices])
+                    faces = np.concatenate([strip.faces, band_faces + nv])
+                    tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
+                else:
+                    vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
                 if len(faces):
                     renderer.set_mesh(f"anchor{k}", vertices, faces, values=tvals)
                     tex, z = renderer.render([f"anchor{k}"])
                     covered = z < np.inf
-                    alpha = np.interp(tex[..., 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)), cu.anchor.table)
-                    alpha = np.where(covered, alpha, 0.0).astype(np.float32)
+                    alpha = np.zeros(z.shape, np.float32)  # the transfer function per pixel, at its t
+                    alpha[covered] = np.interp(tex[covered, 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
+                                               cu.anchor.table)
                     if not cu.active and cu.anchor.inactive == "faint":
                         alpha *= 0.25
                     c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
@@ -1278,10 +1312,10 @@ def render_closeups(
                 rgb = _layer_rgb(t, layer, cu, (scalars, cmap))
                 if cu.view == "billboard":
                     image, coverage, z = renderer.render_billboard(
-                        layer.vertices, content_faces, rgb, cu.billboard_view,
+                        content_vertices, content_faces, rgb, cu.billboard_view,
                         strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices)
                 else:
-                    renderer.set_mesh(f"closeup{k}", layer.vertices, content_faces, rgb=rgb)
+                    renderer.set_mesh(f"closeup{k}", content_vertices, content_faces, rgb=rgb)
                     image, z = renderer.render([f"closeup{k}"])
                     coverage = z < np.inf
                 passes.append((image, coverage.astype(np.float32), z, False, True))
@@ -1334,7 +1368,7 @@ def animate_closeups(
             if len(layer.vertices):
                 boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
     xmin, xmax, ymin, ymax = t.extent
-    zmin, zmax = t.height_range
+    zmin, zmax = _height_range(t)
     boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
     box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     box = options.pop("bounds", box)
@@ -1342,6 +1376,7 @@ def animate_closeups(
                                       z_scale=options.pop("z_scale", 1.0))
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
+                                reuse_overview=True,
                                 device=device, **options) for time in times]
     finally:
         renderer.close()

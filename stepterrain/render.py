@@ -399,6 +399,12 @@ def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
 
 
 # ------------------------------------------------------------------------------------------ layered passes
+def _gray_levels(values: ArrayLike) -> NDArray[np.uint8]:
+    """(V,) values in [0, 1] as (V, 3) uint8 gray levels (read back from the red channel)."""
+    gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
+    return np.repeat(gray[:, None], 3, axis=1)
+
+
 class LayeredRenderer:
     """Off-screen layered rendering (paper 001 §IV): one pass per layer into a color and a depth image.
 
@@ -432,6 +438,10 @@ class LayeredRenderer:
         self._pv = _import_pyvista()
         self._plotter = self._new_plotter(self.size)
         self._actors: dict[str, Any] = {}
+        self._meshes: dict[str, Any] = {}
+        self._versions: dict[str, int] = {}
+        self._view_version = 0
+        self._passes: dict[tuple[str, ...], Any] = {}
         self._keys: dict[str, Any] = {}
         self._bounds: dict[str, NDArray[np.float64]] = {}
         self._local_bounds: dict[str, NDArray[np.float64]] = {}
@@ -477,13 +487,28 @@ class LayeredRenderer:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
         if self._origin is None:
             self._origin = (lo + hi) / 2.0
-        self.remove(name)
         local = self._local(vertices)
+        self._versions[name] = self._versions.get(name, 0) + 1
+        kind = ("values" if values is not None else "rgb" if rgb is not None else "plain", len(local))
+        previous = self._meshes.get(name)
+        if previous is not None and previous[1] == kind and np.array_equal(previous[2], faces):
+            # same topology (a close-up that moved or turned): update the points and colors in place
+            poly = previous[0]
+            poly.points = local
+            if values is not None:
+                poly.point_data["rgb"] = _gray_levels(values)
+            elif rgb is not None:
+                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+            self._keys[name] = key
+            self._bounds[name] = np.array([lo, hi])
+            self._local_bounds[name] = np.array([local[finite].min(axis=0), local[finite].max(axis=0)])
+            return
+        self.remove(name)
         poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
+        self._meshes[name] = (poly, kind, faces.copy())
         kwargs: dict[str, Any] = {}
         if values is not None:
-            gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
-            poly.point_data["rgb"] = np.repeat(gray[:, None], 3, axis=1)
+            poly.point_data["rgb"] = _gray_levels(values)
             kwargs.update(scalars="rgb", rgb=True, lighting=False, ambient=1.0, diffuse=0.0, specular=0.0)
         else:
             if rgb is not None:
@@ -501,6 +526,7 @@ class LayeredRenderer:
     def remove(self, name: str) -> None:
         """Drop the mesh ``name`` if present."""
         actor = self._actors.pop(name, None)
+        self._meshes.pop(name, None)
         if actor is not None:
             self._plotter.remove_actor(actor, render=False)
         self._keys.pop(name, None)
@@ -517,6 +543,11 @@ class LayeredRenderer:
             raise InvalidInputError(f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)]; got {box!r}")
         local = box - self._origin
         local[:, 2] *= self.z_scale
+        token = (repr(camera), local.tobytes(), tuple(sorted(self._versions.items())))
+        if token == getattr(self, "_view_token", None):
+            return  # the same view: camera, lights and clipping stay (and so may cached passes)
+        self._view_token = token
+        self._view_version += 1
         width, height = self.size
         position = _camera_position(camera, _box_corners(local), width / height)
         look_from = np.subtract(position[0], position[1])
@@ -550,17 +581,28 @@ class LayeredRenderer:
             raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
         return np.ascontiguousarray(color, dtype=np.uint8), np.ascontiguousarray(z)
 
-    def render(self, names: Sequence[str]) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-        """One pass with only ``names`` visible: (H, W, 3) uint8 color and (H, W) float32 depth (inf: empty)."""
+    def render(self, names: Sequence[str], *, reuse: bool = False) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        """One pass with only ``names`` visible: (H, W, 3) uint8 color and (H, W) float32 depth (inf: empty).
+
+        With ``reuse`` the previous images of the same pass come back without rendering when neither the view
+        nor those meshes changed since (a still camera over a still overview while close-ups move)."""
         if self._box is None:
             raise InvalidInputError("render needs a view first (set_view)")
         wanted = set(names)
         unknown = wanted - set(self._actors)
         if unknown:
             raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")
+        key = tuple(sorted(wanted))
+        state = (self._view_version, tuple(self._versions.get(n, 0) for n in key))
+        cached = self._passes.get(key)
+        if reuse and cached is not None and cached[0] == state:
+            return cached[1], cached[2]
         for name, actor in self._actors.items():
             actor.SetVisibility(name in wanted)
-        return self._read(self._plotter)
+        color, depth = self._read(self._plotter)
+        if reuse:
+            self._passes[key] = (state, color, depth)
+        return color, depth
 
     def project(self, points: ArrayLike) -> NDArray[np.float64]:
         """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top)."""

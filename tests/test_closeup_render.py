@@ -71,6 +71,8 @@ def test_closeup_and_anchor_appear_in_the_closeup_color():
     assert red_pixels(hidden).sum() == 0 and red_pixels(gray).sum() == 0
     assert 0 <= red_pixels(faint).sum() < red_pixels(active).sum()
     assert np.abs(hidden.astype(int) - gray.astype(int)).sum() > 0  # the gray anchor is drawn
+    band = render_closeups(t, [one(anchor=AnchorStyle("opaque", band=True))], window_size=SIZE, device="cpu")
+    assert red_pixels(band).sum() > 100, "the paper's SPFR anchor (soft-edge faces) is missing"
     none = render_closeups(t, [one(anchor=AnchorStyle("hidden"))], window_size=SIZE, device="cpu")
     assert red_pixels(none).sum() == 0
     # the close-up content itself: more non-background pixels than without it
@@ -138,6 +140,24 @@ def test_spinning_closeup_animates_and_saves(tmp_path):
     if importlib.util.find_spec("imageio_ffmpeg") is None:
         with pytest.raises(MissingDependencyError, match="imageio-ffmpeg"):
             save_animation(frames, tmp_path / "spin.mp4")
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_reused_renderer_and_overview_pass_give_the_same_image():
+    t = terrain()
+    box = [(1000, 2000, 0), (1080, 2064, 160)]
+    fresh = render_closeups(t, [one()], window_size=SIZE, bounds=box, device="cpu")
+    with render.LayeredRenderer(window_size=SIZE) as renderer:
+        first = render_closeups(t, [one()], window_size=SIZE, bounds=box, renderer=renderer, reuse_overview=True,
+                                device="cpu")
+        second = render_closeups(t, [one(rotation=(0.0, 0.5))], window_size=SIZE, bounds=box, renderer=renderer,
+                                 reuse_overview=True, device="cpu")
+        third = render_closeups(t, [one()], window_size=SIZE, bounds=box, renderer=renderer, reuse_overview=True,
+                                device="cpu")
+    np.testing.assert_array_equal(first, fresh)
+    np.testing.assert_array_equal(third, fresh)
+    assert np.abs(second.astype(int) - fresh.astype(int)).sum() > 0
 
 
 def test_too_many_closeups_for_the_window():
