@@ -136,7 +136,7 @@ def time_full(terrain, count: int, repeat: int) -> dict:
             renderer.set_view("oblique", box)
             base, depth = renderer.render(["overview"])
             passes = []
-            for k, ((vc, kept), strip, cu) in enumerate(zip(layers, strips, cus)):
+            for k, ((vc, _kept), strip, cu) in enumerate(zip(layers, strips, cus, strict=True)):
                 renderer.set_mesh(f"a{k}", strip.vertices, strip.faces, values=strip.distance)
                 tex, z = renderer.render([f"a{k}"])
                 alpha = np.where(np.isfinite(z), np.interp(tex[..., 0] / 255.0, [0, 1], cu.anchor.table[[0, -1]]), 0)
@@ -160,10 +160,10 @@ def time_full(terrain, count: int, repeat: int) -> dict:
 def transform_throughput(terrain, repeat: int) -> dict:
     """transform_closeup_vertices over every DEM vertex (one launch, one thread) vs the NumPy transform."""
     import warp as wp
+    from stepterrain.kernels import closeup as closeup_kernels
 
     from stepterrain._device import launch, to_device
     from stepterrain.closeup import ROI, CloseUp, _layers_struct
-    from stepterrain.kernels import closeup as closeup_kernels
 
     xmin, xmax, ymin, ymax = terrain.extent
     cu = CloseUp(ROI.ellipse(((xmin + xmax) / 2, (ymin + ymax) / 2), ((xmax - xmin) / 2, (ymax - ymin) / 2)),
@@ -239,7 +239,7 @@ def layers_scaling(terrain, repeat: int) -> list[dict]:
             cus = [CloseUp(ROI.rectangle(((xmin + xmax) / 2, (ymin + ymax) / 2), (xmax - xmin, ymax - ymin)),
                            scale=1.4, offset=(0.0, 0.0, 5000.0))]
         closeup_layers(terrain, cus, device="cpu")
-        times = [_timed(lambda: closeup_layers(terrain, cus, device="cpu")) for _ in range(repeat)]
+        times = [_timed(lambda cus=cus: closeup_layers(terrain, cus, device="cpu")) for _ in range(repeat)]
         faces = len(closeup_layers(terrain, cus, device="cpu")[0].faces)
         rows.append({"fraction": fraction, "best": min(times), "faces": faces})
     return rows

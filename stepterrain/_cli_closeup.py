@@ -91,7 +91,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .cli import _check_output
-    from .closeup import AnchorStyle, CloseUp, ROI, animate_closeups, render_closeups, save_animation
+    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
     out = _check_output(args.output, (".png",), "--output")
@@ -131,7 +131,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     steps = _per_closeup(args.stepped, n, None, "--stepped")
     anchor = AnchorStyle(args.anchor)
     closeups = []
-    for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps):
+    for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):
         if not (math.isfinite(r) and r > 0):
             raise InvalidInputError(f"--roi radius must be positive; got {r:g}")
         edge = args.edge if args.edge is not None else r / 5

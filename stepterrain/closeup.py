@@ -531,7 +531,8 @@ class CloseUp:
             try:
                 speed, reps = float(self.spin[0]), int(self.spin[1])
             except (TypeError, ValueError, IndexError) as exc:
-                raise InvalidInputError(f"close-up spin must be (turns per second, repetitions); got {self.spin!r}") from exc
+                raise InvalidInputError(
+                    f"close-up spin must be (turns per second, repetitions); got {self.spin!r}") from exc
             if not math.isfinite(speed) or speed == 0 or reps < 1:
                 raise InvalidInputError(f"close-up spin needs a finite non-zero speed and repetitions >= 1; "
                                         f"got {self.spin!r}")
@@ -547,7 +548,8 @@ class CloseUp:
         if not 0.0 <= float(self.gamma) <= 1.0:
             raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma}")
         if self.scalars not in (None, "height", "slope", "aspect"):
-            raise InvalidInputError(f"close-up scalars must be None, 'height', 'slope' or 'aspect'; got {self.scalars!r}")
+            raise InvalidInputError(
+                f"close-up scalars must be None, 'height', 'slope' or 'aspect'; got {self.scalars!r}")
 
     def turn(self, time: float) -> float:
         """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
@@ -745,7 +747,8 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
     layers.boxes = wp.array(boxes, dtype=wp.vec4, device=device)
     sizes = [cu.roi.mask.size for cu in closeups]
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32) if sizes else np.zeros(0, np.int32)
-    info = np.array([[s, *cu.roi.mask.shape] for s, cu in zip(starts, closeups)], dtype=np.int32).reshape(-1, 3)
+    info = np.array([[s, *cu.roi.mask.shape] for s, cu in zip(starts, closeups, strict=True)],
+                    dtype=np.int32).reshape(-1, 3)
     layers.mask_info = wp.array(info, dtype=wp.vec3i, device=device)
     packed = np.concatenate([cu.roi.mask.reshape(-1) for cu in closeups]) if closeups else np.zeros(1, np.float32)
     layers.masks = wp.array(packed.astype(np.float32), dtype=wp.float32, device=device)
@@ -834,7 +837,7 @@ def closeup_layers(
     >>> import numpy as np
     >>> cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), scale=2.0, offset=(0.0, 0.0, 10.0))
     >>> layer = closeup_layers(np.zeros((11, 11), np.float32), [cu], device="cpu")[0]
-    >>> bool((layer.mask_factor > 0).all()), float(layer.vertices[:, 2].max())
+    >>> bool((layer.mask_factor[layer.faces].max(axis=1) > 0).all()), float(layer.vertices[:, 2].max())
     (True, 10.0)
     """
     t = as_terrain(terrain)
@@ -860,7 +863,7 @@ def closeup_layers(
     n_faces = np.array([len(s.faces) for s in sources])
     point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
     points = np.concatenate([s.points for s in sources]).astype(np.float32)
-    faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start)]).astype(np.int32)
+    faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
     point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
     n, nf = len(points), len(faces)
     check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
@@ -905,7 +908,7 @@ def closeup_layers(
     f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
     face_start = np.concatenate([[0], np.cumsum(n_faces)[:-1]])
     out = []
-    for k, (cu, src) in enumerate(zip(items, sources)):
+    for k, src in enumerate(sources):
         vs, ve, fs, fe = v_bounds[k], v_bounds[k + 1], f_bounds[k], f_bounds[k + 1]
         local_src = src_v[vs:ve] - point_start[k]
         out.append(CloseUpLayer(
@@ -1264,7 +1267,7 @@ def render_closeups(
                 rgb = _colors_for(values, cmap, *_scalar_range(t, scalars))
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
         boxes = [renderer.bounds_of("overview")]
-        for layer, strip in zip(layers, strips):
+        for layer, strip in zip(layers, strips, strict=True):
             for v in (layer.vertices, strip.vertices):
                 if len(v):
                     boxes.append(np.array([v.min(0), v.max(0)]))
@@ -1274,7 +1277,7 @@ def render_closeups(
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         passes = []
-        for k, (cu, layer, strip) in enumerate(zip(items, layers, strips)):
+        for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
             color = _closeup_color(cu, k)
             anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
             show_anchor = cu.active or cu.anchor.inactive != "hidden"

@@ -543,9 +543,9 @@ class LayeredRenderer:
             raise InvalidInputError(f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)]; got {box!r}")
         local = box - self._origin
         local[:, 2] *= self.z_scale
-        token = (repr(camera), local.tobytes(), tuple(sorted(self._versions.items())))
+        token = (repr(camera), local.tobytes())
         if token == getattr(self, "_view_token", None):
-            return  # the same view: camera, lights and clipping stay (and so may cached passes)
+            return  # the same camera and box: view, lights and clipping range stay (and so may cached passes)
         self._view_token = token
         self._view_version += 1
         width, height = self.size

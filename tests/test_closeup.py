@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as hs
 
 from stepterrain.closeup import (
-    TRANSFER_PRESETS,
     ROI,
+    TRANSFER_PRESETS,
     AnchorStyle,
     CloseUp,
     anchor_strips,
@@ -167,7 +167,8 @@ def test_m_one_gives_M_v_and_m_zero_leaves_vertices_unchanged(device):
     np.testing.assert_array_equal(layer.vertices[zeros], layer.original[zeros])  # bit for bit
     inside = (layer.mask_factor > 0) & ~ones  # the soft edge lies on the segment V_O -> M·V_O
     lam = layer.mask_factor[inside][:, None]
-    np.testing.assert_allclose(layer.vertices[inside], layer.original[inside] + lam * (mv[inside] - layer.original[inside]),
+    v_o = layer.original[inside]
+    np.testing.assert_allclose(layer.vertices[inside], v_o + lam * (mv[inside] - v_o),
                                atol=1e-3)
 
 
@@ -180,7 +181,7 @@ def test_culling_matches_the_whole_mesh_reference(device):
         CloseUp(ROI.ellipse((575.0, 745.0), (12.0, 30.0)), scale=1.2, offset=(3.0, 3.0, 30.0)),  # clipped by the edge
     ]
     layers = closeup_layers(t, cus, device=device)
-    for cu, layer in zip(cus, layers):
+    for cu, layer in zip(cus, layers, strict=True):
         assert_valid_mesh(layer.mesh())
         assert_matches_reference(t, cu, layer)
     # one launch for all equals one call per close-up
@@ -198,7 +199,7 @@ def test_real_dem_against_reference(device):
                    offset=(0.0, 0.0, 3000.0)),
            CloseUp(ROI.slope_above(t, 25.0, region=(xmin + 2000, xmin + 5000, ymin + 2000, ymin + 5000)),
                    scale=1.5, offset=(0.0, 0.0, 2500.0))]
-    for cu, layer in zip(cus, closeup_layers(t, cus, device=device)):
+    for cu, layer in zip(cus, closeup_layers(t, cus, device=device), strict=True):
         assert len(layer.faces) > 0
         assert_matches_reference(t, cu, layer, atol=5.0)  # UTM metres: float32 relative to the local origin
 
@@ -268,9 +269,9 @@ def test_anchor_strips_join_outline_points_carry_color_and_follow_the_transfer_f
     styles = ["linear", "ends", (0.1, 0.9, 0.3, 0.7)]
     cus = [CloseUp(ROI.circle((30.0 + 12 * k, 32.0), 8.0), rotation=(0.2, 0.3 * k), scale=1.5,
                    offset=(0.0, 0.0, 50.0 + 10 * k), color=c, anchor=AnchorStyle(s, rungs=4))
-           for k, (s, c) in enumerate(zip(styles, ["red", "#00ff00", (0.0, 0.0, 1.0)]))]
+           for k, (s, c) in enumerate(zip(styles, ["red", "#00ff00", (0.0, 0.0, 1.0)], strict=True))]
     strips = anchor_strips(t, cus, device=device)
-    for cu, strip in zip(cus, strips):
+    for cu, strip in zip(cus, strips, strict=True):
         assert strip.color == cu.color
         r1 = strip.rungs + 1
         rings = strip.vertices.reshape(-1, r1, 3)
