@@ -483,6 +483,9 @@ class CloseUp:
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"
         The data layer colored by ``cmap`` (None: the overview's mapping).
+    texture : (h, w, 3|4) uint8 image, optional
+        An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
+        close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex.
     """
 
     roi: ROI
@@ -499,8 +502,11 @@ class CloseUp:
     gamma: float = 1.0
     scalars: Literal["height", "slope", "aspect"] | None = None
     cmap: str | None = None
+    texture: Any = None
 
     def __post_init__(self) -> None:
+        if self.texture is not None:
+            object.__setattr__(self, "texture", _check_texture(self.texture, "close-up texture"))
         if not isinstance(self.roi, ROI):
             raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
         rot = np.asarray(self.rotation, dtype=np.float64).reshape(-1)
@@ -1145,14 +1151,42 @@ def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
 _DEFAULT_CMAPS = {"height": "terrain", "slope": "magma", "aspect": "twilight"}
 
 
-def _layer_rgb(terrain: Terrain, layer: CloseUpLayer, cu: CloseUp, overview: tuple[str | None, str]
+def _check_texture(image: Any, name: str) -> NDArray[np.uint8]:
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.shape[0] < 2 or arr.shape[1] < 2:
+        raise InvalidInputError(f"{name} must be an (h, w, 3|4) image of at least 2 x 2 pixels; got shape {arr.shape}")
+    if arr.dtype != np.uint8:
+        raise InvalidInputError(f"{name} must be uint8 (0-255); got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr[..., :3])
+
+
+def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """Bilinear samples of an image spread over the terrain's extent (row 0 at the upper y) at world xy."""
+    xmin, xmax, ymin, ymax = terrain.extent
+    h, w = image.shape[:2]
+    fx = np.clip((xy[:, 0] - xmin) / max(xmax - xmin, 1e-12), 0, 1) * (w - 1)
+    fy = np.clip((ymax - xy[:, 1]) / max(ymax - ymin, 1e-12), 0, 1) * (h - 1)
+    j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
+    i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
+    tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
+    img = image.astype(np.float32)
+    top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
+    bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
+    return np.clip(np.rint(top + ty * (bottom - top)), 0, 255).astype(np.uint8)
+
+
+def _layer_rgb(terrain: Terrain, layer: CloseUpLayer, cu: CloseUp, overview: tuple[str | None, str, Any]
                ) -> NDArray[np.uint8] | None:
+    if cu.texture is not None:
+        return _texture_rgb(terrain, cu.texture, layer.original[:, :2])
     if layer.scalars is not None and cu.scalars is not None:
         lo, hi = _scalar_range(terrain, cu.scalars)
         return _colors_for(layer.scalars, cu.cmap or _DEFAULT_CMAPS[cu.scalars], lo, hi)
     if layer.colors is not None:
         return layer.colors
-    scalars, cmap = overview
+    scalars, cmap, texture = overview
+    if texture is not None:
+        return _texture_rgb(terrain, texture, layer.original[:, :2])
     if scalars is None:
         return None
     values = _vertex_scalars(terrain, (layer.original - [*terrain.local_origin, 0.0]).astype(np.float32), scalars)
@@ -1175,6 +1209,7 @@ def render_closeups(
     scalars: Literal["height", "slope", "aspect"] | None = "height",
     cmap: str = "terrain",
     background: Any = "white",
+    texture: ArrayLike | None = None,
     time: float = 0.0,
     bounds: ArrayLike | None = None,
     renderer: Any = None,
@@ -1199,6 +1234,8 @@ def render_closeups(
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
         Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR).
+    texture : (h, w, 3|4) uint8, optional
+        An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional
@@ -1243,6 +1280,7 @@ def render_closeups(
     if scalars not in (None, "height", "slope", "aspect"):
         raise InvalidInputError(f"scalars must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
     _check_in_terrain(t, items)
+    image_texture = None if texture is None else _check_texture(texture, "texture")
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
     layers = closeup_layers(t, items, time=time, device=device)
@@ -1254,7 +1292,7 @@ def render_closeups(
     if own:
         renderer = render.LayeredRenderer(window_size=(width, height), background=background, z_scale=z_scale)
     try:
-        overview_key = ("overview", id(t), scalars, cmap)
+        overview_key = ("overview", id(t), scalars, cmap, None if texture is None else id(texture))
         if not renderer.has("overview", overview_key):
             mesh = t.mesh()
             rgb = None
@@ -1265,6 +1303,8 @@ def render_closeups(
                 else:
                     values = np.asarray(mesh.vertices[:, 2], np.float32)
                 rgb = _colors_for(values, cmap, *_scalar_range(t, scalars))
+            if image_texture is not None:
+                rgb = _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
         boxes = [renderer.bounds_of("overview")]
         for layer, strip in zip(layers, strips, strict=True):
@@ -1312,7 +1352,7 @@ def render_closeups(
                     c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
                     passes.append((c, alpha, z, True, False))
             if len(content_faces):
-                rgb = _layer_rgb(t, layer, cu, (scalars, cmap))
+                rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
                 if cu.view == "billboard":
                     image, coverage, z = renderer.render_billboard(
                         content_vertices, content_faces, rgb, cu.billboard_view,

@@ -92,6 +92,15 @@ def test_billboard_and_mpfr_closeups_render():
     assert np.abs(board.astype(int) - plain.astype(int)).sum() > 0
     stepped = render_closeups(t, [one(stepped=5.0)], window_size=SIZE, device="cpu")
     assert stepped.std() > 5
+    # an aerial texture on the close-up only (MPFR): a pure green image shows up as green pixels
+    green = np.zeros((8, 8, 3), np.uint8)
+    green[..., 1] = 255
+    textured = render_closeups(t, [one(texture=green, anchor=AnchorStyle("hidden"))], window_size=SIZE,
+                               scalars=None, device="cpu")
+    rgb = textured.astype(int)
+    assert ((rgb[..., 1] > 100) & (rgb[..., 0] < 60) & (rgb[..., 2] < 60)).sum() > 50
+    with pytest.raises(InvalidInputError, match="texture"):
+        one(texture=np.zeros((4, 4), np.uint8))
 
 
 # ------------------------------------------------------------------------------------------------ regression
