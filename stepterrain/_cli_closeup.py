@@ -10,6 +10,7 @@ import math
 from typing import Any
 
 from .errors import InvalidInputError
+from .export import MESH_EXTENSIONS
 
 _EPILOG = """\
 examples:
@@ -67,8 +68,10 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME", help="matplotlib colormap (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.png", help="the rendered image (PNG)")
-    p.add_argument("--png", metavar="OUT.png", help="same as --output (for symmetry with 'steps')")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
+                   + " (overview, close-ups and anchors with vertex colors)")
+    p.add_argument("--png", metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
     p.add_argument("--gif", metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
     p.add_argument("--spin", type=float, default=0.25, metavar="TURNS/S",
@@ -94,8 +97,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
-    out = _check_output(args.output, (".png",), "--output")
-    extra = _check_output(args.png, (".png",), "--png") if args.png else None
+    out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
+    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    mesh_out = out if out.suffix.lower() != ".png" else None
+    images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -107,7 +112,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
-    render.require_offscreen()
+    if images or anim is not None:
+        render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = load_dem(args.input) if args.input else sample_dem()
@@ -148,16 +154,26 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     scalars = None if args.scalars == "none" else args.scalars
     options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device)
 
-    progress.stage("render", f"rendering {n} close-up{'s' if n != 1 else ''} at {args.size[0]}x{args.size[1]}")
-    timings: dict[str, float] = {}
-    image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
-    progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
-                  f"composite {timings['composite']:.2f} s;")
-    progress.stage("write", f"writing {out}")
-    render.save_png(image, out)
-    if extra is not None:
-        render.save_png(image, extra)
-    progress.done()
+    if mesh_out is not None:
+        from .closeup import closeup_scene
+        from .export import save_mesh
+
+        progress.stage("mesh", f"building the scene mesh with {n} close-up{'s' if n != 1 else ''}")
+        scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
+        progress.done(f"{len(scene.faces):,} faces,")
+        progress.stage("write", f"writing {mesh_out}")
+        save_mesh(scene, mesh_out, metadata={"closeups": n})
+        progress.done()
+    if images:
+        progress.stage("render", f"rendering {n} close-up{'s' if n != 1 else ''} at {args.size[0]}x{args.size[1]}")
+        timings: dict[str, float] = {}
+        image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
+        progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
+                      f"composite {timings['composite']:.2f} s;")
+        for path in images:
+            progress.stage("write", f"writing {path}")
+            render.save_png(image, path)
+            progress.done()
     if anim is not None:
         progress.stage("animate", f"rendering {args.frames} frames for {anim}")
         frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,

@@ -48,6 +48,7 @@ __all__ = [
     "anchor_strips",
     "composite",
     "render_closeups",
+    "closeup_scene",
     "animate_closeups",
     "save_animation",
     "max_closeups",
@@ -1380,6 +1381,65 @@ def _window(window_size: Any) -> tuple[int, int]:
     if not (8 <= width <= 16384 and 8 <= height <= 16384):
         raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
     return width, height
+
+
+def closeup_scene(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    closeups: Sequence[CloseUp] | CloseUp,
+    *,
+    scalars: Literal["height", "slope", "aspect"] | None = "height",
+    cmap: str = "terrain",
+    time: float = 0.0,
+    device: wp.DeviceLike = None,
+) -> trimesh.Trimesh:
+    """Overview, close-ups and anchors as one colored mesh for export (GLB, PLY, ...).
+
+    The close-ups are their culled layers as the kernels emit them (the soft edge stretched by C, so each
+    close-up hangs from its ROI as one connected surface); anchors carry their color and, in the alpha of
+    their vertex colors, the transfer function's opacity. ``face_attributes["layer"]``: 0 for the overview,
+    2k + 1 for close-up k, 2k + 2 for its anchor.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), offset=(0.0, 0.0, 10.0))
+    >>> scene = closeup_scene(np.zeros((11, 11), np.float32), [cu], device="cpu")
+    >>> sorted(set(scene.face_attributes["layer"].tolist()))
+    [0, 1, 2]
+    """
+    t = as_terrain(terrain)
+    items = _check_closeups(closeups)
+    mesh = t.mesh()
+    overview_rgb = None
+    if scalars is not None:
+        local = (np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]).astype(np.float32)
+        overview_rgb = _colors_for(_vertex_scalars(t, local, scalars), cmap, *_scalar_range(t, scalars))
+    parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
+              _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
+    layers = closeup_layers(t, items, time=time, device=device)
+    strips = anchor_strips(t, items, time=time, device=device)
+    for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
+        rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
+        parts.append((layer.vertices, layer.faces, _rgba(rgb, len(layer.vertices), _closeup_color(cu, k)), 2 * k + 1))
+        rgba = _rgba(None, len(strip.vertices), strip.color)
+        rgba[:, 3] = np.clip(np.rint(strip.opacity * 255), 0, 255).astype(np.uint8)
+        parts.append((strip.vertices, strip.faces, rgba, 2 * k + 2))
+    parts = [p for p in parts if len(p[1])]
+    starts = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]
+    vertices = np.concatenate([p[0] for p in parts])
+    faces = np.concatenate([p[1] + s for p, s in zip(parts, starts, strict=True)])
+    colors = np.concatenate([p[2] for p in parts])
+    layer_ids = np.concatenate([np.full(len(p[1]), p[3], np.int32) for p in parts])
+    return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors,
+                           face_attributes={"layer": layer_ids},
+                           metadata={"closeups": len(items), "source": t.source or "array"})
+
+
+def _rgba(rgb: NDArray[np.uint8] | None, n: int, fallback: tuple[float, float, float]) -> NDArray[np.uint8]:
+    out = np.empty((n, 4), np.uint8)
+    out[:, :3] = rgb[:, :3] if rgb is not None else np.rint(np.asarray(fallback) * 255).astype(np.uint8)
+    out[:, 3] = 255
+    return out
 
 
 def animate_closeups(

@@ -305,6 +305,22 @@ def test_anchor_strips_join_outline_points_carry_color_and_follow_the_transfer_f
         assert_valid_mesh(trimesh.Trimesh(strip.vertices, strip.faces, process=False))
 
 
+def test_scene_mesh_holds_overview_closeups_and_anchors():
+    from stepterrain.closeup import closeup_scene
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+    cus = [CloseUp(ROI.circle((30.0, 32.0), 8.0), offset=(0, 0, 50.0), color="red"),
+           CloseUp(ROI.circle((50.0, 32.0), 8.0), offset=(0, 0, 50.0), color="blue")]
+    scene = closeup_scene(t, cus, device="cpu")
+    assert_valid_mesh(scene)
+    layer = scene.face_attributes["layer"]
+    assert (layer == 0).sum() == 2 * 32 * 40
+    assert sorted(set(layer.tolist())) == [0, 1, 2, 3, 4]
+    anchor_vertices = np.unique(scene.faces[layer == 2])
+    colors = scene.visual.vertex_colors[anchor_vertices]
+    assert np.all(colors[:, :3] == [255, 0, 0])
+
+
 def test_transfer_function_presets_and_tables():
     assert set(TRANSFER_PRESETS) >= {"opaque", "linear", "inverse", "ends", "hidden"}
     assert transfer_function("hidden").max() == 0.0

@@ -200,6 +200,17 @@ def test_cli_closeup_writes_png_and_gif(dem, tmp_path, capsys):
     assert "rendering 2 close-ups" in capsys.readouterr().err
 
 
+def test_cli_closeup_writes_a_scene_mesh(dem, tmp_path):
+    import trimesh
+
+    out = tmp_path / "scene.ply"
+    assert cli.main(["closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--offset", "0,0,40", "-o", str(out),
+                     "--device", "cpu"]) == 0
+    scene = trimesh.load(out, process=False)
+    assert len(scene.faces) > 2 * 32 * 40  # the overview and more
+    assert scene.visual.vertex_colors.shape[0] == len(scene.vertices)
+
+
 def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
     out = str(tmp_path / "x.png")
     assert cli.main(["closeup", str(dem), "--roi", "9999,9999,5", "-o", out, "--size", "160x120"]) == 2
