@@ -955,11 +955,14 @@ class AnchorStrip:
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """Bilinear terrain heights at world xy (grid), nearest-vertex heights for a TIN."""
     if terrain.kind != "grid":
-        pts = terrain.points
-        idx = np.argmin(((pts[None, :, :2] - xy[:, None, :]) ** 2).sum(-1), axis=1) if len(xy) < 4096 else None
-        if idx is None:
+        pts = terrain.points[terrain.point_used.astype(bool)]
+        try:
             from scipy.spatial import cKDTree
-
+        except ImportError:  # brute force in chunks of at most ~10 M distances
+            chunk = max(1, 10_000_000 // max(len(pts), 1))
+            idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
+                                  for i in range(0, len(xy), chunk)])
+        else:
             idx = cKDTree(pts[:, :2]).query(xy)[1]
         return pts[idx, 2]
     rows, cols = terrain.heights.shape
@@ -1196,7 +1199,8 @@ def _layer_rgb(terrain: Terrain, layer: CloseUpLayer, cu: CloseUp, overview: tup
 
 
 def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
-    g = 0.6
+    """The inactive anchor's color (Fig. 5b): a mid gray as light as the close-up color."""
+    g = float(np.clip(0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2], 0.35, 0.75))
     return (g, g, g)
 
 

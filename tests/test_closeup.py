@@ -212,6 +212,10 @@ def test_tin_terrain_is_culled_like_the_grid(device):
     (tin_layer,) = closeup_layers(mesh, [cu], device=device)
     np.testing.assert_array_equal(tin_layer.source_faces, grid_layer.source_faces)
     np.testing.assert_allclose(tin_layer.vertices[tin_layer.faces], grid_layer.vertices[grid_layer.faces], atol=1e-4)
+    (strip,) = anchor_strips(mesh, [cu], device=device)  # a TIN's outline heights: its nearest vertex
+    bottom = strip.vertices[:: strip.rungs + 1]
+    assert len(bottom) > 10 and np.isfinite(strip.vertices).all()
+    assert heights.min() <= bottom[:, 2].min() and bottom[:, 2].max() <= heights.max()
 
 
 def test_nodata_faces_are_never_emitted(device):
