@@ -856,15 +856,25 @@ def closeup_layers(
     if not items:
         return []
     sources: list[_Source] = []
+    # a close-up's input geometry depends on its ROI box and mapping only, not on M: frames that move or turn
+    # a close-up re-use it (a small per-terrain cache, emptied when it grows, e.g. while a ROI is dragged)
+    cache = t.cached(("closeup", "sources"), dict)
+    if len(cache) > 64:
+        cache.clear()
     for cu in items:  # one window per close-up (a handful): no loop over cells or vertices
-        if cu.stepped is not None:
-            src = _stepped_source(t, cu, cu.cmap or colors, device)
-        elif t.kind == "grid":
-            src = _grid_source(t, cu.roi.box)
-        else:
-            src = _tin_source(t, cu.roi.box)
-        if cu.scalars is not None:
-            src.scalars = _vertex_scalars(t, src.points, cu.scalars)
+        key = (cu.roi.box, cu.stepped, cu.gamma if cu.stepped is not None else None,
+               (cu.cmap or colors) if cu.stepped is not None else None, cu.scalars, str(device))
+        src = cache.get(key)
+        if src is None:
+            if cu.stepped is not None:
+                src = _stepped_source(t, cu, cu.cmap or colors, device)
+            elif t.kind == "grid":
+                src = _grid_source(t, cu.roi.box)
+            else:
+                src = _tin_source(t, cu.roi.box)
+            if cu.scalars is not None:
+                src.scalars = _vertex_scalars(t, src.points, cu.scalars)
+            cache[key] = src
         sources.append(src)
     n_points = np.array([len(s.points) for s in sources])
     n_faces = np.array([len(s.faces) for s in sources])
@@ -1219,6 +1229,7 @@ def render_closeups(
     bounds: ArrayLike | None = None,
     renderer: Any = None,
     reuse_overview: bool = False,
+    merge_passes: bool = True,
     timings: dict[str, float] | None = None,
     device: wp.DeviceLike = None,
 ) -> NDArray[np.uint8]:
@@ -1248,6 +1259,10 @@ def render_closeups(
     reuse_overview : bool
         With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
         frame box nor the overview changed (only the close-ups move); the images are the same either way.
+    merge_passes : bool
+        Render the anchors (and the close-ups) whose screen boxes do not overlap in one pass and split the
+        images by those boxes: the layers come out as from one pass each (to a gray level of rounding at a
+        few pixels), with fewer passes.
     timings : dict, optional
         Filled with seconds spent in "transform", "render" and "composite".
 
@@ -1321,10 +1336,10 @@ def render_closeups(
             box = np.asarray(bounds, dtype=np.float64)
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
-        passes = []
+        anchors: dict[int, Any] = {}
+        contents: dict[int, Any] = {}
+        boards: dict[int, Any] = {}
         for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
-            color = _closeup_color(cu, k)
-            anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
             show_anchor = cu.active or cu.anchor.inactive != "hidden"
             if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
                 full = layer.mask_factor >= 1.0
@@ -1346,27 +1361,36 @@ def render_closeups(
                 else:
                     vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
                 if len(faces):
-                    renderer.set_mesh(f"anchor{k}", vertices, faces, values=tvals)
-                    tex, z = renderer.render([f"anchor{k}"])
-                    covered = z < np.inf
-                    alpha = np.zeros(z.shape, np.float32)  # the transfer function per pixel, at its t
-                    alpha[covered] = np.interp(tex[covered, 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
-                                               cu.anchor.table)
-                    if not cu.active and cu.anchor.inactive == "faint":
-                        alpha *= 0.25
-                    c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
-                    passes.append((c, alpha, z, True, False))
+                    anchors[k] = (vertices, faces, {"values": tvals})
             if len(content_faces):
                 rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
                 if cu.view == "billboard":
-                    image, coverage, z = renderer.render_billboard(
-                        content_vertices, content_faces, rgb, cu.billboard_view,
-                        strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices)
+                    top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
+                    boards[k] = (content_vertices, content_faces, rgb, top)
                 else:
-                    renderer.set_mesh(f"closeup{k}", content_vertices, content_faces, rgb=rgb)
-                    image, z = renderer.render([f"closeup{k}"])
-                    coverage = z < np.inf
+                    contents[k] = (content_vertices, content_faces, {"rgb": rgb})
+        anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes)
+        content_images = renderer.render_layers("closeup", contents, merge=merge_passes)
+        passes = []
+        for k, cu in enumerate(items):  # compositing in the order of generation: anchor k, then close-up k
+            if k in anchor_images:
+                tex, z = anchor_images[k]
+                color = _closeup_color(cu, k)
+                anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
+                covered = z < np.inf
+                alpha = np.zeros(z.shape, np.float32)  # the transfer function per pixel, at its t
+                alpha[covered] = np.interp(tex[covered, 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
+                                           cu.anchor.table)
+                if not cu.active and cu.anchor.inactive == "faint":
+                    alpha *= 0.25
+                c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
+                passes.append((c, alpha, z, True, False))
+            if k in boards:
+                image, coverage, z = renderer.render_billboard(*boards[k][:3], cu.billboard_view, boards[k][3])
                 passes.append((image, coverage.astype(np.float32), z, False, True))
+            elif k in content_images:
+                image, z = content_images[k]
+                passes.append((image, (z < np.inf).astype(np.float32), z, False, True))
         clock["render"] = _time.perf_counter() - start
         start = _time.perf_counter()
         result = composite(base, base_depth, passes)

@@ -399,6 +399,10 @@ def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
 
 
 # ------------------------------------------------------------------------------------------ layered passes
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
 def _gray_levels(values: ArrayLike) -> NDArray[np.uint8]:
     """(V,) values in [0, 1] as (V, 3) uint8 gray levels (read back from the red channel)."""
     gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
@@ -604,15 +608,88 @@ class LayeredRenderer:
             self._passes[key] = (state, color, depth)
         return color, depth
 
+    def render_layers(self, prefix: str, layers: dict[int, tuple[Any, Any, dict[str, Any]]], *,
+                      merge: bool = True) -> dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]]:
+        """Color and depth of each layer k as if rendered alone (``layers[k]`` = vertices, faces, and
+        ``rgb=`` or ``values=`` as for :meth:`set_mesh`).
+
+        With ``merge``, layers of the same kind whose screen boxes (the projected corners of their bounds,
+        all in front of the camera) do not overlap share one pass, whose images are then split by those
+        boxes: no fragment of one layer can fall in another's box, so each layer's pixels are those of its
+        own pass (to the float32 rounding of VTK's per-buffer coordinate shift, a gray level at a few
+        pixels), with fewer passes (a pass has a fixed cost: clearing, reading back)."""
+        rects: dict[int, tuple[int, int, int, int] | None] = {}
+        for k, (vertices, _faces, _kw) in layers.items():
+            rects[k] = self.screen_rect(vertices) if merge else None
+        groups: list[list[int]] = []
+        for k, (_v, _f, kw) in layers.items():
+            kind = "values" if kw.get("values") is not None else "rgb" if kw.get("rgb") is not None else "plain"
+            placed = False
+            if rects[k] is not None:
+                for group in groups:
+                    first = group[0]
+                    kind0 = ("values" if layers[first][2].get("values") is not None
+                             else "rgb" if layers[first][2].get("rgb") is not None else "plain")
+                    if kind0 == kind and all(rects[j] is not None and not _overlap(rects[k], rects[j])
+                                             for j in group):
+                        group.append(k)
+                        placed = True
+                        break
+            if not placed:
+                groups.append([k])
+        out: dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]] = {}
+        for g, group in enumerate(groups):
+            if len(group) == 1:
+                k = group[0]
+                vertices, faces, kw = layers[k]
+                self.set_mesh(f"{prefix}{k}", vertices, faces, **kw)
+                out[k] = self.render([f"{prefix}{k}"])
+                continue
+            counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
+            vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
+            faces = np.concatenate([np.asarray(layers[k][1], np.int64) + counts[i] for i, k in enumerate(group)])
+            kw0 = layers[group[0]][2]
+            kw = {name: np.concatenate([np.asarray(layers[k][2][name]) for k in group])
+                  for name in ("values", "rgb") if kw0.get(name) is not None}
+            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, **kw)
+            color, depth = self.render([f"{prefix}-merged{g}"])
+            for k in group:
+                c0, r0, c1, r1 = rects[k]
+                own_color = np.zeros_like(color)
+                own_depth = np.full(depth.shape, np.inf, np.float32)
+                own_color[r0:r1, c0:c1] = color[r0:r1, c0:c1]
+                own_depth[r0:r1, c0:c1] = depth[r0:r1, c0:c1]
+                out[k] = (own_color, own_depth)
+        return out
+
+    def screen_rect(self, vertices: ArrayLike) -> tuple[int, int, int, int] | None:
+        """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
+        vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
+        behind the camera."""
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        finite = np.isfinite(v).all(axis=1)
+        if not finite.any():
+            return None
+        box = np.array([v[finite].min(axis=0), v[finite].max(axis=0)])
+        pixels = self.project(_box_corners(box))
+        if not np.isfinite(pixels).all():
+            return None
+        width, height = self.size
+        c0, r0 = np.floor(pixels.min(axis=0)).astype(int) - 2
+        c1, r1 = np.ceil(pixels.max(axis=0)).astype(int) + 3
+        return max(c0, 0), max(r0, 0), min(max(c1, 0), width), min(max(r1, 0), height)
+
     def project(self, points: ArrayLike) -> NDArray[np.float64]:
-        """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top)."""
+        """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top); NaN for a
+        point behind the camera."""
         points = self._local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
         width, height = self.size
         camera = self._plotter.renderer.GetActiveCamera()
         matrix = camera.GetCompositeProjectionTransformMatrix(width / height, -1, 1)
         m = np.array([[matrix.GetElement(i, j) for j in range(4)] for i in range(4)])
         clip = np.column_stack([points, np.ones(len(points))]) @ m.T
-        ndc = clip[:, :3] / clip[:, 3:4]
+        w = np.where(clip[:, 3:4] > 1e-12, clip[:, 3:4], np.nan)
+        ndc = clip[:, :3] / w
         col = (ndc[:, 0] + 1) / 2 * width
         row = height - (ndc[:, 1] + 1) / 2 * height
         return np.column_stack([col, row])
