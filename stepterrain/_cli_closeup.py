@@ -22,9 +22,11 @@ examples:
       --offset 0,0,5000 --anchor ends --gif spin.gif --spin 0.25 --frames 24 -o first.png
       two close-ups (one per --roi), a spinning animation as GIF (or .mp4)
   stepterrain closeup dem.tif --roi-relative 0.5,0.5,0.2 --shape rectangle --scalars slope -o slope.png
+  stepterrain closeup --roi-relative 0.5,0.5,0.15 -o scene.glb --png scene.png
+      the overview, close-up and anchor as one colored mesh (anchor opacity in the vertex alpha), and a render
 
 --scale, --offset, --rotation, --color and --stepped apply to every close-up when given once, or one per
---roi (in order) when given as often as --roi.
+--roi (in order) when given as often as --roi. Values starting with a minus need '=': --offset=-500,0,3000.
 """
 
 
