@@ -128,7 +128,7 @@ def _box_distance(x: NDArray[np.float64], y: NDArray[np.float64], hx: float, hy:
 
 
 # ------------------------------------------------------------------------------------------------ ROI
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class ROI:
     """A region of interest (§III.A): origin O, the size of its box and a mask over that box.
 
@@ -296,6 +296,11 @@ class ROI:
 
     # -------------------------------------------------------------------------- geometry
     @property
+    def origin(self) -> tuple[float, float]:
+        """The ROI origin O (§II.B): the centre of its box, the pivot of the close-up transform."""
+        return self.center
+
+    @property
     def box(self) -> tuple[float, float, float, float]:
         """(xmin, xmax, ymin, ymax) of the ROI box in world units."""
         (cx, cy), (w, h) = self.center, self.size
@@ -456,7 +461,7 @@ def _color(value: Any, name: str) -> tuple[float, float, float]:
                                 f"got {value!r}") from exc
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class CloseUp:
     """A 3D close-up (§II.B): its ROI, the transform M = R(α, β)·S(sx, sy, sz)·T(p), a color and a state.
 
