@@ -77,3 +77,39 @@ def test_cli_texture_render_stepped(tmp_path, small_dem):
     assert main(["-q", "texture", str(small_dem), "-o", str(tmp_path / "t.png"), "--interval", "20", "--png", str(png),
                  "--size", "160x120"]) == 0
     assert read_png(png).shape[:2] == (120, 160)
+
+
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_example_textures(tmp_path):
+    example = load_example("textures")
+    assert example.__doc__ and "draped" in example.__doc__
+    out = tmp_path / "textures.png"
+    assert example.main(["--size", "40", "--panel", "160", "120", "--output", str(out), "--device", "cpu"]) == 0
+    image = read_png(out)
+    assert image.shape[:2] == (120, 320)
+    left, right = image[:, :160, :3].astype(int), image[:, 160:, :3].astype(int)
+    assert left.std() > 5 and right.std() > 5
+
+
+def test_example_flood(tmp_path):
+    import imageio.v3 as iio
+
+    example = load_example("flood")
+    assert example.__doc__ and "rising water" in example.__doc__
+    out = tmp_path / "flood.png"
+    assert example.main(["--size", "32", "--frames", "4", "--keyframes", "3", "--output", str(out),
+                         "--device", "cpu"]) == 0
+    frames = iio.imread(out.with_suffix(".gif"), index=None)
+    assert frames.shape[0] == 4 and frames.shape[1:3] == (32, 32)
+    # the water rises: more blue-dominated pixels in the last frame than in the first
+    blue = [(f[..., 2].astype(int) - f[..., 0].astype(int) > 60).sum() for f in frames]
+    assert blue[-1] > blue[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flood.gif", "flood.png"]
