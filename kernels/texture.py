@@ -141,7 +141,7 @@ def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.f
         pp_qq = p * p + q * q
         if pp_qq == 0.0:
             return wp.sin(altitude)
-        total = float(0.0)
+        total = wp.float32(0.0)
         for k in range(4):
             az = (225.0 + 45.0 * float(k)) * 0.017453292519943295
             s = wp.max(wp.dot(n, light_vector(az, altitude)), 0.0)
@@ -279,7 +279,7 @@ def sweep_shadows(
     i.e. when h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node.
     """
     line = wp.tid() + thread_offset
-    horizon = float(-3.0e38)
+    horizon = wp.float32(-3.0e38)
     for k in range(sweep.n_major):
         node = sweep_node(sweep, line, k)
         i = node[0]
@@ -578,10 +578,10 @@ def reduce_band(
     s_col_lo = wp.int32((c64 * n_cols) // m_cols)
     s_col_hi = wp.int32(((c64 + wp.int64(1)) * n_cols - wp.int64(1)) // m_cols)
     for ch in range(channels):
-        total = float(0.0)
+        total = wp.float32(0.0)
         for sr in range(s_row_lo, s_row_hi + 1):
             wr = overlap(wp.int64(sr), m_rows, r, n_rows)
-            row_sum = float(0.0)
+            row_sum = wp.float32(0.0)
             for sc in range(s_col_lo, s_col_hi + 1):
                 row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * float(src[sr - first, sc, ch])
             total += wr * row_sum

@@ -26,8 +26,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError, MissingDependencyError
 
-__all__ = ["render_mesh", "render_textured_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
-           "KEY_LIGHT_ELEVATION"]
+__all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
+           "KEY_LIGHT_ELEVATION", "render_textured_mesh"]
 
 #: Direction the key light comes from: azimuth clockwise from north (+y), radians (north-west).
 KEY_LIGHT_AZIMUTH = math.radians(315.0)

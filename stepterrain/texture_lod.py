@@ -599,7 +599,8 @@ class Camera:
         forward = np.asarray(self.target, dtype=np.float64) - eye
         norm = np.linalg.norm(forward)
         if not np.isfinite(norm) or norm == 0:
-            raise InvalidInputError(f"camera target must differ from its position; got {self.position} -> {self.target}")
+            raise InvalidInputError(
+                f"camera target must differ from its position; got {self.position} -> {self.target}")
         forward /= norm
         right = np.cross(forward, np.asarray(self.up, dtype=np.float64))
         if np.linalg.norm(right) < 1e-12:

@@ -16,6 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+AZIMUTH = math.radians(315.0)
+ALTITUDE = math.radians(45.0)
+
 
 def find_shared(name: str) -> Path:
     """A file of the team's shared/data: $STEPTERRAIN_SHARED_DATA, else the first shared/data above the tests
@@ -59,7 +62,7 @@ def lambert(p: np.ndarray, q: np.ndarray, azimuth: float, altitude: float) -> np
     return (-p * light[0] - q * light[1] + light[2]) / np.sqrt(1 + p * p + q * q)
 
 
-def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=math.radians(315), altitude=math.radians(45),
+def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
                         z_factor=1.0, method="standard") -> np.ndarray:
     p, q = horn(heights, spacing, z_factor)
     cos_i = lambert(p, q, azimuth, altitude)
@@ -115,7 +118,7 @@ def _line_nodes(shape, spacing, azimuth):
     return steps, away
 
 
-def shadows_reference(heights, spacing=(1.0, 1.0), azimuth=math.radians(315), altitude=math.radians(45),
+def shadows_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
                       z_factor=1.0) -> np.ndarray:
     z = np.asarray(heights, dtype=np.float64) * z_factor
     rows, cols = z.shape
