@@ -26,6 +26,7 @@ import warp as wp
 wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 HALF_PI_SQUARED_INV = 0.40528473456935108  # 1 / (pi / 2)^2, GDAL's INV_SQUARE_OF_HALF_PI
+SHADE_RUN = wp.constant(64)  # pixels of a row one hillshade thread shades (amortises the per-thread cost on CPUs)
 
 
 @wp.struct
@@ -49,6 +50,7 @@ class Sweep:
     """
 
     minor_offsets: wp.array[wp.int32]
+    increasing: wp.int32  # 1 when minor_offsets never decreases (slope >= 0), 0 when it never increases
     major_j: wp.int32
     n_major: wp.int32
     n_minor: wp.int32
@@ -112,6 +114,22 @@ def horn_gradient(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
     g = height_or(grid, i + 1, j - 1, e)
     h = height_or(grid, i + 1, j, e)
     k = height_or(grid, i + 1, j + 1, e)
+    return horn_weights(grid, a, b, c, d, f, g, h, k)
+
+
+@wp.func
+def horn_weights(
+    grid: HeightGrid,
+    a: wp.float32,
+    b: wp.float32,
+    c: wp.float32,
+    d: wp.float32,
+    f: wp.float32,
+    g: wp.float32,
+    h: wp.float32,
+    k: wp.float32,
+) -> wp.vec2:
+    """Horn's gradient of the window a b c / d e f / g h k (row i-1 first), times the z factor."""
     dzdx = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) / (8.0 * grid.spacing[0])
     dzdy = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) / (8.0 * grid.spacing[1])
     return wp.vec2(dzdx, dzdy) * grid.z_factor
@@ -165,17 +183,74 @@ def shade_heights(
     light: wp.vec3,
     altitude: wp.float32,
     method: wp.int32,
+    shadow: wp.array2d[wp.uint8],
+    shadow_strength: wp.float32,
     # outputs
     shade_out: wp.array2d[wp.float32],
 ):
-    """One thread per node: its hillshade in [0, 1] (NaN where the height is nodata)."""
-    n = wp.tid() + thread_offset
-    i = n // grid.cols
-    j = n - i * grid.cols
-    if wp.isnan(grid.heights[i, j]):
-        shade_out[i, j] = grid.heights[i, j]
-        return
-    shade_out[i, j] = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+    """One thread per run of up to SHADE_RUN pixels of a row: their hillshade in [0, 1], times
+    1 - shadow_strength where ``shadow`` (same shape, or 0 x 0 for none) marks them shadowed; NaN at nodata.
+
+    Interior pixels slide the 3 x 3 window along the row (three new heights per pixel); the border and the
+    neighbours of nodata take the careful path (missing neighbours = the centre height)."""
+    t = wp.tid() + thread_offset
+    runs = (grid.cols + SHADE_RUN - 1) // SHADE_RUN
+    i = t // runs
+    j0 = (t - i * runs) * SHADE_RUN
+    j1 = wp.min(j0 + SHADE_RUN, grid.cols)
+    shadowed = shadow.shape[0] == grid.rows
+    interior_row = i > 0 and i < grid.rows - 1
+    # window columns j-1 and j (rows i-1, i, i+1), loaded once and slid
+    a = wp.float32(0.0)
+    d = wp.float32(0.0)
+    g = wp.float32(0.0)
+    b = wp.float32(0.0)
+    e = wp.float32(0.0)
+    h = wp.float32(0.0)
+    if interior_row and j0 > 0:
+        a = grid.heights[i - 1, j0 - 1]
+        d = grid.heights[i, j0 - 1]
+        g = grid.heights[i + 1, j0 - 1]
+    if interior_row:
+        b = grid.heights[i - 1, j0]
+        e = grid.heights[i, j0]
+        h = grid.heights[i + 1, j0]
+    for j in range(j0, j1):
+        value = wp.float32(0.0)
+        if interior_row and j > 0 and j < grid.cols - 1:
+            c = grid.heights[i - 1, j + 1]
+            f = grid.heights[i, j + 1]
+            k = grid.heights[i + 1, j + 1]
+            gradient = horn_weights(grid, a, b, c, d, f, g, h, k)
+            if wp.isnan(e):
+                value = e
+            elif wp.isnan(gradient[0]) or wp.isnan(gradient[1]):
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+            else:
+                value = shade_at(gradient, light, method, altitude)
+            a = b
+            b = c
+            d = e
+            e = f
+            g = h
+            h = k
+        else:
+            centre = grid.heights[i, j]
+            if wp.isnan(centre):
+                value = centre
+            else:
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+            if interior_row and j + 1 < grid.cols:  # entering the interior: load the window's columns j, j+1
+                a = grid.heights[i - 1, j]
+                d = centre
+                g = grid.heights[i + 1, j]
+                b = grid.heights[i - 1, j + 1]
+                e = grid.heights[i, j + 1]
+                h = grid.heights[i + 1, j + 1]
+        if shadowed:
+            if shadow[i, j] != wp.uint8(0):
+                value = value * (1.0 - shadow_strength)
+        shade_out[i, j] = value
 
 
 @wp.kernel
@@ -246,17 +321,53 @@ def relight_point(
 
 
 @wp.func
-def sweep_node(sweep: Sweep, line: wp.int32, k: wp.int32) -> wp.vec2i:
-    """(i, j) of the k-th node of a line in walking order; i = -1 where the line is outside the grid."""
-    major = k
-    if sweep.forward < 0:
-        major = sweep.n_major - 1 - k
+def first_major(sweep: Sweep, value: wp.int32, strict: wp.int32) -> wp.int32:
+    """The first major index m whose offset passes ``value`` (binary search; offsets are monotone): for
+    increasing offsets the first with offset >= value (> when strict), for decreasing the first with
+    offset <= value (< when strict)."""
+    lo = wp.int32(0)
+    hi = sweep.n_major
+    while lo < hi:
+        mid = (lo + hi) // 2
+        r = sweep.minor_offsets[mid]
+        passed = False
+        if sweep.increasing == 1:
+            passed = r > value or (r == value and strict == 0)
+        else:
+            passed = r < value or (r == value and strict == 0)
+        if passed:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@wp.func
+def line_span(sweep: Sweep, line: wp.int32) -> wp.vec2i:
+    """[first, last) major indices where line ``line`` lies inside the grid (its minor index in range)."""
+    base = line + sweep.c_min
+    low = -base  # minor index >= 0  <=>  offset >= -base
+    high = sweep.n_minor - 1 - base  # minor index < n_minor  <=>  offset <= high
+    if sweep.increasing == 1:
+        return wp.vec2i(first_major(sweep, low, 0), first_major(sweep, high, 1))
+    return wp.vec2i(first_major(sweep, high, 0), first_major(sweep, low, 1))
+
+
+@wp.func
+def sweep_node(sweep: Sweep, line: wp.int32, major: wp.int32) -> wp.vec2i:
+    """(i, j) of the line's node at a major index inside its span."""
     minor = line + sweep.c_min + sweep.minor_offsets[major]
-    if minor < 0 or minor >= sweep.n_minor:
-        return wp.vec2i(-1, -1)
     if sweep.major_j == 1:
         return wp.vec2i(minor, major)
     return wp.vec2i(major, minor)
+
+
+@wp.func
+def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
+    """The k-th major index of a span in walking order (away from the light)."""
+    if sweep.forward > 0:
+        return span[0] + k
+    return span[1] - 1 - k
 
 
 @wp.func
@@ -280,21 +391,21 @@ def sweep_shadows(
     """
     line = wp.tid() + thread_offset
     horizon = wp.float32(-3.0e38)
-    for k in range(sweep.n_major):
-        node = sweep_node(sweep, line, k)
+    span = line_span(sweep, line)
+    for k in range(span[1] - span[0]):
+        node = sweep_node(sweep, line, walk_major(sweep, span, k))
         i = node[0]
-        if i >= 0:
-            j = node[1]
-            h = grid.heights[i, j]
-            if wp.isnan(h):
-                shadow_out[i, j] = wp.uint8(0)
+        j = node[1]
+        h = grid.heights[i, j]
+        if wp.isnan(h):
+            shadow_out[i, j] = wp.uint8(0)
+        else:
+            g = h * grid.z_factor + distance_away(grid, sweep, i, j) * sweep.tan_altitude
+            if g < horizon:
+                shadow_out[i, j] = wp.uint8(1)
             else:
-                g = h * grid.z_factor + distance_away(grid, sweep, i, j) * sweep.tan_altitude
-                if g < horizon:
-                    shadow_out[i, j] = wp.uint8(1)
-                else:
-                    shadow_out[i, j] = wp.uint8(0)
-                    horizon = g
+                shadow_out[i, j] = wp.uint8(0)
+                horizon = g
 
 
 @wp.kernel
@@ -306,12 +417,8 @@ def count_line_nodes(
 ):
     """One thread per sweep line: how many grid nodes it visits (its horizon stack's size)."""
     line = wp.tid() + thread_offset
-    count = wp.int32(0)
-    for k in range(sweep.n_major):
-        node = sweep_node(sweep, line, k)
-        if node[0] >= 0:
-            count += 1
-    counts[line] = count
+    span = line_span(sweep, line)
+    counts[line] = span[1] - span[0]
 
 
 @wp.kernel
@@ -330,31 +437,31 @@ def sweep_occlusion(
     line = wp.tid() + thread_offset
     base = offsets[line]
     top = wp.int32(-1)  # index of the hull's last point, relative to base
-    for k in range(sweep.n_major):
-        node = sweep_node(sweep, line, k)
+    span = line_span(sweep, line)
+    for k in range(span[1] - span[0]):
+        node = sweep_node(sweep, line, walk_major(sweep, span, k))
         i = node[0]
-        if i >= 0:
-            j = node[1]
-            h = grid.heights[i, j]
-            if not wp.isnan(h):
-                p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
-                # drop hull points that are not above the segment from their predecessor to p
-                while top >= 1:
-                    a = hull_out[base + top - 1]
-                    b = hull_out[base + top]
-                    cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
-                    if cross >= 0.0:
-                        top -= 1
-                    else:
-                        break
-                if top >= 0:
-                    q = hull_out[base + top]
-                    rise = q[1] - p[1]
-                    run = p[0] - q[0]
-                    if rise > 0.0 and run > 0.0:
-                        occlusion_out[i, j] = occlusion_out[i, j] + weight * rise / wp.sqrt(rise * rise + run * run)
-                top += 1
-                hull_out[base + top] = p
+        j = node[1]
+        h = grid.heights[i, j]
+        if not wp.isnan(h):
+            p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
+            # drop hull points that are not above the segment from their predecessor to p
+            while top >= 1:
+                a = hull_out[base + top - 1]
+                b = hull_out[base + top]
+                cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+                if cross >= 0.0:
+                    top -= 1
+                else:
+                    break
+            if top >= 0:
+                q = hull_out[base + top]
+                rise = q[1] - p[1]
+                run = p[0] - q[0]
+                if rise > 0.0 and run > 0.0:
+                    occlusion_out[i, j] = occlusion_out[i, j] + weight * rise / wp.sqrt(rise * rise + run * run)
+            top += 1
+            hull_out[base + top] = p
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -201,12 +201,15 @@ def hillshade(
     host, out = _output(t.heights.shape, np.float32, wp.float32, dev)
     light = wp.vec3(math.sin(azimuth) * math.cos(altitude), math.cos(azimuth) * math.cos(altitude),
                     math.sin(altitude))
-    launch(texture_kernels.shade_heights, dim=grid.rows * grid.cols,
-           inputs=[grid, light, float(altitude), HILLSHADE_METHODS.index(method)], outputs=[out], device=dev)
-    shade = _result(host, out)
     if shadows and shadow_strength > 0:
-        shadow = _shadow_mask(t, grid, azimuth, altitude, dev)
-        shade = shade * (1.0 - np.float32(shadow_strength) * shadow).astype(np.float32)
+        shadow = _shadow_array(t, grid, azimuth, altitude, dev)
+    else:
+        shadow = wp.empty((0, 0), dtype=wp.uint8, device=dev)
+    runs = -(-grid.cols // texture_kernels.SHADE_RUN)
+    launch(texture_kernels.shade_heights, dim=grid.rows * runs,
+           inputs=[grid, light, float(altitude), HILLSHADE_METHODS.index(method), shadow, float(shadow_strength)],
+           outputs=[out], device=dev)
+    shade = _result(host, out)
     return shade
 
 
@@ -228,6 +231,7 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float,
     c_min = -int(offsets.max())
     c_max = n_minor - 1 - int(offsets.min())
     sweep.minor_offsets = wp.array(offsets, dtype=wp.int32, device=device)
+    sweep.increasing = 1 if slope >= 0 else 0
     sweep.major_j, sweep.n_major, sweep.n_minor = major_j, n_major, n_minor
     sweep.forward, sweep.c_min = forward, c_min
     sweep.away = wp.vec2(-math.sin(azimuth), -math.cos(azimuth))
@@ -240,15 +244,26 @@ def minor_offsets(n_major: int, slope: float) -> NDArray[np.int32]:
     return np.floor(slope * np.arange(n_major, dtype=np.float64) + 0.5).astype(np.int32)
 
 
-def _shadow_mask(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, altitude: float,
-                 device: wp.Device) -> NDArray[np.uint8]:
-    host, out = _output(t.heights.shape, np.uint8, wp.uint8, device)
+def _shadow_array(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, altitude: float,
+                  device: wp.Device, host: NDArray[np.uint8] | None = None) -> wp.array:
+    """The shadow mask on the device (written into ``host`` on the CPU when given)."""
+    if host is not None:
+        out = wp.array(host, dtype=wp.uint8, device=device, copy=False)
+    else:
+        out = wp.empty(t.heights.shape, dtype=wp.uint8, device=device)
     if altitude >= math.pi / 2:
         out.zero_()
-        return _result(host, out)
+        return out
     sweep, n_lines = _sweep(t.heights.shape, t.spacing, azimuth, altitude, device)
     launch(texture_kernels.sweep_shadows, dim=n_lines, inputs=[grid, sweep], outputs=[out], device=device)
-    return _result(host, out)
+    return out
+
+
+def _shadow_mask(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, altitude: float,
+                 device: wp.Device) -> NDArray[np.uint8]:
+    host = np.empty(t.heights.shape, dtype=np.uint8) if device.is_cpu else None
+    out = _shadow_array(t, grid, azimuth, altitude, device, host)
+    return host if host is not None else out.numpy()
 
 
 def cast_shadows(
