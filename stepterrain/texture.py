@@ -425,7 +425,7 @@ def relight(
     >>> import numpy as np
     >>> from stepterrain.texture import normal_map, relight
     >>> rgb = normal_map(np.zeros((3, 3)), device="cpu")
-    >>> float(relight(rgb, azimuth=0.0, altitude=np.pi / 2, device="cpu")[1, 1])
+    >>> round(float(relight(rgb, azimuth=0.0, altitude=np.pi / 2, device="cpu")[1, 1]), 3)
     1.0
     """
     rgb = np.asarray(normals)
@@ -1078,8 +1078,8 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     >>> from stepterrain.texture import TextureLayer, drape
     >>> mesh = st.heightfield_mesh(np.zeros((2, 2)))
     >>> textured = drape(mesh, TextureLayer("luminance", np.ones((2, 2)), (-0.5, 1.5, -0.5, 1.5)))
-    >>> textured.visual.uv.tolist()[0]
-    [0.25, 0.75]
+    >>> textured.visual.uv.tolist()[0]   # node (0, 0) at (0, 0): west, south (v up)
+    [0.25, 0.25]
     """
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
