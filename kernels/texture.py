@@ -38,6 +38,8 @@ class HeightGrid:
     cols: wp.int32
     spacing: wp.vec2
     z_factor: wp.float32
+    gradient_scale: wp.vec2  # (z_factor / (8 dx), z_factor / (8 dy)): Horn's weights as one multiply
+    has_nodata: wp.int32  # 0 when every height is finite: the kernels skip their NaN checks
 
 
 @wp.struct
@@ -50,6 +52,7 @@ class Sweep:
     """
 
     minor_offsets: wp.array[wp.int32]
+    n_lines: wp.int32
     increasing: wp.int32  # 1 when minor_offsets never decreases (slope >= 0), 0 when it never increases
     major_j: wp.int32
     n_major: wp.int32
@@ -58,6 +61,7 @@ class Sweep:
     c_min: wp.int32
     away: wp.vec2
     tan_altitude: wp.float32
+    rise: wp.vec2  # tan(altitude) * distance away from the light per column (x) and per row (y) index
 
 
 @wp.struct
@@ -114,12 +118,12 @@ def horn_gradient(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
     g = height_or(grid, i + 1, j - 1, e)
     h = height_or(grid, i + 1, j, e)
     k = height_or(grid, i + 1, j + 1, e)
-    return horn_weights(grid, a, b, c, d, f, g, h, k)
+    return horn_weights(grid.gradient_scale, a, b, c, d, f, g, h, k)
 
 
 @wp.func
 def horn_weights(
-    grid: HeightGrid,
+    scale: wp.vec2,
     a: wp.float32,
     b: wp.float32,
     c: wp.float32,
@@ -130,9 +134,9 @@ def horn_weights(
     k: wp.float32,
 ) -> wp.vec2:
     """Horn's gradient of the window a b c / d e f / g h k (row i-1 first), times the z factor."""
-    dzdx = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) / (8.0 * grid.spacing[0])
-    dzdy = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) / (8.0 * grid.spacing[1])
-    return wp.vec2(dzdx, dzdy) * grid.z_factor
+    dzdx = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) * scale[0]
+    dzdy = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) * scale[1]
+    return wp.vec2(dzdx, dzdy)
 
 
 @wp.func
@@ -150,8 +154,8 @@ def surface_normal(gradient: wp.vec2) -> wp.vec3:
 @wp.func
 def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.float32) -> wp.float32:
     """Hillshade in [0, 1]: 0 standard (Lambert, clamped), 1 multidirectional, 2 combined (GDAL's variants)."""
-    n = surface_normal(gradient)
     if method == 1:
+        n = surface_normal(gradient)
         # GDAL's multidirectional (after USGS OF 92-422): four lights at 225, 270, 315, 360 degrees, each
         # weighted by cos^2(aspect - azimuth), aspect the downhill azimuth (the weights sum to 2).
         p = gradient[0]
@@ -167,7 +171,8 @@ def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.f
             along = p * wp.sin(az) + q * wp.cos(az)
             total += s * along * along / pp_qq
         return 0.5 * total
-    cos_incidence = wp.dot(n, light)
+    cos_incidence = (light[2] - gradient[0] * light[0] - gradient[1] * light[1]) / wp.sqrt(
+        1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1])
     if method == 2:
         # GDAL -combined: 1 - (angle between normal and light) * slope / (pi / 2)^2
         slope = wp.atan(wp.length(gradient))
@@ -199,7 +204,45 @@ def shade_heights(
     j0 = (t - i * runs) * SHADE_RUN
     j1 = wp.min(j0 + SHADE_RUN, grid.cols)
     shadowed = shadow.shape[0] == grid.rows
+    heights = grid.heights
+    scale = grid.gradient_scale
     interior_row = i > 0 and i < grid.rows - 1
+    if grid.has_nodata == 0 and interior_row and method == 0:
+        # the common case: no nodata, standard shading; a tight loop over the run's interior pixels
+        lo = wp.max(j0, 1)
+        hi = wp.min(j1, grid.cols - 1)
+        a = heights[i - 1, lo - 1]
+        d = heights[i, lo - 1]
+        g = heights[i + 1, lo - 1]
+        b = heights[i - 1, lo]
+        e = heights[i, lo]
+        h = heights[i + 1, lo]
+        for j in range(lo, hi):
+            c = heights[i - 1, j + 1]
+            f = heights[i, j + 1]
+            k = heights[i + 1, j + 1]
+            p = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) * scale[0]
+            q = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) * scale[1]
+            value = wp.max((light[2] - p * light[0] - q * light[1]) / wp.sqrt(1.0 + p * p + q * q), 0.0)
+            if shadowed:
+                if shadow[i, j] != wp.uint8(0):
+                    value = value * (1.0 - shadow_strength)
+            shade_out[i, j] = value
+            a = b
+            b = c
+            d = e
+            e = f
+            g = h
+            h = k
+        for side in range(2):  # the row's border pixels, if this run holds them
+            j = wp.where(side == 0, 0, grid.cols - 1)
+            if j >= j0 and j < j1:
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+                if shadowed:
+                    if shadow[i, j] != wp.uint8(0):
+                        value = value * (1.0 - shadow_strength)
+                shade_out[i, j] = value
+        return
     # window columns j-1 and j (rows i-1, i, i+1), loaded once and slid
     a = wp.float32(0.0)
     d = wp.float32(0.0)
@@ -208,24 +251,27 @@ def shade_heights(
     e = wp.float32(0.0)
     h = wp.float32(0.0)
     if interior_row and j0 > 0:
-        a = grid.heights[i - 1, j0 - 1]
-        d = grid.heights[i, j0 - 1]
-        g = grid.heights[i + 1, j0 - 1]
+        a = heights[i - 1, j0 - 1]
+        d = heights[i, j0 - 1]
+        g = heights[i + 1, j0 - 1]
     if interior_row:
-        b = grid.heights[i - 1, j0]
-        e = grid.heights[i, j0]
-        h = grid.heights[i + 1, j0]
+        b = heights[i - 1, j0]
+        e = heights[i, j0]
+        h = heights[i + 1, j0]
     for j in range(j0, j1):
         value = wp.float32(0.0)
         if interior_row and j > 0 and j < grid.cols - 1:
-            c = grid.heights[i - 1, j + 1]
-            f = grid.heights[i, j + 1]
-            k = grid.heights[i + 1, j + 1]
-            gradient = horn_weights(grid, a, b, c, d, f, g, h, k)
+            c = heights[i - 1, j + 1]
+            f = heights[i, j + 1]
+            k = heights[i + 1, j + 1]
+            gradient = horn_weights(scale, a, b, c, d, f, g, h, k)
             if wp.isnan(e):
                 value = e
             elif wp.isnan(gradient[0]) or wp.isnan(gradient[1]):
                 value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+            elif method == 0:  # the common case inline: max(0, n . l)
+                value = wp.max((light[2] - gradient[0] * light[0] - gradient[1] * light[1])
+                               / wp.sqrt(1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1]), 0.0)
             else:
                 value = shade_at(gradient, light, method, altitude)
             a = b
@@ -235,18 +281,18 @@ def shade_heights(
             g = h
             h = k
         else:
-            centre = grid.heights[i, j]
+            centre = heights[i, j]
             if wp.isnan(centre):
                 value = centre
             else:
                 value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
             if interior_row and j + 1 < grid.cols:  # entering the interior: load the window's columns j, j+1
-                a = grid.heights[i - 1, j]
+                a = heights[i - 1, j]
                 d = centre
-                g = grid.heights[i + 1, j]
-                b = grid.heights[i - 1, j + 1]
-                e = grid.heights[i, j + 1]
-                h = grid.heights[i + 1, j + 1]
+                g = heights[i + 1, j]
+                b = heights[i - 1, j + 1]
+                e = heights[i, j + 1]
+                h = heights[i + 1, j + 1]
         if shadowed:
             if shadow[i, j] != wp.uint8(0):
                 value = value * (1.0 - shadow_strength)
@@ -381,31 +427,47 @@ def sweep_shadows(
     thread_offset: wp.int32,
     grid: HeightGrid,
     sweep: Sweep,
+    lines_per_thread: wp.int32,
+    horizons: wp.array[wp.float32],
     # outputs
     shadow_out: wp.array2d[wp.uint8],
 ):
-    """One thread per sweep line: walk away from the light keeping the running horizon max(h + t tan(alt)).
+    """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA: one thread per line),
+    walked away from the light in lockstep, each line keeping its running horizon max(h + t tan(alt)).
 
     A node is in shadow when an earlier node of its line lies above the ray from the node to the light,
-    i.e. when h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node.
+    i.e. when h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node. Walking a bundle
+    in lockstep touches neighbouring nodes one after another (cache lines are reused on CPUs).
     """
-    line = wp.tid() + thread_offset
-    horizon = wp.float32(-3.0e38)
-    span = line_span(sweep, line)
+    first = (wp.tid() + thread_offset) * lines_per_thread
+    last = wp.min(first + lines_per_thread, sweep.n_lines)
+    for line in range(first, last):
+        horizons[line] = wp.float32(-3.0e38)
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
     for k in range(span[1] - span[0]):
-        node = sweep_node(sweep, line, walk_major(sweep, span, k))
-        i = node[0]
-        j = node[1]
-        h = grid.heights[i, j]
-        if wp.isnan(h):
-            shadow_out[i, j] = wp.uint8(0)
-        else:
-            g = h * grid.z_factor + distance_away(grid, sweep, i, j) * sweep.tan_altitude
-            if g < horizon:
-                shadow_out[i, j] = wp.uint8(1)
-            else:
+        major = walk_major(sweep, span, k)
+        offset = sweep.c_min + sweep.minor_offsets[major]
+        lo = wp.max(first, -offset)
+        hi = wp.min(last, sweep.n_minor - offset)
+        for line in range(lo, hi):
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
+            h = grid.heights[i, j]
+            if grid.has_nodata != 0 and wp.isnan(h):
                 shadow_out[i, j] = wp.uint8(0)
-                horizon = g
+            else:
+                g = h * grid.z_factor + (float(j) * sweep.rise[0] + float(i) * sweep.rise[1])
+                if g < horizons[line]:
+                    shadow_out[i, j] = wp.uint8(1)
+                else:
+                    shadow_out[i, j] = wp.uint8(0)
+                    horizons[line] = g
 
 
 @wp.kernel

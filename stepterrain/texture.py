@@ -61,6 +61,7 @@ LAYER_KINDS: tuple[str, ...] = ("thematic", "luminance", "topographic", "visibil
 BLEND_MODES: tuple[str, ...] = ("blend", "add", "modulate")
 DEFAULT_AZIMUTH = math.radians(315.0)
 DEFAULT_ALTITUDE = math.radians(45.0)
+_LINES_PER_THREAD_CPU = 64  # adjacent sweep lines one CPU thread walks in lockstep (cache reuse); 1 on CUDA
 
 LayerKind = Literal["thematic", "luminance", "topographic", "visibility"]
 Extent = tuple[float, float, float, float]
@@ -108,6 +109,8 @@ def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kern
     grid.rows, grid.cols = (int(n) for n in t.heights.shape)
     grid.spacing = wp.vec2(float(t.spacing[0]), float(t.spacing[1]))
     grid.z_factor = float(z_factor)
+    grid.gradient_scale = wp.vec2(float(z_factor) / (8.0 * t.spacing[0]), float(z_factor) / (8.0 * t.spacing[1]))
+    grid.has_nodata = int(t.cached("texture.has_nodata", lambda: bool(np.isnan(t.heights).any())))
     return grid
 
 
@@ -232,10 +235,12 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float,
     c_max = n_minor - 1 - int(offsets.min())
     sweep.minor_offsets = wp.array(offsets, dtype=wp.int32, device=device)
     sweep.increasing = 1 if slope >= 0 else 0
+    sweep.n_lines = c_max - c_min + 1
     sweep.major_j, sweep.n_major, sweep.n_minor = major_j, n_major, n_minor
     sweep.forward, sweep.c_min = forward, c_min
     sweep.away = wp.vec2(-math.sin(azimuth), -math.cos(azimuth))
     sweep.tan_altitude = math.tan(altitude) if altitude < math.pi / 2 else 3.0e38
+    sweep.rise = wp.vec2(dx * -math.sin(azimuth) * sweep.tan_altitude, dy * -math.cos(azimuth) * sweep.tan_altitude)
     return sweep, c_max - c_min + 1
 
 
@@ -255,7 +260,10 @@ def _shadow_array(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, 
         out.zero_()
         return out
     sweep, n_lines = _sweep(t.heights.shape, t.spacing, azimuth, altitude, device)
-    launch(texture_kernels.sweep_shadows, dim=n_lines, inputs=[grid, sweep], outputs=[out], device=device)
+    bundle = _LINES_PER_THREAD_CPU if device.is_cpu else 1
+    horizons = scratch("texture.horizons", n_lines, wp.float32, device)
+    launch(texture_kernels.sweep_shadows, dim=-(-n_lines // bundle), inputs=[grid, sweep, bundle, horizons],
+           outputs=[out], device=device)
     return out
 
 
