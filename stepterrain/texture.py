@@ -110,7 +110,8 @@ def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kern
     grid.spacing = wp.vec2(float(t.spacing[0]), float(t.spacing[1]))
     grid.z_factor = float(z_factor)
     grid.gradient_scale = wp.vec2(float(z_factor) / (8.0 * t.spacing[0]), float(z_factor) / (8.0 * t.spacing[1]))
-    grid.has_nodata = int(t.cached("texture.has_nodata", lambda: bool(np.isnan(t.heights).any())))
+    # NaN propagates through min: one vectorised pass, no temporary mask
+    grid.has_nodata = int(t.cached("texture.has_nodata", lambda: bool(np.isnan(t.heights.min()))))
     return grid
 
 

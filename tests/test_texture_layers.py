@@ -264,12 +264,26 @@ def test_drape_stepped_terrain_to_glb(tmp_path, device):
     assert image.size == (topo.shape[1], topo.shape[0])
     # the embedded image is the layer itself (lossless PNG inside the GLB)
     np.testing.assert_array_equal(np.asarray(image.convert("RGB")), topo.to_uint8(background=(1, 1, 1)))
-    validator = Path(__file__).resolve().parents[1] / ".ci" / "node_modules" / "gltf-validator"
-    if shutil.which("node") and validator.exists():
-        script = ("const v=require(process.argv[1]);const fs=require('fs');"
-                  "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[2]))).then(r=>"
-                  "{console.log(r.issues.numErrors);process.exit(r.issues.numErrors?1:0)})")
-        subprocess.run(["node", "-e", script, str(validator), str(out)], check=True)
+    check_with_khronos_validator(out)
+
+
+def check_with_khronos_validator(path: Path) -> None:
+    """Zero errors and zero warnings from the Khronos glTF validator (npm gltf-validator) when it is installed:
+    in the repository's .ci/node_modules (bash .ci/run) or under $GLTF_VALIDATOR_PATH."""
+    import os
+
+    bases = [Path(__file__).resolve().parents[1] / ".ci" / "node_modules"]
+    if os.environ.get("GLTF_VALIDATOR_PATH"):
+        bases.insert(0, Path(os.environ["GLTF_VALIDATOR_PATH"]))
+    package = next((b / "gltf-validator" for b in bases if (b / "gltf-validator").exists()), None)
+    if shutil.which("node") is None or package is None:
+        return  # the session-wide check of the batch/export issue covers it where the validator is installed
+    script = ("const v=require(process.argv[1]);const fs=require('fs');"
+              "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[2]))).then(r=>"
+              "{console.log(r.issues.numErrors+' '+r.issues.numWarnings);"
+              "process.exit(r.issues.numErrors+r.issues.numWarnings?1:0)})")
+    result = subprocess.run(["node", "-e", script, str(package), str(path)], capture_output=True, text=True)
+    assert result.returncode == 0, f"glTF validator: errors, warnings = {result.stdout} {result.stderr}"
 
 
 def test_drape_maps_world_xy_to_texels():
