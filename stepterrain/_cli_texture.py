@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _floats, _Parser, _size, _window  # noqa: F401 - shared CLI helpers
+from .cli import Progress, _check_output, _size, _window
 from .errors import InvalidInputError
 from .export import MESH_EXTENSIONS
 
