@@ -603,15 +603,20 @@ def add_layers(
     b: wp.array2d[wp.vec4],
     weight_a: wp.float32,
     weight_b: wp.float32,
+    clamp: wp.int32,
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per pixel: weight_a a + weight_b b, each channel clamped to [0, 1] (weighted addition)."""
+    """One thread per pixel: weight_a a + weight_b b (weighted addition), each channel clamped to [0, 1] when
+    ``clamp`` is 1 (the last term of a sum)."""
     n = wp.tid() + thread_offset
     cols = a.shape[1]
     i = n // cols
     j = n - i * cols
     s = a[i, j] * weight_a + b[i, j] * weight_b
+    if clamp == 0:
+        rgba_out[i, j] = s
+        return
     rgba_out[i, j] = wp.vec4(wp.clamp(s[0], 0.0, 1.0), wp.clamp(s[1], 0.0, 1.0), wp.clamp(s[2], 0.0, 1.0),
                              wp.clamp(s[3], 0.0, 1.0))
 

@@ -796,15 +796,16 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     zero = wp.zeros(shape, dtype=wp.vec4, device=dev) if not others else None
     if zero is not None:
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
-        launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0],
+        launch(texture_kernels.add_layers, dim=shape[0] * shape[1], inputs=[total, zero, checked[0], 0.0, 1],
                outputs=[out], device=dev)
         return _finish(out, first, "add")
     weight_total = checked[0]
     for k, layer in enumerate(others):
         out = wp.empty(shape, dtype=wp.vec4, device=dev)
-        # the running sum is kept unclamped-equivalent by folding weights: Σ w_k x_k built pairwise
+        # Σ w_k x_k built pairwise, unclamped until the last term
         launch(texture_kernels.add_layers, dim=shape[0] * shape[1],
-               inputs=[total, _sampled(layer, extent, shape, dev, f"layers[{k + 1}]"), weight_total, checked[k + 1]],
+               inputs=[total, _sampled(layer, extent, shape, dev, f"layers[{k + 1}]"), weight_total, checked[k + 1],
+                       1 if k == len(others) - 1 else 0],
                outputs=[out], device=dev)
         total, weight_total = out, 1.0
     return _finish(total, first, "add")

@@ -78,6 +78,12 @@ def test_weighted_add_formula(device):
     np.testing.assert_allclose(out, expected, atol=1e-6)
 
 
+def test_weighted_add_clamps_only_the_sum(device):
+    ones = layer(np.ones((3, 4, 3), np.float32))
+    out = weighted_add([ones, ones, ones], [1.0, 1.0, -1.5], device=device).rgba()
+    np.testing.assert_allclose(out, 0.5, atol=1e-6)  # 1 + 1 - 1.5, not min(1 + 1, 1) - 1.5
+
+
 def test_modulate_formula(device):
     out = modulate(layer(RGB_A), layer(ALPHA, "topographic"), layer(RGB_B), device=device).rgba()
     np.testing.assert_allclose(out[..., :3], RGB_A * ALPHA[..., None] * RGB_B, atol=1e-6)
