@@ -152,8 +152,18 @@ def surface_normal(gradient: wp.vec2) -> wp.vec3:
 
 
 @wp.func
-def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.float32) -> wp.float32:
-    """Hillshade in [0, 1]: 0 standard (Lambert, clamped), 1 multidirectional, 2 combined (GDAL's variants)."""
+def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.float32,
+             azimuth: wp.float32) -> wp.float32:
+    """Hillshade in [0, 1]: 0 standard (Lambert, clamped), 1 multidirectional, 2 combined, 3 igor (GDAL's
+    variants, also MapLibre's ``hillshade-method``)."""
+    if method == 3:
+        # GDAL -igor: 1 - (slope / 90 deg) * (angle between the light's azimuth and the downhill aspect) / 180 deg
+        slope = wp.atan(wp.length(gradient))
+        diff = wp.abs(azimuth - wp.atan2(-gradient[0], -gradient[1]))
+        diff = diff - 6.283185307179586 * wp.floor(diff / 6.283185307179586)
+        if diff > 3.141592653589793:
+            diff = 6.283185307179586 - diff
+        return 1.0 - slope / 1.5707963267948966 * diff / 3.141592653589793
     if method == 1:
         n = surface_normal(gradient)
         # GDAL's multidirectional (after USGS OF 92-422): four lights at 225, 270, 315, 360 degrees, each
@@ -187,6 +197,7 @@ def shade_heights(
     grid: HeightGrid,
     light: wp.vec3,
     altitude: wp.float32,
+    azimuth: wp.float32,
     method: wp.int32,
     shadow: wp.array2d[wp.uint8],
     shadow_strength: wp.float32,
@@ -237,7 +248,7 @@ def shade_heights(
         for side in range(2):  # the row's border pixels, if this run holds them
             j = wp.where(side == 0, 0, grid.cols - 1)
             if j >= j0 and j < j1:
-                value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
                 if shadowed:
                     if shadow[i, j] != wp.uint8(0):
                         value = value * (1.0 - shadow_strength)
@@ -268,12 +279,12 @@ def shade_heights(
             if wp.isnan(e):
                 value = e
             elif wp.isnan(gradient[0]) or wp.isnan(gradient[1]):
-                value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
             elif method == 0:  # the common case inline: max(0, n . l)
                 value = wp.max((light[2] - gradient[0] * light[0] - gradient[1] * light[1])
                                / wp.sqrt(1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1]), 0.0)
             else:
-                value = shade_at(gradient, light, method, altitude)
+                value = shade_at(gradient, light, method, altitude, azimuth)
             a = b
             b = c
             d = e
@@ -285,7 +296,7 @@ def shade_heights(
             if wp.isnan(centre):
                 value = centre
             else:
-                value = shade_at(horn_gradient(grid, i, j), light, method, altitude)
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
             if interior_row and j + 1 < grid.cols:  # entering the interior: load the window's columns j, j+1
                 a = heights[i - 1, j]
                 d = centre

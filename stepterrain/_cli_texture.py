@@ -42,7 +42,7 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
-    p.add_argument("--method", default="standard", choices=("standard", "multidirectional", "combined"),
+    p.add_argument("--method", default="standard", choices=("standard", "multidirectional", "combined", "igor"),
                    help="hillshade variant as gdaldem/MapLibre define it (default standard)")
     p.add_argument("--azimuth", type=float, default=315.0, metavar="DEG",
                    help="light azimuth, degrees clockwise from north (default 315)")

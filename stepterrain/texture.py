@@ -56,7 +56,7 @@ __all__ = [
     "texture_uv",
 ]
 
-HILLSHADE_METHODS: tuple[str, ...] = ("standard", "multidirectional", "combined")
+HILLSHADE_METHODS: tuple[str, ...] = ("standard", "multidirectional", "combined", "igor")
 LAYER_KINDS: tuple[str, ...] = ("thematic", "luminance", "topographic", "visibility")
 BLEND_MODES: tuple[str, ...] = ("blend", "add", "modulate")
 DEFAULT_AZIMUTH = math.radians(315.0)
@@ -136,7 +136,7 @@ def hillshade(
     azimuth: float = DEFAULT_AZIMUTH,
     altitude: float = DEFAULT_ALTITUDE,
     z_factor: float = 1.0,
-    method: Literal["standard", "multidirectional", "combined"] = "standard",
+    method: Literal["standard", "multidirectional", "combined", "igor"] = "standard",
     shadows: bool = False,
     shadow_strength: float = 1.0,
     spacing: ArrayLike | None = None,
@@ -153,11 +153,13 @@ def hillshade(
         [0, π/2], radians (GDAL's defaults 315° and 45°).
     z_factor : float
         Vertical exaggeration applied to the heights (GDAL's ``-z``).
-    method : "standard", "multidirectional" or "combined"
+    method : "standard", "multidirectional", "combined" or "igor"
         GDAL's ``gdaldem hillshade`` variants: Lambert shading ``max(0, n·l)``; the USGS multidirectional
         blend of lights at 225°, 270°, 315° and 360° weighted by cos²(aspect − azimuth) (``-multidirectional``,
         MapLibre's ``hillshade-method: multidirectional``); slope and oblique shading combined,
-        ``1 − angle(n, l) · slope / (π/2)²`` (``-combined``, MapLibre's ``combined``).
+        ``1 − angle(n, l) · slope / (π/2)²`` (``-combined``, MapLibre's ``combined``); Igor's shading
+        ``1 − (slope / 90°) · (angle between the light's azimuth and the downhill aspect) / 180°``, which
+        ignores the altitude (``-igor``, MapLibre's ``igor``).
     shadows : bool
         Darken pixels that the terrain shadows from the light (see :func:`cast_shadows`) by ``shadow_strength``.
     shadow_strength : float
@@ -211,7 +213,8 @@ def hillshade(
         shadow = wp.empty((0, 0), dtype=wp.uint8, device=dev)
     runs = -(-grid.cols // texture_kernels.SHADE_RUN)
     launch(texture_kernels.shade_heights, dim=grid.rows * runs,
-           inputs=[grid, light, float(altitude), HILLSHADE_METHODS.index(method), shadow, float(shadow_strength)],
+           inputs=[grid, light, float(altitude), float(azimuth), HILLSHADE_METHODS.index(method), shadow,
+                   float(shadow_strength)],
            outputs=[out], device=dev)
     shade = _result(host, out)
     return shade

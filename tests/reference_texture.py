@@ -68,6 +68,10 @@ def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=A
     cos_i = lambert(p, q, azimuth, altitude)
     if method == "standard":
         out = np.maximum(cos_i, 0.0)
+    elif method == "igor":
+        slope = np.degrees(np.arctan(np.hypot(p, q)))
+        diff = np.abs((np.degrees(azimuth - np.arctan2(-p, -q)) + 180.0) % 360.0 - 180.0)
+        out = 1 - slope / 90 * diff / 180
     elif method == "combined":
         slope = np.arctan(np.hypot(p, q))
         out = np.clip(1 - np.arccos(np.clip(cos_i, -1, 1)) * slope / (math.pi / 2) ** 2, 0, 1)

@@ -53,7 +53,7 @@ def test_cli_texture_help_has_examples(capsys):
 
 @pytest.mark.parametrize("argv,match", [
     (["--altitude", "95"], "--altitude must lie in"),
-    (["--method", "igor"], "invalid choice"),
+    (["--method", "basic"], "invalid choice"),
     (["--mesh", "x.xyz"], "unknown extension"),
     (["--interval", "10"], "--interval applies only with"),
     (["--colormap", "nope"], "--colormap must name"),
