@@ -315,3 +315,21 @@ def test_render_draped_texture_orientation():
     textured = drape(mesh, TextureLayer("thematic", image, (-0.5, 10.5, -0.5, 10.5)))
     shot = render.render_textured_mesh(textured, window_size=(120, 120), camera="top", lighting=False)
     assert tuple(shot[30, 60]) == (255, 0, 0) and tuple(shot[90, 60]) == (0, 0, 255)
+
+
+@given(image=arrays(np.float32, (2, 3, 4), elements=hst.floats(0, 1, width=32)))
+def test_adjust_defaults_leave_the_layer_unchanged(image):
+    out = adjust(TextureLayer("thematic", image, EXTENT), device="cpu").rgba()
+    np.testing.assert_allclose(out, image, atol=2e-6)
+
+
+def test_drape_and_render_bad_input():
+    mesh = st.heightfield_mesh(np.zeros((3, 3)))
+    with pytest.raises(InvalidInputError, match="layer must be a TextureLayer"):
+        drape(mesh, np.ones((3, 3)))
+    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh"):
+        drape("mesh.glb", layer(RGB_A))
+    with pytest.raises(InvalidInputError, match="background must be"):
+        drape(mesh, layer(RGB_A), background=(2, 0, 0))
+    with pytest.raises(InvalidInputError, match="mesh has no texture"):
+        render.render_textured_mesh(mesh)
