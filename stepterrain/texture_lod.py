@@ -47,6 +47,7 @@ __all__ = [
     "TextureCache",
     "DrawItem",
     "render_with_textures",
+    "paint_with_textures",
     "visual_geometric_error",
     "visual_texture_error",
     "pyramid_shapes",
@@ -857,3 +858,59 @@ def _threshold(value: Any, name: str) -> float:
         raise InvalidInputError(f"{name} must be a finite number of pixels >= 0; got {value!r}")
     return number
 
+
+
+def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
+    """``paintWithTextures(N, T)`` (§4) as a mesh: the geometry patch at its level of detail (every
+    ``stride``-th node of its block, the last row and column kept) textured with the sub-image of the chosen
+    texture patch of ``layer`` (UVs through the patch's georeferenced window). Returns a ``trimesh.Trimesh``
+    (untextured when that layer has no texture patch yet).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stepterrain.texture_lod import (Camera, ImagePyramid, PatchQuadtree, TextureTree,
+    ...                                      paint_with_textures, render_with_textures)
+    >>> quadtree = PatchQuadtree(np.zeros((17, 17)), leaf_size=8)
+    >>> with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+    ...     tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+    ...     items = render_with_textures(quadtree.root, [tree.root], Camera((8, -30, 20), (8, 8, 0)))
+    ...     meshes = [paint_with_textures(item) for item in items]
+    >>> float(sum(m.area for m in meshes))   # the drawn patches tile the 16 x 16 domain
+    256.0
+    """
+    import trimesh
+
+    from .terrain import grid_faces
+    from .texture import TextureLayer, drape
+
+    patch = item.geometry
+    tree = _tree_of(item, layer)
+    terrain = tree.quadtree.terrain if tree is not None else None
+    if terrain is None:
+        raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
+    (r0, r1), (c0, c1) = patch.rows, patch.cols
+    rows = np.unique(np.r_[np.arange(r0, r1 + 1, patch.stride), r1])
+    cols = np.unique(np.r_[np.arange(c0, c1 + 1, patch.stride), c1])
+    dx, dy = terrain.spacing
+    jj, ii = np.meshgrid(cols, rows)
+    vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
+                                terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
+    faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    texture = item.textures[layer]
+    if texture is None:
+        return mesh
+    image = np.asarray(texture.image())
+    if image.shape[2] == 1:
+        texture_layer = TextureLayer("luminance", image[:, :, 0], texture.domain)
+    else:
+        texture_layer = TextureLayer("thematic", image, texture.domain)
+    return drape(mesh, texture_layer)
+
+
+def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:
+    if not 0 <= layer < len(item.textures):
+        raise InvalidInputError(f"layer must index the item's {len(item.textures)} texture layers; got {layer}")
+    texture = item.textures[layer]
+    return None if texture is None else texture.tree

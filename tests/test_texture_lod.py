@@ -327,3 +327,29 @@ def test_storage_file_of_pyramid_removed_on_close():
     assert folder.exists()
     pyramid.close()
     assert not folder.exists()
+
+
+def test_paint_with_textures_tiles_the_visible_terrain():
+    from stepterrain.texture_lod import paint_with_textures
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        xmin, xmax, ymin, ymax = quadtree.root.domain
+        above = Camera(((xmin + xmax) / 2, (ymin + ymax) / 2 - 1.0, quadtree.root.box[1, 2] + 30000.0),
+                       ((xmin + xmax) / 2, (ymin + ymax) / 2, quadtree.root.box[0, 2]), viewport=(640, 480))
+        draws = render_with_textures(quadtree.root, [tree.root], above, gamma_user=2.0, tau_user=2.0)
+        meshes = [paint_with_textures(item) for item in draws]
+        def xy_area(mesh):
+            e1 = mesh.triangles[:, 1, :2] - mesh.triangles[:, 0, :2]
+            e2 = mesh.triangles[:, 2, :2] - mesh.triangles[:, 0, :2]
+            return float(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()) / 2
+
+        projected = sum(xy_area(m) for m in meshes)
+        assert projected == pytest.approx((xmax - xmin) * (ymax - ymin), rel=1e-9)
+        for item, mesh in zip(draws, meshes, strict=True):
+            uv = mesh.visual.uv
+            assert uv.min() >= 0 and uv.max() <= 1
+            image = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+            np.testing.assert_array_equal(image, np.asarray(item.textures[0].image()))
+            # vertices lie on the terrain at their grid nodes
+            assert np.isin(mesh.vertices[:, 2], quadtree.terrain.heights).all()
