@@ -674,14 +674,21 @@ def topographic_layer(
 
 # ---------------------------------------------------------------------------------------------- operations
 def _frame(extent: Extent, shape: tuple[int, int]) -> texture_kernels.PixelFrame:
+    """Pixel centres relative to the local origin (xmin, ymax) of ``extent``: float32 stays precise for UTM."""
     xmin, xmax, ymin, ymax = extent
     rows, cols = shape
     frame = texture_kernels.PixelFrame()
     frame.rows, frame.cols = rows, cols
     px, py = (xmax - xmin) / cols, (ymax - ymin) / rows
-    frame.origin = wp.vec2(xmin + px / 2, ymax - py / 2)
+    frame.origin = wp.vec2(px / 2, -py / 2)
     frame.pixel = wp.vec2(px, -py)
     return frame
+
+
+def _local_matrix(matrix: NDArray[np.float64], extent: Extent) -> wp.mat33:
+    """A texture matrix taking local coordinates (relative to (xmin, ymax) of ``extent``), composed in float64."""
+    shift = np.array([[1.0, 0.0, extent[0]], [0.0, 1.0, extent[3]], [0.0, 0.0, 1.0]])
+    return wp.mat33(*(matrix @ shift).reshape(-1).tolist())
 
 
 def _as_layer(value: Any, like: TextureLayer | None, name: str) -> TextureLayer:
@@ -727,7 +734,7 @@ def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device
                                 "give layers over the same area, or border='edge'")
     out = wp.empty(shape, dtype=wp.vec4, device=device)
     launch(texture_kernels.sample_layer, dim=shape[0] * shape[1],
-           inputs=[_frame(extent, shape), image, wp.mat33(*layer.matrix.reshape(-1).tolist()),
+           inputs=[_frame(extent, shape), image, _local_matrix(layer.matrix, extent),
                    0 if layer.border == "edge" else 1], outputs=[out], device=device)
     return out
 
@@ -888,11 +895,12 @@ def adjust(
     params.split_position = _finite(split_position, "split_position", lo=0.0, hi=1.0)
     params.has_cutout = 0
     params.cutout = wp.vec4(0.0, 0.0, 0.0, 0.0)
-    if cutout is not None:
-        params.has_cutout = 1
-        params.cutout = wp.vec4(*_check_extent(cutout, "cutout"))
-    dev = resolve_device(device)
     extent, shape = layer.frame
+    if cutout is not None:
+        box = _check_extent(cutout, "cutout")
+        params.has_cutout = 1  # relative to the frame's local origin (xmin, ymax), like the pixel centres
+        params.cutout = wp.vec4(box[0] - extent[0], box[1] - extent[0], box[2] - extent[3], box[3] - extent[3])
+    dev = resolve_device(device)
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
     launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1],
            inputs=[_frame(extent, shape), _sampled(layer, extent, shape, dev, "layer"), params],

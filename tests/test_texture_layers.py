@@ -333,3 +333,16 @@ def test_drape_and_render_bad_input():
         drape(mesh, layer(RGB_A), background=(2, 0, 0))
     with pytest.raises(InvalidInputError, match="mesh has no texture"):
         render.render_textured_mesh(mesh)
+
+
+def test_sampling_is_precise_at_utm_coordinates(device):
+    # 0.1 m pixels 400 km from the origin: float32 world coordinates would be off by ~0.3 texel
+    x0, y0 = 400_000.0, 3_800_000.0
+    extent = (x0, x0 + 0.4, y0, y0 + 0.3)
+    ramp = np.tile(np.arange(4, dtype=np.float32) / 3, (3, 1))
+    base = TextureLayer("luminance", np.ones((3, 4), np.float32), extent)
+    shifted = TextureLayer("luminance", ramp, extent).moved(0.05, 0.0)  # half a texel east
+    out = modulate(base, shifted, device=device).rgba()[0, :, 0]
+    np.testing.assert_allclose(out, [0.0, 1 / 6, 0.5, 5 / 6], atol=1e-3)
+    cut = adjust(base, cutout=(x0 + 0.2, x0 + 0.4, y0, y0 + 0.3), device=device).rgba()[0, :, 3]
+    np.testing.assert_array_equal(cut, [1, 1, 0, 0])
