@@ -20,7 +20,7 @@ _EPILOG = """\
 examples:
   stepterrain texture --shadows -o out/texture.png
       hillshade (GDAL conventions, light from 315 deg at 45 deg) with self-shadowing, hypsometric colours
-  stepterrain texture dem.tif --method multidirectional --colormap none -o shade.png
+  stepterrain texture dem.tif --hillshade multidirectional --colormap none -o shade.png
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
@@ -42,8 +42,10 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
-    p.add_argument("--method", default="standard", choices=("standard", "multidirectional", "combined", "igor"),
-                   help="hillshade variant as gdaldem/MapLibre define it (default standard)")
+    p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
+                   choices=("standard", "multidirectional", "combined", "igor"),
+                   help="hillshade variant as gdaldem/MapLibre define it: standard, multidirectional, combined, "
+                        "igor (default standard)")
     p.add_argument("--azimuth", type=float, default=315.0, metavar="DEG",
                    help="light azimuth, degrees clockwise from north (default 315)")
     p.add_argument("--altitude", type=float, default=45.0, metavar="DEG",

@@ -35,7 +35,8 @@ def small_dem(tmp_path) -> Path:
 
 def test_cli_texture_png_and_glb(tmp_path, small_dem, capsys):
     out, mesh = tmp_path / "t.png", tmp_path / "t.glb"
-    code = main(["texture", str(small_dem), "--shadows", "--azimuth", "270", "--altitude", "20", "-o", str(out),
+    code = main(["texture", str(small_dem), "--hillshade", "combined", "--shadows", "--azimuth", "270",
+                 "--altitude", "20", "-o", str(out),
                  "--mesh", str(mesh), "--normals", str(tmp_path / "n.png"), "--device", "cpu"])
     assert code == 0, capsys.readouterr().err
     image = read_png(out)
@@ -53,7 +54,7 @@ def test_cli_texture_help_has_examples(capsys):
 
 @pytest.mark.parametrize("argv,match", [
     (["--altitude", "95"], "--altitude must lie in"),
-    (["--method", "basic"], "invalid choice"),
+    (["--hillshade", "basic"], "invalid choice"),
     (["--mesh", "x.xyz"], "unknown extension"),
     (["--interval", "10"], "--interval applies only with"),
     (["--colormap", "nope"], "--colormap must name"),
