@@ -73,6 +73,24 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     return shapes
 
 
+def _georeferenced_extent(image: Any) -> Extent | None:
+    """(xmin, xmax, ymin, ymax) of a GeoTIFF path from its own georeferencing (rasterio), else None."""
+    if not isinstance(image, (str, os.PathLike)) or Path(image).suffix.lower() not in (".tif", ".tiff"):
+        return None
+    try:
+        import rasterio
+    except ImportError:
+        return None
+    try:
+        with rasterio.open(image) as dataset:
+            if dataset.transform.is_identity or dataset.transform.b != 0 or dataset.transform.d != 0:
+                return None
+            left, bottom, right, top = dataset.bounds
+    except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
+        return None
+    return float(left), float(right), float(bottom), float(top)
+
+
 def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int]:
     """(array (H, W, C) uint8, backing file or None, byte offset of the data in it)."""
     path = None
@@ -142,7 +160,8 @@ class ImagePyramid:
         image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
             TIFF are read with Pillow)
         extent : (xmin, xmax, ymin, ymax), optional
-            World extent of the image's outer pixel edges (default: (0, W, 0, H), one unit per pixel).
+            World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
+            else (0, W, 0, H), one unit per pixel).
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`).
         anisotropic : bool
@@ -177,7 +196,7 @@ class ImagePyramid:
         source, backing, offset = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         if extent is None:
-            extent = (0.0, float(width), 0.0, float(height))
+            extent = _georeferenced_extent(image) or (0.0, float(width), 0.0, float(height))
         extent = _check_extent(extent)
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")

@@ -353,3 +353,19 @@ def test_paint_with_textures_tiles_the_visible_terrain():
             np.testing.assert_array_equal(image, np.asarray(item.textures[0].image()))
             # vertices lie on the terrain at their grid nodes
             assert np.isin(mesh.vertices[:, 2], quadtree.terrain.heights).all()
+
+
+def test_pyramid_of_a_georeferenced_geotiff():
+    pytest.importorskip("rasterio")
+    from .reference_texture import find_shared
+
+    path = find_shared("earth_day_bluemarble_3840x1920.tif")  # paletted GeoTIFF, EPSG:4326, whole globe
+    with ImagePyramid.build(path, device="cpu") as pyramid:
+        assert pyramid.extent == pytest.approx((-180.0, 180.0, -90.0, 90.0))
+        assert pyramid.levels[0].shape == (1920, 3840, 3) and pyramid.levels[-1].shape == (1, 1, 3)
+        assert pyramid.pixel_size(0) == pytest.approx((0.09375, 0.09375))
+        # the Pacific west of South America (lon -100, lat -20) is ocean: blue dominates at every level
+        for level in range(0, 6):
+            r0, r1, c0, c1 = pyramid.window(level, (-101.0, -99.0, -21.0, -19.0))
+            patch = np.asarray(pyramid.sub_image(level, (r0, r1, c0, c1)), dtype=float).reshape(-1, 3).mean(axis=0)
+            assert patch[2] > patch[0]
