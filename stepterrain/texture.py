@@ -464,7 +464,8 @@ def relight(
         raise InvalidInputError(f"point must be a finite (x, y, z); got {point!r}")
     t = _grid_terrain(terrain, spacing)
     if t.heights.shape != rgb.shape[:2]:
-        raise InvalidInputError(f"normals {rgb.shape[:2]} and terrain {t.heights.shape} must have the same size")
+        raise InvalidInputError(f"normals of shape {rgb.shape[:2]} do not match the terrain's {t.heights.shape} "
+                                "nodes (mismatched size); relight the normal map of this terrain")
     z_factor = _finite(z_factor, "z_factor", positive=True)
     grid = _height_grid(t, z_factor, dev)
     local = wp.vec3(float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]))

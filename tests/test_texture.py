@@ -203,5 +203,7 @@ def test_bad_relight_inputs():
     rgb = normal_map(np.zeros((3, 3)), device="cpu")
     with pytest.raises(InvalidInputError, match="point light needs terrain"):
         relight(rgb, point=(0, 0, 1))
+    with pytest.raises(InvalidInputError, match="mismatched size"):
+        relight(rgb, point=(0, 0, 1), terrain=np.zeros((4, 3)))
     with pytest.raises(InvalidInputError, match="not both"):
         relight(rgb, point=(0, 0, 1), azimuth=0.0, altitude=0.1, terrain=np.zeros((3, 3)))
