@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InvalidInputError, MissingDependencyError
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
-           "KEY_LIGHT_ELEVATION", "LayeredRenderer"]
+           "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
 
 #: Direction the key light comes from: azimuth clockwise from north (+y), radians (north-west).
 KEY_LIGHT_AZIMUTH = math.radians(315.0)
@@ -396,6 +396,107 @@ def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
     from .export import save_image
 
     return save_image(image, path)
+
+
+def render_textured_mesh(
+    mesh: trimesh.Trimesh,
+    *,
+    window_size: tuple[int, int] = (1280, 800),
+    z_scale: float = 1.0,
+    camera: CameraLike = "oblique",
+    background: str | tuple[float, float, float] = "white",
+    lighting: bool = True,
+    anti_aliasing: bool = False,
+    bounds: ArrayLike | None = None,
+) -> NDArray[np.uint8]:
+    """Render a mesh with its texture (``trimesh.visual.TextureVisuals``: UVs and a base-colour image) off-screen.
+
+    Same camera, lights and framing as :func:`render_mesh`. ``lighting=False`` shows the texture unlit (a
+    topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
+
+    Raises
+    ------
+    InvalidInputError
+        The mesh has no UVs or no texture image, or a bad window size, z_scale or camera.
+    MissingDependencyError
+        No off-screen OpenGL context can be made.
+    """
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    visual = mesh.visual
+    uv = getattr(visual, "uv", None)
+    material = getattr(visual, "material", None)
+    image = None
+    if material is not None:
+        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    if uv is None or image is None or len(uv) != len(mesh.vertices):
+        raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
+                                "(see stepterrain.texture.drape)")
+    if len(mesh.faces) == 0:
+        raise InvalidInputError("mesh has no faces; nothing to render")
+    try:
+        width, height = (int(v) for v in window_size)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+    if not (8 <= width <= 16384 and 8 <= height <= 16384):
+        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+    z_scale = float(z_scale)
+    if not math.isfinite(z_scale) or z_scale <= 0:
+        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    finite = np.isfinite(vertices).all(axis=1)
+    if bounds is None:
+        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
+    else:
+        box = np.asarray(bounds, dtype=np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+            raise InvalidInputError(
+                f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min; got {bounds!r}")
+        lo, hi = box[0], box[1]
+    centre = (lo + hi) / 2.0
+    local = vertices - centre
+    local[:, 2] *= z_scale
+    box = np.array([lo - centre, hi - centre])
+    box[:, 2] *= z_scale
+
+    pv = _import_pyvista()
+    poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
+    poly.active_texture_coordinates = np.ascontiguousarray(uv, dtype=np.float32)
+    picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
+    texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
+    plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
+    try:
+        if not plotter.render_window.SupportsOpenGL():
+            raise MissingDependencyError(
+                "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
+                "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
+            )
+        if anti_aliasing:
+            plotter.enable_anti_aliasing("msaa")
+        else:
+            plotter.disable_anti_aliasing()
+        plotter.set_background(background)
+        framed = _frame_points(local, finite) if bounds is None else _box_corners(box)
+        position = _camera_position(camera, framed, width / height)
+        look_from = np.subtract(position[0], position[1])
+        fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
+        if lighting:
+            for light in _lights(pv, box, fill):
+                plotter.add_light(light)
+        plotter.add_mesh(poly, texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
+                         diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
+        plotter.camera_position = position
+        plotter.camera.view_angle = _VIEW_ANGLE
+        seen = local[finite]
+        union = np.array([np.minimum(box[0], seen.min(axis=0)), np.maximum(box[1], seen.max(axis=0))])
+        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union)
+        shot = plotter.screenshot(return_img=True)
+    finally:
+        with contextlib.suppress(Exception):
+            plotter.close()
+    if shot is None or shot.ndim != 3 or shot.shape[:2] != (height, width):
+        raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
+    return np.ascontiguousarray(shot[:, :, :3], dtype=np.uint8)
 
 
 # ------------------------------------------------------------------------------------------ layered passes
