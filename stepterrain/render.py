@@ -589,10 +589,13 @@ class LayeredRenderer:
         finite = np.isfinite(vertices).all(axis=1)
         if len(faces) == 0 or not finite.any():
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
-        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
+        seen = vertices if finite.all() else vertices[finite]
+        lo, hi = seen.min(axis=0), seen.max(axis=0)
         if self._origin is None:
             self._origin = (lo + hi) / 2.0
         local = self._local(vertices)
+        local_box = np.array([lo, hi]) - self._origin
+        local_box[:, 2] *= self.z_scale  # z_scale > 0 keeps the order
         self._versions[name] = self._versions.get(name, 0) + 1
         kind = ("values" if values is not None else "rgb" if rgb is not None else "plain", len(local))
         previous = self._meshes.get(name)
@@ -606,7 +609,7 @@ class LayeredRenderer:
                 poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
             self._keys[name] = key
             self._bounds[name] = np.array([lo, hi])
-            self._local_bounds[name] = np.array([local[finite].min(axis=0), local[finite].max(axis=0)])
+            self._local_bounds[name] = local_box
             return
         self.remove(name)
         poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
@@ -626,7 +629,7 @@ class LayeredRenderer:
                                                     reset_camera=False, **kwargs)
         self._keys[name] = key
         self._bounds[name] = np.array([lo, hi])
-        self._local_bounds[name] = np.array([local[finite].min(axis=0), local[finite].max(axis=0)])
+        self._local_bounds[name] = local_box
 
     def remove(self, name: str) -> None:
         """Drop the mesh ``name`` if present."""
