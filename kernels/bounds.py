@@ -1,0 +1,217 @@
+"""Bounding shapes and refinement metrics of paper 003 (Adelsberger, §6-§7), as Warp device functions.
+
+A node's bounding shape B is either a sphere (centre p, radius r) or a cone frustum about the node's radial
+axis with concentrically curved top and bottom (radii |p| - h .. |p| + h, opening angle α around p/|p|).
+
+* :func:`eye_distance_sphere`, :func:`eye_distance_cone`: d(v, B), the distance of the eye v to the shape
+  (§7.2; the cone's six cases of Abb. 6).
+* :func:`plane_distance_sphere`, :func:`plane_distance_cone`: the largest signed distance ⟨n, x⟩ + a over the
+  shape (§7.3; the cone's three cases of Abb. 7). The smallest is minus the value for the inverted plane
+  (-n, -a): the shape lies wholly on the outer side iff the inverted plane's value is < 0.
+* :func:`node_metric`: μ = μ_geo · μ_dist · μ_clip (§7.4), each factor switchable in :class:`View`.
+
+Shape parameters arrive as float32; every formula runs in float64, so the float32 saturation margin that the
+preprocessing adds per level (relative 2^-20, paper §6: "Größenordnung 10^-6") always exceeds the rounding of
+the metric and the computed metric stays saturated: parent >= child, hence no hanging nodes.
+
+Planes use outward normals: a point x is inside the view frustum iff ⟨n_i, x⟩ + a_i <= 0 for all six i.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+HUGE = wp.constant(wp.float64(1.0e300))
+
+
+@wp.struct
+class View:
+    """What the refinement metric needs from a camera (eye and six planes, float64, planet-centred)."""
+
+    eye: wp.vec3d
+    planes: wp.array[wp.vec4d]  # (n_x, n_y, n_z, a): outward unit normal n and offset a
+    distance_scale: wp.float64  # ℓ: μ_dist = (ℓ / d)^2, so `error` is the geometric error tolerated at d = ℓ
+    error: wp.float64  # ε: a triangle refines when μ > ε (or ε == 0 and μ_clip == 1)
+    use_geometric: wp.int32
+    use_distance: wp.int32
+    use_clip: wp.int32
+    cone: wp.int32  # 1: cone frustums, 0: spheres
+
+
+@wp.func
+def to_vec3d(p: wp.vec3) -> wp.vec3d:
+    """float32 point -> float64 point."""
+    return wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+
+
+@wp.func
+def angle_between(u: wp.vec3d, v: wp.vec3d) -> wp.float64:
+    """Angle between two vectors in radians, accurate for small angles (atan2 of |u x v| and u . v)."""
+    return wp.atan2(wp.length(wp.cross(u, v)), wp.dot(u, v))
+
+
+@wp.func
+def eye_distance_sphere(p: wp.vec3d, r: wp.float64, eye: wp.vec3d) -> wp.float64:
+    """d(v, B_sphere) = ||p - v|| - r, clamped at 0 (paper 003 §7.2)."""
+    return wp.max(wp.length(p - eye) - r, wp.float64(0.0))
+
+
+@wp.func
+def eye_distance_cone(p: wp.vec3d, h: wp.float64, alpha: wp.float64, eye: wp.vec3d) -> wp.float64:
+    """d(v, B_cone): the six cases of paper 003 Abb. 6 (§7.2); 0 when the eye lies inside."""
+    p_len = wp.length(p)
+    v_len = wp.length(eye)
+    top = p_len + h
+    bottom = wp.max(p_len - h, wp.float64(0.0))
+    beta = angle_between(eye, p)
+    if beta <= alpha:
+        if v_len > top:  # case 1: above the top
+            return v_len - top
+        if v_len < bottom:  # case 3: below the bottom
+            return bottom - v_len
+        return wp.float64(0.0)  # case 2: inside
+    gamma = beta - alpha
+    half_pi = wp.float64(1.5707963267948966)
+    if gamma < half_pi:
+        cos_g = wp.cos(gamma)
+        t1 = bottom / cos_g
+        t2 = top / cos_g
+        if v_len >= t1 and v_len <= t2:  # case 5: the mantle
+            return v_len * wp.sin(gamma)
+        if v_len > t2:  # case 4: rim of the top
+            d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * top + top * top
+            return wp.sqrt(wp.max(d2, wp.float64(0.0)))
+    cos_g = wp.cos(gamma)  # case 6: rim of the bottom
+    d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * bottom + bottom * bottom
+    return wp.sqrt(wp.max(d2, wp.float64(0.0)))
+
+
+@wp.func
+def plane_distance_sphere(plane: wp.vec4d, p: wp.vec3d, r: wp.float64) -> wp.float64:
+    """Largest signed distance ⟨n, x⟩ + a over the sphere: ⟨n, p⟩ + a + r (paper 003 §7.3)."""
+    n = wp.vec3d(plane[0], plane[1], plane[2])
+    return wp.dot(n, p) + plane[3] + r
+
+
+@wp.func
+def plane_distance_cone(plane: wp.vec4d, p: wp.vec3d, h: wp.float64, alpha: wp.float64) -> wp.float64:
+    """Largest signed distance ⟨n, x⟩ + a over the cone frustum: the three cases of Abb. 7 (§7.3)."""
+    n = wp.vec3d(plane[0], plane[1], plane[2])
+    p_len = wp.length(p)
+    gamma = angle_between(n, p) - alpha
+    if gamma <= wp.float64(0.0):  # case 1: the top, straight along n
+        return plane[3] + (p_len + h)
+    cos_g = wp.cos(gamma)
+    if cos_g >= wp.float64(0.0):  # case 2: the rim of the top
+        return plane[3] + cos_g * (p_len + h)
+    return plane[3] + cos_g * wp.max(p_len - h, wp.float64(0.0))  # case 3: the rim of the bottom
+
+
+@wp.func
+def inverted(plane: wp.vec4d) -> wp.vec4d:
+    """The same plane with normal and offset negated."""
+    return wp.vec4d(-plane[0], -plane[1], -plane[2], -plane[3])
+
+
+@wp.func
+def shape_outside_view(view: View, p: wp.vec3d, r: wp.float64, h: wp.float64, alpha: wp.float64) -> wp.int32:
+    """1 when the node's bounding shape lies wholly outside one of the six planes (the inverted-plane test)."""
+    for k in range(view.planes.shape[0]):
+        plane = view.planes[k]
+        if view.cone != 0:
+            d2 = plane_distance_cone(inverted(plane), p, h, alpha)
+        else:
+            d2 = plane_distance_sphere(inverted(plane), p, r)
+        if d2 < wp.float64(0.0):
+            return 1
+    return 0
+
+
+@wp.func
+def triangle_outside_view(view: View, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.int32:
+    """1 when a flat triangle lies wholly outside one of the six planes (all three corners outside it)."""
+    for k in range(view.planes.shape[0]):
+        plane = view.planes[k]
+        n = wp.vec3d(plane[0], plane[1], plane[2])
+        if wp.dot(n, a) + plane[3] > wp.float64(0.0):
+            if wp.dot(n, b) + plane[3] > wp.float64(0.0):
+                if wp.dot(n, c) + plane[3] > wp.float64(0.0):
+                    return 1
+    return 0
+
+
+@wp.func
+def node_metric(
+    view: View, e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+) -> wp.float64:
+    """μ = μ_geo · μ_dist · μ_clip · μ_user of one node (paper 003 §7.4); each factor 1 when switched off.
+
+    μ_geo = e (saturated geometric error), μ_dist = (ℓ / d(v, B))^2 (HUGE when the eye touches B),
+    μ_clip = 0 when B lies wholly outside a frustum plane, else 1; μ_user = ``factor`` (a user metric).
+    """
+    p = to_vec3d(p32)
+    if view.use_clip != 0:
+        if shape_outside_view(view, p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            return wp.float64(0.0)
+    mu = factor
+    if mu <= wp.float64(0.0):
+        return wp.float64(0.0)
+    if view.use_geometric != 0:
+        mu = mu * wp.float64(e)
+        if mu <= wp.float64(0.0):
+            return wp.float64(0.0)
+    if view.use_distance != 0:
+        d = wp.float64(0.0)
+        if view.cone != 0:
+            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), view.eye)
+        else:
+            d = eye_distance_sphere(p, wp.float64(r), view.eye)
+        if d <= wp.float64(0.0):
+            return HUGE
+        q = view.distance_scale / d
+        mu = mu * q * q
+    return mu
+
+
+@wp.func
+def refine_node(
+    view: View, e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+) -> wp.int32:
+    """The refinement rule: μ > ε; with ε == 0 every node not clipped refines (full resolution where visible)."""
+    if view.error <= wp.float64(0.0):
+        if view.use_clip != 0:
+            if shape_outside_view(view, to_vec3d(p32), wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+                return 0
+        return 1
+    if node_metric(view, e, p32, r, h, alpha, factor) > view.error:
+        return 1
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# kernels used by tests and benchmarks to evaluate the formulas on many shapes at once
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def evaluate_shape_distances(
+    thread_offset: wp.int32,
+    centres: wp.array[wp.vec3d],
+    params: wp.array[wp.vec3d],  # (r, h, alpha)
+    eye: wp.vec3d,
+    plane: wp.vec4d,
+    # outputs
+    distances_out: wp.array[wp.vec4d],  # (eye-sphere, eye-cone, plane-sphere max, plane-cone max)
+):
+    """One thread per shape: the four distance formulas for one eye and one plane."""
+    i = wp.tid() + thread_offset
+    p = centres[i]
+    q = params[i]
+    distances_out[i] = wp.vec4d(
+        eye_distance_sphere(p, q[0], eye),
+        eye_distance_cone(p, q[1], q[2], eye),
+        plane_distance_sphere(plane, p, q[0]),
+        plane_distance_cone(plane, p, q[1], q[2]),
+    )
