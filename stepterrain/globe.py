@@ -389,7 +389,7 @@ class Globe:
         camera: Camera | None = None,
         bounds: Literal["cone", "sphere"] = "cone",
         metrics: Sequence[str | UserMetric] = METRICS,
-        distance_scale: float = 1000.0,
+        distance_scale: float | None = None,
         cull: bool = True,
         per_face: bool = False,
     ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
@@ -400,7 +400,8 @@ class Globe:
         error : float
             Refinement threshold ε >= 0: a triangle refines while μ(refinement node) > ε. Without a camera
             μ = e, the saturated geometric error in metres; with the distance metric μ = e · (ℓ / d)², so
-            ``error`` is the error tolerated at distance ℓ = ``distance_scale``. ``error=0`` refines every
+            ``error`` is the error in metres tolerated at distance ℓ = ``distance_scale`` from the eye, and
+            the tolerance grows with the square of the distance (§7.2). ``error=0`` refines every
             node not clipped: with no camera, the full-resolution sphere.
         camera : Camera, optional
             Eye and frustum for the distance and clip metrics (ignored without one).
@@ -410,8 +411,9 @@ class Globe:
             Any of "geometric", "distance", "clip" (§7.1-§7.3), multiplied (§7.4). A callable
             ``f(points (M, 3) float64, bounding_radius (M,)) -> (M,)`` is a user metric multiplied in per level; it
             must not grow from a node to its children (saturated), or cracks may appear.
-        distance_scale : float
-            ℓ in metres (see ``error``).
+        distance_scale : float, optional
+            ℓ in metres (see ``error``); default: the eye's altitude above the sphere of radius R, at least
+            one node spacing.
         cull : bool
             With the clip metric and a camera, drop leaf triangles wholly outside the frustum (the mesh then
             has a border where the view ends; without culling it stays closed).
@@ -447,6 +449,9 @@ class Globe:
             if np.linalg.norm(camera.eye) <= max(lowest, 0.0):
                 raise InvalidInputError(f"camera eye {camera.eye} lies inside the planet (|eye| = "
                                         f"{np.linalg.norm(camera.eye):.1f} m <= lowest node radius {lowest:.1f} m)")
+        if distance_scale is None:
+            altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
+            distance_scale = max(altitude, self.radius * math.pi / 2 / self.cells)
         view = _view(camera, error, names, bounds, _positive(distance_scale, "distance_scale"), self.device)
         return _extract(self._grid, self._params, view, users, self.levels, faces=6,
                         cull=bool(cull and camera is not None and "clip" in names), per_face=per_face,
@@ -672,7 +677,7 @@ def adaptive_mesh(
     camera: Camera | None = None,
     origin: tuple[float, float] = (0.0, 0.0),
     metrics: Sequence[str | UserMetric] = METRICS,
-    distance_scale: float = 1000.0,
+    distance_scale: float | None = None,
     cull: bool = True,
     device: wp.DeviceLike = None,
 ) -> trimesh.Trimesh:
@@ -693,8 +698,10 @@ def adaptive_mesh(
         Eye and frustum in the mesh's coordinates (origin included).
     origin : (x0, y0)
         Position of node (0, 0).
-    metrics, distance_scale, cull, device
+    metrics, cull, device
         As for :meth:`Globe.mesh`.
+    distance_scale : float, optional
+        ℓ for the distance metric; default: the eye's height above the highest node, at least one spacing.
 
     Returns
     -------
@@ -753,6 +760,9 @@ def adaptive_mesh(
         camera = Camera(eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),  # type: ignore[arg-type]
                         target=tuple(np.subtract(camera.target, (ox, oy, 0.0))),  # type: ignore[arg-type]
                         up=camera.up, fov=camera.fov, aspect=camera.aspect, near=camera.near, far=camera.far)
+    if distance_scale is None:
+        above = camera.eye[2] - float(z.max()) if camera is not None else 0.0
+        distance_scale = max(above, dx, dy)
     view = _view(camera, error, names, "sphere", _positive(distance_scale, "distance_scale"), device)
     mesh = _extract(grid, params, view, users, levels, faces=1,
                     cull=bool(cull and camera is not None and "clip" in names), per_face=False, device=device)
