@@ -35,7 +35,8 @@ from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import cubesphere as cube_kernels
 
-__all__ = ["Camera", "Globe", "adaptive_mesh", "EARTH_RADIUS", "METRICS"]
+__all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "elevation_colors", "look_from", "render_view",
+           "EARTH_RADIUS", "METRICS"]
 
 #: Mean earth radius in metres.
 EARTH_RADIUS = 6_371_000.0
@@ -773,3 +774,99 @@ def adaptive_mesh(
     if ox or oy:
         mesh.vertices = mesh.vertices + np.array([ox, oy, 0.0])
     return mesh
+
+
+# ------------------------------------------------------------------------------------------ colours
+def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
+    """(V, 4) uint8 RGBA per vertex: sea floor in blues by depth, land by matplotlib's 'terrain' (land part).
+
+    Examples
+    --------
+    >>> elevation_colors([-4000.0, 0.0, 3000.0]).shape
+    (3, 4)
+    """
+    import matplotlib
+
+    z = np.asarray(elevation, dtype=np.float64)
+    rgba = np.empty((len(z), 4), dtype=np.float64)
+    sea = z < 0
+    rgba[sea] = matplotlib.colormaps["Blues"](np.clip(0.85 - 0.5 * (-z[sea] / 6000.0), 0.3, 0.85) ** 0.9)
+    rgba[~sea] = matplotlib.colormaps["terrain"](0.25 + 0.75 * np.clip(z[~sea] / 5000.0, 0.0, 1.0))
+    return np.round(rgba * 255).astype(np.uint8)
+
+
+def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
+    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W),
+    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude).
+
+    Raises
+    ------
+    InvalidInputError
+        The image is not (H, W, 3|4) or cannot be read.
+    """
+    if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
+        from PIL import Image
+
+        try:
+            with Image.open(image) as picture:  # type: ignore[arg-type]
+                image = np.asarray(picture.convert("RGB"))
+        except OSError as exc:
+            raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
+    pixels = np.asarray(image)
+    if pixels.ndim != 3 or pixels.shape[2] not in (3, 4) or min(pixels.shape[:2]) < 2:
+        raise InvalidInputError(f"texture must be an (H, W, 3|4) image; got shape {pixels.shape}")
+    v = np.asarray(vertices, dtype=np.float64)
+    d = v / np.linalg.norm(v, axis=1, keepdims=True)
+    lat = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
+    lon = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    h, w = pixels.shape[:2]
+    fy = np.clip((90.0 - lat) / 180.0 * h - 0.5, 0, h - 1)
+    fx = ((lon + 180.0) / 360.0 * w - 0.5) % w
+    y0 = np.minimum(np.floor(fy).astype(int), h - 2)
+    x0 = np.floor(fx).astype(int) % w
+    x1 = (x0 + 1) % w
+    ty = (fy - y0)[:, None]
+    tx = (fx - np.floor(fx))[:, None]
+    p = pixels[..., :3].astype(np.float64)
+    top = (1 - tx) * p[y0, x0] + tx * p[y0, x1]
+    bottom = (1 - tx) * p[y0 + 1, x0] + tx * p[y0 + 1, x1]
+    rgb = (1 - ty) * top + ty * bottom
+    return np.column_stack([np.round(rgb).astype(np.uint8), np.full(len(v), 255, np.uint8)])
+
+
+def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float = 0.0, heading: float = 0.0,
+              fov: float = math.radians(30.0), aspect: float = 1.6, radius: float = EARTH_RADIUS) -> Camera:
+    """A camera at (latitude, longitude) in degrees, ``altitude`` metres above the sphere of ``radius``,
+    looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north) by ``tilt`` degrees.
+
+    Examples
+    --------
+    >>> cam = look_from(0.0, 0.0, 1.0e7)
+    >>> [round(v) for v in cam.eye]
+    [16371000, 0, 0]
+    """
+    la, lo = math.radians(latitude), math.radians(longitude)
+    outward = np.array([math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)])
+    east = np.array([-math.sin(lo), math.cos(lo), 0.0])
+    north = np.cross(outward, east)
+    eye = (radius + altitude) * outward
+    hd, tl = math.radians(heading), math.radians(tilt)
+    horizontal = math.cos(hd) * north + math.sin(hd) * east
+    forward = -math.cos(tl) * outward + math.sin(tl) * horizontal
+    up = math.cos(tl) * horizontal + math.sin(tl) * outward
+    target = eye + forward * max(altitude, 1.0)
+    return Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=fov, aspect=aspect,
+                  near=max(altitude * 1e-3, 1.0), far=2.0 * (radius + altitude) + radius)
+
+
+def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),
+                background: str = "black", show_edges: bool = False) -> NDArray[np.uint8]:
+    """Render a globe mesh off-screen from ``camera``'s eye towards its target (the render's vertical field of
+    view is :mod:`stepterrain.render`'s 30°: cameras from :func:`look_from` use the same by default)."""
+    from . import render
+
+    box = np.asarray(mesh.bounds, dtype=np.float64)
+    centre = box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``
+    position = [tuple(np.subtract(camera.eye, centre)), tuple(np.subtract(camera.target, centre)), camera.up]
+    return render.render_mesh(mesh, window_size=window_size, camera=position, background=background, bounds=box,
+                              show_edges=show_edges)
