@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 HUGE = wp.constant(wp.float64(1.0e300))
 
@@ -53,6 +53,28 @@ def angle_between(u: wp.vec3d, v: wp.vec3d) -> wp.float64:
 
 
 @wp.func
+def sin_cos(alpha: wp.float64) -> wp.vec2d:
+    """(sin α, cos α): Taylor series below 0.05 rad (error < 1e-17, no libm call), libm above."""
+    if alpha < wp.float64(0.05):
+        a2 = alpha * alpha
+        s = alpha * (wp.float64(1.0) - a2 / wp.float64(6.0) * (wp.float64(1.0) - a2 / wp.float64(20.0) * (
+            wp.float64(1.0) - a2 / wp.float64(42.0))))
+        c = wp.float64(1.0) - a2 / wp.float64(2.0) * (wp.float64(1.0) - a2 / wp.float64(12.0) * (
+            wp.float64(1.0) - a2 / wp.float64(30.0) * (wp.float64(1.0) - a2 / wp.float64(56.0))))
+        return wp.vec2d(s, c)
+    return wp.vec2d(wp.sin(alpha), wp.cos(alpha))
+
+
+@wp.func
+def offset_angle(u_hat: wp.vec3d, p_hat: wp.vec3d, alpha_sc: wp.vec2d) -> wp.vec2d:
+    """(sin γ, cos γ) of γ = β - α, β the angle between unit vectors u and p (no libm call): γ <= 0 iff
+    sin γ <= 0, and γ < 90° iff cos γ > 0 (β, α in [0, π])."""
+    cb = wp.dot(u_hat, p_hat)
+    sb = wp.length(wp.cross(u_hat, p_hat))
+    return wp.vec2d(sb * alpha_sc[1] - cb * alpha_sc[0], cb * alpha_sc[1] + sb * alpha_sc[0])
+
+
+@wp.func
 def eye_distance_sphere(p: wp.vec3d, r: wp.float64, eye: wp.vec3d) -> wp.float64:
     """d(v, B_sphere) = ||p - v|| - r, clamped at 0 (paper 003 §7.2)."""
     return wp.max(wp.length(p - eye) - r, wp.float64(0.0))
@@ -65,26 +87,24 @@ def eye_distance_cone(p: wp.vec3d, h: wp.float64, alpha: wp.float64, eye: wp.vec
     v_len = wp.length(eye)
     top = p_len + h
     bottom = wp.max(p_len - h, wp.float64(0.0))
-    beta = angle_between(eye, p)
-    if beta <= alpha:
+    if v_len <= wp.float64(0.0):
+        return bottom
+    g = offset_angle(eye / v_len, p / p_len, sin_cos(alpha))
+    sin_g = g[0]
+    cos_g = g[1]
+    if sin_g <= wp.float64(0.0):  # β <= α: the eye lies above, inside or below the frustum
         if v_len > top:  # case 1: above the top
             return v_len - top
         if v_len < bottom:  # case 3: below the bottom
             return bottom - v_len
         return wp.float64(0.0)  # case 2: inside
-    gamma = beta - alpha
-    half_pi = wp.float64(1.5707963267948966)
-    if gamma < half_pi:
-        cos_g = wp.cos(gamma)
-        t1 = bottom / cos_g
-        t2 = top / cos_g
-        if v_len >= t1 and v_len <= t2:  # case 5: the mantle
-            return v_len * wp.sin(gamma)
-        if v_len > t2:  # case 4: rim of the top
+    if cos_g > wp.float64(0.0):  # γ < 90°
+        if v_len * cos_g >= bottom and v_len * cos_g <= top:  # case 5: t1 <= |v| <= t2, the mantle
+            return v_len * sin_g
+        if v_len * cos_g > top:  # case 4: |v| > t2, rim of the top
             d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * top + top * top
             return wp.sqrt(wp.max(d2, wp.float64(0.0)))
-    cos_g = wp.cos(gamma)  # case 6: rim of the bottom
-    d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * bottom + bottom * bottom
+    d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * bottom + bottom * bottom  # case 6: rim of the bottom
     return wp.sqrt(wp.max(d2, wp.float64(0.0)))
 
 
@@ -96,17 +116,23 @@ def plane_distance_sphere(plane: wp.vec4d, p: wp.vec3d, r: wp.float64) -> wp.flo
 
 
 @wp.func
+def plane_distance_cone_unit(plane: wp.vec4d, p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64,
+                             alpha_sc: wp.vec2d) -> wp.float64:
+    """:func:`plane_distance_cone` with the axis p = p_len · p_hat and (sin α, cos α) given."""
+    n = wp.vec3d(plane[0], plane[1], plane[2])
+    g = offset_angle(n, p_hat, alpha_sc)
+    if g[0] <= wp.float64(0.0):  # case 1: γ <= 0, the top straight along n
+        return plane[3] + (p_len + h)
+    if g[1] >= wp.float64(0.0):  # case 2: 0 < γ <= 90°, the rim of the top
+        return plane[3] + g[1] * (p_len + h)
+    return plane[3] + g[1] * wp.max(p_len - h, wp.float64(0.0))  # case 3: the rim of the bottom
+
+
+@wp.func
 def plane_distance_cone(plane: wp.vec4d, p: wp.vec3d, h: wp.float64, alpha: wp.float64) -> wp.float64:
     """Largest signed distance ⟨n, x⟩ + a over the cone frustum: the three cases of Abb. 7 (§7.3)."""
-    n = wp.vec3d(plane[0], plane[1], plane[2])
     p_len = wp.length(p)
-    gamma = angle_between(n, p) - alpha
-    if gamma <= wp.float64(0.0):  # case 1: the top, straight along n
-        return plane[3] + (p_len + h)
-    cos_g = wp.cos(gamma)
-    if cos_g >= wp.float64(0.0):  # case 2: the rim of the top
-        return plane[3] + cos_g * (p_len + h)
-    return plane[3] + cos_g * wp.max(p_len - h, wp.float64(0.0))  # case 3: the rim of the bottom
+    return plane_distance_cone_unit(plane, p / p_len, p_len, h, sin_cos(alpha))
 
 
 @wp.func
@@ -117,14 +143,18 @@ def inverted(plane: wp.vec4d) -> wp.vec4d:
 
 @wp.func
 def shape_outside_view(view: View, p: wp.vec3d, r: wp.float64, h: wp.float64, alpha: wp.float64) -> wp.int32:
-    """1 when the node's bounding shape lies wholly outside one of the six planes (the inverted-plane test)."""
+    """1 when the node's bounding shape lies wholly outside one of the six planes (the inverted-plane test:
+    the largest distance over the shape from the inverted plane is < 0)."""
+    if view.cone != 0:
+        p_len = wp.length(p)
+        p_hat = p / p_len
+        alpha_sc = sin_cos(alpha)
+        for k in range(view.planes.shape[0]):
+            if plane_distance_cone_unit(inverted(view.planes[k]), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
+                return 1
+        return 0
     for k in range(view.planes.shape[0]):
-        plane = view.planes[k]
-        if view.cone != 0:
-            d2 = plane_distance_cone(inverted(plane), p, h, alpha)
-        else:
-            d2 = plane_distance_sphere(inverted(plane), p, r)
-        if d2 < wp.float64(0.0):
+        if plane_distance_sphere(inverted(view.planes[k]), p, r) < wp.float64(0.0):
             return 1
     return 0
 

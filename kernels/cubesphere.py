@@ -11,8 +11,9 @@ Conventions (shared with ``stepterrain.globe`` and ``tests/reference_globe.py``)
   so a node shared by two or three faces has the same w on each, and its float64 direction and float32
   position are bit-identical on every copy.
 * Longest-edge bisection (§5.1, Abb. 3): each face starts as the two right triangles split by its main
-  diagonal (0, 0)-(N, N). A triangle is (a, b, c) with hypotenuse a-b and apex c (entries); its refinement
-  node is m = (a + b) / 2 and its children are (c, a, m) and (b, c, m), which keeps the winding. A triangle
+  diagonal (0, 0)-(N, N). A triangle is (face, a, b, c) with hypotenuse a-b and apex c, each corner packed as
+  i << 16 | j (no integer division on the hot path); its refinement node is m = (a + b) / 2 and its children
+  are (c, a, m) and (b, c, m), which keeps the winding. A triangle
   at depth d has its refinement node at depth d; depth 2k triangles are the grid's cells' halves.
 * Node depth: with s the largest power of two dividing both i and j, a node with both i/s and j/s odd is a
   *diagonal* node (the centre of a 2s square, depth 2(k-1-log2 s)); otherwise an *axis* node (the midpoint of
@@ -32,15 +33,13 @@ import warp as wp
 
 from . import bounds
 
-wp.set_module_options({"enable_backward": False})
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
 
 #: Face frames (paper 003 §4 table): per face the images of the local x axis, local y axis and the outward
 #: normal as signed axis codes (+1 = +X, -2 = -Y, 3 = +Z, ...). Side 1 (x, y, z); side 2 (z, -y, x);
 #: side 3 (-y, z, -x); side 4 (-x, -z, -y); side 5 (-z, -x, y); side 6 (y, x, -z).
 FACE_FRAMES: Final = ((1, 2, 3), (3, -2, 1), (-3, -1, 2), (-1, -3, -2), (-2, 3, -1), (2, 1, -3))
 
-mat63i = wp.types.matrix(shape=(6, 3), dtype=wp.int32)
-FACE_FRAME_TABLE = wp.constant(mat63i(*[v for frame in FACE_FRAMES for v in frame]))
 
 #: Saturation margin added per level to r, h and α (paper 003 §6: "eine kleine Korrektur ... 10^-6").
 RELATIVE_MARGIN = wp.constant(wp.float64(2.0**-20))
@@ -91,25 +90,41 @@ class LatLonGrid:
 
 
 @wp.func
-def axis_vector(code: wp.int32) -> wp.vec3i:
-    """Signed axis code (+-1, +-2, +-3) -> integer unit vector."""
-    v = wp.vec3i(0, 0, 0)
-    sign = wp.int32(1)
-    if code < 0:
-        sign = -1
-    v[wp.abs(code) - 1] = sign
-    return v
+def frame_rotate(face: wp.int32, q: wp.vec3i) -> wp.vec3i:
+    """Face-local (x, y, z) -> 3D: the rows of the paper's table (§4; :data:`FACE_FRAMES`)."""
+    if face == 0:
+        return q
+    if face == 1:
+        return wp.vec3i(q[2], -q[1], q[0])
+    if face == 2:
+        return wp.vec3i(-q[1], q[2], -q[0])
+    if face == 3:
+        return wp.vec3i(-q[0], -q[2], -q[1])
+    if face == 4:
+        return wp.vec3i(-q[2], -q[0], q[1])
+    return wp.vec3i(q[1], q[0], -q[2])
 
 
 @wp.func
-def face_axis(face: wp.int32, k: wp.int32) -> wp.vec3i:
-    """k = 0: image of the local x axis, 1: local y axis, 2: the outward normal of ``face``."""
-    return axis_vector(FACE_FRAME_TABLE[face, k])
+def frame_unrotate(face: wp.int32, p: wp.vec3i) -> wp.vec3i:
+    """3D -> face-local (x, y, z): the inverse (transpose) of :func:`frame_rotate`."""
+    if face == 0:
+        return p
+    if face == 1:
+        return wp.vec3i(p[2], -p[1], p[0])
+    if face == 2:
+        return wp.vec3i(-p[2], -p[0], p[1])
+    if face == 3:
+        return wp.vec3i(-p[0], -p[2], -p[1])
+    if face == 4:
+        return wp.vec3i(-p[1], p[2], -p[0])
+    return wp.vec3i(p[1], p[0], -p[2])
 
 
 @wp.func
-def cube_point(face: wp.int32, i: wp.int32, j: wp.int32, cells: wp.int32) -> wp.vec3i:
-    """Integer cube point of face node (i, j); a node up to one face width outside is folded over the edge."""
+def local_point(i: wp.int32, j: wp.int32, cells: wp.int32) -> wp.vec3i:
+    """Face-local cube point (2j - N, 2i - N, N) of node (i, j); a node up to one face width outside the face
+    is folded over the edge onto the neighbouring face's plane."""
     x = 2 * j - cells
     y = 2 * i - cells
     z = cells
@@ -125,20 +140,23 @@ def cube_point(face: wp.int32, i: wp.int32, j: wp.int32, cells: wp.int32) -> wp.
     elif y < -cells:
         z = 2 * cells + y
         y = -cells
-    return x * face_axis(face, 0) + y * face_axis(face, 1) + z * face_axis(face, 2)
+    return wp.vec3i(x, y, z)
+
+
+@wp.func
+def cube_point(face: wp.int32, i: wp.int32, j: wp.int32, cells: wp.int32) -> wp.vec3i:
+    """Integer 3D cube point of face node (i, j) (folded over the edge when just outside the face)."""
+    return frame_rotate(face, local_point(i, j, cells))
 
 
 @wp.func
 def point_entry(point: wp.vec3i, cells: wp.int32, n: wp.int32) -> wp.int32:
     """The canonical entry of a cube point: on the lowest-numbered face that holds it."""
-    face = wp.int32(0)
     for f in range(6):
-        if wp.dot(face_axis(f, 2), point) == cells:
-            face = f
-            break
-    x = wp.dot(face_axis(face, 0), point)
-    y = wp.dot(face_axis(face, 1), point)
-    return face * n * n + ((y + cells) // 2) * n + (x + cells) // 2
+        q = frame_unrotate(f, point)
+        if q[2] == cells:
+            return f * n * n + ((q[1] + cells) // 2) * n + (q[0] + cells) // 2
+    return -1
 
 
 @wp.func
@@ -208,13 +226,44 @@ def sample_row(source: LatLonGrid, row: wp.int32, lon: wp.float64) -> wp.float32
 
 
 @wp.func
+def fast_atan2(y: wp.float64, x: wp.float64) -> wp.float64:
+    """atan2 to 4e-12 rad without a libm call: reduction to |t| <= tan(π/8), odd degree-13 polynomial."""
+    ax = wp.abs(x)
+    ay = wp.abs(y)
+    hi = wp.max(ax, ay)
+    if hi == wp.float64(0.0):
+        return wp.float64(0.0)
+    t = wp.min(ax, ay) / hi
+    base = wp.float64(0.0)
+    if t > wp.float64(0.41421356237309503):
+        t = (t - wp.float64(1.0)) / (t + wp.float64(1.0))
+        base = wp.float64(0.7853981633974483)
+    t2 = t * t
+    poly = wp.float64(0.04551206574864833)
+    poly = poly * t2 - wp.float64(0.0836889602155541)
+    poly = poly * t2 + wp.float64(0.11021707200600295)
+    poly = poly * t2 - wp.float64(0.14279647683533167)
+    poly = poly * t2 + wp.float64(0.19999786239682021)
+    poly = poly * t2 - wp.float64(0.33333329990609384)
+    poly = poly * t2 + wp.float64(0.9999999998481683)
+    r = base + t * poly
+    if ay > ax:
+        r = wp.float64(1.5707963267948966) - r
+    if x < wp.float64(0.0):
+        r = wp.float64(3.141592653589793) - r
+    if y < wp.float64(0.0):
+        r = -r
+    return r
+
+
+@wp.func
 def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
     """Bilinear elevation at a unit direction; between the first (last) row and the pole, a blend towards
     the pole value."""
     rows = source.elevation.shape[0]
     half_pi = wp.float64(1.5707963267948966)
-    lat = wp.asin(wp.clamp(direction[2], wp.float64(-1.0), wp.float64(1.0)))
-    lon = wp.atan2(direction[1], direction[0])
+    lat = fast_atan2(direction[2], wp.sqrt(direction[0] * direction[0] + direction[1] * direction[1]))
+    lon = fast_atan2(direction[1], direction[0])
     fr = (source.lat0 - lat) / source.dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
@@ -239,20 +288,24 @@ def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
 @wp.kernel
 def resample_latlon(
     thread_offset: wp.int32,
-    cells: wp.int32,
+    grid: CubeSphereGrid,
     source: LatLonGrid,
     exaggeration: wp.float32,
     # outputs
     heights_out: wp.array[wp.float32],
+    positions_out: wp.array[wp.vec3],
 ):
-    """One thread per entry: bilinear elevation of the node's direction, times the exaggeration."""
+    """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
+    projected position v = (R + z) · w / ||w|| rounded to float32 (§4)."""
     entry = wp.tid() + thread_offset
-    n = cells + 1
-    nn = n * n
+    nn = grid.n * grid.n
     face = entry // nn
     rest = entry - face * nn
-    direction = node_direction(cube_point(face, rest // n, rest % n, cells))
-    heights_out[entry] = exaggeration * sample_latlon(source, direction)
+    direction = node_direction(cube_point(face, rest // grid.n, rest % grid.n, grid.cells))
+    z = exaggeration * sample_latlon(source, direction)
+    heights_out[entry] = z
+    p = (grid.radius + wp.float64(z)) * direction
+    positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
 
 
 @wp.kernel
@@ -388,6 +441,23 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     return worst
 
 
+@wp.func
+def direction_angle(w: wp.vec3d, u: wp.vec3d) -> wp.float64:
+    """An upper bound of the angle between two integer cube points (exact products): tan θ while it is below
+    0.05 (over by < θ³/3, no libm call), else atan2."""
+    cross = wp.length(wp.cross(w, u))
+    dot = wp.dot(w, u)
+    if cross < wp.float64(0.05) * dot:
+        return cross / dot
+    return wp.atan2(cross, dot)
+
+
+@wp.func
+def to_vec3d_i(p: wp.vec3i) -> wp.vec3d:
+    """Integer point -> float64 point (exact)."""
+    return wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+
+
 @wp.kernel
 def saturate_node_parameters(
     thread_offset: wp.int32,
@@ -402,7 +472,11 @@ def saturate_node_parameters(
     cone_angle_out: wp.array[wp.float32],
 ):
     """One thread per node copy at ``depth``: e, r, h, α as the max over its children plus its own share,
-    with the level-wise margin that keeps saturation and nesting true in floating point (§6, §7.1)."""
+    with the level-wise margin that keeps saturation and nesting true in floating point (§6, §7.1).
+
+    r from the float32 positions (in float64); h from the heights, h(v) = max |z_v - z_c| + h(c) (§6); α from
+    the nodes' exact cube directions. The absolute margin |v| · 2^-22 per level covers the float32 rounding
+    of the positions the metrics see (< 0.45 m per node at the earth's radius)."""
     tid = wp.tid() + thread_offset
     face = tid // nodes_per_face
     node = depth_node(depth, tid - face * nodes_per_face, grid.cells)
@@ -410,24 +484,26 @@ def saturate_node_parameters(
     j = node[1]
     kind = node[2]
     s = node_spacing(depth, grid.cells)
-    entry = face * grid.n * grid.n + i * grid.n + j
-    p32 = grid.positions[entry]
-    v = bounds.to_vec3d(p32)
-    v_len = wp.length(v)
+    base = face * grid.n * grid.n
+    entry = base + i * grid.n + j
+    v = bounds.to_vec3d(grid.positions[entry])
+    z_v = wp.float64(grid.heights[entry])
     # 1-level look-ahead error of the hypotenuse (a, b) (§7.1, Abb. 5b)
     hyp = hypotenuse_offset(kind, s)
     a = wp.vec2i(i + hyp[0], j + hyp[1])
     b = wp.vec2i(i - hyp[0], j - hyp[1])
     e = wp.float64(0.0)
+    w_v = wp.vec3d(0.0, 0.0, 0.0)
     if grid.planar != 0:
         # planar: the true vertical error of both triangles of the diamond (never above the bound)
         apex = wp.vec2i(i + hyp[1], j - hyp[0])
         mate = wp.vec2i(i - hyp[1], j + hyp[0])
         e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
     else:
-        pa = bounds.to_vec3d(grid.positions[face * grid.n * grid.n + a[0] * grid.n + a[1]])
-        pb = bounds.to_vec3d(grid.positions[face * grid.n * grid.n + b[0] * grid.n + b[1]])
+        pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
+        pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
         e = wp.length(v - wp.float64(0.5) * (pa + pb))
+        w_v = to_vec3d_i(local_point(i, j, grid.cells))  # angles are invariant under the face's rotation
     r = wp.float64(0.0)
     h = wp.float64(0.0)
     alpha = wp.float64(0.0)
@@ -444,12 +520,15 @@ def saturate_node_parameters(
                 e = wp.max(e, wp.float64(params.geometric_error[child]))
                 r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
                 if grid.planar == 0:
-                    h = wp.max(h, wp.abs(v_len - wp.length(c)) + wp.float64(params.cone_height[child]))
-                    alpha = wp.max(alpha, bounds.angle_between(v, c) + wp.float64(params.cone_angle[child]))
+                    h = wp.max(h, wp.abs(z_v - wp.float64(grid.heights[child])) + wp.float64(params.cone_height[child]))
+                    w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
+                    alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child]))
     # rounding e up keeps "e <= error" a true statement about the float64 error
     geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
     if has_children != 0:
-        scale = v_len * ABSOLUTE_MARGIN
+        scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
+        if grid.planar != 0:
+            scale = wp.length(v) * ABSOLUTE_MARGIN
         bounding_radius_out[entry] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
         cone_height_out[entry] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
         cone_angle_out[entry] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
@@ -465,31 +544,31 @@ def saturate_node_parameters(
 
 
 @wp.func
-def entry_ij(grid: CubeSphereGrid, entry: wp.int32) -> wp.vec3i:
-    """(face, i, j) of an entry."""
-    nn = grid.n * grid.n
-    face = entry // nn
-    rest = entry - face * nn
-    return wp.vec3i(face, rest // grid.n, rest % grid.n)
+def unpack(corner: wp.int32) -> wp.vec2i:
+    """Packed corner i << 16 | j -> (i, j)."""
+    return wp.vec2i(corner >> 16, corner & 65535)
 
 
 @wp.func
-def owns_refinement_node(grid: CubeSphereGrid, triangle: wp.vec3i) -> wp.int32:
+def pack(i: wp.int32, j: wp.int32) -> wp.int32:
+    """(i, j) -> i << 16 | j."""
+    return (i << 16) | j
+
+
+@wp.func
+def owns_refinement_node(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.int32:
     """1 when this triangle, rather than its diamond mate across the hypotenuse, emits the new vertex: the
     one whose apex has the smaller cube point (lexicographic); a triangle without a mate owns it."""
-    a = entry_ij(grid, triangle[0])
-    b = entry_ij(grid, triangle[1])
-    c = entry_ij(grid, triangle[2])
-    mi = a[1] + b[1] - c[1]
-    mj = a[2] + b[2] - c[2]
+    mi = a[0] + b[0] - c[0]
+    mj = a[1] + b[1] - c[1]
     if grid.planar != 0:
         if in_grid(grid, mi, mj) == 0:
             return 1
-        if triangle[2] < c[0] * grid.n * grid.n + mi * grid.n + mj:
+        if pack(c[0], c[1]) < pack(mi, mj):
             return 1
         return 0
-    own = cube_point(c[0], c[1], c[2], grid.cells)
-    mate = cube_point(c[0], mi, mj, grid.cells)
+    own = cube_point(face, c[0], c[1], grid.cells)
+    mate = cube_point(face, mi, mj, grid.cells)
     for k in range(3):
         if own[k] < mate[k]:
             return 1
@@ -498,21 +577,13 @@ def owns_refinement_node(grid: CubeSphereGrid, triangle: wp.vec3i) -> wp.int32:
     return 0
 
 
-@wp.func
-def refinement_entry(grid: CubeSphereGrid, triangle: wp.vec3i) -> wp.int32:
-    """Entry (on the triangle's face) of its refinement node, the midpoint of the hypotenuse."""
-    a = entry_ij(grid, triangle[0])
-    b = entry_ij(grid, triangle[1])
-    return a[0] * grid.n * grid.n + ((a[1] + b[1]) // 2) * grid.n + (a[2] + b[2]) // 2
-
-
 @wp.kernel
 def count_refinement(
     thread_offset: wp.int32,
     grid: CubeSphereGrid,
     params: NodeParameters,
     view: bounds.View,
-    triangles: wp.array[wp.vec3i],
+    triangles: wp.array[wp.vec4i],
     can_refine: wp.int32,
     user_factors: wp.array[wp.float32],
     # outputs
@@ -524,17 +595,19 @@ def count_refinement(
     t = wp.tid() + thread_offset
     tri = triangles[t]
     refine = wp.int32(0)
+    owner = wp.int32(0)
     if can_refine != 0:
-        m = refinement_entry(grid, tri)
+        a = unpack(tri[1])
+        b = unpack(tri[2])
+        m = tri[0] * grid.n * grid.n + ((a[0] + b[0]) >> 1) * grid.n + ((a[1] + b[1]) >> 1)
         factor = wp.float64(1.0)
         if user_factors.shape[0] > 0:
             factor = wp.float64(user_factors[t])
         refine = bounds.refine_node(view, params.geometric_error[m], grid.positions[m], params.bounding_radius[m],
                                     params.cone_height[m], params.cone_angle[m], factor)
+        if refine != 0:
+            owner = owns_refinement_node(grid, tri[0], a, b, unpack(tri[3]))
     refine_out[t] = refine
-    owner = wp.int32(0)
-    if refine != 0:
-        owner = owns_refinement_node(grid, tri)
     owner_out[t] = owner
 
 
@@ -542,14 +615,14 @@ def count_refinement(
 def emit_refinement(
     thread_offset: wp.int32,
     grid: CubeSphereGrid,
-    triangles: wp.array[wp.vec3i],
+    triangles: wp.array[wp.vec4i],
     refine: wp.array[wp.int32],
     refine_offsets: wp.array[wp.int32],
     owner: wp.array[wp.int32],
     owner_offsets: wp.array[wp.int32],
     # outputs
-    children_out: wp.array[wp.vec3i],
-    leaves_out: wp.array[wp.vec3i],
+    children_out: wp.array[wp.vec4i],
+    leaves_out: wp.array[wp.vec4i],
     vertex_entries_out: wp.array[wp.int32],
 ):
     """One thread per triangle: its two children (c, a, m), (b, c, m) to the next level, or itself to the
@@ -557,12 +630,16 @@ def emit_refinement(
     t = wp.tid() + thread_offset
     tri = triangles[t]
     if refine[t] != 0:
-        m = refinement_entry(grid, tri)
+        a = unpack(tri[1])
+        b = unpack(tri[2])
+        mi = (a[0] + b[0]) >> 1
+        mj = (a[1] + b[1]) >> 1
+        m = pack(mi, mj)
         k = 2 * refine_offsets[t]
-        children_out[k] = wp.vec3i(tri[2], tri[0], m)
-        children_out[k + 1] = wp.vec3i(tri[1], tri[2], m)
+        children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
+        children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
         if owner[t] != 0:
-            vertex_entries_out[owner_offsets[t]] = canonical_entry(grid, m)
+            vertex_entries_out[owner_offsets[t]] = node_entry(grid, tri[0], mi, mj)
     else:
         leaves_out[t - refine_offsets[t]] = tri
 
@@ -583,13 +660,20 @@ def emit_vertices(
     vertices_out[k] = entry_position64(grid, entry)
 
 
+@wp.func
+def corner_position(grid: CubeSphereGrid, face: wp.int32, corner: wp.int32) -> wp.vec3d:
+    """float64 copy of the float32 position of a packed corner."""
+    ij = unpack(corner)
+    return bounds.to_vec3d(grid.positions[face * grid.n * grid.n + ij[0] * grid.n + ij[1]])
+
+
 @wp.kernel
 def count_kept_faces(
     thread_offset: wp.int32,
     grid: CubeSphereGrid,
     view: bounds.View,
     cull: wp.int32,
-    leaves: wp.array[wp.vec3i],
+    leaves: wp.array[wp.vec4i],
     # outputs
     counts_out: wp.array[wp.int32],
 ):
@@ -599,22 +683,29 @@ def count_kept_faces(
     keep = wp.int32(1)
     tri = leaves[t]
     if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
-        lo = wp.min(entry_ij(grid, tri[0]), wp.min(entry_ij(grid, tri[1]), entry_ij(grid, tri[2])))
-        if lo[1] >= grid.rows_valid - 1 or lo[2] >= grid.cols_valid - 1:
+        lo = wp.min(unpack(tri[1]), wp.min(unpack(tri[2]), unpack(tri[3])))
+        if lo[0] >= grid.rows_valid - 1 or lo[1] >= grid.cols_valid - 1:
             keep = 0  # in the padding
     if cull != 0 and keep != 0:
-        if bounds.triangle_outside_view(view, bounds.to_vec3d(grid.positions[tri[0]]),
-                                        bounds.to_vec3d(grid.positions[tri[1]]),
-                                        bounds.to_vec3d(grid.positions[tri[2]])) != 0:
+        if bounds.triangle_outside_view(view, corner_position(grid, tri[0], tri[1]),
+                                        corner_position(grid, tri[0], tri[2]),
+                                        corner_position(grid, tri[0], tri[3])) != 0:
             keep = 0
     counts_out[t] = keep
+
+
+@wp.func
+def corner_vertex(grid: CubeSphereGrid, vertex_id: wp.array[wp.int32], face: wp.int32, corner: wp.int32) -> wp.int32:
+    """Output vertex of a packed corner (through its canonical entry)."""
+    ij = unpack(corner)
+    return vertex_id[node_entry(grid, face, ij[0], ij[1])]
 
 
 @wp.kernel
 def emit_faces(
     thread_offset: wp.int32,
     grid: CubeSphereGrid,
-    leaves: wp.array[wp.vec3i],
+    leaves: wp.array[wp.vec4i],
     keep: wp.array[wp.int32],
     offsets: wp.array[wp.int32],
     vertex_id: wp.array[wp.int32],
@@ -627,9 +718,10 @@ def emit_faces(
     if keep[t] != 0:
         tri = leaves[t]
         k = offsets[t]
-        faces_out[k] = wp.vec3i(vertex_id[canonical_entry(grid, tri[0])], vertex_id[canonical_entry(grid, tri[1])],
-                                vertex_id[canonical_entry(grid, tri[2])])
-        face_index_out[k] = tri[0] // (grid.n * grid.n)
+        faces_out[k] = wp.vec3i(corner_vertex(grid, vertex_id, tri[0], tri[1]),
+                                corner_vertex(grid, vertex_id, tri[0], tri[2]),
+                                corner_vertex(grid, vertex_id, tri[0], tri[3]))
+        face_index_out[k] = tri[0]
 
 
 @wp.kernel

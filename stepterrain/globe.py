@@ -222,28 +222,15 @@ class Globe:
     device : wp.Device
     """
 
-    def __init__(self, heights: wp.array, cells: int, radius: float, exaggeration: float,
-                 device: wp.Device, source: str = "") -> None:
-        self.cells = cells
-        self.face_size = cells + 1
-        self.levels = 2 * int(round(math.log2(cells)))
-        self.radius = radius
+    def __init__(self, grid: Any, exaggeration: float, device: wp.Device, source: str = "") -> None:
+        self.cells = int(grid.cells)
+        self.face_size = self.cells + 1
+        self.levels = 2 * int(round(math.log2(self.cells)))
+        self.radius = float(grid.radius)
         self.exaggeration = exaggeration
         self.device = device
         self.source = source
-        n_entries = 6 * self.face_size**2
-        grid = cube_kernels.CubeSphereGrid()
-        grid.cells = cells
-        grid.n = self.face_size
-        grid.planar = 0
-        grid.radius = radius
-        grid.spacing = wp.vec2d(1.0, 1.0)
-        grid.rows_valid = self.face_size
-        grid.cols_valid = self.face_size
-        grid.heights = heights
-        grid.positions = wp.empty(n_entries, dtype=wp.vec3, device=device)
         self._grid = grid
-        launch(cube_kernels.project_nodes, n_entries, [grid], [grid.positions], device)
         self._params = _node_parameters(grid, faces=6, levels=self.levels, device=device)
 
     # -------------------------------------------------------------------------------------- builders
@@ -344,9 +331,19 @@ class Globe:
         source.north_pole = float(z[0].mean())
         source.south_pole = float(z[-1].mean())
         n_entries = 6 * (cells + 1) ** 2
-        heights = wp.empty(n_entries, dtype=wp.float32, device=device)
-        launch(cube_kernels.resample_latlon, n_entries, [cells, source, float(exaggeration)], [heights], device)
-        return cls(heights, cells, radius, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
+        grid = cube_kernels.CubeSphereGrid()
+        grid.cells = cells
+        grid.n = cells + 1
+        grid.planar = 0
+        grid.radius = radius
+        grid.spacing = wp.vec2d(1.0, 1.0)
+        grid.rows_valid = grid.n
+        grid.cols_valid = grid.n
+        grid.heights = wp.empty(n_entries, dtype=wp.float32, device=device)
+        grid.positions = wp.empty(n_entries, dtype=wp.vec3, device=device)
+        launch(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
+               [grid.heights, grid.positions], device)
+        return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
 
     @classmethod
     def sample(cls, *, face_size: int = 257, radius: float = EARTH_RADIUS, exaggeration: float = 1.0,
@@ -504,14 +501,16 @@ def _view(camera: Camera | None, error: float, names: set[str], bounds: str, sca
     return view
 
 
-def _root_triangles(cells: int, n: int, faces: int) -> NDArray[np.int32]:
-    """Two counter-clockwise right triangles per face split by the main diagonal: (a, b, c), a-b hypotenuse."""
-    corner = np.array([0, cells * n + cells, cells * n, cells])  # (0,0), (N,N), (i=N,j=0), (i=0,j=N)
+def _root_triangles(cells: int, faces: int) -> NDArray[np.int32]:
+    """Two counter-clockwise right triangles per face split by the main diagonal: (face, a, b, c), a-b the
+    hypotenuse, corners packed i << 16 | j."""
+    def pack(i: int, j: int) -> int:
+        return (i << 16) | j
+
     roots = []
     for f in range(faces):
-        base = f * n * n
-        roots.append([base + corner[0], base + corner[1], base + corner[2]])
-        roots.append([base + corner[1], base + corner[0], base + corner[3]])
+        roots.append([f, pack(0, 0), pack(cells, cells), pack(cells, 0)])
+        roots.append([f, pack(cells, cells), pack(0, 0), pack(0, cells)])
     return np.asarray(roots, dtype=np.int32)
 
 
@@ -557,10 +556,8 @@ def _user_factors(users: list[UserMetric], grid: Any, params: Any, triangles: wp
     """Per triangle, the product of the user metrics at its refinement node (one vectorised call per level)."""
     tris = triangles.numpy().astype(np.int64)
     n = grid.n
-    nn = n * n
-    face = tris[:, 0] // nn
-    a, b = tris[:, 0] - face * nn, tris[:, 1] - face * nn
-    m = face * nn + ((a // n + b // n) // 2) * n + (a % n + b % n) // 2
+    a, b = tris[:, 1], tris[:, 2]
+    m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
     points = grid.positions.numpy()[m].astype(np.float64)
     radius = params.bounding_radius.numpy()[m].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
@@ -577,7 +574,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
              per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Breadth-first refinement, one count -> scan -> emit per level, then vertices and faces."""
     n = grid.n
-    triangles = wp.array(_root_triangles(grid.cells, n, faces), dtype=wp.vec3i, device=device)
+    triangles = wp.array(_root_triangles(grid.cells, faces), dtype=wp.vec4i, device=device)
     no_factors = wp.zeros(0, dtype=wp.float32, device=device)
     leaf_chunks: list[wp.array] = []
     vertex_chunks = [wp.array(corner_entries(grid.cells, n, faces), dtype=wp.int32, device=device)]
@@ -593,9 +590,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
                [grid, params, view, triangles, int(depth < levels), factors], [refine, owner], device)
         refine_offsets, refined = exclusive_offsets(refine, "globe.refine")
         owner_offsets, owned = exclusive_offsets(owner, "globe.owner")
-        check_budget((2 * refined + count) * 12 + owned * 28, f"refinement level {depth}")
-        children = wp.empty(2 * refined, dtype=wp.vec3i, device=device)
-        leaves = wp.empty(count - refined, dtype=wp.vec3i, device=device)
+        check_budget((2 * refined + count) * 16 + owned * 28, f"refinement level {depth}")
+        children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
+        leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
         launch(cube_kernels.emit_refinement, count,
                [grid, triangles, refine, refine_offsets, owner, owner_offsets], [children, leaves, entries], device)
@@ -603,7 +600,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         vertex_chunks.append(entries)
         per_level.append(count)
         triangles = children
-    leaves = _concat(leaf_chunks, wp.vec3i, device)
+    leaves = _concat(leaf_chunks, wp.vec4i, device)
     entries = _concat(vertex_chunks, wp.int32, device)
     n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
