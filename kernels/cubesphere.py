@@ -20,7 +20,10 @@ Conventions (shared with ``stepterrain.globe`` and ``tests/reference_globe.py``)
   an axis-parallel edge of length 2s, depth one more). The four children of a diagonal node are (i ± s, j),
   (i, j ± s); of an axis node (i ± s/2, j ± s/2) (none when s = 1). Children across a face border are
   folded onto the neighbouring face, so the hierarchy runs across seams (§5.1: "Ränder gibt es nicht").
-* Every kernel takes ``thread_offset`` first (``stepterrain._device.launch``).
+* Every kernel takes ``thread_offset, count, chunk`` first: thread t handles elements
+  [(t + thread_offset)·chunk, ... + chunk) ∩ [0, count) (``stepterrain._device.launch`` splits the threads over
+  CPU cores). chunk is 1 on CUDA; on the CPU it is large, because Warp copies a kernel's arguments (here
+  structs of arrays, about 1 kB) once per thread.
 * The planar case (``planar = 1``): one face, positions (j·dx, i·dy, z), no folding; children and apexes
   outside the grid do not exist.
 """
@@ -80,6 +83,8 @@ class LatLonGrid:
     dlat: wp.float64  # > 0: radians per row, southwards
     lon0: wp.float64  # longitude of column 0's centre
     dlon: wp.float64  # > 0: radians per column, eastwards
+    inv_dlat: wp.float64  # 1 / dlat
+    inv_dlon: wp.float64  # 1 / dlon
     north_pole: wp.float32  # mean of row 0: the value at 90° N
     south_pole: wp.float32  # mean of the last row: the value at 90° S
 
@@ -180,7 +185,7 @@ def canonical_entry(grid: CubeSphereGrid, entry: wp.int32) -> wp.int32:
 def node_direction(point: wp.vec3i) -> wp.vec3d:
     """w / ||w|| in float64 from the integer cube point (exact sum of squares: bit-identical on seams)."""
     w = wp.vec3d(wp.float64(point[0]), wp.float64(point[1]), wp.float64(point[2]))
-    return w / wp.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    return w * (wp.float64(1.0) / wp.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
 
 
 @wp.func
@@ -216,12 +221,15 @@ def in_grid(grid: CubeSphereGrid, i: wp.int32, j: wp.int32) -> wp.int32:
 def sample_row(source: LatLonGrid, row: wp.int32, lon: wp.float64) -> wp.float32:
     """Linear interpolation along one row in longitude, wrapping around the antimeridian."""
     cols = source.elevation.shape[1]
-    fc = (lon - source.lon0) / source.dlon
+    fc = (lon - source.lon0) * source.inv_dlon
     fc = fc - wp.floor(fc / wp.float64(cols)) * wp.float64(cols)
     c0 = wp.int32(wp.floor(fc))
     t = wp.float32(fc - wp.float64(c0))
-    c0 = c0 % cols
-    c1 = (c0 + 1) % cols
+    if c0 >= cols:
+        c0 = c0 - cols
+    c1 = c0 + 1
+    if c1 >= cols:
+        c1 = 0
     return (1.0 - t) * source.elevation[row, c0] + t * source.elevation[row, c1]
 
 
@@ -264,7 +272,7 @@ def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
     half_pi = wp.float64(1.5707963267948966)
     lat = fast_atan2(direction[2], wp.sqrt(direction[0] * direction[0] + direction[1] * direction[1]))
     lon = fast_atan2(direction[1], direction[0])
-    fr = (source.lat0 - lat) / source.dlat
+    fr = (source.lat0 - lat) * source.inv_dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
         w = wp.float32(0.0)
@@ -288,6 +296,8 @@ def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
 @wp.kernel
 def resample_latlon(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     source: LatLonGrid,
     exaggeration: wp.float32,
@@ -297,28 +307,37 @@ def resample_latlon(
 ):
     """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
     projected position v = (R + z) · w / ||w|| rounded to float32 (§4)."""
-    entry = wp.tid() + thread_offset
-    nn = grid.n * grid.n
-    face = entry // nn
-    rest = entry - face * nn
-    direction = node_direction(cube_point(face, rest // grid.n, rest % grid.n, grid.cells))
-    z = exaggeration * sample_latlon(source, direction)
-    heights_out[entry] = z
-    p = (grid.radius + wp.float64(z)) * direction
-    positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for entry in range(first, last):
+        nn = grid.n * grid.n
+        # (face, i, j) by float64 reciprocals (exact for entry < 2^31: the +1e-9 fixes k·n·(1/n) = k - ε)
+        face = wp.int32(wp.float64(entry) * (wp.float64(1.0) / wp.float64(nn)) + wp.float64(1e-9))
+        rest = entry - face * nn
+        i = wp.int32(wp.float64(rest) * (wp.float64(1.0) / wp.float64(grid.n)) + wp.float64(1e-9))
+        j = rest - i * grid.n
+        direction = node_direction(cube_point(face, i, j, grid.cells))
+        z = exaggeration * sample_latlon(source, direction)
+        heights_out[entry] = z
+        p = (grid.radius + wp.float64(z)) * direction
+        positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
 
 
 @wp.kernel
 def project_nodes(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     # outputs
     positions_out: wp.array[wp.vec3],
 ):
     """One thread per entry: v = (R + z) · w / ||w|| rounded to float32 (planar: (j·dx, i·dy, z))."""
-    entry = wp.tid() + thread_offset
-    p = entry_position64(grid, entry)
-    positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for entry in range(first, last):
+        p = entry_position64(grid, entry)
+        positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -327,27 +346,47 @@ def project_nodes(
 
 
 @wp.func
-def depth_node(depth: wp.int32, local: wp.int32, cells: wp.int32) -> wp.vec3i:
-    """The local-th node of one face at ``depth``: (i, j, kind); kind 0/1 diagonal node whose hypotenuse is
-    the main / anti diagonal of its 2s square, 2 axis node with hypotenuse along i, 3 along j."""
-    t = depth // 2
+def depth_node(depth: wp.int32, tid: wp.int32, cells: wp.int32) -> wp.vec4i:
+    """Thread ``tid`` of the launch over ``depth`` -> (face, i, j, kind), or kind -1 for a padding thread.
+
+    Shifts and masks only (integer division is the costliest step of a CPU thread): per face 4^t slots at an
+    even depth (q² diagonal nodes, q = 2^t), 4^(t+1) at an odd one (two orientations of q x 2q slots for
+    q x (q + 1) axis nodes; the rest pad). kind 0/1: diagonal node whose hypotenuse is the main / anti
+    diagonal of its 2s square; 2: axis node with its hypotenuse along i; 3: along j."""
+    t = depth >> 1
     s = cells >> (t + 1)
-    q = wp.int32(1) << t
-    if depth % 2 == 0:
-        a = local // q
-        b = local % q
+    if (depth & 1) == 0:
+        shift = 2 * t
+        face = tid >> shift
+        local = tid & ((1 << shift) - 1)
+        a = local >> t
+        b = local & ((1 << t) - 1)
         kind = wp.int32(1)
-        if (a + b) % 2 == 0:
+        if ((a + b) & 1) == 0:
             kind = 0
-        return wp.vec3i(s * (2 * a + 1), s * (2 * b + 1), kind)
-    m = q * (q + 1)
-    if local < m:
-        a = local // (q + 1)
-        b = local % (q + 1)
-        return wp.vec3i(s * (2 * a + 1), 2 * s * b, 2)
-    a = (local - m) // (q + 1)
-    b = (local - m) % (q + 1)
-    return wp.vec3i(2 * s * b, s * (2 * a + 1), 3)
+        return wp.vec4i(face, s * (2 * a + 1), s * (2 * b + 1), kind)
+    shift = 2 * t + 2
+    face = tid >> shift
+    local = tid & ((1 << shift) - 1)
+    orientation = local >> (2 * t + 1)
+    rest = local & ((1 << (2 * t + 1)) - 1)
+    if orientation == 0:  # i = s(2a + 1), j = 2sb: b runs fastest, along a row
+        a = rest >> (t + 1)
+        b = rest & ((1 << (t + 1)) - 1)
+        if b > (1 << t):
+            return wp.vec4i(face, 0, 0, -1)
+        return wp.vec4i(face, s * (2 * a + 1), 2 * s * b, 2)
+    b = rest >> t  # i = 2sb, j = s(2a + 1): a runs fastest, along a row (memory order)
+    a = rest & ((1 << t) - 1)
+    if b > (1 << t):
+        return wp.vec4i(face, 0, 0, -1)
+    return wp.vec4i(face, 2 * s * b, s * (2 * a + 1), 3)
+
+
+def depth_slots(depth: int) -> int:
+    """Threads per face of the launch over ``depth`` (host side twin of :func:`depth_node`)."""
+    t = depth >> 1
+    return 1 << (2 * t) if depth % 2 == 0 else 1 << (2 * t + 2)
 
 
 @wp.func
@@ -461,9 +500,11 @@ def to_vec3d_i(p: wp.vec3i) -> wp.vec3d:
 @wp.kernel
 def saturate_node_parameters(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     depth: wp.int32,
-    nodes_per_face: wp.int32,
+    angles: wp.int32,  # 1: compute α (face 0 only; by the cube's rotation symmetry the other faces copy it)
     params: NodeParameters,  # read: the children's values (depth + 1, already done)
     # outputs
     geometric_error_out: wp.array[wp.float32],
@@ -477,65 +518,83 @@ def saturate_node_parameters(
     r from the float32 positions (in float64); h from the heights, h(v) = max |z_v - z_c| + h(c) (§6); α from
     the nodes' exact cube directions. The absolute margin |v| · 2^-22 per level covers the float32 rounding
     of the positions the metrics see (< 0.45 m per node at the earth's radius)."""
-    tid = wp.tid() + thread_offset
-    face = tid // nodes_per_face
-    node = depth_node(depth, tid - face * nodes_per_face, grid.cells)
-    i = node[0]
-    j = node[1]
-    kind = node[2]
-    s = node_spacing(depth, grid.cells)
-    base = face * grid.n * grid.n
-    entry = base + i * grid.n + j
-    v = bounds.to_vec3d(grid.positions[entry])
-    z_v = wp.float64(grid.heights[entry])
-    # 1-level look-ahead error of the hypotenuse (a, b) (§7.1, Abb. 5b)
-    hyp = hypotenuse_offset(kind, s)
-    a = wp.vec2i(i + hyp[0], j + hyp[1])
-    b = wp.vec2i(i - hyp[0], j - hyp[1])
-    e = wp.float64(0.0)
-    w_v = wp.vec3d(0.0, 0.0, 0.0)
-    if grid.planar != 0:
-        # planar: the true vertical error of both triangles of the diamond (never above the bound)
-        apex = wp.vec2i(i + hyp[1], j - hyp[0])
-        mate = wp.vec2i(i - hyp[1], j + hyp[0])
-        e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
-    else:
-        pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
-        pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
-        e = wp.length(v - wp.float64(0.5) * (pa + pb))
-        w_v = to_vec3d_i(local_point(i, j, grid.cells))  # angles are invariant under the face's rotation
-    r = wp.float64(0.0)
-    h = wp.float64(0.0)
-    alpha = wp.float64(0.0)
-    has_children = wp.int32(0)
-    for k in range(4):
-        d = child_offset(kind, s, k)
-        if d[0] != 0 or d[1] != 0:
-            ci = i + d[0]
-            cj = j + d[1]
-            if in_grid(grid, ci, cj) != 0:
-                has_children = 1
-                child = node_entry(grid, face, ci, cj)
-                c = bounds.to_vec3d(grid.positions[child])
-                e = wp.max(e, wp.float64(params.geometric_error[child]))
-                r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
-                if grid.planar == 0:
-                    h = wp.max(h, wp.abs(z_v - wp.float64(grid.heights[child])) + wp.float64(params.cone_height[child]))
-                    w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
-                    alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child]))
-    # rounding e up keeps "e <= error" a true statement about the float64 error
-    geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
-    if has_children != 0:
-        scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for slot in range(first, last):
+        node = depth_node(depth, slot, grid.cells)
+        kind = node[3]
+        if kind < 0:
+            continue
+        face = node[0]
+        i = node[1]
+        j = node[2]
+        s = node_spacing(depth, grid.cells)
+        nn = grid.n * grid.n
+        base = face * nn
+        entry = base + i * grid.n + j
+        with_angle = wp.int32(0)
+        if angles != 0 and face == 0:
+            with_angle = 1
+        v = bounds.to_vec3d(grid.positions[entry])
+        z_v = wp.float64(grid.heights[entry])
+        # 1-level look-ahead error of the hypotenuse (a, b) (§7.1, Abb. 5b)
+        hyp = hypotenuse_offset(kind, s)
+        a = wp.vec2i(i + hyp[0], j + hyp[1])
+        b = wp.vec2i(i - hyp[0], j - hyp[1])
+        e = wp.float64(0.0)
+        w_v = wp.vec3d(0.0, 0.0, 0.0)
         if grid.planar != 0:
-            scale = wp.length(v) * ABSOLUTE_MARGIN
-        bounding_radius_out[entry] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
-        cone_height_out[entry] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
-        cone_angle_out[entry] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
-    else:
-        bounding_radius_out[entry] = wp.float32(0.0)
-        cone_height_out[entry] = wp.float32(0.0)
-        cone_angle_out[entry] = wp.float32(0.0)
+            # planar: the true vertical error of both triangles of the diamond (never above the bound)
+            apex = wp.vec2i(i + hyp[1], j - hyp[0])
+            mate = wp.vec2i(i - hyp[1], j + hyp[0])
+            e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
+        else:
+            pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
+            pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
+            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            if with_angle != 0:
+                w_v = to_vec3d_i(local_point(i, j, grid.cells))  # angles are invariant under the face's rotation
+        r = wp.float64(0.0)
+        h = wp.float64(0.0)
+        alpha = wp.float64(0.0)
+        has_children = wp.int32(0)
+        for k in range(4):
+            d = child_offset(kind, s, k)
+            if d[0] != 0 or d[1] != 0:
+                ci = i + d[0]
+                cj = j + d[1]
+                if grid.planar == 0 or (ci >= 0 and ci <= grid.cells and cj >= 0 and cj <= grid.cells):
+                    has_children = 1
+                    child = wp.int32(0)
+                    child_local = wp.int32(0)  # the child's (i, j) on its own face: where face 0 keeps its α
+                    if grid.planar != 0 or (ci > 0 and ci < grid.cells and cj > 0 and cj < grid.cells):
+                        child_local = ci * grid.n + cj
+                        child = base + child_local
+                    else:
+                        child = point_entry(cube_point(face, ci, cj, grid.cells), grid.cells, grid.n)
+                        child_local = child % nn
+                    c = bounds.to_vec3d(grid.positions[child])
+                    e = wp.max(e, wp.float64(params.geometric_error[child]))
+                    r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
+                    if grid.planar == 0:
+                        h = wp.max(h, wp.abs(z_v - wp.float64(grid.heights[child])) + wp.float64(params.cone_height[child]))
+                        if with_angle != 0:
+                            w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
+                            alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child_local]))
+        # rounding e up keeps "e <= error" a true statement about the float64 error
+        geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
+        if has_children != 0:
+            scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
+            if grid.planar != 0:
+                scale = wp.length(v) * ABSOLUTE_MARGIN
+            bounding_radius_out[entry] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            cone_height_out[entry] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            if with_angle != 0:
+                cone_angle_out[entry] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
+        else:
+            bounding_radius_out[entry] = wp.float32(0.0)
+            cone_height_out[entry] = wp.float32(0.0)
+            cone_angle_out[entry] = wp.float32(0.0)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -580,6 +639,8 @@ def owns_refinement_node(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: w
 @wp.kernel
 def count_refinement(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     params: NodeParameters,
     view: bounds.View,
@@ -592,28 +653,32 @@ def count_refinement(
 ):
     """One thread per triangle: 1 when it refines (its refinement node's metric exceeds the error), and
     whether it emits that node as a new vertex."""
-    t = wp.tid() + thread_offset
-    tri = triangles[t]
-    refine = wp.int32(0)
-    owner = wp.int32(0)
-    if can_refine != 0:
-        a = unpack(tri[1])
-        b = unpack(tri[2])
-        m = tri[0] * grid.n * grid.n + ((a[0] + b[0]) >> 1) * grid.n + ((a[1] + b[1]) >> 1)
-        factor = wp.float64(1.0)
-        if user_factors.shape[0] > 0:
-            factor = wp.float64(user_factors[t])
-        refine = bounds.refine_node(view, params.geometric_error[m], grid.positions[m], params.bounding_radius[m],
-                                    params.cone_height[m], params.cone_angle[m], factor)
-        if refine != 0:
-            owner = owns_refinement_node(grid, tri[0], a, b, unpack(tri[3]))
-    refine_out[t] = refine
-    owner_out[t] = owner
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        tri = triangles[t]
+        refine = wp.int32(0)
+        owner = wp.int32(0)
+        if can_refine != 0:
+            a = unpack(tri[1])
+            b = unpack(tri[2])
+            m = tri[0] * grid.n * grid.n + ((a[0] + b[0]) >> 1) * grid.n + ((a[1] + b[1]) >> 1)
+            factor = wp.float64(1.0)
+            if user_factors.shape[0] > 0:
+                factor = wp.float64(user_factors[t])
+            refine = bounds.refine_node(view, params.geometric_error[m], grid.positions[m], params.bounding_radius[m],
+                                        params.cone_height[m], params.cone_angle[m], factor)
+            if refine != 0:
+                owner = owns_refinement_node(grid, tri[0], a, b, unpack(tri[3]))
+        refine_out[t] = refine
+        owner_out[t] = owner
 
 
 @wp.kernel
 def emit_refinement(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     triangles: wp.array[wp.vec4i],
     refine: wp.array[wp.int32],
@@ -627,26 +692,30 @@ def emit_refinement(
 ):
     """One thread per triangle: its two children (c, a, m), (b, c, m) to the next level, or itself to the
     leaves; the owner of a new refinement node writes its canonical entry."""
-    t = wp.tid() + thread_offset
-    tri = triangles[t]
-    if refine[t] != 0:
-        a = unpack(tri[1])
-        b = unpack(tri[2])
-        mi = (a[0] + b[0]) >> 1
-        mj = (a[1] + b[1]) >> 1
-        m = pack(mi, mj)
-        k = 2 * refine_offsets[t]
-        children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
-        children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
-        if owner[t] != 0:
-            vertex_entries_out[owner_offsets[t]] = node_entry(grid, tri[0], mi, mj)
-    else:
-        leaves_out[t - refine_offsets[t]] = tri
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        tri = triangles[t]
+        if refine[t] != 0:
+            a = unpack(tri[1])
+            b = unpack(tri[2])
+            mi = (a[0] + b[0]) >> 1
+            mj = (a[1] + b[1]) >> 1
+            m = pack(mi, mj)
+            k = 2 * refine_offsets[t]
+            children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
+            children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
+            if owner[t] != 0:
+                vertex_entries_out[owner_offsets[t]] = node_entry(grid, tri[0], mi, mj)
+        else:
+            leaves_out[t - refine_offsets[t]] = tri
 
 
 @wp.kernel
 def emit_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     entries: wp.array[wp.int32],
     # outputs
@@ -654,10 +723,12 @@ def emit_vertices(
     vertices_out: wp.array[wp.vec3d],
 ):
     """One thread per output vertex: its float64 position, and its index in the entry -> vertex table."""
-    k = wp.tid() + thread_offset
-    entry = entries[k]
-    vertex_id_out[entry] = k
-    vertices_out[k] = entry_position64(grid, entry)
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        entry = entries[k]
+        vertex_id_out[entry] = k
+        vertices_out[k] = entry_position64(grid, entry)
 
 
 @wp.func
@@ -670,6 +741,8 @@ def corner_position(grid: CubeSphereGrid, face: wp.int32, corner: wp.int32) -> w
 @wp.kernel
 def count_kept_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     view: bounds.View,
     cull: wp.int32,
@@ -679,19 +752,21 @@ def count_kept_faces(
 ):
     """One thread per leaf triangle: 0 when culling is on and the triangle lies wholly outside a plane, or
     when it lies in the padding of a planar input."""
-    t = wp.tid() + thread_offset
-    keep = wp.int32(1)
-    tri = leaves[t]
-    if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
-        lo = wp.min(unpack(tri[1]), wp.min(unpack(tri[2]), unpack(tri[3])))
-        if lo[0] >= grid.rows_valid - 1 or lo[1] >= grid.cols_valid - 1:
-            keep = 0  # in the padding
-    if cull != 0 and keep != 0:
-        if bounds.triangle_outside_view(view, corner_position(grid, tri[0], tri[1]),
-                                        corner_position(grid, tri[0], tri[2]),
-                                        corner_position(grid, tri[0], tri[3])) != 0:
-            keep = 0
-    counts_out[t] = keep
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        keep = wp.int32(1)
+        tri = leaves[t]
+        if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
+            lo = wp.min(unpack(tri[1]), wp.min(unpack(tri[2]), unpack(tri[3])))
+            if lo[0] >= grid.rows_valid - 1 or lo[1] >= grid.cols_valid - 1:
+                keep = 0  # in the padding
+        if cull != 0 and keep != 0:
+            if bounds.triangle_outside_view(view, corner_position(grid, tri[0], tri[1]),
+                                            corner_position(grid, tri[0], tri[2]),
+                                            corner_position(grid, tri[0], tri[3])) != 0:
+                keep = 0
+        counts_out[t] = keep
 
 
 @wp.func
@@ -704,6 +779,8 @@ def corner_vertex(grid: CubeSphereGrid, vertex_id: wp.array[wp.int32], face: wp.
 @wp.kernel
 def emit_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     grid: CubeSphereGrid,
     leaves: wp.array[wp.vec4i],
     keep: wp.array[wp.int32],
@@ -714,33 +791,42 @@ def emit_faces(
     face_index_out: wp.array[wp.int32],
 ):
     """One thread per leaf triangle: its kept face as output vertex indices, and its cube face."""
-    t = wp.tid() + thread_offset
-    if keep[t] != 0:
-        tri = leaves[t]
-        k = offsets[t]
-        faces_out[k] = wp.vec3i(corner_vertex(grid, vertex_id, tri[0], tri[1]),
-                                corner_vertex(grid, vertex_id, tri[0], tri[2]),
-                                corner_vertex(grid, vertex_id, tri[0], tri[3]))
-        face_index_out[k] = tri[0]
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        if keep[t] != 0:
+            tri = leaves[t]
+            k = offsets[t]
+            faces_out[k] = wp.vec3i(corner_vertex(grid, vertex_id, tri[0], tri[1]),
+                                    corner_vertex(grid, vertex_id, tri[0], tri[2]),
+                                    corner_vertex(grid, vertex_id, tri[0], tri[3]))
+            face_index_out[k] = tri[0]
 
 
 @wp.kernel
 def mark_used_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     faces: wp.array[wp.vec3i],
     # outputs
     used_out: wp.array[wp.int32],
 ):
     """One thread per face: mark its three vertices used (every writer writes 1)."""
-    f = faces[wp.tid() + thread_offset]
-    used_out[f[0]] = 1
-    used_out[f[1]] = 1
-    used_out[f[2]] = 1
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for slot in range(first, last):
+        f = faces[slot]
+        used_out[f[0]] = 1
+        used_out[f[1]] = 1
+        used_out[f[2]] = 1
 
 
 @wp.kernel
 def emit_used_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     vertices: wp.array[wp.vec3d],
     entries: wp.array[wp.int32],
     used: wp.array[wp.int32],
@@ -750,21 +836,27 @@ def emit_used_vertices(
     entries_out: wp.array[wp.int32],
 ):
     """One thread per vertex: copy it to its compacted slot when a face uses it."""
-    k = wp.tid() + thread_offset
-    if used[k] != 0:
-        vertices_out[offsets[k]] = vertices[k]
-        entries_out[offsets[k]] = entries[k]
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        if used[k] != 0:
+            vertices_out[offsets[k]] = vertices[k]
+            entries_out[offsets[k]] = entries[k]
 
 
 @wp.kernel
 def remap_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     faces: wp.array[wp.vec3i],
     offsets: wp.array[wp.int32],
     # outputs
     faces_out: wp.array[wp.vec3i],
 ):
     """One thread per face: vertex indices after compaction."""
-    t = wp.tid() + thread_offset
-    f = faces[t]
-    faces_out[t] = wp.vec3i(offsets[f[0]], offsets[f[1]], offsets[f[2]])
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        f = faces[t]
+        faces_out[t] = wp.vec3i(offsets[f[0]], offsets[f[1]], offsets[f[2]])

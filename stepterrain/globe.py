@@ -328,6 +328,8 @@ class Globe:
         source.dlat = math.radians(dlat)
         source.lon0 = math.radians(lon[0])
         source.dlon = math.radians(dlon)
+        source.inv_dlat = 1.0 / source.dlat
+        source.inv_dlon = 1.0 / source.dlon
         source.north_pole = float(z[0].mean())
         source.south_pole = float(z[-1].mean())
         n_entries = 6 * (cells + 1) ** 2
@@ -341,7 +343,7 @@ class Globe:
         grid.cols_valid = grid.n
         grid.heights = wp.empty(n_entries, dtype=wp.float32, device=device)
         grid.positions = wp.empty(n_entries, dtype=wp.vec3, device=device)
-        launch(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
+        _launch(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
                [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
 
@@ -466,6 +468,17 @@ def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDAr
         raise DataFileError(f"the embedded global relief {_SAMPLE_FILE} cannot be read: {exc}") from exc
 
 
+#: Elements per thread on the CPU: Warp copies a kernel's arguments (structs of arrays here, ~1 kB) for every
+#: thread, so each thread runs a chunk of elements; on CUDA every element is its own thread.
+CPU_CHUNK = 64
+
+
+def _launch(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device) -> None:
+    """``_device.launch`` of a chunked cube-sphere kernel over ``n`` elements."""
+    chunk = 1 if device.is_cuda else CPU_CHUNK
+    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device)
+
+
 def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -> Any:
     """e, r, h, α for every node copy, bottom-up level by level (paper 003 §6, §7.1)."""
     n_entries = faces * grid.n * grid.n
@@ -475,11 +488,16 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     params.cone_height = wp.zeros(n_entries, dtype=wp.float32, device=device)
     params.cone_angle = wp.zeros(n_entries, dtype=wp.float32, device=device)
     outputs = [params.geometric_error, params.bounding_radius, params.cone_height, params.cone_angle]
+    angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
-        q = 1 << (depth // 2)
-        per_face = q * q if depth % 2 == 0 else 2 * q * (q + 1)
-        launch(cube_kernels.saturate_node_parameters, faces * per_face, [grid, depth, per_face, params],
-               outputs, device)
+        # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
+        # other with their hierarchy); copied to the other faces below
+        _launch(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
+               [grid, depth, angles, params], outputs, device)
+    if angles:
+        nn = grid.n * grid.n
+        for f in range(1, faces):
+            wp.copy(params.cone_angle, params.cone_angle, dest_offset=f * nn, src_offset=0, count=nn)
     return params
 
 
@@ -586,7 +604,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         refine = count_buffer("globe.refine", count, device)
         owner = count_buffer("globe.owner", count, device)
         factors = _user_factors(users, grid, params, triangles, device) if users else no_factors
-        launch(cube_kernels.count_refinement, count,
+        _launch(cube_kernels.count_refinement, count,
                [grid, params, view, triangles, int(depth < levels), factors], [refine, owner], device)
         refine_offsets, refined = exclusive_offsets(refine, "globe.refine")
         owner_offsets, owned = exclusive_offsets(owner, "globe.owner")
@@ -594,7 +612,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
-        launch(cube_kernels.emit_refinement, count,
+        _launch(cube_kernels.emit_refinement, count,
                [grid, triangles, refine, refine_offsets, owner, owner_offsets], [children, leaves, entries], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
@@ -605,26 +623,26 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
-    launch(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
+    _launch(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
     n_leaves = leaves.shape[0]
     keep = count_buffer("globe.keep", n_leaves, device)
-    launch(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves], [keep], device)
+    _launch(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves], [keep], device)
     offsets, n_faces = exclusive_offsets(keep, "globe.keep")
     faces_out = wp.empty(n_faces, dtype=wp.vec3i, device=device)
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)
-    launch(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id], [faces_out, face_index],
+    _launch(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id], [faces_out, face_index],
            device)
     if n_faces < n_leaves:  # culled: drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used[:n_vertices].zero_()
-        launch(cube_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
+        _launch(cube_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
         used_offsets, n_used = exclusive_offsets(used, "globe.used")
         kept_vertices = wp.empty(n_used, dtype=wp.vec3d, device=device)
         kept_entries = wp.empty(n_used, dtype=wp.int32, device=device)
-        launch(cube_kernels.emit_used_vertices, n_vertices, [vertices, entries, used, used_offsets],
+        _launch(cube_kernels.emit_used_vertices, n_vertices, [vertices, entries, used, used_offsets],
                [kept_vertices, kept_entries], device)
         remapped = wp.empty(n_faces, dtype=wp.vec3i, device=device)
-        launch(cube_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
+        _launch(cube_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
         vertices, entries, faces_out = kept_vertices, kept_entries, remapped
     v = vertices.numpy().reshape(-1, 3)
     f = faces_out.numpy().reshape(-1, 3).astype(np.int64)
@@ -749,7 +767,7 @@ def adaptive_mesh(
     grid.cols_valid = cols
     grid.heights = to_device(z.reshape(-1), wp.float32, device)
     grid.positions = wp.empty(n * n, dtype=wp.vec3, device=device)
-    launch(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
+    _launch(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device)
     if camera is not None:
