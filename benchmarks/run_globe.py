@@ -196,7 +196,7 @@ def shape_statistics(globe: Any, lines: list[str], plot: Path | None) -> None:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        data = sorted(rows)
+        data = [row for row in sorted(rows) if row[2] > 0]  # level 0 (leaves) has r = h = α = 0
         lv = [d[0] for d in data]
         fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4))
         ax1.semilogy(lv, [d[2] for d in data], "o-", label="sphere radius r")
@@ -243,7 +243,8 @@ def triangles_versus_error(globe: Any, cams: dict[str, Any], lines: list[str], p
               "Counted as the paper draws them: every leaf triangle, those outside the view (coarse) included "
               "(`cull=False`); ℓ = the eye's altitude.", ""]
     for name, rows in results.items():
-        lines += [f"{name} view:", "", "| error (m at ℓ) | cones | spheres | spheres / cones |", "|---:|---:|---:|---:|"]
+        lines += [f"{name} view:", "", "| error (m at ℓ) | cones | spheres | spheres / cones |",
+                  "|---:|---:|---:|---:|"]
         for e, c, s in rows:
             lines.append(f"| {e:,.4g} | {c:,} | {s:,} | {s / max(c, 1):.2f} |")
         ratio = np.mean([s / max(c, 1) for _, c, s in rows])
@@ -273,7 +274,7 @@ def renders(globe: Any, cams: dict[str, Any], out_dir: Path, lines: list[str]) -
     from stepterrain.globe import elevation_colors, look_from, render_view
 
     overview = look_from(52.0, 8.5, 3_000_000.0, aspect=1.6)
-    for name, error in (("far", 3000.0), ("close", 100.0)):
+    for name, error in (("far", 3000.0), ("close", 20.0)):
         for bounds in ("cone", "sphere"):
             mesh = globe.mesh(error=error, camera=cams[name], bounds=bounds)
             heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]]
@@ -303,20 +304,28 @@ def true_error(vertices: np.ndarray, faces: np.ndarray, heights: np.ndarray) -> 
     return worst
 
 
+def tiled_dem(nodes: int) -> np.ndarray:
+    """Big Tujunga (SRTM 30 m) mirror-tiled to nodes x nodes (as ``benchmarks/baselines.grid_heights``)."""
+    with np.load(data_file("big_tujunga_srtm_30m_utm11n.npz")) as d:
+        heights = np.asarray(d["elevation"], dtype=np.float32)
+    mirrored = np.block([[heights, heights[:, ::-1]], [heights[::-1], heights[::-1, ::-1]]])
+    reps = (-(-nodes // mirrored.shape[0]), -(-nodes // mirrored.shape[1]))
+    return np.ascontiguousarray(np.tile(mirrored, reps)[:nodes, :nodes])
+
+
 def planar(repeat: int, lines: list[str]) -> None:
     from pymartini import Martini
 
-    from benchmarks.baselines import grid_heights
     from stepterrain.globe import adaptive_mesh
 
-    z, _ = grid_heights(1025)
+    z = tiled_dem(1025)
     z64 = z.astype(np.float64)
     adaptive_mesh(z[:65, :65], error=1.0)  # compile / load
     rows = []
     for requested in (5.0, 20.0):
-        ours, cpu, wall = best(lambda: adaptive_mesh(z, error=requested, spacing=1.0), repeat)
+        ours, cpu, wall = best(lambda requested=requested: adaptive_mesh(z, error=requested, spacing=1.0), repeat)
 
-        def martini():
+        def martini(requested=requested):
             tile = Martini(1025).create_tile(z.reshape(-1))
             return tile.get_mesh(requested)
 

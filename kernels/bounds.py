@@ -149,9 +149,17 @@ def shape_outside_view(view: View, p: wp.vec3d, r: wp.float64, h: wp.float64, al
         p_len = wp.length(p)
         p_hat = p / p_len
         alpha_sc = sin_cos(alpha)
+        # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
+        # plane; the exact cases of Abb. 7 only for planes through that ball)
+        ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
         for k in range(view.planes.shape[0]):
-            if plane_distance_cone_unit(inverted(view.planes[k]), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
+            plane = view.planes[k]
+            centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
+            if centre > ball:
                 return 1
+            if centre >= -ball:
+                if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
+                    return 1
         return 0
     for k in range(view.planes.shape[0]):
         if plane_distance_sphere(inverted(view.planes[k]), p, r) < wp.float64(0.0):
@@ -209,15 +217,48 @@ def node_metric(
 def refine_node(
     view: View, e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
 ) -> wp.int32:
-    """The refinement rule: μ > ε; with ε == 0 every node not clipped refines (full resolution where visible)."""
+    """The refinement rule: μ > ε (μ of :func:`node_metric`); with ε == 0 every node not clipped refines.
+
+    Cheapest tests first: μ_geo, then an upper bound of μ_dist from the radial gap between the eye and the
+    cone's shell (a lower bound of d), then the exact distance, and the six-plane clip test last. Each early
+    "no" is a saturated predicate itself (nested shapes have nested radial ranges), so the rule stays
+    saturated."""
+    p = to_vec3d(p32)
     if view.error <= wp.float64(0.0):
         if view.use_clip != 0:
-            if shape_outside_view(view, to_vec3d(p32), wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            if shape_outside_view(view, p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
                 return 0
         return 1
-    if node_metric(view, e, p32, r, h, alpha, factor) > view.error:
-        return 1
-    return 0
+    mu = factor
+    if view.use_geometric != 0:
+        mu = mu * wp.float64(e)
+    if mu <= view.error:
+        if mu <= wp.float64(0.0) or view.use_distance == 0:
+            return 0
+    if view.use_distance != 0:
+        d = wp.float64(0.0)
+        if view.cone != 0:
+            p_len = wp.length(p)
+            v_len = wp.length(view.eye)
+            gap = wp.max(v_len - (p_len + wp.float64(h)), (p_len - wp.float64(h)) - v_len)
+            if gap > wp.float64(0.0):
+                q = view.distance_scale / gap
+                if mu * q * q <= view.error:
+                    return 0
+            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), view.eye)
+        else:
+            d = eye_distance_sphere(p, wp.float64(r), view.eye)
+        if d > wp.float64(0.0):
+            q = view.distance_scale / d
+            mu = mu * q * q
+        else:
+            mu = HUGE
+    if mu <= view.error:
+        return 0
+    if view.use_clip != 0:
+        if shape_outside_view(view, p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            return 0
+    return 1
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -140,9 +140,9 @@ def test_hierarchy_matches_reference_and_is_saturated_and_nested(small_globe):
     assert len(exact) == 6 * cells**2 + 2 - 8  # every node but the cube corners refines a triangle
     for pt, (e, r, h, alpha) in exact.items():
         k = by_point[pt][0]
-        got = params["geometric_error"][k], params["bounding_radius"][k], params["cone_height"][k], params["cone_angle"][k]
+        got = [params[name][k] for name in ("geometric_error", "bounding_radius", "cone_height", "cone_angle")]
         # kernel values are the exact ones plus the level-wise margin (relative 2^-20 per level, tiny absolute)
-        for value, want, absolute in zip(got, (e, r, h, alpha), (1e-6 * R, 1e-5 * R, 1e-5 * R, 1e-5)):
+        for value, want, absolute in zip(got, (e, r, h, alpha), (1e-6 * R, 1e-5 * R, 1e-5 * R, 1e-5), strict=True):
             assert want - 1e-9 * (want + 1) <= value <= want * (1 + 1e-4) + absolute
         # saturation e(parent) >= e(child), and nesting of every descendant vertex, in float64 on the float32
         # positions the metric uses: no tolerance
@@ -162,14 +162,15 @@ def test_hierarchy_matches_reference_and_is_saturated_and_nested(small_globe):
 # ------------------------------------------------------------------------------------------ 3. metrics
 def _distances(centres, params, eye, plane):
     import warp as wp
+    from stepterrain.kernels import bounds as bk
 
     from stepterrain._device import resolve_device
-    from stepterrain.kernels import bounds as bk
 
     device = resolve_device("cpu")
     out = wp.empty(len(centres), dtype=wp.vec4d, device=device)
     wp.launch(bk.evaluate_shape_distances, dim=len(centres),
-              inputs=[0, wp.array(centres, dtype=wp.vec3d, device=device), wp.array(params, dtype=wp.vec3d, device=device),
+              inputs=[0, wp.array(centres, dtype=wp.vec3d, device=device),
+                      wp.array(params, dtype=wp.vec3d, device=device),
                       wp.vec3d(*eye), wp.vec4d(*plane)], outputs=[out], device=device)
     return out.numpy()
 
@@ -315,7 +316,9 @@ def test_random_views_are_crack_free(sample_globe, distance, lon, lat, error, co
         wholly = corner_out[np.asarray(culled.faces)].all(axis=1).any(axis=1)
         assert not wholly.any(), "a triangle wholly outside the frustum survived culling"
         # culling only removes triangles: every kept face is a face of the closed mesh
-        key = lambda m: {tuple(sorted(t)) for t in np.asarray(m.metadata["node_entry"])[np.asarray(m.faces)].tolist()}
+        def key(m):
+            return {tuple(sorted(t)) for t in np.asarray(m.metadata["node_entry"])[np.asarray(m.faces)].tolist()}
+
         assert key(culled) <= key(closed)
     # larger error: no more triangles; farther eye (distance metric, same ℓ): no more triangles
     assert len(g.mesh(error=2 * error, camera=cam, bounds=bounds, cull=False).faces) <= len(closed.faces)
