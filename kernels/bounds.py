@@ -34,10 +34,7 @@ class View:
     planes: wp.array[wp.vec4d]  # (n_x, n_y, n_z, a): outward unit normal n and offset a
     distance_scale: wp.float64  # ℓ: μ_dist = (ℓ / d)^2, so `error` is the geometric error tolerated at d = ℓ
     error: wp.float64  # ε: a triangle refines when μ > ε (or ε == 0 and μ_clip == 1)
-    use_geometric: wp.int32
-    use_distance: wp.int32
-    use_clip: wp.int32
-    cone: wp.int32  # 1: cone frustums, 0: spheres
+    flags: wp.vec4i  # (use_geometric, use_distance, use_clip, cone): each 1 or 0; cone 0 means spheres
 
 
 @wp.func
@@ -142,18 +139,20 @@ def inverted(plane: wp.vec4d) -> wp.vec4d:
 
 
 @wp.func
-def shape_outside_view(view: View, p: wp.vec3d, r: wp.float64, h: wp.float64, alpha: wp.float64) -> wp.int32:
+def shape_outside_view(
+    planes: wp.array[wp.vec4d], cone: wp.int32, p: wp.vec3d, r: wp.float64, h: wp.float64, alpha: wp.float64
+) -> wp.int32:
     """1 when the node's bounding shape lies wholly outside one of the six planes (the inverted-plane test:
     the largest distance over the shape from the inverted plane is < 0)."""
-    if view.cone != 0:
+    if cone != 0:
         p_len = wp.length(p)
         p_hat = p / p_len
         alpha_sc = sin_cos(alpha)
         # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
         # plane; the exact cases of Abb. 7 only for planes through that ball)
         ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
-        for k in range(view.planes.shape[0]):
-            plane = view.planes[k]
+        for k in range(planes.shape[0]):
+            plane = planes[k]
             centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
             if centre > ball:
                 return 1
@@ -161,17 +160,17 @@ def shape_outside_view(view: View, p: wp.vec3d, r: wp.float64, h: wp.float64, al
                 if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
                     return 1
         return 0
-    for k in range(view.planes.shape[0]):
-        if plane_distance_sphere(inverted(view.planes[k]), p, r) < wp.float64(0.0):
+    for k in range(planes.shape[0]):
+        if plane_distance_sphere(inverted(planes[k]), p, r) < wp.float64(0.0):
             return 1
     return 0
 
 
 @wp.func
-def triangle_outside_view(view: View, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.int32:
+def triangle_outside_view(planes: wp.array[wp.vec4d], a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.int32:
     """1 when a flat triangle lies wholly outside one of the six planes (all three corners outside it)."""
-    for k in range(view.planes.shape[0]):
-        plane = view.planes[k]
+    for k in range(planes.shape[0]):
+        plane = planes[k]
         n = wp.vec3d(plane[0], plane[1], plane[2])
         if wp.dot(n, a) + plane[3] > wp.float64(0.0):
             if wp.dot(n, b) + plane[3] > wp.float64(0.0):
@@ -182,40 +181,44 @@ def triangle_outside_view(view: View, a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> 
 
 @wp.func
 def node_metric(
-    view: View, e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+    eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64,
+    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
 ) -> wp.float64:
     """μ = μ_geo · μ_dist · μ_clip · μ_user of one node (paper 003 §7.4); each factor 1 when switched off.
 
-    μ_geo = e (saturated geometric error), μ_dist = (ℓ / d(v, B))^2 (HUGE when the eye touches B),
-    μ_clip = 0 when B lies wholly outside a frustum plane, else 1; μ_user = ``factor`` (a user metric).
+    ``flags`` = (use_geometric, use_distance, use_clip, cone) of :class:`View` (plain values rather than the
+    struct: Warp passes structs to functions by value). μ_geo = e (saturated geometric error),
+    μ_dist = (ℓ / d(v, B))^2 (HUGE when the eye touches B), μ_clip = 0 when B lies wholly outside a frustum
+    plane, else 1; μ_user = ``factor``.
     """
     p = to_vec3d(p32)
-    if view.use_clip != 0:
-        if shape_outside_view(view, p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+    if flags[2] != 0:
+        if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
             return wp.float64(0.0)
     mu = factor
     if mu <= wp.float64(0.0):
         return wp.float64(0.0)
-    if view.use_geometric != 0:
+    if flags[0] != 0:
         mu = mu * wp.float64(e)
         if mu <= wp.float64(0.0):
             return wp.float64(0.0)
-    if view.use_distance != 0:
+    if flags[1] != 0:
         d = wp.float64(0.0)
-        if view.cone != 0:
-            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), view.eye)
+        if flags[3] != 0:
+            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), eye)
         else:
-            d = eye_distance_sphere(p, wp.float64(r), view.eye)
+            d = eye_distance_sphere(p, wp.float64(r), eye)
         if d <= wp.float64(0.0):
             return HUGE
-        q = view.distance_scale / d
+        q = distance_scale / d
         mu = mu * q * q
     return mu
 
 
 @wp.func
 def refine_node(
-    view: View, e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+    eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64, error: wp.float64,
+    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
 ) -> wp.int32:
     """The refinement rule: μ > ε (μ of :func:`node_metric`); with ε == 0 every node not clipped refines.
 
@@ -224,39 +227,39 @@ def refine_node(
     "no" is a saturated predicate itself (nested shapes have nested radial ranges), so the rule stays
     saturated."""
     p = to_vec3d(p32)
-    if view.error <= wp.float64(0.0):
-        if view.use_clip != 0:
-            if shape_outside_view(view, p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+    if error <= wp.float64(0.0):
+        if flags[2] != 0:
+            if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
                 return 0
         return 1
     mu = factor
-    if view.use_geometric != 0:
+    if flags[0] != 0:
         mu = mu * wp.float64(e)
-    if mu <= view.error:
-        if mu <= wp.float64(0.0) or view.use_distance == 0:
+    if mu <= error:
+        if mu <= wp.float64(0.0) or flags[1] == 0:
             return 0
-    if view.use_distance != 0:
+    if flags[1] != 0:
         d = wp.float64(0.0)
-        if view.cone != 0:
+        if flags[3] != 0:
             p_len = wp.length(p)
-            v_len = wp.length(view.eye)
+            v_len = wp.length(eye)
             gap = wp.max(v_len - (p_len + wp.float64(h)), (p_len - wp.float64(h)) - v_len)
             if gap > wp.float64(0.0):
-                q = view.distance_scale / gap
-                if mu * q * q <= view.error:
+                q = distance_scale / gap
+                if mu * q * q <= error:
                     return 0
-            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), view.eye)
+            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), eye)
         else:
-            d = eye_distance_sphere(p, wp.float64(r), view.eye)
+            d = eye_distance_sphere(p, wp.float64(r), eye)
         if d > wp.float64(0.0):
-            q = view.distance_scale / d
+            q = distance_scale / d
             mu = mu * q * q
         else:
             mu = HUGE
-    if mu <= view.error:
+    if mu <= error:
         return 0
-    if view.use_clip != 0:
-        if shape_outside_view(view, p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+    if flags[2] != 0:
+        if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
             return 0
     return 1
 

@@ -165,11 +165,14 @@ def point_entry(point: wp.vec3i, cells: wp.int32, n: wp.int32) -> wp.int32:
 
 
 @wp.func
-def node_entry(grid: CubeSphereGrid, face: wp.int32, i: wp.int32, j: wp.int32) -> wp.int32:
-    """Entry of face node (i, j), canonical on seams (folded over the edge when just outside the face)."""
-    if grid.planar != 0 or (i > 0 and i < grid.cells and j > 0 and j < grid.cells):
-        return face * grid.n * grid.n + i * grid.n + j
-    return point_entry(cube_point(face, i, j, grid.cells), grid.cells, grid.n)
+def node_entry(cells: wp.int32, planar: wp.int32, face: wp.int32, i: wp.int32, j: wp.int32) -> wp.int32:
+    """Entry of face node (i, j), canonical on seams (folded over the edge when just outside the face).
+
+    Plain values rather than the grid struct: Warp passes structs to functions by value."""
+    n = cells + 1
+    if planar != 0 or (i > 0 and i < cells and j > 0 and j < cells):
+        return face * n * n + i * n + j
+    return point_entry(cube_point(face, i, j, cells), cells, n)
 
 
 @wp.func
@@ -178,7 +181,7 @@ def canonical_entry(grid: CubeSphereGrid, entry: wp.int32) -> wp.int32:
     nn = grid.n * grid.n
     face = entry // nn
     rest = entry - face * nn
-    return node_entry(grid, face, rest // grid.n, rest % grid.n)
+    return node_entry(grid.cells, grid.planar, face, rest // grid.n, rest % grid.n)
 
 
 @wp.func
@@ -577,10 +580,12 @@ def saturate_node_parameters(
                     e = wp.max(e, wp.float64(params.geometric_error[child]))
                     r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
                     if grid.planar == 0:
-                        h = wp.max(h, wp.abs(z_v - wp.float64(grid.heights[child])) + wp.float64(params.cone_height[child]))
+                        dz = wp.abs(z_v - wp.float64(grid.heights[child]))
+                        h = wp.max(h, dz + wp.float64(params.cone_height[child]))
                         if with_angle != 0:
                             w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
-                            alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child_local]))
+                            angle = direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child_local])
+                            alpha = wp.max(alpha, angle)
         # rounding e up keeps "e <= error" a true statement about the float64 error
         geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
         if has_children != 0:
@@ -615,19 +620,20 @@ def pack(i: wp.int32, j: wp.int32) -> wp.int32:
 
 
 @wp.func
-def owns_refinement_node(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.int32:
+def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: wp.vec2i, b: wp.vec2i,
+                         c: wp.vec2i) -> wp.int32:
     """1 when this triangle, rather than its diamond mate across the hypotenuse, emits the new vertex: the
     one whose apex has the smaller cube point (lexicographic); a triangle without a mate owns it."""
     mi = a[0] + b[0] - c[0]
     mj = a[1] + b[1] - c[1]
-    if grid.planar != 0:
-        if in_grid(grid, mi, mj) == 0:
+    if planar != 0:
+        if mi < 0 or mi > cells or mj < 0 or mj > cells:
             return 1
         if pack(c[0], c[1]) < pack(mi, mj):
             return 1
         return 0
-    own = cube_point(face, c[0], c[1], grid.cells)
-    mate = cube_point(face, mi, mj, grid.cells)
+    own = cube_point(face, c[0], c[1], cells)
+    mate = cube_point(face, mi, mj, cells)
     for k in range(3):
         if own[k] < mate[k]:
             return 1
@@ -666,10 +672,11 @@ def count_refinement(
             factor = wp.float64(1.0)
             if user_factors.shape[0] > 0:
                 factor = wp.float64(user_factors[t])
-            refine = bounds.refine_node(view, params.geometric_error[m], grid.positions[m], params.bounding_radius[m],
+            refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
+                                        params.geometric_error[m], grid.positions[m], params.bounding_radius[m],
                                         params.cone_height[m], params.cone_angle[m], factor)
             if refine != 0:
-                owner = owns_refinement_node(grid, tri[0], a, b, unpack(tri[3]))
+                owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
         refine_out[t] = refine
         owner_out[t] = owner
 
@@ -706,7 +713,7 @@ def emit_refinement(
             children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
             children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
             if owner[t] != 0:
-                vertex_entries_out[owner_offsets[t]] = node_entry(grid, tri[0], mi, mj)
+                vertex_entries_out[owner_offsets[t]] = node_entry(grid.cells, grid.planar, tri[0], mi, mj)
         else:
             leaves_out[t - refine_offsets[t]] = tri
 
@@ -732,10 +739,10 @@ def emit_vertices(
 
 
 @wp.func
-def corner_position(grid: CubeSphereGrid, face: wp.int32, corner: wp.int32) -> wp.vec3d:
+def corner_position(positions: wp.array[wp.vec3], n: wp.int32, face: wp.int32, corner: wp.int32) -> wp.vec3d:
     """float64 copy of the float32 position of a packed corner."""
     ij = unpack(corner)
-    return bounds.to_vec3d(grid.positions[face * grid.n * grid.n + ij[0] * grid.n + ij[1]])
+    return bounds.to_vec3d(positions[face * n * n + ij[0] * n + ij[1]])
 
 
 @wp.kernel
@@ -762,18 +769,19 @@ def count_kept_faces(
             if lo[0] >= grid.rows_valid - 1 or lo[1] >= grid.cols_valid - 1:
                 keep = 0  # in the padding
         if cull != 0 and keep != 0:
-            if bounds.triangle_outside_view(view, corner_position(grid, tri[0], tri[1]),
-                                            corner_position(grid, tri[0], tri[2]),
-                                            corner_position(grid, tri[0], tri[3])) != 0:
+            if bounds.triangle_outside_view(view.planes, corner_position(grid.positions, grid.n, tri[0], tri[1]),
+                                            corner_position(grid.positions, grid.n, tri[0], tri[2]),
+                                            corner_position(grid.positions, grid.n, tri[0], tri[3])) != 0:
                 keep = 0
         counts_out[t] = keep
 
 
 @wp.func
-def corner_vertex(grid: CubeSphereGrid, vertex_id: wp.array[wp.int32], face: wp.int32, corner: wp.int32) -> wp.int32:
+def corner_vertex(cells: wp.int32, planar: wp.int32, vertex_id: wp.array[wp.int32], face: wp.int32,
+                  corner: wp.int32) -> wp.int32:
     """Output vertex of a packed corner (through its canonical entry)."""
     ij = unpack(corner)
-    return vertex_id[node_entry(grid, face, ij[0], ij[1])]
+    return vertex_id[node_entry(cells, planar, face, ij[0], ij[1])]
 
 
 @wp.kernel
@@ -797,9 +805,9 @@ def emit_faces(
         if keep[t] != 0:
             tri = leaves[t]
             k = offsets[t]
-            faces_out[k] = wp.vec3i(corner_vertex(grid, vertex_id, tri[0], tri[1]),
-                                    corner_vertex(grid, vertex_id, tri[0], tri[2]),
-                                    corner_vertex(grid, vertex_id, tri[0], tri[3]))
+            faces_out[k] = wp.vec3i(corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[1]),
+                                    corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[2]),
+                                    corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[3]))
             face_index_out[k] = tri[0]
 
 

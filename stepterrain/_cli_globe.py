@@ -19,7 +19,7 @@ from .export import MESH_EXTENSIONS
 _EPILOG = """\
 examples:
   stepterrain globe -o out/globe.glb --png out/globe.png
-      the embedded ETOPO 2022 relief (20'), 257^2 nodes per face, seen from 2 earth radii above 30N 10E
+      the embedded ETOPO 2022 relief (20'), 257^2 nodes per face, seen from 3 earth radii above 30N 10E
   stepterrain globe --face-size 1025 --error 0 -o full.ply
       the full-resolution sphere: 6 x 1024^2 x 2 triangles
   stepterrain globe --eye 46,9,400000 --tilt 60 --error 20 --exaggeration 10 -o alps.glb --png alps.png
@@ -48,12 +48,13 @@ def add_parser(commands: Any) -> None:
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
     p.add_argument("--radius", type=float, default=6_371_000.0, metavar="M", help="sphere radius in metres")
-    p.add_argument("--error", type=float, default=50.0, metavar="E",
+    p.add_argument("--error", type=float, default=500.0, metavar="E",
                    help="metres of error tolerated at the eye's altitude (grows with distance squared); "
-                        "0 = full resolution where visible (default 50)")
+                        "0 = full resolution where visible (default 500)")
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
-                   default=(30.0, 10.0, 2 * 6_371_000.0), metavar="LAT,LON,ALT",
-                   help="eye position: latitude, longitude (degrees) and altitude (metres); default 30,10,2R")
+                   default=(30.0, 10.0, 3 * 6_371_000.0), metavar="LAT,LON,ALT",
+                   help="eye position: latitude, longitude (degrees) and altitude (metres); default 30,10,3R "
+                        "(the whole globe in view)")
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
                    help="tilt of the view from straight down, degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",

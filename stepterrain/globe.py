@@ -282,7 +282,8 @@ class Globe:
         -----
         Bilinear in lat/lon on the node's direction (float64); between the outermost row and a pole the
         value blends linearly towards the pole value, the mean of that row. Cost: O(6 n²) per step, about
-        0.3 s for 6 × 1025² on one CPU core (resampling, projection and all parameters).
+        1.5 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
+        see benchmarks/RESULTS.md).
 
         Examples
         --------
@@ -506,10 +507,8 @@ def _view(camera: Camera | None, error: float, names: set[str], bounds: str, sca
     view = bounds_kernels.View()
     view.error = error
     view.distance_scale = scale
-    view.cone = 1 if bounds == "cone" else 0
-    view.use_geometric = int("geometric" in names)
-    view.use_distance = int(camera is not None and "distance" in names)
-    view.use_clip = int(camera is not None and "clip" in names)
+    view.flags = wp.vec4i(int("geometric" in names), int(camera is not None and "distance" in names),
+                          int(camera is not None and "clip" in names), 1 if bounds == "cone" else 0)
     if camera is not None:
         view.eye = wp.vec3d(*camera.eye)
         view.planes = wp.array(camera.planes(), dtype=wp.vec4d, device=device)

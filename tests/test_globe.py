@@ -381,6 +381,27 @@ def test_cpu_and_cuda_agree(device):
     np.testing.assert_allclose(m.vertices, m_cpu.vertices, rtol=1e-12)
 
 
+def test_colours_by_elevation_and_draped_image(small_globe):
+    from stepterrain.globe import drape_colors, elevation_colors, look_from
+
+    mesh = small_globe.mesh(error=500.0)
+    image = np.zeros((90, 180, 3), np.uint8)
+    image[:, :90] = (255, 0, 0)  # western hemisphere red
+    image[:, 90:] = (0, 0, 255)  # eastern blue
+    colours = drape_colors(mesh.vertices, image)
+    lon = np.degrees(np.arctan2(mesh.vertices[:, 1], mesh.vertices[:, 0]))
+    west, east = (lon < -10) & (lon > -170), (lon > 10) & (lon < 170)
+    assert (colours[west, 0] == 255).all() and (colours[east, 2] == 255).all()
+    heights = np.array([-5000.0, -10.0, 10.0, 4000.0])
+    rgba = elevation_colors(heights)
+    assert rgba.shape == (4, 4) and rgba.dtype == np.uint8
+    assert rgba[0, 2] > rgba[0, 0] and rgba[3, 0] > rgba[2, 0]  # sea blue; high land lighter than lowland
+    cam = look_from(45.0, 90.0, 1.0e6, tilt=30.0, heading=90.0)
+    assert np.linalg.norm(cam.eye) == pytest.approx(R + 1.0e6)
+    with pytest.raises(InvalidInputError, match="texture must be"):
+        drape_colors(mesh.vertices, np.zeros((4, 4)))
+
+
 def test_sample_loads_the_embedded_grid():
     lat, lon, z = load_global_relief()
     assert z.shape == (540, 1080) and lat[0] > lat[-1] and lon[0] < lon[-1]
