@@ -672,9 +672,25 @@ def count_refinement(
             factor = wp.float64(1.0)
             if user_factors.shape[0] > 0:
                 factor = wp.float64(user_factors[t])
-            refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
-                                        params.geometric_error[m], grid.positions[m], params.bounding_radius[m],
-                                        params.cone_height[m], params.cone_angle[m], factor)
+            e = params.geometric_error[m]
+            if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
+                # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
+                mu = factor
+                if view.flags[0] != 0:
+                    mu = mu * wp.float64(e)
+                if mu > view.error:
+                    refine = 1
+            else:
+                r = wp.float32(0.0)
+                h = wp.float32(0.0)
+                alpha = wp.float32(0.0)
+                if view.flags[3] != 0:
+                    h = params.cone_height[m]
+                    alpha = params.cone_angle[m]
+                else:
+                    r = params.bounding_radius[m]
+                refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
+                                            e, grid.positions[m], r, h, alpha, factor)
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
         refine_out[t] = refine
