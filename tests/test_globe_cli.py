@@ -88,3 +88,26 @@ def test_example_globe(tmp_path):
         pixels = np.asarray(image)
     assert pixels.shape[:2] == (200, 320)
     assert pixels[:100].std() > 5 and pixels[100:].std() > 5
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_example_adaptive_mesh(tmp_path, capsys):
+    path = Path(__file__).resolve().parents[1] / "examples" / "adaptive_mesh.py"
+    spec = importlib.util.spec_from_file_location("example_adaptive_mesh", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    assert example.__doc__ and "true vertical error bound" in example.__doc__
+    out = tmp_path / "adaptive.png"
+    argv = ["--size", "33", "--errors", "20", "2", "--panel", "120", "100", "--output", str(out), "--device", "cpu"]
+    assert example.main(argv) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        pixels = np.asarray(image)
+    assert pixels.shape[:2] == (100, 240) and pixels.std() > 5
+    heights, spacing = example.crop(33)
+    from stepterrain.globe import adaptive_mesh
+
+    for error in (20.0, 2.0):
+        assert example.true_error(adaptive_mesh(heights, error=error, spacing=spacing), heights, spacing) <= error
