@@ -1,10 +1,26 @@
 """stepterrain: NVIDIA Warp kernels that turn terrain data into meshes people can look at, measure and ship.
 
+One entry point per capability (paper):
+
+- stepped terrain (paper 000): :func:`stepped`, :func:`stepped_series`, :func:`circular_lens`
+- global terrain on the cube sphere and planar adaptive meshes (paper 003): :class:`Globe`, :class:`Camera`,
+  :func:`adaptive_mesh`
+- close-ups, detail + overview (paper 001): :class:`CloseUp`, :class:`ROI`, :func:`render_closeups`
+- terrain textures (paper 004): :func:`hillshade`, :func:`topographic_layer`, :func:`drape`,
+  :class:`ImagePyramid`, :class:`TextureTree` (the full set lives in :mod:`stepterrain.texture` and
+  :mod:`stepterrain.texture_lod`)
+- batches on Dask: :func:`batch`
+
     >>> import stepterrain as st
     >>> mesh = st.stepped(st.sample_dem(), interval=100.0)   # doctest: +SKIP
+
+The capability modules other than stepped terrain load on first use, so ``import stepterrain`` stays quick.
 """
 
 from __future__ import annotations
+
+import importlib
+from typing import Any
 
 from ._compaction import get_memory_budget, set_memory_budget
 from ._device import get_cpu_threads, set_cpu_threads
@@ -21,6 +37,31 @@ from .stepped import Lens, circular_lens, isovalues, stepped, stepped_series
 from .terrain import Terrain, heightfield_mesh
 
 __version__ = "0.1.0"
+
+#: Public names loaded from their capability module on first access (PEP 562).
+_LAZY: dict[str, str] = {
+    **dict.fromkeys(("Globe", "Camera", "adaptive_mesh", "look_from"), "globe"),
+    **dict.fromkeys(("CloseUp", "ROI", "AnchorStyle", "render_closeups", "animate_closeups", "save_animation",
+                     "closeup_scene"), "closeup"),
+    **dict.fromkeys(("TextureLayer", "Pipeline", "TextureAnimation", "hillshade", "cast_shadows",
+                     "ambient_occlusion", "normal_map", "relight", "topographic_layer", "terrain_layer", "drape",
+                     "highlight_lens", "thematic_lens"), "texture"),
+    **dict.fromkeys(("ImagePyramid", "TextureTree", "PatchQuadtree"), "texture_lod"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "DataFileError",
@@ -42,5 +83,5 @@ __all__ = [
     "set_memory_budget",
     "stepped",
     "stepped_series",
+    *_LAZY,
 ]
-

@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InvalidInputError, MissingDependencyError
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
-           "KEY_LIGHT_ELEVATION"]
+           "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
 
 #: Direction the key light comes from: azimuth clockwise from north (+y), radians (north-west).
 KEY_LIGHT_AZIMUTH = math.radians(315.0)
@@ -396,3 +396,477 @@ def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
     from .export import save_image
 
     return save_image(image, path)
+
+
+def render_textured_mesh(
+    mesh: trimesh.Trimesh,
+    *,
+    window_size: tuple[int, int] = (1280, 800),
+    z_scale: float = 1.0,
+    camera: CameraLike = "oblique",
+    background: str | tuple[float, float, float] = "white",
+    lighting: bool = True,
+    anti_aliasing: bool = False,
+    bounds: ArrayLike | None = None,
+) -> NDArray[np.uint8]:
+    """Render a mesh with its texture (``trimesh.visual.TextureVisuals``: UVs and a base-colour image) off-screen.
+
+    Same camera, lights and framing as :func:`render_mesh`. ``lighting=False`` shows the texture unlit (a
+    topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
+
+    Raises
+    ------
+    InvalidInputError
+        The mesh has no UVs or no texture image, or a bad window size, z_scale or camera.
+    MissingDependencyError
+        No off-screen OpenGL context can be made.
+    """
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    visual = mesh.visual
+    uv = getattr(visual, "uv", None)
+    material = getattr(visual, "material", None)
+    image = None
+    if material is not None:
+        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    if uv is None or image is None or len(uv) != len(mesh.vertices):
+        raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
+                                "(see stepterrain.texture.drape)")
+    if len(mesh.faces) == 0:
+        raise InvalidInputError("mesh has no faces; nothing to render")
+    try:
+        width, height = (int(v) for v in window_size)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+    if not (8 <= width <= 16384 and 8 <= height <= 16384):
+        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+    z_scale = float(z_scale)
+    if not math.isfinite(z_scale) or z_scale <= 0:
+        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    finite = np.isfinite(vertices).all(axis=1)
+    if bounds is None:
+        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
+    else:
+        box = np.asarray(bounds, dtype=np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+            raise InvalidInputError(
+                f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min; got {bounds!r}")
+        lo, hi = box[0], box[1]
+    centre = (lo + hi) / 2.0
+    local = vertices - centre
+    local[:, 2] *= z_scale
+    box = np.array([lo - centre, hi - centre])
+    box[:, 2] *= z_scale
+
+    pv = _import_pyvista()
+    poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
+    poly.active_texture_coordinates = np.ascontiguousarray(uv, dtype=np.float32)
+    picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
+    texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
+    plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
+    try:
+        if not plotter.render_window.SupportsOpenGL():
+            raise MissingDependencyError(
+                "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
+                "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
+            )
+        if anti_aliasing:
+            plotter.enable_anti_aliasing("msaa")
+        else:
+            plotter.disable_anti_aliasing()
+        plotter.set_background(background)
+        framed = _frame_points(local, finite) if bounds is None else _box_corners(box)
+        position = _camera_position(camera, framed, width / height)
+        look_from = np.subtract(position[0], position[1])
+        fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
+        if lighting:
+            for light in _lights(pv, box, fill):
+                plotter.add_light(light)
+        plotter.add_mesh(poly, texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
+                         diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
+        plotter.camera_position = position
+        plotter.camera.view_angle = _VIEW_ANGLE
+        seen = local[finite]
+        union = np.array([np.minimum(box[0], seen.min(axis=0)), np.maximum(box[1], seen.max(axis=0))])
+        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union)
+        shot = plotter.screenshot(return_img=True)
+    finally:
+        with contextlib.suppress(Exception):
+            plotter.close()
+    if shot is None or shot.ndim != 3 or shot.shape[:2] != (height, width):
+        raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
+    return np.ascontiguousarray(shot[:, :, :3], dtype=np.uint8)
+
+
+# ------------------------------------------------------------------------------------------ layered passes
+def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool:
+    return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
+
+
+def _gray_levels(values: ArrayLike) -> NDArray[np.uint8]:
+    """(V,) values in [0, 1] as (V, 3) uint8 gray levels (read back from the red channel)."""
+    gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
+    return np.repeat(gray[:, None], 3, axis=1)
+
+
+class LayeredRenderer:
+    """Off-screen layered rendering (paper 001 §IV): one pass per layer into a color and a depth image.
+
+    Meshes are uploaded once under a name (:meth:`set_mesh`) and stay between passes and frames; a pass
+    (:meth:`render`) shows only the named meshes and reads back the color and the depth buffer without
+    rendering twice. Every pass of a frame shares the camera, lights and clipping range set by
+    :meth:`set_view`, so their depths compare. Lit meshes are drawn exactly as :func:`render_mesh` draws
+    them (same lights, flat shading, material); ``values`` meshes are unlit and carry a value in [0, 1] as
+    their gray level (read back from the red channel), for image-based mappings such as anchor opacity.
+
+        renderer = LayeredRenderer(window_size=(1280, 720))
+        renderer.set_mesh("overview", mesh.vertices, mesh.faces)
+        renderer.set_view("oblique", box)
+        color, depth = renderer.render(["overview"])   # depth: z-buffer in [0, 1), inf where empty
+    """
+
+    def __init__(self, *, window_size: tuple[int, int] = (1280, 720),
+                 background: str | tuple[float, float, float] = "white", z_scale: float = 1.0) -> None:
+        try:
+            width, height = (int(v) for v in window_size)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+        if not (8 <= width <= 16384 and 8 <= height <= 16384):
+            raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+        z_scale = float(z_scale)
+        if not math.isfinite(z_scale) or z_scale <= 0:
+            raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+        self.size = (width, height)
+        self.z_scale = z_scale
+        self.background = background
+        self._pv = _import_pyvista()
+        self._plotter = self._new_plotter(self.size)
+        self._actors: dict[str, Any] = {}
+        self._meshes: dict[str, Any] = {}
+        self._versions: dict[str, int] = {}
+        self._view_version = 0
+        self._passes: dict[tuple[str, ...], Any] = {}
+        self._keys: dict[str, Any] = {}
+        self._bounds: dict[str, NDArray[np.float64]] = {}
+        self._local_bounds: dict[str, NDArray[np.float64]] = {}
+        self._origin: NDArray[np.float64] | None = None
+        self._box: NDArray[np.float64] | None = None
+        self._camera: Any = None
+
+    def _new_plotter(self, size: tuple[int, int]) -> Any:
+        plotter = self._pv.Plotter(off_screen=True, window_size=size, lighting="none")
+        if not plotter.render_window.SupportsOpenGL():
+            plotter.close()
+            raise MissingDependencyError(
+                "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
+                "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
+            )
+        plotter.disable_anti_aliasing()
+        plotter.set_background(self.background)
+        return plotter
+
+    # -------------------------------------------------------------------------- meshes
+    def has(self, name: str, key: Any) -> bool:
+        """True when ``name`` was uploaded with this ``key`` (e.g. the overview of the same terrain)."""
+        return name in self._actors and self._keys.get(name) == key
+
+    def bounds_of(self, name: str) -> NDArray[np.float64]:
+        """World bounds (2, 3) of an uploaded mesh."""
+        return self._bounds[name]
+
+    def _local(self, vertices: NDArray[np.float64]) -> NDArray[np.float64]:
+        local = np.asarray(vertices, dtype=np.float64) - self._origin
+        local[:, 2] *= self.z_scale
+        return local
+
+    def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,
+                 values: ArrayLike | None = None, key: Any = None) -> None:
+        """Upload (or replace) the mesh ``name``: lit, with vertex ``rgb`` (V, 3) uint8 or the default tan,
+        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin."""
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        finite = np.isfinite(vertices).all(axis=1)
+        if len(faces) == 0 or not finite.any():
+            raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
+        seen = vertices if finite.all() else vertices[finite]
+        lo, hi = seen.min(axis=0), seen.max(axis=0)
+        if self._origin is None:
+            self._origin = (lo + hi) / 2.0
+        local = self._local(vertices)
+        local_box = np.array([lo, hi]) - self._origin
+        local_box[:, 2] *= self.z_scale  # z_scale > 0 keeps the order
+        self._versions[name] = self._versions.get(name, 0) + 1
+        kind = ("values" if values is not None else "rgb" if rgb is not None else "plain", len(local))
+        previous = self._meshes.get(name)
+        if previous is not None and previous[1] == kind and np.array_equal(previous[2], faces):
+            # same topology (a close-up that moved or turned): update the points and colors in place
+            poly = previous[0]
+            poly.points = local
+            if values is not None:
+                poly.point_data["rgb"] = _gray_levels(values)
+            elif rgb is not None:
+                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+            self._keys[name] = key
+            self._bounds[name] = np.array([lo, hi])
+            self._local_bounds[name] = local_box
+            return
+        self.remove(name)
+        poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
+        self._meshes[name] = (poly, kind, faces.copy())
+        kwargs: dict[str, Any] = {}
+        if values is not None:
+            poly.point_data["rgb"] = _gray_levels(values)
+            kwargs.update(scalars="rgb", rgb=True, lighting=False, ambient=1.0, diffuse=0.0, specular=0.0)
+        else:
+            if rgb is not None:
+                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+                kwargs.update(scalars="rgb", rgb=True)
+            else:
+                kwargs.update(color=_DEFAULT_COLOR)
+            kwargs.update(ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0, lighting=True)
+        self._actors[name] = self._plotter.add_mesh(poly, smooth_shading=False, show_scalar_bar=False,
+                                                    reset_camera=False, **kwargs)
+        self._keys[name] = key
+        self._bounds[name] = np.array([lo, hi])
+        self._local_bounds[name] = local_box
+
+    def remove(self, name: str) -> None:
+        """Drop the mesh ``name`` if present."""
+        actor = self._actors.pop(name, None)
+        self._meshes.pop(name, None)
+        if actor is not None:
+            self._plotter.remove_actor(actor, render=False)
+        self._keys.pop(name, None)
+        self._bounds.pop(name, None)
+        self._local_bounds.pop(name, None)
+
+    # -------------------------------------------------------------------------- view
+    def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
+        """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range."""
+        if self._origin is None:
+            raise InvalidInputError("set_view needs a mesh first (set_mesh)")
+        box = np.asarray(box, dtype=np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+            raise InvalidInputError(f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)]; got {box!r}")
+        local = box - self._origin
+        local[:, 2] *= self.z_scale
+        token = (repr(camera), local.tobytes())
+        if token == getattr(self, "_view_token", None):
+            return  # the same camera and box: view, lights and clipping range stay (and so may cached passes)
+        self._view_token = token
+        self._view_version += 1
+        width, height = self.size
+        position = _camera_position(camera, _box_corners(local), width / height)
+        look_from = np.subtract(position[0], position[1])
+        fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
+        self._plotter.remove_all_lights()
+        for light in _lights(self._pv, local, fill):
+            self._plotter.add_light(light)
+        self._plotter.camera_position = position
+        self._plotter.camera.view_angle = _VIEW_ANGLE
+        seen = [local] + list(self._local_bounds.values())
+        union = np.array([np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)])
+        self._plotter.camera.clipping_range = _clipping_range(self._plotter.camera_position, union)
+        self._box = local
+
+    # -------------------------------------------------------------------------- passes
+    def _read(self, plotter: Any) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+        from vtkmodules.vtkCommonCore import vtkFloatArray, vtkUnsignedCharArray
+
+        window = plotter.render_window
+        window.Render()
+        width, height = window.GetSize()
+        pixels = vtkUnsignedCharArray()
+        window.GetPixelData(0, 0, width - 1, height - 1, 0, pixels, 0)
+        depth = vtkFloatArray()
+        window.GetZbufferData(0, 0, width - 1, height - 1, depth)
+        color = vtk_to_numpy(pixels).reshape(height, width, -1)[::-1, :, :3]
+        z = vtk_to_numpy(depth).reshape(height, width)[::-1].astype(np.float32)
+        z[z >= 1.0] = np.inf
+        if color.size == 0:
+            raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
+        return np.ascontiguousarray(color, dtype=np.uint8), np.ascontiguousarray(z)
+
+    def render(self, names: Sequence[str], *, reuse: bool = False) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+        """One pass with only ``names`` visible: (H, W, 3) uint8 color and (H, W) float32 depth (inf: empty).
+
+        With ``reuse`` the previous images of the same pass come back without rendering when neither the view
+        nor those meshes changed since (a still camera over a still overview while close-ups move)."""
+        if self._box is None:
+            raise InvalidInputError("render needs a view first (set_view)")
+        wanted = set(names)
+        unknown = wanted - set(self._actors)
+        if unknown:
+            raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")
+        key = tuple(sorted(wanted))
+        state = (self._view_version, tuple(self._versions.get(n, 0) for n in key))
+        cached = self._passes.get(key)
+        if reuse and cached is not None and cached[0] == state:
+            return cached[1], cached[2]
+        for name, actor in self._actors.items():
+            actor.SetVisibility(name in wanted)
+        color, depth = self._read(self._plotter)
+        if reuse:
+            self._passes[key] = (state, color, depth)
+        return color, depth
+
+    def render_layers(self, prefix: str, layers: dict[int, tuple[Any, Any, dict[str, Any]]], *,
+                      merge: bool = True) -> dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]]:
+        """Color and depth of each layer k as if rendered alone (``layers[k]`` = vertices, faces, and
+        ``rgb=`` or ``values=`` as for :meth:`set_mesh`).
+
+        With ``merge``, layers of the same kind whose screen boxes (the projected corners of their bounds,
+        all in front of the camera) do not overlap share one pass, whose images are then split by those
+        boxes: no fragment of one layer can fall in another's box, so each layer's pixels are those of its
+        own pass (to the float32 rounding of VTK's per-buffer coordinate shift, a gray level at a few
+        pixels), with fewer passes (a pass has a fixed cost: clearing, reading back)."""
+        rects: dict[int, tuple[int, int, int, int] | None] = {}
+        for k, (vertices, _faces, _kw) in layers.items():
+            rects[k] = self.screen_rect(vertices) if merge else None
+        groups: list[list[int]] = []
+        for k, (_v, _f, kw) in layers.items():
+            kind = "values" if kw.get("values") is not None else "rgb" if kw.get("rgb") is not None else "plain"
+            placed = False
+            if rects[k] is not None:
+                for group in groups:
+                    first = group[0]
+                    kind0 = ("values" if layers[first][2].get("values") is not None
+                             else "rgb" if layers[first][2].get("rgb") is not None else "plain")
+                    if kind0 == kind and all(rects[j] is not None and not _overlap(rects[k], rects[j])
+                                             for j in group):
+                        group.append(k)
+                        placed = True
+                        break
+            if not placed:
+                groups.append([k])
+        out: dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]] = {}
+        for g, group in enumerate(groups):
+            if len(group) == 1:
+                k = group[0]
+                vertices, faces, kw = layers[k]
+                self.set_mesh(f"{prefix}{k}", vertices, faces, **kw)
+                out[k] = self.render([f"{prefix}{k}"])
+                continue
+            counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
+            vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
+            faces = np.concatenate([np.asarray(layers[k][1], np.int64) + counts[i] for i, k in enumerate(group)])
+            kw0 = layers[group[0]][2]
+            kw = {name: np.concatenate([np.asarray(layers[k][2][name]) for k in group])
+                  for name in ("values", "rgb") if kw0.get(name) is not None}
+            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, **kw)
+            color, depth = self.render([f"{prefix}-merged{g}"])
+            for k in group:
+                c0, r0, c1, r1 = rects[k]
+                own_color = np.zeros_like(color)
+                own_depth = np.full(depth.shape, np.inf, np.float32)
+                own_color[r0:r1, c0:c1] = color[r0:r1, c0:c1]
+                own_depth[r0:r1, c0:c1] = depth[r0:r1, c0:c1]
+                out[k] = (own_color, own_depth)
+        return out
+
+    def screen_rect(self, vertices: ArrayLike) -> tuple[int, int, int, int] | None:
+        """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
+        vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
+        behind the camera."""
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        finite = np.isfinite(v).all(axis=1)
+        if not finite.any():
+            return None
+        box = np.array([v[finite].min(axis=0), v[finite].max(axis=0)])
+        pixels = self.project(_box_corners(box))
+        if not np.isfinite(pixels).all():
+            return None
+        width, height = self.size
+        c0, r0 = np.floor(pixels.min(axis=0)).astype(int) - 2
+        c1, r1 = np.ceil(pixels.max(axis=0)).astype(int) + 3
+        return max(c0, 0), max(r0, 0), min(max(c1, 0), width), min(max(r1, 0), height)
+
+    def project(self, points: ArrayLike) -> NDArray[np.float64]:
+        """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top); NaN for a
+        point behind the camera."""
+        points = self._local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        width, height = self.size
+        camera = self._plotter.renderer.GetActiveCamera()
+        matrix = camera.GetCompositeProjectionTransformMatrix(width / height, -1, 1)
+        m = np.array([[matrix.GetElement(i, j) for j in range(4)] for i in range(4)])
+        clip = np.column_stack([points, np.ones(len(points))]) @ m.T
+        w = np.where(clip[:, 3:4] > 1e-12, clip[:, 3:4], np.nan)
+        ndc = clip[:, :3] / w
+        col = (ndc[:, 0] + 1) / 2 * width
+        row = height - (ndc[:, 1] + 1) / 2 * height
+        return np.column_stack([col, row])
+
+    def render_billboard(self, vertices: ArrayLike, faces: ArrayLike, rgb: ArrayLike | None,
+                         view: tuple[float, float], anchor_points: ArrayLike
+                         ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], NDArray[np.float32]]:
+        """An overview-independent close-up (paper 001 §II.C): an orthographic render from the fixed direction
+        ``view`` (azimuth, elevation) pasted over the screen box of ``anchor_points`` (N, 3).
+
+        Returns the full-window color, coverage and depth (0 where covered: a billboard lies in front)."""
+        width, height = self.size
+        color = np.zeros((height, width, 3), np.uint8)
+        coverage = np.zeros((height, width), bool)
+        depth = np.full((height, width), np.inf, np.float32)
+        pixels = self.project(anchor_points)
+        pixels = pixels[np.isfinite(pixels).all(axis=1)]
+        if len(pixels) == 0:
+            return color, coverage, depth
+        c0, r0 = np.floor(pixels.min(axis=0)).astype(int)
+        c1, r1 = np.ceil(pixels.max(axis=0)).astype(int)
+        c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, width), min(r1, height)
+        bw, bh = c1 - c0, r1 - r0
+        if bw < 8 or bh < 8:
+            return color, coverage, depth
+        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        local = vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+        local[:, 2] *= self.z_scale
+        plotter = self._new_plotter((bw, bh))
+        try:
+            poly = self._pv.wrap(trimesh.Trimesh(local, np.asarray(faces).reshape(-1, 3), process=False))
+            kwargs: dict[str, Any] = {"color": _DEFAULT_COLOR}
+            if rgb is not None:
+                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+                kwargs = {"scalars": "rgb", "rgb": True}
+            plotter.add_mesh(poly, smooth_shading=False, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
+                             show_scalar_bar=False, **kwargs)
+            box = np.array([local.min(axis=0), local.max(axis=0)])
+            position = _camera_position(tuple(view), _box_corners(box), bw / bh)
+            look_from = np.subtract(position[0], position[1])
+            for light in _lights(self._pv, box, (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)):
+                plotter.add_light(light)
+            plotter.camera_position = position
+            plotter.enable_parallel_projection()
+            plotter.reset_camera(bounds=box.T.reshape(-1))
+            plotter.camera_position = position[:1] + [position[1], position[2]]
+            corners = _box_corners(box) - np.asarray(position[1])
+            forward = np.asarray(position[1]) - np.asarray(position[0])
+            forward /= np.linalg.norm(forward)
+            right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
+            right /= np.linalg.norm(right)
+            up = np.cross(right, forward)
+            half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * bh / bw) * 1.02
+            plotter.camera.parallel_scale = float(half_h)
+            plotter.camera.clipping_range = _clipping_range(plotter.camera_position, box)
+            image, z = self._read(plotter)
+        finally:
+            with contextlib.suppress(Exception):
+                plotter.close()
+        covered = np.isfinite(z)
+        color[r0:r1, c0:c1] = image
+        coverage[r0:r1, c0:c1] = covered
+        depth[r0:r1, c0:c1] = np.where(covered, 0.0, np.inf)
+        return color, coverage, depth
+
+    def close(self) -> None:
+        """Release the render window."""
+        with contextlib.suppress(Exception):
+            self._plotter.close()
+        self._actors.clear()
+
+    def __enter__(self) -> LayeredRenderer:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()

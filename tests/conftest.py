@@ -16,10 +16,13 @@ settings.register_profile("ci", derandomize=True, deadline=None, max_examples=40
 settings.register_profile("dev", deadline=None, max_examples=100)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
-# STEPTERRAIN_SHARED_DATA points elsewhere (e.g. from a git worktree that has no ../shared beside it)
-SHARED_DATA = Path(
-    os.environ.get("STEPTERRAIN_SHARED_DATA") or Path(__file__).resolve().parents[1].parent / "shared" / "data"
-)
+# STEPTERRAIN_SHARED_DATA points elsewhere explicitly
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+if not SHARED_DATA.exists():  # a git worktree (e.g. /work/wt/NAME): look further up for shared/data
+    SHARED_DATA = next((p / "shared" / "data" for p in Path(__file__).resolve().parents[2:]
+                        if (p / "shared" / "data").is_dir()), SHARED_DATA)
+if os.environ.get("STEPTERRAIN_SHARED_DATA"):
+    SHARED_DATA = Path(os.environ["STEPTERRAIN_SHARED_DATA"])
 
 wp.init()
 DEVICES = ["cpu"] + [str(d) for d in wp.get_cuda_devices()]

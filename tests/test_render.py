@@ -138,3 +138,38 @@ def test_missing_opengl_raises_missing_dependency(monkeypatch):
         render.require_offscreen()
     with pytest.raises(ImportError):  # MissingDependencyError is also an ImportError
         render.require_offscreen()
+
+
+# ------------------------------------------------------------------------------------------------ regression
+IMAGES = __import__("pathlib").Path(__file__).resolve().parent / "image_cache"
+
+
+def _regression_terrain(name: str) -> trimesh.Trimesh:
+    if name == "stepped_ramp":
+        return st.stepped(ramp(16, 16), interval=0.5, colors="terrain", device="cpu")
+    if name == "stepped_real_dem":  # the embedded DEM, cropped and thinned: real walls, lens-free
+        dem = st.sample_dem()
+        heights = dem.heights[100:260:2, 300:460:2]
+        return st.stepped(heights, interval=100.0, spacing=(60.0, 60.0), colors="terrain", device="cpu")
+    return st.stepped(ramp(16, 16), interval=0.5, gamma=0.5, colors="viridis", solid=True, device="cpu")
+
+
+@needs_render
+@pytest.mark.parametrize("name", ["stepped_ramp", "stepped_real_dem", "stepped_solid_half_gamma"])
+def test_image_regression(name):
+    """Renders compare with committed reference images (STEPTERRAIN_UPDATE_IMAGES=1 rewrites them)."""
+    import os
+
+    from PIL import Image
+
+    image = render.render_mesh(_regression_terrain(name), window_size=SIZE)
+    path = IMAGES / f"{name}.png"
+    if os.environ.get("STEPTERRAIN_UPDATE_IMAGES") or not path.exists():
+        render.save_png(image, path)
+        pytest.skip(f"reference image {path.name} written; re-run to compare")
+    with Image.open(path) as ref:
+        expected = np.asarray(ref.convert("RGB")).astype(int)
+    assert expected.shape == image.shape[:2] + (3,)
+    diff = np.abs(image[..., :3].astype(int) - expected)
+    assert diff.mean() < 2.0, f"mean difference {diff.mean():.2f} against {path.name}"
+    assert (diff.max(axis=2) > 60).mean() < 0.01, "more than 1% of the pixels changed a lot"

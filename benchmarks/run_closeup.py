@@ -1,0 +1,368 @@
+"""Side-by-side benchmark of the close-ups (paper 001, issue 4 §5) against what a user would do instead.
+
+1. Frame time of the whole pipeline (transform, layered render, composite) off-screen at 1280x720 for
+   0-4 close-ups on the real Big Tujunga DEM (643 x 1197 nodes, 1.54 M triangles), each close-up's ROI a
+   disc covering 5% of the terrain. Contenders:
+   - ``culled``: ``stepterrain.closeup.render_closeups`` (each close-up cut to its ROI window, culled to the
+     faces with m > 0 by count -> scan -> emit), the overview kept uploaded between frames (one
+     ``LayeredRenderer``), as in an interactive loop;
+   - ``full``: the paper's SPFR cost model (its Table I and §IV.C): every close-up pass renders the whole
+     terrain, transformed with C = m·M + (1 − m)·I in NumPy (faces with m = 0 discarded only after the
+     transform, as a fragment shader would), the same compositing.
+   Reported: best and median of ``--repeat`` frames, the stages, and the ratio to the 0-close-up frame
+   (goal: 4 close-ups <= 1.5x).
+2. The transform kernel's vertices per second on one core (``transform_closeup_vertices`` over every DEM
+   vertex) against the same transform in NumPy (vectorised: bilinear mask lookup, then V_O + m·(M·V_O − V_O)).
+3. ``closeup_layers`` (transform + cull, end to end) for ROIs of 1%, 5%, 20% and 100% of the terrain: the
+   cost follows the ROI, not the terrain.
+
+Pinned to one CPU core (``--all-cores`` lifts it). Software OpenGL (Mesa llvmpipe) renders here.
+
+    python benchmarks/run_closeup.py --repeat 3 --output /tmp/closeup.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import math
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+_HERE = Path(__file__).resolve().parent
+if str(_HERE.parent) not in sys.path:
+    sys.path.insert(0, str(_HERE.parent))
+
+SHARED = _HERE.parent.parent / "shared" / "data"
+if not SHARED.exists():
+    SHARED = next((p / "shared" / "data" for p in _HERE.parents if (p / "shared" / "data").is_dir()), SHARED)
+DEM = "big_tujunga_srtm_30m_utm11n.npz"
+WINDOW = (1280, 720)
+GOAL = 1.5
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def load_terrain():
+    import stepterrain as st
+
+    path = SHARED / DEM
+    return (st.load_dem(path) if path.exists() else st.sample_dem()), (str(path) if path.exists() else "embedded")
+
+
+def closeups_for(terrain, count: int, fraction: float = 0.05):
+    from stepterrain.closeup import ROI, AnchorStyle, CloseUp
+
+    xmin, xmax, ymin, ymax = terrain.extent
+    w, h = xmax - xmin, ymax - ymin
+    radius = math.sqrt(fraction * w * h / math.pi)
+    spots = [(0.2, 0.3), (0.45, 0.65), (0.7, 0.35), (0.85, 0.7)]
+    return [CloseUp(ROI.circle((xmin + fx * w, ymin + fy * h), radius), scale=1.4, offset=(0.0, 0.0, 0.25 * w),
+                    anchor=AnchorStyle("linear")) for fx, fy in spots[:count]]
+
+
+def frame_bounds(terrain, closeups):
+    xmin, xmax, ymin, ymax = terrain.extent
+    zmin, zmax = terrain.height_range
+    lift = 0.25 * (xmax - xmin) + 1.4 * (zmax - zmin)
+    return np.array([[xmin, ymin, zmin], [xmax, ymax, zmax + lift]])
+
+
+def time_culled_interleaved(terrain, counts: list[int], repeat: int, reuse: bool = False) -> dict[int, dict]:
+    """Frames of every close-up count taken in turn (0, 1, ..., 0, 1, ...), so load drift hits all alike."""
+    from stepterrain import render
+    from stepterrain.closeup import render_closeups
+
+    setups = {}
+    for count in counts:
+        cus = closeups_for(terrain, count)
+        renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
+        box = frame_bounds(terrain, cus)
+        render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, device="cpu",
+                        reuse_overview=reuse)  # warm-up: uploads, kernels
+        setups[count] = (cus, box, renderer, [], [])
+    try:
+        for _ in range(repeat):
+            for cus, box, renderer, frames, stages in setups.values():
+                timings: dict[str, float] = {}
+                start = time.perf_counter()
+                render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, timings=timings,
+                                device="cpu", reuse_overview=reuse)
+                frames.append(time.perf_counter() - start)
+                stages.append(timings)
+    finally:
+        for _, _, renderer, _, _ in setups.values():
+            renderer.close()
+    out = {}
+    for count, (_, _, _, frames, stages) in setups.items():
+        best = int(np.argmin(frames))
+        out[count] = {"best": min(frames), "median": statistics.median(frames), "stages": stages[best]}
+    return out
+
+
+def time_culled(terrain, count: int, repeat: int, reuse: bool = False) -> dict:
+    from stepterrain import render
+    from stepterrain.closeup import render_closeups
+
+    cus = closeups_for(terrain, count)
+    box = frame_bounds(terrain, cus)
+    renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
+    try:
+        render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, device="cpu",
+                        reuse_overview=reuse)  # warm-up
+        frames, stages = [], []
+        for _ in range(repeat):
+            timings: dict[str, float] = {}
+            start = time.perf_counter()
+            render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, timings=timings,
+                            device="cpu", reuse_overview=reuse)
+            frames.append(time.perf_counter() - start)
+            stages.append(timings)
+    finally:
+        renderer.close()
+    best = int(np.argmin(frames))
+    return {"best": min(frames), "median": statistics.median(frames), "stages": stages[best]}
+
+
+def time_full(terrain, count: int, repeat: int) -> dict:
+    """The paper's cost model: every close-up pass transforms and renders the whole terrain."""
+    from stepterrain import render
+    from stepterrain.closeup import _closeup_color, anchor_strips, composite
+
+    cus = closeups_for(terrain, count)
+    box = frame_bounds(terrain, cus)
+    mesh = terrain.mesh()
+    vertices = np.asarray(mesh.vertices)
+    faces = np.asarray(mesh.faces)
+    zmin = terrain.height_range[0]
+    renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
+    frames, stages = [], []
+    try:
+        renderer.set_mesh("overview", vertices, faces)
+        for rep in range(repeat + 1):
+            t0 = time.perf_counter()
+            layers = []
+            for cu in cus:
+                m = cu.roi.factor(vertices[:, :2])
+                matrix = cu.matrix(zmin)
+                moved = vertices @ matrix[:3, :3].T + matrix[:3, 3]
+                vc = vertices + m[:, None] * (moved - vertices)
+                layers.append((vc, faces[(m[faces] > 0).any(axis=1)]))  # discarded after the full transform
+            strips = anchor_strips(terrain, cus, device="cpu")
+            t1 = time.perf_counter()
+            renderer.set_view("oblique", box)
+            base, depth = renderer.render(["overview"])
+            passes = []
+            for k, ((vc, _kept), strip, cu) in enumerate(zip(layers, strips, cus, strict=True)):
+                renderer.set_mesh(f"a{k}", strip.vertices, strip.faces, values=strip.distance)
+                tex, z = renderer.render([f"a{k}"])
+                alpha = np.where(np.isfinite(z), np.interp(tex[..., 0] / 255.0, [0, 1], cu.anchor.table[[0, -1]]), 0)
+                color = np.broadcast_to(np.asarray(_closeup_color(cu, k), np.float32) * 255, base.shape)
+                passes.append((color, alpha.astype(np.float32), z, True, False))
+                renderer.set_mesh(f"c{k}", vc, faces)  # the whole terrain per close-up
+                image, z = renderer.render([f"c{k}"])
+                passes.append((image, np.isfinite(z).astype(np.float32), z, False, True))
+            t2 = time.perf_counter()
+            composite(base, depth, passes)
+            t3 = time.perf_counter()
+            if rep:
+                frames.append(t3 - t0)
+                stages.append({"transform": t1 - t0, "render": t2 - t1, "composite": t3 - t2})
+    finally:
+        renderer.close()
+    best = int(np.argmin(frames))
+    return {"best": min(frames), "median": statistics.median(frames), "stages": stages[best]}
+
+
+def transform_throughput(terrain, repeat: int) -> dict:
+    """transform_closeup_vertices over every DEM vertex (one launch, one thread) vs the NumPy transform."""
+    import warp as wp
+    from stepterrain.kernels import closeup as closeup_kernels
+
+    from stepterrain._device import launch, to_device
+    from stepterrain.closeup import ROI, CloseUp, _layers_struct
+
+    xmin, xmax, ymin, ymax = terrain.extent
+    cu = CloseUp(ROI.ellipse(((xmin + xmax) / 2, (ymin + ymax) / 2), ((xmax - xmin) / 2, (ymax - ymin) / 2)),
+                 rotation=(0.2, 0.5), scale=1.5, offset=(0.0, 0.0, 5000.0))
+    device = wp.get_device("cpu")
+    mesh = terrain.mesh()
+    ox, oy = terrain.local_origin
+    world = np.asarray(mesh.vertices, dtype=np.float64)
+    local = (world - [ox, oy, 0.0]).astype(np.float32)
+    n = len(local)
+    matrix = cu.matrix(terrain.height_range[0])
+    layers = _layers_struct([cu], [matrix], (ox, oy), device)
+    points = to_device(local, wp.vec3, device)
+    layer_ids = wp.zeros(n, dtype=wp.int32, device=device)
+    out = wp.empty(n, dtype=wp.vec3, device=device)
+    factors = wp.empty(n, dtype=wp.float32, device=device)
+
+    def warp_run():
+        launch(closeup_kernels.transform_closeup_vertices, n, [points, layer_ids, layers], [out, factors], device)
+        wp.synchronize_device(device)
+
+    box = cu.roi.box
+    mask = cu.roi.mask.astype(np.float32)
+    local_matrix = np.linalg.inv(np.diag([1, 1, 1, 1.0])) @ matrix
+    shift = np.eye(4)
+    shift[:2, 3] = (ox, oy)
+    local_matrix = (np.linalg.inv(shift) @ matrix @ shift).astype(np.float32)
+    box_local = np.array([box[0] - ox, box[1] - ox, box[2] - oy, box[3] - oy], np.float32)
+
+    def numpy_run():
+        rows, cols = mask.shape
+        u = (local[:, 0] - box_local[0]) / (box_local[1] - box_local[0])
+        v = (local[:, 1] - box_local[2]) / (box_local[3] - box_local[2])
+        inside = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        fx = np.clip(u, 0, 1) * (cols - 1)
+        fy = np.clip(v, 0, 1) * (rows - 1)
+        j0 = np.minimum(fx.astype(np.int32), cols - 2)
+        i0 = np.minimum(fy.astype(np.int32), rows - 2)
+        tx, ty = fx - j0, fy - i0
+        bottom = mask[i0, j0] + tx * (mask[i0, j0 + 1] - mask[i0, j0])
+        top = mask[i0 + 1, j0] + tx * (mask[i0 + 1, j0 + 1] - mask[i0 + 1, j0])
+        m = np.where(inside, bottom + ty * (top - bottom), np.float32(0))
+        moved = local @ local_matrix[:3, :3].T + local_matrix[:3, 3]
+        return local + m[:, None] * (moved - local), m
+
+    warp_run()
+    numpy_run()
+    w = [_timed(warp_run) for _ in range(repeat)]
+    p = [_timed(numpy_run) for _ in range(repeat)]
+    ref, m_ref = numpy_run()
+    agree = float(np.abs(out.numpy() - ref).max())
+    return {"vertices": n, "warp_best": min(w), "numpy_best": min(p), "max_abs_diff": agree,
+            "m_diff": float(np.abs(factors.numpy() - m_ref).max())}
+
+
+def _timed(fn) -> float:
+    start = time.perf_counter()
+    fn()
+    return time.perf_counter() - start
+
+
+def layers_scaling(terrain, repeat: int) -> list[dict]:
+    from stepterrain.closeup import closeup_layers
+
+    rows = []
+    for fraction in (0.01, 0.05, 0.2, 1.0):
+        if fraction < 1.0:
+            cus = closeups_for(terrain, 1, fraction)
+        else:
+            from stepterrain.closeup import ROI, CloseUp
+
+            xmin, xmax, ymin, ymax = terrain.extent
+            cus = [CloseUp(ROI.rectangle(((xmin + xmax) / 2, (ymin + ymax) / 2), (xmax - xmin, ymax - ymin)),
+                           scale=1.4, offset=(0.0, 0.0, 5000.0))]
+        closeup_layers(terrain, cus, device="cpu")
+        times = [_timed(lambda cus=cus: closeup_layers(terrain, cus, device="cpu")) for _ in range(repeat)]
+        faces = len(closeup_layers(terrain, cus, device="cpu")[0].faces)
+        rows.append({"fraction": fraction, "best": min(times), "faces": faces})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3)
+    parser.add_argument("--counts", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--skip-full", action="store_true", help="skip the whole-terrain-per-close-up contender")
+    parser.add_argument("--all-cores", action="store_true")
+    parser.add_argument("--output", default=None, help="write the markdown report here")
+    args = parser.parse_args(argv)
+    pinned = "all cores"
+    if not args.all_cores and hasattr(os, "sched_setaffinity"):
+        core = min(os.sched_getaffinity(0))
+        os.sched_setaffinity(0, {core})
+        pinned = f"pinned to core {core}"
+    import stepterrain as st
+
+    st.set_cpu_threads(1 if not args.all_cores else None)
+    terrain, source = load_terrain()
+    n_faces = 2 * (terrain.shape[0] - 1) * (terrain.shape[1] - 1)
+    lines = [f"### Run {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC",
+             "",
+             f"- command: `python benchmarks/run_closeup.py {' '.join(argv if argv is not None else sys.argv[1:])}`",
+             f"- machine: {cpu_model()}, {os.cpu_count()} cores, {pinned}; load average before: "
+             f"{os.getloadavg()[0]:.2f} (other engineers share the machine)",
+             f"- commit: {_git('rev-parse', '--short', 'HEAD')}; Python {platform.python_version()}",
+             f"- terrain: {source}, {terrain.shape[0]} x {terrain.shape[1]} nodes, {n_faces:,} triangles; window "
+             f"{WINDOW[0]}x{WINDOW[1]}; each ROI a disc of 5% of the terrain; best of {args.repeat} frames, "
+             "the close-up counts interleaved frame by frame",
+             ""]
+    print("\n".join(lines), flush=True)
+    table = ["| close-ups | culled: best frame (s) | median | transform | render | composite | ratio to 0 | "
+             "full terrain per close-up: best (s) | ratio to 0 | camera still, overview pass reused: best (s) | "
+             "ratio to 0 |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+    base_culled = base_full = None
+    culled_all = time_culled_interleaved(terrain, args.counts, args.repeat)
+    still_all = time_culled_interleaved(terrain, args.counts, args.repeat, reuse=True)
+    for count in args.counts:
+        culled = culled_all[count]
+        full = time_full(terrain, count, max(1, args.repeat - 1)) if not args.skip_full and count else None
+        base_culled = culled["best"] if count == 0 else base_culled
+        if count == 0:
+            base_full = culled["best"]
+        s = culled["stages"]
+        ratio = culled["best"] / base_culled if base_culled else float("nan")
+        full_text = (f"{full['best']:.3f} | {full['best'] / base_full:.2f}x" if full else
+                     (f"{culled['best']:.3f} | 1.00x" if count == 0 else "- | -"))
+        still = still_all[count]
+        row = (f"| {count} | {culled['best']:.3f} | {culled['median']:.3f} | {s['transform']:.3f} | {s['render']:.3f} "
+               f"| {s['composite']:.3f} | {ratio:.2f}x | {full_text} | {still['best']:.3f} | "
+               f"{still['best'] / base_culled:.2f}x |")
+        table.append(row)
+        print(row, flush=True)
+    last = table[-1]
+    verdict = ""
+    if 4 in args.counts and 0 in args.counts:
+        r4 = float(last.split("|")[7].strip().rstrip("x"))
+        verdict = f"Goal (4 close-ups of 5% ROIs <= {GOAL}x the 0-close-up frame): {r4:.2f}x, " \
+                  f"{'met' if r4 <= GOAL else 'not met'}."
+    tp = transform_throughput(terrain, args.repeat)
+    tp_lines = [
+        "",
+        f"Transform kernel, one core, {tp['vertices']:,} vertices (best of {args.repeat}): Warp "
+        f"{tp['warp_best'] * 1e3:.1f} ms = {tp['vertices'] / tp['warp_best'] / 1e6:.1f} M vertices/s; NumPy "
+        f"{tp['numpy_best'] * 1e3:.1f} ms = {tp['vertices'] / tp['numpy_best'] / 1e6:.1f} M vertices/s; Warp is "
+        f"{tp['numpy_best'] / tp['warp_best']:.1f}x faster (max |difference| {tp['max_abs_diff']:.2g} m in "
+        f"position, {tp['m_diff']:.2g} in m).",
+        "",
+        "`closeup_layers` (transform + cull, end to end, one close-up) by ROI size:",
+        "",
+        "| ROI share of the terrain | best (ms) | faces emitted |",
+        "|---|---|---|",
+    ]
+    for row in layers_scaling(terrain, args.repeat):
+        tp_lines.append(f"| {row['fraction']:.0%} | {row['best'] * 1e3:.1f} | {row['faces']:,} |")
+    text = "\n".join(lines + table + ["", verdict] + tp_lines) + "\n"
+    print("\n".join(["", verdict] + tp_lines), flush=True)
+    if args.output:
+        Path(args.output).write_text(text)
+    return 0
+
+
+def _git(*args: str) -> str:
+    try:
+        return subprocess.run(["git", *args], capture_output=True, text=True, cwd=_HERE, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,61 @@
+"""Anchor styles side by side (paper 001, Fig. 4) and inactive depictions (Fig. 5).
+
+Four close-ups of one DEM, each anchored to its ROI by a fence in its color whose transparency follows a
+different 1D transfer function of the normalized distance between overview and close-up: opaque, linear
+(solid at the ROI, fading towards the close-up), inverse and ends. With --inactive the close-ups are drawn
+inactive in the three depictions of Fig. 5 (anchor hidden, gray, faint) plus one active for comparison.
+
+    python examples/closeup_anchors.py --output anchors.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import stepterrain as st
+from stepterrain.closeup import ROI, AnchorStyle, CloseUp, render_closeups
+from stepterrain.render import save_png
+
+STYLES = ("opaque", "linear", "inverse", "ends")
+INACTIVE = ("hidden", "gray", "faint", None)
+
+
+def closeups(terrain: st.Terrain, inactive: bool = False) -> list[CloseUp]:
+    xmin, xmax, ymin, ymax = terrain.extent
+    w, h = xmax - xmin, ymax - ymin
+    r = 0.1 * min(w, h)
+    out = []
+    for k, style in enumerate(STYLES):
+        fx = 0.16 + 0.225 * k
+        depiction = INACTIVE[k] if inactive else None
+        anchor = AnchorStyle(style, inactive=depiction or "faint")
+        out.append(CloseUp(ROI.circle((xmin + fx * w, ymin + 0.5 * h), r), scale=1.3,
+                           offset=(0.0, 0.1 * h, 0.22 * max(w, h)), anchor=anchor,
+                           active=depiction is None))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--size", type=int, default=0, help="crop the DEM to SIZE x SIZE nodes (0: whole DEM)")
+    parser.add_argument("--window", type=int, nargs=2, default=(1280, 720), metavar=("W", "H"))
+    parser.add_argument("--output", default="closeup_anchors.png")
+    parser.add_argument("--inactive", action="store_true", help="show the inactive depictions of Fig. 5")
+    parser.add_argument("--device", default=None)
+    args = parser.parse_args(argv)
+    terrain = st.sample_dem()
+    if args.size:
+        rows, cols = terrain.shape
+        dx, dy = terrain.spacing
+        i0, j0 = max(0, (rows - args.size) // 2), max(0, (cols - args.size) // 2)
+        terrain = st.Terrain.from_heights(terrain.heights[i0: i0 + args.size, j0: j0 + args.size], spacing=(dx, dy),
+                                          origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
+    image = render_closeups(terrain, closeups(terrain, args.inactive), window_size=tuple(args.window), z_scale=2.0,
+                            device=args.device)
+    save_png(image, args.output)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

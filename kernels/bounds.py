@@ -1,0 +1,291 @@
+"""Bounding shapes and refinement metrics of paper 003 (Adelsberger, §6-§7), as Warp device functions.
+
+A node's bounding shape B is either a sphere (centre p, radius r) or a cone frustum about the node's radial
+axis with concentrically curved top and bottom (radii |p| - h .. |p| + h, opening angle α around p/|p|).
+
+* :func:`eye_distance_sphere`, :func:`eye_distance_cone`: d(v, B), the distance of the eye v to the shape
+  (§7.2; the cone's six cases of Abb. 6).
+* :func:`plane_distance_sphere`, :func:`plane_distance_cone`: the largest signed distance ⟨n, x⟩ + a over the
+  shape (§7.3; the cone's three cases of Abb. 7). The smallest is minus the value for the inverted plane
+  (-n, -a): the shape lies wholly on the outer side iff the inverted plane's value is < 0.
+* :func:`node_metric`: μ = μ_geo · μ_dist · μ_clip (§7.4), each factor switchable in :class:`View`.
+
+Shape parameters arrive as float32; every formula runs in float64, so the float32 saturation margin that the
+preprocessing adds per level (relative 2^-20, paper §6: "Größenordnung 10^-6") always exceeds the rounding of
+the metric and the computed metric stays saturated: parent >= child, hence no hanging nodes.
+
+Planes use outward normals: a point x is inside the view frustum iff ⟨n_i, x⟩ + a_i <= 0 for all six i.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+HUGE = wp.constant(wp.float64(1.0e300))
+
+
+@wp.struct
+class View:
+    """What the refinement metric needs from a camera (eye and six planes, float64, planet-centred)."""
+
+    eye: wp.vec3d
+    planes: wp.array[wp.vec4d]  # (n_x, n_y, n_z, a): outward unit normal n and offset a
+    distance_scale: wp.float64  # ℓ: μ_dist = (ℓ / d)^2, so `error` is the geometric error tolerated at d = ℓ
+    error: wp.float64  # ε: a triangle refines when μ > ε (or ε == 0 and μ_clip == 1)
+    flags: wp.vec4i  # (use_geometric, use_distance, use_clip, cone): each 1 or 0; cone 0 means spheres
+
+
+@wp.func
+def to_vec3d(p: wp.vec3) -> wp.vec3d:
+    """float32 point -> float64 point."""
+    return wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+
+
+@wp.func
+def angle_between(u: wp.vec3d, v: wp.vec3d) -> wp.float64:
+    """Angle between two vectors in radians, accurate for small angles (atan2 of |u x v| and u . v)."""
+    return wp.atan2(wp.length(wp.cross(u, v)), wp.dot(u, v))
+
+
+@wp.func
+def sin_cos(alpha: wp.float64) -> wp.vec2d:
+    """(sin α, cos α): Taylor series below 0.05 rad (error < 1e-17, no libm call), libm above."""
+    if alpha < wp.float64(0.05):
+        a2 = alpha * alpha
+        s = alpha * (wp.float64(1.0) - a2 / wp.float64(6.0) * (wp.float64(1.0) - a2 / wp.float64(20.0) * (
+            wp.float64(1.0) - a2 / wp.float64(42.0))))
+        c = wp.float64(1.0) - a2 / wp.float64(2.0) * (wp.float64(1.0) - a2 / wp.float64(12.0) * (
+            wp.float64(1.0) - a2 / wp.float64(30.0) * (wp.float64(1.0) - a2 / wp.float64(56.0))))
+        return wp.vec2d(s, c)
+    return wp.vec2d(wp.sin(alpha), wp.cos(alpha))
+
+
+@wp.func
+def offset_angle(u_hat: wp.vec3d, p_hat: wp.vec3d, alpha_sc: wp.vec2d) -> wp.vec2d:
+    """(sin γ, cos γ) of γ = β - α, β the angle between unit vectors u and p (no libm call): γ <= 0 iff
+    sin γ <= 0, and γ < 90° iff cos γ > 0 (β, α in [0, π])."""
+    cb = wp.dot(u_hat, p_hat)
+    sb = wp.length(wp.cross(u_hat, p_hat))
+    return wp.vec2d(sb * alpha_sc[1] - cb * alpha_sc[0], cb * alpha_sc[1] + sb * alpha_sc[0])
+
+
+@wp.func
+def eye_distance_sphere(p: wp.vec3d, r: wp.float64, eye: wp.vec3d) -> wp.float64:
+    """d(v, B_sphere) = ||p - v|| - r, clamped at 0 (paper 003 §7.2)."""
+    return wp.max(wp.length(p - eye) - r, wp.float64(0.0))
+
+
+@wp.func
+def eye_distance_cone(p: wp.vec3d, h: wp.float64, alpha: wp.float64, eye: wp.vec3d) -> wp.float64:
+    """d(v, B_cone): the six cases of paper 003 Abb. 6 (§7.2); 0 when the eye lies inside."""
+    p_len = wp.length(p)
+    v_len = wp.length(eye)
+    top = p_len + h
+    bottom = wp.max(p_len - h, wp.float64(0.0))
+    if v_len <= wp.float64(0.0):
+        return bottom
+    g = offset_angle(eye / v_len, p / p_len, sin_cos(alpha))
+    sin_g = g[0]
+    cos_g = g[1]
+    if sin_g <= wp.float64(0.0):  # β <= α: the eye lies above, inside or below the frustum
+        if v_len > top:  # case 1: above the top
+            return v_len - top
+        if v_len < bottom:  # case 3: below the bottom
+            return bottom - v_len
+        return wp.float64(0.0)  # case 2: inside
+    if cos_g > wp.float64(0.0):  # γ < 90°
+        if v_len * cos_g >= bottom and v_len * cos_g <= top:  # case 5: t1 <= |v| <= t2, the mantle
+            return v_len * sin_g
+        if v_len * cos_g > top:  # case 4: |v| > t2, rim of the top
+            d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * top + top * top
+            return wp.sqrt(wp.max(d2, wp.float64(0.0)))
+    d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * bottom + bottom * bottom  # case 6: rim of the bottom
+    return wp.sqrt(wp.max(d2, wp.float64(0.0)))
+
+
+@wp.func
+def plane_distance_sphere(plane: wp.vec4d, p: wp.vec3d, r: wp.float64) -> wp.float64:
+    """Largest signed distance ⟨n, x⟩ + a over the sphere: ⟨n, p⟩ + a + r (paper 003 §7.3)."""
+    n = wp.vec3d(plane[0], plane[1], plane[2])
+    return wp.dot(n, p) + plane[3] + r
+
+
+@wp.func
+def plane_distance_cone_unit(plane: wp.vec4d, p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64,
+                             alpha_sc: wp.vec2d) -> wp.float64:
+    """:func:`plane_distance_cone` with the axis p = p_len · p_hat and (sin α, cos α) given."""
+    n = wp.vec3d(plane[0], plane[1], plane[2])
+    g = offset_angle(n, p_hat, alpha_sc)
+    if g[0] <= wp.float64(0.0):  # case 1: γ <= 0, the top straight along n
+        return plane[3] + (p_len + h)
+    if g[1] >= wp.float64(0.0):  # case 2: 0 < γ <= 90°, the rim of the top
+        return plane[3] + g[1] * (p_len + h)
+    return plane[3] + g[1] * wp.max(p_len - h, wp.float64(0.0))  # case 3: the rim of the bottom
+
+
+@wp.func
+def plane_distance_cone(plane: wp.vec4d, p: wp.vec3d, h: wp.float64, alpha: wp.float64) -> wp.float64:
+    """Largest signed distance ⟨n, x⟩ + a over the cone frustum: the three cases of Abb. 7 (§7.3)."""
+    p_len = wp.length(p)
+    return plane_distance_cone_unit(plane, p / p_len, p_len, h, sin_cos(alpha))
+
+
+@wp.func
+def inverted(plane: wp.vec4d) -> wp.vec4d:
+    """The same plane with normal and offset negated."""
+    return wp.vec4d(-plane[0], -plane[1], -plane[2], -plane[3])
+
+
+@wp.func
+def shape_outside_view(
+    planes: wp.array[wp.vec4d], cone: wp.int32, p: wp.vec3d, r: wp.float64, h: wp.float64, alpha: wp.float64
+) -> wp.int32:
+    """1 when the node's bounding shape lies wholly outside one of the six planes (the inverted-plane test:
+    the largest distance over the shape from the inverted plane is < 0)."""
+    if cone != 0:
+        p_len = wp.length(p)
+        p_hat = p / p_len
+        alpha_sc = sin_cos(alpha)
+        # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
+        # plane; the exact cases of Abb. 7 only for planes through that ball)
+        ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
+        for k in range(planes.shape[0]):
+            plane = planes[k]
+            centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
+            if centre > ball:
+                return 1
+            if centre >= -ball:
+                if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
+                    return 1
+        return 0
+    for k in range(planes.shape[0]):
+        if plane_distance_sphere(inverted(planes[k]), p, r) < wp.float64(0.0):
+            return 1
+    return 0
+
+
+@wp.func
+def triangle_outside_view(planes: wp.array[wp.vec4d], a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.int32:
+    """1 when a flat triangle lies wholly outside one of the six planes (all three corners outside it)."""
+    for k in range(planes.shape[0]):
+        plane = planes[k]
+        n = wp.vec3d(plane[0], plane[1], plane[2])
+        if wp.dot(n, a) + plane[3] > wp.float64(0.0):
+            if wp.dot(n, b) + plane[3] > wp.float64(0.0):
+                if wp.dot(n, c) + plane[3] > wp.float64(0.0):
+                    return 1
+    return 0
+
+
+@wp.func
+def node_metric(
+    eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64,
+    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+) -> wp.float64:
+    """μ = μ_geo · μ_dist · μ_clip · μ_user of one node (paper 003 §7.4); each factor 1 when switched off.
+
+    ``flags`` = (use_geometric, use_distance, use_clip, cone) of :class:`View` (plain values rather than the
+    struct: Warp passes structs to functions by value). μ_geo = e (saturated geometric error),
+    μ_dist = (ℓ / d(v, B))^2 (HUGE when the eye touches B), μ_clip = 0 when B lies wholly outside a frustum
+    plane, else 1; μ_user = ``factor``.
+    """
+    p = to_vec3d(p32)
+    if flags[2] != 0:
+        if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            return wp.float64(0.0)
+    mu = factor
+    if mu <= wp.float64(0.0):
+        return wp.float64(0.0)
+    if flags[0] != 0:
+        mu = mu * wp.float64(e)
+        if mu <= wp.float64(0.0):
+            return wp.float64(0.0)
+    if flags[1] != 0:
+        d = wp.float64(0.0)
+        if flags[3] != 0:
+            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), eye)
+        else:
+            d = eye_distance_sphere(p, wp.float64(r), eye)
+        if d <= wp.float64(0.0):
+            return HUGE
+        q = distance_scale / d
+        mu = mu * q * q
+    return mu
+
+
+@wp.func
+def refine_node(
+    eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64, error: wp.float64,
+    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+) -> wp.int32:
+    """The refinement rule: μ > ε (μ of :func:`node_metric`); with ε == 0 every node not clipped refines.
+
+    Cheapest tests first: μ_geo, then an upper bound of μ_dist from the radial gap between the eye and the
+    cone's shell (a lower bound of d), then the exact distance, and the six-plane clip test last. Each early
+    "no" is a saturated predicate itself (nested shapes have nested radial ranges), so the rule stays
+    saturated."""
+    p = to_vec3d(p32)
+    if error <= wp.float64(0.0):
+        if flags[2] != 0:
+            if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+                return 0
+        return 1
+    mu = factor
+    if flags[0] != 0:
+        mu = mu * wp.float64(e)
+    if mu <= error:
+        if mu <= wp.float64(0.0) or flags[1] == 0:
+            return 0
+    if flags[1] != 0:
+        d = wp.float64(0.0)
+        if flags[3] != 0:
+            p_len = wp.length(p)
+            v_len = wp.length(eye)
+            gap = wp.max(v_len - (p_len + wp.float64(h)), (p_len - wp.float64(h)) - v_len)
+            if gap > wp.float64(0.0):
+                q = distance_scale / gap
+                if mu * q * q <= error:
+                    return 0
+            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), eye)
+        else:
+            d = eye_distance_sphere(p, wp.float64(r), eye)
+        if d > wp.float64(0.0):
+            q = distance_scale / d
+            mu = mu * q * q
+        else:
+            mu = HUGE
+    if mu <= error:
+        return 0
+    if flags[2] != 0:
+        if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            return 0
+    return 1
+
+
+# ---------------------------------------------------------------------------------------------------------
+# kernels used by tests and benchmarks to evaluate the formulas on many shapes at once
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.kernel
+def evaluate_shape_distances(
+    thread_offset: wp.int32,
+    centres: wp.array[wp.vec3d],
+    params: wp.array[wp.vec3d],  # (r, h, alpha)
+    eye: wp.vec3d,
+    plane: wp.vec4d,
+    # outputs
+    distances_out: wp.array[wp.vec4d],  # (eye-sphere, eye-cone, plane-sphere max, plane-cone max)
+):
+    """One thread per shape: the four distance formulas for one eye and one plane."""
+    i = wp.tid() + thread_offset
+    p = centres[i]
+    q = params[i]
+    distances_out[i] = wp.vec4d(
+        eye_distance_sphere(p, q[0], eye),
+        eye_distance_cone(p, q[1], q[2], eye),
+        plane_distance_sphere(plane, p, q[0]),
+        plane_distance_cone(plane, p, q[1], q[2]),
+    )

@@ -1,0 +1,886 @@
+"""Warp kernels of the cube-sphere grid and its longest-edge bisection hierarchy (paper 003, Adelsberger, §4-§7).
+
+Conventions (shared with ``stepterrain.globe`` and ``tests/reference_globe.py``):
+
+* Six faces of n = N + 1 nodes per edge, N = 2^k. Node (face, i, j) is *entry* face·n² + i·n + j; row i runs
+  along the face's local y axis, column j along its local x axis. Face-local integer coordinates are
+  X = 2j - N, Y = 2i - N, so the cube is [-N, N]³ and a node's cube point is X·x_f + Y·y_f + N·n_f with the
+  face frame (x_f, y_f, n_f) of :data:`FACE_FRAMES` (paper 003 §4, table and Abb. 1; face f is the paper's
+  side f + 1). Every frame is a rotation, so counter-clockwise in (X, Y) is counter-clockwise from outside.
+* Projection v = (R + z) · w / ||w|| (§4, R = √3·m with m = half the cube side): w is the integer cube point,
+  so a node shared by two or three faces has the same w on each, and its float64 direction and float32
+  position are bit-identical on every copy.
+* Longest-edge bisection (§5.1, Abb. 3): each face starts as the two right triangles split by its main
+  diagonal (0, 0)-(N, N). A triangle is (face, a, b, c) with hypotenuse a-b and apex c, each corner packed as
+  i << 16 | j (no integer division on the hot path); its refinement node is m = (a + b) / 2 and its children
+  are (c, a, m) and (b, c, m), which keeps the winding. A triangle
+  at depth d has its refinement node at depth d; depth 2k triangles are the grid's cells' halves.
+* Node depth: with s the largest power of two dividing both i and j, a node with both i/s and j/s odd is a
+  *diagonal* node (the centre of a 2s square, depth 2(k-1-log2 s)); otherwise an *axis* node (the midpoint of
+  an axis-parallel edge of length 2s, depth one more). The four children of a diagonal node are (i ± s, j),
+  (i, j ± s); of an axis node (i ± s/2, j ± s/2) (none when s = 1). Children across a face border are
+  folded onto the neighbouring face, so the hierarchy runs across seams (§5.1: "Ränder gibt es nicht").
+* Every kernel takes ``thread_offset, count, chunk`` first: thread t handles elements
+  [(t + thread_offset)·chunk, ... + chunk) ∩ [0, count) (``stepterrain._device.launch`` splits the threads over
+  CPU cores). chunk is 1 on CUDA; on the CPU it is large, because Warp copies a kernel's arguments (here
+  structs of arrays, about 1 kB) once per thread.
+* The planar case (``planar = 1``): one face, positions (j·dx, i·dy, z), no folding; children and apexes
+  outside the grid do not exist.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import warp as wp
+
+from . import bounds
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+#: Face frames (paper 003 §4 table): per face the images of the local x axis, local y axis and the outward
+#: normal as signed axis codes (+1 = +X, -2 = -Y, 3 = +Z, ...). Side 1 (x, y, z); side 2 (z, -y, x);
+#: side 3 (-y, z, -x); side 4 (-x, -z, -y); side 5 (-z, -x, y); side 6 (y, x, -z).
+FACE_FRAMES: Final = ((1, 2, 3), (3, -2, 1), (-3, -1, 2), (-1, -3, -2), (-2, 3, -1), (2, 1, -3))
+
+
+#: Saturation margin added per level to r, h and α (paper 003 §6: "eine kleine Korrektur ... 10^-6").
+RELATIVE_MARGIN = wp.constant(wp.float64(2.0**-20))
+ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
+
+
+@wp.struct
+class CubeSphereGrid:
+    """The nodes: N cells per face edge, heights (exaggerated, metres) and float32 positions per entry."""
+
+    cells: wp.int32  # N = 2^k
+    n: wp.int32  # N + 1 nodes per face edge
+    planar: wp.int32  # 1: one flat face (paper 003 in the plane, SOAR/RTIN), 0: the six cube faces
+    radius: wp.float64  # R, metres
+    spacing: wp.vec2d  # planar only: (dx, dy)
+    rows_valid: wp.int32  # planar only: rows of the input before padding to n (n when not padded)
+    cols_valid: wp.int32  # planar only: columns of the input before padding to n
+    heights: wp.array[wp.float32]  # per entry: exaggerated elevation z
+    positions: wp.array[wp.vec3]  # per entry: planet-centred (planar: local) position, float32
+
+
+@wp.struct
+class NodeParameters:
+    """Per entry, computed bottom-up (§6, §7.1): e, r, h, α; identical on the copies of a seam node."""
+
+    geometric_error: wp.array[wp.float32]
+    bounding_radius: wp.array[wp.float32]
+    cone_height: wp.array[wp.float32]
+    cone_angle: wp.array[wp.float32]
+
+
+@wp.struct
+class LatLonGrid:
+    """A global elevation grid, rows north to south, columns west to east, regular in degrees (as radians)."""
+
+    elevation: wp.array2d[wp.float32]
+    lat0: wp.float64  # latitude of row 0's centre (the northernmost row)
+    dlat: wp.float64  # > 0: radians per row, southwards
+    lon0: wp.float64  # longitude of column 0's centre
+    dlon: wp.float64  # > 0: radians per column, eastwards
+    inv_dlat: wp.float64  # 1 / dlat
+    inv_dlon: wp.float64  # 1 / dlon
+    north_pole: wp.float32  # mean of row 0: the value at 90° N
+    south_pole: wp.float32  # mean of the last row: the value at 90° S
+
+
+# ---------------------------------------------------------------------------------------------------------
+# grid geometry
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def frame_rotate(face: wp.int32, q: wp.vec3i) -> wp.vec3i:
+    """Face-local (x, y, z) -> 3D: the rows of the paper's table (§4; :data:`FACE_FRAMES`)."""
+    if face == 0:
+        return q
+    if face == 1:
+        return wp.vec3i(q[2], -q[1], q[0])
+    if face == 2:
+        return wp.vec3i(-q[1], q[2], -q[0])
+    if face == 3:
+        return wp.vec3i(-q[0], -q[2], -q[1])
+    if face == 4:
+        return wp.vec3i(-q[2], -q[0], q[1])
+    return wp.vec3i(q[1], q[0], -q[2])
+
+
+@wp.func
+def frame_unrotate(face: wp.int32, p: wp.vec3i) -> wp.vec3i:
+    """3D -> face-local (x, y, z): the inverse (transpose) of :func:`frame_rotate`."""
+    if face == 0:
+        return p
+    if face == 1:
+        return wp.vec3i(p[2], -p[1], p[0])
+    if face == 2:
+        return wp.vec3i(-p[2], -p[0], p[1])
+    if face == 3:
+        return wp.vec3i(-p[0], -p[2], -p[1])
+    if face == 4:
+        return wp.vec3i(-p[1], p[2], -p[0])
+    return wp.vec3i(p[1], p[0], -p[2])
+
+
+@wp.func
+def local_point(i: wp.int32, j: wp.int32, cells: wp.int32) -> wp.vec3i:
+    """Face-local cube point (2j - N, 2i - N, N) of node (i, j); a node up to one face width outside the face
+    is folded over the edge onto the neighbouring face's plane."""
+    x = 2 * j - cells
+    y = 2 * i - cells
+    z = cells
+    if x > cells:
+        z = 2 * cells - x
+        x = cells
+    elif x < -cells:
+        z = 2 * cells + x
+        x = -cells
+    if y > cells:
+        z = 2 * cells - y
+        y = cells
+    elif y < -cells:
+        z = 2 * cells + y
+        y = -cells
+    return wp.vec3i(x, y, z)
+
+
+@wp.func
+def cube_point(face: wp.int32, i: wp.int32, j: wp.int32, cells: wp.int32) -> wp.vec3i:
+    """Integer 3D cube point of face node (i, j) (folded over the edge when just outside the face)."""
+    return frame_rotate(face, local_point(i, j, cells))
+
+
+@wp.func
+def point_entry(point: wp.vec3i, cells: wp.int32, n: wp.int32) -> wp.int32:
+    """The canonical entry of a cube point: on the lowest-numbered face that holds it."""
+    for f in range(6):
+        q = frame_unrotate(f, point)
+        if q[2] == cells:
+            return f * n * n + ((q[1] + cells) // 2) * n + (q[0] + cells) // 2
+    return -1
+
+
+@wp.func
+def node_entry(cells: wp.int32, planar: wp.int32, face: wp.int32, i: wp.int32, j: wp.int32) -> wp.int32:
+    """Entry of face node (i, j), canonical on seams (folded over the edge when just outside the face).
+
+    Plain values rather than the grid struct: Warp passes structs to functions by value."""
+    n = cells + 1
+    if planar != 0 or (i > 0 and i < cells and j > 0 and j < cells):
+        return face * n * n + i * n + j
+    return point_entry(cube_point(face, i, j, cells), cells, n)
+
+
+@wp.func
+def canonical_entry(grid: CubeSphereGrid, entry: wp.int32) -> wp.int32:
+    """The canonical copy of an entry (itself unless it lies on a face border)."""
+    nn = grid.n * grid.n
+    face = entry // nn
+    rest = entry - face * nn
+    return node_entry(grid.cells, grid.planar, face, rest // grid.n, rest % grid.n)
+
+
+@wp.func
+def node_direction(point: wp.vec3i) -> wp.vec3d:
+    """w / ||w|| in float64 from the integer cube point (exact sum of squares: bit-identical on seams)."""
+    w = wp.vec3d(wp.float64(point[0]), wp.float64(point[1]), wp.float64(point[2]))
+    return w * (wp.float64(1.0) / wp.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]))
+
+
+@wp.func
+def entry_position64(grid: CubeSphereGrid, entry: wp.int32) -> wp.vec3d:
+    """float64 position of an entry: (R + z) · w / ||w|| (paper 003 §4), or (j·dx, i·dy, z) in the plane."""
+    nn = grid.n * grid.n
+    face = entry // nn
+    rest = entry - face * nn
+    i = rest // grid.n
+    j = rest % grid.n
+    z = wp.float64(grid.heights[entry])
+    if grid.planar != 0:
+        return wp.vec3d(wp.float64(j) * grid.spacing[0], wp.float64(i) * grid.spacing[1], z)
+    return (grid.radius + z) * node_direction(cube_point(face, i, j, grid.cells))
+
+
+@wp.func
+def in_grid(grid: CubeSphereGrid, i: wp.int32, j: wp.int32) -> wp.int32:
+    """1 when (i, j) lies on the face (always 1 on the cube, where outside nodes fold onto a neighbour)."""
+    if grid.planar == 0:
+        return 1
+    if i >= 0 and i <= grid.cells and j >= 0 and j <= grid.cells:
+        return 1
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------------------
+# resampling and projection (§4)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def sample_row(source: LatLonGrid, row: wp.int32, lon: wp.float64) -> wp.float32:
+    """Linear interpolation along one row in longitude, wrapping around the antimeridian."""
+    cols = source.elevation.shape[1]
+    fc = (lon - source.lon0) * source.inv_dlon
+    fc = fc - wp.floor(fc / wp.float64(cols)) * wp.float64(cols)
+    c0 = wp.int32(wp.floor(fc))
+    t = wp.float32(fc - wp.float64(c0))
+    if c0 >= cols:
+        c0 = c0 - cols
+    c1 = c0 + 1
+    if c1 >= cols:
+        c1 = 0
+    return (1.0 - t) * source.elevation[row, c0] + t * source.elevation[row, c1]
+
+
+@wp.func
+def fast_atan2(y: wp.float64, x: wp.float64) -> wp.float64:
+    """atan2 to 4e-12 rad without a libm call: reduction to |t| <= tan(π/8), odd degree-13 polynomial."""
+    ax = wp.abs(x)
+    ay = wp.abs(y)
+    hi = wp.max(ax, ay)
+    if hi == wp.float64(0.0):
+        return wp.float64(0.0)
+    t = wp.min(ax, ay) / hi
+    base = wp.float64(0.0)
+    if t > wp.float64(0.41421356237309503):
+        t = (t - wp.float64(1.0)) / (t + wp.float64(1.0))
+        base = wp.float64(0.7853981633974483)
+    t2 = t * t
+    poly = wp.float64(0.04551206574864833)
+    poly = poly * t2 - wp.float64(0.0836889602155541)
+    poly = poly * t2 + wp.float64(0.11021707200600295)
+    poly = poly * t2 - wp.float64(0.14279647683533167)
+    poly = poly * t2 + wp.float64(0.19999786239682021)
+    poly = poly * t2 - wp.float64(0.33333329990609384)
+    poly = poly * t2 + wp.float64(0.9999999998481683)
+    r = base + t * poly
+    if ay > ax:
+        r = wp.float64(1.5707963267948966) - r
+    if x < wp.float64(0.0):
+        r = wp.float64(3.141592653589793) - r
+    if y < wp.float64(0.0):
+        r = -r
+    return r
+
+
+@wp.func
+def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
+    """Bilinear elevation at a unit direction; between the first (last) row and the pole, a blend towards
+    the pole value."""
+    rows = source.elevation.shape[0]
+    half_pi = wp.float64(1.5707963267948966)
+    lat = fast_atan2(direction[2], wp.sqrt(direction[0] * direction[0] + direction[1] * direction[1]))
+    lon = fast_atan2(direction[1], direction[0])
+    fr = (source.lat0 - lat) * source.inv_dlat
+    if fr <= wp.float64(0.0):
+        span = half_pi - source.lat0
+        w = wp.float32(0.0)
+        if span > wp.float64(0.0):
+            w = wp.float32(wp.clamp((lat - source.lat0) / span, wp.float64(0.0), wp.float64(1.0)))
+        return (1.0 - w) * sample_row(source, 0, lon) + w * source.north_pole
+    last = wp.float64(rows - 1)
+    if fr >= last:
+        lat_last = source.lat0 - last * source.dlat
+        span = lat_last + half_pi
+        w = wp.float32(0.0)
+        if span > wp.float64(0.0):
+            w = wp.float32(wp.clamp((lat_last - lat) / span, wp.float64(0.0), wp.float64(1.0)))
+        return (1.0 - w) * sample_row(source, rows - 1, lon) + w * source.south_pole
+    r0 = wp.int32(wp.floor(fr))
+    r0 = wp.min(r0, rows - 2)
+    t = wp.float32(fr - wp.float64(r0))
+    return (1.0 - t) * sample_row(source, r0, lon) + t * sample_row(source, r0 + 1, lon)
+
+
+@wp.kernel
+def resample_latlon(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    source: LatLonGrid,
+    exaggeration: wp.float32,
+    # outputs
+    heights_out: wp.array[wp.float32],
+    positions_out: wp.array[wp.vec3],
+):
+    """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
+    projected position v = (R + z) · w / ||w|| rounded to float32 (§4)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for entry in range(first, last):
+        nn = grid.n * grid.n
+        # (face, i, j) by float64 reciprocals (exact for entry < 2^31: the +1e-9 fixes k·n·(1/n) = k - ε)
+        face = wp.int32(wp.float64(entry) * (wp.float64(1.0) / wp.float64(nn)) + wp.float64(1e-9))
+        rest = entry - face * nn
+        i = wp.int32(wp.float64(rest) * (wp.float64(1.0) / wp.float64(grid.n)) + wp.float64(1e-9))
+        j = rest - i * grid.n
+        direction = node_direction(cube_point(face, i, j, grid.cells))
+        z = exaggeration * sample_latlon(source, direction)
+        heights_out[entry] = z
+        p = (grid.radius + wp.float64(z)) * direction
+        positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+
+
+@wp.kernel
+def project_nodes(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    # outputs
+    positions_out: wp.array[wp.vec3],
+):
+    """One thread per entry: v = (R + z) · w / ||w|| rounded to float32 (planar: (j·dx, i·dy, z))."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for entry in range(first, last):
+        p = entry_position64(grid, entry)
+        positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# hierarchy parameters, bottom-up (§6, §7.1)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def depth_node(depth: wp.int32, tid: wp.int32, cells: wp.int32) -> wp.vec4i:
+    """Thread ``tid`` of the launch over ``depth`` -> (face, i, j, kind), or kind -1 for a padding thread.
+
+    Shifts and masks only (integer division is the costliest step of a CPU thread): per face 4^t slots at an
+    even depth (q² diagonal nodes, q = 2^t), 4^(t+1) at an odd one (two orientations of q x 2q slots for
+    q x (q + 1) axis nodes; the rest pad). kind 0/1: diagonal node whose hypotenuse is the main / anti
+    diagonal of its 2s square; 2: axis node with its hypotenuse along i; 3: along j."""
+    t = depth >> 1
+    s = cells >> (t + 1)
+    if (depth & 1) == 0:
+        shift = 2 * t
+        face = tid >> shift
+        local = tid & ((1 << shift) - 1)
+        a = local >> t
+        b = local & ((1 << t) - 1)
+        kind = wp.int32(1)
+        if ((a + b) & 1) == 0:
+            kind = 0
+        return wp.vec4i(face, s * (2 * a + 1), s * (2 * b + 1), kind)
+    shift = 2 * t + 2
+    face = tid >> shift
+    local = tid & ((1 << shift) - 1)
+    orientation = local >> (2 * t + 1)
+    rest = local & ((1 << (2 * t + 1)) - 1)
+    if orientation == 0:  # i = s(2a + 1), j = 2sb: b runs fastest, along a row
+        a = rest >> (t + 1)
+        b = rest & ((1 << (t + 1)) - 1)
+        if b > (1 << t):
+            return wp.vec4i(face, 0, 0, -1)
+        return wp.vec4i(face, s * (2 * a + 1), 2 * s * b, 2)
+    b = rest >> t  # i = 2sb, j = s(2a + 1): a runs fastest, along a row (memory order)
+    a = rest & ((1 << t) - 1)
+    if b > (1 << t):
+        return wp.vec4i(face, 0, 0, -1)
+    return wp.vec4i(face, 2 * s * b, s * (2 * a + 1), 3)
+
+
+def depth_slots(depth: int) -> int:
+    """Threads per face of the launch over ``depth`` (host side twin of :func:`depth_node`)."""
+    t = depth >> 1
+    return 1 << (2 * t) if depth % 2 == 0 else 1 << (2 * t + 2)
+
+
+@wp.func
+def hypotenuse_offset(kind: wp.int32, s: wp.int32) -> wp.vec2i:
+    """(di, dj) from a node to one end of its hypotenuse; the other end is at minus it."""
+    if kind == 0:
+        return wp.vec2i(s, s)
+    if kind == 1:
+        return wp.vec2i(s, -s)
+    if kind == 2:
+        return wp.vec2i(s, 0)
+    return wp.vec2i(0, s)
+
+
+@wp.func
+def child_offset(kind: wp.int32, s: wp.int32, k: wp.int32) -> wp.vec2i:
+    """(di, dj) from a node to its k-th child (k < 4); (0, 0) when it has none (axis node with s = 1)."""
+    if kind <= 1:
+        if k == 0:
+            return wp.vec2i(s, 0)
+        if k == 1:
+            return wp.vec2i(-s, 0)
+        if k == 2:
+            return wp.vec2i(0, s)
+        return wp.vec2i(0, -s)
+    if s < 2:
+        return wp.vec2i(0, 0)
+    h = s // 2
+    if k == 0:
+        return wp.vec2i(h, h)
+    if k == 1:
+        return wp.vec2i(h, -h)
+    if k == 2:
+        return wp.vec2i(-h, h)
+    return wp.vec2i(-h, -h)
+
+
+@wp.func
+def node_spacing(depth: wp.int32, cells: wp.int32) -> wp.int32:
+    """s of the nodes at ``depth``."""
+    return cells >> (depth // 2 + 1)
+
+
+@wp.func
+def straddles_input(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.int32:
+    """Planar, padded input: 1 when the triangle reaches outside the input rectangle while its bounding box
+    overlaps the rectangle's interior (it must refine until it lies wholly inside or wholly outside)."""
+    last_i = grid.rows_valid - 1
+    last_j = grid.cols_valid - 1
+    i0 = wp.min(a[0], wp.min(b[0], c[0]))
+    i1 = wp.max(a[0], wp.max(b[0], c[0]))
+    j0 = wp.min(a[1], wp.min(b[1], c[1]))
+    j1 = wp.max(a[1], wp.max(b[1], c[1]))
+    if i1 <= last_i and j1 <= last_j:
+        return 0
+    if i0 >= last_i or j0 >= last_j:
+        return 0
+    return 1
+
+
+@wp.func
+def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.float64:
+    """Planar only: the largest vertical distance between a grid node inside triangle (a, b, c) and the
+    triangle's plane (0 when the triangle leaves the grid)."""
+    if in_grid(grid, c[0], c[1]) == 0:
+        return wp.float64(0.0)
+    if straddles_input(grid, a, b, c) != 0:
+        return wp.float64(3.0e38)
+    base = face * grid.n * grid.n
+    za = wp.float64(grid.heights[base + a[0] * grid.n + a[1]])
+    zb = wp.float64(grid.heights[base + b[0] * grid.n + b[1]])
+    zc = wp.float64(grid.heights[base + c[0] * grid.n + c[1]])
+    area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+    sign = wp.int32(1)
+    if area < 0:
+        sign = -1
+    inv = wp.float64(1.0) / wp.float64(area)
+    i0 = wp.min(a[0], wp.min(b[0], c[0]))
+    i1 = wp.max(a[0], wp.max(b[0], c[0]))
+    j0 = wp.min(a[1], wp.min(b[1], c[1]))
+    j1 = wp.max(a[1], wp.max(b[1], c[1]))
+    worst = wp.float64(0.0)
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            wa = (b[0] - i) * (c[1] - j) - (b[1] - j) * (c[0] - i)
+            wb = (c[0] - i) * (a[1] - j) - (c[1] - j) * (a[0] - i)
+            wc = (a[0] - i) * (b[1] - j) - (a[1] - j) * (b[0] - i)
+            if wa * sign >= 0 and wb * sign >= 0 and wc * sign >= 0:
+                z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv
+                worst = wp.max(worst, wp.abs(wp.float64(grid.heights[base + i * grid.n + j]) - z))
+    return worst
+
+
+@wp.func
+def direction_angle(w: wp.vec3d, u: wp.vec3d) -> wp.float64:
+    """An upper bound of the angle between two integer cube points (exact products): tan θ while it is below
+    0.05 (over by < θ³/3, no libm call), else atan2."""
+    cross = wp.length(wp.cross(w, u))
+    dot = wp.dot(w, u)
+    if cross < wp.float64(0.05) * dot:
+        return cross / dot
+    return wp.atan2(cross, dot)
+
+
+@wp.func
+def to_vec3d_i(p: wp.vec3i) -> wp.vec3d:
+    """Integer point -> float64 point (exact)."""
+    return wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
+
+
+@wp.kernel
+def saturate_node_parameters(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    depth: wp.int32,
+    angles: wp.int32,  # 1: compute α (face 0 only; by the cube's rotation symmetry the other faces copy it)
+    params: NodeParameters,  # read: the children's values (depth + 1, already done)
+    # outputs
+    geometric_error_out: wp.array[wp.float32],
+    bounding_radius_out: wp.array[wp.float32],
+    cone_height_out: wp.array[wp.float32],
+    cone_angle_out: wp.array[wp.float32],
+):
+    """One thread per node copy at ``depth``: e, r, h, α as the max over its children plus its own share,
+    with the level-wise margin that keeps saturation and nesting true in floating point (§6, §7.1).
+
+    r from the float32 positions (in float64); h from the heights, h(v) = max |z_v - z_c| + h(c) (§6); α from
+    the nodes' exact cube directions. The absolute margin |v| · 2^-22 per level covers the float32 rounding
+    of the positions the metrics see (< 0.45 m per node at the earth's radius)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for slot in range(first, last):
+        node = depth_node(depth, slot, grid.cells)
+        kind = node[3]
+        if kind < 0:
+            continue
+        face = node[0]
+        i = node[1]
+        j = node[2]
+        s = node_spacing(depth, grid.cells)
+        nn = grid.n * grid.n
+        base = face * nn
+        entry = base + i * grid.n + j
+        with_angle = wp.int32(0)
+        if angles != 0 and face == 0:
+            with_angle = 1
+        v = bounds.to_vec3d(grid.positions[entry])
+        z_v = wp.float64(grid.heights[entry])
+        # 1-level look-ahead error of the hypotenuse (a, b) (§7.1, Abb. 5b)
+        hyp = hypotenuse_offset(kind, s)
+        a = wp.vec2i(i + hyp[0], j + hyp[1])
+        b = wp.vec2i(i - hyp[0], j - hyp[1])
+        e = wp.float64(0.0)
+        w_v = wp.vec3d(0.0, 0.0, 0.0)
+        if grid.planar != 0:
+            # planar: the true vertical error of both triangles of the diamond (never above the bound)
+            apex = wp.vec2i(i + hyp[1], j - hyp[0])
+            mate = wp.vec2i(i - hyp[1], j + hyp[0])
+            e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
+        else:
+            pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
+            pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
+            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            if with_angle != 0:
+                w_v = to_vec3d_i(local_point(i, j, grid.cells))  # angles are invariant under the face's rotation
+        r = wp.float64(0.0)
+        h = wp.float64(0.0)
+        alpha = wp.float64(0.0)
+        has_children = wp.int32(0)
+        for k in range(4):
+            d = child_offset(kind, s, k)
+            if d[0] != 0 or d[1] != 0:
+                ci = i + d[0]
+                cj = j + d[1]
+                if grid.planar == 0 or (ci >= 0 and ci <= grid.cells and cj >= 0 and cj <= grid.cells):
+                    has_children = 1
+                    child = wp.int32(0)
+                    child_local = wp.int32(0)  # the child's (i, j) on its own face: where face 0 keeps its α
+                    if grid.planar != 0 or (ci > 0 and ci < grid.cells and cj > 0 and cj < grid.cells):
+                        child_local = ci * grid.n + cj
+                        child = base + child_local
+                    else:
+                        child = point_entry(cube_point(face, ci, cj, grid.cells), grid.cells, grid.n)
+                        child_local = child % nn
+                    c = bounds.to_vec3d(grid.positions[child])
+                    e = wp.max(e, wp.float64(params.geometric_error[child]))
+                    r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
+                    if grid.planar == 0:
+                        dz = wp.abs(z_v - wp.float64(grid.heights[child]))
+                        h = wp.max(h, dz + wp.float64(params.cone_height[child]))
+                        if with_angle != 0:
+                            w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
+                            angle = direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child_local])
+                            alpha = wp.max(alpha, angle)
+        # rounding e up keeps "e <= error" a true statement about the float64 error
+        geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
+        if has_children != 0:
+            scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
+            if grid.planar != 0:
+                scale = wp.length(v) * ABSOLUTE_MARGIN
+            bounding_radius_out[entry] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            cone_height_out[entry] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            if with_angle != 0:
+                cone_angle_out[entry] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
+        else:
+            bounding_radius_out[entry] = wp.float32(0.0)
+            cone_height_out[entry] = wp.float32(0.0)
+            cone_angle_out[entry] = wp.float32(0.0)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# refinement, breadth-first, one count -> scan -> emit per level (§5.2)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def unpack(corner: wp.int32) -> wp.vec2i:
+    """Packed corner i << 16 | j -> (i, j)."""
+    return wp.vec2i(corner >> 16, corner & 65535)
+
+
+@wp.func
+def pack(i: wp.int32, j: wp.int32) -> wp.int32:
+    """(i, j) -> i << 16 | j."""
+    return (i << 16) | j
+
+
+@wp.func
+def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: wp.vec2i, b: wp.vec2i,
+                         c: wp.vec2i) -> wp.int32:
+    """1 when this triangle, rather than its diamond mate across the hypotenuse, emits the new vertex: the
+    one whose apex has the smaller cube point (lexicographic); a triangle without a mate owns it."""
+    mi = a[0] + b[0] - c[0]
+    mj = a[1] + b[1] - c[1]
+    if planar != 0:
+        if mi < 0 or mi > cells or mj < 0 or mj > cells:
+            return 1
+        if pack(c[0], c[1]) < pack(mi, mj):
+            return 1
+        return 0
+    own = cube_point(face, c[0], c[1], cells)
+    mate = cube_point(face, mi, mj, cells)
+    for k in range(3):
+        if own[k] < mate[k]:
+            return 1
+        if own[k] > mate[k]:
+            return 0
+    return 0
+
+
+@wp.kernel
+def count_refinement(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    view: bounds.View,
+    triangles: wp.array[wp.vec4i],
+    can_refine: wp.int32,
+    user_factors: wp.array[wp.float32],
+    # outputs
+    refine_out: wp.array[wp.int32],
+    owner_out: wp.array[wp.int32],
+):
+    """One thread per triangle: 1 when it refines (its refinement node's metric exceeds the error), and
+    whether it emits that node as a new vertex."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        tri = triangles[t]
+        refine = wp.int32(0)
+        owner = wp.int32(0)
+        if can_refine != 0:
+            a = unpack(tri[1])
+            b = unpack(tri[2])
+            m = tri[0] * grid.n * grid.n + ((a[0] + b[0]) >> 1) * grid.n + ((a[1] + b[1]) >> 1)
+            factor = wp.float64(1.0)
+            if user_factors.shape[0] > 0:
+                factor = wp.float64(user_factors[t])
+            e = params.geometric_error[m]
+            if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
+                # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
+                mu = factor
+                if view.flags[0] != 0:
+                    mu = mu * wp.float64(e)
+                if mu > view.error:
+                    refine = 1
+            else:
+                r = wp.float32(0.0)
+                h = wp.float32(0.0)
+                alpha = wp.float32(0.0)
+                if view.flags[3] != 0:
+                    h = params.cone_height[m]
+                    alpha = params.cone_angle[m]
+                else:
+                    r = params.bounding_radius[m]
+                refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
+                                            e, grid.positions[m], r, h, alpha, factor)
+            if refine != 0:
+                owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
+        refine_out[t] = refine
+        owner_out[t] = owner
+
+
+@wp.kernel
+def emit_refinement(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    triangles: wp.array[wp.vec4i],
+    refine: wp.array[wp.int32],
+    refine_offsets: wp.array[wp.int32],
+    owner: wp.array[wp.int32],
+    owner_offsets: wp.array[wp.int32],
+    # outputs
+    children_out: wp.array[wp.vec4i],
+    leaves_out: wp.array[wp.vec4i],
+    vertex_entries_out: wp.array[wp.int32],
+):
+    """One thread per triangle: its two children (c, a, m), (b, c, m) to the next level, or itself to the
+    leaves; the owner of a new refinement node writes its canonical entry."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        tri = triangles[t]
+        if refine[t] != 0:
+            a = unpack(tri[1])
+            b = unpack(tri[2])
+            mi = (a[0] + b[0]) >> 1
+            mj = (a[1] + b[1]) >> 1
+            m = pack(mi, mj)
+            k = 2 * refine_offsets[t]
+            children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
+            children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
+            if owner[t] != 0:
+                vertex_entries_out[owner_offsets[t]] = node_entry(grid.cells, grid.planar, tri[0], mi, mj)
+        else:
+            leaves_out[t - refine_offsets[t]] = tri
+
+
+@wp.kernel
+def emit_vertices(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    entries: wp.array[wp.int32],
+    # outputs
+    vertex_id_out: wp.array[wp.int32],
+    vertices_out: wp.array[wp.vec3d],
+):
+    """One thread per output vertex: its float64 position, and its index in the entry -> vertex table."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        entry = entries[k]
+        vertex_id_out[entry] = k
+        vertices_out[k] = entry_position64(grid, entry)
+
+
+@wp.func
+def corner_position(positions: wp.array[wp.vec3], n: wp.int32, face: wp.int32, corner: wp.int32) -> wp.vec3d:
+    """float64 copy of the float32 position of a packed corner."""
+    ij = unpack(corner)
+    return bounds.to_vec3d(positions[face * n * n + ij[0] * n + ij[1]])
+
+
+@wp.kernel
+def count_kept_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    view: bounds.View,
+    cull: wp.int32,
+    leaves: wp.array[wp.vec4i],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One thread per leaf triangle: 0 when culling is on and the triangle lies wholly outside a plane, or
+    when it lies in the padding of a planar input."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        keep = wp.int32(1)
+        tri = leaves[t]
+        if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
+            lo = wp.min(unpack(tri[1]), wp.min(unpack(tri[2]), unpack(tri[3])))
+            if lo[0] >= grid.rows_valid - 1 or lo[1] >= grid.cols_valid - 1:
+                keep = 0  # in the padding
+        if cull != 0 and keep != 0:
+            if bounds.triangle_outside_view(view.planes, corner_position(grid.positions, grid.n, tri[0], tri[1]),
+                                            corner_position(grid.positions, grid.n, tri[0], tri[2]),
+                                            corner_position(grid.positions, grid.n, tri[0], tri[3])) != 0:
+                keep = 0
+        counts_out[t] = keep
+
+
+@wp.func
+def corner_vertex(cells: wp.int32, planar: wp.int32, vertex_id: wp.array[wp.int32], face: wp.int32,
+                  corner: wp.int32) -> wp.int32:
+    """Output vertex of a packed corner (through its canonical entry)."""
+    ij = unpack(corner)
+    return vertex_id[node_entry(cells, planar, face, ij[0], ij[1])]
+
+
+@wp.kernel
+def emit_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    leaves: wp.array[wp.vec4i],
+    keep: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    vertex_id: wp.array[wp.int32],
+    # outputs
+    faces_out: wp.array[wp.vec3i],
+    face_index_out: wp.array[wp.int32],
+):
+    """One thread per leaf triangle: its kept face as output vertex indices, and its cube face."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        if keep[t] != 0:
+            tri = leaves[t]
+            k = offsets[t]
+            faces_out[k] = wp.vec3i(corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[1]),
+                                    corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[2]),
+                                    corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[3]))
+            face_index_out[k] = tri[0]
+
+
+@wp.kernel
+def mark_used_vertices(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.vec3i],
+    # outputs
+    used_out: wp.array[wp.int32],
+):
+    """One thread per face: mark its three vertices used (every writer writes 1)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for slot in range(first, last):
+        f = faces[slot]
+        used_out[f[0]] = 1
+        used_out[f[1]] = 1
+        used_out[f[2]] = 1
+
+
+@wp.kernel
+def emit_used_vertices(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    vertices: wp.array[wp.vec3d],
+    entries: wp.array[wp.int32],
+    used: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    vertices_out: wp.array[wp.vec3d],
+    entries_out: wp.array[wp.int32],
+):
+    """One thread per vertex: copy it to its compacted slot when a face uses it."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        if used[k] != 0:
+            vertices_out[offsets[k]] = vertices[k]
+            entries_out[offsets[k]] = entries[k]
+
+
+@wp.kernel
+def remap_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.vec3i],
+    offsets: wp.array[wp.int32],
+    # outputs
+    faces_out: wp.array[wp.vec3i],
+):
+    """One thread per face: vertex indices after compaction."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for t in range(first, last):
+        f = faces[t]
+        faces_out[t] = wp.vec3i(offsets[f[0]], offsets[f[1]], offsets[f[2]])

@@ -1,0 +1,773 @@
+"""Warp kernels of the terrain textures (paper 004, Döllner, Baumann & Hinrichs 2000, §3.2, §5-7).
+
+Topographic textures (§7): Horn-gradient hillshade in the GDAL conventions (standard, multidirectional,
+combined), self-shadowing by sweeping digital lines along the light's azimuth with a running horizon (one
+thread per line, O(1) per pixel, §7.2 and Fig. 5), horizon-based ambient occlusion with a per-line convex hull,
+normals encoded as RGB and relit by a directional or a point light (§7.4, Fig. 7). Layer operations (§3.2.3):
+sampling a layer through its texture matrix, blending by an alpha layer, weighted addition, modulation and the
+per-layer adjustments of CesiumJS imagery layers. Image pyramids (§3.2.1): area-weighted halving of any size.
+
+Conventions (shared with ``stepterrain.texture`` and ``tests/reference_texture.py``):
+
+* Every kernel takes ``thread_offset`` first: thread k handles element ``wp.tid() + thread_offset``
+  (``stepterrain._device.launch`` splits a CPU pass over several cores).
+* Grid node (i, j) sits at local (j * dx, i * dy); ``dx`` or ``dy`` may be negative (north-up rasters have
+  dy < 0). World +y is north; azimuths are clockwise from north, altitudes above the horizon, radians.
+* Images are (H, W) or (H, W, 4) float32 RGBA in [0, 1], pixel (i, j) = grid node (i, j).
+* A sweep line is a digital line: along its major axis it visits every index once; its minor index is
+  ``c + minor_offsets[major]`` with ``minor_offsets[k] = floor(slope * k + 0.5)``, so lines with consecutive
+  integer ``c`` partition the grid. The ray of a node towards the light visits the nodes of its own line.
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+
+HALF_PI_SQUARED_INV = 0.40528473456935108  # 1 / (pi / 2)^2, GDAL's INV_SQUARE_OF_HALF_PI
+SHADE_RUN = wp.constant(64)  # pixels of a row one hillshade thread shades (amortises the per-thread cost on CPUs)
+
+
+@wp.struct
+class HeightGrid:
+    """A regular heightfield: node (i, j) at local (j * dx, i * dy), heights scaled by ``z_factor``."""
+
+    heights: wp.array2d[wp.float32]
+    rows: wp.int32
+    cols: wp.int32
+    spacing: wp.vec2
+    z_factor: wp.float32
+    gradient_scale: wp.vec2  # (z_factor / (8 dx), z_factor / (8 dy)): Horn's weights as one multiply
+    has_nodata: wp.int32  # 0 when every height is finite: the kernels skip their NaN checks
+
+
+@wp.struct
+class Sweep:
+    """Digital lines parallel to the light's azimuth, walked away from the light.
+
+    ``major_j`` 1: lines advance along columns (j is the major index), 0: along rows. ``forward`` +1 walks the
+    major index upwards, -1 downwards. Line k has minor index ``k + c_min + minor_offsets[major]``.
+    ``away`` is the horizontal unit vector pointing away from the light (world x, y).
+    """
+
+    minor_offsets: wp.array[wp.int32]
+    n_lines: wp.int32
+    increasing: wp.int32  # 1 when minor_offsets never decreases (slope >= 0), 0 when it never increases
+    major_j: wp.int32
+    n_major: wp.int32
+    n_minor: wp.int32
+    forward: wp.int32
+    c_min: wp.int32
+    away: wp.vec2
+    tan_altitude: wp.float32
+    rise: wp.vec2  # tan(altitude) * distance away from the light per column (x) and per row (y) index
+
+
+@wp.struct
+class Adjustment:
+    """Per-layer adjustments of a CesiumJS imagery layer, plus the layer's split and cutout."""
+
+    alpha: wp.float32
+    brightness: wp.float32
+    contrast: wp.float32
+    hue: wp.float32
+    saturation: wp.float32
+    one_over_gamma: wp.float32
+    split_side: wp.int32  # 0 none, -1 keep u < split_position, +1 keep u >= split_position
+    split_position: wp.float32
+    has_cutout: wp.int32
+    cutout: wp.vec4  # (xmin, xmax, ymin, ymax) in world units, made transparent
+
+
+@wp.struct
+class PixelFrame:
+    """Where pixel centres lie: pixel (i, j) at world (x0 + j * px, y0 + i * py)."""
+
+    rows: wp.int32
+    cols: wp.int32
+    origin: wp.vec2
+    pixel: wp.vec2
+
+
+# ---------------------------------------------------------------------------------------------------------
+# topographic textures
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def height_or(grid: HeightGrid, i: wp.int32, j: wp.int32, fallback: wp.float32) -> wp.float32:
+    """Height of node (i, j), clamped to the grid; ``fallback`` (the centre) where it is nodata (NaN)."""
+    ii = wp.clamp(i, 0, grid.rows - 1)
+    jj = wp.clamp(j, 0, grid.cols - 1)
+    h = grid.heights[ii, jj]
+    if wp.isnan(h):
+        return fallback
+    return h
+
+
+@wp.func
+def horn_gradient(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
+    """(dz/dx, dz/dy) at node (i, j) by Horn's 3 x 3 weights, times the z factor (world units)."""
+    e = grid.heights[i, j]
+    a = height_or(grid, i - 1, j - 1, e)
+    b = height_or(grid, i - 1, j, e)
+    c = height_or(grid, i - 1, j + 1, e)
+    d = height_or(grid, i, j - 1, e)
+    f = height_or(grid, i, j + 1, e)
+    g = height_or(grid, i + 1, j - 1, e)
+    h = height_or(grid, i + 1, j, e)
+    k = height_or(grid, i + 1, j + 1, e)
+    return horn_weights(grid.gradient_scale, a, b, c, d, f, g, h, k)
+
+
+@wp.func
+def horn_weights(
+    scale: wp.vec2,
+    a: wp.float32,
+    b: wp.float32,
+    c: wp.float32,
+    d: wp.float32,
+    f: wp.float32,
+    g: wp.float32,
+    h: wp.float32,
+    k: wp.float32,
+) -> wp.vec2:
+    """Horn's gradient of the window a b c / d e f / g h k (row i-1 first), times the z factor."""
+    dzdx = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) * scale[0]
+    dzdy = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) * scale[1]
+    return wp.vec2(dzdx, dzdy)
+
+
+@wp.func
+def light_vector(azimuth: wp.float32, altitude: wp.float32) -> wp.vec3:
+    """Unit vector towards a light at ``azimuth`` (clockwise from north) and ``altitude``."""
+    return wp.vec3(wp.sin(azimuth) * wp.cos(altitude), wp.cos(azimuth) * wp.cos(altitude), wp.sin(altitude))
+
+
+@wp.func
+def surface_normal(gradient: wp.vec2) -> wp.vec3:
+    """Unit normal (-p, -q, 1) / sqrt(1 + p^2 + q^2) of a surface with gradient (p, q)."""
+    return wp.normalize(wp.vec3(-gradient[0], -gradient[1], 1.0))
+
+
+@wp.func
+def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.float32,
+             azimuth: wp.float32) -> wp.float32:
+    """Hillshade in [0, 1]: 0 standard (Lambert, clamped), 1 multidirectional, 2 combined, 3 igor (GDAL's
+    variants, also MapLibre's ``hillshade-method``)."""
+    if method == 3:
+        # GDAL -igor: 1 - (slope / 90 deg) * (angle between the light's azimuth and the downhill aspect) / 180 deg
+        slope = wp.atan(wp.length(gradient))
+        diff = wp.abs(azimuth - wp.atan2(-gradient[0], -gradient[1]))
+        diff = diff - 6.283185307179586 * wp.floor(diff / 6.283185307179586)
+        if diff > 3.141592653589793:
+            diff = 6.283185307179586 - diff
+        return 1.0 - slope / 1.5707963267948966 * diff / 3.141592653589793
+    if method == 1:
+        n = surface_normal(gradient)
+        # GDAL's multidirectional (after USGS OF 92-422): four lights at 225, 270, 315, 360 degrees, each
+        # weighted by cos^2(aspect - azimuth), aspect the downhill azimuth (the weights sum to 2).
+        p = gradient[0]
+        q = gradient[1]
+        pp_qq = p * p + q * q
+        if pp_qq == 0.0:
+            return wp.sin(altitude)
+        total = wp.float32(0.0)
+        for k in range(4):
+            az = (225.0 + 45.0 * float(k)) * 0.017453292519943295
+            s = wp.max(wp.dot(n, light_vector(az, altitude)), 0.0)
+            # cos^2(aspect - az) with aspect = atan2(-p, -q): ((-p, -q) . (sin az, cos az))^2 / |grad|^2
+            along = p * wp.sin(az) + q * wp.cos(az)
+            total += s * along * along / pp_qq
+        return 0.5 * total
+    cos_incidence = (light[2] - gradient[0] * light[0] - gradient[1] * light[1]) / wp.sqrt(
+        1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1])
+    if method == 2:
+        # GDAL -combined: 1 - (angle between normal and light) * slope / (pi / 2)^2
+        slope = wp.atan(wp.length(gradient))
+        value = 1.0 - wp.acos(wp.clamp(cos_incidence, -1.0, 1.0)) * slope * HALF_PI_SQUARED_INV
+        return wp.clamp(value, 0.0, 1.0)
+    return wp.max(cos_incidence, 0.0)
+
+
+@wp.kernel
+def shade_heights(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    light: wp.vec3,
+    altitude: wp.float32,
+    azimuth: wp.float32,
+    method: wp.int32,
+    shadow: wp.array2d[wp.uint8],
+    shadow_strength: wp.float32,
+    # outputs
+    shade_out: wp.array2d[wp.float32],
+):
+    """One thread per run of up to SHADE_RUN pixels of a row: their hillshade in [0, 1], times
+    1 - shadow_strength where ``shadow`` (same shape, or 0 x 0 for none) marks them shadowed; NaN at nodata.
+
+    Interior pixels slide the 3 x 3 window along the row (three new heights per pixel); the border and the
+    neighbours of nodata take the careful path (missing neighbours = the centre height)."""
+    t = wp.tid() + thread_offset
+    runs = (grid.cols + SHADE_RUN - 1) // SHADE_RUN
+    i = t // runs
+    j0 = (t - i * runs) * SHADE_RUN
+    j1 = wp.min(j0 + SHADE_RUN, grid.cols)
+    shadowed = shadow.shape[0] == grid.rows
+    heights = grid.heights
+    scale = grid.gradient_scale
+    interior_row = i > 0 and i < grid.rows - 1
+    if grid.has_nodata == 0 and interior_row and method == 0:
+        # the common case: no nodata, standard shading; a tight loop over the run's interior pixels
+        lo = wp.max(j0, 1)
+        hi = wp.min(j1, grid.cols - 1)
+        a = heights[i - 1, lo - 1]
+        d = heights[i, lo - 1]
+        g = heights[i + 1, lo - 1]
+        b = heights[i - 1, lo]
+        e = heights[i, lo]
+        h = heights[i + 1, lo]
+        for j in range(lo, hi):
+            c = heights[i - 1, j + 1]
+            f = heights[i, j + 1]
+            k = heights[i + 1, j + 1]
+            p = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) * scale[0]
+            q = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) * scale[1]
+            value = wp.max((light[2] - p * light[0] - q * light[1]) / wp.sqrt(1.0 + p * p + q * q), 0.0)
+            if shadowed:
+                if shadow[i, j] != wp.uint8(0):
+                    value = value * (1.0 - shadow_strength)
+            shade_out[i, j] = value
+            a = b
+            b = c
+            d = e
+            e = f
+            g = h
+            h = k
+        for side in range(2):  # the row's border pixels, if this run holds them
+            j = wp.where(side == 0, 0, grid.cols - 1)
+            if j >= j0 and j < j1:
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
+                if shadowed:
+                    if shadow[i, j] != wp.uint8(0):
+                        value = value * (1.0 - shadow_strength)
+                shade_out[i, j] = value
+        return
+    # window columns j-1 and j (rows i-1, i, i+1), loaded once and slid
+    a = wp.float32(0.0)
+    d = wp.float32(0.0)
+    g = wp.float32(0.0)
+    b = wp.float32(0.0)
+    e = wp.float32(0.0)
+    h = wp.float32(0.0)
+    if interior_row and j0 > 0:
+        a = heights[i - 1, j0 - 1]
+        d = heights[i, j0 - 1]
+        g = heights[i + 1, j0 - 1]
+    if interior_row:
+        b = heights[i - 1, j0]
+        e = heights[i, j0]
+        h = heights[i + 1, j0]
+    for j in range(j0, j1):
+        value = wp.float32(0.0)
+        if interior_row and j > 0 and j < grid.cols - 1:
+            c = heights[i - 1, j + 1]
+            f = heights[i, j + 1]
+            k = heights[i + 1, j + 1]
+            gradient = horn_weights(scale, a, b, c, d, f, g, h, k)
+            if wp.isnan(e):
+                value = e
+            elif wp.isnan(gradient[0]) or wp.isnan(gradient[1]):
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
+            elif method == 0:  # the common case inline: max(0, n . l)
+                value = wp.max((light[2] - gradient[0] * light[0] - gradient[1] * light[1])
+                               / wp.sqrt(1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1]), 0.0)
+            else:
+                value = shade_at(gradient, light, method, altitude, azimuth)
+            a = b
+            b = c
+            d = e
+            e = f
+            g = h
+            h = k
+        else:
+            centre = heights[i, j]
+            if wp.isnan(centre):
+                value = centre
+            else:
+                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
+            if interior_row and j + 1 < grid.cols:  # entering the interior: load the window's columns j, j+1
+                a = heights[i - 1, j]
+                d = centre
+                g = heights[i + 1, j]
+                b = heights[i - 1, j + 1]
+                e = heights[i, j + 1]
+                h = heights[i + 1, j + 1]
+        if shadowed:
+            if shadow[i, j] != wp.uint8(0):
+                value = value * (1.0 - shadow_strength)
+        shade_out[i, j] = value
+
+
+@wp.kernel
+def encode_normals(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    # outputs
+    rgb_out: wp.array3d[wp.uint8],
+):
+    """One thread per node: its unit normal (x east, y north, z up) as RGB, n * 127.5 + 127.5 rounded."""
+    n = wp.tid() + thread_offset
+    i = n // grid.cols
+    j = n - i * grid.cols
+    normal = wp.vec3(0.0, 0.0, 1.0)
+    if not wp.isnan(grid.heights[i, j]):
+        normal = surface_normal(horn_gradient(grid, i, j))
+    for c in range(3):
+        rgb_out[i, j, c] = wp.uint8(wp.int32(wp.floor(normal[c] * 127.5 + 128.0)))
+
+
+@wp.func
+def decode_normal(rgb: wp.array3d[wp.uint8], i: wp.int32, j: wp.int32) -> wp.vec3:
+    """The unit normal an RGB texel encodes."""
+    v = wp.vec3(float(rgb[i, j, 0]), float(rgb[i, j, 1]), float(rgb[i, j, 2]))
+    return wp.normalize(v / 127.5 - wp.vec3(1.0, 1.0, 1.0))
+
+
+@wp.kernel
+def relight_directional(
+    thread_offset: wp.int32,
+    rgb: wp.array3d[wp.uint8],
+    light: wp.vec3,
+    # outputs
+    shade_out: wp.array2d[wp.float32],
+):
+    """One thread per texel: max(0, n . l) for a directional light (the normal texture is not recomputed)."""
+    n = wp.tid() + thread_offset
+    cols = rgb.shape[1]
+    i = n // cols
+    j = n - i * cols
+    shade_out[i, j] = wp.max(wp.dot(decode_normal(rgb, i, j), light), 0.0)
+
+
+@wp.kernel
+def relight_point(
+    thread_offset: wp.int32,
+    rgb: wp.array3d[wp.uint8],
+    grid: HeightGrid,
+    light_position: wp.vec3,
+    # outputs
+    shade_out: wp.array2d[wp.float32],
+):
+    """One thread per texel: max(0, n . l) with l the unit vector from the texel's surface point to the light."""
+    n = wp.tid() + thread_offset
+    cols = rgb.shape[1]
+    i = n // cols
+    j = n - i * cols
+    h = grid.heights[i, j]
+    if wp.isnan(h):
+        shade_out[i, j] = h
+        return
+    point = wp.vec3(float(j) * grid.spacing[0], float(i) * grid.spacing[1], h * grid.z_factor)
+    to_light = light_position - point
+    if wp.length(to_light) == 0.0:
+        shade_out[i, j] = 1.0
+        return
+    shade_out[i, j] = wp.max(wp.dot(decode_normal(rgb, i, j), wp.normalize(to_light)), 0.0)
+
+
+@wp.func
+def first_major(sweep: Sweep, value: wp.int32, strict: wp.int32) -> wp.int32:
+    """The first major index m whose offset passes ``value`` (binary search; offsets are monotone): for
+    increasing offsets the first with offset >= value (> when strict), for decreasing the first with
+    offset <= value (< when strict)."""
+    lo = wp.int32(0)
+    hi = sweep.n_major
+    while lo < hi:
+        mid = (lo + hi) // 2
+        r = sweep.minor_offsets[mid]
+        passed = False
+        if sweep.increasing == 1:
+            passed = r > value or (r == value and strict == 0)
+        else:
+            passed = r < value or (r == value and strict == 0)
+        if passed:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+@wp.func
+def line_span(sweep: Sweep, line: wp.int32) -> wp.vec2i:
+    """[first, last) major indices where line ``line`` lies inside the grid (its minor index in range)."""
+    base = line + sweep.c_min
+    low = -base  # minor index >= 0  <=>  offset >= -base
+    high = sweep.n_minor - 1 - base  # minor index < n_minor  <=>  offset <= high
+    if sweep.increasing == 1:
+        return wp.vec2i(first_major(sweep, low, 0), first_major(sweep, high, 1))
+    return wp.vec2i(first_major(sweep, high, 0), first_major(sweep, low, 1))
+
+
+@wp.func
+def sweep_node(sweep: Sweep, line: wp.int32, major: wp.int32) -> wp.vec2i:
+    """(i, j) of the line's node at a major index inside its span."""
+    minor = line + sweep.c_min + sweep.minor_offsets[major]
+    if sweep.major_j == 1:
+        return wp.vec2i(minor, major)
+    return wp.vec2i(major, minor)
+
+
+@wp.func
+def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
+    """The k-th major index of a span in walking order (away from the light)."""
+    if sweep.forward > 0:
+        return span[0] + k
+    return span[1] - 1 - k
+
+
+@wp.func
+def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32) -> wp.float32:
+    """How far node (i, j) lies along the away-from-light direction (world units, local origin)."""
+    return float(j) * grid.spacing[0] * sweep.away[0] + float(i) * grid.spacing[1] * sweep.away[1]
+
+
+@wp.kernel
+def sweep_shadows(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    sweep: Sweep,
+    lines_per_thread: wp.int32,
+    horizons: wp.array[wp.float32],
+    # outputs
+    shadow_out: wp.array2d[wp.uint8],
+):
+    """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA: one thread per line),
+    walked away from the light in lockstep, each line keeping its running horizon max(h + t tan(alt)).
+
+    A node is in shadow when an earlier node of its line lies above the ray from the node to the light,
+    i.e. when h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node. Walking a bundle
+    in lockstep touches neighbouring nodes one after another (cache lines are reused on CPUs).
+    """
+    first = (wp.tid() + thread_offset) * lines_per_thread
+    last = wp.min(first + lines_per_thread, sweep.n_lines)
+    for line in range(first, last):
+        horizons[line] = wp.float32(-3.0e38)
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+    for k in range(span[1] - span[0]):
+        major = walk_major(sweep, span, k)
+        offset = sweep.c_min + sweep.minor_offsets[major]
+        lo = wp.max(first, -offset)
+        hi = wp.min(last, sweep.n_minor - offset)
+        for line in range(lo, hi):
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
+            h = grid.heights[i, j]
+            if grid.has_nodata != 0 and wp.isnan(h):
+                shadow_out[i, j] = wp.uint8(0)
+            else:
+                g = h * grid.z_factor + (float(j) * sweep.rise[0] + float(i) * sweep.rise[1])
+                if g < horizons[line]:
+                    shadow_out[i, j] = wp.uint8(1)
+                else:
+                    shadow_out[i, j] = wp.uint8(0)
+                    horizons[line] = g
+
+
+@wp.kernel
+def count_line_nodes(
+    thread_offset: wp.int32,
+    sweep: Sweep,
+    # outputs
+    counts: wp.array[wp.int32],
+):
+    """One thread per sweep line: how many grid nodes it visits (its horizon stack's size)."""
+    line = wp.tid() + thread_offset
+    span = line_span(sweep, line)
+    counts[line] = span[1] - span[0]
+
+
+@wp.kernel
+def sweep_occlusion(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    sweep: Sweep,
+    offsets: wp.array[wp.int32],
+    weight: wp.float32,
+    # outputs
+    hull_out: wp.array[wp.vec2],
+    occlusion_out: wp.array2d[wp.float32],
+):
+    """One thread per sweep line: the horizon angle of each node towards the light side (upper convex hull of
+    the earlier nodes, amortised O(1)); adds weight * sin(horizon angle), at least 0, to ``occlusion_out``."""
+    line = wp.tid() + thread_offset
+    base = offsets[line]
+    top = wp.int32(-1)  # index of the hull's last point, relative to base
+    span = line_span(sweep, line)
+    for k in range(span[1] - span[0]):
+        node = sweep_node(sweep, line, walk_major(sweep, span, k))
+        i = node[0]
+        j = node[1]
+        h = grid.heights[i, j]
+        if not wp.isnan(h):
+            p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
+            # drop hull points that are not above the segment from their predecessor to p
+            while top >= 1:
+                a = hull_out[base + top - 1]
+                b = hull_out[base + top]
+                cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+                if cross >= 0.0:
+                    top -= 1
+                else:
+                    break
+            if top >= 0:
+                q = hull_out[base + top]
+                rise = q[1] - p[1]
+                run = p[0] - q[0]
+                if rise > 0.0 and run > 0.0:
+                    occlusion_out[i, j] = occlusion_out[i, j] + weight * rise / wp.sqrt(rise * rise + run * run)
+            top += 1
+            hull_out[base + top] = p
+
+
+# ---------------------------------------------------------------------------------------------------------
+# layers and operations (RGBA float32 images)
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def texel(image: wp.array2d[wp.vec4], i: wp.int32, j: wp.int32, border: wp.int32) -> wp.vec4:
+    """Texel (i, j); outside the image: the nearest edge texel (border 0) or transparent (border 1)."""
+    rows = image.shape[0]
+    cols = image.shape[1]
+    if border == 1:
+        if i < 0 or i >= rows or j < 0 or j >= cols:
+            return wp.vec4(0.0, 0.0, 0.0, 0.0)
+    return image[wp.clamp(i, 0, rows - 1), wp.clamp(j, 0, cols - 1)]
+
+
+@wp.kernel
+def sample_layer(
+    thread_offset: wp.int32,
+    frame: PixelFrame,
+    image: wp.array2d[wp.vec4],
+    matrix: wp.mat33,
+    border: wp.int32,
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per output pixel: the layer's image sampled bilinearly at the pixel centre through the layer's
+    texture matrix (world (x, y, 1) -> texel (column, row, 1), texel centres at integers)."""
+    n = wp.tid() + thread_offset
+    i = n // frame.cols
+    j = n - i * frame.cols
+    world = wp.vec3(frame.origin[0] + float(j) * frame.pixel[0], frame.origin[1] + float(i) * frame.pixel[1], 1.0)
+    t = matrix * world
+    u = t[0]
+    v = t[1]
+    rows = image.shape[0]
+    cols = image.shape[1]
+    if border == 1:  # half a texel beyond the outer centres still belongs to the image (edge texels)
+        if u < -0.5 or v < -0.5 or u > float(cols) - 0.5 or v > float(rows) - 0.5:
+            rgba_out[i, j] = wp.vec4(0.0, 0.0, 0.0, 0.0)
+            return
+    u = wp.clamp(u, 0.0, float(cols - 1))
+    v = wp.clamp(v, 0.0, float(rows - 1))
+    j0 = wp.int32(wp.floor(u))
+    i0 = wp.int32(wp.floor(v))
+    fu = u - float(j0)
+    fv = v - float(i0)
+    top = texel(image, i0, j0, 0) * (1.0 - fu) + texel(image, i0, j0 + 1, 0) * fu
+    bottom = texel(image, i0 + 1, j0, 0) * (1.0 - fu) + texel(image, i0 + 1, j0 + 1, 0) * fu
+    rgba_out[i, j] = top * (1.0 - fv) + bottom * fv
+
+
+@wp.kernel
+def blend_layers(
+    thread_offset: wp.int32,
+    a: wp.array2d[wp.vec4],
+    b: wp.array2d[wp.vec4],
+    weights: wp.array2d[wp.vec4],
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: a (1 - w) + b w with w the alpha of ``weights`` at the pixel (§3.2.3 blending)."""
+    n = wp.tid() + thread_offset
+    cols = a.shape[1]
+    i = n // cols
+    j = n - i * cols
+    w = weights[i, j][3]
+    rgba_out[i, j] = a[i, j] * (1.0 - w) + b[i, j] * w
+
+
+@wp.kernel
+def add_layers(
+    thread_offset: wp.int32,
+    a: wp.array2d[wp.vec4],
+    b: wp.array2d[wp.vec4],
+    weight_a: wp.float32,
+    weight_b: wp.float32,
+    clamp: wp.int32,
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: weight_a a + weight_b b (weighted addition), each channel clamped to [0, 1] when
+    ``clamp`` is 1 (the last term of a sum)."""
+    n = wp.tid() + thread_offset
+    cols = a.shape[1]
+    i = n // cols
+    j = n - i * cols
+    s = a[i, j] * weight_a + b[i, j] * weight_b
+    if clamp == 0:
+        rgba_out[i, j] = s
+        return
+    rgba_out[i, j] = wp.vec4(wp.clamp(s[0], 0.0, 1.0), wp.clamp(s[1], 0.0, 1.0), wp.clamp(s[2], 0.0, 1.0),
+                             wp.clamp(s[3], 0.0, 1.0))
+
+
+@wp.kernel
+def modulate_layers(
+    thread_offset: wp.int32,
+    a: wp.array2d[wp.vec4],
+    b: wp.array2d[wp.vec4],
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: a.rgb * b.rgb, alpha a.alpha (modulation, e.g. by a topographic layer)."""
+    n = wp.tid() + thread_offset
+    cols = a.shape[1]
+    i = n // cols
+    j = n - i * cols
+    x = a[i, j]
+    y = b[i, j]
+    rgba_out[i, j] = wp.vec4(x[0] * y[0], x[1] * y[1], x[2] * y[2], x[3])
+
+
+@wp.func
+def rotate_hue(rgb: wp.vec3, angle: wp.float32) -> wp.vec3:
+    """Rotate the hue by ``angle`` radians in YIQ space (the chroma plane), keeping luma Y."""
+    y = 0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2]
+    ci = 0.595716 * rgb[0] - 0.274453 * rgb[1] - 0.321263 * rgb[2]
+    cq = 0.211456 * rgb[0] - 0.522591 * rgb[1] + 0.311135 * rgb[2]
+    c = wp.cos(angle)
+    s = wp.sin(angle)
+    i2 = ci * c - cq * s
+    q2 = ci * s + cq * c
+    return wp.vec3(y + 0.9563 * i2 + 0.6210 * q2, y - 0.2721 * i2 - 0.6474 * q2, y - 1.1070 * i2 + 1.7046 * q2)
+
+
+@wp.kernel
+def adjust_layer(
+    thread_offset: wp.int32,
+    frame: PixelFrame,
+    image: wp.array2d[wp.vec4],
+    adjustment: Adjustment,
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: CesiumJS's imagery-layer adjustments in its order (brightness, contrast, hue,
+    saturation, gamma), then alpha, the split (keep one side of a vertical line) and the cutout rectangle."""
+    n = wp.tid() + thread_offset
+    i = n // frame.cols
+    j = n - i * frame.cols
+    x = image[i, j]
+    rgb = wp.vec3(x[0], x[1], x[2])
+    rgb = rgb * adjustment.brightness  # mix(0, color, brightness)
+    rgb = wp.vec3(0.5, 0.5, 0.5) + (rgb - wp.vec3(0.5, 0.5, 0.5)) * adjustment.contrast
+    if adjustment.hue != 0.0:
+        rgb = rotate_hue(rgb, adjustment.hue)
+    luma = wp.dot(rgb, wp.vec3(0.2125, 0.7154, 0.0721))
+    rgb = wp.vec3(luma, luma, luma) + (rgb - wp.vec3(luma, luma, luma)) * adjustment.saturation
+    rgb = wp.vec3(wp.clamp(rgb[0], 0.0, 1.0), wp.clamp(rgb[1], 0.0, 1.0), wp.clamp(rgb[2], 0.0, 1.0))
+    if adjustment.one_over_gamma != 1.0:
+        rgb = wp.vec3(wp.pow(rgb[0], adjustment.one_over_gamma), wp.pow(rgb[1], adjustment.one_over_gamma),
+                      wp.pow(rgb[2], adjustment.one_over_gamma))
+    alpha = x[3] * adjustment.alpha
+    if adjustment.split_side != 0:
+        u = (float(j) + 0.5) / float(frame.cols)
+        if adjustment.split_side < 0 and u >= adjustment.split_position:
+            alpha = 0.0
+        if adjustment.split_side > 0 and u < adjustment.split_position:
+            alpha = 0.0
+    if adjustment.has_cutout == 1:
+        wx = frame.origin[0] + float(j) * frame.pixel[0]
+        wy = frame.origin[1] + float(i) * frame.pixel[1]
+        box = adjustment.cutout
+        if wx >= box[0] and wx <= box[1] and wy >= box[2] and wy <= box[3]:
+            alpha = 0.0
+    rgba_out[i, j] = wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# image pyramid
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def overlap(s: wp.int64, m: wp.int64, r: wp.int64, n: wp.int64) -> wp.float32:
+    """Length of source pixel s ([s m, (s+1) m)) inside target pixel r ([r n, (r+1) n)), over n."""
+    lo = wp.max(s * m, r * n)
+    hi = wp.min((s + wp.int64(1)) * m, (r + wp.int64(1)) * n)
+    if hi <= lo:
+        return 0.0
+    return float(hi - lo) / float(n)
+
+
+@wp.kernel
+def reduce_band(
+    thread_offset: wp.int32,
+    src: wp.array3d[wp.uint8],
+    src_row0: wp.int64,
+    src_shape: wp.vec2i,
+    dst_row0: wp.int64,
+    dst_shape: wp.vec2i,
+    # outputs
+    dst_out: wp.array3d[wp.uint8],
+):
+    """One thread per target pixel of a band: the area-weighted mean of the source pixels it covers.
+
+    Target pixel r along an axis of n source and m target pixels covers source [r n / m, (r + 1) n / m), so
+    the image mean is kept exactly (up to the rounding to uint8) for odd sizes too; 2:1 is a 2 x 2 box.
+    ``src`` holds source rows from ``src_row0``, ``dst_out`` target rows from ``dst_row0``.
+    """
+    t = wp.tid() + thread_offset
+    cols = dst_out.shape[1]
+    channels = dst_out.shape[2]
+    local_r = t // cols
+    c = t - local_r * cols
+    r = wp.int64(local_r) + dst_row0
+    n_rows = wp.int64(src_shape[0])
+    m_rows = wp.int64(dst_shape[0])
+    n_cols = wp.int64(src_shape[1])
+    m_cols = wp.int64(dst_shape[1])
+    first = wp.int32(src_row0)
+    if n_rows == wp.int64(2) * m_rows and n_cols == wp.int64(2) * m_cols:
+        # even sizes: the 2 x 2 box in integers, (sum + 2) // 4 = floor(mean + 0.5), as the general path gives
+        sr = wp.int32(r) * 2 - first
+        sc = c * 2
+        for ch in range(channels):
+            box = (wp.int32(src[sr, sc, ch]) + wp.int32(src[sr, sc + 1, ch]) + wp.int32(src[sr + 1, sc, ch])
+                   + wp.int32(src[sr + 1, sc + 1, ch]) + 2)
+            dst_out[local_r, c, ch] = wp.uint8(box // 4)
+        return
+    c64 = wp.int64(c)
+    s_row_lo = wp.int32((r * n_rows) // m_rows)
+    s_row_hi = wp.int32(((r + wp.int64(1)) * n_rows - wp.int64(1)) // m_rows)
+    s_col_lo = wp.int32((c64 * n_cols) // m_cols)
+    s_col_hi = wp.int32(((c64 + wp.int64(1)) * n_cols - wp.int64(1)) // m_cols)
+    for ch in range(channels):
+        total = wp.float32(0.0)
+        for sr in range(s_row_lo, s_row_hi + 1):
+            wr = overlap(wp.int64(sr), m_rows, r, n_rows)
+            row_sum = wp.float32(0.0)
+            for sc in range(s_col_lo, s_col_hi + 1):
+                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * float(src[sr - first, sc, ch])
+            total += wr * row_sum
+        dst_out[local_r, c, ch] = wp.uint8(wp.int32(wp.floor(wp.min(total, 255.0) + 0.5)))

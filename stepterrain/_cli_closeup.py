@@ -1,0 +1,185 @@
+"""``stepterrain closeup``: render a terrain with 3D close-ups (paper 001) to PNG, GIF or MP4.
+
+    stepterrain closeup --roi-relative 0.3,0.5,0.12 --scale 1.5 --offset 0,0,4000 -o out/closeup.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Any
+
+from .errors import InvalidInputError
+from .export import MESH_EXTENSIONS
+
+_EPILOG = """\
+examples:
+  stepterrain closeup -o out/closeup.png
+      the embedded Big Tujunga DEM with one close-up at the centre, lifted and enlarged
+  stepterrain closeup --roi 390000,3798000,2500 --scale 2 --offset 0,0,5000 --stepped 100 -o steps.png
+      a stepped close-up (MPFR) over the continuous overview (paper 001, Fig. 1)
+  stepterrain closeup --roi-relative 0.25,0.5,0.12 --roi-relative 0.75,0.5,0.12 --scale 1.5 \\
+      --offset 0,0,5000 --anchor ends --gif spin.gif --spin 0.25 --frames 24 -o first.png
+      two close-ups (one per --roi), a spinning animation as GIF (or .mp4)
+  stepterrain closeup dem.tif --roi-relative 0.5,0.5,0.2 --shape rectangle --scalars slope -o slope.png
+  stepterrain closeup --roi-relative 0.5,0.5,0.15 -o scene.glb --png scene.png
+      the overview, close-up and anchor as one colored mesh (anchor opacity in the vertex alpha), and a render
+
+--scale, --offset, --rotation, --color and --stepped apply to every close-up when given once, or one per
+--roi (in order) when given as often as --roi. Values starting with a minus need '=': --offset=-500,0,3000.
+"""
+
+
+def add_parser(commands: Any) -> None:
+    """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
+    from .cli import _floats, _window
+
+    p = commands.add_parser(
+        "closeup",
+        help="detail+overview views: 3D close-ups of ROIs over the terrain (paper 001)",
+        description="Render a DEM with 3D close-ups (Trapp & Döllner 2019): each ROI is lifted, scaled and turned "
+                    "into a detail view joined to the overview by a colored anchor; PNG, and GIF/MP4 when spinning.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("input", nargs="?", metavar="INPUT",
+                   help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+    p.add_argument("--roi", type=_floats(3, "x,y,r"), action="append", metavar="x,y,r",
+                   help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
+    p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action="append", metavar="fx,fy,fr",
+                   help="ROI centre as fractions of the extent, radius as a fraction of its shorter side")
+    p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",
+                   help="ROI shape from the library (default circle)")
+    p.add_argument("--edge", type=float, default=None, metavar="W",
+                   help="soft edge width in world units (default: a fifth of the radius)")
+    p.add_argument("--scale", type=_floats(None, "s or sx,sy,sz"), action="append", metavar="s",
+                   help="close-up scale: s or sx,sy,sz (default 1.5)")
+    p.add_argument("--offset", type=_floats(3, "dx,dy,dz"), action="append", metavar="dx,dy,dz",
+                   help="close-up displacement in world units (default: lifted by a fifth of the extent)")
+    p.add_argument("--rotation", type=_floats(2, "alpha,beta (degrees)"), action="append", metavar="a,b",
+                   help="tilt about x and turn about the vertical, degrees (default 0,0)")
+    p.add_argument("--color", action="append", metavar="COLOR", help="close-up color (default: a palette)")
+    p.add_argument("--stepped", type=float, action="append", metavar="INTERVAL",
+                   help="the close-up shows the stepped terrain at this interval (MPFR); 0: continuous")
+    p.add_argument("--anchor", default="linear", metavar="PRESET",
+                   help="anchor transparency: opaque, linear, inverse, ends, hidden (default linear)")
+    p.add_argument("--billboard", action="store_true",
+                   help="overview-independent close-ups: orthographic, seen from above")
+    p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default="height",
+                   help="overview data mapping (default height)")
+    p.add_argument("--colormap", default="terrain", metavar="NAME", help="matplotlib colormap (default terrain)")
+    p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
+                   + " (overview, close-ups and anchors with vertex colors)")
+    p.add_argument("--png", metavar="OUT.png", help="also write the render here (with a mesh --output)")
+    p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
+    p.add_argument("--gif", metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
+    p.add_argument("--spin", type=float, default=0.25, metavar="TURNS/S",
+                   help="spin speed of the animation in turns per second (default 0.25)")
+    p.add_argument("--frames", type=int, default=24, metavar="N", help="animation frames (default 24)")
+    p.add_argument("--fps", type=float, default=12.0, metavar="FPS", help="animation frame rate (default 12)")
+    p.set_defaults(run=_run_closeup)
+
+
+def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
+    if not values:
+        return [default] * n
+    if len(values) == 1:
+        return values * n
+    if len(values) != n:
+        raise InvalidInputError(f"{name} must be given once or once per ROI ({n}); got {len(values)}")
+    return list(values)
+
+
+def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
+    from . import render
+    from .cli import _check_output
+    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
+    from .io import load_dem, sample_dem
+
+    out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
+    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    mesh_out = out if out.suffix.lower() != ".png" else None
+    images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
+    anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
+    if not (math.isfinite(args.z_scale) and args.z_scale > 0):
+        raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
+        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    if args.frames < 1:
+        raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
+    if not math.isfinite(args.spin) or args.spin == 0:
+        raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
+    if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
+        raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+    if images or anim is not None:
+        render.require_offscreen()  # fail before any work when no OpenGL context can exist here
+
+    progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
+    terrain = load_dem(args.input) if args.input else sample_dem()
+    progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
+    xmin, xmax, ymin, ymax = terrain.extent
+    short = min(xmax - xmin, ymax - ymin)
+    rois = list(args.roi or [])
+    for fx, fy, fr in args.roi_relative or []:
+        rois.append((xmin + fx * (xmax - xmin), ymin + fy * (ymax - ymin), fr * short))
+    if not rois:
+        rois = [((xmin + xmax) / 2, (ymin + ymax) / 2, 0.12 * short)]
+    n = len(rois)
+    scales = _per_closeup(args.scale, n, (1.5,), "--scale")
+    for s in scales:
+        if len(s) not in (1, 3):
+            raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
+    lift = 0.2 * max(xmax - xmin, ymax - ymin)
+    offsets = _per_closeup(args.offset, n, (0.0, 0.0, lift), "--offset")
+    rotations = _per_closeup(args.rotation, n, (0.0, 0.0), "--rotation")
+    colors = _per_closeup(args.color, n, None, "--color")
+    steps = _per_closeup(args.stepped, n, None, "--stepped")
+    anchor = AnchorStyle(args.anchor)
+    closeups = []
+    for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):
+        if not (math.isfinite(r) and r > 0):
+            raise InvalidInputError(f"--roi radius must be positive; got {r:g}")
+        edge = args.edge if args.edge is not None else r / 5
+        if args.shape == "circle":
+            roi = ROI.circle((x, y), r, edge_width=edge)
+        elif args.shape == "rectangle":
+            roi = ROI.rectangle((x, y), (2 * r, 2 * r), edge_width=edge)
+        else:
+            roi = ROI.rounded_rectangle((x, y), (2 * r, 2 * r), edge_width=edge)
+        closeups.append(CloseUp(roi, scale=s[0] if len(s) == 1 else s, offset=p,
+                                rotation=(math.radians(rot[0]), math.radians(rot[1])), color=c, anchor=anchor,
+                                stepped=st_ or None, view="billboard" if args.billboard else "overview",
+                                spin=(args.spin, max(1, math.ceil(abs(args.spin) * args.frames / args.fps)))))
+    scalars = None if args.scalars == "none" else args.scalars
+    options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device)
+
+    if mesh_out is not None:
+        from .closeup import closeup_scene
+        from .export import save_mesh
+
+        progress.stage("mesh", f"building the scene mesh with {n} close-up{'s' if n != 1 else ''}")
+        scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
+        progress.done(f"{len(scene.faces):,} faces,")
+        progress.stage("write", f"writing {mesh_out}")
+        save_mesh(scene, mesh_out, metadata={"closeups": n})
+        progress.done()
+    if images:
+        progress.stage("render", f"rendering {n} close-up{'s' if n != 1 else ''} at {args.size[0]}x{args.size[1]}")
+        timings: dict[str, float] = {}
+        image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
+        progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
+                      f"composite {timings['composite']:.2f} s;")
+        for path in images:
+            progress.stage("write", f"writing {path}")
+            render.save_png(image, path)
+            progress.done()
+    if anim is not None:
+        progress.stage("animate", f"rendering {args.frames} frames for {anim}")
+        frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
+                                  **options)
+        save_animation(frames, anim, fps=args.fps)
+        progress.done()
+    return 0

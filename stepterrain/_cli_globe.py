@@ -1,0 +1,164 @@
+"""``stepterrain globe``: a view-dependent mesh of the whole earth on the cube sphere (paper 003).
+
+    stepterrain globe -o out/globe.glb --png out/globe.png
+    stepterrain globe --eye 46,9,400000 --tilt 60 --heading 0 --error 30 -o alps.glb --png alps.png
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .cli import Progress, _check_output, _floats, _size, _window
+from .errors import DataFileError, InvalidInputError
+from .export import MESH_EXTENSIONS
+
+_EPILOG = """\
+examples:
+  stepterrain globe -o out/globe.glb --png out/globe.png
+      the embedded ETOPO 2022 relief (20'), 257^2 nodes per face, seen from 3 earth radii above 30N 10E
+  stepterrain globe --face-size 1025 --error 0 -o full.ply
+      the full-resolution sphere: 6 x 1024^2 x 2 triangles
+  stepterrain globe --eye 46,9,400000 --tilt 60 --error 20 --exaggeration 10 -o alps.glb --png alps.png
+      from 400 km above the Alps, tilted 60 degrees to the north, clipped to the view (paper 003, Abb. 12)
+  stepterrain globe --bounds sphere --metrics geometric,distance -o spheres.glb
+      bounding spheres instead of cone frustums, no clipping
+  stepterrain globe relief.npz --texture bluemarble.jpg -o textured.glb
+      a lat/lon grid (.npz with elevation, lat, lon in degrees) draped with a plate-carree image
+"""
+
+
+def add_parser(commands: Any) -> None:
+    """Add the ``globe`` subcommand."""
+    p = commands.add_parser(
+        "globe",
+        help="global terrain on the cube sphere: view-dependent, crack-free meshes (paper 003)",
+        description="Resample a global lat/lon elevation grid onto the six faces of a cube sphere, build the "
+        "longest-edge bisection hierarchy with saturated bounding spheres / cone frustums (Adelsberger), and "
+        "write a view-dependent mesh by extension (.glb .gltf .obj .ply .stl .3mf), optionally rendered.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("input", nargs="?", metavar="INPUT",
+                   help="global grid .npz (elevation, lat, lon in degrees); default: the embedded ETOPO 2022 20'")
+    p.add_argument("--face-size", type=int, default=257, metavar="N",
+                   help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
+    p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
+    p.add_argument("--radius", type=float, default=6_371_000.0, metavar="M", help="sphere radius in metres")
+    p.add_argument("--error", type=float, default=500.0, metavar="E",
+                   help="metres of error tolerated at the eye's altitude (grows with distance squared); "
+                        "0 = full resolution where visible (default 500)")
+    p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
+                   default=(30.0, 10.0, 3 * 6_371_000.0), metavar="LAT,LON,ALT",
+                   help="eye position: latitude, longitude (degrees) and altitude (metres); default 30,10,3R "
+                        "(the whole globe in view)")
+    p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
+                   help="tilt of the view from straight down, degrees (default 0)")
+    p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
+                   help="direction of the tilt, degrees clockwise from north (default 0)")
+    p.add_argument("--no-camera", action="store_true",
+                   help="no view dependence: refine by the geometric error alone (--error in metres)")
+    p.add_argument("--bounds", choices=("cone", "sphere"), default="cone",
+                   help="bounding shapes: cone frustums (default) or spheres")
+    p.add_argument("--metrics", default="geometric,distance,clip", metavar="a,b,c",
+                   help="metrics multiplied together (default geometric,distance,clip)")
+    p.add_argument("--no-cull", action="store_true", help="keep triangles outside the view (a closed mesh)")
+    p.add_argument("--texture", metavar="IMAGE",
+                   help="plate-carree image (row 0 at 90N, column 0 at 180W) draped as vertex colours; "
+                        "default: colours by elevation")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("-o", "--output", required=True, metavar="OUT",
+                   help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
+    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render from the eye")
+    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
+    p.set_defaults(run=_run_globe)
+
+
+def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    file = Path(path)
+    if not file.is_file():
+        raise DataFileError(f"INPUT {path!r} does not exist")
+    if file.suffix.lower() != ".npz":
+        raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays; got {path!r}")
+    try:
+        with np.load(file) as data:
+            return np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
+    except KeyError as exc:
+        raise DataFileError(f"{path!r} must hold arrays 'elevation', 'lat' and 'lon'; missing {exc}") from None
+    except (OSError, ValueError) as exc:
+        raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
+
+
+def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
+    from . import export, render
+    from .globe import Globe, drape_colors, elevation_colors, load_global_relief, look_from, render_view
+
+    out = _check_output(args.output, MESH_EXTENSIONS, "--output")
+    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    metrics = tuple(m.strip() for m in args.metrics.split(",") if m.strip())
+    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
+        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    lat_deg, lon_deg, altitude = args.eye
+    if not (-90.0 <= lat_deg <= 90.0):
+        raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
+    if altitude <= 0:
+        raise InvalidInputError(f"--eye altitude must be above the surface (> 0 m); got {altitude}")
+    if not (0.0 <= args.tilt < 90.0):
+        raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
+    if png is not None:
+        render.require_offscreen()
+
+    progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
+    lat, lon, elevation = _load_grid(args.input) if args.input else load_global_relief()
+    progress.done(f"{elevation.shape[0]} x {elevation.shape[1]} lat/lon grid,")
+
+    progress.stage("build", f"resampling onto 6 x {args.face_size}^2 nodes and building the hierarchy")
+    globe = Globe.from_latlon(elevation, lat, lon, face_size=args.face_size, radius=args.radius,
+                              exaggeration=args.exaggeration, device=args.device)
+    progress.done(f"on {globe.device},")
+
+    aspect = args.size[0] / args.size[1]
+    camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
+                       radius=args.radius)
+    progress.stage("mesh", f"refining: error {args.error:g}, {args.bounds}s, metrics {','.join(metrics)}")
+    mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=args.bounds,
+                      metrics=metrics, cull=not args.no_cull)
+    progress.done(f"{len(mesh.faces):,} triangles, {len(mesh.vertices):,} vertices")
+    if len(mesh.faces) == 0:
+        raise InvalidInputError("the view sees no part of the globe (every triangle was clipped); "
+                                "point the eye at the earth or pass --no-cull")
+
+    if args.texture:
+        mesh.visual.vertex_colors = drape_colors(mesh.vertices, args.texture)
+    else:
+        heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / args.exaggeration
+        mesh.visual.vertex_colors = elevation_colors(heights)
+
+    image = None
+    if png is not None:
+        progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen from the eye")
+        image = render_view(mesh, camera, window_size=args.size)
+        progress.done()
+
+    progress.stage("write", f"writing {out}")
+    metadata = {
+        "generator": "stepterrain globe",
+        "input": args.input or "embedded ETOPO 2022 global relief, 20 arc-minutes",
+        "face_size": args.face_size,
+        "error": args.error,
+        "bounds": args.bounds,
+        "metrics": ",".join(metrics),
+        "eye_lat_lon_alt": [lat_deg, lon_deg, altitude],
+        "exaggeration": args.exaggeration,
+    }
+    mesh.metadata.pop("node_entry", None)
+    written = export.save_mesh(mesh, out, metadata=metadata)
+    progress.done(_size(written))
+    if image is not None:
+        progress.stage("write_png", f"writing {png}")
+        export.save_image(image, png)
+        progress.done(_size(png))
+    return 0

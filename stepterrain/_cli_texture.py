@@ -1,0 +1,167 @@
+"""The ``stepterrain texture`` subcommand: a topographic texture (hillshade, shadows, occlusion) of a DEM, optionally
+modulated with a hypsometric thematic layer, written as PNG and draped on a mesh (paper 004 §3.2.3, §7).
+
+    stepterrain texture --shadows -o out/texture.png --mesh out/textured.glb --png out/render.png
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from typing import Any
+
+import numpy as np
+
+from .cli import Progress, _check_output, _size, _window
+from .errors import InvalidInputError
+from .export import MESH_EXTENSIONS
+
+_EPILOG = """\
+examples:
+  stepterrain texture --shadows -o out/texture.png
+      hillshade (GDAL conventions, light from 315 deg at 45 deg) with self-shadowing, hypsometric colours
+  stepterrain texture dem.tif --hillshade multidirectional --colormap none -o shade.png
+  stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
+  stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
+      the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
+  stepterrain texture --normals normals.png -o shade.png
+      also the normals encoded as RGB (relight them later without recomputing, paper 004 §7.4)
+"""
+
+
+def add_parser(commands: Any) -> None:
+    p = commands.add_parser(
+        "texture",
+        help="topographic textures: hillshade, self-shadowing, thematic layers, draping (paper 004)",
+        description="Compute a topographic texture of a DEM in Warp (Horn hillshade as gdaldem defines it, "
+                    "sweep-line self-shadowing, horizon-based ambient occlusion), modulate it with a "
+                    "hypsometric thematic layer, write it as PNG and optionally drape it on a mesh "
+                    "(Döllner, Baumann & Hinrichs 2000).",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("input", nargs="?", metavar="INPUT",
+                   help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+    p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
+                   choices=("standard", "multidirectional", "combined", "igor"),
+                   help="hillshade variant as gdaldem/MapLibre define it: standard, multidirectional, combined, "
+                        "igor (default standard)")
+    p.add_argument("--azimuth", type=float, default=315.0, metavar="DEG",
+                   help="light azimuth, degrees clockwise from north (default 315)")
+    p.add_argument("--altitude", type=float, default=45.0, metavar="DEG",
+                   help="light altitude above the horizon in [0, 90] degrees (default 45)")
+    p.add_argument("--z-factor", type=float, default=1.0, metavar="Z",
+                   help="vertical exaggeration of the shading (default 1)")
+    p.add_argument("--shadows", action="store_true", help="self-shadowing by the full-resolution terrain")
+    p.add_argument("--shadow-strength", type=float, default=0.6, metavar="S",
+                   help="how much a shadow darkens, in [0, 1] (default 0.6)")
+    p.add_argument("--occlusion", type=float, default=0.0, metavar="W",
+                   help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
+    p.add_argument("--colormap", default="terrain", metavar="NAME",
+                   help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
+    p.add_argument("--normals", metavar="OUT.png", help="also write the normals encoded as RGB")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.png", help="the texture as PNG")
+    p.add_argument("--mesh", metavar="OUT", help="drape the texture on a mesh; format by extension: "
+                   + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image)")
+    p.add_argument("--interval", type=float, metavar="M",
+                   help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
+                        "continuous heightfield)")
+    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render of the draped mesh")
+    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
+    p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
+                   help="vertical exaggeration of the render only (default 2)")
+    p.set_defaults(run=_run_texture)
+
+
+def _hypsometric(heights: np.ndarray, name: str) -> np.ndarray | None:
+    if name.lower() == "none":
+        return None
+    import matplotlib
+
+    try:
+        cmap = matplotlib.colormaps[name]
+    except KeyError:
+        raise InvalidInputError(f"--colormap must name a matplotlib colormap (e.g. terrain, viridis) or 'none'; "
+                                f"got {name!r}") from None
+    finite = np.isfinite(heights)
+    lo, hi = float(heights[finite].min()), float(heights[finite].max())
+    scaled = np.clip((heights - lo) / max(hi - lo, 1e-12), 0, 1)
+    lo_frac = 0.25 if name == "terrain" else 0.0  # skip the sea blues of 'terrain' on land
+    rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
+    rgba[~finite, 3] = 0.0
+    return rgba
+
+
+def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
+    from . import export, render
+    from . import texture as tx
+    from ._device import resolve_device
+    from .io import load_dem, sample_dem
+
+    out = _check_output(args.output, (".png",), "--output")
+    mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
+    png = _check_output(args.png, (".png",), "--png") if args.png else None
+    normals_out = _check_output(args.normals, (".png",), "--normals") if args.normals else None
+    if not (0.0 <= args.altitude <= 90.0):
+        raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
+    if args.interval is not None and mesh_out is None and png is None:
+        raise InvalidInputError("--interval applies only with --mesh or --png")
+    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
+        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    if not (math.isfinite(args.z_scale) and args.z_scale > 0):
+        raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    if png is not None:
+        render.require_offscreen()
+
+    progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
+    terrain = load_dem(args.input) if args.input else sample_dem()
+    progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
+
+    device = resolve_device(args.device)
+    what = ", ".join(["hillshade " + args.method] + (["shadows"] if args.shadows else [])
+                     + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
+    progress.stage("texture", f"topographic texture on {device}: {what}")
+    topo = tx.topographic_layer(terrain, azimuth=math.radians(args.azimuth), altitude=math.radians(args.altitude),
+                                z_factor=args.z_factor, method=args.method, shadows=args.shadows,
+                                shadow_strength=args.shadow_strength, occlusion=args.occlusion, device=device)
+    colors = _hypsometric(terrain.heights, args.colormap)
+    composite = topo
+    if colors is not None:
+        composite = tx.modulate(tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), topo,
+                                device=device)
+    image = composite.to_uint8(background=(1.0, 1.0, 1.0))
+    normals = tx.normal_map(terrain, z_factor=args.z_factor, device=device) if normals_out else None
+    progress.done(f"{image.shape[1]} x {image.shape[0]} pixels")
+
+    draped = shot = None
+    if mesh_out is not None or png is not None:
+        import stepterrain as st
+
+        progress.stage("drape", "draping on the " + (f"stepped terrain (interval {args.interval:g})"
+                                                     if args.interval else "heightfield"))
+        base = (st.stepped(terrain, interval=args.interval, device=device) if args.interval
+                else terrain.mesh())
+        draped = tx.drape(base, composite)
+        progress.done(f"{len(draped.faces):,} faces")
+        if png is not None:
+            progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
+            shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale, lighting=False)
+            progress.done()
+
+    progress.stage("write", f"writing {out}")
+    export.save_image(image, out)
+    progress.done(_size(out))
+    if normals is not None:
+        export.save_image(tx._north_up(terrain, normals), normals_out)
+        progress.say(f"wrote {normals_out} ({_size(normals_out)})")
+    if draped is not None and mesh_out is not None:
+        metadata = {"generator": "stepterrain texture", "input": args.input or "embedded Big Tujunga DEM",
+                    "method": args.method, "azimuth_deg": args.azimuth, "altitude_deg": args.altitude,
+                    "shadows": bool(args.shadows)}
+        export.save_mesh(draped, mesh_out, metadata=metadata)
+        progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
+    if shot is not None:
+        export.save_image(shot, png)
+        progress.say(f"wrote {png} ({_size(png)})")
+    return 0

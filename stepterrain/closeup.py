@@ -1,0 +1,1545 @@
+"""3D close-ups: detail+overview views of a terrain (paper 001).
+
+Implements Trapp & Döllner, *Interactive Close-Up Rendering for Detail+Overview Visualization of 3D Digital
+Terrain Models* (IV 2019, doi:10.1109/IV.2019.00053): the close-up model M = R(α, β)·S(sx, sy, sz)·T(p) with
+a ROI mask and a color (§II.B), overview-dependent and overview-independent close-ups (§II.C), anchors whose
+transparency follows a 1D transfer function of the normalized ‖V_O − V_C‖ (§II.D, Fig. 4), ROIs from a shape
+library, painted or generated from terrain features (§III.A), active/inactive depictions and automatic
+rotation (§III.B, Fig. 5), and layered rendering with image-based compositing (§IV, Fig. 6). Typical use:
+
+    cu = CloseUp(ROI.circle((390000.0, 3798000.0), 2000.0), scale=2.0, offset=(0.0, 0.0, 3000.0))
+    image = render_closeups(stepterrain.sample_dem(), [cu])
+
+Where the paper renders the whole terrain once per close-up (its stated limitation, §IV.C), each close-up
+here is cut to its ROI window before the Warp kernels run (kernels/closeup.py), and the kernels cull it to
+the faces with m > 0 by count -> scan -> emit, so a close-up costs in proportion to its ROI.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import trimesh
+import warp as wp
+from numpy.typing import ArrayLike, NDArray
+
+from ._compaction import check_budget, count_buffer, exclusive_offsets
+from ._device import launch, resolve_device, to_device
+from .errors import InvalidInputError, MissingDependencyError
+from .kernels import closeup as closeup_kernels
+from .terrain import Terrain, as_terrain, grid_faces
+
+__all__ = [
+    "ROI",
+    "AnchorStyle",
+    "CloseUp",
+    "CloseUpLayer",
+    "AnchorStrip",
+    "TRANSFER_PRESETS",
+    "transfer_function",
+    "closeup_matrix",
+    "closeup_layers",
+    "anchor_strips",
+    "composite",
+    "render_closeups",
+    "closeup_scene",
+    "animate_closeups",
+    "save_animation",
+    "max_closeups",
+]
+
+#: Opacity tables of the anchor transfer-function presets (Fig. 4), sampled linearly over t in [0, 1]:
+#: t = 0 at the ROI on the overview, t = 1 at the close-up.
+TRANSFER_PRESETS: dict[str, tuple[float, ...]] = {
+    "opaque": (0.85, 0.85),  # a solid fence: strongest referencing, most occlusion
+    "linear": (0.85, 0.0),  # solid at the ROI, fading out towards the close-up
+    "inverse": (0.0, 0.85),  # clear at the ROI (overview unoccluded), solid at the close-up
+    "ends": (0.85, 0.0, 0.85),  # marked at both ends, clear in the middle
+    "hidden": (0.0, 0.0),  # no anchor
+}
+
+#: Colors given to close-ups without one, in order (matplotlib tab10).
+PALETTE = ("#d62728", "#1f77b4", "#2ca02c", "#ff7f0e", "#9467bd", "#17becf", "#e377c2", "#bcbd22")
+
+_MIN_PIXELS_PER_CLOSEUP = 64  # a close-up needs at least a 64 x 64 pixel share of the window
+_MAX_CLOSEUPS = 16
+
+
+# ------------------------------------------------------------------------------------------------ helpers
+def _finite_pair(value: Any, name: str) -> tuple[float, float]:
+    try:
+        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{name} must be a pair of numbers; got {value!r}") from exc
+    if arr.size == 1:
+        arr = np.repeat(arr, 2)
+    if arr.size != 2 or not np.all(np.isfinite(arr)):
+        raise InvalidInputError(f"{name} must be a pair of finite numbers; got {value!r}")
+    return float(arr[0]), float(arr[1])
+
+
+def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
+    try:
+        v = float(value)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"{name} must be a number; got {value!r}") from exc
+    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+        expected = ">= 0" if allow_zero else "> 0"
+        raise InvalidInputError(f"{name} must be a finite number {expected}; got {value!r}")
+    return v
+
+
+def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np.float32]:
+    """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between."""
+    if edge_width <= 0:
+        return (distance < 0).astype(np.float32)
+    with np.errstate(over="ignore"):
+        x = np.clip(-distance / edge_width, 0.0, 1.0)
+    return (x * x * (3.0 - 2.0 * x)).astype(np.float32)
+
+
+def _mask_grid(size: tuple[float, float], resolution: int) -> tuple[int, int]:
+    """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, at least 3."""
+    resolution = int(resolution)
+    if resolution < 3:
+        raise InvalidInputError(f"mask resolution must be >= 3 texels; got {resolution}")
+    w, h = size
+    cols = resolution if w >= h else max(3, int(round(resolution * w / h)))
+    rows = resolution if h >= w else max(3, int(round(resolution * h / w)))
+    return rows | 1, cols | 1
+
+
+def _texel_xy(center: tuple[float, float], size: tuple[float, float], rows: int, cols: int):
+    xs = np.linspace(-size[0] / 2, size[0] / 2, cols)
+    ys = np.linspace(-size[1] / 2, size[1] / 2, rows)
+    return np.meshgrid(xs, ys)  # (rows, cols) offsets from the centre, row 0 at the lower y
+
+
+def _box_distance(x: NDArray[np.float64], y: NDArray[np.float64], hx: float, hy: float) -> NDArray[np.float64]:
+    qx, qy = np.abs(x) - hx, np.abs(y) - hy
+    outside = np.hypot(np.maximum(qx, 0), np.maximum(qy, 0))
+    return outside + np.minimum(np.maximum(qx, qy), 0)
+
+
+# ------------------------------------------------------------------------------------------------ ROI
+@dataclass(frozen=True, eq=False)
+class ROI:
+    """A region of interest (§III.A): origin O, the size of its box and a mask over that box.
+
+    ``mask`` (rows, cols) holds the mask factor m in [0, 1] at texels spread evenly over the box
+    ``center ± size / 2`` (corners included); row 0 lies at the *lower* y. Between texels m is bilinear, and
+    0 outside the box. Build one from the shape library (:meth:`circle`, :meth:`ellipse`, :meth:`rectangle`,
+    :meth:`rounded_rectangle`), a painted array (:meth:`painted`) or terrain features (:meth:`height_band`,
+    :meth:`slope_above`, :meth:`stepped_level`).
+    """
+
+    center: tuple[float, float]
+    size: tuple[float, float]
+    mask: NDArray[np.float32]
+    shape: str = "painted"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", _finite_pair(self.center, "ROI center"))
+        size = _finite_pair(self.size, "ROI size")
+        if min(size) <= 0:
+            raise InvalidInputError(f"ROI size must be positive (width, height); got {size}")
+        object.__setattr__(self, "size", size)
+        mask = np.asarray(self.mask)
+        if mask.dtype == object or not (np.issubdtype(mask.dtype, np.number) or mask.dtype == bool):
+            raise InvalidInputError(f"ROI mask must be a real (rows, cols) array; got dtype {mask.dtype}")
+        if mask.ndim != 2 or mask.shape[0] < 2 or mask.shape[1] < 2:
+            raise InvalidInputError(f"ROI mask must be a 2-D array of at least 2 x 2 texels; got shape {mask.shape}")
+        mask = np.ascontiguousarray(mask, dtype=np.float32)
+        if not np.all(np.isfinite(mask)):
+            raise InvalidInputError("ROI mask values must be finite, in [0, 1]; got NaN or inf")
+        if mask.min() < 0.0 or mask.max() > 1.0:
+            raise InvalidInputError(
+                f"ROI mask values must lie in [0, 1]; got range [{float(mask.min())}, {float(mask.max())}]"
+                " (divide an 8-bit mask by 255)"
+            )
+        mask.setflags(write=False)
+        object.__setattr__(self, "mask", mask)
+
+    # -------------------------------------------------------------------------- shape library
+    @classmethod
+    def circle(cls, center: ArrayLike, radius: float, *, edge_width: float | None = None,
+               resolution: int = 129) -> ROI:
+        """A disc of ``radius`` about ``center``; m falls from 1 to 0 over ``edge_width`` inside the rim.
+
+        ``edge_width`` defaults to radius / 5 (0 gives a hard edge, softened only by the bilinear lookup).
+
+        Examples
+        --------
+        >>> roi = ROI.circle((0.0, 0.0), 10.0)
+        >>> float(roi.mask[64, 64]), float(roi.mask[0, 0])
+        (1.0, 0.0)
+        """
+        r = _positive(radius, "ROI radius")
+        return cls.ellipse(center, (r, r), edge_width=edge_width, resolution=resolution)._named("circle")
+
+    @classmethod
+    def ellipse(cls, center: ArrayLike, radii: ArrayLike, *, edge_width: float | None = None,
+                resolution: int = 129) -> ROI:
+        """An axis-aligned ellipse with semi-axes ``radii`` = (a, b); soft edge as in :meth:`circle`."""
+        a, b = _finite_pair(radii, "ROI radii")
+        if min(a, b) <= 0:
+            raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
+        width = min(a, b) / 5 if edge_width is None else _positive(edge_width, "edge_width", allow_zero=True)
+        size = (2 * a, 2 * b)
+        rows, cols = _mask_grid(size, resolution)
+        x, y = _texel_xy((0, 0), size, rows, cols)
+        distance = (np.hypot(x / a, y / b) - 1.0) * min(a, b)
+        return cls(center, size, _smooth_edge(distance, width), "ellipse")
+
+    @classmethod
+    def rectangle(cls, center: ArrayLike, size: ArrayLike, *, edge_width: float | None = None,
+                  resolution: int = 129) -> ROI:
+        """An axis-aligned rectangle of ``size`` = (width, height); soft edge (default min side / 10)."""
+        return cls.rounded_rectangle(center, size, corner_radius=0.0, edge_width=edge_width,
+                                     resolution=resolution)._named("rectangle")
+
+    @classmethod
+    def rounded_rectangle(cls, center: ArrayLike, size: ArrayLike, *, corner_radius: float | None = None,
+                          edge_width: float | None = None, resolution: int = 129) -> ROI:
+        """A rectangle whose corners are arcs of ``corner_radius`` (default min side / 5)."""
+        w, h = _finite_pair(size, "ROI size")
+        if min(w, h) <= 0:
+            raise InvalidInputError(f"ROI size must be positive (width, height); got {(w, h)}")
+        rc = min(w, h) / 5 if corner_radius is None else _positive(corner_radius, "corner_radius", allow_zero=True)
+        if rc > min(w, h) / 2:
+            raise InvalidInputError(f"corner_radius must be at most half the shorter side {min(w, h) / 2}; got {rc}")
+        width = min(w, h) / 10 if edge_width is None else _positive(edge_width, "edge_width", allow_zero=True)
+        rows, cols = _mask_grid((w, h), resolution)
+        x, y = _texel_xy((0, 0), (w, h), rows, cols)
+        distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
+        return cls(center, (w, h), _smooth_edge(distance, width), "rounded_rectangle")
+
+    def _named(self, shape: str) -> ROI:
+        return replace(self, shape=shape)
+
+    # -------------------------------------------------------------------------- painted
+    @classmethod
+    def painted(cls, mask: ArrayLike, center: ArrayLike, size: ArrayLike, *, top_row_north: bool = True) -> ROI:
+        """A painted mask (§III.A.2): any grayscale image, floats in [0, 1] or 8-bit (divided by 255).
+
+        With ``top_row_north`` (the default, as images are drawn) row 0 is the *upper* y of the box.
+        """
+        arr = np.asarray(mask)
+        if arr.ndim == 3 and arr.shape[2] in (3, 4):
+            raise InvalidInputError(f"painted mask must be grayscale (rows, cols); got an RGB(A) image {arr.shape}")
+        if np.issubdtype(arr.dtype, np.integer) and arr.dtype.itemsize == 1:
+            arr = arr.astype(np.float32) / 255.0
+        if arr.ndim == 2 and top_row_north:
+            arr = arr[::-1]
+        return cls(center, size, arr, "painted")
+
+    # -------------------------------------------------------------------------- generated
+    @classmethod
+    def height_band(cls, terrain: Terrain | ArrayLike, low: float, high: float, *, edge: float = 0.0,
+                    region: ArrayLike | None = None) -> ROI:
+        """A generated mask (§III.A.3): m = 1 where low <= height <= high, ramping to 0 over ``edge`` metres.
+
+        The mask is the terrain grid itself (one texel per node), over the terrain's extent or the
+        sub-``region`` (xmin, xmax, ymin, ymax).
+        """
+        lo, hi = float(low), float(high)
+        if not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
+            raise InvalidInputError(f"height band must be finite with low <= high; got ({low}, {high})")
+        edge = _positive(edge, "edge", allow_zero=True)
+        heights, center, size = _terrain_window(terrain, region)
+        with np.errstate(invalid="ignore"):
+            if edge > 0:
+                m = np.clip((heights - (lo - edge)) / edge, 0, 1) * np.clip(((hi + edge) - heights) / edge, 0, 1)
+            else:
+                m = ((heights >= lo) & (heights <= hi)).astype(np.float32)
+        return cls(center, size, np.nan_to_num(m, nan=0.0), "height_band")
+
+    @classmethod
+    def slope_above(cls, terrain: Terrain | ArrayLike, degrees: float, *, edge: float = 0.0,
+                    region: ArrayLike | None = None) -> ROI:
+        """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees."""
+        d = float(degrees)
+        if not (math.isfinite(d) and 0 <= d < 90):
+            raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
+        edge = _positive(edge, "edge", allow_zero=True)
+        t = as_terrain(terrain)
+        heights, center, size = _terrain_window(t, region)
+        slope = np.degrees(_slope(heights, abs(t.spacing[0]), abs(t.spacing[1])))
+        with np.errstate(invalid="ignore"):
+            m = np.clip((slope - d) / edge, 0, 1) if edge > 0 else (slope > d).astype(np.float32)
+        return cls(center, size, np.nan_to_num(m, nan=0.0), "slope_above")
+
+    @classmethod
+    def stepped_level(cls, terrain: Terrain | ArrayLike, level: int, *, interval: float | None = None,
+                      levels: ArrayLike | None = None, base: float = 0.0, region: ArrayLike | None = None) -> ROI:
+        """A generated mask: the nodes whose stepped level (paper 000) is ``level`` (an isovalue index)."""
+        from .stepped import isovalues
+
+        t = as_terrain(terrain)
+        values = np.asarray(isovalues(t.height_range, interval=interval, levels=levels, base=base), np.float64)
+        level = int(level)
+        if not 0 <= level < len(values):
+            raise InvalidInputError(f"level must index the {len(values)} isovalues (0..{len(values) - 1}); got {level}")
+        thresholds = (values[:-1] + values[1:]) / 2
+        low = -np.inf if level == 0 else thresholds[level - 1]
+        high = np.inf if level == len(values) - 1 else thresholds[level]
+        heights, center, size = _terrain_window(t, region)
+        with np.errstate(invalid="ignore"):
+            m = ((heights >= low) & (heights < high)).astype(np.float32)
+        return cls(center, size, m, "stepped_level")
+
+    # -------------------------------------------------------------------------- geometry
+    @property
+    def origin(self) -> tuple[float, float]:
+        """The ROI origin O (§II.B): the centre of its box, the pivot of the close-up transform."""
+        return self.center
+
+    @property
+    def box(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) of the ROI box in world units."""
+        (cx, cy), (w, h) = self.center, self.size
+        return (cx - w / 2, cx + w / 2, cy - h / 2, cy + h / 2)
+
+    def factor(self, xy: ArrayLike) -> NDArray[np.float64]:
+        """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64)."""
+        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        xmin, xmax, ymin, ymax = self.box
+        rows, cols = self.mask.shape
+        u = (p[:, 0] - xmin) / (xmax - xmin)
+        v = (p[:, 1] - ymin) / (ymax - ymin)
+        inside = (u >= 0) & (u <= 1) & (v >= 0) & (v <= 1)
+        fx, fy = np.clip(u, 0, 1) * (cols - 1), np.clip(v, 0, 1) * (rows - 1)
+        j0 = np.minimum(np.floor(fx).astype(np.int64), cols - 2)
+        i0 = np.minimum(np.floor(fy).astype(np.int64), rows - 2)
+        tx, ty = fx - j0, fy - i0
+        m = self.mask.astype(np.float64)
+        bottom = m[i0, j0] + tx * (m[i0, j0 + 1] - m[i0, j0])
+        top = m[i0 + 1, j0] + tx * (m[i0 + 1, j0 + 1] - m[i0 + 1, j0])
+        return np.where(inside, bottom + ty * (top - bottom), 0.0)
+
+    def outline(self, level: float = 0.5) -> list[NDArray[np.float64]]:
+        """The ROI outline: polylines (P, 2) in world xy where m crosses ``level`` (closed ones repeat p0)."""
+        cache = self.__dict__.setdefault("_outlines", {})
+        if level not in cache:
+            cache[level] = self._outline(level)
+        return [line.copy() for line in cache[level]]
+
+    def _outline(self, level: float) -> list[NDArray[np.float64]]:
+        import contourpy
+
+        xmin, xmax, ymin, ymax = self.box
+        rows, cols = self.mask.shape
+        padded = np.pad(self.mask, 1)  # so outlines touching the box edge close
+        xs = np.linspace(xmin, xmax, cols)
+        ys = np.linspace(ymin, ymax, rows)
+        dx = xs[1] - xs[0]
+        dy = ys[1] - ys[0]
+        xs = np.concatenate([[xmin - dx], xs, [xmax + dx]])
+        ys = np.concatenate([[ymin - dy], ys, [ymax + dy]])
+        gen = contourpy.contour_generator(xs, ys, padded, line_type=contourpy.LineType.Separate)
+        lines = [np.asarray(line, dtype=np.float64) for line in gen.lines(level) if len(line) >= 3]
+        for line in lines:  # the padding ring lies outside the box: pull those points onto its edge
+            np.clip(line[:, 0], xmin, xmax, out=line[:, 0])
+            np.clip(line[:, 1], ymin, ymax, out=line[:, 1])
+        return lines
+
+
+def _slope(heights: NDArray[np.float32], dx: float, dy: float) -> NDArray[np.float64]:
+    gy, gx = np.gradient(heights.astype(np.float64), dy, dx)
+    return np.arctan(np.hypot(gx, gy))
+
+
+def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None):
+    """Heights of a grid terrain (rows at increasing y) over its extent or a region, with the box centre/size."""
+    t = as_terrain(terrain)
+    if t.kind != "grid":
+        raise InvalidInputError("generated ROI masks need a grid terrain (a DEM); got a TIN")
+    heights = t.heights
+    dx, dy = t.spacing
+    if dy < 0:
+        heights = heights[::-1]
+    if dx < 0:
+        heights = heights[:, ::-1]
+    xmin, xmax, ymin, ymax = t.extent
+    if region is not None:
+        try:
+            rx0, rx1, ry0, ry1 = (float(v) for v in region)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"region must be (xmin, xmax, ymin, ymax); got {region!r}") from exc
+        if not (rx0 < rx1 and ry0 < ry1) or not np.all(np.isfinite([rx0, rx1, ry0, ry1])):
+            raise InvalidInputError(f"region must be finite (xmin, xmax, ymin, ymax) with max > min; got {region!r}")
+        cols = np.arange(heights.shape[1])
+        rows = np.arange(heights.shape[0])
+        xs = xmin + cols * abs(dx)
+        ys = ymin + rows * abs(dy)
+        cj = np.flatnonzero((xs >= rx0) & (xs <= rx1))
+        ri = np.flatnonzero((ys >= ry0) & (ys <= ry1))
+        if len(cj) < 2 or len(ri) < 2:
+            raise InvalidInputError(
+                f"region {tuple(region)} covers fewer than 2 x 2 terrain nodes of the extent "
+                f"{(xmin, xmax, ymin, ymax)}")
+        heights = heights[ri[0]: ri[-1] + 1, cj[0]: cj[-1] + 1]
+        xmin, xmax, ymin, ymax = xs[cj[0]], xs[cj[-1]], ys[ri[0]], ys[ri[-1]]
+    center = ((xmin + xmax) / 2, (ymin + ymax) / 2)
+    return np.ascontiguousarray(heights), center, (xmax - xmin, ymax - ymin)
+
+
+# ------------------------------------------------------------------------------------------------ anchors
+def transfer_function(spec: str | ArrayLike) -> NDArray[np.float32]:
+    """The opacity table of an anchor transfer function: a preset name or (K,) opacities in [0, 1].
+
+    Examples
+    --------
+    >>> transfer_function("linear").tolist()
+    [0.8500000238418579, 0.0]
+    """
+    if isinstance(spec, str):
+        if spec not in TRANSFER_PRESETS:
+            raise InvalidInputError(f"anchor transparency must be one of {sorted(TRANSFER_PRESETS)} or an "
+                                    f"opacity table; got {spec!r}")
+        return np.asarray(TRANSFER_PRESETS[spec], dtype=np.float32)
+    try:
+        table = np.asarray(spec, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"anchor transparency table must be numbers; got {spec!r}") from exc
+    if table.size < 1 or not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
+        raise InvalidInputError(f"anchor transparency table must hold opacities in [0, 1]; got {spec!r}")
+    return table.astype(np.float32)
+
+
+@dataclass(frozen=True)
+class AnchorStyle:
+    """How a close-up's anchor is drawn (§II.D, Fig. 4; inactive depictions of Fig. 5).
+
+    ``transparency``: a :data:`TRANSFER_PRESETS` name or an opacity table over t in [0, 1] (t = 0 at the ROI,
+    1 at the close-up). ``rungs``: strip rows between ROI and close-up. ``inactive``: how an inactive
+    close-up's anchor looks: "hidden" (Fig. 5a), "gray" (Fig. 5b) or "faint" (Fig. 5c, a quarter of the
+    opacity). ``outline_level``: the mask value whose contour is the ROI outline. ``band``: also draw the
+    soft-edge faces (0 < m < 1), stretched between ROI and close-up by C, as part of the anchor, as the
+    paper's SPFR does (its quality then depends on the vertex density, §IV.C); by default the anchor is the
+    strip alone and the close-up shows every face with a corner of m >= ``outline_level`` fully transformed.
+    """
+
+    transparency: str | tuple[float, ...] = "linear"
+    rungs: int = 8
+    inactive: Literal["hidden", "gray", "faint"] = "faint"
+    outline_level: float = 0.5
+    band: bool = False
+
+    def __post_init__(self) -> None:
+        table = transfer_function(self.transparency)
+        if not isinstance(self.transparency, str):
+            object.__setattr__(self, "transparency", tuple(float(v) for v in table))
+        if isinstance(self.rungs, bool) or not isinstance(self.rungs, (int, np.integer)) or not 1 <= self.rungs <= 256:
+            raise InvalidInputError(f"anchor rungs must be an int in [1, 256]; got {self.rungs!r}")
+        if self.inactive not in ("hidden", "gray", "faint"):
+            raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
+        object.__setattr__(self, "band", bool(self.band))
+        if not 0 < float(self.outline_level) < 1:
+            raise InvalidInputError(f"anchor outline_level must lie in (0, 1); got {self.outline_level}")
+
+    @property
+    def table(self) -> NDArray[np.float32]:
+        """The opacity table (K,)."""
+        return transfer_function(self.transparency)
+
+
+# ------------------------------------------------------------------------------------------------ close-up
+def _color(value: Any, name: str) -> tuple[float, float, float]:
+    import matplotlib.colors
+
+    try:
+        return tuple(float(c) for c in matplotlib.colors.to_rgb(value))  # type: ignore[return-value]
+    except (ValueError, TypeError) as exc:
+        raise InvalidInputError(f"{name} must be a matplotlib color (name, '#rrggbb' or RGB in [0, 1]); "
+                                f"got {value!r}") from exc
+
+
+@dataclass(frozen=True, eq=False)
+class CloseUp:
+    """A 3D close-up (§II.B): its ROI, the transform M = R(α, β)·S(sx, sy, sz)·T(p), a color and a state.
+
+    Parameters
+    ----------
+    roi : ROI
+        Where the close-up comes from; its centre O is the pivot of the rotation and the scaling.
+    rotation : (α, β), radians
+        α tilts about the x axis, β turns about the vertical axis (the paper's y, our z).
+    scale : s or (sx, sy, sz)
+        sx, sy > 0 scale the ROI's extent; sz >= 0 its heights (sz = 0: a flat close-up, Fig. 1).
+    offset : (dx, dy, dz), world units
+        Displacement of the close-up from its ROI (dz > 0 lifts it above the terrain).
+    color : matplotlib color, optional
+        Ties close-up and ROI together (P2); default: the palette by position.
+    active : bool
+        Inactive close-ups draw their anchor as ``anchor.inactive`` says (Fig. 5).
+    anchor : AnchorStyle
+    spin : (turns per second, repetitions), optional
+        Automatic rotation about the vertical axis for animations (§III.B).
+    view : "overview" or "billboard"
+        Overview-dependent (same camera as the overview) or overview-independent: an orthographic image
+        from the fixed direction ``billboard_view`` (azimuth, elevation), placed where the close-up is (§II.C).
+    stepped : float, optional
+        MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
+    scalars : None, "height", "slope" or "aspect"
+        The data layer colored by ``cmap`` (None: the overview's mapping).
+    texture : (h, w, 3|4) uint8 image, optional
+        An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
+        close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex.
+    """
+
+    roi: ROI
+    rotation: tuple[float, float] = (0.0, 0.0)
+    scale: float | tuple[float, float, float] = 1.0
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    color: Any = None
+    active: bool = True
+    anchor: AnchorStyle = field(default_factory=AnchorStyle)
+    spin: tuple[float, int] | None = None
+    view: Literal["overview", "billboard"] = "overview"
+    billboard_view: tuple[float, float] = (math.pi, math.radians(89.0))
+    stepped: float | None = None
+    gamma: float = 1.0
+    scalars: Literal["height", "slope", "aspect"] | None = None
+    cmap: str | None = None
+    texture: Any = None
+
+    def __post_init__(self) -> None:
+        if self.texture is not None:
+            object.__setattr__(self, "texture", _check_texture(self.texture, "close-up texture"))
+        if not isinstance(self.roi, ROI):
+            raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
+        rot = np.asarray(self.rotation, dtype=np.float64).reshape(-1)
+        if rot.size != 2 or not np.all(np.isfinite(rot)):
+            raise InvalidInputError(f"close-up rotation must be finite (α, β) in radians; got {self.rotation!r}")
+        object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
+        try:
+            s = np.asarray(self.scale, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError) as exc:
+            raise InvalidInputError(f"close-up scale must be a number or (sx, sy, sz); got {self.scale!r}") from exc
+        if s.size == 1:
+            s = np.repeat(s, 3)
+        if s.size != 3 or not np.all(np.isfinite(s)):
+            raise InvalidInputError(f"close-up scale must be a finite number or (sx, sy, sz); got {self.scale!r}")
+        if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
+            raise InvalidInputError(
+                f"close-up scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {tuple(s.tolist())}")
+        object.__setattr__(self, "scale", tuple(float(v) for v in s))
+        p = np.asarray(self.offset, dtype=np.float64).reshape(-1)
+        if p.size != 3 or not np.all(np.isfinite(p)):
+            raise InvalidInputError(f"close-up offset must be finite (dx, dy, dz); got {self.offset!r}")
+        object.__setattr__(self, "offset", tuple(float(v) for v in p))
+        if self.color is not None:
+            object.__setattr__(self, "color", _color(self.color, "close-up color"))
+        if not isinstance(self.anchor, AnchorStyle):
+            raise InvalidInputError(f"close-up anchor must be an AnchorStyle; got {type(self.anchor).__name__}")
+        if self.spin is not None:
+            try:
+                speed, reps = float(self.spin[0]), int(self.spin[1])
+            except (TypeError, ValueError, IndexError) as exc:
+                raise InvalidInputError(
+                    f"close-up spin must be (turns per second, repetitions); got {self.spin!r}") from exc
+            if not math.isfinite(speed) or speed == 0 or reps < 1:
+                raise InvalidInputError(f"close-up spin needs a finite non-zero speed and repetitions >= 1; "
+                                        f"got {self.spin!r}")
+            object.__setattr__(self, "spin", (speed, reps))
+        if self.view not in ("overview", "billboard"):
+            raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
+        bv = np.asarray(self.billboard_view, dtype=np.float64).reshape(-1)
+        if bv.size != 2 or not np.all(np.isfinite(bv)):
+            raise InvalidInputError(f"billboard_view must be finite (azimuth, elevation); got {self.billboard_view!r}")
+        object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
+        if self.stepped is not None:
+            object.__setattr__(self, "stepped", _positive(self.stepped, "close-up stepped interval"))
+        if not 0.0 <= float(self.gamma) <= 1.0:
+            raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma}")
+        if self.scalars not in (None, "height", "slope", "aspect"):
+            raise InvalidInputError(
+                f"close-up scalars must be None, 'height', 'slope' or 'aspect'; got {self.scalars!r}")
+
+    def turn(self, time: float) -> float:
+        """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
+        if self.spin is None:
+            return self.rotation[1]
+        speed, reps = self.spin
+        turns = min(abs(speed) * float(time), float(reps))
+        return self.rotation[1] + math.copysign(2 * math.pi * turns, speed)
+
+    def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
+        """M as a 4 x 4 matrix on world column vectors (x, y, z, 1); see :func:`closeup_matrix`."""
+        return closeup_matrix(self.roi.center, pivot_z, self.rotation[0], self.turn(time), self.scale, self.offset)
+
+
+def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float, scale: ArrayLike,
+                   offset: ArrayLike) -> NDArray[np.float64]:
+    """The close-up transform M = T(O + p)·R_z(β)·R_x(α)·S(s)·T(−O) (4 x 4, float64).
+
+    This is the paper's M = R(α, β)·S(sx, sy, sz)·T(p) (§II.B) taken about the ROI origin O = (cx, cy,
+    pivot_z), with the translation written after the rotation and scaling (R·S·T(q) = T(R·S·q)·R·S), so
+    ``offset`` is a plain world displacement.
+
+    Examples
+    --------
+    >>> M = closeup_matrix((10.0, 0.0), 0.0, 0.0, 0.0, (2.0, 2.0, 2.0), (0.0, 0.0, 5.0))
+    >>> (M @ [11.0, 0.0, 1.0, 1.0]).tolist()
+    [12.0, 0.0, 7.0, 1.0]
+    """
+    cx, cy = (float(v) for v in center)
+    sx, sy, sz = (float(v) for v in np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,)))
+    px, py, pz = (float(v) for v in offset)
+    ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
+    rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
+    rz = np.array([[cb, -sb, 0], [sb, cb, 0], [0, 0, 1]])
+    linear = rz @ rx @ np.diag([sx, sy, sz])
+    o = np.array([cx, cy, float(pivot_z)])
+    m = np.eye(4)
+    m[:3, :3] = linear
+    m[:3, 3] = o + np.array([px, py, pz]) - linear @ o
+    return m
+
+
+def max_closeups(window_size: tuple[int, int]) -> int:
+    """How many close-ups a window holds: one per 64 x 64 pixels, at most 16 (P4: close-ups stay sparse)."""
+    w, h = (int(v) for v in window_size)
+    return max(0, min(_MAX_CLOSEUPS, (w // _MIN_PIXELS_PER_CLOSEUP) * (h // _MIN_PIXELS_PER_CLOSEUP)))
+
+
+def _check_closeups(closeups: Sequence[CloseUp] | CloseUp) -> list[CloseUp]:
+    if isinstance(closeups, CloseUp):
+        closeups = [closeups]
+    try:
+        items = list(closeups)
+    except TypeError as exc:
+        raise InvalidInputError(f"closeups must be a sequence of CloseUp; got {type(closeups).__name__}") from exc
+    for i, cu in enumerate(items):
+        if not isinstance(cu, CloseUp):
+            raise InvalidInputError(f"closeups[{i}] must be a CloseUp; got {type(cu).__name__}")
+    return items
+
+
+def _check_in_terrain(terrain: Terrain, closeups: Sequence[CloseUp]) -> None:
+    xmin, xmax, ymin, ymax = terrain.extent
+    for i, cu in enumerate(closeups):
+        bx0, bx1, by0, by1 = cu.roi.box
+        if bx1 < xmin or bx0 > xmax or by1 < ymin or by0 > ymax:
+            raise InvalidInputError(
+                f"closeups[{i}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] lies outside the terrain's "
+                f"extent x [{xmin:g}, {xmax:g}], y [{ymin:g}, {ymax:g}]")
+
+
+# ------------------------------------------------------------------------------------------------ geometry
+@dataclass
+class _Source:
+    """One close-up's input geometry (local coordinates), before the kernels."""
+
+    points: NDArray[np.float32]
+    faces: NDArray[np.int32]
+    source_faces: NDArray[np.int64]
+    colors: NDArray[np.uint8] | None = None
+    scalars: NDArray[np.float32] | None = None
+
+
+def _grid_window(terrain: Terrain, box: tuple[float, float, float, float]) -> tuple[int, int, int, int]:
+    """Node index window (i0, i1, j0, j1), inclusive, covering the ROI box plus one node."""
+    rows, cols = terrain.heights.shape
+    (ox, oy), (dx, dy) = terrain.origin, terrain.spacing
+    ju = sorted(((box[0] - ox) / dx, (box[1] - ox) / dx))
+    iu = sorted(((box[2] - oy) / dy, (box[3] - oy) / dy))
+    j0 = int(np.clip(math.floor(ju[0]) - 1, 0, cols - 1))
+    j1 = int(np.clip(math.ceil(ju[1]) + 1, 0, cols - 1))
+    i0 = int(np.clip(math.floor(iu[0]) - 1, 0, rows - 1))
+    i1 = int(np.clip(math.ceil(iu[1]) + 1, 0, rows - 1))
+    return i0, i1, j0, j1
+
+
+def _grid_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _Source:
+    """The terrain grid's nodes and faces inside the ROI window (the overview's own triangles: SPFR)."""
+    rows, cols = terrain.heights.shape
+    i0, i1, j0, j1 = _grid_window(terrain, box)
+    if i1 <= i0 or j1 <= j0:
+        return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
+    dx, dy = terrain.spacing
+    h = terrain.heights[i0: i1 + 1, j0: j1 + 1]
+    wr, wc = h.shape
+    jj, ii = np.meshgrid(np.arange(j0, j1 + 1), np.arange(i0, i1 + 1))
+    points = np.empty((wr * wc, 3), np.float32)
+    points[:, 0] = (jj * dx).reshape(-1)
+    points[:, 1] = (ii * dy).reshape(-1)
+    points[:, 2] = h.reshape(-1)
+    faces = grid_faces(wr, wc, flip=dx * dy < 0)
+    ci, cj = np.meshgrid(np.arange(i0, i1), np.arange(j0, j1), indexing="ij")
+    cell = (ci * (cols - 1) + cj).reshape(-1)
+    source = (2 * cell[:, None] + np.arange(2)[None, :]).reshape(-1)
+    if terrain.nodata_mask.any():
+        ok = np.isfinite(points[:, 2])[faces].all(axis=1)
+        faces, source = faces[ok], source[ok]
+    return _Source(points, faces.astype(np.int32), source.astype(np.int64))
+
+
+def _tin_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _Source:
+    """The TIN's faces whose xy bounding box meets the ROI box (local coordinates)."""
+    points = terrain.local_points()
+    ox, oy = terrain.local_origin
+    faces = terrain.faces
+    fx, fy = points[faces, 0], points[faces, 1]
+    keep = ((fx.max(1) >= box[0] - ox) & (fx.min(1) <= box[1] - ox)
+            & (fy.max(1) >= box[2] - oy) & (fy.min(1) <= box[3] - oy))
+    chosen = faces[keep]
+    used, inverse = np.unique(chosen.reshape(-1), return_inverse=True)
+    return _Source(points[used], inverse.reshape(-1, 3).astype(np.int32), np.flatnonzero(keep).astype(np.int64))
+
+
+def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Device) -> _Source:
+    """MPFR: the stepped terrain (paper 000) of the ROI window, hypsometric colors, isovalues of the whole terrain."""
+    from .stepped import isovalues, stepped
+
+    values = isovalues(_height_range(terrain), interval=cu.stepped)
+    if terrain.kind == "grid":
+        i0, i1, j0, j1 = _grid_window(terrain, cu.roi.box)
+        dx, dy = terrain.spacing
+        window = Terrain.from_heights(terrain.heights[i0: i1 + 1, j0: j1 + 1], spacing=(dx, dy),
+                                      origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
+    else:
+        window = terrain
+    table = _colors_for(np.asarray(values, np.float32), colors, float(values[0]), float(values[-1]))
+    mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, device=device)
+    ox, oy = terrain.local_origin
+    points = np.asarray(mesh.vertices, dtype=np.float64) - [ox, oy, 0.0]
+    rgb = np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
+    return _Source(points.astype(np.float32), np.asarray(mesh.faces, np.int32), np.full(len(mesh.faces), -1, np.int64),
+                   colors=rgb)
+
+
+@dataclass(frozen=True)
+class CloseUpLayer:
+    """The culled, transformed geometry of one close-up (world coordinates, float64).
+
+    ``mask_factor`` (V,) holds m per vertex, ``original`` (V, 3) V_O, ``faces`` index ``vertices``;
+    ``source_faces`` (F,) are the faces' indices in the overview mesh (``Terrain.mesh()``; grid face
+    2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None.
+    """
+
+    index: int
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    mask_factor: NDArray[np.float32]
+    original: NDArray[np.float64]
+    source_faces: NDArray[np.int64]
+    colors: NDArray[np.uint8] | None
+    scalars: NDArray[np.float32] | None
+    matrix: NDArray[np.float64]
+
+    def mesh(self) -> trimesh.Trimesh:
+        """The layer as a ``trimesh.Trimesh`` (vertex attribute ``mask_factor``, vertex colors if any)."""
+        kwargs: dict[str, Any] = {}
+        if self.colors is not None:
+            kwargs["vertex_colors"] = self.colors
+        return trimesh.Trimesh(self.vertices, self.faces, process=False,
+                               vertex_attributes={"mask_factor": self.mask_factor},
+                               metadata={"closeup": self.index, "source_faces": self.source_faces}, **kwargs)
+
+
+def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.float64]],
+                   local_origin: tuple[float, float], device: wp.Device) -> closeup_kernels.CloseUpLayers:
+    ox, oy = local_origin
+    shift = np.eye(4)
+    shift[:2, 3] = (ox, oy)
+    unshift = np.linalg.inv(shift)
+    layers = closeup_kernels.CloseUpLayers()
+    local = np.stack([unshift @ m @ shift for m in matrices]) if matrices else np.zeros((0, 4, 4))
+    layers.matrices = wp.array(local.astype(np.float32), dtype=wp.mat44, device=device)
+    boxes = np.array([[b[0] - ox, b[2] - oy, b[1] - ox, b[3] - oy] for b in (cu.roi.box for cu in closeups)],
+                     dtype=np.float32).reshape(-1, 4)
+    layers.boxes = wp.array(boxes, dtype=wp.vec4, device=device)
+    sizes = [cu.roi.mask.size for cu in closeups]
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32) if sizes else np.zeros(0, np.int32)
+    info = np.array([[s, *cu.roi.mask.shape] for s, cu in zip(starts, closeups, strict=True)],
+                    dtype=np.int32).reshape(-1, 3)
+    layers.mask_info = wp.array(info, dtype=wp.vec3i, device=device)
+    packed = np.concatenate([cu.roi.mask.reshape(-1) for cu in closeups]) if closeups else np.zeros(1, np.float32)
+    layers.masks = wp.array(packed.astype(np.float32), dtype=wp.float32, device=device)
+    return layers
+
+
+def _transfer_struct(closeups: Sequence[CloseUp], device: wp.Device) -> closeup_kernels.TransferFunctions:
+    tables = [cu.anchor.table for cu in closeups] or [np.zeros(1, np.float32)]
+    counts = np.array([len(t) for t in tables], np.int32)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)
+    tf = closeup_kernels.TransferFunctions()
+    tf.values = wp.array(np.concatenate(tables).astype(np.float32), dtype=wp.float32, device=device)
+    tf.info = wp.array(np.stack([starts, counts], axis=1), dtype=wp.vec2i, device=device)
+    return tf
+
+
+def _height_range(terrain: Terrain) -> tuple[float, float]:
+    """The terrain's (min, max) height, computed once per terrain (frames re-use it)."""
+    return terrain.cached(("closeup", "height_range"), lambda: terrain.height_range)
+
+
+def _pivot_z(terrain: Terrain) -> float:
+    return _height_range(terrain)[0]
+
+
+def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: str) -> NDArray[np.float32]:
+    """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid."""
+    if kind == "height" or terrain.kind != "grid":
+        return points_local[:, 2].astype(np.float32)
+    heights = terrain.heights.astype(np.float64)
+    dx, dy = terrain.spacing
+    gy, gx = np.gradient(heights, dy, dx)
+    if kind == "slope":
+        field_ = np.arctan(np.hypot(gx, gy))
+    else:
+        field_ = np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
+    j = np.clip(np.rint(points_local[:, 0] / dx).astype(np.int64), 0, heights.shape[1] - 1)
+    i = np.clip(np.rint(points_local[:, 1] / dy).astype(np.int64), 0, heights.shape[0] - 1)
+    return np.nan_to_num(field_[i, j]).astype(np.float32)
+
+
+def closeup_layers(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    closeups: Sequence[CloseUp] | CloseUp,
+    *,
+    time: float = 0.0,
+    colors: str = "terrain",
+    memory_budget: int | None = None,
+    device: wp.DeviceLike = None,
+) -> list[CloseUpLayer]:
+    """Amplify, transform and cull the geometry of every close-up in one pass of Warp kernels (§II.B, §IV.A).
+
+    Parameters
+    ----------
+    terrain : Terrain, trimesh.Trimesh or (H, W) array_like
+        The overview's terrain.
+    closeups : CloseUp or sequence of CloseUp
+    time : float
+        Animation time in seconds (spinning close-ups turn, see :meth:`CloseUp.turn`).
+    colors : str
+        Colormap of the stepped close-ups' levels (MPFR).
+    memory_budget : int, optional
+        Bytes the output may take (default :func:`stepterrain.get_memory_budget`).
+    device : warp device, optional
+
+    Returns
+    -------
+    list of CloseUpLayer
+        One per close-up, in order: the faces with a corner of m > 0, their used vertices V_C =
+        (m·M + (1 − m)·I)·V_O, m and V_O.
+
+    Raises
+    ------
+    InvalidInputError
+        A close-up's ROI lies outside the terrain, or a bad close-up.
+
+    Notes
+    -----
+    Each close-up starts from the terrain's own triangles inside its ROI window (a DEM: index arithmetic;
+    a TIN: a bounding-box test), or from the stepped terrain of that window (MPFR). One launch transforms
+    every close-up's vertices (layer id per vertex), then count -> scan -> emit keeps the faces with m > 0 and
+    a second one the vertices they use. Cost: proportional to the ROI windows, not to the terrain.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), scale=2.0, offset=(0.0, 0.0, 10.0))
+    >>> layer = closeup_layers(np.zeros((11, 11), np.float32), [cu], device="cpu")[0]
+    >>> bool((layer.mask_factor[layer.faces].max(axis=1) > 0).all()), float(layer.vertices[:, 2].max())
+    (True, 10.0)
+    """
+    t = as_terrain(terrain)
+    items = _check_closeups(closeups)
+    _check_in_terrain(t, items)
+    device = resolve_device(device)
+    pivot = _pivot_z(t)
+    matrices = [cu.matrix(pivot, time=time) for cu in items]
+    if not items:
+        return []
+    sources: list[_Source] = []
+    # a close-up's input geometry depends on its ROI box and mapping only, not on M: frames that move or turn
+    # a close-up re-use it (a small per-terrain cache, emptied when it grows, e.g. while a ROI is dragged)
+    cache = t.cached(("closeup", "sources"), dict)
+    if len(cache) > 64:
+        cache.clear()
+    for cu in items:  # one window per close-up (a handful): no loop over cells or vertices
+        key = (cu.roi.box, cu.stepped, cu.gamma if cu.stepped is not None else None,
+               (cu.cmap or colors) if cu.stepped is not None else None, cu.scalars, str(device))
+        src = cache.get(key)
+        if src is None:
+            if cu.stepped is not None:
+                src = _stepped_source(t, cu, cu.cmap or colors, device)
+            elif t.kind == "grid":
+                src = _grid_source(t, cu.roi.box)
+            else:
+                src = _tin_source(t, cu.roi.box)
+            if cu.scalars is not None:
+                src.scalars = _vertex_scalars(t, src.points, cu.scalars)
+            cache[key] = src
+        sources.append(src)
+    n_points = np.array([len(s.points) for s in sources])
+    n_faces = np.array([len(s.faces) for s in sources])
+    point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
+    points = np.concatenate([s.points for s in sources]).astype(np.float32)
+    faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
+    point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
+    n, nf = len(points), len(faces)
+    check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
+
+    layers = _layers_struct(items, matrices, t.local_origin, device)
+    points_wp = to_device(points.reshape(-1, 3), wp.vec3, device)
+    layer_wp = to_device(point_layer, wp.int32, device)
+    transformed = wp.empty(n, dtype=wp.vec3, device=device)
+    factors = wp.empty(n, dtype=wp.float32, device=device)
+    launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
+           device)
+    faces_wp = to_device(faces.reshape(-1, 3), wp.vec3i, device)
+    counts = count_buffer("closeup.faces", nf, device)
+    launch(closeup_kernels.count_closeup_faces, nf, [faces_wp, factors], [counts], device)
+    offsets, face_count = exclusive_offsets(counts, "closeup.faces")
+    faces_out = wp.empty(max(face_count, 1), dtype=wp.vec3i, device=device)
+    face_source = wp.empty(max(face_count, 1), dtype=wp.int32, device=device)
+    launch(closeup_kernels.emit_closeup_faces, nf, [faces_wp, factors, offsets], [faces_out, face_source], device)
+    used = count_buffer("closeup.vertices", n, device)
+    used.zero_()
+    launch(closeup_kernels.mark_used_vertices, face_count, [faces_out], [used], device)
+    voffsets, vertex_count = exclusive_offsets(used, "closeup.vertices")
+    vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
+    factors_out = wp.empty(max(vertex_count, 1), dtype=wp.float32, device=device)
+    vertex_source = wp.empty(max(vertex_count, 1), dtype=wp.int32, device=device)
+    launch(closeup_kernels.emit_used_vertices, n, [used, voffsets, transformed, factors],
+           [vertices_out, factors_out, vertex_source], device)
+    launch(closeup_kernels.renumber_faces, face_count, [voffsets], [faces_out], device)
+
+    v_all = vertices_out.numpy()[:vertex_count].astype(np.float64)
+    m_all = factors_out.numpy()[:vertex_count]
+    src_v = vertex_source.numpy()[:vertex_count]
+    f_all = faces_out.numpy()[:face_count].astype(np.int64)
+    src_f = face_source.numpy()[:face_count]
+    ox, oy = t.local_origin
+    v_all[:, 0] += ox
+    v_all[:, 1] += oy
+    originals = points[src_v].astype(np.float64) + [ox, oy, 0.0]
+    v_layer = point_layer[src_v]
+    f_layer = point_layer[faces[src_f, 0]] if face_count else np.zeros(0, np.int32)
+    v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
+    f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
+    face_start = np.concatenate([[0], np.cumsum(n_faces)[:-1]])
+    out = []
+    for k, src in enumerate(sources):
+        vs, ve, fs, fe = v_bounds[k], v_bounds[k + 1], f_bounds[k], f_bounds[k + 1]
+        local_src = src_v[vs:ve] - point_start[k]
+        out.append(CloseUpLayer(
+            index=k,
+            vertices=v_all[vs:ve],
+            faces=f_all[fs:fe] - vs,
+            mask_factor=m_all[vs:ve],
+            original=originals[vs:ve],
+            source_faces=src.source_faces[src_f[fs:fe] - face_start[k]],
+            colors=None if src.colors is None else src.colors[local_src],
+            scalars=None if src.scalars is None else src.scalars[local_src],
+            matrix=matrices[k],
+        ))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------ anchors
+@dataclass(frozen=True)
+class AnchorStrip:
+    """One close-up's anchor fence (§II.D): vertices from V_O (t = 0) to M·V_O, t and opacity per vertex.
+
+    ``vertices`` (V, 3) world; ``faces`` (F, 3); ``distance`` (V,) the normalized ‖V − V_O‖ in [0, 1];
+    ``opacity`` (V,) the transfer function at ``distance``; ``color`` RGB in [0, 1]; ``rungs``: V = P·(rungs + 1)
+    for P outline points, point i's vertices at i·(rungs + 1) + r; ``max_length``: D, the normalization.
+    """
+
+    index: int
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    distance: NDArray[np.float32]
+    opacity: NDArray[np.float32]
+    color: tuple[float, float, float]
+    rungs: int
+    max_length: float
+
+
+def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Bilinear terrain heights at world xy (grid), nearest-vertex heights for a TIN."""
+    if terrain.kind != "grid":
+        pts = terrain.points[terrain.point_used.astype(bool)]
+        try:
+            from scipy.spatial import cKDTree
+        except ImportError:  # brute force in chunks of at most ~10 M distances
+            chunk = max(1, 10_000_000 // max(len(pts), 1))
+            idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
+                                  for i in range(0, len(xy), chunk)])
+        else:
+            idx = cKDTree(pts[:, :2]).query(xy)[1]
+        return pts[idx, 2]
+    rows, cols = terrain.heights.shape
+    (ox, oy), (dx, dy) = terrain.origin, terrain.spacing
+    fx = np.clip((xy[:, 0] - ox) / dx, 0, cols - 1)
+    fy = np.clip((xy[:, 1] - oy) / dy, 0, rows - 1)
+    j0 = np.minimum(np.floor(fx).astype(np.int64), cols - 2)
+    i0 = np.minimum(np.floor(fy).astype(np.int64), rows - 2)
+    tx, ty = fx - j0, fy - i0
+    h = terrain.heights.astype(np.float64)
+    bottom = h[i0, j0] + tx * (h[i0, j0 + 1] - h[i0, j0])
+    top = h[i0 + 1, j0] + tx * (h[i0 + 1, j0 + 1] - h[i0 + 1, j0])
+    z = bottom + ty * (top - bottom)
+    return np.where(np.isfinite(z), z, _height_range(terrain)[0])
+
+
+def _closeup_color(cu: CloseUp, k: int) -> tuple[float, float, float]:
+    return cu.color if cu.color is not None else _color(PALETTE[k % len(PALETTE)], "color")
+
+
+def anchor_strips(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    closeups: Sequence[CloseUp] | CloseUp,
+    *,
+    time: float = 0.0,
+    device: wp.DeviceLike = None,
+) -> list[AnchorStrip]:
+    """The anchor fence of every close-up (§II.D), built by Warp kernels in one launch per stage.
+
+    The ROI outline (the contour of the mask at ``anchor.outline_level``) is laid on the overview's terrain
+    (V_O); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O, consecutive points
+    a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
+    transfer function at t (Fig. 4).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), offset=(0.0, 0.0, 10.0))
+    >>> strip = anchor_strips(np.zeros((11, 11), np.float32), [cu], device="cpu")[0]
+    >>> float(strip.distance.min()), float(strip.distance.max())
+    (0.0, 1.0)
+    """
+    t = as_terrain(terrain)
+    items = _check_closeups(closeups)
+    _check_in_terrain(t, items)
+    if not items:
+        return []
+    device = resolve_device(device)
+    pivot = _pivot_z(t)
+    matrices = [cu.matrix(pivot, time=time) for cu in items]
+    ox, oy = t.local_origin
+    points, layer_ids, segments, rungs = [], [], [], []
+    total = 0
+    for k, cu in enumerate(items):  # per close-up (a handful) and per outline line
+        lines = cu.roi.outline(cu.anchor.outline_level)
+        for line in lines:
+            idx = np.arange(total, total + len(line))
+            segments.append(np.stack([idx[:-1], idx[1:]], axis=1))
+            points.append(line)
+            layer_ids.append(np.full(len(line), k, np.int32))
+            total += len(line)
+        rungs.append(cu.anchor.rungs)
+    rung_count = max(rungs)  # one launch: every strip gets the largest rung count
+    if total == 0:
+        return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
+                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
+                for k, cu in enumerate(items)]
+    xy = np.concatenate(points)
+    z = _heights_at(t, xy)
+    outline = np.column_stack([xy[:, 0] - ox, xy[:, 1] - oy, z]).astype(np.float32)
+    outline_layer = np.concatenate(layer_ids)
+    seg = np.concatenate(segments).astype(np.int32)
+
+    layers = _layers_struct(items, matrices, t.local_origin, device)
+    outline_wp = to_device(outline, wp.vec3, device)
+    layer_wp = to_device(outline_layer, wp.int32, device)
+    lengths = wp.empty(total, dtype=wp.float32, device=device)
+    launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
+    max_len = np.zeros(len(items), np.float32)
+    np.maximum.at(max_len, outline_layer, lengths.numpy())
+    nv = total * (rung_count + 1)
+    vertices = wp.empty(nv, dtype=wp.vec3, device=device)
+    distance = wp.empty(nv, dtype=wp.float32, device=device)
+    opacity = wp.empty(nv, dtype=wp.float32, device=device)
+    launch(closeup_kernels.emit_anchor_vertices, total,
+           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), _transfer_struct(items, device),
+            rung_count], [vertices, distance, opacity], device)
+    faces = wp.empty(len(seg) * 2 * rung_count, dtype=wp.vec3i, device=device)
+    launch(closeup_kernels.emit_anchor_faces, len(seg), [to_device(seg, wp.vec2i, device), rung_count], [faces],
+           device)
+    v = vertices.numpy().astype(np.float64)
+    v[:, 0] += ox
+    v[:, 1] += oy
+    f = faces.numpy().astype(np.int64)
+    d, a = distance.numpy(), opacity.numpy()
+    v_layer = np.repeat(outline_layer, rung_count + 1)
+    f_layer = np.repeat(outline_layer[seg[:, 0]], 2 * rung_count)
+    v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
+    f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
+    return [
+        AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k],
+                    d[v_bounds[k]: v_bounds[k + 1]], a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k),
+                    rung_count, float(max_len[k]))
+        for k, cu in enumerate(items)
+    ]
+
+
+# ------------------------------------------------------------------------------------------------ compositing
+def composite(
+    base: NDArray[np.uint8],
+    base_depth: NDArray[np.float32],
+    layers: Sequence[tuple[NDArray[Any], NDArray[np.float32], NDArray[np.float32], bool, bool]],
+) -> NDArray[np.uint8]:
+    """Image-based compositing in the order of generation (§IV.B).
+
+    Parameters
+    ----------
+    base : (H, W, 3) uint8
+        The overview pass (background included); ``base_depth`` (H, W) its depth (inf where empty).
+    layers : sequence of (color, alpha, depth, depth_test, writes_depth)
+        ``color`` (H, W, 3) uint8 or float in [0, 255], ``alpha`` (H, W) in [0, 1] (0 where the layer is
+        empty), ``depth`` (H, W). A layer shows where alpha > 0 and, with ``depth_test``, where its depth is
+        below the depth so far; ``writes_depth`` layers then replace that depth.
+
+    Returns
+    -------
+    (H, W, 3) uint8
+        C ← a·c + (1 − a)·C per layer, a = alpha·visible; with no layers exactly ``base``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> base = np.zeros((2, 2, 3), np.uint8); depth = np.ones((2, 2), np.float32)
+    >>> red = np.full((2, 2, 3), 200.0); alpha = np.array([[1.0, 0.5], [0.0, 1.0]], np.float32)
+    >>> composite(base, depth, [(red, alpha, np.full((2, 2), 0.5, np.float32), True, False)])[..., 0].tolist()
+    [[200, 100], [0, 200]]
+    """
+    out = np.asarray(base)
+    if out.ndim != 3 or out.shape[2] != 3:
+        raise InvalidInputError(f"base must be an (H, W, 3) image; got shape {out.shape}")
+    if not layers:
+        return out.astype(np.uint8, copy=True)
+    shape = out.shape[:2]
+    color = out.astype(np.float32)
+    depth = np.asarray(base_depth, dtype=np.float32).copy()
+    if depth.shape != shape:
+        raise InvalidInputError(f"base_depth must be {shape}; got {depth.shape}")
+    for i, (c, alpha, z, depth_test, writes_depth) in enumerate(layers):
+        c = np.asarray(c)
+        alpha = np.asarray(alpha, dtype=np.float32)
+        z = np.asarray(z, dtype=np.float32)
+        if c.shape != out.shape or alpha.shape != shape or z.shape != shape:
+            raise InvalidInputError(f"layer {i} must hold an {out.shape} color, {shape} alpha and depth; got "
+                                    f"{c.shape}, {alpha.shape}, {z.shape}")
+        rows = np.flatnonzero(alpha.any(axis=1))
+        if len(rows) == 0:
+            continue
+        cols = np.flatnonzero(alpha[rows[0]: rows[-1] + 1].any(axis=0))
+        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # only where the layer has pixels
+        a = alpha[box] * (z[box] < depth[box]) if depth_test else alpha[box]
+        color[box] += a[..., None] * (c[box].astype(np.float32) - color[box])
+        if writes_depth:
+            depth[box] = np.where(a > 0, z[box], depth[box])
+    return np.clip(np.rint(color), 0, 255).astype(np.uint8)
+
+
+# ------------------------------------------------------------------------------------------------ rendering
+def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: float) -> NDArray[np.uint8]:
+    import matplotlib
+
+    try:
+        table = matplotlib.colormaps[cmap]
+    except KeyError:
+        raise InvalidInputError(f"cmap must name a matplotlib colormap; got {cmap!r}") from None
+    span = vmax - vmin if vmax > vmin else 1.0
+    x = np.clip((mesh_values - vmin) / span, 0, 1)
+    if cmap == "terrain":  # its land part: the first quarter is sea blue
+        x = 0.25 + 0.75 * x
+    return (np.asarray(table(x))[:, :3] * 255 + 0.5).astype(np.uint8)
+
+
+def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
+    if kind == "height":
+        return _height_range(terrain)
+    if kind == "aspect":
+        return 0.0, 2 * math.pi
+    return 0.0, math.radians(60.0)
+
+
+_DEFAULT_CMAPS = {"height": "terrain", "slope": "magma", "aspect": "twilight"}
+
+
+def _check_texture(image: Any, name: str) -> NDArray[np.uint8]:
+    arr = np.asarray(image)
+    if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.shape[0] < 2 or arr.shape[1] < 2:
+        raise InvalidInputError(f"{name} must be an (h, w, 3|4) image of at least 2 x 2 pixels; got shape {arr.shape}")
+    if arr.dtype != np.uint8:
+        raise InvalidInputError(f"{name} must be uint8 (0-255); got dtype {arr.dtype}")
+    return np.ascontiguousarray(arr[..., :3])
+
+
+def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.float64]) -> NDArray[np.uint8]:
+    """Bilinear samples of an image spread over the terrain's extent (row 0 at the upper y) at world xy."""
+    xmin, xmax, ymin, ymax = terrain.extent
+    h, w = image.shape[:2]
+    fx = np.clip((xy[:, 0] - xmin) / max(xmax - xmin, 1e-12), 0, 1) * (w - 1)
+    fy = np.clip((ymax - xy[:, 1]) / max(ymax - ymin, 1e-12), 0, 1) * (h - 1)
+    j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
+    i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
+    tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
+    img = image.astype(np.float32)
+    top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
+    bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
+    return np.clip(np.rint(top + ty * (bottom - top)), 0, 255).astype(np.uint8)
+
+
+def _layer_rgb(terrain: Terrain, layer: CloseUpLayer, cu: CloseUp, overview: tuple[str | None, str, Any]
+               ) -> NDArray[np.uint8] | None:
+    if cu.texture is not None:
+        return _texture_rgb(terrain, cu.texture, layer.original[:, :2])
+    if layer.scalars is not None and cu.scalars is not None:
+        lo, hi = _scalar_range(terrain, cu.scalars)
+        return _colors_for(layer.scalars, cu.cmap or _DEFAULT_CMAPS[cu.scalars], lo, hi)
+    if layer.colors is not None:
+        return layer.colors
+    scalars, cmap, texture = overview
+    if texture is not None:
+        return _texture_rgb(terrain, texture, layer.original[:, :2])
+    if scalars is None:
+        return None
+    values = _vertex_scalars(terrain, (layer.original - [*terrain.local_origin, 0.0]).astype(np.float32), scalars)
+    lo, hi = _scalar_range(terrain, scalars)
+    return _colors_for(values, cmap, lo, hi)
+
+
+def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The inactive anchor's color (Fig. 5b): a mid gray as light as the close-up color."""
+    g = float(np.clip(0.299 * rgb[0] + 0.587 * rgb[1] + 0.114 * rgb[2], 0.35, 0.75))
+    return (g, g, g)
+
+
+def render_closeups(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    closeups: Sequence[CloseUp] | CloseUp = (),
+    *,
+    window_size: tuple[int, int] = (1280, 720),
+    camera: Any = "oblique",
+    z_scale: float = 1.0,
+    scalars: Literal["height", "slope", "aspect"] | None = "height",
+    cmap: str = "terrain",
+    background: Any = "white",
+    texture: ArrayLike | None = None,
+    time: float = 0.0,
+    bounds: ArrayLike | None = None,
+    renderer: Any = None,
+    reuse_overview: bool = False,
+    merge_passes: bool = True,
+    timings: dict[str, float] | None = None,
+    device: wp.DeviceLike = None,
+) -> NDArray[np.uint8]:
+    """Render the overview with its close-ups: layered passes into color + depth, then compositing (§IV).
+
+    Parameters
+    ----------
+    terrain : Terrain, trimesh.Trimesh or (H, W) array_like
+        The overview.
+    closeups : CloseUp or sequence of CloseUp
+        At most :func:`max_closeups` of the window.
+    window_size : (width, height)
+    camera : "oblique", "top", (azimuth, elevation) or a pyvista camera position
+        As in :func:`stepterrain.render.render_mesh`, fitted to ``bounds`` (default: overview, close-ups and
+        anchors together).
+    z_scale : float
+        Vertical exaggeration of the render.
+    scalars, cmap
+        The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
+        Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR).
+    texture : (h, w, 3|4) uint8, optional
+        An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
+    time : float
+        Animation time (spinning close-ups).
+    renderer : stepterrain.render.LayeredRenderer, optional
+        Reuse a renderer (and its uploaded overview) across frames.
+    reuse_overview : bool
+        With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
+        frame box nor the overview changed (only the close-ups move); the images are the same either way.
+    merge_passes : bool
+        Render the anchors (and the close-ups) whose screen boxes do not overlap in one pass and split the
+        images by those boxes: the layers come out as from one pass each (to a gray level of rounding at a
+        few pixels), with fewer passes.
+    timings : dict, optional
+        Filled with seconds spent in "transform", "render" and "composite".
+
+    Returns
+    -------
+    (H, W, 3) uint8
+
+    Raises
+    ------
+    InvalidInputError
+        Too many close-ups for the window, a ROI outside the terrain, bad options.
+    MissingDependencyError
+        No off-screen OpenGL context.
+
+    Notes
+    -----
+    Passes, in the order of generation: the overview; then per close-up its anchor (the fence strip and the
+    soft-edge faces with 0 < m < 1, unlit, in the close-up's color, opacity = transfer function of t per
+    pixel, depth-tested against what lies below) and its content (faces with m = 1, lit, drawn over what
+    lies below). A billboard close-up's content is an orthographic render from ``billboard_view`` pasted over
+    the screen box of its transformed outline. With no close-ups the result is the overview pass itself.
+    """
+    import time as _time
+
+    from . import render
+
+    t = as_terrain(terrain)
+    items = _check_closeups(closeups)
+    width, height = _window(window_size)
+    limit = max_closeups((width, height))
+    if len(items) > limit:
+        raise InvalidInputError(
+            f"too many close-ups for a {width}x{height} window: {len(items)}; it holds at most {limit} "
+            f"(one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS})")
+    if scalars not in (None, "height", "slope", "aspect"):
+        raise InvalidInputError(f"scalars must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
+    _check_in_terrain(t, items)
+    image_texture = None if texture is None else _check_texture(texture, "texture")
+    clock = timings if timings is not None else {}
+    start = _time.perf_counter()
+    layers = closeup_layers(t, items, time=time, device=device)
+    strips = anchor_strips(t, items, time=time, device=device)
+    clock["transform"] = _time.perf_counter() - start
+
+    start = _time.perf_counter()
+    own = renderer is None
+    if own:
+        renderer = render.LayeredRenderer(window_size=(width, height), background=background, z_scale=z_scale)
+    try:
+        overview_key = ("overview", id(t), scalars, cmap, None if texture is None else id(texture))
+        if not renderer.has("overview", overview_key):
+            mesh = t.mesh()
+            rgb = None
+            if scalars is not None:
+                if t.kind == "grid":
+                    local = np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]
+                    values = _vertex_scalars(t, local.astype(np.float32), scalars)
+                else:
+                    values = np.asarray(mesh.vertices[:, 2], np.float32)
+                rgb = _colors_for(values, cmap, *_scalar_range(t, scalars))
+            if image_texture is not None:
+                rgb = _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
+            renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
+        boxes = [renderer.bounds_of("overview")]
+        for layer, strip in zip(layers, strips, strict=True):
+            for v in (layer.vertices, strip.vertices):
+                if len(v):
+                    boxes.append(np.array([v.min(0), v.max(0)]))
+        box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
+        if bounds is not None:
+            box = np.asarray(bounds, dtype=np.float64)
+        renderer.set_view(camera, box)
+        base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
+        anchors: dict[int, Any] = {}
+        contents: dict[int, Any] = {}
+        boards: dict[int, Any] = {}
+        for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
+            show_anchor = cu.active or cu.anchor.inactive != "hidden"
+            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+                full = layer.mask_factor >= 1.0
+                inner = full[layer.faces].all(axis=1)
+                content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
+                content_vertices = layer.vertices
+            else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
+                inner = (layer.mask_factor >= cu.anchor.outline_level)[layer.faces].any(axis=1)
+                content_faces, band_faces = layer.faces[inner], layer.faces[:0]
+                content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+            if show_anchor:
+                nv = len(strip.vertices)
+                if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
+                    d = np.linalg.norm(layer.vertices - layer.original, axis=1)
+                    t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
+                    vertices = np.concatenate([strip.vertices, layer.vertices])
+                    faces = np.concatenate([strip.faces, band_faces + nv])
+                    tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
+                else:
+                    vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
+                if len(faces):
+                    anchors[k] = (vertices, faces, {"values": tvals})
+            if len(content_faces):
+                rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
+                if cu.view == "billboard":
+                    top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
+                    boards[k] = (content_vertices, content_faces, rgb, top)
+                else:
+                    contents[k] = (content_vertices, content_faces, {"rgb": rgb})
+        anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes)
+        content_images = renderer.render_layers("closeup", contents, merge=merge_passes)
+        passes = []
+        for k, cu in enumerate(items):  # compositing in the order of generation: anchor k, then close-up k
+            if k in anchor_images:
+                tex, z = anchor_images[k]
+                color = _closeup_color(cu, k)
+                anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
+                covered = z < np.inf
+                alpha = np.zeros(z.shape, np.float32)  # the transfer function per pixel, at its t
+                alpha[covered] = np.interp(tex[covered, 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
+                                           cu.anchor.table)
+                if not cu.active and cu.anchor.inactive == "faint":
+                    alpha *= 0.25
+                c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
+                passes.append((c, alpha, z, True, False))
+            if k in boards:
+                image, coverage, z = renderer.render_billboard(*boards[k][:3], cu.billboard_view, boards[k][3])
+                passes.append((image, coverage.astype(np.float32), z, False, True))
+            elif k in content_images:
+                image, z = content_images[k]
+                passes.append((image, (z < np.inf).astype(np.float32), z, False, True))
+        clock["render"] = _time.perf_counter() - start
+        start = _time.perf_counter()
+        result = composite(base, base_depth, passes)
+        clock["composite"] = _time.perf_counter() - start
+        return result
+    finally:
+        if own:
+            renderer.close()
+
+
+def _window(window_size: Any) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in window_size)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+    if not (8 <= width <= 16384 and 8 <= height <= 16384):
+        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+    return width, height
+
+
+def closeup_scene(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    closeups: Sequence[CloseUp] | CloseUp,
+    *,
+    scalars: Literal["height", "slope", "aspect"] | None = "height",
+    cmap: str = "terrain",
+    time: float = 0.0,
+    device: wp.DeviceLike = None,
+) -> trimesh.Trimesh:
+    """Overview, close-ups and anchors as one colored mesh for export (GLB, PLY, ...).
+
+    The close-ups are their culled layers as the kernels emit them (the soft edge stretched by C, so each
+    close-up hangs from its ROI as one connected surface); anchors carry their color and, in the alpha of
+    their vertex colors, the transfer function's opacity. ``face_attributes["layer"]``: 0 for the overview,
+    2k + 1 for close-up k, 2k + 2 for its anchor.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), offset=(0.0, 0.0, 10.0))
+    >>> scene = closeup_scene(np.zeros((11, 11), np.float32), [cu], device="cpu")
+    >>> sorted(set(scene.face_attributes["layer"].tolist()))
+    [0, 1, 2]
+    """
+    t = as_terrain(terrain)
+    items = _check_closeups(closeups)
+    mesh = t.mesh()
+    overview_rgb = None
+    if scalars is not None:
+        local = (np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]).astype(np.float32)
+        overview_rgb = _colors_for(_vertex_scalars(t, local, scalars), cmap, *_scalar_range(t, scalars))
+    parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
+              _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
+    layers = closeup_layers(t, items, time=time, device=device)
+    strips = anchor_strips(t, items, time=time, device=device)
+    for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
+        rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
+        parts.append((layer.vertices, layer.faces, _rgba(rgb, len(layer.vertices), _closeup_color(cu, k)), 2 * k + 1))
+        rgba = _rgba(None, len(strip.vertices), strip.color)
+        rgba[:, 3] = np.clip(np.rint(strip.opacity * 255), 0, 255).astype(np.uint8)
+        parts.append((strip.vertices, strip.faces, rgba, 2 * k + 2))
+    parts = [p for p in parts if len(p[1])]
+    starts = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]
+    vertices = np.concatenate([p[0] for p in parts])
+    faces = np.concatenate([p[1] + s for p, s in zip(parts, starts, strict=True)])
+    colors = np.concatenate([p[2] for p in parts])
+    layer_ids = np.concatenate([np.full(len(p[1]), p[3], np.int32) for p in parts])
+    return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors,
+                           face_attributes={"layer": layer_ids},
+                           metadata={"closeups": len(items), "source": t.source or "array"})
+
+
+def _rgba(rgb: NDArray[np.uint8] | None, n: int, fallback: tuple[float, float, float]) -> NDArray[np.uint8]:
+    out = np.empty((n, 4), np.uint8)
+    out[:, :3] = rgb[:, :3] if rgb is not None else np.rint(np.asarray(fallback) * 255).astype(np.uint8)
+    out[:, 3] = 255
+    return out
+
+
+def animate_closeups(
+    terrain: Terrain | trimesh.Trimesh | ArrayLike,
+    closeups: Sequence[CloseUp] | CloseUp,
+    *,
+    frames: int = 24,
+    fps: float = 12.0,
+    window_size: tuple[int, int] = (640, 400),
+    device: wp.DeviceLike = None,
+    **options: Any,
+) -> list[NDArray[np.uint8]]:
+    """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
+
+    The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
+    view stays still while the close-ups rotate.
+    """
+    from . import render
+
+    t = as_terrain(terrain)
+    items = _check_closeups(closeups)
+    if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
+        raise InvalidInputError(f"frames must be a positive int; got {frames!r}")
+    fps = _positive(fps, "fps")
+    times = np.arange(frames) / fps
+    boxes = []
+    for time in np.linspace(0, max(times[-1], 1e-9), 9):  # the swept box from a few phases
+        for layer in closeup_layers(t, items, time=float(time), device=device):
+            if len(layer.vertices):
+                boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
+    xmin, xmax, ymin, ymax = t.extent
+    zmin, zmax = _height_range(t)
+    boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
+    box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
+    box = options.pop("bounds", box)
+    renderer = render.LayeredRenderer(window_size=_window(window_size), background=options.pop("background", "white"),
+                                      z_scale=options.pop("z_scale", 1.0))
+    try:
+        return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
+                                reuse_overview=True,
+                                device=device, **options) for time in times]
+    finally:
+        renderer.close()
+
+
+def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
+    """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio."""
+    from .export import atomic_path
+
+    target = Path(path)
+    suffix = target.suffix.lower()
+    if suffix not in (".gif", ".mp4"):
+        raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
+    fps = _positive(fps, "fps")
+    if len(frames) == 0:
+        raise InvalidInputError("no frames to write")
+    stack = [np.ascontiguousarray(f[..., :3], dtype=np.uint8) for f in frames]
+    import imageio.v3 as iio
+
+    if suffix == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError as exc:
+            raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'") from exc
+    with atomic_path(target) as tmp:
+        if suffix == ".gif":
+            iio.imwrite(tmp, np.stack(stack), extension=".gif", duration=1000.0 / fps, loop=0)
+        else:
+            iio.imwrite(tmp, np.stack(stack), extension=".mp4", fps=fps, codec="libx264")
+    return target

@@ -1,0 +1,935 @@
+"""Multiresolution texture model and its level of detail (paper 004 §3.1-3.2.2 and §4, Fig. 1-2).
+
+:class:`ImagePyramid` halves an image of any size down to 1 x 1 (area-weighted, so odd sizes keep the mean),
+each level a memory-mapped file so images larger than RAM work. :class:`PatchQuadtree` is the geometry
+multiresolution model H(G) (a quadtree of grid patches with their geometric error e(N) and bounding boxes
+B(N)); :class:`TextureTree` names, per geometry patch, the pyramid level and sub-image that cover it at the
+highest resolution within a maximum texture size, without copying image data. :func:`render_with_textures` is
+the simultaneous traversal ``renderWithTextures`` of §4: visual geometric error γ(N) and visual texture error
+τ(N, M) in screen pixels for a :class:`Camera`, parent reduction, on-demand loading in a background thread with
+the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid shading (§7.3). Typical use:
+
+    pyramid = ImagePyramid.build("big.npy", extent=(x0, x1, y0, y1))
+    tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=64), max_texture_size=1024)
+    draws = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=1.0, tau_user=1.0, cache=cache)
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shutil
+import tempfile
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import warp as wp
+from numpy.typing import ArrayLike, NDArray
+
+from ._device import launch, resolve_device
+from .errors import DataFileError, InvalidInputError
+from .kernels import texture as texture_kernels
+from .terrain import Terrain, as_terrain
+
+__all__ = [
+    "ImagePyramid",
+    "PatchQuadtree",
+    "GeometryPatch",
+    "TextureTree",
+    "TexturePatch",
+    "Camera",
+    "TextureCache",
+    "DrawItem",
+    "render_with_textures",
+    "paint_with_textures",
+    "visual_geometric_error",
+    "visual_texture_error",
+    "pyramid_shapes",
+]
+
+Extent = tuple[float, float, float, float]
+_BAND_BYTES = 32 * 1024**2  # source bytes read per band while building a level
+
+
+# ---------------------------------------------------------------------------------------------- pyramid
+def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
+    """Level sizes: each ceil(previous / 2) per axis, down to 1 x 1 (level 0 = the image).
+
+    Examples
+    --------
+    >>> pyramid_shapes(5, 8)
+    [(5, 8), (3, 4), (2, 2), (1, 1)]
+    """
+    shapes = [(int(height), int(width))]
+    while shapes[-1] != (1, 1):
+        h, w = shapes[-1]
+        shapes.append(((h + 1) // 2, (w + 1) // 2))
+    return shapes
+
+
+def _georeferenced_extent(image: Any) -> Extent | None:
+    """(xmin, xmax, ymin, ymax) of a GeoTIFF path from its own georeferencing (rasterio), else None."""
+    if not isinstance(image, (str, os.PathLike)) or Path(image).suffix.lower() not in (".tif", ".tiff"):
+        return None
+    try:
+        import rasterio
+    except ImportError:
+        return None
+    try:
+        with rasterio.open(image) as dataset:
+            if dataset.transform.is_identity or dataset.transform.b != 0 or dataset.transform.d != 0:
+                return None
+            left, bottom, right, top = dataset.bounds
+    except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
+        return None
+    return float(left), float(right), float(bottom), float(top)
+
+
+def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int]:
+    """(array (H, W, C) uint8, backing file or None, byte offset of the data in it)."""
+    path = None
+    if isinstance(image, (str, os.PathLike)):
+        path = Path(image)
+        if not path.is_file():
+            raise DataFileError(f"image file {str(path)!r} does not exist")
+        if path.suffix.lower() == ".npy":
+            try:
+                image = np.load(path, mmap_mode="r")
+            except (ValueError, OSError) as exc:
+                raise DataFileError(f"cannot read {str(path)!r} as a .npy image: {exc}") from exc
+        else:
+            from PIL import Image, UnidentifiedImageError
+
+            try:
+                with Image.open(path) as picture:
+                    image = np.asarray(picture.convert("RGBA" if "A" in picture.getbands() else "RGB"))
+            except (UnidentifiedImageError, OSError, ValueError) as exc:
+                raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
+    array = image if isinstance(image, np.ndarray) else np.asarray(image)
+    if array.dtype != np.uint8:
+        raise InvalidInputError(f"pyramid image must be uint8 (0-255); got dtype {array.dtype}")
+    if array.ndim == 2:
+        array = array[:, :, None]
+    if array.ndim != 3 or array.shape[0] < 1 or array.shape[1] < 1 or not 1 <= array.shape[2] <= 4:
+        raise InvalidInputError(f"pyramid image must be (H, W) or (H, W, C<=4); got shape {array.shape}")
+    backing, offset = None, 0
+    if isinstance(array, np.memmap) and array.filename and array.flags.c_contiguous:
+        backing, offset = array.filename, int(array.offset)
+    return array, backing, offset
+
+
+class ImagePyramid:
+    """An image pyramid (paper 004 §3.2.1): level 0 is the image, each next level half the size (ceil), down to
+    1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north).
+
+    Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``; level 0 is the source
+    itself (a memory-mapped .npy stays on disk). Use as a context manager, or :meth:`close`, to delete a
+    temporary storage folder.
+    """
+
+    def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: Path,
+                 anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False) -> None:
+        self.levels = levels
+        self.extent = extent
+        self.storage = storage
+        self.anisotropic = anisotropic or {}
+        self._owned = owned
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def build(
+        cls,
+        image: ArrayLike | str | os.PathLike[str],
+        *,
+        extent: ArrayLike | None = None,
+        storage: str | os.PathLike[str] | None = None,
+        anisotropic: bool = False,
+        band_bytes: int = _BAND_BYTES,
+        device: wp.DeviceLike = None,
+    ) -> ImagePyramid:
+        """Build the pyramid of ``image`` band by band, so memory stays bounded by ``band_bytes``.
+
+        Parameters
+        ----------
+        image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
+            TIFF are read with Pillow)
+        extent : (xmin, xmax, ymin, ymax), optional
+            World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
+            else (0, W, 0, H), one unit per pixel).
+        storage : folder, optional
+            Where the level files go (default: a new temporary folder, deleted by :meth:`close`).
+        anisotropic : bool
+            Also store the anisotropic levels (kx, ky): width halved kx times, height ky times (a rip-map),
+            used against blurring at grazing angles (§3.2.1).
+        band_bytes : int
+            Source bytes processed per band.
+
+        Raises
+        ------
+        DataFileError
+            Missing or corrupt image file, or the storage folder cannot be written.
+        InvalidInputError
+            Not a uint8 image of 1-4 channels, or a bad extent.
+
+        Notes
+        -----
+        Level k+1 pixel r covers source pixels [r n/m, (r+1) n/m) of level k (n source, m = ceil(n / 2)
+        target pixels per axis): an area-weighted mean, so every level keeps the image mean up to the rounding
+        to uint8, for odd sizes too (a plain 2 x 2 box when n is even). One Warp thread per target pixel; the
+        source is read with ``pread`` and the levels written with ``pwrite``, never mapped while building, so
+        the resident memory stays about two bands whatever the image size.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from stepterrain.texture_lod import ImagePyramid
+        >>> with ImagePyramid.build(np.full((5, 3, 3), 200, np.uint8), device="cpu") as pyramid:
+        ...     [level.shape for level in pyramid.levels]
+        [(5, 3, 3), (3, 2, 3), (2, 1, 3), (1, 1, 3)]
+        """
+        source, backing, offset = _source_image(image)
+        height, width, channels = (int(n) for n in source.shape)
+        if extent is None:
+            extent = _georeferenced_extent(image) or (0.0, float(width), 0.0, float(height))
+        extent = _check_extent(extent)
+        if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
+            raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
+        owned = storage is None
+        try:
+            folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if owned else Path(storage)
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
+        dev = resolve_device(device)
+        shapes = pyramid_shapes(height, width)
+        try:
+            levels: list[NDArray[np.uint8]] = [source]
+            reader = _Reader(source, backing, offset)
+            for k in range(1, len(shapes)):
+                path = folder / f"level_{k}.u8"
+                _reduce_file(reader, shapes[k - 1], shapes[k], channels, path, band_bytes, dev)
+                reader = _Reader(None, str(path), 0, shape=(*shapes[k], channels))
+            for k in range(1, len(shapes)):
+                levels.append(np.memmap(folder / f"level_{k}.u8", dtype=np.uint8, mode="r",
+                                        shape=(*shapes[k], channels)))
+            aniso: dict[tuple[int, int], NDArray[np.uint8]] = {}
+            if anisotropic:
+                aniso = _anisotropic_levels(levels, shapes, channels, folder, band_bytes, dev)
+        except BaseException:
+            if owned:
+                shutil.rmtree(folder, ignore_errors=True)
+            raise
+        return cls(levels, extent, folder, aniso, owned)
+
+    # ------------------------------------------------------------------ access
+    def __len__(self) -> int:
+        return len(self.levels)
+
+    def __enter__(self) -> ImagePyramid:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Drop the level maps; delete the storage folder when the pyramid made it."""
+        self.levels = self.levels[:1]
+        self.anisotropic = {}
+        if self._owned:
+            shutil.rmtree(self.storage, ignore_errors=True)
+            self._owned = False
+
+    def shape(self, level: int) -> tuple[int, int]:
+        """(rows, cols) of ``level``."""
+        return int(self.levels[level].shape[0]), int(self.levels[level].shape[1])
+
+    def pixel_size(self, level: int) -> tuple[float, float]:
+        """(width, height) of one pixel of ``level`` in world units."""
+        rows, cols = self.shape(level)
+        xmin, xmax, ymin, ymax = self.extent
+        return (xmax - xmin) / cols, (ymax - ymin) / rows
+
+    def window(self, level: int, domain: Extent) -> tuple[int, int, int, int] | None:
+        """(r0, r1, c0, c1): the smallest pixel window of ``level`` covering ``domain`` (clipped to the image),
+        or None when the image does not overlap it."""
+        rows, cols = self.shape(level)
+        px, py = self.pixel_size(level)
+        xmin, xmax, ymin, ymax = self.extent
+        c0 = math.floor((domain[0] - xmin) / px + 1e-9)
+        c1 = math.ceil((domain[1] - xmin) / px - 1e-9)
+        r0 = math.floor((ymax - domain[3]) / py + 1e-9)
+        r1 = math.ceil((ymax - domain[2]) / py - 1e-9)
+        c0, c1, r0, r1 = max(c0, 0), min(c1, cols), max(r0, 0), min(r1, rows)
+        if c0 >= c1 or r0 >= r1:
+            return None
+        return r0, r1, c0, c1
+
+    def window_extent(self, level: int, window: tuple[int, int, int, int]) -> Extent:
+        """World extent of a pixel window of ``level``."""
+        r0, r1, c0, c1 = window
+        px, py = self.pixel_size(level)
+        xmin, _, _, ymax = self.extent
+        return xmin + c0 * px, xmin + c1 * px, ymax - r1 * py, ymax - r0 * py
+
+    def sub_image(self, level: int, window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
+        """A view of a window of ``level`` (no copy: a memmap slice stays on disk until read)."""
+        r0, r1, c0, c1 = window
+        return self.levels[level][r0:r1, c0:c1]
+
+
+class _Reader:
+    """Rows of an (H, W, C) uint8 image, read with ``pread`` from its file when it has one (no mapping)."""
+
+    def __init__(self, array: NDArray[np.uint8] | None, path: str | None, offset: int,
+                 shape: tuple[int, int, int] | None = None) -> None:
+        self.array = array
+        self.path = path
+        self.offset = offset
+        self.shape = tuple(array.shape) if array is not None else shape
+
+    def rows(self, r0: int, r1: int) -> NDArray[np.uint8]:
+        _, width, channels = self.shape
+        if self.path is None:
+            return np.ascontiguousarray(self.array[r0:r1])
+        row_bytes = width * channels
+        out = np.empty((r1 - r0, width, channels), dtype=np.uint8)
+        try:
+            fd = os.open(self.path, os.O_RDONLY)
+        except OSError as exc:
+            raise DataFileError(f"cannot read {self.path!r}: {exc.strerror}") from exc
+        try:
+            view = memoryview(out).cast("B")
+            done, want = 0, (r1 - r0) * row_bytes
+            while done < want:
+                n = os.preadv(fd, [view[done:]], self.offset + r0 * row_bytes + done)
+                if n <= 0:
+                    raise DataFileError(f"{self.path!r} is shorter than its image ({self.shape}); truncated?")
+                done += n
+            if hasattr(os, "posix_fadvise"):  # the pages are not needed again by this pass
+                os.posix_fadvise(fd, self.offset + r0 * row_bytes, want, os.POSIX_FADV_DONTNEED)
+        finally:
+            os.close(fd)
+        return out
+
+
+def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[int, int], channels: int,
+                 path: Path, band_bytes: int, device: wp.Device) -> None:
+    """Write one level: bands of target rows, each from the source rows it covers."""
+    n_rows, n_cols = src_shape
+    m_rows, m_cols = dst_shape
+    src_row_bytes = n_cols * channels
+    band = max(1, band_bytes // max(1, 2 * src_row_bytes))  # target rows per band (~2 source rows each)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError as exc:
+        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
+    try:
+        for r0 in range(0, m_rows, band):  # a handful of bands per level, never a loop over pixels
+            r1 = min(m_rows, r0 + band)
+            s0 = (r0 * n_rows) // m_rows
+            s1 = min(n_rows, -((-r1 * n_rows) // m_rows))
+            src = reader.rows(s0, s1)
+            src_wp = wp.array(src, dtype=wp.uint8, device=device, copy=not device.is_cpu)
+            if device.is_cpu:
+                dst = np.empty((r1 - r0, m_cols, channels), dtype=np.uint8)
+                dst_wp = wp.array(dst, dtype=wp.uint8, device=device, copy=False)
+            else:
+                dst_wp = wp.empty((r1 - r0, m_cols, channels), dtype=wp.uint8, device=device)
+            launch(texture_kernels.reduce_band, dim=(r1 - r0) * m_cols,
+                   inputs=[src_wp, s0, wp.vec2i(n_rows, n_cols), r0, wp.vec2i(m_rows, m_cols)],
+                   outputs=[dst_wp], device=device)
+            data = dst if device.is_cpu else dst_wp.numpy()
+            view = memoryview(np.ascontiguousarray(data)).cast("B")
+            written, offset = 0, r0 * m_cols * channels
+            while written < len(view):
+                written += os.pwrite(fd, view[written:], offset + written)
+    except OSError as exc:
+        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
+    finally:
+        os.close(fd)
+
+
+def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int, int]], channels: int,
+                        folder: Path, band_bytes: int, device: wp.Device) -> dict[tuple[int, int], NDArray[np.uint8]]:
+    """Rip-map levels (kx, ky), kx != ky: from level (min, min) halve only the longer-reduced axis."""
+    out: dict[tuple[int, int], NDArray[np.uint8]] = {}
+    for k in range(len(shapes)):
+        out[(k, k)] = levels[k]
+    heights = [s[0] for s in shapes]
+    widths = [s[1] for s in shapes]
+    n = len(shapes)
+    for ky in range(n):
+        for kx in range(n):  # a few dozen levels at most, never pixels
+            if kx == ky:
+                continue
+            if kx > ky:
+                parent, src_shape = (kx - 1, ky), (heights[ky], widths[kx - 1])
+            else:
+                parent, src_shape = (kx, ky - 1), (heights[ky - 1], widths[kx])
+            dst_shape = (heights[ky], widths[kx])
+            path = folder / f"level_{kx}_{ky}.u8"
+            source = out[parent]
+            if isinstance(source, np.memmap) and source.filename and source.flags.c_contiguous:
+                reader = _Reader(None, str(source.filename), int(source.offset), shape=(*src_shape, channels))
+            else:
+                reader = _Reader(np.asarray(source), None, 0)
+            _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)
+            out[(kx, ky)] = np.memmap(path, dtype=np.uint8, mode="r", shape=(*dst_shape, channels))
+    return out
+
+
+def _check_extent(extent: Any, name: str = "extent") -> Extent:
+    try:
+        values = tuple(float(v) for v in extent)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be (xmin, xmax, ymin, ymax); got {extent!r}") from None
+    if len(values) != 4 or not all(math.isfinite(v) for v in values) or values[0] >= values[1] \
+            or values[2] >= values[3]:
+        raise InvalidInputError(f"{name} must be finite (xmin, xmax, ymin, ymax) with xmin < xmax and ymin < ymax; "
+                                f"got {extent!r}")
+    return values  # type: ignore[return-value]
+
+
+# ---------------------------------------------------------------------------------------------- geometry tree
+@dataclass(eq=False)
+class GeometryPatch:
+    """A node N of the geometry multiresolution model H(G) (§3.1): grid nodes rows[0]..rows[1] x
+    cols[0]..cols[1] (inclusive), approximated by every ``stride``-th node; ``error`` e(N) is the largest
+    vertical distance between the terrain and that approximation; ``box`` B(N) = (min xyz, max xyz)."""
+
+    domain: Extent
+    rows: tuple[int, int]
+    cols: tuple[int, int]
+    depth: int
+    stride: int
+    error: float
+    box: NDArray[np.float64]
+    parent: GeometryPatch | None = None
+    children: list[GeometryPatch] = field(default_factory=list)
+
+    @property
+    def is_leaf(self) -> bool:
+        return not self.children
+
+
+class PatchQuadtree:
+    """The terrain's patch quadtree: the root covers the grid, each patch splits in four until a patch has at
+    most ``leaf_size`` cells per side. A patch at depth d takes every 2^(D − d)-th node (D = the leaves' depth),
+    so leaves are at full resolution (e = 0)."""
+
+    def __init__(self, terrain: Terrain | ArrayLike, *, leaf_size: int = 64, spacing: ArrayLike | None = None,
+                 origin: ArrayLike | None = None) -> None:
+        t = as_terrain(terrain, spacing=spacing, origin=origin)
+        if t.kind != "grid":
+            raise InvalidInputError("PatchQuadtree needs a regular heightfield")
+        if isinstance(leaf_size, bool) or not isinstance(leaf_size, int) or leaf_size < 2:
+            raise InvalidInputError(f"leaf_size must be an int >= 2; got {leaf_size!r}")
+        self.terrain = t
+        rows, cols = t.heights.shape
+        cells = max(rows, cols) - 1
+        self.depth = max(0, math.ceil(math.log2(max(cells, 1) / leaf_size))) if cells > leaf_size else 0
+        self.root = self._build(None, (0, rows - 1), (0, cols - 1), 0)
+
+    def _domain(self, rows: tuple[int, int], cols: tuple[int, int]) -> Extent:
+        t = self.terrain
+        x = [t.origin[0] + c * t.spacing[0] for c in cols]
+        y = [t.origin[1] + r * t.spacing[1] for r in rows]
+        return min(x), max(x), min(y), max(y)
+
+    def _build(self, parent: GeometryPatch | None, rows: tuple[int, int], cols: tuple[int, int],
+               depth: int) -> GeometryPatch:
+        t = self.terrain
+        block = t.heights[rows[0]: rows[1] + 1, cols[0]: cols[1] + 1]
+        finite = block[np.isfinite(block)]
+        zmin, zmax = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+        stride = 2 ** (self.depth - depth)
+        domain = self._domain(rows, cols)
+        box = np.array([[domain[0], domain[2], zmin], [domain[1], domain[3], zmax]])
+        patch = GeometryPatch(domain, rows, cols, depth, stride, _approximation_error(block, stride), box, parent)
+        if depth < self.depth and (rows[1] - rows[0] > 1 or cols[1] - cols[0] > 1):
+            rm = (rows[0] + rows[1]) // 2
+            cm = (cols[0] + cols[1]) // 2
+            row_parts = [(rows[0], rm), (rm, rows[1])] if rows[1] - rows[0] > 1 else [rows]
+            col_parts = [(cols[0], cm), (cm, cols[1])] if cols[1] - cols[0] > 1 else [cols]
+            patch.children = [self._build(patch, r, c, depth + 1) for r in row_parts for c in col_parts]
+        return patch
+
+    def patches(self) -> list[GeometryPatch]:
+        """Every patch, parents before children."""
+        out, stack = [], [self.root]
+        while stack:
+            patch = stack.pop()
+            out.append(patch)
+            stack.extend(reversed(patch.children))
+        return out
+
+
+def _approximation_error(block: NDArray[np.float32], stride: int) -> float:
+    """Max |h − bilinear interpolation of every stride-th node (last row/column kept)| over the block."""
+    if stride <= 1:
+        return 0.0
+    z = np.asarray(block, dtype=np.float64)
+    rows, cols = z.shape
+    ri = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
+    ci = np.unique(np.r_[np.arange(0, cols, stride), cols - 1])
+    coarse = z[np.ix_(ri, ci)]
+    r = np.arange(rows)
+    c = np.arange(cols)
+    k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, max(len(ri) - 2, 0))
+    m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, max(len(ci) - 2, 0))
+    if len(ri) == 1 or len(ci) == 1:
+        return float(np.nanmax(np.abs(z - np.nanmean(coarse)))) if np.isfinite(z).any() else 0.0
+    fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
+    fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
+    a = coarse[k][:, m]
+    b = coarse[k][:, m + 1]
+    cc = coarse[k + 1][:, m]
+    d = coarse[k + 1][:, m + 1]
+    approx = (a * (1 - fc) + b * fc) * (1 - fr) + (cc * (1 - fc) + d * fc) * fr
+    diff = np.abs(z - approx)
+    return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+
+
+# ---------------------------------------------------------------------------------------------- texture tree
+@dataclass(eq=False)
+class TexturePatch:
+    """A node M of a texture tree (§3.2.2): the pyramid ``level`` and the pixel ``window`` (r0, r1, c0, c1) of
+    that level covering its geometry patch (or the part of it the image covers). Holds no image data."""
+
+    tree: TextureTree
+    geometry: GeometryPatch
+    level: int
+    window: tuple[int, int, int, int]
+    parent: TexturePatch | None = None
+    children: dict[int, TexturePatch] = field(default_factory=dict)  # by id of the child geometry patch
+
+    @property
+    def domain(self) -> Extent:
+        """D(M): world extent of the window."""
+        return self.tree.pyramid.window_extent(self.level, self.window)
+
+    @property
+    def texel_size(self) -> tuple[float, float]:
+        """(w, h): one texel of M in world units."""
+        return self.tree.pyramid.pixel_size(self.level)
+
+    @property
+    def full_resolution(self) -> bool:
+        return self.level == 0
+
+    @property
+    def is_leaf(self) -> bool:
+        return not self.children
+
+    @property
+    def nbytes(self) -> int:
+        r0, r1, c0, c1 = self.window
+        return (r1 - r0) * (c1 - c0) * int(self.tree.pyramid.levels[self.level].shape[2])
+
+    def image(self) -> NDArray[np.uint8]:
+        """The sub-image, a view into the pyramid level (no copy)."""
+        return self.tree.pyramid.sub_image(self.level, self.window)
+
+    def child_for(self, geometry: GeometryPatch) -> TexturePatch | None:
+        """The texture patch for child geometry patch ``geometry``: M's child, M itself when M is pruned at full
+        resolution (its texture already covers the child at the best resolution), None where the texture does
+        not reach the child (partial coverage)."""
+        child = self.children.get(id(geometry))
+        if child is not None:
+            return child
+        if self.full_resolution and _overlap(self.domain, geometry.domain):
+            return self
+        return None
+
+
+def _overlap(a: Extent, b: Extent) -> bool:
+    return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
+
+
+class TextureTree:
+    """The texture tree of one layer over a :class:`PatchQuadtree` (§3.2.2 and §4, partial textures).
+
+    Each texture patch names the finest pyramid level whose window over its geometry patch fits
+    ``max_texture_size`` per side; subtrees are pruned below patches already at full resolution (level 0);
+    geometry patches the image does not overlap get no texture patch.
+    """
+
+    def __init__(self, pyramid: ImagePyramid, quadtree: PatchQuadtree, *, max_texture_size: int = 1024) -> None:
+        if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
+            raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
+        self.pyramid = pyramid
+        self.quadtree = quadtree
+        self.max_texture_size = max_texture_size
+        self.root = self._build(quadtree.root, None)
+        if self.root is None:
+            raise InvalidInputError(f"the image extent {pyramid.extent} does not overlap the terrain's "
+                                    f"{quadtree.root.domain} (mismatched extent)")
+
+    def _build(self, geometry: GeometryPatch, parent: TexturePatch | None) -> TexturePatch | None:
+        choice = None
+        for level in range(len(self.pyramid.levels)):
+            window = self.pyramid.window(level, geometry.domain)
+            if window is None:
+                return None
+            r0, r1, c0, c1 = window
+            if r1 - r0 <= self.max_texture_size and c1 - c0 <= self.max_texture_size:
+                choice = (level, window)
+                break
+        if choice is None:  # pragma: no cover - the 1 x 1 level always fits
+            return None
+        patch = TexturePatch(self, geometry, choice[0], choice[1], parent)
+        if choice[0] > 0:
+            for child in geometry.children:
+                sub = self._build(child, patch)
+                if sub is not None:
+                    patch.children[id(child)] = sub
+        return patch
+
+    def patches(self) -> list[TexturePatch]:
+        out, stack = [], [self.root]
+        while stack:
+            patch = stack.pop()
+            out.append(patch)
+            stack.extend(patch.children.values())
+        return out
+
+
+# ---------------------------------------------------------------------------------------------- camera, errors
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera: ``position``, ``target``, ``up``, vertical field of view ``fov_y`` (radians), the
+    ``viewport`` (width, height) in pixels and the near/far distances."""
+
+    position: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    fov_y: float = math.radians(45.0)
+    viewport: tuple[int, int] = (1280, 800)
+    near: float = 1.0
+    far: float = 1e7
+
+    def basis(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        eye = np.asarray(self.position, dtype=np.float64)
+        forward = np.asarray(self.target, dtype=np.float64) - eye
+        norm = np.linalg.norm(forward)
+        if not np.isfinite(norm) or norm == 0:
+            raise InvalidInputError(
+                f"camera target must differ from its position; got {self.position} -> {self.target}")
+        forward /= norm
+        right = np.cross(forward, np.asarray(self.up, dtype=np.float64))
+        if np.linalg.norm(right) < 1e-12:
+            raise InvalidInputError(f"camera up {self.up} must not be parallel to the viewing direction")
+        right /= np.linalg.norm(right)
+        return forward, right, np.cross(right, forward)
+
+    @property
+    def focal_pixels(self) -> float:
+        """Focal length in pixels: (viewport height / 2) / tan(fov_y / 2)."""
+        return self.viewport[1] / 2.0 / math.tan(self.fov_y / 2.0)
+
+    def project(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(pixel coordinates (N, 2), depth (N,)) of world points."""
+        forward, right, up = self.basis()
+        rel = np.atleast_2d(np.asarray(points, dtype=np.float64)) - np.asarray(self.position, dtype=np.float64)
+        depth = rel @ forward
+        f = self.focal_pixels
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px = np.column_stack([f * (rel @ right) / depth + self.viewport[0] / 2,
+                                  self.viewport[1] / 2 - f * (rel @ up) / depth])
+        return px, depth
+
+    def box_visible(self, box: NDArray[np.float64]) -> bool:
+        """Whether the axis-aligned box [(min), (max)] may intersect the view frustum (conservative)."""
+        forward, right, up = self.basis()
+        eye = np.asarray(self.position, dtype=np.float64)
+        tan_y = math.tan(self.fov_y / 2.0)
+        tan_x = tan_y * self.viewport[0] / self.viewport[1]
+        planes = [(forward, self.near), (-forward, -self.far)]
+        for axis, tan in ((right, tan_x), (up, tan_y)):
+            # side planes through the eye: (forward * tan -/+ axis) . (p - eye) >= 0 inside
+            for sign in (1.0, -1.0):
+                normal = forward * tan - sign * axis
+                planes.append((normal / np.linalg.norm(normal), 0.0))
+        lo, hi = box
+        for normal, offset in planes:
+            corner = np.where(normal >= 0, hi, lo)  # the box corner farthest along the plane normal
+            if (corner - eye) @ normal < offset:
+                return False
+        return True
+
+    def nearest_point(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The point of the box nearest to the camera position (the position itself when inside)."""
+        return np.clip(np.asarray(self.position, dtype=np.float64), box[0], box[1])
+
+    def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+        """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
+        px, depth = self.project(np.stack([a, b]))
+        if np.any(depth < self.near):
+            return math.inf
+        return float(np.linalg.norm(px[0] - px[1]))
+
+
+def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
+    """γ(N) (§4, Fig. 2): the screen length in pixels of a vertical segment of length e(N) centred at the point
+    of B(N) nearest to the camera; 0 for a patch without children."""
+    if patch.is_leaf:
+        return 0.0
+    p = camera.nearest_point(patch.box)
+    half = np.array([0.0, 0.0, patch.error / 2.0])
+    return camera.segment_pixels(p - half, p + half)
+
+
+def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
+    """The screen size in pixels of one texel of M at the point of B(N) nearest to the camera (τ without the
+    leaf convention): the longer of the projected x segment of length w and y segment of length h."""
+    p = camera.nearest_point(geometry.box)
+    w, h = texture.texel_size
+    dx, dy = np.array([w / 2.0, 0.0, 0.0]), np.array([0.0, h / 2.0, 0.0])
+    return max(camera.segment_pixels(p - dx, p + dx), camera.segment_pixels(p - dy, p + dy))
+
+
+def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
+    """τ(N, M) (§4): the screen size of one texel of M in pixels at B(N)'s nearest point; 0 when M has no
+    children (nothing finer exists)."""
+    if texture.is_leaf:
+        return 0.0
+    return texel_pixels(geometry, texture, camera)
+
+
+# ---------------------------------------------------------------------------------------------- loading
+class TextureCache:
+    """Texture data loaded on demand in a background thread, least recently used evicted over ``budget`` bytes.
+
+    ``request`` never blocks (§4: "non-blocking!!!"); ``loader(M)`` (default: a copy of ``M.image()``) runs in
+    the background thread. ``is_loaded`` marks the patch as recently used.
+    """
+
+    def __init__(self, budget: int = 256 * 1024**2, loader: Callable[[TexturePatch], Any] | None = None,
+                 workers: int = 1) -> None:
+        if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
+            raise InvalidInputError(f"budget must be a positive int of bytes; got {budget!r}")
+        self.budget = budget
+        self.loader = loader or (lambda patch: np.array(patch.image()))
+        self._loaded: OrderedDict[int, tuple[TexturePatch, Any, int]] = OrderedDict()
+        self._pending: dict[int, Future] = {}
+        self._lock = threading.Lock()
+        self._executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="stepterrain-texture")
+        self.bytes_loaded = 0
+        self.evictions = 0
+
+    def is_loaded(self, patch: TexturePatch) -> bool:
+        with self._lock:
+            if id(patch) in self._loaded:
+                self._loaded.move_to_end(id(patch))
+                return True
+            return False
+
+    def get(self, patch: TexturePatch) -> Any:
+        with self._lock:
+            item = self._loaded.get(id(patch))
+            return None if item is None else item[1]
+
+    def request(self, patch: TexturePatch) -> None:
+        """Start loading ``patch`` in the background unless it is loaded or on its way."""
+        with self._lock:
+            if id(patch) in self._loaded or id(patch) in self._pending:
+                return
+            self._pending[id(patch)] = self._executor.submit(self._load, patch)
+
+    def load_now(self, patch: TexturePatch) -> Any:
+        """Load ``patch`` in this thread (e.g. the root before the first frame)."""
+        self.request(patch)
+        with self._lock:
+            future = self._pending.get(id(patch))
+        if future is not None:
+            future.result()
+        return self.get(patch)
+
+    def wait(self) -> None:
+        """Block until every requested load has finished (tests, benchmarks)."""
+        while True:
+            with self._lock:
+                futures = list(self._pending.values())
+            if not futures:
+                return
+            for future in futures:
+                future.result()
+
+    def _load(self, patch: TexturePatch) -> None:
+        try:
+            data = self.loader(patch)
+            size = int(getattr(data, "nbytes", patch.nbytes))
+            with self._lock:
+                self._loaded[id(patch)] = (patch, data, size)
+                self.bytes_loaded += size
+                while self.bytes_loaded > self.budget and len(self._loaded) > 1:
+                    _, (_, _, old) = self._loaded.popitem(last=False)
+                    self.bytes_loaded -= old
+                    self.evictions += 1
+        finally:
+            with self._lock:
+                self._pending.pop(id(patch), None)
+
+    def close(self) -> None:
+        self._executor.shutdown(wait=True)
+
+
+# ---------------------------------------------------------------------------------------------- traversal
+@dataclass(frozen=True)
+class DrawItem:
+    """One ``paintWithTextures(N, T)`` call: the geometry patch, one texture patch per active layer (None while a
+    layer has nothing loaded yet) and, per layer, whether hybrid shading replaces it by computed lighting
+    (§7.3: a topographic leaf texture whose texel exceeds τ_user on screen)."""
+
+    geometry: GeometryPatch
+    textures: tuple[TexturePatch | None, ...]
+    lighting: tuple[bool, ...]
+
+
+def render_with_textures(
+    root: GeometryPatch,
+    textures: Sequence[TexturePatch],
+    camera: Camera,
+    *,
+    gamma_user: float = 1.0,
+    tau_user: float = 1.0,
+    cache: TextureCache | None = None,
+    hybrid: Sequence[bool] | None = None,
+) -> list[DrawItem]:
+    """The simultaneous traversal ``renderWithTextures`` of §4 over a geometry tree and texture trees.
+
+    Parameters
+    ----------
+    root : GeometryPatch
+        N_root of a :class:`PatchQuadtree`.
+    textures : sequence of TexturePatch
+        The roots M_root of the active layers' texture trees (the set S).
+    camera : Camera
+    gamma_user, tau_user : float
+        Thresholds in screen pixels for γ(N) and τ(N, S) = max over S of τ(N, M).
+    cache : TextureCache, optional
+        When given, a texture patch whose data is not loaded is requested (non-blocking) and its parent used
+        instead; None treats every patch as loaded.
+    hybrid : sequence of bool, optional
+        Per layer, whether it is a topographic layer subject to hybrid shading (§7.3).
+
+    Returns
+    -------
+    list of DrawItem
+        In traversal order. Every item satisfies γ(N) ≤ γ_user and τ(N, M) ≤ τ_user for each loaded M, or
+        its geometry patch is a leaf (or its texture a pruned full-resolution leaf).
+
+    Notes
+    -----
+    Frustum culling with B(N); refinement while γ(N) > γ_user or τ(N, S) > τ_user; children take M's child
+    texture patch, M itself where M is pruned at full resolution, and drop a layer that does not reach them
+    (partial textures). Before painting, each M is reduced to its parent while τ(N, M_parent) ≤ τ_user, then
+    to its parent while its data is not loaded (requesting it).
+    """
+    gamma_user = _threshold(gamma_user, "gamma_user")
+    tau_user = _threshold(tau_user, "tau_user")
+    layers = list(textures)
+    flags = tuple(bool(v) for v in hybrid) if hybrid is not None else (False,) * len(layers)
+    if len(flags) != len(layers):
+        raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
+    out: list[DrawItem] = []
+    stack: list[tuple[GeometryPatch, list[TexturePatch | None]]] = [(root, list(layers))]
+    while stack:  # depth-first over patches (a few thousand at most), never over cells
+        node, current = stack.pop()
+        if not camera.box_visible(node.box):
+            continue
+        tau = max((visual_texture_error(node, m, camera) for m in current if m is not None), default=0.0)
+        if not node.is_leaf and (visual_geometric_error(node, camera) > gamma_user or tau > tau_user):
+            children = [(child, [m.child_for(child) if m is not None else None for m in current])
+                        for child in node.children]
+            stack.extend(reversed(children))
+            continue
+        chosen: list[TexturePatch | None] = []
+        lighting: list[bool] = []
+        for k, m in enumerate(current):
+            if m is None:
+                chosen.append(None)
+                lighting.append(flags[k])
+                continue
+            while m.parent is not None and visual_texture_error(node, m.parent, camera) <= tau_user:
+                m = m.parent  # reduction of texture data
+            while m is not None and cache is not None and not cache.is_loaded(m):
+                cache.request(m)  # non-blocking; the parent stands in meanwhile
+                m = m.parent
+            chosen.append(m)
+            lighting.append(flags[k] and (m is None or (m.is_leaf and texel_pixels(node, m, camera) > tau_user)))
+        out.append(DrawItem(node, tuple(chosen), tuple(lighting)))
+    return out
+
+
+def _threshold(value: Any, name: str) -> float:
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a number of pixels; got {value!r}") from None
+    if not math.isfinite(number) or number < 0:
+        raise InvalidInputError(f"{name} must be a finite number of pixels >= 0; got {value!r}")
+    return number
+
+
+
+def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
+    """``paintWithTextures(N, T)`` (§4) as a mesh: the geometry patch at its level of detail (every
+    ``stride``-th node of its block, the last row and column kept) textured with the sub-image of the chosen
+    texture patch of ``layer`` (UVs through the patch's georeferenced window). Returns a ``trimesh.Trimesh``
+    (untextured when that layer has no texture patch yet).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stepterrain.texture_lod import (Camera, ImagePyramid, PatchQuadtree, TextureTree,
+    ...                                      paint_with_textures, render_with_textures)
+    >>> quadtree = PatchQuadtree(np.zeros((17, 17)), leaf_size=8)
+    >>> with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain) as pyramid:
+    ...     tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+    ...     items = render_with_textures(quadtree.root, [tree.root], Camera((8, -30, 20), (8, 8, 0)))
+    ...     meshes = [paint_with_textures(item) for item in items]
+    >>> float(sum(m.area for m in meshes))   # the drawn patches tile the 16 x 16 domain
+    256.0
+    """
+    import trimesh
+
+    from .terrain import grid_faces
+    from .texture import TextureLayer, drape
+
+    patch = item.geometry
+    tree = _tree_of(item, layer)
+    terrain = tree.quadtree.terrain if tree is not None else None
+    if terrain is None:
+        raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
+    (r0, r1), (c0, c1) = patch.rows, patch.cols
+    rows = np.unique(np.r_[np.arange(r0, r1 + 1, patch.stride), r1])
+    cols = np.unique(np.r_[np.arange(c0, c1 + 1, patch.stride), c1])
+    dx, dy = terrain.spacing
+    jj, ii = np.meshgrid(cols, rows)
+    vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
+                                terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
+    faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    texture = item.textures[layer]
+    if texture is None:
+        return mesh
+    image = np.asarray(texture.image())
+    if image.shape[2] == 1:
+        texture_layer = TextureLayer("luminance", image[:, :, 0], texture.domain)
+    else:
+        texture_layer = TextureLayer("thematic", image, texture.domain)
+    return drape(mesh, texture_layer)
+
+
+def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:
+    if not 0 <= layer < len(item.textures):
+        raise InvalidInputError(f"layer must index the item's {len(item.textures)} texture layers; got {layer}")
+    texture = item.textures[layer]
+    return None if texture is None else texture.tree

@@ -1,0 +1,61 @@
+"""A plain NumPy reference of the close-up transform and culling (paper 001 §II.B), written independently.
+
+It runs over the *whole* terrain mesh, as the paper does (every close-up sees every triangle), so it also
+checks that the library's ROI windows lose nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def bilinear_mask(mask: np.ndarray, box: tuple[float, float, float, float], x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """m at world (x, y): the mask's texels spread over box (xmin, xmax, ymin, ymax), row 0 at ymin; 0 outside."""
+    xmin, xmax, ymin, ymax = box
+    rows, cols = mask.shape
+    out = np.zeros(len(x))
+    for n in range(len(x)):  # plainly, one point at a time
+        u = (x[n] - xmin) / (xmax - xmin)
+        v = (y[n] - ymin) / (ymax - ymin)
+        if not (0 <= u <= 1 and 0 <= v <= 1):
+            continue
+        fx, fy = u * (cols - 1), v * (rows - 1)
+        j = min(int(math.floor(fx)), cols - 2)
+        i = min(int(math.floor(fy)), rows - 2)
+        tx, ty = fx - j, fy - i
+        out[n] = ((1 - tx) * (1 - ty) * mask[i, j] + tx * (1 - ty) * mask[i, j + 1]
+                  + (1 - tx) * ty * mask[i + 1, j] + tx * ty * mask[i + 1, j + 1])
+    return out
+
+
+def close_up_matrix(cx: float, cy: float, cz: float, alpha: float, beta: float, scale, offset) -> np.ndarray:
+    """M = T(O + p)·R_z(β)·R_x(α)·S·T(−O) built from elementary 4 x 4 matrices."""
+
+    def translate(v):
+        m = np.eye(4)
+        m[:3, 3] = v
+        return m
+
+    rx = np.eye(4)
+    rx[1:3, 1:3] = [[math.cos(alpha), -math.sin(alpha)], [math.sin(alpha), math.cos(alpha)]]
+    rz = np.eye(4)
+    rz[0:2, 0:2] = [[math.cos(beta), -math.sin(beta)], [math.sin(beta), math.cos(beta)]]
+    s = np.diag([*scale, 1.0])
+    o = np.array([cx, cy, cz])
+    return translate(o + np.asarray(offset)) @ rz @ rx @ s @ translate(-o)
+
+
+def transform(vertices: np.ndarray, m: np.ndarray, matrix: np.ndarray) -> np.ndarray:
+    """V_C = (m·M + (1 − m)·I)·V_O per vertex, float64."""
+    out = np.empty_like(vertices, dtype=np.float64)
+    for n in range(len(vertices)):
+        c = m[n] * matrix + (1 - m[n]) * np.eye(4)
+        out[n] = (c @ np.append(vertices[n], 1.0))[:3]
+    return out
+
+
+def culled_faces(faces: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Indices of the faces with a corner of m > 0."""
+    return np.array([f for f in range(len(faces)) if max(m[faces[f]]) > 0], dtype=np.int64)

@@ -1,0 +1,183 @@
+"""Plain NumPy references for the texture kernels (paper 004): written independently, slow, obvious.
+
+* ``hillshade_reference``: Horn gradients with edge replication, the three GDAL variants in float64.
+* ``shadows_reference``: brute-force ray march from every node towards the light over the nodes of its
+  digital line (O(n) per node), in float64.
+* ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
+* ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+AZIMUTH = math.radians(315.0)
+ALTITUDE = math.radians(45.0)
+
+
+def find_shared(name: str) -> Path:
+    """A file of the team's shared/data: $STEPTERRAIN_SHARED_DATA, else the first shared/data above the tests
+    (the repository may be a worktree a level deeper than main); skip with the reason when it is absent."""
+    candidates = [Path(os.environ["STEPTERRAIN_SHARED_DATA"])] if os.environ.get("STEPTERRAIN_SHARED_DATA") else []
+    candidates += [parent / "shared" / "data" for parent in Path(__file__).resolve().parents]
+    for folder in candidates:
+        if (folder / name).exists():
+            return folder / name
+    pytest.skip(f"shared data {name} not found in any shared/data above {Path(__file__).parent}")
+
+
+def real_dem_crop(name: str, size: int = 96, step: int = 4) -> np.ndarray:
+    """A subsampled crop (size x size nodes, every ``step``-th node) of a real DEM in shared/data."""
+    with np.load(find_shared(name)) as data:
+        z = np.asarray(data["elevation"], dtype=np.float32)
+    return np.ascontiguousarray(z[: size * step : step, : size * step : step])
+
+
+def horn(heights: np.ndarray, spacing: tuple[float, float], z_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    z = np.asarray(heights, dtype=np.float64)
+    centre = z.copy()
+    padded = np.pad(z, 1, mode="edge")
+    rows, cols = z.shape
+
+    def at(di: int, dj: int) -> np.ndarray:
+        window = padded[1 + di: 1 + di + rows, 1 + dj: 1 + dj + cols]
+        return np.where(np.isnan(window), centre, window)
+
+    a, b, c = at(-1, -1), at(-1, 0), at(-1, 1)
+    d, f = at(0, -1), at(0, 1)
+    g, h, k = at(1, -1), at(1, 0), at(1, 1)
+    dx, dy = spacing
+    p = ((c + 2 * f + k) - (a + 2 * d + g)) / (8 * dx) * z_factor
+    q = ((g + 2 * h + k) - (a + 2 * b + c)) / (8 * dy) * z_factor
+    return p, q
+
+
+def lambert(p: np.ndarray, q: np.ndarray, azimuth: float, altitude: float) -> np.ndarray:
+    light = (math.sin(azimuth) * math.cos(altitude), math.cos(azimuth) * math.cos(altitude), math.sin(altitude))
+    return (-p * light[0] - q * light[1] + light[2]) / np.sqrt(1 + p * p + q * q)
+
+
+def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
+                        z_factor=1.0, method="standard") -> np.ndarray:
+    p, q = horn(heights, spacing, z_factor)
+    cos_i = lambert(p, q, azimuth, altitude)
+    if method == "standard":
+        out = np.maximum(cos_i, 0.0)
+    elif method == "igor":
+        slope = np.degrees(np.arctan(np.hypot(p, q)))
+        diff = np.abs((np.degrees(azimuth - np.arctan2(-p, -q)) + 180.0) % 360.0 - 180.0)
+        out = 1 - slope / 90 * diff / 180
+    elif method == "combined":
+        slope = np.arctan(np.hypot(p, q))
+        out = np.clip(1 - np.arccos(np.clip(cos_i, -1, 1)) * slope / (math.pi / 2) ** 2, 0, 1)
+    else:
+        g2 = p * p + q * q
+        total = np.zeros_like(p)
+        for az_deg in (225, 270, 315, 360):
+            az = math.radians(az_deg)
+            shade = np.maximum(lambert(p, q, az, altitude), 0.0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                total += shade * (p * math.sin(az) + q * math.cos(az)) ** 2 / g2
+        out = np.where(g2 == 0, math.sin(altitude), 0.5 * total)
+    return np.where(np.isnan(np.asarray(heights, dtype=np.float64)), np.nan, out)
+
+
+def line_geometry(shape, spacing, azimuth):
+    """Major axis, walking direction, digital-line offsets and the away-from-light unit vector."""
+    rows, cols = shape
+    dx, dy = spacing
+    ti, tj = math.cos(azimuth) / dy, math.sin(azimuth) / dx
+    if abs(tj) >= abs(ti):
+        major_j, n_major, n_minor, slope, forward = True, cols, rows, ti / tj, (-1 if tj > 0 else 1)
+    else:
+        major_j, n_major, n_minor, slope, forward = False, rows, cols, tj / ti, (-1 if ti > 0 else 1)
+    offsets = np.floor(slope * np.arange(n_major, dtype=np.float64) + 0.5).astype(np.int64)
+    away = (-math.sin(azimuth), -math.cos(azimuth))
+    return major_j, n_major, n_minor, forward, offsets, away
+
+
+def _line_nodes(shape, spacing, azimuth):
+    """For every node: its list of earlier nodes on its line (nearest first), as index arrays per step."""
+    major_j, n_major, n_minor, forward, offsets, away = line_geometry(shape, spacing, azimuth)
+    rows, cols = shape
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    major = j if major_j else i
+    minor = i if major_j else j
+    c = minor - offsets[major]
+    steps = []
+    for s in range(1, n_major):
+        m2 = major + forward * -s  # towards the light: against the walking direction
+        inside = (m2 >= 0) & (m2 < n_major)
+        m2c = np.clip(m2, 0, n_major - 1)
+        b2 = c + offsets[m2c]
+        inside &= (b2 >= 0) & (b2 < n_minor)
+        b2c = np.clip(b2, 0, n_minor - 1)
+        ii, jj = (b2c, m2c) if major_j else (m2c, b2c)
+        steps.append((inside, ii, jj))
+    return steps, away
+
+
+def shadows_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
+                      z_factor=1.0) -> np.ndarray:
+    z = np.asarray(heights, dtype=np.float64) * z_factor
+    rows, cols = z.shape
+    dx, dy = spacing
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    steps, away = _line_nodes(z.shape, spacing, azimuth)
+    t = j * dx * away[0] + i * dy * away[1]
+    tan = math.tan(altitude)
+    shadow = np.zeros(z.shape, dtype=bool)
+    for inside, ii, jj in steps:  # march every ray one node further towards the light
+        hq = z[ii, jj]
+        ray = z + (t - t[ii, jj]) * tan  # height of the ray from the node at the earlier node's distance
+        shadow |= inside & np.isfinite(hq) & (hq > ray)
+    shadow &= np.isfinite(z)
+    return shadow.astype(np.uint8)
+
+
+def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0) -> np.ndarray:
+    z = np.asarray(heights, dtype=np.float64) * z_factor
+    rows, cols = z.shape
+    dx, dy = spacing
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    total = np.zeros(z.shape)
+    for k in range(directions):
+        azimuth = 2 * math.pi * k / directions
+        steps, away = _line_nodes(z.shape, spacing, azimuth)
+        t = j * dx * away[0] + i * dy * away[1]
+        best = np.full(z.shape, -np.inf)
+        for inside, ii, jj in steps:
+            hq = z[ii, jj]
+            run = t - t[ii, jj]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                tangent = np.where(inside & np.isfinite(hq) & (run > 0), (hq - z) / run, -np.inf)
+            best = np.maximum(best, tangent)
+        with np.errstate(invalid="ignore"):
+            sine = np.where(best > 0, best / np.sqrt(1 + best * best), 0.0)
+        total += sine / directions
+    return np.where(np.isfinite(z), 1 - total, np.nan)
+
+
+def reduce_axis(image: np.ndarray, axis: int) -> np.ndarray:
+    """Area-weighted halving along ``axis``: m = ceil(n / 2) targets, target r covers [r n/m, (r+1) n/m)."""
+    a = np.moveaxis(np.asarray(image, dtype=np.float64), axis, 0)
+    n = a.shape[0]
+    m = max(1, (n + 1) // 2)
+    out = np.zeros((m, *a.shape[1:]))
+    for r in range(m):
+        lo, hi = r * n / m, (r + 1) * n / m
+        for s in range(int(math.floor(lo)), int(math.ceil(hi))):
+            w = min(s + 1, hi) - max(s, lo)
+            if w > 0:
+                out[r] += a[s] * w / (n / m)
+    return np.moveaxis(out, 0, axis)
+
+
+def reduce_reference(image: np.ndarray) -> np.ndarray:
+    """One pyramid level down (both axes), float64 before rounding."""
+    return reduce_axis(reduce_axis(image, 0), 1)

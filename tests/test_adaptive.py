@@ -1,0 +1,137 @@
+"""The planar case of paper 003: adaptive RTIN / SOAR meshes of one heightfield with a true error bound."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as hst
+from hypothesis.extra.numpy import arrays
+
+from stepterrain.errors import InvalidInputError
+from stepterrain.globe import Camera, adaptive_mesh
+from stepterrain.mesh import boundary_edges
+
+from .conftest import assert_valid_mesh
+from .test_globe import shared_file
+
+
+def dem(name: str, rows: int, cols: int, step: int = 1) -> np.ndarray:
+    with np.load(shared_file(name)) as d:
+        z = np.asarray(d["elevation"], dtype=np.float32)
+    return np.ascontiguousarray(z[: rows * step : step, : cols * step : step])
+
+
+def true_errors(mesh, heights: np.ndarray, spacing=(1.0, 1.0)) -> np.ndarray:
+    """|z - mesh(x, y)| at every grid node, by linear interpolation on the mesh's triangles (matplotlib)."""
+    import matplotlib.tri as mtri
+
+    rows, cols = heights.shape
+    v = np.asarray(mesh.vertices)
+    tri = mtri.Triangulation(v[:, 0], v[:, 1], np.asarray(mesh.faces))
+    interp = mtri.LinearTriInterpolator(tri, v[:, 2])
+    i, j = np.mgrid[0:rows, 0:cols]
+    z = interp(j * spacing[0], i * spacing[1])
+    assert not np.ma.is_masked(z) or not z.mask.any(), "a grid node lies outside the mesh"
+    return np.abs(np.asarray(z) - heights)
+
+
+def assert_crack_free_rectangle(mesh, rows: int, cols: int, spacing=(1.0, 1.0)) -> None:
+    """Edges used once lie on the rectangle's border (no hanging nodes inside); the mesh covers it exactly."""
+    assert_valid_mesh(mesh)
+    assert mesh.is_winding_consistent
+    assert (mesh.face_normals[:, 2] > 0).all()
+    edges = boundary_edges(np.asarray(mesh.faces))
+    ends = np.asarray(mesh.vertices)[edges.reshape(-1)][:, :2].reshape(-1, 2, 2)
+    w, h = (cols - 1) * spacing[0], (rows - 1) * spacing[1]
+    on_x = np.isclose(ends[..., 0], 0) | np.isclose(ends[..., 0], w)
+    on_y = np.isclose(ends[..., 1], 0) | np.isclose(ends[..., 1], h)
+    same_side = (np.isclose(ends[:, 0, 0], ends[:, 1, 0]) & on_x.all(axis=1)) | (
+        np.isclose(ends[:, 0, 1], ends[:, 1, 1]) & on_y.all(axis=1))
+    assert same_side.all(), "an edge used by one face lies inside the rectangle (crack or hanging node)"
+    projected = mesh.area_faces * mesh.face_normals[:, 2]
+    assert projected.sum() == pytest.approx(w * h, rel=1e-9)
+
+
+@pytest.mark.parametrize("error", [2.0, 5.0, 20.0])
+def test_true_error_bound_on_big_tujunga(error, device):
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", 257, 257)
+    mesh = adaptive_mesh(z, error=error, spacing=30.0, device=device)
+    assert_crack_free_rectangle(mesh, 257, 257, (30.0, 30.0))
+    worst = true_errors(mesh, z, (30.0, 30.0)).max()
+    assert worst <= error + 1e-3
+    assert worst > 0.5 * error  # not needlessly fine
+    assert len(mesh.faces) < 2 * 256 * 256
+
+
+def test_true_error_bound_on_front_range_padded():
+    z = dem("front_range_srtmgl3_3arcsec.npz", 300, 190)  # not 2^k + 1: padded internally, cut back exactly
+    dx, dy = 70.8, 92.7
+    for error in (3.0, 10.0, 40.0):
+        mesh = adaptive_mesh(z, error=error, spacing=(dx, dy), device="cpu")
+        assert_crack_free_rectangle(mesh, 300, 190, (dx, dy))
+        assert true_errors(mesh, z, (dx, dy)).max() <= error + 1e-3
+        rows_cols = mesh.metadata["node_index"]
+        assert rows_cols[:, 0].max() == 299 and rows_cols[:, 1].max() == 189
+
+
+def test_fewer_triangles_for_larger_error():
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", 129, 129, step=2)
+    counts = [len(adaptive_mesh(z, error=e, spacing=60.0).faces) for e in (0.0, 1.0, 5.0, 25.0, 100.0, 1e5)]
+    assert counts[0] == 2 * 128 * 128
+    assert counts == sorted(counts, reverse=True)
+    assert counts[-1] == 2
+
+
+def test_plane_and_origin():
+    z = np.add.outer(np.arange(17.0), 2 * np.arange(17.0))
+    mesh = adaptive_mesh(z, error=1e-3, spacing=(2.0, 3.0), origin=(100.0, 200.0))
+    assert len(mesh.faces) == 2
+    assert tuple(mesh.bounds[0]) == (100.0, 200.0, 0.0)
+    assert tuple(mesh.bounds[1]) == (132.0, 248.0, 48.0)
+
+
+@settings(max_examples=25, suppress_health_check=[HealthCheck.too_slow])
+@given(z=arrays(np.float32, hst.tuples(hst.integers(2, 20), hst.integers(2, 20)),
+                elements=hst.floats(-100, 100, width=32)),
+       error=hst.floats(0.0, 50.0))
+def test_property_bound_and_crack_free(z, error):
+    mesh = adaptive_mesh(z, error=error, spacing=1.0, device="cpu")
+    rows, cols = z.shape
+    assert_crack_free_rectangle(mesh, rows, cols)
+    assert true_errors(mesh, z.astype(np.float64)).max() <= error + 1e-3
+
+
+def test_camera_view_is_crack_free_and_clipped():
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", 257, 257)
+    spacing = 30.0
+    cam = Camera(eye=(1000.0, 1000.0, 3500.0), target=(4000.0, 4000.0, 1000.0), fov=math.radians(50))
+    full = adaptive_mesh(z, error=5.0, spacing=spacing, camera=cam, cull=False)
+    assert_crack_free_rectangle(full, 257, 257, (spacing, spacing))
+    near_far = adaptive_mesh(z, error=5.0, spacing=spacing, camera=cam, metrics=("geometric", "distance"))
+    plain = adaptive_mesh(z, error=5.0, spacing=spacing)
+    assert len(near_far.faces) < len(plain.faces)
+    culled = adaptive_mesh(z, error=5.0, spacing=spacing, camera=cam)
+    planes = cam.planes()
+    outside = (culled.vertices @ planes[:, :3].T + planes[:, 3]) > 0
+    assert not outside[np.asarray(culled.faces)].all(axis=1).any(axis=1).any()
+    assert len(culled.faces) < len(full.faces)
+
+
+def test_bad_planar_input():
+    with pytest.raises(InvalidInputError, match="heights must be a real"):
+        adaptive_mesh(np.zeros(5), error=1.0)
+    with pytest.raises(InvalidInputError, match="NaN.*row 1, column 2"):
+        z = np.zeros((4, 4))
+        z[1, 2] = np.nan
+        adaptive_mesh(z, error=1.0)
+    with pytest.raises(InvalidInputError, match="error must be"):
+        adaptive_mesh(np.zeros((4, 4)), error=-1.0)
+    with pytest.raises(InvalidInputError, match="spacing dx must be a positive"):
+        adaptive_mesh(np.zeros((4, 4)), error=1.0, spacing=(0.0, 1.0))
+    with pytest.raises(InvalidInputError, match="planar case supports bounds='sphere'"):
+        from stepterrain.globe import _metric_options
+
+        _metric_options(("geometric",), "cone", planar=True)

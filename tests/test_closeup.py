@@ -1,0 +1,401 @@
+"""Close-ups (paper 001): ROI masks, the transform kernel against a NumPy reference, culling, anchors,
+transfer functions, compositing and bad input. Renders live in test_closeup_render.py."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given
+from hypothesis import strategies as hs
+
+from stepterrain.closeup import (
+    ROI,
+    TRANSFER_PRESETS,
+    AnchorStyle,
+    CloseUp,
+    anchor_strips,
+    closeup_layers,
+    closeup_matrix,
+    composite,
+    max_closeups,
+    transfer_function,
+)
+from stepterrain.errors import InvalidInputError
+from stepterrain.terrain import Terrain, heightfield_mesh
+
+from .conftest import assert_valid_mesh, real_dem
+from .reference_closeup import bilinear_mask, close_up_matrix, culled_faces, transform
+
+
+def hills(rows: int = 33, cols: int = 41, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    y, x = np.mgrid[0:rows, 0:cols]
+    z = 20 * np.sin(x / 5.0) * np.cos(y / 7.0) + 50 + rng.normal(0, 1, (rows, cols))
+    return z.astype(np.float32)
+
+
+def reference_layer(terrain: Terrain, cu: CloseUp):
+    """Whole-mesh NumPy reference: m, V_C, the culled face indices and the mesh."""
+    mesh = terrain.mesh()
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    m = bilinear_mask(cu.roi.mask.astype(np.float64), cu.roi.box, v[:, 0], v[:, 1])
+    zmin = float(np.nanmin(terrain.heights))
+    matrix = close_up_matrix(*cu.roi.center, zmin, cu.rotation[0], cu.rotation[1], cu.scale, cu.offset)
+    return m, transform(v, m, matrix), culled_faces(np.asarray(mesh.faces), m), mesh, matrix
+
+
+def assert_matches_reference(terrain: Terrain, cu: CloseUp, layer, atol: float = 1e-3) -> None:
+    m, vc, faces, mesh, matrix = reference_layer(terrain, cu)
+    # exactly the faces with m > 0; a face whose largest m is within float32 rounding of 0 may go either way
+    ambiguous = np.flatnonzero(m[np.asarray(mesh.faces)].max(axis=1) <= 1e-5)
+    differ = np.setxor1d(layer.source_faces, faces)
+    assert np.isin(differ, ambiguous).all(), f"faces {differ[~np.isin(differ, ambiguous)]} culled wrongly"
+    both, ours, theirs = np.intersect1d(layer.source_faces, faces, return_indices=True)
+    assert len(both) >= len(faces) - len(ambiguous)
+    corners_ref = vc[np.asarray(mesh.faces)[faces[theirs]]]
+    corners = layer.vertices[layer.faces[ours]]
+    scale = max(1.0, float(np.abs(corners_ref).max())) if len(corners_ref) else 1.0
+    v = np.column_stack([np.asarray(mesh.vertices), np.ones(len(mesh.vertices))])
+    reach = float(np.linalg.norm((v @ (matrix - np.eye(4)).T)[:, :3], axis=1).max())  # ‖M·v − v‖ at most
+    # float32 m (relative error ~1e-6 of the ROI box) moves a soft-edge vertex by Δm·‖M·v − v‖
+    np.testing.assert_allclose(corners, corners_ref, atol=atol * scale / 1000 + 1e-4 + 3e-5 * reach, rtol=1e-6)
+    m_corners = m[np.asarray(mesh.faces)[faces[theirs]]]
+    np.testing.assert_allclose(layer.mask_factor[layer.faces[ours]], m_corners, atol=2e-5)
+    np.testing.assert_allclose(layer.matrix, matrix, atol=1e-9)
+
+
+# ------------------------------------------------------------------------------------------------ ROI masks
+SHAPES = {
+    "circle": lambda: ROI.circle((0.0, 0.0), 10.0, edge_width=3.0),
+    "ellipse": lambda: ROI.ellipse((0.0, 0.0), (10.0, 6.0), edge_width=2.0),
+    "rectangle": lambda: ROI.rectangle((0.0, 0.0), (20.0, 12.0), edge_width=2.0),
+    "rounded_rectangle": lambda: ROI.rounded_rectangle((0.0, 0.0), (20.0, 12.0), corner_radius=3.0, edge_width=2.0),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SHAPES))
+def test_shape_mask_is_one_inside_zero_outside_monotone_across_edge(name):
+    roi = SHAPES[name]()
+    assert roi.shape == name
+    assert roi.mask.min() >= 0 and roi.mask.max() <= 1
+    w, h = roi.size
+    # along both axes through the centre (texel rows/columns), outwards: 1 at the centre, non-increasing, 0 at the rim
+    for direction in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        extent = (w if direction[0] else h) / 2
+        s = np.linspace(0, extent * 1.2, 400)
+        m = roi.factor(np.column_stack([s * direction[0], s * direction[1]]))
+        assert m[0] == 1.0
+        assert np.all(np.diff(m) <= 1e-7), f"{name}: m rises outwards along {direction}"
+        assert np.all(m[s >= extent] == 0.0)
+        assert np.any((m > 0) & (m < 1)), "no soft edge"
+    # far outside the box and well inside
+    assert roi.factor([[3 * w, 0], [0, 3 * h]]).tolist() == [0.0, 0.0]
+    assert roi.factor([[0.1, 0.1]])[0] == pytest.approx(1.0)
+
+
+def test_hard_edge_and_painted_mask_orientation():
+    hard = ROI.circle((0, 0), 5.0, edge_width=0.0, resolution=65)
+    assert set(np.unique(hard.mask)) == {0.0, 1.0}
+    painted = np.zeros((4, 6), np.uint8)
+    painted[0, :] = 255  # top row (north) painted
+    roi = ROI.painted(painted, (0.0, 0.0), (6.0, 4.0))
+    assert roi.mask.max() == 1.0 and roi.mask[-1].min() == 1.0  # row 0 of ROI.mask is the south edge
+    assert roi.factor([[0.0, 2.0]])[0] == 1.0 and roi.factor([[0.0, -2.0]])[0] == 0.0
+    assert roi.outline(), "a painted band has an outline"
+
+
+def test_generated_masks_follow_terrain_features():
+    heights = hills()
+    t = Terrain.from_heights(heights, spacing=(10.0, -10.0), origin=(1000.0, 5000.0))
+    band = ROI.height_band(t, 40.0, 60.0)
+    assert band.mask.shape == heights.shape
+    # the mask is the grid flipped to rows at increasing y: the north-up grid's last row is mask row 0
+    np.testing.assert_array_equal(band.mask[::-1] == 1.0, (heights >= 40) & (heights <= 60))
+    assert band.box == pytest.approx(t.extent)
+    soft = ROI.height_band(t, 40.0, 60.0, edge=5.0)
+    assert np.all(soft.mask >= band.mask) and np.any((soft.mask > 0) & (soft.mask < 1))
+    steep = ROI.slope_above(t, 30.0)
+    gy, gx = np.gradient(heights.astype(np.float64), 10.0, 10.0)
+    expected = np.degrees(np.arctan(np.hypot(gx, gy))) > 30.0
+    np.testing.assert_array_equal(steep.mask[::-1] == 1.0, expected)
+    level = ROI.stepped_level(t, 3, interval=10.0)
+    import stepterrain as st
+
+    values = st.isovalues(t.height_range, interval=10.0)
+    th = (values[:-1] + values[1:]) / 2
+    expected = (heights >= th[2]) & (heights < th[3])
+    np.testing.assert_array_equal(level.mask[::-1] == 1.0, expected)
+    region = ROI.height_band(t, 0, 100, region=(1050.0, 1200.0, 4800.0, 4900.0))
+    assert region.box == pytest.approx((1050.0, 1200.0, 4800.0, 4900.0))
+
+
+def test_outline_follows_the_shape():
+    roi = ROI.circle((100.0, 50.0), 10.0, edge_width=2.0)
+    (line,) = roi.outline(0.5)
+    r = np.hypot(line[:, 0] - 100.0, line[:, 1] - 50.0)
+    assert np.allclose(line[0], line[-1])  # closed
+    assert np.all(np.abs(r - 9.0) < 0.2)  # the 0.5 contour lies half an edge inside the rim
+
+
+# ------------------------------------------------------------------------------------------------ transform
+def test_matrix_is_rotation_scale_translation_about_the_roi():
+    m = closeup_matrix((10.0, 20.0), 5.0, 0.0, 0.0, (2.0, 3.0, 0.5), (1.0, 2.0, 3.0))
+    # the pivot O maps to O + p; a point one unit east maps sx units east of that
+    assert (m @ [10, 20, 5, 1]).tolist() == pytest.approx([11, 22, 8, 1])
+    assert (m @ [11, 20, 5, 1]).tolist() == pytest.approx([13, 22, 8, 1])
+    r = closeup_matrix((0.0, 0.0), 0.0, 0.0, math.pi / 2, 1.0, (0, 0, 0))
+    assert (r @ [1, 0, 0, 1]).tolist() == pytest.approx([0, 1, 0, 1])  # β turns about the vertical axis
+    a = closeup_matrix((0.0, 0.0), 0.0, math.pi / 2, 0.0, 1.0, (0, 0, 0))
+    assert (a @ [0, 1, 0, 1]).tolist() == pytest.approx([0, 0, 1, 1])  # α tilts about x
+    np.testing.assert_allclose(m, close_up_matrix(10, 20, 5, 0, 0, (2, 3, 0.5), (1, 2, 3)))
+
+
+def test_m_one_gives_M_v_and_m_zero_leaves_vertices_unchanged(device):
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+    cu = CloseUp(ROI.circle((40.0, 32.0), 20.0, edge_width=6.0), rotation=(0.3, 0.7), scale=(1.5, 2.0, 3.0),
+                 offset=(5.0, -3.0, 80.0))
+    (layer,) = closeup_layers(t, [cu], device=device)
+    assert_valid_mesh(layer.mesh())
+    ones = layer.mask_factor == 1.0
+    zeros = layer.mask_factor == 0.0
+    assert ones.sum() > 50 and zeros.sum() > 10
+    mv = (layer.matrix @ np.column_stack([layer.original, np.ones(len(layer.original))]).T).T[:, :3]
+    np.testing.assert_allclose(layer.vertices[ones], mv[ones], rtol=1e-6, atol=1e-4)
+    np.testing.assert_array_equal(layer.vertices[zeros], layer.original[zeros])  # bit for bit
+    inside = (layer.mask_factor > 0) & ~ones  # the soft edge lies on the segment V_O -> M·V_O
+    lam = layer.mask_factor[inside][:, None]
+    v_o = layer.original[inside]
+    np.testing.assert_allclose(layer.vertices[inside], v_o + lam * (mv[inside] - v_o),
+                               atol=1e-3)
+
+
+def test_culling_matches_the_whole_mesh_reference(device):
+    t = Terrain.from_heights(hills(), spacing=(2.0, -2.0), origin=(500.0, 800.0))
+    cus = [
+        CloseUp(ROI.circle((540.0, 770.0), 15.0), scale=2.0, offset=(0.0, 0.0, 60.0)),
+        CloseUp(ROI.rounded_rectangle((520.0, 750.0), (20.0, 14.0)), rotation=(0.2, -0.4), scale=(1.0, 1.5, 0.0),
+                offset=(-10.0, 5.0, 40.0)),
+        CloseUp(ROI.ellipse((575.0, 745.0), (12.0, 30.0)), scale=1.2, offset=(3.0, 3.0, 30.0)),  # clipped by the edge
+    ]
+    layers = closeup_layers(t, cus, device=device)
+    for cu, layer in zip(cus, layers, strict=True):
+        assert_valid_mesh(layer.mesh())
+        assert_matches_reference(t, cu, layer)
+    # one launch for all equals one call per close-up
+    for k, cu in enumerate(cus):
+        (alone,) = closeup_layers(t, [cu], device=device)
+        np.testing.assert_array_equal(alone.faces, layers[k].faces)
+        np.testing.assert_array_equal(alone.vertices, layers[k].vertices)
+
+
+def test_real_dem_against_reference(device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=40, step=8)
+    t = Terrain.from_heights(heights, spacing=(240.0, -240.0), origin=(376313.0, 3807917.0))
+    xmin, xmax, ymin, ymax = t.extent
+    cus = [CloseUp(ROI.circle(((xmin + xmax) / 2, (ymin + ymax) / 2), 2000.0), rotation=(0.1, 0.5), scale=2.0,
+                   offset=(0.0, 0.0, 3000.0)),
+           CloseUp(ROI.slope_above(t, 25.0, region=(xmin + 2000, xmin + 5000, ymin + 2000, ymin + 5000)),
+                   scale=1.5, offset=(0.0, 0.0, 2500.0))]
+    for cu, layer in zip(cus, closeup_layers(t, cus, device=device), strict=True):
+        assert len(layer.faces) > 0
+        assert_matches_reference(t, cu, layer, atol=5.0)  # UTM metres: float32 relative to the local origin
+
+
+def test_tin_terrain_is_culled_like_the_grid(device):
+    heights = hills(17, 19)
+    mesh = heightfield_mesh(heights, spacing=(3.0, 3.0))
+    cu = CloseUp(ROI.circle((27.0, 24.0), 10.0), scale=2.0, offset=(0.0, 0.0, 40.0))
+    (grid_layer,) = closeup_layers(Terrain.from_heights(heights, spacing=(3.0, 3.0)), [cu], device=device)
+    (tin_layer,) = closeup_layers(mesh, [cu], device=device)
+    np.testing.assert_array_equal(tin_layer.source_faces, grid_layer.source_faces)
+    np.testing.assert_allclose(tin_layer.vertices[tin_layer.faces], grid_layer.vertices[grid_layer.faces], atol=1e-4)
+    (strip,) = anchor_strips(mesh, [cu], device=device)  # a TIN's outline heights: its nearest vertex
+    bottom = strip.vertices[:: strip.rungs + 1]
+    assert len(bottom) > 10 and np.isfinite(strip.vertices).all()
+    assert heights.min() <= bottom[:, 2].min() and bottom[:, 2].max() <= heights.max()
+
+
+def test_nodata_faces_are_never_emitted(device):
+    heights = hills(21, 21)
+    heights[8:12, 8:12] = np.nan
+    t = Terrain.from_heights(heights)
+    (layer,) = closeup_layers(t, [CloseUp(ROI.circle((10.0, 10.0), 8.0), offset=(0, 0, 30.0))], device=device)
+    assert_valid_mesh(layer.mesh())
+    assert len(layer.faces) > 0
+
+
+def test_stepped_closeup_is_mpfr(device):
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+    cu = CloseUp(ROI.circle((40.0, 32.0), 20.0), scale=1.0, offset=(0.0, 0.0, 100.0), stepped=10.0)
+    (layer,) = closeup_layers(t, [cu], device=device)
+    assert_valid_mesh(layer.mesh())
+    assert layer.colors is not None and layer.colors.shape == (len(layer.vertices), 3)
+    assert np.all(layer.source_faces == -1)
+    # terrace heights of the close-up part (m = 1) are isovalues, lifted by the offset
+    import stepterrain as st
+
+    values = st.isovalues(t.height_range, interval=10.0)
+    full = layer.mask_factor == 1.0
+    z = layer.original[full, 2]
+    assert np.isin(np.round(z, 3), np.round(values, 3)).mean() > 0.5
+
+
+def test_spin_turns_the_closeup():
+    cu = CloseUp(ROI.circle((0, 0), 1.0), rotation=(0.0, 0.25), spin=(0.5, 2))
+    assert cu.turn(0.0) == 0.25
+    assert cu.turn(1.0) == pytest.approx(0.25 + math.pi)
+    assert cu.turn(100.0) == pytest.approx(0.25 + 4 * math.pi)  # stops after the repetitions
+
+
+@given(
+    cx=hs.floats(5.0, 75.0), cy=hs.floats(5.0, 60.0), radius=hs.floats(3.0, 30.0), edge=hs.floats(0.0, 1.0),
+    scale=hs.floats(0.2, 4.0), sz=hs.floats(0.0, 3.0), alpha=hs.floats(-3.2, 3.2), beta=hs.floats(-3.2, 3.2),
+    dz=hs.floats(-50.0, 200.0), seed=hs.integers(0, 3),
+)
+def test_property_kernel_equals_reference(cx, cy, radius, edge, scale, sz, alpha, beta, dz, seed):
+    t = Terrain.from_heights(hills(17, 21, seed), spacing=(4.0, 4.0))
+    cu = CloseUp(ROI.circle((cx, cy), radius, edge_width=edge * radius, resolution=33), rotation=(alpha, beta),
+                 scale=(scale, scale, sz), offset=(1.0, -2.0, dz))
+    (layer,) = closeup_layers(t, [cu], device="cpu")
+    assert_matches_reference(t, cu, layer)
+    if len(layer.faces):
+        assert_valid_mesh(layer.mesh())
+        assert np.all(layer.mask_factor[layer.faces].max(axis=1) > 0)
+
+
+# ------------------------------------------------------------------------------------------------ anchors
+def test_anchor_strips_join_outline_points_carry_color_and_follow_the_transfer_function(device):
+    heights = hills()
+    t = Terrain.from_heights(heights, spacing=(2.0, 2.0))
+    styles = ["linear", "ends", (0.1, 0.9, 0.3, 0.7)]
+    cus = [CloseUp(ROI.circle((30.0 + 12 * k, 32.0), 8.0), rotation=(0.2, 0.3 * k), scale=1.5,
+                   offset=(0.0, 0.0, 50.0 + 10 * k), color=c, anchor=AnchorStyle(s, rungs=4))
+           for k, (s, c) in enumerate(zip(styles, ["red", "#00ff00", (0.0, 0.0, 1.0)], strict=True))]
+    strips = anchor_strips(t, cus, device=device)
+    for cu, strip in zip(cus, strips, strict=True):
+        assert strip.color == cu.color
+        r1 = strip.rungs + 1
+        rings = strip.vertices.reshape(-1, r1, 3)
+        bottom, top = rings[:, 0], rings[:, -1]
+        # bottoms lie on the outline, on the terrain; tops are M applied to the bottoms
+        (line,) = cu.roi.outline(cu.anchor.outline_level)
+        np.testing.assert_allclose(bottom[:, :2], line, atol=1e-4)
+        tm = heightfield_mesh(heights, spacing=(2.0, 2.0))
+        from scipy.interpolate import RegularGridInterpolator
+
+        interp = RegularGridInterpolator((np.arange(heights.shape[0]) * 2.0, np.arange(heights.shape[1]) * 2.0),
+                                         heights.astype(np.float64))
+        np.testing.assert_allclose(bottom[:, 2], interp(bottom[:, [1, 0]]), atol=1e-3)
+        assert len(tm.faces)
+        mv = (strip.max_length and (np.column_stack([bottom, np.ones(len(bottom))]) @ cu.matrix(t.height_range[0]).T))
+        np.testing.assert_allclose(top, mv[:, :3], atol=1e-3)
+        # rungs are straight, evenly spaced; t = s·|M·V_O − V_O| / D
+        s = np.linspace(0, 1, r1)
+        np.testing.assert_allclose(rings, bottom[:, None] + s[None, :, None] * (top - bottom)[:, None], atol=1e-3)
+        lengths = np.linalg.norm(top - bottom, axis=1)
+        assert strip.max_length == pytest.approx(lengths.max(), rel=1e-5)
+        expected_t = (s[None, :] * lengths[:, None] / lengths.max()).reshape(-1)
+        np.testing.assert_allclose(strip.distance, expected_t, atol=1e-5)
+        table = cu.anchor.table
+        np.testing.assert_allclose(strip.opacity, np.interp(expected_t, np.linspace(0, 1, len(table)), table),
+                                   atol=1e-5)
+        # every face joins rung vertices of two consecutive outline points
+        point = strip.faces // r1
+        spans = point.max(axis=1) - point.min(axis=1)
+        assert np.all(spans == 1)
+        assert_valid_mesh(trimesh.Trimesh(strip.vertices, strip.faces, process=False))
+
+
+def test_scene_mesh_holds_overview_closeups_and_anchors():
+    from stepterrain.closeup import closeup_scene
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+    cus = [CloseUp(ROI.circle((30.0, 32.0), 8.0), offset=(0, 0, 50.0), color="red"),
+           CloseUp(ROI.circle((50.0, 32.0), 8.0), offset=(0, 0, 50.0), color="blue")]
+    scene = closeup_scene(t, cus, device="cpu")
+    assert_valid_mesh(scene)
+    layer = scene.face_attributes["layer"]
+    assert (layer == 0).sum() == 2 * 32 * 40
+    assert sorted(set(layer.tolist())) == [0, 1, 2, 3, 4]
+    anchor_vertices = np.unique(scene.faces[layer == 2])
+    colors = scene.visual.vertex_colors[anchor_vertices]
+    assert np.all(colors[:, :3] == [255, 0, 0])
+
+
+def test_transfer_function_presets_and_tables():
+    assert set(TRANSFER_PRESETS) >= {"opaque", "linear", "inverse", "ends", "hidden"}
+    assert transfer_function("hidden").max() == 0.0
+    np.testing.assert_allclose(transfer_function([0.0, 0.5, 1.0]), [0.0, 0.5, 1.0])
+    with pytest.raises(InvalidInputError, match="one of"):
+        transfer_function("rainbow")
+    with pytest.raises(InvalidInputError, match=r"\[0, 1\]"):
+        AnchorStyle((0.0, 1.5))
+    with pytest.raises(InvalidInputError, match="rungs"):
+        AnchorStyle(rungs=0)
+
+
+# ------------------------------------------------------------------------------------------------ compositing
+def test_composite_without_layers_is_the_base_and_follows_its_formula():
+    rng = np.random.default_rng(7)
+    h, w = 12, 16
+    base = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    base_depth = rng.uniform(0.2, 1.0, (h, w)).astype(np.float32)
+    np.testing.assert_array_equal(composite(base, base_depth, []), base)
+    layers = []
+    for k in range(4):
+        color = rng.uniform(0, 255, (h, w, 3))
+        alpha = rng.uniform(0, 1, (h, w)).astype(np.float32) * (rng.uniform(size=(h, w)) > 0.3)
+        depth = rng.uniform(0.0, 1.0, (h, w)).astype(np.float32)
+        layers.append((color, alpha, depth, k % 2 == 0, k % 3 != 1))
+    got = composite(base, base_depth, layers)
+    # the formula, pixel by pixel
+    expected = np.empty_like(base)
+    for i in range(h):
+        for j in range(w):
+            c = base[i, j].astype(np.float64)
+            z = float(base_depth[i, j])
+            for color, alpha, depth, test, writes in layers:
+                a = float(alpha[i, j])
+                if test and not depth[i, j] < z:
+                    a = 0.0
+                c = a * color[i, j] + (1 - a) * c
+                if writes and a > 0:
+                    z = float(depth[i, j])
+            expected[i, j] = np.clip(np.rint(c), 0, 255)
+    assert np.abs(got.astype(int) - expected.astype(int)).max() <= 1
+
+
+# ------------------------------------------------------------------------------------------------ bad input
+def test_bad_input_raises_clear_errors():
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+    roi = ROI.circle((40.0, 30.0), 10.0)
+    with pytest.raises(InvalidInputError, match="outside the terrain"):
+        closeup_layers(t, [CloseUp(ROI.circle((1000.0, 30.0), 10.0))], device="cpu")
+    for scale in (0.0, -1.0, (1.0, 0.0, 1.0), (1.0, 1.0, -2.0)):
+        with pytest.raises(InvalidInputError, match="scale must be positive"):
+            CloseUp(roi, scale=scale)
+    for rotation in ((math.nan, 0.0), (0.0, math.inf), (1.0,)):
+        with pytest.raises(InvalidInputError, match="rotation must be finite"):
+            CloseUp(roi, rotation=rotation)
+    with pytest.raises(InvalidInputError, match="2-D"):
+        ROI((0, 0), (1, 1), np.ones(5))
+    with pytest.raises(InvalidInputError, match="at least 2 x 2"):
+        ROI((0, 0), (1, 1), np.ones((1, 5)))
+    with pytest.raises(InvalidInputError, match=r"\[0, 1\]"):
+        ROI((0, 0), (1, 1), np.full((3, 3), 2.0))
+    with pytest.raises(InvalidInputError, match="finite"):
+        ROI((0, 0), (1, 1), np.full((3, 3), np.nan))
+    with pytest.raises(InvalidInputError, match="grayscale"):
+        ROI.painted(np.zeros((4, 4, 3), np.uint8), (0, 0), (1, 1))
+    with pytest.raises(InvalidInputError, match="size must be positive"):
+        ROI((0, 0), (0, 1), np.ones((3, 3)))
+    with pytest.raises(InvalidInputError, match="offset"):
+        CloseUp(roi, offset=(0.0, math.nan, 0.0))
+    with pytest.raises(InvalidInputError, match="color"):
+        CloseUp(roi, color="not-a-color")
+    with pytest.raises(InvalidInputError, match="CloseUp"):
+        closeup_layers(t, [roi], device="cpu")
+    assert max_closeups((1280, 720)) == 16 and max_closeups((128, 64)) == 2 and max_closeups((40, 40)) == 0

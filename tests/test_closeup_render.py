@@ -1,0 +1,276 @@
+"""Close-up renders (paper 001 §IV): layered passes and compositing, image regression, animation, CLI, examples."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import stepterrain.cli as cli
+from stepterrain import render
+from stepterrain.closeup import (
+    ROI,
+    AnchorStyle,
+    CloseUp,
+    animate_closeups,
+    render_closeups,
+    save_animation,
+)
+from stepterrain.errors import InvalidInputError, MissingDependencyError
+from stepterrain.terrain import Terrain
+
+from .test_closeup import hills
+
+AVAILABLE, REASON = render.offscreen_available()
+IMAGES = Path(__file__).resolve().parent / "image_cache"
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+SIZE = (160, 120)
+
+
+def terrain() -> Terrain:
+    return Terrain.from_heights(hills(), spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+
+
+def red_pixels(image: np.ndarray) -> np.ndarray:
+    rgb = image.astype(int)
+    return (rgb[..., 0] > 150) & (rgb[..., 1] < 90) & (rgb[..., 2] < 90)
+
+
+def one(**kwargs) -> CloseUp:
+    base = dict(scale=1.5, offset=(0.0, 0.0, 60.0), color="red")
+    base.update(kwargs)
+    return CloseUp(ROI.circle((1040.0, 2030.0), 12.0), **base)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_no_closeups_composite_equals_the_overview_render():
+    t = terrain()
+    mesh = t.mesh()
+    composite = render_closeups(t, [], window_size=SIZE, scalars=None, device="cpu")
+    plain = render.render_mesh(mesh, window_size=SIZE, bounds=mesh.bounds)
+    assert composite.shape == plain.shape == (SIZE[1], SIZE[0], 3)
+    assert np.abs(composite.astype(int) - plain.astype(int)).max() <= 1
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_closeup_and_anchor_appear_in_the_closeup_color():
+    t = terrain()
+    active = render_closeups(t, [one(anchor=AnchorStyle("opaque"))], window_size=SIZE, device="cpu")
+    assert red_pixels(active).sum() > 100, "the opaque red anchor is missing"
+    hidden = render_closeups(t, [one(anchor=AnchorStyle("opaque", inactive="hidden"), active=False)],
+                             window_size=SIZE, device="cpu")
+    gray = render_closeups(t, [one(anchor=AnchorStyle("opaque", inactive="gray"), active=False)], window_size=SIZE,
+                           device="cpu")
+    faint = render_closeups(t, [one(anchor=AnchorStyle("opaque", inactive="faint"), active=False)],
+                            window_size=SIZE, device="cpu")
+    assert red_pixels(hidden).sum() == 0 and red_pixels(gray).sum() == 0
+    assert 0 <= red_pixels(faint).sum() < red_pixels(active).sum()
+    assert np.abs(hidden.astype(int) - gray.astype(int)).sum() > 0  # the gray anchor is drawn
+    band = render_closeups(t, [one(anchor=AnchorStyle("opaque", band=True))], window_size=SIZE, device="cpu")
+    assert red_pixels(band).sum() > 100, "the paper's SPFR anchor (soft-edge faces) is missing"
+    none = render_closeups(t, [one(anchor=AnchorStyle("hidden"))], window_size=SIZE, device="cpu")
+    assert red_pixels(none).sum() == 0
+    # the close-up content itself: more non-background pixels than without it
+    plain = render_closeups(t, [], window_size=SIZE, device="cpu", bounds=[(1000, 2000, 0), (1080, 2064, 160)])
+    shown = render_closeups(t, [one(anchor=AnchorStyle("hidden"))], window_size=SIZE, device="cpu",
+                            bounds=[(1000, 2000, 0), (1080, 2064, 160)])
+    assert ((shown < 250).any(axis=2).sum()) > ((plain < 250).any(axis=2).sum()) + 50
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_billboard_and_mpfr_closeups_render():
+    t = terrain()
+    board = render_closeups(t, [one(view="billboard", scalars="slope", anchor=AnchorStyle("hidden"))],
+                            window_size=SIZE, device="cpu")
+    plain = render_closeups(t, [one(anchor=AnchorStyle("hidden"), scale=1e-3)], window_size=SIZE, device="cpu")
+    assert np.abs(board.astype(int) - plain.astype(int)).sum() > 0
+    stepped = render_closeups(t, [one(stepped=5.0)], window_size=SIZE, device="cpu")
+    assert stepped.std() > 5
+    # an aerial texture on the close-up only (MPFR): a pure green image shows up as green pixels
+    green = np.zeros((8, 8, 3), np.uint8)
+    green[..., 1] = 255
+    textured = render_closeups(t, [one(texture=green, anchor=AnchorStyle("hidden"))], window_size=SIZE,
+                               scalars=None, device="cpu")
+    rgb = textured.astype(int)
+    assert ((rgb[..., 1] > 100) & (rgb[..., 0] < 60) & (rgb[..., 2] < 60)).sum() > 50
+    with pytest.raises(InvalidInputError, match="texture"):
+        one(texture=np.zeros((4, 4), np.uint8))
+
+
+# ------------------------------------------------------------------------------------------------ regression
+REGRESSION = {
+    "closeup_circle": lambda: [one()],
+    "closeup_two_mappings": lambda: [
+        one(stepped=5.0, color="#1f77b4", anchor=AnchorStyle("ends")),
+        CloseUp(ROI.rounded_rectangle((1060.0, 2040.0), (20.0, 14.0)), scale=1.2, offset=(5.0, 0.0, 50.0),
+                rotation=(0.3, 0.4), scalars="slope", color="#2ca02c"),
+    ],
+}
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("name", sorted(REGRESSION))
+def test_image_regression(name):
+    from PIL import Image
+
+    image = render_closeups(terrain(), REGRESSION[name](), window_size=SIZE, camera="oblique", device="cpu")
+    path = IMAGES / f"{name}.png"
+    if os.environ.get("STEPTERRAIN_UPDATE_IMAGES") or not path.exists():
+        render.save_png(image, path)
+        pytest.skip(f"reference image {path.name} written; re-run to compare")
+    with Image.open(path) as ref:
+        expected = np.asarray(ref.convert("RGB")).astype(int)
+    diff = np.abs(image.astype(int) - expected)
+    assert diff.mean() < 2.0, f"mean difference {diff.mean():.2f} against {path.name}"
+    assert (diff.max(axis=2) > 60).mean() < 0.01, "more than 1% of the pixels changed a lot"
+
+
+# ------------------------------------------------------------------------------------------------ animation
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_spinning_closeup_animates_and_saves(tmp_path):
+    import imageio.v3 as iio
+
+    frames = animate_closeups(terrain(), [one(spin=(0.5, 1), rotation=(0.4, 0.0))], frames=3, fps=2.0,
+                              window_size=SIZE, device="cpu")
+    assert len(frames) == 3 and frames[0].shape == (SIZE[1], SIZE[0], 3)
+    assert np.abs(frames[0].astype(int) - frames[1].astype(int)).sum() > 0, "the close-up did not turn"
+    gif = save_animation(frames, tmp_path / "spin.gif", fps=2.0)
+    assert iio.imread(gif, index=None).shape[0] == 3
+    with pytest.raises(InvalidInputError, match=".gif or .mp4"):
+        save_animation(frames, tmp_path / "spin.avi")
+    if importlib.util.find_spec("imageio_ffmpeg") is None:
+        with pytest.raises(MissingDependencyError, match="imageio-ffmpeg"):
+            save_animation(frames, tmp_path / "spin.mp4")
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_reused_renderer_and_overview_pass_give_the_same_image():
+    t = terrain()
+    box = [(1000, 2000, 0), (1080, 2064, 160)]
+    fresh = render_closeups(t, [one()], window_size=SIZE, bounds=box, device="cpu")
+    with render.LayeredRenderer(window_size=SIZE) as renderer:
+        first = render_closeups(t, [one()], window_size=SIZE, bounds=box, renderer=renderer, reuse_overview=True,
+                                device="cpu")
+        second = render_closeups(t, [one(rotation=(0.0, 0.5))], window_size=SIZE, bounds=box, renderer=renderer,
+                                 reuse_overview=True, device="cpu")
+        third = render_closeups(t, [one()], window_size=SIZE, bounds=box, renderer=renderer, reuse_overview=True,
+                                device="cpu")
+    np.testing.assert_array_equal(first, fresh)
+    np.testing.assert_array_equal(third, fresh)
+    assert np.abs(second.astype(int) - fresh.astype(int)).sum() > 0
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_merged_passes_equal_one_pass_per_layer():
+    t = terrain()
+    cus = [CloseUp(ROI.circle((1008.0 + 24 * k, 2030.0), 6.0), scale=1.2, offset=(0.0, 0.0, 30.0),
+                   anchor=AnchorStyle(style), scalars="slope" if k == 1 else None)
+           for k, style in enumerate(["opaque", "ends", "linear"])]
+    box = [(1000, 2000, 0), (1080, 2064, 120)]
+    separate = render_closeups(t, cus, window_size=(320, 200), bounds=box, merge_passes=False, device="cpu")
+    with render.LayeredRenderer(window_size=(320, 200)) as renderer:
+        merged = render_closeups(t, cus, window_size=(320, 200), bounds=box, renderer=renderer, device="cpu")
+        names = set(renderer._actors)
+    assert any("merged" in name for name in names), f"nothing was merged: {sorted(names)}"
+    diff = np.abs(merged.astype(int) - separate.astype(int))
+    # VTK shifts each vertex buffer by its own bounds before float32: a merged mesh rounds a hair differently
+    assert diff.max() <= 3 and (diff.max(axis=2) > 0).mean() < 1e-3
+
+
+def test_too_many_closeups_for_the_window():
+    cus = [one()] * 3
+    with pytest.raises(InvalidInputError, match="too many close-ups"):
+        render_closeups(terrain(), cus, window_size=(128, 64), device="cpu")
+
+
+# ------------------------------------------------------------------------------------------------ CLI
+@pytest.fixture
+def dem(tmp_path) -> Path:
+    path = tmp_path / "dem.npy"
+    np.save(path, hills())
+    return path
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_closeup_writes_png_and_gif(dem, tmp_path, capsys):
+    from PIL import Image
+
+    out = tmp_path / "out" / "closeup.png"
+    gif = tmp_path / "out" / "spin.gif"
+    argv = ["closeup", str(dem), "--roi-relative", "0.3,0.5,0.2", "--roi", "30,-16,6", "--scale", "1.5",
+            "--offset", "0,0,40", "--stepped", "5", "--stepped", "0", "--size", "160x120", "-o", str(out),
+            "--gif", str(gif), "--frames", "2", "--device", "cpu"]
+    assert cli.main(argv) == 0
+    with Image.open(out) as image:
+        assert image.size == (160, 120)
+    assert gif.exists()
+    assert "rendering 2 close-ups" in capsys.readouterr().err
+
+
+def test_cli_closeup_writes_a_scene_mesh(dem, tmp_path):
+    import trimesh
+
+    out = tmp_path / "scene.ply"
+    assert cli.main(["closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--offset", "0,0,40", "-o", str(out),
+                     "--device", "cpu"]) == 0
+    scene = trimesh.load(out, process=False)
+    assert len(scene.faces) > 2 * 32 * 40  # the overview and more
+    assert scene.visual.vertex_colors.shape[0] == len(scene.vertices)
+
+
+def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
+    out = str(tmp_path / "x.png")
+    assert cli.main(["closeup", str(dem), "--roi", "9999,9999,5", "-o", out, "--size", "160x120"]) == 2
+    assert "outside the terrain" in capsys.readouterr().err
+    assert cli.main(["closeup", str(dem), "--scale", "0", "-o", out]) == 2
+    assert "scale must be positive" in capsys.readouterr().err
+    assert cli.main(["closeup", str(dem), "-o", str(tmp_path / "x.jpg")]) == 2
+    assert cli.main(["closeup", str(dem), "--roi", "1,2", "-o", out]) == 2
+    assert cli.main(["closeup", str(dem), "--roi", "5,5,2", "--roi", "9,9,2", "--offset", "0,0,1",
+                     "--offset", "0,0,2", "--offset", "0,0,3", "-o", out]) == 2
+    assert "once per ROI" in capsys.readouterr().err
+
+
+def test_cli_closeup_help_has_examples(capsys):
+    assert cli.main(["closeup", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert "examples:" in text and "--roi" in text and "--stepped" in text
+
+
+# ------------------------------------------------------------------------------------------------ examples
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("name", ["closeup_mappings", "closeup_anchors"])
+def test_examples_write_their_pictures(name, tmp_path):
+    from PIL import Image
+
+    example = load_example(name)
+    assert example.__doc__ and "paper 001" in example.__doc__
+    out = tmp_path / f"{name}.png"
+    argv = ["--size", "48", "--window", "192", "128", "--output", str(out), "--device", "cpu"]
+    if name == "closeup_mappings":
+        argv += ["--gif", str(tmp_path / "spin.gif"), "--frames", "2"]
+    assert example.main(argv) == 0
+    with Image.open(out) as image:
+        picture = np.asarray(image)
+    assert picture.shape[:2] == (128, 192) and picture.std() > 5
+    if name == "closeup_mappings":
+        assert (tmp_path / "spin.gif").exists()

@@ -1,0 +1,477 @@
+"""Global terrain on the cube sphere (paper 003): grid, hierarchy parameters, metrics, refinement, bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import Phase, given, settings
+from hypothesis import strategies as hst
+
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
+from stepterrain.globe import EARTH_RADIUS, Camera, Globe, load_global_relief
+
+from . import reference_globe as ref
+from .conftest import SHARED_DATA, assert_valid_mesh
+
+# shared/data beside the project; a worktree one level deeper (wt/<name>) finds it one level up
+_DATA_DIRS = [SHARED_DATA, Path(__file__).resolve().parents[3] / "shared" / "data"]
+
+
+def shared_file(name: str) -> Path:
+    for folder in _DATA_DIRS:
+        if (folder / name).exists():
+            return folder / name
+    pytest.skip(f"shared data {name} not found in {[str(d) for d in _DATA_DIRS]}")
+
+R = EARTH_RADIUS
+LAT1 = np.linspace(89.5, -89.5, 180)
+LON1 = np.linspace(-179.5, 179.5, 360)
+
+
+def real_1deg() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    with np.load(shared_file("global_relief_1deg.npz")) as d:
+        return np.asarray(d["lat"]), np.asarray(d["lon"]), np.asarray(d["elevation"])
+
+
+@pytest.fixture(scope="module")
+def small_globe() -> Globe:
+    lat, lon, z = real_1deg()
+    return Globe.from_latlon(z, lat, lon, face_size=17, exaggeration=20.0, device="cpu")
+
+
+@pytest.fixture(scope="module")
+def sample_globe() -> Globe:
+    return Globe.sample(face_size=65, device="cpu")
+
+
+def welded(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    m = mesh.copy()
+    m.merge_vertices(digits_vertex=3)
+    return m
+
+
+# ------------------------------------------------------------------------------------------ 1. grid
+@pytest.mark.parametrize("face_size", [3, 5, 9, 33])
+def test_full_resolution_sphere(face_size, device):
+    lat, lon, z = real_1deg()
+    g = Globe.from_latlon(z, lat, lon, face_size=face_size, exaggeration=10.0, device=device)
+    m = g.mesh()
+    cells = face_size - 1
+    assert_valid_mesh(m)
+    assert len(m.vertices) == 6 * cells**2 + 2
+    assert len(m.faces) == 12 * cells**2
+    assert m.is_watertight and m.is_winding_consistent and m.euler_number == 2
+    assert m.volume > 0  # counter-clockwise seen from outside
+    # already welded: merging by position changes nothing
+    assert len(welded(m).vertices) == len(m.vertices)
+    # every vertex at R + exaggeration * z
+    heights = g.heights.reshape(-1)[m.metadata["node_entry"]].astype(np.float64)
+    radius = np.linalg.norm(m.vertices, axis=1)
+    np.testing.assert_allclose(radius, R + heights, rtol=0, atol=1e-9 * R)
+
+
+def test_seam_copies_are_bit_identical(small_globe):
+    g = small_globe
+    cells = g.cells
+    pos = g.positions.reshape(-1, 3)
+    heights = g.heights.reshape(-1)
+    params = {k: v.reshape(-1) for k, v in g.node_parameters().items()}
+    shared = 0
+    for entries in ref.entries_by_point(cells).values():
+        if len(entries) > 1:
+            shared += 1
+            assert (pos[entries] == pos[entries[0]]).all()
+            assert (heights[entries] == heights[entries[0]]).all()
+            for values in params.values():
+                assert (values[entries] == values[entries[0]]).all()
+    assert shared == 12 * (cells - 1) + 8  # edge nodes and corners
+
+
+def test_positions_match_reference_projection(small_globe):
+    g = small_globe
+    expected = ref.positions(g.heights.reshape(-1).astype(np.float64), g.cells, g.radius)
+    np.testing.assert_allclose(g.positions.reshape(-1, 3), expected, rtol=0, atol=1.0)  # float32 at R
+
+
+def test_resampling_matches_bilinear_reference():
+    lat, lon, z = real_1deg()
+    g = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    heights = g.heights.reshape(-1)
+    for point, entries in ref.entries_by_point(8).items():
+        w = np.array(point, dtype=np.float64)
+        w /= np.linalg.norm(w)
+        qlat = math.degrees(math.asin(w[2]))
+        qlon = math.degrees(math.atan2(w[1], w[0]))
+        expected = ref.bilinear_latlon(z.astype(np.float64), lat, lon, qlat, qlon)
+        assert heights[entries[0]] == pytest.approx(expected, abs=0.05)
+
+
+def test_resampling_wraps_longitude_and_handles_poles():
+    # a field that is smooth on the sphere: z = 1000 * x-component of the direction
+    lat = np.linspace(89.75, -89.75, 360)
+    lon = np.linspace(0.25, 359.75, 720)  # starts at 0, not -180: wrap-around must still hold
+    la, lo = np.meshgrid(np.radians(lat), np.radians(lon), indexing="ij")
+    z = 1000.0 * np.cos(la) * np.cos(lo)
+    g = Globe.from_latlon(z, lat, lon, face_size=17, device="cpu")
+    pos = g.positions.reshape(-1, 3).astype(np.float64)
+    direction = pos / np.linalg.norm(pos, axis=1, keepdims=True)
+    np.testing.assert_allclose(g.heights.reshape(-1), 1000.0 * direction[:, 0], atol=2.0)
+    # ascending lat and a closing longitude column give the same globe
+    lon_closed = np.append(lon, lon[0] + 360.0)
+    z_closed = np.concatenate([z, z[:, :1]], axis=1)
+    g2 = Globe.from_latlon(z_closed[::-1], lat[::-1], lon_closed, face_size=17, device="cpu")
+    np.testing.assert_array_equal(g2.heights, g.heights)
+
+
+# ------------------------------------------------------------------------------------------ 2. hierarchy
+def test_hierarchy_matches_reference_and_is_saturated_and_nested(small_globe):
+    g = small_globe
+    cells = g.cells
+    pos32 = g.positions.reshape(-1, 3)
+    params = {k: v.reshape(-1).astype(np.float64) for k, v in g.node_parameters().items()}
+    by_point = ref.entries_by_point(cells)
+    exact = ref.node_parameters(pos32, cells)
+    _, children, _ = ref.bisection_tree(cells)
+    p = {pt: pos32[e[0]].astype(np.float64) for pt, e in by_point.items()}
+    assert len(exact) == 6 * cells**2 + 2 - 8  # every node but the cube corners refines a triangle
+    for pt, (e, r, h, alpha) in exact.items():
+        k = by_point[pt][0]
+        got = [params[name][k] for name in ("geometric_error", "bounding_radius", "cone_height", "cone_angle")]
+        # kernel values are the exact ones plus the level-wise margin (relative 2^-20 per level, tiny absolute)
+        for value, want, absolute in zip(got, (e, r, h, alpha), (1e-6 * R, 1e-5 * R, 1e-5 * R, 1e-5), strict=True):
+            assert want - 1e-9 * (want + 1) <= value <= want * (1 + 1e-4) + absolute
+        # saturation e(parent) >= e(child), and nesting of every descendant vertex, in float64 on the float32
+        # positions the metric uses: no tolerance
+        v = p[pt]
+        for c in children.get(pt, ()):
+            kc = by_point[c][0]
+            assert params["geometric_error"][k] >= params["geometric_error"][kc]
+            assert params["bounding_radius"][k] >= params["bounding_radius"][kc]
+        for d in ref.descendants(pt, children):
+            x = p[d]
+            assert np.linalg.norm(x - v) <= params["bounding_radius"][k]
+            assert abs(np.linalg.norm(x) - np.linalg.norm(v)) <= params["cone_height"][k]
+            angle = math.atan2(np.linalg.norm(np.cross(v, x)), v @ x)
+            assert angle <= params["cone_angle"][k]
+
+
+# ------------------------------------------------------------------------------------------ 3. metrics
+def _distances(centres, params, eye, plane):
+    import warp as wp
+    from stepterrain.kernels import bounds as bk
+
+    from stepterrain._device import resolve_device
+
+    device = resolve_device("cpu")
+    out = wp.empty(len(centres), dtype=wp.vec4d, device=device)
+    wp.launch(bk.evaluate_shape_distances, dim=len(centres),
+              inputs=[0, wp.array(centres, dtype=wp.vec3d, device=device),
+                      wp.array(params, dtype=wp.vec3d, device=device),
+                      wp.vec3d(*eye), wp.vec4d(*plane)], outputs=[out], device=device)
+    return out.numpy()
+
+
+def _eye_case(eye, p, h, alpha):
+    beta = math.atan2(np.linalg.norm(np.cross(eye, p)), eye @ p)
+    v, pl = np.linalg.norm(eye), np.linalg.norm(p)
+    if beta <= alpha:
+        return 1 if v > pl + h else 3 if v < pl - h else 2
+    gamma = beta - alpha
+    if gamma < math.pi / 2:
+        t1, t2 = (pl - h) / math.cos(gamma), (pl + h) / math.cos(gamma)
+        if t1 <= v <= t2:
+            return 5
+        if v > t2:
+            return 4
+    return 6
+
+
+def test_eye_distance_formulas_agree_with_brute_force_in_all_six_cases():
+    rng = np.random.default_rng(3)
+    p = np.array([0.0, 0.0, 10.0])
+    h, alpha = 1.0, 0.3
+    eyes = []
+    cases = set()
+    while len(eyes) < 120:
+        eye = rng.normal(size=3) * rng.uniform(1, 20)
+        if ref.inside_cone(eye, p, h, alpha) and len([e for e in eyes if ref.inside_cone(e, p, h, alpha)]) > 10:
+            continue
+        eyes.append(eye)
+        cases.add(_eye_case(eye, p, h, alpha))
+    for eye in ([0.0, 0.0, 10.2], [0.0, 0.5, 5.0], [0.0, 0.2, 14.0], [0.0, 6.0, 12.0], [0.0, 5.0, 9.0],
+                [0.0, 3.0, -4.0]):
+        eyes.append(np.array(eye))
+        cases.add(_eye_case(eyes[-1], p, h, alpha))
+    assert cases == {1, 2, 3, 4, 5, 6}
+    samples = ref.cone_surface_samples(p, h, alpha, count=120)
+    for eye in eyes:
+        got = _distances([p], [(2.0, h, alpha)], eye, (0, 0, 1, 0))[0]
+        brute = 0.0 if ref.inside_cone(eye, p, h, alpha) else np.linalg.norm(samples - eye, axis=1).min()
+        assert got[1] == pytest.approx(brute, abs=0.02 + 1e-3 * brute)
+        assert got[0] == pytest.approx(max(np.linalg.norm(p - eye) - 2.0, 0.0))
+
+
+def test_plane_distance_formulas_agree_with_brute_force_in_all_three_cases():
+    rng = np.random.default_rng(4)
+    p = np.array([3.0, -2.0, 9.0])
+    h, alpha = 0.8, 0.25
+    samples = ref.cone_surface_samples(p, h, alpha, count=150)
+    axis = p / np.linalg.norm(p)
+    cases = set()
+    for _ in range(60):
+        n = rng.normal(size=3)
+        n /= np.linalg.norm(n)
+        a = rng.uniform(-12, 12)
+        gamma = math.acos(np.clip(n @ axis, -1, 1)) - alpha
+        cases.add(1 if gamma <= 0 else 2 if gamma <= math.pi / 2 else 3)
+        got = _distances([p], [(1.0, h, alpha)], (0, 0, 0), (*n, a))[0]
+        assert got[3] == pytest.approx((samples @ n + a).max(), abs=2e-3)
+        assert got[2] == pytest.approx(n @ p + a + 1.0)
+        # inverted-plane test: max over the inverted plane is minus the min
+        inv = _distances([p], [(1.0, h, alpha)], (0, 0, 0), (*(-n), -a))[0]
+        assert -inv[3] == pytest.approx((samples @ n + a).min(), abs=2e-3)
+    assert cases == {1, 2, 3}
+
+
+def test_camera_planes_contain_what_it_sees():
+    cam = Camera(eye=(0.0, -10.0, 0.0), target=(0.0, 0.0, 0.0), fov=math.radians(60), aspect=1.5, near=1.0,
+                 far=50.0)
+    planes = cam.planes()
+    assert planes.shape == (6, 4)
+    np.testing.assert_allclose(np.linalg.norm(planes[:, :3], axis=1), 1.0)
+    inside = np.array([[0, 0, 0], [2, 5, 1], [0, 39, 0]])
+    outside = np.array([[0, -10.5, 0], [0, 45, 0], [30, 0, 0], [0, 0, 30]])
+    assert ((inside @ planes[:, :3].T + planes[:, 3]) <= 0).all()
+    assert (((outside @ planes[:, :3].T + planes[:, 3]) > 0).any(axis=1)).all()
+
+
+# ------------------------------------------------------------------------------------------ 4. refinement
+def _triangles_as_points(mesh, g):
+    pts = ref_points = {}
+    del pts
+    entries = mesh.metadata["node_entry"]
+    n = g.face_size
+    keys = []
+    for face in np.asarray(mesh.faces):
+        tri = []
+        for v in face:
+            e = int(entries[v])
+            tri.append(ref.cube_point(e // (n * n), (e % (n * n)) // n, e % n, g.cells))
+        keys.append(tuple(sorted(tri)))
+    del ref_points
+    return sorted(keys)
+
+
+def test_refinement_matches_reference_visit(small_globe):
+    """The breadth-first Warp refinement equals the recursive visit of §5.2 run on the same parameters."""
+    g = small_globe
+    params = {k: v.reshape(-1) for k, v in g.node_parameters().items()}
+    pos = g.positions.reshape(-1, 3).astype(np.float64)
+    n = g.face_size
+    eps = 200.0
+    levels, _, _ = ref.bisection_tree(g.cells)
+    # recursive visit with μ = e
+    out = []
+
+    def visit(f, a, b, c):
+        if ref.splits(a, b):
+            m = ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2)
+            if params["geometric_error"][f * n * n + m[0] * n + m[1]] > eps:
+                visit(f, c, a, m)
+                visit(f, b, c, m)
+                return
+        out.append(tuple(sorted(ref.cube_point(f, *q, g.cells) for q in (a, b, c))))
+
+    for f, a, b, c in levels[0]:
+        visit(f, a, b, c)
+    mesh = g.mesh(error=eps)
+    assert _triangles_as_points(mesh, g) == sorted(out)
+    del pos
+
+
+@settings(max_examples=12, phases=[Phase.explicit, Phase.reuse, Phase.generate])
+@given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
+       error=hst.floats(20.0, 2000.0), cone=hst.booleans(), seed=hst.integers(0, 10**6))
+def test_random_views_are_crack_free(sample_globe, distance, lon, lat, error, cone, seed):
+    g = sample_globe
+    rng = np.random.default_rng(seed)
+    eye = distance * R * np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    target = rng.normal(size=3) * 0.5 * R
+    cam = Camera(eye=tuple(eye), target=tuple(target), up=tuple(rng.normal(size=3)), fov=rng.uniform(0.3, 1.2),
+                 aspect=rng.uniform(0.5, 2.0), near=1.0, far=rng.uniform(0.5, 5.0) * R)
+    bounds = "cone" if cone else "sphere"
+    closed = g.mesh(error=error, camera=cam, bounds=bounds, cull=False)
+    assert_valid_mesh(closed)
+    assert closed.is_watertight and closed.is_winding_consistent and closed.euler_number == 2
+    assert len(welded(closed).vertices) == len(closed.vertices)  # no duplicated node, hence no crack
+    culled = g.mesh(error=error, camera=cam, bounds=bounds)
+    if len(culled.faces):
+        assert_valid_mesh(culled)
+        planes = cam.planes()
+        corner_out = (culled.vertices @ planes[:, :3].T + planes[:, 3]) > 0  # (V, 6)
+        wholly = corner_out[np.asarray(culled.faces)].all(axis=1).any(axis=1)
+        assert not wholly.any(), "a triangle wholly outside the frustum survived culling"
+        # culling only removes triangles: every kept face is a face of the closed mesh
+        def key(m):
+            return {tuple(sorted(t)) for t in np.asarray(m.metadata["node_entry"])[np.asarray(m.faces)].tolist()}
+
+        assert key(culled) <= key(closed)
+    # larger error: no more triangles; farther eye (distance metric, same ℓ): no more triangles
+    assert len(g.mesh(error=2 * error, camera=cam, bounds=bounds, cull=False).faces) <= len(closed.faces)
+    far = Camera(eye=tuple(2 * eye), target=cam.target, up=cam.up, fov=cam.fov, aspect=cam.aspect, near=cam.near,
+                 far=cam.far)
+    scale = np.linalg.norm(eye) - R
+    options = {"error": error, "bounds": bounds, "distance_scale": scale, "metrics": ("geometric", "distance")}
+    assert len(g.mesh(camera=far, **options).faces) <= len(g.mesh(camera=cam, **options).faces)
+
+
+def test_geometric_error_alone_decreases_with_error(sample_globe):
+    counts = [len(sample_globe.mesh(error=e).faces) for e in (0, 50, 200, 1000, 5000, 1e7)]
+    assert counts == sorted(counts, reverse=True)
+    assert counts[0] == 12 * 64**2 and counts[-1] == 12
+
+
+def test_cones_need_fewer_triangles_than_spheres(sample_globe):
+    cam = Camera(eye=(1.15 * R, 0.0, 0.3 * R), target=(0.0, 0.0, 0.0), fov=0.7)
+    cones = len(sample_globe.mesh(error=100.0, camera=cam, bounds="cone").faces)
+    spheres = len(sample_globe.mesh(error=100.0, camera=cam, bounds="sphere").faces)
+    assert cones < spheres
+
+
+def test_metrics_switch_and_user_metric(sample_globe):
+    cam = Camera(eye=(1.5 * R, 0.0, 0.0), target=(0.0, 0.0, 0.0), fov=0.5)
+    geo = sample_globe.mesh(error=500.0, metrics=("geometric",), camera=cam)
+    assert len(geo.faces) == len(sample_globe.mesh(error=500.0).faces)
+    clip = sample_globe.mesh(error=500.0, metrics=("geometric", "clip"), camera=cam)
+    assert len(clip.faces) < len(geo.faces)
+
+    def northern(points, radius):
+        return (points[:, 2] + radius > 0).astype(float)  # saturated: a parent's sphere holds its children's
+
+    north = sample_globe.mesh(error=500.0, metrics=("geometric", northern))
+    assert 0 < len(north.faces) < len(geo.faces)
+    assert north.is_watertight
+    south_centres = north.triangles_center[:, 2] < -0.3 * R
+    assert north.area_faces[south_centres].min() > geo.area_faces.min()
+
+
+def test_per_face_meshes_have_uv(sample_globe):
+    parts = sample_globe.mesh(error=300.0, per_face=True)
+    whole = sample_globe.mesh(error=300.0)
+    assert len(parts) == 6
+    assert sum(len(p.faces) for p in parts) == len(whole.faces)
+    for p in parts:
+        uv = p.visual.uv
+        assert uv.shape == (len(p.vertices), 2) and uv.min() >= 0 and uv.max() <= 1
+        assert p.is_winding_consistent
+
+
+def test_cpu_and_cuda_agree(device):
+    lat, lon, z = real_1deg()
+    g = Globe.from_latlon(z, lat, lon, face_size=33, device=device)
+    cam = Camera(eye=(1.3 * R, 0.2 * R, 0.1 * R), target=(0.0, 0.0, 0.0))
+    m = g.mesh(error=100.0, camera=cam)
+    g_cpu = Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")
+    m_cpu = g_cpu.mesh(error=100.0, camera=cam)
+    np.testing.assert_array_equal(m.faces, m_cpu.faces)
+    np.testing.assert_allclose(m.vertices, m_cpu.vertices, rtol=1e-12)
+
+
+def test_colours_by_elevation_and_draped_image(small_globe):
+    from stepterrain.globe import drape_colors, elevation_colors, look_from
+
+    mesh = small_globe.mesh(error=500.0)
+    image = np.zeros((90, 180, 3), np.uint8)
+    image[:, :90] = (255, 0, 0)  # western hemisphere red
+    image[:, 90:] = (0, 0, 255)  # eastern blue
+    colours = drape_colors(mesh.vertices, image)
+    lon = np.degrees(np.arctan2(mesh.vertices[:, 1], mesh.vertices[:, 0]))
+    west, east = (lon < -10) & (lon > -170), (lon > 10) & (lon < 170)
+    assert (colours[west, 0] == 255).all() and (colours[east, 2] == 255).all()
+    heights = np.array([-5000.0, -10.0, 10.0, 4000.0])
+    rgba = elevation_colors(heights)
+    assert rgba.shape == (4, 4) and rgba.dtype == np.uint8
+    assert rgba[0, 2] > rgba[0, 0] and rgba[3, 0] > rgba[2, 0]  # sea blue; high land lighter than lowland
+    cam = look_from(45.0, 90.0, 1.0e6, tilt=30.0, heading=90.0)
+    assert np.linalg.norm(cam.eye) == pytest.approx(R + 1.0e6)
+    with pytest.raises(InvalidInputError, match="texture must be"):
+        drape_colors(mesh.vertices, np.zeros((4, 4)))
+
+
+def test_sample_loads_the_embedded_grid():
+    lat, lon, z = load_global_relief()
+    assert z.shape == (540, 1080) and lat[0] > lat[-1] and lon[0] < lon[-1]
+    g = Globe.sample(face_size=9, device="cpu")
+    assert -11000 < g.heights.min() < 0 < g.heights.max() < 9000
+    assert "Globe(face_size=9" in repr(g)
+
+
+# ------------------------------------------------------------------------------------------ 7. bad input
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"face_size": 100}, "face_size must be 2"),
+        ({"face_size": 2}, "face_size must be 2"),
+        ({"face_size": 9.0}, "face_size must be an int"),
+        ({"radius": 0.0}, "radius must be a positive"),
+        ({"radius": -5.0}, "radius must be a positive"),
+        ({"exaggeration": float("nan")}, "exaggeration must be a positive"),
+    ],
+)
+def test_bad_globe_arguments(kwargs, match):
+    args = {"face_size": 9, **kwargs}
+    with pytest.raises(InvalidInputError, match=match):
+        Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, device="cpu", **args)
+
+
+def test_bad_latlon_grids():
+    z = np.zeros((180, 360))
+    with pytest.raises(InvalidInputError, match="lat must be strictly monotone"):
+        Globe.from_latlon(z, np.r_[LAT1[:90], LAT1[:90]], LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match="lon must cover 360"):
+        Globe.from_latlon(z[:, :180], LAT1, LON1[:180], face_size=9)
+    with pytest.raises(InvalidInputError, match="both poles"):
+        Globe.from_latlon(z[:90], LAT1[:90], LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match="regularly spaced"):
+        Globe.from_latlon(z, np.r_[LAT1[:-1], -89.9], LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match="lengths"):
+        Globe.from_latlon(z, LAT1[:-1], LON1, face_size=9)
+    nan = z.copy()
+    nan[10, 20] = np.nan
+    with pytest.raises(InvalidInputError, match="NaN.*row 10, column 20"):
+        Globe.from_latlon(nan, LAT1, LON1, face_size=9)
+
+
+def test_bad_mesh_arguments(small_globe):
+    g = small_globe
+    with pytest.raises(InvalidInputError, match="error must be"):
+        g.mesh(error=-1.0)
+    with pytest.raises(InvalidInputError, match="bounds must be"):
+        g.mesh(bounds="box")
+    with pytest.raises(InvalidInputError, match="metrics must be"):
+        g.mesh(metrics=("geometric", "screen"))
+    with pytest.raises(InvalidInputError, match="inside the planet"):
+        g.mesh(camera=Camera(eye=(0.5 * R, 0.0, 0.0), target=(0.0, 0.0, 0.0)))
+    with pytest.raises(InvalidInputError, match="eye and target"):
+        Camera(eye=(1.0, 2.0, 3.0), target=(1.0, 2.0, 3.0))
+    with pytest.raises(InvalidInputError, match="parallel"):
+        Camera(eye=(0.0, 0.0, 3.0), target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0))
+    with pytest.raises(InvalidInputError, match="fov"):
+        Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), fov=4.0)
+    with pytest.raises(InvalidInputError, match="near < far"):
+        Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), near=5.0, far=1.0)
+
+
+def test_memory_budget_refuses_before_allocating():
+    import stepterrain._compaction as compaction
+
+    previous = compaction.set_memory_budget(1 << 20)
+    try:
+        with pytest.raises(OutputTooLargeError, match="face_size 1025 would need 192.4 MiB"):
+            Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=1025)
+    finally:
+        compaction.set_memory_budget(previous)

@@ -1,0 +1,113 @@
+"""The ``stepterrain globe`` subcommand and examples/globe.py, run in-process at tiny sizes."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from stepterrain import render
+from stepterrain.cli import main
+
+AVAILABLE, REASON = render.offscreen_available()
+
+
+def test_globe_writes_a_mesh(tmp_path, capsys):
+    out = tmp_path / "globe.ply"
+    assert main(["-q", "globe", "--face-size", "17", "--error", "0", "--no-camera", "-o", str(out),
+                 "--device", "cpu"]) == 0
+    mesh = trimesh.load(out, process=False)
+    assert len(mesh.faces) == 12 * 16**2
+    assert mesh.is_watertight
+
+
+def test_globe_from_an_npz_grid(tmp_path):
+    grid = tmp_path / "grid.npz"
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    np.savez(grid, elevation=np.zeros((180, 360), np.float32), lat=lat, lon=lon)
+    out = tmp_path / "g.obj"
+    assert main(["-q", "globe", str(grid), "--face-size", "9", "--eye", "0,0,1e7", "-o", str(out)]) == 0
+    assert out.stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--face-size", "100"], "face_size must be 2"),
+        (["--bounds", "box"], "invalid choice"),
+        (["--metrics", "geometric,screen"], "metrics must be"),
+        (["--error", "-1"], "error must be"),
+        (["--eye", "95,0,1e6"], "latitude must lie"),
+        (["--eye", "0,0,-5"], "altitude must be above"),
+        (["missing.npz"], "does not exist"),
+    ],
+)
+def test_globe_bad_input_exits_2(tmp_path, capsys, argv, message):
+    status = main(["globe", *argv, "--face-size" if "--face-size" not in argv else "--radius",
+                   "9" if "--face-size" not in argv else "6371000", "-o", str(tmp_path / "x.glb")])
+    assert status == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x.glb").exists()
+
+
+def test_globe_help_has_examples(capsys):
+    assert main(["globe", "--help"]) == 0
+    assert "examples:" in capsys.readouterr().out
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_globe_png(tmp_path):
+    out, png = tmp_path / "globe.glb", tmp_path / "globe.png"
+    assert main(["-q", "globe", "--face-size", "33", "--error", "500", "-o", str(out), "--png", str(png),
+                 "--size", "160x100"]) == 0
+    from PIL import Image
+
+    with Image.open(png) as image:
+        pixels = np.asarray(image)
+    assert pixels.shape[:2] == (100, 160) and pixels.std() > 5
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_example_globe(tmp_path):
+    path = Path(__file__).resolve().parents[1] / "examples" / "globe.py"
+    spec = importlib.util.spec_from_file_location("example_globe", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    assert example.__doc__ and "cone frustums against spheres" in example.__doc__
+    out = tmp_path / "globe.png"
+    assert example.main(["--size", "33", "--panel", "160", "100", "--output", str(out), "--device", "cpu"]) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        pixels = np.asarray(image)
+    assert pixels.shape[:2] == (200, 320)
+    assert pixels[:100].std() > 5 and pixels[100:].std() > 5
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_example_adaptive_mesh(tmp_path, capsys):
+    path = Path(__file__).resolve().parents[1] / "examples" / "adaptive_mesh.py"
+    spec = importlib.util.spec_from_file_location("example_adaptive_mesh", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    assert example.__doc__ and "true vertical error bound" in example.__doc__
+    out = tmp_path / "adaptive.png"
+    argv = ["--size", "33", "--errors", "20", "2", "--panel", "120", "100", "--output", str(out), "--device", "cpu"]
+    assert example.main(argv) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        pixels = np.asarray(image)
+    assert pixels.shape[:2] == (100, 240) and pixels.std() > 5
+    heights, spacing = example.crop(33)
+    from stepterrain.globe import adaptive_mesh
+
+    for error in (20.0, 2.0):
+        assert example.true_error(adaptive_mesh(heights, error=error, spacing=spacing), heights, spacing) <= error

@@ -1,0 +1,209 @@
+"""Topographic textures (paper 004 §7): hillshade, sweep-line shadows, ambient occlusion, encoded normals."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as hst
+from hypothesis.extra.numpy import arrays
+
+import stepterrain as st
+from stepterrain.errors import InvalidInputError
+from stepterrain.texture import ambient_occlusion, cast_shadows, hillshade, normal_map, relight
+
+from .reference_texture import find_shared, hillshade_reference, occlusion_reference, shadows_reference
+from .reference_texture import real_dem_crop as real_dem
+
+RAD = math.radians
+
+
+def tilted(rows=9, cols=11, a=0.3, b=-0.2, spacing=(2.0, 3.0)):
+    dx, dy = spacing
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    return (a * j * dx + b * i * dy).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------ hillshade
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (2.0, -3.0), (-1.5, 1.0)])
+def test_tilted_plane_equals_analytic(device, spacing):
+    a, b = 0.3, -0.2
+    heights = tilted(a=a, b=b, spacing=spacing)
+    for az, alt in ((315, 45), (90, 30), (200, 70)):
+        shade = hillshade(heights, spacing=spacing, azimuth=RAD(az), altitude=RAD(alt), device=device)
+        light = np.array([math.sin(RAD(az)) * math.cos(RAD(alt)), math.cos(RAD(az)) * math.cos(RAD(alt)),
+                          math.sin(RAD(alt))])
+        normal = np.array([-a, -b, 1.0]) / math.sqrt(1 + a * a + b * b)
+        expected = max(float(normal @ light), 0.0)
+        np.testing.assert_allclose(shade[1:-1, 1:-1], expected, atol=2e-6)
+
+
+def test_z_factor_scales_gradient(device):
+    heights = tilted()
+    np.testing.assert_allclose(hillshade(heights * 3, spacing=(2.0, 3.0), device=device),
+                               hillshade(heights, spacing=(2.0, 3.0), z_factor=3.0, device=device), atol=1e-5)
+
+
+@pytest.mark.parametrize("method", ["standard", "multidirectional", "combined", "igor"])
+def test_hillshade_matches_reference(device, method):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=48, step=3)
+    heights[5, 7] = np.nan
+    ours = hillshade(heights, spacing=(90.0, -90.0), method=method, z_factor=2.0, device=device)
+    ref = hillshade_reference(heights, (90.0, -90.0), z_factor=2.0, method=method)
+    assert np.isnan(ours[5, 7])
+    np.testing.assert_allclose(ours, ref, atol=2e-5)
+
+
+def test_multidirectional_flat_is_sin_altitude(device):
+    shade = hillshade(np.zeros((4, 4)), method="multidirectional", altitude=RAD(30), device=device)
+    np.testing.assert_allclose(shade, 0.5, atol=1e-6)
+
+
+@pytest.mark.parametrize("method,flag", [("standard", []), ("multidirectional", ["-multidirectional"]),
+                                         ("combined", ["-combined"]), ("igor", ["-igor"])])
+def test_agrees_with_gdaldem(tmp_path, method, flag):
+    if shutil.which("gdaldem") is None:
+        pytest.skip("gdaldem not installed (Debian: apt-get install gdal-bin)")
+    rasterio = pytest.importorskip("rasterio")
+    path = find_shared("big_tujunga_srtm_30m_utm11n.tif")
+    out = tmp_path / "hs.tif"
+    subprocess.run(["gdaldem", "hillshade", "-q", str(path), str(out), "-of", "GTiff", "-z", "1.5", *flag],
+                   check=True)
+    with rasterio.open(out) as f:
+        gdal = f.read(1).astype(np.float64)[1:-1, 1:-1]
+    shade = hillshade(st.load_dem(path), method=method, z_factor=1.5, device="cpu")[1:-1, 1:-1]
+    ours = 255 * shade if method == "igor" else 1 + 254 * shade  # GDAL's byte scalings
+    assert np.corrcoef(gdal.ravel(), ours.ravel())[0, 1] >= 0.99
+    assert np.abs(gdal - ours).max() <= 1.0  # GDAL rounds to bytes
+
+
+# ------------------------------------------------------------------------------------------ shadows
+def ridge(cols=40, rows=5, x0=10, height=20.0):
+    heights = np.zeros((rows, cols), np.float32)
+    heights[:, x0] = height
+    return heights
+
+
+def test_ridge_shadows_behind_not_in_front(device):
+    heights = ridge()
+    # light from the west at 45 degrees: the ridge at column 10, height 20, spacing 1 shadows 20 columns east
+    shadow = cast_shadows(heights, azimuth=RAD(270), altitude=RAD(45), device=device)
+    assert (shadow[:, :11] == 0).all(), "in front of the ridge (towards the light) must be lit"
+    assert (shadow[:, 11:30] == 1).all(), "behind the ridge within height / tan(altitude) must be shadowed"
+    assert (shadow[:, 31:] == 0).all(), "beyond the shadow's reach must be lit"
+    # from the east the shadow falls west: 20 / tan(60 degrees) = 11.5 columns
+    shadow = cast_shadows(ridge(x0=25), azimuth=RAD(90), altitude=RAD(60), device=device)
+    assert (shadow[:, 25:] == 0).all()
+    assert (shadow[:, 14:25] == 1).all() and (shadow[:, :13] == 0).all()
+
+
+def test_hillshade_with_shadows_darkens_only_shadowed(device):
+    heights = ridge()
+    plain = hillshade(heights, azimuth=RAD(270), altitude=RAD(45), device=device)
+    dark = hillshade(heights, azimuth=RAD(270), altitude=RAD(45), shadows=True, shadow_strength=0.5,
+                     device=device)
+    shadow = cast_shadows(heights, azimuth=RAD(270), altitude=RAD(45), device=device).astype(bool)
+    np.testing.assert_allclose(dark[shadow], plain[shadow] * 0.5, rtol=1e-6)
+    np.testing.assert_array_equal(dark[~shadow], plain[~shadow])
+
+
+@pytest.mark.parametrize("azimuth", [0, 30, 45, 90, 135, 200, 270, 315, 333])
+def test_sweep_equals_brute_force_ray_march_on_real_dem(device, azimuth):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=40, step=5)
+    spacing = (150.0, -150.0)
+    for altitude in (10.0, 25.0):
+        ours = cast_shadows(heights, spacing=spacing, azimuth=RAD(azimuth), altitude=RAD(altitude), device=device)
+        ref = shadows_reference(heights, spacing, RAD(azimuth), RAD(altitude))
+        assert ref.sum() > 0
+        np.testing.assert_array_equal(ours, ref)
+
+
+@given(
+    heights=arrays(np.float32, hst.tuples(hst.integers(2, 14), hst.integers(2, 14)),
+                   elements=hst.integers(0, 50).map(float)),
+    azimuth=hst.floats(0, 360),
+    altitude=hst.floats(1, 80),
+    spacing=hst.sampled_from([(1.0, 1.0), (1.0, -1.0), (2.0, 0.5), (-0.7, 1.3)]),
+)
+def test_sweep_equals_ray_march_property(heights, azimuth, altitude, spacing):
+    ours = cast_shadows(heights, spacing=spacing, azimuth=RAD(azimuth), altitude=RAD(altitude), device="cpu")
+    ref = shadows_reference(heights, spacing, RAD(azimuth), RAD(altitude))
+    np.testing.assert_array_equal(ours, ref)
+
+
+def test_no_shadow_at_zenith_and_nodata_is_lit(device):
+    heights = ridge()
+    assert cast_shadows(heights, altitude=RAD(90), device=device).sum() == 0
+    heights[2, 15] = np.nan
+    shadow = cast_shadows(heights, azimuth=RAD(270), altitude=RAD(45), device=device)
+    assert shadow[2, 15] == 0 and shadow[2, 16] == 1
+
+
+# ------------------------------------------------------------------------------------------ occlusion
+def test_occlusion_matches_reference(device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=24, step=8)
+    ours = ambient_occlusion(heights, spacing=(240.0, -240.0), directions=8, device=device)
+    ref = occlusion_reference(heights, (240.0, -240.0), directions=8)
+    np.testing.assert_allclose(ours, ref, atol=1e-5)
+
+
+def test_occlusion_open_ground_and_pit(device):
+    flat = ambient_occlusion(np.zeros((8, 8)), directions=8, device=device)
+    np.testing.assert_allclose(flat, 1.0)
+    pit = np.full((9, 9), 10.0, np.float32)
+    pit[4, 4] = 0.0
+    ao = ambient_occlusion(pit, directions=8, device=device)
+    # the pit sees a horizon at 45 degrees (10 m rise over one cell... on axes; steeper diagonally not)
+    assert ao[4, 4] < 0.4 and ao[0, 0] == pytest.approx(1.0)
+
+
+# ------------------------------------------------------------------------------------------ normals
+def test_normal_map_relit_equals_hillshade(device):
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=32, step=4)
+    rgb = normal_map(heights, spacing=(120.0, -120.0), device=device)
+    assert rgb.dtype == np.uint8 and rgb.shape == (*heights.shape, 3)
+    for az, alt in ((315, 45), (45, 20)):
+        relit = relight(rgb, azimuth=RAD(az), altitude=RAD(alt), device=device)
+        direct = hillshade(heights, spacing=(120.0, -120.0), azimuth=RAD(az), altitude=RAD(alt), device=device)
+        np.testing.assert_allclose(relit, direct, atol=0.02)  # 8-bit normals
+
+
+def test_point_light_relight(device):
+    plane = np.zeros((21, 21), np.float32)
+    terrain = st.Terrain.from_heights(plane, spacing=(1.0, 1.0), origin=(100.0, 200.0))
+    rgb = normal_map(terrain, device=device)
+    shade = relight(rgb, point=(110.0, 210.0, 5.0), terrain=terrain, device=device)
+    assert shade[10, 10] == pytest.approx(1.0, abs=1e-3)  # directly under the light
+    i, j = np.meshgrid(np.arange(21), np.arange(21), indexing="ij")
+    d = np.hypot(i - 10.0, j - 10.0)
+    np.testing.assert_allclose(shade, 5.0 / np.sqrt(d * d + 25.0), atol=0.01)
+
+
+# ------------------------------------------------------------------------------------------ bad input
+@pytest.mark.parametrize("kwargs,match", [
+    ({"altitude": RAD(95)}, "altitude must lie in"),
+    ({"altitude": -0.1}, "altitude must lie in"),
+    ({"azimuth": float("nan")}, "azimuth must be finite"),
+    ({"z_factor": 0.0}, "z_factor must be positive"),
+    ({"method": "basic"}, "method must be one of"),
+    ({"shadow_strength": 2.0}, "shadow_strength"),
+])
+def test_bad_light_raises(kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        hillshade(np.zeros((3, 3)), device="cpu", **kwargs)
+
+
+def test_bad_relight_inputs():
+    with pytest.raises(InvalidInputError, match="uint8 RGB"):
+        relight(np.zeros((3, 3)), azimuth=0.0, altitude=0.5)
+    rgb = normal_map(np.zeros((3, 3)), device="cpu")
+    with pytest.raises(InvalidInputError, match="point light needs terrain"):
+        relight(rgb, point=(0, 0, 1))
+    with pytest.raises(InvalidInputError, match="mismatched size"):
+        relight(rgb, point=(0, 0, 1), terrain=np.zeros((4, 3)))
+    with pytest.raises(InvalidInputError, match="not both"):
+        relight(rgb, point=(0, 0, 1), azimuth=0.0, altitude=0.1, terrain=np.zeros((3, 3)))

@@ -1,0 +1,116 @@
+"""``stepterrain texture`` in-process, and the examples examples/textures.py and examples/flood.py at tiny sizes."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from stepterrain import render
+from stepterrain.cli import main
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+AVAILABLE, REASON = render.offscreen_available()
+needs_render = [pytest.mark.render, pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")]
+
+
+def read_png(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return np.asarray(image)
+
+
+@pytest.fixture
+def small_dem(tmp_path) -> Path:
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    heights = (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32)
+    path = tmp_path / "hill.npy"
+    np.save(path, heights)
+    return path
+
+
+def test_cli_texture_png_and_glb(tmp_path, small_dem, capsys):
+    out, mesh = tmp_path / "t.png", tmp_path / "t.glb"
+    code = main(["texture", str(small_dem), "--hillshade", "combined", "--shadows", "--azimuth", "270",
+                 "--altitude", "20", "-o", str(out),
+                 "--mesh", str(mesh), "--normals", str(tmp_path / "n.png"), "--device", "cpu"])
+    assert code == 0, capsys.readouterr().err
+    image = read_png(out)
+    assert image.shape == (40, 50, 3) and image.std() > 5
+    assert read_png(tmp_path / "n.png").shape == (40, 50, 3)
+    back = trimesh.load(mesh, force="mesh", process=False)
+    assert isinstance(back.visual, trimesh.visual.TextureVisuals)
+    assert len(back.faces) == 2 * 39 * 49
+
+
+def test_cli_texture_help_has_examples(capsys):
+    assert main(["texture", "--help"]) == 0
+    assert "examples:" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--altitude", "95"], "--altitude must lie in"),
+    (["--hillshade", "basic"], "invalid choice"),
+    (["--mesh", "x.xyz"], "unknown extension"),
+    (["--interval", "10"], "--interval applies only with"),
+    (["--colormap", "nope"], "--colormap must name"),
+])
+def test_cli_texture_bad_input_exits_2(tmp_path, small_dem, capsys, argv, match):
+    out = tmp_path / "t.png"
+    assert main(["texture", str(small_dem), "-o", str(out), *argv]) == 2
+    assert match in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_cli_texture_missing_file(tmp_path, capsys):
+    assert main(["texture", str(tmp_path / "missing.tif"), "-o", str(tmp_path / "t.png")]) == 2
+    assert "missing.tif" in capsys.readouterr().err
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_texture_render_stepped(tmp_path, small_dem):
+    png = tmp_path / "r.png"
+    assert main(["-q", "texture", str(small_dem), "-o", str(tmp_path / "t.png"), "--interval", "20", "--png", str(png),
+                 "--size", "160x120"]) == 0
+    assert read_png(png).shape[:2] == (120, 160)
+
+
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_example_textures(tmp_path):
+    example = load_example("textures")
+    assert example.__doc__ and "draped" in example.__doc__
+    out = tmp_path / "textures.png"
+    assert example.main(["--size", "40", "--panel", "160", "120", "--output", str(out), "--device", "cpu"]) == 0
+    image = read_png(out)
+    assert image.shape[:2] == (120, 320)
+    left, right = image[:, :160, :3].astype(int), image[:, 160:, :3].astype(int)
+    assert left.std() > 5 and right.std() > 5
+
+
+def test_example_flood(tmp_path):
+    import imageio.v3 as iio
+
+    example = load_example("flood")
+    assert example.__doc__ and "rising water" in example.__doc__
+    out = tmp_path / "flood.png"
+    assert example.main(["--size", "32", "--frames", "4", "--keyframes", "3", "--output", str(out),
+                         "--device", "cpu"]) == 0
+    frames = iio.imread(out.with_suffix(".gif"), index=None)
+    assert frames.shape[0] == 4 and frames.shape[1:3] == (32, 32)
+    # the water rises: more blue-dominated pixels in the last frame than in the first
+    blue = [(f[..., 2].astype(int) - f[..., 0].astype(int) > 60).sum() for f in frames]
+    assert blue[-1] > blue[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flood.gif", "flood.png"]

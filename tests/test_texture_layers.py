@@ -1,0 +1,348 @@
+"""Texture layers and their operations (paper 004 §3.2.3), lenses (§5), animation (§6) and draping."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given
+from hypothesis import strategies as hst
+from hypothesis.extra.numpy import arrays
+
+import stepterrain as st
+from stepterrain import render
+from stepterrain.errors import InvalidInputError
+from stepterrain.export import save_mesh
+from stepterrain.texture import (
+    Pipeline,
+    TextureAnimation,
+    TextureLayer,
+    adjust,
+    blend,
+    combine,
+    drape,
+    highlight_lens,
+    modulate,
+    terrain_layer,
+    thematic_lens,
+    topographic_layer,
+    weighted_add,
+)
+
+EXTENT = (0.0, 4.0, 0.0, 3.0)
+rng = np.random.default_rng(5)
+RGB_A = rng.random((3, 4, 3)).astype(np.float32)
+RGB_B = rng.random((3, 4, 3)).astype(np.float32)
+ALPHA = rng.random((3, 4)).astype(np.float32)
+
+
+def rgba(rgb, alpha=None):
+    out = np.ones((*rgb.shape[:2], 4), np.float32)
+    out[..., :3] = rgb
+    if alpha is not None:
+        out[..., 3] = alpha
+    return out
+
+
+def layer(image, kind="thematic", **kw):
+    return TextureLayer(kind, image, EXTENT, **kw)
+
+
+# ------------------------------------------------------------------------------------------ formulas
+def test_layer_kinds_to_rgba():
+    lum = layer(ALPHA, "luminance").rgba()
+    np.testing.assert_allclose(lum[..., 0], ALPHA)
+    np.testing.assert_allclose(lum[..., 3], 1.0)
+    vis = layer(ALPHA, "visibility").rgba()
+    np.testing.assert_allclose(vis[..., :3], 1.0)
+    np.testing.assert_allclose(vis[..., 3], ALPHA)
+    u8 = layer((RGB_A * 255).round().astype(np.uint8)).rgba()
+    np.testing.assert_allclose(u8[..., :3], RGB_A, atol=0.5 / 255 + 1e-6)
+
+
+def test_blend_formula(device):
+    out = blend(layer(RGB_A), layer(RGB_B), layer(ALPHA, "visibility"), device=device).rgba()
+    w = ALPHA[..., None]
+    np.testing.assert_allclose(out, rgba(RGB_A) * (1 - w) + rgba(RGB_B) * w, atol=1e-6)
+
+
+def test_weighted_add_formula(device):
+    out = weighted_add([layer(RGB_A), layer(RGB_B), layer(ALPHA, "luminance")], [0.3, 0.5, 0.2],
+                       device=device).rgba()
+    expected = np.clip(0.3 * rgba(RGB_A) + 0.5 * rgba(RGB_B) + 0.2 * rgba(np.repeat(ALPHA[..., None], 3, 2)), 0, 1)
+    np.testing.assert_allclose(out, expected, atol=1e-6)
+
+
+def test_weighted_add_clamps_only_the_sum(device):
+    ones = layer(np.ones((3, 4, 3), np.float32))
+    out = weighted_add([ones, ones, ones], [1.0, 1.0, -1.5], device=device).rgba()
+    np.testing.assert_allclose(out, 0.5, atol=1e-6)  # 1 + 1 - 1.5, not min(1 + 1, 1) - 1.5
+
+
+def test_modulate_formula(device):
+    out = modulate(layer(RGB_A), layer(ALPHA, "topographic"), layer(RGB_B), device=device).rgba()
+    np.testing.assert_allclose(out[..., :3], RGB_A * ALPHA[..., None] * RGB_B, atol=1e-6)
+    np.testing.assert_allclose(out[..., 3], 1.0)
+
+
+def cesium_reference(rgb, alpha, brightness, contrast, hue, saturation, gamma, layer_alpha):
+    """CesiumJS GlobeFS order, in float64."""
+    c = rgb.astype(np.float64) * brightness
+    c = 0.5 + (c - 0.5) * contrast
+    if hue:
+        yiq = c @ np.array([[0.299, 0.587, 0.114], [0.595716, -0.274453, -0.321263],
+                            [0.211456, -0.522591, 0.311135]]).T
+        angle = np.arctan2(yiq[..., 2], yiq[..., 1]) + hue
+        chroma = np.hypot(yiq[..., 1], yiq[..., 2])
+        yiq = np.stack([yiq[..., 0], chroma * np.cos(angle), chroma * np.sin(angle)], -1)
+        c = yiq @ np.array([[1.0, 0.9563, 0.6210], [1.0, -0.2721, -0.6474], [1.0, -1.1070, 1.7046]]).T
+    luma = c @ np.array([0.2125, 0.7154, 0.0721])
+    c = luma[..., None] + (c - luma[..., None]) * saturation
+    c = np.clip(c, 0, 1) ** (1 / gamma)
+    return c, alpha * layer_alpha
+
+
+@pytest.mark.parametrize("params", [
+    dict(brightness=1.3, contrast=0.7, hue=0.0, saturation=1.0, gamma=1.0, alpha=1.0),
+    dict(brightness=0.8, contrast=1.5, hue=0.6, saturation=0.4, gamma=2.2, alpha=0.5),
+    dict(brightness=1.0, contrast=1.0, hue=-1.2, saturation=1.8, gamma=0.5, alpha=0.9),
+])
+def test_adjust_formula(device, params):
+    out = adjust(layer(np.concatenate([RGB_A, ALPHA[..., None]], 2)), device=device, **params).rgba()
+    rgb, alpha = cesium_reference(RGB_A, ALPHA, params["brightness"], params["contrast"], params["hue"],
+                                  params["saturation"], params["gamma"], params["alpha"])
+    np.testing.assert_allclose(out[..., :3], rgb, atol=2e-5)
+    np.testing.assert_allclose(out[..., 3], alpha, atol=1e-6)
+
+
+def test_hue_rotation_keeps_luma_and_full_turn_is_identity(device):
+    out = adjust(layer(RGB_A), hue=2 * math.pi, device=device).rgba()
+    np.testing.assert_allclose(out[..., :3], np.clip(RGB_A, 0, 1), atol=2e-3)
+
+
+def test_split_and_cutout(device):
+    base = layer(RGB_A)
+    left = adjust(base, split="left", split_position=0.5, device=device).rgba()[..., 3]
+    np.testing.assert_array_equal(left, np.repeat([[1, 1, 0, 0]], 3, 0))
+    right = adjust(base, split="right", split_position=0.25, device=device).rgba()[..., 3]
+    np.testing.assert_array_equal(right, np.repeat([[0, 1, 1, 1]], 3, 0))
+    # pixel centres: x = 0.5 .. 3.5, y = 2.5 (row 0) .. 0.5 (row 2)
+    cut = adjust(base, cutout=(1.0, 3.0, 0.0, 1.0), device=device).rgba()[..., 3]
+    np.testing.assert_array_equal(cut, [[1, 1, 1, 1], [1, 1, 1, 1], [1, 0, 0, 1]])
+
+
+@given(a=arrays(np.float32, (2, 3, 3), elements=hst.floats(0, 1, width=32)),
+       b=arrays(np.float32, (2, 3, 3), elements=hst.floats(0, 1, width=32)),
+       w=hst.floats(0, 1))
+def test_blend_is_add_with_complementary_weights(a, b, w):
+    la, lb = TextureLayer("thematic", a, EXTENT), TextureLayer("thematic", b, EXTENT)
+    blended = blend(la, lb, np.full((2, 3), w, np.float32), device="cpu").rgba()
+    added = weighted_add([la, lb], [1 - w, w], device="cpu").rgba()
+    np.testing.assert_allclose(blended, added, atol=2e-6)
+
+
+def test_pipeline_composes(device):
+    base = layer(RGB_A)
+    first = Pipeline().modulate(layer(ALPHA, "luminance")).blend(layer(RGB_B), layer(ALPHA, "visibility"))
+    second = Pipeline().add(layer(RGB_B), (0.5, 0.25)).adjust(gamma=1.5, saturation=0.5)
+    whole = first.then(second).apply(base, device=device).rgba()
+    by_hand = adjust(weighted_add([blend(modulate(base, layer(ALPHA, "luminance"), device=device), layer(RGB_B),
+                                         layer(ALPHA, "visibility"), device=device), layer(RGB_B)], [0.5, 0.25],
+                                  device=device), gamma=1.5, saturation=0.5, device=device).rgba()
+    np.testing.assert_array_equal(whole, by_hand)
+    np.testing.assert_array_equal(second.apply(first.apply(base, device=device), device=device).rgba(), whole)
+
+
+def test_combine_by_mode_name(device):
+    a, b = layer(RGB_A), layer(RGB_B)
+    np.testing.assert_array_equal(combine(a, b, "modulate", device=device).rgba(), modulate(a, b, device=device).rgba())
+    with pytest.raises(InvalidInputError, match="unknown blend mode 'screen'"):
+        combine(a, b, "screen")
+
+
+# ------------------------------------------------------------------------------------------ sampling, lenses
+def test_resampling_through_texture_matrix(device):
+    # a 2x2 layer over the same extent sampled onto 3x4 pixels: bilinear between texel centres
+    coarse = TextureLayer("luminance", np.array([[0.0, 1.0], [0.0, 1.0]], np.float32), EXTENT)
+    out = modulate(layer(np.ones((3, 4, 3), np.float32)), coarse, device=device).rgba()[0, :, 0]
+    # pixel centres x = 0.5, 1.5, 2.5, 3.5 -> texel u = x / 2 - 0.5 = -0.25 (clamped), 0.25, 0.75, 1.25 (clamped)
+    np.testing.assert_allclose(out, [0.0, 0.25, 0.75, 1.0], atol=1e-6)
+
+
+def test_partial_coverage_is_transparent_outside(device):
+    patch = TextureLayer("thematic", np.ones((2, 2, 3), np.float32), (0.0, 2.0, 0.0, 3.0))  # west half only
+    out = blend(layer(np.zeros((3, 4, 3), np.float32)), patch, device=device).rgba()
+    np.testing.assert_allclose(out[:, :2, 0], 1.0)
+    np.testing.assert_allclose(out[:, 2:, 0], 0.0)
+
+
+def test_moving_a_lens_changes_only_the_matrix(device):
+    terrain_rgb = layer(np.full((3, 4, 3), 0.8, np.float32))
+    lens = highlight_lens((1.0, 1.5), 0.8, strength=0.5, resolution=32)
+    moved = lens.moved(2.0, 0.0)
+    assert moved.image is lens.image
+    assert not np.allclose(moved.matrix, lens.matrix)
+    before = modulate(terrain_rgb, lens, device=device).rgba()[..., 0]
+    after = modulate(terrain_rgb, moved, device=device).rgba()[..., 0]
+    assert before[1, 1] == pytest.approx(0.8) and before[1, 3] == pytest.approx(0.4)  # hot spot / outside
+    assert after[1, 3] == pytest.approx(0.8) and after[1, 1] == pytest.approx(0.4)
+
+
+def test_thematic_lens_blends_two_layers(device):
+    a, b = layer(np.zeros((3, 4, 3), np.float32)), layer(np.ones((3, 4, 3), np.float32))
+    lens = thematic_lens((0.5, 2.5), 0.6, edge=0.0, resolution=64)
+    out = blend(a, b, lens, device=device).rgba()[..., 0]
+    assert out[0, 0] == pytest.approx(1.0) and out[2, 3] == pytest.approx(0.0)
+    assert lens.shape == (64, 64)
+
+
+# ------------------------------------------------------------------------------------------ animation
+def test_animation_selects_two_keyframes():
+    keys = [layer(np.full((3, 4), v, np.float32), "luminance") for v in (0.0, 0.5, 1.0)]
+    anim = TextureAnimation(keys, [0.0, 1.0, 3.0])
+    a, b, alpha = anim.at(2.0)
+    assert a is keys[1] and b is keys[2] and alpha == pytest.approx(0.5)
+    assert anim.at(-5.0)[2] == 0.0 and anim.at(99.0)[2] == 1.0
+    np.testing.assert_allclose(anim.frame(2.0, device="cpu").rgba()[..., 0], 0.75, atol=1e-6)
+    with pytest.raises(InvalidInputError, match="strictly increasing"):
+        TextureAnimation(keys, [0.0, 2.0, 1.0])
+
+
+# ------------------------------------------------------------------------------------------ bad input
+def test_bad_layers_and_operations():
+    with pytest.raises(InvalidInputError, match="layer kind must be one of"):
+        TextureLayer("normal", ALPHA, EXTENT)
+    with pytest.raises(InvalidInputError, match="thematic layer needs"):
+        TextureLayer("thematic", ALPHA, EXTENT)
+    with pytest.raises(InvalidInputError, match="xmin < xmax"):
+        TextureLayer("luminance", ALPHA, (1.0, 0.0, 0.0, 1.0))
+    with pytest.raises(InvalidInputError, match="mismatched size"):
+        blend(layer(RGB_A), np.zeros((2, 2, 3)))
+    far = TextureLayer("thematic", RGB_B, (100.0, 104.0, 0.0, 3.0))
+    with pytest.raises(InvalidInputError, match="mismatched extent"):
+        blend(layer(RGB_A), far)
+    with pytest.raises(InvalidInputError, match=r"weights\[1\] must be finite"):
+        weighted_add([layer(RGB_A), layer(RGB_B)], [0.5, float("nan")])
+    with pytest.raises(InvalidInputError, match="one weight per layer"):
+        weighted_add([layer(RGB_A), layer(RGB_B)], [0.5])
+    with pytest.raises(InvalidInputError, match=r"values must lie in \[0, 1\]"):
+        blend(layer(RGB_A), layer(RGB_B), layer(ALPHA * 3, "visibility"))
+    with pytest.raises(InvalidInputError, match=r"alpha must lie in \[0, 1\]"):
+        adjust(layer(RGB_A), alpha=1.5)
+    with pytest.raises(InvalidInputError, match="split must be"):
+        adjust(layer(RGB_A), split="up")
+
+
+# ------------------------------------------------------------------------------------------ draping
+def sample_terrain(size=48):
+    dem = st.sample_dem()
+    stride = 6
+    heights = dem.heights[: size * stride: stride, : size * stride: stride]
+    return st.Terrain.from_heights(heights, spacing=(dem.spacing[0] * stride, dem.spacing[1] * stride),
+                                   origin=dem.origin)
+
+
+def test_terrain_layer_is_north_up():
+    t = st.Terrain.from_heights(np.zeros((2, 3)), spacing=(1.0, 1.0))  # dy > 0: row 0 is south
+    image = np.array([[0.0, 0.1, 0.2], [0.5, 0.6, 0.7]], np.float32)
+    lay = terrain_layer(t, image, "luminance")
+    np.testing.assert_array_equal(lay.image, image[::-1])
+
+
+def test_drape_stepped_terrain_to_glb(tmp_path, device):
+    terrain = sample_terrain()
+    topo = topographic_layer(terrain, device=device)
+    mesh = st.stepped(terrain, interval=200.0, device=device)
+    textured = drape(mesh, topo)
+    uv = textured.visual.uv
+    assert uv.shape == (len(mesh.vertices), 2)
+    assert uv.min() > 0 and uv.max() < 1
+    np.testing.assert_array_equal(textured.faces, mesh.faces)
+    out = save_mesh(textured, tmp_path / "draped.glb")
+    back = trimesh.load(out, force="mesh", process=False)
+    assert isinstance(back.visual, trimesh.visual.TextureVisuals)
+    image = back.visual.material.baseColorTexture
+    assert image.size == (topo.shape[1], topo.shape[0])
+    # the embedded image is the layer itself (lossless PNG inside the GLB)
+    np.testing.assert_array_equal(np.asarray(image.convert("RGB")), topo.to_uint8(background=(1, 1, 1)))
+    check_with_khronos_validator(out)
+
+
+def check_with_khronos_validator(path: Path) -> None:
+    """Zero errors and zero warnings from the Khronos glTF validator (npm gltf-validator) when it is installed:
+    in the repository's .ci/node_modules (bash .ci/run) or under $GLTF_VALIDATOR_PATH."""
+    import os
+
+    bases = [Path(__file__).resolve().parents[1] / ".ci" / "node_modules"]
+    if os.environ.get("GLTF_VALIDATOR_PATH"):
+        bases.insert(0, Path(os.environ["GLTF_VALIDATOR_PATH"]))
+    package = next((b / "gltf-validator" for b in bases if (b / "gltf-validator").exists()), None)
+    if shutil.which("node") is None or package is None:
+        return  # the session-wide check of the batch/export issue covers it where the validator is installed
+    script = ("const v=require(process.argv[1]);const fs=require('fs');"
+              "v.validateBytes(new Uint8Array(fs.readFileSync(process.argv[2]))).then(r=>"
+              "{console.log(r.issues.numErrors+' '+r.issues.numWarnings);"
+              "process.exit(r.issues.numErrors+r.issues.numWarnings?1:0)})")
+    result = subprocess.run(["node", "-e", script, str(package), str(path)], capture_output=True, text=True)
+    assert result.returncode == 0, f"glTF validator: errors, warnings = {result.stdout} {result.stderr}"
+
+
+def test_drape_maps_world_xy_to_texels():
+    mesh = st.heightfield_mesh(np.zeros((3, 5)), spacing=(1.0, 1.0))
+    textured = drape(mesh, TextureLayer("luminance", np.ones((3, 5)), (-0.5, 4.5, -0.5, 2.5)))
+    uv = textured.visual.uv
+    # vertex k = node (i, j) at (j, i): u = (j + 0.5) / 5, v = (i + 0.5) / 3 (v up, row 0 of the image north)
+    i, j = np.divmod(np.arange(15), 5)
+    np.testing.assert_allclose(uv[:, 0], (j + 0.5) / 5)
+    np.testing.assert_allclose(uv[:, 1], (i + 0.5) / 3)
+
+
+AVAILABLE, REASON = render.offscreen_available()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_render_draped_texture_orientation():
+    mesh = st.heightfield_mesh(np.zeros((11, 11)))
+    image = np.zeros((20, 20, 3), np.uint8)
+    image[:10, :, 0] = 255  # north half red
+    image[10:, :, 2] = 255  # south half blue
+    textured = drape(mesh, TextureLayer("thematic", image, (-0.5, 10.5, -0.5, 10.5)))
+    shot = render.render_textured_mesh(textured, window_size=(120, 120), camera="top", lighting=False)
+    assert tuple(shot[30, 60]) == (255, 0, 0) and tuple(shot[90, 60]) == (0, 0, 255)
+
+
+@given(image=arrays(np.float32, (2, 3, 4), elements=hst.floats(0, 1, width=32)))
+def test_adjust_defaults_leave_the_layer_unchanged(image):
+    out = adjust(TextureLayer("thematic", image, EXTENT), device="cpu").rgba()
+    np.testing.assert_allclose(out, image, atol=2e-6)
+
+
+def test_drape_and_render_bad_input():
+    mesh = st.heightfield_mesh(np.zeros((3, 3)))
+    with pytest.raises(InvalidInputError, match="layer must be a TextureLayer"):
+        drape(mesh, np.ones((3, 3)))
+    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh"):
+        drape("mesh.glb", layer(RGB_A))
+    with pytest.raises(InvalidInputError, match="background must be"):
+        drape(mesh, layer(RGB_A), background=(2, 0, 0))
+    with pytest.raises(InvalidInputError, match="mesh has no texture"):
+        render.render_textured_mesh(mesh)
+
+
+def test_sampling_is_precise_at_utm_coordinates(device):
+    # 0.1 m pixels 400 km from the origin: float32 world coordinates would be off by ~0.3 texel
+    x0, y0 = 400_000.0, 3_800_000.0
+    extent = (x0, x0 + 0.4, y0, y0 + 0.3)
+    ramp = np.tile(np.arange(4, dtype=np.float32) / 3, (3, 1))
+    base = TextureLayer("luminance", np.ones((3, 4), np.float32), extent)
+    shifted = TextureLayer("luminance", ramp, extent).moved(0.05, 0.0)  # half a texel east
+    out = modulate(base, shifted, device=device).rgba()[0, :, 0]
+    np.testing.assert_allclose(out, [0.0, 1 / 6, 0.5, 5 / 6], atol=1e-3)
+    cut = adjust(base, cutout=(x0 + 0.2, x0 + 0.4, y0, y0 + 0.3), device=device).rgba()[0, :, 3]
+    np.testing.assert_array_equal(cut, [1, 1, 0, 0])

@@ -1,0 +1,371 @@
+"""Image pyramids, texture trees and the level-of-detail traversal (paper 004 §3.2.1-3.2.2, §4, §7.3)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+import textwrap
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as hst
+
+from stepterrain.errors import DataFileError, InvalidInputError
+from stepterrain.texture_lod import (
+    Camera,
+    ImagePyramid,
+    PatchQuadtree,
+    TextureCache,
+    TextureTree,
+    pyramid_shapes,
+    render_with_textures,
+    texel_pixels,
+    visual_geometric_error,
+    visual_texture_error,
+)
+
+from .reference_texture import real_dem_crop, reduce_reference
+
+rng = np.random.default_rng(11)
+
+
+# ------------------------------------------------------------------------------------------ pyramid
+@pytest.mark.parametrize("shape", [(8, 8, 3), (5, 7, 3), (13, 6, 4), (1, 9, 1), (6, 1, 3), (1, 1, 3), (17, 33, 2)])
+def test_pyramid_levels_match_reference_and_keep_the_mean(device, shape):
+    image = rng.integers(0, 256, shape, dtype=np.uint8)
+    with ImagePyramid.build(image, device=device) as pyramid:
+        assert [level.shape[:2] for level in pyramid.levels] == pyramid_shapes(*shape[:2])
+        assert pyramid.levels[-1].shape[:2] == (1, 1)
+        assert pyramid.levels[0] is image  # level 0 is the original image, not a copy
+        previous = image
+        for level in pyramid.levels[1:]:
+            exact = reduce_reference(previous)
+            assert np.abs(level.astype(np.float64) - exact).max() <= 0.5 + 1e-4
+            # area weighting keeps the mean; rounding each pixel to uint8 moves it by at most 0.5
+            assert abs(level.mean() - previous.astype(np.float64).mean()) <= 0.5
+            previous = np.asarray(level)
+
+
+def test_pyramid_sizes_odd_and_even():
+    assert pyramid_shapes(16, 16) == [(16, 16), (8, 8), (4, 4), (2, 2), (1, 1)]
+    assert pyramid_shapes(7, 5) == [(7, 5), (4, 3), (2, 2), (1, 1)]
+    assert pyramid_shapes(1, 1) == [(1, 1)]
+    assert pyramid_shapes(16384, 8192)[-1] == (1, 1) and len(pyramid_shapes(16384, 8192)) == 15
+
+
+@given(rows=hst.integers(1, 40), cols=hst.integers(1, 40), seed=hst.integers(0, 1000))
+def test_pyramid_mean_property(rows, cols, seed):
+    image = np.random.default_rng(seed).integers(0, 256, (rows, cols, 3), dtype=np.uint8)
+    with ImagePyramid.build(image, device="cpu") as pyramid:
+        means = [float(np.asarray(level, dtype=np.float64).mean()) for level in pyramid.levels]
+        assert all(abs(a - b) <= 0.5 for a, b in zip(means, means[1:], strict=False))
+
+
+def test_pyramid_anisotropic_levels():
+    image = rng.integers(0, 256, (9, 20, 3), dtype=np.uint8)
+    with ImagePyramid.build(image, anisotropic=True, device="cpu") as pyramid:
+        heights = [s[0] for s in pyramid_shapes(9, 20)]
+        widths = [s[1] for s in pyramid_shapes(9, 20)]
+        for (kx, ky), level in pyramid.anisotropic.items():
+            assert level.shape[:2] == (heights[ky], widths[kx])
+        # halving only x: the reference along axis 1
+        from .reference_texture import reduce_axis
+
+        expected = reduce_axis(image, 1)
+        assert np.abs(pyramid.anisotropic[(1, 0)].astype(float) - expected).max() <= 0.5 + 1e-4
+
+
+def test_pyramid_from_npy_memmap_and_storage(tmp_path):
+    image = rng.integers(0, 256, (30, 50, 3), dtype=np.uint8)
+    np.save(tmp_path / "big.npy", image)
+    storage = tmp_path / "levels"
+    pyramid = ImagePyramid.build(tmp_path / "big.npy", extent=(1000.0, 1500.0, 200.0, 500.0), storage=storage,
+                                 device="cpu")
+    assert isinstance(pyramid.levels[0], np.memmap) and isinstance(pyramid.levels[1], np.memmap)
+    np.testing.assert_array_equal(pyramid.levels[0], image)
+    assert pyramid.pixel_size(0) == (10.0, 10.0) and pyramid.pixel_size(1) == (20.0, 20.0)
+    assert pyramid.window(0, (1000.0, 1100.0, 400.0, 500.0)) == (0, 10, 0, 10)
+    assert pyramid.window_extent(1, (0, 5, 0, 5)) == (1000.0, 1100.0, 400.0, 500.0)
+    assert pyramid.window(0, (0.0, 10.0, 0.0, 10.0)) is None
+    pyramid.close()
+    assert storage.exists()  # a storage folder given by the caller is kept
+
+
+def test_pyramid_memory_bounded_for_memmap_larger_than_budget(tmp_path):
+    """Build from a 48 MB memory-mapped .npy with 1 MB bands: the resident set must not grow by the image."""
+    source = tmp_path / "big.npy"
+    image = np.lib.format.open_memmap(source, mode="w+", dtype=np.uint8, shape=(4000, 4000, 3))
+    image[::7] = 200
+    image.flush()
+    del image
+    script = textwrap.dedent(f"""
+        import numpy as np
+        from stepterrain.texture_lod import ImagePyramid
+        # compile, and warm up every launch path (split over threads, odd sizes) outside the measurement
+        ImagePyramid.build(np.zeros((1001, 1003, 3), np.uint8), band_bytes=1 << 20, device="cpu").close()
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+        open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident set
+        before = status("VmRSS")
+        pyramid = ImagePyramid.build({str(source)!r}, band_bytes=1 << 20, device="cpu")
+        rise = status("VmHWM") - before
+        assert pyramid.levels[-1].shape == (1, 1, 3)
+        pyramid.close()
+        print(rise)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    if result.returncode != 0 and "clear_refs" in result.stderr:
+        pytest.skip("/proc/self/clear_refs is not writable here")
+    assert result.returncode == 0, result.stderr
+    rise = int(result.stdout.strip().splitlines()[-1])
+    assert rise < 20 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB for a 48 MB image"
+
+
+def test_pyramid_bad_input(tmp_path):
+    with pytest.raises(DataFileError, match="does not exist"):
+        ImagePyramid.build(tmp_path / "missing.png")
+    (tmp_path / "corrupt.png").write_bytes(b"\x89PNG not really")
+    with pytest.raises(DataFileError, match="cannot read"):
+        ImagePyramid.build(tmp_path / "corrupt.png")
+    with pytest.raises(InvalidInputError, match="must be uint8"):
+        ImagePyramid.build(np.zeros((4, 4), np.float32))
+    with pytest.raises(InvalidInputError, match="xmin < xmax"):
+        ImagePyramid.build(np.zeros((4, 4), np.uint8), extent=(1, 0, 0, 1))
+
+
+# ------------------------------------------------------------------------------------------ trees
+def terrain_and_image(size=129, image_size=(1000, 1000)):
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=size, step=4)
+    # a north-up grid: node (0, 0) at the north-west corner, 100 m spacing
+    from stepterrain.terrain import Terrain
+
+    terrain = Terrain.from_heights(heights, spacing=(100.0, -100.0), origin=(0.0, (size - 1) * 100.0))
+    image = rng.integers(0, 256, (*image_size, 3), dtype=np.uint8)
+    return terrain, image
+
+
+def test_texture_tree_windows_cover_patches_at_the_finest_level():
+    terrain, image = terrain_and_image()
+    quadtree = PatchQuadtree(terrain, leaf_size=16)
+    xmin, xmax, ymin, ymax = quadtree.root.domain
+    with ImagePyramid.build(image, extent=(xmin, xmax, ymin, ymax), device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=128)
+        patches = tree.patches()
+        assert len(patches) > 5
+        for m in patches:
+            d, g = m.domain, m.geometry.domain
+            assert d[0] <= g[0] + 1e-6 and d[1] >= g[1] - 1e-6 and d[2] <= g[2] + 1e-6 and d[3] >= g[3] - 1e-6
+            r0, r1, c0, c1 = m.window
+            assert r1 - r0 <= 128 and c1 - c0 <= 128
+            if m.level > 0:  # the next finer level would not fit
+                w = pyramid.window(m.level - 1, g)
+                assert w[1] - w[0] > 128 or w[3] - w[2] > 128
+                assert len(m.children) == len(m.geometry.children)
+            else:
+                assert m.is_leaf  # pruned: full resolution reached
+            view = m.image()
+            assert np.shares_memory(view, pyramid.levels[m.level]) or view.size == 0
+        assert any(m.level == 0 for m in patches)
+
+
+def test_texture_tree_partial_coverage():
+    terrain, image = terrain_and_image()
+    quadtree = PatchQuadtree(terrain, leaf_size=32)
+    xmin, xmax, ymin, ymax = quadtree.root.domain
+    west = (xmin, (xmin + xmax) / 2, ymin, ymax)
+    with ImagePyramid.build(image[:, :500], extent=west, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=64)
+        for m in tree.patches():
+            assert m.domain[0] >= west[0] - 1e-6 and m.domain[1] <= west[1] + 1e-6
+        east_children = [c for c in quadtree.root.children if c.domain[0] >= west[1] - 1e-6]
+        assert east_children and all(tree.root.child_for(c) is None for c in east_children)
+    with ImagePyramid.build(image, extent=(1e6, 1e6 + 10, 0, 10), device="cpu") as far, \
+            pytest.raises(InvalidInputError, match="mismatched extent"):
+        TextureTree(far, quadtree)
+
+
+def test_quadtree_errors_and_boxes():
+    terrain, _ = terrain_and_image(size=65)
+    quadtree = PatchQuadtree(terrain, leaf_size=8)
+    for patch in quadtree.patches():
+        block = terrain.heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1]
+        assert patch.box[0, 2] == block.min() and patch.box[1, 2] == block.max()
+        if patch.is_leaf:
+            assert patch.stride == 1 and patch.error == 0.0
+        else:
+            assert patch.error >= 0 and len(patch.children) == 4
+    assert quadtree.root.error > 0
+
+
+# ------------------------------------------------------------------------------------------ errors, traversal
+def test_visual_geometric_error_matches_projection():
+    terrain, _ = terrain_and_image(size=65)
+    quadtree = PatchQuadtree(terrain, leaf_size=8)
+    root = quadtree.root
+    box = root.box
+    # camera south of the box at the height of its centre, looking north: the nearest point is on the south face
+    centre = box.mean(axis=0)
+    distance = 5000.0
+    eye = (centre[0], box[0, 1] - distance, centre[2])
+    camera = Camera(eye, (centre[0], box[1, 1], centre[2]), viewport=(800, 600), fov_y=math.radians(60))
+    expected = camera.focal_pixels * root.error / distance
+    assert visual_geometric_error(root, camera) == pytest.approx(expected, rel=1e-6)
+
+
+def lod_setup(leaf_size=16, max_texture_size=64):
+    terrain, image = terrain_and_image()
+    quadtree = PatchQuadtree(terrain, leaf_size=leaf_size)
+    xmin, xmax, ymin, ymax = quadtree.root.domain
+    pyramid = ImagePyramid.build(image, extent=(xmin, xmax, ymin, ymax), device="cpu")
+    tree = TextureTree(pyramid, quadtree, max_texture_size=max_texture_size)
+    centre = quadtree.root.box.mean(axis=0)
+    camera = Camera((xmin + 0.3 * (xmax - xmin), ymin - 2000.0, quadtree.root.box[1, 2] + 3000.0),
+                    (centre[0], centre[1], quadtree.root.box[0, 2]), viewport=(640, 480))
+    return quadtree, tree, pyramid, camera
+
+
+@pytest.mark.parametrize("gamma_user,tau_user", [(1.0, 1.0), (4.0, 2.0), (0.5, 8.0)])
+def test_every_draw_satisfies_thresholds_or_is_a_leaf(gamma_user, tau_user):
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        draws = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=gamma_user, tau_user=tau_user)
+        assert draws
+        for item in draws:
+            n, (m,) = item.geometry, item.textures
+            assert n.is_leaf or visual_geometric_error(n, camera) <= gamma_user
+            assert n.is_leaf or m.is_leaf or visual_texture_error(n, m, camera) <= tau_user
+            # the texture covers the geometry patch
+            assert m.domain[0] <= n.domain[0] + 1e-6 and m.domain[1] >= n.domain[1] - 1e-6
+            # parent reduction: the parent would be too coarse
+            assert m.parent is None or visual_texture_error(n, m.parent, camera) > tau_user
+        # drawn patches never overlap (a cut through the tree)
+        ids = {id(item.geometry) for item in draws}
+        for item in draws:
+            parent = item.geometry.parent
+            while parent is not None:
+                assert id(parent) not in ids
+                parent = parent.parent
+
+
+def test_finer_thresholds_refine_more():
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        coarse = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=50.0, tau_user=50.0)
+        fine = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=0.5, tau_user=0.5)
+        assert len(fine) > len(coarse)
+
+
+def test_parent_fallback_while_loading_then_finer():
+    quadtree, tree, pyramid, camera = lod_setup()
+    gate = threading.Event()
+
+    def slow_loader(patch):
+        if patch is not tree.root:
+            gate.wait(timeout=30)
+        return np.array(patch.image())
+
+    cache = TextureCache(budget=1 << 30, loader=slow_loader)
+    with pyramid:
+        cache.load_now(tree.root)
+        first = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=1.0, tau_user=1.0, cache=cache)
+        assert all(item.textures[0] is tree.root for item in first), "everything falls back to the loaded root"
+        gate.set()
+        cache.wait()
+        second = render_with_textures(quadtree.root, [tree.root], camera, gamma_user=1.0, tau_user=1.0, cache=cache)
+        assert any(item.textures[0] is not tree.root for item in second)
+        assert all(cache.is_loaded(item.textures[0]) for item in second)
+    cache.close()
+
+
+def test_lru_budget_evicts_least_recently_used():
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        patches = [m for m in tree.patches() if m.nbytes > 0][:6]
+        budget = sum(m.nbytes for m in patches[:3])
+        cache = TextureCache(budget=budget)
+        for m in patches:
+            cache.load_now(m)
+        assert cache.bytes_loaded <= budget and cache.evictions >= 1
+        assert not cache.is_loaded(patches[0]) and cache.is_loaded(patches[-1])
+        cache.close()
+
+
+def test_hybrid_shading_switches_to_lighting_close_up():
+    quadtree, tree, pyramid, camera = lod_setup(max_texture_size=1024)
+    with pyramid:
+        root = quadtree.root
+        low = root.box[0, 2]
+        near = Camera((root.domain[0] + 50, root.domain[2] + 50, low + 30.0),
+                      (root.domain[0] + 800, root.domain[2] + 800, low), viewport=(640, 480))
+        draws = render_with_textures(root, [tree.root], near, gamma_user=1.0, tau_user=1.0, hybrid=[True])
+        lit = [item for item in draws if item.lighting[0]]
+        assert lit, "texels larger than tau_user close to the camera switch to computed lighting"
+        for item in lit:
+            assert texel_pixels(item.geometry, item.textures[0], near) > 1.0
+
+
+def test_bad_traversal_input():
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        with pytest.raises(InvalidInputError, match="gamma_user must be"):
+            render_with_textures(quadtree.root, [tree.root], camera, gamma_user=-1)
+        with pytest.raises(InvalidInputError, match="one flag per layer"):
+            render_with_textures(quadtree.root, [tree.root], camera, hybrid=[True, False])
+    with pytest.raises(InvalidInputError, match="must differ"):
+        Camera((0, 0, 0), (0, 0, 0)).basis()
+
+
+def test_storage_file_of_pyramid_removed_on_close():
+    pyramid = ImagePyramid.build(np.zeros((6, 6, 3), np.uint8), device="cpu")
+    folder = Path(pyramid.storage)
+    assert folder.exists()
+    pyramid.close()
+    assert not folder.exists()
+
+
+def test_paint_with_textures_tiles_the_visible_terrain():
+    from stepterrain.texture_lod import paint_with_textures
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        xmin, xmax, ymin, ymax = quadtree.root.domain
+        above = Camera(((xmin + xmax) / 2, (ymin + ymax) / 2 - 1.0, quadtree.root.box[1, 2] + 30000.0),
+                       ((xmin + xmax) / 2, (ymin + ymax) / 2, quadtree.root.box[0, 2]), viewport=(640, 480))
+        draws = render_with_textures(quadtree.root, [tree.root], above, gamma_user=2.0, tau_user=2.0)
+        meshes = [paint_with_textures(item) for item in draws]
+        def xy_area(mesh):
+            e1 = mesh.triangles[:, 1, :2] - mesh.triangles[:, 0, :2]
+            e2 = mesh.triangles[:, 2, :2] - mesh.triangles[:, 0, :2]
+            return float(np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]).sum()) / 2
+
+        projected = sum(xy_area(m) for m in meshes)
+        assert projected == pytest.approx((xmax - xmin) * (ymax - ymin), rel=1e-9)
+        for item, mesh in zip(draws, meshes, strict=True):
+            uv = mesh.visual.uv
+            assert uv.min() >= 0 and uv.max() <= 1
+            image = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+            np.testing.assert_array_equal(image, np.asarray(item.textures[0].image()))
+            # vertices lie on the terrain at their grid nodes
+            assert np.isin(mesh.vertices[:, 2], quadtree.terrain.heights).all()
+
+
+def test_pyramid_of_a_georeferenced_geotiff():
+    pytest.importorskip("rasterio")
+    from .reference_texture import find_shared
+
+    path = find_shared("earth_day_bluemarble_3840x1920.tif")  # paletted GeoTIFF, EPSG:4326, whole globe
+    with ImagePyramid.build(path, device="cpu") as pyramid:
+        assert pyramid.extent == pytest.approx((-180.0, 180.0, -90.0, 90.0))
+        assert pyramid.levels[0].shape == (1920, 3840, 3) and pyramid.levels[-1].shape == (1, 1, 3)
+        assert pyramid.pixel_size(0) == pytest.approx((0.09375, 0.09375))
+        # the Pacific west of South America (lon -100, lat -20) is ocean: blue dominates at every level
+        for level in range(0, 6):
+            r0, r1, c0, c1 = pyramid.window(level, (-101.0, -99.0, -21.0, -19.0))
+            patch = np.asarray(pyramid.sub_image(level, (r0, r1, c0, c1)), dtype=float).reshape(-1, 3).mean(axis=0)
+            assert patch[2] > patch[0]
