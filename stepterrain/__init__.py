@@ -22,14 +22,17 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
+from . import pyvista_accessor as _pyvista_accessor  # noqa: F401 - registers grid.stepterrain on pyvista
 from ._compaction import get_memory_budget, set_memory_budget
 from ._device import get_cpu_threads, set_cpu_threads
+from .batch import BatchReport, batch
 from .errors import (
     DataFileError,
     DeviceError,
     InvalidInputError,
     MissingDependencyError,
     OutputTooLargeError,
+    SchedulerError,
     StepTerrainError,
 )
 from .io import load_dem, sample_dem
@@ -50,7 +53,13 @@ _LAZY: dict[str, str] = {
 }
 
 
+#: Submodules reachable as attributes without an explicit import (``st.export.save_mesh``, ``st.render``).
+_SUBMODULES = frozenset({"closeup", "export", "globe", "mesh", "render", "texture", "texture_lod"})
+
+
 def __getattr__(name: str) -> Any:
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
     module = _LAZY.get(name)
     if module is None:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -64,14 +73,17 @@ def __dir__() -> list[str]:
 
 
 __all__ = [
+    "BatchReport",
     "DataFileError",
     "DeviceError",
     "InvalidInputError",
     "Lens",
     "MissingDependencyError",
     "OutputTooLargeError",
+    "SchedulerError",
     "StepTerrainError",
     "Terrain",
+    "batch",
     "circular_lens",
     "get_cpu_threads",
     "get_memory_budget",

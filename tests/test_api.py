@@ -28,3 +28,8 @@ def test_function_names_survive_importing_their_modules():
     import stepterrain.stepped  # noqa: F401 - the submodule import must not shadow the function
 
     assert callable(st.stepped) and st.stepped.__module__ == "stepterrain.stepped"
+
+
+@pytest.mark.parametrize("name", sorted(st._SUBMODULES))
+def test_submodules_are_attributes(name):
+    assert getattr(st, name).__name__ == f"stepterrain.{name}"
