@@ -284,39 +284,9 @@ def render_mesh(
     (float64) before VTK sees them. Cost on software OpenGL (Mesa llvmpipe, 2 cores): about a second per
     million faces, most of it uploading the geometry.
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
-    if len(mesh.faces) == 0:
-        raise InvalidInputError("mesh has no faces; nothing to render")
-    try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
-    if not (8 <= width <= 16384 and 8 <= height <= 16384):
-        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
-    z_scale = float(z_scale)
-    if not math.isfinite(z_scale) or z_scale <= 0:
-        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
     if scalars not in (None, "level", "height"):
         raise InvalidInputError(f"scalars must be None, 'level' or 'height'; got {scalars!r}")
-
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    finite = np.isfinite(vertices).all(axis=1)
-    if not finite.any():
-        raise InvalidInputError("mesh has no finite vertex")
-    if bounds is None:
-        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
-    else:
-        box = np.asarray(bounds, dtype=np.float64)
-        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
-            raise InvalidInputError(
-                f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min; got {bounds!r}")
-        lo, hi = box[0], box[1]
-    centre = (lo + hi) / 2.0
-    local = vertices - centre
-    local[:, 2] *= z_scale
-    box = np.array([lo - centre, hi - centre])
-    box[:, 2] *= z_scale
+    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -338,6 +308,57 @@ def render_mesh(
     else:
         add_kwargs.update(color=_DEFAULT_COLOR)
 
+    mesh_kwargs = dict(smooth_shading=False, show_edges=show_edges, ambient=_AMBIENT, diffuse=_DIFFUSE,
+                       specular=0.0, lighting=True, **add_kwargs)
+    return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
+                  camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
+                  lighting=True)
+
+
+def _frame_mesh(
+    mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None
+) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
+    """Check the arguments every render shares; return (width, height, vertices, local vertices recentred on
+    the framed box with z scaled, finite-vertex mask, local box)."""
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    if len(mesh.faces) == 0:
+        raise InvalidInputError("mesh has no faces; nothing to render")
+    try:
+        width, height = (int(v) for v in window_size)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+    if not (8 <= width <= 16384 and 8 <= height <= 16384):
+        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+    z_scale = float(z_scale)
+    if not math.isfinite(z_scale) or z_scale <= 0:
+        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.any():
+        raise InvalidInputError("mesh has no finite vertex")
+    if bounds is None:
+        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
+    else:
+        box = np.asarray(bounds, dtype=np.float64)
+        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+            raise InvalidInputError(
+                f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min; got {bounds!r}")
+        lo, hi = box[0], box[1]
+    centre = (lo + hi) / 2.0
+    local = vertices - centre
+    local[:, 2] *= z_scale
+    box = np.array([lo - centre, hi - centre])
+    box[:, 2] *= z_scale
+    return width, height, vertices, local, finite, box
+
+
+def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64],
+           finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
+           size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool) -> NDArray[np.uint8]:
+    """One off-screen render of ``poly``: the fitted camera, the key and fill lights, a clipping range that
+    holds the whole mesh; returns the (H, W, 3) image."""
+    width, height = size
     plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
     try:
         if not plotter.render_window.SupportsOpenGL():
@@ -350,14 +371,14 @@ def render_mesh(
         else:
             plotter.disable_anti_aliasing()
         plotter.set_background(background)
-        framed = _frame_points(local, finite) if bounds is None else _box_corners(box)
+        framed = _box_corners(box) if framed_by_bounds else _frame_points(local, finite)
         position = _camera_position(camera, framed, width / height)
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
-        for light in _lights(pv, box, fill):
-            plotter.add_light(light)
-        plotter.add_mesh(poly, smooth_shading=False, show_edges=show_edges, ambient=_AMBIENT,
-                         diffuse=_DIFFUSE, specular=0.0, lighting=True, **add_kwargs)
+        if lighting:
+            for light in _lights(pv, box, fill):
+                plotter.add_light(light)
+        plotter.add_mesh(poly, **mesh_kwargs)
         plotter.camera_position = position
         plotter.camera.view_angle = _VIEW_ANGLE
         seen = local[finite]
@@ -432,71 +453,18 @@ def render_textured_mesh(
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
-    if len(mesh.faces) == 0:
-        raise InvalidInputError("mesh has no faces; nothing to render")
-    try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
-    if not (8 <= width <= 16384 and 8 <= height <= 16384):
-        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
-    z_scale = float(z_scale)
-    if not math.isfinite(z_scale) or z_scale <= 0:
-        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    finite = np.isfinite(vertices).all(axis=1)
-    if bounds is None:
-        lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
-    else:
-        box = np.asarray(bounds, dtype=np.float64)
-        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
-            raise InvalidInputError(
-                f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min; got {bounds!r}")
-        lo, hi = box[0], box[1]
-    centre = (lo + hi) / 2.0
-    local = vertices - centre
-    local[:, 2] *= z_scale
-    box = np.array([lo - centre, hi - centre])
-    box[:, 2] *= z_scale
+    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds)
 
     pv = _import_pyvista()
     poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
     poly.active_texture_coordinates = np.ascontiguousarray(uv, dtype=np.float32)
     picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
     texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
-    plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
-    try:
-        if not plotter.render_window.SupportsOpenGL():
-            raise MissingDependencyError(
-                "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
-                "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
-            )
-        if anti_aliasing:
-            plotter.enable_anti_aliasing("msaa")
-        else:
-            plotter.disable_anti_aliasing()
-        plotter.set_background(background)
-        framed = _frame_points(local, finite) if bounds is None else _box_corners(box)
-        position = _camera_position(camera, framed, width / height)
-        look_from = np.subtract(position[0], position[1])
-        fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
-        if lighting:
-            for light in _lights(pv, box, fill):
-                plotter.add_light(light)
-        plotter.add_mesh(poly, texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
-                         diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
-        plotter.camera_position = position
-        plotter.camera.view_angle = _VIEW_ANGLE
-        seen = local[finite]
-        union = np.array([np.minimum(box[0], seen.min(axis=0)), np.maximum(box[1], seen.max(axis=0))])
-        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union)
-        shot = plotter.screenshot(return_img=True)
-    finally:
-        with contextlib.suppress(Exception):
-            plotter.close()
-    if shot is None or shot.ndim != 3 or shot.shape[:2] != (height, width):
-        raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
-    return np.ascontiguousarray(shot[:, :, :3], dtype=np.uint8)
+    mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
+                       diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
+    return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
+                  camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
+                  lighting=lighting)
 
 
 # ------------------------------------------------------------------------------------------ layered passes
