@@ -1121,27 +1121,63 @@ def composite(
     if not layers:
         return out.astype(np.uint8, copy=True)
     shape = out.shape[:2]
-    color = out.astype(np.float32)
-    depth = np.asarray(base_depth, dtype=np.float32).copy()
-    if depth.shape != shape:
-        raise InvalidInputError(f"base_depth must be {shape}; got {depth.shape}")
+    if np.shape(base_depth) != shape:
+        raise InvalidInputError(f"base_depth must be {shape}; got {np.shape(base_depth)}")
+    full = (0, 0, shape[1], shape[0])
+    boxed = []
     for i, (c, alpha, z, depth_test, writes_depth) in enumerate(layers):
-        c = np.asarray(c)
-        alpha = np.asarray(alpha, dtype=np.float32)
-        z = np.asarray(z, dtype=np.float32)
+        c, alpha, z = np.asarray(c), np.asarray(alpha), np.asarray(z)
         if c.shape != out.shape or alpha.shape != shape or z.shape != shape:
             raise InvalidInputError(f"layer {i} must hold an {out.shape} color, {shape} alpha and depth; got "
                                     f"{c.shape}, {alpha.shape}, {z.shape}")
+        boxed.append((c, alpha, z, depth_test, writes_depth, full))
+    return _composite_boxed(out, base_depth, boxed)
+
+
+def _composite_boxed(
+    base: NDArray[np.uint8],
+    base_depth: NDArray[np.float32],
+    layers: Sequence[tuple[NDArray[Any], NDArray[np.float32], NDArray[np.float32], bool, bool,
+                           tuple[int, int, int, int]]],
+) -> NDArray[np.uint8]:
+    """:func:`composite` of layers that each cover only a pixel box: (color, alpha, depth, depth_test,
+    writes_depth, (col0, row0, col1, row1)), the images of shape (row1 − row0, col1 − col0) (color may also
+    be one (3,) color for the whole box). Outside its box a layer is empty (alpha 0). The result is
+    :func:`composite` of the same layers padded to the window, bit for bit: outside every box the base
+    comes back unchanged, and inside the boxes the same float32 formula runs in the same order."""
+    out = np.asarray(base)
+    shape = out.shape[:2]
+    work: list[tuple[Any, ...]] = []
+    for c, alpha, z, depth_test, writes_depth, (c0, r0, c1, r1) in layers:
+        alpha = np.asarray(alpha, dtype=np.float32)
+        if alpha.size == 0:
+            continue
         rows = np.flatnonzero(alpha.any(axis=1))
         if len(rows) == 0:
             continue
         cols = np.flatnonzero(alpha[rows[0]: rows[-1] + 1].any(axis=0))
-        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # only where the layer has pixels
-        a = alpha[box] * (z[box] < depth[box]) if depth_test else alpha[box]
-        color[box] += a[..., None] * (c[box].astype(np.float32) - color[box])
+        inner = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # where the layer has pixels
+        c = np.asarray(c)
+        work.append((c if c.ndim == 1 else c[inner], alpha[inner], np.asarray(z, dtype=np.float32)[inner],
+                     depth_test, writes_depth, (r0 + rows[0], c0 + cols[0])))
+    result = out.astype(np.uint8, copy=True)
+    if not work:
+        return result
+    top = min(w[5][0] for w in work)
+    left = min(w[5][1] for w in work)
+    bottom = max(w[5][0] + w[1].shape[0] for w in work)
+    right = max(w[5][1] + w[1].shape[1] for w in work)
+    union = (slice(top, bottom), slice(left, right))  # float32 only where some layer has pixels
+    color = out[union].astype(np.float32)
+    depth = np.asarray(base_depth, dtype=np.float32)[union].copy()
+    for c, alpha, z, depth_test, writes_depth, (r, col) in work:
+        box = (slice(r - top, r - top + alpha.shape[0]), slice(col - left, col - left + alpha.shape[1]))
+        a = alpha * (z < depth[box]) if depth_test else alpha
+        color[box] += a[..., None] * (c.astype(np.float32) - color[box])
         if writes_depth:
-            depth[box] = np.where(a > 0, z[box], depth[box])
-    return np.clip(np.rint(color), 0, 255).astype(np.uint8)
+            depth[box] = np.where(a > 0, z, depth[box])
+    result[union] = np.clip(np.rint(color), 0, 255).astype(np.uint8)
+    return result
 
 
 # ------------------------------------------------------------------------------------------------ rendering
@@ -1331,14 +1367,15 @@ def render_closeups(
             if image_texture is not None:
                 rgb = _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
-        boxes = [renderer.bounds_of("overview")]
-        for layer, strip in zip(layers, strips, strict=True):
-            for v in (layer.vertices, strip.vertices):
-                if len(v):
-                    boxes.append(np.array([v.min(0), v.max(0)]))
-        box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         if bounds is not None:
             box = np.asarray(bounds, dtype=np.float64)
+        else:
+            boxes = [renderer.bounds_of("overview")]
+            for layer, strip in zip(layers, strips, strict=True):
+                for v in (layer.vertices, strip.vertices):
+                    if len(v):
+                        boxes.append(np.array([[v[:, i].min() for i in range(3)], [v[:, i].max() for i in range(3)]]))
+            box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         anchors: dict[int, Any] = {}
@@ -1374,12 +1411,13 @@ def render_closeups(
                     boards[k] = (content_vertices, content_faces, rgb, top)
                 else:
                     contents[k] = (content_vertices, content_faces, {"rgb": rgb})
-        anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes)
-        content_images = renderer.render_layers("closeup", contents, merge=merge_passes)
+        # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
+        anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
+        content_images = renderer.render_layers("closeup", contents, merge=merge_passes, crop=True)
         passes = []
         for k, cu in enumerate(items):  # compositing in the order of generation: anchor k, then close-up k
             if k in anchor_images:
-                tex, z = anchor_images[k]
+                tex, z, rect = anchor_images[k]
                 color = _closeup_color(cu, k)
                 anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
                 covered = z < np.inf
@@ -1388,17 +1426,16 @@ def render_closeups(
                                            cu.anchor.table)
                 if not cu.active and cu.anchor.inactive == "faint":
                     alpha *= 0.25
-                c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
-                passes.append((c, alpha, z, True, False))
+                passes.append((np.asarray(anchor_color, np.float32) * 255, alpha, z, True, False, rect))
             if k in boards:
                 image, coverage, z = renderer.render_billboard(*boards[k][:3], cu.billboard_view, boards[k][3])
-                passes.append((image, coverage.astype(np.float32), z, False, True))
+                passes.append((image, coverage.astype(np.float32), z, False, True, (0, 0, width, height)))
             elif k in content_images:
-                image, z = content_images[k]
-                passes.append((image, (z < np.inf).astype(np.float32), z, False, True))
+                image, z, rect = content_images[k]
+                passes.append((image, (z < np.inf).astype(np.float32), z, False, True, rect))
         clock["render"] = _time.perf_counter() - start
         start = _time.perf_counter()
-        result = composite(base, base_depth, passes)
+        result = _composite_boxed(base, base_depth, passes) if passes else base.copy()
         clock["composite"] = _time.perf_counter() - start
         return result
     finally:
