@@ -1148,8 +1148,11 @@ def _composite_boxed(
     out = np.asarray(base)
     shape = out.shape[:2]
     work: list[tuple[Any, ...]] = []
-    for c, alpha, z, depth_test, writes_depth, (c0, r0, c1, r1) in layers:
+    for i, (c, alpha, z, depth_test, writes_depth, (c0, r0, c1, r1)) in enumerate(layers):
         alpha = np.asarray(alpha, dtype=np.float32)
+        if not (0 <= c0 <= c1 <= shape[1] and 0 <= r0 <= r1 <= shape[0]) or alpha.shape != (r1 - r0, c1 - c0):
+            raise InvalidInputError(f"layer {i}: box {(c0, r0, c1, r1)} must lie in the {shape[1]}x{shape[0]} "
+                                    f"image and match its alpha; got alpha of shape {alpha.shape}")
         if alpha.size == 0:
             continue
         rows = np.flatnonzero(alpha.any(axis=1))
