@@ -1258,6 +1258,47 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
+def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
+                    strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
+                    ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
+    """The camera-independent part of a frame: per close-up its anchor mesh (values t), its content mesh
+    (rgb) or billboard."""
+    anchors: dict[int, Any] = {}
+    contents: dict[int, Any] = {}
+    boards: dict[int, Any] = {}
+    for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
+        show_anchor = cu.active or cu.anchor.inactive != "hidden"
+        if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+            full = layer.mask_factor >= 1.0
+            inner = full[layer.faces].all(axis=1)
+            content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
+            content_vertices = layer.vertices
+        else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
+            inner = (layer.mask_factor >= cu.anchor.outline_level)[layer.faces].any(axis=1)
+            content_faces, band_faces = layer.faces[inner], layer.faces[:0]
+            content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+        if show_anchor:
+            nv = len(strip.vertices)
+            if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
+                d = np.linalg.norm(layer.vertices - layer.original, axis=1)
+                t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
+                vertices = np.concatenate([strip.vertices, layer.vertices])
+                faces = np.concatenate([strip.faces, band_faces + nv])
+                tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
+            else:
+                vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
+            if len(faces):
+                anchors[k] = (vertices, faces, {"values": tvals})
+        if len(content_faces):
+            rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
+            if cu.view == "billboard":
+                top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
+                boards[k] = (content_vertices, content_faces, rgb, top)
+            else:
+                contents[k] = (content_vertices, content_faces, {"rgb": rgb})
+    return anchors, contents, boards
+
+
 def render_closeups(
     terrain: Terrain | trimesh.Trimesh | ArrayLike,
     closeups: Sequence[CloseUp] | CloseUp = (),
@@ -1273,6 +1314,7 @@ def render_closeups(
     bounds: ArrayLike | None = None,
     renderer: Any = None,
     reuse_overview: bool = False,
+    reuse_closeups: bool = True,
     merge_passes: bool = True,
     timings: dict[str, float] | None = None,
     device: wp.DeviceLike = None,
@@ -1303,6 +1345,10 @@ def render_closeups(
     reuse_overview : bool
         With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
         frame box nor the overview changed (only the close-ups move); the images are the same either way.
+    reuse_closeups : bool
+        Keep the transformed and culled close-ups and anchors of the previous frame on this terrain when the
+        close-ups are the same objects with the same M at ``time`` (a moving camera over still close-ups:
+        only the camera-dependent passes and the compositing run); the images are the same either way.
     merge_passes : bool
         Render the anchors (and the close-ups) whose screen boxes do not overlap in one pass and split the
         images by those boxes: the layers come out as from one pass each (to a gray level of rounding at a
@@ -1347,8 +1393,21 @@ def render_closeups(
     image_texture = None if texture is None else _check_texture(texture, "texture")
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
-    layers = closeup_layers(t, items, time=time, device=device)
-    strips = anchor_strips(t, items, time=time, device=device)
+    pivot = _pivot_z(t)
+    matrices = [cu.matrix(pivot, time=time) for cu in items]
+    memo = t.cached(("closeup", "frame"), dict)
+    setting = (scalars, cmap, str(resolve_device(device)))
+    last = memo.get("last") if reuse_closeups else None
+    if (last is not None and len(last[0]) == len(items) and all(a is b for a, b in zip(last[0], items, strict=True))
+            and last[1] == setting and last[2] is texture
+            and all(np.array_equal(a, b) for a, b in zip(last[3], matrices, strict=True))):
+        layers, strips, anchors, contents, boards = last[4]
+    else:
+        layers = closeup_layers(t, items, time=time, device=device)
+        strips = anchor_strips(t, items, time=time, device=device)
+        anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+        # kept (with the objects it depends on, so their ids stay theirs) for a next frame of the same close-ups
+        memo["last"] = (tuple(items), setting, texture, matrices, (layers, strips, anchors, contents, boards))
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
@@ -1381,39 +1440,6 @@ def render_closeups(
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
-        anchors: dict[int, Any] = {}
-        contents: dict[int, Any] = {}
-        boards: dict[int, Any] = {}
-        for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
-            show_anchor = cu.active or cu.anchor.inactive != "hidden"
-            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
-                full = layer.mask_factor >= 1.0
-                inner = full[layer.faces].all(axis=1)
-                content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
-                content_vertices = layer.vertices
-            else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
-                inner = (layer.mask_factor >= cu.anchor.outline_level)[layer.faces].any(axis=1)
-                content_faces, band_faces = layer.faces[inner], layer.faces[:0]
-                content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
-            if show_anchor:
-                nv = len(strip.vertices)
-                if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
-                    d = np.linalg.norm(layer.vertices - layer.original, axis=1)
-                    t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
-                    vertices = np.concatenate([strip.vertices, layer.vertices])
-                    faces = np.concatenate([strip.faces, band_faces + nv])
-                    tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
-                else:
-                    vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
-                if len(faces):
-                    anchors[k] = (vertices, faces, {"values": tvals})
-            if len(content_faces):
-                rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
-                if cu.view == "billboard":
-                    top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
-                    boards[k] = (content_vertices, content_faces, rgb, top)
-                else:
-                    contents[k] = (content_vertices, content_faces, {"rgb": rgb})
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
         anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
         content_images = renderer.render_layers("closeup", contents, merge=merge_passes, crop=True)

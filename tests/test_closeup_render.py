@@ -189,6 +189,29 @@ def test_merged_passes_equal_one_pass_per_layer():
 
 @pytest.mark.render
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_reused_closeup_geometry_gives_the_same_frames():
+    """Frames that keep the previous frame's close-up geometry (same CloseUp objects, same M) equal frames
+    that transform again; a spinning close-up at another time is transformed again."""
+    t = terrain()
+    box = [(1000, 2000, 0), (1080, 2064, 160)]
+    still = one()
+    spinning = one(spin=(0.25, 10))
+    with render.LayeredRenderer(window_size=SIZE) as renderer:
+        frames = {}
+        for reuse in (False, True, True):
+            for time in (0.0, 1.0):
+                timings = {}
+                image = render_closeups(t, [still, spinning], window_size=SIZE, bounds=box, renderer=renderer,
+                                        time=time, reuse_closeups=reuse, timings=timings, device="cpu")
+                frames.setdefault(time, []).append(image)
+    for time, images in frames.items():
+        for image in images[1:]:
+            np.testing.assert_array_equal(image, images[0])
+    assert np.abs(frames[0.0][0].astype(int) - frames[1.0][0].astype(int)).sum() > 0
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_boxed_read_backs_equal_the_full_window_pass():
     """A pass read back in a pixel box is that box of the full-window pass, bit for bit; layers cut to their
     screen boxes (crop) are the boxes of the full-window layers, which hold nothing outside them."""
