@@ -1395,19 +1395,21 @@ def render_closeups(
     start = _time.perf_counter()
     pivot = _pivot_z(t)
     matrices = [cu.matrix(pivot, time=time) for cu in items]
+    # per terrain, the last geometry of each set of close-ups (a few sets: e.g. scenes shown in turn); an entry
+    # holds the objects it depends on, so that their ids stay theirs while it lives
     memo = t.cached(("closeup", "frame"), dict)
-    setting = (scalars, cmap, str(resolve_device(device)))
-    last = memo.get("last") if reuse_closeups else None
-    if (last is not None and len(last[0]) == len(items) and all(a is b for a, b in zip(last[0], items, strict=True))
-            and last[1] == setting and last[2] is texture
-            and all(np.array_equal(a, b) for a, b in zip(last[3], matrices, strict=True))):
-        layers, strips, anchors, contents, boards = last[4]
+    memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
+    last = memo.get(memo_key) if reuse_closeups else None
+    if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
+            and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
+        layers, strips, anchors, contents, boards = last[3]
     else:
         layers = closeup_layers(t, items, time=time, device=device)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
-        # kept (with the objects it depends on, so their ids stay theirs) for a next frame of the same close-ups
-        memo["last"] = (tuple(items), setting, texture, matrices, (layers, strips, anchors, contents, boards))
+        if len(memo) >= 8 and memo_key not in memo:
+            memo.clear()
+        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards))
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
