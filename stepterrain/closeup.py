@@ -881,23 +881,31 @@ def closeup_layers(
                 src.scalars = _vertex_scalars(t, src.points, cu.scalars)
             cache[key] = src
         sources.append(src)
-    n_points = np.array([len(s.points) for s in sources])
-    n_faces = np.array([len(s.faces) for s in sources])
-    point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
-    points = np.concatenate([s.points for s in sources]).astype(np.float32)
-    faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
-    point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
+    # the concatenated inputs and their uploads, kept for the same sources (the kernels only read them)
+    joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
+    joined = cache.get(joined_key)
+    if joined is None or any(a is not b for a, b in zip(joined[0], sources, strict=True)):
+        n_points = np.array([len(s.points) for s in sources])
+        n_faces = np.array([len(s.faces) for s in sources])
+        point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
+        points = np.concatenate([s.points for s in sources]).astype(np.float32)
+        faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
+        point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
+        check_budget(len(points) * (12 + 4 + 4 + 12) + len(faces) * (12 + 4 + 12), "close-up geometry",
+                     memory_budget)
+        uploads = (to_device(points.reshape(-1, 3), wp.vec3, device), to_device(point_layer, wp.int32, device),
+                   to_device(faces.reshape(-1, 3), wp.vec3i, device))
+        joined = (tuple(sources), n_faces, point_start, points, faces, point_layer, uploads)
+        cache[joined_key] = joined
+    _, n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
 
     layers = _layers_struct(items, matrices, t.local_origin, device)
-    points_wp = to_device(points.reshape(-1, 3), wp.vec3, device)
-    layer_wp = to_device(point_layer, wp.int32, device)
     transformed = wp.empty(n, dtype=wp.vec3, device=device)
     factors = wp.empty(n, dtype=wp.float32, device=device)
     launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
            device)
-    faces_wp = to_device(faces.reshape(-1, 3), wp.vec3i, device)
     counts = count_buffer("closeup.faces", nf, device)
     launch(closeup_kernels.count_closeup_faces, nf, [faces_wp, factors], [counts], device)
     offsets, face_count = exclusive_offsets(counts, "closeup.faces")
@@ -1184,6 +1192,9 @@ def _composite_boxed(
 
 
 # ------------------------------------------------------------------------------------------------ rendering
+_LUTS: dict[tuple[str, int], NDArray[np.uint8]] = {}
+
+
 def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: float) -> NDArray[np.uint8]:
     import matplotlib
 
@@ -1195,7 +1206,20 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
     x = np.clip((mesh_values - vmin) / span, 0, 1)
     if cmap == "terrain":  # its land part: the first quarter is sea blue
         x = 0.25 + 0.75 * x
-    return (np.asarray(table(x))[:, :3] * 255 + 0.5).astype(np.uint8)
+    # = (table(x)[:, :3] * 255 + 0.5).astype(uint8), entry by entry: matplotlib looks a float x up in its
+    # N-entry table at int(x·N) (x·N in x's dtype, N itself mapped to N − 1, NaN to the "bad" color); the
+    # table is converted to uint8 once instead of every vertex's RGBA
+    key = (cmap, table.N)
+    lut = _LUTS.get(key)
+    if lut is None:
+        entries = np.asarray(table(np.arange(table.N)))[:, :3]
+        bad = np.asarray(table(np.array([np.nan])))[:, :3]
+        lut = _LUTS[key] = (np.concatenate([entries, bad]) * 255 + 0.5).astype(np.uint8)
+    xa = np.array(x, copy=True)
+    xa *= table.N
+    xa[xa == table.N] = table.N - 1
+    index = np.where(np.isnan(xa), table.N, xa).astype(np.int64)
+    return lut[index]
 
 
 def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
@@ -1268,13 +1292,15 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
     boards: dict[int, Any] = {}
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         show_anchor = cu.active or cu.anchor.inactive != "hidden"
+        f = layer.faces
         if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
             full = layer.mask_factor >= 1.0
-            inner = full[layer.faces].all(axis=1)
+            inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
             content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
             content_vertices = layer.vertices
         else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
-            inner = (layer.mask_factor >= cu.anchor.outline_level)[layer.faces].any(axis=1)
+            seen = layer.mask_factor >= cu.anchor.outline_level
+            inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
             content_faces, band_faces = layer.faces[inner], layer.faces[:0]
             content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
         if show_anchor:

@@ -399,6 +399,23 @@ def test_boxed_composite_equals_the_full_window_composite(seed, count):
     np.testing.assert_array_equal(_composite_boxed(base, base_depth, boxed), composite(base, base_depth, padded))
 
 
+@pytest.mark.parametrize("cmap", ["terrain", "magma", "twilight"])
+def test_vertex_colors_equal_matplotlib(cmap):
+    """_colors_for looks up a uint8 table: the same colors as matplotlib's colormap per vertex, NaN included."""
+    import matplotlib
+
+    from stepterrain.closeup import _colors_for
+
+    rng = np.random.default_rng(3)
+    for dtype in (np.float32, np.float64):
+        values = np.concatenate([rng.uniform(-50, 1050, 20000), np.linspace(0, 1000, 4001), [np.nan]]).astype(dtype)
+        for vmin, vmax in [(0.0, 1000.0), (np.float32(12.5), np.float32(999.0))]:
+            x = np.clip((values - vmin) / (vmax - vmin), 0, 1)
+            x = 0.25 + 0.75 * x if cmap == "terrain" else x
+            expected = (np.asarray(matplotlib.colormaps[cmap](x))[:, :3] * 255 + 0.5).astype(np.uint8)
+            np.testing.assert_array_equal(_colors_for(values, cmap, vmin, vmax), expected)
+
+
 def test_boxed_composite_rejects_a_box_outside_the_image():
     from stepterrain.closeup import _composite_boxed
 
