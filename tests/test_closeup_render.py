@@ -204,7 +204,7 @@ def test_reused_closeup_geometry_gives_the_same_frames():
                 image = render_closeups(t, [still, spinning], window_size=SIZE, bounds=box, renderer=renderer,
                                         time=time, reuse_closeups=reuse, timings=timings, device="cpu")
                 frames.setdefault(time, []).append(image)
-    for time, images in frames.items():
+    for images in frames.values():
         for image in images[1:]:
             np.testing.assert_array_equal(image, images[0])
     assert np.abs(frames[0.0][0].astype(int) - frames[1.0][0].astype(int)).sum() > 0
