@@ -5,12 +5,17 @@
    disc covering 5% of the terrain. Contenders:
    - ``culled``: ``stepterrain.closeup.render_closeups`` (each close-up cut to its ROI window, culled to the
      faces with m > 0 by count -> scan -> emit), the overview kept uploaded between frames (one
-     ``LayeredRenderer``), as in an interactive loop;
+     ``LayeredRenderer``), as in an interactive loop, in three configurations taken frame by frame in turn:
+     "moving" (``reuse_closeups=False``: every frame transforms, culls, renders and composites everything: the
+     goal's whole pipeline), "close-ups still" (the camera moves over still close-ups: their transformed
+     geometry is kept, ``reuse_closeups=True``) and "camera still" (the overview pass is kept,
+     ``reuse_overview=True``); wall time and the CPU time (``time.process_time``, all threads, Mesa's
+     included) of each frame;
    - ``full``: the paper's SPFR cost model (its Table I and §IV.C): every close-up pass renders the whole
      terrain, transformed with C = m·M + (1 − m)·I in NumPy (faces with m = 0 discarded only after the
      transform, as a fragment shader would), the same compositing.
    Reported: best and median of ``--repeat`` frames, the stages, and the ratio to the 0-close-up frame
-   (goal: 4 close-ups <= 1.5x).
+   (goal: 4 close-ups <= 1.5x), by wall time and by best CPU time.
 2. The transform kernel's vertices per second on one core (``transform_closeup_vertices`` over every DEM
    vertex) against the same transform in NumPy (vectorised: bilinear mask lookup, then V_O + m·(M·V_O − V_O)).
 3. ``closeup_layers`` (transform + cull, end to end) for ROIs of 1%, 5%, 20% and 100% of the terrain: the
@@ -18,7 +23,7 @@
 
 Pinned to one CPU core (``--all-cores`` lifts it). Software OpenGL (Mesa llvmpipe) renders here.
 
-    python benchmarks/run_closeup.py --repeat 3 --output /tmp/closeup.md
+    python benchmarks/run_closeup.py --repeat 7 --output /tmp/closeup.md
 """
 
 from __future__ import annotations
