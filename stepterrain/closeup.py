@@ -1400,6 +1400,9 @@ def render_closeups(
     pixel, depth-tested against what lies below) and its content (faces with m = 1, lit, drawn over what
     lies below). A billboard close-up's content is an orthographic render from ``billboard_view`` pasted over
     the screen box of its transformed outline. With no close-ups the result is the overview pass itself.
+    Anchor and content passes are read back and composited only inside their screen boxes (the projected
+    corners of their bounds: no fragment falls outside), so their cost beyond rasterising follows their size
+    on screen, not the window's; the images equal full-window passes and compositing bit for bit.
     """
     import time as _time
 
