@@ -881,23 +881,31 @@ def closeup_layers(
                 src.scalars = _vertex_scalars(t, src.points, cu.scalars)
             cache[key] = src
         sources.append(src)
-    n_points = np.array([len(s.points) for s in sources])
-    n_faces = np.array([len(s.faces) for s in sources])
-    point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
-    points = np.concatenate([s.points for s in sources]).astype(np.float32)
-    faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
-    point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
+    # the concatenated inputs and their uploads, kept for the same sources (the kernels only read them)
+    joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
+    joined = cache.get(joined_key)
+    if joined is None or any(a is not b for a, b in zip(joined[0], sources, strict=True)):
+        n_points = np.array([len(s.points) for s in sources])
+        n_faces = np.array([len(s.faces) for s in sources])
+        point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
+        points = np.concatenate([s.points for s in sources]).astype(np.float32)
+        faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
+        point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
+        check_budget(len(points) * (12 + 4 + 4 + 12) + len(faces) * (12 + 4 + 12), "close-up geometry",
+                     memory_budget)
+        uploads = (to_device(points.reshape(-1, 3), wp.vec3, device), to_device(point_layer, wp.int32, device),
+                   to_device(faces.reshape(-1, 3), wp.vec3i, device))
+        joined = (tuple(sources), n_faces, point_start, points, faces, point_layer, uploads)
+        cache[joined_key] = joined
+    _, n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
 
     layers = _layers_struct(items, matrices, t.local_origin, device)
-    points_wp = to_device(points.reshape(-1, 3), wp.vec3, device)
-    layer_wp = to_device(point_layer, wp.int32, device)
     transformed = wp.empty(n, dtype=wp.vec3, device=device)
     factors = wp.empty(n, dtype=wp.float32, device=device)
     launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
            device)
-    faces_wp = to_device(faces.reshape(-1, 3), wp.vec3i, device)
     counts = count_buffer("closeup.faces", nf, device)
     launch(closeup_kernels.count_closeup_faces, nf, [faces_wp, factors], [counts], device)
     offsets, face_count = exclusive_offsets(counts, "closeup.faces")
@@ -1121,30 +1129,72 @@ def composite(
     if not layers:
         return out.astype(np.uint8, copy=True)
     shape = out.shape[:2]
-    color = out.astype(np.float32)
-    depth = np.asarray(base_depth, dtype=np.float32).copy()
-    if depth.shape != shape:
-        raise InvalidInputError(f"base_depth must be {shape}; got {depth.shape}")
+    if np.shape(base_depth) != shape:
+        raise InvalidInputError(f"base_depth must be {shape}; got {np.shape(base_depth)}")
+    full = (0, 0, shape[1], shape[0])
+    boxed = []
     for i, (c, alpha, z, depth_test, writes_depth) in enumerate(layers):
-        c = np.asarray(c)
-        alpha = np.asarray(alpha, dtype=np.float32)
-        z = np.asarray(z, dtype=np.float32)
+        c, alpha, z = np.asarray(c), np.asarray(alpha), np.asarray(z)
         if c.shape != out.shape or alpha.shape != shape or z.shape != shape:
             raise InvalidInputError(f"layer {i} must hold an {out.shape} color, {shape} alpha and depth; got "
                                     f"{c.shape}, {alpha.shape}, {z.shape}")
+        boxed.append((c, alpha, z, depth_test, writes_depth, full))
+    return _composite_boxed(out, base_depth, boxed)
+
+
+def _composite_boxed(
+    base: NDArray[np.uint8],
+    base_depth: NDArray[np.float32],
+    layers: Sequence[tuple[NDArray[Any], NDArray[np.float32], NDArray[np.float32], bool, bool,
+                           tuple[int, int, int, int]]],
+) -> NDArray[np.uint8]:
+    """:func:`composite` of layers that each cover only a pixel box: (color, alpha, depth, depth_test,
+    writes_depth, (col0, row0, col1, row1)), the images of shape (row1 − row0, col1 − col0) (color may also
+    be one (3,) color for the whole box). Outside its box a layer is empty (alpha 0). The result is
+    :func:`composite` of the same layers padded to the window, bit for bit: outside every box the base
+    comes back unchanged, and inside the boxes the same float32 formula runs in the same order."""
+    out = np.asarray(base)
+    shape = out.shape[:2]
+    work: list[tuple[Any, ...]] = []
+    for i, (c, alpha, z, depth_test, writes_depth, (c0, r0, c1, r1)) in enumerate(layers):
+        alpha = np.asarray(alpha, dtype=np.float32)
+        if not (0 <= c0 <= c1 <= shape[1] and 0 <= r0 <= r1 <= shape[0]) or alpha.shape != (r1 - r0, c1 - c0):
+            raise InvalidInputError(f"layer {i}: box {(c0, r0, c1, r1)} must lie in the {shape[1]}x{shape[0]} "
+                                    f"image and match its alpha; got alpha of shape {alpha.shape}")
+        if alpha.size == 0:
+            continue
         rows = np.flatnonzero(alpha.any(axis=1))
         if len(rows) == 0:
             continue
         cols = np.flatnonzero(alpha[rows[0]: rows[-1] + 1].any(axis=0))
-        box = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # only where the layer has pixels
-        a = alpha[box] * (z[box] < depth[box]) if depth_test else alpha[box]
-        color[box] += a[..., None] * (c[box].astype(np.float32) - color[box])
+        inner = (slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1))  # where the layer has pixels
+        c = np.asarray(c)
+        work.append((c if c.ndim == 1 else c[inner], alpha[inner], np.asarray(z, dtype=np.float32)[inner],
+                     depth_test, writes_depth, (r0 + rows[0], c0 + cols[0])))
+    result = out.astype(np.uint8, copy=True)
+    if not work:
+        return result
+    top = min(w[5][0] for w in work)
+    left = min(w[5][1] for w in work)
+    bottom = max(w[5][0] + w[1].shape[0] for w in work)
+    right = max(w[5][1] + w[1].shape[1] for w in work)
+    union = (slice(top, bottom), slice(left, right))  # float32 only where some layer has pixels
+    color = out[union].astype(np.float32)
+    depth = np.asarray(base_depth, dtype=np.float32)[union].copy()
+    for c, alpha, z, depth_test, writes_depth, (r, col) in work:
+        box = (slice(r - top, r - top + alpha.shape[0]), slice(col - left, col - left + alpha.shape[1]))
+        a = alpha * (z < depth[box]) if depth_test else alpha
+        color[box] += a[..., None] * (c.astype(np.float32) - color[box])
         if writes_depth:
-            depth[box] = np.where(a > 0, z[box], depth[box])
-    return np.clip(np.rint(color), 0, 255).astype(np.uint8)
+            depth[box] = np.where(a > 0, z, depth[box])
+    result[union] = np.clip(np.rint(color), 0, 255).astype(np.uint8)
+    return result
 
 
 # ------------------------------------------------------------------------------------------------ rendering
+_LUTS: dict[tuple[str, int], NDArray[np.uint8]] = {}
+
+
 def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: float) -> NDArray[np.uint8]:
     import matplotlib
 
@@ -1156,7 +1206,20 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
     x = np.clip((mesh_values - vmin) / span, 0, 1)
     if cmap == "terrain":  # its land part: the first quarter is sea blue
         x = 0.25 + 0.75 * x
-    return (np.asarray(table(x))[:, :3] * 255 + 0.5).astype(np.uint8)
+    # = (table(x)[:, :3] * 255 + 0.5).astype(uint8), entry by entry: matplotlib looks a float x up in its
+    # N-entry table at int(x·N) (x·N in x's dtype, N itself mapped to N − 1, NaN to the "bad" color); the
+    # table is converted to uint8 once instead of every vertex's RGBA
+    key = (cmap, table.N)
+    lut = _LUTS.get(key)
+    if lut is None:
+        entries = np.asarray(table(np.arange(table.N)))[:, :3]
+        bad = np.asarray(table(np.array([np.nan])))[:, :3]
+        lut = _LUTS[key] = (np.concatenate([entries, bad]) * 255 + 0.5).astype(np.uint8)
+    xa = np.array(x, copy=True)
+    xa *= table.N
+    xa[xa == table.N] = table.N - 1
+    index = np.where(np.isnan(xa), table.N, xa).astype(np.int64)
+    return lut[index]
 
 
 def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
@@ -1219,6 +1282,49 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
+def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
+                    strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
+                    ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
+    """The camera-independent part of a frame: per close-up its anchor mesh (values t), its content mesh
+    (rgb) or billboard."""
+    anchors: dict[int, Any] = {}
+    contents: dict[int, Any] = {}
+    boards: dict[int, Any] = {}
+    for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
+        show_anchor = cu.active or cu.anchor.inactive != "hidden"
+        f = layer.faces
+        if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+            full = layer.mask_factor >= 1.0
+            inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
+            content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
+            content_vertices = layer.vertices
+        else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
+            seen = layer.mask_factor >= cu.anchor.outline_level
+            inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
+            content_faces, band_faces = layer.faces[inner], layer.faces[:0]
+            content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+        if show_anchor:
+            nv = len(strip.vertices)
+            if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
+                d = np.linalg.norm(layer.vertices - layer.original, axis=1)
+                t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
+                vertices = np.concatenate([strip.vertices, layer.vertices])
+                faces = np.concatenate([strip.faces, band_faces + nv])
+                tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
+            else:
+                vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
+            if len(faces):
+                anchors[k] = (vertices, faces, {"values": tvals})
+        if len(content_faces):
+            rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
+            if cu.view == "billboard":
+                top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
+                boards[k] = (content_vertices, content_faces, rgb, top)
+            else:
+                contents[k] = (content_vertices, content_faces, {"rgb": rgb})
+    return anchors, contents, boards
+
+
 def render_closeups(
     terrain: Terrain | trimesh.Trimesh | ArrayLike,
     closeups: Sequence[CloseUp] | CloseUp = (),
@@ -1234,6 +1340,7 @@ def render_closeups(
     bounds: ArrayLike | None = None,
     renderer: Any = None,
     reuse_overview: bool = False,
+    reuse_closeups: bool = True,
     merge_passes: bool = True,
     timings: dict[str, float] | None = None,
     device: wp.DeviceLike = None,
@@ -1264,6 +1371,10 @@ def render_closeups(
     reuse_overview : bool
         With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
         frame box nor the overview changed (only the close-ups move); the images are the same either way.
+    reuse_closeups : bool
+        Keep the transformed and culled close-ups and anchors of the previous frame on this terrain when the
+        close-ups are the same objects with the same M at ``time`` (a moving camera over still close-ups:
+        only the camera-dependent passes and the compositing run); the images are the same either way.
     merge_passes : bool
         Render the anchors (and the close-ups) whose screen boxes do not overlap in one pass and split the
         images by those boxes: the layers come out as from one pass each (to a gray level of rounding at a
@@ -1289,6 +1400,9 @@ def render_closeups(
     pixel, depth-tested against what lies below) and its content (faces with m = 1, lit, drawn over what
     lies below). A billboard close-up's content is an orthographic render from ``billboard_view`` pasted over
     the screen box of its transformed outline. With no close-ups the result is the overview pass itself.
+    Anchor and content passes are read back and composited only inside their screen boxes (the projected
+    corners of their bounds: no fragment falls outside), so their cost beyond rasterising follows their size
+    on screen, not the window's; the images equal full-window passes and compositing bit for bit.
     """
     import time as _time
 
@@ -1308,8 +1422,23 @@ def render_closeups(
     image_texture = None if texture is None else _check_texture(texture, "texture")
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
-    layers = closeup_layers(t, items, time=time, device=device)
-    strips = anchor_strips(t, items, time=time, device=device)
+    pivot = _pivot_z(t)
+    matrices = [cu.matrix(pivot, time=time) for cu in items]
+    # per terrain, the last geometry of each set of close-ups (a few sets: e.g. scenes shown in turn); an entry
+    # holds the objects it depends on, so that their ids stay theirs while it lives
+    memo = t.cached(("closeup", "frame"), dict)
+    memo_key = (tuple(id(cu) for cu in items), scalars, cmap, str(resolve_device(device)), id(texture))
+    last = memo.get(memo_key) if reuse_closeups else None
+    if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
+            and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
+        layers, strips, anchors, contents, boards = last[3]
+    else:
+        layers = closeup_layers(t, items, time=time, device=device)
+        strips = anchor_strips(t, items, time=time, device=device)
+        anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+        if len(memo) >= 8 and memo_key not in memo:
+            memo.clear()
+        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards))
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
@@ -1331,55 +1460,24 @@ def render_closeups(
             if image_texture is not None:
                 rgb = _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
-        boxes = [renderer.bounds_of("overview")]
-        for layer, strip in zip(layers, strips, strict=True):
-            for v in (layer.vertices, strip.vertices):
-                if len(v):
-                    boxes.append(np.array([v.min(0), v.max(0)]))
-        box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         if bounds is not None:
             box = np.asarray(bounds, dtype=np.float64)
+        else:
+            boxes = [renderer.bounds_of("overview")]
+            for layer, strip in zip(layers, strips, strict=True):
+                for v in (layer.vertices, strip.vertices):
+                    if len(v):
+                        boxes.append(np.array([[v[:, i].min() for i in range(3)], [v[:, i].max() for i in range(3)]]))
+            box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
-        anchors: dict[int, Any] = {}
-        contents: dict[int, Any] = {}
-        boards: dict[int, Any] = {}
-        for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
-            show_anchor = cu.active or cu.anchor.inactive != "hidden"
-            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
-                full = layer.mask_factor >= 1.0
-                inner = full[layer.faces].all(axis=1)
-                content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
-                content_vertices = layer.vertices
-            else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
-                inner = (layer.mask_factor >= cu.anchor.outline_level)[layer.faces].any(axis=1)
-                content_faces, band_faces = layer.faces[inner], layer.faces[:0]
-                content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
-            if show_anchor:
-                nv = len(strip.vertices)
-                if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
-                    d = np.linalg.norm(layer.vertices - layer.original, axis=1)
-                    t_band = np.clip(d / strip.max_length, 0, 1) if strip.max_length > 0 else np.zeros(len(d))
-                    vertices = np.concatenate([strip.vertices, layer.vertices])
-                    faces = np.concatenate([strip.faces, band_faces + nv])
-                    tvals = np.concatenate([strip.distance, t_band]).astype(np.float32)
-                else:
-                    vertices, faces, tvals = strip.vertices, strip.faces, strip.distance
-                if len(faces):
-                    anchors[k] = (vertices, faces, {"values": tvals})
-            if len(content_faces):
-                rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
-                if cu.view == "billboard":
-                    top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
-                    boards[k] = (content_vertices, content_faces, rgb, top)
-                else:
-                    contents[k] = (content_vertices, content_faces, {"rgb": rgb})
-        anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes)
-        content_images = renderer.render_layers("closeup", contents, merge=merge_passes)
+        # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
+        anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
+        content_images = renderer.render_layers("closeup", contents, merge=merge_passes, crop=True)
         passes = []
         for k, cu in enumerate(items):  # compositing in the order of generation: anchor k, then close-up k
             if k in anchor_images:
-                tex, z = anchor_images[k]
+                tex, z, rect = anchor_images[k]
                 color = _closeup_color(cu, k)
                 anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
                 covered = z < np.inf
@@ -1388,17 +1486,16 @@ def render_closeups(
                                            cu.anchor.table)
                 if not cu.active and cu.anchor.inactive == "faint":
                     alpha *= 0.25
-                c = np.broadcast_to(np.asarray(anchor_color, np.float32) * 255, base.shape)
-                passes.append((c, alpha, z, True, False))
+                passes.append((np.asarray(anchor_color, np.float32) * 255, alpha, z, True, False, rect))
             if k in boards:
                 image, coverage, z = renderer.render_billboard(*boards[k][:3], cu.billboard_view, boards[k][3])
-                passes.append((image, coverage.astype(np.float32), z, False, True))
+                passes.append((image, coverage.astype(np.float32), z, False, True, (0, 0, width, height)))
             elif k in content_images:
-                image, z = content_images[k]
-                passes.append((image, (z < np.inf).astype(np.float32), z, False, True))
+                image, z, rect = content_images[k]
+                passes.append((image, (z < np.inf).astype(np.float32), z, False, True, rect))
         clock["render"] = _time.perf_counter() - start
         start = _time.perf_counter()
-        result = composite(base, base_depth, passes)
+        result = _composite_boxed(base, base_depth, passes) if passes else base.copy()
         clock["composite"] = _time.perf_counter() - start
         return result
     finally:

@@ -472,6 +472,21 @@ def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
+def _finite_bounds(vertices: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """(2, 3) bounds of the finite rows of (N, 3) ``vertices`` (None when no row is finite). Column by column:
+    NumPy reduces a contiguous column faster than axis 0 of an (N, 3) array; a NaN or inf anywhere shows in
+    the column extrema, and only then are the non-finite rows dropped."""
+    if len(vertices) == 0:
+        return None
+    box = np.array([[vertices[:, i].min() for i in range(3)], [vertices[:, i].max() for i in range(3)]])
+    if np.isfinite(box).all():
+        return box
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.any():
+        return None
+    return _finite_bounds(vertices[finite])
+
+
 def _gray_levels(values: ArrayLike) -> NDArray[np.uint8]:
     """(V,) values in [0, 1] as (V, 3) uint8 gray levels (read back from the red channel)."""
     gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
@@ -554,11 +569,10 @@ class LayeredRenderer:
         or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin."""
         vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        finite = np.isfinite(vertices).all(axis=1)
-        if len(faces) == 0 or not finite.any():
+        bounds = _finite_bounds(vertices)
+        if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
-        seen = vertices if finite.all() else vertices[finite]
-        lo, hi = seen.min(axis=0), seen.max(axis=0)
+        lo, hi = bounds
         if self._origin is None:
             self._origin = (lo + hi) / 2.0
         local = self._local(vertices)
@@ -570,11 +584,12 @@ class LayeredRenderer:
         if previous is not None and previous[1] == kind and np.array_equal(previous[2], faces):
             # same topology (a close-up that moved or turned): update the points and colors in place
             poly = previous[0]
-            poly.points = local
-            if values is not None:
-                poly.point_data["rgb"] = _gray_levels(values)
-            elif rgb is not None:
-                poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
+            if not np.array_equal(poly.points, local):  # unchanged points stay uploaded
+                poly.points = local
+            colors = (_gray_levels(values) if values is not None else
+                      np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8) if rgb is not None else None)
+            if colors is not None and not np.array_equal(poly.point_data["rgb"], colors):
+                poly.point_data["rgb"] = colors
             self._keys[name] = key
             self._bounds[name] = np.array([lo, hi])
             self._local_bounds[name] = local_box
@@ -639,49 +654,67 @@ class LayeredRenderer:
         self._box = local
 
     # -------------------------------------------------------------------------- passes
-    def _read(self, plotter: Any) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    def _read(self, plotter: Any, rect: tuple[int, int, int, int] | None = None
+              ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
         from vtkmodules.util.numpy_support import vtk_to_numpy
         from vtkmodules.vtkCommonCore import vtkFloatArray, vtkUnsignedCharArray
 
         window = plotter.render_window
         window.Render()
         width, height = window.GetSize()
+        c0, r0, c1, r1 = (0, 0, width, height) if rect is None else rect
+        if c1 <= c0 or r1 <= r0:  # an empty box: nothing to read back
+            return np.zeros((max(r1 - r0, 0), max(c1 - c0, 0), 3), np.uint8), \
+                np.full((max(r1 - r0, 0), max(c1 - c0, 0)), np.inf, np.float32)
+        # OpenGL rows count from the bottom: image rows r0..r1 are window rows height-r1..height-r0
+        x0, y0, x1, y1 = c0, height - r1, c1 - 1, height - r0 - 1
         pixels = vtkUnsignedCharArray()
-        window.GetPixelData(0, 0, width - 1, height - 1, 0, pixels, 0)
+        window.GetPixelData(x0, y0, x1, y1, 0, pixels, 0)
         depth = vtkFloatArray()
-        window.GetZbufferData(0, 0, width - 1, height - 1, depth)
-        color = vtk_to_numpy(pixels).reshape(height, width, -1)[::-1, :, :3]
-        z = vtk_to_numpy(depth).reshape(height, width)[::-1].astype(np.float32)
+        window.GetZbufferData(x0, y0, x1, y1, depth)
+        w, h = c1 - c0, r1 - r0
+        color = vtk_to_numpy(pixels).reshape(h, w, -1)[::-1, :, :3]
+        z = vtk_to_numpy(depth).reshape(h, w)[::-1].astype(np.float32)
         z[z >= 1.0] = np.inf
         if color.size == 0:
             raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
         return np.ascontiguousarray(color, dtype=np.uint8), np.ascontiguousarray(z)
 
-    def render(self, names: Sequence[str], *, reuse: bool = False) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    def render(self, names: Sequence[str], *, reuse: bool = False, rect: tuple[int, int, int, int] | None = None
+               ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
         """One pass with only ``names`` visible: (H, W, 3) uint8 color and (H, W) float32 depth (inf: empty).
 
         With ``reuse`` the previous images of the same pass come back without rendering when neither the view
-        nor those meshes changed since (a still camera over a still overview while close-ups move)."""
+        nor those meshes changed since (a still camera over a still overview while close-ups move). With
+        ``rect`` = (col0, row0, col1, row1) (end exclusive, row 0 at the top) only that part of the window is
+        read back: the images are ``window[row0:row1, col0:col1]`` of the full pass, pixel for pixel."""
         if self._box is None:
             raise InvalidInputError("render needs a view first (set_view)")
         wanted = set(names)
         unknown = wanted - set(self._actors)
         if unknown:
             raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")
-        key = tuple(sorted(wanted))
-        state = (self._view_version, tuple(self._versions.get(n, 0) for n in key))
+        key = tuple(sorted(wanted)) + (() if rect is None else (tuple(int(v) for v in rect),))
+        state = (self._view_version, tuple(self._versions.get(n, 0) for n in sorted(wanted)))
         cached = self._passes.get(key)
         if reuse and cached is not None and cached[0] == state:
             return cached[1], cached[2]
         for name, actor in self._actors.items():
             actor.SetVisibility(name in wanted)
-        color, depth = self._read(self._plotter)
+        if rect is not None:
+            width, height = self.size
+            c0, r0, c1, r1 = (int(v) for v in rect)
+            if not (0 <= c0 <= c1 <= width and 0 <= r0 <= r1 <= height):
+                raise InvalidInputError(f"rect must lie in the {width}x{height} window as (col0, row0, col1, "
+                                        f"row1); got {rect!r}")
+            rect = (c0, r0, c1, r1)
+        color, depth = self._read(self._plotter, rect)
         if reuse:
             self._passes[key] = (state, color, depth)
         return color, depth
 
     def render_layers(self, prefix: str, layers: dict[int, tuple[Any, Any, dict[str, Any]]], *,
-                      merge: bool = True) -> dict[int, tuple[NDArray[np.uint8], NDArray[np.float32]]]:
+                      merge: bool = True, crop: bool = False) -> dict[int, tuple[Any, ...]]:
         """Color and depth of each layer k as if rendered alone (``layers[k]`` = vertices, faces, and
         ``rgb=`` or ``values=`` as for :meth:`set_mesh`).
 
@@ -689,7 +722,12 @@ class LayeredRenderer:
         all in front of the camera) do not overlap share one pass, whose images are then split by those
         boxes: no fragment of one layer can fall in another's box, so each layer's pixels are those of its
         own pass (to the float32 rounding of VTK's per-buffer coordinate shift, a gray level at a few
-        pixels), with fewer passes (a pass has a fixed cost: clearing, reading back)."""
+        pixels), with fewer passes (a pass has a fixed cost: clearing, reading back).
+
+        With ``crop`` each layer comes back as (color, depth, rect): only its screen box ``rect`` = (col0, row0,
+        col1, row1) is read back (the whole window where the box is unknown), and the images are exactly that
+        part of the full-window images (outside it a layer has no fragment), so the read-backs and the
+        compositing cost follow the close-up's size on screen, not the window's."""
         rects: dict[int, tuple[int, int, int, int] | None] = {}
         for k, (vertices, _faces, _kw) in layers.items():
             rects[k] = self.screen_rect(vertices) if merge else None
@@ -715,7 +753,12 @@ class LayeredRenderer:
                 k = group[0]
                 vertices, faces, kw = layers[k]
                 self.set_mesh(f"{prefix}{k}", vertices, faces, **kw)
-                out[k] = self.render([f"{prefix}{k}"])
+                if crop:
+                    rect = rects[k] if rects[k] is not None else self.screen_rect(vertices)
+                    rect = rect if rect is not None else (0, 0, *self.size)
+                    out[k] = (*self.render([f"{prefix}{k}"], rect=rect), rect)
+                else:
+                    out[k] = self.render([f"{prefix}{k}"])
                 continue
             counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
             vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
@@ -724,6 +767,15 @@ class LayeredRenderer:
             kw = {name: np.concatenate([np.asarray(layers[k][2][name]) for k in group])
                   for name in ("values", "rgb") if kw0.get(name) is not None}
             self.set_mesh(f"{prefix}-merged{g}", vertices, faces, **kw)
+            if crop:  # read back the union of the group's boxes, then cut each layer's own box out of it
+                union = (min(rects[k][0] for k in group), min(rects[k][1] for k in group),
+                         max(rects[k][2] for k in group), max(rects[k][3] for k in group))
+                color, depth = self.render([f"{prefix}-merged{g}"], rect=union)
+                for k in group:
+                    c0, r0, c1, r1 = rects[k]
+                    box = (slice(r0 - union[1], r1 - union[1]), slice(c0 - union[0], c1 - union[0]))
+                    out[k] = (color[box], depth[box], rects[k])
+                continue
             color, depth = self.render([f"{prefix}-merged{g}"])
             for k in group:
                 c0, r0, c1, r1 = rects[k]
@@ -738,11 +790,9 @@ class LayeredRenderer:
         """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
         vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
         behind the camera."""
-        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-        finite = np.isfinite(v).all(axis=1)
-        if not finite.any():
+        box = _finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3))
+        if box is None:
             return None
-        box = np.array([v[finite].min(axis=0), v[finite].max(axis=0)])
         pixels = self.project(_box_corners(box))
         if not np.isfinite(pixels).all():
             return None

@@ -368,6 +368,63 @@ def test_composite_without_layers_is_the_base_and_follows_its_formula():
     assert np.abs(got.astype(int) - expected.astype(int)).max() <= 1
 
 
+@given(seed=hs.integers(0, 2**31 - 1), count=hs.integers(1, 6))
+def test_boxed_composite_equals_the_full_window_composite(seed, count):
+    """Layers cut to their pixel boxes (as render_closeups reads them back) composite bit for bit like the same
+    layers padded to the window (empty outside their boxes): overlapping boxes, one-color layers, empty boxes."""
+    from stepterrain.closeup import _composite_boxed
+
+    rng = np.random.default_rng(seed)
+    h, w = 24, 32
+    base = rng.integers(0, 256, (h, w, 3), dtype=np.uint8)
+    base_depth = np.where(rng.uniform(size=(h, w)) < 0.2, np.inf, rng.uniform(0.2, 1.0, (h, w))).astype(np.float32)
+    boxed, padded = [], []
+    for k in range(count):
+        c0, c1 = np.sort(rng.integers(0, w + 1, 2))
+        r0, r1 = np.sort(rng.integers(0, h + 1, 2))
+        bh, bw = r1 - r0, c1 - c0
+        one_color = k % 3 == 2
+        color = rng.uniform(0, 255, 3).astype(np.float32) if one_color else rng.integers(0, 256, (bh, bw, 3), np.uint8)
+        alpha = (rng.uniform(0, 1, (bh, bw)) * (rng.uniform(size=(bh, bw)) > 0.3)).astype(np.float32)
+        depth = np.where(alpha > 0, rng.uniform(0.0, 1.0, (bh, bw)), np.inf).astype(np.float32)
+        test, writes = bool(rng.integers(2)), bool(rng.integers(2))
+        boxed.append((color, alpha, depth, test, writes, (int(c0), int(r0), int(c1), int(r1))))
+        full_color = np.zeros((h, w, 3), np.float32)
+        full_color[r0:r1, c0:c1] = color
+        full_alpha = np.zeros((h, w), np.float32)
+        full_alpha[r0:r1, c0:c1] = alpha
+        full_depth = np.full((h, w), np.inf, np.float32)
+        full_depth[r0:r1, c0:c1] = depth
+        padded.append((full_color, full_alpha, full_depth, test, writes))
+    np.testing.assert_array_equal(_composite_boxed(base, base_depth, boxed), composite(base, base_depth, padded))
+
+
+@pytest.mark.parametrize("cmap", ["terrain", "magma", "twilight"])
+def test_vertex_colors_equal_matplotlib(cmap):
+    """_colors_for looks up a uint8 table: the same colors as matplotlib's colormap per vertex, NaN included."""
+    import matplotlib
+
+    from stepterrain.closeup import _colors_for
+
+    rng = np.random.default_rng(3)
+    for dtype in (np.float32, np.float64):
+        values = np.concatenate([rng.uniform(-50, 1050, 20000), np.linspace(0, 1000, 4001), [np.nan]]).astype(dtype)
+        for vmin, vmax in [(0.0, 1000.0), (np.float32(12.5), np.float32(999.0))]:
+            x = np.clip((values - vmin) / (vmax - vmin), 0, 1)
+            x = 0.25 + 0.75 * x if cmap == "terrain" else x
+            expected = (np.asarray(matplotlib.colormaps[cmap](x))[:, :3] * 255 + 0.5).astype(np.uint8)
+            np.testing.assert_array_equal(_colors_for(values, cmap, vmin, vmax), expected)
+
+
+def test_boxed_composite_rejects_a_box_outside_the_image():
+    from stepterrain.closeup import _composite_boxed
+
+    base = np.zeros((4, 4, 3), np.uint8)
+    layer = (np.zeros(3), np.ones((2, 2), np.float32), np.zeros((2, 2), np.float32), False, True, (3, 0, 5, 2))
+    with pytest.raises(InvalidInputError, match="box"):
+        _composite_boxed(base, np.ones((4, 4), np.float32), [layer])
+
+
 # ------------------------------------------------------------------------------------------------ bad input
 def test_bad_input_raises_clear_errors():
     t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))

@@ -187,6 +187,67 @@ def test_merged_passes_equal_one_pass_per_layer():
     assert diff.max() <= 3 and (diff.max(axis=2) > 0).mean() < 1e-3
 
 
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_reused_closeup_geometry_gives_the_same_frames():
+    """Frames that keep the previous frame's close-up geometry (same CloseUp objects, same M) equal frames
+    that transform again; a spinning close-up at another time is transformed again."""
+    t = terrain()
+    box = [(1000, 2000, 0), (1080, 2064, 160)]
+    still = one()
+    spinning = one(spin=(0.25, 10))
+    with render.LayeredRenderer(window_size=SIZE) as renderer:
+        frames = {}
+        for reuse in (False, True, True):
+            for time in (0.0, 1.0):
+                timings = {}
+                image = render_closeups(t, [still, spinning], window_size=SIZE, bounds=box, renderer=renderer,
+                                        time=time, reuse_closeups=reuse, timings=timings, device="cpu")
+                frames.setdefault(time, []).append(image)
+    for images in frames.values():
+        for image in images[1:]:
+            np.testing.assert_array_equal(image, images[0])
+    assert np.abs(frames[0.0][0].astype(int) - frames[1.0][0].astype(int)).sum() > 0
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_boxed_read_backs_equal_the_full_window_pass():
+    """A pass read back in a pixel box is that box of the full-window pass, bit for bit; layers cut to their
+    screen boxes (crop) are the boxes of the full-window layers, which hold nothing outside them."""
+    t = terrain()
+    cus = [CloseUp(ROI.circle((1008.0 + 24 * k, 2030.0), 6.0), scale=1.2, offset=(0.0, 0.0, 30.0))
+           for k in range(3)]
+    from stepterrain.closeup import closeup_layers
+
+    layers = closeup_layers(t, cus, device="cpu")
+    box = [(1000, 2000, 0), (1080, 2064, 120)]
+    with render.LayeredRenderer(window_size=(320, 200)) as renderer:
+        mesh = t.mesh()
+        renderer.set_mesh("overview", mesh.vertices, mesh.faces)
+        renderer.set_view("oblique", box)
+        color, depth = renderer.render(["overview"])
+        for rect in [(0, 0, 320, 200), (17, 30, 250, 141), (5, 7, 5, 20)]:
+            c0, r0, c1, r1 = rect
+            part_color, part_depth = renderer.render(["overview"], rect=rect)
+            np.testing.assert_array_equal(part_color, color[r0:r1, c0:c1])
+            np.testing.assert_array_equal(part_depth, depth[r0:r1, c0:c1])
+        with pytest.raises(InvalidInputError, match="rect"):
+            renderer.render(["overview"], rect=(0, 0, 321, 10))
+        for merge in (False, True):
+            spec = {k: (layer.vertices, layer.faces, {"values": layer.mask_factor}) for k, layer in enumerate(layers)}
+            full = renderer.render_layers("f", spec, merge=merge)
+            cut = renderer.render_layers("c", spec, merge=merge, crop=True)
+            assert full.keys() == cut.keys() == {0, 1, 2}
+            for k, (cut_color, cut_depth, (c0, r0, c1, r1)) in cut.items():
+                full_color, full_depth = full[k]
+                np.testing.assert_array_equal(cut_color, full_color[r0:r1, c0:c1])
+                np.testing.assert_array_equal(cut_depth, full_depth[r0:r1, c0:c1])
+                outside = np.ones(full_depth.shape, bool)
+                outside[r0:r1, c0:c1] = False
+                assert np.isinf(full_depth[outside]).all() and np.isfinite(cut_depth).any()
+
+
 def test_too_many_closeups_for_the_window():
     cus = [one()] * 3
     with pytest.raises(InvalidInputError, match="too many close-ups"):
