@@ -204,3 +204,10 @@ def test_lambert_helper_is_the_gdal_incidence():
     light = np.array([math.sin(RAD(315)) * math.cos(RAD(45)), math.cos(RAD(315)) * math.cos(RAD(45)),
                       math.sin(RAD(45))])
     assert lambert(p, q, RAD(315), RAD(45))[0] == pytest.approx(normal @ light)
+
+
+def test_topographic_layer_refuses_an_rgba_method():
+    from stepterrain.texture import topographic_layer
+
+    with pytest.raises(InvalidInputError, match="topographic layer takes a grey method"):
+        topographic_layer(np.zeros((4, 4), np.float32), method="maplibre-basic", shadows=False, device="cpu")
