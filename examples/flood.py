@@ -29,7 +29,6 @@ from stepterrain.texture import TextureAnimation, blend, modulate, terrain_layer
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from textures import crop_sample  # noqa: E402
 
-
 FRAME_MS = 120  # display time of one frame (GIF duration; the MP4 runs at 1000 / FRAME_MS frames per second)
 
 
@@ -109,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.mp4:
         written.append(write_mp4(frames, args.output.with_suffix(".mp4")))
     save_image(frames[-1], args.output)
-    print(f"wrote {', '.join(map(str, written))} and {args.output}: {args.frames} frames from {args.keyframes} keyframes, water "
+    print(f"wrote {', '.join(map(str, written))} and {args.output}: {args.frames} frames from {args.keyframes} "
+          "keyframes, water "
           f"{levels[0]:.0f} to {levels[-1]:.0f} m, {time.perf_counter() - start:.2f} s", file=sys.stderr)
     return 0
 

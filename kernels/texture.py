@@ -1,9 +1,10 @@
 """Warp kernels of the terrain textures (paper 004, Döllner, Baumann & Hinrichs 2000, §3.2, §5-7).
 
 Topographic textures (§7): Horn-gradient hillshade in the GDAL conventions (standard, multidirectional,
-combined), self-shadowing by sweeping digital lines along the light's azimuth with a running horizon (one
-thread per line, O(1) per pixel, §7.2 and Fig. 5), horizon-based ambient occlusion with a per-line convex hull,
-normals encoded as RGB and relit by a directional or a point light (§7.4, Fig. 7). Layer operations (§3.2.3):
+combined, igor) and MapLibre GL's hillshade methods as premultiplied RGBA (its hillshade.fragment.glsl),
+self-shadowing by sweeping digital lines along the light's azimuth with a running horizon (one thread per line,
+O(1) per pixel, §7.2 and Fig. 5), horizon-based ambient occlusion with a per-line convex hull, normals encoded
+as RGB and relit by a directional or a point light (§7.4, Fig. 7). Layer operations (§3.2.3):
 sampling a layer through its texture matrix, blending by an alpha layer, weighted addition, modulation and the
 per-layer adjustments of CesiumJS imagery layers. Image pyramids (§3.2.1): area-weighted halving of any size.
 

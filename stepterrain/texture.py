@@ -782,7 +782,8 @@ def topographic_layer(
     t = _grid_terrain(terrain, spacing)
     if method in MAPLIBRE_METHODS:
         raise InvalidInputError(f"a topographic layer takes a grey method ({', '.join(HILLSHADE_METHODS)}); got "
-                                f"{method!r}: its premultiplied RGBA overlay, with RGB divided by alpha, makes a thematic layer")
+                                f"{method!r}: its premultiplied RGBA overlay, with RGB divided by alpha, makes a "
+                                "thematic layer")
     ambient = _finite(ambient, "ambient", lo=0.0, hi=1.0)
     occlusion = _finite(occlusion, "occlusion", lo=0.0, hi=1.0)
     shade = hillshade(t, azimuth=azimuth, altitude=altitude, z_factor=z_factor, method=method, shadows=shadows,

@@ -65,9 +65,9 @@ def analytic(method, a, b, azimuths, altitudes, exaggeration, shadows, highlight
     if method == "maplibre-basic":
         return two_tone(cos_incidence(s, azimuths[0], altitudes[0]), sh, hi)
     if method == "maplibre-multidirectional":
-        colours = [(premultiplied(x), premultiplied(y)) for x, y in zip(shadows, highlights)]
-        return np.mean([two_tone(cos_incidence(s, az, alt), *c) for az, alt, c in zip(azimuths, altitudes, colours)],
-                       axis=0)
+        colours = [(premultiplied(x), premultiplied(y)) for x, y in zip(shadows, highlights, strict=True)]
+        lights = zip(azimuths, altitudes, colours, strict=True)
+        return np.mean([two_tone(cos_incidence(s, az, alt), *c) for az, alt, c in lights], axis=0)
     if method == "maplibre-combined":
         angle = min(math.acos(cos_incidence(s, azimuths[0], altitudes[0])), math.pi / 2)
         return (sh * angle + hi * (math.pi / 2 - angle)) * slope / (math.pi / 2) ** 2
@@ -83,7 +83,7 @@ PLANES = [(0.3, -0.2), (0.0, 0.5), (-0.7, 0.0), (1.2, 0.9)]
 def test_tilted_plane_equals_analytic(device, method, spacing):
     multi = method == "maplibre-multidirectional"
     exaggeration = 0.5 if method == "maplibre-standard" else 0.35
-    for (a, b), (az, alt) in zip(PLANES, [(315, 45), (90, 30), (200, 70), (0, 20)]):
+    for (a, b), (az, alt) in zip(PLANES, [(315, 45), (90, 30), (200, 70), (0, 20)], strict=True):
         azimuths = [RAD(az), RAD(az + 100), RAD(az + 215)] if multi else [RAD(az)]
         altitudes = [RAD(alt), RAD(60), RAD(15)] if multi else [RAD(alt)]
         shadows = [SHADOW, (0.0, 0.0, 0.3, 1.0), (0.5, 0.5, 0.5, 0.4)] if multi else [SHADOW]
