@@ -1,9 +1,10 @@
 """Warp kernels of the terrain textures (paper 004, Döllner, Baumann & Hinrichs 2000, §3.2, §5-7).
 
 Topographic textures (§7): Horn-gradient hillshade in the GDAL conventions (standard, multidirectional,
-combined), self-shadowing by sweeping digital lines along the light's azimuth with a running horizon (one
-thread per line, O(1) per pixel, §7.2 and Fig. 5), horizon-based ambient occlusion with a per-line convex hull,
-normals encoded as RGB and relit by a directional or a point light (§7.4, Fig. 7). Layer operations (§3.2.3):
+combined, igor) and MapLibre GL's hillshade methods as premultiplied RGBA (its hillshade.fragment.glsl),
+self-shadowing by sweeping digital lines along the light's azimuth with a running horizon (one thread per line,
+O(1) per pixel, §7.2 and Fig. 5), horizon-based ambient occlusion with a per-line convex hull, normals encoded
+as RGB and relit by a directional or a point light (§7.4, Fig. 7). Layer operations (§3.2.3):
 sampling a layer through its texture matrix, blending by an alpha layer, weighted addition, modulation and the
 per-layer adjustments of CesiumJS imagery layers. Image pyramids (§3.2.1): area-weighted halving of any size.
 
@@ -88,6 +89,21 @@ class PixelFrame:
     cols: wp.int32
     origin: wp.vec2
     pixel: wp.vec2
+
+
+@wp.struct
+class MapLibreStyle:
+    """A MapLibre GL hillshade layer's paint: its method, ``hillshade-exaggeration``, the lights
+    (``hillshade-illumination-direction`` / ``-altitude``, radians) with their shadow and highlight colours, and
+    the accent colour; colours premultiplied RGBA, as MapLibre hands them to its shader."""
+
+    method: wp.int32  # 0 standard (legacy), 1 basic, 2 combined, 3 igor, 4 multidirectional
+    exaggeration: wp.float32
+    azimuths: wp.array(dtype=wp.float32)
+    altitudes: wp.array(dtype=wp.float32)
+    shadows: wp.array(dtype=wp.vec4)
+    highlights: wp.array(dtype=wp.vec4)
+    accent: wp.vec4
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -308,6 +324,112 @@ def shade_heights(
             if shadow[i, j] != wp.uint8(0):
                 value = value * (1.0 - shadow_strength)
         shade_out[i, j] = value
+
+
+# ---------------------------------------------------------------------------------------------------------
+# MapLibre GL's hillshade methods (src/shaders/glsl/hillshade.fragment.glsl of maplibre/maplibre-gl-js at
+# commit 27688c1c2109f2ebbf7f65a773ef88598a8df75b). ``deriv`` is MapLibre's (dz/dx east, dz/dy south): the
+# Horn gradient (p, q) as (p, -q). The result is the layer's premultiplied RGBA fragment colour.
+# ---------------------------------------------------------------------------------------------------------
+@wp.func
+def glsl_mod(x: wp.float32, y: wp.float32) -> wp.float32:
+    """GLSL's mod: x - y * floor(x / y) (the sign of y, unlike C's fmod)."""
+    return x - y * wp.floor(x / y)
+
+
+@wp.func
+def maplibre_aspect(deriv: wp.vec2) -> wp.float32:
+    """MapLibre's get_aspect: atan(deriv.y, -deriv.x), +-pi/2 where deriv.x is 0."""
+    if deriv[0] != 0.0:
+        return wp.atan2(deriv[1], -deriv[0])
+    if deriv[1] > 0.0:
+        return 1.5707963267948966
+    return -1.5707963267948966
+
+
+@wp.func
+def maplibre_cang(deriv: wp.vec2, azimuth: wp.float32, altitude: wp.float32) -> wp.float32:
+    """cos(angle between normal and light) as MapLibre's basic/combined/multidirectional write it."""
+    cos_az = wp.cos(azimuth + 3.141592653589793)
+    sin_az = wp.sin(azimuth + 3.141592653589793)
+    cos_alt = wp.cos(altitude)
+    sin_alt = wp.sin(altitude)
+    return (sin_alt - (deriv[1] * cos_az * cos_alt - deriv[0] * sin_az * cos_alt)) / wp.sqrt(
+        1.0 + wp.dot(deriv, deriv))
+
+
+@wp.func
+def maplibre_two_tone(cang: wp.float32, shadow: wp.vec4, highlight: wp.vec4) -> wp.vec4:
+    """basic: shade = clamp(cang, 0, 1); highlight * (2 shade - 1) above 0.5, shadow * (1 - 2 shade) below."""
+    shade = wp.clamp(cang, 0.0, 1.0)
+    if shade > 0.5:
+        return highlight * (2.0 * shade - 1.0)
+    return shadow * (1.0 - 2.0 * shade)
+
+
+@wp.func
+def maplibre_colour(deriv_in: wp.vec2, style: MapLibreStyle) -> wp.vec4:
+    """One pixel of a MapLibre hillshade layer (see the shader's standard_, basic_, combined_, igor_ and
+    multidirectional_hillshade)."""
+    if style.method == 0:  # MapLibre's legacy ("standard") shading
+        slope = wp.atan(0.625 * wp.length(deriv_in))
+        aspect = maplibre_aspect(deriv_in)
+        intensity = style.exaggeration
+        base = 1.875 - intensity * 1.75
+        max_value = 1.5707963267948966
+        scaled = slope
+        if intensity != 0.5:
+            scaled = (wp.pow(base, slope) - 1.0) / (wp.pow(base, max_value) - 1.0) * max_value
+        weight = wp.clamp(intensity * 2.0, 0.0, 1.0)
+        accent = (1.0 - wp.cos(scaled)) * style.accent * weight
+        shade = wp.abs(glsl_mod((aspect + style.azimuths[0] + 3.141592653589793) / 3.141592653589793 + 0.5, 2.0)
+                       - 1.0)
+        shade_colour = wp.lerp(style.shadows[0], style.highlights[0], shade) * wp.sin(scaled) * weight
+        return accent * (1.0 - shade_colour[3]) + shade_colour
+    deriv = deriv_in * style.exaggeration * 2.0
+    if style.method == 1:
+        return maplibre_two_tone(maplibre_cang(deriv, style.azimuths[0], style.altitudes[0]), style.shadows[0],
+                                 style.highlights[0])
+    if style.method == 4:  # the average of basic over every light
+        total = wp.vec4(0.0)
+        n = style.azimuths.shape[0]
+        for k in range(n):
+            total += maplibre_two_tone(maplibre_cang(deriv, style.azimuths[k], style.altitudes[k]),
+                                       style.shadows[k], style.highlights[k])
+        return total / float(n)
+    steepness = wp.atan(wp.length(deriv))
+    if style.method == 2:
+        angle = wp.clamp(wp.acos(wp.clamp(maplibre_cang(deriv, style.azimuths[0], style.altitudes[0]), -1.0, 1.0)),
+                         0.0, 1.5707963267948966)
+        scale = steepness * 0.40528473456935108  # 4 / pi^2
+        return style.shadows[0] * (angle * scale) + style.highlights[0] * ((1.5707963267948966 - angle) * scale)
+    # 3: igor
+    slope_strength = steepness * 0.6366197723675814  # 2 / pi
+    aspect_strength = 1.0 - wp.abs(glsl_mod((maplibre_aspect(deriv) + style.azimuths[0] + 3.141592653589793)
+                                            / 3.141592653589793 + 0.5, 2.0) - 1.0)
+    return (style.shadows[0] * (slope_strength * aspect_strength)
+            + style.highlights[0] * (slope_strength * (1.0 - aspect_strength)))
+
+
+@wp.kernel
+def maplibre_shade_heights(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    style: MapLibreStyle,
+    # outputs
+    rgba_out: wp.array3d[wp.float32],
+):
+    """One thread per pixel: the MapLibre hillshade layer's premultiplied RGBA from the full-resolution Horn
+    gradient (missing neighbours = the centre height, as :func:`horn_gradient`); NaN at nodata."""
+    t = wp.tid() + thread_offset
+    i = t // grid.cols
+    j = t - i * grid.cols
+    colour = wp.vec4(wp.nan)
+    if not wp.isnan(grid.heights[i, j]):
+        gradient = horn_gradient(grid, i, j)
+        colour = maplibre_colour(wp.vec2(gradient[0], -gradient[1]), style)
+    for c in range(4):
+        rgba_out[i, j, c] = colour[c]
 
 
 @wp.kernel

@@ -34,6 +34,7 @@ from .terrain import Terrain, as_terrain
 
 __all__ = [
     "HILLSHADE_METHODS",
+    "MAPLIBRE_METHODS",
     "LAYER_KINDS",
     "TextureLayer",
     "Pipeline",
@@ -57,6 +58,11 @@ __all__ = [
 ]
 
 HILLSHADE_METHODS: tuple[str, ...] = ("standard", "multidirectional", "combined", "igor")
+#: MapLibre GL's ``hillshade-method`` values as ``hillshade(method=...)``: premultiplied RGBA overlays
+MAPLIBRE_METHODS: tuple[str, ...] = ("maplibre-standard", "maplibre-basic", "maplibre-combined", "maplibre-igor",
+                                     "maplibre-multidirectional")
+MAPLIBRE_DEFAULTS = {"exaggeration": 0.5, "shadow_color": (0.0, 0.0, 0.0, 1.0),
+                     "highlight_color": (1.0, 1.0, 1.0, 1.0), "accent_color": (0.0, 0.0, 0.0, 1.0)}
 LAYER_KINDS: tuple[str, ...] = ("thematic", "luminance", "topographic", "visibility")
 BLEND_MODES: tuple[str, ...] = ("blend", "add", "modulate")
 DEFAULT_AZIMUTH = math.radians(315.0)
@@ -136,11 +142,15 @@ def hillshade(
     azimuth: float = DEFAULT_AZIMUTH,
     altitude: float = DEFAULT_ALTITUDE,
     z_factor: float = 1.0,
-    method: Literal["standard", "multidirectional", "combined", "igor"] = "standard",
+    method: str = "standard",
     shadows: bool = False,
     shadow_strength: float = 1.0,
     spacing: ArrayLike | None = None,
     device: wp.DeviceLike = None,
+    exaggeration: float | None = None,
+    shadow_color: ArrayLike | None = None,
+    highlight_color: ArrayLike | None = None,
+    accent_color: ArrayLike | None = None,
 ) -> NDArray[np.float32]:
     """Hillshade of a heightfield from its full-resolution Horn gradients, optionally self-shadowed.
 
@@ -159,18 +169,28 @@ def hillshade(
         MapLibre's ``hillshade-method: multidirectional``); slope and oblique shading combined,
         ``1 − angle(n, l) · slope / (π/2)²`` (``-combined``, MapLibre's ``combined``); Igor's shading
         ``1 − (slope / 90°) · (angle between the light's azimuth and the downhill aspect) / 180°``, which
-        ignores the altitude (``-igor``, MapLibre's ``igor``).
+        ignores the altitude (``-igor``, MapLibre's ``igor``). Or one of :data:`MAPLIBRE_METHODS`, MapLibre
+        GL's own shader for its ``hillshade-method`` (``maplibre-standard`` is its legacy shading); these
+        return an (H, W, 4) RGBA overlay, see Notes.
     shadows : bool
         Darken pixels that the terrain shadows from the light (see :func:`cast_shadows`) by ``shadow_strength``.
     shadow_strength : float
         In [0, 1]: a shadowed pixel keeps ``1 − shadow_strength`` of its shade.
     device : warp device, optional
+    exaggeration : float, optional
+        MapLibre methods only: ``hillshade-exaggeration`` in [0, 1], default 0.5.
+    shadow_color, highlight_color, accent_color : RGB or RGBA in [0, 1], optional
+        MapLibre methods only (straight alpha; defaults black, white, black as in MapLibre's style spec). For
+        ``maplibre-multidirectional`` shadow and highlight may be one colour per light.
 
     Returns
     -------
     (H, W) float32
         Shade in [0, 1], pixel (i, j) = grid node (i, j); NaN where the height is nodata. GDAL's byte output
         is ``1 + 254 · shade``.
+    (H, W, 4) float32
+        For the MapLibre methods: the hillshade layer's premultiplied RGBA, composited over a background as
+        ``rgba + background · (1 − alpha)``; NaN where the height is nodata.
 
     Raises
     ------
@@ -182,6 +202,19 @@ def hillshade(
     Horn's 3 × 3 gradient with the signed spacing, so north-up rasters (dy < 0) shade like GDAL; at the
     border and next to nodata the missing neighbours take the centre height (GDAL's ``-compute_edges``).
     One thread per pixel, O(1) each.
+
+    MapLibre methods follow ``src/shaders/glsl/hillshade.fragment.glsl`` of maplibre/maplibre-gl-js (commit
+    27688c1c2109f2ebbf7f65a773ef88598a8df75b) on the same Horn gradient, read as MapLibre's ``deriv``
+    (dz/dx, dz/dy southwards): ``maplibre-standard`` shades by slope (``atan(0.625 |∇z|)``, eased by the
+    exaggeration) with ``1 − |aspect − azimuth| / π`` mixing shadow and highlight, over the accent colour;
+    ``maplibre-basic`` is GDAL's Lambert shade of ``2 · exaggeration · ∇z`` mapped to shadow (below 0.5) or
+    highlight (above); ``maplibre-multidirectional`` averages ``basic`` over the lights given as sequences of
+    ``azimuth`` and ``altitude`` (shorter lists repeat their last value, as MapLibre does);
+    ``maplibre-combined`` and ``maplibre-igor`` add a highlight to GDAL's shadings (the angle to the light is
+    clamped at 90°). What MapLibre does to tiles is left out: the 8-bit encoding of ``deriv`` (and its
+    clamp to ±4), the zoom-dependent exaggeration below zoom 15 and the Mercator latitude correction;
+    ``spacing`` gives true ground distances instead. The light is anchored to the map.
+    ``shadows=True`` applies to the grey methods only.
 
     References
     ----------
@@ -197,10 +230,22 @@ def hillshade(
     True
     """
     t = _grid_terrain(terrain, spacing)
+    if method in MAPLIBRE_METHODS:
+        if shadows:
+            raise InvalidInputError(f"shadows=True applies to the grey methods {', '.join(HILLSHADE_METHODS)}; "
+                                    f"got method={method!r} (an RGBA overlay)")
+        return _maplibre_hillshade(t, azimuth, altitude, z_factor, method, exaggeration, shadow_color,
+                                   highlight_color, accent_color, device)
+    if method not in HILLSHADE_METHODS:
+        raise InvalidInputError(f"method must be one of {', '.join(HILLSHADE_METHODS + MAPLIBRE_METHODS)}; "
+                                f"got {method!r}")
+    for name, value in (("exaggeration", exaggeration), ("shadow_color", shadow_color),
+                        ("highlight_color", highlight_color), ("accent_color", accent_color)):
+        if value is not None:
+            raise InvalidInputError(f"{name} applies to the MapLibre methods ({', '.join(MAPLIBRE_METHODS)}); "
+                                    f"got method={method!r}")
     azimuth, altitude = _light(azimuth, altitude)
     z_factor = _finite(z_factor, "z_factor", positive=True)
-    if method not in HILLSHADE_METHODS:
-        raise InvalidInputError(f"method must be one of {', '.join(HILLSHADE_METHODS)}; got {method!r}")
     shadow_strength = _finite(shadow_strength, "shadow_strength", lo=0.0, hi=1.0)
     dev = resolve_device(device)
     grid = _height_grid(t, z_factor, dev)
@@ -218,6 +263,80 @@ def hillshade(
            outputs=[out], device=dev)
     shade = _result(host, out)
     return shade
+
+
+def _colours(value: ArrayLike | None, name: str, default: tuple[float, ...], many: bool) -> NDArray[np.float32]:
+    """(n, 4) premultiplied RGBA from one RGB(A) colour or, when ``many``, a sequence of them."""
+    raw = default if value is None else value
+    what = "an RGB or RGBA colour" + (" or a sequence of them (one per light)" if many else "")
+    nested = isinstance(raw, (Sequence, np.ndarray)) and not isinstance(raw, str) and len(raw) > 0 and all(
+        isinstance(c, (Sequence, np.ndarray)) and not isinstance(c, str) for c in raw)
+    rows = list(raw) if nested else [raw]
+    if len(rows) > 1 and not many:
+        raise InvalidInputError(f"{name} must be {what}; got {len(rows)} colours")
+    colours = []
+    for row in rows:
+        try:
+            c = np.asarray(row, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"{name} must be {what} of numbers in [0, 1]; got {raw!r}") from None
+        if c.shape not in ((3,), (4,)):
+            raise InvalidInputError(f"{name} must be {what}; got {raw!r}")
+        if not np.all(np.isfinite(c)) or c.min() < 0 or c.max() > 1:
+            raise InvalidInputError(f"{name} components must lie in [0, 1]; got {raw!r}")
+        rgba = np.append(c, 1.0) if c.shape == (3,) else c.copy()
+        rgba[:3] *= rgba[3]  # premultiplied, as MapLibre's Color
+        colours.append(rgba)
+    return np.array(colours, dtype=np.float32)
+
+
+def _angles(value: Any, name: str, many: bool, **bounds: Any) -> list[float]:
+    """One angle, or (``many``) a sequence of them, each checked."""
+    if isinstance(value, (Sequence, np.ndarray)) and not isinstance(value, str):
+        if not many:
+            raise InvalidInputError(f"{name} must be one angle (a sequence only with method="
+                                    f"'maplibre-multidirectional'); got {value!r}")
+        values = list(np.ravel(value))
+    else:
+        values = [value]
+    if not values:
+        raise InvalidInputError(f"{name} must hold at least one angle; got an empty sequence")
+    return [_finite(v, name, **bounds) for v in values]
+
+
+def _maplibre_hillshade(t: Terrain, azimuth: Any, altitude: Any, z_factor: float, method: str,
+                        exaggeration: float | None, shadow_color: Any, highlight_color: Any, accent_color: Any,
+                        device: wp.DeviceLike) -> NDArray[np.float32]:
+    """MapLibre GL's hillshade layer colours (see :func:`hillshade`); lights padded with their last value."""
+    many = method == "maplibre-multidirectional"
+    azimuths = _angles(azimuth, "azimuth", many)
+    altitudes = _angles(altitude, "altitude", many, lo=0.0, hi=math.pi / 2, unit="rad")
+    z_factor = _finite(z_factor, "z_factor", positive=True)
+    exaggeration = _finite(MAPLIBRE_DEFAULTS["exaggeration"] if exaggeration is None else exaggeration,
+                           "exaggeration", lo=0.0, hi=1.0)
+    shadows = _colours(shadow_color, "shadow_color", MAPLIBRE_DEFAULTS["shadow_color"], many)
+    highlights = _colours(highlight_color, "highlight_color", MAPLIBRE_DEFAULTS["highlight_color"], many)
+    accent = _colours(accent_color, "accent_color", MAPLIBRE_DEFAULTS["accent_color"], False)[0]
+    n = max(len(azimuths), len(altitudes), len(shadows), len(highlights))
+
+    def padded(values: Any) -> NDArray[Any]:
+        values = np.asarray(values, dtype=np.float32)
+        return np.concatenate([values, np.repeat(values[-1:], n - len(values), axis=0)])
+
+    dev = resolve_device(device)
+    style = texture_kernels.MapLibreStyle()
+    style.method = MAPLIBRE_METHODS.index(method)
+    style.exaggeration = exaggeration
+    style.azimuths = wp.array(padded(azimuths), dtype=wp.float32, device=dev)
+    style.altitudes = wp.array(padded(altitudes), dtype=wp.float32, device=dev)
+    style.shadows = wp.array(padded(shadows), dtype=wp.vec4, device=dev)
+    style.highlights = wp.array(padded(highlights), dtype=wp.vec4, device=dev)
+    style.accent = wp.vec4(*(float(c) for c in accent))
+    grid = _height_grid(t, z_factor, dev)
+    host, out = _output((*t.heights.shape, 4), np.float32, wp.float32, dev)
+    launch(texture_kernels.maplibre_shade_heights, dim=grid.rows * grid.cols, inputs=[grid, style],
+           outputs=[out], device=dev)
+    return _result(host, out)
 
 
 def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float, altitude: float,
@@ -661,6 +780,10 @@ def topographic_layer(
     Modulate a thematic layer with it (:func:`modulate`) as in Fig. 5.
     """
     t = _grid_terrain(terrain, spacing)
+    if method in MAPLIBRE_METHODS:
+        raise InvalidInputError(f"a topographic layer takes a grey method ({', '.join(HILLSHADE_METHODS)}); got "
+                                f"{method!r}: its premultiplied RGBA overlay, with RGB divided by alpha, makes a "
+                                "thematic layer")
     ambient = _finite(ambient, "ambient", lo=0.0, hi=1.0)
     occlusion = _finite(occlusion, "occlusion", lo=0.0, hi=1.0)
     shade = hillshade(t, azimuth=azimuth, altitude=altitude, z_factor=z_factor, method=method, shadows=shadows,

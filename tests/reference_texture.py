@@ -5,6 +5,7 @@
   digital line (O(n) per node), in float64.
 * ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
 * ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64.
+* ``maplibre_reference``: MapLibre GL's hillshade methods transcribed from its fragment shader, in float64.
 """
 
 from __future__ import annotations
@@ -181,3 +182,72 @@ def reduce_axis(image: np.ndarray, axis: int) -> np.ndarray:
 def reduce_reference(image: np.ndarray) -> np.ndarray:
     """One pyramid level down (both axes), float64 before rounding."""
     return reduce_axis(reduce_axis(image, 0), 1)
+
+
+def maplibre_reference(heights, spacing=(1.0, 1.0), method="standard", azimuths=(AZIMUTH,), altitudes=(ALTITUDE,),
+                       exaggeration=0.5, shadows=((0, 0, 0, 1),), highlights=((1, 1, 1, 1),), accent=(0, 0, 0, 1),
+                       z_factor=1.0) -> np.ndarray:
+    """MapLibre GL's hillshade layer, (H, W, 4) premultiplied RGBA in float64, transcribed from
+    src/shaders/glsl/hillshade.fragment.glsl of maplibre/maplibre-gl-js (commit
+    27688c1c2109f2ebbf7f65a773ef88598a8df75b). Colours are given premultiplied (as MapLibre's uniforms);
+    ``deriv`` is the Horn gradient towards east and south. Shorter light lists repeat their last entry."""
+    p, q = horn(heights, spacing, z_factor)
+    n = max(len(azimuths), len(altitudes), len(shadows), len(highlights))
+
+    def pad(values):
+        values = list(values)
+        return values + [values[-1]] * (n - len(values))
+
+    azimuths, altitudes, shadows, highlights = pad(azimuths), pad(altitudes), pad(shadows), pad(highlights)
+    colour = [np.asarray(c, dtype=np.float64)[None, None, :] for c in (*shadows, *highlights, accent)]
+    shadow, highlight, accent_c = colour[0], colour[n], colour[-1]
+
+    def glsl_mod(x, y):
+        return x - y * np.floor(x / y)
+
+    def get_aspect(x, y):
+        with np.errstate(invalid="ignore"):
+            return np.where(x != 0.0, np.arctan2(y, -x), np.pi / 2 * np.where(y > 0.0, 1.0, -1.0))
+
+    def cang_of(x, y, az, alt):
+        az = az + np.pi
+        return (math.sin(alt) - (y * math.cos(az) * math.cos(alt) - x * math.sin(az) * math.cos(alt))) / np.sqrt(
+            1.0 + x * x + y * y)
+
+    def basic(x, y, az, alt, sh, hi):
+        shade = np.clip(cang_of(x, y, az, alt), 0.0, 1.0)[..., None]
+        return np.where(shade > 0.5, hi * (2 * shade - 1), sh * (1 - 2 * shade))
+
+    x, y = p, -q
+    if method == "standard":
+        slope = np.arctan(0.625 * np.hypot(x, y))
+        aspect = get_aspect(x, y)
+        intensity = exaggeration
+        base = 1.875 - intensity * 1.75
+        max_value = 0.5 * np.pi
+        scaled = ((base ** slope - 1) / (base ** max_value - 1)) * max_value if intensity != 0.5 else slope
+        weight = min(max(intensity * 2.0, 0.0), 1.0)
+        accent_colour = (1 - np.cos(scaled))[..., None] * accent_c * weight
+        shade = np.abs(glsl_mod((aspect + azimuths[0] + np.pi) / np.pi + 0.5, 2.0) - 1.0)[..., None]
+        shade_colour = (shadow * (1 - shade) + highlight * shade) * np.sin(scaled)[..., None] * weight
+        out = accent_colour * (1 - shade_colour[..., 3:]) + shade_colour
+    else:
+        x, y = x * exaggeration * 2, y * exaggeration * 2
+        steep = np.arctan(np.hypot(x, y))[..., None]
+        if method == "basic":
+            out = basic(x, y, azimuths[0], altitudes[0], shadow, highlight)
+        elif method == "multidirectional":
+            out = sum(basic(x, y, azimuths[k], altitudes[k], colour[k], colour[n + k]) for k in range(n)) / n
+        elif method == "combined":
+            angle = np.clip(np.arccos(np.clip(cang_of(x, y, azimuths[0], altitudes[0]), -1, 1)), 0, np.pi / 2)
+            angle = angle[..., None]
+            out = shadow * angle * steep * 4 / np.pi ** 2 + highlight * (np.pi / 2 - angle) * steep * 4 / np.pi ** 2
+        elif method == "igor":
+            slope_strength = steep * 2 / np.pi
+            aspect_strength = 1 - np.abs(glsl_mod((get_aspect(x, y) + azimuths[0] + np.pi) / np.pi + 0.5, 2) - 1)
+            aspect_strength = aspect_strength[..., None]
+            out = shadow * slope_strength * aspect_strength + highlight * slope_strength * (1 - aspect_strength)
+        else:
+            raise ValueError(method)
+    nodata = np.isnan(np.asarray(heights, dtype=np.float64))
+    return np.where(nodata[..., None], np.nan, out)

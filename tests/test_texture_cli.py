@@ -114,3 +114,33 @@ def test_example_flood(tmp_path):
     blue = [(f[..., 2].astype(int) - f[..., 0].astype(int) > 60).sum() for f in frames]
     assert blue[-1] > blue[0]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flood.gif", "flood.png"]
+
+
+def test_example_flood_mp4(tmp_path):
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+
+    example = load_example("flood")
+    out = tmp_path / "flood.png"
+    assert example.main(["--size", "32", "--frames", "4", "--keyframes", "3", "--mp4", "--output", str(out),
+                         "--device", "cpu"]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flood.gif", "flood.mp4", "flood.png"]
+    video = iio.imread(out.with_suffix(".mp4"), index=None, extension=".mp4")
+    assert video.shape[0] == 4 and video.shape[1:3] == (32, 32)
+    last = read_png(out)[..., :3].astype(float)
+    # lossy H.264 (4:2:0 chroma) of the same frames: the last one has the PNG's colours and its pattern
+    np.testing.assert_allclose(video[-1].reshape(-1, 3).mean(0), last.reshape(-1, 3).mean(0), atol=6)
+    assert np.corrcoef(video[-1].astype(float).mean(-1).ravel(), last.mean(-1).ravel())[0, 1] > 0.8
+
+
+def test_example_flood_mp4_without_ffmpeg_names_the_extra(tmp_path, monkeypatch):
+    import sys
+
+    from stepterrain.errors import MissingDependencyError
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import fails as if not installed
+    example = load_example("flood")
+    with pytest.raises(MissingDependencyError, match=r"stepterrain\[video\]"):
+        example.main(["--size", "32", "--frames", "2", "--keyframes", "2", "--mp4",
+                      "--output", str(tmp_path / "flood.png"), "--device", "cpu"])
+    assert list(tmp_path.iterdir()) == []
