@@ -1638,5 +1638,7 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
         if suffix == ".gif":
             iio.imwrite(tmp, np.stack(stack), extension=".gif", duration=1000.0 / fps, loop=0)
         else:
-            iio.imwrite(tmp, np.stack(stack), extension=".mp4", fps=fps, codec="libx264")
+            iio.imwrite(tmp, np.stack(stack), extension=".mp4", plugin="FFMPEG", fps=fps, codec="libx264",
+                        macro_block_size=2,  # keep the frame size (H.264 needs it even only)
+                        output_params=["-f", "mp4"])  # the .tmp suffix would not tell ffmpeg the container
     return target

@@ -149,6 +149,11 @@ def test_spinning_closeup_animates_and_saves(tmp_path):
     if importlib.util.find_spec("imageio_ffmpeg") is None:
         with pytest.raises(MissingDependencyError, match="imageio-ffmpeg"):
             save_animation(frames, tmp_path / "spin.mp4")
+    else:  # the MP4 must read back (the temporary file's suffix must not decide the container)
+        mp4 = save_animation(frames, tmp_path / "spin.mp4", fps=2.0)
+        video = iio.imread(mp4, index=None, plugin="FFMPEG")
+        assert video.shape[0] == 3 and video.shape[1:3] == (SIZE[1], SIZE[0])
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["spin.gif", "spin.mp4"]
 
 
 @pytest.mark.render
