@@ -66,12 +66,11 @@ class CubeSphereGrid:
 
 @wp.struct
 class NodeParameters:
-    """Per entry, computed bottom-up (§6, §7.1): e, r, h, α; identical on the copies of a seam node."""
+    """Per entry, computed bottom-up (§6, §7.1): (e, r, h, α) packed in one vec4, so a node's parameters are
+    one 16-byte load (one cache line) on the refinement's scattered accesses; identical on the copies of a
+    seam node."""
 
-    geometric_error: wp.array[wp.float32]
-    bounding_radius: wp.array[wp.float32]
-    cone_height: wp.array[wp.float32]
-    cone_angle: wp.array[wp.float32]
+    values: wp.array[wp.vec4]  # (geometric error e, bounding-sphere radius r, cone height h, cone angle α)
 
 
 @wp.struct
@@ -85,6 +84,7 @@ class LatLonGrid:
     dlon: wp.float64  # > 0: radians per column, eastwards
     inv_dlat: wp.float64  # 1 / dlat
     inv_dlon: wp.float64  # 1 / dlon
+    inv_cols: wp.float64  # 1 / number of columns
     north_pole: wp.float32  # mean of row 0: the value at 90° N
     south_pole: wp.float32  # mean of the last row: the value at 90° S
 
@@ -221,19 +221,28 @@ def in_grid(grid: CubeSphereGrid, i: wp.int32, j: wp.int32) -> wp.int32:
 
 
 @wp.func
-def sample_row(source: LatLonGrid, row: wp.int32, lon: wp.float64) -> wp.float32:
-    """Linear interpolation along one row in longitude, wrapping around the antimeridian."""
+def column_weights(source: LatLonGrid, lon: wp.float64) -> wp.vec3:
+    """(c0, c1, t) of linear interpolation in longitude, wrapping around the antimeridian (columns as floats:
+    exact below 2^24)."""
     cols = source.elevation.shape[1]
     fc = (lon - source.lon0) * source.inv_dlon
-    fc = fc - wp.floor(fc / wp.float64(cols)) * wp.float64(cols)
+    fc = fc - wp.floor(fc * source.inv_cols) * wp.float64(cols)
     c0 = wp.int32(wp.floor(fc))
     t = wp.float32(fc - wp.float64(c0))
     if c0 >= cols:
         c0 = c0 - cols
+    if c0 < 0:
+        c0 = c0 + cols
     c1 = c0 + 1
     if c1 >= cols:
         c1 = 0
-    return (1.0 - t) * source.elevation[row, c0] + t * source.elevation[row, c1]
+    return wp.vec3(wp.float32(c0), wp.float32(c1), t)
+
+
+@wp.func
+def sample_row(source: LatLonGrid, row: wp.int32, cw: wp.vec3) -> wp.float32:
+    """Linear interpolation along one row with the weights of :func:`column_weights`."""
+    return (1.0 - cw[2]) * source.elevation[row, wp.int32(cw[0])] + cw[2] * source.elevation[row, wp.int32(cw[1])]
 
 
 @wp.func
@@ -268,20 +277,55 @@ def fast_atan2(y: wp.float64, x: wp.float64) -> wp.float64:
 
 
 @wp.func
-def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
-    """Bilinear elevation at a unit direction; between the first (last) row and the pole, a blend towards
-    the pole value."""
+def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
+    """float32 atan2 without a libm call: reduction to |t| <= tan(π/8), odd degree-11 polynomial (least-squares fit,
+    truncation < 5e-10 rad, below float32 rounding: the result is within ~2 ulp of atan2)."""
+    ax = wp.abs(x)
+    ay = wp.abs(y)
+    hi = wp.max(ax, ay)
+    if hi == wp.float32(0.0):
+        return wp.float32(0.0)
+    t = wp.min(ax, ay) / hi
+    base = wp.float32(0.0)
+    if t > wp.float32(0.41421356):
+        t = (t - wp.float32(1.0)) / (t + wp.float32(1.0))
+        base = wp.float32(0.78539816)
+    t2 = t * t
+    poly = wp.float32(-0.06030872464) * t2 + wp.float32(0.1056963349)
+    poly = poly * t2 - wp.float32(0.1423923555)
+    poly = poly * t2 + wp.float32(0.199981622)
+    poly = poly * t2 - wp.float32(0.3333330783)
+    r = base + t * (poly * t2 + wp.float32(1.0))
+    if ay > ax:
+        r = wp.float32(1.5707963) - r
+    if x < wp.float32(0.0):
+        r = wp.float32(3.1415927) - r
+    if y < wp.float32(0.0):
+        r = -r
+    return r
+
+
+@wp.func
+def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
+    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
+    pole, a blend towards the pole value.
+
+    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
+    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
+    own error; the same integer point gives the same value on every seam copy."""
     rows = source.elevation.shape[0]
     half_pi = wp.float64(1.5707963267948966)
-    lat = fast_atan2(direction[2], wp.sqrt(direction[0] * direction[0] + direction[1] * direction[1]))
-    lon = fast_atan2(direction[1], direction[0])
+    x = wp.float32(point[0])
+    y = wp.float32(point[1])
+    lat = wp.float64(fast_atan2f(wp.float32(point[2]), wp.sqrt(x * x + y * y)))
+    cw = column_weights(source, wp.float64(fast_atan2f(y, x)))
     fr = (source.lat0 - lat) * source.inv_dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
         w = wp.float32(0.0)
         if span > wp.float64(0.0):
             w = wp.float32(wp.clamp((lat - source.lat0) / span, wp.float64(0.0), wp.float64(1.0)))
-        return (1.0 - w) * sample_row(source, 0, lon) + w * source.north_pole
+        return (1.0 - w) * sample_row(source, 0, cw) + w * source.north_pole
     last = wp.float64(rows - 1)
     if fr >= last:
         lat_last = source.lat0 - last * source.dlat
@@ -289,11 +333,11 @@ def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
         w = wp.float32(0.0)
         if span > wp.float64(0.0):
             w = wp.float32(wp.clamp((lat_last - lat) / span, wp.float64(0.0), wp.float64(1.0)))
-        return (1.0 - w) * sample_row(source, rows - 1, lon) + w * source.south_pole
+        return (1.0 - w) * sample_row(source, rows - 1, cw) + w * source.south_pole
     r0 = wp.int32(wp.floor(fr))
     r0 = wp.min(r0, rows - 2)
     t = wp.float32(fr - wp.float64(r0))
-    return (1.0 - t) * sample_row(source, r0, lon) + t * sample_row(source, r0 + 1, lon)
+    return (1.0 - t) * sample_row(source, r0, cw) + t * sample_row(source, r0 + 1, cw)
 
 
 @wp.kernel
@@ -319,8 +363,9 @@ def resample_latlon(
         rest = entry - face * nn
         i = wp.int32(wp.float64(rest) * (wp.float64(1.0) / wp.float64(grid.n)) + wp.float64(1e-9))
         j = rest - i * grid.n
-        direction = node_direction(cube_point(face, i, j, grid.cells))
-        z = exaggeration * sample_latlon(source, direction)
+        point = cube_point(face, i, j, grid.cells)
+        direction = node_direction(point)
+        z = exaggeration * sample_latlon(source, point)
         heights_out[entry] = z
         p = (grid.radius + wp.float64(z)) * direction
         positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
@@ -510,10 +555,7 @@ def saturate_node_parameters(
     angles: wp.int32,  # 1: compute α (face 0 only; by the cube's rotation symmetry the other faces copy it)
     params: NodeParameters,  # read: the children's values (depth + 1, already done)
     # outputs
-    geometric_error_out: wp.array[wp.float32],
-    bounding_radius_out: wp.array[wp.float32],
-    cone_height_out: wp.array[wp.float32],
-    cone_angle_out: wp.array[wp.float32],
+    values_out: wp.array[wp.vec4],  # (e, r, h, α) per entry (the same array as params.values)
 ):
     """One thread per node copy at ``depth``: e, r, h, α as the max over its children plus its own share,
     with the level-wise margin that keeps saturation and nesting true in floating point (§6, §7.1).
@@ -577,29 +619,27 @@ def saturate_node_parameters(
                         child = point_entry(cube_point(face, ci, cj, grid.cells), grid.cells, grid.n)
                         child_local = child % nn
                     c = bounds.to_vec3d(grid.positions[child])
-                    e = wp.max(e, wp.float64(params.geometric_error[child]))
-                    r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
+                    q = params.values[child]
+                    e = wp.max(e, wp.float64(q[0]))
+                    r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
                     if grid.planar == 0:
                         dz = wp.abs(z_v - wp.float64(grid.heights[child]))
-                        h = wp.max(h, dz + wp.float64(params.cone_height[child]))
+                        h = wp.max(h, dz + wp.float64(q[2]))
                         if with_angle != 0:
                             w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
-                            angle = direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child_local])
+                            angle = direction_angle(w_v, w_c) + wp.float64(params.values[child_local][3])
                             alpha = wp.max(alpha, angle)
         # rounding e up keeps "e <= error" a true statement about the float64 error
-        geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
+        out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
         if has_children != 0:
             scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
             if grid.planar != 0:
                 scale = wp.length(v) * ABSOLUTE_MARGIN
-            bounding_radius_out[entry] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
-            cone_height_out[entry] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[2] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
             if with_angle != 0:
-                cone_angle_out[entry] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
-        else:
-            bounding_radius_out[entry] = wp.float32(0.0)
-            cone_height_out[entry] = wp.float32(0.0)
-            cone_angle_out[entry] = wp.float32(0.0)
+                out[3] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
+        values_out[entry] = out
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -643,6 +683,34 @@ def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: w
 
 
 @wp.kernel
+def copy_cone_angles(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    nn: wp.int32,
+    # outputs
+    values: wp.array[wp.vec4],
+):
+    """One thread per entry of faces 1-5: α from the same (i, j) on face 0 (the cube's rotations map the faces
+    onto each other with their hierarchy, so α depends on (i, j) alone)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        entry = nn + k
+        v = values[entry]
+        v[3] = values[entry % nn][3]
+        values[entry] = v
+
+
+@wp.func
+def refinement_entry(n: wp.int32, tri: wp.vec4i) -> wp.int32:
+    """Entry of a triangle's refinement node, the midpoint of its hypotenuse (on its own face)."""
+    a = unpack(tri[1])
+    b = unpack(tri[2])
+    return tri[0] * n * n + ((a[0] + b[0]) >> 1) * n + ((a[1] + b[1]) >> 1)
+
+
+@wp.kernel
 def count_refinement(
     thread_offset: wp.int32,
     count: wp.int32,
@@ -661,19 +729,36 @@ def count_refinement(
     whether it emits that node as a new vertex."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    need_position = wp.int32(1)
+    if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
+        need_position = 0
+    # software pipelining: the scattered loads of triangle t + 1's node (q, p) are issued before triangle t's
+    # metric runs, so the memory latency overlaps the arithmetic (the loop is latency-bound otherwise)
+    q_next = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    p_next = wp.vec3(0.0, 0.0, 0.0)
+    if can_refine != 0 and first < last:
+        q_next = params.values[refinement_entry(grid.n, triangles[first])]
+        if need_position != 0:
+            p_next = grid.positions[refinement_entry(grid.n, triangles[first])]
     for t in range(first, last):
         tri = triangles[t]
         refine = wp.int32(0)
         owner = wp.int32(0)
+        q = q_next
+        p = p_next
         if can_refine != 0:
+            if t + 1 < last:
+                m_next = refinement_entry(grid.n, triangles[t + 1])
+                q_next = params.values[m_next]
+                if need_position != 0:
+                    p_next = grid.positions[m_next]
             a = unpack(tri[1])
             b = unpack(tri[2])
-            m = tri[0] * grid.n * grid.n + ((a[0] + b[0]) >> 1) * grid.n + ((a[1] + b[1]) >> 1)
             factor = wp.float64(1.0)
             if user_factors.shape[0] > 0:
                 factor = wp.float64(user_factors[t])
-            e = params.geometric_error[m]
-            if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
+            e = q[0]
+            if need_position == 0:
                 # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
                 mu = factor
                 if view.flags[0] != 0:
@@ -681,16 +766,8 @@ def count_refinement(
                 if mu > view.error:
                     refine = 1
             else:
-                r = wp.float32(0.0)
-                h = wp.float32(0.0)
-                alpha = wp.float32(0.0)
-                if view.flags[3] != 0:
-                    h = params.cone_height[m]
-                    alpha = params.cone_angle[m]
-                else:
-                    r = params.bounding_radius[m]
                 refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
-                                            e, grid.positions[m], r, h, alpha, factor)
+                                            e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
         refine_out[t] = refine

@@ -18,7 +18,9 @@ computed from the integer cube point: each lies at R + exaggeration·z from the 
 
 from __future__ import annotations
 
+import ctypes
 import math
+import mmap
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -331,6 +333,7 @@ class Globe:
         source.dlon = math.radians(dlon)
         source.inv_dlat = 1.0 / source.dlat
         source.inv_dlon = 1.0 / source.dlon
+        source.inv_cols = 1.0 / z.shape[1]
         source.north_pole = float(z[0].mean())
         source.south_pole = float(z[-1].mean())
         n_entries = 6 * (cells + 1) ** 2
@@ -342,8 +345,8 @@ class Globe:
         grid.spacing = wp.vec2d(1.0, 1.0)
         grid.rows_valid = grid.n
         grid.cols_valid = grid.n
-        grid.heights = wp.empty(n_entries, dtype=wp.float32, device=device)
-        grid.positions = wp.empty(n_entries, dtype=wp.vec3, device=device)
+        grid.heights = _node_array(n_entries, wp.float32, device)
+        grid.positions = _node_array(n_entries, wp.vec3, device)
         _launch(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
                [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
@@ -374,9 +377,9 @@ class Globe:
     def node_parameters(self) -> dict[str, NDArray[np.float32]]:
         """Per node (6, n, n): geometric_error e, bounding_radius r, cone_height h, cone_angle α (radians)."""
         n = self.face_size
-        p = self._params
-        return {name: getattr(p, name).numpy().reshape(6, n, n)
-                for name in ("geometric_error", "bounding_radius", "cone_height", "cone_angle")}
+        values = self._params.values.numpy()
+        return {name: np.ascontiguousarray(values[:, k]).reshape(6, n, n)
+                for k, name in enumerate(("geometric_error", "bounding_radius", "cone_height", "cone_angle"))}
 
     def __repr__(self) -> str:
         return (f"Globe(face_size={self.face_size}, radius={self.radius:g}, exaggeration={self.exaggeration:g}, "
@@ -474,6 +477,29 @@ def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDAr
 CPU_CHUNK = 64
 
 
+#: Host arrays of at least this many bytes are backed by transparent huge pages (2 MiB) where the kernel
+#: allows it: the refinement's scattered loads into 100+ MB of node arrays then miss the TLB far less, and
+#: a fresh allocation faults once per 2 MiB instead of once per 4 KiB.
+_HUGE_PAGE = 1 << 21
+
+
+def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
+    """``wp.empty(n, dtype)``; on the CPU, large arrays in 2 MiB-aligned memory advised as huge pages."""
+    nbytes = n * wp.types.type_size_in_bytes(dtype)
+    if not device.is_cpu or nbytes < 4 * _HUGE_PAGE or not hasattr(mmap, "MADV_HUGEPAGE"):
+        return wp.empty(n, dtype=dtype, device=device)
+    buffer = mmap.mmap(-1, nbytes + _HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    address = ctypes.addressof(ctypes.c_char.from_buffer(buffer))
+    offset = (-address) % _HUGE_PAGE
+    try:
+        buffer.madvise(mmap.MADV_HUGEPAGE, 0, len(buffer))
+    except OSError:  # pragma: no cover - no THP in this kernel: ordinary pages
+        pass
+    scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
+    host = np.frombuffer(buffer, dtype=np.uint8, count=nbytes, offset=offset).view(scalar)
+    return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
+
+
 def _launch(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device) -> None:
     """``_device.launch`` of a chunked cube-sphere kernel over ``n`` elements."""
     chunk = 1 if device.is_cuda else CPU_CHUNK
@@ -484,11 +510,9 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     """e, r, h, α for every node copy, bottom-up level by level (paper 003 §6, §7.1)."""
     n_entries = faces * grid.n * grid.n
     params = cube_kernels.NodeParameters()
-    params.geometric_error = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    params.bounding_radius = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    params.cone_height = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    params.cone_angle = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    outputs = [params.geometric_error, params.bounding_radius, params.cone_height, params.cone_angle]
+    params.values = _node_array(n_entries, wp.vec4, device)
+    params.values.zero_()
+    outputs = [params.values]
     angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
@@ -497,8 +521,7 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
                [grid, depth, angles, params], outputs, device)
     if angles:
         nn = grid.n * grid.n
-        for f in range(1, faces):
-            wp.copy(params.cone_angle, params.cone_angle, dest_offset=f * nn, src_offset=0, count=nn)
+        _launch(cube_kernels.copy_cone_angles, (faces - 1) * nn, [nn], [params.values], device)
     return params
 
 
@@ -509,8 +532,14 @@ def _view(camera: Camera | None, error: float, names: set[str], bounds: str, sca
     view.distance_scale = scale
     view.flags = wp.vec4i(int("geometric" in names), int(camera is not None and "distance" in names),
                           int(camera is not None and "clip" in names), 1 if bounds == "cone" else 0)
+    view.eye_length = 0.0
+    view.eye_unit = wp.vec3d(0.0, 0.0, 0.0)
     if camera is not None:
         view.eye = wp.vec3d(*camera.eye)
+        eye_length = float(np.linalg.norm(camera.eye))
+        view.eye_length = eye_length
+        if eye_length > 0:
+            view.eye_unit = wp.vec3d(*(np.asarray(camera.eye) / eye_length))
         view.planes = wp.array(camera.planes(), dtype=wp.vec4d, device=device)
     else:
         view.eye = wp.vec3d(0.0, 0.0, 0.0)
@@ -576,7 +605,7 @@ def _user_factors(users: list[UserMetric], grid: Any, params: Any, triangles: wp
     a, b = tris[:, 1], tris[:, 2]
     m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
     points = grid.positions.numpy()[m].astype(np.float64)
-    radius = params.bounding_radius.numpy()[m].astype(np.float64)
+    radius = params.values.numpy()[m, 1].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
     for fn in users:
         value = np.asarray(fn(points, radius), dtype=np.float64)
