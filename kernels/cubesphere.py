@@ -691,15 +691,16 @@ def copy_cone_angles(
     # outputs
     values: wp.array[wp.vec4],
 ):
-    """One thread per entry of faces 1-5: α from the same (i, j) on face 0 (the cube's rotations map the faces
-    onto each other with their hierarchy, so α depends on (i, j) alone)."""
+    """One thread per entry of face 0 (count = nn): its α to the same (i, j) on faces 1-5 (the cube's rotations
+    map the faces onto each other with their hierarchy, so α depends on (i, j) alone)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     for k in range(first, last):
-        entry = nn + k
-        v = values[entry]
-        v[3] = values[entry % nn][3]
-        values[entry] = v
+        alpha = values[k][3]
+        for f in range(1, 6):
+            v = values[f * nn + k]
+            v[3] = alpha
+            values[f * nn + k] = v
 
 
 @wp.func
@@ -722,8 +723,7 @@ def count_refinement(
     can_refine: wp.int32,
     user_factors: wp.array[wp.float32],
     # outputs
-    refine_out: wp.array[wp.int32],
-    owner_out: wp.array[wp.int32],
+    counts_out: wp.array[wp.int32],  # 2·count + 2: refine flags, 0, owner flags, 0 (one scan for both)
 ):
     """One thread per triangle: 1 when it refines (its refinement node's metric exceeds the error), and
     whether it emits that node as a new vertex."""
@@ -770,8 +770,11 @@ def count_refinement(
                                             e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
-        refine_out[t] = refine
-        owner_out[t] = owner
+        counts_out[t] = refine
+        counts_out[count + 1 + t] = owner
+    if first == 0:
+        counts_out[count] = 0
+        counts_out[2 * count + 1] = 0
 
 
 @wp.kernel
@@ -781,10 +784,8 @@ def emit_refinement(
     chunk: wp.int32,
     grid: CubeSphereGrid,
     triangles: wp.array[wp.vec4i],
-    refine: wp.array[wp.int32],
-    refine_offsets: wp.array[wp.int32],
-    owner: wp.array[wp.int32],
-    owner_offsets: wp.array[wp.int32],
+    counts: wp.array[wp.int32],  # of count_refinement: refine flags, 0, owner flags, 0
+    offsets: wp.array[wp.int32],  # their exclusive scan: offsets[count + 1] = the number of refined triangles
     # outputs
     children_out: wp.array[wp.vec4i],
     leaves_out: wp.array[wp.vec4i],
@@ -796,19 +797,20 @@ def emit_refinement(
     last = wp.min(first + chunk, count)
     for t in range(first, last):
         tri = triangles[t]
-        if refine[t] != 0:
+        if counts[t] != 0:
             a = unpack(tri[1])
             b = unpack(tri[2])
             mi = (a[0] + b[0]) >> 1
             mj = (a[1] + b[1]) >> 1
             m = pack(mi, mj)
-            k = 2 * refine_offsets[t]
+            k = 2 * offsets[t]
             children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
             children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
-            if owner[t] != 0:
-                vertex_entries_out[owner_offsets[t]] = node_entry(grid.cells, grid.planar, tri[0], mi, mj)
+            if counts[count + 1 + t] != 0:
+                vertex_entries_out[offsets[count + 1 + t] - offsets[count + 1]] = node_entry(
+                    grid.cells, grid.planar, tri[0], mi, mj)
         else:
-            leaves_out[t - refine_offsets[t]] = tri
+            leaves_out[t - offsets[t]] = tri
 
 
 @wp.kernel

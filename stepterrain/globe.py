@@ -233,6 +233,7 @@ class Globe:
         self.device = device
         self.source = source
         self._grid = grid
+        self._lowest_height: float | None = None  # computed on the first mesh with a camera
         self._params = _node_parameters(grid, faces=6, levels=self.levels, device=device)
 
     # -------------------------------------------------------------------------------------- builders
@@ -449,7 +450,9 @@ class Globe:
         if camera is not None:
             if not isinstance(camera, Camera):
                 raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-            lowest = self.radius + float(self._grid.heights.numpy().min())
+            if self._lowest_height is None:
+                self._lowest_height = float(self._grid.heights.numpy().min())
+            lowest = self.radius + self._lowest_height
             if np.linalg.norm(camera.eye) <= max(lowest, 0.0):
                 raise InvalidInputError(f"camera eye {camera.eye} lies inside the planet (|eye| = "
                                         f"{np.linalg.norm(camera.eye):.1f} m <= lowest node radius {lowest:.1f} m)")
@@ -521,7 +524,7 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
                [grid, depth, angles, params], outputs, device)
     if angles:
         nn = grid.n * grid.n
-        _launch(cube_kernels.copy_cone_angles, (faces - 1) * nn, [nn], [params.values], device)
+        _launch(cube_kernels.copy_cone_angles, nn, [nn], [params.values], device)
     return params
 
 
@@ -586,6 +589,13 @@ def point_entry_np(point: NDArray[np.int64], cells: int, n: int) -> int:
     raise AssertionError(f"{point} is not on the cube")  # pragma: no cover
 
 
+def _host_int(array: wp.array, index: int) -> int:
+    """One int32 of a device array on the host (on the CPU a zero-copy read, no slice object)."""
+    if array.device.is_cpu:
+        return int(array.numpy()[index])
+    return int(array[index : index + 1].numpy()[0])
+
+
 def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device) -> wp.array:
     total = sum(c.shape[0] for c in chunks)
     out = wp.empty(total, dtype=dtype, device=device)
@@ -629,19 +639,19 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         count = triangles.shape[0]
         if count == 0:
             break
-        refine = count_buffer("globe.refine", count, device)
-        owner = count_buffer("globe.owner", count, device)
+        counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, params, triangles, device) if users else no_factors
         _launch(cube_kernels.count_refinement, count,
-               [grid, params, view, triangles, int(depth < levels), factors], [refine, owner], device)
-        refine_offsets, refined = exclusive_offsets(refine, "globe.refine")
-        owner_offsets, owned = exclusive_offsets(owner, "globe.owner")
+               [grid, params, view, triangles, int(depth < levels), factors], [counts], device)
+        offsets, total = exclusive_offsets(counts, "globe.refine")
+        refined = _host_int(offsets, count + 1)
+        owned = total - refined
         check_budget((2 * refined + count) * 16 + owned * 28, f"refinement level {depth}")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
-        _launch(cube_kernels.emit_refinement, count,
-               [grid, triangles, refine, refine_offsets, owner, owner_offsets], [children, leaves, entries], device)
+        _launch(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets],
+               [children, leaves, entries], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
         per_level.append(count)
