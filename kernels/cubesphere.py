@@ -504,6 +504,19 @@ def straddles_input(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i)
 
 
 @wp.func
+def edge_interval(w: wp.int32, step: wp.int32, lo: wp.int32, hi: wp.int32):
+    """[lo, hi] narrowed to the k with w + k·step >= 0 (exact: integer bounds through float64 quotients of
+    small integers, which are exact or far from the next integer)."""
+    if step > 0:
+        lo = wp.max(lo, wp.int32(wp.ceil(wp.float64(-w) / wp.float64(step))))
+    elif step < 0:
+        hi = wp.min(hi, wp.int32(wp.floor(wp.float64(w) / wp.float64(-step))))
+    elif w < 0:
+        hi = lo - 1
+    return lo, hi
+
+
+@wp.func
 def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.float64:
     """Planar only: the largest vertical distance between a grid node inside triangle (a, b, c) and the
     triangle's plane (0 when the triangle leaves the grid)."""
@@ -519,20 +532,37 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     sign = wp.int32(1)
     if area < 0:
         sign = -1
-    inv = wp.float64(1.0) / wp.float64(area)
+    inv_signed = wp.float64(1.0) / wp.float64(area * sign)  # the weights below carry the sign
     i0 = wp.min(a[0], wp.min(b[0], c[0]))
     i1 = wp.max(a[0], wp.max(b[0], c[0]))
     j0 = wp.min(a[1], wp.min(b[1], c[1]))
     j1 = wp.max(a[1], wp.max(b[1], c[1]))
+    # edge functions (times the orientation sign) stepped along each row: exact integers, the same values as
+    # evaluating them per node; a row meets the triangle in one interval, so leave the row once past it
+    step_a = (c[0] - b[0]) * sign
+    step_b = (a[0] - c[0]) * sign
+    step_c = (b[0] - a[0]) * sign
     worst = wp.float64(0.0)
     for i in range(i0, i1 + 1):
-        for j in range(j0, j1 + 1):
-            wa = (b[0] - i) * (c[1] - j) - (b[1] - j) * (c[0] - i)
-            wb = (c[0] - i) * (a[1] - j) - (c[1] - j) * (a[0] - i)
-            wc = (a[0] - i) * (b[1] - j) - (a[1] - j) * (b[0] - i)
-            if wa * sign >= 0 and wb * sign >= 0 and wc * sign >= 0:
-                z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv
-                worst = wp.max(worst, wp.abs(wp.float64(grid.heights[base + i * grid.n + j]) - z))
+        wa = ((b[0] - i) * (c[1] - j0) - (b[1] - j0) * (c[0] - i)) * sign
+        wb = ((c[0] - i) * (a[1] - j0) - (c[1] - j0) * (a[0] - i)) * sign
+        wc = ((a[0] - i) * (b[1] - j0) - (a[1] - j0) * (b[0] - i)) * sign
+        # the row's interval inside the triangle, [j0 + lo, j0 + hi]: each edge function w + k·step >= 0
+        lo = wp.int32(0)
+        hi = j1 - j0
+        lo, hi = edge_interval(wa, step_a, lo, hi)
+        lo, hi = edge_interval(wb, step_b, lo, hi)
+        lo, hi = edge_interval(wc, step_c, lo, hi)
+        row = base + i * grid.n + j0
+        wa += lo * step_a
+        wb += lo * step_b
+        wc += lo * step_c
+        for k in range(lo, hi + 1):
+            z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
+            worst = wp.max(worst, wp.abs(wp.float64(grid.heights[row + k]) - z))
+            wa += step_a
+            wb += step_b
+            wc += step_c
     return worst
 
 
