@@ -584,6 +584,114 @@ def to_vec3d_i(p: wp.vec3i) -> wp.vec3d:
 
 
 @wp.kernel
+def saturate_leaf_parameters(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """The deepest level on the cube (s = 1 axis nodes, half of all nodes): one thread per chunk of entries in
+    memory order, (face, i, j) stepped along the rows; the leaves ((i + j) odd) get e = |v - (a + b)/2| and
+    r = h = α = 0, exactly as :func:`saturate_node_parameters` computes them, without its slot decoding and
+    empty children loop."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    nn = n * n
+    face = first / nn
+    rest = first - face * nn
+    i = rest / n
+    j = rest - i * n
+    for entry in range(first, last):
+        if ((i + j) & 1) != 0:
+            step = wp.int32(1)  # i even, j odd: the hypotenuse runs along j
+            if (i & 1) != 0:
+                step = n  # i odd, j even: along i
+            v = bounds.to_vec3d(grid.positions[entry])
+            pa = bounds.to_vec3d(grid.positions[entry + step])
+            pb = bounds.to_vec3d(grid.positions[entry - step])
+            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            values_out[entry] = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+            if i == n:
+                i = 0
+
+
+@wp.kernel
+def saturate_cell_centres(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """The second-deepest level on the cube (s = 1 diagonal nodes: i and j odd, the centres of 2 x 2 cells),
+    in memory order like :func:`saturate_leaf_parameters`: the same float64 formulas as
+    :func:`saturate_node_parameters` on the four leaf children (i ± 1, j), (i, j ± 1) (always on the same face;
+    their r, h, α are 0), so the results are bit-identical to it; α on face 0 only."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    cells = grid.cells
+    nn = n * n
+    face = first / nn
+    rest = first - face * nn
+    i = rest / n
+    j = rest - i * n
+    for entry in range(first, last):
+        if (i & j & 1) != 0:
+            kind = ((i >> 1) + (j >> 1)) & 1
+            hyp = wp.int32(n + 1)  # kind 0: a = (i + 1, j + 1)
+            if kind != 0:
+                hyp = n - 1  # kind 1: a = (i + 1, j - 1)
+            v = bounds.to_vec3d(grid.positions[entry])
+            z_v = wp.float64(grid.heights[entry])
+            pa = bounds.to_vec3d(grid.positions[entry + hyp])
+            pb = bounds.to_vec3d(grid.positions[entry - hyp])
+            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            w_v = to_vec3d_i(wp.vec3i(2 * j - cells, 2 * i - cells, cells))
+            r = wp.float64(0.0)
+            h = wp.float64(0.0)
+            alpha = wp.float64(0.0)
+            for k in range(4):
+                d = child_offset(0, 1, k)
+                child = entry + d[0] * n + d[1]
+                c = bounds.to_vec3d(grid.positions[child])
+                q = values_out[child]
+                e = wp.max(e, wp.float64(q[0]))
+                r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
+                dz = wp.abs(z_v - wp.float64(grid.heights[child]))
+                h = wp.max(h, dz + wp.float64(q[2]))
+                if face == 0:
+                    w_c = to_vec3d_i(wp.vec3i(2 * (j + d[1]) - cells, 2 * (i + d[0]) - cells, cells))
+                    alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(q[3]))
+            out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
+            scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
+            out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[2] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            if face == 0:
+                out[3] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
+            values_out[entry] = out
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+            if i == n:
+                i = 0
+                face += 1
+
+
+@wp.kernel
 def saturate_node_parameters(
     thread_offset: wp.int32,
     count: wp.int32,

@@ -519,6 +519,12 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     outputs = [params.values]
     angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
+        if depth == levels - 1 and faces == 6:  # the leaves (half of all nodes): a lean kernel in memory order
+            _launch(cube_kernels.saturate_leaf_parameters, faces * grid.n * grid.n, [grid], outputs, device)
+            continue
+        if depth == levels - 2 and faces == 6 and levels >= 2:  # the 2 x 2 cell centres, likewise
+            _launch(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
+            continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
         _launch(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
