@@ -35,6 +35,8 @@ class View:
     distance_scale: wp.float64  # ℓ: μ_dist = (ℓ / d)^2, so `error` is the geometric error tolerated at d = ℓ
     error: wp.float64  # ε: a triangle refines when μ > ε (or ε == 0 and μ_clip == 1)
     flags: wp.vec4i  # (use_geometric, use_distance, use_clip, cone): each 1 or 0; cone 0 means spheres
+    eye_length: wp.float64  # |eye| (hoisted out of the per-node cone formulas)
+    eye_unit: wp.vec3d  # eye / |eye| (zero when the eye is the origin)
 
 
 @wp.func
@@ -82,11 +84,22 @@ def eye_distance_cone(p: wp.vec3d, h: wp.float64, alpha: wp.float64, eye: wp.vec
     """d(v, B_cone): the six cases of paper 003 Abb. 6 (§7.2); 0 when the eye lies inside."""
     p_len = wp.length(p)
     v_len = wp.length(eye)
+    v_hat = wp.vec3d(0.0, 0.0, 0.0)
+    if v_len > wp.float64(0.0):
+        v_hat = eye / v_len
+    return eye_distance_cone_unit(p / p_len, p_len, h, sin_cos(alpha), v_hat, v_len)
+
+
+@wp.func
+def eye_distance_cone_unit(p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64, alpha_sc: wp.vec2d, v_hat: wp.vec3d,
+                           v_len: wp.float64) -> wp.float64:
+    """:func:`eye_distance_cone` with the axis p = p_len · p_hat, (sin α, cos α) and the eye v = v_len · v_hat
+    given (each computed once per node / per view)."""
     top = p_len + h
     bottom = wp.max(p_len - h, wp.float64(0.0))
     if v_len <= wp.float64(0.0):
         return bottom
-    g = offset_angle(eye / v_len, p / p_len, sin_cos(alpha))
+    g = offset_angle(v_hat, p_hat, alpha_sc)
     sin_g = g[0]
     cos_g = g[1]
     if sin_g <= wp.float64(0.0):  # β <= α: the eye lies above, inside or below the frustum
@@ -146,23 +159,28 @@ def shape_outside_view(
     the largest distance over the shape from the inverted plane is < 0)."""
     if cone != 0:
         p_len = wp.length(p)
-        p_hat = p / p_len
-        alpha_sc = sin_cos(alpha)
-        # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
-        # plane; the exact cases of Abb. 7 only for planes through that ball)
-        ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
-        for k in range(planes.shape[0]):
-            plane = planes[k]
-            centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
-            if centre > ball:
-                return 1
-            if centre >= -ball:
-                if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
-                    return 1
-        return 0
+        return cone_outside_view(planes, p, p / p_len, p_len, h, alpha, sin_cos(alpha))
     for k in range(planes.shape[0]):
         if plane_distance_sphere(inverted(planes[k]), p, r) < wp.float64(0.0):
             return 1
+    return 0
+
+
+@wp.func
+def cone_outside_view(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64,
+                      alpha: wp.float64, alpha_sc: wp.vec2d) -> wp.int32:
+    """:func:`shape_outside_view` of a cone frustum with p_hat, p_len and (sin α, cos α) given."""
+    # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
+    # plane; the exact cases of Abb. 7 only for planes through that ball)
+    ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
+    for k in range(planes.shape[0]):
+        plane = planes[k]
+        centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
+        if centre > ball:
+            return 1
+        if centre >= -ball:
+            if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
+                return 1
     return 0
 
 
@@ -218,15 +236,20 @@ def node_metric(
 @wp.func
 def refine_node(
     eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64, error: wp.float64,
-    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
+    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64,
+    eye_length: wp.float64, eye_unit: wp.vec3d
 ) -> wp.int32:
     """The refinement rule: μ > ε (μ of :func:`node_metric`); with ε == 0 every node not clipped refines.
 
     Cheapest tests first: μ_geo, then an upper bound of μ_dist from the radial gap between the eye and the
     cone's shell (a lower bound of d), then the exact distance, and the six-plane clip test last. Each early
     "no" is a saturated predicate itself (nested shapes have nested radial ranges), so the rule stays
-    saturated."""
+    saturated. The cone's |p|, p/|p| and (sin α, cos α) are computed once and shared by the distance and the
+    clip test; |eye| and eye/|eye| come with the view."""
     p = to_vec3d(p32)
+    if flags[3] != 0:
+        return refine_cone(eye_unit, eye_length, planes, flags, distance_scale, error, wp.float64(e), p,
+                           wp.float64(h), wp.float64(alpha), factor)
     if error <= wp.float64(0.0):
         if flags[2] != 0:
             if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
@@ -260,6 +283,54 @@ def refine_node(
         return 0
     if flags[2] != 0:
         if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            return 0
+    return 1
+
+
+@wp.func
+def refine_cone(
+    v_hat: wp.vec3d, v_len: wp.float64, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64,
+    error: wp.float64, e: wp.float64, p: wp.vec3d, h: wp.float64, alpha: wp.float64, factor: wp.float64
+) -> wp.int32:
+    """:func:`refine_node` for cone frustums, the same decisions in the same order."""
+    if error <= wp.float64(0.0):
+        if flags[2] != 0:
+            p_len0 = wp.length(p)
+            if cone_outside_view(planes, p, p / p_len0, p_len0, h, alpha, sin_cos(alpha)) != 0:
+                return 0
+        return 1
+    mu = factor
+    if flags[0] != 0:
+        mu = mu * e
+    if mu <= error:
+        if mu <= wp.float64(0.0) or flags[1] == 0:
+            return 0
+    p_len = wp.length(p)
+    p_hat = wp.vec3d(0.0, 0.0, 0.0)
+    alpha_sc = wp.vec2d(0.0, 1.0)
+    have_unit = wp.int32(0)
+    if flags[1] != 0:
+        gap = wp.max(v_len - (p_len + h), (p_len - h) - v_len)
+        if gap > wp.float64(0.0):
+            q = distance_scale / gap
+            if mu * q * q <= error:
+                return 0
+        p_hat = p / p_len
+        alpha_sc = sin_cos(alpha)
+        have_unit = 1
+        d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
+        if d > wp.float64(0.0):
+            q = distance_scale / d
+            mu = mu * q * q
+        else:
+            mu = HUGE
+    if mu <= error:
+        return 0
+    if flags[2] != 0:
+        if have_unit == 0:
+            p_hat = p / p_len
+            alpha_sc = sin_cos(alpha)
+        if cone_outside_view(planes, p, p_hat, p_len, h, alpha, alpha_sc) != 0:
             return 0
     return 1
 

@@ -66,12 +66,11 @@ class CubeSphereGrid:
 
 @wp.struct
 class NodeParameters:
-    """Per entry, computed bottom-up (§6, §7.1): e, r, h, α; identical on the copies of a seam node."""
+    """Per entry, computed bottom-up (§6, §7.1): (e, r, h, α) packed in one vec4, so a node's parameters are
+    one 16-byte load (one cache line) on the refinement's scattered accesses; identical on the copies of a
+    seam node."""
 
-    geometric_error: wp.array[wp.float32]
-    bounding_radius: wp.array[wp.float32]
-    cone_height: wp.array[wp.float32]
-    cone_angle: wp.array[wp.float32]
+    values: wp.array[wp.vec4]  # (geometric error e, bounding-sphere radius r, cone height h, cone angle α)
 
 
 @wp.struct
@@ -85,6 +84,7 @@ class LatLonGrid:
     dlon: wp.float64  # > 0: radians per column, eastwards
     inv_dlat: wp.float64  # 1 / dlat
     inv_dlon: wp.float64  # 1 / dlon
+    inv_cols: wp.float64  # 1 / number of columns
     north_pole: wp.float32  # mean of row 0: the value at 90° N
     south_pole: wp.float32  # mean of the last row: the value at 90° S
 
@@ -221,19 +221,28 @@ def in_grid(grid: CubeSphereGrid, i: wp.int32, j: wp.int32) -> wp.int32:
 
 
 @wp.func
-def sample_row(source: LatLonGrid, row: wp.int32, lon: wp.float64) -> wp.float32:
-    """Linear interpolation along one row in longitude, wrapping around the antimeridian."""
+def column_weights(source: LatLonGrid, lon: wp.float64) -> wp.vec3:
+    """(c0, c1, t) of linear interpolation in longitude, wrapping around the antimeridian (columns as floats:
+    exact below 2^24)."""
     cols = source.elevation.shape[1]
     fc = (lon - source.lon0) * source.inv_dlon
-    fc = fc - wp.floor(fc / wp.float64(cols)) * wp.float64(cols)
+    fc = fc - wp.floor(fc * source.inv_cols) * wp.float64(cols)
     c0 = wp.int32(wp.floor(fc))
     t = wp.float32(fc - wp.float64(c0))
     if c0 >= cols:
         c0 = c0 - cols
+    if c0 < 0:
+        c0 = c0 + cols
     c1 = c0 + 1
     if c1 >= cols:
         c1 = 0
-    return (1.0 - t) * source.elevation[row, c0] + t * source.elevation[row, c1]
+    return wp.vec3(wp.float32(c0), wp.float32(c1), t)
+
+
+@wp.func
+def sample_row(source: LatLonGrid, row: wp.int32, cw: wp.vec3) -> wp.float32:
+    """Linear interpolation along one row with the weights of :func:`column_weights`."""
+    return (1.0 - cw[2]) * source.elevation[row, wp.int32(cw[0])] + cw[2] * source.elevation[row, wp.int32(cw[1])]
 
 
 @wp.func
@@ -268,20 +277,55 @@ def fast_atan2(y: wp.float64, x: wp.float64) -> wp.float64:
 
 
 @wp.func
-def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
-    """Bilinear elevation at a unit direction; between the first (last) row and the pole, a blend towards
-    the pole value."""
+def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
+    """float32 atan2 without a libm call: reduction to |t| <= tan(π/8), odd degree-11 polynomial (least-squares fit,
+    truncation < 5e-10 rad, below float32 rounding: the result is within ~2 ulp of atan2)."""
+    ax = wp.abs(x)
+    ay = wp.abs(y)
+    hi = wp.max(ax, ay)
+    if hi == wp.float32(0.0):
+        return wp.float32(0.0)
+    t = wp.min(ax, ay) / hi
+    base = wp.float32(0.0)
+    if t > wp.float32(0.41421356):
+        t = (t - wp.float32(1.0)) / (t + wp.float32(1.0))
+        base = wp.float32(0.78539816)
+    t2 = t * t
+    poly = wp.float32(-0.06030872464) * t2 + wp.float32(0.1056963349)
+    poly = poly * t2 - wp.float32(0.1423923555)
+    poly = poly * t2 + wp.float32(0.199981622)
+    poly = poly * t2 - wp.float32(0.3333330783)
+    r = base + t * (poly * t2 + wp.float32(1.0))
+    if ay > ax:
+        r = wp.float32(1.5707963) - r
+    if x < wp.float32(0.0):
+        r = wp.float32(3.1415927) - r
+    if y < wp.float32(0.0):
+        r = -r
+    return r
+
+
+@wp.func
+def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
+    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
+    pole, a blend towards the pole value.
+
+    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
+    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
+    own error; the same integer point gives the same value on every seam copy."""
     rows = source.elevation.shape[0]
     half_pi = wp.float64(1.5707963267948966)
-    lat = fast_atan2(direction[2], wp.sqrt(direction[0] * direction[0] + direction[1] * direction[1]))
-    lon = fast_atan2(direction[1], direction[0])
+    x = wp.float32(point[0])
+    y = wp.float32(point[1])
+    lat = wp.float64(fast_atan2f(wp.float32(point[2]), wp.sqrt(x * x + y * y)))
+    cw = column_weights(source, wp.float64(fast_atan2f(y, x)))
     fr = (source.lat0 - lat) * source.inv_dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
         w = wp.float32(0.0)
         if span > wp.float64(0.0):
             w = wp.float32(wp.clamp((lat - source.lat0) / span, wp.float64(0.0), wp.float64(1.0)))
-        return (1.0 - w) * sample_row(source, 0, lon) + w * source.north_pole
+        return (1.0 - w) * sample_row(source, 0, cw) + w * source.north_pole
     last = wp.float64(rows - 1)
     if fr >= last:
         lat_last = source.lat0 - last * source.dlat
@@ -289,11 +333,11 @@ def sample_latlon(source: LatLonGrid, direction: wp.vec3d) -> wp.float32:
         w = wp.float32(0.0)
         if span > wp.float64(0.0):
             w = wp.float32(wp.clamp((lat_last - lat) / span, wp.float64(0.0), wp.float64(1.0)))
-        return (1.0 - w) * sample_row(source, rows - 1, lon) + w * source.south_pole
+        return (1.0 - w) * sample_row(source, rows - 1, cw) + w * source.south_pole
     r0 = wp.int32(wp.floor(fr))
     r0 = wp.min(r0, rows - 2)
     t = wp.float32(fr - wp.float64(r0))
-    return (1.0 - t) * sample_row(source, r0, lon) + t * sample_row(source, r0 + 1, lon)
+    return (1.0 - t) * sample_row(source, r0, cw) + t * sample_row(source, r0 + 1, cw)
 
 
 @wp.kernel
@@ -312,18 +356,35 @@ def resample_latlon(
     projected position v = (R + z) · w / ||w|| rounded to float32 (§4)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    # (face, i, j) once per chunk, then stepped along the rows; the cube point is X·x_f + Y·y_f + N·n_f with
+    # the face's axes (the same integers as cube_point, whose per-node branches cost more than the rest)
+    nn = grid.n * grid.n
+    face = first / nn
+    rest = first - face * nn
+    i = rest / grid.n
+    j = rest - i * grid.n
+    x_axis = frame_rotate(face, wp.vec3i(1, 0, 0))
+    y_axis = frame_rotate(face, wp.vec3i(0, 1, 0))
+    normal = frame_rotate(face, wp.vec3i(0, 0, 1))
     for entry in range(first, last):
-        nn = grid.n * grid.n
-        # (face, i, j) by float64 reciprocals (exact for entry < 2^31: the +1e-9 fixes k·n·(1/n) = k - ε)
-        face = wp.int32(wp.float64(entry) * (wp.float64(1.0) / wp.float64(nn)) + wp.float64(1e-9))
-        rest = entry - face * nn
-        i = wp.int32(wp.float64(rest) * (wp.float64(1.0) / wp.float64(grid.n)) + wp.float64(1e-9))
-        j = rest - i * grid.n
-        direction = node_direction(cube_point(face, i, j, grid.cells))
-        z = exaggeration * sample_latlon(source, direction)
+        point = (2 * j - grid.cells) * x_axis + (2 * i - grid.cells) * y_axis + grid.cells * normal
+        direction = node_direction(point)
+        z = exaggeration * sample_latlon(source, point)
         heights_out[entry] = z
         p = (grid.radius + wp.float64(z)) * direction
         positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+        j += 1
+        if j == grid.n:
+            j = 0
+            i += 1
+            if i == grid.n:
+                i = 0
+                face += 1
+                x_axis = frame_rotate(face, wp.vec3i(1, 0, 0))
+                y_axis = frame_rotate(face, wp.vec3i(0, 1, 0))
+                normal = frame_rotate(face, wp.vec3i(0, 0, 1))
 
 
 @wp.kernel
@@ -406,25 +467,17 @@ def hypotenuse_offset(kind: wp.int32, s: wp.int32) -> wp.vec2i:
 
 @wp.func
 def child_offset(kind: wp.int32, s: wp.int32, k: wp.int32) -> wp.vec2i:
-    """(di, dj) from a node to its k-th child (k < 4); (0, 0) when it has none (axis node with s = 1)."""
-    if kind <= 1:
-        if k == 0:
-            return wp.vec2i(s, 0)
-        if k == 1:
-            return wp.vec2i(-s, 0)
-        if k == 2:
-            return wp.vec2i(0, s)
-        return wp.vec2i(0, -s)
-    if s < 2:
-        return wp.vec2i(0, 0)
-    h = s // 2
-    if k == 0:
-        return wp.vec2i(h, h)
-    if k == 1:
-        return wp.vec2i(h, -h)
-    if k == 2:
-        return wp.vec2i(-h, h)
-    return wp.vec2i(-h, -h)
+    """(di, dj) from a node to its k-th child (k < 4); (0, 0) when it has none (axis node with s = 1).
+
+    Diagonal nodes (kind 0, 1): (s, 0), (-s, 0), (0, s), (0, -s); axis nodes: (±s/2, ±s/2). Arithmetic rather
+    than branches with returns (cheaper in the CPU backend's code)."""
+    lo = k & 1
+    hi = k >> 1
+    sign = 1 - 2 * lo
+    h = s >> 1
+    di = wp.where(kind <= 1, sign * s * (1 - hi), h * (1 - 2 * hi))
+    dj = wp.where(kind <= 1, sign * s * hi, h * sign)
+    return wp.vec2i(di, dj)
 
 
 @wp.func
@@ -451,6 +504,19 @@ def straddles_input(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i)
 
 
 @wp.func
+def edge_interval(w: wp.int32, step: wp.int32, lo: wp.int32, hi: wp.int32):
+    """[lo, hi] narrowed to the k with w + k·step >= 0 (exact: integer bounds through float64 quotients of
+    small integers, which are exact or far from the next integer)."""
+    if step > 0:
+        lo = wp.max(lo, wp.int32(wp.ceil(wp.float64(-w) / wp.float64(step))))
+    elif step < 0:
+        hi = wp.min(hi, wp.int32(wp.floor(wp.float64(w) / wp.float64(-step))))
+    elif w < 0:
+        hi = lo - 1
+    return lo, hi
+
+
+@wp.func
 def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.float64:
     """Planar only: the largest vertical distance between a grid node inside triangle (a, b, c) and the
     triangle's plane (0 when the triangle leaves the grid)."""
@@ -466,20 +532,37 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     sign = wp.int32(1)
     if area < 0:
         sign = -1
-    inv = wp.float64(1.0) / wp.float64(area)
+    inv_signed = wp.float64(1.0) / wp.float64(area * sign)  # the weights below carry the sign
     i0 = wp.min(a[0], wp.min(b[0], c[0]))
     i1 = wp.max(a[0], wp.max(b[0], c[0]))
     j0 = wp.min(a[1], wp.min(b[1], c[1]))
     j1 = wp.max(a[1], wp.max(b[1], c[1]))
+    # edge functions (times the orientation sign) stepped along each row: exact integers, the same values as
+    # evaluating them per node; a row meets the triangle in one interval, so leave the row once past it
+    step_a = (c[0] - b[0]) * sign
+    step_b = (a[0] - c[0]) * sign
+    step_c = (b[0] - a[0]) * sign
     worst = wp.float64(0.0)
     for i in range(i0, i1 + 1):
-        for j in range(j0, j1 + 1):
-            wa = (b[0] - i) * (c[1] - j) - (b[1] - j) * (c[0] - i)
-            wb = (c[0] - i) * (a[1] - j) - (c[1] - j) * (a[0] - i)
-            wc = (a[0] - i) * (b[1] - j) - (a[1] - j) * (b[0] - i)
-            if wa * sign >= 0 and wb * sign >= 0 and wc * sign >= 0:
-                z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv
-                worst = wp.max(worst, wp.abs(wp.float64(grid.heights[base + i * grid.n + j]) - z))
+        wa = ((b[0] - i) * (c[1] - j0) - (b[1] - j0) * (c[0] - i)) * sign
+        wb = ((c[0] - i) * (a[1] - j0) - (c[1] - j0) * (a[0] - i)) * sign
+        wc = ((a[0] - i) * (b[1] - j0) - (a[1] - j0) * (b[0] - i)) * sign
+        # the row's interval inside the triangle, [j0 + lo, j0 + hi]: each edge function w + k·step >= 0
+        lo = wp.int32(0)
+        hi = j1 - j0
+        lo, hi = edge_interval(wa, step_a, lo, hi)
+        lo, hi = edge_interval(wb, step_b, lo, hi)
+        lo, hi = edge_interval(wc, step_c, lo, hi)
+        row = base + i * grid.n + j0
+        wa += lo * step_a
+        wb += lo * step_b
+        wc += lo * step_c
+        for k in range(lo, hi + 1):
+            z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
+            worst = wp.max(worst, wp.abs(wp.float64(grid.heights[row + k]) - z))
+            wa += step_a
+            wb += step_b
+            wc += step_c
     return worst
 
 
@@ -501,6 +584,114 @@ def to_vec3d_i(p: wp.vec3i) -> wp.vec3d:
 
 
 @wp.kernel
+def saturate_leaf_parameters(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """The deepest level on the cube (s = 1 axis nodes, half of all nodes): one thread per chunk of entries in
+    memory order, (face, i, j) stepped along the rows; the leaves ((i + j) odd) get e = |v - (a + b)/2| and
+    r = h = α = 0, exactly as :func:`saturate_node_parameters` computes them, without its slot decoding and
+    empty children loop."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    nn = n * n
+    face = first / nn
+    rest = first - face * nn
+    i = rest / n
+    j = rest - i * n
+    for entry in range(first, last):
+        if ((i + j) & 1) != 0:
+            step = wp.int32(1)  # i even, j odd: the hypotenuse runs along j
+            if (i & 1) != 0:
+                step = n  # i odd, j even: along i
+            v = bounds.to_vec3d(grid.positions[entry])
+            pa = bounds.to_vec3d(grid.positions[entry + step])
+            pb = bounds.to_vec3d(grid.positions[entry - step])
+            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            values_out[entry] = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+            if i == n:
+                i = 0
+
+
+@wp.kernel
+def saturate_cell_centres(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """The second-deepest level on the cube (s = 1 diagonal nodes: i and j odd, the centres of 2 x 2 cells),
+    in memory order like :func:`saturate_leaf_parameters`: the same float64 formulas as
+    :func:`saturate_node_parameters` on the four leaf children (i ± 1, j), (i, j ± 1) (always on the same face;
+    their r, h, α are 0), so the results are bit-identical to it; α on face 0 only."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    cells = grid.cells
+    nn = n * n
+    face = first / nn
+    rest = first - face * nn
+    i = rest / n
+    j = rest - i * n
+    for entry in range(first, last):
+        if (i & j & 1) != 0:
+            kind = ((i >> 1) + (j >> 1)) & 1
+            hyp = wp.int32(n + 1)  # kind 0: a = (i + 1, j + 1)
+            if kind != 0:
+                hyp = n - 1  # kind 1: a = (i + 1, j - 1)
+            v = bounds.to_vec3d(grid.positions[entry])
+            z_v = wp.float64(grid.heights[entry])
+            pa = bounds.to_vec3d(grid.positions[entry + hyp])
+            pb = bounds.to_vec3d(grid.positions[entry - hyp])
+            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            w_v = to_vec3d_i(wp.vec3i(2 * j - cells, 2 * i - cells, cells))
+            r = wp.float64(0.0)
+            h = wp.float64(0.0)
+            alpha = wp.float64(0.0)
+            for k in range(4):
+                d = child_offset(0, 1, k)
+                child = entry + d[0] * n + d[1]
+                c = bounds.to_vec3d(grid.positions[child])
+                q = values_out[child]
+                e = wp.max(e, wp.float64(q[0]))
+                r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
+                dz = wp.abs(z_v - wp.float64(grid.heights[child]))
+                h = wp.max(h, dz + wp.float64(q[2]))
+                if face == 0:
+                    w_c = to_vec3d_i(wp.vec3i(2 * (j + d[1]) - cells, 2 * (i + d[0]) - cells, cells))
+                    alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(q[3]))
+            out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
+            scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
+            out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[2] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            if face == 0:
+                out[3] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
+            values_out[entry] = out
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+            if i == n:
+                i = 0
+                face += 1
+
+
+@wp.kernel
 def saturate_node_parameters(
     thread_offset: wp.int32,
     count: wp.int32,
@@ -510,10 +701,7 @@ def saturate_node_parameters(
     angles: wp.int32,  # 1: compute α (face 0 only; by the cube's rotation symmetry the other faces copy it)
     params: NodeParameters,  # read: the children's values (depth + 1, already done)
     # outputs
-    geometric_error_out: wp.array[wp.float32],
-    bounding_radius_out: wp.array[wp.float32],
-    cone_height_out: wp.array[wp.float32],
-    cone_angle_out: wp.array[wp.float32],
+    values_out: wp.array[wp.vec4],  # (e, r, h, α) per entry (the same array as params.values)
 ):
     """One thread per node copy at ``depth``: e, r, h, α as the max over its children plus its own share,
     with the level-wise margin that keeps saturation and nesting true in floating point (§6, §7.1).
@@ -577,29 +765,27 @@ def saturate_node_parameters(
                         child = point_entry(cube_point(face, ci, cj, grid.cells), grid.cells, grid.n)
                         child_local = child % nn
                     c = bounds.to_vec3d(grid.positions[child])
-                    e = wp.max(e, wp.float64(params.geometric_error[child]))
-                    r = wp.max(r, wp.length(v - c) + wp.float64(params.bounding_radius[child]))
+                    q = params.values[child]
+                    e = wp.max(e, wp.float64(q[0]))
+                    r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
                     if grid.planar == 0:
                         dz = wp.abs(z_v - wp.float64(grid.heights[child]))
-                        h = wp.max(h, dz + wp.float64(params.cone_height[child]))
+                        h = wp.max(h, dz + wp.float64(q[2]))
                         if with_angle != 0:
                             w_c = to_vec3d_i(local_point(ci, cj, grid.cells))
-                            angle = direction_angle(w_v, w_c) + wp.float64(params.cone_angle[child_local])
+                            angle = direction_angle(w_v, w_c) + wp.float64(params.values[child_local][3])
                             alpha = wp.max(alpha, angle)
         # rounding e up keeps "e <= error" a true statement about the float64 error
-        geometric_error_out[entry] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
+        out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
         if has_children != 0:
             scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
             if grid.planar != 0:
                 scale = wp.length(v) * ABSOLUTE_MARGIN
-            bounding_radius_out[entry] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
-            cone_height_out[entry] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[2] = wp.float32(h * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
             if with_angle != 0:
-                cone_angle_out[entry] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
-        else:
-            bounding_radius_out[entry] = wp.float32(0.0)
-            cone_height_out[entry] = wp.float32(0.0)
-            cone_angle_out[entry] = wp.float32(0.0)
+                out[3] = wp.float32(alpha * (wp.float64(1.0) + RELATIVE_MARGIN) + ABSOLUTE_MARGIN)
+        values_out[entry] = out
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -632,6 +818,15 @@ def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: w
         if pack(c[0], c[1]) < pack(mi, mj):
             return 1
         return 0
+    if mi >= 0 and mi <= cells and mj >= 0 and mj <= cells:
+        # both on this face: compare the rotated difference of the face-local points (one rotation)
+        d = frame_rotate(face, wp.vec3i(2 * (c[1] - mj), 2 * (c[0] - mi), 0))
+        for k in range(3):
+            if d[k] < 0:
+                return 1
+            if d[k] > 0:
+                return 0
+        return 0
     own = cube_point(face, c[0], c[1], cells)
     mate = cube_point(face, mi, mj, cells)
     for k in range(3):
@@ -640,6 +835,35 @@ def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: w
         if own[k] > mate[k]:
             return 0
     return 0
+
+
+@wp.kernel
+def copy_cone_angles(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    nn: wp.int32,
+    # outputs
+    values: wp.array[wp.vec4],
+):
+    """One thread per entry of face 0 (count = nn): its α to the same (i, j) on faces 1-5 (the cube's rotations
+    map the faces onto each other with their hierarchy, so α depends on (i, j) alone)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        alpha = values[k][3]
+        for f in range(1, 6):
+            v = values[f * nn + k]
+            v[3] = alpha
+            values[f * nn + k] = v
+
+
+@wp.func
+def refinement_entry(n: wp.int32, tri: wp.vec4i) -> wp.int32:
+    """Entry of a triangle's refinement node, the midpoint of its hypotenuse (on its own face)."""
+    a = unpack(tri[1])
+    b = unpack(tri[2])
+    return tri[0] * n * n + ((a[0] + b[0]) >> 1) * n + ((a[1] + b[1]) >> 1)
 
 
 @wp.kernel
@@ -654,26 +878,42 @@ def count_refinement(
     can_refine: wp.int32,
     user_factors: wp.array[wp.float32],
     # outputs
-    refine_out: wp.array[wp.int32],
-    owner_out: wp.array[wp.int32],
+    counts_out: wp.array[wp.int32],  # 2·count + 2: refine flags, 0, owner flags, 0 (one scan for both)
 ):
     """One thread per triangle: 1 when it refines (its refinement node's metric exceeds the error), and
     whether it emits that node as a new vertex."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    need_position = wp.int32(1)
+    if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
+        need_position = 0
+    # software pipelining: the scattered loads of triangle t + 1's node (q, p) are issued before triangle t's
+    # metric runs, so the memory latency overlaps the arithmetic (the loop is latency-bound otherwise)
+    q_next = wp.vec4(0.0, 0.0, 0.0, 0.0)
+    p_next = wp.vec3(0.0, 0.0, 0.0)
+    if can_refine != 0 and first < last:
+        q_next = params.values[refinement_entry(grid.n, triangles[first])]
+        if need_position != 0:
+            p_next = grid.positions[refinement_entry(grid.n, triangles[first])]
     for t in range(first, last):
         tri = triangles[t]
         refine = wp.int32(0)
         owner = wp.int32(0)
+        q = q_next
+        p = p_next
         if can_refine != 0:
+            if t + 1 < last:
+                m_next = refinement_entry(grid.n, triangles[t + 1])
+                q_next = params.values[m_next]
+                if need_position != 0:
+                    p_next = grid.positions[m_next]
             a = unpack(tri[1])
             b = unpack(tri[2])
-            m = tri[0] * grid.n * grid.n + ((a[0] + b[0]) >> 1) * grid.n + ((a[1] + b[1]) >> 1)
             factor = wp.float64(1.0)
             if user_factors.shape[0] > 0:
                 factor = wp.float64(user_factors[t])
-            e = params.geometric_error[m]
-            if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
+            e = q[0]
+            if need_position == 0:
                 # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
                 mu = factor
                 if view.flags[0] != 0:
@@ -681,20 +921,15 @@ def count_refinement(
                 if mu > view.error:
                     refine = 1
             else:
-                r = wp.float32(0.0)
-                h = wp.float32(0.0)
-                alpha = wp.float32(0.0)
-                if view.flags[3] != 0:
-                    h = params.cone_height[m]
-                    alpha = params.cone_angle[m]
-                else:
-                    r = params.bounding_radius[m]
                 refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
-                                            e, grid.positions[m], r, h, alpha, factor)
+                                            e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
-        refine_out[t] = refine
-        owner_out[t] = owner
+        counts_out[t] = refine
+        counts_out[count + 1 + t] = owner
+    if first == 0:
+        counts_out[count] = 0
+        counts_out[2 * count + 1] = 0
 
 
 @wp.kernel
@@ -704,10 +939,8 @@ def emit_refinement(
     chunk: wp.int32,
     grid: CubeSphereGrid,
     triangles: wp.array[wp.vec4i],
-    refine: wp.array[wp.int32],
-    refine_offsets: wp.array[wp.int32],
-    owner: wp.array[wp.int32],
-    owner_offsets: wp.array[wp.int32],
+    counts: wp.array[wp.int32],  # of count_refinement: refine flags, 0, owner flags, 0
+    offsets: wp.array[wp.int32],  # their exclusive scan: offsets[count + 1] = the number of refined triangles
     # outputs
     children_out: wp.array[wp.vec4i],
     leaves_out: wp.array[wp.vec4i],
@@ -719,19 +952,20 @@ def emit_refinement(
     last = wp.min(first + chunk, count)
     for t in range(first, last):
         tri = triangles[t]
-        if refine[t] != 0:
+        if counts[t] != 0:
             a = unpack(tri[1])
             b = unpack(tri[2])
             mi = (a[0] + b[0]) >> 1
             mj = (a[1] + b[1]) >> 1
             m = pack(mi, mj)
-            k = 2 * refine_offsets[t]
+            k = 2 * offsets[t]
             children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
             children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
-            if owner[t] != 0:
-                vertex_entries_out[owner_offsets[t]] = node_entry(grid.cells, grid.planar, tri[0], mi, mj)
+            if counts[count + 1 + t] != 0:
+                vertex_entries_out[offsets[count + 1 + t] - offsets[count + 1]] = node_entry(
+                    grid.cells, grid.planar, tri[0], mi, mj)
         else:
-            leaves_out[t - refine_offsets[t]] = tri
+            leaves_out[t - offsets[t]] = tri
 
 
 @wp.kernel

@@ -18,7 +18,9 @@ computed from the integer cube point: each lies at R + exaggeration·z from the 
 
 from __future__ import annotations
 
+import ctypes
 import math
+import mmap
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -231,6 +233,7 @@ class Globe:
         self.device = device
         self.source = source
         self._grid = grid
+        self._lowest_height: float | None = None  # computed on the first mesh with a camera
         self._params = _node_parameters(grid, faces=6, levels=self.levels, device=device)
 
     # -------------------------------------------------------------------------------------- builders
@@ -280,9 +283,10 @@ class Globe:
 
         Notes
         -----
-        Bilinear in lat/lon on the node's direction (float64); between the outermost row and a pole the
+        Bilinear in lat/lon on the node's direction (latitude and longitude in float32, within ~4e-7 rad,
+        1e-4 of a 10' cell; interpolation weights in float64); between the outermost row and a pole the
         value blends linearly towards the pole value, the mean of that row. Cost: O(6 n²) per step, about
-        1.5 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
+        1.1 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
         see benchmarks/RESULTS.md).
 
         Examples
@@ -331,6 +335,7 @@ class Globe:
         source.dlon = math.radians(dlon)
         source.inv_dlat = 1.0 / source.dlat
         source.inv_dlon = 1.0 / source.dlon
+        source.inv_cols = 1.0 / z.shape[1]
         source.north_pole = float(z[0].mean())
         source.south_pole = float(z[-1].mean())
         n_entries = 6 * (cells + 1) ** 2
@@ -342,8 +347,8 @@ class Globe:
         grid.spacing = wp.vec2d(1.0, 1.0)
         grid.rows_valid = grid.n
         grid.cols_valid = grid.n
-        grid.heights = wp.empty(n_entries, dtype=wp.float32, device=device)
-        grid.positions = wp.empty(n_entries, dtype=wp.vec3, device=device)
+        grid.heights = _node_array(n_entries, wp.float32, device)
+        grid.positions = _node_array(n_entries, wp.vec3, device)
         _launch(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
                [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
@@ -374,9 +379,9 @@ class Globe:
     def node_parameters(self) -> dict[str, NDArray[np.float32]]:
         """Per node (6, n, n): geometric_error e, bounding_radius r, cone_height h, cone_angle α (radians)."""
         n = self.face_size
-        p = self._params
-        return {name: getattr(p, name).numpy().reshape(6, n, n)
-                for name in ("geometric_error", "bounding_radius", "cone_height", "cone_angle")}
+        values = self._params.values.numpy()
+        return {name: np.ascontiguousarray(values[:, k]).reshape(6, n, n)
+                for k, name in enumerate(("geometric_error", "bounding_radius", "cone_height", "cone_angle"))}
 
     def __repr__(self) -> str:
         return (f"Globe(face_size={self.face_size}, radius={self.radius:g}, exaggeration={self.exaggeration:g}, "
@@ -446,7 +451,9 @@ class Globe:
         if camera is not None:
             if not isinstance(camera, Camera):
                 raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-            lowest = self.radius + float(self._grid.heights.numpy().min())
+            if self._lowest_height is None:
+                self._lowest_height = float(self._grid.heights.numpy().min())
+            lowest = self.radius + self._lowest_height
             if np.linalg.norm(camera.eye) <= max(lowest, 0.0):
                 raise InvalidInputError(f"camera eye {camera.eye} lies inside the planet (|eye| = "
                                         f"{np.linalg.norm(camera.eye):.1f} m <= lowest node radius {lowest:.1f} m)")
@@ -474,6 +481,29 @@ def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDAr
 CPU_CHUNK = 64
 
 
+#: Host arrays of at least this many bytes are backed by transparent huge pages (2 MiB) where the kernel
+#: allows it: the refinement's scattered loads into 100+ MB of node arrays then miss the TLB far less, and
+#: a fresh allocation faults once per 2 MiB instead of once per 4 KiB.
+_HUGE_PAGE = 1 << 21
+
+
+def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
+    """``wp.empty(n, dtype)``; on the CPU, large arrays in 2 MiB-aligned memory advised as huge pages."""
+    nbytes = n * wp.types.type_size_in_bytes(dtype)
+    if not device.is_cpu or nbytes < 4 * _HUGE_PAGE or not hasattr(mmap, "MADV_HUGEPAGE"):
+        return wp.empty(n, dtype=dtype, device=device)
+    buffer = mmap.mmap(-1, nbytes + _HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
+    address = ctypes.addressof(ctypes.c_char.from_buffer(buffer))
+    offset = (-address) % _HUGE_PAGE
+    try:
+        buffer.madvise(mmap.MADV_HUGEPAGE, 0, len(buffer))
+    except OSError:  # pragma: no cover - no THP in this kernel: ordinary pages
+        pass
+    scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
+    host = np.frombuffer(buffer, dtype=np.uint8, count=nbytes, offset=offset).view(scalar)
+    return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
+
+
 def _launch(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device) -> None:
     """``_device.launch`` of a chunked cube-sphere kernel over ``n`` elements."""
     chunk = 1 if device.is_cuda else CPU_CHUNK
@@ -484,21 +514,24 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     """e, r, h, α for every node copy, bottom-up level by level (paper 003 §6, §7.1)."""
     n_entries = faces * grid.n * grid.n
     params = cube_kernels.NodeParameters()
-    params.geometric_error = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    params.bounding_radius = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    params.cone_height = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    params.cone_angle = wp.zeros(n_entries, dtype=wp.float32, device=device)
-    outputs = [params.geometric_error, params.bounding_radius, params.cone_height, params.cone_angle]
+    params.values = _node_array(n_entries, wp.vec4, device)
+    params.values.zero_()
+    outputs = [params.values]
     angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
+        if depth == levels - 1 and faces == 6:  # the leaves (half of all nodes): a lean kernel in memory order
+            _launch(cube_kernels.saturate_leaf_parameters, faces * grid.n * grid.n, [grid], outputs, device)
+            continue
+        if depth == levels - 2 and faces == 6 and levels >= 2:  # the 2 x 2 cell centres, likewise
+            _launch(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
+            continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
         _launch(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
                [grid, depth, angles, params], outputs, device)
     if angles:
         nn = grid.n * grid.n
-        for f in range(1, faces):
-            wp.copy(params.cone_angle, params.cone_angle, dest_offset=f * nn, src_offset=0, count=nn)
+        _launch(cube_kernels.copy_cone_angles, nn, [nn], [params.values], device)
     return params
 
 
@@ -509,8 +542,14 @@ def _view(camera: Camera | None, error: float, names: set[str], bounds: str, sca
     view.distance_scale = scale
     view.flags = wp.vec4i(int("geometric" in names), int(camera is not None and "distance" in names),
                           int(camera is not None and "clip" in names), 1 if bounds == "cone" else 0)
+    view.eye_length = 0.0
+    view.eye_unit = wp.vec3d(0.0, 0.0, 0.0)
     if camera is not None:
         view.eye = wp.vec3d(*camera.eye)
+        eye_length = float(np.linalg.norm(camera.eye))
+        view.eye_length = eye_length
+        if eye_length > 0:
+            view.eye_unit = wp.vec3d(*(np.asarray(camera.eye) / eye_length))
         view.planes = wp.array(camera.planes(), dtype=wp.vec4d, device=device)
     else:
         view.eye = wp.vec3d(0.0, 0.0, 0.0)
@@ -557,6 +596,13 @@ def point_entry_np(point: NDArray[np.int64], cells: int, n: int) -> int:
     raise AssertionError(f"{point} is not on the cube")  # pragma: no cover
 
 
+def _host_int(array: wp.array, index: int) -> int:
+    """One int32 of a device array on the host (on the CPU a zero-copy read, no slice object)."""
+    if array.device.is_cpu:
+        return int(array.numpy()[index])
+    return int(array[index : index + 1].numpy()[0])
+
+
 def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device) -> wp.array:
     total = sum(c.shape[0] for c in chunks)
     out = wp.empty(total, dtype=dtype, device=device)
@@ -576,7 +622,7 @@ def _user_factors(users: list[UserMetric], grid: Any, params: Any, triangles: wp
     a, b = tris[:, 1], tris[:, 2]
     m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
     points = grid.positions.numpy()[m].astype(np.float64)
-    radius = params.bounding_radius.numpy()[m].astype(np.float64)
+    radius = params.values.numpy()[m, 1].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
     for fn in users:
         value = np.asarray(fn(points, radius), dtype=np.float64)
@@ -600,19 +646,19 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         count = triangles.shape[0]
         if count == 0:
             break
-        refine = count_buffer("globe.refine", count, device)
-        owner = count_buffer("globe.owner", count, device)
+        counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, params, triangles, device) if users else no_factors
         _launch(cube_kernels.count_refinement, count,
-               [grid, params, view, triangles, int(depth < levels), factors], [refine, owner], device)
-        refine_offsets, refined = exclusive_offsets(refine, "globe.refine")
-        owner_offsets, owned = exclusive_offsets(owner, "globe.owner")
+               [grid, params, view, triangles, int(depth < levels), factors], [counts], device)
+        offsets, total = exclusive_offsets(counts, "globe.refine")
+        refined = _host_int(offsets, count + 1)
+        owned = total - refined
         check_budget((2 * refined + count) * 16 + owned * 28, f"refinement level {depth}")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
-        _launch(cube_kernels.emit_refinement, count,
-               [grid, triangles, refine, refine_offsets, owner, owner_offsets], [children, leaves, entries], device)
+        _launch(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets],
+               [children, leaves, entries], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
         per_level.append(count)

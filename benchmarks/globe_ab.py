@@ -1,0 +1,63 @@
+"""One side of an interleaved before/after timing of the globe (benchmarks/RESULTS.md, globe run 3).
+
+    git archive <old commit> | tar -x -C /tmp/old && cp -r /tmp/old/kernels /tmp/old/stepterrain/kernels
+    for k in 1 2 3; do for r in /tmp/old .; do python benchmarks/globe_ab.py $r; done; done
+
+Imports stepterrain from ROOT, pins itself to core 0 and one thread, and prints one JSON line: CPU and wall
+seconds (best of N) of ``Globe.from_latlon`` at 6 x 1025² (best of 3), a far-view ``Globe.mesh`` at error 433
+(best of 7) and ``adaptive_mesh`` of the 1025² Big Tujunga tile at error 5 (best of 3).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(sys.argv[1] if len(sys.argv) > 1 else ".").resolve()
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+if hasattr(os, "sched_setaffinity"):
+    os.sched_setaffinity(0, {0})
+
+import numpy as np  # noqa: E402
+
+import stepterrain._device as _device  # noqa: E402  (before run_globe, which puts this checkout first)
+from stepterrain.globe import EARTH_RADIUS, Globe, adaptive_mesh, look_from  # noqa: E402
+
+from run_globe import data_file, tiled_dem  # noqa: E402  # isort: skip
+
+
+def best(fn, n):
+    cpu, wall, out = [], [], None
+    for _ in range(n):
+        c0, w0 = time.process_time(), time.perf_counter()
+        out = fn()
+        cpu.append(time.process_time() - c0)
+        wall.append(time.perf_counter() - w0)
+    return out, min(cpu), min(wall)
+
+
+def main() -> int:
+    _device.set_cpu_threads(1)
+    with np.load(data_file("global_relief.npz")) as d:
+        lat, lon, z = d["lat"], d["lon"], d["elevation"]
+    Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")  # compile / load
+    globe, pre_cpu, pre_wall = best(lambda: Globe.from_latlon(z, lat, lon, face_size=1025, device="cpu"), 3)
+    cam = look_from(30.0, 10.0, 3.0 * EARTH_RADIUS, aspect=1.6)
+    mesh, mesh_cpu, mesh_wall = best(lambda: globe.mesh(error=433.0, camera=cam), 7)
+    dem = tiled_dem(1025)
+    adaptive_mesh(dem[:65, :65], error=1.0)
+    planar, planar_cpu, planar_wall = best(lambda: adaptive_mesh(dem, error=5.0, spacing=1.0), 3)
+    import stepterrain.globe
+
+    print(json.dumps({"root": str(Path(stepterrain.globe.__file__).parents[1]), "pre_cpu": pre_cpu, "pre_wall": pre_wall, "mesh_cpu": mesh_cpu,
+                      "mesh_wall": mesh_wall, "triangles": len(mesh.faces), "planar_cpu": planar_cpu,
+                      "planar_wall": planar_wall, "planar_triangles": len(planar.faces)}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
