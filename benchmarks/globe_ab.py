@@ -53,7 +53,8 @@ def main() -> int:
     planar, planar_cpu, planar_wall = best(lambda: adaptive_mesh(dem, error=5.0, spacing=1.0), 3)
     import stepterrain.globe
 
-    print(json.dumps({"root": str(Path(stepterrain.globe.__file__).parents[1]), "pre_cpu": pre_cpu, "pre_wall": pre_wall, "mesh_cpu": mesh_cpu,
+    print(json.dumps({"root": str(Path(stepterrain.globe.__file__).parents[1]), "pre_cpu": pre_cpu,
+                      "pre_wall": pre_wall, "mesh_cpu": mesh_cpu,
                       "mesh_wall": mesh_wall, "triangles": len(mesh.faces), "planar_cpu": planar_cpu,
                       "planar_wall": planar_wall, "planar_triangles": len(planar.faces)}))
     return 0
