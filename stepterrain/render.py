@@ -324,15 +324,7 @@ def _frame_mesh(
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
         raise InvalidInputError("mesh has no faces; nothing to render")
-    try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
-    if not (8 <= width <= 16384 and 8 <= height <= 16384):
-        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
-    z_scale = float(z_scale)
-    if not math.isfinite(z_scale) or z_scale <= 0:
-        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+    width, height, z_scale = _check_window(window_size, z_scale)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.any():
@@ -351,6 +343,20 @@ def _frame_mesh(
     box = np.array([lo - centre, hi - centre])
     box[:, 2] *= z_scale
     return width, height, vertices, local, finite, box
+
+
+def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, int, float]:
+    """(width, height, z_scale) checked: 8 to 16384 pixels per side, a positive finite vertical scale."""
+    try:
+        width, height = (int(v) for v in window_size)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+    if not (8 <= width <= 16384 and 8 <= height <= 16384):
+        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+    z_scale = float(z_scale)
+    if not math.isfinite(z_scale) or z_scale <= 0:
+        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+    return width, height, z_scale
 
 
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64],
@@ -511,15 +517,7 @@ class LayeredRenderer:
 
     def __init__(self, *, window_size: tuple[int, int] = (1280, 720),
                  background: str | tuple[float, float, float] = "white", z_scale: float = 1.0) -> None:
-        try:
-            width, height = (int(v) for v in window_size)
-        except (TypeError, ValueError) as exc:
-            raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
-        if not (8 <= width <= 16384 and 8 <= height <= 16384):
-            raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
-        z_scale = float(z_scale)
-        if not math.isfinite(z_scale) or z_scale <= 0:
-            raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+        width, height, z_scale = _check_window(window_size, z_scale)
         self.size = (width, height)
         self.z_scale = z_scale
         self.background = background

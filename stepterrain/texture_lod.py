@@ -36,6 +36,7 @@ from ._device import launch, resolve_device
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_terrain
+from .texture import _check_extent
 
 __all__ = [
     "ImagePyramid",
@@ -382,18 +383,6 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
             _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)
             out[(kx, ky)] = np.memmap(path, dtype=np.uint8, mode="r", shape=(*dst_shape, channels))
     return out
-
-
-def _check_extent(extent: Any, name: str = "extent") -> Extent:
-    try:
-        values = tuple(float(v) for v in extent)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be (xmin, xmax, ymin, ymax); got {extent!r}") from None
-    if len(values) != 4 or not all(math.isfinite(v) for v in values) or values[0] >= values[1] \
-            or values[2] >= values[3]:
-        raise InvalidInputError(f"{name} must be finite (xmin, xmax, ymin, ymax) with xmin < xmax and ymin < ymax; "
-                                f"got {extent!r}")
-    return values  # type: ignore[return-value]
 
 
 # ---------------------------------------------------------------------------------------------- geometry tree
