@@ -3,8 +3,8 @@
 One entry point per capability (paper):
 
 - stepped terrain (paper 000): :func:`stepped`, :func:`stepped_series`, :func:`circular_lens`
-- global terrain on the cube sphere and planar adaptive meshes (paper 003): :class:`Globe`, :class:`Camera`,
-  :func:`adaptive_mesh`
+- global terrain on the cube sphere and planar adaptive meshes (paper 003): :class:`Globe`,
+  :func:`adaptive_mesh`; one :class:`Camera` (stepterrain.camera) for the globe and the texture LOD
 - close-ups, detail + overview (paper 001): :class:`CloseUp`, :class:`ROI`, :func:`render_closeups`
 - terrain textures (paper 004): :func:`hillshade`, :func:`topographic_layer`, :func:`drape`,
   :class:`ImagePyramid`, :class:`TextureTree` (the full set lives in :mod:`stepterrain.texture` and
@@ -43,7 +43,8 @@ __version__ = "0.1.0"
 
 #: Public names loaded from their capability module on first access (PEP 562).
 _LAZY: dict[str, str] = {
-    **dict.fromkeys(("Globe", "Camera", "adaptive_mesh", "look_from"), "globe"),
+    "Camera": "camera",
+    **dict.fromkeys(("Globe", "adaptive_mesh", "look_from"), "globe"),
     **dict.fromkeys(("CloseUp", "ROI", "AnchorStyle", "render_closeups", "animate_closeups", "save_animation",
                      "closeup_scene"), "closeup"),
     **dict.fromkeys(("TextureLayer", "Pipeline", "TextureAnimation", "hillshade", "cast_shadows",
@@ -54,7 +55,7 @@ _LAZY: dict[str, str] = {
 
 
 #: Submodules reachable as attributes without an explicit import (``st.export.save_mesh``, ``st.render``).
-_SUBMODULES = frozenset({"closeup", "export", "globe", "mesh", "render", "texture", "texture_lod"})
+_SUBMODULES = frozenset({"camera", "closeup", "export", "globe", "mesh", "render", "texture", "texture_lod"})
 
 
 def __getattr__(name: str) -> Any:

@@ -22,7 +22,6 @@ import ctypes
 import math
 import mmap
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from importlib import resources
 from typing import Any, Literal
 
@@ -33,6 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import launch, resolve_device, scratch, to_device
+from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import cubesphere as cube_kernels
@@ -51,84 +51,6 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 
 
-# ------------------------------------------------------------------------------------------ camera
-@dataclass(frozen=True)
-class Camera:
-    """A pinhole camera: the eye point and the six clipping planes of its view frustum (paper 003 §7.2-§7.3).
-
-    Parameters
-    ----------
-    eye, target : (3,) float
-        Eye point and a point it looks at, metres (planet-centred for :class:`Globe`, the mesh's
-        coordinates for :func:`adaptive_mesh`).
-    up : (3,) float
-        Up direction (need not be orthogonal to the view direction, must not be parallel to it).
-    fov : float
-        Vertical field of view in radians, in (0, π).
-    aspect : float
-        Width / height of the image.
-    near, far : float
-        Distances of the near and far clipping planes, 0 < near < far.
-
-    Examples
-    --------
-    >>> cam = Camera(eye=(0.0, 0.0, 10.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
-    >>> planes = cam.planes()
-    >>> bool(((planes[:, :3] @ [0.0, 0.0, 0.0] + planes[:, 3]) <= 0).all())   # the target is inside
-    True
-    """
-
-    eye: tuple[float, float, float]
-    target: tuple[float, float, float]
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    fov: float = math.radians(45.0)
-    aspect: float = 1.0
-    near: float = 1.0
-    far: float = 1.0e9
-
-    def __post_init__(self) -> None:
-        for name in ("eye", "target", "up"):
-            value = np.asarray(getattr(self, name), dtype=np.float64)
-            if value.shape != (3,) or not np.isfinite(value).all():
-                raise InvalidInputError(f"Camera {name} must be 3 finite numbers; got {getattr(self, name)!r}")
-            object.__setattr__(self, name, tuple(float(v) for v in value))
-        forward = np.subtract(self.target, self.eye)
-        if np.linalg.norm(forward) == 0.0:
-            raise InvalidInputError(f"Camera eye and target must differ; both are {self.eye}")
-        up = np.asarray(self.up)
-        if np.linalg.norm(np.cross(forward / np.linalg.norm(forward), up)) < 1e-9 * max(np.linalg.norm(up), 1e-300):
-            raise InvalidInputError(f"Camera up {self.up} must not be zero or parallel to the view direction "
-                                    f"{tuple(forward)}")
-        if not (0.0 < self.fov < math.pi):
-            raise InvalidInputError(f"Camera fov must lie in (0, π) radians; got {self.fov!r}")
-        if not (math.isfinite(self.aspect) and self.aspect > 0):
-            raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
-        if not (math.isfinite(self.near) and math.isfinite(self.far) and 0.0 < self.near < self.far):
-            raise InvalidInputError(f"Camera needs 0 < near < far (finite); got near={self.near!r}, far={self.far!r}")
-
-    def frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        """Unit forward, right and up vectors of the camera."""
-        forward = np.subtract(self.target, self.eye)
-        forward /= np.linalg.norm(forward)
-        right = np.cross(forward, self.up)
-        right /= np.linalg.norm(right)
-        return forward, right, np.cross(right, forward)
-
-    def planes(self) -> NDArray[np.float64]:
-        """(6, 4) float64: outward unit normal n and offset a of the left, right, bottom, top, near and far
-        planes; x lies inside the frustum iff n · x + a <= 0 for all six."""
-        forward, right, up = self.frame()
-        eye = np.asarray(self.eye)
-        tv = math.tan(self.fov / 2.0)
-        th = tv * self.aspect
-        normals = [-right - th * forward, right - th * forward, -up - tv * forward, up - tv * forward]
-        rows = []
-        for n in normals:
-            n = n / np.linalg.norm(n)
-            rows.append([*n, -float(n @ eye)])
-        rows.append([*(-forward), float(forward @ eye) + self.near])
-        rows.append([*forward, -float(forward @ eye) - self.far])
-        return np.asarray(rows, dtype=np.float64)
 
 
 # ------------------------------------------------------------------------------------------ validation

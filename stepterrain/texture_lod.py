@@ -33,6 +33,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._device import launch, resolve_device
+from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_terrain
@@ -590,80 +591,6 @@ class TextureTree:
 
 
 # ---------------------------------------------------------------------------------------------- camera, errors
-@dataclass(frozen=True)
-class Camera:
-    """A pinhole camera: ``position``, ``target``, ``up``, vertical field of view ``fov_y`` (radians), the
-    ``viewport`` (width, height) in pixels and the near/far distances."""
-
-    position: tuple[float, float, float]
-    target: tuple[float, float, float]
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    fov_y: float = math.radians(45.0)
-    viewport: tuple[int, int] = (1280, 800)
-    near: float = 1.0
-    far: float = 1e7
-
-    def basis(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-        eye = np.asarray(self.position, dtype=np.float64)
-        forward = np.asarray(self.target, dtype=np.float64) - eye
-        norm = np.linalg.norm(forward)
-        if not np.isfinite(norm) or norm == 0:
-            raise InvalidInputError(
-                f"camera target must differ from its position; got {self.position} -> {self.target}")
-        forward /= norm
-        right = np.cross(forward, np.asarray(self.up, dtype=np.float64))
-        if np.linalg.norm(right) < 1e-12:
-            raise InvalidInputError(f"camera up {self.up} must not be parallel to the viewing direction")
-        right /= np.linalg.norm(right)
-        return forward, right, np.cross(right, forward)
-
-    @property
-    def focal_pixels(self) -> float:
-        """Focal length in pixels: (viewport height / 2) / tan(fov_y / 2)."""
-        return self.viewport[1] / 2.0 / math.tan(self.fov_y / 2.0)
-
-    def project(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(pixel coordinates (N, 2), depth (N,)) of world points."""
-        forward, right, up = self.basis()
-        rel = np.atleast_2d(np.asarray(points, dtype=np.float64)) - np.asarray(self.position, dtype=np.float64)
-        depth = rel @ forward
-        f = self.focal_pixels
-        with np.errstate(divide="ignore", invalid="ignore"):
-            px = np.column_stack([f * (rel @ right) / depth + self.viewport[0] / 2,
-                                  self.viewport[1] / 2 - f * (rel @ up) / depth])
-        return px, depth
-
-    def box_visible(self, box: NDArray[np.float64]) -> bool:
-        """Whether the axis-aligned box [(min), (max)] may intersect the view frustum (conservative)."""
-        forward, right, up = self.basis()
-        eye = np.asarray(self.position, dtype=np.float64)
-        tan_y = math.tan(self.fov_y / 2.0)
-        tan_x = tan_y * self.viewport[0] / self.viewport[1]
-        planes = [(forward, self.near), (-forward, -self.far)]
-        for axis, tan in ((right, tan_x), (up, tan_y)):
-            # side planes through the eye: (forward * tan -/+ axis) . (p - eye) >= 0 inside
-            for sign in (1.0, -1.0):
-                normal = forward * tan - sign * axis
-                planes.append((normal / np.linalg.norm(normal), 0.0))
-        lo, hi = box
-        for normal, offset in planes:
-            corner = np.where(normal >= 0, hi, lo)  # the box corner farthest along the plane normal
-            if (corner - eye) @ normal < offset:
-                return False
-        return True
-
-    def nearest_point(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
-        """The point of the box nearest to the camera position (the position itself when inside)."""
-        return np.clip(np.asarray(self.position, dtype=np.float64), box[0], box[1])
-
-    def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
-        """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
-        px, depth = self.project(np.stack([a, b]))
-        if np.any(depth < self.near):
-            return math.inf
-        return float(np.linalg.norm(px[0] - px[1]))
-
-
 def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     """γ(N) (§4, Fig. 2): the screen length in pixels of a vertical segment of length e(N) centred at the point
     of B(N) nearest to the camera; 0 for a patch without children."""

@@ -33,3 +33,31 @@ def test_function_names_survive_importing_their_modules():
 @pytest.mark.parametrize("name", sorted(st._SUBMODULES))
 def test_submodules_are_attributes(name):
     assert getattr(st, name).__name__ == f"stepterrain.{name}"
+
+
+def test_one_camera_type_for_every_capability():
+    from stepterrain import globe, texture_lod
+    from stepterrain.camera import Camera
+
+    assert st.Camera is Camera is globe.Camera is texture_lod.Camera
+
+
+def test_camera_viewport_sets_aspect_and_pixels():
+    import math
+
+    import numpy as np
+
+    from stepterrain.camera import Camera
+
+    cam = Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), fov=math.radians(90.0), viewport=(640, 480))
+    assert cam.aspect == 640 / 480 and math.isclose(cam.focal_pixels, 240.0)
+    pixels, depth = cam.project([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    assert np.allclose(pixels[0], (320.0, 240.0)) and np.allclose(depth, 10.0)
+    assert np.allclose(pixels[1], (320.0 + 240.0, 240.0))            # 45° off axis: one focal length
+    inside = cam.planes()[:, :3] @ [0.0, 0.0, 0.0] + cam.planes()[:, 3]
+    assert (inside <= 0).all()
+    assert Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), aspect=2.0).viewport == (1600, 800)
+    with pytest.raises(st.InvalidInputError, match="disagrees"):
+        Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), aspect=1.0, viewport=(640, 480))
+    with pytest.raises(st.InvalidInputError, match="viewport"):
+        Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), viewport=(0, 480))

@@ -213,7 +213,7 @@ def test_visual_geometric_error_matches_projection():
     centre = box.mean(axis=0)
     distance = 5000.0
     eye = (centre[0], box[0, 1] - distance, centre[2])
-    camera = Camera(eye, (centre[0], box[1, 1], centre[2]), viewport=(800, 600), fov_y=math.radians(60))
+    camera = Camera(eye, (centre[0], box[1, 1], centre[2]), viewport=(800, 600), fov=math.radians(60))
     expected = camera.focal_pixels * root.error / distance
     assert visual_geometric_error(root, camera) == pytest.approx(expected, rel=1e-6)
 
@@ -318,7 +318,7 @@ def test_bad_traversal_input():
         with pytest.raises(InvalidInputError, match="one flag per layer"):
             render_with_textures(quadtree.root, [tree.root], camera, hybrid=[True, False])
     with pytest.raises(InvalidInputError, match="must differ"):
-        Camera((0, 0, 0), (0, 0, 0)).basis()
+        Camera((0, 0, 0), (0, 0, 0))
 
 
 def test_storage_file_of_pyramid_removed_on_close():

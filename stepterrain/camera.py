@@ -1,0 +1,173 @@
+"""The one camera type of stepterrain: eye, target, up, vertical field of view, aspect or pixel viewport, near
+and far planes. The globe (paper 003) uses its frustum planes for the clip metric, the texture level of
+detail (paper 004) its pixel projection for the screen-space errors γ(N) and τ(N, M).
+
+    >>> cam = Camera(eye=(0.0, -10.0, 5.0), target=(0.0, 0.0, 0.0), viewport=(640, 480))
+    >>> cam.aspect
+    1.3333333333333333
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .errors import InvalidInputError
+
+__all__ = ["Camera"]
+
+#: Viewport height in pixels when none is given.
+_DEFAULT_HEIGHT = 800
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera shared by every capability: the eye point, the six clipping planes of its view frustum
+    (paper 003 §7.2-§7.3) and the pixel projection that screen-space errors use (paper 004 §4).
+
+    Parameters
+    ----------
+    eye, target : (3,) float
+        Eye point and a point it looks at, metres (planet-centred for :class:`Globe`, the mesh's
+        coordinates for :func:`adaptive_mesh`).
+    up : (3,) float
+        Up direction (need not be orthogonal to the view direction, must not be parallel to it).
+    fov : float
+        Vertical field of view in radians, in (0, π).
+    aspect : float, optional
+        Width / height of the image; default: the viewport's, else 1.
+    near, far : float
+        Distances of the near and far clipping planes, 0 < near < far.
+    viewport : (width, height) pixels, optional
+        The image size for pixel measures (:meth:`project`, :attr:`focal_pixels`); default: 800 pixels high
+        at ``aspect``. When both are given they must agree.
+
+    Examples
+    --------
+    >>> cam = Camera(eye=(0.0, 0.0, 10.0), target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0))
+    >>> planes = cam.planes()
+    >>> bool(((planes[:, :3] @ [0.0, 0.0, 0.0] + planes[:, 3]) <= 0).all())   # the target is inside
+    True
+    """
+
+    eye: tuple[float, float, float]
+    target: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    fov: float = math.radians(45.0)
+    aspect: float | None = None  # type: ignore[assignment]  # resolved to a float in __post_init__
+    near: float = 1.0
+    far: float = 1.0e9
+    viewport: tuple[int, int] | None = None  # type: ignore[assignment]  # resolved in __post_init__
+
+    def __post_init__(self) -> None:
+        for name in ("eye", "target", "up"):
+            value = np.asarray(getattr(self, name), dtype=np.float64)
+            if value.shape != (3,) or not np.isfinite(value).all():
+                raise InvalidInputError(f"Camera {name} must be 3 finite numbers; got {getattr(self, name)!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in value))
+        forward = np.subtract(self.target, self.eye)
+        if np.linalg.norm(forward) == 0.0:
+            raise InvalidInputError(f"Camera eye and target must differ; both are {self.eye}")
+        up = np.asarray(self.up)
+        if np.linalg.norm(np.cross(forward / np.linalg.norm(forward), up)) < 1e-9 * max(np.linalg.norm(up), 1e-300):
+            raise InvalidInputError(f"Camera up {self.up} must not be zero or parallel to the view direction "
+                                    f"{tuple(forward)}")
+        if not (0.0 < self.fov < math.pi):
+            raise InvalidInputError(f"Camera fov must lie in (0, π) radians; got {self.fov!r}")
+        if self.viewport is not None:
+            try:
+                width, height = (int(v) for v in self.viewport)
+            except (TypeError, ValueError):
+                raise InvalidInputError(f"Camera viewport must be (width, height) pixels; got {self.viewport!r}") \
+                    from None
+            if width < 1 or height < 1:
+                raise InvalidInputError(f"Camera viewport must be positive pixels; got {self.viewport!r}")
+            if self.aspect is not None and abs(float(self.aspect) * height - width) > 1e-6 * width:
+                raise InvalidInputError(f"Camera aspect {self.aspect!r} disagrees with viewport {self.viewport!r}")
+            object.__setattr__(self, "viewport", (width, height))
+            object.__setattr__(self, "aspect", width / height)
+        elif self.aspect is None:
+            object.__setattr__(self, "aspect", 1.0)
+        try:
+            object.__setattr__(self, "aspect", float(self.aspect))
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}") from None
+        if self.viewport is None:
+            object.__setattr__(self, "viewport", (max(1, round(_DEFAULT_HEIGHT * self.aspect)), _DEFAULT_HEIGHT))
+        if not (math.isfinite(self.aspect) and self.aspect > 0):
+            raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
+        if not (math.isfinite(self.near) and math.isfinite(self.far) and 0.0 < self.near < self.far):
+            raise InvalidInputError(f"Camera needs 0 < near < far (finite); got near={self.near!r}, far={self.far!r}")
+
+    def frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Unit forward, right and up vectors of the camera."""
+        forward = np.subtract(self.target, self.eye)
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, self.up)
+        right /= np.linalg.norm(right)
+        return forward, right, np.cross(right, forward)
+
+    def planes(self) -> NDArray[np.float64]:
+        """(6, 4) float64: outward unit normal n and offset a of the left, right, bottom, top, near and far
+        planes; x lies inside the frustum iff n · x + a <= 0 for all six."""
+        forward, right, up = self.frame()
+        eye = np.asarray(self.eye)
+        tv = math.tan(self.fov / 2.0)
+        th = tv * self.aspect
+        normals = [-right - th * forward, right - th * forward, -up - tv * forward, up - tv * forward]
+        rows = []
+        for n in normals:
+            n = n / np.linalg.norm(n)
+            rows.append([*n, -float(n @ eye)])
+        rows.append([*(-forward), float(forward @ eye) + self.near])
+        rows.append([*forward, -float(forward @ eye) - self.far])
+        return np.asarray(rows, dtype=np.float64)
+
+    @property
+    def focal_pixels(self) -> float:
+        """Focal length in pixels: (viewport height / 2) / tan(fov / 2)."""
+        return self.viewport[1] / 2.0 / math.tan(self.fov / 2.0)
+
+    def project(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """(pixel coordinates (N, 2), depth (N,)) of world points."""
+        forward, right, up = self.frame()
+        rel = np.atleast_2d(np.asarray(points, dtype=np.float64)) - np.asarray(self.eye, dtype=np.float64)
+        depth = rel @ forward
+        f = self.focal_pixels
+        with np.errstate(divide="ignore", invalid="ignore"):
+            px = np.column_stack([f * (rel @ right) / depth + self.viewport[0] / 2,
+                                  self.viewport[1] / 2 - f * (rel @ up) / depth])
+        return px, depth
+
+    def box_visible(self, box: NDArray[np.float64]) -> bool:
+        """Whether the axis-aligned box [(min), (max)] may intersect the view frustum (conservative)."""
+        forward, right, up = self.frame()
+        eye = np.asarray(self.eye, dtype=np.float64)
+        tan_y = math.tan(self.fov / 2.0)
+        tan_x = tan_y * self.aspect
+        planes = [(forward, self.near), (-forward, -self.far)]
+        for axis, tan in ((right, tan_x), (up, tan_y)):
+            # side planes through the eye: (forward * tan -/+ axis) . (p - eye) >= 0 inside
+            for sign in (1.0, -1.0):
+                normal = forward * tan - sign * axis
+                planes.append((normal / np.linalg.norm(normal), 0.0))
+        lo, hi = box
+        for normal, offset in planes:
+            corner = np.where(normal >= 0, hi, lo)  # the box corner farthest along the plane normal
+            if (corner - eye) @ normal < offset:
+                return False
+        return True
+
+    def nearest_point(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
+        """The point of the box nearest to the camera position (the position itself when inside)."""
+        return np.clip(np.asarray(self.eye, dtype=np.float64), box[0], box[1])
+
+    def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+        """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
+        px, depth = self.project(np.stack([a, b]))
+        if np.any(depth < self.near):
+            return math.inf
+        return float(np.linalg.norm(px[0] - px[1]))
