@@ -8,7 +8,7 @@ axis with concentrically curved top and bottom (radii |p| - h .. |p| + h, openin
 * :func:`plane_distance_sphere`, :func:`plane_distance_cone`: the largest signed distance ⟨n, x⟩ + a over the
   shape (§7.3; the cone's three cases of Abb. 7). The smallest is minus the value for the inverted plane
   (-n, -a): the shape lies wholly on the outer side iff the inverted plane's value is < 0.
-* :func:`node_metric`: μ = μ_geo · μ_dist · μ_clip (§7.4), each factor switchable in :class:`View`.
+* :func:`refine_node`: μ = μ_geo · μ_dist · μ_clip (§7.4) > ε, each factor switchable in :class:`View`.
 
 Shape parameters arrive as float32; every formula runs in float64, so the float32 saturation margin that the
 preprocessing adds per level (relative 2^-20, paper §6: "Größenordnung 10^-6") always exceeds the rounding of
@@ -43,12 +43,6 @@ class View:
 def to_vec3d(p: wp.vec3) -> wp.vec3d:
     """float32 point -> float64 point."""
     return wp.vec3d(wp.float64(p[0]), wp.float64(p[1]), wp.float64(p[2]))
-
-
-@wp.func
-def angle_between(u: wp.vec3d, v: wp.vec3d) -> wp.float64:
-    """Angle between two vectors in radians, accurate for small angles (atan2 of |u x v| and u . v)."""
-    return wp.atan2(wp.length(wp.cross(u, v)), wp.dot(u, v))
 
 
 @wp.func
@@ -152,14 +146,9 @@ def inverted(plane: wp.vec4d) -> wp.vec4d:
 
 
 @wp.func
-def shape_outside_view(
-    planes: wp.array[wp.vec4d], cone: wp.int32, p: wp.vec3d, r: wp.float64, h: wp.float64, alpha: wp.float64
-) -> wp.int32:
-    """1 when the node's bounding shape lies wholly outside one of the six planes (the inverted-plane test:
-    the largest distance over the shape from the inverted plane is < 0)."""
-    if cone != 0:
-        p_len = wp.length(p)
-        return cone_outside_view(planes, p, p / p_len, p_len, h, alpha, sin_cos(alpha))
+def sphere_outside_view(planes: wp.array[wp.vec4d], p: wp.vec3d, r: wp.float64) -> wp.int32:
+    """1 when the bounding sphere lies wholly outside one of the six planes (the inverted-plane test: the
+    largest distance over the sphere from the inverted plane is < 0)."""
     for k in range(planes.shape[0]):
         if plane_distance_sphere(inverted(planes[k]), p, r) < wp.float64(0.0):
             return 1
@@ -169,7 +158,7 @@ def shape_outside_view(
 @wp.func
 def cone_outside_view(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64,
                       alpha: wp.float64, alpha_sc: wp.vec2d) -> wp.int32:
-    """:func:`shape_outside_view` of a cone frustum with p_hat, p_len and (sin α, cos α) given."""
+    """:func:`sphere_outside_view` for a cone frustum, with p_hat, p_len and (sin α, cos α) given."""
     # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
     # plane; the exact cases of Abb. 7 only for planes through that ball)
     ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
@@ -198,48 +187,13 @@ def triangle_outside_view(planes: wp.array[wp.vec4d], a: wp.vec3d, b: wp.vec3d, 
 
 
 @wp.func
-def node_metric(
-    eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64,
-    e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64
-) -> wp.float64:
-    """μ = μ_geo · μ_dist · μ_clip · μ_user of one node (paper 003 §7.4); each factor 1 when switched off.
-
-    ``flags`` = (use_geometric, use_distance, use_clip, cone) of :class:`View` (plain values rather than the
-    struct: Warp passes structs to functions by value). μ_geo = e (saturated geometric error),
-    μ_dist = (ℓ / d(v, B))^2 (HUGE when the eye touches B), μ_clip = 0 when B lies wholly outside a frustum
-    plane, else 1; μ_user = ``factor``.
-    """
-    p = to_vec3d(p32)
-    if flags[2] != 0:
-        if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
-            return wp.float64(0.0)
-    mu = factor
-    if mu <= wp.float64(0.0):
-        return wp.float64(0.0)
-    if flags[0] != 0:
-        mu = mu * wp.float64(e)
-        if mu <= wp.float64(0.0):
-            return wp.float64(0.0)
-    if flags[1] != 0:
-        d = wp.float64(0.0)
-        if flags[3] != 0:
-            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), eye)
-        else:
-            d = eye_distance_sphere(p, wp.float64(r), eye)
-        if d <= wp.float64(0.0):
-            return HUGE
-        q = distance_scale / d
-        mu = mu * q * q
-    return mu
-
-
-@wp.func
 def refine_node(
     eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64, error: wp.float64,
     e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64,
     eye_length: wp.float64, eye_unit: wp.vec3d
 ) -> wp.int32:
-    """The refinement rule: μ > ε (μ of :func:`node_metric`); with ε == 0 every node not clipped refines.
+    """The refinement rule μ > ε with μ = μ_geo · μ_dist · μ_clip · μ_user (§7.4; each factor 1 when switched
+    off, μ_user = ``factor``); with ε == 0 every node not clipped refines.
 
     Cheapest tests first: μ_geo, then an upper bound of μ_dist from the radial gap between the eye and the
     cone's shell (a lower bound of d), then the exact distance, and the six-plane clip test last. Each early
@@ -252,7 +206,7 @@ def refine_node(
                            wp.float64(h), wp.float64(alpha), factor)
     if error <= wp.float64(0.0):
         if flags[2] != 0:
-            if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+            if sphere_outside_view(planes, p, wp.float64(r)) != 0:
                 return 0
         return 1
     mu = factor
@@ -262,18 +216,7 @@ def refine_node(
         if mu <= wp.float64(0.0) or flags[1] == 0:
             return 0
     if flags[1] != 0:
-        d = wp.float64(0.0)
-        if flags[3] != 0:
-            p_len = wp.length(p)
-            v_len = wp.length(eye)
-            gap = wp.max(v_len - (p_len + wp.float64(h)), (p_len - wp.float64(h)) - v_len)
-            if gap > wp.float64(0.0):
-                q = distance_scale / gap
-                if mu * q * q <= error:
-                    return 0
-            d = eye_distance_cone(p, wp.float64(h), wp.float64(alpha), eye)
-        else:
-            d = eye_distance_sphere(p, wp.float64(r), eye)
+        d = eye_distance_sphere(p, wp.float64(r), eye)  # cones returned above, through refine_cone
         if d > wp.float64(0.0):
             q = distance_scale / d
             mu = mu * q * q
@@ -282,7 +225,7 @@ def refine_node(
     if mu <= error:
         return 0
     if flags[2] != 0:
-        if shape_outside_view(planes, flags[3], p, wp.float64(r), wp.float64(h), wp.float64(alpha)) != 0:
+        if sphere_outside_view(planes, p, wp.float64(r)) != 0:
             return 0
     return 1
 

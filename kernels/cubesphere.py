@@ -176,15 +176,6 @@ def node_entry(cells: wp.int32, planar: wp.int32, face: wp.int32, i: wp.int32, j
 
 
 @wp.func
-def canonical_entry(grid: CubeSphereGrid, entry: wp.int32) -> wp.int32:
-    """The canonical copy of an entry (itself unless it lies on a face border)."""
-    nn = grid.n * grid.n
-    face = entry // nn
-    rest = entry - face * nn
-    return node_entry(grid.cells, grid.planar, face, rest // grid.n, rest % grid.n)
-
-
-@wp.func
 def node_direction(point: wp.vec3i) -> wp.vec3d:
     """w / ||w|| in float64 from the integer cube point (exact sum of squares: bit-identical on seams)."""
     w = wp.vec3d(wp.float64(point[0]), wp.float64(point[1]), wp.float64(point[2]))
@@ -243,37 +234,6 @@ def column_weights(source: LatLonGrid, lon: wp.float64) -> wp.vec3:
 def sample_row(source: LatLonGrid, row: wp.int32, cw: wp.vec3) -> wp.float32:
     """Linear interpolation along one row with the weights of :func:`column_weights`."""
     return (1.0 - cw[2]) * source.elevation[row, wp.int32(cw[0])] + cw[2] * source.elevation[row, wp.int32(cw[1])]
-
-
-@wp.func
-def fast_atan2(y: wp.float64, x: wp.float64) -> wp.float64:
-    """atan2 to 4e-12 rad without a libm call: reduction to |t| <= tan(π/8), odd degree-13 polynomial."""
-    ax = wp.abs(x)
-    ay = wp.abs(y)
-    hi = wp.max(ax, ay)
-    if hi == wp.float64(0.0):
-        return wp.float64(0.0)
-    t = wp.min(ax, ay) / hi
-    base = wp.float64(0.0)
-    if t > wp.float64(0.41421356237309503):
-        t = (t - wp.float64(1.0)) / (t + wp.float64(1.0))
-        base = wp.float64(0.7853981633974483)
-    t2 = t * t
-    poly = wp.float64(0.04551206574864833)
-    poly = poly * t2 - wp.float64(0.0836889602155541)
-    poly = poly * t2 + wp.float64(0.11021707200600295)
-    poly = poly * t2 - wp.float64(0.14279647683533167)
-    poly = poly * t2 + wp.float64(0.19999786239682021)
-    poly = poly * t2 - wp.float64(0.33333329990609384)
-    poly = poly * t2 + wp.float64(0.9999999998481683)
-    r = base + t * poly
-    if ay > ax:
-        r = wp.float64(1.5707963267948966) - r
-    if x < wp.float64(0.0):
-        r = wp.float64(3.141592653589793) - r
-    if y < wp.float64(0.0):
-        r = -r
-    return r
 
 
 @wp.func
