@@ -277,26 +277,3 @@ def emit_anchor_faces(
     for r in range(rungs):
         faces_out[i * 2 * rungs + 2 * r] = wp.vec3i(a + r, b + r, b + r + 1)
         faces_out[i * 2 * rungs + 2 * r + 1] = wp.vec3i(a + r, b + r + 1, a + r + 1)
-
-
-@wp.kernel
-def band_distances(
-    thread_offset: wp.int32,
-    originals: wp.array[wp.vec3],
-    vertices: wp.array[wp.vec3],
-    vertex_layer: wp.array[wp.int32],
-    max_lengths: wp.array[wp.float32],
-    tf: TransferFunctions,
-    # outputs
-    distances_out: wp.array[wp.float32],
-    opacities_out: wp.array[wp.float32],
-):
-    """One thread per close-up vertex: t = ‖V_C − V_O‖ / D_k and the transfer function's opacity at t."""
-    i = wp.tid() + thread_offset
-    k = vertex_layer[i]
-    d = max_lengths[k]
-    t = wp.float32(0.0)
-    if d > 0.0:
-        t = wp.min(wp.length(vertices[i] - originals[i]) / d, 1.0)
-    distances_out[i] = t
-    opacities_out[i] = transfer(t, k, tf)

@@ -14,7 +14,8 @@ One entry point per capability (paper):
     >>> import stepterrain as st
     >>> mesh = st.stepped(st.sample_dem(), interval=100.0)   # doctest: +SKIP
 
-The capability modules other than stepped terrain load on first use, so ``import stepterrain`` stays quick.
+The globe, close-up and texture modules load on first use; stepped terrain, batches and the pyvista accessor
+(``grid.stepterrain``, which imports pyvista) load with the package.
 """
 
 from __future__ import annotations

@@ -85,10 +85,11 @@ class Camera:
                     from None
             if width < 1 or height < 1:
                 raise InvalidInputError(f"Camera viewport must be positive pixels; got {self.viewport!r}")
-            if self.aspect is not None and abs(float(self.aspect) * height - width) > 1e-6 * width:
+            if self.aspect is None:
+                object.__setattr__(self, "aspect", width / height)
+            elif not abs(float(self.aspect) * height - width) <= 0.5:  # agree to the pixel (replace() keeps both)
                 raise InvalidInputError(f"Camera aspect {self.aspect!r} disagrees with viewport {self.viewport!r}")
             object.__setattr__(self, "viewport", (width, height))
-            object.__setattr__(self, "aspect", width / height)
         elif self.aspect is None:
             object.__setattr__(self, "aspect", 1.0)
         try:

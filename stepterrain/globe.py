@@ -19,6 +19,7 @@ computed from the integer cube point: each lies at R + exaggeration·z from the 
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import math
 import mmap
 from collections.abc import Callable, Sequence
@@ -536,15 +537,16 @@ def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device) -> wp.array:
     return out
 
 
-def _user_factors(users: list[UserMetric], grid: Any, params: Any, triangles: wp.array,
-                  device: wp.Device) -> wp.array:
-    """Per triangle, the product of the user metrics at its refinement node (one vectorised call per level)."""
+def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.float32], NDArray[np.float32]],
+                  triangles: wp.array, device: wp.Device) -> wp.array:
+    """Per triangle, the product of the user metrics at its refinement node (one vectorised call per level);
+    ``host`` = the node positions and parameters on the host, copied once per mesh."""
     tris = triangles.numpy().astype(np.int64)
     n = grid.n
     a, b = tris[:, 1], tris[:, 2]
     m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
-    points = grid.positions.numpy()[m].astype(np.float64)
-    radius = params.values.numpy()[m, 1].astype(np.float64)
+    points = host[0][m].astype(np.float64)
+    radius = host[1][m, 1].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
     for fn in users:
         value = np.asarray(fn(points, radius), dtype=np.float64)
@@ -564,12 +566,13 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     leaf_chunks: list[wp.array] = []
     vertex_chunks = [wp.array(corner_entries(grid.cells, n, faces), dtype=wp.int32, device=device)]
     per_level = []
+    host = (grid.positions.numpy(), params.values.numpy()) if users else None
     for depth in range(levels + 1):
         count = triangles.shape[0]
         if count == 0:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
-        factors = _user_factors(users, grid, params, triangles, device) if users else no_factors
+        factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
         _launch(cube_kernels.count_refinement, count,
                [grid, params, view, triangles, int(depth < levels), factors], [counts], device)
         offsets, total = exclusive_offsets(counts, "globe.refine")
@@ -740,9 +743,8 @@ def adaptive_mesh(
     if camera is not None:
         if not isinstance(camera, Camera):
             raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-        camera = Camera(eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),  # type: ignore[arg-type]
-                        target=tuple(np.subtract(camera.target, (ox, oy, 0.0))),  # type: ignore[arg-type]
-                        up=camera.up, fov=camera.fov, aspect=camera.aspect, near=camera.near, far=camera.far)
+        camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
+                                     target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     if distance_scale is None:
         above = camera.eye[2] - float(z.max()) if camera is not None else 0.0
         distance_scale = max(above, dx, dy)

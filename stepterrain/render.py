@@ -533,7 +533,7 @@ class LayeredRenderer:
         self._local_bounds: dict[str, NDArray[np.float64]] = {}
         self._origin: NDArray[np.float64] | None = None
         self._box: NDArray[np.float64] | None = None
-        self._camera: Any = None
+        self._view_token: Any = None
 
     def _new_plotter(self, size: tuple[int, int]) -> Any:
         plotter = self._pv.Plotter(off_screen=True, window_size=size, lighting="none")
@@ -633,7 +633,7 @@ class LayeredRenderer:
         local = box - self._origin
         local[:, 2] *= self.z_scale
         token = (repr(camera), local.tobytes())
-        if token == getattr(self, "_view_token", None):
+        if token == self._view_token:
             return  # the same camera and box: view, lights and clipping range stay (and so may cached passes)
         self._view_token = token
         self._view_version += 1

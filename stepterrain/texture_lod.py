@@ -798,8 +798,8 @@ def _threshold(value: Any, name: str) -> float:
 def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     """``paintWithTextures(N, T)`` (§4) as a mesh: the geometry patch at its level of detail (every
     ``stride``-th node of its block, the last row and column kept) textured with the sub-image of the chosen
-    texture patch of ``layer`` (UVs through the patch's georeferenced window). Returns a ``trimesh.Trimesh``
-    (untextured when that layer has no texture patch yet).
+    texture patch of ``layer`` (UVs through the patch's georeferenced window). Returns a ``trimesh.Trimesh``;
+    an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
     Examples
     --------
@@ -834,8 +834,6 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     texture = item.textures[layer]
-    if texture is None:
-        return mesh
     image = np.asarray(texture.image())
     if image.shape[2] == 1:
         texture_layer = TextureLayer("luminance", image[:, :, 0], texture.domain)

@@ -61,3 +61,13 @@ def test_camera_viewport_sets_aspect_and_pixels():
         Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), aspect=1.0, viewport=(640, 480))
     with pytest.raises(st.InvalidInputError, match="viewport"):
         Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), viewport=(0, 480))
+
+
+def test_camera_survives_dataclasses_replace():
+    import dataclasses
+
+    from stepterrain.camera import Camera
+
+    cam = Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), aspect=4.0 / 3.0)
+    moved = dataclasses.replace(cam, eye=(1.0, -10.0, 0.0))
+    assert moved.aspect == cam.aspect and moved.viewport == cam.viewport == (1067, 800)
