@@ -712,8 +712,7 @@ def _shared_levels(
     """Isovalues over the whole series or raster, so every frame or tile uses the same ones."""
     if src is None:
         return None
-    from .cli import nice_interval
-    from .stepped import isovalues
+    from .stepped import isovalues, nice_interval
 
     finite = src.heights[np.isfinite(src.heights)]
     if finite.size == 0:

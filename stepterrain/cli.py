@@ -26,11 +26,10 @@ import numpy as np
 
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
+from .stepped import TARGET_STEPS, nice_interval
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
-#: Steps aimed at when neither --interval nor --levels is given.
-TARGET_STEPS = 15
 EXIT_USAGE = 2
 
 _STEPS_EPILOG = """\
@@ -112,24 +111,6 @@ def _window(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 1280x800; got {text!r}") from None
     return w, h
-
-
-def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS) -> float:
-    """A round interval (1, 2, 2.5 or 5 times a power of ten) giving about ``target`` steps over the range.
-
-    >>> nice_interval((315.0, 2295.0))
-    100.0
-    >>> nice_interval((0.0, 1.0))
-    0.05
-    """
-    lo, hi = height_range
-    span = hi - lo
-    if not math.isfinite(span) or span <= 0:
-        return 1.0
-    exponent = math.floor(math.log10(span / target))
-    candidates = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 2.5, 5.0)]
-    best = min(candidates, key=lambda c: abs(math.log(span / c / target)))
-    return float(f"{best:.6g}")
 
 
 # ------------------------------------------------------------------------------------------ parser

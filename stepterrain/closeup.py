@@ -1504,12 +1504,10 @@ def render_closeups(
 
 
 def _window(window_size: Any) -> tuple[int, int]:
-    try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
-    if not (8 <= width <= 16384 and 8 <= height <= 16384):
-        raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
+    """(width, height) checked as every render checks it (:func:`stepterrain.render._check_window`)."""
+    from .render import _check_window
+
+    width, height, _ = _check_window(window_size, 1.0)
     return width, height
 
 

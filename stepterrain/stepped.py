@@ -16,6 +16,7 @@ result is crack-free by construction.
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -32,7 +33,7 @@ from .errors import InvalidInputError
 from .kernels import stepped as stepped_kernels
 from .terrain import Terrain, as_terrain
 
-__all__ = ["stepped", "stepped_series", "isovalues", "Lens", "circular_lens", "GammaLike"]
+__all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
 MAX_LEVELS = 1_000_000
 
@@ -134,6 +135,28 @@ def circular_lens(
         s = (d > radius).astype(np.float64)
     mask = float(inside) + (float(outside) - float(inside)) * s
     return Lens(mask.astype(np.float32), (xmin, xmax, ymin, ymax))
+
+
+#: Steps aimed at by :func:`nice_interval` (the CLI's default when neither --interval nor --levels is given).
+TARGET_STEPS = 15
+
+
+def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS) -> float:
+    """A round interval (1, 2, 2.5 or 5 times a power of ten) giving about ``target`` steps over the range.
+
+    >>> nice_interval((315.0, 2295.0))
+    100.0
+    >>> nice_interval((0.0, 1.0))
+    0.05
+    """
+    lo, hi = height_range
+    span = hi - lo
+    if not math.isfinite(span) or span <= 0:
+        return 1.0
+    exponent = math.floor(math.log10(span / target))
+    candidates = [m * 10.0**e for e in (exponent - 1, exponent, exponent + 1) for m in (1.0, 2.0, 2.5, 5.0)]
+    best = min(candidates, key=lambda c: abs(math.log(span / c / target)))
+    return float(f"{best:.6g}")
 
 
 def isovalues(
