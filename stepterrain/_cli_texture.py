@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _size, _window
+from .cli import Progress, _check_output, _colormap, _size, _window
 from .errors import InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -75,19 +75,13 @@ def add_parser(commands: Any) -> None:
 
 
 def _hypsometric(heights: np.ndarray, name: str) -> np.ndarray | None:
-    if name.lower() == "none":
+    found = _colormap(name)
+    if found is None:
         return None
-    import matplotlib
-
-    try:
-        cmap = matplotlib.colormaps[name]
-    except KeyError:
-        raise InvalidInputError(f"--colormap must name a matplotlib colormap (e.g. terrain, viridis) or 'none'; "
-                                f"got {name!r}") from None
+    cmap, lo_frac = found
     finite = np.isfinite(heights)
     lo, hi = float(heights[finite].min()), float(heights[finite].max())
     scaled = np.clip((heights - lo) / max(hi - lo, 1e-12), 0, 1)
-    lo_frac = 0.25 if name == "terrain" else 0.0  # skip the sea blues of 'terrain' on land
     rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
     rgba[~finite, 3] = 0.0
     return rgba

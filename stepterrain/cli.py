@@ -217,8 +217,9 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
-def _level_colors(name: str, n_levels: int) -> np.ndarray | None:
-    """(L, 4) float colors sampled from a matplotlib colormap; 'terrain' skips its sea-blue first quarter."""
+def _colormap(name: str) -> tuple[Any, float] | None:
+    """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at ('terrain'
+    skips its sea-blue first quarter); None for 'none'."""
     if name.lower() == "none":
         return None
     import matplotlib
@@ -228,7 +229,15 @@ def _level_colors(name: str, n_levels: int) -> np.ndarray | None:
     except KeyError:
         raise InvalidInputError(f"--colormap must name a matplotlib colormap (e.g. terrain, viridis) or "
                                 f"'none'; got {name!r}") from None
-    lo = 0.25 if name == "terrain" else 0.0
+    return cmap, (0.25 if name == "terrain" else 0.0)
+
+
+def _level_colors(name: str, n_levels: int) -> np.ndarray | None:
+    """(L, 4) float colors sampled from a matplotlib colormap; 'terrain' skips its sea-blue first quarter."""
+    found = _colormap(name)
+    if found is None:
+        return None
+    cmap, lo = found
     samples = np.linspace(lo, 1.0, n_levels) if n_levels > 1 else np.array([(lo + 1.0) / 2])
     return np.asarray(cmap(samples), dtype=np.float64)
 
