@@ -283,7 +283,8 @@ def renders(globe: Any, cams: dict[str, Any], out_dir: Path, lines: list[str]) -
             image = render_view(mesh, seen_from, window_size=(960, 600), show_edges=name == "close")
             path = out_dir / f"globe_{name}_{bounds}.png"
             save_image(image, path)
-            lines.append(f"- `{path.relative_to(_ROOT)}`: {name} view, {bounds}s, error {error:g}: "
+            shown = path.relative_to(_ROOT) if path.is_relative_to(_ROOT) else path
+            lines.append(f"- `{shown}`: {name} view, {bounds}s, error {error:g}: "
                          f"{len(mesh.faces):,} triangles")
     lines.append("")
 
@@ -375,10 +376,12 @@ def main(argv: list[str] | None = None) -> int:
     globe = preprocessing(args.face_size, args.repeat, lines)
     cams = views(globe)
     view_mesh_timing(globe, cams, args.repeat, lines)
+    args.plots.mkdir(parents=True, exist_ok=True)
     shape_statistics(globe, lines, args.plots / "globe_shapes.png")
     triangles_versus_error(globe, cams, lines, args.plots / "globe_triangles.png")
     if not args.quick:
         lines += ["### Renders", ""]
+        args.renders.mkdir(parents=True, exist_ok=True)
         renders(globe, cams, args.renders, lines)
         planar(args.repeat, lines)
     text = "\n".join(lines)
