@@ -8,8 +8,10 @@ Both the count and the emit pass call :func:`step_triangle`, so they cannot disa
 
 Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
 
-* Every kernel takes ``thread_offset`` first: thread i handles element ``wp.tid() + thread_offset``, so the
-  CPU launcher can split one pass over several cores (``stepterrain._device.launch``).
+* Every kernel takes ``thread_offset, count, chunk`` first: thread t handles the elements
+  [(t + thread_offset)·chunk, … + chunk) ∩ [0, count) (``stepterrain._device.launch_chunked``: chunk is 64 on
+  the CPU, where Warp copies a kernel's arguments for every thread, and 1 on CUDA), so the CPU launcher can
+  also split one pass over several cores.
 * level(h) = the number of thresholds t_i <= h: a height exactly on a threshold belongs to the upper level.
 * The crossings of an edge are stored lowest threshold first, two vertices each (wall bottom at α_j, wall
   top at α_j+1). When the upper endpoint lies exactly on its highest crossed threshold, that crossing's top
@@ -426,14 +428,17 @@ def emit_node_vertices(
 @wp.kernel
 def quantize_levels(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     heights: wp.array[wp.float32],
     thresholds: wp.array[wp.float32],
     # outputs
     levels_out: wp.array[wp.int32],
 ):
     """One thread per node: its level, the index of the nearest isovalue (§3.2)."""
-    n = wp.tid() + thread_offset
-    levels_out[n] = level_of(heights[n], thresholds)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for n in range(first_element, wp.min(first_element + chunk, count)):
+        levels_out[n] = level_of(heights[n], thresholds)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -558,24 +563,29 @@ def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, k
 @wp.kernel
 def count_grid_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     # outputs
     counts_out: wp.array[wp.int32],
 ):
     """One thread per node: count the vertices of its four slots (itself and its three owned edges)."""
-    n = wp.tid() + thread_offset
-    i = n // hf.cols
-    j = n - i * hf.cols
-    counts_out[4 * n] = grid_node_count(hf, iso, n)[0]
-    counts_out[4 * n + 1] = grid_edge_count(hf, iso, i, j, 1)
-    counts_out[4 * n + 2] = grid_edge_count(hf, iso, i, j, 2)
-    counts_out[4 * n + 3] = grid_edge_count(hf, iso, i, j, 3)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for n in range(first_element, wp.min(first_element + chunk, count)):
+        i = n // hf.cols
+        j = n - i * hf.cols
+        counts_out[4 * n] = grid_node_count(hf, iso, n)[0]
+        counts_out[4 * n + 1] = grid_edge_count(hf, iso, i, j, 1)
+        counts_out[4 * n + 2] = grid_edge_count(hf, iso, i, j, 2)
+        counts_out[4 * n + 3] = grid_edge_count(hf, iso, i, j, 3)
 
 
 @wp.kernel
 def emit_grid_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -587,42 +597,43 @@ def emit_grid_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """One thread per node: write the vertices of its four slots from their offsets."""
-    n = wp.tid() + thread_offset
-    cols = hf.cols
-    p = grid_point(hf, n)
-    level = hf.levels[n]
-    first = offsets[4 * n]
-    owned = offsets[4 * n + 1] - first
-    if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
-        # a plain node, the common case: written here without the call
-        points_out[first] = p
-        step_heights_out[first] = iso.values[level]
-        if want_sources != 0:
-            sources_out[first] = wp.vec2i(n, n)
-            betas_out[first] = 0.0
-    elif owned > 0:
-        twin = wp.int32(0)
-        peak = wp.int32(0)
-        if owned == 2:
-            twin = 1
-        else:
-            peak = grid_node_count(hf, iso, n)[1]
-        emit_node_vertices(
-            n, p, level, twin, peak, first, iso, want_sources,
-            points_out, step_heights_out, sources_out, betas_out,
-        )  # fmt: skip
-    for kind in range(1, 4):
-        start = offsets[4 * n + kind]
-        if offsets[4 * n + kind + 1] != start:
-            b = n + 1
-            if kind == 2:
-                b = n + cols
-            if kind == 3:
-                b = n + cols + 1
-            emit_edge_vertices(
-                n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
-                want_sources, points_out, step_heights_out, sources_out, betas_out,
+    first_element = (wp.tid() + thread_offset) * chunk
+    for n in range(first_element, wp.min(first_element + chunk, count)):
+        cols = hf.cols
+        p = grid_point(hf, n)
+        level = hf.levels[n]
+        first = offsets[4 * n]
+        owned = offsets[4 * n + 1] - first
+        if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
+            # a plain node, the common case: written here without the call
+            points_out[first] = p
+            step_heights_out[first] = iso.values[level]
+            if want_sources != 0:
+                sources_out[first] = wp.vec2i(n, n)
+                betas_out[first] = 0.0
+        elif owned > 0:
+            twin = wp.int32(0)
+            peak = wp.int32(0)
+            if owned == 2:
+                twin = 1
+            else:
+                peak = grid_node_count(hf, iso, n)[1]
+            emit_node_vertices(
+                n, p, level, twin, peak, first, iso, want_sources,
+                points_out, step_heights_out, sources_out, betas_out,
             )  # fmt: skip
+        for kind in range(1, 4):
+            start = offsets[4 * n + kind]
+            if offsets[4 * n + kind + 1] != start:
+                b = n + 1
+                if kind == 2:
+                    b = n + cols
+                if kind == 3:
+                    b = n + cols + 1
+                emit_edge_vertices(
+                    n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
+                    want_sources, points_out, step_heights_out, sources_out, betas_out,
+                )  # fmt: skip
 
 
 @wp.func
@@ -699,6 +710,8 @@ def grid_cell_faces(
 @wp.kernel
 def count_grid_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -709,13 +722,16 @@ def count_grid_faces(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per cell: count the terrace and wall faces its two triangles emit."""
-    cell = wp.tid() + thread_offset
-    counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for cell in range(first_element, wp.min(first_element + chunk, count)):
+        counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
 
 
 @wp.kernel
 def emit_grid_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -726,9 +742,10 @@ def emit_grid_faces(
     face_walls_out: wp.array[wp.uint8],
 ):
     """One thread per cell: write its terrace and wall faces from its face offset."""
-    cell = wp.tid() + thread_offset
-    if face_offsets[cell + 1] != face_offsets[cell]:
-        grid_cell_faces(hf, iso, offsets, cell, 1, face_offsets[cell], faces_out, face_levels_out, face_walls_out)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for cell in range(first_element, wp.min(first_element + chunk, count)):
+        if face_offsets[cell + 1] != face_offsets[cell]:
+            grid_cell_faces(hf, iso, offsets, cell, 1, face_offsets[cell], faces_out, face_levels_out, face_walls_out)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -739,6 +756,8 @@ def emit_grid_faces(
 @wp.kernel
 def mark_tin_twins(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     # outputs
@@ -747,27 +766,30 @@ def mark_tin_twins(
 ):
     """One thread per edge: flag its upper end for a twin when it sits on the threshold the edge crosses,
     and flag each end whose neighbour is not lower (a node without one is a peak)."""
-    e = wp.tid() + thread_offset
-    ab = tin.edges[e]
-    la = tin.levels[ab[0]]
-    lb = tin.levels[ab[1]]
-    if lb >= la:
-        peers_out[ab[0]] = 1
-    if la >= lb:
-        peers_out[ab[1]] = 1
-    if la != lb:
-        hi = ab[1]
-        lhi = lb
-        if la > lb:
-            hi = ab[0]
-            lhi = la
-        if on_threshold(tin.heights[hi], lhi, iso.thresholds) != 0:
-            twins_out[hi] = 1
+    first_element = (wp.tid() + thread_offset) * chunk
+    for e in range(first_element, wp.min(first_element + chunk, count)):
+        ab = tin.edges[e]
+        la = tin.levels[ab[0]]
+        lb = tin.levels[ab[1]]
+        if lb >= la:
+            peers_out[ab[0]] = 1
+        if la >= lb:
+            peers_out[ab[1]] = 1
+        if la != lb:
+            hi = ab[1]
+            lhi = lb
+            if la > lb:
+                hi = ab[0]
+                lhi = la
+            if on_threshold(tin.heights[hi], lhi, iso.thresholds) != 0:
+                twins_out[hi] = 1
 
 
 @wp.kernel
 def count_tin_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     twins: wp.array[wp.int32],
@@ -776,18 +798,21 @@ def count_tin_vertices(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per point, then per edge: count the output vertices it owns."""
-    tid = wp.tid() + thread_offset
-    n_points = tin.points.shape[0]
-    if tid < n_points:
-        counts_out[tid] = node_vertex_count(tin.point_used[tid], twins[tid], peers[tid])
-    else:
-        ab = tin.edges[tid - n_points]
-        counts_out[tid] = edge_vertex_count(ab[0], ab[1], tin.heights, tin.levels, iso)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for tid in range(first_element, wp.min(first_element + chunk, count)):
+        n_points = tin.points.shape[0]
+        if tid < n_points:
+            counts_out[tid] = node_vertex_count(tin.point_used[tid], twins[tid], peers[tid])
+        else:
+            ab = tin.edges[tid - n_points]
+            counts_out[tid] = edge_vertex_count(ab[0], ab[1], tin.heights, tin.levels, iso)
 
 
 @wp.kernel
 def emit_tin_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -800,50 +825,51 @@ def emit_tin_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """One thread per point, then per edge: write its output vertices from its offset."""
-    tid = wp.tid() + thread_offset
-    n_points = tin.points.shape[0]
-    first = offsets[tid]
-    if offsets[tid + 1] == first:
-        return
-    if tid < n_points:
-        twin = wp.int32(0)
-        peak = wp.int32(0)
-        if offsets[tid + 1] - first == 2:
-            twin = 1
-        elif twins[tid] != 0:
-            peak = 1
-        emit_node_vertices(
-            tid,
-            tin.points[tid],
-            tin.levels[tid],
-            twin,
-            peak,
-            first,
-            iso,
-            want_sources,
-            points_out,
-            step_heights_out,
-            sources_out,
-            betas_out,
-        )
-    else:
-        ab = tin.edges[tid - n_points]
-        emit_edge_vertices(
-            ab[0],
-            ab[1],
-            tin.points[ab[0]],
-            tin.points[ab[1]],
-            ab,
-            first,
-            tin.heights,
-            tin.levels,
-            iso,
-            want_sources,
-            points_out,
-            step_heights_out,
-            sources_out,
-            betas_out,
-        )
+    first_element = (wp.tid() + thread_offset) * chunk
+    for tid in range(first_element, wp.min(first_element + chunk, count)):
+        n_points = tin.points.shape[0]
+        first = offsets[tid]
+        if offsets[tid + 1] == first:
+            continue
+        if tid < n_points:
+            twin = wp.int32(0)
+            peak = wp.int32(0)
+            if offsets[tid + 1] - first == 2:
+                twin = 1
+            elif twins[tid] != 0:
+                peak = 1
+            emit_node_vertices(
+                tid,
+                tin.points[tid],
+                tin.levels[tid],
+                twin,
+                peak,
+                first,
+                iso,
+                want_sources,
+                points_out,
+                step_heights_out,
+                sources_out,
+                betas_out,
+            )
+        else:
+            ab = tin.edges[tid - n_points]
+            emit_edge_vertices(
+                ab[0],
+                ab[1],
+                tin.points[ab[0]],
+                tin.points[ab[1]],
+                ab,
+                first,
+                tin.heights,
+                tin.levels,
+                iso,
+                want_sources,
+                points_out,
+                step_heights_out,
+                sources_out,
+                betas_out,
+            )
 
 
 @wp.func
@@ -884,6 +910,8 @@ def tin_face_faces(
 @wp.kernel
 def count_tin_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -894,13 +922,16 @@ def count_tin_faces(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per triangle: count the terrace and wall faces it emits."""
-    f = wp.tid() + thread_offset
-    counts_out[f] = tin_face_faces(tin, iso, offsets, f, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for f in range(first_element, wp.min(first_element + chunk, count)):
+        counts_out[f] = tin_face_faces(tin, iso, offsets, f, 0, 0, faces_dummy, levels_dummy, walls_dummy)
 
 
 @wp.kernel
 def emit_tin_faces(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     tin: TriangleNetwork,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
@@ -911,9 +942,10 @@ def emit_tin_faces(
     face_walls_out: wp.array[wp.uint8],
 ):
     """One thread per triangle: write its terrace and wall faces from its face offset."""
-    f = wp.tid() + thread_offset
-    if face_offsets[f + 1] != face_offsets[f]:
-        tin_face_faces(tin, iso, offsets, f, 1, face_offsets[f], faces_out, face_levels_out, face_walls_out)
+    first_element = (wp.tid() + thread_offset) * chunk
+    for f in range(first_element, wp.min(first_element + chunk, count)):
+        if face_offsets[f + 1] != face_offsets[f]:
+            tin_face_faces(tin, iso, offsets, f, 1, face_offsets[f], faces_out, face_levels_out, face_walls_out)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -924,6 +956,8 @@ def emit_tin_faces(
 @wp.kernel
 def blend_vertices(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     points: wp.array[wp.vec3],
     step_heights: wp.array[wp.float32],
     gammas: wp.array[wp.float32],
@@ -936,18 +970,21 @@ def blend_vertices(
 
     ``gammas`` holds one γ per vertex, or is empty and the scalar ``gamma`` applies.
     """
-    v = wp.tid() + thread_offset
-    g = gamma
-    if gammas.shape[0] > 0:
-        g = gammas[v]
-    p = points[v]
-    z = (1.0 - g) * p[2] + g * step_heights[v]
-    vertices_out[v] = wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
+    first_element = (wp.tid() + thread_offset) * chunk
+    for v in range(first_element, wp.min(first_element + chunk, count)):
+        g = gamma
+        if gammas.shape[0] > 0:
+            g = gammas[v]
+        p = points[v]
+        z = (1.0 - g) * p[2] + g * step_heights[v]
+        vertices_out[v] = wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
 
 
 @wp.kernel
 def interpolate_node_values(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     node_values: wp.array[wp.float32],
     sources: wp.array[wp.vec2i],
     betas: wp.array[wp.float32],
@@ -955,15 +992,18 @@ def interpolate_node_values(
     values_out: wp.array[wp.float32],
 ):
     """One thread per output vertex: its value lerped from its source nodes with the crossing's β."""
-    v = wp.tid() + thread_offset
-    s = sources[v]
-    b = betas[v]
-    values_out[v] = (1.0 - b) * node_values[s[0]] + b * node_values[s[1]]
+    first_element = (wp.tid() + thread_offset) * chunk
+    for v in range(first_element, wp.min(first_element + chunk, count)):
+        s = sources[v]
+        b = betas[v]
+        values_out[v] = (1.0 - b) * node_values[s[0]] + b * node_values[s[1]]
 
 
 @wp.kernel
 def sample_lens(
     thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
     mask: wp.array2d[wp.float32],
     lower: wp.vec2,
     size: wp.vec2,
@@ -972,18 +1012,19 @@ def sample_lens(
     values_out: wp.array[wp.float32],
 ):
     """One thread per output vertex: bilinear lookup of the lens mask (row 0 at lower y), clamped at the edges."""
-    v = wp.tid() + thread_offset
-    p = points[v]
-    rows = mask.shape[0]
-    cols = mask.shape[1]
-    u = wp.clamp((p[0] - lower[0]) / size[0], 0.0, 1.0) * wp.float32(cols - 1)
-    w = wp.clamp((p[1] - lower[1]) / size[1], 0.0, 1.0) * wp.float32(rows - 1)
-    j0 = wp.min(wp.int32(u), cols - 1)
-    i0 = wp.min(wp.int32(w), rows - 1)
-    j1 = wp.min(j0 + 1, cols - 1)
-    i1 = wp.min(i0 + 1, rows - 1)
-    fu = u - wp.float32(j0)
-    fw = w - wp.float32(i0)
-    top = (1.0 - fu) * mask[i0, j0] + fu * mask[i0, j1]
-    bottom = (1.0 - fu) * mask[i1, j0] + fu * mask[i1, j1]
-    values_out[v] = (1.0 - fw) * top + fw * bottom
+    first_element = (wp.tid() + thread_offset) * chunk
+    for v in range(first_element, wp.min(first_element + chunk, count)):
+        p = points[v]
+        rows = mask.shape[0]
+        cols = mask.shape[1]
+        u = wp.clamp((p[0] - lower[0]) / size[0], 0.0, 1.0) * wp.float32(cols - 1)
+        w = wp.clamp((p[1] - lower[1]) / size[1], 0.0, 1.0) * wp.float32(rows - 1)
+        j0 = wp.min(wp.int32(u), cols - 1)
+        i0 = wp.min(wp.int32(w), rows - 1)
+        j1 = wp.min(j0 + 1, cols - 1)
+        i1 = wp.min(i0 + 1, rows - 1)
+        fu = u - wp.float32(j0)
+        fw = w - wp.float32(i0)
+        top = (1.0 - fu) * mask[i0, j0] + fu * mask[i0, j1]
+        bottom = (1.0 - fu) * mask[i1, j0] + fu * mask[i1, j1]
+        values_out[v] = (1.0 - fw) * top + fw * bottom

@@ -26,6 +26,10 @@ _cpu_threads: int | None = None
 _executor: ThreadPoolExecutor | None = None
 _loaded: set[tuple[int, str]] = set()
 MIN_THREAD_ELEMENTS = 1 << 15  # below this many elements per thread a launch stays on one thread
+#: Elements per thread of a chunked kernel on the CPU. Warp copies a kernel's arguments (structs of arrays,
+#: often ~1 kB) for every thread, so on the CPU each thread runs a chunk of elements; on CUDA every element
+#: is its own thread.
+CPU_CHUNK = 64
 _initialised = False
 _NP_DTYPES = {
     wp.float32: np.float32,
@@ -200,15 +204,18 @@ def set_cpu_threads(threads: int | None) -> int | None:
     return previous
 
 
-def launch(kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device) -> None:
-    """``wp.launch`` of a stepterrain kernel (``thread_offset`` first) over ``dim`` elements.
+def launch(
+    kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device, *, min_dim: int = MIN_THREAD_ELEMENTS
+) -> None:
+    """``wp.launch`` of a stepterrain kernel (``thread_offset`` first) over ``dim`` threads.
 
-    On CUDA: one launch. On the CPU: split into up to :func:`get_cpu_threads` contiguous ranges that run at
-    once, each range's results written by its own threads only (count -> scan -> emit keeps them disjoint).
+    On CUDA: one launch. On the CPU: split into up to :func:`get_cpu_threads` contiguous ranges of at least
+    ``min_dim`` threads that run at once, each range's results written by its own threads only
+    (count -> scan -> emit keeps them disjoint).
     """
     if dim <= 0:
         return
-    workers = 1 if not device.is_cpu else min(get_cpu_threads(), dim // MIN_THREAD_ELEMENTS)
+    workers = 1 if not device.is_cpu else min(get_cpu_threads(), dim // min_dim)
     if workers <= 1:
         wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=outputs, device=device)
         return
@@ -228,4 +235,14 @@ def launch(kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device
     wp.launch(kernel, dim=bounds[1], inputs=[0, *inputs], outputs=outputs, device=device)
     for future in futures:
         future.result()
+
+
+def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device) -> None:
+    """:func:`launch` of a chunked kernel over ``n`` elements.
+
+    A chunked kernel takes ``thread_offset, count, chunk`` first; thread t handles the elements
+    [(t + thread_offset)·chunk, … + chunk) ∩ [0, count). chunk is :data:`CPU_CHUNK` on the CPU, 1 on CUDA.
+    """
+    chunk = CPU_CHUNK if device.is_cpu else 1
+    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device, min_dim=max(1, MIN_THREAD_ELEMENTS // chunk))
 

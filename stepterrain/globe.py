@@ -32,7 +32,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import launch, resolve_device, scratch, to_device
+from ._device import launch_chunked, resolve_device, scratch, to_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
@@ -272,7 +272,7 @@ class Globe:
         grid.cols_valid = grid.n
         grid.heights = _node_array(n_entries, wp.float32, device)
         grid.positions = _node_array(n_entries, wp.vec3, device)
-        _launch(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
+        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
                [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
 
@@ -399,11 +399,6 @@ def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDAr
         raise DataFileError(f"the embedded global relief {_SAMPLE_FILE} cannot be read: {exc}") from exc
 
 
-#: Elements per thread on the CPU: Warp copies a kernel's arguments (structs of arrays here, ~1 kB) for every
-#: thread, so each thread runs a chunk of elements; on CUDA every element is its own thread.
-CPU_CHUNK = 64
-
-
 #: Host arrays of at least this many bytes are backed by transparent huge pages (2 MiB) where the kernel
 #: allows it: the refinement's scattered loads into 100+ MB of node arrays then miss the TLB far less, and
 #: a fresh allocation faults once per 2 MiB instead of once per 4 KiB.
@@ -427,12 +422,6 @@ def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
 
 
-def _launch(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device) -> None:
-    """``_device.launch`` of a chunked cube-sphere kernel over ``n`` elements."""
-    chunk = 1 if device.is_cuda else CPU_CHUNK
-    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device)
-
-
 def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -> Any:
     """e, r, h, α for every node copy, bottom-up level by level (paper 003 §6, §7.1)."""
     n_entries = faces * grid.n * grid.n
@@ -443,18 +432,18 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
         if depth == levels - 1 and faces == 6:  # the leaves (half of all nodes): a lean kernel in memory order
-            _launch(cube_kernels.saturate_leaf_parameters, faces * grid.n * grid.n, [grid], outputs, device)
+            launch_chunked(cube_kernels.saturate_leaf_parameters, faces * grid.n * grid.n, [grid], outputs, device)
             continue
         if depth == levels - 2 and faces == 6 and levels >= 2:  # the 2 x 2 cell centres, likewise
-            _launch(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
+            launch_chunked(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
             continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
-        _launch(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
+        launch_chunked(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
                [grid, depth, angles, params], outputs, device)
     if angles:
         nn = grid.n * grid.n
-        _launch(cube_kernels.copy_cone_angles, nn, [nn], [params.values], device)
+        launch_chunked(cube_kernels.copy_cone_angles, nn, [nn], [params.values], device)
     return params
 
 
@@ -573,7 +562,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
-        _launch(cube_kernels.count_refinement, count,
+        launch_chunked(cube_kernels.count_refinement, count,
                [grid, params, view, triangles, int(depth < levels), factors], [counts], device)
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
@@ -582,7 +571,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
-        _launch(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets],
+        launch_chunked(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets],
                [children, leaves, entries], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
@@ -593,26 +582,26 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
-    _launch(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
+    launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
     n_leaves = leaves.shape[0]
     keep = count_buffer("globe.keep", n_leaves, device)
-    _launch(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves], [keep], device)
+    launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves], [keep], device)
     offsets, n_faces = exclusive_offsets(keep, "globe.keep")
     faces_out = wp.empty(n_faces, dtype=wp.vec3i, device=device)
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)
-    _launch(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id], [faces_out, face_index],
+    launch_chunked(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id], [faces_out, face_index],
            device)
     if n_faces < n_leaves:  # culled: drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used[:n_vertices].zero_()
-        _launch(cube_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
+        launch_chunked(cube_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
         used_offsets, n_used = exclusive_offsets(used, "globe.used")
         kept_vertices = wp.empty(n_used, dtype=wp.vec3d, device=device)
         kept_entries = wp.empty(n_used, dtype=wp.int32, device=device)
-        _launch(cube_kernels.emit_used_vertices, n_vertices, [vertices, entries, used, used_offsets],
+        launch_chunked(cube_kernels.emit_used_vertices, n_vertices, [vertices, entries, used, used_offsets],
                [kept_vertices, kept_entries], device)
         remapped = wp.empty(n_faces, dtype=wp.vec3i, device=device)
-        _launch(cube_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
+        launch_chunked(cube_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
         vertices, entries, faces_out = kept_vertices, kept_entries, remapped
     v = vertices.numpy().reshape(-1, 3)
     f = faces_out.numpy().reshape(-1, 3).astype(np.int64)
@@ -737,7 +726,7 @@ def adaptive_mesh(
     grid.cols_valid = cols
     grid.heights = to_device(z.reshape(-1), wp.float32, device)
     grid.positions = wp.empty(n * n, dtype=wp.vec3, device=device)
-    _launch(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
+    launch_chunked(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device)
     if camera is not None:

@@ -28,7 +28,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import empty_shared, launch, resolve_device, scratch, to_device, to_numpy
+from ._device import empty_shared, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError
 from .kernels import stepped as stepped_kernels
 from .terrain import Terrain, as_terrain
@@ -302,9 +302,9 @@ def step_arrays(
     topo: Any = _grid_struct(terrain, device) if grid else _tin_struct(terrain, device)
     n_nodes = terrain.heights.size
     # vertex quantization (§3.2): every node's level
-    launch(
+    launch_chunked(
         stepped_kernels.quantize_levels,
-        dim=n_nodes,
+        n=n_nodes,
         inputs=[topo.heights, iso.thresholds],
         outputs=[topo.levels],
         device=device,
@@ -330,9 +330,9 @@ def step_arrays(
         )
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
-        launch(
+        launch_chunked(
             stepped_kernels.mark_tin_twins,
-            dim=len(terrain.edges),
+            n=len(terrain.edges),
             inputs=[topo, iso],
             outputs=[twins, peers],
             device=device,
@@ -342,7 +342,7 @@ def step_arrays(
 
     # pass 1: vertices (nodes, their twins, wall bottom/top pairs per edge crossing)
     counts = count_buffer("stepped.vertices", n_slots, device)
-    launch(count_vertices, dim=n_threads, inputs=count_inputs, outputs=[counts], device=device)
+    launch_chunked(count_vertices, n=n_threads, inputs=count_inputs, outputs=[counts], device=device)
     offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
 
     # pass 2: faces (terraces and walls per triangle), counted against the vertex offsets
@@ -350,9 +350,9 @@ def step_arrays(
     empty_levels = wp.empty(0, dtype=wp.int32, device=device)
     empty_walls = wp.empty(0, dtype=wp.uint8, device=device)
     face_counts = count_buffer("stepped.faces", n_cells, device)
-    launch(
+    launch_chunked(
         count_faces,
-        dim=n_cells,
+        n=n_cells,
         inputs=[topo, iso, offsets, empty_faces, empty_levels, empty_walls],
         outputs=[face_counts],
         device=device,
@@ -372,9 +372,9 @@ def step_arrays(
     sources = scratch("stepped.sources", n_src, wp.vec2i, device)
     betas = scratch("stepped.betas", n_src, wp.float32, device)
     emit_inputs = [topo, iso, offsets] + ([] if grid else [count_inputs[2]])
-    launch(
+    launch_chunked(
         emit_vertices,
-        dim=n_threads,
+        n=n_threads,
         inputs=[*emit_inputs, int(want_sources)],
         outputs=[points, step_heights, sources, betas],
         device=device,
@@ -383,9 +383,9 @@ def step_arrays(
     faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device)
     levels_np, levels_wp = empty_shared((face_count,), np.int32, wp.int32, device)
     walls_np, walls_wp = empty_shared((face_count,), np.uint8, wp.uint8, device)
-    launch(
+    launch_chunked(
         emit_faces,
-        dim=n_cells,
+        n=n_cells,
         inputs=[topo, iso, offsets, face_offsets],
         outputs=[faces_wp, levels_wp, walls_wp],
         device=device,
@@ -424,9 +424,9 @@ def blend(
         xmin, xmax, ymin, ymax = gamma.extent if gamma.extent is not None else terrain.extent
         ox, oy = terrain.local_origin
         gammas = wp.empty(n, dtype=wp.float32, device=device)
-        launch(
+        launch_chunked(
             stepped_kernels.sample_lens,
-            dim=n,
+            n=n,
             inputs=[
                 to_device(gamma.mask, wp.float32, device).reshape(gamma.mask.shape),
                 wp.vec2(xmin - ox, ymin - oy),
@@ -448,17 +448,17 @@ def blend(
     else:
         node_values = _check_gamma_values(np.asarray(gamma, dtype=np.float64), terrain.shape, "gamma")
         gammas = wp.empty(n, dtype=wp.float32, device=device)
-        launch(
+        launch_chunked(
             stepped_kernels.interpolate_node_values,
-            dim=n,
+            n=n,
             inputs=[to_device(node_values.reshape(-1), wp.float32, device), arrays.sources, arrays.betas],
             outputs=[gammas],
             device=device,
         )
     vertices_np, vertices_wp = empty_shared((n, 3), np.float64, wp.vec3d, device)
-    launch(
+    launch_chunked(
         stepped_kernels.blend_vertices,
-        dim=n,
+        n=n,
         inputs=[arrays.points, arrays.step_heights, gammas, scalar, origin],
         outputs=[vertices_wp],
         device=device,
