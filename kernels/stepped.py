@@ -977,7 +977,9 @@ def blend_vertices(
             g = gammas[v]
         p = points[v]
         z = (1.0 - g) * p[2] + g * step_heights[v]
-        vertices_out[v] = wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
+        vertices_out[v] = wp.vec3d(
+            wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2]
+        )
 
 
 @wp.kernel
