@@ -575,10 +575,34 @@ def count_grid_vertices(
     for n in range(first_element, wp.min(first_element + chunk, count)):
         i = n // hf.cols
         j = n - i * hf.cols
-        counts_out[4 * n] = grid_node_count(hf, iso, n)[0]
-        counts_out[4 * n + 1] = grid_edge_count(hf, iso, i, j, 1)
-        counts_out[4 * n + 2] = grid_edge_count(hf, iso, i, j, 2)
-        counts_out[4 * n + 3] = grid_edge_count(hf, iso, i, j, 3)
+        if hf.has_nodata == 0:
+            # every node and edge is used: plain nodes and edges within one level are counted here, without
+            # the calls (Warp passes their struct arguments by value)
+            level = hf.levels[n]
+            node = wp.int32(1)
+            if on_threshold(hf.heights[n], level, iso.thresholds) != 0:
+                node = grid_node_count(hf, iso, n)[0]
+            counts_out[4 * n] = node
+            right = wp.int32(0)
+            down = wp.int32(0)
+            diagonal = wp.int32(0)
+            if j + 1 < hf.cols:
+                if hf.levels[n + 1] != level:
+                    right = edge_vertex_count(n, n + 1, hf.heights, hf.levels, iso)
+            if i + 1 < hf.rows:
+                if hf.levels[n + hf.cols] != level:
+                    down = edge_vertex_count(n, n + hf.cols, hf.heights, hf.levels, iso)
+                if j + 1 < hf.cols:
+                    if hf.levels[n + hf.cols + 1] != level:
+                        diagonal = edge_vertex_count(n, n + hf.cols + 1, hf.heights, hf.levels, iso)
+            counts_out[4 * n + 1] = right
+            counts_out[4 * n + 2] = down
+            counts_out[4 * n + 3] = diagonal
+        else:
+            counts_out[4 * n] = grid_node_count(hf, iso, n)[0]
+            counts_out[4 * n + 1] = grid_edge_count(hf, iso, i, j, 1)
+            counts_out[4 * n + 2] = grid_edge_count(hf, iso, i, j, 2)
+            counts_out[4 * n + 3] = grid_edge_count(hf, iso, i, j, 3)
 
 
 @wp.kernel
@@ -634,6 +658,19 @@ def emit_grid_vertices(
                     n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
                     want_sources, points_out, step_heights_out, sources_out, betas_out,
                 )  # fmt: skip
+
+
+@wp.func
+def grid_flat_cell(hf: HeightField, cell: wp.int32) -> wp.int32:
+    """The level of a cell whose four nodes are finite and on one level, else -1."""
+    if hf.has_nodata != 0:
+        return -1
+    cols = hf.cols
+    n00 = cell + cell // (cols - 1)
+    level = hf.levels[n00]
+    if hf.levels[n00 + 1] != level or hf.levels[n00 + cols] != level or hf.levels[n00 + cols + 1] != level:
+        return -1
+    return level
 
 
 @wp.func
@@ -724,7 +761,10 @@ def count_grid_faces(
     """One thread per cell: count the terrace and wall faces its two triangles emit."""
     first_element = (wp.tid() + thread_offset) * chunk
     for cell in range(first_element, wp.min(first_element + chunk, count)):
-        counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+        if grid_flat_cell(hf, cell) >= 0:
+            counts_out[cell] = 2  # the common case, without the call: two terraces on one level
+        else:
+            counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
 
 
 @wp.kernel
@@ -744,8 +784,29 @@ def emit_grid_faces(
     """One thread per cell: write its terrace and wall faces from its face offset."""
     first_element = (wp.tid() + thread_offset) * chunk
     for cell in range(first_element, wp.min(first_element + chunk, count)):
-        if face_offsets[cell + 1] != face_offsets[cell]:
-            grid_cell_faces(hf, iso, offsets, cell, 1, face_offsets[cell], faces_out, face_levels_out, face_walls_out)
+        base = face_offsets[cell]
+        level = grid_flat_cell(hf, cell)
+        if level >= 0:
+            # the common case, without the call: (n00, n01, n11) and (n00, n11, n10), lifted to their level
+            cols = hf.cols
+            i = cell // (cols - 1)
+            n00 = cell + i
+            v00 = wp.int64(offsets[4 * n00])
+            v01 = wp.int64(offsets[4 * (n00 + 1)])
+            v10 = wp.int64(offsets[4 * (n00 + cols)])
+            v11 = wp.int64(offsets[4 * (n00 + cols + 1)])
+            if hf.flip != 0:
+                faces_out[base] = vec3l(v00, v11, v01)
+                faces_out[base + 1] = vec3l(v00, v10, v11)
+            else:
+                faces_out[base] = vec3l(v00, v01, v11)
+                faces_out[base + 1] = vec3l(v00, v11, v10)
+            face_levels_out[base] = level
+            face_levels_out[base + 1] = level
+            face_walls_out[base] = wp.uint8(0)
+            face_walls_out[base + 1] = wp.uint8(0)
+        elif face_offsets[cell + 1] != base:
+            grid_cell_faces(hf, iso, offsets, cell, 1, base, faces_out, face_levels_out, face_walls_out)
 
 
 # ---------------------------------------------------------------------------------------------------------
