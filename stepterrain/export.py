@@ -280,7 +280,9 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
             struct.pack("<I4s", length, b"BIN\x00"),
             *(memoryview(block).cast("B") for block in blocks),
         ]
-        tmp.write_bytes(b"".join(parts))
+        with tmp.open("wb") as fh:  # part by part: joining them first would copy the whole buffer once more
+            for part in parts:
+                fh.write(part)
         return
     data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target), include_normals=False)
     tmp.write_bytes(data)
@@ -436,10 +438,12 @@ def _target(path: str | os.PathLike[str]) -> Path:
 
 def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) -> trimesh.Trimesh:
     """A copy of ``mesh`` with JSON-safe metadata and face/vertex attributes every exporter accepts."""
-    # built field by field: Trimesh.copy() would deep-copy metadata, which may hold objects that refuse it
+    # built field by field: Trimesh.copy() would deep-copy metadata, which may hold objects that refuse it.
+    # The vertex and face arrays are shared, not copied (the writers only read them): for a large mesh a copy
+    # costs as much memory traffic as the file itself.
     out = trimesh.Trimesh(
-        vertices=np.array(mesh.vertices, dtype=np.float64),
-        faces=np.array(mesh.faces, dtype=np.int64).reshape(-1, 3),
+        vertices=np.asarray(mesh.vertices, dtype=np.float64),
+        faces=np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3),
         process=False,
         validate=False,
     )
