@@ -208,7 +208,8 @@ def plan_items(
         if tile_size is None:
             series = load_series(path) if path.suffix.lower() in (".npy", ".npz") else None
             if series is not None:
-                return _frame_items(series), _Source(series, (1.0, 1.0), (0.0, 0.0), None, path.name)
+                # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
+                return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
             raise InvalidInputError(
                 f"source {str(path)!r} is one 2-D raster: give tile_size to cut it into tiles"
             )

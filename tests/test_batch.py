@@ -16,6 +16,7 @@ from hypothesis import strategies as hst
 from stepterrain import cli
 from stepterrain.batch import MANIFEST_NAME, BatchItem, batch, plan_items, run_item
 from stepterrain.errors import DataFileError, InvalidInputError, SchedulerError
+from stepterrain.io import load_dem
 from stepterrain.mesh import boundary_edges
 from stepterrain.stepped import isovalues, stepped
 
@@ -153,6 +154,13 @@ def test_series_from_a_npy_file(tmp_path):
     np.save(tmp_path / "series.npy", frames)
     report = batch(tmp_path / "series.npy", tmp_path / "out", interval=0.25, format=".stl", scheduler="serial")
     assert report.ok and len(report.done) == 3
+    # a frame of a series file lies where load_dem puts the same 2-D file: rows run north to south
+    np.save(tmp_path / "frame.npy", frames[1])
+    single = load_dem(tmp_path / "frame.npy")
+    assert single.spacing == (1.0, -1.0)
+    frame = trimesh.load(tmp_path / "out" / "frame_0001.stl")
+    expected = stepped(single, levels=isovalues((float(frames.min()), float(frames.max())), interval=0.25))
+    np.testing.assert_allclose(frame.bounds, expected.bounds, atol=1e-5)
 
 
 # ---------------------------------------------------------------------------------------------- folders
