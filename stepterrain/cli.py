@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
-from .stepped import TARGET_STEPS, nice_interval
+from .stepped import LAND_START, TARGET_STEPS, colormap_samples, nice_interval
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
@@ -218,8 +218,8 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
 
 
 def _colormap(name: str) -> tuple[Any, float] | None:
-    """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at ('terrain'
-    skips its sea-blue first quarter); None for 'none'."""
+    """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at
+    (``stepped.LAND_START``); None for 'none'."""
     if name.lower() == "none":
         return None
     import matplotlib
@@ -229,17 +229,14 @@ def _colormap(name: str) -> tuple[Any, float] | None:
     except KeyError:
         raise InvalidInputError(f"--colormap must name a matplotlib colormap (e.g. terrain, viridis) or "
                                 f"'none'; got {name!r}") from None
-    return cmap, (0.25 if name == "terrain" else 0.0)
+    return cmap, LAND_START.get(name, 0.0)
 
 
 def _level_colors(name: str, n_levels: int) -> np.ndarray | None:
-    """(L, 4) float colors sampled from a matplotlib colormap; 'terrain' skips its sea-blue first quarter."""
-    found = _colormap(name)
-    if found is None:
+    """(L, 4) float colors of ``--colormap NAME`` (as :func:`stepterrain.stepped` samples a colormap name)."""
+    if name.lower() == "none":
         return None
-    cmap, lo = found
-    samples = np.linspace(lo, 1.0, n_levels) if n_levels > 1 else np.array([(lo + 1.0) / 2])
-    return np.asarray(cmap(samples), dtype=np.float64)
+    return colormap_samples(name, n_levels, argument="--colormap")
 
 
 def _kernel_cache_warm(device: Any) -> bool | None:

@@ -484,17 +484,30 @@ def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
     return per_node_gamma or carries_visual
 
 
+#: Where a colormap's land colours start: matplotlib's 'terrain' spends its first quarter on sea blues, which
+#: would paint the lowest land levels as water. Shared by :func:`stepped`, ``batch`` and the CLI.
+LAND_START: dict[str, float] = {"terrain": 0.25}
+
+
+def colormap_samples(name: str, n_levels: int, *, argument: str = "colors") -> NDArray[np.float64]:
+    """(L, 4) float RGBA sampled evenly from the land part of a matplotlib colormap (see :data:`LAND_START`)."""
+    import matplotlib
+
+    try:
+        cmap = matplotlib.colormaps[name]
+    except KeyError:
+        raise InvalidInputError(
+            f"{argument} must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {name!r}"
+        ) from None
+    lo = LAND_START.get(name, 0.0)
+    samples = np.linspace(lo, 1.0, n_levels) if n_levels > 1 else np.array([(lo + 1.0) / 2])
+    return np.asarray(cmap(samples), dtype=np.float64)
+
+
 def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
     """An (L, 4) uint8 table: a matplotlib colormap name, or explicit (L, 3|4) colors (0-1 floats or 0-255)."""
     if isinstance(colors, str):
-        import matplotlib
-
-        try:
-            cmap = matplotlib.colormaps[colors]
-        except KeyError as exc:
-            raise InvalidInputError(f"colors must name a matplotlib colormap (e.g. 'terrain'); got {colors!r}") from exc
-        samples = cmap(np.linspace(0.0, 1.0, n_levels) if n_levels > 1 else np.array([0.5]))
-        return (np.asarray(samples) * 255 + 0.5).astype(np.uint8)
+        return (colormap_samples(colors, n_levels) * 255 + 0.5).astype(np.uint8)
     table = np.asarray(colors)
     if table.ndim != 2 or table.shape[0] != n_levels or table.shape[1] not in (3, 4):
         raise InvalidInputError(
@@ -559,7 +572,8 @@ def stepped(
         (V, 3) world positions of the output vertices on the original surface and returns (V,) values;
         a :class:`Lens` (see :func:`circular_lens`) is a γ image over the xy extent.
     colors : str or (L, 3|4) array, optional
-        Hypsometric vertex colors by level: a matplotlib colormap name or one color per isovalue. By default
+        Hypsometric vertex colors by level: a matplotlib colormap name (sampled evenly over its land colours:
+        'terrain' without its sea-blue first quarter, see :data:`LAND_START`) or one color per isovalue. By default
         the input's vertex colors or UVs (a TIN with a visual) are carried over.
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the

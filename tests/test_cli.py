@@ -164,7 +164,28 @@ def test_a_failing_write_leaves_no_partial_output(dem, tmp_path, capsys, monkeyp
             handle.write(bytes(data)[: len(data) // 2])
         raise OSError(28, "No space left on device (simulated)")
 
+    class DiskFullHandle:  # a file opened for writing that fills the disk halfway through its first write
+        def __init__(self, handle):
+            self.handle = handle
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.handle.close()
+
+        def write(self, data):
+            self.handle.write(bytes(data)[: len(data) // 2])
+            raise OSError(28, "No space left on device (simulated)")
+
+    real_open = Path.open
+
+    def open_disk_full(self, mode="r", *args, **kwargs):
+        handle = real_open(self, mode, *args, **kwargs)
+        return DiskFullHandle(handle) if "w" in mode else handle
+
     monkeypatch.setattr(Path, "write_bytes", disk_full)
+    monkeypatch.setattr(Path, "open", open_disk_full)
     for name in ("w.stl", "w.glb"):
         code, _, err = run(capsys, "steps", dem, "--interval", "1", "-o", tmp_path / name)
         assert code == 2 and "No space left" in err and "Traceback" not in err
