@@ -489,8 +489,9 @@ def test_input_uvs_are_carried():
     np.testing.assert_allclose(carried, mesh.vertices[:, :2], atol=1e-6)
 
 
-@pytest.mark.parametrize("threads", [2, 3])
-def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, threads):
+@pytest.mark.parametrize(("threads", "chunk"), [(2, 64), (3, 64), (3, 1), (2, 7)])
+def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, threads, chunk):
+    """Neither the CPU thread count nor the elements per thread (launch_chunked) change the mesh."""
     import stepterrain._device as device_module
 
     heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=60, step=5).copy()
@@ -498,6 +499,7 @@ def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, thread
     tin = st.heightfield_mesh(heights[:30, :30])
     single = [st.stepped(heights, interval=40.0, gamma=0.8, device="cpu"), st.stepped(tin, interval=40.0)]
     monkeypatch.setattr(device_module, "MIN_THREAD_ELEMENTS", 16)
+    monkeypatch.setattr(device_module, "CPU_CHUNK", chunk)
     previous = st.set_cpu_threads(threads)
     try:
         split = [st.stepped(heights, interval=40.0, gamma=0.8, device="cpu"), st.stepped(tin, interval=40.0)]
