@@ -745,6 +745,9 @@ class CloseUpLayer:
                                metadata={"closeup": self.index, "source_faces": self.source_faces}, **kwargs)
 
 
+_ROI_UPLOADS: dict[Any, Any] = {}
+
+
 def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.float64]],
                    local_origin: tuple[float, float], device: wp.Device) -> closeup_kernels.CloseUpLayers:
     ox, oy = local_origin
@@ -754,16 +757,24 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
     layers = closeup_kernels.CloseUpLayers()
     local = np.stack([unshift @ m @ shift for m in matrices]) if matrices else np.zeros((0, 4, 4))
     layers.matrices = wp.array(local.astype(np.float32), dtype=wp.mat44, device=device)
-    boxes = np.array([[b[0] - ox, b[2] - oy, b[1] - ox, b[3] - oy] for b in (cu.roi.box for cu in closeups)],
-                     dtype=np.float32).reshape(-1, 4)
-    layers.boxes = wp.array(boxes, dtype=wp.vec4, device=device)
-    sizes = [cu.roi.mask.size for cu in closeups]
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32) if sizes else np.zeros(0, np.int32)
-    info = np.array([[s, *cu.roi.mask.shape] for s, cu in zip(starts, closeups, strict=True)],
-                    dtype=np.int32).reshape(-1, 3)
-    layers.mask_info = wp.array(info, dtype=wp.vec3i, device=device)
-    packed = np.concatenate([cu.roi.mask.reshape(-1) for cu in closeups]) if closeups else np.zeros(1, np.float32)
-    layers.masks = wp.array(packed.astype(np.float32), dtype=wp.float32, device=device)
+    # the ROI boxes and masks (read-only arrays of frozen ROIs) are uploaded once per set of ROIs
+    rois = tuple(cu.roi for cu in closeups)
+    key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
+    kept = _ROI_UPLOADS.get(key)
+    if kept is None or any(a is not b for a, b in zip(kept[0], rois, strict=True)):
+        boxes = np.array([[b[0] - ox, b[2] - oy, b[1] - ox, b[3] - oy] for b in (r.box for r in rois)],
+                         dtype=np.float32).reshape(-1, 4)
+        sizes = [r.mask.size for r in rois]
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32) if sizes else np.zeros(0, np.int32)
+        info = np.array([[s, *r.mask.shape] for s, r in zip(starts, rois, strict=True)],
+                        dtype=np.int32).reshape(-1, 3)
+        packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
+        kept = (rois, wp.array(boxes, dtype=wp.vec4, device=device), wp.array(info, dtype=wp.vec3i, device=device),
+                wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
+        if len(_ROI_UPLOADS) >= 16:
+            _ROI_UPLOADS.clear()
+        _ROI_UPLOADS[key] = kept
+    layers.boxes, layers.mask_info, layers.masks = kept[1], kept[2], kept[3]
     return layers
 
 
@@ -900,8 +911,26 @@ def closeup_layers(
     _, n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
-
     layers = _layers_struct(items, matrices, t.local_origin, device)
+    ox, oy = t.local_origin
+
+    # which faces and vertices a close-up keeps depends on its ROI mask and its source geometry only, not on M:
+    # the cull (count -> scan -> emit) runs once per set of sources and ROIs; a frame that moves or turns the
+    # close-ups transforms the kept vertices only (the same kernel on the same points: the same V_C)
+    rois = tuple(cu.roi for cu in items)
+    cull_key = ("closeup", "cull", joined_key, tuple(id(r) for r in rois))
+    cull = cache.get(cull_key)
+    if cull is not None and cull[0] is joined and all(a is b for a, b in zip(cull[1], rois, strict=True)):
+        kept_points_wp, kept_layer_wp, parts = cull[2]
+        vertex_count = kept_points_wp.shape[0]
+        vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
+        factors_out = wp.empty(max(vertex_count, 1), dtype=wp.float32, device=device)
+        launch(closeup_kernels.transform_closeup_vertices, vertex_count, [kept_points_wp, kept_layer_wp, layers],
+               [vertices_out, factors_out], device)
+        v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
+        return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
+                for k, ((vs, ve), static) in enumerate(parts)]
+
     transformed = wp.empty(n, dtype=wp.vec3, device=device)
     factors = wp.empty(n, dtype=wp.float32, device=device)
     launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
@@ -923,36 +952,46 @@ def closeup_layers(
            [vertices_out, factors_out, vertex_source], device)
     launch(closeup_kernels.renumber_faces, face_count, [voffsets], [faces_out], device)
 
-    v_all = vertices_out.numpy()[:vertex_count].astype(np.float64)
-    m_all = factors_out.numpy()[:vertex_count]
-    src_v = vertex_source.numpy()[:vertex_count]
+    v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
+    m_all = factors_out.numpy()[:vertex_count].copy()
+    src_v = vertex_source.numpy()[:vertex_count].copy()
     f_all = faces_out.numpy()[:face_count].astype(np.int64)
     src_f = face_source.numpy()[:face_count]
-    ox, oy = t.local_origin
-    v_all[:, 0] += ox
-    v_all[:, 1] += oy
-    originals = points[src_v].astype(np.float64) + [ox, oy, 0.0]
+    kept_points = points[src_v]
+    originals = kept_points.astype(np.float64) + [ox, oy, 0.0]
     v_layer = point_layer[src_v]
     f_layer = point_layer[faces[src_f, 0]] if face_count else np.zeros(0, np.int32)
     v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
     f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
     face_start = np.concatenate([[0], np.cumsum(n_faces)[:-1]])
-    out = []
+    parts = []
     for k, src in enumerate(sources):
         vs, ve, fs, fe = v_bounds[k], v_bounds[k + 1], f_bounds[k], f_bounds[k + 1]
         local_src = src_v[vs:ve] - point_start[k]
-        out.append(CloseUpLayer(
-            index=k,
-            vertices=v_all[vs:ve],
-            faces=f_all[fs:fe] - vs,
-            mask_factor=m_all[vs:ve],
-            original=originals[vs:ve],
-            source_faces=src.source_faces[src_f[fs:fe] - face_start[k]],
-            colors=None if src.colors is None else src.colors[local_src],
-            scalars=None if src.scalars is None else src.scalars[local_src],
-            matrix=matrices[k],
-        ))
-    return out
+        static = {
+            "faces": f_all[fs:fe] - vs,
+            "mask_factor": m_all[vs:ve],
+            "original": originals[vs:ve],
+            "source_faces": src.source_faces[src_f[fs:fe] - face_start[k]],
+            "colors": None if src.colors is None else src.colors[local_src],
+            "scalars": None if src.scalars is None else src.scalars[local_src],
+        }
+        for value in static.values():  # shared by the layers of every frame of these close-ups: read-only
+            if value is not None:
+                value.setflags(write=False)
+        parts.append(((vs, ve), static))
+    kept = (wp.array(kept_points, dtype=wp.vec3, device=device), wp.array(v_layer, dtype=wp.int32, device=device))
+    cache[cull_key] = (joined, rois, (*kept, parts))
+    return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
+            for k, ((vs, ve), static) in enumerate(parts)]
+
+
+def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float64]:
+    """Local float32 points (N, 3) as world float64 (the local origin added back to x and y)."""
+    v = local.astype(np.float64)
+    v[:, 0] += ox
+    v[:, 1] += oy
+    return v
 
 
 # ------------------------------------------------------------------------------------------------ anchors
