@@ -1321,26 +1321,50 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
+def _derived(memo: dict, key: tuple, refs: tuple, build: Any) -> Any:
+    """``build()`` memoized under ``key`` while the objects ``refs`` (read-only arrays of the kept cull) are
+    the same objects: the M-independent parts of a frame (face split, vertex colors) are made once."""
+    entry = memo.get(key)
+    if entry is not None and all(a is b for a, b in zip(entry[0], refs, strict=True)):
+        return entry[1]
+    value = build()
+    if len(memo) >= 64:
+        memo.clear()
+    memo[key] = (refs, value)
+    return value
+
+
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
                     strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
                     ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
     """The camera-independent part of a frame: per close-up its anchor mesh (values t), its content mesh
-    (rgb) or billboard."""
+    (rgb) or billboard. What does not depend on M (which faces are content, the vertex colors) is kept per
+    culled layer (the read-only arrays :func:`closeup_layers` shares between frames)."""
     anchors: dict[int, Any] = {}
     contents: dict[int, Any] = {}
     boards: dict[int, Any] = {}
+    memo = t.cached(("closeup", "derived"), dict)
+    overview = (scalars, cmap, image_texture)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         show_anchor = cu.active or cu.anchor.inactive != "hidden"
         f = layer.faces
-        if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
-            full = layer.mask_factor >= 1.0
-            inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
-            content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
-            content_vertices = layer.vertices
-        else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
+        shared = not (f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable)
+
+        def split(f=f, layer=layer, cu=cu):
+            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+                full = layer.mask_factor >= 1.0
+                inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
+                return f[inner], f[~inner]
+            # the close-up up to its outline, fully transformed; the strip is the whole anchor
             seen = layer.mask_factor >= cu.anchor.outline_level
             inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
-            content_faces, band_faces = layer.faces[inner], layer.faces[:0]
+            return f[inner], f[:0]
+
+        key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
+        content_faces, band_faces = (_derived(memo, key, (f, layer.mask_factor), split) if shared else split())
+        if cu.anchor.band:
+            content_vertices = layer.vertices
+        else:
             content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
         if show_anchor:
             nv = len(strip.vertices)
@@ -1355,7 +1379,13 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
             if len(faces):
                 anchors[k] = (vertices, faces, {"values": tvals})
         if len(content_faces):
-            rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
+            if shared and cu.texture is None and image_texture is None:  # textures may change in place: not kept
+                key = ("rgb", id(layer.original), id(layer.colors), id(layer.scalars), cu.scalars, cu.cmap, scalars,
+                       cmap)
+                rgb = _derived(memo, key, (layer.original, layer.colors, layer.scalars),
+                               lambda layer=layer, cu=cu: _layer_rgb(t, layer, cu, overview))
+            else:
+                rgb = _layer_rgb(t, layer, cu, overview)
             if cu.view == "billboard":
                 top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
                 boards[k] = (content_vertices, content_faces, rgb, top)
