@@ -1076,6 +1076,49 @@ def anchor_strips(
     pivot = _pivot_z(t)
     matrices = [cu.matrix(pivot, time=time) for cu in items]
     ox, oy = t.local_origin
+    # the outline laid on the terrain, its uploads and the fence faces depend on the ROIs and anchor styles only,
+    # not on M: made once per set of them; a frame emits the strip vertices (and their t) for its M
+    cache = t.cached(("closeup", "anchor-static"), dict)
+    rois = tuple(cu.roi for cu in items)
+    key = (tuple(id(r) for r in rois), tuple(cu.anchor for cu in items), str(device))
+    static = cache.get(key)
+    if static is None or any(a is not b for a, b in zip(static[0], rois, strict=True)):
+        static = (rois, _anchor_static(t, items, device))
+        if len(cache) >= 16:
+            cache.clear()
+        cache[key] = static
+    fixed = static[1]
+    if fixed is None:
+        rung_count = max(cu.anchor.rungs for cu in items)
+        return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
+                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
+                for k, cu in enumerate(items)]
+    total, rung_count, outline_layer, outline_wp, layer_wp, tf, v_bounds, layer_faces = fixed
+    layers = _layers_struct(items, matrices, t.local_origin, device)
+    lengths = wp.empty(total, dtype=wp.float32, device=device)
+    launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
+    max_len = np.zeros(len(items), np.float32)
+    np.maximum.at(max_len, outline_layer, lengths.numpy())
+    nv = total * (rung_count + 1)
+    vertices = wp.empty(nv, dtype=wp.vec3, device=device)
+    distance = wp.empty(nv, dtype=wp.float32, device=device)
+    opacity = wp.empty(nv, dtype=wp.float32, device=device)
+    launch(closeup_kernels.emit_anchor_vertices, total,
+           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, rung_count],
+           [vertices, distance, opacity], device)
+    v = _world(vertices.numpy(), ox, oy)
+    d, a = distance.numpy(), opacity.numpy()
+    return [
+        AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], layer_faces[k], d[v_bounds[k]: v_bounds[k + 1]],
+                    a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k), rung_count, float(max_len[k]))
+        for k, cu in enumerate(items)
+    ]
+
+
+def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> tuple[Any, ...] | None:
+    """The M-independent part of :func:`anchor_strips`: the outline points on the terrain (uploaded), their
+    close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline."""
+    ox, oy = t.local_origin
     points, layer_ids, segments, rungs = [], [], [], []
     total = 0
     for k, cu in enumerate(items):  # per close-up (a handful) and per outline line
@@ -1089,47 +1132,29 @@ def anchor_strips(
         rungs.append(cu.anchor.rungs)
     rung_count = max(rungs)  # one launch: every strip gets the largest rung count
     if total == 0:
-        return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
-                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
-                for k, cu in enumerate(items)]
+        return None
     xy = np.concatenate(points)
     z = _heights_at(t, xy)
     outline = np.column_stack([xy[:, 0] - ox, xy[:, 1] - oy, z]).astype(np.float32)
     outline_layer = np.concatenate(layer_ids)
     seg = np.concatenate(segments).astype(np.int32)
-
-    layers = _layers_struct(items, matrices, t.local_origin, device)
-    outline_wp = to_device(outline, wp.vec3, device)
-    layer_wp = to_device(outline_layer, wp.int32, device)
-    lengths = wp.empty(total, dtype=wp.float32, device=device)
-    launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
-    max_len = np.zeros(len(items), np.float32)
-    np.maximum.at(max_len, outline_layer, lengths.numpy())
-    nv = total * (rung_count + 1)
-    vertices = wp.empty(nv, dtype=wp.vec3, device=device)
-    distance = wp.empty(nv, dtype=wp.float32, device=device)
-    opacity = wp.empty(nv, dtype=wp.float32, device=device)
-    launch(closeup_kernels.emit_anchor_vertices, total,
-           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), _transfer_struct(items, device),
-            rung_count], [vertices, distance, opacity], device)
     faces = wp.empty(len(seg) * 2 * rung_count, dtype=wp.vec3i, device=device)
     launch(closeup_kernels.emit_anchor_faces, len(seg), [to_device(seg, wp.vec2i, device), rung_count], [faces],
            device)
-    v = vertices.numpy().astype(np.float64)
-    v[:, 0] += ox
-    v[:, 1] += oy
     f = faces.numpy().astype(np.int64)
-    d, a = distance.numpy(), opacity.numpy()
     v_layer = np.repeat(outline_layer, rung_count + 1)
     f_layer = np.repeat(outline_layer[seg[:, 0]], 2 * rung_count)
     v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
     f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
-    return [
-        AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k],
-                    d[v_bounds[k]: v_bounds[k + 1]], a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k),
-                    rung_count, float(max_len[k]))
-        for k, cu in enumerate(items)
-    ]
+    layer_faces = []
+    for k in range(len(items)):
+        fk = f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k]
+        fk.setflags(write=False)
+        layer_faces.append(fk)
+    outline_wp = wp.array(outline, dtype=wp.vec3, device=device)
+    layer_wp = wp.array(outline_layer, dtype=wp.int32, device=device)
+    return (total, rung_count, outline_layer, outline_wp, layer_wp, _transfer_struct(items, device), v_bounds,
+            layer_faces)
 
 
 # ------------------------------------------------------------------------------------------------ compositing
