@@ -1248,9 +1248,13 @@ def _composite_boxed(
     for c, alpha, z, depth_test, writes_depth, (r, col) in work:
         box = (slice(r - top, r - top + alpha.shape[0]), slice(col - left, col - left + alpha.shape[1]))
         a = alpha * (z < depth[box]) if depth_test else alpha
-        color[box] += a[..., None] * (c.astype(np.float32) - color[box])
+        target = color[box]
+        # target += a·(c − target), in place (the same float32 operations, without full-size temporaries)
+        step = np.subtract(c, target, dtype=np.float32)
+        np.multiply(step, a[..., None], out=step)
+        target += step
         if writes_depth:
-            depth[box] = np.where(a > 0, z, depth[box])
+            np.copyto(depth[box], z, where=a > 0)
     result[union] = np.clip(np.rint(color), 0, 255).astype(np.uint8)
     return result
 
