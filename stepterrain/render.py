@@ -562,12 +562,13 @@ class LayeredRenderer:
         return local
 
     def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,
-                 values: ArrayLike | None = None, key: Any = None) -> None:
+                 values: ArrayLike | None = None, key: Any = None, bounds: ArrayLike | None = None) -> None:
         """Upload (or replace) the mesh ``name``: lit, with vertex ``rgb`` (V, 3) uint8 or the default tan,
-        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin."""
+        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin.
+        ``bounds``: the (2, 3) bounds of the finite vertices when the caller already has them."""
         vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        bounds = _finite_bounds(vertices)
+        bounds = _finite_bounds(vertices) if bounds is None else np.asarray(bounds, dtype=np.float64)
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
         lo, hi = bounds
@@ -727,8 +728,10 @@ class LayeredRenderer:
         part of the full-window images (outside it a layer has no fragment), so the read-backs and the
         compositing cost follow the close-up's size on screen, not the window's."""
         rects: dict[int, tuple[int, int, int, int] | None] = {}
-        for k, (vertices, _faces, _kw) in layers.items():
-            rects[k] = self.screen_rect(vertices) if merge else None
+        boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
+                 for k, (v, _f, _kw) in layers.items()}
+        for k in layers:
+            rects[k] = self._box_rect(boxes[k]) if merge else None
         groups: list[list[int]] = []
         for k, (_v, _f, kw) in layers.items():
             kind = "values" if kw.get("values") is not None else "rgb" if kw.get("rgb") is not None else "plain"
@@ -750,9 +753,9 @@ class LayeredRenderer:
             if len(group) == 1:
                 k = group[0]
                 vertices, faces, kw = layers[k]
-                self.set_mesh(f"{prefix}{k}", vertices, faces, **kw)
+                self.set_mesh(f"{prefix}{k}", vertices, faces, bounds=boxes[k], **kw)
                 if crop:
-                    rect = rects[k] if rects[k] is not None else self.screen_rect(vertices)
+                    rect = rects[k] if rects[k] is not None else self._box_rect(boxes[k])
                     rect = rect if rect is not None else (0, 0, *self.size)
                     out[k] = (*self.render([f"{prefix}{k}"], rect=rect), rect)
                 else:
@@ -764,7 +767,10 @@ class LayeredRenderer:
             kw0 = layers[group[0]][2]
             kw = {name: np.concatenate([np.asarray(layers[k][2][name]) for k in group])
                   for name in ("values", "rgb") if kw0.get(name) is not None}
-            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, **kw)
+            parts = [boxes[k] for k in group if boxes[k] is not None]
+            union = (np.array([np.min([b[0] for b in parts], axis=0), np.max([b[1] for b in parts], axis=0)])
+                     if parts else None)
+            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, bounds=union, **kw)
             if crop:  # read back the union of the group's boxes, then cut each layer's own box out of it
                 union = (min(rects[k][0] for k in group), min(rects[k][1] for k in group),
                          max(rects[k][2] for k in group), max(rects[k][3] for k in group))
@@ -788,7 +794,10 @@ class LayeredRenderer:
         """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
         vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
         behind the camera."""
-        box = _finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3))
+        return self._box_rect(_finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3)))
+
+    def _box_rect(self, box: NDArray[np.float64] | None) -> tuple[int, int, int, int] | None:
+        """:meth:`screen_rect` of the vertex bounds ``box`` (2, 3) (None: no finite vertex)."""
         if box is None:
             return None
         pixels = self.project(_box_corners(box))
