@@ -1578,10 +1578,11 @@ def render_closeups(
                 tex, z, rect = anchor_images[k]
                 color = _closeup_color(cu, k)
                 anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
-                covered = z < np.inf
-                alpha = np.zeros(z.shape, np.float32)  # the transfer function per pixel, at its t
-                alpha[covered] = np.interp(tex[covered, 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
-                                           cu.anchor.table)
+                # the transfer function per pixel at its t (a gray level: one table entry per level, the same
+                # np.interp values as per pixel), 0 where the anchor has no fragment
+                levels = np.interp(np.arange(256) / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
+                                   cu.anchor.table).astype(np.float32)
+                alpha = np.where(z < np.inf, levels[tex[..., 0]], np.float32(0))
                 if not cu.active and cu.anchor.inactive == "faint":
                     alpha *= 0.25
                 passes.append((np.asarray(anchor_color, np.float32) * 255, alpha, z, True, False, rect))
