@@ -1357,6 +1357,9 @@ def _derived(memo: dict, key: tuple, refs: tuple, build: Any) -> Any:
     if entry is not None and all(a is b for a, b in zip(entry[0], refs, strict=True)):
         return entry[1]
     value = build()
+    for array in value if isinstance(value, tuple) else (value,):
+        if isinstance(array, np.ndarray):  # shared by the frames that find it here
+            array.setflags(write=False)
     if len(memo) >= 64:
         memo.clear()
     memo[key] = (refs, value)
