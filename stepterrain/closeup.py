@@ -1249,13 +1249,18 @@ def _composite_boxed(
         box = (slice(r - top, r - top + alpha.shape[0]), slice(col - left, col - left + alpha.shape[1]))
         a = alpha * (z < depth[box]) if depth_test else alpha
         target = color[box]
-        # target += a·(c − target), in place (the same float32 operations, without full-size temporaries)
-        step = np.subtract(c, target, dtype=np.float32)
-        np.multiply(step, a[..., None], out=step)
-        target += step
+        # target += a·(c − target): the same float32 operations, channel by channel (NumPy's inner loops then
+        # run along the rows, not over 3 channels) and in place
+        step = np.empty(a.shape, np.float32)
+        for ch in range(3):
+            np.subtract(c[ch] if c.ndim == 1 else c[..., ch], target[..., ch], out=step, dtype=np.float32)
+            step *= a
+            target[..., ch] += step
         if writes_depth:
             np.copyto(depth[box], z, where=a > 0)
-    result[union] = np.clip(np.rint(color), 0, 255).astype(np.uint8)
+    np.rint(color, out=color)
+    np.clip(color, 0, 255, out=color)
+    result[union] = color  # float32 -> uint8 as astype(np.uint8)
     return result
 
 
