@@ -573,7 +573,15 @@ class CloseUp:
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
         """M as a 4 x 4 matrix on world column vectors (x, y, z, 1); see :func:`closeup_matrix`."""
-        return closeup_matrix(self.roi.center, pivot_z, self.rotation[0], self.turn(time), self.scale, self.offset)
+        key = (float(pivot_z), float(time))
+        cache = self.__dict__.setdefault("_matrices", {})  # a frame asks several times (layers, anchors, memo)
+        m = cache.get(key)
+        if m is None:
+            if len(cache) >= 8:
+                cache.clear()
+            m = cache[key] = closeup_matrix(self.roi.center, pivot_z, self.rotation[0], self.turn(time), self.scale,
+                                            self.offset)
+        return m.copy()
 
 
 def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float, scale: ArrayLike,
@@ -921,12 +929,11 @@ def closeup_layers(
     cull_key = ("closeup", "cull", joined_key, tuple(id(r) for r in rois))
     cull = cache.get(cull_key)
     if cull is not None and cull[0] is joined and all(a is b for a, b in zip(cull[1], rois, strict=True)):
-        kept_points_wp, kept_layer_wp, parts = cull[2]
+        kept_points_wp, kept_layer_wp, kept_factors_wp, parts = cull[2]
         vertex_count = kept_points_wp.shape[0]
         vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
-        factors_out = wp.empty(max(vertex_count, 1), dtype=wp.float32, device=device)
-        launch(closeup_kernels.transform_closeup_vertices, vertex_count, [kept_points_wp, kept_layer_wp, layers],
-               [vertices_out, factors_out], device)
+        launch(closeup_kernels.transform_kept_vertices, vertex_count,
+               [kept_points_wp, kept_layer_wp, kept_factors_wp, layers.matrices], [vertices_out], device)
         v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
         return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
                 for k, ((vs, ve), static) in enumerate(parts)]
@@ -980,7 +987,8 @@ def closeup_layers(
             if value is not None:
                 value.setflags(write=False)
         parts.append(((vs, ve), static))
-    kept = (wp.array(kept_points, dtype=wp.vec3, device=device), wp.array(v_layer, dtype=wp.int32, device=device))
+    kept = (wp.array(kept_points, dtype=wp.vec3, device=device), wp.array(v_layer, dtype=wp.int32, device=device),
+            wp.array(m_all, dtype=wp.float32, device=device))
     cache[cull_key] = (joined, rois, (*kept, parts))
     return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
             for k, ((vs, ve), static) in enumerate(parts)]
@@ -1402,7 +1410,8 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
         if cu.anchor.band:
             content_vertices = layer.vertices
         else:
-            content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+            content_vertices = layer.original @ layer.matrix[:3, :3].T
+            content_vertices += layer.matrix[:3, 3]
         if show_anchor:
             nv = len(strip.vertices)
             if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
