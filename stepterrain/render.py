@@ -551,6 +551,9 @@ class LayeredRenderer:
             )
         plotter.disable_anti_aliasing()
         plotter.set_background(self.background)
+        # passes are read back from the buffer they were drawn into (``_read``); nothing is shown, so no frame
+        # needs presenting: without the swap VTK skips copying every pass to the display framebuffer
+        plotter.render_window.SwapBuffersOff()
         return plotter
 
     # -------------------------------------------------------------------------- meshes
