@@ -5,19 +5,19 @@
    disc covering 5% of the terrain. Contenders:
    - ``culled``: ``stepterrain.closeup.render_closeups`` (each close-up cut to its ROI window, culled to the
      faces with m > 0 by count -> scan -> emit), the overview kept uploaded between frames (one
-     ``LayeredRenderer``), as in an interactive loop, in three configurations taken frame by frame in turn:
-     "moving" (``reuse_closeups=False``: every frame transforms, culls, renders and composites everything: the
-     goal's whole pipeline; what does not depend on M, the cull by ROI and the vertex colors, is kept per
-     ROI), "close-ups still" (the camera moves over still close-ups: their transformed geometry is kept,
-     ``reuse_closeups=True``), "camera still" (the overview pass is kept, ``reuse_overview=True``) and
-     "turning" (every close-up turns 3.6° per frame: a new M, so a new transform and a re-upload of the
-     close-up and anchor points every frame); wall time and the CPU time (``time.process_time``, all
-     threads, Mesa's included) of each frame;
+     ``LayeredRenderer``), as in an interactive loop, in four configurations taken frame by frame in turn:
+     "moving" (``reuse_closeups=False``: every frame transforms, renders and composites everything: the
+     goal's whole pipeline; what does not depend on M, the cull by ROI, the anchor outline and the vertex
+     colors, is kept per ROI since commit 6f7b847), "close-ups still" (the camera moves over still
+     close-ups: their transformed geometry is kept, ``reuse_closeups=True``), "camera still" (the overview
+     pass is kept, ``reuse_overview=True``) and "turning" (every close-up turns 3.6° per frame: a new M, so
+     a new transform and a re-upload of the close-up and anchor points every frame); wall time and the CPU
+     time (``time.process_time``, all threads, Mesa's included) of each frame;
    - ``full``: the paper's SPFR cost model (its Table I and §IV.C): every close-up pass renders the whole
      terrain, transformed with C = m·M + (1 − m)·I in NumPy (faces with m = 0 discarded only after the
      transform, as a fragment shader would), the same compositing.
    Reported: best and median of ``--repeat`` frames, the stages, and the ratio to the 0-close-up frame
-   (goal: 4 close-ups <= 1.5x), by wall time and by best CPU time.
+   (goal: 4 close-ups <= 1.5x), by wall time and by CPU time, best and median.
 2. The transform kernel's vertices per second on one core (``transform_closeup_vertices`` over every DEM
    vertex) against the same transform in NumPy (vectorised: bilinear mask lookup, then V_O + m·(M·V_O − V_O)).
 3. ``closeup_layers`` (transform + cull, end to end) for ROIs of 1%, 5%, 20% and 100% of the terrain: the
