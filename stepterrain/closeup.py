@@ -731,6 +731,8 @@ class CloseUpLayer:
     ``mask_factor`` (V,) holds m per vertex, ``original`` (V, 3) V_O, ``faces`` index ``vertices``;
     ``source_faces`` (F,) are the faces' indices in the overview mesh (``Terrain.mesh()``; grid face
     2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None.
+    Everything but ``vertices`` and ``matrix`` depends on the ROI only and is shared, read-only, by the layers
+    of every call with the same ROI objects (the cull is kept; only M is applied again).
     """
 
     index: int
