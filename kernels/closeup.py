@@ -121,6 +121,22 @@ def transform_closeup_vertices(
     vertices_out[i] = apply(blend_transform(m, layers.matrices[k]), p)
 
 
+@wp.kernel
+def transform_kept_vertices(
+    thread_offset: wp.int32,
+    points: wp.array[wp.vec3],
+    point_layer: wp.array[wp.int32],
+    factors: wp.array[wp.float32],
+    matrices: wp.array[wp.mat44],
+    # outputs
+    vertices_out: wp.array[wp.vec3],
+):
+    """One thread per kept vertex whose m is known (it depends on the ROI only): V_C = (m·M + (1 − m)·I)·V_O,
+    the same operations as :func:`transform_closeup_vertices` after its mask lookup."""
+    i = wp.tid() + thread_offset
+    vertices_out[i] = apply(blend_transform(factors[i], matrices[point_layer[i]]), points[i])
+
+
 @wp.func
 def face_in_roi(face: wp.vec3i, factors: wp.array[wp.float32]) -> wp.int32:
     """1 when a corner of the face has m > 0 (the face belongs to the close-up), else 0."""

@@ -573,7 +573,15 @@ class CloseUp:
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
         """M as a 4 x 4 matrix on world column vectors (x, y, z, 1); see :func:`closeup_matrix`."""
-        return closeup_matrix(self.roi.center, pivot_z, self.rotation[0], self.turn(time), self.scale, self.offset)
+        key = (float(pivot_z), float(time))
+        cache = self.__dict__.setdefault("_matrices", {})  # a frame asks several times (layers, anchors, memo)
+        m = cache.get(key)
+        if m is None:
+            if len(cache) >= 8:
+                cache.clear()
+            m = cache[key] = closeup_matrix(self.roi.center, pivot_z, self.rotation[0], self.turn(time), self.scale,
+                                            self.offset)
+        return m.copy()
 
 
 def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float, scale: ArrayLike,
@@ -723,6 +731,8 @@ class CloseUpLayer:
     ``mask_factor`` (V,) holds m per vertex, ``original`` (V, 3) V_O, ``faces`` index ``vertices``;
     ``source_faces`` (F,) are the faces' indices in the overview mesh (``Terrain.mesh()``; grid face
     2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None.
+    Everything but ``vertices`` and ``matrix`` depends on the ROI only and is shared, read-only, by the layers
+    of every call with the same ROI objects (the cull is kept; only M is applied again).
     """
 
     index: int
@@ -745,6 +755,9 @@ class CloseUpLayer:
                                metadata={"closeup": self.index, "source_faces": self.source_faces}, **kwargs)
 
 
+_ROI_UPLOADS: dict[Any, Any] = {}
+
+
 def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.float64]],
                    local_origin: tuple[float, float], device: wp.Device) -> closeup_kernels.CloseUpLayers:
     ox, oy = local_origin
@@ -754,16 +767,24 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
     layers = closeup_kernels.CloseUpLayers()
     local = np.stack([unshift @ m @ shift for m in matrices]) if matrices else np.zeros((0, 4, 4))
     layers.matrices = wp.array(local.astype(np.float32), dtype=wp.mat44, device=device)
-    boxes = np.array([[b[0] - ox, b[2] - oy, b[1] - ox, b[3] - oy] for b in (cu.roi.box for cu in closeups)],
-                     dtype=np.float32).reshape(-1, 4)
-    layers.boxes = wp.array(boxes, dtype=wp.vec4, device=device)
-    sizes = [cu.roi.mask.size for cu in closeups]
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32) if sizes else np.zeros(0, np.int32)
-    info = np.array([[s, *cu.roi.mask.shape] for s, cu in zip(starts, closeups, strict=True)],
-                    dtype=np.int32).reshape(-1, 3)
-    layers.mask_info = wp.array(info, dtype=wp.vec3i, device=device)
-    packed = np.concatenate([cu.roi.mask.reshape(-1) for cu in closeups]) if closeups else np.zeros(1, np.float32)
-    layers.masks = wp.array(packed.astype(np.float32), dtype=wp.float32, device=device)
+    # the ROI boxes and masks (read-only arrays of frozen ROIs) are uploaded once per set of ROIs
+    rois = tuple(cu.roi for cu in closeups)
+    key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
+    kept = _ROI_UPLOADS.get(key)
+    if kept is None or any(a is not b for a, b in zip(kept[0], rois, strict=True)):
+        boxes = np.array([[b[0] - ox, b[2] - oy, b[1] - ox, b[3] - oy] for b in (r.box for r in rois)],
+                         dtype=np.float32).reshape(-1, 4)
+        sizes = [r.mask.size for r in rois]
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int32) if sizes else np.zeros(0, np.int32)
+        info = np.array([[s, *r.mask.shape] for s, r in zip(starts, rois, strict=True)],
+                        dtype=np.int32).reshape(-1, 3)
+        packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
+        kept = (rois, wp.array(boxes, dtype=wp.vec4, device=device), wp.array(info, dtype=wp.vec3i, device=device),
+                wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
+        if len(_ROI_UPLOADS) >= 16:
+            _ROI_UPLOADS.clear()
+        _ROI_UPLOADS[key] = kept
+    layers.boxes, layers.mask_info, layers.masks = kept[1], kept[2], kept[3]
     return layers
 
 
@@ -900,8 +921,25 @@ def closeup_layers(
     _, n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
-
     layers = _layers_struct(items, matrices, t.local_origin, device)
+    ox, oy = t.local_origin
+
+    # which faces and vertices a close-up keeps depends on its ROI mask and its source geometry only, not on M:
+    # the cull (count -> scan -> emit) runs once per set of sources and ROIs; a frame that moves or turns the
+    # close-ups transforms the kept vertices only (the same kernel on the same points: the same V_C)
+    rois = tuple(cu.roi for cu in items)
+    cull_key = ("closeup", "cull", joined_key, tuple(id(r) for r in rois))
+    cull = cache.get(cull_key)
+    if cull is not None and cull[0] is joined and all(a is b for a, b in zip(cull[1], rois, strict=True)):
+        kept_points_wp, kept_layer_wp, kept_factors_wp, parts = cull[2]
+        vertex_count = kept_points_wp.shape[0]
+        vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
+        launch(closeup_kernels.transform_kept_vertices, vertex_count,
+               [kept_points_wp, kept_layer_wp, kept_factors_wp, layers.matrices], [vertices_out], device)
+        v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
+        return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
+                for k, ((vs, ve), static) in enumerate(parts)]
+
     transformed = wp.empty(n, dtype=wp.vec3, device=device)
     factors = wp.empty(n, dtype=wp.float32, device=device)
     launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
@@ -923,36 +961,47 @@ def closeup_layers(
            [vertices_out, factors_out, vertex_source], device)
     launch(closeup_kernels.renumber_faces, face_count, [voffsets], [faces_out], device)
 
-    v_all = vertices_out.numpy()[:vertex_count].astype(np.float64)
-    m_all = factors_out.numpy()[:vertex_count]
-    src_v = vertex_source.numpy()[:vertex_count]
+    v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
+    m_all = factors_out.numpy()[:vertex_count].copy()
+    src_v = vertex_source.numpy()[:vertex_count].copy()
     f_all = faces_out.numpy()[:face_count].astype(np.int64)
     src_f = face_source.numpy()[:face_count]
-    ox, oy = t.local_origin
-    v_all[:, 0] += ox
-    v_all[:, 1] += oy
-    originals = points[src_v].astype(np.float64) + [ox, oy, 0.0]
+    kept_points = points[src_v]
+    originals = kept_points.astype(np.float64) + [ox, oy, 0.0]
     v_layer = point_layer[src_v]
     f_layer = point_layer[faces[src_f, 0]] if face_count else np.zeros(0, np.int32)
     v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
     f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
     face_start = np.concatenate([[0], np.cumsum(n_faces)[:-1]])
-    out = []
+    parts = []
     for k, src in enumerate(sources):
         vs, ve, fs, fe = v_bounds[k], v_bounds[k + 1], f_bounds[k], f_bounds[k + 1]
         local_src = src_v[vs:ve] - point_start[k]
-        out.append(CloseUpLayer(
-            index=k,
-            vertices=v_all[vs:ve],
-            faces=f_all[fs:fe] - vs,
-            mask_factor=m_all[vs:ve],
-            original=originals[vs:ve],
-            source_faces=src.source_faces[src_f[fs:fe] - face_start[k]],
-            colors=None if src.colors is None else src.colors[local_src],
-            scalars=None if src.scalars is None else src.scalars[local_src],
-            matrix=matrices[k],
-        ))
-    return out
+        static = {
+            "faces": f_all[fs:fe] - vs,
+            "mask_factor": m_all[vs:ve],
+            "original": originals[vs:ve],
+            "source_faces": src.source_faces[src_f[fs:fe] - face_start[k]],
+            "colors": None if src.colors is None else src.colors[local_src],
+            "scalars": None if src.scalars is None else src.scalars[local_src],
+        }
+        for value in static.values():  # shared by the layers of every frame of these close-ups: read-only
+            if value is not None:
+                value.setflags(write=False)
+        parts.append(((vs, ve), static))
+    kept = (wp.array(kept_points, dtype=wp.vec3, device=device), wp.array(v_layer, dtype=wp.int32, device=device),
+            wp.array(m_all, dtype=wp.float32, device=device))
+    cache[cull_key] = (joined, rois, (*kept, parts))
+    return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
+            for k, ((vs, ve), static) in enumerate(parts)]
+
+
+def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float64]:
+    """Local float32 points (N, 3) as world float64 (the local origin added back to x and y)."""
+    v = local.astype(np.float64)
+    v[:, 0] += ox
+    v[:, 1] += oy
+    return v
 
 
 # ------------------------------------------------------------------------------------------------ anchors
@@ -1037,6 +1086,49 @@ def anchor_strips(
     pivot = _pivot_z(t)
     matrices = [cu.matrix(pivot, time=time) for cu in items]
     ox, oy = t.local_origin
+    # the outline laid on the terrain, its uploads and the fence faces depend on the ROIs and anchor styles only,
+    # not on M: made once per set of them; a frame emits the strip vertices (and their t) for its M
+    cache = t.cached(("closeup", "anchor-static"), dict)
+    rois = tuple(cu.roi for cu in items)
+    key = (tuple(id(r) for r in rois), tuple(cu.anchor for cu in items), str(device))
+    static = cache.get(key)
+    if static is None or any(a is not b for a, b in zip(static[0], rois, strict=True)):
+        static = (rois, _anchor_static(t, items, device))
+        if len(cache) >= 16:
+            cache.clear()
+        cache[key] = static
+    fixed = static[1]
+    if fixed is None:
+        rung_count = max(cu.anchor.rungs for cu in items)
+        return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
+                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
+                for k, cu in enumerate(items)]
+    total, rung_count, outline_layer, outline_wp, layer_wp, tf, v_bounds, layer_faces = fixed
+    layers = _layers_struct(items, matrices, t.local_origin, device)
+    lengths = wp.empty(total, dtype=wp.float32, device=device)
+    launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
+    max_len = np.zeros(len(items), np.float32)
+    np.maximum.at(max_len, outline_layer, lengths.numpy())
+    nv = total * (rung_count + 1)
+    vertices = wp.empty(nv, dtype=wp.vec3, device=device)
+    distance = wp.empty(nv, dtype=wp.float32, device=device)
+    opacity = wp.empty(nv, dtype=wp.float32, device=device)
+    launch(closeup_kernels.emit_anchor_vertices, total,
+           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, rung_count],
+           [vertices, distance, opacity], device)
+    v = _world(vertices.numpy(), ox, oy)
+    d, a = distance.numpy(), opacity.numpy()
+    return [
+        AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], layer_faces[k], d[v_bounds[k]: v_bounds[k + 1]],
+                    a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k), rung_count, float(max_len[k]))
+        for k, cu in enumerate(items)
+    ]
+
+
+def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> tuple[Any, ...] | None:
+    """The M-independent part of :func:`anchor_strips`: the outline points on the terrain (uploaded), their
+    close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline."""
+    ox, oy = t.local_origin
     points, layer_ids, segments, rungs = [], [], [], []
     total = 0
     for k, cu in enumerate(items):  # per close-up (a handful) and per outline line
@@ -1050,47 +1142,29 @@ def anchor_strips(
         rungs.append(cu.anchor.rungs)
     rung_count = max(rungs)  # one launch: every strip gets the largest rung count
     if total == 0:
-        return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
-                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
-                for k, cu in enumerate(items)]
+        return None
     xy = np.concatenate(points)
     z = _heights_at(t, xy)
     outline = np.column_stack([xy[:, 0] - ox, xy[:, 1] - oy, z]).astype(np.float32)
     outline_layer = np.concatenate(layer_ids)
     seg = np.concatenate(segments).astype(np.int32)
-
-    layers = _layers_struct(items, matrices, t.local_origin, device)
-    outline_wp = to_device(outline, wp.vec3, device)
-    layer_wp = to_device(outline_layer, wp.int32, device)
-    lengths = wp.empty(total, dtype=wp.float32, device=device)
-    launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
-    max_len = np.zeros(len(items), np.float32)
-    np.maximum.at(max_len, outline_layer, lengths.numpy())
-    nv = total * (rung_count + 1)
-    vertices = wp.empty(nv, dtype=wp.vec3, device=device)
-    distance = wp.empty(nv, dtype=wp.float32, device=device)
-    opacity = wp.empty(nv, dtype=wp.float32, device=device)
-    launch(closeup_kernels.emit_anchor_vertices, total,
-           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), _transfer_struct(items, device),
-            rung_count], [vertices, distance, opacity], device)
     faces = wp.empty(len(seg) * 2 * rung_count, dtype=wp.vec3i, device=device)
     launch(closeup_kernels.emit_anchor_faces, len(seg), [to_device(seg, wp.vec2i, device), rung_count], [faces],
            device)
-    v = vertices.numpy().astype(np.float64)
-    v[:, 0] += ox
-    v[:, 1] += oy
     f = faces.numpy().astype(np.int64)
-    d, a = distance.numpy(), opacity.numpy()
     v_layer = np.repeat(outline_layer, rung_count + 1)
     f_layer = np.repeat(outline_layer[seg[:, 0]], 2 * rung_count)
     v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
     f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
-    return [
-        AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k],
-                    d[v_bounds[k]: v_bounds[k + 1]], a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k),
-                    rung_count, float(max_len[k]))
-        for k, cu in enumerate(items)
-    ]
+    layer_faces = []
+    for k in range(len(items)):
+        fk = f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k]
+        fk.setflags(write=False)
+        layer_faces.append(fk)
+    outline_wp = wp.array(outline, dtype=wp.vec3, device=device)
+    layer_wp = wp.array(outline_layer, dtype=wp.int32, device=device)
+    return (total, rung_count, outline_layer, outline_wp, layer_wp, _transfer_struct(items, device), v_bounds,
+            layer_faces)
 
 
 # ------------------------------------------------------------------------------------------------ compositing
@@ -1184,10 +1258,19 @@ def _composite_boxed(
     for c, alpha, z, depth_test, writes_depth, (r, col) in work:
         box = (slice(r - top, r - top + alpha.shape[0]), slice(col - left, col - left + alpha.shape[1]))
         a = alpha * (z < depth[box]) if depth_test else alpha
-        color[box] += a[..., None] * (c.astype(np.float32) - color[box])
+        target = color[box]
+        # target += a·(c − target): the same float32 operations, channel by channel (NumPy's inner loops then
+        # run along the rows, not over 3 channels) and in place
+        step = np.empty(a.shape, np.float32)
+        for ch in range(3):
+            np.subtract(c[ch] if c.ndim == 1 else c[..., ch], target[..., ch], out=step, dtype=np.float32)
+            step *= a
+            target[..., ch] += step
         if writes_depth:
-            depth[box] = np.where(a > 0, z, depth[box])
-    result[union] = np.clip(np.rint(color), 0, 255).astype(np.uint8)
+            np.copyto(depth[box], z, where=a > 0)
+    np.rint(color, out=color)
+    np.clip(color, 0, 255, out=color)
+    result[union] = color  # float32 -> uint8 as astype(np.uint8)
     return result
 
 
@@ -1282,27 +1365,55 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
+def _derived(memo: dict, key: tuple, refs: tuple, build: Any) -> Any:
+    """``build()`` memoized under ``key`` while the objects ``refs`` (read-only arrays of the kept cull) are
+    the same objects: the M-independent parts of a frame (face split, vertex colors) are made once."""
+    entry = memo.get(key)
+    if entry is not None and all(a is b for a, b in zip(entry[0], refs, strict=True)):
+        return entry[1]
+    value = build()
+    for array in value if isinstance(value, tuple) else (value,):
+        if isinstance(array, np.ndarray):  # shared by the frames that find it here
+            array.setflags(write=False)
+    if len(memo) >= 64:
+        memo.clear()
+    memo[key] = (refs, value)
+    return value
+
+
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
                     strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
                     ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
     """The camera-independent part of a frame: per close-up its anchor mesh (values t), its content mesh
-    (rgb) or billboard."""
+    (rgb) or billboard. What does not depend on M (which faces are content, the vertex colors) is kept per
+    culled layer (the read-only arrays :func:`closeup_layers` shares between frames)."""
     anchors: dict[int, Any] = {}
     contents: dict[int, Any] = {}
     boards: dict[int, Any] = {}
+    memo = t.cached(("closeup", "derived"), dict)
+    overview = (scalars, cmap, image_texture)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         show_anchor = cu.active or cu.anchor.inactive != "hidden"
         f = layer.faces
-        if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
-            full = layer.mask_factor >= 1.0
-            inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
-            content_faces, band_faces = layer.faces[inner], layer.faces[~inner]
-            content_vertices = layer.vertices
-        else:  # the close-up up to its outline, fully transformed; the strip is the whole anchor
+        shared = not (f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable)
+
+        def split(f=f, layer=layer, cu=cu):
+            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+                full = layer.mask_factor >= 1.0
+                inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
+                return f[inner], f[~inner]
+            # the close-up up to its outline, fully transformed; the strip is the whole anchor
             seen = layer.mask_factor >= cu.anchor.outline_level
             inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
-            content_faces, band_faces = layer.faces[inner], layer.faces[:0]
-            content_vertices = layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+            return f[inner], f[:0]
+
+        key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
+        content_faces, band_faces = (_derived(memo, key, (f, layer.mask_factor), split) if shared else split())
+        if cu.anchor.band:
+            content_vertices = layer.vertices
+        else:
+            content_vertices = layer.original @ layer.matrix[:3, :3].T
+            content_vertices += layer.matrix[:3, 3]
         if show_anchor:
             nv = len(strip.vertices)
             if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
@@ -1316,7 +1427,13 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
             if len(faces):
                 anchors[k] = (vertices, faces, {"values": tvals})
         if len(content_faces):
-            rgb = _layer_rgb(t, layer, cu, (scalars, cmap, image_texture))
+            if shared and cu.texture is None and image_texture is None:  # textures may change in place: not kept
+                key = ("rgb", id(layer.original), id(layer.colors), id(layer.scalars), cu.scalars, cu.cmap, scalars,
+                       cmap)
+                rgb = _derived(memo, key, (layer.original, layer.colors, layer.scalars),
+                               lambda layer=layer, cu=cu: _layer_rgb(t, layer, cu, overview))
+            else:
+                rgb = _layer_rgb(t, layer, cu, overview)
             if cu.view == "billboard":
                 top = strip.vertices[strip.rungs:: strip.rungs + 1] if len(strip.vertices) else layer.vertices
                 boards[k] = (content_vertices, content_faces, rgb, top)
@@ -1480,10 +1597,11 @@ def render_closeups(
                 tex, z, rect = anchor_images[k]
                 color = _closeup_color(cu, k)
                 anchor_color = _gray(color) if (not cu.active and cu.anchor.inactive == "gray") else color
-                covered = z < np.inf
-                alpha = np.zeros(z.shape, np.float32)  # the transfer function per pixel, at its t
-                alpha[covered] = np.interp(tex[covered, 0] / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
-                                           cu.anchor.table)
+                # the transfer function per pixel at its t (a gray level: one table entry per level, the same
+                # np.interp values as per pixel), 0 where the anchor has no fragment
+                levels = np.interp(np.arange(256) / 255.0, np.linspace(0, 1, len(cu.anchor.table)),
+                                   cu.anchor.table).astype(np.float32)
+                alpha = np.where(z < np.inf, levels[tex[..., 0]], np.float32(0))
                 if not cu.active and cu.anchor.inactive == "faint":
                     alpha *= 0.25
                 passes.append((np.asarray(anchor_color, np.float32) * 255, alpha, z, True, False, rect))

@@ -493,6 +493,11 @@ def _finite_bounds(vertices: NDArray[np.float64]) -> NDArray[np.float64] | None:
     return _finite_bounds(vertices[finite])
 
 
+def _frozen(array: Any) -> bool:
+    """True for a read-only NumPy array (whose contents a caller promises not to change)."""
+    return isinstance(array, np.ndarray) and not array.flags.writeable
+
+
 def _gray_levels(values: ArrayLike) -> NDArray[np.uint8]:
     """(V,) values in [0, 1] as (V, 3) uint8 gray levels (read back from the red channel)."""
     gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
@@ -528,6 +533,7 @@ class LayeredRenderer:
         self._versions: dict[str, int] = {}
         self._view_version = 0
         self._passes: dict[tuple[str, ...], Any] = {}
+        self._joined: dict[Any, Any] = {}
         self._keys: dict[str, Any] = {}
         self._bounds: dict[str, NDArray[np.float64]] = {}
         self._local_bounds: dict[str, NDArray[np.float64]] = {}
@@ -545,6 +551,9 @@ class LayeredRenderer:
             )
         plotter.disable_anti_aliasing()
         plotter.set_background(self.background)
+        # passes are read back from the buffer they were drawn into (``_read``); nothing is shown, so no frame
+        # needs presenting: without the swap VTK skips copying every pass to the display framebuffer
+        plotter.render_window.SwapBuffersOff()
         return plotter
 
     # -------------------------------------------------------------------------- meshes
@@ -562,12 +571,14 @@ class LayeredRenderer:
         return local
 
     def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,
-                 values: ArrayLike | None = None, key: Any = None) -> None:
+                 values: ArrayLike | None = None, key: Any = None, bounds: ArrayLike | None = None) -> None:
         """Upload (or replace) the mesh ``name``: lit, with vertex ``rgb`` (V, 3) uint8 or the default tan,
-        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin."""
+        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin.
+        ``bounds``: the (2, 3) bounds of the finite vertices when the caller already has them."""
+        faces_in, rgb_in = (a if _frozen(a) else None for a in (faces, rgb))  # read-only inputs: kept by identity
         vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        bounds = _finite_bounds(vertices)
+        bounds = _finite_bounds(vertices) if bounds is None else np.asarray(bounds, dtype=np.float64)
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
         lo, hi = bounds
@@ -579,22 +590,26 @@ class LayeredRenderer:
         self._versions[name] = self._versions.get(name, 0) + 1
         kind = ("values" if values is not None else "rgb" if rgb is not None else "plain", len(local))
         previous = self._meshes.get(name)
-        if previous is not None and previous[1] == kind and np.array_equal(previous[2], faces):
-            # same topology (a close-up that moved or turned): update the points and colors in place
+        if previous is not None and previous[1] == kind and (
+                (faces_in is not None and previous[3] is faces_in) or np.array_equal(previous[2], faces)):
+            # same topology (a close-up that moved or turned): update the points and colors in place (the same
+            # read-only faces or colors object as last time is known equal without comparing)
             poly = previous[0]
             if not np.array_equal(poly.points, local):  # unchanged points stay uploaded
                 poly.points = local
-            colors = (_gray_levels(values) if values is not None else
-                      np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8) if rgb is not None else None)
-            if colors is not None and not np.array_equal(poly.point_data["rgb"], colors):
-                poly.point_data["rgb"] = colors
+            if not (rgb_in is not None and previous[4] is rgb_in):
+                colors = (_gray_levels(values) if values is not None else
+                          np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8) if rgb is not None else None)
+                if colors is not None and not np.array_equal(poly.point_data["rgb"], colors):
+                    poly.point_data["rgb"] = colors
+            self._meshes[name] = (poly, kind, previous[2], faces_in, rgb_in)
             self._keys[name] = key
             self._bounds[name] = np.array([lo, hi])
             self._local_bounds[name] = local_box
             return
         self.remove(name)
         poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
-        self._meshes[name] = (poly, kind, faces.copy())
+        self._meshes[name] = (poly, kind, faces.copy(), faces_in, rgb_in)
         kwargs: dict[str, Any] = {}
         if values is not None:
             poly.point_data["rgb"] = _gray_levels(values)
@@ -727,8 +742,10 @@ class LayeredRenderer:
         part of the full-window images (outside it a layer has no fragment), so the read-backs and the
         compositing cost follow the close-up's size on screen, not the window's."""
         rects: dict[int, tuple[int, int, int, int] | None] = {}
-        for k, (vertices, _faces, _kw) in layers.items():
-            rects[k] = self.screen_rect(vertices) if merge else None
+        boxes = {k: _finite_bounds(np.asarray(v, dtype=np.float64).reshape(-1, 3))  # once per layer
+                 for k, (v, _f, _kw) in layers.items()}
+        for k in layers:
+            rects[k] = self._box_rect(boxes[k]) if merge else None
         groups: list[list[int]] = []
         for k, (_v, _f, kw) in layers.items():
             kind = "values" if kw.get("values") is not None else "rgb" if kw.get("rgb") is not None else "plain"
@@ -750,9 +767,9 @@ class LayeredRenderer:
             if len(group) == 1:
                 k = group[0]
                 vertices, faces, kw = layers[k]
-                self.set_mesh(f"{prefix}{k}", vertices, faces, **kw)
+                self.set_mesh(f"{prefix}{k}", vertices, faces, bounds=boxes[k], **kw)
                 if crop:
-                    rect = rects[k] if rects[k] is not None else self.screen_rect(vertices)
+                    rect = rects[k] if rects[k] is not None else self._box_rect(boxes[k])
                     rect = rect if rect is not None else (0, 0, *self.size)
                     out[k] = (*self.render([f"{prefix}{k}"], rect=rect), rect)
                 else:
@@ -760,11 +777,32 @@ class LayeredRenderer:
                 continue
             counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
             vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
-            faces = np.concatenate([np.asarray(layers[k][1], np.int64) + counts[i] for i, k in enumerate(group)])
             kw0 = layers[group[0]][2]
-            kw = {name: np.concatenate([np.asarray(layers[k][2][name]) for k in group])
-                  for name in ("values", "rgb") if kw0.get(name) is not None}
-            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, **kw)
+            # the joined faces and colors of read-only parts are kept while the parts are the same objects
+            refs = tuple((layers[k][1], layers[k][2].get("rgb")) for k in group)
+            kept = self._joined.get((prefix, tuple(group)))
+            if kept is not None and len(kept[0]) == len(refs) and all(
+                    a[0] is b[0] and a[1] is b[1] for a, b in zip(kept[0], refs, strict=True)):
+                faces, joined_rgb = kept[1], kept[2]
+            else:
+                faces = np.concatenate([np.asarray(layers[k][1], np.int64) + counts[i] for i, k in enumerate(group)])
+                joined_rgb = (np.concatenate([np.asarray(layers[k][2]["rgb"]) for k in group])
+                              if kw0.get("rgb") is not None else None)
+                if all(_frozen(f) and (c is None or _frozen(c)) for f, c in refs):
+                    if len(self._joined) >= 16:
+                        self._joined.clear()
+                    faces.setflags(write=False)
+                    if joined_rgb is not None:
+                        joined_rgb.setflags(write=False)
+                    self._joined[(prefix, tuple(group))] = (refs, faces, joined_rgb)
+            kw = {"values": np.concatenate([np.asarray(layers[k][2]["values"]) for k in group])} \
+                if kw0.get("values") is not None else {}
+            if joined_rgb is not None:
+                kw["rgb"] = joined_rgb
+            parts = [boxes[k] for k in group if boxes[k] is not None]
+            union = (np.array([np.min([b[0] for b in parts], axis=0), np.max([b[1] for b in parts], axis=0)])
+                     if parts else None)
+            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, bounds=union, **kw)
             if crop:  # read back the union of the group's boxes, then cut each layer's own box out of it
                 union = (min(rects[k][0] for k in group), min(rects[k][1] for k in group),
                          max(rects[k][2] for k in group), max(rects[k][3] for k in group))
@@ -788,7 +826,10 @@ class LayeredRenderer:
         """Pixel box (col0, row0, col1, row1), end exclusive, holding every fragment of a mesh with these
         vertices, from the projected corners of their bounds (padded by 2 pixels); None when a corner lies
         behind the camera."""
-        box = _finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3))
+        return self._box_rect(_finite_bounds(np.asarray(vertices, dtype=np.float64).reshape(-1, 3)))
+
+    def _box_rect(self, box: NDArray[np.float64] | None) -> tuple[int, int, int, int] | None:
+        """:meth:`screen_rect` of the vertex bounds ``box`` (2, 3) (None: no finite vertex)."""
         if box is None:
             return None
         pixels = self.project(_box_corners(box))

@@ -456,3 +456,31 @@ def test_bad_input_raises_clear_errors():
     with pytest.raises(InvalidInputError, match="CloseUp"):
         closeup_layers(t, [roi], device="cpu")
     assert max_closeups((1280, 720)) == 16 and max_closeups((128, 64)) == 2 and max_closeups((40, 40)) == 0
+
+
+def test_a_kept_cull_gives_the_layers_and_anchors_of_a_fresh_one(device):
+    """The cull by ROI, the outline on the terrain and the fence faces do not depend on M: calls with the same
+    ROIs keep them and only apply M; the layers and strips equal those of new ROI objects, bit for bit."""
+    from dataclasses import replace
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, -2.0), origin=(500.0, 800.0))
+    cus = [CloseUp(ROI.circle((540.0, 770.0), 15.0), scale=2.0, offset=(0.0, 0.0, 60.0), spin=(0.2, 5)),
+           CloseUp(ROI.rounded_rectangle((520.0, 750.0), (20.0, 14.0)), rotation=(0.2, -0.4), scale=(1.0, 1.5, 0.0),
+                   offset=(-10.0, 5.0, 40.0), anchor=AnchorStyle("ends", band=True))]
+    closeup_layers(t, cus, device=device)
+    anchor_strips(t, cus, device=device)
+    for time in (0.0, 0.7, 2.3):
+        kept = closeup_layers(t, cus, time=time, device=device)
+        kept_strips = anchor_strips(t, cus, time=time, device=device)
+        fresh_cus = [replace(cu, roi=replace(cu.roi)) for cu in cus]
+        fresh = closeup_layers(t, fresh_cus, time=time, device=device)
+        fresh_strips = anchor_strips(t, fresh_cus, time=time, device=device)
+        for a, b in zip(kept, fresh, strict=True):
+            for name in ("vertices", "faces", "mask_factor", "original", "source_faces", "matrix"):
+                np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+            assert not a.faces.flags.writeable and not a.mask_factor.flags.writeable  # shared between frames
+        for a, b in zip(kept_strips, fresh_strips, strict=True):
+            for name in ("vertices", "faces", "distance", "opacity"):
+                np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+            assert a.max_length == b.max_length
+    assert np.abs(kept[0].vertices - closeup_layers(t, cus, time=0.0, device=device)[0].vertices).max() > 1.0

@@ -340,3 +340,24 @@ def test_examples_write_their_pictures(name, tmp_path):
     assert picture.shape[:2] == (128, 192) and picture.std() > 5
     if name == "closeup_mappings":
         assert (tmp_path / "spin.gif").exists()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_turning_closeups_on_a_kept_renderer_equal_fresh_renders():
+    """Frames that re-use the kept cull, colors, joined faces and uploads of earlier frames (a new M each frame)
+    equal renders from scratch, pixel for pixel."""
+    t = terrain()
+    cus = [CloseUp(ROI.circle((1008.0 + 24 * k, 2030.0), 6.0), scale=1.2, offset=(0.0, 0.0, 30.0),
+                   spin=(0.1, 5), anchor=AnchorStyle(style, band=k == 1))
+           for k, style in enumerate(["opaque", "ends", "linear"])]
+    box = [(1000, 2000, 0), (1080, 2064, 120)]
+    with render.LayeredRenderer(window_size=(320, 200)) as renderer:
+        kept = [render_closeups(t, cus, window_size=(320, 200), bounds=box, renderer=renderer, time=time,
+                                reuse_closeups=False, device="cpu") for time in (0.0, 1.5, 3.0, 1.5)]
+    for time, image in zip((0.0, 1.5, 3.0, 1.5), kept, strict=True):
+        fresh_cus = [CloseUp(ROI.circle(cu.roi.center, 6.0), scale=1.2, offset=(0.0, 0.0, 30.0), spin=(0.1, 5),
+                             anchor=cu.anchor) for cu in cus]
+        fresh = render_closeups(t, fresh_cus, window_size=(320, 200), bounds=box, time=time, device="cpu")
+        np.testing.assert_array_equal(image, fresh)
+    assert np.abs(kept[0].astype(int) - kept[1].astype(int)).sum() > 0
