@@ -505,6 +505,7 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     step_b = (a[0] - c[0]) * sign
     step_c = (b[0] - a[0]) * sign
     worst = wp.float64(0.0)
+    dz = (wp.float64(step_a) * za + wp.float64(step_b) * zb + wp.float64(step_c) * zc) * inv_signed
     if j1 - j0 <= SMALL_TRIANGLE:
         # small triangles (most of them: the deep levels): scan the bounding box with the exact inside test
         # instead of narrowing each row by divisions (the same nodes, the same values)
@@ -535,12 +536,12 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
         wa += lo * step_a
         wb += lo * step_b
         wc += lo * step_c
+        # the plane along the row, stepped: off the per-node formula by a few ulp (~1e-13 m), far inside
+        # the 2^-22 relative margin of e
+        z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
         for k in range(lo, hi + 1):
-            z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
             worst = wp.max(worst, wp.abs(wp.float64(grid.heights[row + k]) - z))
-            wa += step_a
-            wb += step_b
-            wc += step_c
+            z += dz
     return worst
 
 
@@ -699,6 +700,63 @@ def saturate_cell_centres(
             if i == n:
                 i = 0
                 face += 1
+
+
+@wp.kernel
+def saturate_planar_fine(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    centres: wp.int32,  # 0: the deepest level (s = 1 axis nodes, (i + j) odd); 1: the 2 x 2 cell centres
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """The planar case's two deepest levels in memory order (like :func:`saturate_leaf_parameters` on the
+    cube): the same formulas as :func:`saturate_node_parameters` (true error of both triangles of the diamond
+    by :func:`small_triangle_error`, r over the four leaf children of a cell centre), so bit-identical to it,
+    without its slot decoding, padding slots and children loop of the leaves."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    i = first / n
+    j = first - i * n
+    for entry in range(first, last):
+        hyp = wp.vec2i(0, 0)
+        if centres == 0:
+            if ((i + j) & 1) != 0:
+                hyp = wp.vec2i(i & 1, j & 1)  # i odd: along i (kind 2); j odd: along j (kind 3)
+        elif (i & j & 1) != 0:
+            hyp = wp.vec2i(1, 1)
+            if (((i >> 1) + (j >> 1)) & 1) != 0:
+                hyp = wp.vec2i(1, -1)
+        if hyp[0] != 0 or hyp[1] != 0:
+            a = wp.vec2i(i + hyp[0], j + hyp[1])
+            b = wp.vec2i(i - hyp[0], j - hyp[1])
+            apex = wp.vec2i(i + hyp[1], j - hyp[0])
+            mate = wp.vec2i(i - hyp[1], j + hyp[0])
+            e = wp.max(small_triangle_error(grid, 0, a, b, apex), small_triangle_error(grid, 0, a, b, mate))
+            out = wp.vec4(0.0, 0.0, 0.0, 0.0)
+            if centres != 0:
+                v = bounds.to_vec3d(grid.positions[entry])
+                r = wp.float64(0.0)
+                for k in range(4):
+                    d = child_offset(0, 1, k)
+                    child = entry + d[0] * n + d[1]
+                    q = values_out[child]
+                    e = wp.max(e, wp.float64(q[0]))
+                    r = wp.max(r, wp.length(v - bounds.to_vec3d(grid.positions[child])) + wp.float64(q[1]))
+                scale = wp.length(v) * ABSOLUTE_MARGIN
+                out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+                out[2] = wp.float32(wp.float64(0.0) * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[0] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
+            values_out[entry] = out
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
 
 
 @wp.kernel

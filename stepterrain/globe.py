@@ -437,6 +437,10 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
         if depth == levels - 2 and faces == 6 and levels >= 2:  # the 2 x 2 cell centres, likewise
             launch_chunked(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
             continue
+        if depth >= levels - 2 and faces == 1:  # planar: the two deepest levels likewise
+            launch_chunked(cube_kernels.saturate_planar_fine, grid.n * grid.n, [grid, int(depth == levels - 2)],
+                           outputs, device)
+            continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
         launch_chunked(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
