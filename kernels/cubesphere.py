@@ -47,8 +47,6 @@ FACE_FRAMES: Final = ((1, 2, 3), (3, -2, 1), (-3, -1, 2), (-1, -3, -2), (-2, 3, 
 #: Saturation margin added per level to r, h and α (paper 003 §6: "eine kleine Korrektur ... 10^-6").
 RELATIVE_MARGIN = wp.constant(wp.float64(2.0**-20))
 ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
-#: Planar true error: triangles at most this many columns wide scan their bounding box (no per-row divisions).
-SMALL_TRIANGLE = wp.constant(8)
 
 
 @wp.struct
@@ -506,22 +504,6 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     step_c = (b[0] - a[0]) * sign
     worst = wp.float64(0.0)
     dz = (wp.float64(step_a) * za + wp.float64(step_b) * zb + wp.float64(step_c) * zc) * inv_signed
-    if j1 - j0 <= SMALL_TRIANGLE:
-        # small triangles (most of them: the deep levels): scan the bounding box with the exact inside test
-        # instead of narrowing each row by divisions (the same nodes, the same values)
-        for i in range(i0, i1 + 1):
-            wa = ((b[0] - i) * (c[1] - j0) - (b[1] - j0) * (c[0] - i)) * sign
-            wb = ((c[0] - i) * (a[1] - j0) - (c[1] - j0) * (a[0] - i)) * sign
-            wc = ((a[0] - i) * (b[1] - j0) - (a[1] - j0) * (b[0] - i)) * sign
-            row = base + i * grid.n + j0
-            for k in range(j1 - j0 + 1):
-                if wa >= 0 and wb >= 0 and wc >= 0:
-                    z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
-                    worst = wp.max(worst, wp.abs(wp.float64(grid.heights[row + k]) - z))
-                wa += step_a
-                wb += step_b
-                wc += step_c
-        return worst
     for i in range(i0, i1 + 1):
         wa = ((b[0] - i) * (c[1] - j0) - (b[1] - j0) * (c[0] - i)) * sign
         wb = ((c[0] - i) * (a[1] - j0) - (c[1] - j0) * (a[0] - i)) * sign
@@ -536,6 +518,8 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
         wa += lo * step_a
         wb += lo * step_b
         wc += lo * step_c
+        if lo > hi:
+            continue
         # the plane along the row, stepped: off the per-node formula by a few ulp (~1e-13 m), far inside
         # the 2^-22 relative margin of e
         z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
