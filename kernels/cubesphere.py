@@ -266,19 +266,23 @@ def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
 
 
 @wp.func
-def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
-    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
-    pole, a blend towards the pole value.
-
-    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
-    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
-    own error; the same integer point gives the same value on every seam copy."""
-    rows = source.elevation.shape[0]
-    half_pi = wp.float64(1.5707963267948966)
+def longitude_line(source: LatLonGrid, point: wp.vec3i) -> wp.vec4:
+    """(c0, c1, t, ρ) of a node: the column weights of its longitude (:func:`column_weights`) and its float32
+    distance ρ from the polar axis. On the four equatorial faces both depend on one face-local coordinate only,
+    so :func:`resample_latlon` reads them from a table of those lines (:func:`longitude_lines`)."""
     x = wp.float32(point[0])
     y = wp.float32(point[1])
-    lat = wp.float64(fast_atan2f(wp.float32(point[2]), wp.sqrt(x * x + y * y)))
     cw = column_weights(source, wp.float64(fast_atan2f(y, x)))
+    return wp.vec4(cw[0], cw[1], cw[2], wp.sqrt(x * x + y * y))
+
+
+@wp.func
+def sample_latlon_line(source: LatLonGrid, point: wp.vec3i, line: wp.vec4) -> wp.float32:
+    """:func:`sample_latlon` with the node's :func:`longitude_line` given."""
+    rows = source.elevation.shape[0]
+    half_pi = wp.float64(1.5707963267948966)
+    lat = wp.float64(fast_atan2f(wp.float32(point[2]), line[3]))
+    cw = wp.vec3(line[0], line[1], line[2])
     fr = (source.lat0 - lat) * source.inv_dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
@@ -300,6 +304,53 @@ def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
     return (1.0 - t) * sample_row(source, r0, cw) + t * sample_row(source, r0 + 1, cw)
 
 
+@wp.func
+def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
+    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
+    pole, a blend towards the pole value.
+
+    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
+    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
+    own error; the same integer point gives the same value on every seam copy."""
+    return sample_latlon_line(source, point, longitude_line(source, point))
+
+
+@wp.func
+def line_axis(face: wp.int32) -> wp.int32:
+    """0: the face's longitude lines are its rows (its local x axis runs along ±z), 1: its columns, -1: a polar
+    face (its normal is ±z)."""
+    if frame_rotate(face, wp.vec3i(1, 0, 0))[2] != 0:
+        return 0
+    if frame_rotate(face, wp.vec3i(0, 1, 0))[2] != 0:
+        return 1
+    return -1
+
+
+@wp.kernel
+def longitude_lines(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    source: LatLonGrid,
+    # outputs
+    lines_out: wp.array[wp.vec4],  # per face and k < n: :func:`longitude_line` of row k or column k
+):
+    """One thread per (face, k): the longitude line k of an equatorial face (unused on the polar faces)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for slot in range(first, last):
+        face = slot / grid.n
+        k = slot - face * grid.n
+        axis = line_axis(face)
+        line = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if axis == 0:
+            line = longitude_line(source, cube_point(face, k, 0, grid.cells))
+        elif axis == 1:
+            line = longitude_line(source, cube_point(face, 0, k, grid.cells))
+        lines_out[slot] = line
+
+
 @wp.kernel
 def resample_latlon(
     thread_offset: wp.int32,
@@ -308,12 +359,15 @@ def resample_latlon(
     grid: CubeSphereGrid,
     source: LatLonGrid,
     exaggeration: wp.float32,
+    lines: wp.array[wp.vec4],  # of longitude_lines
     # outputs
     heights_out: wp.array[wp.float32],
     positions_out: wp.array[wp.vec3],
 ):
     """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
-    projected position v = (R + z) · w / ||w|| rounded to float32 (§4)."""
+    projected position v = (R + z) · w / ||w|| rounded to float32 (§4). On the equatorial faces the longitude's
+    column weights and ρ come from the node's longitude line (the same float32 values, so the same results as
+    :func:`sample_latlon`; one atan2 per node instead of two)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:
@@ -328,10 +382,18 @@ def resample_latlon(
     x_axis = frame_rotate(face, wp.vec3i(1, 0, 0))
     y_axis = frame_rotate(face, wp.vec3i(0, 1, 0))
     normal = frame_rotate(face, wp.vec3i(0, 0, 1))
+    axis = line_axis(face)
     for entry in range(first, last):
         point = (2 * j - grid.cells) * x_axis + (2 * i - grid.cells) * y_axis + grid.cells * normal
         direction = node_direction(point)
-        z = exaggeration * sample_latlon(source, point)
+        line = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if axis == 0:
+            line = lines[face * grid.n + i]
+        elif axis == 1:
+            line = lines[face * grid.n + j]
+        else:
+            line = longitude_line(source, point)
+        z = exaggeration * sample_latlon_line(source, point, line)
         heights_out[entry] = z
         p = (grid.radius + wp.float64(z)) * direction
         positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
@@ -345,6 +407,7 @@ def resample_latlon(
                 x_axis = frame_rotate(face, wp.vec3i(1, 0, 0))
                 y_axis = frame_rotate(face, wp.vec3i(0, 1, 0))
                 normal = frame_rotate(face, wp.vec3i(0, 0, 1))
+                axis = line_axis(face)
 
 
 @wp.kernel

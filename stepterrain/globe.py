@@ -272,8 +272,10 @@ class Globe:
         grid.cols_valid = grid.n
         grid.heights = _node_array(n_entries, wp.float32, device)
         grid.positions = _node_array(n_entries, wp.vec3, device)
-        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
-               [grid.heights, grid.positions], device)
+        lines = wp.empty(6 * grid.n, dtype=wp.vec4, device=device)
+        launch_chunked(cube_kernels.longitude_lines, 6 * grid.n, [grid, source], [lines], device)
+        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration), lines],
+                       [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
 
     @classmethod
