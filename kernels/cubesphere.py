@@ -1050,6 +1050,179 @@ def count_refinement(
         counts_out[2 * count + 1] = 0
 
 
+@wp.func
+def node_active(values: wp.array[wp.vec4], n: wp.int32, use_geometric: wp.int32, error: wp.float64, i: wp.int32,
+                j: wp.int32) -> wp.int32:
+    """Planar, no view: 1 when the triangles whose refinement node is (i, j) refine (μ = e > ε, as in
+    :func:`count_refinement`); 0 when (i, j) is no grid node (a half-integer midpoint is passed as -1)."""
+    if i < 0 or j < 0:
+        return 0
+    mu = wp.float64(1.0)
+    if use_geometric != 0:
+        mu = wp.float64(values[i * n + j][0])
+    if mu > error:
+        return 1
+    return 0
+
+
+@wp.func
+def leg_midpoint(p: wp.vec2i, q: wp.vec2i) -> wp.vec2i:
+    """The grid node halfway between p and q, or (-1, -1) when the midpoint is not a node."""
+    si = p[0] + q[0]
+    sj = p[1] + q[1]
+    if ((si | sj) & 1) != 0:
+        return wp.vec2i(-1, -1)
+    return wp.vec2i(si >> 1, sj >> 1)
+
+
+@wp.func
+def node_hypotenuse(i: wp.int32, j: wp.int32) -> wp.vec2i:
+    """(di, dj) from node (i, j) to one end of the hypotenuse of its diamond (:func:`hypotenuse_offset` of its
+    kind and spacing); (0, 0) for the four corners of the grid, which refine nothing."""
+    bits = i | j
+    if bits == 0:
+        return wp.vec2i(0, 0)
+    s = bits & (-bits)  # the largest power of two dividing both i and j
+    if (i & s) != 0 and (j & s) != 0:  # diagonal node: the centre of a 2s square
+        if ((i ^ j) & (2 * s)) == 0:  # kind 0: ((i / s) >> 1) + ((j / s) >> 1) even
+            return wp.vec2i(s, s)
+        return wp.vec2i(s, -s)
+    if (i & s) != 0:  # axis node, hypotenuse along i
+        return wp.vec2i(s, 0)
+    return wp.vec2i(0, s)
+
+
+@wp.func
+def leaf_child(grid: CubeSphereGrid, values: wp.array[wp.vec4], use_geometric: wp.int32, error: wp.float64,
+               c: wp.vec2i, a: wp.vec2i) -> wp.int32:
+    """1 when the child (c, a, m) of a refining triangle is a leaf: its refinement node mid(c, a) is no node
+    (the finest level) or does not refine."""
+    mid = leg_midpoint(c, a)
+    return 1 - node_active(values, grid.n, use_geometric, error, mid[0], mid[1])
+
+
+@wp.func
+def ccw_leaf(x: wp.vec2i, y: wp.vec2i, z: wp.vec2i) -> wp.vec4i:
+    """Leaf (0, x, y, z) packed, with the roots' winding (negative (i, j) area, counter-clockwise from +z)."""
+    area = (y[0] - x[0]) * (z[1] - x[1]) - (y[1] - x[1]) * (z[0] - x[0])
+    if area > 0:
+        return wp.vec4i(0, pack(y[0], y[1]), pack(x[0], x[1]), pack(z[0], z[1]))
+    return wp.vec4i(0, pack(x[0], x[1]), pack(y[0], y[1]), pack(z[0], z[1]))
+
+
+@wp.func
+def node_leaves(grid: CubeSphereGrid, values: wp.array[wp.vec4], use_geometric: wp.int32, error: wp.float64,
+                i: wp.int32, j: wp.int32, hyp: wp.vec2i, active: wp.int32, emit: wp.int32,
+                leaves_out: wp.array[wp.vec4i], at: wp.int32) -> wp.int32:
+    """Planar, no view: the leaf triangles node (i, j) accounts for, counted (emit 0) or written from ``at``.
+
+    A refining node (every triangle of its diamond refines, by saturation all of them exist) owns the children
+    of its diamond's triangles that are leaves; the centre, when it does not refine, owns the two roots.
+    ``hyp`` and ``active``: :func:`node_hypotenuse` and :func:`node_active` of the node (not a corner)."""
+    m = wp.vec2i(i, j)
+    a = wp.vec2i(i + hyp[0], j + hyp[1])
+    b = wp.vec2i(i - hyp[0], j - hyp[1])
+    count = wp.int32(0)
+    if active == 0:
+        if 2 * i == grid.cells and 2 * j == grid.cells:  # the grid's centre: the roots are leaves
+            if emit != 0:
+                leaves_out[at] = ccw_leaf(a, b, wp.vec2i(i + hyp[1], j - hyp[0]))
+                leaves_out[at + 1] = ccw_leaf(a, b, wp.vec2i(i - hyp[1], j + hyp[0]))
+            return 2
+        return 0
+    for side in range(2):
+        sign = 1 - 2 * side
+        c = wp.vec2i(i + sign * hyp[1], j - sign * hyp[0])
+        if in_grid(grid, c[0], c[1]) != 0:
+            if leaf_child(grid, values, use_geometric, error, c, a) != 0:
+                if emit != 0:
+                    leaves_out[at + count] = ccw_leaf(c, a, m)
+                count += 1
+            if leaf_child(grid, values, use_geometric, error, b, c) != 0:
+                if emit != 0:
+                    leaves_out[at + count] = ccw_leaf(b, c, m)
+                count += 1
+    return count
+
+
+@wp.kernel
+def count_node_leaves(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    use_geometric: wp.int32,
+    error: wp.float64,
+    no_leaves: wp.array[wp.vec4i],  # empty (the shared counting / emitting function writes nothing here)
+    # outputs
+    counts_out: wp.array[wp.int32],  # 2·count + 2: leaves per node, 0, 1 per refining node (a vertex), 0
+):
+    """Planar without a view: the breadth-first refinement in one pass over the nodes (memory order). With μ = e
+    a node's decision does not depend on the path to it, and saturation makes every triangle of a refining
+    node's diamond exist, so each node counts its leaves and whether it becomes a vertex on its own."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    i = first / n
+    j = first - i * n
+    for entry in range(first, last):
+        leaves = wp.int32(0)
+        vertex = wp.int32(0)
+        hyp = node_hypotenuse(i, j)
+        if hyp[0] != 0 or hyp[1] != 0:
+            vertex = node_active(params.values, n, use_geometric, error, i, j)
+            if vertex != 0 or (2 * i == grid.cells and 2 * j == grid.cells):
+                leaves = node_leaves(grid, params.values, use_geometric, error, i, j, hyp, vertex, 0, no_leaves, 0)
+        counts_out[entry] = leaves
+        counts_out[count + 1 + entry] = vertex
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+    if first == 0:
+        counts_out[count] = 0
+        counts_out[2 * count + 1] = 0
+
+
+@wp.kernel
+def emit_node_leaves(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    use_geometric: wp.int32,
+    error: wp.float64,
+    counts: wp.array[wp.int32],  # of count_node_leaves
+    offsets: wp.array[wp.int32],  # their exclusive scan
+    # outputs
+    leaves_out: wp.array[wp.vec4i],
+    vertex_entries_out: wp.array[wp.int32],
+):
+    """One pass over the nodes: each node's leaves from its offset, and its entry when it becomes a vertex."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    i = first / n
+    j = first - i * n
+    for entry in range(first, last):
+        vertex = counts[count + 1 + entry]
+        if counts[entry] != 0:
+            node_leaves(grid, params.values, use_geometric, error, i, j, node_hypotenuse(i, j), vertex, 1, leaves_out,
+                        offsets[entry])
+        if vertex != 0:
+            vertex_entries_out[offsets[count + 1 + entry] - offsets[count + 1]] = entry
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+
+
 @wp.kernel
 def emit_refinement(
     thread_offset: wp.int32,

@@ -552,6 +552,42 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 
 
+def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float, levels: int,
+                   device: wp.Device) -> tuple[wp.array, wp.array, list[int]]:
+    """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes."""
+    count = grid.n * grid.n
+    counts = scratch("globe.nodes.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
+    no_leaves = wp.empty(0, dtype=wp.vec4i, device=device)
+    launch_chunked(cube_kernels.count_node_leaves, count, [grid, params, use_geometric, error, no_leaves], [counts],
+                   device)
+    offsets, total = exclusive_offsets(counts, "globe.nodes")
+    n_leaves = _host_int(offsets, count + 1)
+    check_budget(n_leaves * 16 + (total - n_leaves) * 28, "the planar mesh")
+    leaves = wp.empty(n_leaves, dtype=wp.vec4i, device=device)
+    entries = wp.empty(total - n_leaves, dtype=wp.int32, device=device)
+    launch_chunked(cube_kernels.emit_node_leaves, count, [grid, params, use_geometric, error, counts, offsets],
+                   [leaves, entries], device)
+    return leaves, entries, _planar_levels(entries.numpy(), grid.n, grid.cells, levels)
+
+
+def _planar_levels(entries: NDArray[np.int32], n: int, cells: int, levels: int) -> list[int]:
+    """Triangles per level of a planar refinement from its refined nodes (the new vertices): two roots, then
+    two children per triangle of each refined node's diamond (the counts the breadth-first levels report)."""
+    i = entries // n
+    j = entries - i * n
+    bits = i | j
+    s = bits & -bits
+    diagonal = ((i & s) != 0) & ((j & s) != 0)
+    depth = 2 * (int(math.log2(cells)) - 1 - np.log2(s).astype(np.int64)) + ~diagonal
+    # the diamond's triangles inside the grid: a diagonal node has both; an axis node loses one on the border
+    across = np.where((i & s) != 0, j, i)  # the coordinate across its hypotenuse
+    sides = np.where(diagonal | ((across > 0) & (across < cells)), 2, 1)
+    per_level = [2, *np.bincount(depth + 1, weights=2 * sides, minlength=levels + 1)[1:].astype(int).tolist()]
+    while per_level and per_level[-1] == 0:
+        per_level.pop()
+    return per_level
+
+
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
              per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Breadth-first refinement, one count -> scan -> emit per level, then vertices and faces."""
@@ -562,6 +598,14 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     vertex_chunks = [wp.array(corner_entries(grid.cells, n, faces), dtype=wp.int32, device=device)]
     per_level = []
     host = (grid.positions.numpy(), params.values.numpy()) if users else None
+    flags = view.flags
+    if faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
+        # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
+        # and vertices as the breadth-first levels below (in another order), without a pass per level
+        leaves, entries, per_level = _planar_leaves(grid, params, int(flags[0]), float(view.error), levels, device)
+        leaf_chunks.append(leaves)
+        vertex_chunks.append(entries)
+        levels = -1  # the loop below has nothing left to do
     for depth in range(levels + 1):
         count = triangles.shape[0]
         if count == 0:
