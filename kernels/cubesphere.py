@@ -1145,6 +1145,49 @@ def node_leaves(grid: CubeSphereGrid, values: wp.array[wp.vec4], use_geometric: 
     return count
 
 
+#: Per-level counters of :func:`count_levels` (levels = 2 log2 N <= 30 with corners packed in 16 bits).
+vec32i = wp.types.vector(length=32, dtype=wp.int32)
+
+
+@wp.kernel
+def count_levels(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,  # large: a few threads, each with its own row of counters (no atomics; Warp's CPU ones are not)
+    cells: wp.int32,
+    entries: wp.array[wp.int32],  # the refined nodes (new vertices) of a planar refinement, entry = i·n + j
+    # outputs
+    level_counts: wp.array2d[wp.int32],  # (threads, 32): per thread, triangles per level from its entries
+):
+    """Triangles per level of a planar refinement from its refined nodes: each refined node's diamond
+    triangles (2, or 1 on the border) each give two triangles one level below its depth."""
+    t = wp.tid() + thread_offset
+    first = t * chunk
+    last = wp.min(first + chunk, count)
+    acc = vec32i()
+    n = cells + 1
+    for k in range(first, last):
+        i = entries[k] / n
+        j = entries[k] - i * n
+        hyp = node_hypotenuse(i, j)
+        size = wp.max(wp.abs(hyp[0]), wp.abs(hyp[1]))
+        depth = wp.int32(0)
+        while (cells >> (depth + 1)) > size:
+            depth += 1
+        depth = 2 * depth
+        sides = wp.int32(2)
+        if hyp[0] == 0 or hyp[1] == 0:
+            depth += 1
+            across = i
+            if hyp[0] != 0:
+                across = j
+            if across == 0 or across == cells:
+                sides = 1
+        acc[depth + 1] = acc[depth + 1] + 2 * sides
+    for d in range(32):
+        level_counts[t, d] = acc[d]
+
+
 @wp.kernel
 def count_node_leaves(
     thread_offset: wp.int32,

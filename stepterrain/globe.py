@@ -32,7 +32,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import launch_chunked, resolve_device, scratch, to_device
+from ._device import launch, launch_chunked, resolve_device, scratch, to_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
@@ -48,6 +48,9 @@ METRICS = ("geometric", "distance", "clip")
 #: Bytes per node entry held on the device: height, float32 position, e, r, h, α.
 _BYTES_PER_ENTRY = 4 + 12 + 16
 _SAMPLE_FILE = "global_relief_20min.npz"
+#: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
+#: compare both).
+_NODE_PASS = True
 
 UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 
@@ -567,22 +570,17 @@ def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float, lev
     entries = wp.empty(total - n_leaves, dtype=wp.int32, device=device)
     launch_chunked(cube_kernels.emit_node_leaves, count, [grid, params, use_geometric, error, counts, offsets],
                    [leaves, entries], device)
-    return leaves, entries, _planar_levels(entries.numpy(), grid.n, grid.cells, levels)
+    return leaves, entries, _planar_levels(entries, grid.cells, device)
 
 
-def _planar_levels(entries: NDArray[np.int32], n: int, cells: int, levels: int) -> list[int]:
+def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int]:
     """Triangles per level of a planar refinement from its refined nodes (the new vertices): two roots, then
     two children per triangle of each refined node's diamond (the counts the breadth-first levels report)."""
-    i = entries // n
-    j = entries - i * n
-    bits = i | j
-    s = bits & -bits
-    diagonal = ((i & s) != 0) & ((j & s) != 0)
-    depth = 2 * (int(math.log2(cells)) - 1 - np.log2(s).astype(np.int64)) + ~diagonal
-    # the diamond's triangles inside the grid: a diagonal node has both; an axis node loses one on the border
-    across = np.where((i & s) != 0, j, i)  # the coordinate across its hypotenuse
-    sides = np.where(diagonal | ((across > 0) & (across < cells)), 2, 1)
-    per_level = [2, *np.bincount(depth + 1, weights=2 * sides, minlength=levels + 1)[1:].astype(int).tolist()]
+    rows = 64
+    counts = wp.empty((rows, 32), dtype=wp.int32, device=device)
+    launch(cube_kernels.count_levels, rows, [entries.shape[0], -(-entries.shape[0] // rows), cells, entries],
+           [counts], device)
+    per_level = [2, *counts.numpy().sum(axis=0)[1:].tolist()]
     while per_level and per_level[-1] == 0:
         per_level.pop()
     return per_level
@@ -599,7 +597,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     per_level = []
     host = (grid.positions.numpy(), params.values.numpy()) if users else None
     flags = view.flags
-    if faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
+    if _NODE_PASS and faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
         # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
         # and vertices as the breadth-first levels below (in another order), without a pass per level
         leaves, entries, per_level = _planar_leaves(grid, params, int(flags[0]), float(view.error), levels, device)
