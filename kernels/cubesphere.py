@@ -956,6 +956,25 @@ def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: w
 
 
 @wp.kernel
+def zero_corners(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    n: wp.int32,
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """One thread per face corner (count = 4 · faces): (e, r, h, α) = 0. The corners are the roots' vertices,
+    nodes of no level; every other entry is written by its level's kernel (no memset of the whole array)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        corner = k & 3
+        entry = (k >> 2) * n * n + (corner >> 1) * (n - 1) * n + (corner & 1) * (n - 1)
+        values_out[entry] = wp.vec4(0.0, 0.0, 0.0, 0.0)
+
+
+@wp.kernel
 def copy_cone_angles(
     thread_offset: wp.int32,
     count: wp.int32,

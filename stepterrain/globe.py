@@ -432,8 +432,8 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     n_entries = faces * grid.n * grid.n
     params = cube_kernels.NodeParameters()
     params.values = _node_array(n_entries, wp.vec4, device)
-    params.values.zero_()
     outputs = [params.values]
+    launch_chunked(cube_kernels.zero_corners, 4 * faces, [grid.n], outputs, device)  # the rest is written below
     angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
         if depth == levels - 1 and faces == 6:  # the leaves (half of all nodes): a lean kernel in memory order
