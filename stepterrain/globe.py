@@ -8,7 +8,8 @@ The earth is a cube of six (2^k+1)² grids projected onto the sphere (§4); each
 longest-edge bisection (§5.1), steered by saturated metrics on nested bounding spheres or cone frustums
 (§6, §7), breadth-first on Warp with one count -> scan -> emit per level (§5.2), so the mesh has no hanging
 nodes, also across the face seams. :func:`adaptive_mesh` runs the same hierarchy on one flat heightfield
-(SOAR / RTIN) with a true vertical error bound.
+(SOAR / RTIN) with a true vertical error bound; without a camera its refinement is one count -> scan -> emit
+over the nodes (μ = e is a per-node predicate, and saturation makes the levels' walk unnecessary).
 
 Precision: node positions are float32 relative to the planet centre (0.5 m resolution at the earth's radius);
 every metric and bounding-shape formula runs in float64 on those float32 inputs, and the per-level margins
@@ -212,7 +213,7 @@ class Globe:
         Bilinear in lat/lon on the node's direction (latitude and longitude in float32, within ~4e-7 rad,
         1e-4 of a 10' cell; interpolation weights in float64); between the outermost row and a pole the
         value blends linearly towards the pole value, the mean of that row. Cost: O(6 n²) per step, about
-        1.1 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
+        0.9 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
         see benchmarks/RESULTS.md).
 
         Examples
