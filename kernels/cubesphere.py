@@ -725,14 +725,15 @@ def saturate_cell_centres(
                 d = child_offset(0, 1, k)
                 child = entry + d[0] * n + d[1]
                 c = bounds.to_vec3d(grid.positions[child])
-                q = values_out[child]
-                e = wp.max(e, wp.float64(q[0]))
-                r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
-                dz = wp.abs(z_v - wp.float64(grid.heights[child]))
-                h = wp.max(h, dz + wp.float64(q[2]))
+                # the children are leaves (r = h = α = 0): max |v - c| is the square root of the largest square
+                # (sqrt is monotone and correctly rounded: the same value with one sqrt instead of four)
+                e = wp.max(e, wp.float64(values_out[child][0]))
+                r = wp.max(r, wp.dot(v - c, v - c))
+                h = wp.max(h, wp.abs(z_v - wp.float64(grid.heights[child])))
                 if face == 0:
                     w_c = to_vec3d_i(wp.vec3i(2 * (j + d[1]) - cells, 2 * (i + d[0]) - cells, cells))
-                    alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(q[3]))
+                    alpha = wp.max(alpha, direction_angle(w_v, w_c))
+            r = wp.sqrt(r)
             out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
             scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
             out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
