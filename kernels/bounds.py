@@ -202,7 +202,7 @@ def refine_node(
     clip test; |eye| and eye/|eye| come with the view."""
     p = to_vec3d(p32)
     if flags[3] != 0:
-        return refine_cone(eye_unit, eye_length, planes, flags, distance_scale, error, wp.float64(e), p,
+        return refine_cone(eye, eye_unit, eye_length, planes, flags, distance_scale, error, wp.float64(e), p,
                            wp.float64(h), wp.float64(alpha), factor)
     if error <= wp.float64(0.0):
         if flags[2] != 0:
@@ -232,10 +232,15 @@ def refine_node(
 
 @wp.func
 def refine_cone(
-    v_hat: wp.vec3d, v_len: wp.float64, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64,
-    error: wp.float64, e: wp.float64, p: wp.vec3d, h: wp.float64, alpha: wp.float64, factor: wp.float64
+    eye: wp.vec3d, v_hat: wp.vec3d, v_len: wp.float64, planes: wp.array[wp.vec4d], flags: wp.vec4i,
+    distance_scale: wp.float64, error: wp.float64, e: wp.float64, p: wp.vec3d, h: wp.float64, alpha: wp.float64,
+    factor: wp.float64
 ) -> wp.int32:
-    """:func:`refine_node` for cone frustums, the same decisions in the same order."""
+    """:func:`refine_node` for cone frustums, the same decisions in the same order.
+
+    Between the radial-gap reject and the exact distance (Abb. 6) a quick accept: the axis point p lies in the
+    frustum, so d <= |eye - p|, and μ_dist with |eye - p| is a lower bound of the exact one; when it already
+    exceeds ε the exact distance is not needed (most refining nodes of a distant view)."""
     if error <= wp.float64(0.0):
         if flags[2] != 0:
             p_len0 = wp.length(p)
@@ -258,15 +263,23 @@ def refine_cone(
             q = distance_scale / gap
             if mu * q * q <= error:
                 return 0
-        p_hat = p / p_len
-        alpha_sc = sin_cos(alpha)
-        have_unit = 1
-        d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
-        if d > wp.float64(0.0):
-            q = distance_scale / d
-            mu = mu * q * q
+        far = wp.length(eye - p)
+        quick = HUGE
+        if far > wp.float64(0.0):
+            q = distance_scale / far
+            quick = mu * q * q
+        if quick > error:
+            mu = quick
         else:
-            mu = HUGE
+            p_hat = p / p_len
+            alpha_sc = sin_cos(alpha)
+            have_unit = 1
+            d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
+            if d > wp.float64(0.0):
+                q = distance_scale / d
+                mu = mu * q * q
+            else:
+                mu = HUGE
     if mu <= error:
         return 0
     if flags[2] != 0:

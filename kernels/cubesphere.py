@@ -266,19 +266,23 @@ def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
 
 
 @wp.func
-def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
-    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
-    pole, a blend towards the pole value.
-
-    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
-    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
-    own error; the same integer point gives the same value on every seam copy."""
-    rows = source.elevation.shape[0]
-    half_pi = wp.float64(1.5707963267948966)
+def longitude_line(source: LatLonGrid, point: wp.vec3i) -> wp.vec4:
+    """(c0, c1, t, ρ) of a node: the column weights of its longitude (:func:`column_weights`) and its float32
+    distance ρ from the polar axis. On the four equatorial faces both depend on one face-local coordinate only,
+    so :func:`resample_latlon` reads them from a table of those lines (:func:`longitude_lines`)."""
     x = wp.float32(point[0])
     y = wp.float32(point[1])
-    lat = wp.float64(fast_atan2f(wp.float32(point[2]), wp.sqrt(x * x + y * y)))
     cw = column_weights(source, wp.float64(fast_atan2f(y, x)))
+    return wp.vec4(cw[0], cw[1], cw[2], wp.sqrt(x * x + y * y))
+
+
+@wp.func
+def sample_latlon_line(source: LatLonGrid, point: wp.vec3i, line: wp.vec4) -> wp.float32:
+    """:func:`sample_latlon` with the node's :func:`longitude_line` given."""
+    rows = source.elevation.shape[0]
+    half_pi = wp.float64(1.5707963267948966)
+    lat = wp.float64(fast_atan2f(wp.float32(point[2]), line[3]))
+    cw = wp.vec3(line[0], line[1], line[2])
     fr = (source.lat0 - lat) * source.inv_dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
@@ -300,6 +304,53 @@ def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
     return (1.0 - t) * sample_row(source, r0, cw) + t * sample_row(source, r0 + 1, cw)
 
 
+@wp.func
+def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
+    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
+    pole, a blend towards the pole value.
+
+    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
+    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
+    own error; the same integer point gives the same value on every seam copy."""
+    return sample_latlon_line(source, point, longitude_line(source, point))
+
+
+@wp.func
+def line_axis(face: wp.int32) -> wp.int32:
+    """0: the face's longitude lines are its rows (its local x axis runs along ±z), 1: its columns, -1: a polar
+    face (its normal is ±z)."""
+    if frame_rotate(face, wp.vec3i(1, 0, 0))[2] != 0:
+        return 0
+    if frame_rotate(face, wp.vec3i(0, 1, 0))[2] != 0:
+        return 1
+    return -1
+
+
+@wp.kernel
+def longitude_lines(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    source: LatLonGrid,
+    # outputs
+    lines_out: wp.array[wp.vec4],  # per face and k < n: :func:`longitude_line` of row k or column k
+):
+    """One thread per (face, k): the longitude line k of an equatorial face (unused on the polar faces)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for slot in range(first, last):
+        face = slot / grid.n
+        k = slot - face * grid.n
+        axis = line_axis(face)
+        line = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if axis == 0:
+            line = longitude_line(source, cube_point(face, k, 0, grid.cells))
+        elif axis == 1:
+            line = longitude_line(source, cube_point(face, 0, k, grid.cells))
+        lines_out[slot] = line
+
+
 @wp.kernel
 def resample_latlon(
     thread_offset: wp.int32,
@@ -308,12 +359,15 @@ def resample_latlon(
     grid: CubeSphereGrid,
     source: LatLonGrid,
     exaggeration: wp.float32,
+    lines: wp.array[wp.vec4],  # of longitude_lines
     # outputs
     heights_out: wp.array[wp.float32],
     positions_out: wp.array[wp.vec3],
 ):
     """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
-    projected position v = (R + z) · w / ||w|| rounded to float32 (§4)."""
+    projected position v = (R + z) · w / ||w|| rounded to float32 (§4). On the equatorial faces the longitude's
+    column weights and ρ come from the node's longitude line (the same float32 values, so the same results as
+    :func:`sample_latlon`; one atan2 per node instead of two)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:
@@ -328,10 +382,18 @@ def resample_latlon(
     x_axis = frame_rotate(face, wp.vec3i(1, 0, 0))
     y_axis = frame_rotate(face, wp.vec3i(0, 1, 0))
     normal = frame_rotate(face, wp.vec3i(0, 0, 1))
+    axis = line_axis(face)
     for entry in range(first, last):
         point = (2 * j - grid.cells) * x_axis + (2 * i - grid.cells) * y_axis + grid.cells * normal
         direction = node_direction(point)
-        z = exaggeration * sample_latlon(source, point)
+        line = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        if axis == 0:
+            line = lines[face * grid.n + i]
+        elif axis == 1:
+            line = lines[face * grid.n + j]
+        else:
+            line = longitude_line(source, point)
+        z = exaggeration * sample_latlon_line(source, point, line)
         heights_out[entry] = z
         p = (grid.radius + wp.float64(z)) * direction
         positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
@@ -345,6 +407,7 @@ def resample_latlon(
                 x_axis = frame_rotate(face, wp.vec3i(1, 0, 0))
                 y_axis = frame_rotate(face, wp.vec3i(0, 1, 0))
                 normal = frame_rotate(face, wp.vec3i(0, 0, 1))
+                axis = line_axis(face)
 
 
 @wp.kernel
@@ -503,6 +566,8 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     step_b = (a[0] - c[0]) * sign
     step_c = (b[0] - a[0]) * sign
     worst = wp.float64(0.0)
+    dz = (wp.float64(step_a) * za + wp.float64(step_b) * zb + wp.float64(step_c) * zc) * inv_signed
+    dz2 = dz + dz
     for i in range(i0, i1 + 1):
         wa = ((b[0] - i) * (c[1] - j0) - (b[1] - j0) * (c[0] - i)) * sign
         wb = ((c[0] - i) * (a[1] - j0) - (c[1] - j0) * (a[0] - i)) * sign
@@ -517,13 +582,57 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
         wa += lo * step_a
         wb += lo * step_b
         wc += lo * step_c
-        for k in range(lo, hi + 1):
-            z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
+        if lo > hi:
+            continue
+        # the plane along the row, stepped: off the per-node formula by a few ulp (~1e-13 m), far inside
+        # the 2^-22 relative margin of e
+        z = (wp.float64(wa) * za + wp.float64(wb) * zb + wp.float64(wc) * zc) * inv_signed
+        # two nodes per step with two running maxima (shorter dependency chains)
+        z1 = z + dz
+        other = wp.float64(0.0)
+        k = lo
+        while k < hi:
             worst = wp.max(worst, wp.abs(wp.float64(grid.heights[row + k]) - z))
-            wa += step_a
-            wb += step_b
-            wc += step_c
+            other = wp.max(other, wp.abs(wp.float64(grid.heights[row + k + 1]) - z1))
+            z += dz2
+            z1 += dz2
+            k += 2
+        if k == hi:
+            worst = wp.max(worst, wp.abs(wp.float64(grid.heights[row + k]) - z))
+        worst = wp.max(worst, other)
     return worst
+
+
+@wp.func
+def midpoint_error(heights: wp.array[wp.float32], n: wp.int32, base: wp.int32, p: wp.vec2i, q: wp.vec2i,
+                   zp: wp.float64, zq: wp.float64) -> wp.float64:
+    """Vertical distance of the node at the midpoint of edge (p, q) from the edge (0 when it is no node)."""
+    si = p[0] + q[0]
+    sj = p[1] + q[1]
+    if ((si | sj) & 1) != 0:
+        return wp.float64(0.0)
+    z = wp.float64(heights[base + (si >> 1) * n + (sj >> 1)])
+    return wp.abs(z - (zp + zq) * wp.float64(0.5))
+
+
+@wp.func
+def small_triangle_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.float64:
+    """:func:`triangle_true_error` of a triangle of the two deepest levels (s = 1), whose only nodes are its
+    corners and its edges' integer midpoints, in closed form: bit-identical (the corners' weights are |area|
+    and the midpoints' |area| / 2, powers of two, so the barycentric formula gives exactly (z_p + z_q) / 2)
+    without the branchy row scan, which costs ~100 ns per triangle in mispredictions."""
+    if in_grid(grid, c[0], c[1]) == 0:
+        return wp.float64(0.0)
+    if straddles_input(grid, a, b, c) != 0:
+        return wp.float64(3.0e38)
+    n = grid.n
+    base = face * n * n
+    za = wp.float64(grid.heights[base + a[0] * n + a[1]])
+    zb = wp.float64(grid.heights[base + b[0] * n + b[1]])
+    zc = wp.float64(grid.heights[base + c[0] * n + c[1]])
+    worst = midpoint_error(grid.heights, n, base, a, b, za, zb)
+    worst = wp.max(worst, midpoint_error(grid.heights, n, base, a, c, za, zc))
+    return wp.max(worst, midpoint_error(grid.heights, n, base, b, c, zb, zc))
 
 
 @wp.func
@@ -627,14 +736,15 @@ def saturate_cell_centres(
                 d = child_offset(0, 1, k)
                 child = entry + d[0] * n + d[1]
                 c = bounds.to_vec3d(grid.positions[child])
-                q = values_out[child]
-                e = wp.max(e, wp.float64(q[0]))
-                r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
-                dz = wp.abs(z_v - wp.float64(grid.heights[child]))
-                h = wp.max(h, dz + wp.float64(q[2]))
+                # the children are leaves (r = h = α = 0): max |v - c| is the square root of the largest square
+                # (sqrt is monotone and correctly rounded: the same value with one sqrt instead of four)
+                e = wp.max(e, wp.float64(values_out[child][0]))
+                r = wp.max(r, wp.dot(v - c, v - c))
+                h = wp.max(h, wp.abs(z_v - wp.float64(grid.heights[child])))
                 if face == 0:
                     w_c = to_vec3d_i(wp.vec3i(2 * (j + d[1]) - cells, 2 * (i + d[0]) - cells, cells))
-                    alpha = wp.max(alpha, direction_angle(w_v, w_c) + wp.float64(q[3]))
+                    alpha = wp.max(alpha, direction_angle(w_v, w_c))
+            r = wp.sqrt(r)
             out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
             scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
             out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
@@ -649,6 +759,63 @@ def saturate_cell_centres(
             if i == n:
                 i = 0
                 face += 1
+
+
+@wp.kernel
+def saturate_planar_fine(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    centres: wp.int32,  # 0: the deepest level (s = 1 axis nodes, (i + j) odd); 1: the 2 x 2 cell centres
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """The planar case's two deepest levels in memory order (like :func:`saturate_leaf_parameters` on the
+    cube): the same formulas as :func:`saturate_node_parameters` (true error of both triangles of the diamond
+    by :func:`small_triangle_error`, r over the four leaf children of a cell centre), so bit-identical to it,
+    without its slot decoding, padding slots and children loop of the leaves."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    i = first / n
+    j = first - i * n
+    for entry in range(first, last):
+        hyp = wp.vec2i(0, 0)
+        if centres == 0:
+            if ((i + j) & 1) != 0:
+                hyp = wp.vec2i(i & 1, j & 1)  # i odd: along i (kind 2); j odd: along j (kind 3)
+        elif (i & j & 1) != 0:
+            hyp = wp.vec2i(1, 1)
+            if (((i >> 1) + (j >> 1)) & 1) != 0:
+                hyp = wp.vec2i(1, -1)
+        if hyp[0] != 0 or hyp[1] != 0:
+            a = wp.vec2i(i + hyp[0], j + hyp[1])
+            b = wp.vec2i(i - hyp[0], j - hyp[1])
+            apex = wp.vec2i(i + hyp[1], j - hyp[0])
+            mate = wp.vec2i(i - hyp[1], j + hyp[0])
+            e = wp.max(small_triangle_error(grid, 0, a, b, apex), small_triangle_error(grid, 0, a, b, mate))
+            out = wp.vec4(0.0, 0.0, 0.0, 0.0)
+            if centres != 0:
+                v = bounds.to_vec3d(grid.positions[entry])
+                r = wp.float64(0.0)
+                for k in range(4):
+                    d = child_offset(0, 1, k)
+                    child = entry + d[0] * n + d[1]
+                    q = values_out[child]
+                    e = wp.max(e, wp.float64(q[0]))
+                    r = wp.max(r, wp.length(v - bounds.to_vec3d(grid.positions[child])) + wp.float64(q[1]))
+                scale = wp.length(v) * ABSOLUTE_MARGIN
+                out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+                out[2] = wp.float32(wp.float64(0.0) * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+            out[0] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
+            values_out[entry] = out
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
 
 
 @wp.kernel
@@ -698,7 +865,10 @@ def saturate_node_parameters(
             # planar: the true vertical error of both triangles of the diamond (never above the bound)
             apex = wp.vec2i(i + hyp[1], j - hyp[0])
             mate = wp.vec2i(i - hyp[1], j + hyp[0])
-            e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
+            if s == 1:
+                e = wp.max(small_triangle_error(grid, face, a, b, apex), small_triangle_error(grid, face, a, b, mate))
+            else:
+                e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
         else:
             pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
             pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
@@ -798,6 +968,25 @@ def owns_refinement_node(cells: wp.int32, planar: wp.int32, face: wp.int32, a: w
 
 
 @wp.kernel
+def zero_corners(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    n: wp.int32,
+    # outputs
+    values_out: wp.array[wp.vec4],
+):
+    """One thread per face corner (count = 4 · faces): (e, r, h, α) = 0. The corners are the roots' vertices,
+    nodes of no level; every other entry is written by its level's kernel (no memset of the whole array)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    for k in range(first, last):
+        corner = k & 3
+        entry = (k >> 2) * n * n + (corner >> 1) * (n - 1) * n + (corner & 1) * (n - 1)
+        values_out[entry] = wp.vec4(0.0, 0.0, 0.0, 0.0)
+
+
+@wp.kernel
 def copy_cone_angles(
     thread_offset: wp.int32,
     count: wp.int32,
@@ -890,6 +1079,222 @@ def count_refinement(
     if first == 0:
         counts_out[count] = 0
         counts_out[2 * count + 1] = 0
+
+
+@wp.func
+def node_active(values: wp.array[wp.vec4], n: wp.int32, use_geometric: wp.int32, error: wp.float64, i: wp.int32,
+                j: wp.int32) -> wp.int32:
+    """Planar, no view: 1 when the triangles whose refinement node is (i, j) refine (μ = e > ε, as in
+    :func:`count_refinement`); 0 when (i, j) is no grid node (a half-integer midpoint is passed as -1)."""
+    if i < 0 or j < 0:
+        return 0
+    mu = wp.float64(1.0)
+    if use_geometric != 0:
+        mu = wp.float64(values[i * n + j][0])
+    if mu > error:
+        return 1
+    return 0
+
+
+@wp.func
+def leg_midpoint(p: wp.vec2i, q: wp.vec2i) -> wp.vec2i:
+    """The grid node halfway between p and q, or (-1, -1) when the midpoint is not a node."""
+    si = p[0] + q[0]
+    sj = p[1] + q[1]
+    if ((si | sj) & 1) != 0:
+        return wp.vec2i(-1, -1)
+    return wp.vec2i(si >> 1, sj >> 1)
+
+
+@wp.func
+def node_hypotenuse(i: wp.int32, j: wp.int32) -> wp.vec2i:
+    """(di, dj) from node (i, j) to one end of the hypotenuse of its diamond (:func:`hypotenuse_offset` of its
+    kind and spacing); (0, 0) for the four corners of the grid, which refine nothing."""
+    bits = i | j
+    if bits == 0:
+        return wp.vec2i(0, 0)
+    s = bits & (-bits)  # the largest power of two dividing both i and j
+    if (i & s) != 0 and (j & s) != 0:  # diagonal node: the centre of a 2s square
+        if ((i ^ j) & (2 * s)) == 0:  # kind 0: ((i / s) >> 1) + ((j / s) >> 1) even
+            return wp.vec2i(s, s)
+        return wp.vec2i(s, -s)
+    if (i & s) != 0:  # axis node, hypotenuse along i
+        return wp.vec2i(s, 0)
+    return wp.vec2i(0, s)
+
+
+@wp.func
+def leaf_child(grid: CubeSphereGrid, values: wp.array[wp.vec4], use_geometric: wp.int32, error: wp.float64,
+               c: wp.vec2i, a: wp.vec2i) -> wp.int32:
+    """1 when the child (c, a, m) of a refining triangle is a leaf: its refinement node mid(c, a) is no node
+    (the finest level) or does not refine."""
+    mid = leg_midpoint(c, a)
+    return 1 - node_active(values, grid.n, use_geometric, error, mid[0], mid[1])
+
+
+@wp.func
+def ccw_leaf(x: wp.vec2i, y: wp.vec2i, z: wp.vec2i) -> wp.vec4i:
+    """Leaf (0, x, y, z) packed, with the roots' winding (negative (i, j) area, counter-clockwise from +z)."""
+    area = (y[0] - x[0]) * (z[1] - x[1]) - (y[1] - x[1]) * (z[0] - x[0])
+    if area > 0:
+        return wp.vec4i(0, pack(y[0], y[1]), pack(x[0], x[1]), pack(z[0], z[1]))
+    return wp.vec4i(0, pack(x[0], x[1]), pack(y[0], y[1]), pack(z[0], z[1]))
+
+
+@wp.func
+def node_leaves(grid: CubeSphereGrid, values: wp.array[wp.vec4], use_geometric: wp.int32, error: wp.float64,
+                i: wp.int32, j: wp.int32, hyp: wp.vec2i, active: wp.int32, emit: wp.int32,
+                leaves_out: wp.array[wp.vec4i], at: wp.int32) -> wp.int32:
+    """Planar, no view: the leaf triangles node (i, j) accounts for, counted (emit 0) or written from ``at``.
+
+    A refining node (every triangle of its diamond refines, by saturation all of them exist) owns the children
+    of its diamond's triangles that are leaves; the centre, when it does not refine, owns the two roots.
+    ``hyp`` and ``active``: :func:`node_hypotenuse` and :func:`node_active` of the node (not a corner)."""
+    m = wp.vec2i(i, j)
+    a = wp.vec2i(i + hyp[0], j + hyp[1])
+    b = wp.vec2i(i - hyp[0], j - hyp[1])
+    count = wp.int32(0)
+    if active == 0:
+        if 2 * i == grid.cells and 2 * j == grid.cells:  # the grid's centre: the roots are leaves
+            if emit != 0:
+                leaves_out[at] = ccw_leaf(a, b, wp.vec2i(i + hyp[1], j - hyp[0]))
+                leaves_out[at + 1] = ccw_leaf(a, b, wp.vec2i(i - hyp[1], j + hyp[0]))
+            return 2
+        return 0
+    for side in range(2):
+        sign = 1 - 2 * side
+        c = wp.vec2i(i + sign * hyp[1], j - sign * hyp[0])
+        if in_grid(grid, c[0], c[1]) != 0:
+            if leaf_child(grid, values, use_geometric, error, c, a) != 0:
+                if emit != 0:
+                    leaves_out[at + count] = ccw_leaf(c, a, m)
+                count += 1
+            if leaf_child(grid, values, use_geometric, error, b, c) != 0:
+                if emit != 0:
+                    leaves_out[at + count] = ccw_leaf(b, c, m)
+                count += 1
+    return count
+
+
+#: Per-level counters of :func:`count_levels` (levels = 2 log2 N <= 30 with corners packed in 16 bits).
+vec32i = wp.types.vector(length=32, dtype=wp.int32)
+
+
+@wp.kernel
+def count_levels(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,  # large: a few threads, each with its own row of counters (no atomics; Warp's CPU ones are not)
+    cells: wp.int32,
+    entries: wp.array[wp.int32],  # the refined nodes (new vertices) of a planar refinement, entry = i·n + j
+    # outputs
+    level_counts: wp.array2d[wp.int32],  # (threads, 32): per thread, triangles per level from its entries
+):
+    """Triangles per level of a planar refinement from its refined nodes: each refined node's diamond
+    triangles (2, or 1 on the border) each give two triangles one level below its depth."""
+    t = wp.tid() + thread_offset
+    first = t * chunk
+    last = wp.min(first + chunk, count)
+    acc = vec32i()
+    n = cells + 1
+    for k in range(first, last):
+        i = entries[k] / n
+        j = entries[k] - i * n
+        hyp = node_hypotenuse(i, j)
+        size = wp.max(wp.abs(hyp[0]), wp.abs(hyp[1]))
+        depth = wp.int32(0)
+        while (cells >> (depth + 1)) > size:
+            depth += 1
+        depth = 2 * depth
+        sides = wp.int32(2)
+        if hyp[0] == 0 or hyp[1] == 0:
+            depth += 1
+            across = i
+            if hyp[0] != 0:
+                across = j
+            if across == 0 or across == cells:
+                sides = 1
+        acc[depth + 1] = acc[depth + 1] + 2 * sides
+    for d in range(32):
+        level_counts[t, d] = acc[d]
+
+
+@wp.kernel
+def count_node_leaves(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    use_geometric: wp.int32,
+    error: wp.float64,
+    no_leaves: wp.array[wp.vec4i],  # empty (the shared counting / emitting function writes nothing here)
+    # outputs
+    counts_out: wp.array[wp.int32],  # 2·count + 2: leaves per node, 0, 1 per refining node (a vertex), 0
+):
+    """Planar without a view: the breadth-first refinement in one pass over the nodes (memory order). With μ = e
+    a node's decision does not depend on the path to it, and saturation makes every triangle of a refining
+    node's diamond exist, so each node counts its leaves and whether it becomes a vertex on its own."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    i = first / n
+    j = first - i * n
+    for entry in range(first, last):
+        leaves = wp.int32(0)
+        vertex = wp.int32(0)
+        hyp = node_hypotenuse(i, j)
+        if hyp[0] != 0 or hyp[1] != 0:
+            vertex = node_active(params.values, n, use_geometric, error, i, j)
+            if vertex != 0 or (2 * i == grid.cells and 2 * j == grid.cells):
+                leaves = node_leaves(grid, params.values, use_geometric, error, i, j, hyp, vertex, 0, no_leaves, 0)
+        counts_out[entry] = leaves
+        counts_out[count + 1 + entry] = vertex
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
+    if first == 0:
+        counts_out[count] = 0
+        counts_out[2 * count + 1] = 0
+
+
+@wp.kernel
+def emit_node_leaves(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    use_geometric: wp.int32,
+    error: wp.float64,
+    counts: wp.array[wp.int32],  # of count_node_leaves
+    offsets: wp.array[wp.int32],  # their exclusive scan
+    # outputs
+    leaves_out: wp.array[wp.vec4i],
+    vertex_entries_out: wp.array[wp.int32],
+):
+    """One pass over the nodes: each node's leaves from its offset, and its entry when it becomes a vertex."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    if first >= last:
+        return
+    n = grid.n
+    i = first / n
+    j = first - i * n
+    for entry in range(first, last):
+        vertex = counts[count + 1 + entry]
+        if counts[entry] != 0:
+            node_leaves(grid, params.values, use_geometric, error, i, j, node_hypotenuse(i, j), vertex, 1, leaves_out,
+                        offsets[entry])
+        if vertex != 0:
+            vertex_entries_out[offsets[count + 1 + entry] - offsets[count + 1]] = entry
+        j += 1
+        if j == n:
+            j = 0
+            i += 1
 
 
 @wp.kernel

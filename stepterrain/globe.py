@@ -8,7 +8,8 @@ The earth is a cube of six (2^k+1)² grids projected onto the sphere (§4); each
 longest-edge bisection (§5.1), steered by saturated metrics on nested bounding spheres or cone frustums
 (§6, §7), breadth-first on Warp with one count -> scan -> emit per level (§5.2), so the mesh has no hanging
 nodes, also across the face seams. :func:`adaptive_mesh` runs the same hierarchy on one flat heightfield
-(SOAR / RTIN) with a true vertical error bound.
+(SOAR / RTIN) with a true vertical error bound; without a camera its refinement is one count -> scan -> emit
+over the nodes (μ = e is a per-node predicate, and saturation makes the levels' walk unnecessary).
 
 Precision: node positions are float32 relative to the planet centre (0.5 m resolution at the earth's radius);
 every metric and bounding-shape formula runs in float64 on those float32 inputs, and the per-level margins
@@ -32,7 +33,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import launch_chunked, resolve_device, scratch, to_device
+from ._device import launch, launch_chunked, resolve_device, scratch, to_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
@@ -48,6 +49,9 @@ METRICS = ("geometric", "distance", "clip")
 #: Bytes per node entry held on the device: height, float32 position, e, r, h, α.
 _BYTES_PER_ENTRY = 4 + 12 + 16
 _SAMPLE_FILE = "global_relief_20min.npz"
+#: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
+#: compare both).
+_NODE_PASS = True
 
 UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 
@@ -209,7 +213,7 @@ class Globe:
         Bilinear in lat/lon on the node's direction (latitude and longitude in float32, within ~4e-7 rad,
         1e-4 of a 10' cell; interpolation weights in float64); between the outermost row and a pole the
         value blends linearly towards the pole value, the mean of that row. Cost: O(6 n²) per step, about
-        1.1 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
+        0.9 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
         see benchmarks/RESULTS.md).
 
         Examples
@@ -272,8 +276,10 @@ class Globe:
         grid.cols_valid = grid.n
         grid.heights = _node_array(n_entries, wp.float32, device)
         grid.positions = _node_array(n_entries, wp.vec3, device)
-        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration)],
-               [grid.heights, grid.positions], device)
+        lines = wp.empty(6 * grid.n, dtype=wp.vec4, device=device)
+        launch_chunked(cube_kernels.longitude_lines, 6 * grid.n, [grid, source], [lines], device)
+        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration), lines],
+                       [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
 
     @classmethod
@@ -427,8 +433,8 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
     n_entries = faces * grid.n * grid.n
     params = cube_kernels.NodeParameters()
     params.values = _node_array(n_entries, wp.vec4, device)
-    params.values.zero_()
     outputs = [params.values]
+    launch_chunked(cube_kernels.zero_corners, 4 * faces, [grid.n], outputs, device)  # the rest is written below
     angles = int(faces == 6)
     for depth in range(levels - 1, -1, -1):
         if depth == levels - 1 and faces == 6:  # the leaves (half of all nodes): a lean kernel in memory order
@@ -436,6 +442,10 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
             continue
         if depth == levels - 2 and faces == 6 and levels >= 2:  # the 2 x 2 cell centres, likewise
             launch_chunked(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
+            continue
+        if depth >= levels - 2 and faces == 1:  # planar: the two deepest levels likewise
+            launch_chunked(cube_kernels.saturate_planar_fine, grid.n * grid.n, [grid, int(depth == levels - 2)],
+                           outputs, device)
             continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
@@ -546,6 +556,37 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 
 
+def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float, levels: int,
+                   device: wp.Device) -> tuple[wp.array, wp.array, list[int]]:
+    """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes."""
+    count = grid.n * grid.n
+    counts = scratch("globe.nodes.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
+    no_leaves = wp.empty(0, dtype=wp.vec4i, device=device)
+    launch_chunked(cube_kernels.count_node_leaves, count, [grid, params, use_geometric, error, no_leaves], [counts],
+                   device)
+    offsets, total = exclusive_offsets(counts, "globe.nodes")
+    n_leaves = _host_int(offsets, count + 1)
+    check_budget(n_leaves * 16 + (total - n_leaves) * 28, "the planar mesh")
+    leaves = wp.empty(n_leaves, dtype=wp.vec4i, device=device)
+    entries = wp.empty(total - n_leaves, dtype=wp.int32, device=device)
+    launch_chunked(cube_kernels.emit_node_leaves, count, [grid, params, use_geometric, error, counts, offsets],
+                   [leaves, entries], device)
+    return leaves, entries, _planar_levels(entries, grid.cells, device)
+
+
+def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int]:
+    """Triangles per level of a planar refinement from its refined nodes (the new vertices): two roots, then
+    two children per triangle of each refined node's diamond (the counts the breadth-first levels report)."""
+    rows = 64
+    counts = wp.empty((rows, 32), dtype=wp.int32, device=device)
+    launch(cube_kernels.count_levels, rows, [entries.shape[0], -(-entries.shape[0] // rows), cells, entries],
+           [counts], device)
+    per_level = [2, *counts.numpy().sum(axis=0)[1:].tolist()]
+    while per_level and per_level[-1] == 0:
+        per_level.pop()
+    return per_level
+
+
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
              per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Breadth-first refinement, one count -> scan -> emit per level, then vertices and faces."""
@@ -556,6 +597,14 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     vertex_chunks = [wp.array(corner_entries(grid.cells, n, faces), dtype=wp.int32, device=device)]
     per_level = []
     host = (grid.positions.numpy(), params.values.numpy()) if users else None
+    flags = view.flags
+    if _NODE_PASS and faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
+        # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
+        # and vertices as the breadth-first levels below (in another order), without a pass per level
+        leaves, entries, per_level = _planar_leaves(grid, params, int(flags[0]), float(view.error), levels, device)
+        leaf_chunks.append(leaves)
+        vertex_chunks.append(entries)
+        levels = -1  # the loop below has nothing left to do
     for depth in range(levels + 1):
         count = triangles.shape[0]
         if count == 0:

@@ -85,6 +85,27 @@ def test_fewer_triangles_for_larger_error():
     assert counts[-1] == 2
 
 
+@pytest.mark.parametrize(("rows", "cols", "error"), [(129, 129, 2.0), (100, 150, 5.0), (65, 65, 0.5)])
+def test_node_pass_equals_breadth_first(monkeypatch, rows, cols, error):
+    """Without a view the refinement runs as one pass over the nodes; it must give the breadth-first result."""
+    import stepterrain.globe as globe_module
+
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", rows, cols)
+    fast = adaptive_mesh(z, error=error, spacing=30.0)
+    monkeypatch.setattr(globe_module, "_NODE_PASS", False)
+    slow = adaptive_mesh(z, error=error, spacing=30.0)
+
+    def triangles(mesh):
+        corners = np.asarray(mesh.metadata["node_index"])[np.asarray(mesh.faces)]  # (F, 3, 2) rows, columns
+        keys = corners[..., 0] * 100_000 + corners[..., 1]
+        first = keys.argmin(axis=1)  # rotate each triangle to start at its smallest corner (keeps the winding)
+        rotated = np.take_along_axis(keys, (first[:, None] + np.arange(3)) % 3, axis=1)
+        return rotated[np.lexsort(rotated.T[::-1])]
+
+    assert np.array_equal(triangles(fast), triangles(slow))
+    assert fast.metadata["levels"] == slow.metadata["levels"]
+
+
 def test_plane_and_origin():
     z = np.add.outer(np.arange(17.0), 2 * np.arange(17.0))
     mesh = adaptive_mesh(z, error=1e-3, spacing=(2.0, 3.0), origin=(100.0, 200.0))
