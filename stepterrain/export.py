@@ -156,7 +156,10 @@ def save_mesh(
     target = _target(path)
     ext = target.suffix.lower()
     vertices = np.asarray(mesh.vertices)
-    if vertices.size and not np.isfinite(vertices).all():
+    # per column: NaN propagates through min/max and inf shows in them, so finite extremes mean finite
+    # vertices, without an (N, 3) temporary
+    if vertices.size and not all(np.isfinite(vertices[:, k].min()) and np.isfinite(vertices[:, k].max())
+                                 for k in range(vertices.shape[1])):  # fmt: skip
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise InvalidInputError(
             f"mesh vertices must be finite to be written; got {bad} of {len(vertices)} vertices with NaN or inf"

@@ -95,8 +95,11 @@ def test_solid_3mf_and_stl_are_watertight(tmp_path):
         assert back.is_watertight and back.volume > 0
 
 
-def test_non_finite_vertices_are_refused(tmp_path):
-    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [np.nan, 1, 0]], [[0, 1, 2]], process=False)
+@pytest.mark.parametrize("bad", [(2, 0, np.nan), (1, 2, np.inf), (0, 1, -np.inf)])
+def test_non_finite_vertices_are_refused(tmp_path, bad):
+    points = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype=np.float64)
+    points[bad[0], bad[1]] = bad[2]
+    mesh = trimesh.Trimesh(points, [[0, 1, 2]], process=False)
     with pytest.raises(InvalidInputError, match="vertices must be finite.*1 of 3"):
         save_mesh(mesh, tmp_path / "bad.glb")
     assert list(tmp_path.iterdir()) == []
