@@ -67,8 +67,9 @@ def add_parser(commands: Any) -> None:
                    help="metrics multiplied together (default geometric,distance,clip)")
     p.add_argument("--no-cull", action="store_true", help="keep triangles outside the view (a closed mesh)")
     p.add_argument("--texture", metavar="IMAGE",
-                   help="plate-carree image (row 0 at 90N, column 0 at 180W) draped as vertex colours; "
-                        "default: colours by elevation")
+                   help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
+                        "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.stl/.3mf "
+                        "and the --png render; default: colours by elevation")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
     p.add_argument("-o", "--output", required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
@@ -94,7 +95,15 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
-    from .globe import Globe, drape_colors, elevation_colors, load_global_relief, look_from, render_view
+    from .globe import (
+        Globe,
+        drape_colors,
+        drape_texture,
+        elevation_colors,
+        load_global_relief,
+        look_from,
+        render_view,
+    )
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
@@ -131,8 +140,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("the view sees no part of the globe (every triangle was clipped); "
                                 "point the eye at the earth or pass --no-cull")
 
+    textured = None
     if args.texture:
         mesh.visual.vertex_colors = drape_colors(mesh.vertices, args.texture)
+        if out.suffix.lower() in (".glb", ".gltf", ".obj"):
+            textured = drape_texture(mesh, args.texture)
     else:
         heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / args.exaggeration
         mesh.visual.vertex_colors = elevation_colors(heights)
@@ -155,7 +167,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         "exaggeration": args.exaggeration,
     }
     mesh.metadata.pop("node_entry", None)
-    written = export.save_mesh(mesh, out, metadata=metadata)
+    written = export.save_mesh(textured if textured is not None else mesh, out, metadata=metadata)
     progress.done(_size(written))
     if image is not None:
         progress.stage("write_png", f"writing {png}")

@@ -39,8 +39,8 @@ from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import cubesphere as cube_kernels
 
-__all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "elevation_colors", "look_from", "render_view",
-           "EARTH_RADIUS", "METRICS"]
+__all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
+           "render_view", "EARTH_RADIUS", "METRICS"]
 
 #: Mean earth radius in metres.
 EARTH_RADIUS = 6_371_000.0
@@ -817,15 +817,8 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
     return np.round(rgba * 255).astype(np.uint8)
 
 
-def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
-    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W),
-    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude).
-
-    Raises
-    ------
-    InvalidInputError
-        The image is not (H, W, 3|4) or cannot be read.
-    """
+def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
+    """An (H, W, 3|4) uint8 image from a path or an array."""
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         from PIL import Image
 
@@ -837,6 +830,89 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     pixels = np.asarray(image)
     if pixels.ndim != 3 or pixels.shape[2] not in (3, 4) or min(pixels.shape[:2]) < 2:
         raise InvalidInputError(f"texture must be an (H, W, 3|4) image; got shape {pixels.shape}")
+    if pixels.dtype != np.uint8:
+        if pixels.dtype.kind not in "fiu" or not np.isfinite(pixels).all() or pixels.min() < 0 or pixels.max() > 255:
+            raise InvalidInputError(f"texture values must lie in [0, 255] (or [0, 1] floats); got dtype {pixels.dtype}")
+        scale = 255.0 if pixels.dtype.kind == "f" and pixels.max() <= 1.0 else 1.0
+        pixels = np.round(pixels.astype(np.float64) * scale).astype(np.uint8)
+    return pixels
+
+
+def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trimesh:
+    """A copy of a globe mesh textured with a global plate-carrée image (paper 003 §5.3: a global texture
+    draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded.
+
+    Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
+    90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
+    its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the whole image; a corner
+    at a pole gets a copy per face with the mean u of the face's other corners. The copies sit exactly on
+    the original positions, so the surface stays crack-free; faces, their order and ``face_attributes`` are
+    unchanged.
+
+    Raises
+    ------
+    InvalidInputError
+        ``mesh`` is not a trimesh.Trimesh, or the image is not (H, W, 3|4) with values in [0, 255].
+    DataFileError
+        The image file cannot be read.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> lat = np.linspace(89.5, -89.5, 180); lon = np.linspace(-179.5, 179.5, 360)
+    >>> g = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=9, device="cpu")
+    >>> textured = drape_texture(g.mesh(), np.zeros((90, 180, 3), np.uint8))
+    >>> len(textured.visual.uv) == len(textured.vertices) > len(g.mesh().vertices)
+    True
+    """
+    if not isinstance(mesh, trimesh.Trimesh):
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    pixels = _texture_pixels(image)
+    from PIL import Image
+
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
+    u = (np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0])) + 180.0) / 360.0
+    v = (np.degrees(np.arctan2(vertices[:, 2], horizontal)) + 90.0) / 180.0
+    pole = horizontal <= 1e-9 * np.maximum(np.abs(vertices[:, 2]), 1.0)
+    corner_u = u[faces]
+    corner_pole = pole[faces]
+    # the antimeridian: a face whose non-pole corners span more than half the image wraps around
+    lo = np.where(corner_pole, np.inf, corner_u).min(axis=1)
+    hi = np.where(corner_pole, -np.inf, corner_u).max(axis=1)
+    crossing = hi - lo > 0.5
+    shift = crossing[:, None] & (corner_u < 0.5) & ~corner_pole
+    corner_u = np.where(shift, corner_u + 1.0, corner_u)
+    # the poles: the mean u of the face's other corners
+    others = np.where(corner_pole, 0.0, corner_u).sum(axis=1) / np.maximum((~corner_pole).sum(axis=1), 1)
+    corner_u = np.where(corner_pole, others[:, None], corner_u)
+    # one copy per shifted vertex (shared by its faces), one per pole corner
+    shifted = np.unique(faces[shift])
+    shifted_index = np.full(len(vertices), -1, np.int64)
+    shifted_index[shifted] = len(vertices) + np.arange(len(shifted))
+    new_faces = np.where(shift, shifted_index[faces], faces)
+    pole_rows, pole_cols = np.nonzero(corner_pole)
+    new_faces[pole_rows, pole_cols] = len(vertices) + len(shifted) + np.arange(len(pole_rows))
+    sources = np.concatenate([np.arange(len(vertices)), shifted, faces[pole_rows, pole_cols]])
+    uv = np.column_stack([np.concatenate([u, u[shifted] + 1.0, corner_u[pole_rows, pole_cols]]), v[sources]])
+    out = trimesh.Trimesh(vertices[sources], new_faces, process=False, metadata=dict(mesh.metadata),
+                          face_attributes={k: np.asarray(a) for k, a in mesh.face_attributes.items()})  # fmt: skip
+    out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies
+    out.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(pixels))
+    return out
+
+
+def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
+    """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W),
+    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude).
+
+    Raises
+    ------
+    InvalidInputError
+        The image is not (H, W, 3|4) or cannot be read.
+    """
+    pixels = _texture_pixels(image)
     v = np.asarray(vertices, dtype=np.float64)
     d = v / np.linalg.norm(v, axis=1, keepdims=True)
     lat = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))

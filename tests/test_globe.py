@@ -402,6 +402,51 @@ def test_colours_by_elevation_and_draped_image(small_globe):
         drape_colors(mesh.vertices, np.zeros((4, 4)))
 
 
+def test_draped_texture_keeps_the_surface_and_wraps_the_antimeridian(small_globe, tmp_path):
+    from stepterrain.globe import drape_colors, drape_texture
+
+    mesh = small_globe.mesh(error=0.0)
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, (45, 90, 3), dtype=np.uint8)
+    textured = drape_texture(mesh, image)
+    # the same triangles at the same positions, in the same order; copies only add vertices
+    np.testing.assert_array_equal(textured.vertices[textured.faces], mesh.vertices[mesh.faces])
+    assert len(textured.vertices) > len(mesh.vertices)
+    np.testing.assert_array_equal(textured.face_attributes["cube_face"], mesh.face_attributes["cube_face"])
+    uv = textured.visual.uv
+    span = np.ptp(uv[textured.faces][:, :, 0], axis=1)
+    assert span.max() < 0.25  # no face spans the image (the antimeridian and the poles wrap)
+    assert uv[:, 0].min() >= 0.0 and uv[:, 0].max() < 1.5 and 0.0 <= uv[:, 1].min() and uv[:, 1].max() <= 1.0
+    # u, v are longitude and latitude (computed independently here with arcsin)
+    d = mesh.vertices / np.linalg.norm(mesh.vertices, axis=1, keepdims=True)
+    away = np.hypot(d[:, 0], d[:, 1]) > 1e-6
+    lat = np.degrees(np.arcsin(d[:, 2]))
+    lon = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+    np.testing.assert_allclose(uv[: len(mesh.vertices)][away, 1], (lat[away] + 90) / 180, atol=1e-12)
+    np.testing.assert_allclose(uv[: len(mesh.vertices)][away, 0], (lon[away] + 180) / 360, atol=1e-12)
+    # the texture seen through the UVs is the image drape_colors samples at the vertices
+    h, w = image.shape[:2]
+    fx = (uv[:, 0] % 1.0) * w - 0.5
+    fy = (1.0 - uv[:, 1]) * h - 0.5
+    inner = (fx > 0.5) & (fx < w - 1.5) & (fy > 0.5) & (fy < h - 1.5)
+    x0, y0 = np.floor(fx[inner]).astype(int), np.floor(fy[inner]).astype(int)
+    tx, ty = (fx[inner] - x0)[:, None], (fy[inner] - y0)[:, None]
+    p = image.astype(np.float64)
+    top = (1 - tx) * p[y0, x0] + tx * p[y0, x0 + 1]
+    seen = (1 - ty) * top + ty * ((1 - tx) * p[y0 + 1, x0] + tx * p[y0 + 1, x0 + 1])
+    draped = drape_colors(textured.vertices[inner], image)[:, :3].astype(np.float64)
+    assert np.abs(seen - draped).max() <= 1.0
+    # the image travels in the GLB
+    from stepterrain.export import save_mesh
+
+    back = trimesh.load(save_mesh(textured, tmp_path / "earth.glb"), force="mesh", process=False)
+    assert back.visual.material.baseColorTexture.size == (90, 45)
+    with pytest.raises(InvalidInputError, match="texture must be"):
+        drape_texture(mesh, np.zeros((4, 4)))
+    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh"):
+        drape_texture(mesh.vertices, image)
+
+
 def test_sample_loads_the_embedded_grid():
     lat, lon, z = load_global_relief()
     assert z.shape == (540, 1080) and lat[0] > lat[-1] and lon[0] < lon[-1]

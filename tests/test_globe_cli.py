@@ -111,3 +111,19 @@ def test_example_adaptive_mesh(tmp_path, capsys):
 
     for error in (20.0, 2.0):
         assert example.true_error(adaptive_mesh(heights, error=error, spacing=spacing), heights, spacing) <= error
+
+
+def test_globe_texture_is_embedded_in_the_glb(tmp_path):
+    image = np.zeros((32, 64, 3), np.uint8)
+    image[:, :32] = (200, 30, 30)
+    picture = tmp_path / "earth.png"
+    from PIL import Image
+
+    Image.fromarray(image).save(picture)
+    out = tmp_path / "textured.glb"
+    assert main(["-q", "globe", "--face-size", "17", "--error", "0", "--no-camera", "--texture", str(picture),
+                 "-o", str(out)]) == 0
+    back = trimesh.load(out, force="mesh", process=False)
+    assert isinstance(back.visual, trimesh.visual.TextureVisuals)
+    assert back.visual.material.baseColorTexture.size == (64, 32)
+    assert len(back.faces) == 12 * 16**2 and len(back.visual.uv) == len(back.vertices)
