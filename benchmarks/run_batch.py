@@ -29,7 +29,6 @@ import os
 import platform
 import resource
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -37,6 +36,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
+from machine import cpu_model  # noqa: E402  (benchmarks/ is the script folder)
 
 _HERE = Path(__file__).resolve().parent
 if str(_HERE.parent) not in sys.path:
@@ -51,17 +51,6 @@ CELLS_PER_1DEG_TILE = 3600 * 3600
 def shared_data() -> Path:
     env = os.environ.get("STEPTERRAIN_SHARED_DATA")
     return Path(env) if env else _HERE.parent.parent / "shared" / "data"
-
-
-def cpu_model() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def make_tiles(folder: Path, tiles: int, tile: int) -> tuple[Path, float]:

@@ -46,6 +46,7 @@ if str(_HERE.parent) not in sys.path:
     sys.path.insert(0, str(_HERE.parent))
 
 from benchmarks import baselines  # noqa: E402
+from benchmarks.machine import cpu_model  # noqa: E402
 
 CONTENDERS = ("warp", "vtk_banded", "vtk_clip_per_band", "numpy_ref")
 BASELINES = ("vtk_banded", "numpy_ref", "vtk_clip_per_band")
@@ -57,17 +58,6 @@ PEAK_GOAL = 2.0
 
 
 # ----------------------------------------------------------------------------- machine
-
-
-def cpu_model() -> str:
-    try:
-        out = subprocess.run(["lscpu"], capture_output=True, text=True, check=False).stdout
-        for line in out.splitlines():
-            if line.startswith("Model name:"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def memory_bandwidth(gib: float = 1.0, repeat: int = 5) -> dict[str, float]:
