@@ -33,7 +33,7 @@ from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import launch, resolve_device, to_device
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
-from .terrain import Terrain, as_terrain, grid_faces
+from .terrain import Terrain, _pair, as_terrain, grid_faces
 
 __all__ = [
     "ROI",
@@ -72,18 +72,6 @@ _MAX_CLOSEUPS = 16
 
 
 # ------------------------------------------------------------------------------------------------ helpers
-def _finite_pair(value: Any, name: str) -> tuple[float, float]:
-    try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"{name} must be a pair of numbers; got {value!r}") from exc
-    if arr.size == 1:
-        arr = np.repeat(arr, 2)
-    if arr.size != 2 or not np.all(np.isfinite(arr)):
-        raise InvalidInputError(f"{name} must be a pair of finite numbers; got {value!r}")
-    return float(arr[0]), float(arr[1])
-
-
 def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
     try:
         v = float(value)
@@ -145,8 +133,8 @@ class ROI:
     shape: str = "painted"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "center", _finite_pair(self.center, "ROI center"))
-        size = _finite_pair(self.size, "ROI size")
+        object.__setattr__(self, "center", _pair(self.center, "ROI center", nonzero=False))
+        size = _pair(self.size, "ROI size", nonzero=False)
         if min(size) <= 0:
             raise InvalidInputError(f"ROI size must be positive (width, height); got {size}")
         object.__setattr__(self, "size", size)
@@ -187,7 +175,7 @@ class ROI:
     def ellipse(cls, center: ArrayLike, radii: ArrayLike, *, edge_width: float | None = None,
                 resolution: int = 129) -> ROI:
         """An axis-aligned ellipse with semi-axes ``radii`` = (a, b); soft edge as in :meth:`circle`."""
-        a, b = _finite_pair(radii, "ROI radii")
+        a, b = _pair(radii, "ROI radii", nonzero=False)
         if min(a, b) <= 0:
             raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
         width = min(a, b) / 5 if edge_width is None else _positive(edge_width, "edge_width", allow_zero=True)
@@ -208,7 +196,7 @@ class ROI:
     def rounded_rectangle(cls, center: ArrayLike, size: ArrayLike, *, corner_radius: float | None = None,
                           edge_width: float | None = None, resolution: int = 129) -> ROI:
         """A rectangle whose corners are arcs of ``corner_radius`` (default min side / 5)."""
-        w, h = _finite_pair(size, "ROI size")
+        w, h = _pair(size, "ROI size", nonzero=False)
         if min(w, h) <= 0:
             raise InvalidInputError(f"ROI size must be positive (width, height); got {(w, h)}")
         rc = min(w, h) / 5 if corner_radius is None else _positive(corner_radius, "corner_radius", allow_zero=True)
