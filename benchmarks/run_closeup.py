@@ -120,30 +120,6 @@ def time_culled_interleaved(terrain, counts: list[int], repeat: int, configs: di
     return out
 
 
-def time_culled(terrain, count: int, repeat: int, reuse: bool = False) -> dict:
-    from stepterrain import render
-    from stepterrain.closeup import render_closeups
-
-    cus = closeups_for(terrain, count)
-    box = frame_bounds(terrain, cus)
-    renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
-    try:
-        render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, device="cpu",
-                        reuse_overview=reuse)  # warm-up
-        frames, stages = [], []
-        for _ in range(repeat):
-            timings: dict[str, float] = {}
-            start = time.perf_counter()
-            render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, timings=timings,
-                            device="cpu", reuse_overview=reuse)
-            frames.append(time.perf_counter() - start)
-            stages.append(timings)
-    finally:
-        renderer.close()
-    best = int(np.argmin(frames))
-    return {"best": min(frames), "median": statistics.median(frames), "stages": stages[best]}
-
-
 def time_full(terrain, count: int, repeat: int) -> dict:
     """The paper's cost model: every close-up pass transforms and renders the whole terrain."""
     from stepterrain import render
@@ -224,7 +200,6 @@ def transform_throughput(terrain, repeat: int) -> dict:
 
     box = cu.roi.box
     mask = cu.roi.mask.astype(np.float32)
-    local_matrix = np.linalg.inv(np.diag([1, 1, 1, 1.0])) @ matrix
     shift = np.eye(4)
     shift[:2, 3] = (ox, oy)
     local_matrix = (np.linalg.inv(shift) @ matrix @ shift).astype(np.float32)

@@ -97,15 +97,14 @@ def add_parser(commands: Any) -> None:
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import batch, overview_image
-    from .cli import _check_output
+    from .cli import _check_output, _check_size
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
-    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
-        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    _check_size(args.size)
     if not math.isfinite(args.connect_timeout) or args.connect_timeout <= 0:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds; got {args.connect_timeout}")
     if args.device is not None:

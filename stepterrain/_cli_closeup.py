@@ -95,7 +95,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .cli import _check_output
+    from .cli import _check_output, _check_size
     from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
@@ -106,8 +106,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
-    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
-        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    _check_size(args.size)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not math.isfinite(args.spin) or args.spin == 0:

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _floats, _size, _window
+from .cli import Progress, _check_output, _check_size, _floats, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -108,8 +108,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     metrics = tuple(m.strip() for m in args.metrics.split(",") if m.strip())
-    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
-        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    _check_size(args.size)
     lat_deg, lon_deg, altitude = args.eye
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")

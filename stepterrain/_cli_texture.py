@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _colormap, _size, _window
+from .cli import Progress, _check_output, _check_size, _colormap, _size, _window
 from .errors import InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -101,8 +101,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
     if args.interval is not None and mesh_out is None and png is None:
         raise InvalidInputError("--interval applies only with --mesh or --png")
-    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
-        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    _check_size(args.size)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     if png is not None:

@@ -113,6 +113,12 @@ def _window(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _check_size(size: tuple[int, int]) -> None:
+    """``--size`` of every subcommand: 8 to 16384 pixels per side (an InvalidInputError, exit code 2)."""
+    if size[0] < 8 or size[1] < 8 or max(size) > 16384:
+        raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {size[0]}x{size[1]}")
+
+
 # ------------------------------------------------------------------------------------------ parser
 def build_parser() -> argparse.ArgumentParser:
     """The ``stepterrain`` parser; each subcommand sets ``run`` to its handler ``(args, progress) -> int``."""
@@ -273,9 +279,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
-    if args.size[0] < 8 or args.size[1] < 8 or max(args.size) > 16384:
-        raise InvalidInputError(
-            f"--size must lie in [8, 16384] pixels per side; got {args.size[0]}x{args.size[1]}")
+    _check_size(args.size)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 

@@ -33,6 +33,7 @@ from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import launch, resolve_device, to_device
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
+from .stepped import LAND_START
 from .terrain import Terrain, _pair, as_terrain, grid_faces
 
 __all__ = [
@@ -799,16 +800,29 @@ def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: s
     """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid."""
     if kind == "height" or terrain.kind != "grid":
         return points_local[:, 2].astype(np.float32)
-    heights = terrain.heights.astype(np.float64)
     dx, dy = terrain.spacing
-    gy, gx = np.gradient(heights, dy, dx)
-    if kind == "slope":
-        field_ = np.arctan(np.hypot(gx, gy))
-    else:
-        field_ = np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
-    j = np.clip(np.rint(points_local[:, 0] / dx).astype(np.int64), 0, heights.shape[1] - 1)
-    i = np.clip(np.rint(points_local[:, 1] / dy).astype(np.int64), 0, heights.shape[0] - 1)
+
+    def field() -> NDArray[np.float64]:  # once per terrain and kind, not per call (frames, close-ups)
+        gy, gx = np.gradient(terrain.heights.astype(np.float64), dy, dx)
+        if kind == "slope":
+            return np.arctan(np.hypot(gx, gy))
+        return np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
+
+    field_ = terrain.cached(("closeup", "scalar-field", kind), field)
+    j = np.clip(np.rint(points_local[:, 0] / dx).astype(np.int64), 0, field_.shape[1] - 1)
+    i = np.clip(np.rint(points_local[:, 1] / dy).astype(np.int64), 0, field_.shape[0] - 1)
     return np.nan_to_num(field_[i, j]).astype(np.float32)
+
+
+def _overview_rgb(t: Terrain, mesh: trimesh.Trimesh, scalars: str | None, cmap: str,
+                  image_texture: Any) -> NDArray[np.uint8] | None:
+    """The overview's vertex colours: an aerial image, else a colormap of its scalars, else None (plain)."""
+    if image_texture is not None:
+        return _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
+    if scalars is None:
+        return None
+    local = (np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]).astype(np.float32)
+    return _colors_for(_vertex_scalars(t, local, scalars), cmap, *_scalar_range(t, scalars))
 
 
 def closeup_layers(
@@ -890,6 +904,8 @@ def closeup_layers(
                 src.scalars = _vertex_scalars(t, src.points, cu.scalars)
             cache[key] = src
         sources.append(src)
+    check_budget(sum(len(src.points) for src in sources) * (12 + 4 + 4 + 12)
+                 + sum(len(src.faces) for src in sources) * (12 + 4 + 12), "close-up geometry", memory_budget)
     # the concatenated inputs and their uploads, kept for the same sources (the kernels only read them)
     joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
     joined = cache.get(joined_key)
@@ -900,15 +916,12 @@ def closeup_layers(
         points = np.concatenate([s.points for s in sources]).astype(np.float32)
         faces = np.concatenate([s.faces + ps for s, ps in zip(sources, point_start, strict=True)]).astype(np.int32)
         point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
-        check_budget(len(points) * (12 + 4 + 4 + 12) + len(faces) * (12 + 4 + 12), "close-up geometry",
-                     memory_budget)
         uploads = (to_device(points.reshape(-1, 3), wp.vec3, device), to_device(point_layer, wp.int32, device),
                    to_device(faces.reshape(-1, 3), wp.vec3i, device))
         joined = (tuple(sources), n_faces, point_start, points, faces, point_layer, uploads)
         cache[joined_key] = joined
     _, n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
-    check_budget(n * (12 + 4 + 4 + 12) + nf * (12 + 4 + 12), "close-up geometry", memory_budget)
     layers = _layers_struct(items, matrices, t.local_origin, device)
     ox, oy = t.local_origin
 
@@ -1275,8 +1288,9 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
         raise InvalidInputError(f"cmap must name a matplotlib colormap; got {cmap!r}") from None
     span = vmax - vmin if vmax > vmin else 1.0
     x = np.clip((mesh_values - vmin) / span, 0, 1)
-    if cmap == "terrain":  # its land part: the first quarter is sea blue
-        x = 0.25 + 0.75 * x
+    lo = LAND_START.get(cmap, 0.0)  # the colormap's land part (stepped.LAND_START: 'terrain' skips its sea blues)
+    if lo:
+        x = lo + (1.0 - lo) * x
     # = (table(x)[:, :3] * 255 + 0.5).astype(uint8), entry by entry: matplotlib looks a float x up in its
     # N-entry table at int(x·N) (x·N in x's dtype, N itself mapped to N − 1, NaN to the "bad" color); the
     # table is converted to uint8 once instead of every vertex's RGBA
@@ -1554,25 +1568,14 @@ def render_closeups(
         overview_key = ("overview", id(t), scalars, cmap, None if texture is None else id(texture))
         if not renderer.has("overview", overview_key):
             mesh = t.mesh()
-            rgb = None
-            if scalars is not None:
-                if t.kind == "grid":
-                    local = np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]
-                    values = _vertex_scalars(t, local.astype(np.float32), scalars)
-                else:
-                    values = np.asarray(mesh.vertices[:, 2], np.float32)
-                rgb = _colors_for(values, cmap, *_scalar_range(t, scalars))
-            if image_texture is not None:
-                rgb = _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
+            rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
         if bounds is not None:
             box = np.asarray(bounds, dtype=np.float64)
         else:
             boxes = [renderer.bounds_of("overview")]
             for layer, strip in zip(layers, strips, strict=True):
-                for v in (layer.vertices, strip.vertices):
-                    if len(v):
-                        boxes.append(np.array([[v[:, i].min() for i in range(3)], [v[:, i].max() for i in range(3)]]))
+                boxes += [b for b in map(render._finite_bounds, (layer.vertices, strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
@@ -1644,10 +1647,7 @@ def closeup_scene(
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     mesh = t.mesh()
-    overview_rgb = None
-    if scalars is not None:
-        local = (np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]).astype(np.float32)
-        overview_rgb = _colors_for(_vertex_scalars(t, local, scalars), cmap, *_scalar_range(t, scalars))
+    overview_rgb = _overview_rgb(t, mesh, scalars, cmap, None)
     parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
               _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
     layers = closeup_layers(t, items, time=time, device=device)
@@ -1699,16 +1699,17 @@ def animate_closeups(
         raise InvalidInputError(f"frames must be a positive int; got {frames!r}")
     fps = _positive(fps, "fps")
     times = np.arange(frames) / fps
-    boxes = []
-    for time in np.linspace(0, max(times[-1], 1e-9), 9):  # the swept box from a few phases
-        for layer in closeup_layers(t, items, time=float(time), device=device):
-            if len(layer.vertices):
-                boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
-    xmin, xmax, ymin, ymax = t.extent
-    zmin, zmax = _height_range(t)
-    boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
-    box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-    box = options.pop("bounds", box)
+    box = options.pop("bounds", None)
+    if box is None:  # the box swept by the close-ups over a few phases, and the terrain
+        boxes = []
+        for time in np.linspace(0, max(times[-1], 1e-9), 9):
+            for layer in closeup_layers(t, items, time=float(time), device=device):
+                if len(layer.vertices):
+                    boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
+        xmin, xmax, ymin, ymax = t.extent
+        zmin, zmax = _height_range(t)
+        boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
+        box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     renderer = render.LayeredRenderer(window_size=_window(window_size), background=options.pop("background", "white"),
                                       z_scale=options.pop("z_scale", 1.0))
     try:
