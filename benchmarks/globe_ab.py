@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import sys
-import time
 from pathlib import Path
 
 ROOT = Path(sys.argv[1] if len(sys.argv) > 1 else ".").resolve()
@@ -27,17 +26,7 @@ import numpy as np  # noqa: E402
 import stepterrain._device as _device  # noqa: E402  (before run_globe, which puts this checkout first)
 from stepterrain.globe import EARTH_RADIUS, Globe, adaptive_mesh, look_from  # noqa: E402
 
-from run_globe import data_file, tiled_dem  # noqa: E402  # isort: skip
-
-
-def best(fn, n):
-    cpu, wall, out = [], [], None
-    for _ in range(n):
-        c0, w0 = time.process_time(), time.perf_counter()
-        out = fn()
-        cpu.append(time.process_time() - c0)
-        wall.append(time.perf_counter() - w0)
-    return out, min(cpu), min(wall)
+from run_globe import best, data_file, tiled_dem  # noqa: E402  # isort: skip
 
 
 def main() -> int:

@@ -274,11 +274,11 @@ def renders(globe: Any, cams: dict[str, Any], out_dir: Path, lines: list[str]) -
     from stepterrain.globe import elevation_colors, look_from, render_view
 
     overview = look_from(52.0, 8.5, 3_000_000.0, aspect=1.6)
+    node_heights = globe.heights.reshape(-1)  # one device-to-host copy for every render
     for name, error in (("far", 3000.0), ("close", 20.0)):
         for bounds in ("cone", "sphere"):
             mesh = globe.mesh(error=error, camera=cams[name], bounds=bounds)
-            heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]]
-            mesh.visual.vertex_colors = elevation_colors(heights)
+            mesh.visual.vertex_colors = elevation_colors(node_heights[mesh.metadata["node_entry"]])
             seen_from = cams[name] if name == "far" else overview
             image = render_view(mesh, seen_from, window_size=(960, 600), show_edges=name == "close")
             path = out_dir / f"globe_{name}_{bounds}.png"

@@ -278,7 +278,12 @@ def longitude_line(source: LatLonGrid, point: wp.vec3i) -> wp.vec4:
 
 @wp.func
 def sample_latlon_line(source: LatLonGrid, point: wp.vec3i, line: wp.vec4) -> wp.float32:
-    """:func:`sample_latlon` with the node's :func:`longitude_line` given."""
+    """Bilinear elevation in the direction of an integer cube point, its :func:`longitude_line` given; between
+    the first (last) row and the pole, a blend towards the pole value.
+
+    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
+    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
+    own error; the same integer point gives the same value on every seam copy."""
     rows = source.elevation.shape[0]
     half_pi = wp.float64(1.5707963267948966)
     lat = wp.float64(fast_atan2f(wp.float32(point[2]), line[3]))
@@ -302,17 +307,6 @@ def sample_latlon_line(source: LatLonGrid, point: wp.vec3i, line: wp.vec4) -> wp
     r0 = wp.min(r0, rows - 2)
     t = wp.float32(fr - wp.float64(r0))
     return (1.0 - t) * sample_row(source, r0, cw) + t * sample_row(source, r0 + 1, cw)
-
-
-@wp.func
-def sample_latlon(source: LatLonGrid, point: wp.vec3i) -> wp.float32:
-    """Bilinear elevation in the direction of an integer cube point; between the first (last) row and the
-    pole, a blend towards the pole value.
-
-    Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
-    rounding, ~1e-7 rad or < 1 m on the earth, is 1e-4 of a 10' source cell, far below the bilinear model's
-    own error; the same integer point gives the same value on every seam copy."""
-    return sample_latlon_line(source, point, longitude_line(source, point))
 
 
 @wp.func
@@ -367,7 +361,7 @@ def resample_latlon(
     """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
     projected position v = (R + z) · w / ||w|| rounded to float32 (§4). On the equatorial faces the longitude's
     column weights and ρ come from the node's longitude line (the same float32 values, so the same results as
-    :func:`sample_latlon`; one atan2 per node instead of two)."""
+    :func:`sample_latlon_line`; one atan2 per node instead of two)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:

@@ -97,6 +97,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from .globe import (
         Globe,
+        _texture_pixels,
         drape_colors,
         drape_texture,
         elevation_colors,
@@ -141,9 +142,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     textured = None
     if args.texture:
-        mesh.visual.vertex_colors = drape_colors(mesh.vertices, args.texture)
+        pixels = _texture_pixels(args.texture)  # decoded once for both drapes
+        mesh.visual.vertex_colors = drape_colors(mesh.vertices, pixels)
         if out.suffix.lower() in (".glb", ".gltf", ".obj"):
-            textured = drape_texture(mesh, args.texture)
+            textured = drape_texture(mesh, pixels)
     else:
         heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / args.exaggeration
         mesh.visual.vertex_colors = elevation_colors(heights)

@@ -96,10 +96,10 @@ class Camera:
             object.__setattr__(self, "aspect", float(self.aspect))
         except (TypeError, ValueError):
             raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}") from None
-        if self.viewport is None:
-            object.__setattr__(self, "viewport", (max(1, round(_DEFAULT_HEIGHT * self.aspect)), _DEFAULT_HEIGHT))
         if not (math.isfinite(self.aspect) and self.aspect > 0):
             raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
+        if self.viewport is None:
+            object.__setattr__(self, "viewport", (max(1, round(_DEFAULT_HEIGHT * self.aspect)), _DEFAULT_HEIGHT))
         if not (math.isfinite(self.near) and math.isfinite(self.far) and 0.0 < self.near < self.far):
             raise InvalidInputError(f"Camera needs 0 < near < far (finite); got near={self.near!r}, far={self.far!r}")
 

@@ -38,6 +38,7 @@ from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import cubesphere as cube_kernels
+from .stepped import LAND_START
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -642,7 +643,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
            device)
     if n_faces < n_leaves:  # culled: drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
-        used[:n_vertices].zero_()
+        used.zero_()  # the flags and count_buffer's final 0
         launch_chunked(cube_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
         used_offsets, n_used = exclusive_offsets(used, "globe.used")
         kept_vertices = wp.empty(n_used, dtype=wp.vec3d, device=device)
@@ -813,7 +814,8 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
     rgba = np.empty((len(z), 4), dtype=np.float64)
     sea = z < 0
     rgba[sea] = matplotlib.colormaps["Blues"](np.clip(0.85 - 0.5 * (-z[sea] / 6000.0), 0.3, 0.85) ** 0.9)
-    rgba[~sea] = matplotlib.colormaps["terrain"](0.25 + 0.75 * np.clip(z[~sea] / 5000.0, 0.0, 1.0))
+    land = LAND_START["terrain"]  # its land part (the first quarter is sea blue)
+    rgba[~sea] = matplotlib.colormaps["terrain"](land + (1.0 - land) * np.clip(z[~sea] / 5000.0, 0.0, 1.0))
     return np.round(rgba * 255).astype(np.uint8)
 
 

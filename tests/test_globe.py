@@ -509,6 +509,9 @@ def test_bad_mesh_arguments(small_globe):
         Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), fov=4.0)
     with pytest.raises(InvalidInputError, match="near < far"):
         Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), near=5.0, far=1.0)
+    for aspect in (float("inf"), float("nan"), 0.0):  # checked before the default viewport is derived from it
+        with pytest.raises(InvalidInputError, match="aspect must be a positive number"):
+            Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), aspect=aspect)
 
 
 def test_memory_budget_refuses_before_allocating():
