@@ -61,7 +61,6 @@ class Sweep:
     forward: wp.int32
     c_min: wp.int32
     away: wp.vec2
-    tan_altitude: wp.float32
     rise: wp.vec2  # tan(altitude) * distance away from the light per column (x) and per row (y) index
 
 

@@ -265,7 +265,7 @@ def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightF
     hf.cols = cols
     hf.spacing = wp.vec2(terrain.spacing[0], terrain.spacing[1])
     hf.flip = 1 if terrain.spacing[0] * terrain.spacing[1] < 0 else 0
-    hf.has_nodata = terrain.cached("has_nodata", lambda: int(bool(np.isnan(terrain.heights).any())))
+    hf.has_nodata = int(terrain.has_nodata)
     return hf
 
 

@@ -173,6 +173,12 @@ class Terrain:
         return ~np.isfinite(self.heights)
 
     @property
+    def has_nodata(self) -> bool:
+        """True when some height is nodata (NaN); computed once per terrain (NaN propagates through min: one
+        pass, no temporary mask)."""
+        return bool(self.cached("has_nodata", lambda: bool(np.isnan(self.heights.min()))))
+
+    @property
     def height_range(self) -> tuple[float, float]:
         """(min, max) of the finite heights."""
         finite = self.heights[np.isfinite(self.heights)]

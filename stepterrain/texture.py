@@ -116,8 +116,7 @@ def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kern
     grid.spacing = wp.vec2(float(t.spacing[0]), float(t.spacing[1]))
     grid.z_factor = float(z_factor)
     grid.gradient_scale = wp.vec2(float(z_factor) / (8.0 * t.spacing[0]), float(z_factor) / (8.0 * t.spacing[1]))
-    # NaN propagates through min: one vectorised pass, no temporary mask
-    grid.has_nodata = int(t.cached("texture.has_nodata", lambda: bool(np.isnan(t.heights.min()))))
+    grid.has_nodata = int(t.has_nodata)
     return grid
 
 
@@ -362,9 +361,9 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float,
     sweep.major_j, sweep.n_major, sweep.n_minor = major_j, n_major, n_minor
     sweep.forward, sweep.c_min = forward, c_min
     sweep.away = wp.vec2(-math.sin(azimuth), -math.cos(azimuth))
-    sweep.tan_altitude = math.tan(altitude) if altitude < math.pi / 2 else 3.0e38
-    sweep.rise = wp.vec2(dx * -math.sin(azimuth) * sweep.tan_altitude, dy * -math.cos(azimuth) * sweep.tan_altitude)
-    return sweep, c_max - c_min + 1
+    tan_altitude = math.tan(altitude) if altitude < math.pi / 2 else 3.0e38
+    sweep.rise = wp.vec2(dx * -math.sin(azimuth) * tan_altitude, dy * -math.cos(azimuth) * tan_altitude)
+    return sweep, sweep.n_lines
 
 
 def minor_offsets(n_major: int, slope: float) -> NDArray[np.int32]:

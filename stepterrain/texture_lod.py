@@ -21,6 +21,7 @@ import os
 import shutil
 import tempfile
 import threading
+import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -83,11 +84,15 @@ def _georeferenced_extent(image: Any) -> Extent | None:
         import rasterio
     except ImportError:
         return None
+    from rasterio.errors import NotGeoreferencedWarning
+
     try:
-        with rasterio.open(image) as dataset:
-            if dataset.transform.is_identity or dataset.transform.b != 0 or dataset.transform.d != 0:
-                return None
-            left, bottom, right, top = dataset.bounds
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a plain TIFF: pixel units, no warning
+            with rasterio.open(image) as dataset:
+                if dataset.transform.is_identity or dataset.transform.b != 0 or dataset.transform.d != 0:
+                    return None
+                left, bottom, right, top = dataset.bounds
     except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
         return None
     return float(left), float(right), float(bottom), float(top)
