@@ -44,8 +44,9 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import TARGET_STEPS, _floats, _window
+    from .cli import _floats, _window
     from .export import MESH_EXTENSIONS
+    from .stepped import TARGET_STEPS
 
     p = commands.add_parser(
         "batch",
@@ -96,7 +97,7 @@ def add_parser(commands: Any) -> None:
 
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .batch import batch, overview_image
+    from .batch import _check_ext, batch, overview_image
     from .cli import _check_output, _check_size
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
@@ -125,7 +126,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
     scheduler = args.scheduler
     progress.stage("batch", f"stepping {what}" + (f" in tiles of {tile} cells" if tile else "")
-                   + f" -> {Path(args.output)}/*{args.format if args.format.startswith('.') else '.' + args.format}"
+                   + f" -> {Path(args.output)}/*{_check_ext(args.format)}"
                    + f" on {scheduler or f'a LocalCluster of {args.workers} workers'}")
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,

@@ -655,9 +655,9 @@ def batch(
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
     if colors is not None:
-        from .stepped import _level_colors
+        from .stepped import colormap
 
-        _level_colors(colors, 2)  # an unknown colormap fails here, not in every task
+        colormap(colors)  # an unknown colormap fails here, not in every task
     options = _Options(
         interval=None if level_values is not None else (None if interval is None else float(interval)),
         levels=level_values if level_values is not None else (

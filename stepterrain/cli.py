@@ -26,7 +26,7 @@ import numpy as np
 
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
-from .stepped import LAND_START, TARGET_STEPS, colormap_samples, nice_interval
+from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
 
 __all__ = ["main", "build_parser", "nice_interval"]
 
@@ -228,14 +228,7 @@ def _colormap(name: str) -> tuple[Any, float] | None:
     (``stepped.LAND_START``); None for 'none'."""
     if name.lower() == "none":
         return None
-    import matplotlib
-
-    try:
-        cmap = matplotlib.colormaps[name]
-    except KeyError:
-        raise InvalidInputError(f"--colormap must name a matplotlib colormap (e.g. terrain, viridis) or "
-                                f"'none'; got {name!r}") from None
-    return cmap, LAND_START.get(name, 0.0)
+    return colormap(name, argument="--colormap", hint=" or 'none'")
 
 
 def _level_colors(name: str, n_levels: int) -> np.ndarray | None:

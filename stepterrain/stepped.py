@@ -489,17 +489,23 @@ def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
 LAND_START: dict[str, float] = {"terrain": 0.25}
 
 
-def colormap_samples(name: str, n_levels: int, *, argument: str = "colors") -> NDArray[np.float64]:
-    """(L, 4) float RGBA sampled evenly from the land part of a matplotlib colormap (see :data:`LAND_START`)."""
+def colormap(name: str, *, argument: str = "colors", hint: str = "") -> tuple[Any, float]:
+    """The matplotlib colormap ``name`` and where its land colours start (:data:`LAND_START`); an unknown name
+    is an :class:`InvalidInputError` naming ``argument`` (and ``hint``, e.g. " or 'none'")."""
     import matplotlib
 
     try:
         cmap = matplotlib.colormaps[name]
     except KeyError:
         raise InvalidInputError(
-            f"{argument} must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {name!r}"
+            f"{argument} must name a matplotlib colormap (e.g. 'terrain', 'viridis'){hint}; got {name!r}"
         ) from None
-    lo = LAND_START.get(name, 0.0)
+    return cmap, LAND_START.get(name, 0.0)
+
+
+def colormap_samples(name: str, n_levels: int, *, argument: str = "colors") -> NDArray[np.float64]:
+    """(L, 4) float RGBA sampled evenly from the land part of a matplotlib colormap (see :data:`LAND_START`)."""
+    cmap, lo = colormap(name, argument=argument)
     samples = np.linspace(lo, 1.0, n_levels) if n_levels > 1 else np.array([(lo + 1.0) / 2])
     return np.asarray(cmap(samples), dtype=np.float64)
 
