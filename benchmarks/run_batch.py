@@ -8,15 +8,21 @@ contender steps every tile with the same isovalues and writes one ``--format`` f
   process, stepterrain's default CPU threads (the kernels use every core of the process);
 - ``loop_1_core``: the same loop with ``set_cpu_threads(1)``;
 - ``process_pool``: ``concurrent.futures.ProcessPoolExecutor(--workers)`` over the same per-file function;
+- ``split_pinned``: the ceiling that no scheduler can beat: ``--workers`` independent processes, each pinned to
+  its own core with ``set_cpu_threads(1)``, each running the loop over every ``--workers``-th file (imports and
+  kernels warm before the clock starts, as for the loops);
 - ``dask``: ``stepterrain.batch.batch(folder, out, scheduler=client)`` on a ``LocalCluster`` of ``--workers``
   processes (one thread each), timed with and without the cluster's start-up;
 - ``dask_resume``: the same call again over the complete outputs (every item skipped).
 
-Reported: best and all of ``--repeat`` wall times, ratios to ``loop``, the per-tile cost (step and write
-separately, one core), the machine's load average before and after, and an estimate of a whole-earth 30 m
-DEM on a dask cluster of ``--earth-workers`` workers from the measured per-tile cost.
+The contenders run in turn, round after round (``--repeat`` rounds), so that this VM's drift in speed (±30 %
+within minutes) hits them alike; the goal's ratio (dask against the one-core loop) is reported per round, with
+its median over the rounds. Reported: best and all of ``--repeat`` wall times, ratios to ``loop``, the per-tile
+cost (step and write separately, one core), the machine's load average before and after, and an estimate of a
+whole-earth 30 m DEM on a dask cluster of ``--earth-workers`` workers from the measured per-tile cost.
 
-    python benchmarks/run_batch.py --tiles 64 --tile 1024 --workers 2 --repeat 2 --output /tmp/batch.md
+    python benchmarks/run_batch.py --tiles 64 --tile 1024 --workers 2 --repeat 8 \
+        --contenders loop_1_core split_pinned dask --output /tmp/batch.md
     python benchmarks/run_batch.py --tiles 8 --tile 256 --repeat 1               # a quick check
 """
 
@@ -29,6 +35,7 @@ import os
 import platform
 import resource
 import shutil
+import statistics
 import sys
 import tempfile
 import time
@@ -118,6 +125,50 @@ def run_pool(files: list[Path], out: Path, interval: float, ext: str, workers: i
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     return wall, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+_SPLIT_CHILD = """
+import os, sys, time
+os.sched_setaffinity(0, {{{core}}})
+sys.path.insert(0, {bench!r})
+import numpy as np
+import stepterrain as st
+from run_batch import step_file
+st.set_cpu_threads(1)
+st.stepped(np.zeros((4, 4), np.float32), interval=1.0)
+print("ready", flush=True)
+sys.stdin.readline()
+c0 = time.process_time()
+for f in sys.argv[1:]:
+    step_file(f, {out!r}, {interval!r}, {ext!r})
+print(time.process_time() - c0, flush=True)
+"""
+
+
+def run_split_pinned(files: list[Path], out: Path, interval: float, ext: str, workers: int) -> tuple[float, float]:
+    """(wall s, CPU s of all processes): ``workers`` warm processes, one per core, each on every workers-th file."""
+    import subprocess
+
+    cores = sorted(os.sched_getaffinity(0))
+    if len(cores) < workers:
+        raise SystemExit(f"split_pinned needs {workers} usable cores; this process may use {cores}")
+    procs = []
+    for k in range(workers):
+        code = _SPLIT_CHILD.format(core=cores[k], bench=str(_HERE), out=str(out), interval=interval, ext=ext)
+        procs.append(subprocess.Popen([sys.executable, "-c", code, *map(str, files[k::workers])],
+                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True))  # fmt: skip
+    for p in procs:
+        if p.stdout.readline().strip() != "ready":
+            raise SystemExit("a split_pinned child failed to start")
+    t0 = time.perf_counter()
+    for p in procs:
+        p.stdin.write("go\n")
+        p.stdin.flush()
+    used = sum(float(p.stdout.readline()) for p in procs)
+    wall = time.perf_counter() - t0
+    for p in procs:
+        p.wait()
+    return wall, used
 
 
 def run_dask(folder: Path, out: Path, interval: float, ext: str, workers: int) -> tuple[float, float, float, object]:
@@ -228,7 +279,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=2, help="runs per contender; the best is reported")
     parser.add_argument("--format", default=".glb")
-    parser.add_argument("--contenders", nargs="+", default=["loop", "loop_1_core", "process_pool", "dask"])
+    parser.add_argument("--contenders", nargs="+", default=["loop", "loop_1_core", "process_pool", "dask"],
+                        choices=["loop", "loop_1_core", "process_pool", "split_pinned", "dask"])
     parser.add_argument("--work", default=os.path.join(tempfile.gettempdir(), "stepterrain-bench-batch"))
     parser.add_argument("--earth-workers", type=int, default=1024)
     parser.add_argument("--efficiency", type=float, default=0.8, help="assumed parallel efficiency at scale")
@@ -258,6 +310,8 @@ def main(argv: list[str] | None = None) -> int:
                 wall, used = run_loop(files, out, interval, args.format, 1)
             elif contender == "process_pool":
                 wall, used = run_pool(files, out, interval, args.format, args.workers)
+            elif contender == "split_pinned":
+                wall, used = run_split_pinned(files, out, interval, args.format, args.workers)
             if contender != "dask":
                 times[contender].append(wall)
                 cpu[contender].append(used)
@@ -307,7 +361,15 @@ def main(argv: list[str] | None = None) -> int:
         ]
     if "loop_1_core" in best and "dask" in best:
         lines.append(f"- dask vs the loop on one core (`set_cpu_threads(1)`), wall: "
-                     f"{best['loop_1_core'] / best['dask']:.2f}×.")  # fmt: skip
+                     f"{best['loop_1_core'] / best['dask']:.2f}× best against best.")  # fmt: skip
+        for name in ("dask", "split_pinned"):
+            if name in times:
+                pairs = [a / b for a, b in zip(times["loop_1_core"], times[name], strict=True)]
+                lines.append(
+                    f"- {name} vs the one-core loop of the same round, wall, per round: "
+                    f"{', '.join(f'{r:.2f}×' for r in pairs)}; **median {statistics.median(pairs):.2f}×** "
+                    f"(min {min(pairs):.2f}×, max {max(pairs):.2f}×)."
+                )
         serial_cpu, dask_cpu = min(cpu["loop_1_core"]), min(cpu["dask"])
         lines.append(
             f"- CPU time (independent of the other jobs on the machine): the one-core loop used {serial_cpu:.1f} s, "
