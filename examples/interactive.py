@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pyvista as pv
 
-import stepterrain.pyvista_accessor  # noqa: F401 - registers grid.stepterrain
 from stepterrain import circular_lens, sample_dem
 from stepterrain.export import save_image
 

@@ -14,8 +14,10 @@ One entry point per capability (paper):
     >>> import stepterrain as st
     >>> mesh = st.stepped(st.sample_dem(), interval=100.0)   # doctest: +SKIP
 
-The globe, close-up and texture modules load on first use; stepped terrain, batches and the pyvista accessor
-(``grid.stepterrain``, which imports pyvista) load with the package.
+The globe, close-up and texture modules load on first use; stepped terrain and batches load with the package.
+The pyvista accessor ``grid.stepterrain`` is a ``pyvista.accessors`` entry point: pyvista imports
+:mod:`stepterrain.pyvista_accessor` the first time a dataset's ``.stepterrain`` is used, so ``import stepterrain``
+does not import pyvista (VTK), and a pyvista user need not import stepterrain first.
 """
 
 from __future__ import annotations
@@ -23,7 +25,6 @@ from __future__ import annotations
 import importlib
 from typing import Any
 
-from . import pyvista_accessor as _pyvista_accessor  # noqa: F401 - registers grid.stepterrain on pyvista
 from ._compaction import get_memory_budget, set_memory_budget
 from ._device import get_cpu_threads, set_cpu_threads
 from .batch import BatchReport, batch
@@ -56,7 +57,8 @@ _LAZY: dict[str, str] = {
 
 
 #: Submodules reachable as attributes without an explicit import (``st.export.save_mesh``, ``st.render``).
-_SUBMODULES = frozenset({"camera", "closeup", "export", "globe", "mesh", "render", "texture", "texture_lod"})
+_SUBMODULES = frozenset({"camera", "closeup", "export", "globe", "mesh", "pyvista_accessor", "render",
+                         "texture", "texture_lod"})
 
 
 def __getattr__(name: str) -> Any:

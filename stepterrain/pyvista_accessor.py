@@ -2,7 +2,9 @@
 
 Paper 000 (Glander, Trapp & Döllner, *3D Isocontours*, Eurographics 2010, §3) for pyvista users: a grid that
 carries elevation (a point-data array, or the z of a StructuredGrid's points) steps into terraces and walls
-without leaving pyvista. Importing this module registers the accessor (``import stepterrain`` does it).
+without leaving pyvista. Importing this module registers the accessor; pyvista does that itself on the first
+``dataset.stepterrain`` through the ``pyvista.accessors`` entry point in ``pyproject.toml``, so neither
+``import stepterrain`` nor an explicit import of this module is needed.
 
     grid = pv.ImageData(dimensions=(W, H, 1), spacing=(30, 30, 1)); grid["elevation"] = heights.ravel()
     steps = grid.stepterrain.stepped(interval=50)      # pv.PolyData, cell data "level" and "wall"

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib.util
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +31,22 @@ def image_grid(heights: np.ndarray, spacing=(30.0, 30.0), origin=(500.0, 900.0))
                         origin=(*origin, 0.0))  # fmt: skip
     grid["elevation"] = heights.reshape(-1)
     return grid
+
+
+def test_entry_point_registers_the_accessor_lazily():
+    """``import stepterrain`` leaves pyvista (VTK) alone; a pyvista user gets ``grid.stepterrain`` without
+    importing stepterrain, through the ``pyvista.accessors`` entry point (fresh interpreters: no module cached)."""
+    quiet = "import sys; import stepterrain; print('pyvista' in sys.modules, 'vtkmodules' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", quiet], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "False"]
+    use = (
+        "import sys, numpy as np, pyvista as pv\n"
+        "assert 'stepterrain' not in sys.modules\n"
+        "g = pv.ImageData(dimensions=(5, 4, 1)); g['elevation'] = np.arange(20.0)\n"
+        "print(g.stepterrain.stepped(interval=4.0, device='cpu').n_cells > 0)"
+    )
+    out = subprocess.run([sys.executable, "-c", use], capture_output=True, text=True, check=True).stdout.split()
+    assert out[-1:] == ["True"]
 
 
 def test_image_data_steps_like_the_api(device):
