@@ -807,15 +807,17 @@ def _run_dask(
         for k, item in enumerate(todo)
     }  # fmt: skip
     try:
-        for future in as_completed(futures):
+        # results are gathered on the client's event loop as tasks finish (no blocking round trip per future
+        # from this thread); a task that raised asks for its exception (rare: one round trip)
+        for future, result in as_completed(futures, with_results=True, raise_errors=False):
             item = futures[future]
             if future.status == "error":
                 exc = future.exception()
                 yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=retries + 1)
-            elif future.status == "cancelled":
+            elif future.status == "cancelled" or not isinstance(result, ItemResult):
                 yield ItemResult(item.key, "failed", error="cancelled", attempts=0)
             else:
-                yield future.result()
+                yield result
     except BaseException:
         client.cancel(list(futures))
         raise

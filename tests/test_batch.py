@@ -341,6 +341,26 @@ def test_dask_matches_serial_and_reports_failures(tmp_path, threaded_client):
     assert not threaded_client.status == "closed"  # a client handed in stays open
 
 
+def test_dask_task_that_raises_is_retried_then_reported(tmp_path, threaded_client, monkeypatch):
+    import sys
+
+    stepped_module = sys.modules["stepterrain.stepped"]
+    real = stepped_module.stepped
+
+    def broken_on_one_tile(terrain, **kwargs):
+        if terrain.source.endswith("[0:5, 4:7]"):
+            raise RuntimeError("always broken")
+        return real(terrain, **kwargs)
+
+    monkeypatch.setattr(stepped_module, "stepped", broken_on_one_tile)  # the threaded workers share this module
+    report = batch(np.add.outer(np.arange(7.0), np.arange(7.0)), tmp_path, tile_size=4, interval=1.0,
+                   scheduler=threaded_client, retries=1)  # fmt: skip
+    by_key = {r.key: r for r in report.results}
+    assert by_key["tile_r0_c1"].status == "failed" and by_key["tile_r0_c1"].attempts == 2
+    assert by_key["tile_r0_c1"].error == "RuntimeError: always broken"
+    assert not report.ok and len(report.done) == 3 and all(Path(r.path).is_file() for r in report.done)
+
+
 def test_dask_tiles_from_a_terrain(tmp_path, threaded_client):
     from stepterrain.terrain import Terrain
 
