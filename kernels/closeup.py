@@ -7,7 +7,8 @@ mask spanning the ROI box), then C = m·M + (1 − m)·I and V_C = C·V_O (§II.
 
 Culling (the paper's stated limitation, §IV.C: "the complete terrain geometry is rendered for each
 close-up"): only faces with a vertex of m > 0 are emitted, by count -> scan -> emit; vertices that no
-emitted face uses are dropped by a second count -> scan -> emit, and the faces are renumbered.
+emitted face uses are dropped by a second count -> scan -> emit (the shared kernels of kernels/compaction.py),
+and the faces are renumbered.
 
 Anchors (§II.D): a fence strip per outline segment, from the ROI outline on the overview (V_O) to the
 close-up's outline (M·V_O), its vertices carrying the normalized distance t = ‖V − V_O‖ / D_k and the
@@ -177,21 +178,6 @@ def emit_closeup_faces(
 
 
 @wp.kernel
-def mark_used_vertices(
-    thread_offset: wp.int32,
-    faces: wp.array[wp.vec3i],
-    # outputs
-    used_out: wp.array[wp.int32],
-):
-    """One thread per emitted face: flag its three vertices as used (all writers write 1)."""
-    i = wp.tid() + thread_offset
-    f = faces[i]
-    used_out[f[0]] = 1
-    used_out[f[1]] = 1
-    used_out[f[2]] = 1
-
-
-@wp.kernel
 def emit_used_vertices(
     thread_offset: wp.int32,
     used: wp.array[wp.int32],
@@ -210,19 +196,6 @@ def emit_used_vertices(
         vertices_out[slot] = vertices[i]
         factors_out[slot] = factors[i]
         vertex_source_out[slot] = i
-
-
-@wp.kernel
-def renumber_faces(
-    thread_offset: wp.int32,
-    offsets: wp.array[wp.int32],
-    # outputs
-    faces_out: wp.array[wp.vec3i],
-):
-    """One thread per emitted face: input vertex indices -> compacted output indices."""
-    i = wp.tid() + thread_offset
-    f = faces_out[i]
-    faces_out[i] = wp.vec3i(offsets[f[0]], offsets[f[1]], offsets[f[2]])
 
 
 # ---------------------------------------------------------------------------------------------------------

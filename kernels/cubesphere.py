@@ -1421,25 +1421,6 @@ def emit_faces(
 
 
 @wp.kernel
-def mark_used_vertices(
-    thread_offset: wp.int32,
-    count: wp.int32,
-    chunk: wp.int32,
-    faces: wp.array[wp.vec3i],
-    # outputs
-    used_out: wp.array[wp.int32],
-):
-    """One thread per face: mark its three vertices used (every writer writes 1)."""
-    first = (wp.tid() + thread_offset) * chunk
-    last = wp.min(first + chunk, count)
-    for slot in range(first, last):
-        f = faces[slot]
-        used_out[f[0]] = 1
-        used_out[f[1]] = 1
-        used_out[f[2]] = 1
-
-
-@wp.kernel
 def emit_used_vertices(
     thread_offset: wp.int32,
     count: wp.int32,
@@ -1459,21 +1440,3 @@ def emit_used_vertices(
         if used[k] != 0:
             vertices_out[offsets[k]] = vertices[k]
             entries_out[offsets[k]] = entries[k]
-
-
-@wp.kernel
-def remap_faces(
-    thread_offset: wp.int32,
-    count: wp.int32,
-    chunk: wp.int32,
-    faces: wp.array[wp.vec3i],
-    offsets: wp.array[wp.int32],
-    # outputs
-    faces_out: wp.array[wp.vec3i],
-):
-    """One thread per face: vertex indices after compaction."""
-    first = (wp.tid() + thread_offset) * chunk
-    last = wp.min(first + chunk, count)
-    for t in range(first, last):
-        f = faces[t]
-        faces_out[t] = wp.vec3i(offsets[f[0]], offsets[f[1]], offsets[f[2]])

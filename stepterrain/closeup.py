@@ -30,9 +30,10 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import launch, resolve_device, to_device
+from ._device import launch, launch_chunked, resolve_device, to_device
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
+from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
 from .terrain import Terrain, _pair, as_terrain, grid_faces
 
@@ -953,14 +954,14 @@ def closeup_layers(
     launch(closeup_kernels.emit_closeup_faces, nf, [faces_wp, factors, offsets], [faces_out, face_source], device)
     used = count_buffer("closeup.vertices", n, device)
     used.zero_()
-    launch(closeup_kernels.mark_used_vertices, face_count, [faces_out], [used], device)
+    launch_chunked(compaction_kernels.mark_used_vertices, face_count, [faces_out], [used], device)
     voffsets, vertex_count = exclusive_offsets(used, "closeup.vertices")
     vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
     factors_out = wp.empty(max(vertex_count, 1), dtype=wp.float32, device=device)
     vertex_source = wp.empty(max(vertex_count, 1), dtype=wp.int32, device=device)
     launch(closeup_kernels.emit_used_vertices, n, [used, voffsets, transformed, factors],
            [vertices_out, factors_out, vertex_source], device)
-    launch(closeup_kernels.renumber_faces, face_count, [voffsets], [faces_out], device)
+    launch_chunked(compaction_kernels.remap_faces, face_count, [faces_out, voffsets], [faces_out], device)  # in place
 
     v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
     m_all = factors_out.numpy()[:vertex_count].copy()

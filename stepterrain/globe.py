@@ -37,6 +37,7 @@ from ._device import launch, launch_chunked, resolve_device, scratch, to_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
+from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .stepped import LAND_START
 
@@ -644,14 +645,14 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     if n_faces < n_leaves:  # culled: drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used.zero_()  # the flags and count_buffer's final 0
-        launch_chunked(cube_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
+        launch_chunked(compaction_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
         used_offsets, n_used = exclusive_offsets(used, "globe.used")
         kept_vertices = wp.empty(n_used, dtype=wp.vec3d, device=device)
         kept_entries = wp.empty(n_used, dtype=wp.int32, device=device)
         launch_chunked(cube_kernels.emit_used_vertices, n_vertices, [vertices, entries, used, used_offsets],
                [kept_vertices, kept_entries], device)
         remapped = wp.empty(n_faces, dtype=wp.vec3i, device=device)
-        launch_chunked(cube_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
+        launch_chunked(compaction_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
         vertices, entries, faces_out = kept_vertices, kept_entries, remapped
     v = vertices.numpy().reshape(-1, 3)
     f = faces_out.numpy().reshape(-1, 3).astype(np.int64)

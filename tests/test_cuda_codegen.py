@@ -12,7 +12,7 @@ import importlib
 import pytest
 import warp as wp
 
-MODULES = ["stepped", "closeup", "texture", "cubesphere", "bounds"]
+MODULES = ["stepped", "closeup", "texture", "cubesphere", "bounds", "compaction"]
 
 
 def _nvrtc_archs() -> set[int]:
