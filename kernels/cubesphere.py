@@ -803,7 +803,7 @@ def saturate_planar_fine(
                     r = wp.max(r, wp.length(v - bounds.to_vec3d(grid.positions[child])) + wp.float64(q[1]))
                 scale = wp.length(v) * ABSOLUTE_MARGIN
                 out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
-                out[2] = wp.float32(wp.float64(0.0) * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+                out[2] = wp.float32(scale)  # h = 0 on a plane: 0·(1 + margin) + scale, the same bits
             out[0] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
             values_out[entry] = out
         j += 1

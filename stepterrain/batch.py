@@ -814,7 +814,7 @@ def _run_dask(
             if future.status == "error":
                 exc = future.exception()
                 yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=retries + 1)
-            elif future.status == "cancelled" or not isinstance(result, ItemResult):
+            elif future.status == "cancelled":
                 yield ItemResult(item.key, "failed", error="cancelled", attempts=0)
             else:
                 yield result

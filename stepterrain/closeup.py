@@ -759,9 +759,8 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
     layers.matrices = wp.array(local.astype(np.float32), dtype=wp.mat44, device=device)
     # the ROI boxes and masks (read-only arrays of frozen ROIs) are uploaded once per set of ROIs
     rois = tuple(cu.roi for cu in closeups)
-    key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
-    kept = _ROI_UPLOADS.get(key)
-    if kept is None or any(a is not b for a, b in zip(kept[0], rois, strict=True)):
+
+    def upload() -> tuple[wp.array, wp.array, wp.array]:
         boxes = np.array([[b[0] - ox, b[2] - oy, b[1] - ox, b[3] - oy] for b in (r.box for r in rois)],
                          dtype=np.float32).reshape(-1, 4)
         sizes = [r.mask.size for r in rois]
@@ -769,12 +768,11 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
         info = np.array([[s, *r.mask.shape] for s, r in zip(starts, rois, strict=True)],
                         dtype=np.int32).reshape(-1, 3)
         packed = np.concatenate([r.mask.reshape(-1) for r in rois]) if rois else np.zeros(1, np.float32)
-        kept = (rois, wp.array(boxes, dtype=wp.vec4, device=device), wp.array(info, dtype=wp.vec3i, device=device),
+        return (wp.array(boxes, dtype=wp.vec4, device=device), wp.array(info, dtype=wp.vec3i, device=device),
                 wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
-        if len(_ROI_UPLOADS) >= 16:
-            _ROI_UPLOADS.clear()
-        _ROI_UPLOADS[key] = kept
-    layers.boxes, layers.mask_info, layers.masks = kept[1], kept[2], kept[3]
+
+    key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
+    layers.boxes, layers.mask_info, layers.masks = _derived(_ROI_UPLOADS, key, rois, upload)
     return layers
 
 
@@ -908,9 +906,7 @@ def closeup_layers(
     check_budget(sum(len(src.points) for src in sources) * (12 + 4 + 4 + 12)
                  + sum(len(src.faces) for src in sources) * (12 + 4 + 12), "close-up geometry", memory_budget)
     # the concatenated inputs and their uploads, kept for the same sources (the kernels only read them)
-    joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
-    joined = cache.get(joined_key)
-    if joined is None or any(a is not b for a, b in zip(joined[0], sources, strict=True)):
+    def join() -> tuple[Any, ...]:
         n_points = np.array([len(s.points) for s in sources])
         n_faces = np.array([len(s.faces) for s in sources])
         point_start = np.concatenate([[0], np.cumsum(n_points)[:-1]])
@@ -919,9 +915,11 @@ def closeup_layers(
         point_layer = np.repeat(np.arange(len(items), dtype=np.int32), n_points)
         uploads = (to_device(points.reshape(-1, 3), wp.vec3, device), to_device(point_layer, wp.int32, device),
                    to_device(faces.reshape(-1, 3), wp.vec3i, device))
-        joined = (tuple(sources), n_faces, point_start, points, faces, point_layer, uploads)
-        cache[joined_key] = joined
-    _, n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
+        return n_faces, point_start, points, faces, point_layer, uploads
+
+    joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
+    joined = _derived(t.cached(("closeup", "joined"), dict), joined_key, tuple(sources), join)
+    n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     layers = _layers_struct(items, matrices, t.local_origin, device)
     ox, oy = t.local_origin
@@ -1090,16 +1088,9 @@ def anchor_strips(
     ox, oy = t.local_origin
     # the outline laid on the terrain, its uploads and the fence faces depend on the ROIs and anchor styles only,
     # not on M: made once per set of them; a frame emits the strip vertices (and their t) for its M
-    cache = t.cached(("closeup", "anchor-static"), dict)
     rois = tuple(cu.roi for cu in items)
     key = (tuple(id(r) for r in rois), tuple(cu.anchor for cu in items), str(device))
-    static = cache.get(key)
-    if static is None or any(a is not b for a, b in zip(static[0], rois, strict=True)):
-        static = (rois, _anchor_static(t, items, device))
-        if len(cache) >= 16:
-            cache.clear()
-        cache[key] = static
-    fixed = static[1]
+    fixed = _derived(t.cached(("closeup", "anchor-static"), dict), key, rois, lambda: _anchor_static(t, items, device))
     if fixed is None:
         rung_count = max(cu.anchor.rungs for cu in items)
         return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
@@ -1369,8 +1360,10 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
 
 
 def _derived(memo: dict, key: tuple, refs: tuple, build: Any) -> Any:
-    """``build()`` memoized under ``key`` while the objects ``refs`` (read-only arrays of the kept cull) are
-    the same objects: the M-independent parts of a frame (face split, vertex colors) are made once."""
+    """``build()`` memoized under ``key`` while the objects ``refs`` are the same objects (the key holds their
+    ids, which stay theirs while the entry keeps them): what does not depend on M (the uploads of a set of ROIs
+    and of their source geometry, the anchors' outlines, a kept cull's face split and vertex colors) is made
+    once. Arrays in the value are made read-only: the callers that find it share them."""
     entry = memo.get(key)
     if entry is not None and all(a is b for a, b in zip(entry[0], refs, strict=True)):
         return entry[1]
