@@ -22,13 +22,17 @@ polygon with n corners counts n - 2), so triangles per second compare like with 
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pyvista as pv
-import vtk
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:  # pyvista/VTK load only with the VTK contenders: the NumPy reference runs without them
+    import pyvista as pv
+    import vtk
 
 _ROOT = Path(__file__).resolve().parents[1]
 if str(_ROOT) not in sys.path:
@@ -36,7 +40,7 @@ if str(_ROOT) not in sys.path:
 
 from tests.reference import ReferenceResult, grid_tin, step_reference  # noqa: E402
 
-SHARED_DATA = _ROOT.parent / "shared" / "data"
+SHARED_DATA = Path(os.environ.get("STEPTERRAIN_SHARED_DATA") or _ROOT.parent / "shared" / "data")
 DEM_FILE = "big_tujunga_srtm_30m_utm11n.npz"
 # the real DEMs benchmarked at their native size: name -> (file, spacing keys in the npz)
 REAL_DEMS = {
@@ -118,6 +122,8 @@ def build_surface(heights: NDArray[np.float32], spacing: tuple[float, float]) ->
 
     Node (i, j) lies at (j * dx, i * dy, heights[i, j]), as in ``stepterrain.heightfield_mesh``.
     """
+    import pyvista as pv
+
     rows, cols = heights.shape
     grid = pv.ImageData(dimensions=(cols, rows, 1), spacing=(float(spacing[0]), float(spacing[1]), 1.0))
     grid.point_data["elevation"] = np.ascontiguousarray(heights, dtype=np.float32).reshape(-1)
@@ -129,6 +135,8 @@ def build_surface(heights: NDArray[np.float32], spacing: tuple[float, float]) ->
 def _takes_algorithm() -> bool:
     import inspect
 
+    import pyvista as pv
+
     return "algorithm" in inspect.signature(pv.DataSet.extract_surface).parameters
 
 
@@ -139,6 +147,9 @@ def vtk_banded_contour(
     surface: pv.PolyData | None = None,
 ) -> pv.PolyData:
     """Flat bands only: ``vtkBandedPolyDataContourFilter`` (ScalarModeToValue, no contour edges)."""
+    import pyvista as pv
+    import vtk
+
     surface = build_surface(heights, spacing) if surface is None else surface
     surface.set_active_scalars("elevation")
     bands = vtk.vtkBandedPolyDataContourFilter()
@@ -160,6 +171,8 @@ def vtk_clip_per_band(
     surface: pv.PolyData | None = None,
 ) -> pv.PolyData:
     """The full stepped model with pyvista filters: clip band by band, flatten, contour and extrude walls."""
+    import pyvista as pv
+
     surface = build_surface(heights, spacing) if surface is None else surface
     values = np.asarray(isovalues, dtype=np.float64)
     thresholds = thresholds_of(isovalues)
@@ -202,6 +215,8 @@ def numpy_reference(
 
 def reference_polydata(result: ReferenceResult, gamma: float = 1.0) -> pv.PolyData:
     """The reference result as a PolyData at blend ``gamma`` (z = (1 - γ) z + γ α)."""
+    import pyvista as pv
+
     points = result.points.copy()
     points[:, 2] = (1.0 - gamma) * points[:, 2] + gamma * result.step_heights
     return pv.PolyData.from_regular_faces(points, result.faces)
@@ -212,7 +227,7 @@ def triangle_count(result: object) -> int:
     if isinstance(result, ReferenceResult):
         return len(result.faces)
     faces = getattr(result, "faces", None)
-    if isinstance(result, pv.PolyData):
+    if _is_polydata(result):
         sizes = _cell_sizes(result.GetPolys()) + _cell_sizes(result.GetStrips())
         return int(sizes)
     if faces is not None:
@@ -220,7 +235,15 @@ def triangle_count(result: object) -> int:
     raise TypeError(f"cannot count the triangles of {type(result).__name__}")
 
 
+def _is_polydata(result: object) -> bool:
+    """Whether ``result`` is a pyvista PolyData, without importing pyvista when it was never loaded."""
+    pv = sys.modules.get("pyvista")
+    return pv is not None and isinstance(result, pv.PolyData)
+
+
 def _cell_sizes(cells: vtk.vtkCellArray) -> int:
+    import pyvista as pv
+
     if cells is None or cells.GetNumberOfCells() == 0:
         return 0
     offsets = pv.convert_array(cells.GetOffsetsArray())
@@ -231,7 +254,7 @@ def vertex_count(result: object) -> int:
     """Vertices in a contender's output."""
     if isinstance(result, ReferenceResult):
         return len(result.points)
-    if isinstance(result, pv.PolyData):
+    if _is_polydata(result):
         return int(result.n_points)
     return len(result.vertices)  # trimesh
 

@@ -38,7 +38,8 @@ _ROOT = _HERE.parent
 if str(_ROOT) not in sys.path:
     sys.path.insert(0, str(_ROOT))
 
-DATA_DIRS = [_ROOT.parent / "shared" / "data", _ROOT.parents[1] / "shared" / "data"]
+DATA_DIRS = [Path(p) for p in [os.environ.get("STEPTERRAIN_SHARED_DATA")] if p] + [
+    _ROOT.parent / "shared" / "data", _ROOT.parents[1] / "shared" / "data"]
 
 
 def data_file(name: str) -> Path:

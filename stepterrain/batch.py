@@ -497,6 +497,12 @@ def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
     """(client, cluster to close or None, description, whether the workers are this machine's processes)."""
+    bad_scheduler = InvalidInputError(
+        "scheduler must be None (a LocalCluster), 'serial', a dask Client or an address such as "
+        f"'tcp://host:8786'; got {scheduler!r}"
+    )
+    if isinstance(scheduler, str) and not _SCHEDULER_RE.match(scheduler):
+        raise bad_scheduler  # named before the dask import: a typo is the first thing to hear about
     try:
         from distributed import Client
     except ImportError as exc:
@@ -510,11 +516,8 @@ def _connect(
         cluster = start_local_cluster(workers)
         client = Client(cluster, timeout=connect_timeout)
         return client, cluster, f"LocalCluster ({workers} worker processes)", True
-    if not isinstance(scheduler, str) or not _SCHEDULER_RE.match(scheduler):
-        raise InvalidInputError(
-            "scheduler must be None (a LocalCluster), 'serial', a dask Client or an address such as "
-            f"'tcp://host:8786'; got {scheduler!r}"
-        )
+    if not isinstance(scheduler, str):
+        raise bad_scheduler
     try:
         client = Client(scheduler, timeout=connect_timeout)
     except (OSError, TimeoutError) as exc:

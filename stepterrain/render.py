@@ -286,7 +286,7 @@ def render_mesh(
     """
     if scalars not in (None, "level", "height"):
         raise InvalidInputError(f"scalars must be None, 'level' or 'height'; got {scalars!r}")
-    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds)
+    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -316,10 +316,12 @@ def render_mesh(
 
 
 def _frame_mesh(
-    mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None
+    mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None,
+    camera: CameraLike,
 ) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
-    """Check the arguments every render shares; return (width, height, vertices, local vertices recentred on
-    the framed box with z scaled, finite-vertex mask, local box)."""
+    """Check the arguments every render shares (before pyvista loads, so a bad one is named even where it
+    is missing); return (width, height, vertices, local vertices recentred on the framed box with z scaled,
+    finite-vertex mask, local box)."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
@@ -342,6 +344,7 @@ def _frame_mesh(
     local[:, 2] *= z_scale
     box = np.array([lo - centre, hi - centre])
     box[:, 2] *= z_scale
+    _camera_position(camera, _box_corners(box), width / height)  # raises on a bad camera; cheap (8 corners)
     return width, height, vertices, local, finite, box
 
 
@@ -459,7 +462,7 @@ def render_textured_mesh(
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
-    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds)
+    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
 
     pv = _import_pyvista()
     poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
