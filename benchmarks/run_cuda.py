@@ -184,7 +184,7 @@ def markdown(rows: list[list[str]], devices: list[str], args: argparse.Namespace
     for row in rows:
         if row[1] in devices and row[2]:
             ms = float(row[2].replace(",", ""))
-            base = first.setdefault(row[0], ms)
+            base = first.setdefault(row[0].split(" (")[0], ms)  # the name without its face count
             if row[1] != devices[0] and not row[4]:
                 row[4] = f"{base / ms:,.1f}x faster than `{devices[0]}`"
     lines += ["| " + " | ".join(r) + " |" for r in rows]

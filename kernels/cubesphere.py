@@ -36,7 +36,7 @@ import warp as wp
 
 from . import bounds
 
-wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
 #: Face frames (paper 003 §4 table): per face the images of the local x axis, local y axis and the outward
 #: normal as signed axis codes (+1 = +X, -2 = -Y, 3 = +Z, ...). Side 1 (x, y, z); side 2 (z, -y, x);

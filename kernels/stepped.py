@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
 vec3l = wp.types.vector(length=3, dtype=wp.int64)
 vec6i = wp.types.vector(length=6, dtype=wp.int32)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import warp as wp
 
-wp.set_module_options({"enable_backward": False, "optimization_level": 3})
+wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
 HALF_PI_SQUARED_INV = 0.40528473456935108  # 1 / (pi / 2)^2, GDAL's INV_SQUARE_OF_HALF_PI
 SHADE_RUN = wp.constant(64)  # pixels of a row one hillshade thread shades (amortises the per-thread cost on CPUs)

@@ -377,8 +377,10 @@ def test_cpu_and_cuda_agree(device):
     m = g.mesh(error=100.0, camera=cam)
     g_cpu = Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")
     m_cpu = g_cpu.mesh(error=100.0, camera=cam)
+    # kernels compile without FMA contraction (kernels/__init__): the two backends give the same bits
+    np.testing.assert_array_equal(g.heights, g_cpu.heights)
     np.testing.assert_array_equal(m.faces, m_cpu.faces)
-    np.testing.assert_allclose(m.vertices, m_cpu.vertices, rtol=1e-12)
+    np.testing.assert_array_equal(m.vertices, m_cpu.vertices)
 
 
 def test_colours_by_elevation_and_draped_image(small_globe):

@@ -163,6 +163,19 @@ def test_repeated_runs_are_identical(device):
     np.testing.assert_array_equal(a.faces, b.faces)
 
 
+def test_cpu_and_cuda_give_the_same_bits(device):
+    """No FMA contraction on either backend (kernels/__init__): a CUDA device reproduces the CPU's output."""
+    if device == "cpu":
+        pytest.skip("compares a CUDA device with the CPU")
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=64, step=4)
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0))
+    for terrain, kwargs in [(heights, {"spacing": (30.0, 30.0), "gamma": 0.6}), (tin, {"gamma": 1.0})]:
+        a = st.stepped(terrain, interval=60.0, device="cpu", **kwargs)
+        b = st.stepped(terrain, interval=60.0, device=device, **kwargs)
+        np.testing.assert_array_equal(a.faces, b.faces)
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
 # ------------------------------------------------------------------------------------ invariants
 
 
