@@ -153,7 +153,43 @@ def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -
     """The numpy result of an :func:`empty_shared` pair."""
     if host is not None:
         return host
-    return array.numpy().reshape(shape)
+    return host_copy(array).reshape(shape)
+
+
+_PAGE = 4096
+#: Device-to-host copies of at least this many bytes fault their fresh destination in first, in threads.
+PREFAULT_BYTES = 8 << 20
+
+
+def host_copy(array: wp.array) -> np.ndarray:
+    """``array`` as a numpy array the caller owns: a view on the CPU, a fresh copy from a CUDA device.
+
+    A CUDA copy into fresh pageable memory lets the driver fault every destination page in its copy loop:
+    1.4 GB/s on an H100 machine (314 MB of stepped faces in 223 ms). Faulting the pages in first, from
+    several threads (the kernel zeroes them in parallel), then copying, takes the same 314 MB in about a
+    quarter of that: measured on the H100, 66 ms from one thread, of which 21 ms is the copy itself.
+    """
+    if array.device.is_cpu or array.size * wp.types.type_size_in_bytes(array.dtype) < PREFAULT_BYTES:
+        return array.numpy()
+    scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
+    shape = (*array.shape, *getattr(array.dtype, "_shape_", ()))
+    host = np.empty(shape, dtype=_NP_DTYPES[scalar])
+    _prefault(host.reshape(-1).view(np.uint8))
+    wp.copy(wp.array(host, dtype=array.dtype, shape=array.shape, device="cpu", copy=False), array)
+    return host
+
+
+def _prefault(flat: np.ndarray, workers: int | None = None) -> None:
+    """Touch one byte per page of ``flat`` (fresh memory), split over up to 8 threads (numpy releases the GIL)."""
+    workers = workers or min(8, os.cpu_count() or 1)
+    if workers < 2:
+        flat[::_PAGE] = 0
+        return
+    span = -(-flat.size // workers)
+    span += (-span) % _PAGE  # page-aligned slices
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for start in range(0, flat.size, span):
+            pool.submit(flat[start : start + span : _PAGE].fill, 0)
 
 
 def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:

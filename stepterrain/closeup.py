@@ -30,7 +30,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import launch, launch_chunked, resolve_device, to_device
+from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
@@ -936,7 +936,7 @@ def closeup_layers(
         vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
         launch(closeup_kernels.transform_kept_vertices, vertex_count,
                [kept_points_wp, kept_layer_wp, kept_factors_wp, layers.matrices], [vertices_out], device)
-        v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
+        v_all = _world(host_copy(vertices_out[:vertex_count]), ox, oy)
         return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
                 for k, ((vs, ve), static) in enumerate(parts)]
 
@@ -961,11 +961,11 @@ def closeup_layers(
            [vertices_out, factors_out, vertex_source], device)
     launch_chunked(compaction_kernels.remap_faces, face_count, [faces_out, voffsets], [faces_out], device)  # in place
 
-    v_all = _world(vertices_out.numpy()[:vertex_count], ox, oy)
-    m_all = factors_out.numpy()[:vertex_count].copy()
-    src_v = vertex_source.numpy()[:vertex_count].copy()
-    f_all = faces_out.numpy()[:face_count].astype(np.int64)
-    src_f = face_source.numpy()[:face_count]
+    v_all = _world(host_copy(vertices_out[:vertex_count]), ox, oy)
+    m_all = host_copy(factors_out[:vertex_count]).copy()
+    src_v = host_copy(vertex_source[:vertex_count]).copy()
+    f_all = host_copy(faces_out[:face_count]).astype(np.int64)
+    src_f = host_copy(face_source[:face_count])
     kept_points = points[src_v]
     originals = kept_points.astype(np.float64) + [ox, oy, 0.0]
     v_layer = point_layer[src_v]
@@ -1109,7 +1109,7 @@ def anchor_strips(
     launch(closeup_kernels.emit_anchor_vertices, total,
            [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, rung_count],
            [vertices, distance, opacity], device)
-    v = _world(vertices.numpy(), ox, oy)
+    v = _world(host_copy(vertices), ox, oy)
     d, a = distance.numpy(), opacity.numpy()
     return [
         AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], layer_faces[k], d[v_bounds[k]: v_bounds[k + 1]],
@@ -1144,7 +1144,7 @@ def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> t
     faces = wp.empty(len(seg) * 2 * rung_count, dtype=wp.vec3i, device=device)
     launch(closeup_kernels.emit_anchor_faces, len(seg), [to_device(seg, wp.vec2i, device), rung_count], [faces],
            device)
-    f = faces.numpy().astype(np.int64)
+    f = host_copy(faces).astype(np.int64)
     v_layer = np.repeat(outline_layer, rung_count + 1)
     f_layer = np.repeat(outline_layer[seg[:, 0]], 2 * rung_count)
     v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))

@@ -33,7 +33,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import launch, launch_chunked, resolve_device, scratch, to_device
+from ._device import host_copy, launch, launch_chunked, resolve_device, scratch, to_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
@@ -542,7 +542,7 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
                   triangles: wp.array, device: wp.Device) -> wp.array:
     """Per triangle, the product of the user metrics at its refinement node (one vectorised call per level);
     ``host`` = the node positions and parameters on the host, copied once per mesh."""
-    tris = triangles.numpy().astype(np.int64)
+    tris = host_copy(triangles).astype(np.int64)
     n = grid.n
     a, b = tris[:, 1], tris[:, 2]
     m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
@@ -654,10 +654,10 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         remapped = wp.empty(n_faces, dtype=wp.vec3i, device=device)
         launch_chunked(compaction_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
         vertices, entries, faces_out = kept_vertices, kept_entries, remapped
-    v = vertices.numpy().reshape(-1, 3)
-    f = faces_out.numpy().reshape(-1, 3).astype(np.int64)
-    cube_face = face_index.numpy()
-    node_entry = entries.numpy()
+    v = host_copy(vertices).reshape(-1, 3)
+    f = host_copy(faces_out).reshape(-1, 3).astype(np.int64)
+    cube_face = host_copy(face_index)
+    node_entry = host_copy(entries)
     metadata = {"levels": per_level, "node_entry": node_entry, "face_size": n}
     mesh = trimesh.Trimesh(v, f, process=False, face_attributes={"cube_face": cube_face}, metadata=metadata)
     if per_face:

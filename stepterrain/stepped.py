@@ -28,7 +28,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import empty_shared, launch_chunked, resolve_device, scratch, to_device, to_numpy
+from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError
 from .kernels import stepped as stepped_kernels
 from .terrain import Terrain, as_terrain
@@ -438,7 +438,7 @@ def blend(
         )
     elif callable(gamma):
         original = np.empty((n, 3), dtype=np.float64)
-        original[:] = arrays.points.numpy()
+        original[:] = host_copy(arrays.points)
         original[:, 0] += terrain.local_origin[0]
         original[:, 1] += terrain.local_origin[1]
         values = np.asarray(gamma(original), dtype=np.float64)
@@ -533,8 +533,8 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
 def _carry_visual(terrain: Terrain, arrays: StepArrays) -> Any:
     """Input vertex colors or UVs interpolated onto the output vertices with the crossings' β."""
     visual = terrain.visual
-    sources = arrays.sources.numpy()
-    betas = arrays.betas.numpy().astype(np.float64)[:, None]
+    sources = host_copy(arrays.sources)
+    betas = host_copy(arrays.betas).astype(np.float64)[:, None]
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
         rgba = np.asarray(visual.vertex_colors, dtype=np.float64)
         mixed = (1 - betas) * rgba[sources[:, 0]] + betas * rgba[sources[:, 1]]
@@ -673,7 +673,7 @@ def _assemble(
     vertex_colors = None
     if colors is not None:
         table = _level_colors(colors, len(values))
-        vertex_levels = np.searchsorted(values, arrays.step_heights.numpy())
+        vertex_levels = np.searchsorted(values, host_copy(arrays.step_heights))
         vertex_colors = table[np.clip(vertex_levels, 0, len(values) - 1)]
     if solid:
         from .mesh import close_solid

@@ -27,7 +27,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import count_buffer, exclusive_offsets
-from ._device import launch, resolve_device, scratch
+from ._device import host_copy, launch, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_terrain
@@ -131,7 +131,7 @@ def _output(shape: tuple[int, ...], np_dtype: Any, wp_dtype: Any, device: wp.Dev
 
 
 def _result(host: NDArray[Any] | None, array: wp.array) -> NDArray[Any]:
-    return host if host is not None else array.numpy()
+    return host if host is not None else host_copy(array)
 
 
 # ---------------------------------------------------------------------------------------------- §7 topographic
@@ -393,7 +393,7 @@ def _shadow_mask(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, a
                  device: wp.Device) -> NDArray[np.uint8]:
     host = np.empty(t.heights.shape, dtype=np.uint8) if device.is_cpu else None
     out = _shadow_array(t, grid, azimuth, altitude, device, host)
-    return host if host is not None else out.numpy()
+    return host if host is not None else host_copy(out)
 
 
 def cast_shadows(
@@ -863,7 +863,7 @@ def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device
 
 
 def _finish(out: wp.array, like: TextureLayer, name: str) -> TextureLayer:
-    return TextureLayer("thematic", out.numpy(), like.extent, border="transparent", name=name)
+    return TextureLayer("thematic", host_copy(out), like.extent, border="transparent", name=name)
 
 
 def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | ArrayLike | None = None, *,

@@ -33,7 +33,7 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from ._device import launch, resolve_device
+from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
@@ -351,7 +351,7 @@ def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[i
             launch(texture_kernels.reduce_band, dim=(r1 - r0) * m_cols,
                    inputs=[src_wp, s0, wp.vec2i(n_rows, n_cols), r0, wp.vec2i(m_rows, m_cols)],
                    outputs=[dst_wp], device=device)
-            data = dst if device.is_cpu else dst_wp.numpy()
+            data = dst if device.is_cpu else host_copy(dst_wp)
             view = memoryview(np.ascontiguousarray(data)).cast("B")
             written, offset = 0, r0 * m_cols * channels
             while written < len(view):
