@@ -13,6 +13,9 @@ compared as well (topology exactly, positions to 1e-5 relative), so a fast wrong
 - ``globe``: ``Globe.from_latlon`` on the ETOPO 10' grid (6 x 1025² nodes) and a far-view adaptive mesh
   of about 200k triangles (the error found once on the CPU, reused on every device).
 - ``hillshade``: ``stepterrain.hillshade`` with cast shadows on the 2048² grid.
+- ``closeup``: ``closeup_layers`` for 4 close-ups whose ROIs cover 5 % of a 1025² terrain each: per frame
+  (the ROIs' cull kept, M applied again) and with new ROIs (amplify and cull as well). Rendering is not
+  included (pyvista/VTK draw on the CPU's OpenGL here).
 
 Run: ``python benchmarks/run_cuda.py [--devices cpu cuda:0] [--repeat 5] [--output FILE]``. Needs no
 pyvista/VTK (the VTK contenders of run_stepped.py are CPU programs; see RESULTS.md for them).
@@ -163,7 +166,37 @@ def bench_hillshade(devices: list[str], repeat: int, rows: list[list[str]]) -> N
                      f"max |Δ| {int(diff.max())} grey level(s), {float((diff > 0).mean()) * 100:.3f} % of pixels"])
 
 
-BENCHES = {"stepped": bench_stepped, "restep": bench_restep, "globe": bench_globe, "hillshade": bench_hillshade}
+def bench_closeup(devices: list[str], repeat: int, rows: list[list[str]]) -> None:
+    from stepterrain import Terrain
+    from stepterrain.closeup import ROI, CloseUp, closeup_layers
+
+    heights, spacing = baselines.grid_heights(1025)
+    terrain = Terrain.from_heights(heights, spacing=spacing)
+    xmin, xmax, ymin, ymax = terrain.extent
+    w, h = xmax - xmin, ymax - ymin
+    radius = math.sqrt(0.05 * w * h / math.pi)  # each ROI covers 5 % of the terrain, as in issue 4
+    def make_items() -> list[Any]:  # fresh ROI objects: their cull is not cached yet
+        return [CloseUp(ROI.circle((xmin + fx * w, ymin + fy * h), radius), scale=1.5, offset=(0.0, 0.0, 0.2 * w))
+                for fx, fy in [(0.25, 0.25), (0.75, 0.25), (0.25, 0.75), (0.75, 0.75)]]
+
+    layers = {}
+    for dev in devices:
+        t_cold, _ = timed(lambda d=dev: closeup_layers(terrain, make_items(), device=d), dev, repeat)
+        items = make_items()
+        t, out = timed(lambda it=items, d=dev: closeup_layers(terrain, it, device=d), dev, repeat)
+        layers[dev] = out
+        n = sum(len(layer.vertices) for layer in out)
+        rows.append([f"close-up layers per frame, 4 ROIs on 1025² ({n:,} vertices)", dev, f"{t * 1e3:,.2f}",
+                     f"{t_cold * 1e3:,.1f} (new ROIs: cull)", ""])
+        print(rows[-1], flush=True)
+    for dev in devices[1:]:
+        same = all(np.array_equal(a.faces, b.faces) and np.array_equal(a.vertices, b.vertices)
+                   for a, b in zip(layers[devices[0]], layers[dev], strict=True))
+        rows.append(["close-up layers", f"{dev} vs {devices[0]}", "", "", "identical" if same else "DIFFERENT"])
+
+
+BENCHES = {"stepped": bench_stepped, "restep": bench_restep, "globe": bench_globe, "hillshade": bench_hillshade,
+           "closeup": bench_closeup}
 
 
 def markdown(rows: list[list[str]], devices: list[str], args: argparse.Namespace, started: str) -> str:
