@@ -96,7 +96,7 @@ def bench_stepped(devices: list[str], repeat: int, rows: list[list[str]]) -> Non
         t_kern, _ = timed(kernels, dev, repeat)
         results[dev] = mesh
         rows.append([f"stepped 2048²/20 ({len(mesh.faces):,} faces)", dev, f"{t_mesh * 1e3:,.1f}",
-                     f"{t_kern * 1e3:,.1f} (kernels)", ""])
+                     f"{t_kern * 1e3:,.1f} (step_arrays + blend)", ""])
         print(rows[-1], flush=True)
     t0 = time.perf_counter()
     baselines.numpy_reference(heights, spacing, values)
