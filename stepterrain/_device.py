@@ -171,6 +171,11 @@ def host_copy(array: wp.array) -> np.ndarray:
     """
     if array.device.is_cpu or array.size * wp.types.type_size_in_bytes(array.dtype) < PREFAULT_BYTES:
         return array.numpy()
+    return _copy_to_fresh_host(array)
+
+
+def _copy_to_fresh_host(array: wp.array) -> np.ndarray:
+    """The copy half of :func:`host_copy` (any device; the tests run it on CPU arrays)."""
     scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
     shape = (*array.shape, *getattr(array.dtype, "_shape_", ()))
     host = np.empty(shape, dtype=_NP_DTYPES[scalar])
@@ -182,6 +187,8 @@ def host_copy(array: wp.array) -> np.ndarray:
 def _prefault(flat: np.ndarray, workers: int | None = None) -> None:
     """Touch one byte per page of ``flat`` (fresh memory), split over up to 8 threads (numpy releases the GIL)."""
     workers = workers or min(8, os.cpu_count() or 1)
+    if flat.size == 0:
+        return
     if workers < 2:
         flat[::_PAGE] = 0
         return
