@@ -119,6 +119,9 @@ def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
         return wp.get_device(device)
     except Exception as exc:  # warp raises ValueError/RuntimeError depending on version
         available = [str(d) for d in wp.get_devices()]
+        if str(device).startswith("cuda") and not wp.is_cuda_available():
+            raise DeviceError(f"device={device!r} needs a CUDA GPU, and Warp finds none on this machine "
+                              f"(available: {', '.join(available)})") from exc
         raise DeviceError(f"device must be one of {available} (or None); got {device!r}") from exc
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 from hypothesis import given
 from hypothesis import strategies as st_
 from hypothesis.extra.numpy import arrays
@@ -471,6 +472,10 @@ def test_memory_budget_raises_before_allocating_and_names_the_size():
 def test_device_errors():
     with pytest.raises(st.DeviceError, match="device must be one of"):
         st.stepped(np.zeros((3, 3)), interval=1.0, device="tpu:7")
+    missing = f"cuda:{len(wp.get_cuda_devices())}"  # one past the last GPU: none at all on a CPU machine
+    expected = "needs a CUDA GPU" if not wp.is_cuda_available() else "device must be one of"
+    with pytest.raises(st.DeviceError, match=expected):
+        st.stepped(np.zeros((3, 3)), interval=1.0, device=missing)
 
 
 def test_as_terrain_accepts_every_input_kind(dem):
