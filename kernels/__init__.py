@@ -4,7 +4,7 @@ Only ``warp`` and the standard library are imported here; the Python API in ``st
 
 Every module that does floating-point work compiles with ``fuse_fp=False``: no multiply-add is contracted into
 an FMA, so the float32 arithmetic is plain IEEE on both backends and the CPU and CUDA give the same bits
-wherever a kernel calls no transcendental function (NVRTC contracts by default, Warp's CPU build does not:
-before this, the cube-sphere heights of the two differed by up to 0.27 m, and adaptive meshes by a few
-triangles). The tests compare the two devices bit for bit where CUDA is present.
+wherever a kernel calls no transcendental function. With contraction on (Warp's default) NVRTC and the CPU's
+LLVM fuse different operations: the cube-sphere heights of the two differed by up to 0.27 m and adaptive
+meshes by a few triangles. The tests compare the two devices bit for bit where CUDA is present.
 """
