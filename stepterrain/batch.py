@@ -380,8 +380,12 @@ def run_item(
 
 # ---------------------------------------------------------------------------------------------- resume
 def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _Options) -> dict[str, str]:
-    """Per item: a hash of its input (file identity or the sliced heights) and the shared options."""
-    head = json.dumps([repr(options), _source_identity(source)], sort_keys=True).encode()
+    """Per item: a hash of its input (file identity or the sliced heights) and the shared options.
+
+    The device is left out: every device gives the same bits (kernels/__init__), so a run resumed on another
+    machine or device keeps what is done."""
+    shared = repr(dataclasses.replace(options, device=None))
+    head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
         h = hashlib.blake2b(head, digest_size=16)
@@ -611,7 +615,8 @@ def batch(
     Notes
     -----
     An item is complete when the manifest records it with the same fingerprint (its input: file path, size
-    and mtime, or a hash of its heights; and the options) and its file exists with the recorded size. Every
+    and mtime, or a hash of its heights; and the options but the device, which does not change a bit of the
+    output) and its file exists with the recorded size. Every
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
     a killed run leaves complete outputs or none and a rerun redoes only what is missing. Cost per item: one
     :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
