@@ -160,8 +160,10 @@ def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -
 
 
 _PAGE = 4096
-#: Device-to-host copies of at least this many bytes fault their fresh destination in first, in threads.
-PREFAULT_BYTES = 8 << 20
+#: Device-to-host copies of at least this many bytes fault their fresh destination in first (one thread per
+#: :data:`PREFAULT_SPAN` bytes, at most 8).
+PREFAULT_BYTES = 1 << 20
+PREFAULT_SPAN = 16 << 20
 
 
 def host_copy(array: wp.array) -> np.ndarray:
@@ -182,14 +184,15 @@ def _copy_to_fresh_host(array: wp.array) -> np.ndarray:
     scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
     shape = (*array.shape, *getattr(array.dtype, "_shape_", ()))
     host = np.empty(shape, dtype=_NP_DTYPES[scalar])
-    _prefault(host.reshape(-1).view(np.uint8))
+    flat = host.reshape(-1).view(np.uint8)
+    _prefault(flat, max(1, min(8, os.cpu_count() or 1, flat.size // PREFAULT_SPAN)))
     wp.copy(wp.array(host, dtype=array.dtype, shape=array.shape, device="cpu", copy=False), array)
     return host
 
 
-def _prefault(flat: np.ndarray, workers: int | None = None) -> None:
-    """Touch one byte per page of ``flat`` (fresh memory), split over up to 8 threads (numpy releases the GIL)."""
-    workers = workers or min(8, os.cpu_count() or 1)
+def _prefault(flat: np.ndarray, workers: int = 1) -> None:
+    """Touch one byte per page of ``flat`` (fresh memory), split over ``workers`` threads (numpy releases the
+    GIL)."""
     if flat.size == 0:
         return
     if workers < 2:
