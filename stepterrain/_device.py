@@ -161,8 +161,10 @@ def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -
 
 _PAGE = 4096
 #: Device-to-host copies of at least this many bytes fault their fresh destination in first (one thread per
-#: :data:`PREFAULT_SPAN` bytes, at most 8).
-PREFAULT_BYTES = 1 << 20
+#: :data:`PREFAULT_SPAN` bytes, at most 8). From 32 MB up glibc always maps fresh pages for an array; below,
+#: freed memory comes back and ``.numpy()`` is as fast (measured on an H100 machine: 0.5-16 MB within 10 %
+#: either way; 64 MB 13 ms against 47 ms; 314 MB 38 ms against 223 ms).
+PREFAULT_BYTES = 32 << 20
 PREFAULT_SPAN = 16 << 20
 
 
