@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
+
 
 @wp.kernel
 def mark_used_vertices(

@@ -598,14 +598,23 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
 
 
 @wp.func
-def midpoint_error(heights: wp.array[wp.float32], n: wp.int32, base: wp.int32, p: wp.vec2i, q: wp.vec2i,
-                   zp: wp.float64, zq: wp.float64) -> wp.float64:
-    """Vertical distance of the node at the midpoint of edge (p, q) from the edge (0 when it is no node)."""
+def leg_midpoint(p: wp.vec2i, q: wp.vec2i) -> wp.vec2i:
+    """The grid node halfway between p and q, or (-1, -1) when the midpoint is not a node."""
     si = p[0] + q[0]
     sj = p[1] + q[1]
     if ((si | sj) & 1) != 0:
+        return wp.vec2i(-1, -1)
+    return wp.vec2i(si >> 1, sj >> 1)
+
+
+@wp.func
+def midpoint_error(heights: wp.array[wp.float32], n: wp.int32, base: wp.int32, p: wp.vec2i, q: wp.vec2i,
+                   zp: wp.float64, zq: wp.float64) -> wp.float64:
+    """Vertical distance of the node at the midpoint of edge (p, q) from the edge (0 when it is no node)."""
+    mid = leg_midpoint(p, q)
+    if mid[0] < 0:
         return wp.float64(0.0)
-    z = wp.float64(heights[base + (si >> 1) * n + (sj >> 1)])
+    z = wp.float64(heights[base + mid[0] * n + mid[1]])
     return wp.abs(z - (zp + zq) * wp.float64(0.5))
 
 
@@ -766,9 +775,9 @@ def saturate_planar_fine(
     values_out: wp.array[wp.vec4],
 ):
     """The planar case's two deepest levels in memory order (like :func:`saturate_leaf_parameters` on the
-    cube): the same formulas as :func:`saturate_node_parameters` (true error of both triangles of the diamond
-    by :func:`small_triangle_error`, r over the four leaf children of a cell centre), so bit-identical to it,
-    without its slot decoding, padding slots and children loop of the leaves."""
+    cube): the same values as :func:`saturate_node_parameters` would give (true error of both triangles of the
+    diamond by :func:`small_triangle_error`, the closed form of :func:`triangle_true_error` at s = 1; r over
+    the four leaf children of a cell centre), without its slot decoding, padding slots and children loop."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:
@@ -859,10 +868,8 @@ def saturate_node_parameters(
             # planar: the true vertical error of both triangles of the diamond (never above the bound)
             apex = wp.vec2i(i + hyp[1], j - hyp[0])
             mate = wp.vec2i(i - hyp[1], j + hyp[0])
-            if s == 1:
-                e = wp.max(small_triangle_error(grid, face, a, b, apex), small_triangle_error(grid, face, a, b, mate))
-            else:
-                e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
+            # (s >= 2 here: the planar levels with s = 1 are saturate_planar_fine's)
+            e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
         else:
             pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
             pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
@@ -1088,16 +1095,6 @@ def node_active(values: wp.array[wp.vec4], n: wp.int32, use_geometric: wp.int32,
     if mu > error:
         return 1
     return 0
-
-
-@wp.func
-def leg_midpoint(p: wp.vec2i, q: wp.vec2i) -> wp.vec2i:
-    """The grid node halfway between p and q, or (-1, -1) when the midpoint is not a node."""
-    si = p[0] + q[0]
-    sj = p[1] + q[1]
-    if ((si | sj) & 1) != 0:
-        return wp.vec2i(-1, -1)
-    return wp.vec2i(si >> 1, sj >> 1)
 
 
 @wp.func

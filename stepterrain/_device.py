@@ -202,9 +202,11 @@ def _prefault(flat: np.ndarray, workers: int = 1) -> None:
         return
     span = -(-flat.size // workers)
     span += (-span) % _PAGE  # page-aligned slices
-    with ThreadPoolExecutor(max_workers=workers) as pool:
-        for start in range(0, flat.size, span):
-            pool.submit(flat[start : start + span : _PAGE].fill, 0)
+    parts = [flat[start : start + span : _PAGE] for start in range(0, flat.size, span)]
+    futures = [_helpers(len(parts) - 1).submit(part.fill, 0) for part in parts[1:]]
+    parts[0].fill(0)
+    for future in futures:
+        future.result()
 
 
 def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:
@@ -255,6 +257,15 @@ def set_cpu_threads(threads: int | None) -> int | None:
     return previous
 
 
+def _helpers(count: int) -> ThreadPoolExecutor:
+    """The shared pool (at least ``count`` threads) that split CPU passes and page touching run on, beside the
+    calling thread."""
+    global _executor
+    if _executor is None or _executor._max_workers < count:
+        _executor = ThreadPoolExecutor(max_workers=count, thread_name_prefix="stepterrain")
+    return _executor
+
+
 def launch(
     kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device, *, min_dim: int = MIN_THREAD_ELEMENTS
 ) -> None:
@@ -270,17 +281,15 @@ def launch(
     if workers <= 1:
         wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=outputs, device=device)
         return
-    global _executor
     key = (id(kernel.module), str(device))
     if key not in _loaded:  # compile/load once before several threads use the module
         kernel.module.load(device)
         _loaded.add(key)
-    if _executor is None or _executor._max_workers < workers - 1:
-        _executor = ThreadPoolExecutor(max_workers=workers - 1, thread_name_prefix="stepterrain")
+    pool = _helpers(workers - 1)
     bounds = [dim * k // workers for k in range(workers + 1)]
     futures = [
-        _executor.submit(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs],
-                         outputs=outputs, device=device)
+        pool.submit(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs],
+                    outputs=outputs, device=device)
         for k in range(1, workers)
     ]  # fmt: skip
     wp.launch(kernel, dim=bounds[1], inputs=[0, *inputs], outputs=outputs, device=device)

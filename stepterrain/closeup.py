@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
+from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
@@ -772,7 +773,7 @@ def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.fl
                 wp.array(packed.astype(np.float32), dtype=wp.float32, device=device))
 
     key = (tuple(id(r) for r in rois), float(ox), float(oy), str(device))
-    layers.boxes, layers.mask_info, layers.masks = _derived(_ROI_UPLOADS, key, rois, upload)
+    layers.boxes, layers.mask_info, layers.masks = derived(_ROI_UPLOADS, key, rois, upload)
     return layers
 
 
@@ -918,7 +919,7 @@ def closeup_layers(
         return n_faces, point_start, points, faces, point_layer, uploads
 
     joined_key = ("closeup", "joined", tuple(id(src) for src in sources), str(device))
-    joined = _derived(t.cached(("closeup", "joined"), dict), joined_key, tuple(sources), join)
+    joined = derived(t.cached(("closeup", "joined"), dict), joined_key, tuple(sources), join)
     n_faces, point_start, points, faces, point_layer, (points_wp, layer_wp, faces_wp) = joined
     n, nf = len(points), len(faces)
     layers = _layers_struct(items, matrices, t.local_origin, device)
@@ -1090,7 +1091,7 @@ def anchor_strips(
     # not on M: made once per set of them; a frame emits the strip vertices (and their t) for its M
     rois = tuple(cu.roi for cu in items)
     key = (tuple(id(r) for r in rois), tuple(cu.anchor for cu in items), str(device))
-    fixed = _derived(t.cached(("closeup", "anchor-static"), dict), key, rois, lambda: _anchor_static(t, items, device))
+    fixed = derived(t.cached(("closeup", "anchor-static"), dict), key, rois, lambda: _anchor_static(t, items, device))
     if fixed is None:
         rung_count = max(cu.anchor.rungs for cu in items)
         return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
@@ -1359,24 +1360,6 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
-def _derived(memo: dict, key: tuple, refs: tuple, build: Any) -> Any:
-    """``build()`` memoized under ``key`` while the objects ``refs`` are the same objects (the key holds their
-    ids, which stay theirs while the entry keeps them): what does not depend on M (the uploads of a set of ROIs
-    and of their source geometry, the anchors' outlines, a kept cull's face split and vertex colors) is made
-    once. Arrays in the value are made read-only: the callers that find it share them."""
-    entry = memo.get(key)
-    if entry is not None and all(a is b for a, b in zip(entry[0], refs, strict=True)):
-        return entry[1]
-    value = build()
-    for array in value if isinstance(value, tuple) else (value,):
-        if isinstance(array, np.ndarray):  # shared by the frames that find it here
-            array.setflags(write=False)
-    if len(memo) >= 64:
-        memo.clear()
-    memo[key] = (refs, value)
-    return value
-
-
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
                     strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
                     ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
@@ -1404,7 +1387,7 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
             return f[inner], f[:0]
 
         key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
-        content_faces, band_faces = (_derived(memo, key, (f, layer.mask_factor), split) if shared else split())
+        content_faces, band_faces = (derived(memo, key, (f, layer.mask_factor), split) if shared else split())
         if cu.anchor.band:
             content_vertices = layer.vertices
         else:
@@ -1426,7 +1409,7 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
             if shared and cu.texture is None and image_texture is None:  # textures may change in place: not kept
                 key = ("rgb", id(layer.original), id(layer.colors), id(layer.scalars), cu.scalars, cu.cmap, scalars,
                        cmap)
-                rgb = _derived(memo, key, (layer.original, layer.colors, layer.scalars),
+                rgb = derived(memo, key, (layer.original, layer.colors, layer.scalars),
                                lambda layer=layer, cu=cu: _layer_rgb(t, layer, cu, overview))
             else:
                 rgb = _layer_rgb(t, layer, cu, overview)

@@ -299,18 +299,18 @@ class Globe:
     def heights(self) -> NDArray[np.float32]:
         """(6, n, n) exaggerated node elevations in metres."""
         n = self.face_size
-        return self._grid.heights.numpy().reshape(6, n, n)
+        return host_copy(self._grid.heights).reshape(6, n, n)
 
     @property
     def positions(self) -> NDArray[np.float32]:
         """(6, n, n, 3) float32 node positions (planet-centred metres) used by the hierarchy."""
         n = self.face_size
-        return self._grid.positions.numpy().reshape(6, n, n, 3)
+        return host_copy(self._grid.positions).reshape(6, n, n, 3)
 
     def node_parameters(self) -> dict[str, NDArray[np.float32]]:
         """Per node (6, n, n): geometric_error e, bounding_radius r, cone_height h, cone_angle α (radians)."""
         n = self.face_size
-        values = self._params.values.numpy()
+        values = host_copy(self._params.values)
         return {name: np.ascontiguousarray(values[:, k]).reshape(6, n, n)
                 for k, name in enumerate(("geometric_error", "bounding_radius", "cone_height", "cone_angle"))}
 
@@ -558,7 +558,7 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 
 
-def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float, levels: int,
+def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float,
                    device: wp.Device) -> tuple[wp.array, wp.array, list[int]]:
     """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes."""
     count = grid.n * grid.n
@@ -598,12 +598,12 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     leaf_chunks: list[wp.array] = []
     vertex_chunks = [wp.array(corner_entries(grid.cells, n, faces), dtype=wp.int32, device=device)]
     per_level = []
-    host = (grid.positions.numpy(), params.values.numpy()) if users else None
+    host = (host_copy(grid.positions), host_copy(params.values)) if users else None
     flags = view.flags
     if _NODE_PASS and faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
         # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
         # and vertices as the breadth-first levels below (in another order), without a pass per level
-        leaves, entries, per_level = _planar_leaves(grid, params, int(flags[0]), float(view.error), levels, device)
+        leaves, entries, per_level = _planar_leaves(grid, params, int(flags[0]), float(view.error), device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
         levels = -1  # the loop below has nothing left to do

@@ -24,6 +24,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
@@ -781,31 +782,28 @@ class LayeredRenderer:
             counts = np.cumsum([0] + [len(layers[k][0]) for k in group])
             vertices = np.concatenate([np.asarray(layers[k][0], np.float64) for k in group])
             kw0 = layers[group[0]][2]
-            # the joined faces and colors of read-only parts are kept while the parts are the same objects
-            refs = tuple((layers[k][1], layers[k][2].get("rgb")) for k in group)
-            kept = self._joined.get((prefix, tuple(group)))
-            if kept is not None and len(kept[0]) == len(refs) and all(
-                    a[0] is b[0] and a[1] is b[1] for a, b in zip(kept[0], refs, strict=True)):
-                faces, joined_rgb = kept[1], kept[2]
-            else:
+
+            def join(group: list[int] = group, counts: Any = counts, kw0: dict = kw0
+                     ) -> tuple[NDArray[np.int64], NDArray[np.uint8] | None]:
                 faces = np.concatenate([np.asarray(layers[k][1], np.int64) + counts[i] for i, k in enumerate(group)])
                 joined_rgb = (np.concatenate([np.asarray(layers[k][2]["rgb"]) for k in group])
                               if kw0.get("rgb") is not None else None)
-                if all(_frozen(f) and (c is None or _frozen(c)) for f, c in refs):
-                    if len(self._joined) >= 16:
-                        self._joined.clear()
-                    faces.setflags(write=False)
-                    if joined_rgb is not None:
-                        joined_rgb.setflags(write=False)
-                    self._joined[(prefix, tuple(group))] = (refs, faces, joined_rgb)
+                return faces, joined_rgb
+
+            # the joined faces and colors of read-only parts are kept while the parts are the same objects
+            refs = tuple(x for k in group for x in (layers[k][1], layers[k][2].get("rgb")))
+            if all(x is None or _frozen(x) for x in refs):
+                faces, joined_rgb = derived(self._joined, (prefix, tuple(group)), refs, join, limit=16)
+            else:
+                faces, joined_rgb = join()
             kw = {"values": np.concatenate([np.asarray(layers[k][2]["values"]) for k in group])} \
                 if kw0.get("values") is not None else {}
             if joined_rgb is not None:
                 kw["rgb"] = joined_rgb
             parts = [boxes[k] for k in group if boxes[k] is not None]
-            union = (np.array([np.min([b[0] for b in parts], axis=0), np.max([b[1] for b in parts], axis=0)])
-                     if parts else None)
-            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, bounds=union, **kw)
+            group_box = (np.array([np.min([b[0] for b in parts], axis=0), np.max([b[1] for b in parts], axis=0)])
+                         if parts else None)
+            self.set_mesh(f"{prefix}-merged{g}", vertices, faces, bounds=group_box, **kw)
             if crop:  # read back the union of the group's boxes, then cut each layer's own box out of it
                 union = (min(rects[k][0] for k in group), min(rects[k][1] for k in group),
                          max(rects[k][2] for k in group), max(rects[k][3] for k in group))
