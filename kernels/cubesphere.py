@@ -1009,6 +1009,18 @@ def copy_cone_angles(
 
 
 @wp.func
+def point_inside_view(planes: wp.array[wp.vec4d], p: wp.vec3d) -> wp.int32:
+    """1 when p lies on the inner side of every plane: ⟨n, p⟩ + a > 0 for none of them, the same expression
+    as :func:`stepterrain.kernels.bounds.triangle_outside_view`'s per-corner test (so a triangle whose three
+    corners pass here is never found outside a plane there)."""
+    for k in range(planes.shape[0]):
+        plane = planes[k]
+        if wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3] > wp.float64(0.0):
+            return 0
+    return 1
+
+
+@wp.func
 def refinement_entry(n: wp.int32, tri: wp.vec4i) -> wp.int32:
     """Entry of a triangle's refinement node, the midpoint of its hypotenuse (on its own face)."""
     a = unpack(tri[1])
@@ -1029,9 +1041,11 @@ def count_refinement(
     user_factors: wp.array[wp.float32],
     # outputs
     counts_out: wp.array[wp.int32],  # 2·count + 2: refine flags, 0, owner flags, 0 (one scan for both)
+    inside_out: wp.array[wp.int32],  # per triangle (or empty: not tracked): 1 when its refinement node lies
+                                     # inside every plane of the view (see :func:`point_inside_view`)
 ):
     """One thread per triangle: 1 when it refines (its refinement node's metric exceeds the error), and
-    whether it emits that node as a new vertex."""
+    whether it emits that node as a new vertex; with ``inside_out``, whether that node lies in the view."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     need_position = wp.int32(1)
@@ -1075,6 +1089,8 @@ def count_refinement(
                                             e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
+                if inside_out.shape[0] > 0:
+                    inside_out[t] = point_inside_view(view.planes, bounds.to_vec3d(p))
         counts_out[t] = refine
         counts_out[count + 1 + t] = owner
     if first == 0:
@@ -1297,15 +1313,22 @@ def emit_refinement(
     triangles: wp.array[wp.vec4i],
     counts: wp.array[wp.int32],  # of count_refinement: refine flags, 0, owner flags, 0
     offsets: wp.array[wp.int32],  # their exclusive scan: offsets[count + 1] = the number of refined triangles
+    masks: wp.array[wp.int32],  # per triangle, or all three empty (not tracked): its corners known inside
+    inside: wp.array[wp.int32],  # of count_refinement: its refinement node lies inside the view
     # outputs
     children_out: wp.array[wp.vec4i],
     leaves_out: wp.array[wp.vec4i],
     vertex_entries_out: wp.array[wp.int32],
+    child_masks_out: wp.array[wp.int32],
+    leaf_masks_out: wp.array[wp.int32],
 ):
     """One thread per triangle: its two children (c, a, m), (b, c, m) to the next level, or itself to the
-    leaves; the owner of a new refinement node writes its canonical entry."""
+    leaves; the owner of a new refinement node writes its canonical entry. With ``masks``, the corner masks
+    follow the corners: bit k - 1 set when corner ``tri[k]`` is known to lie inside the view (a corner of a
+    triangle is a corner of its parent or the parent's refinement node, whose test count_refinement made)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    track = masks.shape[0] > 0
     for t in range(first, last):
         tri = triangles[t]
         if counts[t] != 0:
@@ -1317,11 +1340,18 @@ def emit_refinement(
             k = 2 * offsets[t]
             children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
             children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
+            if track:
+                mask = masks[t]
+                node = inside[t] << 2
+                child_masks_out[k] = ((mask >> 2) & 1) | ((mask & 1) << 1) | node  # (c, a, m)
+                child_masks_out[k + 1] = ((mask >> 1) & 3) | node  # (b, c, m)
             if counts[count + 1 + t] != 0:
                 vertex_entries_out[offsets[count + 1 + t] - offsets[count + 1]] = node_entry(
                     grid.cells, grid.planar, tri[0], mi, mj)
         else:
             leaves_out[t - offsets[t]] = tri
+            if track:
+                leaf_masks_out[t - offsets[t]] = masks[t]
 
 
 @wp.kernel
@@ -1360,11 +1390,13 @@ def count_kept_faces(
     view: bounds.View,
     cull: wp.int32,
     leaves: wp.array[wp.vec4i],
+    masks: wp.array[wp.int32],  # per leaf, or empty: corners known inside the view (emit_refinement)
     # outputs
     counts_out: wp.array[wp.int32],
 ):
     """One thread per leaf triangle: 0 when culling is on and the triangle lies wholly outside a plane, or
-    when it lies in the padding of a planar input."""
+    when it lies in the padding of a planar input. A leaf with a corner known to lie inside every plane is
+    kept without loading its corners: lying wholly outside a plane needs all three corners outside it."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     for t in range(first, last):
@@ -1374,7 +1406,11 @@ def count_kept_faces(
             lo = wp.min(unpack(tri[1]), wp.min(unpack(tri[2]), unpack(tri[3])))
             if lo[0] >= grid.rows_valid - 1 or lo[1] >= grid.cols_valid - 1:
                 keep = 0  # in the padding
-        if cull != 0 and keep != 0:
+        known_inside = wp.int32(0)
+        if masks.shape[0] > 0:
+            if masks[t] != 0:
+                known_inside = 1
+        if cull != 0 and keep != 0 and known_inside == 0:
             if bounds.triangle_outside_view(view.planes, corner_position(grid.positions, grid.n, tri[0], tri[1]),
                                             corner_position(grid.positions, grid.n, tri[0], tri[2]),
                                             corner_position(grid.positions, grid.n, tri[0], tri[3])) != 0:

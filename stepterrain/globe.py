@@ -600,6 +600,11 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     per_level = []
     host = (host_copy(grid.positions), host_copy(params.values)) if users else None
     flags = view.flags
+    # with culling, each triangle carries which of its corners are known to lie inside the view (tested once,
+    # as refinement nodes, where their positions are loaded anyway): a leaf with such a corner skips the test
+    none = wp.zeros(0, dtype=wp.int32, device=device)
+    masks = wp.zeros(triangles.shape[0], dtype=wp.int32, device=device) if cull else none
+    mask_chunks: list[wp.array] = []
     if _NODE_PASS and faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
         # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
         # and vertices as the breadth-first levels below (in another order), without a pass per level
@@ -613,21 +618,25 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
+        inside = scratch("globe.refine.inside", count, wp.int32, device) if cull else none
         launch_chunked(cube_kernels.count_refinement, count,
-               [grid, params, view, triangles, int(depth < levels), factors], [counts], device)
+               [grid, params, view, triangles, int(depth < levels), factors], [counts, inside], device)
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
-        check_budget((2 * refined + count) * 16 + owned * 28, f"refinement level {depth}")
+        check_budget((2 * refined + count) * (24 if cull else 16) + owned * 28, f"refinement level {depth}")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
-        launch_chunked(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets],
-               [children, leaves, entries], device)
+        child_masks = wp.empty(2 * refined, dtype=wp.int32, device=device) if cull else none
+        leaf_masks = wp.empty(count - refined, dtype=wp.int32, device=device) if cull else none
+        launch_chunked(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets, masks, inside],
+               [children, leaves, entries, child_masks, leaf_masks], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
+        mask_chunks.append(leaf_masks)
         per_level.append(count)
-        triangles = children
+        triangles, masks = children, child_masks
     leaves = _concat(leaf_chunks, wp.vec4i, device)
     entries = _concat(vertex_chunks, wp.int32, device)
     n_vertices = entries.shape[0]
@@ -636,7 +645,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
     n_leaves = leaves.shape[0]
     keep = count_buffer("globe.keep", n_leaves, device)
-    launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves], [keep], device)
+    leaf_masks = _concat(mask_chunks, wp.int32, device) if cull and mask_chunks else none
+    launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves, leaf_masks], [keep],
+                   device)
     offsets, n_faces = exclusive_offsets(keep, "globe.keep")
     faces_out = wp.empty(n_faces, dtype=wp.vec3i, device=device)
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)

@@ -12,7 +12,7 @@ from hypothesis import Phase, given, settings
 from hypothesis import strategies as hst
 
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import EARTH_RADIUS, Camera, Globe, load_global_relief
+from stepterrain.globe import EARTH_RADIUS, Camera, Globe, load_global_relief, look_from
 
 from . import reference_globe as ref
 from .conftest import SHARED_DATA, assert_valid_mesh
@@ -293,6 +293,33 @@ def test_refinement_matches_reference_visit(small_globe):
     del pos
 
 
+def _assert_culled_exactly(closed, culled, cam):
+    """The culled mesh is the closed mesh less exactly its triangles wholly outside one frustum plane."""
+    def key(m, keep=None):
+        faces = np.asarray(m.faces) if keep is None else np.asarray(m.faces)[keep]
+        return {tuple(sorted(t)) for t in np.asarray(m.metadata["node_entry"])[faces].tolist()}
+
+    planes = cam.planes()
+    corner_out = (closed.vertices @ planes[:, :3].T + planes[:, 3]) > 0  # (V, 6)
+    outside = corner_out[np.asarray(closed.faces)].all(axis=1).any(axis=1)
+    assert key(culled) == key(closed, ~outside)
+
+
+def test_culling_keeps_exactly_the_triangles_not_wholly_outside(sample_globe):
+    """Views whose planes cut through many leaves: leaves known inside (their corners tested as refinement
+    nodes) skip the test, the others are tested, and the result is the closed mesh less exactly the
+    triangles wholly outside a plane."""
+    g = sample_globe
+    for lat, lon, altitude, tilt, fov in ((46.0, 9.0, 400_000.0, 60.0, 0.5), (0.0, 0.0, 2 * R, 0.0, 0.2),
+                                          (-60.0, 120.0, 50_000.0, 75.0, 1.0), (89.0, 45.0, R, 10.0, 0.3)):
+        cam = look_from(lat, lon, altitude, tilt=tilt, fov=fov, aspect=1.5)
+        for bounds in ("cone", "sphere"):
+            closed = g.mesh(error=50.0, camera=cam, bounds=bounds, cull=False)
+            culled = g.mesh(error=50.0, camera=cam, bounds=bounds)
+            assert 0 < len(culled.faces) < len(closed.faces)
+            _assert_culled_exactly(closed, culled, cam)
+
+
 @settings(max_examples=12, phases=[Phase.explicit, Phase.reuse, Phase.generate])
 @given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
        error=hst.floats(20.0, 2000.0), cone=hst.booleans(), seed=hst.integers(0, 10**6))
@@ -315,11 +342,7 @@ def test_random_views_are_crack_free(sample_globe, distance, lon, lat, error, co
         corner_out = (culled.vertices @ planes[:, :3].T + planes[:, 3]) > 0  # (V, 6)
         wholly = corner_out[np.asarray(culled.faces)].all(axis=1).any(axis=1)
         assert not wholly.any(), "a triangle wholly outside the frustum survived culling"
-        # culling only removes triangles: every kept face is a face of the closed mesh
-        def key(m):
-            return {tuple(sorted(t)) for t in np.asarray(m.metadata["node_entry"])[np.asarray(m.faces)].tolist()}
-
-        assert key(culled) <= key(closed)
+    _assert_culled_exactly(closed, culled, cam)
     # larger error: no more triangles; farther eye (distance metric, same ℓ): no more triangles
     assert len(g.mesh(error=2 * error, camera=cam, bounds=bounds, cull=False).faces) <= len(closed.faces)
     far = Camera(eye=tuple(2 * eye), target=cam.target, up=cam.up, fov=cam.fov, aspect=cam.aspect, near=cam.near,
@@ -384,7 +407,7 @@ def test_cpu_and_cuda_agree(device):
 
 
 def test_colours_by_elevation_and_draped_image(small_globe):
-    from stepterrain.globe import drape_colors, elevation_colors, look_from
+    from stepterrain.globe import drape_colors, elevation_colors
 
     mesh = small_globe.mesh(error=500.0)
     image = np.zeros((90, 180, 3), np.uint8)
