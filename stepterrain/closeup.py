@@ -929,70 +929,74 @@ def closeup_layers(
     # the cull (count -> scan -> emit) runs once per set of sources and ROIs; a frame that moves or turns the
     # close-ups transforms the kept vertices only (the same kernel on the same points: the same V_C)
     rois = tuple(cu.roi for cu in items)
-    cull_key = ("closeup", "cull", joined_key, tuple(id(r) for r in rois))
-    cull = cache.get(cull_key)
-    if cull is not None and cull[0] is joined and all(a is b for a, b in zip(cull[1], rois, strict=True)):
-        kept_points_wp, kept_layer_wp, kept_factors_wp, parts = cull[2]
+    fresh: list[NDArray[np.float64]] = []  # the cull's own transformed vertices, when it runs in this call
+
+    def cull() -> tuple[Any, ...]:
+        transformed = wp.empty(n, dtype=wp.vec3, device=device)
+        factors = wp.empty(n, dtype=wp.float32, device=device)
+        launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
+               device)
+        counts = count_buffer("closeup.faces", nf, device)
+        launch(closeup_kernels.count_closeup_faces, nf, [faces_wp, factors], [counts], device)
+        offsets, face_count = exclusive_offsets(counts, "closeup.faces")
+        faces_out = wp.empty(max(face_count, 1), dtype=wp.vec3i, device=device)
+        face_source = wp.empty(max(face_count, 1), dtype=wp.int32, device=device)
+        launch(closeup_kernels.emit_closeup_faces, nf, [faces_wp, factors, offsets], [faces_out, face_source],
+               device)
+        used = count_buffer("closeup.vertices", n, device)
+        used.zero_()
+        launch_chunked(compaction_kernels.mark_used_vertices, face_count, [faces_out], [used], device)
+        voffsets, vertex_count = exclusive_offsets(used, "closeup.vertices")
+        vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
+        factors_out = wp.empty(max(vertex_count, 1), dtype=wp.float32, device=device)
+        vertex_source = wp.empty(max(vertex_count, 1), dtype=wp.int32, device=device)
+        launch(closeup_kernels.emit_used_vertices, n, [used, voffsets, transformed, factors],
+               [vertices_out, factors_out, vertex_source], device)
+        launch_chunked(compaction_kernels.remap_faces, face_count, [faces_out, voffsets], [faces_out], device)
+
+        fresh.append(_world(host_copy(vertices_out[:vertex_count]), ox, oy))
+        m_all = host_copy(factors_out[:vertex_count]).copy()
+        src_v = host_copy(vertex_source[:vertex_count]).copy()
+        f_all = host_copy(faces_out[:face_count]).astype(np.int64)
+        src_f = host_copy(face_source[:face_count])
+        kept_points = points[src_v]
+        originals = kept_points.astype(np.float64) + [ox, oy, 0.0]
+        v_layer = point_layer[src_v]
+        f_layer = point_layer[faces[src_f, 0]] if face_count else np.zeros(0, np.int32)
+        v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
+        f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
+        face_start = np.concatenate([[0], np.cumsum(n_faces)[:-1]])
+        parts = []
+        for k, src in enumerate(sources):
+            vs, ve, fs, fe = v_bounds[k], v_bounds[k + 1], f_bounds[k], f_bounds[k + 1]
+            local_src = src_v[vs:ve] - point_start[k]
+            static = {
+                "faces": f_all[fs:fe] - vs,
+                "mask_factor": m_all[vs:ve],
+                "original": originals[vs:ve],
+                "source_faces": src.source_faces[src_f[fs:fe] - face_start[k]],
+                "colors": None if src.colors is None else src.colors[local_src],
+                "scalars": None if src.scalars is None else src.scalars[local_src],
+            }
+            for value in static.values():  # shared by the layers of every frame of these close-ups: read-only
+                if value is not None:
+                    value.setflags(write=False)
+            parts.append(((vs, ve), static))
+        return (wp.array(kept_points, dtype=wp.vec3, device=device),
+                wp.array(v_layer, dtype=wp.int32, device=device), wp.array(m_all, dtype=wp.float32, device=device),
+                parts)
+
+    cull_key = (joined_key, tuple(id(r) for r in rois))
+    kept_points_wp, kept_layer_wp, kept_factors_wp, parts = derived(t.cached(("closeup", "cull"), dict), cull_key,
+                                                                    (joined, *rois), cull)
+    if fresh:
+        v_all = fresh[0]
+    else:
         vertex_count = kept_points_wp.shape[0]
         vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
         launch(closeup_kernels.transform_kept_vertices, vertex_count,
                [kept_points_wp, kept_layer_wp, kept_factors_wp, layers.matrices], [vertices_out], device)
         v_all = _world(host_copy(vertices_out[:vertex_count]), ox, oy)
-        return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
-                for k, ((vs, ve), static) in enumerate(parts)]
-
-    transformed = wp.empty(n, dtype=wp.vec3, device=device)
-    factors = wp.empty(n, dtype=wp.float32, device=device)
-    launch(closeup_kernels.transform_closeup_vertices, n, [points_wp, layer_wp, layers], [transformed, factors],
-           device)
-    counts = count_buffer("closeup.faces", nf, device)
-    launch(closeup_kernels.count_closeup_faces, nf, [faces_wp, factors], [counts], device)
-    offsets, face_count = exclusive_offsets(counts, "closeup.faces")
-    faces_out = wp.empty(max(face_count, 1), dtype=wp.vec3i, device=device)
-    face_source = wp.empty(max(face_count, 1), dtype=wp.int32, device=device)
-    launch(closeup_kernels.emit_closeup_faces, nf, [faces_wp, factors, offsets], [faces_out, face_source], device)
-    used = count_buffer("closeup.vertices", n, device)
-    used.zero_()
-    launch_chunked(compaction_kernels.mark_used_vertices, face_count, [faces_out], [used], device)
-    voffsets, vertex_count = exclusive_offsets(used, "closeup.vertices")
-    vertices_out = wp.empty(max(vertex_count, 1), dtype=wp.vec3, device=device)
-    factors_out = wp.empty(max(vertex_count, 1), dtype=wp.float32, device=device)
-    vertex_source = wp.empty(max(vertex_count, 1), dtype=wp.int32, device=device)
-    launch(closeup_kernels.emit_used_vertices, n, [used, voffsets, transformed, factors],
-           [vertices_out, factors_out, vertex_source], device)
-    launch_chunked(compaction_kernels.remap_faces, face_count, [faces_out, voffsets], [faces_out], device)  # in place
-
-    v_all = _world(host_copy(vertices_out[:vertex_count]), ox, oy)
-    m_all = host_copy(factors_out[:vertex_count]).copy()
-    src_v = host_copy(vertex_source[:vertex_count]).copy()
-    f_all = host_copy(faces_out[:face_count]).astype(np.int64)
-    src_f = host_copy(face_source[:face_count])
-    kept_points = points[src_v]
-    originals = kept_points.astype(np.float64) + [ox, oy, 0.0]
-    v_layer = point_layer[src_v]
-    f_layer = point_layer[faces[src_f, 0]] if face_count else np.zeros(0, np.int32)
-    v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
-    f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
-    face_start = np.concatenate([[0], np.cumsum(n_faces)[:-1]])
-    parts = []
-    for k, src in enumerate(sources):
-        vs, ve, fs, fe = v_bounds[k], v_bounds[k + 1], f_bounds[k], f_bounds[k + 1]
-        local_src = src_v[vs:ve] - point_start[k]
-        static = {
-            "faces": f_all[fs:fe] - vs,
-            "mask_factor": m_all[vs:ve],
-            "original": originals[vs:ve],
-            "source_faces": src.source_faces[src_f[fs:fe] - face_start[k]],
-            "colors": None if src.colors is None else src.colors[local_src],
-            "scalars": None if src.scalars is None else src.scalars[local_src],
-        }
-        for value in static.values():  # shared by the layers of every frame of these close-ups: read-only
-            if value is not None:
-                value.setflags(write=False)
-        parts.append(((vs, ve), static))
-    kept = (wp.array(kept_points, dtype=wp.vec3, device=device), wp.array(v_layer, dtype=wp.int32, device=device),
-            wp.array(m_all, dtype=wp.float32, device=device))
-    cache[cull_key] = (joined, rois, (*kept, parts))
     return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
             for k, ((vs, ve), static) in enumerate(parts)]
 
