@@ -54,6 +54,7 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
 _NODE_PASS = True
+_TRACK_MIN = 4096  # triangles of a level from which culling tracks its corners (see _extract)
 
 UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 
@@ -600,11 +601,13 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     per_level = []
     host = (host_copy(grid.positions), host_copy(params.values)) if users else None
     flags = view.flags
-    # with culling, each triangle carries which of its corners are known to lie inside the view (tested once,
-    # as refinement nodes, where their positions are loaded anyway): a leaf with such a corner skips the test
+    # with culling, the triangles of large levels carry which of their corners are known to lie inside the view
+    # (tested once, as refinement nodes, where their positions are loaded anyway): a leaf with such a corner
+    # skips the test. Small levels (a close view's) are not tracked: there two arrays a level cost more than
+    # the tests they would save.
     none = wp.zeros(0, dtype=wp.int32, device=device)
-    masks = wp.zeros(triangles.shape[0], dtype=wp.int32, device=device) if cull else none
-    mask_chunks: list[wp.array] = []
+    masks: wp.array | None = None  # of the current level's triangles, while tracked
+    mask_chunks: list[wp.array | None] = []
     if _NODE_PASS and faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
         # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
         # and vertices as the breadth-first levels below (in another order), without a pass per level
@@ -618,25 +621,31 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
-        inside = scratch("globe.refine.inside", count, wp.int32, device) if cull else none
+        track = cull and count >= _TRACK_MIN
+        if track and masks is None:
+            masks = wp.zeros(count, dtype=wp.int32, device=device)  # nothing known yet
+        elif not track:
+            masks = None
+        inside = scratch("globe.refine.inside", count, wp.int32, device) if track else none
         launch_chunked(cube_kernels.count_refinement, count,
                [grid, params, view, triangles, int(depth < levels), factors], [counts, inside], device)
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
-        check_budget((2 * refined + count) * (24 if cull else 16) + owned * 28, f"refinement level {depth}")
+        check_budget((2 * refined + count) * (20 if track else 16) + owned * 28, f"refinement level {depth}")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
-        child_masks = wp.empty(2 * refined, dtype=wp.int32, device=device) if cull else none
-        leaf_masks = wp.empty(count - refined, dtype=wp.int32, device=device) if cull else none
-        launch_chunked(cube_kernels.emit_refinement, count, [grid, triangles, counts, offsets, masks, inside],
-               [children, leaves, entries, child_masks, leaf_masks], device)
+        child_masks = wp.empty(2 * refined, dtype=wp.int32, device=device) if track else none
+        leaf_masks = wp.empty(count - refined, dtype=wp.int32, device=device) if track else none
+        launch_chunked(cube_kernels.emit_refinement, count,
+                       [grid, triangles, counts, offsets, none if masks is None else masks, inside],
+                       [children, leaves, entries, child_masks, leaf_masks], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
-        mask_chunks.append(leaf_masks)
+        mask_chunks.append(leaf_masks if track else None)
         per_level.append(count)
-        triangles, masks = children, child_masks
+        triangles, masks = children, (child_masks if track else None)
     leaves = _concat(leaf_chunks, wp.vec4i, device)
     entries = _concat(vertex_chunks, wp.int32, device)
     n_vertices = entries.shape[0]
@@ -645,7 +654,14 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
     n_leaves = leaves.shape[0]
     keep = count_buffer("globe.keep", n_leaves, device)
-    leaf_masks = _concat(mask_chunks, wp.int32, device) if cull and mask_chunks else none
+    leaf_masks = none
+    if any(chunk is not None for chunk in mask_chunks):  # per leaf; 0 (nothing known) for untracked levels
+        leaf_masks = wp.zeros(leaves.shape[0], dtype=wp.int32, device=device)
+        offset = 0
+        for leaf_chunk, chunk in zip(leaf_chunks, mask_chunks, strict=True):  # one of each per level
+            if chunk is not None and chunk.shape[0]:
+                wp.copy(leaf_masks, chunk, dest_offset=offset, count=chunk.shape[0])
+            offset += leaf_chunk.shape[0]
     launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves, leaf_masks], [keep],
                    device)
     offsets, n_faces = exclusive_offsets(keep, "globe.keep")

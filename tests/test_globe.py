@@ -305,10 +305,15 @@ def _assert_culled_exactly(closed, culled, cam):
     assert key(culled) == key(closed, ~outside)
 
 
-def test_culling_keeps_exactly_the_triangles_not_wholly_outside(sample_globe):
+@pytest.mark.parametrize("track_min", [1, 64, None])
+def test_culling_keeps_exactly_the_triangles_not_wholly_outside(sample_globe, monkeypatch, track_min):
     """Views whose planes cut through many leaves: leaves known inside (their corners tested as refinement
     nodes) skip the test, the others are tested, and the result is the closed mesh less exactly the
-    triangles wholly outside a plane."""
+    triangles wholly outside a plane; with every level tracked, with the small ones not, and by default."""
+    import stepterrain.globe as globe_module
+
+    if track_min is not None:
+        monkeypatch.setattr(globe_module, "_TRACK_MIN", track_min)
     g = sample_globe
     for lat, lon, altitude, tilt, fov in ((46.0, 9.0, 400_000.0, 60.0, 0.5), (0.0, 0.0, 2 * R, 0.0, 0.2),
                                           (-60.0, 120.0, 50_000.0, 75.0, 1.0), (89.0, 45.0, R, 10.0, 0.3)):
