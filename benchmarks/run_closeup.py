@@ -17,7 +17,9 @@
      terrain, transformed with C = m·M + (1 − m)·I in NumPy (faces with m = 0 discarded only after the
      transform, as a fragment shader would), the same compositing.
    Reported: best and median of ``--repeat`` frames, the stages, and the ratio to the 0-close-up frame
-   (goal: 4 close-ups <= 1.5x), by wall time and by CPU time, best and median.
+   (goal: 4 close-ups <= 1.5x), by wall time and by CPU time, best and median, and the median of the
+   per-round ratios (a round's 4-close-up frame over its 0-close-up frame, seconds apart; the goal counts as
+   met only when all three are within it).
 2. The transform kernel's vertices per second on one core (``transform_closeup_vertices`` over every DEM
    vertex) against the same transform in NumPy (vectorised: bilinear mask lookup, then V_O + m·(M·V_O − V_O)).
 3. ``closeup_layers`` (transform + cull, end to end) for ROIs of 1%, 5%, 20% and 100% of the terrain: the
@@ -116,7 +118,8 @@ def time_culled_interleaved(terrain, counts: list[int], repeat: int, configs: di
     for (name, count), (_, _, _, _, frames, cpu, stages, _) in setups.items():
         best = int(np.argmin(frames))
         out[name][count] = {"best": min(frames), "median": statistics.median(frames), "cpu": cpu[best],
-                            "cpu_best": min(cpu), "cpu_median": statistics.median(cpu), "stages": stages[best]}
+                            "cpu_best": min(cpu), "cpu_median": statistics.median(cpu), "stages": stages[best],
+                            "frames": frames}
     return out
 
 
@@ -331,10 +334,17 @@ def main(argv: list[str] | None = None) -> int:
     verdict = ""
     if 4 in ratios and 0 in ratios:
         r4, r4_cpu, r4_still, r4_med, r4_cpu_med, r4_turn_med = ratios[4]
+        # the 4-close-up frame over the 0-close-up frame of the same round (seconds apart): the VM's speed
+        # drifts by tens of percent over minutes, which moves best-against-best and median-against-median
+        paired = [a / b for a, b in zip(measured["moving"][4]["frames"], measured["moving"][0]["frames"],
+                                        strict=True)]
+        r4_pair = statistics.median(paired)
+        met = max(r4, r4_med, r4_pair) <= GOAL
         verdict = (f"Goal (4 close-ups of 5% ROIs <= {GOAL}x the 0-close-up frame), whole pipeline every frame: "
                    f"best {r4:.2f}x wall ({r4_cpu:.2f}x best CPU time), median {r4_med:.2f}x wall "
-                   f"({r4_cpu_med:.2f}x median CPU time): {'met' if max(r4, r4_med) <= GOAL else 'not met'} "
-                   f"(best and median); close-ups turning every frame (new M, re-upload): median {r4_turn_med:.2f}x; "
+                   f"({r4_cpu_med:.2f}x median CPU time), per round (the two frames of one round) median "
+                   f"{r4_pair:.2f}x, range {min(paired):.2f}-{max(paired):.2f}x: {'met' if met else 'not met'} "
+                   f"(all three); close-ups turning every frame (new M, re-upload): median {r4_turn_med:.2f}x; "
                    f"camera moving over still close-ups (their geometry kept): {r4_still:.2f}x.")
     tp = transform_throughput(terrain, args.repeat)
     tp_lines = [
