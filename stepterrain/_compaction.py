@@ -9,6 +9,7 @@ predicted size is checked against the memory budget (:func:`set_memory_budget`).
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from ._device import scratch
@@ -36,19 +37,27 @@ def set_memory_budget(nbytes: int) -> int:
     >>> _ = st.set_memory_budget(previous)
     """
     global _memory_budget
-    if isinstance(nbytes, bool) or not isinstance(nbytes, int) or nbytes <= 0:
-        raise InvalidInputError(f"memory budget must be a positive int of bytes; got {nbytes!r}")
-    previous, _memory_budget = _memory_budget, nbytes
+    previous, _memory_budget = _memory_budget, budget_value(nbytes, "memory budget")
     return previous
 
 
-def check_budget(nbytes: int, what: str, budget: int | None = None) -> None:
-    """Raise :class:`OutputTooLargeError` when ``nbytes`` exceeds the budget, naming the size."""
-    limit = _memory_budget if budget is None else budget
+def budget_value(nbytes: object, name: str = "memory_budget") -> int:
+    """``nbytes`` checked as a memory budget: a positive int of bytes (an :class:`InvalidInputError` naming
+    ``name`` otherwise)."""
+    if isinstance(nbytes, bool) or not isinstance(nbytes, (int, np.integer)) or nbytes <= 0:
+        raise InvalidInputError(f"{name} must be a positive int of bytes; got {nbytes!r}")
+    return int(nbytes)
+
+
+def check_budget(nbytes: int, what: str, budget: int | None = None, *,
+                 hint: str = "coarsen the input or the isovalues") -> None:
+    """Raise :class:`OutputTooLargeError` when ``nbytes`` exceeds the budget, naming the size; ``budget`` (a
+    caller's ``memory_budget=``) is checked first, ``hint`` says what would make the output smaller."""
+    limit = _memory_budget if budget is None else budget_value(budget)
     if nbytes > limit:
         raise OutputTooLargeError(
             f"{what} would need {nbytes / 1024**2:,.1f} MiB, over the memory budget of "
-            f"{limit / 1024**2:,.1f} MiB; coarsen the input or the isovalues, or raise the budget "
+            f"{limit / 1024**2:,.1f} MiB; {hint}, or raise the budget "
             "(stepterrain.set_memory_budget or memory_budget=)"
         )
 

@@ -29,7 +29,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from ._compaction import check_budget, count_buffer, exclusive_offsets
+from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
@@ -879,6 +879,8 @@ def closeup_layers(
     items = _check_closeups(closeups)
     _check_in_terrain(t, items)
     device = resolve_device(device)
+    if memory_budget is not None:
+        budget_value(memory_budget)  # before any work
     pivot = _pivot_z(t)
     matrices = [cu.matrix(pivot, time=time) for cu in items]
     if not items:
@@ -905,7 +907,8 @@ def closeup_layers(
             cache[key] = src
         sources.append(src)
     check_budget(sum(len(src.points) for src in sources) * (12 + 4 + 4 + 12)
-                 + sum(len(src.faces) for src in sources) * (12 + 4 + 12), "close-up geometry", memory_budget)
+                 + sum(len(src.faces) for src in sources) * (12 + 4 + 12), "close-up geometry", memory_budget,
+                 hint="use smaller ROIs or fewer close-ups")
     # the concatenated inputs and their uploads, kept for the same sources (the kernels only read them)
     def join() -> tuple[Any, ...]:
         n_points = np.array([len(s.points) for s in sources])

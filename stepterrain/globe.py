@@ -255,7 +255,8 @@ class Globe:
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:
             raise InvalidInputError(f"lat must reach within one step ({dlat:.9g}°) of both poles; got "
                                     f"{lat[0]:.9g} to {lat[-1]:.9g}")
-        check_budget(6 * (cells + 1) ** 2 * _BYTES_PER_ENTRY, f"a globe of face_size {cells + 1}")
+        check_budget(6 * (cells + 1) ** 2 * _BYTES_PER_ENTRY, f"a globe of face_size {cells + 1}",
+                     hint="use a smaller face_size")
         device = resolve_device(device)
         source = cube_kernels.LatLonGrid()
         source.elevation = wp.array(np.ascontiguousarray(z), dtype=wp.float32, device=device)
@@ -569,7 +570,7 @@ def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float,
                    device)
     offsets, total = exclusive_offsets(counts, "globe.nodes")
     n_leaves = _host_int(offsets, count + 1)
-    check_budget(n_leaves * 16 + (total - n_leaves) * 28, "the planar mesh")
+    check_budget(n_leaves * 16 + (total - n_leaves) * 28, "the planar mesh", hint="raise the error")
     leaves = wp.empty(n_leaves, dtype=wp.vec4i, device=device)
     entries = wp.empty(total - n_leaves, dtype=wp.int32, device=device)
     launch_chunked(cube_kernels.emit_node_leaves, count, [grid, params, use_geometric, error, counts, offsets],
@@ -632,7 +633,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
-        check_budget((2 * refined + count) * (20 if track else 16) + owned * 28, f"refinement level {depth}")
+        check_budget((2 * refined + count) * (20 if track else 16) + owned * 28, f"refinement level {depth}",
+                     hint="raise the error or narrow the view")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
         leaves = wp.empty(count - refined, dtype=wp.vec4i, device=device)
         entries = wp.empty(owned, dtype=wp.int32, device=device)
@@ -790,7 +792,8 @@ def adaptive_mesh(
     rows, cols = z.shape
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     n = cells + 1
-    check_budget(n * n * _BYTES_PER_ENTRY, f"an adaptive mesh of a {rows}x{cols} grid (padded to {n}x{n})")
+    check_budget(n * n * _BYTES_PER_ENTRY, f"an adaptive mesh of a {rows}x{cols} grid (padded to {n}x{n})",
+                 hint="coarsen the input")
     if (rows, cols) != (n, n):
         z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
     device = resolve_device(device)

@@ -27,7 +27,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from ._compaction import check_budget, count_buffer, exclusive_offsets
+from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError
 from .kernels import stepped as stepped_kernels
@@ -634,6 +634,8 @@ def stepped(
     """
     t = as_terrain(terrain, spacing=spacing, origin=origin)
     dev = resolve_device(device)
+    if memory_budget is not None:
+        budget_value(memory_budget)  # before any work
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
     arrays = step_arrays(
         t, values, device=dev, want_sources=_needs_sources(t, gamma, colors), memory_budget=memory_budget

@@ -23,7 +23,7 @@ from stepterrain.closeup import (
     max_closeups,
     transfer_function,
 )
-from stepterrain.errors import InvalidInputError
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.terrain import Terrain, heightfield_mesh
 
 from .conftest import assert_valid_mesh, real_dem
@@ -484,3 +484,12 @@ def test_a_kept_cull_gives_the_layers_and_anchors_of_a_fresh_one(device):
                 np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
             assert a.max_length == b.max_length
     assert np.abs(kept[0].vertices - closeup_layers(t, cus, time=0.0, device=device)[0].vertices).max() > 1.0
+
+
+def test_memory_budget_is_checked_and_named():
+    t = Terrain.from_heights(hills(), spacing=(1.0, 1.0))
+    cu = CloseUp(ROI.circle((10.0, 10.0), 8.0), offset=(0, 0, 30.0))
+    with pytest.raises(InvalidInputError, match="memory_budget must be a positive int of bytes; got -5"):
+        closeup_layers(t, [cu], memory_budget=-5, device="cpu")
+    with pytest.raises(OutputTooLargeError, match="close-up geometry would need .* smaller ROIs or fewer close-ups"):
+        closeup_layers(t, [cu], memory_budget=100, device="cpu")

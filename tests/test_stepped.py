@@ -463,10 +463,19 @@ def test_memory_budget_raises_before_allocating_and_names_the_size():
         st.stepped(heights, interval=1.0, memory_budget=10_000)
     previous = st.set_memory_budget(10_000)
     try:
-        with pytest.raises(MemoryError):
+        with pytest.raises(MemoryError, match="coarsen the input or the isovalues"):
             st.stepped(heights, interval=1.0)
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize("budget", [-1, 0, 2.5e9, "1GB", True])
+def test_bad_memory_budget_is_named(budget):
+    heights = np.add.outer(np.arange(8.0), np.arange(8.0))
+    with pytest.raises(st.InvalidInputError, match=r"memory_budget must be a positive int of bytes; got"):
+        st.stepped(heights, interval=1.0, memory_budget=budget)
+    with pytest.raises(st.InvalidInputError, match=r"memory budget must be a positive int of bytes; got"):
+        st.set_memory_budget(budget)
 
 
 def test_device_errors():
