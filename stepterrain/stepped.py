@@ -36,6 +36,7 @@ from .terrain import Terrain, as_terrain
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
 MAX_LEVELS = 1_000_000
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 # bytes per output vertex / face while a mesh is being built (device work arrays + the numpy result)
 _VERTEX_BYTES = 12 + 4 + 24
@@ -194,6 +195,8 @@ def isovalues(
             raise InvalidInputError("levels must hold at least one isovalue; got an empty sequence")
         if not np.all(np.isfinite(values64)):
             raise InvalidInputError(f"levels must be finite; got {values64.tolist()[:10]}")
+        if np.abs(values64).max() > _FLOAT32_MAX:
+            raise InvalidInputError(f"levels must fit in float32 (|x| < 3.4e+38); got {values64.tolist()[:10]}")
         values = values64.astype(np.float32)
         bad = np.flatnonzero(np.diff(values) <= 0)
         if bad.size:
@@ -219,7 +222,18 @@ def isovalues(
         raise InvalidInputError(
             f"interval={step} over heights [{lo}, {hi}] gives {k1 - k0 + 1} levels; at most {MAX_LEVELS} are supported"
         )
-    values = (base + np.arange(k0, k1 + 1, dtype=np.float64) * step).astype(np.float32)
+    values64 = base + np.arange(k0, k1 + 1, dtype=np.float64) * step
+    if np.abs(values64).max() > _FLOAT32_MAX:
+        raise InvalidInputError(
+            f"interval={step} with base={base} gives isovalues beyond float32 (|x| < 3.4e+38); "
+            f"got [{values64[0]}, {values64[-1]}]"
+        )
+    values = values64.astype(np.float32)
+    if values[0] > np.float32(lo) or values[-1] < np.float32(hi):  # float32 rounding is monotone
+        raise InvalidInputError(
+            f"interval={step} with base={base} gives isovalues [{values[0]}, {values[-1]}] that do not cover the "
+            f"heights [{lo}, {hi}] in float32; bring base closer to the heights"
+        )
     if values.size > 1 and np.any(np.diff(values) <= 0):
         raise InvalidInputError(f"interval={step} is too small for float32 heights around {hi}")
     return values
