@@ -455,12 +455,12 @@ def blend(
         original[:] = host_copy(arrays.points)
         original[:, 0] += terrain.local_origin[0]
         original[:, 1] += terrain.local_origin[1]
-        values = np.asarray(gamma(original), dtype=np.float64)
+        values = _gamma_floats(gamma(original), "gamma(points)")
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
     elif np.ndim(gamma) == 0:
-        scalar = float(_check_gamma_values(np.asarray(gamma, dtype=np.float64), (), "gamma"))
+        scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
     else:
-        node_values = _check_gamma_values(np.asarray(gamma, dtype=np.float64), terrain.shape, "gamma")
+        node_values = _check_gamma_values(_gamma_floats(gamma, "gamma"), terrain.shape, "gamma")
         gammas = wp.empty(n, dtype=wp.float32, device=device)
         launch_chunked(
             stepped_kernels.interpolate_node_values,
@@ -478,6 +478,15 @@ def blend(
         device=device,
     )
     return to_numpy(vertices_np, vertices_wp, (n, 3))
+
+
+def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(
+            f"{name} must be a number in [0, 1], an array of them, a callable or a Lens; got {value!r:.80}"
+        ) from exc
 
 
 def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], name: str) -> NDArray[np.float32]:
