@@ -248,7 +248,9 @@ class Globe:
             lon, z = lon[::-1], z[:, ::-1]
         if abs((lon[-1] - lon[0]) - 360.0) < 1e-6 * 360:
             lon, z = lon[:-1], z[:, :-1]  # node-registered with a closing column
-        if abs(len(lon) * dlon - 360.0) > 1e-6 * 360 or np.abs(lat).max() > 90.0 + 1e-9:
+        if np.abs(lat).max() > 90.0 + 1e-9:
+            raise InvalidInputError(f"lat must lie in [-90, 90] degrees; got {lat[0]:.9g} to {lat[-1]:.9g}")
+        if abs(len(lon) * dlon - 360.0) > 1e-6 * 360:
             raise InvalidInputError(f"lon must cover 360 degrees (W · step = 360); got {len(lon)} x {dlon:.9g} = "
                                     f"{len(lon) * dlon:.9g} degrees")
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:

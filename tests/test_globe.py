@@ -485,6 +485,8 @@ def test_bad_latlon_grids():
         Globe.from_latlon(z[:90], LAT1[:90], LON1, face_size=9)
     with pytest.raises(InvalidInputError, match="regularly spaced"):
         Globe.from_latlon(z, np.r_[LAT1[:-1], -89.9], LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match=r"lat must lie in \[-90, 90\] degrees; got 90.5 to -88.5"):
+        Globe.from_latlon(z, LAT1 + 1.0, LON1, face_size=9)
     with pytest.raises(InvalidInputError, match="lengths"):
         Globe.from_latlon(z, LAT1[:-1], LON1, face_size=9)
     nan = z.copy()
