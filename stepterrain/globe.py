@@ -915,11 +915,18 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     Raises
     ------
     InvalidInputError
-        The image is not (H, W, 3|4) or cannot be read.
+        The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3), not finite or at the centre.
     """
     pixels = _texture_pixels(image)
     v = np.asarray(vertices, dtype=np.float64)
-    d = v / np.linalg.norm(v, axis=1, keepdims=True)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InvalidInputError(f"vertices must be a (V, 3) array of planet-centred positions; got shape {v.shape}")
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    bad = np.flatnonzero(~(np.isfinite(norm[:, 0]) & (norm[:, 0] > 0)))
+    if bad.size:
+        raise InvalidInputError(f"vertices must be finite and away from the centre; got vertex {bad[0]} at "
+                                f"{v[bad[0]].tolist()}")
+    d = v / norm
     lat = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
     lon = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
     h, w = pixels.shape[:2]

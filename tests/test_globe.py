@@ -402,6 +402,10 @@ def test_colours_by_elevation_and_draped_image(small_globe):
     assert np.linalg.norm(cam.eye) == pytest.approx(R + 1.0e6)
     with pytest.raises(InvalidInputError, match="texture must be"):
         drape_colors(mesh.vertices, np.zeros((4, 4)))
+    with pytest.raises(InvalidInputError, match=r"vertices must be a \(V, 3\) array .*; got shape \(5, 2\)"):
+        drape_colors(np.ones((5, 2)), image)
+    with pytest.raises(InvalidInputError, match=r"vertices must be finite and away from the centre; got vertex 1"):
+        drape_colors([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], image)
 
 
 def test_draped_texture_keeps_the_surface_and_wraps_the_antimeridian(small_globe, tmp_path):
