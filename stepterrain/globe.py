@@ -955,6 +955,15 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     >>> [round(v) for v in cam.eye]
     [16371000, 0, 0]
     """
+    try:
+        latitude, longitude = float(latitude), float(longitude)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"latitude and longitude must be numbers (degrees); got {latitude!r}, "
+                                f"{longitude!r}") from None
+    if not -90.0 <= latitude <= 90.0:
+        raise InvalidInputError(f"latitude must lie in [-90, 90] degrees; got {latitude}")
+    if not math.isfinite(longitude):
+        raise InvalidInputError(f"longitude must be finite; got {longitude}")
     la, lo = math.radians(latitude), math.radians(longitude)
     outward = np.array([math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)])
     east = np.array([-math.sin(lo), math.cos(lo), 0.0])

@@ -406,6 +406,10 @@ def test_colours_by_elevation_and_draped_image(small_globe):
         drape_colors(np.ones((5, 2)), image)
     with pytest.raises(InvalidInputError, match=r"vertices must be finite and away from the centre; got vertex 1"):
         drape_colors([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], image)
+    with pytest.raises(InvalidInputError, match=r"latitude must lie in \[-90, 90\] degrees; got 100.0"):
+        look_from(100.0, 0.0, 1.0e6)
+    with pytest.raises(InvalidInputError, match=r"longitude must be finite; got inf"):
+        look_from(0.0, float("inf"), 1.0e6)
 
 
 def test_draped_texture_keeps_the_surface_and_wraps_the_antimeridian(small_globe, tmp_path):
