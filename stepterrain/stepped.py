@@ -188,9 +188,12 @@ def isovalues(
         )
     if levels is not None:
         try:
-            values64 = np.asarray(levels, dtype=np.float64).reshape(-1)
+            values64 = np.asarray(levels, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise InvalidInputError(f"levels must be a sequence of numbers; got {levels!r}") from exc
+        if values64.ndim > 1:
+            raise InvalidInputError(f"levels must be a 1-D sequence of isovalues; got shape {values64.shape}")
+        values64 = values64.reshape(-1)
         if values64.size == 0:
             raise InvalidInputError("levels must hold at least one isovalue; got an empty sequence")
         if not np.all(np.isfinite(values64)):
