@@ -137,8 +137,8 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
-    for line in report.summary().splitlines()[1:]:
-        progress.say(line.strip())
+    for line in report.summary().splitlines()[1:]:  # the failures: shown under -q too
+        print(f"stepterrain: {line.strip()}", file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):
         from .export import save_image
 

@@ -109,6 +109,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     _check_size(args.size)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise InvalidInputError(f"--fps must be a positive number; got {args.fps:g}")
     if not math.isfinite(args.spin) or args.spin == 0:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -80,17 +81,28 @@ def add_parser(commands: Any) -> None:
 
 def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     file = Path(path)
-    if not file.is_file():
+    if not file.exists():
         raise DataFileError(f"INPUT {path!r} does not exist")
+    if not file.is_file():
+        raise DataFileError(f"INPUT {path!r} is not a file")
     if file.suffix.lower() != ".npz":
         raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays; got {path!r}")
     try:
-        with np.load(file) as data:
-            return np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
-    except KeyError as exc:
-        raise DataFileError(f"{path!r} must hold arrays 'elevation', 'lat' and 'lon'; missing {exc}") from None
-    except (OSError, ValueError) as exc:
+        data = np.load(file)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
+    if isinstance(data, np.ndarray):
+        raise DataFileError(f"{path!r} must be an .npz archive with arrays 'elevation', 'lat' and 'lon'; "
+                            "got one .npy array")
+    with data:
+        missing = [key for key in ("elevation", "lat", "lon") if key not in data.files]
+        if missing:
+            raise DataFileError(f"{path!r} must hold arrays 'elevation', 'lat' and 'lon'; missing "
+                                f"{', '.join(repr(key) for key in missing)}")
+        try:
+            return np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+            raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
 
 
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:

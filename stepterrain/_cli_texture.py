@@ -101,6 +101,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
     if args.interval is not None and mesh_out is None and png is None:
         raise InvalidInputError("--interval applies only with --mesh or --png")
+    if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
+        raise InvalidInputError(f"--interval must be a positive number; got {args.interval:g}")
     _check_size(args.size)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -132,8 +134,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         import stepterrain as st
 
         progress.stage("drape", "draping on the " + (f"stepped terrain (interval {args.interval:g})"
-                                                     if args.interval else "heightfield"))
-        base = (st.stepped(terrain, interval=args.interval, device=device) if args.interval
+                                                     if args.interval is not None else "heightfield"))
+        base = (st.stepped(terrain, interval=args.interval, device=device) if args.interval is not None
                 else terrain.mesh())
         draped = tx.drape(base, composite)
         progress.done(f"{len(draped.faces):,} faces")

@@ -392,15 +392,25 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
     """Prefix texture images with the OBJ's stem (``material_0.png`` -> ``<stem>_material_0.png``) and point
-    the MTL at them, so several textured OBJs in one folder keep their own images."""
-    renamed = {name: f"{stem}_{name}" for name in sidecars if name != mtl_name and not name.startswith(f"{stem}_")}
+    the MTL at them, so several textured OBJs in one folder keep their own images. Whitespace in a name
+    (a material called "terrain texture") becomes ``_``: MTL readers split ``map_Kd`` lines on it."""
+    renamed = {
+        name: f"{stem}_{'_'.join(name.split())}"
+        for name in sidecars
+        if name != mtl_name and not name.startswith(f"{stem}_")
+    }
     out: dict[str, bytes] = {}
     for name, data in sidecars.items():
         if name == mtl_name:
             lines = data.decode("utf-8").splitlines()
             for k, line in enumerate(lines):
                 parts = line.split()
-                if parts and parts[0].startswith("map_") and parts[-1] in renamed:
+                if not parts or not parts[0].startswith("map_"):
+                    continue
+                whole = line.split(None, 1)[1].strip() if len(parts) > 1 else ""
+                if whole in renamed:  # the file name, spaces and all
+                    lines[k] = f"{parts[0]} {renamed[whole]}"
+                elif parts[-1] in renamed:
                     lines[k] = " ".join(parts[:-1] + [renamed[parts[-1]]])
             out[name] = ("\n".join(lines) + "\n").encode("utf-8")
         else:

@@ -249,7 +249,9 @@ class Globe:
             lon, z = lon[::-1], z[:, ::-1]
         if abs((lon[-1] - lon[0]) - 360.0) < 1e-6 * 360:
             lon, z = lon[:-1], z[:, :-1]  # node-registered with a closing column
-        if abs(len(lon) * dlon - 360.0) > 1e-6 * 360 or np.abs(lat).max() > 90.0 + 1e-9:
+        if np.abs(lat).max() > 90.0 + 1e-9:
+            raise InvalidInputError(f"lat must lie in [-90, 90] degrees; got {lat[0]:.9g} to {lat[-1]:.9g}")
+        if abs(len(lon) * dlon - 360.0) > 1e-6 * 360:
             raise InvalidInputError(f"lon must cover 360 degrees (W · step = 360); got {len(lon)} x {dlon:.9g} = "
                                     f"{len(lon) * dlon:.9g} degrees")
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:
@@ -943,11 +945,18 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     Raises
     ------
     InvalidInputError
-        The image is not (H, W, 3|4) or cannot be read.
+        The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3), not finite or at the centre.
     """
     pixels = _texture_pixels(image)
     v = np.asarray(vertices, dtype=np.float64)
-    d = v / np.linalg.norm(v, axis=1, keepdims=True)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise InvalidInputError(f"vertices must be a (V, 3) array of planet-centred positions; got shape {v.shape}")
+    norm = np.linalg.norm(v, axis=1, keepdims=True)
+    bad = np.flatnonzero(~(np.isfinite(norm[:, 0]) & (norm[:, 0] > 0)))
+    if bad.size:
+        raise InvalidInputError(f"vertices must be finite and away from the centre; got vertex {bad[0]} at "
+                                f"{v[bad[0]].tolist()}")
+    d = v / norm
     lat = np.degrees(np.arcsin(np.clip(d[:, 2], -1, 1)))
     lon = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
     h, w = pixels.shape[:2]
@@ -976,6 +985,15 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     >>> [round(v) for v in cam.eye]
     [16371000, 0, 0]
     """
+    try:
+        latitude, longitude = float(latitude), float(longitude)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"latitude and longitude must be numbers (degrees); got {latitude!r}, "
+                                f"{longitude!r}") from None
+    if not -90.0 <= latitude <= 90.0:
+        raise InvalidInputError(f"latitude must lie in [-90, 90] degrees; got {latitude}")
+    if not math.isfinite(longitude):
+        raise InvalidInputError(f"longitude must be finite; got {longitude}")
     la, lo = math.radians(latitude), math.radians(longitude)
     outward = np.array([math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)])
     east = np.array([-math.sin(lo), math.cos(lo), 0.0])

@@ -36,6 +36,7 @@ from .terrain import Terrain, as_terrain
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
 MAX_LEVELS = 1_000_000
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 # bytes per output vertex / face while a mesh is being built (device work arrays + the numpy result)
 _VERTEX_BYTES = 12 + 4 + 24
@@ -187,13 +188,18 @@ def isovalues(
         )
     if levels is not None:
         try:
-            values64 = np.asarray(levels, dtype=np.float64).reshape(-1)
+            values64 = np.asarray(levels, dtype=np.float64)
         except (TypeError, ValueError) as exc:
             raise InvalidInputError(f"levels must be a sequence of numbers; got {levels!r}") from exc
+        if values64.ndim > 1:
+            raise InvalidInputError(f"levels must be a 1-D sequence of isovalues; got shape {values64.shape}")
+        values64 = values64.reshape(-1)
         if values64.size == 0:
             raise InvalidInputError("levels must hold at least one isovalue; got an empty sequence")
         if not np.all(np.isfinite(values64)):
             raise InvalidInputError(f"levels must be finite; got {values64.tolist()[:10]}")
+        if np.abs(values64).max() > _FLOAT32_MAX:
+            raise InvalidInputError(f"levels must fit in float32 (|x| < 3.4e+38); got {values64.tolist()[:10]}")
         values = values64.astype(np.float32)
         bad = np.flatnonzero(np.diff(values) <= 0)
         if bad.size:
@@ -219,7 +225,18 @@ def isovalues(
         raise InvalidInputError(
             f"interval={step} over heights [{lo}, {hi}] gives {k1 - k0 + 1} levels; at most {MAX_LEVELS} are supported"
         )
-    values = (base + np.arange(k0, k1 + 1, dtype=np.float64) * step).astype(np.float32)
+    values64 = base + np.arange(k0, k1 + 1, dtype=np.float64) * step
+    if np.abs(values64).max() > _FLOAT32_MAX:
+        raise InvalidInputError(
+            f"interval={step} with base={base} gives isovalues beyond float32 (|x| < 3.4e+38); "
+            f"got [{values64[0]}, {values64[-1]}]"
+        )
+    values = values64.astype(np.float32)
+    if values[0] > np.float32(lo) or values[-1] < np.float32(hi):  # float32 rounding is monotone
+        raise InvalidInputError(
+            f"interval={step} with base={base} gives isovalues [{values[0]}, {values[-1]}] that do not cover the "
+            f"heights [{lo}, {hi}] in float32; bring base closer to the heights"
+        )
     if values.size > 1 and np.any(np.diff(values) <= 0):
         raise InvalidInputError(f"interval={step} is too small for float32 heights around {hi}")
     return values
@@ -441,12 +458,12 @@ def blend(
         original[:] = host_copy(arrays.points)
         original[:, 0] += terrain.local_origin[0]
         original[:, 1] += terrain.local_origin[1]
-        values = np.asarray(gamma(original), dtype=np.float64)
+        values = _gamma_floats(gamma(original), "gamma(points)")
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
     elif np.ndim(gamma) == 0:
-        scalar = float(_check_gamma_values(np.asarray(gamma, dtype=np.float64), (), "gamma"))
+        scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
     else:
-        node_values = _check_gamma_values(np.asarray(gamma, dtype=np.float64), terrain.shape, "gamma")
+        node_values = _check_gamma_values(_gamma_floats(gamma, "gamma"), terrain.shape, "gamma")
         gammas = wp.empty(n, dtype=wp.float32, device=device)
         launch_chunked(
             stepped_kernels.interpolate_node_values,
@@ -464,6 +481,15 @@ def blend(
         device=device,
     )
     return to_numpy(vertices_np, vertices_wp, (n, 3))
+
+
+def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError) as exc:
+        raise InvalidInputError(
+            f"{name} must be a number in [0, 1], an array of them, a callable or a Lens; got {value!r:.80}"
+        ) from exc
 
 
 def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], name: str) -> NDArray[np.float32]:

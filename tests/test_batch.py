@@ -397,6 +397,10 @@ def test_cli_batch_folder_exit_codes(tmp_path, capsys):
     assert cli.main(["batch", str(src), "--interval", "10", "-o", str(out), "--scheduler", "serial"]) == 1
     err = capsys.readouterr().err
     assert "3 complete already" in err and "failed dem_9" in err
+    # -q drops the progress lines, not the reasons of a failed run
+    assert cli.main(["-q", "batch", str(src), "--interval", "10", "-o", str(out), "--scheduler", "serial"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain: failed dem_9: DataFileError: cannot read") and "complete already" not in err
 
 
 @pytest.mark.parametrize(

@@ -79,6 +79,18 @@ def test_obj_with_texture_writes_mtl_and_its_own_image(tmp_path):
         assert back.visual.uv.shape[1] == 2
 
 
+def test_obj_with_a_material_name_with_spaces_finds_its_image(tmp_path):
+    terrain = st.Terrain.from_heights(np.random.default_rng(0).random((6, 7)) * 10.0)
+    mesh = st.drape(st.stepped(terrain, interval=2.0), st.topographic_layer(terrain))  # material "terrain texture"
+    save_mesh(mesh, tmp_path / "d.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.mtl", "d.obj", "d_terrain_texture.png"]
+    assert "map_Kd d_terrain_texture.png" in (tmp_path / "d.mtl").read_text()
+    back = trimesh.load(tmp_path / "d.obj", process=False)
+    assert back.visual.material.image is not None
+    original = mesh.visual.material.baseColorTexture  # drape gives a PBR material
+    assert np.array_equal(np.asarray(back.visual.material.image.convert("RGB")), np.asarray(original.convert("RGB")))
+
+
 def test_textured_glb_keeps_uv_and_image(tmp_path):
     mesh = textured()
     back = trimesh.load(save_mesh(mesh, tmp_path / "t.glb"), force="mesh", process=False)

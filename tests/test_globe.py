@@ -430,6 +430,14 @@ def test_colours_by_elevation_and_draped_image(small_globe):
     assert np.linalg.norm(cam.eye) == pytest.approx(R + 1.0e6)
     with pytest.raises(InvalidInputError, match="texture must be"):
         drape_colors(mesh.vertices, np.zeros((4, 4)))
+    with pytest.raises(InvalidInputError, match=r"vertices must be a \(V, 3\) array .*; got shape \(5, 2\)"):
+        drape_colors(np.ones((5, 2)), image)
+    with pytest.raises(InvalidInputError, match=r"vertices must be finite and away from the centre; got vertex 1"):
+        drape_colors([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], image)
+    with pytest.raises(InvalidInputError, match=r"latitude must lie in \[-90, 90\] degrees; got 100.0"):
+        look_from(100.0, 0.0, 1.0e6)
+    with pytest.raises(InvalidInputError, match=r"longitude must be finite; got inf"):
+        look_from(0.0, float("inf"), 1.0e6)
 
 
 def test_draped_texture_keeps_the_surface_and_wraps_the_antimeridian(small_globe, tmp_path):
@@ -513,6 +521,8 @@ def test_bad_latlon_grids():
         Globe.from_latlon(z[:90], LAT1[:90], LON1, face_size=9)
     with pytest.raises(InvalidInputError, match="regularly spaced"):
         Globe.from_latlon(z, np.r_[LAT1[:-1], -89.9], LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match=r"lat must lie in \[-90, 90\] degrees; got 90.5 to -88.5"):
+        Globe.from_latlon(z, LAT1 + 1.0, LON1, face_size=9)
     with pytest.raises(InvalidInputError, match="lengths"):
         Globe.from_latlon(z, LAT1[:-1], LON1, face_size=9)
     nan = z.copy()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import re
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +53,33 @@ def test_globe_bad_input_exits_2(tmp_path, capsys, argv, message):
     assert status == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x.glb").exists()
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (b"", r"cannot read '.*grid.npz' as \.npz: No data left in file"),
+        (b"PK\x03\x04garbage", r"cannot read '.*grid.npz' as \.npz: File is not a zip file"),
+        (b"npy", r"'.*grid.npz' must be an \.npz archive with arrays 'elevation', 'lat' and 'lon'; got one \.npy"),
+        (b"other", r"'.*grid.npz' must hold arrays 'elevation', 'lat' and 'lon'; missing 'lat', 'lon'$"),
+        (b"dir", r"INPUT '.*grid.npz' is not a file"),
+    ],
+)
+def test_globe_bad_npz_exits_2_with_one_line(tmp_path, capsys, content, message):
+    grid = tmp_path / "grid.npz"
+    if content == b"npy":
+        with grid.open("wb") as fh:
+            np.save(fh, np.zeros((4, 8)))
+    elif content == b"other":
+        np.savez(grid, elevation=np.zeros((4, 8)))
+    elif content == b"dir":
+        grid.mkdir()
+    else:
+        grid.write_bytes(content)
+    assert main(["-q", "globe", str(grid), "--face-size", "9", "-o", str(tmp_path / "x.glb")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert re.search(message, err.removeprefix("stepterrain globe: error: ")), err
 
 
 def test_globe_help_has_examples(capsys):

@@ -422,10 +422,17 @@ def test_empty_result_is_valid_not_an_error():
         ({"interval": 1.0, "gamma": 1.5}, r"gamma must lie in \[0, 1\]"),
         ({"interval": 1.0, "gamma": np.zeros((2, 2))}, "gamma must be shape"),
         ({"interval": 1.0, "gamma": lambda p: np.ones(3)}, r"gamma\(points\) must be shape"),
+        ({"interval": 1.0, "gamma": "0.5x"}, r"gamma must be a number in \[0, 1\], .*; got '0.5x'"),
+        ({"interval": 1.0, "gamma": [["a"] * 4] * 4}, r"gamma must be a number in \[0, 1\], .*; got \[\['a'"),
+        ({"interval": 1.0, "gamma": lambda p: ["x"] * len(p)}, r"gamma\(points\) must be a number in \[0, 1\]"),
         ({"interval": 1.0, "colors": "not-a-colormap"}, "matplotlib colormap"),
         ({"interval": 1.0, "floor": 0.0}, "floor applies only with solid=True"),
         ({"interval": 1.0, "solid": True, "floor": 100.0}, "floor must lie below"),
         ({"interval": 1e-9}, "levels; at most"),
+        ({"levels": [[0.0, 2.0], [4.0, 6.0]]}, r"levels must be a 1-D sequence of isovalues; got shape \(2, 2\)"),
+        ({"levels": [0.0, 1e39]}, r"levels must fit in float32 \(\|x\| < 3.4e\+38\); got \[0.0, 1e\+39\]"),
+        ({"interval": 1e300}, r"interval=1e\+300 with base=0.0 gives isovalues beyond float32"),
+        ({"interval": 10.0, "base": 1e39}, r"interval=10.0 with base=1e\+39 gives isovalues \[.*\] that do not cover"),
     ],
 )
 def test_bad_arguments_raise_clear_errors(kwargs, match):

@@ -66,6 +66,15 @@ def test_cli_texture_bad_input_exits_2(tmp_path, small_dem, capsys, argv, match)
     assert not out.exists()
 
 
+@pytest.mark.parametrize("interval", ["0", "-5", "nan"])
+def test_cli_texture_interval_must_be_positive(tmp_path, small_dem, capsys, interval):
+    out, mesh = tmp_path / "t.png", tmp_path / "m.glb"
+    assert main(["texture", str(small_dem), "-o", str(out), "--mesh", str(mesh), f"--interval={interval}"]) == 2
+    message = f"stepterrain texture: error: --interval must be a positive number; got {interval}\n"
+    assert capsys.readouterr().err == message
+    assert not out.exists() and not mesh.exists()
+
+
 def test_cli_texture_missing_file(tmp_path, capsys):
     assert main(["texture", str(tmp_path / "missing.tif"), "-o", str(tmp_path / "t.png")]) == 2
     assert "missing.tif" in capsys.readouterr().err
