@@ -497,16 +497,27 @@ def start_local_cluster(workers: int) -> Any:
         raise SchedulerError(f"cannot start a LocalCluster of {workers} worker processes: {exc}") from exc
 
 
+def _check_scheduler(scheduler: Any) -> InvalidInputError:
+    """Raise for a scheduler that cannot be one (a malformed address, a number), without importing dask: a typo
+    is the first thing to hear about, before any output folder is made. Returns the error to raise for a value
+    that only the dask import can refuse."""
+    bad = InvalidInputError(
+        "scheduler must be None (a LocalCluster), 'serial', a dask Client or an address such as "
+        f"'tcp://host:8786'; got {scheduler!r}"
+    )
+    if isinstance(scheduler, str):
+        if scheduler != "serial" and not _SCHEDULER_RE.match(scheduler):
+            raise bad
+    elif scheduler is not None and not callable(getattr(scheduler, "submit", None)):
+        raise bad  # not a Client
+    return bad
+
+
 def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
     """(client, cluster to close or None, description, whether the workers are this machine's processes)."""
-    bad_scheduler = InvalidInputError(
-        "scheduler must be None (a LocalCluster), 'serial', a dask Client or an address such as "
-        f"'tcp://host:8786'; got {scheduler!r}"
-    )
-    if isinstance(scheduler, str) and not _SCHEDULER_RE.match(scheduler):
-        raise bad_scheduler  # named before the dask import: a typo is the first thing to hear about
+    bad_scheduler = _check_scheduler(scheduler)
     try:
         from distributed import Client
     except ImportError as exc:
@@ -676,6 +687,7 @@ def batch(
     )  # fmt: skip
     if level_values is not None and interval is not None:
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
+    _check_scheduler(scheduler)
     folder = _check_output_dir(output_dir)
 
     fingerprints = _fingerprints(items, src, options)

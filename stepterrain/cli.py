@@ -44,6 +44,15 @@ examples:
       a watertight solid for 3D printing
 """
 
+_INFO_EPILOG = """\
+examples:
+  stepterrain info
+      the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range, nodata
+  stepterrain info dem.tif --json
+  stepterrain info out/terrain.glb
+      a mesh: vertices, faces, bounds, watertightness, the metadata stepterrain wrote
+"""
+
 _MAIN_EPILOG = """\
 examples:
   stepterrain steps -o out/terrain.glb --png out/terrain.png
@@ -205,7 +214,9 @@ def _add_info(commands: Any) -> None:
         "info",
         help="describe a DEM or a mesh file",
         description="Print a summary of a DEM (.npy .npz .png .tif) or a mesh "
-                    "(.glb .gltf .obj .ply .stl .3mf).",
+                    "(.glb .gltf .obj .ply .stl .3mf). It only reads files: no --device.",
+        epilog=_INFO_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", nargs="?", metavar="FILE", help="default: the embedded DEM")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")

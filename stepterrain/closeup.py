@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import KW_ONLY, dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -486,6 +486,7 @@ class CloseUp:
     """
 
     roi: ROI
+    _: KW_ONLY  # everything after the ROI by name, as documented
     rotation: tuple[float, float] = (0.0, 0.0)
     scale: float | tuple[float, float, float] = 1.0
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)

@@ -547,9 +547,15 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
             f"got shape {table.shape}"
         )
     if np.issubdtype(table.dtype, np.floating):
-        if table.min() < 0 or table.max() > 1:
-            raise InvalidInputError("float colors must lie in [0, 1]")
+        if not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
+            raise InvalidInputError(f"float colors must lie in [0, 1]; got values from {table.min()} to {table.max()}")
         table = (table * 255 + 0.5).astype(np.uint8)
+    elif np.issubdtype(table.dtype, np.integer) and not np.issubdtype(table.dtype, np.uint8):
+        if table.min() < 0 or table.max() > 255:
+            raise InvalidInputError(f"integer colors must lie in [0, 255]; got values from {table.min()} to "
+                                    f"{table.max()}")
+    elif not np.issubdtype(table.dtype, np.uint8):
+        raise InvalidInputError(f"colors must be numbers (0-1 floats or 0-255 integers); got dtype {table.dtype}")
     table = table.astype(np.uint8)
     if table.shape[1] == 3:
         table = np.concatenate([table, np.full((n_levels, 1), 255, np.uint8)], axis=1)

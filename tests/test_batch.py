@@ -231,6 +231,14 @@ def test_unreachable_scheduler_is_a_clear_error_not_a_hang(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == []  # nothing written
 
 
+@pytest.mark.parametrize("scheduler", [42, "localhost:8786", object()])
+def test_bad_scheduler_is_refused_before_the_output_folder_is_made(tmp_path, scheduler):
+    out = tmp_path / "never"
+    with pytest.raises(InvalidInputError, match="scheduler must be None .* got"):
+        batch(np.zeros((5, 5)), out, tile_size=2, interval=1.0, scheduler=scheduler)
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------------------------------------- resume
 def test_resume_skips_complete_outputs_and_redoes_the_rest(tmp_path):
     heights = real_dem(TUJUNGA, size=25, step=4)
@@ -502,12 +510,12 @@ def test_every_capability_subcommand_is_consistent():
     commands = _subcommands()
     assert {"steps", "batch", "info"} <= set(commands)
     for name, sub in commands.items():
-        if name == "info":
+        assert "examples:" in (sub.epilog or ""), f"stepterrain {name} --help shows no examples"
+        if name == "info":  # reads a file and prints: no device, no output file
             continue
         options = {s for a in sub._actions for s in a.option_strings}
         assert "--device" in options, f"stepterrain {name} has no --device"
         assert {"-o", "--output"} <= options, f"stepterrain {name} has no -o/--output"
-        assert "examples:" in (sub.epilog or ""), f"stepterrain {name} --help shows no examples"
 
 
 @pytest.mark.parametrize("name", ["steps", "batch"])

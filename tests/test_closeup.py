@@ -493,3 +493,11 @@ def test_memory_budget_is_checked_and_named():
         closeup_layers(t, [cu], memory_budget=-5, device="cpu")
     with pytest.raises(OutputTooLargeError, match="close-up geometry would need .* smaller ROIs or fewer close-ups"):
         closeup_layers(t, [cu], memory_budget=100, device="cpu")
+
+
+
+def test_closeup_options_are_keyword_only():
+    roi = ROI.circle((10.0, 10.0), 8.0)
+    with pytest.raises(TypeError):
+        CloseUp(roi, (0.1, 0.2))  # rotation by position
+    assert CloseUp(roi, rotation=(0.1, 0.2)).rotation == (0.1, 0.2)

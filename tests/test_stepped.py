@@ -562,3 +562,18 @@ def test_embedded_dem_steps_into_a_valid_welded_mesh():
     terrace = ~mesh.face_attributes["wall"]
     source_area = (dem.extent[1] - dem.extent[0]) * (dem.extent[3] - dem.extent[2])
     np.testing.assert_allclose(projected_area(mesh, terrace).sum(), source_area, rtol=1e-6)
+
+
+@pytest.mark.parametrize("colors, message", [
+    (np.full((3, 3), 999), r"integer colors must lie in \[0, 255\]; got values from 999 to 999"),
+    (np.full((3, 3), -1), r"integer colors must lie in \[0, 255\]; got values from -1"),
+    (np.full((3, 3), 1.5), r"float colors must lie in \[0, 1\]; got values from 1.5 to 1.5"),
+    (np.full((3, 3), np.nan), r"float colors must lie in \[0, 1\]"),
+    (np.array([["red"] * 3] * 3), r"colors must be numbers"),
+])
+def test_level_colors_out_of_range_are_refused(colors, message):
+    heights = np.add.outer(np.arange(5.0), np.arange(5.0))  # 0..8: levels 0, 4, 8 at interval 4
+    with pytest.raises(st.InvalidInputError, match=message):
+        st.stepped(heights, interval=4.0, colors=colors)
+    ok = st.stepped(heights, interval=4.0, colors=np.full((3, 3), 255, np.int64))  # the full range is fine
+    assert len(ok.faces)
