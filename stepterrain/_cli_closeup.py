@@ -95,12 +95,13 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .cli import _check_output, _check_size
+    from .cli import _check_output, _check_size, _distinct_outputs
     from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
+    _distinct_outputs(output=out, png=png)
     mesh_out = out if out.suffix.lower() != ".png" else None
     images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None

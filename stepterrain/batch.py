@@ -211,7 +211,7 @@ def plan_items(
                 # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
                 return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
             raise InvalidInputError(
-                f"source {str(path)!r} is one 2-D raster: give tile_size to cut it into tiles"
+                f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         terrain = load_dem(path)
         return _tile_items(terrain.heights.shape, tile_size), _terrain_source(terrain)
@@ -219,7 +219,8 @@ def plan_items(
         if source.kind != "grid":
             raise InvalidInputError("batch tiles a grid Terrain; got a TIN (kind 'tin')")
         if tile_size is None:
-            raise InvalidInputError("source is one raster (a Terrain): give tile_size to cut it into tiles")
+            raise InvalidInputError(
+                "source is one raster (a Terrain): give tile_size (the CLI's --tile) to cut it into tiles")
         return _tile_items(source.heights.shape, tile_size), _terrain_source(source)
     if isinstance(source, Sequence) and not isinstance(source, np.ndarray) and source and all(
         isinstance(s, (str, os.PathLike)) for s in source
@@ -244,7 +245,8 @@ def plan_items(
             raise InvalidInputError(f"tile_size applies to one (H, W) raster; got a (T, H, W) series {heights.shape}")
         return _frame_items(heights), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
     if tile_size is None:
-        raise InvalidInputError(f"source is one (H, W) raster {heights.shape}: give tile_size to cut it into tiles")
+        raise InvalidInputError(
+            f"source is one (H, W) raster {heights.shape}: give tile_size (the CLI's --tile) to cut it into tiles")
     return _tile_items(heights.shape, tile_size), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster")
 
 

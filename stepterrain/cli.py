@@ -18,6 +18,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, TextIO
@@ -234,6 +235,19 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
+def _distinct_outputs(**paths: Path | None) -> None:
+    """Refuse two output options naming the same file (the second write would replace the first)."""
+    seen: dict[Path, str] = {}
+    for option, path in paths.items():
+        if path is None:
+            continue
+        key = Path(os.path.abspath(path))
+        name = "--" + option.replace("_", "-")
+        if key in seen:
+            raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
+        seen[key] = name
+
+
 def _colormap(name: str) -> tuple[Any, float] | None:
     """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at
     (``stepped.LAND_START``); None for 'none'."""
@@ -434,6 +448,16 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------------ entry point
+def _warning_line(command: str) -> Any:
+    """A ``warnings.showwarning`` that prints the library's warnings as one ``stepterrain CMD: warning:`` line
+    (no source line) on stderr."""
+
+    def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
+        print(f"stepterrain {command}: warning: {message}", file=sys.stderr, flush=True)
+
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``stepterrain`` command; return the exit status (0 ok, 2 bad input or usage, 130 interrupted).
 
@@ -453,7 +477,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     progress = Progress(quiet=args.quiet)
     try:
-        return int(args.run(args, progress))
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_line(args.command)  # restored on exit by catch_warnings
+            return int(args.run(args, progress))
     except StepTerrainError as exc:
         print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE

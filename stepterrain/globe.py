@@ -780,6 +780,9 @@ def adaptive_mesh(
     """
     error = _error_value(error)
     names, users = _metric_options(metrics, "sphere", planar=True)
+    if hasattr(heights, "heights") and hasattr(heights, "spacing"):  # a Terrain
+        raise InvalidInputError("heights must be an (H, W) array; got a Terrain: pass terrain.heights and its "
+                                "node spacing (spacing=, positive; x runs along columns, y along rows)")
     z = np.asarray(heights)
     if z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number):
         raise InvalidInputError(f"heights must be a real (H, W) array with H, W >= 2; got shape {z.shape}")

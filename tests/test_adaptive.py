@@ -156,3 +156,10 @@ def test_bad_planar_input():
         from stepterrain.globe import _metric_options
 
         _metric_options(("geometric",), "cone", planar=True)
+
+
+def test_a_terrain_object_is_refused_with_what_to_pass():
+    import stepterrain as st
+
+    with pytest.raises(InvalidInputError, match="got a Terrain: pass terrain.heights"):
+        adaptive_mesh(st.Terrain.from_heights(np.zeros((5, 5))), error=1.0)

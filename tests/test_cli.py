@@ -81,6 +81,19 @@ def test_solid_stl_is_watertight(dem, tmp_path, capsys):
     assert mesh.bounds[0][2] == pytest.approx(-2.0)
 
 
+def test_library_warnings_print_as_one_line(tmp_path, capsys):
+    """Integer heights on a threshold warn that a solid may leak: one 'stepterrain steps: warning:' line, no
+    source line or warning class."""
+    heights = np.add.outer(np.arange(12), np.arange(12)).astype(np.float32)  # odd heights sit on thresholds
+    path = tmp_path / "ints.npy"
+    np.save(path, heights)
+    code, _, err = run(capsys, "steps", path, "--interval", "2", "--solid", "-o", tmp_path / "p.stl")
+    assert code == 0, err
+    lines = [line for line in err.splitlines() if "threshold" in line]
+    assert len(lines) == 1 and lines[0].startswith("stepterrain steps: warning: some heights sit exactly"), err
+    assert "UserWarning" not in err and "warnings.warn" not in err
+
+
 @pytest.mark.parametrize("lens", [["--lens", "15,-11,6"],  # .npy rows run north to south: y = -row
                                   ["--lens-relative", "0.5,0.5,0.3", "--lens-edge", "2"]])
 def test_lens_keeps_original_heights_inside(dem, tmp_path, capsys, lens):

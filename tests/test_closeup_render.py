@@ -306,6 +306,9 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
     assert cli.main(["closeup", str(dem), "--roi", "5,5,2", "--roi", "9,9,2", "--offset", "0,0,1",
                      "--offset", "0,0,2", "--offset", "0,0,3", "-o", out]) == 2
     assert "once per ROI" in capsys.readouterr().err
+    png = str(tmp_path / "same.png")
+    assert cli.main(["closeup", str(dem), "-o", png, "--png", png]) == 2
+    assert "--output and --png name the same file" in capsys.readouterr().err
     for fps in ("0", "nan", "-3"):
         assert cli.main(["closeup", str(dem), f"--fps={fps}", "-o", out]) == 2
         assert capsys.readouterr().err == f"stepterrain closeup: error: --fps must be a positive number; got {fps}\n"

@@ -58,10 +58,12 @@ def test_cli_texture_help_has_examples(capsys):
     (["--mesh", "x.xyz"], "unknown extension"),
     (["--interval", "10"], "--interval applies only with"),
     (["--colormap", "nope"], "--colormap must name"),
+    (["--png", "{out}"], "--output and --png name the same file"),
+    (["--normals", "{out}"], "--output and --normals name the same file"),
 ])
 def test_cli_texture_bad_input_exits_2(tmp_path, small_dem, capsys, argv, match):
     out = tmp_path / "t.png"
-    assert main(["texture", str(small_dem), "-o", str(out), *argv]) == 2
+    assert main(["texture", str(small_dem), "-o", str(out), *[a.format(out=out) for a in argv]]) == 2
     assert match in capsys.readouterr().err
     assert not out.exists()
 
