@@ -448,6 +448,24 @@ def test_bad_heights_raise_clear_errors(heights, match):
         st.stepped(heights, interval=1.0)
 
 
+@pytest.mark.parametrize("n_vertices", [0, 3])
+@pytest.mark.parametrize("process", [False, True])
+def test_empty_terrain_mesh_is_refused(n_vertices, process):
+    """Issue 2 §7: a TIN with no faces (with or without vertices) is a clear InvalidInputError, not an empty
+    result or a crash in the edge table."""
+    empty = trimesh.Trimesh(vertices=np.arange(3.0 * n_vertices).reshape(-1, 3), faces=np.zeros((0, 3), int),
+                            process=process)
+    with pytest.raises(st.errors.InvalidInputError, match="no faces"):
+        st.stepped(empty, interval=1)
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (0, 4), (4, 0)])
+def test_empty_heights_are_refused(shape):
+    expected = rf"at least 2 x 2 nodes; got shape \({shape[0]}, {shape[1]}\)"
+    with pytest.raises(st.errors.InvalidInputError, match=expected):
+        st.stepped(np.zeros(shape, np.float32), interval=1)
+
+
 def test_bad_spacing_and_paths():
     with pytest.raises(st.InvalidInputError, match="spacing must be non-zero"):
         st.stepped(np.zeros((3, 3)), interval=1.0, spacing=(0.0, 1.0))
