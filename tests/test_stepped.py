@@ -177,6 +177,78 @@ def test_cpu_and_cuda_give_the_same_bits(device):
         np.testing.assert_array_equal(a.vertices, b.vertices)
 
 
+# ------------------------------------------------------------------------------ heightfield_mesh (§2)
+
+
+def _canonical_faces(faces):
+    """Faces rotated so the smallest index comes first (winding kept), rows sorted: order-free comparison."""
+    faces = np.asarray(faces)
+    rolled = np.array([np.roll(f, -int(np.argmin(f))) for f in faces]).reshape(-1, 3)
+    return rolled[np.lexsort(rolled.T[::-1])]
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 0.5), (2.0, -0.5), (-2.0, 0.5), (-2.0, -0.5)], ids=str)
+def test_heightfield_mesh_layout_cells_and_winding(spacing):
+    """Vertex k = row-major node (i, j) at (x0 + j dx, y0 + i dy, z); two triangles per cell covering it;
+    counter-clockwise seen from +z for either sign of dx and dy."""
+    rows, cols = 4, 6
+    heights = np.random.default_rng(7).integers(-20, 20, (rows, cols)).astype(np.float32) * 0.25
+    origin = (100.25, -40.5)
+    dx, dy = spacing
+    m = st.heightfield_mesh(heights, spacing=spacing, origin=origin)
+    assert_valid_mesh(m)
+    i, j = np.divmod(np.arange(rows * cols), cols)
+    expected = np.column_stack([origin[0] + j * dx, origin[1] + i * dy, heights.reshape(-1)])
+    np.testing.assert_array_equal(m.vertices, expected)
+    faces = np.asarray(m.faces)
+    assert len(faces) == 2 * (rows - 1) * (cols - 1)
+    # every face lies in one cell: its corners are among the cell's four nodes (n00 = its smallest index)
+    n00 = faces.min(axis=1)
+    ci, cj = np.divmod(n00, cols)
+    assert (ci < rows - 1).all() and (cj < cols - 1).all()
+    corners = n00[:, None] + np.array([0, 1, cols, cols + 1])
+    assert (faces[:, :, None] == corners[:, None, :]).any(axis=2).all()
+    # two faces per cell that split it along a diagonal: they share exactly two opposite corners (n00-n11 or
+    # n01-n10) and each has one of the other two, so they cover the cell and do not overlap
+    cell = ci * (cols - 1) + cj
+    assert (np.bincount(cell, minlength=(rows - 1) * (cols - 1)) == 2).all()
+    by_cell = faces[np.argsort(cell, kind="stable")]
+    fa, fb = by_cell[0::2], by_cell[1::2]
+    shared = (fa[:, :, None] == fb[:, None, :]).any(axis=2)
+    assert (shared.sum(axis=1) == 2).all()
+    diagonal = np.diff(np.sort(fa[shared].reshape(-1, 2), axis=1), axis=1).reshape(-1)
+    assert np.isin(diagonal, [cols - 1, cols + 1]).all()
+    # counter-clockwise seen from +z: positive signed projected area (half a cell each) and normals up
+    np.testing.assert_allclose(projected_area(m), 0.5 * abs(dx * dy), rtol=1e-12)
+    assert (m.face_normals[:, 2] > 0).all()
+
+
+def test_heightfield_mesh_nan_nodes_are_holes_and_node_index_maps_back():
+    heights = np.add.outer(np.arange(5.0), 0.5 * np.arange(7.0)).astype(np.float32)
+    heights[2, 3] = np.nan  # an interior hole: its six faces go
+    heights[0, 1] = np.nan  # with [1, 0] below, node (0, 0) is left on no face and is dropped
+    heights[1, 0] = np.nan
+    heights[4, 6] = np.nan  # a corner
+    nan_nodes = np.flatnonzero(np.isnan(heights))
+    spacing, origin = (3.0, -2.0), (10.0, 20.0)
+    full = st.heightfield_mesh(np.nan_to_num(heights), spacing=spacing, origin=origin)
+    m = st.heightfield_mesh(heights, spacing=spacing, origin=origin)
+    assert_valid_mesh(m)  # finite, every vertex on a face
+    node = np.asarray(m.metadata["node_index"])
+    assert node.shape == (len(m.vertices),) and (np.diff(node) > 0).all()
+    # metadata["node_index"]: vertex -> its grid node (row-major), with that node's position and height
+    np.testing.assert_array_equal(m.vertices, full.vertices[node])
+    np.testing.assert_array_equal(m.vertices[:, 2], heights.reshape(-1)[node])
+    assert not np.isin(node, nan_nodes).any() and 0 not in node
+    # holes, not spikes: no face touches a NaN node, and every full-grid face that touches none is kept
+    grid_faces = node[m.faces]
+    assert not np.isin(grid_faces, nan_nodes).any()
+    kept = full.faces[~np.isin(full.faces, nan_nodes).any(axis=1)]
+    np.testing.assert_array_equal(_canonical_faces(grid_faces), _canonical_faces(kept))
+    assert len(m.faces) == len(full.faces) - 6 - 6 - 2  # node (2, 3); nodes (0, 1) and (1, 0); corner (4, 6)
+    assert (m.face_normals[:, 2] > 0).all()
+
+
 # ------------------------------------------------------------------------------------ invariants
 
 
