@@ -24,8 +24,18 @@ from .reference import grid_tin, step_reference, thresholds_of
 def compare_with_reference(heights, values, device, spacing=(1.0, 1.0)):
     """Warp's arrays equal the reference: same vertices (matched by key), same faces in the same order."""
     t = st.Terrain.from_heights(heights, spacing=spacing)
-    arrays = step_arrays(t, np.asarray(values, np.float32), device=resolve_device(device), want_sources=True)
     points, faces = grid_tin(t.heights, t.spacing)
+    return _compare_terrain_with_reference(t, points, faces, values, device)
+
+
+def compare_tin_with_reference(tin, values, device):
+    """The same for a trimesh TIN: the reference steps the terrain's own local points and (oriented) faces."""
+    t = as_terrain(tin)
+    return _compare_terrain_with_reference(t, t.local_points(), t.faces, values, device)
+
+
+def _compare_terrain_with_reference(t, points, faces, values, device):
+    arrays = step_arrays(t, np.asarray(values, np.float32), device=resolve_device(device), want_sources=True)
     ref = step_reference(points, faces, values)
     assert arrays.vertex_count == len(ref.points)
     assert arrays.face_count == len(ref.faces)
@@ -175,6 +185,55 @@ def test_cpu_and_cuda_give_the_same_bits(device):
         b = st.stepped(terrain, interval=60.0, device=device, **kwargs)
         np.testing.assert_array_equal(a.faces, b.faces)
         np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
+# ------------------------------------------------------------------ degenerate TIN triangles (§3)
+
+_SQUARE = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 3.0], [4.0, 4.0, 7.0], [0.0, 4.0, 1.0]])
+DEGENERATE_TINS = {
+    # the last face is the sliver of three collinear points: zero projected area, a vertical triangle.
+    # (2, 0) on the bottom edge, the sliver (0, 1, 4) lies along it
+    "boundary sliver": (np.vstack([_SQUARE, [[2.0, 0.0, 6.0]]]), [[0, 4, 3], [4, 1, 2], [4, 2, 3], [0, 1, 4]]),
+    # (2, 2) on the diagonal 0-2: the sliver (2, 4, 0) closes the T-junction between (0, 1, 2) and the two
+    # triangles on the other side
+    "interior T-junction sliver": (
+        np.vstack([_SQUARE, [[2.0, 2.0, 6.0]]]), [[0, 1, 2], [0, 4, 3], [4, 2, 3], [2, 4, 0]]
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(DEGENERATE_TINS))
+def test_zero_area_tin_faces_are_stepped_like_the_reference(name, device):
+    """Issue 2 §3: a TIN face of three collinear points (zero projected area) is stepped, not refused: Warp
+    equals the NumPy reference, the mesh is valid, its terraces still cover the input exactly once, and the
+    sliver's walls close the crack, so the boundary stays on the square's sides."""
+    points, faces = DEGENERATE_TINS[name]
+    tin = trimesh.Trimesh(points, np.array(faces), process=False)
+    values = isovalues((0.0, 7.0), interval=1.0, base=0.25)  # thresholds at k + 0.75: no height on one
+    arrays = compare_tin_with_reference(tin, values, device)
+    without = trimesh.Trimesh(points, np.array(faces[:-1]), process=False)
+    assert arrays.face_count > len(st.stepped(without, levels=values).faces)  # the sliver adds faces
+    mesh = st.stepped(tin, levels=values, device=device)
+    assert_valid_mesh(mesh)
+    assert np.isin(mesh.vertices[:, 2].astype(np.float32), values).all()
+    terrace = ~mesh.face_attributes["wall"]
+    areas = projected_area(mesh)
+    assert areas[terrace].min() > -1e-12
+    np.testing.assert_allclose(areas[terrace].sum(), 16.0, rtol=1e-6)
+    assert mesh.is_winding_consistent
+    from stepterrain.mesh import boundary_edges
+
+    xy = mesh.vertices[boundary_edges(mesh.faces)][:, :, :2]
+    assert (np.isclose(xy, 0.0) | np.isclose(xy, 4.0)).all(axis=1).any(axis=1).all()
+
+
+def test_repeated_vertex_face_on_a_tin_edge_is_refused():
+    """A face with a repeated vertex (a, a, b) whose edge a-b belongs to another face uses that edge twice in
+    one direction: refused as not one-to-one in projection."""
+    points, faces = DEGENERATE_TINS["boundary sliver"]
+    tin = trimesh.Trimesh(points, np.array(faces[:-1] + [[4, 4, 1]]), process=False)
+    with pytest.raises(st.errors.InvalidInputError, match="one-to-one onto the xy plane; an edge is used twice"):
+        st.stepped(tin, interval=1.0)
 
 
 # ------------------------------------------------------------------------------ heightfield_mesh (§2)
