@@ -20,7 +20,7 @@ from stepterrain.io import load_dem
 from stepterrain.mesh import boundary_edges
 from stepterrain.stepped import isovalues, stepped
 
-from . import reference
+from . import gltf_validator, reference
 from .conftest import assert_valid_mesh, real_dem
 
 TUJUNGA = "big_tujunga_srtm_30m_utm11n.npz"
@@ -386,13 +386,33 @@ def test_dask_tiles_from_a_terrain(tmp_path, threaded_client):
     assert mesh.bounds[0][0] > 376313.66 + 15 * 120  # UTM coordinates kept (node translation)
 
 
-def test_default_local_cluster_processes(tmp_path):
+@pytest.fixture(scope="module")
+def local_cluster_run(tmp_path_factory):
+    """One batch on the default LocalCluster (2 worker processes), shared by the tests that read its output."""
     pytest.importorskip("distributed", reason="needs dask.distributed")
     heights = real_dem(TUJUNGA, size=25, step=4)
-    report = batch(heights, tmp_path, tile_size=12, interval=100.0, workers=2)
+    report = batch(heights, tmp_path_factory.mktemp("local_cluster"), tile_size=12, interval=100.0, workers=2)
+    return heights, report
+
+
+def test_default_local_cluster_processes(tmp_path, local_cluster_run):
+    heights, report = local_cluster_run
     assert report.ok and len(report.done) == 4 and report.scheduler.startswith("LocalCluster")
     serial = batch(heights, tmp_path / "s", tile_size=12, interval=100.0, scheduler="serial")
     assert [r.faces for r in report.done] == [r.faces for r in serial.done]
+
+
+@pytest.mark.skipif(not gltf_validator.available()[0], reason=gltf_validator.available()[1])
+def test_local_cluster_glbs_pass_the_gltf_validator(local_cluster_run):
+    """Issue 6 §2: every GLB the suite writes passes the Khronos validator. The session hook in conftest.py
+    sees only files written through export.save_mesh in this process; the LocalCluster's worker processes
+    write theirs unseen, so they are validated here explicitly (zero errors, zero warnings)."""
+    _, report = local_cluster_run
+    paths = [Path(r.path) for r in report.done]
+    assert len(paths) == 4 and all(p.suffix == ".glb" and p.is_file() for p in paths)
+    reports = gltf_validator.validate(paths)
+    assert set(reports) == {str(p) for p in paths}
+    assert gltf_validator.problems(reports) == []
 
 
 # ---------------------------------------------------------------------------------------------- CLI

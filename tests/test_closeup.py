@@ -172,6 +172,72 @@ def test_m_one_gives_M_v_and_m_zero_leaves_vertices_unchanged(device):
                                atol=1e-3)
 
 
+def float32_closeup_replica(points_local: np.ndarray, matrix: np.ndarray, local_origin) -> np.ndarray:
+    """V_C = M·V_O for m = 1, by the library's own sequence of roundings, in NumPy:
+
+    1. the world matrix M (float64) moved to the terrain's local origin o: inv(T(o)) @ M @ T(o) in float64,
+       rounded once to float32 (``closeup._layers_struct``);
+    2. C = m·M + (1 − m)·I with m = 1 is 1·M + 0·I = M exactly (``blend_transform``);
+    3. C·(x, y, z, 1) in float32 as Warp's mat-vec product runs it, column by column with no fused
+       multiply-add (``fuse_fp`` is off): ((C₀x + C₁y) + C₂z) + C₃·1 (``apply``);
+    4. back to world: float32 → float64, then x + oₓ and y + o_y in float64 (``closeup._world``).
+
+    Every step is a correctly rounded IEEE operation on the same operands, so the result is bit-identical;
+    only against M·v evaluated in float64 does float32 rounding show (the assert_allclose test above)."""
+    ox, oy = local_origin
+    shift = np.eye(4)
+    shift[:2, 3] = (ox, oy)
+    c = (np.linalg.inv(shift) @ matrix @ shift).astype(np.float32)
+    x, y, z = (points_local[:, k].astype(np.float32)[:, None] for k in range(3))
+    r = c[:3, 0] * x
+    r = r + c[:3, 1] * y
+    r = r + c[:3, 2] * z
+    r = r + c[:3, 3] * np.float32(1.0)
+    world = r.astype(np.float64)
+    world[:, 0] += ox
+    world[:, 1] += oy
+    return world
+
+
+def test_m_one_vertices_equal_a_float32_replica_of_M_v_exactly(device, monkeypatch):
+    """Issue 4 §4: with m = 1 the close-up vertices equal M·v exactly: bit for bit against the float32
+    replica (see :func:`float32_closeup_replica`), far from the world origin (where float32 local coordinates
+    and the float64 shift both round), for the first frame (the cull's transform kernel) and for a frame that
+    only moves the close-up (the kept vertices' kernel)."""
+    import stepterrain.closeup as closeup_module
+
+    kernels_run: list[str] = []
+    real_launch = closeup_module.launch
+
+    def recording_launch(kernel, *args, **kwargs):
+        kernels_run.append(kernel.key)
+        return real_launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(closeup_module, "launch", recording_launch)
+    spacing, origin = (30.0, -30.0), (376313.66, 3807917.83)
+    t = Terrain.from_heights(hills(), spacing=spacing, origin=origin)
+    roi = ROI.circle((origin[0] + 600.0, origin[1] - 480.0), 300.0, edge_width=90.0)
+    first = CloseUp(roi, rotation=(0.3, 0.7), scale=(1.5, 2.0, 3.0), offset=(5.0, -3.0, 80.0))
+    moved = CloseUp(roi, rotation=(-0.2, 2.1), scale=(0.7, 1.3, 2.5), offset=(-41.0, 17.5, 120.25))
+    for cu, kernel in ((first, "transform_closeup_vertices"), (moved, "transform_kept_vertices")):
+        kernels_run.clear()
+        (layer,) = closeup_layers(t, [cu], device=device)
+        # the second call reuses the cull (same terrain and ROI) and transforms only the kept vertices
+        assert [k for k in kernels_run if k.startswith("transform_")] == [kernel]
+        ones = layer.mask_factor == 1.0
+        assert ones.sum() > 50 and (layer.mask_factor < 1.0).any()
+        # the kernel's float32 local input: node (i, j) at (float32(j dx), float32(i dy), height)
+        j = np.rint((layer.original[:, 0] - origin[0]) / spacing[0]).astype(np.int64)
+        i = np.rint((layer.original[:, 1] - origin[1]) / spacing[1]).astype(np.int64)
+        local = np.column_stack([(j * spacing[0]).astype(np.float32), (i * spacing[1]).astype(np.float32),
+                                 t.heights[i, j]])
+        back = local.astype(np.float64)
+        back[:, :2] += origin
+        np.testing.assert_array_equal(layer.original, back)  # the replica starts from the kernel's input
+        expected = float32_closeup_replica(local[ones], layer.matrix, t.local_origin)
+        np.testing.assert_array_equal(layer.vertices[ones], expected)
+
+
 def test_culling_matches_the_whole_mesh_reference(device):
     t = Terrain.from_heights(hills(), spacing=(2.0, -2.0), origin=(500.0, 800.0))
     cus = [

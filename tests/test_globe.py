@@ -74,6 +74,27 @@ def test_full_resolution_sphere(face_size, device):
     np.testing.assert_allclose(radius, R + heights, rtol=0, atol=1e-9 * R)
 
 
+def test_exaggeration_scales_the_input_sample(device):
+    """Issue 3 §6: every vertex at R + exaggeration · z, with z the bilinear sample of the INPUT (the heights
+    of the same grid at exaggeration 1), not ``g.heights``, which already holds the exaggeration."""
+    lat = np.linspace(88.0, -88.0, 45)  # 4° cells, centre-registered
+    lon = np.linspace(-178.0, 178.0, 90)
+    la, lo = np.meshgrid(np.radians(lat), np.radians(lon), indexing="ij")
+    z = 300.0 + 2000.0 * np.cos(la) * np.cos(lo) - 700.0 * np.sin(2.0 * la) * np.sin(3.0 * lo)
+    plain = Globe.from_latlon(z, lat, lon, face_size=9, exaggeration=1.0, device=device)
+    steep = Globe.from_latlon(z, lat, lon, face_size=9, exaggeration=10.0, device=device)
+    z_input = plain.heights.astype(np.float64)
+    assert np.ptp(z_input) > 1000.0  # the field is not flat: a wrong factor cannot hide
+    # heights: 10 × the input sample, rounded once to float32 (half an ulp, 2^-24 relative)
+    np.testing.assert_allclose(steep.heights, 10.0 * z_input, rtol=2.0**-23, atol=0)
+    m = steep.mesh()
+    assert len(m.vertices) == 6 * 8**2 + 2
+    radius = np.linalg.norm(m.vertices, axis=1)
+    expected = R + 10.0 * z_input.reshape(-1)[m.metadata["node_entry"]]
+    # float32 heights (|10 z| < 3e4 m: ulp <= 2e-3 m) and float64 positions at R (~1e-15 relative)
+    np.testing.assert_allclose(radius, expected, rtol=0, atol=1e-9 * R + 2.0**-23 * 10.0 * np.abs(z_input).max())
+
+
 def test_seam_copies_are_bit_identical(small_globe):
     g = small_globe
     cells = g.cells

@@ -15,7 +15,7 @@ from stepterrain._device import resolve_device
 from stepterrain.stepped import isovalues, step_arrays
 from stepterrain.terrain import as_terrain
 
-from .conftest import assert_valid_mesh, real_dem
+from .conftest import assert_valid_mesh, real_dem, shared_file
 from .reference import grid_tin, step_reference, thresholds_of
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -24,8 +24,18 @@ from .reference import grid_tin, step_reference, thresholds_of
 def compare_with_reference(heights, values, device, spacing=(1.0, 1.0)):
     """Warp's arrays equal the reference: same vertices (matched by key), same faces in the same order."""
     t = st.Terrain.from_heights(heights, spacing=spacing)
-    arrays = step_arrays(t, np.asarray(values, np.float32), device=resolve_device(device), want_sources=True)
     points, faces = grid_tin(t.heights, t.spacing)
+    return _compare_terrain_with_reference(t, points, faces, values, device)
+
+
+def compare_tin_with_reference(tin, values, device):
+    """The same for a trimesh TIN: the reference steps the terrain's own local points and (oriented) faces."""
+    t = as_terrain(tin)
+    return _compare_terrain_with_reference(t, t.local_points(), t.faces, values, device)
+
+
+def _compare_terrain_with_reference(t, points, faces, values, device):
+    arrays = step_arrays(t, np.asarray(values, np.float32), device=resolve_device(device), want_sources=True)
     ref = step_reference(points, faces, values)
     assert arrays.vertex_count == len(ref.points)
     assert arrays.face_count == len(ref.faces)
@@ -177,12 +187,160 @@ def test_cpu_and_cuda_give_the_same_bits(device):
         np.testing.assert_array_equal(a.vertices, b.vertices)
 
 
+# ------------------------------------------------------------------ degenerate TIN triangles (§3)
+
+_SQUARE = np.array([[0.0, 0.0, 0.0], [4.0, 0.0, 3.0], [4.0, 4.0, 7.0], [0.0, 4.0, 1.0]])
+DEGENERATE_TINS = {
+    # the last face is the sliver of three collinear points: zero projected area, a vertical triangle.
+    # (2, 0) on the bottom edge, the sliver (0, 1, 4) lies along it
+    "boundary sliver": (np.vstack([_SQUARE, [[2.0, 0.0, 6.0]]]), [[0, 4, 3], [4, 1, 2], [4, 2, 3], [0, 1, 4]]),
+    # (2, 2) on the diagonal 0-2: the sliver (2, 4, 0) closes the T-junction between (0, 1, 2) and the two
+    # triangles on the other side
+    "interior T-junction sliver": (
+        np.vstack([_SQUARE, [[2.0, 2.0, 6.0]]]), [[0, 1, 2], [0, 4, 3], [4, 2, 3], [2, 4, 0]]
+    ),
+}
+
+
+@pytest.mark.parametrize("name", list(DEGENERATE_TINS))
+def test_zero_area_tin_faces_are_stepped_like_the_reference(name, device):
+    """Issue 2 §3: a TIN face of three collinear points (zero projected area) is stepped, not refused: Warp
+    equals the NumPy reference, the mesh is valid, its terraces still cover the input exactly once, and the
+    sliver's walls close the crack, so the boundary stays on the square's sides."""
+    points, faces = DEGENERATE_TINS[name]
+    tin = trimesh.Trimesh(points, np.array(faces), process=False)
+    values = isovalues((0.0, 7.0), interval=1.0, base=0.25)  # thresholds at k + 0.75: no height on one
+    arrays = compare_tin_with_reference(tin, values, device)
+    without = trimesh.Trimesh(points, np.array(faces[:-1]), process=False)
+    assert arrays.face_count > len(st.stepped(without, levels=values).faces)  # the sliver adds faces
+    mesh = st.stepped(tin, levels=values, device=device)
+    assert_valid_mesh(mesh)
+    assert np.isin(mesh.vertices[:, 2].astype(np.float32), values).all()
+    terrace = ~mesh.face_attributes["wall"]
+    areas = projected_area(mesh)
+    assert areas[terrace].min() > -1e-12
+    np.testing.assert_allclose(areas[terrace].sum(), 16.0, rtol=1e-6)
+    assert mesh.is_winding_consistent
+    from stepterrain.mesh import boundary_edges
+
+    xy = mesh.vertices[boundary_edges(mesh.faces)][:, :, :2]
+    assert (np.isclose(xy, 0.0) | np.isclose(xy, 4.0)).all(axis=1).any(axis=1).all()
+
+
+def test_repeated_vertex_face_on_a_tin_edge_is_refused():
+    """A face with a repeated vertex (a, a, b) whose edge a-b belongs to another face uses that edge twice in
+    one direction: refused as not one-to-one in projection."""
+    points, faces = DEGENERATE_TINS["boundary sliver"]
+    tin = trimesh.Trimesh(points, np.array(faces[:-1] + [[4, 4, 1]]), process=False)
+    with pytest.raises(st.errors.InvalidInputError, match="one-to-one onto the xy plane; an edge is used twice"):
+        st.stepped(tin, interval=1.0)
+
+
+# ------------------------------------------------------------------------------ heightfield_mesh (§2)
+
+
+def _canonical_faces(faces):
+    """Faces rotated so the smallest index comes first (winding kept), rows sorted: order-free comparison."""
+    faces = np.asarray(faces)
+    rolled = np.array([np.roll(f, -int(np.argmin(f))) for f in faces]).reshape(-1, 3)
+    return rolled[np.lexsort(rolled.T[::-1])]
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 0.5), (2.0, -0.5), (-2.0, 0.5), (-2.0, -0.5)], ids=str)
+def test_heightfield_mesh_layout_cells_and_winding(spacing):
+    """Vertex k = row-major node (i, j) at (x0 + j dx, y0 + i dy, z); two triangles per cell covering it;
+    counter-clockwise seen from +z for either sign of dx and dy."""
+    rows, cols = 4, 6
+    heights = np.random.default_rng(7).integers(-20, 20, (rows, cols)).astype(np.float32) * 0.25
+    origin = (100.25, -40.5)
+    dx, dy = spacing
+    m = st.heightfield_mesh(heights, spacing=spacing, origin=origin)
+    assert_valid_mesh(m)
+    i, j = np.divmod(np.arange(rows * cols), cols)
+    expected = np.column_stack([origin[0] + j * dx, origin[1] + i * dy, heights.reshape(-1)])
+    np.testing.assert_array_equal(m.vertices, expected)
+    faces = np.asarray(m.faces)
+    assert len(faces) == 2 * (rows - 1) * (cols - 1)
+    # every face lies in one cell: its corners are among the cell's four nodes (n00 = its smallest index)
+    n00 = faces.min(axis=1)
+    ci, cj = np.divmod(n00, cols)
+    assert (ci < rows - 1).all() and (cj < cols - 1).all()
+    corners = n00[:, None] + np.array([0, 1, cols, cols + 1])
+    assert (faces[:, :, None] == corners[:, None, :]).any(axis=2).all()
+    # two faces per cell that split it along a diagonal: they share exactly two opposite corners (n00-n11 or
+    # n01-n10) and each has one of the other two, so they cover the cell and do not overlap
+    cell = ci * (cols - 1) + cj
+    assert (np.bincount(cell, minlength=(rows - 1) * (cols - 1)) == 2).all()
+    by_cell = faces[np.argsort(cell, kind="stable")]
+    fa, fb = by_cell[0::2], by_cell[1::2]
+    shared = (fa[:, :, None] == fb[:, None, :]).any(axis=2)
+    assert (shared.sum(axis=1) == 2).all()
+    diagonal = np.diff(np.sort(fa[shared].reshape(-1, 2), axis=1), axis=1).reshape(-1)
+    assert np.isin(diagonal, [cols - 1, cols + 1]).all()
+    # counter-clockwise seen from +z: positive signed projected area (half a cell each) and normals up
+    np.testing.assert_allclose(projected_area(m), 0.5 * abs(dx * dy), rtol=1e-12)
+    assert (m.face_normals[:, 2] > 0).all()
+
+
+def test_heightfield_mesh_nan_nodes_are_holes_and_node_index_maps_back():
+    heights = np.add.outer(np.arange(5.0), 0.5 * np.arange(7.0)).astype(np.float32)
+    heights[2, 3] = np.nan  # an interior hole: its six faces go
+    heights[0, 1] = np.nan  # with [1, 0] below, node (0, 0) is left on no face and is dropped
+    heights[1, 0] = np.nan
+    heights[4, 6] = np.nan  # a corner
+    nan_nodes = np.flatnonzero(np.isnan(heights))
+    spacing, origin = (3.0, -2.0), (10.0, 20.0)
+    full = st.heightfield_mesh(np.nan_to_num(heights), spacing=spacing, origin=origin)
+    m = st.heightfield_mesh(heights, spacing=spacing, origin=origin)
+    assert_valid_mesh(m)  # finite, every vertex on a face
+    node = np.asarray(m.metadata["node_index"])
+    assert node.shape == (len(m.vertices),) and (np.diff(node) > 0).all()
+    # metadata["node_index"]: vertex -> its grid node (row-major), with that node's position and height
+    np.testing.assert_array_equal(m.vertices, full.vertices[node])
+    np.testing.assert_array_equal(m.vertices[:, 2], heights.reshape(-1)[node])
+    assert not np.isin(node, nan_nodes).any() and 0 not in node
+    # holes, not spikes: no face touches a NaN node, and every full-grid face that touches none is kept
+    grid_faces = node[m.faces]
+    assert not np.isin(grid_faces, nan_nodes).any()
+    kept = full.faces[~np.isin(full.faces, nan_nodes).any(axis=1)]
+    np.testing.assert_array_equal(_canonical_faces(grid_faces), _canonical_faces(kept))
+    assert len(m.faces) == len(full.faces) - 6 - 6 - 2  # node (2, 3); nodes (0, 1) and (1, 0); corner (4, 6)
+    assert (m.face_normals[:, 2] > 0).all()
+
+
 # ------------------------------------------------------------------------------------ invariants
 
 
 @pytest.fixture(scope="module")
 def dem():
     return real_dem("big_tujunga_srtm_30m_utm11n.npz", size=80, step=5)
+
+
+TUJUNGA, FRONT_RANGE = "big_tujunga_srtm_30m_utm11n.npz", "front_range_srtmgl3_3arcsec.npz"
+FRONT_RANGE_INTERVALS = (50.0, 150.0, 400.0)
+_INVARIANT_DEMS: dict[str, tuple[np.ndarray, tuple[float, float]]] = {}
+
+
+def invariant_dem(name: str) -> tuple[np.ndarray, tuple[float, float]]:
+    """(heights, spacing) of a real DEM crop for the area / wall / volume invariants (issue 2 §5). Big Tujunga:
+    the ``dem`` fixture's 80² crop at 30 m. Front Range: a 96² crop (every 6th node, 2460 m of relief), in
+    metres from the file's dx_m / dy_m, north up (negative dy, rows run north to south)."""
+    if name not in _INVARIANT_DEMS:
+        if name == TUJUNGA:
+            _INVARIANT_DEMS[name] = real_dem(TUJUNGA, size=80, step=5), (30.0, 30.0)
+        else:
+            step = 6
+            with np.load(shared_file(name)) as data:
+                spacing = (step * float(data["dx_m"]), -step * float(data["dy_m"]))
+            _INVARIANT_DEMS[name] = real_dem(name, size=96, step=step), spacing
+    return _INVARIANT_DEMS[name]
+
+
+def invariant_cases(*tujunga_intervals: float) -> list:
+    """Big Tujunga at the given intervals and the Front Range at FRONT_RANGE_INTERVALS."""
+    return [pytest.param(TUJUNGA, i, id=f"tujunga-{i:g}") for i in tujunga_intervals] + [
+        pytest.param(FRONT_RANGE, i, id=f"front_range-{i:g}") for i in FRONT_RANGE_INTERVALS
+    ]
 
 
 @pytest.mark.parametrize("interval", [40.0, 125.0])
@@ -193,10 +351,11 @@ def test_gamma_one_puts_every_vertex_on_an_isovalue(dem, interval):
     assert_valid_mesh(mesh)
 
 
-@pytest.mark.parametrize("interval", [40.0, 125.0])
-def test_terrace_areas_per_level_equal_the_input_bands(dem, interval):
-    mesh = st.stepped(dem, interval=interval, spacing=(30.0, 30.0))
-    source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
+@pytest.mark.parametrize(("name", "interval"), invariant_cases(40.0, 125.0))
+def test_terrace_areas_per_level_equal_the_input_bands(name, interval):
+    dem, spacing = invariant_dem(name)
+    mesh = st.stepped(dem, interval=interval, spacing=spacing)
+    source = st.heightfield_mesh(dem, spacing=spacing)
     values = isovalues((float(dem.min()), float(dem.max())), interval=interval)
     thr = thresholds_of(values).astype(np.float64)
     terrace = ~mesh.face_attributes["wall"]
@@ -209,13 +368,14 @@ def test_terrace_areas_per_level_equal_the_input_bands(dem, interval):
     for k in range(len(values)):
         expected = area_below(tri_h, tri_a, bounds[k + 1]).sum() - area_below(tri_h, tri_a, bounds[k]).sum()
         got = areas[terrace & (mesh.face_attributes["level"] == k)].sum()
-        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-3 * 900)
+        np.testing.assert_allclose(got, expected, rtol=1e-5, atol=1e-3 * abs(spacing[0] * spacing[1]))
 
 
-def test_wall_area_equals_contour_length_times_step(dem):
-    interval = 60.0
-    mesh = st.stepped(dem, interval=interval, spacing=(30.0, 30.0))
-    source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
+@pytest.mark.parametrize(("name", "interval"), invariant_cases(60.0))
+def test_wall_area_equals_contour_length_times_step(name, interval):
+    dem, spacing = invariant_dem(name)
+    mesh = st.stepped(dem, interval=interval, spacing=spacing)
+    source = st.heightfield_mesh(dem, spacing=spacing)
     values = isovalues((float(dem.min()), float(dem.max())), interval=interval).astype(np.float64)
     thr = thresholds_of(values.astype(np.float32)).astype(np.float64)
     walls = mesh.face_attributes["wall"]
@@ -224,10 +384,12 @@ def test_wall_area_equals_contour_length_times_step(dem):
     np.testing.assert_allclose(wall_area, expected, rtol=1e-4)
 
 
-def test_volume_is_linear_in_gamma_and_equals_input_at_zero(dem):
-    source = st.heightfield_mesh(dem, spacing=(30.0, 30.0))
+@pytest.mark.parametrize(("name", "interval"), invariant_cases(80.0))
+def test_volume_is_linear_in_gamma_and_equals_input_at_zero(name, interval):
+    dem, spacing = invariant_dem(name)
+    source = st.heightfield_mesh(dem, spacing=spacing)
     volumes = {
-        g: volume_under(st.stepped(dem, interval=80.0, gamma=g, spacing=(30.0, 30.0))) for g in (0.0, 0.3, 0.7, 1.0)
+        g: volume_under(st.stepped(dem, interval=interval, gamma=g, spacing=spacing)) for g in (0.0, 0.3, 0.7, 1.0)
     }
     np.testing.assert_allclose(volumes[0.0], volume_under(source), rtol=1e-7)
     for g in (0.3, 0.7):
@@ -453,6 +615,24 @@ def test_bad_arguments_raise_clear_errors(kwargs, match):
 def test_bad_heights_raise_clear_errors(heights, match):
     with pytest.raises(st.InvalidInputError, match=match):
         st.stepped(heights, interval=1.0)
+
+
+@pytest.mark.parametrize("n_vertices", [0, 3])
+@pytest.mark.parametrize("process", [False, True])
+def test_empty_terrain_mesh_is_refused(n_vertices, process):
+    """Issue 2 §7: a TIN with no faces (with or without vertices) is a clear InvalidInputError, not an empty
+    result or a crash in the edge table."""
+    empty = trimesh.Trimesh(vertices=np.arange(3.0 * n_vertices).reshape(-1, 3), faces=np.zeros((0, 3), int),
+                            process=process)
+    with pytest.raises(st.errors.InvalidInputError, match="no faces"):
+        st.stepped(empty, interval=1)
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (0, 4), (4, 0)])
+def test_empty_heights_are_refused(shape):
+    expected = rf"at least 2 x 2 nodes; got shape \({shape[0]}, {shape[1]}\)"
+    with pytest.raises(st.errors.InvalidInputError, match=expected):
+        st.stepped(np.zeros(shape, np.float32), interval=1)
 
 
 def test_bad_spacing_and_paths():
