@@ -766,7 +766,7 @@ def stepped_series(
 ) -> Iterator[trimesh.Trimesh]:
     """Step a time series of heightfields (T, H, W) frame by frame (paper 000 §4, dynamic data).
 
-    Kernels compile once; each frame reuses the device buffers of the previous one (same shape). With
+    Kernels compile once; each frame reuses the work buffers of the previous one (the scratch pool). With
     ``interval``, the isovalues are fixed over the whole series (computed from its overall height range
     when the frames come as one array), so levels do not jump between frames.
 
@@ -795,14 +795,10 @@ def stepped_series(
         from tqdm.auto import tqdm
 
         iterable = tqdm(iterable, total=len(stack) if stack is not None else None, desc="stepping frames", unit="frame")
-    reuse: Terrain | None = None
     for frame in iterable:
+        # a fresh Terrain per frame: what it caches (the heights' upload, whether they hold nodata) belongs to
+        # its own heights; the work arrays of the passes come from the per-thread scratch pool, reused
         t = Terrain.from_heights(frame, spacing=spacing, origin=origin)
-        if reuse is not None and reuse.heights.shape == t.heights.shape:
-            # keep the device buffers: upload the new heights into the old allocation
-            t._device_cache.update(reuse._device_cache)
-            t._device_cache.pop(("heights", str(dev)), None)
-        reuse = t
         frame_values = (
             values if values is not None else isovalues(t.height_range, interval=interval, levels=levels, base=base)
         )

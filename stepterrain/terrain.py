@@ -124,6 +124,14 @@ class Terrain:
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
             raise InvalidInputError("terrain mesh has no faces; expected a triangulated surface")
+        repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
+        if repeated.any():
+            bad = int(np.flatnonzero(repeated)[0])
+            raise InvalidInputError(
+                f"terrain mesh faces must have three distinct vertices; face {bad} is {faces[bad].tolist()} "
+                f"({int(repeated.sum())} such faces): drop them first, e.g. "
+                "mesh.update_faces(mesh.faces[:, 0] != mesh.faces[:, 1]) and the like"
+            )
         if not np.all(np.isfinite(points[:, :2])):
             raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
         z_ok = np.isfinite(points[:, 2])

@@ -227,12 +227,14 @@ def test_zero_area_tin_faces_are_stepped_like_the_reference(name, device):
     assert (np.isclose(xy, 0.0) | np.isclose(xy, 4.0)).all(axis=1).any(axis=1).all()
 
 
-def test_repeated_vertex_face_on_a_tin_edge_is_refused():
-    """A face with a repeated vertex (a, a, b) whose edge a-b belongs to another face uses that edge twice in
-    one direction: refused as not one-to-one in projection."""
+@pytest.mark.parametrize("bad_face", [[4, 4, 1], [3, 3, 1], [1, 3, 1], [2, 0, 0]])
+def test_repeated_vertex_face_is_refused(bad_face):
+    """A face with a repeated vertex (a, a, b) has no interior and no third corner: refused up front, whether
+    a-b is an edge of another face or not (the latter once gave uninitialised face indices)."""
     points, faces = DEGENERATE_TINS["boundary sliver"]
-    tin = trimesh.Trimesh(points, np.array(faces[:-1] + [[4, 4, 1]]), process=False)
-    with pytest.raises(st.errors.InvalidInputError, match="one-to-one onto the xy plane; an edge is used twice"):
+    tin = trimesh.Trimesh(points, np.array(faces[:-1] + [bad_face]), process=False)
+    message = f"faces must have three distinct vertices; face {len(faces) - 1} is {bad_face}".replace("[", r"\[")
+    with pytest.raises(st.errors.InvalidInputError, match=message.replace("]", r"\]")):
         st.stepped(tin, interval=1.0)
 
 
@@ -553,6 +555,40 @@ def test_series_equals_frame_by_frame():
         single = st.stepped(frame, levels=isovalues((float(frames.min()), float(frames.max())), interval=2.0))
         np.testing.assert_array_equal(mesh.faces, single.faces)
         np.testing.assert_array_equal(mesh.vertices, single.vertices)
+
+
+@pytest.mark.parametrize("hole", [False, True], ids=["no-nodata", "hole-in-frame-2"])
+def test_series_reuses_buffers_and_equals_fresh_calls(hole):
+    """Issue 2 §3/§4 dynamic data: a later frame of the same shape runs in the first frame's device buffers
+    (the per-thread scratch arrays: levels, counts, offsets, points, step heights: the same objects and
+    pointers) and still gives exactly the mesh of a fresh ``stepped`` call, also when only a later frame has
+    nodata (per-frame state such as the nodata flag must not be carried over)."""
+    from stepterrain import _device
+
+    rng = np.random.default_rng(5)
+    first = (rng.random((14, 14)) * 10).astype(np.float32)
+    frames = np.stack([first, 0.5 * first + 2.0, 0.25 * first + 3.0])  # later frames cross fewer levels
+    if hole:
+        frames[1, 4:7, 5:9] = np.nan
+    values = isovalues((float(np.nanmin(frames)), float(np.nanmax(frames))), interval=1.0)
+
+    def buffers():
+        pool = getattr(_device._pools, "arrays", {})
+        return {key: (array, array.ptr) for key, array in pool.items() if key[0].startswith("stepped.")}
+
+    seen = []
+    for frame, mesh in zip(frames, st.stepped_series(frames, interval=1.0, device="cpu"), strict=True):
+        seen.append(buffers())
+        fresh = st.stepped(frame, levels=values, device="cpu")
+        assert_valid_mesh(mesh)
+        np.testing.assert_array_equal(mesh.faces, fresh.faces)
+        np.testing.assert_array_equal(mesh.vertices, fresh.vertices)
+        np.testing.assert_array_equal(mesh.face_attributes["level"], fresh.face_attributes["level"])
+    assert {"stepped.levels", "stepped.points", "stepped.step_heights"} <= {key[0] for key in seen[0]}
+    for later in seen[1:]:
+        assert later.keys() == seen[0].keys()
+        for key, (array, ptr) in seen[0].items():
+            assert later[key][0] is array and later[key][1] == ptr, f"{key[0]} was reallocated"
 
 
 def test_heights_outside_the_levels_clamp_to_the_end_levels():
