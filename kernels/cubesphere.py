@@ -47,6 +47,9 @@ FACE_FRAMES: Final = ((1, 2, 3), (3, -2, 1), (-3, -1, 2), (-1, -3, -2), (-2, 3, 
 #: Saturation margin added per level to r, h and α (paper 003 §6: "eine kleine Korrektur ... 10^-6").
 RELATIVE_MARGIN = wp.constant(wp.float64(2.0**-20))
 ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
+#: e of a planar triangle that straddles a padded input's border (:func:`straddles_input`); saturated, so every
+#: node whose e reaches it refines whatever the view or user metrics say (else the mesh would keep the padding)
+STRADDLE_ERROR = wp.constant(wp.float64(3.0e38))
 
 
 @wp.struct
@@ -540,7 +543,7 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     if in_grid(grid, c[0], c[1]) == 0:
         return wp.float64(0.0)
     if straddles_input(grid, a, b, c) != 0:
-        return wp.float64(3.0e38)
+        return STRADDLE_ERROR
     base = face * grid.n * grid.n
     za = wp.float64(grid.heights[base + a[0] * grid.n + a[1]])
     zb = wp.float64(grid.heights[base + b[0] * grid.n + b[1]])
@@ -627,7 +630,7 @@ def small_triangle_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: w
     if in_grid(grid, c[0], c[1]) == 0:
         return wp.float64(0.0)
     if straddles_input(grid, a, b, c) != 0:
-        return wp.float64(3.0e38)
+        return STRADDLE_ERROR
     n = grid.n
     base = face * n * n
     za = wp.float64(grid.heights[base + a[0] * n + a[1]])
@@ -1087,6 +1090,8 @@ def count_refinement(
             else:
                 refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
                                             e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
+            if refine == 0 and grid.planar != 0 and wp.float64(e) >= STRADDLE_ERROR:
+                refine = 1  # a padded input's border: refine until inside or outside it, even out of view
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
                 if inside_out.shape[0] > 0:

@@ -611,9 +611,11 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     none = wp.zeros(0, dtype=wp.int32, device=device)
     masks: wp.array | None = None  # of the current level's triangles, while tracked
     mask_chunks: list[wp.array | None] = []
-    if _NODE_PASS and faces == 1 and not users and flags[1] == 0 and flags[2] == 0 and view.error > 0:
+    if _NODE_PASS and faces == 1 and not users and flags[0] != 0 and flags[1] == 0 and flags[2] == 0 \
+            and view.error > 0:
         # planar, no view: μ = e per node, so one count -> scan -> emit over the nodes gives the same leaves
-        # and vertices as the breadth-first levels below (in another order), without a pass per level
+        # and vertices as the breadth-first levels below (in another order), without a pass per level (without
+        # the geometric metric μ = 1 everywhere: the levels below, which still refine a padded input's border)
         leaves, entries, per_level = _planar_leaves(grid, params, int(flags[0]), float(view.error), device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)

@@ -106,6 +106,22 @@ def test_node_pass_equals_breadth_first(monkeypatch, rows, cols, error):
     assert fast.metadata["levels"] == slow.metadata["levels"]
 
 
+@pytest.mark.parametrize("node_pass", [True, False])
+def test_padded_input_is_cut_back_whatever_the_metrics(monkeypatch, node_pass):
+    """A 3 x 5 grid is padded to 5 x 5: the triangles straddling the input's border must refine even where the
+    view clips them, a user metric is 0 or the geometric metric is off, or the mesh keeps the padding rows."""
+    import stepterrain.globe as globe_module
+
+    monkeypatch.setattr(globe_module, "_NODE_PASS", node_pass)
+    z = np.arange(15, dtype=np.float32).reshape(3, 5)
+    away = Camera(eye=(-100.0, -100.0, 50.0), target=(-200.0, -200.0, 0.0))  # sees none of the grid
+    for options in ({"camera": away, "cull": False}, {"metrics": ("geometric", lambda p, r: np.zeros(len(p)))},
+                    {"metrics": ()}, {"metrics": ("distance",)}):
+        mesh = adaptive_mesh(z, error=2.0, **options)
+        assert_crack_free_rectangle(mesh, 3, 5)
+        assert mesh.metadata["node_index"][:, 0].max() == 2, options
+
+
 def test_plane_and_origin():
     z = np.add.outer(np.arange(17.0), 2 * np.arange(17.0))
     mesh = adaptive_mesh(z, error=1e-3, spacing=(2.0, 3.0), origin=(100.0, 200.0))
