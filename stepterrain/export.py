@@ -301,6 +301,12 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
     files = trimesh.exchange.gltf.export_gltf(
         _gltf_scene(mesh, target), include_normals=False, merge_buffers=True, embed_buffers=True
     )
+    tree = json.loads(files["model.gltf"])
+    if not tree.get("bufferViews"):  # no faces: trimesh writes a 0-byte buffer and [], which glTF forbids
+        tree.pop("bufferViews", None)
+        tree.pop("buffers", None)
+        tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
+        return
     tmp.write_bytes(files["model.gltf"])
 
 
@@ -383,6 +389,8 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
     text, sidecars = trimesh.exchange.obj.export_obj(
         mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
     )  # no vertex normals: viewers shade faces flat and stair edges stay crisp
+    if len(mesh.faces) == 0:  # trimesh writes a bare "f" (and "v" without vertices) line: not OBJ
+        text = "".join(line for line in text.splitlines(keepends=True) if line.strip() not in ("v", "f"))
     sidecars = _own_texture_names(sidecars, mtl_name, target.stem)
     for name, data in sidecars.items():
         with atomic_path(target.parent / name) as side_tmp:

@@ -150,9 +150,20 @@ def test_ply_keeps_face_attributes(tmp_path):
 
 
 def test_empty_mesh(tmp_path):
+    """A mesh with no faces (a view that sees nothing, an empty close-up) writes valid empty files: glTF
+    forbids empty arrays and 0-byte buffers (the validator fixture checks them too), OBJ has no bare v/f lines."""
     empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
-    for ext in (".glb", ".obj", ".ply", ".stl"):
-        assert save_mesh(empty, tmp_path / f"e{ext}").exists()
+    points = trimesh.Trimesh(np.ones((4, 3)), np.zeros((0, 3), np.int64), process=False)  # vertices, no faces
+    for mesh in (empty, points):
+        for ext in MESH_EXTENSIONS:
+            path = save_mesh(mesh, tmp_path / f"e{ext}")
+            back = trimesh.load(path, force="mesh", process=False)
+            assert len(back.faces) == 0
+        tree = json.loads((tmp_path / "e.gltf").read_text())
+        assert all(value != [] for value in tree.values())
+        assert all(buffer["byteLength"] >= 1 for buffer in tree.get("buffers", []))
+        lines = (tmp_path / "e.obj").read_text().splitlines()
+        assert not [line for line in lines if line.strip() in ("v", "f")]
 
 
 def test_unknown_extension(tmp_path):
