@@ -146,7 +146,9 @@ class ROI:
             raise InvalidInputError(f"ROI mask must be a real (rows, cols) array; got dtype {mask.dtype}")
         if mask.ndim != 2 or mask.shape[0] < 2 or mask.shape[1] < 2:
             raise InvalidInputError(f"ROI mask must be a 2-D array of at least 2 x 2 texels; got shape {mask.shape}")
-        mask = np.ascontiguousarray(mask, dtype=np.float32)
+        # an own copy (ascontiguousarray would alias a float32 caller array): the frozen ROI's mask must not
+        # change behind the caches keyed by the ROI, nor the caller's array become read-only
+        mask = np.array(mask, dtype=np.float32, order="C", copy=True)
         if not np.all(np.isfinite(mask)):
             raise InvalidInputError("ROI mask values must be finite, in [0, 1]; got NaN or inf")
         if mask.min() < 0.0 or mask.max() > 1.0:

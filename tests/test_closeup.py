@@ -552,6 +552,28 @@ def test_a_kept_cull_gives_the_layers_and_anchors_of_a_fresh_one(device):
     assert np.abs(kept[0].vertices - closeup_layers(t, cus, time=0.0, device=device)[0].vertices).max() > 1.0
 
 
+def test_roi_keeps_its_own_mask(device):
+    """A float32 mask array is copied: writing into the caller's buffer later (a painting canvas) changes
+    neither the ROI nor the cull kept for it, and the caller's array stays writable."""
+    t = Terrain.from_heights(hills(21, 21))
+    canvas = np.zeros((2, 9, 9), np.float32)
+    canvas[0, 2:7, 2:7] = 1.0
+    roi = ROI((10.0, 10.0), (8.0, 8.0), canvas[0])
+    cu = CloseUp(roi, offset=(0.0, 0.0, 5.0))
+    (before,) = closeup_layers(t, [cu], device=device)
+    canvas[0] = 0.0
+    assert roi.mask.max() == 1.0
+    (after,) = closeup_layers(t, [cu], device=device)
+    (fresh,) = closeup_layers(t, [CloseUp(ROI((10.0, 10.0), (8.0, 8.0), np.pad(np.ones((5, 5)), 2)),
+                                          offset=(0.0, 0.0, 5.0))], device=device)
+    assert len(before.faces) > 0
+    np.testing.assert_array_equal(after.faces, fresh.faces)
+    np.testing.assert_array_equal(after.vertices, fresh.vertices)
+    mine = np.ones((5, 5), np.float32)
+    ROI((0.0, 0.0), (1.0, 1.0), mine)
+    mine[0, 0] = 0.5  # still the caller's, writable
+
+
 def test_memory_budget_is_checked_and_named():
     t = Terrain.from_heights(hills(), spacing=(1.0, 1.0))
     cu = CloseUp(ROI.circle((10.0, 10.0), 8.0), offset=(0, 0, 30.0))
