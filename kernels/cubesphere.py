@@ -48,7 +48,8 @@ FACE_FRAMES: Final = ((1, 2, 3), (3, -2, 1), (-3, -1, 2), (-1, -3, -2), (-2, 3, 
 RELATIVE_MARGIN = wp.constant(wp.float64(2.0**-20))
 ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
 #: e of a planar triangle that straddles a padded input's border (:func:`straddles_input`); saturated, so every
-#: node whose e reaches it refines whatever the view or user metrics say (else the mesh would keep the padding)
+#: node whose e reaches it refines whatever the view or user metrics say (else the mesh would keep the padding).
+#: Nodes store e in float32: the refinement test compares with half of it, clear of that rounding.
 STRADDLE_ERROR = wp.constant(wp.float64(3.0e38))
 
 
@@ -1090,7 +1091,7 @@ def count_refinement(
             else:
                 refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
                                             e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
-            if refine == 0 and grid.planar != 0 and wp.float64(e) >= STRADDLE_ERROR:
+            if refine == 0 and grid.planar != 0 and wp.float64(e) >= wp.float64(0.5) * STRADDLE_ERROR:
                 refine = 1  # a padded input's border: refine until inside or outside it, even out of view
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
