@@ -615,7 +615,8 @@ def stepped(
         the input's vertex colors or UVs (a TIN with a visual) are carried over.
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
-        lowest isovalue): a watertight, consistently wound volume for 3D printing.
+        lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
+        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional
@@ -720,7 +721,10 @@ def _assemble(
                 stacklevel=3,
             )
 
-        default_floor = float(values[0]) - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
+        # below the lowest isovalue and the surface: with explicit levels and γ < 1 heights under the lowest
+        # level pull the surface below it
+        lowest = min(float(values[0]), float(vertices[:, 2].min())) if len(vertices) else float(values[0])
+        default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
         floor_z = default_floor if floor is None else float(floor)
         n_before = len(vertices)
         vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)

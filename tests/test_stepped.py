@@ -498,6 +498,18 @@ def test_solid_is_watertight_for_integer_heights(heights):
     assert mesh.volume > 0
 
 
+@pytest.mark.parametrize("gamma", [0.0, 0.5])
+def test_solid_default_floor_lies_below_a_surface_under_the_lowest_level(gamma):
+    """With explicit levels above the lowest heights and γ < 1 the surface dips below the lowest isovalue; the
+    default floor (no floor= given) goes under it instead of refusing the call ("floor must lie below")."""
+    heights = np.array([[0.25, 1.25], [2.25, 3.25]])  # the threshold 1.5 sits on no height
+    mesh = st.stepped(heights, levels=[1.0, 2.0], gamma=gamma, solid=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    lowest = 0.25 + gamma * (1.0 - 0.25)
+    assert mesh.metadata["floor"] == pytest.approx(lowest - 0.1)
+    assert mesh.vertices[:, 2].min() == pytest.approx(lowest - 0.1)
+
+
 def test_solid_warns_when_heights_sit_on_thresholds():
     with pytest.warns(UserWarning, match="exactly on a threshold"):
         st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
