@@ -207,10 +207,16 @@ class Terrain:
 
     @property
     def local_origin(self) -> tuple[float, float]:
-        """World position of local (0, 0): the grid origin, or the TIN's lower-left corner."""
+        """World position of local (0, 0): the grid origin, or the lower-left corner of the TIN's points on a
+        kept face (a stray point elsewhere would cost the float32 local coordinates their precision)."""
         if self.kind == "grid":
             return self.origin
-        return (float(self.points[:, 0].min()), float(self.points[:, 1].min()))
+
+        def corner() -> tuple[float, float]:
+            used = self.points[self.point_used.astype(bool)]
+            return (float(used[:, 0].min()), float(used[:, 1].min()))
+
+        return self.cached("local_origin", corner)
 
     def local_points(self) -> NDArray[np.float32]:
         """TIN points relative to :attr:`local_origin`, float32 (N, 3)."""

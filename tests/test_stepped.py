@@ -460,6 +460,21 @@ def test_tin_input_gives_the_grid_geometry(dem):
     assert np.array_equal(canonical(grid), canonical(tin))
 
 
+@pytest.mark.parametrize("stray", ["unused", "nan-height-face"])
+def test_tin_local_origin_ignores_points_on_no_kept_face(stray):
+    """A TIN at UTM coordinates with one stray point at (0, 0) that no kept face uses (unreferenced, or its
+    face dropped for a NaN height) steps exactly like the TIN without it: the stray point must not set the
+    local origin (float32 coordinates ~4e6 from it moved the output by up to 0.125 m)."""
+    h = np.add.outer(np.arange(4.0), np.arange(5.0)) * 0.7
+    base = st.heightfield_mesh(h, spacing=(0.1, 0.1), origin=(512345.67, 4012345.67))
+    expected = st.stepped(base, interval=1.0, gamma=0.0)
+    faces = base.faces if stray == "unused" else np.vstack([base.faces, [[0, len(base.vertices), 1]]])
+    tin = trimesh.Trimesh(np.vstack([base.vertices, [0.0, 0.0, np.nan]]), faces, process=False)
+    mesh = st.stepped(tin, interval=1.0, gamma=0.0)
+    np.testing.assert_array_equal(mesh.faces, expected.faces)
+    np.testing.assert_array_equal(mesh.vertices, expected.vertices)
+
+
 def test_clockwise_tin_is_flipped_and_folded_tin_refused():
     base = st.heightfield_mesh(np.array([[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]))
     clockwise = trimesh.Trimesh(base.vertices, base.faces[:, ::-1], process=False)
