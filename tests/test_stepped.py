@@ -719,6 +719,18 @@ def test_memory_budget_raises_before_allocating_and_names_the_size():
         st.set_memory_budget(previous)
 
 
+@pytest.mark.parametrize("memory_budget", [None, 2**62])
+def test_more_vertices_than_int32_indexes_are_refused_not_wrapped(memory_budget):
+    """2 x 400 nodes alternating 0 and 999,000 at interval 1: ~1200 edges cross ~1e6 thresholds each, 2.4e9
+    wall vertices. The int32 scan of the counts wrapped (a negative total gave 'Invalid indexing in slice';
+    a total past 2^32 wraps to a small positive one, and the emit pass would write beyond its arrays), and
+    the budget check saw the wrapped size: refused with the true size, whatever the budget."""
+    heights = np.zeros((2, 400))
+    heights[:, 1::2] = 999_000.0
+    with pytest.raises(st.OutputTooLargeError, match=r"2,\d{3},\d{3},\d{3} vertices, more than"):
+        st.stepped(heights, interval=1.0, memory_budget=memory_budget)
+
+
 @pytest.mark.parametrize("budget", [-1, 0, 2.5e9, "1GB", True])
 def test_bad_memory_budget_is_named(budget):
     heights = np.add.outer(np.arange(8.0), np.arange(8.0))
