@@ -47,6 +47,8 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.floa
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise InvalidInputError(f"{name} needs at least 2 x 2 nodes; got shape {arr.shape}")
     out = np.ascontiguousarray(arr, dtype=np.float32)
+    if isinstance(heights, np.ndarray) and np.may_share_memory(out, heights):
+        out = out.copy()  # the Terrain's caches must not see later changes to the caller's array
     if np.isinf(out).any():
         bad = tuple(int(i) for i in np.argwhere(np.isinf(out))[0])
         raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
@@ -60,7 +62,8 @@ class Terrain:
     ``kind == "grid"``: ``heights`` (H, W) float32 (NaN = nodata); node (i, j) lies at
     ``origin + (j * dx, i * dy)``; ``dx`` or ``dy`` may be negative (north-up rasters have ``dy < 0``).
     ``kind == "tin"``: ``points`` (N, 3) float64 and ``faces`` (F, 3) int64, wound counter-clockwise seen
-    from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once.
+    from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once. The arrays are
+    read-only (the caches derive from them): build a new Terrain for changed heights.
     """
 
     kind: Literal["grid", "tin"]
@@ -76,6 +79,16 @@ class Terrain:
     source: str | None = None
     visual: Any = None
     _device_cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # what the caches hold (nodata flag, device uploads, edge tables) derives from these arrays: read-only
+        # views, so that changing them in place raises instead of stepping stale caches
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
+            array = getattr(self, name)
+            if isinstance(array, np.ndarray) and array.flags.writeable:
+                view = array.view()
+                view.flags.writeable = False
+                object.__setattr__(self, name, view)
 
     # ------------------------------------------------------------------ constructors
     @classmethod

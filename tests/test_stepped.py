@@ -618,6 +618,26 @@ def test_series_reuses_buffers_and_equals_fresh_calls(hole):
             assert later[key][0] is array and later[key][1] == ptr, f"{key[0]} was reallocated"
 
 
+def test_terrain_heights_cannot_change_under_its_caches():
+    """A Terrain caches what it derives from its heights (the nodata flag, device uploads). Masking its heights
+    in place after a first call (dem.heights[dem.heights < x] = nan) stepped the new NaNs with the stale flag
+    'no nodata': NaN vertices, spikes. Its arrays are read-only now, and from_heights copies a float32 array
+    it would otherwise share with the caller, so later changes to that array do not reach the Terrain."""
+    heights = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    t = st.Terrain.from_heights(heights)
+    before = st.stepped(t, interval=2.0)
+    with pytest.raises(ValueError, match="read-only"):
+        t.heights[:2] = np.nan
+    heights[:2] = np.nan  # the caller's own array
+    after = st.stepped(t, interval=2.0)
+    assert_valid_mesh(after)
+    np.testing.assert_array_equal(after.vertices, before.vertices)
+    np.testing.assert_array_equal(after.faces, before.faces)
+    tin = as_terrain(st.heightfield_mesh(heights[2:]))
+    for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
+        assert not getattr(tin, name).flags.writeable, name
+
+
 def test_heights_outside_the_levels_clamp_to_the_end_levels():
     mesh = st.stepped(np.array([[-50.0, 0.0], [10.0, 90.0]]), levels=[0.0, 10.0, 20.0])
     assert set(np.round(mesh.vertices[:, 2], 6)) <= {0.0, 10.0, 20.0}
