@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 import warp as wp
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st_
 from hypothesis.extra.numpy import arrays
 
@@ -50,7 +50,7 @@ def _compare_terrain_with_reference(t, points, faces, values, device):
     np.testing.assert_array_equal(arrays.faces, to_mine[ref.faces])
     np.testing.assert_array_equal(arrays.face_levels, ref.face_levels)
     np.testing.assert_array_equal(arrays.face_walls, ref.face_walls)
-    scale = max(1.0, float(np.abs(ref.points).max()))
+    scale = max(1.0, float(np.abs(ref.points).max(initial=0.0)))
     np.testing.assert_allclose(pts[mine], ref.points[theirs], rtol=0, atol=1e-5 * scale)
     return arrays
 
@@ -164,6 +164,46 @@ def test_integer_heights_on_thresholds_match_reference(heights, interval):
 )
 def test_random_grids_nonuniform_levels_match_reference(heights, levels):
     compare_with_reference(heights, np.sort(np.array(levels, np.float32)), "cpu")
+
+
+@given(
+    heights=arrays(np.float32, st_.tuples(st_.integers(2, 7), st_.integers(2, 7)),
+                   elements=st_.sampled_from([-2.0, -0.5, 0.0, 0.5, 1.0, 1.5, 3.0, np.nan])),
+    spacing=st_.tuples(st_.sampled_from([1.0, -1.0, 30.0, -30.0]), st_.sampled_from([1.0, -0.5, 2.0, -92.7])),
+)
+def test_nodata_patterns_and_spacings_match_reference(heights, spacing):
+    """NaN holes of any shape (single nodes, bowties, all but a few nodes) with heights on thresholds (k + 0.5
+    at interval 1, so twins and peaks) and spacings of either sign."""
+    assume(np.isfinite(heights).any())
+    values = isovalues((float(np.nanmin(heights)), float(np.nanmax(heights))), interval=1.0)
+    compare_with_reference(heights, values, "cpu", spacing=spacing)
+
+
+@given(
+    xy=arrays(np.float64, st_.tuples(st_.integers(4, 14), st_.just(2)), elements=st_.integers(0, 6)),
+    z=st_.lists(st_.sampled_from([0.0, 0.5, 1.0, 1.5, 2.5, 4.0, np.nan]), min_size=20, max_size=20),
+    rotate=st_.integers(0, 2),
+    clockwise=st_.booleans(),
+)
+def test_random_delaunay_tins_match_reference(xy, z, rotate, clockwise):
+    """Delaunay TINs of points on a small integer lattice (duplicates, collinear and cocircular points: points
+    left unused, slivers), NaN heights dropping faces, corners rotated, wound either way, at UTM coordinates."""
+    from scipy.spatial import Delaunay, QhullError
+
+    try:
+        faces = Delaunay(xy).simplices
+    except QhullError:
+        assume(False)
+    a, b, c = (xy[faces[:, k]] for k in range(3))
+    ccw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) > 0
+    faces = np.where(ccw[:, None], faces, faces[:, ::-1])
+    faces = np.roll(faces[:, ::-1] if clockwise else faces, rotate, axis=1)
+    points = np.column_stack([xy + [512000.0, 4012000.0], z[: len(xy)]])
+    assume(np.isfinite(points[faces, 2]).all(axis=1).any())
+    tin = trimesh.Trimesh(points, faces, process=False)
+    t = as_terrain(tin)
+    values = isovalues(t.height_range, interval=1.0)
+    compare_tin_with_reference(tin, values, "cpu")
 
 
 def test_repeated_runs_are_identical(device):
