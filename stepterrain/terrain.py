@@ -148,6 +148,12 @@ class Terrain:
         if not np.all(np.isfinite(points[:, :2])):
             raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
         z_ok = np.isfinite(points[:, 2])
+        too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > np.finfo(np.float32).max))
+        if too_large.size and np.isin(too_large, faces).any():  # the kernels get float32 heights
+            k = int(too_large[np.isin(too_large, faces)][0])
+            raise InvalidInputError(
+                f"terrain mesh heights must fit in float32 (|z| < 3.4e+38); vertex {k} has z={float(points[k, 2])!r}"
+            )
         valid = z_ok[faces].all(axis=1)
         faces = faces[valid]
         if len(faces) == 0:

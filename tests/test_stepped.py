@@ -500,6 +500,17 @@ def test_tin_input_gives_the_grid_geometry(dem):
     assert np.array_equal(canonical(grid), canonical(tin))
 
 
+def test_tin_height_beyond_float32_is_refused_not_stepped_to_infinity():
+    """A TIN height finite in float64 but beyond float32 (1e39) became inf on the device: the face was kept
+    and stepped into NaN and inf vertices. The grid path refuses such heights; so does the TIN path now."""
+    base = st.heightfield_mesh(np.add.outer(np.arange(3.0), np.arange(3.0)))
+    vertices = base.vertices.copy()
+    vertices[4, 2] = 1e39
+    tin = trimesh.Trimesh(vertices, base.faces, process=False)
+    with pytest.raises(st.InvalidInputError, match=r"heights must fit in float32 .*; vertex 4 has z=1e\+39"):
+        st.stepped(tin, interval=1.0)
+
+
 @pytest.mark.parametrize("stray", ["unused", "nan-height-face"])
 def test_tin_local_origin_ignores_points_on_no_kept_face(stray):
     """A TIN at UTM coordinates with one stray point at (0, 0) that no kept face uses (unreferenced, or its
