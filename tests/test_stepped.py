@@ -576,6 +576,24 @@ def test_solid_default_floor_lies_below_a_surface_under_the_lowest_level(gamma):
     assert mesh.vertices[:, 2].min() == pytest.approx(lowest - 0.1)
 
 
+def test_solid_warns_where_nodata_holes_meet_at_one_node():
+    """Two triangles that share only a node (NaN on both sides of it) make a boundary that touches itself;
+    the solid's skirt edge below that node gets four faces, so the solid is not watertight. Known, not silent:
+    a warning says so, and a hole that leaves no such node gives none."""
+    nan = np.nan
+    bowtie = np.array([[0.25, 0.25, nan], [nan, 0.25, nan], [nan, 0.25, 0.25]])
+    with pytest.warns(UserWarning, match="boundary touches itself at a vertex"):
+        mesh = st.stepped(bowtie, interval=1.0, solid=True)
+    assert not mesh.is_watertight
+    hole = np.full((4, 4), 0.25)
+    hole[1:3, 1:3] = nan
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert st.stepped(hole, interval=1.0, solid=True).is_watertight
+
+
 def test_solid_warns_when_heights_sit_on_thresholds():
     with pytest.warns(UserWarning, match="exactly on a threshold"):
         st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
