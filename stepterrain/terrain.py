@@ -161,7 +161,8 @@ class Terrain:
         xy = points[:, :2]
         a, b, c = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]
         area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-        scale = max(float(np.ptp(xy[:, 0]) * np.ptp(xy[:, 1])), 1e-300)
+        used_xy = xy[np.unique(faces)]  # the kept faces' extent: a stray point must not widen the tolerance
+        scale = max(float(np.ptp(used_xy[:, 0]) * np.ptp(used_xy[:, 1])), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol
         if negative.sum() > positive.sum():

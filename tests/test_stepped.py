@@ -500,6 +500,18 @@ def test_tin_input_gives_the_grid_geometry(dem):
     assert np.array_equal(canonical(grid), canonical(tin))
 
 
+def test_clockwise_tin_is_flipped_despite_a_far_stray_point():
+    """The zero-area tolerance of the winding check scaled with the bounding box of every point: one stray
+    point at (0, 0) beside a 1 m TIN at UTM coordinates made it ~2 (twice a face's area), so no face counted
+    as clockwise, the clockwise TIN was not flipped and came out upside down (terraces facing -z)."""
+    h = np.add.outer(np.arange(3.0), np.arange(4.0)) * 0.7
+    base = st.heightfield_mesh(h, origin=(512000.0, 4012000.0))
+    tin = trimesh.Trimesh(np.vstack([base.vertices, [0.0, 0.0, np.nan]]), base.faces[:, ::-1], process=False)
+    mesh = st.stepped(tin, interval=1.0)
+    assert (mesh.face_normals[~mesh.face_attributes["wall"], 2] > 0.999).all()
+    assert projected_area(mesh)[~mesh.face_attributes["wall"]].sum() == pytest.approx(6.0)
+
+
 def test_tin_height_beyond_float32_is_refused_not_stepped_to_infinity():
     """A TIN height finite in float64 but beyond float32 (1e39) became inf on the device: the face was kept
     and stepped into NaN and inf vertices. The grid path refuses such heights; so does the TIN path now."""
