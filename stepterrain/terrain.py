@@ -208,8 +208,8 @@ class Terrain:
 
     @property
     def height_range(self) -> tuple[float, float]:
-        """(min, max) of the finite heights."""
-        finite = self.heights[np.isfinite(self.heights)]
+        """(min, max) of the finite heights (of a TIN: of its points on kept faces)."""
+        finite = self.heights[np.isfinite(self.heights)] if self.kind == "grid" else self.heights[self.point_used != 0]
         if finite.size == 0:
             raise InvalidInputError("terrain has no finite height (all nodata)")
         return float(finite.min()), float(finite.max())

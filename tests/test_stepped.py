@@ -500,6 +500,18 @@ def test_tin_input_gives_the_grid_geometry(dem):
     assert np.array_equal(canonical(grid), canonical(tin))
 
 
+def test_tin_isovalues_ignore_heights_on_no_kept_face():
+    """A point no kept face uses (here a -9999 nodata sentinel) is not terrain: it set the low end of the
+    isovalues, which moved the hypsometric colours of every level (and the solid's default floor)."""
+    h = np.add.outer(np.arange(4.0), np.arange(5.0)) * 0.7 + 100.0
+    base = st.heightfield_mesh(h)
+    expected = st.stepped(base, interval=1.0, colors="terrain")
+    tin = trimesh.Trimesh(np.vstack([base.vertices, [1.0, 1.0, -9999.0]]), base.faces, process=False)
+    mesh = st.stepped(tin, interval=1.0, colors="terrain")
+    assert mesh.metadata["isovalues"] == expected.metadata["isovalues"]
+    np.testing.assert_array_equal(mesh.visual.vertex_colors, expected.visual.vertex_colors)
+
+
 def test_clockwise_tin_is_flipped_despite_a_far_stray_point():
     """The zero-area tolerance of the winding check scaled with the bounding box of every point: one stray
     point at (0, 0) beside a 1 m TIN at UTM coordinates made it ~2 (twice a face's area), so no face counted
