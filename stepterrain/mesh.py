@@ -9,6 +9,8 @@ All vectorised numpy: no Python loop over faces or vertices.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -48,6 +50,10 @@ def close_solid(
     The base is the terraces (faces whose projections tile the domain) flattened to ``floor`` and reversed;
     each boundary edge gets a vertical skirt down to the base. A vertical boundary edge (a wall's side on the
     domain boundary) joins the skirt of the boundary edge that follows it, so no zero-area face appears.
+
+    Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
+    nodata holes), the skirt edge below it has four faces: the solid is closed but not edge-manifold there, and
+    a warning says so.
 
     Zero-volume fins are removed first: where heights sit exactly on a threshold along a ridge line, two walls
     stand back to back on the same vertices (a terrace of zero width); both go, and so do vertices no face
@@ -100,6 +106,12 @@ def close_solid(
     base_faces = base_faces[ok]
 
     edges = boundary_edges(faces)
+    if len(edges) and np.bincount(edges[:, 0]).max() > 1:
+        warnings.warn(
+            "the surface's boundary touches itself at a vertex (e.g. two nodata holes meeting at one node); the "
+            "solid is closed but not watertight there: the skirt edge below that vertex has four faces",
+            stacklevel=4,
+        )
     a, b = edges[:, 0], edges[:, 1]
     vertical = column[a] == column[b]
     # the vertical boundary edge arriving at a vertex, if any: pred[top_or_bottom] = its start

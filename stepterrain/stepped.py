@@ -29,13 +29,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
-from .errors import InvalidInputError
+from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
 from .terrain import Terrain, as_terrain
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
 MAX_LEVELS = 1_000_000
+_INT32_MAX = 2**31 - 1
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 # bytes per output vertex / face while a mesh is being built (device work arrays + the numpy result)
@@ -361,6 +362,8 @@ def step_arrays(
     counts = count_buffer("stepped.vertices", n_slots, device)
     launch_chunked(count_vertices, n=n_threads, inputs=count_inputs, outputs=[counts], device=device)
     offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
+    # at most 2 per node and 2 per crossed threshold per edge
+    _check_int32_total(counts, 2 * n_nodes + 2 * (len(values) - 1) * (n_slots - n_nodes), "vertices")
 
     # pass 2: faces (terraces and walls per triangle), counted against the vertex offsets
     empty_faces = wp.empty(0, dtype=stepped_kernels.vec3l, device=device)
@@ -375,6 +378,8 @@ def step_arrays(
         device=device,
     )
     face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
+    # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
+    _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
 
     vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0)
     check_budget(
@@ -418,6 +423,19 @@ def step_arrays(
         vertex_count=vertex_count,
         face_count=face_count,
     )
+
+
+def _check_int32_total(counts: wp.array, bound: int, what: str) -> None:
+    """Refuse a count pass whose int32 scan may have wrapped: where ``bound`` (the most the counts can add up
+    to) exceeds int32, they are summed in int64 on the host, and a total beyond int32 raises with its size."""
+    if bound <= _INT32_MAX:
+        return
+    total = int(host_copy(counts).sum(dtype=np.int64))
+    if total > _INT32_MAX:
+        raise OutputTooLargeError(
+            f"the stepped mesh would have {total:,} {what}, more than the {_INT32_MAX:,} one call can index; "
+            "coarsen the input or the isovalues"
+        )
 
 
 def _local_origin3(terrain: Terrain) -> wp.vec3d:
@@ -615,7 +633,8 @@ def stepped(
         the input's vertex colors or UVs (a TIN with a visual) are carried over.
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
-        lowest isovalue): a watertight, consistently wound volume for 3D printing.
+        lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
+        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional
@@ -645,7 +664,8 @@ def stepped(
     and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold); such
     back-to-back fins are removed from solids. A solid is guaranteed watertight when no height sits
     exactly on a threshold (a warning says so otherwise; shift ``base`` by a fraction of the interval,
-    e.g. 0.5 m for integer DEMs, to avoid it). Each edge crossing a threshold owns a wall bottom and top
+    e.g. 0.5 m for integer DEMs, to avoid it) and no two nodata holes meet at a single node (a warning
+    again: the skirt edge below such a node has four faces). Each edge crossing a threshold owns a wall bottom and top
     vertex, shared by both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
     terraces face +z and walls face the lower terrace. Cost: O(nodes + edges + output) on the device,
     two host syncs.
@@ -720,7 +740,10 @@ def _assemble(
                 stacklevel=3,
             )
 
-        default_floor = float(values[0]) - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
+        # below the lowest isovalue and the surface: with explicit levels and γ < 1 heights under the lowest
+        # level pull the surface below it
+        lowest = min(float(values[0]), float(vertices[:, 2].min())) if len(vertices) else float(values[0])
+        default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
         floor_z = default_floor if floor is None else float(floor)
         n_before = len(vertices)
         vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)

@@ -47,6 +47,8 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.floa
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise InvalidInputError(f"{name} needs at least 2 x 2 nodes; got shape {arr.shape}")
     out = np.ascontiguousarray(arr, dtype=np.float32)
+    if isinstance(heights, np.ndarray) and np.may_share_memory(out, heights):
+        out = out.copy()  # the Terrain's caches must not see later changes to the caller's array
     if np.isinf(out).any():
         bad = tuple(int(i) for i in np.argwhere(np.isinf(out))[0])
         raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
@@ -60,7 +62,8 @@ class Terrain:
     ``kind == "grid"``: ``heights`` (H, W) float32 (NaN = nodata); node (i, j) lies at
     ``origin + (j * dx, i * dy)``; ``dx`` or ``dy`` may be negative (north-up rasters have ``dy < 0``).
     ``kind == "tin"``: ``points`` (N, 3) float64 and ``faces`` (F, 3) int64, wound counter-clockwise seen
-    from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once.
+    from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once. The arrays are
+    read-only (the caches derive from them): build a new Terrain for changed heights.
     """
 
     kind: Literal["grid", "tin"]
@@ -76,6 +79,16 @@ class Terrain:
     source: str | None = None
     visual: Any = None
     _device_cache: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        # what the caches hold (nodata flag, device uploads, edge tables) derives from these arrays: read-only
+        # views, so that changing them in place raises instead of stepping stale caches
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
+            array = getattr(self, name)
+            if isinstance(array, np.ndarray) and array.flags.writeable:
+                view = array.view()
+                view.flags.writeable = False
+                object.__setattr__(self, name, view)
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -135,6 +148,12 @@ class Terrain:
         if not np.all(np.isfinite(points[:, :2])):
             raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
         z_ok = np.isfinite(points[:, 2])
+        too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > np.finfo(np.float32).max))
+        if too_large.size and np.isin(too_large, faces).any():  # the kernels get float32 heights
+            k = int(too_large[np.isin(too_large, faces)][0])
+            raise InvalidInputError(
+                f"terrain mesh heights must fit in float32 (|z| < 3.4e+38); vertex {k} has z={float(points[k, 2])!r}"
+            )
         valid = z_ok[faces].all(axis=1)
         faces = faces[valid]
         if len(faces) == 0:
@@ -142,7 +161,8 @@ class Terrain:
         xy = points[:, :2]
         a, b, c = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]
         area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-        scale = max(float(np.ptp(xy[:, 0]) * np.ptp(xy[:, 1])), 1e-300)
+        used_xy = xy[np.unique(faces)]  # the kept faces' extent: a stray point must not widen the tolerance
+        scale = max(float(np.ptp(used_xy[:, 0]) * np.ptp(used_xy[:, 1])), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol
         if negative.sum() > positive.sum():
@@ -188,8 +208,8 @@ class Terrain:
 
     @property
     def height_range(self) -> tuple[float, float]:
-        """(min, max) of the finite heights."""
-        finite = self.heights[np.isfinite(self.heights)]
+        """(min, max) of the finite heights (of a TIN: of its points on kept faces)."""
+        finite = self.heights[np.isfinite(self.heights)] if self.kind == "grid" else self.heights[self.point_used != 0]
         if finite.size == 0:
             raise InvalidInputError("terrain has no finite height (all nodata)")
         return float(finite.min()), float(finite.max())
@@ -207,10 +227,16 @@ class Terrain:
 
     @property
     def local_origin(self) -> tuple[float, float]:
-        """World position of local (0, 0): the grid origin, or the TIN's lower-left corner."""
+        """World position of local (0, 0): the grid origin, or the lower-left corner of the TIN's points on a
+        kept face (a stray point elsewhere would cost the float32 local coordinates their precision)."""
         if self.kind == "grid":
             return self.origin
-        return (float(self.points[:, 0].min()), float(self.points[:, 1].min()))
+
+        def corner() -> tuple[float, float]:
+            used = self.points[self.point_used.astype(bool)]
+            return (float(used[:, 0].min()), float(used[:, 1].min()))
+
+        return self.cached("local_origin", corner)
 
     def local_points(self) -> NDArray[np.float32]:
         """TIN points relative to :attr:`local_origin`, float32 (N, 3)."""

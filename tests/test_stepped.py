@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 import warp as wp
-from hypothesis import given
+from hypothesis import assume, given
 from hypothesis import strategies as st_
 from hypothesis.extra.numpy import arrays
 
@@ -50,7 +50,7 @@ def _compare_terrain_with_reference(t, points, faces, values, device):
     np.testing.assert_array_equal(arrays.faces, to_mine[ref.faces])
     np.testing.assert_array_equal(arrays.face_levels, ref.face_levels)
     np.testing.assert_array_equal(arrays.face_walls, ref.face_walls)
-    scale = max(1.0, float(np.abs(ref.points).max()))
+    scale = max(1.0, float(np.abs(ref.points).max(initial=0.0)))
     np.testing.assert_allclose(pts[mine], ref.points[theirs], rtol=0, atol=1e-5 * scale)
     return arrays
 
@@ -164,6 +164,46 @@ def test_integer_heights_on_thresholds_match_reference(heights, interval):
 )
 def test_random_grids_nonuniform_levels_match_reference(heights, levels):
     compare_with_reference(heights, np.sort(np.array(levels, np.float32)), "cpu")
+
+
+@given(
+    heights=arrays(np.float32, st_.tuples(st_.integers(2, 7), st_.integers(2, 7)),
+                   elements=st_.sampled_from([-2.0, -0.5, 0.0, 0.5, 1.0, 1.5, 3.0, np.nan])),
+    spacing=st_.tuples(st_.sampled_from([1.0, -1.0, 30.0, -30.0]), st_.sampled_from([1.0, -0.5, 2.0, -92.7])),
+)
+def test_nodata_patterns_and_spacings_match_reference(heights, spacing):
+    """NaN holes of any shape (single nodes, bowties, all but a few nodes) with heights on thresholds (k + 0.5
+    at interval 1, so twins and peaks) and spacings of either sign."""
+    assume(np.isfinite(heights).any())
+    values = isovalues((float(np.nanmin(heights)), float(np.nanmax(heights))), interval=1.0)
+    compare_with_reference(heights, values, "cpu", spacing=spacing)
+
+
+@given(
+    xy=arrays(np.float64, st_.tuples(st_.integers(4, 14), st_.just(2)), elements=st_.integers(0, 6)),
+    z=st_.lists(st_.sampled_from([0.0, 0.5, 1.0, 1.5, 2.5, 4.0, np.nan]), min_size=20, max_size=20),
+    rotate=st_.integers(0, 2),
+    clockwise=st_.booleans(),
+)
+def test_random_delaunay_tins_match_reference(xy, z, rotate, clockwise):
+    """Delaunay TINs of points on a small integer lattice (duplicates, collinear and cocircular points: points
+    left unused, slivers), NaN heights dropping faces, corners rotated, wound either way, at UTM coordinates."""
+    from scipy.spatial import Delaunay, QhullError
+
+    try:
+        faces = Delaunay(xy).simplices
+    except QhullError:
+        assume(False)
+    a, b, c = (xy[faces[:, k]] for k in range(3))
+    ccw = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]) > 0
+    faces = np.where(ccw[:, None], faces, faces[:, ::-1])
+    faces = np.roll(faces[:, ::-1] if clockwise else faces, rotate, axis=1)
+    points = np.column_stack([xy + [512000.0, 4012000.0], z[: len(xy)]])
+    assume(np.isfinite(points[faces, 2]).all(axis=1).any())
+    tin = trimesh.Trimesh(points, faces, process=False)
+    t = as_terrain(tin)
+    values = isovalues(t.height_range, interval=1.0)
+    compare_tin_with_reference(tin, values, "cpu")
 
 
 def test_repeated_runs_are_identical(device):
@@ -460,6 +500,56 @@ def test_tin_input_gives_the_grid_geometry(dem):
     assert np.array_equal(canonical(grid), canonical(tin))
 
 
+def test_tin_isovalues_ignore_heights_on_no_kept_face():
+    """A point no kept face uses (here a -9999 nodata sentinel) is not terrain: it set the low end of the
+    isovalues, which moved the hypsometric colours of every level (and the solid's default floor)."""
+    h = np.add.outer(np.arange(4.0), np.arange(5.0)) * 0.7 + 100.0
+    base = st.heightfield_mesh(h)
+    expected = st.stepped(base, interval=1.0, colors="terrain")
+    tin = trimesh.Trimesh(np.vstack([base.vertices, [1.0, 1.0, -9999.0]]), base.faces, process=False)
+    mesh = st.stepped(tin, interval=1.0, colors="terrain")
+    assert mesh.metadata["isovalues"] == expected.metadata["isovalues"]
+    np.testing.assert_array_equal(mesh.visual.vertex_colors, expected.visual.vertex_colors)
+
+
+def test_clockwise_tin_is_flipped_despite_a_far_stray_point():
+    """The zero-area tolerance of the winding check scaled with the bounding box of every point: one stray
+    point at (0, 0) beside a 1 m TIN at UTM coordinates made it ~2 (twice a face's area), so no face counted
+    as clockwise, the clockwise TIN was not flipped and came out upside down (terraces facing -z)."""
+    h = np.add.outer(np.arange(3.0), np.arange(4.0)) * 0.7
+    base = st.heightfield_mesh(h, origin=(512000.0, 4012000.0))
+    tin = trimesh.Trimesh(np.vstack([base.vertices, [0.0, 0.0, np.nan]]), base.faces[:, ::-1], process=False)
+    mesh = st.stepped(tin, interval=1.0)
+    assert (mesh.face_normals[~mesh.face_attributes["wall"], 2] > 0.999).all()
+    assert projected_area(mesh)[~mesh.face_attributes["wall"]].sum() == pytest.approx(6.0)
+
+
+def test_tin_height_beyond_float32_is_refused_not_stepped_to_infinity():
+    """A TIN height finite in float64 but beyond float32 (1e39) became inf on the device: the face was kept
+    and stepped into NaN and inf vertices. The grid path refuses such heights; so does the TIN path now."""
+    base = st.heightfield_mesh(np.add.outer(np.arange(3.0), np.arange(3.0)))
+    vertices = base.vertices.copy()
+    vertices[4, 2] = 1e39
+    tin = trimesh.Trimesh(vertices, base.faces, process=False)
+    with pytest.raises(st.InvalidInputError, match=r"heights must fit in float32 .*; vertex 4 has z=1e\+39"):
+        st.stepped(tin, interval=1.0)
+
+
+@pytest.mark.parametrize("stray", ["unused", "nan-height-face"])
+def test_tin_local_origin_ignores_points_on_no_kept_face(stray):
+    """A TIN at UTM coordinates with one stray point at (0, 0) that no kept face uses (unreferenced, or its
+    face dropped for a NaN height) steps exactly like the TIN without it: the stray point must not set the
+    local origin (float32 coordinates ~4e6 from it moved the output by up to 0.125 m)."""
+    h = np.add.outer(np.arange(4.0), np.arange(5.0)) * 0.7
+    base = st.heightfield_mesh(h, spacing=(0.1, 0.1), origin=(512345.67, 4012345.67))
+    expected = st.stepped(base, interval=1.0, gamma=0.0)
+    faces = base.faces if stray == "unused" else np.vstack([base.faces, [[0, len(base.vertices), 1]]])
+    tin = trimesh.Trimesh(np.vstack([base.vertices, [0.0, 0.0, np.nan]]), faces, process=False)
+    mesh = st.stepped(tin, interval=1.0, gamma=0.0)
+    np.testing.assert_array_equal(mesh.faces, expected.faces)
+    np.testing.assert_array_equal(mesh.vertices, expected.vertices)
+
+
 def test_clockwise_tin_is_flipped_and_folded_tin_refused():
     base = st.heightfield_mesh(np.array([[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]))
     clockwise = trimesh.Trimesh(base.vertices, base.faces[:, ::-1], process=False)
@@ -496,6 +586,36 @@ def test_solid_is_watertight_for_integer_heights(heights):
     mesh = st.stepped(heights.astype(np.float32), interval=2.0, base=0.5, solid=True)
     assert mesh.is_watertight and mesh.is_winding_consistent
     assert mesh.volume > 0
+
+
+@pytest.mark.parametrize("gamma", [0.0, 0.5])
+def test_solid_default_floor_lies_below_a_surface_under_the_lowest_level(gamma):
+    """With explicit levels above the lowest heights and γ < 1 the surface dips below the lowest isovalue; the
+    default floor (no floor= given) goes under it instead of refusing the call ("floor must lie below")."""
+    heights = np.array([[0.25, 1.25], [2.25, 3.25]])  # the threshold 1.5 sits on no height
+    mesh = st.stepped(heights, levels=[1.0, 2.0], gamma=gamma, solid=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    lowest = 0.25 + gamma * (1.0 - 0.25)
+    assert mesh.metadata["floor"] == pytest.approx(lowest - 0.1)
+    assert mesh.vertices[:, 2].min() == pytest.approx(lowest - 0.1)
+
+
+def test_solid_warns_where_nodata_holes_meet_at_one_node():
+    """Two triangles that share only a node (NaN on both sides of it) make a boundary that touches itself;
+    the solid's skirt edge below that node gets four faces, so the solid is not watertight. Known, not silent:
+    a warning says so, and a hole that leaves no such node gives none."""
+    nan = np.nan
+    bowtie = np.array([[0.25, 0.25, nan], [nan, 0.25, nan], [nan, 0.25, 0.25]])
+    with pytest.warns(UserWarning, match="boundary touches itself at a vertex"):
+        mesh = st.stepped(bowtie, interval=1.0, solid=True)
+    assert not mesh.is_watertight
+    hole = np.full((4, 4), 0.25)
+    hole[1:3, 1:3] = nan
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert st.stepped(hole, interval=1.0, solid=True).is_watertight
 
 
 def test_solid_warns_when_heights_sit_on_thresholds():
@@ -589,6 +709,26 @@ def test_series_reuses_buffers_and_equals_fresh_calls(hole):
         assert later.keys() == seen[0].keys()
         for key, (array, ptr) in seen[0].items():
             assert later[key][0] is array and later[key][1] == ptr, f"{key[0]} was reallocated"
+
+
+def test_terrain_heights_cannot_change_under_its_caches():
+    """A Terrain caches what it derives from its heights (the nodata flag, device uploads). Masking its heights
+    in place after a first call (dem.heights[dem.heights < x] = nan) stepped the new NaNs with the stale flag
+    'no nodata': NaN vertices, spikes. Its arrays are read-only now, and from_heights copies a float32 array
+    it would otherwise share with the caller, so later changes to that array do not reach the Terrain."""
+    heights = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    t = st.Terrain.from_heights(heights)
+    before = st.stepped(t, interval=2.0)
+    with pytest.raises(ValueError, match="read-only"):
+        t.heights[:2] = np.nan
+    heights[:2] = np.nan  # the caller's own array
+    after = st.stepped(t, interval=2.0)
+    assert_valid_mesh(after)
+    np.testing.assert_array_equal(after.vertices, before.vertices)
+    np.testing.assert_array_equal(after.faces, before.faces)
+    tin = as_terrain(st.heightfield_mesh(heights[2:]))
+    for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
+        assert not getattr(tin, name).flags.writeable, name
 
 
 def test_heights_outside_the_levels_clamp_to_the_end_levels():
@@ -690,6 +830,18 @@ def test_memory_budget_raises_before_allocating_and_names_the_size():
             st.stepped(heights, interval=1.0)
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize("memory_budget", [None, 2**62])
+def test_more_vertices_than_int32_indexes_are_refused_not_wrapped(memory_budget):
+    """2 x 400 nodes alternating 0 and 999,000 at interval 1: ~1200 edges cross ~1e6 thresholds each, 2.4e9
+    wall vertices. The int32 scan of the counts wrapped (a negative total gave 'Invalid indexing in slice';
+    a total past 2^32 wraps to a small positive one, and the emit pass would write beyond its arrays), and
+    the budget check saw the wrapped size: refused with the true size, whatever the budget."""
+    heights = np.zeros((2, 400))
+    heights[:, 1::2] = 999_000.0
+    with pytest.raises(st.OutputTooLargeError, match=r"2,\d{3},\d{3},\d{3} vertices, more than"):
+        st.stepped(heights, interval=1.0, memory_budget=memory_budget)
 
 
 @pytest.mark.parametrize("budget", [-1, 0, 2.5e9, "1GB", True])
