@@ -125,10 +125,22 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int]:
         array = array[:, :, None]
     if array.ndim != 3 or array.shape[0] < 1 or array.shape[1] < 1 or not 1 <= array.shape[2] <= 4:
         raise InvalidInputError(f"pyramid image must be (H, W) or (H, W, C<=4); got shape {array.shape}")
-    backing, offset = None, 0
-    if isinstance(array, np.memmap) and array.filename and array.flags.c_contiguous:
-        backing, offset = array.filename, int(array.offset)
+    backing, offset = _memmap_backing(array)
     return array, backing, offset
+
+
+def _memmap_backing(array: NDArray[Any]) -> tuple[str | None, int]:
+    """(file, byte offset of ``array``'s first element in it) for a C-contiguous memmap, else (None, 0).
+
+    A slice of a memmap (``mm[10:20]``) keeps its parent's ``offset`` attribute, so the offset is taken
+    from the data pointer relative to the outermost memmap over the same mapping."""
+    if not (isinstance(array, np.memmap) and array.filename and array.flags.c_contiguous):
+        return None, 0
+    root = array
+    while isinstance(root.base, np.memmap):
+        root = root.base
+    start = int(array.__array_interface__["data"][0]) - int(root.__array_interface__["data"][0])
+    return array.filename, int(root.offset) + start
 
 
 class ImagePyramid:
@@ -382,8 +394,9 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
             dst_shape = (heights[ky], widths[kx])
             path = folder / f"level_{kx}_{ky}.u8"
             source = out[parent]
-            if isinstance(source, np.memmap) and source.filename and source.flags.c_contiguous:
-                reader = _Reader(None, str(source.filename), int(source.offset), shape=(*src_shape, channels))
+            backing, offset = _memmap_backing(source)
+            if backing is not None:
+                reader = _Reader(None, str(backing), offset, shape=(*src_shape, channels))
             else:
                 reader = _Reader(np.asarray(source), None, 0)
             _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)

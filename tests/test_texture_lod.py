@@ -95,6 +95,18 @@ def test_pyramid_from_npy_memmap_and_storage(tmp_path):
     assert storage.exists()  # a storage folder given by the caller is kept
 
 
+def test_pyramid_of_a_sliced_memmap_reads_the_slice(tmp_path):
+    """A row slice of a memmap keeps its parent's ``offset``: the levels must come from the slice's rows."""
+    image = rng.integers(0, 256, (40, 6, 3), dtype=np.uint8)
+    np.save(tmp_path / "img.npy", image)
+    window = np.load(tmp_path / "img.npy", mmap_mode="r")[20:28]
+    with ImagePyramid.build(window, anisotropic=True, device="cpu") as ours, \
+            ImagePyramid.build(np.array(window), anisotropic=True, device="cpu") as copy:
+        for a, b in zip(ours.levels, copy.levels, strict=True):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(ours.anisotropic[(1, 0)], copy.anisotropic[(1, 0)])
+
+
 def test_pyramid_memory_bounded_for_memmap_larger_than_budget(tmp_path):
     """Build from a 48 MB memory-mapped .npy with 1 MB bands: the resident set must not grow by the image."""
     source = tmp_path / "big.npy"
