@@ -621,7 +621,8 @@ class TextureLayer:
     ``kind``: "thematic" (RGB or RGBA colour), "luminance" (one channel of brightness), "topographic"
     (shading, a luminance layer computed from the terrain, §7) or "visibility" (one channel of alpha, §5).
     ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1]; row 0 is the
-    north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk).
+    north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its
+    RGBA is cached only when the array is read-only, so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
     texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
     derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
@@ -704,7 +705,8 @@ class TextureLayer:
             raise InvalidInputError(f"{self.kind} layer values must lie in [0, 1] (or uint8 0-255); got "
                                     f"[{float(finite.min()):g}, {float(finite.max()):g}]")
         np.clip(out, 0.0, 1.0, out=out)
-        self._rgba_cache["rgba"] = out
+        if not image.flags.writeable:  # a writeable image (kept as given) may change later: never cached
+            self._rgba_cache["rgba"] = out
         return out
 
     def to_uint8(self, background: Sequence[float] | None = None) -> NDArray[np.uint8]:
@@ -845,10 +847,11 @@ def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device
     """The layer's RGBA on the pixel grid (extent, shape): the image itself when it already is that grid."""
     rgba = layer.rgba()
     key = ("device", str(device))
-    image = layer._rgba_cache.get(key)
+    image = layer._rgba_cache.get(key) if layer._rgba_cache.get("rgba") is rgba else None
     if image is None:
         image = wp.array(rgba, dtype=wp.vec4, device=device, copy=not device.is_cpu)
-        layer._rgba_cache[key] = image
+        if layer._rgba_cache.get("rgba") is rgba:  # only beside a cached RGBA (an image that cannot change)
+            layer._rgba_cache[key] = image
     same = layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
     if same:
         return image

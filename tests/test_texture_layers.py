@@ -346,3 +346,18 @@ def test_sampling_is_precise_at_utm_coordinates(device):
     np.testing.assert_allclose(out, [0.0, 1 / 6, 0.5, 5 / 6], atol=1e-3)
     cut = adjust(base, cutout=(x0 + 0.2, x0 + 0.4, y0, y0 + 0.3), device=device).rgba()[0, :, 3]
     np.testing.assert_array_equal(cut, [1, 1, 0, 0])
+
+
+def test_layer_sees_later_changes_to_its_image_array():
+    """The image is kept as given (no copy): editing it in place must not leave a stale RGBA behind."""
+    image = np.zeros((2, 3, 3), np.float32)
+    a = TextureLayer("thematic", image, (0, 3, 0, 2))
+    zero = np.zeros((2, 3))
+    assert float(blend(a, np.ones((2, 3, 3)), zero, device="cpu").rgba()[0, 0, 0]) == 0.0
+    image[:] = 0.5
+    assert float(a.rgba()[0, 0, 0]) == 0.5
+    np.testing.assert_array_equal(blend(a, np.ones((2, 3, 3)), zero, device="cpu").rgba()[..., :3], 0.5)
+    frozen = np.full((2, 3), 0.25, np.float32)
+    frozen.flags.writeable = False  # a read-only image (a memmap in mode "r") keeps its cached RGBA
+    lum = TextureLayer("luminance", frozen, (0, 3, 0, 2))
+    assert lum.rgba() is lum.rgba()
