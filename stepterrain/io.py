@@ -300,6 +300,7 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
                         f"image band ({interp.name}), not elevation data"
                     )
                 masked = dataset.read(band, masked=True)
+                scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 transform = dataset.transform
                 crs_obj = dataset.crs
     except RasterioError as exc:
@@ -307,6 +308,8 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
         ) from exc
 
+    if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
+        masked = masked.astype(np.float64) * scale + offset
     array = np.ma.filled(masked.astype(np.float32), np.nan)
     heights = _elevation(array, file, f"band {band}")
     if crs_obj is None and transform.is_identity:

@@ -195,6 +195,20 @@ def test_nan_nodata_geotiff_round_trip(tmp_path):
     np.testing.assert_array_equal(load_dem(f).heights, zf)
 
 
+def test_geotiff_scale_and_offset_are_applied(tmp_path):
+    # heights stored as int16 decimetres above 1000 m: height = value * scale + offset (GDAL's convention)
+    rasterio = needs_rasterio()
+    z = np.array([[100, 200, 300], [400, -9999, 600]], np.int16)
+    path = tmp_path / "scaled.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="int16", crs="EPSG:32611",
+                       nodata=-9999, transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+        ds.write(z, 1)
+        ds.scales, ds.offsets = (0.1,), (1000.0,)
+    h = load_dem(path).heights
+    np.testing.assert_allclose(h[0], [1010.0, 1020.0, 1030.0])
+    assert h[1, 0] == 1040.0 and np.isnan(h[1, 1])
+
+
 def test_geotiff_band_choice(tmp_path):
     rasterio = needs_rasterio()
     path = tmp_path / "two.tif"
