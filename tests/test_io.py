@@ -15,7 +15,9 @@ import stepterrain as st
 from stepterrain.errors import DataFileError, InvalidInputError, MissingDependencyError
 from stepterrain.io import EARTH_RADIUS_M, describe_dem, load_dem, sample_dem
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from .conftest import SHARED_DATA
+
+DATA = SHARED_DATA  # beside the project, or further up from a git worktree
 TUJUNGA = "big_tujunga_srtm_30m_utm11n"
 FRONT_RANGE = "front_range_srtmgl3_3arcsec"
 
