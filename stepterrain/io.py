@@ -47,8 +47,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     path : str or path-like
         ``.npy`` (one (H, W) array), ``.npz`` (the georeferenced layout of ``shared/data``: ``elevation``,
         ``transform``, ``crs``, optional ``dx_m``/``dy_m``; or any archive holding one 2-D array or a key
-        ``heights``, ``elevation`` or ``z``), ``.png`` (8- or 16-bit greyscale heightmap, values are
-        heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        ``heights``, ``elevation`` or ``z``; a scalar ``nodata`` marks missing cells), ``.png`` (8- or
+        16-bit greyscale heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
 
@@ -215,8 +215,9 @@ def _load_npz(file: Path) -> Terrain:
             f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
         ) from exc
 
+    nodata = _npz_nodata(arrays.get("nodata"))
     if "elevation" in arrays and "transform" in arrays:
-        heights = _elevation(arrays["elevation"], file, "'elevation'")
+        heights = _elevation(arrays["elevation"], file, "'elevation'", nodata)
         transform = np.asarray(arrays["transform"], dtype=np.float64).reshape(-1)
         if transform.size != 6 or not np.all(np.isfinite(transform)):
             raise DataFileError(
@@ -235,7 +236,7 @@ def _load_npz(file: Path) -> Terrain:
         if key in arrays:
             return _grid(
                 file,
-                _elevation(arrays[key], file, repr(key)),
+                _elevation(arrays[key], file, repr(key), nodata),
                 spacing=(1.0, -1.0),
                 origin=(0.0, 0.0),
                 crs=None,
@@ -244,7 +245,8 @@ def _load_npz(file: Path) -> Terrain:
     if len(two_d) == 1:
         key = two_d[0]
         return _grid(
-            file, _elevation(arrays[key], file, repr(key)), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
+            file, _elevation(arrays[key], file, repr(key), nodata), spacing=(1.0, -1.0), origin=(0.0, 0.0),
+            crs=None,
         )
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
@@ -353,8 +355,21 @@ def _scalar_str(value: Any) -> str | None:
     return text or None
 
 
-def _elevation(array: NDArray[Any], file: Path, what: str) -> NDArray[np.float32]:
-    """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata."""
+def _npz_nodata(value: Any) -> float | None:
+    """The finite nodata value an .npz stores under ``nodata`` (a real scalar), else None."""
+    if value is None:
+        return None
+    arr = np.asarray(value)
+    if arr.ndim != 0 or arr.dtype.kind not in "iuf" or not np.isfinite(arr):
+        return None
+    return float(arr)
+
+
+def _elevation(
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+) -> NDArray[np.float32]:
+    """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
+    (non-finite values and cells equal to ``nodata``, compared in the array's own dtype)."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -368,7 +383,12 @@ def _elevation(array: NDArray[Any], file: Path, what: str) -> NDArray[np.float32
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
+    hits = None
+    if nodata is not None:
+        hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
     heights = np.ascontiguousarray(array, dtype=np.float32)
+    if hits is not None and hits.any():
+        heights[hits] = np.nan
     finite = np.isfinite(heights)
     if not finite.all():
         heights[~finite] = np.nan

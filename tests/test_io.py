@@ -155,6 +155,23 @@ def test_georeferenced_npz_projected(tmp_path):
     assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.float32])
+def test_npz_nodata_value_becomes_nan(tmp_path, dtype):
+    # the shared/data layout stores its nodata value beside the heights; a finite one marks missing cells
+    z = np.array([[100, -32768, 102], [103, 104, 105]], dtype)
+    transform = np.array([0.0, 30.0, 0, 0.0, 0, -30.0])
+    np.savez(tmp_path / "g.npz", elevation=z, transform=transform, crs="EPSG:32611", nodata=dtype(-32768))
+    np.savez(tmp_path / "h.npz", heights=z, nodata=np.float64(-32768))
+    for name in ("g.npz", "h.npz"):
+        h = load_dem(tmp_path / name).heights
+        assert np.isnan(h[0, 1]) and np.isfinite(h).sum() == 5 and h[1, 2] == 105.0
+    np.savez(tmp_path / "nan.npz", elevation=z, transform=transform, crs="EPSG:32611", nodata=np.float32(np.nan))
+    assert np.isfinite(load_dem(tmp_path / "nan.npz").heights).all()  # NaN nodata: NaN cells only
+    np.savez(tmp_path / "all.npz", heights=np.full((2, 2), -1, dtype), nodata=-1)
+    with pytest.raises(DataFileError, match="all nodata"):
+        load_dem(tmp_path / "all.npz")
+
+
 @pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
 def test_png_round_trip(tmp_path, dtype):
     top = np.iinfo(dtype).max
