@@ -666,9 +666,10 @@ def batch(
     if metadata is not None and not isinstance(metadata, Mapping):
         raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
     items, src = plan_items(source, tile_size=tile_size)
-    if src is not None and (spacing is not None or origin is not None):
-        if not isinstance(source, np.ndarray | list | tuple):
-            raise InvalidInputError("spacing and origin apply to an array source; a file or Terrain has its own")
+    if spacing is not None or origin is not None:
+        if src is None or not isinstance(source, np.ndarray | list | tuple):
+            raise InvalidInputError(
+                "spacing and origin apply to an array source; a file, a folder or a Terrain has its own")
         probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = _Source(src.heights, probe.spacing, probe.origin, src.crs, src.name)

@@ -209,6 +209,17 @@ def test_unknown_extension_and_unwritable_output(tmp_path):
         batch(z, blocker / "sub", tile_size=2, interval=1.0, scheduler="serial")
 
 
+def test_spacing_for_a_folder_of_files_is_refused_not_ignored(tmp_path):
+    # a folder's (or a file list's) files carry their own geometry: spacing/origin used to vanish silently
+    src = make_folder(tmp_path / "in")
+    for kwargs in ({"spacing": (30.0, -30.0)}, {"origin": (5.0e5, 0.0)}):
+        with pytest.raises(InvalidInputError, match="spacing and origin apply to an array source"):
+            batch(src, tmp_path / "out", interval=10.0, scheduler="serial", **kwargs)
+        with pytest.raises(InvalidInputError, match="spacing and origin apply to an array source"):
+            batch(sorted(src.glob("*.npy")), tmp_path / "out", interval=10.0, scheduler="serial", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder(tmp_path):
     folder = tmp_path / "ro"
