@@ -665,6 +665,11 @@ def batch(
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
     if metadata is not None and not isinstance(metadata, Mapping):
         raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    if floor is not None and not solid:
+        raise InvalidInputError("floor applies only with solid=True")
+    if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.integer, np.floating))
+                              or not math.isfinite(floor)):  # fmt: skip
+        raise InvalidInputError(f"floor must be finite; got {floor!r}")
     items, src = plan_items(source, tile_size=tile_size)
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):

@@ -220,6 +220,14 @@ def test_spacing_for_a_folder_of_files_is_refused_not_ignored(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(("kwargs", "match"), [({"solid": True, "floor": float("nan")}, "floor must be finite"),
+                                               ({"floor": -5.0}, "floor applies only with solid")])  # fmt: skip
+def test_bad_floor_is_refused_before_any_work(tmp_path, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder(tmp_path):
     folder = tmp_path / "ro"
