@@ -251,15 +251,19 @@ def plan_items(
 
 
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
-    """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D."""
+    """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D.
+
+    In an ``.npz`` the key :func:`~stepterrain.io.load_dem` reads (``heights``, ``elevation`` or ``z``) decides
+    when there is one: a 2-D ``elevation`` beside a 3-D texture is one raster."""
     file = Path(os.fspath(path))
     try:
         loaded = np.load(file, mmap_mode="r", allow_pickle=False)
         if isinstance(loaded, np.ndarray):
             arrays = [loaded]
         else:
-            with loaded as archive:
-                arrays = [archive[k] for k in archive.files]
+            with loaded as archive:  # a key load_dem reads ('elevation' ...) decides: not any 3-D member
+                keys = [k for k in ("heights", "elevation", "z") if k in archive.files][:1] or archive.files
+                arrays = [archive[k] for k in keys]
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
     three = [a for a in arrays if getattr(a, "ndim", 0) == 3]

@@ -163,6 +163,20 @@ def test_series_from_a_npy_file(tmp_path):
     np.testing.assert_allclose(frame.bounds, expected.bounds, atol=1e-5)
 
 
+def test_npz_with_a_2d_elevation_and_a_3d_extra_is_one_raster_not_a_series(tmp_path):
+    # a DEM archive may carry other arrays (an RGB texture): its 'elevation' decides, not any 3-D member
+    rng = np.random.default_rng(0)
+    np.savez(tmp_path / "dem.npz", elevation=rng.random((8, 9)).astype(np.float32),
+             texture=rng.integers(0, 255, (8, 9, 3)).astype(np.uint8))  # fmt: skip
+    with pytest.raises(InvalidInputError, match="give tile_size"):
+        plan_items(tmp_path / "dem.npz")
+    items, src = plan_items(tmp_path / "dem.npz", tile_size=4)
+    assert src.heights.shape == (8, 9) and len(items) == 4
+    np.savez(tmp_path / "stack.npz", elevation=rng.random((3, 5, 5)), mask=np.ones((5, 5), bool))
+    items, src = plan_items(tmp_path / "stack.npz")
+    assert src.heights.shape == (3, 5, 5) and len(items) == 3
+
+
 # ---------------------------------------------------------------------------------------------- folders
 def make_folder(folder: Path, n: int = 3, corrupt: str | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
