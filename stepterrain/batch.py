@@ -254,7 +254,8 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D.
 
     In an ``.npz`` the key :func:`~stepterrain.io.load_dem` reads (``heights``, ``elevation`` or ``z``) decides
-    when there is one: a 2-D ``elevation`` beside a 3-D texture is one raster."""
+    when there is one: a 2-D ``elevation`` beside a 3-D texture is one raster. Non-finite heights become NaN
+    (nodata), as :func:`~stepterrain.io.load_dem` reads a 2-D file."""
     file = Path(os.fspath(path))
     try:
         loaded = np.load(file, mmap_mode="r", allow_pickle=False)
@@ -273,7 +274,9 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "biuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    return np.ascontiguousarray(stack, dtype=np.float32)
+    heights = np.array(stack, dtype=np.float32)  # a copy, never the file's memory map
+    heights[~np.isfinite(heights)] = np.nan  # as load_dem reads a 2-D file: any non-finite value is nodata
+    return heights
 
 
 def _terrain_source(terrain: Terrain) -> _Source:

@@ -163,6 +163,19 @@ def test_series_from_a_npy_file(tmp_path):
     np.testing.assert_allclose(frame.bounds, expected.bounds, atol=1e-5)
 
 
+def test_series_file_reads_non_finite_heights_as_nodata_like_load_dem(tmp_path):
+    frames = np.random.default_rng(0).random((2, 6, 6)).astype(np.float32)
+    frames[1, 2, 3], frames[0, 0, 0] = np.inf, -np.inf
+    np.save(tmp_path / "series.npy", frames)
+    report = batch(tmp_path / "series.npy", tmp_path / "out", interval=0.25, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 2
+    np.save(tmp_path / "frame.npy", frames[1])  # the same frame as a 2-D file: inf is nodata there
+    finite = frames[np.isfinite(frames)]
+    values = isovalues((float(finite.min()), float(finite.max())), interval=0.25)
+    expected = stepped(load_dem(tmp_path / "frame.npy"), levels=values)
+    assert len(load(tmp_path / "out" / "frame_0001.ply").faces) == len(expected.faces)
+
+
 def test_npz_with_a_2d_elevation_and_a_3d_extra_is_one_raster_not_a_series(tmp_path):
     # a DEM archive may carry other arrays (an RGB texture): its 'elevation' decides, not any 3-D member
     rng = np.random.default_rng(0)
