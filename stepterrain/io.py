@@ -218,18 +218,25 @@ def _load_npz(file: Path) -> Terrain:
     nodata = _npz_nodata(arrays.get("nodata"))
     if "elevation" in arrays and "transform" in arrays:
         heights = _elevation(arrays["elevation"], file, "'elevation'", nodata)
-        transform = np.asarray(arrays["transform"], dtype=np.float64).reshape(-1)
+        raw = arrays["transform"]
+        transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
         if transform.size != 6 or not np.all(np.isfinite(transform)):
             raise DataFileError(
                 f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "
-                f"(x0, dx, 0, y0, 0, -dy); got {transform.tolist()}"
+                f"(x0, dx, 0, y0, 0, -dy); got {raw.tolist()}"
             )
         crs = _scalar_str(arrays.get("crs"))
         units_xy = _scalar_str(arrays.get("units_xy")) or ""
         geographic = _is_geographic(crs) or "degree" in units_xy.lower()
         metres = None
         if geographic and "dx_m" in arrays and "dy_m" in arrays:
-            metres = (float(np.asarray(arrays["dx_m"])), float(np.asarray(arrays["dy_m"])))
+            dx_m, dy_m = arrays["dx_m"], arrays["dy_m"]
+            if dx_m.size != 1 or dy_m.size != 1 or dx_m.dtype.kind not in "iuf" or dy_m.dtype.kind not in "iuf":
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'dx_m' and 'dy_m' must be numbers (metres); "
+                    f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
+                )
+            metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
         return _georeferenced(file, heights, transform, crs, geographic=geographic, metres=metres)
 
     for key in _GENERIC_KEYS:

@@ -328,6 +328,17 @@ def test_npz_without_elevation(tmp_path):
         load_dem(tmp_path / "many.npz")
 
 
+def test_npz_with_text_where_numbers_belong_is_a_data_file_error(tmp_path):
+    z = np.zeros((2, 2))
+    np.savez(tmp_path / "t.npz", elevation=z, transform=np.array("a"))
+    with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
+        load_dem(tmp_path / "t.npz")
+    np.savez(tmp_path / "m.npz", elevation=z, transform=np.array([0.0, 1.0, 0, 0.0, 0, -1.0]), crs="EPSG:4326",
+             dx_m=np.array("thirty"), dy_m=np.array(30.0))  # fmt: skip
+    with pytest.raises(DataFileError, match="dx_m"):
+        load_dem(tmp_path / "m.npz")
+
+
 def test_npz_bad_transform(tmp_path):
     np.savez(tmp_path / "t.npz", elevation=np.zeros((2, 2)), transform=np.array([0.0, 1.0, 0.0]))
     with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
