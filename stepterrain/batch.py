@@ -688,6 +688,10 @@ def batch(
     level_values = _shared_levels(src, interval, levels, base)
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
+    if src is None:  # no shared height range: check interval/levels/base now, not once per item
+        from .stepped import isovalues
+
+        isovalues((0.0, 0.0), interval=interval, levels=levels, base=base)
     if colors is not None:
         from .stepped import colormap
 

@@ -255,6 +255,23 @@ def test_bad_floor_is_refused_before_any_work(tmp_path, kwargs, match):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"interval": float("nan")}, "interval must be a positive"),
+        ({"interval": -1.0}, "interval must be a positive"),
+        ({"levels": [2.0, 1.0]}, "strictly increasing"),
+        ({"interval": 1.0, "base": float("inf")}, "base must be finite"),
+    ],
+)
+def test_bad_isovalues_for_a_folder_are_refused_before_any_work(tmp_path, kwargs, match):
+    # a folder has no shared height range, so its isovalues were only checked by each item (all failed, exit 1)
+    src = make_folder(tmp_path / "in")
+    with pytest.raises(InvalidInputError, match=match):
+        batch(src, tmp_path / "out", scheduler="serial", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 def test_read_only_output_folder(tmp_path):
     folder = tmp_path / "ro"
