@@ -95,7 +95,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .cli import _check_output, _check_size, _distinct_outputs
+    from .cli import _check_output, _check_size, _distinct_outputs, _writable_outputs
     from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
@@ -108,6 +108,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
+    _writable_outputs(output=out, png=png, gif=anim)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):

@@ -251,15 +251,20 @@ def plan_items(
 
 
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
-    """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D."""
+    """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D.
+
+    In an ``.npz`` the key :func:`~stepterrain.io.load_dem` reads (``heights``, ``elevation`` or ``z``) decides
+    when there is one: a 2-D ``elevation`` beside a 3-D texture is one raster. Non-finite heights become NaN
+    (nodata), as :func:`~stepterrain.io.load_dem` reads a 2-D file."""
     file = Path(os.fspath(path))
     try:
         loaded = np.load(file, mmap_mode="r", allow_pickle=False)
         if isinstance(loaded, np.ndarray):
             arrays = [loaded]
         else:
-            with loaded as archive:
-                arrays = [archive[k] for k in archive.files]
+            with loaded as archive:  # a key load_dem reads ('elevation' ...) decides: not any 3-D member
+                keys = [k for k in ("heights", "elevation", "z") if k in archive.files][:1] or archive.files
+                arrays = [archive[k] for k in keys]
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
     three = [a for a in arrays if getattr(a, "ndim", 0) == 3]
@@ -269,7 +274,9 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "biuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    return np.ascontiguousarray(stack, dtype=np.float32)
+    heights = np.array(stack, dtype=np.float32)  # a copy, never the file's memory map
+    heights[~np.isfinite(heights)] = np.nan  # as load_dem reads a 2-D file: any non-finite value is nodata
+    return heights
 
 
 def _terrain_source(terrain: Terrain) -> _Source:
@@ -665,16 +672,26 @@ def batch(
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
     if metadata is not None and not isinstance(metadata, Mapping):
         raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    if floor is not None and not solid:
+        raise InvalidInputError("floor applies only with solid=True")
+    if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.integer, np.floating))
+                              or not math.isfinite(floor)):  # fmt: skip
+        raise InvalidInputError(f"floor must be finite; got {floor!r}")
     items, src = plan_items(source, tile_size=tile_size)
-    if src is not None and (spacing is not None or origin is not None):
-        if not isinstance(source, np.ndarray | list | tuple):
-            raise InvalidInputError("spacing and origin apply to an array source; a file or Terrain has its own")
+    if spacing is not None or origin is not None:
+        if src is None or not isinstance(source, np.ndarray | list | tuple):
+            raise InvalidInputError(
+                "spacing and origin apply to an array source; a file, a folder or a Terrain has its own")
         probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = _Source(src.heights, probe.spacing, probe.origin, src.crs, src.name)
     level_values = _shared_levels(src, interval, levels, base)
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
+    if src is None:  # no shared height range: check interval/levels/base now, not once per item
+        from .stepped import isovalues
+
+        isovalues((0.0, 0.0), interval=interval, levels=levels, base=base)
     if colors is not None:
         from .stepped import colormap
 

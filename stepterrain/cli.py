@@ -17,6 +17,7 @@ import json
 import math
 import os
 import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -248,6 +249,33 @@ def _distinct_outputs(**paths: Path | None) -> None:
         seen[key] = name
 
 
+def _writable_outputs(**paths: Path | None) -> None:
+    """Refuse, before any work, an output that cannot be written: its nearest existing folder is a file or
+    not writable, or the path is a folder. A command with several outputs would otherwise write the first
+    and fail on the next. Creates nothing."""
+    from .errors import DataFileError
+
+    for option, path in paths.items():
+        if path is None:
+            continue
+        name = "--" + option.replace("_", "-")
+        if Path(path).is_dir():
+            raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
+        folder = Path(os.path.abspath(path)).parent
+        while not folder.exists() and folder != folder.parent:
+            folder = folder.parent
+        if not folder.is_dir():
+            raise DataFileError(f"{name} {str(path)!r} cannot be written: {str(folder)!r} is not a folder")
+        try:  # os.access says yes to root on read-only mounts: try a real file
+            fd, probe = tempfile.mkstemp(prefix=".stepterrain-probe.", dir=folder)
+            os.close(fd)
+            os.unlink(probe)
+        except OSError as exc:
+            raise DataFileError(
+                f"{name} {str(path)!r} cannot be written: folder {str(folder)!r} is not writable ({exc.strerror})"
+            ) from exc
+
+
 def _colormap(name: str) -> tuple[Any, float] | None:
     """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at
     (``stepped.LAND_START``); None for 'none'."""
@@ -298,6 +326,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
+    _writable_outputs(output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 

@@ -47,8 +47,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     path : str or path-like
         ``.npy`` (one (H, W) array), ``.npz`` (the georeferenced layout of ``shared/data``: ``elevation``,
         ``transform``, ``crs``, optional ``dx_m``/``dy_m``; or any archive holding one 2-D array or a key
-        ``heights``, ``elevation`` or ``z``), ``.png`` (8- or 16-bit greyscale heightmap, values are
-        heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        ``heights``, ``elevation`` or ``z``; a scalar ``nodata`` marks missing cells), ``.png`` (8- or
+        16-bit greyscale heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
 
@@ -215,27 +215,35 @@ def _load_npz(file: Path) -> Terrain:
             f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
         ) from exc
 
+    nodata = _npz_nodata(arrays.get("nodata"))
     if "elevation" in arrays and "transform" in arrays:
-        heights = _elevation(arrays["elevation"], file, "'elevation'")
-        transform = np.asarray(arrays["transform"], dtype=np.float64).reshape(-1)
+        heights = _elevation(arrays["elevation"], file, "'elevation'", nodata)
+        raw = arrays["transform"]
+        transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
         if transform.size != 6 or not np.all(np.isfinite(transform)):
             raise DataFileError(
                 f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "
-                f"(x0, dx, 0, y0, 0, -dy); got {transform.tolist()}"
+                f"(x0, dx, 0, y0, 0, -dy); got {raw.tolist()}"
             )
         crs = _scalar_str(arrays.get("crs"))
         units_xy = _scalar_str(arrays.get("units_xy")) or ""
         geographic = _is_geographic(crs) or "degree" in units_xy.lower()
         metres = None
         if geographic and "dx_m" in arrays and "dy_m" in arrays:
-            metres = (float(np.asarray(arrays["dx_m"])), float(np.asarray(arrays["dy_m"])))
+            dx_m, dy_m = arrays["dx_m"], arrays["dy_m"]
+            if dx_m.size != 1 or dy_m.size != 1 or dx_m.dtype.kind not in "iuf" or dy_m.dtype.kind not in "iuf":
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'dx_m' and 'dy_m' must be numbers (metres); "
+                    f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
+                )
+            metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
         return _georeferenced(file, heights, transform, crs, geographic=geographic, metres=metres)
 
     for key in _GENERIC_KEYS:
         if key in arrays:
             return _grid(
                 file,
-                _elevation(arrays[key], file, repr(key)),
+                _elevation(arrays[key], file, repr(key), nodata),
                 spacing=(1.0, -1.0),
                 origin=(0.0, 0.0),
                 crs=None,
@@ -244,7 +252,8 @@ def _load_npz(file: Path) -> Terrain:
     if len(two_d) == 1:
         key = two_d[0]
         return _grid(
-            file, _elevation(arrays[key], file, repr(key)), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
+            file, _elevation(arrays[key], file, repr(key), nodata), spacing=(1.0, -1.0), origin=(0.0, 0.0),
+            crs=None,
         )
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
@@ -300,6 +309,7 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
                         f"image band ({interp.name}), not elevation data"
                     )
                 masked = dataset.read(band, masked=True)
+                scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 transform = dataset.transform
                 crs_obj = dataset.crs
     except RasterioError as exc:
@@ -307,6 +317,8 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
         ) from exc
 
+    if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
+        masked = masked.astype(np.float64) * scale + offset
     array = np.ma.filled(masked.astype(np.float32), np.nan)
     heights = _elevation(array, file, f"band {band}")
     if crs_obj is None and transform.is_identity:
@@ -350,8 +362,21 @@ def _scalar_str(value: Any) -> str | None:
     return text or None
 
 
-def _elevation(array: NDArray[Any], file: Path, what: str) -> NDArray[np.float32]:
-    """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata."""
+def _npz_nodata(value: Any) -> float | None:
+    """The finite nodata value an .npz stores under ``nodata`` (a real scalar), else None."""
+    if value is None:
+        return None
+    arr = np.asarray(value)
+    if arr.ndim != 0 or arr.dtype.kind not in "iuf" or not np.isfinite(arr):
+        return None
+    return float(arr)
+
+
+def _elevation(
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+) -> NDArray[np.float32]:
+    """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
+    (non-finite values and cells equal to ``nodata``, compared in the array's own dtype)."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -365,7 +390,12 @@ def _elevation(array: NDArray[Any], file: Path, what: str) -> NDArray[np.float32
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
+    hits = None
+    if nodata is not None:
+        hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
     heights = np.ascontiguousarray(array, dtype=np.float32)
+    if hits is not None and hits.any():
+        heights[hits] = np.nan
     finite = np.isfinite(heights)
     if not finite.all():
         heights[~finite] = np.nan

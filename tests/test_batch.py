@@ -163,6 +163,33 @@ def test_series_from_a_npy_file(tmp_path):
     np.testing.assert_allclose(frame.bounds, expected.bounds, atol=1e-5)
 
 
+def test_series_file_reads_non_finite_heights_as_nodata_like_load_dem(tmp_path):
+    frames = np.random.default_rng(0).random((2, 6, 6)).astype(np.float32)
+    frames[1, 2, 3], frames[0, 0, 0] = np.inf, -np.inf
+    np.save(tmp_path / "series.npy", frames)
+    report = batch(tmp_path / "series.npy", tmp_path / "out", interval=0.25, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 2
+    np.save(tmp_path / "frame.npy", frames[1])  # the same frame as a 2-D file: inf is nodata there
+    finite = frames[np.isfinite(frames)]
+    values = isovalues((float(finite.min()), float(finite.max())), interval=0.25)
+    expected = stepped(load_dem(tmp_path / "frame.npy"), levels=values)
+    assert len(load(tmp_path / "out" / "frame_0001.ply").faces) == len(expected.faces)
+
+
+def test_npz_with_a_2d_elevation_and_a_3d_extra_is_one_raster_not_a_series(tmp_path):
+    # a DEM archive may carry other arrays (an RGB texture): its 'elevation' decides, not any 3-D member
+    rng = np.random.default_rng(0)
+    np.savez(tmp_path / "dem.npz", elevation=rng.random((8, 9)).astype(np.float32),
+             texture=rng.integers(0, 255, (8, 9, 3)).astype(np.uint8))  # fmt: skip
+    with pytest.raises(InvalidInputError, match="give tile_size"):
+        plan_items(tmp_path / "dem.npz")
+    items, src = plan_items(tmp_path / "dem.npz", tile_size=4)
+    assert src.heights.shape == (8, 9) and len(items) == 4
+    np.savez(tmp_path / "stack.npz", elevation=rng.random((3, 5, 5)), mask=np.ones((5, 5), bool))
+    items, src = plan_items(tmp_path / "stack.npz")
+    assert src.heights.shape == (3, 5, 5) and len(items) == 3
+
+
 # ---------------------------------------------------------------------------------------------- folders
 def make_folder(folder: Path, n: int = 3, corrupt: str | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
@@ -207,6 +234,42 @@ def test_unknown_extension_and_unwritable_output(tmp_path):
         batch(z, blocker, tile_size=2, interval=1.0, scheduler="serial")
     with pytest.raises(DataFileError, match="cannot create the output folder"):
         batch(z, blocker / "sub", tile_size=2, interval=1.0, scheduler="serial")
+
+
+def test_spacing_for_a_folder_of_files_is_refused_not_ignored(tmp_path):
+    # a folder's (or a file list's) files carry their own geometry: spacing/origin used to vanish silently
+    src = make_folder(tmp_path / "in")
+    for kwargs in ({"spacing": (30.0, -30.0)}, {"origin": (5.0e5, 0.0)}):
+        with pytest.raises(InvalidInputError, match="spacing and origin apply to an array source"):
+            batch(src, tmp_path / "out", interval=10.0, scheduler="serial", **kwargs)
+        with pytest.raises(InvalidInputError, match="spacing and origin apply to an array source"):
+            batch(sorted(src.glob("*.npy")), tmp_path / "out", interval=10.0, scheduler="serial", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [({"solid": True, "floor": float("nan")}, "floor must be finite"),
+                                               ({"floor": -5.0}, "floor applies only with solid")])  # fmt: skip
+def test_bad_floor_is_refused_before_any_work(tmp_path, kwargs, match):
+    with pytest.raises(InvalidInputError, match=match):
+        batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial", **kwargs)
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"interval": float("nan")}, "interval must be a positive"),
+        ({"interval": -1.0}, "interval must be a positive"),
+        ({"levels": [2.0, 1.0]}, "strictly increasing"),
+        ({"interval": 1.0, "base": float("inf")}, "base must be finite"),
+    ],
+)
+def test_bad_isovalues_for_a_folder_are_refused_before_any_work(tmp_path, kwargs, match):
+    # a folder has no shared height range, so its isovalues were only checked by each item (all failed, exit 1)
+    src = make_folder(tmp_path / "in")
+    with pytest.raises(InvalidInputError, match=match):
+        batch(src, tmp_path / "out", scheduler="serial", **kwargs)
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")

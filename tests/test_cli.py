@@ -205,6 +205,20 @@ def test_a_failing_write_leaves_no_partial_output(dem, tmp_path, capsys, monkeyp
         assert files_in(tmp_path) == ["hill.npy"]  # no truncated mesh, no temporary file
 
 
+def test_an_unwritable_png_folder_fails_before_the_mesh_is_written(dem, tmp_path, capsys, monkeypatch):
+    # the mesh used to be written first, then the PNG failed: exit 2 with half of the outputs on disk
+    monkeypatch.setattr(render, "require_offscreen", lambda: "simulated")
+    monkeypatch.setattr(render, "render_mesh", lambda *a, **k: np.zeros((8, 8, 3), np.uint8))
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    for png in (blocker / "a.png", tmp_path / "dir.png"):
+        (tmp_path / "dir.png").mkdir(exist_ok=True)
+        code, _, err = run(capsys, "-q", "steps", dem, "--interval", "1", "-o", tmp_path / "out" / "a.glb",
+                           "--png", png)
+        assert code == 2 and "--png" in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+        assert not (tmp_path / "out").exists()
+
+
 def test_help_version_and_usage(capsys):
     code, out, _ = run(capsys, "--help")
     assert code == 0 and "steps" in out and "info" in out

@@ -15,7 +15,9 @@ import stepterrain as st
 from stepterrain.errors import DataFileError, InvalidInputError, MissingDependencyError
 from stepterrain.io import EARTH_RADIUS_M, describe_dem, load_dem, sample_dem
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+from .conftest import SHARED_DATA
+
+DATA = SHARED_DATA  # beside the project, or further up from a git worktree
 TUJUNGA = "big_tujunga_srtm_30m_utm11n"
 FRONT_RANGE = "front_range_srtmgl3_3arcsec"
 
@@ -153,6 +155,23 @@ def test_georeferenced_npz_projected(tmp_path):
     assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.float32])
+def test_npz_nodata_value_becomes_nan(tmp_path, dtype):
+    # the shared/data layout stores its nodata value beside the heights; a finite one marks missing cells
+    z = np.array([[100, -32768, 102], [103, 104, 105]], dtype)
+    transform = np.array([0.0, 30.0, 0, 0.0, 0, -30.0])
+    np.savez(tmp_path / "g.npz", elevation=z, transform=transform, crs="EPSG:32611", nodata=dtype(-32768))
+    np.savez(tmp_path / "h.npz", heights=z, nodata=np.float64(-32768))
+    for name in ("g.npz", "h.npz"):
+        h = load_dem(tmp_path / name).heights
+        assert np.isnan(h[0, 1]) and np.isfinite(h).sum() == 5 and h[1, 2] == 105.0
+    np.savez(tmp_path / "nan.npz", elevation=z, transform=transform, crs="EPSG:32611", nodata=np.float32(np.nan))
+    assert np.isfinite(load_dem(tmp_path / "nan.npz").heights).all()  # NaN nodata: NaN cells only
+    np.savez(tmp_path / "all.npz", heights=np.full((2, 2), -1, dtype), nodata=-1)
+    with pytest.raises(DataFileError, match="all nodata"):
+        load_dem(tmp_path / "all.npz")
+
+
 @pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
 def test_png_round_trip(tmp_path, dtype):
     top = np.iinfo(dtype).max
@@ -193,6 +212,20 @@ def test_nan_nodata_geotiff_round_trip(tmp_path):
     with rasterio.open(f, "w", **{**profile, "dtype": "float32", "nodata": np.nan}) as ds:
         ds.write(zf, 1)
     np.testing.assert_array_equal(load_dem(f).heights, zf)
+
+
+def test_geotiff_scale_and_offset_are_applied(tmp_path):
+    # heights stored as int16 decimetres above 1000 m: height = value * scale + offset (GDAL's convention)
+    rasterio = needs_rasterio()
+    z = np.array([[100, 200, 300], [400, -9999, 600]], np.int16)
+    path = tmp_path / "scaled.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="int16", crs="EPSG:32611",
+                       nodata=-9999, transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+        ds.write(z, 1)
+        ds.scales, ds.offsets = (0.1,), (1000.0,)
+    h = load_dem(path).heights
+    np.testing.assert_allclose(h[0], [1010.0, 1020.0, 1030.0])
+    assert h[1, 0] == 1040.0 and np.isnan(h[1, 1])
 
 
 def test_geotiff_band_choice(tmp_path):
@@ -293,6 +326,17 @@ def test_npz_without_elevation(tmp_path):
     np.savez(tmp_path / "many.npz", a=np.zeros((2, 2)), b=np.ones((3, 3)), c=np.arange(3))
     with pytest.raises(DataFileError, match=r"exactly one 2-D array; got a \(2, 2\), b \(3, 3\), c \(3,\)"):
         load_dem(tmp_path / "many.npz")
+
+
+def test_npz_with_text_where_numbers_belong_is_a_data_file_error(tmp_path):
+    z = np.zeros((2, 2))
+    np.savez(tmp_path / "t.npz", elevation=z, transform=np.array("a"))
+    with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
+        load_dem(tmp_path / "t.npz")
+    np.savez(tmp_path / "m.npz", elevation=z, transform=np.array([0.0, 1.0, 0, 0.0, 0, -1.0]), crs="EPSG:4326",
+             dx_m=np.array("thirty"), dy_m=np.array(30.0))  # fmt: skip
+    with pytest.raises(DataFileError, match="dx_m"):
+        load_dem(tmp_path / "m.npz")
 
 
 def test_npz_bad_transform(tmp_path):
