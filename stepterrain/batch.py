@@ -303,7 +303,9 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
         sizes = (int(tile_size), int(tile_size)) if np.ndim(tile_size) == 0 else tuple(int(s) for s in tile_size)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"tile_size must be an int or (rows, cols) of cells; got {tile_size!r}") from exc
-    if len(sizes) != 2 or min(sizes) < 1 or isinstance(tile_size, bool):
+    given = [tile_size] if np.ndim(tile_size) == 0 else list(tile_size)
+    if (len(sizes) != 2 or min(sizes) < 1 or isinstance(tile_size, bool)
+            or any(isinstance(g, (float, np.floating)) and g != int(g) for g in given)):  # 2.5 is no tile size
         raise InvalidInputError(f"tile_size must be a positive int or (rows, cols) of cells; got {tile_size!r}")
     if rows < 2 or cols < 2:
         raise InvalidInputError(f"a raster to tile needs at least 2 x 2 nodes; got {rows} x {cols}")

@@ -381,6 +381,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=args.base, gamma=gamma,
                       colors=colors, solid=args.solid, floor=args.floor, device=device)
     progress.done(f"{len(mesh.faces):,} faces, {len(mesh.vertices):,} vertices")
+    if len(mesh.faces) == 0:
+        warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
 
     # render first (in memory), so a run that fails anywhere writes neither file
     image = None

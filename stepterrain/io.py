@@ -393,6 +393,14 @@ def _elevation(
     hits = None
     if nodata is not None:
         hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+    if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
+        big = np.isfinite(array) & (np.abs(array) > np.finfo(np.float32).max)
+        if hits is not None:
+            big &= ~hits
+        if big.any():
+            at = tuple(int(i) for i in np.argwhere(big)[0])
+            raise DataFileError(f"cannot read {str(file)!r}: {what} holds heights beyond float32 (|z| < 3.4e+38); "
+                                f"got {float(array[at])!r} at index {at}")
     heights = np.ascontiguousarray(array, dtype=np.float32)
     if hits is not None and hits.any():
         heights[hits] = np.nan

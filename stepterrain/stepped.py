@@ -224,7 +224,8 @@ def isovalues(
     k1 = int(np.ceil((hi - base) / step))
     if k1 - k0 + 1 > MAX_LEVELS:
         raise InvalidInputError(
-            f"interval={step} over heights [{lo}, {hi}] gives {k1 - k0 + 1} levels; at most {MAX_LEVELS} are supported"
+            f"interval={step:g} over heights [{lo:g}, {hi:g}] gives {float(k1 - k0 + 1):.3g} levels; at most "
+            f"{MAX_LEVELS:,} are supported"
         )
     values64 = base + np.arange(k0, k1 + 1, dtype=np.float64) * step
     if np.abs(values64).max() > _FLOAT32_MAX:
@@ -732,6 +733,9 @@ def _assemble(
     if solid:
         from .mesh import close_solid
 
+        if len(faces) == 0:
+            raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
+                                    "finite heights (all cells touch nodata)")
         heights = t.heights[np.isfinite(t.heights)]
         if np.isin(heights, thresholds_of(values)).any():
             warnings.warn(

@@ -75,6 +75,8 @@ def test_tiles_partition_the_cells(rows, cols, th, tw):
         (np.zeros(5), {}, "source must be"),
         (np.zeros((5, 5)), {"tile_size": 0}, "tile_size must be"),
         (np.zeros((5, 5)), {"tile_size": "big"}, "tile_size must be"),
+        (np.zeros((5, 5)), {"tile_size": 2.5}, r"tile_size must be a positive int .* got 2.5"),
+        (np.zeros((5, 5)), {"tile_size": (2, 1.5)}, "tile_size must be"),
         (["a.npy", "b.xyz"], {}, "must end in"),
     ],
 )
@@ -647,3 +649,7 @@ def test_dask_series(tmp_path, threaded_client):
     on_dask = batch(frames, tmp_path / "d", interval=0.5, format=".ply", scheduler=threaded_client)
     serial = batch(frames, tmp_path / "s", interval=0.5, format=".ply", scheduler="serial")
     assert [r.faces for r in on_dask.done] == [r.faces for r in serial.done] and len(on_dask.done) == 3
+
+
+def test_whole_number_float_tile_size_is_accepted():
+    assert len(plan_items(np.zeros((5, 5)), tile_size=2.0)[0]) == len(plan_items(np.zeros((5, 5)), tile_size=2)[0])

@@ -252,3 +252,11 @@ def test_default_input_is_the_embedded_dem(tmp_path, capsys):
     code, out, err = run(capsys, "info")
     assert code == 0, err
     assert "643" in out and "1197" in out
+
+
+def test_an_empty_mesh_is_written_with_a_warning(tmp_path, capsys):
+    path = tmp_path / "holes.npy"
+    np.save(path, np.array([[1.0, np.nan, 2.0], [np.nan, np.nan, np.nan]], np.float32))
+    code, _, err = run(capsys, "steps", path, "--interval", "1", "-o", tmp_path / "e.ply")
+    assert code == 0, err
+    assert "stepterrain steps: warning: the mesh is empty" in err

@@ -397,3 +397,15 @@ def test_geotiff_without_rasterio(tmp_path, monkeypatch):
         MissingDependencyError, match=r"reading GeoTIFF needs rasterio: pip install 'stepterrain\[geo\]'"
     ):
         load_dem(tmp_path / "dem.tif")
+
+
+def test_heights_beyond_float32_are_refused_not_read_as_nodata(tmp_path):
+    z = np.full((3, 4), 100.0)
+    z[1, 2] = 1e39  # finite in float64, inf in float32
+    path = tmp_path / "big.npy"
+    np.save(path, z)
+    with pytest.raises(DataFileError, match=r"beyond float32 .* got 1e\+39 at index \(1, 2\)"):
+        load_dem(path)
+    z[1, 2] = np.nan  # real nodata still reads as a hole
+    np.save(path, z)
+    assert np.isnan(load_dem(path).heights[1, 2])

@@ -945,3 +945,15 @@ def test_level_colors_out_of_range_are_refused(colors, message):
         st.stepped(heights, interval=4.0, colors=colors)
     ok = st.stepped(heights, interval=4.0, colors=np.full((3, 3), 255, np.int64))  # the full range is fine
     assert len(ok.faces)
+
+
+def test_huge_level_counts_are_reported_readably():
+    with pytest.raises(st.InvalidInputError, match=r"gives 1e\+300 levels; at most 1,000,000 are supported"):
+        st.stepped(np.array([[0.0, 1.0], [0.0, 1.0]]), interval=1e-300)
+
+
+def test_a_terrain_without_a_complete_triangle_gives_an_empty_mesh_and_no_solid():
+    heights = np.array([[1.0, np.nan], [np.nan, np.nan]])
+    assert len(st.stepped(heights, interval=1.0).faces) == 0
+    with pytest.raises(st.InvalidInputError, match="solid=True needs a surface to close"):
+        st.stepped(heights, interval=1.0, solid=True)
