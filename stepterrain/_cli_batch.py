@@ -98,7 +98,7 @@ def add_parser(commands: Any) -> None:
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import _check_ext, batch, overview_image
-    from .cli import _check_output, _check_size, _writable_outputs
+    from .cli import _check_output, _check_outputs, _check_size
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
@@ -106,7 +106,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
     _check_size(args.size)
-    _writable_outputs(png=png)
+    _check_outputs(png=png)
     if not math.isfinite(args.connect_timeout) or args.connect_timeout <= 0:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds; got {args.connect_timeout}")
     if args.device is not None:

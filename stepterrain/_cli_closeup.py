@@ -95,20 +95,19 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .cli import _check_output, _check_size, _distinct_outputs, _writable_outputs
+    from .cli import _check_output, _check_outputs, _check_size
     from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
-    _distinct_outputs(output=out, png=png)
     mesh_out = out if out.suffix.lower() != ".png" else None
     images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
+    _check_outputs(output=out, png=png, gif=anim)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
-    _writable_outputs(output=out, png=png, gif=anim)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _check_size, _floats, _size, _window, _writable_outputs
+from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -122,7 +122,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     metrics = tuple(m.strip() for m in args.metrics.split(",") if m.strip())
     _check_size(args.size)
-    _writable_outputs(output=out, png=png)
+    _check_outputs(output=out, png=png)
     lat_deg, lon_deg, altitude = args.eye
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _check_size, _colormap, _distinct_outputs, _size, _window, _writable_outputs
+from .cli import Progress, _check_output, _check_outputs, _check_size, _colormap, _size, _window
 from .errors import InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -97,8 +97,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     normals_out = _check_output(args.normals, (".png",), "--normals") if args.normals else None
-    _distinct_outputs(output=out, mesh=mesh_out, png=png, normals=normals_out)
-    _writable_outputs(output=out, mesh=mesh_out, png=png, normals=normals_out)
+    _check_outputs(output=out, mesh=mesh_out, png=png, normals=normals_out)
     if not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
     if args.interval is not None and mesh_out is None and png is None:

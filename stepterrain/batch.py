@@ -24,7 +24,6 @@ import logging
 import math
 import os
 import re
-import tempfile
 import time
 import zipfile
 from collections.abc import Iterable, Mapping, Sequence
@@ -37,7 +36,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
-from .export import MESH_EXTENSIONS, atomic_path, save_mesh
+from .export import MESH_EXTENSIONS, atomic_path, probe_writable, save_mesh
 from .terrain import Terrain
 
 __all__ = [
@@ -459,12 +458,9 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> Path:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
-    try:  # os.access says yes to root on read-only mounts: try a real file
-        fd, probe = tempfile.mkstemp(prefix=".stepterrain-probe.", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise DataFileError(f"output folder {str(folder)!r} is not writable: {exc.strerror or exc}") from exc
+    error = probe_writable(folder)
+    if error is not None:
+        raise DataFileError(f"output folder {str(folder)!r} is not writable: {error.strerror or error}") from error
     return folder
 
 
@@ -508,27 +504,28 @@ def start_local_cluster(workers: int) -> Any:
         raise SchedulerError(f"cannot start a LocalCluster of {workers} worker processes: {exc}") from exc
 
 
-def _check_scheduler(scheduler: Any) -> InvalidInputError:
-    """Raise for a scheduler that cannot be one (a malformed address, a number), without importing dask: a typo
-    is the first thing to hear about, before any output folder is made. Returns the error to raise for a value
-    that only the dask import can refuse."""
-    bad = InvalidInputError(
+def _scheduler_error(scheduler: Any) -> InvalidInputError:
+    return InvalidInputError(
         "scheduler must be None (a LocalCluster), 'serial', a dask Client or an address such as "
         f"'tcp://host:8786'; got {scheduler!r}"
     )
+
+
+def _check_scheduler(scheduler: Any) -> None:
+    """Refuse a scheduler that cannot be one (a malformed address, a number) without importing dask: a typo is
+    the first thing to hear about, before any output folder is made."""
     if isinstance(scheduler, str):
         if scheduler != "serial" and not _SCHEDULER_RE.match(scheduler):
-            raise bad
+            raise _scheduler_error(scheduler)
     elif scheduler is not None and not callable(getattr(scheduler, "submit", None)):
-        raise bad  # not a Client
-    return bad
+        raise _scheduler_error(scheduler)  # not a Client
 
 
 def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
     """(client, cluster to close or None, description, whether the workers are this machine's processes)."""
-    bad_scheduler = _check_scheduler(scheduler)
+    _check_scheduler(scheduler)
     try:
         from distributed import Client
     except ImportError as exc:
@@ -543,7 +540,7 @@ def _connect(
         client = Client(cluster, timeout=connect_timeout)
         return client, cluster, f"LocalCluster ({workers} worker processes)", True
     if not isinstance(scheduler, str):
-        raise bad_scheduler
+        raise _scheduler_error(scheduler)  # has .submit but is no dask Client
     try:
         client = Client(scheduler, timeout=connect_timeout)
     except (OSError, TimeoutError) as exc:

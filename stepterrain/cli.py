@@ -17,7 +17,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -236,44 +235,34 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
-def _distinct_outputs(**paths: Path | None) -> None:
-    """Refuse two output options naming the same file (the second write would replace the first)."""
+def _check_outputs(**paths: Path | None) -> None:
+    """Refuse, before any work, output options that name the same file (the second write would replace the
+    first) or a file that cannot be written (the path is a folder, or its nearest existing folder is a file or
+    not writable): a command with several outputs would otherwise write the first and fail on the next.
+    Creates nothing."""
+    from .errors import DataFileError
+    from .export import probe_writable
+
     seen: dict[Path, str] = {}
     for option, path in paths.items():
         if path is None:
             continue
-        key = Path(os.path.abspath(path))
         name = "--" + option.replace("_", "-")
+        key = Path(os.path.abspath(path))
         if key in seen:
             raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
         seen[key] = name
-
-
-def _writable_outputs(**paths: Path | None) -> None:
-    """Refuse, before any work, an output that cannot be written: its nearest existing folder is a file or
-    not writable, or the path is a folder. A command with several outputs would otherwise write the first
-    and fail on the next. Creates nothing."""
-    from .errors import DataFileError
-
-    for option, path in paths.items():
-        if path is None:
-            continue
-        name = "--" + option.replace("_", "-")
-        if Path(path).is_dir():
+        if key.is_dir():
             raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
-        folder = Path(os.path.abspath(path)).parent
+        folder = key.parent
         while not folder.exists() and folder != folder.parent:
             folder = folder.parent
         if not folder.is_dir():
             raise DataFileError(f"{name} {str(path)!r} cannot be written: {str(folder)!r} is not a folder")
-        try:  # os.access says yes to root on read-only mounts: try a real file
-            fd, probe = tempfile.mkstemp(prefix=".stepterrain-probe.", dir=folder)
-            os.close(fd)
-            os.unlink(probe)
-        except OSError as exc:
-            raise DataFileError(
-                f"{name} {str(path)!r} cannot be written: folder {str(folder)!r} is not writable ({exc.strerror})"
-            ) from exc
+        error = probe_writable(folder)
+        if error is not None:
+            raise DataFileError(f"{name} {str(path)!r} cannot be written: folder {str(folder)!r} is not writable "
+                                f"({error.strerror})") from error
 
 
 def _colormap(name: str) -> tuple[Any, float] | None:
@@ -326,7 +315,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
-    _writable_outputs(output=out, png=png)
+    _check_outputs(output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 

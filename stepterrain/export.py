@@ -51,6 +51,18 @@ def _file_mode() -> int:
     return 0o666 & ~umask
 
 
+def probe_writable(folder: Path) -> OSError | None:
+    """Create and remove a file in the existing ``folder``: the error when that fails, else None. (``os.access``
+    says yes to root on a read-only mount; a real file does not.)"""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".stepterrain-probe.", dir=folder)
+    except OSError as exc:
+        return exc
+    os.close(fd)
+    os.unlink(probe)
+    return None
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.

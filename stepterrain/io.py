@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
-from .terrain import Terrain, as_terrain
+from .terrain import FLOAT32_MAX, Terrain, as_terrain
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
 
@@ -394,7 +394,7 @@ def _elevation(
     if nodata is not None:
         hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
-        big = np.isfinite(array) & (np.abs(array) > np.finfo(np.float32).max)
+        big = np.isfinite(array) & (np.abs(array) > FLOAT32_MAX)
         if hits is not None:
             big &= ~hits
         if big.any():

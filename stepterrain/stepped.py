@@ -31,13 +31,12 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import Terrain, as_terrain
+from .terrain import FLOAT32_MAX, Terrain, as_terrain
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
 MAX_LEVELS = 1_000_000
 _INT32_MAX = 2**31 - 1
-_FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 # bytes per output vertex / face while a mesh is being built (device work arrays + the numpy result)
 _VERTEX_BYTES = 12 + 4 + 24
@@ -199,7 +198,7 @@ def isovalues(
             raise InvalidInputError("levels must hold at least one isovalue; got an empty sequence")
         if not np.all(np.isfinite(values64)):
             raise InvalidInputError(f"levels must be finite; got {values64.tolist()[:10]}")
-        if np.abs(values64).max() > _FLOAT32_MAX:
+        if np.abs(values64).max() > FLOAT32_MAX:
             raise InvalidInputError(f"levels must fit in float32 (|x| < 3.4e+38); got {values64.tolist()[:10]}")
         values = values64.astype(np.float32)
         bad = np.flatnonzero(np.diff(values) <= 0)
@@ -228,7 +227,7 @@ def isovalues(
             f"{MAX_LEVELS:,} are supported"
         )
     values64 = base + np.arange(k0, k1 + 1, dtype=np.float64) * step
-    if np.abs(values64).max() > _FLOAT32_MAX:
+    if np.abs(values64).max() > FLOAT32_MAX:
         raise InvalidInputError(
             f"interval={step} with base={base} gives isovalues beyond float32 (|x| < 3.4e+38); "
             f"got [{values64[0]}, {values64[-1]}]"
@@ -746,7 +745,7 @@ def _assemble(
 
         # below the lowest isovalue and the surface: with explicit levels and γ < 1 heights under the lowest
         # level pull the surface below it
-        lowest = min(float(values[0]), float(vertices[:, 2].min())) if len(vertices) else float(values[0])
+        lowest = min(float(values[0]), float(vertices[:, 2].min()))  # faces, hence vertices (checked above)
         default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
         floor_z = default_floor if floor is None else float(floor)
         n_before = len(vertices)

@@ -23,6 +23,9 @@ from .errors import InvalidInputError
 
 __all__ = ["Terrain", "heightfield_mesh", "as_terrain"]
 
+#: The largest float32: the kernels get heights and isovalues in float32, so inputs beyond it are refused.
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
 
 def _pair(value: Any, name: str, *, nonzero: bool) -> tuple[float, float]:
     try:
@@ -148,9 +151,10 @@ class Terrain:
         if not np.all(np.isfinite(points[:, :2])):
             raise InvalidInputError("terrain mesh vertices must have finite x and y; got NaN or inf")
         z_ok = np.isfinite(points[:, 2])
-        too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > np.finfo(np.float32).max))
-        if too_large.size and np.isin(too_large, faces).any():  # the kernels get float32 heights
-            k = int(too_large[np.isin(too_large, faces)][0])
+        too_large = np.flatnonzero(z_ok & (np.abs(points[:, 2]) > FLOAT32_MAX))
+        too_large = too_large[np.isin(too_large, faces)]  # an unused vertex does not matter
+        if too_large.size:  # the kernels get float32 heights
+            k = int(too_large[0])
             raise InvalidInputError(
                 f"terrain mesh heights must fit in float32 (|z| < 3.4e+38); vertex {k} has z={float(points[k, 2])!r}"
             )
@@ -161,7 +165,9 @@ class Terrain:
         xy = points[:, :2]
         a, b, c = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]
         area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
-        used_xy = xy[np.unique(faces)]  # the kept faces' extent: a stray point must not widen the tolerance
+        point_used = np.zeros(len(points), dtype=np.int32)
+        point_used[faces.reshape(-1)] = 1
+        used_xy = xy[point_used != 0]  # the kept faces' extent: a stray point must not widen the tolerance
         scale = max(float(np.ptp(used_xy[:, 0]) * np.ptp(used_xy[:, 1])), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol
@@ -175,8 +181,6 @@ class Terrain:
                 f"({int(negative.sum())} of {len(faces)} faces are wound against the rest)"
             )
         edges, face_edges = _edge_table(faces, len(points))
-        point_used = np.zeros(len(points), dtype=np.int32)
-        point_used[faces.reshape(-1)] = 1
         return cls(
             kind="tin",
             heights=np.ascontiguousarray(points[:, 2], dtype=np.float32),
@@ -231,12 +235,7 @@ class Terrain:
         kept face (a stray point elsewhere would cost the float32 local coordinates their precision)."""
         if self.kind == "grid":
             return self.origin
-
-        def corner() -> tuple[float, float]:
-            used = self.points[self.point_used.astype(bool)]
-            return (float(used[:, 0].min()), float(used[:, 1].min()))
-
-        return self.cached("local_origin", corner)
+        return self.cached("local_origin", lambda: self.extent[::2])  # (xmin, ymin)
 
     def local_points(self) -> NDArray[np.float32]:
         """TIN points relative to :attr:`local_origin`, float32 (N, 3)."""
