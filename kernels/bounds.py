@@ -8,7 +8,8 @@ axis with concentrically curved top and bottom (radii |p| - h .. |p| + h, openin
 * :func:`plane_distance_sphere`, :func:`plane_distance_cone`: the largest signed distance ⟨n, x⟩ + a over the
   shape (§7.3; the cone's three cases of Abb. 7). The smallest is minus the value for the inverted plane
   (-n, -a): the shape lies wholly on the outer side iff the inverted plane's value is < 0.
-* :func:`refine_node`: μ = μ_geo · μ_dist · μ_clip (§7.4) > ε, each factor switchable in :class:`View`.
+* :func:`refine_node`: μ = μ_geo · μ_dist · μ_clip (§7.4) > ε, each factor switchable in :class:`View`; it also
+  says when a refining node's shape lies wholly inside the view, so that its descendants skip the clip test.
 
 Shape parameters arrive as float32; every formula runs in float64, so the float32 saturation margin that the
 preprocessing adds per level (relative 2^-20, paper §6: "Größenordnung 10^-6") always exceeds the rounding of
@@ -145,32 +146,50 @@ def inverted(plane: wp.vec4d) -> wp.vec4d:
     return wp.vec4d(-plane[0], -plane[1], -plane[2], -plane[3])
 
 
+#: :func:`sphere_view_side` / :func:`cone_view_side`: the shape lies wholly outside one plane of the view, or
+#: wholly inside every plane (then so do the shapes nested in it: its descendants need no clip test).
+OUTSIDE = wp.constant(1)
+INSIDE = wp.constant(2)
+#: Relative margin of the "wholly inside" test: far above the float64 rounding of the plane distances, so a
+#: shape nested in one found inside is never found outside a plane by its own test.
+INSIDE_MARGIN = wp.constant(wp.float64(1.000001))
+
+
 @wp.func
-def sphere_outside_view(planes: wp.array[wp.vec4d], p: wp.vec3d, r: wp.float64) -> wp.int32:
-    """1 when the bounding sphere lies wholly outside one of the six planes (the inverted-plane test: the
-    largest distance over the sphere from the inverted plane is < 0)."""
+def sphere_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, r: wp.float64) -> wp.int32:
+    """:data:`OUTSIDE` when the bounding sphere lies wholly outside one of the six planes (the inverted-plane
+    test: the largest distance over the sphere from the inverted plane is < 0), :data:`INSIDE` when it lies
+    wholly inside every plane (with :data:`INSIDE_MARGIN`), else 0."""
+    side = INSIDE
     for k in range(planes.shape[0]):
-        if plane_distance_sphere(inverted(planes[k]), p, r) < wp.float64(0.0):
-            return 1
-    return 0
+        plane = planes[k]
+        if plane_distance_sphere(inverted(plane), p, r) < wp.float64(0.0):
+            return OUTSIDE
+        if wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3] >= -r * INSIDE_MARGIN:
+            side = 0
+    return side
 
 
 @wp.func
-def cone_outside_view(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64,
-                      alpha: wp.float64, alpha_sc: wp.vec2d) -> wp.int32:
-    """:func:`sphere_outside_view` for a cone frustum, with p_hat, p_len and (sin α, cos α) given."""
+def cone_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64,
+                   alpha: wp.float64, alpha_sc: wp.vec2d) -> wp.int32:
+    """:func:`sphere_view_side` for a cone frustum, with p_hat, p_len and (sin α, cos α) given. "Inside" is
+    judged by the ball below (a plane whose inner side holds the ball holds the frustum)."""
     # a ball about p holding the frustum: |x - p|² <= h² + (|p| + h) |p| α² (a quick accept / reject per
     # plane; the exact cases of Abb. 7 only for planes through that ball)
     ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
+    side = INSIDE
     for k in range(planes.shape[0]):
         plane = planes[k]
         centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
         if centre > ball:
-            return 1
-        if centre >= -ball:
-            if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
-                return 1
-    return 0
+            return OUTSIDE
+        if centre >= -ball * INSIDE_MARGIN:
+            side = 0
+            if centre >= -ball:
+                if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
+                    return OUTSIDE
+    return side
 
 
 @wp.func
@@ -187,13 +206,25 @@ def triangle_outside_view(planes: wp.array[wp.vec4d], a: wp.vec3d, b: wp.vec3d, 
 
 
 @wp.func
+def refine_side(side: wp.int32) -> wp.int32:
+    """:func:`refine_node`'s answer after the clip test: 0 outside, 2 wholly inside, else 1."""
+    if side == OUTSIDE:
+        return 0
+    if side == INSIDE:
+        return 2
+    return 1
+
+
+@wp.func
 def refine_node(
     eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i, distance_scale: wp.float64, error: wp.float64,
     e: wp.float32, p32: wp.vec3, r: wp.float32, h: wp.float32, alpha: wp.float32, factor: wp.float64,
     eye_length: wp.float64, eye_unit: wp.vec3d
 ) -> wp.int32:
     """The refinement rule μ > ε with μ = μ_geo · μ_dist · μ_clip · μ_user (§7.4; each factor 1 when switched
-    off, μ_user = ``factor``); with ε == 0 every node not clipped refines.
+    off, μ_user = ``factor``); with ε == 0 every node not clipped refines. Returns 0 (no), 1 (refine) or 2
+    (refine, and the clip test found the shape wholly inside the view: with nested shapes, so are all its
+    descendants', whose clip test the caller may then switch off: the same decisions).
 
     Cheapest tests first: μ_geo, then an upper bound of μ_dist from the radial gap between the eye and the
     cone's shell (a lower bound of d), then the exact distance, and the six-plane clip test last. Each early
@@ -206,8 +237,7 @@ def refine_node(
                            wp.float64(h), wp.float64(alpha), factor)
     if error <= wp.float64(0.0):
         if flags[2] != 0:
-            if sphere_outside_view(planes, p, wp.float64(r)) != 0:
-                return 0
+            return refine_side(sphere_view_side(planes, p, wp.float64(r)))
         return 1
     mu = factor
     if flags[0] != 0:
@@ -225,8 +255,7 @@ def refine_node(
     if mu <= error:
         return 0
     if flags[2] != 0:
-        if sphere_outside_view(planes, p, wp.float64(r)) != 0:
-            return 0
+        return refine_side(sphere_view_side(planes, p, wp.float64(r)))
     return 1
 
 
@@ -244,8 +273,7 @@ def refine_cone(
     if error <= wp.float64(0.0):
         if flags[2] != 0:
             p_len0 = wp.length(p)
-            if cone_outside_view(planes, p, p / p_len0, p_len0, h, alpha, sin_cos(alpha)) != 0:
-                return 0
+            return refine_side(cone_view_side(planes, p, p / p_len0, p_len0, h, alpha, sin_cos(alpha)))
         return 1
     mu = factor
     if flags[0] != 0:
@@ -286,8 +314,7 @@ def refine_cone(
         if have_unit == 0:
             p_hat = p / p_len
             alpha_sc = sin_cos(alpha)
-        if cone_outside_view(planes, p, p_hat, p_len, h, alpha, alpha_sc) != 0:
-            return 0
+        return refine_side(cone_view_side(planes, p, p_hat, p_len, h, alpha, alpha_sc))
     return 1
 
 

@@ -1043,15 +1043,21 @@ def count_refinement(
     triangles: wp.array[wp.vec4i],
     can_refine: wp.int32,
     user_factors: wp.array[wp.float32],
+    masks: wp.array[wp.int32],  # per triangle, or empty (not tracked): emit_refinement's masks; bit 3 set when
+                                # an ancestor's shape lies wholly inside the view (so does this node's)
     # outputs
     counts_out: wp.array[wp.int32],  # 2·count + 2: refine flags, 0, owner flags, 0 (one scan for both)
-    inside_out: wp.array[wp.int32],  # per triangle (or empty: not tracked): 1 when its refinement node lies
-                                     # inside every plane of the view (see :func:`point_inside_view`)
+    inside_out: wp.array[wp.int32],  # per refining triangle (or empty: not tracked): bit 0 set when its
+                                     # refinement node lies inside every plane of the view (see
+                                     # :func:`point_inside_view`), bit 1 when the node's shape does
 ):
     """One thread per triangle: 1 when it refines (its refinement node's metric exceeds the error), and
-    whether it emits that node as a new vertex; with ``inside_out``, whether that node lies in the view."""
+    whether it emits that node as a new vertex; with ``inside_out``, whether that node and its shape lie in
+    the view. A triangle whose mask says an ancestor's shape lies inside the view skips the clip test (its
+    node's shape is nested in that one: the same decision)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    tracked = inside_out.shape[0] > 0
     need_position = wp.int32(1)
     if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
         need_position = 0
@@ -1089,14 +1095,26 @@ def count_refinement(
                 if mu > view.error:
                     refine = 1
             else:
-                refine = bounds.refine_node(view.eye, view.planes, view.flags, view.distance_scale, view.error,
+                flags = view.flags
+                deep_inside = wp.int32(0)
+                if tracked:
+                    if (masks[t] & 8) != 0:
+                        deep_inside = 1
+                        flags[2] = 0
+                refine = bounds.refine_node(view.eye, view.planes, flags, view.distance_scale, view.error,
                                             e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
+                if refine == 2 or (refine != 0 and deep_inside != 0):
+                    refine = 3  # refines, its shape inside the view
             if refine == 0 and grid.planar != 0 and wp.float64(e) >= wp.float64(0.5) * STRADDLE_ERROR:
                 refine = 1  # a padded input's border: refine until inside or outside it, even out of view
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
-                if inside_out.shape[0] > 0:
-                    inside_out[t] = point_inside_view(view.planes, bounds.to_vec3d(p))
+                if tracked:
+                    if refine == 3:
+                        inside_out[t] = 3
+                    else:
+                        inside_out[t] = point_inside_view(view.planes, bounds.to_vec3d(p))
+                refine = 1
         counts_out[t] = refine
         counts_out[count + 1 + t] = owner
     if first == 0:
@@ -1331,7 +1349,8 @@ def emit_refinement(
     """One thread per triangle: its two children (c, a, m), (b, c, m) to the next level, or itself to the
     leaves; the owner of a new refinement node writes its canonical entry. With ``masks``, the corner masks
     follow the corners: bit k - 1 set when corner ``tri[k]`` is known to lie inside the view (a corner of a
-    triangle is a corner of its parent or the parent's refinement node, whose test count_refinement made)."""
+    triangle is a corner of its parent or the parent's refinement node, whose test count_refinement made);
+    bit 3, "an ancestor's shape lies inside the view", passes to every descendant."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     track = masks.shape[0] > 0
@@ -1348,7 +1367,7 @@ def emit_refinement(
             children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
             if track:
                 mask = masks[t]
-                node = inside[t] << 2
+                node = ((inside[t] & 1) << 2) | (mask & 8) | ((inside[t] & 2) << 2)  # m's bit, deep inside
                 child_masks_out[k] = ((mask >> 2) & 1) | ((mask & 1) << 1) | node  # (c, a, m)
                 child_masks_out[k + 1] = ((mask >> 1) & 3) | node  # (b, c, m)
             if counts[count + 1 + t] != 0:

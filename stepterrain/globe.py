@@ -604,10 +604,11 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     per_level = []
     host = (host_copy(grid.positions), host_copy(params.values)) if users else None
     flags = view.flags
-    # with culling, the triangles of large levels carry which of their corners are known to lie inside the view
-    # (tested once, as refinement nodes, where their positions are loaded anyway): a leaf with such a corner
-    # skips the test. Small levels (a close view's) are not tracked: there two arrays a level cost more than
-    # the tests they would save.
+    # with the clip metric, the triangles of large levels carry which of their corners are known to lie inside
+    # the view (tested once, as refinement nodes, where their positions are loaded anyway): with culling a leaf
+    # with such a corner skips the test. They also carry whether an ancestor's bounding shape lies wholly inside
+    # the view: then so does their node's, and its clip test is skipped. Small levels (a close view's) are not
+    # tracked: there two arrays a level cost more than the tests they would save.
     none = wp.zeros(0, dtype=wp.int32, device=device)
     masks: wp.array | None = None  # of the current level's triangles, while tracked
     mask_chunks: list[wp.array | None] = []
@@ -626,14 +627,15 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
-        track = cull and count >= _TRACK_MIN
+        track = bool(flags[2]) and count >= _TRACK_MIN
         if track and masks is None:
             masks = wp.zeros(count, dtype=wp.int32, device=device)  # nothing known yet
         elif not track:
             masks = None
         inside = scratch("globe.refine.inside", count, wp.int32, device) if track else none
         launch_chunked(cube_kernels.count_refinement, count,
-               [grid, params, view, triangles, int(depth < levels), factors], [counts, inside], device)
+                       [grid, params, view, triangles, int(depth < levels), factors, masks if track else none],
+                       [counts, inside], device)
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
@@ -649,7 +651,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
                        [children, leaves, entries, child_masks, leaf_masks], device)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
-        mask_chunks.append(leaf_masks if track else None)
+        mask_chunks.append(leaf_masks if track and cull else None)
         per_level.append(count)
         triangles, masks = children, (child_masks if track else None)
     leaves = _concat(leaf_chunks, wp.vec4i, device)

@@ -346,6 +346,34 @@ def test_culling_keeps_exactly_the_triangles_not_wholly_outside(sample_globe, mo
             _assert_culled_exactly(closed, culled, cam)
 
 
+def _mesh_key(mesh):
+    return (np.asarray(mesh.metadata["node_entry"])[np.asarray(mesh.faces)].tolist(),
+            np.asarray(mesh.vertices).tobytes(), mesh.metadata["levels"])
+
+
+@pytest.mark.parametrize("bounds", ["cone", "sphere"])
+def test_skipping_the_clip_test_inside_the_view_changes_nothing(sample_globe, monkeypatch, bounds):
+    """Below a node whose shape lies wholly inside the view (tracked levels) the clip test is skipped: the
+    meshes, culled or not, at ε > 0 and ε = 0, are those of the refinement that tests every node."""
+    import stepterrain.globe as globe_module
+
+    g = sample_globe
+    views = [look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5),
+             look_from(0.0, 0.0, 2 * R, fov=0.2, aspect=1.5),  # a limb view: the planes cut the planet
+             look_from(30.0, 10.0, 3 * R, aspect=1.6),  # the whole planet inside the view
+             look_from(-60.0, 120.0, 50_000.0, tilt=75.0, fov=1.0, aspect=1.5)]
+    skipped = 0
+    for cam in views:
+        for error, cull in ((30.0, True), (30.0, False), (0.0, True)):
+            monkeypatch.setattr(globe_module, "_TRACK_MIN", 1 << 40)  # nothing tracked: every node tested
+            tested = g.mesh(error=error, camera=cam, bounds=bounds, cull=cull)
+            monkeypatch.setattr(globe_module, "_TRACK_MIN", 1)  # every level tracked
+            tracked = g.mesh(error=error, camera=cam, bounds=bounds, cull=cull)
+            assert _mesh_key(tracked) == _mesh_key(tested)
+            skipped += len(tracked.faces)
+    assert skipped > 0
+
+
 @settings(max_examples=12, phases=[Phase.explicit, Phase.reuse, Phase.generate])
 @given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
        error=hst.floats(20.0, 2000.0), cone=hst.booleans(), seed=hst.integers(0, 10**6))
