@@ -269,7 +269,8 @@ def refine_cone(
 
     Between the radial-gap reject and the exact distance (Abb. 6) a quick accept: the axis point p lies in the
     frustum, so d <= |eye - p|, and μ_dist with |eye - p| is a lower bound of the exact one; when it already
-    exceeds ε the exact distance is not needed (most refining nodes of a distant view)."""
+    exceeds ε the exact distance is not needed (most refining nodes of a distant view). μ_dist = (ℓ / d)² is
+    compared as μ · ℓ² > ε · d² (a sign of d² - μ ℓ² / ε, without division or square roots)."""
     if error <= wp.float64(0.0):
         if flags[2] != 0:
             p_len0 = wp.length(p)
@@ -286,30 +287,20 @@ def refine_cone(
     alpha_sc = wp.vec2d(0.0, 1.0)
     have_unit = wp.int32(0)
     if flags[1] != 0:
+        # μ · (ℓ / d)² > ε compared as μ · ℓ² > ε · d²: no square root or division on the quick paths
+        weighted = mu * distance_scale * distance_scale
         gap = wp.max(v_len - (p_len + h), (p_len - h) - v_len)
         if gap > wp.float64(0.0):
-            q = distance_scale / gap
-            if mu * q * q <= error:
+            if weighted <= error * gap * gap:
                 return 0
-        far = wp.length(eye - p)
-        quick = HUGE
-        if far > wp.float64(0.0):
-            q = distance_scale / far
-            quick = mu * q * q
-        if quick > error:
-            mu = quick
-        else:
+        far = eye - p
+        if weighted <= error * wp.dot(far, far):  # no quick accept: the exact distance
             p_hat = p / p_len
             alpha_sc = sin_cos(alpha)
             have_unit = 1
             d = eye_distance_cone_unit(p_hat, p_len, h, alpha_sc, v_hat, v_len)
-            if d > wp.float64(0.0):
-                q = distance_scale / d
-                mu = mu * q * q
-            else:
-                mu = HUGE
-    if mu <= error:
-        return 0
+            if weighted <= error * d * d:  # (d = 0, the eye inside the shape: μ_dist = ∞, refine)
+                return 0
     if flags[2] != 0:
         if have_unit == 0:
             p_hat = p / p_len
