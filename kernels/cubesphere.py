@@ -1032,6 +1032,44 @@ def refinement_entry(n: wp.int32, tri: wp.vec4i) -> wp.int32:
     return tri[0] * n * n + ((a[0] + b[0]) >> 1) * n + ((a[1] + b[1]) >> 1)
 
 
+@wp.func
+def needs_position(flags: wp.vec4i, error: wp.float64) -> wp.int32:
+    """0 when the refinement needs no node position (no distance or clip metric, ε > 0): μ = e · factor."""
+    if flags[1] == 0 and flags[2] == 0 and error > wp.float64(0.0):
+        return 0
+    return 1
+
+
+@wp.func
+def refine_decision(planar: wp.int32, eye: wp.vec3d, planes: wp.array[wp.vec4d], flags: wp.vec4i,
+                    distance_scale: wp.float64, error: wp.float64, eye_length: wp.float64, eye_unit: wp.vec3d,
+                    need_position: wp.int32, q: wp.vec4, p: wp.vec3, factor: wp.float64,
+                    deep_inside: wp.int32) -> wp.int32:
+    """Whether a triangle refines, from its refinement node's (e, r, h, α) ``q`` and position ``p``: 0 no, 1 yes,
+    3 yes and the node's shape lies wholly inside the view. ``deep_inside``: an ancestor's shape lies wholly
+    inside the view, so this node's clip test is skipped (the same decision)."""
+    e = q[0]
+    refine = wp.int32(0)
+    if need_position == 0:
+        # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
+        mu = factor
+        if flags[0] != 0:
+            mu = mu * wp.float64(e)
+        if mu > error:
+            refine = 1
+    else:
+        tested = flags
+        if deep_inside != 0:
+            tested[2] = 0
+        refine = bounds.refine_node(eye, planes, tested, distance_scale, error, e, p, q[1], q[2], q[3], factor,
+                                    eye_length, eye_unit)
+        if refine == 2 or (refine != 0 and deep_inside != 0):
+            refine = 3  # refines, its shape inside the view
+    if refine == 0 and planar != 0 and wp.float64(e) >= wp.float64(0.5) * STRADDLE_ERROR:
+        refine = 1  # a padded input's border: refine until inside or outside it, even out of view
+    return refine
+
+
 @wp.kernel
 def count_refinement(
     thread_offset: wp.int32,
@@ -1058,9 +1096,7 @@ def count_refinement(
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     tracked = inside_out.shape[0] > 0
-    need_position = wp.int32(1)
-    if view.flags[1] == 0 and view.flags[2] == 0 and view.error > wp.float64(0.0):
-        need_position = 0
+    need_position = needs_position(view.flags, view.error)
     # software pipelining: the scattered loads of triangle t + 1's node (q, p) are issued before triangle t's
     # metric runs, so the memory latency overlaps the arithmetic (the loop is latency-bound otherwise)
     q_next = wp.vec4(0.0, 0.0, 0.0, 0.0)
@@ -1086,27 +1122,12 @@ def count_refinement(
             factor = wp.float64(1.0)
             if user_factors.shape[0] > 0:
                 factor = wp.float64(user_factors[t])
-            e = q[0]
-            if need_position == 0:
-                # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
-                mu = factor
-                if view.flags[0] != 0:
-                    mu = mu * wp.float64(e)
-                if mu > view.error:
-                    refine = 1
-            else:
-                flags = view.flags
-                deep_inside = wp.int32(0)
-                if tracked:
-                    if (masks[t] & 8) != 0:
-                        deep_inside = 1
-                        flags[2] = 0
-                refine = bounds.refine_node(view.eye, view.planes, flags, view.distance_scale, view.error,
-                                            e, p, q[1], q[2], q[3], factor, view.eye_length, view.eye_unit)
-                if refine == 2 or (refine != 0 and deep_inside != 0):
-                    refine = 3  # refines, its shape inside the view
-            if refine == 0 and grid.planar != 0 and wp.float64(e) >= wp.float64(0.5) * STRADDLE_ERROR:
-                refine = 1  # a padded input's border: refine until inside or outside it, even out of view
+            deep_inside = wp.int32(0)
+            if tracked:
+                if (masks[t] & 8) != 0:
+                    deep_inside = 1
+            refine = refine_decision(grid.planar, view.eye, view.planes, view.flags, view.distance_scale, view.error,
+                                     view.eye_length, view.eye_unit, need_position, q, p, factor, deep_inside)
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
                 if tracked:
@@ -1377,6 +1398,86 @@ def emit_refinement(
             leaves_out[t - offsets[t]] = tri
             if track:
                 leaf_masks_out[t - offsets[t]] = masks[t]
+
+
+@wp.kernel
+def refine_small_levels(
+    thread_offset: wp.int32,
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    view: bounds.View,
+    roots: wp.array[wp.vec4i],
+    levels: wp.int32,  # the deepest level: its triangles do not refine
+    capacity: wp.int32,  # levels of at most this many triangles are refined here
+    # outputs
+    level_a: wp.array[wp.vec4i],  # 2·capacity each: one level's triangles and the next's, in turn
+    level_b: wp.array[wp.vec4i],
+    leaves_out: wp.array[wp.vec4i],  # (levels + 1)·capacity each
+    vertex_entries_out: wp.array[wp.int32],
+    per_level_out: wp.array[wp.int32],  # levels + 1: triangles per level refined here
+    totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, 1 if in level_a
+):
+    """The CPU's small levels in one thread and one launch: :func:`count_refinement` and
+    :func:`emit_refinement` of every level from the roots while a level holds at most ``capacity`` triangles
+    (a close view's levels all do), appending children, leaves and new vertices in the order the level passes
+    write them (the same mesh). Untracked: no corner masks (they start at :data:`stepterrain.globe._TRACK_MIN`).
+    A level pass costs a few launches and a host read of its scan; here a small level costs its triangles."""
+    if wp.tid() + thread_offset != 0:
+        return
+    need_position = needs_position(view.flags, view.error)
+    n_cur = roots.shape[0]
+    for k in range(n_cur):
+        level_a[k] = roots[k]
+    in_a = wp.int32(1)
+    n_leaves = wp.int32(0)
+    n_entries = wp.int32(0)
+    depth = wp.int32(0)
+    while depth <= levels and n_cur > 0 and n_cur <= capacity:
+        per_level_out[depth] = n_cur
+        n_next = wp.int32(0)
+        for t in range(n_cur):
+            tri = level_b[t]
+            if in_a != 0:
+                tri = level_a[t]
+            refine = wp.int32(0)
+            if depth < levels:
+                m = refinement_entry(grid.n, tri)
+                q = params.values[m]
+                p = wp.vec3(0.0, 0.0, 0.0)
+                if need_position != 0:
+                    p = grid.positions[m]
+                refine = refine_decision(grid.planar, view.eye, view.planes, view.flags, view.distance_scale,
+                                         view.error, view.eye_length, view.eye_unit, need_position, q, p,
+                                         wp.float64(1.0), 0)
+            if refine != 0:
+                a = unpack(tri[1])
+                b = unpack(tri[2])
+                mi = (a[0] + b[0]) >> 1
+                mj = (a[1] + b[1]) >> 1
+                mid = pack(mi, mj)
+                first_child = wp.vec4i(tri[0], tri[3], tri[1], mid)
+                second_child = wp.vec4i(tri[0], tri[2], tri[3], mid)
+                if in_a != 0:
+                    level_b[n_next] = first_child
+                    level_b[n_next + 1] = second_child
+                else:
+                    level_a[n_next] = first_child
+                    level_a[n_next + 1] = second_child
+                n_next += 2
+                if owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3])) != 0:
+                    vertex_entries_out[n_entries] = node_entry(grid.cells, grid.planar, tri[0], mi, mj)
+                    n_entries += 1
+            else:
+                leaves_out[n_leaves] = tri
+                n_leaves += 1
+        in_a = 1 - in_a
+        n_cur = n_next
+        depth += 1
+    totals_out[0] = n_leaves
+    totals_out[1] = n_entries
+    totals_out[2] = n_cur
+    totals_out[3] = depth
+    totals_out[4] = in_a
 
 
 @wp.kernel

@@ -55,6 +55,9 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 #: compare both).
 _NODE_PASS = True
 _TRACK_MIN = 4096  # triangles of a level from which culling tracks its corners (see _extract)
+#: On the CPU, the levels below this many triangles (and below _TRACK_MIN) are refined by one single-thread
+#: launch (``refine_small_levels``) instead of a count -> scan -> emit each; 0 switches that off.
+_SMALL_LEVELS = 4096
 
 UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 
@@ -593,6 +596,27 @@ def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int
     return per_level
 
 
+def _refine_small_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int,
+                         leaf_chunks: list[wp.array], vertex_chunks: list[wp.array], per_level: list[int],
+                         device: wp.Device) -> tuple[wp.array, int]:
+    """The levels of at most ``capacity`` triangles from the roots, in one launch (``refine_small_levels``):
+    appends their leaves, new vertices and level sizes; returns the next level's triangles and depth."""
+    slots = (levels + 1) * capacity
+    level_a = scratch("globe.small.a", 2 * capacity, wp.vec4i, device)
+    level_b = scratch("globe.small.b", 2 * capacity, wp.vec4i, device)
+    leaves = wp.empty(slots, dtype=wp.vec4i, device=device)
+    entries = wp.empty(slots, dtype=wp.int32, device=device)
+    sizes = scratch("globe.small.sizes", levels + 1, wp.int32, device)
+    totals = scratch("globe.small.totals", 5, wp.int32, device)
+    launch(cube_kernels.refine_small_levels, 1, [grid, params, view, roots, levels, capacity],
+           [level_a, level_b, leaves, entries, sizes, totals], device)
+    n_leaves, n_entries, n_next, depth, in_a = (int(v) for v in host_copy(totals))
+    leaf_chunks.append(leaves[:n_leaves])
+    vertex_chunks.append(entries[:n_entries])
+    per_level.extend(int(v) for v in host_copy(sizes)[:depth])
+    return (level_a if in_a else level_b)[:n_next], depth
+
+
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
              per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Breadth-first refinement, one count -> scan -> emit per level, then vertices and faces."""
@@ -621,7 +645,13 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
         levels = -1  # the loop below has nothing left to do
-    for depth in range(levels + 1):
+    first_depth = 0
+    capacity = min(_SMALL_LEVELS, _TRACK_MIN - 1)
+    if device.is_cpu and not users and levels >= 0 and capacity >= triangles.shape[0]:
+        triangles, first_depth = _refine_small_levels(grid, params, view, triangles, levels, capacity, leaf_chunks,
+                                                      vertex_chunks, per_level, device)
+        mask_chunks.append(None)
+    for depth in range(first_depth, levels + 1):
         count = triangles.shape[0]
         if count == 0:
             break

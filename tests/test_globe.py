@@ -374,6 +374,28 @@ def test_skipping_the_clip_test_inside_the_view_changes_nothing(sample_globe, mo
     assert skipped > 0
 
 
+@pytest.mark.parametrize("small", [1, 64, 4096])
+def test_small_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch, small):
+    """On the CPU the levels below ``_SMALL_LEVELS`` triangles are refined by one single-thread launch: the
+    same triangles, vertices, order and per-level counts as a count -> scan -> emit per level, whether the
+    small levels end early (1, 64) or take a close view whole (4096)."""
+    import stepterrain.globe as globe_module
+
+    g = sample_globe
+    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
+    far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
+    cases = [dict(error=30.0, camera=close), dict(error=30.0, camera=close, cull=False),
+             dict(error=0.0, camera=close), dict(error=200.0, camera=far, bounds="sphere"),
+             dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance"))]
+    for kwargs in cases:
+        monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)
+        levelwise = g.mesh(**kwargs)
+        monkeypatch.setattr(globe_module, "_SMALL_LEVELS", small)
+        at_once = g.mesh(**kwargs)
+        assert _mesh_key(at_once) == _mesh_key(levelwise)
+        assert np.array_equal(at_once.face_attributes["cube_face"], levelwise.face_attributes["cube_face"])
+
+
 @settings(max_examples=12, phases=[Phase.explicit, Phase.reuse, Phase.generate])
 @given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
        error=hst.floats(20.0, 2000.0), cone=hst.booleans(), seed=hst.integers(0, 10**6))
