@@ -52,11 +52,11 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     Parameters
     ----------
     path : str or path-like
-        ``.npy`` (one (H, W) array), ``.npz`` (the georeferenced layout of ``shared/data``: ``elevation``,
-        ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units`` (the heights' unit); or any archive
-        holding one 2-D array or a key ``heights``, ``elevation`` or ``z``; a scalar ``nodata`` marks
-        missing cells), ``.png`` (8- or 16-bit greyscale heightmap, values are heights) or
-        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        ``.npy`` (one (H, W) array), ``.npz`` (heights under a key ``heights``, ``elevation`` or ``z``, or
+        the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
+        ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
+        (the heights' unit); a scalar ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
+        heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
 
@@ -230,8 +230,11 @@ def _load_npz(file: Path) -> Terrain:
         ) from exc
 
     nodata = _npz_nodata(arrays.get("nodata"))
-    if "elevation" in arrays and "transform" in arrays:
-        heights = _elevation(arrays["elevation"], file, "'elevation'", nodata)
+    two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
+    # a transform georeferences whichever array holds the heights: 'elevation' (the shared/data layout) first
+    key = next((k for k in ("elevation", *_GENERIC_KEYS) if k in arrays), two_d[0] if len(two_d) == 1 else None)
+    if key is not None and "transform" in arrays:
+        heights = _elevation(arrays[key], file, repr(key), nodata)
         raw = arrays["transform"]
         transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
         if transform.size != 6 or not np.all(np.isfinite(transform)):
@@ -265,7 +268,6 @@ def _load_npz(file: Path) -> Terrain:
                 origin=(0.0, 0.0),
                 crs=None,
             )
-    two_d = [key for key, value in arrays.items() if value.ndim == 2]
     if len(two_d) == 1:
         key = two_d[0]
         return _grid(
@@ -274,8 +276,8 @@ def _load_npz(file: Path) -> Terrain:
         )
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
-        f"cannot read {str(file)!r}: expected an .npz with 'elevation' + 'transform', a key "
-        f"{'/'.join(_GENERIC_KEYS)}, or exactly one 2-D array; got {described}"
+        f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
+        f"'transform' beside it), or exactly one 2-D array; got {described}"
     )
 
 

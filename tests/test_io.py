@@ -155,6 +155,20 @@ def test_georeferenced_npz_projected(tmp_path):
     assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
 
 
+@pytest.mark.parametrize("key", ["heights", "z", "dem"])
+def test_npz_transform_is_honoured_whatever_the_heights_key(tmp_path, key):
+    # 'transform' beside 'heights', 'z' or a lone 2-D array georeferences it as it does 'elevation'
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.savez(tmp_path / "p.npz", **{key: z}, transform=np.array([1000.0, 10.0, 0, 5000.0, 0, -20.0]),
+             crs="EPSG:32633")  # fmt: skip
+    t = load_dem(tmp_path / "p.npz")
+    np.testing.assert_array_equal(t.heights, z)
+    assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
+    np.savez(tmp_path / "bad.npz", **{key: z}, transform=np.array([0.0, 1.0, 0.0]))
+    with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
+        load_dem(tmp_path / "bad.npz")
+
+
 @pytest.mark.parametrize("dtype", [np.int16, np.float32])
 def test_npz_nodata_value_becomes_nan(tmp_path, dtype):
     # the shared/data layout stores its nodata value beside the heights; a finite one marks missing cells
