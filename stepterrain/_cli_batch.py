@@ -26,7 +26,8 @@ examples:
   stepterrain batch --tile 256 -o out/tiles            (again: complete outputs are skipped)
 
 exit status: 0 every item written or complete already; 1 some items failed (listed with their reasons);
-2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable).
+2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable, a --floor
+not below the stepped surface of every item).
 """
 
 
@@ -138,6 +139,15 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
+    # a folder's heights are known only item by item (tiles and series are checked up front): a floor above every
+    # item's surface is a usage error, said once, not a list of identical failures
+    floor_failed = [r for r in report.failed if "floor must lie below" in (r.error or "")]  # mesh.close_solid's
+    if args.floor is not None and floor_failed and len(floor_failed) == len(report.results):
+        first = floor_failed[0]
+        raise InvalidInputError(
+            f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above all "
+            f"{len(floor_failed)} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
+        )
     for line in report.summary().splitlines()[1:]:  # the failures: shown under -q too
         print(f"stepterrain: {line.strip()}", file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):

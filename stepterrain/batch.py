@@ -623,7 +623,9 @@ def batch(
     Raises
     ------
     InvalidInputError
-        Unknown format, bad source, tile size, isovalues or scheduler address.
+        Unknown format, bad source, tile size, isovalues or scheduler address; a ``floor`` not below the lowest
+        point of the stepped surface of every tile or frame (a folder's files are read by the items, so there
+        each item fails on its own).
     DataFileError
         The source does not exist, or ``output_dir`` cannot be created or written (before any work).
     SchedulerError
@@ -685,6 +687,8 @@ def batch(
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = _Source(src.heights, probe.spacing, probe.origin, src.crs, src.name)
     level_values = _shared_levels(src, interval, levels, base)
+    if floor is not None and solid and src is not None and level_values is not None:
+        _check_floor(src, level_values, float(gamma), float(floor))  # heights at hand: refused once, not per item
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
     if src is None:  # no shared height range: check interval/levels/base now, not once per item
@@ -760,6 +764,37 @@ def _shared_levels(
     if interval is None and levels is None:
         interval = nice_interval((lo, hi))
     return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))
+
+
+def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:
+    """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface.
+
+    That point is (1 − γ) h + γ α(h) at the lowest height h of a node that a triangle with three finite heights
+    uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
+    so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
+    """
+    finite = np.isfinite(src.heights)
+    # a cell's two triangles (n00, n01, n11) and (n00, n11, n10), as kernels/stepped.py cuts it
+    n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
+    upper, lower = n00 & n01 & n11, n00 & n11 & n10
+    used = np.zeros_like(finite)
+    used[..., :-1, :-1] |= upper | lower
+    used[..., :-1, 1:] |= upper
+    used[..., 1:, 1:] |= upper | lower
+    used[..., 1:, :-1] |= lower
+    if not used.any():
+        return  # no surface at all: each item says so
+    from .stepped import thresholds_of
+
+    h = float(np.min(src.heights, where=used, initial=np.inf))
+    isovalues = np.asarray(values, np.float32)
+    alpha = float(isovalues[np.searchsorted(thresholds_of(isovalues), np.float32(h), side="right")])
+    lowest = (1.0 - gamma) * h + gamma * alpha
+    if floor >= lowest:
+        raise InvalidInputError(
+            f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
+            f"{src.name} (its lowest height {h:g} on the isovalue {alpha:g}, γ = {gamma:g}); got {floor:.9g}"
+        )
 
 
 class _Recorder:

@@ -16,6 +16,7 @@ import argparse
 import json
 import math
 import os
+import re
 import sys
 import time
 import warnings
@@ -67,8 +68,20 @@ class _UsageError(Exception):
     """A command-line value that argparse cannot check on its own (exit status 2)."""
 
 
+#: An argument that is a value even though it starts with a minus: a digit or '.digit' next ('-1e20', '-5,0,5',
+#: '-.5') or -inf/-nan (so the value checks, not argparse, refuse them). argparse's own pattern takes only '-5'
+#: and '-0.5', so '--base -1e20' failed with "expected one argument". No stepterrain option looks like this.
+_NEGATIVE_NUMBER = re.compile(r"^-(\.?\d|(inf|infinity|nan)$)", re.IGNORECASE)
+
+
 class _Parser(argparse.ArgumentParser):
-    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers."""
+    """argparse that raises instead of exiting, so :func:`main` returns the status to in-process callers, and
+    takes negative numbers in any float notation (and lists starting with one) as values: every subcommand's
+    parser is one (``parser_class``)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = _NEGATIVE_NUMBER
 
     def error(self, message: str) -> None:  # type: ignore[override]
         raise _UsageError(f"{self.prog}: error: {message}")

@@ -36,6 +36,13 @@ _GENERIC_KEYS = ("heights", "elevation", "z")
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
 _GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
+_US_FOOT_M = 1200 / 3937
+#: Height units a file may name (lower case, as GDAL band units and PROJ write them) -> metres per unit.
+_HEIGHT_UNITS = {
+    **dict.fromkeys(("m", "metre", "meter", "metres", "meters"), 1.0),
+    **dict.fromkeys(("ft", "foot", "feet", "international foot"), 0.3048),
+    **dict.fromkeys(("us-ft", "ftus", "us survey foot", "us survey feet", "foot_us", "us_survey_foot"), _US_FOOT_M),
+}
 
 
 # ---------------------------------------------------------------------------------------------- public API
@@ -45,10 +52,11 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     Parameters
     ----------
     path : str or path-like
-        ``.npy`` (one (H, W) array), ``.npz`` (the georeferenced layout of ``shared/data``: ``elevation``,
-        ``transform``, ``crs``, optional ``dx_m``/``dy_m``; or any archive holding one 2-D array or a key
-        ``heights``, ``elevation`` or ``z``; a scalar ``nodata`` marks missing cells), ``.png`` (8- or
-        16-bit greyscale heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        ``.npy`` (one (H, W) array), ``.npz`` (heights under a key ``heights``, ``elevation`` or ``z``, or
+        the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
+        ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
+        (the heights' unit); a scalar ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
+        heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
 
@@ -61,8 +69,14 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres on
         a sphere of radius :data:`EARTH_RADIUS_M` (dx at the centre latitude): ``origin`` = (0, 0) at the
         top-left node, ``crs`` the equivalent PROJ equidistant-cylindrical definition and ``source`` names
-        the node's longitude and latitude. Plain arrays and PNGs: ``spacing`` (1, -1), ``origin`` (0, 0).
-        ``source`` is the file name.
+        the node's longitude and latitude. A projected CRS in another linear unit (EPSG:2229 counts US
+        survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection in
+        metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
+        rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless the file
+        names their unit (a GeoTIFF band's unit, an .npz ``units``: "ft", "US survey foot", "m", ...),
+        in which case feet become metres; a grid converted to metres whose heights' unit is not named
+        warns that they were kept as stored. Plain arrays and PNGs: ``spacing`` (1, -1), ``origin``
+        (0, 0). ``source`` is the file name.
 
     Raises
     ------
@@ -216,8 +230,11 @@ def _load_npz(file: Path) -> Terrain:
         ) from exc
 
     nodata = _npz_nodata(arrays.get("nodata"))
-    if "elevation" in arrays and "transform" in arrays:
-        heights = _elevation(arrays["elevation"], file, "'elevation'", nodata)
+    two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
+    # a transform georeferences whichever array holds the heights: 'elevation' (the shared/data layout) first
+    key = next((k for k in ("elevation", *_GENERIC_KEYS) if k in arrays), two_d[0] if len(two_d) == 1 else None)
+    if key is not None and "transform" in arrays:
+        heights = _elevation(arrays[key], file, repr(key), nodata)
         raw = arrays["transform"]
         transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
         if transform.size != 6 or not np.all(np.isfinite(transform)):
@@ -237,7 +254,10 @@ def _load_npz(file: Path) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
-        return _georeferenced(file, heights, transform, crs, geographic=geographic, metres=metres)
+        heights, height_unit = _heights_in_metres(heights, _scalar_str(arrays.get("units")))
+        return _georeferenced(
+            file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
+        )
 
     for key in _GENERIC_KEYS:
         if key in arrays:
@@ -248,7 +268,6 @@ def _load_npz(file: Path) -> Terrain:
                 origin=(0.0, 0.0),
                 crs=None,
             )
-    two_d = [key for key, value in arrays.items() if value.ndim == 2]
     if len(two_d) == 1:
         key = two_d[0]
         return _grid(
@@ -257,8 +276,8 @@ def _load_npz(file: Path) -> Terrain:
         )
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
-        f"cannot read {str(file)!r}: expected an .npz with 'elevation' + 'transform', a key "
-        f"{'/'.join(_GENERIC_KEYS)}, or exactly one 2-D array; got {described}"
+        f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
+        f"'transform' beside it), or exactly one 2-D array; got {described}"
     )
 
 
@@ -310,6 +329,7 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
                     )
                 masked = dataset.read(band, masked=True)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
+                unit = dataset.units[band - 1]
                 transform = dataset.transform
                 crs_obj = dataset.crs
     except RasterioError as exc:
@@ -320,13 +340,15 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         masked = masked.astype(np.float64) * scale + offset
     array = np.ma.filled(masked.astype(np.float32), np.nan)
-    heights = _elevation(array, file, f"band {band}")
+    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit)
     if crs_obj is None and transform.is_identity:
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     geotransform = np.array(transform.to_gdal(), dtype=np.float64)
     crs = _crs_string(crs_obj)
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)
-    return _georeferenced(file, heights, geotransform, crs, geographic=geographic, metres=None)
+    return _georeferenced(
+        file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
+    )
 
 
 # ---------------------------------------------------------------------------------------------- helpers
@@ -439,8 +461,11 @@ def _georeferenced(
     *,
     geographic: bool,
     metres: tuple[float, float] | None,
+    height_unit: str | None,
 ) -> Terrain:
-    """Grid from a GDAL geotransform of the cell corners: node (0, 0) is the centre of the top-left cell."""
+    """Grid from a GDAL geotransform of the cell corners: node (0, 0) is the centre of the top-left cell.
+    A projected CRS in feet (or any unit but the metre) is converted to metres; ``height_unit`` is the
+    heights' unit when the file names a known one (they are then metres already), else None."""
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
     if row_x != 0.0 or col_y != 0.0:
         raise DataFileError(
@@ -451,7 +476,22 @@ def _georeferenced(
         raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
     node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
     if not geographic:
-        return _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs)
+        projected = _projected_units(crs)
+        if projected is None:
+            return _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs)
+        unit, factor, metre_crs = projected
+        if height_unit is None:
+            warnings.warn(
+                f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
+                f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
+                f"multiply them by {factor:.10g}",
+                stacklevel=4,
+            )
+        source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
+        return _grid(
+            file, heights, spacing=(dx * factor, dy * factor), origin=(node_x * factor, node_y * factor),
+            crs=metre_crs, source=source,
+        )
 
     rows = heights.shape[0]
     centre_lat = y0 + 0.5 * rows * dy
@@ -485,6 +525,42 @@ def _is_geographic(crs: str | None) -> bool:
         return bool(CRS.from_user_input(crs).is_geographic)
     except Exception:  # an unparseable CRS string: keep the grid in its own units
         return False
+
+
+def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
+    """(unit, metres per unit, the same projection in metres) of a projected CRS whose unit is not the
+    metre; None for metres, a geographic or unknown CRS, or without rasterio to look the CRS up."""
+    if not crs:
+        return None
+    try:
+        from rasterio.crs import CRS
+    except ImportError:
+        return None
+    try:
+        crs_obj = CRS.from_user_input(crs)
+        if not crs_obj.is_projected:
+            return None
+        unit, factor = crs_obj.linear_units_factor
+    except Exception:  # an unparseable CRS string: keep the grid in its own units
+        return None
+    if factor == 1.0:
+        return None
+    try:  # PROJ's false easting and northing are metres whatever +units says: only the unit changes
+        params = {key: value for key, value in crs_obj.to_dict().items() if key != "to_meter"}
+        metre_crs = _crs_string(CRS.from_dict({**params, "units": "m"})) if params else None
+    except Exception:  # no PROJ form of this CRS: metres without a CRS to name them
+        metre_crs = None
+    return str(unit), float(factor), metre_crs
+
+
+def _heights_in_metres(heights: NDArray[np.float32], unit: str | None) -> tuple[NDArray[np.float32], str | None]:
+    """Heights in metres when ``unit`` is a known length unit (returned as named), else as stored and None."""
+    factor = _HEIGHT_UNITS.get(unit.strip().lower()) if unit else None
+    if factor is None:
+        return heights, None
+    if factor != 1.0:
+        heights = (heights.astype(np.float64) * factor).astype(np.float32)
+    return heights, unit
 
 
 def _crs_string(crs_obj: Any) -> str | None:

@@ -159,7 +159,8 @@ def hillshade(
         Heights (NaN = nodata); a raw array takes ``spacing`` (dx, dy), default (1, 1).
     azimuth, altitude : float
         Direction the light comes from: azimuth clockwise from north (+y), altitude above the horizon in
-        [0, π/2], radians (GDAL's defaults 315° and 45°).
+        [0, π/2], radians, not degrees: the defaults are GDAL's ``-az 315 -alt 45``, ``math.radians(315)``
+        and ``math.radians(45)`` (the CLI's ``--azimuth``/``--altitude`` take degrees).
     z_factor : float
         Vertical exaggeration applied to the heights (GDAL's ``-z``).
     method : "standard", "multidirectional", "combined" or "igor"

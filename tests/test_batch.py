@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import socket
 from pathlib import Path
 
@@ -255,6 +256,54 @@ def test_bad_floor_is_refused_before_any_work(tmp_path, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial", **kwargs)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(("gamma", "lowest"), [(1.0, 0.0), (0.5, 0.125)])
+def test_floor_above_the_surface_is_refused_before_any_work(tmp_path, gamma, lowest):
+    # every tile's solid would fail on it, so it is refused once, up front. The lowest point of the surface is
+    # (1 - γ) h + γ α at the lowest height h = 0.25 (α = 0, its isovalue); a floor just below it is accepted
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)) + 0.25
+    z[8, 8] = -100.0  # in no finite triangle (its three neighbours are nodata): no vertex, not the lowest point
+    z[7, 7] = z[7, 8] = z[8, 7] = np.nan
+    series = np.stack([z + 4.0, z])  # the lowest frame decides
+    for source, tiles in ((z, 4), (series, None)):
+        for floor in (1e9, lowest, lowest + 1e-3):
+            match = re.escape(f"floor (the CLI's --floor) must lie below the lowest point {lowest:g} of the "
+                              "stepped surface") + ".*" + re.escape(f"got {floor:g}")
+            with pytest.raises(InvalidInputError, match=match):
+                batch(source, tmp_path / "out", tile_size=tiles, interval=2.0, gamma=gamma, solid=True, floor=floor,
+                      scheduler="serial")
+            assert not (tmp_path / "out").exists()
+        report = batch(source, tmp_path / f"ok{tiles}", tile_size=tiles, interval=2.0, gamma=gamma, solid=True,
+                       floor=lowest - 1e-3, format=".stl", scheduler="serial")
+        assert report.ok and len(report.done) == (4 if tiles else 2), report.summary()
+        assert min(load(r.path).bounds[0][2] for r in report.done) == pytest.approx(lowest - 1e-3)
+
+
+def test_cli_batch_floor_above_the_surface_exits_2_once(tmp_path, capsys):
+    np.save(tmp_path / "z.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    out = tmp_path / "out"
+    argv = ["batch", str(tmp_path / "z.npy"), "--tile", "4", "--interval", "2", "--solid", "--floor", "1e9",
+            "-o", str(out), "--scheduler", "serial"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--floor" in err and "got 1e+09" in err and err.count("error") == 1 and "failed" not in err
+    assert not out.exists()
+    # a folder's heights are known only item by item: when the floor fails every item, one line and exit 2
+    src = make_folder(tmp_path / "in")
+    assert cli.main(["-q", "batch", str(src), "--interval", "10", "--solid", "--floor", "1e9", "-o", str(out),
+                     "--scheduler", "serial"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain batch: error: --floor 1e+09 must lie below the stepped surface of every "
+                          "input; it lies above all 3 (e.g. dem_0: floor must lie below") and err.count("\n") == 1
+    assert not list(out.glob("*.glb"))
+    # when some items pass, the others are failures of their own data: listed one by one, exit 1
+    np.save(src / "dem_low.npy", np.full((4, 4), -1e10, np.float32))
+    assert cli.main(["batch", str(src), "--interval", "1e9", "--solid", "--floor", "-1e9", "-o", str(out),
+                     "--scheduler", "serial"]) == 1
+    err = capsys.readouterr().err
+    assert "stepterrain: failed dem_low: InvalidInputError: floor must lie below" in err and "error:" not in err
+    assert sorted(p.name for p in out.glob("*.glb")) == ["dem_0.glb", "dem_1.glb", "dem_2.glb"]
 
 
 @pytest.mark.parametrize(

@@ -81,6 +81,43 @@ def test_solid_stl_is_watertight(dem, tmp_path, capsys):
     assert mesh.bounds[0][2] == pytest.approx(-2.0)
 
 
+@pytest.mark.parametrize(
+    ("argv", "floor"),
+    [
+        (["--interval", "2", "--base", "-5"], None),
+        (["--interval", "2", "--base", "-1E+0"], None),
+        (["--levels", "-5,0,5"], None),
+        (["--levels", "-1e1,-.5,5"], None),
+        (["--interval", "2", "--solid", "--floor", "-1e1"], -10.0),
+        (["--interval", "2", "--solid", "--floor", "-2.5"], -2.5),
+    ],
+)
+def test_negative_numbers_after_an_option_are_its_value(dem, tmp_path, capsys, argv, floor):
+    """'--base -1e20' is the value -1e20, not an unknown option '-1e20' (argparse's own pattern knows neither
+    exponents nor lists)."""
+    out = tmp_path / "neg.stl"
+    code, _, err = run(capsys, "steps", dem, *argv, "-o", out)
+    assert code == 0, err
+    if floor is not None:
+        assert trimesh.load(out).bounds[0][2] == pytest.approx(floor)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["steps", "{dem}", "--interval", "2", "--base", "-1e20", "-o", "{out}.glb"], "base=-1e+20 gives isovalues"),
+        (["steps", "{dem}", "--interval", "2", "--base", "-inf", "-o", "{out}.glb"], "base must be finite; got -inf"),
+        (["batch", "{dem}", "--tile", "8", "--interval", "2", "--base", "-1e20", "--scheduler", "serial",
+          "-o", "{out}"], "base=-1e+20 gives isovalues"),
+        (["texture", "{dem}", "--azimuth", "-1e400", "-o", "{out}.png"], "azimuth must be finite"),
+    ],
+)
+def test_a_negative_number_reaches_the_value_checks(dem, tmp_path, capsys, argv, message):
+    code, _, err = run(capsys, *[a.format(dem=dem, out=tmp_path / "neg") for a in argv])
+    assert code == 2
+    assert message in err and "expected one argument" not in err
+
+
 def test_library_warnings_print_as_one_line(tmp_path, capsys):
     """Integer heights on a threshold warn that a solid may leak: one 'stepterrain steps: warning:' line, no
     source line or warning class."""

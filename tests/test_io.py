@@ -155,6 +155,20 @@ def test_georeferenced_npz_projected(tmp_path):
     assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
 
 
+@pytest.mark.parametrize("key", ["heights", "z", "dem"])
+def test_npz_transform_is_honoured_whatever_the_heights_key(tmp_path, key):
+    # 'transform' beside 'heights', 'z' or a lone 2-D array georeferences it as it does 'elevation'
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.savez(tmp_path / "p.npz", **{key: z}, transform=np.array([1000.0, 10.0, 0, 5000.0, 0, -20.0]),
+             crs="EPSG:32633")  # fmt: skip
+    t = load_dem(tmp_path / "p.npz")
+    np.testing.assert_array_equal(t.heights, z)
+    assert t.origin == (1005.0, 4990.0) and t.spacing == (10.0, -20.0) and t.crs == "EPSG:32633"
+    np.savez(tmp_path / "bad.npz", **{key: z}, transform=np.array([0.0, 1.0, 0.0]))
+    with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
+        load_dem(tmp_path / "bad.npz")
+
+
 @pytest.mark.parametrize("dtype", [np.int16, np.float32])
 def test_npz_nodata_value_becomes_nan(tmp_path, dtype):
     # the shared/data layout stores its nodata value beside the heights; a finite one marks missing cells
@@ -247,6 +261,47 @@ def test_geotiff_band_choice(tmp_path):
     assert load_dem(path, band=2).heights.max() == 7.0
     with pytest.raises(InvalidInputError, match="band must be between 1 and 2"):
         load_dem(path, band=3)
+
+
+US_FOOT = 1200 / 3937  # metres per US survey foot
+
+
+def test_geotiff_in_us_survey_feet_becomes_metres(tmp_path):
+    # EPSG:2229 (NAD83 / California zone 5) counts US survey feet: spacing and origin become metres, the CRS its
+    # metre twin EPSG:26945; heights stay as stored unless the band names their unit
+    rasterio = needs_rasterio()
+    z = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
+    profile = dict(driver="GTiff", width=3, height=2, count=1, dtype="float32", crs="EPSG:2229",
+                   transform=rasterio.Affine(10.0, 0.0, 6500000.0, 0.0, -10.0, 1900000.0))  # fmt: skip
+    with rasterio.open(tmp_path / "ft.tif", "w", **profile) as ds:
+        ds.write(z, 1)
+    with pytest.warns(UserWarning, match="heights are kept as stored"):
+        t = load_dem(tmp_path / "ft.tif")
+    assert t.spacing == pytest.approx((10.0 * US_FOOT, -10.0 * US_FOOT), rel=1e-12)
+    assert t.origin == pytest.approx((6500005.0 * US_FOOT, 1899995.0 * US_FOOT), rel=1e-12)
+    assert t.crs == "EPSG:26945" and "US survey foot" in t.source
+    np.testing.assert_array_equal(t.heights, z)
+
+    with rasterio.open(tmp_path / "ft_z.tif", "w", **profile) as ds:  # the band says its heights are feet too
+        ds.write(z, 1)
+        ds.units = ("US survey foot",)
+    t = load_dem(tmp_path / "ft_z.tif")
+    np.testing.assert_allclose(t.heights, z * US_FOOT, rtol=1e-6)
+    assert t.spacing == pytest.approx((10.0 * US_FOOT, -10.0 * US_FOOT), rel=1e-12)
+
+
+def test_georeferenced_npz_in_feet_becomes_metres(tmp_path):
+    needs_rasterio()  # an EPSG code's unit is looked up through rasterio
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    transform = np.array([6500000.0, 10.0, 0, 1900000.0, 0, -20.0])
+    np.savez(tmp_path / "ft.npz", elevation=z, transform=transform, crs="EPSG:2229", units="ft")
+    t = load_dem(tmp_path / "ft.npz")
+    assert t.spacing == pytest.approx((10.0 * US_FOOT, -20.0 * US_FOOT), rel=1e-12)
+    assert t.origin == pytest.approx((6500005.0 * US_FOOT, 1899990.0 * US_FOOT), rel=1e-12)
+    assert t.crs == "EPSG:26945"
+    np.testing.assert_allclose(t.heights, z * 0.3048, rtol=1e-6)  # units names the heights' unit
+    np.savez(tmp_path / "m.npz", elevation=z, transform=transform, crs="EPSG:2229", units="m")
+    np.testing.assert_array_equal(load_dem(tmp_path / "m.npz").heights, z)
 
 
 # ---------------------------------------------------------------------------------------------- refusals

@@ -42,6 +42,24 @@ def test_tilted_plane_equals_analytic(device, spacing):
         np.testing.assert_allclose(shade[1:-1, 1:-1], expected, atol=2e-6)
 
 
+@pytest.mark.parametrize("method", ["standard", "combined", "igor"])
+def test_azimuth_315_lights_slopes_facing_north_west(device, method):
+    # azimuth is radians clockwise from north: RAD(315) is gdaldem's default -az 315, a light from the north-west.
+    # A plane sloping down to the north-west faces it (gdaldem: byte 251), one sloping down to the south-east
+    # turns away (byte 1); 315 read as radians (about 48 degrees, north-east) would light both alike
+    i, j = np.meshgrid(np.arange(8), np.arange(8), indexing="ij")
+    down_nw = (i + j).astype(np.float32)  # rows north-first, spacing (1, -1): heights grow to the south-east
+    shade = {name: hillshade(z, spacing=(1.0, -1.0), azimuth=RAD(az), method=method, device=device)[1:-1, 1:-1]
+             for name, z, az in (("nw", down_nw, 315), ("se", -down_nw, 315), ("se_135", -down_nw, 135))}
+    assert shade["nw"].min() > shade["se"].max() + 0.5
+    np.testing.assert_allclose(shade["se_135"], shade["nw"], atol=1e-6)  # the mirror image of the light
+    np.testing.assert_array_equal(hillshade(down_nw, spacing=(1.0, -1.0), method=method, device=device)[1:-1, 1:-1],
+                                  shade["nw"])  # the default is 315 degrees
+    if method == "standard":
+        np.testing.assert_allclose(1 + 254 * shade["nw"], 251.0, atol=0.5)
+        np.testing.assert_allclose(1 + 254 * shade["se"], 1.0, atol=0.5)
+
+
 def test_z_factor_scales_gradient(device):
     heights = tilted()
     np.testing.assert_allclose(hillshade(heights * 3, spacing=(2.0, 3.0), device=device),

@@ -47,6 +47,24 @@ def test_cli_texture_png_and_glb(tmp_path, small_dem, capsys):
     assert len(back.faces) == 2 * 39 * 49
 
 
+def test_cli_texture_azimuth_is_degrees_clockwise_from_north(tmp_path, capsys):
+    # --azimuth 315 (the default, gdaldem's -az) lights from the north-west: a plane sloping down to the north-west
+    # is bright, one sloping down to the south-east dark; --azimuth 135 swaps them
+    i, j = np.meshgrid(np.arange(12), np.arange(12), indexing="ij")
+    np.save(tmp_path / "nw.npy", (i + j).astype(np.float32))  # rows north-first: heights grow to the south-east
+    np.save(tmp_path / "se.npy", -(i + j).astype(np.float32))
+    grey = {}
+    for plane in ("nw", "se"):
+        for azimuth in ([], ["--azimuth", "315"], ["--azimuth", "135"]):
+            out = tmp_path / f"{plane}{''.join(azimuth)}.png"
+            code = main(["texture", str(tmp_path / f"{plane}.npy"), *azimuth, "--colormap", "none", "-o", str(out),
+                         "--device", "cpu"])
+            assert code == 0, capsys.readouterr().err
+            grey[plane, "".join(azimuth[1:]) or "default"] = read_png(out)[1:-1, 1:-1].mean()
+    assert grey["nw", "315"] == grey["nw", "default"] > 200 and grey["se", "315"] == grey["se", "default"] < 100
+    assert grey["se", "135"] > 200 and grey["nw", "135"] < 100
+
+
 def test_cli_texture_help_has_examples(capsys):
     assert main(["texture", "--help"]) == 0
     assert "examples:" in capsys.readouterr().out
