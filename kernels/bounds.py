@@ -163,9 +163,10 @@ def sphere_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, r: wp.float64) -> 
     side = INSIDE
     for k in range(planes.shape[0]):
         plane = planes[k]
-        if plane_distance_sphere(inverted(plane), p, r) < wp.float64(0.0):
+        centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
+        if centre > r:  # r - centre < 0: the inverted plane's largest distance, the same sign bit for bit
             return OUTSIDE
-        if wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3] >= -r * INSIDE_MARGIN:
+        if centre >= -r * INSIDE_MARGIN:
             side = 0
     return side
 

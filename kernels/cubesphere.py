@@ -1349,6 +1349,14 @@ def emit_node_leaves(
             i += 1
 
 
+@wp.func
+def child_triangle(tri: wp.vec4i, mid: wp.int32, k: wp.int32) -> wp.vec4i:
+    """Child k of triangle (face, a, b, c) with its packed refinement node ``mid`` = m: (c, a, m) or (b, c, m)."""
+    if k == 0:
+        return wp.vec4i(tri[0], tri[3], tri[1], mid)
+    return wp.vec4i(tri[0], tri[2], tri[3], mid)
+
+
 @wp.kernel
 def emit_refinement(
     thread_offset: wp.int32,
@@ -1384,8 +1392,8 @@ def emit_refinement(
             mj = (a[1] + b[1]) >> 1
             m = pack(mi, mj)
             k = 2 * offsets[t]
-            children_out[k] = wp.vec4i(tri[0], tri[3], tri[1], m)
-            children_out[k + 1] = wp.vec4i(tri[0], tri[2], tri[3], m)
+            children_out[k] = child_triangle(tri, m, 0)
+            children_out[k + 1] = child_triangle(tri, m, 1)
             if track:
                 mask = masks[t]
                 node = ((inside[t] & 1) << 2) | (mask & 8) | ((inside[t] & 2) << 2)  # m's bit, deep inside
@@ -1410,12 +1418,11 @@ def refine_small_levels(
     levels: wp.int32,  # the deepest level: its triangles do not refine
     capacity: wp.int32,  # levels of at most this many triangles are refined here
     # outputs
-    level_a: wp.array[wp.vec4i],  # 2·capacity each: one level's triangles and the next's, in turn
-    level_b: wp.array[wp.vec4i],
+    level_out: wp.array[wp.vec4i],  # 4·capacity: two halves, one level's triangles and the next's in turn
     leaves_out: wp.array[wp.vec4i],  # (levels + 1)·capacity each
     vertex_entries_out: wp.array[wp.int32],
     per_level_out: wp.array[wp.int32],  # levels + 1: triangles per level refined here
-    totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, 1 if in level_a
+    totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, its start
 ):
     """The CPU's small levels in one thread and one launch: :func:`count_refinement` and
     :func:`emit_refinement` of every level from the roots while a level holds at most ``capacity`` triangles
@@ -1427,8 +1434,9 @@ def refine_small_levels(
     need_position = needs_position(view.flags, view.error)
     n_cur = roots.shape[0]
     for k in range(n_cur):
-        level_a[k] = roots[k]
-    in_a = wp.int32(1)
+        level_out[k] = roots[k]
+    cur = wp.int32(0)  # start of the current level's half of level_out
+    nxt = 2 * capacity
     n_leaves = wp.int32(0)
     n_entries = wp.int32(0)
     depth = wp.int32(0)
@@ -1436,9 +1444,7 @@ def refine_small_levels(
         per_level_out[depth] = n_cur
         n_next = wp.int32(0)
         for t in range(n_cur):
-            tri = level_b[t]
-            if in_a != 0:
-                tri = level_a[t]
+            tri = level_out[cur + t]
             refine = wp.int32(0)
             if depth < levels:
                 m = refinement_entry(grid.n, tri)
@@ -1455,14 +1461,8 @@ def refine_small_levels(
                 mi = (a[0] + b[0]) >> 1
                 mj = (a[1] + b[1]) >> 1
                 mid = pack(mi, mj)
-                first_child = wp.vec4i(tri[0], tri[3], tri[1], mid)
-                second_child = wp.vec4i(tri[0], tri[2], tri[3], mid)
-                if in_a != 0:
-                    level_b[n_next] = first_child
-                    level_b[n_next + 1] = second_child
-                else:
-                    level_a[n_next] = first_child
-                    level_a[n_next + 1] = second_child
+                level_out[nxt + n_next] = child_triangle(tri, mid, 0)
+                level_out[nxt + n_next + 1] = child_triangle(tri, mid, 1)
                 n_next += 2
                 if owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3])) != 0:
                     vertex_entries_out[n_entries] = node_entry(grid.cells, grid.planar, tri[0], mi, mj)
@@ -1470,14 +1470,16 @@ def refine_small_levels(
             else:
                 leaves_out[n_leaves] = tri
                 n_leaves += 1
-        in_a = 1 - in_a
+        swap = cur
+        cur = nxt
+        nxt = swap
         n_cur = n_next
         depth += 1
     totals_out[0] = n_leaves
     totals_out[1] = n_entries
     totals_out[2] = n_cur
     totals_out[3] = depth
-    totals_out[4] = in_a
+    totals_out[4] = cur
 
 
 @wp.kernel

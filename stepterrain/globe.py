@@ -54,7 +54,7 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
 _NODE_PASS = True
-_TRACK_MIN = 4096  # triangles of a level from which culling tracks its corners (see _extract)
+_TRACK_MIN = 4096  # triangles of a level from which the clip metric's flags are tracked (see _extract)
 #: On the CPU, the levels below this many triangles (and below _TRACK_MIN) are refined by one single-thread
 #: launch (``refine_small_levels``) instead of a count -> scan -> emit each; 0 switches that off.
 _SMALL_LEVELS = 4096
@@ -602,24 +602,24 @@ def _refine_small_levels(grid: Any, params: Any, view: Any, roots: wp.array, lev
     """The levels of at most ``capacity`` triangles from the roots, in one launch (``refine_small_levels``):
     appends their leaves, new vertices and level sizes; returns the next level's triangles and depth."""
     slots = (levels + 1) * capacity
-    level_a = scratch("globe.small.a", 2 * capacity, wp.vec4i, device)
-    level_b = scratch("globe.small.b", 2 * capacity, wp.vec4i, device)
+    halves = scratch("globe.small.levels", 4 * capacity, wp.vec4i, device)
     leaves = wp.empty(slots, dtype=wp.vec4i, device=device)
     entries = wp.empty(slots, dtype=wp.int32, device=device)
     sizes = scratch("globe.small.sizes", levels + 1, wp.int32, device)
     totals = scratch("globe.small.totals", 5, wp.int32, device)
     launch(cube_kernels.refine_small_levels, 1, [grid, params, view, roots, levels, capacity],
-           [level_a, level_b, leaves, entries, sizes, totals], device)
-    n_leaves, n_entries, n_next, depth, in_a = (int(v) for v in host_copy(totals))
+           [halves, leaves, entries, sizes, totals], device)
+    n_leaves, n_entries, n_next, depth, start = (int(v) for v in host_copy(totals))
     leaf_chunks.append(leaves[:n_leaves])
     vertex_chunks.append(entries[:n_entries])
     per_level.extend(int(v) for v in host_copy(sizes)[:depth])
-    return (level_a if in_a else level_b)[:n_next], depth
+    return halves[start:start + n_next], depth
 
 
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
              per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
-    """Breadth-first refinement, one count -> scan -> emit per level, then vertices and faces."""
+    """Breadth-first refinement, one count -> scan -> emit per level (on the CPU the small levels in one
+    launch, :func:`_refine_small_levels`), then vertices and faces."""
     n = grid.n
     triangles = wp.array(_root_triangles(grid.cells, faces), dtype=wp.vec4i, device=device)
     no_factors = wp.zeros(0, dtype=wp.float32, device=device)
