@@ -9,8 +9,6 @@ All vectorised numpy: no Python loop over faces or vertices.
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 from numpy.typing import NDArray
 
@@ -52,8 +50,9 @@ def close_solid(
     domain boundary) joins the skirt of the boundary edge that follows it, so no zero-area face appears.
 
     Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
-    nodata holes), the skirt edge below it has four faces: the solid is closed but not edge-manifold there, and
-    a warning says so.
+    nodata holes), that vertex is split first: each fan of faces around it gets its own copy (same position),
+    and so does the base vertex below it, so every skirt and base edge keeps exactly two faces and the solid
+    stays watertight (two volumes touching along a vertical segment, as a slicer expects).
 
     Zero-volume fins are removed first: where heights sit exactly on a threshold along a ridge line, two walls
     stand back to back on the same vertices (a terrace of zero width); both go, and so do vertices no face
@@ -88,8 +87,12 @@ def close_solid(
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
+    edges = boundary_edges(faces)
+    vertices, faces, fan, split = _split_pinches(vertices, faces, edges)
+    if split:
+        edges = boundary_edges(faces)
     n = len(vertices)
-    column = exact_keys(vertices[:, :2])
+    column = exact_keys(np.column_stack([vertices[:, :2], fan]))  # a pinch's copies keep their own base vertex
     n_columns = int(column.max()) + 1
     base_xy = np.empty((n_columns, 2), dtype=np.float64)
     base_xy[column] = vertices[:, :2]
@@ -105,13 +108,6 @@ def close_solid(
     )
     base_faces = base_faces[ok]
 
-    edges = boundary_edges(faces)
-    if len(edges) and np.bincount(edges[:, 0]).max() > 1:
-        warnings.warn(
-            "the surface's boundary touches itself at a vertex (e.g. two nodata holes meeting at one node); the "
-            "solid is closed but not watertight there: the skirt edge below that vertex has four faces",
-            stacklevel=4,
-        )
     a, b = edges[:, 0], edges[:, 1]
     vertical = column[a] == column[b]
     # the vertical boundary edge arriving at a vertex, if any: pred[top_or_bottom] = its start
@@ -128,3 +124,49 @@ def close_solid(
     skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
     added = np.concatenate(skirts + [base_faces], axis=0)
     return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added)
+
+
+def _split_pinches(
+    vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64]
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], bool]:
+    """Give each fan of faces around a pinch vertex (one the boundary passes through more than once) its own copy.
+
+    The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share (label
+    propagation: at most one round per face around v). The fan with the smallest corner keeps v; the others get
+    new vertices at the same position, appended. Returns the vertices, the faces and, per vertex, the fan
+    ordinal (0 for every vertex that is not such a copy), to keep the copies apart where rows are keyed by xy,
+    and whether any vertex was split. ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
+    """
+    n = len(vertices)
+    fan = np.zeros(n, np.float64)
+    if len(edges) == 0:
+        return vertices, faces, fan, False
+    pinch = np.bincount(edges[:, 0], minlength=n) > 1
+    if not pinch.any():
+        return vertices, faces, fan, False
+    fi, ji = np.nonzero(pinch[faces])
+    v = faces[fi, ji]
+    keys = np.concatenate([v * n + faces[fi, (ji + 1) % 3], v * n + faces[fi, (ji + 2) % 3]])
+    _, edge_id = np.unique(keys, return_inverse=True)
+    e1, e2 = np.split(edge_id.reshape(-1), 2)
+    label = np.arange(len(v))
+    while True:
+        low = np.full(int(edge_id.max()) + 1, len(v))
+        np.minimum.at(low, e1, label)
+        np.minimum.at(low, e2, label)
+        new = np.minimum(low[e1], low[e2])
+        if np.array_equal(new, label):
+            break
+        label = new
+    fans = np.unique(np.column_stack([v, label]), axis=0)
+    rank = np.arange(len(fans)) - np.searchsorted(fans[:, 0], fans[:, 0])  # 0 for each vertex's first fan
+    which = np.searchsorted(fans[:, 0] * len(v) + fans[:, 1], v * len(v) + label)
+    copies = np.flatnonzero(rank > 0)
+    new_index = np.full(len(fans), -1, np.int64)
+    new_index[copies] = n + np.arange(len(copies))
+    moved = rank[which] > 0
+    faces = faces.copy()
+    faces[fi[moved], ji[moved]] = new_index[which[moved]]
+    vertices = np.concatenate([vertices, vertices[fans[copies, 0]]])
+    fan = np.concatenate([fan, rank[copies].astype(np.float64)])
+    return vertices, faces, fan, True

@@ -664,8 +664,8 @@ def stepped(
     and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold); such
     back-to-back fins are removed from solids. A solid is guaranteed watertight when no height sits
     exactly on a threshold (a warning says so otherwise; shift ``base`` by a fraction of the interval,
-    e.g. 0.5 m for integer DEMs, to avoid it) and no two nodata holes meet at a single node (a warning
-    again: the skirt edge below such a node has four faces). Each edge crossing a threshold owns a wall bottom and top
+    e.g. 0.5 m for integer DEMs, to avoid it); where two nodata holes meet at a single node, that node gets
+    one copy per side, so the solid stays watertight there. Each edge crossing a threshold owns a wall bottom and top
     vertex, shared by both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
     terraces face +z and walls face the lower terrace. Cost: O(nodes + edges + output) on the device,
     two host syncs.

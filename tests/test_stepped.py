@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 import warp as wp
-from hypothesis import assume, given
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st_
 from hypothesis.extra.numpy import arrays
 
@@ -600,22 +600,52 @@ def test_solid_default_floor_lies_below_a_surface_under_the_lowest_level(gamma):
     assert mesh.vertices[:, 2].min() == pytest.approx(lowest - 0.1)
 
 
-def test_solid_warns_where_nodata_holes_meet_at_one_node():
-    """Two triangles that share only a node (NaN on both sides of it) make a boundary that touches itself;
-    the solid's skirt edge below that node gets four faces, so the solid is not watertight. Known, not silent:
-    a warning says so, and a hole that leaves no such node gives none."""
+def test_solid_is_watertight_where_nodata_holes_meet_at_one_node():
+    """Two triangles that share only a node (NaN on both sides of it) make a boundary that touches itself. The
+    node is split per fan (same position), so every edge of the solid has two faces, the volume is the sum of
+    the two prisms, and no warning is given."""
     nan = np.nan
     bowtie = np.array([[0.25, 0.25, nan], [nan, 0.25, nan], [nan, 0.25, 0.25]])
-    with pytest.warns(UserWarning, match="boundary touches itself at a vertex"):
-        mesh = st.stepped(bowtie, interval=1.0, solid=True)
-    assert not mesh.is_watertight
-    hole = np.full((4, 4), 0.25)
-    hole[1:3, 1:3] = nan
     import warnings
 
     with warnings.catch_warnings():
         warnings.simplefilter("error")
+        mesh = st.stepped(bowtie, interval=1.0, solid=True, floor=-1.0)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    # two unit right triangles (area 0.5 each) at z = 0 over a floor at -1
+    assert mesh.volume == pytest.approx(1.0)
+    centre = np.flatnonzero((mesh.vertices[:, 0] == 1.0) & (mesh.vertices[:, 1] == 1.0))
+    assert len(centre) == 4  # the node and its base, each twice
+    assert len(mesh.split(only_watertight=True)) == 2
+    hole = np.full((4, 4), 0.25)
+    hole[1:3, 1:3] = nan
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
         assert st.stepped(hole, interval=1.0, solid=True).is_watertight
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    holes=st_.lists(st_.booleans(), min_size=36, max_size=36),
+    seed=st_.integers(0, 2**16),
+)
+def test_solid_is_watertight_for_any_nodata_pattern(holes, seed):
+    """Random nodata patterns (pinches wherever two holes meet diagonally): the solid is watertight with the
+    volume of its prisms over the floor, whatever the pattern."""
+    rng = np.random.default_rng(seed)
+    heights = rng.uniform(0.0, 5.0, (6, 6)) + 0.125
+    heights[np.array(holes).reshape(6, 6)] = np.nan
+    surface = st.stepped(heights, interval=1.0)
+    if len(surface.faces) == 0:
+        return
+    mesh = st.stepped(heights, interval=1.0, solid=True, floor=-2.0)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    terraces = ~surface.face_attributes["wall"].astype(bool)
+    tri_xy = surface.vertices[surface.faces[terraces]]
+    u, w = tri_xy[:, 1, :2] - tri_xy[:, 0, :2], tri_xy[:, 2, :2] - tri_xy[:, 0, :2]
+    area = 0.5 * np.abs(u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0])
+    expected = float((area * (tri_xy[:, :, 2].mean(axis=1) + 2.0)).sum())
+    assert mesh.volume == pytest.approx(expected, rel=1e-9)
 
 
 def test_solid_warns_when_heights_sit_on_thresholds():
