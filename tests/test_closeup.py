@@ -338,7 +338,7 @@ def test_anchor_strips_join_outline_points_carry_color_and_follow_the_transfer_f
     t = Terrain.from_heights(heights, spacing=(2.0, 2.0))
     styles = ["linear", "ends", (0.1, 0.9, 0.3, 0.7)]
     cus = [CloseUp(ROI.circle((30.0 + 12 * k, 32.0), 8.0), rotation=(0.2, 0.3 * k), scale=1.5,
-                   offset=(0.0, 0.0, 50.0 + 10 * k), color=c, anchor=AnchorStyle(s, rungs=4))
+                   offset=(0.0, 0.0, 50.0 + 10 * k), color=c, anchor=AnchorStyle(s, rungs=4, simplify=0.0))
            for k, (s, c) in enumerate(zip(styles, ["red", "#00ff00", (0.0, 0.0, 1.0)], strict=True))]
     strips = anchor_strips(t, cus, device=device)
     for cu, strip in zip(cus, strips, strict=True):
@@ -373,6 +373,55 @@ def test_anchor_strips_join_outline_points_carry_color_and_follow_the_transfer_f
         spans = point.max(axis=1) - point.min(axis=1)
         assert np.all(spans == 1)
         assert_valid_mesh(trimesh.Trimesh(strip.vertices, strip.faces, process=False))
+
+
+@pytest.mark.parametrize("scale", [1.0, (2.5, 1.0, 4.0)])
+@pytest.mark.parametrize("simplify", [0.25, 1.0])
+def test_thinned_anchor_fence_stays_within_its_tolerance_of_the_full_one(scale, simplify):
+    """AnchorStyle.simplify thins the outline points: the kept ones are outline points in order, and every rung
+    of the full-resolution fence (every outline point) lies within simplify · texel of the thinned rung."""
+    from stepterrain.closeup import simplify_polyline
+
+    heights = hills()
+    t = Terrain.from_heights(heights, spacing=(2.0, 2.0))
+    roi = ROI.circle((40.0, 32.0), 12.0)
+    full_cu, thin_cu = (CloseUp(roi, rotation=(0.3, 0.7), scale=scale, offset=(0.0, 0.0, 60.0),
+                                anchor=AnchorStyle(rungs=3, simplify=f)) for f in (0.0, simplify))
+    (full,) = anchor_strips(t, [full_cu], device="cpu")
+    (thin,) = anchor_strips(t, [thin_cu], device="cpu")
+    r1 = full.rungs + 1
+    full_rings, thin_rings = full.vertices.reshape(-1, r1, 3), thin.vertices.reshape(-1, r1, 3)
+    assert 3 <= len(thin_rings) < len(full_rings) // 2
+    # the kept bottoms are outline points, in order
+    match: list[int] = []
+    for p in thin_rings[:, 0]:  # a closed outline repeats its first point last: search after the previous match
+        start = match[-1] + 1 if match else 0
+        match.append(start + int(np.flatnonzero(np.all(np.abs(full_rings[start:, 0] - p) < 1e-9, axis=1))[0]))
+    assert match[0] == 0 and match[-1] == len(full_rings) - 1
+    texel = min(np.ptp(roi.box[:2]) / (roi.mask.shape[1] - 1), np.ptp(roi.box[2:]) / (roi.mask.shape[0] - 1))
+    tolerance = simplify * texel
+    worst = 0.0
+    for r in range(r1):
+        for a, b in zip(match[:-1], match[1:], strict=True):
+            p0, p1 = full_rings[a, r], full_rings[b, r]
+            seg = p1 - p0
+            mid = full_rings[a + 1: b, r] - p0
+            along = np.clip(mid @ seg / (seg @ seg), 0, 1)
+            worst = max(worst, float(np.linalg.norm(mid - along[:, None] * seg, axis=1).max(initial=0.0)))
+    assert worst <= tolerance * (1 + 1e-4) + 1e-4
+    # the same distances and transfer values at the kept points
+    np.testing.assert_allclose(thin.distance.reshape(-1, r1), full.distance.reshape(-1, r1)[match] *
+                               full.max_length / thin.max_length, atol=1e-5)
+    # Douglas-Peucker itself: a straight run collapses to its ends, a corner stays
+    line = np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0], [2.0, 1.0], [2.0, 2.0]])
+    assert simplify_polyline(line, 0.1).tolist() == [True, False, True, False, True]
+    assert simplify_polyline(line[:1], 0.1).tolist() == [True]
+
+
+def test_anchor_style_refuses_a_bad_simplify():
+    for bad in (-0.1, 5.0, float("nan"), "1", True):
+        with pytest.raises(InvalidInputError, match="simplify"):
+            AnchorStyle(simplify=bad)
 
 
 def test_scene_mesh_holds_overview_closeups_and_anchors():
