@@ -380,8 +380,13 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
     progress.stage("step", f"stepping on {device}: {len(values)} levels ({values[0]:g} to {values[-1]:g}), "
                            f"gamma {gamma_text}")
-    mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=args.base, gamma=gamma,
-                      colors=colors, solid=args.solid, floor=args.floor, device=device)
+    try:
+        mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=args.base, gamma=gamma,
+                          colors=colors, solid=args.solid, floor=args.floor, device=device)
+    except InvalidInputError as exc:
+        if args.floor is not None and str(exc).startswith("floor "):  # mesh.close_solid's: name the option
+            raise InvalidInputError(f"--{exc}") from exc
+        raise
     progress.done(f"{len(mesh.faces):,} faces, {len(mesh.vertices):,} vertices")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)

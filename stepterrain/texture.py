@@ -17,6 +17,7 @@ a ray march from every pixel towards the light over the nodes of its line (``tes
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal
@@ -100,8 +101,17 @@ def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
     return t
 
 
+def _azimuth(value: Any, *, stacklevel: int) -> float:
+    """A finite azimuth in radians; one beyond two full turns is most likely degrees given as radians: warned."""
+    azimuth = _finite(value, "azimuth")
+    if abs(azimuth) > 4 * math.pi:  # two turns: degrees of any usual light (13° and up), not a computed angle
+        warnings.warn(f"azimuth is in radians; got {azimuth:g}, more than two full turns. Degrees? Pass "
+                      f"math.radians({azimuth:g}) = {math.radians(azimuth):.4f}", stacklevel=stacklevel + 1)
+    return azimuth
+
+
 def _light(azimuth: float, altitude: float) -> tuple[float, float]:
-    azimuth = _finite(azimuth, "azimuth")
+    azimuth = _azimuth(azimuth, stacklevel=3)
     altitude = _finite(altitude, "altitude", lo=0.0, hi=math.pi / 2, unit="rad")
     return azimuth, altitude
 
@@ -160,7 +170,8 @@ def hillshade(
     azimuth, altitude : float
         Direction the light comes from: azimuth clockwise from north (+y), altitude above the horizon in
         [0, π/2], radians, not degrees: the defaults are GDAL's ``-az 315 -alt 45``, ``math.radians(315)``
-        and ``math.radians(45)`` (the CLI's ``--azimuth``/``--altitude`` take degrees).
+        and ``math.radians(45)`` (the CLI's ``--azimuth``/``--altitude`` take degrees). An azimuth beyond two
+        turns (4π) is taken for degrees given by mistake and warned about (it is still used as radians).
     z_factor : float
         Vertical exaggeration applied to the heights (GDAL's ``-z``).
     method : "standard", "multidirectional", "combined" or "igor"
@@ -301,6 +312,8 @@ def _angles(value: Any, name: str, many: bool, **bounds: Any) -> list[float]:
         values = [value]
     if not values:
         raise InvalidInputError(f"{name} must hold at least one angle; got an empty sequence")
+    if name == "azimuth":
+        return [_azimuth(v, stacklevel=5) for v in values]  # the comprehension is a frame of its own
     return [_finite(v, name, **bounds) for v in values]
 
 

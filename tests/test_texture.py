@@ -225,3 +225,22 @@ def test_bad_relight_inputs():
         relight(rgb, point=(0, 0, 1), terrain=np.zeros((4, 3)))
     with pytest.raises(InvalidInputError, match="not both"):
         relight(rgb, point=(0, 0, 1), azimuth=0.0, altitude=0.1, terrain=np.zeros((3, 3)))
+
+
+def test_an_azimuth_beyond_two_turns_warns_of_degrees():
+    """The API takes radians (the CLI degrees): 315 passed as radians is most likely degrees; a warning says so
+    and names the radian value. Angles within two turns (computed ones past a turn too) stay silent."""
+    heights = tilted()
+    with pytest.warns(UserWarning, match=r"azimuth is in radians; got 315.*math.radians\(315\) = 5.4978"):
+        hillshade(heights, azimuth=315, device="cpu")
+    with pytest.warns(UserWarning, match="azimuth is in radians"):
+        cast_shadows(heights, azimuth=-400.0, altitude=RAD(45), device="cpu")
+    with pytest.warns(UserWarning, match="azimuth is in radians"):
+        hillshade(heights, method="maplibre-multidirectional", azimuth=[RAD(100), 270.0], device="cpu")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        hillshade(heights, azimuth=RAD(315), device="cpu")
+        hillshade(heights, azimuth=-2 * math.pi, device="cpu")
+        hillshade(heights, azimuth=RAD(315 + 360), device="cpu")  # a computed angle past one turn
