@@ -12,12 +12,14 @@ share their border nodes and their isovalues, so their stepped meshes weld witho
 Each item runs as one dask task (``stepped`` + ``export.save_mesh``, written atomically). A manifest in the
 output folder records every finished item with a fingerprint of its input and options; a rerun skips items
 whose output is complete (recorded, same fingerprint, file present with the recorded size) and redoes the
-rest. Failures are retried, then reported with their reason; bad input data fails its item without retries.
+rest. Failures are retried (disk and network errors too), then reported with their reason; bad input data
+fails its item without retries.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import errno
 import hashlib
 import json
 import logging
@@ -355,13 +357,34 @@ def _item_metadata(item: BatchItem) -> dict[str, Any]:
     return meta
 
 
+# errno values of an OSError worth another attempt: the medium or the network, not the data or a permission
+_TRANSIENT_ERRNOS = frozenset(
+    getattr(errno, name) for name in ("EIO", "ENOSPC", "EDQUOT", "EAGAIN", "EBUSY", "EINTR", "ETIMEDOUT", "ESTALE",
+                                      "ENOMEM", "ECONNRESET", "ENETDOWN", "EREMOTEIO")
+    if hasattr(errno, name)
+)
+
+
+def _transient(exc: BaseException) -> bool:
+    """True when an OSError with a transient errno lies under ``exc`` (its chain of causes and contexts)."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        seen.add(id(cause))
+        if isinstance(cause, OSError) and cause.errno in _TRANSIENT_ERRNOS:
+            return True
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
 def run_item(
     item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None
 ) -> ItemResult:
     """Step one item and write its mesh (atomically); the task each dask worker runs.
 
-    Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once;
-    any other exception propagates so the scheduler retries the task.
+    Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
+    a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
+    writing); that and any other exception propagate so the scheduler retries the task.
     """
     from ._device import set_cpu_threads
     from .stepped import stepped
@@ -379,6 +402,8 @@ def run_item(
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         save_mesh(mesh, target, metadata=metadata)
     except StepTerrainError as exc:
+        if _transient(exc):
+            raise  # a disk or network hiccup under the library's error (e.g. EIO, ENOSPC): retried like any other
         return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
                           seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu_start)  # fmt: skip
     return ItemResult(

@@ -433,6 +433,39 @@ def test_transient_failures_are_retried_then_reported(tmp_path, monkeypatch):
     assert not report.ok and len(report.done) == 3
 
 
+def test_disk_errors_under_a_data_file_error_are_retried(tmp_path, monkeypatch):
+    """A write that fails with EIO or ENOSPC (a DataFileError caused by that OSError) is retried; one that fails
+    for good (a permission, EACCES) or a bad file is reported after one attempt."""
+    import errno
+    import sys
+
+    batch_module = sys.modules["stepterrain.batch"]  # the attribute stepterrain.batch is the function
+    real = batch_module.save_mesh
+    calls: dict[str, int] = {}
+
+    def flaky(mesh, target, **kwargs):
+        key = Path(target).stem
+        calls[key] = calls.get(key, 0) + 1
+        code = {"tile_r0_c0": errno.EIO, "tile_r1_c0": errno.ENOSPC, "tile_r0_c1": errno.EACCES}.get(key)
+        if code is not None and (key == "tile_r0_c1" or calls[key] < 3):
+            try:
+                raise OSError(code, os.strerror(code))
+            except OSError as exc:
+                raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
+        return real(mesh, target, **kwargs)
+
+    monkeypatch.setattr(batch_module, "save_mesh", flaky)
+    report = batch(np.add.outer(np.arange(7.0), np.arange(7.0)), tmp_path, tile_size=4, interval=1.0,
+                   scheduler="serial", retries=2)  # fmt: skip
+    by_key = {r.key: r for r in report.results}
+    assert by_key["tile_r0_c0"].status == "done" and by_key["tile_r0_c0"].attempts == 3
+    assert by_key["tile_r1_c0"].status == "done" and by_key["tile_r1_c0"].attempts == 3
+    assert by_key["tile_r0_c1"].status == "failed" and by_key["tile_r0_c1"].attempts == 1
+    assert "Permission denied" in by_key["tile_r0_c1"].error
+    assert by_key["tile_r1_c1"].status == "done" and by_key["tile_r1_c1"].attempts == 1
+    assert calls == {"tile_r0_c0": 3, "tile_r0_c1": 1, "tile_r1_c0": 3, "tile_r1_c1": 1}
+
+
 def test_run_item_reports_bad_data_without_raising(tmp_path):
     bad = tmp_path / "bad.npy"
     bad.write_text("not numpy")
