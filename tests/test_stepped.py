@@ -653,6 +653,21 @@ def test_solid_warns_when_heights_sit_on_thresholds():
         st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
 
 
+def test_solid_threshold_warning_ignores_a_tins_unused_points():
+    """A point no face uses cannot open the solid: its height on a threshold gives no warning; a used one does."""
+    import warnings
+
+    vertices = np.array([[0, 0, 0.25], [4, 0, 1.25], [0, 4, 2.25], [4, 4, 3.25], [9, 9, 2.0]], float)
+    faces = np.array([[0, 1, 3], [0, 3, 2]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = st.stepped(trimesh.Trimesh(vertices, faces, process=False), interval=1.0, base=0.5, solid=True)
+    assert mesh.is_watertight
+    vertices[1, 2] = 2.0  # a used point on the threshold 2.0 between isovalues 1.5 and 2.5
+    with pytest.warns(UserWarning, match="exactly on a threshold"):
+        st.stepped(trimesh.Trimesh(vertices, faces, process=False), interval=1.0, base=0.5, solid=True)
+
+
 def test_lens_shows_the_original_inside_and_steps_outside(dem):
     small = dem[:41, :41]
     t = st.Terrain.from_heights(small, spacing=(30.0, 30.0))
