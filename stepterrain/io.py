@@ -73,10 +73,11 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection in
         metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
         rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless the file
-        names their unit (a GeoTIFF band's unit, an .npz ``units``: "ft", "US survey foot", "m", ...),
-        in which case feet become metres; a grid converted to metres whose heights' unit is not named
-        warns that they were kept as stored. Plain arrays and PNGs: ``spacing`` (1, -1), ``origin``
-        (0, 0). ``source`` is the file name.
+        names their unit (a GeoTIFF band's unit, an .npz ``units``: "ft", "US survey foot", "m", ...) or
+        its CRS is compound with a vertical unit (EPSG:26911+6360: NAVD88 height in US survey feet; ``crs``
+        is then the horizontal part), in which case feet become metres; a grid converted to metres whose
+        heights' unit is not named warns that they were kept as stored. Plain arrays and PNGs: ``spacing``
+        (1, -1), ``origin`` (0, 0). ``source`` is the file name.
 
     Raises
     ------
@@ -254,7 +255,8 @@ def _load_npz(file: Path) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
-        heights, height_unit = _heights_in_metres(heights, _scalar_str(arrays.get("units")))
+        unit, crs = _vertical_unit(_scalar_str(arrays.get("units")), crs)
+        heights, height_unit = _heights_in_metres(heights, unit)
         return _georeferenced(
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
@@ -340,11 +342,12 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         masked = masked.astype(np.float64) * scale + offset
     array = np.ma.filled(masked.astype(np.float32), np.nan)
+    crs = _crs_string(crs_obj)
+    unit, crs = _vertical_unit(unit, crs)
     heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit)
     if crs_obj is None and transform.is_identity:
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     geotransform = np.array(transform.to_gdal(), dtype=np.float64)
-    crs = _crs_string(crs_obj)
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)
     return _georeferenced(
         file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
@@ -551,6 +554,59 @@ def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
     except Exception:  # no PROJ form of this CRS: metres without a CRS to name them
         metre_crs = None
     return str(unit), float(factor), metre_crs
+
+
+def _wkt_block(wkt: str, keywords: tuple[str, ...]) -> str | None:
+    """The first ``KEYWORD[...]`` of ``keywords`` in a WKT string, brackets matched (names hold none)."""
+    starts = [i for i in (wkt.find(k + "[") for k in keywords) if i >= 0]
+    if not starts:
+        return None
+    start = min(starts)
+    depth = 0
+    for end in range(wkt.index("[", start), len(wkt)):
+        depth += {"[": 1, "]": -1}.get(wkt[end], 0)
+        if depth == 0:
+            return wkt[start: end + 1]
+    return None
+
+
+def _compound_heights(crs: str | None) -> tuple[str, str | None] | None:
+    """(the vertical part's length unit, the horizontal part as a CRS string) of a compound CRS (e.g.
+    "EPSG:26911+6360", NAD83 / UTM 11N + NAVD88 height in US survey feet); None for any other CRS or without
+    rasterio to read it."""
+    if not crs:
+        return None
+    try:
+        from rasterio.crs import CRS
+
+        wkt = CRS.from_user_input(crs).to_wkt()
+    except Exception:  # no rasterio, or a CRS it cannot read: nothing to say about the heights
+        return None
+    if not wkt.lstrip().startswith(("COMPD_CS[", "COMPOUNDCRS[")):
+        return None
+    vertical = _wkt_block(wkt, ("VERT_CS", "VERTCRS"))
+    unit = _wkt_block(vertical, ("LENGTHUNIT", "UNIT")) if vertical else None
+    if unit is None or '"' not in unit:
+        return None
+    horizontal = _wkt_block(wkt, ("PROJCS", "PROJCRS", "GEOGCS", "GEOGCRS"))
+    try:
+        horizontal_crs = _crs_string(CRS.from_wkt(horizontal)) if horizontal else None
+    except Exception:  # keep the compound CRS when its horizontal part does not stand alone
+        horizontal_crs = crs
+    return unit.split('"')[1], horizontal_crs
+
+
+def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str | None]:
+    """The heights' unit (the file's own, else a compound CRS's vertical unit) and the CRS to keep: its
+    horizontal part when the heights become metres from a vertical part in another unit (GDAL names a band's
+    unit after the vertical CRS; an .npz names none), which then no longer describes them."""
+    compound = _compound_heights(crs)
+    if compound is None or compound[0].strip().lower() not in _HEIGHT_UNITS:
+        return unit, crs
+    unit = unit or compound[0]
+    if unit.strip().lower() not in _HEIGHT_UNITS or _HEIGHT_UNITS[compound[0].strip().lower()] == 1.0:
+        return unit, crs  # heights kept as they are, or the vertical part is in metres and still applies
+    return unit, compound[1]
 
 
 def _heights_in_metres(heights: NDArray[np.float32], unit: str | None) -> tuple[NDArray[np.float32], str | None]:

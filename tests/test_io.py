@@ -464,3 +464,33 @@ def test_heights_beyond_float32_are_refused_not_read_as_nodata(tmp_path):
     z[1, 2] = np.nan  # real nodata still reads as a hole
     np.save(path, z)
     assert np.isnan(load_dem(path).heights[1, 2])
+
+
+def test_compound_crs_vertical_feet_become_metres(tmp_path):
+    """A compound CRS names the heights' unit (NAD83 / UTM 11N + NAVD88 height (ftUS)): with no band unit the
+    heights become metres and ``crs`` keeps the horizontal part, which still applies; a band unit wins."""
+    rasterio = needs_rasterio()
+    z = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
+    profile = dict(driver="GTiff", width=3, height=2, count=1, dtype="float32", crs="EPSG:26911+6360",
+                   transform=rasterio.Affine(30.0, 0.0, 380000.0, 0.0, -30.0, 3800000.0))  # fmt: skip
+    with rasterio.open(tmp_path / "navd88_ft.tif", "w", **profile) as ds:
+        ds.write(z, 1)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t = load_dem(tmp_path / "navd88_ft.tif")
+    np.testing.assert_allclose(t.heights, z * US_FOOT, rtol=1e-6)
+    assert t.crs == "EPSG:26911" and t.spacing == (30.0, -30.0)
+    with rasterio.open(tmp_path / "band_m.tif", "w", **profile) as ds:
+        ds.write(z, 1)
+        ds.units = ("metre",)
+    t = load_dem(tmp_path / "band_m.tif")
+    np.testing.assert_array_equal(t.heights, z)
+    transform = np.array([380000.0, 30.0, 0, 3800000.0, 0, -30.0])
+    np.savez(tmp_path / "navd88_ft.npz", elevation=z, transform=transform, crs="EPSG:26911+6360")
+    t = load_dem(tmp_path / "navd88_ft.npz")
+    np.testing.assert_allclose(t.heights, z * US_FOOT, rtol=1e-6)
+    assert t.crs == "EPSG:26911"
+    np.savez(tmp_path / "plain.npz", elevation=z, transform=transform, crs="EPSG:26911")
+    np.testing.assert_array_equal(load_dem(tmp_path / "plain.npz").heights, z)
