@@ -18,23 +18,54 @@ __all__ = ["close_solid", "boundary_edges", "exact_keys"]
 
 
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
-    """Group ids of rows that are bit-identical (e.g. vertices sharing an exact xy)."""
+    """Group ids of rows that are bit-identical (e.g. vertices sharing an exact xy).
+
+    Rows are compared by their bits (as before by bytes), sorted by their columns' bit patterns with one
+    ``lexsort``: ids count the distinct rows in that order."""
     rows = np.ascontiguousarray(xy)
-    void = rows.view(np.dtype((np.void, rows.dtype.itemsize * rows.shape[1]))).reshape(-1)
-    _, inverse = np.unique(void, return_inverse=True)
-    return inverse.reshape(-1).astype(np.int64)
+    if len(rows) == 0:
+        return np.zeros(0, np.int64)
+    bits = rows.view(np.dtype(f"u{rows.dtype.itemsize}")).reshape(len(rows), -1)
+    order = np.lexsort(bits.T[::-1])
+    ordered = bits[order]
+    new = np.ones(len(rows), bool)
+    new[1:] = np.any(ordered[1:] != ordered[:-1], axis=1)
+    ids = np.empty(len(rows), np.int64)
+    ids[order] = np.cumsum(new) - 1
+    return ids
 
 
 def boundary_edges(faces: NDArray[np.int64]) -> NDArray[np.int64]:
-    """Directed edges (a, b), as wound in their face, that no other face uses: (B, 2)."""
+    """Directed edges (a, b), as wound in their face, that no other face uses: (B, 2), in face order.
+
+    One sort of the undirected edge keys finds the keys that occur once (few: the boundary); the edges with
+    one of those keys are then found through a bit table of their low bits and a binary search among the few
+    candidates, so the sort needs no inverse (argsort) and no second pass over every key."""
     faces = np.asarray(faces, dtype=np.int64)
-    directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    if len(directed) == 0:
-        return directed
+    if len(faces) == 0:
+        return np.zeros((0, 2), np.int64)
+    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
     n = int(faces.max()) + 1
-    key = np.minimum(directed[:, 0], directed[:, 1]) * n + np.maximum(directed[:, 0], directed[:, 1])
-    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
-    return directed[counts[inverse] == 1]
+    # corner-major: key k * F + f is the edge leaving corner k of face f
+    key = np.concatenate([np.minimum(u, v) * n + np.maximum(u, v) for u, v in ((a, b), (b, c), (c, a))])
+    ordered = np.sort(key)
+    once = np.ones(len(ordered), bool)
+    repeated = ordered[1:] == ordered[:-1]
+    once[1:] &= ~repeated
+    once[:-1] &= ~repeated
+    single = ordered[once]
+    if len(single) == 0:
+        return np.zeros((0, 2), np.int64)
+    low = (1 << 22) - 1
+    table = np.zeros(low + 1, bool)
+    table[single & low] = True
+    candidates = np.flatnonzero(table[key & low])
+    at = np.minimum(np.searchsorted(single, key[candidates]), len(single) - 1)
+    hit = candidates[single[at] == key[candidates]]
+    corner, face = np.divmod(hit, len(faces))
+    order = np.argsort(face * 3 + corner)  # face order, as the faces list their edges
+    face, corner = face[order], corner[order]
+    return np.column_stack([faces[face, corner], faces[face, (corner + 1) % 3]])
 
 
 def close_solid(
@@ -69,8 +100,7 @@ def close_solid(
         # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
         first, second = walls[0::2], walls[1::2]
         quads = np.sort(np.column_stack([faces[first], faces[second][:, 2]]), axis=1)
-        _, inverse, counts = np.unique(quads, axis=0, return_inverse=True, return_counts=True)
-        fin = counts[inverse.reshape(-1)] > 1
+        fin = _repeated_rows(quads)
         kept[first[fin]] = False
         kept[second[fin]] = False
     if not kept.all():
@@ -92,7 +122,8 @@ def close_solid(
     if split:
         edges = boundary_edges(faces)
     n = len(vertices)
-    column = exact_keys(np.column_stack([vertices[:, :2], fan]))  # a pinch's copies keep their own base vertex
+    # a pinch's copies keep their own base vertex
+    column = exact_keys(np.column_stack([vertices[:, :2], fan]) if split else vertices[:, :2])
     n_columns = int(column.max()) + 1
     base_xy = np.empty((n_columns, 2), dtype=np.float64)
     base_xy[column] = vertices[:, :2]
@@ -124,6 +155,19 @@ def close_solid(
     skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
     added = np.concatenate(skirts + [base_faces], axis=0)
     return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added)
+
+
+def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Which rows of a (R, C) int array occur more than once (a lexsort and a look at sorted neighbours)."""
+    order = np.lexsort(rows.T[::-1])
+    ordered = rows[order]
+    same = np.all(ordered[1:] == ordered[:-1], axis=1)
+    repeated = np.zeros(len(rows), bool)
+    repeated[1:] |= same
+    repeated[:-1] |= same
+    out = np.empty(len(rows), bool)
+    out[order] = repeated
+    return out
 
 
 def _split_pinches(
