@@ -115,8 +115,13 @@ def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> 
 
 
 def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[NDArray[np.float64], ...]:
-    lat = np.asarray(lat, dtype=np.float64)
-    lon = np.asarray(lon, dtype=np.float64)
+    axes = []
+    for name, axis in (("lat", lat), ("lon", lon)):
+        raw = np.asarray(axis)
+        if raw.dtype == bool or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+            raise InvalidInputError(f"{name} must be numbers (degrees); got dtype {raw.dtype}")
+        axes.append(raw.astype(np.float64))
+    lat, lon = axes
     rows, cols = shape
     if lat.shape != (rows,) or lon.shape != (cols,):
         raise InvalidInputError(f"lat and lon must have lengths ({rows},) and ({cols},) matching elevation "

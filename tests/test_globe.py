@@ -634,3 +634,17 @@ def test_memory_budget_refuses_before_allocating():
             Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=1025)
     finally:
         compaction.set_memory_budget(previous)
+
+
+def test_latlon_axes_that_are_not_numbers_are_refused_by_name(tmp_path, capsys):
+    from stepterrain.cli import main
+
+    z = np.zeros((180, 360))
+    with pytest.raises(InvalidInputError, match=r"lat must be numbers \(degrees\); got dtype <U1"):
+        Globe.from_latlon(z, np.full(180, "a"), LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match=r"lon must be numbers \(degrees\); got dtype object"):
+        Globe.from_latlon(z, LAT1, [None] * 360, face_size=9)
+    grid = tmp_path / "grid.npz"  # the CLI reads the axes from a file: exit 2, one line, no traceback
+    np.savez(grid, elevation=z.astype(np.float32), lat=np.full(180, "a"), lon=LON1)
+    assert main(["-q", "globe", str(grid), "--face-size", "5", "-o", str(tmp_path / "x.glb")]) == 2
+    assert capsys.readouterr().err.strip() == "stepterrain globe: error: lat must be numbers (degrees); got dtype <U1"
