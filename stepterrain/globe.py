@@ -1036,6 +1036,14 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         raise InvalidInputError(f"latitude must lie in [-90, 90] degrees; got {latitude}")
     if not math.isfinite(longitude):
         raise InvalidInputError(f"longitude must be finite; got {longitude}")
+    for name, value in (("altitude", altitude), ("tilt", tilt), ("heading", heading)):
+        try:
+            finite = math.isfinite(float(value))
+        except (TypeError, ValueError):
+            finite = False
+        if not finite:
+            raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
+    altitude, tilt, heading = float(altitude), float(tilt), float(heading)
     la, lo = math.radians(latitude), math.radians(longitude)
     outward = np.array([math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)])
     east = np.array([-math.sin(lo), math.cos(lo), 0.0])

@@ -648,3 +648,18 @@ def test_latlon_axes_that_are_not_numbers_are_refused_by_name(tmp_path, capsys):
     np.savez(grid, elevation=z.astype(np.float32), lat=np.full(180, "a"), lon=LON1)
     assert main(["-q", "globe", str(grid), "--face-size", "5", "-o", str(tmp_path / "x.glb")]) == 2
     assert capsys.readouterr().err.strip() == "stepterrain globe: error: lat must be numbers (degrees); got dtype <U1"
+
+
+@pytest.mark.parametrize("name", ["altitude", "tilt", "heading"])
+@pytest.mark.parametrize("value", [float("inf"), float("nan"), "north"])
+def test_look_from_refuses_a_non_finite_altitude_tilt_or_heading_by_name(name, value):
+    args = {"altitude": 1.0e7, "tilt": 10.0, "heading": 0.0, name: value}
+    with pytest.raises(InvalidInputError, match=rf"^{name} must be a finite number; got {value!r}$"):
+        look_from(0.0, 0.0, args.pop("altitude"), **args)
+
+
+def test_globe_cli_heading_inf_exits_2_naming_it(tmp_path, capsys):
+    from stepterrain.cli import main
+
+    assert main(["-q", "globe", "--face-size", "5", "--heading", "inf", "-o", str(tmp_path / "x.glb")]) == 2
+    assert capsys.readouterr().err.strip() == "stepterrain globe: error: heading must be a finite number; got inf"
