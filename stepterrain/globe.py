@@ -248,6 +248,11 @@ class Globe:
             bad = np.argwhere(~np.isfinite(z))
             raise InvalidInputError(f"elevation has {len(bad)} NaN or infinite values (first at row {bad[0][0]}, "
                                     f"column {bad[0][1]}); fill them first (e.g. from neighbours)")
+        relief = exaggeration * float(np.abs(z).max(initial=0.0))
+        limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
+        if relief > limit:
+            raise InvalidInputError(f"exaggeration · elevation must stay within ±{limit:.2g} m (float32 node "
+                                    f"positions); got {exaggeration:g} x {float(np.abs(z).max()):.9g} m")
         lat, lon = _latlon_axes(lat, lon, z.shape)
         dlat = _regular_step(lat, "lat")
         dlon = _regular_step(lon, "lon")
@@ -277,8 +282,8 @@ class Globe:
         source.inv_dlat = 1.0 / source.dlat
         source.inv_dlon = 1.0 / source.dlon
         source.inv_cols = 1.0 / z.shape[1]
-        source.north_pole = float(z[0].mean())
-        source.south_pole = float(z[-1].mean())
+        source.north_pole = float(z[0].mean(dtype=np.float64))
+        source.south_pole = float(z[-1].mean(dtype=np.float64))
         n_entries = 6 * (cells + 1) ** 2
         grid = cube_kernels.CubeSphereGrid()
         grid.cells = cells

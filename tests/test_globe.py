@@ -663,3 +663,13 @@ def test_globe_cli_heading_inf_exits_2_naming_it(tmp_path, capsys):
 
     assert main(["-q", "globe", "--face-size", "5", "--heading", "inf", "-o", str(tmp_path / "x.glb")]) == 2
     assert capsys.readouterr().err.strip() == "stepterrain globe: error: heading must be a finite number; got inf"
+
+
+@pytest.mark.parametrize("elevation, exaggeration", [(3.0e38, 1.0), (1.0e30, 1.0e10)])
+def test_elevation_overflowing_float32_nodes_is_refused(elevation, exaggeration):
+    # the pole value (a float32 mean) and exaggeration * z overflowed to inf: a mesh with non-finite vertices
+    z = np.full((180, 360), elevation)
+    with pytest.raises(InvalidInputError, match=r"exaggeration · elevation must stay within ±8.5e\+37 m .*; got "):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, exaggeration=exaggeration, device="cpu")
+    ok = Globe.from_latlon(np.full((180, 360), 1.0e37), LAT1, LON1, face_size=5, device="cpu")
+    assert np.isfinite(ok.positions).all() and np.isfinite(ok.mesh().vertices).all()
