@@ -253,6 +253,12 @@ class Globe:
         if relief > limit:
             raise InvalidInputError(f"exaggeration · elevation must stay within ±{limit:.2g} m (float32 node "
                                     f"positions); got {exaggeration:g} x {float(np.abs(z).max()):.9g} m")
+        lowest = np.unravel_index(int(np.argmin(z)), z.shape)
+        deepest = float(z[lowest])
+        if radius + exaggeration * deepest <= 0:
+            raise InvalidInputError(f"radius + exaggeration · elevation must stay > 0 (nodes beyond the centre turn "
+                                    f"the mesh inside out); got {radius:.9g} + {exaggeration:.9g} x {deepest:.9g} = "
+                                    f"{radius + exaggeration * deepest:.9g} m (row {lowest[0]}, column {lowest[1]})")
         lat, lon = _latlon_axes(lat, lon, z.shape)
         dlat = _regular_step(lat, "lat")
         dlon = _regular_step(lon, "lon")

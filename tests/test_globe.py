@@ -673,3 +673,14 @@ def test_elevation_overflowing_float32_nodes_is_refused(elevation, exaggeration)
         Globe.from_latlon(z, LAT1, LON1, face_size=5, exaggeration=exaggeration, device="cpu")
     ok = Globe.from_latlon(np.full((180, 360), 1.0e37), LAT1, LON1, face_size=5, device="cpu")
     assert np.isfinite(ok.positions).all() and np.isfinite(ok.mesh().vertices).all()
+
+
+def test_elevation_reaching_through_the_centre_is_refused():
+    # radius + exaggeration * z <= 0 put nodes through the centre: an inside-out mesh (negative volume)
+    z = np.zeros((180, 360))
+    z[100, 200] = -3.2e6
+    with pytest.raises(InvalidInputError, match=r"radius \+ exaggeration · elevation must stay > 0 .*; got "
+                                                r"6371000 \+ 2 x -3200000 = -29000 m \(row 100, column 200\)"):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, exaggeration=2.0, device="cpu")
+    ok = Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu").mesh()
+    assert ok.volume > 0
