@@ -841,9 +841,17 @@ def adaptive_mesh(
         bad = np.argwhere(~np.isfinite(z))[0]
         raise InvalidInputError(f"heights has {int((~np.isfinite(z)).sum())} NaN or infinite values (first at "
                                 f"row {bad[0]}, column {bad[1]}); fill them first")
-    dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
+    try:
+        dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
     dx, dy = _positive(dx, "spacing dx"), _positive(dy, "spacing dy")
-    ox, oy = (float(v) for v in origin)
+    try:
+        ox, oy = (float(v) for v in origin)
+    except (TypeError, ValueError):
+        ox = oy = math.nan
+    if not (math.isfinite(ox) and math.isfinite(oy)):
+        raise InvalidInputError(f"origin must be 2 finite numbers (x0, y0); got {origin!r}")
     rows, cols = z.shape
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     n = cells + 1
