@@ -86,6 +86,17 @@ def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
     return v
 
 
+def _seconds(time: Any) -> float:
+    """An animation time in seconds: any number but NaN (inf: every spin has ended)."""
+    try:
+        t = float(time)
+    except (TypeError, ValueError):
+        t = math.nan
+    if math.isnan(t):
+        raise InvalidInputError(f"time must be a number of seconds (not NaN); got {time!r}")
+    return t
+
+
 def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np.float32]:
     """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between."""
     if edge_width <= 0:
@@ -570,6 +581,7 @@ class CloseUp:
 
     def turn(self, time: float) -> float:
         """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
+        time = _seconds(time)
         if self.spin is None:
             return self.rotation[1]
         speed, reps = self.spin
@@ -578,7 +590,7 @@ class CloseUp:
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
         """M as a 4 x 4 matrix on world column vectors (x, y, z, 1); see :func:`closeup_matrix`."""
-        key = (float(pivot_z), float(time))
+        key = (float(pivot_z), _seconds(time))
         cache = self.__dict__.setdefault("_matrices", {})  # a frame asks several times (layers, anchors, memo)
         m = cache.get(key)
         if m is None:
