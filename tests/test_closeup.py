@@ -648,3 +648,21 @@ def test_a_time_that_is_not_a_number_is_refused(time):
         with pytest.raises(InvalidInputError, match=rf"time must be a number of seconds \(not NaN\); got {time!r}"):
             build(hills(), [cu], time=time, device="cpu")
     assert np.isfinite(closeup_layers(hills(), [cu], time=math.inf, device="cpu")[0].vertices).all()
+
+
+@pytest.mark.parametrize(
+    "build, match",
+    [
+        (lambda roi: CloseUp(roi, rotation="ab"), r"close-up rotation must be finite \(α, β\) in radians; got 'ab'"),
+        (lambda roi: CloseUp(roi, offset="abc"), r"close-up offset must be finite \(dx, dy, dz\); got 'abc'"),
+        (lambda roi: CloseUp(roi, billboard_view="ab"),
+         r"billboard_view must be finite \(azimuth, elevation\); got 'ab'"),
+        (lambda roi: CloseUp(roi, gamma="a"), r"close-up gamma must lie in \[0, 1\]; got 'a'"),
+        (lambda roi: CloseUp(roi, spin=(1.0, math.inf)), r"close-up spin must be \(turns per second, repetitions\)"),
+        (lambda roi: AnchorStyle(outline_level="a"), r"anchor outline_level must lie in \(0, 1\); got 'a'"),
+    ],
+)
+def test_closeup_options_that_are_not_numbers_are_refused_by_name(build, match):
+    # each raised a bare ValueError / OverflowError from float() or int()
+    with pytest.raises(InvalidInputError, match=match):
+        build(ROI.circle((20.0, 16.0), 6.0))
