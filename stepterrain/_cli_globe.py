@@ -100,9 +100,12 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             raise DataFileError(f"{path!r} must hold arrays 'elevation', 'lat' and 'lon'; missing "
                                 f"{', '.join(repr(key) for key in missing)}")
         try:
-            return np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
+            lat, lon, elevation = np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
+    if elevation.ndim != 2:  # the progress line reads its shape before Globe.from_latlon checks it
+        raise InvalidInputError(f"{path!r}: 'elevation' must be a 2-D (H, W) array; got shape {elevation.shape}")
+    return lat, lon, elevation
 
 
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:

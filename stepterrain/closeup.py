@@ -86,6 +86,25 @@ def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
     return v
 
 
+def _numbers(value: Any) -> NDArray[np.float64]:
+    """``value`` as a flat float64 array; [nan] when it is not numbers (so the caller's check refuses it)."""
+    try:
+        return np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        return np.array([math.nan])
+
+
+def _seconds(time: Any) -> float:
+    """An animation time in seconds: any number but NaN (inf: every spin has ended)."""
+    try:
+        t = float(time)
+    except (TypeError, ValueError):
+        t = math.nan
+    if math.isnan(t):
+        raise InvalidInputError(f"time must be a number of seconds (not NaN); got {time!r}")
+    return t
+
+
 def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np.float32]:
     """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between."""
     if edge_width <= 0:
@@ -440,8 +459,9 @@ class AnchorStyle:
         if self.inactive not in ("hidden", "gray", "faint"):
             raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
         object.__setattr__(self, "band", bool(self.band))
-        if not 0 < float(self.outline_level) < 1:
-            raise InvalidInputError(f"anchor outline_level must lie in (0, 1); got {self.outline_level}")
+        level = _numbers(self.outline_level)
+        if level.size != 1 or not 0 < level[0] < 1:
+            raise InvalidInputError(f"anchor outline_level must lie in (0, 1); got {self.outline_level!r}")
         if isinstance(self.simplify, bool) or not (isinstance(self.simplify, (int, float, np.integer, np.floating))
                                                    and 0 <= float(self.simplify) <= 4):
             raise InvalidInputError(f"anchor simplify must be a number of mask texels in [0, 4]; got "
@@ -520,7 +540,7 @@ class CloseUp:
             object.__setattr__(self, "texture", _check_texture(self.texture, "close-up texture"))
         if not isinstance(self.roi, ROI):
             raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
-        rot = np.asarray(self.rotation, dtype=np.float64).reshape(-1)
+        rot = _numbers(self.rotation)
         if rot.size != 2 or not np.all(np.isfinite(rot)):
             raise InvalidInputError(f"close-up rotation must be finite (α, β) in radians; got {self.rotation!r}")
         object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
@@ -536,7 +556,7 @@ class CloseUp:
             raise InvalidInputError(
                 f"close-up scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {tuple(s.tolist())}")
         object.__setattr__(self, "scale", tuple(float(v) for v in s))
-        p = np.asarray(self.offset, dtype=np.float64).reshape(-1)
+        p = _numbers(self.offset)
         if p.size != 3 or not np.all(np.isfinite(p)):
             raise InvalidInputError(f"close-up offset must be finite (dx, dy, dz); got {self.offset!r}")
         object.__setattr__(self, "offset", tuple(float(v) for v in p))
@@ -547,7 +567,7 @@ class CloseUp:
         if self.spin is not None:
             try:
                 speed, reps = float(self.spin[0]), int(self.spin[1])
-            except (TypeError, ValueError, IndexError) as exc:
+            except (TypeError, ValueError, IndexError, OverflowError) as exc:
                 raise InvalidInputError(
                     f"close-up spin must be (turns per second, repetitions); got {self.spin!r}") from exc
             if not math.isfinite(speed) or speed == 0 or reps < 1:
@@ -556,20 +576,22 @@ class CloseUp:
             object.__setattr__(self, "spin", (speed, reps))
         if self.view not in ("overview", "billboard"):
             raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
-        bv = np.asarray(self.billboard_view, dtype=np.float64).reshape(-1)
+        bv = _numbers(self.billboard_view)
         if bv.size != 2 or not np.all(np.isfinite(bv)):
             raise InvalidInputError(f"billboard_view must be finite (azimuth, elevation); got {self.billboard_view!r}")
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
         if self.stepped is not None:
             object.__setattr__(self, "stepped", _positive(self.stepped, "close-up stepped interval"))
-        if not 0.0 <= float(self.gamma) <= 1.0:
-            raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma}")
+        gamma = _numbers(self.gamma)
+        if gamma.size != 1 or not 0.0 <= gamma[0] <= 1.0:
+            raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma!r}")
         if self.scalars not in (None, "height", "slope", "aspect"):
             raise InvalidInputError(
                 f"close-up scalars must be None, 'height', 'slope' or 'aspect'; got {self.scalars!r}")
 
     def turn(self, time: float) -> float:
         """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
+        time = _seconds(time)
         if self.spin is None:
             return self.rotation[1]
         speed, reps = self.spin
@@ -578,7 +600,7 @@ class CloseUp:
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
         """M as a 4 x 4 matrix on world column vectors (x, y, z, 1); see :func:`closeup_matrix`."""
-        key = (float(pivot_z), float(time))
+        key = (float(pivot_z), _seconds(time))
         cache = self.__dict__.setdefault("_matrices", {})  # a frame asks several times (layers, anchors, memo)
         m = cache.get(key)
         if m is None:

@@ -115,8 +115,13 @@ def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> 
 
 
 def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[NDArray[np.float64], ...]:
-    lat = np.asarray(lat, dtype=np.float64)
-    lon = np.asarray(lon, dtype=np.float64)
+    axes = []
+    for name, axis in (("lat", lat), ("lon", lon)):
+        raw = np.asarray(axis)
+        if raw.dtype == bool or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+            raise InvalidInputError(f"{name} must be numbers (degrees); got dtype {raw.dtype}")
+        axes.append(raw.astype(np.float64))
+    lat, lon = axes
     rows, cols = shape
     if lat.shape != (rows,) or lon.shape != (cols,):
         raise InvalidInputError(f"lat and lon must have lengths ({rows},) and ({cols},) matching elevation "
@@ -243,6 +248,17 @@ class Globe:
             bad = np.argwhere(~np.isfinite(z))
             raise InvalidInputError(f"elevation has {len(bad)} NaN or infinite values (first at row {bad[0][0]}, "
                                     f"column {bad[0][1]}); fill them first (e.g. from neighbours)")
+        relief = exaggeration * float(np.abs(z).max(initial=0.0))
+        limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
+        if relief > limit:
+            raise InvalidInputError(f"exaggeration · elevation must stay within ±{limit:.2g} m (float32 node "
+                                    f"positions); got {exaggeration:g} x {float(np.abs(z).max()):.9g} m")
+        lowest = np.unravel_index(int(np.argmin(z)), z.shape)
+        deepest = float(z[lowest])
+        if radius + exaggeration * deepest <= 0:
+            raise InvalidInputError(f"radius + exaggeration · elevation must stay > 0 (nodes beyond the centre turn "
+                                    f"the mesh inside out); got {radius:.9g} + {exaggeration:.9g} x {deepest:.9g} = "
+                                    f"{radius + exaggeration * deepest:.9g} m (row {lowest[0]}, column {lowest[1]})")
         lat, lon = _latlon_axes(lat, lon, z.shape)
         dlat = _regular_step(lat, "lat")
         dlon = _regular_step(lon, "lon")
@@ -272,8 +288,8 @@ class Globe:
         source.inv_dlat = 1.0 / source.dlat
         source.inv_dlon = 1.0 / source.dlon
         source.inv_cols = 1.0 / z.shape[1]
-        source.north_pole = float(z[0].mean())
-        source.south_pole = float(z[-1].mean())
+        source.north_pole = float(z[0].mean(dtype=np.float64))
+        source.south_pole = float(z[-1].mean(dtype=np.float64))
         n_entries = 6 * (cells + 1) ** 2
         grid = cube_kernels.CubeSphereGrid()
         grid.cells = cells
@@ -825,9 +841,17 @@ def adaptive_mesh(
         bad = np.argwhere(~np.isfinite(z))[0]
         raise InvalidInputError(f"heights has {int((~np.isfinite(z)).sum())} NaN or infinite values (first at "
                                 f"row {bad[0]}, column {bad[1]}); fill them first")
-    dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
+    try:
+        dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
     dx, dy = _positive(dx, "spacing dx"), _positive(dy, "spacing dy")
-    ox, oy = (float(v) for v in origin)
+    try:
+        ox, oy = (float(v) for v in origin)
+    except (TypeError, ValueError):
+        ox = oy = math.nan
+    if not (math.isfinite(ox) and math.isfinite(oy)):
+        raise InvalidInputError(f"origin must be 2 finite numbers (x0, y0); got {origin!r}")
     rows, cols = z.shape
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     n = cells + 1
@@ -1031,6 +1055,14 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         raise InvalidInputError(f"latitude must lie in [-90, 90] degrees; got {latitude}")
     if not math.isfinite(longitude):
         raise InvalidInputError(f"longitude must be finite; got {longitude}")
+    for name, value in (("altitude", altitude), ("tilt", tilt), ("heading", heading)):
+        try:
+            finite = math.isfinite(float(value))
+        except (TypeError, ValueError):
+            finite = False
+        if not finite:
+            raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
+    altitude, tilt, heading = float(altitude), float(tilt), float(heading)
     la, lo = math.radians(latitude), math.radians(longitude)
     outward = np.array([math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)])
     east = np.array([-math.sin(lo), math.cos(lo), 0.0])

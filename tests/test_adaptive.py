@@ -179,3 +179,21 @@ def test_a_terrain_object_is_refused_with_what_to_pass():
 
     with pytest.raises(InvalidInputError, match="got a Terrain: pass terrain.heights"):
         adaptive_mesh(st.Terrain.from_heights(np.zeros((5, 5))), error=1.0)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"origin": (float("nan"), 0.0)}, r"origin must be 2 finite numbers \(x0, y0\); got \(nan, 0.0\)"),
+        ({"origin": (0.0, float("inf"))}, r"origin must be 2 finite numbers \(x0, y0\); got \(0.0, inf\)"),
+        ({"origin": 1.0}, r"origin must be 2 finite numbers \(x0, y0\); got 1.0"),
+        ({"origin": (1.0, 2.0, 3.0)}, r"origin must be 2 finite numbers \(x0, y0\); got \(1.0, 2.0, 3.0\)"),
+        ({"origin": ("a", "b")}, r"origin must be 2 finite numbers \(x0, y0\); got \('a', 'b'\)"),
+        ({"spacing": (1.0, 2.0, 3.0)}, r"spacing must be a number or \(dx, dy\); got \(1.0, 2.0, 3.0\)"),
+        ({"spacing": None}, r"spacing must be a number or \(dx, dy\); got None"),
+    ],
+)
+def test_bad_origin_or_spacing_is_refused_by_name(kwargs, match):
+    # a NaN/inf origin gave non-finite vertices; the others raised TypeError/ValueError from unpacking
+    with pytest.raises(InvalidInputError, match=match):
+        adaptive_mesh(np.zeros((5, 5)), error=0.0, device="cpu", **kwargs)

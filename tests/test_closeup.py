@@ -638,3 +638,31 @@ def test_closeup_options_are_keyword_only():
     with pytest.raises(TypeError):
         CloseUp(roi, (0.1, 0.2))  # rotation by position
     assert CloseUp(roi, rotation=(0.1, 0.2)).rotation == (0.1, 0.2)
+
+
+@pytest.mark.parametrize("time", [float("nan"), "soon", None])
+def test_a_time_that_is_not_a_number_is_refused(time):
+    # time=nan gave spinning close-ups (layers and anchors) NaN vertices; a string raised a bare ValueError
+    cu = CloseUp(ROI.circle((20.0, 16.0), 6.0), offset=(0.0, 0.0, 30.0), spin=(0.5, 1))
+    for build in (closeup_layers, anchor_strips):
+        with pytest.raises(InvalidInputError, match=rf"time must be a number of seconds \(not NaN\); got {time!r}"):
+            build(hills(), [cu], time=time, device="cpu")
+    assert np.isfinite(closeup_layers(hills(), [cu], time=math.inf, device="cpu")[0].vertices).all()
+
+
+@pytest.mark.parametrize(
+    "build, match",
+    [
+        (lambda roi: CloseUp(roi, rotation="ab"), r"close-up rotation must be finite \(α, β\) in radians; got 'ab'"),
+        (lambda roi: CloseUp(roi, offset="abc"), r"close-up offset must be finite \(dx, dy, dz\); got 'abc'"),
+        (lambda roi: CloseUp(roi, billboard_view="ab"),
+         r"billboard_view must be finite \(azimuth, elevation\); got 'ab'"),
+        (lambda roi: CloseUp(roi, gamma="a"), r"close-up gamma must lie in \[0, 1\]; got 'a'"),
+        (lambda roi: CloseUp(roi, spin=(1.0, math.inf)), r"close-up spin must be \(turns per second, repetitions\)"),
+        (lambda roi: AnchorStyle(outline_level="a"), r"anchor outline_level must lie in \(0, 1\); got 'a'"),
+    ],
+)
+def test_closeup_options_that_are_not_numbers_are_refused_by_name(build, match):
+    # each raised a bare ValueError / OverflowError from float() or int()
+    with pytest.raises(InvalidInputError, match=match):
+        build(ROI.circle((20.0, 16.0), 6.0))

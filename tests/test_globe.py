@@ -634,3 +634,53 @@ def test_memory_budget_refuses_before_allocating():
             Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=1025)
     finally:
         compaction.set_memory_budget(previous)
+
+
+def test_latlon_axes_that_are_not_numbers_are_refused_by_name(tmp_path, capsys):
+    from stepterrain.cli import main
+
+    z = np.zeros((180, 360))
+    with pytest.raises(InvalidInputError, match=r"lat must be numbers \(degrees\); got dtype <U1"):
+        Globe.from_latlon(z, np.full(180, "a"), LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match=r"lon must be numbers \(degrees\); got dtype object"):
+        Globe.from_latlon(z, LAT1, [None] * 360, face_size=9)
+    grid = tmp_path / "grid.npz"  # the CLI reads the axes from a file: exit 2, one line, no traceback
+    np.savez(grid, elevation=z.astype(np.float32), lat=np.full(180, "a"), lon=LON1)
+    assert main(["-q", "globe", str(grid), "--face-size", "5", "-o", str(tmp_path / "x.glb")]) == 2
+    assert capsys.readouterr().err.strip() == "stepterrain globe: error: lat must be numbers (degrees); got dtype <U1"
+
+
+@pytest.mark.parametrize("name", ["altitude", "tilt", "heading"])
+@pytest.mark.parametrize("value", [float("inf"), float("nan"), "north"])
+def test_look_from_refuses_a_non_finite_altitude_tilt_or_heading_by_name(name, value):
+    args = {"altitude": 1.0e7, "tilt": 10.0, "heading": 0.0, name: value}
+    with pytest.raises(InvalidInputError, match=rf"^{name} must be a finite number; got {value!r}$"):
+        look_from(0.0, 0.0, args.pop("altitude"), **args)
+
+
+def test_globe_cli_heading_inf_exits_2_naming_it(tmp_path, capsys):
+    from stepterrain.cli import main
+
+    assert main(["-q", "globe", "--face-size", "5", "--heading", "inf", "-o", str(tmp_path / "x.glb")]) == 2
+    assert capsys.readouterr().err.strip() == "stepterrain globe: error: heading must be a finite number; got inf"
+
+
+@pytest.mark.parametrize("elevation, exaggeration", [(3.0e38, 1.0), (1.0e30, 1.0e10)])
+def test_elevation_overflowing_float32_nodes_is_refused(elevation, exaggeration):
+    # the pole value (a float32 mean) and exaggeration * z overflowed to inf: a mesh with non-finite vertices
+    z = np.full((180, 360), elevation)
+    with pytest.raises(InvalidInputError, match=r"exaggeration · elevation must stay within ±8.5e\+37 m .*; got "):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, exaggeration=exaggeration, device="cpu")
+    ok = Globe.from_latlon(np.full((180, 360), 1.0e37), LAT1, LON1, face_size=5, device="cpu")
+    assert np.isfinite(ok.positions).all() and np.isfinite(ok.mesh().vertices).all()
+
+
+def test_elevation_reaching_through_the_centre_is_refused():
+    # radius + exaggeration * z <= 0 put nodes through the centre: an inside-out mesh (negative volume)
+    z = np.zeros((180, 360))
+    z[100, 200] = -3.2e6
+    with pytest.raises(InvalidInputError, match=r"radius \+ exaggeration · elevation must stay > 0 .*; got "
+                                                r"6371000 \+ 2 x -3200000 = -29000 m \(row 100, column 200\)"):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, exaggeration=2.0, device="cpu")
+    ok = Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu").mesh()
+    assert ok.volume > 0

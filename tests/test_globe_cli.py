@@ -155,3 +155,13 @@ def test_globe_texture_is_embedded_in_the_glb(tmp_path):
     assert isinstance(back.visual, trimesh.visual.TextureVisuals)
     assert back.visual.material.baseColorTexture.size == (64, 32)
     assert len(back.faces) == 12 * 16**2 and len(back.visual.uv) == len(back.vertices)
+
+
+@pytest.mark.parametrize("elevation", [np.float32(1.0), np.zeros(360, np.float32), np.zeros((2, 180, 360))])
+def test_globe_npz_elevation_not_2d_exits_2(tmp_path, capsys, elevation):
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=elevation, lat=np.linspace(89.5, -89.5, 180), lon=np.linspace(-179.5, 179.5, 360))
+    assert main(["-q", "globe", str(grid), "--face-size", "5", "-o", str(tmp_path / "x.glb")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (f"stepterrain globe: error: {str(grid)!r}: 'elevation' must be a 2-D (H, W) array; got shape "
+                   f"{np.shape(elevation)}")
