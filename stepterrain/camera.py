@@ -64,10 +64,18 @@ class Camera:
 
     def __post_init__(self) -> None:
         for name in ("eye", "target", "up"):
-            value = np.asarray(getattr(self, name), dtype=np.float64)
+            try:
+                value = np.asarray(getattr(self, name), dtype=np.float64)
+            except (TypeError, ValueError):
+                value = np.full(0, np.nan)  # not numbers: refused below
             if value.shape != (3,) or not np.isfinite(value).all():
                 raise InvalidInputError(f"Camera {name} must be 3 finite numbers; got {getattr(self, name)!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
+        for name in ("fov", "near", "far"):  # numbers (not strings, None or bools) before any comparison
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise InvalidInputError(f"Camera {name} must be a number; got {value!r}")
+            object.__setattr__(self, name, float(value))
         forward = np.subtract(self.target, self.eye)
         if np.linalg.norm(forward) == 0.0:
             raise InvalidInputError(f"Camera eye and target must differ; both are {self.eye}")
@@ -79,8 +87,10 @@ class Camera:
             raise InvalidInputError(f"Camera fov must lie in (0, π) radians; got {self.fov!r}")
         if self.viewport is not None:
             try:
+                if any(isinstance(v, (bool, np.bool_)) or not float(v).is_integer() for v in self.viewport):
+                    raise ValueError("not whole pixels")
                 width, height = (int(v) for v in self.viewport)
-            except (TypeError, ValueError):
+            except (TypeError, ValueError, OverflowError):
                 raise InvalidInputError(f"Camera viewport must be (width, height) pixels; got {self.viewport!r}") \
                     from None
             if width < 1 or height < 1:

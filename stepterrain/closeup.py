@@ -1205,26 +1205,26 @@ def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> t
     """The M-independent part of :func:`anchor_strips`: the outline points on the terrain (uploaded), their
     close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline."""
     ox, oy = t.local_origin
-    points, layer_ids, segments, rungs, heights = [], [], [], [], []
-    total = 0
-    for k, cu in enumerate(items):  # per close-up (a handful) and per outline line
-        lines = cu.roi.outline(cu.anchor.outline_level)
-        tolerance = _fence_tolerance(cu)
-        for line in lines:
-            z_line = _heights_at(t, line)
-            if tolerance > 0:
-                keep = simplify_polyline(np.column_stack([line, z_line]), tolerance)
-                line, z_line = line[keep], z_line[keep]
-            idx = np.arange(total, total + len(line))
-            segments.append(np.stack([idx[:-1], idx[1:]], axis=1))
-            points.append(line)
-            heights.append(z_line)
-            layer_ids.append(np.full(len(line), k, np.int32))
-            total += len(line)
-        rungs.append(cu.anchor.rungs)
-    rung_count = max(rungs)  # one launch: every strip gets the largest rung count
-    if total == 0:
+    outlines = [(k, line) for k, cu in enumerate(items) for line in cu.roi.outline(cu.anchor.outline_level)]
+    if not outlines:
         return None
+    # the terrain under every outline point at once (a TIN builds its nearest-point search once)
+    all_z = np.split(_heights_at(t, np.concatenate([line for _, line in outlines])),
+                     np.cumsum([len(line) for _, line in outlines])[:-1])
+    tolerances = [_fence_tolerance(cu) for cu in items]
+    points, layer_ids, segments, heights = [], [], [], []
+    total = 0
+    for (k, line), z_line in zip(outlines, all_z, strict=True):  # per outline line: a handful
+        if tolerances[k] > 0:
+            keep = simplify_polyline(np.column_stack([line, z_line]), tolerances[k])
+            line, z_line = line[keep], z_line[keep]
+        idx = np.arange(total, total + len(line))
+        segments.append(np.stack([idx[:-1], idx[1:]], axis=1))
+        points.append(line)
+        heights.append(z_line)
+        layer_ids.append(np.full(len(line), k, np.int32))
+        total += len(line)
+    rung_count = max(cu.anchor.rungs for cu in items)  # one launch: every strip gets the largest rung count
     xy = np.concatenate(points)
     z = np.concatenate(heights)
     outline = np.column_stack([xy[:, 0] - ox, xy[:, 1] - oy, z]).astype(np.float32)

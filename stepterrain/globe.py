@@ -23,7 +23,7 @@ import ctypes
 import dataclasses
 import math
 import mmap
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from importlib import resources
 from typing import Any, Literal
 
@@ -102,6 +102,9 @@ def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> 
                                 "case supports bounds='sphere' only")
     if isinstance(metrics, str):
         metrics = (metrics,)
+    if not isinstance(metrics, Iterable):
+        raise InvalidInputError(f"metrics must be a sequence of names among {METRICS} or callables (() for none); "
+                                f"got {metrics!r}")
     names: set[str] = set()
     users: list[UserMetric] = []
     for m in metrics:

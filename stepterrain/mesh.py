@@ -20,8 +20,8 @@ __all__ = ["close_solid", "boundary_edges", "exact_keys"]
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:
     """Group ids of rows that are bit-identical (e.g. vertices sharing an exact xy).
 
-    Rows are compared by their bits (as before by bytes), sorted by their columns' bit patterns with one
-    ``lexsort``: ids count the distinct rows in that order."""
+    Rows are compared bit for bit (0.0 and -0.0 differ), sorted by their columns' bit patterns with one
+    ``lexsort``: ids number the distinct rows in that order."""
     rows = np.ascontiguousarray(xy)
     if len(rows) == 0:
         return np.zeros(0, np.int64)

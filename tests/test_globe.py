@@ -623,6 +623,19 @@ def test_bad_mesh_arguments(small_globe):
     for aspect in (float("inf"), float("nan"), 0.0):  # checked before the default viewport is derived from it
         with pytest.raises(InvalidInputError, match="aspect must be a positive number"):
             Camera(eye=(3.0, 0.0, 0.0), target=(0.0, 0.0, 0.0), aspect=aspect)
+    for metrics in (None, 5):
+        with pytest.raises(InvalidInputError, match="metrics must be a sequence"):
+            g.mesh(metrics=metrics)
+    eye, target = (3.0, 0.0, 0.0), (0.0, 0.0, 0.0)
+    for name, value in (("fov", "a"), ("near", "1"), ("near", None), ("far", True)):
+        with pytest.raises(InvalidInputError, match=f"Camera {name} must be a number"):
+            Camera(eye=eye, target=target, **{name: value})
+    with pytest.raises(InvalidInputError, match="Camera eye must be 3 finite numbers"):
+        Camera(eye="abc", target=target)
+    for viewport in ((float("inf"), 2), (True, True), (640.5, 480), ("a", 2)):
+        with pytest.raises(InvalidInputError, match="Camera viewport must be"):
+            Camera(eye=eye, target=target, viewport=viewport)
+    assert Camera(eye=eye, target=target, viewport=(640.0, 480), near=1, far=10).viewport == (640, 480)
 
 
 def test_memory_budget_refuses_before_allocating():
