@@ -407,6 +407,13 @@ def test_killed_run_leaves_no_partial_file_and_resumes(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------------------------------------- retries
+def four_tiles_twice_retried(tmp_path):
+    """A 7 x 7 ramp cut into four tiles (tile_r0_c0 ... tile_r1_c1), run serially with two retries."""
+    report = batch(np.add.outer(np.arange(7.0), np.arange(7.0)), tmp_path, tile_size=4, interval=1.0,
+                   scheduler="serial", retries=2)  # fmt: skip
+    return report, {r.key: r for r in report.results}
+
+
 def test_transient_failures_are_retried_then_reported(tmp_path, monkeypatch):
     import sys
 
@@ -424,9 +431,7 @@ def test_transient_failures_are_retried_then_reported(tmp_path, monkeypatch):
         return real(terrain, **kwargs)
 
     monkeypatch.setattr(stepped_module, "stepped", flaky)
-    report = batch(np.add.outer(np.arange(7.0), np.arange(7.0)), tmp_path, tile_size=4, interval=1.0,
-                   scheduler="serial", retries=2)  # fmt: skip
-    by_key = {r.key: r for r in report.results}
+    report, by_key = four_tiles_twice_retried(tmp_path)
     assert by_key["tile_r0_c0"].status == "done" and by_key["tile_r0_c0"].attempts == 2
     assert by_key["tile_r0_c1"].status == "failed" and by_key["tile_r0_c1"].attempts == 3
     assert by_key["tile_r0_c1"].error == "RuntimeError: always broken"
@@ -455,9 +460,7 @@ def test_disk_errors_under_a_data_file_error_are_retried(tmp_path, monkeypatch):
         return real(mesh, target, **kwargs)
 
     monkeypatch.setattr(batch_module, "save_mesh", flaky)
-    report = batch(np.add.outer(np.arange(7.0), np.arange(7.0)), tmp_path, tile_size=4, interval=1.0,
-                   scheduler="serial", retries=2)  # fmt: skip
-    by_key = {r.key: r for r in report.results}
+    _, by_key = four_tiles_twice_retried(tmp_path)
     assert by_key["tile_r0_c0"].status == "done" and by_key["tile_r0_c0"].attempts == 3
     assert by_key["tile_r1_c0"].status == "done" and by_key["tile_r1_c0"].attempts == 3
     assert by_key["tile_r0_c1"].status == "failed" and by_key["tile_r0_c1"].attempts == 1
