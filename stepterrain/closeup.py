@@ -75,6 +75,22 @@ _MAX_CLOSEUPS = 16
 
 
 # ------------------------------------------------------------------------------------------------ helpers
+_MAX_MASK_RESOLUTION = 16385  # texels along a shape mask's longer side: 1 GiB of float32 at most
+_MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
+_MAX_OFFSET = 1e12
+
+
+def _finite(value: Any, name: str) -> float:
+    """A finite number (of any sign), or an InvalidInputError naming ``name``."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        v = math.nan
+    if not math.isfinite(v):
+        raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
+    return v
+
+
 def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
     try:
         v = float(value)
@@ -115,10 +131,13 @@ def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np
 
 
 def _mask_grid(size: tuple[float, float], resolution: int) -> tuple[int, int]:
-    """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, at least 3."""
+    """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, 3 to 16385."""
+    if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer)):
+        raise InvalidInputError(f"mask resolution must be a whole number of texels; got {resolution!r}")
     resolution = int(resolution)
-    if resolution < 3:
-        raise InvalidInputError(f"mask resolution must be >= 3 texels; got {resolution}")
+    if not 3 <= resolution <= _MAX_MASK_RESOLUTION:
+        raise InvalidInputError(f"mask resolution must lie in [3, {_MAX_MASK_RESOLUTION}] texels per side; got "
+                                f"{resolution}")
     w, h = size
     cols = resolution if w >= h else max(3, int(round(resolution * w / h)))
     rows = resolution if h >= w else max(3, int(round(resolution * h / w)))
@@ -242,7 +261,11 @@ class ROI:
 
         With ``top_row_north`` (the default, as images are drawn) row 0 is the *upper* y of the box.
         """
-        arr = np.asarray(mask)
+        try:
+            arr = np.asarray(mask)
+        except ValueError as exc:  # ragged rows
+            raise InvalidInputError(f"painted mask must be a (rows, cols) array; got rows of different lengths "
+                                    f"({exc})") from None
         if arr.ndim == 3 and arr.shape[2] in (3, 4):
             raise InvalidInputError(f"painted mask must be grayscale (rows, cols); got an RGB(A) image {arr.shape}")
         if np.issubdtype(arr.dtype, np.integer) and arr.dtype.itemsize == 1:
@@ -260,8 +283,8 @@ class ROI:
         The mask is the terrain grid itself (one texel per node), over the terrain's extent or the
         sub-``region`` (xmin, xmax, ymin, ymax).
         """
-        lo, hi = float(low), float(high)
-        if not (math.isfinite(lo) and math.isfinite(hi)) or hi < lo:
+        lo, hi = _finite(low, "height band low"), _finite(high, "height band high")
+        if hi < lo:
             raise InvalidInputError(f"height band must be finite with low <= high; got ({low}, {high})")
         edge = _positive(edge, "edge", allow_zero=True)
         heights, center, size = _terrain_window(terrain, region)
@@ -276,8 +299,8 @@ class ROI:
     def slope_above(cls, terrain: Terrain | ArrayLike, degrees: float, *, edge: float = 0.0,
                     region: ArrayLike | None = None) -> ROI:
         """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees."""
-        d = float(degrees)
-        if not (math.isfinite(d) and 0 <= d < 90):
+        d = _finite(degrees, "slope threshold")
+        if not 0 <= d < 90:
             raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
         edge = _positive(edge, "edge", allow_zero=True)
         t = as_terrain(terrain)
@@ -295,6 +318,8 @@ class ROI:
 
         t = as_terrain(terrain)
         values = np.asarray(isovalues(t.height_range, interval=interval, levels=levels, base=base), np.float64)
+        if isinstance(level, (bool, np.bool_)) or not isinstance(level, (int, np.integer)):
+            raise InvalidInputError(f"level must be a whole isovalue index; got {level!r}")
         level = int(level)
         if not 0 <= level < len(values):
             raise InvalidInputError(f"level must index the {len(values)} isovalues (0..{len(values) - 1}); got {level}")
@@ -555,10 +580,13 @@ class CloseUp:
         if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
             raise InvalidInputError(
                 f"close-up scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {tuple(s.tolist())}")
+        if s.max() > _MAX_SCALE:  # float32 positions on the device
+            raise InvalidInputError(f"close-up scale must be at most {_MAX_SCALE:g}; got {tuple(s.tolist())}")
         object.__setattr__(self, "scale", tuple(float(v) for v in s))
         p = _numbers(self.offset)
-        if p.size != 3 or not np.all(np.isfinite(p)):
-            raise InvalidInputError(f"close-up offset must be finite (dx, dy, dz); got {self.offset!r}")
+        if p.size != 3 or not np.all(np.isfinite(p)) or np.abs(p).max() > _MAX_OFFSET:
+            raise InvalidInputError(f"close-up offset must be finite (dx, dy, dz) metres, each within "
+                                    f"±{_MAX_OFFSET:g}; got {self.offset!r}")
         object.__setattr__(self, "offset", tuple(float(v) for v in p))
         if self.color is not None:
             object.__setattr__(self, "color", _color(self.color, "close-up color"))
@@ -588,6 +616,10 @@ class CloseUp:
         if self.scalars not in (None, "height", "slope", "aspect"):
             raise InvalidInputError(
                 f"close-up scalars must be None, 'height', 'slope' or 'aspect'; got {self.scalars!r}")
+        if self.cmap is not None:
+            from .stepped import colormap
+
+            colormap(self.cmap, argument="close-up cmap")  # an unknown name now, not at the first render
 
     def turn(self, time: float) -> float:
         """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
@@ -1600,8 +1632,7 @@ def render_closeups(
         raise InvalidInputError(
             f"too many close-ups for a {width}x{height} window: {len(items)}; it holds at most {limit} "
             f"(one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS})")
-    if scalars not in (None, "height", "slope", "aspect"):
-        raise InvalidInputError(f"scalars must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
+    _check_scalars(scalars)
     _check_in_terrain(t, items)
     image_texture = None if texture is None else _check_texture(texture, "texture")
     clock = timings if timings is not None else {}
@@ -1677,6 +1708,11 @@ def render_closeups(
             renderer.close()
 
 
+def _check_scalars(scalars: Any) -> None:
+    if scalars not in (None, "height", "slope", "aspect"):
+        raise InvalidInputError(f"scalars must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
+
+
 def _window(window_size: Any) -> tuple[int, int]:
     """(width, height) checked as every render checks it (:func:`stepterrain.render._check_window`)."""
     from .render import _check_window
@@ -1709,6 +1745,7 @@ def closeup_scene(
     >>> sorted(set(scene.face_attributes["layer"].tolist()))
     [0, 1, 2]
     """
+    _check_scalars(scalars)
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     mesh = t.mesh()

@@ -654,7 +654,7 @@ def test_a_time_that_is_not_a_number_is_refused(time):
     "build, match",
     [
         (lambda roi: CloseUp(roi, rotation="ab"), r"close-up rotation must be finite \(α, β\) in radians; got 'ab'"),
-        (lambda roi: CloseUp(roi, offset="abc"), r"close-up offset must be finite \(dx, dy, dz\); got 'abc'"),
+        (lambda roi: CloseUp(roi, offset="abc"), r"close-up offset must be finite \(dx, dy, dz\) metres.*; got 'abc'"),
         (lambda roi: CloseUp(roi, billboard_view="ab"),
          r"billboard_view must be finite \(azimuth, elevation\); got 'ab'"),
         (lambda roi: CloseUp(roi, gamma="a"), r"close-up gamma must lie in \[0, 1\]; got 'a'"),
@@ -666,3 +666,31 @@ def test_closeup_options_that_are_not_numbers_are_refused_by_name(build, match):
     # each raised a bare ValueError / OverflowError from float() or int()
     with pytest.raises(InvalidInputError, match=match):
         build(ROI.circle((20.0, 16.0), 6.0))
+
+
+def test_more_bad_roi_and_closeup_options_are_refused_by_name():
+    """Non-numbers, NaN and absurd sizes reach a named InvalidInputError, not numpy's ValueError, a MemoryError,
+    a silent truncation or non-finite vertices."""
+    from stepterrain.closeup import closeup_scene
+
+    heights = hills()
+    cases = [
+        (lambda: ROI.circle((0, 0), 1.0, resolution="x"), "mask resolution must be a whole number"),
+        (lambda: ROI.circle((0, 0), 1.0, resolution=float("nan")), "mask resolution must be a whole number"),
+        (lambda: ROI.circle((0, 0), 1.0, resolution=10**6), r"mask resolution must lie in \[3, 16385\]"),
+        (lambda: ROI.height_band(heights, "a", 5.0), "height band low must be a finite number"),
+        (lambda: ROI.height_band(heights, 0.0, float("inf")), "height band high must be a finite number"),
+        (lambda: ROI.slope_above(heights, "a"), "slope threshold must be a finite number"),
+        (lambda: ROI.stepped_level(heights, 1.5, interval=1.0), "level must be a whole isovalue index"),
+        (lambda: ROI.stepped_level(heights, "a", interval=1.0), "level must be a whole isovalue index"),
+        (lambda: ROI.painted([[0.0, 1.0], [0.5]], (0, 0), (1, 1)), "rows of different lengths"),
+        (lambda: CloseUp(ROI.circle((0, 0), 1.0), scale=1e300), "scale must be at most 1e"),
+        (lambda: CloseUp(ROI.circle((0, 0), 1.0), offset=(1e300, 0, 0)), "offset must be finite"),
+        (lambda: CloseUp(ROI.circle((0, 0), 1.0), cmap="nope"), "close-up cmap must name a matplotlib colormap"),
+        (lambda: closeup_scene(heights, [], scalars="x"), "scalars must be None"),
+    ]
+    for make, message in cases:
+        with pytest.raises(InvalidInputError, match=message):
+            make()
+    assert ROI.stepped_level(heights, np.int64(1), interval=1.0).shape == "stepped_level"  # numpy ints are fine
+    assert CloseUp(ROI.circle((0, 0), 1.0), cmap="viridis", scale=1e6).cmap == "viridis"
