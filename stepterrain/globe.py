@@ -243,7 +243,8 @@ class Globe:
         radius = _positive(radius, "radius")
         exaggeration = _positive(exaggeration, "exaggeration")
         z = np.asarray(elevation)
-        if z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number):
+        if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
+                or np.issubdtype(z.dtype, np.complexfloating)):
             raise InvalidInputError(f"elevation must be a real (H, W) array with H, W >= 2; got shape "
                                     f"{z.shape}, dtype {z.dtype}")
         z = z.astype(np.float32)
@@ -286,7 +287,9 @@ class Globe:
         source.elevation = wp.array(np.ascontiguousarray(z), dtype=wp.float32, device=device)
         source.lat0 = math.radians(lat[0])
         source.dlat = math.radians(dlat)
-        source.lon0 = math.radians(lon[0])
+        # wrapped before the radians: an axis starting a billion degrees out keeps its fraction (lon + 1e9° was off
+        # by a millimetre against lon + (1e9 mod 360)°)
+        source.lon0 = math.radians((lon[0] + 180.0) % 360.0 - 180.0)
         source.dlon = math.radians(dlon)
         source.inv_dlat = 1.0 / source.dlat
         source.inv_dlon = 1.0 / source.dlon
@@ -837,8 +840,10 @@ def adaptive_mesh(
         raise InvalidInputError("heights must be an (H, W) array; got a Terrain: pass terrain.heights and its "
                                 "node spacing (spacing=, positive; x runs along columns, y along rows)")
     z = np.asarray(heights)
-    if z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number):
-        raise InvalidInputError(f"heights must be a real (H, W) array with H, W >= 2; got shape {z.shape}")
+    if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
+            or np.issubdtype(z.dtype, np.complexfloating)):
+        raise InvalidInputError(f"heights must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
+                                f"dtype {z.dtype}")
     z = z.astype(np.float32)
     if not np.isfinite(z).all():
         bad = np.argwhere(~np.isfinite(z))[0]

@@ -697,3 +697,23 @@ def test_elevation_reaching_through_the_centre_is_refused():
         Globe.from_latlon(z, LAT1, LON1, face_size=5, exaggeration=2.0, device="cpu")
     ok = Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu").mesh()
     assert ok.volume > 0
+
+
+@pytest.mark.parametrize("shift", [360.0, 1e6, 1e9, -7.2e6])
+def test_a_longitude_axis_far_out_gives_the_globe_of_its_wrapped_axis(shift):
+    """lon + shift is the grid of lon + (shift mod 360): the same mesh bit for bit, even a billion degrees out
+    (lon0 is wrapped before its conversion to radians)."""
+    z = np.random.default_rng(7).uniform(-4000.0, 4000.0, (180, 360))
+    wrapped = Globe.from_latlon(z, LAT1, LON1 + shift % 360.0, face_size=17, device="cpu").mesh()
+    far = Globe.from_latlon(z, LAT1, LON1 + shift, face_size=17, device="cpu").mesh()
+    np.testing.assert_array_equal(far.vertices, wrapped.vertices)
+    np.testing.assert_array_equal(far.faces, wrapped.faces)
+
+
+def test_complex_elevations_are_refused():
+    with pytest.raises(InvalidInputError, match="elevation must be a real"):
+        Globe.from_latlon(np.zeros((180, 360), complex), LAT1, LON1, face_size=5, device="cpu")
+    with pytest.raises(InvalidInputError, match="heights must be a real"):
+        from stepterrain import adaptive_mesh
+
+        adaptive_mesh(np.zeros((9, 9), complex), error=1.0)
