@@ -23,6 +23,8 @@ __all__ = ["Camera"]
 _DEFAULT_HEIGHT = 800
 
 
+_MAX_COORDINATE = 1e30  # eye, target and up: their products (norms, crosses) stay finite in float64
+
 @dataclass(frozen=True)
 class Camera:
     """A pinhole camera shared by every capability: the eye point, the six clipping planes of its view frustum
@@ -68,8 +70,9 @@ class Camera:
                 value = np.asarray(getattr(self, name), dtype=np.float64)
             except (TypeError, ValueError):
                 value = np.full(0, np.nan)  # not numbers: refused below
-            if value.shape != (3,) or not np.isfinite(value).all():
-                raise InvalidInputError(f"Camera {name} must be 3 finite numbers; got {getattr(self, name)!r}")
+            if value.shape != (3,) or not np.isfinite(value).all() or np.abs(value).max() > _MAX_COORDINATE:
+                raise InvalidInputError(f"Camera {name} must be 3 finite numbers within ±{_MAX_COORDINATE:g}; got "
+                                        f"{getattr(self, name)!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
         for name in ("fov", "near", "far"):  # numbers (not strings, None or bools) before any comparison
             value = getattr(self, name)

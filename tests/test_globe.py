@@ -630,8 +630,9 @@ def test_bad_mesh_arguments(small_globe):
     for name, value in (("fov", "a"), ("near", "1"), ("near", None), ("far", True)):
         with pytest.raises(InvalidInputError, match=f"Camera {name} must be a number"):
             Camera(eye=eye, target=target, **{name: value})
-    with pytest.raises(InvalidInputError, match="Camera eye must be 3 finite numbers"):
-        Camera(eye="abc", target=target)
+    for bad_eye in ("abc", (0.0, 0.0, 1e300)):  # a huge eye overflowed the norms: "up ... parallel" before
+        with pytest.raises(InvalidInputError, match="Camera eye must be 3 finite numbers within"):
+            Camera(eye=bad_eye, target=target)
     for viewport in ((float("inf"), 2), (True, True), (640.5, 480), ("a", 2)):
         with pytest.raises(InvalidInputError, match="Camera viewport must be"):
             Camera(eye=eye, target=target, viewport=viewport)
