@@ -21,9 +21,8 @@ __all__ = ["Camera"]
 
 #: Viewport height in pixels when none is given.
 _DEFAULT_HEIGHT = 800
-
-
 _MAX_COORDINATE = 1e30  # eye, target and up: their products (norms, crosses) stay finite in float64
+
 
 @dataclass(frozen=True)
 class Camera:

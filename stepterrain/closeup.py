@@ -613,9 +613,7 @@ class CloseUp:
         gamma = _numbers(self.gamma)
         if gamma.size != 1 or not 0.0 <= gamma[0] <= 1.0:
             raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma!r}")
-        if self.scalars not in (None, "height", "slope", "aspect"):
-            raise InvalidInputError(
-                f"close-up scalars must be None, 'height', 'slope' or 'aspect'; got {self.scalars!r}")
+        _check_scalars(self.scalars, "close-up scalars")
         if self.cmap is not None:
             from .stepped import colormap
 
@@ -1708,9 +1706,9 @@ def render_closeups(
             renderer.close()
 
 
-def _check_scalars(scalars: Any) -> None:
+def _check_scalars(scalars: Any, name: str = "scalars") -> None:
     if scalars not in (None, "height", "slope", "aspect"):
-        raise InvalidInputError(f"scalars must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
+        raise InvalidInputError(f"{name} must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
 
 
 def _window(window_size: Any) -> tuple[int, int]:

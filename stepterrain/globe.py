@@ -117,6 +117,22 @@ def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> 
     return names, users
 
 
+def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
+    """A real (H, W) float32 grid with H, W >= 2 and no NaN or inf (the hierarchy has no nodata), or an
+    InvalidInputError naming ``name``."""
+    z = np.asarray(values)
+    if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
+            or np.issubdtype(z.dtype, np.complexfloating)):
+        raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
+                                f"dtype {z.dtype}")
+    z = z.astype(np.float32)
+    if not np.isfinite(z).all():
+        bad = np.argwhere(~np.isfinite(z))
+        raise InvalidInputError(f"{name} has {len(bad)} NaN or infinite values (first at row {bad[0][0]}, "
+                                f"column {bad[0][1]}); fill them first (e.g. from neighbours)")
+    return z
+
+
 def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[NDArray[np.float64], ...]:
     axes = []
     for name, axis in (("lat", lat), ("lon", lon)):
@@ -242,16 +258,7 @@ class Globe:
         cells = _face_cells(face_size)
         radius = _positive(radius, "radius")
         exaggeration = _positive(exaggeration, "exaggeration")
-        z = np.asarray(elevation)
-        if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
-                or np.issubdtype(z.dtype, np.complexfloating)):
-            raise InvalidInputError(f"elevation must be a real (H, W) array with H, W >= 2; got shape "
-                                    f"{z.shape}, dtype {z.dtype}")
-        z = z.astype(np.float32)
-        if not np.isfinite(z).all():
-            bad = np.argwhere(~np.isfinite(z))
-            raise InvalidInputError(f"elevation has {len(bad)} NaN or infinite values (first at row {bad[0][0]}, "
-                                    f"column {bad[0][1]}); fill them first (e.g. from neighbours)")
+        z = _height_grid(elevation, "elevation")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
         limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
         if relief > limit:
@@ -839,16 +846,7 @@ def adaptive_mesh(
     if hasattr(heights, "heights") and hasattr(heights, "spacing"):  # a Terrain
         raise InvalidInputError("heights must be an (H, W) array; got a Terrain: pass terrain.heights and its "
                                 "node spacing (spacing=, positive; x runs along columns, y along rows)")
-    z = np.asarray(heights)
-    if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
-            or np.issubdtype(z.dtype, np.complexfloating)):
-        raise InvalidInputError(f"heights must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
-                                f"dtype {z.dtype}")
-    z = z.astype(np.float32)
-    if not np.isfinite(z).all():
-        bad = np.argwhere(~np.isfinite(z))[0]
-        raise InvalidInputError(f"heights has {int((~np.isfinite(z)).sum())} NaN or infinite values (first at "
-                                f"row {bad[0]}, column {bad[1]}); fill them first")
+    z = _height_grid(heights, "heights")
     try:
         dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
     except (TypeError, ValueError):

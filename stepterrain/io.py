@@ -515,42 +515,57 @@ def _georeferenced(
     return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
 
 
+_PARSED_CRS: dict[str, Any] = {}  # CRS string -> rasterio CRS: a batch reads many files in one CRS
+
+
+def _crs_object(crs: str) -> Any:
+    """rasterio's CRS for ``crs``, parsed once per string; None without rasterio or for a string it cannot read
+    (the grid then keeps its own units). Only parsed CRSs are kept."""
+    parsed = _PARSED_CRS.get(crs)
+    if parsed is not None:
+        return parsed
+    try:
+        from rasterio.crs import CRS
+    except ImportError:
+        return None
+    try:
+        parsed = CRS.from_user_input(crs)
+    except Exception:  # an unparseable CRS string
+        return None
+    if len(_PARSED_CRS) >= 64:
+        _PARSED_CRS.clear()
+    _PARSED_CRS[crs] = parsed
+    return parsed
+
+
 def _is_geographic(crs: str | None) -> bool:
     if not crs:
         return False
     if crs.strip().upper() in _GEOGRAPHIC_CODES:
         return True
     try:
-        from rasterio.crs import CRS
+        import rasterio.crs  # noqa: F401  (without it: read the CRS string's first word)
     except ImportError:
         return crs.lstrip().upper().startswith(("GEOGCS", "GEOGCRS", "+PROJ=LONGLAT", "+PROJ=LATLONG"))
-    try:
-        return bool(CRS.from_user_input(crs).is_geographic)
-    except Exception:  # an unparseable CRS string: keep the grid in its own units
-        return False
+    crs_obj = _crs_object(crs)
+    return bool(crs_obj is not None and crs_obj.is_geographic)
 
 
 def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
     """(unit, metres per unit, the same projection in metres) of a projected CRS whose unit is not the
     metre; None for metres, a geographic or unknown CRS, or without rasterio to look the CRS up."""
-    if not crs:
+    crs_obj = _crs_object(crs) if crs else None
+    if crs_obj is None or not crs_obj.is_projected:
         return None
     try:
-        from rasterio.crs import CRS
-    except ImportError:
-        return None
-    try:
-        crs_obj = CRS.from_user_input(crs)
-        if not crs_obj.is_projected:
-            return None
         unit, factor = crs_obj.linear_units_factor
-    except Exception:  # an unparseable CRS string: keep the grid in its own units
+    except Exception:  # no linear unit to read: keep the grid in its own units
         return None
     if factor == 1.0:
         return None
     try:  # PROJ's false easting and northing are metres whatever +units says: only the unit changes
         params = {key: value for key, value in crs_obj.to_dict().items() if key != "to_meter"}
-        metre_crs = _crs_string(CRS.from_dict({**params, "units": "m"})) if params else None
+        metre_crs = _crs_string(type(crs_obj).from_dict({**params, "units": "m"})) if params else None
     except Exception:  # no PROJ form of this CRS: metres without a CRS to name them
         metre_crs = None
     return str(unit), float(factor), metre_crs
@@ -574,14 +589,10 @@ def _compound_heights(crs: str | None) -> tuple[str, str | None] | None:
     """(the vertical part's length unit, the horizontal part as a CRS string) of a compound CRS (e.g.
     "EPSG:26911+6360", NAD83 / UTM 11N + NAVD88 height in US survey feet); None for any other CRS or without
     rasterio to read it."""
-    if not crs:
+    crs_obj = _crs_object(crs) if crs else None
+    if crs_obj is None:  # no rasterio, or a CRS it cannot read: nothing to say about the heights
         return None
-    try:
-        from rasterio.crs import CRS
-
-        wkt = CRS.from_user_input(crs).to_wkt()
-    except Exception:  # no rasterio, or a CRS it cannot read: nothing to say about the heights
-        return None
+    wkt = crs_obj.to_wkt()
     if not wkt.lstrip().startswith(("COMPD_CS[", "COMPOUNDCRS[")):
         return None
     vertical = _wkt_block(wkt, ("VERT_CS", "VERTCRS"))
@@ -590,7 +601,7 @@ def _compound_heights(crs: str | None) -> tuple[str, str | None] | None:
         return None
     horizontal = _wkt_block(wkt, ("PROJCS", "PROJCRS", "GEOGCS", "GEOGCRS"))
     try:
-        horizontal_crs = _crs_string(CRS.from_wkt(horizontal)) if horizontal else None
+        horizontal_crs = _crs_string(type(crs_obj).from_wkt(horizontal)) if horizontal else None
     except Exception:  # keep the compound CRS when its horizontal part does not stand alone
         horizontal_crs = crs
     return unit.split('"')[1], horizontal_crs
@@ -601,17 +612,23 @@ def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str |
     horizontal part when the heights become metres from a vertical part in another unit (GDAL names a band's
     unit after the vertical CRS; an .npz names none), which then no longer describes them."""
     compound = _compound_heights(crs)
-    if compound is None or compound[0].strip().lower() not in _HEIGHT_UNITS:
+    vertical = _unit_factor(compound[0]) if compound is not None else None
+    if vertical is None:
         return unit, crs
     unit = unit or compound[0]
-    if unit.strip().lower() not in _HEIGHT_UNITS or _HEIGHT_UNITS[compound[0].strip().lower()] == 1.0:
+    if _unit_factor(unit) is None or vertical == 1.0:
         return unit, crs  # heights kept as they are, or the vertical part is in metres and still applies
     return unit, compound[1]
 
 
+def _unit_factor(unit: str | None) -> float | None:
+    """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case), else None."""
+    return _HEIGHT_UNITS.get(unit.strip().lower()) if unit else None
+
+
 def _heights_in_metres(heights: NDArray[np.float32], unit: str | None) -> tuple[NDArray[np.float32], str | None]:
     """Heights in metres when ``unit`` is a known length unit (returned as named), else as stored and None."""
-    factor = _HEIGHT_UNITS.get(unit.strip().lower()) if unit else None
+    factor = _unit_factor(unit)
     if factor is None:
         return heights, None
     if factor != 1.0:

@@ -736,8 +736,7 @@ def _assemble(
             raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
                                     "finite heights (all cells touch nodata)")
         # the heights the surface uses: a TIN's unused points (no face) cannot make it leak
-        heights = t.heights[np.isfinite(t.heights)] if t.kind == "grid" else t.heights[t.point_used != 0]
-        if np.isin(heights, thresholds_of(values)).any():
+        if np.isin(t.used_heights(), thresholds_of(values)).any():
             warnings.warn(
                 "some heights sit exactly on a threshold (α_i + α_i+1) / 2; the solid may not be watertight "
                 "there. Shift base by a fraction of the interval (e.g. base=0.5 for integer heights).",

@@ -210,10 +210,14 @@ class Terrain:
         pass, no temporary mask)."""
         return bool(self.cached("has_nodata", lambda: bool(np.isnan(self.heights.min()))))
 
+    def used_heights(self) -> NDArray[np.float32]:
+        """The heights the surface is made of: a grid's finite ones, a TIN's points on kept faces (a copy)."""
+        return self.heights[np.isfinite(self.heights)] if self.kind == "grid" else self.heights[self.point_used != 0]
+
     @property
     def height_range(self) -> tuple[float, float]:
         """(min, max) of the finite heights (of a TIN: of its points on kept faces)."""
-        finite = self.heights[np.isfinite(self.heights)] if self.kind == "grid" else self.heights[self.point_used != 0]
+        finite = self.used_heights()
         if finite.size == 0:
             raise InvalidInputError("terrain has no finite height (all nodata)")
         return float(finite.min()), float(finite.max())
