@@ -38,6 +38,8 @@ MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3
 _MAX_EXTRAS_ITEMS = 4096
 # glTF accessors are float32: coordinates beyond this magnitude (UTM metres) move into the node translation.
 _LOCAL_ORIGIN_THRESHOLD = 65536.0
+# (lowest, highest) vertex coordinate per axis, float64; None for a mesh without vertices (_vertex_bounds).
+Bounds = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 _OMIT = object()
 # Called with each path save_mesh has just written (see add_write_listener).
 _WRITE_LISTENERS: list[Callable[[Path], None]] = []
@@ -168,10 +170,8 @@ def save_mesh(
     target = _target(path)
     ext = target.suffix.lower()
     vertices = np.asarray(mesh.vertices)
-    # per column: NaN propagates through min/max and inf shows in them, so finite extremes mean finite
-    # vertices, without an (N, 3) temporary
-    if vertices.size and not all(np.isfinite(vertices[:, k].min()) and np.isfinite(vertices[:, k].max())
-                                 for k in range(vertices.shape[1])):  # fmt: skip
+    bounds = _vertex_bounds(vertices)
+    if bounds is not None and not (np.isfinite(bounds[0]).all() and np.isfinite(bounds[1]).all()):
         bad = int((~np.isfinite(vertices).all(axis=1)).sum())
         raise InvalidInputError(
             f"mesh vertices must be finite to be written; got {bad} of {len(vertices)} vertices with NaN or inf"
@@ -191,7 +191,7 @@ def save_mesh(
     prepared = _prepared_mesh(mesh, metadata)
     with atomic_path(target) as tmp:
         try:
-            writer(prepared, tmp, target)
+            writer(prepared, tmp, target, bounds)
         except OSError as exc:
             if isinstance(exc, DataFileError):
                 raise
@@ -281,10 +281,31 @@ def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
     return target
 
 
+def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
+    """(lowest, highest) per coordinate as float64, None without vertices: NaN propagates through min/max and
+    inf shows in them, so finite bounds mean finite vertices. Computed once per file, for the finiteness check
+    and the writers (glTF accessor bounds, the local origin of large coordinates); one strided 1-D reduction
+    per column is several times faster than numpy's (N, 3) axis-0 reduction and needs no temporary."""
+    if vertices.size == 0:
+        return None
+    columns = range(vertices.shape[1])
+    lo = np.array([vertices[:, k].min() for k in columns], dtype=np.float64)
+    hi = np.array([vertices[:, k].max() for k in columns], dtype=np.float64)
+    return lo, hi
+
+
+def _is_large(bounds: Bounds) -> bool:
+    """True when some coordinate exceeds :data:`_LOCAL_ORIGIN_THRESHOLD` in magnitude (float32 would round it
+    to worse than 1/128)."""
+    return bounds is not None and max(float(np.abs(bounds[0]).max()), float(np.abs(bounds[1]).max())) > (
+        _LOCAL_ORIGIN_THRESHOLD
+    )
+
+
 # ---------------------------------------------------------------------------------------------- writers
-def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
     if _direct_gltf(mesh):
-        tree, blocks = _gltf_document(mesh, target)
+        tree, blocks = _gltf_document(mesh, target, bounds)
         header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
         header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
         length = tree["buffers"][0]["byteLength"]
@@ -299,19 +320,19 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
             for part in parts:
                 fh.write(part)
         return
-    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target), include_normals=False)
+    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, bounds), include_normals=False)
     tmp.write_bytes(data)
 
 
-def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
     if _direct_gltf(mesh):
-        tree, blocks = _gltf_document(mesh, target)
+        tree, blocks = _gltf_document(mesh, target, bounds)
         binary = b"".join(memoryview(block).cast("B") for block in blocks)
         tree["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
         tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
         return
     files = trimesh.exchange.gltf.export_gltf(
-        _gltf_scene(mesh, target), include_normals=False, merge_buffers=True, embed_buffers=True
+        _gltf_scene(mesh, target, bounds), include_normals=False, merge_buffers=True, embed_buffers=True
     )
     tree = json.loads(files["model.gltf"])
     if not tree.get("bufferViews"):  # no faces: trimesh writes a 0-byte buffer and [], which glTF forbids
@@ -335,17 +356,16 @@ _GL_UNSIGNED_BYTE, _GL_UNSIGNED_INT, _GL_FLOAT = 5121, 5125, 5126
 _GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 
-def _gltf_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any], list[Any]]:
+def _gltf_document(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
     colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
-    # per column: a strided 1-D reduction is several times faster than numpy's (N, 3) axis-0 reduction
-    lo = np.array([vertices[:, k].min() for k in range(3)])
-    hi = np.array([vertices[:, k].max() for k in range(3)])
+    assert bounds is not None  # _direct_gltf: the mesh has vertices
+    lo, hi = bounds
     offset = np.zeros(3)
-    if max(float(np.abs(lo).max()), float(np.abs(hi).max())) > _LOCAL_ORIGIN_THRESHOLD:
+    if _is_large(bounds):
         offset = np.floor(lo)
         vertices = vertices - offset
         node["translation"] = [float(v) for v in offset]
@@ -396,7 +416,7 @@ def _gltf_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any],
     return tree, blocks
 
 
-def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
     mtl_name = f"{target.stem}.mtl"
     text, sidecars = trimesh.exchange.obj.export_obj(
         mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
@@ -438,20 +458,20 @@ def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) 
     return out
 
 
-def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
-    tmp.write_bytes(_ply_bytes(mesh))
+def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+    tmp.write_bytes(_ply_bytes(mesh, bounds))
 
 
-def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
     tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
 
 
-def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path) -> None:
+def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
     tmp.write_bytes(trimesh.exchange.threemf.export_3MF(mesh))
 
 
-# One writer per extension: (prepared mesh, temporary path to fill, final target) -> None.
-_WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path], None]] = {
+# One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds) -> None.
+_WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds], None]] = {
     ".glb": _write_glb,
     ".gltf": _write_gltf,
     ".obj": _write_obj,
@@ -535,11 +555,10 @@ _PLY_TYPES: dict[str, str] = {
 _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vertex_indices"})
 
 
-def _ply_bytes(mesh: trimesh.Trimesh) -> bytes:
+def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA colours, attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    large = len(vertices) > 0 and float(np.abs(vertices).max()) > _LOCAL_ORIGIN_THRESHOLD
-    coordinate = np.dtype("<f8" if large else "<f4")
+    coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
     vertex_columns: list[tuple[str, NDArray[Any]]] = [
         ("x", vertices[:, 0].astype(coordinate)),
         ("y", vertices[:, 1].astype(coordinate)),
@@ -622,12 +641,12 @@ def _json_value(value: Any) -> Any:
     return str(value)
 
 
-def _gltf_scene(mesh: trimesh.Trimesh, target: Path) -> trimesh.Scene:
+def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
     """One node holding ``mesh``; large coordinates move into the node translation (float64 in JSON)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = np.eye(4)
-    if len(vertices) and float(np.abs(vertices).max()) > _LOCAL_ORIGIN_THRESHOLD:
-        offset = np.floor(vertices.min(axis=0))
+    if bounds is not None and _is_large(bounds):
+        offset = np.floor(bounds[0])
         mesh = mesh.copy(include_cache=False)
         mesh.vertices = vertices - offset
         transform[:3, 3] = offset
