@@ -40,6 +40,7 @@ from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .stepped import LAND_START
+from .terrain import check_spacing
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -851,7 +852,7 @@ def adaptive_mesh(
         dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
     except (TypeError, ValueError):
         raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
-    dx, dy = _positive(dx, "spacing dx"), _positive(dy, "spacing dy")
+    dx, dy = check_spacing(_positive(dx, "spacing dx"), _positive(dy, "spacing dy"))
     try:
         ox, oy = (float(v) for v in origin)
     except (TypeError, ValueError):

@@ -41,6 +41,23 @@ def _pair(value: Any, name: str, *, nonzero: bool) -> tuple[float, float]:
     return float(arr[0]), float(arr[1])
 
 
+#: Node spacings must lie within these magnitudes: the kernels place nodes at (j·dx, i·dy) in float32, which
+#: rounds a spacing below ~1e-38 to zero (every node at one point: a flat, zero-area mesh) and overflows far above.
+SPACING_RANGE = (1e-30, 1e30)
+
+
+def check_spacing(dx: float, dy: float, name: str = "spacing") -> tuple[float, float]:
+    """``(dx, dy)`` when both magnitudes lie in :data:`SPACING_RANGE`, else an :class:`InvalidInputError`."""
+    lo, hi = SPACING_RANGE
+    for value in (dx, dy):
+        if not lo <= abs(value) <= hi:
+            raise InvalidInputError(
+                f"{name} must lie between {lo:g} and {hi:g} in magnitude (nodes are placed in float32); "
+                f"got {(dx, dy)}"
+            )
+    return dx, dy
+
+
 def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
     arr = np.asarray(heights)
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
@@ -108,7 +125,7 @@ class Terrain:
         return cls(
             kind="grid",
             heights=_heights_array(heights),
-            spacing=_pair(spacing, "spacing", nonzero=True),
+            spacing=check_spacing(*_pair(spacing, "spacing", nonzero=True)),
             origin=_pair(origin, "origin", nonzero=False),
             crs=crs,
             source=source,

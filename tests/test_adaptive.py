@@ -191,6 +191,9 @@ def test_a_terrain_object_is_refused_with_what_to_pass():
         ({"origin": ("a", "b")}, r"origin must be 2 finite numbers \(x0, y0\); got \('a', 'b'\)"),
         ({"spacing": (1.0, 2.0, 3.0)}, r"spacing must be a number or \(dx, dy\); got \(1.0, 2.0, 3.0\)"),
         ({"spacing": None}, r"spacing must be a number or \(dx, dy\); got None"),
+        # float32 node positions: 1e-300 became 0 (every node at x = 0, a zero-area mesh, silently)
+        ({"spacing": 1e-300}, r"spacing must lie between 1e-30 and 1e\+30 in magnitude .*got \(1e-300, 1e-300\)"),
+        ({"spacing": (1.0, 1e31)}, r"spacing must lie between 1e-30 and 1e\+30 in magnitude .*got \(1.0, 1e\+31\)"),
     ],
 )
 def test_bad_origin_or_spacing_is_refused_by_name(kwargs, match):

@@ -859,6 +859,11 @@ def test_empty_heights_are_refused(shape):
 def test_bad_spacing_and_paths():
     with pytest.raises(st.InvalidInputError, match="spacing must be non-zero"):
         st.stepped(np.zeros((3, 3)), interval=1.0, spacing=(0.0, 1.0))
+    # nodes are placed in float32: a spacing of 1e-300 gave a flat, zero-area mesh silently
+    for spacing in (1e-300, (1.0, -1e-40), (1e31, 1.0)):
+        with pytest.raises(st.InvalidInputError, match=r"spacing must lie between 1e-30 and 1e\+30 in magnitude"):
+            st.stepped(np.zeros((3, 3)), interval=1.0, spacing=spacing)
+    assert len(st.stepped(np.eye(3), interval=0.5, spacing=(1e-30, -1e30)).faces) > 0
     with pytest.raises(st.InvalidInputError, match="load it first"):
         st.stepped("terrain.tif", interval=1.0)
     with pytest.raises(st.InvalidInputError, match="spacing/origin apply to raw"):
