@@ -107,7 +107,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
     _check_size(args.size)
-    _check_outputs(png=png)
+    _check_outputs({"INPUT": args.input}, png=png)
     if not math.isfinite(args.connect_timeout) or args.connect_timeout <= 0:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds; got {args.connect_timeout}")
     if args.device is not None:

@@ -104,7 +104,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     mesh_out = out if out.suffix.lower() != ".png" else None
     images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
-    _check_outputs(output=out, png=png, gif=anim)
+    _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)

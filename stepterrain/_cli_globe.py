@@ -125,7 +125,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     metrics = tuple(m.strip() for m in args.metrics.split(",") if m.strip())
     _check_size(args.size)
-    _check_outputs(output=out, png=png)
+    _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     lat_deg, lon_deg, altitude = args.eye
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")

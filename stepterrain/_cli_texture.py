@@ -97,7 +97,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     normals_out = _check_output(args.normals, (".png",), "--normals") if args.normals else None
-    _check_outputs(output=out, mesh=mesh_out, png=png, normals=normals_out)
+    _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
     if not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
     if args.interval is not None and mesh_out is None and png is None:

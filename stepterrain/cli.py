@@ -248,11 +248,12 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
-def _check_outputs(**paths: Path | None) -> None:
+def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
-    first) or a file that cannot be written (the path is a folder, or its nearest existing folder is a file or
-    not writable): a command with several outputs would otherwise write the first and fail on the next.
-    Creates nothing."""
+    first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
+    replace the input) or a file that cannot be written (the path is a folder, or its nearest existing folder is
+    a file or not writable): a command with several outputs would otherwise write the first and fail on the
+    next. Creates nothing."""
     from .errors import DataFileError
     from .export import probe_writable
 
@@ -265,6 +266,11 @@ def _check_outputs(**paths: Path | None) -> None:
         if key in seen:
             raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
         seen[key] = name
+        for source, given in (inputs or {}).items():
+            if given and (Path(os.path.abspath(given)) == key
+                          or (key.exists() and Path(given).exists() and os.path.samefile(key, given))):
+                raise InvalidInputError(f"{name} {str(path)!r} is the {source} file; writing it would replace "
+                                        "the input: give the output its own name")
         if key.is_dir():
             raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
         folder = key.parent
@@ -328,7 +334,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
-    _check_outputs(output=out, png=png)
+    _check_outputs({"INPUT": args.input}, output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 

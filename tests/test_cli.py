@@ -298,3 +298,29 @@ def test_an_empty_mesh_is_written_with_a_warning(tmp_path, capsys):
     code, _, err = run(capsys, "steps", path, "--interval", "1", "-o", tmp_path / "e.ply")
     assert code == 0, err
     assert "stepterrain steps: warning: the mesh is empty" in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["steps", "{png}", "--interval", "1000", "-o", "{tmp}/a.glb", "--png", "{png}"],
+        ["texture", "{png}", "-o", "{png}"],
+        ["texture", "{png}", "-o", "{tmp}/t.png", "--normals", "{tmp}/./dem.png"],
+        ["closeup", "{png}", "--size", "160x120", "-o", "{png}"],
+        ["globe", "--face-size", "9", "--texture", "{png}", "-o", "{tmp}/g.glb", "--png", "{png}"],
+        ["batch", "{png}", "--tile", "8", "--interval", "1000", "--scheduler", "serial", "-o", "{tmp}/b",
+         "--png", "{png}"],
+    ],
+)
+def test_an_output_naming_an_input_file_is_refused(tmp_path, capsys, argv):
+    """An output path that is the INPUT DEM (or globe's --texture image) replaced the input with the output."""
+    from PIL import Image
+
+    png = tmp_path / "dem.png"
+    Image.fromarray((np.arange(24 * 32).reshape(24, 32) * 50).astype(np.uint16)).save(png)
+    before = png.read_bytes()
+    code, _, err = run(capsys, "-q", *[a.format(png=png, tmp=tmp_path) for a in argv])
+    assert code == 2, err
+    assert "give the output its own name" in err and len(err.strip().splitlines()) == 1, err
+    assert png.read_bytes() == before
+    assert files_in(tmp_path) == ["dem.png"]
