@@ -96,7 +96,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .cli import _check_output, _check_outputs, _check_size
-    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
+    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, max_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
@@ -116,6 +116,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+    n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
+    if (images or anim is not None) and n_rois > max_closeups(args.size):
+        raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most {max_closeups(args.size)} "
+                                f"close-ups (one per 64x64 pixels, at most 16); got {n_rois}")
     if images or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 
@@ -158,30 +162,38 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     scalars = None if args.scalars == "none" else args.scalars
     options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device)
 
+    # everything is computed in memory first, then written: a run that fails anywhere writes no file
+    scene = image = frames = None
     if mesh_out is not None:
         from .closeup import closeup_scene
-        from .export import save_mesh
 
         progress.stage("mesh", f"building the scene mesh with {n} close-up{'s' if n != 1 else ''}")
         scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
         progress.done(f"{len(scene.faces):,} faces,")
-        progress.stage("write", f"writing {mesh_out}")
-        save_mesh(scene, mesh_out, metadata={"closeups": n})
-        progress.done()
     if images:
         progress.stage("render", f"rendering {n} close-up{'s' if n != 1 else ''} at {args.size[0]}x{args.size[1]}")
         timings: dict[str, float] = {}
         image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
         progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
                       f"composite {timings['composite']:.2f} s;")
-        for path in images:
-            progress.stage("write", f"writing {path}")
-            render.save_png(image, path)
-            progress.done()
     if anim is not None:
         progress.stage("animate", f"rendering {args.frames} frames for {anim}")
         frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
                                   **options)
+        progress.done()
+    if scene is not None and mesh_out is not None:
+        from .export import save_mesh
+
+        progress.stage("write", f"writing {mesh_out}")
+        save_mesh(scene, mesh_out, metadata={"closeups": n})
+        progress.done()
+    if image is not None:
+        for path in images:
+            progress.stage("write", f"writing {path}")
+            render.save_png(image, path)
+            progress.done()
+    if frames is not None and anim is not None:
+        progress.stage("write", f"writing {anim}")
         save_animation(frames, anim, fps=args.fps)
         progress.done()
     return 0
