@@ -32,7 +32,7 @@ examples:
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _floats, _window
+    from .cli import _floats, _path, _window
 
     p = commands.add_parser(
         "closeup",
@@ -42,7 +42,7 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     p.add_argument("--roi", type=_floats(3, "x,y,r"), action="append", metavar="x,y,r",
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
@@ -70,12 +70,12 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME", help="matplotlib colormap (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors)")
-    p.add_argument("--png", metavar="OUT.png", help="also write the render here (with a mesh --output)")
+    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
-    p.add_argument("--gif", metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
+    p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
     p.add_argument("--spin", type=float, default=0.25, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second (default 0.25)")
     p.add_argument("--frames", type=int, default=24, metavar="N", help="animation frames (default 24)")

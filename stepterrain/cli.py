@@ -128,6 +128,13 @@ def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     return parse
 
 
+def _path(text: str) -> str:
+    """A file or folder argument: an empty string (an unset shell variable) is refused, not read as 'not given'."""
+    if not text:
+        raise argparse.ArgumentTypeError(f"expected a file name; got {text!r}")
+    return text
+
+
 def _window(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -189,7 +196,7 @@ def _add_steps(commands: Any) -> None:
         epilog=_STEPS_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
@@ -213,9 +220,9 @@ def _add_steps(commands: Any) -> None:
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
     p.add_argument("--device", default=None, metavar="DEVICE",
                    help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
-    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render")
+    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH",
                    help="render size (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
@@ -232,7 +239,7 @@ def _add_info(commands: Any) -> None:
         epilog=_INFO_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", nargs="?", metavar="FILE", help="default: the embedded DEM")
+    p.add_argument("file", nargs="?", type=_path, metavar="FILE", help="default: the embedded DEM")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 

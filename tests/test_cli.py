@@ -324,3 +324,34 @@ def test_an_output_naming_an_input_file_is_refused(tmp_path, capsys, argv):
     assert "give the output its own name" in err and len(err.strip().splitlines()) == 1, err
     assert png.read_bytes() == before
     assert files_in(tmp_path) == ["dem.png"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["steps", "", "--interval", "100", "-o", "{tmp}/a.glb"], "INPUT"),
+        (["steps", "{dem}", "--interval", "2", "-o", "{tmp}/a.glb", "--png", ""], "--png"),
+        (["texture", "", "-o", "{tmp}/t.png"], "INPUT"),
+        (["texture", "{dem}", "-o", "{tmp}/t.png", "--mesh", ""], "--mesh"),
+        (["texture", "{dem}", "-o", "{tmp}/t.png", "--png", ""], "--png"),
+        (["texture", "{dem}", "-o", "{tmp}/t.png", "--normals", ""], "--normals"),
+        (["closeup", "", "-o", "{tmp}/c.ply"], "INPUT"),
+        (["closeup", "{dem}", "-o", "{tmp}/c.ply", "--png", ""], "--png"),
+        (["closeup", "{dem}", "-o", "{tmp}/c.ply", "--gif", ""], "--gif"),
+        (["globe", "", "--face-size", "9", "-o", "{tmp}/g.ply"], "INPUT"),
+        (["globe", "--face-size", "9", "-o", "{tmp}/g.ply", "--texture", ""], "--texture"),
+        (["globe", "--face-size", "9", "-o", "{tmp}/g.ply", "--png", ""], "--png"),
+        (["batch", "", "--interval", "100", "--scheduler", "serial", "-o", "{tmp}/b"], "INPUT"),
+        (["batch", "{dem}", "--tile", "8", "--interval", "2", "--scheduler", "serial", "-o", ""], "-o/--output"),
+        (["batch", "{dem}", "--tile", "8", "--interval", "2", "--scheduler", "serial", "-o", "{tmp}/b",
+          "--png", ""], "--png"),
+        (["info", ""], "FILE"),
+    ],
+)
+def test_an_empty_path_is_refused_not_ignored(dem, tmp_path, capsys, argv, option):
+    """An empty INPUT (an unset shell variable) silently meant the embedded DEM (a 0.8 GB mesh at --interval 2),
+    and an empty --png/--gif/--mesh/--normals/--texture was silently skipped."""
+    code, out, err = run(capsys, "-q", *[a.format(dem=dem, tmp=tmp_path) for a in argv])
+    assert code == 2, err
+    assert err == f"stepterrain {argv[0]}: error: argument {option}: expected a file name; got ''\n"
+    assert out == "" and files_in(tmp_path) == ["hill.npy"]
