@@ -169,6 +169,7 @@ def test_png_render(dem, tmp_path, capsys):
         (["--lens", "1,2,-3"], "radius must be a positive"),
         (["--floor", "0"], "--floor applies only with --solid"),
         (["--interval", "1", "--solid", "--floor", "1e9"], "--floor must lie below the lowest surface height"),
+        (["--interval", "1", "--solid", "--floor=-1e300"], "--floor must fit in float32 (|x| < 3.4e+38); got -1e+300"),
         (["--colormap", "no-such-map"], "colormap"),
         (["--device", "tpu"], "device"),
         (["--size", "huge"], "WIDTHxHEIGHT"),
