@@ -123,7 +123,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
-    metrics = tuple(m.strip() for m in args.metrics.split(",") if m.strip())
+    metrics = tuple(m.strip() for m in args.metrics.split(","))
+    if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
+        raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
+                                f"got {args.metrics!r} (an empty name)")
     _check_size(args.size)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     lat_deg, lon_deg, altitude = args.eye

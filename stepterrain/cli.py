@@ -115,8 +115,11 @@ class Progress:
 # ------------------------------------------------------------------------------------------ argument types
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
+        items = text.replace(" ", "").split(",")
+        if "" in items and text.strip():  # '1,,2' or '1,2,': a value left out, not a shorter list
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r} (an empty value)")
         try:
-            values = tuple(float(v) for v in text.replace(" ", "").split(",") if v != "")
+            values = tuple(float(v) for v in items if v != "")
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}") from None
         if (count is not None and len(values) != count) or not values:
