@@ -146,8 +146,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     anchor = AnchorStyle(args.anchor)
     closeups = []
     for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):
-        if not (math.isfinite(r) and r > 0):
-            raise InvalidInputError(f"--roi radius must be positive; got {r:g}")
+        if not (math.isfinite(r) and 0 < r <= 1e12):  # closeup's ROI size bound: float32 positions
+            raise InvalidInputError(f"--roi radius must lie in (0, 1e+12]; got {r:g}")
         edge = args.edge if args.edge is not None else r / 5
         if args.shape == "circle":
             roi = ROI.circle((x, y), r, edge_width=edge)
