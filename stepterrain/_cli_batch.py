@@ -45,7 +45,7 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _floats, _window
+    from .cli import _floats, _path, _window
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -57,10 +57,11 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="a folder of DEM files, a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
                         "default: the embedded Big Tujunga DEM")
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder (created if missing)")
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
+                   help="output folder (created if missing)")
     p.add_argument("--format", default=".glb", metavar="EXT",
                    help="mesh format of every output: " + " ".join(MESH_EXTENSIONS) + " (default .glb)")
     p.add_argument("--tile", type=_tile, metavar="N|RxC",
@@ -90,7 +91,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--no-resume", action="store_true", help="redo every item, even complete ones")
     p.add_argument("--device", default=None, metavar="DEVICE",
                    help="Warp device on the workers: cpu, cuda, cuda:0 (default: Warp's)")
-    p.add_argument("--png", metavar="OUT.png",
+    p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")
     p.set_defaults(run=_run_batch)
@@ -107,7 +108,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
     _check_size(args.size)
-    _check_outputs(png=png)
+    _check_outputs({"INPUT": args.input}, png=png)
     if not math.isfinite(args.connect_timeout) or args.connect_timeout <= 0:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds; got {args.connect_timeout}")
     if args.device is not None:

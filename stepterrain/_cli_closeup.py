@@ -32,7 +32,7 @@ examples:
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _floats, _window
+    from .cli import _floats, _path, _window
 
     p = commands.add_parser(
         "closeup",
@@ -42,7 +42,7 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     p.add_argument("--roi", type=_floats(3, "x,y,r"), action="append", metavar="x,y,r",
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
@@ -70,12 +70,12 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME", help="matplotlib colormap (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors)")
-    p.add_argument("--png", metavar="OUT.png", help="also write the render here (with a mesh --output)")
+    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
-    p.add_argument("--gif", metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
+    p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
     p.add_argument("--spin", type=float, default=0.25, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second (default 0.25)")
     p.add_argument("--frames", type=int, default=24, metavar="N", help="animation frames (default 24)")
@@ -96,7 +96,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .cli import _check_output, _check_outputs, _check_size
-    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
+    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, max_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
 
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
@@ -104,7 +104,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     mesh_out = out if out.suffix.lower() != ".png" else None
     images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
-    _check_outputs(output=out, png=png, gif=anim)
+    _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
@@ -116,6 +116,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+    n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
+    if (images or anim is not None) and n_rois > max_closeups(args.size):
+        raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most {max_closeups(args.size)} "
+                                f"close-ups (one per 64x64 pixels, at most 16); got {n_rois}")
     if images or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 
@@ -142,8 +146,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     anchor = AnchorStyle(args.anchor)
     closeups = []
     for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):
-        if not (math.isfinite(r) and r > 0):
-            raise InvalidInputError(f"--roi radius must be positive; got {r:g}")
+        if not (math.isfinite(r) and 0 < r <= 1e12):  # closeup's ROI size bound: float32 positions
+            raise InvalidInputError(f"--roi radius must lie in (0, 1e+12]; got {r:g}")
         edge = args.edge if args.edge is not None else r / 5
         if args.shape == "circle":
             roi = ROI.circle((x, y), r, edge_width=edge)
@@ -158,30 +162,38 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     scalars = None if args.scalars == "none" else args.scalars
     options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device)
 
+    # everything is computed in memory first, then written: a run that fails anywhere writes no file
+    scene = image = frames = None
     if mesh_out is not None:
         from .closeup import closeup_scene
-        from .export import save_mesh
 
         progress.stage("mesh", f"building the scene mesh with {n} close-up{'s' if n != 1 else ''}")
         scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
         progress.done(f"{len(scene.faces):,} faces,")
-        progress.stage("write", f"writing {mesh_out}")
-        save_mesh(scene, mesh_out, metadata={"closeups": n})
-        progress.done()
     if images:
         progress.stage("render", f"rendering {n} close-up{'s' if n != 1 else ''} at {args.size[0]}x{args.size[1]}")
         timings: dict[str, float] = {}
         image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
         progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
                       f"composite {timings['composite']:.2f} s;")
-        for path in images:
-            progress.stage("write", f"writing {path}")
-            render.save_png(image, path)
-            progress.done()
     if anim is not None:
         progress.stage("animate", f"rendering {args.frames} frames for {anim}")
         frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
                                   **options)
+        progress.done()
+    if scene is not None and mesh_out is not None:
+        from .export import save_mesh
+
+        progress.stage("write", f"writing {mesh_out}")
+        save_mesh(scene, mesh_out, metadata={"closeups": n})
+        progress.done()
+    if image is not None:
+        for path in images:
+            progress.stage("write", f"writing {path}")
+            render.save_png(image, path)
+            progress.done()
+    if frames is not None and anim is not None:
+        progress.stage("write", f"writing {anim}")
         save_animation(frames, anim, fps=args.fps)
         progress.done()
     return 0

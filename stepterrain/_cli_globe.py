@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _size, _window
+from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _path, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -43,7 +43,7 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="global grid .npz (elevation, lat, lon in degrees); default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
@@ -67,14 +67,14 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--metrics", default="geometric,distance,clip", metavar="a,b,c",
                    help="metrics multiplied together (default geometric,distance,clip)")
     p.add_argument("--no-cull", action="store_true", help="keep triangles outside the view (a closed mesh)")
-    p.add_argument("--texture", metavar="IMAGE",
+    p.add_argument("--texture", type=_path, metavar="IMAGE",
                    help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
                         "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.stl/.3mf "
                         "and the --png render; default: colours by elevation")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
-    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render from the eye")
+    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
     p.set_defaults(run=_run_globe)
 
@@ -123,9 +123,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
-    metrics = tuple(m.strip() for m in args.metrics.split(",") if m.strip())
+    metrics = tuple(m.strip() for m in args.metrics.split(","))
+    if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
+        raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
+                                f"got {args.metrics!r} (an empty name)")
     _check_size(args.size)
-    _check_outputs(output=out, png=png)
+    _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     lat_deg, lon_deg, altitude = args.eye
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")

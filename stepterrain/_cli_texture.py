@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _check_outputs, _check_size, _colormap, _size, _window
+from .cli import Progress, _check_output, _check_outputs, _check_size, _colormap, _path, _size, _window
 from .errors import InvalidInputError
 from .export import MESH_EXTENSIONS
 
@@ -40,7 +40,7 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
                    choices=("standard", "multidirectional", "combined", "igor"),
@@ -59,15 +59,15 @@ def add_parser(commands: Any) -> None:
                    help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
-    p.add_argument("--normals", metavar="OUT.png", help="also write the normals encoded as RGB")
+    p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.png", help="the texture as PNG")
-    p.add_argument("--mesh", metavar="OUT", help="drape the texture on a mesh; format by extension: "
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png", help="the texture as PNG")
+    p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
                    + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image)")
     p.add_argument("--interval", type=float, metavar="M",
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
-    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render of the draped mesh")
+    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render of the draped mesh")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
                    help="vertical exaggeration of the render only (default 2)")
@@ -97,7 +97,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     normals_out = _check_output(args.normals, (".png",), "--normals") if args.normals else None
-    _check_outputs(output=out, mesh=mesh_out, png=png, normals=normals_out)
+    _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
     if not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
     if args.interval is not None and mesh_out is None and png is None:

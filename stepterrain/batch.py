@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, probe_writable, save_mesh
-from .terrain import Terrain
+from .terrain import FLOAT32_MAX, Terrain
 
 __all__ = [
     "batch",
@@ -703,6 +703,8 @@ def batch(
     if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.integer, np.floating))
                               or not math.isfinite(floor)):  # fmt: skip
         raise InvalidInputError(f"floor must be finite; got {floor!r}")
+    if floor is not None and abs(floor) > FLOAT32_MAX:
+        raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor:g}")
     items, src = plan_items(source, tile_size=tile_size)
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):

@@ -115,8 +115,11 @@ class Progress:
 # ------------------------------------------------------------------------------------------ argument types
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
+        items = text.replace(" ", "").split(",")
+        if "" in items and text.strip():  # '1,,2' or '1,2,': a value left out, not a shorter list
+            raise argparse.ArgumentTypeError(f"expected {what}; got {text!r} (an empty value)")
         try:
-            values = tuple(float(v) for v in text.replace(" ", "").split(",") if v != "")
+            values = tuple(float(v) for v in items if v != "")
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}") from None
         if (count is not None and len(values) != count) or not values:
@@ -126,6 +129,13 @@ def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
         return values
 
     return parse
+
+
+def _path(text: str) -> str:
+    """A file or folder argument: an empty string (an unset shell variable) is refused, not read as 'not given'."""
+    if not text:
+        raise argparse.ArgumentTypeError(f"expected a file name; got {text!r}")
+    return text
 
 
 def _window(text: str) -> tuple[int, int]:
@@ -189,7 +199,7 @@ def _add_steps(commands: Any) -> None:
         epilog=_STEPS_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", metavar="INPUT",
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
@@ -213,9 +223,9 @@ def _add_steps(commands: Any) -> None:
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
     p.add_argument("--device", default=None, metavar="DEVICE",
                    help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT",
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
-    p.add_argument("--png", metavar="OUT.png", help="also write an off-screen render")
+    p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH",
                    help="render size (default 1280x800)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
@@ -232,7 +242,7 @@ def _add_info(commands: Any) -> None:
         epilog=_INFO_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", nargs="?", metavar="FILE", help="default: the embedded DEM")
+    p.add_argument("file", nargs="?", type=_path, metavar="FILE", help="default: the embedded DEM")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 
@@ -248,11 +258,12 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     return out
 
 
-def _check_outputs(**paths: Path | None) -> None:
+def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
-    first) or a file that cannot be written (the path is a folder, or its nearest existing folder is a file or
-    not writable): a command with several outputs would otherwise write the first and fail on the next.
-    Creates nothing."""
+    first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
+    replace the input) or a file that cannot be written (the path is a folder, or its nearest existing folder is
+    a file or not writable): a command with several outputs would otherwise write the first and fail on the
+    next. Creates nothing."""
     from .errors import DataFileError
     from .export import probe_writable
 
@@ -265,6 +276,11 @@ def _check_outputs(**paths: Path | None) -> None:
         if key in seen:
             raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
         seen[key] = name
+        for source, given in (inputs or {}).items():
+            if given and (Path(os.path.abspath(given)) == key
+                          or (key.exists() and Path(given).exists() and os.path.samefile(key, given))):
+                raise InvalidInputError(f"{name} {str(path)!r} is the {source} file; writing it would replace "
+                                        "the input: give the output its own name")
         if key.is_dir():
             raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
         folder = key.parent
@@ -328,7 +344,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size)
-    _check_outputs(output=out, png=png)
+    _check_outputs({"INPUT": args.input}, output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 

@@ -176,8 +176,8 @@ class ROI:
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _pair(self.center, "ROI center", nonzero=False))
         size = _pair(self.size, "ROI size", nonzero=False)
-        if min(size) <= 0:
-            raise InvalidInputError(f"ROI size must be positive (width, height); got {size}")
+        if min(size) <= 0 or max(size) > _MAX_OFFSET:  # float32 positions on the device
+            raise InvalidInputError(f"ROI size must be positive (width, height) up to {_MAX_OFFSET:g}; got {size}")
         object.__setattr__(self, "size", size)
         mask = np.asarray(self.mask)
         if mask.dtype == object or not (np.issubdtype(mask.dtype, np.number) or mask.dtype == bool):

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import InvalidInputError
+from .terrain import FLOAT32_MAX
 
 __all__ = ["close_solid", "boundary_edges", "exact_keys"]
 
@@ -114,6 +115,8 @@ def close_solid(
             vertices = vertices[used]
     if not np.isfinite(floor):
         raise InvalidInputError(f"floor must be finite; got {floor}")
+    if abs(floor) > FLOAT32_MAX:  # the mesh's float32 vertices (GPU, GLB) would hold -inf and NaN
+        raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor:g}")
     zmin = float(vertices[:, 2].min()) if len(vertices) else 0.0
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")

@@ -251,6 +251,7 @@ def test_spacing_for_a_folder_of_files_is_refused_not_ignored(tmp_path):
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [({"solid": True, "floor": float("nan")}, "floor must be finite"),
+                                               ({"solid": True, "floor": -1e300}, r"floor must fit in float32"),
                                                ({"floor": -5.0}, "floor applies only with solid")])  # fmt: skip
 def test_bad_floor_is_refused_before_any_work(tmp_path, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):

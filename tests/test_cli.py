@@ -164,11 +164,15 @@ def test_png_render(dem, tmp_path, capsys):
         (["--interval", "nan"], "interval must be a positive"),
         (["--levels", "3,2,1"], "strictly increasing"),
         (["--levels", "a,b"], "comma-separated"),
+        (["--levels", "1,,2"], "expected comma-separated heights a,b,c; got '1,,2' (an empty value)"),
+        (["--levels", "1,2,"], "expected comma-separated heights a,b,c; got '1,2,' (an empty value)"),
+        (["--lens", "15,,-11,6"], "expected x,y,r; got '15,,-11,6' (an empty value)"),
         (["--gamma", "2"], "--gamma must lie in [0, 1]"),
         (["--lens", "1,2"], "x,y,r"),
         (["--lens", "1,2,-3"], "radius must be a positive"),
         (["--floor", "0"], "--floor applies only with --solid"),
         (["--interval", "1", "--solid", "--floor", "1e9"], "--floor must lie below the lowest surface height"),
+        (["--interval", "1", "--solid", "--floor=-1e300"], "--floor must fit in float32 (|x| < 3.4e+38); got -1e+300"),
         (["--colormap", "no-such-map"], "colormap"),
         (["--device", "tpu"], "device"),
         (["--size", "huge"], "WIDTHxHEIGHT"),
@@ -298,3 +302,60 @@ def test_an_empty_mesh_is_written_with_a_warning(tmp_path, capsys):
     code, _, err = run(capsys, "steps", path, "--interval", "1", "-o", tmp_path / "e.ply")
     assert code == 0, err
     assert "stepterrain steps: warning: the mesh is empty" in err
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["steps", "{png}", "--interval", "1000", "-o", "{tmp}/a.glb", "--png", "{png}"],
+        ["texture", "{png}", "-o", "{png}"],
+        ["texture", "{png}", "-o", "{tmp}/t.png", "--normals", "{tmp}/./dem.png"],
+        ["closeup", "{png}", "--size", "160x120", "-o", "{png}"],
+        ["globe", "--face-size", "9", "--texture", "{png}", "-o", "{tmp}/g.glb", "--png", "{png}"],
+        ["batch", "{png}", "--tile", "8", "--interval", "1000", "--scheduler", "serial", "-o", "{tmp}/b",
+         "--png", "{png}"],
+    ],
+)
+def test_an_output_naming_an_input_file_is_refused(tmp_path, capsys, argv):
+    """An output path that is the INPUT DEM (or globe's --texture image) replaced the input with the output."""
+    from PIL import Image
+
+    png = tmp_path / "dem.png"
+    Image.fromarray((np.arange(24 * 32).reshape(24, 32) * 50).astype(np.uint16)).save(png)
+    before = png.read_bytes()
+    code, _, err = run(capsys, "-q", *[a.format(png=png, tmp=tmp_path) for a in argv])
+    assert code == 2, err
+    assert "give the output its own name" in err and len(err.strip().splitlines()) == 1, err
+    assert png.read_bytes() == before
+    assert files_in(tmp_path) == ["dem.png"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "option"),
+    [
+        (["steps", "", "--interval", "100", "-o", "{tmp}/a.glb"], "INPUT"),
+        (["steps", "{dem}", "--interval", "2", "-o", "{tmp}/a.glb", "--png", ""], "--png"),
+        (["texture", "", "-o", "{tmp}/t.png"], "INPUT"),
+        (["texture", "{dem}", "-o", "{tmp}/t.png", "--mesh", ""], "--mesh"),
+        (["texture", "{dem}", "-o", "{tmp}/t.png", "--png", ""], "--png"),
+        (["texture", "{dem}", "-o", "{tmp}/t.png", "--normals", ""], "--normals"),
+        (["closeup", "", "-o", "{tmp}/c.ply"], "INPUT"),
+        (["closeup", "{dem}", "-o", "{tmp}/c.ply", "--png", ""], "--png"),
+        (["closeup", "{dem}", "-o", "{tmp}/c.ply", "--gif", ""], "--gif"),
+        (["globe", "", "--face-size", "9", "-o", "{tmp}/g.ply"], "INPUT"),
+        (["globe", "--face-size", "9", "-o", "{tmp}/g.ply", "--texture", ""], "--texture"),
+        (["globe", "--face-size", "9", "-o", "{tmp}/g.ply", "--png", ""], "--png"),
+        (["batch", "", "--interval", "100", "--scheduler", "serial", "-o", "{tmp}/b"], "INPUT"),
+        (["batch", "{dem}", "--tile", "8", "--interval", "2", "--scheduler", "serial", "-o", ""], "-o/--output"),
+        (["batch", "{dem}", "--tile", "8", "--interval", "2", "--scheduler", "serial", "-o", "{tmp}/b",
+          "--png", ""], "--png"),
+        (["info", ""], "FILE"),
+    ],
+)
+def test_an_empty_path_is_refused_not_ignored(dem, tmp_path, capsys, argv, option):
+    """An empty INPUT (an unset shell variable) silently meant the embedded DEM (a 0.8 GB mesh at --interval 2),
+    and an empty --png/--gif/--mesh/--normals/--texture was silently skipped."""
+    code, out, err = run(capsys, "-q", *[a.format(dem=dem, tmp=tmp_path) for a in argv])
+    assert code == 2, err
+    assert err == f"stepterrain {argv[0]}: error: argument {option}: expected a file name; got ''\n"
+    assert out == "" and files_in(tmp_path) == ["hill.npy"]

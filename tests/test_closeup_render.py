@@ -314,6 +314,45 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
         assert capsys.readouterr().err == f"stepterrain closeup: error: --fps must be a positive number; got {fps}\n"
 
 
+@pytest.mark.parametrize("size, rois", [("64x48", 1), ("128x64", 3)])
+def test_cli_closeup_too_small_a_size_is_refused_before_any_output(dem, tmp_path, capsys, size, rois):
+    """The scene mesh was written, then the render found the window too small for the close-ups: exit 2 with
+    one of the two outputs on disk and a message that named no option."""
+    argv = ["-q", "closeup", str(dem), *["--roi-relative=0.5,0.5,0.1"] * rois, "--size", size,
+            "-o", str(tmp_path / "scene.ply"), "--gif", str(tmp_path / "spin.gif"), "--frames", "1"]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"stepterrain closeup: error: --size {size} holds at most") and f"got {rois}" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
+
+
+def test_cli_closeup_a_failing_render_leaves_no_scene_mesh(dem, tmp_path, capsys, monkeypatch):
+    import stepterrain.closeup as closeup
+
+    def broken(*args, **kwargs):
+        raise MissingDependencyError("no OpenGL here (simulated)")
+
+    monkeypatch.setattr(render, "require_offscreen", lambda: "simulated")
+    monkeypatch.setattr(closeup, "render_closeups", broken)
+    argv = ["-q", "closeup", str(dem), "-o", str(tmp_path / "scene.ply"), "--png", str(tmp_path / "x.png")]
+    assert cli.main(argv) == 2
+    assert "simulated" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
+
+
+@pytest.mark.parametrize("roi", ["--roi=30,-16,1e300", "--roi-relative=0.5,0.5,1e300"])
+def test_cli_closeup_an_absurd_roi_radius_is_refused_by_name(dem, tmp_path, capsys, roi):
+    """A radius of 1e300 overflowed float32: 'overflow encountered in cast' warnings, then an error about
+    non-finite vertices at the write; ROI itself took a size of 2e39."""
+    out = tmp_path / "x.ply"
+    assert cli.main(["-q", "closeup", str(dem), roi, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain closeup: error: --roi radius must lie in (0, 1e+12]; got ") and "\n" == err[-1]
+    assert len(err.splitlines()) == 1 and not out.exists()
+    with pytest.raises(InvalidInputError, match=r"ROI size must be positive \(width, height\) up to 1e\+12"):
+        ROI.circle((0.0, 0.0), 1e39)
+
+
 def test_cli_closeup_help_has_examples(capsys):
     assert cli.main(["closeup", "--help"]) == 0
     text = capsys.readouterr().out

@@ -41,6 +41,8 @@ def test_globe_from_an_npz_grid(tmp_path):
         (["--face-size", "100"], "face_size must be 2"),
         (["--bounds", "box"], "invalid choice"),
         (["--metrics", "geometric,screen"], "metrics must be"),
+        (["--metrics", ""], "--metrics must be names among geometric, distance, clip separated by commas; got ''"),
+        (["--metrics", "geometric,,clip"], "got 'geometric,,clip' (an empty name)"),
         (["--error", "-1"], "error must be"),
         (["--eye", "95,0,1e6"], "latitude must lie"),
         (["--eye", "0,0,-5"], "altitude must be above"),
