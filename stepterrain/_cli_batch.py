@@ -99,8 +99,8 @@ def add_parser(commands: Any) -> None:
 
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .batch import _check_ext, batch, overview_image
-    from .cli import _check_output, _check_outputs, _check_size
+    from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
+    from .cli import _check_output, _check_outputs, _check_size, _colormap
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
@@ -109,8 +109,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError("--floor applies only with --solid")
     _check_size(args.size)
     _check_outputs({"INPUT": args.input}, png=png)
-    if not math.isfinite(args.connect_timeout) or args.connect_timeout <= 0:
-        raise InvalidInputError(f"--connect-timeout must be a positive number of seconds; got {args.connect_timeout}")
+    if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= MAX_CONNECT_TIMEOUT):
+        raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
+                                f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
+    _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
     if args.device is not None:
         from ._device import resolve_device
 

@@ -98,6 +98,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from .cli import _check_output, _check_outputs, _check_size
     from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, max_closeups, render_closeups, save_animation
     from .io import load_dem, sample_dem
+    from .stepped import colormap, isovalues
 
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
@@ -107,6 +108,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
     _check_size(args.size)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
@@ -143,6 +145,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     rotations = _per_closeup(args.rotation, n, (0.0, 0.0), "--rotation")
     colors = _per_closeup(args.color, n, None, "--color")
     steps = _per_closeup(args.stepped, n, None, "--stepped")
+    for interval in steps:
+        if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option
+            try:
+                isovalues(terrain.height_range, interval=interval)
+            except InvalidInputError as exc:
+                raise InvalidInputError(f"--stepped {interval:g}: {exc}") from None
     anchor = AnchorStyle(args.anchor)
     closeups = []
     for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):

@@ -118,7 +118,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     what = ", ".join(["hillshade " + args.method] + (["shadows"] if args.shadows else [])
                      + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
     progress.stage("texture", f"topographic texture on {device}: {what}")
-    topo = tx.topographic_layer(terrain, azimuth=math.radians(args.azimuth), altitude=math.radians(args.altitude),
+    # degrees wrapped into one turn: the library's radians-or-degrees warning (past 4π) is for API callers
+    azimuth = args.azimuth % 360.0 if math.isfinite(args.azimuth) else args.azimuth
+    topo = tx.topographic_layer(terrain, azimuth=math.radians(azimuth), altitude=math.radians(args.altitude),
                                 z_factor=args.z_factor, method=args.method, shadows=args.shadows,
                                 shadow_strength=args.shadow_strength, occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain.heights, args.colormap)

@@ -546,6 +546,10 @@ def _check_scheduler(scheduler: Any) -> None:
         raise _scheduler_error(scheduler)  # not a Client
 
 
+#: The longest wait for a scheduler: far longer ones (1e300 s) overflowed into a wait without end in dask.
+MAX_CONNECT_TIMEOUT = 86400.0
+
+
 def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
@@ -690,8 +694,10 @@ def batch(
         least = 0 if name == "retries" else 1
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name} must be an int >= {least}; got {value!r}")
-    if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout) and connect_timeout > 0):
-        raise InvalidInputError(f"connect_timeout must be a positive number of seconds; got {connect_timeout!r}")
+    if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout)
+            and 0 < connect_timeout <= MAX_CONNECT_TIMEOUT):  # fmt: skip
+        raise InvalidInputError(f"connect_timeout must be a positive number of seconds up to {MAX_CONNECT_TIMEOUT:g} "
+                                f"(a day); got {connect_timeout!r}")
     if not (isinstance(gamma, (int, float, np.floating)) and 0.0 <= float(gamma) <= 1.0):
         raise InvalidInputError(f"gamma must be a number in [0, 1] for batch; got {gamma!r}")
     if colors is not None and not isinstance(colors, str):

@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, scratch, to_device
-from .camera import Camera
+from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
@@ -262,6 +262,8 @@ class Globe:
         z = _height_grid(elevation, "elevation")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
         limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
+        if radius > limit:
+            raise InvalidInputError(f"radius must be at most {limit:.2g} m (float32 node positions); got {radius:g}")
         if relief > limit:
             raise InvalidInputError(f"exaggeration · elevation must stay within ±{limit:.2g} m (float32 node "
                                     f"positions); got {exaggeration:g} x {float(np.abs(z).max()):.9g} m")
@@ -1070,6 +1072,10 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         if not finite:
             raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
     altitude, tilt, heading = float(altitude), float(tilt), float(heading)
+    radius = _positive(radius, "radius")
+    if abs(radius + altitude) > _MAX_COORDINATE:  # the Camera's coordinate bound, named by its inputs here
+        raise InvalidInputError(f"radius + altitude must stay within {_MAX_COORDINATE:g} m of the centre; got "
+                                f"{radius:g} + {altitude:g}")
     la, lo = math.radians(latitude), math.radians(longitude)
     outward = np.array([math.cos(la) * math.cos(lo), math.cos(la) * math.sin(lo), math.sin(la)])
     east = np.array([-math.sin(lo), math.cos(lo), 0.0])

@@ -116,10 +116,22 @@ def _light(azimuth: float, altitude: float) -> tuple[float, float]:
     return azimuth, altitude
 
 
+#: The steepest slope (rise over run, z_factor included) the float32 kernels take: its square stays finite.
+_MAX_SLOPE = 1e18
+
+
 def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kernels.HeightGrid:
     def build() -> wp.array:
         return wp.array(t.heights, dtype=wp.float32, device=device, copy=not device.is_cpu)
 
+    def relief() -> float:
+        finite = t.used_heights()
+        return float(finite.max() - finite.min()) if finite.size else 0.0
+
+    rise, run = t.cached(("texture.relief",), relief), min(abs(t.spacing[0]), abs(t.spacing[1]))
+    if float(z_factor) * rise / run > _MAX_SLOPE:  # squared in float32: beyond ~1e19 a flat grey image
+        raise InvalidInputError(f"z_factor x height range / spacing must stay below {_MAX_SLOPE:g} (float32 "
+                                f"slopes); got {float(z_factor):g} x {rise:g} / {run:g}")
     grid = texture_kernels.HeightGrid()
     grid.heights = t.cached(("texture.heights", str(device)), build)
     grid.rows, grid.cols = (int(n) for n in t.heights.shape)

@@ -591,11 +591,21 @@ def test_cli_batch_folder_exit_codes(tmp_path, capsys):
         (["--tile", "0"], "expected positive cells"),
         (["--device", "tpu"], "device must be one of"),
         (["--connect-timeout", "0"], "--connect-timeout must be"),
+        # 1e300 s waited without end for an unreachable scheduler
+        (["--connect-timeout", "1e300", "--scheduler", "tcp://127.0.0.1:1"], "up to 86400 (a day); got 1e+300"),
+        (["--colormap", "nope"], "--colormap must name"),  # was "colors must name ..." from each item
     ],
 )
 def test_cli_batch_bad_input_exit_2(tmp_path, capsys, argv, match):
     assert cli.main(["batch", "-o", str(tmp_path / "out"), *argv]) == 2
     assert match in capsys.readouterr().err
+
+
+def test_connect_timeout_beyond_a_day_is_refused(tmp_path):
+    with pytest.raises(InvalidInputError, match=r"connect_timeout must be a positive number of seconds up to 86400"):
+        batch(np.zeros((5, 5)), tmp_path / "o", tile_size=2, interval=1.0, scheduler="tcp://127.0.0.1:1",
+              connect_timeout=1e300)
+    assert not (tmp_path / "o").exists()
 
 
 def test_cli_batch_unreachable_scheduler(tmp_path, capsys):

@@ -353,6 +353,18 @@ def test_cli_closeup_an_absurd_roi_radius_is_refused_by_name(dem, tmp_path, caps
         ROI.circle((0.0, 0.0), 1e39)
 
 
+def test_cli_closeup_colormap_and_stepped_interval_errors_name_the_option(dem, tmp_path, capsys):
+    # were "cmap must name a matplotlib colormap" (at render time) and "interval=0.001 over heights ..."
+    out = tmp_path / "x.ply"
+    assert cli.main(["-q", "closeup", str(dem), "--colormap", "nope", "-o", str(out)]) == 2
+    assert capsys.readouterr().err.startswith("stepterrain closeup: error: --colormap must name")
+    assert cli.main(["-q", "closeup", str(dem), "--stepped", "1e-6", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain closeup: error: --stepped 1e-06: interval=1e-06 over heights"), err
+    assert "levels" in err
+    assert not out.exists()
+
+
 def test_cli_closeup_help_has_examples(capsys):
     assert cli.main(["closeup", "--help"]) == 0
     text = capsys.readouterr().out

@@ -65,6 +65,18 @@ def test_cli_texture_azimuth_is_degrees_clockwise_from_north(tmp_path, capsys):
     assert grey["se", "135"] > 200 and grey["nw", "135"] < 100
 
 
+def test_cli_texture_azimuth_past_a_turn_is_degrees_without_the_radians_warning(tmp_path, small_dem, capsys):
+    # the CLI takes degrees: 1000 is 280 degrees, the same image, and no "azimuth is in radians" hint (that warning
+    # is for API callers who pass degrees where radians are expected)
+    images = []
+    for azimuth in ("280", "1000", "-80"):
+        out = tmp_path / f"a{azimuth}.png"
+        assert main(["-q", "texture", str(small_dem), "--azimuth", azimuth, "-o", str(out), "--device", "cpu"]) == 0
+        assert "radians" not in capsys.readouterr().err
+        images.append(read_png(out))
+    assert np.array_equal(images[0], images[1]) and np.array_equal(images[0], images[2])
+
+
 def test_cli_texture_help_has_examples(capsys):
     assert main(["texture", "--help"]) == 0
     assert "examples:" in capsys.readouterr().out
@@ -78,6 +90,8 @@ def test_cli_texture_help_has_examples(capsys):
     (["--colormap", "nope"], "--colormap must name"),
     (["--png", "{out}"], "--output and --png name the same file"),
     (["--normals", "{out}"], "--output and --normals name the same file"),
+    # slopes are squared in float32: 1e30 gave a uniform grey image with exit 0
+    (["--z-factor", "1e30"], "z_factor x height range / spacing must stay below 1e+18 (float32 slopes)"),
 ])
 def test_cli_texture_bad_input_exits_2(tmp_path, small_dem, capsys, argv, match):
     out = tmp_path / "t.png"
