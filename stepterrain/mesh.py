@@ -161,16 +161,9 @@ def close_solid(
 
 
 def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
-    """Which rows of a (R, C) int array occur more than once (a lexsort and a look at sorted neighbours)."""
-    order = np.lexsort(rows.T[::-1])
-    ordered = rows[order]
-    same = np.all(ordered[1:] == ordered[:-1], axis=1)
-    repeated = np.zeros(len(rows), bool)
-    repeated[1:] |= same
-    repeated[:-1] |= same
-    out = np.empty(len(rows), bool)
-    out[order] = repeated
-    return out
+    """Which rows of a (R, C) int array occur more than once (rows grouped by :func:`exact_keys`)."""
+    ids = exact_keys(rows)
+    return np.bincount(ids)[ids] > 1
 
 
 def _split_pinches(

@@ -264,17 +264,27 @@ def test_geotiff_band_choice(tmp_path):
 
 
 US_FOOT = 1200 / 3937  # metres per US survey foot
+SMALL_Z = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
+
+
+def write_small_tif(path: Path, crs: str, transform: tuple[float, ...], units: str | None = None) -> Path:
+    """:data:`SMALL_Z` as a float32 GeoTIFF in ``crs`` with ``transform`` = (dx, x0, dy, y0), the band's height
+    unit ``units`` if given."""
+    rasterio = needs_rasterio()
+    dx, x0, dy, y0 = transform
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="float32", crs=crs,
+                       transform=rasterio.Affine(dx, 0.0, x0, 0.0, dy, y0)) as ds:  # fmt: skip
+        ds.write(SMALL_Z, 1)
+        if units is not None:
+            ds.units = (units,)
+    return path
 
 
 def test_geotiff_in_us_survey_feet_becomes_metres(tmp_path):
     # EPSG:2229 (NAD83 / California zone 5) counts US survey feet: spacing and origin become metres, the CRS its
     # metre twin EPSG:26945; heights stay as stored unless the band names their unit
-    rasterio = needs_rasterio()
-    z = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
-    profile = dict(driver="GTiff", width=3, height=2, count=1, dtype="float32", crs="EPSG:2229",
-                   transform=rasterio.Affine(10.0, 0.0, 6500000.0, 0.0, -10.0, 1900000.0))  # fmt: skip
-    with rasterio.open(tmp_path / "ft.tif", "w", **profile) as ds:
-        ds.write(z, 1)
+    z, transform = SMALL_Z, (10.0, 6500000.0, -10.0, 1900000.0)
+    write_small_tif(tmp_path / "ft.tif", "EPSG:2229", transform)
     with pytest.warns(UserWarning, match="heights are kept as stored"):
         t = load_dem(tmp_path / "ft.tif")
     assert t.spacing == pytest.approx((10.0 * US_FOOT, -10.0 * US_FOOT), rel=1e-12)
@@ -282,10 +292,8 @@ def test_geotiff_in_us_survey_feet_becomes_metres(tmp_path):
     assert t.crs == "EPSG:26945" and "US survey foot" in t.source
     np.testing.assert_array_equal(t.heights, z)
 
-    with rasterio.open(tmp_path / "ft_z.tif", "w", **profile) as ds:  # the band says its heights are feet too
-        ds.write(z, 1)
-        ds.units = ("US survey foot",)
-    t = load_dem(tmp_path / "ft_z.tif")
+    # the band says its heights are feet too
+    t = load_dem(write_small_tif(tmp_path / "ft_z.tif", "EPSG:2229", transform, units="US survey foot"))
     np.testing.assert_allclose(t.heights, z * US_FOOT, rtol=1e-6)
     assert t.spacing == pytest.approx((10.0 * US_FOOT, -10.0 * US_FOOT), rel=1e-12)
 
@@ -469,12 +477,8 @@ def test_heights_beyond_float32_are_refused_not_read_as_nodata(tmp_path):
 def test_compound_crs_vertical_feet_become_metres(tmp_path):
     """A compound CRS names the heights' unit (NAD83 / UTM 11N + NAVD88 height (ftUS)): with no band unit the
     heights become metres and ``crs`` keeps the horizontal part, which still applies; a band unit wins."""
-    rasterio = needs_rasterio()
-    z = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
-    profile = dict(driver="GTiff", width=3, height=2, count=1, dtype="float32", crs="EPSG:26911+6360",
-                   transform=rasterio.Affine(30.0, 0.0, 380000.0, 0.0, -30.0, 3800000.0))  # fmt: skip
-    with rasterio.open(tmp_path / "navd88_ft.tif", "w", **profile) as ds:
-        ds.write(z, 1)
+    z, transform = SMALL_Z, (30.0, 380000.0, -30.0, 3800000.0)
+    write_small_tif(tmp_path / "navd88_ft.tif", "EPSG:26911+6360", transform)
     import warnings
 
     with warnings.catch_warnings():
@@ -482,10 +486,7 @@ def test_compound_crs_vertical_feet_become_metres(tmp_path):
         t = load_dem(tmp_path / "navd88_ft.tif")
     np.testing.assert_allclose(t.heights, z * US_FOOT, rtol=1e-6)
     assert t.crs == "EPSG:26911" and t.spacing == (30.0, -30.0)
-    with rasterio.open(tmp_path / "band_m.tif", "w", **profile) as ds:
-        ds.write(z, 1)
-        ds.units = ("metre",)
-    t = load_dem(tmp_path / "band_m.tif")
+    t = load_dem(write_small_tif(tmp_path / "band_m.tif", "EPSG:26911+6360", transform, units="metre"))
     np.testing.assert_array_equal(t.heights, z)
     transform = np.array([380000.0, 30.0, 0, 3800000.0, 0, -30.0])
     np.savez(tmp_path / "navd88_ft.npz", elevation=z, transform=transform, crs="EPSG:26911+6360")
