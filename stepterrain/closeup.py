@@ -764,7 +764,7 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     """MPFR: the stepped terrain (paper 000) of the ROI window, hypsometric colors, isovalues of the whole terrain."""
     from .stepped import isovalues, stepped
 
-    values = isovalues(_height_range(terrain), interval=cu.stepped)
+    values = isovalues(terrain.height_range, interval=cu.stepped)
     if terrain.kind == "grid":
         i0, i1, j0, j1 = _grid_window(terrain, cu.roi.box)
         dx, dy = terrain.spacing
@@ -853,13 +853,10 @@ def _transfer_struct(closeups: Sequence[CloseUp], device: wp.Device) -> closeup_
     return tf
 
 
-def _height_range(terrain: Terrain) -> tuple[float, float]:
-    """The terrain's (min, max) height, computed once per terrain (frames re-use it)."""
-    return terrain.cached(("closeup", "height_range"), lambda: terrain.height_range)
 
 
 def _pivot_z(terrain: Terrain) -> float:
-    return _height_range(terrain)[0]
+    return terrain.height_range[0]
 
 
 def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: str) -> NDArray[np.float32]:
@@ -1122,7 +1119,7 @@ def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64
     bottom = h[i0, j0] + tx * (h[i0, j0 + 1] - h[i0, j0])
     top = h[i0 + 1, j0] + tx * (h[i0 + 1, j0 + 1] - h[i0 + 1, j0])
     z = bottom + ty * (top - bottom)
-    return np.where(np.isfinite(z), z, _height_range(terrain)[0])
+    return np.where(np.isfinite(z), z, terrain.height_range[0])
 
 
 def _closeup_color(cu: CloseUp, k: int) -> tuple[float, float, float]:
@@ -1420,7 +1417,7 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
 
 def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
     if kind == "height":
-        return _height_range(terrain)
+        return terrain.height_range
     if kind == "aspect":
         return 0.0, 2 * math.pi
     return 0.0, math.radians(60.0)
@@ -1807,7 +1804,7 @@ def animate_closeups(
                 if len(layer.vertices):
                     boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
         xmin, xmax, ymin, ymax = t.extent
-        zmin, zmax = _height_range(t)
+        zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     renderer = render.LayeredRenderer(window_size=_window(window_size), background=options.pop("background", "white"),

@@ -233,11 +233,19 @@ class Terrain:
 
     @property
     def height_range(self) -> tuple[float, float]:
-        """(min, max) of the finite heights (of a TIN: of its points on kept faces)."""
-        finite = self.used_heights()
-        if finite.size == 0:
+        """(min, max) of the finite heights (of a TIN: of its points on kept faces); computed once per terrain.
+        A grid without nodata takes two passes and no copy (``used_heights`` masks and copies)."""
+
+        def compute() -> tuple[float, ...]:
+            if self.kind == "grid" and not self.has_nodata:
+                return float(self.heights.min()), float(self.heights.max())
+            finite = self.used_heights()
+            return (float(finite.min()), float(finite.max())) if finite.size else ()
+
+        lo_hi = self.cached("height_range", compute)
+        if not lo_hi:
             raise InvalidInputError("terrain has no finite height (all nodata)")
-        return float(finite.min()), float(finite.max())
+        return lo_hi
 
     @property
     def extent(self) -> tuple[float, float, float, float]:

@@ -124,11 +124,11 @@ def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kern
     def build() -> wp.array:
         return wp.array(t.heights, dtype=wp.float32, device=device, copy=not device.is_cpu)
 
-    def relief() -> float:
-        finite = t.used_heights()
-        return float(finite.max() - finite.min()) if finite.size else 0.0
-
-    rise, run = t.cached(("texture.relief",), relief), min(abs(t.spacing[0]), abs(t.spacing[1]))
+    try:
+        lo, hi = t.height_range
+    except InvalidInputError:  # all nodata: nothing to shade
+        lo = hi = 0.0
+    rise, run = hi - lo, min(abs(t.spacing[0]), abs(t.spacing[1]))
     if float(z_factor) * rise / run > _MAX_SLOPE:  # squared in float32: beyond ~1e19 a flat grey image
         raise InvalidInputError(f"z_factor x height range / spacing must stay below {_MAX_SLOPE:g} (float32 "
                                 f"slopes); got {float(z_factor):g} x {rise:g} / {run:g}")

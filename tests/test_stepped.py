@@ -917,6 +917,25 @@ def test_as_terrain_accepts_every_input_kind(dem):
     assert as_terrain(st.heightfield_mesh(dem[:5, :5])).kind == "tin"
 
 
+@settings(max_examples=60)
+@given(arrays(np.float32, st_.tuples(st_.integers(2, 7), st_.integers(2, 7)),
+              elements=st_.one_of(st_.floats(-1e4, 1e4, width=32), st_.just(np.nan))))
+def test_height_range_is_the_finite_min_and_max(heights):
+    """The grid's cheap path (no nodata: min and max, no copy) and the masked path agree with nanmin/nanmax;
+    a TIN counts only the points on kept faces; all nodata is refused by name."""
+    t = as_terrain(heights)
+    if np.isnan(heights).all():
+        with pytest.raises(st.InvalidInputError, match="no finite height"):
+            _ = t.height_range
+        return
+    expected = (float(np.nanmin(heights)), float(np.nanmax(heights)))
+    assert t.height_range == expected and t.height_range == expected  # computed once, then cached
+    mesh = st.heightfield_mesh(heights)
+    if len(mesh.faces):  # a TIN: the heights of the points on its faces (NaN nodes are on none)
+        z = np.asarray(mesh.vertices)[np.unique(mesh.faces), 2]
+        assert as_terrain(mesh).height_range == (float(z.min()), float(z.max()))
+
+
 def test_tin_edge_table_is_built_once_and_rebuilt_after_a_change():
     tin = st.heightfield_mesh(np.add.outer(np.arange(6.0), np.arange(7.0)))
     first = as_terrain(tin)
