@@ -115,13 +115,14 @@ def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
         if device is not None and str(wp.get_device(device)) != name:
             raise DeviceError(f"device={device!r} but the input arrays live on {name!r}")
         return wp.get_device(name)
+    if str(device).startswith("cuda") and not wp.is_cuda_available():
+        # refused before wp.get_device, which asks the missing driver for a context and prints native errors
+        raise DeviceError(f"device={device!r} needs a CUDA GPU, and Warp finds none on this machine "
+                          f"(available: {', '.join(str(d) for d in wp.get_devices())})")
     try:
         return wp.get_device(device)
     except Exception as exc:  # warp raises ValueError/RuntimeError depending on version
         available = [str(d) for d in wp.get_devices()]
-        if str(device).startswith("cuda") and not wp.is_cuda_available():
-            raise DeviceError(f"device={device!r} needs a CUDA GPU, and Warp finds none on this machine "
-                              f"(available: {', '.join(available)})") from exc
         raise DeviceError(f"device must be one of {available} (or None); got {device!r}") from exc
 
 

@@ -912,6 +912,16 @@ def test_device_errors():
         st.stepped(np.zeros((3, 3)), interval=1.0, device=missing)
 
 
+@pytest.mark.skipif(wp.is_cuda_available(), reason="needs a machine without CUDA")
+def test_cuda_without_a_gpu_is_refused_without_native_noise(capfd):
+    """The one-line DeviceError only: Warp's native 'CUDA error ... cuCtxGetCurrent' lines, printed when a
+    CUDA device is looked up without a driver, must not reach the user's terminal."""
+    with pytest.raises(st.DeviceError, match="needs a CUDA GPU"):
+        st.stepped(np.zeros((3, 3)), interval=1.0, device="cuda")
+    out, err = capfd.readouterr()
+    assert "CUDA error" not in out + err, out + err
+
+
 def test_as_terrain_accepts_every_input_kind(dem):
     assert as_terrain(dem).kind == "grid"
     assert as_terrain(st.heightfield_mesh(dem[:5, :5])).kind == "tin"
