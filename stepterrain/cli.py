@@ -482,7 +482,11 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         raise DataFileError(f"cannot read {str(path)!r} as a mesh: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise DataFileError(f"{str(path)!r} holds no triangle mesh")
-    bounds = np.asarray(mesh.bounds, dtype=np.float64)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    finite = np.isfinite(vertices).all(axis=1)
+    # the bounds of the finite vertices; a NaN or inf vertex is counted, not smeared over the bounds
+    bounds = (np.stack([vertices[finite].min(axis=0), vertices[finite].max(axis=0)]) if finite.any()
+              else np.full((2, 3), np.nan))
     summary: dict[str, Any] = {
         "kind": "mesh",
         "file": str(path),
@@ -491,6 +495,7 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "faces": int(len(mesh.faces)),
         "bounds_min": tuple(float(v) for v in bounds[0]),
         "bounds_max": tuple(float(v) for v in bounds[1]),
+        "nonfinite_vertices": int(len(vertices) - finite.sum()),
         "watertight": bool(mesh.is_watertight),
         "winding_consistent": bool(mesh.is_winding_consistent),
         "vertex_colors": bool(mesh.visual.kind == "vertex"),

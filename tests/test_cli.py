@@ -290,6 +290,17 @@ def test_info_on_a_dem_and_on_a_mesh(dem, tmp_path, capsys):
     assert code == 2 and "missing.glb" in err
 
 
+def test_info_counts_nonfinite_vertices_and_bounds_the_finite_ones(tmp_path, capsys):
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, np.nan], [1, 1, 2]], [[0, 1, 2], [1, 3, 2]], process=False)
+    path = tmp_path / "nan.ply"
+    mesh.export(path)
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["nonfinite_vertices"] == 1
+    assert summary["bounds_min"] == [0, 0, 0] and summary["bounds_max"] == [1, 1, 2]
+
+
 def test_default_input_is_the_embedded_dem(tmp_path, capsys):
     code, out, err = run(capsys, "info")
     assert code == 0, err
