@@ -472,13 +472,20 @@ def _is_complete(entry: Any, fingerprint: str, output_dir: Path) -> bool:
         return False
 
 
-def _check_output_dir(output_dir: str | os.PathLike[str]) -> Path:
+def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Path]]:
+    """The output folder, made if missing, and the folders this made (deepest first) so that a run that fails
+    before writing anything can take them away again."""
     try:
         folder = Path(os.fspath(output_dir))
     except TypeError as exc:
         raise InvalidInputError(f"output_dir must be a str or os.PathLike; got {type(output_dir).__name__}") from exc
     if folder.exists() and not folder.is_dir():
         raise DataFileError(f"output_dir {str(folder)!r} exists and is not a folder")
+    made = []
+    for path in (folder, *folder.parents):
+        if path.exists():
+            break
+        made.append(path)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -486,7 +493,16 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> Path:
     error = probe_writable(folder)
     if error is not None:
         raise DataFileError(f"output folder {str(folder)!r} is not writable: {error.strerror or error}") from error
-    return folder
+    return folder, made
+
+
+def _remove_empty(folders: Sequence[Path]) -> None:
+    """Remove the folders (deepest first) that are still empty."""
+    for path in folders:
+        try:
+            path.rmdir()
+        except OSError:
+            return
 
 
 def _check_ext(ext: str) -> str:
@@ -743,7 +759,7 @@ def batch(
     if level_values is not None and interval is not None:
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
     _check_scheduler(scheduler)
-    folder = _check_output_dir(output_dir)
+    folder, made = _check_output_dir(output_dir)
 
     fingerprints = _fingerprints(items, src, options)
     manifest = _read_manifest(folder) if resume else {}
@@ -759,7 +775,11 @@ def batch(
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
-    connection = None if serial or not todo else _connect(scheduler, workers, connect_timeout)
+    try:
+        connection = None if serial or not todo else _connect(scheduler, workers, connect_timeout)
+    except BaseException:
+        _remove_empty(made)  # nothing was written: leave no empty output folder behind
+        raise
     description = "serial" if connection is None else connection[2]
     bar = _progress_bar(len(items), len(results), progress)
     try:

@@ -601,6 +601,19 @@ def test_cli_batch_bad_input_exit_2(tmp_path, capsys, argv, match):
     assert match in capsys.readouterr().err
 
 
+def test_unreachable_scheduler_leaves_no_empty_output_folder(tmp_path):
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
+    with pytest.raises(SchedulerError, match="cannot reach the dask scheduler"):
+        batch(np.zeros((5, 5)), tmp_path / "new" / "tiles", tile_size=2, interval=1.0, scheduler=address,
+              connect_timeout=1.0)
+    assert not (tmp_path / "new").exists()
+    (tmp_path / "kept").mkdir()
+    with pytest.raises(SchedulerError):
+        batch(np.zeros((5, 5)), tmp_path / "kept", tile_size=2, interval=1.0, scheduler=address, connect_timeout=1.0)
+    assert (tmp_path / "kept").is_dir()  # a folder that was there before stays
+
+
 def test_connect_timeout_beyond_a_day_is_refused(tmp_path):
     with pytest.raises(InvalidInputError, match=r"connect_timeout must be a positive number of seconds up to 86400"):
         batch(np.zeros((5, 5)), tmp_path / "o", tile_size=2, interval=1.0, scheduler="tcp://127.0.0.1:1",
