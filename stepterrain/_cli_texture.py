@@ -1,5 +1,5 @@
 """The ``stepterrain texture`` subcommand: a topographic texture (hillshade, shadows, occlusion) of a DEM, optionally
-modulated with a hypsometric thematic layer, written as PNG and draped on a mesh (paper 004 §3.2.3, §7).
+modulated with a hypsometric thematic layer, written as PNG or GeoTIFF and draped on a mesh (paper 004 §3.2.3, §7).
 
     stepterrain texture --shadows -o out/texture.png --mesh out/textured.glb --png out/render.png
 """
@@ -7,20 +7,24 @@ modulated with a hypsometric thematic layer, written as PNG and draped on a mesh
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .cli import Progress, _check_output, _check_outputs, _check_size, _colormap, _path, _size, _window
-from .errors import InvalidInputError
-from .export import MESH_EXTENSIONS
+from .errors import InvalidInputError, MissingDependencyError
+from .export import IMAGE_EXTENSIONS, MESH_EXTENSIONS
 
 _EPILOG = """\
 examples:
   stepterrain texture --shadows -o out/texture.png
       hillshade (GDAL conventions, light from 315 deg at 45 deg) with self-shadowing, hypsometric colours
   stepterrain texture dem.tif --hillshade multidirectional --colormap none -o shade.png
+  stepterrain texture dem.tif --shadows -o shade.tif
+      a GeoTIFF on the DEM's own pixel grid and CRS: it lies exactly over the DEM in QGIS or ArcGIS
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
@@ -59,9 +63,12 @@ def add_parser(commands: Any) -> None:
                    help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
-    p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB")
+    p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
+                   "(.png, or .tif: a GeoTIFF)")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
-    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png", help="the texture as PNG")
+    p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png",
+                   help="the texture as PNG, or as a GeoTIFF (.tif, .tiff: georeferenced on the DEM's pixel grid and "
+                        "CRS; needs rasterio, pip install 'stepterrain[geo]')")
     p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
                    + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image)")
     p.add_argument("--interval", type=float, metavar="M",
@@ -72,6 +79,15 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
                    help="vertical exaggeration of the render only (default 2)")
     p.set_defaults(run=_run_texture)
+
+
+def _is_tiff(path: Path | None) -> bool:
+    return path is not None and path.suffix.lower() in (".tif", ".tiff")
+
+
+def _georeference(path: Path, extent: Any, crs: str | None) -> dict[str, Any]:
+    """``save_image``'s extent and CRS for a TIFF output (a GeoTIFF over the DEM), nothing for a PNG."""
+    return {"extent": extent, "crs": crs} if _is_tiff(path) else {}
 
 
 def _hypsometric(heights: np.ndarray, name: str) -> np.ndarray | None:
@@ -93,10 +109,12 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from ._device import resolve_device
     from .io import load_dem, sample_dem
 
-    out = _check_output(args.output, (".png",), "--output")
+    out = _check_output(args.output, IMAGE_EXTENSIONS, "--output")
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
-    normals_out = _check_output(args.normals, (".png",), "--normals") if args.normals else None
+    normals_out = _check_output(args.normals, IMAGE_EXTENSIONS, "--normals") if args.normals else None
+    if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
+        raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
     _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
     if not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
@@ -148,10 +166,11 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             progress.done()
 
     progress.stage("write", f"writing {out}")
-    export.save_image(image, out)
+    export.save_image(image, out, **_georeference(out, composite.extent, terrain.crs))
     progress.done(_size(out))
     if normals is not None:
-        export.save_image(tx._north_up(terrain, normals), normals_out)
+        export.save_image(tx._north_up(terrain, normals), normals_out,
+                          **_georeference(normals_out, tx.terrain_extent(terrain), terrain.crs))
         progress.say(f"wrote {normals_out} ({_size(normals_out)})")
     if draped is not None and mesh_out is not None:
         metadata = {"generator": "stepterrain texture", "input": args.input or "embedded Big Tujunga DEM",

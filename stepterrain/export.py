@@ -226,15 +226,29 @@ def add_write_listener(listener: Callable[[Path], None]) -> Callable[[], None]:
     return remove
 
 
-def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
-    """Write an RGB or RGBA image to a PNG file, atomically.
+#: Image formats by extension: PNG (Pillow) and TIFF (a GeoTIFF through rasterio when georeferenced).
+IMAGE_EXTENSIONS = (".png", ".tif", ".tiff")
+
+
+def save_image(
+    image: ArrayLike, path: str | os.PathLike[str], *, extent: Any = None, crs: str | None = None
+) -> Path:
+    """Write an RGB or RGBA image to a PNG or TIFF file, atomically; a TIFF with an ``extent`` is a GeoTIFF.
 
     Parameters
     ----------
     image : (H, W, 3) or (H, W, 4) uint8
-        Row 0 is the top of the picture (what :mod:`stepterrain.render` returns).
+        Row 0 is the top of the picture (what :mod:`stepterrain.render` returns); for a GeoTIFF, the north
+        edge (a texture layer's image, see :class:`stepterrain.texture.TextureLayer`).
     path : str or path-like
-        Target ``.png`` file; missing folders are created.
+        Target ``.png``, ``.tif`` or ``.tiff`` file; missing folders are created.
+    extent : (xmin, xmax, ymin, ymax), optional
+        World coordinates of the pixels' outer edges (a texture layer's ``extent``): the TIFF is written as a
+        north-up GeoTIFF (rasterio, ``pip install 'stepterrain[geo]'``), so GIS software places it over the
+        DEM it was computed from. A PNG has no place for it.
+    crs : str, optional
+        The GeoTIFF's coordinate reference system, anything rasterio reads ("EPSG:32611", a PROJ string,
+        WKT): a terrain's ``crs``. Needs ``extent``.
 
     Returns
     -------
@@ -244,7 +258,11 @@ def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
     Raises
     ------
     InvalidInputError
-        ``image`` is not (H, W, 3|4) uint8, or ``path`` does not end in ``.png``.
+        ``image`` is not (H, W, 3|4) uint8, ``path`` does not end in .png, .tif or .tiff, ``extent`` is not
+        (xmin, xmax, ymin, ymax) with xmin < xmax and ymin < ymax, ``crs`` is unreadable or comes without an
+        extent, or an extent is given for a PNG.
+    MissingDependencyError
+        A GeoTIFF without rasterio installed.
     DataFileError
         The target folder cannot be created or written.
 
@@ -261,9 +279,11 @@ def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
     from PIL import Image
 
     target = _target(path)
-    if target.suffix.lower() != ".png":
+    suffix = target.suffix.lower()
+    if suffix not in IMAGE_EXTENSIONS:
         raise InvalidInputError(
-            f"cannot write {str(target)!r}: images are written as PNG; the path must end in .png"
+            f"cannot write {str(target)!r}: images are written as PNG or TIFF; the path must end in "
+            f"{', '.join(IMAGE_EXTENSIONS)}"
         )
     array = np.asarray(image)
     if array.dtype != np.uint8:
@@ -272,11 +292,54 @@ def save_image(image: ArrayLike, path: str | os.PathLike[str]) -> Path:
         raise InvalidInputError(
             f"image must be an (H, W, 3) RGB or (H, W, 4) RGBA array; got shape {array.shape}"
         )
+    if extent is None and crs is not None:
+        raise InvalidInputError("crs georeferences a GeoTIFF together with its extent; got a crs without extent")
+    if extent is not None:
+        if suffix == ".png":
+            raise InvalidInputError(
+                f"cannot georeference {str(target)!r}: a PNG has no place for an extent or CRS; write a .tif"
+            )
+        return _save_geotiff(array, target, extent, crs)
     picture = Image.fromarray(np.ascontiguousarray(array))  # uint8 (H, W, 3|4) -> RGB or RGBA
     with atomic_path(target) as tmp:
         try:
-            picture.save(tmp, format="PNG")
+            if suffix == ".png":
+                picture.save(tmp, format="PNG")
+            else:
+                picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
+            raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+    return target
+
+
+def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str | None) -> Path:
+    """:func:`save_image`'s GeoTIFF: north-up, deflate-compressed, RGB (alpha as the fourth band)."""
+    from .texture import _check_extent
+
+    xmin, xmax, ymin, ymax = _check_extent(extent)
+    try:
+        import rasterio
+        from rasterio.crs import CRS
+        from rasterio.errors import CRSError
+    except ImportError as exc:
+        raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'") from exc
+    if crs is not None:
+        try:
+            crs = CRS.from_user_input(crs)
+        except (CRSError, TypeError, ValueError) as exc:
+            raise InvalidInputError(f"crs must be a coordinate reference system rasterio reads; got {crs!r}") from exc
+    height, width, bands = array.shape
+    profile = {
+        "driver": "GTiff", "width": width, "height": height, "count": bands, "dtype": "uint8", "crs": crs,
+        "transform": rasterio.Affine((xmax - xmin) / width, 0.0, xmin, 0.0, -(ymax - ymin) / height, ymax),
+        "photometric": "RGB",
+        "compress": "deflate", **({"alpha": "YES"} if bands == 4 else {}),
+    }  # fmt: skip
+    with atomic_path(target) as tmp:
+        try:
+            with rasterio.open(tmp, "w", **profile) as dataset:
+                dataset.write(np.moveaxis(array, 2, 0))
+        except (OSError, rasterio.errors.RasterioError) as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
     return target
 

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import base64
+import importlib.util
 import json
 import os
 import struct
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +18,7 @@ from PIL import Image
 from stepterrain import export
 from stepterrain.errors import DataFileError, InvalidInputError, MissingDependencyError
 from stepterrain.export import MESH_EXTENSIONS, atomic_path, save_image, save_mesh
-from stepterrain.terrain import heightfield_mesh
+from stepterrain.terrain import as_terrain, heightfield_mesh
 
 
 def stepped_like_mesh(offset: tuple[float, float] = (0.0, 0.0)) -> trimesh.Trimesh:
@@ -287,14 +289,82 @@ def test_atomic_path_removes_temp_on_error(tmp_path):
 
 # ---------------------------------------------------------------------------------------------- images
 @pytest.mark.parametrize("channels", [3, 4])
-def test_save_image_round_trip(tmp_path, channels):
+@pytest.mark.parametrize("name", ["img.png", "img.tif"])
+def test_save_image_round_trip(tmp_path, channels, name):
     image = np.random.default_rng(1).integers(0, 256, (5, 7, channels), dtype=np.uint8)
-    out = save_image(image, tmp_path / "img.png")
+    out = save_image(image, tmp_path / name)
     with Image.open(out) as picture:
         assert picture.mode == ("RGB" if channels == 3 else "RGBA")
         back = np.asarray(picture)
     np.testing.assert_array_equal(back, image)
-    no_leftovers(tmp_path, {"img.png"})
+    no_leftovers(tmp_path, {name})
+
+
+def needs_rasterio():
+    return pytest.importorskip("rasterio", reason="GeoTIFF tests need rasterio (pip install 'stepterrain[geo]')")
+
+
+@pytest.mark.parametrize("background", [(1.0, 1.0, 1.0), None])  # RGB, and RGBA (alpha band)
+def test_a_texture_geotiff_lies_exactly_over_its_dem(tmp_path, background):
+    """A texture of a GeoTIFF DEM, written as GeoTIFF with the layer's extent and the terrain's CRS: the same
+    pixel grid as the DEM (its geotransform, its CRS) and the same pixels as the image."""
+    rasterio = needs_rasterio()
+    import stepterrain as st
+    from stepterrain import texture as tx
+
+    z = np.add.outer(np.arange(12.0) * 3.0, np.sin(np.arange(17.0))).astype(np.float32)
+    z[0, 0] = np.nan  # nodata: transparent in the RGBA layer
+    geotransform = rasterio.Affine(30.0, 0.0, 390000.0, 0.0, -30.0, 3800000.0)
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", width=17, height=12, count=1, dtype="float32",
+                       crs="EPSG:32611", transform=geotransform, nodata=np.nan) as ds:  # fmt: skip
+        ds.write(z, 1)
+    dem = st.load_dem(tmp_path / "dem.tif")
+    layer = tx.modulate(tx.terrain_layer(dem, np.dstack([np.full(z.shape + (3,), 0.5), np.isfinite(z)]),
+                                         "thematic"), tx.topographic_layer(dem))  # fmt: skip
+    image = layer.to_uint8(background=background)
+    out = save_image(image, tmp_path / "shade.tif", extent=layer.extent, crs=dem.crs)
+    with rasterio.open(out) as ds:
+        assert ds.crs == rasterio.crs.CRS.from_epsg(32611)
+        assert ds.transform.almost_equals(geotransform, precision=1e-9)
+        assert (ds.width, ds.height, ds.count) == (17, 12, image.shape[2])
+        np.testing.assert_array_equal(np.moveaxis(ds.read(), 0, 2), image)
+        if image.shape[2] == 4:
+            assert ds.colorinterp[3] == rasterio.enums.ColorInterp.alpha
+    no_leftovers(tmp_path, {"dem.tif", "shade.tif"})
+
+
+def test_a_south_up_grid_texture_is_georeferenced_north_up(tmp_path):
+    """A grid whose rows run north (dy > 0): the layer's image is turned north-up, so the GeoTIFF is too, with
+    the node extent plus half a cell, and the layer's north row is the file's first."""
+    rasterio = needs_rasterio()
+    from stepterrain import texture as tx
+
+    z = np.add.outer(np.arange(6.0) * 10.0, np.zeros(4)).astype(np.float32)  # higher to the north (row 5)
+    terrain = as_terrain(z, spacing=(2.0, 3.0), origin=(100.0, 200.0))
+    layer = tx.terrain_layer(terrain, np.dstack([z / 50.0] * 3), "thematic")
+    out = save_image(layer.to_uint8(), tmp_path / "t.tiff", extent=layer.extent)
+    with rasterio.open(out) as ds:
+        assert tuple(ds.bounds) == pytest.approx((99.0, 198.5, 107.0, 216.5))
+        assert ds.crs is None
+        band = ds.read(1)
+    assert band[0, 0] == 255 and band[-1, 0] == 0  # row 0: the north edge, the highest heights
+
+
+def test_geotiff_refusals(tmp_path, monkeypatch):
+    image = np.zeros((2, 3, 3), np.uint8)
+    with pytest.raises(InvalidInputError, match="a PNG has no place for an extent"):
+        save_image(image, tmp_path / "i.png", extent=(0, 3, 0, 2))
+    with pytest.raises(InvalidInputError, match="crs without extent"):
+        save_image(image, tmp_path / "i.tif", crs="EPSG:4326")
+    with pytest.raises(InvalidInputError, match=r"extent must be finite \(xmin, xmax, ymin, ymax\)"):
+        save_image(image, tmp_path / "i.tif", extent=(3, 0, 0, 2))
+    if importlib.util.find_spec("rasterio") is not None:
+        with pytest.raises(InvalidInputError, match="crs must be a coordinate reference system"):
+            save_image(image, tmp_path / "i.tif", extent=(0, 3, 0, 2), crs="not a crs")
+    monkeypatch.setitem(sys.modules, "rasterio", None)  # as if not installed
+    with pytest.raises(MissingDependencyError, match=r"pip install 'stepterrain\[geo\]'"):
+        save_image(image, tmp_path / "i.tif", extent=(0, 3, 0, 2))
+    no_leftovers(tmp_path, set())
 
 
 def test_save_image_refusals(tmp_path):
@@ -302,6 +372,6 @@ def test_save_image_refusals(tmp_path):
         save_image(np.zeros((2, 2, 3), np.float32), tmp_path / "i.png")
     with pytest.raises(InvalidInputError, match=r"got shape \(2, 2\)"):
         save_image(np.zeros((2, 2), np.uint8), tmp_path / "i.png")
-    with pytest.raises(InvalidInputError, match="must end in .png"):
+    with pytest.raises(InvalidInputError, match="must end in .png, .tif, .tiff"):
         save_image(np.zeros((2, 2, 3), np.uint8), tmp_path / "i.jpg")
     no_leftovers(tmp_path, set())

@@ -100,6 +100,41 @@ def test_cli_texture_bad_input_exits_2(tmp_path, small_dem, capsys, argv, match)
     assert not out.exists()
 
 
+@pytest.mark.parametrize("dem, crs_kept", [("big_tujunga_srtm_30m_utm11n.tif", True),
+                                           ("front_range_srtmgl3_3arcsec.tif", False)])
+def test_cli_texture_geotiff_lies_over_the_real_dem(tmp_path, capsys, dem, crs_kept):
+    """-o .tif: a GeoTIFF on the DEM's own pixel grid. A projected DEM keeps its CRS and geotransform exactly;
+    a geographic one (read as local equirectangular metres) comes back onto the same degrees when a GIS
+    reprojects it (the local CRS is linear in longitude and latitude)."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF output needs rasterio")
+    from rasterio.warp import transform_bounds
+
+    from .conftest import shared_file
+
+    source = shared_file(dem)
+    out, normals = tmp_path / "shade.tif", tmp_path / "normals.tiff"
+    assert main(["texture", str(source), "--shadows", "-o", str(out), "--normals", str(normals)]) == 0, \
+        capsys.readouterr().err
+    with rasterio.open(source) as src, rasterio.open(out) as tex, rasterio.open(normals) as nrm:
+        assert tex.shape == nrm.shape == src.shape and tex.count == nrm.count == 3
+        assert tex.transform == nrm.transform and tex.crs == nrm.crs
+        if crs_kept:
+            assert tex.crs == src.crs and tex.transform.almost_equals(src.transform, precision=1e-6)
+        else:
+            back = transform_bounds(tex.crs, src.crs, *tex.bounds)
+            assert back == pytest.approx(tuple(src.bounds), abs=1e-6)  # degrees: ~0.1 m
+        assert tex.read().std() > 5
+
+
+def test_cli_texture_geotiff_without_rasterio_is_refused_up_front(tmp_path, small_dem, capsys, monkeypatch):
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "rasterio" else
+                        real_find_spec(name, *a))  # fmt: skip
+    assert main(["texture", str(small_dem), "-o", str(tmp_path / "t.tif")]) == 2
+    assert "writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == [small_dem]
+
+
 @pytest.mark.parametrize("interval", ["0", "-5", "nan"])
 def test_cli_texture_interval_must_be_positive(tmp_path, small_dem, capsys, interval):
     out, mesh = tmp_path / "t.png", tmp_path / "m.glb"
