@@ -6,10 +6,11 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 from typing import Any
 
-from .errors import InvalidInputError
+from .errors import InvalidInputError, MissingDependencyError
 from .export import MESH_EXTENSIONS
 
 _EPILOG = """\
@@ -106,6 +107,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
     _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
+    if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
+        raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work

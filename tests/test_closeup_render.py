@@ -314,6 +314,18 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
         assert capsys.readouterr().err == f"stepterrain closeup: error: --fps must be a positive number; got {fps}\n"
 
 
+def test_cli_closeup_mp4_without_ffmpeg_is_refused_before_any_output(dem, tmp_path, capsys, monkeypatch):
+    """The scene mesh and the PNG were written first, then the animation failed on the missing extra."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # as if not installed
+    argv = ["-q", "closeup", str(dem), "--roi-relative=0.5,0.5,0.2", "--size", "160x120", "-o",
+            str(tmp_path / "scene.ply"), "--png", str(tmp_path / "p.png"), "--gif", str(tmp_path / "spin.mp4")]
+    assert cli.main(argv) == 2
+    assert "MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
+
+
 @pytest.mark.parametrize("size, rois", [("64x48", 1), ("128x64", 3)])
 def test_cli_closeup_too_small_a_size_is_refused_before_any_output(dem, tmp_path, capsys, size, rois):
     """The scene mesh was written, then the render found the window too small for the close-ups: exit 2 with
