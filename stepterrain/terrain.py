@@ -157,6 +157,13 @@ class Terrain:
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
             raise InvalidInputError("terrain mesh has no faces; expected a triangulated surface")
+        outside = (faces < 0) | (faces >= len(points))  # numpy would wrap -1 silently, and raise IndexError beyond
+        if outside.any():
+            bad = int(np.flatnonzero(outside.any(axis=1))[0])
+            raise InvalidInputError(
+                f"terrain mesh faces must index its vertices (0 to {len(points) - 1}); face {bad} is "
+                f"{faces[bad].tolist()}; the mesh has {len(points)} vertices"
+            )
         repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
         if repeated.any():
             bad = int(np.flatnonzero(repeated)[0])

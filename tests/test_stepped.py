@@ -534,6 +534,17 @@ def test_tin_height_beyond_float32_is_refused_not_stepped_to_infinity():
     with pytest.raises(st.InvalidInputError, match=r"heights must fit in float32 .*; vertex 4 has z=1e\+39"):
         st.stepped(tin, interval=1.0)
 
+def test_tin_face_index_beyond_the_vertices_is_refused():
+    """A trimesh whose faces name a vertex it does not have (process=False keeps them) raised a bare
+    IndexError from numpy fancy indexing; now an InvalidInputError names the face and the vertex count."""
+    base = st.heightfield_mesh(np.add.outer(np.arange(3.0), np.arange(3.0)))
+    for bad in (len(base.vertices), -1):
+        faces = base.faces.copy()
+        faces[2, 1] = bad
+        tin = trimesh.Trimesh(base.vertices, faces, process=False)
+        with pytest.raises(st.InvalidInputError, match=rf"face 2 is \[.*{bad}.*\]; the mesh has 9 vertices"):
+            st.stepped(tin, interval=1.0)
+
 
 @pytest.mark.parametrize("stray", ["unused", "nan-height-face"])
 def test_tin_local_origin_ignores_points_on_no_kept_face(stray):
