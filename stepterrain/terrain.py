@@ -192,6 +192,12 @@ class Terrain:
         point_used = np.zeros(len(points), dtype=np.int32)
         point_used[faces.reshape(-1)] = 1
         used_xy = xy[point_used != 0]  # the kept faces' extent: a stray point must not widen the tolerance
+        span = np.ptp(used_xy, axis=0)
+        if (span > FLOAT32_MAX).any():  # the kernels get xy relative to the lower-left corner in float32
+            raise InvalidInputError(
+                f"terrain mesh x and y must span at most {FLOAT32_MAX:.2g} (float32 coordinates relative to its "
+                f"corner); got x over {span[0]:.6g}, y over {span[1]:.6g}"
+            )
         scale = max(float(np.ptp(used_xy[:, 0]) * np.ptp(used_xy[:, 1])), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol

@@ -534,6 +534,19 @@ def test_tin_height_beyond_float32_is_refused_not_stepped_to_infinity():
     with pytest.raises(st.InvalidInputError, match=r"heights must fit in float32 .*; vertex 4 has z=1e\+39"):
         st.stepped(tin, interval=1.0)
 
+def test_tin_xy_extent_beyond_float32_is_refused_not_stepped_to_infinity():
+    """The kernels get a TIN's xy relative to its lower-left corner in float32: a TIN 4e38 wide (finite in
+    float64) was stepped into inf and NaN vertices without a word. Refused now, naming the extent; a TIN as
+    wide as float32 allows, or far from the origin, still steps."""
+    base = st.heightfield_mesh(np.add.outer(np.arange(3.0), np.arange(3.0)), spacing=(0.5, 0.5))
+    wide = trimesh.Trimesh(base.vertices * [4e38, 1.0, 1.0], base.faces, process=False)
+    with pytest.raises(st.InvalidInputError, match=r"terrain mesh x and y must span at most 3.4e\+38 .*got x"):
+        st.stepped(wide, interval=1.0)
+    for scale, offset in ((3e38, 0.0), (1e30, 1e300)):
+        tin = trimesh.Trimesh(base.vertices * [scale, scale, 1.0] + [offset, offset, 0.0], base.faces, process=False)
+        assert np.isfinite(st.stepped(tin, interval=1.0).vertices).all()
+
+
 def test_tin_face_index_beyond_the_vertices_is_refused():
     """A trimesh whose faces name a vertex it does not have (process=False keeps them) raised a bare
     IndexError from numpy fancy indexing; now an InvalidInputError names the face and the vertex count."""
