@@ -77,6 +77,17 @@ class Lens:
             object.__setattr__(self, "extent", ext)
 
 
+def _lens_number(value: Any, name: str) -> float:
+    """``value`` as a finite float, or an :class:`InvalidInputError` naming the lens argument ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"lens {name} must be a number; got {value!r}") from None
+    if not math.isfinite(number):
+        raise InvalidInputError(f"lens {name} must be finite; got {value!r}")
+    return number
+
+
 GammaLike = float | ArrayLike | Callable[[NDArray[np.float64]], ArrayLike] | Lens
 
 
@@ -107,19 +118,19 @@ def circular_lens(
         cx, cy = (float(c) for c in center)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"lens center must be (x, y); got {center!r}") from exc
-    radius = float(radius)
     if not (np.isfinite(cx) and np.isfinite(cy)):
         raise InvalidInputError(f"lens center must be finite; got {center!r}")
-    if not np.isfinite(radius) or radius <= 0:
+    radius = _lens_number(radius, "radius")
+    if radius <= 0:
         raise InvalidInputError(f"lens radius must be a positive finite number; got {radius}")
-    width = radius / 4.0 if edge_width is None else float(edge_width)
-    if not np.isfinite(width) or width < 0:
+    width = radius / 4.0 if edge_width is None else _lens_number(edge_width, "edge_width")
+    if width < 0:
         raise InvalidInputError(f"lens edge_width must be >= 0; got {edge_width}")
     for name, value in (("inside", inside), ("outside", outside)):
-        if not 0.0 <= float(value) <= 1.0:
+        if not 0.0 <= _lens_number(value, name) <= 1.0:
             raise InvalidInputError(f"lens {name} must lie in [0, 1]; got {value}")
-    if int(resolution) < 2:
-        raise InvalidInputError(f"lens resolution must be >= 2; got {resolution}")
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 2:
+        raise InvalidInputError(f"lens resolution must be an int >= 2; got {resolution!r}")
     xmin, xmax, ymin, ymax = t.extent
     if xmax <= xmin:
         xmax = xmin + 1.0

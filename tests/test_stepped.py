@@ -706,6 +706,34 @@ def test_lens_shows_the_original_inside_and_steps_outside(dem):
     assert np.isclose(mesh.vertices[node, 2], small[20, 20]).any()
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"radius": "big"}, r"lens radius must be a number; got 'big'"),
+        ({"radius": None}, r"lens radius must be a number; got None"),
+        ({"radius": float("nan")}, r"lens radius must be finite; got nan"),
+        ({"edge_width": "x"}, r"lens edge_width must be a number; got 'x'"),
+        ({"inside": None}, r"lens inside must be a number; got None"),
+        ({"outside": "1"}, None),  # a number as text stays accepted, as float() takes it
+        ({"outside": [0.5]}, r"lens outside must be a number; got \[0.5\]"),
+        ({"resolution": float("nan")}, r"lens resolution must be an int >= 2; got nan"),
+        ({"resolution": "64"}, r"lens resolution must be an int >= 2; got '64'"),
+        ({"resolution": 2.7}, r"lens resolution must be an int >= 2; got 2.7"),
+        ({"resolution": True}, r"lens resolution must be an int >= 2; got True"),
+    ],
+)
+def test_circular_lens_bad_numbers_are_named(kwargs, match):
+    """circular_lens called float()/int() bare: radius='big', inside=None or resolution=nan raised numpy's or
+    Python's ValueError/TypeError, and resolution=2.7 was truncated silently; now each is an InvalidInputError
+    naming the argument."""
+    args = {"radius": 1.0, **kwargs}
+    radius = args.pop("radius")
+    if match is None:
+        assert st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, **args).mask.max() == 1.0
+        return
+    with pytest.raises(st.InvalidInputError, match=match):
+        st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, **args)
+
 def test_gamma_callable_and_array_agree_with_scalar(dem):
     small = dem[:25, :25]
     scalar = st.stepped(small, interval=70.0, gamma=0.4)
