@@ -734,6 +734,19 @@ def test_circular_lens_bad_numbers_are_named(kwargs, match):
     with pytest.raises(st.InvalidInputError, match=match):
         st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, **args)
 
+def test_circular_lens_resolution_beyond_the_memory_budget_is_refused_up_front():
+    """resolution=1_000_000 asked numpy for 7 TiB of float64 distances and died in a bare MemoryError; the mask
+    is checked against the memory budget before any texel is allocated."""
+    with pytest.raises(st.OutputTooLargeError, match=r"a lens mask of resolution 1000000 would need .*lower the lens"):
+        st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=1_000_000)
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match="resolution 256"):
+            st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=256)
+        assert st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=64).mask.shape == (64, 64)
+    finally:
+        st.set_memory_budget(previous)
+
 def test_gamma_callable_and_array_agree_with_scalar(dem):
     small = dem[:25, :25]
     scalar = st.stepped(small, interval=70.0, gamma=0.4)
