@@ -191,7 +191,8 @@ def isovalues(
     ------
     InvalidInputError
         Both or neither of ``interval`` and ``levels``; a non-finite or non-positive interval; levels that
-        are empty, non-finite or not strictly increasing (also after rounding to float32).
+        are empty, non-finite or not strictly increasing (also after rounding to float32); a ``height_range``
+        that is not finite (min, max) with min <= max.
 
     Examples
     --------
@@ -204,6 +205,12 @@ def isovalues(
             "give exactly one of interval= (uniform isovalues base + k * interval) or levels= (explicit, "
             f"strictly increasing); got interval={interval!r}, levels={'None' if levels is None else '[...]'}"
         )
+    try:
+        lo, hi = (float(v) for v in height_range)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"height_range must be (min, max) heights; got {height_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     if levels is not None:
         try:
             values64 = np.asarray(levels, dtype=np.float64)
@@ -236,7 +243,6 @@ def isovalues(
         raise InvalidInputError(f"interval must be a positive finite number; got {interval!r}")
     if not np.isfinite(base):
         raise InvalidInputError(f"base must be finite; got {base!r}")
-    lo, hi = height_range
     k0 = int(np.floor((lo - base) / step))
     k1 = int(np.ceil((hi - base) / step))
     if k1 - k0 + 1 > MAX_LEVELS:

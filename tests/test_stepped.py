@@ -889,6 +889,18 @@ def test_bad_arguments_raise_clear_errors(kwargs, match):
 
 
 @pytest.mark.parametrize(
+    "height_range",
+    [(0.0, float("nan")), (0.0, float("inf")), (-float("inf"), 0.0), (10.0, 0.0), "ab", (1.0, 2.0, 3.0), 5.0, None],
+)
+def test_isovalues_bad_height_range_is_named(height_range):
+    """st.isovalues((0, nan), interval=1) raised 'cannot convert float NaN to integer', (0, inf) an OverflowError,
+    (10, 0) numpy's 'zero-size array to reduction operation', 'ab' a TypeError on str - float; now each is an
+    InvalidInputError naming height_range."""
+    with pytest.raises(st.InvalidInputError, match=r"height_range must be .*\(min, max\)"):
+        st.isovalues(height_range, interval=1.0)
+    assert st.isovalues((3.0, 3.0), interval=1.0).tolist() == [3.0]
+
+@pytest.mark.parametrize(
     ("heights", "match"),
     [
         (np.zeros(5), "2-D"),
