@@ -31,7 +31,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_terrain
+from .terrain import FLOAT32_MAX, Terrain, as_terrain, unmasked
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -830,7 +830,7 @@ def stepped_series(
     dev = resolve_device(device)
     stack = None
     if isinstance(frames, np.ndarray) or (hasattr(frames, "shape") and hasattr(frames, "__array__")):
-        stack = np.asarray(frames)
+        stack = np.asarray(unmasked(frames))
         if stack.ndim != 3:
             raise InvalidInputError(f"frames must be a (T, H, W) stack; got shape {stack.shape}")
         finite = stack[np.isfinite(stack)]

@@ -58,8 +58,20 @@ def check_spacing(dx: float, dy: float, name: str = "spacing") -> tuple[float, f
     return dx, dy
 
 
+def unmasked(values: Any) -> Any:
+    """A numpy masked array with its masked entries as NaN (nodata), in float; anything else as it is.
+    ``np.asarray`` drops the mask, which would step the values under it as real heights."""
+    if not np.ma.isMaskedArray(values):
+        return values
+    if np.issubdtype(values.dtype, np.floating):
+        return np.ma.filled(values, np.nan)
+    if np.issubdtype(values.dtype, np.integer) and values.dtype != bool:
+        return np.ma.filled(values.astype(np.float64), np.nan)
+    return np.ma.getdata(values)  # not real numbers: refused by the caller's dtype check
+
+
 def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
-    arr = np.asarray(heights)
+    arr = np.asarray(unmasked(heights))
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
     if arr.ndim != 2:
@@ -345,7 +357,7 @@ def heightfield_mesh(
     Parameters
     ----------
     heights : (H, W) array_like
-        Heights; NaN marks nodata.
+        Heights; NaN marks nodata (so do a numpy masked array's masked entries).
     spacing : (dx, dy)
         Node spacing; x runs along columns, y along rows. Either may be negative (then the winding is
         swapped so faces stay counter-clockwise seen from +z).

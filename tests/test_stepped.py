@@ -324,6 +324,27 @@ def test_heightfield_mesh_layout_cells_and_winding(spacing):
     assert (m.face_normals[:, 2] > 0).all()
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_masked_heights_are_nodata_not_the_values_under_the_mask(dtype):
+    """A numpy masked array (what rasterio's read(masked=True) and netCDF readers give) went through
+    np.asarray, which drops the mask: the values under it (fill values such as -32768) were stepped and
+    triangulated as real heights. Masked entries are nodata (NaN) now, as the docstrings say of NaN."""
+    heights = np.add.outer(np.arange(5.0), 0.5 * np.arange(7.0)).astype(dtype)
+    mask = np.zeros(heights.shape, bool)
+    mask[2, 3] = True
+    heights[2, 3] = -32768
+    nan_heights = heights.astype(np.float64)
+    nan_heights[mask] = np.nan
+    masked = np.ma.masked_array(heights, mask=mask)
+    expected = st.heightfield_mesh(nan_heights)
+    np.testing.assert_array_equal(st.heightfield_mesh(masked).vertices, expected.vertices)
+    stepped = st.stepped(nan_heights, interval=1.0).vertices
+    np.testing.assert_array_equal(st.stepped(masked, interval=1.0).vertices, stepped)
+    series = list(st.stepped_series(np.ma.stack([masked, masked]), interval=1.0))
+    assert all(np.array_equal(m.vertices, stepped) for m in series)
+    assert np.ma.masked_array(heights).mask is np.ma.nomask  # the caller's array is left alone
+    assert heights[2, 3] == -32768
+
 def test_heightfield_mesh_nan_nodes_are_holes_and_node_index_maps_back():
     heights = np.add.outer(np.arange(5.0), 0.5 * np.arange(7.0)).astype(np.float32)
     heights[2, 3] = np.nan  # an interior hole: its six faces go
