@@ -57,7 +57,10 @@ class Lens:
     extent: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        mask = np.asarray(self.mask)
+        try:
+            mask = np.asarray(self.mask)
+        except ValueError:  # ragged nested sequences
+            raise InvalidInputError("lens mask must be a real (h, w) array; got rows of different lengths") from None
         if mask.ndim != 2 or min(mask.shape) < 1 or not np.issubdtype(mask.dtype, np.number):
             raise InvalidInputError(
                 f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
@@ -502,7 +505,7 @@ def blend(
         original[:, 1] += terrain.local_origin[1]
         values = _gamma_floats(gamma(original), "gamma(points)")
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
-    elif np.ndim(gamma) == 0:
+    elif _gamma_ndim(gamma) == 0:
         scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
     else:
         node_values = _check_gamma_values(_gamma_floats(gamma, "gamma"), terrain.shape, "gamma")
@@ -546,8 +549,16 @@ def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], nam
     return np.require(values.astype(np.float32), requirements="C")
 
 
+def _gamma_ndim(gamma: GammaLike) -> int:
+    """0 for a scalar γ, the array's dimensions otherwise; a ragged sequence is an :class:`InvalidInputError`."""
+    try:
+        return int(np.ndim(gamma))
+    except ValueError:  # ragged nested sequences: _gamma_floats names them
+        return _gamma_floats(gamma, "gamma").ndim
+
+
 def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
-    per_node_gamma = not isinstance(gamma, Lens) and not callable(gamma) and np.ndim(gamma) > 0
+    per_node_gamma = not isinstance(gamma, Lens) and not callable(gamma) and _gamma_ndim(gamma) > 0
     carries_visual = terrain.visual is not None and colors is None
     return per_node_gamma or carries_visual
 
@@ -582,7 +593,11 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
     """An (L, 4) uint8 table: a matplotlib colormap name, or explicit (L, 3|4) colors (0-1 floats or 0-255)."""
     if isinstance(colors, str):
         return (colormap_samples(colors, n_levels) * 255 + 0.5).astype(np.uint8)
-    table = np.asarray(colors)
+    try:
+        table = np.asarray(colors)
+    except ValueError:  # ragged nested sequences
+        raise InvalidInputError(f"colors must be a colormap name or one RGB(A) row per isovalue, shape "
+                                f"({n_levels}, 3|4); got rows of different lengths") from None
     if table.ndim != 2 or table.shape[0] != n_levels or table.shape[1] not in (3, 4):
         raise InvalidInputError(
             f"colors must be a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4); "

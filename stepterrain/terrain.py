@@ -71,7 +71,10 @@ def unmasked(values: Any) -> Any:
 
 
 def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
-    arr = np.asarray(unmasked(heights))
+    try:
+        arr = np.asarray(unmasked(heights))
+    except ValueError:  # ragged nested sequences
+        raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got rows of different lengths") from None
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
     if arr.ndim != 2:

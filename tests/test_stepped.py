@@ -909,6 +909,23 @@ def test_bad_arguments_raise_clear_errors(kwargs, match):
         st.stepped(np.arange(16, dtype=np.float32).reshape(4, 4), **kwargs)
 
 
+def test_ragged_sequences_are_named_not_numpy_errors():
+    """Nested lists whose rows differ in length raised numpy's 'setting an array element with a sequence ...
+    inhomogeneous shape' from np.asarray / np.ndim for heights, gamma, colors and a Lens mask; each is an
+    InvalidInputError naming the argument now."""
+    ragged = [[0.0, 1.0, 2.0], [1.0, 2.0]]
+    heights = np.arange(16, dtype=np.float32).reshape(4, 4)
+    with pytest.raises(st.InvalidInputError, match="heights must be a real-valued .*rows of different lengths"):
+        st.heightfield_mesh(ragged)
+    with pytest.raises(st.InvalidInputError, match="heights must be a real-valued .*rows of different lengths"):
+        st.stepped(ragged, interval=1.0)
+    with pytest.raises(st.InvalidInputError, match=r"gamma must be a number in \[0, 1\], an array of them"):
+        st.stepped(heights, interval=1.0, gamma=[[0.5] * 4, [0.5]])
+    with pytest.raises(st.InvalidInputError, match=r"colors must be .*shape \(16, 3\|4\); got rows of different"):
+        st.stepped(heights, interval=1.0, colors=[[0, 0, 0]] * 15 + [[0, 0]])
+    with pytest.raises(st.InvalidInputError, match="lens mask must be a real .*rows of different lengths"):
+        st.Lens([[0.5, 0.5], [1.0]])
+
 @pytest.mark.parametrize(
     "height_range",
     [(0.0, float("nan")), (0.0, float("inf")), (-float("inf"), 0.0), (10.0, 0.0), "ab", (1.0, 2.0, 3.0), 5.0, None],
