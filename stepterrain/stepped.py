@@ -72,7 +72,10 @@ class Lens:
             )
         object.__setattr__(self, "mask", mask)
         if self.extent is not None:
-            ext = tuple(float(v) for v in self.extent)
+            try:
+                ext = tuple(float(v) for v in self.extent)
+            except (TypeError, ValueError):
+                ext = ()  # not numbers: refused below
             if len(ext) != 4 or not np.all(np.isfinite(ext)) or ext[1] <= ext[0] or ext[3] <= ext[2]:
                 raise InvalidInputError(
                     f"lens extent must be (xmin, xmax, ymin, ymax) with max > min; got {self.extent!r}"
@@ -786,7 +789,10 @@ def _assemble(
         # level pull the surface below it
         lowest = min(float(values[0]), float(vertices[:, 2].min()))  # faces, hence vertices (checked above)
         default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
-        floor_z = default_floor if floor is None else float(floor)
+        try:
+            floor_z = default_floor if floor is None else float(floor)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
         n_before = len(vertices)
         vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)
         face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])

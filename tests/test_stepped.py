@@ -897,6 +897,8 @@ def test_empty_result_is_valid_not_an_error():
         ({"interval": 1.0, "colors": "not-a-colormap"}, "matplotlib colormap"),
         ({"interval": 1.0, "floor": 0.0}, "floor applies only with solid=True"),
         ({"interval": 1.0, "solid": True, "floor": 100.0}, "floor must lie below"),
+        ({"interval": 1.0, "solid": True, "floor": "low"}, r"floor must be a number .*; got 'low'"),
+        ({"interval": 1.0, "solid": True, "floor": [-1.0, -2.0]}, r"floor must be a number .*; got \[-1.0, -2.0\]"),
         ({"interval": 1e-9}, "levels; at most"),
         ({"levels": [[0.0, 2.0], [4.0, 6.0]]}, r"levels must be a 1-D sequence of isovalues; got shape \(2, 2\)"),
         ({"levels": [0.0, 1e39]}, r"levels must fit in float32 \(\|x\| < 3.4e\+38\); got \[0.0, 1e\+39\]"),
@@ -925,6 +927,13 @@ def test_ragged_sequences_are_named_not_numpy_errors():
         st.stepped(heights, interval=1.0, colors=[[0, 0, 0]] * 15 + [[0, 0]])
     with pytest.raises(st.InvalidInputError, match="lens mask must be a real .*rows of different lengths"):
         st.Lens([[0.5, 0.5], [1.0]])
+
+@pytest.mark.parametrize("extent", [(0.0, 1.0, None, 2.0), "abcd", (0.0, 1.0, "y", 2.0)])
+def test_lens_extent_not_numbers_is_named(extent):
+    """Lens(mask, (0, 1, None, 2)) raised float()'s TypeError and Lens(mask, 'abcd') its ValueError; both are the
+    InvalidInputError a wrong-length or inverted extent already got."""
+    with pytest.raises(st.InvalidInputError, match=r"lens extent must be \(xmin, xmax, ymin, ymax\)"):
+        st.Lens(np.ones((2, 2)), extent)
 
 @pytest.mark.parametrize(
     "height_range",
