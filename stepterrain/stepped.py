@@ -854,6 +854,9 @@ def stepped_series(
         stack = np.asarray(unmasked(frames))
         if stack.ndim != 3:
             raise InvalidInputError(f"frames must be a (T, H, W) stack; got shape {stack.shape}")
+        real = np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)
+        if stack.dtype == bool or not real:
+            raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
         finite = stack[np.isfinite(stack)]
         if finite.size == 0:
             raise InvalidInputError("frames hold no finite height")
@@ -862,6 +865,9 @@ def stepped_series(
     else:
         values = None
         iterable = frames
+        if isinstance(frames, (str, bytes)) or not isinstance(frames, Iterable):
+            raise InvalidInputError(f"frames must be a (T, H, W) stack or an iterable of (H, W) heightfields; got "
+                                    f"{type(frames).__name__}")
     if progress:
         from tqdm.auto import tqdm
 

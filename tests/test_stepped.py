@@ -936,6 +936,24 @@ def test_lens_extent_not_numbers_is_named(extent):
         st.Lens(np.ones((2, 2)), extent)
 
 @pytest.mark.parametrize(
+    ("frames", "match"),
+    [
+        (None, "frames must be a .* or an iterable of .*; got NoneType"),
+        (5, "frames must be a .* or an iterable of .*; got int"),
+        ("frames.npy", "frames must be a .* or an iterable of .*; got str"),
+        (np.full((2, 3, 3), "a"), r"frames must be a real-valued \(T, H, W\) stack; got dtype <U1"),
+        (np.zeros((2, 3, 3), object), r"frames must be a real-valued \(T, H, W\) stack; got dtype object"),
+        (np.zeros((2, 3, 3), bool), r"frames must be a real-valued \(T, H, W\) stack; got dtype bool"),
+    ],
+)
+def test_stepped_series_bad_frames_are_named(frames, match):
+    """stepped_series(None) / (5) raised "'NoneType' object is not iterable", a string stack or an object stack
+    numpy's "ufunc 'isfinite' not supported"; now an InvalidInputError names frames (on the first frame asked
+    for, as the other checks of this generator)."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        next(st.stepped_series(frames, interval=1.0))
+
+@pytest.mark.parametrize(
     "height_range",
     [(0.0, float("nan")), (0.0, float("inf")), (-float("inf"), 0.0), (10.0, 0.0), "ab", (1.0, 2.0, 3.0), 5.0, None],
 )
