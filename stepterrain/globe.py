@@ -40,7 +40,7 @@ from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .stepped import LAND_START
-from .terrain import check_spacing
+from .terrain import check_spacing, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -120,8 +120,8 @@ def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> 
 
 def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     """A real (H, W) float32 grid with H, W >= 2 and no NaN or inf (the hierarchy has no nodata), or an
-    InvalidInputError naming ``name``."""
-    z = np.asarray(values)
+    InvalidInputError naming ``name`` (a masked array's masked entries count as NaN)."""
+    z = np.asarray(unmasked(values))
     if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
             or np.issubdtype(z.dtype, np.complexfloating)):
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "

@@ -31,7 +31,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_terrain
+from .terrain import FLOAT32_MAX, Terrain, as_terrain, unmasked
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -57,7 +57,10 @@ class Lens:
     extent: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        mask = np.asarray(self.mask)
+        try:
+            mask = np.asarray(self.mask)
+        except ValueError:  # ragged nested sequences
+            raise InvalidInputError("lens mask must be a real (h, w) array; got rows of different lengths") from None
         if mask.ndim != 2 or min(mask.shape) < 1 or not np.issubdtype(mask.dtype, np.number):
             raise InvalidInputError(
                 f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
@@ -69,12 +72,31 @@ class Lens:
             )
         object.__setattr__(self, "mask", mask)
         if self.extent is not None:
-            ext = tuple(float(v) for v in self.extent)
+            try:
+                ext = tuple(float(v) for v in self.extent)
+            except (TypeError, ValueError):
+                ext = ()  # not numbers: refused below
             if len(ext) != 4 or not np.all(np.isfinite(ext)) or ext[1] <= ext[0] or ext[3] <= ext[2]:
                 raise InvalidInputError(
                     f"lens extent must be (xmin, xmax, ymin, ymax) with max > min; got {self.extent!r}"
                 )
             object.__setattr__(self, "extent", ext)
+
+
+#: Peak bytes per texel while a lens mask is computed (float64 distances and smoothstep temporaries): 40 measured
+#: for circular_lens and texture's lenses; checked against the memory budget before allocating.
+LENS_TEXEL_BYTES = 48
+
+
+def _lens_number(value: Any, name: str) -> float:
+    """``value`` as a finite float, or an :class:`InvalidInputError` naming the lens argument ``name``."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"lens {name} must be a number; got {value!r}") from None
+    if not math.isfinite(number):
+        raise InvalidInputError(f"lens {name} must be finite; got {value!r}")
+    return number
 
 
 GammaLike = float | ArrayLike | Callable[[NDArray[np.float64]], ArrayLike] | Lens
@@ -107,19 +129,21 @@ def circular_lens(
         cx, cy = (float(c) for c in center)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"lens center must be (x, y); got {center!r}") from exc
-    radius = float(radius)
     if not (np.isfinite(cx) and np.isfinite(cy)):
         raise InvalidInputError(f"lens center must be finite; got {center!r}")
-    if not np.isfinite(radius) or radius <= 0:
+    radius = _lens_number(radius, "radius")
+    if radius <= 0:
         raise InvalidInputError(f"lens radius must be a positive finite number; got {radius}")
-    width = radius / 4.0 if edge_width is None else float(edge_width)
-    if not np.isfinite(width) or width < 0:
+    width = radius / 4.0 if edge_width is None else _lens_number(edge_width, "edge_width")
+    if width < 0:
         raise InvalidInputError(f"lens edge_width must be >= 0; got {edge_width}")
     for name, value in (("inside", inside), ("outside", outside)):
-        if not 0.0 <= float(value) <= 1.0:
+        if not 0.0 <= _lens_number(value, name) <= 1.0:
             raise InvalidInputError(f"lens {name} must lie in [0, 1]; got {value}")
-    if int(resolution) < 2:
-        raise InvalidInputError(f"lens resolution must be >= 2; got {resolution}")
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 2:
+        raise InvalidInputError(f"lens resolution must be an int >= 2; got {resolution!r}")
+    check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens mask of resolution {int(resolution)}",
+                 hint="lower the lens resolution")
     xmin, xmax, ymin, ymax = t.extent
     if xmax <= xmin:
         xmax = xmin + 1.0
@@ -173,7 +197,8 @@ def isovalues(
     ------
     InvalidInputError
         Both or neither of ``interval`` and ``levels``; a non-finite or non-positive interval; levels that
-        are empty, non-finite or not strictly increasing (also after rounding to float32).
+        are empty, non-finite or not strictly increasing (also after rounding to float32); a ``height_range``
+        that is not finite (min, max) with min <= max.
 
     Examples
     --------
@@ -186,6 +211,12 @@ def isovalues(
             "give exactly one of interval= (uniform isovalues base + k * interval) or levels= (explicit, "
             f"strictly increasing); got interval={interval!r}, levels={'None' if levels is None else '[...]'}"
         )
+    try:
+        lo, hi = (float(v) for v in height_range)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"height_range must be (min, max) heights; got {height_range!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+        raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     if levels is not None:
         try:
             values64 = np.asarray(levels, dtype=np.float64)
@@ -218,7 +249,6 @@ def isovalues(
         raise InvalidInputError(f"interval must be a positive finite number; got {interval!r}")
     if not np.isfinite(base):
         raise InvalidInputError(f"base must be finite; got {base!r}")
-    lo, hi = height_range
     k0 = int(np.floor((lo - base) / step))
     k1 = int(np.ceil((hi - base) / step))
     if k1 - k0 + 1 > MAX_LEVELS:
@@ -478,7 +508,7 @@ def blend(
         original[:, 1] += terrain.local_origin[1]
         values = _gamma_floats(gamma(original), "gamma(points)")
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
-    elif np.ndim(gamma) == 0:
+    elif _gamma_ndim(gamma) == 0:
         scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
     else:
         node_values = _check_gamma_values(_gamma_floats(gamma, "gamma"), terrain.shape, "gamma")
@@ -522,8 +552,16 @@ def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], nam
     return np.require(values.astype(np.float32), requirements="C")
 
 
+def _gamma_ndim(gamma: GammaLike) -> int:
+    """0 for a scalar γ, the array's dimensions otherwise; a ragged sequence is an :class:`InvalidInputError`."""
+    try:
+        return int(np.ndim(gamma))
+    except ValueError:  # ragged nested sequences: _gamma_floats names them
+        return _gamma_floats(gamma, "gamma").ndim
+
+
 def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
-    per_node_gamma = not isinstance(gamma, Lens) and not callable(gamma) and np.ndim(gamma) > 0
+    per_node_gamma = not isinstance(gamma, Lens) and not callable(gamma) and _gamma_ndim(gamma) > 0
     carries_visual = terrain.visual is not None and colors is None
     return per_node_gamma or carries_visual
 
@@ -558,7 +596,11 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
     """An (L, 4) uint8 table: a matplotlib colormap name, or explicit (L, 3|4) colors (0-1 floats or 0-255)."""
     if isinstance(colors, str):
         return (colormap_samples(colors, n_levels) * 255 + 0.5).astype(np.uint8)
-    table = np.asarray(colors)
+    try:
+        table = np.asarray(colors)
+    except ValueError:  # ragged nested sequences
+        raise InvalidInputError(f"colors must be a colormap name or one RGB(A) row per isovalue, shape "
+                                f"({n_levels}, 3|4); got rows of different lengths") from None
     if table.ndim != 2 or table.shape[0] != n_levels or table.shape[1] not in (3, 4):
         raise InvalidInputError(
             f"colors must be a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4); "
@@ -747,7 +789,10 @@ def _assemble(
         # level pull the surface below it
         lowest = min(float(values[0]), float(vertices[:, 2].min()))  # faces, hence vertices (checked above)
         default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
-        floor_z = default_floor if floor is None else float(floor)
+        try:
+            floor_z = default_floor if floor is None else float(floor)
+        except (TypeError, ValueError):
+            raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
         n_before = len(vertices)
         vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)
         face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])
@@ -806,9 +851,12 @@ def stepped_series(
     dev = resolve_device(device)
     stack = None
     if isinstance(frames, np.ndarray) or (hasattr(frames, "shape") and hasattr(frames, "__array__")):
-        stack = np.asarray(frames)
+        stack = np.asarray(unmasked(frames))
         if stack.ndim != 3:
             raise InvalidInputError(f"frames must be a (T, H, W) stack; got shape {stack.shape}")
+        real = np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)
+        if stack.dtype == bool or not real:
+            raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
         finite = stack[np.isfinite(stack)]
         if finite.size == 0:
             raise InvalidInputError("frames hold no finite height")
@@ -817,6 +865,9 @@ def stepped_series(
     else:
         values = None
         iterable = frames
+        if isinstance(frames, (str, bytes)) or not isinstance(frames, Iterable):
+            raise InvalidInputError(f"frames must be a (T, H, W) stack or an iterable of (H, W) heightfields; got "
+                                    f"{type(frames).__name__}")
     if progress:
         from tqdm.auto import tqdm
 

@@ -58,8 +58,23 @@ def check_spacing(dx: float, dy: float, name: str = "spacing") -> tuple[float, f
     return dx, dy
 
 
+def unmasked(values: Any) -> Any:
+    """A numpy masked array with its masked entries as NaN (nodata), in float; anything else as it is.
+    ``np.asarray`` drops the mask, which would step the values under it as real heights."""
+    if not np.ma.isMaskedArray(values):
+        return values
+    if np.issubdtype(values.dtype, np.floating):
+        return np.ma.filled(values, np.nan)
+    if np.issubdtype(values.dtype, np.integer) and values.dtype != bool:
+        return np.ma.filled(values.astype(np.float64), np.nan)
+    return np.ma.getdata(values)  # not real numbers: refused by the caller's dtype check
+
+
 def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
-    arr = np.asarray(heights)
+    try:
+        arr = np.asarray(unmasked(heights))
+    except ValueError:  # ragged nested sequences
+        raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got rows of different lengths") from None
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
     if arr.ndim != 2:
@@ -157,6 +172,13 @@ class Terrain:
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
             raise InvalidInputError("terrain mesh has no faces; expected a triangulated surface")
+        outside = (faces < 0) | (faces >= len(points))  # numpy would wrap -1 silently, and raise IndexError beyond
+        if outside.any():
+            bad = int(np.flatnonzero(outside.any(axis=1))[0])
+            raise InvalidInputError(
+                f"terrain mesh faces must index its vertices (0 to {len(points) - 1}); face {bad} is "
+                f"{faces[bad].tolist()}; the mesh has {len(points)} vertices"
+            )
         repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
         if repeated.any():
             bad = int(np.flatnonzero(repeated)[0])
@@ -185,6 +207,12 @@ class Terrain:
         point_used = np.zeros(len(points), dtype=np.int32)
         point_used[faces.reshape(-1)] = 1
         used_xy = xy[point_used != 0]  # the kept faces' extent: a stray point must not widen the tolerance
+        span = np.ptp(used_xy, axis=0)
+        if (span > FLOAT32_MAX).any():  # the kernels get xy relative to the lower-left corner in float32
+            raise InvalidInputError(
+                f"terrain mesh x and y must span at most {FLOAT32_MAX:.2g} (float32 coordinates relative to its "
+                f"corner); got x over {span[0]:.6g}, y over {span[1]:.6g}"
+            )
         scale = max(float(np.ptp(used_xy[:, 0]) * np.ptp(used_xy[:, 1])), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol
@@ -332,7 +360,7 @@ def heightfield_mesh(
     Parameters
     ----------
     heights : (H, W) array_like
-        Heights; NaN marks nodata.
+        Heights; NaN marks nodata (so do a numpy masked array's masked entries).
     spacing : (dx, dy)
         Node spacing; x runs along columns, y along rows. Either may be negative (then the winding is
         swapped so faces stay counter-clockwise seen from +z).

@@ -27,10 +27,11 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from ._compaction import count_buffer, exclusive_offsets
+from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
+from .stepped import LENS_TEXEL_BYTES
 from .terrain import Terrain, as_terrain
 
 __all__ = [
@@ -1147,6 +1148,8 @@ def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -
     radius = _finite(radius, "radius", positive=True)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 4:
         raise InvalidInputError(f"resolution must be an int >= 4; got {resolution!r}")
+    check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens image of resolution {int(resolution)}",
+                 hint="lower the lens resolution")
     edge = _finite(edge, "edge", lo=0.0, hi=1.0)
     # the disc image covers the lens' bounding square plus one texel of border (outside value) on each side
     pad = radius * 2.0 / (resolution - 2)

@@ -324,6 +324,27 @@ def test_heightfield_mesh_layout_cells_and_winding(spacing):
     assert (m.face_normals[:, 2] > 0).all()
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64, np.int16])
+def test_masked_heights_are_nodata_not_the_values_under_the_mask(dtype):
+    """A numpy masked array (what rasterio's read(masked=True) and netCDF readers give) went through
+    np.asarray, which drops the mask: the values under it (fill values such as -32768) were stepped and
+    triangulated as real heights. Masked entries are nodata (NaN) now, as the docstrings say of NaN."""
+    heights = np.add.outer(np.arange(5.0), 0.5 * np.arange(7.0)).astype(dtype)
+    mask = np.zeros(heights.shape, bool)
+    mask[2, 3] = True
+    heights[2, 3] = -32768
+    nan_heights = heights.astype(np.float64)
+    nan_heights[mask] = np.nan
+    masked = np.ma.masked_array(heights, mask=mask)
+    expected = st.heightfield_mesh(nan_heights)
+    np.testing.assert_array_equal(st.heightfield_mesh(masked).vertices, expected.vertices)
+    stepped = st.stepped(nan_heights, interval=1.0).vertices
+    np.testing.assert_array_equal(st.stepped(masked, interval=1.0).vertices, stepped)
+    series = list(st.stepped_series(np.ma.stack([masked, masked]), interval=1.0))
+    assert all(np.array_equal(m.vertices, stepped) for m in series)
+    assert np.ma.masked_array(heights).mask is np.ma.nomask  # the caller's array is left alone
+    assert heights[2, 3] == -32768
+
 def test_heightfield_mesh_nan_nodes_are_holes_and_node_index_maps_back():
     heights = np.add.outer(np.arange(5.0), 0.5 * np.arange(7.0)).astype(np.float32)
     heights[2, 3] = np.nan  # an interior hole: its six faces go
@@ -534,6 +555,30 @@ def test_tin_height_beyond_float32_is_refused_not_stepped_to_infinity():
     with pytest.raises(st.InvalidInputError, match=r"heights must fit in float32 .*; vertex 4 has z=1e\+39"):
         st.stepped(tin, interval=1.0)
 
+def test_tin_xy_extent_beyond_float32_is_refused_not_stepped_to_infinity():
+    """The kernels get a TIN's xy relative to its lower-left corner in float32: a TIN 4e38 wide (finite in
+    float64) was stepped into inf and NaN vertices without a word. Refused now, naming the extent; a TIN as
+    wide as float32 allows, or far from the origin, still steps."""
+    base = st.heightfield_mesh(np.add.outer(np.arange(3.0), np.arange(3.0)), spacing=(0.5, 0.5))
+    wide = trimesh.Trimesh(base.vertices * [4e38, 1.0, 1.0], base.faces, process=False)
+    with pytest.raises(st.InvalidInputError, match=r"terrain mesh x and y must span at most 3.4e\+38 .*got x"):
+        st.stepped(wide, interval=1.0)
+    for scale, offset in ((3e38, 0.0), (1e30, 1e300)):
+        tin = trimesh.Trimesh(base.vertices * [scale, scale, 1.0] + [offset, offset, 0.0], base.faces, process=False)
+        assert np.isfinite(st.stepped(tin, interval=1.0).vertices).all()
+
+
+def test_tin_face_index_beyond_the_vertices_is_refused():
+    """A trimesh whose faces name a vertex it does not have (process=False keeps them) raised a bare
+    IndexError from numpy fancy indexing; now an InvalidInputError names the face and the vertex count."""
+    base = st.heightfield_mesh(np.add.outer(np.arange(3.0), np.arange(3.0)))
+    for bad in (len(base.vertices), -1):
+        faces = base.faces.copy()
+        faces[2, 1] = bad
+        tin = trimesh.Trimesh(base.vertices, faces, process=False)
+        with pytest.raises(st.InvalidInputError, match=rf"face 2 is \[.*{bad}.*\]; the mesh has 9 vertices"):
+            st.stepped(tin, interval=1.0)
+
 
 @pytest.mark.parametrize("stray", ["unused", "nan-height-face"])
 def test_tin_local_origin_ignores_points_on_no_kept_face(stray):
@@ -682,6 +727,47 @@ def test_lens_shows_the_original_inside_and_steps_outside(dem):
     assert np.isclose(mesh.vertices[node, 2], small[20, 20]).any()
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"radius": "big"}, r"lens radius must be a number; got 'big'"),
+        ({"radius": None}, r"lens radius must be a number; got None"),
+        ({"radius": float("nan")}, r"lens radius must be finite; got nan"),
+        ({"edge_width": "x"}, r"lens edge_width must be a number; got 'x'"),
+        ({"inside": None}, r"lens inside must be a number; got None"),
+        ({"outside": "1"}, None),  # a number as text stays accepted, as float() takes it
+        ({"outside": [0.5]}, r"lens outside must be a number; got \[0.5\]"),
+        ({"resolution": float("nan")}, r"lens resolution must be an int >= 2; got nan"),
+        ({"resolution": "64"}, r"lens resolution must be an int >= 2; got '64'"),
+        ({"resolution": 2.7}, r"lens resolution must be an int >= 2; got 2.7"),
+        ({"resolution": True}, r"lens resolution must be an int >= 2; got True"),
+    ],
+)
+def test_circular_lens_bad_numbers_are_named(kwargs, match):
+    """circular_lens called float()/int() bare: radius='big', inside=None or resolution=nan raised numpy's or
+    Python's ValueError/TypeError, and resolution=2.7 was truncated silently; now each is an InvalidInputError
+    naming the argument."""
+    args = {"radius": 1.0, **kwargs}
+    radius = args.pop("radius")
+    if match is None:
+        assert st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, **args).mask.max() == 1.0
+        return
+    with pytest.raises(st.InvalidInputError, match=match):
+        st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, **args)
+
+def test_circular_lens_resolution_beyond_the_memory_budget_is_refused_up_front():
+    """resolution=1_000_000 asked numpy for 7 TiB of float64 distances and died in a bare MemoryError; the mask
+    is checked against the memory budget before any texel is allocated."""
+    with pytest.raises(st.OutputTooLargeError, match=r"a lens mask of resolution 1000000 would need .*lower the lens"):
+        st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=1_000_000)
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match="resolution 256"):
+            st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=256)
+        assert st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=64).mask.shape == (64, 64)
+    finally:
+        st.set_memory_budget(previous)
+
 def test_gamma_callable_and_array_agree_with_scalar(dem):
     small = dem[:25, :25]
     scalar = st.stepped(small, interval=70.0, gamma=0.4)
@@ -811,6 +897,8 @@ def test_empty_result_is_valid_not_an_error():
         ({"interval": 1.0, "colors": "not-a-colormap"}, "matplotlib colormap"),
         ({"interval": 1.0, "floor": 0.0}, "floor applies only with solid=True"),
         ({"interval": 1.0, "solid": True, "floor": 100.0}, "floor must lie below"),
+        ({"interval": 1.0, "solid": True, "floor": "low"}, r"floor must be a number .*; got 'low'"),
+        ({"interval": 1.0, "solid": True, "floor": [-1.0, -2.0]}, r"floor must be a number .*; got \[-1.0, -2.0\]"),
         ({"interval": 1e-9}, "levels; at most"),
         ({"levels": [[0.0, 2.0], [4.0, 6.0]]}, r"levels must be a 1-D sequence of isovalues; got shape \(2, 2\)"),
         ({"levels": [0.0, 1e39]}, r"levels must fit in float32 \(\|x\| < 3.4e\+38\); got \[0.0, 1e\+39\]"),
@@ -822,6 +910,60 @@ def test_bad_arguments_raise_clear_errors(kwargs, match):
     with pytest.raises(st.InvalidInputError, match=match):
         st.stepped(np.arange(16, dtype=np.float32).reshape(4, 4), **kwargs)
 
+
+def test_ragged_sequences_are_named_not_numpy_errors():
+    """Nested lists whose rows differ in length raised numpy's 'setting an array element with a sequence ...
+    inhomogeneous shape' from np.asarray / np.ndim for heights, gamma, colors and a Lens mask; each is an
+    InvalidInputError naming the argument now."""
+    ragged = [[0.0, 1.0, 2.0], [1.0, 2.0]]
+    heights = np.arange(16, dtype=np.float32).reshape(4, 4)
+    with pytest.raises(st.InvalidInputError, match="heights must be a real-valued .*rows of different lengths"):
+        st.heightfield_mesh(ragged)
+    with pytest.raises(st.InvalidInputError, match="heights must be a real-valued .*rows of different lengths"):
+        st.stepped(ragged, interval=1.0)
+    with pytest.raises(st.InvalidInputError, match=r"gamma must be a number in \[0, 1\], an array of them"):
+        st.stepped(heights, interval=1.0, gamma=[[0.5] * 4, [0.5]])
+    with pytest.raises(st.InvalidInputError, match=r"colors must be .*shape \(16, 3\|4\); got rows of different"):
+        st.stepped(heights, interval=1.0, colors=[[0, 0, 0]] * 15 + [[0, 0]])
+    with pytest.raises(st.InvalidInputError, match="lens mask must be a real .*rows of different lengths"):
+        st.Lens([[0.5, 0.5], [1.0]])
+
+@pytest.mark.parametrize("extent", [(0.0, 1.0, None, 2.0), "abcd", (0.0, 1.0, "y", 2.0)])
+def test_lens_extent_not_numbers_is_named(extent):
+    """Lens(mask, (0, 1, None, 2)) raised float()'s TypeError and Lens(mask, 'abcd') its ValueError; both are the
+    InvalidInputError a wrong-length or inverted extent already got."""
+    with pytest.raises(st.InvalidInputError, match=r"lens extent must be \(xmin, xmax, ymin, ymax\)"):
+        st.Lens(np.ones((2, 2)), extent)
+
+@pytest.mark.parametrize(
+    ("frames", "match"),
+    [
+        (None, "frames must be a .* or an iterable of .*; got NoneType"),
+        (5, "frames must be a .* or an iterable of .*; got int"),
+        ("frames.npy", "frames must be a .* or an iterable of .*; got str"),
+        (np.full((2, 3, 3), "a"), r"frames must be a real-valued \(T, H, W\) stack; got dtype <U1"),
+        (np.zeros((2, 3, 3), object), r"frames must be a real-valued \(T, H, W\) stack; got dtype object"),
+        (np.zeros((2, 3, 3), bool), r"frames must be a real-valued \(T, H, W\) stack; got dtype bool"),
+    ],
+)
+def test_stepped_series_bad_frames_are_named(frames, match):
+    """stepped_series(None) / (5) raised "'NoneType' object is not iterable", a string stack or an object stack
+    numpy's "ufunc 'isfinite' not supported"; now an InvalidInputError names frames (on the first frame asked
+    for, as the other checks of this generator)."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        next(st.stepped_series(frames, interval=1.0))
+
+@pytest.mark.parametrize(
+    "height_range",
+    [(0.0, float("nan")), (0.0, float("inf")), (-float("inf"), 0.0), (10.0, 0.0), "ab", (1.0, 2.0, 3.0), 5.0, None],
+)
+def test_isovalues_bad_height_range_is_named(height_range):
+    """st.isovalues((0, nan), interval=1) raised 'cannot convert float NaN to integer', (0, inf) an OverflowError,
+    (10, 0) numpy's 'zero-size array to reduction operation', 'ab' a TypeError on str - float; now each is an
+    InvalidInputError naming height_range."""
+    with pytest.raises(st.InvalidInputError, match=r"height_range must be .*\(min, max\)"):
+        st.isovalues(height_range, interval=1.0)
+    assert st.isovalues((3.0, 3.0), interval=1.0).tolist() == [3.0]
 
 @pytest.mark.parametrize(
     ("heights", "match"),

@@ -193,6 +193,20 @@ def test_moving_a_lens_changes_only_the_matrix(device):
     assert after[1, 3] == pytest.approx(0.8) and after[1, 1] == pytest.approx(0.4)
 
 
+@pytest.mark.parametrize("make", [highlight_lens, thematic_lens])
+def test_a_lens_resolution_beyond_the_memory_budget_is_refused_up_front(make):
+    """resolution=1_000_000 asked numpy for terabytes of float64 texels and died in a bare MemoryError; the lens
+    image is checked against the memory budget before any texel is allocated."""
+    with pytest.raises(st.OutputTooLargeError, match=r"a lens image of resolution 1000000 would need .*lower the lens"):
+        make((0.0, 0.0), 1.0, resolution=1_000_000)
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match="resolution 256"):
+            make((0.0, 0.0), 1.0, resolution=256)
+        assert make((0.0, 0.0), 1.0, resolution=64).shape == (64, 64)
+    finally:
+        st.set_memory_budget(previous)
+
 def test_thematic_lens_blends_two_layers(device):
     a, b = layer(np.zeros((3, 4, 3), np.float32)), layer(np.ones((3, 4, 3), np.float32))
     lens = thematic_lens((0.5, 2.5), 0.6, edge=0.0, resolution=64)
