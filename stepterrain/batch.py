@@ -720,6 +720,9 @@ def batch(
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
     if metadata is not None and not isinstance(metadata, Mapping):
         raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    from .stepped import check_flag
+
+    check_flag(solid, "solid")
     if floor is not None and not solid:
         raise InvalidInputError("floor applies only with solid=True")
     if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.integer, np.floating))

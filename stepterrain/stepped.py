@@ -102,6 +102,14 @@ def _lens_number(value: Any, name: str) -> float:
 GammaLike = float | ArrayLike | Callable[[NDArray[np.float64]], ArrayLike] | Lens
 
 
+def check_flag(value: Any, name: str) -> bool:
+    """``value`` when it is a bool (Python's or numpy's), else an :class:`InvalidInputError` naming ``name``: a
+    string such as "no" is true to Python, and would switch the option on."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InvalidInputError(f"{name} must be True or False; got {value!r}")
+    return bool(value)
+
+
 def circular_lens(
     terrain: Terrain | trimesh.Trimesh | ArrayLike,
     center: tuple[float, float],
@@ -726,6 +734,7 @@ def stepped(
     >>> sorted(set(mesh.vertices[:, 2].tolist()))
     [0.0, 1.0, 2.0, 3.0]
     """
+    check_flag(solid, "solid")
     t = as_terrain(terrain, spacing=spacing, origin=origin)
     dev = resolve_device(device)
     if memory_budget is not None:

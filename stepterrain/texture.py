@@ -117,6 +117,10 @@ def _light(azimuth: float, altitude: float) -> tuple[float, float]:
     return azimuth, altitude
 
 
+#: Most azimuths ambient_occlusion sweeps (one per degree): each costs a pass over the image, and 10**9 ran
+#: for days; more than one a degree changes nothing visible.
+MAX_OCCLUSION_DIRECTIONS = 360
+
 #: The steepest slope (rise over run, z_factor included) the float32 kernels take: its square stays finite.
 _MAX_SLOPE = 1e18
 
@@ -499,8 +503,9 @@ def ambient_occlusion(
     True
     """
     t = _grid_terrain(terrain, spacing)
-    if isinstance(directions, bool) or not isinstance(directions, (int, np.integer)) or directions < 1:
-        raise InvalidInputError(f"directions must be a positive int; got {directions!r}")
+    if (isinstance(directions, bool) or not isinstance(directions, (int, np.integer))
+            or not 1 <= directions <= MAX_OCCLUSION_DIRECTIONS):  # one sweep of launches per direction
+        raise InvalidInputError(f"directions must be an int in [1, {MAX_OCCLUSION_DIRECTIONS}]; got {directions!r}")
     z_factor = _finite(z_factor, "z_factor", positive=True)
     dev = resolve_device(device)
     grid = _height_grid(t, z_factor, dev)

@@ -1064,6 +1064,17 @@ def test_cuda_without_a_gpu_is_refused_without_native_noise(capfd):
     assert "CUDA error" not in out + err, out + err
 
 
+@pytest.mark.parametrize("solid", ["no", "False", 1, None, [True]])
+def test_solid_must_be_a_bool(solid, tmp_path):
+    """solid="no" built a solid (a non-empty string is true); batch likewise."""
+    with pytest.raises(st.InvalidInputError, match=r"solid must be True or False; got"):
+        st.stepped(np.zeros((3, 3)), interval=1.0, solid=solid)
+    with pytest.raises(st.InvalidInputError, match=r"solid must be True or False; got"):
+        st.batch(np.zeros((3, 3)), tmp_path / "out", tile_size=2, interval=1.0, solid=solid, scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    assert st.stepped(np.zeros((3, 3)), interval=1.0, solid=np.bool_(True)).is_watertight
+
+
 def test_as_terrain_accepts_every_input_kind(dem):
     assert as_terrain(dem).kind == "grid"
     assert as_terrain(st.heightfield_mesh(dem[:5, :5])).kind == "tin"

@@ -179,6 +179,13 @@ def test_occlusion_open_ground_and_pit(device):
     assert ao[4, 4] < 0.4 and ao[0, 0] == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("directions", [0, 361, 10**9, 2.0, True])
+def test_occlusion_directions_are_bounded(directions):
+    """10**9 directions ran one sweep of launches each: effectively a hang; now refused by name."""
+    with pytest.raises(InvalidInputError, match=r"directions must be an int in \[1, 360\]"):
+        ambient_occlusion(np.zeros((4, 4)), directions=directions, device="cpu")
+
+
 # ------------------------------------------------------------------------------------------ normals
 def test_normal_map_relit_equals_hillshade(device):
     heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=32, step=4)
