@@ -853,8 +853,6 @@ def _transfer_struct(closeups: Sequence[CloseUp], device: wp.Device) -> closeup_
     return tf
 
 
-
-
 def _pivot_z(terrain: Terrain) -> float:
     return terrain.height_range[0]
 

@@ -31,7 +31,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_terrain, unmasked
+from .terrain import FLOAT32_MAX, Terrain, as_terrain, finite_number, unmasked
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -88,17 +88,6 @@ class Lens:
 LENS_TEXEL_BYTES = 48
 
 
-def _lens_number(value: Any, name: str) -> float:
-    """``value`` as a finite float, or an :class:`InvalidInputError` naming the lens argument ``name``."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"lens {name} must be a number; got {value!r}") from None
-    if not math.isfinite(number):
-        raise InvalidInputError(f"lens {name} must be finite; got {value!r}")
-    return number
-
-
 GammaLike = float | ArrayLike | Callable[[NDArray[np.float64]], ArrayLike] | Lens
 
 
@@ -139,14 +128,14 @@ def circular_lens(
         raise InvalidInputError(f"lens center must be (x, y); got {center!r}") from exc
     if not (np.isfinite(cx) and np.isfinite(cy)):
         raise InvalidInputError(f"lens center must be finite; got {center!r}")
-    radius = _lens_number(radius, "radius")
+    radius = finite_number(radius, "lens radius")
     if radius <= 0:
         raise InvalidInputError(f"lens radius must be a positive finite number; got {radius}")
-    width = radius / 4.0 if edge_width is None else _lens_number(edge_width, "edge_width")
+    width = radius / 4.0 if edge_width is None else finite_number(edge_width, "lens edge_width")
     if width < 0:
         raise InvalidInputError(f"lens edge_width must be >= 0; got {edge_width}")
     for name, value in (("inside", inside), ("outside", outside)):
-        if not 0.0 <= _lens_number(value, name) <= 1.0:
+        if not 0.0 <= finite_number(value, f"lens {name}") <= 1.0:
             raise InvalidInputError(f"lens {name} must lie in [0, 1]; got {value}")
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 2:
         raise InvalidInputError(f"lens resolution must be an int >= 2; got {resolution!r}")

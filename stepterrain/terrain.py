@@ -12,6 +12,7 @@ to a local origin before they reach a kernel (float32 on the device), and shifte
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -68,6 +69,26 @@ def unmasked(values: Any) -> Any:
     if np.issubdtype(values.dtype, np.integer) and values.dtype != bool:
         return np.ma.filled(values.astype(np.float64), np.nan)
     return np.ma.getdata(values)  # not real numbers: refused by the caller's dtype check
+
+
+def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | None = None,
+                  hi: float | None = None, unit: str = "") -> float:
+    """``value`` as a finite float (within [lo, hi], positive if asked), else an :class:`InvalidInputError`
+    naming ``name``; ``unit="rad"`` shows an angle's bounds in degrees as well."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a number; got {value!r}") from None
+    if not math.isfinite(number):
+        raise InvalidInputError(f"{name} must be finite; got {value!r}")
+    if positive and number <= 0:
+        raise InvalidInputError(f"{name} must be positive; got {number}")
+    if (lo is not None and number < lo) or (hi is not None and number > hi):
+        shown = f"{math.degrees(number):g} degrees" if unit == "rad" else f"{number:g}"
+        span = (f"[{math.degrees(lo):g}, {math.degrees(hi):g}] degrees ([{lo:g}, {hi:g}] radians)"
+                if unit == "rad" else f"[{lo:g}, {hi:g}]")
+        raise InvalidInputError(f"{name} must lie in {span}; got {shown}")
+    return number
 
 
 def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:

@@ -33,6 +33,7 @@ from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
 from .terrain import Terrain, as_terrain
+from .terrain import finite_number as _finite
 
 __all__ = [
     "HILLSHADE_METHODS",
@@ -76,24 +77,6 @@ Extent = tuple[float, float, float, float]
 
 
 # ---------------------------------------------------------------------------------------------- validation
-def _finite(value: Any, name: str, *, positive: bool = False, lo: float | None = None,
-            hi: float | None = None, unit: str = "") -> float:
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a number; got {value!r}") from None
-    if not math.isfinite(number):
-        raise InvalidInputError(f"{name} must be finite; got {value!r}")
-    if positive and number <= 0:
-        raise InvalidInputError(f"{name} must be positive; got {number}")
-    if (lo is not None and number < lo) or (hi is not None and number > hi):
-        shown = f"{math.degrees(number):g} degrees" if unit == "rad" else f"{number:g}"
-        span = (f"[{math.degrees(lo):g}, {math.degrees(hi):g}] degrees ([{lo:g}, {hi:g}] radians)"
-                if unit == "rad" else f"[{lo:g}, {hi:g}]")
-        raise InvalidInputError(f"{name} must lie in {span}; got {shown}")
-    return number
-
-
 def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
     t = as_terrain(terrain, spacing=spacing, origin=origin)
     if t.kind != "grid":
