@@ -195,6 +195,8 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
 # ---------------------------------------------------------------------------------------------- readers
 def _load_npy(file: Path) -> Terrain:
     _check_magic(file, (_NPY_MAGIC,), "a NumPy .npy array file")
+    with open(file, "rb") as handle:  # readable: _check_magic has read it
+        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array")
     try:
         array = np.load(file, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
@@ -225,6 +227,8 @@ def _load_npz(file: Path) -> Terrain:
         with archive:
             keys = list(archive.files)
             arrays = {key: _npz_member(archive, key, file) for key in keys}
+    except DataFileError:
+        raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
@@ -367,7 +371,33 @@ def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> None:
         raise DataFileError(f"cannot read {str(file)!r}: expected {expected}; got {got}")
 
 
+def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
+    """Refuse an .npy stream (at its start, ``size`` bytes in all) whose header declares more data than follows
+    it: NumPy allocates the declared shape before reading, so a 100-byte file declaring 10^8 x 10^8 floats
+    raised a MemoryError for 71 PiB. A header NumPy cannot parse is left to ``np.load``'s own error."""
+    try:
+        version = np.lib.format.read_magic(handle)
+        read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+        if read is None:
+            return
+        shape, _, dtype = read(handle)
+        start = handle.tell()
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile):
+        return
+    if dtype.hasobject:
+        return  # pickled: refused by np.load (allow_pickle=False)
+    declared = math.prod(int(n) for n in shape) * dtype.itemsize
+    if declared > size - start:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: {what} declares shape {tuple(shape)} of {dtype} ({declared:,} bytes) but "
+            f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
+        )
+
+
 def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
+    name = f"{key}.npy" if f"{key}.npy" in archive.zip.namelist() else key
+    with archive.zip.open(name) as member:
+        _check_declared_size(member, archive.zip.getinfo(name).file_size, file, f"member {key!r}")
     try:
         return np.asarray(archive[key])
     except ValueError as exc:  # object arrays need pickle, which stays off

@@ -385,6 +385,29 @@ def test_pickled_npy(tmp_path):
         load_dem(tmp_path / "obj.npy")
 
 
+def _npy_declaring(shape: tuple[int, ...]) -> bytes:
+    """A 100-byte .npy file whose header declares ``shape`` float64 (far more data than it holds)."""
+    header = f"{{'descr': '<f8', 'fortran_order': False, 'shape': {shape}, }}".encode()
+    header += b" " * (-(10 + len(header) + 1) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header + bytes(8)
+
+
+def test_huge_declared_shape_is_a_data_file_error_not_an_allocation(tmp_path):
+    # the header declared 10^8 x 10^8 floats: np.load allocated them first (MemoryError for 71 PiB)
+    (tmp_path / "huge.npy").write_bytes(_npy_declaring((10**8, 10**8)))
+    with pytest.raises(DataFileError, match=r"huge\.npy.*declares shape \(100000000, 100000000\).*holds 8 bytes"):
+        load_dem(tmp_path / "huge.npy")
+    import zipfile
+
+    with zipfile.ZipFile(tmp_path / "huge.npz", "w") as archive:
+        archive.writestr("elevation.npy", _npy_declaring((10**8, 10**8)))
+    with pytest.raises(DataFileError, match=r"huge\.npz.*member 'elevation' declares shape"):
+        load_dem(tmp_path / "huge.npz")
+    (tmp_path / "short.npy").write_bytes(_npy_declaring((3, 4)))  # truncated: 8 of 96 bytes
+    with pytest.raises(DataFileError, match=r"short\.npy.*declares shape \(3, 4\) of float64 \(96 bytes\)"):
+        load_dem(tmp_path / "short.npy")
+
+
 def test_npz_without_elevation(tmp_path):
     np.savez(tmp_path / "many.npz", a=np.zeros((2, 2)), b=np.ones((3, 3)), c=np.arange(3))
     with pytest.raises(DataFileError, match=r"exactly one 2-D array; got a \(2, 2\), b \(3, 3\), c \(3,\)"):
