@@ -317,6 +317,11 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     from .texture import _check_extent
 
     xmin, xmax, ymin, ymax = _check_extent(extent)
+    height, width, bands = array.shape
+    pixel = ((xmax - xmin) / width, (ymax - ymin) / height)
+    if not all(math.isfinite(v) and v > 0 for v in pixel):  # the geotransform holds the pixel size, not the extent
+        raise InvalidInputError(f"extent {extent!r} gives a pixel size of {pixel[0]:g} x {pixel[1]:g} over "
+                                f"{width} x {height} pixels; it must be finite and positive (float64)")
     try:
         import rasterio
         from rasterio.crs import CRS
@@ -328,10 +333,9 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
             crs = CRS.from_user_input(crs)
         except (CRSError, TypeError, ValueError) as exc:
             raise InvalidInputError(f"crs must be a coordinate reference system rasterio reads; got {crs!r}") from exc
-    height, width, bands = array.shape
     profile = {
         "driver": "GTiff", "width": width, "height": height, "count": bands, "dtype": "uint8", "crs": crs,
-        "transform": rasterio.Affine((xmax - xmin) / width, 0.0, xmin, 0.0, -(ymax - ymin) / height, ymax),
+        "transform": rasterio.Affine(pixel[0], 0.0, xmin, 0.0, -pixel[1], ymax),
         "photometric": "RGB",
         "compress": "deflate", **({"alpha": "YES"} if bands == 4 else {}),
     }  # fmt: skip

@@ -361,6 +361,9 @@ def test_geotiff_refusals(tmp_path, monkeypatch):
     if importlib.util.find_spec("rasterio") is not None:
         with pytest.raises(InvalidInputError, match="crs must be a coordinate reference system"):
             save_image(image, tmp_path / "i.tif", extent=(0, 3, 0, 2), crs="not a crs")
+        # finite edges whose width overflows: the geotransform held an infinite pixel size and a NaN origin
+        with pytest.raises(InvalidInputError, match=r"pixel size of inf x 1 over 3 x 2 pixels"):
+            save_image(image, tmp_path / "i.tif", extent=(-1e308, 1e308, 0, 2))
     monkeypatch.setitem(sys.modules, "rasterio", None)  # as if not installed
     with pytest.raises(MissingDependencyError, match=r"pip install 'stepterrain\[geo\]'"):
         save_image(image, tmp_path / "i.tif", extent=(0, 3, 0, 2))
