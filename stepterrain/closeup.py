@@ -345,7 +345,10 @@ class ROI:
 
     def factor(self, xy: ArrayLike) -> NDArray[np.float64]:
         """The mask factor m at world points ``xy`` (N, 2): bilinear, 0 outside the box (NumPy, float64)."""
-        p = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+        p = _numbers(xy)  # [nan] when not numbers
+        if p.size % 2 or np.isnan(p).any():  # a NaN point indexed the mask at -2^63 (an IndexError)
+            raise InvalidInputError(f"ROI factor points must be (N, 2) numbers (x, y), not NaN; got {xy!r}")
+        p = p.reshape(-1, 2)
         xmin, xmax, ymin, ymax = self.box
         rows, cols = self.mask.shape
         u = (p[:, 0] - xmin) / (xmax - xmin)
@@ -361,7 +364,12 @@ class ROI:
         return np.where(inside, bottom + ty * (top - bottom), 0.0)
 
     def outline(self, level: float = 0.5) -> list[NDArray[np.float64]]:
-        """The ROI outline: polylines (P, 2) in world xy where m crosses ``level`` (closed ones repeat p0)."""
+        """The ROI outline: polylines (P, 2) in world xy where m crosses ``level`` in (0, 1) (closed ones repeat
+        p0)."""
+        value = _numbers(level)
+        if value.size != 1 or not 0 < value[0] < 1:  # as AnchorStyle.outline_level: m lies in [0, 1]
+            raise InvalidInputError(f"ROI outline level must be a number in (0, 1); got {level!r}")
+        level = float(value[0])
         cache = self.__dict__.setdefault("_outlines", {})
         if level not in cache:
             cache[level] = self._outline(level)

@@ -94,6 +94,21 @@ def test_shape_mask_is_one_inside_zero_outside_monotone_across_edge(name):
     # far outside the box and well inside
     assert roi.factor([[3 * w, 0], [0, 3 * h]]).tolist() == [0.0, 0.0]
     assert roi.factor([[0.1, 0.1]])[0] == pytest.approx(1.0)
+    assert roi.factor([[np.inf, 0.0]]).tolist() == [0.0]  # far outside
+
+
+@pytest.mark.parametrize("xy", [[np.nan, 0.0], [1.0, 2.0, 3.0], "ab", [["a", "b"]]])
+def test_roi_factor_refuses_points_that_are_not_xy_numbers(xy):
+    # a NaN point indexed the mask at -2^63 (IndexError); three numbers or text raised numpy's ValueError
+    with pytest.raises(InvalidInputError, match=r"ROI factor points must be \(N, 2\) numbers"):
+        ROI.circle((0.0, 0.0), 10.0).factor(xy)
+
+
+@pytest.mark.parametrize("level", ["a", [0.5, 0.6], np.nan, 0.0, 1.0, 2.0])
+def test_roi_outline_level_must_lie_in_0_1(level):
+    # text reached contourpy (TypeError), a list the cache (unhashable), NaN or 2 gave no outline silently
+    with pytest.raises(InvalidInputError, match=r"ROI outline level must be a number in \(0, 1\)"):
+        ROI.circle((0.0, 0.0), 10.0).outline(level)
 
 
 def test_hard_edge_and_painted_mask_orientation():
