@@ -629,6 +629,17 @@ def _check_extent(extent: Any, name: str = "extent") -> Extent:
     return values  # type: ignore[return-value]
 
 
+def _invertible(matrix: NDArray[np.float64]) -> bool:
+    """Whether a finite 3 x 3 matrix has a finite inverse."""
+    if not np.isfinite(matrix).all():
+        return False
+    try:
+        with np.errstate(all="ignore"):
+            return bool(np.isfinite(np.linalg.inv(matrix)).all())
+    except np.linalg.LinAlgError:
+        return False
+
+
 @dataclass(frozen=True, eq=False)
 class TextureLayer:
     """One texture layer (paper 004 §3.2.3): an image over a georeferenced extent, and its texture matrix.
@@ -671,12 +682,21 @@ class TextureLayer:
             raise InvalidInputError(f"layer image must not be empty; got shape {image.shape}")
         object.__setattr__(self, "extent", _check_extent(self.extent))
         if self.matrix is None:
-            object.__setattr__(self, "matrix", _affine(self.extent, self.shape))
+            matrix = _affine(self.extent, self.shape)
+            if not _invertible(matrix):  # pixels too narrow (1 / width overflows) or too wide (it rounds to 0)
+                raise InvalidInputError(f"extent {self.extent} over {self.shape[1]} x {self.shape[0]} pixels gives "
+                                        "no finite, invertible texture matrix (world -> texel) in float64")
         else:
-            matrix = np.asarray(self.matrix, dtype=np.float64)
+            try:
+                matrix = np.asarray(self.matrix, dtype=np.float64)
+            except (TypeError, ValueError):
+                matrix = np.full(0, np.nan)
             if matrix.shape != (3, 3) or not np.isfinite(matrix).all():
                 raise InvalidInputError(f"matrix must be a finite 3 x 3 texture matrix; got {self.matrix!r}")
-            object.__setattr__(self, "matrix", matrix)
+            if not _invertible(matrix):  # blend, weighted_add, ... invert it (texel -> world): a LinAlgError
+                raise InvalidInputError(f"matrix must be an invertible 3 x 3 texture matrix (world -> texel); got "
+                                        f"{matrix.tolist()}")
+        object.__setattr__(self, "matrix", matrix)
         if self.border not in ("transparent", "edge"):
             raise InvalidInputError(f"border must be 'transparent' or 'edge'; got {self.border!r}")
 

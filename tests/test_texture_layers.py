@@ -207,6 +207,21 @@ def test_a_lens_resolution_beyond_the_memory_budget_is_refused_up_front(make):
     finally:
         st.set_memory_budget(previous)
 
+def test_a_texture_matrix_without_a_finite_inverse_is_refused_when_the_layer_is_made():
+    """matrix=zeros made a layer that blend() met with numpy's LinAlgError (it inverts the matrix to find the
+    layer's coverage); an extent of 1e-320 over 4 pixels gave an infinite matrix, and (-1e308, 1e308) one whose
+    scale rounds to 0."""
+    rgb = np.zeros((3, 4, 3), np.float32)
+    for matrix in (np.zeros((3, 3)), [[1.0, 1.0, 0.0], [1.0, 1.0, 0.0], [0.0, 0.0, 1.0]]):
+        with pytest.raises(InvalidInputError, match=r"matrix must be an invertible 3 x 3 texture matrix"):
+            TextureLayer("thematic", rgb, EXTENT, matrix=matrix)
+    for extent in ((0.0, 1e-320, 0.0, 3.0), (-1e308, 1e308, 0.0, 3.0)):
+        with pytest.raises(InvalidInputError, match=r"over 4 x 3 pixels gives no finite, invertible texture matrix"):
+            TextureLayer("thematic", rgb, extent)
+    far = TextureLayer("thematic", rgb, EXTENT, matrix=np.diag([1e-300, 1e-300, 1.0]))  # tiny, but invertible
+    assert far.matrix[0, 0] == 1e-300
+
+
 def test_thematic_lens_blends_two_layers(device):
     a, b = layer(np.zeros((3, 4, 3), np.float32)), layer(np.ones((3, 4, 3), np.float32))
     lens = thematic_lens((0.5, 2.5), 0.6, edge=0.0, resolution=64)
