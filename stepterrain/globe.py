@@ -904,7 +904,8 @@ def adaptive_mesh(
 
 # ------------------------------------------------------------------------------------------ colours
 def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
-    """(V, 4) uint8 RGBA per vertex: sea floor in blues by depth, land by matplotlib's 'terrain' (land part).
+    """(V, 4) uint8 RGBA per vertex: sea floor in blues by depth, land by matplotlib's 'terrain' (land part);
+    NaN (and a masked array's masked entries) transparent (0, 0, 0, 0).
 
     Examples
     --------
@@ -913,13 +914,29 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
     """
     import matplotlib
 
-    z = np.asarray(elevation, dtype=np.float64)
+    z = _real_numbers(elevation, "elevation", "(V,) array of heights in metres")
+    if z.ndim != 1:
+        raise InvalidInputError(f"elevation must be a (V,) array of heights in metres (one per vertex); got shape "
+                                f"{z.shape}")
     rgba = np.empty((len(z), 4), dtype=np.float64)
     sea = z < 0
     rgba[sea] = matplotlib.colormaps["Blues"](np.clip(0.85 - 0.5 * (-z[sea] / 6000.0), 0.3, 0.85) ** 0.9)
     land = LAND_START["terrain"]  # its land part (the first quarter is sea blue)
     rgba[~sea] = matplotlib.colormaps["terrain"](land + (1.0 - land) * np.clip(z[~sea] / 5000.0, 0.0, 1.0))
     return np.round(rgba * 255).astype(np.uint8)
+
+
+def _real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.float64]:
+    """``values`` as float64 when they are real numbers (a masked array's masked entries NaN), else an
+    InvalidInputError naming ``name``: text and ragged rows raised numpy's ValueError, complex values lost their
+    imaginary part."""
+    try:
+        array = np.asarray(unmasked(values))
+    except ValueError:  # ragged rows
+        raise InvalidInputError(f"{name} must be a {expected}; got rows of different lengths") from None
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+        raise InvalidInputError(f"{name} must be a {expected} (real numbers); got dtype {array.dtype}")
+    return array.astype(np.float64)
 
 
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
@@ -1018,7 +1035,7 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
         The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3), not finite or at the centre.
     """
     pixels = _texture_pixels(image)
-    v = np.asarray(vertices, dtype=np.float64)
+    v = _real_numbers(vertices, "vertices", "(V, 3) array of planet-centred positions")
     if v.ndim != 2 or v.shape[1] != 3:
         raise InvalidInputError(f"vertices must be a (V, 3) array of planet-centred positions; got shape {v.shape}")
     norm = np.linalg.norm(v, axis=1, keepdims=True)

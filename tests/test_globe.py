@@ -507,6 +507,28 @@ def test_colours_by_elevation_and_draped_image(small_globe):
         drape_colors([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], image)
     with pytest.raises(InvalidInputError, match=r"latitude must lie in \[-90, 90\] degrees; got 100.0"):
         look_from(100.0, 0.0, 1.0e6)
+
+
+@pytest.mark.parametrize("elevation, expected", [
+    (5.0, r"got shape \(\)"), (np.zeros((3, 3)), r"got shape \(3, 3\)"), (["a"], "got dtype <U1"),
+    (None, "got dtype object"), ([[1.0], [1.0, 2.0]], "got rows of different lengths"),
+    (np.ones(3, complex), "got dtype complex128")])
+def test_elevation_colors_refuses_what_is_not_one_height_per_vertex(elevation, expected):
+    # a scalar or None raised len()'s TypeError, a 2-D array an IndexError, text numpy's ValueError, and complex
+    # heights lost their imaginary part
+    from stepterrain.globe import elevation_colors
+
+    with pytest.raises(InvalidInputError, match=rf"elevation must be a \(V,\) array of heights in metres.*{expected}"):
+        elevation_colors(elevation)
+    assert elevation_colors(np.ma.masked_array([1.0, 2.0], [True, False]))[0].tolist() == [0, 0, 0, 0]
+
+
+@pytest.mark.parametrize("vertices", [[[1.0, 2.0, 3.0], [1.0, 2.0]], [["a", "b", "c"]], np.ones((2, 3), complex)])
+def test_drape_colors_refuses_vertices_that_are_not_real_numbers(vertices):
+    from stepterrain.globe import drape_colors
+
+    with pytest.raises(InvalidInputError, match=r"vertices must be a \(V, 3\) array of planet-centred positions"):
+        drape_colors(vertices, np.zeros((4, 8, 3), np.uint8))
     with pytest.raises(InvalidInputError, match=r"longitude must be finite; got inf"):
         look_from(0.0, float("inf"), 1.0e6)
 
