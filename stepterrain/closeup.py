@@ -35,7 +35,7 @@ from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
-from .stepped import LAND_START
+from .stepped import LAND_START, check_flag
 from .terrain import Terrain, _pair, as_terrain, grid_faces
 
 __all__ = [
@@ -270,7 +270,7 @@ class ROI:
             raise InvalidInputError(f"painted mask must be grayscale (rows, cols); got an RGB(A) image {arr.shape}")
         if np.issubdtype(arr.dtype, np.integer) and arr.dtype.itemsize == 1:
             arr = arr.astype(np.float32) / 255.0
-        if arr.ndim == 2 and top_row_north:
+        if arr.ndim == 2 and check_flag(top_row_north, "top_row_north"):
             arr = arr[::-1]
         return cls(center, size, arr, "painted")
 
@@ -491,7 +491,7 @@ class AnchorStyle:
             raise InvalidInputError(f"anchor rungs must be an int in [1, 256]; got {self.rungs!r}")
         if self.inactive not in ("hidden", "gray", "faint"):
             raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
-        object.__setattr__(self, "band", bool(self.band))
+        object.__setattr__(self, "band", check_flag(self.band, "anchor band"))
         level = _numbers(self.outline_level)
         if level.size != 1 or not 0 < level[0] < 1:
             raise InvalidInputError(f"anchor outline_level must lie in (0, 1); got {self.outline_level!r}")
@@ -598,6 +598,7 @@ class CloseUp:
         object.__setattr__(self, "offset", tuple(float(v) for v in p))
         if self.color is not None:
             object.__setattr__(self, "color", _color(self.color, "close-up color"))
+        object.__setattr__(self, "active", check_flag(self.active, "close-up active"))
         if not isinstance(self.anchor, AnchorStyle):
             raise InvalidInputError(f"close-up anchor must be an AnchorStyle; got {type(self.anchor).__name__}")
         if self.spin is not None:

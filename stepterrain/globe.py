@@ -39,7 +39,7 @@ from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
-from .stepped import LAND_START
+from .stepped import LAND_START, check_flag
 from .terrain import check_spacing, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
@@ -417,6 +417,7 @@ class Globe:
         True
         """
         error = _error_value(error)
+        cull, per_face = check_flag(cull, "cull"), check_flag(per_face, "per_face")
         names, users = _metric_options(metrics, bounds, planar=False)
         if camera is not None:
             if not isinstance(camera, Camera):
@@ -845,6 +846,7 @@ def adaptive_mesh(
     2
     """
     error = _error_value(error)
+    cull = check_flag(cull, "cull")
     names, users = _metric_options(metrics, "sphere", planar=True)
     if hasattr(heights, "heights") and hasattr(heights, "spacing"):  # a Terrain
         raise InvalidInputError("heights must be an (H, W) array; got a Terrain: pass terrain.heights and its "

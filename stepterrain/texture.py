@@ -31,7 +31,7 @@ from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
-from .stepped import LENS_TEXEL_BYTES
+from .stepped import LENS_TEXEL_BYTES, check_flag
 from .terrain import Terrain, as_terrain
 from .terrain import finite_number as _finite
 
@@ -241,6 +241,7 @@ def hillshade(
     True
     """
     t = _grid_terrain(terrain, spacing)
+    shadows = check_flag(shadows, "shadows")
     if method in MAPLIBRE_METHODS:
         if shadows:
             raise InvalidInputError(f"shadows=True applies to the grey methods {', '.join(HILLSHADE_METHODS)}; "

@@ -104,6 +104,19 @@ def test_roi_factor_refuses_points_that_are_not_xy_numbers(xy):
         ROI.circle((0.0, 0.0), 10.0).factor(xy)
 
 
+@pytest.mark.parametrize("flag", ["no", 1, None])
+def test_closeup_flags_must_be_bools(flag):
+    # active="no" stayed "no" and drew an active close-up, band="no" became True, top_row_north="no" flipped
+    roi = ROI.circle((0.0, 0.0), 10.0)
+    with pytest.raises(InvalidInputError, match=rf"close-up active must be True or False; got {flag!r}"):
+        CloseUp(roi, active=flag)
+    with pytest.raises(InvalidInputError, match=rf"anchor band must be True or False; got {flag!r}"):
+        AnchorStyle(band=flag)
+    with pytest.raises(InvalidInputError, match=rf"top_row_north must be True or False; got {flag!r}"):
+        ROI.painted(np.ones((3, 3)), (0.0, 0.0), (1.0, 1.0), top_row_north=flag)
+    assert CloseUp(roi, active=np.bool_(False)).active is False
+
+
 @pytest.mark.parametrize("level", ["a", [0.5, 0.6], np.nan, 0.0, 1.0, 2.0])
 def test_roi_outline_level_must_lie_in_0_1(level):
     # text reached contourpy (TypeError), a list the cache (unhashable), NaN or 2 gave no outline silently

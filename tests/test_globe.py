@@ -12,7 +12,7 @@ from hypothesis import Phase, given, settings
 from hypothesis import strategies as hst
 
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import EARTH_RADIUS, Camera, Globe, load_global_relief, look_from
+from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, load_global_relief, look_from
 
 from . import reference_globe as ref
 from .conftest import SHARED_DATA, assert_valid_mesh
@@ -740,3 +740,14 @@ def test_complex_elevations_are_refused():
         from stepterrain import adaptive_mesh
 
         adaptive_mesh(np.zeros((9, 9), complex), error=1.0)
+
+
+@pytest.mark.parametrize("flag", ["no", 1, None])
+def test_mesh_flags_must_be_bools(small_globe, flag):
+    # per_face="no" returned six meshes (a non-empty string is true), cull="no" culled
+    for name in ("per_face", "cull"):
+        with pytest.raises(InvalidInputError, match=rf"{name} must be True or False; got {flag!r}"):
+            small_globe.mesh(**{name: flag})
+    with pytest.raises(InvalidInputError, match=rf"cull must be True or False; got {flag!r}"):
+        adaptive_mesh(np.zeros((5, 5)), error=1.0, cull=flag)
+    assert isinstance(small_globe.mesh(error=1e9, per_face=np.bool_(False)), trimesh.Trimesh)

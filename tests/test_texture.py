@@ -251,3 +251,12 @@ def test_an_azimuth_beyond_two_turns_warns_of_degrees():
         hillshade(heights, azimuth=RAD(315), device="cpu")
         hillshade(heights, azimuth=-2 * math.pi, device="cpu")
         hillshade(heights, azimuth=RAD(315 + 360), device="cpu")  # a computed angle past one turn
+
+
+@pytest.mark.parametrize("flag", ["no", 1, None])
+def test_shadows_must_be_a_bool(flag):
+    # shadows="no" cast shadows (a non-empty string is true)
+    with pytest.raises(InvalidInputError, match=rf"shadows must be True or False; got {flag!r}"):
+        hillshade(np.zeros((4, 4)), shadows=flag)
+    with pytest.raises(InvalidInputError, match=rf"shadows must be True or False; got {flag!r}"):
+        st.texture.topographic_layer(np.zeros((4, 4)), shadows=flag)
