@@ -121,7 +121,11 @@ def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> 
 def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     """A real (H, W) float32 grid with H, W >= 2 and no NaN or inf (the hierarchy has no nodata), or an
     InvalidInputError naming ``name`` (a masked array's masked entries count as NaN)."""
-    z = np.asarray(unmasked(values))
+    try:
+        z = np.asarray(unmasked(values))
+    except ValueError:  # ragged rows
+        raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got rows of different "
+                                "lengths") from None
     if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
             or np.issubdtype(z.dtype, np.complexfloating)):
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
@@ -996,6 +1000,10 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
 
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64)
+    bad = np.flatnonzero(~np.isfinite(vertices).all(axis=1))
+    if bad.size:  # its texture coordinates would be NaN (drape_colors refuses such vertices too)
+        raise InvalidInputError(f"mesh vertices must be finite to drape a texture; got vertex {bad[0]} at "
+                                f"{vertices[bad[0]].tolist()}")
     horizontal = np.hypot(vertices[:, 0], vertices[:, 1])
     u = (np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0])) + 180.0) / 360.0
     v = (np.degrees(np.arctan2(vertices[:, 2], horizontal)) + 90.0) / 180.0

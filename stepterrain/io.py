@@ -35,6 +35,7 @@ _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
+_EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
 _GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
 _US_FOOT_M = 1200 / 3937
 #: Height units a file may name (lower case, as GDAL band units and PROJ write them) -> metres per unit.
@@ -212,7 +213,7 @@ def _load_npy(file: Path) -> Terrain:
 
 
 def _load_npz(file: Path) -> Terrain:
-    _check_magic(file, (_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive")
+    _check_magic(file, (_ZIP_MAGIC, _EMPTY_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive")
     try:
         archive = np.load(file, allow_pickle=False)
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:

@@ -669,7 +669,11 @@ class TextureLayer:
             raise InvalidInputError(f"layer kind must be one of {', '.join(LAYER_KINDS)}; got {self.kind!r}")
         image = self.image
         if not isinstance(image, np.ndarray):
-            image = np.asarray(image)
+            try:
+                image = np.asarray(image)
+            except ValueError:  # ragged rows
+                raise InvalidInputError(f"{self.kind} layer image must be an array; got rows of different "
+                                        "lengths") from None
             object.__setattr__(self, "image", image)
         if image.dtype != np.uint8 and not np.issubdtype(image.dtype, np.floating):
             raise InvalidInputError(f"{self.kind} layer image must be uint8 or float; got dtype {image.dtype}")
@@ -747,10 +751,17 @@ class TextureLayer:
 
     def to_uint8(self, background: Sequence[float] | None = None) -> NDArray[np.uint8]:
         """The layer as uint8 RGBA, or RGB composited over ``background`` (r, g, b in [0, 1])."""
+        if background is not None:
+            try:
+                bg = np.asarray(background, dtype=np.float64).reshape(-1)
+            except (TypeError, ValueError):
+                bg = np.full(0, np.nan)
+            if bg.shape != (3,) or not (np.isfinite(bg).all() and (bg >= 0).all() and (bg <= 1).all()):
+                raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
         rgba = self.rgba()
         if background is None:
             return np.round(rgba * 255.0).astype(np.uint8)
-        bg = np.asarray(background, dtype=np.float32).reshape(1, 1, 3)
+        bg = bg.astype(np.float32).reshape(1, 1, 3)
         rgb = rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])
         return np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
 

@@ -533,6 +533,20 @@ def test_drape_colors_refuses_vertices_that_are_not_real_numbers(vertices):
         look_from(0.0, float("inf"), 1.0e6)
 
 
+def test_drape_texture_refuses_a_non_finite_vertex_and_ragged_grids_are_named():
+    """A NaN vertex got NaN texture coordinates without a word; ragged rows raised numpy's 'inhomogeneous
+    shape' ValueError in from_latlon and adaptive_mesh."""
+    from stepterrain.globe import drape_texture
+
+    mesh = trimesh.Trimesh([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, np.nan]], [[0, 1, 2]], process=False)
+    with pytest.raises(InvalidInputError, match=r"mesh vertices must be finite to drape a texture; got vertex 2"):
+        drape_texture(mesh, np.zeros((4, 8, 3), np.uint8))
+    with pytest.raises(InvalidInputError, match="elevation must be a real .* rows of different lengths"):
+        Globe.from_latlon([[1.0, 2.0], [3.0]], LAT1, LON1, face_size=9)
+    with pytest.raises(InvalidInputError, match="heights must be a real .* rows of different lengths"):
+        adaptive_mesh([[1.0, 2.0], [3.0]], error=0.1)
+
+
 def test_draped_texture_keeps_the_surface_and_wraps_the_antimeridian(small_globe, tmp_path):
     from stepterrain.globe import drape_colors, drape_texture
 

@@ -414,6 +414,13 @@ def test_npz_without_elevation(tmp_path):
         load_dem(tmp_path / "many.npz")
 
 
+def test_an_empty_npz_says_it_holds_no_arrays(tmp_path):
+    """np.savez() with no arrays starts with the zip end-of-directory record: it was called 'not a NumPy .npz'."""
+    np.savez(tmp_path / "empty.npz")
+    with pytest.raises(DataFileError, match="got no arrays"):
+        load_dem(tmp_path / "empty.npz")
+
+
 def test_npz_with_text_where_numbers_belong_is_a_data_file_error(tmp_path):
     z = np.zeros((2, 2))
     np.savez(tmp_path / "t.npz", elevation=z, transform=np.array("a"))

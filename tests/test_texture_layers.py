@@ -390,3 +390,21 @@ def test_layer_sees_later_changes_to_its_image_array():
     frozen.flags.writeable = False  # a read-only image (a memmap in mode "r") keeps its cached RGBA
     lum = TextureLayer("luminance", frozen, (0, 3, 0, 2))
     assert lum.rgba() is lum.rgba()
+
+
+@pytest.mark.parametrize("background", [(1, 2), "white", (np.nan, 0, 0), (0, 0, 2), [[0, 0], [0]]])
+def test_to_uint8_background_is_checked(background):
+    """(1, 2) and 'white' raised numpy's reshape/convert ValueError, (nan, 0, 0) gave a black image silently."""
+    from stepterrain.texture import TextureLayer
+
+    layer = TextureLayer("luminance", np.full((2, 3), 0.5), (0.0, 3.0, 0.0, 2.0))
+    with pytest.raises(st.InvalidInputError, match=r"background must be \(r, g, b\) in \[0, 1\]"):
+        layer.to_uint8(background=background)
+    assert layer.to_uint8(background=(1.0, 1.0, 1.0)).shape == (2, 3, 3)
+
+
+def test_a_ragged_layer_image_is_named():
+    from stepterrain.texture import TextureLayer
+
+    with pytest.raises(st.InvalidInputError, match="thematic layer image must be an array; got rows of different"):
+        TextureLayer("thematic", [[1], [1, 2]], (0.0, 1.0, 0.0, 1.0))
