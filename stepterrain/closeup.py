@@ -36,7 +36,7 @@ from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START, check_flag
-from .terrain import Terrain, _pair, as_terrain, grid_faces
+from .terrain import Terrain, _pair, as_terrain, finite_number, grid_faces
 
 __all__ = [
     "ROI",
@@ -179,8 +179,13 @@ class ROI:
         if min(size) <= 0 or max(size) > _MAX_OFFSET:  # float32 positions on the device
             raise InvalidInputError(f"ROI size must be positive (width, height) up to {_MAX_OFFSET:g}; got {size}")
         object.__setattr__(self, "size", size)
-        mask = np.asarray(self.mask)
-        if mask.dtype == object or not (np.issubdtype(mask.dtype, np.number) or mask.dtype == bool):
+        try:
+            mask = np.asarray(self.mask)
+        except ValueError:  # ragged rows
+            raise InvalidInputError("ROI mask must be a real (rows, cols) array; got rows of different "
+                                    "lengths") from None
+        if mask.dtype == object or np.issubdtype(mask.dtype, np.complexfloating) or not (
+                np.issubdtype(mask.dtype, np.number) or mask.dtype == bool):  # complex lost its imaginary part
             raise InvalidInputError(f"ROI mask must be a real (rows, cols) array; got dtype {mask.dtype}")
         if mask.ndim != 2 or mask.shape[0] < 2 or mask.shape[1] < 2:
             raise InvalidInputError(f"ROI mask must be a 2-D array of at least 2 x 2 texels; got shape {mask.shape}")
@@ -602,11 +607,11 @@ class CloseUp:
         if not isinstance(self.anchor, AnchorStyle):
             raise InvalidInputError(f"close-up anchor must be an AnchorStyle; got {type(self.anchor).__name__}")
         if self.spin is not None:
-            try:
-                speed, reps = float(self.spin[0]), int(self.spin[1])
-            except (TypeError, ValueError, IndexError, OverflowError) as exc:
+            spin = _numbers(self.spin)  # [nan] when not numbers
+            if spin.size != 2 or not float(spin[1]).is_integer():  # 2.7 repetitions were cut to 2
                 raise InvalidInputError(
-                    f"close-up spin must be (turns per second, repetitions); got {self.spin!r}") from exc
+                    f"close-up spin must be (turns per second, whole repetitions); got {self.spin!r}")
+            speed, reps = float(spin[0]), int(spin[1])
             if not math.isfinite(speed) or speed == 0 or reps < 1:
                 raise InvalidInputError(f"close-up spin needs a finite non-zero speed and repetitions >= 1; "
                                         f"got {self.spin!r}")
@@ -639,7 +644,7 @@ class CloseUp:
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
         """M as a 4 x 4 matrix on world column vectors (x, y, z, 1); see :func:`closeup_matrix`."""
-        key = (float(pivot_z), _seconds(time))
+        key = (finite_number(pivot_z, "pivot_z"), _seconds(time))  # NaN gave a NaN matrix
         cache = self.__dict__.setdefault("_matrices", {})  # a frame asks several times (layers, anchors, memo)
         m = cache.get(key)
         if m is None:

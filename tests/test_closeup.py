@@ -569,6 +569,22 @@ def test_boxed_composite_rejects_a_box_outside_the_image():
 
 
 # ------------------------------------------------------------------------------------------------ bad input
+def test_closeup_spin_pivot_and_roi_mask_are_checked():
+    """spin=(1, 2.7) was cut to 2 repetitions and (1, 2, 3) accepted; matrix(nan) gave a NaN matrix and
+    matrix('a') a bare ValueError; a complex ROI mask lost its imaginary part, a ragged one raised numpy's."""
+    roi = ROI.circle((40.0, 30.0), 10.0)
+    for spin in ((1.0, 2.7), (1.0, 2.0, 3.0), (1.0,), "ab", (1.0, float("nan"))):
+        with pytest.raises(InvalidInputError, match=r"close-up spin must be \(turns per second, whole repetitions\)"):
+            CloseUp(roi, spin=spin)
+    assert CloseUp(roi, spin=(0.5, 2.0)).spin == (0.5, 2)
+    for pivot in (float("nan"), "a", float("inf")):
+        with pytest.raises(InvalidInputError, match="pivot_z must be"):
+            CloseUp(roi).matrix(pivot)
+    for mask in (np.ones((4, 4), complex), [[1.0, 1.0], [1.0]]):
+        with pytest.raises(InvalidInputError, match=r"ROI mask must be a real \(rows, cols\) array"):
+            ROI((0.0, 0.0), (1.0, 1.0), mask, "painted")
+
+
 def test_bad_input_raises_clear_errors():
     t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
     roi = ROI.circle((40.0, 30.0), 10.0)
@@ -686,7 +702,7 @@ def test_a_time_that_is_not_a_number_is_refused(time):
         (lambda roi: CloseUp(roi, billboard_view="ab"),
          r"billboard_view must be finite \(azimuth, elevation\); got 'ab'"),
         (lambda roi: CloseUp(roi, gamma="a"), r"close-up gamma must lie in \[0, 1\]; got 'a'"),
-        (lambda roi: CloseUp(roi, spin=(1.0, math.inf)), r"close-up spin must be \(turns per second, repetitions\)"),
+        (lambda roi: CloseUp(roi, spin=(1.0, math.inf)), r"close-up spin must be \(turns per second, whole repetitions\)"),
         (lambda roi: AnchorStyle(outline_level="a"), r"anchor outline_level must lie in \(0, 1\); got 'a'"),
     ],
 )
