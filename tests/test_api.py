@@ -73,3 +73,17 @@ def test_camera_survives_dataclasses_replace():
     cam = Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), aspect=4.0 / 3.0)
     moved = dataclasses.replace(cam, eye=(1.0, -10.0, 0.0))
     assert moved.aspect == cam.aspect and moved.viewport == cam.viewport == (1067, 800)
+
+
+def test_camera_vectors_too_short_for_float64_are_named():
+    """eye (1e-200, 0, 0) and target at the origin differ, but |target - eye| squares to 0: the camera said
+    'eye and target must differ; both are (1e-200, 0, 0)'; an up of length 1e-300 was called zero or parallel."""
+    from stepterrain import InvalidInputError
+    from stepterrain.camera import Camera
+
+    with pytest.raises(InvalidInputError, match="lie too close together for a view direction in float64"):
+        Camera((1e-200, 0.0, 0.0), (0.0, 0.0, 0.0))
+    with pytest.raises(InvalidInputError, match="must differ; both are"):
+        Camera((1.0, 2.0, 3.0), (1.0, 2.0, 3.0))
+    with pytest.raises(InvalidInputError, match=r"Camera up .* is too short to normalise in float64"):
+        Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 0.0, 1e-300))
