@@ -594,10 +594,17 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
     radius = host[1][m, 1].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
     for fn in users:
-        value = np.asarray(fn(points, radius), dtype=np.float64)
-        if value.shape != (len(m),) or not np.isfinite(value).all() or (value < 0).any():
-            raise InvalidInputError(f"user metric {getattr(fn, '__name__', fn)!r} must return {len(m)} finite "
-                                    f"values >= 0; got shape {value.shape}")
+        name, expected = getattr(fn, "__name__", fn), f"must return {len(m)} finite values >= 0"
+        result = fn(points, radius)
+        try:
+            value = np.asarray(result, dtype=np.float64)
+        except (TypeError, ValueError):  # text, ragged rows: numpy's conversion error named no metric
+            raise InvalidInputError(f"user metric {name!r} {expected}; got {type(result).__name__} that is not "
+                                    "numbers") from None
+        if value.shape != (len(m),):
+            raise InvalidInputError(f"user metric {name!r} {expected}; got shape {value.shape}")
+        if not np.isfinite(value).all() or (value < 0).any():
+            raise InvalidInputError(f"user metric {name!r} {expected}; got NaN, inf or negative values")
         factor *= value
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 

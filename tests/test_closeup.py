@@ -702,7 +702,8 @@ def test_a_time_that_is_not_a_number_is_refused(time):
         (lambda roi: CloseUp(roi, billboard_view="ab"),
          r"billboard_view must be finite \(azimuth, elevation\); got 'ab'"),
         (lambda roi: CloseUp(roi, gamma="a"), r"close-up gamma must lie in \[0, 1\]; got 'a'"),
-        (lambda roi: CloseUp(roi, spin=(1.0, math.inf)), r"close-up spin must be \(turns per second, whole repetitions\)"),
+        (lambda roi: CloseUp(roi, spin=(1.0, math.inf)),
+         r"close-up spin must be \(turns per second, whole repetitions\)"),
         (lambda roi: AnchorStyle(outline_level="a"), r"anchor outline_level must lie in \(0, 1\); got 'a'"),
     ],
 )

@@ -638,6 +638,21 @@ def test_bad_latlon_grids():
         Globe.from_latlon(nan, LAT1, LON1, face_size=9)
 
 
+@pytest.mark.parametrize("result, match", [
+    (lambda p, r: ["a"] * len(p), "got list that is not numbers"),
+    (lambda p, r: None, r"got shape \(\)"),
+    (lambda p, r: np.ones(3), r"got shape \(3,\)"),
+    (lambda p, r: np.full(len(p), np.nan), "got NaN, inf or negative values"),
+])
+def test_a_user_metric_returning_no_numbers_is_named(small_globe, result, match):
+    """Text or None raised numpy's 'could not convert string to float' / TypeError, naming no metric."""
+    def odd(points, radius):
+        return result(points, radius)
+
+    with pytest.raises(InvalidInputError, match=rf"user metric 'odd' must return \d+ finite values >= 0; {match}"):
+        small_globe.mesh(error=100.0, metrics=("geometric", odd))
+
+
 def test_bad_mesh_arguments(small_globe):
     g = small_globe
     with pytest.raises(InvalidInputError, match="error must be"):
