@@ -329,6 +329,7 @@ def _frame_mesh(
         raise InvalidInputError("mesh has no faces; nothing to render")
     width, height, z_scale = _check_window(window_size, z_scale)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.any():
         raise InvalidInputError("mesh has no finite vertex")
@@ -347,6 +348,17 @@ def _frame_mesh(
     box[:, 2] *= z_scale
     _camera_position(camera, _box_corners(box), width / height)  # raises on a bad camera; cheap (8 corners)
     return width, height, vertices, local, finite, box
+
+
+def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
+    """Every index of ``faces`` must name one of the ``n_vertices`` vertices: VTK reads an index past the end
+    from outside the point buffer (garbage triangles, or a crash), without an error."""
+    indices = np.asarray(faces)
+    if indices.size and (indices.dtype.kind not in "iu" or int(indices.min()) < 0
+                         or int(indices.max()) >= n_vertices):
+        low, high = (int(indices.min()), int(indices.max())) if indices.dtype.kind in "iu" else (None, None)
+        raise InvalidInputError(f"{name} must hold integer vertex indices in [0, {n_vertices - 1}]; got "
+                                + (f"dtype {indices.dtype}" if low is None else f"indices from {low} to {high}"))
 
 
 def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, int, float]:
@@ -611,6 +623,7 @@ class LayeredRenderer:
             self._bounds[name] = np.array([lo, hi])
             self._local_bounds[name] = local_box
             return
+        _check_face_indices(faces, len(local), f"faces of layer {name!r}")  # a new topology: checked once
         self.remove(name)
         poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
         self._meshes[name] = (poly, kind, faces.copy(), faces_in, rgb_in)

@@ -173,3 +173,20 @@ def test_image_regression(name):
     diff = np.abs(image[..., :3].astype(int) - expected)
     assert diff.mean() < 2.0, f"mean difference {diff.mean():.2f} against {path.name}"
     assert (diff.max(axis=2) > 60).mean() < 0.01, "more than 1% of the pixels changed a lot"
+
+
+@pytest.mark.parametrize("bad", [[[0, 1, 5]], [[0, 1, -1]]])
+def test_face_indices_outside_the_vertices_are_refused(bad):
+    # VTK read the missing vertex from outside its point buffer and drew a garbage triangle, without an error
+    mesh = trimesh.Trimesh(process=False)
+    mesh.vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]])
+    mesh.faces = np.array(bad)
+    with pytest.raises(InvalidInputError, match=r"mesh.faces must hold integer vertex indices in \[0, 2\]"):
+        render.render_mesh(mesh, window_size=(64, 48))
+
+
+@needs_render
+def test_layered_renderer_refuses_face_indices_outside_the_vertices():
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        with pytest.raises(InvalidInputError, match=r"faces of layer 'a' must hold .* from 0 to 7"):
+            renderer.set_mesh("a", [[0.0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 7]])
