@@ -1824,6 +1824,30 @@ def animate_closeups(
         renderer.close()
 
 
+def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
+    """``frames`` as (H, W, 3) uint8 images of one size: a float or 2-D frame would be cast or cut silently."""
+    if isinstance(frames, np.ndarray) and frames.ndim == 4:
+        frames = list(frames)
+    if not isinstance(frames, Sequence) or isinstance(frames, (str, bytes)):
+        raise InvalidInputError(f"frames must be a sequence of (H, W, 3|4) uint8 images; got {type(frames).__name__}")
+    if len(frames) == 0:
+        raise InvalidInputError("no frames to write")
+    stack = []
+    for k, frame in enumerate(frames):
+        array = np.asarray(frame) if isinstance(frame, np.ndarray) else None
+        if array is None or array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] not in (3, 4) \
+                or min(array.shape[:2]) < 1:
+            got = (f"{type(frame).__name__}" if array is None
+                   else f"shape {array.shape}, dtype {array.dtype}")
+            raise InvalidInputError(f"frames[{k}] must be an (H, W, 3|4) uint8 image (as render_closeups returns); "
+                                    f"got {got}")
+        if stack and array.shape[:2] != stack[0].shape[:2]:
+            raise InvalidInputError(f"frames must share one size; frames[0] is {stack[0].shape[:2]}, frames[{k}] "
+                                    f"{array.shape[:2]}")
+        stack.append(np.ascontiguousarray(array[..., :3]))
+    return stack
+
+
 def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
     """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio."""
     from .export import atomic_path
@@ -1833,9 +1857,7 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     if suffix not in (".gif", ".mp4"):
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
     fps = _positive(fps, "fps")
-    if len(frames) == 0:
-        raise InvalidInputError("no frames to write")
-    stack = [np.ascontiguousarray(f[..., :3], dtype=np.uint8) for f in frames]
+    stack = _check_frames(frames)
     import imageio.v3 as iio
 
     if suffix == ".mp4":
