@@ -1802,6 +1802,9 @@ def animate_closeups(
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
         raise InvalidInputError(f"frames must be a positive int; got {frames!r}")
     fps = _positive(fps, "fps")
+    width, height = _window(window_size)
+    check_budget(int(frames) * width * height * 3, f"{int(frames)} frames of {width} x {height} pixels",
+                 hint="render fewer or smaller frames")  # every frame is kept: refused before the first render
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
     if box is None:  # the box swept by the close-ups over a few phases, and the terrain
@@ -1814,7 +1817,7 @@ def animate_closeups(
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-    renderer = render.LayeredRenderer(window_size=_window(window_size), background=options.pop("background", "white"),
+    renderer = render.LayeredRenderer(window_size=(width, height), background=options.pop("background", "white"),
                                       z_scale=options.pop("z_scale", 1.0))
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,

@@ -19,7 +19,7 @@ from stepterrain.closeup import (
     render_closeups,
     save_animation,
 )
-from stepterrain.errors import InvalidInputError, MissingDependencyError
+from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
 from stepterrain.terrain import Terrain
 
 from .test_closeup import hills
@@ -459,3 +459,11 @@ def test_save_animation_takes_a_4d_stack(tmp_path):
     frames[1] = 200
     gif = save_animation(frames, tmp_path / "stack.gif", fps=2.0)
     assert iio.imread(gif, index=None).shape[:3] == (2, 8, 6)
+
+
+def test_animate_closeups_refuses_frames_over_the_memory_budget():
+    # every frame is kept in a list: frames=10**7 of 640 x 400 (7 TiB) rendered on until memory ran out, and
+    # frames=10**12 died in numpy's arange (MemoryError)
+    for frames in (10**7, 10**12):
+        with pytest.raises(OutputTooLargeError, match=f"{frames} frames of 640 x 400 pixels"):
+            animate_closeups(terrain(), [one()], frames=frames, window_size=(640, 400), device="cpu")
