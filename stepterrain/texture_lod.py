@@ -37,6 +37,7 @@ from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
+from .stepped import check_flag
 from .terrain import Terrain, as_terrain
 from .texture import _check_extent
 
@@ -219,6 +220,7 @@ class ImagePyramid:
         extent = _check_extent(extent)
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
+        anisotropic = check_flag(anisotropic, "anisotropic")
         owned = storage is None
         try:
             folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if owned else Path(storage)
@@ -769,7 +771,10 @@ def render_with_textures(
     gamma_user = _threshold(gamma_user, "gamma_user")
     tau_user = _threshold(tau_user, "tau_user")
     layers = list(textures)
-    flags = tuple(bool(v) for v in hybrid) if hybrid is not None else (False,) * len(layers)
+    if hybrid is not None and (isinstance(hybrid, (str, bytes)) or not isinstance(hybrid, Sequence | np.ndarray)):
+        raise InvalidInputError(f"hybrid must be a sequence of one bool per layer; got {hybrid!r}")
+    flags = (tuple(check_flag(v, f"hybrid[{k}]") for k, v in enumerate(hybrid)) if hybrid is not None
+             else (False,) * len(layers))
     if len(flags) != len(layers):
         raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
     out: list[DrawItem] = []

@@ -333,6 +333,20 @@ def test_bad_traversal_input():
         Camera((0, 0, 0), (0, 0, 0))
 
 
+def test_flags_must_be_bools():
+    # a non-empty string is true: hybrid=['no'] lit the layer, hybrid='n' read as one flag 'n' (True), and
+    # anisotropic='no' built the rip-map; hybrid=5 raised the int's 'not iterable' TypeError
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        for hybrid, match in ((["no"], r"hybrid\[0\] must be True or False"), ("n", "hybrid must be a sequence"),
+                              (5, "hybrid must be a sequence")):
+            with pytest.raises(InvalidInputError, match=match):
+                render_with_textures(quadtree.root, [tree.root], camera, hybrid=hybrid)
+        assert render_with_textures(quadtree.root, [tree.root], camera, hybrid=np.array([True]))
+    with pytest.raises(InvalidInputError, match="anisotropic must be True or False"):
+        ImagePyramid.build(np.zeros((4, 4), np.uint8), anisotropic="no", device="cpu")
+
+
 def test_storage_file_of_pyramid_removed_on_close():
     pyramid = ImagePyramid.build(np.zeros((6, 6, 3), np.uint8), device="cpu")
     folder = Path(pyramid.storage)
