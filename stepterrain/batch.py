@@ -302,7 +302,7 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
     rows, cols = int(shape[0]), int(shape[1])
     try:
         sizes = (int(tile_size), int(tile_size)) if np.ndim(tile_size) == 0 else tuple(int(s) for s in tile_size)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise InvalidInputError(f"tile_size must be an int or (rows, cols) of cells; got {tile_size!r}") from exc
     given = [tile_size] if np.ndim(tile_size) == 0 else list(tile_size)
     if (len(sizes) != 2 or min(sizes) < 1 or isinstance(tile_size, bool)
@@ -723,6 +723,8 @@ def batch(
     from .stepped import check_flag
 
     check_flag(solid, "solid")
+    check_flag(resume, "resume")
+    check_flag(progress, "progress")
     if floor is not None and not solid:
         raise InvalidInputError("floor applies only with solid=True")
     if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.integer, np.floating))

@@ -1807,6 +1807,9 @@ def animate_closeups(
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
         raise InvalidInputError(f"frames must be a positive int; got {frames!r}")
     fps = _positive(fps, "fps")
+    width, height = _window(window_size)
+    check_budget(int(frames) * width * height * 3, f"{int(frames)} frames of {width} x {height} pixels",
+                 hint="render fewer or smaller frames")  # every frame is kept: refused before the first render
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
     if box is None:  # the box swept by the close-ups over a few phases, and the terrain
@@ -1819,7 +1822,7 @@ def animate_closeups(
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-    renderer = render.LayeredRenderer(window_size=_window(window_size), background=options.pop("background", "white"),
+    renderer = render.LayeredRenderer(window_size=(width, height), background=options.pop("background", "white"),
                                       z_scale=options.pop("z_scale", 1.0))
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
@@ -1827,6 +1830,30 @@ def animate_closeups(
                                 device=device, **options) for time in times]
     finally:
         renderer.close()
+
+
+def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
+    """``frames`` as (H, W, 3) uint8 images of one size: a float or 2-D frame would be cast or cut silently."""
+    if isinstance(frames, np.ndarray) and frames.ndim == 4:
+        frames = list(frames)
+    if not isinstance(frames, Sequence) or isinstance(frames, (str, bytes)):
+        raise InvalidInputError(f"frames must be a sequence of (H, W, 3|4) uint8 images; got {type(frames).__name__}")
+    if len(frames) == 0:
+        raise InvalidInputError("no frames to write")
+    stack = []
+    for k, frame in enumerate(frames):
+        array = np.asarray(frame) if isinstance(frame, np.ndarray) else None
+        if array is None or array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] not in (3, 4) \
+                or min(array.shape[:2]) < 1:
+            got = (f"{type(frame).__name__}" if array is None
+                   else f"shape {array.shape}, dtype {array.dtype}")
+            raise InvalidInputError(f"frames[{k}] must be an (H, W, 3|4) uint8 image (as render_closeups returns); "
+                                    f"got {got}")
+        if stack and array.shape[:2] != stack[0].shape[:2]:
+            raise InvalidInputError(f"frames must share one size; frames[0] is {stack[0].shape[:2]}, frames[{k}] "
+                                    f"{array.shape[:2]}")
+        stack.append(np.ascontiguousarray(array[..., :3]))
+    return stack
 
 
 def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
@@ -1838,9 +1865,7 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     if suffix not in (".gif", ".mp4"):
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
     fps = _positive(fps, "fps")
-    if len(frames) == 0:
-        raise InvalidInputError("no frames to write")
-    stack = [np.ascontiguousarray(f[..., :3], dtype=np.uint8) for f in frames]
+    stack = _check_frames(frames)
     import imageio.v3 as iio
 
     if suffix == ".mp4":

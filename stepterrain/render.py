@@ -26,6 +26,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
+from .stepped import check_flag
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
            "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
@@ -287,6 +288,8 @@ def render_mesh(
     """
     if scalars not in (None, "level", "height"):
         raise InvalidInputError(f"scalars must be None, 'level' or 'height'; got {scalars!r}")
+    show_edges = check_flag(show_edges, "show_edges")
+    anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
     face_attributes = {}
     if scalars == "level":
@@ -329,6 +332,7 @@ def _frame_mesh(
         raise InvalidInputError("mesh has no faces; nothing to render")
     width, height, z_scale = _check_window(window_size, z_scale)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.any():
         raise InvalidInputError("mesh has no finite vertex")
@@ -349,6 +353,17 @@ def _frame_mesh(
     return width, height, vertices, local, finite, box
 
 
+def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
+    """Every index of ``faces`` must name one of the ``n_vertices`` vertices: VTK reads an index past the end
+    from outside the point buffer (garbage triangles, or a crash), without an error."""
+    indices = np.asarray(faces)
+    if indices.size and (indices.dtype.kind not in "iu" or int(indices.min()) < 0
+                         or int(indices.max()) >= n_vertices):
+        low, high = (int(indices.min()), int(indices.max())) if indices.dtype.kind in "iu" else (None, None)
+        raise InvalidInputError(f"{name} must hold integer vertex indices in [0, {n_vertices - 1}]; got "
+                                + (f"dtype {indices.dtype}" if low is None else f"indices from {low} to {high}"))
+
+
 def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, int, float]:
     """(width, height, z_scale) checked: 8 to 16384 pixels per side, a positive finite vertical scale."""
     try:
@@ -357,9 +372,13 @@ def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, in
         raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
     if not (8 <= width <= 16384 and 8 <= height <= 16384):
         raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
-    z_scale = float(z_scale)
-    if not math.isfinite(z_scale) or z_scale <= 0:
-        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale}")
+    try:
+        scale = float(z_scale)
+    except (TypeError, ValueError):
+        scale = math.nan
+    if isinstance(z_scale, (bool, str)) or not math.isfinite(scale) or scale <= 0:
+        raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale!r}")
+    z_scale = scale
     return width, height, z_scale
 
 
@@ -463,6 +482,8 @@ def render_textured_mesh(
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
+    lighting = check_flag(lighting, "lighting")
+    anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
 
     pv = _import_pyvista()
@@ -611,6 +632,7 @@ class LayeredRenderer:
             self._bounds[name] = np.array([lo, hi])
             self._local_bounds[name] = local_box
             return
+        _check_face_indices(faces, len(local), f"faces of layer {name!r}")  # a new topology: checked once
         self.remove(name)
         poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
         self._meshes[name] = (poly, kind, faces.copy(), faces_in, rgb_in)

@@ -37,6 +37,7 @@ from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
+from .stepped import check_flag
 from .terrain import Terrain, as_terrain
 from .texture import _check_extent
 
@@ -219,6 +220,7 @@ class ImagePyramid:
         extent = _check_extent(extent)
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
+        anisotropic = check_flag(anisotropic, "anisotropic")
         owned = storage is None
         try:
             folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if owned else Path(storage)
@@ -569,6 +571,10 @@ class TextureTree:
     """
 
     def __init__(self, pyramid: ImagePyramid, quadtree: PatchQuadtree, *, max_texture_size: int = 1024) -> None:
+        if not isinstance(pyramid, ImagePyramid):
+            raise InvalidInputError(f"pyramid must be an ImagePyramid; got {type(pyramid).__name__}")
+        if not isinstance(quadtree, PatchQuadtree):
+            raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
         if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
         self.pyramid = pyramid
@@ -648,6 +654,10 @@ class TextureCache:
                  workers: int = 1) -> None:
         if isinstance(budget, bool) or not isinstance(budget, int) or budget < 1:
             raise InvalidInputError(f"budget must be a positive int of bytes; got {budget!r}")
+        if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+            raise InvalidInputError(f"workers must be a positive int of threads; got {workers!r}")
+        if loader is not None and not callable(loader):
+            raise InvalidInputError(f"loader must be a function of a TexturePatch; got {type(loader).__name__}")
         self.budget = budget
         self.loader = loader or (lambda patch: np.array(patch.image()))
         self._loaded: OrderedDict[int, tuple[TexturePatch, Any, int]] = OrderedDict()
@@ -768,8 +778,26 @@ def render_with_textures(
     """
     gamma_user = _threshold(gamma_user, "gamma_user")
     tau_user = _threshold(tau_user, "tau_user")
+    if not isinstance(root, GeometryPatch):
+        raise InvalidInputError(f"root must be a GeometryPatch (PatchQuadtree.root); got {type(root).__name__}")
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"camera must be a stepterrain Camera; got {type(camera).__name__}")
+    if cache is not None and not isinstance(cache, TextureCache):
+        raise InvalidInputError(f"cache must be a TextureCache or None; got {type(cache).__name__}")
+    if isinstance(textures, TexturePatch) or not isinstance(textures, Sequence):
+        raise InvalidInputError(f"textures must be a sequence of texture tree roots (TextureTree.root); got "
+                                f"{type(textures).__name__}")
     layers = list(textures)
-    flags = tuple(bool(v) for v in hybrid) if hybrid is not None else (False,) * len(layers)
+    for k, m in enumerate(layers):
+        if not isinstance(m, TexturePatch):
+            raise InvalidInputError(f"textures[{k}] must be a TexturePatch (TextureTree.root); got {type(m).__name__}")
+        if m.geometry is not root:  # child_for looks children up by geometry patch: another tree's find none
+            raise InvalidInputError(f"textures[{k}] belongs to a texture tree over another geometry patch than root "
+                                    "(build the TextureTree on the PatchQuadtree whose root is traversed)")
+    if hybrid is not None and (isinstance(hybrid, (str, bytes)) or not isinstance(hybrid, Sequence | np.ndarray)):
+        raise InvalidInputError(f"hybrid must be a sequence of one bool per layer; got {hybrid!r}")
+    flags = (tuple(check_flag(v, f"hybrid[{k}]") for k, v in enumerate(hybrid)) if hybrid is not None
+             else (False,) * len(layers))
     if len(flags) != len(layers):
         raise InvalidInputError(f"hybrid needs one flag per layer ({len(layers)}); got {len(flags)}")
     out: list[DrawItem] = []
@@ -837,8 +865,8 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     from .terrain import grid_faces
     from .texture import TextureLayer, drape
 
-    patch = item.geometry
     tree = _tree_of(item, layer)
+    patch = item.geometry
     terrain = tree.quadtree.terrain if tree is not None else None
     if terrain is None:
         raise InvalidInputError("paint_with_textures needs a DrawItem whose layer has a texture patch")
@@ -861,7 +889,9 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
 
 
 def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:
-    if not 0 <= layer < len(item.textures):
+    if not isinstance(item, DrawItem):
+        raise InvalidInputError(f"item must be a DrawItem (from render_with_textures); got {type(item).__name__}")
+    if isinstance(layer, bool) or not isinstance(layer, (int, np.integer)) or not 0 <= layer < len(item.textures):
         raise InvalidInputError(f"layer must index the item's {len(item.textures)} texture layers; got {layer}")
     texture = item.textures[layer]
     return None if texture is None else texture.tree

@@ -78,12 +78,22 @@ def test_tiles_partition_the_cells(rows, cols, th, tw):
         (np.zeros((5, 5)), {"tile_size": "big"}, "tile_size must be"),
         (np.zeros((5, 5)), {"tile_size": 2.5}, r"tile_size must be a positive int .* got 2.5"),
         (np.zeros((5, 5)), {"tile_size": (2, 1.5)}, "tile_size must be"),
+        (np.zeros((5, 5)), {"tile_size": np.inf}, "tile_size must be"),  # int()'s OverflowError before
+        (np.zeros((5, 5)), {"tile_size": (2, float("-inf"))}, "tile_size must be"),
         (["a.npy", "b.xyz"], {}, "must end in"),
     ],
 )
 def test_bad_sources(source, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         plan_items(source, **kwargs)
+
+
+@pytest.mark.parametrize("flag", ["resume", "progress"])
+def test_batch_flags_must_be_bools(tmp_path, flag):
+    # 'no' is true to Python: resume='no' skipped the finished items, progress='no' drew the progress bar
+    with pytest.raises(InvalidInputError, match=f"{flag} must be True or False; got 'no'"):
+        batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial", **{flag: "no"})
+    assert not (tmp_path / "out").exists()
 
 
 # ---------------------------------------------------------------------------------------------- tiles weld

@@ -19,7 +19,7 @@ from stepterrain.closeup import (
     render_closeups,
     save_animation,
 )
-from stepterrain.errors import InvalidInputError, MissingDependencyError
+from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
 from stepterrain.terrain import Terrain
 
 from .test_closeup import hills
@@ -430,3 +430,40 @@ def test_turning_closeups_on_a_kept_renderer_equal_fresh_renders():
         fresh = render_closeups(t, fresh_cus, window_size=(320, 200), bounds=box, time=time, device="cpu")
         np.testing.assert_array_equal(image, fresh)
     assert np.abs(kept[0].astype(int) - kept[1].astype(int)).sum() > 0
+
+
+@pytest.mark.parametrize(
+    ("frames", "match"),
+    [
+        ([np.full((8, 8, 3), 0.9)] * 2, r"frames\[0\] must be an \(H, W, 3\|4\) uint8 image.*float64"),  # black GIF
+        ([np.zeros((8, 8), np.uint8)] * 2, r"frames\[0\] .*shape \(8, 8\)"),  # f[..., :3] kept 3 columns
+        ([np.full((8, 8, 3), 300, np.int16)] * 2, r"frames\[0\] .*int16"),  # 300 wrapped to 44
+        ([np.zeros((8, 8, 3), np.uint8), np.zeros((9, 8, 3), np.uint8)], "share one size"),  # numpy's stack error
+        ([np.zeros((8, 8, 1), np.uint8)] * 2, r"frames\[0\] .*shape \(8, 8, 1\)"),  # PIL's TypeError
+        ([np.zeros((0, 8, 3), np.uint8)] * 2, r"frames\[0\] .*shape \(0, 8, 3\)"),  # PIL 'cannot write empty image'
+        ([[[1, 2, 3]]], r"frames\[0\] .*got list"),  # TypeError: list indices must be integers
+        (None, "frames must be a sequence"),  # len()'s TypeError
+        ([], "no frames to write"),
+    ],
+)
+def test_save_animation_checks_its_frames(tmp_path, frames, match):
+    with pytest.raises(InvalidInputError, match=match):
+        save_animation(frames, tmp_path / "bad.gif")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_animation_takes_a_4d_stack(tmp_path):
+    import imageio.v3 as iio
+
+    frames = np.zeros((2, 8, 6, 4), np.uint8)
+    frames[1] = 200
+    gif = save_animation(frames, tmp_path / "stack.gif", fps=2.0)
+    assert iio.imread(gif, index=None).shape[:3] == (2, 8, 6)
+
+
+def test_animate_closeups_refuses_frames_over_the_memory_budget():
+    # every frame is kept in a list: frames=10**7 of 640 x 400 (7 TiB) rendered on until memory ran out, and
+    # frames=10**12 died in numpy's arange (MemoryError)
+    for frames in (10**7, 10**12):
+        with pytest.raises(OutputTooLargeError, match=f"{frames} frames of 640 x 400 pixels"):
+            animate_closeups(terrain(), [one()], frames=frames, window_size=(640, 400), device="cpu")

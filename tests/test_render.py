@@ -114,6 +114,10 @@ def test_save_png_roundtrip(tmp_path):
         ({"scalars": "slope"}, "scalars"),
         ({"camera": "sideways"}, "camera"),
         ({"bounds": [(1, 1, 1), (0, 0, 0)]}, "bounds"),
+        ({"z_scale": "abc"}, "z_scale"),  # float()'s ValueError before
+        ({"z_scale": None}, "z_scale"),  # float()'s TypeError before
+        ({"show_edges": "no"}, "show_edges must be True or False"),  # VTK's TypeError from SetEdgeVisibility
+        ({"anti_aliasing": "no"}, "anti_aliasing must be True or False"),  # 'no' switched MSAA on
     ],
 )
 def test_bad_arguments_raise_before_rendering(kwargs, match):
@@ -173,3 +177,33 @@ def test_image_regression(name):
     diff = np.abs(image[..., :3].astype(int) - expected)
     assert diff.mean() < 2.0, f"mean difference {diff.mean():.2f} against {path.name}"
     assert (diff.max(axis=2) > 60).mean() < 0.01, "more than 1% of the pixels changed a lot"
+
+
+@pytest.mark.parametrize("bad", [[[0, 1, 5]], [[0, 1, -1]]])
+def test_face_indices_outside_the_vertices_are_refused(bad):
+    # VTK read the missing vertex from outside its point buffer and drew a garbage triangle, without an error
+    mesh = trimesh.Trimesh(process=False)
+    mesh.vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]])
+    mesh.faces = np.array(bad)
+    with pytest.raises(InvalidInputError, match=r"mesh.faces must hold integer vertex indices in \[0, 2\]"):
+        render.render_mesh(mesh, window_size=(64, 48))
+
+
+@needs_render
+def test_layered_renderer_refuses_face_indices_outside_the_vertices():
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        with pytest.raises(InvalidInputError, match=r"faces of layer 'a' must hold .* from 0 to 7"):
+            renderer.set_mesh("a", [[0.0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 7]])
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [({"lighting": "no"}, "lighting must be True or False"),
+                                               ({"anti_aliasing": "no"}, "anti_aliasing must be True or False")])
+def test_textured_render_flags_must_be_bools(kwargs, match):
+    # lighting='no' is true to Python: the texture was lit by the key and fill lights
+    from PIL import Image
+
+    mesh = square("+z")
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float),
+                                                image=Image.new("RGB", (4, 4)))
+    with pytest.raises(InvalidInputError, match=match):
+        render.render_textured_mesh(mesh, window_size=(64, 48), **kwargs)

@@ -333,6 +333,56 @@ def test_bad_traversal_input():
         Camera((0, 0, 0), (0, 0, 0))
 
 
+def test_traversal_arguments_of_the_wrong_type_are_named():
+    # each raised an AttributeError or TypeError from deep in the traversal ('str' object has no attribute
+    # 'box', 'NoneType' object is not iterable, ...); a texture tree over another quadtree of the same terrain
+    # was accepted and its layer silently dropped below the root (child_for found none of root's children)
+    from stepterrain.texture_lod import paint_with_textures
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        cases = [
+            (("x", [tree.root], camera), {}, "root must be a GeometryPatch"),
+            ((quadtree.root, None, camera), {}, "textures must be a sequence"),
+            ((quadtree.root, tree.root, camera), {}, "textures must be a sequence"),
+            ((quadtree.root, ["x"], camera), {}, r"textures\[0\] must be a TexturePatch"),
+            ((quadtree.root, [tree.root], "camera"), {}, "camera must be a stepterrain Camera"),
+            ((quadtree.root, [tree.root], camera), {"cache": "x"}, "cache must be a TextureCache"),
+            ((PatchQuadtree(quadtree.terrain, leaf_size=16).root, [tree.root], camera), {}, "another geometry patch"),
+        ]
+        for args, kwargs, match in cases:
+            with pytest.raises(InvalidInputError, match=match):
+                render_with_textures(*args, **kwargs)
+        item = render_with_textures(quadtree.root, [tree.root], camera)[0]
+        with pytest.raises(InvalidInputError, match="item must be a DrawItem"):
+            paint_with_textures("x")
+        with pytest.raises(InvalidInputError, match="layer must index"):
+            paint_with_textures(item, "0")
+        with pytest.raises(InvalidInputError, match="pyramid must be an ImagePyramid"):
+            TextureTree("x", quadtree)
+        with pytest.raises(InvalidInputError, match="quadtree must be a PatchQuadtree"):
+            TextureTree(pyramid, "x")
+    for workers in (0, "2", 1.5):  # ThreadPoolExecutor's ValueError / TypeError before
+        with pytest.raises(InvalidInputError, match="workers must be a positive int"):
+            TextureCache(100, workers=workers)
+    with pytest.raises(InvalidInputError, match="loader must be a function"):
+        TextureCache(100, loader="x")  # accepted, and every background load failed
+
+
+def test_flags_must_be_bools():
+    # a non-empty string is true: hybrid=['no'] lit the layer, hybrid='n' read as one flag 'n' (True), and
+    # anisotropic='no' built the rip-map; hybrid=5 raised the int's 'not iterable' TypeError
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        for hybrid, match in ((["no"], r"hybrid\[0\] must be True or False"), ("n", "hybrid must be a sequence"),
+                              (5, "hybrid must be a sequence")):
+            with pytest.raises(InvalidInputError, match=match):
+                render_with_textures(quadtree.root, [tree.root], camera, hybrid=hybrid)
+        assert render_with_textures(quadtree.root, [tree.root], camera, hybrid=np.array([True]))
+    with pytest.raises(InvalidInputError, match="anisotropic must be True or False"):
+        ImagePyramid.build(np.zeros((4, 4), np.uint8), anisotropic="no", device="cpu")
+
+
 def test_storage_file_of_pyramid_removed_on_close():
     pyramid = ImagePyramid.build(np.zeros((6, 6, 3), np.uint8), device="cpu")
     folder = Path(pyramid.storage)
