@@ -290,14 +290,26 @@ def render_mesh(
         raise InvalidInputError(f"scalars must be None, 'level' or 'height'; got {scalars!r}")
     show_edges = check_flag(show_edges, "show_edges")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
+    if scalars is not None:
+        from .stepped import colormap
+
+        colormap(cmap, argument="cmap")  # matplotlib's ValueError (or a TypeError for cmap=5) named nothing
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
             raise InvalidInputError("scalars='level' needs face_attributes['level'] (a stepped mesh)")
-        face_attributes["level"] = np.asarray(mesh.face_attributes["level"], dtype=np.float32)
+        try:
+            levels = np.asarray(mesh.face_attributes["level"], dtype=np.float32).reshape(-1)
+        except (TypeError, ValueError):
+            levels = np.full(0, np.nan)
+        if levels.shape != (len(mesh.faces),) or not np.isfinite(levels).all():
+            raise InvalidInputError(f"face_attributes['level'] must hold one finite number per face "
+                                    f"({len(mesh.faces)}); got {np.shape(mesh.face_attributes['level'])}")
+        face_attributes["level"] = levels
 
     pv = _import_pyvista()
+    _check_background(pv, background)
     poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False, face_attributes=face_attributes))
     add_kwargs: dict[str, Any] = {}
     rgb = _vertex_rgb(mesh) if scalars is None else None
@@ -362,6 +374,16 @@ def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
         low, high = (int(indices.min()), int(indices.max())) if indices.dtype.kind in "iu" else (None, None)
         raise InvalidInputError(f"{name} must hold integer vertex indices in [0, {n_vertices - 1}]; got "
                                 + (f"dtype {indices.dtype}" if low is None else f"indices from {low} to {high}"))
+
+
+def _check_background(pv: Any, background: Any) -> None:
+    """A colour pyvista reads (a name, '#rrggbb', (r, g, b) in [0, 1] or 0-255), else an InvalidInputError:
+    pyvista's own ValueError came from set_background, after the scene was built."""
+    try:
+        pv.Color(background)
+    except (ValueError, TypeError):
+        raise InvalidInputError(f"background must be a colour (a name, '#rrggbb' or (r, g, b)); got "
+                                f"{background!r}") from None
 
 
 def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, int, float]:
@@ -487,6 +509,7 @@ def render_textured_mesh(
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
 
     pv = _import_pyvista()
+    _check_background(pv, background)
     poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
     poly.active_texture_coordinates = np.ascontiguousarray(uv, dtype=np.float32)
     picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
@@ -552,6 +575,7 @@ class LayeredRenderer:
         self.z_scale = z_scale
         self.background = background
         self._pv = _import_pyvista()
+        _check_background(self._pv, background)
         self._plotter = self._new_plotter(self.size)
         self._actors: dict[str, Any] = {}
         self._meshes: dict[str, Any] = {}

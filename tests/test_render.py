@@ -118,11 +118,32 @@ def test_save_png_roundtrip(tmp_path):
         ({"z_scale": None}, "z_scale"),  # float()'s TypeError before
         ({"show_edges": "no"}, "show_edges must be True or False"),  # VTK's TypeError from SetEdgeVisibility
         ({"anti_aliasing": "no"}, "anti_aliasing must be True or False"),  # 'no' switched MSAA on
+        ({"scalars": "height", "cmap": "bogus"}, "cmap must name a matplotlib colormap"),  # matplotlib's ValueError
+        ({"scalars": "height", "cmap": 5}, "cmap must name a matplotlib colormap"),  # a TypeError before
     ],
 )
 def test_bad_arguments_raise_before_rendering(kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         render.render_mesh(square("+z"), **kwargs)
+
+
+def test_level_scalars_need_one_number_per_face():
+    """Strings or the wrong length in face_attributes['level'] raised numpy's or pyvista's ValueError."""
+    for levels in (["a", "b"], [1.0], [1.0, np.nan]):
+        mesh = square("+z")
+        mesh.face_attributes["level"] = np.asarray(levels)
+        with pytest.raises(InvalidInputError, match=r"face_attributes\['level'\] must hold one finite number per face"):
+            render.render_mesh(mesh, scalars="level")
+
+
+@needs_render
+@pytest.mark.parametrize("background", ["bogus", (1, 2), (np.nan, 0, 0)])
+def test_a_bad_background_is_named(background):
+    """pyvista's ValueError came from set_background after the scene was built."""
+    with pytest.raises(InvalidInputError, match=r"background must be a colour"):
+        render.render_mesh(square("+z"), window_size=(16, 16), background=background)
+    with pytest.raises(InvalidInputError, match=r"background must be a colour"):
+        render.LayeredRenderer(window_size=(16, 16), background=background)
 
 
 def test_empty_mesh_and_wrong_type():
