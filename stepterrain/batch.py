@@ -720,6 +720,9 @@ def batch(
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
     if metadata is not None and not isinstance(metadata, Mapping):
         raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    bad_keys = [k for k in (metadata or {}) if not isinstance(k, str)]
+    if bad_keys:  # glTF extras are a JSON object: {1: 2, "1": 3} lost one value, silently
+        raise InvalidInputError(f"metadata keys must be strings (glTF extras are a JSON object); got {bad_keys[0]!r}")
     from .stepped import check_flag
 
     check_flag(solid, "solid")

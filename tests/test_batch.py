@@ -611,6 +611,14 @@ def test_cli_batch_bad_input_exit_2(tmp_path, capsys, argv, match):
     assert match in capsys.readouterr().err
 
 
+def test_metadata_keys_must_be_strings(tmp_path):
+    """{1: 2, "1": 3} became one key '1' (a value lost silently); {1: object(), "1": object()} failed to sort."""
+    with pytest.raises(InvalidInputError, match=r"metadata keys must be strings .*; got 1"):
+        batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial",
+              metadata={1: 2, "1": 3})
+    assert not (tmp_path / "out").exists()
+
+
 def test_unreachable_scheduler_leaves_no_empty_output_folder(tmp_path):
     pytest.importorskip("distributed", reason="needs dask.distributed")
     address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens there
