@@ -16,6 +16,7 @@ a ray march from every pixel towards the light over the nodes of its line (``tes
 
 from __future__ import annotations
 
+import inspect
 import math
 import warnings
 from collections.abc import Sequence
@@ -965,8 +966,12 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     >>> round(float(weighted_add([a, a], [0.5, 2.0], device="cpu").rgba()[0, 0, 0]), 6)
     0.5
     """
+    for name, value in (("layers", layers), ("weights", weights)):
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence | np.ndarray):
+            raise InvalidInputError(f"weighted_add needs {name} as a sequence (one weight per layer); got "
+                                    f"{type(value).__name__}")
     layers = list(layers)
-    values = list(weights) if not isinstance(weights, (str, bytes)) else []
+    values = list(weights)
     if len(layers) < 1 or len(layers) != len(values):
         raise InvalidInputError(f"weighted_add needs one weight per layer; got {len(layers)} layers and "
                                 f"{len(values)} weights")
@@ -1120,12 +1125,18 @@ class Pipeline:
         return self._then("blend", other, weights)
 
     def add(self, other: Any, weights: Sequence[float] = (1.0, 1.0)) -> Pipeline:
+        if isinstance(weights, (str, bytes)) or not isinstance(weights, Sequence | np.ndarray) or len(weights) != 2:
+            raise InvalidInputError(f"Pipeline.add needs weights (current, other); got {weights!r}")
         return self._then("add", other, tuple(weights))
 
     def modulate(self, *others: Any) -> Pipeline:
         return self._then("modulate", *others)
 
     def adjust(self, **params: Any) -> Pipeline:
+        known = sorted(set(inspect.signature(adjust).parameters) - {"layer", "device"})
+        unknown = sorted(set(params) - set(known))
+        if unknown:  # a typo failed only at apply(), with Python's TypeError
+            raise InvalidInputError(f"adjust has no parameter {unknown[0]!r}; expected some of {', '.join(known)}")
         return self._then("adjust", **params)
 
     def then(self, other: Pipeline) -> Pipeline:

@@ -408,3 +408,20 @@ def test_a_ragged_layer_image_is_named():
 
     with pytest.raises(st.InvalidInputError, match="thematic layer image must be an array; got rows of different"):
         TextureLayer("thematic", [[1], [1, 2]], (0.0, 1.0, 0.0, 1.0))
+
+
+def test_pipeline_and_weighted_add_arguments_are_named_when_given():
+    """Pipeline().adjust(foo=1) failed only at apply() with Python's TypeError; weighted_add(None, [1]) and
+    Pipeline().add(L, 1.0) raised 'not iterable' TypeErrors."""
+    from stepterrain.texture import Pipeline, TextureLayer, weighted_add
+
+    layer = TextureLayer("luminance", np.full((2, 2), 0.5), (0.0, 1.0, 0.0, 1.0))
+    with pytest.raises(st.InvalidInputError, match="adjust has no parameter 'foo'; expected some of alpha, "):
+        Pipeline().adjust(foo=1.0)
+    assert Pipeline().adjust(brightness=2.0).apply(layer, device="cpu").rgba()[0, 0, 0] == pytest.approx(1.0)
+    for layers, weights in ((None, [1.0]), ([layer], None), ([layer], 1.0), ("ab", [1.0, 1.0])):
+        with pytest.raises(st.InvalidInputError, match="weighted_add needs (layers|weights) as a sequence"):
+            weighted_add(layers, weights)
+    for weights in (1.0, None, (1.0, 2.0, 3.0), "ab"):
+        with pytest.raises(st.InvalidInputError, match=r"Pipeline.add needs weights \(current, other\)"):
+            Pipeline().add(layer, weights)
