@@ -1265,9 +1265,21 @@ class TextureAnimation:
 # ---------------------------------------------------------------------------------------------- draping
 def texture_uv(points: ArrayLike, layer: TextureLayer) -> NDArray[np.float64]:
     """UV coordinates (OpenGL convention, v up) of world points (N, 2|3) in ``layer``'s image."""
-    xy = np.asarray(points, dtype=np.float64)
+    if not isinstance(layer, TextureLayer):
+        raise InvalidInputError(f"layer must be a TextureLayer; got {type(layer).__name__}")
+    try:
+        xy = np.asarray(points)
+        if np.issubdtype(xy.dtype, np.complexfloating):  # the imaginary part would be dropped
+            raise TypeError
+        xy = xy.astype(np.float64)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"points must be real (N, 2) or (N, 3) world coordinates; got "
+                                f"{type(points).__name__} of {np.asarray(points, dtype=object).dtype.name}") from None
     if xy.ndim != 2 or xy.shape[1] < 2:
         raise InvalidInputError(f"points must be (N, 2) or (N, 3); got shape {xy.shape}")
+    bad = np.flatnonzero(~np.isfinite(xy[:, :2]).all(axis=1))
+    if bad.size:  # NaN texture coordinates otherwise, silently
+        raise InvalidInputError(f"points must have finite x and y; got point {bad[0]} at {xy[bad[0]].tolist()}")
     texel = xy[:, :2] @ layer.matrix[:2, :2].T + layer.matrix[:2, 2]
     rows, cols = layer.shape
     return np.column_stack([(texel[:, 0] + 0.5) / cols, 1.0 - (texel[:, 1] + 0.5) / rows])

@@ -425,3 +425,19 @@ def test_pipeline_and_weighted_add_arguments_are_named_when_given():
     for weights in (1.0, None, (1.0, 2.0, 3.0), "ab"):
         with pytest.raises(st.InvalidInputError, match=r"Pipeline.add needs weights \(current, other\)"):
             Pipeline().add(layer, weights)
+
+
+def test_texture_uv_checks_points_and_layer():
+    """NaN points gave NaN texture coordinates silently, complex ones lost their imaginary part, text raised
+    numpy's ValueError and a layer that is not one an AttributeError."""
+    from stepterrain.texture import TextureLayer, texture_uv
+
+    layer = TextureLayer("luminance", np.full((2, 2), 0.5), (0.0, 1.0, 0.0, 1.0))
+    with pytest.raises(st.InvalidInputError, match=r"points must have finite x and y; got point 1"):
+        texture_uv([[0.5, 0.5], [np.nan, 0.0]], layer)
+    for points in ([["a", "b"]], np.ones((2, 2), complex)):
+        with pytest.raises(st.InvalidInputError, match=r"points must be real \(N, 2\) or \(N, 3\) world coordinates"):
+            texture_uv(points, layer)
+    with pytest.raises(st.InvalidInputError, match="layer must be a TextureLayer; got str"):
+        texture_uv([[0.0, 0.0]], "x")
+    assert texture_uv([[0.5, 0.5, np.nan]], layer).tolist() == [[0.5, 0.5]]  # z is not used: NaN heights are fine
