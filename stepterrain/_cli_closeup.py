@@ -97,7 +97,18 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .cli import _check_output, _check_outputs, _check_size
-    from .closeup import ROI, AnchorStyle, CloseUp, animate_closeups, max_closeups, render_closeups, save_animation
+    from .closeup import (
+        _MAX_CLOSEUPS,
+        _MAX_OFFSET,
+        _MIN_PIXELS_PER_CLOSEUP,
+        ROI,
+        AnchorStyle,
+        CloseUp,
+        animate_closeups,
+        max_closeups,
+        render_closeups,
+        save_animation,
+    )
     from .io import load_dem, sample_dem
     from .stepped import colormap, isovalues
 
@@ -124,7 +135,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
     if (images or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most {max_closeups(args.size)} "
-                                f"close-ups (one per 64x64 pixels, at most 16); got {n_rois}")
+                                f"close-ups (one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at "
+                                f"most {_MAX_CLOSEUPS}); got {n_rois}")
     if images or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 
@@ -157,8 +169,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     anchor = AnchorStyle(args.anchor)
     closeups = []
     for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):
-        if not (math.isfinite(r) and 0 < r <= 1e12):  # closeup's ROI size bound: float32 positions
-            raise InvalidInputError(f"--roi radius must lie in (0, 1e+12]; got {r:g}")
+        if not (math.isfinite(r) and 0 < r <= _MAX_OFFSET):  # closeup's ROI size bound: float32 positions
+            raise InvalidInputError(f"--roi radius must lie in (0, {_MAX_OFFSET:g}]; got {r:g}")
         edge = args.edge if args.edge is not None else r / 5
         if args.shape == "circle":
             roi = ROI.circle((x, y), r, edge_width=edge)

@@ -90,13 +90,14 @@ def _georeference(path: Path, extent: Any, crs: str | None) -> dict[str, Any]:
     return {"extent": extent, "crs": crs} if _is_tiff(path) else {}
 
 
-def _hypsometric(heights: np.ndarray, name: str) -> np.ndarray | None:
+def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     found = _colormap(name)
     if found is None:
         return None
     cmap, lo_frac = found
+    heights = terrain.heights
     finite = np.isfinite(heights)
-    lo, hi = float(heights[finite].min()), float(heights[finite].max())
+    lo, hi = terrain.height_range  # computed once per terrain (the texture's relief check asked already)
     scaled = np.clip((heights - lo) / max(hi - lo, 1e-12), 0, 1)
     rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
     rgba[~finite, 3] = 0.0
@@ -141,7 +142,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     topo = tx.topographic_layer(terrain, azimuth=math.radians(azimuth), altitude=math.radians(args.altitude),
                                 z_factor=args.z_factor, method=args.method, shadows=args.shadows,
                                 shadow_strength=args.shadow_strength, occlusion=args.occlusion, device=device)
-    colors = _hypsometric(terrain.heights, args.colormap)
+    colors = _hypsometric(terrain, args.colormap)
     composite = topo
     if colors is not None:
         composite = tx.modulate(tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), topo,

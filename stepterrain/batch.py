@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain
+from .terrain import FLOAT32_MAX, Terrain, check_flag
 
 __all__ = [
     "batch",
@@ -723,8 +723,6 @@ def batch(
     bad_keys = [k for k in (metadata or {}) if not isinstance(k, str)]
     if bad_keys:  # glTF extras are a JSON object: {1: 2, "1": 3} lost one value, silently
         raise InvalidInputError(f"metadata keys must be strings (glTF extras are a JSON object); got {bad_keys[0]!r}")
-    from .stepped import check_flag
-
     check_flag(solid, "solid")
     check_flag(resume, "resume")
     check_flag(progress, "progress")

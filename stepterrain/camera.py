@@ -82,13 +82,14 @@ class Camera:
         if not forward.any():
             raise InvalidInputError(f"Camera eye and target must differ; both are {self.eye}")
         # lengths below ~1e-154 square to 0 in float64: such a view direction or up vector cannot be normalised
-        if np.linalg.norm(forward) == 0.0:
+        length = np.linalg.norm(forward)
+        if length == 0.0:
             raise InvalidInputError(f"Camera eye and target lie too close together for a view direction in float64 "
                                     f"(|target - eye| below 1e-154); got eye {self.eye}, target {self.target}")
         up = np.asarray(self.up)
         if np.linalg.norm(up) == 0.0 and up.any():
             raise InvalidInputError(f"Camera up {self.up} is too short to normalise in float64 (length below 1e-154)")
-        if np.linalg.norm(np.cross(forward / np.linalg.norm(forward), up)) < 1e-9 * max(np.linalg.norm(up), 1e-300):
+        if np.linalg.norm(np.cross(forward / length, up)) < 1e-9 * max(np.linalg.norm(up), 1e-300):
             raise InvalidInputError(f"Camera up {self.up} must not be zero or parallel to the view direction "
                                     f"{tuple(forward)}")
         if not (0.0 < self.fov < math.pi):

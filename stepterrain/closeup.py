@@ -35,8 +35,8 @@ from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
-from .stepped import LAND_START, check_flag
-from .terrain import Terrain, _pair, as_terrain, finite_number, grid_faces
+from .stepped import LAND_START
+from .terrain import Terrain, _pair, as_terrain, check_flag, finite_number, grid_faces
 
 __all__ = [
     "ROI",

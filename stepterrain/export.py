@@ -712,7 +712,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     """One node holding ``mesh``; large coordinates move into the node translation (float64 in JSON)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = np.eye(4)
-    if bounds is not None and _is_large(bounds):
+    if _is_large(bounds):
         offset = np.floor(bounds[0])
         mesh = mesh.copy(include_cache=False)
         mesh.vertices = vertices - offset

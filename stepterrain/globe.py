@@ -39,8 +39,8 @@ from .errors import DataFileError, InvalidInputError
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
-from .stepped import LAND_START, check_flag
-from .terrain import check_spacing, unmasked
+from .stepped import LAND_START
+from .terrain import check_flag, check_spacing, real_numbers, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -927,7 +927,7 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
     """
     import matplotlib
 
-    z = _real_numbers(elevation, "elevation", "(V,) array of heights in metres")
+    z = real_numbers(elevation, "elevation", "a (V,) array of heights in metres")
     if z.ndim != 1:
         raise InvalidInputError(f"elevation must be a (V,) array of heights in metres (one per vertex); got shape "
                                 f"{z.shape}")
@@ -937,19 +937,6 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
     land = LAND_START["terrain"]  # its land part (the first quarter is sea blue)
     rgba[~sea] = matplotlib.colormaps["terrain"](land + (1.0 - land) * np.clip(z[~sea] / 5000.0, 0.0, 1.0))
     return np.round(rgba * 255).astype(np.uint8)
-
-
-def _real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.float64]:
-    """``values`` as float64 when they are real numbers (a masked array's masked entries NaN), else an
-    InvalidInputError naming ``name``: text and ragged rows raised numpy's ValueError, complex values lost their
-    imaginary part."""
-    try:
-        array = np.asarray(unmasked(values))
-    except ValueError:  # ragged rows
-        raise InvalidInputError(f"{name} must be a {expected}; got rows of different lengths") from None
-    if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
-        raise InvalidInputError(f"{name} must be a {expected} (real numbers); got dtype {array.dtype}")
-    return array.astype(np.float64)
 
 
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
@@ -1052,7 +1039,7 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
         The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3), not finite or at the centre.
     """
     pixels = _texture_pixels(image)
-    v = _real_numbers(vertices, "vertices", "(V, 3) array of planet-centred positions")
+    v = real_numbers(vertices, "vertices", "a (V, 3) array of planet-centred positions")
     if v.ndim != 2 or v.shape[1] != 3:
         raise InvalidInputError(f"vertices must be a (V, 3) array of planet-centred positions; got shape {v.shape}")
     norm = np.linalg.norm(v, axis=1, keepdims=True)

@@ -31,7 +31,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_terrain, finite_number, unmasked
+from .terrain import FLOAT32_MAX, Terrain, as_terrain, check_flag, finite_number, unmasked
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -89,14 +89,6 @@ LENS_TEXEL_BYTES = 48
 
 
 GammaLike = float | ArrayLike | Callable[[NDArray[np.float64]], ArrayLike] | Lens
-
-
-def check_flag(value: Any, name: str) -> bool:
-    """``value`` when it is a bool (Python's or numpy's), else an :class:`InvalidInputError` naming ``name``: a
-    string such as "no" is true to Python, and would switch the option on."""
-    if not isinstance(value, (bool, np.bool_)):
-        raise InvalidInputError(f"{name} must be True or False; got {value!r}")
-    return bool(value)
 
 
 def circular_lens(

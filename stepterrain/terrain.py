@@ -91,6 +91,27 @@ def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | 
     return number
 
 
+def check_flag(value: Any, name: str) -> bool:
+    """``value`` when it is a bool (Python's or numpy's), else an :class:`InvalidInputError` naming ``name``: a
+    string such as "no" is true to Python, and would switch the option on."""
+    if not isinstance(value, (bool, np.bool_)):
+        raise InvalidInputError(f"{name} must be True or False; got {value!r}")
+    return bool(value)
+
+
+def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.float64]:
+    """``values`` as float64 when they are real numbers (a masked array's masked entries NaN), else an
+    InvalidInputError "``name`` must be ``expected``": text and ragged rows raised numpy's ValueError, complex
+    values lost their imaginary part."""
+    try:
+        array = np.asarray(unmasked(values))
+    except ValueError:  # ragged rows
+        raise InvalidInputError(f"{name} must be {expected}; got rows of different lengths") from None
+    if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+        raise InvalidInputError(f"{name} must be {expected} (real numbers); got dtype {array.dtype}")
+    return array.astype(np.float64)
+
+
 def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
     try:
         arr = np.asarray(unmasked(heights))
@@ -234,7 +255,7 @@ class Terrain:
                 f"terrain mesh x and y must span at most {FLOAT32_MAX:.2g} (float32 coordinates relative to its "
                 f"corner); got x over {span[0]:.6g}, y over {span[1]:.6g}"
             )
-        scale = max(float(np.ptp(used_xy[:, 0]) * np.ptp(used_xy[:, 1])), 1e-300)
+        scale = max(float(span[0] * span[1]), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol
         if negative.sum() > positive.sum():

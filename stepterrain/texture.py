@@ -32,8 +32,8 @@ from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
-from .stepped import LENS_TEXEL_BYTES, check_flag
-from .terrain import Terrain, as_terrain
+from .stepped import LENS_TEXEL_BYTES
+from .terrain import Terrain, as_terrain, check_flag, real_numbers
 from .terrain import finite_number as _finite
 
 __all__ = [
@@ -1267,14 +1267,7 @@ def texture_uv(points: ArrayLike, layer: TextureLayer) -> NDArray[np.float64]:
     """UV coordinates (OpenGL convention, v up) of world points (N, 2|3) in ``layer``'s image."""
     if not isinstance(layer, TextureLayer):
         raise InvalidInputError(f"layer must be a TextureLayer; got {type(layer).__name__}")
-    try:
-        xy = np.asarray(points)
-        if np.issubdtype(xy.dtype, np.complexfloating):  # the imaginary part would be dropped
-            raise TypeError
-        xy = xy.astype(np.float64)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"points must be real (N, 2) or (N, 3) world coordinates; got "
-                                f"{type(points).__name__} of {np.asarray(points, dtype=object).dtype.name}") from None
+    xy = real_numbers(points, "points", "real (N, 2) or (N, 3) world coordinates")
     if xy.ndim != 2 or xy.shape[1] < 2:
         raise InvalidInputError(f"points must be (N, 2) or (N, 3); got shape {xy.shape}")
     bad = np.flatnonzero(~np.isfinite(xy[:, :2]).all(axis=1))

@@ -37,8 +37,7 @@ from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
-from .stepped import check_flag
-from .terrain import Terrain, as_terrain
+from .terrain import Terrain, as_terrain, check_flag
 from .texture import _check_extent
 
 __all__ = [
