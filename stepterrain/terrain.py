@@ -112,7 +112,9 @@ def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.floa
     return array.astype(np.float64)
 
 
-def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.float32]:
+def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[np.float32], float, float]:
+    """The heights as a C-contiguous float32 array the Terrain owns, and their min and max (NaN when there is
+    nodata): two passes that also find an infinite value, instead of an isinf pass and a mask."""
     try:
         arr = np.asarray(unmasked(heights))
     except ValueError:  # ragged nested sequences
@@ -126,10 +128,11 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> NDArray[np.floa
     out = np.ascontiguousarray(arr, dtype=np.float32)
     if isinstance(heights, np.ndarray) and np.may_share_memory(out, heights):
         out = out.copy()  # the Terrain's caches must not see later changes to the caller's array
-    if np.isinf(out).any():
+    lo, hi = float(out.min()), float(out.max())  # NaN propagates through both, and an infinity shows in one
+    if not (math.isfinite(lo) and math.isfinite(hi)) and np.isinf(out).any():
         bad = tuple(int(i) for i in np.argwhere(np.isinf(out))[0])
         raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
-    return out
+    return out, lo, hi
 
 
 @dataclass(frozen=True, eq=False)
@@ -179,14 +182,20 @@ class Terrain:
         source: str | None = None,
     ) -> Terrain:
         """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero."""
-        return cls(
+        array, lo, hi = _heights_array(heights)
+        terrain = cls(
             kind="grid",
-            heights=_heights_array(heights),
+            heights=array,
             spacing=check_spacing(*_pair(spacing, "spacing", nonzero=True)),
             origin=_pair(origin, "origin", nonzero=False),
             crs=crs,
             source=source,
         )
+        # the checks' min and max answer has_nodata and, without nodata, height_range: no further passes
+        terrain._device_cache["has_nodata"] = math.isnan(lo)
+        if not math.isnan(lo):
+            terrain._device_cache["height_range"] = (lo, hi)
+        return terrain
 
     @classmethod
     def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None) -> Terrain:
