@@ -36,7 +36,7 @@ from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
-from .terrain import Terrain, _pair, as_terrain, check_flag, finite_number, grid_faces
+from .terrain import Terrain, _pair, as_number, as_terrain, check_flag, finite_number, grid_faces
 
 __all__ = [
     "ROI",
@@ -83,7 +83,7 @@ _MAX_OFFSET = 1e12
 def _finite(value: Any, name: str) -> float:
     """A finite number (of any sign), or an InvalidInputError naming ``name``."""
     try:
-        v = float(value)
+        v = as_number(value)
     except (TypeError, ValueError):
         v = math.nan
     if not math.isfinite(v):
@@ -93,7 +93,7 @@ def _finite(value: Any, name: str) -> float:
 
 def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
     try:
-        v = float(value)
+        v = as_number(value)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"{name} must be a number; got {value!r}") from exc
     if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
@@ -113,7 +113,7 @@ def _numbers(value: Any) -> NDArray[np.float64]:
 def _seconds(time: Any) -> float:
     """An animation time in seconds: any number but NaN (inf: every spin has ended)."""
     try:
-        t = float(time)
+        t = as_number(time)
     except (TypeError, ValueError):
         t = math.nan
     if math.isnan(t):

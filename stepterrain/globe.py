@@ -40,7 +40,7 @@ from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .stepped import LAND_START
-from .terrain import check_flag, check_spacing, real_numbers, unmasked
+from .terrain import as_number, check_flag, check_spacing, real_numbers, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -77,7 +77,7 @@ def _face_cells(face_size: Any, name: str = "face_size") -> int:
 
 def _positive(value: Any, name: str) -> float:
     try:
-        v = float(value)
+        v = as_number(value)
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be a positive number; got {value!r}") from None
     if not (math.isfinite(v) and v > 0):
@@ -87,7 +87,7 @@ def _positive(value: Any, name: str) -> float:
 
 def _error_value(error: Any) -> float:
     try:
-        v = float(error)
+        v = as_number(error)
     except (TypeError, ValueError):
         raise InvalidInputError(f"error must be a number >= 0 (metres); got {error!r}") from None
     if not (math.isfinite(v) and v >= 0):
@@ -1077,7 +1077,7 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     [16371000, 0, 0]
     """
     try:
-        latitude, longitude = float(latitude), float(longitude)
+        latitude, longitude = as_number(latitude), as_number(longitude)
     except (TypeError, ValueError):
         raise InvalidInputError(f"latitude and longitude must be numbers (degrees); got {latitude!r}, "
                                 f"{longitude!r}") from None
@@ -1087,7 +1087,7 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         raise InvalidInputError(f"longitude must be finite; got {longitude}")
     for name, value in (("altitude", altitude), ("tilt", tilt), ("heading", heading)):
         try:
-            finite = math.isfinite(float(value))
+            finite = math.isfinite(as_number(value))
         except (TypeError, ValueError):
             finite = False
         if not finite:

@@ -31,7 +31,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_terrain, check_flag, finite_number, unmasked
+from .terrain import FLOAT32_MAX, Terrain, as_number, as_terrain, check_flag, finite_number, unmasked
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -230,8 +230,8 @@ def isovalues(
             raise InvalidInputError(f"at most {MAX_LEVELS} levels are supported; got {values.size}")
         return values
     try:
-        step = float(interval)  # type: ignore[arg-type]
-        base = float(base)
+        step = as_number(interval)
+        base = as_number(base)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"interval and base must be numbers; got interval={interval!r}, base={base!r}") from exc
     if not np.isfinite(step) or step <= 0:

@@ -30,7 +30,10 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 def _pair(value: Any, name: str, *, nonzero: bool) -> tuple[float, float]:
     try:
-        arr = np.asarray(value, dtype=np.float64).reshape(-1)
+        raw = np.asarray(value)
+        if raw.dtype.kind not in "iuf":  # text ("30"), bools, complex, objects: not numbers
+            raise TypeError(f"{raw.dtype} is not a real number type")
+        arr = raw.astype(np.float64).reshape(-1)
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"{name} must be a pair of numbers (x, y); got {value!r}") from exc
     if arr.size == 1:
@@ -71,12 +74,20 @@ def unmasked(values: Any) -> Any:
     return np.ma.getdata(values)  # not real numbers: refused by the caller's dtype check
 
 
+def as_number(value: Any) -> float:
+    """``float(value)`` for a real number; a TypeError for text and bools, which ``float`` would also take ("1",
+    True) and which are slips (a value read from a file or a flag in the wrong place), not numbers."""
+    if isinstance(value, (str, bytes, bool, np.bool_)):
+        raise TypeError(f"not a number: {value!r}")
+    return float(value)
+
+
 def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | None = None,
                   hi: float | None = None, unit: str = "") -> float:
     """``value`` as a finite float (within [lo, hi], positive if asked), else an :class:`InvalidInputError`
     naming ``name``; ``unit="rad"`` shows an angle's bounds in degrees as well."""
     try:
-        number = float(value)
+        number = as_number(value)
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be a number; got {value!r}") from None
     if not math.isfinite(number):

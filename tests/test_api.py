@@ -87,3 +87,35 @@ def test_camera_vectors_too_short_for_float64_are_named():
         Camera((1.0, 2.0, 3.0), (1.0, 2.0, 3.0))
     with pytest.raises(InvalidInputError, match=r"Camera up .* is too short to normalise in float64"):
         Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 0.0, 1e-300))
+
+
+_H = [[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: st.stepped(_H, interval="1"), r"interval and base must be numbers; got interval='1'"),
+        (lambda: st.stepped(_H, interval=True), r"interval and base must be numbers; got interval=True"),
+        (lambda: st.stepped(_H, interval=1.0, base=b"0"), r"got interval=1.0, base=b'0'"),
+        (lambda: st.heightfield_mesh(_H, spacing="30"), r"spacing must be a pair of numbers \(x, y\); got '30'"),
+        (lambda: st.heightfield_mesh(_H, spacing=("30", "30")), r"spacing must be a pair of numbers"),
+        (lambda: st.adaptive_mesh(_H, error="5", spacing=1.0), r"error must be a number >= 0 \(metres\); got '5'"),
+        (lambda: st.look_from(True, 0.0, 1.0e7), r"latitude and longitude must be numbers \(degrees\); got True"),
+        (lambda: st.look_from(0.0, 0.0, "1e7"), r"altitude must be a finite number; got '1e7'"),
+    ],
+)
+def test_numbers_given_as_text_or_bools_are_refused(call, match):
+    """float() takes "1" and True, so a number read from a file as text, or a flag passed in a number's place,
+    used to be taken as a number in some arguments (interval, base, spacing, error, look_from's angles) and
+    refused in others (a lens resolution, a Camera's fov); every scalar check now refuses text and bools."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        call()
+
+
+def test_numpy_scalars_stay_numbers():
+    import numpy as np
+
+    mesh = st.stepped(_H, interval=np.float32(1.0), base=np.int64(0), spacing=(np.float64(2.0), 3))
+    assert len(mesh.faces) > 0
+    assert st.look_from(np.float32(10.0), np.int16(5), np.float64(1.0e7)).eye is not None

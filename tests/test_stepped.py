@@ -735,7 +735,9 @@ def test_lens_shows_the_original_inside_and_steps_outside(dem):
         ({"radius": float("nan")}, r"lens radius must be finite; got nan"),
         ({"edge_width": "x"}, r"lens edge_width must be a number; got 'x'"),
         ({"inside": None}, r"lens inside must be a number; got None"),
-        ({"outside": "1"}, None),  # a number as text stays accepted, as float() takes it
+        ({"outside": "1"}, r"lens outside must be a number; got '1'"),  # text, even a number's, as resolution
+        ({"outside": True}, r"lens outside must be a number; got True"),
+        ({"outside": 1}, None),
         ({"outside": [0.5]}, r"lens outside must be a number; got \[0.5\]"),
         ({"resolution": float("nan")}, r"lens resolution must be an int >= 2; got nan"),
         ({"resolution": "64"}, r"lens resolution must be an int >= 2; got '64'"),
