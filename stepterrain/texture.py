@@ -1233,10 +1233,25 @@ class TextureAnimation:
     times: Sequence[float]
 
     def __post_init__(self) -> None:
-        layers = tuple(self.layers)
-        if len(layers) < 1 or not all(isinstance(layer, TextureLayer) for layer in layers):
-            raise InvalidInputError("an animation needs at least one TextureLayer keyframe")
-        times = np.asarray(self.times, dtype=np.float64).reshape(-1)
+        if isinstance(self.layers, (str, bytes, TextureLayer)):
+            layers = None
+        else:
+            try:
+                layers = tuple(self.layers)
+            except TypeError:  # not iterable: None, a number
+                layers = None
+        if layers is None:
+            raise InvalidInputError(f"layers must be a sequence of TextureLayer keyframes; got "
+                                    f"{type(self.layers).__name__}")
+        if not layers:
+            raise InvalidInputError("an animation needs at least one TextureLayer keyframe; got an empty sequence")
+        for k, layer in enumerate(layers):
+            if not isinstance(layer, TextureLayer):
+                raise InvalidInputError(f"layers[{k}] must be a TextureLayer; got {type(layer).__name__}")
+        expected = f"{len(layers)} finite, strictly increasing numbers (one per layer)"
+        if self.times is None or isinstance(self.times, (str, bytes)):  # numpy's ValueError or TypeError otherwise
+            raise InvalidInputError(f"times must be {expected}; got {self.times!r}")
+        times = real_numbers(self.times, "times", expected).reshape(-1)
         if times.shape != (len(layers),):
             raise InvalidInputError(f"times must give one time stamp per layer ({len(layers)}); got {len(times)}")
         if not np.isfinite(times).all() or np.any(np.diff(times) <= 0):

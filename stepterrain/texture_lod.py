@@ -149,16 +149,17 @@ class ImagePyramid:
 
     Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``; level 0 is the source
     itself (a memory-mapped .npy stays on disk). Use as a context manager, or :meth:`close`, to delete a
-    temporary storage folder.
+    temporary storage folder; a closed pyramid refuses to be read (an :class:`InvalidInputError`).
     """
 
     def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: Path,
                  anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False) -> None:
-        self.levels = levels
+        self._levels = levels
         self.extent = extent
         self.storage = storage
-        self.anisotropic = anisotropic or {}
+        self._anisotropic = anisotropic or {}
         self._owned = owned
+        self._closed = False
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -220,6 +221,8 @@ class ImagePyramid:
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
         anisotropic = check_flag(anisotropic, "anisotropic")
+        if storage is not None and not isinstance(storage, (str, os.PathLike)):
+            raise InvalidInputError(f"storage must be a folder path (str or os.PathLike) or None; got {storage!r}")
         owned = storage is None
         try:
             folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if owned else Path(storage)
@@ -248,26 +251,46 @@ class ImagePyramid:
         return cls(levels, extent, folder, aniso, owned)
 
     # ------------------------------------------------------------------ access
+    def _open(self, what: str) -> None:
+        if self._closed:  # level 0 (the source) could still be read, the other levels raised IndexError
+            raise InvalidInputError(f"the ImagePyramid is closed (by close() or the end of its with block), so "
+                                    f"{what} cannot be read; build the pyramid again")
+
+    @property
+    def levels(self) -> list[NDArray[np.uint8]]:
+        """The levels, 0 (the image) to the 1 x 1 one."""
+        self._open("its levels")
+        return self._levels
+
+    @property
+    def anisotropic(self) -> dict[tuple[int, int], NDArray[np.uint8]]:
+        """The anisotropic levels by (kx, ky), empty unless built with ``anisotropic=True``."""
+        self._open("its anisotropic levels")
+        return self._anisotropic
+
     def __len__(self) -> int:
         return len(self.levels)
 
     def __enter__(self) -> ImagePyramid:
+        self._open("it")
         return self
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
 
     def close(self) -> None:
-        """Drop the level maps; delete the storage folder when the pyramid made it."""
-        self.levels = self.levels[:1]
-        self.anisotropic = {}
+        """Drop the level maps; delete the storage folder when the pyramid made it. Closing twice is fine."""
+        self._closed = True
+        self._levels = []
+        self._anisotropic = {}
         if self._owned:
             shutil.rmtree(self.storage, ignore_errors=True)
             self._owned = False
 
     def shape(self, level: int) -> tuple[int, int]:
         """(rows, cols) of ``level``."""
-        return int(self.levels[level].shape[0]), int(self.levels[level].shape[1])
+        shape = self.levels[level].shape
+        return int(shape[0]), int(shape[1])
 
     def pixel_size(self, level: int) -> tuple[float, float]:
         """(width, height) of one pixel of ``level`` in world units."""

@@ -242,6 +242,51 @@ def test_animation_selects_two_keyframes():
         TextureAnimation(keys, [0.0, 2.0, 1.0])
 
 
+KEY = layer(np.full((3, 4), 0.5, np.float32), "luminance")
+
+
+@pytest.mark.parametrize("layers, times, match", [
+    (None, [0.0], r"layers must be a sequence of TextureLayer keyframes; got NoneType"),
+    (5, [0.0], r"layers must be a sequence of TextureLayer keyframes; got int"),
+    ("ab", [0.0, 1.0], r"layers must be a sequence of TextureLayer keyframes; got str"),
+    (KEY, [0.0], r"layers must be a sequence of TextureLayer keyframes; got TextureLayer"),
+    ([], [], r"an animation needs at least one TextureLayer keyframe; got an empty sequence"),
+    ([KEY, "x"], [0.0, 1.0], r"layers\[1\] must be a TextureLayer; got str"),
+    ([KEY, None], [0.0, 1.0], r"layers\[1\] must be a TextureLayer; got NoneType"),
+    ([KEY, KEY], "ab", r"times must be 2 finite, strictly increasing numbers \(one per layer\); got 'ab'"),
+    ([KEY, KEY], None, r"times must be 2 finite, strictly increasing numbers \(one per layer\); got None"),
+    ([KEY, KEY], ["a", "b"], r"times must be 2 finite, strictly increasing numbers \(one per layer\) \(real "),
+    ([KEY, KEY], [0.0, 1j], r"times must be 2 finite, strictly increasing numbers \(one per layer\) \(real "),
+    ([KEY, KEY], [[0.0], [1.0, 2.0]], r"times must be 2 finite, .*; got rows of different lengths"),
+    ([KEY, KEY], [0.0], r"times must give one time stamp per layer \(2\); got 1"),
+    ([KEY, KEY], [0.0, np.nan], r"times must be finite and strictly increasing; got \[0.0, nan\]"),
+    ([KEY, KEY], [1.0, 1.0], r"times must be finite and strictly increasing; got \[1.0, 1.0\]"),
+])
+def test_animation_arguments_are_checked(layers, times, match):
+    """times 'ab' raised numpy's 'could not convert string to float' ValueError, layers None or 5 Python's
+    'not iterable' TypeError, and a string of layers or a single layer were not named."""
+    with pytest.raises(InvalidInputError, match=match):
+        TextureAnimation(layers, times)
+
+
+@pytest.mark.parametrize("t, match", [("x", r"t must be a number; got 'x'"), (None, r"t must be a number; got None"),
+                                      (np.nan, r"t must be finite; got nan"), (np.inf, r"t must be finite; got inf")])
+def test_animation_frame_time_is_checked(t, match):
+    anim = TextureAnimation([KEY, KEY], [0.0, 1.0])
+    with pytest.raises(InvalidInputError, match=match):
+        anim.frame(t, device="cpu")
+    with pytest.raises(InvalidInputError, match=match):
+        anim.at(t)
+
+
+def test_animation_good_arguments_keep_working():
+    keys = (layer(np.full((3, 4), v, np.float32), "luminance") for v in (0.0, 1.0))  # any iterable of layers
+    anim = TextureAnimation(keys, np.array([0, 4]))  # integer times
+    assert anim.times == (0.0, 4.0) and len(anim.layers) == 2
+    assert anim.at(1)[2] == pytest.approx(0.25)
+    assert TextureAnimation([KEY], 2.5).times == (2.5,)  # one keyframe, one scalar time
+
+
 # ------------------------------------------------------------------------------------------ bad input
 def test_bad_layers_and_operations():
     with pytest.raises(InvalidInputError, match="layer kind must be one of"):

@@ -151,6 +151,50 @@ def test_pyramid_bad_input(tmp_path):
         ImagePyramid.build(np.zeros((4, 4), np.uint8), extent=(1, 0, 0, 1))
 
 
+@pytest.mark.parametrize("storage", [5, 2.5, True, b"levels", ["levels"]])
+def test_pyramid_storage_must_be_a_folder_path(storage):
+    """storage=5 raised pathlib's 'expected str, bytes or os.PathLike object' TypeError."""
+    with pytest.raises(InvalidInputError,
+                       match=r"storage must be a folder path \(str or os.PathLike\) or None; got "):
+        ImagePyramid.build(np.zeros((4, 4), np.uint8), storage=storage, device="cpu")
+
+
+@pytest.mark.parametrize("given_storage", [False, True])
+def test_a_closed_pyramid_is_refused(tmp_path, given_storage):
+    """After close() (or its with block) level 0 could still be read, the other levels raised IndexError, and
+    len() answered 1."""
+    quadtree = PatchQuadtree(np.zeros((9, 9), np.float32), leaf_size=4)
+    image = rng.integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    storage = tmp_path / "levels" if given_storage else None
+    with ImagePyramid.build(image, extent=quadtree.root.domain, storage=storage, anisotropic=True,
+                            device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=4)
+        assert len(pyramid) == 5 and tree.root.image().shape[2] == 3
+    pyramid.close()  # closing twice is fine
+    uses = {
+        "levels": lambda: pyramid.levels,
+        "anisotropic": lambda: pyramid.anisotropic,
+        "len": lambda: len(pyramid),
+        "shape 0": lambda: pyramid.shape(0),
+        "shape 1": lambda: pyramid.shape(1),
+        "pixel_size": lambda: pyramid.pixel_size(0),
+        "window": lambda: pyramid.window(0, quadtree.root.domain),
+        "window_extent": lambda: pyramid.window_extent(0, (0, 1, 0, 1)),
+        "sub_image 0": lambda: pyramid.sub_image(0, (0, 1, 0, 1)),
+        "sub_image 1": lambda: pyramid.sub_image(1, (0, 1, 0, 1)),
+        "with": lambda: pyramid.__enter__(),
+        "patch image": lambda: tree.root.image(),
+        "patch nbytes": lambda: tree.root.nbytes,
+        "new tree": lambda: TextureTree(pyramid, quadtree),
+    }
+    for name, use in uses.items():
+        with pytest.raises(InvalidInputError, match=r"the ImagePyramid is closed \(by close\(\) or the end of its "
+                                                    r"with block\)"):
+            use()
+            pytest.fail(f"{name} read a closed pyramid")
+    assert pyramid.extent == tuple(quadtree.root.domain)
+
+
 # ------------------------------------------------------------------------------------------ trees
 def terrain_and_image(size=129, image_size=(1000, 1000)):
     heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=size, step=4)
