@@ -37,7 +37,7 @@ from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
-from .terrain import Terrain, as_terrain, check_flag
+from .terrain import Terrain, as_number, as_terrain, check_flag
 from .texture import _check_extent
 
 __all__ = [
@@ -854,7 +854,7 @@ def render_with_textures(
 
 def _threshold(value: Any, name: str) -> float:
     try:
-        number = float(value)
+        number = as_number(value)
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be a number of pixels; got {value!r}") from None
     if not math.isfinite(number) or number < 0:

@@ -475,3 +475,19 @@ def test_pyramid_of_a_georeferenced_geotiff():
             r0, r1, c0, c1 = pyramid.window(level, (-101.0, -99.0, -21.0, -19.0))
             patch = np.asarray(pyramid.sub_image(level, (r0, r1, c0, c1)), dtype=float).reshape(-1, 3).mean(axis=0)
             assert patch[2] > patch[0]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"gamma_user": "2"}, r"gamma_user must be a number of pixels; got '2'"),
+        ({"tau_user": True}, r"tau_user must be a number of pixels; got True"),
+        ({"gamma_user": -1.0}, r"gamma_user must be a finite number of pixels >= 0; got -1.0"),
+        ({"tau_user": float("nan")}, r"tau_user must be a finite number of pixels >= 0; got nan"),
+    ],
+)
+def test_render_with_textures_thresholds_are_numbers_of_pixels(kwargs, match):
+    """Text and bools were taken by float() as pixel thresholds ("2" -> 2.0, True -> 1.0)."""
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid, pytest.raises(InvalidInputError, match=match):
+        render_with_textures(quadtree.root, [tree.root], camera, **kwargs)
