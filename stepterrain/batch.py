@@ -38,8 +38,8 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
-from .export import MESH_EXTENSIONS, atomic_path, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain, check_flag
+from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
+from .terrain import FLOAT32_MAX, Terrain, check_flag, first_beyond_float32, float32_heights
 
 __all__ = [
     "batch",
@@ -240,7 +240,7 @@ def plan_items(
             "source must be a folder, a list of DEM files, a Terrain, an (H, W) raster or a (T, H, W) series; "
             f"got {type(source).__name__} with shape {getattr(array, 'shape', None)}, dtype {array.dtype}"
         )
-    heights = np.ascontiguousarray(array, dtype=np.float32)
+    heights = float32_heights(array, "source")  # 1e300 refused here: the cast would make it inf, each item "infinite"
     if heights.ndim == 3:
         if tile_size is not None:
             raise InvalidInputError(f"tile_size applies to one (H, W) raster; got a (T, H, W) series {heights.shape}")
@@ -256,7 +256,8 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
     In an ``.npz`` the key :func:`~stepterrain.io.load_dem` reads (``heights``, ``elevation`` or ``z``) decides
     when there is one: a 2-D ``elevation`` beside a 3-D texture is one raster. Non-finite heights become NaN
-    (nodata), as :func:`~stepterrain.io.load_dem` reads a 2-D file."""
+    (nodata) and finite ones beyond float32 are a DataFileError, as :func:`~stepterrain.io.load_dem` reads a 2-D
+    file."""
     file = Path(os.fspath(path))
     try:
         loaded = np.load(file, mmap_mode="r", allow_pickle=False)
@@ -275,7 +276,13 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "biuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    heights = np.array(stack, dtype=np.float32)  # a copy, never the file's memory map
+    try:
+        with np.errstate(over="raise"):  # 1e300 would become inf, then nodata: refused, as load_dem refuses it
+            heights = np.array(stack, dtype=np.float32)  # a copy, never the file's memory map
+    except FloatingPointError:
+        value, at = first_beyond_float32(stack)
+        raise DataFileError(f"cannot read {str(file)!r}: a (T, H, W) array holds heights beyond float32 "
+                            f"(|z| < {FLOAT32_MAX:.2g}); got {value!r} at index {at}") from None
     heights[~np.isfinite(heights)] = np.nan  # as load_dem reads a 2-D file: any non-finite value is nodata
     return heights
 
@@ -656,7 +663,9 @@ def batch(
     progress : bool
         A tqdm progress bar on stderr.
     metadata : mapping, optional
-        Added to every output's glTF ``extras``.
+        Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
+        with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
+        anything else is refused before any work, naming its key.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker).
 
@@ -668,7 +677,8 @@ def batch(
     Raises
     ------
     InvalidInputError
-        Unknown format, bad source, tile size, isovalues or scheduler address; a ``floor`` not below the lowest
+        Unknown format, bad source (an array with a finite height beyond float32 included), tile size,
+        isovalues, scheduler address or ``metadata`` (not a mapping of JSON values); a ``floor`` not below the lowest
         point of the stepped surface of every tile or frame (a folder's files are read by the items, so there
         each item fails on its own).
     DataFileError
@@ -718,11 +728,7 @@ def batch(
         raise InvalidInputError(f"gamma must be a number in [0, 1] for batch; got {gamma!r}")
     if colors is not None and not isinstance(colors, str):
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
-    if metadata is not None and not isinstance(metadata, Mapping):
-        raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
-    bad_keys = [k for k in (metadata or {}) if not isinstance(k, str)]
-    if bad_keys:  # glTF extras are a JSON object: {1: 2, "1": 3} lost one value, silently
-        raise InvalidInputError(f"metadata keys must be strings (glTF extras are a JSON object); got {bad_keys[0]!r}")
+    extras = json_metadata(metadata)  # plain JSON values, so the fingerprint's repr and the workers see those
     check_flag(solid, "solid")
     check_flag(resume, "resume")
     check_flag(progress, "progress")
@@ -760,7 +766,7 @@ def batch(
             None if levels is None else tuple(float(v) for v in np.asarray(levels, np.float64).reshape(-1))),
         base=float(base), gamma=float(gamma), colors=colors, solid=bool(solid),
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
-        metadata=tuple(sorted((str(k), v) for k, v in dict(metadata or {}).items())),
+        metadata=tuple(sorted(extras.items())),
     )  # fmt: skip
     if level_values is not None and interval is not None:
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})

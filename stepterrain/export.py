@@ -127,6 +127,8 @@ def save_mesh(
         ``.3mf``.
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
+        JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
+        scalars and arrays become numbers and lists.
 
     Returns
     -------
@@ -136,8 +138,9 @@ def save_mesh(
     Raises
     ------
     InvalidInputError
-        ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices, or the extension is unknown (the
-        message lists the supported ones).
+        ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices, the extension is unknown (the
+        message lists the supported ones), or ``metadata`` holds a value that is not JSON (a set, bytes, an
+        object; the message names its key) or a key that is not a string.
     MissingDependencyError
         ``.3mf`` without ``lxml`` and ``networkx`` (trimesh's 3MF writer needs both).
     DataFileError
@@ -147,10 +150,12 @@ def save_mesh(
     -----
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
     stay crisp. Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
-    non-finite floats ``null``, other objects their ``str``; arrays longer than 4096 elements and keys
-    starting with ``_`` are left out. glTF accessors are float32, so when coordinates exceed 65536 (UTM
-    metres) the vertices are stored relative to a node translation (float64 in the JSON) and loaders that
-    apply the scene graph get world coordinates back at full precision. Textured OBJ meshes also write
+    non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
+    elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
+    in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. glTF accessors
+    are float32, so when coordinates exceed 65536 (UTM metres) the vertices are stored relative to a node
+    translation (float64 in the JSON) and loaders that apply the scene graph get world coordinates back at
+    full precision. Textured OBJ meshes also write
     ``<stem>.mtl`` and their images beside ``path``. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
     when anything fails.
@@ -165,8 +170,7 @@ def save_mesh(
     """
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
-    if metadata is not None and not isinstance(metadata, Mapping):
-        raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    extras = json_metadata(metadata)
     target = _target(path)
     ext = target.suffix.lower()
     vertices = np.asarray(mesh.vertices)
@@ -188,7 +192,7 @@ def save_mesh(
             raise MissingDependencyError(
                 f"writing 3MF needs {' and '.join(missing)}: pip install lxml networkx"
             )
-    prepared = _prepared_mesh(mesh, metadata)
+    prepared = _prepared_mesh(mesh, extras)
     with atomic_path(target) as tmp:
         try:
             writer(prepared, tmp, target, bounds)
@@ -675,8 +679,38 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]]) -> list[tuple[str, NDAr
     return columns
 
 
-def _json_value(value: Any) -> Any:
-    """``value`` as plain JSON types (see :func:`save_mesh` Notes), or ``_OMIT`` for a dropped item."""
+#: What a ``metadata`` value may be, in the message that refuses another.
+_JSON_EXPECTED = "JSON (str, number, bool, None, list or dict of those)"
+
+
+def json_metadata(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
+    """``metadata`` (a mapping or None) as plain JSON values, as :func:`save_mesh` writes them to glTF extras
+    (see its Notes); the one check of the ``metadata`` of :func:`save_mesh` and :func:`~stepterrain.batch.batch`.
+
+    A value that is not JSON (a set, bytes, a complex number, an object, an array of such) or a key that is not a
+    string is an :class:`InvalidInputError` naming where it lies (``metadata['run']['tags'][2]``): written as
+    its ``str`` before, silently.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> json_metadata({"height": np.float64(12.5), "levels": np.arange(3), "gap": float("nan")})
+    {'height': 12.5, 'levels': [0, 1, 2], 'gap': None}
+    >>> json_metadata({"owner": {"ann"}})  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    stepterrain.errors.InvalidInputError: metadata['owner'] must be JSON (...); got set
+    """
+    if metadata is None:
+        return {}
+    if not isinstance(metadata, Mapping):
+        raise InvalidInputError(f"metadata must be a mapping (dict); got {type(metadata).__name__}")
+    return _json_value(metadata, "metadata")  # type: ignore[no-any-return]
+
+
+def _json_value(value: Any, where: str | None = None) -> Any:
+    """``value`` as plain JSON types (see :func:`save_mesh` Notes), or ``_OMIT`` for a dropped item. With
+    ``where`` (the value's name, for the message) a value that is not JSON is refused; without, it is written
+    as its ``str`` (a mesh's own metadata)."""
     if value is None or isinstance(value, (bool, str)):
         return value
     if isinstance(value, (int, np.integer)) and not isinstance(value, np.bool_):
@@ -686,25 +720,33 @@ def _json_value(value: Any) -> Any:
     if isinstance(value, np.bool_):
         return bool(value)
     if isinstance(value, np.ndarray):
-        if value.size > _MAX_EXTRAS_ITEMS or value.dtype.kind not in "biufUS":
+        if value.size > _MAX_EXTRAS_ITEMS:
             return _OMIT
-        return _json_value(value.tolist())
+        if value.dtype.kind not in ("biufU" if where is not None else "biufUS"):  # bytes' str is their repr
+            if where is not None:
+                raise InvalidInputError(f"{where} must be {_JSON_EXPECTED}; got an array of dtype {value.dtype}")
+            return _OMIT
+        return _json_value(value.tolist(), where)
     if isinstance(value, Mapping):
         out = {}
         for key, item in value.items():
+            if where is not None and not isinstance(key, str):  # {1: 2, "1": 3} would lose one value, silently
+                raise InvalidInputError(f"{where} keys must be strings (glTF extras are a JSON object); got {key!r}")
             if str(key).startswith("_"):
                 continue
-            converted = _json_value(item)
+            converted = _json_value(item, None if where is None else f"{where}[{str(key)!r}]")
             if converted is not _OMIT:
                 out[str(key)] = converted
         return out
-    if isinstance(value, (list, tuple, set, frozenset)):
+    if isinstance(value, (list, tuple)) or (where is None and isinstance(value, (set, frozenset))):
         if len(value) > _MAX_EXTRAS_ITEMS:
             return _OMIT
-        items = [_json_value(item) for item in value]
+        items = [_json_value(item, None if where is None else f"{where}[{k}]") for k, item in enumerate(value)]
         return [item for item in items if item is not _OMIT]
     if isinstance(value, os.PathLike):
         return os.fspath(value)
+    if where is not None:
+        raise InvalidInputError(f"{where} must be {_JSON_EXPECTED}; got {type(value).__name__}")
     return str(value)
 
 

@@ -123,9 +123,34 @@ def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.floa
     return array.astype(np.float64)
 
 
+def first_beyond_float32(array: NDArray[Any]) -> tuple[float, tuple[int, ...]]:
+    """The first finite value of ``array`` that float32 cannot hold (a cast makes it infinite), and its index.
+    For the error path only: it is a full pass, which :func:`float32_heights` takes only after the cast overflowed."""
+    with np.errstate(over="ignore"):
+        overflowed = np.isinf(np.asarray(array, dtype=np.float32)) & np.isfinite(array)
+    at = tuple(int(i) for i in np.argwhere(overflowed)[0])
+    return float(array[at]), at
+
+
+def float32_heights(array: NDArray[Any], name: str) -> NDArray[np.float32]:
+    """``array`` (real numbers) as C-contiguous float32. A finite value beyond float32's range (1e300 in float64)
+    is an InvalidInputError naming ``name``, the value and its index, not an infinity with numpy's "overflow
+    encountered in cast" warning; the common path costs only the cast (the overflow is trapped by np.errstate)."""
+    if array.dtype.kind != "f" or array.dtype.itemsize <= 4:  # integers and float16/32 always fit
+        return np.ascontiguousarray(array, dtype=np.float32)
+    try:
+        with np.errstate(over="raise"):
+            return np.ascontiguousarray(array, dtype=np.float32)
+    except FloatingPointError:
+        value, at = first_beyond_float32(array)
+        raise InvalidInputError(f"{name} must fit in float32 (|h| < {FLOAT32_MAX:.2g}); got {value!r} at index {at}, "
+                                "finite but beyond float32's range") from None
+
+
 def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[np.float32], float, float]:
     """The heights as a C-contiguous float32 array the Terrain owns, and their min and max (NaN when there is
-    nodata): two passes that also find an infinite value, instead of an isinf pass and a mask."""
+    nodata): two passes that also find an infinite value, instead of an isinf pass and a mask. A finite value
+    beyond float32 is trapped in the cast (:func:`float32_heights`), so it is not reported as infinite."""
     try:
         arr = np.asarray(unmasked(heights))
     except ValueError:  # ragged nested sequences
@@ -136,7 +161,7 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[n
         raise InvalidInputError(f"{name} must be a 2-D (H, W) array; got shape {arr.shape}")
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise InvalidInputError(f"{name} needs at least 2 x 2 nodes; got shape {arr.shape}")
-    out = np.ascontiguousarray(arr, dtype=np.float32)
+    out = float32_heights(arr, name)
     if isinstance(heights, np.ndarray) and np.may_share_memory(out, heights):
         out = out.copy()  # the Terrain's caches must not see later changes to the caller's array
     lo, hi = float(out.min()), float(out.max())  # NaN propagates through both, and an infinity shows in one
@@ -439,7 +464,8 @@ def heightfield_mesh(
     Raises
     ------
     InvalidInputError
-        ``heights`` is not a real (H, W) array with H, W >= 2, has infinite values, or ``spacing`` has a zero.
+        ``heights`` is not a real (H, W) array with H, W >= 2, has infinite values or finite ones beyond
+        float32, or ``spacing`` has a zero.
 
     Examples
     --------

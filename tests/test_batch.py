@@ -6,6 +6,7 @@ import json
 import os
 import re
 import socket
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -187,6 +188,35 @@ def test_series_file_reads_non_finite_heights_as_nodata_like_load_dem(tmp_path):
     values = isovalues((float(finite.min()), float(finite.max())), interval=0.25)
     expected = stepped(load_dem(tmp_path / "frame.npy"), levels=values)
     assert len(load(tmp_path / "out" / "frame_0001.ply").faces) == len(expected.faces)
+
+
+def test_heights_beyond_float32_are_refused_up_front_not_called_infinite(tmp_path):
+    """A finite float64 height beyond float32 (1e300) became inf in the cast (numpy's 'overflow encountered in
+    cast' warning): its frame or tile failed on its own with '... got an infinite value at index (2, 3)', and a
+    series file read it as nodata. Now the array is refused before any work, naming the value and its index,
+    and the file as load_dem refuses a 2-D one."""
+    frames = np.add.outer(np.arange(4.0), np.arange(5.0))[None].repeat(3, axis=0)
+    frames[1, 2, 3] = 1e300
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nor the overflow warning
+        with pytest.raises(InvalidInputError, match=r"^source must fit in float32 \(\|h\| < 3.4e\+38\); got 1e\+300 "
+                                                    r"at index \(1, 2, 3\), finite but beyond float32's range$"):
+            batch(frames, tmp_path / "out", interval=1.0, scheduler="serial")
+        with pytest.raises(InvalidInputError, match=r"got -1e\+39 at index \(2, 3\), finite but beyond float32"):
+            batch(np.where(frames[1] > 1e38, -1e39, frames[1]), tmp_path / "out", tile_size=2, interval=1.0,
+                  scheduler="serial")
+        assert not (tmp_path / "out").exists()
+        np.save(tmp_path / "series.npy", frames)
+        with pytest.raises(DataFileError, match=r"series.npy.*: a \(T, H, W\) array holds heights beyond float32 "
+                                                r"\(\|z\| < 3.4e\+38\); got 1e\+300 at index \(1, 2, 3\)$"):
+            batch(tmp_path / "series.npy", tmp_path / "out", interval=1.0, scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    frames[1, 2, 3] = np.inf  # an infinity is still nodata in a file, and named as one in an array
+    np.save(tmp_path / "series.npy", frames)
+    assert batch(tmp_path / "series.npy", tmp_path / "file", interval=1.0, scheduler="serial").ok
+    report = batch(frames, tmp_path / "array", interval=1.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["frame_0001"]
+    assert "an infinite value at index (2, 3)" in report.failed[0].error
 
 
 def test_npz_with_a_2d_elevation_and_a_3d_extra_is_one_raster_not_a_series(tmp_path):
@@ -617,6 +647,41 @@ def test_metadata_keys_must_be_strings(tmp_path):
         batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial",
               metadata={1: 2, "1": 3})
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("metadata", "match"),
+    [
+        ({"owner": {"ann", "bob"}}, r"^metadata\['owner'\] must be JSON \(str, number, bool, None, list or dict of "
+                                    r"those\); got set$"),
+        ({"run": {"when": object()}}, r"^metadata\['run'\]\['when'\] must be JSON .*; got object$"),
+        ({"blob": b"\x00"}, r"^metadata\['blob'\] must be JSON .*; got bytes$"),
+    ],
+)
+def test_metadata_values_must_be_json(tmp_path, metadata, match):
+    """Written as their str into every output's extras, silently; now refused before the output folder is made
+    or the scheduler is reached (the address below listens to nothing: reaching it raised SchedulerError)."""
+    with pytest.raises(InvalidInputError, match=match):
+        batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="tcp://127.0.0.1:1",
+              connect_timeout=1.0, metadata=metadata)
+    assert not (tmp_path / "out").exists()
+
+
+def test_numpy_metadata_reaches_every_output_as_json_and_resumes(tmp_path):
+    from .test_export import glb_json
+
+    metadata = {"height": np.float64(1234.5678901234567), "isovalues_in": np.array([0.1, 2.5], np.float32),
+                "count": np.int64(7), "ok": np.bool_(True), "gap": np.nan, "nested": {"a": [np.int32(-3)]}}
+    z = np.add.outer(np.arange(5.0), np.arange(5.0))
+    report = batch(z, tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial", metadata=metadata)
+    assert report.ok and len(report.done) == 4
+    for result in report.done:
+        extras = glb_json(Path(result.path))["meshes"][0]["extras"]
+        assert extras["height"] == 1234.5678901234567 and extras["isovalues_in"] == [float(np.float32(0.1)), 2.5]
+        assert extras["count"] == 7 and extras["ok"] is True and extras["gap"] is None
+        assert extras["nested"] == {"a": [-3]} and extras["generator"] == "stepterrain.batch"
+    again = batch(z, tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial", metadata=dict(metadata))
+    assert len(again.skipped) == 4 and not again.done
 
 
 def test_unreachable_scheduler_leaves_no_empty_output_folder(tmp_path):

@@ -119,9 +119,10 @@ def test_extras_are_json_safe(tmp_path):
         "nested": {"a": np.arange(3)},
         "huge": np.zeros(100_000),
         "_private": 1,
-        "thing": object,
     }
-    tree = glb_json(save_mesh(stepped_like_mesh(), tmp_path / "m.glb", metadata=metadata))
+    mesh = stepped_like_mesh()
+    mesh.metadata["thing"] = object  # the mesh's own metadata (a loader's, a caller's) is written as before
+    tree = glb_json(save_mesh(mesh, tmp_path / "m.glb", metadata=metadata))
     extras = tree["meshes"][0]["extras"]
     assert extras["nan"] is None
     assert extras["path"] == str(tmp_path)
@@ -129,6 +130,80 @@ def test_extras_are_json_safe(tmp_path):
     assert extras["nested"] == {"a": [0, 1, 2]}
     assert "huge" not in extras and "_private" not in extras
     assert extras["thing"] == str(object)
+
+
+def test_numpy_metadata_round_trips_as_json_numbers_and_lists(tmp_path):
+    """np.float64 heights, isovalue arrays (float32 or float64), numpy ints and bools, 0-d and 2-D arrays, and
+    nested dicts and lists of them reach glTF extras as plain JSON numbers and lists, bit for bit."""
+    metadata = {
+        "height": np.float64(1234.5678901234567),
+        "isovalues": np.array([0.1, 0.2, 1e-7, -3.5e12]),
+        "levels32": np.array([0.1, 2.5], np.float32),
+        "f32": np.float32(0.1),
+        "count": np.int64(2**40),
+        "u8": np.uint8(200),
+        "flag": np.bool_(False),
+        "grid": np.arange(6).reshape(2, 3),
+        "zero_d": np.array(3.5),
+        "names": np.array(["a", "b"]),
+        "inf": np.float64(np.inf),
+        "nested": {"a": [np.float64(1.5), {"b": np.int32(-3)}], "t": (1, "x", None)},
+    }
+    expected = {
+        "height": 1234.5678901234567,
+        "isovalues": [0.1, 0.2, 1e-7, -3.5e12],
+        "levels32": [float(np.float32(0.1)), 2.5],
+        "f32": float(np.float32(0.1)),
+        "count": 2**40,
+        "u8": 200,
+        "flag": False,
+        "grid": [[0, 1, 2], [3, 4, 5]],
+        "zero_d": 3.5,
+        "names": ["a", "b"],
+        "inf": None,  # non-finite floats are null (JSON has no NaN or Infinity), as before
+        "nested": {"a": [1.5, {"b": -3}], "t": [1, "x", None]},
+    }
+    for ext in (".glb", ".gltf"):
+        out = save_mesh(stepped_like_mesh(), tmp_path / f"m{ext}", metadata=metadata)
+        tree = glb_json(out) if ext == ".glb" else json.loads(out.read_text())
+        extras = tree["meshes"][0]["extras"]
+        assert {k: extras[k] for k in expected} == expected
+        assert type(extras["height"]) is float and type(extras["count"]) is int and extras["flag"] is False
+    (geometry,) = trimesh.load(tmp_path / "m.glb").geometry.values()
+    assert geometry.metadata["height"] == 1234.5678901234567 and geometry.metadata["isovalues"][3] == -3.5e12
+
+
+_NOT_JSON = r"must be JSON \(str, number, bool, None, list or dict of those\); got"
+
+
+@pytest.mark.parametrize(
+    ("metadata", "match"),
+    [
+        ({"owner": {"ann", "bob"}}, rf"^metadata\['owner'\] {_NOT_JSON} set$"),
+        ({"owner": object()}, rf"^metadata\['owner'\] {_NOT_JSON} object$"),
+        ({"blob": b"\x00\x01"}, rf"^metadata\['blob'\] {_NOT_JSON} bytes$"),
+        ({"z": 1 + 2j}, rf"^metadata\['z'\] {_NOT_JSON} complex$"),
+        ({"when": np.datetime64("2024-05-01")}, rf"^metadata\['when'\] {_NOT_JSON} datetime64$"),
+        ({"run": {"a": [1, frozenset()]}}, rf"^metadata\['run'\]\['a'\]\[1\] {_NOT_JSON} frozenset$"),
+        ({"phases": np.array([1j, 2j])}, rf"^metadata\['phases'\] {_NOT_JSON} an array of dtype complex128$"),
+        ({"tags": np.array([b"a", b"b"])}, rf"^metadata\['tags'\] {_NOT_JSON} an array of dtype \|S1$"),
+        ({"items": np.array([{}, None], dtype=object)}, rf"{_NOT_JSON} an array of dtype object$"),
+        ({"run": {1: "a", "1": "b"}}, r"^metadata\['run'\] keys must be strings \(glTF extras are a JSON object\); "
+                                      r"got 1$"),
+        ({2: "x"}, r"^metadata keys must be strings \(glTF extras are a JSON object\); got 2$"),
+    ],
+)
+def test_metadata_that_is_not_json_is_refused_before_writing(tmp_path, metadata, match):
+    """Such values were written into glTF extras as their str (a set as "{'ann', 'bob'}", bytes as "b'...'", a
+    complex array left out), silently; now refused, naming the key, before any file is written."""
+    for ext in (".glb", ".ply"):
+        with pytest.raises(InvalidInputError, match=match):
+            save_mesh(stepped_like_mesh(), tmp_path / f"new{ext}", metadata=metadata)
+    (tmp_path / "kept.glb").write_bytes(b"old")
+    with pytest.raises(InvalidInputError, match=match):
+        save_mesh(stepped_like_mesh(), tmp_path / "kept.glb", metadata=metadata)
+    assert (tmp_path / "kept.glb").read_bytes() == b"old"
+    no_leftovers(tmp_path, {"kept.glb"})
 
 
 def test_large_coordinates_keep_precision_in_gltf(tmp_path):

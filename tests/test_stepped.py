@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import re
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
@@ -980,6 +983,23 @@ def test_isovalues_bad_height_range_is_named(height_range):
 def test_bad_heights_raise_clear_errors(heights, match):
     with pytest.raises(st.InvalidInputError, match=match):
         st.stepped(heights, interval=1.0)
+
+
+@pytest.mark.parametrize("value", [1e300, -1e39])
+def test_heights_beyond_float32_are_named_not_called_infinite(value):
+    """A finite float64 height beyond float32's range was 'an infinite value at index (2, 3)' (after numpy's
+    'overflow encountered in cast' warning); it is finite: the message says so and shows it."""
+    heights = np.add.outer(np.arange(4.0), np.arange(5.0))
+    heights[2, 3] = value
+    match = (rf"^heights must fit in float32 \(\|h\| < 3.4e\+38\); got {re.escape(repr(value))} at index \(2, 3\), "
+             r"finite but beyond float32's range$")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for make in (lambda: st.stepped(heights, interval=1.0), lambda: st.Terrain.from_heights(heights)):
+            with pytest.raises(st.InvalidInputError, match=match):
+                make()
+    heights[2, 3] = np.finfo(np.float32).max  # the largest float32 is fine
+    assert st.Terrain.from_heights(heights).heights[2, 3] == np.finfo(np.float32).max
 
 
 @pytest.mark.parametrize("n_vertices", [0, 3])
