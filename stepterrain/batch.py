@@ -998,6 +998,7 @@ def overview_image(
 
     from . import render
 
+    width, height, _ = render._check_window(window_size, z_scale)  # the contact sheet's w // cols truncated 64.7
     paths = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path][:max_items]
     if not paths:
         raise InvalidInputError("the batch wrote no output to show")
@@ -1014,11 +1015,11 @@ def overview_image(
             rgba = np.c_[rgb, np.full(len(rgb), 255)].astype(np.uint8)
             mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba)
             parts.append(mesh)
-        return render.render_mesh(trimesh.util.concatenate(parts), window_size=window_size, z_scale=z_scale)
+        return render.render_mesh(trimesh.util.concatenate(parts), window_size=(width, height), z_scale=z_scale)
     n = len(meshes)
     cols = math.ceil(math.sqrt(n))
     rows = math.ceil(n / cols)
-    w, h = max(16, window_size[0] // cols), max(16, window_size[1] // rows)
+    w, h = max(16, width // cols), max(16, height // rows)
     sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
         r, c = divmod(k, cols)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import ctypes.util
 import math
+import numbers
 import os
 import sys
 from collections.abc import Sequence
@@ -26,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import check_flag
+from .terrain import check_flag, real_numbers
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
            "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
@@ -244,7 +245,7 @@ def render_mesh(
     mesh : trimesh.Trimesh
         Any triangle mesh; a stepped terrain renders with its vertex colors when it has them.
     window_size : (width, height)
-        Image size in pixels.
+        Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
         Vertical exaggeration applied for the render only (the mesh is not modified).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
@@ -386,12 +387,31 @@ def _check_background(pv: Any, background: Any) -> None:
                                 f"{background!r}") from None
 
 
+def _whole_pixels(value: Any) -> int | None:
+    """``value`` as an int when it is a whole number (640 or 640.0), else None: int() truncated 64.7, read
+    True as 1 and "640" as 640, and raised its own OverflowError for inf."""
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        value = value.item()
+    if isinstance(value, (bool, np.bool_)):
+        return None
+    if isinstance(value, numbers.Integral):
+        return int(value)
+    if isinstance(value, numbers.Real) and float(value).is_integer():  # NaN and inf are not
+        return int(float(value))
+    return None
+
+
 def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, int, float]:
-    """(width, height, z_scale) checked: 8 to 16384 pixels per side, a positive finite vertical scale."""
+    """(width, height, z_scale) checked: two whole numbers of 8 to 16384 pixels, a positive finite vertical
+    scale."""
     try:
-        width, height = (int(v) for v in window_size)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"window_size must be (width, height); got {window_size!r}") from exc
+        sides = [_whole_pixels(v) for v in window_size] if not isinstance(window_size, (str, bytes)) else []
+    except TypeError:  # not a sequence
+        sides = []
+    if len(sides) != 2 or None in sides or min(sides) <= 0:
+        raise InvalidInputError(
+            f"window_size must be two positive whole numbers (width, height); got {window_size!r}")
+    width, height = sides
     if not (8 <= width <= 16384 and 8 <= height <= 16384):
         raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
     try:
@@ -489,7 +509,8 @@ def render_textured_mesh(
     Raises
     ------
     InvalidInputError
-        The mesh has no UVs or no texture image, or a bad window size, z_scale or camera.
+        The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, or a bad window size,
+        z_scale or camera.
     MissingDependencyError
         No off-screen OpenGL context can be made.
     """
@@ -504,6 +525,7 @@ def render_textured_mesh(
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
+    uv = _texture_coordinates(uv)
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
@@ -511,7 +533,7 @@ def render_textured_mesh(
     pv = _import_pyvista()
     _check_background(pv, background)
     poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
-    poly.active_texture_coordinates = np.ascontiguousarray(uv, dtype=np.float32)
+    poly.active_texture_coordinates = uv
     picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
     texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
     mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
@@ -519,6 +541,25 @@ def render_textured_mesh(
     return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting)
+
+
+def _texture_coordinates(uv: Any) -> NDArray[np.float32]:
+    """The mesh's UVs as the (V, 2) float32 array VTK gets, else an InvalidInputError: a NaN or inf UV (or one
+    beyond float32) was drawn without an error, with garbage texels on every face it touches."""
+    try:
+        with np.errstate(over="ignore"):  # a UV beyond float32 becomes inf, named below
+            coords = np.ascontiguousarray(uv, dtype=np.float32)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"mesh.visual.uv must be (V, 2) texture coordinates (u, v); got "
+                                f"dtype {np.asarray(uv).dtype}") from None
+    if coords.ndim != 2 or coords.shape[1] != 2:
+        raise InvalidInputError(f"mesh.visual.uv must be (V, 2) texture coordinates (u, v); got shape {coords.shape}")
+    if len(coords) and not (np.isfinite(coords.min()) and np.isfinite(coords.max())):  # no mask when all are finite
+        bad = np.flatnonzero(~np.isfinite(coords).all(axis=1))
+        raise InvalidInputError(
+            f"mesh.visual.uv must hold finite texture coordinates (u, v); got {len(bad)} of {len(coords)} "
+            f"vertices not finite in float32 (first: vertex {bad[0]} at {np.asarray(uv)[bad[0]].tolist()})")
+    return coords
 
 
 # ------------------------------------------------------------------------------------------ layered passes
@@ -550,6 +591,61 @@ def _gray_levels(values: ArrayLike) -> NDArray[np.uint8]:
     """(V,) values in [0, 1] as (V, 3) uint8 gray levels (read back from the red channel)."""
     gray = np.clip(np.rint(np.asarray(values, dtype=np.float64).reshape(-1) * 255.0), 0, 255).astype(np.uint8)
     return np.repeat(gray[:, None], 3, axis=1)
+
+
+def _layer_rows(array: Any, name: str, expected: str) -> NDArray[Any]:
+    """``array`` as (N, 3) rows (a flat array of 3N numbers too), else an InvalidInputError "``name`` must be
+    ``expected``": numpy's ValueError ("cannot reshape", "could not convert string") named nothing. A NumPy
+    array of numbers is taken as it is (no copy: an overview has millions of vertices and faces)."""
+    numeric = isinstance(array, np.ndarray) and array.dtype.kind in "iuf" and not np.ma.isMaskedArray(array)
+    rows = array if numeric else real_numbers(array, name, expected)
+    if rows.size % 3 or (rows.ndim > 1 and rows.shape[-1] != 3):
+        raise InvalidInputError(f"{name} must be {expected}; got shape {rows.shape}")
+    return rows.reshape(-1, 3)
+
+
+def _layer_faces(faces: Any, name: str) -> NDArray[np.int64]:
+    """(F, 3) int64 vertex indices of layer ``name``: a fractional index (1.5) was truncated to a vertex."""
+    label, expected = f"faces of layer {name!r}", "(F, 3) vertex indices"
+    if isinstance(faces, np.ndarray) and faces.dtype.kind in "iu":
+        given = faces
+    else:
+        given = real_numbers(faces, label, expected)
+        wrong = given[given != np.round(given)]  # fractions, NaN and inf
+        if wrong.size:
+            raise InvalidInputError(f"{label} must be {expected}; got {wrong[0]:g} (not a whole number)")
+    rows = _layer_rows(given, label, expected)
+    return rows if rows.dtype == np.int64 else rows.astype(np.int64)
+
+
+def _layer_rgb(rgb: Any, n_vertices: int, name: str) -> NDArray[Any]:
+    """``rgb`` (V, 3|4) colours in 0-255 for the ``n_vertices`` of layer ``name``, else an InvalidInputError:
+    the wrong length raised pyvista's ValueError, one column numpy's IndexError, 300 wrapped to 44. A uint8
+    array is taken as it is."""
+    label = f"rgb of layer {name!r}"
+    expected = f"(V, 3) or (V, 4) colours in 0-255, one per vertex ({n_vertices})"
+    uint8 = isinstance(rgb, np.ndarray) and rgb.dtype == np.uint8
+    colors = rgb if uint8 else real_numbers(rgb, label, expected)
+    if colors.ndim != 2 or colors.shape[0] != n_vertices or colors.shape[1] not in (3, 4):
+        raise InvalidInputError(f"{label} must be {expected}; got shape {colors.shape}")
+    if not uint8 and colors.size and not (0 <= colors.min() and colors.max() <= 255):  # NaN fails both
+        raise InvalidInputError(f"{label} must be {expected}; got values from {colors.min():g} to {colors.max():g}")
+    return colors
+
+
+def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64]:
+    """``values`` (V,) finite numbers for the ``n_vertices`` of layer ``name`` (clipped to [0, 1] when drawn), else
+    an InvalidInputError: the wrong length raised pyvista's ValueError, NaN became an arbitrary gray."""
+    label, expected = f"values of layer {name!r}", f"one finite number in [0, 1] per vertex ({n_vertices})"
+    array = real_numbers(values, label, expected)
+    if array.size != n_vertices:
+        raise InvalidInputError(f"{label} must be {expected}; got shape {array.shape}")
+    array = array.reshape(-1)
+    if array.size and not np.isfinite(array.sum()):  # no mask when all are finite
+        bad = np.flatnonzero(~np.isfinite(array))
+        if bad.size:
+            raise InvalidInputError(f"{label} must be {expected}; got NaN or inf at vertex {bad[0]}")
+    return array
 
 
 class LayeredRenderer:
@@ -621,13 +717,29 @@ class LayeredRenderer:
 
     def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,
                  values: ArrayLike | None = None, key: Any = None, bounds: ArrayLike | None = None) -> None:
-        """Upload (or replace) the mesh ``name``: lit, with vertex ``rgb`` (V, 3) uint8 or the default tan,
-        or unlit with ``values`` (V,) in [0, 1] as gray levels. The first mesh fixes the local origin.
-        ``bounds``: the (2, 3) bounds of the finite vertices when the caller already has them."""
+        """Upload (or replace) the mesh ``name`` (a string): lit, with vertex ``rgb`` (V, 3) uint8 (or (V, 4), or
+        numbers in 0-255) or the default tan, or unlit with ``values`` (V,) in [0, 1] as gray levels (not both).
+        The first mesh fixes the local origin. ``bounds``: the (2, 3) bounds of the finite vertices when the caller
+        already has them. A bad argument raises an InvalidInputError naming it."""
+        if not isinstance(name, str):  # render() sorts the names: a number beside a string raised a TypeError
+            raise InvalidInputError(f"name must be a string; got {name!r}")
+        if rgb is not None and values is not None:
+            raise InvalidInputError(f"layer {name!r} takes rgb or values, not both; got both")
         faces_in, rgb_in = (a if _frozen(a) else None for a in (faces, rgb))  # read-only inputs: kept by identity
-        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-        faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        bounds = _finite_bounds(vertices) if bounds is None else np.asarray(bounds, dtype=np.float64)
+        vertices = np.asarray(_layer_rows(vertices, f"vertices of layer {name!r}", "(V, 3) coordinates"), np.float64)
+        faces = _layer_faces(faces, name)
+        if rgb is not None:
+            rgb = _layer_rgb(rgb, len(vertices), name)
+        if values is not None:
+            values = _layer_values(values, len(vertices), name)
+        if bounds is None:
+            bounds = _finite_bounds(vertices)
+        else:  # a (3,) box failed to unpack; a NaN one made a NaN origin
+            expected = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
+            box = real_numbers(bounds, f"bounds of layer {name!r}", expected)
+            if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+                raise InvalidInputError(f"bounds of layer {name!r} must be {expected}; got {bounds!r}")
+            bounds = box
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
         lo, hi = bounds

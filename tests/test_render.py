@@ -127,6 +127,56 @@ def test_bad_arguments_raise_before_rendering(kwargs, match):
         render.render_mesh(square("+z"), **kwargs)
 
 
+WHOLE = r"window_size must be two positive whole numbers \(width, height\)"
+
+
+@pytest.mark.parametrize(
+    ("window_size", "match"),
+    [
+        ((64.7, 48.2), WHOLE),  # truncated to 64 x 48 before
+        ((64, 48.5), WHOLE),
+        ((True, 48), WHOLE),  # read as 1 pixel before
+        ((np.nan, 48), WHOLE),
+        ((np.inf, 48), WHOLE),  # int()'s OverflowError before
+        (("640", "480"), WHOLE),  # int() read the text before
+        ((None, 48), WHOLE),
+        ((0, 48), WHOLE),
+        ((-64, 48), WHOLE),
+        ((64,), WHOLE),
+        ((64, 48, 3), WHOLE),
+        (64, WHOLE),
+        ((10**6, 48), r"window_size must lie in \[8, 16384\] pixels"),
+        ((10**400, 48), r"window_size must lie in \[8, 16384\] pixels"),
+        ((4, 4), r"window_size must lie in \[8, 16384\] pixels"),
+    ],
+)
+def test_window_size_must_be_whole_pixels(window_size, match):
+    """Every public function taking window_size refuses it by name (before pyvista loads)."""
+    from PIL import Image
+
+    from stepterrain.batch import BatchReport, overview_image
+
+    with pytest.raises(InvalidInputError, match=match):
+        render.render_mesh(square("+z"), window_size=window_size)
+    textured = square("+z")
+    textured.visual = trimesh.visual.TextureVisuals(uv=np.array([[0, 0], [1, 0], [1, 1], [0, 1]], float),
+                                                    image=Image.new("RGB", (4, 4)))
+    with pytest.raises(InvalidInputError, match=match):
+        render.render_textured_mesh(textured, window_size=window_size)
+    with pytest.raises(InvalidInputError, match=match):
+        render.LayeredRenderer(window_size=window_size)
+    with pytest.raises(InvalidInputError, match=match):  # "the batch wrote no output to show" before, or
+        overview_image(BatchReport(output_dir="."), window_size=window_size)  # a contact sheet of w // cols
+
+
+@needs_render
+def test_whole_number_floats_are_a_window_size():
+    image = render.render_mesh(square("+z"), window_size=(64.0, np.float32(48.0)))
+    assert image.shape == (48, 64, 3)
+    with render.LayeredRenderer(window_size=(np.int64(64), 48.0)) as renderer:
+        assert renderer.size == (64, 48) and all(type(v) is int for v in renderer.size)
+
+
 def test_level_scalars_need_one_number_per_face():
     """Strings or the wrong length in face_attributes['level'] raised numpy's or pyvista's ValueError."""
     for levels in (["a", "b"], [1.0], [1.0, np.nan]):
@@ -215,6 +265,88 @@ def test_layered_renderer_refuses_face_indices_outside_the_vertices():
     with render.LayeredRenderer(window_size=(64, 48)) as renderer:
         with pytest.raises(InvalidInputError, match=r"faces of layer 'a' must hold .* from 0 to 7"):
             renderer.set_mesh("a", [[0.0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 7]])
+
+
+LAYER = ([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]])
+
+
+@needs_render
+@pytest.mark.parametrize(
+    ("name", "vertices", "faces", "kwargs", "match"),
+    [
+        (5, *LAYER, {}, r"name must be a string; got 5"),  # rendered, then render(['a', 5]) failed in sorted()
+        (None, *LAYER, {}, r"name must be a string; got None"),
+        ("a", [0.0, 1, 2, 3], LAYER[1], {}, r"vertices of layer 'a' must be \(V, 3\) coordinates; got shape \(4,\)"),
+        ("a", [["x", "y", "z"]] * 3, LAYER[1], {},
+         r"vertices of layer 'a' must be \(V, 3\) coordinates \(real numbers\); got dtype <U1"),
+        ("a", LAYER[0], [0, 1], {}, r"faces of layer 'a' must be \(F, 3\) vertex indices; got shape \(2,\)"),
+        ("a", LAYER[0], [["x", "y", "z"]], {},
+         r"faces of layer 'a' must be \(F, 3\) vertex indices \(real numbers\); got dtype <U1"),
+        ("a", LAYER[0], [[0, 1.5, 2]], {},  # truncated to vertex 1 before
+         r"faces of layer 'a' must be \(F, 3\) vertex indices; got 1.5 \(not a whole number\)"),
+        ("a", *LAYER, {"rgb": np.zeros((2, 3), np.uint8)},  # pyvista's "Invalid array shape" before
+         r"rgb of layer 'a' must be \(V, 3\) or \(V, 4\) colours in 0-255, one per vertex \(3\); got shape \(2, 3\)"),
+        ("a", *LAYER, {"rgb": np.zeros(3, np.uint8)}, r"rgb of layer 'a' must be .*; got shape \(3,\)"),  # IndexError
+        ("a", *LAYER, {"rgb": np.full((3, 3), 300)}, r"rgb of layer 'a' must be .*; got values from 300 to 300"),
+        ("a", *LAYER, {"rgb": np.full((3, 3), np.nan)}, r"rgb of layer 'a' must be .*; got values from nan to nan"),
+        ("a", *LAYER, {"rgb": [["r", "g", "b"]] * 3}, r"rgb of layer 'a' must be .*; got dtype <U1"),
+        ("a", *LAYER, {"values": [0.5, 0.5]},  # pyvista's "Invalid array shape" before
+         r"values of layer 'a' must be one finite number in \[0, 1\] per vertex \(3\); got shape \(2,\)"),
+        ("a", *LAYER, {"values": [0.5, np.nan, 0.5]}, r"values of layer 'a' must be .*; got NaN or inf at vertex 1"),
+        ("a", *LAYER, {"values": ["x", "y", "z"]}, r"values of layer 'a' must be .*; got dtype <U1"),
+        ("a", *LAYER, {"values": [0.5] * 3, "rgb": np.zeros((3, 3), np.uint8)},  # values won silently
+         r"layer 'a' takes rgb or values, not both"),
+        ("a", *LAYER, {"bounds": [1.0, 2.0, 3.0]},  # "too many values to unpack" before
+         r"bounds of layer 'a' must be \[\(xmin, ymin, zmin\), \(xmax, ymax, zmax\)\] with max >= min"),
+        ("a", *LAYER, {"bounds": [[np.nan] * 3, [1.0] * 3]}, r"bounds of layer 'a' must be"),  # a NaN origin
+    ],
+)
+def test_layered_renderer_names_bad_set_mesh_arguments(name, vertices, faces, kwargs, match):
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        with pytest.raises(InvalidInputError, match=match):
+            renderer.set_mesh(name, vertices, faces, **kwargs)
+
+
+@needs_render
+def test_layered_renderer_names_bad_colours_of_a_mesh_it_updates():
+    """Same topology: the colours were assigned in place, and pyvista's ValueError named nothing."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("a", *LAYER, rgb=np.zeros((3, 3), np.uint8))
+        renderer.set_mesh("b", *LAYER, values=[0.0, 0.5, 1.0])
+        with pytest.raises(InvalidInputError, match=r"rgb of layer 'a' must be .*; got shape \(2, 3\)"):
+            renderer.set_mesh("a", *LAYER, rgb=np.zeros((2, 3), np.uint8))
+        with pytest.raises(InvalidInputError, match=r"values of layer 'b' must be .*; got shape \(4,\)"):
+            renderer.set_mesh("b", *LAYER, values=[0.0, 0.5, 1.0, 1.0])
+        renderer.set_view("oblique", renderer.bounds_of("a"))
+        renderer.set_mesh("a", *LAYER, rgb=np.full((3, 3), 200, np.uint8))
+        expected, _depth = renderer.render(["a"])
+        assert (expected < 250).any()
+        renderer.set_mesh("a", *LAYER, rgb=np.zeros((3, 3), np.uint8))
+        renderer.set_mesh("a", *LAYER, rgb=np.full((3, 4), 200.0))  # floats in 0-255 and RGBA still work
+        np.testing.assert_array_equal(renderer.render(["a"])[0], expected)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e300])
+def test_textured_render_refuses_non_finite_uvs(bad):
+    # NaN or inf UVs (or beyond float32) rendered silently, with garbage texels on the faces they touch
+    from PIL import Image
+
+    mesh = square("+z")
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.array([[0, 0], [1, 0], [1, bad], [0, 1]], float),
+                                                image=Image.new("RGB", (4, 4)))
+    with pytest.raises(InvalidInputError, match=r"mesh.visual.uv must hold finite texture coordinates \(u, v\); got "
+                                                r"1 of 4 vertices not finite in float32 \(first: vertex 2 at \[1.0, "):
+        render.render_textured_mesh(mesh, window_size=(64, 48))
+
+
+def test_textured_render_refuses_uvs_of_the_wrong_shape():
+    from PIL import Image
+
+    mesh = square("+z")
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((4, 3)), image=Image.new("RGB", (4, 4)))
+    with pytest.raises(InvalidInputError, match=r"mesh.visual.uv must be \(V, 2\) texture coordinates \(u, v\); "
+                                                r"got shape \(4, 3\)"):
+        render.render_textured_mesh(mesh, window_size=(64, 48))
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [({"lighting": "no"}, "lighting must be True or False"),
