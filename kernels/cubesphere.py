@@ -30,7 +30,7 @@ Conventions (shared with ``stepterrain.globe`` and ``tests/reference_globe.py``)
 
 from __future__ import annotations
 
-from typing import Final
+from typing import Any, Final
 
 import warp as wp
 
@@ -53,7 +53,7 @@ ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
 STRADDLE_ERROR = wp.constant(wp.float64(3.0e38))
 
 
-#: How many elements ahead the CPU's scattered loops prefetch (see :func:`prefetch_vec4`).
+#: How many elements ahead the CPU's scattered loops prefetch (see :func:`prefetch`).
 PREFETCH_AHEAD = wp.constant(16)
 
 
@@ -66,51 +66,12 @@ PREFETCH_AHEAD = wp.constant(16)
 # each take one element, compiles it to nothing.
 @wp.func_native("""
 #if !defined(__CUDA_ARCH__)
-__builtin_prefetch(a.data + i, 0, 3);
+if (write) __builtin_prefetch(a.data + i, 1, 3); else __builtin_prefetch(a.data + i, 0, 3);
 #endif
 """)
-def prefetch_vec4(a: wp.array[wp.vec4], i: wp.int32):  # pragma: no cover - native code
-    """Hint the CPU to load element ``i`` of ``a`` into its caches (a no-op on CUDA)."""
-    ...
-
-
-@wp.func_native("""
-#if !defined(__CUDA_ARCH__)
-__builtin_prefetch(a.data + i, 0, 3);
-#endif
-""")
-def prefetch_vec3(a: wp.array[wp.vec3], i: wp.int32):  # pragma: no cover - native code
-    """:func:`prefetch_vec4` for vec3 arrays."""
-    ...
-
-
-@wp.func_native("""
-#if !defined(__CUDA_ARCH__)
-__builtin_prefetch(a.data + i, 1, 3);
-#endif
-""")
-def prefetch_int32_write(a: wp.array[wp.int32], i: wp.int32):  # pragma: no cover - native code
-    """:func:`prefetch_vec4` for an int32 element about to be written (or read and written)."""
-    ...
-
-
-@wp.func_native("""
-#if !defined(__CUDA_ARCH__)
-__builtin_prefetch(a.data + i, 0, 3);
-#endif
-""")
-def prefetch_int32(a: wp.array[wp.int32], i: wp.int32):  # pragma: no cover - native code
-    """:func:`prefetch_vec4` for int32 arrays."""
-    ...
-
-
-@wp.func_native("""
-#if !defined(__CUDA_ARCH__)
-__builtin_prefetch(a.data + i, 0, 3);
-#endif
-""")
-def prefetch_float32(a: wp.array[wp.float32], i: wp.int32):  # pragma: no cover - native code
-    """:func:`prefetch_vec4` for float32 arrays."""
+def prefetch(a: wp.array[Any], i: wp.int32, write: wp.int32):  # pragma: no cover - native code
+    """Hint the CPU to load element ``i`` of the 1-D array ``a`` into its caches, to be read (``write`` = 0) or
+    written (1); a no-op on CUDA. ``write`` is a literal at every call, so the branch folds away."""
     ...
 
 
@@ -1175,9 +1136,9 @@ def count_refinement(
         if can_refine != 0:
             if t + PREFETCH_AHEAD < count:
                 m_ahead = refinement_entry(grid.n, triangles[t + PREFETCH_AHEAD])
-                prefetch_vec4(params.values, m_ahead)
+                prefetch(params.values, m_ahead, 0)
                 if need_position != 0:
-                    prefetch_vec3(grid.positions, m_ahead)
+                    prefetch(grid.positions, m_ahead, 0)
             if t + 1 < last:
                 m_next = refinement_entry(grid.n, triangles[t + 1])
                 q_next = params.values[m_next]
@@ -1565,8 +1526,8 @@ def emit_vertices(
     for k in range(first, last):
         if k + PREFETCH_AHEAD < count:
             ahead = entries[k + PREFETCH_AHEAD]
-            prefetch_int32_write(vertex_id_out, ahead)
-            prefetch_float32(grid.heights, ahead)
+            prefetch(vertex_id_out, ahead, 1)
+            prefetch(grid.heights, ahead, 0)
         entry = entries[k]
         vertex_id_out[entry] = k
         vertices_out[k] = entry_position64(grid, entry)
@@ -1605,7 +1566,7 @@ def count_kept_faces(
                 skip = masks[t + PREFETCH_AHEAD]  # a corner known inside: kept without loading its corners
             for c in range(1, 4 if skip == 0 else 1):
                 ij = unpack(ahead[c])
-                prefetch_vec3(grid.positions, ahead[0] * grid.n * grid.n + ij[0] * grid.n + ij[1])
+                prefetch(grid.positions, ahead[0] * grid.n * grid.n + ij[0] * grid.n + ij[1], 0)
         keep = wp.int32(1)
         tri = leaves[t]
         if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
@@ -1654,7 +1615,7 @@ def emit_faces(
             ahead = leaves[t + PREFETCH_AHEAD]
             for c in range(1, 4):
                 ij = unpack(ahead[c])
-                prefetch_int32(vertex_id, node_entry(grid.cells, grid.planar, ahead[0], ij[0], ij[1]))
+                prefetch(vertex_id, node_entry(grid.cells, grid.planar, ahead[0], ij[0], ij[1]), 0)
         if keep[t] != 0:
             tri = leaves[t]
             k = offsets[t]
