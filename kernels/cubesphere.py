@@ -1534,10 +1534,16 @@ def emit_vertices(
 
 
 @wp.func
+def corner_entry(n: wp.int32, face: wp.int32, corner: wp.int32) -> wp.int32:
+    """Entry of a packed corner on ``face`` (its copy there, not the canonical one of a seam node)."""
+    ij = unpack(corner)
+    return face * n * n + ij[0] * n + ij[1]
+
+
+@wp.func
 def corner_position(positions: wp.array[wp.vec3], n: wp.int32, face: wp.int32, corner: wp.int32) -> wp.vec3d:
     """float64 copy of the float32 position of a packed corner."""
-    ij = unpack(corner)
-    return bounds.to_vec3d(positions[face * n * n + ij[0] * n + ij[1]])
+    return bounds.to_vec3d(positions[corner_entry(n, face, corner)])
 
 
 @wp.kernel
@@ -1560,13 +1566,13 @@ def count_kept_faces(
     last = wp.min(first + chunk, count)
     for t in range(first, last):
         if cull != 0 and t + PREFETCH_AHEAD < count:
-            ahead = leaves[t + PREFETCH_AHEAD]
-            skip = wp.int32(0)
+            known = wp.int32(0)  # a corner known inside: kept without loading its corners
             if masks.shape[0] > 0:
-                skip = masks[t + PREFETCH_AHEAD]  # a corner known inside: kept without loading its corners
-            for c in range(1, 4 if skip == 0 else 1):
-                ij = unpack(ahead[c])
-                prefetch(grid.positions, ahead[0] * grid.n * grid.n + ij[0] * grid.n + ij[1], 0)
+                known = masks[t + PREFETCH_AHEAD]
+            if known == 0:
+                ahead = leaves[t + PREFETCH_AHEAD]
+                for c in range(1, 4):
+                    prefetch(grid.positions, corner_entry(grid.n, ahead[0], ahead[c]), 0)
         keep = wp.int32(1)
         tri = leaves[t]
         if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
@@ -1586,11 +1592,17 @@ def count_kept_faces(
 
 
 @wp.func
+def canonical_corner_entry(cells: wp.int32, planar: wp.int32, face: wp.int32, corner: wp.int32) -> wp.int32:
+    """Canonical entry of a packed corner (a seam node's one entry, see :func:`node_entry`)."""
+    ij = unpack(corner)
+    return node_entry(cells, planar, face, ij[0], ij[1])
+
+
+@wp.func
 def corner_vertex(cells: wp.int32, planar: wp.int32, vertex_id: wp.array[wp.int32], face: wp.int32,
                   corner: wp.int32) -> wp.int32:
     """Output vertex of a packed corner (through its canonical entry)."""
-    ij = unpack(corner)
-    return vertex_id[node_entry(cells, planar, face, ij[0], ij[1])]
+    return vertex_id[canonical_corner_entry(cells, planar, face, corner)]
 
 
 @wp.kernel
@@ -1614,8 +1626,7 @@ def emit_faces(
         if t + PREFETCH_AHEAD < count:
             ahead = leaves[t + PREFETCH_AHEAD]
             for c in range(1, 4):
-                ij = unpack(ahead[c])
-                prefetch(vertex_id, node_entry(grid.cells, grid.planar, ahead[0], ij[0], ij[1]), 0)
+                prefetch(vertex_id, canonical_corner_entry(grid.cells, grid.planar, ahead[0], ahead[c]), 0)
         if keep[t] != 0:
             tri = leaves[t]
             k = offsets[t]

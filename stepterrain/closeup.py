@@ -1842,7 +1842,7 @@ def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
         raise InvalidInputError("no frames to write")
     stack = []
     for k, frame in enumerate(frames):
-        array = np.asarray(frame) if isinstance(frame, np.ndarray) else None
+        array = frame if isinstance(frame, np.ndarray) else None
         if array is None or array.dtype != np.uint8 or array.ndim != 3 or array.shape[2] not in (3, 4) \
                 or min(array.shape[:2]) < 1:
             got = (f"{type(frame).__name__}" if array is None
