@@ -263,11 +263,10 @@ def sample_row(source: LatLonGrid, row: wp.int32, cw: wp.vec3) -> wp.float32:
 
 
 @wp.func
-def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
-    """float32 atan2 without a libm call: reduction to |t| <= tan(π/8), odd degree-11 polynomial (least-squares fit,
-    truncation < 5e-10 rad, below float32 rounding: the result is within ~2 ulp of atan2)."""
-    ax = wp.abs(x)
-    ay = wp.abs(y)
+def atan2_core(ax: wp.float32, ay: wp.float32) -> wp.float32:
+    """atan2(ay, ax) for ax, ay >= 0 in float32 without a libm call: reduction to |t| <= tan(π/8), odd degree-11
+    polynomial (least-squares fit, truncation < 5e-10 rad, below float32 rounding: within ~2 ulp of atan2).
+    The first quadrant of :func:`fast_atan2f`, a function of |x| and |y| only: what :func:`angle_tables` keeps."""
     hi = wp.max(ax, ay)
     if hi == wp.float32(0.0):
         return wp.float32(0.0)
@@ -284,6 +283,13 @@ def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
     r = base + t * (poly * t2 + wp.float32(1.0))
     if ay > ax:
         r = wp.float32(1.5707963) - r
+    return r
+
+
+@wp.func
+def atan2_quadrant(core: wp.float32, y: wp.float32, x: wp.float32) -> wp.float32:
+    """atan2(y, x) from its first-quadrant value :func:`atan2_core` (|x|, |y|): exact sign and π steps."""
+    r = core
     if x < wp.float32(0.0):
         r = wp.float32(3.1415927) - r
     if y < wp.float32(0.0):
@@ -292,19 +298,22 @@ def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
 
 
 @wp.func
-def longitude_line(source: LatLonGrid, point: wp.vec3i) -> wp.vec4:
-    """(c0, c1, t, ρ) of a node: the column weights of its longitude (:func:`column_weights`) and its float32
-    distance ρ from the polar axis. On the four equatorial faces both depend on one face-local coordinate only,
-    so :func:`resample_latlon` reads them from a table of those lines (:func:`longitude_lines`)."""
-    x = wp.float32(point[0])
-    y = wp.float32(point[1])
-    cw = column_weights(source, wp.float64(fast_atan2f(y, x)))
-    return wp.vec4(cw[0], cw[1], cw[2], wp.sqrt(x * x + y * y))
+def fast_atan2f(y: wp.float32, x: wp.float32) -> wp.float32:
+    """float32 atan2 without a libm call (:func:`atan2_core` of |x|, |y|, then the quadrant)."""
+    return atan2_quadrant(atan2_core(wp.abs(x), wp.abs(y)), y, x)
 
 
 @wp.func
-def sample_latlon_line(source: LatLonGrid, point: wp.vec3i, line: wp.vec4) -> wp.float32:
-    """Bilinear elevation in the direction of an integer cube point, its :func:`longitude_line` given; between
+def longitude_weights(source: LatLonGrid, point: wp.vec3i) -> wp.vec3:
+    """The column weights (:func:`column_weights`) of the longitude of an integer cube point. On the four
+    equatorial faces they depend on one face-local coordinate only, so :func:`resample_latlon` reads them from a
+    table of those lines (:func:`longitude_lines`)."""
+    return column_weights(source, wp.float64(fast_atan2f(wp.float32(point[1]), wp.float32(point[0]))))
+
+
+@wp.func
+def sample_latlon(source: LatLonGrid, lat32: wp.float32, cw: wp.vec3) -> wp.float32:
+    """Bilinear elevation at float32 latitude ``lat32`` and the column weights ``cw`` of the longitude; between
     the first (last) row and the pole, a blend towards the pole value.
 
     Latitude and longitude in float32 (atan2 is scale-free, so straight from the integer point): their
@@ -312,8 +321,7 @@ def sample_latlon_line(source: LatLonGrid, point: wp.vec3i, line: wp.vec4) -> wp
     own error; the same integer point gives the same value on every seam copy."""
     rows = source.elevation.shape[0]
     half_pi = wp.float64(1.5707963267948966)
-    lat = wp.float64(fast_atan2f(wp.float32(point[2]), line[3]))
-    cw = wp.vec3(line[0], line[1], line[2])
+    lat = wp.float64(lat32)
     fr = (source.lat0 - lat) * source.inv_dlat
     if fr <= wp.float64(0.0):
         span = half_pi - source.lat0
@@ -354,7 +362,7 @@ def longitude_lines(
     grid: CubeSphereGrid,
     source: LatLonGrid,
     # outputs
-    lines_out: wp.array[wp.vec4],  # per face and k < n: :func:`longitude_line` of row k or column k
+    lines_out: wp.array[wp.vec3],  # per face and k < n: :func:`longitude_weights` of row k or column k
 ):
     """One thread per (face, k): the longitude line k of an equatorial face (unused on the polar faces)."""
     first = (wp.tid() + thread_offset) * chunk
@@ -363,12 +371,50 @@ def longitude_lines(
         face = slot / grid.n
         k = slot - face * grid.n
         axis = line_axis(face)
-        line = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        line = wp.vec3(0.0, 0.0, 0.0)
         if axis == 0:
-            line = longitude_line(source, cube_point(face, k, 0, grid.cells))
+            line = longitude_weights(source, cube_point(face, k, 0, grid.cells))
         elif axis == 1:
-            line = longitude_line(source, cube_point(face, 0, k, grid.cells))
+            line = longitude_weights(source, cube_point(face, 0, k, grid.cells))
         lines_out[slot] = line
+
+
+# A node (i, j) of any face lies at the integer cube point ±(2j - N)·x_f ± (2i - N)·y_f ± N·n_f, so every angle
+# the resampling needs is a function of U = |2i - N|, V = |2j - N| and the face's orientation, up to exact sign
+# and π steps: the latitude atan2(z, ρ) is odd in z and depends on x and y only through x² + y²; the longitude
+# atan2(y, x) is atan2_core(|x|, |y|) put in its quadrant. One table over the quarter face (U, V even, as N is)
+# serves all six faces: 6·(N + 1)² atan2 calls (two per polar node) become (N/2 + 1)² · 5.
+@wp.kernel
+def angle_tables(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    cells: wp.int32,  # N, even
+    # outputs, per slot (U/2)·(N/2 + 1) + V/2
+    polar_out: wp.array[wp.vec3],  # polar faces: (latitude at z = N, atan2_core(V, U), atan2_core(U, V))
+    equatorial_out: wp.array[wp.vec2],  # equatorial faces: latitude at |z| = V, ρ(U); at |z| = U, ρ(V)
+    inverse_length_out: wp.array[wp.float64],  # 1 / ||w||, ||w||² = N² + U² + V² (exact integers in float64)
+):
+    """One thread per slot of the quarter face: the latitudes atan2(z, ρ) (ρ = √(x² + y²) in float32: exact
+    squares and sum below 2^24, the same for every order and sign of x and y) and the first-quadrant longitudes
+    that :func:`resample_latlon` reads instead of computing them (the same functions of the same float32
+    values, so the same bits), and the inverse length of :func:`node_direction`'s w."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    half = cells / 2 + 1
+    nf = wp.float32(cells)
+    for slot in range(first, last):
+        p = slot / half
+        q = slot - p * half
+        u = wp.float32(2 * p)
+        v = wp.float32(2 * q)
+        polar_out[slot] = wp.vec3(atan2_core(wp.sqrt(v * v + u * u), nf), atan2_core(v, u), atan2_core(u, v))
+        equatorial_out[slot] = wp.vec2(atan2_core(wp.sqrt(nf * nf + u * u), v),
+                                       atan2_core(wp.sqrt(nf * nf + v * v), u))
+        ud = wp.float64(2 * p)
+        vd = wp.float64(2 * q)
+        nd = wp.float64(cells)
+        inverse_length_out[slot] = wp.float64(1.0) / wp.sqrt(vd * vd + ud * ud + nd * nd)
 
 
 @wp.kernel
@@ -379,15 +425,18 @@ def resample_latlon(
     grid: CubeSphereGrid,
     source: LatLonGrid,
     exaggeration: wp.float32,
-    lines: wp.array[wp.vec4],  # of longitude_lines
+    lines: wp.array[wp.vec3],  # of longitude_lines
+    polar: wp.array[wp.vec3],  # of angle_tables
+    equatorial: wp.array[wp.vec2],
+    inverse_length: wp.array[wp.float64],
     # outputs
     heights_out: wp.array[wp.float32],
     positions_out: wp.array[wp.vec3],
 ):
     """One thread per entry: bilinear elevation at the node's direction times the exaggeration, and the
-    projected position v = (R + z) · w / ||w|| rounded to float32 (§4). On the equatorial faces the longitude's
-    column weights and ρ come from the node's longitude line (the same float32 values, so the same results as
-    :func:`sample_latlon_line`; one atan2 per node instead of two)."""
+    projected position v = (R + z) · w / ||w|| rounded to float32 (§4). The angles come from the tables of
+    :func:`angle_tables` and :func:`longitude_lines`: the same float32 values as :func:`fast_atan2f` of the
+    node's cube point would give, without an atan2 per node."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:
@@ -395,6 +444,7 @@ def resample_latlon(
     # (face, i, j) once per chunk, then stepped along the rows; the cube point is X·x_f + Y·y_f + N·n_f with
     # the face's axes (the same integers as cube_point, whose per-node branches cost more than the rest)
     nn = grid.n * grid.n
+    half = grid.cells / 2 + 1
     face = first / nn
     rest = first - face * nn
     i = rest / grid.n
@@ -405,15 +455,28 @@ def resample_latlon(
     axis = line_axis(face)
     for entry in range(first, last):
         point = (2 * j - grid.cells) * x_axis + (2 * i - grid.cells) * y_axis + grid.cells * normal
-        direction = node_direction(point)
-        line = wp.vec4(0.0, 0.0, 0.0, 0.0)
-        if axis == 0:
-            line = lines[face * grid.n + i]
-        elif axis == 1:
-            line = lines[face * grid.n + j]
-        else:
-            line = longitude_line(source, point)
-        z = exaggeration * sample_latlon_line(source, point, line)
+        slot = (wp.abs(2 * i - grid.cells) / 2) * half + wp.abs(2 * j - grid.cells) / 2
+        direction = wp.vec3d(wp.float64(point[0]), wp.float64(point[1]), wp.float64(point[2]))
+        direction = direction * inverse_length[slot]
+        cw = wp.vec3(0.0, 0.0, 0.0)
+        lat = wp.float32(0.0)
+        if axis == 0:  # z = ±(2j - N), ρ from U
+            cw = lines[face * grid.n + i]
+            lat = equatorial[slot][0]
+        elif axis == 1:  # z = ±(2i - N), ρ from V
+            cw = lines[face * grid.n + j]
+            lat = equatorial[slot][1]
+        else:  # polar: |x| is V where the face's x axis is the cube's ±x, else U
+            angles = polar[slot]
+            core = angles[2]
+            if x_axis[0] != 0:
+                core = angles[1]
+            lon = atan2_quadrant(core, wp.float32(point[1]), wp.float32(point[0]))
+            cw = column_weights(source, wp.float64(lon))
+            lat = angles[0]
+        if point[2] < 0:
+            lat = -lat
+        z = exaggeration * sample_latlon(source, lat, cw)
         heights_out[entry] = z
         p = (grid.radius + wp.float64(z)) * direction
         positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))

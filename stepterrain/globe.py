@@ -51,6 +51,7 @@ EARTH_RADIUS = 6_371_000.0
 METRICS = ("geometric", "distance", "clip")
 #: Bytes per node entry held on the device: height, float32 position, e, r, h, α.
 _BYTES_PER_ENTRY = 4 + 12 + 16
+_BYTES_PER_ANGLE_SLOT = 12 + 8 + 8  # the resampling's angle tables, over a quarter face
 _SAMPLE_FILE = "global_relief_20min.npz"
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
@@ -294,7 +295,8 @@ class Globe:
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:
             raise InvalidInputError(f"lat must reach within one step ({dlat:.9g}°) of both poles; got "
                                     f"{lat[0]:.9g} to {lat[-1]:.9g}")
-        check_budget(6 * (cells + 1) ** 2 * _BYTES_PER_ENTRY, f"a globe of face_size {cells + 1}",
+        check_budget(6 * (cells + 1) ** 2 * _BYTES_PER_ENTRY + (cells // 2 + 1) ** 2 * _BYTES_PER_ANGLE_SLOT,
+                     f"a globe of face_size {cells + 1}",
                      hint="use a smaller face_size")
         device = resolve_device(device)
         source = cube_kernels.LatLonGrid()
@@ -321,9 +323,12 @@ class Globe:
         grid.cols_valid = grid.n
         grid.heights = _node_array(n_entries, wp.float32, device)
         grid.positions = _node_array(n_entries, wp.vec3, device)
-        lines = wp.empty(6 * grid.n, dtype=wp.vec4, device=device)
+        lines = wp.empty(6 * grid.n, dtype=wp.vec3, device=device)
         launch_chunked(cube_kernels.longitude_lines, 6 * grid.n, [grid, source], [lines], device)
-        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration), lines],
+        slots = (cells // 2 + 1) ** 2
+        tables = [wp.empty(slots, dtype=dtype, device=device) for dtype in (wp.vec3, wp.vec2, wp.float64)]
+        launch_chunked(cube_kernels.angle_tables, slots, [cells], tables, device)
+        launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration), lines, *tables],
                        [grid.heights, grid.positions], device)
         return cls(grid, exaggeration, device, source=f"lat/lon grid {z.shape[0]}x{z.shape[1]}")
 

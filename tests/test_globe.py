@@ -8,9 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+import warp as wp
 from hypothesis import Phase, given, settings
 from hypothesis import strategies as hst
+from stepterrain.kernels import cubesphere as cs
 
+from stepterrain import globe as globe_module
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, load_global_relief, look_from
 
@@ -129,6 +132,49 @@ def test_resampling_matches_bilinear_reference():
         qlon = math.degrees(math.atan2(w[1], w[0]))
         expected = ref.bilinear_latlon(z.astype(np.float64), lat, lon, qlat, qlon)
         assert heights[entries[0]] == pytest.approx(expected, abs=0.05)
+
+
+@wp.kernel
+def direct_resampling(grid: cs.CubeSphereGrid, source: cs.LatLonGrid, exaggeration: wp.float32,
+                      heights: wp.array[wp.float32], positions: wp.array[wp.vec3]):
+    """Each node straight from its cube point: two atan2 calls and the direction's own square root (what
+    resample_latlon reads from its tables)."""
+    entry = wp.tid()
+    nn = grid.n * grid.n
+    face = entry // nn
+    i = (entry - face * nn) // grid.n
+    j = entry - face * nn - i * grid.n
+    point = cs.cube_point(face, i, j, grid.cells)
+    x = wp.float32(point[0])
+    y = wp.float32(point[1])
+    lat = cs.fast_atan2f(wp.float32(point[2]), wp.sqrt(x * x + y * y))
+    z = exaggeration * cs.sample_latlon(source, lat, cs.longitude_weights(source, point))
+    heights[entry] = z
+    p = (grid.radius + wp.float64(z)) * cs.node_direction(point)
+    positions[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+
+
+@pytest.mark.parametrize("face_size", [3, 17, 65])
+def test_tabled_resampling_is_the_direct_evaluation_bit_for_bit(monkeypatch, face_size):
+    # resample_latlon reads each node's angles from tables over a quarter face (symmetry: |x|, |y|, sign of z)
+    lat, lon, z = real_1deg()
+    handed = {}
+    launch = globe_module.launch_chunked
+
+    def spy(kernel, n, inputs, outputs, device):
+        if kernel is cs.resample_latlon:
+            handed["inputs"] = inputs
+        launch(kernel, n, inputs, outputs, device)
+
+    monkeypatch.setattr(globe_module, "launch_chunked", spy)
+    g = Globe.from_latlon(z, lat, lon, face_size=face_size, exaggeration=2.5, device="cpu")
+    grid, source, exaggeration = handed["inputs"][:3]
+    count = 6 * face_size**2
+    heights = wp.empty(count, dtype=wp.float32, device="cpu")
+    positions = wp.empty(count, dtype=wp.vec3, device="cpu")
+    wp.launch(direct_resampling, count, [grid, source, exaggeration], [heights, positions], device="cpu")
+    np.testing.assert_array_equal(g.heights.reshape(-1).view(np.uint32), heights.numpy().view(np.uint32))
+    np.testing.assert_array_equal(g.positions.reshape(-1, 3).view(np.uint32), positions.numpy().view(np.uint32))
 
 
 def test_resampling_wraps_longitude_and_handles_poles():
@@ -695,7 +741,8 @@ def test_memory_budget_refuses_before_allocating():
 
     previous = compaction.set_memory_budget(1 << 20)
     try:
-        with pytest.raises(OutputTooLargeError, match="face_size 1025 would need 192.4 MiB.*smaller face_size"):
+        # 6 x 1025² entries of 32 bytes and the resampling's angle tables (513² slots of 28 bytes)
+        with pytest.raises(OutputTooLargeError, match="face_size 1025 would need 199.4 MiB.*smaller face_size"):
             Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=1025)
     finally:
         compaction.set_memory_budget(previous)
