@@ -36,7 +36,7 @@ from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
-from .terrain import Terrain, _pair, as_number, as_terrain, check_flag, finite_number, grid_faces
+from .terrain import Terrain, _pair, as_number, as_terrain, check_flag, finite_number, grid_faces, real_numbers
 
 __all__ = [
     "ROI",
@@ -81,33 +81,34 @@ _MAX_OFFSET = 1e12
 
 
 def _finite(value: Any, name: str) -> float:
-    """A finite number (of any sign), or an InvalidInputError naming ``name``."""
+    """:func:`~stepterrain.terrain.finite_number` (of any sign) in the words these arguments have always used:
+    "``name`` must be a finite number" for text, NaN and inf alike."""
     try:
-        v = as_number(value)
-    except (TypeError, ValueError):
-        v = math.nan
-    if not math.isfinite(v):
-        raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
-    return v
-
-
-def _positive(value: Any, name: str, *, allow_zero: bool = False) -> float:
-    try:
-        v = as_number(value)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"{name} must be a number; got {value!r}") from exc
-    if not math.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
-        expected = ">= 0" if allow_zero else "> 0"
-        raise InvalidInputError(f"{name} must be a finite number {expected}; got {value!r}")
-    return v
+        return finite_number(value, name)
+    except InvalidInputError:
+        raise InvalidInputError(f"{name} must be a finite number; got {value!r}") from None
 
 
 def _numbers(value: Any) -> NDArray[np.float64]:
-    """``value`` as a flat float64 array; [nan] when it is not numbers (so the caller's check refuses it)."""
+    """``value`` as a flat float64 array; [nan] when it is not real numbers (text such as "2", bools, complex,
+    ragged rows: refused as :func:`~stepterrain.terrain.real_numbers` refuses them), so that the caller's check
+    refuses it in its own words."""
     try:
-        return np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
+        return real_numbers(value, "value", "numbers").reshape(-1)
+    except (InvalidInputError, TypeError):
         return np.array([math.nan])
+
+
+def _outline_level(value: Any, name: str) -> float:
+    """A mask value whose contour is an outline: a number in (0, 1) (m lies in [0, 1]), else an InvalidInputError
+    naming ``name``; :meth:`ROI.outline` and :class:`AnchorStyle` take the same levels."""
+    try:
+        level = as_number(value)
+    except (TypeError, ValueError, OverflowError):
+        level = math.nan
+    if not 0 < level < 1:
+        raise InvalidInputError(f"{name} must be a number in (0, 1); got {value!r}")
+    return level
 
 
 def _seconds(time: Any) -> float:
@@ -216,7 +217,7 @@ class ROI:
         >>> float(roi.mask[64, 64]), float(roi.mask[0, 0])
         (1.0, 0.0)
         """
-        r = _positive(radius, "ROI radius")
+        r = finite_number(radius, "ROI radius", positive=True)
         return cls.ellipse(center, (r, r), edge_width=edge_width, resolution=resolution)._named("circle")
 
     @classmethod
@@ -226,7 +227,7 @@ class ROI:
         a, b = _pair(radii, "ROI radii", nonzero=False)
         if min(a, b) <= 0:
             raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
-        width = min(a, b) / 5 if edge_width is None else _positive(edge_width, "edge_width", allow_zero=True)
+        width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         size = (2 * a, 2 * b)
         rows, cols = _mask_grid(size, resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
@@ -247,10 +248,10 @@ class ROI:
         w, h = _pair(size, "ROI size", nonzero=False)
         if min(w, h) <= 0:
             raise InvalidInputError(f"ROI size must be positive (width, height); got {(w, h)}")
-        rc = min(w, h) / 5 if corner_radius is None else _positive(corner_radius, "corner_radius", allow_zero=True)
+        rc = min(w, h) / 5 if corner_radius is None else finite_number(corner_radius, "corner_radius", lo=0.0)
         if rc > min(w, h) / 2:
             raise InvalidInputError(f"corner_radius must be at most half the shorter side {min(w, h) / 2}; got {rc}")
-        width = min(w, h) / 10 if edge_width is None else _positive(edge_width, "edge_width", allow_zero=True)
+        width = min(w, h) / 10 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         rows, cols = _mask_grid((w, h), resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
@@ -291,7 +292,7 @@ class ROI:
         lo, hi = _finite(low, "height band low"), _finite(high, "height band high")
         if hi < lo:
             raise InvalidInputError(f"height band must be finite with low <= high; got ({low}, {high})")
-        edge = _positive(edge, "edge", allow_zero=True)
+        edge = finite_number(edge, "edge", lo=0.0)
         heights, center, size = _terrain_window(terrain, region)
         with np.errstate(invalid="ignore"):
             if edge > 0:
@@ -307,7 +308,7 @@ class ROI:
         d = _finite(degrees, "slope threshold")
         if not 0 <= d < 90:
             raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
-        edge = _positive(edge, "edge", allow_zero=True)
+        edge = finite_number(edge, "edge", lo=0.0)
         t = as_terrain(terrain)
         heights, center, size = _terrain_window(t, region)
         slope = np.degrees(_slope(heights, abs(t.spacing[0]), abs(t.spacing[1])))
@@ -371,10 +372,7 @@ class ROI:
     def outline(self, level: float = 0.5) -> list[NDArray[np.float64]]:
         """The ROI outline: polylines (P, 2) in world xy where m crosses ``level`` in (0, 1) (closed ones repeat
         p0)."""
-        value = _numbers(level)
-        if value.size != 1 or not 0 < value[0] < 1:  # as AnchorStyle.outline_level: m lies in [0, 1]
-            raise InvalidInputError(f"ROI outline level must be a number in (0, 1); got {level!r}")
-        level = float(value[0])
+        level = _outline_level(level, "ROI outline level")  # as AnchorStyle.outline_level
         cache = self.__dict__.setdefault("_outlines", {})
         if level not in cache:
             cache[level] = self._outline(level)
@@ -418,10 +416,10 @@ def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None):
         heights = heights[:, ::-1]
     xmin, xmax, ymin, ymax = t.extent
     if region is not None:
-        try:
-            rx0, rx1, ry0, ry1 = (float(v) for v in region)
-        except (TypeError, ValueError) as exc:
-            raise InvalidInputError(f"region must be (xmin, xmax, ymin, ymax); got {region!r}") from exc
+        bounds = _numbers(region)  # [nan] when not numbers ("0", True)
+        if bounds.size != 4:
+            raise InvalidInputError(f"region must be (xmin, xmax, ymin, ymax); got {region!r}")
+        rx0, rx1, ry0, ry1 = (float(v) for v in bounds)
         if not (rx0 < rx1 and ry0 < ry1) or not np.all(np.isfinite([rx0, rx1, ry0, ry1])):
             raise InvalidInputError(f"region must be finite (xmin, xmax, ymin, ymax) with max > min; got {region!r}")
         cols = np.arange(heights.shape[1])
@@ -454,10 +452,7 @@ def transfer_function(spec: str | ArrayLike) -> NDArray[np.float32]:
             raise InvalidInputError(f"anchor transparency must be one of {sorted(TRANSFER_PRESETS)} or an "
                                     f"opacity table; got {spec!r}")
         return np.asarray(TRANSFER_PRESETS[spec], dtype=np.float32)
-    try:
-        table = np.asarray(spec, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError) as exc:
-        raise InvalidInputError(f"anchor transparency table must be numbers; got {spec!r}") from exc
+    table = _numbers(spec)  # [nan] when not numbers (["0", "1"], bools): refused below
     if table.size < 1 or not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
         raise InvalidInputError(f"anchor transparency table must hold opacities in [0, 1]; got {spec!r}")
     return table.astype(np.float32)
@@ -497,9 +492,7 @@ class AnchorStyle:
         if self.inactive not in ("hidden", "gray", "faint"):
             raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
         object.__setattr__(self, "band", check_flag(self.band, "anchor band"))
-        level = _numbers(self.outline_level)
-        if level.size != 1 or not 0 < level[0] < 1:
-            raise InvalidInputError(f"anchor outline_level must lie in (0, 1); got {self.outline_level!r}")
+        object.__setattr__(self, "outline_level", _outline_level(self.outline_level, "anchor outline_level"))
         if isinstance(self.simplify, bool) or not (isinstance(self.simplify, (int, float, np.integer, np.floating))
                                                    and 0 <= float(self.simplify) <= 4):
             raise InvalidInputError(f"anchor simplify must be a number of mask texels in [0, 4]; got "
@@ -582,10 +575,7 @@ class CloseUp:
         if rot.size != 2 or not np.all(np.isfinite(rot)):
             raise InvalidInputError(f"close-up rotation must be finite (α, β) in radians; got {self.rotation!r}")
         object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
-        try:
-            s = np.asarray(self.scale, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError) as exc:
-            raise InvalidInputError(f"close-up scale must be a number or (sx, sy, sz); got {self.scale!r}") from exc
+        s = _numbers(self.scale)  # [nan] when not numbers ("2", True)
         if s.size == 1:
             s = np.repeat(s, 3)
         if s.size != 3 or not np.all(np.isfinite(s)):
@@ -623,10 +613,14 @@ class CloseUp:
             raise InvalidInputError(f"billboard_view must be finite (azimuth, elevation); got {self.billboard_view!r}")
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
         if self.stepped is not None:
-            object.__setattr__(self, "stepped", _positive(self.stepped, "close-up stepped interval"))
-        gamma = _numbers(self.gamma)
-        if gamma.size != 1 or not 0.0 <= gamma[0] <= 1.0:
+            object.__setattr__(self, "stepped", finite_number(self.stepped, "close-up stepped interval", positive=True))
+        try:
+            gamma = as_number(self.gamma)
+        except (TypeError, ValueError, OverflowError):
+            gamma = math.nan
+        if not 0.0 <= gamma <= 1.0:
             raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma!r}")
+        object.__setattr__(self, "gamma", gamma)
         _check_scalars(self.scalars, "close-up scalars")
         if self.cmap is not None:
             from .stepped import colormap
@@ -684,8 +678,9 @@ def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float,
 
 
 def max_closeups(window_size: tuple[int, int]) -> int:
-    """How many close-ups a window holds: one per 64 x 64 pixels, at most 16 (P4: close-ups stay sparse)."""
-    w, h = (int(v) for v in window_size)
+    """How many close-ups a window holds: one per 64 x 64 pixels, at most 16 (P4: close-ups stay sparse).
+    ``window_size`` is checked as :func:`render_closeups` checks it."""
+    w, h = _window(window_size)
     return max(0, min(_MAX_CLOSEUPS, (w // _MIN_PIXELS_PER_CLOSEUP) * (h // _MIN_PIXELS_PER_CLOSEUP)))
 
 
@@ -1806,7 +1801,7 @@ def animate_closeups(
     items = _check_closeups(closeups)
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
         raise InvalidInputError(f"frames must be a positive int; got {frames!r}")
-    fps = _positive(fps, "fps")
+    fps = finite_number(fps, "fps", positive=True)
     width, height = _window(window_size)
     check_budget(int(frames) * width * height * 3, f"{int(frames)} frames of {width} x {height} pixels",
                  hint="render fewer or smaller frames")  # every frame is kept: refused before the first render
@@ -1864,7 +1859,7 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     suffix = target.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
-    fps = _positive(fps, "fps")
+    fps = finite_number(fps, "fps", positive=True)
     stack = _check_frames(frames)
     import imageio.v3 as iio
 

@@ -88,6 +88,8 @@ def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | 
     naming ``name``; ``unit="rad"`` shows an angle's bounds in degrees as well."""
     try:
         number = as_number(value)
+    except OverflowError:  # an int beyond float64 (10**400)
+        number = math.inf
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be a number; got {value!r}") from None
     if not math.isfinite(number):
@@ -96,9 +98,14 @@ def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | 
         raise InvalidInputError(f"{name} must be positive; got {number}")
     if (lo is not None and number < lo) or (hi is not None and number > hi):
         shown = f"{math.degrees(number):g} degrees" if unit == "rad" else f"{number:g}"
-        span = (f"[{math.degrees(lo):g}, {math.degrees(hi):g}] degrees ([{lo:g}, {hi:g}] radians)"
-                if unit == "rad" else f"[{lo:g}, {hi:g}]")
-        raise InvalidInputError(f"{name} must lie in {span}; got {shown}")
+        if lo is not None and hi is not None:
+            span = (f"lie in [{math.degrees(lo):g}, {math.degrees(hi):g}] degrees ([{lo:g}, {hi:g}] radians)"
+                    if unit == "rad" else f"lie in [{lo:g}, {hi:g}]")
+        else:  # one bound
+            sign, bound = (">=", lo) if hi is None else ("<=", hi)
+            span = (f"be {sign} {math.degrees(bound):g} degrees ({bound:g} radians)" if unit == "rad"
+                    else f"be {sign} {bound:g}")
+        raise InvalidInputError(f"{name} must {span}; got {shown}")
     return number
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import math
 
 import pytest
 
@@ -87,6 +88,25 @@ def test_camera_vectors_too_short_for_float64_are_named():
         Camera((1.0, 2.0, 3.0), (1.0, 2.0, 3.0))
     with pytest.raises(InvalidInputError, match=r"Camera up .* is too short to normalise in float64"):
         Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 0.0, 1e-300))
+
+
+def test_finite_number_refuses_by_name_with_one_bound_or_an_overflowing_int():
+    """finite_number(lo=0) alone raised a bare TypeError formatting the missing upper bound, and an int beyond
+    float64 (10**400) a bare OverflowError from float()."""
+    from stepterrain.terrain import finite_number
+
+    with pytest.raises(st.InvalidInputError, match=r"^width must be >= 0; got -1$"):
+        finite_number(-1, "width", lo=0.0)
+    with pytest.raises(st.InvalidInputError, match=r"^width must be <= 2; got 3$"):
+        finite_number(3, "width", hi=2.0)
+    with pytest.raises(st.InvalidInputError,
+                       match=r"^angle must be <= 90 degrees \(1.5708 radians\); got 180 degrees$"):
+        finite_number(math.pi, "angle", hi=math.pi / 2, unit="rad")
+    with pytest.raises(st.InvalidInputError, match=r"^width must be finite; got 1000"):
+        finite_number(10**400, "width")
+    with pytest.raises(st.InvalidInputError, match=r"^width must lie in \[0, 1\]; got 2$"):
+        finite_number(2, "width", lo=0.0, hi=1.0)
+    assert finite_number(0, "width", lo=0.0) == 0.0 and finite_number(-5, "width", hi=2.0) == -5.0
 
 
 _H = [[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]

@@ -4,6 +4,7 @@ transfer functions, compositing and bad input. Renders live in test_closeup_rend
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -117,11 +118,23 @@ def test_closeup_flags_must_be_bools(flag):
     assert CloseUp(roi, active=np.bool_(False)).active is False
 
 
-@pytest.mark.parametrize("level", ["a", [0.5, 0.6], np.nan, 0.0, 1.0, 2.0])
+@pytest.mark.parametrize("level", ["a", "0.5", True, [0.5], [0.5, 0.6], np.nan, 0.0, 1.0, 2.0])
 def test_roi_outline_level_must_lie_in_0_1(level):
-    # text reached contourpy (TypeError), a list the cache (unhashable), NaN or 2 gave no outline silently
-    with pytest.raises(InvalidInputError, match=r"ROI outline level must be a number in \(0, 1\)"):
+    # text reached contourpy (TypeError), a list the cache (unhashable), NaN or 2 gave no outline silently;
+    # "0.5" and [0.5] were taken as 0.5 by the outline, and kept as they were by AnchorStyle (a text level then
+    # failed in numpy's >= at the first render). Both take the same values, refused in the same words.
+    with pytest.raises(InvalidInputError,
+                       match=rf"ROI outline level must be a number in \(0, 1\); got {re.escape(repr(level))}"):
         ROI.circle((0.0, 0.0), 10.0).outline(level)
+    with pytest.raises(InvalidInputError,
+                       match=rf"anchor outline_level must be a number in \(0, 1\); got {re.escape(repr(level))}"):
+        AnchorStyle(outline_level=level)
+
+
+def test_outline_levels_take_numpy_numbers_as_floats():
+    assert AnchorStyle(outline_level=np.float32(0.25)).outline_level == 0.25
+    assert type(AnchorStyle(outline_level=np.float32(0.25)).outline_level) is float
+    assert len(ROI.circle((0.0, 0.0), 10.0).outline(np.float64(0.5))) == 1
 
 
 def test_hard_edge_and_painted_mask_orientation():
@@ -617,6 +630,78 @@ def test_bad_input_raises_clear_errors():
     assert max_closeups((1280, 720)) == 16 and max_closeups((128, 64)) == 2 and max_closeups((40, 40)) == 0
 
 
+@pytest.mark.parametrize("window_size", [("1280", "720"), "ab", (1280.5, 720), (True, 720), (-64, -64), (1280,)])
+def test_max_closeups_checks_its_window_size(window_size):
+    # text and a fraction were cut to whole pixels (16), True read as 1 pixel, (-64, -64) held one close-up,
+    # "ab" and (1280,) raised a bare ValueError: the window is checked as render_closeups checks it
+    with pytest.raises(InvalidInputError, match=r"window_size must be two positive whole numbers \(width, height\); "
+                                                rf"got {re.escape(repr(window_size))}"):
+        max_closeups(window_size)
+    assert max_closeups((np.int64(1280), 720.0)) == 16
+
+
+@pytest.mark.parametrize(
+    "build, match",
+    [
+        (lambda roi: CloseUp(roi, scale="2"), r"close-up scale must be a finite number or \(sx, sy, sz\); got '2'"),
+        (lambda roi: CloseUp(roi, scale=["2", "2", "2"]), r"close-up scale must be .*; got \['2', '2', '2'\]"),
+        (lambda roi: CloseUp(roi, scale=True), r"close-up scale must be .*; got True"),
+        (lambda roi: CloseUp(roi, scale=[True, True, True]), r"close-up scale must be .*; got \[True, True, True\]"),
+        (lambda roi: CloseUp(roi, rotation=("0", "1")), r"close-up rotation must be finite \(α, β\) in radians"),
+        (lambda roi: CloseUp(roi, offset=("0", "0", "1")), r"close-up offset must be finite \(dx, dy, dz\)"),
+        (lambda roi: CloseUp(roi, offset=np.array([True, False, True])), r"close-up offset must be finite"),
+        (lambda roi: CloseUp(roi, billboard_view=("1", "1")), r"billboard_view must be finite \(azimuth, elevation\)"),
+        (lambda roi: CloseUp(roi, spin=("1", "2")), r"close-up spin must be \(turns per second, whole repetitions\)"),
+        (lambda roi: CloseUp(roi, gamma="0.5"), r"close-up gamma must lie in \[0, 1\]; got '0.5'"),
+        (lambda roi: CloseUp(roi, gamma=True), r"close-up gamma must lie in \[0, 1\]; got True"),
+        (lambda roi: CloseUp(roi, gamma=[0.5]), r"close-up gamma must lie in \[0, 1\]; got \[0.5\]"),
+        (lambda roi: roi.factor([["1", "2"]]), r"ROI factor points must be \(N, 2\) numbers"),
+        (lambda roi: transfer_function(["0", "1"]), r"anchor transparency table must hold opacities in \[0, 1\]"),
+        (lambda roi: transfer_function([True, False]), r"anchor transparency table must hold opacities in \[0, 1\]"),
+        (lambda roi: ROI.height_band(hills(), 0.0, 50.0, region=("0", "20", "0", "20")),
+         r"region must be \(xmin, xmax, ymin, ymax\); got \('0', '20', '0', '20'\)"),
+        (lambda roi: ROI.height_band(hills(), 0.0, 50.0, region=(False, True, False, True)),
+         r"region must be \(xmin, xmax, ymin, ymax\); got \(False, True, False, True\)"),
+    ],
+)
+def test_numbers_given_as_text_or_bools_are_refused_in_closeups(build, match):
+    # np.asarray(..., dtype=float) read "2" as 2.0 and True as 1.0: CloseUp(scale="2") drew a close-up at scale 2,
+    # gamma="0.5" was kept as text (float() took it later), a region (False, True, ...) was x in [0, 1]; the rest
+    # of the library refuses numbers given as text (as_number, real_numbers)
+    with pytest.raises(InvalidInputError, match=match):
+        build(ROI.circle((20.0, 16.0), 6.0))
+
+
+def test_numpy_numbers_stay_numbers_in_closeups():
+    roi = ROI.circle((20.0, 16.0), 6.0)
+    cu = CloseUp(roi, scale=np.float32(2.0), offset=np.array([0, 0, 3], np.int16), gamma=np.float64(0.5),
+                 spin=(np.float32(0.5), np.int64(2)))
+    assert cu.scale == (2.0, 2.0, 2.0) and cu.offset == (0.0, 0.0, 3.0) and cu.spin == (0.5, 2)
+    assert cu.gamma == 0.5 and type(cu.gamma) is float
+    np.testing.assert_allclose(transfer_function(np.array([0, 1], np.uint8)), [0.0, 1.0])
+    assert ROI.height_band(hills(), 0.0, 100.0, region=np.array([0.0, 20.0, 0.0, 20.0])).size == (20.0, 20.0)
+
+
+def test_closeup_lengths_are_checked_as_finite_numbers():
+    """The private _positive check duplicated terrain.finite_number; its one-sided form (>= 0) raised a bare
+    TypeError formatting the missing upper bound, and an int beyond float64 a bare OverflowError."""
+    with pytest.raises(InvalidInputError, match="ROI radius must be finite; got 1000"):
+        ROI.circle((0.0, 0.0), 10**400)
+    with pytest.raises(InvalidInputError, match="ROI radius must be positive; got 0"):
+        ROI.circle((0.0, 0.0), 0)
+    with pytest.raises(InvalidInputError, match="edge_width must be >= 0; got -1"):
+        ROI.circle((0.0, 0.0), 1.0, edge_width=-1)
+    with pytest.raises(InvalidInputError, match="corner_radius must be a number; got '1'"):
+        ROI.rounded_rectangle((0.0, 0.0), (4.0, 4.0), corner_radius="1")
+    with pytest.raises(InvalidInputError, match="edge must be finite; got nan"):
+        ROI.height_band(hills(), 0.0, 1.0, edge=math.nan)
+    with pytest.raises(InvalidInputError, match="close-up stepped interval must be positive; got -2"):
+        CloseUp(ROI.circle((0.0, 0.0), 1.0), stepped=-2)
+    with pytest.raises(InvalidInputError, match="height band low must be a finite number; got 10000"):
+        ROI.height_band(hills(), 10**400, 1.0)  # the messages pinned above stay as they were
+    assert ROI.circle((0.0, 0.0), 1.0, edge_width=0).mask.max() == 1.0
+
+
 def test_a_kept_cull_gives_the_layers_and_anchors_of_a_fresh_one(device):
     """The cull by ROI, the outline on the terrain and the fence faces do not depend on M: calls with the same
     ROIs keep them and only apply M; the layers and strips equal those of new ROI objects, bit for bit."""
@@ -704,7 +789,7 @@ def test_a_time_that_is_not_a_number_is_refused(time):
         (lambda roi: CloseUp(roi, gamma="a"), r"close-up gamma must lie in \[0, 1\]; got 'a'"),
         (lambda roi: CloseUp(roi, spin=(1.0, math.inf)),
          r"close-up spin must be \(turns per second, whole repetitions\)"),
-        (lambda roi: AnchorStyle(outline_level="a"), r"anchor outline_level must lie in \(0, 1\); got 'a'"),
+        (lambda roi: AnchorStyle(outline_level="a"), r"anchor outline_level must be a number in \(0, 1\); got 'a'"),
     ],
 )
 def test_closeup_options_that_are_not_numbers_are_refused_by_name(build, match):
