@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError
+from .terrain import as_number, real_numbers
 
 __all__ = ["Camera"]
 
@@ -66,9 +67,9 @@ class Camera:
     def __post_init__(self) -> None:
         for name in ("eye", "target", "up"):
             try:
-                value = np.asarray(getattr(self, name), dtype=np.float64)
-            except (TypeError, ValueError):
-                value = np.full(0, np.nan)  # not numbers: refused below
+                value = real_numbers(getattr(self, name), f"Camera {name}", "3 numbers")
+            except InvalidInputError:
+                value = np.full(0, np.nan)  # not numbers (text such as "0", bools): refused below
             if value.shape != (3,) or not np.isfinite(value).all() or np.abs(value).max() > _MAX_COORDINATE:
                 raise InvalidInputError(f"Camera {name} must be 3 finite numbers within ±{_MAX_COORDINATE:g}; got "
                                         f"{getattr(self, name)!r}")
@@ -94,9 +95,17 @@ class Camera:
                                     f"{tuple(forward)}")
         if not (0.0 < self.fov < math.pi):
             raise InvalidInputError(f"Camera fov must lie in (0, π) radians; got {self.fov!r}")
-        if self.viewport is not None:
+        if self.aspect is not None:  # a number before the viewport is compared with it
             try:
-                if any(isinstance(v, (bool, np.bool_)) or not float(v).is_integer() for v in self.viewport):
+                aspect = as_number(self.aspect)
+            except (TypeError, ValueError, OverflowError):
+                aspect = math.nan
+            if not (math.isfinite(aspect) and aspect > 0):
+                raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
+            object.__setattr__(self, "aspect", aspect)
+        if self.viewport is not None:
+            try:  # as_number: text ("640", or "64" read as 6 x 4) and bools are not pixels
+                if any(not as_number(v).is_integer() for v in self.viewport):
                     raise ValueError("not whole pixels")
                 width, height = (int(v) for v in self.viewport)
             except (TypeError, ValueError, OverflowError):
@@ -106,17 +115,11 @@ class Camera:
                 raise InvalidInputError(f"Camera viewport must be positive pixels; got {self.viewport!r}")
             if self.aspect is None:
                 object.__setattr__(self, "aspect", width / height)
-            elif not abs(float(self.aspect) * height - width) <= 0.5:  # agree to the pixel (replace() keeps both)
+            elif not abs(self.aspect * height - width) <= 0.5:  # agree to the pixel (replace() keeps both)
                 raise InvalidInputError(f"Camera aspect {self.aspect!r} disagrees with viewport {self.viewport!r}")
             object.__setattr__(self, "viewport", (width, height))
         elif self.aspect is None:
             object.__setattr__(self, "aspect", 1.0)
-        try:
-            object.__setattr__(self, "aspect", float(self.aspect))
-        except (TypeError, ValueError):
-            raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}") from None
-        if not (math.isfinite(self.aspect) and self.aspect > 0):
-            raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
         if self.viewport is None:
             object.__setattr__(self, "viewport", (max(1, round(_DEFAULT_HEIGHT * self.aspect)), _DEFAULT_HEIGHT))
         if not (math.isfinite(self.near) and math.isfinite(self.far) and 0.0 < self.near < self.far):

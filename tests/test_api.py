@@ -90,6 +90,43 @@ def test_camera_vectors_too_short_for_float64_are_named():
         Camera((0.0, -10.0, 0.0), (0.0, 0.0, 0.0), up=(0.0, 0.0, 1e-300))
 
 
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
+        ({"viewport": ("640", "480")}, r"Camera viewport must be \(width, height\) pixels; got \('640', '480'\)"),
+        ({"viewport": "64"}, r"Camera viewport must be \(width, height\) pixels; got '64'"),
+        ({"viewport": ("640", 480)}, r"Camera viewport must be \(width, height\) pixels; got \('640', 480\)"),
+        ({"viewport": ("0", "0", "1", "1")}, r"Camera viewport must be \(width, height\) pixels"),
+        ({"viewport": (10**400, 480)}, r"Camera viewport must be \(width, height\) pixels"),
+        ({"aspect": "1.5"}, r"Camera aspect must be a positive number; got '1.5'"),
+        ({"aspect": True}, r"Camera aspect must be a positive number; got True"),
+        ({"aspect": "1.5", "viewport": (640, 480)}, r"Camera aspect must be a positive number; got '1.5'"),
+        ({"eye": ("0", "-10", "5")}, r"Camera eye must be 3 finite numbers within ±1e\+30; got \('0', '-10', '5'\)"),
+        ({"target": (True, False, False)}, r"Camera target must be 3 finite numbers"),
+        ({"up": ("0", "0", "1")}, r"Camera up must be 3 finite numbers"),
+    ],
+)
+def test_camera_refuses_numbers_given_as_text_or_bools(options, match):
+    """viewport=("640", "480") was taken as 640 x 480 and "64" as 6 x 4 pixels, aspect "1.5" as 1.5 and True as
+    1, eye ("0", "-10", "5") as numbers; fov, near and far already refused text and bools by name."""
+    from stepterrain.camera import Camera
+
+    kwargs = {"eye": (0.0, -10.0, 5.0), "target": (0.0, 0.0, 0.0), **options}
+    with pytest.raises(st.InvalidInputError, match=match):
+        Camera(**kwargs)
+
+
+def test_camera_takes_numpy_numbers():
+    import numpy as np
+
+    from stepterrain.camera import Camera
+
+    cam = Camera(np.array([0.0, -10.0, 5.0], np.float32), (0, 0, 0), aspect=np.float32(2.0),
+                 viewport=(np.int64(640), np.float64(320.0)))
+    assert cam.viewport == (640, 320) and cam.aspect == 2.0 and type(cam.aspect) is float
+    assert Camera((0.0, -10.0, 5.0), (0, 0, 0), aspect=np.int32(2)).viewport == (1600, 800)
+
+
 def test_finite_number_refuses_by_name_with_one_bound_or_an_overflowing_int():
     """finite_number(lo=0) alone raised a bare TypeError formatting the missing upper bound, and an int beyond
     float64 (10**400) a bare OverflowError from float()."""
