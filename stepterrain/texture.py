@@ -1213,7 +1213,7 @@ def thematic_lens(center: ArrayLike, radius: float, *, edge: float = 0.25, resol
 # ---------------------------------------------------------------------------------------------- §6 animation
 @dataclass(frozen=True)
 class TextureAnimation:
-    """Texture animation (§6): keyframe layers with strictly increasing time stamps.
+    """Texture animation (§6): keyframe layers of one image size with strictly increasing time stamps.
 
     Time t selects two consecutive layers with weights 1 − α and α (clamped to the first and last keyframe);
     :meth:`frame` adds them (weighted addition), no intermediate texture is stored.
@@ -1248,6 +1248,9 @@ class TextureAnimation:
         for k, layer in enumerate(layers):
             if not isinstance(layer, TextureLayer):
                 raise InvalidInputError(f"layers[{k}] must be a TextureLayer; got {type(layer).__name__}")
+            if layer.shape != layers[0].shape:  # frame() resamples onto the earlier key: frames changed size
+                raise InvalidInputError(f"layers[{k}] has shape {layer.shape} but layers[0] has {layers[0].shape} "
+                                        "(mismatched size); keyframes must all be images of one size")
         expected = f"{len(layers)} finite, strictly increasing numbers (one per layer)"
         if self.times is None or isinstance(self.times, (str, bytes)):  # numpy's ValueError or TypeError otherwise
             raise InvalidInputError(f"times must be {expected}; got {self.times!r}")

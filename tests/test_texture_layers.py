@@ -261,6 +261,12 @@ KEY = layer(np.full((3, 4), 0.5, np.float32), "luminance")
     ([KEY, KEY], [0.0], r"times must give one time stamp per layer \(2\); got 1"),
     ([KEY, KEY], [0.0, np.nan], r"times must be finite and strictly increasing; got \[0.0, nan\]"),
     ([KEY, KEY], [1.0, 1.0], r"times must be finite and strictly increasing; got \[1.0, 1.0\]"),
+    # accepted before: frame() resamples onto the earlier keyframe of its pair, so the frames changed size
+    ([KEY, layer(np.zeros((2, 4), np.float32), "luminance")], [0.0, 1.0],
+     r"layers\[1\] has shape \(2, 4\) but layers\[0\] has \(3, 4\) \(mismatched size\); keyframes must all be "
+     r"images of one size"),
+    ([KEY, KEY, layer(np.zeros((4, 3, 3), np.float32))], [0.0, 1.0, 2.0],
+     r"layers\[2\] has shape \(4, 3\) but layers\[0\] has \(3, 4\) \(mismatched size\)"),
 ])
 def test_animation_arguments_are_checked(layers, times, match):
     """times 'ab' raised numpy's 'could not convert string to float' ValueError, layers None or 5 Python's
