@@ -143,6 +143,18 @@ def _memmap_backing(array: NDArray[Any]) -> tuple[str | None, int]:
     return array.filename, int(root.offset) + start
 
 
+def _storage_folder(storage: Any) -> Path | None:
+    """``storage`` as a Path (None stays None), else an InvalidInputError: pathlib raised a TypeError for 5, and
+    read "" as the working directory."""
+    path = os.fspath(storage) if isinstance(storage, (str, os.PathLike)) else None
+    if storage is not None and not isinstance(path, str):
+        raise InvalidInputError(f"storage must be a folder path (str or os.PathLike) or None; got {storage!r}")
+    if path == "":
+        raise InvalidInputError("storage must be a folder path (str or os.PathLike) or None; got '' (an empty path, "
+                                "which would put the level files in the working directory; pass '.' for that)")
+    return None if path is None else Path(path)
+
+
 class ImagePyramid:
     """An image pyramid (paper 004 §3.2.1): level 0 is the image, each next level half the size (ceil), down to
     1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north).
@@ -152,11 +164,42 @@ class ImagePyramid:
     temporary storage folder; a closed pyramid refuses to be read (an :class:`InvalidInputError`).
     """
 
-    def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: Path,
+    def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: str | os.PathLike[str] | None,
                  anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False) -> None:
+        """Wrap levels already built (:meth:`build` is the usual constructor), e.g. reopened from a ``storage``
+        folder with ``numpy.memmap``: ``levels`` from the image (level 0) down to 1 x 1, each (h, w, C) uint8 of
+        the sizes :func:`pyramid_shapes` gives; ``anisotropic`` the rip-map levels by (kx, ky); ``owned``:
+        :meth:`close` deletes ``storage``. A bad argument raises an :class:`InvalidInputError` naming it."""
+        expected = "a list of (H, W, C) uint8 arrays from the image (level 0) down to 1 x 1"
+        if isinstance(levels, (str, bytes)) or not isinstance(levels, Sequence) or not levels:
+            got = "an empty list" if isinstance(levels, Sequence) and not levels else type(levels).__name__
+            raise InvalidInputError(f"levels must be {expected}; got {got}")
+        levels = list(levels)
+        for k, level in enumerate(levels):
+            if not (isinstance(level, np.ndarray) and level.dtype == np.uint8 and level.ndim == 3
+                    and min(level.shape) >= 1 and level.shape[2] <= 4):
+                got = (f"dtype {level.dtype}, shape {level.shape}" if isinstance(level, np.ndarray)
+                       else type(level).__name__)
+                raise InvalidInputError(f"levels[{k}] must be an (H, W, C) uint8 array with 1-4 channels; got {got}")
+        height, width, channels = levels[0].shape
+        shapes = [(*shape, channels) for shape in pyramid_shapes(height, width)]
+        if len(levels) != len(shapes):  # TextureTree found no level that fits, and blamed the extent
+            raise InvalidInputError(f"levels must run from the image down to 1 x 1: {len(shapes)} levels for a "
+                                    f"{height} x {width} image; got {len(levels)}")
+        for k in range(1, len(levels)):
+            if levels[k].shape != shapes[k]:
+                raise InvalidInputError(f"levels[{k}] must have shape {shapes[k]} (levels[{k - 1}] halved, rounded "
+                                        f"up); got {levels[k].shape}")
+        if anisotropic is not None and not isinstance(anisotropic, dict):
+            raise InvalidInputError(f"anisotropic must be a dict of levels by (kx, ky) or None; got "
+                                    f"{type(anisotropic).__name__}")
+        owned = check_flag(owned, "owned")
+        folder = _storage_folder(storage)
+        if owned and folder is None:
+            raise InvalidInputError("owned=True deletes the storage folder on close(); got storage=None")
         self._levels = levels
-        self.extent = extent
-        self.storage = storage
+        self.extent = _check_extent(extent)
+        self.storage = folder
         self._anisotropic = anisotropic or {}
         self._owned = owned
         self._closed = False
@@ -221,11 +264,10 @@ class ImagePyramid:
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
         anisotropic = check_flag(anisotropic, "anisotropic")
-        if storage is not None and not isinstance(storage, (str, os.PathLike)):
-            raise InvalidInputError(f"storage must be a folder path (str or os.PathLike) or None; got {storage!r}")
-        owned = storage is None
+        given = _storage_folder(storage)
+        owned = given is None
         try:
-            folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if owned else Path(storage)
+            folder = Path(tempfile.mkdtemp(prefix="stepterrain-pyramid-")) if given is None else given
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc

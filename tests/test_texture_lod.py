@@ -159,6 +159,63 @@ def test_pyramid_storage_must_be_a_folder_path(storage):
         ImagePyramid.build(np.zeros((4, 4), np.uint8), storage=storage, device="cpu")
 
 
+def test_pyramid_storage_must_not_be_an_empty_path(tmp_path, monkeypatch):
+    """storage="" was accepted as Path(""), the working directory: the level files were written there."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(InvalidInputError, match=r"storage must be a folder path \(str or os.PathLike\) or None; "
+                                                r"got '' \(an empty path"):
+        ImagePyramid.build(np.zeros((4, 4), np.uint8), storage="", device="cpu")
+    assert list(tmp_path.iterdir()) == []
+
+
+IMAGE = np.zeros((5, 3, 3), np.uint8)  # levels (5, 3), (3, 2), (2, 1), (1, 1)
+
+
+def pyramid_levels(image=IMAGE):
+    return [np.zeros((*shape, image.shape[2]), np.uint8) for shape in pyramid_shapes(*image.shape[:2])]
+
+
+@pytest.mark.parametrize("args, match", [
+    (("x", (0, 1, 0, 1), "levels"), r"levels must be a list of \(H, W, C\) uint8 arrays from the image \(level 0\) "
+                                     r"down to 1 x 1; got str"),
+    ((IMAGE, (0, 1, 0, 1), "levels"), r"levels must be a list of .*; got ndarray"),
+    (([], (0, 1, 0, 1), "levels"), r"levels must be a list of .*; got an empty list"),
+    (([np.zeros((4, 4, 3))], (0, 1, 0, 1), "levels"),
+     r"levels\[0\] must be an \(H, W, C\) uint8 array with 1-4 channels; got dtype float64, shape \(4, 4, 3\)"),
+    (([IMAGE, "y"], (0, 1, 0, 1), "levels"), r"levels\[1\] must be an \(H, W, C\) uint8 array .*; got str"),
+    (([np.zeros((0, 4, 3), np.uint8)], (0, 1, 0, 1), "levels"),  # pyramid_shapes(0, 4) never reached 1 x 1
+     r"levels\[0\] must be an \(H, W, C\) uint8 array with 1-4 channels; got dtype uint8, shape \(0, 4, 3\)"),
+    ((pyramid_levels()[:2], (0, 1, 0, 1), "levels"),  # a TextureTree over them found no level that fits
+     r"levels must run from the image down to 1 x 1: 4 levels for a 5 x 3 image; got 2"),
+    (([IMAGE, np.zeros((3, 2, 1), np.uint8), *pyramid_levels()[2:]], (0, 1, 0, 1), "levels"),
+     r"levels\[1\] must have shape \(3, 2, 3\) \(levels\[0\] halved, rounded up\); got \(3, 2, 1\)"),
+    ((pyramid_levels(), (1, 0, 0, 1), "levels"), r"extent must be finite \(xmin, xmax, ymin, ymax\)"),
+    ((pyramid_levels(), None, "levels"), r"extent must be \(xmin, xmax, ymin, ymax\); got None"),
+    ((pyramid_levels(), (0, 1, 0, 1), 5), r"storage must be a folder path \(str or os.PathLike\) or None; got 5"),
+    ((pyramid_levels(), (0, 1, 0, 1), ""), r"storage must be a folder path .*; got '' \(an empty path"),
+    ((pyramid_levels(), (0, 1, 0, 1), "levels", [1]), r"anisotropic must be a dict of levels by \(kx, ky\) or "
+                                                      r"None; got list"),
+    ((pyramid_levels(), (0, 1, 0, 1), "levels", None, "yes"), r"owned must be True or False; got 'yes'"),
+    ((pyramid_levels(), (0, 1, 0, 1), None, None, True),
+     r"owned=True deletes the storage folder on close\(\); got storage=None"),
+])
+def test_pyramid_constructor_checks_its_arguments(args, match):
+    """ImagePyramid(...) took anything: a string of levels failed at shape() with AttributeError, missing levels
+    made TextureTree report a mismatched extent, a bad extent gave NaN windows."""
+    with pytest.raises(InvalidInputError, match=match):
+        ImagePyramid(*args)
+
+
+def test_pyramid_constructor_reopens_built_levels(tmp_path):
+    with ImagePyramid.build(IMAGE, extent=(0, 3, 0, 5), storage=tmp_path, device="cpu") as built:
+        again = ImagePyramid(list(built.levels), built.extent, tmp_path)
+        assert [level.shape for level in again.levels] == [level.shape for level in built.levels]
+        assert again.extent == (0.0, 3.0, 0.0, 5.0) and again.storage == tmp_path
+        assert again.window(0, (0.0, 3.0, 0.0, 5.0)) == (0, 5, 0, 3)
+        again.close()
+    assert ImagePyramid(pyramid_levels(), (0, 3, 0, 5), None).shape(3) == (1, 1)  # in-memory levels
+
+
 @pytest.mark.parametrize("given_storage", [False, True])
 def test_a_closed_pyramid_is_refused(tmp_path, given_storage):
     """After close() (or its with block) level 0 could still be read, the other levels raised IndexError, and
