@@ -604,9 +604,10 @@ def _layer_rows(array: Any, name: str, expected: str) -> NDArray[Any]:
     return rows.reshape(-1, 3)
 
 
-def _layer_faces(faces: Any, name: str) -> NDArray[np.int64]:
-    """(F, 3) int64 vertex indices of layer ``name``: a fractional index (1.5) was truncated to a vertex."""
-    label, expected = f"faces of layer {name!r}", "(F, 3) vertex indices"
+def _layer_faces(faces: Any, label: str) -> NDArray[np.int64]:
+    """(F, 3) int64 vertex indices (``label``: the argument's name in messages): a fractional index (1.5) was
+    truncated to a vertex."""
+    expected = "(F, 3) vertex indices"
     if isinstance(faces, np.ndarray) and faces.dtype.kind in "iu":
         given = faces
     else:
@@ -618,11 +619,10 @@ def _layer_faces(faces: Any, name: str) -> NDArray[np.int64]:
     return rows if rows.dtype == np.int64 else rows.astype(np.int64)
 
 
-def _layer_rgb(rgb: Any, n_vertices: int, name: str) -> NDArray[Any]:
-    """``rgb`` (V, 3|4) colours in 0-255 for the ``n_vertices`` of layer ``name``, else an InvalidInputError:
+def _layer_rgb(rgb: Any, n_vertices: int, label: str) -> NDArray[Any]:
+    """``rgb`` (V, 3|4) colours in 0-255 for ``n_vertices`` vertices, else an InvalidInputError naming ``label``:
     the wrong length raised pyvista's ValueError, one column numpy's IndexError, 300 wrapped to 44. A uint8
     array is taken as it is."""
-    label = f"rgb of layer {name!r}"
     expected = f"(V, 3) or (V, 4) colours in 0-255, one per vertex ({n_vertices})"
     uint8 = isinstance(rgb, np.ndarray) and rgb.dtype == np.uint8
     colors = rgb if uint8 else real_numbers(rgb, label, expected)
@@ -634,8 +634,8 @@ def _layer_rgb(rgb: Any, n_vertices: int, name: str) -> NDArray[Any]:
 
 
 def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64]:
-    """``values`` (V,) finite numbers for the ``n_vertices`` of layer ``name`` (clipped to [0, 1] when drawn), else
-    an InvalidInputError: the wrong length raised pyvista's ValueError, NaN became an arbitrary gray."""
+    """``values`` (V,) numbers in [0, 1] for the ``n_vertices`` of layer ``name``, else an InvalidInputError: the
+    wrong length raised pyvista's ValueError, NaN became an arbitrary gray, 1.5 was clipped to white."""
     label, expected = f"values of layer {name!r}", f"one finite number in [0, 1] per vertex ({n_vertices})"
     array = real_numbers(values, label, expected)
     if array.size != n_vertices:
@@ -645,6 +645,9 @@ def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64
         bad = np.flatnonzero(~np.isfinite(array))
         if bad.size:
             raise InvalidInputError(f"{label} must be {expected}; got NaN or inf at vertex {bad[0]}")
+    if array.size and not (0.0 <= array.min() and array.max() <= 1.0):
+        k = int(np.flatnonzero((array < 0.0) | (array > 1.0))[0])
+        raise InvalidInputError(f"{label} must be {expected}; got {array[k]:g} at vertex {k}")
     return array
 
 
@@ -727,9 +730,9 @@ class LayeredRenderer:
             raise InvalidInputError(f"layer {name!r} takes rgb or values, not both; got both")
         faces_in, rgb_in = (a if _frozen(a) else None for a in (faces, rgb))  # read-only inputs: kept by identity
         vertices = np.asarray(_layer_rows(vertices, f"vertices of layer {name!r}", "(V, 3) coordinates"), np.float64)
-        faces = _layer_faces(faces, name)
+        faces = _layer_faces(faces, f"faces of layer {name!r}")
         if rgb is not None:
-            rgb = _layer_rgb(rgb, len(vertices), name)
+            rgb = _layer_rgb(rgb, len(vertices), f"rgb of layer {name!r}")
         if values is not None:
             values = _layer_values(values, len(vertices), name)
         if bounds is None:
@@ -1020,7 +1023,18 @@ class LayeredRenderer:
         """An overview-independent close-up (paper 001 §II.C): an orthographic render from the fixed direction
         ``view`` (azimuth, elevation) pasted over the screen box of ``anchor_points`` (N, 3).
 
-        Returns the full-window color, coverage and depth (0 where covered: a billboard lies in front)."""
+        ``vertices``, ``faces`` and ``rgb`` (or None: the default tan) as for :meth:`set_mesh`. Returns the
+        full-window color, coverage and depth (0 where covered: a billboard lies in front)."""
+        vertices = np.asarray(_layer_rows(vertices, "vertices", "(V, 3) coordinates"), dtype=np.float64)
+        faces = _layer_faces(faces, "faces")
+        _check_face_indices(faces, len(vertices), "faces")
+        if rgb is not None:
+            rgb = _layer_rgb(rgb, len(vertices), "rgb")
+        expected = "(azimuth, elevation) in radians, finite"
+        direction = np.full(0, np.nan) if isinstance(view, (str, bytes)) else real_numbers(view, "view", expected)
+        if direction.shape != (2,) or not np.isfinite(direction).all():  # the message named "camera" before
+            raise InvalidInputError(f"view must be {expected}; got {view!r}")
+        anchor_points = _layer_rows(anchor_points, "anchor_points", "(N, 3) world points")
         width, height = self.size
         color = np.zeros((height, width, 3), np.uint8)
         coverage = np.zeros((height, width), bool)
@@ -1035,12 +1049,11 @@ class LayeredRenderer:
         bw, bh = c1 - c0, r1 - r0
         if bw < 8 or bh < 8:
             return color, coverage, depth
-        vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
         local = vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2
         local[:, 2] *= self.z_scale
         plotter = self._new_plotter((bw, bh))
         try:
-            poly = self._pv.wrap(trimesh.Trimesh(local, np.asarray(faces).reshape(-1, 3), process=False))
+            poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
             kwargs: dict[str, Any] = {"color": _DEFAULT_COLOR}
             if rgb is not None:
                 poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
@@ -1048,7 +1061,7 @@ class LayeredRenderer:
             plotter.add_mesh(poly, smooth_shading=False, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
                              show_scalar_bar=False, **kwargs)
             box = np.array([local.min(axis=0), local.max(axis=0)])
-            position = _camera_position(tuple(view), _box_corners(box), bw / bh)
+            position = _camera_position(tuple(direction.tolist()), _box_corners(box), bw / bh)
             look_from = np.subtract(position[0], position[1])
             for light in _lights(self._pv, box, (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)):
                 plotter.add_light(light)

@@ -294,6 +294,9 @@ LAYER = ([[0.0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]])
          r"values of layer 'a' must be one finite number in \[0, 1\] per vertex \(3\); got shape \(2,\)"),
         ("a", *LAYER, {"values": [0.5, np.nan, 0.5]}, r"values of layer 'a' must be .*; got NaN or inf at vertex 1"),
         ("a", *LAYER, {"values": ["x", "y", "z"]}, r"values of layer 'a' must be .*; got dtype <U1"),
+        ("a", *LAYER, {"values": [0.5, 1.5, 0.5]},  # clipped to white before
+         r"values of layer 'a' must be one finite number in \[0, 1\] per vertex \(3\); got 1.5 at vertex 1"),
+        ("a", *LAYER, {"values": [-0.25, 0.5, 0.5]}, r"values of layer 'a' must be .*; got -0.25 at vertex 0"),
         ("a", *LAYER, {"values": [0.5] * 3, "rgb": np.zeros((3, 3), np.uint8)},  # values won silently
          r"layer 'a' takes rgb or values, not both"),
         ("a", *LAYER, {"bounds": [1.0, 2.0, 3.0]},  # "too many values to unpack" before
@@ -324,6 +327,48 @@ def test_layered_renderer_names_bad_colours_of_a_mesh_it_updates():
         renderer.set_mesh("a", *LAYER, rgb=np.zeros((3, 3), np.uint8))
         renderer.set_mesh("a", *LAYER, rgb=np.full((3, 4), 200.0))  # floats in 0-255 and RGBA still work
         np.testing.assert_array_equal(renderer.render(["a"])[0], expected)
+
+
+BOARD = (np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 1]]), np.array([[0, 1, 2]]), None, (np.pi, 1.2),
+         np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 1]]))
+
+
+def billboard(**changes):
+    names = ("vertices", "faces", "rgb", "view", "anchor_points")
+    return tuple(changes.get(name, value) for name, value in zip(names, BOARD, strict=True))
+
+
+@needs_render
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        (billboard(rgb=np.zeros((2, 3), np.uint8)),  # pyvista's "Invalid array shape" before
+         r"rgb must be \(V, 3\) or \(V, 4\) colours in 0-255, one per vertex \(3\); got shape \(2, 3\)"),
+        (billboard(rgb=np.zeros((3, 1))), r"rgb must be .*; got shape \(3, 1\)"),  # pyvista's "RGB array must be"
+        (billboard(rgb=np.full((3, 3), 300)), r"rgb must be .*; got values from 300 to 300"),  # wrapped to 44
+        (billboard(rgb=np.full((3, 3), -5.0)), r"rgb must be .*; got values from -5 to -5"),  # wrapped to 251
+        (billboard(rgb=np.full((3, 3), np.nan)), r"rgb must be .*; got values from nan to nan"),  # drawn black
+        (billboard(rgb=[["r", "g", "b"]] * 3), r"rgb must be .* \(real numbers\); got dtype <U1"),  # int("r")
+        (billboard(faces=np.array([[0, 1, 7]])),  # VTK read a vertex past the end
+         r"faces must hold integer vertex indices in \[0, 2\]; got indices from 0 to 7"),
+        (billboard(faces=[[0, 1, 1.5]]), r"faces must be \(F, 3\) vertex indices; got 1.5 \(not a whole number\)"),
+        (billboard(vertices="abc"), r"vertices must be \(V, 3\) coordinates \(real numbers\); got dtype <U3"),
+        (billboard(anchor_points=np.zeros((3, 2))),  # reshaped to (2, 3) before
+         r"anchor_points must be \(N, 3\) world points; got shape \(3, 2\)"),
+        (billboard(view=(np.nan, 1.0)), r"view must be \(azimuth, elevation\) in radians, finite; got \(nan, 1.0\)"),
+        (billboard(view="top"), r"view must be \(azimuth, elevation\) in radians, finite; got 'top'"),
+    ],
+)
+def test_layered_renderer_billboard_names_bad_arguments(args, match):
+    with render.LayeredRenderer(window_size=(64, 64)) as renderer:
+        renderer.set_mesh("a", *BOARD[:2])
+        renderer.set_view("top", renderer.bounds_of("a"))
+        with pytest.raises(InvalidInputError, match=match):
+            renderer.render_billboard(*args)
+        color, coverage, _depth = renderer.render_billboard(*billboard(rgb=np.full((3, 3), 200, np.uint8)))
+        assert coverage.any()
+        again = renderer.render_billboard(*billboard(rgb=np.full((3, 4), 200.0)))  # floats in 0-255, RGBA
+        np.testing.assert_array_equal(again[0], color)
 
 
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e300])
