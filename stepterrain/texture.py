@@ -33,7 +33,7 @@ from ._device import host_copy, launch, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
-from .terrain import Terrain, as_terrain, check_flag, real_numbers
+from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers
 from .terrain import finite_number as _finite
 
 __all__ = [
@@ -84,6 +84,18 @@ def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
         raise InvalidInputError("topographic textures need a regular heightfield (an (H, W) array or a grid "
                                 f"Terrain); got a {t.kind.upper()}")
     return t
+
+
+def _real_vector(value: Any, name: str, expected: str, size: int) -> NDArray[np.float64]:
+    """``value`` as ``size`` finite float64 numbers, else an InvalidInputError "``name`` must be ``expected``; got
+    ``value``": ``np.asarray(value, dtype=float)`` raised numpy's ValueError for text and took True as 1."""
+    try:
+        array = real_numbers(value, name, expected).reshape(-1)
+    except InvalidInputError:
+        array = np.full(0, np.nan)
+    if array.shape != (size,) or not np.isfinite(array).all():
+        raise InvalidInputError(f"{name} must be {expected}; got {value!r}")
+    return array
 
 
 def _azimuth(value: Any, *, stacklevel: int) -> float:
@@ -594,9 +606,7 @@ def relight(
         raise InvalidInputError("give either a directional light (azimuth, altitude) or a point light, not both")
     if terrain is None:
         raise InvalidInputError("a point light needs terrain= (the surface positions of the texels)")
-    position = np.asarray(point, dtype=np.float64).reshape(-1)
-    if position.shape != (3,) or not np.isfinite(position).all():
-        raise InvalidInputError(f"point must be a finite (x, y, z); got {point!r}")
+    position = _real_vector(point, "point", "a finite (x, y, z)", 3)
     t = _grid_terrain(terrain, spacing)
     if t.heights.shape != rgb.shape[:2]:
         raise InvalidInputError(f"normals of shape {rgb.shape[:2]} do not match the terrain's {t.heights.shape} "
@@ -621,7 +631,7 @@ def _affine(extent: Extent, shape: tuple[int, int]) -> NDArray[np.float64]:
 
 def _check_extent(extent: Any, name: str = "extent") -> Extent:
     try:
-        values = tuple(float(v) for v in extent)
+        values = tuple(as_number(v) for v in extent)  # float() took "4" and True
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be (xmin, xmax, ymin, ymax); got {extent!r}") from None
     if len(values) != 4 or not all(math.isfinite(v) for v in values) or values[0] >= values[1] \
@@ -1173,9 +1183,7 @@ def _disc(resolution: int, edge: float) -> NDArray[np.float32]:
 
 
 def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -> tuple[Extent, int, float]:
-    c = np.asarray(center, dtype=np.float64).reshape(-1)
-    if c.shape != (2,) or not np.isfinite(c).all():
-        raise InvalidInputError(f"center must be a finite (x, y); got {center!r}")
+    c = _real_vector(center, "center", "a finite (x, y)", 2)
     radius = _finite(radius, "radius", positive=True)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 4:
         raise InvalidInputError(f"resolution must be an int >= 4; got {resolution!r}")
@@ -1318,8 +1326,8 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if not isinstance(layer, TextureLayer):
         raise InvalidInputError(f"layer must be a TextureLayer; got {type(layer).__name__}")
-    bg = np.asarray(background, dtype=np.float64).reshape(-1)
-    if bg.shape != (3,) or not np.isfinite(bg).all() or bg.min() < 0 or bg.max() > 1:
+    bg = _real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
+    if bg.min() < 0 or bg.max() > 1:
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
     from PIL import Image
 

@@ -232,6 +232,9 @@ def test_bad_relight_inputs():
         relight(rgb, point=(0, 0, 1), terrain=np.zeros((4, 3)))
     with pytest.raises(InvalidInputError, match="not both"):
         relight(rgb, point=(0, 0, 1), azimuth=0.0, altitude=0.1, terrain=np.zeros((3, 3)))
+    for point in ("abc", ("0", "0", "1"), (True, True, True), (0, 0)):  # numpy's ValueError for text; True taken as 1
+        with pytest.raises(InvalidInputError, match=r"point must be a finite \(x, y, z\); got "):
+            relight(rgb, point=point, terrain=np.zeros((3, 3)), device="cpu")
 
 
 def test_an_azimuth_beyond_two_turns_warns_of_degrees():

@@ -318,6 +318,24 @@ def test_bad_layers_and_operations():
         adjust(layer(RGB_A), split="up")
 
 
+@pytest.mark.parametrize("extent", [("0", "4", "0", "3"), (False, True, False, True), (0, 4, 0, "3")])
+def test_an_extent_of_text_or_bools_is_refused(extent):
+    """float() read "4" as 4.0 and True as 1.0: a slip (a value from a file, a flag in the wrong place) was taken."""
+    with pytest.raises(InvalidInputError, match=r"extent must be \(xmin, xmax, ymin, ymax\); got "):
+        TextureLayer("luminance", ALPHA, extent)
+    with pytest.raises(InvalidInputError, match=r"cutout must be \(xmin, xmax, ymin, ymax\); got "):
+        adjust(layer(RGB_A), cutout=extent, device="cpu")
+
+
+@pytest.mark.parametrize("lens", [highlight_lens, thematic_lens])
+@pytest.mark.parametrize("center", ["ab", ("1", "2"), (True, False), (1.0, 2j), None, (1.0, np.nan), (1.0, 2.0, 3.0)])
+def test_a_lens_center_must_be_a_finite_point(lens, center):
+    """'ab' and ('1', '2') raised numpy's 'could not convert string to float' ValueError, True was taken as 1."""
+    with pytest.raises(InvalidInputError, match=r"center must be a finite \(x, y\); got "):
+        lens(center, 1.0)
+    assert lens(np.array([1, 2]), 1.0).shape == (128, 128)
+
+
 # ------------------------------------------------------------------------------------------ draping
 def sample_terrain(size=48):
     dem = st.sample_dem()
@@ -411,6 +429,9 @@ def test_drape_and_render_bad_input():
         drape("mesh.glb", layer(RGB_A))
     with pytest.raises(InvalidInputError, match="background must be"):
         drape(mesh, layer(RGB_A), background=(2, 0, 0))
+    for background in ("white", ("1", "1", "1"), (True, True, True)):  # numpy's ValueError; True taken as 1
+        with pytest.raises(InvalidInputError, match=r"background must be \(r, g, b\) in \[0, 1\]; got "):
+            drape(mesh, layer(RGB_A), background=background)
     with pytest.raises(InvalidInputError, match="mesh has no texture"):
         render.render_textured_mesh(mesh)
 
