@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain, check_flag, first_beyond_float32, float32_heights
+from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, first_beyond_float32, float32_heights
 
 __all__ = [
     "batch",
@@ -720,11 +720,11 @@ def batch(
         least = 0 if name == "retries" else 1
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name} must be an int >= {least}; got {value!r}")
-    if not (isinstance(connect_timeout, (int, float)) and math.isfinite(connect_timeout)
+    if not (isinstance(connect_timeout, (int, float))  # NaN and inf fail the comparisons; isfinite(10**400) raised
             and 0 < connect_timeout <= MAX_CONNECT_TIMEOUT):  # fmt: skip
         raise InvalidInputError(f"connect_timeout must be a positive number of seconds up to {MAX_CONNECT_TIMEOUT:g} "
                                 f"(a day); got {connect_timeout!r}")
-    if not (isinstance(gamma, (int, float, np.floating)) and 0.0 <= float(gamma) <= 1.0):
+    if not (isinstance(gamma, (int, float, np.floating)) and 0.0 <= gamma <= 1.0):  # float(10**400) raised
         raise InvalidInputError(f"gamma must be a number in [0, 1] for batch; got {gamma!r}")
     if colors is not None and not isinstance(colors, str):
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
@@ -734,9 +734,8 @@ def batch(
     check_flag(progress, "progress")
     if floor is not None and not solid:
         raise InvalidInputError("floor applies only with solid=True")
-    if floor is not None and (isinstance(floor, bool) or not isinstance(floor, (int, float, np.integer, np.floating))
-                              or not math.isfinite(floor)):  # fmt: skip
-        raise InvalidInputError(f"floor must be finite; got {floor!r}")
+    if floor is not None:
+        floor = finite_number(floor, "floor")
     if floor is not None and abs(floor) > FLOAT32_MAX:
         raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor:g}")
     items, src = plan_items(source, tile_size=tile_size)

@@ -78,7 +78,10 @@ class Camera:
             value = getattr(self, name)
             if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
                 raise InvalidInputError(f"Camera {name} must be a number; got {value!r}")
-            object.__setattr__(self, name, float(value))
+            try:
+                object.__setattr__(self, name, as_number(value))
+            except ValueError as exc:  # an int beyond float64 (10**400)
+                raise InvalidInputError(f"Camera {name} must be finite; got {exc}") from None
         forward = np.subtract(self.target, self.eye)
         if not forward.any():
             raise InvalidInputError(f"Camera eye and target must differ; both are {self.eye}")

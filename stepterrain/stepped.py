@@ -202,14 +202,14 @@ def isovalues(
         )
     try:
         lo, hi = (float(v) for v in height_range)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float64 (10**400)
         raise InvalidInputError(f"height_range must be (min, max) heights; got {height_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     if levels is not None:
         try:
             values64 = np.asarray(levels, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise InvalidInputError(f"levels must be a sequence of numbers; got {levels!r}") from exc
         if values64.ndim > 1:
             raise InvalidInputError(f"levels must be a 1-D sequence of isovalues; got shape {values64.shape}")
@@ -523,7 +523,7 @@ def blend(
 def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
     try:
         return np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:
         raise InvalidInputError(
             f"{name} must be a number in [0, 1], an array of them, a callable or a Lens; got {value!r:.80}"
         ) from exc
@@ -781,7 +781,7 @@ def _assemble(
         default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
         try:
             floor_z = default_floor if floor is None else float(floor)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
         n_before = len(vertices)
         vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)

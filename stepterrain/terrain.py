@@ -13,6 +13,8 @@ to a local origin before they reach a kernel (float32 on the device), and shifte
 from __future__ import annotations
 
 import math
+import numbers
+import sys
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -74,12 +76,22 @@ def unmasked(values: Any) -> Any:
     return np.ma.getdata(values)  # not real numbers: refused by the caller's dtype check
 
 
+class _TooLarge(ValueError):
+    """:func:`as_number`'s error for a number beyond float64 (10**400)."""
+
+
 def as_number(value: Any) -> float:
     """``float(value)`` for a real number; a TypeError for text and bools, which ``float`` would also take ("1",
-    True) and which are slips (a value read from a file or a flag in the wrong place), not numbers."""
+    True) and which are slips (a value read from a file or a flag in the wrong place), not numbers. An integer
+    beyond float64 (10**400) is a ValueError: ``float``'s OverflowError is none, and went past callers that
+    catch (TypeError, ValueError)."""
     if isinstance(value, (str, bytes, bool, np.bool_)):
         raise TypeError(f"not a number: {value!r}")
-    return float(value)
+    try:
+        return float(value)
+    except OverflowError:
+        kind = "an integer" if isinstance(value, numbers.Integral) else "a number"
+        raise _TooLarge(f"{kind} too large for a float (beyond ±{sys.float_info.max:.2g})") from None
 
 
 def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | None = None,
@@ -88,8 +100,8 @@ def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | 
     naming ``name``; ``unit="rad"`` shows an angle's bounds in degrees as well."""
     try:
         number = as_number(value)
-    except OverflowError:  # an int beyond float64 (10**400)
-        number = math.inf
+    except _TooLarge as exc:  # its 400 digits would say less
+        raise InvalidInputError(f"{name} must be finite; got {exc}") from None
     except (TypeError, ValueError):
         raise InvalidInputError(f"{name} must be a number; got {value!r}") from None
     if not math.isfinite(number):

@@ -8,6 +8,7 @@ import math
 import pytest
 
 import stepterrain as st
+from stepterrain.terrain import finite_number
 
 
 @pytest.mark.parametrize("name", st.__all__)
@@ -166,6 +167,31 @@ def test_numbers_given_as_text_or_bools_are_refused(call, match):
     """float() takes "1" and True, so a number read from a file as text, or a flag passed in a number's place,
     used to be taken as a number in some arguments (interval, base, spacing, error, look_from's angles) and
     refused in others (a lens resolution, a Camera's fov); every scalar check now refuses text and bools."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        call()
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: finite_number(10**400, "x"), r"^x must be finite; got an integer too large for a float \(beyond "),
+        (lambda: finite_number(-(10**400), "lens radius", positive=True), r"^lens radius must be finite; got an "),
+        (lambda: st.stepped(_H, interval=10**400), r"^interval and base must be numbers; got interval=1000"),
+        (lambda: st.adaptive_mesh(_H, error=10**400, spacing=1.0), r"^error must be a number >= 0 \(metres\)"),
+        (lambda: st.look_from(0.0, 10**400, 1.0e7), r"^latitude and longitude must be numbers \(degrees\)"),
+        (lambda: st.look_from(0.0, 0.0, 10**400), r"^altitude must be a finite number; got 1000"),
+        (lambda: st.isovalues((0, 10**400), interval=1.0), r"^height_range must be \(min, max\) heights"),
+        (lambda: st.stepped(_H, levels=[0, 10**400]), r"^levels must be a sequence of numbers"),
+        (lambda: st.stepped(_H, interval=1.0, gamma=10**400), r"^gamma must be a number in \[0, 1\]"),
+        (lambda: st.stepped(_H, interval=1.0, solid=True, floor=-(10**400)), r"^floor must be a number \(the base"),
+        (lambda: st.Camera(eye=(0, 0, 10**400), target=(0, 0, 0)), r"^Camera eye must be 3 finite numbers"),
+        (lambda: st.Camera(eye=(0, 0, 10), target=(0, 0, 0), fov=10**400), r"^Camera fov must be finite; got an "
+                                                                            r"integer too large for a float"),
+    ],
+)
+def test_integers_too_large_for_a_float_are_refused_by_name(call, match):
+    """float(10**400) raises OverflowError, which is no ValueError: every scalar check caught (TypeError,
+    ValueError) and let it through as a bare 'int too large to convert to float' naming no argument."""
     with pytest.raises(st.InvalidInputError, match=match):
         call()
 

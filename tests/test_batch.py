@@ -697,6 +697,19 @@ def test_unreachable_scheduler_leaves_no_empty_output_folder(tmp_path):
     assert (tmp_path / "kept").is_dir()  # a folder that was there before stays
 
 
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"solid": True, "floor": -(10**400)}, r"^floor must be finite; got an integer too large for a float"),
+    ({"connect_timeout": 10**400}, r"^connect_timeout must be a positive number of seconds up to 86400"),
+    ({"gamma": 10**400}, r"^gamma must be a number in \[0, 1\] for batch"),
+    ({"interval": None, "levels": [0, 10**400]}, r"^levels must be a sequence of numbers"),
+])  # fmt: skip
+def test_integers_too_large_for_a_float_are_refused_before_any_work(tmp_path, kwargs, match):
+    # math.isfinite(10**400) and float(10**400) raise OverflowError: it came out bare, naming no argument
+    with pytest.raises(InvalidInputError, match=match):
+        batch(np.zeros((5, 5)), tmp_path / "out", **{"tile_size": 2, "interval": 1.0, "scheduler": "serial", **kwargs})
+    assert not (tmp_path / "out").exists()
+
+
 def test_connect_timeout_beyond_a_day_is_refused(tmp_path):
     with pytest.raises(InvalidInputError, match=r"connect_timeout must be a positive number of seconds up to 86400"):
         batch(np.zeros((5, 5)), tmp_path / "o", tile_size=2, interval=1.0, scheduler="tcp://127.0.0.1:1",
