@@ -31,12 +31,9 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
 def _pair(value: Any, name: str, *, nonzero: bool) -> tuple[float, float]:
-    try:
-        raw = np.asarray(value)
-        if raw.dtype.kind not in "iuf":  # text ("30"), bools, complex, objects: not numbers
-            raise TypeError(f"{raw.dtype} is not a real number type")
-        arr = raw.astype(np.float64).reshape(-1)
-    except (TypeError, ValueError) as exc:
+    try:  # text ("30"), bools, complex, objects, ragged: not numbers; a masked entry is NaN, refused below
+        arr = real_numbers(value, name, "a pair of numbers (x, y)").reshape(-1)
+    except (TypeError, ValueError) as exc:  # the value, which says more than real_numbers' dtype
         raise InvalidInputError(f"{name} must be a pair of numbers (x, y); got {value!r}") from exc
     if arr.size == 1:
         arr = np.repeat(arr, 2)

@@ -196,6 +196,17 @@ def test_integers_too_large_for_a_float_are_refused_by_name(call, match):
         call()
 
 
+def test_a_masked_spacing_or_origin_is_refused_not_read_under_its_mask():
+    """_pair read np.asarray of a masked array: the value under the mask became dy, silently."""
+    import numpy as np
+
+    for name in ("spacing", "origin"):
+        masked = np.ma.masked_array([30.0, -30.0], mask=[False, True])
+        with pytest.raises(st.InvalidInputError, match=rf"^{name} must be a pair of finite numbers \(x, y\); got "):
+            st.heightfield_mesh(_H, **{name: masked})
+    assert st.heightfield_mesh(_H, spacing=np.ma.masked_array([30.0, -30.0])).metadata["spacing"] == (30.0, -30.0)
+
+
 def test_numpy_scalars_stay_numbers():
     import numpy as np
 
