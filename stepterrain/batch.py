@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, first_beyond_float32, float32_heights
+from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, float32_heights
 
 __all__ = [
     "batch",
@@ -276,13 +276,12 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "biuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    try:
-        with np.errstate(over="raise"):  # 1e300 would become inf, then nodata: refused, as load_dem refuses it
-            heights = np.array(stack, dtype=np.float32)  # a copy, never the file's memory map
-    except FloatingPointError:
-        value, at = first_beyond_float32(stack)
-        raise DataFileError(f"cannot read {str(file)!r}: a (T, H, W) array holds heights beyond float32 "
-                            f"(|z| < {FLOAT32_MAX:.2g}); got {value!r} at index {at}") from None
+    try:  # 1e300 would become inf, then nodata: refused, as load_dem refuses it
+        heights = float32_heights(stack, "heights")
+    except InvalidInputError as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: {exc}") from None
+    if not heights.flags.writeable:  # float32 as stored: a view of the file's read-only memory map
+        heights = heights.copy()
     heights[~np.isfinite(heights)] = np.nan  # as load_dem reads a 2-D file: any non-finite value is nodata
     return heights
 
