@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, float32_heights
+from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, finite_or_nan, float32_heights
 
 __all__ = [
     "batch",
@@ -244,10 +244,13 @@ def plan_items(
     if heights.ndim == 3:
         if tile_size is not None:
             raise InvalidInputError(f"tile_size applies to one (H, W) raster; got a (T, H, W) series {heights.shape}")
+        for k, frame in enumerate(heights):  # an infinity up front, as the checks above: not one item failing later
+            finite_or_nan(frame, f"source frame {k}")
         return _frame_items(heights), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
     if tile_size is None:
         raise InvalidInputError(
             f"source is one (H, W) raster {heights.shape}: give tile_size (the CLI's --tile) to cut it into tiles")
+    finite_or_nan(heights, "source")
     return _tile_items(heights.shape, tile_size), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster")
 
 
@@ -676,10 +679,10 @@ def batch(
     Raises
     ------
     InvalidInputError
-        Unknown format, bad source (an array with a finite height beyond float32 included), tile size,
-        isovalues, scheduler address or ``metadata`` (not a mapping of JSON values); a ``floor`` not below the lowest
-        point of the stepped surface of every tile or frame (a folder's files are read by the items, so there
-        each item fails on its own).
+        Unknown format, bad source (an array with an infinite height, or a finite one beyond float32, included;
+        NaN is nodata), tile size, isovalues, scheduler address or ``metadata`` (not a mapping of JSON values); a
+        ``floor`` not below the lowest point of the stepped surface of every tile or frame (a folder's files are
+        read by the items, so there each item fails on its own).
     DataFileError
         The source does not exist, or ``output_dir`` cannot be created or written (before any work).
     SchedulerError

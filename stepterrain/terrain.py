@@ -163,10 +163,21 @@ def float32_heights(array: NDArray[Any], name: str) -> NDArray[np.float32]:
                                 "finite but beyond float32's range") from None
 
 
+def finite_or_nan(heights: NDArray[np.floating], name: str) -> tuple[float, float]:
+    """The min and max of float ``heights`` (NaN when there is nodata), else an :class:`InvalidInputError` naming
+    ``name`` and the index of the first infinite value: two passes that also find an infinite value, instead of
+    an isinf pass and a mask (that runs only when the min or max is not finite)."""
+    lo, hi = float(heights.min()), float(heights.max())  # NaN propagates through both, and an infinity shows in one
+    if not (math.isfinite(lo) and math.isfinite(hi)) and np.isinf(heights).any():
+        bad = tuple(int(i) for i in np.argwhere(np.isinf(heights))[0])
+        raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
+    return lo, hi
+
+
 def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[np.float32], float, float]:
     """The heights as a C-contiguous float32 array the Terrain owns, and their min and max (NaN when there is
-    nodata): two passes that also find an infinite value, instead of an isinf pass and a mask. A finite value
-    beyond float32 is trapped in the cast (:func:`float32_heights`), so it is not reported as infinite."""
+    nodata; :func:`finite_or_nan`). A finite value beyond float32 is trapped in the cast (:func:`float32_heights`),
+    so it is not reported as infinite."""
     try:
         arr = np.asarray(unmasked(heights))
     except ValueError:  # ragged nested sequences
@@ -180,10 +191,7 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[n
     out = float32_heights(arr, name)
     if isinstance(heights, np.ndarray) and np.may_share_memory(out, heights):
         out = out.copy()  # the Terrain's caches must not see later changes to the caller's array
-    lo, hi = float(out.min()), float(out.max())  # NaN propagates through both, and an infinity shows in one
-    if not (math.isfinite(lo) and math.isfinite(hi)) and np.isinf(out).any():
-        bad = tuple(int(i) for i in np.argwhere(np.isinf(out))[0])
-        raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
+    lo, hi = finite_or_nan(out, name)
     return out, lo, hi
 
 

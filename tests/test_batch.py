@@ -211,12 +211,29 @@ def test_heights_beyond_float32_are_refused_up_front_not_called_infinite(tmp_pat
                                                 r"3.4e\+38\); got 1e\+300 at index \(1, 2, 3\), finite but beyond"):
             batch(tmp_path / "series.npy", tmp_path / "out", interval=1.0, scheduler="serial")
     assert not (tmp_path / "out").exists()
-    frames[1, 2, 3] = np.inf  # an infinity is still nodata in a file, and named as one in an array
+    frames[1, 2, 3] = np.inf  # an infinity is still nodata in a file, and refused up front in an array (below)
     np.save(tmp_path / "series.npy", frames)
     assert batch(tmp_path / "series.npy", tmp_path / "file", interval=1.0, scheduler="serial").ok
-    report = batch(frames, tmp_path / "array", interval=1.0, scheduler="serial")
-    assert [r.key for r in report.failed] == ["frame_0001"]
-    assert "an infinite value at index (2, 3)" in report.failed[0].error
+
+
+def test_infinite_heights_in_an_array_source_are_refused_up_front(tmp_path):
+    """An array source's other checks (dtype, shape, float32 range) run before any work, but an infinity failed
+    only its own frame or tile(s) at run time, after the output folder and the other items were written. NaN is
+    nodata and still steps; a series file reads an infinity as nodata (load_dem's reading)."""
+    frames = np.add.outer(np.arange(4.0), np.arange(5.0))[None].repeat(3, axis=0)
+    frames[0, 0, 0] = np.nan
+    frames[1, 2, 3] = np.inf
+    series = r"^source frame 1 must be finite or NaN \(nodata\); got an infinite value at index \(2, 3\)$"
+    with pytest.raises(InvalidInputError, match=series):
+        batch(frames, tmp_path / "out", interval=1.0, scheduler="serial")
+    with pytest.raises(InvalidInputError, match=series):  # a list of (H, W) arrays
+        batch(list(frames), tmp_path / "out", interval=1.0, scheduler="serial")
+    with pytest.raises(InvalidInputError, match=r"^source must be finite or NaN \(nodata\); got an infinite value at "
+                                                r"index \(2, 3\)$"):
+        batch(-frames[1], tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    frames[1, 2, 3] = np.nan
+    assert batch(frames, tmp_path / "out", interval=1.0, format=".ply", scheduler="serial").ok
 
 
 def test_npz_with_a_2d_elevation_and_a_3d_extra_is_one_raster_not_a_series(tmp_path):
