@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, finite_or_nan, float32_heights
+from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, finite_or_nan, float32_heights, unmasked
 
 __all__ = [
     "batch",
@@ -234,11 +234,14 @@ def plan_items(
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         return _file_items(files), None
-    array = np.asarray(source)
-    if array.dtype.kind not in "biuf" or array.ndim not in (2, 3):
+    expected = "source must be a folder, a list of DEM files, a Terrain, an (H, W) raster or a (T, H, W) series"
+    try:
+        array = np.asarray(unmasked(source))  # a masked array's masked entries are nodata (NaN), as in a Terrain
+    except ValueError:  # frames of different shapes (numpy's "inhomogeneous shape")
+        raise InvalidInputError(f"{expected}; got a {type(source).__name__} whose items differ in shape") from None
+    if array.dtype.kind not in "iuf" or array.ndim not in (2, 3):  # bools are no heights, as in a Terrain
         raise InvalidInputError(
-            "source must be a folder, a list of DEM files, a Terrain, an (H, W) raster or a (T, H, W) series; "
-            f"got {type(source).__name__} with shape {getattr(array, 'shape', None)}, dtype {array.dtype}"
+            f"{expected}; got {type(source).__name__} with shape {getattr(array, 'shape', None)}, dtype {array.dtype}"
         )
     heights = float32_heights(array, "source")  # 1e300 refused here: the cast would make it inf, each item "infinite"
     if heights.ndim == 3:
@@ -276,7 +279,7 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if not three:
         return None
     stack = three[0]
-    if stack.dtype.kind not in "biuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
+    if stack.dtype.kind not in "iuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
     try:  # 1e300 would become inf, then nodata: refused, as load_dem refuses it
@@ -320,7 +323,7 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
     if rows < 2 or cols < 2:
         raise InvalidInputError(f"a raster to tile needs at least 2 x 2 nodes; got {rows} x {cols}")
     th, tw = sizes
-    n_r, n_c = math.ceil((rows - 1) / th), math.ceil((cols - 1) / tw)
+    n_r, n_c = -(-(rows - 1) // th), -(-(cols - 1) // tw)  # ceil in ints: (rows - 1) / 10**400 was 0.0
     wr, wc = len(str(n_r - 1)), len(str(n_c - 1))
     items = []
     for r in range(n_r):  # tiles, not cells: a handful to thousands

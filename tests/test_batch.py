@@ -82,11 +82,27 @@ def test_tiles_partition_the_cells(rows, cols, th, tw):
         (np.zeros((5, 5)), {"tile_size": np.inf}, "tile_size must be"),  # int()'s OverflowError before
         (np.zeros((5, 5)), {"tile_size": (2, float("-inf"))}, "tile_size must be"),
         (["a.npy", "b.xyz"], {}, "must end in"),
+        ([np.zeros((4, 4)), np.zeros((5, 5))], {}, r"^source must be .*; got a list whose items differ in shape$"),
+        (np.zeros((2, 4, 4), bool), {}, r"^source must be .*; got ndarray with shape \(2, 4, 4\), dtype bool$"),
     ],
 )
 def test_bad_sources(source, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         plan_items(source, **kwargs)
+
+
+def test_array_sources_read_like_terrain_heights(tmp_path):
+    """A masked array's masked entries are nodata (np.asarray dropped the mask: the values under it were stepped
+    as heights); a tile size beyond the raster is one tile (10**400 gave 4 / 10**400 = 0.0 tiles: an empty, 'ok'
+    report); a bool (T, H, W) series file is refused as load_dem refuses a bool 2-D file (it was stepped as 0/1)."""
+    z = np.ma.masked_array(np.arange(25.0).reshape(5, 5), mask=np.eye(5, dtype=bool))
+    items, src = plan_items(z, tile_size=2)
+    assert np.isnan(src.heights[np.eye(5, dtype=bool)]).all() and np.isfinite(src.heights[~np.eye(5, dtype=bool)]).all()
+    items, _ = plan_items(z.data, tile_size=10**400)
+    assert [(i.rows, i.cols) for i in items] == [((0, 5), (0, 5))]
+    np.save(tmp_path / "mask.npy", np.zeros((2, 4, 4), bool))
+    with pytest.raises(DataFileError, match=r"array of shape \(2, 4, 4\), dtype bool; expected real heights"):
+        plan_items(tmp_path / "mask.npy")
 
 
 @pytest.mark.parametrize("flag", ["resume", "progress"])
