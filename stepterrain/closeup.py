@@ -662,15 +662,25 @@ def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float,
     >>> M = closeup_matrix((10.0, 0.0), 0.0, 0.0, 0.0, (2.0, 2.0, 2.0), (0.0, 0.0, 5.0))
     >>> (M @ [11.0, 0.0, 1.0, 1.0]).tolist()
     [12.0, 0.0, 7.0, 1.0]
+
+    Each argument is checked by name (finite real numbers, the shapes above): an InvalidInputError otherwise.
     """
-    cx, cy = (float(v) for v in center)
-    sx, sy, sz = (float(v) for v in np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,)))
-    px, py, pz = (float(v) for v in offset)
+    cx, cy = _pair(center, "center", nonzero=False)
+    pivot_z, alpha, beta = (finite_number(v, n) for v, n in ((pivot_z, "pivot_z"), (alpha, "alpha"), (beta, "beta")))
+    s = _numbers(scale)  # [nan] when not numbers ("2", True)
+    if s.size == 1:
+        s = np.repeat(s, 3)
+    if s.size != 3 or not np.all(np.isfinite(s)):
+        raise InvalidInputError(f"scale must be a finite number or (sx, sy, sz); got {scale!r}")
+    p = _numbers(offset)
+    if p.size != 3 or not np.all(np.isfinite(p)):
+        raise InvalidInputError(f"offset must be finite (dx, dy, dz); got {offset!r}")
+    (sx, sy, sz), (px, py, pz) = s.tolist(), p.tolist()
     ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
     rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])
     rz = np.array([[cb, -sb, 0], [sb, cb, 0], [0, 0, 1]])
     linear = rz @ rx @ np.diag([sx, sy, sz])
-    o = np.array([cx, cy, float(pivot_z)])
+    o = np.array([cx, cy, pivot_z])
     m = np.eye(4)
     m[:3, :3] = linear
     m[:3, 3] = o + np.array([px, py, pz]) - linear @ o

@@ -702,6 +702,35 @@ def test_closeup_lengths_are_checked_as_finite_numbers():
     assert ROI.circle((0.0, 0.0), 1.0, edge_width=0).mask.max() == 1.0
 
 
+
+@pytest.mark.parametrize(
+    ("args", "match"),
+    [
+        ((("1", "2"), 0.0, 0.0, 0.0, 1.0, (0, 0, 0)), r"center must be a pair of numbers \(x, y\); got \('1', '2'\)"),
+        (((math.nan, 2.0), 0.0, 0.0, 0.0, 1.0, (0, 0, 0)), r"center must be a pair of finite numbers \(x, y\)"),
+        (((1.0, 2.0, 3.0), 0.0, 0.0, 0.0, 1.0, (0, 0, 0)), r"center must be a pair of finite numbers \(x, y\); got "
+                                                         r"\(1.0, 2.0, 3.0\)"),
+        (((1.0, 2.0), "3", 0.0, 0.0, 1.0, (0, 0, 0)), r"pivot_z must be a number; got '3'"),
+        (((1.0, 2.0), math.nan, 0.0, 0.0, 1.0, (0, 0, 0)), r"pivot_z must be finite; got nan"),
+        (((1.0, 2.0), 0.0, "0", 0.0, 1.0, (0, 0, 0)), r"alpha must be a number; got '0'"),
+        (((1.0, 2.0), 0.0, math.inf, 0.0, 1.0, (0, 0, 0)), r"alpha must be finite; got inf"),
+        (((1.0, 2.0), 0.0, 0.0, True, 1.0, (0, 0, 0)), r"beta must be a number; got True"),
+        (((1.0, 2.0), 0.0, 0.0, 0.0, "2", (0, 0, 0)), r"scale must be a finite number or \(sx, sy, sz\); got '2'"),
+        (((1.0, 2.0), 0.0, 0.0, 0.0, (1.0, 2.0), (0, 0, 0)), r"scale must be .*; got \(1.0, 2.0\)"),
+        (((1.0, 2.0), 0.0, 0.0, 0.0, (1.0, math.nan, 1.0), (0, 0, 0)), r"scale must be .*; got \(1.0, nan, 1.0\)"),
+        (((1.0, 2.0), 0.0, 0.0, 0.0, 1.0, ("0", 0, 0)), r"offset must be finite \(dx, dy, dz\); got \('0', 0, 0\)"),
+        (((1.0, 2.0), 0.0, 0.0, 0.0, 1.0, (0, 0)), r"offset must be finite \(dx, dy, dz\); got \(0, 0\)"),
+        (((1.0, 2.0), 0.0, 0.0, 0.0, 1.0, (math.nan, 0, 0)), r"offset must be finite .*; got \(nan, 0, 0\)"),
+    ],
+)
+def test_closeup_matrix_names_its_bad_arguments(args, match):
+    # closeup_matrix checked nothing: text ("1", "2") became numbers, NaN gave a NaN matrix, True a turn of one
+    # radian, and a wrong length raised Python's unpacking or numpy's broadcasting ValueError
+    with pytest.raises(InvalidInputError, match=match):
+        closeup_matrix(*args)
+    m = closeup_matrix(np.array([10, 20], np.int32), np.float32(5.0), np.float64(0.0), 0, np.float32(2.0), [1, 2, 3])
+    np.testing.assert_allclose(m, closeup_matrix((10.0, 20.0), 5.0, 0.0, 0.0, (2.0, 2.0, 2.0), (1.0, 2.0, 3.0)))
+
 def test_a_kept_cull_gives_the_layers_and_anchors_of_a_fresh_one(device):
     """The cull by ROI, the outline on the terrain and the fence faces do not depend on M: calls with the same
     ROIs keep them and only apply M; the layers and strips equal those of new ROI objects, bit for bit."""
