@@ -860,7 +860,8 @@ class LayeredRenderer:
 
     def render(self, names: Sequence[str], *, reuse: bool = False, rect: tuple[int, int, int, int] | None = None
                ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
-        """One pass with only ``names`` visible: (H, W, 3) uint8 color and (H, W) float32 depth (inf: empty).
+        """One pass with only ``names`` (a sequence of layer names, e.g. ``["overview"]``) visible: (H, W, 3) uint8
+        color and (H, W) float32 depth (inf: empty).
 
         With ``reuse`` the previous images of the same pass come back without rendering when neither the view
         nor those meshes changed since (a still camera over a still overview while close-ups move). With
@@ -868,7 +869,12 @@ class LayeredRenderer:
         read back: the images are ``window[row0:row1, col0:col1]`` of the full pass, pixel for pixel."""
         if self._box is None:
             raise InvalidInputError("render needs a view first (set_view)")
-        wanted = set(names)
+        try:  # a string is a sequence of characters: render("ab") showed layers 'a' and 'b'
+            wanted = set(names) if not isinstance(names, (str, bytes)) else None
+        except TypeError:  # not iterable (5), or unhashable names
+            wanted = None
+        if wanted is None:
+            raise InvalidInputError(f"names must be a sequence of layer names, e.g. ['overview']; got {names!r}")
         unknown = wanted - set(self._actors)
         if unknown:
             raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")

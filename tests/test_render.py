@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -327,6 +329,21 @@ def test_layered_renderer_names_bad_colours_of_a_mesh_it_updates():
         renderer.set_mesh("a", *LAYER, rgb=np.zeros((3, 3), np.uint8))
         renderer.set_mesh("a", *LAYER, rgb=np.full((3, 4), 200.0))  # floats in 0-255 and RGBA still work
         np.testing.assert_array_equal(renderer.render(["a"])[0], expected)
+
+
+@needs_render
+@pytest.mark.parametrize("names", ["ab", "a", b"a", 5, None, [["a"]]])
+def test_layered_renderer_render_wants_a_sequence_of_names(names):
+    """render("ab") showed the layers 'a' and 'b' (the string's characters) instead of a layer 'ab', and render(5)
+    raised the int's 'not iterable' TypeError: the names are a sequence, as the docstring says."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        for name in ("a", "b", "ab"):
+            renderer.set_mesh(name, *LAYER)
+        renderer.set_view("oblique", renderer.bounds_of("a"))
+        with pytest.raises(InvalidInputError, match=r"names must be a sequence of layer names, e.g. \['overview'\]; "
+                                                    rf"got {re.escape(repr(names))}"):
+            renderer.render(names)
+        assert renderer.render(["ab"])[0].shape == renderer.render(("a", "b"))[0].shape == (48, 64, 3)
 
 
 BOARD = (np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 1]]), np.array([[0, 1, 2]]), None, (np.pi, 1.2),
