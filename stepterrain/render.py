@@ -163,9 +163,9 @@ def _camera_position(
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) or a pyvista "
                                     f"camera position; got {camera!r}")
     else:
-        try:
-            spec = np.asarray(camera, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
+        try:  # real_numbers: ("1", "2") and (True, False) are no angles
+            spec = real_numbers(camera, "camera", "angles or points")
+        except InvalidInputError as exc:
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}") from exc
         if spec.shape == (3, 3) and np.all(np.isfinite(spec)):
@@ -807,9 +807,10 @@ class LayeredRenderer:
         """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range."""
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
-        box = np.asarray(box, dtype=np.float64)
+        expected = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
+        given, box = box, real_numbers(box, "box", expected)  # text raised numpy's ValueError, or was taken
         if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
-            raise InvalidInputError(f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)]; got {box!r}")
+            raise InvalidInputError(f"box must be {expected}; got {given!r}")
         local = box - self._origin
         local[:, 2] *= self.z_scale
         token = (repr(camera), local.tobytes())
@@ -1011,7 +1012,7 @@ class LayeredRenderer:
     def project(self, points: ArrayLike) -> NDArray[np.float64]:
         """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top); NaN for a
         point behind the camera."""
-        points = self._local(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        points = self._local(_layer_rows(points, "points", "(N, 3) world points"))
         width, height = self.size
         camera = self._plotter.renderer.GetActiveCamera()
         matrix = camera.GetCompositeProjectionTransformMatrix(width / height, -1, 1)

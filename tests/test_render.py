@@ -346,6 +346,36 @@ def test_layered_renderer_render_wants_a_sequence_of_names(names):
         assert renderer.render(["ab"])[0].shape == renderer.render(("a", "b"))[0].shape == (48, 64, 3)
 
 
+@needs_render
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda r: r.set_view("oblique", "abc"),  # numpy's "could not convert string to float" before
+         r"box must be \[\(xmin, ymin, zmin\), \(xmax, ymax, zmax\)\] with max >= min \(real numbers\); got dtype <U3"),
+        (lambda r: r.set_view("oblique", [["0", "0", "0"], ["1", "1", "1"]]),  # taken as numbers before
+         r"box must be .*; got dtype <U1"),
+        (lambda r: r.set_view("oblique", [[False] * 3, [True] * 3]), r"box must be .*; got dtype bool"),  # 0 and 1
+        (lambda r: r.set_view("oblique", [[0, 0, 0], [1, 1]]), r"box must be .*; got rows of different lengths"),
+        (lambda r: r.set_view("oblique", [[0, 0, 0], [1, 1, np.nan]]),
+         r"box must be .* with max >= min; got \[\[0, 0, 0\], \[1, 1, nan\]\]"),
+        (lambda r: r.set_view(("1", "2"), r.bounds_of("a")),  # taken as (1.0, 2.0) before
+         r"camera must be 'oblique', 'top', \(azimuth, elevation\) in radians .*; got \('1', '2'\)"),
+        (lambda r: r.project("abc"), r"points must be \(N, 3\) world points \(real numbers\); got dtype <U3"),
+        (lambda r: r.project([["1", "2", "3"]]), r"points must be \(N, 3\) world points .*; got dtype <U1"),  # taken
+        (lambda r: r.project([[True, False, True]]), r"points must be .*; got dtype bool"),  # taken as 1 and 0
+        (lambda r: r.project([[1.0, 2.0]]), r"points must be \(N, 3\) world points; got shape \(1, 2\)"),  # reshape
+        (lambda r: r.project([[1.0, 2.0, 3.0], [1.0]]), r"points must be .*; got rows of different lengths"),
+    ],
+)
+def test_layered_renderer_view_and_projection_name_bad_arguments(call, match):
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("a", *LAYER)
+        with pytest.raises(InvalidInputError, match=match):
+            call(renderer)
+        renderer.set_view((np.float32(0.5), 1), np.array(renderer.bounds_of("a"), np.float32))  # numpy numbers
+        np.testing.assert_allclose(renderer.project(np.array([0, 0, 0], np.int32)), renderer.project([[0.0, 0, 0]]))
+
+
 BOARD = (np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 1]]), np.array([[0, 1, 2]]), None, (np.pi, 1.2),
          np.array([[0.0, 0, 0], [10, 0, 0], [0, 10, 1]]))
 
