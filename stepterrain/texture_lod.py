@@ -329,9 +329,18 @@ class ImagePyramid:
             shutil.rmtree(self.storage, ignore_errors=True)
             self._owned = False
 
+    def _level(self, level: Any) -> NDArray[np.uint8]:
+        """The array of ``level``, else an InvalidInputError naming it: level -1 read the last (1 x 1) level through
+        Python's negative indexing, True level 1."""
+        levels = self.levels  # a closed pyramid is refused first
+        if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 0 <= level < len(levels):
+            raise InvalidInputError(f"level must index the pyramid's {len(levels)} levels (0 to {len(levels) - 1}); "
+                                    f"got {level!r}")
+        return levels[level]
+
     def shape(self, level: int) -> tuple[int, int]:
         """(rows, cols) of ``level``."""
-        shape = self.levels[level].shape
+        shape = self._level(level).shape
         return int(shape[0]), int(shape[1])
 
     def pixel_size(self, level: int) -> tuple[float, float]:
@@ -365,7 +374,7 @@ class ImagePyramid:
     def sub_image(self, level: int, window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
         """A view of a window of ``level`` (no copy: a memmap slice stays on disk until read)."""
         r0, r1, c0, c1 = window
-        return self.levels[level][r0:r1, c0:c1]
+        return self._level(level)[r0:r1, c0:c1]
 
 
 class _Reader:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 import textwrap
@@ -214,6 +215,21 @@ def test_pyramid_constructor_reopens_built_levels(tmp_path):
         assert again.window(0, (0.0, 3.0, 0.0, 5.0)) == (0, 5, 0, 3)
         again.close()
     assert ImagePyramid(pyramid_levels(), (0, 3, 0, 5), None).shape(3) == (1, 1)  # in-memory levels
+
+
+@pytest.mark.parametrize("level", [-1, -4, 4, 10**20, True, "1", 1.0, np.float64(2.0), None])
+def test_pyramid_levels_outside_the_pyramid_are_refused(level):
+    """shape(-1), window(-1, ...), sub_image(-1, ...) (and pixel_size, window_extent) read the last level (1 x 1)
+    through Python's negative indexing, True level 1; 4, "1" and 1.0 raised the list's IndexError or TypeError."""
+    pyramid = ImagePyramid(pyramid_levels(), (0, 3, 0, 5), None)  # 4 levels
+    uses = [lambda: pyramid.shape(level), lambda: pyramid.pixel_size(level),
+            lambda: pyramid.window(level, (0.0, 3.0, 0.0, 5.0)), lambda: pyramid.window_extent(level, (0, 1, 0, 1)),
+            lambda: pyramid.sub_image(level, (0, 1, 0, 1))]
+    for use in uses:
+        with pytest.raises(InvalidInputError, match=rf"level must index the pyramid's 4 levels \(0 to 3\); "
+                                                    rf"got {re.escape(repr(level))}"):
+            use()
+    assert pyramid.shape(np.int64(3)) == (1, 1) and pyramid.sub_image(np.uint8(1), (0, 3, 0, 2)).shape == (3, 2, 3)
 
 
 @pytest.mark.parametrize("given_storage", [False, True])
