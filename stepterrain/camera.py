@@ -158,9 +158,14 @@ class Camera:
         return self.viewport[1] / 2.0 / math.tan(self.fov / 2.0)
 
     def project(self, points: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """(pixel coordinates (N, 2), depth (N,)) of world points."""
+        """(pixel coordinates (N, 2), depth (N,)) of world points (N, 3), or of one point (3,)."""
+        expected = "(N, 3) world points"
+        given = real_numbers(points, "points", expected)  # text and bools were taken as numbers
+        array = np.atleast_2d(given)
+        if array.ndim != 2 or array.shape[1] != 3:
+            raise InvalidInputError(f"points must be {expected}; got shape {given.shape}")
         forward, right, up = self.frame()
-        rel = np.atleast_2d(np.asarray(points, dtype=np.float64)) - np.asarray(self.eye, dtype=np.float64)
+        rel = array - np.asarray(self.eye, dtype=np.float64)
         depth = rel @ forward
         f = self.focal_pixels
         with np.errstate(divide="ignore", invalid="ignore"):

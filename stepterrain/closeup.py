@@ -1647,6 +1647,7 @@ def render_closeups(
     _check_scalars(scalars)
     _check_in_terrain(t, items)
     image_texture = None if texture is None else _check_texture(texture, "texture")
+    box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
     pivot = _pivot_z(t)
@@ -1678,9 +1679,7 @@ def render_closeups(
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
-        if bounds is not None:
-            box = np.asarray(bounds, dtype=np.float64)
-        else:
+        if box is None:
             boxes = [renderer.bounds_of("overview")]
             for layer, strip in zip(layers, strips, strict=True):
                 boxes += [b for b in map(render._finite_bounds, (layer.vertices, strip.vertices)) if b is not None]

@@ -352,11 +352,7 @@ def _frame_mesh(
     if bounds is None:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
-        box = np.asarray(bounds, dtype=np.float64)
-        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
-            raise InvalidInputError(
-                f"bounds must be [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min; got {bounds!r}")
-        lo, hi = box[0], box[1]
+        lo, hi = _check_box(bounds, "bounds")
     centre = (lo + hi) / 2.0
     local = vertices - centre
     local[:, 2] *= z_scale
@@ -364,6 +360,18 @@ def _frame_mesh(
     box[:, 2] *= z_scale
     _camera_position(camera, _box_corners(box), width / height)  # raises on a bad camera; cheap (8 corners)
     return width, height, vertices, local, finite, box
+
+
+_BOX = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
+
+
+def _check_box(value: Any, name: str) -> NDArray[np.float64]:
+    """A world box (2, 3) of finite real numbers with max >= min, else an InvalidInputError naming ``name``:
+    ``np.asarray(value, dtype=float)`` took text and bools as numbers, and raised numpy's ValueError for 'abc'."""
+    box = real_numbers(value, name, _BOX)
+    if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
+        raise InvalidInputError(f"{name} must be {_BOX}; got {value!r}")
+    return box
 
 
 def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
@@ -738,11 +746,7 @@ class LayeredRenderer:
         if bounds is None:
             bounds = _finite_bounds(vertices)
         else:  # a (3,) box failed to unpack; a NaN one made a NaN origin
-            expected = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
-            box = real_numbers(bounds, f"bounds of layer {name!r}", expected)
-            if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
-                raise InvalidInputError(f"bounds of layer {name!r} must be {expected}; got {bounds!r}")
-            bounds = box
+            bounds = _check_box(bounds, f"bounds of layer {name!r}")
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
         lo, hi = bounds
@@ -807,11 +811,7 @@ class LayeredRenderer:
         """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range."""
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
-        expected = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
-        given, box = box, real_numbers(box, "box", expected)  # text raised numpy's ValueError, or was taken
-        if box.shape != (2, 3) or not np.isfinite(box).all() or np.any(box[1] < box[0]):
-            raise InvalidInputError(f"box must be {expected}; got {given!r}")
-        local = box - self._origin
+        local = _check_box(box, "box") - self._origin
         local[:, 2] *= self.z_scale
         token = (repr(camera), local.tobytes())
         if token == self._view_token:

@@ -117,6 +117,28 @@ def test_camera_refuses_numbers_given_as_text_or_bools(options, match):
         Camera(**kwargs)
 
 
+@pytest.mark.parametrize(
+    ("points", "match"),
+    [
+        ([["0", "0", "0"]], r"points must be \(N, 3\) world points \(real numbers\); got dtype <U1"),  # taken
+        ([[True, False, False]], r"points must be \(N, 3\) world points \(real numbers\); got dtype bool"),
+        ("abc", r"points must be .*; got dtype <U3"),  # numpy's "could not convert string to float"
+        ([[0.0, 0.0]], r"points must be \(N, 3\) world points; got shape \(1, 2\)"),  # numpy's broadcast error
+        ([[0.0, 0.0, 0.0], [0.0]], r"points must be .*; got rows of different lengths"),  # "inhomogeneous shape"
+    ],
+)
+def test_camera_project_refuses_points_that_are_not_numbers(points, match):
+    import numpy as np
+
+    from stepterrain.camera import Camera
+
+    cam = Camera(eye=(0.0, -10.0, 5.0), target=(0.0, 0.0, 0.0), viewport=(640, 480))
+    with pytest.raises(st.InvalidInputError, match=match):
+        cam.project(points)
+    px, depth = cam.project(np.array([0, 0, 0], np.int32))  # one point, numpy integers
+    assert px.tolist()[0] == pytest.approx([320.0, 240.0]) and depth.shape == (1,)
+
+
 def test_camera_takes_numpy_numbers():
     import numpy as np
 

@@ -259,6 +259,22 @@ def test_too_many_closeups_for_the_window():
         render_closeups(terrain(), cus, window_size=(128, 64), device="cpu")
 
 
+@pytest.mark.parametrize(
+    ("bounds", "match"),
+    [
+        ([("1000", "2000", "0"), ("1080", "2064", "160")], r"got dtype <U4"),  # framed as numbers before
+        ([[False] * 3, [True] * 3], r"got dtype bool"),  # a box from 0 to 1 before
+        ("abc", r"got dtype <U3"),  # numpy's "could not convert string to float" after the close-ups were culled
+        ([(1000, 2000, 0), (1080, 2064)], r"got rows of different lengths"),  # numpy's "inhomogeneous shape"
+        ([1000, 2000, 0], r"; got \[1000, 2000, 0\]"),  # named only after the transform before
+    ],
+)
+def test_render_closeups_refuses_bounds_that_are_not_a_box_of_numbers(bounds, match):
+    with pytest.raises(InvalidInputError, match=r"bounds must be \[\(xmin, ymin, zmin\), \(xmax, ymax, zmax\)\] "
+                                                 r"with max >= min.*" + match):
+        render_closeups(terrain(), [one()], window_size=SIZE, bounds=bounds, device="cpu")
+
+
 # ------------------------------------------------------------------------------------------------ CLI
 @pytest.fixture
 def dem(tmp_path) -> Path:

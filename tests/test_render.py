@@ -116,6 +116,7 @@ def test_save_png_roundtrip(tmp_path):
         ({"scalars": "slope"}, "scalars"),
         ({"camera": "sideways"}, "camera"),
         ({"bounds": [(1, 1, 1), (0, 0, 0)]}, "bounds"),
+        ({"bounds": [("0", "0", "0"), ("1", "1", "1")]}, r"bounds must be .* \(real numbers\); got dtype <U1"),  # taken
         ({"z_scale": "abc"}, "z_scale"),  # float()'s ValueError before
         ({"z_scale": None}, "z_scale"),  # float()'s TypeError before
         ({"show_edges": "no"}, "show_edges must be True or False"),  # VTK's TypeError from SetEdgeVisibility
