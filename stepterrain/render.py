@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import as_number, check_flag, real_numbers
+from .terrain import as_number, check_flag, finite_or_nan, real_numbers
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
            "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
@@ -1030,9 +1030,16 @@ class LayeredRenderer:
         """An overview-independent close-up (paper 001 §II.C): an orthographic render from the fixed direction
         ``view`` (azimuth, elevation) pasted over the screen box of ``anchor_points`` (N, 3).
 
-        ``vertices``, ``faces`` and ``rgb`` (or None: the default tan) as for :meth:`set_mesh`. Returns the
-        full-window color, coverage and depth (0 where covered: a billboard lies in front)."""
+        ``vertices``, ``faces`` and ``rgb`` (or None: the default tan) as for :meth:`set_mesh`; as there, a NaN
+        vertex is left out of the framing (its faces are not drawn). Returns the full-window color, coverage and
+        depth (0 where covered: a billboard lies in front)."""
         vertices = np.asarray(_layer_rows(vertices, "vertices", "(V, 3) coordinates"), dtype=np.float64)
+        if len(vertices):  # an infinite vertex left VTK's render blank, without a word
+            finite_or_nan(vertices, "vertices")
+        bounds = _finite_bounds(vertices)  # one NaN vertex made the centre, and so every coordinate, NaN
+        if bounds is None:
+            raise InvalidInputError(f"vertices must include a finite vertex; got {len(vertices)} vertices, none finite "
+                                    "(nothing to render)")
         faces = _layer_faces(faces, "faces")
         _check_face_indices(faces, len(vertices), "faces")
         if rgb is not None:
@@ -1056,7 +1063,8 @@ class LayeredRenderer:
         bw, bh = c1 - c0, r1 - r0
         if bw < 8 or bh < 8:
             return color, coverage, depth
-        local = vertices - (vertices.min(axis=0) + vertices.max(axis=0)) / 2
+        centre = (bounds[0] + bounds[1]) / 2
+        local = vertices - centre
         local[:, 2] *= self.z_scale
         plotter = self._new_plotter((bw, bh))
         try:
@@ -1067,7 +1075,8 @@ class LayeredRenderer:
                 kwargs = {"scalars": "rgb", "rgb": True}
             plotter.add_mesh(poly, smooth_shading=False, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
                              show_scalar_bar=False, **kwargs)
-            box = np.array([local.min(axis=0), local.max(axis=0)])
+            box = bounds - centre  # the finite vertices' local bounds
+            box[:, 2] *= self.z_scale
             position = _camera_position(tuple(direction.tolist()), _box_corners(box), bw / bh)
             look_from = np.subtract(position[0], position[1])
             for light in _lights(self._pv, box, (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)):

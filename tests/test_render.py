@@ -419,6 +419,30 @@ def test_layered_renderer_billboard_names_bad_arguments(args, match):
         np.testing.assert_array_equal(again[0], color)
 
 
+@needs_render
+def test_layered_renderer_billboard_takes_nan_vertices_as_set_mesh_does_and_refuses_infinite_ones():
+    """One NaN vertex made the billboard's centre, and so every coordinate, NaN; an infinite one blanked VTK's render:
+    nothing was drawn, without a word. As in set_mesh, a NaN vertex is left out of the framing (its faces are not
+    drawn); an infinite one, and vertices with none finite, are refused by name."""
+    quad = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 1], [0, 10, 1]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    with render.LayeredRenderer(window_size=(64, 64)) as renderer:
+        renderer.set_mesh("a", quad, faces)
+        renderer.set_view("top", renderer.bounds_of("a"))
+        expected = renderer.render_billboard(quad, faces, None, (np.pi, 1.2), quad)
+        assert expected[1].any()
+        with_nan = np.vstack([quad, [[5.0, np.nan, 0.5]]])  # a fifth vertex, on a third face
+        got = renderer.render_billboard(with_nan, np.vstack([faces, [[0, 1, 4]]]), None, (np.pi, 1.2), quad)
+        for a, b in zip(got, expected, strict=True):
+            np.testing.assert_array_equal(a, b)
+        with pytest.raises(InvalidInputError, match=r"vertices must be finite or NaN \(nodata\); got an infinite "
+                                                    r"value at index \(4, 1\)"):
+            renderer.render_billboard(np.vstack([quad, [[5.0, -np.inf, 0.5]]]), faces, None, (np.pi, 1.2), quad)
+        with pytest.raises(InvalidInputError, match=r"vertices must include a finite vertex; got 4 vertices, none "
+                                                    r"finite \(nothing to render\)"):
+            renderer.render_billboard(np.full((4, 3), np.nan), faces, None, (np.pi, 1.2), quad)
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e300])
 def test_textured_render_refuses_non_finite_uvs(bad):
     # NaN or inf UVs (or beyond float32) rendered silently, with garbage texels on the faces they touch
