@@ -715,6 +715,8 @@ class TextureLayer:
         object.__setattr__(self, "matrix", matrix)
         if self.border not in ("transparent", "edge"):
             raise InvalidInputError(f"border must be 'transparent' or 'edge'; got {self.border!r}")
+        if not isinstance(self.name, str):  # 5 or None was kept as the name (and as a draped material's)
+            raise InvalidInputError(f"name must be a string; got {self.name!r}")
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -1326,6 +1328,8 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if not isinstance(layer, TextureLayer):
         raise InvalidInputError(f"layer must be a TextureLayer; got {type(layer).__name__}")
+    if not isinstance(name, str):  # the material's name: a number or None went into the GLB as given
+        raise InvalidInputError(f"name must be a string; got {name!r}")
     bg = _real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
     if bg.min() < 0 or bg.max() > 1:
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")

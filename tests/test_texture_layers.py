@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -434,6 +435,17 @@ def test_drape_and_render_bad_input():
             drape(mesh, layer(RGB_A), background=background)
     with pytest.raises(InvalidInputError, match="mesh has no texture"):
         render.render_textured_mesh(mesh)
+
+
+@pytest.mark.parametrize("name", [5, None, b"roads", ["roads"]])
+def test_layer_and_drape_names_must_be_strings(name):
+    """TextureLayer(name=5) and drape(name=None) were taken: the layer carried a number as its name, and the
+    draped mesh's material a number or None as its name (written into a GLB as given)."""
+    with pytest.raises(InvalidInputError, match=rf"name must be a string; got {re.escape(repr(name))}"):
+        TextureLayer("luminance", ALPHA, EXTENT, name=name)
+    with pytest.raises(InvalidInputError, match=rf"name must be a string; got {re.escape(repr(name))}"):
+        drape(st.heightfield_mesh(np.zeros((3, 3))), layer(RGB_A), name=name)
+    assert TextureLayer("luminance", ALPHA, EXTENT, name=np.str_("roads")).name == "roads"
 
 
 def test_sampling_is_precise_at_utm_coordinates(device):
