@@ -27,7 +27,6 @@ import math
 import os
 import re
 import time
-import zipfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -260,36 +259,29 @@ def plan_items(
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     """A (T, H, W) float32 stack from a ``.npy`` or ``.npz`` file (one 3-D array), or ``None`` if it holds 2-D.
 
-    In an ``.npz`` the key :func:`~stepterrain.io.load_dem` reads (``heights``, ``elevation`` or ``z``) decides
-    when there is one: a 2-D ``elevation`` beside a 3-D texture is one raster. Non-finite heights become NaN
-    (nodata) and finite ones beyond float32 are a DataFileError, as :func:`~stepterrain.io.load_dem` reads a 2-D
-    file."""
+    The file is read as :func:`~stepterrain.io.load_dem` reads a 2-D one: in an ``.npz`` the key it reads
+    (``heights``, ``elevation`` or ``z``) decides when there is one (a 2-D ``elevation`` beside a 3-D texture is
+    one raster), and a scalar ``nodata`` marks missing cells; those and non-finite heights become NaN (nodata).
+    A finite height beyond float32, a series that is all nodata, and a file that is truncated or declares more
+    data than it holds are a :class:`~stepterrain.errors.DataFileError`."""
+    from .io import _GENERIC_KEYS, nodata_as_nan, npz_nodata, read_npy, read_npz
+
     file = Path(os.fspath(path))
-    try:
-        loaded = np.load(file, mmap_mode="r", allow_pickle=False)
-        if isinstance(loaded, np.ndarray):
-            arrays = [loaded]
-        else:
-            with loaded as archive:  # a key load_dem reads ('elevation' ...) decides: not any 3-D member
-                keys = [k for k in ("heights", "elevation", "z") if k in archive.files][:1] or archive.files
-                arrays = [archive[k] for k in keys]
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
-    three = [a for a in arrays if getattr(a, "ndim", 0) == 3]
-    if not three:
+    loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
+    if isinstance(loaded, np.ndarray):
+        stack, what, nodata = loaded, "array", None
+    else:  # a key load_dem reads ('elevation' ...) decides: not any 3-D member
+        keys = [k for k in _GENERIC_KEYS if k in loaded][:1] or list(loaded)
+        key = next((k for k in keys if loaded[k].ndim == 3), None)
+        if key is None:
+            return None
+        stack, what, nodata = loaded[key], repr(key), npz_nodata(loaded.get("nodata"))
+    if stack.ndim != 3:
         return None
-    stack = three[0]
     if stack.dtype.kind not in "iuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    try:  # 1e300 would become inf, then nodata: refused, as load_dem refuses it
-        heights = float32_heights(stack, "heights")
-    except InvalidInputError as exc:
-        raise DataFileError(f"cannot read {str(file)!r}: {exc}") from None
-    if not heights.flags.writeable:  # float32 as stored: a view of the file's read-only memory map
-        heights = heights.copy()
-    heights[~np.isfinite(heights)] = np.nan  # as load_dem reads a 2-D file: any non-finite value is nodata
-    return heights
+    return nodata_as_nan(stack, file, what, nodata)  # as load_dem reads a 2-D file
 
 
 def _terrain_source(terrain: Terrain) -> _Source:
@@ -639,7 +631,8 @@ def batch(
     ----------
     source
         A folder of DEM files (.npy .npz .png .tif; one output per file, named after it), a list of DEM files,
-        a ``.npy``/``.npz`` file holding one (T, H, W) series or a (T, H, W) array (one output per frame,
+        a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
+        an ``.npz``'s ``nodata`` value are nodata) or a (T, H, W) array (one output per frame,
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
         array) cut into tiles of ``tile_size`` cells (``tile_r0_c0`` ...; neighbours share border nodes).
     output_dir : str or path-like

@@ -15,7 +15,7 @@ import os
 import warnings
 import zipfile
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -195,11 +195,19 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
 
 # ---------------------------------------------------------------------------------------------- readers
 def _load_npy(file: Path) -> Terrain:
+    heights = _elevation(read_npy(file), file, "array")
+    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+
+
+def read_npy(file: Path, mmap_mode: Literal["r"] | None = None) -> NDArray[Any]:
+    """The one array of an .npy file (memory-mapped read-only with ``mmap_mode="r"``), else a DataFileError: not
+    an .npy, a header declaring more data than the file holds (truncated), pickled objects, unreadable content.
+    :func:`load_dem` and :func:`~stepterrain.batch.load_series` read .npy files through this."""
     _check_magic(file, (_NPY_MAGIC,), "a NumPy .npy array file")
     with open(file, "rb") as handle:  # readable: _check_magic has read it
         _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array")
     try:
-        array = np.load(file, allow_pickle=False)
+        array = np.load(file, mmap_mode=mmap_mode, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a NumPy .npy array file; got unreadable content ({exc})"
@@ -208,26 +216,24 @@ def _load_npy(file: Path) -> Terrain:
         if hasattr(array, "close"):
             array.close()
         raise DataFileError(f"cannot read {str(file)!r}: expected a single .npy array; got an .npz archive")
-    heights = _elevation(array, file, "array")
-    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+    return array
 
 
-def _load_npz(file: Path) -> Terrain:
-    _check_magic(file, (_ZIP_MAGIC, _EMPTY_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive")
+def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
+    """The members of an .npz archive by key (each member's header checked against its size, as
+    :func:`read_npy` checks a file's), or the array of an .npy saved under an .npz name; else a DataFileError.
+    :func:`load_dem` and :func:`~stepterrain.batch.load_series` read .npz files through this."""
+    if _check_magic(file, (_ZIP_MAGIC, _EMPTY_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive").startswith(_NPY_MAGIC):
+        return read_npy(file)  # a .npy saved under an .npz name: a plain array (its size checked too)
     try:
         archive = np.load(file, allow_pickle=False)
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
         ) from exc
-    if isinstance(archive, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array
-        return _grid(
-            file, _elevation(archive, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
-        )
     try:
         with archive:
-            keys = list(archive.files)
-            arrays = {key: _npz_member(archive, key, file) for key in keys}
+            return {key: _npz_member(archive, key, file) for key in archive.files}
     except DataFileError:
         raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
@@ -235,7 +241,14 @@ def _load_npz(file: Path) -> Terrain:
             f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
         ) from exc
 
-    nodata = _npz_nodata(arrays.get("nodata"))
+
+def _load_npz(file: Path) -> Terrain:
+    arrays = read_npz(file)
+    if isinstance(arrays, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array
+        return _grid(
+            file, _elevation(arrays, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
+        )
+    nodata = npz_nodata(arrays.get("nodata"))
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
     # a transform georeferences whichever array holds the heights: 'elevation' (the shared/data layout) first
     key = next((k for k in ("elevation", *_GENERIC_KEYS) if k in arrays), two_d[0] if len(two_d) == 1 else None)
@@ -360,8 +373,9 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
 
 
 # ---------------------------------------------------------------------------------------------- helpers
-def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> None:
-    """Refuse a file whose first bytes match none of ``magics`` (text saved under a NumPy extension)."""
+def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> bytes:
+    """The first bytes of ``file``; refuse a file they match none of ``magics`` (text saved under a NumPy
+    extension)."""
     try:
         with open(file, "rb") as handle:
             head = handle.read(16)
@@ -370,6 +384,7 @@ def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> None:
     if not head.startswith(magics):
         got = "an empty file" if not head else f"content starting {head[:8]!r}"
         raise DataFileError(f"cannot read {str(file)!r}: expected {expected}; got {got}")
+    return head
 
 
 def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
@@ -418,7 +433,7 @@ def _scalar_str(value: Any) -> str | None:
     return text or None
 
 
-def _npz_nodata(value: Any) -> float | None:
+def npz_nodata(value: Any) -> float | None:
     """The finite nodata value an .npz stores under ``nodata`` (a real scalar), else None."""
     if value is None:
         return None
@@ -446,6 +461,16 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
+    return nodata_as_nan(array, file, what, nodata)
+
+
+def nodata_as_nan(
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+) -> NDArray[np.float32]:
+    """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
+    values and cells equal to ``nodata`` (compared in the array's own dtype). A finite value beyond float32 or
+    nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is
+    read into memory."""
     hits = None
     if nodata is not None:
         hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
@@ -457,7 +482,10 @@ def _elevation(
             at = tuple(int(i) for i in np.argwhere(big)[0])
             raise DataFileError(f"cannot read {str(file)!r}: {what} holds heights beyond float32 (|z| < 3.4e+38); "
                                 f"got {float(array[at])!r} at index {at}")
-    heights = np.ascontiguousarray(array, dtype=np.float32)
+    with np.errstate(over="ignore"):  # only nodata overflows here (beyond float32, refused above otherwise)
+        heights = np.ascontiguousarray(array, dtype=np.float32)
+    if not heights.flags.writeable:  # float32 as stored, a view of a read-only memory map
+        heights = heights.copy()
     if hits is not None and hits.any():
         heights[hits] = np.nan
     finite = np.isfinite(heights)

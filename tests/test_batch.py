@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as hst
 
 from stepterrain import cli
-from stepterrain.batch import MANIFEST_NAME, BatchItem, batch, plan_items, run_item
+from stepterrain.batch import MANIFEST_NAME, BatchItem, batch, load_series, plan_items, run_item
 from stepterrain.errors import DataFileError, InvalidInputError, SchedulerError
 from stepterrain.io import load_dem
 from stepterrain.mesh import boundary_edges
@@ -206,6 +206,49 @@ def test_series_file_reads_non_finite_heights_as_nodata_like_load_dem(tmp_path):
     assert len(load(tmp_path / "out" / "frame_0001.ply").faces) == len(expected.faces)
 
 
+@pytest.mark.parametrize("dtype", [np.int16, np.float32])
+def test_series_npz_nodata_value_becomes_nan_like_load_dem(tmp_path, dtype):
+    """load_dem reads an .npz's scalar 'nodata' as missing cells; load_series ignored it, so a series stored with
+    nodata -9999 was stepped with -9999 as a real height (a pit to -9999 in the mesh, and the shared isovalues
+    spread down to it). Its frames now read as the same 2-D file reads through load_dem."""
+    frames = np.add.outer(np.arange(6), np.arange(6))[None].repeat(2, axis=0).astype(dtype)
+    frames[1, 2, 3] = -9999
+    np.savez(tmp_path / "series.npz", heights=frames, nodata=np.float64(-9999))
+    np.savez(tmp_path / "frame.npz", heights=frames[1], nodata=np.float64(-9999))
+    series, single = load_series(tmp_path / "series.npz"), load_dem(tmp_path / "frame.npz")
+    np.testing.assert_array_equal(series[1], single.heights)
+    assert np.isnan(series[1, 2, 3]) and np.isfinite(series).sum() == frames.size - 1
+    report = batch(tmp_path / "series.npz", tmp_path / "out", interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok
+    mesh = load(tmp_path / "out" / "frame_0001.ply")
+    assert mesh.vertices[:, 2].min() >= 0.0
+    assert len(mesh.faces) == len(stepped(single, levels=isovalues((0.0, 10.0), interval=1.0)).faces)
+    if dtype == np.float32:  # a float64 nodata beyond float32 is nodata, not a height too large (load_dem's reading)
+        np.savez(tmp_path / "far.npz", heights=np.where(frames == -9999, -1e300, frames.astype(np.float64)),
+                 nodata=-1e300)
+        np.testing.assert_array_equal(load_series(tmp_path / "far.npz"), series)
+    np.savez(tmp_path / "all.npz", heights=np.full((2, 3, 3), -1, dtype), nodata=-1)
+    with pytest.raises(DataFileError, match=r"all\.npz.*all nodata"):
+        load_series(tmp_path / "all.npz")
+
+
+def test_series_file_declaring_more_data_than_it_holds_is_refused_like_load_dem(tmp_path):
+    """load_series skipped load_dem's check of an .npy header against the file's size: an .npz member declaring
+    10^5 x 10^5 x 10^4 floats raised a MemoryError for 728 TiB, and a truncated .npy numpy's bare 'mmap length
+    is greater than file size'."""
+    import zipfile
+
+    from .test_io import _npy_declaring
+
+    (tmp_path / "short.npy").write_bytes(_npy_declaring((3, 4, 5)))  # truncated: 8 of 480 bytes
+    with pytest.raises(DataFileError, match=r"short\.npy.*declares shape \(3, 4, 5\) of float64 \(480 bytes\)"):
+        load_series(tmp_path / "short.npy")
+    with zipfile.ZipFile(tmp_path / "huge.npz", "w") as archive:
+        archive.writestr("heights.npy", _npy_declaring((10**5, 10**5, 10**4)))
+    with pytest.raises(DataFileError, match=r"huge\.npz.*member 'heights' declares shape \(100000, 100000, 10000\)"):
+        load_series(tmp_path / "huge.npz")
+
+
 def test_heights_beyond_float32_are_refused_up_front_not_called_infinite(tmp_path):
     """A finite float64 height beyond float32 (1e300) became inf in the cast (numpy's 'overflow encountered in
     cast' warning): its frame or tile failed on its own with '... got an infinite value at index (2, 3)', and a
@@ -223,8 +266,8 @@ def test_heights_beyond_float32_are_refused_up_front_not_called_infinite(tmp_pat
                   scheduler="serial")
         assert not (tmp_path / "out").exists()
         np.save(tmp_path / "series.npy", frames)
-        with pytest.raises(DataFileError, match=r"^cannot read '.*series.npy': heights must fit in float32 \(\|h\| < "
-                                                r"3.4e\+38\); got 1e\+300 at index \(1, 2, 3\), finite but beyond"):
+        with pytest.raises(DataFileError, match=r"^cannot read '.*series.npy': array holds heights beyond float32 "
+                                                r"\(\|z\| < 3.4e\+38\); got 1e\+300 at index \(1, 2, 3\)$"):
             batch(tmp_path / "series.npy", tmp_path / "out", interval=1.0, scheduler="serial")
     assert not (tmp_path / "out").exists()
     frames[1, 2, 3] = np.inf  # an infinity is still nodata in a file, and refused up front in an array (below)

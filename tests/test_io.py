@@ -5,6 +5,7 @@ from __future__ import annotations
 import builtins
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -184,6 +185,16 @@ def test_npz_nodata_value_becomes_nan(tmp_path, dtype):
     np.savez(tmp_path / "all.npz", heights=np.full((2, 2), -1, dtype), nodata=-1)
     with pytest.raises(DataFileError, match="all nodata"):
         load_dem(tmp_path / "all.npz")
+
+
+def test_npz_float64_nodata_beyond_float32_is_nodata_without_a_warning(tmp_path):
+    # a float64 DEM with nodata -1e300: those cells overflowed in the cast to float32 (numpy's "overflow
+    # encountered in cast" warning) before they became NaN
+    np.savez(tmp_path / "far.npz", heights=np.array([[1.0, -1e300], [2.0, 3.0]]), nodata=-1e300)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        h = load_dem(tmp_path / "far.npz").heights
+    assert np.isnan(h[0, 1]) and np.isfinite(h).sum() == 3
 
 
 @pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
@@ -406,6 +417,9 @@ def test_huge_declared_shape_is_a_data_file_error_not_an_allocation(tmp_path):
     (tmp_path / "short.npy").write_bytes(_npy_declaring((3, 4)))  # truncated: 8 of 96 bytes
     with pytest.raises(DataFileError, match=r"short\.npy.*declares shape \(3, 4\) of float64 \(96 bytes\)"):
         load_dem(tmp_path / "short.npy")
+    (tmp_path / "plain.npz").write_bytes(_npy_declaring((10**5, 10**5)))  # an .npy under an .npz name: no check
+    with pytest.raises(DataFileError, match=r"plain\.npz.*declares shape \(100000, 100000\)"):  # MemoryError
+        load_dem(tmp_path / "plain.npz")
 
 
 def test_npz_without_elevation(tmp_path):
