@@ -129,14 +129,55 @@ def check_flag(value: Any, name: str) -> bool:
 def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.float64]:
     """``values`` as float64 when they are real numbers (a masked array's masked entries NaN), else an
     InvalidInputError "``name`` must be ``expected``": text and ragged rows raised numpy's ValueError, complex
-    values lost their imaginary part."""
+    values lost their imaginary part, a bool beside numbers in a list ((True, 2.0)) became 1.0. An object array
+    (numpy's dtype for an int beyond int64, 10**20) is read number by number through :func:`as_number`."""
     try:
         array = np.asarray(unmasked(values))
     except ValueError:  # ragged rows
         raise InvalidInputError(f"{name} must be {expected}; got rows of different lengths") from None
+    if array.dtype == object:
+        return _object_numbers(array, name, expected)
     if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
         raise InvalidInputError(f"{name} must be {expected} (real numbers); got dtype {array.dtype}")
+    at = _first_bool(values) if isinstance(values, (list, tuple)) else None
+    if at is not None:
+        raise InvalidInputError(f"{name} must be {expected} (real numbers); got a bool ({at[1]!r}) at index {at[0]}")
     return array.astype(np.float64)
+
+
+def _first_bool(values: list[Any] | tuple[Any, ...], at: tuple[int, ...] = ()) -> tuple[tuple[int, ...], Any] | None:
+    """The index and value of the first bool in nested lists and tuples (numpy bool arrays in them too), else
+    None: numpy turns it into a number beside numbers."""
+    for k, value in enumerate(values):
+        if isinstance(value, (bool, np.bool_)):
+            return (*at, k), value
+        if isinstance(value, (list, tuple)):
+            found = _first_bool(value, (*at, k))
+            if found is not None:
+                return found
+        elif isinstance(value, np.ndarray) and value.dtype == bool and value.size:
+            return (*at, k, *(0,) * value.ndim), value.flat[0]
+    return None
+
+
+def _object_numbers(array: NDArray[np.object_], name: str, expected: str) -> NDArray[np.float64]:
+    """An object array's values as float64 through :func:`as_number`, else an InvalidInputError naming the first
+    value that is not a real number (text, a bool, None, a sequence) or is an integer beyond float64, and its
+    index."""
+    out = np.empty(array.shape, np.float64)
+    flat = out.reshape(-1)
+    for k, value in enumerate(array.reshape(-1)):
+        try:
+            if isinstance(value, (list, tuple)) or (isinstance(value, np.ndarray) and value.ndim):
+                raise TypeError("a sequence")  # a row of a ragged object array: float() took a one-element one
+            flat[k] = as_number(value)
+        except (TypeError, ValueError) as exc:
+            at = "" if array.ndim == 0 else f" at index {tuple(int(i) for i in np.unravel_index(k, array.shape))}"
+            if isinstance(exc, _TooLarge):
+                raise InvalidInputError(f"{name} must be {expected}; got {exc}{at}") from None
+            got = f"a bool ({value!r})" if isinstance(value, (bool, np.bool_)) else f"dtype object: {value!r}"
+            raise InvalidInputError(f"{name} must be {expected} (real numbers); got {got}{at}") from None
+    return out
 
 
 def first_beyond_float32(array: NDArray[Any]) -> tuple[float, tuple[int, ...]]:

@@ -5,10 +5,11 @@ from __future__ import annotations
 import importlib
 import math
 
+import numpy as np
 import pytest
 
 import stepterrain as st
-from stepterrain.terrain import finite_number
+from stepterrain.terrain import finite_number, real_numbers
 
 
 @pytest.mark.parametrize("name", st.__all__)
@@ -180,6 +181,7 @@ _H = [[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]
         (lambda: st.stepped(_H, interval=1.0, base=b"0"), r"got interval=1.0, base=b'0'"),
         (lambda: st.heightfield_mesh(_H, spacing="30"), r"spacing must be a pair of numbers \(x, y\); got '30'"),
         (lambda: st.heightfield_mesh(_H, spacing=("30", "30")), r"spacing must be a pair of numbers"),
+        (lambda: st.heightfield_mesh(_H, spacing=(True, 2.0)), r"spacing must be a pair of numbers.*True"),
         (lambda: st.adaptive_mesh(_H, error="5", spacing=1.0), r"error must be a number >= 0 \(metres\); got '5'"),
         (lambda: st.look_from(True, 0.0, 1.0e7), r"latitude and longitude must be numbers \(degrees\); got True"),
         (lambda: st.look_from(0.0, 0.0, "1e7"), r"altitude must be a finite number; got '1e7'"),
@@ -216,6 +218,46 @@ def test_integers_too_large_for_a_float_are_refused_by_name(call, match):
     ValueError) and let it through as a bare 'int too large to convert to float' naming no argument."""
     with pytest.raises(st.InvalidInputError, match=match):
         call()
+
+
+@pytest.mark.parametrize(("values", "expected"), [
+    ([10**20, 1.0], [1e20, 1.0]),
+    ([10**20], [1e20]),
+    ([[2**64, 0], [1, -(2**64)]], [[2.0**64, 0.0], [1.0, -(2.0**64)]]),
+    (np.array([10**20, 1.5, np.float32(2), np.nan], dtype=object), [1e20, 1.5, 2.0, np.nan]),
+])  # fmt: skip
+def test_real_numbers_takes_integers_beyond_int64(values, expected):
+    """numpy keeps an int beyond int64 as a Python object, so [10**20, 1.0] was refused as 'dtype object' although
+    a float holds it (1e20); an object array is now read number by number."""
+    array = real_numbers(values, "x", "numbers")
+    assert array.dtype == np.float64
+    np.testing.assert_array_equal(array, expected)
+    assert st.Terrain.from_heights(_H, origin=(10**20, 0)).origin == (1e20, 0.0)
+
+
+_NOT_REAL = r"^x must be numbers \(real numbers\); got "
+
+
+@pytest.mark.parametrize(("values", "match"), [
+    ([10**400], r"^x must be numbers; got an integer too large for a float \(beyond ±1.8e\+308\) at index \(0,\)$"),
+    ([1.0, -(10**400)], r"^x must be numbers; got an integer too large for a float \(beyond ±1.8e\+308\) at index "
+                        r"\(1,\)$"),
+    ([10**20, None], _NOT_REAL + r"dtype object: None at index \(1,\)$"),
+    (np.array([10**20, "1"], dtype=object), _NOT_REAL + r"dtype object: '1' at index \(1,\)$"),
+    (np.array(1j, dtype=object), _NOT_REAL + r"dtype object: 1j$"),
+    ([10**20, True], _NOT_REAL + r"a bool \(True\) at index \(1,\)$"),
+    ((True, 2.0), _NOT_REAL + r"a bool \(True\) at index \(0,\)$"),
+    ([True, 0, 0], _NOT_REAL + r"a bool \(True\) at index \(0,\)$"),
+    ([[1.0, 2.0], (3.0, np.False_)], _NOT_REAL + r"a bool \(np.False_\) at index \(1, 1\)$"),
+    ([np.zeros(2), np.ones(2, bool)], _NOT_REAL + r"a bool \(np.True_\) at index \(1, 0\)$"),
+    ([True, False], _NOT_REAL + r"dtype bool$"),
+])  # fmt: skip
+def test_real_numbers_refuses_what_is_not_a_number_by_index(values, match):
+    """numpy turned True into 1.0 beside numbers ((True, 2.0), [True, 0, 0]): a flag in a number's place was
+    taken silently where an all-bool array is refused; an object array was refused as a whole. Each value that
+    is not a number is now named with its index; an integer beyond float64 in as_number's words."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        real_numbers(values, "x", "numbers")
 
 
 def test_a_masked_spacing_or_origin_is_refused_not_read_under_its_mask():
