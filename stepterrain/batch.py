@@ -38,7 +38,16 @@ from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
-from .terrain import FLOAT32_MAX, Terrain, check_flag, finite_number, finite_or_nan, float32_heights, unmasked
+from .terrain import (
+    FLOAT32_MAX,
+    Terrain,
+    as_number,
+    check_flag,
+    finite_number,
+    finite_or_nan,
+    float32_heights,
+    unmasked,
+)
 
 __all__ = [
     "batch",
@@ -718,11 +727,11 @@ def batch(
         least = 0 if name == "retries" else 1
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name} must be an int >= {least}; got {value!r}")
-    if not (isinstance(connect_timeout, (int, float))  # NaN and inf fail the comparisons; isfinite(10**400) raised
-            and 0 < connect_timeout <= MAX_CONNECT_TIMEOUT):  # fmt: skip
+    timeout, gamma_value = _number_or_nan(connect_timeout), _number_or_nan(gamma)  # True is no 1 second, no γ = 1
+    if not 0 < timeout <= MAX_CONNECT_TIMEOUT:  # NaN and inf fail the comparisons
         raise InvalidInputError(f"connect_timeout must be a positive number of seconds up to {MAX_CONNECT_TIMEOUT:g} "
                                 f"(a day); got {connect_timeout!r}")
-    if not (isinstance(gamma, (int, float, np.floating)) and 0.0 <= gamma <= 1.0):  # float(10**400) raised
+    if not 0.0 <= gamma_value <= 1.0:
         raise InvalidInputError(f"gamma must be a number in [0, 1] for batch; got {gamma!r}")
     if colors is not None and not isinstance(colors, str):
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
@@ -746,7 +755,7 @@ def batch(
         src = _Source(src.heights, probe.spacing, probe.origin, src.crs, src.name)
     level_values = _shared_levels(src, interval, levels, base)
     if floor is not None and solid and src is not None and level_values is not None:
-        _check_floor(src, level_values, float(gamma), float(floor))  # heights at hand: refused once, not per item
+        _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
     if src is None:  # no shared height range: check interval/levels/base now, not once per item
@@ -761,7 +770,7 @@ def batch(
         interval=None if level_values is not None else (None if interval is None else float(interval)),
         levels=level_values if level_values is not None else (
             None if levels is None else tuple(float(v) for v in np.asarray(levels, np.float64).reshape(-1))),
-        base=float(base), gamma=float(gamma), colors=colors, solid=bool(solid),
+        base=float(base), gamma=gamma_value, colors=colors, solid=bool(solid),
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted(extras.items())),
     )  # fmt: skip
@@ -785,7 +794,7 @@ def batch(
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
     try:
-        connection = None if serial or not todo else _connect(scheduler, workers, connect_timeout)
+        connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
         _remove_empty(made)  # nothing was written: leave no empty output folder behind
         raise
@@ -809,6 +818,15 @@ def batch(
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description)  # fmt: skip
     return report
+
+
+def _number_or_nan(value: Any) -> float:
+    """``value`` as a float when :func:`~stepterrain.terrain.as_number` takes it (not text, a bool or an int
+    beyond float64), else NaN, which the caller's range check refuses in its own words."""
+    try:
+        return as_number(value)
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def _shared_levels(

@@ -786,6 +786,26 @@ def test_integers_too_large_for_a_float_are_refused_before_any_work(tmp_path, kw
     assert not (tmp_path / "out").exists()
 
 
+_TIMEOUT = r"^connect_timeout must be a positive number of seconds up to 86400 \(a day\); got "
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"connect_timeout": True}, _TIMEOUT + "True$"),
+    ({"connect_timeout": "5"}, _TIMEOUT + "'5'$"),
+    ({"gamma": True}, r"^gamma must be a number in \[0, 1\] for batch; got True$"),
+    ({"gamma": "1"}, r"^gamma must be a number in \[0, 1\] for batch; got '1'$"),
+])  # fmt: skip
+def test_bools_and_text_are_no_numbers_for_batch(tmp_path, kwargs, match):
+    """connect_timeout=True was a wait of 1 second and gamma=True γ = 1 (bool is an int): a flag in a number's
+    place, taken silently, while a numpy integer (np.int64(5) seconds) was refused. Now the shared as_number
+    decides, as for every other scalar."""
+    with pytest.raises(InvalidInputError, match=match):
+        batch(np.zeros((5, 5)), tmp_path / "out", **{"tile_size": 2, "interval": 1.0, "scheduler": "serial", **kwargs})
+    assert not (tmp_path / "out").exists()
+    assert batch(np.zeros((5, 5)), tmp_path / "out", tile_size=2, interval=1.0, scheduler="serial",
+                 connect_timeout=np.int64(5), gamma=np.int64(1)).ok  # fmt: skip
+
+
 def test_connect_timeout_beyond_a_day_is_refused(tmp_path):
     with pytest.raises(InvalidInputError, match=r"connect_timeout must be a positive number of seconds up to 86400"):
         batch(np.zeros((5, 5)), tmp_path / "o", tile_size=2, interval=1.0, scheduler="tcp://127.0.0.1:1",
