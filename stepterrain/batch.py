@@ -170,6 +170,8 @@ class _Source:
     name: str
     #: (frame, row, col) of ``heights[0, 0(, 0)]`` in the whole source: a worker receives only its item's block
     offset: tuple[int, int, int] = (0, 0, 0)
+    #: (min, max) of the whole source when a check found them without nodata (:func:`_shared_levels` reuses them)
+    height_range: tuple[float, float] | None = None
 
 
 def _item_source(source: _Source, item: BatchItem) -> _Source:
@@ -255,14 +257,18 @@ def plan_items(
     if heights.ndim == 3:
         if tile_size is not None:
             raise InvalidInputError(f"tile_size applies to one (H, W) raster; got a (T, H, W) series {heights.shape}")
-        for k, frame in enumerate(heights):  # an infinity up front, as the checks above: not one item failing later
-            finite_or_nan(frame, f"source frame {k}")
-        return _frame_items(heights), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series")
+        # an infinity up front, as the checks above: not one item failing later
+        ranges = [finite_or_nan(frame, f"source frame {k}") for k, frame in enumerate(heights)]
+        known = None if not ranges or any(math.isnan(lo) for lo, _ in ranges) else (  # NaN: a frame has nodata
+            min(lo for lo, _ in ranges), max(hi for _, hi in ranges))
+        return _frame_items(heights), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "series", height_range=known)
     if tile_size is None:
         raise InvalidInputError(
             f"source is one (H, W) raster {heights.shape}: give tile_size (the CLI's --tile) to cut it into tiles")
-    finite_or_nan(heights, "source")
-    return _tile_items(heights.shape, tile_size), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster")
+    lo, hi = finite_or_nan(heights, "source")
+    known = None if math.isnan(lo) else (lo, hi)
+    return _tile_items(heights.shape, tile_size), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster",
+                                                          height_range=known)  # fmt: skip
 
 
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
@@ -294,7 +300,9 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
 
 def _terrain_source(terrain: Terrain) -> _Source:
-    return _Source(terrain.heights, terrain.spacing, terrain.origin, terrain.crs, terrain.source or "raster")
+    known = None if terrain.has_nodata else terrain.height_range  # both cached by Terrain.from_heights
+    return _Source(terrain.heights, terrain.spacing, terrain.origin, terrain.crs, terrain.source or "raster",
+                   height_range=known)  # fmt: skip
 
 
 def _file_items(files: Sequence[Path]) -> list[BatchItem]:
@@ -752,7 +760,7 @@ def batch(
                 "spacing and origin apply to an array source; a file, a folder or a Terrain has its own")
         probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
-        src = _Source(src.heights, probe.spacing, probe.origin, src.crs, src.name)
+        src = dataclasses.replace(src, spacing=probe.spacing, origin=probe.origin)
     level_values = _shared_levels(src, interval, levels, base)
     if floor is not None and solid and src is not None and level_values is not None:
         _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
@@ -837,10 +845,13 @@ def _shared_levels(
         return None
     from .stepped import isovalues, nice_interval
 
-    finite = src.heights[np.isfinite(src.heights)]
-    if finite.size == 0:
-        raise InvalidInputError(f"source {src.name!r} holds no finite height")
-    lo, hi = float(finite.min()), float(finite.max())
+    if src.height_range is not None:  # found by the source's checks: no further pass, no copy
+        lo, hi = src.height_range
+    else:  # nodata (or a series file): the finite heights' range
+        finite = src.heights[np.isfinite(src.heights)]
+        if finite.size == 0:
+            raise InvalidInputError(f"source {src.name!r} holds no finite height")
+        lo, hi = float(finite.min()), float(finite.max())
     if interval is None and levels is None:
         interval = nice_interval((lo, hi))
     return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))

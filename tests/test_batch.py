@@ -295,6 +295,31 @@ def test_infinite_heights_in_an_array_source_are_refused_up_front(tmp_path):
     assert batch(frames, tmp_path / "out", interval=1.0, format=".ply", scheduler="serial").ok
 
 
+def test_shared_levels_reuse_the_height_range_the_source_checks_found():
+    """The checks of an array or Terrain source find its min and max (finite_or_nan, Terrain.from_heights);
+    _shared_levels took another isfinite pass and a copy of every finite height for the same numbers. Now the
+    source carries them (None with nodata, where the finite range is still computed), and the levels are the
+    same."""
+    from stepterrain.batch import _shared_levels
+    from stepterrain.terrain import Terrain
+
+    rng = np.random.default_rng(5)
+    frames, raster = rng.random((3, 6, 6)).astype(np.float32) * 40, rng.random((9, 9)) * 40 - 20
+    for source, tile in ((frames, None), (raster, 4), (Terrain.from_heights(raster), 4)):
+        _, src = plan_items(source, tile_size=tile)
+        heights = source.heights if isinstance(source, Terrain) else np.asarray(source, np.float32)
+        assert src.height_range == (float(heights.min()), float(heights.max()))
+        expected = isovalues((float(heights.min()), float(heights.max())), interval=5.0)
+        assert _shared_levels(src, 5.0, None, 0.0) == tuple(expected.tolist())
+        with_nodata = heights.copy()
+        with_nodata.reshape(-1)[7] = np.nan
+        _, src = plan_items(with_nodata, tile_size=tile)
+        assert src.height_range is None
+        finite = with_nodata[np.isfinite(with_nodata)]
+        expected = isovalues((float(finite.min()), float(finite.max())), interval=5.0)
+        assert _shared_levels(src, 5.0, None, 0.0) == tuple(expected.tolist())
+
+
 def test_npz_with_a_2d_elevation_and_a_3d_extra_is_one_raster_not_a_series(tmp_path):
     # a DEM archive may carry other arrays (an RGB texture): its 'elevation' decides, not any 3-D member
     rng = np.random.default_rng(0)
