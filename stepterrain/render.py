@@ -276,7 +276,7 @@ def render_mesh(
     Raises
     ------
     InvalidInputError
-        Bad window size, z_scale, camera or scalars, or an empty mesh.
+        Bad window size, z_scale, camera or scalars, an empty mesh, or an infinite vertex (NaN ones are left out).
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -346,6 +346,8 @@ def _frame_mesh(
     width, height, z_scale = _check_window(window_size, z_scale)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
+    if len(vertices):  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
+        finite_or_nan(vertices, "mesh.vertices")
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.any():
         raise InvalidInputError("mesh has no finite vertex")
@@ -517,8 +519,8 @@ def render_textured_mesh(
     Raises
     ------
     InvalidInputError
-        The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, or a bad window size,
-        z_scale or camera.
+        The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, an infinite vertex, or a
+        bad window size, z_scale or camera.
     MissingDependencyError
         No off-screen OpenGL context can be made.
     """
@@ -731,13 +733,16 @@ class LayeredRenderer:
         """Upload (or replace) the mesh ``name`` (a string): lit, with vertex ``rgb`` (V, 3) uint8 (or (V, 4), or
         numbers in 0-255) or the default tan, or unlit with ``values`` (V,) in [0, 1] as gray levels (not both).
         The first mesh fixes the local origin. ``bounds``: the (2, 3) bounds of the finite vertices when the caller
-        already has them. A bad argument raises an InvalidInputError naming it."""
+        already has them. A NaN vertex is left out of the framing (its faces are not drawn); an infinite one, like
+        any bad argument, raises an InvalidInputError naming it."""
         if not isinstance(name, str):  # render() sorts the names: a number beside a string raised a TypeError
             raise InvalidInputError(f"name must be a string; got {name!r}")
         if rgb is not None and values is not None:
             raise InvalidInputError(f"layer {name!r} takes rgb or values, not both; got both")
         faces_in, rgb_in = (a if _frozen(a) else None for a in (faces, rgb))  # read-only inputs: kept by identity
         vertices = np.asarray(_layer_rows(vertices, f"vertices of layer {name!r}", "(V, 3) coordinates"), np.float64)
+        if len(vertices):  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
+            finite_or_nan(vertices, f"vertices of layer {name!r}")
         faces = _layer_faces(faces, f"faces of layer {name!r}")
         if rgb is not None:
             rgb = _layer_rgb(rgb, len(vertices), f"rgb of layer {name!r}")

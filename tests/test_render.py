@@ -443,6 +443,41 @@ def test_layered_renderer_billboard_takes_nan_vertices_as_set_mesh_does_and_refu
             renderer.render_billboard(np.full((4, 3), np.nan), faces, None, (np.pi, 1.2), quad)
 
 
+@needs_render
+def test_render_mesh_and_set_mesh_take_nan_vertices_and_refuse_infinite_ones_as_the_billboard_does():
+    """One infinite vertex, even one no face uses, blanked the whole render without a word (render_mesh,
+    render_textured_mesh and set_mesh, with or without given bounds). As in render_billboard, it is refused by
+    name, and a NaN vertex is still left out of the framing."""
+    quad = np.array([[0.0, 0, 0], [10, 0, 0], [10, 10, 1], [0, 10, 1]])
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    with_nan, with_inf = (np.vstack([quad, [[5.0, bad, 0.5]]]) for bad in (np.nan, -np.inf))  # a fifth, unused vertex
+    infinite = r"must be finite or NaN \(nodata\); got an infinite value at index \(4, 1\)"
+    expected = render.render_mesh(trimesh.Trimesh(quad, faces, process=False), window_size=(64, 64))
+    assert (expected < 250).any()
+    got = render.render_mesh(trimesh.Trimesh(with_nan, faces, process=False), window_size=(64, 64))
+    np.testing.assert_array_equal(got, expected)
+    with pytest.raises(InvalidInputError, match=r"mesh.vertices " + infinite):
+        render.render_mesh(trimesh.Trimesh(with_inf, faces, process=False), window_size=(64, 64))
+    textured = trimesh.Trimesh(with_inf, faces, process=False)
+    from PIL import Image
+
+    textured.visual = trimesh.visual.TextureVisuals(uv=np.zeros((5, 2)), image=Image.new("RGB", (4, 4)))
+    with pytest.raises(InvalidInputError, match=r"mesh.vertices " + infinite):
+        render.render_textured_mesh(textured, window_size=(64, 64))
+    with render.LayeredRenderer(window_size=(64, 64)) as renderer:
+        renderer.set_mesh("a", quad, faces)
+        renderer.set_view("top", renderer.bounds_of("a"))
+        expected, _depth = renderer.render(["a"])
+        assert (expected < 250).any()
+        renderer.set_mesh("a", with_nan, faces)
+        np.testing.assert_array_equal(renderer.render(["a"])[0], expected)
+        with pytest.raises(InvalidInputError, match=r"vertices of layer 'a' " + infinite):
+            renderer.set_mesh("a", with_inf, faces)
+        with pytest.raises(InvalidInputError, match=r"vertices of layer 'b' " + infinite):  # the per-frame path
+            renderer.set_mesh("b", with_inf, faces, bounds=renderer.bounds_of("a"))
+        assert not renderer.has("b", None)
+
+
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf, 1e300])
 def test_textured_render_refuses_non_finite_uvs(bad):
     # NaN or inf UVs (or beyond float32) rendered silently, with garbage texels on the faces they touch
