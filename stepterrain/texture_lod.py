@@ -37,7 +37,7 @@ from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .kernels import texture as texture_kernels
-from .terrain import Terrain, as_number, as_terrain, check_flag
+from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
 
 __all__ = [
@@ -364,17 +364,40 @@ class ImagePyramid:
             return None
         return r0, r1, c0, c1
 
+    def _window(self, level: int, window: Any) -> tuple[int, int, int, int]:
+        """``window`` (r0, r1, c0, c1) as ints when it is a non-empty pixel window of ``level``, else an
+        InvalidInputError naming it: a negative index sliced from the end, a reversed window gave an empty image, one
+        past the edge a clipped image, and the extents of all three did not match their images."""
+        rows, cols = self.shape(level)
+        if type(window) is tuple and len(window) == 4 and all(type(v) is int for v in window):
+            r0, r1, c0, c1 = window  # what window() gives and a TexturePatch holds: read on every traversal
+        else:
+            given = real_numbers(window, "window", _window_expected(rows, cols, level))
+            if given.shape != (4,) or not np.all(given == np.round(given)):  # NaN and inf fail too
+                raise InvalidInputError(f"window must be {_window_expected(rows, cols, level)}; got {window!r}")
+            r0, r1, c0, c1 = (int(v) for v in given)
+        if not (0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols):
+            raise InvalidInputError(f"window must be {_window_expected(rows, cols, level)}; got {window!r}")
+        return r0, r1, c0, c1
+
     def window_extent(self, level: int, window: tuple[int, int, int, int]) -> Extent:
-        """World extent of a pixel window of ``level``."""
-        r0, r1, c0, c1 = window
+        """World extent of a pixel window of ``level`` (as :meth:`window` gives it)."""
+        r0, r1, c0, c1 = self._window(level, window)
         px, py = self.pixel_size(level)
         xmin, _, _, ymax = self.extent
         return xmin + c0 * px, xmin + c1 * px, ymax - r1 * py, ymax - r0 * py
 
     def sub_image(self, level: int, window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
-        """A view of a window of ``level`` (no copy: a memmap slice stays on disk until read)."""
-        r0, r1, c0, c1 = window
+        """A view of a pixel window of ``level`` (as :meth:`window` gives it; no copy: a memmap slice stays on disk
+        until read)."""
+        r0, r1, c0, c1 = self._window(level, window)
         return self._level(level)[r0:r1, c0:c1]
+
+
+def _window_expected(rows: int, cols: int, level: int) -> str:
+    """What :meth:`ImagePyramid.sub_image` and :meth:`ImagePyramid.window_extent` take as a window of ``level``."""
+    return (f"(r0, r1, c0, c1) whole pixel indices with 0 <= r0 < r1 <= {rows} and 0 <= c0 < c1 <= {cols} "
+            f"(level {level})")
 
 
 class _Reader:

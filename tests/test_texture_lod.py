@@ -232,6 +232,32 @@ def test_pyramid_levels_outside_the_pyramid_are_refused(level):
     assert pyramid.shape(np.int64(3)) == (1, 1) and pyramid.sub_image(np.uint8(1), (0, 3, 0, 2)).shape == (3, 2, 3)
 
 
+WINDOW = (r"window must be \(r0, r1, c0, c1\) whole pixel indices with 0 <= r0 < r1 <= 5 and 0 <= c0 < c1 <= 3 "
+          r"\(level 0\)")
+
+
+@pytest.mark.parametrize(("window", "match"), [
+    ((-1, 5, 0, 3), rf"{WINDOW}; got \(-1, 5, 0, 3\)"),  # sliced from the end: a 1-row image, extent to y = 6
+    ((3, 1, 0, 3), rf"{WINDOW}; got \(3, 1, 0, 3\)"),  # reversed: an empty image, a reversed extent
+    ((0, 5, 0, 9), rf"{WINDOW}; got \(0, 5, 0, 9\)"),  # past the edge: clipped image, wider extent
+    ((0, 0, 0, 3), rf"{WINDOW}; got \(0, 0, 0, 3\)"),  # empty
+    ((0, 5.5, 0, 3), rf"{WINDOW}; got \(0, 5.5, 0, 3\)"),  # slicing's TypeError, or a fractional extent
+    (("0", 5, 0, 3), rf"{WINDOW} \(real numbers\); got dtype <U21"),  # slicing's or multiplying's TypeError
+    ((True, 5, 0, 3), rf"{WINDOW} \(real numbers\); got a bool \(True\) at index \(0,\)"),  # read as row 1
+    ((0, 5, 0), rf"{WINDOW}; got \(0, 5, 0\)"),  # "not enough values to unpack"
+    ("abc", rf"{WINDOW} \(real numbers\); got dtype <U3"),
+])
+def test_pyramid_windows_outside_the_level_or_reversed_are_refused(window, match):
+    """sub_image and window_extent sliced and measured any window: a negative index counted from the end, a
+    reversed window gave an empty image, one past the edge a clipped image with a wider extent."""
+    pyramid = ImagePyramid(pyramid_levels(), (0, 3, 0, 5), None)  # level 0: 5 x 3
+    for use in (pyramid.sub_image, pyramid.window_extent):
+        with pytest.raises(InvalidInputError, match=match):
+            use(0, window)
+    assert pyramid.sub_image(0, (np.int64(1), 5, 0, 3.0)).shape == (4, 3, 3)
+    assert pyramid.window_extent(0, [0, 5, 0, 3]) == (0.0, 3.0, 0.0, 5.0)
+
+
 @pytest.mark.parametrize("given_storage", [False, True])
 def test_a_closed_pyramid_is_refused(tmp_path, given_storage):
     """After close() (or its with block) level 0 could still be read, the other levels raised IndexError, and
