@@ -703,10 +703,8 @@ class TextureLayer:
                 raise InvalidInputError(f"extent {self.extent} over {self.shape[1]} x {self.shape[0]} pixels gives "
                                         "no finite, invertible texture matrix (world -> texel) in float64")
         else:
-            try:
-                matrix = np.asarray(self.matrix, dtype=np.float64)
-            except (TypeError, ValueError):
-                matrix = np.full(0, np.nan)
+            # np.asarray(matrix, dtype=float) read "1" and True as 1.0, dropped an imaginary part and a mask
+            matrix = real_numbers(self.matrix, "matrix", "a finite 3 x 3 texture matrix")
             if matrix.shape != (3, 3) or not np.isfinite(matrix).all():
                 raise InvalidInputError(f"matrix must be a finite 3 x 3 texture matrix; got {self.matrix!r}")
             if not _invertible(matrix):  # blend, weighted_add, ... invert it (texel -> world): a LinAlgError

@@ -328,6 +328,24 @@ def test_an_extent_of_text_or_bools_is_refused(extent):
         adjust(layer(RGB_A), cutout=extent, device="cpu")
 
 
+@pytest.mark.parametrize(("matrix", "got"), [
+    ([["1", "0", "0"], ["0", "1", "0"], ["0", "0", "1"]], r"dtype <U1"),
+    (np.eye(3).astype(str), r"dtype <U32"),
+    ([[True, 0, 0], [0, 1, 0], [0, 0, 1]], r"a bool \(True\) at index \(0, 0\)"),
+    (np.eye(3, dtype=bool), r"dtype bool"),
+    (np.eye(3) + 1j, r"dtype complex128"),  # the imaginary part was dropped, with numpy's ComplexWarning
+])
+def test_a_texture_matrix_of_text_bools_or_complex_numbers_is_refused(matrix, got):
+    """np.asarray(matrix, dtype=float) read "1" as 1.0, True as 1.0 and 1+1j as 1.0: each made the identity."""
+    with pytest.raises(InvalidInputError, match=rf"matrix must be a finite 3 x 3 texture matrix \(real numbers\); "
+                                                rf"got {got}"):
+        TextureLayer("luminance", ALPHA, EXTENT, matrix=matrix)
+    masked = np.ma.masked_array(np.eye(3), mask=np.eye(3) == 0)  # the masked zeros were read as zeros
+    with pytest.raises(InvalidInputError, match=r"matrix must be a finite 3 x 3 texture matrix; got "):
+        TextureLayer("luminance", ALPHA, EXTENT, matrix=masked)
+    assert TextureLayer("luminance", ALPHA, EXTENT, matrix=np.eye(3, dtype=np.int32)).matrix.dtype == np.float64
+
+
 @pytest.mark.parametrize("lens", [highlight_lens, thematic_lens])
 @pytest.mark.parametrize("center", ["ab", ("1", "2"), (True, False), (1.0, 2j), None, (1.0, np.nan), (1.0, 2.0, 3.0)])
 def test_a_lens_center_must_be_a_finite_point(lens, center):
