@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError
-from .terrain import as_number, real_numbers
+from .terrain import as_number, finite_number, real_numbers
 
 __all__ = ["Camera"]
 
@@ -74,14 +74,8 @@ class Camera:
                 raise InvalidInputError(f"Camera {name} must be 3 finite numbers within ±{_MAX_COORDINATE:g}; got "
                                         f"{getattr(self, name)!r}")
             object.__setattr__(self, name, tuple(float(v) for v in value))
-        for name in ("fov", "near", "far"):  # numbers (not strings, None or bools) before any comparison
-            value = getattr(self, name)
-            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-                raise InvalidInputError(f"Camera {name} must be a number; got {value!r}")
-            try:
-                object.__setattr__(self, name, as_number(value))
-            except ValueError as exc:  # an int beyond float64 (10**400)
-                raise InvalidInputError(f"Camera {name} must be finite; got {exc}") from None
+        for name in ("fov", "near", "far"):  # finite numbers (not strings, None or bools) before any comparison
+            object.__setattr__(self, name, finite_number(getattr(self, name), f"Camera {name}"))
         forward = np.subtract(self.target, self.eye)
         if not forward.any():
             raise InvalidInputError(f"Camera eye and target must differ; both are {self.eye}")

@@ -493,11 +493,8 @@ class AnchorStyle:
             raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
         object.__setattr__(self, "band", check_flag(self.band, "anchor band"))
         object.__setattr__(self, "outline_level", _outline_level(self.outline_level, "anchor outline_level"))
-        if isinstance(self.simplify, bool) or not (isinstance(self.simplify, (int, float, np.integer, np.floating))
-                                                   and 0 <= float(self.simplify) <= 4):
-            raise InvalidInputError(f"anchor simplify must be a number of mask texels in [0, 4]; got "
-                                    f"{self.simplify!r}")
-        object.__setattr__(self, "simplify", float(self.simplify))
+        object.__setattr__(self, "simplify", finite_number(self.simplify, "anchor simplify (mask texels)", lo=0.0,
+                                                          hi=4.0))
 
     @property
     def table(self) -> NDArray[np.float32]:

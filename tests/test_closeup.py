@@ -463,6 +463,14 @@ def test_anchor_style_refuses_a_bad_simplify():
     for bad in (-0.1, 5.0, float("nan"), "1", True):
         with pytest.raises(InvalidInputError, match="simplify"):
             AnchorStyle(simplify=bad)
+    # float(10**400) raised a bare OverflowError past the isinstance check
+    with pytest.raises(InvalidInputError, match=r"^anchor simplify \(mask texels\) must be finite; got an integer too "
+                                                r"large for a float"):
+        AnchorStyle(simplify=10**400)
+    with pytest.raises(InvalidInputError, match=r"^anchor simplify \(mask texels\) must lie in \[0, 4\]; got 5$"):
+        AnchorStyle(simplify=5)
+    for good in (np.float32(0.5), np.array(0.5), 0.5, 1, 4):  # a 0-d array as outline_level takes it
+        assert type(AnchorStyle(simplify=good).simplify) is float
 
 
 def test_scene_mesh_holds_overview_closeups_and_anchors():

@@ -736,6 +736,22 @@ def test_bad_mesh_arguments(small_globe):
     assert Camera(eye=eye, target=target, viewport=(640.0, 480), near=1, far=10).viewport == (640, 480)
 
 
+@pytest.mark.parametrize("name", ["fov", "near", "far"])
+def test_camera_fov_near_and_far_are_checked_as_aspect_is(name):
+    """fov, near and far had their own isinstance check: a 0-d array or a Fraction was refused ("must be a number")
+    where aspect took it, and NaN or inf was reported as an interval, not as not finite."""
+    from fractions import Fraction
+
+    eye, target = (0.0, -10.0, 5.0), (0.0, 0.0, 0.0)
+    default = getattr(Camera(eye=eye, target=target), name)
+    for same in (np.array(default), Fraction(default), np.float32(default) if name == "near" else default):
+        value = getattr(Camera(eye=eye, target=target, **{name: same}), name)
+        assert type(value) is float and value == pytest.approx(default)
+    for bad in (np.nan, np.inf, -np.inf):
+        with pytest.raises(InvalidInputError, match=rf"^Camera {name} must be finite; got {bad!r}$"):
+            Camera(eye=eye, target=target, **{name: bad})
+
+
 def test_memory_budget_refuses_before_allocating():
     import stepterrain._compaction as compaction
 
