@@ -864,20 +864,23 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
     so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
     """
-    finite = np.isfinite(src.heights)
-    # a cell's two triangles (n00, n01, n11) and (n00, n11, n10), as kernels/stepped.py cuts it
-    n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
-    upper, lower = n00 & n01 & n11, n00 & n11 & n10
-    used = np.zeros_like(finite)
-    used[..., :-1, :-1] |= upper | lower
-    used[..., :-1, 1:] |= upper
-    used[..., 1:, 1:] |= upper | lower
-    used[..., 1:, :-1] |= lower
-    if not used.any():
-        return  # no surface at all: each item says so
+    if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
+        h = src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
+    else:
+        finite = np.isfinite(src.heights)
+        # a cell's two triangles (n00, n01, n11) and (n00, n11, n10), as kernels/stepped.py cuts it
+        n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
+        upper, lower = n00 & n01 & n11, n00 & n11 & n10
+        used = np.zeros_like(finite)
+        used[..., :-1, :-1] |= upper | lower
+        used[..., :-1, 1:] |= upper
+        used[..., 1:, 1:] |= upper | lower
+        used[..., 1:, :-1] |= lower
+        if not used.any():
+            return  # no surface at all: each item says so
+        h = float(np.min(src.heights, where=used, initial=np.inf))
     from .stepped import thresholds_of
 
-    h = float(np.min(src.heights, where=used, initial=np.inf))
     isovalues = np.asarray(values, np.float32)
     alpha = float(isovalues[np.searchsorted(thresholds_of(isovalues), np.float32(h), side="right")])
     lowest = (1.0 - gamma) * h + gamma * alpha

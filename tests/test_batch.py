@@ -422,6 +422,36 @@ def test_floor_above_the_surface_is_refused_before_any_work(tmp_path, gamma, low
         assert min(load(r.path).bounds[0][2] for r in report.done) == pytest.approx(lowest - 1e-3)
 
 
+def test_floor_check_reuses_the_height_range_the_source_checks_found(monkeypatch):
+    """_check_floor took an isfinite pass and built a mask of the nodes that triangles use, over every height, to
+    find the lowest such height: without nodata that is every node of a grid of at least 2 x 2, and the source's
+    checks had already found its min (as _shared_levels reuses it). The same heights and messages."""
+    from stepterrain.batch import _check_floor, _shared_levels
+    from stepterrain.terrain import Terrain
+
+    rng = np.random.default_rng(7)
+    frames, raster = rng.random((3, 6, 6)).astype(np.float32) * 40, rng.random((9, 9)) * 40 - 20
+    real, seen = np.isfinite, []
+
+    def spy(a, *args, **kwargs):
+        seen.append(np.shape(a))
+        return real(a, *args, **kwargs)
+
+    for source, tile in ((frames, None), (raster, 4), (Terrain.from_heights(raster), 4)):
+        _, src = plan_items(source, tile_size=tile)
+        levels, (lo, _hi) = _shared_levels(src, 5.0, None, 0.0), src.height_range
+        seen.clear()
+        with monkeypatch.context() as patch:
+            patch.setattr(np, "isfinite", spy)
+            with pytest.raises(InvalidInputError, match=re.escape(f"(its lowest height {lo:g} on the isovalue")):
+                _check_floor(src, levels, 0.0, 1e9)
+            _check_floor(src, levels, 0.0, lo - 1.0)  # below the surface: accepted
+        assert src.heights.shape not in seen, "a further pass over the heights"
+    _, src = plan_items(np.zeros((2, 1, 5), np.float32))  # rows of one node: no triangle, nothing to refuse
+    assert src.height_range == (0.0, 0.0)
+    _check_floor(src, (0.0,), 0.0, 5.0)
+
+
 def test_cli_batch_floor_above_the_surface_exits_2_once(tmp_path, capsys):
     np.save(tmp_path / "z.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
     out = tmp_path / "out"
