@@ -41,11 +41,11 @@ from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable,
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
-    as_number,
     check_flag,
     finite_number,
     finite_or_nan,
     float32_heights,
+    number_or_nan,
     unmasked,
 )
 
@@ -735,7 +735,7 @@ def batch(
         least = 0 if name == "retries" else 1
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name} must be an int >= {least}; got {value!r}")
-    timeout, gamma_value = _number_or_nan(connect_timeout), _number_or_nan(gamma)  # True is no 1 second, no γ = 1
+    timeout, gamma_value = number_or_nan(connect_timeout), number_or_nan(gamma)  # True is no 1 second, no γ = 1
     if not 0 < timeout <= MAX_CONNECT_TIMEOUT:  # NaN and inf fail the comparisons
         raise InvalidInputError(f"connect_timeout must be a positive number of seconds up to {MAX_CONNECT_TIMEOUT:g} "
                                 f"(a day); got {connect_timeout!r}")
@@ -826,15 +826,6 @@ def batch(
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description)  # fmt: skip
     return report
-
-
-def _number_or_nan(value: Any) -> float:
-    """``value`` as a float when :func:`~stepterrain.terrain.as_number` takes it (not text, a bool or an int
-    beyond float64), else NaN, which the caller's range check refuses in its own words."""
-    try:
-        return as_number(value)
-    except (TypeError, ValueError):
-        return math.nan
 
 
 def _shared_levels(

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError
-from .terrain import as_number, finite_number, real_numbers
+from .terrain import as_number, finite_number, number_or_nan, real_numbers
 
 __all__ = ["Camera"]
 
@@ -93,10 +93,7 @@ class Camera:
         if not (0.0 < self.fov < math.pi):
             raise InvalidInputError(f"Camera fov must lie in (0, π) radians; got {self.fov!r}")
         if self.aspect is not None:  # a number before the viewport is compared with it
-            try:
-                aspect = as_number(self.aspect)
-            except (TypeError, ValueError, OverflowError):
-                aspect = math.nan
+            aspect = number_or_nan(self.aspect)
             if not (math.isfinite(aspect) and aspect > 0):
                 raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
             object.__setattr__(self, "aspect", aspect)

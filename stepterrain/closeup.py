@@ -36,7 +36,16 @@ from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
-from .terrain import Terrain, _pair, as_number, as_terrain, check_flag, finite_number, grid_faces, real_numbers
+from .terrain import (
+    Terrain,
+    _pair,
+    as_terrain,
+    check_flag,
+    finite_number,
+    grid_faces,
+    number_or_nan,
+    real_numbers,
+)
 
 __all__ = [
     "ROI",
@@ -102,10 +111,7 @@ def _numbers(value: Any) -> NDArray[np.float64]:
 def _outline_level(value: Any, name: str) -> float:
     """A mask value whose contour is an outline: a number in (0, 1) (m lies in [0, 1]), else an InvalidInputError
     naming ``name``; :meth:`ROI.outline` and :class:`AnchorStyle` take the same levels."""
-    try:
-        level = as_number(value)
-    except (TypeError, ValueError, OverflowError):
-        level = math.nan
+    level = number_or_nan(value)
     if not 0 < level < 1:
         raise InvalidInputError(f"{name} must be a number in (0, 1); got {value!r}")
     return level
@@ -113,10 +119,7 @@ def _outline_level(value: Any, name: str) -> float:
 
 def _seconds(time: Any) -> float:
     """An animation time in seconds: any number but NaN (inf: every spin has ended)."""
-    try:
-        t = as_number(time)
-    except (TypeError, ValueError):
-        t = math.nan
+    t = number_or_nan(time)
     if math.isnan(t):
         raise InvalidInputError(f"time must be a number of seconds (not NaN); got {time!r}")
     return t
@@ -611,10 +614,7 @@ class CloseUp:
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
         if self.stepped is not None:
             object.__setattr__(self, "stepped", finite_number(self.stepped, "close-up stepped interval", positive=True))
-        try:
-            gamma = as_number(self.gamma)
-        except (TypeError, ValueError, OverflowError):
-            gamma = math.nan
+        gamma = number_or_nan(self.gamma)
         if not 0.0 <= gamma <= 1.0:
             raise InvalidInputError(f"close-up gamma must lie in [0, 1]; got {self.gamma!r}")
         object.__setattr__(self, "gamma", gamma)

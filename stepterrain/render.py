@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import as_number, check_flag, finite_or_nan, real_numbers
+from .terrain import check_flag, finite_or_nan, number_or_nan, real_numbers
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
            "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
@@ -424,10 +424,7 @@ def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, in
     width, height = sides
     if not (8 <= width <= 16384 and 8 <= height <= 16384):
         raise InvalidInputError(f"window_size must lie in [8, 16384] pixels; got {window_size!r}")
-    try:
-        scale = as_number(z_scale)
-    except (TypeError, ValueError):
-        scale = math.nan
+    scale = number_or_nan(z_scale)
     if not math.isfinite(scale) or scale <= 0:
         raise InvalidInputError(f"z_scale must be a positive finite number; got {z_scale!r}")
     z_scale = scale

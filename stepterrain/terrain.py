@@ -91,6 +91,15 @@ def as_number(value: Any) -> float:
         raise _TooLarge(f"{kind} too large for a float (beyond ±{sys.float_info.max:.2g})") from None
 
 
+def number_or_nan(value: Any) -> float:
+    """``value`` as a float when :func:`as_number` takes it, else NaN (text, a bool, an int beyond float64, not a
+    number at all), which the caller's range check then refuses in its own words."""
+    try:
+        return as_number(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 def finite_number(value: Any, name: str, *, positive: bool = False, lo: float | None = None,
                   hi: float | None = None, unit: str = "") -> float:
     """``value`` as a finite float (within [lo, hi], positive if asked), else an :class:`InvalidInputError`
