@@ -45,6 +45,7 @@ from .terrain import (
     grid_faces,
     number_or_nan,
     real_numbers,
+    real_vector,
 )
 
 __all__ = [
@@ -106,6 +107,17 @@ def _numbers(value: Any) -> NDArray[np.float64]:
         return real_numbers(value, "value", "numbers").reshape(-1)
     except (InvalidInputError, TypeError):
         return np.array([math.nan])
+
+
+def _scale3(value: Any, name: str) -> NDArray[np.float64]:
+    """(sx, sy, sz) from one finite number or three (a close-up's scale), else an InvalidInputError naming
+    ``name``."""
+    s = _numbers(value)  # [nan] when not numbers ("2", True)
+    if s.size == 1:
+        s = np.repeat(s, 3)
+    if s.size != 3 or not np.all(np.isfinite(s)):
+        raise InvalidInputError(f"{name} must be a finite number or (sx, sy, sz); got {value!r}")
+    return s
 
 
 def _outline_level(value: Any, name: str) -> float:
@@ -571,15 +583,9 @@ class CloseUp:
             object.__setattr__(self, "texture", _check_texture(self.texture, "close-up texture"))
         if not isinstance(self.roi, ROI):
             raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
-        rot = _numbers(self.rotation)
-        if rot.size != 2 or not np.all(np.isfinite(rot)):
-            raise InvalidInputError(f"close-up rotation must be finite (α, β) in radians; got {self.rotation!r}")
+        rot = real_vector(self.rotation, "close-up rotation", "finite (α, β) in radians", 2)
         object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
-        s = _numbers(self.scale)  # [nan] when not numbers ("2", True)
-        if s.size == 1:
-            s = np.repeat(s, 3)
-        if s.size != 3 or not np.all(np.isfinite(s)):
-            raise InvalidInputError(f"close-up scale must be a finite number or (sx, sy, sz); got {self.scale!r}")
+        s = _scale3(self.scale, "close-up scale")
         if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
             raise InvalidInputError(
                 f"close-up scale must be positive (sx, sy > 0; sz >= 0, 0 flattens); got {tuple(s.tolist())}")
@@ -608,9 +614,7 @@ class CloseUp:
             object.__setattr__(self, "spin", (speed, reps))
         if self.view not in ("overview", "billboard"):
             raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
-        bv = _numbers(self.billboard_view)
-        if bv.size != 2 or not np.all(np.isfinite(bv)):
-            raise InvalidInputError(f"billboard_view must be finite (azimuth, elevation); got {self.billboard_view!r}")
+        bv = real_vector(self.billboard_view, "billboard_view", "finite (azimuth, elevation)", 2)
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
         if self.stepped is not None:
             object.__setattr__(self, "stepped", finite_number(self.stepped, "close-up stepped interval", positive=True))
@@ -664,14 +668,8 @@ def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float,
     """
     cx, cy = _pair(center, "center", nonzero=False)
     pivot_z, alpha, beta = (finite_number(v, n) for v, n in ((pivot_z, "pivot_z"), (alpha, "alpha"), (beta, "beta")))
-    s = _numbers(scale)  # [nan] when not numbers ("2", True)
-    if s.size == 1:
-        s = np.repeat(s, 3)
-    if s.size != 3 or not np.all(np.isfinite(s)):
-        raise InvalidInputError(f"scale must be a finite number or (sx, sy, sz); got {scale!r}")
-    p = _numbers(offset)
-    if p.size != 3 or not np.all(np.isfinite(p)):
-        raise InvalidInputError(f"offset must be finite (dx, dy, dz); got {offset!r}")
+    s = _scale3(scale, "scale")
+    p = real_vector(offset, "offset", "finite (dx, dy, dz)", 3)
     (sx, sy, sz), (px, py, pz) = s.tolist(), p.tolist()
     ca, sa, cb, sb = math.cos(alpha), math.sin(alpha), math.cos(beta), math.sin(beta)
     rx = np.array([[1, 0, 0], [0, ca, -sa], [0, sa, ca]])

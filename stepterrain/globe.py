@@ -40,7 +40,7 @@ from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .stepped import LAND_START
-from .terrain import as_number, check_flag, check_spacing, real_numbers, unmasked
+from .terrain import as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -1091,11 +1091,7 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     if not math.isfinite(longitude):
         raise InvalidInputError(f"longitude must be finite; got {longitude}")
     for name, value in (("altitude", altitude), ("tilt", tilt), ("heading", heading)):
-        try:
-            finite = math.isfinite(as_number(value))
-        except (TypeError, ValueError):
-            finite = False
-        if not finite:
+        if not math.isfinite(number_or_nan(value)):
             raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
     altitude, tilt, heading = float(altitude), float(tilt), float(heading)
     radius = _positive(radius, "radius")

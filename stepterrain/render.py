@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import check_flag, finite_or_nan, number_or_nan, real_numbers
+from .terrain import check_flag, finite_or_nan, number_or_nan, real_numbers, real_vector
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
            "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
@@ -346,9 +346,9 @@ def _frame_mesh(
     width, height, z_scale = _check_window(window_size, z_scale)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
-    if len(vertices):  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
-        finite_or_nan(vertices, "mesh.vertices")
     finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
+        finite_or_nan(vertices, "mesh.vertices")
     if not finite.any():
         raise InvalidInputError("mesh has no finite vertex")
     if bounds is None:
@@ -574,15 +574,18 @@ def _overlap(a: tuple[int, int, int, int], b: tuple[int, int, int, int]) -> bool
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-def _finite_bounds(vertices: NDArray[np.float64]) -> NDArray[np.float64] | None:
+def _finite_bounds(vertices: NDArray[np.float64], name: str | None = None) -> NDArray[np.float64] | None:
     """(2, 3) bounds of the finite rows of (N, 3) ``vertices`` (None when no row is finite). Column by column:
     NumPy reduces a contiguous column faster than axis 0 of an (N, 3) array; a NaN or inf anywhere shows in
-    the column extrema, and only then are the non-finite rows dropped."""
+    the column extrema, and only then are the non-finite rows dropped. With ``name``, an infinite vertex is
+    refused there (:func:`~stepterrain.terrain.finite_or_nan`; NaN is nodata): no pass of its own."""
     if len(vertices) == 0:
         return None
     box = np.array([[vertices[:, i].min() for i in range(3)], [vertices[:, i].max() for i in range(3)]])
     if np.isfinite(box).all():
         return box
+    if name is not None:
+        finite_or_nan(vertices, name)
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.any():
         return None
@@ -737,18 +740,20 @@ class LayeredRenderer:
         if rgb is not None and values is not None:
             raise InvalidInputError(f"layer {name!r} takes rgb or values, not both; got both")
         faces_in, rgb_in = (a if _frozen(a) else None for a in (faces, rgb))  # read-only inputs: kept by identity
-        vertices = np.asarray(_layer_rows(vertices, f"vertices of layer {name!r}", "(V, 3) coordinates"), np.float64)
-        if len(vertices):  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
-            finite_or_nan(vertices, f"vertices of layer {name!r}")
+        label = f"vertices of layer {name!r}"
+        vertices = np.asarray(_layer_rows(vertices, label, "(V, 3) coordinates"), np.float64)
+        # an infinite vertex, even one no face uses, left VTK's render blank, without a word
+        if bounds is None:
+            bounds = _finite_bounds(vertices, label)
+        else:  # a (3,) box failed to unpack; a NaN one made a NaN origin
+            if len(vertices):
+                finite_or_nan(vertices, label)
+            bounds = _check_box(bounds, f"bounds of layer {name!r}")
         faces = _layer_faces(faces, f"faces of layer {name!r}")
         if rgb is not None:
             rgb = _layer_rgb(rgb, len(vertices), f"rgb of layer {name!r}")
         if values is not None:
             values = _layer_values(values, len(vertices), name)
-        if bounds is None:
-            bounds = _finite_bounds(vertices)
-        else:  # a (3,) box failed to unpack; a NaN one made a NaN origin
-            bounds = _check_box(bounds, f"bounds of layer {name!r}")
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
         lo, hi = bounds
@@ -1036,9 +1041,8 @@ class LayeredRenderer:
         vertex is left out of the framing (its faces are not drawn). Returns the full-window color, coverage and
         depth (0 where covered: a billboard lies in front)."""
         vertices = np.asarray(_layer_rows(vertices, "vertices", "(V, 3) coordinates"), dtype=np.float64)
-        if len(vertices):  # an infinite vertex left VTK's render blank, without a word
-            finite_or_nan(vertices, "vertices")
-        bounds = _finite_bounds(vertices)  # one NaN vertex made the centre, and so every coordinate, NaN
+        # an infinite vertex left VTK's render blank, one NaN vertex made the centre (every coordinate) NaN
+        bounds = _finite_bounds(vertices, "vertices")
         if bounds is None:
             raise InvalidInputError(f"vertices must include a finite vertex; got {len(vertices)} vertices, none finite "
                                     "(nothing to render)")
@@ -1046,10 +1050,7 @@ class LayeredRenderer:
         _check_face_indices(faces, len(vertices), "faces")
         if rgb is not None:
             rgb = _layer_rgb(rgb, len(vertices), "rgb")
-        expected = "(azimuth, elevation) in radians, finite"
-        direction = np.full(0, np.nan) if isinstance(view, (str, bytes)) else real_numbers(view, "view", expected)
-        if direction.shape != (2,) or not np.isfinite(direction).all():  # the message named "camera" before
-            raise InvalidInputError(f"view must be {expected}; got {view!r}")
+        direction = real_vector(view, "view", "(azimuth, elevation) in radians, finite", 2)  # it named "camera"
         anchor_points = _layer_rows(anchor_points, "anchor_points", "(N, 3) world points")
         width, height = self.size
         color = np.zeros((height, width, 3), np.uint8)

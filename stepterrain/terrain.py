@@ -154,6 +154,19 @@ def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.floa
     return array.astype(np.float64)
 
 
+def real_vector(value: Any, name: str, expected: str, size: int) -> NDArray[np.float64]:
+    """``value`` as ``size`` finite float64 numbers (flattened), else an InvalidInputError "``name`` must be
+    ``expected``; got ``value``": ``np.asarray(value, dtype=float)`` raised numpy's ValueError for text and took
+    True as 1."""
+    try:
+        array = real_numbers(value, name, expected).reshape(-1)
+    except InvalidInputError:
+        array = np.full(0, np.nan)
+    if array.shape != (size,) or not np.isfinite(array).all():
+        raise InvalidInputError(f"{name} must be {expected}; got {value!r}")
+    return array
+
+
 def _first_bool(values: list[Any] | tuple[Any, ...], at: tuple[int, ...] = ()) -> tuple[tuple[int, ...], Any] | None:
     """The index and value of the first bool in nested lists and tuples (numpy bool arrays in them too), else
     None: numpy turns it into a number beside numbers."""

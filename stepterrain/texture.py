@@ -33,7 +33,7 @@ from ._device import host_copy, launch, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
-from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers
+from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers, real_vector
 from .terrain import finite_number as _finite
 
 __all__ = [
@@ -84,18 +84,6 @@ def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
         raise InvalidInputError("topographic textures need a regular heightfield (an (H, W) array or a grid "
                                 f"Terrain); got a {t.kind.upper()}")
     return t
-
-
-def _real_vector(value: Any, name: str, expected: str, size: int) -> NDArray[np.float64]:
-    """``value`` as ``size`` finite float64 numbers, else an InvalidInputError "``name`` must be ``expected``; got
-    ``value``": ``np.asarray(value, dtype=float)`` raised numpy's ValueError for text and took True as 1."""
-    try:
-        array = real_numbers(value, name, expected).reshape(-1)
-    except InvalidInputError:
-        array = np.full(0, np.nan)
-    if array.shape != (size,) or not np.isfinite(array).all():
-        raise InvalidInputError(f"{name} must be {expected}; got {value!r}")
-    return array
 
 
 def _azimuth(value: Any, *, stacklevel: int) -> float:
@@ -606,7 +594,7 @@ def relight(
         raise InvalidInputError("give either a directional light (azimuth, altitude) or a point light, not both")
     if terrain is None:
         raise InvalidInputError("a point light needs terrain= (the surface positions of the texels)")
-    position = _real_vector(point, "point", "a finite (x, y, z)", 3)
+    position = real_vector(point, "point", "a finite (x, y, z)", 3)
     t = _grid_terrain(terrain, spacing)
     if t.heights.shape != rgb.shape[:2]:
         raise InvalidInputError(f"normals of shape {rgb.shape[:2]} do not match the terrain's {t.heights.shape} "
@@ -1183,7 +1171,7 @@ def _disc(resolution: int, edge: float) -> NDArray[np.float32]:
 
 
 def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -> tuple[Extent, int, float]:
-    c = _real_vector(center, "center", "a finite (x, y)", 2)
+    c = real_vector(center, "center", "a finite (x, y)", 2)
     radius = _finite(radius, "radius", positive=True)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 4:
         raise InvalidInputError(f"resolution must be an int >= 4; got {resolution!r}")
@@ -1328,7 +1316,7 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
         raise InvalidInputError(f"layer must be a TextureLayer; got {type(layer).__name__}")
     if not isinstance(name, str):  # the material's name: a number or None went into the GLB as given
         raise InvalidInputError(f"name must be a string; got {name!r}")
-    bg = _real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
+    bg = real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
     if bg.min() < 0 or bg.max() > 1:
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
     from PIL import Image
