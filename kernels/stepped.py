@@ -257,6 +257,72 @@ def wall_end(info: vec6i, j: wp.int32, ends: wp.vec4i) -> wp.vec4i:
 
 
 @wp.func
+def band_polygon(v: wp.vec3i, up: wp.vec3i, x: wp.vec3i, side: wp.int32) -> wp.vec4i:
+    """The polygon of one band of a triangle that crosses one threshold: corners on ``side`` (0 below, 1
+    above) and the crossings x, walked counter-clockwise from corner 0; the last slot is -1 for a triangle."""
+    p = wp.vec4i(-1, -1, -1, -1)
+    n = wp.int32(0)
+    for i in range(3):
+        if up[i] == side:
+            p[n] = v[i]
+            n += 1
+        if up[i] != up[(i + 1) % 3]:
+            p[n] = x[i] + side
+            n += 1
+    return p
+
+
+@wp.func
+def single_crossing(
+    v0: wp.int32,
+    v1: wp.int32,
+    v2: wp.int32,
+    u0: wp.int32,
+    u1: wp.int32,
+    u2: wp.int32,
+    x0: wp.int32,
+    x1: wp.int32,
+    x2: wp.int32,
+    level: wp.int32,
+    face_base: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+):
+    """Emit the 5 faces of a triangle crossing only threshold ``level``, no corner on it, as step_triangle's walk
+    does: the lower band's fan, the wall, the upper band's fan.
+
+    v: the corners' vertices; u: 1 for a corner above the threshold; x: edge k's first vertex (its wall bottom,
+    the top is x + 1), where edge k (corner k to k + 1) crosses.
+    """
+    v = wp.vec3i(v0, v1, v2)
+    up = wp.vec3i(u0, u1, u2)
+    x = wp.vec3i(x0, x1, x2)
+    low = band_polygon(v, up, x, 0)
+    slot = face_base
+    write_face(1, slot, low[0], low[1], low[2], level, 0, faces_out, face_levels_out, face_walls_out)
+    slot += 1
+    if low[3] >= 0:
+        write_face(1, slot, low[0], low[2], low[3], level, 0, faces_out, face_levels_out, face_walls_out)
+        slot += 1
+    # the wall: from the ascending edge's crossing (u) to the descending one's (v)
+    ub = wp.int32(0)
+    vb = wp.int32(0)
+    for i in range(3):
+        if up[i] < up[(i + 1) % 3]:
+            ub = x[i]
+        if up[i] > up[(i + 1) % 3]:
+            vb = x[i]
+    write_face(1, slot, ub + 1, vb + 1, vb, level, 1, faces_out, face_levels_out, face_walls_out)
+    write_face(1, slot + 1, ub + 1, vb, ub, level, 1, faces_out, face_levels_out, face_walls_out)
+    slot += 2
+    high = band_polygon(v, up, x, 1)
+    write_face(1, slot, high[0], high[1], high[2], level + 1, 0, faces_out, face_levels_out, face_walls_out)
+    if high[3] >= 0:
+        write_face(1, slot + 1, high[0], high[2], high[3], level + 1, 0, faces_out, face_levels_out, face_walls_out)
+
+
+@wp.func
 def step_triangle(
     c0: wp.int32,
     c1: wp.int32,
@@ -293,16 +359,24 @@ def step_triangle(
     if lmin == lmax:
         write_face(write, face_base, v0, v1, v2, lmin, 0, faces_out, face_levels_out, face_walls_out)
         return 1
-    if write == 0:
-        aliased = wp.int32(0)
-        if l0 > lmin:
-            aliased += on_threshold(heights[c0], l0, iso.thresholds)
-        if l1 > lmin:
-            aliased += on_threshold(heights[c1], l1, iso.thresholds)
-        if l2 > lmin:
-            aliased += on_threshold(heights[c2], l2, iso.thresholds)
-        if aliased == 0:
+    aliased = wp.int32(0)
+    if l0 > lmin:
+        aliased += on_threshold(heights[c0], l0, iso.thresholds)
+    if l1 > lmin:
+        aliased += on_threshold(heights[c1], l1, iso.thresholds)
+    if l2 > lmin:
+        aliased += on_threshold(heights[c2], l2, iso.thresholds)
+    if aliased == 0:
+        if write == 0:
             return 1 + 4 * (lmax - lmin)
+        if lmax == lmin + 1:
+            # one threshold crossed, no corner on it (most crossing triangles of real terrain): the walk below
+            # in closed form, same faces in the same order
+            single_crossing(
+                v0, v1, v2, l0 - lmin, l1 - lmin, l2 - lmin, offsets[s0], offsets[s1], offsets[s2], lmin,
+                face_base, faces_out, face_levels_out, face_walls_out,
+            )  # fmt: skip
+            return 5
     e0 = edge_crossings(c0, c1, s0, heights, levels, iso, offsets, stride)
     e1 = edge_crossings(c1, c2, s1, heights, levels, iso, offsets, stride)
     e2 = edge_crossings(c2, c0, s2, heights, levels, iso, offsets, stride)
@@ -436,9 +510,11 @@ def quantize_levels(
     levels_out: wp.array[wp.int32],
 ):
     """One thread per node: its level, the index of the nearest isovalue (§3.2)."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for n in range(first_element, wp.min(first_element + chunk, count)):
+    n = (wp.tid() + thread_offset) * chunk
+    end = wp.min(n + chunk, count)
+    while n < end:
         levels_out[n] = level_of(heights[n], thresholds)
+        n += 1
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -571,8 +647,9 @@ def count_grid_vertices(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per node: count the vertices of its four slots (itself and its three owned edges)."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for n in range(first_element, wp.min(first_element + chunk, count)):
+    n = (wp.tid() + thread_offset) * chunk
+    end = wp.min(n + chunk, count)
+    while n < end:
         i = n // hf.cols
         j = n - i * hf.cols
         if hf.has_nodata == 0:
@@ -603,6 +680,7 @@ def count_grid_vertices(
             counts_out[4 * n + 1] = grid_edge_count(hf, iso, i, j, 1)
             counts_out[4 * n + 2] = grid_edge_count(hf, iso, i, j, 2)
             counts_out[4 * n + 3] = grid_edge_count(hf, iso, i, j, 3)
+        n += 1
 
 
 @wp.kernel
@@ -621,8 +699,9 @@ def emit_grid_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """One thread per node: write the vertices of its four slots from their offsets."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for n in range(first_element, wp.min(first_element + chunk, count)):
+    n = (wp.tid() + thread_offset) * chunk
+    end = wp.min(n + chunk, count)
+    while n < end:
         cols = hf.cols
         p = grid_point(hf, n)
         level = hf.levels[n]
@@ -658,6 +737,7 @@ def emit_grid_vertices(
                     n, b, p, grid_point(hf, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
                     want_sources, points_out, step_heights_out, sources_out, betas_out,
                 )  # fmt: skip
+        n += 1
 
 
 @wp.func
@@ -759,12 +839,14 @@ def count_grid_faces(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per cell: count the terrace and wall faces its two triangles emit."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for cell in range(first_element, wp.min(first_element + chunk, count)):
+    cell = (wp.tid() + thread_offset) * chunk
+    end = wp.min(cell + chunk, count)
+    while cell < end:
         if grid_flat_cell(hf, cell) >= 0:
             counts_out[cell] = 2  # the common case, without the call: two terraces on one level
         else:
             counts_out[cell] = grid_cell_faces(hf, iso, offsets, cell, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+        cell += 1
 
 
 @wp.kernel
@@ -782,8 +864,9 @@ def emit_grid_faces(
     face_walls_out: wp.array[wp.uint8],
 ):
     """One thread per cell: write its terrace and wall faces from its face offset."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for cell in range(first_element, wp.min(first_element + chunk, count)):
+    cell = (wp.tid() + thread_offset) * chunk
+    end = wp.min(cell + chunk, count)
+    while cell < end:
         base = face_offsets[cell]
         level = grid_flat_cell(hf, cell)
         if level >= 0:
@@ -807,6 +890,7 @@ def emit_grid_faces(
             face_walls_out[base + 1] = wp.uint8(0)
         elif face_offsets[cell + 1] != base:
             grid_cell_faces(hf, iso, offsets, cell, 1, base, faces_out, face_levels_out, face_walls_out)
+        cell += 1
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -827,8 +911,9 @@ def mark_tin_twins(
 ):
     """One thread per edge: flag its upper end for a twin when it sits on the threshold the edge crosses,
     and flag each end whose neighbour is not lower (a node without one is a peak)."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for e in range(first_element, wp.min(first_element + chunk, count)):
+    e = (wp.tid() + thread_offset) * chunk
+    end = wp.min(e + chunk, count)
+    while e < end:
         ab = tin.edges[e]
         la = tin.levels[ab[0]]
         lb = tin.levels[ab[1]]
@@ -844,6 +929,7 @@ def mark_tin_twins(
                 lhi = la
             if on_threshold(tin.heights[hi], lhi, iso.thresholds) != 0:
                 twins_out[hi] = 1
+        e += 1
 
 
 @wp.kernel
@@ -859,14 +945,16 @@ def count_tin_vertices(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per point, then per edge: count the output vertices it owns."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for tid in range(first_element, wp.min(first_element + chunk, count)):
+    tid = (wp.tid() + thread_offset) * chunk
+    end = wp.min(tid + chunk, count)
+    while tid < end:
         n_points = tin.points.shape[0]
         if tid < n_points:
             counts_out[tid] = node_vertex_count(tin.point_used[tid], twins[tid], peers[tid])
         else:
             ab = tin.edges[tid - n_points]
             counts_out[tid] = edge_vertex_count(ab[0], ab[1], tin.heights, tin.levels, iso)
+        tid += 1
 
 
 @wp.kernel
@@ -886,13 +974,14 @@ def emit_tin_vertices(
     betas_out: wp.array[wp.float32],
 ):
     """One thread per point, then per edge: write its output vertices from its offset."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for tid in range(first_element, wp.min(first_element + chunk, count)):
+    tid = (wp.tid() + thread_offset) * chunk
+    end = wp.min(tid + chunk, count)
+    while tid < end:
         n_points = tin.points.shape[0]
         first = offsets[tid]
         if offsets[tid + 1] == first:
-            continue
-        if tid < n_points:
+            pass  # owns no vertex
+        elif tid < n_points:
             twin = wp.int32(0)
             peak = wp.int32(0)
             if offsets[tid + 1] - first == 2:
@@ -931,6 +1020,7 @@ def emit_tin_vertices(
                 sources_out,
                 betas_out,
             )
+        tid += 1
 
 
 @wp.func
@@ -983,9 +1073,11 @@ def count_tin_faces(
     counts_out: wp.array[wp.int32],
 ):
     """One thread per triangle: count the terrace and wall faces it emits."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for f in range(first_element, wp.min(first_element + chunk, count)):
+    f = (wp.tid() + thread_offset) * chunk
+    end = wp.min(f + chunk, count)
+    while f < end:
         counts_out[f] = tin_face_faces(tin, iso, offsets, f, 0, 0, faces_dummy, levels_dummy, walls_dummy)
+        f += 1
 
 
 @wp.kernel
@@ -1003,10 +1095,12 @@ def emit_tin_faces(
     face_walls_out: wp.array[wp.uint8],
 ):
     """One thread per triangle: write its terrace and wall faces from its face offset."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for f in range(first_element, wp.min(first_element + chunk, count)):
+    f = (wp.tid() + thread_offset) * chunk
+    end = wp.min(f + chunk, count)
+    while f < end:
         if face_offsets[f + 1] != face_offsets[f]:
             tin_face_faces(tin, iso, offsets, f, 1, face_offsets[f], faces_out, face_levels_out, face_walls_out)
+        f += 1
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -1031,8 +1125,9 @@ def blend_vertices(
 
     ``gammas`` holds one γ per vertex, or is empty and the scalar ``gamma`` applies.
     """
-    first_element = (wp.tid() + thread_offset) * chunk
-    for v in range(first_element, wp.min(first_element + chunk, count)):
+    v = (wp.tid() + thread_offset) * chunk
+    end = wp.min(v + chunk, count)
+    while v < end:
         g = gamma
         if gammas.shape[0] > 0:
             g = gammas[v]
@@ -1041,6 +1136,7 @@ def blend_vertices(
         vertices_out[v] = wp.vec3d(
             wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2]
         )
+        v += 1
 
 
 @wp.kernel
@@ -1055,11 +1151,13 @@ def interpolate_node_values(
     values_out: wp.array[wp.float32],
 ):
     """One thread per output vertex: its value lerped from its source nodes with the crossing's β."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for v in range(first_element, wp.min(first_element + chunk, count)):
+    v = (wp.tid() + thread_offset) * chunk
+    end = wp.min(v + chunk, count)
+    while v < end:
         s = sources[v]
         b = betas[v]
         values_out[v] = (1.0 - b) * node_values[s[0]] + b * node_values[s[1]]
+        v += 1
 
 
 @wp.kernel
@@ -1075,8 +1173,9 @@ def sample_lens(
     values_out: wp.array[wp.float32],
 ):
     """One thread per output vertex: bilinear lookup of the lens mask (row 0 at lower y), clamped at the edges."""
-    first_element = (wp.tid() + thread_offset) * chunk
-    for v in range(first_element, wp.min(first_element + chunk, count)):
+    v = (wp.tid() + thread_offset) * chunk
+    end = wp.min(v + chunk, count)
+    while v < end:
         p = points[v]
         rows = mask.shape[0]
         cols = mask.shape[1]
@@ -1091,3 +1190,4 @@ def sample_lens(
         top = (1.0 - fu) * mask[i0, j0] + fu * mask[i0, j1]
         bottom = (1.0 - fu) * mask[i1, j0] + fu * mask[i1, j1]
         values_out[v] = (1.0 - fw) * top + fw * bottom
+        v += 1
