@@ -7,4 +7,9 @@ an FMA, so the float32 arithmetic is plain IEEE on both backends and the CPU and
 wherever a kernel calls no transcendental function. With contraction on (Warp's default) NVRTC and the CPU's
 LLVM fuse different operations: the cube-sphere heights of the two differed by up to 0.27 m and adaptive
 meshes by a few triangles. The tests compare the two devices bit for bit where CUDA is present.
+
+Loops over many elements (a thread's chunk, a row run, a sweep line) are ``while`` loops: on the CPU backend
+Warp (1.19) compiles a ``for x in range(a, b)`` with runtime bounds to an iterator object that costs about 3 ns
+an iteration (a 4.2 M-element copy: 10.9 ms with ``range``, 3.7 ms as a ``while`` loop); loops with a constant
+bound (``range(4)``) are unrolled and stay ``for`` loops.
 """
