@@ -161,13 +161,15 @@ def sphere_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, r: wp.float64) -> 
     test: the largest distance over the sphere from the inverted plane is < 0), :data:`INSIDE` when it lies
     wholly inside every plane (with :data:`INSIDE_MARGIN`), else 0."""
     side = INSIDE
-    for k in range(planes.shape[0]):
+    k = wp.int32(0)
+    while k < planes.shape[0]:
         plane = planes[k]
         centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
         if centre > r:  # r - centre < 0: the inverted plane's largest distance, the same sign bit for bit
             return OUTSIDE
         if centre >= -r * INSIDE_MARGIN:
             side = 0
+        k += 1
     return side
 
 
@@ -180,7 +182,8 @@ def cone_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_l
     # plane; the exact cases of Abb. 7 only for planes through that ball)
     ball = wp.sqrt(h * h + (p_len + h) * p_len * alpha * alpha) * wp.float64(1.000001)
     side = INSIDE
-    for k in range(planes.shape[0]):
+    k = wp.int32(0)
+    while k < planes.shape[0]:
         plane = planes[k]
         centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
         if centre > ball:
@@ -190,19 +193,22 @@ def cone_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_l
             if centre >= -ball:
                 if plane_distance_cone_unit(inverted(plane), p_hat, p_len, h, alpha_sc) < wp.float64(0.0):
                     return OUTSIDE
+        k += 1
     return side
 
 
 @wp.func
 def triangle_outside_view(planes: wp.array[wp.vec4d], a: wp.vec3d, b: wp.vec3d, c: wp.vec3d) -> wp.int32:
     """1 when a flat triangle lies wholly outside one of the six planes (all three corners outside it)."""
-    for k in range(planes.shape[0]):
+    k = wp.int32(0)
+    while k < planes.shape[0]:
         plane = planes[k]
         n = wp.vec3d(plane[0], plane[1], plane[2])
         if wp.dot(n, a) + plane[3] > wp.float64(0.0):
             if wp.dot(n, b) + plane[3] > wp.float64(0.0):
                 if wp.dot(n, c) + plane[3] > wp.float64(0.0):
                     return 1
+        k += 1
     return 0
 
 

@@ -26,11 +26,14 @@ def mark_used_vertices(
 ):
     """One element per kept face: flag its three vertices as used (every writer writes 1)."""
     first = (wp.tid() + thread_offset) * chunk
-    for t in range(first, wp.min(first + chunk, count)):
+    t = first
+    last = wp.min(first + chunk, count)
+    while t < last:
         f = faces[t]
         used_out[f[0]] = 1
         used_out[f[1]] = 1
         used_out[f[2]] = 1
+        t += 1
 
 
 @wp.kernel
@@ -46,6 +49,9 @@ def remap_faces(
     """One element per kept face: its vertex indices after compaction (``faces_out`` may be ``faces``: each
     element reads and writes only its own face)."""
     first = (wp.tid() + thread_offset) * chunk
-    for t in range(first, wp.min(first + chunk, count)):
+    t = first
+    last = wp.min(first + chunk, count)
+    while t < last:
         f = faces[t]
         faces_out[t] = wp.vec3i(offsets[f[0]], offsets[f[1]], offsets[f[2]])
+        t += 1
