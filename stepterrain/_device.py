@@ -30,6 +30,8 @@ MIN_THREAD_ELEMENTS = 1 << 15  # below this many elements per thread a launch st
 #: often ~1 kB) for every thread, so on the CPU each thread runs a chunk of elements; on CUDA every element
 #: is its own thread.
 CPU_CHUNK = 64
+#: Warp launches CPU kernels with this block_dim (its default there); the module variant to pre-load.
+CPU_LAUNCH_BLOCK_DIM = 1
 _initialised = False
 _NP_DTYPES = {
     wp.float32: np.float32,
@@ -284,7 +286,9 @@ def launch(
         return
     key = (id(kernel.module), str(device))
     if key not in _loaded:  # compile/load once before several threads use the module
-        kernel.module.load(device)
+        # the variant wp.launch runs on the CPU (block_dim 1); a bare load(device) would compile another one,
+        # for the module's default block_dim, that no launch uses (a second full compile on a cold cache)
+        kernel.module.load(device, CPU_LAUNCH_BLOCK_DIM)
         _loaded.add(key)
     pool = _helpers(workers - 1)
     bounds = [dim * k // workers for k in range(workers + 1)]

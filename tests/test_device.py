@@ -51,3 +51,24 @@ def test_prefault_touches_every_page(workers):
     _device._prefault(flat, workers)
     assert (flat[::4096] == 0).all()  # one byte per page written ...
     assert (np.delete(flat, np.arange(0, flat.size, 4096)) == 7).all()  # ... and nothing else
+
+
+@wp.kernel
+def _write_index(thread_offset: wp.int32, values: wp.array[wp.int32]):
+    t = wp.tid() + thread_offset
+    values[t] = t
+
+
+def test_split_cpu_launch_loads_only_the_variant_that_runs():
+    """A CPU launch split over threads pre-loads its module once, as the block_dim-1 variant that wp.launch runs
+    on the CPU. It used to load the module's default block_dim too, a second full compile on a cold kernel
+    cache that no launch ever used (the CLI's first run compiled the stepped kernels twice: 34 s, not 19 s)."""
+    n = 4 * _device.MIN_THREAD_ELEMENTS
+    out = wp.zeros(n, dtype=wp.int32, device="cpu")
+    previous = _device.set_cpu_threads(4)
+    try:
+        _device.launch(_write_index, n, [], [out], wp.get_device("cpu"))
+    finally:
+        _device.set_cpu_threads(previous)
+    np.testing.assert_array_equal(out.numpy(), np.arange(n))
+    assert {block_dim for _context, block_dim in _write_index.module.execs} == {_device.CPU_LAUNCH_BLOCK_DIM}
