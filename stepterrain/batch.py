@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import errno
+import gc
 import hashlib
 import json
 import logging
@@ -422,14 +423,21 @@ def run_item(
         )  # fmt: skip
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         save_mesh(mesh, target, metadata=metadata)
+        n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
     except StepTerrainError as exc:
         if _transient(exc):
             raise  # a disk or network hiccup under the library's error (e.g. EIO, ENOSPC): retried like any other
         return ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=1,
                           seconds=time.perf_counter() - start, cpu_seconds=time.process_time() - cpu_start)  # fmt: skip
+    # A Trimesh refers to itself (its visuals, caches and query helpers hold the mesh), so only the cyclic
+    # garbage collector frees its arrays, and by then it has often moved them to its oldest generation: a worker
+    # held 1.7 GB of dead 1024² tiles instead of 0.36 GB. The mesh is still young here, and collecting the young
+    # generations frees it at once for a fraction of a millisecond.
+    del mesh, terrain
+    gc.collect(1)
     return ItemResult(
         item.key, "done", path=str(target), attempts=1, seconds=time.perf_counter() - start,
-        cpu_seconds=time.process_time() - cpu_start, faces=len(mesh.faces), vertices=len(mesh.vertices),
+        cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
         bytes=target.stat().st_size,
     )  # fmt: skip
 
