@@ -657,6 +657,7 @@ def test_run_item_frees_its_mesh_before_it_returns(tmp_path):
     import gc
 
     import trimesh
+
     from stepterrain.batch import _Options
 
     rows, cols = np.mgrid[0:65, 0:65]
