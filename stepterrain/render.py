@@ -77,6 +77,17 @@ def _select_backend() -> str:
     return _backend_checked
 
 
+def _polydata(pv: Any, vertices: NDArray[Any], faces: NDArray[Any]) -> Any:
+    """A triangle PolyData on these arrays, float64 points and int64 faces, as ``pv.wrap`` of a Trimesh gives.
+
+    Built directly: a Trimesh refers to itself, so a temporary one holds its arrays until Python's cyclic
+    collector runs (frame after frame in an animation).
+    """
+    points = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    return pv.PolyData.from_regular_faces(points, triangles, deep=False)
+
+
 def _import_pyvista() -> Any:
     _select_backend()
     try:
@@ -311,7 +322,9 @@ def render_mesh(
 
     pv = _import_pyvista()
     _check_background(pv, background)
-    poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False, face_attributes=face_attributes))
+    poly = _polydata(pv, local, mesh.faces)
+    for key, value in face_attributes.items():
+        poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
     rgb = _vertex_rgb(mesh) if scalars is None else None
     if rgb is not None:
@@ -539,7 +552,7 @@ def render_textured_mesh(
 
     pv = _import_pyvista()
     _check_background(pv, background)
-    poly = pv.wrap(trimesh.Trimesh(local, mesh.faces, process=False))
+    poly = _polydata(pv, local, mesh.faces)
     poly.active_texture_coordinates = uv
     picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
     texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
@@ -784,7 +797,7 @@ class LayeredRenderer:
             return
         _check_face_indices(faces, len(local), f"faces of layer {name!r}")  # a new topology: checked once
         self.remove(name)
-        poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
+        poly = _polydata(self._pv, local, faces)
         self._meshes[name] = (poly, kind, faces.copy(), faces_in, rgb_in)
         kwargs: dict[str, Any] = {}
         if values is not None:
@@ -1071,7 +1084,7 @@ class LayeredRenderer:
         local[:, 2] *= self.z_scale
         plotter = self._new_plotter((bw, bh))
         try:
-            poly = self._pv.wrap(trimesh.Trimesh(local, faces, process=False))
+            poly = _polydata(self._pv, local, faces)
             kwargs: dict[str, Any] = {"color": _DEFAULT_COLOR}
             if rgb is not None:
                 poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)

@@ -56,6 +56,25 @@ def test_stepped_render_shape_dtype_and_content():
 
 
 @needs_render
+def test_render_leaves_no_mesh_behind():
+    """The PolyData is built from the arrays directly: a temporary Trimesh refers to itself and would hold its
+    arrays until Python's cyclic collector ran (frame after frame in an animation)."""
+    import gc
+
+    mesh = st.stepped(ramp(), interval=1.0, spacing=(0.5, 0.5), device="cpu")
+    render.render_mesh(mesh, window_size=SIZE, scalars="level")  # warm
+    gc.collect()
+    before = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
+    gc.disable()
+    try:
+        render.render_mesh(mesh, window_size=SIZE, scalars="level")
+        after = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
+    finally:
+        gc.enable()
+    assert after == before
+
+
+@needs_render
 def test_walls_and_terraces_differ_in_brightness():
     terrace = foreground(render.render_mesh(square("+z"), window_size=SIZE, camera="oblique"))
     wall = foreground(render.render_mesh(square("-y"), window_size=SIZE, camera="oblique"))
