@@ -295,8 +295,9 @@ class Globe:
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:
             raise InvalidInputError(f"lat must reach within one step ({dlat:.9g}°) of both poles; got "
                                     f"{lat[0]:.9g} to {lat[-1]:.9g}")
-        check_budget(6 * (cells + 1) ** 2 * _BYTES_PER_ENTRY + (cells // 2 + 1) ** 2 * _BYTES_PER_ANGLE_SLOT,
-                     f"a globe of face_size {cells + 1}",
+        n_entries = 6 * (cells + 1) ** 2
+        slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
+        check_budget(n_entries * _BYTES_PER_ENTRY + slots * _BYTES_PER_ANGLE_SLOT, f"a globe of face_size {cells + 1}",
                      hint="use a smaller face_size")
         device = resolve_device(device)
         source = cube_kernels.LatLonGrid()
@@ -312,7 +313,6 @@ class Globe:
         source.inv_cols = 1.0 / z.shape[1]
         source.north_pole = float(z[0].mean(dtype=np.float64))
         source.south_pole = float(z[-1].mean(dtype=np.float64))
-        n_entries = 6 * (cells + 1) ** 2
         grid = cube_kernels.CubeSphereGrid()
         grid.cells = cells
         grid.n = cells + 1
@@ -325,7 +325,6 @@ class Globe:
         grid.positions = _node_array(n_entries, wp.vec3, device)
         lines = wp.empty(6 * grid.n, dtype=wp.vec3, device=device)
         launch_chunked(cube_kernels.longitude_lines, 6 * grid.n, [grid, source], [lines], device)
-        slots = (cells // 2 + 1) ** 2
         tables = [wp.empty(slots, dtype=dtype, device=device) for dtype in (wp.vec3, wp.vec2, wp.float64)]
         launch_chunked(cube_kernels.angle_tables, slots, [cells], tables, device)
         launch_chunked(cube_kernels.resample_latlon, n_entries, [grid, source, float(exaggeration), lines, *tables],

@@ -47,6 +47,23 @@ def real_dem(name: str, size: int = 96, step: int = 4) -> np.ndarray:
     return np.ascontiguousarray(z[: size * step : step, : size * step : step])
 
 
+def trimeshes_left_by(call) -> int:
+    """How many more ``trimesh.Trimesh`` objects are alive after ``call()`` than before, with Python's automatic
+    garbage collection off while it runs: a Trimesh refers to itself, so one that was dropped stays alive until
+    the cyclic collector runs."""
+    import gc
+
+    call()  # compile, warm
+    gc.collect()
+    before = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
+    gc.disable()
+    try:
+        call()
+        return sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects()) - before
+    finally:
+        gc.enable()
+
+
 def assert_valid_mesh(mesh: trimesh.Trimesh) -> None:
     """Indices in range, no repeated index in a face, every vertex referenced, all coordinates finite."""
     faces = np.asarray(mesh.faces)

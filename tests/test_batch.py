@@ -23,7 +23,7 @@ from stepterrain.mesh import boundary_edges
 from stepterrain.stepped import isovalues, stepped
 
 from . import gltf_validator, reference
-from .conftest import assert_valid_mesh, real_dem
+from .conftest import assert_valid_mesh, real_dem, trimeshes_left_by
 
 TUJUNGA = "big_tujunga_srtm_30m_utm11n.npz"
 
@@ -654,10 +654,6 @@ def test_run_item_reports_bad_data_without_raising(tmp_path):
 def test_run_item_frees_its_mesh_before_it_returns(tmp_path):
     """A Trimesh refers to itself, so only the cyclic collector frees its arrays, often late (a dask worker held
     1.7 GB of dead 1024² tiles); run_item frees its tile's mesh before returning, automatic collection or not."""
-    import gc
-
-    import trimesh
-
     from stepterrain.batch import _Options
 
     rows, cols = np.mgrid[0:65, 0:65]
@@ -665,17 +661,10 @@ def test_run_item_frees_its_mesh_before_it_returns(tmp_path):
     (tmp_path / "out").mkdir()
     options = _Options(20.0, None, 0.5, 1.0, None, False, None, ".ply", "cpu", ())
     item = BatchItem("tile", "file", path=str(tmp_path / "tile.npy"))
-    run_item(item, None, options, str(tmp_path / "out"))  # compile, warm
-    gc.collect()
-    before = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
-    gc.disable()
-    try:
-        result = run_item(item, None, options, str(tmp_path / "out"))
-        after = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
-    finally:
-        gc.enable()
-    assert result.status == "done" and result.faces > 0
-    assert after == before
+    results = []
+    left = trimeshes_left_by(lambda: results.append(run_item(item, None, options, str(tmp_path / "out"))))
+    assert results[-1].status == "done" and results[-1].faces > 0
+    assert left == 0
 
 
 # ---------------------------------------------------------------------------------------------- dask

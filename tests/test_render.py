@@ -12,6 +12,8 @@ import stepterrain as st
 from stepterrain import render
 from stepterrain.errors import InvalidInputError, MissingDependencyError
 
+from .conftest import trimeshes_left_by
+
 AVAILABLE, REASON = render.offscreen_available()
 
 
@@ -59,19 +61,8 @@ def test_stepped_render_shape_dtype_and_content():
 def test_render_leaves_no_mesh_behind():
     """The PolyData is built from the arrays directly: a temporary Trimesh refers to itself and would hold its
     arrays until Python's cyclic collector ran (frame after frame in an animation)."""
-    import gc
-
     mesh = st.stepped(ramp(), interval=1.0, spacing=(0.5, 0.5), device="cpu")
-    render.render_mesh(mesh, window_size=SIZE, scalars="level")  # warm
-    gc.collect()
-    before = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
-    gc.disable()
-    try:
-        render.render_mesh(mesh, window_size=SIZE, scalars="level")
-        after = sum(isinstance(o, trimesh.Trimesh) for o in gc.get_objects())
-    finally:
-        gc.enable()
-    assert after == before
+    assert trimeshes_left_by(lambda: render.render_mesh(mesh, window_size=SIZE, scalars="level")) == 0
 
 
 @needs_render
