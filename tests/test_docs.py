@@ -90,3 +90,45 @@ def check_promises(page: str, ns: dict, folder: Path) -> None:
         assert ns["report"].ok and len(ns["report"].done) == 2
         assert sorted(p.name for p in (folder / "out").glob("*.glb")) == ["tile_0.glb", "tile_1.glb"]
         assert ns["steps"].n_cells > 0 and "level" in ns["steps"].cell_data
+
+
+# ------------------------------------------------------------------------- the examples of `stepterrain COMMAND --help`
+def help_examples(epilog: str) -> list[list[str]]:
+    """The command lines of an epilog's ``examples:`` section (a trailing backslash continues a line)."""
+    import shlex
+
+    lines, pending = [], ""
+    for raw in epilog.splitlines():
+        text = raw.strip()
+        if pending:
+            text, pending = pending + " " + text, ""
+        elif not text.startswith("stepterrain "):
+            continue
+        if text.endswith("\\"):
+            pending = text[:-1].strip()
+            continue
+        lines.append(shlex.split(text.split("  (")[0])[1:])  # drop "stepterrain" and a trailing "(remark)"
+    return lines
+
+
+def test_help_examples_parse():
+    """Every example line that `--help` shows names options that exist, with values argparse accepts."""
+    import argparse
+
+    from stepterrain import cli
+
+    parser = cli.build_parser()
+    (action,) = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    checked = 0
+    for name, sub in action.choices.items():
+        examples = help_examples(sub.epilog or "")
+        assert examples, f"stepterrain {name} --help shows no example command lines"
+        for argv in examples:
+            assert argv[0] == name, f"stepterrain {name} --help shows an example of another command: {argv}"
+            try:
+                args = parser.parse_args(argv)
+            except SystemExit as exc:  # argparse refused it (message on stderr)
+                raise AssertionError(f"stepterrain {name} --help example does not parse: {' '.join(argv)}") from exc
+            assert args.command == name
+            checked += 1
+    assert checked >= 20
