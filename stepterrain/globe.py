@@ -601,7 +601,10 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
         name, expected = getattr(fn, "__name__", fn), f"must return {len(m)} finite values >= 0"
         result = fn(points, radius)
         try:
-            value = np.asarray(result, dtype=np.float64)
+            value = np.asarray(result)
+            if value.dtype.kind not in "biufO":  # complex lost its imaginary part (a ComplexWarning); text
+                raise TypeError
+            value = value.astype(np.float64)
         except (TypeError, ValueError):  # text, ragged rows: numpy's conversion error named no metric
             raise InvalidInputError(f"user metric {name!r} {expected}; got {type(result).__name__} that is not "
                                     "numbers") from None
@@ -872,8 +875,8 @@ def adaptive_mesh(
     except (TypeError, ValueError):
         raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
     dx, dy = check_spacing(_positive(dx, "spacing dx"), _positive(dy, "spacing dy"))
-    try:
-        ox, oy = (float(v) for v in origin)
+    try:  # as_number: "12" was iterated as (1.0, 2.0) and True taken as 1.0
+        ox, oy = (as_number(v) for v in origin)
     except (TypeError, ValueError):
         ox = oy = math.nan
     if not (math.isfinite(ox) and math.isfinite(oy)):
@@ -1117,7 +1120,15 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     view is :mod:`stepterrain.render`'s 30°: cameras from :func:`look_from` use the same by default)."""
     from . import render
 
-    box = np.asarray(mesh.bounds, dtype=np.float64)
+    if not isinstance(mesh, trimesh.Trimesh):  # a per_face list, None: an AttributeError on .bounds
+        raise InvalidInputError(f"mesh must be a trimesh.Trimesh (render the meshes of per_face=True one by one); "
+                                f"got {type(mesh).__name__}")
+    if not isinstance(camera, Camera):
+        raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+    box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
+    if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
+        raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got {len(mesh.faces)} "
+                                "faces: a view that clips every triangle gives an empty mesh)")
     centre = box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``
     position = [tuple(np.subtract(camera.eye, centre)), tuple(np.subtract(camera.target, centre)), camera.up]
     return render.render_mesh(mesh, window_size=window_size, camera=position, background=background, bounds=box,

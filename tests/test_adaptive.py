@@ -191,6 +191,9 @@ def test_a_terrain_object_is_refused_with_what_to_pass():
         ({"origin": 1.0}, r"origin must be 2 finite numbers \(x0, y0\); got 1.0"),
         ({"origin": (1.0, 2.0, 3.0)}, r"origin must be 2 finite numbers \(x0, y0\); got \(1.0, 2.0, 3.0\)"),
         ({"origin": ("a", "b")}, r"origin must be 2 finite numbers \(x0, y0\); got \('a', 'b'\)"),
+        # the string was iterated: origin (1.0, 2.0), silently; a bool was taken as 1.0
+        ({"origin": "12"}, r"origin must be 2 finite numbers \(x0, y0\); got '12'"),
+        ({"origin": (True, 0.0)}, r"origin must be 2 finite numbers \(x0, y0\); got \(True, 0.0\)"),
         ({"spacing": (1.0, 2.0, 3.0)}, r"spacing must be a number or \(dx, dy\); got \(1.0, 2.0, 3.0\)"),
         ({"spacing": None}, r"spacing must be a number or \(dx, dy\); got None"),
         # float32 node positions: 1e-300 became 0 (every node at x = 0, a zero-area mesh, silently)

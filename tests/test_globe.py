@@ -689,6 +689,8 @@ def test_bad_latlon_grids():
     (lambda p, r: None, r"got shape \(\)"),
     (lambda p, r: np.ones(3), r"got shape \(3,\)"),
     (lambda p, r: np.full(len(p), np.nan), "got NaN, inf or negative values"),
+    # complex values lost their imaginary part (numpy's ComplexWarning) and refined by the real part, silently
+    (lambda p, r: np.ones(len(p), complex), "got ndarray that is not numbers"),
 ])
 def test_a_user_metric_returning_no_numbers_is_named(small_globe, result, match):
     """Text or None raised numpy's 'could not convert string to float' / TypeError, naming no metric."""
@@ -843,3 +845,21 @@ def test_mesh_flags_must_be_bools(small_globe, flag):
     with pytest.raises(InvalidInputError, match=rf"cull must be True or False; got {flag!r}"):
         adaptive_mesh(np.zeros((5, 5)), error=1.0, cull=flag)
     assert isinstance(small_globe.mesh(error=1e9, per_face=np.bool_(False)), trimesh.Trimesh)
+
+
+def test_render_view_refuses_what_it_cannot_render(small_globe):
+    """An empty mesh (a view that clips every triangle, which Globe.mesh returns as it is) raised numpy's AxisError
+    from the bounds; a per_face list, None or a camera that is no Camera raised AttributeErrors."""
+    from stepterrain.globe import render_view
+
+    camera = look_from(0.0, 0.0, 1.0e6, tilt=89.0)  # looks over the horizon: nothing in view
+    empty = small_globe.mesh(error=10.0, camera=camera)
+    assert len(empty.faces) == 0
+    with pytest.raises(InvalidInputError, match="mesh has no faces with finite vertices; nothing to render"):
+        render_view(empty, camera, window_size=(64, 64))
+    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh .*; got list"):
+        render_view(small_globe.mesh(per_face=True), camera, window_size=(64, 64))
+    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh .*; got NoneType"):
+        render_view(None, camera, window_size=(64, 64))
+    with pytest.raises(InvalidInputError, match="camera must be a stepterrain.globe.Camera; got tuple"):
+        render_view(small_globe.mesh(), (0.0, 0.0, 1.0), window_size=(64, 64))
