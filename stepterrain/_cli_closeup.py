@@ -104,6 +104,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         ROI,
         AnchorStyle,
         CloseUp,
+        _check_fps,
         animate_closeups,
         max_closeups,
         render_closeups,
@@ -128,6 +129,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):
         raise InvalidInputError(f"--fps must be a positive number; got {args.fps:g}")
+    if anim is not None:  # a rate the format cannot store failed (or wrote a broken MP4) after every frame
+        _check_fps(args.fps, anim.suffix.lower(), "--fps")
     if not math.isfinite(args.spin) or args.spin == 0:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
@@ -167,6 +170,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             except InvalidInputError as exc:
                 raise InvalidInputError(f"--stepped {interval:g}: {exc}") from None
     anchor = AnchorStyle(args.anchor)
+    # repetitions enough for the animation; |spin| * frames / fps overflowed to inf (an OverflowError in ceil) for
+    # --spin 1e308: capped where float64 still counts whole turns
+    turns = abs(args.spin) * args.frames / args.fps
+    repetitions = max(1, math.ceil(min(turns, 2.0**53)))
     closeups = []
     for (x, y, r), s, p, rot, c, st_ in zip(rois, scales, offsets, rotations, colors, steps, strict=True):
         if not (math.isfinite(r) and 0 < r <= _MAX_OFFSET):  # closeup's ROI size bound: float32 positions
@@ -181,7 +188,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         closeups.append(CloseUp(roi, scale=s[0] if len(s) == 1 else s, offset=p,
                                 rotation=(math.radians(rot[0]), math.radians(rot[1])), color=c, anchor=anchor,
                                 stepped=st_ or None, view="billboard" if args.billboard else "overview",
-                                spin=(args.spin, max(1, math.ceil(abs(args.spin) * args.frames / args.fps)))))
+                                spin=(args.spin, repetitions)))
     scalars = None if args.scalars == "none" else args.scalars
     options = dict(z_scale=args.z_scale, scalars=scalars, cmap=args.colormap, device=args.device)
 

@@ -1855,15 +1855,41 @@ def _check_frames(frames: Any) -> list[NDArray[np.uint8]]:
     return stack
 
 
-def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
-    """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio."""
-    from .export import atomic_path
+#: Frame rates each animation format stores: a GIF's frame delay is a whole number of hundredths of a second, 1 to
+#: 65535 (Pillow writes int(100 / fps)); ffmpeg wrote an MP4 below about 1e-4 fps as a broken file without an error
+_GIF_DELAYS = (1, 65535)
+_MP4_FPS = (1e-3, 1e3)
 
-    target = Path(path)
+
+def _check_fps(fps: Any, suffix: str, name: str = "fps") -> float:
+    """``fps`` as a float when the animation format of ``suffix`` (".gif" or ".mp4") can store that frame rate, else
+    an InvalidInputError naming ``name``: Pillow raised an OverflowError for a GIF delay past 655.35 s and wrote 0
+    (a player's default rate) for more than 100 fps; ffmpeg left a broken MP4 below 1e-4 fps."""
+    fps = finite_number(fps, name, positive=True)
+    if suffix == ".gif":
+        lo, hi = _GIF_DELAYS
+        if not lo <= int(100.0 / fps) <= hi:
+            raise InvalidInputError(f"{name} must lie in [{100.0 / hi:.4g}, {100.0 / lo:g}] frames per second for a "
+                                    f"GIF (its frame delays are whole hundredths of a second, {lo} to {hi}); got "
+                                    f"{fps:g}")
+    elif not _MP4_FPS[0] <= fps <= _MP4_FPS[1]:
+        raise InvalidInputError(f"{name} must lie in [{_MP4_FPS[0]:g}, {_MP4_FPS[1]:g}] frames per second for an MP4; "
+                                f"got {fps:g}")
+    return fps
+
+
+def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[str], *, fps: float = 12.0) -> Path:
+    """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio.
+
+    ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
+    second), [0.001, 1000] for an MP4."""
+    from .export import _target, atomic_path
+
+    target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
     suffix = target.suffix.lower()
     if suffix not in (".gif", ".mp4"):
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
-    fps = finite_number(fps, "fps", positive=True)
+    fps = _check_fps(fps, suffix)
     stack = _check_frames(frames)
     import imageio.v3 as iio
 

@@ -328,6 +328,20 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
     for fps in ("0", "nan", "-3"):
         assert cli.main(["closeup", str(dem), f"--fps={fps}", "-o", out]) == 2
         assert capsys.readouterr().err == f"stepterrain closeup: error: --fps must be a positive number; got {fps}\n"
+    # a rate the GIF cannot store was an OverflowError traceback (exit 1) after every frame was rendered
+    assert cli.main(["closeup", str(dem), "--fps=1e-300", "--gif", str(tmp_path / "spin.gif"), "-o", out]) == 2
+    assert capsys.readouterr().err.startswith("stepterrain closeup: error: --fps must lie in [0.001526, 100] frames "
+                                              "per second for a GIF")
+    assert not (tmp_path / "x.ply").exists()
+
+
+def test_cli_closeup_a_huge_spin_is_no_overflow(dem, tmp_path, capsys):
+    """The spin's repetitions ceil(|spin| * frames / fps) overflowed to inf: an OverflowError traceback, exit 1,
+    even without --gif."""
+    out = tmp_path / "scene.ply"
+    assert cli.main(["closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--spin", "1e308", "-o", str(out),
+                     "--device", "cpu"]) == 0, capsys.readouterr().err
+    assert out.exists()
 
 
 def test_cli_closeup_mp4_without_ffmpeg_is_refused_before_any_output(dem, tmp_path, capsys, monkeypatch):
@@ -466,6 +480,28 @@ def test_save_animation_checks_its_frames(tmp_path, frames, match):
     with pytest.raises(InvalidInputError, match=match):
         save_animation(frames, tmp_path / "bad.gif")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name, fps, match", [
+    # Pillow raised OverflowError ("int too big to convert") for a delay past 655.35 s
+    ("slow.gif", 1e-9, r"fps must lie in \[0.001526, 100\] frames per second for a GIF .*got 1e-09"),
+    # a delay of int(100 / 1000) = 0 hundredths was written: players show the GIF at their own default rate
+    ("fast.gif", 1000.0, r"fps must lie in \[0.001526, 100\] frames per second for a GIF .*got 1000"),
+    # ffmpeg failed on the rate but the broken (empty) file was renamed onto the target, without an error
+    ("slow.mp4", 1e-9, r"fps must lie in \[0.001, 1000\] frames per second for an MP4; got 1e-09"),
+])
+def test_save_animation_refuses_a_frame_rate_the_format_cannot_store(tmp_path, name, fps, match):
+    (tmp_path / name).write_bytes(b"an earlier animation")
+    with pytest.raises(InvalidInputError, match=match):
+        save_animation([np.zeros((8, 8, 3), np.uint8)] * 2, tmp_path / name, fps=fps)
+    assert (tmp_path / name).read_bytes() == b"an earlier animation"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [name]
+
+
+@pytest.mark.parametrize("path", [5, b"spin.gif", None])
+def test_save_animation_refuses_a_path_that_is_no_path(path):
+    with pytest.raises(InvalidInputError, match=r"path must be a str or os.PathLike; got "):  # pathlib's TypeError
+        save_animation([np.zeros((8, 8, 3), np.uint8)] * 2, path)
 
 
 def test_save_animation_takes_a_4d_stack(tmp_path):
