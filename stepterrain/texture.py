@@ -751,9 +751,9 @@ class TextureLayer:
     def to_uint8(self, background: Sequence[float] | None = None) -> NDArray[np.uint8]:
         """The layer as uint8 RGBA, or RGB composited over ``background`` (r, g, b in [0, 1])."""
         if background is not None:
-            try:
-                bg = np.asarray(background, dtype=np.float64).reshape(-1)
-            except (TypeError, ValueError):
+            try:  # real_numbers: np.asarray(..., float) took ("1", "0", "0") and (True, 0, 0) as numbers
+                bg = real_numbers(background, "background", "(r, g, b) in [0, 1]").reshape(-1)
+            except InvalidInputError:
                 bg = np.full(0, np.nan)
             if bg.shape != (3,) or not (np.isfinite(bg).all() and (bg >= 0).all() and (bg <= 1).all()):
                 raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
@@ -1062,7 +1062,9 @@ def adjust(
     params.alpha = _finite(alpha, "alpha", lo=0.0, hi=1.0)
     params.brightness = _finite(brightness, "brightness", lo=0.0, hi=1e6)
     params.contrast = _finite(contrast, "contrast", lo=0.0, hi=1e6)
-    params.hue = _finite(hue, "hue")
+    # whole turns dropped in float64: beyond float32's range the angle reached the kernel as inf (cos and sin NaN:
+    # a white layer came out black), and a large finite angle lost its fraction in float32
+    params.hue = math.fmod(_finite(hue, "hue"), 2.0 * math.pi)
     params.saturation = _finite(saturation, "saturation", lo=0.0, hi=1e6)
     params.one_over_gamma = 1.0 / _finite(gamma, "gamma", positive=True)
     if split not in (None, "left", "right"):

@@ -126,6 +126,17 @@ def test_hue_rotation_keeps_luma_and_full_turn_is_identity(device):
     np.testing.assert_allclose(out[..., :3], np.clip(RGB_A, 0, 1), atol=2e-3)
 
 
+def test_hue_beyond_float32_keeps_a_white_layer_white(device):
+    """hue=1e300 reached the kernel as float32 inf: cos and sin NaN, every pixel black; whole turns are dropped now."""
+    from stepterrain.texture import TextureLayer
+
+    white = TextureLayer("thematic", np.ones((2, 3, 3), np.float32), (0.0, 3.0, 0.0, 2.0))
+    for hue in (1e300, -1e300, 1e30):
+        np.testing.assert_allclose(adjust(white, hue=hue, device=device).rgba(), 1.0, atol=1e-5)
+    np.testing.assert_array_equal(adjust(layer(RGB_A), hue=4.0 + 2 * math.pi, device=device).rgba(),
+                                  adjust(layer(RGB_A), hue=4.0, device=device).rgba())
+
+
 def test_split_and_cutout(device):
     base = layer(RGB_A)
     left = adjust(base, split="left", split_position=0.5, device=device).rgba()[..., 3]
@@ -494,9 +505,11 @@ def test_layer_sees_later_changes_to_its_image_array():
     assert lum.rgba() is lum.rgba()
 
 
-@pytest.mark.parametrize("background", [(1, 2), "white", (np.nan, 0, 0), (0, 0, 2), [[0, 0], [0]]])
+@pytest.mark.parametrize("background", [(1, 2), "white", (np.nan, 0, 0), (0, 0, 2), [[0, 0], [0]], ("1", "0", "0"),
+                                        (True, 0, 0)])
 def test_to_uint8_background_is_checked(background):
-    """(1, 2) and 'white' raised numpy's reshape/convert ValueError, (nan, 0, 0) gave a black image silently."""
+    """(1, 2) and 'white' raised numpy's reshape/convert ValueError, (nan, 0, 0) gave a black image silently, text and
+    bools were taken as numbers (drape refused the same background)."""
     from stepterrain.texture import TextureLayer
 
     layer = TextureLayer("luminance", np.full((2, 3), 0.5), (0.0, 3.0, 0.0, 2.0))
