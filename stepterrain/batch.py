@@ -310,8 +310,13 @@ def _file_items(files: Sequence[Path]) -> list[BatchItem]:
     stems = [f.stem for f in files]
     duplicated = {s for s in stems if stems.count(s) > 1}
     keys = [f.name.replace(".", "_") if f.stem in duplicated else f.stem for f in files]
-    if len(set(keys)) != len(keys):
-        raise InvalidInputError("source files must have distinct names (outputs are named after them)")
+    if len(set(keys)) != len(keys):  # the same file twice, or a.npy beside a.npz (a_npy, a_npz) and a_npy.tif
+        first: dict[str, Path] = {}
+        for key, f in zip(keys, files, strict=True):
+            if key in first:
+                raise InvalidInputError(f"source files {str(first[key])!r} and {str(f)!r} would both write the output "
+                                        f"{key!r} (outputs are named after their files); rename one")
+            first[key] = f
     return [BatchItem(key=k, kind="file", path=str(f)) for k, f in zip(keys, files, strict=True)]
 
 
@@ -328,7 +333,8 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
         raise InvalidInputError(f"tile_size must be an int or (rows, cols) of cells; got {tile_size!r}") from exc
     given = [tile_size] if np.ndim(tile_size) == 0 else list(tile_size)
     if (len(sizes) != 2 or min(sizes) < 1 or isinstance(tile_size, bool)
-            or any(isinstance(g, (float, np.floating)) and g != int(g) for g in given)):  # 2.5 is no tile size
+            or any(isinstance(g, (float, np.floating)) and g != int(g) for g in given)  # 2.5 is no tile size
+            or any(isinstance(g, (str, bytes, bool, np.bool_)) for g in given)):  # int("4") took text as a number
         raise InvalidInputError(f"tile_size must be a positive int or (rows, cols) of cells; got {tile_size!r}")
     if rows < 2 or cols < 2:
         raise InvalidInputError(f"a raster to tile needs at least 2 x 2 nodes; got {rows} x {cols}")

@@ -81,6 +81,8 @@ def test_tiles_partition_the_cells(rows, cols, th, tw):
         (np.zeros((5, 5)), {"tile_size": (2, 1.5)}, "tile_size must be"),
         (np.zeros((5, 5)), {"tile_size": np.inf}, "tile_size must be"),  # int()'s OverflowError before
         (np.zeros((5, 5)), {"tile_size": (2, float("-inf"))}, "tile_size must be"),
+        (np.zeros((5, 5)), {"tile_size": "4"}, r"tile_size must be a positive int .* got '4'"),  # int("4") was 4
+        (np.zeros((5, 5)), {"tile_size": (2, True)}, r"tile_size must be a positive int .* got \(2, True\)"),
         (["a.npy", "b.xyz"], {}, "must end in"),
         ([np.zeros((4, 4)), np.zeros((5, 5))], {}, r"^source must be .*; got a list whose items differ in shape$"),
         (np.zeros((2, 4, 4), bool), {}, r"^source must be .*; got ndarray with shape \(2, 4, 4\), dtype bool$"),
@@ -1025,3 +1027,13 @@ def test_dask_series(tmp_path, threaded_client):
 
 def test_whole_number_float_tile_size_is_accepted():
     assert len(plan_items(np.zeros((5, 5)), tile_size=2.0)[0]) == len(plan_items(np.zeros((5, 5)), tile_size=2)[0])
+
+
+def test_file_names_whose_outputs_clash_are_named(tmp_path):
+    """a.npy and a.npz become a_npy and a_npz, so a_npy.npy beside them clashed: refused with "source files must have
+    distinct names", which they had; the message names the two files and the output they would share."""
+    for name in ("a.npy", "a.npz", "a_npy.npy"):
+        (tmp_path / name).write_bytes(b"")
+    with pytest.raises(InvalidInputError, match=r"source files '.*a.npy' and '.*a_npy.npy' would both write the "
+                                                r"output 'a_npy' \(outputs are named after their files\); rename one"):
+        plan_items(tmp_path)
