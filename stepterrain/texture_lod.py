@@ -352,6 +352,7 @@ class ImagePyramid:
     def window(self, level: int, domain: Extent) -> tuple[int, int, int, int] | None:
         """(r0, r1, c0, c1): the smallest pixel window of ``level`` covering ``domain`` (clipped to the image),
         or None when the image does not overlap it."""
+        domain = _check_extent(domain, "domain")  # NaN raised math.floor's ValueError, text a TypeError
         rows, cols = self.shape(level)
         px, py = self.pixel_size(level)
         xmin, xmax, ymin, ymax = self.extent

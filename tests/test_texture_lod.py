@@ -92,6 +92,10 @@ def test_pyramid_from_npy_memmap_and_storage(tmp_path):
     assert pyramid.window(0, (1000.0, 1100.0, 400.0, 500.0)) == (0, 10, 0, 10)
     assert pyramid.window_extent(1, (0, 5, 0, 5)) == (1000.0, 1100.0, 400.0, 500.0)
     assert pyramid.window(0, (0.0, 10.0, 0.0, 10.0)) is None
+    # NaN raised math.floor's ValueError, inf its OverflowError and text a TypeError
+    for domain in ((math.nan, 1.0, 0.0, 1.0), (0.0, math.inf, 0.0, 1.0), "abcd", (1.0, 2.0, 3.0)):
+        with pytest.raises(InvalidInputError, match=r"domain must be .*\(xmin, xmax, ymin, ymax\).*; got "):
+            pyramid.window(0, domain)
     pyramid.close()
     assert storage.exists()  # a storage folder given by the caller is kept
 
