@@ -238,8 +238,13 @@ def isovalues(
         raise InvalidInputError(f"interval must be a positive finite number; got {interval!r}")
     if not np.isfinite(base):
         raise InvalidInputError(f"base must be finite; got {base!r}")
-    k0 = int(np.floor((lo - base) / step))
-    k1 = int(np.ceil((hi - base) / step))
+    k0f, k1f = (lo - base) / step, (hi - base) / step
+    if not (math.isfinite(k0f) and math.isfinite(k1f)):  # a subnormal interval (1e-320), or base far from the heights
+        raise InvalidInputError(
+            f"interval={step:g} with base={base:g} over heights [{lo:g}, {hi:g}] gives more levels than float64 can "
+            f"count; at most {MAX_LEVELS:,} are supported"
+        )
+    k0, k1 = math.floor(k0f), math.ceil(k1f)
     if k1 - k0 + 1 > MAX_LEVELS:
         raise InvalidInputError(
             f"interval={step:g} over heights [{lo:g}, {hi:g}] gives {float(k1 - k0 + 1):.3g} levels; at most "

@@ -1206,6 +1206,21 @@ def test_huge_level_counts_are_reported_readably():
         st.stepped(np.array([[0.0, 1.0], [0.0, 1.0]]), interval=1e-300)
 
 
+@pytest.mark.parametrize(("interval", "base"), [(1e-320, 0.0), (5e-324, 0.0), (0.5, -1.7e308)])
+def test_level_counts_beyond_float64_are_refused_not_an_overflow(interval, base):
+    """A subnormal interval (1e-320) divided the height range to infinity and isovalues raised Python's
+    'OverflowError: cannot convert float infinity to integer' (stepped, stepped_series and 'stepterrain steps
+    --interval 1e-320', a traceback there); now it is the level cap's InvalidInputError."""
+    heights = np.array([[0.0, 1.0], [0.0, 1.7e38]])
+    with pytest.raises(st.InvalidInputError, match=r"gives more levels than float64 can count; at most 1,000,000"):
+        st.isovalues((0.0, 1.7e38), interval=interval, base=base)
+    named = "^" + re.escape(f"interval={interval:g} with base={base:g} over heights")
+    with pytest.raises(st.InvalidInputError, match=named):
+        st.stepped(heights, interval=interval, base=base)
+    with pytest.raises(st.InvalidInputError, match="more levels than float64 can count"):
+        next(st.stepped_series(heights[None], interval=interval, base=base))
+
+
 def test_a_terrain_without_a_complete_triangle_gives_an_empty_mesh_and_no_solid():
     heights = np.array([[1.0, np.nan], [np.nan, np.nan]])
     assert len(st.stepped(heights, interval=1.0).faces) == 0
