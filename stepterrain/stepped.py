@@ -31,7 +31,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_number, as_terrain, check_flag, finite_number, unmasked
+from .terrain import FLOAT32_MAX, Terrain, as_number, as_terrain, check_flag, finite_number, real_numbers, unmasked
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -58,22 +58,24 @@ class Lens:
 
     def __post_init__(self) -> None:
         try:
-            mask = np.asarray(self.mask)
+            mask = np.asarray(unmasked(self.mask))  # a masked entry is NaN: refused below
         except ValueError:  # ragged nested sequences
             raise InvalidInputError("lens mask must be a real (h, w) array; got rows of different lengths") from None
-        if mask.ndim != 2 or min(mask.shape) < 1 or not np.issubdtype(mask.dtype, np.number):
+        real = mask.dtype != bool and mask.dtype.kind in "iuf"  # complex: numpy dropped the imaginary part
+        if mask.ndim != 2 or min(mask.shape) < 1 or not real:
             raise InvalidInputError(
                 f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
             )
         mask = np.ascontiguousarray(mask, dtype=np.float32)
-        if not np.all(np.isfinite(mask)) or mask.min() < 0.0 or mask.max() > 1.0:
-            raise InvalidInputError(
-                f"lens mask values must lie in [0, 1]; got range [{np.nanmin(mask)}, {np.nanmax(mask)}]"
-            )
+        if not np.all(np.isfinite(mask)):  # NaN, also a masked entry
+            at = tuple(int(i) for i in np.argwhere(~np.isfinite(mask))[0])
+            raise InvalidInputError(f"lens mask values must lie in [0, 1]; got {float(mask[at])} at index {at}")
+        if mask.min() < 0.0 or mask.max() > 1.0:
+            raise InvalidInputError(f"lens mask values must lie in [0, 1]; got range [{mask.min()}, {mask.max()}]")
         object.__setattr__(self, "mask", mask)
         if self.extent is not None:
             try:
-                ext = tuple(float(v) for v in self.extent)
+                ext = tuple(as_number(v) for v in self.extent)
             except (TypeError, ValueError):
                 ext = ()  # not numbers: refused below
             if len(ext) != 4 or not np.all(np.isfinite(ext)) or ext[1] <= ext[0] or ext[3] <= ext[2]:
@@ -115,7 +117,7 @@ def circular_lens(
     """
     t = as_terrain(terrain)
     try:
-        cx, cy = (float(c) for c in center)
+        cx, cy = (as_number(c) for c in center)  # text ("12" unpacked to 1, 2) and bools are slips
     except (TypeError, ValueError) as exc:
         raise InvalidInputError(f"lens center must be (x, y); got {center!r}") from exc
     if not (np.isfinite(cx) and np.isfinite(cy)):
@@ -201,16 +203,14 @@ def isovalues(
             f"strictly increasing); got interval={interval!r}, levels={'None' if levels is None else '[...]'}"
         )
     try:
-        lo, hi = (float(v) for v in height_range)
-    except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float64 (10**400)
+        lo, hi = (as_number(v) for v in height_range)
+    except (TypeError, ValueError):  # text, bools, an int beyond float64 (10**400): as_number refuses them
         raise InvalidInputError(f"height_range must be (min, max) heights; got {height_range!r}") from None
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     if levels is not None:
-        try:
-            values64 = np.asarray(levels, dtype=np.float64)
-        except (TypeError, ValueError, OverflowError) as exc:
-            raise InvalidInputError(f"levels must be a sequence of numbers; got {levels!r}") from exc
+        # real numbers only: text ("5"), bools and complex values are slips, a masked entry is NaN (refused below)
+        values64 = real_numbers(levels, "levels", "a sequence of numbers")
         if values64.ndim > 1:
             raise InvalidInputError(f"levels must be a 1-D sequence of isovalues; got shape {values64.shape}")
         values64 = values64.reshape(-1)
@@ -526,23 +526,34 @@ def blend(
 
 
 def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
+    """γ (``name`` "gamma") or a γ callable's result ("gamma(points)") as float64 through :func:`real_numbers`:
+    text ("0.5"), bools and complex values are refused (numpy took them, dropping an imaginary part), and a masked
+    entry is NaN, refused by :func:`_check_gamma_values` (numpy dropped the mask)."""
+    expected = ("a number in [0, 1], an array of them, a callable or a Lens" if name == "gamma"
+                else "a number in [0, 1] per output vertex")
     try:
-        return np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError) as exc:
-        raise InvalidInputError(
-            f"{name} must be a number in [0, 1], an array of them, a callable or a Lens; got {value!r:.80}"
-        ) from exc
+        return real_numbers(value, name, expected)
+    except InvalidInputError:
+        if isinstance(value, np.ndarray):  # real_numbers names its dtype or the bool, which its repr may not show
+            raise
+        raise InvalidInputError(f"{name} must be {expected}; got {value!r:.80}") from None
 
 
 def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], name: str) -> NDArray[np.float32]:
     if values.shape != shape:
-        what = "a scalar" if shape == () else f"shape {shape} (one γ per terrain node)"
-        raise InvalidInputError(f"{name} must be {what} or a scalar, a callable or a Lens; got shape {values.shape}")
-    finite = values[np.isfinite(values)] if values.size else values
-    if values.size and (finite.size != values.size or finite.min() < 0.0 or finite.max() > 1.0):
-        lo = np.nanmin(values) if finite.size else float("nan")
-        hi = np.nanmax(values) if finite.size else float("nan")
-        raise InvalidInputError(f"{name} must lie in [0, 1] (0 = original, 1 = stepped); got values in [{lo}, {hi}]")
+        if name != "gamma":  # a callable's result
+            what = f"shape {shape} (one γ per output vertex)"
+        else:
+            what = ("a scalar" if shape == ()
+                    else f"shape {shape} (one γ per terrain node) or a scalar, a callable or a Lens")
+        raise InvalidInputError(f"{name} must be {what}; got shape {values.shape}")
+    if values.size and not np.isfinite(values).all():  # NaN: also a masked entry
+        at = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
+        raise InvalidInputError(f"{name} must lie in [0, 1] (0 = original, 1 = stepped); got {float(values[at])}"
+                                + (f" at index {at}" if at else ""))
+    if values.size and (values.min() < 0.0 or values.max() > 1.0):
+        raise InvalidInputError(f"{name} must lie in [0, 1] (0 = original, 1 = stepped); got values in "
+                                f"[{values.min()}, {values.max()}]")
     return np.require(values.astype(np.float32), requirements="C")
 
 
@@ -790,7 +801,7 @@ def _assemble(
         lowest = min(float(values[0]), float(vertices[:, 2].min()))  # faces, hence vertices (checked above)
         default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
         try:
-            floor_z = default_floor if floor is None else float(floor)
+            floor_z = default_floor if floor is None else as_number(floor)
         except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
         n_before = len(vertices)

@@ -1226,3 +1226,58 @@ def test_a_terrain_without_a_complete_triangle_gives_an_empty_mesh_and_no_solid(
     assert len(st.stepped(heights, interval=1.0).faces) == 0
     with pytest.raises(st.InvalidInputError, match="solid=True needs a surface to close"):
         st.stepped(heights, interval=1.0, solid=True)
+
+
+_HEIGHTS = np.add.outer(np.arange(4.0), np.arange(5.0))  # 0..7
+_NODES = np.full(_HEIGHTS.shape, 0.5)
+
+
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        # numpy read text, bools and complex values as numbers (dropping an imaginary part with a warning only), and
+        # np.asarray dropped a mask: each was stepped silently
+        (lambda: st.stepped(_HEIGHTS, levels=["1", "5"]), r"^levels must be .*\(real numbers\); got dtype <U1$"),
+        (lambda: st.stepped(_HEIGHTS, levels="5"), r"^levels must be a sequence of numbers .*; got dtype <U1$"),
+        (lambda: st.stepped(_HEIGHTS, levels=[True, 5]), r"^levels must .*; got a bool \(True\) at index \(0,\)$"),
+        (lambda: st.stepped(_HEIGHTS, levels=np.array([1 + 0j, 5 + 1j])), r"^levels must .*; got dtype complex128$"),
+        (lambda: st.stepped(_HEIGHTS, levels=np.ma.masked_array([1.0, 3.0, 5.0], mask=[0, 1, 0])),
+         r"^levels must be finite; got \[1.0, nan, 5.0\]$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma="0.5"), r"^gamma must be a number in .*; got '0.5'$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=True), r"^gamma must be a number in \[0, 1\], .*; got True$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=None), r"^gamma must be a number in \[0, 1\], .*; got None$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=_NODES > 0), r"^gamma must .*; got dtype bool$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=_NODES + 1j), r"^gamma must .*; got dtype complex128$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=np.ma.masked_greater(_NODES, 0.4)),
+         r"^gamma must lie in \[0, 1\] \(0 = original, 1 = stepped\); got nan at index \(0, 0\)$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=np.where(_HEIGHTS > 5, np.nan, _NODES)),
+         r"^gamma must lie in \[0, 1\] .*; got nan at index \(2, 4\)$"),  # was "got values in [0.5, 0.5]"
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=lambda p: np.full(len(p), 0.5 + 1j)),
+         r"^gamma\(points\) must be a number in \[0, 1\] per output vertex \(real numbers\); got dtype complex128$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=lambda p: np.ma.masked_all(len(p))),
+         r"^gamma\(points\) must lie in \[0, 1\] .*; got nan at index \(0,\)$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, gamma=lambda p: 0.5),  # one γ per output vertex, not per node
+         r"^gamma\(points\) must be shape \(\d+,\) \(one γ per output vertex\); got shape \(\)$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, solid=True, floor="-5"), r"^floor must be a number .*; got '-5'$"),
+        (lambda: st.stepped(_HEIGHTS, interval=1.0, solid=True, floor=True), r"^floor must be a number .*; got True$"),
+        (lambda: st.isovalues(("1", "5"), interval=1.0), r"^height_range must be \(min, max\) heights"),
+        (lambda: st.circular_lens(_HEIGHTS, "12", 1.0), r"^lens center must be \(x, y\); got '12'$"),
+        (lambda: st.circular_lens(_HEIGHTS, (True, 1.0), 1.0), r"^lens center must be \(x, y\); got \(True, 1.0\)$"),
+        (lambda: st.Lens(np.ones((2, 2)), "0101"), r"^lens extent must be \(xmin, xmax, ymin, ymax\)"),
+        (lambda: st.Lens(np.ones((2, 2)), ("0", "1", "0", "1")), r"^lens extent must be \(xmin, xmax, ymin, ymax\)"),
+        (lambda: st.Lens(np.full((2, 2), 0.5 + 1j)), r"^lens mask must be a real \(h, w\) array; .*dtype complex128$"),
+        (lambda: st.Lens(np.ma.masked_greater(np.full((2, 2), 0.5), 0.4)), r"^lens mask values must lie in \[0, 1\]"),
+    ],
+)
+def test_text_bools_complex_and_masked_values_are_not_numbers(call, match):
+    """levels, γ (scalar, per node, a callable's result), floor, height_range and a lens' center, extent and mask
+    took "5", True, complex values (imaginary part dropped) and masked arrays (mask dropped) as numbers; the other
+    arguments refuse them (as_number, real_numbers). Decimals and numpy numbers stay numbers."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning on the way
+        with pytest.raises(st.InvalidInputError, match=match):
+            call()
+    from decimal import Decimal
+
+    mesh = st.stepped(_HEIGHTS, levels=[Decimal(1), np.float32(5)], gamma=Decimal("0.5"))
+    assert len(mesh.faces)
