@@ -627,6 +627,19 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
     return table
 
 
+def _check_carried_visual(terrain: Terrain) -> None:
+    """Refuse, before the passes, texture coordinates :func:`_carry_visual` cannot interpolate: not one (u, v) row
+    per TIN vertex (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the kernels ran)."""
+    visual = terrain.visual
+    if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
+        uv = np.asarray(visual.uv)
+        if uv.ndim != 2 or len(uv) != len(terrain.points):
+            raise InvalidInputError(
+                f"terrain mesh visual.uv must hold one (u, v) row per vertex, shape ({len(terrain.points)}, 2), to be "
+                f"carried onto the steps; got shape {uv.shape} (give colors= to colour the steps instead)"
+            )
+
+
 def _carry_visual(terrain: Terrain, arrays: StepArrays) -> Any:
     """Input vertex colors or UVs interpolated onto the output vertices with the crossings' β."""
     visual = terrain.visual
@@ -742,6 +755,8 @@ def stepped(
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
+    if t.visual is not None and colors is None and not solid:
+        _check_carried_visual(t)
     arrays = step_arrays(
         t, values, device=dev, want_sources=_needs_sources(t, gamma, colors), memory_budget=memory_budget
     )

@@ -1145,6 +1145,19 @@ def test_input_uvs_are_carried():
     np.testing.assert_allclose(carried, mesh.vertices[:, :2], atol=1e-6)
 
 
+def test_input_uvs_not_one_per_vertex_are_refused_before_stepping():
+    """A TIN whose visual.uv has fewer rows than vertices (trimesh keeps it) raised an IndexError from
+    _carry_visual after the kernels ran; now an InvalidInputError names visual.uv. With colors= the input's
+    visual is not carried, so the mesh steps."""
+    base = st.heightfield_mesh(np.array([[0.0, 1.0], [2.0, 3.0]]))
+    base.visual = trimesh.visual.TextureVisuals(uv=np.zeros((2, 2)))
+    with pytest.raises(st.InvalidInputError, match=r"^terrain mesh visual.uv must hold one \(u, v\) row per vertex, "
+                       r"shape \(4, 2\), to be carried onto the steps; got shape \(2, 2\)"):
+        st.stepped(base, interval=1.0)
+    assert len(st.stepped(base, interval=1.0, colors="terrain").faces)
+    assert len(st.stepped(base, interval=1.0, solid=True).faces)
+
+
 @pytest.mark.parametrize(("threads", "chunk"), [(2, 64), (3, 64), (3, 1), (2, 7)])
 def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, threads, chunk):
     """Neither the CPU thread count nor the elements per thread (launch_chunked) change the mesh."""
