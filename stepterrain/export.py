@@ -27,6 +27,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
+from .terrain import FLOAT32_MAX
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
 
@@ -138,9 +139,10 @@ def save_mesh(
     Raises
     ------
     InvalidInputError
-        ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices, the extension is unknown (the
-        message lists the supported ones), or ``metadata`` holds a value that is not JSON (a set, bytes, an
-        object; the message names its key) or a key that is not a string.
+        ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
+        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
+        extension is unknown (the message lists the supported ones), or ``metadata`` holds a value that is not
+        JSON (a set, bytes, an object; the message names its key) or a key that is not a string.
     MissingDependencyError
         ``.3mf`` without ``lxml`` and ``networkx`` (trimesh's 3MF writer needs both).
     DataFileError
@@ -186,6 +188,8 @@ def save_mesh(
             f"cannot write {str(target)!r}: unknown mesh extension {target.suffix or '(none)'!r}; "
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
+    _check_faces(mesh, len(vertices))
+    _check_float32_reach(bounds, ext, target)
     if ext == ".3mf":
         missing = [name for name in ("lxml", "networkx") if importlib.util.find_spec(name) is None]
         if missing:
@@ -203,6 +207,38 @@ def save_mesh(
     for listener in tuple(_WRITE_LISTENERS):
         listener(target)
     return target
+
+
+def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
+    """Refuse faces that index outside the vertices (``process=False`` meshes keep them): every writer put them in
+    the file as they were (a -1 became 4294967295 in glTF), except STL's, which raised trimesh's IndexError."""
+    faces = np.asarray(mesh.faces)
+    if len(faces) == 0 or (faces.min() >= 0 and faces.max() < vertex_count):
+        return
+    bad = int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
+    raise InvalidInputError(
+        f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
+        f"has {vertex_count} vertices"
+    )
+
+
+def _check_float32_reach(bounds: Bounds, ext: str, target: Path) -> None:
+    """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
+    node translation (the floor of the lowest corner; see :func:`_gltf_document`). numpy's cast made them infinite
+    (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
+    if bounds is None or ext not in (".stl", ".glb", ".gltf"):
+        return
+    lo, hi = bounds
+    reach = np.maximum(np.abs(lo), np.abs(hi)) if ext == ".stl" else hi - np.floor(lo) * _is_large(bounds)
+    if (reach <= FLOAT32_MAX).all():
+        return
+    axis = int(np.argmax(reach))
+    what = "coordinates" if ext == ".stl" else "coordinates relative to the mesh's lowest corner"
+    raise InvalidInputError(
+        f"cannot write {str(target)!r}: {ext} stores float32 {what}, |x| < {FLOAT32_MAX:.2g}; the mesh's "
+        f"{'xyz'[axis]} reaches {float(reach[axis]):.6g}: write .ply or .obj (float64), or move the mesh nearer "
+        "the origin"
+    )
 
 
 def add_write_listener(listener: Callable[[Path], None]) -> Callable[[], None]:

@@ -6,6 +6,7 @@ import base64
 import importlib.util
 import json
 import os
+import re
 import struct
 import sys
 from pathlib import Path
@@ -251,6 +252,45 @@ def test_unknown_extension(tmp_path):
     with pytest.raises(InvalidInputError, match=r"unknown mesh extension '\(none\)'"):
         save_mesh(stepped_like_mesh(), tmp_path / "m")
     no_leftovers(tmp_path, set())
+
+
+@pytest.mark.parametrize("ext", MESH_EXTENSIONS)
+@pytest.mark.parametrize(("faces", "shown"), [([[0, 1, 3]], r"\[0, 1, 3\]"), ([[0, 1, -1]], r"\[0, 1, -1\]")])
+def test_faces_outside_the_vertices_are_refused(tmp_path, ext, faces, shown):
+    """A process=False mesh whose faces index past its vertices (or -1) was written as it was: invalid GLB, glTF,
+    OBJ, PLY and 3MF files (-1 became 4294967295 in glTF), and STL raised trimesh's IndexError. Now an
+    InvalidInputError names the face; nothing is written."""
+    mesh = trimesh.Trimesh([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], faces, process=False)
+    with pytest.raises(InvalidInputError, match=rf"^mesh faces must index its vertices \(0 to 2\); face 0 is {shown}; "
+                       "the mesh has 3 vertices$"):
+        save_mesh(mesh, tmp_path / f"m{ext}")
+    no_leftovers(tmp_path, set())
+
+
+@pytest.mark.parametrize(("ext", "offset", "refused"), [
+    (".stl", 1e300, True), (".glb", 1e300, False), (".gltf", 1e300, False), (".ply", 1e300, False),
+    (".glb", 0.0, True), (".gltf", 0.0, True), (".stl", 0.0, True), (".ply", 0.0, False), (".obj", 0.0, False),
+])  # fmt: skip
+def test_coordinates_beyond_float32_are_refused_where_the_format_stores_float32(tmp_path, ext, offset, refused):
+    """STL stores float32 coordinates and glTF float32 ones relative to the node translation: a mesh at x = 1e300
+    (st.stepped(..., origin=(1e300, 0))) was written to STL as inf, and a glTF spanning 1e300 got inf positions
+    (invalid files, a RuntimeWarning only). PLY (float64) and OBJ (text) hold them."""
+    import warnings
+
+    if offset:  # a small mesh far away: glTF keeps it (node translation), STL cannot
+        mesh = trimesh.Trimesh(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]) + [offset, 0, 0], [[0, 1, 2]],
+                               process=False)
+    else:  # a mesh spanning 1e300
+        mesh = trimesh.Trimesh(np.array([[0.0, 0, 0], [1e300, 0, 0], [0, 1, 0]]), [[0, 1, 2]], process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no overflow on the way
+        if refused:
+            with pytest.raises(InvalidInputError, match=rf"{re.escape(ext)} stores float32 .*the mesh's x reaches "
+                               r"1e\+300: write \.ply or \.obj"):
+                save_mesh(mesh, tmp_path / f"m{ext}")
+            no_leftovers(tmp_path, set())
+        else:
+            save_mesh(mesh, tmp_path / f"m{ext}")
 
 
 def test_not_a_mesh(tmp_path):
