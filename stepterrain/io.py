@@ -86,7 +86,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         Unknown extension (the message lists the supported ones), or ``band`` not a valid band number.
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, a 1-D array,
-        text, an archive without a 2-D array, a rotated grid, nothing but nodata).
+        text, an archive without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90,
+        nothing but nodata).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -556,6 +557,13 @@ def _georeferenced(
         )
 
     rows = heights.shape[0]
+    node_lats = (node_y, node_y + (rows - 1) * dy)
+    if not all(abs(lat) <= 90.0 + 1e-9 for lat in node_lats):  # metres would be made of impossible degrees
+        raise DataFileError(
+            f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node latitudes run "
+            f"from {min(node_lats):.9g} to {max(node_lats):.9g}; expected them within [-90, 90] (a projected grid "
+            "labelled with a geographic CRS?)"
+        )
     centre_lat = y0 + 0.5 * rows * dy
     if metres is None:
         metres = (

@@ -446,6 +446,31 @@ def test_npz_with_text_where_numbers_belong_is_a_data_file_error(tmp_path):
         load_dem(tmp_path / "m.npz")
 
 
+@pytest.mark.parametrize("ext", ["npz", "tif"])
+def test_a_projected_grid_labelled_geographic_is_refused(tmp_path, ext):
+    """A UTM transform (394000, 30, 0, 3798000, 0, -30) under crs EPSG:4326 loaded silently as degrees: spacing
+    (1.67e6, -3.3e6) m and lat_0 = 3797985 in the local CRS. Latitudes beyond ±90 cannot be degrees; now a
+    DataFileError names them. A grid reaching the poles exactly (nodes at ±90) still loads."""
+    z = np.arange(16.0).reshape(4, 4)
+    transforms = {"utm": (394000.0, 30.0, 0.0, 3798000.0, 0.0, -30.0), "poles": (0.0, 1.0, 0.0, 120.0, 0.0, -60.0)}
+    for name, transform in transforms.items():
+        path = tmp_path / f"{name}.{ext}"
+        if ext == "npz":
+            np.savez(path, elevation=z, transform=np.array(transform), crs=np.array("EPSG:4326"))
+        else:
+            rasterio = needs_rasterio()
+            with rasterio.open(path, "w", driver="GTiff", width=4, height=4, count=1, dtype="float64",
+                               crs="EPSG:4326", transform=rasterio.Affine.from_gdal(*transform)) as ds:
+                ds.write(z, 1)
+        if name == "utm":
+            with pytest.raises(DataFileError, match=r"EPSG:4326 is geographic \(degrees\), but the grid's node "
+                               r"latitudes run from 3797895 to 3797985; expected them within \[-90, 90\]"):
+                load_dem(path)
+        else:
+            t = load_dem(path)  # nodes at 90, 30, -30, -90
+            assert t.extent[2:] == pytest.approx((-3 * EARTH_RADIUS_M * math.radians(60.0), 0.0))
+
+
 def test_npz_bad_transform(tmp_path):
     np.savez(tmp_path / "t.npz", elevation=np.zeros((2, 2)), transform=np.array([0.0, 1.0, 0.0]))
     with pytest.raises(DataFileError, match="GDAL geotransform of 6 finite numbers"):
