@@ -393,6 +393,12 @@ class Terrain:
         if negative.sum() > positive.sum():
             faces = faces[:, ::-1].copy()
             positive, negative = negative, positive
+        if not positive.any():  # zero-area slivers beside real faces are stepped; a TIN of nothing else is a line
+            raise InvalidInputError(
+                f"terrain mesh faces must project one-to-one onto the xy plane; none of its {len(faces)} faces with "
+                f"finite heights has an area in xy (the points lie on a line or at one point: x over {span[0]:.6g}, "
+                f"y over {span[1]:.6g}), so it is no height field"
+            )
         if negative.any():
             bad = int(np.flatnonzero(valid)[np.flatnonzero(negative)[0]])
             raise InvalidInputError(

@@ -270,6 +270,26 @@ def test_zero_area_tin_faces_are_stepped_like_the_reference(name, device):
     assert (np.isclose(xy, 0.0) | np.isclose(xy, 4.0)).all(axis=1).any(axis=1).all()
 
 
+@pytest.mark.parametrize(
+    "points",
+    [
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 1.0], [2.0, 0.0, 2.0]],  # a vertical triangle: its points on a line in xy
+        [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 2.0, 2.0], [3.0, 3.0, 5.0]],  # on the diagonal
+        [[5.0, 5.0, 0.0], [5.0, 5.0, 1.0], [5.0, 5.0, 2.0], [5.0, 5.0, 3.0]],  # every point at one xy
+    ],
+)
+def test_a_tin_without_any_face_of_positive_area_is_refused(points):
+    """Zero-area slivers beside real faces are stepped (above), but a TIN with no face of positive projected area
+    (a vertical surface, e.g. a pyvista StructuredGrid whose x equals its y) was stepped too: a "valid" mesh with
+    every vertex on one xy line or point. It is no height field: refused, saying why."""
+    faces = [[0, 1, 2]] if len(points) == 3 else [[0, 1, 2], [1, 3, 2]]
+    tin = trimesh.Trimesh(np.array(points), np.array(faces), process=False)
+    with pytest.raises(st.InvalidInputError, match=rf"^terrain mesh faces must project one-to-one onto the xy plane; "
+                       rf"none of its {len(faces)} faces with finite heights has an area in xy \(the points lie on a "
+                       r"line or at one point: x over .*\), so it is no height field$"):
+        st.stepped(tin, interval=1.0)
+
+
 @pytest.mark.parametrize("bad_face", [[4, 4, 1], [3, 3, 1], [1, 3, 1], [2, 0, 0]])
 def test_repeated_vertex_face_is_refused(bad_face):
     """A face with a repeated vertex (a, a, b) has no interior and no third corner: refused up front, whether
@@ -566,7 +586,8 @@ def test_tin_xy_extent_beyond_float32_is_refused_not_stepped_to_infinity():
     wide = trimesh.Trimesh(base.vertices * [4e38, 1.0, 1.0], base.faces, process=False)
     with pytest.raises(st.InvalidInputError, match=r"terrain mesh x and y must span at most 3.4e\+38 .*got x"):
         st.stepped(wide, interval=1.0)
-    for scale, offset in ((3e38, 0.0), (1e30, 1e300)):
+    # (1e30 apart at 1e300 collapsed every point onto x = y = 1e300 in float64: a TIN of no area, refused since)
+    for scale, offset in ((3e38, 0.0), (1e30, 1e40)):
         tin = trimesh.Trimesh(base.vertices * [scale, scale, 1.0] + [offset, offset, 0.0], base.faces, process=False)
         assert np.isfinite(st.stepped(tin, interval=1.0).vertices).all()
 
