@@ -20,7 +20,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import Terrain, grid_faces
+from .terrain import Terrain, float32_heights, grid_faces
 
 __all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES"]
 
@@ -54,11 +54,14 @@ class StepTerrainAccessor:
                 f"the grid must be a (W, H, 1) surface with W, H >= 2 to step; got dimensions {ds.dimensions}"
             )
         values = self._elevation_values(name)
-        return np.ascontiguousarray(values.reshape(ny, nx), dtype=np.float32)
+        # float64 values beyond float32 are named, not cast to inf (an 'infinite value' error, or TIN nodata)
+        return float32_heights(values.reshape(ny, nx), "elevation")
 
     def _elevation_values(self, name: str | None) -> NDArray[Any]:
         ds = self._dataset
         if name is not None:
+            if not isinstance(name, str):  # VTK raised a TypeError
+                raise InvalidInputError(f"elevation must name a point-data array (a str); got {name!r}")
             if name not in ds.point_data:
                 raise InvalidInputError(
                     f"elevation must name a point-data array; got {name!r}, available: {list(ds.point_data.keys())}"
@@ -76,7 +79,7 @@ class StepTerrainAccessor:
                 f"or pass elevation=NAME; point data: {list(ds.point_data.keys())}"
             )
         values = np.asarray(ds.point_data[chosen])
-        if values.ndim != 1 or values.dtype.kind not in "biuf":
+        if values.ndim != 1 or values.dtype.kind not in "iuf":  # bools are no heights, as for stepped()
             raise InvalidInputError(
                 f"elevation array {chosen!r} must hold one real number per point; got shape {values.shape}, "
                 f"dtype {values.dtype}"
@@ -92,8 +95,8 @@ class StepTerrainAccessor:
                 raise InvalidInputError("a rotated ImageData (non-identity direction_matrix) cannot be stepped")
             dx, dy, _ = (float(s) for s in ds.spacing)
             ox, oy, oz = (float(o) for o in ds.origin)
-            if oz != 0.0:
-                heights = heights + np.float32(oz)
+            if oz != 0.0:  # added in float64: a sum beyond float32 is named, not inf
+                heights = float32_heights(heights.astype(np.float64) + oz, "elevation + the grid's origin z")
             return Terrain.from_heights(heights, spacing=(dx, dy), origin=(ox, oy), source="pyvista.ImageData")
         if isinstance(ds, pv.StructuredGrid):
             ny, nx = heights.shape

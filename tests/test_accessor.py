@@ -5,6 +5,7 @@ from __future__ import annotations
 import importlib.util
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -96,6 +97,44 @@ def test_named_elevation_and_active_scalars():
 def test_bad_grids(make, kwargs, match):
     with pytest.raises(InvalidInputError, match=match):
         make().stepterrain.stepped(**kwargs)
+
+
+def _structured(z: np.ndarray, x: np.ndarray | None = None) -> pv.StructuredGrid:
+    y, xx = np.meshgrid(np.arange(z.shape[0], dtype=float), np.arange(z.shape[1], dtype=float), indexing="ij")
+    return pv.StructuredGrid(xx if x is None else x, y, z)
+
+
+_BIG = np.where(np.add.outer(np.arange(3.0), np.arange(4.0)) == 5.0, 1e39, 1.0)  # 1e39 at (2, 3)
+
+
+@pytest.mark.parametrize(
+    ("make", "kwargs", "match"),
+    [
+        # VTK's TypeError
+        (lambda: image_grid(np.zeros((3, 3))), {"elevation": 5}, r"^elevation must name a point-data array \(a str\); "
+         "got 5$"),
+        # stepped as 0/1 heights; stepped() refuses bool heights
+        (lambda: image_grid(np.zeros((3, 3), bool)), {}, r"must hold one real number per point; got shape \(9,\), "
+         "dtype bool$"),
+        # float64 beyond float32: "an infinite value at index (1, 3)" after numpy's overflow warning
+        (lambda: image_grid(_BIG), {}, r"^elevation must fit in float32 .*got 1e\+39 at index \(2, 3\), finite"),
+        # ... and on a StructuredGrid the cast made it inf, silently nodata (holes)
+        (lambda: _structured(_BIG), {}, r"^elevation must fit in float32 .*got 1e\+39 at index \(\d, \d\), finite"),
+        (lambda: image_grid(np.full((3, 3), 3e38), origin=(0.0, 0.0)), {"origin_z": 3e38},
+         r"^elevation \+ the grid's origin z must fit in float32 .*got 6.0+\d*e\+38 at index \(0, 0\)"),
+        # a StructuredGrid whose x equals its y: every vertex of the steps lay on one line
+        (lambda: _structured(np.add.outer(np.arange(3.0), np.arange(3.0)), x=np.add.outer(np.arange(3.0), np.zeros(3))),
+         {}, "none of its 8 faces with finite heights has an area in xy"),
+    ],
+)
+def test_bad_elevation_is_named(make, kwargs, match):
+    grid = make()
+    if "origin_z" in kwargs:
+        grid.origin = (0.0, 0.0, kwargs.pop("origin_z"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # no overflow in a cast on the way
+        with pytest.raises(InvalidInputError, match=match):
+            grid.stepterrain.stepped(interval=1.0, **kwargs)
 
 
 @given(arrays(np.float32, hst.tuples(hst.integers(2, 9), hst.integers(2, 9)),
