@@ -254,9 +254,9 @@ def set_cpu_threads(threads: int | None) -> int | None:
     output does not depend on the thread count.
     """
     global _cpu_threads
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1):
         raise InvalidInputError(f"threads must be a positive int or None; got {threads!r}")
-    previous, _cpu_threads = _cpu_threads, threads
+    previous, _cpu_threads = _cpu_threads, None if threads is None else int(threads)  # a numpy int is an int too
     return previous
 
 

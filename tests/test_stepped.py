@@ -1204,6 +1204,19 @@ def test_cpu_passes_split_over_threads_give_identical_meshes(monkeypatch, thread
 def test_cpu_threads_must_be_positive():
     with pytest.raises(st.InvalidInputError, match="threads must be a positive int"):
         st.set_cpu_threads(0)
+    for bad in (np.int64(0), np.bool_(True), 2.0, "2"):
+        with pytest.raises(st.InvalidInputError, match="threads must be a positive int or None; got"):
+            st.set_cpu_threads(bad)
+
+
+def test_cpu_threads_take_numpy_integers():
+    """set_cpu_threads(np.int64(2)) was refused as 'not a positive int' while set_memory_budget, load_dem(band=) and
+    circular_lens(resolution=) take numpy integers (a count read from an array or a config parsed by numpy)."""
+    previous = st.set_cpu_threads(np.int64(2))
+    try:
+        assert st.get_cpu_threads() == 2 and type(st.get_cpu_threads()) is int
+    finally:
+        st.set_cpu_threads(previous)
 
 
 def test_embedded_dem_steps_into_a_valid_welded_mesh():
