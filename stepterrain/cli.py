@@ -475,7 +475,8 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
     from .errors import DataFileError
 
     if not path.is_file():
-        raise DataFileError(f"mesh file {str(path)!r} does not exist")
+        what = "is not a regular file" if path.exists() else "does not exist"  # a folder named x.glb exists
+        raise DataFileError(f"mesh file {str(path)!r} {what}")
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds for a bad file
@@ -484,17 +485,18 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         raise DataFileError(f"{str(path)!r} holds no triangle mesh")
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     finite = np.isfinite(vertices).all(axis=1)
-    # the bounds of the finite vertices; a NaN or inf vertex is counted, not smeared over the bounds
-    bounds = (np.stack([vertices[finite].min(axis=0), vertices[finite].max(axis=0)]) if finite.any()
-              else np.full((2, 3), np.nan))
+    # the bounds of the finite vertices (None without any: NaN is no JSON); a NaN or inf vertex is counted, not
+    # smeared over the bounds
+    bounds = (np.stack([vertices[finite].min(axis=0), vertices[finite].max(axis=0)]).tolist() if finite.any()
+              else [None, None])
     summary: dict[str, Any] = {
         "kind": "mesh",
         "file": str(path),
         "bytes": path.stat().st_size,
         "vertices": int(len(mesh.vertices)),
         "faces": int(len(mesh.faces)),
-        "bounds_min": tuple(float(v) for v in bounds[0]),
-        "bounds_max": tuple(float(v) for v in bounds[1]),
+        "bounds_min": None if bounds[0] is None else tuple(bounds[0]),
+        "bounds_max": None if bounds[1] is None else tuple(bounds[1]),
         "nonfinite_vertices": int(len(vertices) - finite.sum()),
         "watertight": bool(mesh.is_watertight),
         "winding_consistent": bool(mesh.is_winding_consistent),

@@ -301,6 +301,28 @@ def test_info_counts_nonfinite_vertices_and_bounds_the_finite_ones(tmp_path, cap
     assert summary["bounds_min"] == [0, 0, 0] and summary["bounds_max"] == [1, 1, 2]
 
 
+def test_info_json_stays_json_without_a_finite_vertex_and_names_a_folder(tmp_path, capsys):
+    """A mesh file whose vertices are all NaN printed "bounds_min": [NaN, NaN, NaN] under --json, which is no JSON
+    (strict parsers and jq refuse it): the bounds are null now. A folder named like a mesh 'does not exist'
+    said the message; it exists and is no file."""
+    path = tmp_path / "nan.ply"
+    path.write_bytes(trimesh.exchange.ply.export_ply(
+        trimesh.Trimesh(np.full((3, 3), np.nan), [[0, 1, 2]], process=False), encoding="ascii"))
+    code, out, err = run(capsys, "info", path, "--json")
+    assert code == 0, err
+
+    def refuse(constant):
+        raise ValueError(f"not JSON: {constant}")
+
+    summary = json.loads(out, parse_constant=refuse)
+    assert summary["bounds_min"] is None and summary["bounds_max"] is None and summary["nonfinite_vertices"] == 3
+    code, out, err = run(capsys, "info", path)
+    assert code == 0 and "bounds_min          None" in out, (out, err)
+    (tmp_path / "folder.glb").mkdir()
+    code, _, err = run(capsys, "info", tmp_path / "folder.glb")
+    assert code == 2 and err.strip().endswith("folder.glb' is not a regular file"), err
+
+
 def test_default_input_is_the_embedded_dem(tmp_path, capsys):
     code, out, err = run(capsys, "info")
     assert code == 0, err
