@@ -56,10 +56,14 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
     limit = _memory_budget if budget is None else budget_value(budget)
     if nbytes > limit:
         raise OutputTooLargeError(
-            f"{what} would need {nbytes / 1024**2:,.1f} MiB, over the memory budget of "
-            f"{limit / 1024**2:,.1f} MiB; {hint}, or raise the budget "
-            "(stepterrain.set_memory_budget or memory_budget=)"
+            f"{what} would need {_size_text(nbytes)}, over the memory budget of {_size_text(limit)}; {hint}, or "
+            "raise the budget (stepterrain.set_memory_budget or memory_budget=)"
         )
+
+
+def _size_text(nbytes: int) -> str:
+    """Bytes as MiB to one decimal, or as bytes below a tenth of a MiB (which read "0.0 MiB")."""
+    return f"{nbytes / 1024**2:,.1f} MiB" if nbytes >= 0.1 * 1024**2 else f"{int(nbytes):,} bytes"
 
 
 def count_buffer(name: str, n: int, device: wp.Device) -> wp.array:

@@ -1055,6 +1055,16 @@ def test_bad_spacing_and_paths():
         st.stepped(st.Terrain.from_heights(np.zeros((3, 3))), interval=1.0, spacing=(2.0, 2.0))
 
 
+def test_small_memory_budgets_and_outputs_are_named_in_bytes():
+    """memory_budget=1000 read "would need 0.0 MiB, over the memory budget of 0.0 MiB": sizes below a tenth of a
+    MiB are given in bytes now."""
+    with pytest.raises(st.OutputTooLargeError, match=r"^the stepped mesh \(\d+ vertices, \d+ faces\) would need "
+                       r"[\d,]+ bytes, over the memory budget of 1,000 bytes; "):
+        st.stepped(np.add.outer(np.arange(4.0), np.arange(4.0)), interval=1.0, memory_budget=1000)
+    with pytest.raises(st.OutputTooLargeError, match=r"would need [\d,.]+ MiB, over the memory budget of 1,000 bytes"):
+        st.stepped(np.add.outer(np.arange(64.0), np.arange(64.0)), interval=1.0, memory_budget=1000)
+
+
 def test_memory_budget_raises_before_allocating_and_names_the_size():
     heights = np.add.outer(np.arange(64.0), np.arange(64.0))
     with pytest.raises(st.OutputTooLargeError, match=r"MiB, over the memory budget"):
