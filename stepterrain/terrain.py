@@ -247,6 +247,9 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[n
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got rows of different lengths") from None
     if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
+    at = _first_bool(heights) if isinstance(heights, (list, tuple)) else None  # numpy made True a height of 1
+    if at is not None:
+        raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got a bool ({at[1]!r}) at index {at[0]}")
     if arr.ndim != 2:
         raise InvalidInputError(f"{name} must be a 2-D (H, W) array; got shape {arr.shape}")
     if arr.shape[0] < 2 or arr.shape[1] < 2:

@@ -1006,6 +1006,16 @@ def test_bad_heights_raise_clear_errors(heights, match):
         st.stepped(heights, interval=1.0)
 
 
+def test_a_bool_among_list_heights_is_refused():
+    """heightfield_mesh([[True, 2.0], [3.0, 4.0]]) stepped True as a height of 1 (numpy turns a bool beside numbers
+    into one); a bool array was already refused, as real_numbers refuses a bool in a list elsewhere."""
+    for make in (st.heightfield_mesh, lambda h: st.stepped(h, interval=1.0), st.Terrain.from_heights):
+        with pytest.raises(st.InvalidInputError, match=r"^heights must be a real-valued \(H, W\) array; got a bool "
+                           r"\(True\) at index \(1, 0\)$"):
+            make([[0.0, 2.0], [True, 4.0]])
+    assert len(st.heightfield_mesh([[0, 2], [1.5, 4]]).faces) == 2  # ints and floats together are numbers
+
+
 @pytest.mark.parametrize("value", [1e300, -1e39])
 def test_heights_beyond_float32_are_named_not_called_infinite(value):
     """A finite float64 height beyond float32's range was 'an infinite value at index (2, 3)' (after numpy's
