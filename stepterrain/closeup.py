@@ -190,7 +190,7 @@ class ROI:
     shape: str = "painted"
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "center", _pair(self.center, "ROI center", nonzero=False))
+        object.__setattr__(self, "center", _pair(self.center, "ROI center", nonzero=False, scalar=False))
         size = _pair(self.size, "ROI size", nonzero=False)
         if min(size) <= 0 or max(size) > _MAX_OFFSET:  # float32 positions on the device
             raise InvalidInputError(f"ROI size must be positive (width, height) up to {_MAX_OFFSET:g}; got {size}")
@@ -666,7 +666,7 @@ def closeup_matrix(center: ArrayLike, pivot_z: float, alpha: float, beta: float,
 
     Each argument is checked by name (finite real numbers, the shapes above): an InvalidInputError otherwise.
     """
-    cx, cy = _pair(center, "center", nonzero=False)
+    cx, cy = _pair(center, "center", nonzero=False, scalar=False)
     pivot_z, alpha, beta = (finite_number(v, n) for v, n in ((pivot_z, "pivot_z"), (alpha, "alpha"), (beta, "beta")))
     s = _scale3(scale, "scale")
     p = real_vector(offset, "offset", "finite (dx, dy, dz)", 3)

@@ -30,14 +30,21 @@ __all__ = ["Terrain", "heightfield_mesh", "as_terrain"]
 FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-def _pair(value: Any, name: str, *, nonzero: bool) -> tuple[float, float]:
+def _pair(value: Any, name: str, *, nonzero: bool, scalar: bool = True) -> tuple[float, float]:
+    """``value`` as two finite floats (x, y). One number stands for both where ``scalar`` (a spacing, a size);
+    a point (an origin, a centre) needs both. A one-element sequence ((5,), [5]) is refused either way: it is a
+    pair missing its y, which was silently taken as (5, 5)."""
     try:  # text ("30"), bools, complex, objects, ragged: not numbers; a masked entry is NaN, refused below
-        arr = real_numbers(value, name, "a pair of numbers (x, y)").reshape(-1)
+        array = real_numbers(value, name, "a pair of numbers (x, y)")
     except (TypeError, ValueError) as exc:  # the value, which says more than real_numbers' dtype
         raise InvalidInputError(f"{name} must be a pair of numbers (x, y); got {value!r}") from exc
-    if arr.size == 1:
-        arr = np.repeat(arr, 2)
-    if arr.size != 2 or not np.all(np.isfinite(arr)):
+    if array.ndim == 0 and scalar:
+        array = np.repeat(array, 2)
+    arr = array.reshape(-1)
+    if array.ndim == 0 or arr.size != 2:
+        also = " (or one number for both)" if scalar else ""
+        raise InvalidInputError(f"{name} must be a pair of finite numbers (x, y){also}; got {value!r}")
+    if not np.all(np.isfinite(arr)):
         raise InvalidInputError(f"{name} must be a pair of finite numbers (x, y); got {value!r}")
     if nonzero and np.any(arr == 0):
         raise InvalidInputError(f"{name} must be non-zero in x and y; got {tuple(arr.tolist())}")
@@ -313,7 +320,7 @@ class Terrain:
             kind="grid",
             heights=array,
             spacing=check_spacing(*_pair(spacing, "spacing", nonzero=True)),
-            origin=_pair(origin, "origin", nonzero=False),
+            origin=_pair(origin, "origin", nonzero=False, scalar=False),
             crs=crs,
             source=source,
         )

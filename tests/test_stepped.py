@@ -1051,6 +1051,28 @@ def test_empty_heights_are_refused(shape):
         st.stepped(np.zeros(shape, np.float32), interval=1)
 
 
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"origin": (5,)}, r"^origin must be a pair of finite numbers \(x, y\); got \(5,\)$"),
+        ({"origin": [5.0]}, r"^origin must be a pair of finite numbers \(x, y\); got \[5.0\]$"),
+        ({"origin": 5.0}, r"^origin must be a pair of finite numbers \(x, y\); got 5.0$"),
+        ({"spacing": (5,)}, r"^spacing must be a pair of finite numbers .* \(or one number for both\); got \(5,\)$"),
+        ({"spacing": np.array([2.0])}, r"^spacing must be a pair .* \(or one number for both\); got array\(\[2.\]\)$"),
+    ],
+)
+def test_one_element_origin_or_spacing_is_refused(kwargs, match):
+    """origin=(5,) was taken as (5, 5) silently, and so was a scalar origin or spacing=(5,): a pair that lost its
+    y. A point needs both coordinates (adaptive_mesh already refused a scalar origin); a spacing may still be one
+    number for square cells."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        st.stepped(np.eye(3), interval=0.5, **kwargs)
+    with pytest.raises(st.InvalidInputError, match=match):
+        st.Terrain.from_heights(np.eye(3), **kwargs)
+    square = st.stepped(np.eye(3), interval=0.5, spacing=5.0)
+    np.testing.assert_array_equal(square.vertices, st.stepped(np.eye(3), interval=0.5, spacing=(5.0, 5.0)).vertices)
+
+
 def test_bad_spacing_and_paths():
     with pytest.raises(st.InvalidInputError, match="spacing must be non-zero"):
         st.stepped(np.zeros((3, 3)), interval=1.0, spacing=(0.0, 1.0))
