@@ -31,7 +31,18 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
-from .terrain import FLOAT32_MAX, Terrain, as_number, as_terrain, check_flag, finite_number, real_numbers, unmasked
+from .terrain import (
+    FLOAT32_MAX,
+    Terrain,
+    _pair,
+    as_number,
+    as_terrain,
+    check_flag,
+    check_spacing,
+    finite_number,
+    real_numbers,
+    unmasked,
+)
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
@@ -873,7 +884,14 @@ def stepped_series(
     >>> frames = np.random.default_rng(0).random((3, 8, 8))
     >>> [m.is_winding_consistent for m in st.stepped_series(frames, interval=0.25)]
     [True, True, True]
+
+    A frame with bad heights, or with no finite height at all (as :func:`stepped` refuses such a terrain), is an
+    :class:`InvalidInputError` naming its index (``frames[k]``): for a (T, H, W) stack before the first frame,
+    for an iterable when that frame is reached.
     """
+    check_flag(progress, "progress")
+    check_spacing(*_pair(spacing, "spacing", nonzero=True))  # once, so that their errors name no frame
+    _pair(origin, "origin", nonzero=False, scalar=False)
     dev = resolve_device(device)
     stack = None
     if isinstance(frames, np.ndarray) or (hasattr(frames, "shape") and hasattr(frames, "__array__")):
@@ -883,9 +901,13 @@ def stepped_series(
         real = np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)
         if stack.dtype == bool or not real:
             raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
-        finite = stack[np.isfinite(stack)]
+        finite_mask = np.isfinite(stack)
+        finite = stack[finite_mask]
         if finite.size == 0:
             raise InvalidInputError("frames hold no finite height")
+        empty = np.flatnonzero(~finite_mask.any(axis=(1, 2)))
+        if empty.size:  # its mesh would be empty: stepped() and a list of frames refuse such a frame
+            raise InvalidInputError(f"frames[{int(empty[0])}]: terrain has no finite height (all nodata)")
         values = isovalues((float(finite.min()), float(finite.max())), interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
@@ -898,12 +920,16 @@ def stepped_series(
         from tqdm.auto import tqdm
 
         iterable = tqdm(iterable, total=len(stack) if stack is not None else None, desc="stepping frames", unit="frame")
-    for frame in iterable:
+    for k, frame in enumerate(iterable):
         # a fresh Terrain per frame: what it caches (the heights' upload, whether they hold nodata) belongs to
         # its own heights; the work arrays of the passes come from the per-thread scratch pool, reused
-        t = Terrain.from_heights(frame, spacing=spacing, origin=origin)
+        try:
+            t = Terrain.from_heights(frame, spacing=spacing, origin=origin)
+            height_range = t.height_range if values is None else None  # all nodata: an error, as in stepped()
+        except InvalidInputError as exc:  # the frame's heights (spacing and origin were checked above)
+            raise InvalidInputError(f"frames[{k}]: {exc}") from None
         frame_values = (
-            values if values is not None else isovalues(t.height_range, interval=interval, levels=levels, base=base)
+            values if height_range is None else isovalues(height_range, interval=interval, levels=levels, base=base)
         )
         arrays = step_arrays(t, frame_values, device=dev, want_sources=_needs_sources(t, gamma, colors))
         vertices = blend(t, arrays, gamma, device=dev)

@@ -979,6 +979,28 @@ def test_stepped_series_bad_frames_are_named(frames, match):
     with pytest.raises(st.InvalidInputError, match=match):
         next(st.stepped_series(frames, interval=1.0))
 
+
+@pytest.mark.parametrize("as_list", [False, True], ids=["stack", "list"])
+def test_stepped_series_frame_errors_name_the_frame(as_list):
+    """An all-NaN frame raised "terrain has no finite height" partway through a list of frames (not saying which)
+    but gave an empty mesh within a (T, H, W) stack; both refuse it now, as stepped() and batch do, naming the
+    frame; an infinite height names its frame too. progress="no" switched the progress bar on."""
+    frames = np.random.default_rng(3).random((3, 4, 4))
+    frames[2] = np.nan
+    series = list(frames) if as_list else frames
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: terrain has no finite height \(all nodata\)$"):
+        list(st.stepped_series(series, interval=0.25))
+    frames[2] = frames[0]
+    frames[1, 0, 3] = np.inf
+    series = list(frames) if as_list else frames
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: heights must be finite or NaN \(nodata\); "
+                                                   r"got an infinite value at index \(0, 3\)$"):
+        list(st.stepped_series(series, interval=0.25))
+    with pytest.raises(st.InvalidInputError, match=r"^progress must be True or False; got 'no'$"):
+        next(st.stepped_series(frames[:1], interval=0.25, progress="no"))
+    with pytest.raises(st.InvalidInputError, match=r"^origin must be a pair of finite numbers \(x, y\); got \(5,\)$"):
+        next(st.stepped_series(series, interval=0.25, origin=(5,)))
+
 @pytest.mark.parametrize(
     "height_range",
     [(0.0, float("nan")), (0.0, float("inf")), (-float("inf"), 0.0), (10.0, 0.0), "ab", (1.0, 2.0, 3.0), 5.0, None],
