@@ -516,7 +516,10 @@ def blend(
     elif _gamma_ndim(gamma) == 0:
         scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
     else:
-        node_values = _check_gamma_values(_gamma_floats(gamma, "gamma"), terrain.shape, "gamma")
+        values = _gamma_floats(gamma, "gamma")
+        if values.shape == terrain.shape:  # NaN at a nodata node (γ computed from h) is harmless: it gives no vertex
+            values = np.where(np.isnan(values) & np.isnan(terrain.heights), 0.0, values)
+        node_values = _check_gamma_values(values, terrain.shape, "gamma")
         gammas = wp.empty(n, dtype=wp.float32, device=device)
         launch_chunked(
             stepped_kernels.interpolate_node_values,
@@ -695,7 +698,8 @@ def stepped(
         to the end levels.
     gamma : float, (H, W) / (N,) array, callable or Lens
         The blend of §3.3 in [0, 1]: 0 = original surface, 1 = fully stepped. An array gives one γ per
-        terrain node (interpolated onto wall vertices with the crossing's β); a callable receives the
+        terrain node (interpolated onto wall vertices with the crossing's β; NaN where the height is nodata, which
+        gives no vertex); a callable receives the
         (V, 3) world positions of the output vertices on the original surface and returns (V,) values;
         a :class:`Lens` (see :func:`circular_lens`) is a γ image over the xy extent.
     colors : str or (L, 3|4) array, optional

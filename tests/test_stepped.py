@@ -1392,3 +1392,27 @@ def test_text_bools_complex_and_masked_values_are_not_numbers(call, match):
 
     mesh = st.stepped(_HEIGHTS, levels=[Decimal(1), np.float32(5)], gamma=Decimal("0.5"))
     assert len(mesh.faces)
+
+
+@pytest.mark.parametrize("tin", [False, True], ids=["grid", "tin"])
+def test_per_node_gamma_may_be_nan_where_heights_are_nodata(tin):
+    """γ computed from h (np.clip(h / 10, 0, 1)) is NaN where h is nodata, and was refused ("got nan at index");
+    those nodes give no vertex, so NaN there is taken (the mesh is the one any γ value there gives). NaN at a
+    node with a height is still refused, with its index."""
+    heights = _HEIGHTS.copy()
+    heights[1:3, 1:3] = np.nan
+    terrain = heights
+    if tin:  # a TIN whose nodata vertices keep NaN z
+        terrain = st.heightfield_mesh(np.nan_to_num(heights))
+        terrain.vertices[:, 2] = heights.reshape(-1)
+    nodata = np.isnan(heights).reshape(-1) if tin else np.isnan(heights)
+    gamma = np.clip(heights / 10.0, 0.0, 1.0).reshape(nodata.shape)
+    mesh = st.stepped(terrain, interval=1.0, gamma=gamma)
+    filled = st.stepped(terrain, interval=1.0, gamma=np.where(nodata, 0.25, gamma))
+    assert len(mesh.faces) > 0
+    np.testing.assert_array_equal(mesh.vertices, filled.vertices)
+    np.testing.assert_array_equal(mesh.faces, filled.faces)
+    gamma[(0,) * gamma.ndim] = np.nan  # a node with a height
+    at = "0," if tin else "0, 0"
+    with pytest.raises(st.InvalidInputError, match=rf"^gamma must lie in \[0, 1\] .*; got nan at index \({at}\)$"):
+        st.stepped(terrain, interval=1.0, gamma=gamma)
