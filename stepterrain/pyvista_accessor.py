@@ -20,7 +20,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import Terrain, float32_heights, grid_faces
+from .terrain import Terrain, finite_or_nan, float32_heights, grid_faces
 
 __all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES"]
 
@@ -55,7 +55,10 @@ class StepTerrainAccessor:
             )
         values = self._elevation_values(name)
         # float64 values beyond float32 are named, not cast to inf (an 'infinite value' error, or TIN nodata)
-        return float32_heights(values.reshape(ny, nx), "elevation")
+        heights = float32_heights(values.reshape(ny, nx), "elevation")
+        # NaN is nodata on both kinds of grid; an infinity is an error on both (a StructuredGrid's TIN made it a hole)
+        finite_or_nan(heights, "elevation")
+        return heights
 
     def _elevation_values(self, name: str | None) -> NDArray[Any]:
         ds = self._dataset

@@ -122,6 +122,11 @@ _BIG = np.where(np.add.outer(np.arange(3.0), np.arange(4.0)) == 5.0, 1e39, 1.0) 
         (lambda: _structured(_BIG), {}, r"^elevation must fit in float32 .*got 1e\+39 at index \(\d, \d\), finite"),
         (lambda: image_grid(np.full((3, 3), 3e38), origin=(0.0, 0.0)), {"origin_z": 3e38},
          r"^elevation \+ the grid's origin z must fit in float32 .*got 6.0+\d*e\+38 at index \(0, 0\)"),
+        # an infinite elevation: an error on an ImageData, silently nodata (a hole) on a StructuredGrid; NaN is nodata
+        (lambda: image_grid(np.where(_BIG > 1, np.inf, 1.0)), {},
+         r"^elevation must be finite or NaN \(nodata\); got an infinite value at index \(2, 3\)$"),
+        (lambda: _structured(np.where(_BIG > 1, -np.inf, 1.0)), {},
+         r"^elevation must be finite or NaN \(nodata\); got an infinite value at index \(\d, \d\)$"),
         # a StructuredGrid whose x equals its y: every vertex of the steps lay on one line
         (lambda: _structured(np.add.outer(np.arange(3.0), np.arange(3.0)), x=np.add.outer(np.arange(3.0), np.zeros(3))),
          {}, "none of its 8 faces with finite heights has an area in xy"),
