@@ -358,9 +358,14 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
         ) from exc
 
+    if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected real-valued elevation data; got band {band} of dtype {masked.dtype}"
+        )
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         masked = masked.astype(np.float64) * scale + offset
-    array = np.ma.filled(masked.astype(np.float32), np.nan)
+    # float64 stays float64 until _elevation, which names a value beyond float32 (a cast here made it nodata)
+    array = np.ma.filled(masked.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32), np.nan)
     crs = _crs_string(crs_obj)
     unit, crs = _vertical_unit(unit, crs)
     heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit)

@@ -543,6 +543,31 @@ def test_heights_beyond_float32_are_refused_not_read_as_nodata(tmp_path):
     assert np.isnan(load_dem(path).heights[1, 2])
 
 
+@pytest.mark.parametrize("case", ["complex", "beyond-float32", "scaled-beyond-float32"])
+def test_geotiff_complex_or_beyond_float32_is_refused_as_npy_is(tmp_path, case):
+    """A complex band kept its real part silently, and a float64 value beyond float32 (or an int16 one scaled
+    beyond it) was cast to inf, then read as nodata (a hole); both are DataFileErrors now, in .npy's words."""
+    rasterio = needs_rasterio()
+    z = np.full((3, 4), 100.0)
+    dtype, scale = {"complex": ("complex64", 1.0), "beyond-float32": ("float64", 1.0),
+                    "scaled-beyond-float32": ("int16", 1e35)}[case]  # fmt: skip
+    if case == "complex":
+        z = z + 1j
+    else:
+        z[1, 2] = 1e39 if case == "beyond-float32" else 10000.0  # scaled: about 1e39, beside 1e37
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=1, dtype=dtype, crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+        ds.write(z.astype(dtype), 1)
+        ds.scales = (scale,)
+    match = (r"dem\.tif.*expected real-valued elevation data; got band 1 of dtype complex64$" if case == "complex"
+             else r"dem\.tif.*band 1 holds heights beyond float32 .*; got [\d.]+e\+39 at index \(1, 2\)$")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no ComplexWarning or overflow on the way
+        with pytest.raises(DataFileError, match=match):
+            load_dem(path)
+
+
 def test_compound_crs_vertical_feet_become_metres(tmp_path):
     """A compound CRS names the heights' unit (NAD83 / UTM 11N + NAVD88 height (ftUS)): with no band unit the
     heights become metres and ``crs`` keeps the horizontal part, which still applies; a band unit wins."""
