@@ -280,16 +280,17 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     one raster), and a scalar ``nodata`` marks missing cells; those and non-finite heights become NaN (nodata).
     A finite height beyond float32, a series that is all nodata, and a file that is truncated or declares more
     data than it holds are a :class:`~stepterrain.errors.DataFileError`."""
-    from .io import _GENERIC_KEYS, nodata_as_nan, npz_nodata, read_npy, read_npz
+    from .io import nodata_as_nan, npz_heights_key, npz_nodata, read_npy, read_npz
 
     file = Path(os.fspath(path))
     loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
     if isinstance(loaded, np.ndarray):
         stack, what, nodata = loaded, "array", None
-    else:  # a key load_dem reads ('elevation' ...) decides: not any 3-D member
-        keys = [k for k in _GENERIC_KEYS if k in loaded][:1] or list(loaded)
-        key = next((k for k in keys if loaded[k].ndim == 3), None)
+    else:  # the key load_dem reads ('elevation' ..., 2-D or 3-D here) decides: not any 3-D member
+        key = npz_heights_key(loaded, (2, 3))
         if key is None:
+            key = next((k for k in loaded if loaded[k].ndim == 3), None)
+        if key is None or loaded[key].ndim != 3:
             return None
         stack, what, nodata = loaded[key], repr(key), npz_nodata(loaded.get("nodata"))
     if stack.ndim != 3:

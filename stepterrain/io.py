@@ -14,6 +14,7 @@ import math
 import os
 import warnings
 import zipfile
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, Literal
 
@@ -53,8 +54,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     Parameters
     ----------
     path : str or path-like
-        ``.npy`` (one (H, W) array), ``.npz`` (heights under a key ``heights``, ``elevation`` or ``z``, or
-        the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
+        ``.npy`` (one (H, W) array), ``.npz`` (heights under the first 2-D key of ``heights``, ``elevation``
+        and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
         (the heights' unit); a scalar ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
@@ -251,8 +252,10 @@ def _load_npz(file: Path) -> Terrain:
         )
     nodata = npz_nodata(arrays.get("nodata"))
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
-    # a transform georeferences whichever array holds the heights: 'elevation' (the shared/data layout) first
-    key = next((k for k in ("elevation", *_GENERIC_KEYS) if k in arrays), two_d[0] if len(two_d) == 1 else None)
+    # the same key with a transform (which georeferences it) and without
+    key = npz_heights_key(arrays, (2,))
+    if key is None and len(two_d) == 1:
+        key = two_d[0]
     if key is not None and "transform" in arrays:
         heights = _elevation(arrays[key], file, repr(key), nodata)
         raw = arrays["transform"]
@@ -280,17 +283,7 @@ def _load_npz(file: Path) -> Terrain:
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
-    for key in _GENERIC_KEYS:
-        if key in arrays:
-            return _grid(
-                file,
-                _elevation(arrays[key], file, repr(key), nodata),
-                spacing=(1.0, -1.0),
-                origin=(0.0, 0.0),
-                crs=None,
-            )
-    if len(two_d) == 1:
-        key = two_d[0]
+    if key is not None:
         return _grid(
             file, _elevation(arrays[key], file, repr(key), nodata), spacing=(1.0, -1.0), origin=(0.0, 0.0),
             crs=None,
@@ -300,6 +293,15 @@ def _load_npz(file: Path) -> Terrain:
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
         f"'transform' beside it), or exactly one 2-D array; got {described}"
     )
+
+
+def npz_heights_key(arrays: Mapping[str, NDArray[Any]], ndims: tuple[int, ...]) -> str | None:
+    """The ``.npz`` member that holds the heights: the first of ``heights``, ``elevation`` and ``z`` with one of
+    ``ndims`` dimensions (2 for a raster; 2 or 3 where a series may be), else the first of them present (for its
+    shape to be refused), else None. A 1-D ``heights`` (a profile, say) beside a 2-D ``elevation`` was read first
+    and refused; with a transform, ``elevation`` came first, without one ``heights``."""
+    present = [key for key in _GENERIC_KEYS if key in arrays]
+    return next((key for key in present if arrays[key].ndim in ndims), present[0] if present else None)
 
 
 def _load_png(file: Path) -> Terrain:

@@ -170,6 +170,22 @@ def test_npz_transform_is_honoured_whatever_the_heights_key(tmp_path, key):
         load_dem(tmp_path / "bad.npz")
 
 
+@pytest.mark.parametrize("transform", [False, True], ids=["plain", "georeferenced"])
+def test_npz_reads_the_first_2d_heights_key(tmp_path, transform):
+    """A 1-D 'heights' (a profile) beside a 2-D 'elevation' was read first and refused without a transform; the
+    first 2-D key of heights/elevation/z is read, and the same one with a transform as without (with one,
+    'elevation' came first, without one 'heights'). A 1-D 'heights' alone is still refused by its shape."""
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    extra = {"transform": np.array([1000.0, 10.0, 0, 5000.0, 0, -20.0])} if transform else {}
+    np.savez(tmp_path / "a.npz", heights=np.arange(5.0), elevation=z, **extra)
+    np.testing.assert_array_equal(load_dem(tmp_path / "a.npz").heights, z)
+    np.savez(tmp_path / "b.npz", heights=z, elevation=z + 1, **extra)
+    np.testing.assert_array_equal(load_dem(tmp_path / "b.npz").heights, z)
+    np.savez(tmp_path / "c.npz", heights=np.arange(5.0), other=z, **extra)
+    with pytest.raises(DataFileError, match=r"expected a 2-D \(H, W\) elevation grid; got 'heights' of shape \(5,\)"):
+        load_dem(tmp_path / "c.npz")
+
+
 @pytest.mark.parametrize("dtype", [np.int16, np.float32])
 def test_npz_nodata_value_becomes_nan(tmp_path, dtype):
     # the shared/data layout stores its nodata value beside the heights; a finite one marks missing cells
