@@ -142,6 +142,14 @@ def check_flag(value: Any, name: str) -> bool:
     return bool(value)
 
 
+def optional_text(value: Any, name: str, what: str) -> str | None:
+    """``value`` when it is a str or None, else an :class:`InvalidInputError` naming ``name``: a number or an
+    object there was stored as it is and reached the mesh metadata (and the files written from it)."""
+    if value is not None and not isinstance(value, str):
+        raise InvalidInputError(f"{name} must be a str ({what}) or None; got {value!r:.80}")
+    return value
+
+
 def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.float64]:
     """``values`` as float64 when they are real numbers (a masked array's masked entries NaN), else an
     InvalidInputError "``name`` must be ``expected``": text and ragged rows raised numpy's ValueError, complex
@@ -315,6 +323,8 @@ class Terrain:
         source: str | None = None,
     ) -> Terrain:
         """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero."""
+        crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
+        source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         array, lo, hi = _heights_array(heights)
         terrain = cls(
             kind="grid",
@@ -341,6 +351,7 @@ class Terrain:
         """
         if not isinstance(mesh, trimesh.Trimesh):
             raise InvalidInputError(f"terrain mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+        source = optional_text(source, "source", "where the mesh comes from, e.g. a file name")
         visual = mesh.visual if mesh.visual.defined else None
         key = hash(mesh)
         cached = getattr(mesh, "_stepterrain_terrain", None)

@@ -271,6 +271,23 @@ def test_a_masked_spacing_or_origin_is_refused_not_read_under_its_mask():
     assert st.heightfield_mesh(_H, spacing=np.ma.masked_array([30.0, -30.0])).metadata["spacing"] == (30.0, -30.0)
 
 
+@pytest.mark.parametrize(
+    ("call", "match"),
+    [
+        (lambda: st.Terrain.from_heights(_H, crs=5), r"^crs must be a str \(e.g. 'EPSG:32611'\) or None; got 5$"),
+        (lambda: st.Terrain.from_heights(_H, crs=b"EPSG:4326"), r"^crs must be a str .*; got b'EPSG:4326'$"),
+        (lambda: st.Terrain.from_heights(_H, source=object()), r"^source must be a str .* or None; got <object"),
+        (lambda: st.Terrain.from_mesh(st.heightfield_mesh(_H), source=7), r"^source must be a str .* or None; got 7$"),
+    ],
+)
+def test_crs_and_source_must_be_text(call, match):
+    """Terrain.from_heights(crs=5, source=object()) stored them as they were, for the mesh metadata (and files
+    written from it) to carry; they are named now."""
+    with pytest.raises(st.InvalidInputError, match=match):
+        call()
+    assert st.Terrain.from_heights(_H, crs="EPSG:32611", source="dem.npy").crs == "EPSG:32611"
+
+
 def test_numpy_scalars_stay_numbers():
     import numpy as np
 
