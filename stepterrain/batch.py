@@ -258,6 +258,9 @@ def plan_items(
     if heights.ndim == 3:
         if tile_size is not None:
             raise InvalidInputError(f"tile_size applies to one (H, W) raster; got a (T, H, W) series {heights.shape}")
+        if heights.shape[0] < 1 or min(heights.shape[1:]) < 2:  # up front, as load_series refuses such a file
+            raise InvalidInputError(f"source (a (T, H, W) series) needs at least one frame of at least 2 x 2 nodes; "
+                                    f"got shape {heights.shape}")
         # an infinity up front, as the checks above: not one item failing later
         ranges = [finite_or_nan(frame, f"source frame {k}") for k, frame in enumerate(heights)]
         known = None if not ranges or any(math.isnan(lo) for lo, _ in ranges) else (  # NaN: a frame has nodata

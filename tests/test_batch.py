@@ -195,6 +195,19 @@ def test_series_from_a_npy_file(tmp_path):
     np.testing.assert_allclose(frame.bounds, expected.bounds, atol=1e-5)
 
 
+@pytest.mark.parametrize("shape", [(2, 1, 5), (2, 5, 1), (0, 3, 3)])
+def test_a_series_too_small_to_step_is_refused_up_front_as_from_a_file(tmp_path, shape):
+    """A (T, H < 2, W) series in memory was planned, and every frame failed later ('heights needs at least 2 x 2
+    nodes'; an empty one said it 'holds no finite height'), while the same series from a file is refused up front."""
+    with pytest.raises(InvalidInputError, match=re.escape(f"source (a (T, H, W) series) needs at least one frame of "
+                                                          f"at least 2 x 2 nodes; got shape {shape}")):
+        batch(np.zeros(shape), tmp_path / "out", interval=1.0, scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    np.save(tmp_path / "s.npy", np.zeros(shape))
+    with pytest.raises(DataFileError, match=r"expected real heights with H, W >= 2"):
+        batch(tmp_path / "s.npy", tmp_path / "out", interval=1.0, scheduler="serial")
+
+
 def test_series_file_reads_non_finite_heights_as_nodata_like_load_dem(tmp_path):
     frames = np.random.default_rng(0).random((2, 6, 6)).astype(np.float32)
     frames[1, 2, 3], frames[0, 0, 0] = np.inf, -np.inf
@@ -428,7 +441,7 @@ def test_floor_check_reuses_the_height_range_the_source_checks_found(monkeypatch
     """_check_floor took an isfinite pass and built a mask of the nodes that triangles use, over every height, to
     find the lowest such height: without nodata that is every node of a grid of at least 2 x 2, and the source's
     checks had already found its min (as _shared_levels reuses it). The same heights and messages."""
-    from stepterrain.batch import _check_floor, _shared_levels
+    from stepterrain.batch import _check_floor, _shared_levels, _Source
     from stepterrain.terrain import Terrain
 
     rng = np.random.default_rng(7)
@@ -449,8 +462,9 @@ def test_floor_check_reuses_the_height_range_the_source_checks_found(monkeypatch
                 _check_floor(src, levels, 0.0, 1e9)
             _check_floor(src, levels, 0.0, lo - 1.0)  # below the surface: accepted
         assert src.heights.shape not in seen, "a further pass over the heights"
-    _, src = plan_items(np.zeros((2, 1, 5), np.float32))  # rows of one node: no triangle, nothing to refuse
-    assert src.height_range == (0.0, 0.0)
+    # rows of one node: no triangle, nothing to refuse (the known range is no triangle's lowest height). plan_items
+    # refuses such a series up front now, as load_series refuses such a file: the source is built as it was
+    src = _Source(np.zeros((2, 1, 5), np.float32), (1.0, 1.0), (0.0, 0.0), None, "series", height_range=(0.0, 0.0))
     _check_floor(src, (0.0,), 0.0, 5.0)
 
 
