@@ -138,6 +138,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
     if png is not None:
         render.require_offscreen()
+    # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
+    pixels = _texture_pixels(args.texture) if args.texture else None  # decoded once for both drapes
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
     lat, lon, elevation = _load_grid(args.input) if args.input else load_global_relief()
@@ -160,8 +162,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 "point the eye at the earth or pass --no-cull")
 
     textured = None
-    if args.texture:
-        pixels = _texture_pixels(args.texture)  # decoded once for both drapes
+    if pixels is not None:
         mesh.visual.vertex_colors = drape_colors(mesh.vertices, pixels)
         if out.suffix.lower() in (".glb", ".gltf", ".obj"):
             textured = drape_texture(mesh, pixels)

@@ -161,6 +161,30 @@ def test_globe_texture_is_embedded_in_the_glb(tmp_path):
     assert len(back.faces) == 12 * 16**2 and len(back.visual.uv) == len(back.vertices)
 
 
+@pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png"])
+def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch, texture):
+    """--texture was read only after the globe was built and meshed: a missing file, a folder, a text file or an
+    image too small to drape failed after that work. It is read first now; the globe is never built."""
+    from PIL import Image
+
+    from stepterrain import globe
+
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "notes.png").write_text("not an image")
+    Image.fromarray(np.zeros((1, 1, 3), np.uint8)).save(tmp_path / "dot.png")
+
+    def built(*args, **kwargs):
+        raise AssertionError("the globe was built before --texture was read")
+
+    monkeypatch.setattr(globe.Globe, "from_latlon", built)
+    path = tmp_path / texture
+    assert main(["-q", "globe", "--face-size", "9", "--texture", str(path), "-o", str(tmp_path / "x.glb")]) == 2
+    err = capsys.readouterr().err.strip()
+    expected = ("texture must be an (H, W, 3|4) image; got shape (1, 1, 3)" if texture == "dot.png"
+                else f"cannot read texture {str(path)!r}: ")
+    assert err.startswith(f"stepterrain globe: error: {expected}") and "\n" not in err
+
+
 @pytest.mark.parametrize("elevation", [np.float32(1.0), np.zeros(360, np.float32), np.zeros((2, 180, 360))])
 def test_globe_npz_elevation_not_2d_exits_2(tmp_path, capsys, elevation):
     grid = tmp_path / "grid.npz"
