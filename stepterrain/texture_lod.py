@@ -101,8 +101,13 @@ def _georeferenced_extent(image: Any) -> Extent | None:
 def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int]:
     """(array (H, W, C) uint8, backing file or None, byte offset of the data in it)."""
     path = None
+    if isinstance(image, (bytes, bytearray)):  # np.asarray made it a dtype |S array, refused as not uint8
+        raise InvalidInputError("image must be an (H, W) or (H, W, C) uint8 array or a path (a str or os.PathLike); "
+                                f"got {type(image).__name__}")
     if isinstance(image, (str, os.PathLike)):
         path = Path(image)
+        if path.is_dir():  # was called a file that "does not exist"
+            raise DataFileError(f"image file {str(path)!r} is a folder; expected an image file")
         if not path.is_file():
             raise DataFileError(f"image file {str(path)!r} does not exist")
         if path.suffix.lower() == ".npy":
@@ -941,7 +946,8 @@ def _threshold(value: Any, name: str) -> float:
 def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     """``paintWithTextures(N, T)`` (§4) as a mesh: the geometry patch at its level of detail (every
     ``stride``-th node of its block, the last row and column kept) textured with the sub-image of the chosen
-    texture patch of ``layer`` (UVs through the patch's georeferenced window). Returns a ``trimesh.Trimesh``;
+    texture patch of ``layer`` (UVs through the patch's georeferenced window; a 1-channel pyramid drapes as
+    luminance, a 2-channel one as grey + alpha, i.e. RGBA). Returns a ``trimesh.Trimesh``;
     an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
     Examples
@@ -980,6 +986,9 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     image = np.asarray(texture.image())
     if image.shape[2] == 1:
         texture_layer = TextureLayer("luminance", image[:, :, 0], texture.domain)
+    elif image.shape[2] == 2:  # grey + alpha (PNG's LA): as RGBA, not refused as "(h, w, 3) RGB" by the layer
+        rgba = np.concatenate([np.repeat(image[:, :, :1], 3, axis=2), image[:, :, 1:]], axis=2)
+        texture_layer = TextureLayer("thematic", rgba, texture.domain)
     else:
         texture_layer = TextureLayer("thematic", image, texture.domain)
     return drape(mesh, texture_layer)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import re
 import subprocess
 import sys
@@ -154,6 +155,32 @@ def test_pyramid_bad_input(tmp_path):
         ImagePyramid.build(np.zeros((4, 4), np.float32))
     with pytest.raises(InvalidInputError, match="xmin < xmax"):
         ImagePyramid.build(np.zeros((4, 4), np.uint8), extent=(1, 0, 0, 1))
+    # a folder was a file that "does not exist"; a bytes path an image "of dtype |S..."
+    with pytest.raises(DataFileError, match=rf"^image file {re.escape(repr(str(tmp_path)))} is a folder; expected an "
+                                            "image file$"):
+        ImagePyramid.build(tmp_path)
+    with pytest.raises(InvalidInputError, match=r"^image must be an \(H, W\) or \(H, W, C\) uint8 array or a path "
+                                                r"\(a str or os.PathLike\); got bytes$"):
+        ImagePyramid.build(os.fsencode(tmp_path / "corrupt.png"))
+
+
+def test_paint_with_textures_of_a_grey_alpha_pyramid():
+    """A 2-channel (grey + alpha) pyramid built, then failed in paint_with_textures with "a thematic layer needs an
+    (h, w, 3) RGB or (h, w, 4) RGBA image"; it is painted as the RGBA image (grey repeated, alpha kept)."""
+    from stepterrain.texture_lod import paint_with_textures
+
+    quadtree = PatchQuadtree(np.zeros((17, 17)), leaf_size=8)
+    image = np.random.default_rng(2).integers(0, 256, (32, 32, 2), dtype=np.uint8)
+    rgba = image[:, :, [0, 0, 0, 1]]
+    textures = []
+    for source in (image, rgba):
+        with ImagePyramid.build(source, extent=quadtree.root.domain, device="cpu") as pyramid:
+            tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+            items = render_with_textures(quadtree.root, [tree.root], Camera((8, -30, 20), (8, 8, 0)))
+            textures.append([np.asarray(paint_with_textures(item).visual.material.baseColorTexture) for item in items])
+    assert len(textures[0]) == len(textures[1]) > 0
+    for grey_alpha, as_rgba in zip(*textures, strict=True):
+        np.testing.assert_array_equal(grey_alpha, as_rgba)
 
 
 @pytest.mark.parametrize("storage", [5, 2.5, True, b"levels", ["levels"]])
