@@ -23,6 +23,10 @@ __all__ = ["Camera"]
 #: Viewport height in pixels when none is given.
 _DEFAULT_HEIGHT = 800
 _MAX_COORDINATE = 1e30  # eye, target and up: their products (norms, crosses) stay finite in float64
+#: Width / height bounds: far beyond any image (a horizontal field of view is within 0.03 degrees of 180 at 1e4
+#: for a 45-degree fov), and within them the side planes' normals stay finite: at 1e300 their norm overflowed to
+#: inf, the normals came out zero and nothing was clipped at the sides; at 1e307 the default viewport overflowed.
+ASPECT_RANGE = (1e-6, 1e6)
 
 
 @dataclass(frozen=True)
@@ -40,7 +44,7 @@ class Camera:
     fov : float
         Vertical field of view in radians, in (0, π).
     aspect : float, optional
-        Width / height of the image; default: the viewport's, else 1.
+        Width / height of the image, in [1e-6, 1e6]; default: the viewport's, else 1.
     near, far : float
         Distances of the near and far clipping planes, 0 < near < far.
     viewport : (width, height) pixels, optional
@@ -96,6 +100,9 @@ class Camera:
             aspect = number_or_nan(self.aspect)
             if not (math.isfinite(aspect) and aspect > 0):
                 raise InvalidInputError(f"Camera aspect must be a positive number; got {self.aspect!r}")
+            lo, hi = ASPECT_RANGE
+            if not lo <= aspect <= hi:
+                raise InvalidInputError(f"Camera aspect (width / height) must lie in [{lo:g}, {hi:g}]; got {aspect:g}")
             object.__setattr__(self, "aspect", aspect)
         if self.viewport is not None:
             try:  # as_number: text ("640", or "64" read as 6 x 4) and bools are not pixels
@@ -108,6 +115,10 @@ class Camera:
             if width < 1 or height < 1:
                 raise InvalidInputError(f"Camera viewport must be positive pixels; got {self.viewport!r}")
             if self.aspect is None:
+                lo, hi = ASPECT_RANGE
+                if not lo <= width / height <= hi:
+                    raise InvalidInputError(f"Camera viewport must have an aspect (width / height) in [{lo:g}, "
+                                            f"{hi:g}]; got {self.viewport!r}, {width / height:g}")
                 object.__setattr__(self, "aspect", width / height)
             elif not abs(self.aspect * height - width) <= 0.5:  # agree to the pixel (replace() keeps both)
                 raise InvalidInputError(f"Camera aspect {self.aspect!r} disagrees with viewport {self.viewport!r}")

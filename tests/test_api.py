@@ -95,6 +95,33 @@ def test_camera_vectors_too_short_for_float64_are_named():
 @pytest.mark.parametrize(
     ("options", "match"),
     [
+        ({"aspect": 1e300}, r"^Camera aspect \(width / height\) must lie in \[1e-06, 1e\+06\]; got 1e\+300$"),
+        ({"aspect": 1e307}, r"^Camera aspect \(width / height\) must lie in \[1e-06, 1e\+06\]; got 1e\+307$"),
+        ({"aspect": 1e-300}, r"^Camera aspect \(width / height\) must lie in \[1e-06, 1e\+06\]; got 1e-300$"),
+        ({"viewport": (10**7, 1)}, r"^Camera viewport must have an aspect \(width / height\) in \[1e-06, 1e\+06\]; "
+                                   r"got \(10000000, 1\), 1e\+07$"),
+    ],
+)
+def test_camera_aspect_is_bounded(options, match):
+    """Camera(aspect=1e300) squared its side-plane normals to inf: they came out zero, so nothing was clipped at
+    the sides (and aspect=1e307 overflowed the default viewport); the aspect must lie in [1e-6, 1e6]. Within it,
+    the side planes are unit normals that clip a box off to the side."""
+    from stepterrain import InvalidInputError
+    from stepterrain.camera import Camera
+
+    with pytest.raises(InvalidInputError, match=match):
+        Camera((0.0, 0.0, 10.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), **options)
+    import numpy as np
+
+    for aspect in (1e-6, 1e6):
+        cam = Camera((0.0, 0.0, 10.0), (0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), aspect=aspect)
+        np.testing.assert_allclose(np.linalg.norm(cam.planes()[:, :3], axis=1), 1.0)
+        assert not cam.box_visible(np.array([[-1.0, 1e3, -1.0], [1.0, 1e3 + 1.0, 1.0]]))  # above the view
+
+
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
         ({"viewport": ("640", "480")}, r"Camera viewport must be \(width, height\) pixels; got \('640', '480'\)"),
         ({"viewport": "64"}, r"Camera viewport must be \(width, height\) pixels; got '64'"),
         ({"viewport": ("640", 480)}, r"Camera viewport must be \(width, height\) pixels; got \('640', 480\)"),
