@@ -829,7 +829,16 @@ def _assemble(
         # below the lowest isovalue and the surface: with explicit levels and γ < 1 heights under the lowest
         # level pull the surface below it
         lowest = min(float(values[0]), float(vertices[:, 2].min()))  # faces, hence vertices (checked above)
-        default_floor = lowest - (float(interval) if interval else max(float(np.ptp(values)), 1.0) * 0.1)
+        if interval:
+            default_floor = lowest - float(interval)
+        else:  # levels spanning more than float32 holds (-3e38 to 3e38): their span in float64, not inf
+            with np.errstate(over="ignore"):
+                span = float(np.ptp(values))
+            if not math.isfinite(span):
+                span = float(values[-1]) - float(values[0])
+            default_floor = lowest - max(span, 1.0) * 0.1
+        if default_floor < -FLOAT32_MAX < lowest:  # a tenth of such a span reaches beyond float32: its lowest value
+            default_floor = -FLOAT32_MAX
         try:
             floor_z = default_floor if floor is None else as_number(floor)
         except (TypeError, ValueError, OverflowError):

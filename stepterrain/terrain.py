@@ -397,17 +397,18 @@ class Terrain:
         if len(faces) == 0:
             raise InvalidInputError("terrain mesh has no face with three finite heights")
         xy = points[:, :2]
-        a, b, c = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]
-        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
         point_used = np.zeros(len(points), dtype=np.int32)
         point_used[faces.reshape(-1)] = 1
         used_xy = xy[point_used != 0]  # the kept faces' extent: a stray point must not widen the tolerance
-        span = np.ptp(used_xy, axis=0)
+        with np.errstate(over="ignore"):  # a span beyond float64 (x from -1e308 to 1e308) is inf: refused below
+            span = np.ptp(used_xy, axis=0)
         if (span > FLOAT32_MAX).any():  # the kernels get xy relative to the lower-left corner in float32
             raise InvalidInputError(
                 f"terrain mesh x and y must span at most {FLOAT32_MAX:.2g} (float32 coordinates relative to its "
                 f"corner); got x over {span[0]:.6g}, y over {span[1]:.6g}"
             )
+        a, b, c = xy[faces[:, 0]], xy[faces[:, 1]], xy[faces[:, 2]]  # after the span check: differences are finite
+        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
         scale = max(float(span[0] * span[1]), 1e-300)
         tol = 1e-12 * scale
         positive, negative = area2 > tol, area2 < -tol

@@ -1416,3 +1416,23 @@ def test_per_node_gamma_may_be_nan_where_heights_are_nodata(tin):
     at = "0," if tin else "0, 0"
     with pytest.raises(st.InvalidInputError, match=rf"^gamma must lie in \[0, 1\] .*; got nan at index \({at}\)$"):
         st.stepped(terrain, interval=1.0, gamma=gamma)
+
+
+def test_extreme_but_handled_inputs_leak_no_overflow_warning():
+    """A solid on levels spanning more than float32 holds (-3e38 to 3e38) took np.ptp of the float32 levels: inf
+    with numpy's "overflow encountered" warning, a default floor of -inf and "floor must be finite; got -inf" for a
+    floor nobody gave; it is taken in float64 now and the default floor, a tenth of the span below, stops at
+    float32's lowest value. A TIN whose x spans -1e308 to 1e308 warned twice before it was refused."""
+    heights = np.array([[-1e38, 0.0, 1.0], [2.0, 1e38, 5.0], [1.0, 2.0, 1e38]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        solid = st.stepped(heights, levels=[-3e38, 0.0, 3e38], solid=True)
+        assert np.isfinite(solid.vertices).all() and solid.is_watertight
+        assert solid.metadata["floor"] == -float(np.finfo(np.float32).max)
+        tin = trimesh.Trimesh([[-1e308, 0.0, 0.0], [1e308, 0.0, 1.0], [0.0, 1e308, 2.0]], [[0, 1, 2]], process=False)
+        with pytest.raises(st.InvalidInputError, match=r"^terrain mesh x and y must span at most 3.4e\+38 .*got x over "
+                                                       r"inf, y over 1e\+308$"):
+            st.stepped(tin, interval=1.0)
+    # the default floor of ordinary levels is unchanged: a tenth of their span below the lowest
+    levels = st.stepped(np.eye(3) * 7.3, levels=[0.0, 2.5, 7.25], solid=True)
+    assert levels.metadata["floor"] == 0.0 - max(float(np.ptp(np.array([0.0, 2.5, 7.25], np.float32))), 1.0) * 0.1
