@@ -137,6 +137,51 @@ def horn_gradient(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
 
 
 @wp.func
+def gdal_edge_height(grid: HeightGrid, i: wp.int32, j: wp.int32, di: wp.int32, dj: wp.int32,
+                     centre: wp.float32) -> wp.float32:
+    """Height of the neighbour (i + di, j + dj) of node (i, j) as ``gdaldem -compute_edges`` takes it: beyond the
+    first or last row 2 · edge − next along the column (GDAL's ``INTERPOL``), the column clamped to the grid;
+    beyond the first or last column 2 · edge − next along the row, except in the first and last rows, where the
+    edge column is repeated (GDAL's ``jmin = j``); ``centre`` where that or the neighbour itself is nodata."""
+    ii = i + di
+    jj = j + dj
+    value = wp.float32(0.0)
+    if ii < 0 or ii >= grid.rows:
+        edge = wp.clamp(ii, 0, grid.rows - 1)
+        inner = wp.where(ii < 0, 1, grid.rows - 2)
+        column = wp.clamp(jj, 0, grid.cols - 1)
+        value = 2.0 * grid.heights[edge, column] - grid.heights[inner, column]
+    elif jj < 0 or jj >= grid.cols:
+        edge = wp.clamp(jj, 0, grid.cols - 1)
+        if i == 0 or i == grid.rows - 1:
+            value = grid.heights[ii, edge]
+        else:
+            inner = wp.where(jj < 0, 1, grid.cols - 2)
+            value = 2.0 * grid.heights[ii, edge] - grid.heights[ii, inner]
+    else:
+        value = grid.heights[ii, jj]
+    if wp.isnan(value):
+        return centre
+    return value
+
+
+@wp.func
+def horn_gradient_gdal(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
+    """:func:`horn_gradient` with ``gdaldem -compute_edges``' border (:func:`gdal_edge_height`); the same values
+    wherever the 3 x 3 window lies inside the grid."""
+    e = grid.heights[i, j]
+    a = gdal_edge_height(grid, i, j, -1, -1, e)
+    b = gdal_edge_height(grid, i, j, -1, 0, e)
+    c = gdal_edge_height(grid, i, j, -1, 1, e)
+    d = gdal_edge_height(grid, i, j, 0, -1, e)
+    f = gdal_edge_height(grid, i, j, 0, 1, e)
+    g = gdal_edge_height(grid, i, j, 1, -1, e)
+    h = gdal_edge_height(grid, i, j, 1, 0, e)
+    k = gdal_edge_height(grid, i, j, 1, 1, e)
+    return horn_weights(grid.gradient_scale, a, b, c, d, f, g, h, k)
+
+
+@wp.func
 def horn_weights(
     scale: wp.vec2,
     a: wp.float32,
@@ -223,7 +268,7 @@ def shade_heights(
     1 - shadow_strength where ``shadow`` (same shape, or 0 x 0 for none) marks them shadowed; NaN at nodata.
 
     Interior pixels slide the 3 x 3 window along the row (three new heights per pixel); the border and the
-    neighbours of nodata take the careful path (missing neighbours = the centre height)."""
+    neighbours of nodata take the careful path (gdaldem -compute_edges: :func:`gdal_edge_height`)."""
     t = wp.tid() + thread_offset
     runs = (grid.cols + SHADE_RUN - 1) // SHADE_RUN
     i = t // runs
@@ -265,7 +310,7 @@ def shade_heights(
         for side in range(2):  # the row's border pixels, if this run holds them
             j = wp.where(side == 0, 0, grid.cols - 1)
             if j >= j0 and j < j1:
-                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
+                value = shade_at(horn_gradient_gdal(grid, i, j), light, method, altitude, azimuth)
                 if shadowed:
                     if shadow[i, j] != wp.uint8(0):
                         value = value * (1.0 - shadow_strength)
@@ -297,7 +342,7 @@ def shade_heights(
             if wp.isnan(e):
                 value = e
             elif wp.isnan(gradient[0]) or wp.isnan(gradient[1]):
-                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
+                value = shade_at(horn_gradient_gdal(grid, i, j), light, method, altitude, azimuth)
             elif method == 0:  # the common case inline: max(0, n . l)
                 value = wp.max((light[2] - gradient[0] * light[0] - gradient[1] * light[1])
                                / wp.sqrt(1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1]), 0.0)
@@ -314,7 +359,7 @@ def shade_heights(
             if wp.isnan(centre):
                 value = centre
             else:
-                value = shade_at(horn_gradient(grid, i, j), light, method, altitude, azimuth)
+                value = shade_at(horn_gradient_gdal(grid, i, j), light, method, altitude, azimuth)
             if interior_row and j + 1 < grid.cols:  # entering the interior: load the window's columns j, j+1
                 a = heights[i - 1, j]
                 d = centre
@@ -423,7 +468,8 @@ def maplibre_shade_heights(
     rgba_out: wp.array3d[wp.float32],
 ):
     """One thread per pixel: the MapLibre hillshade layer's premultiplied RGBA from the full-resolution Horn
-    gradient (missing neighbours = the centre height, as :func:`horn_gradient`); NaN at nodata."""
+    gradient (beyond the border the edge repeats, next to nodata the centre height: :func:`horn_gradient`); NaN
+    at nodata."""
     t = wp.tid() + thread_offset
     i = t // grid.cols
     j = t - i * grid.cols
@@ -442,13 +488,14 @@ def encode_normals(
     # outputs
     rgb_out: wp.array3d[wp.uint8],
 ):
-    """One thread per node: its unit normal (x east, y north, z up) as RGB, n * 127.5 + 127.5 rounded."""
+    """One thread per node: its unit normal (x east, y north, z up) as RGB, n * 127.5 + 127.5 rounded; the
+    gradient of :func:`shade_heights` (gdaldem's border), so that relighting gives the hillshade."""
     n = wp.tid() + thread_offset
     i = n // grid.cols
     j = n - i * grid.cols
     normal = wp.vec3(0.0, 0.0, 1.0)
     if not wp.isnan(grid.heights[i, j]):
-        normal = surface_normal(horn_gradient(grid, i, j))
+        normal = surface_normal(horn_gradient_gdal(grid, i, j))
     for c in range(3):
         rgb_out[i, j, c] = wp.uint8(wp.int32(wp.floor(normal[c] * 127.5 + 128.0)))
 

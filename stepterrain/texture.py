@@ -181,7 +181,8 @@ def hillshade(
         MapLibre's ``hillshade-method: multidirectional``); slope and oblique shading combined,
         ``1 − angle(n, l) · slope / (π/2)²`` (``-combined``, MapLibre's ``combined``); Igor's shading
         ``1 − (slope / 90°) · (angle between the light's azimuth and the downhill aspect) / 180°``, which
-        ignores the altitude (``-igor``, MapLibre's ``igor``). Or one of :data:`MAPLIBRE_METHODS`, MapLibre
+        ignores the altitude (``-igor``, MapLibre's ``igor``; on non-square pixels gdaldem takes the aspect from
+        unscaled pixel differences, this is the true downhill aspect). Or one of :data:`MAPLIBRE_METHODS`, MapLibre
         GL's own shader for its ``hillshade-method`` (``maplibre-standard`` is its legacy shading); these
         return an (H, W, 4) RGBA overlay, see Notes.
     shadows : bool
@@ -211,8 +212,11 @@ def hillshade(
 
     Notes
     -----
-    Horn's 3 × 3 gradient with the signed spacing, so north-up rasters (dy < 0) shade like GDAL; at the
-    border and next to nodata the missing neighbours take the centre height (GDAL's ``-compute_edges``).
+    Horn's 3 × 3 gradient with the signed spacing, so north-up rasters (dy < 0) shade like GDAL. The border is
+    shaded as ``gdaldem hillshade -compute_edges`` shades it: a neighbour beyond an edge is extrapolated linearly
+    (2 · edge − next inward), except beyond the left or right edge in the first and last rows, where the edge
+    column repeats; a missing neighbour next to nodata takes the centre height. The MapLibre methods repeat the
+    edge instead (MapLibre backfills a DEM tile's border with its nearest pixel).
     One thread per pixel, O(1) each.
 
     MapLibre methods follow ``src/shaders/glsl/hillshade.fragment.glsl`` of maplibre/maplibre-gl-js (commit
@@ -517,7 +521,8 @@ def normal_map(
     spacing: ArrayLike | None = None,
     device: wp.DeviceLike = None,
 ) -> NDArray[np.uint8]:
-    """Surface normals encoded as an RGB texture (paper 004 §7.4): ``round(n · 127.5 + 127.5)``.
+    """Surface normals encoded as an RGB texture (paper 004 §7.4): ``round(n · 127.5 + 127.5)``, from the Horn
+    gradient :func:`hillshade` shades (its border too), so :func:`relight` reproduces the hillshade.
 
     Returns
     -------

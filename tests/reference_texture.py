@@ -1,6 +1,8 @@
 """Plain NumPy references for the texture kernels (paper 004): written independently, slow, obvious.
 
-* ``hillshade_reference``: Horn gradients with edge replication, the three GDAL variants in float64.
+* ``hillshade_reference``: Horn gradients with ``gdaldem -compute_edges``' border (linear extrapolation beyond an
+  edge, the edge column repeated in the first and last rows), the GDAL variants in float64. ``maplibre_reference``
+  repeats the edge, as MapLibre's backfilled DEM border does.
 * ``shadows_reference``: brute-force ray march from every node towards the light over the nodes of its
   digital line (O(n) per node), in float64.
 * ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
@@ -39,14 +41,41 @@ def real_dem_crop(name: str, size: int = 96, step: int = 4) -> np.ndarray:
     return np.ascontiguousarray(z[: size * step : step, : size * step : step])
 
 
-def horn(heights: np.ndarray, spacing: tuple[float, float], z_factor: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+def _gdal_neighbour(z: np.ndarray, di: int, dj: int) -> np.ndarray:
+    """Neighbour (i + di, j + dj) of every node as gdaldem -compute_edges takes it (GDALGeneric3x3Processing):
+    beyond the first/last row 2 * edge - next in the same (clamped) column; beyond the first/last column
+    2 * edge - next in the same row, but in the first and last rows the edge column itself (its jmin = j); NaN
+    where that touches nodata."""
+    rows, cols = z.shape
+    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
+    ii, jj = i + di, j + dj
+    ic, jc = np.clip(ii, 0, rows - 1), np.clip(jj, 0, cols - 1)
+    out = z[ic, jc].copy()
+    beyond_row = (ii < 0) | (ii >= rows)
+    inner_row = np.where(ii < 0, 1, rows - 2)
+    out[beyond_row] = (2 * z[ic, jc] - z[inner_row, jc])[beyond_row]
+    beyond_col = ~beyond_row & ((jj < 0) | (jj >= cols))
+    inner_col = np.where(jj < 0, 1, cols - 2)
+    first_or_last = (i == 0) | (i == rows - 1)
+    sideways = np.where(first_or_last, z[ic, jc], 2 * z[ic, jc] - z[ic, inner_col])
+    out[beyond_col] = sideways[beyond_col]
+    return out
+
+
+def horn(heights: np.ndarray, spacing: tuple[float, float], z_factor: float = 1.0,
+         edges: str = "repeat") -> tuple[np.ndarray, np.ndarray]:
+    """Horn's gradient (dz/dx, dz/dy); beyond the border the edge repeats (``edges="repeat"``, MapLibre) or as
+    gdaldem -compute_edges (``"gdal"``); a missing neighbour next to nodata takes the centre height."""
     z = np.asarray(heights, dtype=np.float64)
     centre = z.copy()
     padded = np.pad(z, 1, mode="edge")
     rows, cols = z.shape
 
     def at(di: int, dj: int) -> np.ndarray:
-        window = padded[1 + di: 1 + di + rows, 1 + dj: 1 + dj + cols]
+        if edges == "gdal":
+            window = _gdal_neighbour(z, di, dj)
+        else:
+            window = padded[1 + di: 1 + di + rows, 1 + dj: 1 + dj + cols]
         return np.where(np.isnan(window), centre, window)
 
     a, b, c = at(-1, -1), at(-1, 0), at(-1, 1)
@@ -65,7 +94,7 @@ def lambert(p: np.ndarray, q: np.ndarray, azimuth: float, altitude: float) -> np
 
 def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
                         z_factor=1.0, method="standard") -> np.ndarray:
-    p, q = horn(heights, spacing, z_factor)
+    p, q = horn(heights, spacing, z_factor, edges="gdal")
     cos_i = lambert(p, q, azimuth, altitude)
     if method == "standard":
         out = np.maximum(cos_i, 0.0)

@@ -99,6 +99,61 @@ def test_agrees_with_gdaldem(tmp_path, method, flag):
     assert np.abs(gdal - ours).max() <= 1.0  # GDAL rounds to bytes
 
 
+@pytest.mark.parametrize("method,flag", [("standard", []), ("multidirectional", ["-multidirectional"]),
+                                         ("combined", ["-combined"]), ("igor", ["-igor"])])
+def test_border_agrees_with_gdaldem_compute_edges(tmp_path, method, flag):
+    # the border, nodata beside it and the corners included: gdaldem -compute_edges extrapolates beyond an edge
+    # (the border was edge-replicated before, up to 35 of 255 grey levels off on this crop)
+    if shutil.which("gdaldem") is None:
+        pytest.skip("gdaldem not installed (Debian: apt-get install gdal-bin)")
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import from_origin
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=23, step=5)[:, :17].copy()
+    for at in ((1, 5), (4, 1), (1, 1), (21, 15), (0, 9), (12, 16), (11, 8)):
+        heights[at] = np.nan
+    rows, cols = heights.shape
+    path, out = tmp_path / "dem.tif", tmp_path / "hs.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=1, dtype="float32",
+                       crs="EPSG:32611", transform=from_origin(394000.0, 3798000.0, 150.0, 150.0),
+                       nodata=np.nan) as f:
+        f.write(heights, 1)
+    subprocess.run(["gdaldem", "hillshade", "-q", "-compute_edges", "-z", "1.5", *flag, str(path), str(out)],
+                   check=True)
+    with rasterio.open(out) as f:
+        gdal = f.read(1).astype(np.float64)
+    shade = hillshade(st.load_dem(path), method=method, z_factor=1.5, device="cpu").astype(np.float64)
+    ours = 255 * shade if method == "igor" else 1 + 254 * shade  # GDAL's byte scalings
+    valid = ~np.isnan(heights)
+    assert np.abs(gdal - ours)[valid].max() <= 0.51  # GDAL rounds to bytes
+
+
+@given(
+    heights=arrays(np.float32, hst.tuples(hst.integers(2, 7), hst.integers(2, 7)),
+                   elements=hst.one_of(hst.integers(0, 60).map(float), hst.just(np.nan))),
+    method=hst.sampled_from(["standard", "multidirectional", "combined", "igor"]),
+    spacing=hst.sampled_from([(1.0, 1.0), (30.0, -30.0), (2.0, 0.5), (-0.7, 1.3)]),
+)
+def test_hillshade_border_matches_reference_property(heights, method, spacing):
+    # every pixel of small grids, most of them border pixels, with nodata anywhere: gdaldem's -compute_edges rule
+    ours = hillshade(heights, spacing=spacing, method=method, device="cpu")
+    ref = hillshade_reference(heights, spacing, method=method)
+    np.testing.assert_allclose(ours, ref, atol=2e-5)
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (2.0, -3.0), (-1.5, 1.0)])
+def test_tilted_plane_border_is_exact_but_corners(device, spacing):
+    # linear extrapolation continues a plane beyond every edge; only the corners repeat a column (as gdaldem)
+    a, b = 0.3, -0.2
+    heights = tilted(a=a, b=b, spacing=spacing)
+    shade = hillshade(heights, spacing=spacing, azimuth=RAD(90), altitude=RAD(30), device=device)
+    light = np.array([math.cos(RAD(30)), 0.0, math.sin(RAD(30))])
+    expected = max(float(np.array([-a, -b, 1.0]) @ light) / math.sqrt(1 + a * a + b * b), 0.0)
+    corners = np.zeros(shade.shape, bool)
+    corners[[0, 0, -1, -1], [0, -1, 0, -1]] = True
+    np.testing.assert_allclose(shade[~corners], expected, atol=2e-6)
+
+
 # ------------------------------------------------------------------------------------------ shadows
 def ridge(cols=40, rows=5, x0=10, height=20.0):
     heights = np.zeros((rows, cols), np.float32)
