@@ -200,7 +200,8 @@ def isovalues(
     InvalidInputError
         Both or neither of ``interval`` and ``levels``; a non-finite or non-positive interval; levels that
         are empty, non-finite or not strictly increasing (also after rounding to float32); a ``height_range``
-        that is not finite (min, max) with min <= max.
+        that is not finite (min, max) with min <= max, or spans more than float32 holds (max - min > 3.4e38: the
+        step kernels take height differences in float32).
 
     Examples
     --------
@@ -239,7 +240,7 @@ def isovalues(
             raise InvalidInputError(f"levels must be strictly increasing; got {shown} (index {i})")
         if values.size > MAX_LEVELS:
             raise InvalidInputError(f"at most {MAX_LEVELS} levels are supported; got {values.size}")
-        return values
+        return _check_span(lo, hi, values)
     try:
         step = as_number(interval)
         base = as_number(base)
@@ -275,6 +276,18 @@ def isovalues(
         )
     if values.size > 1 and np.any(np.diff(values) <= 0):
         raise InvalidInputError(f"interval={step} is too small for float32 heights around {hi}")
+    return _check_span(lo, hi, values)
+
+
+def _check_span(lo: float, hi: float, values: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``values`` when the heights' differences, which the step kernels take in float32 (a crossed threshold lies
+    between the edge's two heights), stay finite: heights from -2e38 to 2e38 put a wall's crossing at β = 2e38 / inf
+    = 0 instead of 0.5, and from -3e38 to 3e38 at NaN (inf / inf), in a mesh returned without an error."""
+    if hi - lo > FLOAT32_MAX:
+        raise InvalidInputError(
+            f"heights [{lo:g}, {hi:g}] span {hi - lo:.3g}, beyond float32 (3.4e+38): the step kernels take height "
+            "differences in float32"
+        )
     return values
 
 

@@ -1055,6 +1055,23 @@ def test_heights_beyond_float32_are_named_not_called_infinite(value):
     assert st.Terrain.from_heights(heights).heights[2, 3] == np.finfo(np.float32).max
 
 
+def test_heights_spanning_beyond_float32_are_refused():
+    """Heights from -2e38 to 2e38 fit float32, their differences do not: the step kernels took β = 2e38 / inf = 0 and
+    put the wall of threshold 0 on the edge's lower end instead of its middle (from -3e38 to 3e38: inf / inf, NaN
+    vertices), in a mesh returned without an error."""
+    for top, levels in ((2e38, [-1e38, 1e38]), (3e38, [-3e38, 0.0, 3e38])):
+        heights = np.array([[-top, top], [-top, top]], dtype=np.float32)
+        message = (f"heights [-{top:g}, {top:g}] span {2 * top:.3g}, beyond float32 (3.4e+38): the step kernels take "
+                   "height differences in float32")
+        with pytest.raises(st.InvalidInputError, match=f"^{re.escape(message)}$"):
+            st.stepped(heights, levels=levels)
+    with pytest.raises(st.InvalidInputError, match=r"span 4e\+38, beyond float32"):  # uniform isovalues likewise
+        st.stepped(np.array([[-2e38, 0.0], [1.0, 2e38]], dtype=np.float32), interval=1e38)
+    half = np.array([[-1e38, 1e38], [-1e38, 1e38]], dtype=np.float32)  # a span of 2e38: the wall in the middle
+    mesh = st.stepped(half, levels=[-1e38, 1e38])
+    assert np.unique(np.round(mesh.vertices[:, 0], 6)).tolist() == [0.0, 0.5, 1.0]
+
+
 @pytest.mark.parametrize("n_vertices", [0, 3])
 @pytest.mark.parametrize("process", [False, True])
 def test_empty_terrain_mesh_is_refused(n_vertices, process):
