@@ -581,7 +581,10 @@ def start_local_cluster(workers: int) -> Any:
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                 silence_logs=logging.ERROR)  # fmt: skip
     except (OSError, RuntimeError, TimeoutError) as exc:
-        raise SchedulerError(f"cannot start a LocalCluster of {workers} worker processes: {exc}") from exc
+        raise SchedulerError(
+            f"cannot start a LocalCluster of {workers} worker processes: {exc} (from a script, call batch() under "
+            "`if __name__ == '__main__':`: the workers start by importing the script)"
+        ) from exc
 
 
 def _scheduler_error(scheduler: Any) -> InvalidInputError:
@@ -631,6 +634,11 @@ def _connect(
         raise SchedulerError(
             f"cannot reach the dask scheduler {scheduler!r} within connect_timeout={connect_timeout:g} s: "
             f"{type(exc).__name__}: {exc}"
+        ) from exc
+    except Exception as exc:  # something else answers there: an HTTP reply read as a frame length of 3 EiB
+        raise SchedulerError(
+            f"{scheduler!r} answered, but not as a dask scheduler ({type(exc).__name__}: {exc}); check the port: "
+            "a scheduler listens on 8786 by default, its HTTP dashboard on 8787"
         ) from exc
     return client, None, f"dask scheduler {scheduler}", False
 

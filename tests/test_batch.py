@@ -908,6 +908,50 @@ def test_cli_batch_unreachable_scheduler(tmp_path, capsys):
     assert "cannot reach the dask scheduler" in capsys.readouterr().err
 
 
+@pytest.fixture
+def http_port():
+    """A port where an HTTP server answers every connection with 400 (a proxy, the dask dashboard on 8787)."""
+    import threading
+
+    server = socket.create_server(("127.0.0.1", 0))
+    server.settimeout(0.2)
+    stop = threading.Event()
+
+    def serve() -> None:
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except TimeoutError:
+                continue
+            with conn:
+                conn.settimeout(0.5)
+                try:
+                    conn.recv(4096)
+                except OSError:
+                    pass
+                conn.sendall(b"HTTP/1.1 400 Bad Request\r\nconnection: close\r\ncontent-length: 0\r\n\r\n")
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    yield server.getsockname()[1]
+    stop.set()
+    thread.join()
+    server.close()
+
+
+def test_scheduler_address_answered_by_http_is_a_clear_error(tmp_path, http_port, capsys):
+    """An address where HTTP answers (the dashboard's port 8787 given for the scheduler's 8786) made dask read
+    'HTTP/1.1 4' as a frame length and raise numpy's MemoryError (3 EiB) as a traceback, exit status 1."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    address = f"tcp://127.0.0.1:{http_port}"
+    with pytest.raises(SchedulerError, match=r"answered, but not as a dask scheduler .*8786 .*8787"):
+        batch(np.zeros((5, 5)), tmp_path / "o", tile_size=2, interval=1.0, scheduler=address, connect_timeout=2.0)
+    assert not (tmp_path / "o").exists()
+    argv = ["batch", "-o", str(tmp_path / "o"), "--scheduler", address, "--connect-timeout", "2"]
+    assert cli.main(argv) == 2
+    assert "not as a dask scheduler" in capsys.readouterr().err
+
+
 def test_cli_batch_help_has_examples(capsys):
     assert cli.main(["batch", "--help"]) == 0
     text = capsys.readouterr().out
