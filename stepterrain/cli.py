@@ -37,13 +37,13 @@ EXIT_USAGE = 2
 _STEPS_EPILOG = """\
 examples:
   stepterrain steps -o out/terrain.glb --png out/terrain.png
-      the embedded Big Tujunga DEM (30 m SRTM), about 15 steps, GLB + render
+      the embedded Big Tujunga DEM (30 m SRTM), 100 m steps (the round interval nearest ~15; 21 levels), GLB + render
   stepterrain steps dem.tif --interval 50 --gamma 0.7 -o dem.ply
   stepterrain steps --levels 400,800,1200,1600,2000 --colormap viridis -o levels.obj
   stepterrain steps --lens-relative 0.5,0.5,0.2 -o lens.glb --png lens.png
       original terrain inside a soft circular lens at the centre, steps outside (paper 000, Fig. 4)
-  stepterrain steps --interval 200 --solid --floor 0 -o print.stl
-      a watertight solid for 3D printing
+  stepterrain steps --interval 200 --base 0.5 --solid --floor 0 -o print.stl
+      a watertight solid for 3D printing (--base 0.5: no integer height sits on a threshold)
 """
 
 _INFO_EPILOG = """\

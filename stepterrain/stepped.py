@@ -835,7 +835,8 @@ def _assemble(
         if np.isin(t.used_heights(), thresholds_of(values)).any():
             warnings.warn(
                 "some heights sit exactly on a threshold (α_i + α_i+1) / 2; the solid may not be watertight "
-                "there. Shift base by a fraction of the interval (e.g. base=0.5 for integer heights).",
+                "there. Shift base by a fraction of the interval (e.g. base=0.5, on the command line --base 0.5, for "
+                "integer heights).",
                 stacklevel=3,
             )
 

@@ -129,6 +129,10 @@ def test_library_warnings_print_as_one_line(tmp_path, capsys):
     lines = [line for line in err.splitlines() if "threshold" in line]
     assert len(lines) == 1 and lines[0].startswith("stepterrain steps: warning: some heights sit exactly"), err
     assert "UserWarning" not in err and "warnings.warn" not in err
+    assert "--base 0.5" in lines[0]  # the fix in the command line's words (it said base=0.5 only)
+    code, _, err = run(capsys, "steps", path, "--interval", "2", "--base", "0.5", "--solid", "-o", tmp_path / "q.stl")
+    assert code == 0 and "warning:" not in err, err
+    assert trimesh.load(tmp_path / "q.stl").is_watertight
 
 
 @pytest.mark.parametrize("lens", [["--lens", "15,-11,6"],  # .npy rows run north to south: y = -row
