@@ -61,7 +61,8 @@ def add_parser(commands: Any) -> None:
                    help="tilt about x and turn about the vertical, degrees (default 0,0)")
     p.add_argument("--color", action="append", metavar="COLOR", help="close-up color (default: a palette)")
     p.add_argument("--stepped", type=float, action="append", metavar="INTERVAL",
-                   help="the close-up shows the stepped terrain at this interval (MPFR); 0: continuous")
+                   help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
+                        "forward rendering, MPFR); 0: continuous")
     p.add_argument("--anchor", default="linear", metavar="PRESET",
                    help="anchor transparency: opaque, linear, inverse, ends, hidden (default linear)")
     p.add_argument("--billboard", action="store_true",

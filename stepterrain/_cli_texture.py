@@ -24,7 +24,8 @@ examples:
       hillshade (GDAL conventions, light from 315 deg at 45 deg) with self-shadowing, hypsometric colours
   stepterrain texture dem.tif --hillshade multidirectional --colormap none -o shade.png
   stepterrain texture dem.tif --shadows -o shade.tif
-      a GeoTIFF on the DEM's own pixel grid and CRS: it lies exactly over the DEM in QGIS or ArcGIS
+      a GeoTIFF on the DEM's own pixel grid and CRS (a DEM in degrees: an equirectangular CRS in metres that
+      reprojects exactly onto its degrees): it lies exactly over the DEM in QGIS or ArcGIS
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render

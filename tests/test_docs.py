@@ -44,6 +44,7 @@ def reader_names(folder: Path) -> dict:
         "H": crop.shape[0],
         "W": crop.shape[1],
         "pv": pv,
+        "__name__": "__main__",  # the blocks run as a script would (batch.md's LocalCluster guard)
     }
 
 
