@@ -496,11 +496,14 @@ def _frame_points(local: NDArray[np.float64], finite: NDArray[np.bool_]) -> NDAr
 
 
 def _clipping_range(position: Any, bounds: NDArray[np.float64]) -> tuple[float, float]:
+    """(near, far) holding all of ``bounds``: far beyond its farthest corner, near half the eye's distance to the
+    box itself (0 inside it, then far / 10^4). Half the distance to the nearest *corner* clipped nearer geometry:
+    a globe seen from 400 km up had its near plane 1,000-3,000 km out, and the far side's inner faces showed
+    through where the terrain was cut away."""
     eye = np.asarray(position[0], dtype=np.float64)
-    corners = _box_corners(bounds)
-    distances = np.linalg.norm(corners - eye, axis=1)
-    far = float(distances.max()) * 1.05
-    return max(far * 1e-4, float(distances.min()) * 0.5), far
+    far = float(np.linalg.norm(_box_corners(bounds) - eye, axis=1).max()) * 1.05
+    gap = np.maximum(np.maximum(bounds[0] - eye, eye - bounds[1]), 0.0)  # per axis, 0 where the eye is within
+    return max(far * 1e-4, float(np.linalg.norm(gap)) * 0.5), far
 
 
 def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:

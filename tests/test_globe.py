@@ -863,3 +863,31 @@ def test_render_view_refuses_what_it_cannot_render(small_globe):
         render_view(None, camera, window_size=(64, 64))
     with pytest.raises(InvalidInputError, match="camera must be a stepterrain.globe.Camera; got tuple"):
         render_view(small_globe.mesh(), (0.0, 0.0, 1.0), window_size=(64, 64))
+
+
+@pytest.mark.render
+def test_a_low_tilted_view_renders_the_same_culled_or_not(sample_globe):
+    """The cull drops only triangles outside the view, so it must not change the picture. The render's near plane
+    sat at half the distance to the nearest corner of the mesh's box: 1,000-3,000 km out for a view from 400 km
+    up, so the nearer terrain was clipped away and the inside of the globe's far side showed through (the help's
+    Alps example: a dark picture with a bright band, and a different one with --no-cull)."""
+    from stepterrain import render
+    from stepterrain.globe import render_view
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    camera = look_from(46.0, 9.0, 400_000.0, tilt=60.0, aspect=1.6)
+    culled = sample_globe.mesh(error=20.0, camera=camera)
+    whole = sample_globe.mesh(error=20.0, camera=camera, cull=False)
+    assert len(culled.faces) < len(whole.faces)
+    images = [render_view(m, camera, window_size=(160, 100)).astype(int) for m in (culled, whole)]
+    assert (np.abs(images[0] - images[1]).max(axis=2) > 8).mean() < 0.002
+    # and what it shows is the near side: every front-facing triangle the eye sees, not the far side's inside
+    eye = np.asarray(camera.eye)
+    front = np.einsum("fj,fj->f", culled.face_normals, eye - culled.triangles_center) > 0
+    near_side = culled.copy()
+    near_side.update_faces(front)
+    near_side.remove_unreferenced_vertices()
+    alone = render_view(near_side, camera, window_size=(160, 100)).astype(int)
+    assert (np.abs(images[0] - alone).max(axis=2) > 8).mean() < 0.002
