@@ -1129,7 +1129,28 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
         raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got {len(mesh.faces)} "
                                 "faces: a view that clips every triangle gives an empty mesh)")
-    centre = box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``
-    position = [tuple(np.subtract(camera.eye, centre)), tuple(np.subtract(camera.target, centre)), camera.up]
-    return render.render_mesh(mesh, window_size=window_size, camera=position, background=background, bounds=box,
-                              show_edges=show_edges)
+    # rendered in the east / north / up frame of the ground under the view, so that the render's light comes from
+    # the north-west of that ground, as over a local terrain (in the world frame it came from the north-west of the
+    # equatorial plane: a close view over New Zealand was lit from below the horizon and came out dim)
+    frame = _view_frame(camera)
+    centre = box.mean(axis=0)
+    local = mesh.copy()
+    local.vertices = (np.asarray(mesh.vertices, dtype=np.float64) - centre) @ frame.T
+    local_box = render._finite_bounds(np.asarray(local.vertices))
+    middle = local_box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``
+    eye, target = ((np.subtract(point, centre) @ frame.T) - middle for point in (camera.eye, camera.target))
+    position = [tuple(eye), tuple(target), tuple(frame @ np.asarray(camera.up, dtype=np.float64))]
+    return render.render_mesh(local, window_size=window_size, camera=position, background=background,
+                              bounds=local_box, show_edges=show_edges)
+
+
+def _view_frame(camera: Camera) -> NDArray[np.float64]:
+    """Rows east, north, up of the ground under ``camera``'s target (its eye's when the target is the centre)."""
+    target = np.asarray(camera.target, dtype=np.float64)
+    ground = target if np.linalg.norm(target) > 0.0 else np.asarray(camera.eye, dtype=np.float64)
+    up = ground / np.linalg.norm(ground)
+    east = np.cross((0.0, 0.0, 1.0), up)
+    if np.linalg.norm(east) < 1e-9:  # over a pole: any east will do
+        east = np.array([0.0, 1.0, 0.0])
+    east /= np.linalg.norm(east)
+    return np.stack([east, np.cross(up, east), up])

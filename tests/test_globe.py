@@ -891,3 +891,25 @@ def test_a_low_tilted_view_renders_the_same_culled_or_not(sample_globe):
     near_side.remove_unreferenced_vertices()
     alone = render_view(near_side, camera, window_size=(160, 100)).astype(int)
     assert (np.abs(images[0] - alone).max(axis=2) > 8).mean() < 0.002
+
+
+@pytest.mark.render
+def test_views_are_lit_alike_in_both_hemispheres():
+    """render_view lights the scene from the north-west of the ground under the view, as render_mesh lights a local
+    terrain. In the world frame the light came from the north-west of the equatorial plane, so a view of the
+    southern hemisphere was lit from below its horizon and came out dim (New Zealand from 600 km)."""
+    from stepterrain import render
+    from stepterrain.globe import render_view
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    flat = Globe.from_latlon(np.zeros((180, 360), np.float32), lat, lon, face_size=33, device="cpu")
+    brightness = []
+    for latitude, heading in ((45.0, 0.0), (-45.0, 180.0)):  # mirror images of each other across the equator
+        camera = look_from(latitude, 10.0, 500_000.0, tilt=30.0, heading=heading, aspect=1.6)
+        brightness.append(render_view(flat.mesh(), camera, window_size=(160, 100)).mean())
+    assert brightness[0] > 60
+    assert 0.9 < brightness[1] / brightness[0] < 1.1, brightness
