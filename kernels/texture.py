@@ -111,73 +111,50 @@ class MapLibreStyle:
 
 
 @wp.func
-def height_or(grid: HeightGrid, i: wp.int32, j: wp.int32, fallback: wp.float32) -> wp.float32:
-    """Height of node (i, j), clamped to the grid; ``fallback`` (the centre) where it is nodata (NaN)."""
-    ii = wp.clamp(i, 0, grid.rows - 1)
-    jj = wp.clamp(j, 0, grid.cols - 1)
-    h = grid.heights[ii, jj]
-    if wp.isnan(h):
-        return fallback
-    return h
+def window_height(grid: HeightGrid, i: wp.int32, j: wp.int32, di: wp.int32, dj: wp.int32, centre: wp.float32,
+                  extrapolate: wp.int32) -> wp.float32:
+    """Height of the neighbour (i + di, j + dj) of node (i, j); ``centre`` where it is nodata (NaN).
 
-
-@wp.func
-def horn_gradient(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
-    """(dz/dx, dz/dy) at node (i, j) by Horn's 3 x 3 weights, times the z factor (world units)."""
-    e = grid.heights[i, j]
-    a = height_or(grid, i - 1, j - 1, e)
-    b = height_or(grid, i - 1, j, e)
-    c = height_or(grid, i - 1, j + 1, e)
-    d = height_or(grid, i, j - 1, e)
-    f = height_or(grid, i, j + 1, e)
-    g = height_or(grid, i + 1, j - 1, e)
-    h = height_or(grid, i + 1, j, e)
-    k = height_or(grid, i + 1, j + 1, e)
-    return horn_weights(grid.gradient_scale, a, b, c, d, f, g, h, k)
-
-
-@wp.func
-def gdal_edge_height(grid: HeightGrid, i: wp.int32, j: wp.int32, di: wp.int32, dj: wp.int32,
-                     centre: wp.float32) -> wp.float32:
-    """Height of the neighbour (i + di, j + dj) of node (i, j) as ``gdaldem -compute_edges`` takes it: beyond the
-    first or last row 2 · edge − next along the column (GDAL's ``INTERPOL``), the column clamped to the grid;
-    beyond the first or last column 2 · edge − next along the row, except in the first and last rows, where the
-    edge column is repeated (GDAL's ``jmin = j``); ``centre`` where that or the neighbour itself is nodata."""
+    Beyond the grid, with ``extrapolate`` as ``gdaldem -compute_edges`` takes it: beyond the first or last row
+    2 · edge − next along the column (GDAL's ``INTERPOL``), the column clamped to the grid; beyond the first or
+    last column 2 · edge − next along the row, except in the first and last rows, where the edge column is
+    repeated (GDAL's ``jmin = j``); ``centre`` where that is nodata. Without, the nearest edge node (MapLibre
+    backfills a DEM tile's border with its nearest pixel)."""
     ii = i + di
     jj = j + dj
     value = wp.float32(0.0)
-    if ii < 0 or ii >= grid.rows:
+    if extrapolate == 0 or (ii >= 0 and ii < grid.rows and jj >= 0 and jj < grid.cols):
+        value = grid.heights[wp.clamp(ii, 0, grid.rows - 1), wp.clamp(jj, 0, grid.cols - 1)]
+    elif ii < 0 or ii >= grid.rows:
         edge = wp.clamp(ii, 0, grid.rows - 1)
         inner = wp.where(ii < 0, 1, grid.rows - 2)
         column = wp.clamp(jj, 0, grid.cols - 1)
         value = 2.0 * grid.heights[edge, column] - grid.heights[inner, column]
-    elif jj < 0 or jj >= grid.cols:
+    else:
         edge = wp.clamp(jj, 0, grid.cols - 1)
         if i == 0 or i == grid.rows - 1:
             value = grid.heights[ii, edge]
         else:
             inner = wp.where(jj < 0, 1, grid.cols - 2)
             value = 2.0 * grid.heights[ii, edge] - grid.heights[ii, inner]
-    else:
-        value = grid.heights[ii, jj]
     if wp.isnan(value):
         return centre
     return value
 
 
 @wp.func
-def horn_gradient_gdal(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
-    """:func:`horn_gradient` with ``gdaldem -compute_edges``' border (:func:`gdal_edge_height`); the same values
-    wherever the 3 x 3 window lies inside the grid."""
+def horn_gradient(grid: HeightGrid, i: wp.int32, j: wp.int32, extrapolate: wp.int32) -> wp.vec2:
+    """(dz/dx, dz/dy) at node (i, j) by Horn's 3 x 3 weights, times the z factor (world units); the window's
+    missing neighbours as :func:`window_height` takes them (``extrapolate``: gdaldem's border)."""
     e = grid.heights[i, j]
-    a = gdal_edge_height(grid, i, j, -1, -1, e)
-    b = gdal_edge_height(grid, i, j, -1, 0, e)
-    c = gdal_edge_height(grid, i, j, -1, 1, e)
-    d = gdal_edge_height(grid, i, j, 0, -1, e)
-    f = gdal_edge_height(grid, i, j, 0, 1, e)
-    g = gdal_edge_height(grid, i, j, 1, -1, e)
-    h = gdal_edge_height(grid, i, j, 1, 0, e)
-    k = gdal_edge_height(grid, i, j, 1, 1, e)
+    a = window_height(grid, i, j, -1, -1, e, extrapolate)
+    b = window_height(grid, i, j, -1, 0, e, extrapolate)
+    c = window_height(grid, i, j, -1, 1, e, extrapolate)
+    d = window_height(grid, i, j, 0, -1, e, extrapolate)
+    f = window_height(grid, i, j, 0, 1, e, extrapolate)
+    g = window_height(grid, i, j, 1, -1, e, extrapolate)
+    h = window_height(grid, i, j, 1, 0, e, extrapolate)
+    k = window_height(grid, i, j, 1, 1, e, extrapolate)
     return horn_weights(grid.gradient_scale, a, b, c, d, f, g, h, k)
 
 
@@ -268,7 +245,7 @@ def shade_heights(
     1 - shadow_strength where ``shadow`` (same shape, or 0 x 0 for none) marks them shadowed; NaN at nodata.
 
     Interior pixels slide the 3 x 3 window along the row (three new heights per pixel); the border and the
-    neighbours of nodata take the careful path (gdaldem -compute_edges: :func:`gdal_edge_height`)."""
+    neighbours of nodata take the careful path (gdaldem -compute_edges: :func:`window_height`)."""
     t = wp.tid() + thread_offset
     runs = (grid.cols + SHADE_RUN - 1) // SHADE_RUN
     i = t // runs
@@ -310,7 +287,7 @@ def shade_heights(
         for side in range(2):  # the row's border pixels, if this run holds them
             j = wp.where(side == 0, 0, grid.cols - 1)
             if j >= j0 and j < j1:
-                value = shade_at(horn_gradient_gdal(grid, i, j), light, method, altitude, azimuth)
+                value = shade_at(horn_gradient(grid, i, j, 1), light, method, altitude, azimuth)
                 if shadowed:
                     if shadow[i, j] != wp.uint8(0):
                         value = value * (1.0 - shadow_strength)
@@ -342,7 +319,7 @@ def shade_heights(
             if wp.isnan(e):
                 value = e
             elif wp.isnan(gradient[0]) or wp.isnan(gradient[1]):
-                value = shade_at(horn_gradient_gdal(grid, i, j), light, method, altitude, azimuth)
+                value = shade_at(horn_gradient(grid, i, j, 1), light, method, altitude, azimuth)
             elif method == 0:  # the common case inline: max(0, n . l)
                 value = wp.max((light[2] - gradient[0] * light[0] - gradient[1] * light[1])
                                / wp.sqrt(1.0 + gradient[0] * gradient[0] + gradient[1] * gradient[1]), 0.0)
@@ -359,7 +336,7 @@ def shade_heights(
             if wp.isnan(centre):
                 value = centre
             else:
-                value = shade_at(horn_gradient_gdal(grid, i, j), light, method, altitude, azimuth)
+                value = shade_at(horn_gradient(grid, i, j, 1), light, method, altitude, azimuth)
             if interior_row and j + 1 < grid.cols:  # entering the interior: load the window's columns j, j+1
                 a = heights[i - 1, j]
                 d = centre
@@ -468,14 +445,14 @@ def maplibre_shade_heights(
     rgba_out: wp.array3d[wp.float32],
 ):
     """One thread per pixel: the MapLibre hillshade layer's premultiplied RGBA from the full-resolution Horn
-    gradient (beyond the border the edge repeats, next to nodata the centre height: :func:`horn_gradient`); NaN
+    gradient (beyond the border the edge repeats, next to nodata the centre height: :func:`window_height`); NaN
     at nodata."""
     t = wp.tid() + thread_offset
     i = t // grid.cols
     j = t - i * grid.cols
     colour = wp.vec4(wp.nan)
     if not wp.isnan(grid.heights[i, j]):
-        gradient = horn_gradient(grid, i, j)
+        gradient = horn_gradient(grid, i, j, 0)
         colour = maplibre_colour(wp.vec2(gradient[0], -gradient[1]), style)
     for c in range(4):
         rgba_out[i, j, c] = colour[c]
@@ -495,7 +472,7 @@ def encode_normals(
     j = n - i * grid.cols
     normal = wp.vec3(0.0, 0.0, 1.0)
     if not wp.isnan(grid.heights[i, j]):
-        normal = surface_normal(horn_gradient_gdal(grid, i, j))
+        normal = surface_normal(horn_gradient(grid, i, j, 1))
     for c in range(3):
         rgb_out[i, j, c] = wp.uint8(wp.int32(wp.floor(normal[c] * 127.5 + 128.0)))
 

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
-from .terrain import FLOAT32_MAX, Terrain, as_terrain
+from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
 
@@ -487,7 +487,7 @@ def nodata_as_nan(
         if hits is not None:
             big &= ~hits
         if big.any():
-            at = tuple(int(i) for i in np.argwhere(big)[0])
+            at = first_index(big)
             raise DataFileError(f"cannot read {str(file)!r}: {what} holds heights beyond float32 (|z| < 3.4e+38); "
                                 f"got {float(array[at])!r} at index {at}")
     with np.errstate(over="ignore"):  # only nodata overflows here (beyond float32, refused above otherwise)

@@ -40,6 +40,7 @@ from .terrain import (
     check_flag,
     check_spacing,
     finite_number,
+    first_index,
     real_numbers,
     unmasked,
 )
@@ -79,7 +80,7 @@ class Lens:
             )
         mask = np.ascontiguousarray(mask, dtype=np.float32)
         if not np.all(np.isfinite(mask)):  # NaN, also a masked entry
-            at = tuple(int(i) for i in np.argwhere(~np.isfinite(mask))[0])
+            at = first_index(~np.isfinite(mask))
             raise InvalidInputError(f"lens mask values must lie in [0, 1]; got {float(mask[at])} at index {at}")
         if mask.min() < 0.0 or mask.max() > 1.0:
             raise InvalidInputError(f"lens mask values must lie in [0, 1]; got range [{mask.min()}, {mask.max()}]")
@@ -575,7 +576,7 @@ def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], nam
                     else f"shape {shape} (one γ per terrain node) or a scalar, a callable or a Lens")
         raise InvalidInputError(f"{name} must be {what}; got shape {values.shape}")
     if values.size and not np.isfinite(values).all():  # NaN: also a masked entry
-        at = tuple(int(i) for i in np.argwhere(~np.isfinite(values))[0])
+        at = first_index(~np.isfinite(values))
         raise InvalidInputError(f"{name} must lie in [0, 1] (0 = original, 1 = stepped); got {float(values[at])}"
                                 + (f" at index {at}" if at else ""))
     if values.size and (values.min() < 0.0 or values.max() > 1.0):

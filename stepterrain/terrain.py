@@ -217,12 +217,17 @@ def _object_numbers(array: NDArray[np.object_], name: str, expected: str) -> NDA
     return out
 
 
+def first_index(mask: NDArray[np.bool_]) -> tuple[int, ...]:
+    """The index of the first true entry of a non-empty ``mask`` with one (row-major), for error messages."""
+    return tuple(int(i) for i in np.argwhere(mask)[0])
+
+
 def first_beyond_float32(array: NDArray[Any]) -> tuple[float, tuple[int, ...]]:
     """The first finite value of ``array`` that float32 cannot hold (a cast makes it infinite), and its index.
     For the error path only: it is a full pass, which :func:`float32_heights` takes only after the cast overflowed."""
     with np.errstate(over="ignore"):
         overflowed = np.isinf(np.asarray(array, dtype=np.float32)) & np.isfinite(array)
-    at = tuple(int(i) for i in np.argwhere(overflowed)[0])
+    at = first_index(overflowed)
     return float(array[at]), at
 
 
@@ -247,7 +252,7 @@ def finite_or_nan(heights: NDArray[np.floating], name: str) -> tuple[float, floa
     an isinf pass and a mask (that runs only when the min or max is not finite)."""
     lo, hi = float(heights.min()), float(heights.max())  # NaN propagates through both, and an infinity shows in one
     if not (math.isfinite(lo) and math.isfinite(hi)) and np.isinf(heights).any():
-        bad = tuple(int(i) for i in np.argwhere(np.isinf(heights))[0])
+        bad = first_index(np.isinf(heights))
         raise InvalidInputError(f"{name} must be finite or NaN (nodata); got an infinite value at index {bad}")
     return lo, hi
 
