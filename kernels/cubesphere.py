@@ -51,6 +51,8 @@ ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
 #: node whose e reaches it refines whatever the view or user metrics say (else the mesh would keep the padding).
 #: Nodes store e in float32: the refinement test compares with half of it, clear of that rounding.
 STRADDLE_ERROR = wp.constant(wp.float64(3.0e38))
+#: :func:`edge_slope` of an edge whose bound does not move by a whole number of columns per row.
+NO_SLOPE = wp.constant(1 << 30)
 
 
 #: How many elements ahead the CPU's scattered loops prefetch (see :func:`prefetch`).
@@ -618,13 +620,45 @@ def straddles_input(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i)
 
 
 @wp.func
-def edge_interval(w: wp.int32, step: wp.int32, lo: wp.int32, hi: wp.int32):
-    """[lo, hi] narrowed to the k with w + k·step >= 0 (exact: integer bounds through float64 quotients of
+def edge_bound(w: wp.int32, step: wp.int32) -> wp.int32:
+    """The bound that w + k·step >= 0 puts on k: k >= it (step > 0) or k <= it (step < 0); 0 for step 0
+    (exact: integer bounds through float64 quotients of
     small integers, which are exact or far from the next integer)."""
     if step > 0:
-        lo = wp.max(lo, wp.int32(wp.ceil(wp.float64(-w) / wp.float64(step))))
+        return wp.int32(wp.ceil(wp.float64(-w) / wp.float64(step)))
+    if step < 0:
+        return wp.int32(wp.floor(wp.float64(w) / wp.float64(-step)))
+    return 0
+
+
+@wp.func
+def edge_slope(delta: wp.int32, step: wp.int32) -> wp.int32:
+    """How much :func:`edge_bound` changes from one row to the next when w changes by ``delta``: -delta / step
+    when that is an integer (then ceil and floor move by it exactly); 0 for step 0; otherwise a flag value
+    (:data:`NO_SLOPE`: recompute the bound per row). The bisection's triangles have axis-aligned and diagonal
+    edges only, whose slopes are 0 or ±1."""
+    if step == 0:
+        return 0
+    if delta % step != 0:
+        return NO_SLOPE
+    return -(delta / step)
+
+
+@wp.func
+def row_bound(bound: wp.int32, slope: wp.int32, w: wp.int32, step: wp.int32) -> wp.int32:
+    """The next row's :func:`edge_bound`: stepped by the slope, or recomputed when it has none."""
+    if slope == NO_SLOPE:
+        return edge_bound(w, step)
+    return bound + slope
+
+
+@wp.func
+def edge_limits(w: wp.int32, step: wp.int32, bound: wp.int32, lo: wp.int32, hi: wp.int32):
+    """[lo, hi] narrowed to the k with w + k·step >= 0, given the edge's :func:`edge_bound`."""
+    if step > 0:
+        lo = wp.max(lo, bound)
     elif step < 0:
-        hi = wp.min(hi, wp.int32(wp.floor(wp.float64(w) / wp.float64(-step))))
+        hi = wp.min(hi, bound)
     elif w < 0:
         hi = lo - 1
     return lo, hi
@@ -659,17 +693,31 @@ def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp
     worst = wp.float64(0.0)
     dz = (wp.float64(step_a) * za + wp.float64(step_b) * zb + wp.float64(step_c) * zc) * inv_signed
     dz2 = dz + dz
+    # each edge function's bound on the row's interval, from one division at the first row and then stepped
+    # by its integer slope (the same integers as a division per edge and row, without three divisions a row)
+    wa0 = ((b[0] - i0) * (c[1] - j0) - (b[1] - j0) * (c[0] - i0)) * sign
+    wb0 = ((c[0] - i0) * (a[1] - j0) - (c[1] - j0) * (a[0] - i0)) * sign
+    wc0 = ((a[0] - i0) * (b[1] - j0) - (a[1] - j0) * (b[0] - i0)) * sign
+    slope_a = edge_slope((b[1] - c[1]) * sign, step_a)  # w's change per row: minus the j coefficient
+    slope_b = edge_slope((c[1] - a[1]) * sign, step_b)
+    slope_c = edge_slope((a[1] - b[1]) * sign, step_c)
+    bound_a = edge_bound(wa0, step_a) - slope_a
+    bound_b = edge_bound(wb0, step_b) - slope_b
+    bound_c = edge_bound(wc0, step_c) - slope_c
     # a for loop on purpose: as a while loop (see the chunk loops) this function measured 5-15 % slower
     for i in range(i0, i1 + 1):
         wa = ((b[0] - i) * (c[1] - j0) - (b[1] - j0) * (c[0] - i)) * sign
         wb = ((c[0] - i) * (a[1] - j0) - (c[1] - j0) * (a[0] - i)) * sign
         wc = ((a[0] - i) * (b[1] - j0) - (a[1] - j0) * (b[0] - i)) * sign
         # the row's interval inside the triangle, [j0 + lo, j0 + hi]: each edge function w + k·step >= 0
+        bound_a = row_bound(bound_a, slope_a, wa, step_a)
+        bound_b = row_bound(bound_b, slope_b, wb, step_b)
+        bound_c = row_bound(bound_c, slope_c, wc, step_c)
         lo = wp.int32(0)
         hi = j1 - j0
-        lo, hi = edge_interval(wa, step_a, lo, hi)
-        lo, hi = edge_interval(wb, step_b, lo, hi)
-        lo, hi = edge_interval(wc, step_c, lo, hi)
+        lo, hi = edge_limits(wa, step_a, bound_a, lo, hi)
+        lo, hi = edge_limits(wb, step_b, bound_b, lo, hi)
+        lo, hi = edge_limits(wc, step_c, bound_c, lo, hi)
         row = base + i * grid.n + j0
         wa += lo * step_a
         wb += lo * step_b
@@ -873,6 +921,7 @@ def saturate_planar_fine(
     chunk: wp.int32,
     grid: CubeSphereGrid,
     centres: wp.int32,  # 0: the deepest level (s = 1 axis nodes, (i + j) odd); 1: the 2 x 2 cell centres
+    shapes: wp.int32,  # 1: r and h too; 0: e alone (r = h = 0; grid.positions is not read)
     # outputs
     values_out: wp.array[wp.vec4],
 ):
@@ -904,7 +953,11 @@ def saturate_planar_fine(
             mate = wp.vec2i(i - hyp[1], j + hyp[0])
             e = wp.max(small_triangle_error(grid, 0, a, b, apex), small_triangle_error(grid, 0, a, b, mate))
             out = wp.vec4(0.0, 0.0, 0.0, 0.0)
-            if centres != 0:
+            if centres != 0 and shapes == 0:
+                for k in range(4):
+                    d = child_offset(0, 1, k)
+                    e = wp.max(e, wp.float64(values_out[entry + d[0] * n + d[1]][0]))
+            elif centres != 0:
                 v = bounds.to_vec3d(grid.positions[entry])
                 r = wp.float64(0.0)
                 for k in range(4):
@@ -933,6 +986,7 @@ def saturate_node_parameters(
     grid: CubeSphereGrid,
     depth: wp.int32,
     angles: wp.int32,  # 1: compute α (face 0 only; by the cube's rotation symmetry the other faces copy it)
+    shapes: wp.int32,  # 1: r and h too; 0 (planar only): e alone (r = h = 0; grid.positions is not read)
     params: NodeParameters,  # read: the children's values (depth + 1, already done)
     # outputs
     values_out: wp.array[wp.vec4],  # (e, r, h, α) per entry (the same array as params.values)
@@ -962,7 +1016,9 @@ def saturate_node_parameters(
         with_angle = wp.int32(0)
         if angles != 0 and face == 0:
             with_angle = 1
-        v = bounds.to_vec3d(grid.positions[entry])
+        v = wp.vec3d(0.0, 0.0, 0.0)
+        if shapes != 0:
+            v = bounds.to_vec3d(grid.positions[entry])
         z_v = wp.float64(grid.heights[entry])
         # 1-level look-ahead error of the hypotenuse (a, b) (§7.1, Abb. 5b)
         hyp = hypotenuse_offset(kind, s)
@@ -1001,10 +1057,11 @@ def saturate_node_parameters(
                     else:
                         child = point_entry(cube_point(face, ci, cj, grid.cells), grid.cells, grid.n)
                         child_local = child % nn
-                    c = bounds.to_vec3d(grid.positions[child])
                     q = params.values[child]
                     e = wp.max(e, wp.float64(q[0]))
-                    r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
+                    if shapes != 0:
+                        c = bounds.to_vec3d(grid.positions[child])
+                        r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
                     if grid.planar == 0:
                         dz = wp.abs(z_v - wp.float64(grid.heights[child]))
                         h = wp.max(h, dz + wp.float64(q[2]))
@@ -1014,7 +1071,7 @@ def saturate_node_parameters(
                             alpha = wp.max(alpha, angle)
         # rounding e up keeps "e <= error" a true statement about the float64 error
         out = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
-        if has_children != 0:
+        if has_children != 0 and shapes != 0:
             scale = (grid.radius + wp.abs(z_v)) * ABSOLUTE_MARGIN
             if grid.planar != 0:
                 scale = wp.length(v) * ABSOLUTE_MARGIN

@@ -478,8 +478,28 @@ def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
 
 
-def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -> Any:
-    """e, r, h, α for every node copy, bottom-up level by level (paper 003 §6, §7.1)."""
+def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tuple[int, int], *, shapes: bool,
+                 device: wp.Device) -> Any:
+    """The planar grid of a (2^k + 1)² height array (padded beyond the ``valid`` rows and columns); node positions
+    (j·dx, i·dy, z) only with ``shapes`` (else an empty array: see :func:`_node_parameters`)."""
+    n = z.shape[0]
+    grid = cube_kernels.CubeSphereGrid()
+    grid.cells = n - 1
+    grid.n = n
+    grid.planar = 1
+    grid.radius = 0.0
+    grid.spacing = wp.vec2d(*spacing)
+    grid.rows_valid, grid.cols_valid = valid
+    grid.heights = to_device(z.reshape(-1), wp.float32, device)
+    grid.positions = wp.empty(n * n if shapes else 0, dtype=wp.vec3, device=device)
+    if shapes:
+        launch_chunked(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
+    return grid
+
+
+def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device, shapes: bool = True) -> Any:
+    """e, r, h, α for every node copy, bottom-up level by level (paper 003 §6, §7.1). ``shapes=False``
+    (planar only): e alone, r = h = 0, without reading ``grid.positions``: all a mesh without a view needs."""
     n_entries = faces * grid.n * grid.n
     params = cube_kernels.NodeParameters()
     params.values = _node_array(n_entries, wp.vec4, device)
@@ -494,13 +514,13 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device) -
             launch_chunked(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
             continue
         if depth >= levels - 2 and faces == 1:  # planar: the two deepest levels likewise
-            launch_chunked(cube_kernels.saturate_planar_fine, grid.n * grid.n, [grid, int(depth == levels - 2)],
-                           outputs, device)
+            launch_chunked(cube_kernels.saturate_planar_fine, grid.n * grid.n,
+                           [grid, int(depth == levels - 2), int(shapes)], outputs, device)
             continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
         launch_chunked(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
-               [grid, depth, angles, params], outputs, device)
+               [grid, depth, angles, int(shapes), params], outputs, device)
     if angles:
         nn = grid.n * grid.n
         launch_chunked(cube_kernels.copy_cone_angles, nn, [nn], [params.values], device)
@@ -889,19 +909,13 @@ def adaptive_mesh(
     if (rows, cols) != (n, n):
         z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
     device = resolve_device(device)
-    grid = cube_kernels.CubeSphereGrid()
-    grid.cells = cells
-    grid.n = n
-    grid.planar = 1
-    grid.radius = 0.0
-    grid.spacing = wp.vec2d(dx, dy)
-    grid.rows_valid = rows
-    grid.cols_valid = cols
-    grid.heights = to_device(z.reshape(-1), wp.float32, device)
-    grid.positions = wp.empty(n * n, dtype=wp.vec3, device=device)
-    launch_chunked(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
+    # without a view (no camera, or neither the distance nor the clip metric) and without user metrics, the
+    # refinement reads e alone: the node positions and the bounding radii are not computed
+    viewed = camera is not None and bool(names & {"distance", "clip"})
+    shapes = bool(users) or viewed or error == 0.0
+    grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device)
     levels = 2 * int(round(math.log2(cells)))
-    params = _node_parameters(grid, faces=1, levels=levels, device=device)
+    params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
     if camera is not None:
         if not isinstance(camera, Camera):
             raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")

@@ -106,6 +106,29 @@ def test_node_pass_equals_breadth_first(monkeypatch, rows, cols, error):
     assert fast.metadata["levels"] == slow.metadata["levels"]
 
 
+@pytest.mark.parametrize(("rows", "cols"), [(129, 129), (100, 150), (3, 5)])
+def test_errors_only_parameters_equal_the_full_ones(rows, cols):
+    """Without a view adaptive_mesh computes e alone (no positions, r = h = 0): the same e, bit for bit, as
+    the full (e, r, h) pass, padding and its straddle errors included."""
+    import stepterrain.globe as globe_module
+    from stepterrain._device import resolve_device
+
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", rows, cols)
+    n = 1 + (1 << max(1, math.ceil(math.log2(max(rows, cols) - 1))))
+    z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
+    levels = 2 * round(math.log2(n - 1))
+    device = resolve_device("cpu")
+    values = {}
+    for shapes in (True, False):
+        grid = globe_module._planar_grid(z, (30.0, 20.0), (rows, cols), shapes=shapes, device=device)
+        assert grid.positions.shape[0] == (n * n if shapes else 0)
+        params = globe_module._node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
+        values[shapes] = params.values.numpy()
+    assert np.array_equal(values[True][:, 0], values[False][:, 0])
+    assert (values[True][:, 1] > 0).any()  # the full pass has radii; the errors-only pass none
+    assert not values[False][:, 1:].any()
+
+
 @pytest.mark.parametrize("node_pass", [True, False])
 def test_padded_input_is_cut_back_whatever_the_metrics(monkeypatch, node_pass):
     """A 3 x 5 grid is padded to 5 x 5: the triangles straddling the input's border must refine even where the
