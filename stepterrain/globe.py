@@ -249,8 +249,8 @@ class Globe:
         Bilinear in lat/lon on the node's direction (latitude and longitude in float32, within ~4e-7 rad,
         1e-4 of a 10' cell; interpolation weights in float64); between the outermost row and a pole the
         value blends linearly towards the pole value, the mean of that row. Cost: O(6 n²) per step, about
-        0.8 s CPU for 6 × 1025² on one core of the test machine (resampling, projection and all parameters;
-        see benchmarks/RESULTS.md).
+        0.4 s CPU for 6 × 1025² on one core of the project's AMD EPYC box, 0.7–0.8 s on its earlier Intel Xeon
+        (resampling, projection and all parameters; see benchmarks/RESULTS.md).
 
         Examples
         --------
