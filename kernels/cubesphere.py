@@ -622,8 +622,7 @@ def straddles_input(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i)
 @wp.func
 def edge_bound(w: wp.int32, step: wp.int32) -> wp.int32:
     """The bound that w + k·step >= 0 puts on k: k >= it (step > 0) or k <= it (step < 0); 0 for step 0
-    (exact: integer bounds through float64 quotients of
-    small integers, which are exact or far from the next integer)."""
+    (exact: float64 quotients of small integers, which are exact or far from the next integer)."""
     if step > 0:
         return wp.int32(wp.ceil(wp.float64(-w) / wp.float64(step)))
     if step < 0:

@@ -6,9 +6,11 @@ import math
 
 import numpy as np
 import pytest
+import warp as wp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
+from stepterrain.kernels import cubesphere as cs
 
 from stepterrain.errors import InvalidInputError
 from stepterrain.globe import Camera, adaptive_mesh
@@ -127,6 +129,61 @@ def test_errors_only_parameters_equal_the_full_ones(rows, cols):
     assert np.array_equal(values[True][:, 0], values[False][:, 0])
     assert (values[True][:, 1] > 0).any()  # the full pass has radii; the errors-only pass none
     assert not values[False][:, 1:].any()
+
+
+@wp.kernel
+def _triangle_errors(grid: cs.CubeSphereGrid, corners: wp.array[wp.vec3i], errors: wp.array[wp.float64]):
+    t = wp.tid()
+    a = corners[3 * t]
+    b = corners[3 * t + 1]
+    c = corners[3 * t + 2]
+    errors[t] = cs.triangle_true_error(grid, 0, wp.vec2i(a[0], a[1]), wp.vec2i(b[0], b[1]), wp.vec2i(c[0], c[1]))
+
+
+def _brute_force_errors(z: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """Largest |z - plane| over the grid nodes inside or on each triangle (barycentric weights per node)."""
+    i, j = np.mgrid[0 : z.shape[0], 0 : z.shape[1]]
+    out = []
+    for a, b, c in corners.reshape(-1, 3, 3)[:, :, :2].astype(np.int64):
+        def edge(p, q):
+            return (p[0] - i) * (q[1] - j) - (p[1] - j) * (q[0] - i)
+        area = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+        wa, wb, wc = (edge(p, q) * np.sign(area) for p, q in ((b, c), (c, a), (a, b)))
+        inside = (wa >= 0) & (wb >= 0) & (wc >= 0)
+        plane = (wa * float(z[a[0], a[1]]) + wb * float(z[b[0], b[1]]) + wc * float(z[c[0], c[1]])) / abs(area)
+        out.append(np.abs(z.astype(np.float64) - plane)[inside].max())
+    return np.array(out)
+
+
+def test_triangle_true_error_against_brute_force():
+    """The planar e of a triangle: the largest vertical error over every node inside it, on the bisection's
+    right triangles (axis-aligned and diagonal edges, whose row bounds are stepped) and on arbitrary ones
+    (whose bounds are recomputed per row), in both orientations."""
+    import stepterrain.globe as globe_module
+    from stepterrain._device import resolve_device
+
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", 33, 33)
+    rng = np.random.default_rng(7)
+    triangles = []
+    for s in (1, 2, 4, 8):  # bisection triangles: hypotenuse along an axis or a diagonal, both windings
+        for (di, dj) in ((s, 0), (0, s), (s, s), (s, -s)):
+            ci, cj = 16, 16
+            a, b = (ci + di, cj + dj), (ci - di, cj - dj)
+            for apex in ((ci + dj, cj - di), (ci - dj, cj + di)):
+                triangles += [(a, b, apex), (b, a, apex)]
+    for _ in range(60):  # arbitrary triangles, non-degenerate
+        while True:
+            p = rng.integers(0, 33, size=(3, 2))
+            if (p[1, 0] - p[0, 0]) * (p[2, 1] - p[0, 1]) - (p[1, 1] - p[0, 1]) * (p[2, 0] - p[0, 0]) != 0:
+                break
+        triangles.append(tuple(map(tuple, p)))
+    corners = np.array([[*q, 0] for tri in triangles for q in tri], dtype=np.int32)
+    device = resolve_device("cpu")
+    grid = globe_module._planar_grid(z, (1.0, 1.0), z.shape, shapes=False, device=device)
+    errors = wp.zeros(len(triangles), dtype=wp.float64, device=device)
+    wp.launch(_triangle_errors, dim=len(triangles), inputs=[grid, wp.array(corners, dtype=wp.vec3i, device=device)],
+              outputs=[errors], device=device)
+    np.testing.assert_allclose(errors.numpy(), _brute_force_errors(z, corners), rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("node_pass", [True, False])
