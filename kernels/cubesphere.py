@@ -952,22 +952,22 @@ def saturate_planar_fine(
             mate = wp.vec2i(i - hyp[1], j + hyp[0])
             e = wp.max(small_triangle_error(grid, 0, a, b, apex), small_triangle_error(grid, 0, a, b, mate))
             out = wp.vec4(0.0, 0.0, 0.0, 0.0)
-            if centres != 0 and shapes == 0:
-                for k in range(4):
-                    d = child_offset(0, 1, k)
-                    e = wp.max(e, wp.float64(values_out[entry + d[0] * n + d[1]][0]))
-            elif centres != 0:
-                v = bounds.to_vec3d(grid.positions[entry])
+            if centres != 0:
+                v = wp.vec3d(0.0, 0.0, 0.0)
+                if shapes != 0:
+                    v = bounds.to_vec3d(grid.positions[entry])
                 r = wp.float64(0.0)
                 for k in range(4):
                     d = child_offset(0, 1, k)
                     child = entry + d[0] * n + d[1]
                     q = values_out[child]
                     e = wp.max(e, wp.float64(q[0]))
-                    r = wp.max(r, wp.length(v - bounds.to_vec3d(grid.positions[child])) + wp.float64(q[1]))
-                scale = wp.length(v) * ABSOLUTE_MARGIN
-                out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
-                out[2] = wp.float32(scale)  # h = 0 on a plane: 0·(1 + margin) + scale, the same bits
+                    if shapes != 0:
+                        r = wp.max(r, wp.length(v - bounds.to_vec3d(grid.positions[child])) + wp.float64(q[1]))
+                if shapes != 0:
+                    scale = wp.length(v) * ABSOLUTE_MARGIN
+                    out[1] = wp.float32(r * (wp.float64(1.0) + RELATIVE_MARGIN) + scale)
+                    out[2] = wp.float32(scale)  # h = 0 on a plane: 0·(1 + margin) + scale, the same bits
             out[0] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
             values_out[entry] = out
         j += 1

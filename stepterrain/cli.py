@@ -487,16 +487,17 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
     finite = np.isfinite(vertices).all(axis=1)
     # the bounds of the finite vertices (None without any: NaN is no JSON); a NaN or inf vertex is counted, not
     # smeared over the bounds
-    bounds = (np.stack([vertices[finite].min(axis=0), vertices[finite].max(axis=0)]).tolist() if finite.any()
-              else [None, None])
+    lo = hi = None
+    if finite.any():
+        lo, hi = (tuple(values.tolist()) for values in (vertices[finite].min(axis=0), vertices[finite].max(axis=0)))
     summary: dict[str, Any] = {
         "kind": "mesh",
         "file": str(path),
         "bytes": path.stat().st_size,
         "vertices": int(len(mesh.vertices)),
         "faces": int(len(mesh.faces)),
-        "bounds_min": None if bounds[0] is None else tuple(bounds[0]),
-        "bounds_max": None if bounds[1] is None else tuple(bounds[1]),
+        "bounds_min": lo,
+        "bounds_max": hi,
         "nonfinite_vertices": int(len(vertices) - finite.sum()),
         "watertight": bool(mesh.is_watertight),
         "winding_consistent": bool(mesh.is_winding_consistent),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 from pathlib import Path
 
@@ -45,6 +46,21 @@ def real_dem(name: str, size: int = 96, step: int = 4) -> np.ndarray:
     with np.load(shared_file(name)) as data:
         z = np.asarray(data["elevation"], dtype=np.float32)
     return np.ascontiguousarray(z[: size * step : step, : size * step : step])
+
+
+@functools.cache
+def offscreen() -> tuple[bool, str]:
+    """``render.offscreen_available()``, asked once per test session (it opens a window)."""
+    from stepterrain import render
+
+    return render.offscreen_available()
+
+
+def needs_render(test):
+    """Mark ``test`` as a render test that skips, with the reason, where no off-screen context exists."""
+    available, reason = offscreen()
+    test = pytest.mark.skipif(not available, reason=f"no off-screen OpenGL context: {reason}")(test)
+    return pytest.mark.render(test)
 
 
 def trimeshes_left_by(call) -> int:

@@ -18,7 +18,7 @@ from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, load_global_relief, look_from
 
 from . import reference_globe as ref
-from .conftest import SHARED_DATA, assert_valid_mesh
+from .conftest import SHARED_DATA, assert_valid_mesh, needs_render
 
 # shared/data beside the project; a worktree one level deeper (wt/<name>) finds it one level up
 _DATA_DIRS = [SHARED_DATA, Path(__file__).resolve().parents[3] / "shared" / "data"]
@@ -865,18 +865,14 @@ def test_render_view_refuses_what_it_cannot_render(small_globe):
         render_view(small_globe.mesh(), (0.0, 0.0, 1.0), window_size=(64, 64))
 
 
-@pytest.mark.render
+@needs_render
 def test_a_low_tilted_view_renders_the_same_culled_or_not(sample_globe):
     """The cull drops only triangles outside the view, so it must not change the picture. The render's near plane
     sat at half the distance to the nearest corner of the mesh's box: 1,000-3,000 km out for a view from 400 km
     up, so the nearer terrain was clipped away and the inside of the globe's far side showed through (the help's
     Alps example: a dark picture with a bright band, and a different one with --no-cull)."""
-    from stepterrain import render
     from stepterrain.globe import render_view
 
-    ok, reason = render.offscreen_available()
-    if not ok:
-        pytest.skip(f"no off-screen OpenGL context: {reason}")
     camera = look_from(46.0, 9.0, 400_000.0, tilt=60.0, aspect=1.6)
     culled = sample_globe.mesh(error=20.0, camera=camera)
     whole = sample_globe.mesh(error=20.0, camera=camera, cull=False)
@@ -893,17 +889,13 @@ def test_a_low_tilted_view_renders_the_same_culled_or_not(sample_globe):
     assert (np.abs(images[0] - alone).max(axis=2) > 8).mean() < 0.002
 
 
-@pytest.mark.render
+@needs_render
 def test_views_are_lit_alike_in_both_hemispheres():
     """render_view lights the scene from the north-west of the ground under the view, as render_mesh lights a local
     terrain. In the world frame the light came from the north-west of the equatorial plane, so a view of the
     southern hemisphere was lit from below its horizon and came out dim (New Zealand from 600 km)."""
-    from stepterrain import render
     from stepterrain.globe import render_view
 
-    ok, reason = render.offscreen_available()
-    if not ok:
-        pytest.skip(f"no off-screen OpenGL context: {reason}")
     lat = np.linspace(89.5, -89.5, 180)
     lon = np.linspace(-179.5, 179.5, 360)
     flat = Globe.from_latlon(np.zeros((180, 360), np.float32), lat, lon, face_size=33, device="cpu")

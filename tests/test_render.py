@@ -12,16 +12,7 @@ import stepterrain as st
 from stepterrain import render
 from stepterrain.errors import InvalidInputError, MissingDependencyError
 
-from .conftest import trimeshes_left_by
-
-AVAILABLE, REASON = render.offscreen_available()
-
-
-def needs_render(test):
-    """Mark ``test`` as a render test that skips, with the reason, where no off-screen context exists."""
-    test = pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")(test)
-    return pytest.mark.render(test)
-
+from .conftest import needs_render, trimeshes_left_by
 
 SIZE = (200, 200)
 

@@ -76,17 +76,26 @@ def test_hillshade_matches_reference(device, method):
     np.testing.assert_allclose(ours, ref, atol=2e-5)
 
 
+#: hillshade methods and their gdaldem flags
+GDAL_METHODS = [("standard", []), ("multidirectional", ["-multidirectional"]), ("combined", ["-combined"]),
+                ("igor", ["-igor"])]
+
+
+@pytest.fixture
+def rasterio():
+    """rasterio, for a test that compares with ``gdaldem`` (skipped without either)."""
+    if shutil.which("gdaldem") is None:
+        pytest.skip("gdaldem not installed (Debian: apt-get install gdal-bin)")
+    return pytest.importorskip("rasterio")
+
+
 def test_multidirectional_flat_is_sin_altitude(device):
     shade = hillshade(np.zeros((4, 4)), method="multidirectional", altitude=RAD(30), device=device)
     np.testing.assert_allclose(shade, 0.5, atol=1e-6)
 
 
-@pytest.mark.parametrize("method,flag", [("standard", []), ("multidirectional", ["-multidirectional"]),
-                                         ("combined", ["-combined"]), ("igor", ["-igor"])])
-def test_agrees_with_gdaldem(tmp_path, method, flag):
-    if shutil.which("gdaldem") is None:
-        pytest.skip("gdaldem not installed (Debian: apt-get install gdal-bin)")
-    rasterio = pytest.importorskip("rasterio")
+@pytest.mark.parametrize("method,flag", GDAL_METHODS)
+def test_agrees_with_gdaldem(tmp_path, method, flag, rasterio):
     path = find_shared("big_tujunga_srtm_30m_utm11n.tif")
     out = tmp_path / "hs.tif"
     subprocess.run(["gdaldem", "hillshade", "-q", str(path), str(out), "-of", "GTiff", "-z", "1.5", *flag],
@@ -99,14 +108,10 @@ def test_agrees_with_gdaldem(tmp_path, method, flag):
     assert np.abs(gdal - ours).max() <= 1.0  # GDAL rounds to bytes
 
 
-@pytest.mark.parametrize("method,flag", [("standard", []), ("multidirectional", ["-multidirectional"]),
-                                         ("combined", ["-combined"]), ("igor", ["-igor"])])
-def test_border_agrees_with_gdaldem_compute_edges(tmp_path, method, flag):
+@pytest.mark.parametrize("method,flag", GDAL_METHODS)
+def test_border_agrees_with_gdaldem_compute_edges(tmp_path, method, flag, rasterio):
     # the border, nodata beside it and the corners included: gdaldem -compute_edges extrapolates beyond an edge
     # (the border was edge-replicated before, up to 35 of 255 grey levels off on this crop)
-    if shutil.which("gdaldem") is None:
-        pytest.skip("gdaldem not installed (Debian: apt-get install gdal-bin)")
-    rasterio = pytest.importorskip("rasterio")
     from affine import Affine  # rasterio's own dependency (from_origin warns about its * operator)
 
     heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=23, step=5)[:, :17].copy()
