@@ -302,12 +302,15 @@ def launch(
         future.result()
 
 
-def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device) -> None:
+def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device, *,
+                   min_elements: int = MIN_THREAD_ELEMENTS) -> None:
     """:func:`launch` of a chunked kernel over ``n`` elements.
 
     A chunked kernel takes ``thread_offset, count, chunk`` first; thread t handles the elements
-    [(t + thread_offset)·chunk, … + chunk) ∩ [0, count). chunk is :data:`CPU_CHUNK` on the CPU, 1 on CUDA.
+    [(t + thread_offset)·chunk, … + chunk) ∩ [0, count). chunk is :data:`CPU_CHUNK` on the CPU, 1 on CUDA. On the
+    CPU a range gets at least ``min_elements`` elements: lower it for kernels that spend long on each element
+    (a split costs a Python launch, about 0.1 ms), so that their mid-sized passes use every core too.
     """
     chunk = CPU_CHUNK if device.is_cpu else 1
-    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device, min_dim=max(1, MIN_THREAD_ELEMENTS // chunk))
+    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device, min_dim=max(1, min_elements // chunk))
 

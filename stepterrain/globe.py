@@ -60,6 +60,11 @@ _TRACK_MIN = 4096  # triangles of a level from which the clip metric's flags are
 #: On the CPU, the levels below this many triangles (and below _TRACK_MIN) are refined by one single-thread
 #: launch (``refine_small_levels``) instead of a count -> scan -> emit each; 0 switches that off.
 _SMALL_LEVELS = 4096
+#: On the CPU with several threads (``set_cpu_threads``), the view's passes split into ranges of at least this many
+#: triangles or vertices (``launch_chunked``'s ``min_elements``): the refinement test and the vertex pass cost
+#: 30-40 ns an element, the emit passes 12-20 ns, so smaller ranges than the stepped passes' pay for a split.
+_SPLIT_REFINE = 4096
+_SPLIT_EMIT = 8192
 
 UserMetric = Callable[[NDArray[np.float64], NDArray[np.float64]], ArrayLike]
 
@@ -736,7 +741,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         inside = scratch("globe.refine.inside", count, wp.int32, device) if track else none
         launch_chunked(cube_kernels.count_refinement, count,
                        [grid, params, view, triangles, int(depth < levels), factors, masks if track else none],
-                       [counts, inside], device)
+                       [counts, inside], device, min_elements=_SPLIT_REFINE)
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
@@ -749,7 +754,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         leaf_masks = wp.empty(count - refined, dtype=wp.int32, device=device) if track else none
         launch_chunked(cube_kernels.emit_refinement, count,
                        [grid, triangles, counts, offsets, none if masks is None else masks, inside],
-                       [children, leaves, entries, child_masks, leaf_masks], device)
+                       [children, leaves, entries, child_masks, leaf_masks], device, min_elements=_SPLIT_EMIT)
         leaf_chunks.append(leaves)
         vertex_chunks.append(entries)
         mask_chunks.append(leaf_masks if track and cull else None)
@@ -760,7 +765,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
-    launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device)
+    launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
+                   min_elements=_SPLIT_REFINE)
     n_leaves = leaves.shape[0]
     keep = count_buffer("globe.keep", n_leaves, device)
     leaf_masks = none
@@ -777,7 +783,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     faces_out = wp.empty(n_faces, dtype=wp.vec3i, device=device)
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)
     launch_chunked(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id], [faces_out, face_index],
-           device)
+                   device, min_elements=_SPLIT_EMIT)
     if n_faces < n_leaves:  # culled: drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used.zero_()  # the flags and count_buffer's final 0

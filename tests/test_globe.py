@@ -442,6 +442,34 @@ def test_small_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch
         assert np.array_equal(at_once.face_attributes["cube_face"], levelwise.face_attributes["cube_face"])
 
 
+@pytest.mark.parametrize("threads", [2, 3])
+def test_views_split_over_cpu_threads_give_the_same_mesh(sample_globe, monkeypatch, threads):
+    """The view's passes split over several CPU threads from _SPLIT_REFINE / _SPLIT_EMIT elements a range: with
+    ranges of 64 elements (every pass of every level split, chunk boundaries inside the levels) the triangles,
+    vertices and their order are those of one thread, culled or not, tracked or not, with cones or spheres."""
+    import stepterrain as st
+
+    g = sample_globe
+    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
+    far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
+    cases = [dict(error=10.0, camera=far), dict(error=10.0, camera=far, cull=False),
+             dict(error=5.0, camera=close, bounds="sphere"), dict(error=0.0, camera=close), dict(error=50.0)]
+    monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)  # every level a count -> scan -> emit of its own
+    previous = st.set_cpu_threads(1)
+    try:
+        alone = [g.mesh(**kwargs) for kwargs in cases]
+        monkeypatch.setattr(globe_module, "_SPLIT_REFINE", 64)
+        monkeypatch.setattr(globe_module, "_SPLIT_EMIT", 64)
+        st.set_cpu_threads(threads)
+        split = [g.mesh(**kwargs) for kwargs in cases]
+    finally:
+        st.set_cpu_threads(previous)
+    for one, many in zip(alone, split, strict=True):
+        assert len(one.faces) > 2000
+        assert _mesh_key(many) == _mesh_key(one)
+        assert np.array_equal(many.face_attributes["cube_face"], one.face_attributes["cube_face"])
+
+
 @settings(max_examples=12, phases=[Phase.explicit, Phase.reuse, Phase.generate])
 @given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
        error=hst.floats(20.0, 2000.0), cone=hst.booleans(), seed=hst.integers(0, 10**6))
