@@ -213,7 +213,13 @@ def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
     """Refuse faces that index outside the vertices (``process=False`` meshes keep them): every writer put them in
     the file as they were (a -1 became 4294967295 in glTF), except STL's, which raised trimesh's IndexError."""
     faces = np.asarray(mesh.faces)
-    if len(faces) == 0 or (faces.min() >= 0 and faces.max() < vertex_count):
+    if len(faces) == 0:
+        return
+    if faces.dtype == np.int64 and faces.flags.c_contiguous:
+        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
+        if int(faces.view(np.uint64).max()) < vertex_count:
+            return
+    elif faces.min() >= 0 and faces.max() < vertex_count:
         return
     bad = int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
     raise InvalidInputError(
@@ -391,14 +397,30 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
 def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
     """(lowest, highest) per coordinate as float64, None without vertices: NaN propagates through min/max and
     inf shows in them, so finite bounds mean finite vertices. Computed once per file, for the finiteness check
-    and the writers (glTF accessor bounds, the local origin of large coordinates); one strided 1-D reduction
-    per column is several times faster than numpy's (N, 3) axis-0 reduction and needs no temporary."""
+    and the writers (glTF accessor bounds, the local origin of large coordinates). The rows are reduced as a
+    contiguous (N / 64, 64 · 3) view, 64 rows side by side, then the 64 partial results: numpy vectorises an
+    axis-0 reduction over wide rows, and reads the array once (one strided reduction per column and bound read
+    it six times; 13 -> 6 ms for 1.6 M vertices)."""
     if vertices.size == 0:
         return None
-    columns = range(vertices.shape[1])
-    lo = np.array([vertices[:, k].min() for k in columns], dtype=np.float64)
-    hi = np.array([vertices[:, k].max() for k in columns], dtype=np.float64)
+    columns = vertices.shape[1]
+    head = len(vertices) // _BOUND_ROWS * _BOUND_ROWS
+    lo = np.full(columns, np.inf)
+    hi = np.full(columns, -np.inf)
+    if head and vertices.flags.c_contiguous:
+        wide = vertices[:head].reshape(-1, _BOUND_ROWS * columns)
+        lo = wide.min(axis=0).reshape(_BOUND_ROWS, columns).min(axis=0).astype(np.float64)
+        hi = wide.max(axis=0).reshape(_BOUND_ROWS, columns).max(axis=0).astype(np.float64)
+    else:
+        head = 0
+    if head < len(vertices):
+        rest = vertices[head:]
+        lo = np.minimum(lo, np.array([rest[:, k].min() for k in range(columns)], dtype=np.float64))
+        hi = np.maximum(hi, np.array([rest[:, k].max() for k in range(columns)], dtype=np.float64))
     return lo, hi
+
+
+_BOUND_ROWS = 64
 
 
 def _is_large(bounds: Bounds) -> bool:

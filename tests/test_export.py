@@ -293,6 +293,43 @@ def test_coordinates_beyond_float32_are_refused_where_the_format_stores_float32(
             save_mesh(mesh, tmp_path / f"m{ext}")
 
 
+@pytest.mark.parametrize("count", [3, 63, 64, 65, 640, 1000])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_vertex_anywhere_is_refused_and_bounds_are_exact(tmp_path, count, bad):
+    """save_mesh's bounds reduce 64 rows side by side, then the rows left over: a NaN or inf in either part (first,
+    last, just before and after the 64-row block) is refused by name with the count of such vertices, and finite
+    bounds equal numpy's per-column min and max exactly (C order, Fortran order, float32)."""
+    rng = np.random.default_rng(count)
+    vertices = rng.normal(size=(count, 3)) * 1e5
+    faces = np.arange(count - count % 3).reshape(-1, 3)
+    for row in sorted({0, count - 1, min(count - 1, 63), min(count - 1, 64), count // 2}):
+        lo, hi = export._vertex_bounds(vertices)
+        assert np.array_equal(lo, vertices.min(axis=0)) and np.array_equal(hi, vertices.max(axis=0))
+        for layout in (np.asfortranarray(vertices), vertices.astype(np.float32)):
+            lo, hi = export._vertex_bounds(layout)
+            assert np.array_equal(lo, layout.min(axis=0)) and np.array_equal(hi, layout.max(axis=0))
+        spoiled = vertices.copy()
+        spoiled[row, row % 3] = bad
+        mesh = trimesh.Trimesh(spoiled, faces, process=False)
+        with pytest.raises(InvalidInputError, match=rf"^mesh vertices must be finite to be written; got 1 of {count} "
+                           "vertices with NaN or inf$"):
+            save_mesh(mesh, tmp_path / "m.glb")
+    no_leftovers(tmp_path, set())
+
+
+@pytest.mark.parametrize("index", [-1, -(2**62), 2**40, 3])
+def test_one_reduction_finds_any_face_index_outside(tmp_path, index):
+    """_check_faces reads int64 faces once as uint64 (a negative index is >= 2**63 there): any index below 0 or
+    past the last vertex, in any face, is refused by name."""
+    vertices = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    faces = np.zeros((100, 3), np.int64)
+    faces[57, 2] = index
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    with pytest.raises(InvalidInputError, match=rf"face 57 is \[0, 0, {index}\]; the mesh has 3 vertices$"):
+        save_mesh(mesh, tmp_path / "m.ply")
+    no_leftovers(tmp_path, set())
+
+
 def test_not_a_mesh(tmp_path):
     with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh; got ndarray"):
         save_mesh(np.zeros((3, 3)), tmp_path / "m.glb")
