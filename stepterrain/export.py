@@ -394,6 +394,10 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
     return target
 
 
+#: Rows side by side in :func:`_vertex_bounds`' reduction.
+_BOUND_ROWS = 64
+
+
 def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
     """(lowest, highest) per coordinate as float64, None without vertices: NaN propagates through min/max and
     inf shows in them, so finite bounds mean finite vertices. Computed once per file, for the finiteness check
@@ -419,8 +423,6 @@ def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
         hi = np.maximum(hi, np.array([rest[:, k].max() for k in range(columns)], dtype=np.float64))
     return lo, hi
 
-
-_BOUND_ROWS = 64
 
 
 def _is_large(bounds: Bounds) -> bool:

@@ -302,12 +302,10 @@ def test_a_non_finite_vertex_anywhere_is_refused_and_bounds_are_exact(tmp_path, 
     rng = np.random.default_rng(count)
     vertices = rng.normal(size=(count, 3)) * 1e5
     faces = np.arange(count - count % 3).reshape(-1, 3)
+    for layout in (vertices, np.asfortranarray(vertices), vertices.astype(np.float32)):
+        lo, hi = export._vertex_bounds(layout)
+        assert np.array_equal(lo, layout.min(axis=0)) and np.array_equal(hi, layout.max(axis=0))
     for row in sorted({0, count - 1, min(count - 1, 63), min(count - 1, 64), count // 2}):
-        lo, hi = export._vertex_bounds(vertices)
-        assert np.array_equal(lo, vertices.min(axis=0)) and np.array_equal(hi, vertices.max(axis=0))
-        for layout in (np.asfortranarray(vertices), vertices.astype(np.float32)):
-            lo, hi = export._vertex_bounds(layout)
-            assert np.array_equal(lo, layout.min(axis=0)) and np.array_equal(hi, layout.max(axis=0))
         spoiled = vertices.copy()
         spoiled[row, row % 3] = bad
         mesh = trimesh.Trimesh(spoiled, faces, process=False)

@@ -446,7 +446,7 @@ def test_small_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch
 def test_views_split_over_cpu_threads_give_the_same_mesh(sample_globe, monkeypatch, threads):
     """The view's passes split over several CPU threads from _SPLIT_REFINE / _SPLIT_EMIT elements a range: with
     ranges of 64 elements (every pass of every level split, chunk boundaries inside the levels) the triangles,
-    vertices and their order are those of one thread, culled or not, tracked or not, with cones or spheres."""
+    vertices and their order are those of one thread: far and close views, culled or not, cones and spheres."""
     import stepterrain as st
 
     g = sample_globe
