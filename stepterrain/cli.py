@@ -1,7 +1,9 @@
-"""The ``stepterrain`` command: one subcommand per capability (``steps`` and ``info`` today).
+"""The ``stepterrain`` command (also ``python -m stepterrain``): one subcommand per capability.
 
 ``steps`` is the main job of paper 000 (stepped terrain): load a DEM (default: the embedded Big Tujunga
 DEM), step it with Warp, write the mesh by extension and an off-screen render lit so that the steps read.
+``globe``, ``closeup``, ``texture`` and ``batch`` live in ``_cli_<name>.py`` beside this module (see
+``CAPABILITY_COMMANDS``); ``info`` describes a DEM or a mesh.
 
     stepterrain steps -o out/terrain.glb --png out/terrain.png
     stepterrain info out/terrain.glb

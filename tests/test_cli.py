@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -278,6 +279,18 @@ def test_help_version_and_usage(capsys):
     assert code == 2 and "invalid choice" in err
     code, _, err = run(capsys, "steps")
     assert code == 2 and "-o/--output" in err
+
+
+def test_python_dash_m_runs_the_command(tmp_path):
+    """``python -m stepterrain`` is the same command, its exit status passed on (2 for a usage error)."""
+    import subprocess
+
+    ok = subprocess.run([sys.executable, "-m", "stepterrain", "--version"], capture_output=True, text=True,
+                        cwd=tmp_path, timeout=120)  # fmt: skip
+    assert ok.returncode == 0 and ok.stdout.startswith("stepterrain "), ok.stderr
+    bad = subprocess.run([sys.executable, "-m", "stepterrain", "frobnicate"], capture_output=True, text=True,
+                         cwd=tmp_path, timeout=120)  # fmt: skip
+    assert bad.returncode == 2 and "invalid choice" in bad.stderr and bad.stderr.startswith("stepterrain: error:")
 
 
 def test_info_on_a_dem_and_on_a_mesh(dem, tmp_path, capsys):
