@@ -483,6 +483,8 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         raise DataFileError(f"cannot read {str(path)!r} as a mesh: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise DataFileError(f"{str(path)!r} holds no triangle mesh")
+    if path.suffix.lower() == ".stl":  # STL stores every triangle's corners apart: weld them, as its readers do, or
+        mesh.merge_vertices()  # a watertight solid (steps --solid -o print.stl) read as open, 3 vertices per face
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     finite = np.isfinite(vertices).all(axis=1)
     # the bounds of the finite vertices (None without any: NaN is no JSON); a NaN or inf vertex is counted, not
