@@ -506,6 +506,10 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
     }
     for key, value in (mesh.metadata or {}).items():
+        if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary
+            value = value.strip("\x00").strip()
+            if not value:
+                continue
         if isinstance(value, (str, int, float, bool)) and key not in summary:
             summary[f"meta.{key}"] = value
     return summary

@@ -412,3 +412,19 @@ def test_info_welds_an_stl_so_a_watertight_solid_reads_as_one(dem, tmp_path, cap
         if suffix == ".ply":
             ply = summary
     assert summary["vertices"] == ply["vertices"] and summary["faces"] == ply["faces"]
+
+
+def test_info_leaves_out_an_stl_headers_nul_padding(dem, tmp_path, capsys):
+    """An STL's 80-byte header is padded with NUL bytes; `info` printed them as meta.header (80 NULs: grep called
+    the output binary). Found by running info on every mesh format."""
+    out = tmp_path / "hill.stl"
+    assert run(capsys, "steps", dem, "--interval", "2", "-o", out)[0] == 0
+    header = b"solid hill".ljust(80, b"\x00")
+    data = out.read_bytes()
+    out.write_bytes(header + data[80:])
+    code, text, err = run(capsys, "info", out)
+    assert code == 0, err
+    assert "\x00" not in text and "solid hill" in text
+    out.write_bytes(b"\x00" * 80 + data[80:])
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0 and "meta.header" not in json.loads(text) and "\\u0000" not in text, text
