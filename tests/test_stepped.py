@@ -717,6 +717,24 @@ def test_solid_is_watertight_for_any_nodata_pattern(holes, seed):
     assert mesh.volume == pytest.approx(expected, rel=1e-9)
 
 
+def test_solid_colours_a_pinch_vertexs_copy_as_its_original():
+    """Where two nodata holes meet at a node, close_solid gives each fan its own copy of the node; with colors= the
+    copies were painted the skirt's grey (every vertex past the kept surface ones was taken for a skirt or base
+    vertex). Found by checking the colours of every surface vertex of solids over random nodata patterns."""
+    heights = np.arange(36.0).reshape(6, 6) * 0.25 + 0.125
+    heights[1, 1] = heights[1, 3] = np.nan  # their holes meet at node (1, 2) only
+    surface = st.stepped(heights, interval=1.0, colors="viridis")
+    mesh = st.stepped(heights, interval=1.0, colors="viridis", solid=True, floor=-2.0)
+    assert mesh.is_watertight
+    assert len(mesh.vertices) > len(np.unique(mesh.vertices, axis=0))  # the pinch was split
+    pairs = zip(surface.vertices.tolist(), surface.visual.vertex_colors.tolist(), strict=True)
+    colour_at = {tuple(v): tuple(c) for v, c in pairs}
+    top = mesh.vertices[:, 2] > -2.0
+    got = [tuple(c) for c in mesh.visual.vertex_colors[top].tolist()]
+    assert got == [colour_at[tuple(v)] for v in mesh.vertices[top].tolist()]
+    assert (mesh.visual.vertex_colors[~top] == [96, 96, 96, 255]).all()
+
+
 def test_solid_warns_when_heights_sit_on_thresholds():
     with pytest.warns(UserWarning, match="exactly on a threshold"):
         st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
