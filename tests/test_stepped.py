@@ -906,6 +906,29 @@ def test_terrain_heights_cannot_change_under_its_caches():
         assert not getattr(tin, name).flags.writeable, name
 
 
+def test_terrain_copies_the_buffer_an_array_like_shares():
+    """from_heights copied a float32 buffer it would share only when given an ndarray: an array-like exposing its
+    own buffer (a memoryview, an object with __array__: an xarray DataArray, a DataFrame) was shared, and masking
+    it afterwards stepped the new NaNs with the stale 'no nodata' flag: NaN vertices. Found by stepping a terrain
+    again after changing the buffer behind an array-like."""
+
+    class Wrapped:  # what xarray and pandas do: __array__ returns the float32 buffer they hold, not a copy
+        def __init__(self, values):
+            self.values = values
+
+        def __array__(self, dtype=None, copy=None):
+            return self.values
+
+    for make in (Wrapped, memoryview):
+        heights = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+        t = st.Terrain.from_heights(make(heights))
+        before = st.stepped(t, interval=2.0)
+        heights[:2] = np.nan
+        after = st.stepped(t, interval=2.0)
+        assert np.isfinite(after.vertices).all(), make
+        np.testing.assert_array_equal(after.vertices, before.vertices)
+
+
 def test_heights_outside_the_levels_clamp_to_the_end_levels():
     mesh = st.stepped(np.array([[-50.0, 0.0], [10.0, 90.0]]), levels=[0.0, 10.0, 20.0])
     assert set(np.round(mesh.vertices[:, 2], 6)) <= {0.0, 10.0, 20.0}
