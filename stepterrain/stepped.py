@@ -78,7 +78,11 @@ class Lens:
             raise InvalidInputError(
                 f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
             )
-        mask = np.ascontiguousarray(mask, dtype=np.float32)
+        checked = np.ascontiguousarray(mask, dtype=np.float32)
+        if not isinstance(self.mask, (list, tuple)) and np.may_share_memory(checked, mask):
+            checked = checked.copy()  # the caller's array: changing it later would bypass the checks below
+        checked.flags.writeable = False
+        mask = checked
         if not np.all(np.isfinite(mask)):  # NaN, also a masked entry
             at = first_index(~np.isfinite(mask))
             raise InvalidInputError(f"lens mask values must lie in [0, 1]; got {float(mask[at])} at index {at}")

@@ -929,6 +929,21 @@ def test_terrain_copies_the_buffer_an_array_like_shares():
         np.testing.assert_array_equal(after.vertices, before.vertices)
 
 
+def test_lens_mask_is_checked_once_and_cannot_change_afterwards():
+    """Lens checked its mask lies in [0, 1] but kept the caller's float32 array: filling it with NaN (or 2.0)
+    afterwards stepped NaN vertices (or γ beyond 1) without an error. The Lens holds a read-only copy now. Found by
+    changing a lens' mask array after building the Lens."""
+    heights = np.add.outer(np.arange(6.0), np.arange(7.0))
+    mask = np.full((8, 8), 0.5, np.float32)
+    lens = st.Lens(mask)
+    before = st.stepped(heights, interval=2.0, gamma=lens)
+    mask[:] = np.nan
+    after = st.stepped(heights, interval=2.0, gamma=lens)
+    np.testing.assert_array_equal(after.vertices, before.vertices)
+    with pytest.raises(ValueError, match="read-only"):
+        lens.mask[0, 0] = 2.0
+
+
 def test_heights_outside_the_levels_clamp_to_the_end_levels():
     mesh = st.stepped(np.array([[-50.0, 0.0], [10.0, 90.0]]), levels=[0.0, 10.0, 20.0])
     assert set(np.round(mesh.vertices[:, 2], 6)) <= {0.0, 10.0, 20.0}
