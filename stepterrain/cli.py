@@ -485,6 +485,8 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         raise DataFileError(f"cannot read {str(path)!r} as a mesh: {exc}") from exc
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise DataFileError(f"{str(path)!r} holds no triangle mesh")
+    if path.suffix.lower() == ".stl":  # STL stores every triangle's corners apart: weld them, as its readers do, or
+        mesh.merge_vertices()  # a watertight solid (steps --solid -o print.stl) read as open, 3 vertices per face
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     finite = np.isfinite(vertices).all(axis=1)
     # the bounds of the finite vertices (None without any: NaN is no JSON); a NaN or inf vertex is counted, not
@@ -506,6 +508,10 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
     }
     for key, value in (mesh.metadata or {}).items():
+        if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary
+            value = value.strip("\x00").strip()
+            if not value:
+                continue
         if isinstance(value, (str, int, float, bool)) and key not in summary:
             summary[f"meta.{key}"] = value
     return summary

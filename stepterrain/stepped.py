@@ -78,7 +78,11 @@ class Lens:
             raise InvalidInputError(
                 f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
             )
-        mask = np.ascontiguousarray(mask, dtype=np.float32)
+        checked = np.ascontiguousarray(mask, dtype=np.float32)
+        if not isinstance(self.mask, (list, tuple)) and np.may_share_memory(checked, mask):
+            checked = checked.copy()  # the caller's array: changing it later would bypass the checks below
+        checked.flags.writeable = False
+        mask = checked
         if not np.all(np.isfinite(mask)):  # NaN, also a masked entry
             at = first_index(~np.isfinite(mask))
             raise InvalidInputError(f"lens mask values must lie in [0, 1]; got {float(mask[at])} at index {at}")
@@ -827,7 +831,7 @@ def _assemble(
         vertex_levels = np.searchsorted(values, host_copy(arrays.step_heights))
         vertex_colors = table[np.clip(vertex_levels, 0, len(values) - 1)]
     if solid:
-        from .mesh import close_solid
+        from .mesh import close_solid, exact_keys
 
         if len(faces) == 0:
             raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
@@ -865,9 +869,15 @@ def _assemble(
         if vertex_colors is not None:
             used = np.zeros(n_before, bool)
             used[arrays.faces[kept].reshape(-1)] = True
-            n_new = len(vertices) - int(used.sum())
-            skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (n_new, 1))
-            vertex_colors = np.concatenate([vertex_colors[used], skirt])
+            surface_colors = vertex_colors[used]
+            # close_solid's vertices: the kept surface ones, copies of those split at a pinch (same position, above
+            # the floor), then the base; a copy takes its original's colour, not the skirt's grey
+            n_kept, n_surface = len(surface_colors), int(np.count_nonzero(vertices[:, 2] > floor_z))
+            keys = exact_keys(vertices[:n_surface])
+            original = np.zeros(int(keys.max()) + 1, np.int64)
+            original[keys[:n_kept]] = np.arange(n_kept)
+            skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - n_surface, 1))
+            vertex_colors = np.concatenate([surface_colors, surface_colors[original[keys[n_kept:]]], skirt])
         metadata["floor"] = floor_z
     elif floor is not None:
         raise InvalidInputError("floor applies only with solid=True")

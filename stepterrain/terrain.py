@@ -275,8 +275,10 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[n
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise InvalidInputError(f"{name} needs at least 2 x 2 nodes; got shape {arr.shape}")
     out = float32_heights(arr, name)
-    if isinstance(heights, np.ndarray) and np.may_share_memory(out, heights):
-        out = out.copy()  # the Terrain's caches must not see later changes to the caller's array
+    if not isinstance(heights, (list, tuple)) and np.may_share_memory(out, arr):
+        # the Terrain's caches must not see later changes to the caller's array: an ndarray's, and the buffer an
+        # array-like exposes (a memoryview, an object with __array__ such as an xarray DataArray or a DataFrame)
+        out = out.copy()
     lo, hi = finite_or_nan(out, name)
     return out, lo, hi
 

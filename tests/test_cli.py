@@ -409,3 +409,35 @@ def test_an_empty_path_is_refused_not_ignored(dem, tmp_path, capsys, argv, optio
     assert code == 2, err
     assert err == f"stepterrain {argv[0]}: error: argument {option}: expected a file name; got ''\n"
     assert out == "" and files_in(tmp_path) == ["hill.npy"]
+
+
+def test_info_welds_an_stl_so_a_watertight_solid_reads_as_one(dem, tmp_path, capsys):
+    """STL keeps no shared vertices: `info print.stl` read it unwelded (process=False) and said a watertight solid
+    from `steps --solid` was not watertight, with three vertices per face. Found by running info on every format."""
+    for suffix in (".stl", ".ply"):
+        out = tmp_path / f"print{suffix}"
+        code, _, err = run(capsys, "steps", dem, "--interval", "2", "--base", "0.5", "--solid", "-o", out)
+        assert code == 0, err
+        code, text, err = run(capsys, "info", out, "--json")
+        assert code == 0, err
+        summary = json.loads(text)
+        assert summary["watertight"] is True and summary["winding_consistent"] is True, (suffix, summary)
+        if suffix == ".ply":
+            ply = summary
+    assert summary["vertices"] == ply["vertices"] and summary["faces"] == ply["faces"]
+
+
+def test_info_leaves_out_an_stl_headers_nul_padding(dem, tmp_path, capsys):
+    """An STL's 80-byte header is padded with NUL bytes; `info` printed them as meta.header (80 NULs: grep called
+    the output binary). Found by running info on every mesh format."""
+    out = tmp_path / "hill.stl"
+    assert run(capsys, "steps", dem, "--interval", "2", "-o", out)[0] == 0
+    header = b"solid hill".ljust(80, b"\x00")
+    data = out.read_bytes()
+    out.write_bytes(header + data[80:])
+    code, text, err = run(capsys, "info", out)
+    assert code == 0, err
+    assert "\x00" not in text and "solid hill" in text
+    out.write_bytes(b"\x00" * 80 + data[80:])
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0 and "meta.header" not in json.loads(text) and "\\u0000" not in text, text

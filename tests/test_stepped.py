@@ -717,6 +717,24 @@ def test_solid_is_watertight_for_any_nodata_pattern(holes, seed):
     assert mesh.volume == pytest.approx(expected, rel=1e-9)
 
 
+def test_solid_colours_a_pinch_vertexs_copy_as_its_original():
+    """Where two nodata holes meet at a node, close_solid gives each fan its own copy of the node; with colors= the
+    copies were painted the skirt's grey (every vertex past the kept surface ones was taken for a skirt or base
+    vertex). Found by checking the colours of every surface vertex of solids over random nodata patterns."""
+    heights = np.arange(36.0).reshape(6, 6) * 0.25 + 0.125
+    heights[1, 1] = heights[1, 3] = np.nan  # their holes meet at node (1, 2) only
+    surface = st.stepped(heights, interval=1.0, colors="viridis")
+    mesh = st.stepped(heights, interval=1.0, colors="viridis", solid=True, floor=-2.0)
+    assert mesh.is_watertight
+    assert len(mesh.vertices) > len(np.unique(mesh.vertices, axis=0))  # the pinch was split
+    pairs = zip(surface.vertices.tolist(), surface.visual.vertex_colors.tolist(), strict=True)
+    colour_at = {tuple(v): tuple(c) for v, c in pairs}
+    top = mesh.vertices[:, 2] > -2.0
+    got = [tuple(c) for c in mesh.visual.vertex_colors[top].tolist()]
+    assert got == [colour_at[tuple(v)] for v in mesh.vertices[top].tolist()]
+    assert (mesh.visual.vertex_colors[~top] == [96, 96, 96, 255]).all()
+
+
 def test_solid_warns_when_heights_sit_on_thresholds():
     with pytest.warns(UserWarning, match="exactly on a threshold"):
         st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
@@ -886,6 +904,44 @@ def test_terrain_heights_cannot_change_under_its_caches():
     tin = as_terrain(st.heightfield_mesh(heights[2:]))
     for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
         assert not getattr(tin, name).flags.writeable, name
+
+
+def test_terrain_copies_the_buffer_an_array_like_shares():
+    """from_heights copied a float32 buffer it would share only when given an ndarray: an array-like exposing its
+    own buffer (a memoryview, an object with __array__: an xarray DataArray, a DataFrame) was shared, and masking
+    it afterwards stepped the new NaNs with the stale 'no nodata' flag: NaN vertices. Found by stepping a terrain
+    again after changing the buffer behind an array-like."""
+
+    class Wrapped:  # what xarray and pandas do: __array__ returns the float32 buffer they hold, not a copy
+        def __init__(self, values):
+            self.values = values
+
+        def __array__(self, dtype=None, copy=None):
+            return self.values
+
+    for make in (Wrapped, memoryview):
+        heights = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+        t = st.Terrain.from_heights(make(heights))
+        before = st.stepped(t, interval=2.0)
+        heights[:2] = np.nan
+        after = st.stepped(t, interval=2.0)
+        assert np.isfinite(after.vertices).all(), make
+        np.testing.assert_array_equal(after.vertices, before.vertices)
+
+
+def test_lens_mask_is_checked_once_and_cannot_change_afterwards():
+    """Lens checked its mask lies in [0, 1] but kept the caller's float32 array: filling it with NaN (or 2.0)
+    afterwards stepped NaN vertices (or γ beyond 1) without an error. The Lens holds a read-only copy now. Found by
+    changing a lens' mask array after building the Lens."""
+    heights = np.add.outer(np.arange(6.0), np.arange(7.0))
+    mask = np.full((8, 8), 0.5, np.float32)
+    lens = st.Lens(mask)
+    before = st.stepped(heights, interval=2.0, gamma=lens)
+    mask[:] = np.nan
+    after = st.stepped(heights, interval=2.0, gamma=lens)
+    np.testing.assert_array_equal(after.vertices, before.vertices)
+    with pytest.raises(ValueError, match="read-only"):
+        lens.mask[0, 0] = 2.0
 
 
 def test_heights_outside_the_levels_clamp_to_the_end_levels():
