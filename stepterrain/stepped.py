@@ -913,8 +913,12 @@ def stepped_series(
     """Step a time series of heightfields (T, H, W) frame by frame (paper 000 §4, dynamic data).
 
     Kernels compile once; each frame reuses the work buffers of the previous one (the scratch pool). With
-    ``interval``, the isovalues are fixed over the whole series (computed from its overall height range
-    when the frames come as one array), so levels do not jump between frames.
+    ``interval`` the isovalues lie on one grid, ``base + k * interval``, so a height steps to the same level
+    height in every frame. Frames given as one (T, H, W) array share one list of isovalues (from the stack's
+    overall height range), so level indices (``face_attributes["level"]``) and ``colors`` agree between frames
+    too. Frames from another iterable are not known ahead: each frame's isovalues span its own height range, so
+    their geometry agrees but level indices and colours are counted per frame; pass ``levels=`` (or one array)
+    for colours that agree over the series.
 
     Examples
     --------

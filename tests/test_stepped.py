@@ -852,6 +852,29 @@ def test_series_equals_frame_by_frame():
         np.testing.assert_array_equal(mesh.vertices, single.vertices)
 
 
+def test_series_colours_agree_for_a_stack_and_geometry_for_any_iterable():
+    """As the docstring says: a (T, H, W) stack shares one list of isovalues, so one height gets one colour in
+    every frame; frames from a generator step heights to the same grid base + k * interval (same vertices), but
+    count levels, and so colours, per frame."""
+    rng = np.random.default_rng(2)
+    low = (rng.random((10, 10)) * 6).astype(np.float32)  # heights 0..6
+    high = low + 4.0  # the same shape 4 m higher: 4..10
+    frames = np.stack([low, high])
+
+    def colour_of_height(mesh, z):
+        at = np.flatnonzero(mesh.vertices[:, 2] == z)
+        assert at.size
+        return {tuple(c) for c in mesh.visual.vertex_colors[at].tolist()}
+
+    stacked = list(st.stepped_series(frames, interval=2.0, colors="viridis"))
+    assert colour_of_height(stacked[0], 6.0) == colour_of_height(stacked[1], 6.0)
+    iterated = list(st.stepped_series(iter(frames), interval=2.0, colors="viridis"))
+    for a, b in zip(stacked, iterated, strict=True):
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.faces, b.faces)
+    assert colour_of_height(iterated[0], 6.0) != colour_of_height(iterated[1], 6.0)
+
+
 @pytest.mark.parametrize("hole", [False, True], ids=["no-nodata", "hole-in-frame-2"])
 def test_series_reuses_buffers_and_equals_fresh_calls(hole):
     """Issue 2 §3/§4 dynamic data: a later frame of the same shape runs in the first frame's device buffers
