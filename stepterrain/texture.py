@@ -1084,11 +1084,33 @@ def adjust(
         params.has_cutout = 1  # relative to the frame's local origin (xmin, ymax), like the pixel centres
         params.cutout = wp.vec4(box[0] - extent[0], box[1] - extent[0], box[2] - extent[3], box[3] - extent[3])
     dev = resolve_device(device)
+    # on the layer's own texels, kept with its texture matrix and border: a moved lens resampled onto its unmoved
+    # extent lost its hot spot, and an 'edge' border turned transparent (black when modulated), with the defaults too
+    frame, own = _frame(extent, shape), _own_texels(layer, extent)
+    if own is not None:
+        frame.origin, frame.pixel = own
+        image = _sampled(replace(layer, matrix=None), extent, shape, dev, "layer")
+    else:  # a rotated texture matrix: resampled onto the layer's extent, whose pixel grid the kernel walks
+        image = _sampled(layer, extent, shape, dev, "layer")
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
-    launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1],
-           inputs=[_frame(extent, shape), _sampled(layer, extent, shape, dev, "layer"), params],
-           outputs=[out], device=dev)
-    return _finish(out, layer, "adjust")
+    launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1], inputs=[frame, image, params], outputs=[out],
+           device=dev)
+    if own is None:
+        return _finish(out, layer, "adjust")
+    return TextureLayer("thematic", host_copy(out), extent, matrix=layer.matrix, border=layer.border, name="adjust")
+
+
+def _own_texels(layer: TextureLayer, extent: Extent) -> tuple[wp.vec2, wp.vec2] | None:
+    """(origin, pixel) of the layer's texel centres in world units relative to (xmin, ymax) of ``extent``, as a
+    :class:`PixelFrame` holds them, when its texture matrix is axis-aligned (else None)."""
+    if np.array_equal(layer.matrix, _affine(extent, layer.shape)):
+        frame = _frame(extent, layer.shape)  # the layer as made: exactly the frame its extent gives
+        return frame.origin, frame.pixel
+    inverse = np.linalg.inv(layer.matrix)  # texel (column, row, 1) -> world (x, y, 1)
+    if inverse[0, 1] != 0 or inverse[1, 0] != 0:
+        return None
+    return (wp.vec2(inverse[0, 2] - extent[0], inverse[1, 2] - extent[3]),
+            wp.vec2(inverse[0, 0], inverse[1, 1]))
 
 
 def combine(a: TextureLayer, b: TextureLayer | ArrayLike, mode: str, *, weights: Any = None,

@@ -205,6 +205,30 @@ def test_moving_a_lens_changes_only_the_matrix(device):
     assert after[1, 3] == pytest.approx(0.8) and after[1, 1] == pytest.approx(0.4)
 
 
+def test_adjust_keeps_a_lens_where_it_was_moved_and_its_edge_border(device):
+    """adjust() with its defaults leaves a layer unchanged: it resampled a moved lens onto its unmoved extent (the
+    hot spot, moved away, was lost) and returned a transparent border, so outside a highlight lens modulation gave
+    black instead of 1 - strength. The cutout is in world units, where the moved lens lies."""
+    terrain_rgb = TextureLayer("thematic", np.full((40, 40, 3), 0.8, np.float32), (-2.0, 18.0, -10.0, 10.0))
+    white = TextureLayer("thematic", np.ones((40, 40, 3), np.float32), terrain_rgb.extent)
+    black = TextureLayer("thematic", np.zeros((40, 40, 3), np.float32), terrain_rgb.extent)
+    hot, outside = (20, 24), (20, 30)  # pixels at (10, 0), the moved lens' centre, and (13, 0)
+    for lens in (thematic_lens((0.0, 0.0), 1.0, resolution=16).moved(10.0, 0.0),
+                 highlight_lens((0.0, 0.0), 1.0, strength=0.5, resolution=16).moved(10.0, 0.0)):
+        op = blend if lens.kind == "visibility" else modulate
+        args = (black, white) if lens.kind == "visibility" else (terrain_rgb,)
+        expected = op(*args, lens, device=device).rgba()
+        adjusted = adjust(lens, device=device)
+        assert adjusted.border == "edge"
+        np.testing.assert_allclose(op(*args, adjusted, device=device).rgba(), expected, atol=1e-6)
+    assert expected[hot][0] == pytest.approx(0.8) and expected[outside][0] == pytest.approx(0.4)
+    visibility = thematic_lens((0.0, 0.0), 1.0, resolution=16).moved(10.0, 0.0)
+    cut = adjust(visibility, cutout=(9.0, 11.0, -1.0, 1.0), device=device)
+    assert blend(black, white, cut, device=device).rgba()[hot][0] == 0.0
+    kept = adjust(visibility, cutout=(-1.0, 1.0, -1.0, 1.0), device=device)  # where the lens was: nothing there
+    assert blend(black, white, kept, device=device).rgba()[hot][0] == 1.0
+
+
 @pytest.mark.parametrize("make", [highlight_lens, thematic_lens])
 def test_a_lens_resolution_beyond_the_memory_budget_is_refused_up_front(make):
     """resolution=1_000_000 asked numpy for terabytes of float64 texels and died in a bare MemoryError; the lens
