@@ -1321,6 +1321,29 @@ def texture_uv(points: ArrayLike, layer: TextureLayer) -> NDArray[np.float64]:
     return np.column_stack([(texel[:, 0] + 0.5) / cols, 1.0 - (texel[:, 1] + 0.5) / rows])
 
 
+def _covering_image(image: NDArray[np.uint8], layer: TextureLayer, vertices: NDArray[Any],
+                    background: NDArray[np.float64]) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+    """``image`` grown by whole texels until it covers every vertex, filled as the layer's border says (its edge
+    texels repeated, or transparent: the background), and the vertices' UVs in it. A texture sampler repeats the
+    image past UV 0 and 1 (glTF's default, VTK's too), so a layer covering part of the mesh showed again over the
+    rest of it."""
+    rows, cols = layer.shape
+    texel = vertices[:, :2] @ layer.matrix[:2, :2].T + layer.matrix[:2, 2]  # (column, row), centres at integers
+    c0, c1 = min(0, math.floor(texel[:, 0].min())), max(cols - 1, math.ceil(texel[:, 0].max()))
+    r0, r1 = min(0, math.floor(texel[:, 1].min())), max(rows - 1, math.ceil(texel[:, 1].max()))
+    shape = (r1 - r0 + 1, c1 - c0 + 1, 3)
+    check_budget(shape[0] * shape[1] * 3, f"the {shape[1]} x {shape[0]} texture covering the draped mesh",
+                 hint="drape a layer that covers the mesh (or blend it onto one)")
+    if layer.border == "edge":
+        grown = np.pad(image, ((-r0, r1 - rows + 1), (-c0, c1 - cols + 1), (0, 0)), mode="edge")
+    else:
+        grown = np.empty(shape, dtype=np.uint8)
+        grown[:] = np.round(background * 255.0).astype(np.uint8)  # what a transparent texel composites to
+        grown[-r0 : -r0 + rows, -c0 : -c0 + cols] = image
+    uv = np.column_stack([(texel[:, 0] - c0 + 0.5) / shape[1], 1.0 - (texel[:, 1] - r0 + 0.5) / shape[0]])
+    return grown, uv
+
+
 def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[float] = (1.0, 1.0, 1.0),
           name: str = "terrain texture") -> trimesh.Trimesh:
     """The mesh with ``layer`` as its texture: UVs from the vertices' xy through the layer's texture matrix, the
@@ -1350,8 +1373,12 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
     from PIL import Image
 
-    uv = texture_uv(np.asarray(mesh.vertices), layer)
-    picture = Image.fromarray(layer.to_uint8(background=bg))
+    vertices = np.asarray(mesh.vertices)
+    uv = texture_uv(vertices, layer)
+    image = layer.to_uint8(background=bg)
+    if len(uv) and (uv.min() < 0.0 or uv.max() > 1.0):  # the mesh reaches past the image: its border decides there
+        image, uv = _covering_image(image, layer, vertices, bg)
+    picture = Image.fromarray(image)
     material = trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=picture, metallicFactor=0.0,
                                                    roughnessFactor=1.0, doubleSided=True)
     out = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False,

@@ -454,6 +454,28 @@ def test_drape_maps_world_xy_to_texels():
     np.testing.assert_allclose(uv[:, 1], (i + 0.5) / 3)
 
 
+@pytest.mark.parametrize("border", ["transparent", "edge"])
+def test_drape_a_layer_covering_part_of_the_mesh_keeps_its_border_beyond_it(border):
+    """UVs past 0 and 1 made the texture repeat (glTF's default sampler, VTK's too): a red layer over the west half
+    of a mesh showed red on the east half as well. The image now grows to cover the mesh, as its border says."""
+    mesh = st.heightfield_mesh(np.zeros((11, 11)))  # x, y in [0, 10]
+    image = np.zeros((4, 4, 3), np.float32)
+    image[..., 0] = 1.0  # red
+    image[:, -1, 2] = 1.0  # the east column magenta
+    textured = drape(mesh, TextureLayer("thematic", image, (0.0, 5.0, 0.0, 10.0), border=border),
+                     background=(0.0, 1.0, 0.0))
+    uv = textured.visual.uv
+    assert uv.min() >= 0.0 and uv.max() <= 1.0
+    picture = np.asarray(textured.visual.material.baseColorTexture.convert("RGB"))
+    rows, cols = picture.shape[:2]
+    texels = picture[np.floor((1.0 - uv[:, 1]) * rows).astype(int), np.floor(uv[:, 0] * cols).astype(int)]
+    x, y = textured.vertices[:, 0], textured.vertices[:, 1]
+    inner = (y > 0.0) & (y < 10.0)  # off the image's north and south edges, which lie between two texels
+    assert (texels[inner & (x > 0.0) & (x <= 3.0)] == (255, 0, 0)).all()  # inside, off the east column
+    beyond = (0, 255, 0) if border == "transparent" else (255, 0, 255)  # the background, or the edge repeated
+    assert (texels[inner & (x >= 6.0)] == beyond).all()
+
+
 AVAILABLE, REASON = render.offscreen_available()
 
 
