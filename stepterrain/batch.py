@@ -1045,6 +1045,11 @@ def overview_image(
     from . import render
 
     width, height, _ = render._check_window(window_size, z_scale)  # the contact sheet's w // cols truncated 64.7
+    if isinstance(max_items, bool) or not isinstance(max_items, (int, np.integer)) or max_items < 1:
+        # -1 dropped the last output silently, 0 said "wrote no output", "3" raised a slicing TypeError
+        raise InvalidInputError(f"max_items must be an int >= 1; got {max_items!r}")
+    if mosaic is not None:
+        check_flag(mosaic, "mosaic")  # "no" was truthy: a mosaic
     paths = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path][:max_items]
     if not paths:
         raise InvalidInputError("the batch wrote no output to show")

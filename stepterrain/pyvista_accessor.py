@@ -96,8 +96,11 @@ class StepTerrainAccessor:
         if isinstance(ds, pv.ImageData):
             if np.any(np.asarray(ds.direction_matrix) != np.eye(3)):
                 raise InvalidInputError("a rotated ImageData (non-identity direction_matrix) cannot be stepped")
-            dx, dy, _ = (float(s) for s in ds.spacing)
-            ox, oy, oz = (float(o) for o in ds.origin)
+            dx, dy, dz = (float(s) for s in ds.spacing)
+            # node (i, j) lies at origin + (extent start + (i, j)) x spacing: a grid cut out of a larger one (a VOI,
+            # a .vti piece) or given an offset starts past 0, and its origin alone put the terraces there
+            i0, _, j0, _, k0, _ = (int(e) for e in ds.extent)
+            ox, oy, oz = (float(o) + k * d for o, k, d in zip(ds.origin, (i0, j0, k0), (dx, dy, dz), strict=True))
             if oz != 0.0:  # added in float64: a sum beyond float32 is named, not inf
                 heights = float32_heights(heights.astype(np.float64) + oz, "elevation + the grid's origin z")
             return Terrain.from_heights(heights, spacing=(dx, dy), origin=(ox, oy), source="pyvista.ImageData")

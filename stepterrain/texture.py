@@ -1084,11 +1084,33 @@ def adjust(
         params.has_cutout = 1  # relative to the frame's local origin (xmin, ymax), like the pixel centres
         params.cutout = wp.vec4(box[0] - extent[0], box[1] - extent[0], box[2] - extent[3], box[3] - extent[3])
     dev = resolve_device(device)
+    # on the layer's own texels, kept with its texture matrix and border: a moved lens resampled onto its unmoved
+    # extent lost its hot spot, and an 'edge' border turned transparent (black when modulated), with the defaults too
+    frame, own = _frame(extent, shape), _own_texels(layer, extent)
+    if own is not None:
+        frame.origin, frame.pixel = own
+        image = _sampled(replace(layer, matrix=None), extent, shape, dev, "layer")
+    else:  # a rotated texture matrix: resampled onto the layer's extent, whose pixel grid the kernel walks
+        image = _sampled(layer, extent, shape, dev, "layer")
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
-    launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1],
-           inputs=[_frame(extent, shape), _sampled(layer, extent, shape, dev, "layer"), params],
-           outputs=[out], device=dev)
-    return _finish(out, layer, "adjust")
+    launch(texture_kernels.adjust_layer, dim=shape[0] * shape[1], inputs=[frame, image, params], outputs=[out],
+           device=dev)
+    if own is None:
+        return _finish(out, layer, "adjust")
+    return TextureLayer("thematic", host_copy(out), extent, matrix=layer.matrix, border=layer.border, name="adjust")
+
+
+def _own_texels(layer: TextureLayer, extent: Extent) -> tuple[wp.vec2, wp.vec2] | None:
+    """(origin, pixel) of the layer's texel centres in world units relative to (xmin, ymax) of ``extent``, as a
+    :class:`PixelFrame` holds them, when its texture matrix is axis-aligned (else None)."""
+    if np.array_equal(layer.matrix, _affine(extent, layer.shape)):
+        frame = _frame(extent, layer.shape)  # the layer as made: exactly the frame its extent gives
+        return frame.origin, frame.pixel
+    inverse = np.linalg.inv(layer.matrix)  # texel (column, row, 1) -> world (x, y, 1)
+    if inverse[0, 1] != 0 or inverse[1, 0] != 0:
+        return None
+    return (wp.vec2(inverse[0, 2] - extent[0], inverse[1, 2] - extent[3]),
+            wp.vec2(inverse[0, 0], inverse[1, 1]))
 
 
 def combine(a: TextureLayer, b: TextureLayer | ArrayLike, mode: str, *, weights: Any = None,
@@ -1299,6 +1321,29 @@ def texture_uv(points: ArrayLike, layer: TextureLayer) -> NDArray[np.float64]:
     return np.column_stack([(texel[:, 0] + 0.5) / cols, 1.0 - (texel[:, 1] + 0.5) / rows])
 
 
+def _covering_image(image: NDArray[np.uint8], layer: TextureLayer, vertices: NDArray[Any],
+                    background: NDArray[np.float64]) -> tuple[NDArray[np.uint8], NDArray[np.float64]]:
+    """``image`` grown by whole texels until it covers every vertex, filled as the layer's border says (its edge
+    texels repeated, or transparent: the background), and the vertices' UVs in it. A texture sampler repeats the
+    image past UV 0 and 1 (glTF's default, VTK's too), so a layer covering part of the mesh showed again over the
+    rest of it."""
+    rows, cols = layer.shape
+    texel = vertices[:, :2] @ layer.matrix[:2, :2].T + layer.matrix[:2, 2]  # (column, row), centres at integers
+    c0, c1 = min(0, math.floor(texel[:, 0].min())), max(cols - 1, math.ceil(texel[:, 0].max()))
+    r0, r1 = min(0, math.floor(texel[:, 1].min())), max(rows - 1, math.ceil(texel[:, 1].max()))
+    shape = (r1 - r0 + 1, c1 - c0 + 1, 3)
+    check_budget(shape[0] * shape[1] * 3, f"the {shape[1]} x {shape[0]} texture covering the draped mesh",
+                 hint="drape a layer that covers the mesh (or blend it onto one)")
+    if layer.border == "edge":
+        grown = np.pad(image, ((-r0, r1 - rows + 1), (-c0, c1 - cols + 1), (0, 0)), mode="edge")
+    else:
+        grown = np.empty(shape, dtype=np.uint8)
+        grown[:] = np.round(background * 255.0).astype(np.uint8)  # what a transparent texel composites to
+        grown[-r0 : -r0 + rows, -c0 : -c0 + cols] = image
+    uv = np.column_stack([(texel[:, 0] - c0 + 0.5) / shape[1], 1.0 - (texel[:, 1] - r0 + 0.5) / shape[0]])
+    return grown, uv
+
+
 def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[float] = (1.0, 1.0, 1.0),
           name: str = "terrain texture") -> trimesh.Trimesh:
     """The mesh with ``layer`` as its texture: UVs from the vertices' xy through the layer's texture matrix, the
@@ -1328,8 +1373,12 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
     from PIL import Image
 
-    uv = texture_uv(np.asarray(mesh.vertices), layer)
-    picture = Image.fromarray(layer.to_uint8(background=bg))
+    vertices = np.asarray(mesh.vertices)
+    uv = texture_uv(vertices, layer)
+    image = layer.to_uint8(background=bg)
+    if len(uv) and (uv.min() < 0.0 or uv.max() > 1.0):  # the mesh reaches past the image: its border decides there
+        image, uv = _covering_image(image, layer, vertices, bg)
+    picture = Image.fromarray(image)
     material = trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=picture, metallicFactor=0.0,
                                                    roughnessFactor=1.0, doubleSided=True)
     out = trimesh.Trimesh(np.asarray(mesh.vertices), np.asarray(mesh.faces), process=False,

@@ -90,11 +90,17 @@ def _georeferenced_extent(image: Any) -> Extent | None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a plain TIFF: pixel units, no warning
             with rasterio.open(image) as dataset:
-                if dataset.transform.is_identity or dataset.transform.b != 0 or dataset.transform.d != 0:
+                transform = dataset.transform
+                if transform.is_identity or transform.b != 0 or transform.d != 0:
                     return None
                 left, bottom, right, top = dataset.bounds
     except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
         return None
+    if transform.a < 0 or transform.e > 0:  # its bounds came back as an extent with ymin > ymax, "not given"
+        raise InvalidInputError(
+            f"image {str(image)!r} is georeferenced with its rows running south to north or its columns east to "
+            f"west (pixel size {transform.a:g} x {transform.e:g}); a pyramid's row 0 is the north edge and column 0 "
+            "the west edge: write the image north-up, or pass extent=(xmin, xmax, ymin, ymax) for it as it is")
     return float(left), float(right), float(bottom), float(top)
 
 

@@ -62,6 +62,19 @@ def test_image_data_steps_like_the_api(device):
     np.testing.assert_allclose(steps.field_data["isovalues"], expected.metadata["isovalues"])
 
 
+def test_image_data_whose_extent_starts_past_zero_steps_where_its_points_are():
+    """A grid cut out of a larger one (a VOI, a .vti piece) or given an offset has node (i, j) at origin + (extent
+    start + (i, j)) x spacing: its terraces lay at the origin, (10, 21) off the grid's own points."""
+    heights = np.add.outer(np.arange(3.0), np.arange(4.0)) * 3.0
+    grid = image_grid(heights, spacing=(2.0, 3.0), origin=(100.0, 200.0))
+    grid.extent = (5, 8, 7, 9, 2, 2)  # the same 4 x 3 nodes, starting at index (5, 7, 2)
+    grid.spacing = (2.0, 3.0, 0.5)
+    steps = grid.stepterrain.stepped(interval=2.0, device="cpu")
+    expected = st.stepped(heights + 1.0, interval=2.0, spacing=(2.0, 3.0), origin=(110.0, 221.0), device="cpu")
+    np.testing.assert_allclose(steps.bounds[:4], grid.bounds[:4])
+    np.testing.assert_allclose(steps.points, expected.vertices, atol=1e-6)
+
+
 def test_structured_grid_uses_point_z_and_colors():
     x, y = np.meshgrid(np.linspace(0, 100, 9), np.linspace(0, 60, 7))
     z = 10 * np.sin(x / 30) + y / 3

@@ -16,7 +16,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as hst
 
 from stepterrain import cli
-from stepterrain.batch import MANIFEST_NAME, BatchItem, batch, load_series, plan_items, run_item
+from stepterrain.batch import (
+    MANIFEST_NAME,
+    BatchItem,
+    BatchReport,
+    ItemResult,
+    batch,
+    load_series,
+    overview_image,
+    plan_items,
+    run_item,
+)
 from stepterrain.errors import DataFileError, InvalidInputError, SchedulerError
 from stepterrain.io import load_dem
 from stepterrain.mesh import boundary_edges
@@ -1095,3 +1105,16 @@ def test_file_names_whose_outputs_clash_are_named(tmp_path):
     with pytest.raises(InvalidInputError, match=r"source files '.*a.npy' and '.*a_npy.npy' would both write the "
                                                 r"output 'a_npy' \(outputs are named after their files\); rename one"):
         plan_items(tmp_path)
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"max_items": 0}, "max_items must be an int >= 1; got 0"),  # was "the batch wrote no output to show"
+    ({"max_items": -1}, "max_items must be an int >= 1; got -1"),  # dropped the last output silently
+    ({"max_items": "3"}, "max_items must be an int >= 1; got '3'"),  # a TypeError from slicing
+    ({"max_items": 2.5}, "max_items must be an int >= 1; got 2.5"),
+    ({"mosaic": "no"}, "mosaic must be True or False; got 'no'"),  # truthy: a mosaic
+])
+def test_overview_image_options_are_checked(tmp_path, kwargs, match):
+    report = BatchReport(tmp_path, [ItemResult("tile_r0_c0", "done", path=str(tmp_path / "tile_r0_c0.glb"))])
+    with pytest.raises(InvalidInputError, match=re.escape(match)):
+        overview_image(report, **kwargs)

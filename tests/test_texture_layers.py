@@ -205,6 +205,30 @@ def test_moving_a_lens_changes_only_the_matrix(device):
     assert after[1, 3] == pytest.approx(0.8) and after[1, 1] == pytest.approx(0.4)
 
 
+def test_adjust_keeps_a_lens_where_it_was_moved_and_its_edge_border(device):
+    """adjust() with its defaults leaves a layer unchanged: it resampled a moved lens onto its unmoved extent (the
+    hot spot, moved away, was lost) and returned a transparent border, so outside a highlight lens modulation gave
+    black instead of 1 - strength. The cutout is in world units, where the moved lens lies."""
+    terrain_rgb = TextureLayer("thematic", np.full((40, 40, 3), 0.8, np.float32), (-2.0, 18.0, -10.0, 10.0))
+    white = TextureLayer("thematic", np.ones((40, 40, 3), np.float32), terrain_rgb.extent)
+    black = TextureLayer("thematic", np.zeros((40, 40, 3), np.float32), terrain_rgb.extent)
+    hot, outside = (20, 24), (20, 30)  # pixels at (10, 0), the moved lens' centre, and (13, 0)
+    for lens in (thematic_lens((0.0, 0.0), 1.0, resolution=16).moved(10.0, 0.0),
+                 highlight_lens((0.0, 0.0), 1.0, strength=0.5, resolution=16).moved(10.0, 0.0)):
+        op = blend if lens.kind == "visibility" else modulate
+        args = (black, white) if lens.kind == "visibility" else (terrain_rgb,)
+        expected = op(*args, lens, device=device).rgba()
+        adjusted = adjust(lens, device=device)
+        assert adjusted.border == "edge"
+        np.testing.assert_allclose(op(*args, adjusted, device=device).rgba(), expected, atol=1e-6)
+    assert expected[hot][0] == pytest.approx(0.8) and expected[outside][0] == pytest.approx(0.4)
+    visibility = thematic_lens((0.0, 0.0), 1.0, resolution=16).moved(10.0, 0.0)
+    cut = adjust(visibility, cutout=(9.0, 11.0, -1.0, 1.0), device=device)
+    assert blend(black, white, cut, device=device).rgba()[hot][0] == 0.0
+    kept = adjust(visibility, cutout=(-1.0, 1.0, -1.0, 1.0), device=device)  # where the lens was: nothing there
+    assert blend(black, white, kept, device=device).rgba()[hot][0] == 1.0
+
+
 @pytest.mark.parametrize("make", [highlight_lens, thematic_lens])
 def test_a_lens_resolution_beyond_the_memory_budget_is_refused_up_front(make):
     """resolution=1_000_000 asked numpy for terabytes of float64 texels and died in a bare MemoryError; the lens
@@ -428,6 +452,28 @@ def test_drape_maps_world_xy_to_texels():
     i, j = np.divmod(np.arange(15), 5)
     np.testing.assert_allclose(uv[:, 0], (j + 0.5) / 5)
     np.testing.assert_allclose(uv[:, 1], (i + 0.5) / 3)
+
+
+@pytest.mark.parametrize("border", ["transparent", "edge"])
+def test_drape_a_layer_covering_part_of_the_mesh_keeps_its_border_beyond_it(border):
+    """UVs past 0 and 1 made the texture repeat (glTF's default sampler, VTK's too): a red layer over the west half
+    of a mesh showed red on the east half as well. The image now grows to cover the mesh, as its border says."""
+    mesh = st.heightfield_mesh(np.zeros((11, 11)))  # x, y in [0, 10]
+    image = np.zeros((4, 4, 3), np.float32)
+    image[..., 0] = 1.0  # red
+    image[:, -1, 2] = 1.0  # the east column magenta
+    textured = drape(mesh, TextureLayer("thematic", image, (0.0, 5.0, 0.0, 10.0), border=border),
+                     background=(0.0, 1.0, 0.0))
+    uv = textured.visual.uv
+    assert uv.min() >= 0.0 and uv.max() <= 1.0
+    picture = np.asarray(textured.visual.material.baseColorTexture.convert("RGB"))
+    rows, cols = picture.shape[:2]
+    texels = picture[np.floor((1.0 - uv[:, 1]) * rows).astype(int), np.floor(uv[:, 0] * cols).astype(int)]
+    x, y = textured.vertices[:, 0], textured.vertices[:, 1]
+    inner = (y > 0.0) & (y < 10.0)  # off the image's north and south edges, which lie between two texels
+    assert (texels[inner & (x > 0.0) & (x <= 3.0)] == (255, 0, 0)).all()  # inside, off the east column
+    beyond = (0, 255, 0) if border == "transparent" else (255, 0, 255)  # the background, or the edge repeated
+    assert (texels[inner & (x >= 6.0)] == beyond).all()
 
 
 AVAILABLE, REASON = render.offscreen_available()

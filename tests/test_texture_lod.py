@@ -607,6 +607,25 @@ def test_pyramid_of_a_georeferenced_geotiff():
             assert patch[2] > patch[0]
 
 
+@pytest.mark.parametrize("transform", [(1.0, 0.0, 100.0, 0.0, 1.0, 200.0), (-1.0, 0.0, 106.0, 0.0, -1.0, 204.0)])
+def test_pyramid_of_a_geotiff_stored_south_up_or_east_to_west_is_refused_by_name(tmp_path, transform):
+    """A GeoTIFF whose rows run south to north (or columns east to west) has bounds with bottom > top (or left >
+    right): the pyramid blamed an "extent" nobody gave; row 0 is read as the north edge, so it cannot be placed."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    path = tmp_path / "flipped.tif"
+    image = np.arange(4 * 6, dtype=np.uint8).reshape(1, 4, 6)
+    with rasterio.open(path, "w", driver="GTiff", height=4, width=6, count=1, dtype="uint8",
+                       transform=Affine(*transform)) as dataset:  # fmt: skip
+        dataset.write(image)
+    with pytest.raises(InvalidInputError, match=r"flipped\.tif' is georeferenced with its rows running south to "
+                                                r"north or its columns east to west .*pass extent="):
+        ImagePyramid.build(path, device="cpu")
+    with ImagePyramid.build(path, extent=(0.0, 6.0, 0.0, 4.0), device="cpu") as pyramid:  # placed by the caller
+        assert pyramid.extent == (0.0, 6.0, 0.0, 4.0)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
