@@ -378,6 +378,15 @@ def _item_terrain(item: BatchItem, source: _Source | None) -> Terrain:
     )
 
 
+def _has_surface(terrain: Terrain) -> bool:
+    """Whether some cell of the grid has a triangle with three finite heights, (n00, n01, n11) or (n00, n11, n10)
+    as kernels/stepped.py cuts it."""
+    if not terrain.has_nodata:
+        return True
+    f = np.isfinite(terrain.heights)
+    return bool((f[:-1, :-1] & f[1:, 1:] & (f[:-1, 1:] | f[1:, :-1])).any())
+
+
 def _item_metadata(item: BatchItem) -> dict[str, Any]:
     meta: dict[str, Any] = {"batch_item": item.key}
     if item.kind == "tile":
@@ -418,6 +427,8 @@ def run_item(
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
     writing); that and any other exception propagate so the scheduler retries the task.
     """
+    import trimesh
+
     from ._device import set_cpu_threads
     from .stepped import stepped
 
@@ -427,11 +438,18 @@ def run_item(
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
         terrain = _item_terrain(item, source)
-        mesh = stepped(
-            terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
-            colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
-        )  # fmt: skip
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
+        if item.kind != "file" and not _has_surface(terrain):
+            # a piece of the source with no triangle of three finite heights (sea off a coast, a gap in a series):
+            # an empty mesh, as stepped() gives for finite nodes that make no triangle, also for a solid; a tile
+            # file that is all nodata is refused by load_dem instead, as not elevation data
+            mesh = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+            metadata["empty"] = "no triangle with three finite heights (nodata)"
+        else:
+            mesh = stepped(
+                terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
+                colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
+            )  # fmt: skip
         save_mesh(mesh, target, metadata=metadata)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
     except StepTerrainError as exc:
@@ -735,7 +753,10 @@ def batch(
     and mtime, or a hash of its heights; and the options but the device, which does not change a bit of the
     output) and its file exists with the recorded size. Every
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
-    a killed run leaves complete outputs or none and a rerun redoes only what is missing. Cost per item: one
+    a killed run leaves complete outputs or none and a rerun redoes only what is missing. A tile or frame with
+    no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
+    ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
+    refuses it as not elevation data). Cost per item: one
     :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
     run scales with the workers until the disk or the scheduler saturates. The default LocalCluster starts its
     worker processes by *spawn*: a script that calls :func:`batch` needs the usual

@@ -435,18 +435,17 @@ def _is_large(bounds: Bounds) -> bool:
 
 # ---------------------------------------------------------------------------------------------- writers
 def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
-    if _direct_gltf(mesh):
-        tree, blocks = _gltf_document(mesh, target, bounds)
+    empty = _empty_gltf(mesh)
+    if empty or _direct_gltf(mesh):
+        tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds)
         header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
         header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
-        length = tree["buffers"][0]["byteLength"]
-        parts = [
-            struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + 8 + length),
-            struct.pack("<I4s", len(header), b"JSON"),
-            header,
-            struct.pack("<I4s", length, b"BIN\x00"),
-            *(memoryview(block).cast("B") for block in blocks),
-        ]
+        parts = [struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header)), struct.pack("<I4s", len(header), b"JSON"),
+                 header]  # fmt: skip
+        if blocks:  # the binary chunk (an empty mesh has none: glTF 2.0 §4.4.3.3, optional)
+            length = tree["buffers"][0]["byteLength"]
+            parts[0] = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + 8 + length)
+            parts += [struct.pack("<I4s", length, b"BIN\x00"), *(memoryview(block).cast("B") for block in blocks)]
         with tmp.open("wb") as fh:  # part by part: joining them first would copy the whole buffer once more
             for part in parts:
                 fh.write(part)
@@ -456,6 +455,9 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -
 
 
 def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+    if _empty_gltf(mesh):
+        tmp.write_text(json.dumps(_empty_document(mesh, target)[0], separators=(",", ":")), encoding="utf-8")
+        return
     if _direct_gltf(mesh):
         tree, blocks = _gltf_document(mesh, target, bounds)
         binary = b"".join(memoryview(block).cast("B") for block in blocks)
@@ -480,6 +482,22 @@ def _direct_gltf(mesh: trimesh.Trimesh) -> bool:
         return False
     kind = mesh.visual.kind
     return kind is None or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
+
+
+def _empty_gltf(mesh: trimesh.Trimesh) -> bool:
+    """No vertex and no face: written by :func:`_empty_document` (trimesh's writer would drop the metadata)."""
+    return len(mesh.faces) == 0 and len(mesh.vertices) == 0
+
+
+def _empty_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any], list[Any]]:
+    """glTF JSON of an empty mesh: one node without a mesh, ``mesh.metadata`` as its ``extras`` (glTF has no
+    mesh without a primitive, nor a primitive without POSITION); no buffers."""
+    node: dict[str, Any] = {"name": target.stem or "mesh"}
+    if mesh.metadata:
+        node["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
+    tree = {"asset": {"version": "2.0", "generator": "stepterrain"}, "scene": 0, "scenes": [{"nodes": [0]}],
+            "nodes": [node]}  # fmt: skip
+    return tree, []
 
 
 # glTF 2.0 constants (§3.6.2, §5.11): component types and buffer view targets

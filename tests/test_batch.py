@@ -1118,3 +1118,31 @@ def test_overview_image_options_are_checked(tmp_path, kwargs, match):
     report = BatchReport(tmp_path, [ItemResult("tile_r0_c0", "done", path=str(tmp_path / "tile_r0_c0.glb"))])
     with pytest.raises(InvalidInputError, match=re.escape(match)):
         overview_image(report, **kwargs)
+
+
+@pytest.mark.parametrize("solid", [False, True], ids=["surface", "solid"])
+def test_a_tile_of_nodata_is_an_empty_mesh_and_done(tmp_path, solid):
+    """Sea off a coast: tiles cut from a raster that hold no triangle of three finite heights (all NaN, or a
+    few finite nodes that make no triangle) failed with 'terrain has no finite height' (solid: 'needs a surface
+    to close'), made the exit status 1 and were redone by every rerun. They are written as empty meshes, done,
+    and skipped by the rerun; the land tiles are stepped as before."""
+    z = real_dem(TUJUNGA, size=33, step=4) + 0.5
+    z[:, 16:] = np.nan  # the east tiles are sea ...
+    z[2, 20] = z[5, 30] = 100.0  # ... with two lone finite nodes in the north-east one, in no triangle
+    kwargs = {"interval": 50.0, "solid": solid, "format": ".glb", "scheduler": "serial"}
+    report = batch(z, tmp_path / "out", tile_size=16, **kwargs)
+    assert report.ok and len(report.done) == 4, report.summary()
+    levels = isovalues((float(np.nanmin(z)), float(np.nanmax(z))), interval=50.0)
+    for r in report.done:
+        data = Path(r.path).read_bytes()
+        assert len(trimesh.load(r.path, force="mesh", process=False).faces) == r.faces
+        if r.key.endswith("_c0"):  # land: stepped as on its own, with the raster's isovalues
+            rows = slice(0, 17) if "_r0_" in r.key else slice(16, 33)
+            assert r.faces == len(stepped(z[rows, :17], levels=levels, solid=solid).faces) > 0
+            assert b'"empty"' not in data
+        else:
+            assert r.faces == 0 and b'"empty"' in data
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate([r.path for r in report.done])) == []
+    again = batch(z, tmp_path / "out", tile_size=16, **kwargs)
+    assert again.ok and len(again.skipped) == 4 and not again.done

@@ -242,6 +242,17 @@ def test_empty_mesh(tmp_path):
         assert all(buffer["byteLength"] >= 1 for buffer in tree.get("buffers", []))
         lines = (tmp_path / "e.obj").read_text().splitlines()
         assert not [line for line in lines if line.strip() in ("v", "f")]
+    # the metadata of an empty mesh (a tile of sea, a view of nothing) is kept, as the node's extras: trimesh's
+    # writer dropped it with the mesh
+    for ext in (".glb", ".gltf"):
+        path = save_mesh(empty, tmp_path / f"m{ext}", metadata={"source": "sea", "isovalues": [0.0, 50.0]})
+        data = path.read_bytes()
+        tree = json.loads(data[20 : 20 + struct.unpack("<I", data[12:16])[0]] if ext == ".glb" else data)
+        assert tree["nodes"] == [{"name": "m", "extras": {"source": "sea", "isovalues": [0.0, 50.0]}}]
+        assert "buffers" not in tree and "meshes" not in tree
+        if ext == ".glb":
+            assert struct.unpack("<I", data[8:12])[0] == len(data)  # the header's length: no binary chunk
+        assert len(trimesh.load(path, force="mesh", process=False).faces) == 0
 
 
 def test_unknown_extension(tmp_path):
