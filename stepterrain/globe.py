@@ -144,13 +144,17 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     return z
 
 
-def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[NDArray[np.float64], ...]:
-    axes = []
+def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[Any, ...]:
+    """lat and lon as float64, then the rounding of each: the spacing of a float16 / float32 axis's dtype at its
+    largest |value| (its values lie within half of it of their exact positions), else 0."""
+    axes, roundings = [], []
     for name, axis in (("lat", lat), ("lon", lon)):
         raw = np.asarray(axis)
         if raw.dtype == bool or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
             raise InvalidInputError(f"{name} must be numbers (degrees); got dtype {raw.dtype}")
         axes.append(raw.astype(np.float64))
+        narrow = raw.dtype.kind == "f" and raw.dtype.itemsize < 8 and raw.size and np.isfinite(raw).all()
+        roundings.append(float(np.spacing(np.abs(raw).max())) if narrow else 0.0)
     lat, lon = axes
     rows, cols = shape
     if lat.shape != (rows,) or lon.shape != (cols,):
@@ -158,17 +162,19 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
                                 f"{shape}; got {lat.shape} and {lon.shape}")
     if not (np.isfinite(lat).all() and np.isfinite(lon).all()):
         raise InvalidInputError("lat and lon must be finite")
-    return lat, lon
+    return lat, lon, *roundings
 
 
-def _regular_step(axis: NDArray[np.float64], name: str) -> float:
+def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -> float:
+    """The mean step of a strictly monotone, regular axis. ``rounding`` (see :func:`_latlon_axes`): each value
+    lies within half of it of its exact position, so each step within one of the exact step."""
     steps = np.diff(axis)
     if not ((steps > 0).all() or (steps < 0).all()):
         bad = int(np.flatnonzero(np.sign(steps) != np.sign(steps[0]))[0]) + 1 if len(steps) else 0
         raise InvalidInputError(f"{name} must be strictly monotone; it turns at index {bad} "
                                 f"({axis[max(bad - 1, 0)]}, {axis[bad]})")
     step = float(np.abs(steps).mean())
-    if np.abs(np.abs(steps) - step).max() > 1e-6 * max(step, 1e-12) + 1e-9:
+    if np.abs(np.abs(steps) - step).max() > 1e-6 * max(step, 1e-12) + 1e-9 + 2 * rounding:
         raise InvalidInputError(f"{name} must be regularly spaced; steps range from {np.abs(steps).min():.9g} "
                                 f"to {np.abs(steps).max():.9g} degrees")
     return step
@@ -224,8 +230,9 @@ class Globe:
         elevation : (H, W) array_like
             Elevation in metres, rows along ``lat``, columns along ``lon``. NaN is refused (fill it first).
         lat : (H,) array_like
-            Latitudes in degrees, strictly monotone, regular, reaching within one step of both poles
-            (cell-centred like ETOPO, or node-registered including ±90).
+            Latitudes in degrees, strictly monotone, regular (to the precision of their dtype: float32 axes
+            are fine), reaching within one step of both poles (cell-centred like ETOPO, or node-registered
+            including ±90).
         lon : (W,) array_like
             Longitudes in degrees, strictly monotone, regular, covering 360° (a duplicated closing column,
             e.g. -180 and 180, is dropped). Interpolation wraps around the antimeridian.
@@ -283,9 +290,9 @@ class Globe:
             raise InvalidInputError(f"radius + exaggeration · elevation must stay > 0 (nodes beyond the centre turn "
                                     f"the mesh inside out); got {radius:.9g} + {exaggeration:.9g} x {deepest:.9g} = "
                                     f"{radius + exaggeration * deepest:.9g} m (row {lowest[0]}, column {lowest[1]})")
-        lat, lon = _latlon_axes(lat, lon, z.shape)
-        dlat = _regular_step(lat, "lat")
-        dlon = _regular_step(lon, "lon")
+        lat, lon, lat_rounding, lon_rounding = _latlon_axes(lat, lon, z.shape)
+        dlat = _regular_step(lat, "lat", lat_rounding)
+        dlon = _regular_step(lon, "lon", lon_rounding)
         if lat[0] < lat[-1]:
             lat, z = lat[::-1], z[::-1]
         if lon[0] > lon[-1]:

@@ -712,6 +712,21 @@ def test_bad_latlon_grids():
         Globe.from_latlon(nan, LAT1, LON1, face_size=9)
 
 
+def test_float32_axes_are_regular_to_their_precision():
+    """lat / lon stored as float32 (as netCDF and many .npz grids hold them) were refused as not regularly spaced:
+    the 10' grid's steps vary by an ulp of 180 in float32 (1.5e-5 degrees), above the 1e-6 relative margin. Read
+    from float32 axes, the globe is that of the float64 axes up to the axes' own rounding."""
+    with np.load(shared_file("global_relief.npz")) as d:
+        lat, lon, z = np.asarray(d["lat"]), np.asarray(d["lon"]), np.asarray(d["elevation"])
+    exact = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    rounded = Globe.from_latlon(z, lat.astype(np.float32), lon.astype(np.float32), face_size=9, device="cpu")
+    np.testing.assert_allclose(rounded.heights, exact.heights, rtol=0, atol=0.5)
+    with pytest.raises(InvalidInputError, match="lat must be regularly spaced"):  # still refused when irregular
+        lat32 = lat.astype(np.float32)
+        lat32[5] += np.float32(1e-3)
+        Globe.from_latlon(z, lat32, lon.astype(np.float32), face_size=9, device="cpu")
+
+
 @pytest.mark.parametrize("result, match", [
     (lambda p, r: ["a"] * len(p), "got list that is not numbers"),
     (lambda p, r: None, r"got shape \(\)"),
