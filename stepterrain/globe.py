@@ -619,14 +619,17 @@ def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device) -> wp.array:
 
 
 def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.float32], NDArray[np.float32]],
-                  triangles: wp.array, device: wp.Device) -> wp.array:
+                  triangles: wp.array, device: wp.Device, origin: tuple[float, float] = (0.0, 0.0)) -> wp.array:
     """Per triangle, the product of the user metrics at its refinement node (one vectorised call per level);
-    ``host`` = the node positions and parameters on the host, copied once per mesh."""
+    ``host`` = the node positions and parameters on the host, copied once per mesh; ``origin`` is added to the
+    points' x and y (a planar grid's positions are relative to its origin, the metric sees the mesh's)."""
     tris = host_copy(triangles).astype(np.int64)
     n = grid.n
     a, b = tris[:, 1], tris[:, 2]
     m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
     points = host[0][m].astype(np.float64)
+    if origin != (0.0, 0.0):
+        points[:, :2] += origin
     radius = host[1][m, 1].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
     for fn in users:
@@ -700,7 +703,8 @@ def _refine_small_levels(grid: Any, params: Any, view: Any, roots: wp.array, lev
 
 
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
-             per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
+             per_face: bool, device: wp.Device, origin: tuple[float, float] = (0.0, 0.0)
+             ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Breadth-first refinement, one count -> scan -> emit per level (on the CPU the small levels in one
     launch, :func:`_refine_small_levels`), then vertices and faces."""
     n = grid.n
@@ -739,7 +743,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         if count == 0:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
-        factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
+        factors = _user_factors(users, grid, host, triangles, device, origin) if users else no_factors
         track = bool(flags[2]) and count >= _TRACK_MIN
         if track and masks is None:
             masks = wp.zeros(count, dtype=wp.int32, device=device)  # nothing known yet
@@ -874,7 +878,8 @@ def adaptive_mesh(
     origin : (x0, y0)
         Position of node (0, 0).
     metrics, cull, device
-        As for :meth:`Globe.mesh`.
+        As for :meth:`Globe.mesh`; a user metric's points are in the mesh's coordinates (origin included), as the
+        camera's.
     distance_scale : float, optional
         ℓ for the distance metric; default: the eye's height above the highest node, at least one spacing.
 
@@ -939,7 +944,8 @@ def adaptive_mesh(
         distance_scale = max(above, dx, dy)
     view = _view(camera, error, names, "sphere", _positive(distance_scale, "distance_scale"), device)
     mesh = _extract(grid, params, view, users, levels, faces=1,
-                    cull=bool(cull and camera is not None and "clip" in names), per_face=False, device=device)
+                    cull=bool(cull and camera is not None and "clip" in names), per_face=False, device=device,
+                    origin=(ox, oy))
     assert isinstance(mesh, trimesh.Trimesh)
     entry = np.asarray(mesh.metadata.pop("node_entry"))
     mesh.metadata["node_index"] = np.column_stack([entry // n, entry % n])
