@@ -819,7 +819,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
 
 
 def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trimesh]:
-    """One mesh per cube face with UV = face-local (j, i) / N (paper 003 §5.3: one texture per face)."""
+    """One mesh per cube face with UV = face-local (j, i) / N (paper 003 §5.3: one texture per face), each with
+    the whole mesh's ``face_attributes`` and metadata, ``node_entry`` cut to its own vertices."""
     out = []
     cube_face = np.asarray(mesh.face_attributes["cube_face"])
     entry = np.asarray(mesh.metadata["node_entry"], dtype=np.int64)
@@ -831,8 +832,9 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
         y = points[used] @ _axis(frame[1])
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
         visual = trimesh.visual.TextureVisuals(uv=uv)
+        metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f}
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
-                                   metadata={"cube_face": f}))
+                                   metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
     return out
 
 

@@ -543,6 +543,26 @@ def test_per_face_meshes_have_uv(sample_globe):
         assert p.is_winding_consistent
 
 
+def test_per_face_meshes_carry_the_documented_attributes(small_globe):
+    """Globe.mesh documents face_attributes["cube_face"], metadata["node_entry"] and metadata["levels"] for the
+    list of six too; the per-face meshes had metadata {"cube_face": f} alone, so their vertices could not be
+    coloured by elevation (globe.heights at node_entry) as the whole mesh's are."""
+    camera = look_from(46.0, 9.0, 4.0e6)
+    whole = small_globe.mesh(error=20.0, camera=camera)
+    parts = small_globe.mesh(error=20.0, camera=camera, per_face=True)
+    position = dict(zip(whole.metadata["node_entry"].tolist(), map(tuple, whole.vertices), strict=True))
+    heights = small_globe.heights.reshape(-1)
+    for f, part in enumerate(parts):
+        entry = part.metadata["node_entry"]
+        assert entry.shape == (len(part.vertices),) and part.metadata["cube_face"] == f
+        assert [position[e] for e in entry.tolist()] == list(map(tuple, part.vertices))
+        assert np.isfinite(heights[entry]).all()
+        assert (part.face_attributes["cube_face"] == f).all() and len(part.face_attributes["cube_face"]) == len(
+            part.faces)
+        assert part.metadata["levels"] == whole.metadata["levels"]
+        assert part.metadata["face_size"] == small_globe.face_size
+
+
 def test_cpu_and_cuda_agree(device):
     lat, lon, z = real_1deg()
     g = Globe.from_latlon(z, lat, lon, face_size=33, device=device)
