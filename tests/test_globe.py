@@ -603,6 +603,29 @@ def test_colours_by_elevation_and_draped_image(small_globe):
         look_from(100.0, 0.0, 1.0e6)
 
 
+def test_a_16_bit_grayscale_texture_file_is_read_by_its_range(tmp_path):
+    """Pillow's convert("RGB") of a 16-bit grayscale PNG (mode I;16) saturates every value above 255: a relief
+    texture came out 99.6 % white, silently, in drape_colors / drape_texture and `stepterrain globe --texture`.
+    It is read to 8 bits by its full range now (as Pillow reads 16-bit RGB); a float image is refused by name."""
+    from PIL import Image
+
+    from stepterrain.globe import _texture_pixels, drape_colors
+
+    ramp = np.round(np.linspace(0, 65535, 32 * 64)).astype(np.uint16).reshape(32, 64)
+    Image.fromarray(ramp).save(tmp_path / "relief16.png")
+    Image.fromarray((ramp // 257).astype(np.uint8)).save(tmp_path / "relief8.png")
+    pixels = _texture_pixels(tmp_path / "relief16.png")
+    assert pixels.shape == (32, 64, 3) and pixels.dtype == np.uint8
+    assert np.abs(pixels.astype(int) - _texture_pixels(tmp_path / "relief8.png")).max() <= 1
+    vertices = np.array([[0.0, 0.0, R], [0.0, 0.0, -R], [R, 0.0, 0.0]])
+    np.testing.assert_allclose(drape_colors(vertices, tmp_path / "relief16.png").astype(int),
+                               drape_colors(vertices, tmp_path / "relief8.png").astype(int), atol=1)
+    Image.fromarray(np.full((8, 8), 0.5, np.float32)).save(tmp_path / "float.tif")
+    with pytest.raises(InvalidInputError, match="texture .*float.tif' must be an 8-bit or 16-bit image; got Pillow "
+                                                "mode F"):
+        _texture_pixels(tmp_path / "float.tif")
+
+
 @pytest.mark.parametrize("elevation, expected", [
     (5.0, r"got shape \(\)"), (np.zeros((3, 3)), r"got shape \(3, 3\)"), (["a"], "got dtype <U1"),
     (None, "got dtype object"), ([[1.0], [1.0, 2.0]], "got rows of different lengths"),
