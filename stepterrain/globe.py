@@ -144,13 +144,17 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     return z
 
 
-def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[NDArray[np.float64], ...]:
-    axes = []
+def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tuple[Any, ...]:
+    """lat and lon as float64, then the rounding of each: the spacing of a float16 / float32 axis's dtype at its
+    largest |value| (its values lie within half of it of their exact positions), else 0."""
+    axes, roundings = [], []
     for name, axis in (("lat", lat), ("lon", lon)):
         raw = np.asarray(axis)
         if raw.dtype == bool or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
             raise InvalidInputError(f"{name} must be numbers (degrees); got dtype {raw.dtype}")
         axes.append(raw.astype(np.float64))
+        narrow = raw.dtype.kind == "f" and raw.dtype.itemsize < 8 and raw.size and np.isfinite(raw).all()
+        roundings.append(float(np.spacing(np.abs(raw).max())) if narrow else 0.0)
     lat, lon = axes
     rows, cols = shape
     if lat.shape != (rows,) or lon.shape != (cols,):
@@ -158,17 +162,19 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
                                 f"{shape}; got {lat.shape} and {lon.shape}")
     if not (np.isfinite(lat).all() and np.isfinite(lon).all()):
         raise InvalidInputError("lat and lon must be finite")
-    return lat, lon
+    return lat, lon, *roundings
 
 
-def _regular_step(axis: NDArray[np.float64], name: str) -> float:
+def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -> float:
+    """The mean step of a strictly monotone, regular axis. ``rounding`` (see :func:`_latlon_axes`): each value
+    lies within half of it of its exact position, so each step within one of the exact step."""
     steps = np.diff(axis)
     if not ((steps > 0).all() or (steps < 0).all()):
         bad = int(np.flatnonzero(np.sign(steps) != np.sign(steps[0]))[0]) + 1 if len(steps) else 0
         raise InvalidInputError(f"{name} must be strictly monotone; it turns at index {bad} "
                                 f"({axis[max(bad - 1, 0)]}, {axis[bad]})")
     step = float(np.abs(steps).mean())
-    if np.abs(np.abs(steps) - step).max() > 1e-6 * max(step, 1e-12) + 1e-9:
+    if np.abs(np.abs(steps) - step).max() > 1e-6 * max(step, 1e-12) + 1e-9 + 2 * rounding:
         raise InvalidInputError(f"{name} must be regularly spaced; steps range from {np.abs(steps).min():.9g} "
                                 f"to {np.abs(steps).max():.9g} degrees")
     return step
@@ -224,8 +230,9 @@ class Globe:
         elevation : (H, W) array_like
             Elevation in metres, rows along ``lat``, columns along ``lon``. NaN is refused (fill it first).
         lat : (H,) array_like
-            Latitudes in degrees, strictly monotone, regular, reaching within one step of both poles
-            (cell-centred like ETOPO, or node-registered including ±90).
+            Latitudes in degrees, strictly monotone, regular (to the precision of their dtype: float32 axes
+            are fine), reaching within one step of both poles (cell-centred like ETOPO, or node-registered
+            including ±90).
         lon : (W,) array_like
             Longitudes in degrees, strictly monotone, regular, covering 360° (a duplicated closing column,
             e.g. -180 and 180, is dropped). Interpolation wraps around the antimeridian.
@@ -283,9 +290,9 @@ class Globe:
             raise InvalidInputError(f"radius + exaggeration · elevation must stay > 0 (nodes beyond the centre turn "
                                     f"the mesh inside out); got {radius:.9g} + {exaggeration:.9g} x {deepest:.9g} = "
                                     f"{radius + exaggeration * deepest:.9g} m (row {lowest[0]}, column {lowest[1]})")
-        lat, lon = _latlon_axes(lat, lon, z.shape)
-        dlat = _regular_step(lat, "lat")
-        dlon = _regular_step(lon, "lon")
+        lat, lon, lat_rounding, lon_rounding = _latlon_axes(lat, lon, z.shape)
+        dlat = _regular_step(lat, "lat", lat_rounding)
+        dlon = _regular_step(lon, "lon", lon_rounding)
         if lat[0] < lat[-1]:
             lat, z = lat[::-1], z[::-1]
         if lon[0] > lon[-1]:
@@ -612,14 +619,17 @@ def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device) -> wp.array:
 
 
 def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.float32], NDArray[np.float32]],
-                  triangles: wp.array, device: wp.Device) -> wp.array:
+                  triangles: wp.array, device: wp.Device, origin: tuple[float, float] = (0.0, 0.0)) -> wp.array:
     """Per triangle, the product of the user metrics at its refinement node (one vectorised call per level);
-    ``host`` = the node positions and parameters on the host, copied once per mesh."""
+    ``host`` = the node positions and parameters on the host, copied once per mesh; ``origin`` is added to the
+    points' x and y (a planar grid's positions are relative to its origin, the metric sees the mesh's)."""
     tris = host_copy(triangles).astype(np.int64)
     n = grid.n
     a, b = tris[:, 1], tris[:, 2]
     m = tris[:, 0] * n * n + (((a >> 16) + (b >> 16)) // 2) * n + ((a & 65535) + (b & 65535)) // 2
     points = host[0][m].astype(np.float64)
+    if origin != (0.0, 0.0):
+        points[:, :2] += origin
     radius = host[1][m, 1].astype(np.float64)
     factor = np.ones(len(m), dtype=np.float64)
     for fn in users:
@@ -693,7 +703,8 @@ def _refine_small_levels(grid: Any, params: Any, view: Any, roots: wp.array, lev
 
 
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
-             per_face: bool, device: wp.Device) -> trimesh.Trimesh | list[trimesh.Trimesh]:
+             per_face: bool, device: wp.Device, origin: tuple[float, float] = (0.0, 0.0)
+             ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
     """Breadth-first refinement, one count -> scan -> emit per level (on the CPU the small levels in one
     launch, :func:`_refine_small_levels`), then vertices and faces."""
     n = grid.n
@@ -732,7 +743,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         if count == 0:
             break
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
-        factors = _user_factors(users, grid, host, triangles, device) if users else no_factors
+        factors = _user_factors(users, grid, host, triangles, device, origin) if users else no_factors
         track = bool(flags[2]) and count >= _TRACK_MIN
         if track and masks is None:
             masks = wp.zeros(count, dtype=wp.int32, device=device)  # nothing known yet
@@ -808,7 +819,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
 
 
 def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trimesh]:
-    """One mesh per cube face with UV = face-local (j, i) / N (paper 003 §5.3: one texture per face)."""
+    """One mesh per cube face with UV = face-local (j, i) / N (paper 003 §5.3: one texture per face), each with
+    the whole mesh's ``face_attributes`` and metadata, ``node_entry`` cut to its own vertices."""
     out = []
     cube_face = np.asarray(mesh.face_attributes["cube_face"])
     entry = np.asarray(mesh.metadata["node_entry"], dtype=np.int64)
@@ -820,8 +832,9 @@ def _split_faces(mesh: trimesh.Trimesh, n: int, cells: int) -> list[trimesh.Trim
         y = points[used] @ _axis(frame[1])
         uv = np.column_stack([(x + cells) / (2.0 * cells), (y + cells) / (2.0 * cells)])
         visual = trimesh.visual.TextureVisuals(uv=uv)
+        metadata = {**mesh.metadata, "node_entry": entry[used].astype(np.int32), "cube_face": f}
         out.append(trimesh.Trimesh(mesh.vertices[used], local.reshape(-1, 3), process=False, visual=visual,
-                                   metadata={"cube_face": f}))
+                                   metadata=metadata, face_attributes={"cube_face": cube_face[cube_face == f]}))
     return out
 
 
@@ -867,7 +880,8 @@ def adaptive_mesh(
     origin : (x0, y0)
         Position of node (0, 0).
     metrics, cull, device
-        As for :meth:`Globe.mesh`.
+        As for :meth:`Globe.mesh`; a user metric's points are in the mesh's coordinates (origin included), as the
+        camera's.
     distance_scale : float, optional
         ℓ for the distance metric; default: the eye's height above the highest node, at least one spacing.
 
@@ -932,7 +946,8 @@ def adaptive_mesh(
         distance_scale = max(above, dx, dy)
     view = _view(camera, error, names, "sphere", _positive(distance_scale, "distance_scale"), device)
     mesh = _extract(grid, params, view, users, levels, faces=1,
-                    cull=bool(cull and camera is not None and "clip" in names), per_face=False, device=device)
+                    cull=bool(cull and camera is not None and "clip" in names), per_face=False, device=device,
+                    origin=(ox, oy))
     assert isinstance(mesh, trimesh.Trimesh)
     entry = np.asarray(mesh.metadata.pop("node_entry"))
     mesh.metadata["node_index"] = np.column_stack([entry // n, entry % n])
@@ -967,13 +982,21 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
 
 
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
-    """An (H, W, 3|4) uint8 image from a path or an array."""
+    """An (H, W, 3|4) uint8 image from a path or an array. A 16-bit grayscale file is read to 8 bits by its full
+    range (as Pillow reads 16-bit RGB); Pillow's own conversion of it to RGB saturates every value above 255."""
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         from PIL import Image
 
         try:
             with Image.open(image) as picture:  # type: ignore[arg-type]
-                image = np.asarray(picture.convert("RGB"))
+                if picture.mode in ("I", "F") or picture.mode.startswith("I;16"):
+                    gray = np.asarray(picture)
+                    if picture.mode == "F" or gray.min() < 0 or gray.max() > 65535:
+                        raise InvalidInputError(f"texture {str(image)!r} must be an 8-bit or 16-bit image; got Pillow "
+                                                f"mode {picture.mode} with values {gray.min():g} to {gray.max():g}")
+                    image = np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
+                else:
+                    image = np.asarray(picture.convert("RGB"))
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
     pixels = np.asarray(image)

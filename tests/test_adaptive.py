@@ -210,6 +210,28 @@ def test_plane_and_origin():
     assert tuple(mesh.bounds[1]) == (132.0, 248.0, 48.0)
 
 
+def test_user_metric_sees_the_mesh_coordinates_with_the_origin():
+    """A user metric received node positions relative to the grid's origin while the mesh (and the camera) are in
+    world coordinates: a metric refining near a world point refined near the wrong one, silently. Now its points
+    are the mesh's: the same mesh as the origin-free one shifted, and every point inside the mesh's extent."""
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", 65, 65)
+    origin = (388000.0, 3798000.0)
+    seen = []
+
+    def west(points, radius, x0=0.0):
+        seen.append(points[:, :2].copy())
+        return (points[:, 0] < x0 + 600.0).astype(float)  # refine the western 20 columns only
+
+    plain = adaptive_mesh(z, error=2.0, spacing=30.0, metrics=("geometric", west), device="cpu")
+    seen.clear()
+    shifted = adaptive_mesh(z, error=2.0, spacing=30.0, origin=origin,
+                            metrics=("geometric", lambda p, r: west(p, r, origin[0])), device="cpu")
+    points = np.concatenate(seen)
+    assert (points >= origin).all() and (points <= np.add(origin, 64 * 30.0)).all()
+    np.testing.assert_array_equal(shifted.faces, plain.faces)
+    np.testing.assert_allclose(shifted.vertices, plain.vertices + [*origin, 0.0], rtol=0, atol=1e-6)
+
+
 @settings(max_examples=25, suppress_health_check=[HealthCheck.too_slow])
 @given(z=arrays(np.float32, hst.tuples(hst.integers(2, 20), hst.integers(2, 20)),
                 elements=hst.floats(-100, 100, width=32)),

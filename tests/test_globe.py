@@ -543,6 +543,26 @@ def test_per_face_meshes_have_uv(sample_globe):
         assert p.is_winding_consistent
 
 
+def test_per_face_meshes_carry_the_documented_attributes(small_globe):
+    """Globe.mesh documents face_attributes["cube_face"], metadata["node_entry"] and metadata["levels"] for the
+    list of six too; the per-face meshes had metadata {"cube_face": f} alone, so their vertices could not be
+    coloured by elevation (globe.heights at node_entry) as the whole mesh's are."""
+    camera = look_from(46.0, 9.0, 4.0e6)
+    whole = small_globe.mesh(error=20.0, camera=camera)
+    parts = small_globe.mesh(error=20.0, camera=camera, per_face=True)
+    position = dict(zip(whole.metadata["node_entry"].tolist(), map(tuple, whole.vertices), strict=True))
+    heights = small_globe.heights.reshape(-1)
+    for f, part in enumerate(parts):
+        entry = part.metadata["node_entry"]
+        assert entry.shape == (len(part.vertices),) and part.metadata["cube_face"] == f
+        assert [position[e] for e in entry.tolist()] == list(map(tuple, part.vertices))
+        assert np.isfinite(heights[entry]).all()
+        assert (part.face_attributes["cube_face"] == f).all() and len(part.face_attributes["cube_face"]) == len(
+            part.faces)
+        assert part.metadata["levels"] == whole.metadata["levels"]
+        assert part.metadata["face_size"] == small_globe.face_size
+
+
 def test_cpu_and_cuda_agree(device):
     lat, lon, z = real_1deg()
     g = Globe.from_latlon(z, lat, lon, face_size=33, device=device)
@@ -581,6 +601,29 @@ def test_colours_by_elevation_and_draped_image(small_globe):
         drape_colors([[1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], image)
     with pytest.raises(InvalidInputError, match=r"latitude must lie in \[-90, 90\] degrees; got 100.0"):
         look_from(100.0, 0.0, 1.0e6)
+
+
+def test_a_16_bit_grayscale_texture_file_is_read_by_its_range(tmp_path):
+    """Pillow's convert("RGB") of a 16-bit grayscale PNG (mode I;16) saturates every value above 255: a relief
+    texture came out 99.6 % white, silently, in drape_colors / drape_texture and `stepterrain globe --texture`.
+    It is read to 8 bits by its full range now (as Pillow reads 16-bit RGB); a float image is refused by name."""
+    from PIL import Image
+
+    from stepterrain.globe import _texture_pixels, drape_colors
+
+    ramp = np.round(np.linspace(0, 65535, 32 * 64)).astype(np.uint16).reshape(32, 64)
+    Image.fromarray(ramp).save(tmp_path / "relief16.png")
+    Image.fromarray((ramp // 257).astype(np.uint8)).save(tmp_path / "relief8.png")
+    pixels = _texture_pixels(tmp_path / "relief16.png")
+    assert pixels.shape == (32, 64, 3) and pixels.dtype == np.uint8
+    assert np.abs(pixels.astype(int) - _texture_pixels(tmp_path / "relief8.png")).max() <= 1
+    vertices = np.array([[0.0, 0.0, R], [0.0, 0.0, -R], [R, 0.0, 0.0]])
+    np.testing.assert_allclose(drape_colors(vertices, tmp_path / "relief16.png").astype(int),
+                               drape_colors(vertices, tmp_path / "relief8.png").astype(int), atol=1)
+    Image.fromarray(np.full((8, 8), 0.5, np.float32)).save(tmp_path / "float.tif")
+    with pytest.raises(InvalidInputError, match="texture .*float.tif' must be an 8-bit or 16-bit image; got Pillow "
+                                                "mode F"):
+        _texture_pixels(tmp_path / "float.tif")
 
 
 @pytest.mark.parametrize("elevation, expected", [
@@ -710,6 +753,21 @@ def test_bad_latlon_grids():
     nan[10, 20] = np.nan
     with pytest.raises(InvalidInputError, match="NaN.*row 10, column 20"):
         Globe.from_latlon(nan, LAT1, LON1, face_size=9)
+
+
+def test_float32_axes_are_regular_to_their_precision():
+    """lat / lon stored as float32 (as netCDF and many .npz grids hold them) were refused as not regularly spaced:
+    the 10' grid's steps vary by an ulp of 180 in float32 (1.5e-5 degrees), above the 1e-6 relative margin. Read
+    from float32 axes, the globe is that of the float64 axes up to the axes' own rounding."""
+    with np.load(shared_file("global_relief.npz")) as d:
+        lat, lon, z = np.asarray(d["lat"]), np.asarray(d["lon"]), np.asarray(d["elevation"])
+    exact = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    rounded = Globe.from_latlon(z, lat.astype(np.float32), lon.astype(np.float32), face_size=9, device="cpu")
+    np.testing.assert_allclose(rounded.heights, exact.heights, rtol=0, atol=0.5)
+    with pytest.raises(InvalidInputError, match="lat must be regularly spaced"):  # still refused when irregular
+        lat32 = lat.astype(np.float32)
+        lat32[5] += np.float32(1e-3)
+        Globe.from_latlon(z, lat32, lon.astype(np.float32), face_size=9, device="cpu")
 
 
 @pytest.mark.parametrize("result, match", [
