@@ -36,6 +36,7 @@ from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, scratch, to_device
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError
+from .io import picture_uint8
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
@@ -982,21 +983,14 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
 
 
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
-    """An (H, W, 3|4) uint8 image from a path or an array. A 16-bit grayscale file is read to 8 bits by its full
-    range (as Pillow reads 16-bit RGB); Pillow's own conversion of it to RGB saturates every value above 255."""
+    """An (H, W, 3|4) uint8 image from a path (16-bit greyscale files too: :func:`~stepterrain.io.picture_uint8`)
+    or an array."""
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         from PIL import Image
 
         try:
             with Image.open(image) as picture:  # type: ignore[arg-type]
-                if picture.mode in ("I", "F") or picture.mode.startswith("I;16"):
-                    gray = np.asarray(picture)
-                    if picture.mode == "F" or gray.min() < 0 or gray.max() > 65535:
-                        raise InvalidInputError(f"texture {str(image)!r} must be an 8-bit or 16-bit image; got Pillow "
-                                                f"mode {picture.mode} with values {gray.min():g} to {gray.max():g}")
-                    image = np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
-                else:
-                    image = np.asarray(picture.convert("RGB"))
+                image = picture_uint8(picture, f"texture {str(image)!r}")
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
     pixels = np.asarray(image)

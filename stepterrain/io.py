@@ -326,6 +326,24 @@ def _load_png(file: Path) -> Terrain:
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
 
 
+def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
+    """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band.
+
+    A 16-bit greyscale image (modes ``I;16*``, and ``I`` within 0-65535) is scaled by its full range (value / 257,
+    as Pillow reads 16-bit RGB): Pillow's own conversion to RGB saturates every value above 255, which draped a
+    16-bit relief almost all white. A float image, or an ``I`` image beyond 0-65535, is refused naming ``what``.
+    """
+    mode = picture.mode
+    if mode in ("I", "F") or mode.startswith("I;16"):
+        gray = np.asarray(picture)
+        if mode == "F" or (gray.size and (gray.min() < 0 or gray.max() > 65535)):
+            low, high = (float(gray.min()), float(gray.max())) if gray.size else (0.0, 0.0)
+            raise InvalidInputError(f"{what} must be an 8-bit or 16-bit image; got Pillow mode {mode} with values "
+                                    f"{low:g} to {high:g}")
+        return np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
+    return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
+
+
 def _load_geotiff(file: Path, band: int) -> Terrain:
     try:
         import rasterio

@@ -36,6 +36,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
+from .io import picture_uint8
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
@@ -126,7 +127,9 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int]:
 
             try:
                 with Image.open(path) as picture:
-                    image = np.asarray(picture.convert("RGBA" if "A" in picture.getbands() else "RGB"))
+                    image = picture_uint8(picture, f"image {str(path)!r}", alpha=True)
+            except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
+                raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
                 raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
     array = image if isinstance(image, np.ndarray) else np.asarray(image)

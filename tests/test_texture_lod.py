@@ -164,6 +164,25 @@ def test_pyramid_bad_input(tmp_path):
         ImagePyramid.build(os.fsencode(tmp_path / "corrupt.png"))
 
 
+def test_pyramid_of_a_16_bit_greyscale_file_is_read_by_its_range(tmp_path):
+    """Pillow's convert("RGB") of a 16-bit greyscale PNG saturates every value above 255: the pyramid of a 16-bit
+    relief was almost all white. It is read to 8 bits by its full range (as the globe's textures are); a float
+    image is refused by name."""
+    from PIL import Image
+
+    ramp = np.round(np.linspace(0, 65535, 32 * 64)).astype(np.uint16).reshape(32, 64)
+    Image.fromarray(ramp).save(tmp_path / "relief16.png")
+    Image.fromarray((ramp / 257.0).round().astype(np.uint8)).save(tmp_path / "relief8.png")
+    with ImagePyramid.build(tmp_path / "relief16.png", device="cpu") as wide, \
+            ImagePyramid.build(tmp_path / "relief8.png", device="cpu") as narrow:
+        for a, b in zip(wide.levels, narrow.levels, strict=True):
+            np.testing.assert_array_equal(a, b)
+    Image.fromarray(np.full((8, 8), 0.5, np.float32)).save(tmp_path / "float.tif")
+    with pytest.raises(InvalidInputError, match=r"image .*float\.tif' must be an 8-bit or 16-bit image; got Pillow "
+                                                "mode F"):
+        ImagePyramid.build(tmp_path / "float.tif")
+
+
 def test_paint_with_textures_of_a_grey_alpha_pyramid():
     """A 2-channel (grey + alpha) pyramid built, then failed in paint_with_textures with "a thematic layer needs an
     (h, w, 3) RGB or (h, w, 4) RGBA image"; it is painted as the RGBA image (grey repeated, alpha kept)."""
