@@ -583,8 +583,19 @@ LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
 }
 
 
+#: glibc malloc settings of the default LocalCluster's workers (environment variables read when a process
+#: starts; dask sets them through ``distributed.nanny.pre-spawn-environ``). dask's own default,
+#: ``MALLOC_TRIM_THRESHOLD_=65536``, hands freed memory back to the system at once, and arrays above glibc's
+#: 32 MB ceiling for heap blocks are mapped afresh anyway: each tile then pays a page fault for every page of
+#: its output arrays (a 1024² tile's faces alone are 78 MB). Blocks up to 1 GB from the heap, and up to 1 GB of
+#: freed memory kept for the next tile: 1024² tiles took 12 % less CPU time than with glibc's defaults, 19 % less
+#: than with dask's (one core, medians of 14 tiles each).
+LOCAL_CLUSTER_MALLOC: dict[str, int] = {"MALLOC_MMAP_THRESHOLD_": 1 << 30, "MALLOC_TRIM_THRESHOLD_": 1 << 30}
+
+
 def start_local_cluster(workers: int) -> Any:
-    """The default cluster of :func:`batch`: ``workers`` processes of one thread each, profiler off, quiet logs.
+    """The default cluster of :func:`batch`: ``workers`` processes of one thread each, profiler off, quiet logs,
+    malloc tuned for tile-sized arrays (:data:`LOCAL_CLUSTER_MALLOC`).
 
     Raises
     ------
@@ -594,8 +605,10 @@ def start_local_cluster(workers: int) -> Any:
     import dask
     from distributed import LocalCluster
 
+    environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **LOCAL_CLUSTER_MALLOC}
     try:
-        with dask.config.set(LOCAL_CLUSTER_CONFIG):  # the nannies hand this configuration to their workers
+        # the nannies hand this configuration to their workers, and set the environment before they start them
+        with dask.config.set({**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}):
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
                                 silence_logs=logging.ERROR)  # fmt: skip
     except (OSError, RuntimeError, TimeoutError) as exc:
