@@ -779,8 +779,11 @@ def test_default_local_cluster_workers_run_with_tile_sized_malloc_settings():
     try:
         with Client(cluster) as client:
             (environ,) = client.run(lambda: dict(os.environ)).values()
+            # kept memory need not fall after a tile: a worker paused at 80 % of its limit would never resume
+            (pause,) = client.run(lambda dask_worker: dask_worker.memory_manager.memory_pause_fraction).values()
     finally:
         cluster.close()
+    assert pause is False
     expected = {key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()}
     assert {key: environ.get(key) for key in LOCAL_CLUSTER_MALLOC} == expected
     assert environ.get("OMP_NUM_THREADS") == "1"
