@@ -1655,6 +1655,9 @@ def render_closeups(
     if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
             and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
         layers, strips, anchors, contents, boards = last[3]
+        if image_texture is not None or any(cu.texture is not None for cu in items):
+            # an image may have changed in place since (the same object): its colors are sampled again
+            anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
         layers = closeup_layers(t, items, time=time, device=device)
         strips = anchor_strips(t, items, time=time, device=device)
