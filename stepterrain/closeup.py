@@ -1815,10 +1815,16 @@ def animate_closeups(
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
 
     The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
-    view stays still while the close-ups rotate.
+    view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
+    ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
+    ``renderer`` and ``reuse_overview``.
     """
     from . import render
 
+    for name in ("time", "renderer", "reuse_overview"):  # render_closeups' TypeError named neither the cause nor us
+        if name in options:
+            raise InvalidInputError(f"animate_closeups sets {name} for each frame itself (frame i at time i / fps, "
+                                    f"one renderer); got {name}={options[name]!r}")
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:

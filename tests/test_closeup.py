@@ -342,6 +342,17 @@ def test_slope_and_aspect_on_a_tin_are_refused(kind):
     assert len(closeup_scene(mesh, [cu], scalars="height", device="cpu").faces) > 0
 
 
+@pytest.mark.parametrize("name", ["time", "renderer", "reuse_overview"])
+def test_animate_refuses_the_options_it_sets_per_frame(name):
+    """animate_closeups passes its options to render_closeups but sets these per frame: they raised render_closeups'
+    TypeError "got multiple values for keyword argument"; now an InvalidInputError naming the option."""
+    from stepterrain.closeup import animate_closeups
+
+    cu = CloseUp(ROI.circle((27.0, 24.0), 10.0), offset=(0.0, 0.0, 40.0))
+    with pytest.raises(InvalidInputError, match=rf"animate_closeups sets {name} for each frame itself .*; got {name}="):
+        animate_closeups(Terrain.from_heights(hills(17, 19), spacing=(3.0, 3.0)), [cu], frames=1, **{name: 1.0})
+
+
 def test_nodata_faces_are_never_emitted(device):
     heights = hills(21, 21)
     heights[8:12, 8:12] = np.nan
