@@ -555,7 +555,7 @@ class CloseUp:
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"
-        The data layer colored by ``cmap`` (None: the overview's mapping).
+        The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
         close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex.
@@ -953,6 +953,7 @@ def closeup_layers(
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     _check_in_terrain(t, items)
+    _check_grid_scalars(t, None, items)
     device = resolve_device(device)
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
@@ -1584,7 +1585,8 @@ def render_closeups(
         Vertical exaggeration of the render.
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
-        Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR).
+        Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR). Slope and aspect need a
+        grid terrain (a DEM); on a TIN they raise an InvalidInputError.
     texture : (h, w, 3|4) uint8, optional
         An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float
@@ -1641,6 +1643,7 @@ def render_closeups(
             f"(one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS})")
     _check_scalars(scalars)
     _check_in_terrain(t, items)
+    _check_grid_scalars(t, scalars, items)
     image_texture = None if texture is None else _check_texture(texture, "texture")
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     clock = timings if timings is not None else {}
@@ -1655,6 +1658,9 @@ def render_closeups(
     if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
             and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
         layers, strips, anchors, contents, boards = last[3]
+        if image_texture is not None or any(cu.texture is not None for cu in items):
+            # an image may have changed in place since (the same object): its colors are sampled again
+            anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
         layers = closeup_layers(t, items, time=time, device=device)
         strips = anchor_strips(t, items, time=time, device=device)
@@ -1719,6 +1725,17 @@ def _check_scalars(scalars: Any, name: str = "scalars") -> None:
         raise InvalidInputError(f"{name} must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
 
 
+def _check_grid_scalars(terrain: Terrain, scalars: str | None, items: Sequence[CloseUp]) -> None:
+    """Slope and aspect come from a grid's gradient: on a TIN they were its heights (one color), silently."""
+    if terrain.kind == "grid":
+        return
+    named = [("scalars", scalars), *((f"closeups[{i}].scalars", cu.scalars) for i, cu in enumerate(items))]
+    for name, kind in named:
+        if kind in ("slope", "aspect"):
+            raise InvalidInputError(f"{name}={kind!r} needs a grid terrain (a DEM), whose gradient gives it; got a "
+                                    "TIN (use 'height' or None)")
+
+
 def _window(window_size: Any) -> tuple[int, int]:
     """(width, height) checked as every render checks it (:func:`stepterrain.render._check_window`)."""
     from .render import _check_window
@@ -1754,6 +1771,7 @@ def closeup_scene(
     _check_scalars(scalars)
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
+    _check_grid_scalars(t, scalars, items)
     mesh = t.mesh()
     overview_rgb = _overview_rgb(t, mesh, scalars, cmap, None)
     parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
@@ -1797,10 +1815,16 @@ def animate_closeups(
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
 
     The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
-    view stays still while the close-ups rotate.
+    view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
+    ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
+    ``renderer`` and ``reuse_overview``.
     """
     from . import render
 
+    for name in ("time", "renderer", "reuse_overview"):  # render_closeups' TypeError named neither the cause nor us
+        if name in options:
+            raise InvalidInputError(f"animate_closeups sets {name} for each frame itself (frame i at time i / fps, "
+                                    f"one renderer); got {name}={options[name]!r}")
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:

@@ -325,6 +325,34 @@ def test_tin_terrain_is_culled_like_the_grid(device):
     assert heights.min() <= bottom[:, 2].min() and bottom[:, 2].max() <= heights.max()
 
 
+@pytest.mark.parametrize("kind", ["slope", "aspect"])
+def test_slope_and_aspect_on_a_tin_are_refused(kind):
+    """Slope and aspect come from a grid's gradient: on a TIN they were its heights in metres, read as radians
+    (one color everywhere), silently. Refused by name; height still maps a TIN."""
+    from stepterrain.closeup import closeup_scene, render_closeups
+
+    mesh = heightfield_mesh(hills(17, 19), spacing=(3.0, 3.0))
+    cu = CloseUp(ROI.circle((27.0, 24.0), 10.0), offset=(0.0, 0.0, 40.0))
+    with pytest.raises(InvalidInputError, match=rf"closeups\[0\]\.scalars='{kind}' needs a grid terrain"):
+        closeup_layers(mesh, [CloseUp(cu.roi, offset=cu.offset, scalars=kind)], device="cpu")
+    with pytest.raises(InvalidInputError, match=rf"^scalars='{kind}' needs a grid terrain .* got a TIN"):
+        closeup_scene(mesh, [cu], scalars=kind, device="cpu")
+    with pytest.raises(InvalidInputError, match=rf"^scalars='{kind}' needs a grid terrain"):
+        render_closeups(mesh, [cu], scalars=kind, device="cpu")
+    assert len(closeup_scene(mesh, [cu], scalars="height", device="cpu").faces) > 0
+
+
+@pytest.mark.parametrize("name", ["time", "renderer", "reuse_overview"])
+def test_animate_refuses_the_options_it_sets_per_frame(name):
+    """animate_closeups passes its options to render_closeups but sets these per frame: they raised render_closeups'
+    TypeError "got multiple values for keyword argument"; now an InvalidInputError naming the option."""
+    from stepterrain.closeup import animate_closeups
+
+    cu = CloseUp(ROI.circle((27.0, 24.0), 10.0), offset=(0.0, 0.0, 40.0))
+    with pytest.raises(InvalidInputError, match=rf"animate_closeups sets {name} for each frame itself .*; got {name}="):
+        animate_closeups(Terrain.from_heights(hills(17, 19), spacing=(3.0, 3.0)), [cu], frames=1, **{name: 1.0})
+
+
 def test_nodata_faces_are_never_emitted(device):
     heights = hills(21, 21)
     heights[8:12, 8:12] = np.nan

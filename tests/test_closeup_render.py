@@ -217,6 +217,26 @@ def test_reused_closeup_geometry_gives_the_same_frames():
 
 @pytest.mark.render
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("where", ["overview", "closeup"])
+def test_reused_closeup_geometry_samples_a_texture_changed_in_place(where):
+    """An image changed in place between two frames of the same close-ups (the same array object) shows its new
+    colors on the close-up, as a copy of it does: the kept close-up geometry does not keep the old colors."""
+    t = terrain()
+    image = np.zeros((16, 16, 3), np.uint8)
+    image[..., 0] = 255  # red
+    cu = one(texture=image) if where == "closeup" else one()
+    options = dict(window_size=SIZE, scalars=None, device="cpu")
+    if where == "overview":
+        options["texture"] = image
+    render_closeups(t, [cu], **options)
+    image[..., 0], image[..., 2] = 0, 255  # blue, in place (CloseUp.texture shares the caller's array)
+    again = render_closeups(t, [cu], **options)
+    fresh = render_closeups(t, [cu], reuse_closeups=False, **options)
+    np.testing.assert_array_equal(again, fresh)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_boxed_read_backs_equal_the_full_window_pass():
     """A pass read back in a pixel box is that box of the full-window pass, bit for bit; layers cut to their
     screen boxes (crop) are the boxes of the full-window layers, which hold nothing outside them."""
