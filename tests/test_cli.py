@@ -411,6 +411,18 @@ def test_an_empty_path_is_refused_not_ignored(dem, tmp_path, capsys, argv, optio
     assert out == "" and files_in(tmp_path) == ["hill.npy"]
 
 
+def test_batch_png_naming_the_output_folder_is_refused_before_any_work(dem, tmp_path, capsys):
+    """`batch -o out.png --png out.png` stepped and wrote every tile into the folder out.png, then failed writing the
+    overview over that folder ("Is a directory"). Found by giving one path to both outputs of each subcommand."""
+    out = tmp_path / "b.png"
+    code, _, err = run(capsys, "-q", "batch", dem, "--tile", "8", "--interval", "2", "--scheduler", "serial",
+                       "-o", out, "--png", tmp_path / "." / "b.png")
+    assert code == 2, err
+    assert err.startswith("stepterrain batch: error: --output and --png name the same path") and len(
+        err.strip().splitlines()) == 1, err
+    assert files_in(tmp_path) == ["hill.npy"]
+
+
 def test_info_welds_an_stl_so_a_watertight_solid_reads_as_one(dem, tmp_path, capsys):
     """STL keeps no shared vertices: `info print.stl` read it unwelded (process=False) and said a watertight solid
     from `steps --solid` was not watertight, with three vertices per face. Found by running info on every format."""
