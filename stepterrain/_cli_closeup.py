@@ -27,7 +27,7 @@ examples:
       the overview, close-up and anchor as one colored mesh (anchor opacity in the vertex alpha), and a render
 
 --scale, --offset, --rotation, --color and --stepped apply to every close-up when given once, or one per
---roi (in order) when given as often as --roi. Values starting with a minus need '=': --offset=-500,0,3000.
+--roi (in order) when given as often as --roi. Values may start with a minus: --offset -500,0,3000.
 """
 
 

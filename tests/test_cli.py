@@ -103,6 +103,16 @@ def test_negative_numbers_after_an_option_are_its_value(dem, tmp_path, capsys, a
         assert trimesh.load(out).bounds[0][2] == pytest.approx(floor)
 
 
+def test_closeup_help_shows_negative_lists_as_plain_values(dem, tmp_path, capsys):
+    """closeup --help said values starting with a minus need '=' (--offset=-500,0,3000), which the parser stopped
+    needing when it learnt negative numbers and lists; the help showed a workaround as a rule. Found reading --help."""
+    code, out, _ = run(capsys, "closeup", "--help")
+    assert code == 0 and "need '='" not in out and "--offset -500,0,3000" in out
+    code, _, err = run(capsys, "-q", "closeup", dem, "--offset", "-5,0,30", "--rotation", "-10,-5", "-o",
+                       tmp_path / "c.ply")
+    assert code == 0, err
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
