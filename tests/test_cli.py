@@ -433,6 +433,21 @@ def test_batch_png_naming_the_output_folder_is_refused_before_any_work(dem, tmp_
     assert files_in(tmp_path) == ["hill.npy"]
 
 
+@pytest.mark.parametrize("suffix", [".glb", ".gltf", ".obj", ".ply", ".stl", ".3mf"])
+def test_info_describes_the_empty_mesh_steps_writes(tmp_path, capsys, suffix):
+    """steps writes an all-nodata DEM as a valid empty mesh (with a warning), but `info` on that file exited 2 with
+    "holds no triangle mesh". Found by running info on the output of each subcommand in each format."""
+    path = tmp_path / "holes.npy"
+    np.save(path, np.array([[1.0, np.nan, 2.0], [np.nan, np.nan, np.nan]], np.float32))
+    out = tmp_path / f"e{suffix}"
+    code, _, err = run(capsys, "-q", "steps", path, "--interval", "1", "-o", out)
+    assert code == 0, err
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0, err
+    summary = json.loads(text)
+    assert (summary["vertices"], summary["faces"], summary["bounds_min"], summary["bounds_max"]) == (0, 0, None, None)
+
+
 def test_info_welds_an_stl_so_a_watertight_solid_reads_as_one(dem, tmp_path, capsys):
     """STL keeps no shared vertices: `info print.stl` read it unwelded (process=False) and said a watertight solid
     from `steps --solid` was not watertight, with three vertices per face. Found by running info on every format."""
