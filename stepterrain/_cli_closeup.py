@@ -216,7 +216,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         from .export import save_mesh
 
         progress.stage("write", f"writing {mesh_out}")
-        save_mesh(scene, mesh_out, metadata={"closeups": n})
+        save_mesh(scene, mesh_out, metadata={"generator": "stepterrain closeup",
+                                              "input": args.input or "embedded Big Tujunga DEM", "closeups": n})
         progress.done()
     if image is not None:
         for path in images:

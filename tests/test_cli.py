@@ -448,6 +448,19 @@ def test_info_describes_the_empty_mesh_steps_writes(tmp_path, capsys, suffix):
     assert (summary["vertices"], summary["faces"], summary["bounds_min"], summary["bounds_max"]) == (0, 0, None, None)
 
 
+def test_every_subcommand_names_itself_and_its_input_in_the_mesh_metadata(dem, tmp_path, capsys):
+    """steps, globe, texture and batch store generator and input in the glTF extras (`info` shows them); closeup's
+    scene mesh stored only its close-up count. Found running info on each subcommand's mesh."""
+    out = tmp_path / "scene.glb"
+    code, _, err = run(capsys, "-q", "closeup", dem, "-o", out)
+    assert code == 0, err
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0, err
+    summary = json.loads(text)
+    assert summary["meta.generator"] == "stepterrain closeup" and summary["meta.input"] == str(dem)
+    assert summary["meta.closeups"] == 1
+
+
 def test_info_welds_an_stl_so_a_watertight_solid_reads_as_one(dem, tmp_path, capsys):
     """STL keeps no shared vertices: `info print.stl` read it unwelded (process=False) and said a watertight solid
     from `steps --solid` was not watertight, with three vertices per face. Found by running info on every format."""
