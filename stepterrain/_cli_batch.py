@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -109,6 +110,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError("--floor applies only with --solid")
     _check_size(args.size)
     _check_outputs({"INPUT": args.input}, png=png)
+    if png is not None and Path(os.path.abspath(png)) == Path(os.path.abspath(args.output)):
+        # the overview went to the folder the meshes had just been written into: every item done, then an error
+        raise InvalidInputError(f"--output and --png name the same path {args.output!r}; give the overview "
+                                "its own file name")
     if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= MAX_CONNECT_TIMEOUT):
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")

@@ -27,7 +27,7 @@ examples:
       the overview, close-up and anchor as one colored mesh (anchor opacity in the vertex alpha), and a render
 
 --scale, --offset, --rotation, --color and --stepped apply to every close-up when given once, or one per
---roi (in order) when given as often as --roi. Values starting with a minus need '=': --offset=-500,0,3000.
+--roi (in order) when given as often as --roi. Values may start with a minus: --offset -500,0,3000.
 """
 
 
@@ -216,7 +216,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         from .export import save_mesh
 
         progress.stage("write", f"writing {mesh_out}")
-        save_mesh(scene, mesh_out, metadata={"closeups": n})
+        save_mesh(scene, mesh_out, metadata={"generator": "stepterrain closeup",
+                                              "input": args.input or "embedded Big Tujunga DEM", "closeups": n})
         progress.done()
     if image is not None:
         for path in images:

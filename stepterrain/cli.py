@@ -483,7 +483,7 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds for a bad file
         raise DataFileError(f"cannot read {str(path)!r} as a mesh: {exc}") from exc
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+    if not isinstance(mesh, trimesh.Trimesh):  # an empty mesh is one (steps writes it, with a warning): described
         raise DataFileError(f"{str(path)!r} holds no triangle mesh")
     if path.suffix.lower() == ".stl":  # STL stores every triangle's corners apart: weld them, as its readers do, or
         mesh.merge_vertices()  # a watertight solid (steps --solid -o print.stl) read as open, 3 vertices per face

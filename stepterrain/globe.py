@@ -995,7 +995,8 @@ def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
     pixels = np.asarray(image)
     if pixels.ndim != 3 or pixels.shape[2] not in (3, 4) or min(pixels.shape[:2]) < 2:
-        raise InvalidInputError(f"texture must be an (H, W, 3|4) image; got shape {pixels.shape}")
+        raise InvalidInputError(f"texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape "
+                                f"{pixels.shape}")
     if pixels.dtype != np.uint8:
         if pixels.dtype.kind not in "fiu" or not np.isfinite(pixels).all() or pixels.min() < 0 or pixels.max() > 255:
             raise InvalidInputError(f"texture values must lie in [0, 255] (or [0, 1] floats); got dtype {pixels.dtype}")

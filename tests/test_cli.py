@@ -103,6 +103,16 @@ def test_negative_numbers_after_an_option_are_its_value(dem, tmp_path, capsys, a
         assert trimesh.load(out).bounds[0][2] == pytest.approx(floor)
 
 
+def test_closeup_help_shows_negative_lists_as_plain_values(dem, tmp_path, capsys):
+    """closeup --help said values starting with a minus need '=' (--offset=-500,0,3000), which the parser stopped
+    needing when it learnt negative numbers and lists; the help showed a workaround as a rule. Found reading --help."""
+    code, out, _ = run(capsys, "closeup", "--help")
+    assert code == 0 and "need '='" not in out and "--offset -500,0,3000" in out
+    code, _, err = run(capsys, "-q", "closeup", dem, "--offset", "-5,0,30", "--rotation", "-10,-5", "-o",
+                       tmp_path / "c.ply")
+    assert code == 0, err
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -409,6 +419,46 @@ def test_an_empty_path_is_refused_not_ignored(dem, tmp_path, capsys, argv, optio
     assert code == 2, err
     assert err == f"stepterrain {argv[0]}: error: argument {option}: expected a file name; got ''\n"
     assert out == "" and files_in(tmp_path) == ["hill.npy"]
+
+
+def test_batch_png_naming_the_output_folder_is_refused_before_any_work(dem, tmp_path, capsys):
+    """`batch -o out.png --png out.png` stepped and wrote every tile into the folder out.png, then failed writing the
+    overview over that folder ("Is a directory"). Found by giving one path to both outputs of each subcommand."""
+    out = tmp_path / "b.png"
+    code, _, err = run(capsys, "-q", "batch", dem, "--tile", "8", "--interval", "2", "--scheduler", "serial",
+                       "-o", out, "--png", tmp_path / "." / "b.png")
+    assert code == 2, err
+    assert err.startswith("stepterrain batch: error: --output and --png name the same path") and len(
+        err.strip().splitlines()) == 1, err
+    assert files_in(tmp_path) == ["hill.npy"]
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf", ".obj", ".ply", ".stl", ".3mf"])
+def test_info_describes_the_empty_mesh_steps_writes(tmp_path, capsys, suffix):
+    """steps writes an all-nodata DEM as a valid empty mesh (with a warning), but `info` on that file exited 2 with
+    "holds no triangle mesh". Found by running info on the output of each subcommand in each format."""
+    path = tmp_path / "holes.npy"
+    np.save(path, np.array([[1.0, np.nan, 2.0], [np.nan, np.nan, np.nan]], np.float32))
+    out = tmp_path / f"e{suffix}"
+    code, _, err = run(capsys, "-q", "steps", path, "--interval", "1", "-o", out)
+    assert code == 0, err
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0, err
+    summary = json.loads(text)
+    assert (summary["vertices"], summary["faces"], summary["bounds_min"], summary["bounds_max"]) == (0, 0, None, None)
+
+
+def test_every_subcommand_names_itself_and_its_input_in_the_mesh_metadata(dem, tmp_path, capsys):
+    """steps, globe, texture and batch store generator and input in the glTF extras (`info` shows them); closeup's
+    scene mesh stored only its close-up count. Found running info on each subcommand's mesh."""
+    out = tmp_path / "scene.glb"
+    code, _, err = run(capsys, "-q", "closeup", dem, "-o", out)
+    assert code == 0, err
+    code, text, err = run(capsys, "info", out, "--json")
+    assert code == 0, err
+    summary = json.loads(text)
+    assert summary["meta.generator"] == "stepterrain closeup" and summary["meta.input"] == str(dem)
+    assert summary["meta.closeups"] == 1
 
 
 def test_info_welds_an_stl_so_a_watertight_solid_reads_as_one(dem, tmp_path, capsys):

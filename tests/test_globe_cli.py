@@ -164,7 +164,8 @@ def test_globe_texture_is_embedded_in_the_glb(tmp_path):
 @pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png"])
 def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch, texture):
     """--texture was read only after the globe was built and meshed: a missing file, a folder, a text file or an
-    image too small to drape failed after that work. It is read first now; the globe is never built."""
+    image too small to drape failed after that work. It is read first now; the globe is never built. A 1 x 1 RGB
+    image was refused as not "an (H, W, 3|4) image": the message now says it needs 2 x 2 pixels."""
     from PIL import Image
 
     from stepterrain import globe
@@ -180,8 +181,8 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     path = tmp_path / texture
     assert main(["-q", "globe", "--face-size", "9", "--texture", str(path), "-o", str(tmp_path / "x.glb")]) == 2
     err = capsys.readouterr().err.strip()
-    expected = ("texture must be an (H, W, 3|4) image; got shape (1, 1, 3)" if texture == "dot.png"
-                else f"cannot read texture {str(path)!r}: ")
+    expected = ("texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape (1, 1, 3)"
+                if texture == "dot.png" else f"cannot read texture {str(path)!r}: ")
     assert err.startswith(f"stepterrain globe: error: {expected}") and "\n" not in err
 
 
