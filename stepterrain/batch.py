@@ -378,13 +378,19 @@ def _item_terrain(item: BatchItem, source: _Source | None) -> Terrain:
     )
 
 
+def _finite_triangles(finite: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per cell of the last two axes, whether its triangles (n00, n01, n11) and (n00, n11, n10), as
+    kernels/stepped.py cuts it, have three finite heights (``finite``: the nodes')."""
+    n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
+    return n00 & n01 & n11, n00 & n11 & n10
+
+
 def _has_surface(terrain: Terrain) -> bool:
-    """Whether some cell of the grid has a triangle with three finite heights, (n00, n01, n11) or (n00, n11, n10)
-    as kernels/stepped.py cuts it."""
+    """Whether some triangle of the grid has three finite heights."""
     if not terrain.has_nodata:
         return True
-    f = np.isfinite(terrain.heights)
-    return bool((f[:-1, :-1] & f[1:, 1:] & (f[:-1, 1:] | f[1:, :-1])).any())
+    upper, lower = _finite_triangles(np.isfinite(terrain.heights))
+    return bool(upper.any() or lower.any())
 
 
 def _item_metadata(item: BatchItem) -> dict[str, Any]:
@@ -924,9 +930,7 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
         h = src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
     else:
         finite = np.isfinite(src.heights)
-        # a cell's two triangles (n00, n01, n11) and (n00, n11, n10), as kernels/stepped.py cuts it
-        n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
-        upper, lower = n00 & n01 & n11, n00 & n11 & n10
+        upper, lower = _finite_triangles(finite)
         used = np.zeros_like(finite)
         used[..., :-1, :-1] |= upper | lower
         used[..., :-1, 1:] |= upper

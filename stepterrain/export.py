@@ -424,7 +424,6 @@ def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
     return lo, hi
 
 
-
 def _is_large(bounds: Bounds) -> bool:
     """True when some coordinate exceeds :data:`_LOCAL_ORIGIN_THRESHOLD` in magnitude (float32 would round it
     to worse than 1/128)."""
@@ -440,12 +439,16 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -
         tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds)
         header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
         header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
-        parts = [struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header)), struct.pack("<I4s", len(header), b"JSON"),
-                 header]  # fmt: skip
-        if blocks:  # the binary chunk (an empty mesh has none: glTF 2.0 §4.4.3.3, optional)
+        binary: list[Any] = []  # the binary chunk (an empty mesh has none: glTF 2.0 §4.4.3.3, optional)
+        if blocks:
             length = tree["buffers"][0]["byteLength"]
-            parts[0] = struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + 8 + length)
-            parts += [struct.pack("<I4s", length, b"BIN\x00"), *(memoryview(block).cast("B") for block in blocks)]
+            binary = [struct.pack("<I4s", length, b"BIN\x00"), *(memoryview(block).cast("B") for block in blocks)]
+        parts = [
+            struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + (8 + length if blocks else 0)),
+            struct.pack("<I4s", len(header), b"JSON"),
+            header,
+            *binary,
+        ]
         with tmp.open("wb") as fh:  # part by part: joining them first would copy the whole buffer once more
             for part in parts:
                 fh.write(part)

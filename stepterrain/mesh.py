@@ -4,7 +4,7 @@
 groups bit-identical rows (vertices sharing an xy); ``boundary_edges`` lists the edges used by one face only.
 All vectorised numpy: no Python loop over faces or vertices.
 
-    vertices, faces, kept, added = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
+    vertices, faces, kept, added, source = close_solid(mesh.vertices, mesh.faces, terrace_mask, floor=0.0)
 """
 
 from __future__ import annotations
@@ -74,7 +74,7 @@ def close_solid(
     faces: NDArray[np.int64],
     terrace_mask: NDArray[np.bool_],
     floor: float,
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int]:
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
     """Close a height-function surface into a watertight solid with side skirts and a flat base at ``floor``.
 
     The base is the terraces (faces whose projections tile the domain) flattened to ``floor`` and reversed;
@@ -90,12 +90,14 @@ def close_solid(
     stand back to back on the same vertices (a terrace of zero width); both go, and so do vertices no face
     uses any more.
 
-    Returns the new vertices, the faces (kept input faces first, then the added ones), the mask of input faces
-    kept, and the number of faces added.
+    Returns the new vertices (the surface's first, then the base), the faces (kept input faces first, then the
+    added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex
+    it is or copies (``len(source)`` surface vertices: per-vertex data such as colours follows them through it).
     """
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     kept = np.ones(len(faces), bool)
+    source = np.arange(len(vertices))
     walls = np.flatnonzero(~np.asarray(terrace_mask))
     if len(walls) >= 4 and len(walls) % 2 == 0:
         # walls are emitted as consecutive pairs (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom)
@@ -113,6 +115,7 @@ def close_solid(
             remap = np.cumsum(used) - 1
             faces = remap[faces]
             vertices = vertices[used]
+            source = source[used]
     if not np.isfinite(floor):
         raise InvalidInputError(f"floor must be finite; got {floor}")
     if abs(floor) > FLOAT32_MAX:  # the mesh's float32 vertices (GPU, GLB) would hold -inf and NaN
@@ -121,9 +124,11 @@ def close_solid(
     if floor >= zmin:
         raise InvalidInputError(f"floor must lie below the lowest surface height {zmin}; got {floor}")
     edges = boundary_edges(faces)
-    vertices, faces, fan, split = _split_pinches(vertices, faces, edges)
+    vertices, faces, fan, copied = _split_pinches(vertices, faces, edges)
+    split = len(copied) > 0
     if split:
         edges = boundary_edges(faces)
+        source = np.concatenate([source, source[copied]])
     n = len(vertices)
     # a pinch's copies keep their own base vertex
     column = exact_keys(np.column_stack([vertices[:, :2], fan]) if split else vertices[:, :2])
@@ -157,7 +162,7 @@ def close_solid(
     skirts.append(np.stack([b[has_x], a[has_x], x[has_x]], axis=1))
     skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
     added = np.concatenate(skirts + [base_faces], axis=0)
-    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added)
+    return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added), source
 
 
 def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -168,22 +173,24 @@ def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:
 
 def _split_pinches(
     vertices: NDArray[np.float64], faces: NDArray[np.int64], edges: NDArray[np.int64]
-) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], bool]:
+) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
     """Give each fan of faces around a pinch vertex (one the boundary passes through more than once) its own copy.
 
     The corners at a pinch vertex v are joined into fans through the interior edges (v, w) they share (label
     propagation: at most one round per face around v). The fan with the smallest corner keeps v; the others get
     new vertices at the same position, appended. Returns the vertices, the faces and, per vertex, the fan
     ordinal (0 for every vertex that is not such a copy), to keep the copies apart where rows are keyed by xy,
-    and whether any vertex was split. ``edges`` are the surface's boundary edges (:func:`boundary_edges`).
+    and the vertex each appended copy copies (empty when none was split). ``edges`` are the surface's boundary
+    edges (:func:`boundary_edges`).
     """
     n = len(vertices)
     fan = np.zeros(n, np.float64)
+    none = np.zeros(0, np.int64)
     if len(edges) == 0:
-        return vertices, faces, fan, False
+        return vertices, faces, fan, none
     pinch = np.bincount(edges[:, 0], minlength=n) > 1
     if not pinch.any():
-        return vertices, faces, fan, False
+        return vertices, faces, fan, none
     fi, ji = np.nonzero(pinch[faces])
     v = faces[fi, ji]
     keys = np.concatenate([v * n + faces[fi, (ji + 1) % 3], v * n + faces[fi, (ji + 2) % 3]])
@@ -209,4 +216,4 @@ def _split_pinches(
     faces[fi[moved], ji[moved]] = new_index[which[moved]]
     vertices = np.concatenate([vertices, vertices[fans[copies, 0]]])
     fan = np.concatenate([fan, rank[copies].astype(np.float64)])
-    return vertices, faces, fan, True
+    return vertices, faces, fan, fans[copies, 0]

@@ -43,6 +43,7 @@ from .terrain import (
     first_index,
     real_numbers,
     unmasked,
+    unshared,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -78,11 +79,9 @@ class Lens:
             raise InvalidInputError(
                 f"lens mask must be a real (h, w) array; got shape {mask.shape}, dtype {mask.dtype}"
             )
-        checked = np.ascontiguousarray(mask, dtype=np.float32)
-        if not isinstance(self.mask, (list, tuple)) and np.may_share_memory(checked, mask):
-            checked = checked.copy()  # the caller's array: changing it later would bypass the checks below
-        checked.flags.writeable = False
-        mask = checked
+        # the caller's array, changed later, would bypass the checks below
+        mask = unshared(np.ascontiguousarray(mask, dtype=np.float32), self.mask, mask)
+        mask.flags.writeable = False
         if not np.all(np.isfinite(mask)):  # NaN, also a masked entry
             at = first_index(~np.isfinite(mask))
             raise InvalidInputError(f"lens mask values must lie in [0, 1]; got {float(mask[at])} at index {at}")
@@ -831,7 +830,7 @@ def _assemble(
         vertex_levels = np.searchsorted(values, host_copy(arrays.step_heights))
         vertex_colors = table[np.clip(vertex_levels, 0, len(values) - 1)]
     if solid:
-        from .mesh import close_solid, exact_keys
+        from .mesh import close_solid
 
         if len(faces) == 0:
             raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
@@ -862,22 +861,12 @@ def _assemble(
             floor_z = default_floor if floor is None else as_number(floor)
         except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
-        n_before = len(vertices)
-        vertices, faces, kept, extra = close_solid(vertices, faces, ~face_walls, floor_z)
+        vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z)
         face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])
         face_walls = np.concatenate([face_walls[kept], np.zeros(extra, bool)])
-        if vertex_colors is not None:
-            used = np.zeros(n_before, bool)
-            used[arrays.faces[kept].reshape(-1)] = True
-            surface_colors = vertex_colors[used]
-            # close_solid's vertices: the kept surface ones, copies of those split at a pinch (same position, above
-            # the floor), then the base; a copy takes its original's colour, not the skirt's grey
-            n_kept, n_surface = len(surface_colors), int(np.count_nonzero(vertices[:, 2] > floor_z))
-            keys = exact_keys(vertices[:n_surface])
-            original = np.zeros(int(keys.max()) + 1, np.int64)
-            original[keys[:n_kept]] = np.arange(n_kept)
-            skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - n_surface, 1))
-            vertex_colors = np.concatenate([surface_colors, surface_colors[original[keys[n_kept:]]], skirt])
+        if vertex_colors is not None:  # a surface vertex (or its copy at a pinch) keeps its colour; the base is grey
+            skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - len(source), 1))
+            vertex_colors = np.concatenate([vertex_colors[source], skirt])
         metadata["floor"] = floor_z
     elif floor is not None:
         raise InvalidInputError("floor applies only with solid=True")

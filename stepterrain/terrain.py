@@ -217,6 +217,16 @@ def _object_numbers(array: NDArray[np.object_], name: str, expected: str) -> NDA
     return out
 
 
+def unshared(out: NDArray[Any], given: Any, seen: NDArray[Any]) -> NDArray[Any]:
+    """``out``, copied when it shares memory with ``seen``, the array numpy made of the caller's ``given``: an
+    ndarray's buffer, or the one an array-like exposes (a memoryview, an object with ``__array__`` such as an
+    xarray DataArray or a DataFrame). What is checked and cached must not see the caller's later changes; a list
+    or tuple was copied by numpy already."""
+    if not isinstance(given, (list, tuple)) and np.may_share_memory(out, seen):
+        return out.copy()
+    return out
+
+
 def first_index(mask: NDArray[np.bool_]) -> tuple[int, ...]:
     """The index of the first true entry of a non-empty ``mask`` with one (row-major), for error messages."""
     return tuple(int(i) for i in np.argwhere(mask)[0])
@@ -274,11 +284,7 @@ def _heights_array(heights: ArrayLike, name: str = "heights") -> tuple[NDArray[n
         raise InvalidInputError(f"{name} must be a 2-D (H, W) array; got shape {arr.shape}")
     if arr.shape[0] < 2 or arr.shape[1] < 2:
         raise InvalidInputError(f"{name} needs at least 2 x 2 nodes; got shape {arr.shape}")
-    out = float32_heights(arr, name)
-    if not isinstance(heights, (list, tuple)) and np.may_share_memory(out, arr):
-        # the Terrain's caches must not see later changes to the caller's array: an ndarray's, and the buffer an
-        # array-like exposes (a memoryview, an object with __array__ such as an xarray DataArray or a DataFrame)
-        out = out.copy()
+    out = unshared(float32_heights(arr, name), heights, arr)  # the Terrain's caches must not see later changes
     lo, hi = finite_or_nan(out, name)
     return out, lo, hi
 
