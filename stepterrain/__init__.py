@@ -26,7 +26,7 @@ import importlib
 from typing import Any
 
 from ._compaction import get_memory_budget, set_memory_budget
-from ._device import get_cpu_threads, set_cpu_threads
+from ._device import get_cpu_threads, get_output_pool_limit, set_cpu_threads, set_output_pool_limit
 from .batch import BatchReport, batch
 from .errors import (
     DataFileError,
@@ -91,12 +91,14 @@ __all__ = [
     "circular_lens",
     "get_cpu_threads",
     "get_memory_budget",
+    "get_output_pool_limit",
     "heightfield_mesh",
     "isovalues",
     "load_dem",
     "sample_dem",
     "set_cpu_threads",
     "set_memory_budget",
+    "set_output_pool_limit",
     "stepped",
     "stepped_series",
     *_LAZY,

@@ -1,0 +1,147 @@
+"""The recycling pool of large outputs (``_device._RecyclingPool``): a dropped mesh's memory serves the next
+call, and never while any array on it lives."""
+
+from __future__ import annotations
+
+import gc
+import pickle
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+from stepterrain import _device
+from stepterrain.errors import InvalidInputError
+
+
+@pytest.fixture
+def small_outputs(monkeypatch):
+    """Every output of 1 kB or more comes from a fresh pool (the default threshold is 8 MB)."""
+    pool = _device._RecyclingPool(64 << 20)
+    monkeypatch.setattr(_device, "RECYCLE_MIN_BYTES", 1024)
+    monkeypatch.setattr(_device, "OUTPUTS", pool)
+    return pool
+
+
+def _heights(seed: int, n: int = 40) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.cumsum(np.cumsum(rng.normal(size=(n, n)), 0), 1).astype(np.float32)
+
+
+def test_a_dropped_array_s_memory_serves_the_next_of_similar_size(small_outputs):
+    a = _device.recycled_empty((1000, 3), np.int64)
+    assert isinstance(a.base, _device._Loan) and a.flags.writeable
+    address = a.ctypes.data
+    del a
+    assert small_outputs.free_bytes >= 24_000
+    b = _device.recycled_empty((900, 3), np.float64)  # smaller, same block
+    assert b.ctypes.data == address and small_outputs.free_bytes == 0
+    c = _device.recycled_empty((1000, 3), np.int64)  # b is alive: fresh memory
+    assert not np.shares_memory(b, c)
+    tiny = _device.recycled_empty((10,), np.int64)  # below the threshold: plain numpy
+    assert tiny.base is None
+
+
+def test_a_much_smaller_request_does_not_take_a_large_block(small_outputs):
+    big = _device.recycled_empty((1 << 20,), np.uint8)
+    address = big.ctypes.data
+    del big
+    small = _device.recycled_empty((4096,), np.uint8)
+    assert small.ctypes.data != address and small_outputs.free_bytes > 1 << 20
+
+
+def test_views_keep_the_block_on_loan(small_outputs):
+    a = _device.recycled_empty((4096,), np.int64)
+    a[:] = np.arange(4096)
+    view = a[100:200]
+    del a
+    assert small_outputs.free_bytes == 0  # the view still refers to the block
+    b = _device.recycled_empty((4096,), np.int64)
+    b[:] = -1
+    np.testing.assert_array_equal(view, np.arange(100, 200))
+    assert not np.shares_memory(view, b)
+    del view
+    assert small_outputs.free_bytes > 0
+
+
+def test_a_kept_mesh_is_untouched_by_later_calls(small_outputs):
+    kept = st.stepped(_heights(1), interval=2.0)
+    vertices, faces = kept.vertices.copy(), kept.faces.copy()
+    assert isinstance(np.asarray(kept.faces).base.base, _device._Loan)  # trimesh's view of the lent array
+    for seed in range(2, 6):  # each dropped at once: its memory serves the next
+        mesh = st.stepped(_heights(seed), interval=2.0)
+        assert not np.shares_memory(mesh.faces, kept.faces)
+        assert not np.shares_memory(mesh.vertices, kept.vertices)
+        del mesh
+        gc.collect()
+    np.testing.assert_array_equal(kept.vertices, vertices)
+    np.testing.assert_array_equal(kept.faces, faces)
+
+
+def test_a_dropped_mesh_s_memory_is_reused_without_an_explicit_collect(small_outputs):
+    mesh = st.stepped(_heights(1), interval=2.0)
+    address = np.asarray(mesh.faces).ctypes.data
+    del mesh  # a reference cycle: freed by the young-generation collection the pool runs when it has no block
+    again = st.stepped(_heights(1), interval=2.0)
+    assert np.asarray(again.faces).ctypes.data == address
+
+
+def test_recycled_and_fresh_outputs_are_identical(small_outputs, monkeypatch):
+    h = _heights(9, 64)
+    pooled = [st.stepped(h, interval=1.5, gamma=0.5) for _ in range(3)]  # the later ones on recycled memory
+    del pooled[1:]
+    gc.collect()
+    again = st.stepped(h, interval=1.5, gamma=0.5)
+    monkeypatch.setattr(_device, "RECYCLE_MIN_BYTES", 1 << 62)  # plain numpy memory
+    fresh = st.stepped(h, interval=1.5, gamma=0.5)
+    assert not isinstance(np.asarray(fresh.faces).base.base, _device._Loan)
+    for mesh in (pooled[0], again):
+        np.testing.assert_array_equal(mesh.vertices, fresh.vertices)
+        np.testing.assert_array_equal(mesh.faces, fresh.faces)
+        np.testing.assert_array_equal(mesh.face_attributes["level"], fresh.face_attributes["level"])
+        np.testing.assert_array_equal(mesh.face_attributes["wall"], fresh.face_attributes["wall"])
+
+
+def test_pooled_arrays_pickle_and_copy_as_plain_arrays(small_outputs):
+    a = _device.recycled_empty((2000, 3), np.float64)
+    a[:] = np.arange(6000).reshape(-1, 3)
+    back = pickle.loads(pickle.dumps(a))
+    np.testing.assert_array_equal(back, a)
+    assert back.base is None or not np.shares_memory(back, a)
+
+
+def test_the_limit_bounds_what_waits_and_zero_keeps_none(small_outputs):
+    small_outputs.limit = 100_000
+    arrays = [_device.recycled_empty((8000,), np.float64) for _ in range(4)]  # 72 kB blocks
+    del arrays
+    assert 0 < small_outputs.free_bytes <= 100_000
+    previous = st.set_output_pool_limit(0)  # the global pool is the fixture's
+    assert previous == 100_000 and small_outputs.free_bytes == 0
+    a = _device.recycled_empty((8000,), np.float64)
+    del a
+    assert small_outputs.free_bytes == 0
+
+
+@pytest.mark.parametrize("bad", [-1, 1.5, "1GB", None, True])
+def test_set_output_pool_limit_refuses_what_is_not_a_byte_count(bad):
+    with pytest.raises(InvalidInputError, match="nbytes must be a non-negative int"):
+        st.set_output_pool_limit(bad)
+
+
+def test_threads_borrowing_at_once_get_their_own_memory(small_outputs):
+    inputs = [_heights(seed, 48) for seed in range(8)]
+    expected = [st.stepped(h, interval=1.0) for h in inputs]
+    expected = [(m.vertices.copy(), m.faces.copy()) for m in expected]
+    gc.collect()
+
+    def run(k: int) -> tuple[np.ndarray, np.ndarray]:
+        for _ in range(3):
+            mesh = st.stepped(inputs[k], interval=1.0)
+        return mesh.vertices.copy(), mesh.faces.copy()
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(run, range(8)))
+    for (v, f), (ev, ef) in zip(results, expected, strict=True):
+        np.testing.assert_array_equal(v, ev)
+        np.testing.assert_array_equal(f, ef)
