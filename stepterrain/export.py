@@ -26,6 +26,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from ._device import recycled_empty
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
 from .terrain import FLOAT32_MAX
 
@@ -517,14 +518,20 @@ def _gltf_document(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> tuple
     assert bounds is not None  # _direct_gltf: the mesh has vertices
     lo, hi = bounds
     offset = np.zeros(3)
+    # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
+    positions = recycled_empty(vertices.shape, np.dtype("<f4"))
     if _is_large(bounds):
         offset = np.floor(lo)
-        vertices = vertices - offset
+        np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
         node["translation"] = [float(v) for v in offset]
-    positions = np.ascontiguousarray(vertices, dtype="<f4")
+    else:
+        np.copyto(positions, vertices, casting="unsafe")
     # v -> float32(v - offset) is monotonic, so the bounds of the stored values are the converted bounds
     p_lo, p_hi = (lo - offset).astype(np.float32), (hi - offset).astype(np.float32)
-    indices = np.ascontiguousarray(mesh.faces, dtype="<u4").reshape(-1)
+    faces = np.asarray(mesh.faces)
+    indices = recycled_empty(faces.shape, np.dtype("<u4"))
+    np.copyto(indices, faces, casting="unsafe")
+    indices = indices.reshape(-1)
     blocks: list[Any] = []  # contiguous arrays and padding, written in order without joining
     views: list[dict[str, Any]] = []
     offset_bytes = 0

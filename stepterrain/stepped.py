@@ -28,7 +28,16 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
-from ._device import empty_shared, host_copy, launch_chunked, resolve_device, scratch, to_device, to_numpy
+from ._device import (
+    empty_shared,
+    host_copy,
+    launch_chunked,
+    recycled_empty,
+    resolve_device,
+    scratch,
+    to_device,
+    to_numpy,
+)
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
 from .terrain import (
@@ -828,7 +837,8 @@ def _assemble(
     if colors is not None:
         table = _level_colors(colors, len(values))
         vertex_levels = np.searchsorted(values, host_copy(arrays.step_heights))
-        vertex_colors = table[np.clip(vertex_levels, 0, len(values) - 1)]
+        vertex_colors = np.take(table, vertex_levels, axis=0, mode="clip",
+                                out=recycled_empty((len(vertex_levels), table.shape[1]), np.uint8))
     if solid:
         from .mesh import close_solid
 
