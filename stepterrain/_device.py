@@ -8,7 +8,6 @@ that kernels write straight into numpy memory on the CPU.
 
 from __future__ import annotations
 
-import gc
 import os
 import sys
 import tempfile
@@ -185,12 +184,10 @@ class _RecyclingPool:
         nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
         if nbytes < RECYCLE_MIN_BYTES or self.limit <= 0:
             return np.empty(shape, dtype=dtype)
+        # No collection here: a dropped trimesh is a reference cycle that frees its arrays when the collector
+        # runs, but collecting now would also move the meshes still in use (one being saved) to the oldest
+        # generation, which only a full collection frees (a loop of 1024² tiles then held 146 MB more per tile).
         block = self._take(nbytes)
-        if block is None and self._lent >= nbytes:
-            # a dropped trimesh is a reference cycle: it frees its arrays when the collector runs. The young
-            # generations hold what was dropped since the last call, and collecting them takes about 0.1 ms
-            gc.collect(1)
-            block = self._take(nbytes)
         if block is None:  # room for a slightly larger call next time (pages never written cost nothing)
             block = np.empty(nbytes + nbytes // 8, dtype=np.uint8)
         loan = _Loan()
