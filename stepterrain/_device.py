@@ -242,8 +242,8 @@ def set_output_pool_limit(nbytes: int) -> int:
 
     A stepped mesh's vertex and face arrays (from 8 MB) are lent from a pool: when the mesh is gone, its
     memory serves the next mesh of similar size instead of going back to the operating system, which saves
-    the page faults of fresh memory (a 2048² terrain with 20 steps is stepped about 2-3x faster on a VM when
-    the previous mesh's memory comes back). The price is that up to ``nbytes`` stay with the process after
+    the page faults of fresh memory (a 1024² batch tile is stepped and written in 13 % less time on a VM). A
+    dropped trimesh is freed when Python's cyclic collector runs (``del mesh; gc.collect()``). The price is that up to ``nbytes`` stay with the process after
     the meshes are dropped; 0 keeps none (and frees what is kept now).
 
     Examples
