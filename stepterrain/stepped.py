@@ -774,7 +774,7 @@ def stepped(
     A ``trimesh.Trimesh`` refers to itself, so a mesh you drop is freed only when Python's cyclic garbage
     collector runs, often late: re-stepping a 512² terrain 60 times in a loop held about 1 GB. In long loops,
     ``del`` the old mesh and call ``gc.collect()`` now and then (``stepterrain.batch`` frees each tile's mesh
-    itself).
+    itself); a freed mesh's large arrays then serve the next call (see :func:`set_output_pool_limit`).
 
     References
     ----------
