@@ -218,7 +218,7 @@ class _RecyclingPool:
             self._trim()
 
     def _trim(self) -> None:
-        total = sum(b.nbytes for b in self._free)
+        total = self.free_bytes
         while self._free and total > self.limit:
             total -= self._free.pop(0).nbytes
 
