@@ -330,6 +330,10 @@ def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_
     iso = stepped_kernels.Isovalues()
     iso.values = wp.array(values, dtype=wp.float32, device=device)
     iso.thresholds = wp.array(thresholds, dtype=wp.float32, device=device)
+    iso.uniform, iso.first, iso.inv_gap = 0, 0.0, 0.0
+    gaps = np.diff(thresholds.astype(np.float64))
+    if len(gaps) and np.all(np.abs(gaps - gaps.mean()) <= 0.25 * gaps.mean()):
+        iso.uniform, iso.first, iso.inv_gap = 1, float(thresholds[0]), float(1.0 / gaps.mean())
     return iso
 
 
@@ -384,7 +388,7 @@ def step_arrays(
     launch_chunked(
         stepped_kernels.quantize_levels,
         n=n_nodes,
-        inputs=[topo.heights, iso.thresholds],
+        inputs=[topo.heights, iso],
         outputs=[topo.levels],
         device=device,
     )
