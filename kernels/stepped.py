@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from .memory import load, store
+from .memory import load, store, stream
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
@@ -1184,7 +1184,7 @@ def blend_vertices(
         p = load(points, v)
         z = (1.0 - g) * p[2] + g * load(step_heights, v)
         world = wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
-        store(vertices_out, v, world)
+        stream(vertices_out, v, world)
         v += 1
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import warp as wp
 
 from .errors import DeviceError, InvalidInputError
+from .kernels import memory as memory_kernels
 
 _init_lock = threading.Lock()
 _pools = threading.local()
@@ -131,9 +132,12 @@ def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
 
 
 def to_device(array: Any, dtype: Any, device: wp.Device) -> wp.array:
-    """Convert ``array`` to a ``wp.array`` of ``dtype`` on ``device`` (no copy when it already fits)."""
+    """Convert ``array`` to a contiguous ``wp.array`` of ``dtype`` on ``device`` (no copy when it already fits).
+
+    Contiguous always: the kernels index with ``stepterrain.kernels.memory.load``, which ignores strides.
+    """
     if isinstance(array, wp.array):
-        if array.dtype == dtype and str(array.device) == str(device):
+        if array.dtype == dtype and str(array.device) == str(device) and array.is_contiguous:
             return array
         array = array.numpy()
     scalar = getattr(dtype, "_wp_scalar_type_", dtype)
@@ -383,41 +387,61 @@ def _helpers(count: int) -> ThreadPoolExecutor:
     return _executor
 
 
-def launch(
-    kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device, *, min_dim: int = MIN_THREAD_ELEMENTS
-) -> None:
-    """``wp.launch`` of a stepterrain kernel (``thread_offset`` first) over ``dim`` threads.
+def _launch_range(kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device, fence: bool) -> None:
+    wp.launch(kernel, dim=dim, inputs=inputs, outputs=outputs, device=device)
+    if fence:  # on the thread that ran the range: its streaming stores, ordered before anyone reads them
+        wp.launch(memory_kernels.drain_streams, dim=1, device=device)
 
-    On CUDA: one launch. On the CPU: split into up to :func:`get_cpu_threads` contiguous ranges of at least
-    ``min_dim`` threads that run at once, each range's results written by its own threads only
-    (count -> scan -> emit keeps them disjoint).
-    """
-    if dim <= 0:
-        return
-    workers = 1 if not device.is_cpu else min(get_cpu_threads(), dim // min_dim)
-    if workers <= 1:
-        wp.launch(kernel, dim=dim, inputs=[0, *inputs], outputs=outputs, device=device)
-        return
+
+def _preload(kernel: Any, device: wp.Device) -> None:
     key = (id(kernel.module), str(device))
     if key not in _loaded:  # compile/load once before several threads use the module
         # the variant wp.launch runs on the CPU (block_dim 1); a bare load(device) would compile another one,
         # for the module's default block_dim, that no launch uses (a second full compile on a cold cache)
         kernel.module.load(device, CPU_LAUNCH_BLOCK_DIM)
         _loaded.add(key)
+
+
+def launch(
+    kernel: Any,
+    dim: int,
+    inputs: list,
+    outputs: list,
+    device: wp.Device,
+    *,
+    min_dim: int = MIN_THREAD_ELEMENTS,
+    fence: bool = False,
+) -> None:
+    """``wp.launch`` of a stepterrain kernel (``thread_offset`` first) over ``dim`` threads.
+
+    On CUDA: one launch. On the CPU: split into up to :func:`get_cpu_threads` contiguous ranges of at least
+    ``min_dim`` threads that run at once, each range's results written by its own threads only
+    (count -> scan -> emit keeps them disjoint). ``fence``: the kernel writes with streaming stores
+    (``stepterrain.kernels.memory.stream``); on the CPU each thread fences after its range.
+    """
+    if dim <= 0:
+        return
+    fence = fence and device.is_cpu
+    workers = 1 if not device.is_cpu else min(get_cpu_threads(), dim // min_dim)
+    if workers <= 1:
+        _launch_range(kernel, dim, [0, *inputs], outputs, device, fence)
+        return
+    _preload(kernel, device)
+    if fence:
+        _preload(memory_kernels.drain_streams, device)
     pool = _helpers(workers - 1)
     bounds = [dim * k // workers for k in range(workers + 1)]
     futures = [
-        pool.submit(wp.launch, kernel, dim=bounds[k + 1] - bounds[k], inputs=[bounds[k], *inputs],
-                    outputs=outputs, device=device)
+        pool.submit(_launch_range, kernel, bounds[k + 1] - bounds[k], [bounds[k], *inputs], outputs, device, fence)
         for k in range(1, workers)
-    ]  # fmt: skip
-    wp.launch(kernel, dim=bounds[1], inputs=[0, *inputs], outputs=outputs, device=device)
+    ]
+    _launch_range(kernel, bounds[1], [0, *inputs], outputs, device, fence)
     for future in futures:
         future.result()
 
 
 def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device, *,
-                   min_elements: int = MIN_THREAD_ELEMENTS) -> None:
+                   min_elements: int = MIN_THREAD_ELEMENTS, fence: bool = False) -> None:
     """:func:`launch` of a chunked kernel over ``n`` elements.
 
     A chunked kernel takes ``thread_offset, count, chunk`` first; thread t handles the elements
@@ -426,5 +450,6 @@ def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.
     (a split costs a Python launch, about 0.1 ms), so that their mid-sized passes use every core too.
     """
     chunk = CPU_CHUNK if device.is_cpu else 1
-    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device, min_dim=max(1, min_elements // chunk))
+    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device, min_dim=max(1, min_elements // chunk),
+           fence=fence)
 

@@ -565,6 +565,7 @@ def blend(
         inputs=[arrays.points, arrays.step_heights, gammas, scalar, origin],
         outputs=[vertices_wp],
         device=device,
+        fence=True,
     )
     return to_numpy(vertices_np, vertices_wp, (n, 3))
 

@@ -1,0 +1,135 @@
+"""The unchecked accessors of stepterrain.kernels.memory: what they read and write, that Warp's debug mode checks
+their indices (and finds none out of range in the stepped kernels), streaming stores and their fence."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import textwrap
+
+import numpy as np
+import warp as wp
+from stepterrain.kernels.memory import drain_streams, load, store, stream
+
+from stepterrain import _device
+
+wp.config.quiet = True
+
+
+@wp.kernel
+def _copy_reversed(a: wp.array[wp.int32], b: wp.array[wp.vec3], out_a: wp.array[wp.int32], out_b: wp.array[wp.vec3]):
+    i = wp.tid()
+    n = a.shape[0]
+    store(out_a, n - 1 - i, load(a, i) * 2)
+    store(out_b, n - 1 - i, load(b, i) + wp.vec3(1.0, 2.0, 3.0))
+
+
+@wp.kernel
+def _stream_rows(thread_offset: wp.int32, count: wp.int32, chunk: wp.int32, out: wp.array[wp.vec3d]):
+    i = (wp.tid() + thread_offset) * chunk
+    end = wp.min(i + chunk, count)
+    while i < end:
+        stream(out, i, wp.vec3d(wp.float64(i), wp.float64(-i), 0.5))
+        i += 1
+
+
+def test_load_and_store_match_numpy(device):
+    a = np.arange(100, dtype=np.int32) * 3 - 50
+    b = np.random.default_rng(0).random((100, 3)).astype(np.float32)
+    out_a = wp.zeros(100, dtype=wp.int32, device=device)
+    out_b = wp.zeros(100, dtype=wp.vec3, device=device)
+    wp.launch(_copy_reversed, dim=100, inputs=[wp.array(a, device=device), wp.array(b, dtype=wp.vec3, device=device)],
+              outputs=[out_a, out_b], device=device)  # fmt: skip
+    np.testing.assert_array_equal(out_a.numpy(), (a * 2)[::-1])
+    np.testing.assert_array_equal(out_b.numpy(), (b + np.float32([1, 2, 3]))[::-1])
+
+
+def test_streamed_output_is_complete_on_several_threads(device):
+    """A fenced streaming launch split over two CPU threads writes every element (CUDA stores plainly)."""
+    n = 200_003
+    out = wp.full(n, wp.vec3d(7.0, 7.0, 7.0), dtype=wp.vec3d, device=device)
+    before = _device.get_cpu_threads()
+    _device.set_cpu_threads(2)
+    try:
+        _device.launch_chunked(_stream_rows, n=n, inputs=[], outputs=[out], device=wp.get_device(device),
+                               min_elements=1 << 10, fence=True)  # fmt: skip
+    finally:
+        _device.set_cpu_threads(before)
+    i = np.arange(n, dtype=np.float64)
+    np.testing.assert_array_equal(out.numpy(), np.stack([i, -i, np.full(n, 0.5)], axis=1))
+    wp.launch(drain_streams, dim=1, device=device)  # also a plain launch
+
+
+def test_to_device_makes_strided_warp_arrays_contiguous():
+    """load() ignores strides, so every array handed to a kernel is contiguous: a strided view is copied."""
+    base = wp.array(np.arange(20, dtype=np.float32), device="cpu")
+    view = base[::2]
+    assert not view.is_contiguous
+    got = _device.to_device(view, wp.float32, wp.get_device("cpu"))
+    assert got.is_contiguous
+    np.testing.assert_array_equal(got.numpy(), np.arange(0, 20, 2, dtype=np.float32))
+    assert _device.to_device(base, wp.float32, wp.get_device("cpu")) is base
+
+
+def _run(code: str, *args: str, debug: bool = True) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter, Warp in debug mode (kernels compiled with their assertions) or not."""
+    prelude = "import warp as wp\nwp.config.quiet = True\n" + ("wp.config.mode = 'debug'\n" if debug else "")
+    with tempfile.TemporaryDirectory() as tmp:
+        script = os.path.join(tmp, "script.py")  # a file: Warp reads a kernel's source from it
+        with open(script, "w") as f:
+            f.write(prelude + textwrap.dedent(code))
+        return subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=600)
+
+
+def test_debug_mode_catches_an_index_out_of_range():
+    """The accessors' assertion is live in Warp's debug mode: the check the next test relies on can fail."""
+    result = _run("""
+        import numpy as np
+        from stepterrain.kernels.memory import load, store
+
+        @wp.kernel
+        def k(a: wp.array[wp.int32], i: wp.int32, out: wp.array[wp.int32]):
+            store(out, 0, load(a, i))
+
+        a = wp.array(np.arange(4, dtype=np.int32), device="cpu")
+        out = wp.zeros(1, dtype=wp.int32, device="cpu")
+        wp.launch(k, dim=1, inputs=[a, 3, out], device="cpu")
+        print("in range", out.numpy()[0], flush=True)
+        wp.launch(k, dim=1, inputs=[a, 4, out], device="cpu")
+    """)
+    assert "in range 3" in result.stdout
+    assert "Assertion failed" in result.stderr and "a.shape[0]" in result.stderr
+
+
+def test_stepped_kernels_stay_in_range_in_debug_mode():
+    """The stepped kernels on grids with nodata, aliased heights (integers on thresholds), flipped spacing,
+    non-uniform levels, a solid and a TIN, compiled with their index assertions: none fires, and the meshes
+    equal the release build's."""
+    code = """
+        import sys
+        import numpy as np
+        import stepterrain as st
+
+        rng = np.random.default_rng(1)
+        h = np.round(rng.random((33, 41)) * 40).astype(np.float32)
+        h[5:9, 7:12] = np.nan
+        tin = st.heightfield_mesh(np.round(rng.random((20, 25)) * 40).astype(np.float32), spacing=(1.0, 1.0))
+        meshes = [
+            st.stepped(h, interval=5.0, spacing=(2.0, 3.0), gamma=0.5),
+            st.stepped(h, levels=[0, 3, 10, 11, 30], spacing=(2.0, -3.0), solid=True),
+            st.stepped(tin, interval=5.0),
+        ]
+        np.savez(sys.argv[1], *[np.concatenate([m.vertices.ravel(), m.faces.ravel()]) for m in meshes])
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        debug_out, release_out = os.path.join(tmp, "debug.npz"), os.path.join(tmp, "release.npz")
+        debug = _run(code, debug_out)
+        assert debug.returncode == 0 and "Assertion failed" not in debug.stderr, debug.stderr[-2000:]
+        release = _run(code, release_out, debug=False)
+        assert release.returncode == 0, release.stderr[-2000:]
+        with np.load(debug_out) as d, np.load(release_out) as r:
+            assert d.files == r.files
+            for name in d.files:
+                np.testing.assert_array_equal(d[name], r[name])
