@@ -673,8 +673,29 @@ def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, k
     return edge_vertex_count(a, b, hf.heights, hf.levels, iso)
 
 
+@wp.func
+def triangle_face_count(hf: HeightField, iso: Isovalues, c0: wp.int32, c1: wp.int32, c2: wp.int32, l0: wp.int32,
+                        l1: wp.int32, l2: wp.int32) -> wp.int32:
+    """step_triangle's face count where it needs no vertex offsets: 1 when flat, 1 + 4 (lmax - lmin) when no
+    corner above the lowest level lies on its threshold; -1 otherwise (the count needs the offsets)."""
+    lmin = wp.min(l0, wp.min(l1, l2))
+    lmax = wp.max(l0, wp.max(l1, l2))
+    if lmin == lmax:
+        return 1
+    if l0 > lmin:
+        if on_threshold(load(hf.heights, c0), l0, iso.thresholds) != 0:
+            return -1
+    if l1 > lmin:
+        if on_threshold(load(hf.heights, c1), l1, iso.thresholds) != 0:
+            return -1
+    if l2 > lmin:
+        if on_threshold(load(hf.heights, c2), l2, iso.thresholds) != 0:
+            return -1
+    return 1 + 4 * (lmax - lmin)
+
+
 @wp.kernel
-def count_grid_vertices(
+def count_grid(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
@@ -682,14 +703,26 @@ def count_grid_vertices(
     iso: Isovalues,
     # outputs
     counts_out: wp.array[wp.int32],
+    face_counts_out: wp.array[wp.int32],
+    deferred_out: wp.array[wp.int32],
 ):
-    """One thread per node: count the vertices of its four slots (itself and its three owned edges)."""
-    n = (wp.tid() + thread_offset) * chunk
+    """One thread per node: count the vertices of its four slots (itself and its three owned edges) and the
+    faces of the cell below-right of it, which share the node's four level loads.
+
+    A cell whose count needs the vertex offsets (a corner on a crossed threshold, or nodata in the grid) gets -1
+    and its chunk a 1 in ``deferred_out``: :func:`count_deferred_grid_faces` counts it once the offsets exist.
+    """
+    t = wp.tid() + thread_offset
+    n = t * chunk
     end = wp.min(n + chunk, count)
     ij = wp.vec2i(n // hf.cols, n % hf.cols)
+    cells_across = hf.cols - 1
+    deferred = wp.int32(0)
     while n < end:
         i = ij[0]
         j = ij[1]
+        has_right = j + 1 < hf.cols
+        has_down = i + 1 < hf.rows
         if hf.has_nodata == 0:
             # every node and edge is used: plain nodes and edges within one level are counted here, without
             # the calls (Warp passes their struct arguments by value)
@@ -701,25 +734,46 @@ def count_grid_vertices(
             right = wp.int32(0)
             down = wp.int32(0)
             diagonal = wp.int32(0)
-            if j + 1 < hf.cols:
-                if load(hf.levels, n + 1) != level:
+            l01 = level
+            l10 = level
+            l11 = level
+            if has_right:
+                l01 = load(hf.levels, n + 1)
+                if l01 != level:
                     right = edge_vertex_count(n, n + 1, hf.heights, hf.levels, iso)
-            if i + 1 < hf.rows:
-                if load(hf.levels, n + hf.cols) != level:
+            if has_down:
+                l10 = load(hf.levels, n + hf.cols)
+                if l10 != level:
                     down = edge_vertex_count(n, n + hf.cols, hf.heights, hf.levels, iso)
-                if j + 1 < hf.cols:
-                    if load(hf.levels, n + hf.cols + 1) != level:
+                if has_right:
+                    l11 = load(hf.levels, n + hf.cols + 1)
+                    if l11 != level:
                         diagonal = edge_vertex_count(n, n + hf.cols + 1, hf.heights, hf.levels, iso)
             store(counts_out, 4 * n + 1, right)
             store(counts_out, 4 * n + 2, down)
             store(counts_out, 4 * n + 3, diagonal)
+            if has_right and has_down:
+                faces = wp.int32(2)  # the common case: two terraces on one level
+                if l01 != level or l10 != level or l11 != level:
+                    # the cell's triangles (n00, n01, n11) and (n00, n11, n10); their counts ignore winding
+                    upper = triangle_face_count(hf, iso, n, n + 1, n + hf.cols + 1, level, l01, l11)
+                    lower = triangle_face_count(hf, iso, n, n + hf.cols + 1, n + hf.cols, level, l11, l10)
+                    faces = upper + lower
+                    if upper < 0 or lower < 0:
+                        faces = -1
+                        deferred = 1
+                store(face_counts_out, i * cells_across + j, faces)
         else:
             store(counts_out, 4 * n, grid_node_count(hf, iso, n)[0])
             store(counts_out, 4 * n + 1, grid_edge_count(hf, iso, i, j, 1))
             store(counts_out, 4 * n + 2, grid_edge_count(hf, iso, i, j, 2))
             store(counts_out, 4 * n + 3, grid_edge_count(hf, iso, i, j, 3))
+            if has_right and has_down:
+                store(face_counts_out, i * cells_across + j, -1)
+                deferred = 1
         n += 1
         ij = next_node(ij, hf.cols)
+    store(deferred_out, t, deferred)
 
 
 @wp.kernel
@@ -871,31 +925,37 @@ def grid_cell_faces(
 
 
 @wp.kernel
-def count_grid_faces(
+def count_deferred_grid_faces(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
     hf: HeightField,
     iso: Isovalues,
     offsets: wp.array[wp.int32],
+    deferred: wp.array[wp.int32],
     faces_dummy: wp.array[vec3l],
     levels_dummy: wp.array[wp.int32],
     walls_dummy: wp.array[wp.uint8],
     # outputs
-    counts_out: wp.array[wp.int32],
+    face_counts_out: wp.array[wp.int32],
 ):
-    """One thread per cell: count the terrace and wall faces its two triangles emit."""
-    cell = (wp.tid() + thread_offset) * chunk
-    end = wp.min(cell + chunk, count)
-    ij = wp.vec2i(cell // (hf.cols - 1), cell % (hf.cols - 1))
-    while cell < end:
-        if grid_flat_cell(hf, ij[0] * hf.cols + ij[1]) >= 0:
-            store(counts_out, cell, 2)  # the common case, without the call: two terraces on one level
-        else:
-            faces = grid_cell_faces(hf, iso, offsets, ij[0], ij[1], 0, 0, faces_dummy, levels_dummy, walls_dummy)
-            store(counts_out, cell, faces)
-        cell += 1
-        ij = next_node(ij, hf.cols - 1)
+    """The node chunks of :func:`count_grid` (same ``chunk``) again, where it deferred a cell: count that cell's
+    terrace and wall faces by the walk, which needs the vertex offsets."""
+    t = wp.tid() + thread_offset
+    if load(deferred, t) == 0:
+        return
+    n = t * chunk
+    end = wp.min(n + chunk, count)
+    ij = wp.vec2i(n // hf.cols, n % hf.cols)
+    cells_across = hf.cols - 1
+    while n < end:
+        if ij[0] + 1 < hf.rows and ij[1] + 1 < hf.cols:
+            cell = ij[0] * cells_across + ij[1]
+            if load(face_counts_out, cell) < 0:
+                faces = grid_cell_faces(hf, iso, offsets, ij[0], ij[1], 0, 0, faces_dummy, levels_dummy, walls_dummy)
+                store(face_counts_out, cell, faces)
+        n += 1
+        ij = next_node(ij, hf.cols)
 
 
 @wp.kernel

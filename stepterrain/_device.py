@@ -440,6 +440,11 @@ def launch(
         future.result()
 
 
+def chunked_threads(n: int, device: wp.Device) -> int:
+    """Threads :func:`launch_chunked` runs over ``n`` elements: thread t has chunk t (per-thread outputs)."""
+    return -(-n // (CPU_CHUNK if device.is_cpu else 1))
+
+
 def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device, *,
                    min_elements: int = MIN_THREAD_ELEMENTS, fence: bool = False) -> None:
     """:func:`launch` of a chunked kernel over ``n`` elements.
@@ -450,6 +455,6 @@ def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.
     (a split costs a Python launch, about 0.1 ms), so that their mid-sized passes use every core too.
     """
     chunk = CPU_CHUNK if device.is_cpu else 1
-    launch(kernel, -(-n // chunk), [n, chunk, *inputs], outputs, device, min_dim=max(1, min_elements // chunk),
-           fence=fence)
+    launch(kernel, chunked_threads(n, device), [n, chunk, *inputs], outputs, device,
+           min_dim=max(1, min_elements // chunk), fence=fence)
 

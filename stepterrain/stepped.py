@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
+    chunked_threads,
     empty_shared,
     host_copy,
     launch_chunked,
@@ -392,25 +393,32 @@ def step_arrays(
         outputs=[topo.levels],
         device=device,
     )
+    empty_faces = wp.empty(0, dtype=stepped_kernels.vec3l, device=device)
+    empty_levels = wp.empty(0, dtype=wp.int32, device=device)
+    empty_walls = wp.empty(0, dtype=wp.uint8, device=device)
     if grid:
-        n_slots, n_threads = 4 * n_nodes, n_nodes
-        n_cells = (topo.rows - 1) * (topo.cols - 1)
-        kernels = (
-            stepped_kernels.count_grid_vertices,
-            stepped_kernels.emit_grid_vertices,
-            stepped_kernels.count_grid_faces,
-            stepped_kernels.emit_grid_faces,
+        # pass 1 on a grid, one kernel: vertices (nodes, their twins, wall bottom/top pairs per edge crossing) and
+        # the faces of the cells whose count needs no vertex offsets; then the deferred cells' faces
+        n_slots, n_cells = 4 * n_nodes, (topo.rows - 1) * (topo.cols - 1)
+        counts = count_buffer("stepped.vertices", n_slots, device)
+        face_counts = count_buffer("stepped.faces", n_cells, device)
+        deferred = scratch("stepped.deferred", chunked_threads(n_nodes, device), wp.int32, device)
+        launch_chunked(stepped_kernels.count_grid, n=n_nodes, inputs=[topo, iso],
+                       outputs=[counts, face_counts, deferred], device=device)  # fmt: skip
+        offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
+        _check_vertex_total(counts, n_nodes, n_slots, len(values))
+        launch_chunked(
+            stepped_kernels.count_deferred_grid_faces,
+            n=n_nodes,
+            inputs=[topo, iso, offsets, deferred, empty_faces, empty_levels, empty_walls],
+            outputs=[face_counts],
+            device=device,
         )
-        count_inputs: list[Any] = [topo, iso]
+        emit_vertices, emit_faces = stepped_kernels.emit_grid_vertices, stepped_kernels.emit_grid_faces
+        emit_inputs, n_threads = [topo, iso, offsets], n_nodes  # emit_grid_vertices: one thread per node
     else:
-        n_slots = n_threads = n_nodes + len(terrain.edges)
+        n_slots = n_nodes + len(terrain.edges)
         n_cells = len(terrain.faces)
-        kernels = (
-            stepped_kernels.count_tin_vertices,
-            stepped_kernels.emit_tin_vertices,
-            stepped_kernels.count_tin_faces,
-            stepped_kernels.emit_tin_faces,
-        )
         twins = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         peers = wp.zeros(n_nodes, dtype=wp.int32, device=device)
         launch_chunked(
@@ -420,28 +428,23 @@ def step_arrays(
             outputs=[twins, peers],
             device=device,
         )
-        count_inputs = [topo, iso, twins, peers]
-    count_vertices, emit_vertices, count_faces, emit_faces = kernels
-
-    # pass 1: vertices (nodes, their twins, wall bottom/top pairs per edge crossing)
-    counts = count_buffer("stepped.vertices", n_slots, device)
-    launch_chunked(count_vertices, n=n_threads, inputs=count_inputs, outputs=[counts], device=device)
-    offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
-    # at most 2 per node and 2 per crossed threshold per edge
-    _check_int32_total(counts, 2 * n_nodes + 2 * (len(values) - 1) * (n_slots - n_nodes), "vertices")
-
-    # pass 2: faces (terraces and walls per triangle), counted against the vertex offsets
-    empty_faces = wp.empty(0, dtype=stepped_kernels.vec3l, device=device)
-    empty_levels = wp.empty(0, dtype=wp.int32, device=device)
-    empty_walls = wp.empty(0, dtype=wp.uint8, device=device)
-    face_counts = count_buffer("stepped.faces", n_cells, device)
-    launch_chunked(
-        count_faces,
-        n=n_cells,
-        inputs=[topo, iso, offsets, empty_faces, empty_levels, empty_walls],
-        outputs=[face_counts],
-        device=device,
-    )
+        # pass 1: vertices (nodes, their twins, wall bottom/top pairs per edge crossing)
+        counts = count_buffer("stepped.vertices", n_slots, device)
+        launch_chunked(stepped_kernels.count_tin_vertices, n=n_slots, inputs=[topo, iso, twins, peers],
+                       outputs=[counts], device=device)  # fmt: skip
+        offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
+        _check_vertex_total(counts, n_nodes, n_slots, len(values))
+        # pass 2: faces (terraces and walls per triangle), counted against the vertex offsets
+        face_counts = count_buffer("stepped.faces", n_cells, device)
+        launch_chunked(
+            stepped_kernels.count_tin_faces,
+            n=n_cells,
+            inputs=[topo, iso, offsets, empty_faces, empty_levels, empty_walls],
+            outputs=[face_counts],
+            device=device,
+        )
+        emit_vertices, emit_faces = stepped_kernels.emit_tin_vertices, stepped_kernels.emit_tin_faces
+        emit_inputs, n_threads = [topo, iso, offsets, twins], n_slots
     face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
     _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
@@ -458,7 +461,6 @@ def step_arrays(
     n_src = vertex_count if want_sources else 0
     sources = scratch("stepped.sources", n_src, wp.vec2i, device)
     betas = scratch("stepped.betas", n_src, wp.float32, device)
-    emit_inputs = [topo, iso, offsets] + ([] if grid else [count_inputs[2]])
     launch_chunked(
         emit_vertices,
         n=n_threads,
@@ -488,6 +490,11 @@ def step_arrays(
         vertex_count=vertex_count,
         face_count=face_count,
     )
+
+
+def _check_vertex_total(counts: wp.array, n_nodes: int, n_slots: int, n_levels: int) -> None:
+    # at most 2 per node and 2 per crossed threshold per edge
+    _check_int32_total(counts, 2 * n_nodes + 2 * (n_levels - 1) * (n_slots - n_nodes), "vertices")
 
 
 def _check_int32_total(counts: wp.array, bound: int, what: str) -> None:
