@@ -4,7 +4,14 @@ One pass quantizes every node to its level (§3.2, "vertex level"); a count -> s
 and edges allocates the welded output vertices (each node once, a *twin* below a node that sits exactly on a
 threshold, and the wall bottom and top of every threshold crossing of every edge); a count -> scan -> emit
 pass over triangles tessellates each triangle into horizontal terraces and vertical walls (§3.2, Fig. 2-3).
-Both the count and the emit pass call :func:`step_triangle`, so they cannot disagree.
+Both the count and the emit pass call :func:`step_triangle`, so they cannot disagree. On a grid the two count
+passes are one kernel (:func:`count_grid`): a node's vertex slots and its cell's faces read the same four
+levels. A cell's face count is closed-form (1 + 4 (lmax - lmin) per triangle, see step_triangle) unless a
+corner sits on a crossed threshold; those cells are counted by step_triangle's walk once the vertex offsets
+exist (:func:`count_deferred_grid_faces`).
+
+Hot loops index arrays through :mod:`.memory` (``load``/``store``: no negative-index wrap) and walk (i, j)
+along with the node index instead of dividing it out.
 
 Conventions (shared with ``stepterrain.stepped`` and ``tests/reference.py``):
 
