@@ -251,12 +251,15 @@ def node_direction(point: wp.vec3i) -> wp.vec3d:
 
 @wp.func
 def entry_position64(grid: CubeSphereGrid, entry: wp.int32) -> wp.vec3d:
-    """float64 position of an entry: (R + z) · w / ||w|| (paper 003 §4), or (j·dx, i·dy, z) in the plane."""
+    """float64 position of an entry: (R + z) · w / ||w|| (paper 003 §4), or (j·dx, i·dy, z) in the plane.
+
+    ``entry`` >= 0, so truncating ``/`` and a multiply-subtract give face, i and j: Warp's ``//`` and ``%`` add
+    sign corrections, and ``%`` a second division (the far view's emit_vertices 2.0 -> 1.85 ms)."""
     nn = grid.n * grid.n
-    face = entry // nn
+    face = entry / nn
     rest = entry - face * nn
-    i = rest // grid.n
-    j = rest % grid.n
+    i = rest / grid.n
+    j = rest - i * grid.n
     z = wp.float64(load(grid.heights, entry))
     if grid.planar != 0:
         return wp.vec3d(wp.float64(j) * grid.spacing[0], wp.float64(i) * grid.spacing[1], z)
