@@ -15,12 +15,16 @@ Shape parameters arrive as float32; every formula runs in float64, so the float3
 preprocessing adds per level (relative 2^-20, paper §6: "Größenordnung 10^-6") always exceeds the rounding of
 the metric and the computed metric stays saturated: parent >= child, hence no hanging nodes.
 
-Planes use outward normals: a point x is inside the view frustum iff ⟨n_i, x⟩ + a_i <= 0 for all six i.
+Planes use outward normals: a point x is inside the view frustum iff ⟨n_i, x⟩ + a_i <= 0 for all six i. The
+plane loops read the planes with ``load`` of ``kernels/memory.py`` (no wrap of a negative index; k runs over
+[0, len)).
 """
 
 from __future__ import annotations
 
 import warp as wp
+
+from .memory import load
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
@@ -163,7 +167,7 @@ def sphere_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, r: wp.float64) -> 
     side = INSIDE
     k = wp.int32(0)
     while k < planes.shape[0]:
-        plane = planes[k]
+        plane = load(planes, k)
         centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
         if centre > r:  # r - centre < 0: the inverted plane's largest distance, the same sign bit for bit
             return OUTSIDE
@@ -184,7 +188,7 @@ def cone_view_side(planes: wp.array[wp.vec4d], p: wp.vec3d, p_hat: wp.vec3d, p_l
     side = INSIDE
     k = wp.int32(0)
     while k < planes.shape[0]:
-        plane = planes[k]
+        plane = load(planes, k)
         centre = wp.dot(wp.vec3d(plane[0], plane[1], plane[2]), p) + plane[3]
         if centre > ball:
             return OUTSIDE
@@ -202,7 +206,7 @@ def triangle_outside_view(planes: wp.array[wp.vec4d], a: wp.vec3d, b: wp.vec3d, 
     """1 when a flat triangle lies wholly outside one of the six planes (all three corners outside it)."""
     k = wp.int32(0)
     while k < planes.shape[0]:
-        plane = planes[k]
+        plane = load(planes, k)
         n = wp.vec3d(plane[0], plane[1], plane[2])
         if wp.dot(n, a) + plane[3] > wp.float64(0.0):
             if wp.dot(n, b) + plane[3] > wp.float64(0.0):

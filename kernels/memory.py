@@ -7,9 +7,12 @@ stores together. A loop that reads four neighbours' levels and writes four count
 output).
 
 Contract: every array passed here is 1-D and contiguous (the kernels' own buffers and structs, all made by
-``stepterrain._device``), and every index is in ``[0, len(a))``. In Warp's debug mode (``wp.config.mode =
-"debug"``, compiled without ``NDEBUG``) the assertion below checks that; in release mode nothing does, which is
-the point. CUDA compiles the same pointer arithmetic.
+``stepterrain._device`` or, for the globe's node arrays, ``stepterrain.globe``), and every index is in
+``[0, len(a))``. In Warp's debug mode (``wp.config.mode = "debug"``, compiled without ``NDEBUG``) the assertion
+below checks that; in release mode nothing does, which is the point. CUDA compiles the same pointer arithmetic.
+
+Users: ``kernels/stepped.py``; the refinement and mesh output of ``kernels/cubesphere.py`` and the plane loops
+of ``kernels/bounds.py`` (the globe's far view: kernels 31 -> 27 ms, see cubesphere's module docstring).
 
 Overloads: one per element type these kernels use (Warp resolves ``load``/``store`` by argument types).
 """
@@ -37,6 +40,14 @@ def load(a: wp.array[wp.vec3], i: wp.int32) -> wp.vec3: ...  # pragma: no cover 
 def load(a: wp.array[wp.vec2i], i: wp.int32) -> wp.vec2i: ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_LOAD)
 def load(a: wp.array[wp.vec3i], i: wp.int32) -> wp.vec3i: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD)
+def load(a: wp.array[wp.vec4], i: wp.int32) -> wp.vec4: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD)
+def load(a: wp.array[wp.vec4i], i: wp.int32) -> wp.vec4i: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD)
+def load(a: wp.array[wp.vec3d], i: wp.int32) -> wp.vec3d: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD)
+def load(a: wp.array[wp.vec4d], i: wp.int32) -> wp.vec4d: ...  # pragma: no cover  # noqa: F811
 
 
 @wp.func_native(_STORE)
@@ -49,6 +60,10 @@ def store(a: wp.array[wp.uint8], i: wp.int32, v: wp.uint8): ...  # pragma: no co
 def store(a: wp.array[wp.vec3], i: wp.int32, v: wp.vec3): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)
 def store(a: wp.array[wp.vec2i], i: wp.int32, v: wp.vec2i): ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_STORE)
+def store(a: wp.array[wp.vec3i], i: wp.int32, v: wp.vec3i): ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_STORE)
+def store(a: wp.array[wp.vec4i], i: wp.int32, v: wp.vec4i): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)
 def store(a: wp.array[vec3l], i: wp.int32, v: vec3l): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)
