@@ -133,3 +133,37 @@ def test_stepped_kernels_stay_in_range_in_debug_mode():
             assert d.files == r.files
             for name in d.files:
                 np.testing.assert_array_equal(d[name], r[name])
+
+
+def test_globe_kernels_stay_in_range_in_debug_mode():
+    """The cube-sphere refinement and mesh output (cones and spheres, with and without a view, per face) and the
+    planar RTIN, compiled with their index assertions: none fires, and the meshes equal the release build's."""
+    from tests.conftest import real_dem, shared_file
+
+    relief = shared_file("global_relief_1deg.npz")
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=65, step=3)
+    code = """
+        import sys
+        import numpy as np
+        from stepterrain.globe import EARTH_RADIUS, Globe, adaptive_mesh, look_from
+
+        with np.load(sys.argv[2]) as d:
+            g = Globe.from_latlon(d["elevation"], d["lat"], d["lon"], face_size=33, exaggeration=20.0, device="cpu")
+        camera = look_from(30.0, 10.0, 2.0 * EARTH_RADIUS, tilt=20.0, aspect=1.6)
+        meshes = [g.mesh(error=20000.0), g.mesh(error=3000.0, camera=camera),
+                  g.mesh(error=3000.0, camera=camera, bounds="sphere"), *g.mesh(error=8000.0, per_face=True),
+                  adaptive_mesh(np.load(sys.argv[3]), error=5.0, spacing=30.0, device="cpu")]
+        np.savez(sys.argv[1], *[np.concatenate([m.vertices.ravel(), m.faces.ravel()]) for m in meshes])
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        heights = os.path.join(tmp, "dem.npy")
+        np.save(heights, dem[:65, :65])
+        debug_out, release_out = os.path.join(tmp, "debug.npz"), os.path.join(tmp, "release.npz")
+        debug = _run(code, debug_out, str(relief), heights)
+        assert debug.returncode == 0 and "Assertion failed" not in debug.stderr, debug.stderr[-2000:]
+        release = _run(code, release_out, str(relief), heights, debug=False)
+        assert release.returncode == 0, release.stderr[-2000:]
+        with np.load(debug_out) as d, np.load(release_out) as r:
+            assert d.files == r.files
+            for name in d.files:
+                np.testing.assert_array_equal(d[name], r[name])
