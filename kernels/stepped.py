@@ -6,7 +6,7 @@ threshold, and the wall bottom and top of every threshold crossing of every edge
 pass over triangles tessellates each triangle into horizontal terraces and vertical walls (§3.2, Fig. 2-3).
 Both the count and the emit pass call :func:`step_triangle`, so they cannot disagree. On a grid the two count
 passes are one kernel (:func:`count_grid`): a node's vertex slots and its cell's faces read the same four
-levels. A cell's face count is closed-form (1 + 4 (lmax - lmin) per triangle, see step_triangle) unless a
+levels. A cell's face count is closed-form (:func:`closed_form_faces`, shared with step_triangle) unless a
 corner sits on a crossed threshold; those cells are counted by step_triangle's walk once the vertex offsets
 exist (:func:`count_deferred_grid_faces`).
 
@@ -35,11 +35,10 @@ from __future__ import annotations
 
 import warp as wp
 
-from .memory import load, store, stream
+from .memory import load, store, stream, vec3l
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
-vec3l = wp.types.vector(length=3, dtype=wp.int64)
 vec6i = wp.types.vector(length=6, dtype=wp.int32)
 
 
@@ -360,6 +359,28 @@ def single_crossing(
 
 
 @wp.func
+def closed_form_faces(heights: wp.array[wp.float32], thresholds: wp.array[wp.float32], c0: wp.int32,
+                      c1: wp.int32, c2: wp.int32, l0: wp.int32, l1: wp.int32, l2: wp.int32) -> wp.int32:
+    """Faces of triangle (c0, c1, c2) at levels (l0, l1, l2) where no vertex offsets are needed: 1 when flat,
+    1 + 4 (lmax - lmin) when no corner above the lowest level lies on its threshold (see step_triangle); -1
+    otherwise (a corner is aliased to a crossing, and only the walk counts the faces)."""
+    lmin = wp.min(l0, wp.min(l1, l2))
+    lmax = wp.max(l0, wp.max(l1, l2))
+    if lmin == lmax:
+        return 1
+    if l0 > lmin:
+        if on_threshold(load(heights, c0), l0, thresholds) != 0:
+            return -1
+    if l1 > lmin:
+        if on_threshold(load(heights, c1), l1, thresholds) != 0:
+            return -1
+    if l2 > lmin:
+        if on_threshold(load(heights, c2), l2, thresholds) != 0:
+            return -1
+    return 1 + 4 * (lmax - lmin)
+
+
+@wp.func
 def step_triangle(
     c0: wp.int32,
     c1: wp.int32,
@@ -382,8 +403,8 @@ def step_triangle(
 
     c0, c1, c2 are node ids; s0, s1, s2 the vertex-offset slots of edges c0c1, c1c2, c2c0. Without a corner
     on a crossed threshold, band k's polygon has (corners at k) + 2 [k > lmin] + 2 [k < lmax] vertices, so
-    the triangle yields 1 + 4 (lmax - lmin) faces: the count pass uses that and walks only the rest. The
-    walk reads each edge once (:func:`edge_crossings`) and then works in registers.
+    the triangle yields 1 + 4 (lmax - lmin) faces (:func:`closed_form_faces`): the count pass uses that and walks
+    only the rest. The walk reads each edge once (:func:`edge_crossings`) and then works in registers.
     """
     l0 = load(levels, c0)
     l1 = load(levels, c1)
@@ -396,16 +417,10 @@ def step_triangle(
     if lmin == lmax:
         write_face(write, face_base, v0, v1, v2, lmin, 0, faces_out, face_levels_out, face_walls_out)
         return 1
-    aliased = wp.int32(0)
-    if l0 > lmin:
-        aliased += on_threshold(load(heights, c0), l0, iso.thresholds)
-    if l1 > lmin:
-        aliased += on_threshold(load(heights, c1), l1, iso.thresholds)
-    if l2 > lmin:
-        aliased += on_threshold(load(heights, c2), l2, iso.thresholds)
-    if aliased == 0:
+    closed = closed_form_faces(heights, iso.thresholds, c0, c1, c2, l0, l1, l2)
+    if closed > 0:
         if write == 0:
-            return 1 + 4 * (lmax - lmin)
+            return closed
         if lmax == lmin + 1:
             # one threshold crossed, no corner on it (most crossing triangles of real terrain): the walk below
             # in closed form, same faces in the same order
@@ -680,27 +695,6 @@ def grid_edge_count(hf: HeightField, iso: Isovalues, i: wp.int32, j: wp.int32, k
     return edge_vertex_count(a, b, hf.heights, hf.levels, iso)
 
 
-@wp.func
-def triangle_face_count(hf: HeightField, iso: Isovalues, c0: wp.int32, c1: wp.int32, c2: wp.int32, l0: wp.int32,
-                        l1: wp.int32, l2: wp.int32) -> wp.int32:
-    """step_triangle's face count where it needs no vertex offsets: 1 when flat, 1 + 4 (lmax - lmin) when no
-    corner above the lowest level lies on its threshold; -1 otherwise (the count needs the offsets)."""
-    lmin = wp.min(l0, wp.min(l1, l2))
-    lmax = wp.max(l0, wp.max(l1, l2))
-    if lmin == lmax:
-        return 1
-    if l0 > lmin:
-        if on_threshold(load(hf.heights, c0), l0, iso.thresholds) != 0:
-            return -1
-    if l1 > lmin:
-        if on_threshold(load(hf.heights, c1), l1, iso.thresholds) != 0:
-            return -1
-    if l2 > lmin:
-        if on_threshold(load(hf.heights, c2), l2, iso.thresholds) != 0:
-            return -1
-    return 1 + 4 * (lmax - lmin)
-
-
 @wp.kernel
 def count_grid(
     thread_offset: wp.int32,
@@ -763,8 +757,9 @@ def count_grid(
                 faces = wp.int32(2)  # the common case: two terraces on one level
                 if l01 != level or l10 != level or l11 != level:
                     # the cell's triangles (n00, n01, n11) and (n00, n11, n10); their counts ignore winding
-                    upper = triangle_face_count(hf, iso, n, n + 1, n + hf.cols + 1, level, l01, l11)
-                    lower = triangle_face_count(hf, iso, n, n + hf.cols + 1, n + hf.cols, level, l11, l10)
+                    upper = closed_form_faces(hf.heights, iso.thresholds, n, n + 1, n + hf.cols + 1, level, l01, l11)
+                    lower = closed_form_faces(hf.heights, iso.thresholds, n, n + hf.cols + 1, n + hf.cols, level, l11,
+                                              l10)  # fmt: skip
                     faces = upper + lower
                     if upper < 0 or lower < 0:
                         faces = -1
