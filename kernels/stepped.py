@@ -293,19 +293,9 @@ def wall_end(info: vec6i, j: wp.int32, ends: wp.vec4i) -> wp.vec4i:
 
 
 @wp.func
-def band_polygon(v: wp.vec3i, up: wp.vec3i, x: wp.vec3i, side: wp.int32) -> wp.vec4i:
-    """The polygon of one band of a triangle that crosses one threshold: corners on ``side`` (0 below, 1
-    above) and the crossings x, walked counter-clockwise from corner 0; the last slot is -1 for a triangle."""
-    p = wp.vec4i(-1, -1, -1, -1)
-    n = wp.int32(0)
-    for i in range(3):
-        if up[i] == side:
-            p[n] = v[i]
-            n += 1
-        if up[i] != up[(i + 1) % 3]:
-            p[n] = x[i] + side
-            n += 1
-    return p
+def pick3(m: wp.int32, a: wp.int32, b: wp.int32, c: wp.int32) -> wp.int32:
+    """a, b or c for m = 0, 1, 2 (selects, not an indexed vector: a variable index spills to the stack)."""
+    return wp.where(m == 0, a, wp.where(m == 1, b, c))
 
 
 @wp.func
@@ -330,32 +320,55 @@ def single_crossing(
 
     v: the corners' vertices; u: 1 for a corner above the threshold; x: edge k's first vertex (its wall bottom,
     the top is x + 1), where edge k (corner k to k + 1) crosses.
+
+    One corner m is alone on its side L: its band is the triangle (v_m, x_out, x_in) (edges out of and into m),
+    the other band the quad (x_out, v_m+1, v_m+2, x_in); the walk from corner 0 starts both at the first of
+    them it meets, so the rotations below are the walk's, picked by selects (the polygons were once built by
+    a variable index into a vector: 8 % of a re-step went to the store-forwarding stalls that caused).
     """
-    v = wp.vec3i(v0, v1, v2)
-    up = wp.vec3i(u0, u1, u2)
-    x = wp.vec3i(x0, x1, x2)
-    low = band_polygon(v, up, x, 0)
-    slot = face_base
-    write_face(1, slot, low[0], low[1], low[2], level, 0, faces_out, face_levels_out, face_walls_out)
-    slot += 1
-    if low[3] >= 0:
-        write_face(1, slot, low[0], low[2], low[3], level, 0, faces_out, face_levels_out, face_walls_out)
-        slot += 1
+    m = wp.int32(0)
+    if u0 == u2:
+        m = 1
+    elif u0 == u1:
+        m = 2
+    lone = pick3(m, u0, u1, u2)
+    vm = pick3(m, v0, v1, v2)
+    x_out = pick3(m, x0, x1, x2)
+    x_in = pick3(m, x2, x0, x1)
+    # the lone band's triangle on side lone, from the walk: (v_m, x_out, x_in) for m = 0, else (x_in, v_m, x_out)
+    t_out = x_out + lone
+    t_in = x_in + lone
+    ta = wp.where(m == 0, vm, t_in)
+    tb = wp.where(m == 0, t_out, vm)
+    tc = wp.where(m == 0, t_in, t_out)
+    # the other band's quad on side 1 - lone: m = 0 (x_out, v1, v2, x_in), 1 (v0, x_in, x_out, v2),
+    # 2 (v0, v1, x_in, x_out)
+    side = 1 - lone
+    q_out = x_out + side
+    q_in = x_in + side
+    qa = wp.where(m == 0, q_out, v0)
+    qb = pick3(m, v1, q_in, v1)
+    qc = pick3(m, v2, q_out, q_in)
+    qd = pick3(m, q_in, v2, q_out)
     # the wall: from the ascending edge's crossing (u) to the descending one's (v)
-    ub = wp.int32(0)
-    vb = wp.int32(0)
-    for i in range(3):
-        if up[i] < up[(i + 1) % 3]:
-            ub = x[i]
-        if up[i] > up[(i + 1) % 3]:
-            vb = x[i]
+    ub = wp.where(lone == 1, x_in, x_out)
+    vb = wp.where(lone == 1, x_out, x_in)
+    slot = face_base
+    if lone == 0:
+        write_face(1, slot, ta, tb, tc, level, 0, faces_out, face_levels_out, face_walls_out)
+        slot += 1
+    else:
+        write_face(1, slot, qa, qb, qc, level, 0, faces_out, face_levels_out, face_walls_out)
+        write_face(1, slot + 1, qa, qc, qd, level, 0, faces_out, face_levels_out, face_walls_out)
+        slot += 2
     write_face(1, slot, ub + 1, vb + 1, vb, level, 1, faces_out, face_levels_out, face_walls_out)
     write_face(1, slot + 1, ub + 1, vb, ub, level, 1, faces_out, face_levels_out, face_walls_out)
     slot += 2
-    high = band_polygon(v, up, x, 1)
-    write_face(1, slot, high[0], high[1], high[2], level + 1, 0, faces_out, face_levels_out, face_walls_out)
-    if high[3] >= 0:
-        write_face(1, slot + 1, high[0], high[2], high[3], level + 1, 0, faces_out, face_levels_out, face_walls_out)
+    if lone == 0:
+        write_face(1, slot, qa, qb, qc, level + 1, 0, faces_out, face_levels_out, face_walls_out)
+        write_face(1, slot + 1, qa, qc, qd, level + 1, 0, faces_out, face_levels_out, face_walls_out)
+    else:
+        write_face(1, slot, ta, tb, tc, level + 1, 0, faces_out, face_levels_out, face_walls_out)
 
 
 @wp.func
