@@ -440,6 +440,15 @@ def launch(
         future.result()
 
 
+def chunk_shift(device: wp.Device) -> int:
+    """log2 of the chunk :func:`launch_chunked` gives each thread on ``device``: the stepped grid passes find a
+    slot's chunk by a shift (kernels/stepped.py, Offsets), so :data:`CPU_CHUNK` must be a power of two."""
+    chunk = CPU_CHUNK if device.is_cpu else 1
+    if chunk <= 0 or chunk & (chunk - 1):
+        raise ValueError(f"stepterrain._device.CPU_CHUNK must be a power of two; got {chunk}")
+    return chunk.bit_length() - 1
+
+
 def chunked_threads(n: int, device: wp.Device) -> int:
     """Threads :func:`launch_chunked` runs over ``n`` elements: thread t has chunk t (per-thread outputs)."""
     return -(-n // (CPU_CHUNK if device.is_cpu else 1))

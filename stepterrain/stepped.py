@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
+    chunk_shift,
     chunked_threads,
     empty_shared,
     host_copy,
@@ -397,25 +398,37 @@ def step_arrays(
     empty_levels = wp.empty(0, dtype=wp.int32, device=device)
     empty_walls = wp.empty(0, dtype=wp.uint8, device=device)
     if grid:
-        # pass 1 on a grid, one kernel: vertices (nodes, their twins, wall bottom/top pairs per edge crossing) and
-        # the faces of the cells whose count needs no vertex offsets; then the deferred cells' faces
+        # pass 1 on a grid, one kernel over chunks of nodes: vertices (nodes, their twins, wall bottom/top pairs per
+        # edge crossing) as prefixes within each chunk, and the chunk's vertex and face totals; only the totals
+        # are scanned (kernels/stepped.py, Offsets). The faces of chunks with a cell that needs the vertex offsets
+        # to be counted are counted after that scan.
         n_slots, n_cells = 4 * n_nodes, (topo.rows - 1) * (topo.cols - 1)
-        counts = count_buffer("stepped.vertices", n_slots, device)
-        face_counts = count_buffer("stepped.faces", n_cells, device)
-        deferred = scratch("stepped.deferred", chunked_threads(n_nodes, device), wp.int32, device)
+        n_chunks = chunked_threads(n_nodes, device)
+        local = scratch("stepped.vertices.local", n_slots, wp.int32, device)
+        totals = count_buffer("stepped.vertices", n_chunks, device)
+        face_totals = count_buffer("stepped.faces", n_chunks, device)
+        deferred = scratch("stepped.deferred", n_chunks, wp.int32, device)
         launch_chunked(stepped_kernels.count_grid, n=n_nodes, inputs=[topo, iso],
-                       outputs=[counts, face_counts, deferred], device=device)  # fmt: skip
-        offsets, vertex_count = exclusive_offsets(counts, "stepped.vertices")
-        _check_vertex_total(counts, n_nodes, n_slots, len(values))
+                       outputs=[local, totals, face_totals, deferred], device=device)  # fmt: skip
+        bases, vertex_count = exclusive_offsets(totals, "stepped.vertices")
+        offsets = stepped_kernels.Offsets()
+        offsets.local, offsets.bases, offsets.shift = local, bases, chunk_shift(device) + 2  # 4 slots a node
+        _check_vertex_total(totals, n_nodes, n_slots, len(values))
         launch_chunked(
             stepped_kernels.count_deferred_grid_faces,
             n=n_nodes,
             inputs=[topo, iso, offsets, deferred, empty_faces, empty_levels, empty_walls],
-            outputs=[face_counts],
+            outputs=[face_totals],
             device=device,
         )
+        face_counts = face_totals
+        face_offsets, face_count = exclusive_offsets(face_totals, "stepped.faces")
+        # emit_grid_vertices also writes each node's first vertex (node_offsets), which emit_grid_faces reads for
+        # flat cells; both walk the count's chunks of nodes
+        node_offsets = scratch("stepped.node_offsets", n_nodes, wp.int32, device)
         emit_vertices, emit_faces = stepped_kernels.emit_grid_vertices, stepped_kernels.emit_grid_faces
-        emit_inputs, n_threads = [topo, iso, offsets], n_nodes  # emit_grid_vertices: one thread per node
+        emit_inputs, emit_extra, n_threads = [topo, iso, offsets], [node_offsets], n_nodes
+        face_inputs, n_face_threads = [topo, iso, node_offsets, offsets, face_offsets], n_nodes
     else:
         n_slots = n_nodes + len(terrain.edges)
         n_cells = len(terrain.faces)
@@ -443,9 +456,10 @@ def step_arrays(
             outputs=[face_counts],
             device=device,
         )
+        face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
         emit_vertices, emit_faces = stepped_kernels.emit_tin_vertices, stepped_kernels.emit_tin_faces
-        emit_inputs, n_threads = [topo, iso, offsets, twins], n_slots
-    face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
+        emit_inputs, emit_extra, n_threads = [topo, iso, offsets, twins], [], n_slots
+        face_inputs, n_face_threads = [topo, iso, offsets, face_offsets], n_cells
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
     _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
 
@@ -465,7 +479,7 @@ def step_arrays(
         emit_vertices,
         n=n_threads,
         inputs=[*emit_inputs, int(want_sources)],
-        outputs=[points, step_heights, sources, betas],
+        outputs=[points, step_heights, sources, betas, *emit_extra],
         device=device,
     )
 
@@ -474,8 +488,8 @@ def step_arrays(
     walls_np, walls_wp = empty_shared((face_count,), np.uint8, wp.uint8, device)
     launch_chunked(
         emit_faces,
-        n=n_cells,
-        inputs=[topo, iso, offsets, face_offsets],
+        n=n_face_threads,
+        inputs=face_inputs,
         outputs=[faces_wp, levels_wp, walls_wp],
         device=device,
     )
