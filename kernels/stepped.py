@@ -801,11 +801,6 @@ def count_grid(
                     l11 = load(hf.levels, n + hf.cols + 1)
                     if l11 != level:
                         diagonal = edge_vertex_count(n, n + hf.cols + 1, hf.heights, hf.levels, iso)
-            store(local_out, 4 * n, vertices)
-            store(local_out, 4 * n + 1, vertices + node)
-            store(local_out, 4 * n + 2, vertices + node + right)
-            store(local_out, 4 * n + 3, vertices + node + right + down)
-            vertices += node + right + down + diagonal
             if has_right and has_down:
                 faces = wp.int32(2)  # the common case: two terraces on one level
                 if l01 != level or l10 != level or l11 != level:
@@ -822,13 +817,15 @@ def count_grid(
             node = grid_node_count(hf, iso, n)[0]
             right = grid_edge_count(hf, iso, i, j, 1)
             down = grid_edge_count(hf, iso, i, j, 2)
-            store(local_out, 4 * n, vertices)
-            store(local_out, 4 * n + 1, vertices + node)
-            store(local_out, 4 * n + 2, vertices + node + right)
-            store(local_out, 4 * n + 3, vertices + node + right + down)
-            vertices += node + right + down + grid_edge_count(hf, iso, i, j, 3)
+            diagonal = grid_edge_count(hf, iso, i, j, 3)
             if has_right and has_down:
                 deferred = 1
+        # the four slots' prefixes within the chunk
+        store(local_out, 4 * n, vertices)
+        store(local_out, 4 * n + 1, vertices + node)
+        store(local_out, 4 * n + 2, vertices + node + right)
+        store(local_out, 4 * n + 3, vertices + node + right + down)
+        vertices += node + right + down + diagonal
         n += 1
         ij = next_node(ij, hf.cols)
     store(totals_out, t, vertices)
