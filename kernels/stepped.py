@@ -93,8 +93,8 @@ class Offsets:
     it counts, so only the chunk totals are scanned into ``bases`` (one int per 64 nodes on the CPU, instead of a
     scan over four ints per node: 12 ms of 180 at 2048²). A chunk holds 2^shift slots (CPU_CHUNK is a power of
     two; on CUDA a chunk is one node). emit_grid_vertices also writes each node's first vertex as a plain offset,
-    which the face pass reads for flat cells; :func:`offset_at` reads either form. A/B over 54 runs at 2048²/20:
-    median 180 -> 175 ms, and 100 MB less scratch (no offsets array beside the counts, no per-cell face counts)."""
+    which the face pass reads for flat cells; :func:`offset_at` reads either form. Measured in RESULTS.md
+    "Session 20" (2048²/20: median 180 -> 175 ms, about 100 MB less scratch)."""
 
     local: wp.array[wp.int32]
     bases: wp.array[wp.int32]
@@ -331,6 +331,32 @@ def pick3(m: wp.int32, a: wp.int32, b: wp.int32, c: wp.int32) -> wp.int32:
 
 
 @wp.func
+def band_faces(
+    triangle: wp.int32,
+    ta: wp.int32,
+    tb: wp.int32,
+    tc: wp.int32,
+    qa: wp.int32,
+    qb: wp.int32,
+    qc: wp.int32,
+    qd: wp.int32,
+    slot: wp.int32,
+    level: wp.int32,
+    faces_out: wp.array[vec3l],
+    face_levels_out: wp.array[wp.int32],
+    face_walls_out: wp.array[wp.uint8],
+) -> wp.int32:
+    """Write one band of :func:`single_crossing` at ``slot``: the triangle (ta, tb, tc) when ``triangle``, else
+    the quad (qa, qb, qc, qd) fanned from qa; return the faces written."""
+    if triangle != 0:
+        write_face(1, slot, ta, tb, tc, level, 0, faces_out, face_levels_out, face_walls_out)
+        return 1
+    write_face(1, slot, qa, qb, qc, level, 0, faces_out, face_levels_out, face_walls_out)
+    write_face(1, slot + 1, qa, qc, qd, level, 0, faces_out, face_levels_out, face_walls_out)
+    return 2
+
+
+@wp.func
 def single_crossing(
     v0: wp.int32,
     v1: wp.int32,
@@ -385,22 +411,11 @@ def single_crossing(
     # the wall: from the ascending edge's crossing (u) to the descending one's (v)
     ub = wp.where(lone == 1, x_in, x_out)
     vb = wp.where(lone == 1, x_out, x_in)
-    slot = face_base
-    if lone == 0:
-        write_face(1, slot, ta, tb, tc, level, 0, faces_out, face_levels_out, face_walls_out)
-        slot += 1
-    else:
-        write_face(1, slot, qa, qb, qc, level, 0, faces_out, face_levels_out, face_walls_out)
-        write_face(1, slot + 1, qa, qc, qd, level, 0, faces_out, face_levels_out, face_walls_out)
-        slot += 2
+    slot = face_base + band_faces(1 - lone, ta, tb, tc, qa, qb, qc, qd, face_base, level, faces_out, face_levels_out,
+                                  face_walls_out)  # fmt: skip
     write_face(1, slot, ub + 1, vb + 1, vb, level, 1, faces_out, face_levels_out, face_walls_out)
     write_face(1, slot + 1, ub + 1, vb, ub, level, 1, faces_out, face_levels_out, face_walls_out)
-    slot += 2
-    if lone == 0:
-        write_face(1, slot, qa, qb, qc, level + 1, 0, faces_out, face_levels_out, face_walls_out)
-        write_face(1, slot + 1, qa, qc, qd, level + 1, 0, faces_out, face_levels_out, face_walls_out)
-    else:
-        write_face(1, slot, ta, tb, tc, level + 1, 0, faces_out, face_levels_out, face_walls_out)
+    band_faces(lone, ta, tb, tc, qa, qb, qc, qd, slot + 2, level + 1, faces_out, face_levels_out, face_walls_out)
 
 
 @wp.func
@@ -664,7 +679,7 @@ def grid_point(hf: HeightField, i: wp.int32, j: wp.int32, n: wp.int32) -> wp.vec
 
 @wp.func
 def next_node(ij: wp.vec2i, cols: wp.int32) -> wp.vec2i:
-    """(i, j) of the next node (or cell, with ``cols`` cells a row) in row-major order."""
+    """(i, j) of the next node in row-major order."""
     if ij[1] + 1 == cols:
         return wp.vec2i(ij[0] + 1, 0)
     return wp.vec2i(ij[0], ij[1] + 1)

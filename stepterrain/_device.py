@@ -440,10 +440,15 @@ def launch(
         future.result()
 
 
+def _chunk(device: wp.Device) -> int:
+    """Elements per thread of :func:`launch_chunked` on ``device``."""
+    return CPU_CHUNK if device.is_cpu else 1
+
+
 def chunk_shift(device: wp.Device) -> int:
     """log2 of the chunk :func:`launch_chunked` gives each thread on ``device``: the stepped grid passes find a
     slot's chunk by a shift (kernels/stepped.py, Offsets), so :data:`CPU_CHUNK` must be a power of two."""
-    chunk = CPU_CHUNK if device.is_cpu else 1
+    chunk = _chunk(device)
     if chunk <= 0 or chunk & (chunk - 1):
         raise ValueError(f"stepterrain._device.CPU_CHUNK must be a power of two; got {chunk}")
     return chunk.bit_length() - 1
@@ -451,7 +456,7 @@ def chunk_shift(device: wp.Device) -> int:
 
 def chunked_threads(n: int, device: wp.Device) -> int:
     """Threads :func:`launch_chunked` runs over ``n`` elements: thread t has chunk t (per-thread outputs)."""
-    return -(-n // (CPU_CHUNK if device.is_cpu else 1))
+    return -(-n // _chunk(device))
 
 
 def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.Device, *,
@@ -463,7 +468,7 @@ def launch_chunked(kernel: Any, n: int, inputs: list, outputs: list, device: wp.
     CPU a range gets at least ``min_elements`` elements: lower it for kernels that spend long on each element
     (a split costs a Python launch, about 0.1 ms), so that their mid-sized passes use every core too.
     """
-    chunk = CPU_CHUNK if device.is_cpu else 1
+    chunk = _chunk(device)
     launch(kernel, chunked_threads(n, device), [n, chunk, *inputs], outputs, device,
            min_dim=max(1, min_elements // chunk), fence=fence)
 
