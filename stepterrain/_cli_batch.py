@@ -74,7 +74,8 @@ def add_parser(commands: Any) -> None:
                           f"~{TARGET_STEPS} steps over the whole source; a folder needs it or --levels)")
     iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
                      help="explicit, strictly increasing isovalues")
-    p.add_argument("--base", type=float, default=0.0, metavar="B", help="isovalue offset for --interval")
+    p.add_argument("--base", type=float, metavar="B",
+                   help="isovalue offset for --interval (default 0); not with --levels")
     p.add_argument("--gamma", type=float, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     p.add_argument("--colormap", default="none", metavar="NAME",
@@ -101,11 +102,12 @@ def add_parser(commands: Any) -> None:
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
-    from .cli import _check_output, _check_outputs, _check_size, _colormap
+    from .cli import _check_output, _check_outputs, _check_size, _colormap, _isovalue_base
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
+    base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
     _check_size(args.size)
@@ -140,7 +142,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
                    + f" on {scheduler or f'a LocalCluster of {args.workers} workers'}")
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
-        base=args.base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
+        base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
         solid=args.solid, floor=args.floor, scheduler=scheduler, workers=args.workers, retries=args.retries,
         resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
         metadata={"generator": "stepterrain batch", "input": args.input or "embedded Big Tujunga DEM"},

@@ -174,6 +174,9 @@ def build_parser() -> argparse.ArgumentParser:
         if module is not None:
             module.add_parser(commands)
     _add_info(commands)
+    for sub in commands.choices.values():  # -q also after the subcommand; SUPPRESS keeps a -q given before it
+        sub.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
+                         help="no progress lines on stderr")
     return parser
 
 
@@ -208,8 +211,8 @@ def _add_steps(commands: Any) -> None:
                      help=f"uniform isovalues base + k*M (default: a round M giving ~{TARGET_STEPS} steps)")
     iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
                      help="explicit, strictly increasing isovalues")
-    p.add_argument("--base", type=float, default=0.0, metavar="B",
-                   help="isovalue offset for --interval (default 0)")
+    p.add_argument("--base", type=float, metavar="B",
+                   help="isovalue offset for --interval (default 0); not with --levels")
     p.add_argument("--gamma", type=float, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     lens = p.add_mutually_exclusive_group()
@@ -250,6 +253,14 @@ def _add_info(commands: Any) -> None:
 
 
 # ------------------------------------------------------------------------------------------ steps
+def _isovalue_base(args: argparse.Namespace) -> float:
+    """``--base`` (default 0), refused beside ``--levels``, which are absolute (it was silently ignored)."""
+    if args.base is not None and args.levels is not None:
+        raise InvalidInputError(f"--base applies only to uniform isovalues (--interval or the default one), "
+                                f"not to --levels; got --base {args.base:g} with --levels")
+    return 0.0 if args.base is None else float(args.base)
+
+
 def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     out = Path(path)
     if out.suffix.lower() not in extensions:
@@ -339,6 +350,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
+    base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
@@ -362,7 +374,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     interval = args.interval
     if interval is None and args.levels is None:
         interval = nice_interval((lo, hi))
-    values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=args.base)
+    values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
                      f"giving {len(values)} levels over heights {lo:g} to {hi:g} (aim ~{TARGET_STEPS} steps)")
@@ -398,13 +410,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
     progress.stage("step", f"stepping on {device}: {len(values)} levels ({values[0]:g} to {values[-1]:g}), "
                            f"gamma {gamma_text}")
-    try:
-        mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=args.base, gamma=gamma,
-                          colors=colors, solid=args.solid, floor=args.floor, device=device)
-    except InvalidInputError as exc:
-        if args.floor is not None and str(exc).startswith("floor "):  # mesh.close_solid's: name the option
-            raise InvalidInputError(f"--{exc}") from exc
-        raise
+    mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
+                      colors=colors, solid=args.solid, floor=args.floor, device=device)
     progress.done(f"{len(mesh.faces):,} faces, {len(mesh.vertices):,} vertices")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
@@ -518,6 +525,39 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------------------ entry point
+#: An error message that starts by naming a library argument: ``interval must ...``, ``face_size must ...``,
+#: ``device='cuda' needs ...`` (the house style names the argument first).
+_ARGUMENT_FIRST = re.compile(r"^([a-z][a-z0-9_]*)(=| )")
+
+#: Library argument names whose option is spelled otherwise, per subcommand (checked before the general rule).
+_OPTION_ALIASES = {"steps": {"lens edge_width": "--lens-edge"}}
+
+
+def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices.get(name)
+    return None
+
+
+def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
+    """``message`` with its leading library argument spelled as the subcommand's option (``interval must`` ->
+    ``--interval must``, ``device='cuda'`` -> ``--device 'cuda'``) where the subcommand has that option; other
+    messages unchanged. A command-line user never typed ``face_size``."""
+    if sub is None:
+        return message
+    for name, option in _OPTION_ALIASES.get(sub.prog.split()[-1], {}).items():
+        if message.startswith(name + " "):
+            return option + message[len(name):]
+    match = _ARGUMENT_FIRST.match(message)
+    if match is None:
+        return message
+    option = "--" + match.group(1).replace("_", "-")
+    if option not in {string for action in sub._actions for string in action.option_strings}:
+        return message
+    return option + " " + message[match.end():]
+
+
 def _warning_line(command: str) -> Any:
     """A ``warnings.showwarning`` that prints the library's warnings as one ``stepterrain CMD: warning:`` line
     (no source line) on stderr."""
@@ -551,7 +591,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _warning_line(args.command)  # restored on exit by catch_warnings
             return int(args.run(args, progress))
     except StepTerrainError as exc:
-        print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
+        print(f"stepterrain {args.command}: error: {_as_option(str(exc), _subcommand(parser, args.command))}",
+              file=sys.stderr)
         return EXIT_USAGE
     except OSError as exc:  # a write failing below the library's own checks (disk full, permissions)
         print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)

@@ -17,6 +17,7 @@ result is crack-free by construction.
 from __future__ import annotations
 
 import math
+import numbers
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -213,10 +214,10 @@ def isovalues(
     Raises
     ------
     InvalidInputError
-        Both or neither of ``interval`` and ``levels``; a non-finite or non-positive interval; levels that
-        are empty, non-finite or not strictly increasing (also after rounding to float32); a ``height_range``
-        that is not finite (min, max) with min <= max, or spans more than float32 holds (max - min > 3.4e38: the
-        step kernels take height differences in float32).
+        Both or neither of ``interval`` and ``levels``; ``base`` other than 0 with ``levels``; a non-finite or
+        non-positive interval; levels that are empty, non-finite or not strictly increasing (also after rounding
+        to float32); a ``height_range`` that is not finite (min, max) with min <= max, or spans more than float32
+        holds (max - min > 3.4e38: the step kernels take height differences in float32).
 
     Examples
     --------
@@ -236,6 +237,9 @@ def isovalues(
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     if levels is not None:
+        if not (isinstance(base, numbers.Real) and base == 0.0):  # levels are absolute: an offset was a slip
+            raise InvalidInputError(f"base applies only to interval= (uniform isovalues base + k * interval), not "
+                                    f"to levels=; got base={base!r} with levels")
         # real numbers only: text ("5"), bools and complex values are slips, a masked entry is NaN (refused below)
         values64 = real_numbers(levels, "levels", "a sequence of numbers")
         if values64.ndim > 1:

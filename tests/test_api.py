@@ -206,6 +206,8 @@ _H = [[0.0, 1.0, 2.0], [1.0, 2.0, 3.0], [2.0, 3.0, 4.0]]
         (lambda: st.stepped(_H, interval="1"), r"interval and base must be numbers; got interval='1'"),
         (lambda: st.stepped(_H, interval=True), r"interval and base must be numbers; got interval=True"),
         (lambda: st.stepped(_H, interval=1.0, base=b"0"), r"got interval=1.0, base=b'0'"),
+        (lambda: st.stepped(_H, levels=[1.0, 2.0], base=0.5), r"^base applies only to interval=.*got base=0.5 with"),
+        (lambda: st.isovalues((0.0, 4.0), levels=[1.0], base="0"), r"^base applies only to interval="),
         (lambda: st.heightfield_mesh(_H, spacing="30"), r"spacing must be a pair of numbers \(x, y\); got '30'"),
         (lambda: st.heightfield_mesh(_H, spacing=("30", "30")), r"spacing must be a pair of numbers"),
         (lambda: st.heightfield_mesh(_H, spacing=(True, 2.0)), r"spacing must be a pair of numbers.*True"),

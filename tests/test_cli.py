@@ -121,6 +121,8 @@ def test_closeup_help_shows_negative_lists_as_plain_values(dem, tmp_path, capsys
         (["batch", "{dem}", "--tile", "8", "--interval", "2", "--base", "-1e20", "--scheduler", "serial",
           "-o", "{out}"], "base=-1e+20 gives isovalues"),
         (["texture", "{dem}", "--azimuth", "-1e400", "-o", "{out}.png"], "azimuth must be finite"),
+        (["batch", "{dem}", "--tile", "8", "--levels", "1,2", "--base", "-0.5", "--scheduler", "serial",
+          "-o", "{out}"], "--base applies only to uniform isovalues"),
     ],
 )
 def test_a_negative_number_reaches_the_value_checks(dem, tmp_path, capsys, argv, message):
@@ -175,21 +177,23 @@ def test_png_render(dem, tmp_path, capsys):
     ("argv", "message"),
     [
         (["--interval", "1", "--levels", "1,2"], "not allowed with argument"),
-        (["--interval", "-1"], "interval must be a positive"),
-        (["--interval", "nan"], "interval must be a positive"),
-        (["--levels", "3,2,1"], "strictly increasing"),
+        (["--interval", "-1"], "error: --interval must be a positive"),
+        (["--interval", "nan"], "error: --interval must be a positive"),
+        (["--levels", "3,2,1"], "error: --levels must be strictly increasing"),
+        (["--levels", "1,2", "--base", "0.5"], "error: --base applies only to uniform isovalues"),
+        (["--lens", "1,2,3", "--lens-edge", "-1"], "error: --lens-edge must be >= 0"),
         (["--levels", "a,b"], "comma-separated"),
         (["--levels", "1,,2"], "expected comma-separated heights a,b,c; got '1,,2' (an empty value)"),
         (["--levels", "1,2,"], "expected comma-separated heights a,b,c; got '1,2,' (an empty value)"),
         (["--lens", "15,,-11,6"], "expected x,y,r; got '15,,-11,6' (an empty value)"),
         (["--gamma", "2"], "--gamma must lie in [0, 1]"),
         (["--lens", "1,2"], "x,y,r"),
-        (["--lens", "1,2,-3"], "radius must be a positive"),
+        (["--lens", "1,2,-3"], "error: --lens radius must be a positive"),
         (["--floor", "0"], "--floor applies only with --solid"),
         (["--interval", "1", "--solid", "--floor", "1e9"], "--floor must lie below the lowest surface height"),
         (["--interval", "1", "--solid", "--floor=-1e300"], "--floor must fit in float32 (|x| < 3.4e+38); got -1e+300"),
         (["--colormap", "no-such-map"], "colormap"),
-        (["--device", "tpu"], "device"),
+        (["--device", "tpu"], "error: --device"),
         (["--size", "huge"], "WIDTHxHEIGHT"),
     ],
 )
@@ -200,6 +204,42 @@ def test_bad_input_exits_2_with_a_message_and_no_output(dem, tmp_path, capsys, a
     assert message in err
     assert "Traceback" not in err
     assert files_in(tmp_path) == ["hill.npy"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["globe", "--face-size", "100"], "stepterrain globe: error: --face-size must be 2^k + 1"),
+        (["globe", "--exaggeration", "-1"], "stepterrain globe: error: --exaggeration must be a positive"),
+        (["globe", "--error", "-1"], "stepterrain globe: error: --error must be a finite number >= 0"),
+        (["globe", "--metrics", "foo"], "stepterrain globe: error: --metrics must be names among"),
+    ],
+)
+def test_library_errors_name_the_option_not_the_argument(tmp_path, capsys, argv, message):
+    code, _, err = run(capsys, "-q", *argv, "-o", tmp_path / "bad.glb")
+    assert code == 2
+    assert message in err, err
+    assert files_in(tmp_path) == []
+
+
+def test_as_option_rewrites_only_a_leading_name_the_subcommand_has():
+    sub = cli._subcommand(cli.build_parser(), "steps")
+    assert cli._as_option("interval must be positive", sub) == "--interval must be positive"
+    assert cli._as_option("device='tpu' is unknown", sub) == "--device 'tpu' is unknown"
+    assert cli._as_option("face_size must be 2^k + 1", sub) == "face_size must be 2^k + 1"  # not a steps option
+    assert cli._as_option("cannot read 'x.npy': no such file", sub) == "cannot read 'x.npy': no such file"
+    assert cli._as_option("--gamma must lie in [0, 1]", sub) == "--gamma must lie in [0, 1]"
+
+
+@pytest.mark.parametrize("where", ["before", "after"])
+def test_quiet_works_before_and_after_the_subcommand(dem, tmp_path, capsys, where):
+    argv = ["steps", dem, "--interval", "2", "-o", tmp_path / "q.ply"]
+    argv = ["-q", *argv] if where == "before" else [*argv[:1], "-q", *argv[1:]]
+    code, _, err = run(capsys, *argv)
+    assert code == 0, err
+    assert err == ""
+    code, _, err = run(capsys, "steps", dem, "--interval", "2", "-o", tmp_path / "loud.ply")
+    assert code == 0 and "stepping" in err  # without -q the progress lines are there
 
 
 def test_missing_file_and_unknown_extensions(dem, tmp_path, capsys):
