@@ -849,7 +849,8 @@ def batch(
         interval=None if level_values is not None else (None if interval is None else float(interval)),
         levels=level_values if level_values is not None else (
             None if levels is None else tuple(float(v) for v in np.asarray(levels, np.float64).reshape(-1))),
-        base=float(base), gamma=gamma_value, colors=colors, solid=bool(solid),
+        base=0.0 if level_values is not None else float(base),  # shared levels hold the base already
+        gamma=gamma_value, colors=colors, solid=bool(solid),
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted(extras.items())),
     )  # fmt: skip

@@ -373,8 +373,48 @@ def _frame_mesh(
     local[:, 2] *= z_scale
     box = np.array([lo - centre, hi - centre])
     box[:, 2] *= z_scale
-    _camera_position(camera, _box_corners(box), width / height)  # raises on a bad camera; cheap (8 corners)
+    corners = _box_corners(box)
+    position = _camera_position(camera, corners, width / height)  # raises on a bad camera; cheap (8 corners)
+    if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
+        _check_visible(corners, position, (width, height), box, z_scale)
     return width, height, vertices, local, finite, box
+
+
+def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int]) -> tuple[float, float]:
+    """Width and height in pixels of ``points`` (those in front of the eye) seen from the pyvista camera
+    ``position`` with the renders' vertical field of view, at image ``size``."""
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    forward = (focal - eye) / np.linalg.norm(focal - eye)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    true_up = np.cross(right, forward)
+    rel = points - eye
+    depth = rel @ forward
+    front = depth > 0
+    if not front.any():
+        return 0.0, 0.0
+    sx, sy = (rel[front] @ right) / depth[front], (rel[front] @ true_up) / depth[front]
+    tan_v = math.tan(math.radians(_VIEW_ANGLE) / 2.0)
+    width, height = size
+    tan_h = tan_v * width / height
+    return float(np.ptp(sx)) / (2 * tan_h) * width, float(np.ptp(sy)) / (2 * tan_v) * height
+
+
+def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
+                   z_scale: float) -> None:
+    """An InvalidInputError when the fitted camera shows the framed box less than a pixel wide or tall: a mesh
+    whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank."""
+    px, py = _pixel_extent(corners, position, size)
+    if min(px, py) >= 1.0:
+        return
+    dx, dy, dz = (box[1] - box[0]).tolist()
+    across, tall = max(dx, dy), dz / z_scale
+    hint = (f"; a z_scale near {across / tall:.3g} makes it as tall as it is wide" if across > 0 and tall > 0
+            else "; it has no extent in one direction")
+    raise InvalidInputError(
+        f"the mesh would render {px:.2g} x {py:.2g} pixels: it spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall "
+        f"(with z_scale={z_scale:g}), too thin to see from a camera fitted to it{hint}"
+    )
 
 
 _BOX = "[(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"

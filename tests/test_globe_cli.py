@@ -38,7 +38,7 @@ def test_globe_from_an_npz_grid(tmp_path):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--face-size", "100"], "face_size must be 2"),
+        (["--face-size", "100"], "--face-size must be 2"),
         (["--bounds", "box"], "invalid choice"),
         (["--metrics", "geometric,screen"], "metrics must be"),
         (["--metrics", ""], "--metrics must be names among geometric, distance, clip separated by commas; got ''"),
@@ -181,7 +181,7 @@ def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch,
     path = tmp_path / texture
     assert main(["-q", "globe", "--face-size", "9", "--texture", str(path), "-o", str(tmp_path / "x.glb")]) == 2
     err = capsys.readouterr().err.strip()
-    expected = ("texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape (1, 1, 3)"
+    expected = ("--texture must be an (H, W, 3|4) image of at least 2 x 2 pixels; got shape (1, 1, 3)"
                 if texture == "dot.png" else f"cannot read texture {str(path)!r}: ")
     assert err.startswith(f"stepterrain globe: error: {expected}") and "\n" not in err
 

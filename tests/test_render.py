@@ -513,3 +513,38 @@ def test_textured_render_flags_must_be_bools(kwargs, match):
                                                 image=Image.new("RGB", (4, 4)))
     with pytest.raises(InvalidInputError, match=match):
         render.render_textured_mesh(mesh, window_size=(64, 48), **kwargs)
+
+
+def _hill() -> trimesh.Trimesh:
+    y, x = np.mgrid[0:20, 0:20].astype(np.float32)
+    return st.heightfield_mesh(10.0 * np.exp(-((x - 9.5) ** 2 + (y - 9.5) ** 2) / 30.0))  # 19 across, 10 tall
+
+
+@pytest.mark.parametrize(
+    ("mesh", "kwargs"),
+    [
+        (_hill, {"z_scale": 1e4}),  # 19 across, 1e5 tall: a sub-pixel sliver, a blank image before
+        (lambda: _hill().apply_scale([1e-6, 1e-6, 1.0]), {}),  # a tiny footprint under ordinary heights
+        (lambda: _hill().apply_scale([1e-6, 1e-6, 1.0]), {"camera": (0.5, 0.2)}),  # a fitted pair of angles too
+    ],
+)
+def test_a_mesh_too_thin_to_see_is_refused_before_rendering(mesh, kwargs):
+    with pytest.raises(InvalidInputError, match=r"the mesh would render 0\.\d+ x \d.* pixels.*z_scale near"):
+        render.render_mesh(mesh(), window_size=(160, 120), **kwargs)
+
+
+def test_pixel_extent_of_a_fitted_box_fills_the_frame_and_a_thin_one_does_not():
+    box = np.array([[-9.5, -9.5, -5.0], [9.5, 9.5, 5.0]])
+    corners = render._box_corners(box)
+    position = render._camera_position("oblique", corners, 160 / 120)
+    px, py = render._pixel_extent(corners, position, (160, 120))
+    assert max(px / 160, py / 120) > 0.85 and min(px, py) > 50  # fitted: the box fills the frame
+    thin = render._box_corners(box * [1.0, 1.0, 1e5])
+    px, py = render._pixel_extent(thin, render._camera_position("oblique", thin, 160 / 120), (160, 120))
+    assert px < 1.0 < py
+
+
+@needs_render
+def test_an_exaggerated_but_visible_mesh_still_renders():
+    image = render.render_mesh(_hill(), window_size=(160, 120), z_scale=20.0)  # 200 tall, 19 across: fine
+    assert (image != 255).any(axis=-1).mean() > 0.02

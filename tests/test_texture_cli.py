@@ -91,7 +91,7 @@ def test_cli_texture_help_has_examples(capsys):
     (["--png", "{out}"], "--output and --png name the same file"),
     (["--normals", "{out}"], "--output and --normals name the same file"),
     # slopes are squared in float32: 1e30 gave a uniform grey image with exit 0
-    (["--z-factor", "1e30"], "z_factor x height range / spacing must stay below 1e+18 (float32 slopes)"),
+    (["--z-factor", "1e30"], "--z-factor x height range / spacing must stay below 1e+18 (float32 slopes)"),
 ])
 def test_cli_texture_bad_input_exits_2(tmp_path, small_dem, capsys, argv, match):
     out = tmp_path / "t.png"
