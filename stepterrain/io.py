@@ -57,7 +57,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         ``.npy`` (one (H, W) array), ``.npz`` (heights under the first 2-D key of ``heights``, ``elevation``
         and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
-        (the heights' unit); a scalar ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
+        (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
+        one per row and column, georeference them as geographic, the layout of the global relief grids; a scalar
+        ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
@@ -78,8 +80,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         names their unit (a GeoTIFF band's unit, an .npz ``units``: "ft", "US survey foot", "m", ...) or
         its CRS is compound with a vertical unit (EPSG:26911+6360: NAVD88 height in US survey feet; ``crs``
         is then the horizontal part), in which case feet become metres; a grid converted to metres whose
-        heights' unit is not named warns that they were kept as stored. Plain arrays and PNGs: ``spacing``
-        (1, -1), ``origin`` (0, 0). ``source`` is the file name.
+        heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
+        without a geotransform: ``spacing`` (1, -1), ``origin`` (0, 0), ``crs`` None (a GeoTIFF's CRS without
+        a geotransform is ignored, with a warning). ``source`` is the file name.
 
     Raises
     ------
@@ -88,7 +91,7 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, a 1-D array,
         text, an archive without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90,
-        nothing but nodata).
+        ``lat``/``lon`` axes not matching the heights or unevenly spaced, nothing but nodata).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -165,7 +168,10 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
     dict
         ``kind`` ("grid" or "tin"), ``shape``, ``spacing`` (dx, dy) and ``origin`` (x0, y0) (None for a
         TIN), ``extent`` (xmin, xmax, ymin, ymax), ``height_range`` (min, max) of the finite heights
-        (None when all are nodata), ``nodata_count``, ``crs`` and ``source`` (None when unknown).
+        (None when all are nodata), ``nodata_count``, ``crs`` and ``source`` (None when unknown); for a
+        geographic grid (read from degrees into local metres: ``crs`` an equidistant cylindrical projection on a
+        sphere, as :func:`load_dem` writes it) also ``lonlat_extent`` (lon_min, lon_max, lat_min, lat_max) of
+        the nodes and ``lonlat_step`` (dlon, dlat), in degrees, signed as ``spacing`` is (None otherwise).
         Only ints, floats, strings, tuples and None, so ``json.dumps`` works.
 
     Examples
@@ -182,6 +188,7 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
     if finite.any():
         height_range = (float(t.heights[finite].min()), float(t.heights[finite].max()))
     grid = t.kind == "grid"
+    lonlat = _lonlat_grid(t) if grid else None
     return {
         "kind": t.kind,
         "shape": tuple(int(n) for n in t.shape),
@@ -192,7 +199,33 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
         "nodata_count": int(finite.size - np.count_nonzero(finite)),
         "crs": t.crs,
         "source": t.source,
+        "lonlat_extent": lonlat[0] if lonlat else None,
+        "lonlat_step": lonlat[1] if lonlat else None,
     }
+
+
+def _lonlat_grid(
+    t: Terrain,
+) -> tuple[tuple[float, float, float, float], tuple[float, float]] | None:
+    """(lon_min, lon_max, lat_min, lat_max) of a grid's nodes and its (dlon, dlat), in degrees, when its ``crs``
+    is a spherical equidistant cylindrical projection (``+proj=eqc ... +R=``, what geographic files become in
+    :func:`load_dem`): x = R·(λ - λ0)·cos φts + x0, y = R·(φ - φ0) + y0 inverted; else None."""
+    crs = t.crs or ""
+    params = dict(token[1:].partition("=")[::2] for token in crs.split() if token.startswith("+"))
+    if params.get("proj") != "eqc" or "R" not in params or "ellps" in params or "datum" in params:
+        return None
+    try:
+        radius = float(params["R"])
+        lat_ts, lat_0, lon_0, x_0, y_0 = (float(params.get(k, 0.0)) for k in ("lat_ts", "lat_0", "lon_0", "x_0", "y_0"))
+    except ValueError:
+        return None
+    x_radius = radius * math.cos(math.radians(lat_ts))
+    if not radius > 0.0 or not x_radius > 0.0:
+        return None
+    (x_min, x_max, y_min, y_max), (dx, dy) = t.extent, t.spacing
+    lon = (lon_0 + math.degrees((x_min - x_0) / x_radius), lon_0 + math.degrees((x_max - x_0) / x_radius))
+    lat = (lat_0 + math.degrees((y_min - y_0) / radius), lat_0 + math.degrees((y_max - y_0) / radius))
+    return (*lon, *lat), (math.degrees(dx / x_radius), math.degrees(dy / radius))
 
 
 # ---------------------------------------------------------------------------------------------- readers
@@ -256,18 +289,23 @@ def _load_npz(file: Path) -> Terrain:
     key = npz_heights_key(arrays, (2,))
     if key is None and len(two_d) == 1:
         key = two_d[0]
-    if key is not None and "transform" in arrays:
+    latlon = "transform" not in arrays and "lat" in arrays and "lon" in arrays
+    if key is not None and ("transform" in arrays or latlon):
         heights = _elevation(arrays[key], file, repr(key), nodata)
-        raw = arrays["transform"]
-        transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
-        if transform.size != 6 or not np.all(np.isfinite(transform)):
-            raise DataFileError(
-                f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "
-                f"(x0, dx, 0, y0, 0, -dy); got {raw.tolist()}"
-            )
         crs = _scalar_str(arrays.get("crs"))
-        units_xy = _scalar_str(arrays.get("units_xy")) or ""
-        geographic = _is_geographic(crs) or "degree" in units_xy.lower()
+        if latlon:  # degree axes of the nodes (the layout of the global relief grids): geographic by definition
+            transform = _latlon_geotransform(arrays["lat"], arrays["lon"], heights.shape, file)
+            geographic = True
+        else:
+            raw = arrays["transform"]
+            transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
+            if transform.size != 6 or not np.all(np.isfinite(transform)):
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "
+                    f"(x0, dx, 0, y0, 0, -dy); got {raw.tolist()}"
+                )
+            units_xy = _scalar_str(arrays.get("units_xy")) or ""
+            geographic = _is_geographic(crs) or "degree" in units_xy.lower()
         metres = None
         if geographic and "dx_m" in arrays and "dy_m" in arrays:
             dx_m, dy_m = arrays["dx_m"], arrays["dy_m"]
@@ -293,6 +331,32 @@ def _load_npz(file: Path) -> Terrain:
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
         f"'transform' beside it), or exactly one 2-D array; got {described}"
     )
+
+
+def _latlon_geotransform(
+    lat: NDArray[Any], lon: NDArray[Any], shape: tuple[int, ...], file: Path
+) -> NDArray[np.float64]:
+    """The GDAL geotransform of a grid whose nodes lie at the evenly spaced degrees ``lat`` (one per row) and
+    ``lon`` (one per column), e.g. the cell centres of the global relief grids; else a DataFileError."""
+    axes = []
+    for name, axis, n in (("lon", lon, shape[1]), ("lat", lat, shape[0])):
+        values = np.asarray(axis, dtype=np.float64) if axis.dtype.kind in "iuf" else np.empty(0)
+        if values.ndim != 1 or values.size != n or n < 2 or not np.all(np.isfinite(values)):
+            raise DataFileError(
+                f"cannot read {str(file)!r}: {name!r} must hold {n} finite degrees, one per "
+                f"{'column' if name == 'lon' else 'row'} of the heights {tuple(shape)}; got {axis.dtype} "
+                f"shape {axis.shape}"
+            )
+        step = (values[-1] - values[0]) / (n - 1)
+        worst = float(np.abs(np.diff(values) - step).max())
+        if step == 0.0 or worst > 1e-3 * abs(step):
+            raise DataFileError(
+                f"cannot read {str(file)!r}: {name!r} must be evenly spaced degrees; got steps that differ from "
+                f"their mean {step:.9g} by up to {worst:.3g}"
+            )
+        axes.append((float(values[0]), float(step)))
+    (lon0, dlon), (lat0, dlat) = axes
+    return np.array([lon0 - 0.5 * dlon, dlon, 0.0, lat0 - 0.5 * dlat, 0.0, dlat], dtype=np.float64)
 
 
 def npz_heights_key(arrays: Mapping[str, NDArray[Any]], ndims: tuple[int, ...]) -> str | None:
@@ -389,7 +453,13 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     crs = _crs_string(crs_obj)
     unit, crs = _vertical_unit(unit, crs)
     heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit)
-    if crs_obj is None and transform.is_identity:
+    if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
+        if crs_obj is not None:
+            warnings.warn(
+                f"{file.name}: its CRS {crs} is ignored because the file has no geotransform; read as an "
+                "unreferenced grid, spacing (1, -1) and origin (0, 0)",
+                stacklevel=3,
+            )
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     geotransform = np.array(transform.to_gdal(), dtype=np.float64)
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)

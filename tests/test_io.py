@@ -117,6 +117,58 @@ def test_describe_dem_all_nodata_and_tin():
     assert tin["kind"] == "tin" and tin["spacing"] is None and tin["shape"] == (9,)
 
 
+def test_global_relief_npz_is_described_in_degrees(capsys):
+    """The global relief grids hold 1-D lat/lon axes beside 'elevation' and no transform: they were read as an
+    unreferenced (1, -1) grid and `stepterrain info` said so. Now they are geographic: local metres as a
+    geographic 'transform' makes them, and the description gives the nodes' lon/lat extent and step in degrees."""
+    from importlib.resources import as_file, files
+
+    from stepterrain import cli
+
+    with as_file(files("stepterrain") / "data" / "global_relief_20min.npz") as embedded:
+        t = load_dem(embedded)
+        assert cli.main(["info", str(embedded), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    step_m = EARTH_RADIUS_M * math.radians(1 / 3)
+    assert t.spacing == pytest.approx((step_m, -step_m), rel=1e-12) and t.origin == (0.0, 0.0)
+    assert t.crs.startswith("+proj=eqc") and "lon -179.833333333, lat 89.833333333" in t.source
+    info = describe_dem(t)
+    assert info["lonlat_extent"] == pytest.approx((-179.5 - 1 / 3, 179.5 + 1 / 3, -89.5 - 1 / 3, 89.5 + 1 / 3),
+                                                  abs=1e-8)  # fmt: skip
+    assert info["lonlat_step"] == pytest.approx((1 / 3, -1 / 3), rel=1e-9)
+    assert printed["lonlat_extent"] == pytest.approx(list(info["lonlat_extent"]))
+    assert printed["lonlat_step"] == pytest.approx(list(info["lonlat_step"])) and printed["spacing"][0] > 1e4
+    json.dumps(info)
+
+    shared = DATA / "global_relief.npz"  # 10': the shared copy, where present
+    if shared.exists():
+        info = describe_dem(load_dem(shared))
+        assert info["lonlat_extent"] == pytest.approx((-179 - 11 / 12, 179 + 11 / 12, -89 - 11 / 12, 89 + 11 / 12),
+                                                      abs=1e-8)  # fmt: skip
+        assert info["lonlat_step"] == pytest.approx((1 / 6, -1 / 6), rel=1e-9)
+    # a projected or unreferenced grid has no degrees to report
+    assert describe_dem(sample_dem())["lonlat_extent"] is None and describe_dem(sample_dem())["lonlat_step"] is None
+    assert describe_dem(np.zeros((2, 2)))["lonlat_step"] is None
+
+
+def test_latlon_npz_axes_are_checked(tmp_path):
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    lat, lon = np.array([10.0, 11.0, 12.0]), np.array([5.0, 5.5, 6.0, 6.5])  # south-first rows: dy > 0
+    np.savez(tmp_path / "up.npz", elevation=z, lat=lat, lon=lon)
+    info = describe_dem(load_dem(tmp_path / "up.npz"))
+    assert info["spacing"][1] > 0 and info["lonlat_step"] == pytest.approx((0.5, 1.0), rel=1e-9)
+    assert info["lonlat_extent"] == pytest.approx((5.0, 6.5, 10.0, 12.0), abs=1e-8)
+    for name, arrays, match in (
+        ("short.npz", dict(lat=lat[:2], lon=lon), r"'lat' must hold 3 finite degrees, one per row"),
+        ("nan.npz", dict(lat=lat, lon=np.array([5.0, np.nan, 6.0, 6.5])), r"'lon' must hold 4 finite degrees"),
+        ("uneven.npz", dict(lat=np.array([10.0, 11.0, 13.0]), lon=lon), r"'lat' must be evenly spaced degrees"),
+        ("text.npz", dict(lat=np.array(["a", "b", "c"]), lon=lon), r"'lat' must hold 3 finite degrees"),
+    ):
+        np.savez(tmp_path / name, elevation=z, **arrays)
+        with pytest.raises(DataFileError, match=match):
+            load_dem(tmp_path / name)
+
+
 # ---------------------------------------------------------------------------------------------- round-trips
 def test_npy_round_trip(tmp_path):
     z = np.arange(20, dtype=np.int16).reshape(4, 5)
@@ -288,6 +340,30 @@ def test_geotiff_band_choice(tmp_path):
     assert load_dem(path, band=2).heights.max() == 7.0
     with pytest.raises(InvalidInputError, match="band must be between 1 and 2"):
         load_dem(path, band=3)
+
+
+def test_geotiff_with_crs_but_no_geotransform_is_north_up(tmp_path):
+    # rasterio reports the identity transform for a TIFF without a geotransform: with a CRS it was read south-up
+    # (dy = +1, origin (0.5, 0.5)); now it is an unreferenced grid as without a CRS, and the CRS is named as ignored
+    rasterio = needs_rasterio()
+    from rasterio.errors import NotGeoreferencedWarning
+
+    z = np.arange(6, dtype=np.float32).reshape(2, 3)
+    for name, crs in (("crs_only.tif", "EPSG:32611"), ("plain.tif", None)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(tmp_path / name, "w", driver="GTiff", width=3, height=2, count=1, dtype="float32",
+                               crs=crs) as ds:  # fmt: skip
+                ds.write(z, 1)
+    with pytest.warns(UserWarning, match=r"crs_only.tif: its CRS EPSG:32611 is ignored because the file has no "
+                                         r"geotransform"):  # fmt: skip
+        t = load_dem(tmp_path / "crs_only.tif")
+    assert t.spacing == (1.0, -1.0) and t.origin == (0.0, 0.0) and t.crs is None
+    np.testing.assert_array_equal(t.heights, z)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no CRS: nothing to warn about
+        plain = load_dem(tmp_path / "plain.tif")
+    assert (plain.spacing, plain.origin, plain.crs) == (t.spacing, t.origin, t.crs)
 
 
 US_FOOT = 1200 / 3937  # metres per US survey foot
