@@ -558,7 +558,8 @@ class CloseUp:
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
-        close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex.
+        close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
+        read-only copy of its RGB channels: changing the caller's array afterwards does not change the close-up.
     """
 
     roi: ROI
@@ -579,8 +580,12 @@ class CloseUp:
     texture: Any = None
 
     def __post_init__(self) -> None:
-        if self.texture is not None:
-            object.__setattr__(self, "texture", _check_texture(self.texture, "close-up texture"))
+        if self.texture is not None:  # a private read-only copy: the caller changing their array leaves it be
+            texture = _check_texture(self.texture, "close-up texture")
+            if np.may_share_memory(texture, self.texture):
+                texture = texture.copy()
+            texture.flags.writeable = False
+            object.__setattr__(self, "texture", texture)
         if not isinstance(self.roi, ROI):
             raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
         rot = real_vector(self.rotation, "close-up rotation", "finite (α, β) in radians", 2)

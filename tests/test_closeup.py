@@ -889,3 +889,17 @@ def test_more_bad_roi_and_closeup_options_are_refused_by_name():
             make()
     assert ROI.stepped_level(heights, np.int64(1), interval=1.0).shape == "stepped_level"  # numpy ints are fine
     assert CloseUp(ROI.circle((0, 0), 1.0), cmap="viridis", scale=1e6).cmap == "viridis"
+
+
+def test_closeup_texture_is_a_private_copy():
+    """CloseUp.texture was a view of the caller's RGB image: changing that array after constructing changed the
+    close-up (and what it draped). It is a read-only copy now, of the RGB channels of an RGBA image too."""
+    for channels in (3, 4):
+        image = np.zeros((4, 5, channels), np.uint8)
+        image[..., 0] = 255
+        cu = CloseUp(ROI.circle((0.0, 0.0), 1.0), texture=image)
+        image[..., 0], image[..., 1] = 0, 255  # the caller reuses their buffer
+        assert cu.texture.shape == (4, 5, 3) and not np.shares_memory(cu.texture, image)
+        assert np.all(cu.texture[..., 0] == 255) and np.all(cu.texture[..., 1] == 0)
+        with pytest.raises(ValueError, match="read-only"):
+            cu.texture[0, 0, 0] = 1

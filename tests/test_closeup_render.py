@@ -229,7 +229,7 @@ def test_reused_closeup_geometry_samples_a_texture_changed_in_place(where):
     if where == "overview":
         options["texture"] = image
     render_closeups(t, [cu], **options)
-    image[..., 0], image[..., 2] = 0, 255  # blue, in place (CloseUp.texture shares the caller's array)
+    image[..., 0], image[..., 2] = 0, 255  # blue, in place (a CloseUp keeps its own copy; the overview's is this)
     again = render_closeups(t, [cu], **options)
     fresh = render_closeups(t, [cu], reuse_closeups=False, **options)
     np.testing.assert_array_equal(again, fresh)
