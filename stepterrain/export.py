@@ -18,7 +18,8 @@ import math
 import os
 import struct
 import tempfile
-from collections.abc import Callable, Iterator, Mapping
+import threading
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -45,6 +46,11 @@ Bounds = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 _OMIT = object()
 # Called with each path save_mesh has just written (see add_write_listener).
 _WRITE_LISTENERS: list[Callable[[Path], None]] = []
+# The files this process wrote that another output could name: save_image's images and a textured OBJ's side files
+# (its .mtl and texture images), absolute path -> the output each belongs to (an image itself, a side file its
+# OBJ). One output never replaces a file another wrote while that file is there (see _check_owner).
+_OWNERS: dict[str, str] = {}
+_OWNERS_LOCK = threading.Lock()
 
 
 @functools.cache
@@ -147,7 +153,8 @@ def save_mesh(
     MissingDependencyError
         ``.3mf`` without ``lxml`` and ``networkx`` (trimesh's 3MF writer needs both).
     DataFileError
-        The target folder cannot be created or written.
+        The target folder cannot be created or written, or a textured OBJ's side file would replace another
+        output this process wrote (see Notes).
 
     Notes
     -----
@@ -159,7 +166,9 @@ def save_mesh(
     are float32, so when coordinates exceed 65536 (UTM metres) the vertices are stored relative to a node
     translation (float64 in the JSON) and loaders that apply the scene graph get world coordinates back at
     full precision. Textured OBJ meshes also write
-    ``<stem>.mtl`` and their images beside ``path``. The file appears complete or not at all: the mesh is
+    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path``, each atomically; one that would
+    replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
+    DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
     when anything fails.
 
@@ -311,7 +320,8 @@ def save_image(
     MissingDependencyError
         A GeoTIFF without rasterio installed.
     DataFileError
-        The target folder cannot be created or written.
+        The target folder cannot be created or written, or ``path`` is a side file (material or texture
+        image) of a textured OBJ :func:`save_mesh` wrote in this process, which the image would replace.
 
     Examples
     --------
@@ -348,6 +358,7 @@ def save_image(
             )
         return _save_geotiff(array, target, extent, crs)
     picture = Image.fromarray(np.ascontiguousarray(array))  # uint8 (H, W, 3|4) -> RGB or RGBA
+    _check_owner([target], target)
     with atomic_path(target) as tmp:
         try:
             if suffix == ".png":
@@ -356,6 +367,7 @@ def save_image(
                 picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+    _record_owner([target], target)
     return target
 
 
@@ -386,13 +398,41 @@ def _save_geotiff(array: NDArray[np.uint8], target: Path, extent: Any, crs: str 
         "photometric": "RGB",
         "compress": "deflate", **({"alpha": "YES"} if bands == 4 else {}),
     }  # fmt: skip
+    _check_owner([target], target)
     with atomic_path(target) as tmp:
         try:
             with rasterio.open(tmp, "w", **profile) as dataset:
                 dataset.write(np.moveaxis(array, 2, 0))
         except (OSError, rasterio.errors.RasterioError) as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+    _record_owner([target], target)
     return target
+
+
+def _check_owner(paths: Iterable[Path], owner: Path) -> None:
+    """A DataFileError, before anything is written, when one of ``paths`` (written for the output ``owner``) is a
+    file this process wrote for another output and still there: an image of :func:`save_image` (which an OBJ's
+    texture image named ``<stem>_<material>.png`` would replace) or a side file of another OBJ (which an image
+    or an OBJ of the same stem in another case would replace)."""
+    mine = os.path.abspath(owner)
+    with _OWNERS_LOCK:
+        for path in paths:
+            key = os.path.abspath(path)
+            other = _OWNERS.get(key)
+            if other is None or other == mine or not os.path.exists(key):
+                continue
+            what = "an image" if other == key else f"a side file (material or texture image) of {other!r}"
+            side = f" as a side file of {str(owner)!r}" if key != mine else ""
+            raise DataFileError(f"cannot write {str(path)!r}{side}: this process wrote it earlier as {what}, which "
+                                "it would replace; give each output a name of its own")
+
+
+def _record_owner(paths: Iterable[Path], owner: Path) -> None:
+    """Note ``paths`` as written for the output ``owner`` (see :func:`_check_owner`)."""
+    mine = os.path.abspath(owner)
+    with _OWNERS_LOCK:
+        for path in paths:
+            _OWNERS[os.path.abspath(path)] = mine
 
 
 #: Rows side by side in :func:`_vertex_bounds`' reduction.
@@ -583,9 +623,12 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -
     if len(mesh.faces) == 0:  # trimesh writes a bare "f" (and "v" without vertices) line: not OBJ
         text = "".join(line for line in text.splitlines(keepends=True) if line.strip() not in ("v", "f"))
     sidecars = _own_texture_names(sidecars, mtl_name, target.stem)
-    for name, data in sidecars.items():
-        with atomic_path(target.parent / name) as side_tmp:
+    paths = [target.parent / name for name in sidecars]
+    _check_owner(paths, target)  # all of them before the first is written
+    for path, data in zip(paths, sidecars.values(), strict=True):
+        with atomic_path(path) as side_tmp:
             side_tmp.write_bytes(data)
+    _record_owner(paths, target)
     tmp.write_text(text, encoding="utf-8")
 
 

@@ -8,8 +8,8 @@ import trimesh
 from PIL import Image
 
 import stepterrain as st
-from stepterrain.errors import InvalidInputError
-from stepterrain.export import MESH_EXTENSIONS, save_mesh
+from stepterrain.errors import DataFileError, InvalidInputError
+from stepterrain.export import MESH_EXTENSIONS, save_image, save_mesh
 
 from .conftest import assert_valid_mesh, real_dem, shared_file
 from .test_export import glb_json, needs_3mf
@@ -89,6 +89,33 @@ def test_obj_with_a_material_name_with_spaces_finds_its_image(tmp_path):
     assert back.visual.material.image is not None
     original = mesh.visual.material.baseColorTexture  # drape gives a PBR material
     assert np.array_equal(np.asarray(back.visual.material.image.convert("RGB")), np.asarray(original.convert("RGB")))
+
+
+def test_obj_side_files_never_replace_another_output_of_the_run(tmp_path):
+    """A textured OBJ's image <stem>_<material>.png replaced, without a word, an image of the same name written
+    earlier in the run (stepterrain texture -o t_terrain_texture.png --mesh t.obj lost its -o image, --normals
+    likewise), and a later image replaced the OBJ's texture. Both are refused now, before anything is written;
+    saving the same OBJ or image again, or after the other file is gone, still works."""
+    picture = np.full((4, 4, 3), 7, np.uint8)
+    image = save_image(picture, tmp_path / "a_material_0.png")
+    before = image.read_bytes()
+    with pytest.raises(DataFileError, match=r"a_material_0.png' as a side file of .*a.obj'.*wrote it earlier as an "
+                                            r"image"):  # fmt: skip
+        save_mesh(textured(), tmp_path / "a.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_material_0.png"] and image.read_bytes() == before
+    save_image(picture, image)  # the image again: its own file
+    image.unlink()
+    save_mesh(textured(), tmp_path / "a.obj")  # gone: the OBJ may take the name
+    texture = (tmp_path / "a_material_0.png").read_bytes()
+    with pytest.raises(DataFileError, match=r"wrote it earlier as a side file \(material or texture image\) of "
+                                            r".*a.obj'"):  # fmt: skip
+        save_image(picture, tmp_path / "a_material_0.png")
+    assert (tmp_path / "a_material_0.png").read_bytes() == texture
+    save_mesh(textured(seed=3), tmp_path / "a.obj")  # the same OBJ again replaces its own side files
+    assert (tmp_path / "a_material_0.png").read_bytes() != texture
+    with pytest.raises(DataFileError, match=r"as a side file of .*a.OBJ'.* of .*a.obj'"):  # same stem, other OBJ
+        save_mesh(textured(), tmp_path / "a.OBJ")
+    assert not (tmp_path / "a.OBJ").exists()
 
 
 def test_textured_glb_keeps_uv_and_image(tmp_path):

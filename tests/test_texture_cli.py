@@ -47,6 +47,21 @@ def test_cli_texture_png_and_glb(tmp_path, small_dem, capsys):
     assert len(back.faces) == 2 * 39 * 49
 
 
+def test_cli_texture_obj_image_does_not_replace_the_normal_map(tmp_path, small_dem, capsys):
+    """--mesh t.obj writes its texture as t_terrain_texture.png: named so, --normals was replaced by it without a
+    word (the OBJ written after it). The OBJ is refused now, naming both files, and the normal map is kept."""
+    normals = tmp_path / "t_terrain_texture.png"
+    code = main(["texture", str(small_dem), "-o", str(tmp_path / "t.png"), "--mesh", str(tmp_path / "t.obj"),
+                 "--normals", str(normals), "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "t_terrain_texture.png' as a side file of" in err and "earlier as an image" in err, err
+    assert not (tmp_path / "t.obj").exists() and not (tmp_path / "t.mtl").exists()
+    alone = tmp_path / "alone"  # the normal map of the same command without the OBJ
+    assert main(["texture", str(small_dem), "-o", str(alone / "t.png"), "--normals", str(alone / "n.png"),
+                 "--device", "cpu"]) == 0
+    np.testing.assert_array_equal(read_png(normals), read_png(alone / "n.png"))
+
+
 def test_cli_texture_azimuth_is_degrees_clockwise_from_north(tmp_path, capsys):
     # --azimuth 315 (the default, gdaldem's -az) lights from the north-west: a plane sloping down to the north-west
     # is bright, one sloping down to the south-east dark; --azimuth 135 swaps them
