@@ -152,7 +152,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     aspect = args.size[0] / args.size[1]
     camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
-                       radius=args.radius)
+                       radius=args.radius, max_radius=globe.radius + float(globe.heights.max()))
     progress.stage("mesh", f"refining: error {args.error:g}, {args.bounds}s, metrics {','.join(metrics)}")
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=args.bounds,
                       metrics=metrics, cull=not args.no_cull)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -878,7 +879,7 @@ def test_globe_cli_heading_inf_exits_2_naming_it(tmp_path, capsys):
     from stepterrain.cli import main
 
     assert main(["-q", "globe", "--face-size", "5", "--heading", "inf", "-o", str(tmp_path / "x.glb")]) == 2
-    assert capsys.readouterr().err.strip() == "stepterrain globe: error: heading must be a finite number; got inf"
+    assert capsys.readouterr().err.strip() == "stepterrain globe: error: --heading must be a finite number; got inf"
 
 
 @pytest.mark.parametrize("elevation, exaggeration", [(3.0e38, 1.0), (1.0e30, 1.0e10)])
@@ -991,3 +992,34 @@ def test_views_are_lit_alike_in_both_hemispheres():
         brightness.append(render_view(flat.mesh(), camera, window_size=(160, 100)).mean())
     assert brightness[0] > 60
     assert 0.9 < brightness[1] / brightness[0] < 1.1, brightness
+
+
+def test_look_from_far_plane_covers_an_extremely_exaggerated_globe():
+    """The far plane lay at 2·|eye| + R whatever the relief: at an extreme exaggeration the far side's summits
+    (behind the limb) lay beyond it and the clip metric cut them off. With max_radius (the globe's radius plus its
+    highest exaggerated node) every node lies between the near and the far plane, and the culled mesh keeps them."""
+    z = np.zeros((180, 360), np.float32)
+    z[:, :10] = z[:, -10:] = 1000.0  # a plateau on the far side from lon 0: lon 170.5 to 180 to -170.5
+    g = Globe.from_latlon(z, np.linspace(89.5, -89.5, 180), np.linspace(-179.5, 179.5, 360), face_size=17,
+                          exaggeration=20_000.0, device="cpu")  # 20 000 km of relief: over three earth radii
+    top = g.radius + float(g.heights.max())
+    assert top > 4 * R
+    nodes = g.positions.reshape(-1, 3).astype(np.float64)
+    for lat, lon, altitude in ((0.0, 0.0, 2 * R), (10.0, -20.0, R)):
+        plain = look_from(lat, lon, altitude)
+        depth = (nodes - plain.eye) @ plain.frame()[0]
+        assert depth.max() > plain.far  # the old far plane: the plateau's top beyond it
+        cam = look_from(lat, lon, altitude, max_radius=top)
+        depth = (nodes - cam.eye) @ cam.frame()[0]
+        assert cam.near <= depth.min() and depth.max() < cam.far
+        planes = cam.planes()
+        assert np.all(nodes @ planes[4, :3] + planes[4, 3] <= 0) and np.all(nodes @ planes[5, :3] + planes[5, 3] <= 0)
+        # the clip metric and culling, their side planes out of the way (a 179° view): near and far decide
+        full = len(g.mesh(error=0.0).faces)
+        for camera, whole in ((plain, False), (cam, True)):
+            wide = dataclasses.replace(camera, fov=math.radians(179.0))
+            faces = len(g.mesh(error=0.0, camera=wide, metrics=("geometric", "clip"), cull=True).faces)
+            assert (faces == full) is whole, (faces, full)
+    assert look_from(0.0, 0.0, 2 * R, max_radius=R).far == look_from(0.0, 0.0, 2 * R).far == 7 * R
+    with pytest.raises(InvalidInputError, match="max_radius must be a positive finite number"):
+        look_from(0.0, 0.0, 2 * R, max_radius=-1.0)
