@@ -41,7 +41,7 @@ from typing import Any, Final
 import warp as wp
 
 from . import bounds
-from .memory import load, store
+from .memory import load, store, vec3l
 
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
@@ -1632,7 +1632,7 @@ def emit_refinement(
 
 
 @wp.kernel
-def refine_small_levels(
+def refine_levels(
     thread_offset: wp.int32,
     grid: CubeSphereGrid,
     params: NodeParameters,
@@ -1640,47 +1640,78 @@ def refine_small_levels(
     roots: wp.array[wp.vec4i],
     levels: wp.int32,  # the deepest level: its triangles do not refine
     capacity: wp.int32,  # levels of at most this many triangles are refined here
+    room: wp.int32,  # while their leaves and new vertices fit in this many slots
     # outputs
     level_out: wp.array[wp.vec4i],  # 4·capacity: two halves, one level's triangles and the next's in turn
-    leaves_out: wp.array[wp.vec4i],  # (levels + 1)·capacity each
-    vertex_entries_out: wp.array[wp.int32],
+    level_masks_out: wp.array[wp.int32],  # 4·capacity, the triangles' corner masks; or empty: not tracked
+    leaves_out: wp.array[wp.vec4i],  # room
+    leaf_masks_out: wp.array[wp.int32],  # room, the leaves' corner masks (for the cull); or empty
+    vertex_entries_out: wp.array[wp.int32],  # room
     per_level_out: wp.array[wp.int32],  # levels + 1: triangles per level refined here
     totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, its start
 ):
-    """The CPU's small levels in one thread and one launch: :func:`count_refinement` and
-    :func:`emit_refinement` of every level from the roots while a level holds at most ``capacity`` triangles
-    (a close view's levels all do), appending children, leaves and new vertices in the order the level passes
-    write them (the same mesh). Untracked: no corner masks (they start at :data:`stepterrain.globe._TRACK_MIN`).
-    A level pass costs a few launches and a host read of its scan; here a small level costs its triangles."""
+    """The CPU's levels in one thread and one launch: :func:`count_refinement` and :func:`emit_refinement` of
+    every level from the roots while a level holds at most ``capacity`` triangles and its leaves and new
+    vertices fit in ``room``, appending children, leaves and new vertices in the order the level passes write
+    them (the same mesh). A level pass costs a few launches, a scan and a host read of its total, and a second
+    walk over its triangles to emit them; here a level costs one walk. With ``level_masks_out`` the corner
+    masks are tracked as :func:`emit_refinement` tracks them (from the roots on, nothing known there), the
+    refinement loads are software-pipelined as in :func:`count_refinement`."""
     if wp.tid() + thread_offset != 0:
         return
     need_position = needs_position(view.flags, view.error)
+    track = level_masks_out.shape[0] > 0
+    keep_leaf_masks = leaf_masks_out.shape[0] > 0
     n_cur = roots.shape[0]
     k = wp.int32(0)
     while k < n_cur:
         store(level_out, k, load(roots, k))
+        if track:
+            store(level_masks_out, k, 0)
         k += 1
     cur = wp.int32(0)  # start of the current level's half of level_out
     nxt = 2 * capacity
     n_leaves = wp.int32(0)
     n_entries = wp.int32(0)
     depth = wp.int32(0)
-    while depth <= levels and n_cur > 0 and n_cur <= capacity:
+    while depth <= levels and n_cur > 0 and n_cur <= capacity and n_leaves + n_cur <= room \
+            and n_entries + n_cur <= room:
         store(per_level_out, depth, n_cur)
+        can_refine = depth < levels
+        q_next = wp.vec4(0.0, 0.0, 0.0, 0.0)
+        p_next = wp.vec3(0.0, 0.0, 0.0)
+        if can_refine:
+            m0 = refinement_entry(grid.n, load(level_out, cur))
+            q_next = load(params.values, m0)
+            if need_position != 0:
+                p_next = load(grid.positions, m0)
         n_next = wp.int32(0)
         t = wp.int32(0)
         while t < n_cur:
             tri = load(level_out, cur + t)
+            q = q_next
+            p = p_next
+            mask = wp.int32(0)
+            if track:
+                mask = load(level_masks_out, cur + t)
             refine = wp.int32(0)
-            if depth < levels:
-                m = refinement_entry(grid.n, tri)
-                q = load(params.values, m)
-                p = wp.vec3(0.0, 0.0, 0.0)
-                if need_position != 0:
-                    p = load(grid.positions, m)
+            if can_refine:
+                if t + PREFETCH_AHEAD < n_cur:
+                    m_ahead = refinement_entry(grid.n, load(level_out, cur + t + PREFETCH_AHEAD))
+                    prefetch(params.values, m_ahead, 0)
+                    if need_position != 0:
+                        prefetch(grid.positions, m_ahead, 0)
+                if t + 1 < n_cur:
+                    m_next = refinement_entry(grid.n, load(level_out, cur + t + 1))
+                    q_next = load(params.values, m_next)
+                    if need_position != 0:
+                        p_next = load(grid.positions, m_next)
+                deep_inside = wp.int32(0)
+                if (mask & 8) != 0:
+                    deep_inside = 1
                 refine = refine_decision(grid.planar, view.eye, view.planes, view.flags, view.distance_scale,
                                          view.error, view.eye_length, view.eye_unit, need_position, q, p,
-                                         wp.float64(1.0), 0)
+                                         wp.float64(1.0), deep_inside)
             if refine != 0:
                 a = unpack(tri[1])
                 b = unpack(tri[2])
@@ -1689,12 +1720,21 @@ def refine_small_levels(
                 mid = pack(mi, mj)
                 store(level_out, nxt + n_next, child_triangle(tri, mid, 0))
                 store(level_out, nxt + n_next + 1, child_triangle(tri, mid, 1))
+                if track:  # emit_refinement's masks, with count_refinement's inside flags
+                    node_inside = wp.int32(3)
+                    if refine != 3:
+                        node_inside = point_inside_view(view.planes, bounds.to_vec3d(p))
+                    node = ((node_inside & 1) << 2) | (mask & 8) | ((node_inside & 2) << 2)
+                    store(level_masks_out, nxt + n_next, ((mask >> 2) & 1) | ((mask & 1) << 1) | node)
+                    store(level_masks_out, nxt + n_next + 1, ((mask >> 1) & 3) | node)
                 n_next += 2
                 if owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3])) != 0:
                     store(vertex_entries_out, n_entries, node_entry(grid.cells, grid.planar, tri[0], mi, mj))
                     n_entries += 1
             else:
                 store(leaves_out, n_leaves, tri)
+                if keep_leaf_masks:
+                    store(leaf_masks_out, n_leaves, mask)
                 n_leaves += 1
             t += 1
         swap = cur
@@ -1820,12 +1860,14 @@ def emit_faces(
     offsets: wp.array[wp.int32],
     vertex_id: wp.array[wp.int32],
     # outputs
-    faces_out: wp.array[wp.vec3i],
+    faces_out: wp.array[wp.vec3i],  # or empty: then wide_out
+    wide_out: wp.array[vec3l],  # or empty: the faces as int64, trimesh's dtype, when they are final (no cull)
     face_index_out: wp.array[wp.int32],
 ):
     """One thread per leaf triangle: its kept face as output vertex indices, and its cube face."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    wide = wide_out.shape[0] > 0
     t = first
     while t < last:
         if t + PREFETCH_AHEAD < count:
@@ -1835,9 +1877,13 @@ def emit_faces(
         if load(keep, t) != 0:
             tri = load(leaves, t)
             k = load(offsets, t)
-            store(faces_out, k, wp.vec3i(corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[1]),
-                                         corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[2]),
-                                         corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[3])))
+            a = corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[1])
+            b = corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[2])
+            c = corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[3])
+            if wide:
+                store(wide_out, k, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
+            else:
+                store(faces_out, k, wp.vec3i(a, b, c))
             store(face_index_out, k, tri[0])
         t += 1
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import dataclasses
+import functools
 import math
 import mmap
 from collections.abc import Callable, Iterable, Sequence
@@ -33,13 +34,14 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import host_copy, launch, launch_chunked, resolve_device, scratch, to_device
+from ._device import empty_shared, host_copy, launch, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError
 from .io import picture_uint8
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
+from .kernels.memory import vec3l
 from .stepped import LAND_START
 from .terrain import as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
 
@@ -58,9 +60,11 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 #: compare both).
 _NODE_PASS = True
 _TRACK_MIN = 4096  # triangles of a level from which the clip metric's flags are tracked (see _extract)
-#: On the CPU, the levels below this many triangles (and below _TRACK_MIN) are refined by one single-thread
-#: launch (``refine_small_levels``) instead of a count -> scan -> emit each; 0 switches that off.
-_SMALL_LEVELS = 4096
+#: On the CPU, the levels of at most this many triangles (while their leaves and new vertices fit in four times
+#: as many slots) are refined by one single-thread launch (``refine_levels``) instead of a count -> scan -> emit
+#: each; 0 switches that off. 2**17: a 200k-triangle view of the whole globe (levels up to 80k) in one launch, in
+#: 22 MB of scratch; a larger view continues level by level from where the launch stopped.
+_SMALL_LEVELS = 1 << 17
 #: On the CPU with several threads (``set_cpu_threads``), the view's passes split into ranges of at least this many
 #: triangles or vertices (``launch_chunked``'s ``min_elements``): the refinement test and the vertex pass cost
 #: 30-40 ns an element, the emit passes 12-20 ns, so smaller ranges than the stepped passes' pay for a split.
@@ -562,6 +566,14 @@ def _view(camera: Camera | None, error: float, names: set[str], bounds: str, sca
     return view
 
 
+@functools.lru_cache(maxsize=16)
+def _roots_and_corners(cells: int, n: int, faces: int, device: str) -> tuple[wp.array, wp.array]:
+    """:func:`_root_triangles` and :func:`corner_entries` on ``device``, made once per grid size (the kernels only
+    read them)."""
+    return (wp.array(_root_triangles(cells, faces), dtype=wp.vec4i, device=device),
+            wp.array(corner_entries(cells, n, faces), dtype=wp.int32, device=device))
+
+
 def _root_triangles(cells: int, faces: int) -> NDArray[np.int32]:
     """Two counter-clockwise right triangles per face split by the main diagonal: (face, a, b, c), a-b the
     hypotenuse, corners packed i << 16 | j."""
@@ -608,7 +620,12 @@ def _host_int(array: wp.array, index: int) -> int:
     return int(array[index : index + 1].numpy()[0])
 
 
-def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device) -> wp.array:
+def _concat(chunks: list[wp.array], dtype: Any, device: wp.Device, *, share: bool = False) -> wp.array:
+    """The chunks one after another in a new array; with ``share`` the one chunk that holds anything itself (no
+    copy: for arrays read within the call, never one handed to the caller)."""
+    filled = [c for c in chunks if c.shape[0]]
+    if share and len(filled) == 1:
+        return filled[0]
     total = sum(c.shape[0] for c in chunks)
     out = wp.empty(total, dtype=dtype, device=device)
     offset = 0
@@ -683,44 +700,54 @@ def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int
     return per_level
 
 
-def _refine_small_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int,
-                         leaf_chunks: list[wp.array], vertex_chunks: list[wp.array], per_level: list[int],
-                         device: wp.Device) -> tuple[wp.array, int]:
-    """The levels of at most ``capacity`` triangles from the roots, in one launch (``refine_small_levels``):
-    appends their leaves, new vertices and level sizes; returns the next level's triangles and depth."""
-    slots = (levels + 1) * capacity
-    halves = scratch("globe.small.levels", 4 * capacity, wp.vec4i, device)
-    leaves = wp.empty(slots, dtype=wp.vec4i, device=device)
-    entries = wp.empty(slots, dtype=wp.int32, device=device)
-    sizes = scratch("globe.small.sizes", levels + 1, wp.int32, device)
-    totals = scratch("globe.small.totals", 5, wp.int32, device)
-    launch(cube_kernels.refine_small_levels, 1, [grid, params, view, roots, levels, capacity],
-           [halves, leaves, entries, sizes, totals], device)
+def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int, *,
+                   track: bool, cull: bool, leaf_chunks: list[wp.array], vertex_chunks: list[wp.array],
+                   mask_chunks: list[wp.array | None], per_level: list[int], device: wp.Device
+                   ) -> tuple[wp.array, wp.array | None, int]:
+    """The levels of at most ``capacity`` triangles from the roots, while their leaves and new vertices fit in
+    4·capacity slots, in one launch (``refine_levels``): appends their leaves (with their corner masks when
+    tracked and culling), new vertices and level sizes; returns the next level's triangles, their masks (None
+    when not tracked) and its depth."""
+    room = 4 * capacity
+    check_budget(4 * capacity * (20 if track else 16) + room * (24 if track and cull else 20),
+                 "refinement levels", hint="raise the error or narrow the view")
+    none = wp.zeros(0, dtype=wp.int32, device=device)
+    halves = scratch("globe.fused.levels", 4 * capacity, wp.vec4i, device)
+    half_masks = scratch("globe.fused.masks", 4 * capacity, wp.int32, device) if track else none
+    leaves = scratch("globe.fused.leaves", room, wp.vec4i, device)
+    leaf_masks = scratch("globe.fused.leaf_masks", room, wp.int32, device) if track and cull else none
+    entries = scratch("globe.fused.entries", room, wp.int32, device)
+    sizes = scratch("globe.fused.sizes", levels + 1, wp.int32, device)
+    totals = scratch("globe.fused.totals", 5, wp.int32, device)
+    launch(cube_kernels.refine_levels, 1, [grid, params, view, roots, levels, capacity, room],
+           [halves, half_masks, leaves, leaf_masks, entries, sizes, totals], device)
     n_leaves, n_entries, n_next, depth, start = (int(v) for v in host_copy(totals))
     leaf_chunks.append(leaves[:n_leaves])
     vertex_chunks.append(entries[:n_entries])
+    mask_chunks.append(leaf_masks[:n_leaves] if track and cull else None)
     per_level.extend(int(v) for v in host_copy(sizes)[:depth])
-    return halves[start:start + n_next], depth
+    return halves[start:start + n_next], half_masks[start:start + n_next] if track else None, depth
 
 
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
              per_face: bool, device: wp.Device, origin: tuple[float, float] = (0.0, 0.0)
              ) -> trimesh.Trimesh | list[trimesh.Trimesh]:
-    """Breadth-first refinement, one count -> scan -> emit per level (on the CPU the small levels in one
-    launch, :func:`_refine_small_levels`), then vertices and faces."""
+    """Breadth-first refinement, one count -> scan -> emit per level (on the CPU the levels up to
+    :data:`_SMALL_LEVELS` triangles in one launch, :func:`_refine_levels`), then vertices and faces."""
     n = grid.n
-    triangles = wp.array(_root_triangles(grid.cells, faces), dtype=wp.vec4i, device=device)
+    triangles, corners = _roots_and_corners(grid.cells, n, faces, str(device))
     no_factors = wp.zeros(0, dtype=wp.float32, device=device)
     leaf_chunks: list[wp.array] = []
-    vertex_chunks = [wp.array(corner_entries(grid.cells, n, faces), dtype=wp.int32, device=device)]
+    vertex_chunks = [corners]
     per_level = []
     host = (host_copy(grid.positions), host_copy(params.values)) if users else None
     flags = view.flags
     # with the clip metric, the triangles of large levels carry which of their corners are known to lie inside
     # the view (tested once, as refinement nodes, where their positions are loaded anyway): with culling a leaf
     # with such a corner skips the test. They also carry whether an ancestor's bounding shape lies wholly inside
-    # the view: then so does their node's, and its clip test is skipped. Small levels (a close view's) are not
-    # tracked: there two arrays a level cost more than the tests they would save.
+    # the view: then so does their node's, and its clip test is skipped. Level passes track from _TRACK_MIN
+    # triangles (below, two arrays a level cost more than the tests they would save); the CPU's one-launch levels
+    # (_refine_levels) track from the roots on, in their own buffers.
     none = wp.zeros(0, dtype=wp.int32, device=device)
     masks: wp.array | None = None  # of the current level's triangles, while tracked
     mask_chunks: list[wp.array | None] = []
@@ -734,11 +761,11 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         vertex_chunks.append(entries)
         levels = -1  # the loop below has nothing left to do
     first_depth = 0
-    capacity = min(_SMALL_LEVELS, _TRACK_MIN - 1)
-    if device.is_cpu and not users and levels >= 0 and capacity >= triangles.shape[0]:
-        triangles, first_depth = _refine_small_levels(grid, params, view, triangles, levels, capacity, leaf_chunks,
-                                                      vertex_chunks, per_level, device)
-        mask_chunks.append(None)
+    if device.is_cpu and not users and levels >= 0 and _SMALL_LEVELS >= triangles.shape[0]:
+        triangles, masks, first_depth = _refine_levels(
+            grid, params, view, triangles, levels, _SMALL_LEVELS, track=bool(flags[2]), cull=cull,
+            leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,
+            device=device)
     for depth in range(first_depth, levels + 1):
         count = triangles.shape[0]
         if count == 0:
@@ -772,7 +799,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         mask_chunks.append(leaf_masks if track and cull else None)
         per_level.append(count)
         triangles, masks = children, (child_masks if track else None)
-    leaves = _concat(leaf_chunks, wp.vec4i, device)
+    leaves = _concat(leaf_chunks, wp.vec4i, device, share=True)  # read by the face passes only
     entries = _concat(vertex_chunks, wp.int32, device)
     n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
@@ -782,7 +809,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     n_leaves = leaves.shape[0]
     keep = count_buffer("globe.keep", n_leaves, device)
     leaf_masks = none
-    if any(chunk is not None for chunk in mask_chunks):  # per leaf; 0 (nothing known) for untracked levels
+    if len(mask_chunks) == 1 and mask_chunks[0] is not None and mask_chunks[0].shape[0] == n_leaves:
+        leaf_masks = mask_chunks[0]  # every leaf from one tracked launch (the CPU's refine_levels)
+    elif any(chunk is not None for chunk in mask_chunks):  # per leaf; 0 (nothing known) for untracked levels
         leaf_masks = wp.zeros(leaves.shape[0], dtype=wp.int32, device=device)
         offset = 0
         for leaf_chunk, chunk in zip(leaf_chunks, mask_chunks, strict=True):  # one of each per level
@@ -792,11 +821,15 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves, leaf_masks], [keep],
                    device)
     offsets, n_faces = exclusive_offsets(keep, "globe.keep")
-    faces_out = wp.empty(n_faces, dtype=wp.vec3i, device=device)
+    culled = n_faces < n_leaves
+    # nothing culled: the kernel writes the final int64 faces (trimesh's dtype; on the CPU straight into numpy), not
+    # int32 ones to convert (2 ms of a 200k-face view); culled, int32 faces are compacted below, then converted
+    wide_host, wide = empty_shared((0 if culled else n_faces, 3), np.int64, vec3l, device)
+    faces_out = wp.empty(n_faces if culled else 0, dtype=wp.vec3i, device=device)
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)
-    launch_chunked(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id], [faces_out, face_index],
-                   device, min_elements=_SPLIT_EMIT)
-    if n_faces < n_leaves:  # culled: drop the vertices no face uses any more
+    launch_chunked(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id],
+                   [faces_out, wide, face_index], device, min_elements=_SPLIT_EMIT)
+    if culled:  # drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used.zero_()  # the flags and count_buffer's final 0
         launch_chunked(compaction_kernels.mark_used_vertices, n_faces, [faces_out], [used], device)
@@ -809,7 +842,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         launch_chunked(compaction_kernels.remap_faces, n_faces, [faces_out, used_offsets], [remapped], device)
         vertices, entries, faces_out = kept_vertices, kept_entries, remapped
     v = host_copy(vertices).reshape(-1, 3)
-    f = host_copy(faces_out).reshape(-1, 3).astype(np.int64)
+    f = host_copy(faces_out).reshape(-1, 3).astype(np.int64) if culled else to_numpy(wide_host, wide, (n_faces, 3))
     cube_face = host_copy(face_index)
     node_entry = host_copy(entries)
     metadata = {"levels": per_level, "node_entry": node_entry, "face_size": n}
@@ -1111,9 +1144,15 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
 
 
 def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float = 0.0, heading: float = 0.0,
-              fov: float = math.radians(30.0), aspect: float = 1.6, radius: float = EARTH_RADIUS) -> Camera:
+              fov: float = math.radians(30.0), aspect: float = 1.6, radius: float = EARTH_RADIUS,
+              max_radius: float | None = None) -> Camera:
     """A camera at (latitude, longitude) in degrees, ``altitude`` metres above the sphere of ``radius``,
     looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north) by ``tilt`` degrees.
+
+    ``max_radius`` (metres, default ``radius``) is the largest distance of the surface from the centre, for a
+    :class:`Globe` its ``radius`` plus its highest exaggerated node height (``globe.heights.max()``): the far
+    plane lies at |eye| + max(|eye|, max_radius) + radius, beyond the far side of that sphere, so that an
+    extreme vertical exaggeration is not clipped behind the limb.
 
     Examples
     --------
@@ -1135,6 +1174,7 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
             raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
     altitude, tilt, heading = float(altitude), float(tilt), float(heading)
     radius = _positive(radius, "radius")
+    top = radius if max_radius is None else _positive(max_radius, "max_radius")
     if abs(radius + altitude) > _MAX_COORDINATE:  # the Camera's coordinate bound, named by its inputs here
         raise InvalidInputError(f"radius + altitude must stay within {_MAX_COORDINATE:g} m of the centre; got "
                                 f"{radius:g} + {altitude:g}")
@@ -1148,8 +1188,9 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     forward = -math.cos(tl) * outward + math.sin(tl) * horizontal
     up = math.cos(tl) * horizontal + math.sin(tl) * outward
     target = eye + forward * max(altitude, 1.0)
+    distance = radius + altitude  # of the eye from the centre: every surface point lies within distance + top
     return Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=fov, aspect=aspect,
-                  near=max(altitude * 1e-3, 1.0), far=2.0 * (radius + altitude) + radius)
+                  near=max(altitude * 1e-3, 1.0), far=distance + max(distance, top) + radius)
 
 
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),

@@ -421,11 +421,12 @@ def test_skipping_the_clip_test_inside_the_view_changes_nothing(sample_globe, mo
     assert skipped > 0
 
 
-@pytest.mark.parametrize("small", [1, 64, 4096])
-def test_small_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch, small):
-    """On the CPU the levels below ``_SMALL_LEVELS`` triangles are refined by one single-thread launch: the
-    same triangles, vertices, order and per-level counts as a count -> scan -> emit per level, whether the
-    small levels end early (1, 64) or take a close view whole (4096)."""
+@pytest.mark.parametrize("small", [1, 64, 4096, 1 << 17])
+def test_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch, small):
+    """On the CPU the levels up to ``_SMALL_LEVELS`` triangles are refined by one single-thread launch, which
+    tracks the corner masks from the roots on: the same triangles, vertices, order, per-level counts and culled
+    faces as a count -> scan -> emit per level, whether the launch stops early (1, 64, 4096: the level passes
+    take over, with its masks) or takes every view whole (2**17)."""
     import stepterrain.globe as globe_module
 
     g = sample_globe
@@ -433,7 +434,8 @@ def test_small_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch
     far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
     cases = [dict(error=30.0, camera=close), dict(error=30.0, camera=close, cull=False),
              dict(error=0.0, camera=close), dict(error=200.0, camera=far, bounds="sphere"),
-             dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance"))]
+             dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance")),
+             dict(error=2.0, camera=far), dict(error=2.0, camera=far, cull=False)]
     for kwargs in cases:
         monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)
         levelwise = g.mesh(**kwargs)
