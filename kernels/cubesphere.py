@@ -1648,7 +1648,8 @@ def refine_levels(
     leaf_masks_out: wp.array[wp.int32],  # room, the leaves' corner masks (for the cull); or empty
     vertex_entries_out: wp.array[wp.int32],  # room
     per_level_out: wp.array[wp.int32],  # levels + 1: triangles per level refined here
-    totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, its start
+    totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, its start,
+                                     # leaves whose mask is 0 (none of its corners known inside the view)
 ):
     """The CPU's levels in one thread and one launch: :func:`count_refinement` and :func:`emit_refinement` of
     every level from the roots while a level holds at most ``capacity`` triangles and its leaves and new
@@ -1672,6 +1673,7 @@ def refine_levels(
     cur = wp.int32(0)  # start of the current level's half of level_out
     nxt = 2 * capacity
     n_leaves = wp.int32(0)
+    n_unknown = wp.int32(0)
     n_entries = wp.int32(0)
     depth = wp.int32(0)
     while depth <= levels and n_cur > 0 and n_cur <= capacity and n_leaves + n_cur <= room \
@@ -1735,6 +1737,8 @@ def refine_levels(
                 store(leaves_out, n_leaves, tri)
                 if keep_leaf_masks:
                     store(leaf_masks_out, n_leaves, mask)
+                if mask == 0:
+                    n_unknown += 1
                 n_leaves += 1
             t += 1
         swap = cur
@@ -1747,6 +1751,7 @@ def refine_levels(
     store(totals_out, 2, n_cur)
     store(totals_out, 3, depth)
     store(totals_out, 4, cur)
+    store(totals_out, 5, n_unknown)
 
 
 @wp.kernel
@@ -1856,8 +1861,8 @@ def emit_faces(
     chunk: wp.int32,
     grid: CubeSphereGrid,
     leaves: wp.array[wp.vec4i],
-    keep: wp.array[wp.int32],
-    offsets: wp.array[wp.int32],
+    keep: wp.array[wp.int32],  # count_kept_faces' flags, or empty: every leaf kept
+    offsets: wp.array[wp.int32],  # their exclusive scan (or empty)
     vertex_id: wp.array[wp.int32],
     # outputs
     faces_out: wp.array[wp.vec3i],  # or empty: then wide_out
@@ -1868,15 +1873,18 @@ def emit_faces(
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     wide = wide_out.shape[0] > 0
+    every = keep.shape[0] == 0
     t = first
     while t < last:
         if t + PREFETCH_AHEAD < count:
             ahead = load(leaves, t + PREFETCH_AHEAD)
             for c in range(1, 4):
                 prefetch(vertex_id, canonical_corner_entry(grid.cells, grid.planar, ahead[0], ahead[c]), 0)
-        if load(keep, t) != 0:
+        if every or load(keep, t) != 0:
             tri = load(leaves, t)
-            k = load(offsets, t)
+            k = t
+            if not every:
+                k = load(offsets, t)
             a = corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[1])
             b = corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[2])
             c = corner_vertex(grid.cells, grid.planar, vertex_id, tri[0], tri[3])

@@ -703,11 +703,11 @@ def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int
 def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int, *,
                    track: bool, cull: bool, leaf_chunks: list[wp.array], vertex_chunks: list[wp.array],
                    mask_chunks: list[wp.array | None], per_level: list[int], device: wp.Device
-                   ) -> tuple[wp.array, wp.array | None, int]:
+                   ) -> tuple[wp.array, wp.array | None, int, int]:
     """The levels of at most ``capacity`` triangles from the roots, while their leaves and new vertices fit in
     4·capacity slots, in one launch (``refine_levels``): appends their leaves (with their corner masks when
     tracked and culling), new vertices and level sizes; returns the next level's triangles, their masks (None
-    when not tracked) and its depth."""
+    when not tracked), its depth, and how many of the leaves have no corner known inside the view."""
     room = 4 * capacity
     check_budget(4 * capacity * (20 if track else 16) + room * (24 if track and cull else 20),
                  "refinement levels", hint="raise the error or narrow the view")
@@ -718,15 +718,15 @@ def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: i
     leaf_masks = scratch("globe.fused.leaf_masks", room, wp.int32, device) if track and cull else none
     entries = scratch("globe.fused.entries", room, wp.int32, device)
     sizes = scratch("globe.fused.sizes", levels + 1, wp.int32, device)
-    totals = scratch("globe.fused.totals", 5, wp.int32, device)
+    totals = scratch("globe.fused.totals", 6, wp.int32, device)
     launch(cube_kernels.refine_levels, 1, [grid, params, view, roots, levels, capacity, room],
            [halves, half_masks, leaves, leaf_masks, entries, sizes, totals], device)
-    n_leaves, n_entries, n_next, depth, start = (int(v) for v in host_copy(totals))
+    n_leaves, n_entries, n_next, depth, start, unknown = (int(v) for v in host_copy(totals))
     leaf_chunks.append(leaves[:n_leaves])
     vertex_chunks.append(entries[:n_entries])
     mask_chunks.append(leaf_masks[:n_leaves] if track and cull else None)
     per_level.extend(int(v) for v in host_copy(sizes)[:depth])
-    return halves[start:start + n_next], half_masks[start:start + n_next] if track else None, depth
+    return halves[start:start + n_next], half_masks[start:start + n_next] if track else None, depth, unknown
 
 
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
@@ -761,8 +761,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         vertex_chunks.append(entries)
         levels = -1  # the loop below has nothing left to do
     first_depth = 0
+    unknown = -1  # leaves with no corner known inside the view, when one tracked launch made them all
     if device.is_cpu and not users and levels >= 0 and _SMALL_LEVELS >= triangles.shape[0]:
-        triangles, masks, first_depth = _refine_levels(
+        triangles, masks, first_depth, unknown = _refine_levels(
             grid, params, view, triangles, levels, _SMALL_LEVELS, track=bool(flags[2]), cull=cull,
             leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,
             device=device)
@@ -807,20 +808,25 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
                    min_elements=_SPLIT_REFINE)
     n_leaves = leaves.shape[0]
-    keep = count_buffer("globe.keep", n_leaves, device)
-    leaf_masks = none
-    if len(mask_chunks) == 1 and mask_chunks[0] is not None and mask_chunks[0].shape[0] == n_leaves:
-        leaf_masks = mask_chunks[0]  # every leaf from one tracked launch (the CPU's refine_levels)
-    elif any(chunk is not None for chunk in mask_chunks):  # per leaf; 0 (nothing known) for untracked levels
-        leaf_masks = wp.zeros(leaves.shape[0], dtype=wp.int32, device=device)
-        offset = 0
-        for leaf_chunk, chunk in zip(leaf_chunks, mask_chunks, strict=True):  # one of each per level
-            if chunk is not None and chunk.shape[0]:
-                wp.copy(leaf_masks, chunk, dest_offset=offset, count=chunk.shape[0])
-            offset += leaf_chunk.shape[0]
-    launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves, leaf_masks], [keep],
-                   device)
-    offsets, n_faces = exclusive_offsets(keep, "globe.keep")
+    whole = len(leaf_chunks) == 1 and unknown >= 0  # every leaf from the one tracked launch
+    if faces > 1 and (not cull or (whole and unknown == 0)):
+        keep = offsets = none  # nothing to cull, no padding: every leaf is a face (emit_faces' "every")
+        n_faces = n_leaves
+    else:
+        keep = count_buffer("globe.keep", n_leaves, device)
+        leaf_masks = none
+        if whole and mask_chunks[0] is not None:
+            leaf_masks = mask_chunks[0]
+        elif any(chunk is not None for chunk in mask_chunks):  # per leaf; 0 (nothing known) for untracked levels
+            leaf_masks = wp.zeros(leaves.shape[0], dtype=wp.int32, device=device)
+            offset = 0
+            for leaf_chunk, chunk in zip(leaf_chunks, mask_chunks, strict=True):  # one of each per level
+                if chunk is not None and chunk.shape[0]:
+                    wp.copy(leaf_masks, chunk, dest_offset=offset, count=chunk.shape[0])
+                offset += leaf_chunk.shape[0]
+        launch_chunked(cube_kernels.count_kept_faces, n_leaves, [grid, view, int(cull), leaves, leaf_masks], [keep],
+                       device)
+        offsets, n_faces = exclusive_offsets(keep, "globe.keep")
     culled = n_faces < n_leaves
     # nothing culled: the kernel writes the final int64 faces (trimesh's dtype; on the CPU straight into numpy), not
     # int32 ones to convert (2 ms of a 200k-face view); culled, int32 faces are compacted below, then converted
