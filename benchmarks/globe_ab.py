@@ -1,11 +1,12 @@
 """One side of an interleaved before/after timing of the globe (benchmarks/RESULTS.md, globe run 3).
 
     git archive <old commit> | tar -x -C /tmp/old && cp -r /tmp/old/kernels /tmp/old/stepterrain/kernels
-    for k in 1 2 3; do for r in /tmp/old .; do python benchmarks/globe_ab.py $r; done; done
+    for k in 1 2 3; do for r in /tmp/old .; do python benchmarks/globe_ab.py $r [MESH_REPEAT]; done; done
 
 Imports stepterrain from ROOT, pins itself to core 0 and one thread, and prints one JSON line: CPU and wall
 seconds (best of N) of ``Globe.from_latlon`` at 6 x 1025² (best of 3), a far-view ``Globe.mesh`` at error 433
-(best of 7) and ``adaptive_mesh`` of the 1025² Big Tujunga tile at error 5 (best of 3).
+(best of MESH_REPEAT, default 7; also the median, ``mesh_median_wall``) and ``adaptive_mesh`` of the 1025² Big
+Tujunga tile at error 5 (best of 3).
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(sys.argv[1] if len(sys.argv) > 1 else ".").resolve()
@@ -36,7 +38,16 @@ def main() -> int:
     Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")  # compile / load
     globe, pre_cpu, pre_wall = best(lambda: Globe.from_latlon(z, lat, lon, face_size=1025, device="cpu"), 3)
     cam = look_from(30.0, 10.0, 3.0 * EARTH_RADIUS, aspect=1.6)
-    mesh, mesh_cpu, mesh_wall = best(lambda: globe.mesh(error=433.0, camera=cam), 7)
+    repeat = int(sys.argv[2]) if len(sys.argv) > 2 else 7
+    walls: list[float] = []
+
+    def timed_mesh() -> object:
+        start = time.perf_counter()
+        out = globe.mesh(error=433.0, camera=cam)
+        walls.append(time.perf_counter() - start)
+        return out
+
+    mesh, mesh_cpu, mesh_wall = best(timed_mesh, repeat)
     dem = tiled_dem(1025)
     adaptive_mesh(dem[:65, :65], error=1.0)
     planar, planar_cpu, planar_wall = best(lambda: adaptive_mesh(dem, error=5.0, spacing=1.0), 3)
@@ -44,7 +55,8 @@ def main() -> int:
 
     print(json.dumps({"root": str(Path(stepterrain.globe.__file__).parents[1]), "pre_cpu": pre_cpu,
                       "pre_wall": pre_wall, "mesh_cpu": mesh_cpu,
-                      "mesh_wall": mesh_wall, "triangles": len(mesh.faces), "planar_cpu": planar_cpu,
+                      "mesh_wall": mesh_wall, "mesh_median_wall": float(np.median(walls)),
+                      "triangles": len(mesh.faces), "planar_cpu": planar_cpu,
                       "planar_wall": planar_wall, "planar_triangles": len(planar.faces)}))
     return 0
 
