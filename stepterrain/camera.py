@@ -141,17 +141,23 @@ class Camera:
     def planes(self) -> NDArray[np.float64]:
         """(6, 4) float64: outward unit normal n and offset a of the left, right, bottom, top, near and far
         planes; x lies inside the frustum iff n · x + a <= 0 for all six."""
-        forward, right, up = self.frame()
-        eye = np.asarray(self.eye)
+        # in Python floats: numpy's per-call cost on 3-vectors was most of a 200k-triangle globe view's set-up
+        eye = [float(v) for v in self.eye]
+        forward = _unit([float(t) - e for t, e in zip(self.target, eye, strict=True)])
+        right = _unit(_cross(forward, [float(v) for v in self.up]))
+        up = _cross(right, forward)
         tv = math.tan(self.fov / 2.0)
         th = tv * self.aspect
-        normals = [-right - th * forward, right - th * forward, -up - tv * forward, up - tv * forward]
+        normals = [[-r - th * f for r, f in zip(right, forward, strict=True)],
+                   [r - th * f for r, f in zip(right, forward, strict=True)],
+                   [-u - tv * f for u, f in zip(up, forward, strict=True)],
+                   [u - tv * f for u, f in zip(up, forward, strict=True)]]
         rows = []
         for n in normals:
-            n = n / np.linalg.norm(n)
-            rows.append([*n, -float(n @ eye)])
-        rows.append([*(-forward), float(forward @ eye) + self.near])
-        rows.append([*forward, -float(forward @ eye) - self.far])
+            n = _unit(n)
+            rows.append([*n, -_dot(n, eye)])
+        rows.append([-forward[0], -forward[1], -forward[2], _dot(forward, eye) + self.near])
+        rows.append([*forward, -_dot(forward, eye) - self.far])
         return np.asarray(rows, dtype=np.float64)
 
     @property
@@ -204,3 +210,16 @@ class Camera:
         if np.any(depth < self.near):
             return math.inf
         return float(np.linalg.norm(px[0] - px[1]))
+
+
+def _dot(a: list[float], b: list[float]) -> float:
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _cross(a: list[float], b: list[float]) -> list[float]:
+    return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
+
+
+def _unit(a: list[float]) -> list[float]:
+    length = math.sqrt(_dot(a, a))
+    return [a[0] / length, a[1] / length, a[2] / length]
