@@ -33,7 +33,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from ._compaction import check_budget, count_buffer, exclusive_offsets
+from ._compaction import check_budget, count_buffer, exclusive_offsets, get_memory_budget
 from ._device import empty_shared, host_copy, launch, launch_chunked, resolve_device, scratch, to_device, to_numpy
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError
@@ -700,6 +700,12 @@ def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int
     return per_level
 
 
+def _one_launch_bytes(capacity: int, track: bool, cull: bool) -> int:
+    """Scratch bytes of :func:`_refine_levels`: two level halves of 2·capacity triangles (and masks), and 4·capacity
+    leaves (and masks) and new vertices."""
+    return 4 * capacity * (20 if track else 16) + 4 * capacity * (24 if track and cull else 20)
+
+
 def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int, *,
                    track: bool, cull: bool, leaf_chunks: list[wp.array], vertex_chunks: list[wp.array],
                    mask_chunks: list[wp.array | None], per_level: list[int], device: wp.Device
@@ -709,8 +715,6 @@ def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: i
     tracked and culling), new vertices and level sizes; returns the next level's triangles, their masks (None
     when not tracked), its depth, and how many of the leaves have no corner known inside the view."""
     room = 4 * capacity
-    check_budget(4 * capacity * (20 if track else 16) + room * (24 if track and cull else 20),
-                 "refinement levels", hint="raise the error or narrow the view")
     none = wp.zeros(0, dtype=wp.int32, device=device)
     halves = scratch("globe.fused.levels", 4 * capacity, wp.vec4i, device)
     half_masks = scratch("globe.fused.masks", 4 * capacity, wp.int32, device) if track else none
@@ -762,7 +766,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         levels = -1  # the loop below has nothing left to do
     first_depth = 0
     unknown = -1  # leaves with no corner known inside the view, when one tracked launch made them all
-    if device.is_cpu and not users and levels >= 0 and _SMALL_LEVELS >= triangles.shape[0]:
+    if device.is_cpu and not users and levels >= 0 and _SMALL_LEVELS >= triangles.shape[0] \
+            and _one_launch_bytes(_SMALL_LEVELS, bool(flags[2]), cull) <= get_memory_budget():
+        # (under a budget too small for its scratch, the level passes alone: each checks its own level's size)
         triangles, masks, first_depth, unknown = _refine_levels(
             grid, params, view, triangles, levels, _SMALL_LEVELS, track=bool(flags[2]), cull=cull,
             leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,

@@ -855,6 +855,24 @@ def test_memory_budget_refuses_before_allocating():
         compaction.set_memory_budget(previous)
 
 
+def test_a_budget_below_the_one_launch_scratch_falls_back_to_level_passes(sample_globe):
+    """The CPU's one-launch levels need 22 MB of scratch: under a smaller memory budget a view still meshes (level
+    by level, each level checked on its own), the same mesh."""
+    import stepterrain._compaction as compaction
+    import stepterrain.globe as globe_module
+
+    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
+    assert globe_module._one_launch_bytes(globe_module._SMALL_LEVELS, True, True) > 8 << 20
+    at_once = sample_globe.mesh(error=30.0, camera=close)
+    previous = compaction.set_memory_budget(8 << 20)
+    try:
+        levelwise = sample_globe.mesh(error=30.0, camera=close)
+    finally:
+        compaction.set_memory_budget(previous)
+    assert len(at_once.faces) > 100
+    assert _mesh_key(levelwise) == _mesh_key(at_once)
+
+
 def test_latlon_axes_that_are_not_numbers_are_refused_by_name(tmp_path, capsys):
     from stepterrain.cli import main
 
