@@ -5,8 +5,9 @@
 
 Imports stepterrain from ROOT, pins itself to core 0 and one thread, and prints one JSON line: CPU and wall
 seconds (best of N) of ``Globe.from_latlon`` at 6 x 1025² (best of 3), a far-view ``Globe.mesh`` at error 433
-(best of MESH_REPEAT, default 7; also the median, ``mesh_median_wall``) and ``adaptive_mesh`` of the 1025² Big
-Tujunga tile at error 5 (best of 3).
+(best of MESH_REPEAT, default 7; also the median, ``mesh_median_wall``), ``run_globe.py``'s close view at errors
+1000, 100 and 20 (best and median wall of MESH_REPEAT each) and ``adaptive_mesh`` of the 1025² Big Tujunga tile at
+error 5 (best of 3).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np  # noqa: E402
 import stepterrain._device as _device  # noqa: E402  (before run_globe, which puts this checkout first)
 from stepterrain.globe import EARTH_RADIUS, Globe, adaptive_mesh, look_from  # noqa: E402
 
-from run_globe import best, data_file, tiled_dem  # noqa: E402  # isort: skip
+from run_globe import best, data_file, tiled_dem, views  # noqa: E402  # isort: skip
 
 
 def main() -> int:
@@ -41,13 +42,20 @@ def main() -> int:
     repeat = int(sys.argv[2]) if len(sys.argv) > 2 else 7
     walls: list[float] = []
 
-    def timed_mesh() -> object:
+    def timed(camera: object, error: float, into: list[float]) -> object:
         start = time.perf_counter()
-        out = globe.mesh(error=433.0, camera=cam)
-        walls.append(time.perf_counter() - start)
+        out = globe.mesh(error=error, camera=camera)
+        into.append(time.perf_counter() - start)
         return out
 
-    mesh, mesh_cpu, mesh_wall = best(timed_mesh, repeat)
+    mesh, mesh_cpu, mesh_wall = best(lambda: timed(cam, 433.0, walls), repeat)
+    close = views(globe)["close"]
+    close_walls: dict[float, list[float]] = {}
+    for error in (1000.0, 100.0, 20.0):
+        close_walls[error] = []
+        best(lambda error=error: timed(close, error, close_walls[error]), 3)  # warm
+        close_walls[error].clear()
+        best(lambda error=error: timed(close, error, close_walls[error]), repeat)
     dem = tiled_dem(1025)
     adaptive_mesh(dem[:65, :65], error=1.0)
     planar, planar_cpu, planar_wall = best(lambda: adaptive_mesh(dem, error=5.0, spacing=1.0), 3)
@@ -57,7 +65,9 @@ def main() -> int:
                       "pre_wall": pre_wall, "mesh_cpu": mesh_cpu,
                       "mesh_wall": mesh_wall, "mesh_median_wall": float(np.median(walls)),
                       "triangles": len(mesh.faces), "planar_cpu": planar_cpu,
-                      "planar_wall": planar_wall, "planar_triangles": len(planar.faces)}))
+                      "planar_wall": planar_wall, "planar_triangles": len(planar.faces),
+                      "close_best_wall": {str(e): min(w) for e, w in close_walls.items()},
+                      "close_median_wall": {str(e): float(np.median(w)) for e, w in close_walls.items()}}))
     return 0
 
 
