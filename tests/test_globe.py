@@ -377,10 +377,12 @@ def _assert_culled_exactly(closed, culled, cam):
 def test_culling_keeps_exactly_the_triangles_not_wholly_outside(sample_globe, monkeypatch, track_min):
     """Views whose planes cut through many leaves: leaves known inside (their corners tested as refinement
     nodes) skip the test, the others are tested, and the result is the closed mesh less exactly the
-    triangles wholly outside a plane; with every level tracked, with the small ones not, and by default."""
+    triangles wholly outside a plane; level by level with every level tracked or the small ones not, and by
+    default (on the CPU the one-launch levels, tracked from the roots)."""
     import stepterrain.globe as globe_module
 
     if track_min is not None:
+        monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)  # the level passes, as on CUDA
         monkeypatch.setattr(globe_module, "_TRACK_MIN", track_min)
     g = sample_globe
     for lat, lon, altitude, tilt, fov in ((46.0, 9.0, 400_000.0, 60.0, 0.5), (0.0, 0.0, 2 * R, 0.0, 0.2),
@@ -401,7 +403,8 @@ def _mesh_key(mesh):
 @pytest.mark.parametrize("bounds", ["cone", "sphere"])
 def test_skipping_the_clip_test_inside_the_view_changes_nothing(sample_globe, monkeypatch, bounds):
     """Below a node whose shape lies wholly inside the view (tracked levels) the clip test is skipped: the
-    meshes, culled or not, at ε > 0 and ε = 0, are those of the refinement that tests every node."""
+    meshes, culled or not, at ε > 0 and ε = 0, are those of the refinement that tests every node (level passes,
+    nothing tracked), whether the level passes track every level or the CPU's one launch tracks them."""
     import stepterrain.globe as globe_module
 
     g = sample_globe
@@ -412,11 +415,15 @@ def test_skipping_the_clip_test_inside_the_view_changes_nothing(sample_globe, mo
     skipped = 0
     for cam in views:
         for error, cull in ((30.0, True), (30.0, False), (0.0, True)):
+            monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)  # level passes only
             monkeypatch.setattr(globe_module, "_TRACK_MIN", 1 << 40)  # nothing tracked: every node tested
             tested = g.mesh(error=error, camera=cam, bounds=bounds, cull=cull)
             monkeypatch.setattr(globe_module, "_TRACK_MIN", 1)  # every level tracked
             tracked = g.mesh(error=error, camera=cam, bounds=bounds, cull=cull)
+            monkeypatch.undo()  # the defaults: on the CPU one launch, tracked from the roots
+            at_once = g.mesh(error=error, camera=cam, bounds=bounds, cull=cull)
             assert _mesh_key(tracked) == _mesh_key(tested)
+            assert _mesh_key(at_once) == _mesh_key(tested)
             skipped += len(tracked.faces)
     assert skipped > 0
 

@@ -136,8 +136,9 @@ def test_stepped_kernels_stay_in_range_in_debug_mode():
 
 
 def test_globe_kernels_stay_in_range_in_debug_mode():
-    """The cube-sphere refinement and mesh output (cones and spheres, with and without a view, per face) and the
-    planar RTIN, compiled with their index assertions: none fires, and the meshes equal the release build's."""
+    """The cube-sphere refinement and mesh output (cones and spheres, with and without a view, per face; the CPU's
+    one-launch levels, and the level passes CUDA takes) and the planar RTIN, compiled with their index assertions:
+    none fires, and the meshes equal the release build's."""
     from tests.conftest import real_dem, shared_file
 
     relief = shared_file("global_relief_1deg.npz")
@@ -145,14 +146,20 @@ def test_globe_kernels_stay_in_range_in_debug_mode():
     code = """
         import sys
         import numpy as np
+        import stepterrain.globe as globe_module
         from stepterrain.globe import EARTH_RADIUS, Globe, adaptive_mesh, look_from
 
         with np.load(sys.argv[2]) as d:
             g = Globe.from_latlon(d["elevation"], d["lat"], d["lon"], face_size=33, exaggeration=20.0, device="cpu")
         camera = look_from(30.0, 10.0, 2.0 * EARTH_RADIUS, tilt=20.0, aspect=1.6)
-        meshes = [g.mesh(error=20000.0), g.mesh(error=3000.0, camera=camera),
-                  g.mesh(error=3000.0, camera=camera, bounds="sphere"), *g.mesh(error=8000.0, per_face=True),
-                  adaptive_mesh(np.load(sys.argv[3]), error=5.0, spacing=30.0, device="cpu")]
+        meshes = []
+        for small in (globe_module._SMALL_LEVELS, 0, 64):  # one launch; level passes; a launch stopping early
+            globe_module._SMALL_LEVELS = small
+            meshes += [g.mesh(error=20000.0), g.mesh(error=3000.0, camera=camera),
+                       g.mesh(error=3000.0, camera=camera, bounds="sphere"),
+                       g.mesh(error=3000.0, camera=camera, cull=False)]
+        meshes += [*g.mesh(error=8000.0, per_face=True),
+                   adaptive_mesh(np.load(sys.argv[3]), error=5.0, spacing=30.0, device="cpu")]
         np.savez(sys.argv[1], *[np.concatenate([m.vertices.ravel(), m.faces.ravel()]) for m in meshes])
     """
     with tempfile.TemporaryDirectory() as tmp:
