@@ -529,6 +529,10 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
 #: ``device='cuda' needs ...`` (the house style names the argument first).
 _ARGUMENT_FIRST = re.compile(r"^([a-z][a-z0-9_]*)(=| )")
 
+#: Second words that show a message is about a thing, not about the argument of that name ("mesh has no faces",
+#: "output folder ... is not writable"): such messages keep their wording.
+_NOT_ABOUT_THE_ARGUMENT = frozenset({"has", "folder", "file", "is", "of", "with"})
+
 #: Library argument names whose option is spelled otherwise, per subcommand (checked before the general rule).
 _OPTION_ALIASES = {"steps": {"lens edge_width": "--lens-edge"}}
 
@@ -550,7 +554,7 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
         if message.startswith(name + " "):
             return option + message[len(name):]
     match = _ARGUMENT_FIRST.match(message)
-    if match is None:
+    if match is None or message[match.end():].split(" ", 1)[0] in _NOT_ABOUT_THE_ARGUMENT:
         return message
     option = "--" + match.group(1).replace("_", "-")
     if option not in {string for action in sub._actions for string in action.option_strings}:

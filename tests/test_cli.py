@@ -229,6 +229,10 @@ def test_as_option_rewrites_only_a_leading_name_the_subcommand_has():
     assert cli._as_option("face_size must be 2^k + 1", sub) == "face_size must be 2^k + 1"  # not a steps option
     assert cli._as_option("cannot read 'x.npy': no such file", sub) == "cannot read 'x.npy': no such file"
     assert cli._as_option("--gamma must lie in [0, 1]", sub) == "--gamma must lie in [0, 1]"
+    assert cli._as_option("output folder '/x' is not writable", sub) == "output folder '/x' is not writable"
+    texture = cli._subcommand(cli.build_parser(), "texture")
+    assert cli._as_option("mesh has no faces; nothing to render", texture) == "mesh has no faces; nothing to render"
+    assert cli._as_option("z_factor x height range must stay below 1e+18", texture).startswith("--z-factor x")
 
 
 @pytest.mark.parametrize("where", ["before", "after"])
