@@ -1342,10 +1342,7 @@ def count_refinement(
             if refine != 0:
                 owner = owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3]))
                 if tracked:
-                    if refine == 3:
-                        store(inside_out, t, 3)
-                    else:
-                        store(inside_out, t, point_inside_view(view.planes, bounds.to_vec3d(p)))
+                    store(inside_out, t, node_inside_flags(refine, view.planes, p))
                 refine = 1
         store(counts_out, t, refine)
         store(counts_out, count + 1 + t, owner)
@@ -1569,6 +1566,23 @@ def emit_node_leaves(
 
 
 @wp.func
+def node_inside_flags(refine: wp.int32, planes: wp.array[wp.vec4d], p: wp.vec3) -> wp.int32:
+    """A refining node's inside flags (see count_refinement's ``inside_out``): 3 when refine_decision found its
+    shape wholly inside the view (so is the node), else bit 0 when the node lies inside every plane."""
+    if refine == 3:
+        return 3
+    return point_inside_view(planes, bounds.to_vec3d(p))
+
+
+@wp.func
+def child_masks(mask: wp.int32, node_inside: wp.int32) -> wp.vec2i:
+    """The corner masks of children (c, a, m) and (b, c, m) of a triangle with corner mask ``mask`` whose node m
+    has the inside flags ``node_inside``: bit k - 1 a corner known inside; bit 3, an ancestor's shape inside."""
+    node = ((node_inside & 1) << 2) | (mask & 8) | ((node_inside & 2) << 2)  # m's bit, deep inside
+    return wp.vec2i(((mask >> 2) & 1) | ((mask & 1) << 1) | node, ((mask >> 1) & 3) | node)
+
+
+@wp.func
 def child_triangle(tri: wp.vec4i, mid: wp.int32, k: wp.int32) -> wp.vec4i:
     """Child k of triangle (face, a, b, c) with its packed refinement node ``mid`` = m: (c, a, m) or (b, c, m)."""
     if k == 0:
@@ -1615,11 +1629,9 @@ def emit_refinement(
             store(children_out, k, child_triangle(tri, m, 0))
             store(children_out, k + 1, child_triangle(tri, m, 1))
             if track:
-                mask = load(masks, t)
-                node_inside = load(inside, t)
-                node = ((node_inside & 1) << 2) | (mask & 8) | ((node_inside & 2) << 2)  # m's bit, deep inside
-                store(child_masks_out, k, ((mask >> 2) & 1) | ((mask & 1) << 1) | node)  # (c, a, m)
-                store(child_masks_out, k + 1, ((mask >> 1) & 3) | node)  # (b, c, m)
+                pair = child_masks(load(masks, t), load(inside, t))
+                store(child_masks_out, k, pair[0])  # (c, a, m)
+                store(child_masks_out, k + 1, pair[1])  # (b, c, m)
             if load(counts, count + 1 + t) != 0:
                 store(vertex_entries_out, load(offsets, count + 1 + t) - load(offsets, count + 1),
                       node_entry(grid.cells, grid.planar, tri[0], mi, mj))
@@ -1723,12 +1735,9 @@ def refine_levels(
                 store(level_out, nxt + n_next, child_triangle(tri, mid, 0))
                 store(level_out, nxt + n_next + 1, child_triangle(tri, mid, 1))
                 if track:  # emit_refinement's masks, with count_refinement's inside flags
-                    node_inside = wp.int32(3)
-                    if refine != 3:
-                        node_inside = point_inside_view(view.planes, bounds.to_vec3d(p))
-                    node = ((node_inside & 1) << 2) | (mask & 8) | ((node_inside & 2) << 2)
-                    store(level_masks_out, nxt + n_next, ((mask >> 2) & 1) | ((mask & 1) << 1) | node)
-                    store(level_masks_out, nxt + n_next + 1, ((mask >> 1) & 3) | node)
+                    pair = child_masks(mask, node_inside_flags(refine, view.planes, p))
+                    store(level_masks_out, nxt + n_next, pair[0])
+                    store(level_masks_out, nxt + n_next + 1, pair[1])
                 n_next += 2
                 if owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3])) != 0:
                     store(vertex_entries_out, n_entries, node_entry(grid.cells, grid.planar, tri[0], mi, mj))

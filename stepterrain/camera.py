@@ -132,20 +132,22 @@ class Camera:
 
     def frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Unit forward, right and up vectors of the camera."""
-        forward = np.subtract(self.target, self.eye)
-        forward /= np.linalg.norm(forward)
-        right = np.cross(forward, self.up)
-        right /= np.linalg.norm(right)
-        return forward, right, np.cross(right, forward)
+        forward, right, up = self._axes()
+        return np.array(forward), np.array(right), np.array(up)
+
+    def _axes(self) -> tuple[list[float], list[float], list[float]]:
+        """:meth:`frame` in Python floats: numpy's per-call cost on 3-vectors was most of a 200k-triangle globe
+        view's set-up (through :meth:`planes`)."""
+        eye = [float(v) for v in self.eye]
+        forward = _unit([float(t) - e for t, e in zip(self.target, eye, strict=True)])
+        right = _unit(_cross(forward, [float(v) for v in self.up]))
+        return forward, right, _cross(right, forward)
 
     def planes(self) -> NDArray[np.float64]:
         """(6, 4) float64: outward unit normal n and offset a of the left, right, bottom, top, near and far
         planes; x lies inside the frustum iff n · x + a <= 0 for all six."""
-        # in Python floats: numpy's per-call cost on 3-vectors was most of a 200k-triangle globe view's set-up
         eye = [float(v) for v in self.eye]
-        forward = _unit([float(t) - e for t, e in zip(self.target, eye, strict=True)])
-        right = _unit(_cross(forward, [float(v) for v in self.up]))
-        up = _cross(right, forward)
+        forward, right, up = self._axes()
         tv = math.tan(self.fov / 2.0)
         th = tv * self.aspect
         normals = [[-r - th * f for r, f in zip(right, forward, strict=True)],

@@ -146,13 +146,19 @@ def _direction(azimuth: float, elevation: float) -> NDArray[np.float64]:
     ])
 
 
+def _screen_axes(forward: NDArray[np.float64], up: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The unit right vector and the true up vector of a camera looking along the unit ``forward``."""
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    return right, np.cross(right, forward)
+
+
 def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], up: NDArray[np.float64],
                   aspect: float) -> float:
     """Distance from the box centre along ``view_dir`` at which every corner lies inside the view frustum."""
     forward = -view_dir
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    true_up = np.cross(right, forward)
+    right, true_up = _screen_axes(forward, up)
     tan_v = math.tan(math.radians(_VIEW_ANGLE) / 2.0)
     tan_h = tan_v * aspect
     depth = corners @ forward  # corner offset along the viewing direction (positive: farther away)
@@ -190,9 +196,7 @@ def _camera_position(
     corners = points
     focal = (corners.min(axis=0) + corners.max(axis=0)) / 2
     forward = -view_dir
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    true_up = np.cross(right, forward)
+    right, true_up = _screen_axes(forward, up)
     for _ in range(4):  # fit, then recentre the projected box on screen, and fit again
         distance = _fit_distance(corners - focal, view_dir, up, aspect)
         eye = focal + view_dir * distance
@@ -385,9 +389,7 @@ def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, i
     ``position`` with the renders' vertical field of view, at image ``size``."""
     eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
     forward = (focal - eye) / np.linalg.norm(focal - eye)
-    right = np.cross(forward, up)
-    right /= np.linalg.norm(right)
-    true_up = np.cross(right, forward)
+    right, true_up = _screen_axes(forward, up)
     rel = points - eye
     depth = rel @ forward
     front = depth > 0
