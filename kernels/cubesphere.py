@@ -1650,18 +1650,25 @@ def refine_levels(
     params: NodeParameters,
     view: bounds.View,
     roots: wp.array[wp.vec4i],
+    root_masks: wp.array[wp.int32],  # the roots' corner masks when tracked, or empty: nothing known (0)
+    first_root: wp.int32,  # the roots are roots[first_root : first_root + root_count]
+    root_count: wp.int32,
+    part: wp.int32,  # which part of each output this launch writes (several launches share the arrays)
     levels: wp.int32,  # the deepest level: its triangles do not refine
     capacity: wp.int32,  # levels of at most this many triangles are refined here
     room: wp.int32,  # while their leaves and new vertices fit in this many slots
     # outputs
+    # outputs, each in parts of the size given (the part ``part`` written here)
     level_out: wp.array[wp.vec4i],  # 4·capacity: two halves, one level's triangles and the next's in turn
     level_masks_out: wp.array[wp.int32],  # 4·capacity, the triangles' corner masks; or empty: not tracked
     leaves_out: wp.array[wp.vec4i],  # room
     leaf_masks_out: wp.array[wp.int32],  # room, the leaves' corner masks (for the cull); or empty
     vertex_entries_out: wp.array[wp.int32],  # room
     per_level_out: wp.array[wp.int32],  # levels + 1: triangles per level refined here
-    totals_out: wp.array[wp.int32],  # leaves, new vertices, triangles of the next level, its depth, its start,
-                                     # leaves whose mask is 0 (none of its corners known inside the view)
+    totals_out: wp.array[wp.int32],  # 6: leaves, new vertices, triangles of the next level, its depth, its start
+                                     # (in level_out), leaves whose mask is 0 (no corner known inside the view)
+    marks_out: wp.array[wp.vec2i],  # levels + 2, or empty: (leaves, new vertices) written before each level
+                                    # and after the last (where each level's run of them starts and ends)
 ):
     """The CPU's levels in one thread and one launch: :func:`count_refinement` and :func:`emit_refinement` of
     every level from the roots while a level holds at most ``capacity`` triangles and its leaves and new
@@ -1669,28 +1676,42 @@ def refine_levels(
     them (the same mesh). A level pass costs a few launches, a scan and a host read of its total, and a second
     walk over its triangles to emit them; here a level costs one walk. With ``level_masks_out`` the corner
     masks are tracked as :func:`emit_refinement` tracks them (from the roots on, nothing known there), the
-    refinement loads are software-pipelined as in :func:`count_refinement`."""
+    refinement loads are software-pipelined as in :func:`count_refinement`.
+
+    The roots may be any level's triangles (with their masks): a contiguous range of a level is a subtree
+    forest whose triangles come, on every later level, as one contiguous run in the level passes' order, so
+    launches over consecutive ranges, their runs interleaved level by level (``marks_out``), give the same mesh
+    as one launch over the whole level."""
     if wp.tid() + thread_offset != 0:
         return
     need_position = needs_position(view.flags, view.error)
     track = level_masks_out.shape[0] > 0
     keep_leaf_masks = leaf_masks_out.shape[0] > 0
-    n_cur = roots.shape[0]
+    n_cur = root_count
+    cur = part * 4 * capacity  # start of the current level's half of level_out
+    nxt = cur + 2 * capacity
+    base = part * room  # of leaves_out, leaf_masks_out and vertex_entries_out
+    level_base = part * (levels + 1)
+    marks_base = part * (levels + 2)
     k = wp.int32(0)
     while k < n_cur:
-        store(level_out, k, load(roots, k))
+        store(level_out, cur + k, load(roots, first_root + k))
         if track:
-            store(level_masks_out, k, 0)
+            root_mask = wp.int32(0)
+            if root_masks.shape[0] > 0:
+                root_mask = load(root_masks, first_root + k)
+            store(level_masks_out, cur + k, root_mask)
         k += 1
-    cur = wp.int32(0)  # start of the current level's half of level_out
-    nxt = 2 * capacity
+    keep_marks = marks_out.shape[0] > 0
     n_leaves = wp.int32(0)
     n_unknown = wp.int32(0)
     n_entries = wp.int32(0)
     depth = wp.int32(0)
     while depth <= levels and n_cur > 0 and n_cur <= capacity and n_leaves + n_cur <= room \
             and n_entries + n_cur <= room:
-        store(per_level_out, depth, n_cur)
+        store(per_level_out, level_base + depth, n_cur)
+        if keep_marks:
+            store(marks_out, marks_base + depth, wp.vec2i(n_leaves, n_entries))
         can_refine = depth < levels
         q_next = wp.vec4(0.0, 0.0, 0.0, 0.0)
         p_next = wp.vec3(0.0, 0.0, 0.0)
@@ -1740,12 +1761,12 @@ def refine_levels(
                     store(level_masks_out, nxt + n_next + 1, pair[1])
                 n_next += 2
                 if owns_refinement_node(grid.cells, grid.planar, tri[0], a, b, unpack(tri[3])) != 0:
-                    store(vertex_entries_out, n_entries, node_entry(grid.cells, grid.planar, tri[0], mi, mj))
+                    store(vertex_entries_out, base + n_entries, node_entry(grid.cells, grid.planar, tri[0], mi, mj))
                     n_entries += 1
             else:
-                store(leaves_out, n_leaves, tri)
+                store(leaves_out, base + n_leaves, tri)
                 if keep_leaf_masks:
-                    store(leaf_masks_out, n_leaves, mask)
+                    store(leaf_masks_out, base + n_leaves, mask)
                 if mask == 0:
                     n_unknown += 1
                 n_leaves += 1
@@ -1755,12 +1776,73 @@ def refine_levels(
         nxt = swap
         n_cur = n_next
         depth += 1
-    store(totals_out, 0, n_leaves)
-    store(totals_out, 1, n_entries)
-    store(totals_out, 2, n_cur)
-    store(totals_out, 3, depth)
-    store(totals_out, 4, cur)
-    store(totals_out, 5, n_unknown)
+    if keep_marks:  # the levels it did not reach: no triangles, empty runs
+        d = depth
+        while d <= levels + 1:
+            store(marks_out, marks_base + d, wp.vec2i(n_leaves, n_entries))
+            if d <= levels:
+                store(per_level_out, level_base + d, 0)
+            d += 1
+    store(totals_out, part * 6 + 0, n_leaves)
+    store(totals_out, part * 6 + 1, n_entries)
+    store(totals_out, part * 6 + 2, n_cur)
+    store(totals_out, part * 6 + 3, depth)
+    store(totals_out, part * 6 + 4, cur)
+    store(totals_out, part * 6 + 5, n_unknown)
+
+
+@wp.kernel
+def copy_runs(
+    thread_offset: wp.int32,
+    parts: wp.int32,  # refine_levels launches, over consecutive ranges of one level
+    slots: wp.int32,  # marks per part (its levels + 2)
+    room: wp.int32,  # leaves and new vertices per part
+    leaves_at: wp.int32,  # where the first part's first leaf goes in leaves_out
+    entries_at: wp.int32,  # where its first new vertex goes in entries_out
+    marks: wp.array[wp.vec2i],  # refine_levels' marks_out, with the levels a part did not reach filled
+    leaves: wp.array[wp.vec4i],
+    leaf_masks: wp.array[wp.int32],  # or empty (then leaf_masks_out too)
+    entries: wp.array[wp.int32],
+    # outputs
+    leaves_out: wp.array[wp.vec4i],
+    leaf_masks_out: wp.array[wp.int32],
+    entries_out: wp.array[wp.int32],
+):
+    """One thread per part, level and kind (leaves with their masks, or new vertices), parts slowest: copies
+    that part's run of that level where one launch over the whole level would have written it (level by level,
+    part by part), finding the place by summing the runs before it."""
+    t = wp.tid() + thread_offset
+    levels = slots - 1
+    g = t / (2 * levels)
+    d = (t / 2) - g * levels
+    kind = t - (t / 2) * 2
+    start = load(marks, g * slots + d)[kind]
+    length = load(marks, g * slots + d + 1)[kind] - start
+    if length == 0:
+        return
+    dest = leaves_at
+    if kind == 1:
+        dest = entries_at
+    e = wp.int32(0)
+    while e <= d:  # the runs before it: every part's at the levels above, and the earlier parts' at its level
+        h = wp.int32(0)
+        while h < parts and (e < d or h < g):
+            dest += load(marks, h * slots + e + 1)[kind] - load(marks, h * slots + e)[kind]
+            h += 1
+        e += 1
+    k = wp.int32(0)
+    source = g * room + start
+    if kind == 0:
+        masks = leaf_masks.shape[0] > 0
+        while k < length:
+            store(leaves_out, dest + k, load(leaves, source + k))
+            if masks:
+                store(leaf_masks_out, dest + k, load(leaf_masks, source + k))
+            k += 1
+    else:
+        while k < length:
+            store(entries_out, dest + k, load(entries, source + k))
+            k += 1
 
 
 @wp.kernel

@@ -364,6 +364,12 @@ def get_cpu_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+def _launch_threads() -> int:
+    """CPU launches that may run at once: :func:`get_cpu_threads`, but one in Warp's debug mode, whose CPU kernels
+    (Warp 1.19) share one static tile-storage pointer, so that two launches at once crash."""
+    return 1 if wp.config.mode == "debug" else get_cpu_threads()
+
+
 def set_cpu_threads(threads: int | None) -> int | None:
     """Split CPU passes over ``threads`` threads (``None``: every core this process may use); returns the old value.
 
@@ -422,7 +428,7 @@ def launch(
     if dim <= 0:
         return
     fence = fence and device.is_cpu
-    workers = 1 if not device.is_cpu else min(get_cpu_threads(), dim // min_dim)
+    workers = 1 if not device.is_cpu else min(_launch_threads(), dim // min_dim)
     if workers <= 1:
         _launch_range(kernel, dim, [0, *inputs], outputs, device, fence)
         return
@@ -436,6 +442,31 @@ def launch(
         for k in range(1, workers)
     ]
     _launch_range(kernel, bounds[1], [0, *inputs], outputs, device, fence)
+    for future in futures:
+        future.result()
+
+
+def launch_each(kernel: Any, tasks: list[tuple[list, list]], device: wp.Device) -> None:
+    """One single-thread launch of ``kernel`` (``thread_offset`` first, dim 1) per ``(inputs, outputs)`` task.
+
+    On the CPU the tasks run on up to :func:`get_cpu_threads` threads at once, each thread taking the next task
+    when it is done with one (tasks of uneven length balance); each task's outputs must be its own. On CUDA they
+    are queued one after another.
+    """
+    workers = min(_launch_threads(), len(tasks)) if device.is_cpu else 1
+    if workers <= 1:
+        for inputs, outputs in tasks:
+            _launch_range(kernel, 1, [0, *inputs], outputs, device, False)
+        return
+    _preload(kernel, device)
+    queue = iter(tasks)  # a list iterator's next is atomic under the GIL
+
+    def drain() -> None:
+        for inputs, outputs in queue:
+            _launch_range(kernel, 1, [0, *inputs], outputs, device, False)
+
+    futures = [_helpers(workers - 1).submit(drain) for _ in range(workers - 1)]
+    drain()
     for future in futures:
         future.result()
 

@@ -34,7 +34,18 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets, get_memory_budget
-from ._device import empty_shared, host_copy, launch, launch_chunked, resolve_device, scratch, to_device, to_numpy
+from ._device import (
+    empty_shared,
+    get_cpu_threads,
+    host_copy,
+    launch,
+    launch_chunked,
+    launch_each,
+    resolve_device,
+    scratch,
+    to_device,
+    to_numpy,
+)
 from .camera import _MAX_COORDINATE, Camera
 from .errors import DataFileError, InvalidInputError
 from .io import picture_uint8
@@ -65,6 +76,11 @@ _TRACK_MIN = 4096  # triangles of a level from which the clip metric's flags are
 #: each; 0 switches that off. 2**17: a 200k-triangle view of the whole globe (levels up to 80k) in one launch, in
 #: 22 MB of scratch; a larger view continues level by level from where the launch stopped.
 _SMALL_LEVELS = 1 << 17
+#: With several CPU threads the one launch splits (:func:`_refine_in_ranges`): a first launch refines the levels of
+#: at most this many triangles, then the next level is cut into _RANGES_PER_THREAD ranges a thread, each refined to
+#: the end in a launch of its own (0 switches the split off).
+_SPLIT_FIRST = 1024
+_RANGES_PER_THREAD = 4
 #: On the CPU with several threads (``set_cpu_threads``), the view's passes split into ranges of at least this many
 #: triangles or vertices (``launch_chunked``'s ``min_elements``): the refinement test and the vertex pass cost
 #: 30-40 ns an element, the emit passes 12-20 ns, so smaller ranges than the stepped passes' pay for a split.
@@ -708,29 +724,103 @@ def _one_launch_bytes(capacity: int, track: bool, cull: bool) -> int:
 
 def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int, *,
                    track: bool, cull: bool, leaf_chunks: list[wp.array], vertex_chunks: list[wp.array],
-                   mask_chunks: list[wp.array | None], per_level: list[int], device: wp.Device
-                   ) -> tuple[wp.array, wp.array | None, int, int]:
+                   mask_chunks: list[wp.array | None], per_level: list[int], device: wp.Device,
+                   name: str = "globe.fused") -> tuple[wp.array, wp.array | None, int, int]:
     """The levels of at most ``capacity`` triangles from the roots, while their leaves and new vertices fit in
     4·capacity slots, in one launch (``refine_levels``): appends their leaves (with their corner masks when
     tracked and culling), new vertices and level sizes; returns the next level's triangles, their masks (None
     when not tracked), its depth, and how many of the leaves have no corner known inside the view."""
     room = 4 * capacity
     none = wp.zeros(0, dtype=wp.int32, device=device)
-    halves = scratch("globe.fused.levels", 4 * capacity, wp.vec4i, device)
-    half_masks = scratch("globe.fused.masks", 4 * capacity, wp.int32, device) if track else none
-    leaves = scratch("globe.fused.leaves", room, wp.vec4i, device)
-    leaf_masks = scratch("globe.fused.leaf_masks", room, wp.int32, device) if track and cull else none
-    entries = scratch("globe.fused.entries", room, wp.int32, device)
-    sizes = scratch("globe.fused.sizes", levels + 1, wp.int32, device)
-    totals = scratch("globe.fused.totals", 6, wp.int32, device)
-    launch(cube_kernels.refine_levels, 1, [grid, params, view, roots, levels, capacity, room],
-           [halves, half_masks, leaves, leaf_masks, entries, sizes, totals], device)
+    halves = scratch(f"{name}.levels", 4 * capacity, wp.vec4i, device)
+    half_masks = scratch(f"{name}.masks", 4 * capacity, wp.int32, device) if track else none
+    leaves = scratch(f"{name}.leaves", room, wp.vec4i, device)
+    leaf_masks = scratch(f"{name}.leaf_masks", room, wp.int32, device) if track and cull else none
+    entries = scratch(f"{name}.entries", room, wp.int32, device)
+    sizes = scratch(f"{name}.sizes", levels + 1, wp.int32, device)
+    totals = scratch(f"{name}.totals", 6, wp.int32, device)
+    no_marks = wp.empty(0, dtype=wp.vec2i, device=device)
+    launch(cube_kernels.refine_levels, 1,
+           [grid, params, view, roots, none, 0, roots.shape[0], 0, levels, capacity, room],  # all roots, part 0
+           [halves, half_masks, leaves, leaf_masks, entries, sizes, totals, no_marks], device)
     n_leaves, n_entries, n_next, depth, start, unknown = (int(v) for v in host_copy(totals))
     leaf_chunks.append(leaves[:n_leaves])
     vertex_chunks.append(entries[:n_entries])
     mask_chunks.append(leaf_masks[:n_leaves] if track and cull else None)
     per_level.extend(int(v) for v in host_copy(sizes)[:depth])
     return halves[start:start + n_next], half_masks[start:start + n_next] if track else None, depth, unknown
+
+
+def _refine_in_ranges(grid: Any, params: Any, view: Any, roots: wp.array, corners: wp.array, levels: int, *,
+                      track: bool, cull: bool, threads: int, device: wp.Device
+                      ) -> tuple[wp.array, wp.array | None, wp.array, list[int], int] | None:
+    """:func:`_refine_levels` from the roots to the last level on several CPU threads, the same mesh.
+
+    A first launch takes the levels of up to :data:`_SPLIT_FIRST` triangles; the next level is cut into
+    contiguous ranges (:data:`_RANGES_PER_THREAD` a thread, each thread taking the next range when done) and each
+    range is refined to the end in a launch of its own, a range's subtrees giving one contiguous run of every
+    later level (see ``refine_levels``). One copy pass then lays the runs out level by level, range by range: the
+    order of one launch. Returns the leaves, their masks (tracked and culled, else None), the new vertices,
+    triangles per level and how many leaves have no corner known inside the view; None when a range did not fit
+    in its share of the one launch's scratch (the caller refines in one launch, and level passes, instead)."""
+    leaf_chunks: list[wp.array] = []
+    vertex_chunks: list[wp.array] = []
+    mask_chunks: list[wp.array | None] = []
+    per_level: list[int] = []
+    frontier, frontier_masks, start, unknown = _refine_levels(
+        grid, params, view, roots, levels, max(roots.shape[0], min(_SPLIT_FIRST, _SMALL_LEVELS)), track=track,
+        cull=cull, leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,
+        device=device, name="globe.split.first")
+    first_leaves, first_entries, first_masks = leaf_chunks[0], vertex_chunks[0], mask_chunks[0]
+    n = frontier.shape[0]
+    if n == 0:  # the first launch reached the end
+        return first_leaves, first_masks, _concat([corners, first_entries], wp.int32, device), per_level, unknown
+    ranges = min(threads * _RANGES_PER_THREAD, n)
+    # the ranges' levels together up to twice the one launch's, and room for each range's roots (the kernel copies
+    # them in unchecked)
+    capacity = max(-(-n // ranges), 2 * _SMALL_LEVELS // ranges)
+    room = 4 * capacity
+    if ranges * _one_launch_bytes(capacity, track, cull) > get_memory_budget():
+        return None
+    depth = levels - start  # the ranges' deepest level, counted from the frontier
+    none = wp.zeros(0, dtype=wp.int32, device=device)
+    halves = scratch("globe.split.levels", ranges * 4 * capacity, wp.vec4i, device)
+    half_masks = scratch("globe.split.masks", ranges * 4 * capacity, wp.int32, device) if track else none
+    leaves = scratch("globe.split.leaves", ranges * room, wp.vec4i, device)
+    leaf_masks = scratch("globe.split.leaf_masks", ranges * room, wp.int32, device) if track and cull else none
+    entries = scratch("globe.split.entries", ranges * room, wp.int32, device)
+    sizes = scratch("globe.split.sizes", ranges * (depth + 1), wp.int32, device)
+    totals = scratch("globe.split.totals", ranges * 6, wp.int32, device)
+    marks = scratch("globe.split.marks", ranges * (depth + 2), wp.vec2i, device)
+
+    outputs = [halves, half_masks, leaves, leaf_masks, entries, sizes, totals, marks]  # part k of each: range k's
+    cuts = [n * k // ranges for k in range(ranges + 1)]
+    masks_in = frontier_masks if track else none
+    tasks = [([grid, params, view, frontier, masks_in, cuts[k], cuts[k + 1] - cuts[k], k, depth, capacity, room],
+              outputs) for k in range(ranges)]
+    launch_each(cube_kernels.refine_levels, tasks, device)
+    totals_host = host_copy(totals).reshape(ranges, 6)
+    if (totals_host[:, 2] != 0).any():  # a range stopped early (its share of the scratch was too small)
+        return None
+    n_first, n_corners = first_leaves.shape[0], corners.shape[0]
+    n_leaves, n_entries = (int(v) for v in totals_host[:, :2].sum(axis=0))
+    leaves_out = wp.empty(n_first + n_leaves, dtype=wp.vec4i, device=device)
+    entries_out = wp.empty(n_corners + first_entries.shape[0] + n_entries, dtype=wp.int32, device=device)
+    masks_out = wp.empty(n_first + n_leaves, dtype=wp.int32, device=device) if track and cull else none
+    if n_first:
+        wp.copy(leaves_out, first_leaves, count=n_first)
+        if track and cull:
+            wp.copy(masks_out, first_masks, count=n_first)
+    wp.copy(entries_out, corners, count=n_corners)
+    if first_entries.shape[0]:
+        wp.copy(entries_out, first_entries, dest_offset=n_corners, count=first_entries.shape[0])
+    launch(cube_kernels.copy_runs, 2 * ranges * (depth + 1),
+           [ranges, depth + 2, room, n_first, n_corners + first_entries.shape[0], marks, leaves, leaf_masks, entries],
+           [leaves_out, masks_out, entries_out], device, min_dim=8)
+    deepest = int(totals_host[:, 3].max())
+    per_level.extend(host_copy(sizes).reshape(ranges, depth + 1).sum(axis=0)[:deepest].tolist())
+    unknown += int(totals_host[:, 5].sum())
+    return leaves_out, masks_out if track and cull else None, entries_out, per_level, unknown
 
 
 def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels: int, *, faces: int, cull: bool,
@@ -765,14 +855,26 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         vertex_chunks.append(entries)
         levels = -1  # the loop below has nothing left to do
     first_depth = 0
+    split = None
     unknown = -1  # leaves with no corner known inside the view, when one tracked launch made them all
     if device.is_cpu and not users and levels >= 0 and _SMALL_LEVELS >= triangles.shape[0] \
             and _one_launch_bytes(_SMALL_LEVELS, bool(flags[2]), cull) <= get_memory_budget():
         # (under a budget too small for its scratch, the level passes alone: each checks its own level's size)
-        triangles, masks, first_depth, unknown = _refine_levels(
-            grid, params, view, triangles, levels, _SMALL_LEVELS, track=bool(flags[2]), cull=cull,
-            leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,
-            device=device)
+        threads = get_cpu_threads()
+        if threads > 1 and _SPLIT_FIRST > 0:
+            split = _refine_in_ranges(grid, params, view, triangles, corners, levels, track=bool(flags[2]),
+                                      cull=cull, threads=threads, device=device)
+        if split is not None:
+            leaves, leaf_masks, entries, per_level, unknown = split
+            leaf_chunks.append(leaves)
+            vertex_chunks = [entries]  # the corners first, in an array of its own
+            mask_chunks.append(leaf_masks)
+            first_depth = levels + 1  # nothing left for the level passes
+        else:
+            triangles, masks, first_depth, unknown = _refine_levels(
+                grid, params, view, triangles, levels, _SMALL_LEVELS, track=bool(flags[2]), cull=cull,
+                leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,
+                device=device)
     for depth in range(first_depth, levels + 1):
         count = triangles.shape[0]
         if count == 0:
@@ -807,7 +909,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         per_level.append(count)
         triangles, masks = children, (child_masks if track else None)
     leaves = _concat(leaf_chunks, wp.vec4i, device, share=True)  # read by the face passes only
-    entries = _concat(vertex_chunks, wp.int32, device)
+    # (the one-launch split's entries come whole, the corners first, in a fresh array: no copy)
+    entries = vertex_chunks[0] if split is not None else _concat(vertex_chunks, wp.int32, device)
     n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)

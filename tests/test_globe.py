@@ -19,7 +19,7 @@ from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import EARTH_RADIUS, Camera, Globe, adaptive_mesh, load_global_relief, look_from
 
 from . import reference_globe as ref
-from .conftest import SHARED_DATA, assert_valid_mesh, needs_render
+from .conftest import SHARED_DATA, assert_valid_mesh, needs_render, real_dem
 
 # shared/data beside the project; a worktree one level deeper (wt/<name>) finds it one level up
 _DATA_DIRS = [SHARED_DATA, Path(__file__).resolve().parents[3] / "shared" / "data"]
@@ -450,6 +450,70 @@ def test_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch, smal
         at_once = g.mesh(**kwargs)
         assert _mesh_key(at_once) == _mesh_key(levelwise)
         assert np.array_equal(at_once.face_attributes["cube_face"], levelwise.face_attributes["cube_face"])
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+@pytest.mark.parametrize(("first", "small", "split"), [(16, 1 << 17, True), (1024, 1 << 17, True),
+                                                        (16, 64, False), (12, 1 << 17, True)])
+def test_the_one_launch_split_into_ranges_gives_the_same_mesh(sample_globe, monkeypatch, threads, first, small,
+                                                                split):
+    """With several CPU threads the one launch splits: a first launch up to ``_SPLIT_FIRST`` triangles, then ranges
+    of the next level refined to the end one launch each, their runs laid out level by level. The triangles,
+    vertices, order, per-level counts and cube faces equal one thread's one launch; when the ranges' share of the
+    scratch is too small (``_SMALL_LEVELS`` 64) the split gives up and the one launch and level passes take over."""
+    import stepterrain as st
+
+    g = sample_globe
+    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
+    far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
+    cases = [dict(error=30.0, camera=close), dict(error=30.0, camera=close, cull=False),
+             dict(error=0.0, camera=close), dict(error=200.0, camera=far, bounds="sphere"),
+             dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance")),
+             dict(error=2.0, camera=far), dict(error=2.0, camera=far, cull=False)]
+    previous = st.set_cpu_threads(1)
+    try:
+        alone = [g.mesh(**kwargs) for kwargs in cases]
+        monkeypatch.setattr(globe_module, "_SPLIT_FIRST", first)
+        monkeypatch.setattr(globe_module, "_SMALL_LEVELS", small)
+        outcomes = []
+        real = globe_module._refine_in_ranges
+
+        def spy(*args, **kwargs):
+            out = real(*args, **kwargs)
+            outcomes.append(out is not None)
+            return out
+
+        monkeypatch.setattr(globe_module, "_refine_in_ranges", spy)
+        st.set_cpu_threads(threads)
+        split_meshes = [g.mesh(**kwargs) for kwargs in cases]
+    finally:
+        st.set_cpu_threads(previous)
+    assert len(outcomes) == len(cases) and all(done == split for done in outcomes)
+    for one, many in zip(alone, split_meshes, strict=True):
+        assert _mesh_key(many) == _mesh_key(one)
+        assert np.array_equal(many.face_attributes["cube_face"], one.face_attributes["cube_face"])
+    # the split's new vertices are the mesh's own array, not the cached corner entries
+    assert not np.shares_memory(split_meshes[4].metadata["node_entry"], alone[4].metadata["node_entry"])
+
+
+def test_the_split_one_launch_on_a_planar_view_gives_the_same_mesh(monkeypatch):
+    """The planar adaptive mesh with a camera takes the one launch too (two roots): split into ranges, the same."""
+    import stepterrain as st
+
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=257, step=1)
+    camera = Camera(eye=(3000.0, -2000.0, 4000.0), target=(3800.0, 3800.0, 900.0), fov=0.9, aspect=1.4,
+                    near=1.0, far=20_000.0)
+    previous = st.set_cpu_threads(1)
+    try:
+        alone = adaptive_mesh(dem, error=2.0, spacing=30.0, camera=camera)
+        monkeypatch.setattr(globe_module, "_SPLIT_FIRST", 16)
+        st.set_cpu_threads(2)
+        split = adaptive_mesh(dem, error=2.0, spacing=30.0, camera=camera)
+    finally:
+        st.set_cpu_threads(previous)
+    assert len(alone.faces) > 1000
+    assert np.array_equal(split.vertices, alone.vertices) and np.array_equal(split.faces, alone.faces)
+    assert split.metadata["levels"] == alone.metadata["levels"]
 
 
 @pytest.mark.parametrize("threads", [2, 3])

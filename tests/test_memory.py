@@ -137,8 +137,8 @@ def test_stepped_kernels_stay_in_range_in_debug_mode():
 
 def test_globe_kernels_stay_in_range_in_debug_mode():
     """The cube-sphere refinement and mesh output (cones and spheres, with and without a view, per face; the CPU's
-    one-launch levels, and the level passes CUDA takes) and the planar RTIN, compiled with their index assertions:
-    none fires, and the meshes equal the release build's."""
+    one-launch levels, whole and split into ranges, and the level passes CUDA takes) and the planar RTIN,
+    compiled with their index assertions: none fires, and the meshes equal the release build's."""
     from tests.conftest import real_dem, shared_file
 
     relief = shared_file("global_relief_1deg.npz")
@@ -153,8 +153,11 @@ def test_globe_kernels_stay_in_range_in_debug_mode():
             g = Globe.from_latlon(d["elevation"], d["lat"], d["lon"], face_size=33, exaggeration=20.0, device="cpu")
         camera = look_from(30.0, 10.0, 2.0 * EARTH_RADIUS, tilt=20.0, aspect=1.6)
         meshes = []
-        for small in (globe_module._SMALL_LEVELS, 0, 64):  # one launch; level passes; a launch stopping early
-            globe_module._SMALL_LEVELS = small
+        # one launch; split into ranges (run one after another in debug mode); level passes; a launch stopping early
+        whole = globe_module._SMALL_LEVELS
+        for small, threads, first in ((whole, 1, 1024), (whole, 3, 16), (0, 1, 1024), (64, 1, 1024)):
+            globe_module._SMALL_LEVELS, globe_module._SPLIT_FIRST = small, first
+            globe_module.get_cpu_threads = lambda threads=threads: threads
             meshes += [g.mesh(error=20000.0), g.mesh(error=3000.0, camera=camera),
                        g.mesh(error=3000.0, camera=camera, bounds="sphere"),
                        g.mesh(error=3000.0, camera=camera, cull=False)]
