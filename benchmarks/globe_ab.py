@@ -1,9 +1,10 @@
 """One side of an interleaved before/after timing of the globe (benchmarks/RESULTS.md, globe run 3).
 
     git archive <old commit> | tar -x -C /tmp/old && cp -r /tmp/old/kernels /tmp/old/stepterrain/kernels
-    for k in 1 2 3; do for r in /tmp/old .; do python benchmarks/globe_ab.py $r [MESH_REPEAT]; done; done
+    for k in 1 2 3; do for r in /tmp/old .; do python benchmarks/globe_ab.py $r [MESH_REPEAT] [THREADS]; done; done
 
-Imports stepterrain from ROOT, pins itself to core 0 and one thread, and prints one JSON line: CPU and wall
+Imports stepterrain from ROOT, pins itself to core 0 and one thread (THREADS > 1: to the first THREADS cores and
+``set_cpu_threads(THREADS)``), and prints one JSON line: CPU and wall
 seconds (best of N) of ``Globe.from_latlon`` at 6 x 1025² (best of 3), a far-view ``Globe.mesh`` at error 433
 (best of MESH_REPEAT, default 7; also the median, ``mesh_median_wall``), ``run_globe.py``'s close view at errors
 1000, 100 and 20 (best and median wall of MESH_REPEAT each) and ``adaptive_mesh`` of the 1025² Big Tujunga tile at
@@ -21,8 +22,9 @@ from pathlib import Path
 ROOT = Path(sys.argv[1] if len(sys.argv) > 1 else ".").resolve()
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+THREADS = int(sys.argv[3]) if len(sys.argv) > 3 else 1
 if hasattr(os, "sched_setaffinity"):
-    os.sched_setaffinity(0, {0})
+    os.sched_setaffinity(0, set(sorted(os.sched_getaffinity(0))[:THREADS]))
 
 import numpy as np  # noqa: E402
 
@@ -33,7 +35,7 @@ from run_globe import best, data_file, tiled_dem, views  # noqa: E402  # isort: 
 
 
 def main() -> int:
-    _device.set_cpu_threads(1)
+    _device.set_cpu_threads(THREADS)
     with np.load(data_file("global_relief.npz")) as d:
         lat, lon, z = d["lat"], d["lon"], d["elevation"]
     Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")  # compile / load
@@ -61,7 +63,7 @@ def main() -> int:
     planar, planar_cpu, planar_wall = best(lambda: adaptive_mesh(dem, error=5.0, spacing=1.0), 3)
     import stepterrain.globe
 
-    print(json.dumps({"root": str(Path(stepterrain.globe.__file__).parents[1]), "pre_cpu": pre_cpu,
+    print(json.dumps({"root": str(Path(stepterrain.globe.__file__).parents[1]), "threads": THREADS, "pre_cpu": pre_cpu,
                       "pre_wall": pre_wall, "mesh_cpu": mesh_cpu,
                       "mesh_wall": mesh_wall, "mesh_median_wall": float(np.median(walls)),
                       "triangles": len(mesh.faces), "planar_cpu": planar_cpu,

@@ -78,8 +78,10 @@ _TRACK_MIN = 4096  # triangles of a level from which the clip metric's flags are
 _SMALL_LEVELS = 1 << 17
 #: With several CPU threads the one launch splits (:func:`_refine_in_ranges`): a first launch refines the levels of
 #: at most this many triangles, then the next level is cut into _RANGES_PER_THREAD ranges a thread, each refined to
-#: the end in a launch of its own (0 switches the split off).
-_SPLIT_FIRST = 1024
+#: the end in a launch of its own (0 switches the split off). A view whose levels stay below 2**14 triangles (up to
+#: ~40k triangles, a few ms) is left whole: the split's launches and copy cost about a millisecond on the 2-core
+#: box, which a 10k-triangle view (2 ms) does not win back.
+_SPLIT_FIRST = 1 << 14
 _RANGES_PER_THREAD = 4
 #: On the CPU with several threads (``set_cpu_threads``), the view's passes split into ranges of at least this many
 #: triangles or vertices (``launch_chunked``'s ``min_elements``): the refinement test and the vertex pass cost
