@@ -428,28 +428,37 @@ def test_skipping_the_clip_test_inside_the_view_changes_nothing(sample_globe, mo
     assert skipped > 0
 
 
+def _one_launch_cases() -> list[dict]:
+    """Views for the one-launch tests: close and far, culled or not, error 0, spheres, no camera, no clip."""
+    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
+    far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
+    return [dict(error=30.0, camera=close), dict(error=30.0, camera=close, cull=False),
+            dict(error=0.0, camera=close), dict(error=200.0, camera=far, bounds="sphere"),
+            dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance")),
+            dict(error=2.0, camera=far), dict(error=2.0, camera=far, cull=False)]
+
+
 @pytest.mark.parametrize("small", [1, 64, 4096, 1 << 17])
 def test_levels_in_one_launch_give_the_same_mesh(sample_globe, monkeypatch, small):
     """On the CPU the levels up to ``_SMALL_LEVELS`` triangles are refined by one single-thread launch, which
     tracks the corner masks from the roots on: the same triangles, vertices, order, per-level counts and culled
     faces as a count -> scan -> emit per level, whether the launch stops early (1, 64, 4096: the level passes
-    take over, with its masks) or takes every view whole (2**17)."""
-    import stepterrain.globe as globe_module
+    take over, with its masks) or takes every view whole (2**17). One thread: with several the launch splits (the
+    next test)."""
+    import stepterrain as st
 
     g = sample_globe
-    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
-    far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
-    cases = [dict(error=30.0, camera=close), dict(error=30.0, camera=close, cull=False),
-             dict(error=0.0, camera=close), dict(error=200.0, camera=far, bounds="sphere"),
-             dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance")),
-             dict(error=2.0, camera=far), dict(error=2.0, camera=far, cull=False)]
-    for kwargs in cases:
-        monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)
-        levelwise = g.mesh(**kwargs)
-        monkeypatch.setattr(globe_module, "_SMALL_LEVELS", small)
-        at_once = g.mesh(**kwargs)
-        assert _mesh_key(at_once) == _mesh_key(levelwise)
-        assert np.array_equal(at_once.face_attributes["cube_face"], levelwise.face_attributes["cube_face"])
+    previous = st.set_cpu_threads(1)
+    try:
+        for kwargs in _one_launch_cases():
+            monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)
+            levelwise = g.mesh(**kwargs)
+            monkeypatch.setattr(globe_module, "_SMALL_LEVELS", small)
+            at_once = g.mesh(**kwargs)
+            assert _mesh_key(at_once) == _mesh_key(levelwise)
+            assert np.array_equal(at_once.face_attributes["cube_face"], levelwise.face_attributes["cube_face"])
+    finally:
+        st.set_cpu_threads(previous)
 
 
 @pytest.mark.parametrize("threads", [2, 3])
@@ -464,12 +473,7 @@ def test_the_one_launch_split_into_ranges_gives_the_same_mesh(sample_globe, monk
     import stepterrain as st
 
     g = sample_globe
-    close = look_from(46.0, 9.0, 400_000.0, tilt=60.0, fov=0.5, aspect=1.5)
-    far = look_from(30.0, 10.0, 3 * R, aspect=1.6)
-    cases = [dict(error=30.0, camera=close), dict(error=30.0, camera=close, cull=False),
-             dict(error=0.0, camera=close), dict(error=200.0, camera=far, bounds="sphere"),
-             dict(error=500.0), dict(error=100.0, camera=far, metrics=("geometric", "distance")),
-             dict(error=2.0, camera=far), dict(error=2.0, camera=far, cull=False)]
+    cases = _one_launch_cases()
     previous = st.set_cpu_threads(1)
     try:
         alone = [g.mesh(**kwargs) for kwargs in cases]
