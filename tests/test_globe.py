@@ -548,6 +548,33 @@ def test_views_split_over_cpu_threads_give_the_same_mesh(sample_globe, monkeypat
         assert np.array_equal(many.face_attributes["cube_face"], one.face_attributes["cube_face"])
 
 
+@settings(max_examples=10, phases=[Phase.explicit, Phase.reuse, Phase.generate], deadline=None)
+@given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
+       error=hst.floats(5.0, 2000.0), cone=hst.booleans(), cull=hst.booleans(), first=hst.integers(12, 600),
+       threads=hst.integers(2, 4), per_thread=hst.integers(1, 6))
+def test_random_views_split_into_ranges_equal_one_thread(sample_globe, distance, lon, lat, error, cone, cull, first,
+                                                         threads, per_thread):
+    """Random views, split into ranges after a first launch of any size, over 2-4 threads and 1-6 ranges a
+    thread: the mesh of one thread, byte for byte."""
+    import stepterrain as st
+
+    eye = distance * R * np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    cam = Camera(eye=tuple(eye), target=(0.0, 0.0, 0.0), fov=0.8, aspect=1.5, near=1.0, far=5.0 * R)
+    kwargs = dict(error=error, camera=cam, bounds="cone" if cone else "sphere", cull=cull)
+    saved = globe_module._SPLIT_FIRST, globe_module._RANGES_PER_THREAD
+    previous = st.set_cpu_threads(1)
+    try:
+        alone = sample_globe.mesh(**kwargs)
+        globe_module._SPLIT_FIRST, globe_module._RANGES_PER_THREAD = first, per_thread
+        st.set_cpu_threads(threads)
+        split = sample_globe.mesh(**kwargs)
+    finally:
+        st.set_cpu_threads(previous)
+        globe_module._SPLIT_FIRST, globe_module._RANGES_PER_THREAD = saved
+    assert _mesh_key(split) == _mesh_key(alone)
+    assert np.array_equal(split.face_attributes["cube_face"], alone.face_attributes["cube_face"])
+
+
 @settings(max_examples=12, phases=[Phase.explicit, Phase.reuse, Phase.generate])
 @given(distance=hst.floats(1.05, 4.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.4, 1.4),
        error=hst.floats(20.0, 2000.0), cone=hst.booleans(), seed=hst.integers(0, 10**6))
