@@ -1657,7 +1657,6 @@ def refine_levels(
     levels: wp.int32,  # the deepest level: its triangles do not refine
     capacity: wp.int32,  # levels of at most this many triangles are refined here
     room: wp.int32,  # while their leaves and new vertices fit in this many slots
-    # outputs
     # outputs, each in parts of the size given (the part ``part`` written here)
     level_out: wp.array[wp.vec4i],  # 4·capacity: two halves, one level's triangles and the next's in turn
     level_masks_out: wp.array[wp.int32],  # 4·capacity, the triangles' corner masks; or empty: not tracked
@@ -1812,9 +1811,9 @@ def copy_runs(
     that part's run of that level where one launch over the whole level would have written it (level by level,
     part by part), finding the place by summing the runs before it."""
     t = wp.tid() + thread_offset
-    levels = slots - 1
-    g = t / (2 * levels)
-    d = (t / 2) - g * levels
+    run_levels = slots - 1  # a part's levels: each has a run of leaves and one of new vertices (maybe empty)
+    g = t / (2 * run_levels)
+    d = (t / 2) - g * run_levels
     kind = t - (t / 2) * 2
     start = load(marks, g * slots + d)[kind]
     length = load(marks, g * slots + d + 1)[kind] - start

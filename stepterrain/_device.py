@@ -450,8 +450,8 @@ def launch_each(kernel: Any, tasks: list[tuple[list, list]], device: wp.Device) 
     """One single-thread launch of ``kernel`` (``thread_offset`` first, dim 1) per ``(inputs, outputs)`` task.
 
     On the CPU the tasks run on up to :func:`get_cpu_threads` threads at once, each thread taking the next task
-    when it is done with one (tasks of uneven length balance); each task's outputs must be its own. On CUDA they
-    are queued one after another.
+    when it is done with one (tasks of uneven length balance); what one task writes must not overlap what another
+    reads or writes (tasks may share arrays, each writing its own part). On CUDA they are queued one after another.
     """
     workers = min(_launch_threads(), len(tasks)) if device.is_cpu else 1
     if workers <= 1:
