@@ -724,6 +724,22 @@ def _one_launch_bytes(capacity: int, track: bool, cull: bool) -> int:
     return 4 * capacity * (20 if track else 16) + 4 * capacity * (24 if track and cull else 20)
 
 
+def _level_outputs(name: str, parts: int, capacity: int, levels: int, *, track: bool, cull: bool, marks: bool,
+                   device: wp.Device) -> list[wp.array]:
+    """Scratch outputs of ``parts`` ``refine_levels`` launches of ``capacity`` (a part each, in the kernel's
+    order): level halves and their masks, leaves and their masks, new vertices, per-level sizes, totals and the
+    runs' marks; masks untracked, leaf masks without culling and marks when not asked for are empty."""
+    room = 4 * capacity
+
+    def part(key: str, n: int, dtype: Any, used: bool = True) -> wp.array:
+        return scratch(f"{name}.{key}", parts * n, dtype, device) if used else wp.empty(0, dtype=dtype, device=device)
+
+    return [part("levels", 4 * capacity, wp.vec4i), part("masks", 4 * capacity, wp.int32, track),
+            part("leaves", room, wp.vec4i), part("leaf_masks", room, wp.int32, track and cull),
+            part("entries", room, wp.int32), part("sizes", levels + 1, wp.int32), part("totals", 6, wp.int32),
+            part("marks", levels + 2, wp.vec2i, marks)]
+
+
 def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: int, capacity: int, *,
                    track: bool, cull: bool, leaf_chunks: list[wp.array], vertex_chunks: list[wp.array],
                    mask_chunks: list[wp.array | None], per_level: list[int], device: wp.Device,
@@ -734,17 +750,11 @@ def _refine_levels(grid: Any, params: Any, view: Any, roots: wp.array, levels: i
     when not tracked), its depth, and how many of the leaves have no corner known inside the view."""
     room = 4 * capacity
     none = wp.zeros(0, dtype=wp.int32, device=device)
-    halves = scratch(f"{name}.levels", 4 * capacity, wp.vec4i, device)
-    half_masks = scratch(f"{name}.masks", 4 * capacity, wp.int32, device) if track else none
-    leaves = scratch(f"{name}.leaves", room, wp.vec4i, device)
-    leaf_masks = scratch(f"{name}.leaf_masks", room, wp.int32, device) if track and cull else none
-    entries = scratch(f"{name}.entries", room, wp.int32, device)
-    sizes = scratch(f"{name}.sizes", levels + 1, wp.int32, device)
-    totals = scratch(f"{name}.totals", 6, wp.int32, device)
-    no_marks = wp.empty(0, dtype=wp.vec2i, device=device)
+    outputs = _level_outputs(name, 1, capacity, levels, track=track, cull=cull, marks=False, device=device)
+    halves, half_masks, leaves, leaf_masks, entries, sizes, totals, _ = outputs
     launch(cube_kernels.refine_levels, 1,
            [grid, params, view, roots, none, 0, roots.shape[0], 0, levels, capacity, room],  # all roots, part 0
-           [halves, half_masks, leaves, leaf_masks, entries, sizes, totals, no_marks], device)
+           outputs, device)
     n_leaves, n_entries, n_next, depth, start, unknown = (int(v) for v in host_copy(totals))
     leaf_chunks.append(leaves[:n_leaves])
     vertex_chunks.append(entries[:n_entries])
@@ -786,16 +796,9 @@ def _refine_in_ranges(grid: Any, params: Any, view: Any, roots: wp.array, corner
         return None
     depth = levels - start  # the ranges' deepest level, counted from the frontier
     none = wp.zeros(0, dtype=wp.int32, device=device)
-    halves = scratch("globe.split.levels", ranges * 4 * capacity, wp.vec4i, device)
-    half_masks = scratch("globe.split.masks", ranges * 4 * capacity, wp.int32, device) if track else none
-    leaves = scratch("globe.split.leaves", ranges * room, wp.vec4i, device)
-    leaf_masks = scratch("globe.split.leaf_masks", ranges * room, wp.int32, device) if track and cull else none
-    entries = scratch("globe.split.entries", ranges * room, wp.int32, device)
-    sizes = scratch("globe.split.sizes", ranges * (depth + 1), wp.int32, device)
-    totals = scratch("globe.split.totals", ranges * 6, wp.int32, device)
-    marks = scratch("globe.split.marks", ranges * (depth + 2), wp.vec2i, device)
-
-    outputs = [halves, half_masks, leaves, leaf_masks, entries, sizes, totals, marks]  # part k of each: range k's
+    outputs = _level_outputs("globe.split", ranges, capacity, depth, track=track, cull=cull, marks=True,
+                             device=device)  # part k of each: range k's
+    _, _, leaves, leaf_masks, entries, sizes, totals, marks = outputs
     cuts = [n * k // ranges for k in range(ranges + 1)]
     masks_in = frontier_masks if track else none
     tasks = [([grid, params, view, frontier, masks_in, cuts[k], cuts[k + 1] - cuts[k], k, depth, capacity, room],
