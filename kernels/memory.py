@@ -78,13 +78,25 @@ def store(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no co
 # nothing and store plainly. Streaming stores are weakly ordered: a kernel that streams is launched with
 # fence=True (stepterrain._device.launch), which runs drain_streams on the same thread after it, before any
 # other thread may read the output. CUDA stores plainly.
+#
+# The three components go out as movnti of their bits. LLVM has no scalar-double non-temporal store on x86
+# (only AMD's SSE4a movntsd): a double it cannot fold into a vector it stores plainly (vmovsd), and it folds a
+# stored bit cast back into that double. Streaming the doubles directly kept the z of every vertex a plain
+# store, so each line was written by both kinds and bounced between the cache and memory: on the Intel Xeon
+# VM of session 23 the 2048² blend took 2.8-3.1 s instead of 10 ms (RESULTS "Session 23"). Adding
+# ``a.ndim - 1`` (0: the arrays here are 1-D) to the bits makes them integers the optimizer cannot turn back.
 _NT3 = """
 #if defined(__CUDA_ARCH__)
 a.data[i] = v;
 #else
-__builtin_nontemporal_store(v[0], &a.data[i][0]);
-__builtin_nontemporal_store(v[1], &a.data[i][1]);
-__builtin_nontemporal_store(v[2], &a.data[i][2]);
+long long bits[3];
+const double parts[3] = {v[0], v[1], v[2]};
+__builtin_memcpy(bits, parts, sizeof(bits));
+const long long zero = (long long)(a.ndim - 1);
+long long* dst = reinterpret_cast<long long*>(&a.data[i][0]);
+__builtin_nontemporal_store(bits[0] + zero, dst);
+__builtin_nontemporal_store(bits[1] + zero, dst + 1);
+__builtin_nontemporal_store(bits[2] + zero, dst + 2);
 #endif
 """
 

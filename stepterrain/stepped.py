@@ -40,6 +40,7 @@ from ._device import (
     scratch,
     to_device,
     to_numpy,
+    touch_pages,
 )
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
@@ -584,6 +585,8 @@ def blend(
             device=device,
         )
     vertices_np, vertices_wp = empty_shared((n, 3), np.float64, wp.vec3d, device)
+    if vertices_np is not None:
+        touch_pages(vertices_np)  # blend_vertices streams: never into pages not yet mapped (see touch_pages)
     launch_chunked(
         stepped_kernels.blend_vertices,
         n=n,
