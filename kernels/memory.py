@@ -105,6 +105,35 @@ __builtin_nontemporal_store(bits[2] + zero, dst + 2);
 def stream(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no cover - native code
 
 
+_NT3L = """
+#if defined(__CUDA_ARCH__)
+a.data[i] = v;
+#else
+long long* dst = reinterpret_cast<long long*>(&a.data[i][0]);
+__builtin_nontemporal_store((long long)v[0], dst);
+__builtin_nontemporal_store((long long)v[1], dst + 1);
+__builtin_nontemporal_store((long long)v[2], dst + 2);
+#endif
+"""
+
+
+@wp.func_native(_NT3L)
+def stream(a: wp.array[vec3l], i: wp.int32, v: vec3l): ...  # pragma: no cover  # noqa: F811
+
+
+_NT1 = """
+#if defined(__CUDA_ARCH__)
+a.data[i] = v;
+#else
+__builtin_nontemporal_store(v, &a.data[i]);
+#endif
+"""
+
+
+@wp.func_native(_NT1)
+def stream(a: wp.array[wp.int32], i: wp.int32, v: wp.int32): ...  # pragma: no cover  # noqa: F811
+
+
 @wp.func_native("""
 #if !defined(__CUDA_ARCH__)
 __atomic_thread_fence(__ATOMIC_SEQ_CST);

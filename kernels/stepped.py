@@ -242,8 +242,8 @@ def write_face(
     face_walls_out: wp.array[wp.uint8],
 ):
     if write != 0:
-        store(faces_out, slot, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
-        store(face_levels_out, slot, level)
+        stream(faces_out, slot, vec3l(wp.int64(a), wp.int64(b), wp.int64(c)))
+        stream(face_levels_out, slot, level)
         store(face_walls_out, slot, wp.uint8(wall))
 
 
@@ -1078,13 +1078,13 @@ def emit_grid_faces(
                 v10 = wp.int64(load(node_offsets, n00 + cols))
                 v11 = wp.int64(load(node_offsets, n00 + cols + 1))
                 if hf.flip != 0:
-                    store(faces_out, base, vec3l(v00, v11, v01))
-                    store(faces_out, base + 1, vec3l(v00, v10, v11))
+                    stream(faces_out, base, vec3l(v00, v11, v01))
+                    stream(faces_out, base + 1, vec3l(v00, v10, v11))
                 else:
-                    store(faces_out, base, vec3l(v00, v01, v11))
-                    store(faces_out, base + 1, vec3l(v00, v11, v10))
-                store(face_levels_out, base, level)
-                store(face_levels_out, base + 1, level)
+                    stream(faces_out, base, vec3l(v00, v01, v11))
+                    stream(faces_out, base + 1, vec3l(v00, v11, v10))
+                stream(face_levels_out, base, level)
+                stream(face_levels_out, base + 1, level)
                 store(face_walls_out, base, wp.uint8(0))
                 store(face_walls_out, base + 1, wp.uint8(0))
                 base += 2

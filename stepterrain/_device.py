@@ -147,15 +147,17 @@ def to_device(array: Any, dtype: Any, device: wp.Device) -> wp.array:
 
 
 def empty_shared(
-    shape: tuple[int, ...], np_dtype: Any, wp_dtype: Any, device: wp.Device
+    shape: tuple[int, ...], np_dtype: Any, wp_dtype: Any, device: wp.Device, *, streamed: bool = False
 ) -> tuple[np.ndarray | None, wp.array]:
     """Allocate an output that ends up in numpy.
 
     On the CPU the ``wp.array`` wraps the numpy buffer (kernels write straight into it, no copy); on CUDA
-    the numpy half is ``None`` and the caller copies with ``.numpy()`` once the kernels are done.
+    the numpy half is ``None`` and the caller copies with ``.numpy()`` once the kernels are done. ``streamed``:
+    a kernel writes it with streaming stores, so its pages are mapped first where they are new (see
+    :func:`touch_pages`).
     """
     if device.is_cpu:
-        host = recycled_empty(shape, np_dtype)
+        host = recycled_empty(shape, np_dtype, touched=streamed)
         return host, wp.array(host, dtype=wp_dtype, device=device, copy=False)
     n = shape[0]
     return None, wp.empty(n, dtype=wp_dtype, device=device)
@@ -184,17 +186,22 @@ class _RecyclingPool:
         self._lent = 0  # bytes of blocks on loan
         self._lock = threading.RLock()  # a loan may die (and return) inside take(), on the same thread
 
-    def empty(self, shape: tuple[int, ...], dtype: Any) -> np.ndarray:
+    def empty(self, shape: tuple[int, ...], dtype: Any, touched: bool = False) -> np.ndarray:
         dtype = np.dtype(dtype)
         nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
         if nbytes < RECYCLE_MIN_BYTES or self.limit <= 0:
-            return np.empty(shape, dtype=dtype)
+            fresh = np.empty(shape, dtype=dtype)
+            if touched:
+                touch_pages(fresh)
+            return fresh
         # No collection here: a dropped trimesh is a reference cycle that frees its arrays when the collector
         # runs, but collecting now would also move the meshes still in use (one being saved) to the oldest
         # generation, which only a full collection frees (a loop of 1024² tiles then held 146 MB more per tile).
         block = self._take(nbytes)
         if block is None:  # room for a slightly larger call next time (pages never written cost nothing)
             block = np.empty(nbytes + nbytes // 8, dtype=np.uint8)
+            if touched:  # a recycled block was written before: its pages are mapped
+                touch_pages(block[:nbytes])
         loan = _Loan()
         loan.__array_interface__ = {
             "shape": tuple(int(n) for n in shape),
@@ -268,9 +275,10 @@ def set_output_pool_limit(nbytes: int) -> int:
     return previous
 
 
-def recycled_empty(shape: tuple[int, ...], dtype: Any) -> np.ndarray:
-    """``np.empty(shape, dtype)``, on memory a freed output left when it is large (see :class:`_RecyclingPool`)."""
-    return OUTPUTS.empty(shape, dtype)
+def recycled_empty(shape: tuple[int, ...], dtype: Any, *, touched: bool = False) -> np.ndarray:
+    """``np.empty(shape, dtype)``, on memory a freed output left when it is large (see :class:`_RecyclingPool`);
+    ``touched``: with its pages mapped (:func:`touch_pages`), for streaming stores."""
+    return OUTPUTS.empty(shape, dtype, touched)
 
 
 def to_numpy(host: np.ndarray | None, array: wp.array, shape: tuple[int, ...]) -> np.ndarray:
@@ -334,15 +342,15 @@ def touch_pages(host: np.ndarray) -> None:
     """Write one byte per page of a fresh output buffer (its contents are undefined anyway) before a kernel
     streams into it.
 
-    A streaming (non-temporal) store into a page not yet mapped is pathological on some VMs: on the Intel Xeon
-    VM of session 23, 6.5 M vec3d streamed into fresh numpy memory took 58-318 ms in a micro-benchmark and
-    3.1 s inside ``stepped()`` at 2048² (the γ blend), against 10 ms into touched memory and 25 ms with plain
-    stores. Touching the pages first costs their page faults (about 7 ms for 160 MB there) and nothing when
-    the block is recycled (:class:`_RecyclingPool`) and already mapped.
+    Streaming (non-temporal) stores into pages not yet mapped are slow on this project's VMs: 6.5 M vec3d
+    streamed in 46-83 ms into fresh numpy memory and 8-10 ms into touched memory, against 24 ms with plain
+    stores into fresh memory (session 23, Intel Xeon VM, `/work/scratch/nt2.py`). Touching first costs the page
+    faults the plain stores would have taken. :class:`_RecyclingPool` touches only blocks new to it.
     """
     flat = host.reshape(-1).view(np.uint8)
     if flat.size:
         flat[::_PAGE] = 0
+        flat[-1] = 0  # the last page, where the buffer does not start on a page boundary
 
 
 def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:

@@ -40,7 +40,6 @@ from ._device import (
     scratch,
     to_device,
     to_numpy,
-    touch_pages,
 )
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import stepped as stepped_kernels
@@ -488,8 +487,9 @@ def step_arrays(
         device=device,
     )
 
-    faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device)
-    levels_np, levels_wp = empty_shared((face_count,), np.int32, wp.int32, device)
+    # the face pass streams faces and levels (kernels/memory.py, stream)
+    faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device, streamed=True)
+    levels_np, levels_wp = empty_shared((face_count,), np.int32, wp.int32, device, streamed=True)
     walls_np, walls_wp = empty_shared((face_count,), np.uint8, wp.uint8, device)
     launch_chunked(
         emit_faces,
@@ -497,6 +497,7 @@ def step_arrays(
         inputs=face_inputs,
         outputs=[faces_wp, levels_wp, walls_wp],
         device=device,
+        fence=True,
     )
     return StepArrays(
         points=points,
@@ -584,9 +585,7 @@ def blend(
             outputs=[gammas],
             device=device,
         )
-    vertices_np, vertices_wp = empty_shared((n, 3), np.float64, wp.vec3d, device)
-    if vertices_np is not None:
-        touch_pages(vertices_np)  # blend_vertices streams: never into pages not yet mapped (see touch_pages)
+    vertices_np, vertices_wp = empty_shared((n, 3), np.float64, wp.vec3d, device, streamed=True)
     launch_chunked(
         stepped_kernels.blend_vertices,
         n=n,

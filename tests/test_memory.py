@@ -11,7 +11,7 @@ import textwrap
 
 import numpy as np
 import warp as wp
-from stepterrain.kernels.memory import drain_streams, load, store, stream
+from stepterrain.kernels.memory import drain_streams, load, store, stream, vec3l
 
 from stepterrain import _device
 
@@ -33,6 +33,42 @@ def _stream_rows(thread_offset: wp.int32, count: wp.int32, chunk: wp.int32, out:
     while i < end:
         stream(out, i, wp.vec3d(wp.float64(i), wp.float64(-i), 0.5))
         i += 1
+
+
+@wp.kernel
+def _stream_copies(
+    doubles: wp.array[wp.vec3d],
+    longs: wp.array[vec3l],
+    ints: wp.array[wp.int32],
+    doubles_out: wp.array[wp.vec3d],
+    longs_out: wp.array[vec3l],
+    ints_out: wp.array[wp.int32],
+):
+    i = wp.tid()
+    stream(doubles_out, i, load(doubles, i))
+    stream(longs_out, i, vec3l(longs[i][0], longs[i][1], longs[i][2]))
+    stream(ints_out, i, load(ints, i))
+
+
+def test_streamed_values_keep_every_bit(device):
+    """stream() of vec3d (through its bits), vec3l and int32 writes exactly what it is given: signed zeros, NaN
+    payloads, infinities, subnormals, int64 beyond 2^53 and negative values."""
+    rng = np.random.default_rng(5)
+    n = 4099
+    doubles = rng.normal(size=(n, 3)) * 10.0 ** rng.integers(-300, 300, (n, 3))
+    doubles[:6, 0] = [-0.0, np.inf, -np.inf, 5e-324, -5e-324, np.nan]
+    doubles[6, :] = np.frombuffer(np.array([0x7FF8_0000_DEAD_BEEF] * 3, np.int64).tobytes(), np.float64)
+    longs = rng.integers(-(2**62), 2**62, (n, 3), dtype=np.int64)
+    longs[0] = [2**53 + 1, -(2**63), 2**63 - 1]
+    ints = rng.integers(-(2**31), 2**31, n, dtype=np.int64).astype(np.int32)
+    outs = [wp.zeros(n, dtype=t, device=device) for t in (wp.vec3d, vec3l, wp.int32)]
+    wp.launch(_stream_copies, dim=n, inputs=[wp.array(doubles, dtype=wp.vec3d, device=device),
+              wp.array(longs, dtype=vec3l, device=device), wp.array(ints, device=device)], outputs=outs,
+              device=device)  # fmt: skip
+    wp.launch(drain_streams, dim=1, device=device)
+    np.testing.assert_array_equal(outs[0].numpy().view(np.int64), doubles.view(np.int64))
+    np.testing.assert_array_equal(outs[1].numpy(), longs)
+    np.testing.assert_array_equal(outs[2].numpy(), ints)
 
 
 def test_load_and_store_match_numpy(device):
