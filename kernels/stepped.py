@@ -101,9 +101,53 @@ class Offsets:
     shift: wp.int32
 
 
+@wp.struct
+class DirectBlend:
+    """The γ blend (§3.3) done as the vertex pass writes each vertex, for a scalar γ: world float64 positions
+    streamed into ``vertices`` (:func:`blended`, the formula of blend_vertices, so the same bits), instead of
+    the local positions and step heights that blend_vertices would read back. ``vertices`` is empty when the
+    blend is left to blend_vertices; ``points`` / ``steps`` = 1 still write those arrays (a γ re-step, colours).
+    Measured in RESULTS.md "Session 23"."""
+
+    vertices: wp.array[wp.vec3d]
+    gamma: wp.float32
+    origin: wp.vec3d
+    points: wp.int32
+    steps: wp.int32
+
+
 # ---------------------------------------------------------------------------------------------------------
 # shared device functions
 # ---------------------------------------------------------------------------------------------------------
+
+
+@wp.func
+def blended(p: wp.vec3, step_height: wp.float32, g: wp.float32, origin: wp.vec3d) -> wp.vec3d:
+    """z = (1 - γ) z_original + γ z_step in float32, shifted back to world coordinates in float64."""
+    z = (1.0 - g) * p[2] + g * step_height
+    return wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
+
+
+@wp.func
+def put_vertex(
+    slot: wp.int32,
+    p: wp.vec3,
+    step_height: wp.float32,
+    points_out: wp.array[wp.vec3],
+    step_heights_out: wp.array[wp.float32],
+    direct: DirectBlend,
+):
+    """Write output vertex ``slot``: its local position and step height, or (``direct``) its blended world
+    position."""
+    if direct.vertices.shape[0] == 0:
+        store(points_out, slot, p)
+        store(step_heights_out, slot, step_height)
+    else:
+        if direct.points != 0:
+            store(points_out, slot, p)
+        if direct.steps != 0:
+            store(step_heights_out, slot, step_height)
+        stream(direct.vertices, slot, blended(p, step_height, direct.gamma, direct.origin))
 
 
 @wp.func
@@ -524,6 +568,7 @@ def emit_edge_vertices(
     levels: wp.array[wp.int32],
     iso: Isovalues,
     want_sources: wp.int32,
+    direct: DirectBlend,
     points_out: wp.array[wp.vec3],
     step_heights_out: wp.array[wp.float32],
     sources_out: wp.array[wp.vec2i],
@@ -559,10 +604,8 @@ def emit_edge_vertices(
         x = plo[0] + beta * (phi[0] - plo[0])
         y = plo[1] + beta * (phi[1] - plo[1])
         p = wp.vec3(x, y, t)
-        store(points_out, slot, p)
-        store(step_heights_out, slot, load(iso.values, j))
-        store(points_out, slot + 1, p)
-        store(step_heights_out, slot + 1, load(iso.values, j + 1))
+        put_vertex(slot, p, load(iso.values, j), points_out, step_heights_out, direct)
+        put_vertex(slot + 1, p, load(iso.values, j + 1), points_out, step_heights_out, direct)
         if want_sources != 0:
             store(sources_out, slot, src)
             store(sources_out, slot + 1, src)
@@ -581,6 +624,7 @@ def emit_node_vertices(
     first: wp.int32,
     iso: Isovalues,
     want_sources: wp.int32,
+    direct: DirectBlend,
     points_out: wp.array[wp.vec3],
     step_heights_out: wp.array[wp.float32],
     sources_out: wp.array[wp.vec2i],
@@ -588,20 +632,17 @@ def emit_node_vertices(
 ):
     """Write a node's output vertex (and its twin one level below when it sits on a threshold)."""
     if peak != 0:
-        store(points_out, first, p)
-        store(step_heights_out, first, load(iso.values, level - 1))
+        put_vertex(first, p, load(iso.values, level - 1), points_out, step_heights_out, direct)
         if want_sources != 0:
             store(sources_out, first, wp.vec2i(n_source, n_source))
             store(betas_out, first, 0.0)
         return
-    store(points_out, first, p)
-    store(step_heights_out, first, load(iso.values, level))
+    put_vertex(first, p, load(iso.values, level), points_out, step_heights_out, direct)
     if want_sources != 0:
         store(sources_out, first, wp.vec2i(n_source, n_source))
         store(betas_out, first, 0.0)
     if twin != 0:
-        store(points_out, first + 1, p)
-        store(step_heights_out, first + 1, load(iso.values, level - 1))
+        put_vertex(first + 1, p, load(iso.values, level - 1), points_out, step_heights_out, direct)
         if want_sources != 0:
             store(sources_out, first + 1, wp.vec2i(n_source, n_source))
             store(betas_out, first + 1, 0.0)
@@ -857,6 +898,7 @@ def emit_grid_vertices(
     iso: Isovalues,
     offsets: Offsets,
     want_sources: wp.int32,
+    direct: DirectBlend,
     # outputs
     points_out: wp.array[wp.vec3],
     step_heights_out: wp.array[wp.float32],
@@ -891,8 +933,7 @@ def emit_grid_vertices(
         owned = s1 - s0
         if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
             # a plain node, the common case: written here without the call
-            store(points_out, first, p)
-            store(step_heights_out, first, load(iso.values, level))
+            put_vertex(first, p, load(iso.values, level), points_out, step_heights_out, direct)
             if want_sources != 0:
                 store(sources_out, first, wp.vec2i(n, n))
                 store(betas_out, first, 0.0)
@@ -904,7 +945,7 @@ def emit_grid_vertices(
             else:
                 peak = grid_node_count(hf, iso, n)[1]
             emit_node_vertices(
-                n, p, level, twin, peak, first, iso, want_sources,
+                n, p, level, twin, peak, first, iso, want_sources, direct,
                 points_out, step_heights_out, sources_out, betas_out,
             )  # fmt: skip
         for kind in range(1, 4):
@@ -920,7 +961,7 @@ def emit_grid_vertices(
                 b = bi * cols + bj
                 emit_edge_vertices(
                     n, b, p, grid_point(hf, bi, bj, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
-                    want_sources, points_out, step_heights_out, sources_out, betas_out,
+                    want_sources, direct, points_out, step_heights_out, sources_out, betas_out,
                 )  # fmt: skip
         n += 1
         ij = next_node(ij, cols)
@@ -1169,6 +1210,7 @@ def emit_tin_vertices(
     offsets: wp.array[wp.int32],
     twins: wp.array[wp.int32],
     want_sources: wp.int32,
+    direct: DirectBlend,
     # outputs
     points_out: wp.array[wp.vec3],
     step_heights_out: wp.array[wp.float32],
@@ -1199,6 +1241,7 @@ def emit_tin_vertices(
                 first,
                 iso,
                 want_sources,
+                direct,
                 points_out,
                 step_heights_out,
                 sources_out,
@@ -1217,6 +1260,7 @@ def emit_tin_vertices(
                 tin.levels,
                 iso,
                 want_sources,
+                direct,
                 points_out,
                 step_heights_out,
                 sources_out,
@@ -1333,10 +1377,7 @@ def blend_vertices(
         g = gamma
         if gammas.shape[0] > 0:
             g = load(gammas, v)
-        p = load(points, v)
-        z = (1.0 - g) * p[2] + g * load(step_heights, v)
-        world = wp.vec3d(wp.float64(p[0]) + origin[0], wp.float64(p[1]) + origin[1], wp.float64(z) + origin[2])
-        stream(vertices_out, v, world)
+        stream(vertices_out, v, blended(load(points, v), load(step_heights, v), g, origin))
         v += 1
 
 

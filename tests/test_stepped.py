@@ -15,7 +15,7 @@ from hypothesis.extra.numpy import arrays
 
 import stepterrain as st
 from stepterrain._device import resolve_device
-from stepterrain.stepped import isovalues, step_arrays
+from stepterrain.stepped import blend, isovalues, step_arrays
 from stepterrain.terrain import as_terrain
 
 from .conftest import assert_valid_mesh, real_dem, shared_file
@@ -819,6 +819,32 @@ def test_gamma_callable_and_array_agree_with_scalar(dem):
     by_callable = st.stepped(small, interval=70.0, gamma=lambda p: np.full(len(p), 0.4))
     np.testing.assert_allclose(by_array.vertices, scalar.vertices, atol=1e-4)
     np.testing.assert_allclose(by_callable.vertices, scalar.vertices, atol=1e-4)
+
+
+@pytest.mark.parametrize("gamma", [0.0, 0.37, 1.0])
+@pytest.mark.parametrize("case", ["dem", "nodata", "tin", "colors"])
+def test_the_vertex_pass_blends_a_scalar_gamma_as_blend_does(device, dem, case, gamma):
+    """stepped() with a scalar γ blends in the vertex pass (DirectBlend); its vertices are bit for bit those of the
+    separate blend pass over step_arrays' points, on a grid, a grid with nodata and a TIN, and with colours (the
+    pass then also keeps the step heights the colours are looked up by)."""
+    heights = dem[:40, :50].astype(np.float64)
+    if case == "nodata":
+        heights[5:9, 7:20] = np.nan
+    terrain = st.heightfield_mesh(heights, spacing=(30.0, -30.0), origin=(394000.0, 3798000.0)) if case == "tin" else \
+        st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(394000.0, 3798000.0))  # fmt: skip
+    colors = "terrain" if case == "colors" else None
+    mesh = st.stepped(terrain, interval=35.0, gamma=gamma, colors=colors, device=device)
+    t = as_terrain(terrain)
+    dev = resolve_device(device)
+    separate = blend(t, step_arrays(t, isovalues(t.height_range, interval=35.0), device=dev),
+                     gamma, device=dev)  # fmt: skip
+    np.testing.assert_array_equal(mesh.vertices.view(np.int64), separate.view(np.int64))
+    direct = step_arrays(t, isovalues(t.height_range, interval=35.0), device=dev, gamma=gamma, want_steps=True)
+    assert direct.points is None and direct.step_heights is not None
+    if case == "colors":
+        by_level = st.stepped(terrain, interval=35.0, gamma=np.full(t.shape, gamma) if case != "tin" else gamma,
+                              colors=colors, device=device)  # fmt: skip
+        np.testing.assert_array_equal(mesh.visual.vertex_colors, by_level.visual.vertex_colors)
 
 
 def test_colors_by_level_and_face_attributes(dem):
