@@ -877,10 +877,10 @@ def count_grid(
             if has_right and has_down:
                 deferred = 1
         # the four slots' prefixes within the chunk
-        store(local_out, 4 * n, vertices)
-        store(local_out, 4 * n + 1, vertices + node)
-        store(local_out, 4 * n + 2, vertices + node + right)
-        store(local_out, 4 * n + 3, vertices + node + right + down)
+        stream(local_out, 4 * n, vertices)
+        stream(local_out, 4 * n + 1, vertices + node)
+        stream(local_out, 4 * n + 2, vertices + node + right)
+        stream(local_out, 4 * n + 3, vertices + node + right + down)
         vertices += node + right + down + diagonal
         n += 1
         ij = next_node(ij, hf.cols)

@@ -353,13 +353,14 @@ def touch_pages(host: np.ndarray) -> None:
         flat[-1] = 0  # the last page, where the buffer does not start on a page boundary
 
 
-def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:
+def scratch(name: str, n: int, dtype: Any, device: wp.Device, *, streamed: bool = False) -> wp.array:
     """A reusable work array of ``n`` elements (contents undefined), kept per thread, device and name.
 
     Large fresh allocations cost page faults on every call (the allocator hands them back to the OS when
     freed); counts, offsets and other intermediates of a pass reuse the same memory instead, growing it when
     a larger input comes. The array is valid until the next request of the same name on this thread.
-    :func:`release_scratch` frees the pool.
+    :func:`release_scratch` frees the pool. ``streamed``: a kernel writes it with streaming stores, so a new
+    array's pages are mapped first (:func:`touch_pages`).
     """
     pool = getattr(_pools, "arrays", None)
     if pool is None:
@@ -368,6 +369,8 @@ def scratch(name: str, n: int, dtype: Any, device: wp.Device) -> wp.array:
     array = pool.get(key)
     if array is None or array.dtype != dtype or array.shape[0] < n:
         array = wp.empty(max(int(n * 1.125), 1), dtype=dtype, device=device)
+        if streamed and device.is_cpu:
+            touch_pages(array.numpy())
         pool[key] = array
     return array[:n]
 

@@ -413,12 +413,12 @@ def step_arrays(
         # to be counted are counted after that scan.
         n_slots, n_cells = 4 * n_nodes, (topo.rows - 1) * (topo.cols - 1)
         n_chunks = chunked_threads(n_nodes, device)
-        local = scratch("stepped.vertices.local", n_slots, wp.int32, device)
+        local = scratch("stepped.vertices.local", n_slots, wp.int32, device, streamed=True)
         totals = count_buffer("stepped.vertices", n_chunks, device)
         face_totals = count_buffer("stepped.faces", n_chunks, device)
         deferred = scratch("stepped.deferred", n_chunks, wp.int32, device)
         launch_chunked(stepped_kernels.count_grid, n=n_nodes, inputs=[topo, iso],
-                       outputs=[local, totals, face_totals, deferred], device=device)  # fmt: skip
+                       outputs=[local, totals, face_totals, deferred], device=device, fence=True)  # streams local
         bases, vertex_count = exclusive_offsets(totals, "stepped.vertices")
         offsets = stepped_kernels.Offsets()
         offsets.local, offsets.bases, offsets.shift = local, bases, chunk_shift(device) + 2  # 4 slots a node
@@ -498,7 +498,7 @@ def step_arrays(
         inputs=[*emit_inputs, int(want_sources), direct],
         outputs=[points, step_heights, sources, betas, *emit_extra],
         device=device,
-        fence=gamma is not None,
+        fence=gamma is not None,  # the direct blend streams the vertices
     )
 
     # the face pass streams faces and levels (kernels/memory.py, stream)
