@@ -7,7 +7,8 @@ pass over triangles tessellates each triangle into horizontal terraces and verti
 Both the count and the emit pass call :func:`step_triangle`, so they cannot disagree. On a grid the two count
 passes are one kernel (:func:`count_grid`): a node's vertex slots and its cell's faces read the same four
 levels; it keeps prefixes within chunks of nodes, so only the chunks' totals are scanned (:class:`Offsets`), and
-the face pass walks the same chunks, counting its faces as it writes them. A cell's face count is closed-form
+the two emit passes are one kernel too (:func:`emit_grid`), which walks the same chunks, writing each node's
+vertices and then its cell's faces, counting them as it writes them. A cell's face count is closed-form
 (:func:`closed_form_faces`, shared with step_triangle) unless a corner sits on a crossed threshold; the chunks
 holding such cells are counted by step_triangle's walk once the vertex offsets exist
 (:func:`count_deferred_grid_faces`).
@@ -92,9 +93,8 @@ class Offsets:
     count_grid writes each slot's exclusive prefix within its chunk of nodes (``local``) and each chunk's total as
     it counts, so only the chunk totals are scanned into ``bases`` (one int per 64 nodes on the CPU, instead of a
     scan over four ints per node: 12 ms of 180 at 2048²). A chunk holds 2^shift slots (CPU_CHUNK is a power of
-    two; on CUDA a chunk is one node). emit_grid_vertices also writes each node's first vertex as a plain offset,
-    which the face pass reads for flat cells; :func:`offset_at` reads either form. Measured in RESULTS.md
-    "Session 20" (2048²/20: median 180 -> 175 ms, about 100 MB less scratch)."""
+    two; on CUDA a chunk is one node). :func:`offset_at` reads these or plain offsets (a TIN's). Measured in
+    RESULTS.md "Session 20" (2048²/20: median 180 -> 175 ms, about 100 MB less scratch)."""
 
     local: wp.array[wp.int32]
     bases: wp.array[wp.int32]
@@ -813,7 +813,7 @@ def count_grid(
     """One thread per chunk of nodes: count the vertices of each node's four slots (itself and its three owned
     edges) and the faces of the cell below-right of it, which share the node's four level loads. Writes each
     slot's exclusive prefix within the chunk and the chunk's vertex and face totals (:class:`Offsets`: only the
-    totals are scanned; emit_grid_faces walks the same chunks and recounts its faces as it writes them, so no
+    totals are scanned; emit_grid walks the same chunks and recounts its faces as it writes them, so no
     per-cell count is stored).
 
     A cell whose count needs the vertex offsets (a corner on a crossed threshold, or nodata in the grid) makes
@@ -887,84 +887,6 @@ def count_grid(
     store(totals_out, t, vertices)
     store(face_totals_out, t, faces_sum)  # replaced by count_deferred_grid_faces where deferred
     store(deferred_out, t, deferred)
-
-
-@wp.kernel
-def emit_grid_vertices(
-    thread_offset: wp.int32,
-    count: wp.int32,
-    chunk: wp.int32,
-    hf: HeightField,
-    iso: Isovalues,
-    offsets: Offsets,
-    want_sources: wp.int32,
-    direct: DirectBlend,
-    # outputs
-    points_out: wp.array[wp.vec3],
-    step_heights_out: wp.array[wp.float32],
-    sources_out: wp.array[wp.vec2i],
-    betas_out: wp.array[wp.float32],
-    node_offsets_out: wp.array[wp.int32],
-):
-    """The node chunks of :func:`count_grid` (same ``chunk``) again: write the vertices of each node's four slots
-    from their offsets, and each node's first vertex to ``node_offsets_out`` (plain offsets, one int a node: the
-    face pass's flat cells read only these)."""
-    t = wp.tid() + thread_offset
-    n = t * chunk
-    end = wp.min(n + chunk, count)
-    ij = wp.vec2i(n // hf.cols, n % hf.cols)
-    base = load(offsets.bases, t)
-    while n < end:
-        cols = hf.cols
-        i = ij[0]
-        j = ij[1]
-        p = grid_point(hf, i, j, n)
-        level = load(hf.levels, n)
-        s0 = base + load(offsets.local, 4 * n)
-        s1 = base + load(offsets.local, 4 * n + 1)
-        s2 = base + load(offsets.local, 4 * n + 2)
-        s3 = base + load(offsets.local, 4 * n + 3)
-        s4 = load(offsets.bases, t + 1)  # the slot after this node's last: the next node's, or the next chunk's
-        if n + 1 < end:
-            s4 = base + load(offsets.local, 4 * n + 4)
-        store(node_offsets_out, n, s0)
-        slots = wp.vec4i(s1, s2, s3, s4)  # (edge starts, then the end)
-        first = s0
-        owned = s1 - s0
-        if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
-            # a plain node, the common case: written here without the call
-            put_vertex(first, p, load(iso.values, level), points_out, step_heights_out, direct)
-            if want_sources != 0:
-                store(sources_out, first, wp.vec2i(n, n))
-                store(betas_out, first, 0.0)
-        elif owned > 0:
-            twin = wp.int32(0)
-            peak = wp.int32(0)
-            if owned == 2:
-                twin = 1
-            else:
-                peak = grid_node_count(hf, iso, n)[1]
-            emit_node_vertices(
-                n, p, level, twin, peak, first, iso, want_sources, direct,
-                points_out, step_heights_out, sources_out, betas_out,
-            )  # fmt: skip
-        for kind in range(1, 4):
-            start = slots[kind - 1]
-            if slots[kind] != start:
-                bi = i
-                bj = j + 1
-                if kind == 2:
-                    bi = i + 1
-                    bj = j
-                if kind == 3:
-                    bi = i + 1
-                b = bi * cols + bj
-                emit_edge_vertices(
-                    n, b, p, grid_point(hf, bi, bj, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
-                    want_sources, direct, points_out, step_heights_out, sources_out, betas_out,
-                )  # fmt: skip
-        n += 1
-        ij = next_node(ij, cols)
 
 
 @wp.func
@@ -1085,54 +1007,110 @@ def count_deferred_grid_faces(
 
 
 @wp.kernel
-def emit_grid_faces(
+def emit_grid(
     thread_offset: wp.int32,
     count: wp.int32,
     chunk: wp.int32,
     hf: HeightField,
     iso: Isovalues,
-    node_offsets: wp.array[wp.int32],
     offsets: Offsets,
     face_bases: wp.array[wp.int32],
+    want_sources: wp.int32,
+    direct: DirectBlend,
     # outputs
+    points_out: wp.array[wp.vec3],
+    step_heights_out: wp.array[wp.float32],
+    sources_out: wp.array[wp.vec2i],
+    betas_out: wp.array[wp.float32],
     faces_out: wp.array[vec3l],
     face_levels_out: wp.array[wp.int32],
     face_walls_out: wp.array[wp.uint8],
 ):
-    """The node chunks of :func:`count_grid` (same ``chunk``) again: write the terrace and wall faces of each
-    node's cell below-right, from the chunk's face base on, counting them as it goes (the same functions
-    counted them). A flat cell reads its nodes' first vertices from ``node_offsets``; a crossing cell reads its
-    slots through the two-level ``offsets``."""
+    """The node chunks of :func:`count_grid` (same ``chunk``) again, both emit passes in one walk: write the
+    vertices of each node's four slots from their offsets, then the terrace and wall faces of the node's cell
+    below-right, from the chunk's face base on, counting them as it goes (the same functions counted them).
+
+    A flat cell's corners are the node's first vertex, the next node's (the slot after this node's last) and the
+    two-level offsets of the two nodes below; a crossing cell reads its slots through ``offsets``. One walk
+    instead of a vertex pass and a face pass (with a node-offset array between them) saved 14 ms of 85 at 2048²
+    with 20 steps (RESULTS.md "Session 23")."""
     t = wp.tid() + thread_offset
-    n00 = t * chunk
-    end = wp.min(n00 + chunk, count)
-    cols = hf.cols
-    ij = wp.vec2i(n00 // cols, n00 % cols)
-    base = load(face_bases, t)
-    while n00 < end:
-        if ij[0] + 1 < hf.rows and ij[1] + 1 < cols:
-            level = grid_flat_cell(hf, n00)
-            if level >= 0:
-                # the common case, without the call: (n00, n01, n11) and (n00, n11, n10), lifted to their level
-                v00 = wp.int64(load(node_offsets, n00))
-                v01 = wp.int64(load(node_offsets, n00 + 1))
-                v10 = wp.int64(load(node_offsets, n00 + cols))
-                v11 = wp.int64(load(node_offsets, n00 + cols + 1))
-                if hf.flip != 0:
-                    stream(faces_out, base, vec3l(v00, v11, v01))
-                    stream(faces_out, base + 1, vec3l(v00, v10, v11))
-                else:
-                    stream(faces_out, base, vec3l(v00, v01, v11))
-                    stream(faces_out, base + 1, vec3l(v00, v11, v10))
-                stream(face_levels_out, base, level)
-                stream(face_levels_out, base + 1, level)
-                store(face_walls_out, base, wp.uint8(0))
-                store(face_walls_out, base + 1, wp.uint8(0))
-                base += 2
+    n = t * chunk
+    end = wp.min(n + chunk, count)
+    ij = wp.vec2i(n // hf.cols, n % hf.cols)
+    base = load(offsets.bases, t)
+    face_base = load(face_bases, t)
+    while n < end:
+        cols = hf.cols
+        i = ij[0]
+        j = ij[1]
+        p = grid_point(hf, i, j, n)
+        level = load(hf.levels, n)
+        s0 = base + load(offsets.local, 4 * n)
+        s1 = base + load(offsets.local, 4 * n + 1)
+        s2 = base + load(offsets.local, 4 * n + 2)
+        s3 = base + load(offsets.local, 4 * n + 3)
+        s4 = load(offsets.bases, t + 1)  # the slot after this node's last: the next node's, or the next chunk's
+        if n + 1 < end:
+            s4 = base + load(offsets.local, 4 * n + 4)
+        slots = wp.vec4i(s1, s2, s3, s4)  # (edge starts, then the end)
+        first = s0
+        owned = s1 - s0
+        if owned == 1 and on_threshold(p[2], level, iso.thresholds) == 0:
+            # a plain node, the common case: written here without the call
+            put_vertex(first, p, load(iso.values, level), points_out, step_heights_out, direct)
+            if want_sources != 0:
+                store(sources_out, first, wp.vec2i(n, n))
+                store(betas_out, first, 0.0)
+        elif owned > 0:
+            twin = wp.int32(0)
+            peak = wp.int32(0)
+            if owned == 2:
+                twin = 1
             else:
-                base += grid_cell_faces(hf, iso, offsets, ij[0], ij[1], 1, base, faces_out, face_levels_out,
-                                        face_walls_out)  # fmt: skip
-        n00 += 1
+                peak = grid_node_count(hf, iso, n)[1]
+            emit_node_vertices(
+                n, p, level, twin, peak, first, iso, want_sources, direct,
+                points_out, step_heights_out, sources_out, betas_out,
+            )  # fmt: skip
+        for kind in range(1, 4):
+            start = slots[kind - 1]
+            if slots[kind] != start:
+                bi = i
+                bj = j + 1
+                if kind == 2:
+                    bi = i + 1
+                    bj = j
+                if kind == 3:
+                    bi = i + 1
+                b = bi * cols + bj
+                emit_edge_vertices(
+                    n, b, p, grid_point(hf, bi, bj, b), wp.vec2i(n, b), start, hf.heights, hf.levels, iso,
+                    want_sources, direct, points_out, step_heights_out, sources_out, betas_out,
+                )  # fmt: skip
+        if i + 1 < hf.rows and j + 1 < cols:
+            flat = grid_flat_cell(hf, n)
+            if flat >= 0:
+                # the common case, without the call: (n00, n01, n11) and (n00, n11, n10), lifted to their level
+                v00 = wp.int64(s0)
+                v01 = wp.int64(s4)
+                v10 = wp.int64(offset_at(offsets, 4 * (n + cols)))
+                v11 = wp.int64(offset_at(offsets, 4 * (n + cols + 1)))
+                if hf.flip != 0:
+                    stream(faces_out, face_base, vec3l(v00, v11, v01))
+                    stream(faces_out, face_base + 1, vec3l(v00, v10, v11))
+                else:
+                    stream(faces_out, face_base, vec3l(v00, v01, v11))
+                    stream(faces_out, face_base + 1, vec3l(v00, v11, v10))
+                stream(face_levels_out, face_base, flat)
+                stream(face_levels_out, face_base + 1, flat)
+                store(face_walls_out, face_base, wp.uint8(0))
+                store(face_walls_out, face_base + 1, wp.uint8(0))
+                face_base += 2
+            else:
+                face_base += grid_cell_faces(hf, iso, offsets, i, j, 1, face_base, faces_out, face_levels_out,
+                                             face_walls_out)  # fmt: skip
+        n += 1
         ij = next_node(ij, cols)
 
 

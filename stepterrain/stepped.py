@@ -432,12 +432,6 @@ def step_arrays(
         )
         face_counts = face_totals
         face_offsets, face_count = exclusive_offsets(face_totals, "stepped.faces")
-        # emit_grid_vertices also writes each node's first vertex (node_offsets), which emit_grid_faces reads for
-        # flat cells; both walk the count's chunks of nodes
-        node_offsets = scratch("stepped.node_offsets", n_nodes, wp.int32, device)
-        emit_vertices, emit_faces = stepped_kernels.emit_grid_vertices, stepped_kernels.emit_grid_faces
-        emit_inputs, emit_extra, n_threads = [topo, iso, offsets], [node_offsets], n_nodes
-        face_inputs, n_face_threads = [topo, iso, node_offsets, offsets, face_offsets], n_nodes
     else:
         n_slots = n_nodes + len(terrain.edges)
         n_cells = len(terrain.faces)
@@ -466,9 +460,6 @@ def step_arrays(
             device=device,
         )
         face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
-        emit_vertices, emit_faces = stepped_kernels.emit_tin_vertices, stepped_kernels.emit_tin_faces
-        emit_inputs, emit_extra, n_threads = [topo, iso, offsets, twins], [], n_slots
-        face_inputs, n_face_threads = [topo, iso, offsets, face_offsets], n_cells
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
     _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
 
@@ -492,27 +483,22 @@ def step_arrays(
     n_src = vertex_count if want_sources else 0
     sources = scratch("stepped.sources", n_src, wp.vec2i, device)
     betas = scratch("stepped.betas", n_src, wp.float32, device)
-    launch_chunked(
-        emit_vertices,
-        n=n_threads,
-        inputs=[*emit_inputs, int(want_sources), direct],
-        outputs=[points, step_heights, sources, betas, *emit_extra],
-        device=device,
-        fence=gamma is not None,  # the direct blend streams the vertices
-    )
-
-    # the face pass streams faces and levels (kernels/memory.py, stream)
+    # the face pass streams faces and levels (kernels/memory.py, stream), as the direct blend does the vertices
     faces_np, faces_wp = empty_shared((face_count, 3), np.int64, stepped_kernels.vec3l, device, streamed=True)
     levels_np, levels_wp = empty_shared((face_count,), np.int32, wp.int32, device, streamed=True)
     walls_np, walls_wp = empty_shared((face_count,), np.uint8, wp.uint8, device)
-    launch_chunked(
-        emit_faces,
-        n=n_face_threads,
-        inputs=face_inputs,
-        outputs=[faces_wp, levels_wp, walls_wp],
-        device=device,
-        fence=True,
-    )
+    vertex_outputs = [points, step_heights, sources, betas]
+    face_outputs = [faces_wp, levels_wp, walls_wp]
+    if grid:  # both emit passes in one walk over the count's chunks of nodes
+        launch_chunked(stepped_kernels.emit_grid, n=n_nodes, inputs=[topo, iso, offsets, face_offsets,
+                       int(want_sources), direct], outputs=vertex_outputs + face_outputs, device=device,
+                       fence=True)  # fmt: skip
+    else:
+        launch_chunked(stepped_kernels.emit_tin_vertices, n=n_slots, inputs=[topo, iso, offsets, twins,
+                       int(want_sources), direct], outputs=vertex_outputs, device=device,
+                       fence=gamma is not None)  # fmt: skip
+        launch_chunked(stepped_kernels.emit_tin_faces, n=n_cells, inputs=[topo, iso, offsets, face_offsets],
+                       outputs=face_outputs, device=device, fence=True)  # fmt: skip
     return StepArrays(
         points=points if direct.points else None,
         step_heights=step_heights if direct.steps else None,
