@@ -834,7 +834,7 @@ def stepped(
     [0.0, 1.0, 2.0, 3.0]
     """
     check_flag(solid, "solid")
-    t = as_terrain(terrain, spacing=spacing, origin=origin)
+    t = as_terrain(terrain, spacing=spacing, origin=origin, borrow=True)  # lives only within this call
     dev = resolve_device(device)
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
@@ -1007,7 +1007,7 @@ def stepped_series(
         # a fresh Terrain per frame: what it caches (the heights' upload, whether they hold nodata) belongs to
         # its own heights; the work arrays of the passes come from the per-thread scratch pool, reused
         try:
-            t = Terrain.from_heights(frame, spacing=spacing, origin=origin)
+            t = Terrain._from_heights(frame, spacing=spacing, origin=origin, borrow=True)  # one frame's call
             height_range = t.height_range if values is None else None  # all nodata: an error, as in stepped()
         except InvalidInputError as exc:  # the frame's heights (spacing and origin were checked above)
             raise InvalidInputError(f"frames[{k}]: {exc}") from None

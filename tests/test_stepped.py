@@ -955,6 +955,33 @@ def test_terrain_heights_cannot_change_under_its_caches():
         assert not getattr(tin, name).flags.writeable, name
 
 
+def test_stepped_borrows_a_float32_array_for_its_call_only(dem):
+    """stepped() on a raw float32, C-contiguous array uses it without the copy a kept Terrain needs (as_terrain's
+    borrow): the mesh is the one a copied Terrain gives, the caller's array stays writable and unchanged, and
+    changing it afterwards changes nothing already stepped; stepped_series borrows each frame the same way."""
+    heights = np.ascontiguousarray(dem[:40, :50], dtype=np.float32)
+    kept = heights.copy()
+    mesh = st.stepped(heights, interval=35.0, spacing=(30.0, -30.0))
+    copied = st.stepped(st.Terrain.from_heights(kept, spacing=(30.0, -30.0)), interval=35.0)
+    assert heights.flags.writeable and heights.flags.c_contiguous
+    np.testing.assert_array_equal(heights, kept)
+    np.testing.assert_array_equal(mesh.vertices, copied.vertices)
+    np.testing.assert_array_equal(mesh.faces, copied.faces)
+    borrowed = as_terrain(heights, borrow=True)
+    assert np.shares_memory(borrowed.heights, heights) and not borrowed.heights.flags.writeable
+    assert not np.shares_memory(as_terrain(heights).heights, heights)
+    before = mesh.vertices.copy()
+    heights[:] = 0.0
+    np.testing.assert_array_equal(mesh.vertices, before)
+    frames = np.stack([kept, kept + 10.0])
+    series = st.stepped_series(frames, interval=35.0, spacing=(30.0, -30.0))
+    for k, got in enumerate(series):
+        one = st.stepped(frames[k].copy(), levels=got.metadata["isovalues"], spacing=(30.0, -30.0))
+        np.testing.assert_array_equal(got.vertices, one.vertices)
+        np.testing.assert_array_equal(got.faces, one.faces)
+    np.testing.assert_array_equal(frames[0], kept)
+
+
 def test_terrain_copies_the_buffer_an_array_like_shares():
     """from_heights copied a float32 buffer it would share only when given an ndarray: an array-like exposing its
     own buffer (a memoryview, an object with __array__: an xarray DataArray, a DataFrame) was shared, and masking
