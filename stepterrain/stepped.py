@@ -332,7 +332,26 @@ def thresholds_of(values: NDArray[np.float32]) -> NDArray[np.float32]:
     return ((v64[:-1] + v64[1:]) * 0.5).astype(np.float32)
 
 
+#: Isovalue structs by (values, device): a re-step that goes back and forth between a few intervals reuses their
+#: uploads (0.18 ms of a 9.6 ms 512² re-step). The kernels only read them.
+_ISOVALUES: dict[tuple[bytes, str], stepped_kernels.Isovalues] = {}
+_ISOVALUES_KEPT = 16
+
+
 def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_kernels.Isovalues:
+    if len(values) > 4096:  # not worth keeping
+        return _build_isovalue_struct(values, device)
+    key = (np.ascontiguousarray(values, dtype=np.float32).tobytes(), str(device))
+    iso = _ISOVALUES.get(key)
+    if iso is None:
+        iso = _build_isovalue_struct(values, device)
+        if len(_ISOVALUES) >= _ISOVALUES_KEPT:
+            _ISOVALUES.clear()
+        _ISOVALUES[key] = iso
+    return iso
+
+
+def _build_isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_kernels.Isovalues:
     thresholds = thresholds_of(values)
     iso = stepped_kernels.Isovalues()
     iso.values = wp.array(values, dtype=wp.float32, device=device)
