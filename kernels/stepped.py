@@ -653,6 +653,51 @@ def emit_node_vertices(
 # ---------------------------------------------------------------------------------------------------------
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return 0;
+#else
+const int nt = thresholds.shape[0];
+if (nt > 64) {
+    return 0;
+}
+typedef float f16 __attribute__((ext_vector_type(16)));
+typedef int i16 __attribute__((ext_vector_type(16)));
+const float* h = heights.data;
+const float* t = thresholds.data;
+int* out = levels.data;
+int m = start;
+for (; m + 16 <= end; m += 16) {
+    f16 hv;
+    __builtin_memcpy(&hv, h + m, sizeof(hv));
+    i16 k = (i16)(0);
+    for (int i = 0; i < nt; ++i) {
+        k -= (i16)((f16)(t[i]) <= hv);  // a true lane compares as -1
+    }
+    __builtin_memcpy(out + m, &k, sizeof(k));
+}
+for (; m < end; ++m) {
+    const float hm = h[m];
+    int k = 0;
+    for (int i = 0; i < nt; ++i) {
+        k += (t[i] <= hm);
+    }
+    out[m] = k;
+}
+return 1;
+#endif
+""")
+def count_thresholds_below(
+    heights: wp.array[wp.float32], thresholds: wp.array[wp.float32], levels: wp.array[wp.int32], start: wp.int32,
+    end: wp.int32,
+) -> wp.int32:  # pragma: no cover - native code
+    """On the CPU with at most 64 thresholds: levels[m] = the number of thresholds <= heights[m] for m in [start,
+    end), :func:`level_of`'s count (NaN compares false: 0), sixteen nodes at a time against every threshold
+    (vector compares, no branches, no table lookups); returns 1. Otherwise (CUDA, more thresholds) 0: nothing
+    written. 2048² with 20 steps: 8.3 -> 2.6 ms (RESULTS.md "Session 23")."""
+    ...
+
+
 @wp.kernel
 def quantize_levels(
     thread_offset: wp.int32,
@@ -666,9 +711,10 @@ def quantize_levels(
     """One thread per node: its level, the index of the nearest isovalue (§3.2)."""
     n = (wp.tid() + thread_offset) * chunk
     end = wp.min(n + chunk, count)
-    while n < end:
-        store(levels_out, n, level_of(load(heights, n), iso))
-        n += 1
+    if count_thresholds_below(heights, iso.thresholds, levels_out, n, end) == 0:
+        while n < end:
+            store(levels_out, n, level_of(load(heights, n), iso))
+            n += 1
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -12,13 +12,14 @@ import warp as wp
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st_
 from hypothesis.extra.numpy import arrays
+from stepterrain.kernels import stepped as stepped_kernels
 
 import stepterrain as st
-from stepterrain._device import resolve_device
-from stepterrain.stepped import blend, isovalues, step_arrays
+from stepterrain._device import launch_chunked, resolve_device
+from stepterrain.stepped import _build_isovalue_struct, blend, isovalues, step_arrays
 from stepterrain.terrain import as_terrain
 
-from .conftest import assert_valid_mesh, real_dem, shared_file
+from .conftest import DEVICES, assert_valid_mesh, real_dem, shared_file
 from .reference import grid_tin, step_reference, thresholds_of
 
 # --------------------------------------------------------------------------------------------- helpers
@@ -1585,3 +1586,33 @@ def test_extreme_but_handled_inputs_leak_no_overflow_warning():
     # the default floor of ordinary levels is unchanged: a tenth of their span below the lowest
     levels = st.stepped(np.eye(3) * 7.3, levels=[0.0, 2.5, 7.25], solid=True)
     assert levels.metadata["floor"] == 0.0 - max(float(np.ptp(np.array([0.0, 2.5, 7.25], np.float32))), 1.0) * 0.1
+
+
+@pytest.mark.parametrize("device", DEVICES)
+@settings(max_examples=40, deadline=None)
+@given(
+    n_thresholds=st_.sampled_from([1, 2, 15, 16, 17, 63, 64, 65, 200]),
+    uniform=st_.booleans(),
+    n_nodes=st_.integers(1, 300),
+    seed=st_.integers(0, 2**16),
+)
+def test_node_levels_count_the_thresholds_at_or_below(device, n_thresholds, uniform, n_nodes, seed):
+    """quantize_levels gives every node the number of thresholds <= its height (NaN: 0), whichever way it counts:
+    sixteen nodes at a time against every threshold on the CPU up to 64 thresholds, the estimate-and-correct or
+    binary search otherwise; heights on thresholds, between them, beyond both ends, signed zeros and NaN."""
+    rng = np.random.default_rng(seed)
+    if uniform:
+        values = (np.arange(n_thresholds + 1) * 2.5 - 10.0).astype(np.float32)
+    else:
+        values = np.sort(rng.choice(np.arange(-500, 500), n_thresholds + 1, replace=False)).astype(np.float32)
+    thresholds = thresholds_of(values)  # the reference's
+    pool = np.concatenate([thresholds, values, [-0.0, 0.0, np.nan, -1e30, 1e30]]).astype(np.float32)
+    heights = np.where(rng.random(n_nodes) < 0.5, rng.choice(pool, n_nodes),
+                       rng.uniform(values[0] - 20, values[-1] + 20, n_nodes)).astype(np.float32)  # fmt: skip
+    dev = resolve_device(device)
+    levels = wp.zeros(n_nodes, dtype=wp.int32, device=dev)
+    launch_chunked(stepped_kernels.quantize_levels, n=n_nodes,
+                   inputs=[wp.array(heights, dtype=wp.float32, device=dev), _build_isovalue_struct(values, dev)],
+                   outputs=[levels], device=dev)  # fmt: skip
+    expected = np.where(np.isnan(heights), 0, np.searchsorted(thresholds, heights, side="right"))
+    np.testing.assert_array_equal(levels.numpy(), expected)
