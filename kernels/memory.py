@@ -15,6 +15,9 @@ Users: ``kernels/stepped.py``; the refinement and mesh output of ``kernels/cubes
 of ``kernels/bounds.py`` (the globe's far view: kernels 31 -> 27 ms, see cubesphere's module docstring).
 
 Overloads: one per element type these kernels use (Warp resolves ``load``/``store`` by argument types).
+
+``stream(a, i, v)`` (vec3d, vec3l, int32) is a streaming store for a big output written in one sweep, on the CPU;
+see the comment above its definition for when it pays and what its launches must do.
 """
 
 from __future__ import annotations
@@ -73,17 +76,19 @@ def store(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no co
 
 # Streaming (non-temporal) stores, for a big output written in one sweep: a plain store first reads the cache
 # line it writes (to own it), so writing 300 MB moves 600; a streaming store writes past the caches, whole lines
-# at once. 13 M vec3l (312 MB) took 27 ms with store, 17 ms with stream, on one core here; the stepped γ blend
-# (6.5 M vec3d) 15.5-18 -> 10-11 ms. The emit kernels, whose stores interleave with scattered loads, gained
-# nothing and store plainly. Streaming stores are weakly ordered: a kernel that streams is launched with
-# fence=True (stepterrain._device.launch), which runs drain_streams on the same thread after it, before any
-# other thread may read the output. CUDA stores plainly.
+# at once. 13 M vec3l (312 MB) took 27 ms with store, 17 ms with stream, on one core of session 19's AMD EPYC; the
+# stepped γ blend (6.5 M vec3d) 15.5-18 -> 10-11 ms there. The stepped emit kernels gained nothing there; on
+# session 23's Intel Xeon streaming their faces, face levels, blended vertices and count_grid's prefixes did
+# (the face pass 68 -> 42 ms at 2048²). Streaming into pages not yet mapped is slow on these VMs, so streamed
+# outputs are touched first where they are new (stepterrain._device.touch_pages). Streaming stores are weakly
+# ordered: a kernel that streams is launched with fence=True (stepterrain._device.launch), which runs
+# drain_streams on the same thread after it, before any other thread may read the output. CUDA stores plainly.
 #
 # The three components go out as movnti of their bits. LLVM has no scalar-double non-temporal store on x86
 # (only AMD's SSE4a movntsd): a double it cannot fold into a vector it stores plainly (vmovsd), and it folds a
 # stored bit cast back into that double. Streaming the doubles directly kept the z of every vertex a plain
 # store, so each line was written by both kinds and bounced between the cache and memory: on the Intel Xeon
-# VM of session 23 the 2048² blend took 2.8-3.1 s instead of 10 ms (RESULTS "Session 23"). Adding
+# VM of session 23 the 2048² blend took 2.8-3.1 s instead of 17 ms (RESULTS "Session 23"). Adding
 # ``a.ndim - 1`` (0: the arrays here are 1-D) to the bits makes them integers the optimizer cannot turn back.
 _NT3 = """
 #if defined(__CUDA_ARCH__)
