@@ -694,7 +694,7 @@ def count_thresholds_below(
     """On the CPU with at most 64 thresholds: levels[m] = the number of thresholds <= heights[m] for m in [start,
     end), :func:`level_of`'s count (NaN compares false: 0), sixteen nodes at a time against every threshold
     (vector compares, no branches, no table lookups); returns 1. Otherwise (CUDA, more thresholds) 0: nothing
-    written. 2048² with 20 steps: 8.3 -> 2.6 ms (RESULTS.md "Session 23")."""
+    written. 2048² with 20 steps: 8.3 -> 3.0-3.3 ms (RESULTS.md "Session 23")."""
     ...
 
 

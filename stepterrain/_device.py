@@ -348,8 +348,8 @@ def touch_pages(host: np.ndarray) -> None:
     faults the plain stores would have taken. :class:`_RecyclingPool` touches only blocks new to it.
     """
     flat = host.reshape(-1).view(np.uint8)
+    _prefault(flat)
     if flat.size:
-        flat[::_PAGE] = 0
         flat[-1] = 0  # the last page, where the buffer does not start on a page boundary
 
 

@@ -1026,7 +1026,7 @@ def stepped_series(
         # a fresh Terrain per frame: what it caches (the heights' upload, whether they hold nodata) belongs to
         # its own heights; the work arrays of the passes come from the per-thread scratch pool, reused
         try:
-            t = Terrain._from_heights(frame, spacing=spacing, origin=origin, borrow=True)  # one frame's call
+            t = Terrain.from_heights(frame, spacing=spacing, origin=origin, _borrow=True)  # one frame's call
             height_range = t.height_range if values is None else None  # all nodata: an error, as in stepped()
         except InvalidInputError as exc:  # the frame's heights (spacing and origin were checked above)
             raise InvalidInputError(f"frames[{k}]: {exc}") from None

@@ -339,25 +339,13 @@ class Terrain:
         origin: ArrayLike = (0.0, 0.0),
         crs: str | None = None,
         source: str | None = None,
+        _borrow: bool = False,
     ) -> Terrain:
-        """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero."""
-        return cls._from_heights(heights, spacing=spacing, origin=origin, crs=crs, source=source)
-
-    @classmethod
-    def _from_heights(
-        cls,
-        heights: ArrayLike,
-        *,
-        spacing: ArrayLike = (1.0, 1.0),
-        origin: ArrayLike = (0.0, 0.0),
-        crs: str | None = None,
-        source: str | None = None,
-        borrow: bool = False,
-    ) -> Terrain:
-        """:meth:`from_heights`; ``borrow`` as in :func:`as_terrain`."""
+        """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero. (``_borrow``
+        is internal: see :func:`as_terrain`.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
-        array, lo, hi = _heights_array(heights, borrow=borrow)
+        array, lo, hi = _heights_array(heights, borrow=_borrow)
         terrain = cls(
             kind="grid",
             heights=array,
@@ -670,9 +658,9 @@ def as_terrain(
             f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh; got a path {terrain!r} "
             "(load it first with stepterrain.load_dem)"
         )
-    return Terrain._from_heights(
+    return Terrain.from_heights(
         terrain,
         spacing=(1.0, 1.0) if spacing is None else spacing,
         origin=(0.0, 0.0) if origin is None else origin,
-        borrow=borrow,
+        _borrow=borrow,
     )
