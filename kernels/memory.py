@@ -71,6 +71,28 @@ def store(a: wp.array[wp.vec4i], i: wp.int32, v: wp.vec4i): ...  # pragma: no co
 def store(a: wp.array[vec3l], i: wp.int32, v: vec3l): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)
 def store(a: wp.array[wp.vec3d], i: wp.int32, v: wp.vec3d): ...  # pragma: no cover  # noqa: F811
+
+# 2-D: (i, j) through the array's byte strides, so views work too; 64-bit offsets (a 16384² float32 grid is 1 GiB)
+_LOAD2 = (
+    "assert(i >= 0 && i < a.shape[0] && j >= 0 && j < a.shape[1]);\n"
+    "return *reinterpret_cast<decltype(a.data)>(reinterpret_cast<char*>(a.data) + (long long)i * a.strides[0]"
+    " + (long long)j * a.strides[1]);"
+)
+_STORE2 = (
+    "assert(i >= 0 && i < a.shape[0] && j >= 0 && j < a.shape[1]);\n"
+    "*reinterpret_cast<decltype(a.data)>(reinterpret_cast<char*>(a.data) + (long long)i * a.strides[0]"
+    " + (long long)j * a.strides[1]) = v;"
+)
+
+
+@wp.func_native(_LOAD2)
+def load(a: wp.array2d[wp.float32], i: wp.int32, j: wp.int32) -> wp.float32: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD2)
+def load(a: wp.array2d[wp.uint8], i: wp.int32, j: wp.int32) -> wp.uint8: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_STORE2)
+def store(a: wp.array2d[wp.float32], i: wp.int32, j: wp.int32, v: wp.float32): ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_STORE2)
+def store(a: wp.array2d[wp.uint8], i: wp.int32, j: wp.int32, v: wp.uint8): ...  # pragma: no cover  # noqa: F811
 # fmt: on
 
 

@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import warp as wp
 
+from .memory import load, store
+
 wp.set_module_options({"enable_backward": False, "optimization_level": 3, "fuse_fp": False})  # see kernels/__init__
 
 HALF_PI_SQUARED_INV = 0.40528473456935108  # 1 / (pi / 2)^2, GDAL's INV_SQUARE_OF_HALF_PI
@@ -228,6 +230,80 @@ def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.f
     return wp.max(cos_incidence, 0.0)
 
 
+
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return 0;
+#else
+if (heights.strides[1] != (int)sizeof(float) || out.strides[1] != (int)sizeof(float)
+        || (shadowed && shadow.strides[1] != 1)) {
+    return 0;
+}
+typedef float f16 __attribute__((ext_vector_type(16)));
+typedef int i16 __attribute__((ext_vector_type(16)));
+typedef unsigned char u16 __attribute__((ext_vector_type(16)));
+const char* base = reinterpret_cast<const char*>(heights.data);
+const float* up = reinterpret_cast<const float*>(base + (long long)(i - 1) * heights.strides[0]);
+const float* mid = reinterpret_cast<const float*>(base + (long long)i * heights.strides[0]);
+const float* down = reinterpret_cast<const float*>(base + (long long)(i + 1) * heights.strides[0]);
+float* row = reinterpret_cast<float*>(reinterpret_cast<char*>(out.data) + (long long)i * out.strides[0]);
+const unsigned char* dark = nullptr;
+if (shadowed) {
+    dark = reinterpret_cast<const unsigned char*>(shadow.data) + (long long)i * shadow.strides[0];
+}
+const float s0 = scale[0], s1 = scale[1], l0 = light[0], l1 = light[1], l2 = light[2];
+const float keep = 1.0f - strength;
+int j = lo;
+for (; j + 16 <= hi; j += 16) {
+    f16 a, b, c, d, f, g, h, k;
+    __builtin_memcpy(&a, up + j - 1, sizeof(a));
+    __builtin_memcpy(&b, up + j, sizeof(b));
+    __builtin_memcpy(&c, up + j + 1, sizeof(c));
+    __builtin_memcpy(&d, mid + j - 1, sizeof(d));
+    __builtin_memcpy(&f, mid + j + 1, sizeof(f));
+    __builtin_memcpy(&g, down + j - 1, sizeof(g));
+    __builtin_memcpy(&h, down + j, sizeof(h));
+    __builtin_memcpy(&k, down + j + 1, sizeof(k));
+    const f16 p = ((c + 2.0f * f + k) - (a + 2.0f * d + g)) * s0;
+    const f16 q = ((g + 2.0f * h + k) - (a + 2.0f * b + c)) * s1;
+    const f16 v = (l2 - p * l0 - q * l1) / __builtin_elementwise_sqrt(1.0f + p * p + q * q);
+    i16 bits = __builtin_bit_cast(i16, v) & (i16)(v >= 0.0f);  // max(v, 0): v >= 0 ? v : +0 (NaN: +0)
+    if (shadowed) {
+        u16 s;
+        __builtin_memcpy(&s, dark + j, sizeof(s));
+        const i16 lit = (i16)(__builtin_convertvector(s, i16) == 0);
+        const i16 dimmed = __builtin_bit_cast(i16, __builtin_bit_cast(f16, bits) * keep);
+        bits = (bits & lit) | (dimmed & ~lit);
+    }
+    __builtin_memcpy(row + j, &bits, sizeof(bits));
+}
+for (; j < hi; ++j) {
+    const float a = up[j - 1], b = up[j], c = up[j + 1], d = mid[j - 1], f = mid[j + 1];
+    const float g = down[j - 1], h = down[j], k = down[j + 1];
+    const float p = ((c + 2.0f * f + k) - (a + 2.0f * d + g)) * s0;
+    const float q = ((g + 2.0f * h + k) - (a + 2.0f * b + c)) * s1;
+    const float v = (l2 - p * l0 - q * l1) / ::sqrtf(1.0f + p * p + q * q);
+    float value = v >= 0.0f ? v : 0.0f;
+    if (shadowed && dark[j] != 0) {
+        value = value * keep;
+    }
+    row[j] = value;
+}
+return 1;
+#endif
+""")
+def shade_interior_run(
+    heights: wp.array2d[wp.float32], shadow: wp.array2d[wp.uint8], shadowed: wp.bool, strength: wp.float32,
+    i: wp.int32, lo: wp.int32, hi: wp.int32, scale: wp.vec2, light: wp.vec3, out: wp.array2d[wp.float32],
+) -> wp.int32:  # pragma: no cover - native code
+    """On the CPU: the standard hillshade of interior pixels (i, lo..hi-1) of an interior row without nodata,
+    sixteen at a time (vector loads, IEEE division and square root: the same values, bit for bit, as
+    :func:`shade_heights`' loop, in the same order of operations, which ``fuse_fp=False`` keeps), times
+    ``1 - strength`` where ``shadow`` marks them; returns 1. Otherwise (CUDA, or rows that are not contiguous)
+    0: nothing written."""
+    ...
+
+
 @wp.kernel
 def shade_heights(
     thread_offset: wp.int32,
@@ -259,30 +335,32 @@ def shade_heights(
         # the common case: no nodata, standard shading; a tight loop over the run's interior pixels
         lo = wp.max(j0, 1)
         hi = wp.min(j1, grid.cols - 1)
-        a = heights[i - 1, lo - 1]
-        d = heights[i, lo - 1]
-        g = heights[i + 1, lo - 1]
-        b = heights[i - 1, lo]
-        e = heights[i, lo]
-        h = heights[i + 1, lo]
+        # (unchecked loads and stores, kernels/memory.py: every index here is inside the grid)
+        a = load(heights, i - 1, lo - 1)
+        d = load(heights, i, lo - 1)
+        g = load(heights, i + 1, lo - 1)
+        b = load(heights, i - 1, lo)
+        e = load(heights, i, lo)
+        h = load(heights, i + 1, lo)
         j = lo
+        if shade_interior_run(heights, shadow, shadowed, shadow_strength, i, lo, hi, scale, light, shade_out) != 0:
+            j = hi
         while j < hi:  # (a while loop: Warp's dynamic range() costs about 3 ns an iteration on the CPU)
-            c = heights[i - 1, j + 1]
-            f = heights[i, j + 1]
-            k = heights[i + 1, j + 1]
+            a = load(heights, i - 1, j - 1)
+            d = load(heights, i, j - 1)
+            g = load(heights, i + 1, j - 1)
+            b = load(heights, i - 1, j)
+            h = load(heights, i + 1, j)
+            c = load(heights, i - 1, j + 1)
+            f = load(heights, i, j + 1)
+            k = load(heights, i + 1, j + 1)
             p = ((c + 2.0 * f + k) - (a + 2.0 * d + g)) * scale[0]
             q = ((g + 2.0 * h + k) - (a + 2.0 * b + c)) * scale[1]
             value = wp.max((light[2] - p * light[0] - q * light[1]) / wp.sqrt(1.0 + p * p + q * q), 0.0)
             if shadowed:
-                if shadow[i, j] != wp.uint8(0):
+                if load(shadow, i, j) != wp.uint8(0):
                     value = value * (1.0 - shadow_strength)
-            shade_out[i, j] = value
-            a = b
-            b = c
-            d = e
-            e = f
-            g = h
-            h = k
+            store(shade_out, i, j, value)
             j += 1
         for side in range(2):  # the row's border pixels, if this run holds them
             j = wp.where(side == 0, 0, grid.cols - 1)
@@ -619,16 +697,16 @@ def sweep_shadows(
             if sweep.major_j == 0:
                 i = major
                 j = minor
-            h = grid.heights[i, j]
+            h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
             if grid.has_nodata != 0 and wp.isnan(h):
-                shadow_out[i, j] = wp.uint8(0)
+                store(shadow_out, i, j, wp.uint8(0))
             else:
                 g = h * grid.z_factor + (float(j) * sweep.rise[0] + float(i) * sweep.rise[1])
-                if g < horizons[line]:
-                    shadow_out[i, j] = wp.uint8(1)
+                if g < load(horizons, line):
+                    store(shadow_out, i, j, wp.uint8(1))
                 else:
-                    shadow_out[i, j] = wp.uint8(0)
-                    horizons[line] = g
+                    store(shadow_out, i, j, wp.uint8(0))
+                    store(horizons, line, g)
             line += 1
         k += 1
 

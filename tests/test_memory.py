@@ -82,6 +82,32 @@ def test_load_and_store_match_numpy(device):
     np.testing.assert_array_equal(out_b.numpy(), (b + np.float32([1, 2, 3]))[::-1])
 
 
+
+@wp.kernel
+def _transpose2(a: wp.array2d[wp.float32], m: wp.array2d[wp.uint8], out_a: wp.array2d[wp.float32],
+                out_m: wp.array2d[wp.uint8]):
+    i, j = wp.tid()
+    store(out_a, j, i, load(a, i, j) + 1.0)
+    store(out_m, j, i, load(m, i, j) + wp.uint8(1))
+
+
+def test_2d_load_and_store_follow_the_strides(device):
+    """load(a, i, j) / store(a, i, j, v) address (i, j) through the byte strides: a view with a row step and a
+    column step reads the right elements."""
+    base = np.arange(13 * 22, dtype=np.float32).reshape(13, 22) * 0.5 - 7.0
+    view = base[1::2, ::3]  # (6, 8), strides (176, 12) bytes
+    mask = (np.arange(13 * 22).reshape(13, 22) % 251).astype(np.uint8)[1::2, ::3]
+    a = wp.array(view, dtype=wp.float32, device="cpu", copy=False) if device == "cpu" else \
+        wp.array(np.ascontiguousarray(view), dtype=wp.float32, device=device)
+    if device == "cpu":
+        assert a.strides == (176, 12)
+    m = wp.array(np.ascontiguousarray(mask), dtype=wp.uint8, device=device)
+    out_a = wp.zeros((8, 6), dtype=wp.float32, device=device)
+    out_m = wp.zeros((8, 6), dtype=wp.uint8, device=device)
+    wp.launch(_transpose2, dim=(6, 8), inputs=[a, m], outputs=[out_a, out_m], device=device)
+    np.testing.assert_array_equal(out_a.numpy(), view.T + 1.0)
+    np.testing.assert_array_equal(out_m.numpy(), mask.T + 1)
+
 def test_streamed_output_is_complete_on_several_threads(device):
     """A fenced streaming launch split over two CPU threads writes every element (CUDA stores plainly)."""
     n = 200_003
@@ -213,3 +239,41 @@ def test_globe_kernels_stay_in_range_in_debug_mode():
             assert d.files == r.files
             for name in d.files:
                 np.testing.assert_array_equal(d[name], r[name])
+
+
+def test_texture_kernels_stay_in_range_in_debug_mode():
+    """The hillshade (the vector rows and the careful border and nodata path) and the shadow sweeps along rows
+    and along columns (bundles of several lines), compiled with their index assertions: none fires, and the
+    images equal the release build's."""
+    from tests.conftest import real_dem
+
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=96, step=1)
+    code = """
+        import sys
+        import numpy as np
+        from stepterrain.texture import cast_shadows, hillshade
+
+        z = np.load(sys.argv[2])
+        holes = z.copy()
+        holes[10:14, 30:33] = np.nan
+        images = []
+        for az in (0.0, 45.0, 90.0, 200.0, 315.0):
+            for heights, spacing in ((z, (30.0, -30.0)), (holes, (20.0, 45.0)), (z[:40, :91], (30.0, 30.0))):
+                images += [hillshade(heights, spacing=spacing, azimuth=np.radians(az), shadows=True,
+                                     shadow_strength=0.4, device="cpu"),
+                           cast_shadows(heights, spacing=spacing, azimuth=np.radians(az), altitude=np.radians(15),
+                                        device="cpu")]
+        np.savez(sys.argv[1], *images)
+    """
+    with tempfile.TemporaryDirectory() as tmp:
+        heights = os.path.join(tmp, "dem.npy")
+        np.save(heights, np.tile(dem[:96, :96], (1, 12)))  # 96 x 1152: more than 16 lines each way
+        debug_out, release_out = os.path.join(tmp, "debug.npz"), os.path.join(tmp, "release.npz")
+        debug = _run(code, debug_out, heights)
+        assert debug.returncode == 0 and "Assertion failed" not in debug.stderr, debug.stderr[-2000:]
+        release = _run(code, release_out, heights, debug=False)
+        assert release.returncode == 0, release.stderr[-2000:]
+        with np.load(debug_out) as d, np.load(release_out) as r:
+            assert d.files == r.files
+            for name in d.files:
+                np.testing.assert_array_equal(d[name].view(np.uint8), r[name].view(np.uint8))

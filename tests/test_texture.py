@@ -221,6 +221,59 @@ def test_no_shadow_at_zenith_and_nodata_is_lit(device):
     assert shadow[2, 15] == 0 and shadow[2, 16] == 1
 
 
+
+def _standard_shade_float32(heights, spacing, azimuth, altitude, shadow=None, strength=1.0):
+    """The interior of the standard hillshade in float32, in shade_heights' order of operations (no fused
+    multiply-adds; IEEE division and square root): what the kernel's vector path must give, bit for bit."""
+    f32 = np.float32
+    z = np.asarray(heights, f32)
+    s0, s1 = f32(1.0 / (8.0 * spacing[0])), f32(1.0 / (8.0 * spacing[1]))
+    l0, l1, l2 = (f32(v) for v in (math.sin(azimuth) * math.cos(altitude), math.cos(azimuth) * math.cos(altitude),
+                                   math.sin(altitude)))
+    a, b, c = z[:-2, :-2], z[:-2, 1:-1], z[:-2, 2:]
+    d, f = z[1:-1, :-2], z[1:-1, 2:]
+    g, h, k = z[2:, :-2], z[2:, 1:-1], z[2:, 2:]
+    two = f32(2.0)
+    p = ((c + two * f + k) - (a + two * d + g)) * s0
+    q = ((g + two * h + k) - (a + two * b + c)) * s1
+    v = (l2 - p * l0 - q * l1) / np.sqrt(f32(1.0) + p * p + q * q)
+    v = np.where(v >= 0, v, f32(0.0)).astype(f32)
+    if shadow is not None:
+        v = np.where(shadow[1:-1, 1:-1] != 0, v * (f32(1.0) - f32(strength)), v).astype(f32)
+    return v
+
+
+@pytest.mark.parametrize("shape", [(5, 17), (9, 64 + 33), (4, 130), (70, 3 * 64 + 15)])
+def test_hillshade_interior_is_the_scalar_formula_bit_for_bit(shape):
+    """On the CPU the interior of a row without nodata is shaded sixteen pixels at a time (native vector code,
+    kernels/texture.py shade_interior_run), the rest pixel by pixel: both must give the float32 formula's bits,
+    across lane, run (64 pixels) and row ends, with and without shadows."""
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=max(shape), step=2)[: shape[0], : shape[1]]
+    spacing = (30.0, -30.0)
+    az, alt = RAD(315), RAD(30)
+    ours = hillshade(heights, spacing=spacing, azimuth=az, altitude=alt, device="cpu")
+    expected = _standard_shade_float32(heights, spacing, az, alt)
+    np.testing.assert_array_equal(ours[1:-1, 1:-1].view(np.uint32), expected.view(np.uint32))
+    shadow = cast_shadows(heights, spacing=spacing, azimuth=az, altitude=alt, device="cpu")
+    dark = hillshade(heights, spacing=spacing, azimuth=az, altitude=alt, shadows=True, shadow_strength=0.3,
+                     device="cpu")
+    expected = _standard_shade_float32(heights, spacing, az, alt, shadow, 0.3)
+    np.testing.assert_array_equal(dark[1:-1, 1:-1].view(np.uint32), expected.view(np.uint32))
+
+
+@pytest.mark.parametrize("azimuth", [45, 135, 225, 315])
+def test_diagonal_light_sweeps_the_same_lines_along_rows(azimuth):
+    """A diagonal light sweeps along rows on the CPU (the faster axis, bundles of 1024 lines); the reference
+    walks its diagonals along columns. A tall grid has more than one bundle of lines."""
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=96, step=1)
+    heights = np.tile(dem[:, :40], (14, 1))  # 1344 x 40: 1383 diagonal lines
+    spacing = (30.0, 30.0)
+    ours = cast_shadows(heights, spacing=spacing, azimuth=RAD(azimuth), altitude=RAD(12), device="cpu")
+    ref = shadows_reference(heights, spacing, RAD(azimuth), RAD(12))
+    assert ref.sum() > 100
+    np.testing.assert_array_equal(ours, ref)
+
+
 # ------------------------------------------------------------------------------------------ occlusion
 def test_occlusion_matches_reference(device):
     heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=24, step=8)
