@@ -230,7 +230,6 @@ def shade_at(gradient: wp.vec2, light: wp.vec3, method: wp.int32, altitude: wp.f
     return wp.max(cos_incidence, 0.0)
 
 
-
 @wp.func_native("""
 #if defined(__CUDA_ARCH__)
 return 0;
@@ -335,22 +334,25 @@ def shade_heights(
         # the common case: no nodata, standard shading; a tight loop over the run's interior pixels
         lo = wp.max(j0, 1)
         hi = wp.min(j1, grid.cols - 1)
-        # (unchecked loads and stores, kernels/memory.py: every index here is inside the grid)
-        a = load(heights, i - 1, lo - 1)
-        d = load(heights, i, lo - 1)
-        g = load(heights, i + 1, lo - 1)
-        b = load(heights, i - 1, lo)
-        e = load(heights, i, lo)
-        h = load(heights, i + 1, lo)
         j = lo
         if shade_interior_run(heights, shadow, shadowed, shadow_strength, i, lo, hi, scale, light, shade_out) != 0:
-            j = hi
-        while j < hi:  # (a while loop: Warp's dynamic range() costs about 3 ns an iteration on the CPU)
+            j = hi  # the CPU's vector rows did it
+        # CUDA (and rows that are not contiguous): the window slides along the row, three new heights a pixel
+        # (unchecked loads and stores, kernels/memory.py: every index here is inside the grid)
+        a = wp.float32(0.0)
+        d = wp.float32(0.0)
+        g = wp.float32(0.0)
+        b = wp.float32(0.0)
+        e = wp.float32(0.0)
+        h = wp.float32(0.0)
+        if j < hi:
             a = load(heights, i - 1, j - 1)
             d = load(heights, i, j - 1)
             g = load(heights, i + 1, j - 1)
             b = load(heights, i - 1, j)
+            e = load(heights, i, j)
             h = load(heights, i + 1, j)
+        while j < hi:  # (a while loop: Warp's dynamic range() costs about 3 ns an iteration on the CPU)
             c = load(heights, i - 1, j + 1)
             f = load(heights, i, j + 1)
             k = load(heights, i + 1, j + 1)
@@ -361,6 +363,12 @@ def shade_heights(
                 if load(shadow, i, j) != wp.uint8(0):
                     value = value * (1.0 - shadow_strength)
             store(shade_out, i, j, value)
+            a = b
+            b = c
+            d = e
+            e = f
+            g = h
+            h = k
             j += 1
         for side in range(2):  # the row's border pixels, if this run holds them
             j = wp.where(side == 0, 0, grid.cols - 1)
