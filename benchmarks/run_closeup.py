@@ -5,7 +5,8 @@
    disc covering 5% of the terrain. Contenders:
    - ``culled``: ``stepterrain.closeup.render_closeups`` (each close-up cut to its ROI window, culled to the
      faces with m > 0 by count -> scan -> emit), the overview kept uploaded between frames (one
-     ``LayeredRenderer``), as in an interactive loop, in four configurations taken frame by frame in turn:
+     ``LayeredRenderer`` per close-up count), as in an interactive loop, in four configurations, one after
+     another, the close-up counts of each taken frame by frame in turn:
      "moving" (``reuse_closeups=False``: every frame transforms, renders and composites everything: the
      goal's whole pipeline; what does not depend on M, the cull by ROI, the anchor outline and the vertex
      colors, is kept per ROI since commit 6f7b847), "close-ups still" (the camera moves over still
@@ -85,8 +86,13 @@ def frame_bounds(terrain, closeups):
 
 
 def time_culled_interleaved(terrain, counts: list[int], repeat: int, configs: dict[str, dict]) -> dict:
-    """Frames of every close-up count and configuration taken in turn (0, 1, ..., 0, 1, ...), so load drift
-    hits all alike. Returns {config: {count: best/median wall, CPU time of the best-wall frame, stages}}."""
+    """Frames of every close-up count taken in turn (0, 1, ..., 0, 1, ...), so load drift hits all alike, one
+    configuration after another: a configuration's renderers (one per count) are closed before the next one's
+    are made. With the four configurations' 20 renderers alive and taking turns (until session 24), every frame
+    ran after 19 other GL contexts' work had gone through the caches: on session 24's Intel Xeon that alone
+    made the moving 4-close-up frame 1.56x the bare one instead of 1.44x, and its transform stage 13.5 ms
+    instead of 4.9 ms (RESULTS.md "Session 24"). Returns {config: {count: best/median wall, CPU time of the
+    best-wall frame, stages}}."""
     from stepterrain import render
     from stepterrain.closeup import render_closeups
 
@@ -94,26 +100,28 @@ def time_culled_interleaved(terrain, counts: list[int], repeat: int, configs: di
     for name, options in configs.items():
         options = dict(options)
         turning = options.pop("turning", False)  # close-ups that turn a little every frame: a new M each frame
-        for count in counts:
-            cus = closeups_for(terrain, count, spin=(TURN_SPEED, 10**6) if turning else None)
-            renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
-            box = frame_bounds(terrain, cus)
-            render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, device="cpu",
-                            **options)  # warm-up: uploads, kernels
-            setups[name, count] = (cus, box, renderer, options, [], [], [], turning)
-    try:
-        for rep in range(repeat):
-            for cus, box, renderer, options, frames, cpu, stages, turning in setups.values():
-                timings: dict[str, float] = {}
-                start, start_cpu = time.perf_counter(), time.process_time()
-                render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, timings=timings,
-                                device="cpu", time=float(rep + 1) if turning else 0.0, **options)
-                frames.append(time.perf_counter() - start)
-                cpu.append(time.process_time() - start_cpu)
-                stages.append(timings)
-    finally:
-        for setup in setups.values():
-            setup[2].close()
+        block = {}
+        try:
+            for count in counts:
+                cus = closeups_for(terrain, count, spin=(TURN_SPEED, 10**6) if turning else None)
+                renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
+                box = frame_bounds(terrain, cus)
+                block[name, count] = (cus, box, renderer, options, [], [], [], turning)
+                render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, device="cpu",
+                                **options)  # warm-up: uploads, kernels
+            for rep in range(repeat):
+                for cus, box, renderer, options, frames, cpu, stages, turning in block.values():
+                    timings: dict[str, float] = {}
+                    start, start_cpu = time.perf_counter(), time.process_time()
+                    render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer,
+                                    timings=timings, device="cpu", time=float(rep + 1) if turning else 0.0, **options)
+                    frames.append(time.perf_counter() - start)
+                    cpu.append(time.process_time() - start_cpu)
+                    stages.append(timings)
+        finally:
+            for setup in block.values():
+                setup[2].close()
+        setups.update(block)
     out: dict[str, dict[int, dict]] = {name: {} for name in configs}
     for (name, count), (_, _, _, _, frames, cpu, stages, _) in setups.items():
         best = int(np.argmin(frames))
@@ -291,7 +299,7 @@ def main(argv: list[str] | None = None) -> int:
              f"- commit: {_git('rev-parse', '--short', 'HEAD')}; Python {platform.python_version()}",
              f"- terrain: {source}, {terrain.shape[0]} x {terrain.shape[1]} nodes, {n_faces:,} triangles; window "
              f"{WINDOW[0]}x{WINDOW[1]}; each ROI a disc of 5% of the terrain; best of {args.repeat} frames, "
-             "the close-up counts interleaved frame by frame",
+             "the close-up counts interleaved frame by frame, one configuration (its five renderers) at a time",
              ""]
     print("\n".join(lines), flush=True)
     table = ["| close-ups | frame: best wall (s) | its CPU (s) | median wall | transform | render | composite | "
