@@ -40,6 +40,8 @@ def load(a: wp.array[wp.float32], i: wp.int32) -> wp.float32: ...  # pragma: no 
 @wp.func_native(_LOAD)
 def load(a: wp.array[wp.vec3], i: wp.int32) -> wp.vec3: ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_LOAD)
+def load(a: wp.array[wp.vec2], i: wp.int32) -> wp.vec2: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD)
 def load(a: wp.array[wp.vec2i], i: wp.int32) -> wp.vec2i: ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_LOAD)
 def load(a: wp.array[wp.vec3i], i: wp.int32) -> wp.vec3i: ...  # pragma: no cover  # noqa: F811
@@ -61,6 +63,8 @@ def store(a: wp.array[wp.float32], i: wp.int32, v: wp.float32): ...  # pragma: n
 def store(a: wp.array[wp.uint8], i: wp.int32, v: wp.uint8): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)
 def store(a: wp.array[wp.vec3], i: wp.int32, v: wp.vec3): ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_STORE)
+def store(a: wp.array[wp.vec2], i: wp.int32, v: wp.vec2): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)
 def store(a: wp.array[wp.vec2i], i: wp.int32, v: wp.vec2i): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE)

@@ -737,43 +737,64 @@ def sweep_occlusion(
     thread_offset: wp.int32,
     grid: HeightGrid,
     sweep: Sweep,
+    lines_per_thread: wp.int32,
     offsets: wp.array[wp.int32],
     weight: wp.float32,
+    tops: wp.array[wp.int32],
     # outputs
     hull_out: wp.array[wp.vec2],
     occlusion_out: wp.array2d[wp.float32],
 ):
-    """One thread per sweep line: the horizon angle of each node towards the light side (upper convex hull of
-    the earlier nodes, amortised O(1)); adds weight * sin(horizon angle), at least 0, to ``occlusion_out``."""
-    line = wp.tid() + thread_offset
-    base = offsets[line]
-    top = wp.int32(-1)  # index of the hull's last point, relative to base
-    span = line_span(sweep, line)
+    """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA), walked in lockstep as in
+    :func:`sweep_shadows`: the horizon angle of each node towards the light side (the upper convex hull of its
+    line's earlier nodes, a stack at ``offsets[line]`` whose last index is ``tops[line]``, amortised O(1)); adds
+    weight * sin(horizon angle), at least 0, to ``occlusion_out``. Each line sees its nodes in the same order as
+    when walked alone, so the values do not depend on the bundle."""
+    first = (wp.tid() + thread_offset) * lines_per_thread
+    last = wp.min(first + lines_per_thread, sweep.n_lines)
+    for line in range(first, last):
+        store(tops, line, -1)  # index of the hull's last point, relative to the line's base
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
     k = wp.int32(0)
     while k < span[1] - span[0]:
-        node = sweep_node(sweep, line, walk_major(sweep, span, k))
-        i = node[0]
-        j = node[1]
-        h = grid.heights[i, j]
-        if not wp.isnan(h):
-            p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
-            # drop hull points that are not above the segment from their predecessor to p
-            while top >= 1:
-                a = hull_out[base + top - 1]
-                b = hull_out[base + top]
-                cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
-                if cross >= 0.0:
-                    top -= 1
-                else:
-                    break
-            if top >= 0:
-                q = hull_out[base + top]
-                rise = q[1] - p[1]
-                run = p[0] - q[0]
-                if rise > 0.0 and run > 0.0:
-                    occlusion_out[i, j] = occlusion_out[i, j] + weight * rise / wp.sqrt(rise * rise + run * run)
-            top += 1
-            hull_out[base + top] = p
+        major = walk_major(sweep, span, k)
+        offset = sweep.c_min + sweep.minor_offsets[major]
+        line = wp.max(first, -offset)
+        hi = wp.min(last, sweep.n_minor - offset)
+        while line < hi:
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
+            h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
+            if not wp.isnan(h):
+                base = load(offsets, line)
+                top = load(tops, line)
+                p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
+                # drop hull points that are not above the segment from their predecessor to p
+                while top >= 1:
+                    a = load(hull_out, base + top - 1)
+                    b = load(hull_out, base + top)
+                    cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+                    if cross >= 0.0:
+                        top -= 1
+                    else:
+                        break
+                if top >= 0:
+                    q = load(hull_out, base + top)
+                    rise = q[1] - p[1]
+                    run = p[0] - q[0]
+                    if rise > 0.0 and run > 0.0:
+                        store(occlusion_out, i, j,
+                              load(occlusion_out, i, j) + weight * rise / wp.sqrt(rise * rise + run * run))
+                top += 1
+                store(hull_out, base + top, p)
+                store(tops, line, top)
+            line += 1
         k += 1
 
 

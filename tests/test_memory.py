@@ -242,21 +242,22 @@ def test_globe_kernels_stay_in_range_in_debug_mode():
 
 
 def test_texture_kernels_stay_in_range_in_debug_mode():
-    """The hillshade (the vector rows and the careful border and nodata path) and the shadow sweeps along rows
-    and along columns (bundles of several lines), compiled with their index assertions: none fires, and the
-    images equal the release build's."""
+    """The hillshade (the vector rows and the careful border and nodata path), the shadow sweeps along rows
+    and along columns (bundles of several lines) and the occlusion sweeps, compiled with their index assertions:
+    none fires, and the images equal the release build's."""
     from tests.conftest import real_dem
 
     dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=96, step=1)
     code = """
         import sys
         import numpy as np
-        from stepterrain.texture import cast_shadows, hillshade
+        from stepterrain.texture import ambient_occlusion, cast_shadows, hillshade
 
         z = np.load(sys.argv[2])
         holes = z.copy()
         holes[10:14, 30:33] = np.nan
-        images = []
+        images = [ambient_occlusion(heights, spacing=spacing, directions=5, device="cpu")
+                  for heights, spacing in ((z, (30.0, -30.0)), (holes, (20.0, 45.0)))]
         for az in (0.0, 45.0, 90.0, 200.0, 315.0):
             for heights, spacing in ((z, (30.0, -30.0)), (holes, (20.0, 45.0)), (z[:40, :91], (30.0, 30.0))):
                 images += [hillshade(heights, spacing=spacing, azimuth=np.radians(az), shadows=True,

@@ -282,6 +282,26 @@ def test_occlusion_matches_reference(device):
     np.testing.assert_allclose(ours, ref, atol=1e-5)
 
 
+
+def test_occlusion_bundles_give_the_bits_of_one_line_per_thread(monkeypatch):
+    """On the CPU a thread walks a bundle of adjacent lines in lockstep (128 along rows, 16 along columns); each
+    line still sees its nodes in its own order, so the image is that of one line per thread, bit for bit, and
+    the reference's. A tall grid with nodata has several bundles each way."""
+    import stepterrain.texture as texture_module
+
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=96, step=1)
+    heights = np.tile(dem[:, :37], (3, 1))[:260]  # 260 x 37
+    heights[40:44, 10:15] = np.nan
+    spacing = (30.0, -25.0)
+    bundled = ambient_occlusion(heights, spacing=spacing, directions=8, device="cpu")
+    monkeypatch.setattr(texture_module, "_OCCLUSION_LINES_PER_THREAD_CPU", {0: 1, 1: 1})
+    single = ambient_occlusion(heights, spacing=spacing, directions=8, device="cpu")
+    np.testing.assert_array_equal(bundled.view(np.uint32), single.view(np.uint32))
+    finite = np.isfinite(heights)
+    np.testing.assert_allclose(bundled[finite], occlusion_reference(heights, spacing, directions=8)[finite],
+                               atol=1e-5)
+    assert np.isnan(bundled[~finite]).all() and bundled[finite].min() < 0.9
+
 def test_occlusion_open_ground_and_pit(device):
     flat = ambient_occlusion(np.zeros((8, 8)), directions=8, device=device)
     np.testing.assert_allclose(flat, 1.0)
