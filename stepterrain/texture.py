@@ -771,6 +771,7 @@ class TextureLayer:
                                     f"[{float(finite.min()):g}, {float(finite.max()):g}]")
         np.clip(out, 0.0, 1.0, out=out)
         if not image.flags.writeable:  # a writeable image (kept as given) may change later: never cached
+            out.setflags(write=False)  # handed out again and wrapped for the kernels: an edit would change them all
             self._rgba_cache["rgba"] = out
         return out
 
