@@ -94,6 +94,12 @@ def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
     return t
 
 
+def _is_name(value: Any, names: Sequence[str]) -> bool:
+    """Whether ``value`` is one of ``names``: a str (``in`` compared an array with each name, and numpy's "truth
+    value of an array is ambiguous" ValueError escaped)."""
+    return isinstance(value, str) and value in names
+
+
 def _azimuth(value: Any, *, stacklevel: int) -> float:
     """A finite azimuth in radians; one beyond two full turns is most likely degrees given as radians: warned."""
     azimuth = _finite(value, "azimuth")
@@ -258,13 +264,13 @@ def hillshade(
     """
     t = _grid_terrain(terrain, spacing)
     shadows = check_flag(shadows, "shadows")
-    if method in MAPLIBRE_METHODS:
+    if _is_name(method, MAPLIBRE_METHODS):
         if shadows:
             raise InvalidInputError(f"shadows=True applies to the grey methods {', '.join(HILLSHADE_METHODS)}; "
                                     f"got method={method!r} (an RGBA overlay)")
         return _maplibre_hillshade(t, azimuth, altitude, z_factor, method, exaggeration, shadow_color,
                                    highlight_color, accent_color, device)
-    if method not in HILLSHADE_METHODS:
+    if not _is_name(method, HILLSHADE_METHODS):
         raise InvalidInputError(f"method must be one of {', '.join(HILLSHADE_METHODS + MAPLIBRE_METHODS)}; "
                                 f"got {method!r}")
     for name, value in (("exaggeration", exaggeration), ("shadow_color", shadow_color),
@@ -690,7 +696,7 @@ class TextureLayer:
     _rgba_cache: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if self.kind not in LAYER_KINDS:
+        if not _is_name(self.kind, LAYER_KINDS):
             raise InvalidInputError(f"layer kind must be one of {', '.join(LAYER_KINDS)}; got {self.kind!r}")
         image = self.image
         if not isinstance(image, np.ndarray):
@@ -725,7 +731,7 @@ class TextureLayer:
                 raise InvalidInputError(f"matrix must be an invertible 3 x 3 texture matrix (world -> texel); got "
                                         f"{matrix.tolist()}")
         object.__setattr__(self, "matrix", matrix)
-        if self.border not in ("transparent", "edge"):
+        if not _is_name(self.border, ("transparent", "edge")):
             raise InvalidInputError(f"border must be 'transparent' or 'edge'; got {self.border!r}")
         if not isinstance(self.name, str):  # 5 or None was kept as the name (and as a draped material's)
             raise InvalidInputError(f"name must be a string; got {self.name!r}")
@@ -854,7 +860,7 @@ def topographic_layer(
     Modulate a thematic layer with it (:func:`modulate`) as in Fig. 5.
     """
     t = _grid_terrain(terrain, spacing)
-    if method in MAPLIBRE_METHODS:
+    if _is_name(method, MAPLIBRE_METHODS):
         raise InvalidInputError(f"a topographic layer takes a grey method ({', '.join(HILLSHADE_METHODS)}); got "
                                 f"{method!r}: its premultiplied RGBA overlay, with RGB divided by alpha, makes a "
                                 "thematic layer")
@@ -1094,7 +1100,7 @@ def adjust(
     params.hue = math.fmod(_finite(hue, "hue"), 2.0 * math.pi)
     params.saturation = _finite(saturation, "saturation", lo=0.0, hi=1e6)
     params.one_over_gamma = 1.0 / _finite(gamma, "gamma", positive=True)
-    if split not in (None, "left", "right"):
+    if split is not None and not _is_name(split, ("left", "right")):
         raise InvalidInputError(f"split must be None, 'left' or 'right'; got {split!r}")
     params.split_side = {None: 0, "left": -1, "right": 1}[split]
     params.split_position = _finite(split_position, "split_position", lo=0.0, hi=1.0)
@@ -1139,15 +1145,15 @@ def combine(a: TextureLayer, b: TextureLayer | ArrayLike, mode: str, *, weights:
             device: wp.DeviceLike = None) -> TextureLayer:
     """One layer operation by name: "blend" (``weights`` = alpha layer), "add" (``weights`` = (w_a, w_b),
     default (1, 1)) or "modulate"."""
+    if not _is_name(mode, BLEND_MODES):
+        raise InvalidInputError(f"unknown blend mode {mode!r}; expected one of {', '.join(BLEND_MODES)}")
     if mode == "blend":
         return blend(a, b, weights, device=device)
     if mode == "add":
         return weighted_add([a, b], (1.0, 1.0) if weights is None else weights, device=device)
-    if mode == "modulate":
-        if weights is not None:
-            raise InvalidInputError("mode 'modulate' takes no weights")
-        return modulate(a, b, device=device)
-    raise InvalidInputError(f"unknown blend mode {mode!r}; expected one of {', '.join(BLEND_MODES)}")
+    if weights is not None:  # "modulate"
+        raise InvalidInputError("mode 'modulate' takes no weights")
+    return modulate(a, b, device=device)
 
 
 @dataclass(frozen=True)

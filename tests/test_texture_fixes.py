@@ -5,8 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from stepterrain.errors import InvalidInputError
 from stepterrain.texture import (
     TextureLayer,
+    adjust,
+    combine,
+    hillshade,
+    terrain_layer,
+    topographic_layer,
 )
 
 
@@ -21,3 +27,22 @@ def test_a_layers_cached_rgba_cannot_be_changed_through_the_returned_array():
     with pytest.raises(ValueError):
         first[...] = 0.0
     np.testing.assert_array_equal(layer.rgba()[..., 0], 0.5)
+
+
+# ------------------------------------------------------------------------------------------ choices
+@pytest.mark.parametrize("call", [
+    lambda bad: hillshade(np.zeros((3, 3)), method=bad, device="cpu"),
+    lambda bad: topographic_layer(np.zeros((3, 3)), method=bad, device="cpu"),
+    lambda bad: adjust(TextureLayer("luminance", np.ones((2, 2)), (0, 1, 0, 1)), split=bad, device="cpu"),
+    lambda bad: combine(TextureLayer("luminance", np.ones((2, 2)), (0, 1, 0, 1)), np.ones((2, 2)), bad,
+                        device="cpu"),
+    lambda bad: TextureLayer("luminance", np.ones((2, 2)), (0, 1, 0, 1), border=bad),
+    lambda bad: TextureLayer(bad, np.ones((2, 2)), (0, 1, 0, 1)),
+    lambda bad: terrain_layer(np.zeros((2, 2)), np.ones((2, 2)), bad),
+], ids=["hillshade method", "topographic method", "adjust split", "combine mode", "layer border", "layer kind",
+        "terrain_layer kind"])
+def test_a_named_choice_given_as_an_array_is_an_input_error(call):
+    """A choice by name (method, split, mode, border, kind) given as a numpy array was compared with the names
+    and failed with numpy's "truth value of an array is ambiguous" ValueError."""
+    with pytest.raises(InvalidInputError):
+        call(np.array(["standard", "left"]))
