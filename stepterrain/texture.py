@@ -312,7 +312,7 @@ def _colours(value: ArrayLike | None, name: str, default: tuple[float, ...], man
     for row in rows:
         try:
             c = np.asarray(row, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an int beyond float64 (10**400)
             raise InvalidInputError(f"{name} must be {what} of numbers in [0, 1]; got {raw!r}") from None
         if c.shape not in ((3,), (4,)):
             raise InvalidInputError(f"{name} must be {what}; got {raw!r}")
@@ -1227,11 +1227,17 @@ def _disc(resolution: int, edge: float) -> NDArray[np.float32]:
     return weights.astype(np.float32)
 
 
+_MAX_LENS_RESOLUTION = 1 << 32  # far beyond any memory budget (those below it are refused by the budget)
+
+
 def _lens_args(center: ArrayLike, radius: float, resolution: int, edge: float) -> tuple[Extent, int, float]:
     c = real_vector(center, "center", "a finite (x, y)", 2)
     radius = _finite(radius, "radius", positive=True)
     if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 4:
         raise InvalidInputError(f"resolution must be an int >= 4; got {resolution!r}")
+    if resolution > _MAX_LENS_RESOLUTION:  # the budget check's message overflowed float64 (10**400)
+        raise InvalidInputError(f"resolution must be at most {_MAX_LENS_RESOLUTION} texels a side; got an int of "
+                                f"{int(resolution).bit_length()} bits")
     check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens image of resolution {int(resolution)}",
                  hint="lower the lens resolution")
     edge = _finite(edge, "edge", lo=0.0, hi=1.0)

@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stepterrain.errors import InvalidInputError
+from stepterrain.errors import InvalidInputError, StepTerrainError
 from stepterrain.texture import (
     TextureLayer,
     adjust,
     combine,
+    highlight_lens,
     hillshade,
     terrain_layer,
     topographic_layer,
@@ -46,3 +47,16 @@ def test_a_named_choice_given_as_an_array_is_an_input_error(call):
     and failed with numpy's "truth value of an array is ambiguous" ValueError."""
     with pytest.raises(InvalidInputError):
         call(np.array(["standard", "left"]))
+
+
+# ------------------------------------------------------------------------------------------ overflow
+def test_a_colour_beyond_float64_is_an_input_error():
+    """An integer colour component beyond float64 (10**400) escaped as OverflowError."""
+    with pytest.raises(InvalidInputError, match="shadow_color"):
+        hillshade(np.zeros((3, 3)), method="maplibre-multidirectional", shadow_color=[10**400, 0, 0], device="cpu")
+
+
+def test_a_lens_resolution_beyond_float64_is_refused():
+    """A lens resolution whose image size is beyond float64 escaped as OverflowError from the budget message."""
+    with pytest.raises(StepTerrainError, match="resolution"):
+        highlight_lens((0.0, 0.0), 1.0, resolution=10**400)
