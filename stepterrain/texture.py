@@ -33,7 +33,7 @@ from ._device import host_copy, launch, recycled_empty, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
-from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers, real_vector
+from .terrain import FLOAT32_MAX, Terrain, as_number, as_terrain, check_flag, real_numbers, real_vector
 from .terrain import finite_number as _finite
 
 __all__ = [
@@ -121,6 +121,8 @@ MAX_OCCLUSION_DIRECTIONS = 360
 
 #: The steepest slope (rise over run, z_factor included) the float32 kernels take: its square stays finite.
 _MAX_SLOPE = 1e18
+#: The largest |height| (z_factor included) the float32 kernels take: Horn's sums of four stay finite.
+_MAX_HEIGHT = FLOAT32_MAX / 8
 
 
 def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kernels.HeightGrid:
@@ -135,6 +137,17 @@ def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kern
     if float(z_factor) * rise / run > _MAX_SLOPE:  # squared in float32: beyond ~1e19 a flat grey image
         raise InvalidInputError(f"z_factor x height range / spacing must stay below {_MAX_SLOPE:g} (float32 "
                                 f"slopes); got {float(z_factor):g} x {rise:g} / {run:g}")
+    # a (near) flat grid passes the slope check at any magnitude, but the kernels' float32 sums and products
+    # overflowed: Horn's c + 2f + k and the border's 2 · edge − next of heights near 3.4e38, z_factor / (8 dx) and
+    # z_factor · h (the sweeps, the point light) of a huge z_factor; the images came out black or NaN
+    peak = max(abs(lo), abs(hi))
+    if peak > _MAX_HEIGHT:
+        raise InvalidInputError(f"heights must stay within ±{_MAX_HEIGHT:.3g} for the texture kernels' float32 "
+                                f"sums; got {lo:g} to {hi:g}")
+    if float(z_factor) / (8.0 * run) > FLOAT32_MAX or float(z_factor) * max(peak, 1.0) > _MAX_HEIGHT:
+        raise InvalidInputError(f"z_factor must keep z_factor / (8 x spacing) and z_factor x |heights| within "
+                                f"float32 (below {_MAX_HEIGHT:.3g}); got z_factor {float(z_factor):g} with heights up "
+                                f"to {peak:g} and spacing {run:g}")
     grid = texture_kernels.HeightGrid()
     grid.heights = t.cached(("texture.heights", str(device)), build)
     grid.rows, grid.cols = (int(n) for n in t.heights.shape)

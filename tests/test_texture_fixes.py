@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -9,9 +11,13 @@ from stepterrain.errors import InvalidInputError, StepTerrainError
 from stepterrain.texture import (
     TextureLayer,
     adjust,
+    ambient_occlusion,
+    cast_shadows,
     combine,
     highlight_lens,
     hillshade,
+    normal_map,
+    relight,
     terrain_layer,
     topographic_layer,
 )
@@ -60,3 +66,32 @@ def test_a_lens_resolution_beyond_float64_is_refused():
     """A lens resolution whose image size is beyond float64 escaped as OverflowError from the budget message."""
     with pytest.raises(StepTerrainError, match="resolution"):
         highlight_lens((0.0, 0.0), 1.0, resolution=10**400)
+
+
+@pytest.mark.parametrize("z_factor", [1e39, 1e300])
+def test_a_z_factor_beyond_float32_is_refused_not_shaded_wrong(z_factor):
+    """The kernels take z_factor / (8 dx) and z_factor · h in float32: beyond float32 they were infinite, and a
+    flat grid (which passed the slope check) came out black or NaN instead of sin(altitude)."""
+    for flat in (np.full((6, 6), 100.0, np.float32), np.zeros((6, 6), np.float32)):
+        for call in (hillshade, cast_shadows, ambient_occlusion, normal_map):
+            with pytest.raises(InvalidInputError, match="z_factor"):
+                call(flat, z_factor=z_factor, device="cpu")
+        with pytest.raises(InvalidInputError, match="z_factor"):
+            relight(normal_map(flat, device="cpu"), point=(1.0, 1.0, 10.0), terrain=flat, z_factor=z_factor,
+                    device="cpu")
+    ok = hillshade(np.full((6, 6), 100.0, np.float32), z_factor=1e30, device="cpu")  # large, but within float32
+    np.testing.assert_allclose(ok, math.sin(math.radians(45)), rtol=1e-6)
+
+
+@pytest.mark.parametrize("height", [1e38, 3e38])
+def test_heights_beyond_the_kernels_float32_sums_are_refused(height):
+    """Horn's sums (c + 2f + k) and the border's 2 · edge − next overflow float32 for |h| near its maximum: a flat
+    grid at 1e38 came out black, or NaN for the multidirectional, igor and MapLibre methods."""
+    flat = np.full((5, 5), height, np.float32)
+    for method in ("standard", "multidirectional", "igor", "maplibre-standard"):
+        with pytest.raises(InvalidInputError, match="heights"):
+            hillshade(flat, method=method, device="cpu")
+    with pytest.raises(InvalidInputError, match="heights"):
+        normal_map(flat, device="cpu")
+    ok = np.full((5, 5), 1e37, np.float32)  # well inside: shaded as the flat grid it is
+    np.testing.assert_allclose(hillshade(ok, device="cpu"), math.sin(math.radians(45)), rtol=1e-6)
