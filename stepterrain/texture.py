@@ -109,6 +109,12 @@ def _azimuth(value: Any, *, stacklevel: int) -> float:
     return azimuth
 
 
+def _turn(azimuth: float) -> float:
+    """The azimuth less its whole turns, in float64, for the kernels that take the angle itself in float32 (igor,
+    MapLibre): a warned-about 1e10 rad shaded as another angle there, and 1e300 as infinity (NaN)."""
+    return math.fmod(azimuth, 2.0 * math.pi)
+
+
 def _light(azimuth: float, altitude: float) -> tuple[float, float]:
     azimuth = _azimuth(azimuth, stacklevel=3)
     altitude = _finite(altitude, "altitude", lo=0.0, hi=math.pi / 2, unit="rad")
@@ -305,7 +311,7 @@ def hillshade(
         shadow = wp.empty((0, 0), dtype=wp.uint8, device=dev)
     runs = -(-grid.cols // texture_kernels.SHADE_RUN)
     launch(texture_kernels.shade_heights, dim=grid.rows * runs,
-           inputs=[grid, light, float(altitude), float(azimuth), HILLSHADE_METHODS.index(method), shadow,
+           inputs=[grid, light, float(altitude), _turn(azimuth), HILLSHADE_METHODS.index(method), shadow,
                    float(shadow_strength)],
            outputs=[out], device=dev)
     shade = _result(host, out)
@@ -376,7 +382,7 @@ def _maplibre_hillshade(t: Terrain, azimuth: Any, altitude: Any, z_factor: float
     style = texture_kernels.MapLibreStyle()
     style.method = MAPLIBRE_METHODS.index(method)
     style.exaggeration = exaggeration
-    style.azimuths = wp.array(padded(azimuths), dtype=wp.float32, device=dev)
+    style.azimuths = wp.array(padded([_turn(a) for a in azimuths]), dtype=wp.float32, device=dev)
     style.altitudes = wp.array(padded(altitudes), dtype=wp.float32, device=dev)
     style.shadows = wp.array(padded(shadows), dtype=wp.vec4, device=dev)
     style.highlights = wp.array(padded(highlights), dtype=wp.vec4, device=dev)

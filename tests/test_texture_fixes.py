@@ -22,6 +22,8 @@ from stepterrain.texture import (
     topographic_layer,
 )
 
+from .reference_texture import hillshade_reference
+
 
 # ------------------------------------------------------------------------------------------ cached RGBA
 def test_a_layers_cached_rgba_cannot_be_changed_through_the_returned_array():
@@ -95,3 +97,23 @@ def test_heights_beyond_the_kernels_float32_sums_are_refused(height):
         normal_map(flat, device="cpu")
     ok = np.full((5, 5), 1e37, np.float32)  # well inside: shaded as the flat grid it is
     np.testing.assert_allclose(hillshade(ok, device="cpu"), math.sin(math.radians(45)), rtol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ azimuth
+@pytest.mark.parametrize("turns", [1000, 1e9, 1e299])
+def test_igor_and_maplibre_take_a_large_azimuth_as_radians(turns):
+    """An azimuth past two turns is warned about and used as radians. The light vector is made in float64, but
+    igor and the MapLibre methods got the azimuth itself in float32: 1e10 rad shaded as some other angle, 1e300
+    as infinity (NaN everywhere)."""
+    rng = np.random.default_rng(3)
+    heights = (rng.normal(size=(8, 9)) * 3).astype(np.float32)
+    azimuth = 1.0 + 2 * math.pi * turns
+    wrapped = math.fmod(azimuth, 2 * math.pi)
+    with pytest.warns(UserWarning, match="radians"):
+        igor = hillshade(heights, azimuth=azimuth, method="igor", device="cpu")
+    np.testing.assert_allclose(igor, hillshade_reference(heights, azimuth=wrapped, method="igor"), atol=2e-5)
+    for method in ("maplibre-standard", "maplibre-basic", "maplibre-igor", "maplibre-multidirectional"):
+        with pytest.warns(UserWarning, match="radians"):
+            ours = hillshade(heights, azimuth=azimuth, method=method, device="cpu")
+        np.testing.assert_allclose(ours, hillshade(heights, azimuth=wrapped, method=method, device="cpu"),
+                                   atol=2e-5)
