@@ -652,7 +652,11 @@ def relight(
                                 "nodes (mismatched size); relight the normal map of this terrain")
     z_factor = _finite(z_factor, "z_factor", positive=True)
     grid = _height_grid(t, z_factor, dev)
-    local = wp.vec3(float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]))
+    local = (float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]))
+    if max(abs(c) for c in local) > _MAX_SLOPE:  # |point - surface|² in float32 overflowed: a black image
+        raise InvalidInputError(f"point must lie within {_MAX_SLOPE:g} of the terrain's origin (float32 "
+                                f"distances); got {tuple(float(c) for c in position)}")
+    local = wp.vec3(*local)
     launch(texture_kernels.relight_point, dim=rgb.shape[0] * rgb.shape[1], inputs=[texels, grid, local],
            outputs=[out], device=dev)
     return _result(host, out)

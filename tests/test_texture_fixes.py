@@ -117,3 +117,17 @@ def test_igor_and_maplibre_take_a_large_azimuth_as_radians(turns):
             ours = hillshade(heights, azimuth=azimuth, method=method, device="cpu")
         np.testing.assert_allclose(ours, hillshade(heights, azimuth=wrapped, method=method, device="cpu"),
                                    atol=2e-5)
+
+
+# ------------------------------------------------------------------------------------------ point light
+@pytest.mark.parametrize("point", [(1.0, 1.0, 1e30), (1.0, 1.0, 1e300), (1e39, 1.0, 1.0)])
+def test_a_point_light_beyond_float32_distances_is_refused(point):
+    """relight's point light: the kernel squares the distance to the light in float32, which overflowed from
+    about 1e19 on, and every texel came out 0 (a light straight above a flat grid, which shades it 1)."""
+    flat = np.zeros((4, 4), np.float32)
+    normals = normal_map(flat, device="cpu")
+    with pytest.raises(InvalidInputError, match="point"):
+        relight(normals, point=point, terrain=flat, device="cpu")
+    near = relight(normals, point=(1.5, 1.5, 1e17), terrain=flat, device="cpu")  # far, but within float32
+    overhead = relight(normals, azimuth=0.0, altitude=math.pi / 2, device="cpu")  # the light straight above
+    np.testing.assert_allclose(near, overhead, atol=1e-6)
