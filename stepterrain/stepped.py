@@ -339,9 +339,12 @@ _ISOVALUES_KEPT = 16
 
 
 def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_kernels.Isovalues:
+    # built from the float32 values it is keyed by: thresholds taken from float64 values (step_arrays given them)
+    # can round otherwise, and were then served to every later call with the same float32 values
+    values = np.ascontiguousarray(values, dtype=np.float32)
     if len(values) > 4096:  # not worth keeping
         return _build_isovalue_struct(values, device)
-    key = (np.ascontiguousarray(values, dtype=np.float32).tobytes(), str(device))
+    key = (values.tobytes(), str(device))
     iso = _ISOVALUES.get(key)
     if iso is None:
         iso = _build_isovalue_struct(values, device)
