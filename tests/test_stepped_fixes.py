@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import importlib
+import re
 
 import numpy as np
+import pytest
 
 import stepterrain as st
 from stepterrain._device import resolve_device
@@ -39,3 +41,28 @@ def test_isovalue_memo_is_built_from_the_float32_values_it_is_keyed_by():
     again = st.stepped(heights, levels=levels64)
     np.testing.assert_array_equal(again.vertices, mesh.vertices)
     np.testing.assert_array_equal(again.faces, mesh.faces)
+
+
+@pytest.mark.parametrize("bad", [np.inf, -np.inf, 1e300], ids=["inf", "-inf", "beyond-float32"])
+def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
+    """stepped_series' docstring: a frame with bad heights is refused naming frames[k], for a (T, H, W) stack
+    before the first frame. An infinite height in frames[2] was refused only after frames 0 and 1 had been
+    yielded (a caller writing each frame got two files and then the error), and a float64 height beyond float32
+    reached isovalues() first: "interval=1 over heights [0.02, 1e+300] gives 1e+300 levels", blaming the interval
+    and naming no frame. Found by feeding a stack with one bad cell in its last frame and counting the frames
+    yielded before the error."""
+    frames = np.random.default_rng(0).random((3, 5, 5)) * 10
+    frames[2, 1, 1] = bad
+    frames[0, 0, 0] = np.nan  # nodata elsewhere stays nodata
+    yielded = []
+    expected = ("heights must be finite or NaN (nodata); got an infinite value at index (1, 1)" if np.isinf(bad)
+                else "heights must fit in float32")
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: " + re.escape(expected)):
+        for mesh in st.stepped_series(frames, interval=1.0):
+            yielded.append(mesh)
+    assert yielded == []
+    frames[2, 1, 1] = 5.0
+    frames[1] = np.nan  # an all-nodata frame before a bad one is named first
+    frames[2, 1, 1] = bad
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: terrain has no finite height \(all nodata\)$"):
+        next(st.stepped_series(frames, interval=1.0))
