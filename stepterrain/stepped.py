@@ -339,9 +339,12 @@ _ISOVALUES_KEPT = 16
 
 
 def _isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> stepped_kernels.Isovalues:
+    # built from the float32 values it is keyed by: thresholds taken from float64 values (step_arrays given them)
+    # can round otherwise, and were then served to every later call with the same float32 values
+    values = np.ascontiguousarray(values, dtype=np.float32)
     if len(values) > 4096:  # not worth keeping
         return _build_isovalue_struct(values, device)
-    key = (np.ascontiguousarray(values, dtype=np.float32).tobytes(), str(device))
+    key = (values.tobytes(), str(device))
     iso = _ISOVALUES.get(key)
     if iso is None:
         iso = _build_isovalue_struct(values, device)
@@ -1007,10 +1010,27 @@ def stepped_series(
         finite = stack[finite_mask]
         if finite.size == 0:
             raise InvalidInputError("frames hold no finite height")
-        empty = np.flatnonzero(~finite_mask.any(axis=(1, 2)))
-        if empty.size:  # its mesh would be empty: stepped() and a list of frames refuse such a frame
-            raise InvalidInputError(f"frames[{int(empty[0])}]: terrain has no finite height (all nodata)")
-        values = isovalues((float(finite.min()), float(finite.max())), interval=interval, levels=levels, base=base)
+        lo, hi = float(finite.min()), float(finite.max())
+        # frames whose heights their Terrain refuses (an infinity, a finite value beyond float32), refused here before
+        # the first frame as the docstring says: they were refused only when reached, after the frames before them,
+        # and a value beyond float32 reached isovalues() first, whose error blamed the interval and named no frame
+        bad = np.zeros(len(stack), dtype=bool)
+        if finite.size != stack.size:
+            bad |= np.isinf(stack).any(axis=(1, 2))
+        if max(-lo, hi) > FLOAT32_MAX:
+            with np.errstate(invalid="ignore"):
+                bad |= (np.abs(stack) > FLOAT32_MAX).any(axis=(1, 2))
+        empty = ~finite_mask.any(axis=(1, 2))
+        first = np.flatnonzero(bad | empty)
+        if first.size:
+            k = int(first[0])
+            if empty[k]:  # its mesh would be empty: stepped() and a list of frames refuse such a frame
+                raise InvalidInputError(f"frames[{k}]: terrain has no finite height (all nodata)")
+            try:
+                Terrain.from_heights(stack[k])
+            except InvalidInputError as exc:
+                raise InvalidInputError(f"frames[{k}]: {exc}") from None
+        values = isovalues((lo, hi), interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

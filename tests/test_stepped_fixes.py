@@ -1,0 +1,68 @@
+"""Bugs found by an adversarial hunt over the stepped-terrain path (issue 2), one test each."""
+
+from __future__ import annotations
+
+import importlib
+import re
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+from stepterrain._device import resolve_device
+from stepterrain.stepped import step_arrays
+from stepterrain.terrain import as_terrain
+
+from .test_stepped import compare_with_reference
+
+stepped_module = importlib.import_module("stepterrain.stepped")  # the package's `stepped` is the function
+
+
+def test_isovalue_memo_is_built_from_the_float32_values_it_is_keyed_by():
+    """The isovalue memo was keyed by the float32 bytes of the values but built from the values as given: float64
+    levels (step_arrays given them, as the benchmarks and tests call it) put thresholds rounded from their float64
+    midpoints into the memo, and every later call with the same float32 values (stepped(levels=...)) got them.
+    (64.7 + 67.1) / 2 rounds to 65.9 in float32 from float64, to 65.899994 from the float32 levels: a height of
+    65.899994 sits on the threshold (upper level) in the reference and fell below it. Found by stepping levels given
+    once as float64 and once as float32, as the brief's "levels equal as values but different dtype" asked."""
+    levels64 = np.array([64.7, 67.1])
+    on = np.float32(65.899994)
+    assert np.float32((levels64[0] + levels64[1]) / 2) != on  # the two roundings differ
+    heights = np.array([[64.0, on, 68.0], [on, 68.0, on], [64.0, on, 64.0]], np.float32)
+    stepped_module._ISOVALUES.clear()
+    step_arrays(as_terrain(heights), levels64, device=resolve_device("cpu"))  # float64 values first
+    compare_with_reference(heights, levels64.astype(np.float32), "cpu")
+    fresh = stepped_module._build_isovalue_struct(levels64.astype(np.float32), resolve_device("cpu"))
+    stepped_module._ISOVALUES.clear()
+    mesh = st.stepped(heights, levels=levels64)
+    assert fresh.thresholds.numpy()[0] == on
+    stepped_module._ISOVALUES.clear()
+    step_arrays(as_terrain(heights), levels64, device=resolve_device("cpu"))
+    again = st.stepped(heights, levels=levels64)
+    np.testing.assert_array_equal(again.vertices, mesh.vertices)
+    np.testing.assert_array_equal(again.faces, mesh.faces)
+
+
+@pytest.mark.parametrize("bad", [np.inf, -np.inf, 1e300], ids=["inf", "-inf", "beyond-float32"])
+def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
+    """stepped_series' docstring: a frame with bad heights is refused naming frames[k], for a (T, H, W) stack
+    before the first frame. An infinite height in frames[2] was refused only after frames 0 and 1 had been
+    yielded (a caller writing each frame got two files and then the error), and a float64 height beyond float32
+    reached isovalues() first: "interval=1 over heights [0.02, 1e+300] gives 1e+300 levels", blaming the interval
+    and naming no frame. Found by feeding a stack with one bad cell in its last frame and counting the frames
+    yielded before the error."""
+    frames = np.random.default_rng(0).random((3, 5, 5)) * 10
+    frames[2, 1, 1] = bad
+    frames[0, 0, 0] = np.nan  # nodata elsewhere stays nodata
+    yielded = []
+    expected = ("heights must be finite or NaN (nodata); got an infinite value at index (1, 1)" if np.isinf(bad)
+                else "heights must fit in float32")
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: " + re.escape(expected)):
+        for mesh in st.stepped_series(frames, interval=1.0):
+            yielded.append(mesh)
+    assert yielded == []
+    frames[2, 1, 1] = 5.0
+    frames[1] = np.nan  # an all-nodata frame before a bad one is named first
+    frames[2, 1, 1] = bad
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: terrain has no finite height \(all nodata\)$"):
+        next(st.stepped_series(frames, interval=1.0))
