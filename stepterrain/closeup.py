@@ -335,16 +335,18 @@ class ROI:
     def stepped_level(cls, terrain: Terrain | ArrayLike, level: int, *, interval: float | None = None,
                       levels: ArrayLike | None = None, base: float = 0.0, region: ArrayLike | None = None) -> ROI:
         """A generated mask: the nodes whose stepped level (paper 000) is ``level`` (an isovalue index)."""
-        from .stepped import isovalues
+        from .stepped import isovalues, thresholds_of
 
         t = as_terrain(terrain)
-        values = np.asarray(isovalues(t.height_range, interval=interval, levels=levels, base=base), np.float64)
+        values = np.asarray(isovalues(t.height_range, interval=interval, levels=levels, base=base), np.float32)
         if isinstance(level, (bool, np.bool_)) or not isinstance(level, (int, np.integer)):
             raise InvalidInputError(f"level must be a whole isovalue index; got {level!r}")
         level = int(level)
         if not 0 <= level < len(values):
             raise InvalidInputError(f"level must index the {len(values)} isovalues (0..{len(values) - 1}); got {level}")
-        thresholds = (values[:-1] + values[1:]) / 2
+        # the stepped kernels' float32 thresholds: a height on one belongs to the upper level there and here (their
+        # float64 midpoints put a height between the two roundings on the other side)
+        thresholds = thresholds_of(values)
         low = -np.inf if level == 0 else thresholds[level - 1]
         high = np.inf if level == len(values) - 1 else thresholds[level]
         heights, center, size = _terrain_window(t, region)

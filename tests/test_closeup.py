@@ -173,6 +173,22 @@ def test_generated_masks_follow_terrain_features():
     assert region.box == pytest.approx((1050.0, 1200.0, 4800.0, 4900.0))
 
 
+
+def test_stepped_level_mask_agrees_with_the_stepped_mesh_on_a_threshold():
+    """Isovalues 64.7 and 67.1 (float32) meet at the kernels' float32 threshold 65.899994; the float64 midpoint
+    of the two is 65.8999977. A node at 65.899994 is on the kernels' threshold, so it belongs to the upper level
+    (heights on a threshold go up), and so to the upper level's mask: the float64 midpoint put it in the lower
+    level's."""
+    from stepterrain.stepped import thresholds_of
+
+    heights = np.array([[60.0, 65.899994, 70.0], [61.0, 66.0, 64.0], [62.0, 65.0, 69.0]], np.float32)
+    levels = [64.7, 67.1]
+    assert thresholds_of(np.float32(levels))[0] == heights[0, 1]
+    upper = ROI.stepped_level(heights, 1, levels=levels)
+    lower = ROI.stepped_level(heights, 0, levels=levels)
+    assert upper.mask[0, 1] == 1.0 and lower.mask[0, 1] == 0.0
+    np.testing.assert_array_equal(upper.mask + lower.mask, 1.0)
+
 def test_outline_follows_the_shape():
     roi = ROI.circle((100.0, 50.0), 10.0, edge_width=2.0)
     (line,) = roi.outline(0.5)
