@@ -67,6 +67,8 @@ _INT32_MAX = 2**31 - 1
 _VERTEX_BYTES = 12 + 4 + 24
 _SOURCE_BYTES = 8 + 4
 _FACE_BYTES = 24 + 4 + 1
+#: Per vertex with colors=: its RGBA and the level index _assemble looks it up by (int64).
+_COLOR_BYTES = 4 + 8
 
 
 @dataclass(frozen=True)
@@ -405,6 +407,7 @@ def step_arrays(
     memory_budget: int | None = None,
     gamma: float | None = None,
     want_steps: bool = False,
+    extra_vertex_bytes: int = 0,
 ) -> StepArrays:
     """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions.
 
@@ -412,6 +415,7 @@ def step_arrays(
     the next call on this thread; the numpy face arrays are the caller's. ``gamma`` (a checked scalar): the
     vertex pass blends as it writes (kernels/stepped.py, DirectBlend) into ``vertices``, the world positions
     :func:`blend` would give, and writes no ``points`` (``step_heights`` only with ``want_steps``).
+    ``extra_vertex_bytes``: what the caller adds per vertex (colours), counted against ``memory_budget`` too.
     """
     iso = _isovalue_struct(values, device)
     grid = terrain.kind == "grid"
@@ -485,7 +489,7 @@ def step_arrays(
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
     _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
 
-    vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0)
+    vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0) + int(extra_vertex_bytes)
     check_budget(
         vertex_count * vertex_bytes + face_count * _FACE_BYTES,
         f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
@@ -804,7 +808,9 @@ def stepped(
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional
-        Bytes the output may take (default :func:`get_memory_budget`); checked after the count pass.
+        Bytes the output may take (default :func:`get_memory_budget`); checked after the count pass, before the
+        output is allocated: vertices, faces and their work arrays, and the colours when ``colors`` is given (a
+        solid's skirt and base, in proportion to the boundary, are not counted).
     device : warp device, optional
         ``"cpu"``, ``"cuda:0"``, ... (default: Warp's default device).
 
@@ -864,7 +870,8 @@ def stepped(
     if t.visual is not None and colors is None and not solid:
         _check_carried_visual(t)
     arrays = step_arrays(t, values, device=dev, want_sources=_needs_sources(t, gamma, colors),
-                         memory_budget=memory_budget, **_direct_blend(gamma, colors))  # fmt: skip
+                         memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
+                         **_direct_blend(gamma, colors))  # fmt: skip
     vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=dev)
     return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval

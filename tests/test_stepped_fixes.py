@@ -66,3 +66,15 @@ def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
     frames[2, 1, 1] = bad
     with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: terrain has no finite height \(all nodata\)$"):
         next(st.stepped_series(frames, interval=1.0))
+
+
+def test_memory_budget_counts_the_colours():
+    """colors= adds an RGBA and a level index per vertex (12 bytes) after the budget check, which counted the
+    surface only: a budget that holds the plain mesh but not its colours let the coloured mesh through."""
+    heights = np.add.outer(np.arange(40.0), np.arange(30.0) * 0.7).astype(np.float32)
+    plain = st.stepped(heights, interval=3.0)
+    v, f = len(plain.vertices), len(plain.faces)
+    budget = 40 * v + 29 * f + 6 * v  # the surface's arrays (stepped.py), and half the colours' bytes
+    assert len(st.stepped(heights, interval=3.0, memory_budget=budget).faces) == f
+    with pytest.raises(st.OutputTooLargeError, match=r"the stepped mesh"):
+        st.stepped(heights, interval=3.0, colors="terrain", memory_budget=budget)
