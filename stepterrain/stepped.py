@@ -1061,6 +1061,7 @@ def stepped_series(
             values if height_range is None else isovalues(height_range, interval=interval, levels=levels, base=base)
         )
         arrays = step_arrays(t, frame_values, device=dev, want_sources=_needs_sources(t, gamma, colors),
+                             extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
                              **_direct_blend(gamma, colors))  # fmt: skip
         vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=dev)
         yield _assemble(
