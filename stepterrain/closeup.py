@@ -17,6 +17,7 @@ the faces with m > 0 by count -> scan -> emit, so a close-up costs in proportion
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from collections.abc import Sequence
@@ -1682,7 +1683,10 @@ def render_closeups(
     if own:
         renderer = render.LayeredRenderer(window_size=(width, height), background=background, z_scale=z_scale)
     try:
-        overview_key = ("overview", id(t), scalars, cmap, None if texture is None else id(texture))
+        # an image's content, not only its identity: a texture edited in place is drawn anew on a reused renderer
+        overview_key = ("overview", id(t), scalars, cmap,
+                        None if image_texture is None else (id(texture), image_texture.shape,
+                                                            hashlib.blake2b(image_texture).hexdigest()))
         if not renderer.has("overview", overview_key):
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
