@@ -1600,7 +1600,8 @@ def render_closeups(
     time : float
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional
-        Reuse a renderer (and its uploaded overview) across frames.
+        Reuse a renderer (and its uploaded overview) across frames; its window and z_scale must be
+        ``window_size`` and ``z_scale`` (else an InvalidInputError).
     reuse_overview : bool
         With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
         frame box nor the overview changed (only the close-ups move); the images are the same either way.
@@ -1682,6 +1683,12 @@ def render_closeups(
     own = renderer is None
     if own:
         renderer = render.LayeredRenderer(window_size=(width, height), background=background, z_scale=z_scale)
+    else:  # the renderer's window and scale are the image's: others asked for were silently not given
+        if tuple(renderer.size) != (width, height):
+            raise InvalidInputError(f"window_size {width}x{height} differs from the renderer's window "
+                                    f"{renderer.size[0]}x{renderer.size[1]}; give the renderer's size")
+        if render._check_window((width, height), z_scale)[2] != renderer.z_scale:
+            raise InvalidInputError(f"z_scale {z_scale!r} differs from the renderer's z_scale {renderer.z_scale!r}")
     try:
         # an image's content, not only its identity: a texture edited in place is drawn anew on a reused renderer
         overview_key = ("overview", id(t), scalars, cmap,
@@ -1857,7 +1864,7 @@ def animate_closeups(
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     renderer = render.LayeredRenderer(window_size=(width, height), background=options.pop("background", "white"),
-                                      z_scale=options.pop("z_scale", 1.0))
+                                      z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
                                 reuse_overview=True,

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from stepterrain import render
-from stepterrain.closeup import ROI, CloseUp, render_closeups
+from stepterrain.closeup import ROI, CloseUp, animate_closeups, render_closeups
+from stepterrain.errors import InvalidInputError
 from stepterrain.terrain import Terrain
 
 from .test_closeup import hills
@@ -41,3 +42,33 @@ def test_reused_renderer_redraws_an_overview_texture_changed_in_place():
         renderer.close()
     fresh = render_closeups(t, [one()], window_size=SIZE, texture=texture.copy(), device="cpu")
     assert np.array_equal(again, fresh)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("option", [{"window_size": (320, 240)}, {"window_size": (320, 240), "cus": "billboard"},
+                                    {"z_scale": 3.0}, {"z_scale": -1.0}])
+def test_render_closeups_refuses_options_its_renderer_does_not_have(option):
+    # a renderer of 160x120 gave a 160x120 image for window_size=(320, 240) (a billboard: an error about a "box");
+    # its z_scale silently replaced the one asked for (even a negative one)
+    option = dict(option)
+    cus = [one(view="billboard")] if option.pop("cus", None) else [one()]
+    name = next(iter(option))
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        with pytest.raises(InvalidInputError, match=name):
+            render_closeups(terrain(), cus, renderer=renderer, device="cpu",
+                            **{"window_size": SIZE, **option})  # fmt: skip
+    finally:
+        renderer.close()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_animate_closeups_keeps_its_z_scale():
+    # animate_closeups builds its renderer with z_scale: the frames must still render (and with that scale)
+    t = terrain()
+    flat, tall = (animate_closeups(t, [one(spin=(1.0, 1))], frames=1, window_size=SIZE, z_scale=z, device="cpu")[0]
+                  for z in (1.0, 3.0))
+    assert flat.shape == tall.shape == (SIZE[1], SIZE[0], 3)
+    assert not np.array_equal(flat, tall)
