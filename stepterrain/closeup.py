@@ -147,6 +147,12 @@ def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np
     return (x * x * (3.0 - 2.0 * x)).astype(np.float32)
 
 
+def _check_edge_width(width: float, depth: float, what: str) -> None:
+    """A soft edge wider than the shape is deep leaves m below 1 everywhere: a close-up with no content."""
+    if width > depth:
+        raise InvalidInputError(f"edge_width must be at most {what} ({depth:g}), where m reaches 1; got {width:g}")
+
+
 def _mask_grid(size: tuple[float, float], resolution: int) -> tuple[int, int]:
     """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, 3 to 16385."""
     if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer)):
@@ -225,7 +231,8 @@ class ROI:
                resolution: int = 129) -> ROI:
         """A disc of ``radius`` about ``center``; m falls from 1 to 0 over ``edge_width`` inside the rim.
 
-        ``edge_width`` defaults to radius / 5 (0 gives a hard edge, softened only by the bilinear lookup).
+        ``edge_width`` defaults to radius / 5 (0 gives a hard edge, softened only by the bilinear lookup) and may be
+        at most the radius (a wider edge would keep m below 1 everywhere).
 
         Examples
         --------
@@ -244,6 +251,7 @@ class ROI:
         if min(a, b) <= 0:
             raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
         width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
+        _check_edge_width(width, min(a, b), "the shorter semi-axis")
         size = (2 * a, 2 * b)
         rows, cols = _mask_grid(size, resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
@@ -268,6 +276,7 @@ class ROI:
         if rc > min(w, h) / 2:
             raise InvalidInputError(f"corner_radius must be at most half the shorter side {min(w, h) / 2}; got {rc}")
         width = min(w, h) / 10 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
+        _check_edge_width(width, min(w, h) / 2, "half the shorter side")
         rows, cols = _mask_grid((w, h), resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc

@@ -72,3 +72,32 @@ def test_animate_closeups_keeps_its_z_scale():
                   for z in (1.0, 3.0))
     assert flat.shape == tall.shape == (SIZE[1], SIZE[0], 3)
     assert not np.array_equal(flat, tall)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: ROI.circle((0.0, 0.0), 5.0, edge_width=100.0),
+    lambda: ROI.ellipse((0.0, 0.0), (10.0, 4.0), edge_width=4.5),
+    lambda: ROI.rectangle((0.0, 0.0), (20.0, 8.0), edge_width=4.5),
+    lambda: ROI.rounded_rectangle((0.0, 0.0), (20.0, 8.0), corner_radius=2.0, edge_width=5.0),
+])
+def test_soft_edge_wider_than_the_shape_is_refused(make):
+    # m stayed below 1 everywhere (a circle of radius 5 with a 100-wide edge peaked at 0.007): a close-up with no
+    # content, silently
+    with pytest.raises(InvalidInputError, match="edge_width"):
+        make()
+
+
+def test_soft_edge_as_deep_as_the_shape_still_reaches_one():
+    assert ROI.circle((0.0, 0.0), 5.0, edge_width=5.0).mask.max() == 1.0
+    assert ROI.rectangle((0.0, 0.0), (20.0, 8.0), edge_width=4.0).mask.max() == 1.0
+
+
+def test_cli_refuses_an_edge_wider_than_the_roi(tmp_path, capsys):
+    import stepterrain.cli as cli
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, hills())
+    assert cli.main(["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.1", "--edge", "1000",
+                     "-o", str(tmp_path / "o.glb")]) == 2  # fmt: skip
+    assert "--edge must be at most the ROI radius" in capsys.readouterr().err
+    assert not (tmp_path / "o.glb").exists()
