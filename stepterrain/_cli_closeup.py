@@ -180,6 +180,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         if not (math.isfinite(r) and 0 < r <= _MAX_OFFSET):  # closeup's ROI size bound: float32 positions
             raise InvalidInputError(f"--roi radius must lie in (0, {_MAX_OFFSET:g}]; got {r:g}")
         edge = args.edge if args.edge is not None else r / 5
+        if edge > r:  # m would stay below 1 everywhere: a close-up with no content
+            raise InvalidInputError(f"--edge must be at most the ROI radius {r:g}; got {edge:g}")
         if args.shape == "circle":
             roi = ROI.circle((x, y), r, edge_width=edge)
         elif args.shape == "rectangle":

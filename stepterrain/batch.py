@@ -559,6 +559,27 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Pa
     return folder, made
 
 
+#: export.atomic_path's temporary files: ``.<name>.<tempfile's 8 random characters>.tmp`` beside ``<name>``
+_PARTIAL_RE = re.compile(r"^\.(.+)\.[a-z0-9_]{8}\.tmp$")
+
+
+def _remove_partial(folder: Path, names: Sequence[str]) -> None:
+    """Remove what a killed run left half-written: the temporary files of ``names`` (this run's outputs and the
+    manifest) in ``folder``. A rerun writes every one of them afresh, so none of those is in use."""
+    wanted = set(names)
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return
+    for entry in entries:
+        found = _PARTIAL_RE.match(entry.name)
+        if found and found[1] in wanted and entry.is_file(follow_symlinks=False):
+            try:
+                os.unlink(entry.path)
+            except OSError:
+                pass
+
+
 def _remove_empty(folders: Sequence[Path]) -> None:
     """Remove the folders (deepest first) that are still empty."""
     for path in folders:
@@ -777,7 +798,8 @@ def batch(
     and mtime, or a hash of its heights; and the options but the device, which does not change a bit of the
     output) and its file exists with the recorded size. Every
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
-    a killed run leaves complete outputs or none and a rerun redoes only what is missing. A tile or frame with
+    a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
+    temporary files the killed run left half-written). A tile or frame with
     no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
     ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
     refuses it as not elevation data). Cost per item: one
@@ -858,6 +880,7 @@ def batch(
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
+    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
 
     fingerprints = _fingerprints(items, src, options)
     manifest = _read_manifest(folder) if resume else {}

@@ -17,6 +17,7 @@ the faces with m > 0 by count -> scan -> emit, so a close-up costs in proportion
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 from collections.abc import Sequence
@@ -146,6 +147,12 @@ def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np
     return (x * x * (3.0 - 2.0 * x)).astype(np.float32)
 
 
+def _check_edge_width(width: float, depth: float, what: str) -> None:
+    """A soft edge wider than the shape is deep leaves m below 1 everywhere: a close-up with no content."""
+    if width > depth:
+        raise InvalidInputError(f"edge_width must be at most {what} ({depth:g}), where m reaches 1; got {width:g}")
+
+
 def _mask_grid(size: tuple[float, float], resolution: int) -> tuple[int, int]:
     """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, 3 to 16385."""
     if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer)):
@@ -224,7 +231,8 @@ class ROI:
                resolution: int = 129) -> ROI:
         """A disc of ``radius`` about ``center``; m falls from 1 to 0 over ``edge_width`` inside the rim.
 
-        ``edge_width`` defaults to radius / 5 (0 gives a hard edge, softened only by the bilinear lookup).
+        ``edge_width`` defaults to radius / 5 (0 gives a hard edge, softened only by the bilinear lookup) and may be
+        at most the radius (a wider edge would keep m below 1 everywhere).
 
         Examples
         --------
@@ -243,6 +251,7 @@ class ROI:
         if min(a, b) <= 0:
             raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
         width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
+        _check_edge_width(width, min(a, b), "the shorter semi-axis")
         size = (2 * a, 2 * b)
         rows, cols = _mask_grid(size, resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
@@ -267,6 +276,7 @@ class ROI:
         if rc > min(w, h) / 2:
             raise InvalidInputError(f"corner_radius must be at most half the shorter side {min(w, h) / 2}; got {rc}")
         width = min(w, h) / 10 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
+        _check_edge_width(width, min(w, h) / 2, "half the shorter side")
         rows, cols = _mask_grid((w, h), resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
@@ -1599,7 +1609,8 @@ def render_closeups(
     time : float
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional
-        Reuse a renderer (and its uploaded overview) across frames.
+        Reuse a renderer (and its uploaded overview) across frames; its window and z_scale must be
+        ``window_size`` and ``z_scale`` (else an InvalidInputError).
     reuse_overview : bool
         With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
         frame box nor the overview changed (only the close-ups move); the images are the same either way.
@@ -1681,8 +1692,17 @@ def render_closeups(
     own = renderer is None
     if own:
         renderer = render.LayeredRenderer(window_size=(width, height), background=background, z_scale=z_scale)
+    else:  # the renderer's window and scale are the image's: others asked for were silently not given
+        if tuple(renderer.size) != (width, height):
+            raise InvalidInputError(f"window_size {width}x{height} differs from the renderer's window "
+                                    f"{renderer.size[0]}x{renderer.size[1]}; give the renderer's size")
+        if render._check_window((width, height), z_scale)[2] != renderer.z_scale:
+            raise InvalidInputError(f"z_scale {z_scale!r} differs from the renderer's z_scale {renderer.z_scale!r}")
     try:
-        overview_key = ("overview", id(t), scalars, cmap, None if texture is None else id(texture))
+        # an image's content, not only its identity: a texture edited in place is drawn anew on a reused renderer
+        overview_key = ("overview", id(t), scalars, cmap,
+                        None if image_texture is None else (id(texture), image_texture.shape,
+                                                            hashlib.blake2b(image_texture).hexdigest()))
         if not renderer.has("overview", overview_key):
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
@@ -1853,7 +1873,7 @@ def animate_closeups(
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     renderer = render.LayeredRenderer(window_size=(width, height), background=options.pop("background", "white"),
-                                      z_scale=options.pop("z_scale", 1.0))
+                                      z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
                                 reuse_overview=True,
