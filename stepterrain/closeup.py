@@ -1699,10 +1699,14 @@ def render_closeups(
         if render._check_window((width, height), z_scale)[2] != renderer.z_scale:
             raise InvalidInputError(f"z_scale {z_scale!r} differs from the renderer's z_scale {renderer.z_scale!r}")
     try:
-        # an image's content, not only its identity: a texture edited in place is drawn anew on a reused renderer
-        overview_key = ("overview", id(t), scalars, cmap,
-                        None if image_texture is None else (id(texture), image_texture.shape,
-                                                            hashlib.blake2b(image_texture).hexdigest()))
+        # an image's content, not only its identity: a texture edited in place is drawn anew on a reused renderer.
+        # A read-only one (a caller's promise, as render._frozen takes it) is known by its identity, without hashing
+        # its pixels every frame (22 MB for a 3840 x 1920 image)
+        texture_key = None
+        if image_texture is not None:
+            texture_key = (id(texture), image_texture.shape,
+                           None if render._frozen(texture) else hashlib.blake2b(image_texture).hexdigest())
+        overview_key = ("overview", id(t), scalars, cmap, texture_key)
         if not renderer.has("overview", overview_key):
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)

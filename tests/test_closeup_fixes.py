@@ -44,6 +44,33 @@ def test_reused_renderer_redraws_an_overview_texture_changed_in_place():
     assert np.array_equal(again, fresh)
 
 
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_reused_renderer_knows_a_read_only_texture_by_identity(monkeypatch):
+    """A read-only texture is a promise not to change it: its overview is found again without hashing its pixels
+    every frame (a 3840 x 1920 image is 22 MB); the frames equal a fresh render."""
+    import stepterrain.closeup as closeup_module
+
+    t = terrain()
+    texture = np.zeros((16, 16, 3), np.uint8)
+    texture[..., 1] = 200
+    texture.setflags(write=False)
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        render_closeups(t, [one()], window_size=SIZE, renderer=renderer, texture=texture, device="cpu")
+
+        def refuse(*args, **kwargs):
+            raise AssertionError("a read-only texture was hashed")
+
+        monkeypatch.setattr(closeup_module.hashlib, "blake2b", refuse)
+        again = render_closeups(t, [one()], window_size=SIZE, renderer=renderer, texture=texture, device="cpu")
+    finally:
+        renderer.close()
+    monkeypatch.undo()
+    fresh = render_closeups(t, [one()], window_size=SIZE, texture=texture.copy(), device="cpu")
+    assert np.array_equal(again, fresh)
+
 @pytest.mark.render
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 @pytest.mark.parametrize("option", [{"window_size": (320, 240)}, {"window_size": (320, 240), "cus": "billboard"},
