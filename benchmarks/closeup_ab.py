@@ -66,7 +66,7 @@ def main() -> None:
         cus = rc.closeups_for(terrain, count)
         renderer = render.LayeredRenderer(window_size=rc.WINDOW, z_scale=2.0)
         box = rc.frame_bounds(terrain, cus)
-        render_closeups(terrain, cus, window_size=rc.WINDOW, bounds=box, renderer=renderer, device="cpu",
+        render_closeups(terrain, cus, window_size=rc.WINDOW, z_scale=2.0, bounds=box, renderer=renderer, device="cpu",
                         reuse_closeups=False)  # warm-up
         setups[count] = (cus, box, renderer)
     out: dict[str, object] = {"root": str(root)}
@@ -74,8 +74,8 @@ def main() -> None:
     for _ in range(frames):
         for count, (cus, box, renderer) in setups.items():
             start, start_cpu = time.perf_counter(), time.process_time()
-            render_closeups(terrain, cus, window_size=rc.WINDOW, bounds=box, renderer=renderer, device="cpu",
-                            reuse_closeups=False)
+            render_closeups(terrain, cus, window_size=rc.WINDOW, z_scale=2.0, bounds=box, renderer=renderer,
+                            device="cpu", reuse_closeups=False)
             times[count]["wall"].append(time.perf_counter() - start)
             times[count]["cpu"].append(time.process_time() - start_cpu)
     for count, (_, _, renderer) in setups.items():

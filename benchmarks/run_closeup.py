@@ -107,13 +107,13 @@ def time_culled_interleaved(terrain, counts: list[int], repeat: int, configs: di
                 renderer = render.LayeredRenderer(window_size=WINDOW, z_scale=2.0)
                 box = frame_bounds(terrain, cus)
                 block[name, count] = (cus, box, renderer, options, [], [], [], turning)
-                render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer, device="cpu",
-                                **options)  # warm-up: uploads, kernels
+                render_closeups(terrain, cus, window_size=WINDOW, z_scale=2.0, bounds=box, renderer=renderer,
+                                device="cpu", **options)  # warm-up: uploads, kernels
             for rep in range(repeat):
                 for cus, box, renderer, options, frames, cpu, stages, turning in block.values():
                     timings: dict[str, float] = {}
                     start, start_cpu = time.perf_counter(), time.process_time()
-                    render_closeups(terrain, cus, window_size=WINDOW, bounds=box, renderer=renderer,
+                    render_closeups(terrain, cus, window_size=WINDOW, z_scale=2.0, bounds=box, renderer=renderer,
                                     timings=timings, device="cpu", time=float(rep + 1) if turning else 0.0, **options)
                     frames.append(time.perf_counter() - start)
                     cpu.append(time.process_time() - start_cpu)
