@@ -1609,8 +1609,8 @@ def render_closeups(
     time : float
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional
-        Reuse a renderer (and its uploaded overview) across frames; its window and z_scale must be
-        ``window_size`` and ``z_scale`` (else an InvalidInputError).
+        Reuse a renderer (and its uploaded overview) across frames; its window, z_scale and background must be
+        ``window_size``, ``z_scale`` and ``background`` (else an InvalidInputError).
     reuse_overview : bool
         With a reused ``renderer``: keep the overview pass of the previous frame when neither the camera, the
         frame box nor the overview changed (only the close-ups move); the images are the same either way.
@@ -1698,6 +1698,10 @@ def render_closeups(
                                     f"{renderer.size[0]}x{renderer.size[1]}; give the renderer's size")
         if render._check_window((width, height), z_scale)[2] != renderer.z_scale:
             raise InvalidInputError(f"z_scale {z_scale!r} differs from the renderer's z_scale {renderer.z_scale!r}")
+        render._check_background(renderer._pv, background)
+        if renderer._pv.Color(background) != renderer._pv.Color(renderer.background):
+            raise InvalidInputError(f"background {background!r} differs from the renderer's background "
+                                    f"{renderer.background!r}")
     try:
         # an image's content, not only its identity: a texture edited in place is drawn anew on a reused renderer.
         # A read-only one (a caller's promise, as render._frozen takes it) is known by its identity, without hashing
@@ -1876,7 +1880,7 @@ def animate_closeups(
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-    renderer = render.LayeredRenderer(window_size=(width, height), background=options.pop("background", "white"),
+    renderer = render.LayeredRenderer(window_size=(width, height), background=options.get("background", "white"),
                                       z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,

@@ -74,7 +74,7 @@ def test_reused_renderer_knows_a_read_only_texture_by_identity(monkeypatch):
 @pytest.mark.render
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 @pytest.mark.parametrize("option", [{"window_size": (320, 240)}, {"window_size": (320, 240), "cus": "billboard"},
-                                    {"z_scale": 3.0}, {"z_scale": -1.0}])
+                                    {"z_scale": 3.0}, {"z_scale": -1.0}, {"background": "black"}])
 def test_render_closeups_refuses_options_its_renderer_does_not_have(option):
     # a renderer of 160x120 gave a 160x120 image for window_size=(320, 240) (a billboard: an error about a "box");
     # its z_scale silently replaced the one asked for (even a negative one)
@@ -98,6 +98,8 @@ def test_animate_closeups_keeps_its_z_scale():
     flat, tall = (animate_closeups(t, [one(spin=(1.0, 1))], frames=1, window_size=SIZE, z_scale=z, device="cpu")[0]
                   for z in (1.0, 3.0))
     assert flat.shape == tall.shape == (SIZE[1], SIZE[0], 3)
+    dark = animate_closeups(t, [one(spin=(1.0, 1))], frames=1, window_size=SIZE, background="black", device="cpu")[0]
+    assert dark.shape == flat.shape and (dark[0, 0] == 0).all() and (flat[0, 0] == 255).all()
     assert not np.array_equal(flat, tall)
 
 
