@@ -66,6 +66,10 @@ METRICS = ("geometric", "distance", "clip")
 #: Bytes per node entry held on the device: height, float32 position, e, r, h, α.
 _BYTES_PER_ENTRY = 4 + 12 + 16
 _BYTES_PER_ANGLE_SLOT = 12 + 8 + 8  # the resampling's angle tables, over a quarter face
+#: Bytes per vertex and per face of a mesh handed out: float64 position and int32 node entry; int64 corners and the
+#: int32 cube face.
+_MESH_VERTEX_BYTES = 24 + 4
+_MESH_FACE_BYTES = 24 + 4
 _SAMPLE_FILE = "global_relief_20min.npz"
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
@@ -913,15 +917,20 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         mask_chunks.append(leaf_masks if track and cull else None)
         per_level.append(count)
         triangles, masks = children, (child_masks if track else None)
+    # the mesh itself, before its arrays: each level was checked on its own, but the leaves of every level and the
+    # vertices together (float64 vertices, int64 faces) outgrew a budget that every level fitted
+    n_leaves = sum(chunk.shape[0] for chunk in leaf_chunks)
+    n_vertices = vertex_chunks[0].shape[0] if split is not None else sum(c.shape[0] for c in vertex_chunks)
+    check_budget(n_vertices * _MESH_VERTEX_BYTES + n_leaves * _MESH_FACE_BYTES,
+                 f"the mesh ({n_vertices:,} vertices, up to {n_leaves:,} faces)",
+                 hint="raise the error or narrow the view")
     leaves = _concat(leaf_chunks, wp.vec4i, device, share=True)  # read by the face passes only
     # (the one-launch split's entries come whole, the corners first, in a fresh array: no copy)
     entries = vertex_chunks[0] if split is not None else _concat(vertex_chunks, wp.int32, device)
-    n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
                    min_elements=_SPLIT_REFINE)
-    n_leaves = leaves.shape[0]
     whole = len(leaf_chunks) == 1 and unknown >= 0  # every leaf from the one tracked launch
     if faces > 1 and (not cull or (whole and unknown == 0)):
         keep = offsets = none  # nothing to cull, no padding: every leaf is a face (emit_faces' "every")
