@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import stepterrain._compaction as compaction
-from stepterrain.errors import OutputTooLargeError
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import Globe, adaptive_mesh
 
 LAT1 = np.linspace(89.5, -89.5, 180)
@@ -41,3 +41,41 @@ def test_a_planar_mesh_over_the_memory_budget_is_refused(budget):
     with pytest.raises(OutputTooLargeError, match=r"the mesh \(16,641 vertices, up to 32,768 faces\) would need "
                                                   r"1\.3 MiB"):
         adaptive_mesh(np.zeros((129, 129)), error=0.0, device="cpu")
+
+
+class _Allocated(Exception):
+    pass
+
+
+def test_a_face_size_beyond_int32_node_entries_is_refused_by_name(budget, monkeypatch):
+    """6 · 32769² node entries (6.4e9) overflow the kernels' int32 entries (and 32768 << 16 the packed corners):
+    with a budget raised to hold them, face_size=32769 went on to allocate 200 GB and resample into wrapped
+    indices. The largest face size is 16385 (1.6e9 entries)."""
+    import stepterrain.globe as globe_module
+
+    def no_allocation(*args, **kwargs):
+        raise _Allocated
+
+    monkeypatch.setattr(globe_module, "_node_array", no_allocation)
+    budget(1 << 50)
+    with pytest.raises(InvalidInputError, match=r"^face_size must be at most 16385 \(int32 node entries\); "
+                                                r"got 32769$"):
+        Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=32769, device="cpu")
+    with pytest.raises(_Allocated):  # the largest face size passes validation
+        Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=16385, device="cpu")
+
+
+def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monkeypatch):
+    """16386 rows pad to 32769² nodes, whose corner row 32768 << 16 does not fit the int32 packed corners: with
+    the budget raised, adaptive_mesh padded the grid (4 GB), then crashed with numpy's OverflowError."""
+
+    def no_allocation(*args, **kwargs):
+        raise _Allocated
+
+    monkeypatch.setattr(np, "pad", no_allocation)
+    budget(1 << 50)
+    with pytest.raises(InvalidInputError, match=r"^heights must have at most 16385 rows and columns \(padded to "
+                                                r"2\^k \+ 1 nodes, int32 packed corners\); got shape \(16386, 2\)$"):
+        adaptive_mesh(np.zeros((16386, 2)), error=1.0, device="cpu")
+    with pytest.raises(_Allocated):  # the largest grid passes validation
+        adaptive_mesh(np.zeros((16385, 2)), error=1.0, device="cpu")
