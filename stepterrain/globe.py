@@ -66,7 +66,14 @@ METRICS = ("geometric", "distance", "clip")
 #: Bytes per node entry held on the device: height, float32 position, e, r, h, α.
 _BYTES_PER_ENTRY = 4 + 12 + 16
 _BYTES_PER_ANGLE_SLOT = 12 + 8 + 8  # the resampling's angle tables, over a quarter face
+#: Bytes per vertex and per face of a mesh handed out: float64 position and int32 node entry; int64 corners and the
+#: int32 cube face.
+_MESH_VERTEX_BYTES = 24 + 4
+_MESH_FACE_BYTES = 24 + 4
 _SAMPLE_FILE = "global_relief_20min.npz"
+#: The most cells a face edge (or a planar grid's padded side) may have: node entries and the corners packed
+#: i << 16 | j are int32 in the kernels (6 · 16385² entries fit, 6 · 32769² do not; nor does 32768 << 16).
+_MAX_CELLS = 1 << 14
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
 _NODE_PASS = True
@@ -101,6 +108,8 @@ def _face_cells(face_size: Any, name: str = "face_size") -> int:
     cells = int(face_size) - 1
     if cells < 2 or cells & (cells - 1):
         raise InvalidInputError(f"{name} must be 2^k + 1 with k >= 1 (3, 5, 9, ..., 1025); got {face_size}")
+    if cells > _MAX_CELLS:  # 6 · 32769² entries wrap int32, as does 32768 << 16 in a packed corner
+        raise InvalidInputError(f"{name} must be at most {_MAX_CELLS + 1} (int32 node entries); got {face_size}")
     return cells
 
 
@@ -260,7 +269,7 @@ class Globe:
             Longitudes in degrees, strictly monotone, regular, covering 360° (a duplicated closing column,
             e.g. -180 and 180, is dropped). Interpolation wraps around the antimeridian.
         face_size : int
-            Nodes per face edge, 2^k + 1 (the paper uses 1025).
+            Nodes per face edge, 2^k + 1 (the paper uses 1025), at most 16385 (int32 node entries).
         radius : float
             Sphere radius R in metres (> 0).
         exaggeration : float
@@ -913,15 +922,20 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         mask_chunks.append(leaf_masks if track and cull else None)
         per_level.append(count)
         triangles, masks = children, (child_masks if track else None)
+    # the mesh itself, before its arrays: each level was checked on its own, but the leaves of every level and the
+    # vertices together (float64 vertices, int64 faces) outgrew a budget that every level fitted
+    n_leaves = sum(chunk.shape[0] for chunk in leaf_chunks)
+    n_vertices = vertex_chunks[0].shape[0] if split is not None else sum(c.shape[0] for c in vertex_chunks)
+    check_budget(n_vertices * _MESH_VERTEX_BYTES + n_leaves * _MESH_FACE_BYTES,
+                 f"the mesh ({n_vertices:,} vertices, up to {n_leaves:,} faces)",
+                 hint="raise the error or narrow the view")
     leaves = _concat(leaf_chunks, wp.vec4i, device, share=True)  # read by the face passes only
     # (the one-launch split's entries come whole, the corners first, in a fresh array: no copy)
     entries = vertex_chunks[0] if split is not None else _concat(vertex_chunks, wp.int32, device)
-    n_vertices = entries.shape[0]
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
                    min_elements=_SPLIT_REFINE)
-    n_leaves = leaves.shape[0]
     whole = len(leaf_chunks) == 1 and unknown >= 0  # every leaf from the one tracked launch
     if faces > 1 and (not cull or (whole and unknown == 0)):
         keep = offsets = none  # nothing to cull, no padding: every leaf is a face (emit_faces' "every")
@@ -1021,8 +1035,9 @@ def adaptive_mesh(
     Parameters
     ----------
     heights : (H, W) array_like
-        Heights in metres; row i at y = y0 + i·dy, column j at x = x0 + j·dx. Any size: padded internally to
-        (2^k + 1)² by repeating the edge, and the mesh is cut back to the input rectangle exactly.
+        Heights in metres; row i at y = y0 + i·dy, column j at x = x0 + j·dx. Any size up to 16385 rows and
+        columns: padded internally to (2^k + 1)² by repeating the edge, and the mesh is cut back to the input
+        rectangle exactly.
     error : float
         Without a camera: the largest vertical distance allowed between any grid node and the mesh (a
         true bound, checked per triangle over every node it covers, not the 1-level look-ahead). With a
@@ -1077,6 +1092,9 @@ def adaptive_mesh(
         raise InvalidInputError(f"origin must be 2 finite numbers (x0, y0); got {origin!r}")
     rows, cols = z.shape
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
+    if cells > _MAX_CELLS:  # before the padding: 32768 << 16 wraps the int32 packed corners
+        raise InvalidInputError(f"heights must have at most {_MAX_CELLS + 1} rows and columns (padded to 2^k + 1 "
+                                f"nodes, int32 packed corners); got shape {z.shape}")
     n = cells + 1
     check_budget(n * n * _BYTES_PER_ENTRY, f"an adaptive mesh of a {rows}x{cols} grid (padded to {n}x{n})",
                  hint="coarsen the input")

@@ -1,0 +1,81 @@
+"""Regression tests for bugs found by an adversarial hunt of the globe (paper 003): each fails without its fix."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import stepterrain._compaction as compaction
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
+from stepterrain.globe import Globe, adaptive_mesh
+
+LAT1 = np.linspace(89.5, -89.5, 180)
+LON1 = np.linspace(-179.5, 179.5, 360)
+
+
+@pytest.fixture
+def budget():
+    """Set the memory budget for one test, restored afterwards."""
+    previous = compaction.get_memory_budget()
+    yield compaction.set_memory_budget
+    compaction.set_memory_budget(previous)
+
+
+def test_a_globe_mesh_over_the_memory_budget_is_refused(budget):
+    """The full-resolution mesh of a 65² globe holds 49,152 faces (int64, 24 bytes, and the int32 cube face) and
+    24,578 vertices (float64, 24 bytes, and the int32 node entry): 2,064,440 bytes. Only each refinement level was
+    checked (the largest needs ~1.5 MiB), so a 1.6 MiB budget let the 2 MiB mesh through."""
+    globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=65, device="cpu")
+    budget(1600 << 10)
+    with pytest.raises(OutputTooLargeError, match=r"the mesh \(24,578 vertices, up to 49,152 faces\) would need "
+                                                  r"2\.0 MiB.*raise the error or narrow the view"):
+        globe.mesh()
+    budget(4 << 20)
+    assert len(globe.mesh().faces) == 49_152  # within the budget: the same mesh as ever
+
+
+def test_a_planar_mesh_over_the_memory_budget_is_refused(budget):
+    """adaptive_mesh at error 0 on a 129² grid: 32,768 faces and 16,641 vertices (1.3 MiB) got through a 1 MiB
+    budget that each of its levels fitted."""
+    budget(1 << 20)
+    with pytest.raises(OutputTooLargeError, match=r"the mesh \(16,641 vertices, up to 32,768 faces\) would need "
+                                                  r"1\.3 MiB"):
+        adaptive_mesh(np.zeros((129, 129)), error=0.0, device="cpu")
+
+
+class _Allocated(Exception):
+    pass
+
+
+def test_a_face_size_beyond_int32_node_entries_is_refused_by_name(budget, monkeypatch):
+    """6 · 32769² node entries (6.4e9) overflow the kernels' int32 entries (and 32768 << 16 the packed corners):
+    with a budget raised to hold them, face_size=32769 went on to allocate 200 GB and resample into wrapped
+    indices. The largest face size is 16385 (1.6e9 entries)."""
+    import stepterrain.globe as globe_module
+
+    def no_allocation(*args, **kwargs):
+        raise _Allocated
+
+    monkeypatch.setattr(globe_module, "_node_array", no_allocation)
+    budget(1 << 50)
+    with pytest.raises(InvalidInputError, match=r"^face_size must be at most 16385 \(int32 node entries\); "
+                                                r"got 32769$"):
+        Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=32769, device="cpu")
+    with pytest.raises(_Allocated):  # the largest face size passes validation
+        Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=16385, device="cpu")
+
+
+def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monkeypatch):
+    """16386 rows pad to 32769² nodes, whose corner row 32768 << 16 does not fit the int32 packed corners: with
+    the budget raised, adaptive_mesh padded the grid (4 GB), then crashed with numpy's OverflowError."""
+
+    def no_allocation(*args, **kwargs):
+        raise _Allocated
+
+    monkeypatch.setattr(np, "pad", no_allocation)
+    budget(1 << 50)
+    with pytest.raises(InvalidInputError, match=r"^heights must have at most 16385 rows and columns \(padded to "
+                                                r"2\^k \+ 1 nodes, int32 packed corners\); got shape \(16386, 2\)$"):
+        adaptive_mesh(np.zeros((16386, 2)), error=1.0, device="cpu")
+    with pytest.raises(_Allocated):  # the largest grid passes validation
+        adaptive_mesh(np.zeros((16385, 2)), error=1.0, device="cpu")
