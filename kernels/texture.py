@@ -646,9 +646,17 @@ def line_span(sweep: Sweep, line: wp.int32) -> wp.vec2i:
 
 
 @wp.func
-def sweep_node(sweep: Sweep, line: wp.int32, major: wp.int32) -> wp.vec2i:
-    """(i, j) of the line's node at a major index inside its span."""
-    minor = line + sweep.c_min + sweep.minor_offsets[major]
+def bundle_span(sweep: Sweep, first: wp.int32, last: wp.int32) -> wp.vec2i:
+    """[first, last) major indices where any of the lines first..last-1 lies inside the grid (the union of the
+    outer lines' spans: the lines between lie between them)."""
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    return wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+
+
+@wp.func
+def major_minor_node(sweep: Sweep, major: wp.int32, minor: wp.int32) -> wp.vec2i:
+    """(i, j) of the node at a major and a minor index."""
     if sweep.major_j == 1:
         return wp.vec2i(minor, major)
     return wp.vec2i(major, minor)
@@ -689,9 +697,7 @@ def sweep_shadows(
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
         horizons[line] = wp.float32(-3.0e38)
-    span_first = line_span(sweep, first)
-    span_last = line_span(sweep, last - 1)
-    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+    span = bundle_span(sweep, first, last)
     k = wp.int32(0)
     while k < span[1] - span[0]:
         major = walk_major(sweep, span, k)
@@ -699,12 +705,9 @@ def sweep_shadows(
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
         while line < hi:
-            minor = line + offset
-            i = minor
-            j = major
-            if sweep.major_j == 0:
-                i = major
-                j = minor
+            node = major_minor_node(sweep, major, line + offset)
+            i = node[0]
+            j = node[1]
             h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
             if grid.has_nodata != 0 and wp.isnan(h):
                 store(shadow_out, i, j, wp.uint8(0))
@@ -754,9 +757,7 @@ def sweep_occlusion(
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
         store(tops, line, -1)  # index of the hull's last point, relative to the line's base
-    span_first = line_span(sweep, first)
-    span_last = line_span(sweep, last - 1)
-    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+    span = bundle_span(sweep, first, last)
     k = wp.int32(0)
     while k < span[1] - span[0]:
         major = walk_major(sweep, span, k)
@@ -764,12 +765,9 @@ def sweep_occlusion(
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
         while line < hi:
-            minor = line + offset
-            i = minor
-            j = major
-            if sweep.major_j == 0:
-                i = major
-                j = minor
+            node = major_minor_node(sweep, major, line + offset)
+            i = node[0]
+            j = node[1]
             h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
             if not wp.isnan(h):
                 base = load(offsets, line)

@@ -6,24 +6,11 @@ import numpy as np
 import pytest
 
 from stepterrain import render
-from stepterrain.closeup import ROI, CloseUp, animate_closeups, render_closeups
+from stepterrain.closeup import ROI, animate_closeups, render_closeups
 from stepterrain.errors import InvalidInputError
-from stepterrain.terrain import Terrain
 
 from .test_closeup import hills
-
-AVAILABLE, REASON = render.offscreen_available()
-SIZE = (160, 120)
-
-
-def terrain() -> Terrain:
-    return Terrain.from_heights(hills(), spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
-
-
-def one(**kwargs) -> CloseUp:
-    base = dict(scale=1.5, offset=(0.0, 0.0, 60.0), color="red")
-    base.update(kwargs)
-    return CloseUp(ROI.circle((1040.0, 2030.0), 12.0), **base)
+from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
 
 
 @pytest.mark.render

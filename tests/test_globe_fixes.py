@@ -47,16 +47,18 @@ class _Allocated(Exception):
     pass
 
 
+def _no_allocation(*args, **kwargs):
+    """Stands in for an allocator: validation passed."""
+    raise _Allocated
+
+
 def test_a_face_size_beyond_int32_node_entries_is_refused_by_name(budget, monkeypatch):
     """6 · 32769² node entries (6.4e9) overflow the kernels' int32 entries (and 32768 << 16 the packed corners):
     with a budget raised to hold them, face_size=32769 went on to allocate 200 GB and resample into wrapped
     indices. The largest face size is 16385 (1.6e9 entries)."""
     import stepterrain.globe as globe_module
 
-    def no_allocation(*args, **kwargs):
-        raise _Allocated
-
-    monkeypatch.setattr(globe_module, "_node_array", no_allocation)
+    monkeypatch.setattr(globe_module, "_node_array", _no_allocation)
     budget(1 << 50)
     with pytest.raises(InvalidInputError, match=r"^face_size must be at most 16385 \(int32 node entries\); "
                                                 r"got 32769$"):
@@ -69,10 +71,7 @@ def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monk
     """16386 rows pad to 32769² nodes, whose corner row 32768 << 16 does not fit the int32 packed corners: with
     the budget raised, adaptive_mesh padded the grid (4 GB), then crashed with numpy's OverflowError."""
 
-    def no_allocation(*args, **kwargs):
-        raise _Allocated
-
-    monkeypatch.setattr(np, "pad", no_allocation)
+    monkeypatch.setattr(np, "pad", _no_allocation)
     budget(1 << 50)
     with pytest.raises(InvalidInputError, match=r"^heights must have at most 16385 rows and columns \(padded to "
                                                 r"2\^k \+ 1 nodes, int32 packed corners\); got shape \(16386, 2\)$"):
