@@ -21,7 +21,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import DataFileError, InvalidInputError, MissingDependencyError
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
@@ -120,17 +120,19 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         raise DataFileError(f"DEM file {str(file)!r} does not exist")
     if not file.is_file():
         raise DataFileError(f"DEM path {str(file)!r} is not a regular file")
-    if ext in (".tif", ".tiff"):
-        return _load_geotiff(file, int(band))
-    if band != 1:
+    if ext not in (".tif", ".tiff") and band != 1:
         raise InvalidInputError(
             f"band applies to GeoTIFF only; {str(file)!r} holds one band, got band={band}"
         )
-    if ext == ".npy":
-        return _load_npy(file)
-    if ext == ".npz":
-        return _load_npz(file)
-    return _load_png(file)
+    reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
+    try:
+        return _load_geotiff(file, int(band)) if reader is None else reader(file)
+    except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
+        if isinstance(exc, StepTerrainError):
+            raise
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected elevation data that fits in memory; got {exc}"
+        ) from exc
 
 
 def sample_dem() -> Terrain:
@@ -380,6 +382,11 @@ def _load_png(file: Path) -> Terrain:
                     f"got a {mode} image (colour or palette images are not elevation data)"
                 )
             array = np.array(image)
+    except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG heightmap within Pillow's decompression-bomb limit "
+            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc} (a DEM this large reads as a GeoTIFF or .npy)"
+        ) from exc
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         if isinstance(exc, DataFileError):
             raise

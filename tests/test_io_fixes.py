@@ -1,0 +1,36 @@
+"""load_dem / save_mesh / save_image bugs found by an adversarial pass over the shared input and output rooms (each
+test failed before its fix)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from stepterrain.errors import DataFileError
+from stepterrain.io import load_dem
+
+
+def test_a_png_beyond_pillows_pixel_limit_is_a_data_file_error(tmp_path, monkeypatch):
+    # a 20000 x 10000 heightmap (200 M pixels, over Pillow's 179 M) raised PIL.Image.DecompressionBombError, which
+    # is no OSError and went past load_dem as a raw Pillow exception; the limit is lowered here to keep the file small
+    path = tmp_path / "large.png"
+    Image.fromarray(np.zeros((40, 30), np.uint16)).save(path)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)
+    with pytest.raises(DataFileError, match=r"large\.png.*decompression-bomb limit.*1200 pixels"):
+        load_dem(path)
+
+
+def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
+    # a sparse GeoTIFF of a few kB whose header declares 1,000,000 x 1,000,000 cells raised numpy's raw MemoryError
+    # ("Unable to allocate 3.64 TiB") from rasterio's read
+    rasterio = pytest.importorskip("rasterio")
+    path = tmp_path / "huge.tif"
+    profile = {"driver": "GTiff", "width": 1_000_000, "height": 1_000_000, "count": 1, "dtype": "float32",
+               "tiled": True, "blockxsize": 4096, "blockysize": 4096, "sparse_ok": True, "BIGTIFF": "YES",
+               "transform": rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0), "crs": "EPSG:32611"}
+    with rasterio.open(path, "w", **profile):
+        pass
+    assert path.stat().st_size < 10_000_000
+    with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
+        load_dem(path)
