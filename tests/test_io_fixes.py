@@ -3,11 +3,15 @@ test failed before its fix)."""
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
+import trimesh
 from PIL import Image
 
 from stepterrain.errors import DataFileError
+from stepterrain.export import save_image, save_mesh
 from stepterrain.io import load_dem
 
 
@@ -34,3 +38,18 @@ def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
     assert path.stat().st_size < 10_000_000
     with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
         load_dem(path)
+
+
+@pytest.mark.parametrize("length", [241, 242, 250, 255])
+def test_a_file_name_near_the_file_system_limit_is_written(tmp_path, length):
+    # atomic_path's temporary file is named ".<name>.XXXXXXXX.tmp", 14 bytes longer than its target: a valid name of
+    # 242-255 bytes made it too long (ENAMETOOLONG), refused as "cannot write in the output folder"
+    mesh = trimesh.creation.box()
+    for ext, write in ((".ply", lambda p: save_mesh(mesh, p)),
+                       (".png", lambda p: save_image(np.zeros((2, 3, 3), np.uint8), p))):
+        path = tmp_path / ("é" * ((length - len(ext)) // 2) + "a" * ((length - len(ext)) % 2) + ext)
+        assert len(os.fsencode(path.name)) == length
+        assert write(path) == path
+        assert os.listdir(tmp_path).count(path.name) == 1
+    assert len(trimesh.load(tmp_path / path.name.replace(".png", ".ply")).faces) == 12
+    assert not [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
