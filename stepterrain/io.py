@@ -58,8 +58,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
         (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
-        one per row and column, georeference them as geographic, the layout of the global relief grids; a scalar
-        ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
+        one per row and column, georeference them as geographic, the layout of the global relief grids; a
+        ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
@@ -91,7 +91,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, a 1-D array,
         text, an archive without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90,
-        ``lat``/``lon`` axes not matching the heights or unevenly spaced, nothing but nodata).
+        ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz ``nodata`` that is not one real
+        number, nothing but nodata).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -285,7 +286,7 @@ def _load_npz(file: Path) -> Terrain:
         return _grid(
             file, _elevation(arrays, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
         )
-    nodata = npz_nodata(arrays.get("nodata"))
+    nodata = npz_nodata(arrays.get("nodata"), file)
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
     # the same key with a transform (which georeferences it) and without
     key = npz_heights_key(arrays, (2,))
@@ -536,12 +537,21 @@ def _scalar_str(value: Any) -> str | None:
     return text or None
 
 
-def npz_nodata(value: Any) -> float | None:
-    """The finite nodata value an .npz stores under ``nodata`` (a real scalar), else None."""
+def npz_nodata(value: Any, file: Path) -> float | None:
+    """The finite nodata value an .npz stores under ``nodata`` (a real scalar, or one real number in an array: what
+    ``np.savez(nodata=dataset.nodatavals)`` stores), None without one or for a non-finite one (NaN heights are
+    nodata anyway); anything else (text, a bool, several values) is a DataFileError naming ``file``: it was
+    ignored, and the cells it marks were read as heights (-32768 pits in the mesh)."""
     if value is None:
         return None
     arr = np.asarray(value)
-    if arr.ndim != 0 or arr.dtype.kind not in "iuf" or not np.isfinite(arr):
+    if arr.size != 1 or arr.dtype.kind not in "iuf":
+        got = f"{arr.dtype} {arr.tolist()!r:.80}" if arr.ndim else f"{arr.dtype} {arr.item()!r:.80}"
+        raise DataFileError(
+            f"cannot read {str(file)!r}: 'nodata' must be one real number (the value of missing cells); got {got}"
+        )
+    arr = arr.reshape(())
+    if not np.isfinite(arr):
         return None
     return float(arr)
 

@@ -53,3 +53,26 @@ def test_a_file_name_near_the_file_system_limit_is_written(tmp_path, length):
         assert os.listdir(tmp_path).count(path.name) == 1
     assert len(trimesh.load(tmp_path / path.name.replace(".png", ".ply")).faces) == 12
     assert not [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
+
+
+def test_an_npz_nodata_in_a_one_element_array_marks_missing_cells_and_an_unusable_one_is_refused(tmp_path):
+    # np.savez(..., nodata=dataset.nodatavals) stores rasterio's per-band tuple, shape (1,): npz_nodata took only a
+    # 0-d value and ignored it silently, so the -32768 cells became heights (pits in the mesh); text or a mask under
+    # 'nodata' was ignored the same way. load_series (batch) reads 'nodata' through the same function.
+    from stepterrain.batch import load_series
+
+    z = np.array([[100, -32768, 102], [103, 104, 105]], np.int16)
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    np.savez(tmp_path / "tuple.npz", elevation=z, transform=transform, crs="EPSG:32611", nodata=(-32768.0,))
+    h = load_dem(tmp_path / "tuple.npz").heights
+    assert np.isnan(h[0, 1]) and np.isfinite(h).sum() == 5
+    np.savez(tmp_path / "series.npz", heights=np.stack([z, z]), nodata=np.array([-32768]))
+    assert np.isnan(load_series(tmp_path / "series.npz")[:, 0, 1]).all()
+    for name, nodata, got in (("text.npz", "-32768", "'-32768'"), ("mask.npz", z == -32768, "bool"),
+                              ("two.npz", (-32768.0, -9999.0), r"\[-32768.0, -9999.0\]")):
+        np.savez(tmp_path / name, heights=z, nodata=nodata)
+        with pytest.raises(DataFileError, match=rf"{name}.*'nodata' must be one real number.*got .*{got}"):
+            load_dem(tmp_path / name)
+    np.savez(tmp_path / "series_text.npz", heights=np.stack([z, z]), nodata="-32768")
+    with pytest.raises(DataFileError, match="'nodata' must be one real number"):
+        load_series(tmp_path / "series_text.npz")
