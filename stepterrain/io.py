@@ -89,10 +89,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     InvalidInputError
         Unknown extension (the message lists the supported ones), or ``band`` not a valid band number.
     DataFileError
-        The file does not exist, cannot be read, or is not elevation data (a colour image, a 1-D array,
-        text, an archive without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90,
-        ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz ``nodata`` that is not one real
-        number, nothing but nodata).
+        The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
+        under a .png name, a 1-D array, text, an archive without a 2-D array, a rotated grid, a geographic grid whose
+        latitudes lie beyond ±90, ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz
+        ``nodata`` that is not one real number, nothing but nodata).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -377,6 +377,11 @@ def _load_png(file: Path) -> Terrain:
     try:
         with Image.open(file) as image:
             mode = image.mode
+            if image.format != "PNG":  # Pillow opens any image it knows: a lossy JPEG, a GeoTIFF's bare pixels
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a PNG heightmap; got a {image.format} image under a .png "
+                    "name (a GeoTIFF reads under .tif, keeping its georeferencing)"
+                )
             if mode not in ("L", "I", "I;16", "I;16B", "I;16L", "F"):
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "

@@ -76,3 +76,16 @@ def test_an_npz_nodata_in_a_one_element_array_marks_missing_cells_and_an_unusabl
     np.savez(tmp_path / "series_text.npz", heights=np.stack([z, z]), nodata="-32768")
     with pytest.raises(DataFileError, match="'nodata' must be one real number"):
         load_series(tmp_path / "series_text.npz")
+
+
+@pytest.mark.parametrize("fmt", ["JPEG", "TIFF", "BMP"])
+def test_an_image_that_is_not_a_png_under_a_png_name_is_refused(tmp_path, fmt):
+    # Pillow opens any format it knows whatever the name, so a lossy JPEG (its block artefacts as heights) or a TIFF
+    # (a GeoTIFF's pixels without its georeferencing: spacing 1 instead of 30 m) named .png was read silently, where
+    # load_dem checks an .npy's or .npz's content against its extension
+    path = tmp_path / "dem.png"
+    Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(path, format=fmt)
+    with pytest.raises(DataFileError, match=rf"dem\.png.*expected a PNG heightmap; got a {fmt} image"):
+        load_dem(path)
+    Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(path, format="PNG")
+    assert load_dem(path).heights[7, 7] == 63.0
