@@ -280,9 +280,9 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
     The file is read as :func:`~stepterrain.io.load_dem` reads a 2-D one: in an ``.npz`` the key it reads
     (``heights``, ``elevation`` or ``z``) decides when there is one (a 2-D ``elevation`` beside a 3-D texture is
-    one raster), and a scalar ``nodata`` marks missing cells; those and non-finite heights become NaN (nodata).
-    A finite height beyond float32, a series that is all nodata, and a file that is truncated or declares more
-    data than it holds are a :class:`~stepterrain.errors.DataFileError`."""
+    one raster), and a ``nodata`` number marks missing cells; those and non-finite heights become NaN (nodata).
+    A finite height beyond float32, a series that is all nodata, a ``nodata`` that is not one number, and a file
+    that is truncated or declares more data than it holds are a :class:`~stepterrain.errors.DataFileError`."""
     from .io import nodata_as_nan, npz_heights_key, npz_nodata, read_npy, read_npz
 
     file = Path(os.fspath(path))
@@ -295,7 +295,7 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
             key = next((k for k in loaded if loaded[k].ndim == 3), None)
         if key is None or loaded[key].ndim != 3:
             return None
-        stack, what, nodata = loaded[key], repr(key), npz_nodata(loaded.get("nodata"))
+        stack, what, nodata = loaded[key], repr(key), npz_nodata(loaded.get("nodata"), file)
     if stack.ndim != 3:
         return None
     if stack.dtype.kind not in "iuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:

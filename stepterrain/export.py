@@ -73,6 +73,19 @@ def probe_writable(folder: Path) -> OSError | None:
     return None
 
 
+#: The longest file name (bytes) most file systems hold; a temporary name adds 14 bytes (".", ".XXXXXXXX.tmp").
+_NAME_MAX = 255
+
+
+def _temporary_stem(name: str) -> str:
+    """``name`` for :func:`atomic_path`'s temporary ``.<name>.XXXXXXXX.tmp``, cut to fit :data:`_NAME_MAX` bytes: a
+    target name of 242 to 255 bytes is valid, but its temporary name was not (ENAMETOOLONG), and the write was
+    refused as "cannot write in the output folder"."""
+    raw = os.fsencode(name)
+    room = _NAME_MAX - len(".") - len(".XXXXXXXX.tmp")
+    return name if len(raw) <= room else os.fsdecode(raw[:room])
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
@@ -97,7 +110,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     if not os.access(folder, os.W_OK):
         raise DataFileError(f"output folder {str(folder)!r} is not writable")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+        fd, tmp = tempfile.mkstemp(prefix=f".{_temporary_stem(target.name)}.", suffix=".tmp", dir=folder)
     except OSError as exc:
         raise DataFileError(f"cannot write in the output folder {str(folder)!r}: {exc.strerror}") from exc
     os.close(fd)

@@ -21,7 +21,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .errors import DataFileError, InvalidInputError, MissingDependencyError
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
@@ -58,8 +58,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
         (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
-        one per row and column, georeference them as geographic, the layout of the global relief grids; a scalar
-        ``nodata`` marks missing cells), ``.png`` (8- or 16-bit greyscale
+        one per row and column, georeference them as geographic, the layout of the global relief grids; a
+        ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
@@ -89,9 +89,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     InvalidInputError
         Unknown extension (the message lists the supported ones), or ``band`` not a valid band number.
     DataFileError
-        The file does not exist, cannot be read, or is not elevation data (a colour image, a 1-D array,
-        text, an archive without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90,
-        ``lat``/``lon`` axes not matching the heights or unevenly spaced, nothing but nodata).
+        The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
+        under a .png name, a 1-D array, text, an archive without a 2-D array, a rotated grid, a geographic grid whose
+        latitudes lie beyond ±90, ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz
+        ``nodata`` that is not one real number, nothing but nodata).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -120,17 +121,19 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         raise DataFileError(f"DEM file {str(file)!r} does not exist")
     if not file.is_file():
         raise DataFileError(f"DEM path {str(file)!r} is not a regular file")
-    if ext in (".tif", ".tiff"):
-        return _load_geotiff(file, int(band))
-    if band != 1:
+    if ext not in (".tif", ".tiff") and band != 1:
         raise InvalidInputError(
             f"band applies to GeoTIFF only; {str(file)!r} holds one band, got band={band}"
         )
-    if ext == ".npy":
-        return _load_npy(file)
-    if ext == ".npz":
-        return _load_npz(file)
-    return _load_png(file)
+    reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
+    try:
+        return _load_geotiff(file, int(band)) if reader is None else reader(file)
+    except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
+        if isinstance(exc, StepTerrainError):
+            raise
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected elevation data that fits in memory; got {exc}"
+        ) from exc
 
 
 def sample_dem() -> Terrain:
@@ -283,7 +286,7 @@ def _load_npz(file: Path) -> Terrain:
         return _grid(
             file, _elevation(arrays, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
         )
-    nodata = npz_nodata(arrays.get("nodata"))
+    nodata = npz_nodata(arrays.get("nodata"), file)
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
     # the same key with a transform (which georeferences it) and without
     key = npz_heights_key(arrays, (2,))
@@ -374,12 +377,22 @@ def _load_png(file: Path) -> Terrain:
     try:
         with Image.open(file) as image:
             mode = image.mode
+            if image.format != "PNG":  # Pillow opens any image it knows: a lossy JPEG, a GeoTIFF's bare pixels
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a PNG heightmap; got a {image.format} image under a .png "
+                    "name (a GeoTIFF reads under .tif, keeping its georeferencing)"
+                )
             if mode not in ("L", "I", "I;16", "I;16B", "I;16L", "F"):
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "
                     f"got a {mode} image (colour or palette images are not elevation data)"
                 )
             array = np.array(image)
+    except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a PNG heightmap within Pillow's decompression-bomb limit "
+            f"(PIL.Image.MAX_IMAGE_PIXELS); got {exc} (a DEM this large reads as a GeoTIFF or .npy)"
+        ) from exc
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         if isinstance(exc, DataFileError):
             raise
@@ -529,12 +542,21 @@ def _scalar_str(value: Any) -> str | None:
     return text or None
 
 
-def npz_nodata(value: Any) -> float | None:
-    """The finite nodata value an .npz stores under ``nodata`` (a real scalar), else None."""
+def npz_nodata(value: Any, file: Path) -> float | None:
+    """The finite nodata value an .npz stores under ``nodata`` (a real scalar, or one real number in an array: what
+    ``np.savez(nodata=dataset.nodatavals)`` stores), None without one or for a non-finite one (NaN heights are
+    nodata anyway); anything else (text, a bool, several values) is a DataFileError naming ``file``: it was
+    ignored, and the cells it marks were read as heights (-32768 pits in the mesh)."""
     if value is None:
         return None
     arr = np.asarray(value)
-    if arr.ndim != 0 or arr.dtype.kind not in "iuf" or not np.isfinite(arr):
+    if arr.size != 1 or arr.dtype.kind not in "iuf":
+        got = f"{arr.dtype} {arr.tolist()!r:.80}" if arr.ndim else f"{arr.dtype} {arr.item()!r:.80}"
+        raise DataFileError(
+            f"cannot read {str(file)!r}: 'nodata' must be one real number (the value of missing cells); got {got}"
+        )
+    arr = arr.reshape(())
+    if not np.isfinite(arr):
         return None
     return float(arr)
 

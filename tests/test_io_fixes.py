@@ -1,0 +1,91 @@
+"""load_dem / save_mesh / save_image bugs found by an adversarial pass over the shared input and output rooms (each
+test failed before its fix)."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from stepterrain.errors import DataFileError
+from stepterrain.export import save_image, save_mesh
+from stepterrain.io import load_dem
+
+
+def test_a_png_beyond_pillows_pixel_limit_is_a_data_file_error(tmp_path, monkeypatch):
+    # a 20000 x 10000 heightmap (200 M pixels, over Pillow's 179 M) raised PIL.Image.DecompressionBombError, which
+    # is no OSError and went past load_dem as a raw Pillow exception; the limit is lowered here to keep the file small
+    path = tmp_path / "large.png"
+    Image.fromarray(np.zeros((40, 30), np.uint16)).save(path)
+    monkeypatch.setattr(Image, "MAX_IMAGE_PIXELS", 100)
+    with pytest.raises(DataFileError, match=r"large\.png.*decompression-bomb limit.*1200 pixels"):
+        load_dem(path)
+
+
+def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
+    # a sparse GeoTIFF of a few kB whose header declares 1,000,000 x 1,000,000 cells raised numpy's raw MemoryError
+    # ("Unable to allocate 3.64 TiB") from rasterio's read
+    rasterio = pytest.importorskip("rasterio")
+    path = tmp_path / "huge.tif"
+    profile = {"driver": "GTiff", "width": 1_000_000, "height": 1_000_000, "count": 1, "dtype": "float32",
+               "tiled": True, "blockxsize": 4096, "blockysize": 4096, "sparse_ok": True, "BIGTIFF": "YES",
+               "transform": rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0), "crs": "EPSG:32611"}
+    with rasterio.open(path, "w", **profile):
+        pass
+    assert path.stat().st_size < 10_000_000
+    with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
+        load_dem(path)
+
+
+@pytest.mark.parametrize("length", [241, 242, 250, 255])
+def test_a_file_name_near_the_file_system_limit_is_written(tmp_path, length):
+    # atomic_path's temporary file is named ".<name>.XXXXXXXX.tmp", 14 bytes longer than its target: a valid name of
+    # 242-255 bytes made it too long (ENAMETOOLONG), refused as "cannot write in the output folder"
+    mesh = trimesh.creation.box()
+    for ext, write in ((".ply", lambda p: save_mesh(mesh, p)),
+                       (".png", lambda p: save_image(np.zeros((2, 3, 3), np.uint8), p))):
+        path = tmp_path / ("é" * ((length - len(ext)) // 2) + "a" * ((length - len(ext)) % 2) + ext)
+        assert len(os.fsencode(path.name)) == length
+        assert write(path) == path
+        assert os.listdir(tmp_path).count(path.name) == 1
+    assert len(trimesh.load(tmp_path / path.name.replace(".png", ".ply")).faces) == 12
+    assert not [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
+
+
+def test_an_npz_nodata_in_a_one_element_array_marks_missing_cells_and_an_unusable_one_is_refused(tmp_path):
+    # np.savez(..., nodata=dataset.nodatavals) stores rasterio's per-band tuple, shape (1,): npz_nodata took only a
+    # 0-d value and ignored it silently, so the -32768 cells became heights (pits in the mesh); text or a mask under
+    # 'nodata' was ignored the same way. load_series (batch) reads 'nodata' through the same function.
+    from stepterrain.batch import load_series
+
+    z = np.array([[100, -32768, 102], [103, 104, 105]], np.int16)
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    np.savez(tmp_path / "tuple.npz", elevation=z, transform=transform, crs="EPSG:32611", nodata=(-32768.0,))
+    h = load_dem(tmp_path / "tuple.npz").heights
+    assert np.isnan(h[0, 1]) and np.isfinite(h).sum() == 5
+    np.savez(tmp_path / "series.npz", heights=np.stack([z, z]), nodata=np.array([-32768]))
+    assert np.isnan(load_series(tmp_path / "series.npz")[:, 0, 1]).all()
+    for name, nodata, got in (("text.npz", "-32768", "'-32768'"), ("mask.npz", z == -32768, "bool"),
+                              ("two.npz", (-32768.0, -9999.0), r"\[-32768.0, -9999.0\]")):
+        np.savez(tmp_path / name, heights=z, nodata=nodata)
+        with pytest.raises(DataFileError, match=rf"{name}.*'nodata' must be one real number.*got .*{got}"):
+            load_dem(tmp_path / name)
+    np.savez(tmp_path / "series_text.npz", heights=np.stack([z, z]), nodata="-32768")
+    with pytest.raises(DataFileError, match="'nodata' must be one real number"):
+        load_series(tmp_path / "series_text.npz")
+
+
+@pytest.mark.parametrize("fmt", ["JPEG", "TIFF", "BMP"])
+def test_an_image_that_is_not_a_png_under_a_png_name_is_refused(tmp_path, fmt):
+    # Pillow opens any format it knows whatever the name, so a lossy JPEG (its block artefacts as heights) or a TIFF
+    # (a GeoTIFF's pixels without its georeferencing: spacing 1 instead of 30 m) named .png was read silently, where
+    # load_dem checks an .npy's or .npz's content against its extension
+    path = tmp_path / "dem.png"
+    Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(path, format=fmt)
+    with pytest.raises(DataFileError, match=rf"dem\.png.*expected a PNG heightmap; got a {fmt} image"):
+        load_dem(path)
+    Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(path, format="PNG")
+    assert load_dem(path).heights[7, 7] == 63.0
