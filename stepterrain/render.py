@@ -186,6 +186,7 @@ def _camera_position(
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}") from exc
         if spec.shape == (3, 3) and np.all(np.isfinite(spec)):
+            _check_position(spec, camera)
             return [tuple(row) for row in spec.tolist()]
         if spec.shape != (2,) or not np.all(np.isfinite(spec)):
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
@@ -209,6 +210,22 @@ def _camera_position(
     distance = _fit_distance(corners - focal, view_dir, up, aspect) * 1.06
     eye = focal + view_dir * distance
     return [tuple(eye.tolist()), tuple(focal.tolist()), tuple(up.tolist())]
+
+
+def _check_position(spec: NDArray[np.float64], camera: Any) -> None:
+    """An InvalidInputError unless the explicit camera position (3, 3) has an eye apart from its focal point and
+    a view up that is neither zero nor parallel to the view direction: VTK rendered such a camera blank (or
+    raised its own ValueError for a zero up), without naming the camera."""
+    eye, focal, up = spec
+    with np.errstate(over="ignore", invalid="ignore"):
+        forward = focal - eye
+        length, up_length = float(np.linalg.norm(forward)), float(np.linalg.norm(up))
+        usable = (math.isfinite(length) and length > 0 and math.isfinite(up_length) and up_length > 0
+                  and float(np.linalg.norm(np.cross(forward / length, up / up_length))) > 1e-9)
+    if not usable:
+        raise InvalidInputError(
+            f"camera [(eye), (focal point), (view up)] needs an eye apart from its focal point and a view up that is "
+            f"neither zero nor parallel to the view direction (all within float64 range); got {camera!r}")
 
 
 def _lights(pv: Any, bounds: NDArray[np.float64], fill: tuple[float, float]) -> list[Any]:

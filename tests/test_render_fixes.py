@@ -1,0 +1,43 @@
+"""Regression tests for render.py bugs found by an adversarial hunt (bad cameras, read-back rects)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from stepterrain import render
+from stepterrain.errors import InvalidInputError
+
+from .conftest import needs_render
+
+VERTICES = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 5]], float)
+FACES = np.array([[0, 1, 2], [1, 3, 2]])
+
+
+@pytest.mark.parametrize("camera", [
+    [(0, 0, 0), (0, 0, 0), (0, 0, 1)],          # eye on the focal point: rendered blank
+    [(0, 0, 30), (0, 0, 0), (0, 0, 1)],         # view up along the view direction: rendered blank
+    [(0, 0, 30), (0, 0, 0), (0, 0, -2)],        # ... or against it
+    [(0, -20, 20), (0, 0, 0), (0, 0, 0)],       # zero view up: VTK's own ValueError
+    [(1e300, 0, 0), (0, 0, 0), (0, 0, 1)],      # a view direction whose length overflows: rendered blank
+])
+def test_a_degenerate_explicit_camera_position_is_named(camera):
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs .*; got "):
+        render.render_mesh(mesh, window_size=(32, 32), camera=camera)
+
+
+@needs_render
+def test_a_usable_explicit_camera_position_still_renders():
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = render.render_mesh(mesh, window_size=(32, 32), camera=[(0, -20, 20), (0, 0, 0), (0, 0, 1)])
+    assert (image < 250).any(axis=2).sum() > 50
+
+
+@needs_render
+def test_layered_renderer_refuses_a_degenerate_view_camera():
+    with render.LayeredRenderer(window_size=(32, 32)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs"):
+            renderer.set_view([(5, 5, 40), (5, 5, 0), (0, 0, 1)], [[0, 0, 0], [10, 10, 5]])
