@@ -961,24 +961,35 @@ class LayeredRenderer:
         unknown = wanted - set(self._actors)
         if unknown:
             raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")
-        key = tuple(sorted(wanted)) + (() if rect is None else (tuple(int(v) for v in rect),))
+        if rect is not None:  # before the pass key: int() truncated 1.7 and read True as 1, 'abcd' raised its own
+            rect = self._check_rect(rect)
+        key = tuple(sorted(wanted)) + (() if rect is None else (rect,))
         state = (self._view_version, tuple(self._versions.get(n, 0) for n in sorted(wanted)))
         cached = self._passes.get(key)
         if reuse and cached is not None and cached[0] == state:
             return cached[1], cached[2]
         for name, actor in self._actors.items():
             actor.SetVisibility(name in wanted)
-        if rect is not None:
-            width, height = self.size
-            c0, r0, c1, r1 = (int(v) for v in rect)
-            if not (0 <= c0 <= c1 <= width and 0 <= r0 <= r1 <= height):
-                raise InvalidInputError(f"rect must lie in the {width}x{height} window as (col0, row0, col1, "
-                                        f"row1); got {rect!r}")
-            rect = (c0, r0, c1, r1)
         color, depth = self._read(self._plotter, rect)
         if reuse:
             self._passes[key] = (state, color, depth)
         return color, depth
+
+    def _check_rect(self, rect: Any) -> tuple[int, int, int, int]:
+        """``rect`` (col0, row0, col1, row1) as four ints inside the window, else an InvalidInputError naming it."""
+        width, height = self.size
+        expected = f"four whole pixel numbers (col0, row0, col1, row1) in the {width}x{height} window"
+        try:
+            sides = [_whole_pixels(v) for v in rect] if not isinstance(rect, (str, bytes)) else []
+        except TypeError:  # not a sequence
+            sides = []
+        if len(sides) != 4 or None in sides:
+            raise InvalidInputError(f"rect must be {expected}; got {rect!r}")
+        c0, r0, c1, r1 = sides
+        if not (0 <= c0 <= c1 <= width and 0 <= r0 <= r1 <= height):
+            raise InvalidInputError(f"rect must lie in the {width}x{height} window as (col0, row0, col1, "
+                                    f"row1); got {rect!r}")
+        return c0, r0, c1, r1
 
     def render_layers(self, prefix: str, layers: dict[int, tuple[Any, Any, dict[str, Any]]], *,
                       merge: bool = True, crop: bool = False) -> dict[int, tuple[Any, ...]]:

@@ -41,3 +41,21 @@ def test_layered_renderer_refuses_a_degenerate_view_camera():
         renderer.set_mesh("a", VERTICES, FACES)
         with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs"):
             renderer.set_view([(5, 5, 40), (5, 5, 0), (0, 0, 1)], [[0, 0, 0], [10, 10, 5]])
+
+
+@needs_render
+@pytest.mark.parametrize("rect", ["abcd", 5, (0, 0, 10), (np.nan, 0, 10, 10), (1.7, 0, 10.2, 10), (0.5, 0, 10, 10),
+                                  (True, 0, 10, 10)])
+def test_render_names_a_bad_rect(rect):
+    """int() read 'abcd' (ValueError), 5 (TypeError), a 3-tuple failed to unpack, NaN raised its own ValueError:
+    raw tracebacks; 1.7 and 10.2 were truncated and True read as 1: a silently shifted crop."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        renderer.set_view("oblique", [[0, 0, 0], [10, 10, 5]])
+        for reuse in (False, True):
+            with pytest.raises(InvalidInputError, match=r"rect must be four whole pixel numbers .* 64x48 .*; got "):
+                renderer.render(["a"], rect=rect, reuse=reuse)
+        color, depth = renderer.render(["a"], rect=(0, 0, 10.0, np.int64(8)))  # whole numbers of any type
+        full, _ = renderer.render(["a"])
+        assert color.shape == (8, 10, 3) and depth.shape == (8, 10)
+        np.testing.assert_array_equal(color, full[:8, :10])
