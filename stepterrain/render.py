@@ -608,6 +608,7 @@ def render_textured_mesh(
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
     uv = _texture_coordinates(uv)
+    picture = _texture_picture(image)
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
@@ -616,13 +617,30 @@ def render_textured_mesh(
     _check_background(pv, background)
     poly = _polydata(pv, local, mesh.faces)
     poly.active_texture_coordinates = uv
-    picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
-    texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
+    texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
     mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
                        diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting)
+
+
+def _texture_picture(image: Any) -> NDArray[np.uint8]:
+    """The texture image as the contiguous uint8 array VTK gets, else an InvalidInputError: casting to uint8
+    wrapped a uint16 array modulo 256 and truncated a float one in [0, 1] to black, and Pillow's conversion of a
+    16-bit image to RGB saturated it almost all white (:func:`~stepterrain.io.picture_uint8` scales it, as the
+    texture pyramid reads it)."""
+    from .io import picture_uint8
+
+    what = "the mesh's texture image"
+    if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image
+        return np.ascontiguousarray(picture_uint8(image, what))
+    array = np.asarray(image)
+    if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (1, 3, 4))) \
+            or array.size == 0:
+        raise InvalidInputError(f"{what} must be an (H, W), (H, W, 3) or (H, W, 4) uint8 array or a Pillow image; "
+                                f"got dtype {array.dtype}, shape {array.shape}")
+    return np.ascontiguousarray(array)
 
 
 def _texture_coordinates(uv: Any) -> NDArray[np.float32]:

@@ -59,3 +59,37 @@ def test_render_names_a_bad_rect(rect):
         full, _ = renderer.render(["a"])
         assert color.shape == (8, 10, 3) and depth.shape == (8, 10)
         np.testing.assert_array_equal(color, full[:8, :10])
+
+
+def textured(image) -> trimesh.Trimesh:
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    uv = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], float)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    return mesh
+
+
+@pytest.mark.parametrize("image", [np.full((4, 4, 3), 60000, np.uint16),     # wrapped modulo 256: 60000 drew 96
+                                   np.full((4, 4, 3), 0.5, np.float32),       # truncated to 0: drew black
+                                   np.full((4, 4, 2), 9, np.uint8)])
+def test_a_texture_image_that_is_not_uint8_is_named(image):
+    with pytest.raises(InvalidInputError, match=r"texture image must be .* uint8 array .*; got dtype"):
+        render.render_textured_mesh(textured(image), window_size=(32, 32), lighting=False)
+
+
+def test_a_float_pillow_texture_is_named():
+    from PIL import Image
+
+    with pytest.raises(InvalidInputError, match=r"texture image must be an 8-bit or 16-bit image; got Pillow mode F"):
+        render.render_textured_mesh(textured(Image.new("F", (4, 4), 0.5)), window_size=(32, 32), lighting=False)
+
+
+@needs_render
+def test_a_16_bit_pillow_texture_is_scaled_not_saturated():
+    """Pillow's convert('RGB') saturated every 16-bit value above 255: a 16-bit texture drew white."""
+    from PIL import Image
+
+    image = render.render_textured_mesh(textured(Image.new("I;16", (4, 4), 100 * 257)), window_size=(32, 32),
+                                        lighting=False)
+    assert abs(int(image[16, 16, 0]) - 100) <= 2
+    gray = render.render_textured_mesh(textured(Image.new("L", (4, 4), 100)), window_size=(32, 32), lighting=False)
+    np.testing.assert_array_equal(image, gray)
