@@ -213,3 +213,13 @@ def test_interactive_example_writes_a_png(tmp_path):
     with Image.open(out) as image:
         array = np.asarray(image)
     assert array.shape[:2] == (120, 160) and array.std() > 5
+
+
+@pytest.mark.parametrize("origin", [(0.0, 0.0, np.nan), (0.0, 0.0, np.inf), (np.nan, 0.0, 0.0), (0.0, -np.inf, 0.0)])
+def test_a_non_finite_origin_is_named_as_the_grid_origin(origin):
+    """A NaN origin z was reported as "terrain has no finite height (all nodata)", an infinite one as an infinite
+    elevation at index (0, 0), and a NaN x as Terrain's "origin must be a pair": none named the grid's origin."""
+    grid = image_grid(np.add.outer(np.arange(3.0), np.arange(4.0)))
+    grid.origin = origin
+    with pytest.raises(InvalidInputError, match=r"^the grid's origin .* must be finite; got origin \("):
+        grid.stepterrain.stepped(interval=1.0, device="cpu")
