@@ -223,3 +223,16 @@ def test_a_non_finite_origin_is_named_as_the_grid_origin(origin):
     grid.origin = origin
     with pytest.raises(InvalidInputError, match=r"^the grid's origin .* must be finite; got origin \("):
         grid.stepterrain.stepped(interval=1.0, device="cpu")
+
+
+@pytest.mark.parametrize(("args", "match"), [(["--size", "0"], "--size must be at least 2"),      # ZeroDivisionError
+                                             (["--size", "-3"], "--size must be at least 2"),     # the full DEM
+                                             (["--window", "0", "0"], "--window must be W H of 8"),  # a 300 x 300 PNG
+                                             (["--window", "160", "99999"], "--window must be W H of 8")])
+def test_interactive_example_names_a_bad_size_or_window(tmp_path, capsys, args, match):
+    example = load_example("interactive")
+    out = tmp_path / "interactive.png"
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*args, "--output", str(out), "--device", "cpu"])
+    assert exit_info.value.code == 2 and match in capsys.readouterr().err
+    assert not out.exists()
