@@ -100,6 +100,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--interactive", action="store_true", help="open a window instead of writing a PNG")
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda:0 (default: Warp's)")
     args = parser.parse_args(argv)
+    if args.size < 2:  # 0 raised a ZeroDivisionError, a negative size stepped the full DEM without a word
+        parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    if not all(8 <= side <= 16384 for side in args.window):  # 0 0 wrote pyvista's default 300 x 300 image
+        parser.error(f"--window must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.window))}")
     plotter = pv.Plotter(off_screen=not args.interactive, window_size=tuple(args.window))
     plotter.set_background("white")
     build(plotter, dem_grid(args.size), device=args.device)

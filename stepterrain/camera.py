@@ -129,6 +129,10 @@ class Camera:
             object.__setattr__(self, "viewport", (max(1, round(_DEFAULT_HEIGHT * self.aspect)), _DEFAULT_HEIGHT))
         if not (math.isfinite(self.near) and math.isfinite(self.far) and 0.0 < self.near < self.far):
             raise InvalidInputError(f"Camera needs 0 < near < far (finite); got near={self.near!r}, far={self.far!r}")
+        tan = math.tan(self.fov / 2.0)  # the screen-space errors came out NaN (the root drawn, unrefined), or 0
+        if tan == 0.0 or not math.isfinite(self.viewport[1] / 2.0 / tan):
+            raise InvalidInputError(f"Camera fov must be wide enough for a finite focal length in pixels (viewport "
+                                    f"height / 2 / tan(fov / 2)); got fov={self.fov!r} with viewport {self.viewport}")
 
     def frame(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Unit forward, right and up vectors of the camera."""

@@ -101,6 +101,10 @@ class StepTerrainAccessor:
             # a .vti piece) or given an offset starts past 0, and its origin alone put the terraces there
             i0, _, j0, _, k0, _ = (int(e) for e in ds.extent)
             ox, oy, oz = (float(o) + k * d for o, k, d in zip(ds.origin, (i0, j0, k0), (dx, dy, dz), strict=True))
+            if not np.isfinite([ox, oy, oz]).all():  # a NaN z was reported as "no finite height", inf as heights'
+                raise InvalidInputError(f"the grid's origin (and its extent start times spacing) must be finite; got "
+                                        f"origin {tuple(float(o) for o in ds.origin)}, node (0, 0, 0) at "
+                                        f"({ox:g}, {oy:g}, {oz:g})")
             if oz != 0.0:  # added in float64: a sum beyond float32 is named, not inf
                 heights = float32_heights(heights.astype(np.float64) + oz, "elevation + the grid's origin z")
             return Terrain.from_heights(heights, spacing=(dx, dy), origin=(ox, oy), source="pyvista.ImageData")

@@ -186,6 +186,7 @@ def _camera_position(
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
                                     f"[(eye), (focal point), (view up)]; got {camera!r}") from exc
         if spec.shape == (3, 3) and np.all(np.isfinite(spec)):
+            _check_position(spec, camera)
             return [tuple(row) for row in spec.tolist()]
         if spec.shape != (2,) or not np.all(np.isfinite(spec)):
             raise InvalidInputError(f"camera must be 'oblique', 'top', (azimuth, elevation) in radians or "
@@ -209,6 +210,22 @@ def _camera_position(
     distance = _fit_distance(corners - focal, view_dir, up, aspect) * 1.06
     eye = focal + view_dir * distance
     return [tuple(eye.tolist()), tuple(focal.tolist()), tuple(up.tolist())]
+
+
+def _check_position(spec: NDArray[np.float64], camera: Any) -> None:
+    """An InvalidInputError unless the explicit camera position (3, 3) has an eye apart from its focal point and
+    a view up that is neither zero nor parallel to the view direction: VTK rendered such a camera blank (or
+    raised its own ValueError for a zero up), without naming the camera."""
+    eye, focal, up = spec
+    with np.errstate(over="ignore", invalid="ignore"):
+        forward = focal - eye
+        length, up_length = float(np.linalg.norm(forward)), float(np.linalg.norm(up))
+        usable = (math.isfinite(length) and length > 0 and math.isfinite(up_length) and up_length > 0
+                  and float(np.linalg.norm(np.cross(forward / length, up / up_length))) > 1e-9)
+    if not usable:
+        raise InvalidInputError(
+            f"camera [(eye), (focal point), (view up)] needs an eye apart from its focal point and a view up that is "
+            f"neither zero nor parallel to the view direction (all within float64 range); got {camera!r}")
 
 
 def _lights(pv: Any, bounds: NDArray[np.float64], fill: tuple[float, float]) -> list[Any]:
@@ -591,6 +608,7 @@ def render_textured_mesh(
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
     uv = _texture_coordinates(uv)
+    picture = _texture_picture(image)
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
@@ -599,13 +617,30 @@ def render_textured_mesh(
     _check_background(pv, background)
     poly = _polydata(pv, local, mesh.faces)
     poly.active_texture_coordinates = uv
-    picture = np.asarray(image.convert("RGB") if hasattr(image, "convert") else image, dtype=np.uint8)
-    texture = pv.Texture(np.ascontiguousarray(picture))  # row 0 = the top of the image (v = 1)
+    texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
     mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
                        diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting)
+
+
+def _texture_picture(image: Any) -> NDArray[np.uint8]:
+    """The texture image as the contiguous uint8 array VTK gets, else an InvalidInputError: casting to uint8
+    wrapped a uint16 array modulo 256 and truncated a float one in [0, 1] to black, and Pillow's conversion of a
+    16-bit image to RGB saturated it almost all white (:func:`~stepterrain.io.picture_uint8` scales it, as the
+    texture pyramid reads it)."""
+    from .io import picture_uint8
+
+    what = "the mesh's texture image"
+    if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image
+        return np.ascontiguousarray(picture_uint8(image, what))
+    array = np.asarray(image)
+    if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (1, 3, 4))) \
+            or array.size == 0:
+        raise InvalidInputError(f"{what} must be an (H, W), (H, W, 3) or (H, W, 4) uint8 array or a Pillow image; "
+                                f"got dtype {array.dtype}, shape {array.shape}")
+    return np.ascontiguousarray(array)
 
 
 def _texture_coordinates(uv: Any) -> NDArray[np.float32]:
@@ -944,24 +979,35 @@ class LayeredRenderer:
         unknown = wanted - set(self._actors)
         if unknown:
             raise InvalidInputError(f"no layer named {sorted(unknown)}; have {sorted(self._actors)}")
-        key = tuple(sorted(wanted)) + (() if rect is None else (tuple(int(v) for v in rect),))
+        if rect is not None:  # before the pass key: int() truncated 1.7 and read True as 1, 'abcd' raised its own
+            rect = self._check_rect(rect)
+        key = tuple(sorted(wanted)) + (() if rect is None else (rect,))
         state = (self._view_version, tuple(self._versions.get(n, 0) for n in sorted(wanted)))
         cached = self._passes.get(key)
         if reuse and cached is not None and cached[0] == state:
             return cached[1], cached[2]
         for name, actor in self._actors.items():
             actor.SetVisibility(name in wanted)
-        if rect is not None:
-            width, height = self.size
-            c0, r0, c1, r1 = (int(v) for v in rect)
-            if not (0 <= c0 <= c1 <= width and 0 <= r0 <= r1 <= height):
-                raise InvalidInputError(f"rect must lie in the {width}x{height} window as (col0, row0, col1, "
-                                        f"row1); got {rect!r}")
-            rect = (c0, r0, c1, r1)
         color, depth = self._read(self._plotter, rect)
         if reuse:
             self._passes[key] = (state, color, depth)
         return color, depth
+
+    def _check_rect(self, rect: Any) -> tuple[int, int, int, int]:
+        """``rect`` (col0, row0, col1, row1) as four ints inside the window, else an InvalidInputError naming it."""
+        width, height = self.size
+        expected = f"four whole pixel numbers (col0, row0, col1, row1) in the {width}x{height} window"
+        try:
+            sides = [_whole_pixels(v) for v in rect] if not isinstance(rect, (str, bytes)) else []
+        except TypeError:  # not a sequence
+            sides = []
+        if len(sides) != 4 or None in sides:
+            raise InvalidInputError(f"rect must be {expected}; got {rect!r}")
+        c0, r0, c1, r1 = sides
+        if not (0 <= c0 <= c1 <= width and 0 <= r0 <= r1 <= height):
+            raise InvalidInputError(f"rect must lie in the {width}x{height} window as (col0, row0, col1, "
+                                    f"row1); got {rect!r}")
+        return c0, r0, c1, r1
 
     def render_layers(self, prefix: str, layers: dict[int, tuple[Any, Any, dict[str, Any]]], *,
                       merge: bool = True, crop: bool = False) -> dict[int, tuple[Any, ...]]:

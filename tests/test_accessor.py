@@ -213,3 +213,26 @@ def test_interactive_example_writes_a_png(tmp_path):
     with Image.open(out) as image:
         array = np.asarray(image)
     assert array.shape[:2] == (120, 160) and array.std() > 5
+
+
+@pytest.mark.parametrize("origin", [(0.0, 0.0, np.nan), (0.0, 0.0, np.inf), (np.nan, 0.0, 0.0), (0.0, -np.inf, 0.0)])
+def test_a_non_finite_origin_is_named_as_the_grid_origin(origin):
+    """A NaN origin z was reported as "terrain has no finite height (all nodata)", an infinite one as an infinite
+    elevation at index (0, 0), and a NaN x as Terrain's "origin must be a pair": none named the grid's origin."""
+    grid = image_grid(np.add.outer(np.arange(3.0), np.arange(4.0)))
+    grid.origin = origin
+    with pytest.raises(InvalidInputError, match=r"^the grid's origin .* must be finite; got origin \("):
+        grid.stepterrain.stepped(interval=1.0, device="cpu")
+
+
+@pytest.mark.parametrize(("args", "match"), [(["--size", "0"], "--size must be at least 2"),      # ZeroDivisionError
+                                             (["--size", "-3"], "--size must be at least 2"),     # the full DEM
+                                             (["--window", "0", "0"], "--window must be W H of 8"),  # a 300 x 300 PNG
+                                             (["--window", "160", "99999"], "--window must be W H of 8")])
+def test_interactive_example_names_a_bad_size_or_window(tmp_path, capsys, args, match):
+    example = load_example("interactive")
+    out = tmp_path / "interactive.png"
+    with pytest.raises(SystemExit) as exit_info:
+        example.main([*args, "--output", str(out), "--device", "cpu"])
+    assert exit_info.value.code == 2 and match in capsys.readouterr().err
+    assert not out.exists()

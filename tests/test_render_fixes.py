@@ -1,0 +1,95 @@
+"""Regression tests for render.py bugs found by an adversarial hunt (bad cameras, read-back rects)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from stepterrain import render
+from stepterrain.errors import InvalidInputError
+
+from .conftest import needs_render
+
+VERTICES = np.array([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 5]], float)
+FACES = np.array([[0, 1, 2], [1, 3, 2]])
+
+
+@pytest.mark.parametrize("camera", [
+    [(0, 0, 0), (0, 0, 0), (0, 0, 1)],          # eye on the focal point: rendered blank
+    [(0, 0, 30), (0, 0, 0), (0, 0, 1)],         # view up along the view direction: rendered blank
+    [(0, 0, 30), (0, 0, 0), (0, 0, -2)],        # ... or against it
+    [(0, -20, 20), (0, 0, 0), (0, 0, 0)],       # zero view up: VTK's own ValueError
+    [(1e300, 0, 0), (0, 0, 0), (0, 0, 1)],      # a view direction whose length overflows: rendered blank
+])
+def test_a_degenerate_explicit_camera_position_is_named(camera):
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs .*; got "):
+        render.render_mesh(mesh, window_size=(32, 32), camera=camera)
+
+
+@needs_render
+def test_a_usable_explicit_camera_position_still_renders():
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = render.render_mesh(mesh, window_size=(32, 32), camera=[(0, -20, 20), (0, 0, 0), (0, 0, 1)])
+    assert (image < 250).any(axis=2).sum() > 50
+
+
+@needs_render
+def test_layered_renderer_refuses_a_degenerate_view_camera():
+    with render.LayeredRenderer(window_size=(32, 32)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs"):
+            renderer.set_view([(5, 5, 40), (5, 5, 0), (0, 0, 1)], [[0, 0, 0], [10, 10, 5]])
+
+
+@needs_render
+@pytest.mark.parametrize("rect", ["abcd", 5, (0, 0, 10), (np.nan, 0, 10, 10), (1.7, 0, 10.2, 10), (0.5, 0, 10, 10),
+                                  (True, 0, 10, 10)])
+def test_render_names_a_bad_rect(rect):
+    """int() read 'abcd' (ValueError), 5 (TypeError), a 3-tuple failed to unpack, NaN raised its own ValueError:
+    raw tracebacks; 1.7 and 10.2 were truncated and True read as 1: a silently shifted crop."""
+    with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        renderer.set_view("oblique", [[0, 0, 0], [10, 10, 5]])
+        for reuse in (False, True):
+            with pytest.raises(InvalidInputError, match=r"rect must be four whole pixel numbers .* 64x48 .*; got "):
+                renderer.render(["a"], rect=rect, reuse=reuse)
+        color, depth = renderer.render(["a"], rect=(0, 0, 10.0, np.int64(8)))  # whole numbers of any type
+        full, _ = renderer.render(["a"])
+        assert color.shape == (8, 10, 3) and depth.shape == (8, 10)
+        np.testing.assert_array_equal(color, full[:8, :10])
+
+
+def textured(image) -> trimesh.Trimesh:
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    uv = np.array([[0, 0], [1, 0], [0, 1], [1, 1]], float)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    return mesh
+
+
+@pytest.mark.parametrize("image", [np.full((4, 4, 3), 60000, np.uint16),     # wrapped modulo 256: 60000 drew 96
+                                   np.full((4, 4, 3), 0.5, np.float32),       # truncated to 0: drew black
+                                   np.full((4, 4, 2), 9, np.uint8)])
+def test_a_texture_image_that_is_not_uint8_is_named(image):
+    with pytest.raises(InvalidInputError, match=r"texture image must be .* uint8 array .*; got dtype"):
+        render.render_textured_mesh(textured(image), window_size=(32, 32), lighting=False)
+
+
+def test_a_float_pillow_texture_is_named():
+    from PIL import Image
+
+    with pytest.raises(InvalidInputError, match=r"texture image must be an 8-bit or 16-bit image; got Pillow mode F"):
+        render.render_textured_mesh(textured(Image.new("F", (4, 4), 0.5)), window_size=(32, 32), lighting=False)
+
+
+@needs_render
+def test_a_16_bit_pillow_texture_is_scaled_not_saturated():
+    """Pillow's convert('RGB') saturated every 16-bit value above 255: a 16-bit texture drew white."""
+    from PIL import Image
+
+    image = render.render_textured_mesh(textured(Image.new("I;16", (4, 4), 100 * 257)), window_size=(32, 32),
+                                        lighting=False)
+    assert abs(int(image[16, 16, 0]) - 100) <= 2
+    gray = render.render_textured_mesh(textured(Image.new("L", (4, 4), 100)), window_size=(32, 32), lighting=False)
+    np.testing.assert_array_equal(image, gray)
