@@ -646,23 +646,6 @@ def line_span(sweep: Sweep, line: wp.int32) -> wp.vec2i:
 
 
 @wp.func
-def bundle_span(sweep: Sweep, first: wp.int32, last: wp.int32) -> wp.vec2i:
-    """[first, last) major indices where any of the lines first..last-1 lies inside the grid (the union of the
-    outer lines' spans: the lines between lie between them)."""
-    span_first = line_span(sweep, first)
-    span_last = line_span(sweep, last - 1)
-    return wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
-
-
-@wp.func
-def major_minor_node(sweep: Sweep, major: wp.int32, minor: wp.int32) -> wp.vec2i:
-    """(i, j) of the node at a major and a minor index."""
-    if sweep.major_j == 1:
-        return wp.vec2i(minor, major)
-    return wp.vec2i(major, minor)
-
-
-@wp.func
 def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
     """The k-th major index of a span in walking order (away from the light)."""
     if sweep.forward > 0:
@@ -697,7 +680,9 @@ def sweep_shadows(
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
         horizons[line] = wp.float32(-3.0e38)
-    span = bundle_span(sweep, first, last)
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
     k = wp.int32(0)
     while k < span[1] - span[0]:
         major = walk_major(sweep, span, k)
@@ -705,9 +690,12 @@ def sweep_shadows(
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
         while line < hi:
-            node = major_minor_node(sweep, major, line + offset)
-            i = node[0]
-            j = node[1]
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
             h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
             if grid.has_nodata != 0 and wp.isnan(h):
                 store(shadow_out, i, j, wp.uint8(0))
@@ -749,15 +737,18 @@ def sweep_occlusion(
     occlusion_out: wp.array2d[wp.float32],
 ):
     """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA), walked in lockstep as in
-    :func:`sweep_shadows`: the horizon angle of each node towards the light side (the upper convex hull of its
-    line's earlier nodes, a stack at ``offsets[line]`` whose last index is ``tops[line]``, amortised O(1)); adds
-    weight * sin(horizon angle), at least 0, to ``occlusion_out``. Each line sees its nodes in the same order as
-    when walked alone, so the values do not depend on the bundle."""
+    :func:`sweep_shadows`, whose loop it repeats (the bundle span and the node's (i, j) as shared functions made
+    the occlusion 6-10 % slower, RESULTS.md "Session 24"): the horizon angle of each node towards the light side
+    (the upper convex hull of its line's earlier nodes, a stack at ``offsets[line]`` whose last index is
+    ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at least 0, to ``occlusion_out``. Each line
+    sees its nodes in the same order as when walked alone, so the values do not depend on the bundle."""
     first = (wp.tid() + thread_offset) * lines_per_thread
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
         store(tops, line, -1)  # index of the hull's last point, relative to the line's base
-    span = bundle_span(sweep, first, last)
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
     k = wp.int32(0)
     while k < span[1] - span[0]:
         major = walk_major(sweep, span, k)
@@ -765,9 +756,12 @@ def sweep_occlusion(
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
         while line < hi:
-            node = major_minor_node(sweep, major, line + offset)
-            i = node[0]
-            j = node[1]
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
             h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
             if not wp.isnan(h):
                 base = load(offsets, line)
