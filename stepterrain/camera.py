@@ -215,7 +215,8 @@ class Camera:
         px, depth = self.project(np.stack([a, b]))
         if np.any(depth < self.near):
             return math.inf
-        return float(np.linalg.norm(px[0] - px[1]))
+        with np.errstate(over="ignore"):  # a magnification near float64's limit (fov 1e-300): inf pixels, refine
+            return float(np.linalg.norm(px[0] - px[1]))
 
 
 def _dot(a: list[float], b: list[float]) -> float:
