@@ -295,7 +295,7 @@ def _load_npz(file: Path) -> Terrain:
     latlon = "transform" not in arrays and "lat" in arrays and "lon" in arrays
     if key is not None and ("transform" in arrays or latlon):
         heights = _elevation(arrays[key], file, repr(key), nodata)
-        crs = _scalar_str(arrays.get("crs"))
+        crs = _npz_text(arrays, "crs", file)
         if latlon:  # degree axes of the nodes (the layout of the global relief grids): geographic by definition
             transform = _latlon_geotransform(arrays["lat"], arrays["lon"], heights.shape, file)
             geographic = True
@@ -307,7 +307,7 @@ def _load_npz(file: Path) -> Terrain:
                     f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "
                     f"(x0, dx, 0, y0, 0, -dy); got {raw.tolist()}"
                 )
-            units_xy = _scalar_str(arrays.get("units_xy")) or ""
+            units_xy = _npz_text(arrays, "units_xy", file) or ""
             geographic = _is_geographic(crs) or "degree" in units_xy.lower()
         metres = None
         if geographic and "dx_m" in arrays and "dy_m" in arrays:
@@ -318,7 +318,7 @@ def _load_npz(file: Path) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
-        unit, crs = _vertical_unit(_scalar_str(arrays.get("units")), crs)
+        unit, crs = _vertical_unit(_npz_text(arrays, "units", file), crs)
         heights, height_unit = _heights_in_metres(heights, unit)
         return _georeferenced(
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
@@ -531,13 +531,19 @@ def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
         ) from exc
 
 
-def _scalar_str(value: Any) -> str | None:
+def _npz_text(arrays: Any, key: str, file: Path) -> str | None:
+    """The text an .npz stores under ``key`` (``crs``, ``units``, ``units_xy``): 0-d or in a one-element array
+    (``np.savez(crs=[...])``), None when absent or empty. Anything else is a DataFileError naming ``file`` and
+    ``key``: a one-element array was ignored, and a geographic CRS lost that way took degrees for metres."""
+    value = arrays.get(key)
     if value is None:
         return None
     arr = np.asarray(value)
-    if arr.ndim != 0 or arr.dtype.kind not in "US":
-        return None
-    text = arr.item()
+    if arr.size != 1 or arr.dtype.kind not in "US":
+        shown = arr.tolist() if arr.size <= 8 else f"an array of shape {arr.shape}"
+        raise DataFileError(f"cannot read {str(file)!r}: {key!r} must be one text value (e.g. 'EPSG:32611', "
+                            f"'metre'); got {shown!r} ({arr.dtype})")
+    text = arr.reshape(()).item()
     text = text.decode() if isinstance(text, bytes) else str(text)
     return text or None
 

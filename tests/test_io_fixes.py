@@ -89,3 +89,23 @@ def test_an_image_that_is_not_a_png_under_a_png_name_is_refused(tmp_path, fmt):
         load_dem(path)
     Image.fromarray(np.arange(64, dtype=np.uint8).reshape(8, 8)).save(path, format="PNG")
     assert load_dem(path).heights[7, 7] == 63.0
+
+
+def test_an_npz_crs_in_a_one_element_array_is_read_and_an_unusable_one_is_refused(tmp_path):
+    """np.savez(crs=[...]) stores the CRS in a one-element array, which load_dem ignored: with a geographic CRS the
+    degree spacing was then taken as metres (a 0.01° grid 0.01 m apart). Text in a one-element array is read; a
+    number or several values under 'crs' or 'units' are refused by name."""
+    heights = np.arange(20.0, dtype=np.float32).reshape(4, 5)
+    transform = np.array([10.0, 0.01, 0.0, 45.0, 0.0, -0.01])
+    plain, listed = tmp_path / "plain.npz", tmp_path / "listed.npz"
+    np.savez(plain, elevation=heights, transform=transform, crs="EPSG:4326")
+    np.savez(listed, elevation=heights, transform=transform, crs=np.array(["EPSG:4326"]))
+    a, b = load_dem(plain), load_dem(listed)
+    assert abs(a.spacing[0]) > 500.0  # 0.01° of longitude at 45° N: about 790 m
+    assert a.spacing == b.spacing and a.origin == b.origin and a.crs == b.crs
+    for key, value in (("crs", np.array([4326])), ("crs", np.array(["EPSG:4326", "EPSG:32611"])),
+                       ("units", np.array([1.0]))):
+        bad = tmp_path / f"bad_{key}.npz"
+        np.savez(bad, elevation=heights, transform=transform, **{key: value})
+        with pytest.raises(DataFileError, match=rf"bad_{key}\.npz.*'{key}' must be one text value"):
+            load_dem(bad)
