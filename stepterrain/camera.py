@@ -105,7 +105,9 @@ class Camera:
                 raise InvalidInputError(f"Camera aspect (width / height) must lie in [{lo:g}, {hi:g}]; got {aspect:g}")
             object.__setattr__(self, "aspect", aspect)
         if self.viewport is not None:
-            try:  # as_number: text ("640", or "64" read as 6 x 4) and bools are not pixels
+            try:  # as_number: text ("640", or "64" read as 6 x 4) and bools are not pixels; a set has no order
+                if isinstance(self.viewport, (set, frozenset, dict)):
+                    raise ValueError("no order")
                 if any(not as_number(v).is_integer() for v in self.viewport):
                     raise ValueError("not whole pixels")
                 width, height = (int(v) for v in self.viewport)

@@ -487,7 +487,9 @@ def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, in
     """(width, height, z_scale) checked: two whole numbers of 8 to 16384 pixels, a positive finite vertical
     scale."""
     try:
-        sides = [_whole_pixels(v) for v in window_size] if not isinstance(window_size, (str, bytes)) else []
+        # (a set has no order: {32, 40} could come out as height x width)
+        sides = ([_whole_pixels(v) for v in window_size]
+                 if not isinstance(window_size, (str, bytes, set, frozenset, dict)) else [])
     except TypeError:  # not a sequence
         sides = []
     if len(sides) != 2 or None in sides or min(sides) <= 0:

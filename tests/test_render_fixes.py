@@ -93,3 +93,14 @@ def test_a_16_bit_pillow_texture_is_scaled_not_saturated():
     assert abs(int(image[16, 16, 0]) - 100) <= 2
     gray = render.render_textured_mesh(textured(Image.new("L", (4, 4), 100)), window_size=(32, 32), lighting=False)
     np.testing.assert_array_equal(image, gray)
+
+
+@pytest.mark.parametrize("size", [{32, 40}, frozenset({64, 48}), {32: 1, 40: 2}])
+def test_an_unordered_size_is_refused(size):
+    """A set has no order: window_size={32, 40} or Camera(viewport={640, 480}) could come out as height x width."""
+    from stepterrain.camera import Camera
+
+    with pytest.raises(InvalidInputError, match="window_size must be two positive whole numbers"):
+        render._check_window(size, 1.0)
+    with pytest.raises(InvalidInputError, match="Camera viewport must be"):
+        Camera((0.0, -10.0, 5.0), (0.0, 0.0, 0.0), viewport=size)
