@@ -261,6 +261,28 @@ def test_hillshade_interior_is_the_scalar_formula_bit_for_bit(shape):
     np.testing.assert_array_equal(dark[1:-1, 1:-1].view(np.uint32), expected.view(np.uint32))
 
 
+
+@given(
+    heights=arrays(np.float32, hst.tuples(hst.integers(3, 9), hst.integers(3, 150)),
+                   elements=hst.floats(-500, 3000, width=32)),
+    azimuth=hst.floats(0, 360),
+    altitude=hst.floats(0, 90),
+    spacing=hst.sampled_from([(30.0, -30.0), (1.0, 1.0), (-2.5, 0.7), (90.0, -10.0)]),
+    strength=hst.floats(0, 1),
+)
+def test_hillshade_interior_is_the_scalar_formula_property(heights, azimuth, altitude, spacing, strength):
+    """The vector rows give the float32 formula's bits for any heights, light, spacing and shadow strength."""
+    az, alt = RAD(azimuth), RAD(altitude)
+    ours = hillshade(heights, spacing=spacing, azimuth=az, altitude=alt, device="cpu")
+    np.testing.assert_array_equal(ours[1:-1, 1:-1].view(np.uint32),
+                                  _standard_shade_float32(heights, spacing, az, alt).view(np.uint32))
+    if altitude < 90:
+        shadow = cast_shadows(heights, spacing=spacing, azimuth=az, altitude=alt, device="cpu")
+        dark = hillshade(heights, spacing=spacing, azimuth=az, altitude=alt, shadows=True,
+                         shadow_strength=strength, device="cpu")
+        expected = _standard_shade_float32(heights, spacing, az, alt, shadow, strength)
+        np.testing.assert_array_equal(dark[1:-1, 1:-1].view(np.uint32), expected.view(np.uint32))
+
 @pytest.mark.parametrize("azimuth", [45, 135, 225, 315])
 def test_diagonal_light_sweeps_the_same_lines_along_rows(azimuth):
     """A diagonal light sweeps along rows on the CPU (the faster axis, bundles of 1024 lines); the reference
