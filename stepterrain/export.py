@@ -12,7 +12,6 @@ from __future__ import annotations
 import base64
 import contextlib
 import functools
-import importlib.util
 import json
 import math
 import os
@@ -145,7 +144,7 @@ def save_mesh(
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj``, ``.ply`` (binary), ``.stl`` (binary),
-        ``.3mf``.
+        ``.3mf`` (exact coordinates, vertex colours as a colour group: a colour 3D print keeps its tints).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
@@ -163,8 +162,6 @@ def save_mesh(
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
         extension is unknown (the message lists the supported ones), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string.
-    MissingDependencyError
-        ``.3mf`` without ``lxml`` and ``networkx`` (trimesh's 3MF writer needs both).
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -213,12 +210,6 @@ def save_mesh(
         )
     _check_faces(mesh, len(vertices))
     _check_float32_reach(bounds, ext, target)
-    if ext == ".3mf":
-        missing = [name for name in ("lxml", "networkx") if importlib.util.find_spec(name) is None]
-        if missing:
-            raise MissingDependencyError(
-                f"writing 3MF needs {' and '.join(missing)}: pip install lxml networkx"
-            )
     prepared = _prepared_mesh(mesh, extras)
     with atomic_path(target) as tmp:
         try:
@@ -681,8 +672,61 @@ def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -
     tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
 
 
+_3MF_CONTENT_TYPES = (
+    '<?xml version="1.0" encoding="UTF-8"?>\n'
+    '<Types xmlns="http://schemas.openxmlformats.org/package/2006/content-types">'
+    '<Default Extension="rels" ContentType="application/vnd.openxmlformats-package.relationships+xml"/>'
+    '<Default Extension="model" ContentType="application/vnd.ms-package.3dmanufacturing-3dmodel+xml"/></Types>'
+)
+_3MF_RELS = (
+    '<?xml version="1.0" encoding="UTF-8"?>\n'
+    '<Relationships xmlns="http://schemas.openxmlformats.org/package/2006/relationships">'
+    '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
+    'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>'
+)
+_3MF_ROWS = 1 << 16  # vertices or triangles formatted at a time
+
+
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
-    tmp.write_bytes(trimesh.exchange.threemf.export_3MF(mesh))
+    """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
+    trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
+    p3; trimesh's writer dropped them). Written by us, streamed into the zip: no lxml or networkx needed."""
+    import zipfile
+
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    color_index = palette = None
+    if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices) and len(vertices):
+        rgba = np.ascontiguousarray(np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4])
+        palette, color_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
+        palette = palette.view(np.uint8).reshape(-1, 4)
+    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
+        archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
+        archive.writestr("_rels/.rels", _3MF_RELS)
+        with archive.open("3D/3dmodel.model", "w", force_zip64=True) as out:
+            out.write(b'<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
+                      b'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
+                      b'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"><resources>')
+            obj = b'<object id="1" type="model">'
+            if palette is not None:
+                colors = "".join(f'<m:color color="#{r:02X}{g:02X}{b:02X}{a:02X}"/>' for r, g, b, a in palette.tolist())
+                out.write(f'<m:colorgroup id="2">{colors}</m:colorgroup>'.encode())
+                obj = b'<object id="1" type="model" pid="2" pindex="0">'
+            out.write(obj + b"<mesh><vertices>")
+            for start in range(0, len(vertices), _3MF_ROWS):
+                rows = vertices[start:start + _3MF_ROWS].tolist()
+                out.write("".join([f'<vertex x="{x!r}" y="{y!r}" z="{z!r}"/>' for x, y, z in rows]).encode())
+            out.write(b"</vertices><triangles>")
+            for start in range(0, len(faces), _3MF_ROWS):
+                block = faces[start:start + _3MF_ROWS]
+                if color_index is None:
+                    text = "".join([f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in block.tolist()])
+                else:
+                    corners = np.concatenate([block, color_index[block]], axis=1).tolist()
+                    text = "".join([f'<triangle v1="{a}" v2="{b}" v3="{c}" p1="{pa}" p2="{pb}" p3="{pc}"/>'
+                                    for a, b, c, pa, pb, pc in corners])
+                out.write(text.encode())
+            out.write(b'</triangles></mesh></object></resources><build><item objectid="1"/></build></model>')
 
 
 # One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds) -> None.
