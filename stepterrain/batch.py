@@ -173,6 +173,9 @@ class _Source:
     offset: tuple[int, int, int] = (0, 0, 0)
     #: (min, max) of the whole source when a check found them without nodata (:func:`_shared_levels` reuses them)
     height_range: tuple[float, float] | None = None
+    #: tiles: (lowest, highest) corner of the whole raster's surface, export.save_mesh's ``shared_bounds``, so
+    #: that every tile stores the vertices it shares with its neighbours identically (glTF, PLY: float32)
+    bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
 
 
 def _item_source(source: _Source, item: BatchItem) -> _Source:
@@ -456,7 +459,7 @@ def run_item(
                 terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
             )  # fmt: skip
-        save_mesh(mesh, target, metadata=metadata)
+        save_mesh(mesh, target, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
     except StepTerrainError as exc:
         if _transient(exc):
@@ -505,7 +508,9 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
 def _source_identity(source: _Source | None) -> Any:
     if source is None:
         return None
-    return [list(source.heights.shape), list(source.spacing), list(source.origin), source.crs]
+    # the tiles' shared bounds decide how a glTF or PLY stores the coordinates: a tile written without them (or
+    # with others) does not weld exactly with one written with them
+    return [list(source.heights.shape), list(source.spacing), list(source.origin), source.crs, source.bounds]
 
 
 def _read_manifest(output_dir: Path) -> dict[str, Any]:
@@ -799,7 +804,11 @@ def batch(
     output) and its file exists with the recorded size. Every
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
     a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
-    temporary files the killed run left half-written). A tile or frame with
+    temporary files the killed run left half-written). Tiles are written with the whole raster's bounds as
+    :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type
+    for all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's
+    float32 positions are then relative to the raster's lower corner (about 8 mm resolution 100 km from it).
+    A tile or frame with
     no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
     ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
     refuses it as not elevation data). Cost per item: one
@@ -854,7 +863,9 @@ def batch(
         probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = dataclasses.replace(src, spacing=probe.spacing, origin=probe.origin)
-    level_values = _shared_levels(src, interval, levels, base)
+    level_values, z_range = _levels_and_range(src, interval, levels, base)
+    if src is not None and items and items[0].kind == "tile" and z_range is not None:
+        src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
         _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
     if src is None and interval is None and levels is None:
@@ -927,8 +938,25 @@ def _shared_levels(
     src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
 ) -> tuple[float, ...] | None:
     """Isovalues over the whole series or raster, so every frame or tile uses the same ones."""
+    return _levels_and_range(src, interval, levels, base)[0]
+
+
+def _raster_bounds(
+    src: _Source, z_range: tuple[float, float]
+) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """The lowest and highest corner of the whole raster: its xy extent, and in z its finite heights' range."""
+    (dx, dy), (x0, y0) = src.spacing, src.origin
+    rows, cols = src.heights.shape[-2:]
+    xs, ys = sorted((x0, x0 + (cols - 1) * dx)), sorted((y0, y0 + (rows - 1) * dy))
+    return (xs[0], ys[0], z_range[0]), (xs[1], ys[1], z_range[1])
+
+
+def _levels_and_range(
+    src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
+) -> tuple[tuple[float, ...] | None, tuple[float, float] | None]:
+    """:func:`_shared_levels`, and the finite heights' (min, max) they came from (None without a source)."""
     if src is None:
-        return None
+        return None, None
     from .stepped import isovalues, nice_interval
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
@@ -940,7 +968,7 @@ def _shared_levels(
         lo, hi = float(finite.min()), float(finite.max())
     if interval is None and levels is None:
         interval = nice_interval((lo, hi))
-    return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))
+    return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base)), (lo, hi)
 
 
 def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:

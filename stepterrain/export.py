@@ -133,6 +133,7 @@ def save_mesh(
     path: str | os.PathLike[str],
     *,
     metadata: Mapping[str, Any] | None = None,
+    shared_bounds: ArrayLike | None = None,
 ) -> Path:
     """Write a mesh to ``path`` in the format its extension names, atomically.
 
@@ -149,6 +150,12 @@ def save_mesh(
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
         scalars and arrays become numbers and lists.
+    shared_bounds : (2, 3) array_like, optional
+        The lowest and highest corner (x, y, z) of a set of meshes written one by one that share vertices (tiles
+        of one raster, as :func:`~stepterrain.batch.batch` writes them). How coordinates are stored is then
+        decided by these, the same for every mesh of the set, instead of by the mesh's own bounds: glTF's node
+        translation (the floor of the lowest corner) and PLY's float32 or float64. A vertex the meshes share is
+        then stored identically in each, so they weld exactly. Need not contain the mesh.
 
     Returns
     -------
@@ -209,11 +216,15 @@ def save_mesh(
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
     _check_faces(mesh, len(vertices))
-    _check_float32_reach(bounds, ext, target)
+    frame = _shared_bounds(shared_bounds)
+    _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
     with atomic_path(target) as tmp:
         try:
-            writer(prepared, tmp, target, bounds)
+            if frame is None:
+                writer(prepared, tmp, target, bounds)
+            else:
+                writer(prepared, tmp, target, bounds, frame)
         except OSError as exc:
             if isinstance(exc, DataFileError):
                 raise
@@ -242,14 +253,32 @@ def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
     )
 
 
-def _check_float32_reach(bounds: Bounds, ext: str, target: Path) -> None:
+def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
+    """``save_mesh``'s ``shared_bounds`` as (lo, hi) float64, checked; None when not given."""
+    if shared_bounds is None:
+        return None
+    try:
+        corners = np.asarray(shared_bounds, dtype=np.float64)
+    except (TypeError, ValueError):
+        corners = np.empty(0)
+    if corners.shape != (2, 3) or not np.isfinite(corners).all():
+        raise InvalidInputError(f"shared_bounds must be finite (2, 3) corners (lowest, highest); got {shared_bounds!r}")
+    return corners[0], corners[1]
+
+
+def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds = None) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
     node translation (the floor of the lowest corner; see :func:`_gltf_document`). numpy's cast made them infinite
     (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
-    reach = np.maximum(np.abs(lo), np.abs(hi)) if ext == ".stl" else hi - np.floor(lo) * _is_large(bounds)
+    frame = bounds if frame is None else frame
+    offset = np.floor(frame[0]) if _is_large(frame) else np.zeros(3)  # glTF's node translation
+    if ext == ".stl":
+        reach = np.maximum(np.abs(lo), np.abs(hi))
+    else:
+        reach = np.maximum(np.abs(lo - offset), np.abs(hi - offset))
     if (reach <= FLOAT32_MAX).all():
         return
     axis = int(np.argmax(reach))
@@ -478,10 +507,10 @@ def _is_large(bounds: Bounds) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------- writers
-def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
     empty = _empty_gltf(mesh)
     if empty or _direct_gltf(mesh):
-        tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds)
+        tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds, frame)
         header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
         header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
         binary: list[Any] = []  # the binary chunk (an empty mesh has none: glTF 2.0 §4.4.3.3, optional)
@@ -498,22 +527,22 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -
             for part in parts:
                 fh.write(part)
         return
-    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, bounds), include_normals=False)
+    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame or bounds), include_normals=False)
     tmp.write_bytes(data)
 
 
-def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
     if _empty_gltf(mesh):
         tmp.write_text(json.dumps(_empty_document(mesh, target)[0], separators=(",", ":")), encoding="utf-8")
         return
     if _direct_gltf(mesh):
-        tree, blocks = _gltf_document(mesh, target, bounds)
+        tree, blocks = _gltf_document(mesh, target, bounds, frame)
         binary = b"".join(memoryview(block).cast("B") for block in blocks)
         tree["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
         tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
         return
     files = trimesh.exchange.gltf.export_gltf(
-        _gltf_scene(mesh, target, bounds), include_normals=False, merge_buffers=True, embed_buffers=True
+        _gltf_scene(mesh, target, frame or bounds), include_normals=False, merge_buffers=True, embed_buffers=True
     )
     tree = json.loads(files["model.gltf"])
     if not tree.get("bufferViews"):  # no faces: trimesh writes a 0-byte buffer and [], which glTF forbids
@@ -553,10 +582,13 @@ _GL_UNSIGNED_BYTE, _GL_UNSIGNED_INT, _GL_FLOAT = 5121, 5125, 5126
 _GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 
-def _gltf_document(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> tuple[dict[str, Any], list[Any]]:
+def _gltf_document(
+    mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds = None
+) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
-    colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``."""
+    colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
+    ``shared_bounds``) decides the translation in place of ``bounds``."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
     assert bounds is not None  # _direct_gltf: the mesh has vertices
@@ -564,8 +596,9 @@ def _gltf_document(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> tuple
     offset = np.zeros(3)
     # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
     positions = recycled_empty(vertices.shape, np.dtype("<f4"))
-    if _is_large(bounds):
-        offset = np.floor(lo)
+    frame = bounds if frame is None else frame
+    if _is_large(frame):
+        offset = np.floor(frame[0])
         np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
         node["translation"] = [float(v) for v in offset]
     else:
@@ -619,7 +652,7 @@ def _gltf_document(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> tuple
     return tree, blocks
 
 
-def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
     mtl_name = f"{target.stem}.mtl"
     text, sidecars = trimesh.exchange.obj.export_obj(
         mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
@@ -664,11 +697,11 @@ def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) 
     return out
 
 
-def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
-    tmp.write_bytes(_ply_bytes(mesh, bounds))
+def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
+    tmp.write_bytes(_ply_bytes(mesh, bounds if frame is None else frame))
 
 
-def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
     tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
 
 
@@ -687,7 +720,7 @@ _3MF_RELS = (
 _3MF_ROWS = 1 << 16  # vertices or triangles formatted at a time
 
 
-def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -> None:
+def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
     p3; trimesh's writer dropped them). Written by us, streamed into the zip: no lxml or networkx needed."""
@@ -729,8 +762,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds) -
             out.write(b'</triangles></mesh></object></resources><build><item objectid="1"/></build></model>')
 
 
-# One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds) -> None.
-_WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds], None]] = {
+# One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds[, shared bounds])
+# -> None; the shared bounds (save_mesh's shared_bounds) are passed only when given.
+_WRITERS: dict[str, Callable[..., None]] = {
     ".glb": _write_glb,
     ".gltf": _write_gltf,
     ".obj": _write_obj,

@@ -587,12 +587,12 @@ def test_killed_run_leaves_no_partial_file_and_resumes(tmp_path, monkeypatch):
     real_writer = export._WRITERS[".glb"]
     calls = {"n": 0}
 
-    def dying_writer(mesh, tmp, target, bounds):
+    def dying_writer(mesh, tmp, target, bounds, *shared):
         calls["n"] += 1
         if calls["n"] == 3:
             tmp.write_bytes(b"glTF half a file")
             raise KeyboardInterrupt  # the run is killed while writing the third file
-        real_writer(mesh, tmp, target, bounds)
+        real_writer(mesh, tmp, target, bounds, *shared)
 
     monkeypatch.setitem(export._WRITERS, ".glb", dying_writer)
     with pytest.raises(KeyboardInterrupt):

@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
+import trimesh
 
 from stepterrain.batch import MANIFEST_NAME, batch
+from stepterrain.mesh import boundary_edges
 
 
 def test_a_rerun_removes_the_partial_temporary_files_a_killed_run_left(tmp_path):
@@ -29,3 +32,56 @@ def test_a_rerun_removes_the_partial_temporary_files_a_killed_run_left(tmp_path)
     (out / ".tile_r0_c1.glb.abc_1234.tmp").write_bytes(b"glTF partial")
     report = batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
     assert len(report.skipped) == 4 and not (out / ".tile_r0_c1.glb.abc_1234.tmp").exists()
+
+
+@pytest.mark.parametrize("fmt", [".glb", ".gltf", ".ply"])
+@pytest.mark.parametrize("spacing, origin", [
+    ((30.0, -30.0), (376328.6554542635, 3807902.8276283755)),  # the embedded DEM's UTM origin
+    ((3000.0, 3000.0), (1000.3, 2000.7)),  # local metres whose extent crosses 65536: some tiles small, some large
+], ids=["utm", "straddle"])
+def test_tiles_written_as_float32_weld_exactly(tmp_path, fmt, spacing, origin):
+    # Found by welding the GLB tiles of `stepterrain batch --tile 128` (the embedded DEM) with exact vertex
+    # equality (trimesh's merge_vertices): 31377 boundary edges against the whole raster's 4227. glTF stores
+    # float32 positions relative to a node translation, the floor of each *tile's* lowest corner, so a vertex
+    # two tiles share was rounded differently in each; PLY chose float32 or float64 per tile (by its own
+    # coordinates' size), so beside 65536 one tile rounded the seam and its neighbour did not
+    rng = np.random.default_rng(5)
+    z = (rng.random((33, 41)) * 40 + 100).astype(np.float32)
+    z[16, 3] = z[10, 20] = np.nan  # nodata on the shared borders too
+    report = batch(z, tmp_path, tile_size=(16, 20), interval=3.0, spacing=spacing, origin=origin, format=fmt,
+                   scheduler="serial")  # fmt: skip
+    assert report.ok and len(report.done) == 2 * 2
+    meshes = [trimesh.load(r.path, force="mesh", process=False) for r in report.done]  # node translations applied
+    vertices = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])[:-1]
+    faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
+    unique, inverse = np.unique(vertices, axis=0, return_inverse=True)  # exact equality: no rounding
+    faces = inverse.reshape(-1)[faces]
+    xy = unique[boundary_edges(faces)][:, :, :2]
+    (x_lo, x_hi), (y_lo, y_hi) = ((origin[k] + min(0.0, n * spacing[k]), origin[k] + max(0.0, n * spacing[k]))
+                                  for k, n in ((0, z.shape[1] - 1), (1, z.shape[0] - 1)))
+    near = 1e-3 * abs(spacing[0])
+    on_border = (
+        (np.abs(xy[:, :, 0] - x_lo) < near).all(1) | (np.abs(xy[:, :, 0] - x_hi) < near).all(1)
+        | (np.abs(xy[:, :, 1] - y_lo) < near).all(1) | (np.abs(xy[:, :, 1] - y_hi) < near).all(1)
+    )  # fmt: skip
+    seams = np.abs(xy - np.array([origin[0] + 20 * spacing[0], origin[1] + 16 * spacing[1]])) < near
+    # the holes' rims are boundaries of the whole raster's mesh too: only edges *along* a seam count
+    along_seam = (seams[:, :, 0].all(1) | seams[:, :, 1].all(1)) & ~on_border
+    assert not along_seam.any(), f"{int(along_seam.sum())} open edges along the seams (cracks)"
+
+
+def test_save_mesh_shared_bounds_are_checked(tmp_path):
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.export import save_mesh
+
+    with pytest.raises(InvalidInputError, match=r"shared_bounds must be finite \(2, 3\) corners"):
+        save_mesh(trimesh.creation.box(), tmp_path / "box.glb", shared_bounds=[[0, 0, np.nan], [1, 1, 1]])
+    # a box far from the origin, stored relative to the shared corner's floor: world positions come back
+    box = trimesh.creation.box()
+    box.apply_translation([400000.5, 3800000.25, 10.0])
+    out = save_mesh(box, tmp_path / "box.glb", shared_bounds=[[399000.7, 3799000.2, -3.5], [401000.0, 3801000.0, 50]])
+    from .test_export import glb_json
+
+    assert glb_json(out)["nodes"][0]["translation"] == [399000.0, 3799000.0, -4.0]
+    np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, box.vertices, atol=1e-6)
