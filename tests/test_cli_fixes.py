@@ -32,3 +32,16 @@ def test_batch_failures_go_to_stderr_not_stdout(tmp_path, capsys):
     assert code == 1
     assert out == ""
     assert "broken" in err
+
+
+def test_batch_png_in_the_input_folder_is_refused_before_any_work(tmp_path, capsys):
+    """The overview written into a folder of tiles was read as a tile by the next (resuming) run, which then
+    failed on it (exit 1) every time."""
+    src = tile_folder(tmp_path / "tiles")
+    argv = ["batch", src, "--interval", "10", "--scheduler", "serial", "-o", tmp_path / "out",
+            "--png", src / "overview.png", "--size", "64x48"]
+    code, out, err = run(capsys, *argv)
+    assert code == 2
+    assert "--png" in err and "INPUT folder" in err and "Traceback" not in err
+    assert sorted(p.name for p in src.iterdir()) == ["t0.npy", "t1.npy"]
+    assert not (tmp_path / "out").exists()
