@@ -2,11 +2,22 @@
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from stepterrain import cli
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def run(capsys, *argv):
@@ -45,3 +56,34 @@ def test_batch_png_in_the_input_folder_is_refused_before_any_work(tmp_path, caps
     assert "--png" in err and "INPUT folder" in err and "Traceback" not in err
     assert sorted(p.name for p in src.iterdir()) == ["t0.npy", "t1.npy"]
     assert not (tmp_path / "out").exists()
+
+
+EXAMPLE_BAD_ARGUMENTS = [
+    ("adaptive_mesh", ["--size", "0"], "--size must be at least 2"),  # ZeroDivisionError
+    ("batch_tiles", ["--size", "0", "--scheduler", "serial"], "--size must be at least 2"),  # ZeroDivisionError
+    ("closeup_anchors", ["--size", "48", "--window", "160", "120"], "too many close-ups"),
+    ("closeup_mappings", ["--size", "48", "--window", "160", "120", "--frames", "0", "--gif", "{tmp}/a.gif"],
+     "--frames must be at least 1"),  # wrote the PNG, then failed
+    ("dynamic_peaks", ["--size", "16", "--frames", "2", "--output", "{tmp}/a.gif"], "--output must end in .png"),
+    ("flood", ["--size", "0", "--frames", "2", "--keyframes", "2"], "--size must be at least 2"),
+    ("globe", ["--size", "16"], "face_size must be 2^k + 1"),
+    ("interactive", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
+    ("stepped_terrain", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
+    ("textures", ["--size", "0"], "--size must be at least 2"),
+]
+
+
+@pytest.mark.parametrize("name, argv, message", EXAMPLE_BAD_ARGUMENTS, ids=[c[0] for c in EXAMPLE_BAD_ARGUMENTS])
+def test_examples_report_bad_arguments_as_usage_errors(name, argv, message, tmp_path, capsys):
+    """Each example's bad arguments end as an argparse error (exit 2, one line on stderr) and write nothing: they
+    raised a ZeroDivisionError or the library's exception with a traceback, or wrote one output then failed."""
+    example = load_example(name)
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    if "--output" not in argv:
+        argv += ["--output", str(tmp_path / "out.png")]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: " in err and message in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
