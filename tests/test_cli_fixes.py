@@ -87,3 +87,16 @@ def test_examples_report_bad_arguments_as_usage_errors(name, argv, message, tmp_
     err = capsys.readouterr().err
     assert "error: " in err and message in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["steps", "--lens-relative", "0.5,0.5,-0.1"], "--lens-relative"),
+    (["closeup", "--roi-relative", "0.5,0.5,0"], "--roi-relative"),
+])
+def test_a_relative_radius_is_refused_by_its_own_option(argv, option, tmp_path, capsys):
+    """A fraction <= 0 was reported as '--lens radius ... got -39.0' (or '--roi radius'): an option not given and a
+    world length never typed."""
+    code, out, err = run(capsys, *argv, "-o", tmp_path / ("x.glb" if argv[0] == "steps" else "x.png"))
+    assert code == 2
+    assert f"{option} radius fraction must be positive" in err
+    assert list(tmp_path.iterdir()) == []
