@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
+from stepterrain.errors import StepTerrainError
 from stepterrain.export import save_image
 from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
@@ -62,7 +63,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--panel", type=int, nargs=2, default=(480, 400), metavar=("W", "H"),
                         help="size of one panel in pixels (default 480 400)")
     args = parser.parse_args(argv)
+    if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
+        parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
+
+def run(args: argparse.Namespace) -> int:
     heights, spacing = crop(args.size)
     panels = []
     for error in args.errors:

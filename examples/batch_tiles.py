@@ -16,6 +16,7 @@ from pathlib import Path
 
 from stepterrain import sample_dem
 from stepterrain.batch import batch, overview_image
+from stepterrain.errors import StepTerrainError
 from stepterrain.export import save_image
 from stepterrain.terrain import Terrain
 
@@ -31,7 +32,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output", default="batch.png", help="PNG to write; the tiles go beside it")
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda:0 (default: Warp's)")
     args = parser.parse_args(argv)
+    if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
+        parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
+
+def run(args: argparse.Namespace) -> int:
     dem = sample_dem()
     step = max(1, dem.shape[1] // args.size)
     terrain = Terrain.from_heights(dem.heights[::step, ::step], spacing=(dem.spacing[0] * step, dem.spacing[1] * step),

@@ -16,6 +16,7 @@ import sys
 
 import stepterrain as st
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
+from stepterrain.errors import StepTerrainError
 from stepterrain.render import save_png
 
 
@@ -45,6 +46,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--frames", type=int, default=24)
     parser.add_argument("--device", default=None)
     args = parser.parse_args(argv)
+    if args.gif and args.frames < 1:  # refused by the library only after the PNG was written
+        parser.error(f"--frames must be at least 1; got {args.frames}")
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
+
+
+def run(args: argparse.Namespace) -> int:
     terrain = st.sample_dem()
     if args.size:
         rows, cols = terrain.shape

@@ -22,7 +22,7 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 
-from stepterrain.errors import MissingDependencyError
+from stepterrain.errors import MissingDependencyError, StepTerrainError
 from stepterrain.export import atomic_path, save_image
 from stepterrain.texture import TextureAnimation, blend, modulate, terrain_layer, topographic_layer
 
@@ -81,7 +81,17 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--frames and --keyframes must be at least 2")
     if args.mp4:
         require_video()  # before any work: a missing extra fails at once, naming what to install
+    if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
+        parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    if args.output.suffix.lower() != ".png":  # the GIF goes beside it: --output x.gif wrote the GIF, then failed
+        parser.error(f"--output must end in .png (the GIF is written beside it); got {str(args.output)!r}")
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
+
+def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     terrain = crop_sample(args.size)
     lo, hi = terrain.height_range

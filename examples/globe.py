@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stepterrain.errors import StepTerrainError
 from stepterrain.export import save_image
 from stepterrain.globe import EARTH_RADIUS, Globe, elevation_colors, look_from, render_view
 
@@ -56,7 +57,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--close-error", type=float, default=100.0,
                         help="close view: error in metres tolerated at the eye's altitude (default 100)")
     args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
+
+def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     globe = Globe.sample(face_size=args.size, exaggeration=10.0, device=args.device)
     w, h = args.panel

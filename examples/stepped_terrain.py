@@ -21,6 +21,7 @@ import numpy as np
 
 import stepterrain as st
 from stepterrain.cli import nice_interval
+from stepterrain.errors import StepTerrainError
 from stepterrain.render import render_mesh, save_png
 
 
@@ -47,7 +48,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--panel", type=int, nargs=2, default=(640, 480), metavar=("W", "H"),
                         help="size of one panel in pixels (default 640 480)")
     args = parser.parse_args(argv)
+    if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
+        parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
+
+def run(args: argparse.Namespace) -> int:
     terrain = crop_sample(args.size)
     lo, hi = terrain.height_range
     interval = nice_interval((lo, hi), target=12)

@@ -27,6 +27,7 @@ import numpy as np
 
 import stepterrain as st
 from stepterrain.cli import nice_interval
+from stepterrain.errors import StepTerrainError
 from stepterrain.render import render_textured_mesh, save_png
 from stepterrain.texture import (
     Pipeline,
@@ -70,7 +71,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--panel", type=int, nargs=2, default=(800, 600), metavar=("W", "H"),
                         help="size of one panel in pixels (default 800 600)")
     args = parser.parse_args(argv)
+    if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
+        parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    try:
+        return run(args)
+    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
+        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
+
+def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     terrain = crop_sample(args.size)
     topo = topographic_layer(terrain, azimuth=math.radians(315), altitude=math.radians(30), shadows=True,

@@ -116,6 +116,11 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         # the overview went to the folder the meshes had just been written into: every item done, then an error
         raise InvalidInputError(f"--output and --png name the same path {args.output!r}; give the overview "
                                 "its own file name")
+    source_folder = Path(args.input).resolve() if args.input and Path(args.input).is_dir() else None
+    if png is not None and png.resolve().parent == source_folder:
+        # a folder's DEM files are its .npy .npz .png .tif: the next run read the overview as a tile and failed on it
+        raise InvalidInputError(f"--png {str(png)!r} lies in the INPUT folder {args.input!r}, where a rerun would read "
+                                "it as a DEM tile; write the overview elsewhere")
     if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= MAX_CONNECT_TIMEOUT):
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")

@@ -136,6 +136,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+    for _fx, _fy, fr in args.roi_relative or []:  # else named as '--roi radius', in world units
+        if not fr > 0:
+            raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
     n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
     if (images or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most {max_closeups(args.size)} "

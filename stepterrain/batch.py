@@ -27,6 +27,7 @@ import logging
 import math
 import os
 import re
+import sys
 import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -1044,7 +1045,7 @@ def _tick(bar: Any, result: ItemResult) -> None:
     if bar is not None:
         bar.update(1)
         if result.status == "failed":
-            bar.write(f"failed {result.key}: {result.error}")
+            bar.write(f"failed {result.key}: {result.error}", file=sys.stderr)  # tqdm writes to stdout by default
 
 
 def _run_serial(

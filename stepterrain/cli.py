@@ -353,6 +353,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
+    if args.lens_relative is not None and not args.lens_relative[2] > 0:  # else named as '--lens radius', in metres
+        raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):

@@ -1,0 +1,102 @@
+"""Command-line and example fixes found by a bug hunt of the CLI as a batch-scripting GIS user runs it."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stepterrain import cli
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def load_example(name: str):
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def run(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def tile_folder(folder: Path, broken: bool = False) -> Path:
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):
+        np.save(folder / f"t{k}.npy", (rng.random((12, 14)) * 100).astype(np.float32))
+    if broken:
+        (folder / "broken.npy").write_bytes(b"junk")
+    return folder
+
+
+def test_batch_failures_go_to_stderr_not_stdout(tmp_path, capsys):
+    """tqdm's ``write`` defaults to stdout: a failed item's line landed in the user's piped stdout."""
+    src = tile_folder(tmp_path / "tiles", broken=True)
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--scheduler", "serial", "-o", tmp_path / "out")
+    assert code == 1
+    assert out == ""
+    assert "broken" in err
+
+
+def test_batch_png_in_the_input_folder_is_refused_before_any_work(tmp_path, capsys):
+    """The overview written into a folder of tiles was read as a tile by the next (resuming) run, which then
+    failed on it (exit 1) every time."""
+    src = tile_folder(tmp_path / "tiles")
+    argv = ["batch", src, "--interval", "10", "--scheduler", "serial", "-o", tmp_path / "out",
+            "--png", src / "overview.png", "--size", "64x48"]
+    code, out, err = run(capsys, *argv)
+    assert code == 2
+    assert "--png" in err and "INPUT folder" in err and "Traceback" not in err
+    assert sorted(p.name for p in src.iterdir()) == ["t0.npy", "t1.npy"]
+    assert not (tmp_path / "out").exists()
+
+
+EXAMPLE_BAD_ARGUMENTS = [
+    ("adaptive_mesh", ["--size", "0"], "--size must be at least 2"),  # ZeroDivisionError
+    ("batch_tiles", ["--size", "0", "--scheduler", "serial"], "--size must be at least 2"),  # ZeroDivisionError
+    ("closeup_anchors", ["--size", "48", "--window", "160", "120"], "too many close-ups"),
+    ("closeup_mappings", ["--size", "48", "--window", "160", "120", "--frames", "0", "--gif", "{tmp}/a.gif"],
+     "--frames must be at least 1"),  # wrote the PNG, then failed
+    ("dynamic_peaks", ["--size", "16", "--frames", "2", "--output", "{tmp}/a.gif"], "--output must end in .png"),
+    ("flood", ["--size", "0", "--frames", "2", "--keyframes", "2"], "--size must be at least 2"),
+    ("globe", ["--size", "16"], "face_size must be 2^k + 1"),
+    ("interactive", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
+    ("stepped_terrain", ["--size", "16", "--device", "cuda:7"], "device='cuda:7'"),
+    ("textures", ["--size", "0"], "--size must be at least 2"),
+]
+
+
+@pytest.mark.parametrize("name, argv, message", EXAMPLE_BAD_ARGUMENTS, ids=[c[0] for c in EXAMPLE_BAD_ARGUMENTS])
+def test_examples_report_bad_arguments_as_usage_errors(name, argv, message, tmp_path, capsys):
+    """Each example's bad arguments end as an argparse error (exit 2, one line on stderr) and write nothing: they
+    raised a ZeroDivisionError or the library's exception with a traceback, or wrote one output then failed."""
+    example = load_example(name)
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    if "--output" not in argv:
+        argv += ["--output", str(tmp_path / "out.png")]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: " in err and message in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["steps", "--lens-relative", "0.5,0.5,-0.1"], "--lens-relative"),
+    (["closeup", "--roi-relative", "0.5,0.5,0"], "--roi-relative"),
+])
+def test_a_relative_radius_is_refused_by_its_own_option(argv, option, tmp_path, capsys):
+    """A fraction <= 0 was reported as '--lens radius ... got -39.0' (or '--roi radius'): an option not given and a
+    world length never typed."""
+    code, out, err = run(capsys, *argv, "-o", tmp_path / ("x.glb" if argv[0] == "steps" else "x.png"))
+    assert code == 2
+    assert f"{option} radius fraction must be positive" in err
+    assert list(tmp_path.iterdir()) == []
