@@ -14,8 +14,8 @@ import argparse
 import sys
 
 import stepterrain as st
+from stepterrain.cli import usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, render_closeups
-from stepterrain.errors import StepTerrainError
 from stepterrain.render import save_png
 
 STYLES = ("opaque", "linear", "inverse", "ends")
@@ -45,10 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--inactive", action="store_true", help="show the inactive depictions of Fig. 5")
     parser.add_argument("--device", default=None)
     args = parser.parse_args(argv)
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,8 +15,8 @@ import math
 import sys
 
 import stepterrain as st
+from stepterrain.cli import usage_errors
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, render_closeups, save_animation
-from stepterrain.errors import StepTerrainError
 from stepterrain.render import save_png
 
 
@@ -48,10 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.gif and args.frames < 1:  # refused by the library only after the PNG was written
         parser.error(f"--frames must be at least 1; got {args.frames}")
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

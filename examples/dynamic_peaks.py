@@ -20,7 +20,7 @@ import imageio.v3 as iio
 import numpy as np
 
 import stepterrain as st
-from stepterrain.errors import StepTerrainError
+from stepterrain.cli import usage_errors
 from stepterrain.export import atomic_path
 from stepterrain.render import render_mesh, save_png
 
@@ -64,10 +64,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--size must be >= 2 and --frames >= 1")
     if args.output.suffix.lower() != ".png":  # the GIF goes beside it: --output x.gif wrote the GIF, then failed
         parser.error(f"--output must end in .png (the GIF is written beside it); got {str(args.output)!r}")
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

@@ -22,7 +22,8 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 
-from stepterrain.errors import MissingDependencyError, StepTerrainError
+from stepterrain.cli import usage_errors
+from stepterrain.errors import MissingDependencyError
 from stepterrain.export import atomic_path, save_image
 from stepterrain.texture import TextureAnimation, blend, modulate, terrain_layer, topographic_layer
 
@@ -85,10 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     if args.output.suffix.lower() != ".png":  # the GIF goes beside it: --output x.gif wrote the GIF, then failed
         parser.error(f"--output must end in .png (the GIF is written beside it); got {str(args.output)!r}")
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

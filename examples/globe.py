@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stepterrain.errors import StepTerrainError
+from stepterrain.cli import usage_errors
 from stepterrain.export import save_image
 from stepterrain.globe import EARTH_RADIUS, Globe, elevation_colors, look_from, render_view
 
@@ -57,10 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--close-error", type=float, default=100.0,
                         help="close view: error in metres tolerated at the eye's altitude (default 100)")
     args = parser.parse_args(argv)
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

@@ -20,7 +20,7 @@ import numpy as np
 import pyvista as pv
 
 from stepterrain import circular_lens, sample_dem
-from stepterrain.errors import StepTerrainError
+from stepterrain.cli import usage_errors
 from stepterrain.export import save_image
 
 
@@ -105,10 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     if not all(8 <= side <= 16384 for side in args.window):  # 0 0 wrote pyvista's default 300 x 300 image
         parser.error(f"--window must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.window))}")
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

@@ -20,8 +20,7 @@ from pathlib import Path
 import numpy as np
 
 import stepterrain as st
-from stepterrain.cli import nice_interval
-from stepterrain.errors import StepTerrainError
+from stepterrain.cli import nice_interval, usage_errors
 from stepterrain.render import render_mesh, save_png
 
 
@@ -50,10 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
-    try:
+    with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
-    except StepTerrainError as exc:  # a value the library refuses (no GPU for --device cuda, a window too small):
-        parser.error(str(exc))  # a usage error (exit 2), not a traceback
 
 
 def run(args: argparse.Namespace) -> int:

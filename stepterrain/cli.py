@@ -15,6 +15,7 @@ with status 2 (no traceback), as do usage errors.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -22,7 +23,7 @@ import re
 import sys
 import time
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -115,6 +116,17 @@ class Progress:
 
 
 # ------------------------------------------------------------------------------------------ argument types
+@contextlib.contextmanager
+def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
+    """Within: a value the library refuses (a :class:`~stepterrain.errors.StepTerrainError`: no GPU for
+    ``--device cuda``, a window too small) becomes ``parser.error``, one line and exit 2, not a traceback. For
+    scripts' own argparse mains (examples/)."""
+    try:
+        yield
+    except StepTerrainError as exc:
+        parser.error(str(exc))
+
+
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
         items = text.replace(" ", "").split(",")
