@@ -607,6 +607,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _warning_line(args.command)  # restored on exit by catch_warnings
+            if getattr(args, "device", None) is not None:  # before any input is read: a large DEM loaded first
+                from ._device import resolve_device
+
+                resolve_device(args.device)
             return int(args.run(args, progress))
     except StepTerrainError as exc:
         print(f"stepterrain {args.command}: error: {_as_option(str(exc), _subcommand(parser, args.command))}",

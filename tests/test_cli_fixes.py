@@ -92,3 +92,23 @@ def test_a_relative_radius_is_refused_by_its_own_option(argv, option, tmp_path, 
     assert code == 2
     assert f"{option} radius fraction must be positive" in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["steps", "texture", "globe", "closeup", "batch"])
+def test_an_unusable_device_is_named_before_any_input_is_read(capsys, tmp_path, command):
+    """--device was checked after the DEM was loaded (steps, texture, globe, closeup): a large DEM loaded first, and
+    a missing input file was reported instead of the device."""
+    import warp as wp
+
+    if any(d.is_cuda for d in wp.get_devices()):
+        pytest.skip("a CUDA device is present: cuda is usable here")
+    missing = tmp_path / "missing.npy"
+    args = [command, str(missing), "--device", "cuda"]
+    if command == "batch":
+        args = [command, str(tmp_path / "missing"), "--device", "cuda", "-o", str(tmp_path / "out")]
+    elif command in ("steps", "globe"):
+        args += ["-o", str(tmp_path / "o.glb")]
+    else:
+        args += ["-o", str(tmp_path / "o.png")]
+    code, _, err = run(capsys, *args)
+    assert code == 2 and "device" in err and "missing" not in err, err
