@@ -18,6 +18,7 @@ import os
 import struct
 import tempfile
 import threading
+import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -216,15 +217,12 @@ def save_mesh(
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
     _check_faces(mesh, len(vertices))
-    frame = _shared_bounds(shared_bounds)
+    frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
     with atomic_path(target) as tmp:
         try:
-            if frame is None:
-                writer(prepared, tmp, target, bounds)
-            else:
-                writer(prepared, tmp, target, bounds, frame)
+            writer(prepared, tmp, target, bounds, frame)
         except OSError as exc:
             if isinstance(exc, DataFileError):
                 raise
@@ -266,14 +264,13 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
     return corners[0], corners[1]
 
 
-def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds = None) -> None:
+def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
     node translation (the floor of the lowest corner; see :func:`_gltf_document`). numpy's cast made them infinite
     (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
-    frame = bounds if frame is None else frame
     offset = np.floor(frame[0]) if _is_large(frame) else np.zeros(3)  # glTF's node translation
     if ext == ".stl":
         reach = np.maximum(np.abs(lo), np.abs(hi))
@@ -507,7 +504,7 @@ def _is_large(bounds: Bounds) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------- writers
-def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
+def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     empty = _empty_gltf(mesh)
     if empty or _direct_gltf(mesh):
         tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds, frame)
@@ -527,11 +524,11 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
             for part in parts:
                 fh.write(part)
         return
-    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame or bounds), include_normals=False)
+    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False)
     tmp.write_bytes(data)
 
 
-def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
+def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     if _empty_gltf(mesh):
         tmp.write_text(json.dumps(_empty_document(mesh, target)[0], separators=(",", ":")), encoding="utf-8")
         return
@@ -542,7 +539,7 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, 
         tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
         return
     files = trimesh.exchange.gltf.export_gltf(
-        _gltf_scene(mesh, target, frame or bounds), include_normals=False, merge_buffers=True, embed_buffers=True
+        _gltf_scene(mesh, target, frame), include_normals=False, merge_buffers=True, embed_buffers=True
     )
     tree = json.loads(files["model.gltf"])
     if not tree.get("bufferViews"):  # no faces: trimesh writes a 0-byte buffer and [], which glTF forbids
@@ -583,7 +580,7 @@ _GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
 
 
 def _gltf_document(
-    mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds = None
+    mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds
 ) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
@@ -596,7 +593,6 @@ def _gltf_document(
     offset = np.zeros(3)
     # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
     positions = recycled_empty(vertices.shape, np.dtype("<f4"))
-    frame = bounds if frame is None else frame
     if _is_large(frame):
         offset = np.floor(frame[0])
         np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
@@ -652,7 +648,7 @@ def _gltf_document(
     return tree, blocks
 
 
-def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
+def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     mtl_name = f"{target.stem}.mtl"
     text, sidecars = trimesh.exchange.obj.export_obj(
         mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
@@ -697,11 +693,11 @@ def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) 
     return out
 
 
-def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
-    tmp.write_bytes(_ply_bytes(mesh, bounds if frame is None else frame))
+def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
+    tmp.write_bytes(_ply_bytes(mesh, frame))
 
 
-def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
+def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
 
 
@@ -720,12 +716,10 @@ _3MF_RELS = (
 _3MF_ROWS = 1 << 16  # vertices or triangles formatted at a time
 
 
-def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds = None) -> None:
+def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
     p3; trimesh's writer dropped them). Written by us, streamed into the zip: no lxml or networkx needed."""
-    import zipfile
-
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     color_index = palette = None
@@ -762,9 +756,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
             out.write(b'</triangles></mesh></object></resources><build><item objectid="1"/></build></model>')
 
 
-# One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds[, shared bounds])
-# -> None; the shared bounds (save_mesh's shared_bounds) are passed only when given.
-_WRITERS: dict[str, Callable[..., None]] = {
+# One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds, the bounds that
+# decide how coordinates are stored: save_mesh's shared_bounds, else the vertex bounds) -> None.
+_WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds, Bounds], None]] = {
     ".glb": _write_glb,
     ".gltf": _write_gltf,
     ".obj": _write_obj,

@@ -531,38 +531,36 @@ def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
         ) from exc
 
 
-def _npz_text(arrays: Any, key: str, file: Path) -> str | None:
-    """The text an .npz stores under ``key`` (``crs``, ``units``, ``units_xy``): 0-d or in a one-element array
-    (``np.savez(crs=[...])``), None when absent or empty. Anything else is a DataFileError naming ``file`` and
-    ``key``: a one-element array was ignored, and a geographic CRS lost that way took degrees for metres."""
-    value = arrays.get(key)
+def _npz_one(value: Any, key: str, kinds: str, expected: str, file: Path) -> NDArray[Any] | None:
+    """The one value an .npz stores under ``key``, 0-d or in a one-element array (``np.savez(crs=[...])``,
+    ``np.savez(nodata=dataset.nodatavals)``), as a 0-d array of a dtype kind in ``kinds``; None when absent.
+    Anything else is a DataFileError naming ``file`` and ``key``: such values were ignored silently (a lost
+    geographic CRS took degrees for metres; a lost nodata read -32768 cells as heights)."""
     if value is None:
         return None
     arr = np.asarray(value)
-    if arr.size != 1 or arr.dtype.kind not in "US":
-        shown = arr.tolist() if arr.size <= 8 else f"an array of shape {arr.shape}"
-        raise DataFileError(f"cannot read {str(file)!r}: {key!r} must be one text value (e.g. 'EPSG:32611', "
-                            f"'metre'); got {shown!r} ({arr.dtype})")
-    text = arr.reshape(()).item()
+    if arr.size != 1 or arr.dtype.kind not in kinds:
+        got = arr.tolist() if arr.ndim else arr.item()
+        raise DataFileError(f"cannot read {str(file)!r}: {key!r} must be {expected}; got {arr.dtype} {got!r:.80}")
+    return arr.reshape(())
+
+
+def _npz_text(arrays: Any, key: str, file: Path) -> str | None:
+    """The text an .npz stores under ``key`` (``crs``, ``units``, ``units_xy``; see :func:`_npz_one`), None when
+    absent or empty."""
+    arr = _npz_one(arrays.get(key), key, "US", "one text value (e.g. 'EPSG:32611', 'metre')", file)
+    if arr is None:
+        return None
+    text = arr.item()
     text = text.decode() if isinstance(text, bytes) else str(text)
     return text or None
 
 
 def npz_nodata(value: Any, file: Path) -> float | None:
-    """The finite nodata value an .npz stores under ``nodata`` (a real scalar, or one real number in an array: what
-    ``np.savez(nodata=dataset.nodatavals)`` stores), None without one or for a non-finite one (NaN heights are
-    nodata anyway); anything else (text, a bool, several values) is a DataFileError naming ``file``: it was
-    ignored, and the cells it marks were read as heights (-32768 pits in the mesh)."""
-    if value is None:
-        return None
-    arr = np.asarray(value)
-    if arr.size != 1 or arr.dtype.kind not in "iuf":
-        got = f"{arr.dtype} {arr.tolist()!r:.80}" if arr.ndim else f"{arr.dtype} {arr.item()!r:.80}"
-        raise DataFileError(
-            f"cannot read {str(file)!r}: 'nodata' must be one real number (the value of missing cells); got {got}"
-        )
-    arr = arr.reshape(())
-    if not np.isfinite(arr):
+    """The finite nodata value an .npz stores under ``nodata`` (one real number, see :func:`_npz_one`), None
+    without one or for a non-finite one (NaN heights are nodata anyway)."""
+    arr = _npz_one(value, "nodata", "iuf", "one real number (the value of missing cells)", file)
+    if arr is None or not np.isfinite(arr):
         return None
     return float(arr)
 

@@ -483,15 +483,21 @@ def _whole_pixels(value: Any) -> int | None:
     return None
 
 
+def _pixel_sequence(value: Any) -> list[int | None]:
+    """``value``'s items as whole pixel numbers (None for one that is not), [] when it is no ordered sequence: text
+    ("640"), a number, or a set or dict ({32, 40} could come out as height x width)."""
+    if isinstance(value, (str, bytes, set, frozenset, dict)):
+        return []
+    try:
+        return [_whole_pixels(v) for v in value]
+    except TypeError:  # not a sequence
+        return []
+
+
 def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, int, float]:
     """(width, height, z_scale) checked: two whole numbers of 8 to 16384 pixels, a positive finite vertical
     scale."""
-    try:
-        # (a set has no order: {32, 40} could come out as height x width)
-        sides = ([_whole_pixels(v) for v in window_size]
-                 if not isinstance(window_size, (str, bytes, set, frozenset, dict)) else [])
-    except TypeError:  # not a sequence
-        sides = []
+    sides = _pixel_sequence(window_size)
     if len(sides) != 2 or None in sides or min(sides) <= 0:
         raise InvalidInputError(
             f"window_size must be two positive whole numbers (width, height); got {window_size!r}")
@@ -999,10 +1005,7 @@ class LayeredRenderer:
         """``rect`` (col0, row0, col1, row1) as four ints inside the window, else an InvalidInputError naming it."""
         width, height = self.size
         expected = f"four whole pixel numbers (col0, row0, col1, row1) in the {width}x{height} window"
-        try:
-            sides = [_whole_pixels(v) for v in rect] if not isinstance(rect, (str, bytes)) else []
-        except TypeError:  # not a sequence
-            sides = []
+        sides = _pixel_sequence(rect)
         if len(sides) != 4 or None in sides:
             raise InvalidInputError(f"rect must be {expected}; got {rect!r}")
         c0, r0, c1, r1 = sides

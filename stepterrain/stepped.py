@@ -674,6 +674,17 @@ def _direct_blend(gamma: GammaLike, colors: Any) -> dict[str, Any]:
             "want_steps": colors is not None}  # fmt: skip
 
 
+def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, colors: Any, device: wp.Device,
+                    memory_budget: int | None = None) -> tuple[StepArrays, NDArray[np.float64]]:
+    """The passes of :func:`stepped` and :func:`stepped_series`: the arrays and the blended world vertices (a
+    scalar γ blended in the vertex pass, any other by :func:`blend`); the colours counted against the budget."""
+    arrays = step_arrays(t, values, device=device, want_sources=_needs_sources(t, gamma, colors),
+                         memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
+                         **_direct_blend(gamma, colors))  # fmt: skip
+    vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=device)
+    return arrays, vertices
+
+
 def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
     per_node_gamma = not isinstance(gamma, Lens) and not callable(gamma) and _gamma_ndim(gamma) > 0
     carries_visual = terrain.visual is not None and colors is None
@@ -869,10 +880,7 @@ def stepped(
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
     if t.visual is not None and colors is None and not solid:
         _check_carried_visual(t)
-    arrays = step_arrays(t, values, device=dev, want_sources=_needs_sources(t, gamma, colors),
-                         memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
-                         **_direct_blend(gamma, colors))  # fmt: skip
-    vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=dev)
+    arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget)
     return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
     )
@@ -1060,10 +1068,7 @@ def stepped_series(
         frame_values = (
             values if height_range is None else isovalues(height_range, interval=interval, levels=levels, base=base)
         )
-        arrays = step_arrays(t, frame_values, device=dev, want_sources=_needs_sources(t, gamma, colors),
-                             extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
-                             **_direct_blend(gamma, colors))  # fmt: skip
-        vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=dev)
+        arrays, vertices = _stepped_arrays(t, frame_values, gamma, colors, dev)
         yield _assemble(
             t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None, interval=interval
         )
