@@ -6,8 +6,9 @@ Warp device present (cpu, cuda:N). Kernels are compiled and warmed up before tim
 ends with ``wp.synchronize_device``. ``benchmark.extra_info`` records the device, the output size and the
 output triangles per second.
 
-Not part of the test suite (``testpaths`` is tests and stepterrain, and pytest only collects ``test_*.py``
-from a directory, so name the file). The project's ``addopts`` disable benchmarking; enable it::
+Not part of the test suite (``testpaths`` is tests and stepterrain); pytest collects it when named, or from
+``pytest benchmarks`` (``python_files`` includes ``bench_*.py``). The project's ``addopts`` disable
+benchmarking; enable it::
 
     pytest benchmarks/bench_stepped.py -k small --benchmark-enable     # 257² only: ~30 s
     pytest benchmarks/bench_stepped.py --benchmark-enable              # everything (2049²: minutes)
@@ -33,7 +34,7 @@ if str(_ROOT) not in sys.path:
 
 import stepterrain  # noqa: E402
 from benchmarks import baselines  # noqa: E402
-from stepterrain._device import resolve_device  # noqa: E402
+from stepterrain._device import init_warp, resolve_device  # noqa: E402
 from stepterrain.stepped import blend, step_arrays  # noqa: E402
 
 CASES = [
@@ -45,7 +46,7 @@ CASES = [
 STEPS = [5, 20, 50]
 ROUNDS = {"257": 20, "1025": 5, "2049": 3}  # native DEMs (~0.6-0.8 M nodes): 5
 
-stepterrain._init_warp()
+init_warp()
 DEVICES = ["cpu"] + [pytest.param(str(d), marks=pytest.mark.cuda, id=str(d)) for d in wp.get_cuda_devices()]
 
 
