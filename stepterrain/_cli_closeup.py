@@ -74,7 +74,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
-                   + " (overview, close-ups and anchors with vertex colors)")
+                   + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
     p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")

@@ -69,7 +69,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--no-cull", action="store_true", help="keep triangles outside the view (a closed mesh)")
     p.add_argument("--texture", type=_path, metavar="IMAGE",
                    help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
-                        "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.stl/.3mf "
+                        "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.3mf "
                         "and the --png render; default: colours by elevation")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",

@@ -49,8 +49,8 @@ def add_parser(commands: Any) -> None:
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
                    choices=("standard", "multidirectional", "combined", "igor"),
-                   help="hillshade variant as gdaldem/MapLibre define it: standard, multidirectional, combined, "
-                        "igor (default standard)")
+                   help="hillshade variant as gdaldem defines it: standard, multidirectional, combined, igor (default "
+                        "standard; MapLibre's shaders are in the Python API only, method='maplibre-...')")
     p.add_argument("--azimuth", type=float, default=315.0, metavar="DEG",
                    help="light azimuth, degrees clockwise from north (default 315)")
     p.add_argument("--altitude", type=float, default=45.0, metavar="DEG",
