@@ -868,7 +868,7 @@ def topographic_layer(
     azimuth: float = DEFAULT_AZIMUTH,
     altitude: float = DEFAULT_ALTITUDE,
     z_factor: float = 1.0,
-    method: Literal["standard", "multidirectional", "combined"] = "standard",
+    method: Literal["standard", "multidirectional", "combined", "igor"] = "standard",
     shadows: bool = True,
     shadow_strength: float = 0.6,
     occlusion: float = 0.0,
@@ -880,7 +880,8 @@ def topographic_layer(
 
     The luminance is ``ambient + (1 − ambient) · shade``, shadows darken by ``shadow_strength`` and
     ``occlusion`` in [0, 1] mixes in horizon-based ambient occlusion (``1 − occlusion · (1 − ao)``).
-    Modulate a thematic layer with it (:func:`modulate`) as in Fig. 5.
+    ``method`` is one of :data:`HILLSHADE_METHODS` (gdaldem's grey variants, as in :func:`hillshade`), not a
+    MapLibre method. Modulate a thematic layer with it (:func:`modulate`) as in Fig. 5.
     """
     t = _grid_terrain(terrain, spacing)
     if _is_name(method, MAPLIBRE_METHODS):
