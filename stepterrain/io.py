@@ -82,7 +82,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         is then the horizontal part), in which case feet become metres; a grid converted to metres whose
         heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
         without a geotransform: ``spacing`` (1, -1), ``origin`` (0, 0), ``crs`` None (a GeoTIFF's CRS without
-        a geotransform is ignored, with a warning). ``source`` is the file name.
+        a geotransform is ignored, with a warning; one referenced by ground control points or RPCs instead is
+        refused, see Raises). ``source`` is the file name.
 
     Raises
     ------
@@ -92,7 +93,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
         under a .png name, a 1-D array, text, an archive without a 2-D array, a rotated grid, a geographic grid whose
         latitudes lie beyond ±90, ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz
-        ``nodata`` that is not one real number, nothing but nodata).
+        ``nodata`` that is not one real number, nothing but nodata), or is a GeoTIFF georeferenced only by ground
+        control points (GCPs) or rational polynomial coefficients (RPCs), which is not a regular grid until
+        warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -450,6 +453,8 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
                 unit = dataset.units[band - 1]
                 transform = dataset.transform
                 crs_obj = dataset.crs
+                if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
+                    _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
@@ -478,6 +483,25 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)
     return _georeferenced(
         file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
+    )
+
+
+def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) -> None:
+    """Refuse a GeoTIFF georeferenced by ground control points or rational polynomial coefficients instead of a
+    geotransform: rasterio then reports the identity, and such a file was read as an unreferenced grid of 1 m
+    cells without a word. Its cells are not a regular grid in any CRS until warped, which load_dem does not do."""
+    points, crs_obj = gcps
+    if points:
+        what = f"{len(points)} ground control points (GCPs) in {_crs_string(crs_obj) or 'an unknown CRS'}"
+    elif rpcs is not None:
+        what = "rational polynomial coefficients (RPCs)"
+    else:
+        return
+    name = file.name
+    raise DataFileError(
+        f"cannot read {str(file)!r}: expected a GeoTIFF on a regular grid (a geotransform); got one referenced "
+        f"only by {what}, which load_dem does not warp; resample it to a regular grid first, e.g. "
+        f"`gdalwarp -r bilinear{' -rpc' if not points else ''} -t_srs EPSG:<code> {name} {file.stem}_grid.tif`"
     )
 
 

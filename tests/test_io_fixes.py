@@ -109,3 +109,32 @@ def test_an_npz_crs_in_a_one_element_array_is_read_and_an_unusable_one_is_refuse
         np.savez(bad, elevation=heights, transform=transform, **{key: value})
         with pytest.raises(DataFileError, match=rf"bad_{key}\.npz.*'{key}' must be one text value"):
             load_dem(bad)
+
+
+@pytest.mark.parametrize("reference", ["gcps", "rpcs"])
+def test_a_geotiff_referenced_only_by_gcps_or_rpcs_is_refused_not_read_as_1_m_cells(tmp_path, reference):
+    # without a geotransform rasterio reports the identity: a scanned map or satellite scene georeferenced by
+    # ground control points (or RPCs) was read as an unreferenced grid of 1 m cells at (0, 0), without a word
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.control import GroundControlPoint
+    from rasterio.crs import CRS
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.rpc import RPC
+
+    path = tmp_path / f"{reference}.tif"
+    with pytest.warns(NotGeoreferencedWarning):
+        with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=1, dtype="float32") as ds:
+            ds.write(np.arange(12, dtype=np.float32).reshape(1, 3, 4) + 100.0)
+            if reference == "gcps":
+                points = [GroundControlPoint(0, 0, -118.0, 34.0), GroundControlPoint(0, 4, -117.9, 34.0),
+                          GroundControlPoint(3, 0, -118.0, 33.9)]  # fmt: skip
+                ds.gcps = (points, CRS.from_epsg(4326))
+            else:
+                unit, zero = [1.0] + [0.0] * 19, [0.0] * 20  # line = -latitude, sample = longitude (normalised)
+                ds.rpcs = RPC(height_off=100.0, height_scale=500.0, lat_off=34.0, lat_scale=0.1, long_off=-118.0,
+                              long_scale=0.1, line_off=1.5, line_scale=1.5, samp_off=2.0, samp_scale=2.0,
+                              line_num_coeff=zero[:2] + [-1.0] + zero[3:], line_den_coeff=unit,
+                              samp_num_coeff=zero[:1] + [1.0] + zero[2:], samp_den_coeff=unit)  # fmt: skip
+    what = r"3 ground control points \(GCPs\) in EPSG:4326" if reference == "gcps" else r"rational polynomial"
+    with pytest.raises(DataFileError, match=rf"{reference}\.tif.*regular grid.*referenced only by {what}.*gdalwarp"):
+        load_dem(path)
