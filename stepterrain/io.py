@@ -39,16 +39,28 @@ _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
 _GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
 _US_FOOT_M = 1200 / 3937
-#: Height units a file may name (lower case, as GDAL band units and PROJ write them) -> metres per unit.
+#: Height units a file (or ``load_dem(height_unit=...)``) may name -> metres per unit. Keys are lower case, as GDAL
+#: band units, PROJ and EPSG write them; a name is matched ignoring case and surrounding blanks and dots.
 _HEIGHT_UNITS = {
     **dict.fromkeys(("m", "metre", "meter", "metres", "meters"), 1.0),
-    **dict.fromkeys(("ft", "foot", "feet", "international foot"), 0.3048),
-    **dict.fromkeys(("us-ft", "ftus", "us survey foot", "us survey feet", "foot_us", "us_survey_foot"), _US_FOOT_M),
+    **dict.fromkeys(("km", "kilometre", "kilometer", "kilometres", "kilometers"), 1000.0),
+    **dict.fromkeys(("dm", "decimetre", "decimeter", "decimetres", "decimeters"), 0.1),
+    **dict.fromkeys(("cm", "centimetre", "centimeter", "centimetres", "centimeters"), 0.01),
+    **dict.fromkeys(("mm", "millimetre", "millimeter", "millimetres", "millimeters"), 0.001),
+    **dict.fromkeys(("ft", "foot", "feet", "international foot", "international feet", "intl ft"), 0.3048),
+    **dict.fromkeys(
+        ("us-ft", "ftus", "ft_us", "us_ft", "us ft", "us survey foot", "us survey feet", "foot_us", "us_survey_foot",
+         "foot (us survey)", "feet (us survey)", "us foot", "us feet"),
+        _US_FOOT_M,
+    ),  # fmt: skip
 }
 
 
+_KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
+
+
 # ---------------------------------------------------------------------------------------------- public API
-def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
+def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None) -> Terrain:
     """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
 
     Parameters
@@ -63,6 +75,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band).
+    height_unit : str, optional
+        The heights' length unit, overriding the one the file names (if any): "m", "ft", "US survey foot", "km",
+        "cm", ... (see Returns). For a file that names none (a PNG, a plain array) or one not on that list
+        ("metres above sea level"): ``height_unit="m"`` takes the heights as stored.
 
     Returns
     -------
@@ -76,11 +92,13 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         the node's longitude and latitude. A projected CRS in another linear unit (EPSG:2229 counts US
         survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection in
         metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
-        rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless the file
-        names their unit (a GeoTIFF band's unit, an .npz ``units``: "ft", "US survey foot", "m", ...) or
-        its CRS is compound with a vertical unit (EPSG:26911+6360: NAVD88 height in US survey feet; ``crs``
-        is then the horizontal part), in which case feet become metres; a grid converted to metres whose
-        heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
+        rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
+        named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
+        CRS: EPSG:26911+6360 is NAVD88 height in US survey feet, and ``crs`` is then the horizontal part), in
+        which case they become metres: metre, kilometre, decimetre, centimetre, millimetre (m, km, dm, cm, mm),
+        international foot (ft, foot, feet: 0.3048 m) and US survey foot (us-ft, ftUS: 1200/3937 m), in the
+        spellings GDAL, PROJ and EPSG use, any case; another unit is refused (see Raises). A grid converted to
+        metres whose heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
         without a geotransform: ``spacing`` (1, -1), ``origin`` (0, 0), ``crs`` None (a GeoTIFF's CRS without
         a geotransform is ignored, with a warning; one referenced by ground control points or RPCs instead is
         refused, see Raises). ``source`` is the file name.
@@ -88,14 +106,16 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     Raises
     ------
     InvalidInputError
-        Unknown extension (the message lists the supported ones), or ``band`` not a valid band number.
+        Unknown extension (the message lists the supported ones), ``band`` not a valid band number, or
+        ``height_unit`` not a known length unit (the message lists them).
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
         under a .png name, a 1-D array, text, an archive without a 2-D array, a rotated grid, a geographic grid whose
         latitudes lie beyond ±90, ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz
-        ``nodata`` that is not one real number, nothing but nodata), or is a GeoTIFF georeferenced only by ground
-        control points (GCPs) or rational polynomial coefficients (RPCs), which is not a regular grid until
-        warped (``gdalwarp`` makes it one; the message gives the command).
+        ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length
+        unit: "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF georeferenced
+        only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is not a regular
+        grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -110,6 +130,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     """
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    if height_unit is not None and (not isinstance(height_unit, str) or _unit_factor(height_unit) is None):
+        raise InvalidInputError(f"height_unit must be a length unit ({_KNOWN_UNITS}) or None; got {height_unit!r}")
     try:
         file = Path(os.fspath(path))
     except TypeError as exc:
@@ -130,7 +152,7 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
-        return _load_geotiff(file, int(band)) if reader is None else reader(file)
+        return _load_geotiff(file, int(band), height_unit) if reader is None else reader(file, height_unit)
     except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
         if isinstance(exc, StepTerrainError):
             raise
@@ -235,8 +257,8 @@ def _lonlat_grid(
 
 
 # ---------------------------------------------------------------------------------------------- readers
-def _load_npy(file: Path) -> Terrain:
-    heights = _elevation(read_npy(file), file, "array")
+def _load_npy(file: Path, height_unit: str | None) -> Terrain:
+    heights, _ = _heights_in_metres(_elevation(read_npy(file), file, "array"), height_unit, file, "height_unit")
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
 
 
@@ -283,12 +305,11 @@ def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
         ) from exc
 
 
-def _load_npz(file: Path) -> Terrain:
+def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     arrays = read_npz(file)
     if isinstance(arrays, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array
-        return _grid(
-            file, _elevation(arrays, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
-        )
+        heights, _ = _heights_in_metres(_elevation(arrays, file, "array"), height_unit, file, "height_unit")
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     nodata = npz_nodata(arrays.get("nodata"), file)
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
     # the same key with a transform (which georeferences it) and without
@@ -321,17 +342,20 @@ def _load_npz(file: Path) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
-        unit, crs = _vertical_unit(_npz_text(arrays, "units", file), crs)
-        heights, height_unit = _heights_in_metres(heights, unit)
+        named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
+        unit, crs = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
+        heights, height_unit = _heights_in_metres(heights, unit, file, named_by)
         return _georeferenced(
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
-    if key is not None:
-        return _grid(
-            file, _elevation(arrays[key], file, repr(key), nodata), spacing=(1.0, -1.0), origin=(0.0, 0.0),
-            crs=None,
+    if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
+        named_by = "height_unit" if height_unit else "its 'units'"
+        heights, _ = _heights_in_metres(
+            _elevation(arrays[key], file, repr(key), nodata), height_unit or _npz_text(arrays, "units", file), file,
+            named_by,
         )
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
@@ -374,7 +398,7 @@ def npz_heights_key(arrays: Mapping[str, NDArray[Any]], ndims: tuple[int, ...]) 
     return next((key for key in present if arrays[key].ndim in ndims), present[0] if present else None)
 
 
-def _load_png(file: Path) -> Terrain:
+def _load_png(file: Path, height_unit: str | None) -> Terrain:
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -402,7 +426,7 @@ def _load_png(file: Path) -> Terrain:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a PNG heightmap; got unreadable content ({exc})"
         ) from exc
-    heights = _elevation(array, file, f"{mode} image")
+    heights, _ = _heights_in_metres(_elevation(array, file, f"{mode} image"), height_unit, file, "height_unit")
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
 
 
@@ -424,7 +448,7 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
     return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
 
 
-def _load_geotiff(file: Path, band: int) -> Terrain:
+def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     try:
         import rasterio
         from rasterio.enums import ColorInterp
@@ -469,8 +493,9 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     # float64 stays float64 until _elevation, which names a value beyond float32 (a cast here made it nodata)
     array = np.ma.filled(masked.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32), np.nan)
     crs = _crs_string(crs_obj)
-    unit, crs = _vertical_unit(unit, crs)
-    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit)
+    named_by = "height_unit" if height_unit else f"band {band}'s unit" if unit else f"the vertical unit of {crs}"
+    unit, crs = _vertical_unit(height_unit or unit, crs)
+    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit, file, named_by)
     if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
         if crs_obj is not None:
             warnings.warn(
@@ -692,7 +717,7 @@ def _georeferenced(
             warnings.warn(
                 f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
                 f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
-                f"multiply them by {factor:.10g}",
+                f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
                 stacklevel=4,
             )
         source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
@@ -834,15 +859,25 @@ def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str |
 
 
 def _unit_factor(unit: str | None) -> float | None:
-    """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case), else None."""
-    return _HEIGHT_UNITS.get(unit.strip().lower()) if unit else None
+    """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case, blanks and dots around it
+    ignored), else None."""
+    return _HEIGHT_UNITS.get(unit.strip(" \t.").lower()) if unit else None
 
 
-def _heights_in_metres(heights: NDArray[np.float32], unit: str | None) -> tuple[NDArray[np.float32], str | None]:
-    """Heights in metres when ``unit`` is a known length unit (returned as named), else as stored and None."""
+def _heights_in_metres(
+    heights: NDArray[np.float32], unit: str | None, file: Path, named_by: str
+) -> tuple[NDArray[np.float32], str | None]:
+    """Heights in metres when ``unit`` is a known length unit (returned as named), as stored and None when no unit
+    is named (None or blank). Any other unit is a DataFileError naming ``file`` and where the unit came from
+    (``named_by``): heights in "km" or "cm" were used as metres, 1000 times too low or 100 times too high."""
+    if not unit or not unit.strip():
+        return heights, None
     factor = _unit_factor(unit)
     if factor is None:
-        return heights, None
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected heights in a known length unit ({_KNOWN_UNITS}); got {unit!r} "
+            f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...)"
+        )
     if factor != 1.0:
         heights = (heights.astype(np.float64) * factor).astype(np.float32)
     return heights, unit

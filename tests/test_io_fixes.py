@@ -138,3 +138,53 @@ def test_a_geotiff_referenced_only_by_gcps_or_rpcs_is_refused_not_read_as_1_m_ce
     what = r"3 ground control points \(GCPs\) in EPSG:4326" if reference == "gcps" else r"rational polynomial"
     with pytest.raises(DataFileError, match=rf"{reference}\.tif.*regular grid.*referenced only by {what}.*gdalwarp"):
         load_dem(path)
+
+
+Z_UNITS = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
+
+
+def write_unit_tif(path, unit):
+    rasterio = pytest.importorskip("rasterio")
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="float32", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as ds:  # fmt: skip
+        ds.write(Z_UNITS, 1)
+        ds.units = (unit,)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("unit", "metres"),
+    [("km", 1000.0), ("kilometres", 1000.0), ("dm", 0.1), ("cm", 0.01), ("Centimeters", 0.01), ("mm", 0.001),
+     ("feet", 0.3048), ("ft.", 0.3048), ("ftUS", 1200 / 3937), ("foot (US survey)", 1200 / 3937)],
+)  # fmt: skip
+def test_heights_in_other_length_units_become_metres(tmp_path, unit, metres):
+    # a band or an .npz naming its heights in km, dm, cm or mm (or spelling feet another way) was used as metres:
+    # a DEM in centimetres came out 100 times too high, one in kilometres 1000 times too flat
+    t = load_dem(write_unit_tif(tmp_path / "u.tif", unit))
+    np.testing.assert_allclose(t.heights, Z_UNITS.astype(np.float64) * metres, rtol=1e-6)
+    np.savez(tmp_path / "u.npz", elevation=Z_UNITS, transform=np.array([0.0, 30.0, 0, 60.0, 0, -30.0]),
+             crs="EPSG:32611", units=unit)  # fmt: skip
+    np.testing.assert_allclose(load_dem(tmp_path / "u.npz").heights, Z_UNITS.astype(np.float64) * metres, rtol=1e-6)
+    np.savez(tmp_path / "plain.npz", heights=Z_UNITS, units=unit)  # no transform: the unit was ignored here
+    np.testing.assert_allclose(load_dem(tmp_path / "plain.npz").heights, Z_UNITS * metres, rtol=1e-6)
+
+
+@pytest.mark.parametrize("unit", ["degC", "furlong", "meters above sea level"])
+def test_heights_in_an_unknown_unit_are_refused_unless_height_unit_names_it(tmp_path, unit):
+    # any unit off the list was used as stored without a word (a temperature grid meshed as terrain)
+    from stepterrain.errors import InvalidInputError
+
+    path = write_unit_tif(tmp_path / "odd.tif", unit)
+    refused = rf"odd\.tif.*known length unit.*got '{unit}' \(band 1's unit\).*height_unit='m'"
+    with pytest.raises(DataFileError, match=refused):
+        load_dem(path)
+    np.savez(tmp_path / "odd.npz", heights=Z_UNITS, units=unit)
+    with pytest.raises(DataFileError, match=rf"odd\.npz.*got '{unit}' \(its 'units'\)"):
+        load_dem(tmp_path / "odd.npz")
+    np.testing.assert_array_equal(load_dem(path, height_unit="m").heights, Z_UNITS)  # the caller names the unit
+    np.testing.assert_allclose(load_dem(path, height_unit="US survey foot").heights, Z_UNITS * (1200 / 3937), rtol=1e-6)
+    np.save(tmp_path / "plain.npy", Z_UNITS)  # a file that names no unit: height_unit converts it
+    np.testing.assert_allclose(load_dem(tmp_path / "plain.npy", height_unit="ft").heights, Z_UNITS * 0.3048, rtol=1e-6)
+    for bad in ("furlong", 0.3048):
+        with pytest.raises(InvalidInputError, match=rf"height_unit must be a length unit \(m, km.*got {bad!r}"):
+            load_dem(path, height_unit=bad)
