@@ -56,6 +56,11 @@ _HEIGHT_UNITS = {
 }
 
 
+#: GDAL colour interpretations of colour image bands (GeoTIFF): refused as elevation, as are alpha and spectral bands.
+_COLOUR_BANDS = frozenset(
+    ("palette", "red", "green", "blue", "hue", "saturation", "lightness", "cyan", "magenta", "yellow", "black", "Y",
+     "Cb", "Cr")
+)  # fmt: skip
 _KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
 
 
@@ -74,7 +79,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
-        1-based raster band to read; GeoTIFF only (other formats hold one band).
+        1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
+        band; the file's mask (nodata, an internal mask or an alpha band) marks its missing cells.
     height_unit : str, optional
         The heights' length unit, overriding the one the file names (if any): "m", "ft", "US survey foot", "km",
         "cm", ... (see Returns). For a file that names none (a PNG, a plain array) or one not on that list
@@ -110,12 +116,13 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``height_unit`` not a known length unit (the message lists them).
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
-        under a .png name, a 1-D array, text, an archive without a 2-D array, a rotated grid, a geographic grid whose
-        latitudes lie beyond ±90, ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz
-        ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length
-        unit: "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF georeferenced
-        only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is not a regular
-        grid until warped (``gdalwarp`` makes it one; the message gives the command).
+        under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
+        without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90, ``lat``/``lon``
+        axes not matching the heights or unevenly spaced, an .npz ``nodata`` that is not one real number, nothing
+        but nodata, heights in a unit that is not a known length unit: "degC", "meters above sea level";
+        ``height_unit`` overrides it), or is a GeoTIFF georeferenced only by ground control points (GCPs) or
+        rational polynomial coefficients (RPCs), which is not a regular grid until warped (``gdalwarp`` makes
+        it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -467,10 +474,17 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                         f"band must be between 1 and {dataset.count} for {str(file)!r}; got band={band}"
                     )
                 interp = dataset.colorinterp[band - 1]
-                if interp in (ColorInterp.palette, ColorInterp.red, ColorInterp.green, ColorInterp.blue):
+                if interp not in (ColorInterp.gray, ColorInterp.undefined):  # an alpha band was read as heights
+                    what = (
+                        "an alpha (transparency) band, which masks the other bands"
+                        if interp == ColorInterp.alpha
+                        else f"a colour image band ({interp.name})"
+                        if interp.name in _COLOUR_BANDS
+                        else f"an image band ({interp.name})"
+                    )
                     raise DataFileError(
-                        f"cannot read {str(file)!r}: expected an elevation band; band {band} is a colour "
-                        f"image band ({interp.name}), not elevation data"
+                        f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
+                        f"{what}, not elevation data"
                     )
                 masked = dataset.read(band, masked=True)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]

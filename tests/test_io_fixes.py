@@ -188,3 +188,28 @@ def test_heights_in_an_unknown_unit_are_refused_unless_height_unit_names_it(tmp_
     for bad in ("furlong", 0.3048):
         with pytest.raises(InvalidInputError, match=rf"height_unit must be a length unit \(m, km.*got {bad!r}"):
             load_dem(path, height_unit=bad)
+
+
+def test_an_alpha_or_imagery_band_is_refused_as_elevation_while_alpha_masks_the_grey_band(tmp_path):
+    # load_dem(band=2) on a grey + alpha GeoTIFF read the alpha band's 0/255 as heights (only palette and RGB bands
+    # were refused); the grey band itself reads with the alpha band as its mask
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.enums import ColorInterp
+
+    z = np.arange(12, dtype=np.uint8).reshape(3, 4) + 100
+    alpha = np.full((3, 4), 255, np.uint8)
+    alpha[0, 0] = 0
+    path = tmp_path / "grey_alpha.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=2, dtype="uint8", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 90.0), photometric="MINISBLACK",
+                       alpha="YES") as ds:  # fmt: skip
+        ds.write(np.stack([z, alpha]))
+        ds.colorinterp = [ColorInterp.gray, ColorInterp.alpha]
+    h = load_dem(path).heights
+    assert np.isnan(h[0, 0]) and np.array_equal(h.ravel()[1:], z.ravel()[1:])
+    with pytest.raises(DataFileError, match=r"grey_alpha\.tif.*band 2 is an alpha \(transparency\) band.*not elevat"):
+        load_dem(path, band=2)
+    with rasterio.open(path, "r+") as ds:
+        ds.colorinterp = [ColorInterp.gray, ColorInterp.nir]
+    with pytest.raises(DataFileError, match=r"band 2 is an image band \(nir\), not elevation data"):
+        load_dem(path, band=2)
