@@ -77,7 +77,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
         one per row and column, georeference them as geographic, the layout of the global relief grids; a
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
-        heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        heightmap, values are heights; a transparent grey value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks
+        missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as 8 bits) or
+        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
         band; the file's mask (nodata, an internal mask or an alpha band) marks its missing cells.
@@ -416,12 +418,20 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                     f"cannot read {str(file)!r}: expected a PNG heightmap; got a {image.format} image under a .png "
                     "name (a GeoTIFF reads under .tif, keeping its georeferencing)"
                 )
-            if mode not in ("L", "I", "I;16", "I;16B", "I;16L", "F"):
+            if image.tile and str(image.tile[0][3]).startswith("LA;16"):  # Pillow has no 16-bit grey + alpha mode
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a greyscale heightmap Pillow reads at full depth; got a "
+                    "16-bit greyscale PNG with an alpha channel, which Pillow reads only as 8-bit RGBA (the heights "
+                    "would lose their low byte); save it without alpha (missing cells as a transparent grey value or "
+                    "a nodata height), or as a GeoTIFF"
+                )
+            if mode not in ("L", "LA", "I", "I;16", "I;16B", "I;16L", "F"):
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "
                     f"got a {mode} image (colour or palette images are not elevation data)"
                 )
             array = np.array(image)
+            transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a PNG heightmap within Pillow's decompression-bomb limit "
@@ -433,7 +443,11 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a PNG heightmap; got unreadable content ({exc})"
         ) from exc
-    heights, _ = _heights_in_metres(_elevation(array, file, f"{mode} image"), height_unit, file, "height_unit")
+    nodata = transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else None
+    if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
+        array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
+    heights = _elevation(array, file, f"{mode} image", nodata)
+    heights, _ = _heights_in_metres(heights, height_unit, file, "height_unit")
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
 
 

@@ -213,3 +213,39 @@ def test_an_alpha_or_imagery_band_is_refused_as_elevation_while_alpha_masks_the_
         ds.colorinterp = [ColorInterp.gray, ColorInterp.nir]
     with pytest.raises(DataFileError, match=r"band 2 is an image band \(nir\), not elevation data"):
         load_dem(path, band=2)
+
+
+def write_raw_png(path, pixels, color_type):
+    """(H, W, C) uint16 ``pixels`` as a 16-bit PNG of ``color_type`` (4: grey + alpha), which Pillow cannot write."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = b"".join(b"\x00" + row.astype(">u2").tobytes() for row in pixels)
+    header = struct.pack(">IIBBBBB", pixels.shape[1], pixels.shape[0], 16, color_type, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows))
+                     + chunk(b"IEND", b""))  # fmt: skip
+    return path
+
+
+def test_png_transparency_marks_missing_cells_and_16_bit_grey_alpha_is_refused(tmp_path):
+    # a grey PNG's transparent value (tRNS, GDAL's nodata for PNG) and an 8-bit grey + alpha PNG's alpha were
+    # ignored or refused as "colour": the transparent cells became heights; a 16-bit grey + alpha PNG, which
+    # Pillow opens as 8-bit RGBA, was refused as a colour image
+    z = np.arange(12).reshape(3, 4)
+    Image.fromarray(z.astype(np.uint8)).save(tmp_path / "trns8.png", transparency=5)
+    Image.fromarray(z.astype(np.uint16) * 1000).save(tmp_path / "trns16.png", transparency=5000)
+    for name, scale in (("trns8.png", 1), ("trns16.png", 1000)):
+        h = load_dem(tmp_path / name).heights
+        assert np.isnan(h[1, 1]) and np.isfinite(h).sum() == 11
+        np.testing.assert_array_equal(h[np.isfinite(h)], (z * scale)[z != 5])
+    grey_alpha = np.stack([z.astype(np.uint8) + 50, np.full((3, 4), 255, np.uint8)], axis=-1)
+    grey_alpha[2, 3, 1] = 0
+    Image.fromarray(grey_alpha, "LA").save(tmp_path / "la8.png")
+    h = load_dem(tmp_path / "la8.png").heights
+    assert np.isnan(h[2, 3]) and np.array_equal(h.ravel()[:-1], z.ravel()[:-1] + 50)
+    write_raw_png(tmp_path / "la16.png", np.stack([z * 1000 + 7, np.full((3, 4), 65535)], axis=-1), 4)
+    with pytest.raises(DataFileError, match=r"la16\.png.*16-bit greyscale PNG with an alpha channel.*8-bit"):
+        load_dem(tmp_path / "la16.png")
