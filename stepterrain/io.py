@@ -119,12 +119,12 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
-        without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90, ``lat``/``lon``
-        axes not matching the heights or unevenly spaced, an .npz ``nodata`` that is not one real number, nothing
-        but nodata, heights in a unit that is not a known length unit: "degC", "meters above sea level";
-        ``height_unit`` overrides it), or is a GeoTIFF georeferenced only by ground control points (GCPs) or
-        rational polynomial coefficients (RPCs), which is not a regular grid until warped (``gdalwarp`` makes
-        it one; the message gives the command).
+        without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90 or whose node
+        longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or unevenly spaced,
+        an .npz ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known
+        length unit: "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
+        georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
+        not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -761,6 +761,13 @@ def _georeferenced(
             f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node latitudes run "
             f"from {min(node_lats):.9g} to {max(node_lats):.9g}; expected them within [-90, 90] (a projected grid "
             "labelled with a geographic CRS?)"
+        )
+    lon_span = (heights.shape[1] - 1) * abs(dx)
+    if lon_span > 360.0 + 1e-9:  # the nodes went round the globe more than once: a strip wider than the earth
+        raise DataFileError(
+            f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node longitudes "
+            f"span {lon_span:.9g} degrees ({heights.shape[1]} columns of {abs(dx):.9g}); expected at most 360 (a "
+            "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
     if metres is None:

@@ -249,3 +249,15 @@ def test_png_transparency_marks_missing_cells_and_16_bit_grey_alpha_is_refused(t
     write_raw_png(tmp_path / "la16.png", np.stack([z * 1000 + 7, np.full((3, 4), 65535)], axis=-1), 4)
     with pytest.raises(DataFileError, match=r"la16\.png.*16-bit greyscale PNG with an alpha channel.*8-bit"):
         load_dem(tmp_path / "la16.png")
+
+
+def test_a_geographic_grid_whose_longitudes_go_round_the_globe_more_than_once_is_refused(tmp_path):
+    # latitudes beyond ±90 were refused, but 4 columns 150 degrees apart (450 degrees of longitude, a wrong step or
+    # a projected grid labelled EPSG:4326) read as a strip 50,000 km wide; a whole globe (361 nodes) still reads
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.savez(tmp_path / "wide.npz", elevation=z, lat=np.array([10.0, 0.0, -10.0]), lon=np.arange(4) * 150.0)
+    with pytest.raises(DataFileError, match=r"wide\.npz.*longitudes span 450 degrees \(4 columns of 150\).*most 360"):
+        load_dem(tmp_path / "wide.npz")
+    globe = np.zeros((3, 361), np.float32)
+    np.savez(tmp_path / "globe.npz", elevation=globe, lat=np.array([1.0, 0.0, -1.0]), lon=np.arange(361) - 180.0)
+    assert load_dem(tmp_path / "globe.npz").extent[1] == pytest.approx(2 * np.pi * 6371008.8)  # dx at the equator
