@@ -92,8 +92,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     -------
     Terrain
         ``kind == "grid"``, float32 ``heights`` with NaN for nodata (a file's nodata value and any
-        non-finite value), rows north-first. Georeferenced files: node (0, 0) is the centre of the
-        top-left cell, ``origin`` its world position and ``spacing`` = (dx, -dy) from the geotransform,
+        non-finite value), rows as stored: north-first for the usual north-up file, south-first with
+        ``spacing`` dy > 0 for a south-up one (a positive pixel height), placed right either way.
+        Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
+        world position and ``spacing`` = (dx, -dy) from the geotransform,
         ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres on
         a sphere of radius :data:`EARTH_RADIUS_M` (dx at the centre latitude): ``origin`` = (0, 0) at the
         top-left node, ``crs`` the equivalent PROJ equidistant-cylindrical definition and ``source`` names
