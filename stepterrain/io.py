@@ -39,16 +39,33 @@ _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
 _GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
 _US_FOOT_M = 1200 / 3937
-#: Height units a file may name (lower case, as GDAL band units and PROJ write them) -> metres per unit.
+#: Height units a file (or ``load_dem(height_unit=...)``) may name -> metres per unit. Keys are lower case, as GDAL
+#: band units, PROJ and EPSG write them; a name is matched ignoring case and surrounding blanks and dots.
 _HEIGHT_UNITS = {
     **dict.fromkeys(("m", "metre", "meter", "metres", "meters"), 1.0),
-    **dict.fromkeys(("ft", "foot", "feet", "international foot"), 0.3048),
-    **dict.fromkeys(("us-ft", "ftus", "us survey foot", "us survey feet", "foot_us", "us_survey_foot"), _US_FOOT_M),
+    **dict.fromkeys(("km", "kilometre", "kilometer", "kilometres", "kilometers"), 1000.0),
+    **dict.fromkeys(("dm", "decimetre", "decimeter", "decimetres", "decimeters"), 0.1),
+    **dict.fromkeys(("cm", "centimetre", "centimeter", "centimetres", "centimeters"), 0.01),
+    **dict.fromkeys(("mm", "millimetre", "millimeter", "millimetres", "millimeters"), 0.001),
+    **dict.fromkeys(("ft", "foot", "feet", "international foot", "international feet", "intl ft"), 0.3048),
+    **dict.fromkeys(
+        ("us-ft", "ftus", "ft_us", "us_ft", "us ft", "us survey foot", "us survey feet", "foot_us", "us_survey_foot",
+         "foot (us survey)", "feet (us survey)", "us foot", "us feet"),
+        _US_FOOT_M,
+    ),  # fmt: skip
 }
 
 
+#: GDAL colour interpretations of colour image bands (GeoTIFF): refused as elevation, as are alpha and spectral bands.
+_COLOUR_BANDS = frozenset(
+    ("palette", "red", "green", "blue", "hue", "saturation", "lightness", "cyan", "magenta", "yellow", "black", "Y",
+     "Cb", "Cr")
+)  # fmt: skip
+_KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
+
+
 # ---------------------------------------------------------------------------------------------- public API
-def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
+def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None) -> Terrain:
     """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
 
     Parameters
@@ -60,39 +77,56 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
         one per row and column, georeference them as geographic, the layout of the global relief grids; a
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
-        heightmap, values are heights) or ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        heightmap, values are heights; a transparent grey value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks
+        missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as 8 bits) or
+        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
-        1-based raster band to read; GeoTIFF only (other formats hold one band).
+        1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
+        band; the file's mask (nodata, an internal mask or an alpha band) marks its missing cells.
+    height_unit : str, optional
+        The heights' length unit, overriding the one the file names (if any): "m", "ft", "US survey foot", "km",
+        "cm", ... (see Returns). For a file that names none (a PNG, a plain array) or one not on that list
+        ("metres above sea level"): ``height_unit="m"`` takes the heights as stored.
 
     Returns
     -------
     Terrain
         ``kind == "grid"``, float32 ``heights`` with NaN for nodata (a file's nodata value and any
-        non-finite value), rows north-first. Georeferenced files: node (0, 0) is the centre of the
-        top-left cell, ``origin`` its world position and ``spacing`` = (dx, -dy) from the geotransform,
+        non-finite value), rows as stored: north-first for the usual north-up file, south-first with
+        ``spacing`` dy > 0 for a south-up one (a positive pixel height), placed right either way.
+        Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
+        world position and ``spacing`` = (dx, -dy) from the geotransform,
         ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres on
         a sphere of radius :data:`EARTH_RADIUS_M` (dx at the centre latitude): ``origin`` = (0, 0) at the
         top-left node, ``crs`` the equivalent PROJ equidistant-cylindrical definition and ``source`` names
         the node's longitude and latitude. A projected CRS in another linear unit (EPSG:2229 counts US
         survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection in
         metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
-        rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless the file
-        names their unit (a GeoTIFF band's unit, an .npz ``units``: "ft", "US survey foot", "m", ...) or
-        its CRS is compound with a vertical unit (EPSG:26911+6360: NAVD88 height in US survey feet; ``crs``
-        is then the horizontal part), in which case feet become metres; a grid converted to metres whose
-        heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
+        rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
+        named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
+        CRS: EPSG:26911+6360 is NAVD88 height in US survey feet, and ``crs`` is then the horizontal part), in
+        which case they become metres: metre, kilometre, decimetre, centimetre, millimetre (m, km, dm, cm, mm),
+        international foot (ft, foot, feet: 0.3048 m) and US survey foot (us-ft, ftUS: 1200/3937 m), in the
+        spellings GDAL, PROJ and EPSG use, any case; another unit is refused (see Raises). A grid converted to
+        metres whose heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
         without a geotransform: ``spacing`` (1, -1), ``origin`` (0, 0), ``crs`` None (a GeoTIFF's CRS without
-        a geotransform is ignored, with a warning). ``source`` is the file name.
+        a geotransform is ignored, with a warning; one referenced by ground control points or RPCs instead is
+        refused, see Raises). ``source`` is the file name.
 
     Raises
     ------
     InvalidInputError
-        Unknown extension (the message lists the supported ones), or ``band`` not a valid band number.
+        Unknown extension (the message lists the supported ones), ``band`` not a valid band number, or
+        ``height_unit`` not a known length unit (the message lists them).
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
-        under a .png name, a 1-D array, text, an archive without a 2-D array, a rotated grid, a geographic grid whose
-        latitudes lie beyond ±90, ``lat``/``lon`` axes not matching the heights or unevenly spaced, an .npz
-        ``nodata`` that is not one real number, nothing but nodata).
+        under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
+        without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90 or whose node
+        longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or unevenly spaced,
+        an .npz ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known
+        length unit: "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
+        georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
+        not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
 
@@ -107,6 +141,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
     """
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    if height_unit is not None and (not isinstance(height_unit, str) or _unit_factor(height_unit) is None):
+        raise InvalidInputError(f"height_unit must be a length unit ({_KNOWN_UNITS}) or None; got {height_unit!r}")
     try:
         file = Path(os.fspath(path))
     except TypeError as exc:
@@ -127,7 +163,7 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1) -> Terrain:
         )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
-        return _load_geotiff(file, int(band)) if reader is None else reader(file)
+        return _load_geotiff(file, int(band), height_unit) if reader is None else reader(file, height_unit)
     except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
         if isinstance(exc, StepTerrainError):
             raise
@@ -232,8 +268,8 @@ def _lonlat_grid(
 
 
 # ---------------------------------------------------------------------------------------------- readers
-def _load_npy(file: Path) -> Terrain:
-    heights = _elevation(read_npy(file), file, "array")
+def _load_npy(file: Path, height_unit: str | None) -> Terrain:
+    heights, _ = _heights_in_metres(_elevation(read_npy(file), file, "array"), height_unit, file, "height_unit")
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
 
 
@@ -280,12 +316,11 @@ def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
         ) from exc
 
 
-def _load_npz(file: Path) -> Terrain:
+def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     arrays = read_npz(file)
     if isinstance(arrays, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array
-        return _grid(
-            file, _elevation(arrays, file, "array"), spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None
-        )
+        heights, _ = _heights_in_metres(_elevation(arrays, file, "array"), height_unit, file, "height_unit")
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     nodata = npz_nodata(arrays.get("nodata"), file)
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
     # the same key with a transform (which georeferences it) and without
@@ -318,17 +353,20 @@ def _load_npz(file: Path) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
-        unit, crs = _vertical_unit(_npz_text(arrays, "units", file), crs)
-        heights, height_unit = _heights_in_metres(heights, unit)
+        named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
+        unit, crs = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
+        heights, height_unit = _heights_in_metres(heights, unit, file, named_by)
         return _georeferenced(
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
-    if key is not None:
-        return _grid(
-            file, _elevation(arrays[key], file, repr(key), nodata), spacing=(1.0, -1.0), origin=(0.0, 0.0),
-            crs=None,
+    if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
+        named_by = "height_unit" if height_unit else "its 'units'"
+        heights, _ = _heights_in_metres(
+            _elevation(arrays[key], file, repr(key), nodata), height_unit or _npz_text(arrays, "units", file), file,
+            named_by,
         )
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
@@ -371,7 +409,7 @@ def npz_heights_key(arrays: Mapping[str, NDArray[Any]], ndims: tuple[int, ...]) 
     return next((key for key in present if arrays[key].ndim in ndims), present[0] if present else None)
 
 
-def _load_png(file: Path) -> Terrain:
+def _load_png(file: Path, height_unit: str | None) -> Terrain:
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -382,12 +420,20 @@ def _load_png(file: Path) -> Terrain:
                     f"cannot read {str(file)!r}: expected a PNG heightmap; got a {image.format} image under a .png "
                     "name (a GeoTIFF reads under .tif, keeping its georeferencing)"
                 )
-            if mode not in ("L", "I", "I;16", "I;16B", "I;16L", "F"):
+            if image.tile and str(image.tile[0][3]).startswith("LA;16"):  # Pillow has no 16-bit grey + alpha mode
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a greyscale heightmap Pillow reads at full depth; got a "
+                    "16-bit greyscale PNG with an alpha channel, which Pillow reads only as 8-bit RGBA (the heights "
+                    "would lose their low byte); save it without alpha (missing cells as a transparent grey value or "
+                    "a nodata height), or as a GeoTIFF"
+                )
+            if mode not in ("L", "LA", "I", "I;16", "I;16B", "I;16L", "F"):
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "
                     f"got a {mode} image (colour or palette images are not elevation data)"
                 )
             array = np.array(image)
+            transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a PNG heightmap within Pillow's decompression-bomb limit "
@@ -399,7 +445,11 @@ def _load_png(file: Path) -> Terrain:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a PNG heightmap; got unreadable content ({exc})"
         ) from exc
-    heights = _elevation(array, file, f"{mode} image")
+    nodata = transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else None
+    if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
+        array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
+    heights = _elevation(array, file, f"{mode} image", nodata)
+    heights, _ = _heights_in_metres(heights, height_unit, file, "height_unit")
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
 
 
@@ -421,7 +471,7 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
     return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
 
 
-def _load_geotiff(file: Path, band: int) -> Terrain:
+def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     try:
         import rasterio
         from rasterio.enums import ColorInterp
@@ -440,16 +490,25 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
                         f"band must be between 1 and {dataset.count} for {str(file)!r}; got band={band}"
                     )
                 interp = dataset.colorinterp[band - 1]
-                if interp in (ColorInterp.palette, ColorInterp.red, ColorInterp.green, ColorInterp.blue):
+                if interp not in (ColorInterp.gray, ColorInterp.undefined):  # an alpha band was read as heights
+                    what = (
+                        "an alpha (transparency) band, which masks the other bands"
+                        if interp == ColorInterp.alpha
+                        else f"a colour image band ({interp.name})"
+                        if interp.name in _COLOUR_BANDS
+                        else f"an image band ({interp.name})"
+                    )
                     raise DataFileError(
-                        f"cannot read {str(file)!r}: expected an elevation band; band {band} is a colour "
-                        f"image band ({interp.name}), not elevation data"
+                        f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
+                        f"{what}, not elevation data"
                     )
                 masked = dataset.read(band, masked=True)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 unit = dataset.units[band - 1]
                 transform = dataset.transform
                 crs_obj = dataset.crs
+                if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
+                    _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
@@ -464,8 +523,9 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     # float64 stays float64 until _elevation, which names a value beyond float32 (a cast here made it nodata)
     array = np.ma.filled(masked.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32), np.nan)
     crs = _crs_string(crs_obj)
-    unit, crs = _vertical_unit(unit, crs)
-    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit)
+    named_by = "height_unit" if height_unit else f"band {band}'s unit" if unit else f"the vertical unit of {crs}"
+    unit, crs = _vertical_unit(height_unit or unit, crs)
+    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit, file, named_by)
     if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
         if crs_obj is not None:
             warnings.warn(
@@ -478,6 +538,25 @@ def _load_geotiff(file: Path, band: int) -> Terrain:
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)
     return _georeferenced(
         file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
+    )
+
+
+def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) -> None:
+    """Refuse a GeoTIFF georeferenced by ground control points or rational polynomial coefficients instead of a
+    geotransform: rasterio then reports the identity, and such a file was read as an unreferenced grid of 1 m
+    cells without a word. Its cells are not a regular grid in any CRS until warped, which load_dem does not do."""
+    points, crs_obj = gcps
+    if points:
+        what = f"{len(points)} ground control points (GCPs) in {_crs_string(crs_obj) or 'an unknown CRS'}"
+    elif rpcs is not None:
+        what = "rational polynomial coefficients (RPCs)"
+    else:
+        return
+    name = file.name
+    raise DataFileError(
+        f"cannot read {str(file)!r}: expected a GeoTIFF on a regular grid (a geotransform); got one referenced "
+        f"only by {what}, which load_dem does not warp; resample it to a regular grid first, e.g. "
+        f"`gdalwarp -r bilinear{' -rpc' if not points else ''} -t_srs EPSG:<code> {name} {file.stem}_grid.tif`"
     )
 
 
@@ -668,7 +747,7 @@ def _georeferenced(
             warnings.warn(
                 f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
                 f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
-                f"multiply them by {factor:.10g}",
+                f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
                 stacklevel=4,
             )
         source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
@@ -684,6 +763,13 @@ def _georeferenced(
             f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node latitudes run "
             f"from {min(node_lats):.9g} to {max(node_lats):.9g}; expected them within [-90, 90] (a projected grid "
             "labelled with a geographic CRS?)"
+        )
+    lon_span = (heights.shape[1] - 1) * abs(dx)
+    if lon_span > 360.0 + 1e-9:  # the nodes went round the globe more than once: a strip wider than the earth
+        raise DataFileError(
+            f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node longitudes "
+            f"span {lon_span:.9g} degrees ({heights.shape[1]} columns of {abs(dx):.9g}); expected at most 360 (a "
+            "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
     if metres is None:
@@ -810,15 +896,25 @@ def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str |
 
 
 def _unit_factor(unit: str | None) -> float | None:
-    """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case), else None."""
-    return _HEIGHT_UNITS.get(unit.strip().lower()) if unit else None
+    """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case, blanks and dots around it
+    ignored), else None."""
+    return _HEIGHT_UNITS.get(unit.strip(" \t.").lower()) if unit else None
 
 
-def _heights_in_metres(heights: NDArray[np.float32], unit: str | None) -> tuple[NDArray[np.float32], str | None]:
-    """Heights in metres when ``unit`` is a known length unit (returned as named), else as stored and None."""
+def _heights_in_metres(
+    heights: NDArray[np.float32], unit: str | None, file: Path, named_by: str
+) -> tuple[NDArray[np.float32], str | None]:
+    """Heights in metres when ``unit`` is a known length unit (returned as named), as stored and None when no unit
+    is named (None or blank). Any other unit is a DataFileError naming ``file`` and where the unit came from
+    (``named_by``): heights in "km" or "cm" were used as metres, 1000 times too low or 100 times too high."""
+    if not unit or not unit.strip():
+        return heights, None
     factor = _unit_factor(unit)
     if factor is None:
-        return heights, None
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected heights in a known length unit ({_KNOWN_UNITS}); got {unit!r} "
+            f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...)"
+        )
     if factor != 1.0:
         heights = (heights.astype(np.float64) * factor).astype(np.float32)
     return heights, unit

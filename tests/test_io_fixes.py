@@ -109,3 +109,155 @@ def test_an_npz_crs_in_a_one_element_array_is_read_and_an_unusable_one_is_refuse
         np.savez(bad, elevation=heights, transform=transform, **{key: value})
         with pytest.raises(DataFileError, match=rf"bad_{key}\.npz.*'{key}' must be one text value"):
             load_dem(bad)
+
+
+@pytest.mark.parametrize("reference", ["gcps", "rpcs"])
+def test_a_geotiff_referenced_only_by_gcps_or_rpcs_is_refused_not_read_as_1_m_cells(tmp_path, reference):
+    # without a geotransform rasterio reports the identity: a scanned map or satellite scene georeferenced by
+    # ground control points (or RPCs) was read as an unreferenced grid of 1 m cells at (0, 0), without a word
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.control import GroundControlPoint
+    from rasterio.crs import CRS
+    from rasterio.errors import NotGeoreferencedWarning
+    from rasterio.rpc import RPC
+
+    path = tmp_path / f"{reference}.tif"
+    with pytest.warns(NotGeoreferencedWarning):
+        with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=1, dtype="float32") as ds:
+            ds.write(np.arange(12, dtype=np.float32).reshape(1, 3, 4) + 100.0)
+            if reference == "gcps":
+                points = [GroundControlPoint(0, 0, -118.0, 34.0), GroundControlPoint(0, 4, -117.9, 34.0),
+                          GroundControlPoint(3, 0, -118.0, 33.9)]  # fmt: skip
+                ds.gcps = (points, CRS.from_epsg(4326))
+            else:
+                unit, zero = [1.0] + [0.0] * 19, [0.0] * 20  # line = -latitude, sample = longitude (normalised)
+                ds.rpcs = RPC(height_off=100.0, height_scale=500.0, lat_off=34.0, lat_scale=0.1, long_off=-118.0,
+                              long_scale=0.1, line_off=1.5, line_scale=1.5, samp_off=2.0, samp_scale=2.0,
+                              line_num_coeff=zero[:2] + [-1.0] + zero[3:], line_den_coeff=unit,
+                              samp_num_coeff=zero[:1] + [1.0] + zero[2:], samp_den_coeff=unit)  # fmt: skip
+    what = r"3 ground control points \(GCPs\) in EPSG:4326" if reference == "gcps" else r"rational polynomial"
+    with pytest.raises(DataFileError, match=rf"{reference}\.tif.*regular grid.*referenced only by {what}.*gdalwarp"):
+        load_dem(path)
+
+
+Z_UNITS = np.array([[100.0, 110.0, 120.0], [130.0, 140.0, 150.0]], np.float32)
+
+
+def write_unit_tif(path, unit):
+    rasterio = pytest.importorskip("rasterio")
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="float32", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as ds:  # fmt: skip
+        ds.write(Z_UNITS, 1)
+        ds.units = (unit,)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("unit", "metres"),
+    [("km", 1000.0), ("kilometres", 1000.0), ("dm", 0.1), ("cm", 0.01), ("Centimeters", 0.01), ("mm", 0.001),
+     ("feet", 0.3048), ("ft.", 0.3048), ("ftUS", 1200 / 3937), ("foot (US survey)", 1200 / 3937)],
+)  # fmt: skip
+def test_heights_in_other_length_units_become_metres(tmp_path, unit, metres):
+    # a band or an .npz naming its heights in km, dm, cm or mm (or spelling feet another way) was used as metres:
+    # a DEM in centimetres came out 100 times too high, one in kilometres 1000 times too flat
+    t = load_dem(write_unit_tif(tmp_path / "u.tif", unit))
+    np.testing.assert_allclose(t.heights, Z_UNITS.astype(np.float64) * metres, rtol=1e-6)
+    np.savez(tmp_path / "u.npz", elevation=Z_UNITS, transform=np.array([0.0, 30.0, 0, 60.0, 0, -30.0]),
+             crs="EPSG:32611", units=unit)  # fmt: skip
+    np.testing.assert_allclose(load_dem(tmp_path / "u.npz").heights, Z_UNITS.astype(np.float64) * metres, rtol=1e-6)
+    np.savez(tmp_path / "plain.npz", heights=Z_UNITS, units=unit)  # no transform: the unit was ignored here
+    np.testing.assert_allclose(load_dem(tmp_path / "plain.npz").heights, Z_UNITS * metres, rtol=1e-6)
+
+
+@pytest.mark.parametrize("unit", ["degC", "furlong", "meters above sea level"])
+def test_heights_in_an_unknown_unit_are_refused_unless_height_unit_names_it(tmp_path, unit):
+    # any unit off the list was used as stored without a word (a temperature grid meshed as terrain)
+    from stepterrain.errors import InvalidInputError
+
+    path = write_unit_tif(tmp_path / "odd.tif", unit)
+    refused = rf"odd\.tif.*known length unit.*got '{unit}' \(band 1's unit\).*height_unit='m'"
+    with pytest.raises(DataFileError, match=refused):
+        load_dem(path)
+    np.savez(tmp_path / "odd.npz", heights=Z_UNITS, units=unit)
+    with pytest.raises(DataFileError, match=rf"odd\.npz.*got '{unit}' \(its 'units'\)"):
+        load_dem(tmp_path / "odd.npz")
+    np.testing.assert_array_equal(load_dem(path, height_unit="m").heights, Z_UNITS)  # the caller names the unit
+    np.testing.assert_allclose(load_dem(path, height_unit="US survey foot").heights, Z_UNITS * (1200 / 3937), rtol=1e-6)
+    np.save(tmp_path / "plain.npy", Z_UNITS)  # a file that names no unit: height_unit converts it
+    np.testing.assert_allclose(load_dem(tmp_path / "plain.npy", height_unit="ft").heights, Z_UNITS * 0.3048, rtol=1e-6)
+    for bad in ("furlong", 0.3048):
+        with pytest.raises(InvalidInputError, match=rf"height_unit must be a length unit \(m, km.*got {bad!r}"):
+            load_dem(path, height_unit=bad)
+
+
+def test_an_alpha_or_imagery_band_is_refused_as_elevation_while_alpha_masks_the_grey_band(tmp_path):
+    # load_dem(band=2) on a grey + alpha GeoTIFF read the alpha band's 0/255 as heights (only palette and RGB bands
+    # were refused); the grey band itself reads with the alpha band as its mask
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.enums import ColorInterp
+
+    z = np.arange(12, dtype=np.uint8).reshape(3, 4) + 100
+    alpha = np.full((3, 4), 255, np.uint8)
+    alpha[0, 0] = 0
+    path = tmp_path / "grey_alpha.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=2, dtype="uint8", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 90.0), photometric="MINISBLACK",
+                       alpha="YES") as ds:  # fmt: skip
+        ds.write(np.stack([z, alpha]))
+        ds.colorinterp = [ColorInterp.gray, ColorInterp.alpha]
+    h = load_dem(path).heights
+    assert np.isnan(h[0, 0]) and np.array_equal(h.ravel()[1:], z.ravel()[1:])
+    with pytest.raises(DataFileError, match=r"grey_alpha\.tif.*band 2 is an alpha \(transparency\) band.*not elevat"):
+        load_dem(path, band=2)
+    with rasterio.open(path, "r+") as ds:
+        ds.colorinterp = [ColorInterp.gray, ColorInterp.nir]
+    with pytest.raises(DataFileError, match=r"band 2 is an image band \(nir\), not elevation data"):
+        load_dem(path, band=2)
+
+
+def write_raw_png(path, pixels, color_type):
+    """(H, W, C) uint16 ``pixels`` as a 16-bit PNG of ``color_type`` (4: grey + alpha), which Pillow cannot write."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    rows = b"".join(b"\x00" + row.astype(">u2").tobytes() for row in pixels)
+    header = struct.pack(">IIBBBBB", pixels.shape[1], pixels.shape[0], 16, color_type, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(rows))
+                     + chunk(b"IEND", b""))  # fmt: skip
+    return path
+
+
+def test_png_transparency_marks_missing_cells_and_16_bit_grey_alpha_is_refused(tmp_path):
+    # a grey PNG's transparent value (tRNS, GDAL's nodata for PNG) and an 8-bit grey + alpha PNG's alpha were
+    # ignored or refused as "colour": the transparent cells became heights; a 16-bit grey + alpha PNG, which
+    # Pillow opens as 8-bit RGBA, was refused as a colour image
+    z = np.arange(12).reshape(3, 4)
+    Image.fromarray(z.astype(np.uint8)).save(tmp_path / "trns8.png", transparency=5)
+    Image.fromarray(z.astype(np.uint16) * 1000).save(tmp_path / "trns16.png", transparency=5000)
+    for name, scale in (("trns8.png", 1), ("trns16.png", 1000)):
+        h = load_dem(tmp_path / name).heights
+        assert np.isnan(h[1, 1]) and np.isfinite(h).sum() == 11
+        np.testing.assert_array_equal(h[np.isfinite(h)], (z * scale)[z != 5])
+    grey_alpha = np.stack([z.astype(np.uint8) + 50, np.full((3, 4), 255, np.uint8)], axis=-1)
+    grey_alpha[2, 3, 1] = 0
+    Image.fromarray(grey_alpha, "LA").save(tmp_path / "la8.png")
+    h = load_dem(tmp_path / "la8.png").heights
+    assert np.isnan(h[2, 3]) and np.array_equal(h.ravel()[:-1], z.ravel()[:-1] + 50)
+    write_raw_png(tmp_path / "la16.png", np.stack([z * 1000 + 7, np.full((3, 4), 65535)], axis=-1), 4)
+    with pytest.raises(DataFileError, match=r"la16\.png.*16-bit greyscale PNG with an alpha channel.*8-bit"):
+        load_dem(tmp_path / "la16.png")
+
+
+def test_a_geographic_grid_whose_longitudes_go_round_the_globe_more_than_once_is_refused(tmp_path):
+    # latitudes beyond ±90 were refused, but 4 columns 150 degrees apart (450 degrees of longitude, a wrong step or
+    # a projected grid labelled EPSG:4326) read as a strip 50,000 km wide; a whole globe (361 nodes) still reads
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    np.savez(tmp_path / "wide.npz", elevation=z, lat=np.array([10.0, 0.0, -10.0]), lon=np.arange(4) * 150.0)
+    with pytest.raises(DataFileError, match=r"wide\.npz.*longitudes span 450 degrees \(4 columns of 150\).*most 360"):
+        load_dem(tmp_path / "wide.npz")
+    globe = np.zeros((3, 361), np.float32)
+    np.savez(tmp_path / "globe.npz", elevation=globe, lat=np.array([1.0, 0.0, -1.0]), lon=np.arange(361) - 180.0)
+    assert load_dem(tmp_path / "globe.npz").extent[1] == pytest.approx(2 * np.pi * 6371008.8)  # dx at the equator
