@@ -46,7 +46,7 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _floats, _path, _window
+    from .cli import _add_height_unit, _floats, _path, _window
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -61,6 +61,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="a folder of DEM files, a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
                         "default: the embedded Big Tujunga DEM")
+    _add_height_unit(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
                    help="output folder (created if missing)")
     p.add_argument("--format", default=".glb", metavar="EXT",
@@ -135,6 +136,9 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     if args.input:
         source: Any = args.input
         what = args.input
+    elif args.height_unit is not None:
+        raise InvalidInputError(
+            f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {args.height_unit!r}")
     else:
         from .io import sample_dem
 
@@ -151,7 +155,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         solid=args.solid, floor=args.floor, scheduler=scheduler, workers=args.workers, retries=args.retries,
         resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
         metadata={"generator": "stepterrain batch", "input": args.input or "embedded Big Tujunga DEM"},
-        device=args.device,
+        height_unit=args.height_unit, device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's heights are known only item by item (tiles and series are checked up front): a floor above every

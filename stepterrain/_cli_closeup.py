@@ -33,7 +33,7 @@ examples:
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _floats, _path, _window
+    from .cli import _add_height_unit, _floats, _path, _window
 
     p = commands.add_parser(
         "closeup",
@@ -45,6 +45,7 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+    _add_height_unit(p)
     p.add_argument("--roi", type=_floats(3, "x,y,r"), action="append", metavar="x,y,r",
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
     p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action="append", metavar="fx,fy,fr",
@@ -97,7 +98,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .cli import _check_output, _check_outputs, _check_size
+    from .cli import _check_output, _check_outputs, _check_size, _load_input
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
@@ -111,7 +112,6 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         render_closeups,
         save_animation,
     )
-    from .io import load_dem, sample_dem
     from .stepped import colormap, isovalues
 
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
@@ -148,7 +148,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = load_dem(args.input) if args.input else sample_dem()
+    terrain = _load_input(args.input, args.height_unit)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)

@@ -14,7 +14,18 @@ from typing import Any
 
 import numpy as np
 
-from .cli import Progress, _check_output, _check_outputs, _check_size, _colormap, _path, _size, _window
+from .cli import (
+    Progress,
+    _add_height_unit,
+    _check_output,
+    _check_outputs,
+    _check_size,
+    _colormap,
+    _load_input,
+    _path,
+    _size,
+    _window,
+)
 from .errors import InvalidInputError, MissingDependencyError
 from .export import IMAGE_EXTENSIONS, MESH_EXTENSIONS
 
@@ -47,6 +58,7 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+    _add_height_unit(p)
     p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
                    choices=("standard", "multidirectional", "combined", "igor"),
                    help="hillshade variant as gdaldem defines it: standard, multidirectional, combined, igor (default "
@@ -109,7 +121,6 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from . import texture as tx
     from ._device import resolve_device
-    from .io import load_dem, sample_dem
 
     out = _check_output(args.output, IMAGE_EXTENSIONS, "--output")
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
@@ -131,7 +142,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = load_dem(args.input) if args.input else sample_dem()
+    terrain = _load_input(args.input, args.height_unit)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
 
     device = resolve_device(args.device)

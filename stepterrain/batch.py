@@ -159,6 +159,9 @@ class _Options:
     ext: str
     device: str | None
     metadata: tuple[tuple[str, Any], ...]
+    #: the DEM files' height unit (:func:`~stepterrain.io.load_dem`'s ``height_unit``); out of the repr, so that a
+    #: run without it keeps the fingerprints of runs made before it existed (:func:`_fingerprints` adds it when set)
+    height_unit: str | None = dataclasses.field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -193,6 +196,7 @@ def plan_items(
     source: str | os.PathLike[str] | Sequence[str | os.PathLike[str]] | Terrain | ArrayLike,
     *,
     tile_size: int | tuple[int, int] | None = None,
+    height_unit: str | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
     """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice.
 
@@ -224,12 +228,17 @@ def plan_items(
         if tile_size is None:
             series = load_series(path) if path.suffix.lower() in (".npy", ".npz") else None
             if series is not None:
+                if height_unit is not None:
+                    raise InvalidInputError(
+                        f"height_unit applies to DEM files, read by load_dem; a (T, H, W) series {str(path)!r} is "
+                        f"read as stored; got height_unit={height_unit!r}"
+                    )
                 # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
                 return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
             raise InvalidInputError(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
-        terrain = load_dem(path)
+        terrain = load_dem(path, height_unit=height_unit)
         return _tile_items(terrain.heights.shape, tile_size), _terrain_source(terrain)
     if isinstance(source, Terrain):
         if source.kind != "grid":
@@ -361,11 +370,11 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
 
 
 # ---------------------------------------------------------------------------------------------- one item
-def _item_terrain(item: BatchItem, source: _Source | None) -> Terrain:
+def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None) -> Terrain:
     if item.kind == "file":
         from .io import load_dem
 
-        return load_dem(item.path)  # type: ignore[arg-type]
+        return load_dem(item.path, height_unit=height_unit)  # type: ignore[arg-type]
     assert source is not None
     frame0, row0, col0 = source.offset
     if item.kind == "frame":
@@ -447,7 +456,7 @@ def run_item(
         set_cpu_threads(cpu_threads)
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
-        terrain = _item_terrain(item, source)
+        terrain = _item_terrain(item, source, options.height_unit)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if item.kind != "file" and not _has_surface(terrain):
             # a piece of the source with no triangle of three finite heights (sea off a coast, a gap in a series):
@@ -487,6 +496,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     The device is left out: every device gives the same bits (kernels/__init__), so a run resumed on another
     machine or device keeps what is done."""
     shared = repr(dataclasses.replace(options, device=None))
+    if options.height_unit is not None:
+        shared += f"|height_unit={options.height_unit!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
@@ -735,6 +746,7 @@ def batch(
     connect_timeout: float = 10.0,
     progress: bool = False,
     metadata: Mapping[str, Any] | None = None,
+    height_unit: str | None = None,
     device: wp.DeviceLike = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
@@ -776,6 +788,10 @@ def batch(
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
         anything else is refused before any work, naming its key.
+    height_unit : str, optional
+        The unit of the heights in DEM files (a folder, a list, or one raster file cut into tiles), as
+        :func:`~stepterrain.io.load_dem` takes it: for files that name none or name one it does not know.
+        Not for arrays, Terrains or (T, H, W) series, whose heights are used as they are.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker).
 
@@ -856,7 +872,18 @@ def batch(
         floor = finite_number(floor, "floor")
     if floor is not None and abs(floor) > FLOAT32_MAX:
         raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor:g}")
-    items, src = plan_items(source, tile_size=tile_size)
+    if height_unit is not None:
+        from .io import check_height_unit
+
+        height_unit = check_height_unit(height_unit)
+        if not isinstance(source, (str, os.PathLike, list, tuple)) or (
+            isinstance(source, (list, tuple)) and not all(isinstance(f, (str, os.PathLike)) for f in source)
+        ):
+            raise InvalidInputError(
+                f"height_unit applies to DEM files, read by load_dem; got a {type(source).__name__} source "
+                f"(its heights are used as they are)"
+            )
+    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):
             raise InvalidInputError(
@@ -886,7 +913,7 @@ def batch(
         base=0.0 if level_values is not None else float(base),  # shared levels hold the base already
         gamma=gamma_value, colors=colors, solid=bool(solid),
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
-        metadata=tuple(sorted(extras.items())),
+        metadata=tuple(sorted(extras.items())), height_unit=height_unit,
     )  # fmt: skip
     if level_values is not None and interval is not None:
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})

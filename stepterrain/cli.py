@@ -152,6 +152,35 @@ def _path(text: str) -> str:
     return text
 
 
+def _height_unit(text: str) -> str:
+    """A ``--height-unit``: a length unit load_dem knows, checked before any file is read."""
+    from .io import _KNOWN_UNITS, _unit_factor
+
+    if _unit_factor(text) is None:
+        raise argparse.ArgumentTypeError(f"expected a length unit ({_KNOWN_UNITS}); got {text!r}")
+    return text
+
+
+def _add_height_unit(p: argparse.ArgumentParser) -> None:
+    """``--height-unit``: load_dem's ``height_unit`` for an INPUT file that names no unit or one it does not know."""
+    p.add_argument("--height-unit", type=_height_unit, default=None, metavar="UNIT",
+                   help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that names "
+                        "none or one not known; heights become metres (default: the unit the file names, else as "
+                        "stored)")
+
+
+def _load_input(path: str | None, height_unit: str | None) -> Any:
+    """The DEM at ``path`` (``--height-unit`` applied), else the embedded one (where a unit is refused)."""
+    from .io import load_dem, sample_dem
+
+    if path:
+        return load_dem(path, height_unit=height_unit)
+    if height_unit is not None:
+        raise InvalidInputError(
+            f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {height_unit!r}")
+    return sample_dem()
+
+
 def _window(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -218,6 +247,7 @@ def _add_steps(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+    _add_height_unit(p)
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
                      help=f"uniform isovalues base + k*M (default: a round M giving ~{TARGET_STEPS} steps)")
@@ -260,6 +290,9 @@ def _add_info(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", nargs="?", type=_path, metavar="FILE", help="default: the embedded DEM")
+    p.add_argument("--height-unit", type=_height_unit, default=None, metavar="UNIT",
+                   help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names none or "
+                        "one not known; not for a mesh")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 
@@ -377,10 +410,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
 
     # load
-    from .io import load_dem, sample_dem
-
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = load_dem(args.input) if args.input else sample_dem()
+    terrain = _load_input(args.input, args.height_unit)
     lo, hi = terrain.height_range
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes, heights {lo:g} to {hi:g},")
 
@@ -471,9 +502,9 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     if args.file and Path(args.file).suffix.lower() in MESH_EXTENSIONS:
         summary = _mesh_summary(Path(args.file))
     else:
-        from .io import describe_dem, load_dem, sample_dem
+        from .io import describe_dem
 
-        terrain = load_dem(args.file) if args.file else sample_dem()
+        terrain = _load_input(args.file, args.height_unit)
         summary = describe_dem(terrain)
     if args.json:
         print(json.dumps(summary, indent=2, default=str))

@@ -141,8 +141,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     """
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
-    if height_unit is not None and (not isinstance(height_unit, str) or _unit_factor(height_unit) is None):
-        raise InvalidInputError(f"height_unit must be a length unit ({_KNOWN_UNITS}) or None; got {height_unit!r}")
+    if height_unit is not None:
+        height_unit = check_height_unit(height_unit)
     try:
         file = Path(os.fspath(path))
     except TypeError as exc:
@@ -895,6 +895,13 @@ def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str |
     return unit, compound[1]
 
 
+def check_height_unit(height_unit: Any) -> str:
+    """``height_unit`` when it names a known length unit (:func:`load_dem`), else an InvalidInputError listing them."""
+    if not isinstance(height_unit, str) or _unit_factor(height_unit) is None:
+        raise InvalidInputError(f"height_unit must be a length unit ({_KNOWN_UNITS}) or None; got {height_unit!r}")
+    return height_unit
+
+
 def _unit_factor(unit: str | None) -> float | None:
     """Metres per ``unit`` for a known height unit (:data:`_HEIGHT_UNITS`, any case, blanks and dots around it
     ignored), else None."""
@@ -913,7 +920,8 @@ def _heights_in_metres(
     if factor is None:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected heights in a known length unit ({_KNOWN_UNITS}); got {unit!r} "
-            f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...)"
+            f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...; "
+            "the CLI's --height-unit m)"
         )
     if factor != 1.0:
         heights = (heights.astype(np.float64) * factor).astype(np.float32)

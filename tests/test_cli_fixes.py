@@ -112,3 +112,70 @@ def test_an_unusable_device_is_named_before_any_input_is_read(capsys, tmp_path, 
         args += ["-o", str(tmp_path / "o.png")]
     code, _, err = run(capsys, *args)
     assert code == 2 and "device" in err and "missing" not in err, err
+
+
+def furlong_dem(path: Path, unit: str = "furlong") -> Path:
+    """A small DEM whose .npz names a unit load_dem does not know (heights stored in centimetres)."""
+    rng = np.random.default_rng(1)
+    np.savez(path, elevation=(rng.random((12, 14)) * 1e4).astype(np.float32), units=np.array(unit))
+    return path
+
+
+@pytest.mark.parametrize("command", ["steps", "texture", "info"])
+def test_height_unit_option_reads_a_dem_whose_unit_is_not_known(tmp_path, capsys, command):
+    """load_dem refuses a unit it does not know and points at ``height_unit``; a command-line user had no way to
+    pass it (the option did not exist, and every such file was refused)."""
+    dem = furlong_dem(tmp_path / "dem.npz")
+    out = {"steps": ["-o", tmp_path / "o.glb"], "texture": ["-o", tmp_path / "t.png"], "info": ["--json"]}[command]
+    code, _, err = run(capsys, command, dem, *out)
+    assert code == 2 and "'furlong'" in err and "--height-unit" in err
+    code, stdout, err = run(capsys, command, dem, "--height-unit", "cm", *out)
+    assert code == 0, err
+    if command == "info":
+        import json
+
+        heights = np.load(dem)["elevation"]
+        summary = json.loads(stdout)
+        assert max(summary["height_range"]) == pytest.approx(float(heights.max()) / 100, rel=1e-6)
+
+
+def test_height_unit_option_is_checked_and_refused_for_the_embedded_dem(tmp_path, capsys):
+    dem = furlong_dem(tmp_path / "dem.npz")
+    code, _, err = run(capsys, "steps", dem, "--height-unit", "parsec", "-o", tmp_path / "o.glb")
+    assert code == 2 and "--height-unit" in err and "expected a length unit" in err and "'parsec'" in err
+    assert "loading" not in err  # refused before the file is read
+    for argv in (["steps", "-o", tmp_path / "o.glb"], ["batch", "-o", tmp_path / "b", "--scheduler", "serial"]):
+        code, _, err = run(capsys, *argv, "--height-unit", "cm")
+        assert code == 2 and "--height-unit applies to an INPUT file" in err
+    assert not (tmp_path / "o.glb").exists() and not (tmp_path / "b").exists()
+
+
+def test_batch_height_unit_reaches_every_file_and_enters_the_fingerprint(tmp_path):
+    """batch's folder items are read by the workers: the unit must travel with the options, and a rerun with
+    another unit must redo the items instead of skipping them as complete."""
+    from stepterrain import batch
+    from stepterrain.errors import DataFileError, InvalidInputError
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    furlong_dem(folder / "a.npz")
+    report = batch(folder, tmp_path / "out", interval=10.0, scheduler="serial", format=".ply")
+    assert not report.ok and "furlong" in report.failed[0].error
+    report = batch(folder, tmp_path / "out", interval=10.0, scheduler="serial", format=".ply", height_unit="cm")
+    assert report.ok and len(report.done) == 1
+    import trimesh
+
+    z = trimesh.load(tmp_path / "out" / "a.ply").vertices[:, 2]
+    assert z.max() <= np.load(folder / "a.npz")["elevation"].max() / 100 + 10.0
+    again = batch(folder, tmp_path / "out", interval=10.0, scheduler="serial", format=".ply", height_unit="cm")
+    assert len(again.skipped) == 1
+    other = batch(folder, tmp_path / "out", interval=10.0, scheduler="serial", format=".ply", height_unit="mm")
+    assert len(other.done) == 1  # a new unit: redone, not skipped
+    with pytest.raises(InvalidInputError, match="height_unit applies to DEM files"):
+        batch(np.zeros((3, 4, 5), np.float32), tmp_path / "o2", interval=1.0, scheduler="serial", height_unit="cm")
+    with pytest.raises(InvalidInputError, match="height_unit must be a length unit"):
+        batch(folder, tmp_path / "o3", interval=1.0, scheduler="serial", height_unit="parsec")
+    np.save(tmp_path / "series.npy", np.zeros((2, 4, 5), np.float32))
+    with pytest.raises(InvalidInputError, match="series"):
+        batch(tmp_path / "series.npy", tmp_path / "o4", interval=1.0, scheduler="serial", height_unit="cm")
+    assert DataFileError  # the refusal of an unknown unit in a file is a DataFileError (report.failed above)
