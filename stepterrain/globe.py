@@ -47,7 +47,7 @@ from ._device import (
     to_numpy,
 )
 from .camera import _MAX_COORDINATE, Camera
-from .errors import DataFileError, InvalidInputError
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError
 from .io import picture_uint8
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
@@ -74,6 +74,11 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 #: The most cells a face edge (or a planar grid's padded side) may have: node entries and the corners packed
 #: i << 16 | j are int32 in the kernels (6 · 16385² entries fit, 6 · 32769² do not; nor does 32768 << 16).
 _MAX_CELLS = 1 << 14
+#: The most triangles a refinement level may hold: its ``counts`` (2 per triangle and 2 more), their offsets and
+#: the thread ids are int32 (2 · 1,073,741,822 + 2 = 2^31 - 1). The mesh's faces (one ``keep`` count each and one
+#: more) stop at _MAX_INT32 - 1. Only a memory budget above ~50 GiB lets a view come near either.
+_MAX_INT32 = (1 << 31) - 1
+_MAX_LEVEL_TRIANGLES = (_MAX_INT32 - 2) // 2
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
 _NODE_PASS = True
@@ -458,6 +463,9 @@ class Globe:
         ------
         InvalidInputError
             Negative error, unknown bounds or metric names, a camera inside the planet.
+        OutputTooLargeError
+            A refinement level or the mesh would exceed the memory budget, or the int32 counts of the kernels
+            (a level of over 1,073,741,822 triangles, a mesh of 2^31 - 2 faces) whatever the budget.
 
         Examples
         --------
@@ -696,6 +704,15 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 
 
+def _check_int32(count: int, limit: int, what: str, items: str, where: str) -> None:
+    """Raise :class:`OutputTooLargeError` when ``count`` ``items`` exceed ``limit``, the most that int32 indices
+    (named by ``where``) can hold: past it the kernels' counts and offsets would wrap, whatever the budget."""
+    if count > limit:
+        raise OutputTooLargeError(f"{what} would hold {count:,} {items}, over the {limit:,} that {where} (int32 in "
+                                  "the kernels) can index, whatever the memory budget; raise the error or narrow "
+                                  "the view")
+
+
 def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float,
                    device: wp.Device) -> tuple[wp.array, wp.array, list[int]]:
     """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes."""
@@ -907,6 +924,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
+        if depth < levels:  # the children are the next level (checked before anything of theirs is allocated)
+            _check_int32(2 * refined, _MAX_LEVEL_TRIANGLES, f"refinement level {depth + 1}", "triangles",
+                         "its counts and offsets")
         check_budget((2 * refined + count) * (20 if track else 16) + owned * 28, f"refinement level {depth}",
                      hint="raise the error or narrow the view")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
@@ -926,6 +946,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     # vertices together (float64 vertices, int64 faces) outgrew a budget that every level fitted
     n_leaves = sum(chunk.shape[0] for chunk in leaf_chunks)
     n_vertices = vertex_chunks[0].shape[0] if split is not None else sum(c.shape[0] for c in vertex_chunks)
+    _check_int32(n_leaves, _MAX_INT32 - 1, "the mesh", "faces", "its face counts and offsets")
     check_budget(n_vertices * _MESH_VERTEX_BYTES + n_leaves * _MESH_FACE_BYTES,
                  f"the mesh ({n_vertices:,} vertices, up to {n_leaves:,} faces)",
                  hint="raise the error or narrow the view")

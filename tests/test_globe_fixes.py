@@ -78,3 +78,56 @@ def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monk
         adaptive_mesh(np.zeros((16386, 2)), error=1.0, device="cpu")
     with pytest.raises(_Allocated):  # the largest grid passes validation
         adaptive_mesh(np.zeros((16385, 2)), error=1.0, device="cpu")
+
+
+def _guard_allocations(monkeypatch):
+    """wp.empty refuses anything over 10M elements (raises _Allocated): a test never allocates gigabytes."""
+    import warp as wp
+
+    empty = wp.empty
+
+    def guarded(shape=0, *args, **kwargs):
+        if int(np.prod(shape)) > 10_000_000:
+            raise _Allocated
+        return empty(shape, *args, **kwargs)
+
+    monkeypatch.setattr(wp, "empty", guarded)
+
+
+def test_a_refinement_level_beyond_int32_counts_is_refused(budget, monkeypatch):
+    """A level of 2^31 triangles needs 2^32 + 2 int32 counts and wraps the offsets: with a budget raised to hold
+    it (50+ GiB), the level passes went on to allocate its 2^31 children. The count pass of level 2 reports 2^30
+    refined triangles here (standing in for a huge view), so level 3 would hold 2^31: refused by name first."""
+    import stepterrain.globe as globe_module
+
+    globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu")
+    monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)  # level passes on the CPU too, as on CUDA
+    host_int = globe_module._host_int
+    calls = []
+
+    def huge_count(array, index):
+        calls.append(index)
+        return 1 << 30 if len(calls) == 3 else host_int(array, index)
+
+    monkeypatch.setattr(globe_module, "_host_int", huge_count)
+    _guard_allocations(monkeypatch)
+    budget(1 << 50)
+    with pytest.raises(OutputTooLargeError, match=r"^refinement level 3 would hold 2,147,483,648 triangles, over "
+                                                  r"the 1,073,741,822 that its counts and offsets \(int32 in the "
+                                                  r"kernels\) can index, whatever the memory budget"):
+        globe.mesh()
+
+
+def test_a_mesh_beyond_int32_faces_is_refused(budget, monkeypatch):
+    """The mesh's faces get one int32 keep count each and one more: levels that each fit could together hold more
+    faces than that. The limit lowered to 700 stands in for 2^31 - 1: the 768 faces of the 9² globe are refused
+    (without the check they went on to the face passes)."""
+    import stepterrain.globe as globe_module
+
+    globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu")
+    monkeypatch.setattr(globe_module, "_MAX_INT32", 700, raising=False)
+    with pytest.raises(OutputTooLargeError, match=r"^the mesh would hold 768 faces, over the 699 that its face "
+                                                  r"counts and offsets \(int32 in the kernels\) can index"):
+        globe.mesh()
+    monkeypatch.setattr(globe_module, "_MAX_INT32", 769, raising=False)
+    assert len(globe.mesh().faces) == 768
