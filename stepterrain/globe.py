@@ -244,8 +244,49 @@ class Globe:
         self.device = device
         self.source = source
         self._grid = grid
-        self._lowest_height: float | None = None  # computed on the first mesh with a camera
+        self._height_range: tuple[float, float] | None = None  # lowest, highest node: on the first mesh with a camera
         self._params = _node_parameters(grid, faces=6, levels=self.levels, device=device)
+
+    def _check_eye(self, eye: tuple[float, float, float]) -> None:
+        """Refuse an eye inside the planet: below the terrain surface in its direction (R plus the height
+        interpolated from the four nodes of the grid cell around that direction, the lower of the cell's two
+        triangulations: never above the full-resolution surface's height there)."""
+        if self._height_range is None:
+            heights = host_copy(self._grid.heights)
+            self._height_range = float(heights.min()), float(heights.max())
+        lowest, highest = self._height_range
+        distance = math.hypot(*eye)
+        if distance >= self.radius + highest:  # above every node: most views, no lookup
+            return
+        surface = self.radius + lowest
+        if distance > surface:  # within the relief: the terrain in the eye's direction
+            surface = self.radius + self._height_under(np.asarray(eye, dtype=np.float64) / distance)
+        if distance <= max(surface, 0.0):
+            raise InvalidInputError(f"camera eye {eye} lies inside the planet, below the terrain surface in its "
+                                    f"direction: |eye| = {distance:.1f} m, the surface there {surface:.1f} m from the "
+                                    f"centre (radius {self.radius:.1f} m, terrain {surface - self.radius:+.1f} m); "
+                                    "raise the eye")
+
+    def _height_under(self, direction: NDArray[np.float64]) -> float:
+        """The exaggerated terrain height at a unit ``direction``: the nodes of the grid cell around it, interpolated
+        over each of the cell's two triangulations, the lower of the two (the hierarchy's finest triangles take one
+        of them per cell)."""
+        cells, n = self.cells, self.face_size
+        frames = np.array([[_axis(c) for c in frame] for frame in cube_kernels.FACE_FRAMES], dtype=np.float64)
+        face = int(np.argmax(frames[:, 2] @ direction))  # the face whose normal is closest: its cube plane
+        x, y, z = frames[face] @ direction
+        # gnomonic: the cube point N · (x / z, y / z) on the face; node (i, j) sits at (2j - N, 2i - N)
+        fi = min(max((cells * y / z + cells) / 2.0, 0.0), float(cells))
+        fj = min(max((cells * x / z + cells) / 2.0, 0.0), float(cells))
+        i0, j0 = min(int(fi), cells - 1), min(int(fj), cells - 1)
+        u, v = fi - i0, fj - j0  # along rows (i), along columns (j)
+        first = face * n * n + i0 * n + j0
+        rows = host_copy(self._grid.heights[first : first + n + 2]).astype(np.float64)
+        z00, z01, z10, z11 = rows[0], rows[1], rows[n], rows[n + 1]
+        main = z00 + v * (z01 - z00) + u * (z11 - z01) if v >= u else z00 + u * (z10 - z00) + v * (z11 - z10)
+        anti = z00 + v * (z01 - z00) + u * (z10 - z00) if u + v <= 1 else z11 + (1 - v) * (z10 - z11) + \
+            (1 - u) * (z01 - z11)
+        return min(main, anti)
 
     # -------------------------------------------------------------------------------------- builders
     @classmethod
@@ -437,7 +478,8 @@ class Globe:
             the tolerance grows with the square of the distance (§7.2). ``error=0`` refines every
             node not clipped: with no camera, the full-resolution sphere.
         camera : Camera, optional
-            Eye and frustum for the distance and clip metrics (ignored without one).
+            Eye and frustum for the distance and clip metrics (ignored without one). The eye must lie above the
+            terrain surface in its direction (radius plus the node heights interpolated there).
         bounds : "cone" or "sphere"
             Bounding shapes (§6): cone frustums about the radial axis, or spheres.
         metrics : names and callables
@@ -462,7 +504,8 @@ class Globe:
         Raises
         ------
         InvalidInputError
-            Negative error, unknown bounds or metric names, a camera inside the planet.
+            Negative error, unknown bounds or metric names, a camera inside the planet (at or below the terrain
+            surface in its direction, e.g. inside a mountain).
         OutputTooLargeError
             A refinement level or the mesh would exceed the memory budget, or the int32 counts of the kernels
             (a level of over 1,073,741,822 triangles, a mesh of 2^31 - 2 faces) whatever the budget.
@@ -482,12 +525,7 @@ class Globe:
         if camera is not None:
             if not isinstance(camera, Camera):
                 raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-            if self._lowest_height is None:
-                self._lowest_height = float(self._grid.heights.numpy().min())
-            lowest = self.radius + self._lowest_height
-            if np.linalg.norm(camera.eye) <= max(lowest, 0.0):
-                raise InvalidInputError(f"camera eye {camera.eye} lies inside the planet (|eye| = "
-                                        f"{np.linalg.norm(camera.eye):.1f} m <= lowest node radius {lowest:.1f} m)")
+            self._check_eye(camera.eye)
         if distance_scale is None:
             altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
             distance_scale = max(altitude, self.radius * math.pi / 2 / self.cells)

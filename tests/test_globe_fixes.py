@@ -7,7 +7,7 @@ import pytest
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Globe, adaptive_mesh
+from stepterrain.globe import Camera, Globe, adaptive_mesh
 
 LAT1 = np.linspace(89.5, -89.5, 180)
 LON1 = np.linspace(-179.5, 179.5, 360)
@@ -131,3 +131,55 @@ def test_a_mesh_beyond_int32_faces_is_refused(budget, monkeypatch):
         globe.mesh()
     monkeypatch.setattr(globe_module, "_MAX_INT32", 769, raising=False)
     assert len(globe.mesh().faces) == 768
+
+
+def _mountain_globe(face_size=33):
+    """A 1° globe: sea at -4000 m, a 6 km Gaussian mountain at (0°, 0°) and a plateau at -1000 m around (0°, 90°E)."""
+    lat, lon = np.meshgrid(LAT1, LON1, indexing="ij")
+    z = -4000.0 + 10000.0 * np.exp(-(lat**2 + lon**2) / (2 * 8.0**2))
+    z = np.where((np.abs(lat) < 15) & (np.abs(lon - 90) < 15), -1000.0, z)
+    return Globe.from_latlon(z, LAT1, LON1, face_size=face_size, device="cpu")
+
+
+def _eye(lat_deg, lon_deg, r):
+    la, lo = np.radians(lat_deg), np.radians(lon_deg)
+    return (r * np.cos(la) * np.cos(lo), r * np.cos(la) * np.sin(lo), r * np.sin(la))
+
+
+def _camera(eye):
+    return Camera(eye=eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0))
+
+
+def test_a_camera_inside_a_mountain_is_refused():
+    """The eye was only compared with the lowest node (R - 4000 m): an eye 3 km above sea level inside the 6 km
+    mountain, or 2 km below sea level inside the -1000 m plateau, passed and meshed the planet from inside. The
+    surface in the eye's direction is the bound now; the same eyes where the terrain is lower pass."""
+    globe = _mountain_globe()
+    R = globe.radius
+    with pytest.raises(InvalidInputError, match=r"^camera eye \(6374000\.0, 0\.0, 0\.0\) lies inside the planet, below "
+                                                r"the terrain surface in its direction: \|eye\| = 6374000\.0 m, the "
+                                                r"surface there 637[5-7]\d{3}\.\d m from the centre \(radius "
+                                                r"6371000\.0 m, terrain \+[5-6]\d{3}\.\d m\); raise the eye$"):
+        globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 0.0, R + 3000.0)))
+    with pytest.raises(InvalidInputError, match=r"inside the planet, below the terrain surface in its direction: "
+                                                r"\|eye\| = 6369000\.0 m, the surface there 6370000\.0 m .* terrain "
+                                                r"-1000\.0 m\)"):
+        globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 90.0, R - 2000.0)))
+    # the same heights over the sea: above the surface there
+    assert len(globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 180.0, R + 3000.0))).faces) > 0
+    assert len(globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 180.0, R - 2000.0))).faces) > 0
+
+
+@pytest.mark.parametrize("face_size", [5, 33])
+def test_the_surface_bound_is_the_node_height_at_a_node(face_size):
+    """At the highest node (the mountain's top at (0°, 0°), face 0's centre node) an eye a few metres above the node
+    passes and one a few metres below is refused: the bound is the terrain there, not a cell's lowest corner nor its
+    highest."""
+    globe = _mountain_globe(face_size)
+    heights, positions = globe.heights.reshape(-1), globe.positions.reshape(-1, 3).astype(np.float64)
+    top = int(np.argmax(heights))
+    r = globe.radius + float(heights[top])
+    direction = positions[top] / np.linalg.norm(positions[top])
+    globe.mesh(error=1000.0, camera=_camera(tuple(direction * (r + 5.0))))
+    with pytest.raises(InvalidInputError, match="inside the planet"):
+        globe.mesh(error=1000.0, camera=_camera(tuple(direction * (r - 5.0))))
