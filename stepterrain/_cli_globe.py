@@ -54,8 +54,8 @@ def add_parser(commands: Any) -> None:
                         "0 = full resolution where visible (default 500)")
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
                    default=(30.0, 10.0, 3 * 6_371_000.0), metavar="LAT,LON,ALT",
-                   help="eye position: latitude, longitude (degrees) and altitude (metres); default 30,10,3R "
-                        "(the whole globe in view)")
+                   help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
+                        "above the terrain there); default 30,10,3R (the whole globe in view)")
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
                    help="tilt of the view from straight down, degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
@@ -153,6 +153,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     aspect = args.size[0] / args.size[1]
     camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
                        radius=args.radius, max_radius=globe.radius + float(globe.heights.max()))
+    if not args.no_camera or png is not None:  # the eye meshes or renders: above the terrain there, named by --eye
+        try:
+            globe._check_eye(camera.eye)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
+                                    f"altitude is metres above the sphere of --radius): {exc}") from None
     progress.stage("mesh", f"refining: error {args.error:g}, {args.bounds}s, metrics {','.join(metrics)}")
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=args.bounds,
                       metrics=metrics, cull=not args.no_cull)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -183,3 +185,20 @@ def test_the_surface_bound_is_the_node_height_at_a_node(face_size):
     globe.mesh(error=1000.0, camera=_camera(tuple(direction * (r + 5.0))))
     with pytest.raises(InvalidInputError, match="inside the planet"):
         globe.mesh(error=1000.0, camera=_camera(tuple(direction * (r - 5.0))))
+
+
+def test_the_cli_names_an_eye_below_the_terrain_by_its_option(tmp_path, capsys):
+    """``--eye 28,87,100`` (100 m above the sphere over the Himalaya, whose terrain stands ~2.6 km high on 33² faces)
+    is refused by its option; the library's message named only a planet-centred "camera eye" the user never gave.
+    With --no-camera (and no --png) the eye is not used, so it passes."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    argv = ["globe", "--face-size", "33", "--eye", "28,87,100", "-o", str(out), "--device", "cpu"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"error: --eye 28,87,100 lies below the terrain there \(the altitude is metres above the sphere "
+                     r"of --radius\): camera eye \(.*\) lies inside the planet, below the terrain surface in its "
+                     r"direction: \|eye\| = 6371100\.0 m", err), err
+    assert not out.exists()
+    assert main([*argv, "--no-camera"]) == 0 and out.exists()
