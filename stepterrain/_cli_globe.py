@@ -16,6 +16,7 @@ import numpy as np
 from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _path, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
+from .io import npz_nodata
 
 _EPILOG = """\
 examples:
@@ -44,7 +45,8 @@ def add_parser(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="global grid .npz (elevation, lat, lon in degrees); default: the embedded ETOPO 2022 20'")
+                   help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value are "
+                        "refused: fill them first); default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
@@ -101,10 +103,19 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                                 f"{', '.join(repr(key) for key in missing)}")
         try:
             lat, lon, elevation = np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
+            nodata = npz_nodata(data["nodata"] if "nodata" in data.files else None, file)
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
     if elevation.ndim != 2:  # the progress line reads its shape before Globe.from_latlon checks it
         raise InvalidInputError(f"{path!r}: 'elevation' must be a 2-D (H, W) array; got shape {elevation.shape}")
+    if nodata is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
+        # the nodata cells (as io.load_dem finds them) were meshed as heights: a -32768 m pit per missing cell
+        missing = elevation == (elevation.dtype.type(nodata) if elevation.dtype.kind == "f" else nodata)
+        if missing.any():
+            row, col = np.argwhere(missing)[0]
+            raise InvalidInputError(f"{path!r}: 'elevation' has {int(missing.sum())} nodata cells (nodata {nodata:g}; "
+                                    f"first at row {row}, column {col}); the globe needs a height everywhere: fill "
+                                    "them first (e.g. from neighbours)")
     return lat, lon, elevation
 
 

@@ -202,3 +202,25 @@ def test_the_cli_names_an_eye_below_the_terrain_by_its_option(tmp_path, capsys):
                      r"direction: \|eye\| = 6371100\.0 m", err), err
     assert not out.exists()
     assert main([*argv, "--no-camera"]) == 0 and out.exists()
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.float32])
+def test_the_cli_refuses_nodata_cells_of_a_global_npz_by_name(tmp_path, capsys, dtype):
+    """An .npz's ``nodata`` value (as io.load_dem reads it) was ignored by ``stepterrain globe``: its missing
+    cells became -32768 m pits in the mesh. They are refused now, naming the file, the count and the first cell;
+    the same file without missing cells meshes."""
+    from stepterrain.cli import main
+
+    elevation = np.zeros((180, 360), dtype)
+    elevation[3, 7] = elevation[100, 200] = -32768
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, dtype))
+    argv = ["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(out), "--device", "cpu"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"error: {str(grid)!r}: 'elevation' has 2 nodata cells (nodata -32768; first at row 3, column 7); the " \
+           "globe needs a height everywhere" in err, err
+    assert not out.exists()
+    elevation[elevation == -32768] = 0
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, dtype))
+    assert main(argv) == 0 and out.exists()
