@@ -54,7 +54,7 @@ from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .kernels.memory import vec3l
 from .stepped import LAND_START
-from .terrain import as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
+from .terrain import FLOAT32_MAX, as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -173,6 +173,12 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
             or np.issubdtype(z.dtype, np.complexfloating)):
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
                                 f"dtype {z.dtype}")
+    if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
+        big = np.isfinite(z) & (np.abs(z) > FLOAT32_MAX)
+        if big.any():
+            row, col = np.argwhere(big)[0]
+            raise InvalidInputError(f"{name} must fit in float32 (|z| <= {FLOAT32_MAX:.3g} m); got {z[row, col]:g} "
+                                    f"at row {row}, column {col}")
     z = z.astype(np.float32)
     if not np.isfinite(z).all():
         bad = np.argwhere(~np.isfinite(z))

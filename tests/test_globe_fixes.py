@@ -224,3 +224,15 @@ def test_the_cli_refuses_nodata_cells_of_a_global_npz_by_name(tmp_path, capsys, 
     elevation[elevation == -32768] = 0
     np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, dtype))
     assert main(argv) == 0 and out.exists()
+
+
+def test_a_finite_height_beyond_float32_is_named_as_such():
+    """A finite float64 height of 1e39 overflowed to inf in the float32 cast (with numpy's RuntimeWarning) and was
+    reported as one of the 'NaN or infinite values' to fill, for the globe and the planar mesh alike."""
+    z = np.zeros((180, 360))
+    z[5, 6] = -1e39
+    with pytest.raises(InvalidInputError, match=r"^elevation must fit in float32 \(\|z\| <= 3\.4e\+38 m\); got -1e\+39 "
+                                                r"at row 5, column 6$"):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^heights must fit in float32 .* got -1e\+39 at row 5, column 6$"):
+        adaptive_mesh(z[:9, :9], error=1.0, device="cpu")
