@@ -16,6 +16,7 @@ import numpy as np
 from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _path, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
+from .io import npz_nodata
 
 _EPILOG = """\
 examples:
@@ -44,7 +45,8 @@ def add_parser(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="global grid .npz (elevation, lat, lon in degrees); default: the embedded ETOPO 2022 20'")
+                   help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value are "
+                        "refused: fill them first); default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
@@ -54,8 +56,8 @@ def add_parser(commands: Any) -> None:
                         "0 = full resolution where visible (default 500)")
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
                    default=(30.0, 10.0, 3 * 6_371_000.0), metavar="LAT,LON,ALT",
-                   help="eye position: latitude, longitude (degrees) and altitude (metres); default 30,10,3R "
-                        "(the whole globe in view)")
+                   help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
+                        "above the terrain there); default 30,10,3R (the whole globe in view)")
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
                    help="tilt of the view from straight down, degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
@@ -101,10 +103,19 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                                 f"{', '.join(repr(key) for key in missing)}")
         try:
             lat, lon, elevation = np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
+            nodata = npz_nodata(data["nodata"] if "nodata" in data.files else None, file)
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
     if elevation.ndim != 2:  # the progress line reads its shape before Globe.from_latlon checks it
         raise InvalidInputError(f"{path!r}: 'elevation' must be a 2-D (H, W) array; got shape {elevation.shape}")
+    if nodata is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
+        # the nodata cells (as io.load_dem finds them) were meshed as heights: a -32768 m pit per missing cell
+        missing = elevation == (elevation.dtype.type(nodata) if elevation.dtype.kind == "f" else nodata)
+        if missing.any():
+            row, col = np.argwhere(missing)[0]
+            raise InvalidInputError(f"{path!r}: 'elevation' has {int(missing.sum())} nodata cells (nodata {nodata:g}; "
+                                    f"first at row {row}, column {col}); the globe needs a height everywhere: fill "
+                                    "them first (e.g. from neighbours)")
     return lat, lon, elevation
 
 
@@ -153,6 +164,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     aspect = args.size[0] / args.size[1]
     camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
                        radius=args.radius, max_radius=globe.radius + float(globe.heights.max()))
+    if not args.no_camera or png is not None:  # the eye meshes or renders: above the terrain there, named by --eye
+        try:
+            globe._check_eye(camera.eye)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
+                                    f"altitude is metres above the sphere of --radius): {exc}") from None
     progress.stage("mesh", f"refining: error {args.error:g}, {args.bounds}s, metrics {','.join(metrics)}")
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=args.bounds,
                       metrics=metrics, cull=not args.no_cull)

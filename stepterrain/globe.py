@@ -47,14 +47,14 @@ from ._device import (
     to_numpy,
 )
 from .camera import _MAX_COORDINATE, Camera
-from .errors import DataFileError, InvalidInputError
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError
 from .io import picture_uint8
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .kernels.memory import vec3l
 from .stepped import LAND_START
-from .terrain import as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
+from .terrain import FLOAT32_MAX, as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -74,6 +74,11 @@ _SAMPLE_FILE = "global_relief_20min.npz"
 #: The most cells a face edge (or a planar grid's padded side) may have: node entries and the corners packed
 #: i << 16 | j are int32 in the kernels (6 · 16385² entries fit, 6 · 32769² do not; nor does 32768 << 16).
 _MAX_CELLS = 1 << 14
+#: The most triangles a refinement level may hold: its ``counts`` (2 per triangle and 2 more), their offsets and
+#: the thread ids are int32 (2 · 1,073,741,822 + 2 = 2^31 - 1). The mesh's faces (one ``keep`` count each and one
+#: more) stop at _MAX_INT32 - 1. Only a memory budget above ~50 GiB lets a view come near either.
+_MAX_INT32 = (1 << 31) - 1
+_MAX_LEVEL_TRIANGLES = (_MAX_INT32 - 2) // 2
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).
 _NODE_PASS = True
@@ -168,6 +173,12 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
             or np.issubdtype(z.dtype, np.complexfloating)):
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
                                 f"dtype {z.dtype}")
+    if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
+        big = np.isfinite(z) & (np.abs(z) > FLOAT32_MAX)
+        if big.any():
+            row, col = np.argwhere(big)[0]
+            raise InvalidInputError(f"{name} must fit in float32 (|z| <= {FLOAT32_MAX:.3g} m); got {z[row, col]:g} "
+                                    f"at row {row}, column {col}")
     z = z.astype(np.float32)
     if not np.isfinite(z).all():
         bad = np.argwhere(~np.isfinite(z))
@@ -239,8 +250,49 @@ class Globe:
         self.device = device
         self.source = source
         self._grid = grid
-        self._lowest_height: float | None = None  # computed on the first mesh with a camera
+        self._height_range: tuple[float, float] | None = None  # lowest, highest node: on the first mesh with a camera
         self._params = _node_parameters(grid, faces=6, levels=self.levels, device=device)
+
+    def _check_eye(self, eye: tuple[float, float, float]) -> None:
+        """Refuse an eye inside the planet: below the terrain surface in its direction (R plus the height
+        interpolated from the four nodes of the grid cell around that direction, the lower of the cell's two
+        triangulations: never above the full-resolution surface's height there)."""
+        if self._height_range is None:
+            heights = host_copy(self._grid.heights)
+            self._height_range = float(heights.min()), float(heights.max())
+        lowest, highest = self._height_range
+        distance = math.hypot(*eye)
+        if distance >= self.radius + highest:  # above every node: most views, no lookup
+            return
+        surface = self.radius + lowest
+        if distance > surface:  # within the relief: the terrain in the eye's direction
+            surface = self.radius + self._height_under(np.asarray(eye, dtype=np.float64) / distance)
+        if distance <= max(surface, 0.0):
+            raise InvalidInputError(f"camera eye {eye} lies inside the planet, below the terrain surface in its "
+                                    f"direction: |eye| = {distance:.1f} m, the surface there {surface:.1f} m from the "
+                                    f"centre (radius {self.radius:.1f} m, terrain {surface - self.radius:+.1f} m); "
+                                    "raise the eye")
+
+    def _height_under(self, direction: NDArray[np.float64]) -> float:
+        """The exaggerated terrain height at a unit ``direction``: the nodes of the grid cell around it, interpolated
+        over each of the cell's two triangulations, the lower of the two (the hierarchy's finest triangles take one
+        of them per cell)."""
+        cells, n = self.cells, self.face_size
+        frames = np.array([[_axis(c) for c in frame] for frame in cube_kernels.FACE_FRAMES], dtype=np.float64)
+        face = int(np.argmax(frames[:, 2] @ direction))  # the face whose normal is closest: its cube plane
+        x, y, z = frames[face] @ direction
+        # gnomonic: the cube point N · (x / z, y / z) on the face; node (i, j) sits at (2j - N, 2i - N)
+        fi = min(max((cells * y / z + cells) / 2.0, 0.0), float(cells))
+        fj = min(max((cells * x / z + cells) / 2.0, 0.0), float(cells))
+        i0, j0 = min(int(fi), cells - 1), min(int(fj), cells - 1)
+        u, v = fi - i0, fj - j0  # along rows (i), along columns (j)
+        first = face * n * n + i0 * n + j0
+        rows = host_copy(self._grid.heights[first : first + n + 2]).astype(np.float64)
+        z00, z01, z10, z11 = rows[0], rows[1], rows[n], rows[n + 1]
+        main = z00 + v * (z01 - z00) + u * (z11 - z01) if v >= u else z00 + u * (z10 - z00) + v * (z11 - z10)
+        anti = z00 + v * (z01 - z00) + u * (z10 - z00) if u + v <= 1 else z11 + (1 - v) * (z10 - z11) + \
+            (1 - u) * (z01 - z11)
+        return min(main, anti)
 
     # -------------------------------------------------------------------------------------- builders
     @classmethod
@@ -432,7 +484,8 @@ class Globe:
             the tolerance grows with the square of the distance (§7.2). ``error=0`` refines every
             node not clipped: with no camera, the full-resolution sphere.
         camera : Camera, optional
-            Eye and frustum for the distance and clip metrics (ignored without one).
+            Eye and frustum for the distance and clip metrics (ignored without one). The eye must lie above the
+            terrain surface in its direction (radius plus the node heights interpolated there).
         bounds : "cone" or "sphere"
             Bounding shapes (§6): cone frustums about the radial axis, or spheres.
         metrics : names and callables
@@ -457,7 +510,11 @@ class Globe:
         Raises
         ------
         InvalidInputError
-            Negative error, unknown bounds or metric names, a camera inside the planet.
+            Negative error, unknown bounds or metric names, a camera inside the planet (at or below the terrain
+            surface in its direction, e.g. inside a mountain).
+        OutputTooLargeError
+            A refinement level or the mesh would exceed the memory budget, or the int32 counts of the kernels
+            (a level of over 1,073,741,822 triangles, a mesh of 2^31 - 2 faces) whatever the budget.
 
         Examples
         --------
@@ -474,12 +531,7 @@ class Globe:
         if camera is not None:
             if not isinstance(camera, Camera):
                 raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-            if self._lowest_height is None:
-                self._lowest_height = float(self._grid.heights.numpy().min())
-            lowest = self.radius + self._lowest_height
-            if np.linalg.norm(camera.eye) <= max(lowest, 0.0):
-                raise InvalidInputError(f"camera eye {camera.eye} lies inside the planet (|eye| = "
-                                        f"{np.linalg.norm(camera.eye):.1f} m <= lowest node radius {lowest:.1f} m)")
+            self._check_eye(camera.eye)
         if distance_scale is None:
             altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
             distance_scale = max(altitude, self.radius * math.pi / 2 / self.cells)
@@ -696,6 +748,15 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 
 
+def _check_int32(count: int, limit: int, what: str, items: str, where: str) -> None:
+    """Raise :class:`OutputTooLargeError` when ``count`` ``items`` exceed ``limit``, the most that int32 indices
+    (named by ``where``) can hold: past it the kernels' counts and offsets would wrap, whatever the budget."""
+    if count > limit:
+        raise OutputTooLargeError(f"{what} would hold {count:,} {items}, over the {limit:,} that {where} (int32 in "
+                                  "the kernels) can index, whatever the memory budget; raise the error or narrow "
+                                  "the view")
+
+
 def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float,
                    device: wp.Device) -> tuple[wp.array, wp.array, list[int]]:
     """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes."""
@@ -907,6 +968,9 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         offsets, total = exclusive_offsets(counts, "globe.refine")
         refined = _host_int(offsets, count + 1)
         owned = total - refined
+        if depth < levels:  # the children are the next level (checked before anything of theirs is allocated)
+            _check_int32(2 * refined, _MAX_LEVEL_TRIANGLES, f"refinement level {depth + 1}", "triangles",
+                         "its counts and offsets")
         check_budget((2 * refined + count) * (20 if track else 16) + owned * 28, f"refinement level {depth}",
                      hint="raise the error or narrow the view")
         children = wp.empty(2 * refined, dtype=wp.vec4i, device=device)
@@ -926,6 +990,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     # vertices together (float64 vertices, int64 faces) outgrew a budget that every level fitted
     n_leaves = sum(chunk.shape[0] for chunk in leaf_chunks)
     n_vertices = vertex_chunks[0].shape[0] if split is not None else sum(c.shape[0] for c in vertex_chunks)
+    _check_int32(n_leaves, _MAX_INT32 - 1, "the mesh", "faces", "its face counts and offsets")
     check_budget(n_vertices * _MESH_VERTEX_BYTES + n_leaves * _MESH_FACE_BYTES,
                  f"the mesh ({n_vertices:,} vertices, up to {n_leaves:,} faces)",
                  hint="raise the error or narrow the view")

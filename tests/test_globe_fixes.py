@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Globe, adaptive_mesh
+from stepterrain.globe import Camera, Globe, adaptive_mesh
 
 LAT1 = np.linspace(89.5, -89.5, 180)
 LON1 = np.linspace(-179.5, 179.5, 360)
@@ -78,3 +80,159 @@ def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monk
         adaptive_mesh(np.zeros((16386, 2)), error=1.0, device="cpu")
     with pytest.raises(_Allocated):  # the largest grid passes validation
         adaptive_mesh(np.zeros((16385, 2)), error=1.0, device="cpu")
+
+
+def _guard_allocations(monkeypatch):
+    """wp.empty refuses anything over 10M elements (raises _Allocated): a test never allocates gigabytes."""
+    import warp as wp
+
+    empty = wp.empty
+
+    def guarded(shape=0, *args, **kwargs):
+        if int(np.prod(shape)) > 10_000_000:
+            raise _Allocated
+        return empty(shape, *args, **kwargs)
+
+    monkeypatch.setattr(wp, "empty", guarded)
+
+
+def test_a_refinement_level_beyond_int32_counts_is_refused(budget, monkeypatch):
+    """A level of 2^31 triangles needs 2^32 + 2 int32 counts and wraps the offsets: with a budget raised to hold
+    it (50+ GiB), the level passes went on to allocate its 2^31 children. The count pass of level 2 reports 2^30
+    refined triangles here (standing in for a huge view), so level 3 would hold 2^31: refused by name first."""
+    import stepterrain.globe as globe_module
+
+    globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu")
+    monkeypatch.setattr(globe_module, "_SMALL_LEVELS", 0)  # level passes on the CPU too, as on CUDA
+    host_int = globe_module._host_int
+    calls = []
+
+    def huge_count(array, index):
+        calls.append(index)
+        return 1 << 30 if len(calls) == 3 else host_int(array, index)
+
+    monkeypatch.setattr(globe_module, "_host_int", huge_count)
+    _guard_allocations(monkeypatch)
+    budget(1 << 50)
+    with pytest.raises(OutputTooLargeError, match=r"^refinement level 3 would hold 2,147,483,648 triangles, over "
+                                                  r"the 1,073,741,822 that its counts and offsets \(int32 in the "
+                                                  r"kernels\) can index, whatever the memory budget"):
+        globe.mesh()
+
+
+def test_a_mesh_beyond_int32_faces_is_refused(budget, monkeypatch):
+    """The mesh's faces get one int32 keep count each and one more: levels that each fit could together hold more
+    faces than that. The limit lowered to 700 stands in for 2^31 - 1: the 768 faces of the 9² globe are refused
+    (without the check they went on to the face passes)."""
+    import stepterrain.globe as globe_module
+
+    globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu")
+    monkeypatch.setattr(globe_module, "_MAX_INT32", 700, raising=False)
+    with pytest.raises(OutputTooLargeError, match=r"^the mesh would hold 768 faces, over the 699 that its face "
+                                                  r"counts and offsets \(int32 in the kernels\) can index"):
+        globe.mesh()
+    monkeypatch.setattr(globe_module, "_MAX_INT32", 769, raising=False)
+    assert len(globe.mesh().faces) == 768
+
+
+def _mountain_globe(face_size=33):
+    """A 1° globe: sea at -4000 m, a 6 km Gaussian mountain at (0°, 0°) and a plateau at -1000 m around (0°, 90°E)."""
+    lat, lon = np.meshgrid(LAT1, LON1, indexing="ij")
+    z = -4000.0 + 10000.0 * np.exp(-(lat**2 + lon**2) / (2 * 8.0**2))
+    z = np.where((np.abs(lat) < 15) & (np.abs(lon - 90) < 15), -1000.0, z)
+    return Globe.from_latlon(z, LAT1, LON1, face_size=face_size, device="cpu")
+
+
+def _eye(lat_deg, lon_deg, r):
+    la, lo = np.radians(lat_deg), np.radians(lon_deg)
+    return (r * np.cos(la) * np.cos(lo), r * np.cos(la) * np.sin(lo), r * np.sin(la))
+
+
+def _camera(eye):
+    return Camera(eye=eye, target=(0.0, 0.0, 0.0), up=(0.0, 0.0, 1.0))
+
+
+def test_a_camera_inside_a_mountain_is_refused():
+    """The eye was only compared with the lowest node (R - 4000 m): an eye 3 km above sea level inside the 6 km
+    mountain, or 2 km below sea level inside the -1000 m plateau, passed and meshed the planet from inside. The
+    surface in the eye's direction is the bound now; the same eyes where the terrain is lower pass."""
+    globe = _mountain_globe()
+    R = globe.radius
+    with pytest.raises(InvalidInputError, match=r"^camera eye \(6374000\.0, 0\.0, 0\.0\) lies inside the planet, below "
+                                                r"the terrain surface in its direction: \|eye\| = 6374000\.0 m, the "
+                                                r"surface there 637[5-7]\d{3}\.\d m from the centre \(radius "
+                                                r"6371000\.0 m, terrain \+[5-6]\d{3}\.\d m\); raise the eye$"):
+        globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 0.0, R + 3000.0)))
+    with pytest.raises(InvalidInputError, match=r"inside the planet, below the terrain surface in its direction: "
+                                                r"\|eye\| = 6369000\.0 m, the surface there 6370000\.0 m .* terrain "
+                                                r"-1000\.0 m\)"):
+        globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 90.0, R - 2000.0)))
+    # the same heights over the sea: above the surface there
+    assert len(globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 180.0, R + 3000.0))).faces) > 0
+    assert len(globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 180.0, R - 2000.0))).faces) > 0
+
+
+@pytest.mark.parametrize("face_size", [5, 33])
+def test_the_surface_bound_is_the_node_height_at_a_node(face_size):
+    """At the highest node (the mountain's top at (0°, 0°), face 0's centre node) an eye a few metres above the node
+    passes and one a few metres below is refused: the bound is the terrain there, not a cell's lowest corner nor its
+    highest."""
+    globe = _mountain_globe(face_size)
+    heights, positions = globe.heights.reshape(-1), globe.positions.reshape(-1, 3).astype(np.float64)
+    top = int(np.argmax(heights))
+    r = globe.radius + float(heights[top])
+    direction = positions[top] / np.linalg.norm(positions[top])
+    globe.mesh(error=1000.0, camera=_camera(tuple(direction * (r + 5.0))))
+    with pytest.raises(InvalidInputError, match="inside the planet"):
+        globe.mesh(error=1000.0, camera=_camera(tuple(direction * (r - 5.0))))
+
+
+def test_the_cli_names_an_eye_below_the_terrain_by_its_option(tmp_path, capsys):
+    """``--eye 28,87,100`` (100 m above the sphere over the Himalaya, whose terrain stands ~2.6 km high on 33² faces)
+    is refused by its option; the library's message named only a planet-centred "camera eye" the user never gave.
+    With --no-camera (and no --png) the eye is not used, so it passes."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    argv = ["globe", "--face-size", "33", "--eye", "28,87,100", "-o", str(out), "--device", "cpu"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert re.search(r"error: --eye 28,87,100 lies below the terrain there \(the altitude is metres above the sphere "
+                     r"of --radius\): camera eye \(.*\) lies inside the planet, below the terrain surface in its "
+                     r"direction: \|eye\| = 6371100\.0 m", err), err
+    assert not out.exists()
+    assert main([*argv, "--no-camera"]) == 0 and out.exists()
+
+
+@pytest.mark.parametrize("dtype", [np.int16, np.float32])
+def test_the_cli_refuses_nodata_cells_of_a_global_npz_by_name(tmp_path, capsys, dtype):
+    """An .npz's ``nodata`` value (as io.load_dem reads it) was ignored by ``stepterrain globe``: its missing
+    cells became -32768 m pits in the mesh. They are refused now, naming the file, the count and the first cell;
+    the same file without missing cells meshes."""
+    from stepterrain.cli import main
+
+    elevation = np.zeros((180, 360), dtype)
+    elevation[3, 7] = elevation[100, 200] = -32768
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, dtype))
+    argv = ["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(out), "--device", "cpu"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"error: {str(grid)!r}: 'elevation' has 2 nodata cells (nodata -32768; first at row 3, column 7); the " \
+           "globe needs a height everywhere" in err, err
+    assert not out.exists()
+    elevation[elevation == -32768] = 0
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, dtype))
+    assert main(argv) == 0 and out.exists()
+
+
+def test_a_finite_height_beyond_float32_is_named_as_such():
+    """A finite float64 height of 1e39 overflowed to inf in the float32 cast (with numpy's RuntimeWarning) and was
+    reported as one of the 'NaN or infinite values' to fill, for the globe and the planar mesh alike."""
+    z = np.zeros((180, 360))
+    z[5, 6] = -1e39
+    with pytest.raises(InvalidInputError, match=r"^elevation must fit in float32 \(\|z\| <= 3\.4e\+38 m\); got -1e\+39 "
+                                                r"at row 5, column 6$"):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^heights must fit in float32 .* got -1e\+39 at row 5, column 6$"):
+        adaptive_mesh(z[:9, :9], error=1.0, device="cpu")
