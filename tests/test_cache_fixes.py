@@ -40,3 +40,20 @@ def test_one_tin_stepped_from_several_threads_at_once():
         return mesh.vertices.copy(), mesh.faces.copy(), mesh.face_attributes["level"].copy()
 
     _same_in_threads(call, [3.0, 5.0, 7.0, 11.0] * 2)
+
+
+def test_terrain_built_directly_does_not_follow_the_callers_array():
+    """``Terrain(kind="grid", heights=h)`` kept a read-only *view* of the caller's writeable ``h``: after ``h += 100``
+    the terrain's heights changed but its caches (height range, nodata flag; the upload on a GPU) did not, and
+    stepped() quantized to the old isovalues, silently clamping every vertex to the old range. The terrain now takes
+    a copy of arrays given to the constructor, so it steps the heights it was built with."""
+    heights = _bumps(40, 3)
+    given = heights.copy()
+    terrain = st.Terrain(kind="grid", heights=heights)
+    first = st.stepped(terrain, interval=5.0, device="cpu")
+    heights += 100.0
+    np.testing.assert_array_equal(terrain.heights, given)
+    again = st.stepped(terrain, interval=5.0, device="cpu")
+    np.testing.assert_array_equal(again.vertices, first.vertices)
+    np.testing.assert_array_equal(again.faces, first.faces)
+    assert not terrain.heights.flags.writeable
