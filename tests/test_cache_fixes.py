@@ -9,6 +9,8 @@ import numpy as np
 
 import stepterrain as st
 
+from .conftest import needs_render
+
 
 def _bumps(n: int, seed: int) -> np.ndarray:
     x = np.linspace(0.0, 4.0, n)
@@ -57,3 +59,29 @@ def test_terrain_built_directly_does_not_follow_the_callers_array():
     np.testing.assert_array_equal(again.vertices, first.vertices)
     np.testing.assert_array_equal(again.faces, first.faces)
     assert not terrain.heights.flags.writeable
+
+
+@needs_render
+def test_reused_renderer_draws_each_new_terrain_not_the_previous_one():
+    """render_closeups keyed the overview it left on a reused renderer by ``id(t)``. Given a raw (H, W) array, each
+    call makes its own Terrain, which is freed when the call returns, and the next call's Terrain usually gets the
+    same id: a second, different heightfield was drawn as the first one's overview (found by rendering two arrays
+    in turn on one renderer and comparing with fresh renders). The key now holds the terrain (and the texture)
+    itself, compared by identity."""
+    from stepterrain import render
+    from stepterrain.closeup import render_closeups
+
+    size = (160, 120)
+    first = _bumps(24, 4)
+    second = (first[::-1] * 0.3 + 20.0).astype(np.float32)
+    box = np.array([[0.0, 0.0, -60.0], [23.0, 23.0, 80.0]])
+    fresh = [render_closeups(h, [], window_size=size, bounds=box, device="cpu") for h in (first, second)]
+    assert not np.array_equal(fresh[0], fresh[1])
+    renderer = render.LayeredRenderer(window_size=size)
+    try:
+        for k in range(4):  # the terrains in turn: each is made anew from its array, so each call must draw it
+            image = render_closeups((first, second)[k % 2].copy(), [], window_size=size, bounds=box,
+                                    renderer=renderer, device="cpu")  # fmt: skip
+            np.testing.assert_array_equal(image, fresh[k % 2], err_msg=f"call {k} drew another terrain")
+    finally:
+        renderer.close()
