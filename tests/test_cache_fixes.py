@@ -6,6 +6,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
 
 import stepterrain as st
 
@@ -85,3 +86,20 @@ def test_reused_renderer_draws_each_new_terrain_not_the_previous_one():
             np.testing.assert_array_equal(image, fresh[k % 2], err_msg=f"call {k} drew another terrain")
     finally:
         renderer.close()
+
+
+def test_globe_heights_and_positions_cannot_change_the_globe():
+    """Globe.heights and Globe.positions were, on the CPU, writeable views of the globe's own device arrays (Warp's
+    ``.numpy()``): ``g.heights[...] = 0`` changed every later mesh of the globe, whose node parameters (errors,
+    bounding spheres) still held the old heights. They are now read-only; the globe's meshes stay the same."""
+    from stepterrain.globe import Globe
+
+    globe = Globe.sample(face_size=17, device="cpu")
+    before = globe.mesh(error=1e5)
+    for array in (globe.heights, globe.positions):
+        assert not array.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            array[...] = 0
+    after = globe.mesh(error=1e5)
+    np.testing.assert_array_equal(after.vertices, before.vertices)
+    np.testing.assert_array_equal(after.faces, before.faces)
