@@ -24,3 +24,23 @@ def derived(memo: dict, key: tuple, refs: tuple, build: Any, *, limit: int = 64)
         memo.clear()
     memo[key] = (refs, value)
     return value
+
+
+class Same:
+    """A key part that stands for one object by its identity and keeps it alive: equal to another ``Same`` of the
+    very same object only. A bare ``id(obj)`` in a key that outlives ``obj`` (a renderer's upload key) matched a
+    later object that Python gave the freed id."""
+
+    __slots__ = ("obj",)
+
+    def __init__(self, obj: Any) -> None:
+        self.obj = obj
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Same) and other.obj is self.obj
+
+    def __hash__(self) -> int:
+        return id(self.obj)
+
+    def __repr__(self) -> str:
+        return f"Same({type(self.obj).__name__} at {id(self.obj):#x})"

@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
-from ._memo import derived
+from ._memo import Same, derived
 from .errors import InvalidInputError, MissingDependencyError
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
@@ -1708,9 +1708,11 @@ def render_closeups(
         # its pixels every frame (22 MB for a 3840 x 1920 image)
         texture_key = None
         if image_texture is not None:
-            texture_key = (id(texture), image_texture.shape,
+            texture_key = (Same(texture), image_texture.shape,
                            None if render._frozen(texture) else hashlib.blake2b(image_texture).hexdigest())
-        overview_key = ("overview", id(t), scalars, cmap, texture_key)
+        # the terrain and texture themselves, not their ids: the renderer keeps the key after the call, and a
+        # terrain made from a raw array for the next call got the freed one's id and was drawn as the old overview
+        overview_key = ("overview", Same(t), scalars, cmap, texture_key)
         if not renderer.has("overview", overview_key):
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)

@@ -440,15 +440,16 @@ class Globe:
     # -------------------------------------------------------------------------------------- accessors
     @property
     def heights(self) -> NDArray[np.float32]:
-        """(6, n, n) exaggerated node elevations in metres."""
+        """(6, n, n) exaggerated node elevations in metres, read-only (on the CPU a view of the globe's own nodes)."""
         n = self.face_size
-        return host_copy(self._grid.heights).reshape(6, n, n)
+        return _read_only(host_copy(self._grid.heights).reshape(6, n, n))
 
     @property
     def positions(self) -> NDArray[np.float32]:
-        """(6, n, n, 3) float32 node positions (planet-centred metres) used by the hierarchy."""
+        """(6, n, n, 3) float32 node positions (planet-centred metres) used by the hierarchy, read-only (on the CPU
+        a view of the globe's own nodes)."""
         n = self.face_size
-        return host_copy(self._grid.positions).reshape(6, n, n, 3)
+        return _read_only(host_copy(self._grid.positions).reshape(6, n, n, 3))
 
     def node_parameters(self) -> dict[str, NDArray[np.float32]]:
         """Per node (6, n, n): geometric_error e, bounding_radius r, cone_height h, cone_angle α (radians)."""
@@ -542,6 +543,13 @@ class Globe:
 
 
 # ------------------------------------------------------------------------------------------ shared machinery
+def _read_only(array: NDArray[Any]) -> NDArray[Any]:
+    """``array`` made read-only: on the CPU :func:`host_copy` is a view of the globe's own device array, and an
+    edit through it changed every later mesh while the node parameters (errors, bounds) kept the old heights."""
+    array.flags.writeable = False
+    return array
+
+
 def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.int16]]:
     """The embedded global relief grid: (lat, lon, elevation) with rows north to south."""
     try:

@@ -384,18 +384,24 @@ def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightF
 
 
 def _tin_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.TriangleNetwork:
-    def build() -> stepped_kernels.TriangleNetwork:
-        tin = stepped_kernels.TriangleNetwork()
-        tin.points = to_device(terrain.local_points(), wp.vec3, device)
-        tin.heights = to_device(terrain.heights, wp.float32, device)
-        tin.levels = wp.empty(len(terrain.heights), dtype=wp.int32, device=device)
-        tin.faces = to_device(terrain.faces.astype(np.int32), wp.vec3i, device)
-        tin.face_edges = to_device(terrain.face_edges, wp.vec3i, device)
-        tin.edges = to_device(terrain.edges, wp.vec2i, device)
-        tin.point_used = to_device(terrain.point_used, wp.int32, device)
-        return tin
+    def build() -> tuple[wp.array, ...]:
+        return (
+            to_device(terrain.local_points(), wp.vec3, device),
+            to_device(terrain.heights, wp.float32, device),
+            to_device(terrain.faces.astype(np.int32), wp.vec3i, device),
+            to_device(terrain.face_edges, wp.vec3i, device),
+            to_device(terrain.edges, wp.vec2i, device),
+            to_device(terrain.point_used, wp.int32, device),
+        )
 
-    return terrain.cached(("tin", str(device)), build)
+    # the uploads are the terrain's (read-only to the kernels); the levels every pass writes are this thread's
+    # scratch, as a grid's: a cached levels array was shared by two threads stepping the same TIN at once
+    tin = stepped_kernels.TriangleNetwork()
+    tin.points, tin.heights, tin.faces, tin.face_edges, tin.edges, tin.point_used = terrain.cached(
+        ("tin", str(device)), build
+    )
+    tin.levels = scratch("stepped.levels", len(terrain.heights), wp.int32, device)  # recomputed by every pass
+    return tin
 
 
 def step_arrays(

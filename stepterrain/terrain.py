@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import numbers
 import sys
-from dataclasses import dataclass, field
+from dataclasses import InitVar, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -302,7 +302,10 @@ class Terrain:
     ``origin + (j * dx, i * dy)``; ``dx`` or ``dy`` may be negative (north-up rasters have ``dy < 0``).
     ``kind == "tin"``: ``points`` (N, 3) float64 and ``faces`` (F, 3) int64, wound counter-clockwise seen
     from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once. The arrays are
-    read-only (the caches derive from them): build a new Terrain for changed heights.
+    read-only (the caches derive from them): build a new Terrain for changed heights. Built directly
+    (``Terrain(kind=..., heights=...)``) it takes a copy of the arrays given, so that the caller's later changes to
+    them cannot reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh`
+    copy once while checking.
     """
 
     kind: Literal["grid", "tin"]
@@ -318,16 +321,23 @@ class Terrain:
     source: str | None = None
     visual: Any = None
     _device_cache: dict = field(default_factory=dict, repr=False, compare=False)
+    _owned: InitVar[bool] = False  # the constructors' own arrays (or a borrow within one call): no copy
 
-    def __post_init__(self) -> None:
+    def __post_init__(self, _owned: bool) -> None:
         # what the caches hold (nodata flag, device uploads, edge tables) derives from these arrays: read-only
-        # views, so that changing them in place raises instead of stepping stale caches
+        # views, so that changing them in place raises instead of stepping stale caches. Arrays a caller gave
+        # Terrain(...) directly are copied first: a read-only view of them still changed with the caller's array
+        # while the caches kept the old heights (a stepped mesh clamped to the old height range, silently)
         for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
             array = getattr(self, name)
-            if isinstance(array, np.ndarray) and array.flags.writeable:
-                view = array.view()
-                view.flags.writeable = False
-                object.__setattr__(self, name, view)
+            if not isinstance(array, np.ndarray):
+                continue
+            if not _owned:
+                array = array.copy()
+            if array.flags.writeable:
+                array = array.view()
+                array.flags.writeable = False
+            object.__setattr__(self, name, array)
 
     # ------------------------------------------------------------------ constructors
     @classmethod
@@ -353,6 +363,7 @@ class Terrain:
             origin=_pair(origin, "origin", nonzero=False, scalar=False),
             crs=crs,
             source=source,
+            _owned=True,
         )
         # the checks' min and max answer has_nodata and, without nodata, height_range: no further passes
         terrain._device_cache["has_nodata"] = math.isnan(lo)
@@ -458,6 +469,7 @@ class Terrain:
             point_used=point_used,
             source=source,
             visual=visual,
+            _owned=True,
         )
 
     # ------------------------------------------------------------------ properties

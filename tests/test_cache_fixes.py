@@ -1,0 +1,105 @@
+"""Bugs found by a hunt over the caches, reused buffers and concurrency (issue h4: stale or aliased results,
+results changed by later calls, calls from several threads, caches that grow without bound), one test each."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+
+from .conftest import needs_render
+
+
+def _bumps(n: int, seed: int) -> np.ndarray:
+    x = np.linspace(0.0, 4.0, n)
+    noise = np.random.default_rng(seed).random((n, n))
+    return (np.sin(x)[:, None] * np.cos(x)[None, :] * 50.0 + noise).astype(np.float32)
+
+
+def _same_in_threads(call, jobs, *, threads: int = 4, rounds: int = 3) -> None:
+    """``call(job)`` for every job from ``threads`` threads at once gives what the calls gave one after another
+    (``call`` returns a tuple of arrays, copied)."""
+    expected = [call(job) for job in jobs]
+    for _ in range(rounds):
+        with ThreadPoolExecutor(threads) as pool:
+            got = list(pool.map(call, jobs))
+        for k, (want, have) in enumerate(zip(expected, got, strict=True)):
+            for a, b in zip(want, have, strict=True):
+                assert a.shape == b.shape and np.array_equal(a, b, equal_nan=True), f"job {k} differs in a thread"
+
+
+def test_one_tin_stepped_from_several_threads_at_once():
+    """A TIN's per-terrain device cache held the ``levels`` array every pass writes (each node's level), so two
+    threads stepping the same TIN Terrain at once (different intervals) wrote each other's levels: 6 of 8 meshes
+    differed from the same calls made one after another. A grid's levels were this thread's scratch already. The
+    fix keeps the uploads per terrain and takes the levels from the thread's scratch pool."""
+    tin = st.Terrain.from_mesh(st.heightfield_mesh(_bumps(200, 1)))
+
+    def call(interval: float) -> tuple[np.ndarray, ...]:
+        mesh = st.stepped(tin, interval=interval, device="cpu")
+        return mesh.vertices.copy(), mesh.faces.copy(), mesh.face_attributes["level"].copy()
+
+    _same_in_threads(call, [3.0, 5.0, 7.0, 11.0] * 2)
+
+
+def test_terrain_built_directly_does_not_follow_the_callers_array():
+    """``Terrain(kind="grid", heights=h)`` kept a read-only *view* of the caller's writeable ``h``: after ``h += 100``
+    the terrain's heights changed but its caches (height range, nodata flag; the upload on a GPU) did not, and
+    stepped() quantized to the old isovalues, silently clamping every vertex to the old range. The terrain now takes
+    a copy of arrays given to the constructor, so it steps the heights it was built with."""
+    heights = _bumps(40, 3)
+    given = heights.copy()
+    terrain = st.Terrain(kind="grid", heights=heights)
+    first = st.stepped(terrain, interval=5.0, device="cpu")
+    heights += 100.0
+    np.testing.assert_array_equal(terrain.heights, given)
+    again = st.stepped(terrain, interval=5.0, device="cpu")
+    np.testing.assert_array_equal(again.vertices, first.vertices)
+    np.testing.assert_array_equal(again.faces, first.faces)
+    assert not terrain.heights.flags.writeable
+
+
+@needs_render
+def test_reused_renderer_draws_each_new_terrain_not_the_previous_one():
+    """render_closeups keyed the overview it left on a reused renderer by ``id(t)``. Given a raw (H, W) array, each
+    call makes its own Terrain, which is freed when the call returns, and the next call's Terrain usually gets the
+    same id: a second, different heightfield was drawn as the first one's overview (found by rendering two arrays
+    in turn on one renderer and comparing with fresh renders). The key now holds the terrain (and the texture)
+    itself, compared by identity."""
+    from stepterrain import render
+    from stepterrain.closeup import render_closeups
+
+    size = (160, 120)
+    first = _bumps(24, 4)
+    second = (first[::-1] * 0.3 + 20.0).astype(np.float32)
+    box = np.array([[0.0, 0.0, -60.0], [23.0, 23.0, 80.0]])
+    fresh = [render_closeups(h, [], window_size=size, bounds=box, device="cpu") for h in (first, second)]
+    assert not np.array_equal(fresh[0], fresh[1])
+    renderer = render.LayeredRenderer(window_size=size)
+    try:
+        for k in range(4):  # the terrains in turn: each is made anew from its array, so each call must draw it
+            image = render_closeups((first, second)[k % 2].copy(), [], window_size=size, bounds=box,
+                                    renderer=renderer, device="cpu")  # fmt: skip
+            np.testing.assert_array_equal(image, fresh[k % 2], err_msg=f"call {k} drew another terrain")
+    finally:
+        renderer.close()
+
+
+def test_globe_heights_and_positions_cannot_change_the_globe():
+    """Globe.heights and Globe.positions were, on the CPU, writeable views of the globe's own device arrays (Warp's
+    ``.numpy()``): ``g.heights[...] = 0`` changed every later mesh of the globe, whose node parameters (errors,
+    bounding spheres) still held the old heights. They are now read-only; the globe's meshes stay the same."""
+    from stepterrain.globe import Globe
+
+    globe = Globe.sample(face_size=17, device="cpu")
+    before = globe.mesh(error=1e5)
+    for array in (globe.heights, globe.positions):
+        assert not array.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            array[...] = 0
+    after = globe.mesh(error=1e5)
+    np.testing.assert_array_equal(after.vertices, before.vertices)
+    np.testing.assert_array_equal(after.faces, before.faces)
