@@ -324,6 +324,40 @@ def test_occlusion_bundles_give_the_bits_of_one_line_per_thread(monkeypatch):
                                atol=1e-5)
     assert np.isnan(bundled[~finite]).all() and bundled[finite].min() < 0.9
 
+def test_shadow_bundles_of_rows_a_page_apart_give_the_bits_of_one_line_per_thread(monkeypatch):
+    """Rows 4 KiB apart (1024 floats wide) sweep east-west in bundles of 8 lines, others of 16: same bits as one
+    line per thread, and the ray march's mask, for lights along and across the rows."""
+    import stepterrain.texture as texture_module
+
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=96, step=1)
+    heights = np.ascontiguousarray(np.tile(dem[:40], (1, 11))[:, :1024])  # 40 x 1024: rows 4096 bytes apart
+    heights[20:23, 500:505] = np.nan
+    spacing = (30.0, -30.0)
+    seen = []
+    launch = texture_module.launch
+
+    def spy(kernel, dim, inputs, **kwargs):
+        if kernel is texture_module.texture_kernels.sweep_shadows:
+            seen.append(inputs[2])
+        return launch(kernel, dim=dim, inputs=inputs, **kwargs)
+
+    monkeypatch.setattr(texture_module, "launch", spy)
+    for azimuth in (90.0, 260.0, 300.0):
+        bundled = cast_shadows(heights, spacing=spacing, azimuth=np.radians(azimuth), device="cpu")
+        with monkeypatch.context() as m:
+            m.setattr(texture_module, "_LINES_PER_THREAD_CPU", {0: 1, 1: 1})
+            m.setattr(texture_module, "_LINES_PER_THREAD_CPU_ALIASED_ROWS", 1)
+            single = cast_shadows(heights, spacing=spacing, azimuth=np.radians(azimuth), device="cpu")
+        np.testing.assert_array_equal(bundled, single)
+        ref = shadows_reference(heights, spacing, azimuth=np.radians(azimuth))
+        finite = np.isfinite(heights)
+        np.testing.assert_array_equal(bundled[finite], ref[finite])
+        assert 0 < bundled.sum() < bundled.size
+    assert seen[0] == 8 and seen[2] == 8  # the aliased rows' bundle, along rows 4 KiB apart
+    narrow = cast_shadows(heights[:, :1000].copy(), spacing=spacing, azimuth=np.radians(90.0), device="cpu")
+    assert seen[-1] == 16 and narrow.shape == (40, 1000)
+
+
 def test_occlusion_open_ground_and_pit(device):
     flat = ambient_occlusion(np.zeros((8, 8)), directions=8, device=device)
     np.testing.assert_allclose(flat, 1.0)
