@@ -93,12 +93,17 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
     until the new content is complete. The new file gets the usual permissions (0o666 less the umask).
 
+    A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
+    points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
+    target created (missing folders too); a loop of links is refused.
+
     Raises
     ------
     DataFileError
-        The folder cannot be created or written, or the finished file cannot be moved onto ``path``.
+        The folder cannot be created or written, ``path`` is a loop of symbolic links, or the finished file
+        cannot be moved onto ``path``.
     """
-    target = Path(path)
+    target = _link_target(Path(path))
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         try:
@@ -127,6 +132,18 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _link_target(path: Path) -> Path:
+    """``path``, or the file it names through symbolic links (relative links resolved from their own folder),
+    so :func:`atomic_path` replaces that file instead of the link. os.replace onto a link replaced the link
+    itself with a regular file: the file it pointed to kept the old content."""
+    if not path.is_symlink():
+        return path
+    resolved = Path(os.path.realpath(path))
+    if resolved.is_symlink():  # realpath stops at a link it met before: a loop, which has no file to replace
+        raise DataFileError(f"cannot write {str(path)!r}: it is a symbolic link in a loop ({str(resolved)!r})")
+    return resolved
 
 
 def save_mesh(
@@ -188,7 +205,8 @@ def save_mesh(
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
-    when anything fails.
+    when anything fails. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`): the
+    link stays and the file it points to gets the new content.
 
     Examples
     --------
