@@ -162,7 +162,8 @@ def save_mesh(
         vertex colours are kept where the format can hold them. The mesh is not modified.
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
-        file, buffers embedded as base64 data URIs), ``.obj``, ``.ply`` (binary), ``.stl`` (binary),
+        file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
+        shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
         ``.3mf`` (exact coordinates, vertex colours as a colour group: a colour 3D print keeps its tints).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
@@ -186,7 +187,8 @@ def save_mesh(
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
         extension is unknown (the message lists the supported ones), or ``metadata`` holds a value that is not
-        JSON (a set, bytes, an object; the message names its key) or a key that is not a string.
+        JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
+        texture coordinates are not one per vertex.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -667,12 +669,12 @@ def _gltf_document(
 
 
 def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
+    """Wavefront OBJ written by us: ``v`` (with RGB in 0-1 for vertex colours), ``vt`` and ``f`` lines, no vertex
+    normals (viewers shade faces flat and stair edges stay crisp). Coordinates and UVs are written by ``repr``, the
+    shortest text that reads back as the same float64: trimesh's writer used 8 decimals, so 1e-9 became 0 and a
+    millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside."""
     mtl_name = f"{target.stem}.mtl"
-    text, sidecars = trimesh.exchange.obj.export_obj(
-        mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
-    )  # no vertex normals: viewers shade faces flat and stair edges stay crisp
-    if len(mesh.faces) == 0:  # trimesh writes a bare "f" (and "v" without vertices) line: not OBJ
-        text = "".join(line for line in text.splitlines(keepends=True) if line.strip() not in ("v", "f"))
+    sidecars, material, uv = _obj_material(mesh, mtl_name)
     sidecars = _own_texture_names(sidecars, mtl_name, target.stem)
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
@@ -680,7 +682,59 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         with atomic_path(path) as side_tmp:
             side_tmp.write_bytes(data)
     _record_owner(paths, target)
-    tmp.write_text(text, encoding="utf-8")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    colors = None
+    if material is None and mesh.visual.kind in ("vertex", "face") and len(mesh.visual.vertex_colors):
+        colors = np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0  # OBJ's colour is RGB
+    with tmp.open("w", encoding="utf-8", newline="\n") as fh:
+        fh.write("# written by stepterrain\n")
+        name = mesh.metadata.get("name")
+        if isinstance(name, str) and name.split():  # one line: a line break in a name started a new statement
+            fh.write(f"o {' '.join(name.split())}\n")
+        if material is not None:
+            fh.write(f"mtllib {mtl_name}\nusemtl {material}\n")
+        row = "v {!r} {!r} {!r}" + (" {:.8f} {:.8f} {:.8f}" if colors is not None else "") + "\n"
+        _write_obj_rows(fh, row, vertices if colors is None else np.concatenate([vertices, colors], axis=1))
+        if uv is not None:
+            _write_obj_rows(fh, "vt {!r} {!r}\n", uv)
+        if uv is None:
+            _write_obj_rows(fh, "f {} {} {}\n", faces + 1)
+        else:  # the texture coordinate of a corner is its vertex's: v/vt with the same index
+            _write_obj_rows(fh, "f {}/{} {}/{} {}/{}\n", np.repeat(faces + 1, 2, axis=1))
+
+
+def _write_obj_rows(fh: Any, row: str, values: NDArray[Any]) -> None:
+    """Write ``values`` (N, k) with ``row`` (k fields) per line, :data:`_3MF_ROWS` lines per ``str.format``."""
+    for start in range(0, len(values), _3MF_ROWS):
+        block = values[start : start + _3MF_ROWS]
+        fh.write((row * len(block)).format(*block.reshape(-1).tolist()))
+
+
+def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes], str | None, NDArray[Any] | None]:
+    """A textured mesh's OBJ side files ({name: bytes}: the ``.mtl`` and its images, as trimesh's ``to_obj`` makes
+    them), material name and (V, 2) UVs (None without UVs); ({}, None, None) for a mesh without a material."""
+    visual = mesh.visual
+    if not hasattr(visual, "uv") or getattr(visual, "material", None) is None:
+        return {}, None, None
+    material = visual.material
+    if hasattr(material, "to_simple"):
+        material = material.to_simple()
+    files, name = material.to_obj(name=trimesh.util.unique_name(material.name, set()))
+    sidecars = {mtl_name: b"# written by stepterrain\n\n"}
+    for file_name, data in files.items():
+        if file_name.lower().endswith(".mtl"):
+            sidecars[mtl_name] += data
+        else:
+            sidecars[file_name] = data
+    uv = getattr(visual, "uv", None)
+    uv = np.asarray(uv, dtype=np.float64) if uv is not None and np.ndim(uv) == 2 else None
+    if uv is not None and len(uv) != len(mesh.vertices):  # each face corner's vt index is its vertex's
+        raise InvalidInputError(
+            f"mesh has {len(uv)} texture coordinates (UVs) for {len(mesh.vertices)} vertices; an OBJ needs one "
+            "per vertex"
+        )
+    return sidecars, str(name), uv
 
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:

@@ -8,8 +8,9 @@ import os
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
-from stepterrain.errors import DataFileError
+from stepterrain.errors import DataFileError, InvalidInputError
 from stepterrain.export import save_image, save_mesh
 
 
@@ -48,3 +49,39 @@ def test_a_dangling_symbolic_link_gets_its_target_and_a_loop_is_refused(tmp_path
     with pytest.raises(DataFileError, match=r"a\.ply.*symbolic link in a loop"):
         save_mesh(trimesh.creation.box(), tmp_path / "a.ply")
     assert (tmp_path / "a.ply").is_symlink() and (tmp_path / "b.ply").is_symlink()
+
+
+def test_obj_coordinates_and_uvs_read_back_as_the_same_float64(tmp_path):
+    # the OBJ was written with 8 decimals (trimesh's default): 1e-9 became 0, a micrometre mesh collapsed, and UTM
+    # northings lost everything below 1e-8 m; UVs likewise
+    rng = np.random.default_rng(7)
+    vertices = np.array([[1e-9, -2.5e-12, 3.0e-300], [3807902.8276283755, 376328.6554542635, -0.1],
+                         [1.0 / 3.0, 2.0 / 3.0, 1e17], [0.0, 1.0, 0.0]])  # fmt: skip
+    vertices = np.concatenate([vertices, rng.normal(scale=1e-4, size=(20, 3))])
+    faces = np.array([[0, 1, 2], [1, 3, 2]] + [[k, k + 1, k + 2] for k in range(4, 22)])
+    plain = trimesh.Trimesh(vertices, faces, process=False)
+    colored = plain.copy()
+    colored.visual = trimesh.visual.ColorVisuals(colored, vertex_colors=rng.integers(0, 256, (len(vertices), 4)))
+    for name, mesh in (("plain", plain), ("colored", colored)):
+        back = trimesh.load(save_mesh(mesh, tmp_path / f"{name}.obj"), process=False)
+        np.testing.assert_array_equal(back.vertices, vertices)
+        np.testing.assert_array_equal(back.faces, faces)
+    np.testing.assert_array_equal(back.visual.vertex_colors[:, :3], colored.visual.vertex_colors[:, :3])
+    textured = plain.copy()
+    uv = rng.random((len(vertices), 2)) / 7.0
+    image = Image.fromarray(rng.integers(0, 256, (4, 4, 3), dtype=np.uint8))
+    textured.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    back = trimesh.load(save_mesh(textured, tmp_path / "textured.obj"), process=False)
+    np.testing.assert_array_equal(back.vertices, vertices)
+    np.testing.assert_array_equal(back.visual.uv, uv)
+    np.testing.assert_array_equal(np.asarray(back.visual.material.image), np.asarray(image))
+
+
+def test_an_obj_with_fewer_uvs_than_vertices_is_refused(tmp_path):
+    # each face corner's vt index is its vertex's: trimesh wrote 5 vt lines and faces naming vt 6 to 8 (an invalid
+    # OBJ that readers refuse or texture wrongly)
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((5, 2)), image=Image.new("RGB", (2, 2)))
+    with pytest.raises(InvalidInputError, match="mesh has 5 texture coordinates .UVs. for 8 vertices"):
+        save_mesh(mesh, tmp_path / "box.obj")
+    assert list(tmp_path.iterdir()) == []
