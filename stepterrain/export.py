@@ -41,6 +41,9 @@ MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3
 _MAX_EXTRAS_ITEMS = 4096
 # glTF accessors are float32: coordinates beyond this magnitude (UTM metres) move into the node translation.
 _LOCAL_ORIGIN_THRESHOLD = 65536.0
+# Formats that hold triangles only: a mesh of vertices without faces is refused for them (STL has no vertex list;
+# a 3MF mesh object needs triangles and a printer has no use for points).
+_TRIANGLES_ONLY = (".stl", ".3mf")
 # (lowest, highest) vertex coordinate per axis, float64; None for a mesh without vertices (_vertex_bounds).
 Bounds = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 _OMIT = object()
@@ -186,7 +189,8 @@ def save_mesh(
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
-        extension is unknown (the message lists the supported ones), or ``metadata`` holds a value that is not
+        extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
+        ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
         texture coordinates are not one per vertex.
     DataFileError
@@ -195,6 +199,12 @@ def save_mesh(
 
     Notes
     -----
+    A mesh without vertices and faces (a view that sees nothing, a tile of sea) writes a valid empty file in
+    every format (glTF: a node without a mesh, its ``extras`` holding the metadata; STL: zero triangles; 3MF: an
+    object without vertices), which reads back as an empty mesh. A mesh of vertices without faces (points) is kept
+    as points by ``.glb``/``.gltf`` (a points primitive), ``.obj`` (``v`` lines) and ``.ply`` (the vertex
+    element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
+
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
     stay crisp. Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
@@ -237,6 +247,11 @@ def save_mesh(
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
     _check_faces(mesh, len(vertices))
+    if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
+        raise InvalidInputError(
+            f"cannot write {str(target)!r}: mesh has {len(vertices)} vertices but no faces, and {ext} stores "
+            "triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
+        )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
@@ -571,9 +586,12 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, 
 
 
 def _direct_gltf(mesh: trimesh.Trimesh) -> bool:
-    """Plain or vertex-coloured, non-empty meshes are written by :func:`_gltf_document`; textures go to trimesh."""
-    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+    """Plain or vertex-coloured meshes with vertices, and vertices without faces (points: a texture has no use
+    there), are written by :func:`_gltf_document`; textured meshes go to trimesh."""
+    if len(mesh.vertices) == 0:
         return False
+    if len(mesh.faces) == 0:
+        return True
     kind = mesh.visual.kind
     return kind is None or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
 
@@ -605,7 +623,8 @@ def _gltf_document(
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
     colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
-    ``shared_bounds``) decides the translation in place of ``bounds``."""
+    ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
+    (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
     assert bounds is not None  # _direct_gltf: the mesh has vertices
@@ -639,20 +658,22 @@ def _gltf_document(
         offset_bytes += data.nbytes + pad
         return len(views) - 1
 
-    accessors: list[dict[str, Any]] = [
-        {"bufferView": add_view(indices, _GL_ELEMENT_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_INT,
-         "count": int(indices.size), "type": "SCALAR"},
-        {"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT, "count": len(positions),
-         "type": "VEC3", "min": [float(v) for v in p_lo], "max": [float(v) for v in p_hi]},
-    ]  # fmt: skip
-    attributes = {"POSITION": 1}
-    if mesh.visual.kind == "vertex":
+    accessors: list[dict[str, Any]] = []
+    primitive: dict[str, Any] = {"attributes": {}, "mode": 4 if indices.size else 0}  # triangles, or points
+    if indices.size:
+        primitive["indices"] = len(accessors)
+        accessors.append({"bufferView": add_view(indices, _GL_ELEMENT_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_INT,
+                          "count": int(indices.size), "type": "SCALAR"})  # fmt: skip
+    primitive["attributes"]["POSITION"] = len(accessors)
+    accessors.append({"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
+                      "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
+                      "max": [float(v) for v in p_hi]})  # fmt: skip
+    if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
         colors = np.ascontiguousarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        primitive["attributes"]["COLOR_0"] = len(accessors)
         accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_BYTE,
                           "normalized": True, "count": len(colors), "type": "VEC4"})  # fmt: skip
-        attributes["COLOR_0"] = 2
-    gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh",
-                                 "primitives": [{"attributes": attributes, "indices": 0, "mode": 4}]}  # fmt: skip
+    gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
     tree = {
@@ -838,6 +859,46 @@ _WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds, Bounds], None
     ".stl": _write_stl,
     ".3mf": _write_3mf,
 }
+
+
+# ---------------------------------------------------------------------------------------------- reading back
+def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
+    """A mesh file read back as one ``trimesh.Trimesh`` (``process=False``), as ``stepterrain info`` describes it.
+
+    trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
+    :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
+    ``force="mesh"`` dropped) comes back as a mesh without faces.
+
+    Raises
+    ------
+    Exception
+        Whatever trimesh raises for a file it cannot read (the caller words it).
+    """
+    file = Path(path)
+    loaded = trimesh.load(file, force="mesh", process=False)
+    if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
+        loaded = _read_points(file) or loaded
+    return loaded  # type: ignore[no-any-return]
+
+
+def _read_points(file: Path) -> trimesh.Trimesh | None:
+    """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None
+    without any."""
+    loaded = trimesh.load(file, process=False)
+    parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
+    clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
+    if not clouds:
+        return None
+    vertices = np.concatenate([np.asarray(cloud.vertices, dtype=np.float64) for cloud in clouds])
+    mesh = trimesh.Trimesh(vertices, np.zeros((0, 3), np.int64), process=False)
+    colors = [np.asarray(cloud.colors) for cloud in clouds]
+    if all(c.ndim == 2 and len(c) == len(cloud.vertices) for c, cloud in zip(colors, clouds, strict=True)):
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.concatenate(colors))
+    metadata = dict(getattr(loaded, "metadata", {}) or {})
+    for cloud in clouds:
+        metadata.update(cloud.metadata or {})
+    mesh.metadata.update(metadata)
+    return mesh
 
 
 # ---------------------------------------------------------------------------------------------- helpers

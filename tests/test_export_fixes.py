@@ -3,6 +3,7 @@ its fix)."""
 
 from __future__ import annotations
 
+import json
 import os
 
 import numpy as np
@@ -10,6 +11,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
 from stepterrain.export import save_image, save_mesh
 
@@ -85,3 +87,38 @@ def test_an_obj_with_fewer_uvs_than_vertices_is_refused(tmp_path):
     with pytest.raises(InvalidInputError, match="mesh has 5 texture coordinates .UVs. for 8 vertices"):
         save_mesh(mesh, tmp_path / "box.obj")
     assert list(tmp_path.iterdir()) == []
+
+
+def points(count: int = 5) -> trimesh.Trimesh:
+    rng = np.random.default_rng(3)
+    mesh = trimesh.Trimesh(rng.random((count, 3)) * 100.0, np.zeros((0, 3), np.int64), process=False)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rng.integers(0, 256, (count, 4), dtype=np.uint8))
+    return mesh
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj", ".ply"])
+def test_vertices_without_faces_are_kept_as_points(tmp_path, ext, capsys):
+    # glTF/GLB: trimesh's writer wrote an empty file (no buffer, no mesh), the points silently lost; `info` read
+    # every points file as 0 vertices (trimesh's force="mesh" drops a point cloud)
+    mesh = points()
+    path = save_mesh(mesh, tmp_path / f"points{ext}")
+    back = trimesh.load(path, process=False)
+    cloud = next(iter(back.geometry.values())) if isinstance(back, trimesh.Scene) else back
+    assert isinstance(cloud, trimesh.PointCloud)
+    np.testing.assert_allclose(cloud.vertices, mesh.vertices, rtol=1e-7)  # glTF stores float32
+    if ext in (".glb", ".gltf", ".ply"):
+        np.testing.assert_array_equal(cloud.colors, mesh.visual.vertex_colors)
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["vertices"], summary["faces"]) == (5, 0)
+    np.testing.assert_allclose(summary["bounds_min"], mesh.vertices.min(axis=0), rtol=1e-7)
+
+
+@pytest.mark.parametrize("ext", [".stl", ".3mf"])
+def test_vertices_without_faces_are_refused_where_only_triangles_fit(tmp_path, ext):
+    # STL wrote an 84-byte file of 0 triangles and 3MF an object without triangles: the points silently lost
+    with pytest.raises(InvalidInputError, match=rf"mesh has 5 vertices but no faces, and \{ext} stores triangles only"):
+        save_mesh(points(), tmp_path / f"points{ext}")
+    assert list(tmp_path.iterdir()) == []
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    assert len(trimesh.load(save_mesh(empty, tmp_path / f"empty{ext}"), force="mesh").vertices) == 0  # still written
