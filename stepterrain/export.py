@@ -15,6 +15,7 @@ import functools
 import json
 import math
 import os
+import stat
 import struct
 import tempfile
 import threading
@@ -94,7 +95,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
     A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
-    until the new content is complete. The new file gets the usual permissions (0o666 less the umask).
+    until the new content is complete. A new file gets the usual permissions (0o666 less the umask); a file
+    replaced keeps its own (a private 0o600 file stays private).
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
@@ -125,8 +127,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        try:  # mkstemp's file is 0o600; the umask's mode widened a replaced private file to 0o644
+            mode = stat.S_IMODE(os.stat(target).st_mode)
+        except OSError:
+            mode = _file_mode()
         with contextlib.suppress(OSError):
-            os.chmod(tmp_path, _file_mode())
+            os.chmod(tmp_path, mode)
         try:
             os.replace(tmp_path, target)
         except OSError as exc:

@@ -144,3 +144,15 @@ def test_info_and_read_mesh_report_the_colour_group_of_a_3mf(tmp_path, capsys):
     assert summary["vertex_colors"] is True and summary["faces"] == len(mesh.faces)
     plain = save_mesh(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), tmp_path / "plain.3mf")
     assert read_mesh(plain).visual.kind is None  # no colour group: none invented
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o664])
+def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
+    # the replacement got 0o666 less the umask: a private 0o600 mesh or image became world-readable (0o644)
+    for path, write in ((tmp_path / "m.ply", lambda p: save_mesh(trimesh.creation.box(), p)),
+                        (tmp_path / "i.png", lambda p: save_image(np.zeros((2, 2, 3), np.uint8), p))):  # fmt: skip
+        write(path)
+        path.chmod(mode)
+        write(path)
+        assert path.stat().st_mode & 0o777 == mode
