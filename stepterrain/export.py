@@ -219,7 +219,8 @@ def save_mesh(
     are float32, so when coordinates exceed 65536 (UTM metres) the vertices are stored relative to a node
     translation (float64 in the JSON) and loaders that apply the scene graph get world coordinates back at
     full precision. Textured OBJ meshes also write
-    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path``, each atomically; one that would
+    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
+    ``_``: OBJ and MTL readers split file names on it), each atomically; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -699,10 +700,14 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     """Wavefront OBJ written by us: ``v`` (with RGB in 0-1 for vertex colours), ``vt`` and ``f`` lines, no vertex
     normals (viewers shade faces flat and stair edges stay crisp). Coordinates and UVs are written by ``repr``, the
     shortest text that reads back as the same float64: trimesh's writer used 8 decimals, so 1e-9 became 0 and a
-    millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside."""
-    mtl_name = f"{target.stem}.mtl"
+    millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside (runs
+    of whitespace in the stem become ``_``)."""
+    # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
+    # the line as the format says (tinyobjloader, many slicers), and the texture was not found
+    stem = "_".join(target.stem.split()) or "mesh"
+    mtl_name = f"{stem}.mtl"
     sidecars, material, uv = _obj_material(mesh, mtl_name)
-    sidecars = _own_texture_names(sidecars, mtl_name, target.stem)
+    sidecars = _own_texture_names(sidecars, mtl_name, stem)
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
     for path, data in zip(paths, sidecars.values(), strict=True):

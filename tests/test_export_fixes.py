@@ -156,3 +156,21 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
         path.chmod(mode)
         write(path)
         assert path.stat().st_mode & 0o777 == mode
+
+
+def test_a_textured_obj_named_with_spaces_names_its_side_files_in_one_word(tmp_path):
+    # "mtllib my terrain.mtl" and "map_Kd my terrain_material_0.png": OBJ/MTL readers that split lines on whitespace,
+    # as the formats say, looked for "my" and "terrain.mtl" and lost the texture
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                image=Image.new("RGB", (2, 2), (200, 10, 10)))  # fmt: skip
+    path = save_mesh(mesh, tmp_path / "my terrain\tü.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([path.name, "my_terrain_ü.mtl",
+                                                                 "my_terrain_ü_material_0.png"])  # fmt: skip
+    mtllib = [line.split() for line in path.read_text(encoding="utf-8").splitlines() if line.startswith("mtllib")]
+    assert mtllib == [["mtllib", "my_terrain_ü.mtl"]]
+    maps = [line.split() for line in (tmp_path / "my_terrain_ü.mtl").read_text(encoding="utf-8").splitlines()
+            if line.startswith("map_Kd")]  # fmt: skip
+    assert maps == [["map_Kd", "my_terrain_ü_material_0.png"]]
+    back = trimesh.load(path, process=False)
+    assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
