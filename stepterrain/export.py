@@ -15,6 +15,7 @@ import functools
 import json
 import math
 import os
+import stat
 import struct
 import tempfile
 import threading
@@ -41,6 +42,9 @@ MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3
 _MAX_EXTRAS_ITEMS = 4096
 # glTF accessors are float32: coordinates beyond this magnitude (UTM metres) move into the node translation.
 _LOCAL_ORIGIN_THRESHOLD = 65536.0
+# Formats that hold triangles only: a mesh of vertices without faces is refused for them (STL has no vertex list;
+# a 3MF mesh object needs triangles and a printer has no use for points).
+_TRIANGLES_ONLY = (".stl", ".3mf")
 # (lowest, highest) vertex coordinate per axis, float64; None for a mesh without vertices (_vertex_bounds).
 Bounds = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 _OMIT = object()
@@ -91,14 +95,20 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
     A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
-    until the new content is complete. The new file gets the usual permissions (0o666 less the umask).
+    until the new content is complete. A new file gets the usual permissions (0o666 less the umask); a file
+    replaced keeps its own (a private 0o600 file stays private).
+
+    A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
+    points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
+    target created (missing folders too); a loop of links is refused.
 
     Raises
     ------
     DataFileError
-        The folder cannot be created or written, or the finished file cannot be moved onto ``path``.
+        The folder cannot be created or written, ``path`` is a loop of symbolic links, or the finished file
+        cannot be moved onto ``path``.
     """
-    target = Path(path)
+    target = _link_target(Path(path))
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         try:
@@ -117,8 +127,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        try:  # mkstemp's file is 0o600; the umask's mode widened a replaced private file to 0o644
+            mode = stat.S_IMODE(os.stat(target).st_mode)
+        except OSError:
+            mode = _file_mode()
         with contextlib.suppress(OSError):
-            os.chmod(tmp_path, _file_mode())
+            os.chmod(tmp_path, mode)
         try:
             os.replace(tmp_path, target)
         except OSError as exc:
@@ -127,6 +141,18 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _link_target(path: Path) -> Path:
+    """``path``, or the file it names through symbolic links (relative links resolved from their own folder),
+    so :func:`atomic_path` replaces that file instead of the link. os.replace onto a link replaced the link
+    itself with a regular file: the file it pointed to kept the old content."""
+    if not path.is_symlink():
+        return path
+    resolved = Path(os.path.realpath(path))
+    if resolved.is_symlink():  # realpath stops at a link it met before: a loop, which has no file to replace
+        raise DataFileError(f"cannot write {str(path)!r}: it is a symbolic link in a loop ({str(resolved)!r})")
+    return resolved
 
 
 def save_mesh(
@@ -145,7 +171,8 @@ def save_mesh(
         vertex colours are kept where the format can hold them. The mesh is not modified.
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
-        file, buffers embedded as base64 data URIs), ``.obj``, ``.ply`` (binary), ``.stl`` (binary),
+        file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
+        shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
         ``.3mf`` (exact coordinates, vertex colours as a colour group: a colour 3D print keeps its tints).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
@@ -168,14 +195,22 @@ def save_mesh(
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
-        extension is unknown (the message lists the supported ones), or ``metadata`` holds a value that is not
-        JSON (a set, bytes, an object; the message names its key) or a key that is not a string.
+        extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
+        ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
+        JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
+        texture coordinates are not one per vertex.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
 
     Notes
     -----
+    A mesh without vertices and faces (a view that sees nothing, a tile of sea) writes a valid empty file in
+    every format (glTF: a node without a mesh, its ``extras`` holding the metadata; STL: zero triangles; 3MF: an
+    object without vertices), which reads back as an empty mesh. A mesh of vertices without faces (points) is kept
+    as points by ``.glb``/``.gltf`` (a points primitive), ``.obj`` (``v`` lines) and ``.ply`` (the vertex
+    element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
+
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
     stay crisp. Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
@@ -184,11 +219,13 @@ def save_mesh(
     are float32, so when coordinates exceed 65536 (UTM metres) the vertices are stored relative to a node
     translation (float64 in the JSON) and loaders that apply the scene graph get world coordinates back at
     full precision. Textured OBJ meshes also write
-    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path``, each atomically; one that would
+    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
+    ``_``: OBJ and MTL readers split file names on it), each atomically; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
-    when anything fails.
+    when anything fails. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`): the
+    link stays and the file it points to gets the new content.
 
     Examples
     --------
@@ -217,6 +254,11 @@ def save_mesh(
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
     _check_faces(mesh, len(vertices))
+    if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
+        raise InvalidInputError(
+            f"cannot write {str(target)!r}: mesh has {len(vertices)} vertices but no faces, and {ext} stores "
+            "triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
+        )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
@@ -551,9 +593,12 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, 
 
 
 def _direct_gltf(mesh: trimesh.Trimesh) -> bool:
-    """Plain or vertex-coloured, non-empty meshes are written by :func:`_gltf_document`; textures go to trimesh."""
-    if len(mesh.faces) == 0 or len(mesh.vertices) == 0:
+    """Plain or vertex-coloured meshes with vertices, and vertices without faces (points: a texture has no use
+    there), are written by :func:`_gltf_document`; textured meshes go to trimesh."""
+    if len(mesh.vertices) == 0:
         return False
+    if len(mesh.faces) == 0:
+        return True
     kind = mesh.visual.kind
     return kind is None or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
 
@@ -585,7 +630,8 @@ def _gltf_document(
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
     colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
-    ``shared_bounds``) decides the translation in place of ``bounds``."""
+    ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
+    (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
     assert bounds is not None  # _direct_gltf: the mesh has vertices
@@ -619,20 +665,22 @@ def _gltf_document(
         offset_bytes += data.nbytes + pad
         return len(views) - 1
 
-    accessors: list[dict[str, Any]] = [
-        {"bufferView": add_view(indices, _GL_ELEMENT_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_INT,
-         "count": int(indices.size), "type": "SCALAR"},
-        {"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT, "count": len(positions),
-         "type": "VEC3", "min": [float(v) for v in p_lo], "max": [float(v) for v in p_hi]},
-    ]  # fmt: skip
-    attributes = {"POSITION": 1}
-    if mesh.visual.kind == "vertex":
+    accessors: list[dict[str, Any]] = []
+    primitive: dict[str, Any] = {"attributes": {}, "mode": 4 if indices.size else 0}  # triangles, or points
+    if indices.size:
+        primitive["indices"] = len(accessors)
+        accessors.append({"bufferView": add_view(indices, _GL_ELEMENT_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_INT,
+                          "count": int(indices.size), "type": "SCALAR"})  # fmt: skip
+    primitive["attributes"]["POSITION"] = len(accessors)
+    accessors.append({"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
+                      "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
+                      "max": [float(v) for v in p_hi]})  # fmt: skip
+    if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
         colors = np.ascontiguousarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        primitive["attributes"]["COLOR_0"] = len(accessors)
         accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_BYTE,
                           "normalized": True, "count": len(colors), "type": "VEC4"})  # fmt: skip
-        attributes["COLOR_0"] = 2
-    gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh",
-                                 "primitives": [{"attributes": attributes, "indices": 0, "mode": 4}]}  # fmt: skip
+    gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
     tree = {
@@ -649,20 +697,76 @@ def _gltf_document(
 
 
 def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    mtl_name = f"{target.stem}.mtl"
-    text, sidecars = trimesh.exchange.obj.export_obj(
-        mesh, include_normals=False, return_texture=True, mtl_name=mtl_name, header="written by stepterrain"
-    )  # no vertex normals: viewers shade faces flat and stair edges stay crisp
-    if len(mesh.faces) == 0:  # trimesh writes a bare "f" (and "v" without vertices) line: not OBJ
-        text = "".join(line for line in text.splitlines(keepends=True) if line.strip() not in ("v", "f"))
-    sidecars = _own_texture_names(sidecars, mtl_name, target.stem)
+    """Wavefront OBJ written by us: ``v`` (with RGB in 0-1 for vertex colours), ``vt`` and ``f`` lines, no vertex
+    normals (viewers shade faces flat and stair edges stay crisp). Coordinates and UVs are written by ``repr``, the
+    shortest text that reads back as the same float64: trimesh's writer used 8 decimals, so 1e-9 became 0 and a
+    millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside (runs
+    of whitespace in the stem become ``_``)."""
+    # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
+    # the line as the format says (tinyobjloader, many slicers), and the texture was not found
+    stem = "_".join(target.stem.split()) or "mesh"
+    mtl_name = f"{stem}.mtl"
+    sidecars, material, uv = _obj_material(mesh, mtl_name)
+    sidecars = _own_texture_names(sidecars, mtl_name, stem)
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
     for path, data in zip(paths, sidecars.values(), strict=True):
         with atomic_path(path) as side_tmp:
             side_tmp.write_bytes(data)
     _record_owner(paths, target)
-    tmp.write_text(text, encoding="utf-8")
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    colors = None
+    if material is None and mesh.visual.kind in ("vertex", "face") and len(mesh.visual.vertex_colors):
+        colors = np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0  # OBJ's colour is RGB
+    with tmp.open("w", encoding="utf-8", newline="\n") as fh:
+        fh.write("# written by stepterrain\n")
+        name = mesh.metadata.get("name")
+        if isinstance(name, str) and name.split():  # one line: a line break in a name started a new statement
+            fh.write(f"o {' '.join(name.split())}\n")
+        if material is not None:
+            fh.write(f"mtllib {mtl_name}\nusemtl {material}\n")
+        row = "v {!r} {!r} {!r}" + (" {:.8f} {:.8f} {:.8f}" if colors is not None else "") + "\n"
+        _write_obj_rows(fh, row, vertices if colors is None else np.concatenate([vertices, colors], axis=1))
+        if uv is not None:
+            _write_obj_rows(fh, "vt {!r} {!r}\n", uv)
+        if uv is None:
+            _write_obj_rows(fh, "f {} {} {}\n", faces + 1)
+        else:  # the texture coordinate of a corner is its vertex's: v/vt with the same index
+            _write_obj_rows(fh, "f {}/{} {}/{} {}/{}\n", np.repeat(faces + 1, 2, axis=1))
+
+
+def _write_obj_rows(fh: Any, row: str, values: NDArray[Any]) -> None:
+    """Write ``values`` (N, k) with ``row`` (k fields) per line, :data:`_3MF_ROWS` lines per ``str.format``."""
+    for start in range(0, len(values), _3MF_ROWS):
+        block = values[start : start + _3MF_ROWS]
+        fh.write((row * len(block)).format(*block.reshape(-1).tolist()))
+
+
+def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes], str | None, NDArray[Any] | None]:
+    """A textured mesh's OBJ side files ({name: bytes}: the ``.mtl`` and its images, as trimesh's ``to_obj`` makes
+    them), material name and (V, 2) UVs (None without UVs); ({}, None, None) for a mesh without a material."""
+    visual = mesh.visual
+    if not hasattr(visual, "uv") or getattr(visual, "material", None) is None:
+        return {}, None, None
+    material = visual.material
+    if hasattr(material, "to_simple"):
+        material = material.to_simple()
+    files, name = material.to_obj(name=trimesh.util.unique_name(material.name, set()))
+    sidecars = {mtl_name: b"# written by stepterrain\n\n"}
+    for file_name, data in files.items():
+        if file_name.lower().endswith(".mtl"):
+            sidecars[mtl_name] += data
+        else:
+            sidecars[file_name] = data
+    uv = getattr(visual, "uv", None)
+    uv = np.asarray(uv, dtype=np.float64) if uv is not None and np.ndim(uv) == 2 else None
+    if uv is not None and len(uv) != len(mesh.vertices):  # each face corner's vt index is its vertex's
+        raise InvalidInputError(
+            f"mesh has {len(uv)} texture coordinates (UVs) for {len(mesh.vertices)} vertices; an OBJ needs one "
+            "per vertex"
+        )
+    return sidecars, str(name), uv
 
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
@@ -766,6 +870,134 @@ _WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds, Bounds], None
     ".stl": _write_stl,
     ".3mf": _write_3mf,
 }
+
+
+# ---------------------------------------------------------------------------------------------- reading back
+def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
+    """A mesh file read back as one ``trimesh.Trimesh`` (``process=False``), as ``stepterrain info`` describes it.
+
+    trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
+    :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
+    ``force="mesh"`` dropped) comes back as a mesh without faces, and a 3MF's colour group (trimesh's reader ignores
+    ``m:colorgroup``) as vertex colours, or face colours where one vertex has corners of several colours.
+
+    Raises
+    ------
+    Exception
+        Whatever trimesh raises for a file it cannot read (the caller words it).
+    """
+    file = Path(path)
+    loaded = trimesh.load(file, force="mesh", process=False)
+    if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
+        loaded = _read_points(file) or loaded
+    if isinstance(loaded, trimesh.Trimesh) and file.suffix.lower() == ".3mf" and len(loaded.faces):
+        _read_3mf_colors(file, loaded)
+    return loaded  # type: ignore[no-any-return]
+
+
+def _read_points(file: Path) -> trimesh.Trimesh | None:
+    """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None
+    without any."""
+    loaded = trimesh.load(file, process=False)
+    parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
+    clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
+    if not clouds:
+        return None
+    vertices = np.concatenate([np.asarray(cloud.vertices, dtype=np.float64) for cloud in clouds])
+    mesh = trimesh.Trimesh(vertices, np.zeros((0, 3), np.int64), process=False)
+    colors = [np.asarray(cloud.colors) for cloud in clouds]
+    if all(c.ndim == 2 and len(c) == len(cloud.vertices) for c, cloud in zip(colors, clouds, strict=True)):
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.concatenate(colors))
+    metadata = dict(getattr(loaded, "metadata", {}) or {})
+    for cloud in clouds:
+        metadata.update(cloud.metadata or {})
+    mesh.metadata.update(metadata)
+    return mesh
+
+
+_3MF_CORE = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
+_3MF_MATERIAL = "{http://schemas.microsoft.com/3dmanufacturing/material/2015/02}"
+
+
+def _read_3mf_colors(file: Path, mesh: trimesh.Trimesh) -> None:
+    """Give ``mesh`` (trimesh's reading of the 3MF ``file``) the colours of the file's ``m:colorgroup``: each
+    triangle's corner colours (p1, p2, p3 into the group its pid, or its object's, names). Streamed (iterparse,
+    elements cleared as read, indices in compact arrays). Only a model of one mesh object whose triangles are
+    ``mesh``'s faces in order is coloured; anything else (several objects, components) is left as trimesh read it."""
+    import array
+    import xml.etree.ElementTree as ET
+
+    groups: dict[str, list[tuple[int, int, int, int]]] = {}
+    rows = array.array("q")  # v1 v2 v3 pid p1 p2 p3 per triangle (-1: absent)
+    group: list[tuple[int, int, int, int]] | None = None
+    objects = 0
+    container: Any = None  # the <vertices> or <triangles> being read: emptied after each child, so memory stays flat
+    default_pid = default_index = -1
+    pid_ids: dict[str, int] = {}
+    with zipfile.ZipFile(file) as archive:
+        models = [name for name in archive.namelist() if name.lower().endswith(".model")]
+        if len(models) != 1:
+            return
+        with archive.open(models[0]) as stream:
+            for event, element in ET.iterparse(stream, events=("start", "end")):
+                tag = element.tag
+                if event == "start":
+                    if tag == _3MF_MATERIAL + "colorgroup":
+                        group = groups.setdefault(element.get("id", ""), [])
+                    elif tag == _3MF_CORE + "object" and element.get("type", "model") != "other":
+                        objects += 1
+                        default_pid = pid_ids.setdefault(element.get("pid", ""), len(pid_ids))
+                        default_index = int(element.get("pindex", "-1"))
+                    elif tag in (_3MF_CORE + "vertices", _3MF_CORE + "triangles"):
+                        container = element
+                    continue
+                if tag == _3MF_CORE + "triangle":
+                    a = element.attrib
+                    pid = pid_ids.setdefault(a["pid"], len(pid_ids)) if "pid" in a else default_pid
+                    p1 = int(a.get("p1", default_index))
+                    rows.extend((int(a["v1"]), int(a["v2"]), int(a["v3"]), pid, p1, int(a.get("p2", p1)),
+                                 int(a.get("p3", p1))))  # fmt: skip
+                elif tag == _3MF_MATERIAL + "color" and group is not None:
+                    group.append(_3mf_rgba(element.get("color", "")))
+                elif tag == _3MF_MATERIAL + "colorgroup":
+                    group = None
+                elif tag != _3MF_CORE + "vertex":
+                    continue
+                element.clear()
+                if container is not None and tag != _3MF_MATERIAL + "color":
+                    container.clear()
+    triangles = np.frombuffer(rows, dtype=np.int64).reshape(-1, 7)
+    if objects != 1 or not groups or not np.array_equal(triangles[:, :3], mesh.faces):
+        return
+    names = {index: name for name, index in pid_ids.items()}
+    pids = np.unique(triangles[:, 3])
+    if len(pids) != 1 or names.get(int(pids[0])) not in groups:
+        return
+    palette = np.array(groups[names[int(pids[0])]], dtype=np.uint8).reshape(-1, 4)
+    corners = triangles[:, 4:]
+    if len(palette) == 0 or corners.min() < 0 or corners.max() >= len(palette):
+        return
+    corner_colors = palette[corners.reshape(-1)]
+    vertex_colors = np.zeros((len(mesh.vertices), 4), np.uint8)
+    vertex_colors[mesh.faces.reshape(-1)] = corner_colors
+    referenced = np.zeros(len(mesh.vertices), bool)
+    referenced[mesh.faces.reshape(-1)] = True
+    if referenced.all() and np.array_equal(vertex_colors[mesh.faces.reshape(-1)], corner_colors):
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=vertex_colors)
+    else:  # a vertex with corners of several colours: each face takes its first corner's
+        mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=corner_colors[::3])
+
+
+def _3mf_rgba(text: str) -> tuple[int, int, int, int]:
+    """``#RRGGBB`` or ``#RRGGBBAA`` (3MF's sRGB colour) as RGBA bytes; opaque black for anything else."""
+    digits = text.strip().lstrip("#")
+    if len(digits) == 6:
+        digits += "FF"
+    try:
+        value = int(digits, 16) if len(digits) == 8 else 255
+    except ValueError:
+        value = 255
+    return value >> 24 & 255, value >> 16 & 255, value >> 8 & 255, value & 255
 
 
 # ---------------------------------------------------------------------------------------------- helpers

@@ -234,6 +234,8 @@ def test_empty_mesh(tmp_path):
     points = trimesh.Trimesh(np.ones((4, 3)), np.zeros((0, 3), np.int64), process=False)  # vertices, no faces
     for mesh in (empty, points):
         for ext in MESH_EXTENSIONS:
+            if mesh is points and ext in (".stl", ".3mf"):  # triangles only: refused (test_export_fixes.py)
+                continue
             path = save_mesh(mesh, tmp_path / f"e{ext}")
             back = trimesh.load(path, force="mesh", process=False)
             assert len(back.faces) == 0

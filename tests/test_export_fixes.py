@@ -1,0 +1,176 @@
+"""save_mesh / atomic_path / `stepterrain info` bugs found by a pass over the mesh formats (each test failed before
+its fix)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from stepterrain import cli
+from stepterrain.errors import DataFileError, InvalidInputError
+from stepterrain.export import save_image, save_mesh
+
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
+@pytest.mark.parametrize("ext", [".glb", ".obj", ".ply", ".png"])
+def test_a_symbolic_link_is_written_through_and_kept(tmp_path, ext):
+    # os.replace put the new file in place of the link: the link was gone and the file it named kept the old content
+    (tmp_path / "store").mkdir()
+    real = tmp_path / "store" / f"latest{ext}"
+    link = tmp_path / f"link{ext}"
+    os.symlink(os.path.join("store", real.name), link)  # relative, as `ln -s` makes them
+
+    def write(path, size):
+        if ext == ".png":
+            return save_image(np.zeros((size, 3, 3), np.uint8), path)
+        return save_mesh(trimesh.creation.box(extents=(size, 1, 1)), path)
+
+    write(real, 1)
+    before = real.read_bytes()
+    assert write(link, 2) == link
+    assert link.is_symlink() and os.readlink(link) == os.path.join("store", real.name)
+    assert real.read_bytes() != before and link.read_bytes() == real.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["store", link.name])
+    assert [p.name for p in (tmp_path / "store").iterdir()] == [real.name]  # the temporary file went beside it
+
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
+def test_a_dangling_symbolic_link_gets_its_target_and_a_loop_is_refused(tmp_path):
+    link = tmp_path / "out.ply"
+    os.symlink(os.path.join("new", "mesh.ply"), link)  # the target and its folder do not exist yet
+    save_mesh(trimesh.creation.box(), link)
+    assert link.is_symlink() and (tmp_path / "new" / "mesh.ply").is_file()
+    assert len(trimesh.load(link).faces) == 12
+    os.symlink("b.ply", tmp_path / "a.ply")
+    os.symlink("a.ply", tmp_path / "b.ply")
+    with pytest.raises(DataFileError, match=r"a\.ply.*symbolic link in a loop"):
+        save_mesh(trimesh.creation.box(), tmp_path / "a.ply")
+    assert (tmp_path / "a.ply").is_symlink() and (tmp_path / "b.ply").is_symlink()
+
+
+def test_obj_coordinates_and_uvs_read_back_as_the_same_float64(tmp_path):
+    # the OBJ was written with 8 decimals (trimesh's default): 1e-9 became 0, a micrometre mesh collapsed, and UTM
+    # northings lost everything below 1e-8 m; UVs likewise
+    rng = np.random.default_rng(7)
+    vertices = np.array([[1e-9, -2.5e-12, 3.0e-300], [3807902.8276283755, 376328.6554542635, -0.1],
+                         [1.0 / 3.0, 2.0 / 3.0, 1e17], [0.0, 1.0, 0.0]])  # fmt: skip
+    vertices = np.concatenate([vertices, rng.normal(scale=1e-4, size=(20, 3))])
+    faces = np.array([[0, 1, 2], [1, 3, 2]] + [[k, k + 1, k + 2] for k in range(4, 22)])
+    plain = trimesh.Trimesh(vertices, faces, process=False)
+    colored = plain.copy()
+    colored.visual = trimesh.visual.ColorVisuals(colored, vertex_colors=rng.integers(0, 256, (len(vertices), 4)))
+    for name, mesh in (("plain", plain), ("colored", colored)):
+        back = trimesh.load(save_mesh(mesh, tmp_path / f"{name}.obj"), process=False)
+        np.testing.assert_array_equal(back.vertices, vertices)
+        np.testing.assert_array_equal(back.faces, faces)
+    np.testing.assert_array_equal(back.visual.vertex_colors[:, :3], colored.visual.vertex_colors[:, :3])
+    textured = plain.copy()
+    uv = rng.random((len(vertices), 2)) / 7.0
+    image = Image.fromarray(rng.integers(0, 256, (4, 4, 3), dtype=np.uint8))
+    textured.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    back = trimesh.load(save_mesh(textured, tmp_path / "textured.obj"), process=False)
+    np.testing.assert_array_equal(back.vertices, vertices)
+    np.testing.assert_array_equal(back.visual.uv, uv)
+    np.testing.assert_array_equal(np.asarray(back.visual.material.image), np.asarray(image))
+
+
+def test_an_obj_with_fewer_uvs_than_vertices_is_refused(tmp_path):
+    # each face corner's vt index is its vertex's: trimesh wrote 5 vt lines and faces naming vt 6 to 8 (an invalid
+    # OBJ that readers refuse or texture wrongly)
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((5, 2)), image=Image.new("RGB", (2, 2)))
+    with pytest.raises(InvalidInputError, match="mesh has 5 texture coordinates .UVs. for 8 vertices"):
+        save_mesh(mesh, tmp_path / "box.obj")
+    assert list(tmp_path.iterdir()) == []
+
+
+def points(count: int = 5) -> trimesh.Trimesh:
+    rng = np.random.default_rng(3)
+    mesh = trimesh.Trimesh(rng.random((count, 3)) * 100.0, np.zeros((0, 3), np.int64), process=False)
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rng.integers(0, 256, (count, 4), dtype=np.uint8))
+    return mesh
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj", ".ply"])
+def test_vertices_without_faces_are_kept_as_points(tmp_path, ext, capsys):
+    # glTF/GLB: trimesh's writer wrote an empty file (no buffer, no mesh), the points silently lost; `info` read
+    # every points file as 0 vertices (trimesh's force="mesh" drops a point cloud)
+    mesh = points()
+    path = save_mesh(mesh, tmp_path / f"points{ext}")
+    back = trimesh.load(path, process=False)
+    cloud = next(iter(back.geometry.values())) if isinstance(back, trimesh.Scene) else back
+    assert isinstance(cloud, trimesh.PointCloud)
+    np.testing.assert_allclose(cloud.vertices, mesh.vertices, rtol=1e-7)  # glTF stores float32
+    if ext in (".glb", ".gltf", ".ply"):
+        np.testing.assert_array_equal(cloud.colors, mesh.visual.vertex_colors)
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["vertices"], summary["faces"]) == (5, 0)
+    np.testing.assert_allclose(summary["bounds_min"], mesh.vertices.min(axis=0), rtol=1e-7)
+
+
+@pytest.mark.parametrize("ext", [".stl", ".3mf"])
+def test_vertices_without_faces_are_refused_where_only_triangles_fit(tmp_path, ext):
+    # STL wrote an 84-byte file of 0 triangles and 3MF an object without triangles: the points silently lost
+    with pytest.raises(InvalidInputError, match=rf"mesh has 5 vertices but no faces, and \{ext} stores triangles only"):
+        save_mesh(points(), tmp_path / f"points{ext}")
+    assert list(tmp_path.iterdir()) == []
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    assert len(trimesh.load(save_mesh(empty, tmp_path / f"empty{ext}"), force="mesh").vertices) == 0  # still written
+
+
+def test_info_and_read_mesh_report_the_colour_group_of_a_3mf(tmp_path, capsys):
+    # save_mesh writes vertex colours as an m:colorgroup (per triangle corner), which trimesh's 3MF reader ignores:
+    # `info print.3mf` said vertex_colors false for a colour print
+    import stepterrain as st
+    from stepterrain.export import read_mesh
+
+    from .conftest import real_dem
+
+    mesh = st.stepped(real_dem("big_tujunga_srtm_30m_utm11n.npz", size=24, step=6), interval=100.0, base=0.5,
+                      solid=True, colors="terrain")  # fmt: skip
+    assert len(np.unique(mesh.visual.vertex_colors, axis=0)) > 2
+    path = save_mesh(mesh, tmp_path / "print.3mf")
+    back = read_mesh(path)
+    assert back.visual.kind == "vertex"
+    np.testing.assert_array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["vertex_colors"] is True and summary["faces"] == len(mesh.faces)
+    plain = save_mesh(trimesh.Trimesh(mesh.vertices, mesh.faces, process=False), tmp_path / "plain.3mf")
+    assert read_mesh(plain).visual.kind is None  # no colour group: none invented
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+@pytest.mark.parametrize("mode", [0o600, 0o640, 0o664])
+def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
+    # the replacement got 0o666 less the umask: a private 0o600 mesh or image became world-readable (0o644)
+    for path, write in ((tmp_path / "m.ply", lambda p: save_mesh(trimesh.creation.box(), p)),
+                        (tmp_path / "i.png", lambda p: save_image(np.zeros((2, 2, 3), np.uint8), p))):  # fmt: skip
+        write(path)
+        path.chmod(mode)
+        write(path)
+        assert path.stat().st_mode & 0o777 == mode
+
+
+def test_a_textured_obj_named_with_spaces_names_its_side_files_in_one_word(tmp_path):
+    # "mtllib my terrain.mtl" and "map_Kd my terrain_material_0.png": OBJ/MTL readers that split lines on whitespace,
+    # as the formats say, looked for "my" and "terrain.mtl" and lost the texture
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                image=Image.new("RGB", (2, 2), (200, 10, 10)))  # fmt: skip
+    path = save_mesh(mesh, tmp_path / "my terrain\tü.obj")
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([path.name, "my_terrain_ü.mtl",
+                                                                 "my_terrain_ü_material_0.png"])  # fmt: skip
+    mtllib = [line.split() for line in path.read_text(encoding="utf-8").splitlines() if line.startswith("mtllib")]
+    assert mtllib == [["mtllib", "my_terrain_ü.mtl"]]
+    maps = [line.split() for line in (tmp_path / "my_terrain_ü.mtl").read_text(encoding="utf-8").splitlines()
+            if line.startswith("map_Kd")]  # fmt: skip
+    assert maps == [["map_Kd", "my_terrain_ü_material_0.png"]]
+    back = trimesh.load(path, process=False)
+    assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
