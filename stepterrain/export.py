@@ -878,8 +878,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
-    ``force="mesh"`` dropped) comes back as a mesh without faces, and a 3MF's colour group (trimesh's reader ignores
-    ``m:colorgroup``) as vertex colours, or face colours where one vertex has corners of several colours.
+    ``force="mesh"`` dropped) comes back as a mesh without faces, and a 3MF of one mesh object (as :func:`save_mesh`
+    writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
+    as vertex colours, or face colours where one vertex has corners of several colours.
 
     Raises
     ------
@@ -887,11 +888,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         Whatever trimesh raises for a file it cannot read (the caller words it).
     """
     file = Path(path)
+    if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
+        own = _read_3mf(file)
+        if own is not None:
+            return own
     loaded = trimesh.load(file, force="mesh", process=False)
     if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
         loaded = _read_points(file) or loaded
-    if isinstance(loaded, trimesh.Trimesh) and file.suffix.lower() == ".3mf" and len(loaded.faces):
-        _read_3mf_colors(file, loaded)
     return loaded  # type: ignore[no-any-return]
 
 
@@ -919,35 +922,46 @@ _3MF_CORE = "{http://schemas.microsoft.com/3dmanufacturing/core/2015/02}"
 _3MF_MATERIAL = "{http://schemas.microsoft.com/3dmanufacturing/material/2015/02}"
 
 
-def _read_3mf_colors(file: Path, mesh: trimesh.Trimesh) -> None:
-    """Give ``mesh`` (trimesh's reading of the 3MF ``file``) the colours of the file's ``m:colorgroup``: each
-    triangle's corner colours (p1, p2, p3 into the group its pid, or its object's, names). Streamed (iterparse,
-    elements cleared as read, indices in compact arrays). Only a model of one mesh object whose triangles are
-    ``mesh``'s faces in order is coloured; anything else (several objects, components) is left as trimesh read it."""
+def _read_3mf(file: Path) -> trimesh.Trimesh | None:
+    """The 3MF ``file`` read by stepterrain itself when its model is one mesh object built once without a transform
+    (as :func:`save_mesh` writes it): vertices, triangles and the colours of its ``m:colorgroup`` (each triangle's
+    corner colours p1, p2, p3 into the group its pid, or its object's, names; trimesh's reader ignores them) as
+    vertex colours, or face colours where one vertex has corners of several colours. Streamed (iterparse, elements
+    cleared as read, numbers in compact arrays): trimesh's reader holds the whole XML tree, 9.8 GB for the embedded
+    DEM's 4.3 M-face solid. None for anything else (several objects, components, a build transform, no model):
+    trimesh reads those."""
     import array
     import xml.etree.ElementTree as ET
 
     groups: dict[str, list[tuple[int, int, int, int]]] = {}
+    points = array.array("d")
     rows = array.array("q")  # v1 v2 v3 pid p1 p2 p3 per triangle (-1: absent)
     group: list[tuple[int, int, int, int]] | None = None
-    objects = 0
+    objects = items = 0
     container: Any = None  # the <vertices> or <triangles> being read: emptied after each child, so memory stays flat
     default_pid = default_index = -1
     pid_ids: dict[str, int] = {}
     with zipfile.ZipFile(file) as archive:
         models = [name for name in archive.namelist() if name.lower().endswith(".model")]
         if len(models) != 1:
-            return
+            return None
         with archive.open(models[0]) as stream:
             for event, element in ET.iterparse(stream, events=("start", "end")):
                 tag = element.tag
                 if event == "start":
                     if tag == _3MF_MATERIAL + "colorgroup":
                         group = groups.setdefault(element.get("id", ""), [])
-                    elif tag == _3MF_CORE + "object" and element.get("type", "model") != "other":
+                    elif tag == _3MF_CORE + "object":
                         objects += 1
                         default_pid = pid_ids.setdefault(element.get("pid", ""), len(pid_ids))
                         default_index = int(element.get("pindex", "-1"))
+                    elif tag == _3MF_CORE + "components":
+                        return None
+                    elif tag == _3MF_CORE + "item":
+                        items += 1
+                        transform = element.get("transform")
+                        if transform is not None and _3mf_matrix(transform) != _3MF_IDENTITY:
+                            return None
                     elif tag in (_3MF_CORE + "vertices", _3MF_CORE + "triangles"):
                         container = element
                     continue
@@ -957,35 +971,56 @@ def _read_3mf_colors(file: Path, mesh: trimesh.Trimesh) -> None:
                     p1 = int(a.get("p1", default_index))
                     rows.extend((int(a["v1"]), int(a["v2"]), int(a["v3"]), pid, p1, int(a.get("p2", p1)),
                                  int(a.get("p3", p1))))  # fmt: skip
+                elif tag == _3MF_CORE + "vertex":
+                    a = element.attrib
+                    points.extend((float(a["x"]), float(a["y"]), float(a["z"])))
                 elif tag == _3MF_MATERIAL + "color" and group is not None:
                     group.append(_3mf_rgba(element.get("color", "")))
                 elif tag == _3MF_MATERIAL + "colorgroup":
                     group = None
-                elif tag != _3MF_CORE + "vertex":
+                else:
                     continue
                 element.clear()
                 if container is not None and tag != _3MF_MATERIAL + "color":
                     container.clear()
+    if objects != 1 or items > 1:
+        return None
+    vertices = np.frombuffer(points, dtype=np.float64).reshape(-1, 3).copy()
     triangles = np.frombuffer(rows, dtype=np.int64).reshape(-1, 7)
-    if objects != 1 or not groups or not np.array_equal(triangles[:, :3], mesh.faces):
-        return
+    faces = triangles[:, :3].copy()
+    if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
+        return None  # trimesh words what is wrong with it
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
     names = {index: name for name, index in pid_ids.items()}
     pids = np.unique(triangles[:, 3])
     if len(pids) != 1 or names.get(int(pids[0])) not in groups:
-        return
+        return mesh
     palette = np.array(groups[names[int(pids[0])]], dtype=np.uint8).reshape(-1, 4)
     corners = triangles[:, 4:]
     if len(palette) == 0 or corners.min() < 0 or corners.max() >= len(palette):
-        return
+        return mesh
     corner_colors = palette[corners.reshape(-1)]
     vertex_colors = np.zeros((len(mesh.vertices), 4), np.uint8)
-    vertex_colors[mesh.faces.reshape(-1)] = corner_colors
+    vertex_colors[faces.reshape(-1)] = corner_colors
     referenced = np.zeros(len(mesh.vertices), bool)
-    referenced[mesh.faces.reshape(-1)] = True
-    if referenced.all() and np.array_equal(vertex_colors[mesh.faces.reshape(-1)], corner_colors):
+    referenced[faces.reshape(-1)] = True
+    if referenced.all() and np.array_equal(vertex_colors[faces.reshape(-1)], corner_colors):
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=vertex_colors)
     else:  # a vertex with corners of several colours: each face takes its first corner's
         mesh.visual = trimesh.visual.ColorVisuals(mesh, face_colors=corner_colors[::3])
+    return mesh
+
+
+_3MF_IDENTITY = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)
+
+
+def _3mf_matrix(text: str) -> tuple[float, ...] | None:
+    """A 3MF ``transform`` attribute's twelve numbers, or None when it is not twelve numbers."""
+    try:
+        values = tuple(float(v) for v in text.split())
+    except ValueError:
+        return None
+    return values if len(values) == 12 else None
 
 
 def _3mf_rgba(text: str) -> tuple[int, int, int, int]:
