@@ -1121,9 +1121,9 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    vertex_columns += _ply_columns(mesh.vertex_attributes)
+    vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns] + list(_PLY_RESERVED))
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
-    face_columns = _ply_columns(mesh.face_attributes)
+    face_columns = _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header.append(f"element vertex {len(vertices)}")
@@ -1147,19 +1147,51 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     return ("\n".join(header) + "\n").encode("ascii") + vertex_block.tobytes() + face_block.tobytes()
 
 
-def _ply_columns(attributes: Mapping[str, NDArray[Any]]) -> list[tuple[str, NDArray[Any]]]:
-    """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types."""
+def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:
+    """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types. A name that
+    is no plain ASCII word, or is one of the element's own properties (``taken``), is written under a word made
+    from it (``level-2`` -> ``level_2``, ``x`` -> ``x_attr``), with a warning naming both: they were dropped."""
+    import re
+
+    used = set(taken)
+    renamed: list[str] = []
     columns: list[tuple[str, NDArray[Any]]] = []
     for name, values in attributes.items():
-        if not name.isidentifier() or name in _PLY_RESERVED:
-            continue
+        word = re.sub(r"\W", "_", str(name), flags=re.ASCII) or "attr"
+        if word[0].isdigit():
+            word = "a_" + word
         array = _ply_compatible(np.asarray(values))
         array = array.astype(array.dtype.newbyteorder("<"), copy=False)
+        names = [word] if array.ndim == 1 else [f"{word}_{k}" for k in range(array.shape[1])]
+        suffix = ""
+        while any(n + suffix in used for n in names):
+            suffix = "_attr" if not suffix else f"_attr{int(suffix[5:] or 1) + 1}"
+        names = [n + suffix for n in names]
+        if word + suffix != name:
+            renamed.append(f"{name!r} as {word + suffix!r}")
+        used.update(names)
         if array.ndim == 1:
-            columns.append((name, array))
+            columns.append((names[0], array))
         else:
-            columns += [(f"{name}_{k}", array[:, k]) for k in range(array.shape[1])]
+            columns += [(n, array[:, k]) for k, n in enumerate(names)]
+    if renamed:
+        import warnings
+
+        warnings.warn(f"PLY property names must be distinct ASCII words: wrote {', '.join(renamed)}",
+                      stacklevel=_caller_level())
     return columns
+
+
+def _caller_level() -> int:
+    """The ``stacklevel`` of a warning issued by the caller of this function that points at the first frame
+    outside the stepterrain package (the user's call, however deep the writer sits)."""
+    import sys
+
+    package = os.path.dirname(os.path.abspath(__file__))
+    frame, level = sys._getframe(1), 1
+    while frame is not None and os.path.dirname(os.path.abspath(frame.f_code.co_filename)) == package:
+        frame, level = frame.f_back, level + 1
+    return level
 
 
 #: What a ``metadata`` value may be, in the message that refuses another.

@@ -206,3 +206,29 @@ def test_a_textured_obj_named_with_spaces_names_its_side_files_in_one_word(tmp_p
     assert maps == [["map_Kd", "my_terrain_ü_material_0.png"]]
     back = trimesh.load(path, process=False)
     assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
+
+
+def test_ply_attributes_with_names_that_are_no_ascii_word_are_written_renamed_with_a_warning(tmp_path):
+    # `level-2`, `héight` and the element's own `x` or `count` were silently left out of the PLY (a face attribute
+    # named `count` would even clash with the face list's count field)
+    mesh = trimesh.creation.box()
+    mesh.face_attributes["level-2"] = np.arange(12, dtype=np.int32)
+    mesh.face_attributes["count"] = np.arange(12, dtype=np.int32) * 2
+    mesh.face_attributes["level"] = np.arange(12, dtype=np.int16)
+    mesh.vertex_attributes["x"] = np.arange(8, dtype=np.float32)
+    mesh.vertex_attributes["héight"] = np.arange(8, dtype=np.float32) + 0.5
+    with pytest.warns(UserWarning, match="PLY property names") as record:
+        path = save_mesh(mesh, tmp_path / "m.ply")
+    assert all(w.filename == __file__ for w in record)  # points at the caller's line, not at the writer
+    messages = " ".join(str(w.message) for w in record)
+    for renamed in ("'level-2' as 'level_2'", "'count' as 'count_attr'", "'x' as 'x_attr'", "'héight' as 'h_ight'"):
+        assert renamed in messages
+    data = trimesh.exchange.ply.load_ply(open(path, "rb"), prefer_color="vertex")
+    raw_face = data["metadata"]["_ply_raw"]["face"]["data"]
+    raw_vertex = data["metadata"]["_ply_raw"]["vertex"]["data"]
+    np.testing.assert_array_equal(raw_face["level_2"], mesh.face_attributes["level-2"])
+    np.testing.assert_array_equal(raw_face["count_attr"], mesh.face_attributes["count"])
+    np.testing.assert_array_equal(raw_face["level"], mesh.face_attributes["level"])
+    np.testing.assert_array_equal(raw_vertex["x_attr"], mesh.vertex_attributes["x"])
+    np.testing.assert_array_equal(raw_vertex["h_ight"], mesh.vertex_attributes["héight"])
+    np.testing.assert_array_equal(raw_vertex["x"].astype(np.float64), mesh.vertices[:, 0])
