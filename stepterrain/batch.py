@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import os
+import platform
 import re
 import sys
 import time
@@ -59,12 +60,16 @@ __all__ = [
     "plan_items",
     "load_series",
     "MANIFEST_NAME",
+    "LOCK_NAME",
     "overview_image",
     "start_local_cluster",
 ]
 
 #: The sidecar manifest :func:`batch` keeps in the output folder (one JSON object, written atomically).
 MANIFEST_NAME = "stepterrain-batch.json"
+#: The lock file :func:`batch` holds in the output folder while it runs (its pid, host and start time inside), so
+#: that a second run into the same folder is refused instead of rewriting the first one's manifest and outputs.
+LOCK_NAME = ".stepterrain-batch.lock"
 _MANIFEST_VERSION = 1
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
 _DEM_EXTENSIONS = (".npy", ".npz", ".png", ".tif", ".tiff")
@@ -597,6 +602,93 @@ def _remove_partial(folder: Path, names: Sequence[str]) -> None:
                 pass
 
 
+class _FolderLock:
+    """An exclusive lock on an output folder: :data:`LOCK_NAME` locked with ``flock`` (``msvcrt.locking`` on
+    Windows), so the operating system lets it go when the process dies: a lock file a killed run left is taken over,
+    never mistaken for a run in progress. The file names its holder; :meth:`release` removes it."""
+
+    #: the byte Windows locks: beyond the holder's text, which the refused run reads
+    _WINDOWS_BYTE = 4096
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / LOCK_NAME
+        self.fd: int | None = None
+        for _ in range(8):  # another run may remove the file between our open and our lock: then once more
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise DataFileError(
+                    f"cannot create the lock file {str(self.path)!r} in the output folder "
+                    f"{str(folder)!r}: {exc.strerror or exc}"
+                ) from exc
+            if not self._lock(fd):
+                holder = self._holder(fd)
+                os.close(fd)
+                raise DataFileError(
+                    f"output folder {str(folder)!r} is in use by another stepterrain batch run ({holder}); wait for "
+                    f"it to finish or write to another folder (its lock file: {LOCK_NAME})"
+                )
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except OSError:
+                same = False
+            if same:
+                self.fd = fd
+                started = time.strftime("%Y-%m-%d %H:%M:%S %z")
+                holder = f"pid {os.getpid()} on {platform.node() or 'this host'}, started {started}".encode()
+                os.ftruncate(fd, 0)
+                os.lseek(fd, 0, os.SEEK_SET)
+                os.write(fd, holder)
+                return
+            os.close(fd)  # the file we locked was removed by the run that held it: lock the new one
+        raise DataFileError(
+            f"cannot lock the output folder {str(folder)!r}: its lock file {LOCK_NAME} keeps being "
+            "replaced by other runs"
+        )
+
+    @classmethod
+    def _lock(cls, fd: int) -> bool:
+        """Lock ``fd`` without waiting: False when another open file holds the lock."""
+        try:
+            import fcntl
+        except ImportError:  # Windows
+            import msvcrt
+
+            os.lseek(fd, cls._WINDOWS_BYTE, os.SEEK_SET)
+            try:
+                msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)  # type: ignore[attr-defined]
+            except OSError:
+                return False
+            return True
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return False
+            raise DataFileError(f"cannot lock {LOCK_NAME} in the output folder: {exc.strerror or exc}") from exc
+        return True
+
+    @staticmethod
+    def _holder(fd: int) -> str:
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            text = os.read(fd, 512)
+        except OSError:
+            text = b""
+        return text.decode("utf-8", "replace").strip() or "its pid unknown"
+
+    def release(self) -> None:
+        """Remove the lock file and let the lock go; a second call does nothing."""
+        if self.fd is None:
+            return
+        fd, self.fd = self.fd, None
+        try:
+            os.unlink(self.path)  # while locked: a run that opened this file finds it gone and makes a new one
+        except OSError:
+            pass  # Windows removes no open file; the next run locks it anew
+        os.close(fd)  # lets the lock go
+
+
 def _remove_empty(folders: Sequence[Path]) -> None:
     """Remove the folders (deepest first) that are still empty."""
     for path in folders:
@@ -760,7 +852,8 @@ def batch(
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
         array) cut into tiles of ``tile_size`` cells (``tile_r0_c0`` ...; neighbours share border nodes).
     output_dir : str or path-like
-        Created if missing; must be writable. Also holds the manifest :data:`MANIFEST_NAME`.
+        Created if missing; must be writable. Also holds the manifest :data:`MANIFEST_NAME`, and while the run
+        lasts its lock file :data:`LOCK_NAME`: one run at a time per folder.
     format : str
         Output extension: ``.glb`` ``.gltf`` ``.obj`` ``.ply`` ``.stl`` ``.3mf``.
     tile_size : int or (rows, cols)
@@ -808,7 +901,8 @@ def batch(
         ``floor`` not below the lowest point of the stepped surface of every tile or frame (a folder's files are
         read by the items, so there each item fails on its own).
     DataFileError
-        The source does not exist, or ``output_dir`` cannot be created or written (before any work).
+        The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
+        it (before any work; the message names that run's pid, host and start time).
     SchedulerError
         The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``.
     MissingDependencyError
@@ -919,6 +1013,32 @@ def batch(
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
+    lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
+    try:
+        run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)
+        return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, **run)
+    finally:
+        lock.release()
+
+
+def _run_locked(
+    items: Sequence[BatchItem],
+    src: _Source | None,
+    options: _Options,
+    folder: Path,
+    made: Sequence[Path],
+    lock: _FolderLock,
+    *,
+    scheduler: Any,
+    workers: int,
+    retries: int,
+    resume: bool,
+    timeout: float,
+    progress: bool,
+    start: float,
+) -> BatchReport:
+    """:func:`batch` once the arguments are checked and the output folder is locked."""
+    ext = options.ext
     _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
 
     fingerprints = _fingerprints(items, src, options)
@@ -938,6 +1058,7 @@ def batch(
     try:
         connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
+        lock.release()
         _remove_empty(made)  # nothing was written: leave no empty output folder behind
         raise
     description = "serial" if connection is None else connection[2]

@@ -85,3 +85,71 @@ def test_save_mesh_shared_bounds_are_checked(tmp_path):
 
     assert glb_json(out)["nodes"][0]["translation"] == [399000.0, 3799000.0, -4.0]
     np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, box.vertices, atol=1e-6)
+
+
+# a batch run in another process that holds its first item until the file `go` appears (`started` says it began)
+_HELD_RUN = """
+import sys, time
+from pathlib import Path
+import numpy as np
+import stepterrain.batch
+
+b = sys.modules["stepterrain.batch"]  # the attribute stepterrain.batch is the function
+
+out, signals = Path(sys.argv[1]), Path(sys.argv[2])
+real = b.run_item
+
+def held(*args, **kwargs):
+    (signals / "started").touch()
+    while not (signals / "go").exists():
+        time.sleep(0.02)
+    return real(*args, **kwargs)
+
+b.run_item = held
+z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+report = b.batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+print(len(report.done), report.ok)
+"""
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused_naming_the_folder_and_the_other_run(tmp_path):
+    # two runs into one folder at once both rewrote the manifest (each from what it had read at its start, so
+    # one run's records were lost), wrote the same outputs, and the second removed the first one's temporary
+    # files as "left by a killed run", failing its items
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from stepterrain.batch import LOCK_NAME
+    from stepterrain.errors import DataFileError
+
+    out, signals = tmp_path / "out dir é", tmp_path / "signals"
+    signals.mkdir()
+    script = tmp_path / "held_run.py"
+    script.write_text(_HELD_RUN)
+    other = subprocess.Popen([sys.executable, str(script), str(out), str(signals)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not (signals / "started").exists():
+            assert other.poll() is None, other.communicate()
+            assert time.monotonic() < deadline, "the other run did not start"
+            time.sleep(0.05)
+        z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+        refused = rf"output folder .*out dir é.* is in use by another stepterrain batch run \(pid {other.pid} on .*\)"
+        with pytest.raises(DataFileError, match=refused):
+            batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+        assert not (out / MANIFEST_NAME).exists()  # the refused run wrote nothing
+    finally:
+        (signals / "go").touch()
+        stdout, stderr = other.communicate(timeout=120)
+    assert other.returncode == 0, stderr
+    assert stdout.split() == ["4", "True"]
+    assert not (out / LOCK_NAME).exists()  # the finished run took its lock file away
+    # the folder is free again: a rerun resumes what the other run recorded
+    assert len(batch(z, out, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
+    # a lock file a killed run left (its process gone, so its lock too) does not block the folder
+    (out / LOCK_NAME).write_text(f"pid {os.getpid() + 10**6} on nowhere, started long ago")
+    assert len(batch(z, out, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
+    assert not (out / LOCK_NAME).exists()
