@@ -70,7 +70,9 @@ MANIFEST_NAME = "stepterrain-batch.json"
 #: The lock file :func:`batch` holds in the output folder while it runs (its pid, host and start time inside), so
 #: that a second run into the same folder is refused instead of rewriting the first one's manifest and outputs.
 LOCK_NAME = ".stepterrain-batch.lock"
-_MANIFEST_VERSION = 1
+#: 2: entries keyed by output file name (``tile_r0_c0.glb``), so outputs of one item in several formats are each
+#: recorded; 1 (read too): keyed by item, one format per folder
+_MANIFEST_VERSION = 2
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
 _DEM_EXTENSIONS = (".npy", ".npz", ".png", ".tif", ".tiff")
 _MANIFEST_FLUSH_S = 1.0
@@ -122,6 +124,8 @@ class BatchReport:
     results: list[ItemResult] = field(default_factory=list)
     seconds: float = 0.0
     scheduler: str = "serial"
+    #: what else the run found in the output folder: an unreadable manifest, outputs in another format
+    notes: list[str] = field(default_factory=list)
 
     @property
     def done(self) -> list[ItemResult]:
@@ -147,6 +151,7 @@ class BatchReport:
             f"of {len(self.results)} items in {self.seconds:.1f} s on {self.scheduler}; output {self.output_dir}"
         ]
         lines += [f"  failed {r.key}: {r.error} (after {r.attempts} attempt(s))" for r in self.failed]
+        lines += [f"  note: {note}" for note in self.notes]
         return "\n".join(lines)
 
 
@@ -530,16 +535,28 @@ def _source_identity(source: _Source | None) -> Any:
     return [list(source.heights.shape), list(source.spacing), list(source.origin), source.crs, source.bounds]
 
 
-def _read_manifest(output_dir: Path) -> dict[str, Any]:
+def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], str | None]:
+    """The manifest's entries by output file name, and why it could not be used (None when it could, or when there
+    is none): a manifest that is cut short, edited into something else or of an unknown version is replaced."""
     path = output_dir / MANIFEST_NAME
+    replaced = "; it is written afresh, recording this run's outputs only"
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(data, dict) or data.get("version") != _MANIFEST_VERSION:
-        return {}
-    items = data.get("items")
-    return items if isinstance(items, dict) else {}
+    except FileNotFoundError:
+        return {}, None
+    except OSError as exc:
+        return {}, f"the manifest {MANIFEST_NAME} could not be read ({exc.strerror or exc}){replaced}"
+    except ValueError as exc:  # also UnicodeDecodeError
+        return {}, f"the manifest {MANIFEST_NAME} is not valid JSON (cut short or edited: {exc}){replaced}"
+    version = data.get("version") if isinstance(data, dict) else None
+    items = data.get("items") if isinstance(data, dict) else None
+    if version not in (1, _MANIFEST_VERSION) or not isinstance(items, dict):
+        got = f"version {version!r}" if isinstance(data, dict) else f"a JSON {type(data).__name__}"
+        return {}, (f"the manifest {MANIFEST_NAME} is not one this stepterrain reads (expected an object with version "
+                    f"1 or {_MANIFEST_VERSION} and its items; got {got}){replaced}")  # fmt: skip
+    if version == 1:  # keyed by item: key its entries by the file each names
+        items = {e["file"]: e for e in items.values() if isinstance(e, dict) and isinstance(e.get("file"), str)}
+    return items, None
 
 
 def _write_manifest(output_dir: Path, entries: Mapping[str, Any]) -> None:
@@ -547,12 +564,15 @@ def _write_manifest(output_dir: Path, entries: Mapping[str, Any]) -> None:
         tmp.write_text(json.dumps({"version": _MANIFEST_VERSION, "items": entries}, indent=1), encoding="utf-8")
 
 
-def _is_complete(entry: Any, fingerprint: str, output_dir: Path) -> bool:
-    """Recorded with the same fingerprint, and the file is there with the recorded size."""
-    if not isinstance(entry, dict) or entry.get("fingerprint") != fingerprint:
+def _is_complete(entry: Any, fingerprint: str, output_dir: Path, name: str) -> bool:
+    """Recorded as the file ``name`` with the same fingerprint, and that file is there with the recorded size."""
+    if not isinstance(entry, dict) or entry.get("fingerprint") != fingerprint or entry.get("file") != name:
+        return False
+    bytes_ = entry.get("bytes")
+    if isinstance(bytes_, bool) or not isinstance(bytes_, int):
         return False
     try:
-        return (output_dir / str(entry.get("file"))).stat().st_size == entry.get("bytes")
+        return (output_dir / name).stat().st_size == bytes_
     except OSError:
         return False
 
@@ -910,9 +930,12 @@ def batch(
 
     Notes
     -----
-    An item is complete when the manifest records it with the same fingerprint (its input: file path, size
-    and mtime, or a hash of its heights; and the options but the device, which does not change a bit of the
-    output) and its file exists with the recorded size. Every
+    An item is complete when the manifest records its output file with the same fingerprint (its input: file
+    path, size and mtime, or a hash of its heights; and the options but the device, which does not change a bit of
+    the output) and that file exists with the recorded size. The manifest records each file, so an item's outputs
+    in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
+    ``report.notes`` says when the folder holds these items in another format too, and when the manifest could
+    not be read (cut short or edited by hand: every item is redone and the manifest written afresh). Every
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
     a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
     temporary files the killed run left half-written). Tiles are written with the whole raster's bounds as
@@ -1042,16 +1065,25 @@ def _run_locked(
     _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
 
     fingerprints = _fingerprints(items, src, options)
-    manifest = _read_manifest(folder) if resume else {}
+    # read without resume too: the entries of other items and other formats stay recorded
+    manifest, manifest_note = _read_manifest(folder)
+    notes = [] if manifest_note is None else [manifest_note]
     results: dict[str, ItemResult] = {}
     todo = []
     for item in items:
-        if resume and _is_complete(manifest.get(item.key), fingerprints[item.key], folder):
-            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / manifest[item.key]["file"]),
-                                           bytes=int(manifest[item.key]["bytes"]))  # fmt: skip
+        name = f"{item.key}{ext}"
+        if resume and _is_complete(manifest.get(name), fingerprints[item.key], folder, name):
+            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / name),
+                                           bytes=manifest[name]["bytes"])  # fmt: skip
         else:
             todo.append(item)
-            manifest.pop(item.key, None)
+            manifest.pop(name, None)
+    keys = {item.key for item in items}
+    others = sorted({Path(n).suffix for n in manifest if Path(n).suffix != ext and Path(n).stem in keys})
+    if others:
+        count = sum(1 for n in manifest if Path(n).suffix in others and Path(n).stem in keys)
+        notes.append(f"the manifest also records {count} output(s) of these items in another format "
+                     f"({', '.join(others)}), kept beside this run's {ext} files")  # fmt: skip
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
@@ -1079,7 +1111,7 @@ def _run_locked(
         if connection is not None:
             _disconnect(scheduler, connection)
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
-                         time.perf_counter() - start, description)  # fmt: skip
+                         time.perf_counter() - start, description, notes)  # fmt: skip
     return report
 
 
@@ -1163,9 +1195,10 @@ class _Recorder:
     def add(self, result: ItemResult) -> None:
         if result.status != "done" or result.path is None:
             return
-        self.entries[result.key] = {
+        name = Path(result.path).name  # by file: the item's outputs in other formats keep their entries
+        self.entries[name] = {
             "fingerprint": self.fingerprints[result.key],
-            "file": Path(result.path).name,
+            "file": name,
             "bytes": result.bytes,
             "faces": result.faces,
             "vertices": result.vertices,
