@@ -633,6 +633,8 @@ class _FolderLock:
     def __init__(self, folder: Path) -> None:
         self.path = folder / LOCK_NAME
         self.fd: int | None = None
+        #: set when the folder's file system has no locks (some network and FUSE mounts): the run goes on unlocked
+        self.note: str | None = None
         for _ in range(8):  # another run may remove the file between our open and our lock: then once more
             try:
                 fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -641,7 +643,11 @@ class _FolderLock:
                     f"cannot create the lock file {str(self.path)!r} in the output folder "
                     f"{str(folder)!r}: {exc.strerror or exc}"
                 ) from exc
-            if not self._lock(fd):
+            locked = self._lock(fd)
+            if locked is None:
+                self.note = (f"the file system of the output folder {str(folder)!r} does not support file locks: "
+                             "another batch run into it at the same time would not be refused")  # fmt: skip
+            elif not locked:
                 holder = self._holder(fd)
                 os.close(fd)
                 raise DataFileError(
@@ -667,8 +673,9 @@ class _FolderLock:
         )
 
     @classmethod
-    def _lock(cls, fd: int) -> bool:
-        """Lock ``fd`` without waiting: False when another open file holds the lock."""
+    def _lock(cls, fd: int) -> bool | None:
+        """Lock ``fd`` without waiting: False when another open file holds the lock, None when the file system has
+        no locks."""
         try:
             import fcntl
         except ImportError:  # Windows
@@ -685,6 +692,8 @@ class _FolderLock:
         except OSError as exc:
             if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
                 return False
+            if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                return None
             raise DataFileError(f"cannot lock {LOCK_NAME} in the output folder: {exc.strerror or exc}") from exc
         return True
 
@@ -1067,7 +1076,7 @@ def _run_locked(
     fingerprints = _fingerprints(items, src, options)
     # read without resume too: the entries of other items and other formats stay recorded
     manifest, manifest_note = _read_manifest(folder)
-    notes = [] if manifest_note is None else [manifest_note]
+    notes = [note for note in (lock.note, manifest_note) if note is not None]
     results: dict[str, ItemResult] = {}
     todo = []
     for item in items:

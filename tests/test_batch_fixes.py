@@ -238,3 +238,23 @@ def test_a_manifest_entry_edited_by_hand_is_not_complete(tmp_path):
     report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
     assert sorted(r.key for r in report.done) == ["tile_r0_c0", "tile_r0_c1"]
     assert all(r.path == str(tmp_path / f"{r.key}.glb") for r in report.results)
+
+
+def test_a_folder_on_a_file_system_without_locks_is_written_and_the_report_says_so(tmp_path, monkeypatch):
+    # some network and FUSE mounts answer flock with ENOLCK or EOPNOTSUPP: the lock must not make batch refuse
+    # every such folder; the run goes on and the report says a second run would not be refused there
+    import errno
+    import fcntl
+
+    from stepterrain.batch import LOCK_NAME
+
+    def no_locks(fd, operation):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    assert report.ok and len(report.done) == 4
+    assert report.notes == [f"the file system of the output folder {str(tmp_path)!r} does not support file locks: "
+                            "another batch run into it at the same time would not be refused"]  # fmt: skip
+    assert not (tmp_path / LOCK_NAME).exists()
