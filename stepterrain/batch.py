@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import os
+import platform
 import re
 import sys
 import time
@@ -59,13 +60,19 @@ __all__ = [
     "plan_items",
     "load_series",
     "MANIFEST_NAME",
+    "LOCK_NAME",
     "overview_image",
     "start_local_cluster",
 ]
 
 #: The sidecar manifest :func:`batch` keeps in the output folder (one JSON object, written atomically).
 MANIFEST_NAME = "stepterrain-batch.json"
-_MANIFEST_VERSION = 1
+#: The lock file :func:`batch` holds in the output folder while it runs (its pid, host and start time inside), so
+#: that a second run into the same folder is refused instead of rewriting the first one's manifest and outputs.
+LOCK_NAME = ".stepterrain-batch.lock"
+#: 2: entries keyed by output file name (``tile_r0_c0.glb``), so outputs of one item in several formats are each
+#: recorded; 1 (read too): keyed by item, one format per folder
+_MANIFEST_VERSION = 2
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
 _DEM_EXTENSIONS = (".npy", ".npz", ".png", ".tif", ".tiff")
 _MANIFEST_FLUSH_S = 1.0
@@ -117,6 +124,8 @@ class BatchReport:
     results: list[ItemResult] = field(default_factory=list)
     seconds: float = 0.0
     scheduler: str = "serial"
+    #: what else the run found in the output folder: an unreadable manifest, outputs in another format
+    notes: list[str] = field(default_factory=list)
 
     @property
     def done(self) -> list[ItemResult]:
@@ -142,6 +151,7 @@ class BatchReport:
             f"of {len(self.results)} items in {self.seconds:.1f} s on {self.scheduler}; output {self.output_dir}"
         ]
         lines += [f"  failed {r.key}: {r.error} (after {r.attempts} attempt(s))" for r in self.failed]
+        lines += [f"  note: {note}" for note in self.notes]
         return "\n".join(lines)
 
 
@@ -525,16 +535,28 @@ def _source_identity(source: _Source | None) -> Any:
     return [list(source.heights.shape), list(source.spacing), list(source.origin), source.crs, source.bounds]
 
 
-def _read_manifest(output_dir: Path) -> dict[str, Any]:
+def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], str | None]:
+    """The manifest's entries by output file name, and why it could not be used (None when it could, or when there
+    is none): a manifest that is cut short, edited into something else or of an unknown version is replaced."""
     path = output_dir / MANIFEST_NAME
+    replaced = "; it is written afresh, recording this run's outputs only"
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return {}
-    if not isinstance(data, dict) or data.get("version") != _MANIFEST_VERSION:
-        return {}
-    items = data.get("items")
-    return items if isinstance(items, dict) else {}
+    except FileNotFoundError:
+        return {}, None
+    except OSError as exc:
+        return {}, f"the manifest {MANIFEST_NAME} could not be read ({exc.strerror or exc}){replaced}"
+    except ValueError as exc:  # also UnicodeDecodeError
+        return {}, f"the manifest {MANIFEST_NAME} is not valid JSON (cut short or edited: {exc}){replaced}"
+    version = data.get("version") if isinstance(data, dict) else None
+    items = data.get("items") if isinstance(data, dict) else None
+    if version not in (1, _MANIFEST_VERSION) or not isinstance(items, dict):
+        got = f"version {version!r}" if isinstance(data, dict) else f"a JSON {type(data).__name__}"
+        return {}, (f"the manifest {MANIFEST_NAME} is not one this stepterrain reads (expected an object with version "
+                    f"1 or {_MANIFEST_VERSION} and its items; got {got}){replaced}")  # fmt: skip
+    if version == 1:  # keyed by item: key its entries by the file each names
+        items = {e["file"]: e for e in items.values() if isinstance(e, dict) and isinstance(e.get("file"), str)}
+    return items, None
 
 
 def _write_manifest(output_dir: Path, entries: Mapping[str, Any]) -> None:
@@ -542,12 +564,15 @@ def _write_manifest(output_dir: Path, entries: Mapping[str, Any]) -> None:
         tmp.write_text(json.dumps({"version": _MANIFEST_VERSION, "items": entries}, indent=1), encoding="utf-8")
 
 
-def _is_complete(entry: Any, fingerprint: str, output_dir: Path) -> bool:
-    """Recorded with the same fingerprint, and the file is there with the recorded size."""
-    if not isinstance(entry, dict) or entry.get("fingerprint") != fingerprint:
+def _is_complete(entry: Any, fingerprint: str, output_dir: Path, name: str) -> bool:
+    """Recorded as the file ``name`` with the same fingerprint, and that file is there with the recorded size."""
+    if not isinstance(entry, dict) or entry.get("fingerprint") != fingerprint or entry.get("file") != name:
+        return False
+    bytes_ = entry.get("bytes")
+    if isinstance(bytes_, bool) or not isinstance(bytes_, int):
         return False
     try:
-        return (output_dir / str(entry.get("file"))).stat().st_size == entry.get("bytes")
+        return (output_dir / name).stat().st_size == bytes_
     except OSError:
         return False
 
@@ -595,6 +620,102 @@ def _remove_partial(folder: Path, names: Sequence[str]) -> None:
                 os.unlink(entry.path)
             except OSError:
                 pass
+
+
+class _FolderLock:
+    """An exclusive lock on an output folder: :data:`LOCK_NAME` locked with ``flock`` (``msvcrt.locking`` on
+    Windows), so the operating system lets it go when the process dies: a lock file a killed run left is taken over,
+    never mistaken for a run in progress. The file names its holder; :meth:`release` removes it."""
+
+    #: the byte Windows locks: beyond the holder's text, which the refused run reads
+    _WINDOWS_BYTE = 4096
+
+    def __init__(self, folder: Path) -> None:
+        self.path = folder / LOCK_NAME
+        self.fd: int | None = None
+        #: set when the folder's file system has no locks (some network and FUSE mounts): the run goes on unlocked
+        self.note: str | None = None
+        for _ in range(8):  # another run may remove the file between our open and our lock: then once more
+            try:
+                fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise DataFileError(
+                    f"cannot create the lock file {str(self.path)!r} in the output folder "
+                    f"{str(folder)!r}: {exc.strerror or exc}"
+                ) from exc
+            locked = self._lock(fd)
+            if locked is None:
+                self.note = (f"the file system of the output folder {str(folder)!r} does not support file locks: "
+                             "another batch run into it at the same time would not be refused")  # fmt: skip
+            elif not locked:
+                holder = self._holder(fd)
+                os.close(fd)
+                raise DataFileError(
+                    f"output folder {str(folder)!r} is in use by another stepterrain batch run ({holder}); wait for "
+                    f"it to finish or write to another folder (its lock file: {LOCK_NAME})"
+                )
+            try:
+                same = os.fstat(fd).st_ino == os.stat(self.path).st_ino
+            except OSError:
+                same = False
+            if same:
+                self.fd = fd
+                started = time.strftime("%Y-%m-%d %H:%M:%S %z")
+                holder = f"pid {os.getpid()} on {platform.node() or 'this host'}, started {started}".encode()
+                os.ftruncate(fd, 0)
+                os.lseek(fd, 0, os.SEEK_SET)
+                os.write(fd, holder)
+                return
+            os.close(fd)  # the file we locked was removed by the run that held it: lock the new one
+        raise DataFileError(
+            f"cannot lock the output folder {str(folder)!r}: its lock file {LOCK_NAME} keeps being "
+            "replaced by other runs"
+        )
+
+    @classmethod
+    def _lock(cls, fd: int) -> bool | None:
+        """Lock ``fd`` without waiting: False when another open file holds the lock, None when the file system has
+        no locks."""
+        try:
+            import fcntl
+        except ImportError:  # Windows
+            import msvcrt
+
+            os.lseek(fd, cls._WINDOWS_BYTE, os.SEEK_SET)
+            try:
+                msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)  # type: ignore[attr-defined]
+            except OSError:
+                return False
+            return True
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+                return False
+            if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOSYS, errno.EINVAL):
+                return None
+            raise DataFileError(f"cannot lock {LOCK_NAME} in the output folder: {exc.strerror or exc}") from exc
+        return True
+
+    @staticmethod
+    def _holder(fd: int) -> str:
+        try:
+            os.lseek(fd, 0, os.SEEK_SET)
+            text = os.read(fd, 512)
+        except OSError:
+            text = b""
+        return text.decode("utf-8", "replace").strip() or "its pid unknown"
+
+    def release(self) -> None:
+        """Remove the lock file and let the lock go; a second call does nothing."""
+        if self.fd is None:
+            return
+        fd, self.fd = self.fd, None
+        try:
+            os.unlink(self.path)  # while locked: a run that opened this file finds it gone and makes a new one
+        except OSError:
+            pass  # Windows removes no open file; the next run locks it anew
+        os.close(fd)  # lets the lock go
 
 
 def _remove_empty(folders: Sequence[Path]) -> None:
@@ -760,7 +881,8 @@ def batch(
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
         array) cut into tiles of ``tile_size`` cells (``tile_r0_c0`` ...; neighbours share border nodes).
     output_dir : str or path-like
-        Created if missing; must be writable. Also holds the manifest :data:`MANIFEST_NAME`.
+        Created if missing; must be writable. Also holds the manifest :data:`MANIFEST_NAME`, and while the run
+        lasts its lock file :data:`LOCK_NAME`: one run at a time per folder.
     format : str
         Output extension: ``.glb`` ``.gltf`` ``.obj`` ``.ply`` ``.stl`` ``.3mf``.
     tile_size : int or (rows, cols)
@@ -808,7 +930,8 @@ def batch(
         ``floor`` not below the lowest point of the stepped surface of every tile or frame (a folder's files are
         read by the items, so there each item fails on its own).
     DataFileError
-        The source does not exist, or ``output_dir`` cannot be created or written (before any work).
+        The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
+        it (before any work; the message names that run's pid, host and start time).
     SchedulerError
         The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``.
     MissingDependencyError
@@ -816,9 +939,12 @@ def batch(
 
     Notes
     -----
-    An item is complete when the manifest records it with the same fingerprint (its input: file path, size
-    and mtime, or a hash of its heights; and the options but the device, which does not change a bit of the
-    output) and its file exists with the recorded size. Every
+    An item is complete when the manifest records its output file with the same fingerprint (its input: file
+    path, size and mtime, or a hash of its heights; and the options but the device, which does not change a bit of
+    the output) and that file exists with the recorded size. The manifest records each file, so an item's outputs
+    in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
+    ``report.notes`` says when the folder holds these items in another format too, and when the manifest could
+    not be read (cut short or edited by hand: every item is redone and the manifest written afresh). Every
     file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
     a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
     temporary files the killed run left half-written). Tiles are written with the whole raster's bounds as
@@ -919,25 +1045,61 @@ def batch(
         options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
+    lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
+    try:
+        run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)
+        return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, **run)
+    finally:
+        lock.release()
+
+
+def _run_locked(
+    items: Sequence[BatchItem],
+    src: _Source | None,
+    options: _Options,
+    folder: Path,
+    made: Sequence[Path],
+    lock: _FolderLock,
+    *,
+    scheduler: Any,
+    workers: int,
+    retries: int,
+    resume: bool,
+    timeout: float,
+    progress: bool,
+    start: float,
+) -> BatchReport:
+    """:func:`batch` once the arguments are checked and the output folder is locked."""
+    ext = options.ext
     _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
 
     fingerprints = _fingerprints(items, src, options)
-    manifest = _read_manifest(folder) if resume else {}
+    # read without resume too: the entries of other items and other formats stay recorded
+    manifest, manifest_note = _read_manifest(folder)
+    notes = [note for note in (lock.note, manifest_note) if note is not None]
     results: dict[str, ItemResult] = {}
     todo = []
     for item in items:
-        if resume and _is_complete(manifest.get(item.key), fingerprints[item.key], folder):
-            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / manifest[item.key]["file"]),
-                                           bytes=int(manifest[item.key]["bytes"]))  # fmt: skip
+        name = f"{item.key}{ext}"
+        if resume and _is_complete(manifest.get(name), fingerprints[item.key], folder, name):
+            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / name),
+                                           bytes=manifest[name]["bytes"])  # fmt: skip
         else:
             todo.append(item)
-            manifest.pop(item.key, None)
+            manifest.pop(name, None)
+    keys = {item.key for item in items}
+    others = sorted({Path(n).suffix for n in manifest if Path(n).suffix != ext and Path(n).stem in keys})
+    if others:
+        count = sum(1 for n in manifest if Path(n).suffix in others and Path(n).stem in keys)
+        notes.append(f"the manifest also records {count} output(s) of these items in another format "
+                     f"({', '.join(others)}), kept beside this run's {ext} files")  # fmt: skip
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
     try:
         connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
+        lock.release()
         _remove_empty(made)  # nothing was written: leave no empty output folder behind
         raise
     description = "serial" if connection is None else connection[2]
@@ -958,7 +1120,7 @@ def batch(
         if connection is not None:
             _disconnect(scheduler, connection)
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
-                         time.perf_counter() - start, description)  # fmt: skip
+                         time.perf_counter() - start, description, notes)  # fmt: skip
     return report
 
 
@@ -1042,9 +1204,10 @@ class _Recorder:
     def add(self, result: ItemResult) -> None:
         if result.status != "done" or result.path is None:
             return
-        self.entries[result.key] = {
+        name = Path(result.path).name  # by file: the item's outputs in other formats keep their entries
+        self.entries[name] = {
             "fingerprint": self.fingerprints[result.key],
-            "file": Path(result.path).name,
+            "file": name,
             "bytes": result.bytes,
             "faces": result.faces,
             "vertices": result.vertices,

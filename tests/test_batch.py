@@ -558,7 +558,7 @@ def test_resume_skips_complete_outputs_and_redoes_the_rest(tmp_path):
     first = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
     assert len(first.done) == 4
     manifest = json.loads((out / MANIFEST_NAME).read_text())
-    assert set(manifest["items"]) == {r.key for r in first.done}
+    assert set(manifest["items"]) == {Path(r.path).name for r in first.done}
 
     again = batch(heights, out, tile_size=12, interval=100.0, scheduler="serial")
     assert [r.status for r in again.results] == ["skipped"] * 4 and again.ok

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -85,3 +87,174 @@ def test_save_mesh_shared_bounds_are_checked(tmp_path):
 
     assert glb_json(out)["nodes"][0]["translation"] == [399000.0, 3799000.0, -4.0]
     np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, box.vertices, atol=1e-6)
+
+
+# a batch run in another process that holds its first item until the file `go` appears (`started` says it began)
+_HELD_RUN = """
+import sys, time
+from pathlib import Path
+import re
+
+import numpy as np
+import stepterrain.batch
+
+b = sys.modules["stepterrain.batch"]  # the attribute stepterrain.batch is the function
+
+out, signals = Path(sys.argv[1]), Path(sys.argv[2])
+real = b.run_item
+
+def held(*args, **kwargs):
+    (signals / "started").touch()
+    while not (signals / "go").exists():
+        time.sleep(0.02)
+    return real(*args, **kwargs)
+
+b.run_item = held
+z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+report = b.batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+print(len(report.done), report.ok)
+"""
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused_naming_the_folder_and_the_other_run(tmp_path):
+    # two runs into one folder at once both rewrote the manifest (each from what it had read at its start, so
+    # one run's records were lost), wrote the same outputs, and the second removed the first one's temporary
+    # files as "left by a killed run", failing its items
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from stepterrain.batch import LOCK_NAME
+    from stepterrain.errors import DataFileError
+
+    out, signals = tmp_path / "out dir é", tmp_path / "signals"
+    signals.mkdir()
+    script = tmp_path / "held_run.py"
+    script.write_text(_HELD_RUN)
+    other = subprocess.Popen([sys.executable, str(script), str(out), str(signals)], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not (signals / "started").exists():
+            assert other.poll() is None, other.communicate()
+            assert time.monotonic() < deadline, "the other run did not start"
+            time.sleep(0.05)
+        z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+        refused = rf"output folder .*out dir é.* is in use by another stepterrain batch run \(pid {other.pid} on .*\)"
+        with pytest.raises(DataFileError, match=refused):
+            batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+        assert not (out / MANIFEST_NAME).exists()  # the refused run wrote nothing
+    finally:
+        (signals / "go").touch()
+        stdout, stderr = other.communicate(timeout=120)
+    assert other.returncode == 0, stderr
+    assert stdout.split() == ["4", "True"]
+    assert not (out / LOCK_NAME).exists()  # the finished run took its lock file away
+    # the folder is free again: a rerun resumes what the other run recorded
+    assert len(batch(z, out, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
+    # a lock file a killed run left (its process gone, so its lock too) does not block the folder
+    (out / LOCK_NAME).write_text(f"pid {os.getpid() + 10**6} on nowhere, started long ago")
+    assert len(batch(z, out, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
+    assert not (out / LOCK_NAME).exists()
+
+
+def test_a_rerun_in_another_format_keeps_both_formats_recorded_and_says_so(tmp_path):
+    # the manifest held one entry per item: a .ply rerun replaced the .glb entries, so the .glb files stayed in the
+    # folder unrecorded (the report said nothing of them), and a .glb run after it redid every complete .glb
+    import json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    first = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    assert len(first.done) == 4 and first.notes == []
+    glb = {r.key: (tmp_path / f"{r.key}.glb").read_bytes() for r in first.done}
+    ply = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial", format=".ply")
+    assert len(ply.done) == 4 and not ply.skipped  # the .glb outputs do not count as complete .ply ones
+    assert ply.notes == ["the manifest also records 4 output(s) of these items in another format (.glb), kept "
+                         "beside this run's .ply files"]  # fmt: skip
+    assert "note: the manifest also records 4 output(s)" in ply.summary()
+    recorded = json.loads((tmp_path / MANIFEST_NAME).read_text())["items"]
+    assert sorted(recorded) == sorted(f"{k}{e}" for k in glb for e in (".glb", ".ply"))
+    # both formats are complete: reruns in either skip everything, and the .glb files are the first run's
+    assert len(batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
+    assert len(batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial", format=".ply").skipped) == 4
+    assert all((tmp_path / f"{k}.glb").read_bytes() == data for k, data in glb.items())
+    # other heights: the .glb outputs are redone, and the .ply ones (now stale) are no longer complete either
+    assert len(batch(z + 1, tmp_path, tile_size=4, interval=2.0, scheduler="serial").done) == 4
+    assert len(batch(z + 1, tmp_path, tile_size=4, interval=2.0, scheduler="serial", format=".ply").done) == 4
+    # resume=False redoes this format but keeps the other's records
+    assert len(batch(z + 1, tmp_path, tile_size=4, interval=2.0, scheduler="serial", resume=False).done) == 4
+    assert len(batch(z + 1, tmp_path, tile_size=4, interval=2.0, scheduler="serial", format=".ply").skipped) == 4
+
+
+def test_a_manifest_of_an_earlier_version_is_read_by_file(tmp_path):
+    # manifests written before the per-file layout (version 1, keyed by item) keep their complete outputs
+    import json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    data = json.loads((tmp_path / MANIFEST_NAME).read_text())
+    old = {entry["file"].rsplit(".", 1)[0]: entry for entry in data["items"].values()}
+    (tmp_path / MANIFEST_NAME).write_text(json.dumps({"version": 1, "items": old}))
+    report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    assert len(report.skipped) == 4 and report.notes == []
+
+
+@pytest.mark.parametrize("text, why", [
+    ('{"version": 2, "items": {"tile_r0_c0.glb": {"fingerp', r"is not valid JSON \(cut short or edited"),
+    ("[1, 2]", r"expected an object with version 1 or 2 and its items; got a JSON list"),
+    ('{"version": 7, "items": {}}', r"got version 7"),
+    ('{"version": 2, "items": []}', r"got version 2"),
+    ("\xff\xfe", r"is not valid JSON"),
+])  # fmt: skip
+def test_a_manifest_cut_short_or_edited_is_reported_and_replaced(tmp_path, text, why):
+    # an unreadable manifest was taken as empty without a word: every complete output was redone silently
+    import json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    (tmp_path / MANIFEST_NAME).write_bytes(text.encode("latin-1"))
+    report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    assert len(report.done) == 4 and report.ok
+    assert len(report.notes) == 1
+    assert re.search(rf"^the manifest {MANIFEST_NAME} .*{why}.*; it is written afresh", report.notes[0])
+    assert f"note: the manifest {MANIFEST_NAME}" in report.summary()
+    assert len(json.loads((tmp_path / MANIFEST_NAME).read_text())["items"]) == 4
+    assert batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial").notes == []
+
+
+def test_a_manifest_entry_edited_by_hand_is_not_complete(tmp_path):
+    # an entry naming another file (or a size that is no int) made its item "skipped" with that file as its output
+    import json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    data = json.loads((tmp_path / MANIFEST_NAME).read_text())
+    entry = data["items"]["tile_r0_c0.glb"]
+    (tmp_path / "elsewhere.glb").write_bytes((tmp_path / "tile_r0_c0.glb").read_bytes())
+    entry["file"] = "elsewhere.glb"
+    data["items"]["tile_r0_c1.glb"]["bytes"] = float(data["items"]["tile_r0_c1.glb"]["bytes"]) + 0.5
+    (tmp_path / MANIFEST_NAME).write_text(json.dumps(data))
+    report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    assert sorted(r.key for r in report.done) == ["tile_r0_c0", "tile_r0_c1"]
+    assert all(r.path == str(tmp_path / f"{r.key}.glb") for r in report.results)
+
+
+def test_a_folder_on_a_file_system_without_locks_is_written_and_the_report_says_so(tmp_path, monkeypatch):
+    # some network and FUSE mounts answer flock with ENOLCK or EOPNOTSUPP: the lock must not make batch refuse
+    # every such folder; the run goes on and the report says a second run would not be refused there
+    import errno
+    import fcntl
+
+    from stepterrain.batch import LOCK_NAME
+
+    def no_locks(fd, operation):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial")
+    assert report.ok and len(report.done) == 4
+    assert report.notes == [f"the file system of the output folder {str(tmp_path)!r} does not support file locks: "
+                            "another batch run into it at the same time would not be refused"]  # fmt: skip
+    assert not (tmp_path / LOCK_NAME).exists()

@@ -28,3 +28,38 @@ def test_a_narrow_but_finite_field_of_view_refines_to_full_resolution():
         camera = Camera((32.0, -60.0, 40.0), (32.0, 32.0, 0.0), fov=1e-300)  # a huge magnification
         items = render_with_textures(quadtree.root, [tree.root], camera)
         assert items and all(item.geometry.is_leaf and item.textures[0].level == 0 for item in items)
+
+
+@pytest.mark.parametrize("kind", ["array", "read-only view", "writeable memmap"])
+def test_a_pyramid_keeps_its_image_when_the_source_array_is_edited_afterwards(tmp_path, kind):
+    """Level 0 was the caller's array itself: editing it after build changed level 0 but none of the coarser levels,
+    so the pyramid served two different images by level without a word (and writing into pyramid.levels[0]
+    edited the caller's image)."""
+    rng = np.random.default_rng(3)
+    original = rng.integers(0, 256, (13, 10, 3), dtype=np.uint8)
+    if kind == "writeable memmap":
+        source = np.lib.format.open_memmap(tmp_path / "image.npy", mode="w+", dtype=np.uint8, shape=original.shape)
+        source[:] = original
+        edit = source
+    else:
+        edit = original.copy()
+        source = edit if kind == "array" else edit.view()
+        if kind == "read-only view":
+            source.flags.writeable = False  # the pixels still change through the array it views
+    with ImagePyramid.build(source, device="cpu") as pyramid:
+        expected = [np.array(level) for level in pyramid.levels]
+        edit[:] = 255 - edit
+        assert np.array_equal(pyramid.levels[0], original)
+        assert all(np.array_equal(level, copy) for level, copy in zip(pyramid.levels, expected, strict=True))
+        with pytest.raises(ValueError, match="read-only"):
+            pyramid.levels[0][0, 0] = 7
+
+
+def test_a_pyramid_over_a_read_only_source_is_not_copied(tmp_path):
+    """A source nothing can change (a .npy opened memory-mapped read-only) stays level 0 as it is: no snapshot."""
+    image = np.random.default_rng(4).integers(0, 256, (9, 9, 1), dtype=np.uint8)
+    np.save(tmp_path / "image.npy", image)
+    storage = tmp_path / "levels"
+    with ImagePyramid.build(tmp_path / "image.npy", storage=storage, device="cpu") as pyramid:
+        assert str(pyramid.levels[0].filename) == str(tmp_path / "image.npy")
+        assert sorted(p.name for p in storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8", "level_4.u8"]
