@@ -1329,6 +1329,7 @@ def overview_image(
     import trimesh
 
     from . import render
+    from .export import read_mesh
 
     width, height, _ = render._check_window(window_size, z_scale)  # the contact sheet's w // cols truncated 64.7
     if isinstance(max_items, bool) or not isinstance(max_items, (int, np.integer)) or max_items < 1:
@@ -1341,7 +1342,7 @@ def overview_image(
         raise InvalidInputError("the batch wrote no output to show")
     if mosaic is None:
         mosaic = all(Path(p).stem.startswith("tile_") for p in paths)
-    meshes = [trimesh.load(p, force="mesh", process=False) for p in (paths if mosaic else paths[:16])]
+    meshes = [read_mesh(p) for p in (paths if mosaic else paths[:16])]  # a 3MF's colours too
     if mosaic:
         tints = np.array([[0.93, 0.93, 0.93], [1.0, 1.0, 1.0]])
         parts = []

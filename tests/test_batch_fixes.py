@@ -258,3 +258,28 @@ def test_a_folder_on_a_file_system_without_locks_is_written_and_the_report_says_
     assert report.notes == [f"the file system of the output folder {str(tmp_path)!r} does not support file locks: "
                             "another batch run into it at the same time would not be refused"]  # fmt: skip
     assert not (tmp_path / LOCK_NAME).exists()
+
+
+@pytest.mark.render
+def test_the_overview_of_3mf_tiles_shows_their_colours(tmp_path):
+    """overview_image read the outputs with trimesh, whose 3MF reader ignores the colour group: coloured 3MF tiles
+    were drawn in the plain tan. It reads them as ``stepterrain info`` does (export.read_mesh): the same picture as
+    of the same tiles written as PLY, whose colours trimesh reads."""
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+
+    from .conftest import real_dem
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    z = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=33, step=4)
+    pictures = {}
+    for ext in (".3mf", ".ply"):
+        report = batch(z, tmp_path / ext[1:], tile_size=16, interval=100.0, colors="terrain", format=ext,
+                       scheduler="serial")  # fmt: skip
+        assert report.ok
+        pictures[ext] = overview_image(report, window_size=(320, 200))
+    terrain = (pictures[".ply"][..., :3] != pictures[".ply"][0, 0, :3]).any(axis=-1)
+    assert terrain.mean() > 0.005
+    np.testing.assert_array_equal(pictures[".3mf"], pictures[".ply"])
