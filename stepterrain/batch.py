@@ -540,6 +540,8 @@ def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], str | None]:
     is none): a manifest that is cut short, edited into something else or of an unknown version is replaced."""
     path = output_dir / MANIFEST_NAME
     replaced = "; it is written afresh, recording this run's outputs only"
+    if path.is_dir():  # it could not be written at the end either: refused before any item runs
+        raise DataFileError(f"the manifest {str(path)!r} is a folder; expected a file (or none): move the folder away")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:

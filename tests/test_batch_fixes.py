@@ -283,3 +283,14 @@ def test_the_overview_of_3mf_tiles_shows_their_colours(tmp_path):
     terrain = (pictures[".ply"][..., :3] != pictures[".ply"][0, 0, :3]).any(axis=-1)
     assert terrain.mean() > 0.005
     np.testing.assert_array_equal(pictures[".3mf"], pictures[".ply"])
+
+
+def test_a_manifest_that_is_a_folder_is_refused_before_any_item_runs(tmp_path):
+    # it was read as "could not be read", every item ran, and only the manifest's final write failed
+    from stepterrain.errors import DataFileError
+
+    out = tmp_path / "out"
+    (out / MANIFEST_NAME).mkdir(parents=True)
+    with pytest.raises(DataFileError, match="is a folder"):
+        batch(np.zeros((3, 5, 6), np.float32), out, interval=1.0, scheduler="serial")
+    assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME]
