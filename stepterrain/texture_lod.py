@@ -174,15 +174,20 @@ def _snapshot(source: NDArray[np.uint8], path: Path, band_bytes: int) -> NDArray
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
     try:
         for r0 in range(0, height, band):  # a handful of bands, never a loop over pixels
-            view = memoryview(np.ascontiguousarray(source[r0 : r0 + band])).cast("B")
-            written, offset = 0, r0 * width * channels
-            while written < len(view):
-                written += os.pwrite(fd, view[written:], offset + written)
+            _write_at(fd, source[r0 : r0 + band], r0 * width * channels)
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
     finally:
         os.close(fd)
     return np.memmap(path, dtype=np.uint8, mode="r", shape=source.shape)
+
+
+def _write_at(fd: int, data: NDArray[Any], offset: int) -> None:
+    """All of ``data``'s bytes (C order) into file ``fd`` from byte ``offset`` (pwrite may write less than asked)."""
+    view = memoryview(np.ascontiguousarray(data)).cast("B")
+    written = 0
+    while written < len(view):
+        written += os.pwrite(fd, view[written:], offset + written)
 
 
 def _memmap_backing(array: NDArray[Any]) -> tuple[str | None, int]:
@@ -532,10 +537,7 @@ def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[i
                    inputs=[src_wp, s0, wp.vec2i(n_rows, n_cols), r0, wp.vec2i(m_rows, m_cols)],
                    outputs=[dst_wp], device=device)
             data = dst if device.is_cpu else host_copy(dst_wp)
-            view = memoryview(np.ascontiguousarray(data)).cast("B")
-            written, offset = 0, r0 * m_cols * channels
-            while written < len(view):
-                written += os.pwrite(fd, view[written:], offset + written)
+            _write_at(fd, data, r0 * m_cols * channels)
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
     finally:
