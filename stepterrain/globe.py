@@ -288,11 +288,7 @@ class Globe:
         u, v = fi - i0, fj - j0  # along rows (i), along columns (j)
         first = face * n * n + i0 * n + j0
         rows = host_copy(self._grid.heights[first : first + n + 2]).astype(np.float64)
-        z00, z01, z10, z11 = rows[0], rows[1], rows[n], rows[n + 1]
-        main = z00 + v * (z01 - z00) + u * (z11 - z01) if v >= u else z00 + u * (z10 - z00) + v * (z11 - z10)
-        anti = z00 + v * (z01 - z00) + u * (z10 - z00) if u + v <= 1 else z11 + (1 - v) * (z10 - z11) + \
-            (1 - u) * (z01 - z11)
-        return min(main, anti)
+        return _cell_surface(rows[0], rows[1], rows[n], rows[n + 1], u, v)
 
     # -------------------------------------------------------------------------------------- builders
     @classmethod
@@ -580,6 +576,37 @@ def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
     scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
     host = np.frombuffer(buffer, dtype=np.uint8, count=nbytes, offset=offset).view(scalar)
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
+
+
+def _cell_surface(z00: float, z01: float, z10: float, z11: float, u: float, v: float) -> float:
+    """The height at (u along rows, v along columns) in a grid cell of corner heights z00, z01 (next column), z10
+    (next row), z11: interpolated over each of the cell's two triangulations, the lower of the two (the
+    hierarchy's finest triangles take one of them per cell)."""
+    main = z00 + v * (z01 - z00) + u * (z11 - z01) if v >= u else z00 + u * (z10 - z00) + v * (z11 - z10)
+    anti = z00 + v * (z01 - z00) + u * (z10 - z00) if u + v <= 1 else z11 + (1 - v) * (z10 - z11) + \
+        (1 - u) * (z01 - z11)
+    return min(main, anti)
+
+
+def _check_planar_eye(eye: tuple[float, float, float], z: NDArray[np.float32], spacing: tuple[float, float],
+                      origin: tuple[float, float], highest: float) -> None:
+    """Refuse a camera eye over the grid's rectangle at or below its surface (the height interpolated from the four
+    nodes of the cell under the eye, the lower of the cell's two triangulations: never above the mesh's surface
+    there). An eye beside the rectangle may be at any height."""
+    ex, ey, ez = (float(c) for c in eye)
+    if ez > highest:  # above every node: most views, no lookup
+        return
+    rows, cols = z.shape
+    fi, fj = (ey - origin[1]) / spacing[1], (ex - origin[0]) / spacing[0]
+    if not (0.0 <= fi <= rows - 1 and 0.0 <= fj <= cols - 1):
+        return
+    i0, j0 = min(int(fi), rows - 2), min(int(fj), cols - 2)
+    cell = z[i0 : i0 + 2, j0 : j0 + 2].astype(np.float64)
+    surface = _cell_surface(cell[0, 0], cell[0, 1], cell[1, 0], cell[1, 1], fi - i0, fj - j0)
+    if ez <= surface:
+        raise InvalidInputError(f"camera eye {tuple(eye)} lies below the terrain surface: at (x, y) = ({ex:.1f}, "
+                                f"{ey:.1f}) the surface is at z = {surface:.1f} m, the eye at z = {ez:.1f} m; raise "
+                                "the eye (or move it off the grid's rectangle)")
 
 
 def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tuple[int, int], *, shapes: bool,
@@ -1118,7 +1145,8 @@ def adaptive_mesh(
     spacing : float or (dx, dy)
         Positive node spacing.
     camera : Camera, optional
-        Eye and frustum in the mesh's coordinates (origin included).
+        Eye and frustum in the mesh's coordinates (origin included). An eye over the grid's rectangle must lie
+        above the terrain surface there (the heights interpolated under it); beside the rectangle, anywhere.
     origin : (x0, y0)
         Position of node (0, 0).
     metrics, cull, device
@@ -1136,7 +1164,8 @@ def adaptive_mesh(
     Raises
     ------
     InvalidInputError
-        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, negative error.
+        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, negative error, a camera
+        eye at or below the terrain surface.
 
     Examples
     --------
@@ -1171,6 +1200,13 @@ def adaptive_mesh(
     n = cells + 1
     check_budget(n * n * _BYTES_PER_ENTRY, f"an adaptive mesh of a {rows}x{cols} grid (padded to {n}x{n})",
                  hint="coarsen the input")
+    highest = float(z.max()) if camera is not None else 0.0  # of the unpadded grid (the padding repeats its edges)
+    if camera is not None:
+        if not isinstance(camera, Camera):
+            raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+        _check_planar_eye(camera.eye, z, (dx, dy), (ox, oy), highest)
+        camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
+                                     target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     if (rows, cols) != (n, n):
         z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
     device = resolve_device(device)
@@ -1181,13 +1217,8 @@ def adaptive_mesh(
     grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
-    if camera is not None:
-        if not isinstance(camera, Camera):
-            raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-        camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
-                                     target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     if distance_scale is None:
-        above = camera.eye[2] - float(z.max()) if camera is not None else 0.0
+        above = camera.eye[2] - highest if camera is not None else 0.0
         distance_scale = max(above, dx, dy)
     view = _view(camera, error, names, "sphere", _positive(distance_scale, "distance_scale"), device)
     mesh = _extract(grid, params, view, users, levels, faces=1,

@@ -236,3 +236,26 @@ def test_a_finite_height_beyond_float32_is_named_as_such():
         Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu")
     with pytest.raises(InvalidInputError, match=r"^heights must fit in float32 .* got -1e\+39 at row 5, column 6$"):
         adaptive_mesh(z[:9, :9], error=1.0, device="cpu")
+
+
+def test_a_planar_camera_below_the_terrain_is_refused_by_name():
+    """adaptive_mesh had no camera-below-terrain check: an eye under the heightfield (here 50 m under a 300 m
+    plateau) was accepted and the distance scale fell back to the grid spacing. It is refused now, like Globe.mesh
+    refuses an eye inside the planet; the surface under the eye is interpolated (a ramp: between nodes), the origin
+    counts, and an eye beside the grid's rectangle may be low."""
+    z = np.add.outer(np.zeros(9), 100.0 * np.arange(9.0)) + 200.0  # x = j·10 + 1000: z = 200 + 10 (x - 1000)
+    origin = (1000.0, 2000.0)
+
+    def camera(x, y, height):
+        return Camera(eye=(x, y, height), target=(1040.0, 2040.0, 0.0), up=(0.0, 1.0, 0.0), near=0.1)
+
+    with pytest.raises(InvalidInputError, match=r"^camera eye \(1035\.0, 2040\.0, 540\.0\) lies below the terrain "
+                                                r"surface: at \(x, y\) = \(1035\.0, 2040\.0\) the surface is at "
+                                                r"z = 550\.0 m, the eye at z = 540\.0 m; raise the eye"):
+        adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(1035.0, 2040.0, 540.0), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"the surface is at z = 200\.0 m, the eye at z = 150\.0 m"):
+        adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(1000.0, 2080.0, 150.0), device="cpu")
+    for eye in [(1035.0, 2040.0, 560.0), (990.0, 2040.0, 0.0), (1035.0, 1990.0, 0.0)]:  # above; beside the grid
+        mesh = adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(*eye), cull=False,
+                             device="cpu")
+        assert len(mesh.faces) > 0
