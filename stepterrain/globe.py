@@ -223,6 +223,27 @@ def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -
     return step
 
 
+#: A closing longitude column may differ from the first by this much (metres) plus _CLOSING_RELATIVE of the height:
+#: float rounding (float32 keeps 1 mm at 8 km), far below any elevation model's accuracy; more is inconsistent data
+_CLOSING_TOLERANCE = 0.01
+_CLOSING_RELATIVE = 1e-6
+
+
+def _check_closing_column(z: NDArray[np.float32], lat: NDArray[np.float64], lon: NDArray[np.float64]) -> None:
+    """Refuse a duplicated closing longitude column (``lon[-1] = lon[0] + 360``, ascending axes) whose heights are
+    not those of the first column: the two are the same meridian, and dropping one would hide which is right."""
+    first, last = z[:, 0].astype(np.float64), z[:, -1].astype(np.float64)
+    gap = np.abs(last - first)
+    allowed = _CLOSING_TOLERANCE + _CLOSING_RELATIVE * np.maximum(np.abs(first), np.abs(last))
+    if (gap > allowed).any():
+        worst = int(np.argmax(gap))
+        raise InvalidInputError(
+            f"elevation's closing column (lon {lon[-1]:.9g}) must repeat its first column (lon {lon[0]:.9g}), the same "
+            f"meridian, within {_CLOSING_TOLERANCE:g} m; got {int((gap > allowed).sum())} rows that differ, by up to "
+            f"{gap[worst]:.6g} m (at lat {lat[worst]:.9g}: {last[worst]:.9g} m against {first[worst]:.9g} m): "
+            "inconsistent data; fix the grid or drop one of the two columns")
+
+
 # ------------------------------------------------------------------------------------------ Globe
 class Globe:
     """A global elevation model on the cube sphere with its bisection hierarchy (paper 003 §4-§7).
@@ -315,7 +336,8 @@ class Globe:
             including ±90).
         lon : (W,) array_like
             Longitudes in degrees, strictly monotone, regular, covering 360° (a duplicated closing column,
-            e.g. -180 and 180, is dropped). Interpolation wraps around the antimeridian.
+            e.g. -180 and 180, is dropped; its heights must repeat the first column's within 1 cm, else the
+            data are inconsistent and refused). Interpolation wraps around the antimeridian.
         face_size : int
             Nodes per face edge, 2^k + 1 (the paper uses 1025), at most 16385 (int32 node entries).
         radius : float
@@ -331,8 +353,8 @@ class Globe:
         Raises
         ------
         InvalidInputError
-            Bad face size, grid shape, axes not monotone / regular / global, NaN or infinite elevation,
-            radius or exaggeration not positive.
+            Bad face size, grid shape, axes not monotone / regular / global, a closing longitude column that
+            differs from the first, NaN or infinite elevation, radius or exaggeration not positive.
         OutputTooLargeError
             The node arrays would exceed the memory budget (checked before allocating).
 
@@ -377,8 +399,9 @@ class Globe:
             lat, z = lat[::-1], z[::-1]
         if lon[0] > lon[-1]:
             lon, z = lon[::-1], z[:, ::-1]
-        if abs((lon[-1] - lon[0]) - 360.0) < 1e-6 * 360:
-            lon, z = lon[:-1], z[:, :-1]  # node-registered with a closing column
+        if abs((lon[-1] - lon[0]) - 360.0) < 1e-6 * 360:  # node-registered with a closing column: the same meridian
+            _check_closing_column(z, lat, lon)
+            lon, z = lon[:-1], z[:, :-1]
         if np.abs(lat).max() > 90.0 + 1e-9:
             raise InvalidInputError(f"lat must lie in [-90, 90] degrees; got {lat[0]:.9g} to {lat[-1]:.9g}")
         if abs(len(lon) * dlon - 360.0) > 1e-6 * 360:

@@ -259,3 +259,28 @@ def test_a_planar_camera_below_the_terrain_is_refused_by_name():
         mesh = adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(*eye), cull=False,
                              device="cpu")
         assert len(mesh.faces) > 0
+
+
+def test_a_closing_longitude_column_that_differs_from_the_first_is_refused():
+    """A node-registered grid's closing column (lon = first + 360) was dropped whatever its values, so a grid whose
+    two copies of the same meridian disagreed (here by 250 m at one row) meshed silently from the first copy. It is
+    refused now, naming both columns and the largest difference; float rounding (1 mm) still passes, and gives the
+    globe of the grid without the closing column."""
+    lat = np.linspace(90.0, -90.0, 19)
+    lon = np.linspace(-180.0, 180.0, 37)  # node-registered: -180 and 180 are the same meridian
+    rng = np.random.default_rng(7)
+    z = rng.uniform(-4000.0, 4000.0, (19, 37))
+    z[:, -1] = z[:, 0]
+    z[:, -1] += rng.uniform(-1e-3, 1e-3, 19)  # rounding: the same meridian
+    closed = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    open_grid = Globe.from_latlon(z[:, :-1], lat, lon[:-1], face_size=9, device="cpu")
+    np.testing.assert_array_equal(closed.heights, open_grid.heights)
+    z[7, -1] = z[7, 0] + 250.0
+    z[3, -1] = z[3, 0] - 2.0
+    message = (rf"^elevation's closing column \(lon 180\) must repeat its first column \(lon -180\), the same "
+               rf"meridian, within 0\.01 m; got 2 rows that differ, by up to 250 m \(at lat 20: "
+               rf"{np.float32(z[7, -1]):.9g} m against {np.float32(z[7, 0]):.9g} m\): inconsistent data")
+    with pytest.raises(InvalidInputError, match=message):
+        Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"differ, by up to 250 m \(at lat 20:"):  # either axis reversed
+        Globe.from_latlon(z[::-1, ::-1], lat[::-1], lon[::-1], face_size=9, device="cpu")
