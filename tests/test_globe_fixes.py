@@ -284,3 +284,43 @@ def test_a_closing_longitude_column_that_differs_from_the_first_is_refused():
         Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
     with pytest.raises(InvalidInputError, match=r"differ, by up to 250 m \(at lat 20:"):  # either axis reversed
         Globe.from_latlon(z[::-1, ::-1], lat[::-1], lon[::-1], face_size=9, device="cpu")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--eye", "0,0,1e300"], "--eye altitude must keep the eye within 1e+30 m of the centre; got --radius "
+                                 "6.371e+06 + altitude 1e+300 m"),
+        (["--radius", "1e35"], "--radius + the --eye altitude must keep the eye within 1e+30 m of the centre; got "
+                               "--radius 1e+35 + altitude 1.9113e+07 m"),
+    ],
+)
+def test_an_eye_beyond_the_camera_bound_names_the_options(tmp_path, capsys, argv, message):
+    """An --eye altitude of 1e300 m (or a --radius of 1e35 m under the default eye) was reported as the library's
+    'radius + altitude must stay within 1e+30 m', which _as_option turned into '--radius + altitude': it blamed
+    --radius for the altitude. The CLI checks the bound itself, before loading anything, naming the options."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", *argv, "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert f"stepterrain globe: error: {message}\n" == err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan"])
+@pytest.mark.parametrize("option", ["--exaggeration", "--radius", "--error", "--tilt", "--heading"])
+def test_every_float_globe_option_names_itself_for_a_non_finite_value(tmp_path, capsys, option, value):
+    """Each float option of ``stepterrain globe`` given inf or nan: the error names the option, not the library's
+    argument (a guard: ``heading must be a finite number`` from look_from reaches the user as ``--heading``)."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", f"{option}={value}", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"stepterrain globe: error: {option} must ") and value in err, err
+    assert not out.exists()
+    for eye in (f"{value},0,100", f"0,{value},100", f"0,0,{value}"):
+        assert main(["-q", "globe", f"--eye={eye}", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+        err = capsys.readouterr().err
+        assert "error: argument --eye: expected finite numbers" in err, err
