@@ -261,3 +261,47 @@ def test_a_geographic_grid_whose_longitudes_go_round_the_globe_more_than_once_is
     globe = np.zeros((3, 361), np.float32)
     np.savez(tmp_path / "globe.npz", elevation=globe, lat=np.array([1.0, 0.0, -1.0]), lon=np.arange(361) - 180.0)
     assert load_dem(tmp_path / "globe.npz").extent[1] == pytest.approx(2 * np.pi * 6371008.8)  # dx at the equator
+
+
+#: NAD83 / UTM 11N + a height in a foot _HEIGHT_UNITS does not list: its metres per unit stated in the WKT.
+_COMPOUND_WKT = (
+    'COMPD_CS["NAD83 / UTM zone 11N + height ({name})",PROJCS["NAD83 / UTM zone 11N",GEOGCS["NAD83",DATUM['
+    '"North_American_Datum_1983",SPHEROID["GRS 1980",6378137,298.257222101]],PRIMEM["Greenwich",0],UNIT["degree",'
+    '0.0174532925199433]],PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER['
+    '"central_meridian",-117],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER['
+    '"false_northing",0],UNIT["metre",1],AUTHORITY["EPSG","26911"]],VERT_CS["height ({name})",VERT_DATUM['
+    '"local",2005],UNIT["{name}",{factor}{authority}],AXIS["Up",UP]]]'
+)
+
+
+@pytest.mark.parametrize(
+    "name, factor, authority",
+    [  # a GeoTIFF keeps a vertical unit by its EPSG code only
+        ("British foot (Sears 1922)", 0.3047994715386762, ',AUTHORITY["EPSG","9051"]'),
+        ("Clarke's foot", 0.3047972654, ',AUTHORITY["EPSG","9005"]'),
+    ],
+)
+def test_a_compound_crs_vertical_unit_outside_the_known_list_converts_by_its_stated_factor(
+    tmp_path, name, factor, authority
+):
+    """A compound CRS whose vertical unit is not in the known list (British foot, Clarke's foot) kept the heights
+    as stored, in feet, without a word (an .npz), or was refused as an unknown band unit (a GeoTIFF: GDAL names the
+    band's unit after the vertical CRS). The WKT states the metres per unit: the heights become metres by it, and
+    ``crs`` keeps the horizontal part, as for a vertical unit in the list."""
+    rasterio = pytest.importorskip("rasterio")
+    wkt = _COMPOUND_WKT.format(name=name, factor=factor, authority=authority)
+    z = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 1000.0]], np.float32)
+    np.savez(tmp_path / "feet.npz", elevation=z, transform=np.array([380000.0, 30.0, 0, 3800000.0, 0, -30.0]), crs=wkt)
+    t = load_dem(tmp_path / "feet.npz")
+    np.testing.assert_allclose(t.heights, z * factor, rtol=1e-6)
+    assert t.crs == "EPSG:26911"
+    path = tmp_path / "feet.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="float32",
+                       crs=rasterio.crs.CRS.from_wkt(wkt), transform=rasterio.Affine(30, 0, 380000, 0, -30, 3800000)
+                       ) as ds:  # fmt: skip
+        ds.write(z, 1)
+    with rasterio.open(path) as ds:  # GDAL's own reading of the vertical unit (it may rename an EPSG unit)
+        stated = float(ds.crs.to_wkt().rsplit("UNIT[", 1)[1].split(",")[1].rstrip("]"))
+    t = load_dem(path)
+    np.testing.assert_allclose(t.heights, z * stated, rtol=1e-6)
+    assert abs(stated - 0.3048) < 1e-5 and t.crs == "EPSG:26911"
