@@ -430,9 +430,14 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                     "a nodata height), or as a GeoTIFF"
                 )
             if mode not in ("L", "LA", "I", "I;16", "I;16B", "I;16L", "F"):
+                got = (
+                    "a 1-bit black-and-white image (mode '1': two levels are no elevation data; save the heights as "
+                    "8- or 16-bit greyscale)"
+                    if mode == "1"
+                    else f"a {mode} image (colour or palette images are not elevation data)"
+                )
                 raise DataFileError(
-                    f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "
-                    f"got a {mode} image (colour or palette images are not elevation data)"
+                    f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; got {got}"
                 )
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG

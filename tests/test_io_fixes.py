@@ -305,3 +305,19 @@ def test_a_compound_crs_vertical_unit_outside_the_known_list_converts_by_its_sta
     t = load_dem(path)
     np.testing.assert_allclose(t.heights, z * stated, rtol=1e-6)
     assert abs(stated - 0.3048) < 1e-5 and t.crs == "EPSG:26911"
+
+
+def test_a_1_bit_png_is_refused_as_1_bit_not_as_colour(tmp_path):
+    """A 1-bit black-and-white PNG (Pillow's mode '1') was refused as 'a 1 image (colour or palette images are
+    not elevation data)': it is neither. The message now says what it is; an RGB PNG keeps the colour wording."""
+    path = tmp_path / "mask.png"
+    Image.fromarray(np.eye(4, dtype=bool)).save(path)
+    with Image.open(path) as image:
+        assert image.mode == "1"
+    with pytest.raises(DataFileError, match=r"mask\.png'?: expected a single-channel 8- or 16-bit greyscale "
+                                            r"heightmap; got a 1-bit black-and-white image \(mode '1': two levels "
+                                            r"are no elevation data; save the heights as 8- or 16-bit greyscale\)$"):
+        load_dem(path)
+    Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "rgb.png")
+    with pytest.raises(DataFileError, match=r"got a RGB image \(colour or palette images are not elevation data\)$"):
+        load_dem(tmp_path / "rgb.png")
