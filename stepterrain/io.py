@@ -22,6 +22,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._compaction import check_budget
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
 
@@ -131,6 +132,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
+    OutputTooLargeError
+        The file's declared cells (at least 4 bytes each, the float32 heights) exceed the memory budget
+        (:func:`stepterrain.set_memory_budget`), checked from its header before reading.
 
     Examples
     --------
@@ -281,7 +285,7 @@ def read_npy(file: Path, mmap_mode: Literal["r"] | None = None) -> NDArray[Any]:
     :func:`load_dem` and :func:`~stepterrain.batch.load_series` read .npy files through this."""
     _check_magic(file, (_NPY_MAGIC,), "a NumPy .npy array file")
     with open(file, "rb") as handle:  # readable: _check_magic has read it
-        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array")
+        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array", budget=mmap_mode is None)
     try:
         array = np.load(file, mmap_mode=mmap_mode, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
@@ -439,6 +443,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                 raise DataFileError(
                     f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; got {got}"
                 )
+            stored = {"L": np.uint8, "LA": np.uint8, "I": np.int32, "F": np.float32}.get(mode, np.uint16)  # I;16*
+            _check_read_budget(file, (image.height, image.width), np.dtype(stored))
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
@@ -509,6 +515,7 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                         f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
                         f"{what}, not elevation data"
                     )
+                _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
                 masked = dataset.read(band, masked=True)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 unit = dataset.units[band - 1]
@@ -582,10 +589,12 @@ def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> bytes:
     return head
 
 
-def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
+def _check_declared_size(handle: Any, size: int, file: Path, what: str, budget: bool = True) -> None:
     """Refuse an .npy stream (at its start, ``size`` bytes in all) whose header declares more data than follows
     it: NumPy allocates the declared shape before reading, so a 100-byte file declaring 10^8 x 10^8 floats
-    raised a MemoryError for 71 PiB. A header NumPy cannot parse is left to ``np.load``'s own error."""
+    raised a MemoryError for 71 PiB. With ``budget`` (a read into memory, not a memory map), refuse one the memory
+    budget cannot hold as well (:func:`_check_read_budget`). A header NumPy cannot parse is left to ``np.load``'s
+    own error."""
     try:
         version = np.lib.format.read_magic(handle)
         read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
@@ -603,6 +612,21 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
             f"cannot read {str(file)!r}: {what} declares shape {tuple(shape)} of {dtype} ({declared:,} bytes) but "
             f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
         )
+    if budget:
+        _check_read_budget(file, tuple(shape), dtype, what)
+
+
+def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster") -> None:
+    """An :class:`~stepterrain.errors.OutputTooLargeError` naming ``file``, its declared shape and the bytes, before
+    reading, when its cells (as stored, at least float32 as the Terrain keeps them) exceed the memory budget
+    (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
+    machine swapped or NumPy raised a raw MemoryError."""
+    cells = math.prod(int(n) for n in shape)
+    check_budget(
+        cells * max(dtype.itemsize, 4),
+        f"reading {str(file)!r} ({what}: {' x '.join(str(int(n)) for n in shape)} cells of {dtype})",
+        hint="crop or coarsen it first (gdal_translate -srcwin or -outsize)",
+    )
 
 
 def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:

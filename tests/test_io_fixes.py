@@ -27,7 +27,12 @@ def test_a_png_beyond_pillows_pixel_limit_is_a_data_file_error(tmp_path, monkeyp
 
 def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
     # a sparse GeoTIFF of a few kB whose header declares 1,000,000 x 1,000,000 cells raised numpy's raw MemoryError
-    # ("Unable to allocate 3.64 TiB") from rasterio's read
+    # ("Unable to allocate 3.64 TiB") from rasterio's read; the memory budget refuses it before reading now (see
+    # test_a_raster_over_the_memory_budget_is_refused_before_it_is_read), and with the budget raised the failed
+    # allocation is still a DataFileError
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
     rasterio = pytest.importorskip("rasterio")
     path = tmp_path / "huge.tif"
     profile = {"driver": "GTiff", "width": 1_000_000, "height": 1_000_000, "count": 1, "dtype": "float32",
@@ -36,8 +41,15 @@ def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
     with rasterio.open(path, "w", **profile):
         pass
     assert path.stat().st_size < 10_000_000
-    with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
+    with pytest.raises(OutputTooLargeError, match=r"^reading '.*huge\.tif' \(the raster: 1000000 x 1000000 cells of "
+                                                  r"float32\) would need 3,814,697\.3 MiB, over the memory budget"):
         load_dem(path)
+    previous = st.set_memory_budget(1 << 50)
+    try:
+        with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
+            load_dem(path)
+    finally:
+        st.set_memory_budget(previous)
 
 
 @pytest.mark.parametrize("length", [241, 242, 250, 255])
@@ -321,3 +333,37 @@ def test_a_1_bit_png_is_refused_as_1_bit_not_as_colour(tmp_path):
     Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "rgb.png")
     with pytest.raises(DataFileError, match=r"got a RGB image \(colour or palette images are not elevation data\)$"):
         load_dem(tmp_path / "rgb.png")
+
+
+@pytest.mark.parametrize("ext", [".tif", ".npy", ".npz", ".png"])
+def test_a_raster_over_the_memory_budget_is_refused_before_it_is_read(tmp_path, ext):
+    """load_dem read a raster whatever st.set_memory_budget said: only a raw MemoryError from the allocation was
+    caught, so a file whose header declared more cells than the budget (and than the machine) allocated until the
+    machine swapped. Its declared size is now checked before reading: an OutputTooLargeError names the file, its
+    shape and the bytes; within the budget the same file reads."""
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    z = np.arange(40 * 30, dtype=np.uint16).reshape(40, 30)  # 1,200 cells: 4,800 bytes as float32 heights
+    path = tmp_path / f"dem{ext}"
+    if ext == ".tif":
+        rasterio = pytest.importorskip("rasterio")
+        with rasterio.open(path, "w", driver="GTiff", width=30, height=40, count=1, dtype="uint16",
+                           transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+            ds.write(z, 1)
+    elif ext == ".npy":
+        np.save(path, z)
+    elif ext == ".npz":
+        np.savez(path, elevation=z)
+    else:
+        Image.fromarray(z).save(path)
+    previous = st.set_memory_budget(4_000)
+    try:
+        with pytest.raises(OutputTooLargeError, match=rf"^reading '.*dem\{ext}' \(.*: 40 x 30 cells of uint16\) would "
+                                                      r"need 4,800 bytes, over the memory budget of 4,000 bytes; crop "
+                                                      r"or coarsen it first"):
+            load_dem(path)
+        st.set_memory_budget(4_800)
+        np.testing.assert_array_equal(load_dem(path).heights, z)
+    finally:
+        st.set_memory_budget(previous)
