@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from .camera import _MAX_COORDINATE
 from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _path, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
@@ -145,6 +146,12 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if altitude <= 0:
         raise InvalidInputError(f"--eye altitude must be above the surface (> 0 m); got {altitude}")
+    # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
+    radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
+    if radius + altitude > _MAX_COORDINATE:  # look_from's bound on the eye, which named the library's 'radius'
+        where = "--eye altitude" if altitude > _MAX_COORDINATE else "--radius + the --eye altitude"
+        raise InvalidInputError(f"{where} must keep the eye within {_MAX_COORDINATE:g} m of the centre; got "
+                                f"--radius {args.radius:g} + altitude {altitude:g} m")
     if not (0.0 <= args.tilt < 90.0):
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
     if png is not None:

@@ -14,7 +14,7 @@ import sys
 import tempfile
 import threading
 import weakref
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,7 @@ _init_lock = threading.Lock()
 _pools = threading.local()
 _cpu_threads: int | None = None
 _executor: ThreadPoolExecutor | None = None
+_executor_lock = threading.Lock()  # guards _executor: see _submit
 _loaded: set[tuple[int, str]] = set()
 MIN_THREAD_ELEMENTS = 1 << 15  # below this many elements per thread a launch stays on one thread
 #: Elements per thread of a chunked kernel on the CPU. Warp copies a kernel's arguments (structs of arrays,
@@ -332,7 +333,7 @@ def _prefault(flat: np.ndarray, workers: int = 1) -> None:
     span = -(-flat.size // workers)
     span += (-span) % _PAGE  # page-aligned slices
     parts = [flat[start : start + span : _PAGE] for start in range(0, flat.size, span)]
-    futures = [_helpers(len(parts) - 1).submit(part.fill, 0) for part in parts[1:]]
+    futures = _submit(len(parts) - 1, [(part.fill, 0) for part in parts[1:]])
     parts[0].fill(0)
     for future in futures:
         future.result()
@@ -410,13 +411,20 @@ def set_cpu_threads(threads: int | None) -> int | None:
     return previous
 
 
-def _helpers(count: int) -> ThreadPoolExecutor:
-    """The shared pool (at least ``count`` threads) that split CPU passes and page touching run on, beside the
-    calling thread."""
+def _submit(count: int, calls: list[tuple[Any, ...]]) -> list[Future]:
+    """Submit each ``(function, *arguments)`` of ``calls`` to the shared pool (grown to at least ``count`` threads)
+    that split CPU passes and page touching run on, beside the calling thread; return their futures.
+
+    Under a lock: two threads growing the pool at once each made an executor (one was lost with its threads), and
+    a replaced executor was never shut down. A replaced one is shut down without waiting: its queued work still
+    runs, then its threads exit; nothing is submitted to it after, since every submission takes the lock."""
     global _executor
-    if _executor is None or _executor._max_workers < count:
-        _executor = ThreadPoolExecutor(max_workers=count, thread_name_prefix="stepterrain")
-    return _executor
+    with _executor_lock:
+        if _executor is None or _executor._max_workers < count:
+            replaced, _executor = _executor, ThreadPoolExecutor(max_workers=count, thread_name_prefix="stepterrain")
+            if replaced is not None:
+                replaced.shutdown(wait=False)
+        return [_executor.submit(*call) for call in calls]
 
 
 def _launch_range(kernel: Any, dim: int, inputs: list, outputs: list, device: wp.Device, fence: bool) -> None:
@@ -461,12 +469,11 @@ def launch(
     _preload(kernel, device)
     if fence:
         _preload(memory_kernels.drain_streams, device)
-    pool = _helpers(workers - 1)
     bounds = [dim * k // workers for k in range(workers + 1)]
-    futures = [
-        pool.submit(_launch_range, kernel, bounds[k + 1] - bounds[k], [bounds[k], *inputs], outputs, device, fence)
+    futures = _submit(workers - 1, [
+        (_launch_range, kernel, bounds[k + 1] - bounds[k], [bounds[k], *inputs], outputs, device, fence)
         for k in range(1, workers)
-    ]
+    ])
     _launch_range(kernel, bounds[1], [0, *inputs], outputs, device, fence)
     for future in futures:
         future.result()
@@ -491,7 +498,7 @@ def launch_each(kernel: Any, tasks: list[tuple[list, list]], device: wp.Device) 
         for inputs, outputs in queue:
             _launch_range(kernel, 1, [0, *inputs], outputs, device, False)
 
-    futures = [_helpers(workers - 1).submit(drain) for _ in range(workers - 1)]
+    futures = _submit(workers - 1, [(drain,)] * (workers - 1))
     drain()
     for future in futures:
         future.result()

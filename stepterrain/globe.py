@@ -223,6 +223,27 @@ def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -
     return step
 
 
+#: A closing longitude column may differ from the first by this much (metres) plus _CLOSING_RELATIVE of the height:
+#: float rounding (float32 keeps 1 mm at 8 km), far below any elevation model's accuracy; more is inconsistent data
+_CLOSING_TOLERANCE = 0.01
+_CLOSING_RELATIVE = 1e-6
+
+
+def _check_closing_column(z: NDArray[np.float32], lat: NDArray[np.float64], lon: NDArray[np.float64]) -> None:
+    """Refuse a duplicated closing longitude column (``lon[-1] = lon[0] + 360``, ascending axes) whose heights are
+    not those of the first column: the two are the same meridian, and dropping one would hide which is right."""
+    first, last = z[:, 0].astype(np.float64), z[:, -1].astype(np.float64)
+    gap = np.abs(last - first)
+    allowed = _CLOSING_TOLERANCE + _CLOSING_RELATIVE * np.maximum(np.abs(first), np.abs(last))
+    if (gap > allowed).any():
+        worst = int(np.argmax(gap))
+        raise InvalidInputError(
+            f"elevation's closing column (lon {lon[-1]:.9g}) must repeat its first column (lon {lon[0]:.9g}), the same "
+            f"meridian, within {_CLOSING_TOLERANCE:g} m; got {int((gap > allowed).sum())} rows that differ, by up to "
+            f"{gap[worst]:.6g} m (at lat {lat[worst]:.9g}: {last[worst]:.9g} m against {first[worst]:.9g} m): "
+            "inconsistent data; fix the grid or drop one of the two columns")
+
+
 # ------------------------------------------------------------------------------------------ Globe
 class Globe:
     """A global elevation model on the cube sphere with its bisection hierarchy (paper 003 §4-§7).
@@ -288,11 +309,7 @@ class Globe:
         u, v = fi - i0, fj - j0  # along rows (i), along columns (j)
         first = face * n * n + i0 * n + j0
         rows = host_copy(self._grid.heights[first : first + n + 2]).astype(np.float64)
-        z00, z01, z10, z11 = rows[0], rows[1], rows[n], rows[n + 1]
-        main = z00 + v * (z01 - z00) + u * (z11 - z01) if v >= u else z00 + u * (z10 - z00) + v * (z11 - z10)
-        anti = z00 + v * (z01 - z00) + u * (z10 - z00) if u + v <= 1 else z11 + (1 - v) * (z10 - z11) + \
-            (1 - u) * (z01 - z11)
-        return min(main, anti)
+        return _cell_surface(rows[0], rows[1], rows[n], rows[n + 1], u, v)
 
     # -------------------------------------------------------------------------------------- builders
     @classmethod
@@ -319,7 +336,8 @@ class Globe:
             including ±90).
         lon : (W,) array_like
             Longitudes in degrees, strictly monotone, regular, covering 360° (a duplicated closing column,
-            e.g. -180 and 180, is dropped). Interpolation wraps around the antimeridian.
+            e.g. -180 and 180, is dropped; its heights must repeat the first column's within 1 cm, else the
+            data are inconsistent and refused). Interpolation wraps around the antimeridian.
         face_size : int
             Nodes per face edge, 2^k + 1 (the paper uses 1025), at most 16385 (int32 node entries).
         radius : float
@@ -335,8 +353,8 @@ class Globe:
         Raises
         ------
         InvalidInputError
-            Bad face size, grid shape, axes not monotone / regular / global, NaN or infinite elevation,
-            radius or exaggeration not positive.
+            Bad face size, grid shape, axes not monotone / regular / global, a closing longitude column that
+            differs from the first, NaN or infinite elevation, radius or exaggeration not positive.
         OutputTooLargeError
             The node arrays would exceed the memory budget (checked before allocating).
 
@@ -381,8 +399,9 @@ class Globe:
             lat, z = lat[::-1], z[::-1]
         if lon[0] > lon[-1]:
             lon, z = lon[::-1], z[:, ::-1]
-        if abs((lon[-1] - lon[0]) - 360.0) < 1e-6 * 360:
-            lon, z = lon[:-1], z[:, :-1]  # node-registered with a closing column
+        if abs((lon[-1] - lon[0]) - 360.0) < 1e-6 * 360:  # node-registered with a closing column: the same meridian
+            _check_closing_column(z, lat, lon)
+            lon, z = lon[:-1], z[:, :-1]
         if np.abs(lat).max() > 90.0 + 1e-9:
             raise InvalidInputError(f"lat must lie in [-90, 90] degrees; got {lat[0]:.9g} to {lat[-1]:.9g}")
         if abs(len(lon) * dlon - 360.0) > 1e-6 * 360:
@@ -580,6 +599,37 @@ def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
     scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
     host = np.frombuffer(buffer, dtype=np.uint8, count=nbytes, offset=offset).view(scalar)
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
+
+
+def _cell_surface(z00: float, z01: float, z10: float, z11: float, u: float, v: float) -> float:
+    """The height at (u along rows, v along columns) in a grid cell of corner heights z00, z01 (next column), z10
+    (next row), z11: interpolated over each of the cell's two triangulations, the lower of the two (the
+    hierarchy's finest triangles take one of them per cell)."""
+    main = z00 + v * (z01 - z00) + u * (z11 - z01) if v >= u else z00 + u * (z10 - z00) + v * (z11 - z10)
+    anti = z00 + v * (z01 - z00) + u * (z10 - z00) if u + v <= 1 else z11 + (1 - v) * (z10 - z11) + \
+        (1 - u) * (z01 - z11)
+    return min(main, anti)
+
+
+def _check_planar_eye(eye: tuple[float, float, float], z: NDArray[np.float32], spacing: tuple[float, float],
+                      origin: tuple[float, float], highest: float) -> None:
+    """Refuse a camera eye over the grid's rectangle at or below its surface (the height interpolated from the four
+    nodes of the cell under the eye, the lower of the cell's two triangulations: never above the mesh's surface
+    there). An eye beside the rectangle may be at any height."""
+    ex, ey, ez = (float(c) for c in eye)
+    if ez > highest:  # above every node: most views, no lookup
+        return
+    rows, cols = z.shape
+    fi, fj = (ey - origin[1]) / spacing[1], (ex - origin[0]) / spacing[0]
+    if not (0.0 <= fi <= rows - 1 and 0.0 <= fj <= cols - 1):
+        return
+    i0, j0 = min(int(fi), rows - 2), min(int(fj), cols - 2)
+    cell = z[i0 : i0 + 2, j0 : j0 + 2].astype(np.float64)
+    surface = _cell_surface(cell[0, 0], cell[0, 1], cell[1, 0], cell[1, 1], fi - i0, fj - j0)
+    if ez <= surface:
+        raise InvalidInputError(f"camera eye {tuple(eye)} lies below the terrain surface: at (x, y) = ({ex:.1f}, "
+                                f"{ey:.1f}) the surface is at z = {surface:.1f} m, the eye at z = {ez:.1f} m; raise "
+                                "the eye (or move it off the grid's rectangle)")
 
 
 def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tuple[int, int], *, shapes: bool,
@@ -1118,7 +1168,8 @@ def adaptive_mesh(
     spacing : float or (dx, dy)
         Positive node spacing.
     camera : Camera, optional
-        Eye and frustum in the mesh's coordinates (origin included).
+        Eye and frustum in the mesh's coordinates (origin included). An eye over the grid's rectangle must lie
+        above the terrain surface there (the heights interpolated under it); beside the rectangle, anywhere.
     origin : (x0, y0)
         Position of node (0, 0).
     metrics, cull, device
@@ -1136,7 +1187,8 @@ def adaptive_mesh(
     Raises
     ------
     InvalidInputError
-        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, negative error.
+        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, negative error, a camera
+        eye at or below the terrain surface.
 
     Examples
     --------
@@ -1171,6 +1223,13 @@ def adaptive_mesh(
     n = cells + 1
     check_budget(n * n * _BYTES_PER_ENTRY, f"an adaptive mesh of a {rows}x{cols} grid (padded to {n}x{n})",
                  hint="coarsen the input")
+    highest = float(z.max()) if camera is not None else 0.0  # of the unpadded grid (the padding repeats its edges)
+    if camera is not None:
+        if not isinstance(camera, Camera):
+            raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+        _check_planar_eye(camera.eye, z, (dx, dy), (ox, oy), highest)
+        camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
+                                     target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     if (rows, cols) != (n, n):
         z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
     device = resolve_device(device)
@@ -1181,13 +1240,8 @@ def adaptive_mesh(
     grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
-    if camera is not None:
-        if not isinstance(camera, Camera):
-            raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
-        camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
-                                     target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     if distance_scale is None:
-        above = camera.eye[2] - float(z.max()) if camera is not None else 0.0
+        above = camera.eye[2] - highest if camera is not None else 0.0
         distance_scale = max(above, dx, dy)
     view = _view(camera, error, names, "sphere", _positive(distance_scale, "distance_scale"), device)
     mesh = _extract(grid, params, view, users, levels, faces=1,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib.resources
 import math
 import os
+import re
 import warnings
 import zipfile
 from collections.abc import Mapping
@@ -21,6 +22,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._compaction import check_budget
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
 
@@ -107,11 +109,12 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         CRS: EPSG:26911+6360 is NAVD88 height in US survey feet, and ``crs`` is then the horizontal part), in
         which case they become metres: metre, kilometre, decimetre, centimetre, millimetre (m, km, dm, cm, mm),
         international foot (ft, foot, feet: 0.3048 m) and US survey foot (us-ft, ftUS: 1200/3937 m), in the
-        spellings GDAL, PROJ and EPSG use, any case; another unit is refused (see Raises). A grid converted to
-        metres whose heights' unit is not named warns that they were kept as stored. Plain arrays, PNGs and GeoTIFFs
-        without a geotransform: ``spacing`` (1, -1), ``origin`` (0, 0), ``crs`` None (a GeoTIFF's CRS without
-        a geotransform is ignored, with a warning; one referenced by ground control points or RPCs instead is
-        refused, see Raises). ``source`` is the file name.
+        spellings GDAL, PROJ and EPSG use, any case; a compound CRS's vertical unit outside this list (British
+        foot, Clarke's foot) converts by the metres per unit its WKT states; another unit is refused (see Raises).
+        A grid converted to metres whose heights' unit is not named warns that they were kept as stored. Plain
+        arrays, PNGs and GeoTIFFs without a geotransform: ``spacing`` (1, -1), ``origin`` (0, 0), ``crs`` None (a
+        GeoTIFF's CRS without a geotransform is ignored, with a warning; one referenced by ground control points or
+        RPCs instead is refused, see Raises). ``source`` is the file name.
 
     Raises
     ------
@@ -129,6 +132,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
+    OutputTooLargeError
+        The file's declared cells (at least 4 bytes each, the float32 heights) exceed the memory budget
+        (:func:`stepterrain.set_memory_budget`), checked from its header before reading.
 
     Examples
     --------
@@ -279,7 +285,7 @@ def read_npy(file: Path, mmap_mode: Literal["r"] | None = None) -> NDArray[Any]:
     :func:`load_dem` and :func:`~stepterrain.batch.load_series` read .npy files through this."""
     _check_magic(file, (_NPY_MAGIC,), "a NumPy .npy array file")
     with open(file, "rb") as handle:  # readable: _check_magic has read it
-        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array")
+        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array", budget=mmap_mode is None)
     try:
         array = np.load(file, mmap_mode=mmap_mode, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
@@ -354,8 +360,8 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
         named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
-        unit, crs = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
-        heights, height_unit = _heights_in_metres(heights, unit, file, named_by)
+        unit, crs, factor = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
+        heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
         return _georeferenced(
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
@@ -428,10 +434,17 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                     "a nodata height), or as a GeoTIFF"
                 )
             if mode not in ("L", "LA", "I", "I;16", "I;16B", "I;16L", "F"):
-                raise DataFileError(
-                    f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; "
-                    f"got a {mode} image (colour or palette images are not elevation data)"
+                got = (
+                    "a 1-bit black-and-white image (mode '1': two levels are no elevation data; save the heights as "
+                    "8- or 16-bit greyscale)"
+                    if mode == "1"
+                    else f"a {mode} image (colour or palette images are not elevation data)"
                 )
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected a single-channel 8- or 16-bit greyscale heightmap; got {got}"
+                )
+            stored = {"L": np.uint8, "LA": np.uint8, "I": np.int32, "F": np.float32}.get(mode, np.uint16)  # I;16*
+            _check_read_budget(file, (image.height, image.width), np.dtype(stored))
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
@@ -502,6 +515,7 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                         f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
                         f"{what}, not elevation data"
                     )
+                _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
                 masked = dataset.read(band, masked=True)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 unit = dataset.units[band - 1]
@@ -524,8 +538,8 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     array = np.ma.filled(masked.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32), np.nan)
     crs = _crs_string(crs_obj)
     named_by = "height_unit" if height_unit else f"band {band}'s unit" if unit else f"the vertical unit of {crs}"
-    unit, crs = _vertical_unit(height_unit or unit, crs)
-    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit, file, named_by)
+    unit, crs, factor = _vertical_unit(height_unit or unit, crs)
+    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit, file, named_by, factor)
     if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
         if crs_obj is not None:
             warnings.warn(
@@ -575,10 +589,12 @@ def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> bytes:
     return head
 
 
-def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
+def _check_declared_size(handle: Any, size: int, file: Path, what: str, budget: bool = True) -> None:
     """Refuse an .npy stream (at its start, ``size`` bytes in all) whose header declares more data than follows
     it: NumPy allocates the declared shape before reading, so a 100-byte file declaring 10^8 x 10^8 floats
-    raised a MemoryError for 71 PiB. A header NumPy cannot parse is left to ``np.load``'s own error."""
+    raised a MemoryError for 71 PiB. With ``budget`` (a read into memory, not a memory map), refuse one the memory
+    budget cannot hold as well (:func:`_check_read_budget`). A header NumPy cannot parse is left to ``np.load``'s
+    own error."""
     try:
         version = np.lib.format.read_magic(handle)
         read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
@@ -596,6 +612,21 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
             f"cannot read {str(file)!r}: {what} declares shape {tuple(shape)} of {dtype} ({declared:,} bytes) but "
             f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
         )
+    if budget:
+        _check_read_budget(file, tuple(shape), dtype, what)
+
+
+def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster") -> None:
+    """An :class:`~stepterrain.errors.OutputTooLargeError` naming ``file``, its declared shape and the bytes, before
+    reading, when its cells (as stored, at least float32 as the Terrain keeps them) exceed the memory budget
+    (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
+    machine swapped or NumPy raised a raw MemoryError."""
+    cells = math.prod(int(n) for n in shape)
+    check_budget(
+        cells * max(dtype.itemsize, 4),
+        f"reading {str(file)!r} ({what}: {' x '.join(str(int(n)) for n in shape)} cells of {dtype})",
+        hint="crop or coarsen it first (gdal_translate -srcwin or -outsize)",
+    )
 
 
 def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
@@ -859,10 +890,10 @@ def _wkt_block(wkt: str, keywords: tuple[str, ...]) -> str | None:
     return None
 
 
-def _compound_heights(crs: str | None) -> tuple[str, str | None] | None:
-    """(the vertical part's length unit, the horizontal part as a CRS string) of a compound CRS (e.g.
-    "EPSG:26911+6360", NAD83 / UTM 11N + NAVD88 height in US survey feet); None for any other CRS or without
-    rasterio to read it."""
+def _compound_heights(crs: str | None) -> tuple[str, float | None, str | None] | None:
+    """(the vertical part's length unit, its metres per unit as the WKT states it (None when it states none), the
+    horizontal part as a CRS string) of a compound CRS (e.g. "EPSG:26911+6360", NAD83 / UTM 11N + NAVD88 height in
+    US survey feet); None for any other CRS or without rasterio to read it."""
     crs_obj = _crs_object(crs) if crs else None
     if crs_obj is None:  # no rasterio, or a CRS it cannot read: nothing to say about the heights
         return None
@@ -878,21 +909,34 @@ def _compound_heights(crs: str | None) -> tuple[str, str | None] | None:
         horizontal_crs = _crs_string(type(crs_obj).from_wkt(horizontal)) if horizontal else None
     except Exception:  # keep the compound CRS when its horizontal part does not stand alone
         horizontal_crs = crs
-    return unit.split('"')[1], horizontal_crs
+    parts = unit.split('"')
+    name, rest = parts[1], parts[2] if len(parts) > 2 else ""
+    try:  # UNIT["British foot (Sears 1922)",0.304799471538676,...]: the metres per unit after the name
+        factor = float(re.split(r"[,\]]", rest.lstrip(" ,"), maxsplit=1)[0])
+    except ValueError:
+        factor = math.nan
+    return name, factor if math.isfinite(factor) and factor > 0 else None, horizontal_crs
 
 
-def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str | None]:
-    """The heights' unit (the file's own, else a compound CRS's vertical unit) and the CRS to keep: its
-    horizontal part when the heights become metres from a vertical part in another unit (GDAL names a band's
-    unit after the vertical CRS; an .npz names none), which then no longer describes them."""
+def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str | None, float | None]:
+    """The heights' unit (the file's own, else a compound CRS's vertical unit), the CRS to keep and, when the unit
+    is the compound CRS's and not one of :data:`_HEIGHT_UNITS` (British foot, Clarke's foot, ...), the metres per
+    unit its WKT states (else None). The CRS kept is its horizontal part when the heights become metres from a
+    vertical part in another unit (GDAL names a band's unit after the vertical CRS; an .npz names none), which then
+    no longer describes them."""
     compound = _compound_heights(crs)
-    vertical = _unit_factor(compound[0]) if compound is not None else None
-    if vertical is None:
-        return unit, crs
-    unit = unit or compound[0]
-    if _unit_factor(unit) is None or vertical == 1.0:
-        return unit, crs  # heights kept as they are, or the vertical part is in metres and still applies
-    return unit, compound[1]
+    if compound is None:
+        return unit, crs, None
+    name, stated, horizontal = compound
+    vertical = _unit_factor(name) or stated
+    if vertical is None:  # a vertical unit without a factor: named by the error of _heights_in_metres
+        return unit or name, crs, None
+    # the CRS's factor for its own unit: no unit named by the file, or the one GDAL named the band after it
+    factor = stated if _unit_factor(name) is None and (not unit or unit.strip() == name) else None
+    unit = unit or name
+    if (_unit_factor(unit) or factor) is None or vertical == 1.0:
+        return unit, crs, factor  # heights refused by unit, or the vertical part is in metres and still applies
+    return unit, horizontal, factor
 
 
 def check_height_unit(height_unit: Any) -> str:
@@ -909,14 +953,15 @@ def _unit_factor(unit: str | None) -> float | None:
 
 
 def _heights_in_metres(
-    heights: NDArray[np.float32], unit: str | None, file: Path, named_by: str
+    heights: NDArray[np.float32], unit: str | None, file: Path, named_by: str, factor: float | None = None
 ) -> tuple[NDArray[np.float32], str | None]:
-    """Heights in metres when ``unit`` is a known length unit (returned as named), as stored and None when no unit
-    is named (None or blank). Any other unit is a DataFileError naming ``file`` and where the unit came from
-    (``named_by``): heights in "km" or "cm" were used as metres, 1000 times too low or 100 times too high."""
+    """Heights in metres when ``unit`` is a known length unit, or one a compound CRS states the ``factor`` (metres
+    per unit) of (returned as named), as stored and None when no unit is named (None or blank). Any other unit is a
+    DataFileError naming ``file`` and where the unit came from (``named_by``): heights in "km" or "cm" were used as
+    metres, 1000 times too low or 100 times too high."""
     if not unit or not unit.strip():
         return heights, None
-    factor = _unit_factor(unit)
+    factor = _unit_factor(unit) or factor
     if factor is None:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected heights in a known length unit ({_KNOWN_UNITS}); got {unit!r} "

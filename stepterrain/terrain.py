@@ -294,6 +294,13 @@ def _heights_array(
     return out, lo, hi
 
 
+def _described(value: Any) -> str:
+    """A short description of an argument's value for an error message: an array's shape and dtype, else its repr."""
+    if isinstance(value, np.ndarray):
+        return f"an array of shape {value.shape}, dtype {value.dtype}"
+    return f"{value!r:.80}"
+
+
 @dataclass(frozen=True, eq=False)
 class Terrain:
     """A terrain surface ready for the kernels.
@@ -303,9 +310,13 @@ class Terrain:
     ``kind == "tin"``: ``points`` (N, 3) float64 and ``faces`` (F, 3) int64, wound counter-clockwise seen
     from +z, with the edge table ``edges`` (E, 2) and ``face_edges`` (F, 3) built once. The arrays are
     read-only (the caches derive from them): build a new Terrain for changed heights. Built directly
-    (``Terrain(kind=..., heights=...)``) it takes a copy of the arrays given, so that the caller's later changes to
-    them cannot reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh`
-    copy once while checking.
+    (``Terrain(kind=..., heights=...)``, or by ``dataclasses.replace``) it is checked as :meth:`from_heights` and
+    :meth:`from_mesh` check (an :class:`InvalidInputError` naming the field: heights not a real (H, W) array of at
+    least 2 x 2 nodes, infinite or beyond float32; spacing not a non-zero pair; origin not a finite pair; a TIN
+    without points (N, 3) and faces (F, 3), whose edge tables are then rebuilt and whose ``heights`` must be None or
+    its points' z) and takes a float32 copy of the arrays given, so that the caller's later changes to them cannot
+    reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh` copy once
+    while checking.
     """
 
     kind: Literal["grid", "tin"]
@@ -324,6 +335,9 @@ class Terrain:
     _owned: InitVar[bool] = False  # the constructors' own arrays (or a borrow within one call): no copy
 
     def __post_init__(self, _owned: bool) -> None:
+        if not _owned:  # built directly (or by dataclasses.replace): checked as the constructors check, copied once
+            self._check_direct()
+            _owned = True
         # what the caches hold (nodata flag, device uploads, edge tables) derives from these arrays: read-only
         # views, so that changing them in place raises instead of stepping stale caches. Arrays a caller gave
         # Terrain(...) directly are copied first: a read-only view of them still changed with the caller's array
@@ -338,6 +352,54 @@ class Terrain:
                 array = array.view()
                 array.flags.writeable = False
             object.__setattr__(self, name, array)
+
+    def _check_direct(self) -> None:
+        """Check and normalise the fields of a Terrain built directly, as :meth:`from_heights` and
+        :meth:`from_mesh` do: lists, 1-D arrays, text spacings and the like reached the kernels and failed there
+        (or were meshed wrongly: a 3-number spacing, a zero one). The arrays become the Terrain's own copies, and
+        the caches start empty (``dataclasses.replace`` passed the old terrain's)."""
+        set_field = object.__setattr__
+        if not isinstance(self.kind, str) or self.kind not in ("grid", "tin"):
+            raise InvalidInputError(f"kind must be 'grid' or 'tin'; got {self.kind!r}")
+        set_field(self, "crs", optional_text(self.crs, "crs", "e.g. 'EPSG:32611'"))
+        set_field(self, "source", optional_text(self.source, "source", "where the terrain comes from"))
+        set_field(self, "_device_cache", {})
+        if self.kind == "grid":
+            extra = [name for name in ("points", "faces", "edges", "face_edges", "point_used")
+                     if getattr(self, name) is not None]
+            if extra:
+                raise InvalidInputError(f"a Terrain of kind 'grid' takes heights, spacing and origin; got "
+                                        f"{', '.join(extra)} too (a TIN's fields: use kind='tin' or Terrain.from_mesh)")
+            array, lo, hi = _heights_array(self.heights)
+            set_field(self, "heights", array)  # a copy: unshared with the array given
+            set_field(self, "spacing", check_spacing(*_pair(self.spacing, "spacing", nonzero=True)))
+            set_field(self, "origin", _pair(self.origin, "origin", nonzero=False, scalar=False))
+            self._device_cache["has_nodata"] = math.isnan(lo)
+            if not math.isnan(lo):
+                self._device_cache["height_range"] = (lo, hi)
+            return
+        if self.points is None or self.faces is None:
+            raise InvalidInputError("a Terrain of kind 'tin' needs points (N, 3) and faces (F, 3); got "
+                                    f"points {_described(self.points)}, faces {_described(self.faces)}: build it with "
+                                    "Terrain.from_mesh(trimesh.Trimesh(points, faces, process=False))")
+        points = real_numbers(self.points, "points", "an (N, 3) array of x, y, z")
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise InvalidInputError(f"points must be an (N, 3) array of x, y, z; got shape {points.shape}")
+        faces = np.asarray(unmasked(self.faces))
+        if faces.dtype == bool or not np.issubdtype(faces.dtype, np.integer) or faces.ndim != 2 or faces.shape[1] != 3:
+            raise InvalidInputError(f"faces must be an (F, 3) integer array of point indices; got shape {faces.shape}, "
+                                    f"dtype {faces.dtype}")
+        if self.heights is not None:
+            given = np.asarray(unmasked(self.heights))
+            if given.shape != (len(points),) or not np.array_equal(given, points[:, 2].astype(np.float32),
+                                                                   equal_nan=given.dtype.kind == "f"):
+                raise InvalidInputError(f"heights of a Terrain of kind 'tin' are its points' z (None to take them); "
+                                        f"got {_described(self.heights)} that differs from points[:, 2]")
+        built = Terrain._build_tin(trimesh.Trimesh(points, faces, process=False), self.visual, self.source)
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):  # the tables rebuilt
+            set_field(self, name, getattr(built, name))
+        set_field(self, "spacing", (1.0, 1.0))
+        set_field(self, "origin", (0.0, 0.0))
 
     # ------------------------------------------------------------------ constructors
     @classmethod

@@ -46,7 +46,7 @@ def test_globe_from_an_npz_grid(tmp_path):
         (["--error", "-1"], "error must be"),
         (["--eye", "95,0,1e6"], "latitude must lie"),
         (["--eye", "0,0,-5"], "altitude must be above"),
-        (["--eye", "0,0,1e300"], "radius + altitude must stay within 1e+30 m of the centre"),  # was "Camera eye"
+        (["--eye", "0,0,1e300"], "--eye altitude must keep the eye within 1e+30 m of the centre"),  # "Camera eye"
         (["--radius", "1e300"], "radius must be at most 8.5e+37 m (float32 node positions); got 1e+300"),
         (["missing.npz"], "does not exist"),
     ],

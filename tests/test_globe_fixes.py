@@ -236,3 +236,91 @@ def test_a_finite_height_beyond_float32_is_named_as_such():
         Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu")
     with pytest.raises(InvalidInputError, match=r"^heights must fit in float32 .* got -1e\+39 at row 5, column 6$"):
         adaptive_mesh(z[:9, :9], error=1.0, device="cpu")
+
+
+def test_a_planar_camera_below_the_terrain_is_refused_by_name():
+    """adaptive_mesh had no camera-below-terrain check: an eye under the heightfield (here 50 m under a 300 m
+    plateau) was accepted and the distance scale fell back to the grid spacing. It is refused now, like Globe.mesh
+    refuses an eye inside the planet; the surface under the eye is interpolated (a ramp: between nodes), the origin
+    counts, and an eye beside the grid's rectangle may be low."""
+    z = np.add.outer(np.zeros(9), 100.0 * np.arange(9.0)) + 200.0  # x = j·10 + 1000: z = 200 + 10 (x - 1000)
+    origin = (1000.0, 2000.0)
+
+    def camera(x, y, height):
+        return Camera(eye=(x, y, height), target=(1040.0, 2040.0, 0.0), up=(0.0, 1.0, 0.0), near=0.1)
+
+    with pytest.raises(InvalidInputError, match=r"^camera eye \(1035\.0, 2040\.0, 540\.0\) lies below the terrain "
+                                                r"surface: at \(x, y\) = \(1035\.0, 2040\.0\) the surface is at "
+                                                r"z = 550\.0 m, the eye at z = 540\.0 m; raise the eye"):
+        adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(1035.0, 2040.0, 540.0), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"the surface is at z = 200\.0 m, the eye at z = 150\.0 m"):
+        adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(1000.0, 2080.0, 150.0), device="cpu")
+    for eye in [(1035.0, 2040.0, 560.0), (990.0, 2040.0, 0.0), (1035.0, 1990.0, 0.0)]:  # above; beside the grid
+        mesh = adaptive_mesh(z, error=1.0, spacing=10.0, origin=origin, camera=camera(*eye), cull=False,
+                             device="cpu")
+        assert len(mesh.faces) > 0
+
+
+def test_a_closing_longitude_column_that_differs_from_the_first_is_refused():
+    """A node-registered grid's closing column (lon = first + 360) was dropped whatever its values, so a grid whose
+    two copies of the same meridian disagreed (here by 250 m at one row) meshed silently from the first copy. It is
+    refused now, naming both columns and the largest difference; float rounding (1 mm) still passes, and gives the
+    globe of the grid without the closing column."""
+    lat = np.linspace(90.0, -90.0, 19)
+    lon = np.linspace(-180.0, 180.0, 37)  # node-registered: -180 and 180 are the same meridian
+    rng = np.random.default_rng(7)
+    z = rng.uniform(-4000.0, 4000.0, (19, 37))
+    z[:, -1] = z[:, 0]
+    z[:, -1] += rng.uniform(-1e-3, 1e-3, 19)  # rounding: the same meridian
+    closed = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    open_grid = Globe.from_latlon(z[:, :-1], lat, lon[:-1], face_size=9, device="cpu")
+    np.testing.assert_array_equal(closed.heights, open_grid.heights)
+    z[7, -1] = z[7, 0] + 250.0
+    z[3, -1] = z[3, 0] - 2.0
+    message = (rf"^elevation's closing column \(lon 180\) must repeat its first column \(lon -180\), the same "
+               rf"meridian, within 0\.01 m; got 2 rows that differ, by up to 250 m \(at lat 20: "
+               rf"{np.float32(z[7, -1]):.9g} m against {np.float32(z[7, 0]):.9g} m\): inconsistent data")
+    with pytest.raises(InvalidInputError, match=message):
+        Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"differ, by up to 250 m \(at lat 20:"):  # either axis reversed
+        Globe.from_latlon(z[::-1, ::-1], lat[::-1], lon[::-1], face_size=9, device="cpu")
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--eye", "0,0,1e300"], "--eye altitude must keep the eye within 1e+30 m of the centre; got --radius "
+                                 "6.371e+06 + altitude 1e+300 m"),
+        (["--radius", "1e35"], "--radius + the --eye altitude must keep the eye within 1e+30 m of the centre; got "
+                               "--radius 1e+35 + altitude 1.9113e+07 m"),
+    ],
+)
+def test_an_eye_beyond_the_camera_bound_names_the_options(tmp_path, capsys, argv, message):
+    """An --eye altitude of 1e300 m (or a --radius of 1e35 m under the default eye) was reported as the library's
+    'radius + altitude must stay within 1e+30 m', which _as_option turned into '--radius + altitude': it blamed
+    --radius for the altitude. The CLI checks the bound itself, before loading anything, naming the options."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", *argv, "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert f"stepterrain globe: error: {message}\n" == err, err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("value", ["inf", "-inf", "nan"])
+@pytest.mark.parametrize("option", ["--exaggeration", "--radius", "--error", "--tilt", "--heading"])
+def test_every_float_globe_option_names_itself_for_a_non_finite_value(tmp_path, capsys, option, value):
+    """Each float option of ``stepterrain globe`` given inf or nan: the error names the option, not the library's
+    argument (a guard: ``heading must be a finite number`` from look_from reaches the user as ``--heading``)."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", f"{option}={value}", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"stepterrain globe: error: {option} must ") and value in err, err
+    assert not out.exists()
+    for eye in (f"{value},0,100", f"0,{value},100", f"0,0,{value}"):
+        assert main(["-q", "globe", f"--eye={eye}", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+        err = capsys.readouterr().err
+        assert "error: argument --eye: expected finite numbers" in err, err

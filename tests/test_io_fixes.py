@@ -27,7 +27,12 @@ def test_a_png_beyond_pillows_pixel_limit_is_a_data_file_error(tmp_path, monkeyp
 
 def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
     # a sparse GeoTIFF of a few kB whose header declares 1,000,000 x 1,000,000 cells raised numpy's raw MemoryError
-    # ("Unable to allocate 3.64 TiB") from rasterio's read
+    # ("Unable to allocate 3.64 TiB") from rasterio's read; the memory budget refuses it before reading now (see
+    # test_a_raster_over_the_memory_budget_is_refused_before_it_is_read), and with the budget raised the failed
+    # allocation is still a DataFileError
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
     rasterio = pytest.importorskip("rasterio")
     path = tmp_path / "huge.tif"
     profile = {"driver": "GTiff", "width": 1_000_000, "height": 1_000_000, "count": 1, "dtype": "float32",
@@ -36,8 +41,15 @@ def test_a_geotiff_too_large_for_memory_is_a_data_file_error(tmp_path):
     with rasterio.open(path, "w", **profile):
         pass
     assert path.stat().st_size < 10_000_000
-    with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
+    with pytest.raises(OutputTooLargeError, match=r"^reading '.*huge\.tif' \(the raster: 1000000 x 1000000 cells of "
+                                                  r"float32\) would need 3,814,697\.3 MiB, over the memory budget"):
         load_dem(path)
+    previous = st.set_memory_budget(1 << 50)
+    try:
+        with pytest.raises(DataFileError, match=r"huge\.tif.*fits in memory.*allocate"):
+            load_dem(path)
+    finally:
+        st.set_memory_budget(previous)
 
 
 @pytest.mark.parametrize("length", [241, 242, 250, 255])
@@ -261,3 +273,97 @@ def test_a_geographic_grid_whose_longitudes_go_round_the_globe_more_than_once_is
     globe = np.zeros((3, 361), np.float32)
     np.savez(tmp_path / "globe.npz", elevation=globe, lat=np.array([1.0, 0.0, -1.0]), lon=np.arange(361) - 180.0)
     assert load_dem(tmp_path / "globe.npz").extent[1] == pytest.approx(2 * np.pi * 6371008.8)  # dx at the equator
+
+
+#: NAD83 / UTM 11N + a height in a foot _HEIGHT_UNITS does not list: its metres per unit stated in the WKT.
+_COMPOUND_WKT = (
+    'COMPD_CS["NAD83 / UTM zone 11N + height ({name})",PROJCS["NAD83 / UTM zone 11N",GEOGCS["NAD83",DATUM['
+    '"North_American_Datum_1983",SPHEROID["GRS 1980",6378137,298.257222101]],PRIMEM["Greenwich",0],UNIT["degree",'
+    '0.0174532925199433]],PROJECTION["Transverse_Mercator"],PARAMETER["latitude_of_origin",0],PARAMETER['
+    '"central_meridian",-117],PARAMETER["scale_factor",0.9996],PARAMETER["false_easting",500000],PARAMETER['
+    '"false_northing",0],UNIT["metre",1],AUTHORITY["EPSG","26911"]],VERT_CS["height ({name})",VERT_DATUM['
+    '"local",2005],UNIT["{name}",{factor}{authority}],AXIS["Up",UP]]]'
+)
+
+
+@pytest.mark.parametrize(
+    "name, factor, authority",
+    [  # a GeoTIFF keeps a vertical unit by its EPSG code only
+        ("British foot (Sears 1922)", 0.3047994715386762, ',AUTHORITY["EPSG","9051"]'),
+        ("Clarke's foot", 0.3047972654, ',AUTHORITY["EPSG","9005"]'),
+    ],
+)
+def test_a_compound_crs_vertical_unit_outside_the_known_list_converts_by_its_stated_factor(
+    tmp_path, name, factor, authority
+):
+    """A compound CRS whose vertical unit is not in the known list (British foot, Clarke's foot) kept the heights
+    as stored, in feet, without a word (an .npz), or was refused as an unknown band unit (a GeoTIFF: GDAL names the
+    band's unit after the vertical CRS). The WKT states the metres per unit: the heights become metres by it, and
+    ``crs`` keeps the horizontal part, as for a vertical unit in the list."""
+    rasterio = pytest.importorskip("rasterio")
+    wkt = _COMPOUND_WKT.format(name=name, factor=factor, authority=authority)
+    z = np.array([[1.0, 2.0, 3.0], [4.0, 5.0, 1000.0]], np.float32)
+    np.savez(tmp_path / "feet.npz", elevation=z, transform=np.array([380000.0, 30.0, 0, 3800000.0, 0, -30.0]), crs=wkt)
+    t = load_dem(tmp_path / "feet.npz")
+    np.testing.assert_allclose(t.heights, z * factor, rtol=1e-6)
+    assert t.crs == "EPSG:26911"
+    path = tmp_path / "feet.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=3, height=2, count=1, dtype="float32",
+                       crs=rasterio.crs.CRS.from_wkt(wkt), transform=rasterio.Affine(30, 0, 380000, 0, -30, 3800000)
+                       ) as ds:  # fmt: skip
+        ds.write(z, 1)
+    with rasterio.open(path) as ds:  # GDAL's own reading of the vertical unit (it may rename an EPSG unit)
+        stated = float(ds.crs.to_wkt().rsplit("UNIT[", 1)[1].split(",")[1].rstrip("]"))
+    t = load_dem(path)
+    np.testing.assert_allclose(t.heights, z * stated, rtol=1e-6)
+    assert abs(stated - 0.3048) < 1e-5 and t.crs == "EPSG:26911"
+
+
+def test_a_1_bit_png_is_refused_as_1_bit_not_as_colour(tmp_path):
+    """A 1-bit black-and-white PNG (Pillow's mode '1') was refused as 'a 1 image (colour or palette images are
+    not elevation data)': it is neither. The message now says what it is; an RGB PNG keeps the colour wording."""
+    path = tmp_path / "mask.png"
+    Image.fromarray(np.eye(4, dtype=bool)).save(path)
+    with Image.open(path) as image:
+        assert image.mode == "1"
+    with pytest.raises(DataFileError, match=r"mask\.png'?: expected a single-channel 8- or 16-bit greyscale "
+                                            r"heightmap; got a 1-bit black-and-white image \(mode '1': two levels "
+                                            r"are no elevation data; save the heights as 8- or 16-bit greyscale\)$"):
+        load_dem(path)
+    Image.fromarray(np.zeros((4, 4, 3), np.uint8)).save(tmp_path / "rgb.png")
+    with pytest.raises(DataFileError, match=r"got a RGB image \(colour or palette images are not elevation data\)$"):
+        load_dem(tmp_path / "rgb.png")
+
+
+@pytest.mark.parametrize("ext", [".tif", ".npy", ".npz", ".png"])
+def test_a_raster_over_the_memory_budget_is_refused_before_it_is_read(tmp_path, ext):
+    """load_dem read a raster whatever st.set_memory_budget said: only a raw MemoryError from the allocation was
+    caught, so a file whose header declared more cells than the budget (and than the machine) allocated until the
+    machine swapped. Its declared size is now checked before reading: an OutputTooLargeError names the file, its
+    shape and the bytes; within the budget the same file reads."""
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    z = np.arange(40 * 30, dtype=np.uint16).reshape(40, 30)  # 1,200 cells: 4,800 bytes as float32 heights
+    path = tmp_path / f"dem{ext}"
+    if ext == ".tif":
+        rasterio = pytest.importorskip("rasterio")
+        with rasterio.open(path, "w", driver="GTiff", width=30, height=40, count=1, dtype="uint16",
+                           transform=rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)) as ds:  # fmt: skip
+            ds.write(z, 1)
+    elif ext == ".npy":
+        np.save(path, z)
+    elif ext == ".npz":
+        np.savez(path, elevation=z)
+    else:
+        Image.fromarray(z).save(path)
+    previous = st.set_memory_budget(4_000)
+    try:
+        with pytest.raises(OutputTooLargeError, match=rf"^reading '.*dem\{ext}' \(.*: 40 x 30 cells of uint16\) would "
+                                                      r"need 4,800 bytes, over the memory budget of 4,000 bytes; crop "
+                                                      r"or coarsen it first"):
+            load_dem(path)
+        st.set_memory_budget(4_800)
+        np.testing.assert_array_equal(load_dem(path).heights, z)
+    finally:
+        st.set_memory_budget(previous)

@@ -1,0 +1,63 @@
+"""Regression tests for bugs found in the device helpers (_device.py): each fails without its fix."""
+
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+import stepterrain._device as device_module
+
+
+class _SlowExecutor(ThreadPoolExecutor):
+    """A ThreadPoolExecutor that records itself and takes a moment to start: it holds the window between another
+    thread's 'no pool yet' and its own assignment open."""
+
+    made: list[ThreadPoolExecutor] = []
+
+    def __init__(self, *args, **kwargs):
+        time.sleep(0.02)
+        super().__init__(*args, **kwargs)
+        _SlowExecutor.made.append(self)
+
+
+@pytest.fixture
+def fresh_pool(monkeypatch):
+    """No shared pool, pools recorded; afterwards every pool the test made is shut down and the previous restored."""
+    _SlowExecutor.made = []
+    monkeypatch.setattr(device_module, "ThreadPoolExecutor", _SlowExecutor)
+    monkeypatch.setattr(device_module, "_executor", None)
+    yield _SlowExecutor.made
+    for pool in _SlowExecutor.made:
+        pool.shutdown(wait=True)
+
+
+def test_threads_growing_the_shared_pool_at_once_leave_one_pool_and_shut_down_the_rest(fresh_pool):
+    """Eight threads asking for 1..8 helpers at once each saw no pool and made one: seven pools were lost with
+    their idle threads, and a pool replaced by a larger one was never shut down. Now the pool is grown under a
+    lock, a replaced pool is shut down once its queued work is done, and every part is still touched."""
+    start = threading.Barrier(8)
+    buffers = {workers: np.ones(workers * 4 * device_module._PAGE, np.uint8) for workers in range(2, 10)}
+
+    def touch(workers: int) -> None:  # page touching over ``workers`` threads: workers - 1 helpers
+        start.wait()
+        device_module._prefault(buffers[workers], workers)
+
+    threads = [threading.Thread(target=touch, args=(workers,)) for workers in buffers]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=60)
+    for flat in buffers.values():  # every helper's part was touched
+        assert not flat[:: device_module._PAGE].any() and flat.sum() == flat.size - flat.size // device_module._PAGE
+    current = device_module._executor
+    assert current in fresh_pool
+    assert current._max_workers >= 8
+    assert not current._shutdown
+    replaced = [pool for pool in fresh_pool if pool is not current]
+    assert all(pool._shutdown for pool in replaced), f"{sum(not p._shutdown for p in replaced)} pools left running"
+    device_module._prefault(np.ones(16 * device_module._PAGE, np.uint8), 4)  # fewer helpers: the same pool
+    assert device_module._executor is current

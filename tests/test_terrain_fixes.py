@@ -1,0 +1,118 @@
+"""Regression tests for bugs found in Terrain (terrain.py): each fails without its fix."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import trimesh
+
+import stepterrain as st
+from stepterrain.errors import InvalidInputError
+
+_H = np.add.outer(np.arange(6.0), 2.0 * np.arange(7.0)).astype(np.float32)  # heights 0 to 17
+
+
+@pytest.mark.parametrize(
+    "fields, message",
+    [
+        (dict(kind="grid", heights=np.arange(5.0)), r"^heights must be a 2-D \(H, W\) array; got shape \(5,\)$"),
+        (dict(kind="grid", heights=np.zeros((1, 5))), r"^heights needs at least 2 x 2 nodes; got shape \(1, 5\)$"),
+        (
+            dict(kind="grid", heights=[["a", "b"], ["c", "d"]]),
+            r"^heights must be a real-valued \(H, W\) array; got "
+            r"dtype <U1$",
+        ),
+        (
+            dict(kind="grid", heights=np.full((3, 3), np.inf)),
+            r"^heights must be finite or NaN \(nodata\); got an "
+            r"infinite value at index \(0, 0\)$",
+        ),
+        (
+            dict(kind="grid", heights=_H, spacing=(1.0, 2.0, 3.0)),
+            r"^spacing must be a pair of finite numbers \(x, y\) "
+            r"\(or one number for both\); got \(1\.0, 2\.0, 3\.0\)$",
+        ),
+        (
+            dict(kind="grid", heights=_H, spacing=(0.0, 1.0)),
+            r"^spacing must be non-zero in x and y; got \(0\.0, 1\.0\)$",
+        ),
+        (dict(kind="grid", heights=_H, origin="ab"), r"^origin must be a pair of numbers \(x, y\); got 'ab'$"),
+        (
+            dict(kind="grid", heights=_H, origin=(1.0,)),
+            r"^origin must be a pair of finite numbers \(x, y\); got "
+            r"\(1\.0,\)$",
+        ),
+        (dict(kind="grd", heights=_H), r"^kind must be 'grid' or 'tin'; got 'grd'$"),
+        (dict(kind="grid", heights=_H, crs=32611), r"^crs must be a str \(e\.g\. 'EPSG:32611'\) or None; got 32611$"),
+        (
+            dict(kind="grid", heights=_H, faces=np.zeros((1, 3), int)),
+            r"^a Terrain of kind 'grid' takes heights, "
+            r"spacing and origin; got faces too",
+        ),
+        (
+            dict(kind="tin", heights=np.zeros(3, np.float32)),
+            r"^a Terrain of kind 'tin' needs points \(N, 3\) and "
+            r"faces \(F, 3\); got points None, faces None: build it "
+            r"with Terrain\.from_mesh",
+        ),
+        (
+            dict(kind="tin", heights=None, points=np.zeros((4, 2)), faces=[[0, 1, 2]]),
+            r"^points must be an \(N, 3\) array of x, y, z; got shape \(4, 2\)$",
+        ),
+        (
+            dict(kind="tin", heights=None, points=np.eye(3), faces=[[0.0, 1.0, 2.0]]),
+            r"^faces must be an \(F, 3\) integer array of point indices; got shape \(1, 3\), dtype float64$",
+        ),
+        (
+            dict(kind="tin", heights=None, points=np.eye(3), faces=[[0, 1, 5]]),
+            r"^terrain mesh faces must index its vertices \(0 to 2\); face 0 is \[0, 1, 5\]",
+        ),
+        (
+            dict(kind="tin", heights=np.ones(3), points=np.eye(3), faces=[[0, 1, 2]]),
+            r"^heights of a Terrain of kind 'tin' are its points' z \(None to take them\); got an array of shape "
+            r"\(3,\), dtype float64 that differs from points\[:, 2\]$",
+        ),
+    ],
+)
+def test_a_terrain_built_directly_is_checked_by_field(fields, message):
+    """``Terrain(kind=..., heights=...)`` checked nothing: a 1-D array failed deep in stepped ('not enough values
+    to unpack'), a TIN without faces with a NoneType error, a text origin with 'must be real number'; a 3-number
+    or zero spacing was meshed (flat, or with its third number ignored). Each is now an InvalidInputError naming
+    the field, what was expected and what was got, at construction."""
+    with pytest.raises(InvalidInputError, match=message):
+        st.Terrain(**fields)
+
+
+def test_a_terrain_built_directly_takes_lists_and_other_dtypes_as_float32():
+    """A list of rows failed in stepped ('list' object has no attribute 'min'); float64 and int heights and a
+    Fortran-ordered array are now the same float32 grid as from_heights makes, and mesh the same."""
+    reference = st.stepped(st.Terrain.from_heights(_H, spacing=(2.0, 3.0)), interval=2.0, device="cpu")
+    for given in (_H.tolist(), _H.astype(np.float64), _H.astype(np.int32), np.asfortranarray(_H)):
+        terrain = st.Terrain(kind="grid", heights=given, spacing=(2.0, 3.0))
+        assert terrain.heights.dtype == np.float32 and terrain.heights.flags.c_contiguous
+        mesh = st.stepped(terrain, interval=2.0, device="cpu")
+        np.testing.assert_array_equal(mesh.vertices, reference.vertices)
+        np.testing.assert_array_equal(mesh.faces, reference.faces)
+
+
+def test_dataclasses_replace_does_not_carry_the_old_caches():
+    """``dataclasses.replace(terrain, heights=new)`` passed the old terrain's cache dict to the new one: its height
+    range (0 to 17 m) stayed, and stepped() clamped the new heights (100 to 117 m) into it. The replaced terrain
+    now starts with its own caches; a TIN replaced keeps working (its edge tables rebuilt)."""
+    terrain = st.Terrain.from_heights(_H)
+    assert terrain.height_range == (0.0, 17.0)
+    raised = dataclasses.replace(terrain, heights=_H + 100.0)
+    assert raised.height_range == (100.0, 117.0)
+    mesh = st.stepped(raised, interval=2.0, device="cpu")
+    assert mesh.vertices[:, 2].min() >= 100.0 - 1.0
+    assert terrain.height_range == (0.0, 17.0)
+    tin = st.Terrain.from_mesh(
+        trimesh.Trimesh([[0, 0, 0], [1, 0, 1], [0, 1, 2], [1, 1, 3]], [[0, 1, 2], [1, 3, 2]], process=False)
+    )
+    renamed = dataclasses.replace(tin, source="survey.ply")
+    np.testing.assert_array_equal(renamed.edges, tin.edges)
+    np.testing.assert_array_equal(
+        st.stepped(renamed, interval=1.0, device="cpu").faces, st.stepped(tin, interval=1.0, device="cpu").faces
+    )
