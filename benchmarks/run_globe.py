@@ -80,7 +80,7 @@ def preprocessing(face_size: int, repeat: int, lines: list[str]) -> Any:
         lat, lon, z = d["lat"], d["lon"], d["elevation"]
     Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")  # compile / load kernels
     globe, cpu, wall = best(lambda: Globe.from_latlon(z, lat, lon, face_size=face_size, device="cpu"), repeat)
-    heights = globe.heights
+    heights = np.array(globe.heights, dtype=np.float32)  # pymartini writes into its input: Globe.heights is read-only
 
     def martini_six():
         m = Martini(face_size)
@@ -148,7 +148,7 @@ def view_mesh_timing(globe: Any, cams: dict[str, Any], repeat: int, lines: list[
     cpu, wall = (min(t[k] for t in runs[1]) for k in (0, 1))
     sphere, s_cpu, s_wall = best(lambda: globe.mesh(error=error, camera=cam, bounds="sphere"), repeat)
     full, f_cpu, f_wall = best(lambda: globe.mesh(error=0.0, camera=cam), max(1, repeat // 2))
-    tile = Martini(globe.face_size).create_tile(np.ascontiguousarray(globe.heights[0], np.float32).reshape(-1))
+    tile = Martini(globe.face_size).create_tile(np.array(globe.heights[0], np.float32).reshape(-1))  # writeable
     lo, hi = 0.01, 1e4
     for _ in range(40):
         mid = math.sqrt(lo * hi)
