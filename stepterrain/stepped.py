@@ -53,6 +53,7 @@ from .terrain import (
     check_spacing,
     finite_number,
     first_index,
+    is_real_dtype,
     real_numbers,
     unmasked,
     unshared,
@@ -741,7 +742,7 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
         if not np.all(np.isfinite(table)) or table.min() < 0 or table.max() > 1:
             raise InvalidInputError(f"float colors must lie in [0, 1]; got values from {table.min()} to {table.max()}")
         table = (table * 255 + 0.5).astype(np.uint8)
-    elif np.issubdtype(table.dtype, np.integer) and not np.issubdtype(table.dtype, np.uint8):
+    elif is_real_dtype(table.dtype) and table.dtype != np.uint8:  # other integers (not timedelta64, not bools)
         if table.min() < 0 or table.max() > 255:
             raise InvalidInputError(f"integer colors must lie in [0, 255]; got values from {table.min()} to "
                                     f"{table.max()}")
@@ -1024,8 +1025,7 @@ def stepped_series(
         stack = np.asarray(unmasked(frames))
         if stack.ndim != 3:
             raise InvalidInputError(f"frames must be a (T, H, W) stack; got shape {stack.shape}")
-        real = np.issubdtype(stack.dtype, np.integer) or np.issubdtype(stack.dtype, np.floating)
-        if stack.dtype == bool or not real:
+        if not is_real_dtype(stack.dtype):
             raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
         finite_mask = np.isfinite(stack)
         finite = stack[finite_mask]

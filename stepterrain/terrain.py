@@ -68,6 +68,13 @@ def check_spacing(dx: float, dy: float, name: str = "spacing") -> tuple[float, f
     return dx, dy
 
 
+def is_real_dtype(dtype: np.dtype) -> bool:
+    """True for a dtype of real numbers: signed or unsigned integers and floats, not bools. ``np.issubdtype(dtype,
+    np.integer)`` also holds for ``timedelta64`` (numpy makes it a subtype of signedinteger): durations were taken
+    as heights, levels and γ, and a (T, H, W) stack of them raised a TypeError."""
+    return dtype.kind in "iuf"
+
+
 def unmasked(values: Any) -> Any:
     """A numpy masked array with its masked entries as NaN (nodata), in float; anything else as it is.
     ``np.asarray`` drops the mask, which would step the values under it as real heights."""
@@ -75,7 +82,7 @@ def unmasked(values: Any) -> Any:
         return values
     if np.issubdtype(values.dtype, np.floating):
         return np.ma.filled(values, np.nan)
-    if np.issubdtype(values.dtype, np.integer) and values.dtype != bool:
+    if is_real_dtype(values.dtype):  # integers (floats are filled above)
         return np.ma.filled(values.astype(np.float64), np.nan)
     return np.ma.getdata(values)  # not real numbers: refused by the caller's dtype check
 
@@ -161,7 +168,7 @@ def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.floa
         raise InvalidInputError(f"{name} must be {expected}; got rows of different lengths") from None
     if array.dtype == object:
         return _object_numbers(array, name, expected)
-    if array.dtype == bool or not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+    if not is_real_dtype(array.dtype):
         raise InvalidInputError(f"{name} must be {expected} (real numbers); got dtype {array.dtype}")
     at = _first_bool(values) if isinstance(values, (list, tuple)) else None
     if at is not None:
@@ -278,7 +285,7 @@ def _heights_array(
         arr = np.asarray(unmasked(heights))
     except ValueError:  # ragged nested sequences
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got rows of different lengths") from None
-    if arr.dtype == object or not (np.issubdtype(arr.dtype, np.integer) or np.issubdtype(arr.dtype, np.floating)):
+    if not is_real_dtype(arr.dtype):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
     at = _first_bool(heights) if isinstance(heights, (list, tuple)) else None  # numpy made True a height of 1
     if at is not None:
@@ -386,7 +393,7 @@ class Terrain:
         if points.ndim != 2 or points.shape[1] != 3:
             raise InvalidInputError(f"points must be an (N, 3) array of x, y, z; got shape {points.shape}")
         faces = np.asarray(unmasked(self.faces))
-        if faces.dtype == bool or not np.issubdtype(faces.dtype, np.integer) or faces.ndim != 2 or faces.shape[1] != 3:
+        if faces.dtype.kind not in "iu" or faces.ndim != 2 or faces.shape[1] != 3:  # not bools, not timedelta64
             raise InvalidInputError(f"faces must be an (F, 3) integer array of point indices; got shape {faces.shape}, "
                                     f"dtype {faces.dtype}")
         if self.heights is not None:

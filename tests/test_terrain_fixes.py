@@ -116,3 +116,47 @@ def test_dataclasses_replace_does_not_carry_the_old_caches():
     np.testing.assert_array_equal(
         st.stepped(renamed, interval=1.0, device="cpu").faces, st.stepped(tin, interval=1.0, device="cpu").faces
     )
+
+
+_DURATIONS = np.arange(16).reshape(4, 4).astype("timedelta64[s]")
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (
+            lambda: st.Terrain.from_heights(_DURATIONS),
+            r"^heights must be a real-valued \(H, W\) array; got dtype "
+            r"timedelta64\[s\]$",
+        ),
+        (lambda: st.stepped(_DURATIONS, interval=1.0, device="cpu"), r"^heights must be a real-valued"),
+        (
+            lambda: st.isovalues((0.0, 3.0), levels=_DURATIONS[0]),
+            r"^levels must be a sequence of numbers \(real "
+            r"numbers\); got dtype timedelta64\[s\]$",
+        ),
+        (
+            lambda: st.stepped(_H[:4, :4], interval=2.0, gamma=_DURATIONS, device="cpu"),
+            r"^gamma must be .*\(real numbers\); got dtype timedelta64\[s\]$",
+        ),
+        (
+            lambda: list(st.stepped_series(_DURATIONS[None], interval=1.0, device="cpu")),
+            r"^frames must be a real-valued \(T, H, W\) stack; got dtype timedelta64\[s\]$",
+        ),
+        (
+            lambda: st.stepped(_H, levels=[0.0, 8.0, 16.0], colors=_DURATIONS[:3, :3], device="cpu"),
+            r"^colors must be numbers \(0-1 floats or 0-255 integers\); got dtype timedelta64\[s\]$",
+        ),
+        (
+            lambda: st.Terrain(kind="tin", heights=None, points=np.eye(3), faces=_DURATIONS[:1, :3]),
+            r"^faces must be an \(F, 3\) integer array of point indices; got shape \(1, 3\), dtype timedelta64\[s\]$",
+        ),
+    ],
+    ids=["from_heights", "stepped", "levels", "gamma", "stepped_series", "colors", "tin_faces"],
+)
+def test_durations_are_no_real_numbers(call, message):
+    """numpy makes timedelta64 a subtype of signedinteger, so the dtype checks (``np.issubdtype(dtype, np.integer)``)
+    took durations as heights, levels, γ, colours and point indices (a mesh stepped from seconds, silently), and a
+    (T, H, W) stack of them reached ``float(min)``, a bare TypeError. They are refused as datetime64 always was."""
+    with pytest.raises(InvalidInputError, match=message):
+        call()
