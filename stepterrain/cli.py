@@ -529,13 +529,9 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
     from .errors import DataFileError
     from .export import read_mesh
 
-    if not path.is_file():
-        what = "is not a regular file" if path.exists() else "does not exist"  # a folder named x.glb exists
-        raise DataFileError(f"mesh file {str(path)!r} {what}")
-    try:  # with what trimesh's reader misses: a file of points, a 3MF's colour group
-        mesh = read_mesh(path)
-    except Exception as exc:  # noqa: BLE001 - trimesh raises many kinds for a bad file
-        raise DataFileError(f"cannot read {str(path)!r} as a mesh: {exc}") from exc
+    # with what trimesh's reader misses (a file of points, a 3MF's colour group); a DataFileError for a missing file,
+    # a folder named x.glb, or one trimesh cannot read (its error in the message)
+    mesh = read_mesh(path)
     if not isinstance(mesh, trimesh.Trimesh):  # an empty mesh is one (steps writes it, with a warning): described
         raise DataFileError(f"{str(path)!r} holds no triangle mesh")
     if path.suffix.lower() == ".stl":  # STL stores every triangle's corners apart: weld them, as its readers do, or

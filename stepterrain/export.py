@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
-from .terrain import FLOAT32_MAX
+from .terrain import FLOAT32_MAX, real_numbers
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
 
@@ -40,6 +40,9 @@ MESH_EXTENSIONS: tuple[str, ...] = (".glb", ".gltf", ".obj", ".ply", ".stl", ".3
 # Arrays or lists with more elements than this are left out of glTF extras (a per-vertex array would
 # bloat the JSON header); scalars, strings and short lists go in.
 _MAX_EXTRAS_ITEMS = 4096
+# Lists and dicts nested deeper than this in metadata are refused (or, in a mesh's own metadata, written as their
+# str): a dict holding itself recursed until Python's RecursionError, and so did any very deep nesting.
+_MAX_EXTRAS_DEPTH = 64
 # glTF accessors are float32: coordinates beyond this magnitude (UTM metres) move into the node translation.
 _LOCAL_ORIGIN_THRESHOLD = 65536.0
 # Formats that hold triangles only: a mesh of vertices without faces is refused for them (STL has no vertex list;
@@ -147,8 +150,11 @@ def _link_target(path: Path) -> Path:
     """``path``, or the file it names through symbolic links (relative links resolved from their own folder),
     so :func:`atomic_path` replaces that file instead of the link. os.replace onto a link replaced the link
     itself with a regular file: the file it pointed to kept the old content."""
-    if not path.is_symlink():
-        return path
+    try:
+        if not path.is_symlink():
+            return path
+    except OSError as exc:  # a name too long for the file system (ENAMETOOLONG) went out as a bare OSError
+        raise DataFileError(f"cannot write {str(path)!r}: {exc.strerror}") from exc
     resolved = Path(os.path.realpath(path))
     if resolved.is_symlink():  # realpath stops at a link it met before: a loop, which has no file to replace
         raise DataFileError(f"cannot write {str(path)!r}: it is a symbolic link in a loop ({str(resolved)!r})")
@@ -297,12 +303,13 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
     """``save_mesh``'s ``shared_bounds`` as (lo, hi) float64, checked; None when not given."""
     if shared_bounds is None:
         return None
-    try:
-        corners = np.asarray(shared_bounds, dtype=np.float64)
-    except (TypeError, ValueError):
+    try:  # real numbers only: an int beyond float64 (10**400) raised numpy's OverflowError, True was 1.0
+        corners = real_numbers(shared_bounds, "shared_bounds", "finite (2, 3) corners (lowest, highest)")
+    except InvalidInputError:
         corners = np.empty(0)
     if corners.shape != (2, 3) or not np.isfinite(corners).all():
-        raise InvalidInputError(f"shared_bounds must be finite (2, 3) corners (lowest, highest); got {shared_bounds!r}")
+        raise InvalidInputError(
+            f"shared_bounds must be finite (2, 3) corners (lowest, highest); got {shared_bounds!r:.200}")
     return corners[0], corners[1]
 
 
@@ -884,17 +891,26 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
     Raises
     ------
-    Exception
-        Whatever trimesh raises for a file it cannot read (the caller words it).
+    InvalidInputError
+        ``path`` is not a str or path-like (or holds a NUL character).
+    DataFileError
+        The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
+        whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
+        in the message and is the ``__cause__``.
     """
-    file = Path(path)
-    if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
-        own = _read_3mf(file)
-        if own is not None:
-            return own
-    loaded = trimesh.load(file, force="mesh", process=False)
-    if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-        loaded = _read_points(file) or loaded
+    file = _target(path)
+    if not file.is_file():
+        raise DataFileError(f"mesh file {str(file)!r} {'is not a regular file' if file.exists() else 'does not exist'}")
+    try:
+        if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
+            own = _read_3mf(file)
+            if own is not None:
+                return own
+        loaded = trimesh.load(file, force="mesh", process=False)
+        if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
+            loaded = _read_points(file) or loaded
+    except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
+        raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
 
 
@@ -1037,10 +1053,15 @@ def _3mf_rgba(text: str) -> tuple[int, int, int, int]:
 
 # ---------------------------------------------------------------------------------------------- helpers
 def _target(path: str | os.PathLike[str]) -> Path:
+    """``path`` as a Path, else an :class:`InvalidInputError`: not a str or path-like, or holding a NUL character
+    (which no file name can: tempfile's ValueError "embedded null byte" came out of the write)."""
     try:
-        return Path(os.fspath(path))
+        target = Path(os.fspath(path))
     except TypeError as exc:
         raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
+    if "\x00" in str(target):
+        raise InvalidInputError(f"path must be a file name without NUL characters; got {str(target)!r}")
+    return target
 
 
 def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) -> trimesh.Trimesh:
@@ -1222,10 +1243,17 @@ def json_metadata(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
     return _json_value(metadata, "metadata")  # type: ignore[no-any-return]
 
 
-def _json_value(value: Any, where: str | None = None) -> Any:
+def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
     """``value`` as plain JSON types (see :func:`save_mesh` Notes), or ``_OMIT`` for a dropped item. With
     ``where`` (the value's name, for the message) a value that is not JSON is refused; without, it is written
-    as its ``str`` (a mesh's own metadata)."""
+    as its ``str`` (a mesh's own metadata). ``depth``: the lists and dicts around ``value``; beyond
+    :data:`_MAX_EXTRAS_DEPTH` (a dict that holds itself) the value is refused, or written as its ``str``."""
+    if depth > _MAX_EXTRAS_DEPTH and isinstance(value, (Mapping, list, tuple, set, frozenset, np.ndarray)):
+        if where is not None:
+            shown = where if len(where) <= 120 else f"{where[:100]}...{where[-17:]}"
+            raise InvalidInputError(f"{shown} must be {_JSON_EXPECTED} nested at most {_MAX_EXTRAS_DEPTH} deep; got "
+                                    f"a {type(value).__name__} deeper (a list or dict that holds itself?)")
+        return f"<{type(value).__name__} nested too deep>"
     if value is None or isinstance(value, (bool, str)):
         return value
     if isinstance(value, (int, np.integer)) and not isinstance(value, np.bool_):
@@ -1241,7 +1269,7 @@ def _json_value(value: Any, where: str | None = None) -> Any:
             if where is not None:
                 raise InvalidInputError(f"{where} must be {_JSON_EXPECTED}; got an array of dtype {value.dtype}")
             return _OMIT
-        return _json_value(value.tolist(), where)
+        return _json_value(value.tolist(), where, depth)
     if isinstance(value, Mapping):
         out = {}
         for key, item in value.items():
@@ -1249,14 +1277,16 @@ def _json_value(value: Any, where: str | None = None) -> Any:
                 raise InvalidInputError(f"{where} keys must be strings (glTF extras are a JSON object); got {key!r}")
             if str(key).startswith("_"):
                 continue
-            converted = _json_value(item, None if where is None else f"{where}[{str(key)!r}]")
+            converted = _json_value(item, None if where is None else f"{where}[{str(key)!r}]", depth + 1)
             if converted is not _OMIT:
                 out[str(key)] = converted
         return out
     if isinstance(value, (list, tuple)) or (where is None and isinstance(value, (set, frozenset))):
         if len(value) > _MAX_EXTRAS_ITEMS:
             return _OMIT
-        items = [_json_value(item, None if where is None else f"{where}[{k}]") for k, item in enumerate(value)]
+        items = [
+            _json_value(item, None if where is None else f"{where}[{k}]", depth + 1) for k, item in enumerate(value)
+        ]
         return [item for item in items if item is not _OMIT]
     if isinstance(value, os.PathLike):
         return os.fspath(value)

@@ -232,3 +232,87 @@ def test_ply_attributes_with_names_that_are_no_ascii_word_are_written_renamed_wi
     np.testing.assert_array_equal(raw_vertex["x_attr"], mesh.vertex_attributes["x"])
     np.testing.assert_array_equal(raw_vertex["h_ight"], mesh.vertex_attributes["héight"])
     np.testing.assert_array_equal(raw_vertex["x"].astype(np.float64), mesh.vertices[:, 0])
+
+
+def _image_or_mesh(path):
+    if str(path).endswith(".png"):
+        return save_image(np.zeros((4, 4, 3), np.uint8), path)
+    return save_mesh(trimesh.creation.box(), path)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".png"])
+def test_a_nul_character_or_an_over_long_name_is_a_stepterrain_error(tmp_path, ext):
+    # a NUL went through to tempfile.mkstemp (ValueError "embedded null byte"); a name longer than the file system's
+    # 255 bytes raised os.lstat's OSError (ENAMETOOLONG) from the symbolic-link check, before any stepterrain message
+    with pytest.raises(InvalidInputError, match=r"^path must be a file name without NUL characters; got '.*a\\x00"):
+        _image_or_mesh(tmp_path / f"a\x00{ext}")
+    with pytest.raises(DataFileError, match=r"^cannot write '.*xxxx.*': File name too long$"):
+        _image_or_mesh(tmp_path / ("x" * 300 + ext))
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("corner", [10**400, True], ids=["int_beyond_float64", "bool"])
+def test_shared_bounds_must_be_real_numbers(tmp_path, corner):
+    # np.asarray(..., float64) raised a bare OverflowError for 10**400 and took True as 1.0
+    with pytest.raises(InvalidInputError, match=r"^shared_bounds must be finite \(2, 3\) corners"):
+        save_mesh(trimesh.creation.box(), tmp_path / "box.ply", shared_bounds=[[0, 0, 0], [1, 1, corner]])
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_metadata_that_holds_itself_is_refused_or_written_as_text(tmp_path):
+    # _json_value recursed into a dict that holds itself until Python's RecursionError: as metadata= and as the
+    # mesh's own metadata (which is written as its str when it is not JSON)
+    loop: dict = {"name": "tile"}
+    loop["self"] = loop
+    with pytest.raises(InvalidInputError, match=r"^metadata\['run'\]\['self'\].* must be JSON .* nested at most 64"):
+        save_mesh(trimesh.creation.box(), tmp_path / "a.glb", metadata={"run": loop})
+    mesh = trimesh.creation.box()
+    mesh.metadata["run"] = loop
+    out = save_mesh(mesh, tmp_path / "b.gltf")
+    extras = json.loads(out.read_text())["meshes"][0]["extras"]
+    assert extras["run"]["name"] == "tile" and "nested too deep" in json.dumps(extras)
+
+
+@pytest.mark.parametrize(
+    "name, content, kind",
+    [
+        ("face.obj", b"v 1 2\nf 1 2 3\n", "IndexError"),
+        ("columns.ply", b"ply\nformat ascii 1.0\nelement vertex 99999999999\nend_header\n", "KeyError"),
+        ("empty.glb", b"", "IndexError"),
+        ("notes.txt", b"hello", "NotImplementedError"),
+        ("broken.3mf", b"PK\x03\x04garbage", "BadZipFile"),
+    ],
+)
+def test_read_mesh_words_a_file_it_cannot_read_as_a_data_file_error(tmp_path, name, content, kind):
+    # read_mesh let trimesh's IndexError, KeyError, ... out as they were (only `stepterrain info` worded them)
+    from stepterrain.export import read_mesh
+
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(DataFileError, match=rf"^cannot read '.*{name}' as a mesh: {kind}"):
+        read_mesh(path)
+
+
+def test_read_mesh_checks_its_path(tmp_path):
+    # None raised pathlib's TypeError, a missing file trimesh's ValueError "string is not a file"
+    from stepterrain.export import read_mesh
+
+    with pytest.raises(InvalidInputError, match=r"^path must be a str or os.PathLike; got NoneType$"):
+        read_mesh(None)
+    with pytest.raises(DataFileError, match=r"^mesh file '.*missing\.glb' does not exist$"):
+        read_mesh(tmp_path / "missing.glb")
+    (tmp_path / "folder.glb").mkdir()
+    with pytest.raises(DataFileError, match=r"^mesh file '.*folder\.glb' is not a regular file$"):
+        read_mesh(tmp_path / "folder.glb")
+
+
+def test_info_on_an_unreadable_mesh_prints_one_line(tmp_path, capsys):
+    path = tmp_path / "face.obj"
+    path.write_bytes(b"v 1 2\nf 1 2 3\n")
+    assert cli.main(["info", str(path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert (
+        len(err) == 1
+        and err[0].startswith("stepterrain info: error: cannot read")
+        and "as a mesh: IndexError" in err[0]
+    )
