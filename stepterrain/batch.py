@@ -292,10 +292,10 @@ def plan_items(
     if tile_size is None:
         raise InvalidInputError(
             f"source is one (H, W) raster {heights.shape}: give tile_size (the CLI's --tile) to cut it into tiles")
+    items = _tile_items(heights.shape, tile_size)  # first: a (0, 0) raster reached min(), numpy's ValueError
     lo, hi = finite_or_nan(heights, "source")
     known = None if math.isnan(lo) else (lo, hi)
-    return _tile_items(heights.shape, tile_size), _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster",
-                                                          height_range=known)  # fmt: skip
+    return items, _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster", height_range=known)
 
 
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
@@ -917,7 +917,9 @@ def batch(
         :func:`~stepterrain.io.load_dem` takes it: for files that name none or name one it does not know.
         Not for arrays, Terrains or (T, H, W) series, whose heights are used as they are.
     device : warp device, optional
-        Where each worker runs the kernels (default: Warp's default device on that worker).
+        Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
+        "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
+        absent device is refused (a :class:`~stepterrain.errors.DeviceError`) before any work.
 
     Returns
     -------
@@ -982,6 +984,9 @@ def batch(
         least = 0 if name == "retries" else 1
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < least:
             raise InvalidInputError(f"{name} must be an int >= {least}; got {value!r}")
+    # Python ints: retries + 2 in a numpy uint64 (2**64 - 1) wrapped to 1, so no attempt ran and every item "failed"
+    # with an empty error (and numpy's overflow warning)
+    retries, workers = int(retries), int(workers)
     timeout, gamma_value = number_or_nan(connect_timeout), number_or_nan(gamma)  # True is no 1 second, no γ = 1
     if not 0 < timeout <= MAX_CONNECT_TIMEOUT:  # NaN and inf fail the comparisons
         raise InvalidInputError(f"connect_timeout must be a positive number of seconds up to {MAX_CONNECT_TIMEOUT:g} "
@@ -994,6 +999,14 @@ def batch(
     check_flag(solid, "solid")
     check_flag(resume, "resume")
     check_flag(progress, "progress")
+    if device is not None:
+        if not isinstance(device, (str, wp.Device)):  # str() of it reached every item, each failing alike
+            raise InvalidInputError(
+                f"device must be a Warp device name ('cpu', 'cuda:0'), a warp.Device or None; got {device!r:.80}")
+        if isinstance(scheduler, str) and scheduler == "serial":  # the items run here: refused once, not per item
+            from ._device import resolve_device
+
+            resolve_device(device)
     if floor is not None and not solid:
         raise InvalidInputError("floor applies only with solid=True")
     if floor is not None:

@@ -294,3 +294,51 @@ def test_a_manifest_that_is_a_folder_is_refused_before_any_item_runs(tmp_path):
     with pytest.raises(DataFileError, match="is a folder"):
         batch(np.zeros((3, 5, 6), np.float32), out, interval=1.0, scheduler="serial")
     assert sorted(p.name for p in out.iterdir()) == [MANIFEST_NAME]
+
+
+_Z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+
+
+@pytest.mark.parametrize("shape", [(0, 0), (0, 5)])
+def test_an_empty_raster_to_tile_is_refused_by_its_size(tmp_path, shape):
+    # the height range was taken before the size was checked: min() of no heights, numpy's bare ValueError
+    from stepterrain.batch import plan_items
+    from stepterrain.errors import InvalidInputError
+
+    message = rf"^a raster to tile needs at least 2 x 2 nodes; got {shape[0]} x {shape[1]}$"
+    with pytest.raises(InvalidInputError, match=message):
+        plan_items(np.zeros(shape, np.float32), tile_size=3)
+    with pytest.raises(InvalidInputError, match=message):
+        batch(np.zeros(shape, np.float32), tmp_path / "out", tile_size=3, interval=1.0, scheduler="serial")
+    assert not (tmp_path / "out").exists()
+
+
+def test_retries_as_a_numpy_uint64_runs_each_item(tmp_path):
+    # range(1, retries + 2) in uint64 wrapped to range(1, 1) (with numpy's overflow warning): no attempt ran and every
+    # item was reported failed with an empty error
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        report = batch(_Z, tmp_path, tile_size=4, interval=2.0, scheduler="serial", retries=np.uint64(2**64 - 1))
+    assert report.ok and len(report.done) == 4 and all(r.attempts == 1 for r in report.done)
+
+
+@pytest.mark.parametrize(
+    "device, error, message",
+    [
+        (
+            5,
+            "InvalidInputError",
+            r"^device must be a Warp device name \('cpu', 'cuda:0'\), a warp.Device or None; got 5$",
+        ),
+        ("abc", "DeviceError", r"^device must be one of \[.*\] \(or None\); got 'abc'$"),
+    ],
+)
+def test_a_bad_device_of_a_serial_batch_is_refused_before_any_work(tmp_path, device, error, message):
+    # str(device) went to every item, each failing (with its retries) the same way, in a report that was not ok
+    import stepterrain.errors as errors
+
+    with pytest.raises(getattr(errors, error), match=message):
+        batch(_Z, tmp_path / "out", tile_size=4, interval=2.0, scheduler="serial", device=device)
+    assert not (tmp_path / "out").exists()
