@@ -63,7 +63,10 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
 
 
 def _size_text(nbytes: int) -> str:
-    """Bytes as MiB to one decimal, or as bytes below a tenth of a MiB (which read "0.0 MiB")."""
+    """Bytes as MiB to one decimal, or as bytes below a tenth of a MiB (which read "0.0 MiB"). Beyond float64 (a lens
+    of resolution 10**400 asks for 10**800 bytes) as a power of ten: the division raised OverflowError."""
+    if nbytes >= 2**1000:
+        return f"over 10^{len(str(int(nbytes) // 1024**2)) - 1} MiB"
     return f"{nbytes / 1024**2:,.1f} MiB" if nbytes >= 0.1 * 1024**2 else f"{int(nbytes):,} bytes"
 
 

@@ -175,7 +175,8 @@ def circular_lens(
     ys = np.linspace(ymin, ymax, n)
     d = np.hypot(xs[None, :] - cx, ys[:, None] - cy)
     if width > 0:
-        s = np.clip((d - (radius - width / 2)) / width, 0.0, 1.0)
+        with np.errstate(over="ignore"):  # a subnormal width (1e-320) overflows to ±inf, which the clip takes to 0 or 1
+            s = np.clip((d - (radius - width / 2)) / width, 0.0, 1.0)
         s = s * s * (3.0 - 2.0 * s)
     else:
         s = (d > radius).astype(np.float64)

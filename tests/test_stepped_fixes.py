@@ -78,3 +78,22 @@ def test_memory_budget_counts_the_colours():
     assert len(st.stepped(heights, interval=3.0, memory_budget=budget).faces) == f
     with pytest.raises(st.OutputTooLargeError, match=r"the stepped mesh"):
         st.stepped(heights, interval=3.0, colors="terrain", memory_budget=budget)
+
+
+@pytest.mark.parametrize("radius, edge_width", [(1e-320, None), (1.0, 1e-320)], ids=["radius", "edge_width"])
+def test_a_subnormal_lens_edge_leaks_no_overflow_warning(radius, edge_width):
+    # (d - (r - w / 2)) / w overflowed for a subnormal edge width (numpy's RuntimeWarning), before the clip took it to
+    # 0 or 1: the lens is a hard circle, without the warning
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        lens = st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, edge_width=edge_width, resolution=9)
+    inside = np.hypot(*np.meshgrid(np.linspace(-2, 2, 9), np.linspace(-2, 2, 9))) <= radius
+    np.testing.assert_array_equal(lens.mask, np.where(inside, 0.0, 1.0))
+
+
+def test_a_lens_resolution_beyond_float64_is_over_the_budget():
+    # the budget message divided 10**800 bytes by 1024**2 in float: OverflowError instead of the budget's error
+    with pytest.raises(st.OutputTooLargeError, match=r"would need over 10\^795 MiB, over the memory budget"):
+        st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=10**400)
