@@ -586,13 +586,18 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Pa
         folder = Path(os.fspath(output_dir))
     except TypeError as exc:
         raise InvalidInputError(f"output_dir must be a str or os.PathLike; got {type(output_dir).__name__}") from exc
-    if folder.exists() and not folder.is_dir():
-        raise DataFileError(f"output_dir {str(folder)!r} exists and is not a folder")
     made = []
-    for path in (folder, *folder.parents):
-        if path.exists():
-            break
-        made.append(path)
+    try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from exists()
+        if folder.exists() and not folder.is_dir():
+            raise DataFileError(f"output_dir {str(folder)!r} exists and is not a folder")
+        for path in (folder, *folder.parents):
+            if path.exists():
+                break
+            made.append(path)
+    except OSError as exc:
+        if isinstance(exc, DataFileError):
+            raise
+        raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

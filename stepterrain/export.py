@@ -899,8 +899,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         in the message and is the ``__cause__``.
     """
     file = _target(path)
-    if not file.is_file():
-        raise DataFileError(f"mesh file {str(file)!r} {'is not a regular file' if file.exists() else 'does not exist'}")
+    try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from is_file()
+        regular, exists = file.is_file(), file.exists()
+    except OSError as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: {exc.strerror or exc}") from exc
+    if not regular:
+        raise DataFileError(f"mesh file {str(file)!r} {'is not a regular file' if exists else 'does not exist'}")
     try:
         if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
             own = _read_3mf(file)

@@ -159,9 +159,13 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
         )
-    if not file.exists():
+    try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from exists()
+        exists, regular = file.exists(), file.is_file()
+    except OSError as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: {exc.strerror or exc}") from exc
+    if not exists:
         raise DataFileError(f"DEM file {str(file)!r} does not exist")
-    if not file.is_file():
+    if not regular:
         raise DataFileError(f"DEM path {str(file)!r} is not a regular file")
     if ext not in (".tif", ".tiff") and band != 1:
         raise InvalidInputError(

@@ -10,8 +10,9 @@ import pytest
 import trimesh
 from PIL import Image
 
+from stepterrain.batch import batch
 from stepterrain.errors import DataFileError
-from stepterrain.export import save_image, save_mesh
+from stepterrain.export import read_mesh, save_image, save_mesh
 from stepterrain.io import load_dem
 
 
@@ -367,3 +368,22 @@ def test_a_raster_over_the_memory_budget_is_refused_before_it_is_read(tmp_path, 
         np.testing.assert_array_equal(load_dem(path).heights, z)
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize(
+    "call, message",
+    [
+        (lambda p: load_dem(p / ("x" * 300 + ".npy")), r"^cannot read '.*xxxx\.npy': File name too long$"),
+        (lambda p: read_mesh(p / ("x" * 300 + ".glb")), r"^cannot read '.*xxxx\.glb': File name too long$"),
+        (
+            lambda p: batch(np.zeros((5, 5)), p / ("x" * 300), tile_size=2, interval=1.0, scheduler="serial"),
+            r"^cannot create the output folder '.*xxxx': File name too long$",
+        ),
+    ],
+    ids=["load_dem", "read_mesh", "batch_output_dir"],
+)
+def test_a_name_too_long_for_the_file_system_is_a_data_file_error(tmp_path, call, message):
+    # Path.exists() / is_file() raise os.stat's OSError for ENAMETOOLONG (they hide only "no such file"): a bare
+    # OSError came out of load_dem, read_mesh and batch before any check of theirs
+    with pytest.raises(DataFileError, match=message):
+        call(tmp_path)
