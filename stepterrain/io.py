@@ -400,7 +400,12 @@ def _latlon_geotransform(
             )
         step = (values[-1] - values[0]) / (n - 1)
         worst = float(np.abs(np.diff(values) - step).max())
-        if step == 0.0 or worst > 1e-3 * abs(step):
+        if step == 0.0:
+            raise DataFileError(
+                f"cannot read {str(file)!r}: {name!r} must be evenly spaced degrees, increasing or decreasing; got "
+                f"{n} values from {values[0]:.9g} to {values[-1]:.9g}, no span"
+            )
+        if worst > 1e-3 * abs(step):
             raise DataFileError(
                 f"cannot read {str(file)!r}: {name!r} must be evenly spaced degrees; got steps that differ from "
                 f"their mean {step:.9g} by up to {worst:.3g}"

@@ -163,6 +163,8 @@ def test_latlon_npz_axes_are_checked(tmp_path):
         ("nan.npz", dict(lat=lat, lon=np.array([5.0, np.nan, 6.0, 6.5])), r"'lon' must hold 4 finite degrees"),
         ("uneven.npz", dict(lat=np.array([10.0, 11.0, 13.0]), lon=lon), r"'lat' must be evenly spaced degrees"),
         ("text.npz", dict(lat=np.array(["a", "b", "c"]), lon=lon), r"'lat' must hold 3 finite degrees"),
+        # a constant axis said "steps that differ from their mean 0 by up to 0"
+        ("flat.npz", dict(lat=np.full(3, 10.0), lon=lon), r"'lat' must be .*3 values from 10 to 10, no span"),
     ):
         np.savez(tmp_path / name, elevation=z, **arrays)
         with pytest.raises(DataFileError, match=match):
