@@ -64,6 +64,8 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
 
 def _size_text(nbytes: int) -> str:
     """Bytes as MiB to one decimal, or as bytes below a tenth of a MiB (which read "0.0 MiB")."""
+    if nbytes >= 2**1000:  # beyond float64 the division raised OverflowError (10**400 frames asked for)
+        return f"2^{int(nbytes).bit_length() - 21} MiB or more"
     return f"{nbytes / 1024**2:,.1f} MiB" if nbytes >= 0.1 * 1024**2 else f"{int(nbytes):,} bytes"
 
 
