@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
-from .terrain import FLOAT32_MAX
+from .terrain import FLOAT32_MAX, as_array
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
 
@@ -147,8 +147,11 @@ def _link_target(path: Path) -> Path:
     """``path``, or the file it names through symbolic links (relative links resolved from their own folder),
     so :func:`atomic_path` replaces that file instead of the link. os.replace onto a link replaced the link
     itself with a regular file: the file it pointed to kept the old content."""
-    if not path.is_symlink():
-        return path
+    try:
+        if not path.is_symlink():
+            return path
+    except OSError as exc:  # a name longer than the file system takes (ENAMETOOLONG): the bare OSError escaped
+        raise DataFileError(f"cannot write {str(path)!r}: {exc.strerror}") from None
     resolved = Path(os.path.realpath(path))
     if resolved.is_symlink():  # realpath stops at a link it met before: a loop, which has no file to replace
         raise DataFileError(f"cannot write {str(path)!r}: it is a symbolic link in a loop ({str(resolved)!r})")
@@ -414,7 +417,7 @@ def save_image(
             f"cannot write {str(target)!r}: images are written as PNG or TIFF; the path must end in "
             f"{', '.join(IMAGE_EXTENSIONS)}"
         )
-    array = np.asarray(image)
+    array = as_array(image, "image", "an (H, W, 3) or (H, W, 4) uint8 array")
     if array.dtype != np.uint8:
         raise InvalidInputError(f"image must be uint8 (0-255); got dtype {array.dtype}")
     if array.ndim != 3 or array.shape[2] not in (3, 4) or array.shape[0] < 1 or array.shape[1] < 1:
@@ -1038,9 +1041,12 @@ def _3mf_rgba(text: str) -> tuple[int, int, int, int]:
 # ---------------------------------------------------------------------------------------------- helpers
 def _target(path: str | os.PathLike[str]) -> Path:
     try:
-        return Path(os.fspath(path))
+        target = Path(os.fspath(path))
     except TypeError as exc:
         raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
+    if "\x00" in str(target):  # the file system's ValueError ("embedded null byte") named no argument
+        raise InvalidInputError(f"path must not contain a NUL character; got {str(target)!r}")
+    return target
 
 
 def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) -> trimesh.Trimesh:
