@@ -92,3 +92,9 @@ def test_camera_box_methods_keep_their_answers():
     assert CAMERA.box_visible(box) and CAMERA.box_visible(box.tolist())
     np.testing.assert_array_equal(CAMERA.nearest_point(box), [0.0, 0.0, 1.0])
     assert CAMERA.segment_pixels([0.0, 0.0, 0.0], (1.0, 0.0, 0.0)) == CAMERA.segment_pixels(np.zeros(3), np.eye(3)[0])
+
+
+def test_a_ragged_pyramid_image_is_named():
+    """np.asarray of ragged rows raised numpy's "inhomogeneous shape" ValueError, naming no argument."""
+    with pytest.raises(InvalidInputError, match=r"^image must be .*got rows of different lengths"):
+        ImagePyramid.build([[1, 2], [3]], extent=(0, 2, 0, 2), device="cpu")
