@@ -252,9 +252,11 @@ class ROI:
                 resolution: int = 129) -> ROI:
         """An axis-aligned ellipse with semi-axes ``radii`` = (a, b); soft edge as in :meth:`circle`."""
         a, b = _pair(radii, "ROI radii", nonzero=False)
-        if min(a, b) <= 0 or max(a, b) > _MAX_OFFSET / 2:  # its box (2a, 2b) was inf: RuntimeWarnings, then refused
-            raise InvalidInputError(f"ROI radii must be positive, up to {_MAX_OFFSET / 2:g} (a box up to "
-                                    f"{_MAX_OFFSET:g} wide); got {(a, b)}")
+        if min(a, b) <= 0:
+            raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
+        if max(a, b) > _MAX_OFFSET / 2:  # refused by ROI below, after the mask over an inf box warned
+            raise InvalidInputError(f"ROI size must be positive (width, height) up to {_MAX_OFFSET:g}; got radii "
+                                    f"{(a, b)}, a box {2 * a:g} x {2 * b:g}")
         width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         _check_edge_width(width, min(a, b), "the shorter semi-axis")
         size = (2 * a, 2 * b)
