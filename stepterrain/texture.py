@@ -1218,7 +1218,7 @@ class Pipeline:
 
     def add(self, other: Any, weights: Sequence[float] = (1.0, 1.0)) -> Pipeline:
         if (isinstance(weights, (str, bytes)) or not isinstance(weights, Sequence | np.ndarray)
-                or np.ndim(weights) == 0 or len(weights) != 2):  # a 0-d array has no len(): a TypeError
+                or (isinstance(weights, np.ndarray) and weights.ndim == 0) or len(weights) != 2):  # 0-d: no len()
             raise InvalidInputError(f"Pipeline.add needs weights (current, other); got {weights!r}")
         return self._then("add", other, tuple(weights))
 

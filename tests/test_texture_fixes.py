@@ -163,6 +163,12 @@ def test_pipeline_add_weights_without_a_length_are_refused(weights):
         Pipeline().add(_layer(), weights)
 
 
+def test_pipeline_add_ragged_weights_name_the_weight():
+    """A ragged weights list reached weighted_add, which names the weight that is not a number."""
+    with pytest.raises(InvalidInputError, match=r"^weights\[0\] must be a number"):
+        Pipeline().add(_layer(), [[1.0, 2.0], [3.0]]).apply(_layer(), device="cpu")
+
+
 @pytest.mark.parametrize("z_factor", ["abc", None, math.nan, -1.0, [1.0, 2.0]])
 def test_relight_checks_z_factor_with_a_directional_light(z_factor):
     """With azimuth and altitude z_factor was never read, so text, None or a negative value passed silently."""
