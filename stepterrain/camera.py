@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -191,6 +192,7 @@ class Camera:
 
     def box_visible(self, box: NDArray[np.float64]) -> bool:
         """Whether the axis-aligned box [(min), (max)] may intersect the view frustum (conservative)."""
+        box = _box(box)
         forward, right, up = self.frame()
         eye = np.asarray(self.eye, dtype=np.float64)
         tan_y = math.tan(self.fov / 2.0)
@@ -210,15 +212,38 @@ class Camera:
 
     def nearest_point(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
         """The point of the box nearest to the camera position (the position itself when inside)."""
+        box = _box(box)
         return np.clip(np.asarray(self.eye, dtype=np.float64), box[0], box[1])
 
     def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
         """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
-        px, depth = self.project(np.stack([a, b]))
+        px, depth = self.project(np.stack([_point(a, "a"), _point(b, "b")]))
         if np.any(depth < self.near):
             return math.inf
         with np.errstate(over="ignore"):  # a magnification near float64's limit (fov 1e-300): inf pixels, refine
             return float(np.linalg.norm(px[0] - px[1]))
+
+
+_BOX = "an axis-aligned box [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
+
+
+def _box(box: Any) -> NDArray[np.float64]:
+    """``box`` as a (2, 3) float64 array, min <= max (no NaN), else an InvalidInputError: unpacking, broadcasting
+    and indexing errors escaped from the box tests (a list of text, one corner, None)."""
+    array = box if isinstance(box, np.ndarray) and box.dtype == np.float64 else real_numbers(box, "box", _BOX)
+    if array.shape != (2, 3) or not (array[0] <= array[1]).all():
+        raise InvalidInputError(f"box must be {_BOX}; got {box!r:.200}")
+    return array
+
+
+def _point(value: Any, name: str) -> NDArray[np.float64]:
+    """``value`` as a finite (3,) float64 world point, else an InvalidInputError naming ``name``: np.stack raised
+    numpy's "all input arrays must have the same shape" for anything else."""
+    array = value if isinstance(value, np.ndarray) and value.dtype == np.float64 else real_numbers(
+        value, name, "a finite world point (x, y, z)")
+    if array.shape != (3,) or not np.isfinite(array).all():
+        raise InvalidInputError(f"{name} must be a finite world point (x, y, z); got {value!r:.200}")
+    return array
 
 
 def _dot(a: list[float], b: list[float]) -> float:

@@ -38,12 +38,14 @@ from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
 from .terrain import (
+    FLOAT32_MAX,
     Terrain,
     _pair,
     as_terrain,
     check_flag,
     finite_number,
     grid_faces,
+    is_name,
     number_or_nan,
     real_numbers,
     real_vector,
@@ -87,6 +89,8 @@ _MAX_CLOSEUPS = 16
 
 # ------------------------------------------------------------------------------------------------ helpers
 _MAX_MASK_RESOLUTION = 16385  # texels along a shape mask's longer side: 1 GiB of float32 at most
+#: The smallest positive float32 (a subnormal): a height band's edge below it is 0 in the float32 ramp.
+_FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
 _MAX_OFFSET = 1e12
 
@@ -250,6 +254,9 @@ class ROI:
         a, b = _pair(radii, "ROI radii", nonzero=False)
         if min(a, b) <= 0:
             raise InvalidInputError(f"ROI radii must be positive; got {(a, b)}")
+        if max(a, b) > _MAX_OFFSET / 2:  # refused by ROI below, after the mask over an inf box warned
+            raise InvalidInputError(f"ROI size must be positive (width, height) up to {_MAX_OFFSET:g}; got radii "
+                                    f"{(a, b)}, a box {2 * a:g} x {2 * b:g}")
         width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         _check_edge_width(width, min(a, b), "the shorter semi-axis")
         size = (2 * a, 2 * b)
@@ -319,11 +326,15 @@ class ROI:
             raise InvalidInputError(f"height band must be finite with low <= high; got ({low}, {high})")
         edge = finite_number(edge, "edge", lo=0.0)
         heights, center, size = _terrain_window(terrain, region)
-        with np.errstate(invalid="ignore"):
-            if edge > 0:
-                m = np.clip((heights - (lo - edge)) / edge, 0, 1) * np.clip(((hi + edge) - heights) / edge, 0, 1)
-            else:
-                m = ((heights >= lo) & (heights <= hi)).astype(np.float32)
+        if edge >= _FLOAT32_SMALLEST:  # a smaller edge is 0 in float32 (0 / 0 at the bounds): the hard band, its limit
+            # the float32 heights' ramp, in float64 where its bounds pass float32's range: they were inf, and the
+            # mask inf / inf = NaN -> 0 everywhere (an empty ROI) with RuntimeWarnings
+            wide = max(abs(lo - edge), abs(hi + edge)) > FLOAT32_MAX
+            h = heights.astype(np.float64) if wide else heights
+            with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+                m = np.clip((h - (lo - edge)) / edge, 0, 1) * np.clip(((hi + edge) - h) / edge, 0, 1)
+        else:  # bounds clamped to float32's range (they overflowed in the comparison's cast), which compares alike
+            m = ((heights >= max(lo, -FLOAT32_MAX)) & (heights <= min(hi, FLOAT32_MAX))).astype(np.float32)
         return cls(center, size, np.nan_to_num(m, nan=0.0), "height_band")
 
     @classmethod
@@ -337,7 +348,7 @@ class ROI:
         t = as_terrain(terrain)
         heights, center, size = _terrain_window(t, region)
         slope = np.degrees(_slope(heights, abs(t.spacing[0]), abs(t.spacing[1])))
-        with np.errstate(invalid="ignore"):
+        with np.errstate(invalid="ignore", over="ignore"):  # over: a subnormal edge (±inf, clipped as meant)
             m = np.clip((slope - d) / edge, 0, 1) if edge > 0 else (slope > d).astype(np.float32)
         return cls(center, size, np.nan_to_num(m, nan=0.0), "slope_above")
 
@@ -516,7 +527,7 @@ class AnchorStyle:
             object.__setattr__(self, "transparency", tuple(float(v) for v in table))
         if isinstance(self.rungs, bool) or not isinstance(self.rungs, (int, np.integer)) or not 1 <= self.rungs <= 256:
             raise InvalidInputError(f"anchor rungs must be an int in [1, 256]; got {self.rungs!r}")
-        if self.inactive not in ("hidden", "gray", "faint"):
+        if not is_name(self.inactive, ("hidden", "gray", "faint")):
             raise InvalidInputError(f"anchor inactive must be 'hidden', 'gray' or 'faint'; got {self.inactive!r}")
         object.__setattr__(self, "band", check_flag(self.band, "anchor band"))
         object.__setattr__(self, "outline_level", _outline_level(self.outline_level, "anchor outline_level"))
@@ -629,7 +640,7 @@ class CloseUp:
                 raise InvalidInputError(f"close-up spin needs a finite non-zero speed and repetitions >= 1; "
                                         f"got {self.spin!r}")
             object.__setattr__(self, "spin", (speed, reps))
-        if self.view not in ("overview", "billboard"):
+        if not is_name(self.view, ("overview", "billboard")):
             raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
         bv = real_vector(self.billboard_view, "billboard_view", "finite (azimuth, elevation)", 2)
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
@@ -1422,7 +1433,7 @@ def _colors_for(mesh_values: NDArray[np.float32], cmap: str, vmin: float, vmax: 
 
     try:
         table = matplotlib.colormaps[cmap]
-    except KeyError:
+    except (KeyError, TypeError):  # TypeError: an unhashable value (a list, an array) as the name
         raise InvalidInputError(f"cmap must name a matplotlib colormap; got {cmap!r}") from None
     span = vmax - vmin if vmax > vmin else 1.0
     x = np.clip((mesh_values - vmin) / span, 0, 1)
@@ -1758,7 +1769,7 @@ def render_closeups(
 
 
 def _check_scalars(scalars: Any, name: str = "scalars") -> None:
-    if scalars not in (None, "height", "slope", "aspect"):
+    if not is_name(scalars, (None, "height", "slope", "aspect")):
         raise InvalidInputError(f"{name} must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
 
 
@@ -1870,6 +1881,9 @@ def animate_closeups(
     width, height = _window(window_size)
     check_budget(int(frames) * width * height * 3, f"{int(frames)} frames of {width} x {height} pixels",
                  hint="render fewer or smaller frames")  # every frame is kept: refused before the first render
+    if not math.isfinite((int(frames) - 1) / fps):  # a subnormal fps: frame times overflowed (RuntimeWarnings), NaN
+        raise InvalidInputError(f"fps must be large enough that frame {int(frames) - 1}'s time (frame / fps seconds) "
+                                f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
     if box is None:  # the box swept by the close-ups over a few phases, and the terrain

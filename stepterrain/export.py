@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
-from .terrain import FLOAT32_MAX, real_numbers
+from .terrain import FLOAT32_MAX, as_array, real_numbers
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
 
@@ -421,7 +421,7 @@ def save_image(
             f"cannot write {str(target)!r}: images are written as PNG or TIFF; the path must end in "
             f"{', '.join(IMAGE_EXTENSIONS)}"
         )
-    array = np.asarray(image)
+    array = as_array(image, "image", "an (H, W, 3) or (H, W, 4) uint8 array")
     if array.dtype != np.uint8:
         raise InvalidInputError(f"image must be uint8 (0-255); got dtype {array.dtype}")
     if array.ndim != 3 or array.shape[2] not in (3, 4) or array.shape[0] < 1 or array.shape[1] < 1:

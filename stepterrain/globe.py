@@ -22,6 +22,7 @@ from __future__ import annotations
 import ctypes
 import dataclasses
 import functools
+import inspect
 import math
 import mmap
 from collections.abc import Callable, Iterable, Sequence
@@ -54,7 +55,17 @@ from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .kernels.memory import vec3l
 from .stepped import LAND_START
-from .terrain import FLOAT32_MAX, as_number, check_flag, check_spacing, number_or_nan, real_numbers, unmasked
+from .terrain import (
+    FLOAT32_MAX,
+    as_array,
+    as_number,
+    check_flag,
+    check_spacing,
+    is_name,
+    number_or_nan,
+    real_numbers,
+    unmasked,
+)
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
            "render_view", "EARTH_RADIUS", "METRICS"]
@@ -139,26 +150,39 @@ def _error_value(error: Any) -> float:
 
 
 def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> tuple[set[str], list[UserMetric]]:
-    if bounds not in ("cone", "sphere"):
+    if not is_name(bounds, ("cone", "sphere")):
         raise InvalidInputError(f"bounds must be 'cone' or 'sphere'; got {bounds!r}")
     if planar and bounds == "cone":
         raise InvalidInputError("bounds='cone' needs the sphere (cone frustums about radial axes); the planar "
                                 "case supports bounds='sphere' only")
     if isinstance(metrics, str):
         metrics = (metrics,)
-    if not isinstance(metrics, Iterable):
+    if not isinstance(metrics, Iterable) or (isinstance(metrics, np.ndarray) and metrics.ndim == 0):  # no items
         raise InvalidInputError(f"metrics must be a sequence of names among {METRICS} or callables (() for none); "
                                 f"got {metrics!r}")
     names: set[str] = set()
     users: list[UserMetric] = []
     for m in metrics:
         if callable(m):
-            users.append(m)
-        elif m in METRICS:
+            users.append(_user_metric(m))
+        elif is_name(m, METRICS):
             names.add(m)
         else:
             raise InvalidInputError(f"metrics must be names among {METRICS} or callables; got {m!r}")
     return names, users
+
+
+def _user_metric(fn: Any) -> UserMetric:
+    """``fn`` when it can be called as ``fn(points, bounding_radius)``, else an InvalidInputError: a callable of
+    another arity failed at the first level with Python's TypeError, naming no metric."""
+    try:
+        inspect.signature(fn).bind(None, None)
+    except TypeError:
+        raise InvalidInputError(f"a user metric must take two arguments (points (M, 3), bounding_radius (M,)); "
+                                f"got {getattr(fn, '__name__', fn)!r} with signature {inspect.signature(fn)}") from None
+    except ValueError:  # no signature to read (some builtins): the call itself decides
+        pass
+    return fn
 
 
 def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
@@ -192,7 +216,7 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
     largest |value| (its values lie within half of it of their exact positions), else 0."""
     axes, roundings = [], []
     for name, axis in (("lat", lat), ("lon", lon)):
-        raw = np.asarray(axis)
+        raw = as_array(axis, name, "a 1-D array of numbers (degrees)")
         if raw.dtype == bool or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
             raise InvalidInputError(f"{name} must be numbers (degrees); got dtype {raw.dtype}")
         axes.append(raw.astype(np.float64))
@@ -802,7 +826,10 @@ def _user_factors(users: list[UserMetric], grid: Any, host: tuple[NDArray[np.flo
             raise InvalidInputError(f"user metric {name!r} {expected}; got shape {value.shape}")
         if not np.isfinite(value).all() or (value < 0).any():
             raise InvalidInputError(f"user metric {name!r} {expected}; got NaN, inf or negative values")
-        factor *= value
+        # capped at float32's largest, which refines as inf does: the float32 cast below overflowed with a
+        # RuntimeWarning, and a product beyond float64 (inf) times a later 0 was NaN
+        with np.errstate(over="ignore"):
+            factor = np.minimum(factor * value, FLOAT32_MAX)
     return wp.array(factor.astype(np.float32), dtype=wp.float32, device=device)
 
 

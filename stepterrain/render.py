@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
-from .terrain import check_flag, finite_or_nan, number_or_nan, real_numbers, real_vector
+from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
            "KEY_LIGHT_ELEVATION", "render_textured_mesh", "LayeredRenderer"]
@@ -319,7 +319,7 @@ def render_mesh(
     (float64) before VTK sees them. Cost on software OpenGL (Mesa llvmpipe, 2 cores): about a second per
     million faces, most of it uploading the geometry.
     """
-    if scalars not in (None, "level", "height"):
+    if not is_name(scalars, (None, "level", "height")):
         raise InvalidInputError(f"scalars must be None, 'level' or 'height'; got {scalars!r}")
     show_edges = check_flag(show_edges, "show_edges")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
@@ -366,6 +366,15 @@ def render_mesh(
                   lighting=True)
 
 
+#: The largest half-extent of a framed box (z scaled): the camera fit squares distances, which overflow float64
+#: beyond ~1.3e154 (RuntimeWarnings, then a blank image or a misleading "0 x 0 pixels").
+_MAX_REACH = 1e150
+
+
+def _fmt_box(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> str:
+    return f"[{', '.join(f'{v:g}' for v in lo)}] - [{', '.join(f'{v:g}' for v in hi)}]"
+
+
 def _frame_mesh(
     mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None,
     camera: CameraLike,
@@ -391,9 +400,16 @@ def _frame_mesh(
         lo, hi = _check_box(bounds, "bounds")
     centre = (lo + hi) / 2.0
     local = vertices - centre
-    local[:, 2] *= z_scale
     box = np.array([lo - centre, hi - centre])
-    box[:, 2] *= z_scale
+    with np.errstate(over="ignore", invalid="ignore"):  # beyond float64: refused below, not RuntimeWarnings
+        local[:, 2] *= z_scale
+        box[:, 2] *= z_scale
+    reach = np.abs(box).max(axis=0)
+    if not (reach <= _MAX_REACH).all():  # the camera's squared distances overflowed with RuntimeWarnings
+        what = (f"z_scale={z_scale:g} makes the mesh {hi[2] - lo[2]:g} x {z_scale:g} tall"
+                if (reach[:2] <= _MAX_REACH).all() else f"the framed box {_fmt_box(lo, hi)} is too large")
+        raise InvalidInputError(f"{what}: beyond ±{_MAX_REACH:g} about its centre the camera's squared distances "
+                                "overflow float64")
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height)  # raises on a bad camera; cheap (8 corners)
     if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side

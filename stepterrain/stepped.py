@@ -711,7 +711,7 @@ def colormap(name: str, *, argument: str = "colors", hint: str = "") -> tuple[An
 
     try:
         cmap = matplotlib.colormaps[name]
-    except KeyError:
+    except (KeyError, TypeError):  # TypeError: an unhashable value (a list, an array) as the name
         raise InvalidInputError(
             f"{argument} must name a matplotlib colormap (e.g. 'terrain', 'viridis'){hint}; got {name!r}"
         ) from None

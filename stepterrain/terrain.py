@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 import numbers
 import sys
+from collections.abc import Sequence
 from dataclasses import InitVar, dataclass, field
 from typing import Any, Literal
 
@@ -155,6 +156,21 @@ def optional_text(value: Any, name: str, what: str) -> str | None:
     if value is not None and not isinstance(value, str):
         raise InvalidInputError(f"{name} must be a str ({what}) or None; got {value!r:.80}")
     return value
+
+
+def is_name(value: Any, names: Sequence[str | None]) -> bool:
+    """Whether ``value`` is one of ``names`` (None too when it is among them): ``value in names`` compared an
+    array with each name, and numpy's "truth value of an array is ambiguous" ValueError escaped."""
+    return (value is None and None in names) or (isinstance(value, str) and value in names)
+
+
+def as_array(values: Any, name: str, expected: str) -> NDArray[Any]:
+    """``np.asarray(values)``, else an InvalidInputError "``name`` must be ``expected``; got rows of different
+    lengths": numpy's "inhomogeneous shape" ValueError for ragged nested lists named no argument."""
+    try:
+        return np.asarray(values)
+    except ValueError:  # ragged rows
+        raise InvalidInputError(f"{name} must be {expected}; got rows of different lengths") from None
 
 
 def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.float64]:

@@ -33,8 +33,18 @@ from ._device import host_copy, launch, recycled_empty, resolve_device, scratch
 from .errors import InvalidInputError
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
-from .terrain import FLOAT32_MAX, Terrain, as_number, as_terrain, check_flag, real_numbers, real_vector
+from .terrain import (
+    FLOAT32_MAX,
+    Terrain,
+    as_array,
+    as_number,
+    as_terrain,
+    check_flag,
+    real_numbers,
+    real_vector,
+)
 from .terrain import finite_number as _finite
+from .terrain import is_name as _is_name
 
 __all__ = [
     "HILLSHADE_METHODS",
@@ -96,12 +106,6 @@ def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
         raise InvalidInputError("topographic textures need a regular heightfield (an (H, W) array or a grid "
                                 f"Terrain); got a {t.kind.upper()}")
     return t
-
-
-def _is_name(value: Any, names: Sequence[str]) -> bool:
-    """Whether ``value`` is one of ``names``: a str (``in`` compared an array with each name, and numpy's "truth
-    value of an array is ambiguous" ValueError escaped)."""
-    return isinstance(value, str) and value in names
 
 
 def _azimuth(value: Any, *, stacklevel: int) -> float:
@@ -618,6 +622,9 @@ def relight(
         A directional light (radians), or
     point : (x, y, z)
         a point light in the terrain's world coordinates; needs ``terrain`` (the surface positions).
+    terrain, z_factor, spacing
+        For a point light, the surface as given to :func:`normal_map`; ``z_factor`` must be a positive number
+        with either light.
 
     Returns
     -------
@@ -632,9 +639,10 @@ def relight(
     >>> round(float(relight(rgb, azimuth=0.0, altitude=np.pi / 2, device="cpu")[1, 1]), 3)
     1.0
     """
-    rgb = np.asarray(normals)
+    rgb = as_array(normals, "normals", "an (H, W, 3) uint8 RGB texture")
     if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
         raise InvalidInputError(f"normals must be an (H, W, 3) uint8 RGB texture; got {rgb.dtype} {rgb.shape}")
+    z_factor = _finite(z_factor, "z_factor", positive=True)  # checked for a directional light too: text passed unread
     dev = resolve_device(device)
     host, out = _output(rgb.shape[:2], np.float32, wp.float32, dev)
     texels = wp.array(np.ascontiguousarray(rgb), dtype=wp.uint8, device=dev)
@@ -656,7 +664,6 @@ def relight(
     if t.heights.shape != rgb.shape[:2]:
         raise InvalidInputError(f"normals of shape {rgb.shape[:2]} do not match the terrain's {t.heights.shape} "
                                 "nodes (mismatched size); relight the normal map of this terrain")
-    z_factor = _finite(z_factor, "z_factor", positive=True)
     grid = _height_grid(t, z_factor, dev)
     local = (float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]))
     if max(abs(c) for c in local) > _MAX_SLOPE:  # |point - surface|² in float32 overflowed: a black image
@@ -861,7 +868,7 @@ def terrain_layer(terrain: Terrain | ArrayLike, image: ArrayLike, kind: LayerKin
     (-0.5, 2.5, -0.5, 1.5)
     """
     t = _grid_terrain(terrain, spacing)
-    array = np.asarray(image)
+    array = as_array(image, "image", "an (H, W) or (H, W, C) array on the terrain's nodes")
     if array.shape[:2] != t.heights.shape:
         raise InvalidInputError(f"image of shape {array.shape[:2]} does not match the terrain's "
                                 f"{t.heights.shape} nodes (mismatched size)")
@@ -931,7 +938,7 @@ def _as_layer(value: Any, like: TextureLayer | None, name: str) -> TextureLayer:
     if like is None:
         raise InvalidInputError(f"{name} must be a TextureLayer (or an array alongside a TextureLayer); "
                                 f"got {type(value).__name__}")
-    array = np.asarray(value)
+    array = as_array(value, name, f"a TextureLayer or an array of {like.shape} pixels")
     if array.shape[:2] != like.shape:
         raise InvalidInputError(f"{name} has shape {array.shape[:2]} but the layer it combines with has "
                                 f"{like.shape} (mismatched size)")
@@ -1001,7 +1008,7 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     elif isinstance(weights, TextureLayer):
         w = weights
     else:
-        array = np.asarray(weights)
+        array = as_array(weights, "weights", "a visibility layer or an (h, w) array")
         if array.ndim != 2:
             raise InvalidInputError(f"weights must be a visibility layer or an (h, w) array; got shape {array.shape}")
         w = _as_layer(TextureLayer("visibility", array, a.extent, matrix=a.matrix) if array.shape == a.shape
@@ -1210,7 +1217,8 @@ class Pipeline:
         return self._then("blend", other, weights)
 
     def add(self, other: Any, weights: Sequence[float] = (1.0, 1.0)) -> Pipeline:
-        if isinstance(weights, (str, bytes)) or not isinstance(weights, Sequence | np.ndarray) or len(weights) != 2:
+        if (isinstance(weights, (str, bytes)) or not isinstance(weights, Sequence | np.ndarray)
+                or (isinstance(weights, np.ndarray) and weights.ndim == 0) or len(weights) != 2):  # 0-d: no len()
             raise InvalidInputError(f"Pipeline.add needs weights (current, other); got {weights!r}")
         return self._then("add", other, tuple(weights))
 

@@ -38,7 +38,7 @@ from .camera import Camera
 from .errors import DataFileError, InvalidInputError
 from .io import picture_uint8
 from .kernels import texture as texture_kernels
-from .terrain import Terrain, as_number, as_terrain, check_flag, real_numbers
+from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
 
 __all__ = [
@@ -133,7 +133,7 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
                 raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
-    array = image if isinstance(image, np.ndarray) else np.asarray(image)
+    array = image if isinstance(image, np.ndarray) else as_array(image, "image", "an (H, W) or (H, W, C) uint8 array")
     if array.dtype != np.uint8:
         raise InvalidInputError(f"pyramid image must be uint8 (0-255); got dtype {array.dtype}")
     if array.ndim == 2:

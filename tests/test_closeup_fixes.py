@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
 from stepterrain import render
-from stepterrain.closeup import ROI, animate_closeups, render_closeups
-from stepterrain.errors import InvalidInputError
+from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
+from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
 from .test_closeup import hills
 from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
@@ -117,3 +119,76 @@ def test_cli_refuses_an_edge_wider_than_the_roi(tmp_path, capsys):
                      "-o", str(tmp_path / "o.glb")]) == 2  # fmt: skip
     assert "--edge must be at most the ROI radius" in capsys.readouterr().err
     assert not (tmp_path / "o.glb").exists()
+
+
+# ------------------------------------------------------------------------------------------ fuzzing (h9)
+ARRAY_CHOICE = np.array(["overview", "billboard"], dtype=object)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: AnchorStyle(inactive=ARRAY_CHOICE), "anchor inactive"),
+    (lambda: CloseUp(ROI.circle((0.0, 0.0), 5.0), view=ARRAY_CHOICE), "close-up view"),
+    (lambda: CloseUp(ROI.circle((0.0, 0.0), 5.0), scalars=ARRAY_CHOICE), "close-up scalars"),
+    (lambda: closeup_scene(hills(), [CloseUp(ROI.circle((20.0, 16.0), 5.0))], scalars=np.zeros((2, 2)),
+                           device="cpu"), "scalars"),
+], ids=["AnchorStyle inactive", "CloseUp view", "CloseUp scalars", "closeup_scene scalars"])
+def test_a_choice_given_as_an_array_is_named(call, name):
+    """``value not in ("a", "b")`` compared an array with each name: numpy's "truth value is ambiguous" ValueError."""
+    with pytest.raises(InvalidInputError, match=rf"^{name} must be"):
+        call()
+
+
+@pytest.mark.parametrize("cmap", [["terrain"], {"terrain": 1}, np.array(["terrain"])])
+def test_an_unhashable_colormap_is_named(cmap):
+    """matplotlib.colormaps[...] of a list, dict or array raised Python's "unhashable type" TypeError."""
+    with pytest.raises(InvalidInputError, match=r"cmap must name a matplotlib colormap"):
+        CloseUp(ROI.circle((0.0, 0.0), 5.0), cmap=cmap)
+    with pytest.raises(InvalidInputError, match=r"cmap must name a matplotlib colormap"):
+        closeup_scene(hills(), [CloseUp(ROI.circle((20.0, 16.0), 5.0))], cmap=cmap, device="cpu")
+
+
+@pytest.mark.parametrize("edge", [3.5e38, 1e300])
+def test_a_height_band_edge_beyond_float32_ramps_as_a_wide_edge(edge):
+    """The float32 ramp's bounds overflowed to inf and inf / inf made the mask NaN -> 0 everywhere (an empty ROI)
+    with RuntimeWarnings; an edge that wide ramps to ~1 everywhere, as an edge of 1e37 already did."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mask = ROI.height_band(hills(), 40.0, 60.0, edge=edge).mask
+    np.testing.assert_allclose(mask, ROI.height_band(hills(), 40.0, 60.0, edge=1e37).mask, atol=1e-6)
+    assert mask.min() > 0.99
+
+
+@pytest.mark.parametrize("call", [
+    lambda: ROI.height_band(hills(), -1e308, 60.0),
+    lambda: ROI.height_band(hills(), 40.0, 1e308),
+    lambda: ROI.height_band(hills(), 40.0, 60.0, edge=1e-320),
+    lambda: ROI.slope_above(hills(), 20.0, edge=1e-320),
+], ids=["low -1e308", "high 1e308", "band edge 1e-320", "slope edge 1e-320"])
+def test_generated_masks_with_extreme_bounds_leak_no_runtime_warning(call):
+    """The float32 casts and divisions overflowed with RuntimeWarnings (the masks came out as meant)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        call()
+
+
+@pytest.mark.parametrize("call", [lambda: ROI.circle((0.0, 0.0), 1e308), lambda: ROI.ellipse((0.0, 0.0), (1.0, 1e308))])
+def test_a_shape_too_large_is_refused_before_any_runtime_warning(call):
+    """The mask's texel grid over an inf box warned ("invalid value encountered") before the size was refused."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInputError, match=r"^ROI size must be positive \(width, height\) up to 1e\+12"):
+            call()
+
+
+def test_animating_more_frames_than_a_float_can_count_is_over_budget():
+    """The budget message divided 10**400 bytes by 1024**2 in float: Python's OverflowError."""
+    with pytest.raises(OutputTooLargeError, match=r"over 10\^\d+ MiB"):
+        animate_closeups(terrain(), [one()], frames=10**400, window_size=(64, 48), device="cpu")
+
+
+def test_an_fps_too_small_for_finite_frame_times_is_named():
+    """Frame times i / fps overflowed (RuntimeWarnings) and the NaN time was refused as "time", not fps."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(InvalidInputError, match=r"^fps must be large enough"):
+            animate_closeups(terrain(), [one()], frames=3, fps=1e-320, window_size=(64, 48), device="cpu")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -324,3 +325,56 @@ def test_every_float_globe_option_names_itself_for_a_non_finite_value(tmp_path, 
         assert main(["-q", "globe", f"--eye={eye}", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
         err = capsys.readouterr().err
         assert "error: argument --eye: expected finite numbers" in err, err
+
+
+# ------------------------------------------------------------------------------------------ fuzzing (h9)
+def _small_globe():
+    lat, lon = np.arange(-85, 90, 10.0), np.arange(-175, 180, 10.0)
+    return Globe.from_latlon(np.zeros((lat.size, lon.size)), lat, lon, face_size=17, device="cpu")
+
+
+@pytest.mark.parametrize("axis", ["lat", "lon"])
+def test_ragged_latitude_or_longitude_axes_are_named(axis):
+    """np.asarray of a ragged axis raised numpy's "inhomogeneous shape" ValueError, naming neither axis."""
+    axes = {"lat": np.arange(-85, 90, 10.0), "lon": np.arange(-175, 180, 10.0)}
+    axes[axis] = [[1.0, 2.0], [3.0]]
+    with pytest.raises(InvalidInputError, match=rf"^{axis} must be .*got rows of different lengths"):
+        Globe.from_latlon(np.zeros((18, 36)), axes["lat"], axes["lon"], face_size=17, device="cpu")
+
+
+@pytest.mark.parametrize("options, name", [
+    (dict(bounds=np.array(["cone", "sphere"], dtype=object)), "bounds"),
+    (dict(metrics=np.array("geometric")), "metrics"),
+    (dict(metrics=[np.array(["geometric", "clip"])]), "metrics"),
+    (dict(metrics=np.zeros((2, 2))), "metrics"),
+])
+def test_bounds_and_metrics_given_as_arrays_are_named(options, name):
+    """A name compared with an array raised numpy's "truth value of an array is ambiguous" ValueError, and a 0-d
+    array of metrics "iteration over a 0-d array" (TypeError)."""
+    with pytest.raises(InvalidInputError, match=rf"^{name} must be"):
+        _small_globe().mesh(error=100.0, **options)
+    if name == "metrics":
+        with pytest.raises(InvalidInputError, match=rf"^{name} must be"):
+            adaptive_mesh(np.zeros((9, 9)), error=1.0, device="cpu", **options)
+
+
+@pytest.mark.parametrize("metric", [lambda: 1.0, lambda points: points[:, 0], lambda p, r, extra: r])
+def test_a_user_metric_of_the_wrong_arity_is_named(metric):
+    """A callable that cannot take (points, bounding_radius) failed at the first level with Python's TypeError."""
+    with pytest.raises(InvalidInputError, match=r"a user metric must take two arguments"):
+        _small_globe().mesh(error=100.0, metrics=["geometric", metric])
+
+
+def test_a_user_metric_beyond_float32_refines_without_runtime_warnings():
+    """Factors beyond float32 overflowed in the cast with a RuntimeWarning per level (refining as inf does);
+    capped at float32's largest they refine alike, silently."""
+    globe = _small_globe()
+    full = globe.mesh(error=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        huge = globe.mesh(error=1e-3, metrics=["geometric", lambda p, r: np.full(len(p), 1e300)])
+        zero_after_huge = globe.mesh(error=1e-3, metrics=[lambda p, r: np.full(len(p), 1e300),
+                                                          lambda p, r: np.full(len(p), 1e300),
+                                                          lambda p, r: np.zeros(len(p))])
+    assert len(huge.faces) == len(full.faces)
+    assert len(zero_after_huge.faces) == 12  # a zero metric refines nothing: the cube's twelve triangles

@@ -63,3 +63,38 @@ def test_a_pyramid_over_a_read_only_source_is_not_copied(tmp_path):
     with ImagePyramid.build(tmp_path / "image.npy", storage=storage, device="cpu") as pyramid:
         assert str(pyramid.levels[0].filename) == str(tmp_path / "image.npy")
         assert sorted(p.name for p in storage.iterdir()) == ["level_1.u8", "level_2.u8", "level_3.u8", "level_4.u8"]
+
+
+# ------------------------------------------------------------------------------------------ fuzzing (h9)
+CAMERA = Camera((0.0, 0.0, 10.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+BAD_BOXES = [None, "box", [(0.0, 0.0, 0.0)], np.zeros((2, 2)), [("a", "b", "c"), ("d", "e", "f")],
+             [(1.0, 1.0, 1.0), (0.0, 0.0, 0.0)], [(np.nan, 0.0, 0.0), (1.0, 1.0, 1.0)], np.zeros((3, 3))]
+
+
+@pytest.mark.parametrize("method", ["box_visible", "nearest_point"])
+@pytest.mark.parametrize("box", BAD_BOXES, ids=["None", "str", "one corner", "2x2", "text", "max<min", "NaN", "3x3"])
+def test_a_camera_box_that_is_not_min_and_max_corners_is_named(method, box):
+    """Unpacking, broadcasting and indexing errors (TypeError, ValueError, IndexError) escaped, or a wrong answer
+    came back (a 3 x 3 array clipped the eye to its first two rows; max < min clipped it anywhere)."""
+    with pytest.raises(InvalidInputError, match=r"^box must be an axis-aligned box"):
+        getattr(CAMERA, method)(box)
+
+
+@pytest.mark.parametrize("point", [None, "abc", (1.0, 2.0), (0.0, 0.0, np.nan), np.zeros((2, 3))])
+def test_segment_pixels_names_a_point_that_is_not_a_3d_point(point):
+    """np.stack raised numpy's "all input arrays must have the same shape"; NaN came back as NaN pixels."""
+    with pytest.raises(InvalidInputError, match=r"^b must be a finite world point"):
+        CAMERA.segment_pixels(np.zeros(3), point)
+
+
+def test_camera_box_methods_keep_their_answers():
+    box = np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
+    assert CAMERA.box_visible(box) and CAMERA.box_visible(box.tolist())
+    np.testing.assert_array_equal(CAMERA.nearest_point(box), [0.0, 0.0, 1.0])
+    assert CAMERA.segment_pixels([0.0, 0.0, 0.0], (1.0, 0.0, 0.0)) == CAMERA.segment_pixels(np.zeros(3), np.eye(3)[0])
+
+
+def test_a_ragged_pyramid_image_is_named():
+    """np.asarray of ragged rows raised numpy's "inhomogeneous shape" ValueError, naming no argument."""
+    with pytest.raises(InvalidInputError, match=r"^image must be .*got rows of different lengths"):
+        ImagePyramid.build([[1, 2], [3]], extent=(0, 2, 0, 2), device="cpu")

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import trimesh
 
 from stepterrain import render
-from stepterrain.errors import InvalidInputError
+from stepterrain.errors import DataFileError, InvalidInputError
 
 from .conftest import needs_render
 
@@ -104,3 +106,44 @@ def test_an_unordered_size_is_refused(size):
         render._check_window(size, 1.0)
     with pytest.raises(InvalidInputError, match="Camera viewport must be"):
         Camera((0.0, -10.0, 5.0), (0.0, 0.0, 0.0), viewport=size)
+
+
+# ------------------------------------------------------------------------------------------ fuzzing (h9)
+def test_render_scalars_given_as_an_array_is_named():
+    """``scalars not in (None, "level", "height")`` compared an array with each name: numpy's ambiguous-truth error."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"^scalars must be None, 'level' or 'height'"):
+        render.render_mesh(mesh, window_size=(64, 48), scalars=np.array(["level", "height"], dtype=object))
+
+
+@pytest.mark.parametrize("z_scale", [1e155, 1e305, 1e308])
+def test_a_z_scale_overflowing_the_height_range_is_refused_without_runtime_warnings(z_scale):
+    """z times z_scale overflowed float64 with RuntimeWarnings before the fitted camera refused the mesh (an
+    explicit camera went on with inf vertices)."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for camera in ("oblique", [(5, -40, 40), (5, 5, 0), (0, 0, 1)]):
+            with pytest.raises(InvalidInputError, match=r"^z_scale=.* tall: beyond .* overflow float64"):
+                render.render_mesh(mesh, window_size=(64, 48), z_scale=z_scale, camera=camera)
+
+
+def test_a_ragged_image_is_named_by_save_png(tmp_path):
+    """np.asarray of ragged rows raised numpy's "inhomogeneous shape" ValueError, naming no argument."""
+    with pytest.raises(InvalidInputError, match=r"^image must be .*got rows of different lengths"):
+        render.save_png([[1, 2], [3]], tmp_path / "a.png")
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_path_with_a_nul_character_is_named(tmp_path):
+    """The NUL reached tempfile/os calls: a bare ValueError ("embedded null byte")."""
+    with pytest.raises(InvalidInputError, match=r"^path must be a file name without NUL characters"):
+        render.save_png(np.zeros((8, 8, 3), np.uint8), str(tmp_path / "a\x00b.png"))
+    assert not list(tmp_path.iterdir())
+
+
+def test_a_file_name_too_long_is_a_data_file_error(tmp_path):
+    """Path.is_symlink raised the bare OSError ENAMETOOLONG, outside the library's hierarchy."""
+    with pytest.raises(DataFileError, match=r"^cannot write .*: File name too long"):
+        render.save_png(np.zeros((8, 8, 3), np.uint8), tmp_path / ("x" * 300 + ".png"))
+    assert not list(tmp_path.iterdir())

@@ -9,6 +9,7 @@ import pytest
 
 from stepterrain.errors import InvalidInputError, StepTerrainError
 from stepterrain.texture import (
+    Pipeline,
     TextureLayer,
     adjust,
     ambient_occlusion,
@@ -131,3 +132,46 @@ def test_a_point_light_beyond_float32_distances_is_refused(point):
     near = relight(normals, point=(1.5, 1.5, 1e17), terrain=flat, device="cpu")  # far, but within float32
     overhead = relight(normals, azimuth=0.0, altitude=math.pi / 2, device="cpu")  # the light straight above
     np.testing.assert_allclose(near, overhead, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ fuzzing (h9)
+RAGGED = [[1.0, 2.0], [3.0]]
+
+
+def _layer(values=None):
+    return TextureLayer("luminance", np.full((2, 2), 0.5) if values is None else values, (0, 2, 0, 2))
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda: relight(RAGGED, azimuth=1.0, altitude=0.5, device="cpu"), "normals"),
+    (lambda: terrain_layer(np.zeros((2, 2)), RAGGED), "image"),
+    (lambda: Pipeline().blend(RAGGED).apply(_layer(), device="cpu"), "b"),
+    (lambda: Pipeline().blend(_layer(), RAGGED).apply(_layer(), device="cpu"), "weights"),
+    (lambda: Pipeline().add(RAGGED).apply(_layer(), device="cpu"), "layers"),
+    (lambda: Pipeline().modulate(RAGGED).apply(_layer(), device="cpu"), "layer"),
+], ids=["relight normals", "terrain_layer image", "blend other", "blend weights", "add other", "modulate other"])
+def test_ragged_rows_are_an_input_error_naming_the_argument(call, name):
+    """A ragged nested list reached np.asarray, whose "inhomogeneous shape" ValueError named no argument."""
+    with pytest.raises(InvalidInputError, match=rf"^{name}[^ ]*( [0-9]+)? must be .*; got rows of different lengths"):
+        call()
+
+
+@pytest.mark.parametrize("weights", [np.array(2.0), np.array(1.0, dtype=object)])
+def test_pipeline_add_weights_without_a_length_are_refused(weights):
+    """A 0-d array passed the Sequence | ndarray check and len() raised Python's TypeError."""
+    with pytest.raises(InvalidInputError, match="Pipeline.add needs weights"):
+        Pipeline().add(_layer(), weights)
+
+
+def test_pipeline_add_ragged_weights_name_the_weight():
+    """A ragged weights list reached weighted_add, which names the weight that is not a number."""
+    with pytest.raises(InvalidInputError, match=r"^weights\[0\] must be a number"):
+        Pipeline().add(_layer(), [[1.0, 2.0], [3.0]]).apply(_layer(), device="cpu")
+
+
+@pytest.mark.parametrize("z_factor", ["abc", None, math.nan, -1.0, [1.0, 2.0]])
+def test_relight_checks_z_factor_with_a_directional_light(z_factor):
+    """With azimuth and altitude z_factor was never read, so text, None or a negative value passed silently."""
+    rgb = normal_map(np.zeros((3, 3)), device="cpu")
+    with pytest.raises(InvalidInputError, match="z_factor"):
+        relight(rgb, azimuth=1.0, altitude=0.5, z_factor=z_factor, device="cpu")
