@@ -62,6 +62,7 @@ from .terrain import (
     check_flag,
     check_spacing,
     is_name,
+    is_real_dtype,
     number_or_nan,
     real_numbers,
     unmasked,
@@ -193,8 +194,7 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     except ValueError:  # ragged rows
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got rows of different "
                                 "lengths") from None
-    if (z.ndim != 2 or min(z.shape) < 2 or not np.issubdtype(z.dtype, np.number)
-            or np.issubdtype(z.dtype, np.complexfloating)):
+    if z.ndim != 2 or min(z.shape) < 2 or not is_real_dtype(z.dtype):  # not bools, complex or durations
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
                                 f"dtype {z.dtype}")
     if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
@@ -217,7 +217,7 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
     axes, roundings = [], []
     for name, axis in (("lat", lat), ("lon", lon)):
         raw = as_array(axis, name, "a 1-D array of numbers (degrees)")
-        if raw.dtype == bool or not (np.issubdtype(raw.dtype, np.integer) or np.issubdtype(raw.dtype, np.floating)):
+        if not is_real_dtype(raw.dtype):  # not bools or durations (numpy counts timedelta64 as an integer)
             raise InvalidInputError(f"{name} must be numbers (degrees); got dtype {raw.dtype}")
         axes.append(raw.astype(np.float64))
         narrow = raw.dtype.kind == "f" and raw.dtype.itemsize < 8 and raw.size and np.isfinite(raw).all()

@@ -378,3 +378,18 @@ def test_a_user_metric_beyond_float32_refines_without_runtime_warnings():
                                                           lambda p, r: np.zeros(len(p))])
     assert len(huge.faces) == len(full.faces)
     assert len(zero_after_huge.faces) == 12  # a zero metric refines nothing: the cube's twelve triangles
+
+
+def test_durations_are_no_heights_or_degrees_for_the_globe():
+    # numpy counts timedelta64 as an integer type: seconds were taken as heights and as degrees of the axes
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.globe import Globe
+
+    lat = np.linspace(-80.0, 80.0, 9)
+    lon = np.linspace(-180.0, 180.0, 17)[:-1]
+    z = np.zeros((9, 16))
+    with pytest.raises(InvalidInputError, match="elevation"):
+        Globe.from_latlon(z.astype("timedelta64[s]"), lat, lon, face_size=9, device="cpu")
+    with pytest.raises(InvalidInputError, match="lat must be numbers"):
+        Globe.from_latlon(z, lat.astype(int).astype("timedelta64[s]"), lon, face_size=9, device="cpu")
+    Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")  # the same grid in numbers is taken
