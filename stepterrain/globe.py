@@ -1438,7 +1438,8 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
 def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float = 0.0, heading: float = 0.0,
               fov: float = math.radians(30.0), aspect: float = 1.6, radius: float = EARTH_RADIUS,
               max_radius: float | None = None) -> Camera:
-    """A camera at (latitude, longitude) in degrees, ``altitude`` metres above the sphere of ``radius``,
+    """A camera at (latitude, longitude) in degrees (latitude in [-90, 90], longitude in [-360, 360]: east of
+    Greenwich either way round), ``altitude`` metres above the sphere of ``radius``,
     looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north) by ``tilt`` degrees.
 
     ``max_radius`` (metres, default ``radius``) is the largest distance of the surface from the centre, for a
@@ -1461,6 +1462,8 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         raise InvalidInputError(f"latitude must lie in [-90, 90] degrees; got {latitude}")
     if not math.isfinite(longitude):
         raise InvalidInputError(f"longitude must be finite; got {longitude}")
+    if not -360.0 <= longitude <= 360.0:  # 1e300 degrees gave a direction of no meaning (its radians round away)
+        raise InvalidInputError(f"longitude must lie in [-360, 360] degrees; got {longitude:g}")
     for name, value in (("altitude", altitude), ("tilt", tilt), ("heading", heading)):
         if not math.isfinite(number_or_nan(value)):
             raise InvalidInputError(f"{name} must be a finite number; got {value!r}")

@@ -393,3 +393,14 @@ def test_durations_are_no_heights_or_degrees_for_the_globe():
     with pytest.raises(InvalidInputError, match="lat must be numbers"):
         Globe.from_latlon(z, lat.astype(int).astype("timedelta64[s]"), lon, face_size=9, device="cpu")
     Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")  # the same grid in numbers is taken
+
+
+@pytest.mark.parametrize("longitude", [1e300, -361.0, 720.0])
+def test_a_longitude_beyond_one_turn_either_way_is_refused(longitude):
+    # any finite longitude was taken: 1e300 degrees put the camera in a direction of no meaning
+    from stepterrain.errors import InvalidInputError
+    from stepterrain.globe import look_from
+
+    with pytest.raises(InvalidInputError, match=r"longitude must lie in \[-360, 360\] degrees"):
+        look_from(10.0, longitude, 1e6)
+    assert np.allclose(look_from(10.0, 350.0, 1e6).eye, look_from(10.0, -10.0, 1e6).eye)
