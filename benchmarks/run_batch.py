@@ -12,7 +12,8 @@ contender steps every tile with the same isovalues and writes one ``--format`` f
   its own core with ``set_cpu_threads(1)``, each running the loop over every ``--workers``-th file (imports and
   kernels warm before the clock starts, as for the loops);
 - ``dask``: ``stepterrain.batch.batch(folder, out, scheduler=client)`` on a ``LocalCluster`` of ``--workers``
-  processes (one thread each), timed with and without the cluster's start-up;
+  processes (one thread each; kernels loaded before the clock starts, as for the loops), timed with and without
+  the cluster's start-up;
 - ``dask_resume``: the same call again over the complete outputs (every item skipped).
 
 The contenders run in turn, round after round (``--repeat`` rounds), so that this VM's drift in speed (±30 %
@@ -171,6 +172,16 @@ def run_split_pinned(files: list[Path], out: Path, interval: float, ext: str, wo
     return wall, used
 
 
+def _warm_worker() -> None:
+    """A dask worker as warm as the loops' process: one CPU thread and the kernels loaded (``_SPLIT_CHILD`` does
+    the same). Without it each worker's first task loaded them on the clock: 0.15-0.26 s of CPU for that tile against
+    0.10-0.11 s with the kernels loaded and 0.075 s for the next ones (1024², this VM)."""
+    import stepterrain as st
+
+    st.set_cpu_threads(1)
+    st.stepped(np.zeros((4, 4), np.float32), interval=1.0)
+
+
 def run_dask(folder: Path, out: Path, interval: float, ext: str, workers: int) -> tuple[float, float, float, object]:
     """(cluster start-up s, batch s, resume s, report)."""
     from distributed import Client
@@ -180,7 +191,7 @@ def run_dask(folder: Path, out: Path, interval: float, ext: str, workers: int) -
     t0 = time.perf_counter()
     cluster = start_local_cluster(workers)  # what batch() starts by default
     client = Client(cluster)
-    client.run(_pool_init)
+    client.run(_warm_worker)
     startup = time.perf_counter() - t0
     try:
         t1 = time.perf_counter()
@@ -347,7 +358,7 @@ def main(argv: list[str] | None = None) -> int:
         if not values:
             continue
         ratio = f"{base / best[contender]:.2f}×" if base else "–"
-        per_tile = f"{min(cpu[contender]) / len(files):.2f}" if cpu[contender] else "–"
+        per_tile = f"{min(cpu[contender]) / len(files):.3f}" if cpu[contender] else "–"
         lines.append(f"| {contender} | {best[contender]:.1f} | {', '.join(f'{v:.1f}' for v in values)} | "
                      f"{len(files) / best[contender]:.2f} | {ratio} | {per_tile} |")  # fmt: skip
     if extra["dask_startup"]:
@@ -372,8 +383,8 @@ def main(argv: list[str] | None = None) -> int:
                 )
         serial_cpu, dask_cpu = min(cpu["loop_1_core"]), min(cpu["dask"])
         lines.append(
-            f"- CPU time (independent of the other jobs on the machine): the one-core loop used {serial_cpu:.1f} s, "
-            f"the dask workers {dask_cpu:.1f} s inside their tasks ({dask_cpu / serial_cpu - 1:+.0%} per tile). "
+            f"- CPU time (independent of the other jobs on the machine): the one-core loop used {serial_cpu:.2f} s, "
+            f"the dask workers {dask_cpu:.2f} s inside their tasks ({dask_cpu / serial_cpu - 1:+.0%} per tile). "
             f"On {args.workers} otherwise idle cores the tasks would take ≈ {dask_cpu / args.workers:.1f} s: "
             "a projected "
             f"{serial_cpu / (dask_cpu / args.workers):.2f}× over the one-core loop (a projection, not a measurement; "
