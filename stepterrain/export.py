@@ -29,6 +29,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
+from ._files import require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
 from .terrain import FLOAT32_MAX, as_array, real_numbers
 
@@ -899,12 +900,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         in the message and is the ``__cause__``.
     """
     file = _target(path)
-    try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from is_file()
-        regular, exists = file.is_file(), file.exists()
-    except OSError as exc:
-        raise DataFileError(f"cannot read {str(file)!r}: {exc.strerror or exc}") from exc
-    if not regular:
-        raise DataFileError(f"mesh file {str(file)!r} {'is not a regular file' if exists else 'does not exist'}")
+    require_regular_file(file, "mesh file", "mesh file")
     try:
         if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
             own = _read_3mf(file)
