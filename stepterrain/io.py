@@ -833,11 +833,15 @@ def _crs_object(crs: str) -> Any:
     if parsed is not None:
         return parsed
     try:
+        import rasterio
         from rasterio.crs import CRS
     except ImportError:
         return None
     try:
-        parsed = CRS.from_user_input(crs)
+        # outside an Env, GDAL's own handler printed "ERROR 1: PROJ: ... crs not found" to stderr for an unknown
+        # EPSG code (once per lookup) though the file still loads; inside one its errors go to rasterio's logger
+        with rasterio.Env():
+            parsed = CRS.from_user_input(crs)
     except Exception:  # an unparseable CRS string
         return None
     if len(_PARSED_CRS) >= 64:

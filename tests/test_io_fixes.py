@@ -410,3 +410,18 @@ def test_load_dem_and_read_mesh_check_their_path_through_one_helper(tmp_path, ca
         call(tmp_path / "folder.npy")
     with pytest.raises(DataFileError, match=r"^cannot read '.*xxxx': File name too long$"):
         _files.require_regular_file(tmp_path / ("x" * 300), "file", "path")
+
+
+def test_an_unknown_epsg_code_loads_without_gdal_printing_to_stderr(tmp_path, capfd):
+    # the CRS lookup ran outside a rasterio Env, so GDAL's own error handler printed "ERROR 1: PROJ:
+    # internal_proj_create_from_database: crs not found: EPSG:999999" to stderr (three times) while load_dem went
+    # on and succeeded, the grid keeping its own units as documented
+    pytest.importorskip("rasterio")
+    path = tmp_path / "unknown.npz"
+    np.savez(path, elevation=np.arange(12, dtype=np.float32).reshape(3, 4), crs="EPSG:999999",
+             transform=np.array([500.0, 2.0, 0.0, 100.0, 0.0, -2.0]))  # fmt: skip
+    capfd.readouterr()
+    terrain = load_dem(path)
+    out, err = capfd.readouterr()
+    assert (out, err) == ("", "")
+    assert terrain.crs == "EPSG:999999" and terrain.spacing == (2.0, -2.0) and terrain.heights.shape == (3, 4)
