@@ -29,6 +29,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
+from ._files import require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
 from .terrain import FLOAT32_MAX, as_array, real_numbers
 
@@ -231,7 +232,8 @@ def save_mesh(
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
     when anything fails. A ``path`` that is a symbolic link is written through (see :func:`atomic_path`): the
-    link stays and the file it points to gets the new content.
+    link stays and the file it points to gets the new content (a textured OBJ's side files go beside that file,
+    named after its stem).
 
     Examples
     --------
@@ -708,7 +710,11 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     normals (viewers shade faces flat and stair edges stay crisp). Coordinates and UVs are written by ``repr``, the
     shortest text that reads back as the same float64: trimesh's writer used 8 decimals, so 1e-9 became 0 and a
     millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside (runs
-    of whitespace in the stem become ``_``)."""
+    of whitespace in the stem become ``_``). A ``target`` that is a symbolic link is written as the file it points to:
+    the side files go beside that file and take its stem, where a reader opening it looks for them."""
+    # the .obj bytes replace the file the link points to (atomic_path); side files written beside the link were
+    # missing beside that file, and an OBJ reader opening it found no material or texture
+    target = _link_target(target)
     # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
     # the line as the format says (tinyobjloader, many slicers), and the texture was not found
     stem = "_".join(target.stem.split()) or "mesh"
@@ -899,12 +905,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         in the message and is the ``__cause__``.
     """
     file = _target(path)
-    try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from is_file()
-        regular, exists = file.is_file(), file.exists()
-    except OSError as exc:
-        raise DataFileError(f"cannot read {str(file)!r}: {exc.strerror or exc}") from exc
-    if not regular:
-        raise DataFileError(f"mesh file {str(file)!r} {'is not a regular file' if exists else 'does not exist'}")
+    require_regular_file(file, "mesh file", "mesh file")
     try:
         if file.suffix.lower() == ".3mf" and zipfile.is_zipfile(file):
             own = _read_3mf(file)

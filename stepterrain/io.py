@@ -23,6 +23,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
+from ._files import require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
 
@@ -159,14 +160,7 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
         )
-    try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from exists()
-        exists, regular = file.exists(), file.is_file()
-    except OSError as exc:
-        raise DataFileError(f"cannot read {str(file)!r}: {exc.strerror or exc}") from exc
-    if not exists:
-        raise DataFileError(f"DEM file {str(file)!r} does not exist")
-    if not regular:
-        raise DataFileError(f"DEM path {str(file)!r} is not a regular file")
+    require_regular_file(file, "DEM file", "DEM path")
     if ext not in (".tif", ".tiff") and band != 1:
         raise InvalidInputError(
             f"band applies to GeoTIFF only; {str(file)!r} holds one band, got band={band}"
@@ -839,11 +833,15 @@ def _crs_object(crs: str) -> Any:
     if parsed is not None:
         return parsed
     try:
+        import rasterio
         from rasterio.crs import CRS
     except ImportError:
         return None
     try:
-        parsed = CRS.from_user_input(crs)
+        # outside an Env, GDAL's own handler printed "ERROR 1: PROJ: ... crs not found" to stderr for an unknown
+        # EPSG code (once per lookup) though the file still loads; inside one its errors go to rasterio's logger
+        with rasterio.Env():
+            parsed = CRS.from_user_input(crs)
     except Exception:  # an unparseable CRS string
         return None
     if len(_PARSED_CRS) >= 64:

@@ -291,7 +291,7 @@ def render_mesh(
         None: the mesh's vertex colors if it has them, else a uniform light tan. "level": faces colored by
         ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use ``cmap``.
     cmap : str
-        Matplotlib colormap for ``scalars``.
+        Matplotlib colormap for ``scalars`` (with ``scalars=None`` unused, but it must still be a str).
     show_edges : bool
         Draw triangle edges.
     anti_aliasing : bool
@@ -308,7 +308,7 @@ def render_mesh(
     Raises
     ------
     InvalidInputError
-        Bad window size, z_scale, camera or scalars, an empty mesh, or an infinite vertex (NaN ones are left out).
+        Bad window size, z_scale, camera, scalars or cmap, an empty mesh, or an infinite vertex (NaN ones are left out).
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -327,6 +327,8 @@ def render_mesh(
         from .stepped import colormap
 
         colormap(cmap, argument="cmap")  # matplotlib's ValueError (or a TypeError for cmap=5) named nothing
+    elif not isinstance(cmap, str):  # unused without scalars and passed unchecked; the name is looked up when used
+        raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
     face_attributes = {}
     if scalars == "level":

@@ -624,7 +624,8 @@ def relight(
         a point light in the terrain's world coordinates; needs ``terrain`` (the surface positions).
     terrain, z_factor, spacing
         For a point light, the surface as given to :func:`normal_map`; ``z_factor`` must be a positive number
-        with either light.
+        with either light. ``terrain`` and ``spacing`` given with a directional light are refused (they would
+        have no effect).
 
     Returns
     -------
@@ -649,6 +650,11 @@ def relight(
     if point is None:
         if azimuth is None or altitude is None:
             raise InvalidInputError("relight needs a directional light (azimuth and altitude) or a point light")
+        unread = [name for name, value in (("terrain", terrain), ("spacing", spacing)) if value is not None]
+        if unread:  # they were ignored: a caller who meant a point light got a directional shading without a word
+            raise InvalidInputError(f"{' and '.join(unread)} appl{'y' if len(unread) > 1 else 'ies'} to a point "
+                                    "light only (a directional light shades the normals alone); got "
+                                    f"{' and '.join(unread)} with azimuth and altitude")
         azimuth, altitude = _light(azimuth, altitude)
         light = wp.vec3(math.sin(azimuth) * math.cos(altitude), math.cos(azimuth) * math.cos(altitude),
                         math.sin(altitude))

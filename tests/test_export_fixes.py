@@ -316,3 +316,25 @@ def test_info_on_an_unreadable_mesh_prints_one_line(tmp_path, capsys):
         and err[0].startswith("stepterrain info: error: cannot read")
         and "as a mesh: IndexError" in err[0]
     )
+
+
+@pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
+def test_a_textured_obj_written_through_a_symbolic_link_has_its_side_files_beside_the_real_file(tmp_path):
+    # the .obj bytes replaced the file the link points to, but its .mtl and texture went beside the link (named
+    # after it): a reader opening the real file found neither, and the mesh came back untextured
+    (tmp_path / "store").mkdir()
+    real = tmp_path / "store" / "latest.obj"
+    link = tmp_path / "view.obj"
+    os.symlink(os.path.join("store", real.name), link)
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                image=Image.new("RGB", (2, 2), (200, 10, 10)))  # fmt: skip
+    assert save_mesh(mesh, link) == link
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["store", "view.obj"]
+    assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["latest.mtl", "latest.obj",
+                                                                     "latest_material_0.png"]  # fmt: skip
+    back = trimesh.load(real, process=False)
+    assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
+    save_mesh(mesh, real)  # the same file written by its own name: the same side files, no clash of owners
+    assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["latest.mtl", "latest.obj",
+                                                                     "latest_material_0.png"]  # fmt: skip

@@ -387,3 +387,41 @@ def test_a_name_too_long_for_the_file_system_is_a_data_file_error(tmp_path, call
     # OSError came out of load_dem, read_mesh and batch before any check of theirs
     with pytest.raises(DataFileError, match=message):
         call(tmp_path)
+
+
+@pytest.mark.parametrize(
+    "call, missing, irregular",
+    [
+        (load_dem, r"^DEM file '.*nope\.npy' does not exist$", r"^DEM path '.*folder\.npy' is not a regular file$"),
+        (read_mesh, r"^mesh file '.*nope\.npy' does not exist$", r"^mesh file '.*folder\.npy' is not a regular file$"),
+    ],
+    ids=["load_dem", "read_mesh"],
+)
+def test_load_dem_and_read_mesh_check_their_path_through_one_helper(tmp_path, call, missing, irregular):
+    # load_dem and read_mesh each carried the same six lines (exists / is_file in a try turning ENAMETOOLONG's
+    # OSError into a DataFileError, then "does not exist" / "not a regular file"); both go through one helper now,
+    # with the messages they had
+    from stepterrain import _files
+
+    (tmp_path / "folder.npy").mkdir()
+    with pytest.raises(DataFileError, match=missing):
+        call(tmp_path / "nope.npy")
+    with pytest.raises(DataFileError, match=irregular):
+        call(tmp_path / "folder.npy")
+    with pytest.raises(DataFileError, match=r"^cannot read '.*xxxx': File name too long$"):
+        _files.require_regular_file(tmp_path / ("x" * 300), "file", "path")
+
+
+def test_an_unknown_epsg_code_loads_without_gdal_printing_to_stderr(tmp_path, capfd):
+    # the CRS lookup ran outside a rasterio Env, so GDAL's own error handler printed "ERROR 1: PROJ:
+    # internal_proj_create_from_database: crs not found: EPSG:999999" to stderr (three times) while load_dem went
+    # on and succeeded, the grid keeping its own units as documented
+    pytest.importorskip("rasterio")
+    path = tmp_path / "unknown.npz"
+    np.savez(path, elevation=np.arange(12, dtype=np.float32).reshape(3, 4), crs="EPSG:999999",
+             transform=np.array([500.0, 2.0, 0.0, 100.0, 0.0, -2.0]))  # fmt: skip
+    capfd.readouterr()
+    terrain = load_dem(path)
+    out, err = capfd.readouterr()
+    assert (out, err) == ("", "")
+    assert terrain.crs == "EPSG:999999" and terrain.spacing == (2.0, -2.0) and terrain.heights.shape == (3, 4)

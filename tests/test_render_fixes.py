@@ -147,3 +147,14 @@ def test_a_file_name_too_long_is_a_data_file_error(tmp_path):
     with pytest.raises(DataFileError, match=r"^cannot write .*: File name too long"):
         render.save_png(np.zeros((8, 8, 3), np.uint8), tmp_path / ("x" * 300 + ".png"))
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("cmap", [5, None, ["terrain"], b"terrain"])
+def test_render_refuses_a_cmap_that_is_no_name_without_scalars(cmap):
+    """With scalars=None the cmap was never looked at: cmap=5 (or a list) rendered without a word, though the same
+    call with scalars='height' refused it."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"^cmap must name a matplotlib colormap .*; got "):
+        render.render_mesh(mesh, window_size=(64, 48), cmap=cmap)
+    with pytest.raises(InvalidInputError, match=r"^cmap must name a matplotlib colormap .*; got "):
+        render.render_mesh(mesh, window_size=(64, 48), scalars="height", cmap=cmap)

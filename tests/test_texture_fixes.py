@@ -175,3 +175,21 @@ def test_relight_checks_z_factor_with_a_directional_light(z_factor):
     rgb = normal_map(np.zeros((3, 3)), device="cpu")
     with pytest.raises(InvalidInputError, match="z_factor"):
         relight(rgb, azimuth=1.0, altitude=0.5, z_factor=z_factor, device="cpu")
+
+
+@pytest.mark.parametrize(
+    "given, message",
+    [
+        ({"terrain": np.zeros((3, 3))}, r"^terrain applies to a point light only .*; got terrain with azimuth"),
+        ({"spacing": (2.0, 2.0)}, r"^spacing applies to a point light only .*; got spacing with azimuth"),
+        ({"terrain": np.zeros((3, 3)), "spacing": 2.0}, r"^terrain and spacing apply to a point light only"),
+    ],
+    ids=["terrain", "spacing", "both"],
+)
+def test_relight_refuses_terrain_and_spacing_with_a_directional_light(given, message):
+    """With azimuth and altitude, terrain and spacing were never read: a caller who meant them (a point light, a
+    scaled surface) got the directional shading of the normals alone without a word."""
+    rgb = normal_map(np.zeros((3, 3)), device="cpu")
+    with pytest.raises(InvalidInputError, match=message):
+        relight(rgb, azimuth=1.0, altitude=0.5, device="cpu", **given)
+    assert relight(rgb, azimuth=1.0, altitude=0.5, device="cpu").shape == (3, 3)
