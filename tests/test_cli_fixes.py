@@ -179,3 +179,27 @@ def test_batch_height_unit_reaches_every_file_and_enters_the_fingerprint(tmp_pat
     with pytest.raises(InvalidInputError, match="series"):
         batch(tmp_path / "series.npy", tmp_path / "o4", interval=1.0, scheduler="serial", height_unit="cm")
     assert DataFileError  # the refusal of an unknown unit in a file is a DataFileError (report.failed above)
+
+
+# ------------------------------------------------------------------ adversarial fuzzing of globe, closeup, texture
+def one_error_line(err: str, command: str) -> str:
+    """The one ``stepterrain COMMAND: error:`` line of a refused run (no traceback, no other line)."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"stepterrain {command}: error: "), err
+    return lines[0]
+
+
+@pytest.mark.parametrize("axis", ["lat", "lon"])
+def test_globe_input_with_a_repeated_coordinate_is_a_usage_error(tmp_path, capsys, axis):
+    """An axis of equal values (all zeros, or one value twice at the start) has a zero first step: finding where the
+    axis stops being monotone indexed an empty array, an IndexError traceback instead of exit 2."""
+    lat, lon = np.linspace(-85, 85, 18), np.linspace(-175, 175, 36)
+    for values in (np.zeros, lambda n: np.r_[0.0, 0.0, np.arange(1.0, n - 1)]):
+        grids = {"lat": lat, "lon": lon}
+        grids[axis] = values(len(grids[axis]))
+        np.savez(tmp_path / "g.npz", elevation=np.zeros((18, 36)), **grids)
+        code, _, err = run(capsys, "-q", "globe", tmp_path / "g.npz", "--face-size", "3", "-o", tmp_path / "g.glb")
+        assert code == 2, err
+        line = one_error_line(err, "globe")
+        assert f"{axis} must be strictly monotone" in line and "index 1" in line
+    assert not (tmp_path / "g.glb").exists()
