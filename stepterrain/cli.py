@@ -334,16 +334,19 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
         if key in seen:
             raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
         seen[key] = name
-        for source, given in (inputs or {}).items():
-            if given and (Path(os.path.abspath(given)) == key
-                          or (key.exists() and Path(given).exists() and os.path.samefile(key, given))):
-                raise InvalidInputError(f"{name} {str(path)!r} is the {source} file; writing it would replace "
-                                        "the input: give the output its own name")
-        if key.is_dir():
-            raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
-        folder = key.parent
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
+        try:  # a name the system refuses to look up (a part over 255 bytes) raised a bare OSError naming no option
+            for source, given in (inputs or {}).items():
+                if given and (Path(os.path.abspath(given)) == key
+                              or (key.exists() and Path(given).exists() and os.path.samefile(key, given))):
+                    raise InvalidInputError(f"{name} {str(path)!r} is the {source} file; writing it would replace "
+                                            "the input: give the output its own name")
+            if key.is_dir():
+                raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
+            folder = key.parent
+            while not folder.exists() and folder != folder.parent:
+                folder = folder.parent
+        except OSError as exc:
+            raise DataFileError(f"{name} {str(path)!r} cannot be written: {exc.strerror or exc}") from exc
         if not folder.is_dir():
             raise DataFileError(f"{name} {str(path)!r} cannot be written: {str(folder)!r} is not a folder")
         error = probe_writable(folder)

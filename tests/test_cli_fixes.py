@@ -203,3 +203,23 @@ def test_globe_input_with_a_repeated_coordinate_is_a_usage_error(tmp_path, capsy
         line = one_error_line(err, "globe")
         assert f"{axis} must be strictly monotone" in line and "index 1" in line
     assert not (tmp_path / "g.glb").exists()
+
+
+LONG_NAMES = [  # (command, option, extension): a name over 255 bytes is looked up before any work
+    ("globe", "-o", ".glb"), ("globe", "--png", ".png"), ("closeup", "-o", ".png"), ("closeup", "--gif", ".gif"),
+    ("texture", "-o", ".png"), ("texture", "--mesh", ".glb"), ("texture", "--normals", ".png"),
+]
+
+
+@pytest.mark.parametrize("command, option, ext", LONG_NAMES, ids=[f"{c}{o}" for c, o, _ in LONG_NAMES])
+def test_an_output_name_too_long_names_its_option(tmp_path, capsys, command, option, ext):
+    """os.stat of a name over 255 bytes raises ENAMETOOLONG: it reached main's OSError handler as a bare
+    '[Errno 36] File name too long', naming no option."""
+    required = [] if option == "-o" else ["-o", tmp_path / f"ok{'.glb' if command == 'globe' else '.png'}"]
+    name = tmp_path / ("a" * 300 + ext)
+    code, _, err = run(capsys, command, "-q", *required, option, name, "--size", "64x64")
+    assert code == 2
+    line = one_error_line(err, command)
+    expected = {"-o": "--output"}.get(option, option)
+    assert f"{expected} '" in line and "cannot be written: File name too long" in line and "Errno" not in line
+    assert list(tmp_path.iterdir()) == []
