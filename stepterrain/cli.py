@@ -129,7 +129,8 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
 
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
-        items = text.replace(" ", "").split(",")
+        # blanks around a value go ('1, 2, 3'); blanks inside one are an error, not removed ('1 2 3' read as 123)
+        items = [item.strip() for item in text.split(",")]
         if "" in items and text.strip():  # '1,,2' or '1,2,': a value left out, not a shorter list
             raise argparse.ArgumentTypeError(f"expected {what}; got {text!r} (an empty value)")
         try:

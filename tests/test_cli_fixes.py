@@ -223,3 +223,25 @@ def test_an_output_name_too_long_names_its_option(tmp_path, capsys, command, opt
     expected = {"-o": "--output"}.get(option, option)
     assert f"{expected} '" in line and "cannot be written: File name too long" in line and "Errno" not in line
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["closeup", "--scale", "1 2 3"], "--scale"),  # was read as --scale 123
+    (["closeup", "--offset", "0, 0, 10 00"], "--offset"),  # was read as 0,0,1000
+    (["globe", "--eye", "30,1 0,2e7"], "--eye"),
+    (["steps", "--levels", "100 200"], "--levels"),  # was one level, 100200
+])
+def test_blanks_inside_a_number_are_refused_not_removed(tmp_path, capsys, argv, option):
+    """_floats removed every blank before splitting at commas, so digits on either side of a blank were joined
+    into another number and the run went on with it."""
+    code, _, err = run(capsys, *argv, "-o", tmp_path / "x.png" if argv[0] == "closeup" else tmp_path / "x.glb")
+    assert code == 2
+    line = one_error_line(err, argv[0])
+    assert f"argument {option}: expected" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_blanks_around_comma_separated_values_are_still_taken():
+    from stepterrain.cli import _floats
+
+    assert _floats(3, "x,y,r")(" 1, 2 ,3 ") == (1.0, 2.0, 3.0)
