@@ -404,6 +404,10 @@ class Globe:
         cells = _face_cells(face_size)
         radius = _positive(radius, "radius")
         exaggeration = _positive(exaggeration, "exaggeration")
+        tiny = float(np.finfo(np.float32).tiny)  # the kernels take it as float32: 1e-320 became 0, a flat globe
+        if exaggeration < tiny:
+            raise InvalidInputError(f"exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
+                                    f"it); got {exaggeration:g}")
         z = _height_grid(elevation, "elevation")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
         limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences

@@ -245,3 +245,19 @@ def test_blanks_around_comma_separated_values_are_still_taken():
     from stepterrain.cli import _floats
 
     assert _floats(3, "x,y,r")(" 1, 2 ,3 ") == (1.0, 2.0, 3.0)
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--eye", "0,1e308,1e6"], "--eye longitude must lie in [-360, 360] degrees; got 1e+308"),  # named 'longitude'
+    (["--eye", "0,-361,1e6"], "--eye longitude must lie in [-360, 360] degrees; got -361"),
+    (["--exaggeration", "1e-320"], "--exaggeration must be at least 1.18e-38"),  # a flat globe, NaN colours, rc 0
+    (["--exaggeration", "1e-40"], "--exaggeration must be at least 1.18e-38"),
+])
+def test_globe_eye_longitude_and_a_vanishing_exaggeration_are_refused_by_their_option(tmp_path, capsys, argv, expected):
+    """--eye's longitude was refused by look_from as the library's 'longitude' (no such option); an exaggeration
+    that is 0 as the kernels' float32 was taken, with a 'invalid value encountered in divide' warning and a flat,
+    NaN-coloured globe written with exit 0."""
+    code, _, err = run(capsys, "-q", "globe", "--face-size", "3", *argv, "-o", tmp_path / "g.glb")
+    assert code == 2
+    assert expected in one_error_line(err, "globe")
+    assert list(tmp_path.iterdir()) == []
