@@ -9,6 +9,7 @@ import pytest
 
 from stepterrain import cli
 
+from .conftest import needs_render
 from .test_examples import load_example
 
 
@@ -260,4 +261,16 @@ def test_globe_eye_longitude_and_a_vanishing_exaggeration_are_refused_by_their_o
     code, _, err = run(capsys, "-q", "globe", "--face-size", "3", *argv, "-o", tmp_path / "g.glb")
     assert code == 2
     assert expected in one_error_line(err, "globe")
+    assert list(tmp_path.iterdir()) == []
+
+
+@needs_render
+@pytest.mark.parametrize("extra", [[], ["--gif", "a.gif", "--frames", "2"]])
+def test_closeup_z_scale_overflowing_float64_is_refused_by_its_option(tmp_path, capsys, monkeypatch, extra):
+    """The layered renderer scaled heights by --z-scale without the bound render_mesh has (texture and steps
+    refused 1e308): closeup rendered an image of nothing with an 'overflow encountered in multiply' warning, exit 0."""
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "-q", "closeup", "--z-scale", "1e308", "--size", "96x72", "-o", "c.png", *extra)
+    assert code == 2
+    assert "--z-scale 1e+308 makes layer 'overview'" in one_error_line(err, "closeup")
     assert list(tmp_path.iterdir()) == []
