@@ -580,7 +580,15 @@ _ARGUMENT_FIRST = re.compile(r"^([a-z][a-z0-9_]*)(=| )")
 _NOT_ABOUT_THE_ARGUMENT = frozenset({"has", "folder", "file", "is", "of", "with"})
 
 #: Library argument names whose option is spelled otherwise, per subcommand (checked before the general rule).
-_OPTION_ALIASES = {"steps": {"lens edge_width": "--lens-edge"}}
+#: closeup's CloseUp checks name "close-up scale" etc., which reached the command line as they were.
+_OPTION_ALIASES = {
+    "steps": {"lens edge_width": "--lens-edge"},
+    "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
+                "close-up color": "--color", "close-up stepped interval": "--stepped"},
+}
+
+#: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
+_CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 
 
 def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:
@@ -596,7 +604,11 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     messages unchanged. A command-line user never typed ``face_size``."""
     if sub is None:
         return message
-    for name, option in _OPTION_ALIASES.get(sub.prog.split()[-1], {}).items():
+    command = sub.prog.split()[-1]
+    indexed = _CLOSEUP_INDEX.match(message) if command == "closeup" else None
+    if indexed is not None:
+        return f"--roi/--roi-relative (close-up {int(indexed.group(1)) + 1}): {message[indexed.end():]}"
+    for name, option in _OPTION_ALIASES.get(command, {}).items():
         if message.startswith(name + " "):
             return option + message[len(name):]
     match = _ARGUMENT_FIRST.match(message)

@@ -274,3 +274,20 @@ def test_closeup_z_scale_overflowing_float64_is_refused_by_its_option(tmp_path, 
     assert code == 2
     assert "--z-scale 1e+308 makes layer 'overview'" in one_error_line(err, "closeup")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--scale", "1e30"], "--scale must be at most"),  # each was 'close-up scale ...', naming no option
+    (["--scale", "-1"], "--scale must be positive"),
+    (["--offset", "1e30,0,0"], "--offset must be finite"),
+    (["--color", "notacolor"], "--color must be a matplotlib color"),
+    (["--roi", "0,0,1"], "--roi/--roi-relative (close-up 1): ROI box x [-1, 1]"),  # was 'closeups[0]: ROI box'
+    (["--roi-relative", "0.5,0.5,0.1", "--roi-relative", "5,5,0.1"], "--roi/--roi-relative (close-up 2): ROI box"),
+])
+def test_closeup_refusals_from_the_library_name_the_option(tmp_path, capsys, argv, expected):
+    """CloseUp's and the ROI checks' messages name 'close-up scale', 'closeups[0]', ...: _as_option passed them
+    through, so the one-line error named no option of the command."""
+    code, _, err = run(capsys, "-q", "closeup", *argv, "-o", tmp_path / "c.glb")
+    assert code == 2
+    assert one_error_line(err, "closeup").startswith(f"stepterrain closeup: error: {expected}")
+    assert list(tmp_path.iterdir()) == []
