@@ -291,3 +291,12 @@ def test_closeup_refusals_from_the_library_name_the_option(tmp_path, capsys, arg
     assert code == 2
     assert one_error_line(err, "closeup").startswith(f"stepterrain closeup: error: {expected}")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_closeup_subnormal_fps_for_a_gif_is_a_usage_error(tmp_path, capsys):
+    """100 / 1e-320 is inf: _check_fps's int() raised OverflowError, a traceback instead of exit 2."""
+    code, _, err = run(capsys, "-q", "closeup", "--gif", tmp_path / "a.gif", "--fps", "1e-320", "--frames", "2",
+                       "-o", tmp_path / "c.glb")
+    assert code == 2
+    assert "--fps must lie in [0.001526, 100] frames per second for a GIF" in one_error_line(err, "closeup")
+    assert list(tmp_path.iterdir()) == []
