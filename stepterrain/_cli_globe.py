@@ -144,6 +144,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     lat_deg, lon_deg, altitude = args.eye
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
+    if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
+        raise InvalidInputError(f"--eye longitude must lie in [-360, 360] degrees; got {lon_deg:g}")
     if altitude <= 0:
         raise InvalidInputError(f"--eye altitude must be above the surface (> 0 m); got {altitude}")
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading

@@ -129,7 +129,8 @@ def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
 
 def _floats(count: int | None, what: str) -> Callable[[str], tuple[float, ...]]:
     def parse(text: str) -> tuple[float, ...]:
-        items = text.replace(" ", "").split(",")
+        # blanks around a value go ('1, 2, 3'); blanks inside one are an error, not removed ('1 2 3' read as 123)
+        items = [item.strip() for item in text.split(",")]
         if "" in items and text.strip():  # '1,,2' or '1,2,': a value left out, not a shorter list
             raise argparse.ArgumentTypeError(f"expected {what}; got {text!r} (an empty value)")
         try:
@@ -334,16 +335,19 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
         if key in seen:
             raise InvalidInputError(f"{seen[key]} and {name} name the same file {str(path)!r}; give each its own")
         seen[key] = name
-        for source, given in (inputs or {}).items():
-            if given and (Path(os.path.abspath(given)) == key
-                          or (key.exists() and Path(given).exists() and os.path.samefile(key, given))):
-                raise InvalidInputError(f"{name} {str(path)!r} is the {source} file; writing it would replace "
-                                        "the input: give the output its own name")
-        if key.is_dir():
-            raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
-        folder = key.parent
-        while not folder.exists() and folder != folder.parent:
-            folder = folder.parent
+        try:  # a name the system refuses to look up (a part over 255 bytes) raised a bare OSError naming no option
+            for source, given in (inputs or {}).items():
+                if given and (Path(os.path.abspath(given)) == key
+                              or (key.exists() and Path(given).exists() and os.path.samefile(key, given))):
+                    raise InvalidInputError(f"{name} {str(path)!r} is the {source} file; writing it would replace "
+                                            "the input: give the output its own name")
+            if key.is_dir():
+                raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
+            folder = key.parent
+            while not folder.exists() and folder != folder.parent:
+                folder = folder.parent
+        except OSError as exc:
+            raise DataFileError(f"{name} {str(path)!r} cannot be written: {exc.strerror or exc}") from exc
         if not folder.is_dir():
             raise DataFileError(f"{name} {str(path)!r} cannot be written: {str(folder)!r} is not a folder")
         error = probe_writable(folder)
@@ -576,7 +580,15 @@ _ARGUMENT_FIRST = re.compile(r"^([a-z][a-z0-9_]*)(=| )")
 _NOT_ABOUT_THE_ARGUMENT = frozenset({"has", "folder", "file", "is", "of", "with"})
 
 #: Library argument names whose option is spelled otherwise, per subcommand (checked before the general rule).
-_OPTION_ALIASES = {"steps": {"lens edge_width": "--lens-edge"}}
+#: closeup's CloseUp checks name "close-up scale" etc., which reached the command line as they were.
+_OPTION_ALIASES = {
+    "steps": {"lens edge_width": "--lens-edge"},
+    "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
+                "close-up color": "--color", "close-up stepped interval": "--stepped"},
+}
+
+#: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
+_CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 
 
 def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:
@@ -592,7 +604,11 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     messages unchanged. A command-line user never typed ``face_size``."""
     if sub is None:
         return message
-    for name, option in _OPTION_ALIASES.get(sub.prog.split()[-1], {}).items():
+    command = sub.prog.split()[-1]
+    indexed = _CLOSEUP_INDEX.match(message) if command == "closeup" else None
+    if indexed is not None:
+        return f"--roi/--roi-relative (close-up {int(indexed.group(1)) + 1}): {message[indexed.end():]}"
+    for name, option in _OPTION_ALIASES.get(command, {}).items():
         if message.startswith(name + " "):
             return option + message[len(name):]
     match = _ARGUMENT_FIRST.match(message)

@@ -1943,7 +1943,8 @@ def _check_fps(fps: Any, suffix: str, name: str = "fps") -> float:
     fps = finite_number(fps, name, positive=True)
     if suffix == ".gif":
         lo, hi = _GIF_DELAYS
-        if not lo <= int(100.0 / fps) <= hi:
+        delay = 100.0 / fps  # inf for a subnormal fps: int() raised OverflowError
+        if not (math.isfinite(delay) and lo <= int(delay) <= hi):
             raise InvalidInputError(f"{name} must lie in [{100.0 / hi:.4g}, {100.0 / lo:g}] frames per second for a "
                                     f"GIF (its frame delays are whole hundredths of a second, {lo} to {hi}); got "
                                     f"{fps:g}")

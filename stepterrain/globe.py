@@ -237,8 +237,10 @@ def _regular_step(axis: NDArray[np.float64], name: str, rounding: float = 0.0) -
     lies within half of it of its exact position, so each step within one of the exact step."""
     steps = np.diff(axis)
     if not ((steps > 0).all() or (steps < 0).all()):
-        bad = int(np.flatnonzero(np.sign(steps) != np.sign(steps[0]))[0]) + 1 if len(steps) else 0
-        raise InvalidInputError(f"{name} must be strictly monotone; it turns at index {bad} "
+        # a zero step (a repeated value, e.g. an axis of zeros) is where it stops: np.sign(0) matched a first zero
+        turns = np.flatnonzero((steps == 0) | (np.sign(steps) != np.sign(steps[0])))
+        bad = int(turns[0]) + 1 if len(turns) else 0
+        raise InvalidInputError(f"{name} must be strictly monotone; it repeats or turns at index {bad} "
                                 f"({axis[max(bad - 1, 0)]}, {axis[bad]})")
     step = float(np.abs(steps).mean())
     if np.abs(np.abs(steps) - step).max() > 1e-6 * max(step, 1e-12) + 1e-9 + 2 * rounding:
@@ -402,6 +404,10 @@ class Globe:
         cells = _face_cells(face_size)
         radius = _positive(radius, "radius")
         exaggeration = _positive(exaggeration, "exaggeration")
+        tiny = float(np.finfo(np.float32).tiny)  # the kernels take it as float32: 1e-320 became 0, a flat globe
+        if exaggeration < tiny:
+            raise InvalidInputError(f"exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
+                                    f"it); got {exaggeration:g}")
         z = _height_grid(elevation, "elevation")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
         limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences

@@ -876,11 +876,18 @@ class LayeredRenderer:
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
         lo, hi = bounds
-        if self._origin is None:
-            self._origin = (lo + hi) / 2.0
+        origin = (lo + hi) / 2.0 if self._origin is None else self._origin
+        local_box = np.array([lo, hi]) - origin
+        with np.errstate(over="ignore", invalid="ignore"):  # beyond float64: refused below, not RuntimeWarnings
+            local_box[:, 2] *= self.z_scale  # z_scale > 0 keeps the order
+        reach = np.abs(local_box).max(axis=0)
+        if not (reach <= _MAX_REACH).all():  # as render_mesh: z_scale=1e308 rendered a blank image, with a warning
+            what = (f"z_scale={self.z_scale:g} makes layer {name!r} {hi[2] - lo[2]:g} x {self.z_scale:g} tall"
+                    if (reach[:2] <= _MAX_REACH).all() else f"layer {name!r} spans {_fmt_box(lo, hi)}, too large")
+            raise InvalidInputError(f"{what}: beyond ±{_MAX_REACH:g} about the origin the camera's squared distances "
+                                    "overflow float64")
+        self._origin = origin
         local = self._local(vertices)
-        local_box = np.array([lo, hi]) - self._origin
-        local_box[:, 2] *= self.z_scale  # z_scale > 0 keeps the order
         self._versions[name] = self._versions.get(name, 0) + 1
         kind = ("values" if values is not None else "rgb" if rgb is not None else "plain", len(local))
         previous = self._meshes.get(name)

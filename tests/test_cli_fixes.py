@@ -9,6 +9,7 @@ import pytest
 
 from stepterrain import cli
 
+from .conftest import needs_render
 from .test_examples import load_example
 
 
@@ -179,3 +180,123 @@ def test_batch_height_unit_reaches_every_file_and_enters_the_fingerprint(tmp_pat
     with pytest.raises(InvalidInputError, match="series"):
         batch(tmp_path / "series.npy", tmp_path / "o4", interval=1.0, scheduler="serial", height_unit="cm")
     assert DataFileError  # the refusal of an unknown unit in a file is a DataFileError (report.failed above)
+
+
+# ------------------------------------------------------------------ adversarial fuzzing of globe, closeup, texture
+def one_error_line(err: str, command: str) -> str:
+    """The one ``stepterrain COMMAND: error:`` line of a refused run (no traceback, no other line)."""
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"stepterrain {command}: error: "), err
+    return lines[0]
+
+
+@pytest.mark.parametrize("axis", ["lat", "lon"])
+def test_globe_input_with_a_repeated_coordinate_is_a_usage_error(tmp_path, capsys, axis):
+    """An axis of equal values (all zeros, or one value twice at the start) has a zero first step: finding where the
+    axis stops being monotone indexed an empty array, an IndexError traceback instead of exit 2."""
+    lat, lon = np.linspace(-85, 85, 18), np.linspace(-175, 175, 36)
+    for values in (np.zeros, lambda n: np.r_[0.0, 0.0, np.arange(1.0, n - 1)]):
+        grids = {"lat": lat, "lon": lon}
+        grids[axis] = values(len(grids[axis]))
+        np.savez(tmp_path / "g.npz", elevation=np.zeros((18, 36)), **grids)
+        code, _, err = run(capsys, "-q", "globe", tmp_path / "g.npz", "--face-size", "3", "-o", tmp_path / "g.glb")
+        assert code == 2, err
+        line = one_error_line(err, "globe")
+        assert f"{axis} must be strictly monotone" in line and "index 1" in line
+    assert not (tmp_path / "g.glb").exists()
+
+
+LONG_NAMES = [  # (command, option, extension): a name over 255 bytes is looked up before any work
+    ("globe", "-o", ".glb"), ("globe", "--png", ".png"), ("closeup", "-o", ".png"), ("closeup", "--gif", ".gif"),
+    ("texture", "-o", ".png"), ("texture", "--mesh", ".glb"), ("texture", "--normals", ".png"),
+]
+
+
+@pytest.mark.parametrize("command, option, ext", LONG_NAMES, ids=[f"{c}{o}" for c, o, _ in LONG_NAMES])
+def test_an_output_name_too_long_names_its_option(tmp_path, capsys, command, option, ext):
+    """os.stat of a name over 255 bytes raises ENAMETOOLONG: it reached main's OSError handler as a bare
+    '[Errno 36] File name too long', naming no option."""
+    required = [] if option == "-o" else ["-o", tmp_path / f"ok{'.glb' if command == 'globe' else '.png'}"]
+    name = tmp_path / ("a" * 300 + ext)
+    code, _, err = run(capsys, command, "-q", *required, option, name, "--size", "64x64")
+    assert code == 2
+    line = one_error_line(err, command)
+    expected = {"-o": "--output"}.get(option, option)
+    assert f"{expected} '" in line and "cannot be written: File name too long" in line and "Errno" not in line
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, option", [
+    (["closeup", "--scale", "1 2 3"], "--scale"),  # was read as --scale 123
+    (["closeup", "--offset", "0, 0, 10 00"], "--offset"),  # was read as 0,0,1000
+    (["globe", "--eye", "30,1 0,2e7"], "--eye"),
+    (["steps", "--levels", "100 200"], "--levels"),  # was one level, 100200
+])
+def test_blanks_inside_a_number_are_refused_not_removed(tmp_path, capsys, argv, option):
+    """_floats removed every blank before splitting at commas, so digits on either side of a blank were joined
+    into another number and the run went on with it."""
+    code, _, err = run(capsys, *argv, "-o", tmp_path / "x.png" if argv[0] == "closeup" else tmp_path / "x.glb")
+    assert code == 2
+    line = one_error_line(err, argv[0])
+    assert f"argument {option}: expected" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_blanks_around_comma_separated_values_are_still_taken():
+    from stepterrain.cli import _floats
+
+    assert _floats(3, "x,y,r")(" 1, 2 ,3 ") == (1.0, 2.0, 3.0)
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--eye", "0,1e308,1e6"], "--eye longitude must lie in [-360, 360] degrees; got 1e+308"),  # named 'longitude'
+    (["--eye", "0,-361,1e6"], "--eye longitude must lie in [-360, 360] degrees; got -361"),
+    (["--exaggeration", "1e-320"], "--exaggeration must be at least 1.18e-38"),  # a flat globe, NaN colours, rc 0
+    (["--exaggeration", "1e-40"], "--exaggeration must be at least 1.18e-38"),
+])
+def test_globe_eye_longitude_and_a_vanishing_exaggeration_are_refused_by_their_option(tmp_path, capsys, argv, expected):
+    """--eye's longitude was refused by look_from as the library's 'longitude' (no such option); an exaggeration
+    that is 0 as the kernels' float32 was taken, with a 'invalid value encountered in divide' warning and a flat,
+    NaN-coloured globe written with exit 0."""
+    code, _, err = run(capsys, "-q", "globe", "--face-size", "3", *argv, "-o", tmp_path / "g.glb")
+    assert code == 2
+    assert expected in one_error_line(err, "globe")
+    assert list(tmp_path.iterdir()) == []
+
+
+@needs_render
+@pytest.mark.parametrize("extra", [[], ["--gif", "a.gif", "--frames", "2"]])
+def test_closeup_z_scale_overflowing_float64_is_refused_by_its_option(tmp_path, capsys, monkeypatch, extra):
+    """The layered renderer scaled heights by --z-scale without the bound render_mesh has (texture and steps
+    refused 1e308): closeup rendered an image of nothing with an 'overflow encountered in multiply' warning, exit 0."""
+    monkeypatch.chdir(tmp_path)
+    code, _, err = run(capsys, "-q", "closeup", "--z-scale", "1e308", "--size", "96x72", "-o", "c.png", *extra)
+    assert code == 2
+    assert "--z-scale 1e+308 makes layer 'overview'" in one_error_line(err, "closeup")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--scale", "1e30"], "--scale must be at most"),  # each was 'close-up scale ...', naming no option
+    (["--scale", "-1"], "--scale must be positive"),
+    (["--offset", "1e30,0,0"], "--offset must be finite"),
+    (["--color", "notacolor"], "--color must be a matplotlib color"),
+    (["--roi", "0,0,1"], "--roi/--roi-relative (close-up 1): ROI box x [-1, 1]"),  # was 'closeups[0]: ROI box'
+    (["--roi-relative", "0.5,0.5,0.1", "--roi-relative", "5,5,0.1"], "--roi/--roi-relative (close-up 2): ROI box"),
+])
+def test_closeup_refusals_from_the_library_name_the_option(tmp_path, capsys, argv, expected):
+    """CloseUp's and the ROI checks' messages name 'close-up scale', 'closeups[0]', ...: _as_option passed them
+    through, so the one-line error named no option of the command."""
+    code, _, err = run(capsys, "-q", "closeup", *argv, "-o", tmp_path / "c.glb")
+    assert code == 2
+    assert one_error_line(err, "closeup").startswith(f"stepterrain closeup: error: {expected}")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_closeup_subnormal_fps_for_a_gif_is_a_usage_error(tmp_path, capsys):
+    """100 / 1e-320 is inf: _check_fps's int() raised OverflowError, a traceback instead of exit 2."""
+    code, _, err = run(capsys, "-q", "closeup", "--gif", tmp_path / "a.gif", "--fps", "1e-320", "--frames", "2",
+                       "-o", tmp_path / "c.glb")
+    assert code == 2
+    assert "--fps must lie in [0.001526, 100] frames per second for a GIF" in one_error_line(err, "closeup")
+    assert list(tmp_path.iterdir()) == []
