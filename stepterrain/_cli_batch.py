@@ -103,7 +103,7 @@ def add_parser(commands: Any) -> None:
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
-    from .cli import _check_output, _check_outputs, _check_size, _colormap, _isovalue_base
+    from .cli import _check_output, _check_outputs, _check_size, _colormap, _isovalue_base, _load_input
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
@@ -133,16 +133,11 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     if png is not None:
         render.require_offscreen()
 
-    if args.input:
+    if args.input:  # read by batch (a folder's files by its workers), --height-unit passed on
         source: Any = args.input
         what = args.input
-    elif args.height_unit is not None:
-        raise InvalidInputError(
-            f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {args.height_unit!r}")
-    else:
-        from .io import sample_dem
-
-        source = sample_dem()
+    else:  # the embedded DEM, which refuses a --height-unit
+        source = _load_input(None, args.height_unit)
         what = "the embedded Big Tujunga DEM"
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
     scheduler = args.scheduler

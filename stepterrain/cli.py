@@ -162,12 +162,12 @@ def _height_unit(text: str) -> str:
     return text
 
 
-def _add_height_unit(p: argparse.ArgumentParser) -> None:
+def _add_height_unit(p: argparse.ArgumentParser, help: str | None = None) -> None:
     """``--height-unit``: load_dem's ``height_unit`` for an INPUT file that names no unit or one it does not know."""
     p.add_argument("--height-unit", type=_height_unit, default=None, metavar="UNIT",
-                   help="the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that names "
-                        "none or one not known; heights become metres (default: the unit the file names, else as "
-                        "stored)")
+                   help=help or "the INPUT heights' length unit (m, ft, US survey foot, km, cm, ...), for a file that "
+                                "names none or one not known; heights become metres (default: the unit the file names, "
+                                "else as stored)")
 
 
 def _load_input(path: str | None, height_unit: str | None) -> Any:
@@ -291,9 +291,8 @@ def _add_info(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("file", nargs="?", type=_path, metavar="FILE", help="default: the embedded DEM")
-    p.add_argument("--height-unit", type=_height_unit, default=None, metavar="UNIT",
-                   help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names none or "
-                        "one not known; not for a mesh")
+    _add_height_unit(p, help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names "
+                              "none or one not known; not for a mesh")
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 

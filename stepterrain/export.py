@@ -740,20 +740,26 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         if material is not None:
             fh.write(f"mtllib {mtl_name}\nusemtl {material}\n")
         row = "v {!r} {!r} {!r}" + (" {:.8f} {:.8f} {:.8f}" if colors is not None else "") + "\n"
-        _write_obj_rows(fh, row, vertices if colors is None else np.concatenate([vertices, colors], axis=1))
+        _write_rows(fh.write, row, _blocks(vertices if colors is None else np.concatenate([vertices, colors], 1)))
         if uv is not None:
-            _write_obj_rows(fh, "vt {!r} {!r}\n", uv)
+            _write_rows(fh.write, "vt {!r} {!r}\n", _blocks(uv))
         if uv is None:
-            _write_obj_rows(fh, "f {} {} {}\n", faces + 1)
+            _write_rows(fh.write, "f {} {} {}\n", _blocks(faces + 1))
         else:  # the texture coordinate of a corner is its vertex's: v/vt with the same index
-            _write_obj_rows(fh, "f {}/{} {}/{} {}/{}\n", np.repeat(faces + 1, 2, axis=1))
+            _write_rows(fh.write, "f {}/{} {}/{} {}/{}\n", _blocks(np.repeat(faces + 1, 2, axis=1)))
 
 
-def _write_obj_rows(fh: Any, row: str, values: NDArray[Any]) -> None:
-    """Write ``values`` (N, k) with ``row`` (k fields) per line, :data:`_3MF_ROWS` lines per ``str.format``."""
-    for start in range(0, len(values), _3MF_ROWS):
-        block = values[start : start + _3MF_ROWS]
-        fh.write((row * len(block)).format(*block.reshape(-1).tolist()))
+def _blocks(values: NDArray[Any]) -> Iterator[NDArray[Any]]:
+    """``values`` in blocks of :data:`_ROWS_PER_WRITE` rows."""
+    for start in range(0, len(values), _ROWS_PER_WRITE):
+        yield values[start : start + _ROWS_PER_WRITE]
+
+
+def _write_rows(write: Callable[[str], Any], row: str, blocks: Iterable[NDArray[Any]]) -> None:
+    """Each (n, k) block formatted with ``row`` (k fields) per line, one ``str.format`` and one ``write`` a block:
+    the text writers of OBJ and 3MF (``repr`` for a float64 field: the shortest text that reads back exactly)."""
+    for block in blocks:
+        write((row * len(block)).format(*block.reshape(-1).tolist()))
 
 
 def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes], str | None, NDArray[Any] | None]:
@@ -830,7 +836,7 @@ _3MF_RELS = (
     '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
     'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>'
 )
-_3MF_ROWS = 1 << 16  # vertices or triangles formatted at a time
+_ROWS_PER_WRITE = 1 << 16  # OBJ lines and 3MF vertices or triangles formatted at a time
 
 
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
@@ -856,20 +862,17 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
                 colors = "".join(f'<m:color color="#{r:02X}{g:02X}{b:02X}{a:02X}"/>' for r, g, b, a in palette.tolist())
                 out.write(f'<m:colorgroup id="2">{colors}</m:colorgroup>'.encode())
                 obj = b'<object id="1" type="model" pid="2" pindex="0">'
-            out.write(obj + b"<mesh><vertices>")
-            for start in range(0, len(vertices), _3MF_ROWS):
-                rows = vertices[start:start + _3MF_ROWS].tolist()
-                out.write("".join([f'<vertex x="{x!r}" y="{y!r}" z="{z!r}"/>' for x, y, z in rows]).encode())
-            out.write(b"</vertices><triangles>")
-            for start in range(0, len(faces), _3MF_ROWS):
-                block = faces[start:start + _3MF_ROWS]
-                if color_index is None:
-                    text = "".join([f'<triangle v1="{a}" v2="{b}" v3="{c}"/>' for a, b, c in block.tolist()])
-                else:
-                    corners = np.concatenate([block, color_index[block]], axis=1).tolist()
-                    text = "".join([f'<triangle v1="{a}" v2="{b}" v3="{c}" p1="{pa}" p2="{pb}" p3="{pc}"/>'
-                                    for a, b, c, pa, pb, pc in corners])
+            def write(text: str) -> None:
                 out.write(text.encode())
+
+            out.write(obj + b"<mesh><vertices>")
+            _write_rows(write, '<vertex x="{!r}" y="{!r}" z="{!r}"/>', _blocks(vertices))
+            out.write(b"</vertices><triangles>")
+            if color_index is None:
+                _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}"/>', _blocks(faces))
+            else:  # each corner's colour: its vertex's index in the palette
+                _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}" p1="{}" p2="{}" p3="{}"/>',
+                            (np.concatenate([block, color_index[block]], axis=1) for block in _blocks(faces)))
             out.write(b'</triangles></mesh></object></resources><build><item objectid="1"/></build></model>')
 
 
@@ -1189,9 +1192,10 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
         array = _ply_compatible(np.asarray(values))
         array = array.astype(array.dtype.newbyteorder("<"), copy=False)
         names = [word] if array.ndim == 1 else [f"{word}_{k}" for k in range(array.shape[1])]
-        suffix = ""
-        while any(n + suffix in used for n in names):
-            suffix = "_attr" if not suffix else f"_attr{int(suffix[5:] or 1) + 1}"
+        suffix, tries = "", 0
+        while any(n + suffix in used for n in names):  # _attr, _attr2, _attr3 ...
+            tries += 1
+            suffix = "_attr" if tries == 1 else f"_attr{tries}"
         names = [n + suffix for n in names]
         if word + suffix != name:
             renamed.append(f"{name!r} as {word + suffix!r}")

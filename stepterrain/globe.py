@@ -189,11 +189,7 @@ def _user_metric(fn: Any) -> UserMetric:
 def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     """A real (H, W) float32 grid with H, W >= 2 and no NaN or inf (the hierarchy has no nodata), or an
     InvalidInputError naming ``name`` (a masked array's masked entries count as NaN)."""
-    try:
-        z = np.asarray(unmasked(values))
-    except ValueError:  # ragged rows
-        raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got rows of different "
-                                "lengths") from None
+    z = as_array(unmasked(values), name, "a real (H, W) array with H, W >= 2")
     if z.ndim != 2 or min(z.shape) < 2 or not is_real_dtype(z.dtype):  # not bools, complex or durations
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
                                 f"dtype {z.dtype}")

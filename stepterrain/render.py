@@ -373,6 +373,20 @@ def render_mesh(
 _MAX_REACH = 1e150
 
 
+def _check_reach(box: NDArray[np.float64], lo: NDArray[np.float64], hi: NDArray[np.float64], z_scale: float,
+                 subject: str, too_large: str, about: str) -> None:
+    """Refuse a z-scaled ``box`` (lowest and highest corner about ``about``) beyond ±:data:`_MAX_REACH`, where the
+    camera's squared distances overflow float64 (RuntimeWarnings and a blank image): named as ``subject`` made too
+    tall by ``z_scale`` when only z is beyond, else by ``too_large``."""
+    reach = np.abs(box).max(axis=0)
+    if (reach <= _MAX_REACH).all():
+        return
+    what = (f"z_scale={z_scale:g} makes {subject} {hi[2] - lo[2]:g} x {z_scale:g} tall"
+            if (reach[:2] <= _MAX_REACH).all() else too_large)
+    raise InvalidInputError(f"{what}: beyond ±{_MAX_REACH:g} about {about} the camera's squared distances overflow "
+                            "float64")
+
+
 def _fmt_box(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> str:
     return f"[{', '.join(f'{v:g}' for v in lo)}] - [{', '.join(f'{v:g}' for v in hi)}]"
 
@@ -406,12 +420,7 @@ def _frame_mesh(
     with np.errstate(over="ignore", invalid="ignore"):  # beyond float64: refused below, not RuntimeWarnings
         local[:, 2] *= z_scale
         box[:, 2] *= z_scale
-    reach = np.abs(box).max(axis=0)
-    if not (reach <= _MAX_REACH).all():  # the camera's squared distances overflowed with RuntimeWarnings
-        what = (f"z_scale={z_scale:g} makes the mesh {hi[2] - lo[2]:g} x {z_scale:g} tall"
-                if (reach[:2] <= _MAX_REACH).all() else f"the framed box {_fmt_box(lo, hi)} is too large")
-        raise InvalidInputError(f"{what}: beyond ±{_MAX_REACH:g} about its centre the camera's squared distances "
-                                "overflow float64")
+    _check_reach(box, lo, hi, z_scale, "the mesh", f"the framed box {_fmt_box(lo, hi)} is too large", "its centre")
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height)  # raises on a bad camera; cheap (8 corners)
     if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
@@ -880,12 +889,9 @@ class LayeredRenderer:
         local_box = np.array([lo, hi]) - origin
         with np.errstate(over="ignore", invalid="ignore"):  # beyond float64: refused below, not RuntimeWarnings
             local_box[:, 2] *= self.z_scale  # z_scale > 0 keeps the order
-        reach = np.abs(local_box).max(axis=0)
-        if not (reach <= _MAX_REACH).all():  # as render_mesh: z_scale=1e308 rendered a blank image, with a warning
-            what = (f"z_scale={self.z_scale:g} makes layer {name!r} {hi[2] - lo[2]:g} x {self.z_scale:g} tall"
-                    if (reach[:2] <= _MAX_REACH).all() else f"layer {name!r} spans {_fmt_box(lo, hi)}, too large")
-            raise InvalidInputError(f"{what}: beyond ±{_MAX_REACH:g} about the origin the camera's squared distances "
-                                    "overflow float64")
+        # as render_mesh: z_scale=1e308 rendered a blank image, with a warning
+        _check_reach(local_box, lo, hi, self.z_scale, f"layer {name!r}", f"layer {name!r} spans {_fmt_box(lo, hi)}, "
+                     "too large", "the origin")
         self._origin = origin
         local = self._local(vertices)
         self._versions[name] = self._versions.get(name, 0) + 1

@@ -47,6 +47,7 @@ from .terrain import (
     FLOAT32_MAX,
     Terrain,
     _pair,
+    as_array,
     as_number,
     as_terrain,
     check_flag,
@@ -85,10 +86,7 @@ class Lens:
     extent: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
-        try:
-            mask = np.asarray(unmasked(self.mask))  # a masked entry is NaN: refused below
-        except ValueError:  # ragged nested sequences
-            raise InvalidInputError("lens mask must be a real (h, w) array; got rows of different lengths") from None
+        mask = as_array(unmasked(self.mask), "lens mask", "a real (h, w) array")  # a masked entry is NaN: refused
         real = mask.dtype != bool and mask.dtype.kind in "iuf"  # complex: numpy dropped the imaginary part
         if mask.ndim != 2 or min(mask.shape) < 1 or not real:
             raise InvalidInputError(
@@ -729,11 +727,7 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
     """An (L, 4) uint8 table: a matplotlib colormap name, or explicit (L, 3|4) colors (0-1 floats or 0-255)."""
     if isinstance(colors, str):
         return (colormap_samples(colors, n_levels) * 255 + 0.5).astype(np.uint8)
-    try:
-        table = np.asarray(colors)
-    except ValueError:  # ragged nested sequences
-        raise InvalidInputError(f"colors must be a colormap name or one RGB(A) row per isovalue, shape "
-                                f"({n_levels}, 3|4); got rows of different lengths") from None
+    table = as_array(colors, "colors", f"a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4)")
     if table.ndim != 2 or table.shape[0] != n_levels or table.shape[1] not in (3, 4):
         raise InvalidInputError(
             f"colors must be a colormap name or one RGB(A) row per isovalue, shape ({n_levels}, 3|4); "

@@ -178,10 +178,7 @@ def real_numbers(values: ArrayLike, name: str, expected: str) -> NDArray[np.floa
     InvalidInputError "``name`` must be ``expected``": text and ragged rows raised numpy's ValueError, complex
     values lost their imaginary part, a bool beside numbers in a list ((True, 2.0)) became 1.0. An object array
     (numpy's dtype for an int beyond int64, 10**20) is read number by number through :func:`as_number`."""
-    try:
-        array = np.asarray(unmasked(values))
-    except ValueError:  # ragged rows
-        raise InvalidInputError(f"{name} must be {expected}; got rows of different lengths") from None
+    array = as_array(unmasked(values), name, expected)
     if array.dtype == object:
         return _object_numbers(array, name, expected)
     if not is_real_dtype(array.dtype):
@@ -297,10 +294,7 @@ def _heights_array(
     nodata; :func:`finite_or_nan`). A finite value beyond float32 is trapped in the cast (:func:`float32_heights`),
     so it is not reported as infinite. ``borrow``: float32 C-contiguous heights are not copied (see
     :func:`as_terrain`)."""
-    try:
-        arr = np.asarray(unmasked(heights))
-    except ValueError:  # ragged nested sequences
-        raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got rows of different lengths") from None
+    arr = as_array(unmasked(heights), name, "a real-valued (H, W) array")
     if not is_real_dtype(arr.dtype):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")
     at = _first_bool(heights) if isinstance(heights, (list, tuple)) else None  # numpy made True a height of 1
