@@ -17,7 +17,7 @@ from pathlib import Path
 from stepterrain import sample_dem
 from stepterrain.batch import batch, overview_image
 from stepterrain.cli import usage_errors
-from stepterrain.export import save_image
+from stepterrain.export import IMAGE_EXTENSIONS, save_image
 from stepterrain.terrain import Terrain
 
 
@@ -34,6 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    if Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # found after the tiles were written, beside it
+        parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}, the tiles go beside it; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

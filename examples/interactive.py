@@ -21,7 +21,7 @@ import pyvista as pv
 
 from stepterrain import circular_lens, sample_dem
 from stepterrain.cli import usage_errors
-from stepterrain.export import save_image
+from stepterrain.export import IMAGE_EXTENSIONS, save_image
 
 
 def dem_grid(size: int) -> pv.ImageData:
@@ -105,6 +105,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
     if not all(8 <= side <= 16384 for side in args.window):  # 0 0 wrote pyvista's default 300 x 300 image
         parser.error(f"--window must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.window))}")
+    if not args.interactive and Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # refused after the render
+        parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

@@ -27,6 +27,9 @@ __all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES"]
 #: Point-data names tried, in order, when ``elevation`` is not given and the grid has no active scalars.
 ELEVATION_NAMES = ("elevation", "Elevation", "height", "heights", "z", "Z")
 
+#: What to do with elevation found in cell data: the terraces are cut at grid nodes.
+_CELL_DATA_HINT = " (stepping needs one height per point: convert with grid.cell_data_to_point_data())"
+
 try:
     import pyvista as pv
 except ImportError as exc:  # pragma: no cover - pyvista is a core dependency
@@ -38,7 +41,8 @@ class StepTerrainAccessor:
 
     The grid must be one node thick in z (dimensions (W, H, 1)). Elevation is the point-data array named by
     ``elevation``, else the active scalars, else the first of :data:`ELEVATION_NAMES`; a StructuredGrid
-    without any of them uses its points' z.
+    without any of them uses its points' z. Elevation found only in cell data (one value per cell, under one of
+    :data:`ELEVATION_NAMES`) is refused, naming ``grid.cell_data_to_point_data()``: steps are cut at nodes.
     """
 
     def __init__(self, dataset: Any) -> None:
@@ -68,6 +72,7 @@ class StepTerrainAccessor:
             if name not in ds.point_data:
                 raise InvalidInputError(
                     f"elevation must name a point-data array; got {name!r}, available: {list(ds.point_data.keys())}"
+                    + _CELL_DATA_HINT * (name in ds.cell_data)
                 )
             chosen = name
         else:
@@ -75,11 +80,15 @@ class StepTerrainAccessor:
             if chosen is None:
                 chosen = next((n for n in ELEVATION_NAMES if n in ds.point_data), None)
         if chosen is None:
-            if isinstance(ds, pv.StructuredGrid):
+            # elevation in cell data (one value per cell, not per node): a StructuredGrid fell back to its points'
+            # z without a word, a flat grid (z = 0) stepping into one flat terrace whatever the cell data held
+            in_cells = next((n for n in ELEVATION_NAMES if n in ds.cell_data), None)
+            if isinstance(ds, pv.StructuredGrid) and in_cells is None:
                 return np.asarray(ds.points[:, 2], dtype=np.float64)
             raise InvalidInputError(
                 "the grid has no elevation: set a point-data array (e.g. grid['elevation'] = heights.ravel()) "
                 f"or pass elevation=NAME; point data: {list(ds.point_data.keys())}"
+                + (f"; cell data {in_cells!r} holds one value per cell{_CELL_DATA_HINT}" if in_cells else "")
             )
         values = np.asarray(ds.point_data[chosen])
         if values.ndim != 1 or values.dtype.kind not in "iuf":  # bools are no heights, as for stepped()
@@ -104,7 +113,7 @@ class StepTerrainAccessor:
             if not np.isfinite([ox, oy, oz]).all():  # a NaN z was reported as "no finite height", inf as heights'
                 raise InvalidInputError(f"the grid's origin (and its extent start times spacing) must be finite; got "
                                         f"origin {tuple(float(o) for o in ds.origin)}, node (0, 0, 0) at "
-                                        f"({ox:g}, {oy:g}, {oz:g})")
+                                        f"({ox:g}, {oy:g}, {oz:g})")  # fmt: skip
             if oz != 0.0:  # added in float64: a sum beyond float32 is named, not inf
                 heights = float32_heights(heights.astype(np.float64) + oz, "elevation + the grid's origin z")
             return Terrain.from_heights(heights, spacing=(dx, dy), origin=(ox, oy), source="pyvista.ImageData")

@@ -994,9 +994,9 @@ def stepped_series(
 
     Kernels compile once; each frame reuses the work buffers of the previous one (the scratch pool). With
     ``interval`` the isovalues lie on one grid, ``base + k * interval``, so a height steps to the same level
-    height in every frame. Frames given as one (T, H, W) array share one list of isovalues (from the stack's
-    overall height range), so level indices (``face_attributes["level"]``) and ``colors`` agree between frames
-    too. Frames from another iterable are not known ahead: each frame's isovalues span its own height range, so
+    height in every frame. Frames given as one (T, H, W) array (numpy or Warp) share one list of isovalues (from
+    the stack's overall height range), so level indices (``face_attributes["level"]``) and ``colors`` agree between
+    frames too. Frames from another iterable are not known ahead: each frame's isovalues span its own height range, so
     their geometry agrees but level indices and colours are counted per frame; pass ``levels=`` (or one array)
     for colours that agree over the series.
 
@@ -1009,13 +1009,16 @@ def stepped_series(
 
     A frame with bad heights, or with no finite height at all (as :func:`stepped` refuses such a terrain), is an
     :class:`InvalidInputError` naming its index (``frames[k]``): for a (T, H, W) stack before the first frame,
-    for an iterable when that frame is reached.
+    for an iterable when that frame is reached; so is, for an iterable, ``gamma`` or ``colors`` that does not fit
+    a frame (its shape, its own count of isovalues).
     """
     check_flag(progress, "progress")
     check_spacing(*_pair(spacing, "spacing", nonzero=True))  # once, so that their errors name no frame
     _pair(origin, "origin", nonzero=False, scalar=False)
     dev = resolve_device(device)
     stack = None
+    if isinstance(frames, wp.array):  # a (T, H, W) warp array is a stack too: it was refused as "not iterable"
+        frames = frames.numpy()
     if isinstance(frames, np.ndarray) or (hasattr(frames, "shape") and hasattr(frames, "__array__")):
         stack = np.asarray(unmasked(frames))
         if stack.ndim != 3:
@@ -1069,7 +1072,14 @@ def stepped_series(
         frame_values = (
             values if height_range is None else isovalues(height_range, interval=interval, levels=levels, base=base)
         )
-        arrays, vertices = _stepped_arrays(t, frame_values, gamma, colors, dev)
-        yield _assemble(
-            t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None, interval=interval
-        )
+        try:
+            arrays, vertices = _stepped_arrays(t, frame_values, gamma, colors, dev)
+            mesh = _assemble(
+                t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None,
+                interval=interval,
+            )  # fmt: skip
+        except InvalidInputError as exc:  # e.g. colors with a row per isovalue of another frame: name this frame
+            if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
+                raise
+            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") from None
+        yield mesh

@@ -97,3 +97,37 @@ def test_a_lens_resolution_beyond_float64_is_over_the_budget():
     # the budget message divided 10**800 bytes by 1024**2 in float: OverflowError instead of the budget's error
     with pytest.raises(st.OutputTooLargeError, match=r"would need over 10\^795 MiB, over the memory budget"):
         st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=10**400)
+
+
+def test_stepped_series_steps_a_warp_stack_as_the_numpy_stack():
+    """A (T, H, W) Warp array was refused as "frames must be a (T, H, W) stack or an iterable ...; got array",
+    though it is one (stepped() takes a 2-D Warp array). Found by feeding stepped_series every kind of stack. Now
+    its frames share the stack's isovalues, as the numpy stack's do."""
+    import warp as wp
+
+    frames = np.random.default_rng(4).random((3, 5, 6)).astype(np.float32)
+    frames[1] *= 3  # its range exceeds frame 0's: shared isovalues show in the level indices
+    expected = list(st.stepped_series(frames, interval=0.25, device="cpu"))
+    got = list(st.stepped_series(wp.array(frames, device="cpu"), interval=0.25, device="cpu"))
+    assert len(got) == 3
+    for mesh, ref in zip(got, expected, strict=True):
+        np.testing.assert_array_equal(mesh.vertices, ref.vertices)
+        np.testing.assert_array_equal(mesh.faces, ref.faces)
+        np.testing.assert_array_equal(mesh.face_attributes["level"], ref.face_attributes["level"])
+        assert mesh.metadata["isovalues"] == ref.metadata["isovalues"]
+
+
+def test_stepped_series_names_the_frame_whose_isovalues_the_colors_do_not_fit():
+    """Frames from an iterable get their own isovalues; colours with one row per isovalue of frame 0 failed at a
+    later frame with a message about the colours alone ("shape (13, 3|4); got shape (5, 4)"), naming no frame:
+    the frame that has 13 isovalues was left to guess. Found by stepping a generator whose second frame spans
+    three times the first's range. Now the error names frames[1] and its isovalue count."""
+    frames = np.random.default_rng(1).random((3, 6, 7)).astype(np.float32)
+    frames[1] *= 3
+    first = st.isovalues((float(frames[0].min()), float(frames[0].max())), interval=0.25)
+    second = st.isovalues((float(frames[1].min()), float(frames[1].max())), interval=0.25)
+    colors = np.full((len(first), 4), 0.5)
+    series = st.stepped_series(iter(frames), interval=0.25, colors=colors, device="cpu")
+    assert len(next(series).faces) > 0  # frame 0 fits
+    with pytest.raises(st.InvalidInputError, match=rf"^frames\[1\] \({len(second)} isovalues, shape \(6, 7\)\): col"):
+        next(series)
