@@ -985,8 +985,8 @@ def stepped_series(
     base: float = 0.0,
     gamma: GammaLike = 1.0,
     colors: str | ArrayLike | None = None,
-    spacing: ArrayLike = (1.0, 1.0),
-    origin: ArrayLike = (0.0, 0.0),
+    spacing: ArrayLike | None = None,
+    origin: ArrayLike | None = None,
     progress: bool = False,
     device: wp.DeviceLike = None,
 ) -> Iterator[trimesh.Trimesh]:
@@ -998,7 +998,9 @@ def stepped_series(
     the stack's overall height range), so level indices (``face_attributes["level"]``) and ``colors`` agree between
     frames too. Frames from another iterable are not known ahead: each frame's isovalues span its own height range, so
     their geometry agrees but level indices and colours are counted per frame; pass ``levels=`` (or one array)
-    for colours that agree over the series.
+    for colours that agree over the series. An iterable may also yield :class:`Terrain` objects or trimesh TINs,
+    taken as :func:`stepped` takes them (their own spacing and origin; ``spacing``/``origin`` apply to raw arrays
+    only, (1, 1) and (0, 0) when not given).
 
     Examples
     --------
@@ -1013,8 +1015,10 @@ def stepped_series(
     a frame (its shape, its own count of isovalues).
     """
     check_flag(progress, "progress")
-    check_spacing(*_pair(spacing, "spacing", nonzero=True))  # once, so that their errors name no frame
-    _pair(origin, "origin", nonzero=False, scalar=False)
+    if spacing is not None:  # once, so that their errors name no frame
+        check_spacing(*_pair(spacing, "spacing", nonzero=True))
+    if origin is not None:
+        _pair(origin, "origin", nonzero=False, scalar=False)
     dev = resolve_device(device)
     stack = None
     if isinstance(frames, wp.array):  # a (T, H, W) warp array is a stack too: it was refused as "not iterable"
@@ -1023,6 +1027,8 @@ def stepped_series(
         stack = np.asarray(unmasked(frames))
         if stack.ndim != 3:
             raise InvalidInputError(f"frames must be a (T, H, W) stack; got shape {stack.shape}")
+        if len(stack) == 0:  # it said "frames hold no finite height"
+            raise InvalidInputError(f"frames must hold at least one frame; got shape {stack.shape}")
         if not is_real_dtype(stack.dtype):
             raise InvalidInputError(f"frames must be a real-valued (T, H, W) stack; got dtype {stack.dtype}")
         finite_mask = np.isfinite(stack)
@@ -1065,7 +1071,15 @@ def stepped_series(
         # a fresh Terrain per frame: what it caches (the heights' upload, whether they hold nodata) belongs to
         # its own heights; the work arrays of the passes come from the per-thread scratch pool, reused
         try:
-            t = Terrain.from_heights(frame, spacing=spacing, origin=origin, _borrow=True)  # one frame's call
+            if stack is not None:  # one frame's call
+                t = Terrain.from_heights(
+                    frame,
+                    spacing=(1.0, 1.0) if spacing is None else spacing,
+                    origin=(0.0, 0.0) if origin is None else origin,
+                    _borrow=True,
+                )
+            else:  # a Terrain or a TIN per frame is taken as stepped() takes it ("got dtype object" before)
+                t = as_terrain(frame, spacing=spacing, origin=origin, borrow=True)
             height_range = t.height_range if values is None else None  # all nodata: an error, as in stepped()
         except InvalidInputError as exc:  # the frame's heights (spacing and origin were checked above)
             raise InvalidInputError(f"frames[{k}]: {exc}") from None

@@ -131,3 +131,24 @@ def test_stepped_series_names_the_frame_whose_isovalues_the_colors_do_not_fit():
     assert len(next(series).faces) > 0  # frame 0 fits
     with pytest.raises(st.InvalidInputError, match=rf"^frames\[1\] \({len(second)} isovalues, shape \(6, 7\)\): col"):
         next(series)
+
+
+def test_stepped_series_steps_terrain_and_tin_frames_as_stepped_does():
+    """An iterable of Terrain objects (or TINs) was refused frame by frame as "got dtype object": the series read
+    every frame as a raw array. Each frame is now taken as stepped() takes it, with its own spacing and origin."""
+    dem = st.sample_dem()
+    small = st.Terrain.from_heights(dem.heights[:40, :50], spacing=(30.0, -30.0), origin=(1000.0, 2000.0))
+    tin = st.heightfield_mesh(dem.heights[10:30, 5:25], spacing=(30.0, -30.0))
+    meshes = list(st.stepped_series([small, tin], interval=40.0))
+    for got, frame in zip(meshes, (small, tin), strict=True):
+        want = st.stepped(frame, interval=40.0)
+        np.testing.assert_array_equal(got.vertices, want.vertices)
+        np.testing.assert_array_equal(got.faces, want.faces)
+    with pytest.raises(st.errors.InvalidInputError, match="spacing/origin apply to raw"):
+        list(st.stepped_series([small], interval=40.0, spacing=(10.0, 10.0)))
+
+
+def test_stepped_series_refuses_a_stack_of_no_frames():
+    """A (0, H, W) stack said "frames hold no finite height"; it holds no frame at all."""
+    with pytest.raises(st.errors.InvalidInputError, match=r"at least one frame; got shape \(0, 4, 5\)"):
+        list(st.stepped_series(np.zeros((0, 4, 5)), interval=1.0))
