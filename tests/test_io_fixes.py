@@ -425,3 +425,32 @@ def test_an_unknown_epsg_code_loads_without_gdal_printing_to_stderr(tmp_path, ca
     out, err = capfd.readouterr()
     assert (out, err) == ("", "")
     assert terrain.crs == "EPSG:999999" and terrain.spacing == (2.0, -2.0) and terrain.heights.shape == (3, 4)
+
+
+@pytest.mark.parametrize("reader", ["load_series", "from_heights", "stepped", "batch"])
+def test_a_memory_map_over_the_memory_budget_is_refused_before_it_is_copied(tmp_path, reader):
+    """A memory-mapped .npy (load_series maps its file; np.load(mmap_mode="r") given to Terrain.from_heights,
+    stepped or batch) was read into memory as float32 whatever st.set_memory_budget said: the map's data is on disk
+    and only its copy needs memory. Its size is now checked before the copy; a slice of the map within the budget
+    reads."""
+    import stepterrain as st
+    from stepterrain.batch import load_series
+    from stepterrain.errors import OutputTooLargeError
+
+    path = tmp_path / "series.npy"
+    np.save(path, np.arange(3 * 40 * 30, dtype=np.float64).reshape(3, 40, 30))  # 3,600 cells: 14,400 bytes float32
+    mapped = np.load(path, mmap_mode="r")
+    call = {
+        "load_series": lambda: load_series(path),
+        "from_heights": lambda: st.Terrain.from_heights(mapped[0]),
+        "stepped": lambda: st.stepped(mapped[0], interval=100.0),
+        "batch": lambda: batch(mapped, tmp_path / "out", interval=100.0, scheduler="serial"),
+    }[reader]
+    previous = st.set_memory_budget(4_000)  # under one frame's 4,800 bytes
+    try:
+        message = r"(40 x 30|40, 30\)).*float64.* would need [\d,]+ bytes, over the memory budget of 4,000 bytes"
+        with pytest.raises(OutputTooLargeError, match=message):
+            call()
+        assert st.Terrain.from_heights(mapped[0, :20, :20]).shape == (20, 20)  # 1,600 bytes: within the budget
+    finally:
+        st.set_memory_budget(previous)
