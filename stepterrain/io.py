@@ -134,8 +134,12 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
     OutputTooLargeError
-        The file's declared cells (at least 4 bytes each, the float32 heights) exceed the memory budget
-        (:func:`stepterrain.set_memory_budget`), checked from its header before reading.
+        The file's declared cells exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from
+        its header before reading. What is checked is the larger of the stored values and the float32 heights
+        the Terrain keeps: cells x max(stored bytes per cell, 4). That is a lower bound of what the read
+        allocates at its peak: the stored band, a mask, and float32 or float64 working copies (nodata, a
+        GeoTIFF's scale and offset, a height unit) live together for a moment, about 8-12 bytes per cell for
+        8-, 16- and 32-bit rasters and up to about 32 for float64 or scaled bands, so leave that much headroom.
 
     Examples
     --------
@@ -623,7 +627,9 @@ def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what
     """An :class:`~stepterrain.errors.OutputTooLargeError` naming ``file``, its declared shape and the bytes, before
     reading, when its cells (as stored, at least float32 as the Terrain keeps them) exceed the memory budget
     (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
-    machine swapped or NumPy raised a raw MemoryError."""
+    machine swapped or NumPy raised a raw MemoryError. A lower bound of the read's peak, as :func:`load_dem` says
+    (measured by tests/test_io_fixes.py: 8-12 bytes per cell for 8- to 32-bit rasters, up to 32 for float64 or a
+    scaled band); it checks what the Terrain keeps, as the budget bounds a call's output elsewhere."""
     cells = math.prod(int(n) for n in shape)
     check_budget(
         cells * max(dtype.itemsize, 4),

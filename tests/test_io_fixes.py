@@ -454,3 +454,56 @@ def test_a_memory_map_over_the_memory_budget_is_refused_before_it_is_copied(tmp_
         assert st.Terrain.from_heights(mapped[0, :20, :20]).shape == (20, 20)  # 1,600 bytes: within the budget
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize(
+    "dtype, options, most",
+    [
+        ("uint8", {}, 12.5),
+        ("uint16", {"nodata": 0}, 12.5),
+        ("float32", {}, 12.5),
+        ("float64", {"nodata": -9999.0}, 32.5),
+        ("int16", {"scale": 0.1, "offset": 5.0, "nodata": -1}, 32.5),
+        ("float64", {"scale": 2.0, "unit": "ft"}, 32.5),
+    ],
+)
+def test_the_documented_peak_of_a_geotiff_read_holds(tmp_path, dtype, options, most):
+    """load_dem's budget check counts the heights it keeps (cells x max(stored bytes, 4)); its docstring and the
+    README state what the read allocates at its peak beyond that (8-12 bytes a cell for 8- to 32-bit rasters, up
+    to 32 for float64 or scaled bands). Measured here with tracemalloc (numpy's allocations), so the numbers stay
+    true: the check is a lower bound of the peak and the peak within the stated bytes per cell."""
+    import tracemalloc
+
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.io import _check_read_budget
+
+    rows, cols = 300, 200
+    path = tmp_path / "dem.tif"
+    transform = rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)
+    profile = {"driver": "GTiff", "width": cols, "height": rows, "count": 1, "dtype": dtype}
+    profile.update(crs="EPSG:32611", nodata=options.get("nodata"), transform=transform)
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write((np.arange(rows * cols) % 1000 + 1).reshape(rows, cols).astype(dtype), 1)
+        if "scale" in options:
+            ds.scales, ds.offsets = (options["scale"],), (options.get("offset", 0.0),)
+        if "unit" in options:
+            ds.units = (options["unit"],)
+    load_dem(path)  # imports and caches outside the measurement
+    tracemalloc.start()
+    try:
+        load_dem(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    checked = rows * cols * max(np.dtype(dtype).itemsize, 4)
+    import stepterrain as st
+
+    previous = st.set_memory_budget(checked)
+    try:
+        _check_read_budget(path, (rows, cols), np.dtype(dtype))  # exactly what is checked: passes at the budget
+        st.set_memory_budget(checked - 1)
+        with pytest.raises(st.errors.OutputTooLargeError):
+            _check_read_budget(path, (rows, cols), np.dtype(dtype))
+    finally:
+        st.set_memory_budget(previous)
+    assert checked <= peak <= most * rows * cols
