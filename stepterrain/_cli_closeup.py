@@ -59,7 +59,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--offset", type=_floats(3, "dx,dy,dz"), action="append", metavar="dx,dy,dz",
                    help="close-up displacement in world units (default: lifted by a fifth of the extent)")
     p.add_argument("--rotation", type=_floats(2, "alpha,beta (degrees)"), action="append", metavar="a,b",
-                   help="tilt about x and turn about the vertical, degrees (default 0,0)")
+                   help="tilt about x and turn about the vertical, degrees (default 0,0; whole turns are taken off)")
     p.add_argument("--color", action="append", metavar="COLOR", help="close-up color (default: a palette)")
     p.add_argument("--stepped", type=float, action="append", metavar="INTERVAL",
                    help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
@@ -136,6 +136,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+    # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle
+    rotations_deg = [tuple(math.fmod(a, 360.0) for a in rot) for rot in args.rotation or []]
     for _fx, _fy, fr in args.roi_relative or []:  # else named as '--roi radius', in world units
         if not fr > 0:
             raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
@@ -164,7 +166,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
     lift = 0.2 * max(xmax - xmin, ymax - ymin)
     offsets = _per_closeup(args.offset, n, (0.0, 0.0, lift), "--offset")
-    rotations = _per_closeup(args.rotation, n, (0.0, 0.0), "--rotation")
+    rotations = _per_closeup(rotations_deg, n, (0.0, 0.0), "--rotation")
     colors = _per_closeup(args.color, n, None, "--color")
     steps = _per_closeup(args.stepped, n, None, "--stepped")
     for interval in steps:

@@ -93,6 +93,9 @@ _MAX_MASK_RESOLUTION = 16385  # texels along a shape mask's longer side: 1 GiB o
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
 _MAX_OFFSET = 1e12
+#: largest |angle| of a close-up's rotation and billboard azimuth, radians (1024 turns): 1e308 was taken, and a spin
+#: added to an angle that large was lost to rounding (the animation stood still); a larger value is likely degrees
+_MAX_ANGLE = 2 * math.pi * 1024
 
 
 def _finite(value: Any, name: str) -> float:
@@ -560,7 +563,7 @@ class CloseUp:
     roi : ROI
         Where the close-up comes from; its centre O is the pivot of the rotation and the scaling.
     rotation : (α, β), radians
-        α tilts about the x axis, β turns about the vertical axis (the paper's y, our z).
+        α tilts about the x axis, β turns about the vertical axis (the paper's y, our z); each within ±2π·1024.
     scale : s or (sx, sy, sz)
         sx, sy > 0 scale the ROI's extent; sz >= 0 its heights (sz = 0: a flat close-up, Fig. 1).
     offset : (dx, dy, dz), world units
@@ -574,7 +577,8 @@ class CloseUp:
         Automatic rotation about the vertical axis for animations (§III.B).
     view : "overview" or "billboard"
         Overview-dependent (same camera as the overview) or overview-independent: an orthographic image
-        from the fixed direction ``billboard_view`` (azimuth, elevation), placed where the close-up is (§II.C).
+        from the fixed direction ``billboard_view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]),
+        placed where the close-up is (§II.C).
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"
@@ -612,6 +616,9 @@ class CloseUp:
         if not isinstance(self.roi, ROI):
             raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
         rot = real_vector(self.rotation, "close-up rotation", "finite (α, β) in radians", 2)
+        if np.abs(rot).max() > _MAX_ANGLE:
+            raise InvalidInputError(f"close-up rotation must be (α, β) in radians, each within ±{_MAX_ANGLE:.6g} (1024 "
+                                    f"turns; degrees? use math.radians); got {tuple(rot.tolist())}")
         object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
         s = _scale3(self.scale, "close-up scale")
         if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
@@ -643,6 +650,10 @@ class CloseUp:
         if not is_name(self.view, ("overview", "billboard")):
             raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
         bv = real_vector(self.billboard_view, "billboard_view", "finite (azimuth, elevation)", 2)
+        if abs(bv[0]) > _MAX_ANGLE or not abs(bv[1]) <= math.pi / 2:
+            raise InvalidInputError(f"billboard_view must be (azimuth, elevation) in radians, the azimuth within "
+                                    f"±{_MAX_ANGLE:.6g} (1024 turns) and the elevation in [-π/2, π/2]; got "
+                                    f"{tuple(bv.tolist())}")
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
         if self.stepped is not None:
             object.__setattr__(self, "stepped", finite_number(self.stepped, "close-up stepped interval", positive=True))

@@ -192,3 +192,23 @@ def test_an_fps_too_small_for_finite_frame_times_is_named():
         warnings.simplefilter("error")
         with pytest.raises(InvalidInputError, match=r"^fps must be large enough"):
             animate_closeups(terrain(), [one()], frames=3, fps=1e-320, window_size=(64, 48), device="cpu")
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"rotation": (0.0, 1e308)}, r"close-up rotation must be \(α, β\) in radians, each within ±6433.98 \(1024"),
+        ({"rotation": (-1e5, 0.0)}, r"close-up rotation must be \(α, β\) in radians, each within ±6433.98"),
+        ({"billboard_view": (0.0, 2.0)}, r"billboard_view must be \(azimuth, elevation\) in radians.*elevation in"),
+        ({"billboard_view": (1e300, 1.0)}, r"billboard_view must be \(azimuth, elevation\) in radians, the azimuth"),
+    ],
+)
+def test_a_closeup_angle_beyond_its_range_is_refused(options, message):
+    """CloseUp took rotation (0, 1e308) radians: the close-up turned by whatever cos(1e308) gave, and a spin added to
+    so large an angle was lost to rounding (the animation stood still); an elevation of 2 radians (past the zenith)
+    turned the billboard's camera over. Angles beyond 1024 turns (degrees, most likely) and an elevation outside
+    [-π/2, π/2] are refused by name."""
+    roi = ROI.circle((0.0, 0.0), 1.0)
+    with pytest.raises(InvalidInputError, match=message):
+        CloseUp(roi, **options)
+    assert CloseUp(roi, rotation=(-6433.0, 6433.0), billboard_view=(6433.0, -1.5)).rotation == (-6433.0, 6433.0)
