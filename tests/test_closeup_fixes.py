@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -212,3 +213,18 @@ def test_a_closeup_angle_beyond_its_range_is_refused(options, message):
     with pytest.raises(InvalidInputError, match=message):
         CloseUp(roi, **options)
     assert CloseUp(roi, rotation=(-6433.0, 6433.0), billboard_view=(6433.0, -1.5)).rotation == (-6433.0, 6433.0)
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("z_scale", [1e30, 1e6])
+def test_a_z_scale_that_renders_a_sliver_is_refused(z_scale):
+    """render_closeups (the CLI's closeup --z-scale 1e30) passed _check_reach (below ±1e150) and wrote a blank white
+    image: the fitted camera showed the terrain less than a pixel wide. The layered renderer now refuses it as
+    render_mesh does, naming z_scale and the value that would make the terrain as tall as it is wide; within reach,
+    the image is not blank."""
+    scale = re.escape(f"z_scale={z_scale:g}")
+    message = rf"^the mesh would render .*\(with {scale}\), too thin to see .*; a z_scale near"
+    with pytest.raises(InvalidInputError, match=message):
+        render_closeups(terrain(), [one()], window_size=SIZE, z_scale=z_scale)
+    image = render_closeups(terrain(), [one()], window_size=SIZE, z_scale=2.0)
+    assert (image != 255).any(axis=2).sum() > 100
