@@ -98,6 +98,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
+    from ._compaction import check_budget
     from .cli import _check_output, _check_outputs, _check_size, _load_input
     from .closeup import (
         _MAX_CLOSEUPS,
@@ -148,6 +149,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                                 f"most {_MAX_CLOSEUPS}); got {n_rois}")
     if images or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
+    if anim is not None:  # refused here, not after loading the DEM and the still render (animate_closeups' check)
+        width, height = args.size  # every frame is kept until written, and the writer (np.stack) copies them all once
+        check_budget(2 * args.frames * width * height * 3, f"--frames {args.frames} of {width} x {height} pixels "
+                     "(kept, then copied once by the writer)", hint="render fewer or smaller frames")
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = _load_input(args.input, args.height_unit)
@@ -217,7 +222,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if anim is not None:
         progress.stage("animate", f"rendering {args.frames} frames for {anim}")
         frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
-                                  **options)
+                                  progress=not progress.quiet, **options)
         progress.done()
     if scene is not None and mesh_out is not None:
         from .export import save_mesh

@@ -1869,6 +1869,7 @@ def animate_closeups(
     fps: float = 12.0,
     window_size: tuple[int, int] = (640, 400),
     device: wp.DeviceLike = None,
+    progress: bool = False,
     **options: Any,
 ) -> list[NDArray[np.uint8]]:
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
@@ -1876,7 +1877,8 @@ def animate_closeups(
     The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
     view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
     ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
-    ``renderer`` and ``reuse_overview``.
+    ``renderer`` and ``reuse_overview``. ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
+    (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first).
     """
     from . import render
 
@@ -1909,10 +1911,15 @@ def animate_closeups(
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     renderer = render.LayeredRenderer(window_size=(width, height), background=options.get("background", "white"),
                                       z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
+    steps: Any = times
+    if check_flag(progress, "progress"):  # a long animation (thousands of frames) ran for minutes without a word
+        from tqdm.auto import tqdm
+
+        steps = tqdm(times, desc="close-up frames", unit="frame")
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
                                 reuse_overview=True,
-                                device=device, **options) for time in times]
+                                device=device, **options) for time in steps]
     finally:
         renderer.close()
 

@@ -228,3 +228,31 @@ def test_a_z_scale_that_renders_a_sliver_is_refused(z_scale):
         render_closeups(terrain(), [one()], window_size=SIZE, z_scale=z_scale)
     image = render_closeups(terrain(), [one()], window_size=SIZE, z_scale=2.0)
     assert (image != 255).any(axis=2).sum() > 100
+
+
+def test_closeup_gif_frames_over_the_budget_are_refused_before_the_dem_is_read(tmp_path, capsys):
+    """closeup --gif --frames 100000 loaded the DEM and rendered the still image before animate_closeups refused
+    the frames (all kept until written) against the memory budget; the CLI now checks them up front, counting the
+    copy save_animation's writer makes of them (np.stack) too."""
+    from stepterrain import cli
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    code = cli.main(["closeup", str(dem), "--gif", str(tmp_path / "a.gif"), "--frames", "100000", "--size", "320x200",
+                     "-o", str(tmp_path / "still.png")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "--frames 100000 of 320 x 200 pixels (kept, then copied once by the writer) would need 36,621.1 MiB" in err
+    assert "loading" not in err
+    assert not (tmp_path / "still.png").exists()
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_animate_closeups_shows_progress_when_asked(capfd):
+    """animate_closeups rendered thousands of frames (the CLI's --frames) for minutes without a word; with
+    progress=True (the CLI passes it unless -q) a tqdm bar counts the frames on stderr."""
+    frames = animate_closeups(terrain(), [one(spin=(1.0, 1))], frames=3, fps=3.0, window_size=SIZE, progress=True)
+    assert len(frames) == 3
+    assert "close-up frames" in capfd.readouterr().err
+    with pytest.raises(InvalidInputError, match="progress"):
+        animate_closeups(terrain(), [one()], frames=1, window_size=SIZE, progress="yes")
