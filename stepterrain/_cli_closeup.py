@@ -59,7 +59,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--offset", type=_floats(3, "dx,dy,dz"), action="append", metavar="dx,dy,dz",
                    help="close-up displacement in world units (default: lifted by a fifth of the extent)")
     p.add_argument("--rotation", type=_floats(2, "alpha,beta (degrees)"), action="append", metavar="a,b",
-                   help="tilt about x and turn about the vertical, degrees (default 0,0)")
+                   help="tilt about x and turn about the vertical, degrees (default 0,0; whole turns are taken off)")
     p.add_argument("--color", action="append", metavar="COLOR", help="close-up color (default: a palette)")
     p.add_argument("--stepped", type=float, action="append", metavar="INTERVAL",
                    help="the close-up shows the stepped terrain at this interval (a mapping of its own: multi-pass "
@@ -98,6 +98,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
+    from ._compaction import check_budget
     from .cli import _check_output, _check_outputs, _check_size, _load_input
     from .closeup import (
         _MAX_CLOSEUPS,
@@ -136,6 +137,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
+    # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle
+    rotations_deg = [tuple(math.fmod(a, 360.0) for a in rot) for rot in args.rotation or []]
     for _fx, _fy, fr in args.roi_relative or []:  # else named as '--roi radius', in world units
         if not fr > 0:
             raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
@@ -146,6 +149,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                                 f"most {_MAX_CLOSEUPS}); got {n_rois}")
     if images or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
+    if anim is not None:  # refused here, not after loading the DEM and the still render (animate_closeups' check)
+        width, height = args.size  # every frame is kept until written, and the writer (np.stack) copies them all once
+        check_budget(2 * args.frames * width * height * 3, f"--frames {args.frames} of {width} x {height} pixels "
+                     "(kept, then copied once by the writer)", hint="render fewer or smaller frames")
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = _load_input(args.input, args.height_unit)
@@ -164,7 +171,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"--scale must be s or sx,sy,sz; got {','.join(f'{v:g}' for v in s)}")
     lift = 0.2 * max(xmax - xmin, ymax - ymin)
     offsets = _per_closeup(args.offset, n, (0.0, 0.0, lift), "--offset")
-    rotations = _per_closeup(args.rotation, n, (0.0, 0.0), "--rotation")
+    rotations = _per_closeup(rotations_deg, n, (0.0, 0.0), "--rotation")
     colors = _per_closeup(args.color, n, None, "--color")
     steps = _per_closeup(args.stepped, n, None, "--stepped")
     for interval in steps:
@@ -215,7 +222,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if anim is not None:
         progress.stage("animate", f"rendering {args.frames} frames for {anim}")
         frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
-                                  **options)
+                                  progress=not progress.quiet, **options)
         progress.done()
     if scene is not None and mesh_out is not None:
         from .export import save_mesh

@@ -129,6 +129,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
     _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
+    if not math.isfinite(args.azimuth):  # named by the library as 'azimuth', in radians
+        raise InvalidInputError(f"--azimuth must be a finite number of degrees; got {args.azimuth}")
     if not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
     if args.interval is not None and mesh_out is None and png is None:
@@ -150,7 +152,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                      + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
     progress.stage("texture", f"topographic texture on {device}: {what}")
     # degrees wrapped into one turn: the library's radians-or-degrees warning (past 4π) is for API callers
-    azimuth = args.azimuth % 360.0 if math.isfinite(args.azimuth) else args.azimuth
+    azimuth = args.azimuth % 360.0
     topo = tx.topographic_layer(terrain, azimuth=math.radians(azimuth), altitude=math.radians(args.altitude),
                                 z_factor=args.z_factor, method=args.method, shadows=args.shadows,
                                 shadow_strength=args.shadow_strength, occlusion=args.occlusion, device=device)

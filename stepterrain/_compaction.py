@@ -22,7 +22,8 @@ _memory_budget: int = 16 * 1024**3
 
 def get_memory_budget() -> int:
     """The largest output, in bytes, a single call may allocate (default 16 GiB); :func:`stepterrain.load_dem`
-    refuses a file whose declared cells exceed it, before reading."""
+    refuses a file whose declared cells exceed it, before reading (the heights it keeps, not the read's working
+    copies: see load_dem's Raises)."""
     return _memory_budget
 
 

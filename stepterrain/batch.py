@@ -45,6 +45,7 @@ from .terrain import (
     FLOAT32_MAX,
     Terrain,
     check_flag,
+    check_mapped,
     finite_number,
     finite_or_nan,
     float32_heights,
@@ -269,6 +270,7 @@ def plan_items(
             )
         return _file_items(files), None
     expected = "source must be a folder, a list of DEM files, a Terrain, an (H, W) raster or a (T, H, W) series"
+    check_mapped(source, "source")  # np.load(mmap_mode="r"): the float32 copy below reads it all into memory
     try:
         array = np.asarray(unmasked(source))  # a masked array's masked entries are nodata (NaN), as in a Terrain
     except ValueError:  # frames of different shapes (numpy's "inhomogeneous shape")

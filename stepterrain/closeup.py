@@ -93,6 +93,9 @@ _MAX_MASK_RESOLUTION = 16385  # texels along a shape mask's longer side: 1 GiB o
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
 _MAX_OFFSET = 1e12
+#: largest |angle| of a close-up's rotation and billboard azimuth, radians (1024 turns): 1e308 was taken, and a spin
+#: added to an angle that large was lost to rounding (the animation stood still); a larger value is likely degrees
+_MAX_ANGLE = 2 * math.pi * 1024
 
 
 def _finite(value: Any, name: str) -> float:
@@ -560,7 +563,7 @@ class CloseUp:
     roi : ROI
         Where the close-up comes from; its centre O is the pivot of the rotation and the scaling.
     rotation : (α, β), radians
-        α tilts about the x axis, β turns about the vertical axis (the paper's y, our z).
+        α tilts about the x axis, β turns about the vertical axis (the paper's y, our z); each within ±2π·1024.
     scale : s or (sx, sy, sz)
         sx, sy > 0 scale the ROI's extent; sz >= 0 its heights (sz = 0: a flat close-up, Fig. 1).
     offset : (dx, dy, dz), world units
@@ -574,7 +577,8 @@ class CloseUp:
         Automatic rotation about the vertical axis for animations (§III.B).
     view : "overview" or "billboard"
         Overview-dependent (same camera as the overview) or overview-independent: an orthographic image
-        from the fixed direction ``billboard_view`` (azimuth, elevation), placed where the close-up is (§II.C).
+        from the fixed direction ``billboard_view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]),
+        placed where the close-up is (§II.C).
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"
@@ -612,6 +616,9 @@ class CloseUp:
         if not isinstance(self.roi, ROI):
             raise InvalidInputError(f"close-up roi must be a stepterrain.closeup.ROI; got {type(self.roi).__name__}")
         rot = real_vector(self.rotation, "close-up rotation", "finite (α, β) in radians", 2)
+        if np.abs(rot).max() > _MAX_ANGLE:
+            raise InvalidInputError(f"close-up rotation must be (α, β) in radians, each within ±{_MAX_ANGLE:.6g} (1024 "
+                                    f"turns; degrees? use math.radians); got {tuple(rot.tolist())}")
         object.__setattr__(self, "rotation", (float(rot[0]), float(rot[1])))
         s = _scale3(self.scale, "close-up scale")
         if s[0] <= 0 or s[1] <= 0 or s[2] < 0:
@@ -643,6 +650,10 @@ class CloseUp:
         if not is_name(self.view, ("overview", "billboard")):
             raise InvalidInputError(f"close-up view must be 'overview' or 'billboard'; got {self.view!r}")
         bv = real_vector(self.billboard_view, "billboard_view", "finite (azimuth, elevation)", 2)
+        if abs(bv[0]) > _MAX_ANGLE or not abs(bv[1]) <= math.pi / 2:
+            raise InvalidInputError(f"billboard_view must be (azimuth, elevation) in radians, the azimuth within "
+                                    f"±{_MAX_ANGLE:.6g} (1024 turns) and the elevation in [-π/2, π/2]; got "
+                                    f"{tuple(bv.tolist())}")
         object.__setattr__(self, "billboard_view", (float(bv[0]), float(bv[1])))
         if self.stepped is not None:
             object.__setattr__(self, "stepped", finite_number(self.stepped, "close-up stepped interval", positive=True))
@@ -1858,6 +1869,7 @@ def animate_closeups(
     fps: float = 12.0,
     window_size: tuple[int, int] = (640, 400),
     device: wp.DeviceLike = None,
+    progress: bool = False,
     **options: Any,
 ) -> list[NDArray[np.uint8]]:
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
@@ -1865,7 +1877,8 @@ def animate_closeups(
     The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
     view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
     ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
-    ``renderer`` and ``reuse_overview``.
+    ``renderer`` and ``reuse_overview``. ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
+    (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first).
     """
     from . import render
 
@@ -1898,10 +1911,15 @@ def animate_closeups(
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
     renderer = render.LayeredRenderer(window_size=(width, height), background=options.get("background", "white"),
                                       z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
+    steps: Any = times
+    if check_flag(progress, "progress"):  # a long animation (thousands of frames) ran for minutes without a word
+        from tqdm.auto import tqdm
+
+        steps = tqdm(times, desc="close-up frames", unit="frame")
     try:
         return [render_closeups(t, items, window_size=window_size, time=float(time), bounds=box, renderer=renderer,
                                 reuse_overview=True,
-                                device=device, **options) for time in times]
+                                device=device, **options) for time in steps]
     finally:
         renderer.close()
 

@@ -1442,7 +1442,9 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
               max_radius: float | None = None) -> Camera:
     """A camera at (latitude, longitude) in degrees (latitude in [-90, 90], longitude in [-360, 360]: east of
     Greenwich either way round), ``altitude`` metres above the sphere of ``radius``,
-    looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north) by ``tilt`` degrees.
+    looking down (tilt 0) or tilted towards ``heading`` (degrees clockwise from north, any finite value: whole
+    turns are taken off exactly) by ``tilt`` degrees, in [-90, 90] (90: the horizon; a negative tilt looks the
+    other way, towards heading + 180).
 
     ``max_radius`` (metres, default ``radius``) is the largest distance of the surface from the centre, for a
     :class:`Globe` its ``radius`` plus its highest exaggerated node height (``globe.heights.max()``): the far
@@ -1470,6 +1472,10 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
         if not math.isfinite(number_or_nan(value)):
             raise InvalidInputError(f"{name} must be a finite number; got {value!r}")
     altitude, tilt, heading = float(altitude), float(tilt), float(heading)
+    if not -90.0 <= tilt <= 90.0:  # 1e308 degrees gave a view of no meaning; past 90 the view looks up, off the globe
+        raise InvalidInputError(f"tilt must lie in [-90, 90] degrees from straight down; got {tilt:g}")
+    if abs(heading) >= 360.0:  # whole turns off, exactly (fmod is exact): radians(1e308) lost the direction
+        heading = math.fmod(heading, 360.0)
     radius = _positive(radius, "radius")
     top = radius if max_radius is None else _positive(max_radius, "max_radius")
     if abs(radius + altitude) > _MAX_COORDINATE:  # the Camera's coordinate bound, named by its inputs here

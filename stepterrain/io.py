@@ -134,8 +134,12 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
     OutputTooLargeError
-        The file's declared cells (at least 4 bytes each, the float32 heights) exceed the memory budget
-        (:func:`stepterrain.set_memory_budget`), checked from its header before reading.
+        The file's declared cells exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from
+        its header before reading. What is checked is the larger of the stored values and the float32 heights
+        the Terrain keeps: cells x max(stored bytes per cell, 4). That is a lower bound of what the read
+        allocates at its peak: the stored band, a mask, and float32 or float64 working copies (nodata, a
+        GeoTIFF's scale and offset, a height unit) live together for a moment, about 8-12 bytes per cell for
+        8-, 16- and 32-bit rasters and up to about 32 for float64 or scaled bands, so leave that much headroom.
 
     Examples
     --------
@@ -280,10 +284,12 @@ def _load_npy(file: Path, height_unit: str | None) -> Terrain:
 def read_npy(file: Path, mmap_mode: Literal["r"] | None = None) -> NDArray[Any]:
     """The one array of an .npy file (memory-mapped read-only with ``mmap_mode="r"``), else a DataFileError: not
     an .npy, a header declaring more data than the file holds (truncated), pickled objects, unreadable content.
+    Its declared size is checked against the memory budget (an OutputTooLargeError) either way: every caller
+    reads the map into memory as float32 (a series in :func:`~stepterrain.batch.load_series`).
     :func:`load_dem` and :func:`~stepterrain.batch.load_series` read .npy files through this."""
     _check_magic(file, (_NPY_MAGIC,), "a NumPy .npy array file")
     with open(file, "rb") as handle:  # readable: _check_magic has read it
-        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array", budget=mmap_mode is None)
+        _check_declared_size(handle, os.fstat(handle.fileno()).st_size, file, "the array")
     try:
         array = np.load(file, mmap_mode=mmap_mode, allow_pickle=False)
     except (ValueError, OSError, EOFError) as exc:
@@ -592,12 +598,11 @@ def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> bytes:
     return head
 
 
-def _check_declared_size(handle: Any, size: int, file: Path, what: str, budget: bool = True) -> None:
+def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
     """Refuse an .npy stream (at its start, ``size`` bytes in all) whose header declares more data than follows
     it: NumPy allocates the declared shape before reading, so a 100-byte file declaring 10^8 x 10^8 floats
-    raised a MemoryError for 71 PiB. With ``budget`` (a read into memory, not a memory map), refuse one the memory
-    budget cannot hold as well (:func:`_check_read_budget`). A header NumPy cannot parse is left to ``np.load``'s
-    own error."""
+    raised a MemoryError for 71 PiB. Refuse one the memory budget cannot hold as well (:func:`_check_read_budget`),
+    memory-mapped or not: every caller copies it. A header NumPy cannot parse is left to ``np.load``'s own error."""
     try:
         version = np.lib.format.read_magic(handle)
         read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
@@ -615,15 +620,16 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str, budget: 
             f"cannot read {str(file)!r}: {what} declares shape {tuple(shape)} of {dtype} ({declared:,} bytes) but "
             f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
         )
-    if budget:
-        _check_read_budget(file, tuple(shape), dtype, what)
+    _check_read_budget(file, tuple(shape), dtype, what)
 
 
 def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster") -> None:
     """An :class:`~stepterrain.errors.OutputTooLargeError` naming ``file``, its declared shape and the bytes, before
     reading, when its cells (as stored, at least float32 as the Terrain keeps them) exceed the memory budget
     (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
-    machine swapped or NumPy raised a raw MemoryError."""
+    machine swapped or NumPy raised a raw MemoryError. A lower bound of the read's peak, as :func:`load_dem` says
+    (measured by tests/test_io_fixes.py: 8-12 bytes per cell for 8- to 32-bit rasters, up to 32 for float64 or a
+    scaled band); it checks what the Terrain keeps, as the budget bounds a call's output elsewhere."""
     cells = math.prod(int(n) for n in shape)
     check_budget(
         cells * max(dtype.itemsize, 4),

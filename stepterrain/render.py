@@ -947,7 +947,9 @@ class LayeredRenderer:
 
     # -------------------------------------------------------------------------- view
     def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
-        """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range."""
+        """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range. A
+        fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
+        small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank."""
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         local = _check_box(box, "box") - self._origin
@@ -958,7 +960,10 @@ class LayeredRenderer:
         self._view_token = token
         self._view_version += 1
         width, height = self.size
-        position = _camera_position(camera, _box_corners(local), width / height)
+        corners = _box_corners(local)
+        position = _camera_position(camera, corners, width / height)
+        if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
+            _check_visible(corners, position, (width, height), local, self.z_scale)  # (z_scale=1e30: a blank image)
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         self._plotter.remove_all_lights()

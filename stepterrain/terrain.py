@@ -23,6 +23,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from ._compaction import check_budget
 from .errors import InvalidInputError
 
 __all__ = ["Terrain", "heightfield_mesh", "as_terrain"]
@@ -247,6 +248,20 @@ def unshared(out: NDArray[Any], given: Any, seen: NDArray[Any]) -> NDArray[Any]:
     return out
 
 
+def check_mapped(array: Any, name: str) -> None:
+    """An :class:`~stepterrain.errors.OutputTooLargeError` naming ``name``, the shape and the bytes when ``array`` is a
+    memory map (``np.load(..., mmap_mode="r")``, ``np.memmap``) whose float32 copy exceeds the memory budget
+    (:func:`stepterrain.set_memory_budget`): the map's data is on disk, and the copy read all of it into memory
+    whatever the budget said. Anything else passes (its data is in memory already)."""
+    if isinstance(array, np.memmap):
+        check_budget(
+            array.size * 4,
+            f"reading {name} (a memory-mapped array of shape {tuple(array.shape)}, {array.dtype}) into memory as "
+            "float32",
+            hint="slice the map to the region needed first (a slice of a map stays on disk)",
+        )
+
+
 def first_index(mask: NDArray[np.bool_]) -> tuple[int, ...]:
     """The index of the first true entry of a non-empty ``mask`` with one (row-major), for error messages."""
     return tuple(int(i) for i in np.argwhere(mask)[0])
@@ -293,7 +308,8 @@ def _heights_array(
     """The heights as a C-contiguous float32 array the Terrain owns, and their min and max (NaN when there is
     nodata; :func:`finite_or_nan`). A finite value beyond float32 is trapped in the cast (:func:`float32_heights`),
     so it is not reported as infinite. ``borrow``: float32 C-contiguous heights are not copied (see
-    :func:`as_terrain`)."""
+    :func:`as_terrain`). A memory map is checked against the memory budget first (:func:`check_mapped`)."""
+    check_mapped(heights, name)
     arr = as_array(unmasked(heights), name, "a real-valued (H, W) array")
     if not is_real_dtype(arr.dtype):
         raise InvalidInputError(f"{name} must be a real-valued (H, W) array; got dtype {arr.dtype}")

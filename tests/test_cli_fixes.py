@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -300,3 +301,31 @@ def test_closeup_subnormal_fps_for_a_gif_is_a_usage_error(tmp_path, capsys):
     assert code == 2
     assert "--fps must lie in [0.001526, 100] frames per second for a GIF" in one_error_line(err, "closeup")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_non_finite_texture_azimuth_is_refused_before_the_dem_is_read(tmp_path, capsys):
+    """--azimuth inf was refused only by the library, after the DEM was read (minutes for a large one); the
+    other options' bounds (--altitude in [0, 90]) are checked up front, and so is this one now."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    code, _, err = run(capsys, "texture", dem, "--azimuth", "inf", "-o", tmp_path / "t.png")
+    assert code == 2
+    assert "--azimuth must be a finite number of degrees; got inf" in err
+    assert "loading" not in err
+
+
+def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, capsys):
+    """--rotation 0,1e308 was converted to radians first: math.radians(1e308) kept none of the angle, so the close-up
+    turned by whatever cos(1.7e306) gave. Whole turns come off first (exactly), so it is 1e308 mod 360 degrees."""
+    import trimesh
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    reduced = math.fmod(1e308, 360.0)
+    meshes = []
+    for beta in (1e308, reduced):
+        out = tmp_path / f"scene_{len(meshes)}.ply"
+        code, _, err = run(capsys, "closeup", dem, "--rotation", f"0,{beta!r}", "-o", out)
+        assert code == 0, err
+        meshes.append(trimesh.load(out, process=False))
+    np.testing.assert_array_equal(meshes[0].vertices, meshes[1].vertices)

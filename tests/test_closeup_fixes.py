@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -192,3 +193,66 @@ def test_an_fps_too_small_for_finite_frame_times_is_named():
         warnings.simplefilter("error")
         with pytest.raises(InvalidInputError, match=r"^fps must be large enough"):
             animate_closeups(terrain(), [one()], frames=3, fps=1e-320, window_size=(64, 48), device="cpu")
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        ({"rotation": (0.0, 1e308)}, r"close-up rotation must be \(α, β\) in radians, each within ±6433.98 \(1024"),
+        ({"rotation": (-1e5, 0.0)}, r"close-up rotation must be \(α, β\) in radians, each within ±6433.98"),
+        ({"billboard_view": (0.0, 2.0)}, r"billboard_view must be \(azimuth, elevation\) in radians.*elevation in"),
+        ({"billboard_view": (1e300, 1.0)}, r"billboard_view must be \(azimuth, elevation\) in radians, the azimuth"),
+    ],
+)
+def test_a_closeup_angle_beyond_its_range_is_refused(options, message):
+    """CloseUp took rotation (0, 1e308) radians: the close-up turned by whatever cos(1e308) gave, and a spin added to
+    so large an angle was lost to rounding (the animation stood still); an elevation of 2 radians (past the zenith)
+    turned the billboard's camera over. Angles beyond 1024 turns (degrees, most likely) and an elevation outside
+    [-π/2, π/2] are refused by name."""
+    roi = ROI.circle((0.0, 0.0), 1.0)
+    with pytest.raises(InvalidInputError, match=message):
+        CloseUp(roi, **options)
+    assert CloseUp(roi, rotation=(-6433.0, 6433.0), billboard_view=(6433.0, -1.5)).rotation == (-6433.0, 6433.0)
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("z_scale", [1e30, 1e6])
+def test_a_z_scale_that_renders_a_sliver_is_refused(z_scale):
+    """render_closeups (the CLI's closeup --z-scale 1e30) passed _check_reach (below ±1e150) and wrote a blank white
+    image: the fitted camera showed the terrain less than a pixel wide. The layered renderer now refuses it as
+    render_mesh does, naming z_scale and the value that would make the terrain as tall as it is wide; within reach,
+    the image is not blank."""
+    scale = re.escape(f"z_scale={z_scale:g}")
+    message = rf"^the mesh would render .*\(with {scale}\), too thin to see .*; a z_scale near"
+    with pytest.raises(InvalidInputError, match=message):
+        render_closeups(terrain(), [one()], window_size=SIZE, z_scale=z_scale)
+    image = render_closeups(terrain(), [one()], window_size=SIZE, z_scale=2.0)
+    assert (image != 255).any(axis=2).sum() > 100
+
+
+def test_closeup_gif_frames_over_the_budget_are_refused_before_the_dem_is_read(tmp_path, capsys):
+    """closeup --gif --frames 100000 loaded the DEM and rendered the still image before animate_closeups refused
+    the frames (all kept until written) against the memory budget; the CLI now checks them up front, counting the
+    copy save_animation's writer makes of them (np.stack) too."""
+    from stepterrain import cli
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    code = cli.main(["closeup", str(dem), "--gif", str(tmp_path / "a.gif"), "--frames", "100000", "--size", "320x200",
+                     "-o", str(tmp_path / "still.png")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "--frames 100000 of 320 x 200 pixels (kept, then copied once by the writer) would need 36,621.1 MiB" in err
+    assert "loading" not in err
+    assert not (tmp_path / "still.png").exists()
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_animate_closeups_shows_progress_when_asked(capfd):
+    """animate_closeups rendered thousands of frames (the CLI's --frames) for minutes without a word; with
+    progress=True (the CLI passes it unless -q) a tqdm bar counts the frames on stderr."""
+    frames = animate_closeups(terrain(), [one(spin=(1.0, 1))], frames=3, fps=3.0, window_size=SIZE, progress=True)
+    assert len(frames) == 3
+    assert "close-up frames" in capfd.readouterr().err
+    with pytest.raises(InvalidInputError, match="progress"):
+        animate_closeups(terrain(), [one()], frames=1, window_size=SIZE, progress="yes")

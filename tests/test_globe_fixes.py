@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 
@@ -404,3 +405,19 @@ def test_a_longitude_beyond_one_turn_either_way_is_refused(longitude):
     with pytest.raises(InvalidInputError, match=r"longitude must lie in \[-360, 360\] degrees"):
         look_from(10.0, longitude, 1e6)
     assert np.allclose(look_from(10.0, 350.0, 1e6).eye, look_from(10.0, -10.0, 1e6).eye)
+
+
+def test_look_from_takes_whole_turns_off_the_heading_and_bounds_the_tilt():
+    """look_from took tilt=1e308 (a view of no meaning: radians(1e308) kept none of the angle) and turned heading=1e308
+    by whatever cos(1.7e306) gave. The heading is now reduced modulo 360 exactly before it becomes radians, and a tilt
+    outside [-90, 90] degrees (from straight down to the horizon) is refused by name."""
+    from stepterrain.globe import look_from
+
+    far = look_from(46.0, 9.0, 4e5, tilt=30.0, heading=1e308)
+    near = look_from(46.0, 9.0, 4e5, tilt=30.0, heading=math.fmod(1e308, 360.0))
+    assert far == near
+    assert look_from(46.0, 9.0, 4e5, tilt=30.0, heading=-330.0) == look_from(46.0, 9.0, 4e5, tilt=30.0, heading=-330.0)
+    for tilt in (1e308, 90.5, -91.0):
+        with pytest.raises(InvalidInputError, match=r"^tilt must lie in \[-90, 90\] degrees from straight down; got "):
+            look_from(46.0, 9.0, 4e5, tilt=tilt)
+    look_from(46.0, 9.0, 4e5, tilt=90.0)  # the horizon: the bound itself is taken

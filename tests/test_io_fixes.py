@@ -425,3 +425,85 @@ def test_an_unknown_epsg_code_loads_without_gdal_printing_to_stderr(tmp_path, ca
     out, err = capfd.readouterr()
     assert (out, err) == ("", "")
     assert terrain.crs == "EPSG:999999" and terrain.spacing == (2.0, -2.0) and terrain.heights.shape == (3, 4)
+
+
+@pytest.mark.parametrize("reader", ["load_series", "from_heights", "stepped", "batch"])
+def test_a_memory_map_over_the_memory_budget_is_refused_before_it_is_copied(tmp_path, reader):
+    """A memory-mapped .npy (load_series maps its file; np.load(mmap_mode="r") given to Terrain.from_heights,
+    stepped or batch) was read into memory as float32 whatever st.set_memory_budget said: the map's data is on disk
+    and only its copy needs memory. Its size is now checked before the copy; a slice of the map within the budget
+    reads."""
+    import stepterrain as st
+    from stepterrain.batch import load_series
+    from stepterrain.errors import OutputTooLargeError
+
+    path = tmp_path / "series.npy"
+    np.save(path, np.arange(3 * 40 * 30, dtype=np.float64).reshape(3, 40, 30))  # 3,600 cells: 14,400 bytes float32
+    mapped = np.load(path, mmap_mode="r")
+    call = {
+        "load_series": lambda: load_series(path),
+        "from_heights": lambda: st.Terrain.from_heights(mapped[0]),
+        "stepped": lambda: st.stepped(mapped[0], interval=100.0),
+        "batch": lambda: batch(mapped, tmp_path / "out", interval=100.0, scheduler="serial"),
+    }[reader]
+    previous = st.set_memory_budget(4_000)  # under one frame's 4,800 bytes
+    try:
+        message = r"(40 x 30|40, 30\)).*float64.* would need [\d,]+ bytes, over the memory budget of 4,000 bytes"
+        with pytest.raises(OutputTooLargeError, match=message):
+            call()
+        assert st.Terrain.from_heights(mapped[0, :20, :20]).shape == (20, 20)  # 1,600 bytes: within the budget
+    finally:
+        st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize(
+    "dtype, options, most",
+    [
+        ("uint8", {}, 12.5),
+        ("uint16", {"nodata": 0}, 12.5),
+        ("float32", {}, 12.5),
+        ("float64", {"nodata": -9999.0}, 32.5),
+        ("int16", {"scale": 0.1, "offset": 5.0, "nodata": -1}, 32.5),
+        ("float64", {"scale": 2.0, "unit": "ft"}, 32.5),
+    ],
+)
+def test_the_documented_peak_of_a_geotiff_read_holds(tmp_path, dtype, options, most):
+    """load_dem's budget check counts the heights it keeps (cells x max(stored bytes, 4)); its docstring and the
+    README state what the read allocates at its peak beyond that (8-12 bytes a cell for 8- to 32-bit rasters, up
+    to 32 for float64 or scaled bands). Measured here with tracemalloc (numpy's allocations), so the numbers stay
+    true: the check is a lower bound of the peak and the peak within the stated bytes per cell."""
+    import tracemalloc
+
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.io import _check_read_budget
+
+    rows, cols = 300, 200
+    path = tmp_path / "dem.tif"
+    transform = rasterio.Affine(30.0, 0.0, 0.0, 0.0, -30.0, 0.0)
+    profile = {"driver": "GTiff", "width": cols, "height": rows, "count": 1, "dtype": dtype}
+    profile.update(crs="EPSG:32611", nodata=options.get("nodata"), transform=transform)
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write((np.arange(rows * cols) % 1000 + 1).reshape(rows, cols).astype(dtype), 1)
+        if "scale" in options:
+            ds.scales, ds.offsets = (options["scale"],), (options.get("offset", 0.0),)
+        if "unit" in options:
+            ds.units = (options["unit"],)
+    load_dem(path)  # imports and caches outside the measurement
+    tracemalloc.start()
+    try:
+        load_dem(path)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    checked = rows * cols * max(np.dtype(dtype).itemsize, 4)
+    import stepterrain as st
+
+    previous = st.set_memory_budget(checked)
+    try:
+        _check_read_budget(path, (rows, cols), np.dtype(dtype))  # exactly what is checked: passes at the budget
+        st.set_memory_budget(checked - 1)
+        with pytest.raises(st.errors.OutputTooLargeError):
+            _check_read_budget(path, (rows, cols), np.dtype(dtype))
+    finally:
+        st.set_memory_budget(previous)
+    assert checked <= peak <= most * rows * cols
