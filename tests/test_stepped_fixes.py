@@ -7,10 +7,12 @@ import re
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st_
 
 import stepterrain as st
 from stepterrain._device import resolve_device
-from stepterrain.stepped import step_arrays
+from stepterrain.stepped import step_arrays, thresholds_of
 from stepterrain.terrain import as_terrain
 
 from .test_stepped import compare_with_reference
@@ -55,8 +57,11 @@ def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
     frames[2, 1, 1] = bad
     frames[0, 0, 0] = np.nan  # nodata elsewhere stays nodata
     yielded = []
-    expected = ("heights must be finite or NaN (nodata); got an infinite value at index (1, 1)" if np.isinf(bad)
-                else "heights must fit in float32")
+    expected = (
+        "heights must be finite or NaN (nodata); got an infinite value at index (1, 1)"
+        if np.isinf(bad)
+        else "heights must fit in float32"
+    )
     with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: " + re.escape(expected)):
         for mesh in st.stepped_series(frames, interval=1.0):
             yielded.append(mesh)
@@ -97,3 +102,56 @@ def test_a_lens_resolution_beyond_float64_is_over_the_budget():
     # the budget message divided 10**800 bytes by 1024**2 in float: OverflowError instead of the budget's error
     with pytest.raises(st.OutputTooLargeError, match=r"would need over 10\^795 MiB, over the memory budget"):
         st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), 1.0, resolution=10**400)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    start=st_.floats(float(np.float32(-3e38)), float(np.float32(3e38)), width=32, allow_subnormal=False),
+    count=st_.integers(2, 4),
+    at=st_.integers(0, 3),
+)
+def test_levels_that_are_neighbouring_float32_values_never_step_a_height_off_its_own_level(start, count, at):
+    """A height equal to an isovalue is its own nearest isovalue. Levels one float32 step apart (1e7 and 1e7 + 1)
+    have a midpoint that float32 cannot hold; rounded to even it fell onto the lower level, so a height on that level
+    sat on the threshold and stepped up: a flat terrain at 1e7 with levels [1e7, 1e7 + 1] came back at 1e7 + 1, and
+    three such levels could give two equal thresholds (an empty band). Such levels are refused, naming them; levels
+    whose thresholds lie above their lower level keep every height on its own. Found by stepping flat terrains at
+    levels given as consecutive float32 values."""
+    levels = [np.float32(start)]
+    for _ in range(count - 1):
+        levels.append(np.nextafter(levels[-1], np.float32(np.inf)))
+    levels = np.array(levels, np.float32)
+    height = float(levels[min(at, count - 1)])
+    flat = np.full((2, 2), height)
+    if (thresholds_of(levels) <= levels[:-1]).any():
+        with pytest.raises(
+            st.InvalidInputError,
+            match=r"^levels must be more than one float32 step apart .*"
+            r"levels\[\d\]=.* are neighbouring float32 values",
+        ):
+            st.stepped(flat, levels=levels.astype(np.float64))
+        return
+    mesh = st.stepped(flat, levels=levels.astype(np.float64))
+    assert set(mesh.vertices[:, 2].tolist()) == {height}
+
+
+def test_an_interval_of_one_float32_step_is_refused_not_stepped_up():
+    """The same through interval=: at 1e7 float32 holds only integers, so interval=1 gives isovalues 1e7, 1e7 + 1
+    whose threshold rounds onto 1e7; a flat terrain at 1e7 came back at 1e7 + 1. Refused, with the interval that
+    works there; 2 steps apart the heights keep their level."""
+    flat = np.full((2, 2), 1e7)
+    flat[1, 1] = 1e7 + 1
+    with pytest.raises(
+        st.InvalidInputError,
+        match=r"^interval=1 is too small for float32 heights around 1e\+07: the "
+        r"isovalues 10000000\.0 and 10000001\.0 are neighbouring float32 values.* at least 2 there$",
+    ):
+        st.stepped(flat, interval=1.0)
+    mesh = st.stepped(flat, interval=2.0)
+    assert set(mesh.vertices[:, 2].tolist()) == {1e7}
+    with pytest.raises(
+        st.InvalidInputError,
+        match=r"^levels must be strictly increasing in float32 .*levels\[0\]="
+        r"10000000\.0 and levels\[1\]=10000000\.25 both round to 10000000\.0$",
+    ):
+        st.stepped(flat, levels=[1e7, 1e7 + 0.25])  # was "strictly increasing; got [10000000.0, 10000000.25]"
