@@ -7,6 +7,7 @@ import re
 
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st_
 
@@ -15,7 +16,8 @@ from stepterrain._device import resolve_device
 from stepterrain.stepped import step_arrays, thresholds_of
 from stepterrain.terrain import as_terrain
 
-from .test_stepped import compare_with_reference
+from .conftest import assert_valid_mesh
+from .test_stepped import compare_with_reference, projected_area
 
 stepped_module = importlib.import_module("stepterrain.stepped")  # the package's `stepped` is the function
 
@@ -155,3 +157,46 @@ def test_an_interval_of_one_float32_step_is_refused_not_stepped_up():
         r"10000000\.0 and levels\[1\]=10000000\.25 both round to 10000000\.0$",
     ):
         st.stepped(flat, levels=[1e7, 1e7 + 0.25])  # was "strictly increasing; got [10000000.0, 10000000.25]"
+
+
+def _cliff_tin(kind, low, high):
+    """A TIN with faces of zero area in xy beside real ones: a vertical cliff (two points on one xy, along an axis or
+    a diagonal) or a collinear sliver between two faces."""
+    if kind == "collinear sliver":
+        points = [(0, 0, low), (1, 0, high), (0.5, 0, (low + high) / 2 + 0.1), (0.5, 1, low), (0.5, -1, high)]
+        return trimesh.Trimesh(np.array(points, float), [[0, 1, 2], [0, 2, 3], [2, 1, 3], [0, 4, 1]], process=False)
+    shift = 0.3 if kind == "diagonal cliff" else 0.0
+    points = [(0, 0, low), (0, 1, low), (1, 0, low), (1 + shift, 1, low), (1, 0, high), (1 + shift, 1, high),
+              (2, 0, high), (2 + shift, 1, high)]  # fmt: skip
+    faces = [[0, 2, 3], [0, 3, 1], [2, 4, 5], [2, 5, 3], [4, 6, 7], [4, 7, 5]]
+    return trimesh.Trimesh(np.array(points, float), faces, process=False)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    kind=st_.sampled_from(["axis cliff", "diagonal cliff", "collinear sliver"]),
+    low=st_.floats(0.0, 3.0),
+    rise=st_.floats(0.3, 6.0),
+    gamma=st_.sampled_from([1.0, 0.5]),
+)
+def test_solid_of_a_tin_with_zero_area_faces_is_watertight(kind, low, rise, gamma):
+    """The base took one vertex per xy, so two surface vertices on one xy that no wall joins (a cliff's foot and top
+    crossings, or a crossing on a collinear sliver that lands on another point) shared it: the base folded onto a
+    base edge used four times (or, on a cliff face, a chain of vertical boundary edges left skirt edges used once),
+    and the solid leaked without the warning that heights on thresholds give. Such TINs are accepted ("zero-area
+    slivers beside real faces are stepped"). The base now keys a wall's bottom and top to one vertex, everything else
+    to its own. Found by closing TINs with a vertical cliff (same xy, two heights) and a collinear face."""
+    import warnings
+
+    tin = _cliff_tin(kind, low, low + rise)
+    heights = tin.vertices[:, 2].astype(np.float32)
+    if np.isin(heights, thresholds_of(st.isovalues((heights.min(), heights.max()), interval=0.7))).any():
+        return  # on a threshold: the solid is not guaranteed watertight (and says so)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = st.stepped(tin, interval=0.7, gamma=gamma, solid=True, floor=-1.0)
+    assert_valid_mesh(mesh)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    surface = st.stepped(tin, interval=0.7, gamma=gamma)
+    expected = float((projected_area(surface) * (surface.triangles[:, :, 2].mean(axis=1) + 1.0)).sum())
+    assert mesh.volume == pytest.approx(expected, rel=1e-9)
