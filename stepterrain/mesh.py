@@ -77,9 +77,11 @@ def close_solid(
 ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.bool_], int, NDArray[np.int64]]:
     """Close a height-function surface into a watertight solid with side skirts and a flat base at ``floor``.
 
-    The base is the terraces (faces whose projections tile the domain) flattened to ``floor`` and reversed;
-    each boundary edge gets a vertical skirt down to the base. A vertical boundary edge (a wall's side on the
-    domain boundary) joins the skirt of the boundary edge that follows it, so no zero-area face appears.
+    The base is the terraces (faces whose projections tile the domain) flattened to ``floor`` and reversed, one base
+    vertex per surface vertex except that a wall's bottom and top (the faces not in ``terrace_mask``, in consecutive
+    pairs as the step kernels emit them) share theirs; each boundary edge gets a vertical skirt down to the base. A
+    vertical boundary edge (a wall's side on the domain boundary) joins the skirt of the boundary edge that follows
+    it, so no zero-area face appears.
 
     Where the surface's boundary touches itself at a vertex (two triangles meeting only there, e.g. between
     nodata holes), that vertex is split first: each fan of faces around it gets its own copy (same position),
@@ -130,8 +132,17 @@ def close_solid(
         edges = boundary_edges(faces)
         source = np.concatenate([source, source[copied]])
     n = len(vertices)
-    # a pinch's copies keep their own base vertex
-    column = exact_keys(np.column_stack([vertices[:, :2], fan]) if split else vertices[:, :2])
+    # a column (one base vertex) is a vertex, or the wall bottom and top that a vertical wall edge joins; a pinch's
+    # copies keep their own. Keyed by xy alone, two vertices on one xy that no wall joins (a TIN's cliff: two points
+    # on one xy, or a crossing on a zero-area face where another edge's crossing lies) shared a base vertex, and the
+    # base under them folded onto a base edge used four times: a solid that leaked, without a warning
+    keys = np.column_stack([vertices[:, :2], fan]) if split else vertices[:, :2]
+    column = exact_keys(keys)
+    pair = _wall_pairs(faces, terrace_mask, n)
+    held = np.empty(int(column.max(initial=-1)) + 1, np.int64)
+    held[column] = pair
+    if (held[column] != pair).any():  # rare (a TIN's zero-area faces): the key sorts as before, only longer
+        column = exact_keys(np.column_stack([keys, pair.astype(np.float64)]))
     n_columns = int(column.max()) + 1
     base_xy = np.empty((n_columns, 2), dtype=np.float64)
     base_xy[column] = vertices[:, :2]
@@ -163,6 +174,24 @@ def close_solid(
     skirts.append(np.stack([b[has_x], x[has_x], A[has_x]], axis=1))
     added = np.concatenate(skirts + [base_faces], axis=0)
     return np.concatenate([vertices, base_vertices]), np.concatenate([faces, added]), kept, len(added), source
+
+
+def _wall_pairs(faces: NDArray[np.int64], terrace_mask: NDArray[np.bool_], n: int) -> NDArray[np.int64]:
+    """Per vertex, the lower index of the wall bottom and top it pairs with through a vertical wall edge (itself when
+    no wall's side joins it to another vertex). Walls come as consecutive pairs (u_top, v_top, v_bottom),
+    (u_top, v_bottom, u_bottom): their vertical edges are (v_top, v_bottom) and (u_top, u_bottom); a vertex lies on
+    one such edge at most (a crossing's bottom or top, a node over its twin)."""
+    pair = np.arange(n, dtype=np.int64)
+    walls = np.flatnonzero(~np.asarray(terrace_mask))
+    if len(walls) == 0 or len(walls) % 2:
+        return pair
+    first, second = walls[0::2], walls[1::2]
+    tops = np.concatenate([faces[first, 1], faces[second, 0]])
+    bottoms = np.concatenate([faces[first, 2], faces[second, 2]])
+    low = np.minimum(tops, bottoms)
+    pair[tops] = low
+    pair[bottoms] = low
+    return pair
 
 
 def _repeated_rows(rows: NDArray[np.int64]) -> NDArray[np.bool_]:

@@ -218,8 +218,10 @@ def isovalues(
     InvalidInputError
         Both or neither of ``interval`` and ``levels``; ``base`` other than 0 with ``levels``; a non-finite or
         non-positive interval; levels that are empty, non-finite or not strictly increasing (also after rounding
-        to float32); a ``height_range`` that is not finite (min, max) with min <= max, or spans more than float32
-        holds (max - min > 3.4e38: the step kernels take height differences in float32).
+        to float32), or two of them (or two isovalues of an interval) that are neighbouring float32 values (the
+        threshold between them would round onto the lower one); a ``height_range`` that is not finite (min, max)
+        with min <= max, or spans more than float32 holds (max - min > 3.4e38: the step kernels take height
+        differences in float32).
 
     Examples
     --------
@@ -257,10 +259,24 @@ def isovalues(
         bad = np.flatnonzero(np.diff(values) <= 0)
         if bad.size:
             i = int(bad[0]) + 1
+            if values64[i] > values64[i - 1]:  # increasing as given, equal once rounded to the kernels' float32
+                a, b = float(values64[i - 1]), float(values64[i])
+                raise InvalidInputError(
+                    f"levels must be strictly increasing in float32 (the step kernels' precision); levels[{i - 1}]="
+                    f"{a!r} and levels[{i}]={b!r} both round to {float(values[i])!r}"
+                )
             shown = values64.tolist() if values64.size <= 10 else values64[max(0, i - 3) : i + 3].tolist()
             raise InvalidInputError(f"levels must be strictly increasing; got {shown} (index {i})")
         if values.size > MAX_LEVELS:
             raise InvalidInputError(f"at most {MAX_LEVELS} levels are supported; got {values.size}")
+        close = _unseparated(values)
+        if close is not None:
+            raise InvalidInputError(
+                f"levels must be more than one float32 step apart (the threshold between two levels, their midpoint, "
+                f"must lie above the lower one); levels[{close}]={float(values64[close])!r} and levels[{close + 1}]="
+                f"{float(values64[close + 1])!r} are neighbouring float32 values, {float(values[close])!r} and "
+                f"{float(values[close + 1])!r}: the threshold rounds onto the lower level, whose heights would step up"
+            )
         return _check_span(lo, hi, values)
     try:
         step = as_number(interval)
@@ -297,7 +313,27 @@ def isovalues(
         )
     if values.size > 1 and np.any(np.diff(values) <= 0):
         raise InvalidInputError(f"interval={step} is too small for float32 heights around {hi}")
+    close = _unseparated(values)
+    if close is not None:
+        a, b = float(values[close]), float(values[close + 1])
+        raise InvalidInputError(
+            f"interval={step:g} is too small for float32 heights around {a:g}: the isovalues {a!r} and {b!r} are "
+            f"neighbouring float32 values, so the threshold between them (their midpoint) rounds onto the lower one, "
+            f"whose heights would step up; use an interval of at least {2 * (b - a):g} there"
+        )
     return _check_span(lo, hi, values)
+
+
+def _unseparated(values: NDArray[np.float32]) -> int | None:
+    """The first i whose threshold t_i rounds onto α_i, or None. Only neighbouring float32 values do that (their
+    midpoint is a tie, rounded to the even one; between levels two or more float32 steps apart there is a float32
+    value the midpoint rounds to): a height exactly on α_i then sits on t_i and steps up to α_i+1 (a flat terrain at
+    1e7 with levels [1e7, 1e7 + 1] came back at 1e7 + 1), and where t_i+1 rounds down onto α_i+1 as well the band of
+    α_i+1 is empty (t_i = t_i+1: walls stacked on one crossing, a zero-width terrace between them)."""
+    if values.size < 2:
+        return None
+    close = np.flatnonzero(thresholds_of(values) <= values[:-1])
+    return int(close[0]) if close.size else None
 
 
 def _check_span(lo: float, hi: float, values: NDArray[np.float32]) -> NDArray[np.float32]:

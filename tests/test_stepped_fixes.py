@@ -7,13 +7,17 @@ import re
 
 import numpy as np
 import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st_
 
 import stepterrain as st
 from stepterrain._device import resolve_device
-from stepterrain.stepped import step_arrays
+from stepterrain.stepped import step_arrays, thresholds_of
 from stepterrain.terrain import as_terrain
 
-from .test_stepped import compare_with_reference
+from .conftest import assert_valid_mesh
+from .test_stepped import compare_with_reference, projected_area
 
 stepped_module = importlib.import_module("stepterrain.stepped")  # the package's `stepped` is the function
 
@@ -55,8 +59,11 @@ def test_series_stack_refuses_a_bad_frame_before_the_first_frame(bad):
     frames[2, 1, 1] = bad
     frames[0, 0, 0] = np.nan  # nodata elsewhere stays nodata
     yielded = []
-    expected = ("heights must be finite or NaN (nodata); got an infinite value at index (1, 1)" if np.isinf(bad)
-                else "heights must fit in float32")
+    expected = (
+        "heights must be finite or NaN (nodata); got an infinite value at index (1, 1)"
+        if np.isinf(bad)
+        else "heights must fit in float32"
+    )
     with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: " + re.escape(expected)):
         for mesh in st.stepped_series(frames, interval=1.0):
             yielded.append(mesh)
@@ -152,3 +159,98 @@ def test_stepped_series_refuses_a_stack_of_no_frames():
     """A (0, H, W) stack said "frames hold no finite height"; it holds no frame at all."""
     with pytest.raises(st.errors.InvalidInputError, match=r"at least one frame; got shape \(0, 4, 5\)"):
         list(st.stepped_series(np.zeros((0, 4, 5)), interval=1.0))
+
+@settings(max_examples=40, deadline=None)
+@given(
+    start=st_.floats(float(np.float32(-3e38)), float(np.float32(3e38)), width=32, allow_subnormal=False),
+    count=st_.integers(2, 4),
+    at=st_.integers(0, 3),
+)
+def test_levels_that_are_neighbouring_float32_values_never_step_a_height_off_its_own_level(start, count, at):
+    """A height equal to an isovalue is its own nearest isovalue. Levels one float32 step apart (1e7 and 1e7 + 1)
+    have a midpoint that float32 cannot hold; rounded to even it fell onto the lower level, so a height on that level
+    sat on the threshold and stepped up: a flat terrain at 1e7 with levels [1e7, 1e7 + 1] came back at 1e7 + 1, and
+    three such levels could give two equal thresholds (an empty band). Such levels are refused, naming them; levels
+    whose thresholds lie above their lower level keep every height on its own. Found by stepping flat terrains at
+    levels given as consecutive float32 values."""
+    levels = [np.float32(start)]
+    for _ in range(count - 1):
+        levels.append(np.nextafter(levels[-1], np.float32(np.inf)))
+    levels = np.array(levels, np.float32)
+    height = float(levels[min(at, count - 1)])
+    flat = np.full((2, 2), height)
+    if (thresholds_of(levels) <= levels[:-1]).any():
+        with pytest.raises(
+            st.InvalidInputError,
+            match=r"^levels must be more than one float32 step apart .*"
+            r"levels\[\d\]=.* are neighbouring float32 values",
+        ):
+            st.stepped(flat, levels=levels.astype(np.float64))
+        return
+    mesh = st.stepped(flat, levels=levels.astype(np.float64))
+    assert set(mesh.vertices[:, 2].tolist()) == {height}
+
+
+def test_an_interval_of_one_float32_step_is_refused_not_stepped_up():
+    """The same through interval=: at 1e7 float32 holds only integers, so interval=1 gives isovalues 1e7, 1e7 + 1
+    whose threshold rounds onto 1e7; a flat terrain at 1e7 came back at 1e7 + 1. Refused, with the interval that
+    works there; 2 steps apart the heights keep their level."""
+    flat = np.full((2, 2), 1e7)
+    flat[1, 1] = 1e7 + 1
+    with pytest.raises(
+        st.InvalidInputError,
+        match=r"^interval=1 is too small for float32 heights around 1e\+07: the "
+        r"isovalues 10000000\.0 and 10000001\.0 are neighbouring float32 values.* at least 2 there$",
+    ):
+        st.stepped(flat, interval=1.0)
+    mesh = st.stepped(flat, interval=2.0)
+    assert set(mesh.vertices[:, 2].tolist()) == {1e7}
+    with pytest.raises(
+        st.InvalidInputError,
+        match=r"^levels must be strictly increasing in float32 .*levels\[0\]="
+        r"10000000\.0 and levels\[1\]=10000000\.25 both round to 10000000\.0$",
+    ):
+        st.stepped(flat, levels=[1e7, 1e7 + 0.25])  # was "strictly increasing; got [10000000.0, 10000000.25]"
+
+
+def _cliff_tin(kind, low, high):
+    """A TIN with faces of zero area in xy beside real ones: a vertical cliff (two points on one xy, along an axis or
+    a diagonal) or a collinear sliver between two faces."""
+    if kind == "collinear sliver":
+        points = [(0, 0, low), (1, 0, high), (0.5, 0, (low + high) / 2 + 0.1), (0.5, 1, low), (0.5, -1, high)]
+        return trimesh.Trimesh(np.array(points, float), [[0, 1, 2], [0, 2, 3], [2, 1, 3], [0, 4, 1]], process=False)
+    shift = 0.3 if kind == "diagonal cliff" else 0.0
+    points = [(0, 0, low), (0, 1, low), (1, 0, low), (1 + shift, 1, low), (1, 0, high), (1 + shift, 1, high),
+              (2, 0, high), (2 + shift, 1, high)]  # fmt: skip
+    faces = [[0, 2, 3], [0, 3, 1], [2, 4, 5], [2, 5, 3], [4, 6, 7], [4, 7, 5]]
+    return trimesh.Trimesh(np.array(points, float), faces, process=False)
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    kind=st_.sampled_from(["axis cliff", "diagonal cliff", "collinear sliver"]),
+    low=st_.floats(0.0, 3.0),
+    rise=st_.floats(0.3, 6.0),
+    gamma=st_.sampled_from([1.0, 0.5]),
+)
+def test_solid_of_a_tin_with_zero_area_faces_is_watertight(kind, low, rise, gamma):
+    """The base took one vertex per xy, so two surface vertices on one xy that no wall joins (a cliff's foot and top
+    crossings, or a crossing on a collinear sliver that lands on another point) shared it: the base folded onto a
+    base edge used four times (or, on a cliff face, a chain of vertical boundary edges left skirt edges used once),
+    and the solid leaked without the warning that heights on thresholds give. Such TINs are accepted ("zero-area
+    slivers beside real faces are stepped"). The base now keys a wall's bottom and top to one vertex, everything else
+    to its own. Found by closing TINs with a vertical cliff (same xy, two heights) and a collinear face."""
+    import warnings
+
+    tin = _cliff_tin(kind, low, low + rise)
+    heights = tin.vertices[:, 2].astype(np.float32)
+    if np.isin(heights, thresholds_of(st.isovalues((heights.min(), heights.max()), interval=0.7))).any():
+        return  # on a threshold: the solid is not guaranteed watertight (and says so)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = st.stepped(tin, interval=0.7, gamma=gamma, solid=True, floor=-1.0)
+    assert_valid_mesh(mesh)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    surface = st.stepped(tin, interval=0.7, gamma=gamma)
+    expected = float((projected_area(surface) * (surface.triangles[:, :, 2].mean(axis=1) + 1.0)).sum())
+    assert mesh.volume == pytest.approx(expected, rel=1e-9)
