@@ -70,6 +70,25 @@ def check_spacing(dx: float, dy: float, name: str = "spacing") -> tuple[float, f
     return dx, dy
 
 
+#: a grid's farthest node may lie at most this many spacings from zero: float64 then places every node to 1e-4 of
+#: a spacing (2**-52 * 4.5e11 = 1e-4). An origin of 1e17 with spacing 1 put neighbouring nodes on one float64 value:
+#: a mesh of zero area, silently
+_MAX_NODE_SPACINGS = 4.5e11
+
+
+def check_origin(origin: tuple[float, float], spacing: tuple[float, float], shape: tuple[int, ...]) -> None:
+    """An :class:`InvalidInputError` when a grid's nodes ``origin + (j * dx, i * dy)`` lie so far from zero that
+    float64 cannot keep neighbouring nodes apart (see :data:`_MAX_NODE_SPACINGS`)."""
+    for axis, (x0, d, n) in enumerate(zip(origin, spacing, (shape[1], shape[0]), strict=True)):
+        far = abs(x0) + (n - 1) * abs(d)
+        if far > _MAX_NODE_SPACINGS * abs(d):
+            raise InvalidInputError(
+                f"origin {tuple(origin)} lies too far from zero for spacing {tuple(spacing)}: float64 cannot keep "
+                f"the nodes {'xy'[axis]} apart out there (at most {_MAX_NODE_SPACINGS:.2g} spacings from zero; the "
+                f"farthest node is {far / abs(d):.3g}); make the coordinates relative to a nearer origin"
+            )
+
+
 def is_real_dtype(dtype: np.dtype) -> bool:
     """True for a dtype of real numbers: signed or unsigned integers and floats, not bools. ``np.issubdtype(dtype,
     np.integer)`` also holds for ``timedelta64`` (numpy makes it a subtype of signedinteger): durations were taken
@@ -407,6 +426,7 @@ class Terrain:
             set_field(self, "heights", array)  # a copy: unshared with the array given
             set_field(self, "spacing", check_spacing(*_pair(self.spacing, "spacing", nonzero=True)))
             set_field(self, "origin", _pair(self.origin, "origin", nonzero=False, scalar=False))
+            check_origin(self.origin, self.spacing, array.shape)
             self._device_cache["has_nodata"] = math.isnan(lo)
             if not math.isnan(lo):
                 self._device_cache["height_range"] = (lo, hi)
@@ -451,11 +471,14 @@ class Terrain:
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         array, lo, hi = _heights_array(heights, borrow=_borrow)
+        spacing = check_spacing(*_pair(spacing, "spacing", nonzero=True))
+        origin = _pair(origin, "origin", nonzero=False, scalar=False)
+        check_origin(origin, spacing, array.shape)
         terrain = cls(
             kind="grid",
             heights=array,
-            spacing=check_spacing(*_pair(spacing, "spacing", nonzero=True)),
-            origin=_pair(origin, "origin", nonzero=False, scalar=False),
+            spacing=spacing,
+            origin=origin,
             crs=crs,
             source=source,
             _owned=True,

@@ -261,7 +261,7 @@ def test_real_numbers_takes_integers_beyond_int64(values, expected):
     array = real_numbers(values, "x", "numbers")
     assert array.dtype == np.float64
     np.testing.assert_array_equal(array, expected)
-    assert st.Terrain.from_heights(_H, origin=(10**20, 0)).origin == (1e20, 0.0)
+    assert st.Terrain.from_heights(_H, spacing=(1e10, 1e10), origin=(10**20, 0)).origin == (1e20, 0.0)
 
 
 _NOT_REAL = r"^x must be numbers \(real numbers\); got "

@@ -160,3 +160,22 @@ def test_durations_are_no_real_numbers(call, message):
     (T, H, W) stack of them reached ``float(min)``, a bare TypeError. They are refused as datetime64 always was."""
     with pytest.raises(InvalidInputError, match=message):
         call()
+
+
+@pytest.mark.parametrize("make", ["from_heights", "direct", "stepped", "heightfield_mesh"])
+@pytest.mark.parametrize(("origin", "spacing"), [((1e17, 0.0), (1.0, 1.0)), ((0.0, -1e300), (30.0, -30.0))])
+def test_an_origin_too_far_for_float64_to_keep_the_nodes_apart_is_refused(make, origin, spacing):
+    """An origin of 1e17 with spacing 1 put neighbouring nodes on one float64 value (1e300: every node on one):
+    a stepped mesh of zero area, silently. Found by stepping grids at ever farther origins. Refused, naming it;
+    UTM-sized origins (millions of metres, centimetre spacing) stay far inside the bound."""
+    heights = np.arange(12.0).reshape(3, 4)
+    calls = {
+        "from_heights": lambda: st.Terrain.from_heights(heights, spacing=spacing, origin=origin),
+        "direct": lambda: st.Terrain(kind="grid", heights=heights, spacing=spacing, origin=origin),
+        "stepped": lambda: st.stepped(heights, interval=2.0, spacing=spacing, origin=origin),
+        "heightfield_mesh": lambda: st.heightfield_mesh(heights, spacing=spacing, origin=origin),
+    }
+    with pytest.raises(st.InvalidInputError, match=r"^origin .* lies too far from zero for spacing .* float64"):
+        calls[make]()
+    near = st.stepped(heights, interval=2.0, spacing=(0.01, -0.01), origin=(4.5e6, 5e5))
+    assert near.area_faces.min() > 0
