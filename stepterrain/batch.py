@@ -1346,7 +1346,8 @@ def overview_image(
 
     ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side.
-    At most ``max_items`` outputs are read.
+    At most ``max_items`` outputs are read, after the window is checked against the memory budget (an
+    OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
     """
     import trimesh
 
@@ -1354,6 +1355,7 @@ def overview_image(
     from .export import read_mesh
 
     width, height, _ = render._check_window(window_size, z_scale)  # the contact sheet's w // cols truncated 64.7
+    render._check_render_budget(width, height)  # before any output is read
     if isinstance(max_items, bool) or not isinstance(max_items, (int, np.integer)) or max_items < 1:
         # -1 dropped the last output silently, 0 said "wrote no output", "3" raised a slicing TypeError
         raise InvalidInputError(f"max_items must be an int >= 1; got {max_items!r}")
