@@ -30,6 +30,7 @@ import platform
 import re
 import sys
 import time
+import types
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1396,3 +1397,26 @@ def _base_rgb(mesh: Any) -> NDArray[np.float64]:
     if colors is not None and len(colors) == len(mesh.vertices):
         return np.asarray(colors, np.float64)[:, :3]
     return np.tile(np.array([[222.0, 205.0, 170.0]]), (len(mesh.vertices), 1))
+
+
+class _CallableModule(types.ModuleType):
+    """This module, callable as its entry point: ``stepterrain.batch(...)`` runs :func:`batch`, and
+    ``stepterrain.batch.LOCAL_CLUSTER_MALLOC`` (or any name here) reads the module. The package's attribute was the
+    function, so the module's names were reachable only by ``from stepterrain.batch import ...``."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> BatchReport:
+        return self.batch(*args, **kwargs)
+
+    @property
+    def __signature__(self) -> Any:  # inspect.signature(stepterrain.batch) and help() show batch's parameters
+        import inspect
+
+        return inspect.signature(self.batch)
+
+    def __reduce__(self) -> tuple[Any, tuple[str]]:  # pickled by name, as the function was (cloudpickle refused it)
+        import importlib
+
+        return importlib.import_module, (self.__name__,)
+
+
+sys.modules[__name__].__class__ = _CallableModule
