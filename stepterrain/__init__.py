@@ -23,11 +23,16 @@ does not import pyvista (VTK), and a pyvista user need not import stepterrain fi
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ._compaction import get_memory_budget, set_memory_budget
 from ._device import get_cpu_threads, get_output_pool_limit, set_cpu_threads, set_output_pool_limit
-from .batch import BatchReport, batch
+from .batch import BatchReport
+
+if TYPE_CHECKING:  # type checkers see the entry point
+    from .batch import batch
+else:  # the module itself, callable as its entry point: st.batch(...) and st.batch.LOCAL_CLUSTER_MALLOC both work
+    from . import batch
 from .errors import (
     DataFileError,
     DeviceError,

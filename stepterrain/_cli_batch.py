@@ -111,7 +111,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
-    _check_size(args.size)
+    _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input}, png=png)
     if png is not None and Path(os.path.abspath(png)) == Path(os.path.abspath(args.output)):
         # the overview went to the folder the meshes had just been written into: every item done, then an error

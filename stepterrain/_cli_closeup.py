@@ -126,7 +126,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
-    _check_size(args.size)
+    _check_size(args.size, renders=bool(images) or anim is not None, layered=True)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):

@@ -139,7 +139,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
                                 f"got {args.metrics!r} (an empty name)")
-    _check_size(args.size)
+    _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     lat_deg, lon_deg, altitude = args.eye
     if not (-90.0 <= lat_deg <= 90.0):

@@ -137,7 +137,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
         raise InvalidInputError(f"--interval must be a positive number; got {args.interval:g}")
-    _check_size(args.size)
+    _check_size(args.size, renders=png is not None)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     if png is not None:

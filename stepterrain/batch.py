@@ -30,6 +30,7 @@ import platform
 import re
 import sys
 import time
+import types
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -1346,7 +1347,8 @@ def overview_image(
 
     ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side.
-    At most ``max_items`` outputs are read.
+    At most ``max_items`` outputs are read, after the window is checked against the memory budget (an
+    OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
     """
     import trimesh
 
@@ -1354,6 +1356,7 @@ def overview_image(
     from .export import read_mesh
 
     width, height, _ = render._check_window(window_size, z_scale)  # the contact sheet's w // cols truncated 64.7
+    render._check_render_budget(width, height)  # before any output is read
     if isinstance(max_items, bool) or not isinstance(max_items, (int, np.integer)) or max_items < 1:
         # -1 dropped the last output silently, 0 said "wrote no output", "3" raised a slicing TypeError
         raise InvalidInputError(f"max_items must be an int >= 1; got {max_items!r}")
@@ -1394,3 +1397,26 @@ def _base_rgb(mesh: Any) -> NDArray[np.float64]:
     if colors is not None and len(colors) == len(mesh.vertices):
         return np.asarray(colors, np.float64)[:, :3]
     return np.tile(np.array([[222.0, 205.0, 170.0]]), (len(mesh.vertices), 1))
+
+
+class _CallableModule(types.ModuleType):
+    """This module, callable as its entry point: ``stepterrain.batch(...)`` runs :func:`batch`, and
+    ``stepterrain.batch.LOCAL_CLUSTER_MALLOC`` (or any name here) reads the module. The package's attribute was the
+    function, so the module's names were reachable only by ``from stepterrain.batch import ...``."""
+
+    def __call__(self, *args: Any, **kwargs: Any) -> BatchReport:
+        return self.batch(*args, **kwargs)
+
+    @property
+    def __signature__(self) -> Any:  # inspect.signature(stepterrain.batch) and help() show batch's parameters
+        import inspect
+
+        return inspect.signature(self.batch)
+
+    def __reduce__(self) -> tuple[Any, tuple[str]]:  # pickled by name, as the function was (cloudpickle refused it)
+        import importlib
+
+        return importlib.import_module, (self.__name__,)
+
+
+sys.modules[__name__].__class__ = _CallableModule

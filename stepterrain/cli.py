@@ -190,10 +190,16 @@ def _window(text: str) -> tuple[int, int]:
     return w, h
 
 
-def _check_size(size: tuple[int, int]) -> None:
-    """``--size`` of every subcommand: 8 to 16384 pixels per side (an InvalidInputError, exit code 2)."""
+def _check_size(size: tuple[int, int], *, renders: bool = True, layered: bool = False) -> None:
+    """``--size`` of every subcommand: 8 to 16384 pixels per side (an InvalidInputError, exit code 2). When the run
+    ``renders`` (a --png, a close-up image), the render's memory is checked against the memory budget too, before
+    the DEM is read (an OutputTooLargeError, exit code 2); ``layered``: close-up passes, not one render."""
     if size[0] < 8 or size[1] < 8 or max(size) > 16384:
         raise InvalidInputError(f"--size must lie in [8, 16384] pixels per side; got {size[0]}x{size[1]}")
+    if renders:
+        from .render import _check_render_budget
+
+        _check_render_budget(size[0], size[1], "--size", layered=layered)
 
 
 # ------------------------------------------------------------------------------------------ parser
@@ -407,7 +413,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
-    _check_size(args.size)
+    _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input}, output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here

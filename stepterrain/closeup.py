@@ -1655,6 +1655,8 @@ def render_closeups(
     ------
     InvalidInputError
         Too many close-ups for the window, a ROI outside the terrain, bad options.
+    OutputTooLargeError
+        The window's passes (about 64 bytes per pixel) exceed the memory budget, checked before any work.
     MissingDependencyError
         No off-screen OpenGL context.
 
@@ -1676,6 +1678,7 @@ def render_closeups(
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     width, height = _window(window_size)
+    render._check_render_budget(width, height, layered=True)  # before the close-ups are transformed and culled
     limit = max_closeups((width, height))
     if len(items) > limit:
         raise InvalidInputError(
@@ -1878,7 +1881,8 @@ def animate_closeups(
     view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
     ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
     ``renderer`` and ``reuse_overview``. ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
-    (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first).
+    (frames x width x height x 3 bytes, checked against :func:`stepterrain.set_memory_budget` before the first, as
+    is the renderer's window).
     """
     from . import render
 
@@ -1894,6 +1898,7 @@ def animate_closeups(
     width, height = _window(window_size)
     check_budget(int(frames) * width * height * 3, f"{int(frames)} frames of {width} x {height} pixels",
                  hint="render fewer or smaller frames")  # every frame is kept: refused before the first render
+    render._check_render_budget(width, height, layered=True)
     if not math.isfinite((int(frames) - 1) / fps):  # a subnormal fps: frame times overflowed (RuntimeWarnings), NaN
         raise InvalidInputError(f"fps must be large enough that frame {int(frames) - 1}'s time (frame / fps seconds) "
                                 f"is finite; got {fps:g}")

@@ -1499,7 +1499,9 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),
                 background: str = "black", show_edges: bool = False) -> NDArray[np.uint8]:
     """Render a globe mesh off-screen from ``camera``'s eye towards its target (the render's vertical field of
-    view is :mod:`stepterrain.render`'s 30°: cameras from :func:`look_from` use the same by default)."""
+    view is :mod:`stepterrain.render`'s 30°: cameras from :func:`look_from` use the same by default). A window over
+    the memory budget is refused (an OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh`
+    refuses it."""
     from . import render
 
     if not isinstance(mesh, trimesh.Trimesh):  # a per_face list, None: an AttributeError on .bounds
@@ -1507,6 +1509,8 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
                                 f"got {type(mesh).__name__}")
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+    width, height, _ = render._check_window(window_size, 1.0)
+    render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
     if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
         raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got {len(mesh.faces)} "

@@ -138,8 +138,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         its header before reading. What is checked is the larger of the stored values and the float32 heights
         the Terrain keeps: cells x max(stored bytes per cell, 4). That is a lower bound of what the read
         allocates at its peak: the stored band, a mask, and float32 or float64 working copies (nodata, a
-        GeoTIFF's scale and offset, a height unit) live together for a moment, about 8-12 bytes per cell for
-        8-, 16- and 32-bit rasters and up to about 32 for float64 or scaled bands, so leave that much headroom.
+        GeoTIFF's scale and offset, a height unit) live together for a moment, about 8-9 bytes per cell for
+        8-, 16- and 32-bit rasters and up to about 16 for float64 or scaled bands, so leave that much headroom.
 
     Examples
     --------
@@ -541,14 +541,26 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected real-valued elevation data; got band {band} of dtype {masked.dtype}"
         )
+    # one working copy, scaled and filled in place (the masked array's astype, arithmetic and filled each made one,
+    # and the stored band and its mask stayed alive to the end): float64 stays float64 until _elevation, which names
+    # a value beyond float32 (a cast here made it nodata)
+    mask = np.ma.getmask(masked)
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
-        masked = masked.astype(np.float64) * scale + offset
-    # float64 stays float64 until _elevation, which names a value beyond float32 (a cast here made it nodata)
-    array = np.ma.filled(masked.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32), np.nan)
+        array = masked.data.astype(np.float64)
+        array *= scale
+        array += offset
+    else:  # a float band as stored is already a copy of the file's data: filled in place
+        array = masked.data.astype(np.float64 if masked.dtype.itemsize > 4 else np.float32, copy=False)
+    del masked
+    if mask is not np.ma.nomask:
+        np.copyto(array, np.nan, where=mask)
+    del mask
     crs = _crs_string(crs_obj)
     named_by = "height_unit" if height_unit else f"band {band}'s unit" if unit else f"the vertical unit of {crs}"
     unit, crs, factor = _vertical_unit(height_unit or unit, crs)
-    heights, height_unit = _heights_in_metres(_elevation(array, file, f"band {band}"), unit, file, named_by, factor)
+    heights = _elevation(array, file, f"band {band}")
+    del array  # a float64 band's copy, before the heights are converted to metres
+    heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
     if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
         if crs_obj is not None:
             warnings.warn(
@@ -628,7 +640,7 @@ def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what
     reading, when its cells (as stored, at least float32 as the Terrain keeps them) exceed the memory budget
     (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
     machine swapped or NumPy raised a raw MemoryError. A lower bound of the read's peak, as :func:`load_dem` says
-    (measured by tests/test_io_fixes.py: 8-12 bytes per cell for 8- to 32-bit rasters, up to 32 for float64 or a
+    (measured by tests/test_io_fixes.py: 8-9 bytes per cell for 8- to 32-bit rasters, up to 16 for float64 or a
     scaled band); it checks what the Terrain keeps, as the budget bounds a call's output elsewhere."""
     cells = math.prod(int(n) for n in shape)
     check_budget(
@@ -716,7 +728,9 @@ def nodata_as_nan(
     if nodata is not None:
         hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
-        big = np.isfinite(array) & (np.abs(array) > FLOAT32_MAX)
+        big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
+        big |= array < -FLOAT32_MAX
+        big &= np.isfinite(array)
         if hits is not None:
             big &= ~hits
         if big.any():
@@ -731,11 +745,11 @@ def nodata_as_nan(
         heights[hits] = np.nan
     finite = np.isfinite(heights)
     if not finite.all():
-        heights[~finite] = np.nan
         if not finite.any():
             raise DataFileError(
                 f"cannot read {str(file)!r}: expected elevation data; got {what} that is all nodata"
             )
+        heights[np.logical_not(finite, out=finite)] = np.nan  # in place: ~finite was one more mask
     return heights
 
 
@@ -981,8 +995,10 @@ def _heights_in_metres(
             f"({named_by}); if they are lengths, name their unit: load_dem(..., height_unit='m') (or 'ft', ...; "
             "the CLI's --height-unit m)"
         )
-    if factor != 1.0:
-        heights = (heights.astype(np.float64) * factor).astype(np.float32)
+    if factor != 1.0:  # scaled in float64, in place (the product was a second float64 copy)
+        scaled = heights.astype(np.float64)
+        scaled *= factor
+        heights = scaled.astype(np.float32)
     return heights, unit
 
 

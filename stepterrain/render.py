@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from ._compaction import check_budget
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError
 from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
@@ -309,6 +310,9 @@ def render_mesh(
     ------
     InvalidInputError
         Bad window size, z_scale, camera, scalars or cmap, an empty mesh, or an infinite vertex (NaN ones are left out).
+    OutputTooLargeError
+        The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``) exceed the memory
+        budget (:func:`stepterrain.set_memory_budget`), checked before rendering.
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -329,7 +333,7 @@ def render_mesh(
         colormap(cmap, argument="cmap")  # matplotlib's ValueError (or a TypeError for cmap=5) named nothing
     elif not isinstance(cmap, str):  # unused without scalars and passed unchecked; the name is looked up when used
         raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
-    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
+    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -393,16 +397,17 @@ def _fmt_box(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> str:
 
 def _frame_mesh(
     mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None,
-    camera: CameraLike,
+    camera: CameraLike, anti_aliasing: bool = False,
 ) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """Check the arguments every render shares (before pyvista loads, so a bad one is named even where it
     is missing); return (width, height, vertices, local vertices recentred on the framed box with z scaled,
-    finite-vertex mask, local box)."""
+    finite-vertex mask, local box). The window's memory is checked against the budget first."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
         raise InvalidInputError("mesh has no faces; nothing to render")
     width, height, z_scale = _check_window(window_size, z_scale)
+    _check_render_budget(width, height, anti_aliasing=anti_aliasing)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
     finite = np.isfinite(vertices).all(axis=1)
@@ -538,6 +543,33 @@ def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, in
     return width, height, z_scale
 
 
+#: Bytes an off-screen render holds per pixel of its window, measured as the process's peak RSS (VmHWM) over
+#: renders of 1024² to 3072² on Mesa llvmpipe (EGL): ~43 for render_mesh (VTK's colour and depth buffers, the
+#: screenshot and its RGB copy), ~70 with anti_aliasing (MSAA's multi-sampled colour and depth), ~55 for
+#: render_closeups (a LayeredRenderer's window plus every pass's colour and float32 depth read back and composited).
+#: Rounded up; a 16384 x 16384 render thus needs 12 GiB (20 GiB with MSAA).
+_RENDER_BYTES_PER_PIXEL = 48
+_MSAA_BYTES_PER_PIXEL = 32
+_LAYERED_BYTES_PER_PIXEL = 64
+
+
+def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False) -> int:
+    """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL)."""
+    per_pixel = _LAYERED_BYTES_PER_PIXEL if layered else _RENDER_BYTES_PER_PIXEL
+    return int(width) * int(height) * (per_pixel + (_MSAA_BYTES_PER_PIXEL if anti_aliasing else 0))
+
+
+def _check_render_budget(width: int, height: int, name: str = "window_size", *, anti_aliasing: bool = False,
+                         layered: bool = False) -> None:
+    """An :class:`OutputTooLargeError` naming the size and ``name`` (the argument or CLI option giving it) when the
+    render's framebuffers and images (:func:`_render_bytes`) exceed the memory budget; called before any render
+    starts (and, in the CLI, before the DEM is read)."""
+    what = f"an off-screen render of {width} x {height} pixels ({name} {width}x{height}" \
+           + (", anti-aliased)" if anti_aliasing else ")")
+    check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered), what,
+                 hint=f"give a smaller {name}" + (" or turn anti_aliasing off" if anti_aliasing else ""))
+
+
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64],
            finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
            size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool) -> NDArray[np.uint8]:
@@ -628,6 +660,8 @@ def render_textured_mesh(
     InvalidInputError
         The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, an infinite vertex, or a
         bad window size, z_scale or camera.
+    OutputTooLargeError
+        The render's memory exceeds the memory budget, as in :func:`render_mesh`.
     MissingDependencyError
         No off-screen OpenGL context can be made.
     """
@@ -646,7 +680,8 @@ def render_textured_mesh(
     picture = _texture_picture(image)
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
-    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera)
+    width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
+                                                               anti_aliasing)
 
     pv = _import_pyvista()
     _check_background(pv, background)
@@ -803,11 +838,15 @@ class LayeredRenderer:
         renderer.set_mesh("overview", mesh.vertices, mesh.faces)
         renderer.set_view("oblique", box)
         color, depth = renderer.render(["overview"])   # depth: z-buffer in [0, 1), inf where empty
+
+    A window whose passes would exceed the memory budget (about 64 bytes per pixel with the images read back) is
+    refused when the renderer is made, with an OutputTooLargeError.
     """
 
     def __init__(self, *, window_size: tuple[int, int] = (1280, 720),
                  background: str | tuple[float, float, float] = "white", z_scale: float = 1.0) -> None:
         width, height, z_scale = _check_window(window_size, z_scale)
+        _check_render_budget(width, height, layered=True)
         self.size = (width, height)
         self.z_scale = z_scale
         self.background = background

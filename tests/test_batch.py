@@ -642,7 +642,7 @@ def test_disk_errors_under_a_data_file_error_are_retried(tmp_path, monkeypatch):
     import errno
     import sys
 
-    batch_module = sys.modules["stepterrain.batch"]  # the attribute stepterrain.batch is the function
+    batch_module = sys.modules["stepterrain.batch"]
     real = batch_module.save_mesh
     calls: dict[str, int] = {}
 

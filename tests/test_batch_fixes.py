@@ -98,7 +98,7 @@ import re
 import numpy as np
 import stepterrain.batch
 
-b = sys.modules["stepterrain.batch"]  # the attribute stepterrain.batch is the function
+b = sys.modules["stepterrain.batch"]
 
 out, signals = Path(sys.argv[1]), Path(sys.argv[2])
 real = b.run_item
@@ -342,3 +342,29 @@ def test_a_bad_device_of_a_serial_batch_is_refused_before_any_work(tmp_path, dev
     with pytest.raises(getattr(errors, error), match=message):
         batch(_Z, tmp_path / "out", tile_size=4, interval=2.0, scheduler="serial", device=device)
     assert not (tmp_path / "out").exists()
+
+
+def test_the_package_attribute_batch_is_the_module_and_its_entry_point(tmp_path):
+    """``stepterrain/__init__`` bound ``st.batch`` to the function, so ``st.batch.LOCAL_CLUSTER_MALLOC`` (and every
+    name of the module) raised AttributeError. It is now the module, callable as :func:`batch` with batch's
+    signature, and it pickles by name (dask's workers import the module's task functions by qualified name)."""
+    import inspect
+    import pickle
+
+    import cloudpickle
+
+    import stepterrain as st
+    import stepterrain.batch as batch_module
+
+    assert st.batch is batch_module
+    assert st.batch.LOCAL_CLUSTER_MALLOC is batch_module.LOCAL_CLUSTER_MALLOC
+    assert st.batch.batch is batch
+    assert inspect.signature(st.batch) == inspect.signature(batch)
+    for dumps, loads in ((pickle.dumps, pickle.loads), (cloudpickle.dumps, cloudpickle.loads)):
+        assert loads(dumps(st.batch)) is st.batch
+        assert loads(dumps(batch_module.run_item)) is batch_module.run_item
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = st.batch(z, tmp_path / "out", tile_size=4, interval=2.0, scheduler="serial")
+    assert isinstance(report, st.BatchReport) and report.ok and len(report.done) == 4
+    with pytest.raises(TypeError, match="tile_sizes"):  # the call is batch's: its keywords are checked
+        st.batch(z, tmp_path / "out2", tile_sizes=4)

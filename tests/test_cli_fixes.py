@@ -329,3 +329,49 @@ def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, caps
         assert code == 0, err
         meshes.append(trimesh.load(out, process=False))
     np.testing.assert_array_equal(meshes[0].vertices, meshes[1].vertices)
+
+
+@pytest.fixture
+def tiny_budget():
+    """A 1 MiB memory budget for one test, restored afterwards."""
+    import stepterrain as st
+
+    previous = st.set_memory_budget(1 << 20)
+    yield
+    st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize("command", ["steps", "closeup", "globe", "texture", "batch"])
+def test_a_render_size_over_the_memory_budget_is_refused_before_the_dem_is_read(command, tmp_path, capsys,
+                                                                                 tiny_budget):
+    """--size took up to 16384x16384 whatever the memory budget said: the DEM was read and the mesh built (or a
+    whole batch run) before the render allocated its framebuffers (~43 bytes per pixel measured: 11 GiB at 16384²).
+    The render's memory is now checked with the other arguments, naming --size."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    png = tmp_path / "r.png"
+    argv = {
+        "steps": ["steps", dem, "-o", tmp_path / "m.glb", "--png", png],
+        "closeup": ["closeup", dem, "-o", png],
+        "globe": ["globe", "-o", tmp_path / "g.glb", "--png", png],
+        "texture": ["texture", dem, "-o", tmp_path / "t.png", "--png", png],
+        "batch": ["batch", tmp_path / "tiles", "--interval", "10", "--scheduler", "serial", "-o", tmp_path / "out",
+                  "--png", png],
+    }[command]
+    if command == "batch":
+        tile_folder(tmp_path / "tiles")
+    code, out, err = run(capsys, *argv, "--size", "640x400")
+    assert code == 2
+    assert "an off-screen render of 640 x 400 pixels (--size 640x400) would need" in err
+    assert "over the memory budget of 1.0 MiB; give a smaller --size" in err
+    assert len(err.strip().splitlines()) == 1  # the error alone: no progress line, nothing loaded or built
+    assert sorted(p.name for p in tmp_path.iterdir()) == (["dem.npy", "tiles"] if command == "batch" else ["dem.npy"])
+
+
+def test_a_size_that_renders_nothing_is_not_held_to_the_render_budget(tmp_path, capsys, tiny_budget):
+    """Only a run that renders allocates the window: steps without --png still meshes under a small budget."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--size", "640x400")
+    assert code == 0, err
+    assert (tmp_path / "m.glb").exists()

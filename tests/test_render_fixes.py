@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 import trimesh
+from PIL import Image
 
+import stepterrain as st
 from stepterrain import render
-from stepterrain.errors import DataFileError, InvalidInputError
+from stepterrain.errors import DataFileError, InvalidInputError, OutputTooLargeError
 
 from .conftest import needs_render
 
@@ -158,3 +161,86 @@ def test_render_refuses_a_cmap_that_is_no_name_without_scalars(cmap):
         render.render_mesh(mesh, window_size=(64, 48), cmap=cmap)
     with pytest.raises(InvalidInputError, match=r"^cmap must name a matplotlib colormap .*; got "):
         render.render_mesh(mesh, window_size=(64, 48), scalars="height", cmap=cmap)
+
+
+@pytest.fixture
+def tiny_budget():
+    """A 1 MiB memory budget for one test, restored afterwards."""
+    previous = st.set_memory_budget(1 << 20)
+    yield
+    st.set_memory_budget(previous)
+
+
+def _no_render(*args, **kwargs):
+    raise AssertionError("the render started: its memory was not checked against the budget first")
+
+
+def _textured_quad() -> trimesh.Trimesh:
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = Image.fromarray(np.full((4, 4, 3), 128, np.uint8))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=VERTICES[:, :2] / 10.0, image=image)
+    return mesh
+
+
+def _render_calls():
+    from stepterrain import globe
+    from stepterrain.batch import BatchReport, overview_image
+    from stepterrain.closeup import ROI, CloseUp, animate_closeups, render_closeups
+
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    hills = np.random.default_rng(0).random((20, 20)).astype(np.float32) * 10
+    closeup = CloseUp(ROI.circle((10.0, 10.0), 3.0), scale=1.5, offset=(0.0, 0.0, 20.0))
+    camera = globe.look_from(0.0, 0.0, 1000.0, radius=100.0)
+    return {
+        "render_mesh": lambda size, aa: render.render_mesh(mesh, window_size=size, anti_aliasing=aa),
+        "render_textured_mesh": lambda size, aa: render.render_textured_mesh(_textured_quad(), window_size=size,
+                                                                             anti_aliasing=aa),
+        "LayeredRenderer": lambda size, aa: render.LayeredRenderer(window_size=size),
+        "render_closeups": lambda size, aa: render_closeups(hills, [closeup], window_size=size, device="cpu"),
+        "animate_closeups": lambda size, aa: animate_closeups(hills, [closeup], frames=1, window_size=size,
+                                                              device="cpu"),
+        "globe.render_view": lambda size, aa: globe.render_view(mesh, camera, window_size=size),
+        "batch.overview_image": lambda size, aa: overview_image(BatchReport(Path(".")), window_size=size),
+    }
+
+
+@pytest.mark.parametrize("name", list(_render_calls()))
+def test_a_render_over_the_memory_budget_is_refused_before_it_starts(name, tiny_budget, monkeypatch):
+    """Windows up to 16384 x 16384 were taken whatever st.set_memory_budget said: an off-screen render holds ~43
+    bytes per pixel (colour and depth buffers, the screenshot and its copy; measured peak RSS on llvmpipe), ~70 with
+    MSAA, so a 16384² render took ~11 GiB (or died of it) unchecked. The budget is now checked before the render
+    (before pyvista is even imported, and before the close-ups are transformed or the globe mesh moved into the
+    view's frame), naming the size and the argument."""
+    from stepterrain import closeup, globe
+
+    monkeypatch.setattr(render, "_import_pyvista", _no_render)
+    monkeypatch.setattr(closeup, "closeup_layers", _no_render)
+    monkeypatch.setattr(globe, "_view_frame", _no_render)
+    call = _render_calls()[name]
+    with pytest.raises(OutputTooLargeError, match=r"^an off-screen render of 512 x 384 pixels \(window_size 512x384"
+                                                   r"\) would need .* MiB, over the memory budget of 1\.0 MiB; give a "
+                                                   r"smaller window_size"):
+        call((512, 384), False)
+
+
+def test_anti_aliasing_counts_its_multi_samples_against_the_budget(tiny_budget, monkeypatch):
+    """MSAA's multi-sampled colour and depth buffers (~28 bytes per pixel more, measured) were not counted: a window
+    that fits without anti-aliasing can be over the budget with it, and the message says how to shrink it."""
+    monkeypatch.setattr(render, "_import_pyvista", _no_render)
+    size = (128, 128)
+    assert render._render_bytes(*size) <= st.get_memory_budget() < render._render_bytes(*size, anti_aliasing=True)
+    for name in ("render_mesh", "render_textured_mesh"):
+        with pytest.raises(OutputTooLargeError, match=r"\(window_size 128x128, anti-aliased\) would need .*; give "
+                                                       r"a smaller window_size or turn anti_aliasing off"):
+            _render_calls()[name](size, True)
+        with pytest.raises(AssertionError, match="the render started"):  # without MSAA it fits: the render begins
+            _render_calls()[name](size, False)
+
+
+@needs_render
+def test_a_render_within_the_budget_still_renders(tiny_budget):
+    """The check refuses only what exceeds the budget: a window whose estimate fits renders as before."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    assert render._render_bytes(64, 48) <= st.get_memory_budget()
+    image = render.render_mesh(mesh, window_size=(64, 48))
+    assert image.shape == (48, 64, 3) and (image < 250).any()
