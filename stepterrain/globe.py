@@ -1449,7 +1449,9 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     ``max_radius`` (metres, default ``radius``) is the largest distance of the surface from the centre, for a
     :class:`Globe` its ``radius`` plus its highest exaggerated node height (``globe.heights.max()``): the far
     plane lies at |eye| + max(|eye|, max_radius) + radius, beyond the far side of that sphere, so that an
-    extreme vertical exaggeration is not clipped behind the limb.
+    extreme vertical exaggeration is not clipped behind the limb; the near plane lies at a thousandth of the eye's
+    height above that sphere (at least min(1 m, 10^-6 · radius)), so that it clips no terrain in front of the eye
+    at any planet size or exaggeration.
 
     Examples
     --------
@@ -1492,8 +1494,12 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
     up = math.cos(tl) * horizontal + math.sin(tl) * outward
     target = eye + forward * max(altitude, 1.0)
     distance = radius + altitude  # of the eye from the centre: every surface point lies within distance + top
+    # the near plane at a thousandth of the eye's clearance above the sphere of max_radius (no surface point lies
+    # closer), at least min(1 m, 1e-6 · radius): a fixed 1 m floor clipped the whole ground under the eye of a
+    # small planet (radius 1, altitude 0.5), and an altitude-based near plane the top of an exaggerated peak
+    near = max((distance - top) * 1e-3, min(1.0, radius * 1e-6))
     return Camera(eye=tuple(eye), target=tuple(target), up=tuple(up), fov=fov, aspect=aspect,
-                  near=max(altitude * 1e-3, 1.0), far=distance + max(distance, top) + radius)
+                  near=near, far=distance + max(distance, top) + radius)
 
 
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),

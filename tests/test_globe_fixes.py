@@ -421,3 +421,41 @@ def test_look_from_takes_whole_turns_off_the_heading_and_bounds_the_tilt():
         with pytest.raises(InvalidInputError, match=r"^tilt must lie in \[-90, 90\] degrees from straight down; got "):
             look_from(46.0, 9.0, 4e5, tilt=tilt)
     look_from(46.0, 9.0, 4e5, tilt=90.0)  # the horizon: the bound itself is taken
+
+
+def _nadir_kept(globe, camera):
+    """Whether the culled view keeps the vertex of the unculled view nearest the ground under the eye."""
+    direction = np.asarray(camera.eye) / np.linalg.norm(camera.eye)
+    whole = globe.mesh(error=0.0, camera=camera, cull=False)
+    nadir = np.asarray(whole.vertices)[np.argmax(np.asarray(whole.vertices) @ direction)]
+    culled = np.asarray(globe.mesh(error=0.0, camera=camera).vertices)
+    return bool(np.isclose(culled, nadir, rtol=0, atol=1e-9 * globe.radius).all(axis=1).any())
+
+
+def test_look_from_over_a_small_planet_does_not_clip_the_ground_under_the_eye():
+    """look_from's near plane lay at least 1 m from the eye whatever the radius: over a planet of radius 1 at
+    altitude 0.5 the clip metric culled the whole ground in front of the eye, and the view kept only the far side
+    of the planet (nearest vertex at cos -0.2 from the nadir). It now lies at a thousandth of the eye's height
+    above the highest surface, at least min(1 m, 1e-6 · radius)."""
+    from stepterrain.globe import look_from
+
+    globe = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, radius=1.0, device="cpu")
+    camera = look_from(10.0, 20.0, 0.5, radius=1.0)
+    assert 0.0 < camera.near < 0.5  # nearer than the ground
+    assert _nadir_kept(globe, camera)
+
+
+def test_look_from_puts_the_near_plane_before_the_highest_surface():
+    """With max_radius (the highest exaggerated surface) given, the near plane still lay at a thousandth of the
+    altitude above the sphere: 100 m for an eye 20 m above a 100 km (exaggerated) summit, which the clip metric
+    then treats as in front of the view (a finer mesh loses the summit under the eye). The near plane now lies
+    nearer than any surface point: at a thousandth of the eye's height above the sphere of max_radius."""
+    from stepterrain.globe import EARTH_RADIUS, look_from
+
+    for radius, summit, clearances in ((EARTH_RADIUS, 1e5, (20.0, 1e4)), (1000.0, 1e5, (20.0, 1e4)),
+                                       (1.0, 0.25, (0.01, 0.5))):  # the floor: min(1 m, 1e-6 · radius)
+        for clearance in clearances:
+            camera = look_from(10.0, -160.0, summit + clearance, radius=radius, max_radius=radius + summit)
+            assert 0.0 < camera.near < clearance, (radius, summit, clearance, camera.near)
+    # without max_radius, over the earth, as before: a thousandth of the altitude, at least 1 m
+    assert look_from(46.0, 9.0, 4e5).near == 400.0 and look_from(46.0, 9.0, 200.0).near == 1.0
