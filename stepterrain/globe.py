@@ -384,7 +384,8 @@ class Globe:
         -----
         Bilinear in lat/lon on the node's direction (latitude and longitude in float32, within ~4e-7 rad,
         1e-4 of a 10' cell; interpolation weights in float64); between the outermost row and a pole the
-        value blends linearly towards the pole value, the mean of that row. Cost: O(6 n²) per step, about
+        value blends linearly towards the pole value, the mean of that row (a row on the pole itself, ±90°, is
+        that one point: its mean). Cost: O(6 n²) per step, about
         0.4 s CPU for 6 × 1025² on one core of the project's AMD EPYC box, 0.7–0.8 s on its earlier Intel Xeon
         (resampling, projection and all parameters; see benchmarks/RESULTS.md).
 
@@ -436,6 +437,12 @@ class Globe:
         if lat[0] < 90.0 - dlat - 1e-9 or lat[-1] > -90.0 + dlat + 1e-9:
             raise InvalidInputError(f"lat must reach within one step ({dlat:.9g}°) of both poles; got "
                                     f"{lat[0]:.9g} to {lat[-1]:.9g}")
+        for row, pole in ((0, 90.0), (-1, -90.0)):
+            # a row on a pole is one point: its value is the row's mean (the pole value below, as documented), not
+            # the row sampled at the node's longitude (a pole row of 170 to 180 m put lon 0's 180 m at the pole)
+            if abs(lat[row] - pole) <= 1e-9 and np.ptp(z[row]) > 0:
+                z = np.array(z)
+                z[row] = z[row].mean(dtype=np.float64)
         n_entries = 6 * (cells + 1) ** 2
         slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
         check_budget(n_entries * _BYTES_PER_ENTRY + slots * _BYTES_PER_ANGLE_SLOT, f"a globe of face_size {cells + 1}",

@@ -459,3 +459,24 @@ def test_look_from_puts_the_near_plane_before_the_highest_surface():
             assert 0.0 < camera.near < clearance, (radius, summit, clearance, camera.near)
     # without max_radius, over the earth, as before: a thousandth of the altitude, at least 1 m
     assert look_from(46.0, 9.0, 4e5).near == 400.0 and look_from(46.0, 9.0, 200.0).near == 1.0
+
+
+@pytest.mark.parametrize("north_first", [True, False])
+def test_a_row_on_a_pole_gives_the_pole_its_mean(north_first):
+    """A node-registered grid whose first row lies on the pole (lat = 90) with values that differ along it put the
+    row's value at longitude 0 on the pole node (180 m of 170-180 m), not the row's mean that from_latlon documents
+    as the pole value. Found by meshing grids with a varying pole row (helper 27). The pole row is now its mean."""
+    lat = np.linspace(90.0, -90.0, 37)
+    lon = np.arange(0.0, 360.0, 10.0)
+    z = np.zeros((37, 36))
+    z[0] = np.linspace(180.0, 170.0, 36)
+    z[-1] = np.linspace(-50.0, -10.0, 36)
+    if not north_first:
+        lat, z = lat[::-1], z[::-1]
+    globe = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu")
+    vertices = globe.mesh().vertices
+    radius = np.linalg.norm(vertices, axis=1)
+    north, south = int(np.argmax(vertices[:, 2])), int(np.argmin(vertices[:, 2]))
+    assert np.linalg.norm(vertices[north, :2]) < 1e-6 * radius[north]  # the pole node itself
+    assert radius[north] - globe.radius == pytest.approx(175.0, abs=0.5)
+    assert radius[south] - globe.radius == pytest.approx(-30.0, abs=0.5)
