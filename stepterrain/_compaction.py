@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from ._device import scratch
+from ._device import read_int32, scratch, zero_int32
 from .errors import InvalidInputError, OutputTooLargeError
 
 __all__ = ["count_buffer", "exclusive_offsets", "check_budget", "get_memory_budget", "set_memory_budget"]
@@ -74,7 +74,7 @@ def _size_text(nbytes: int) -> str:
 def count_buffer(name: str, n: int, device: wp.Device) -> wp.array:
     """``counts`` for n threads: n + 1 int32 from the scratch pool, the last slot 0 (count kernels write the rest)."""
     counts = scratch(f"{name}.counts", n + 1, wp.int32, device)
-    counts[n : n + 1].zero_()
+    zero_int32(counts, n)
     return counts
 
 
@@ -87,5 +87,5 @@ def exclusive_offsets(counts: wp.array, name: str | None = None) -> tuple[wp.arr
     n1 = counts.shape[0]
     offsets = wp.empty_like(counts) if name is None else scratch(f"{name}.offsets", n1, wp.int32, counts.device)
     wp.utils.array_scan(counts, offsets, inclusive=False)
-    total = int(offsets[n1 - 1 : n1].numpy()[0])
+    total = read_int32(offsets, n1 - 1)
     return offsets, total
