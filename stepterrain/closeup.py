@@ -343,14 +343,17 @@ class ROI:
     @classmethod
     def slope_above(cls, terrain: Terrain | ArrayLike, degrees: float, *, edge: float = 0.0,
                     region: ArrayLike | None = None) -> ROI:
-        """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees."""
+        """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees.
+
+        The slope is the terrain's (central differences of its heights, as :meth:`height_band`'s grid, one texel per
+        node), also along the edge of a sub-``region``."""
         d = _finite(degrees, "slope threshold")
         if not 0 <= d < 90:
             raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
         edge = finite_number(edge, "edge", lo=0.0)
         t = as_terrain(terrain)
-        heights, center, size = _terrain_window(t, region)
-        slope = np.degrees(_slope(heights, abs(t.spacing[0]), abs(t.spacing[1])))
+        dx, dy = abs(t.spacing[0]), abs(t.spacing[1])
+        slope, center, size = _terrain_window(t, region, field=lambda h: np.degrees(_slope(h, dx, dy)))
         with np.errstate(invalid="ignore", over="ignore"):  # over: a subnormal edge (±inf, clipped as meant)
             m = np.clip((slope - d) / edge, 0, 1) if edge > 0 else (slope > d).astype(np.float32)
         return cls(center, size, np.nan_to_num(m, nan=0.0), "slope_above")
@@ -444,8 +447,12 @@ def _slope(heights: NDArray[np.float32], dx: float, dy: float) -> NDArray[np.flo
     return np.arctan(np.hypot(gx, gy))
 
 
-def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None):
-    """Heights of a grid terrain (rows at increasing y) over its extent or a region, with the box centre/size."""
+def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None, field: Any = None):
+    """Heights of a grid terrain (rows at increasing y) over its extent or a region, with the box centre/size.
+
+    ``field``: a function of a block of those heights (e.g. the slope) returned instead of the heights; it sees the
+    region with one more node on each side where the terrain has one and is then cut to the region, so a gradient
+    at the region's edge is the terrain's own (central differences), not a one-sided one inside the region."""
     t = as_terrain(terrain)
     if t.kind != "grid":
         raise InvalidInputError("generated ROI masks need a grid terrain (a DEM); got a TIN")
@@ -473,10 +480,16 @@ def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None):
             raise InvalidInputError(
                 f"region {tuple(region)} covers fewer than 2 x 2 terrain nodes of the extent "
                 f"{(xmin, xmax, ymin, ymax)}")
-        heights = heights[ri[0]: ri[-1] + 1, cj[0]: cj[-1] + 1]
+        r0, r1 = max(ri[0] - 1, 0), min(ri[-1] + 2, heights.shape[0])  # one node of margin for ``field``
+        c0, c1 = max(cj[0] - 1, 0), min(cj[-1] + 2, heights.shape[1])
+        inner = (slice(ri[0] - r0, ri[-1] + 1 - r0), slice(cj[0] - c0, cj[-1] + 1 - c0))
+        heights = heights[r0:r1, c0:c1]
         xmin, xmax, ymin, ymax = xs[cj[0]], xs[cj[-1]], ys[ri[0]], ys[ri[-1]]
+    else:
+        inner = (slice(None), slice(None))
+    values = heights if field is None else field(heights)
     center = ((xmin + xmax) / 2, (ymin + ymax) / 2)
-    return np.ascontiguousarray(heights), center, (xmax - xmin, ymax - ymin)
+    return np.ascontiguousarray(values[inner]), center, (xmax - xmin, ymax - ymin)
 
 
 # ------------------------------------------------------------------------------------------------ anchors

@@ -256,3 +256,25 @@ def test_animate_closeups_shows_progress_when_asked(capfd):
     assert "close-up frames" in capfd.readouterr().err
     with pytest.raises(InvalidInputError, match="progress"):
         animate_closeups(terrain(), [one()], frames=1, window_size=SIZE, progress="yes")
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (30.0, -20.0), (-7.0, 11.0)])
+def test_slope_above_a_region_takes_the_terrains_slope_at_the_regions_edge(spacing):
+    # the slope was taken of the region's heights alone: one-sided differences along its edge marked a node of 13°
+    # as steeper than 30° and missed one of 36°; it is the terrain's slope (central differences) there too
+    from stepterrain.terrain import Terrain
+
+    heights = hills(37, 45, seed=1) * np.float32(max(abs(spacing[0]), abs(spacing[1])) / 2)  # slopes alike
+    t = Terrain.from_heights(heights, spacing=spacing, origin=(500.0, -300.0))
+    xmin, xmax, ymin, ymax = t.extent
+    region = (xmin + 0.2 * (xmax - xmin), xmin + 0.7 * (xmax - xmin), ymin + 0.1 * (ymax - ymin),
+              ymin + 0.5 * (ymax - ymin))
+    roi = ROI.slope_above(t, 20.0, region=region)
+    rows, cols = np.mgrid[0:37, 0:45]
+    x, y = 500.0 + cols * spacing[0], -300.0 + rows * spacing[1]
+    gy, gx = np.gradient(heights.astype(np.float64), spacing[1], spacing[0])  # the whole terrain's slope
+    steep = np.degrees(np.arctan(np.hypot(gx, gy))) > 20.0
+    inside = (x >= region[0]) & (x <= region[1]) & (y >= region[2]) & (y <= region[3])
+    m = roi.factor(np.column_stack([x[inside], y[inside]]))
+    assert 0 < steep[inside].sum() < inside.sum()
+    np.testing.assert_array_equal(m, steep[inside].astype(np.float64))
