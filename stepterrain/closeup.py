@@ -681,12 +681,14 @@ class CloseUp:
             colormap(self.cmap, argument="close-up cmap")  # an unknown name now, not at the first render
 
     def turn(self, time: float) -> float:
-        """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
+        """β at ``time`` seconds of an animation: the spin starts at time 0 (before it the close-up stands at its
+        rotation), adds whole turns, then stops after the repetitions."""
         time = _seconds(time)
         if self.spin is None:
             return self.rotation[1]
         speed, reps = self.spin
-        turns = min(abs(speed) * float(time), float(reps))
+        # clamped below at 0: a negative time gave the turn of the positive one (copysign drops the sign of time)
+        turns = min(max(abs(speed) * float(time), 0.0), float(reps))
         return self.rotation[1] + math.copysign(2 * math.pi * turns, speed)
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:

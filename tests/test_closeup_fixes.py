@@ -278,3 +278,15 @@ def test_slope_above_a_region_takes_the_terrains_slope_at_the_regions_edge(spaci
     m = roi.factor(np.column_stack([x[inside], y[inside]]))
     assert 0 < steep[inside].sum() < inside.sum()
     np.testing.assert_array_equal(m, steep[inside].astype(np.float64))
+
+
+@pytest.mark.parametrize("speed", [0.5, -0.5])
+def test_spin_stands_still_before_time_zero(speed):
+    # copysign took the sign of the speed only: at a negative time the close-up had turned as far as at the positive
+    # one, in the spin's direction (β(−t) = β(t)); before the animation starts it stands at its rotation
+    cu = CloseUp(ROI.circle((0.0, 0.0), 1.0), rotation=(0.0, 0.25), spin=(speed, 2))
+    times = np.linspace(-3.0, 6.0, 37)
+    turns = np.array([cu.turn(float(t)) for t in times])
+    assert np.all(np.diff(turns) * np.sign(speed) >= 0)  # never back against the spin
+    assert np.all(turns[times <= 0] == cu.rotation[1])
+    assert cu.turn(-np.inf) == cu.rotation[1]
