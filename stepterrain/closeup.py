@@ -1892,7 +1892,7 @@ def animate_closeups(
 ) -> list[NDArray[np.uint8]]:
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
 
-    The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
+    The camera frames the overview and every close-up at every frame's turn (the box swept by the spin), so the
     view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
     ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
     ``renderer`` and ``reuse_overview``. ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
@@ -1919,9 +1919,11 @@ def animate_closeups(
                                 f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
-    if box is None:  # the box swept by the close-ups over a few phases, and the terrain
-        boxes = []
-        for time in np.linspace(0, max(times[-1], 1e-9), 9):
+    if box is None:  # the box swept by the close-ups, at every frame's turns (9 evenly spaced times could all fall on
+        boxes = []  # the same phase of a spin and miss the turned close-up), and the terrain
+        turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
+        _, first = np.unique(turns, axis=0, return_index=True)  # frames with the same turns: the same geometry
+        for time in times[np.sort(first)]:
             for layer in closeup_layers(t, items, time=float(time), device=device):
                 if len(layer.vertices):
                     boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))

@@ -290,3 +290,30 @@ def test_spin_stands_still_before_time_zero(speed):
     assert np.all(np.diff(turns) * np.sign(speed) >= 0)  # never back against the spin
     assert np.all(turns[times <= 0] == cu.rotation[1])
     assert cu.turn(-np.inf) == cu.rotation[1]
+
+
+def test_animation_frames_every_turn_of_a_spinning_closeup(monkeypatch):
+    # the frame box was the union of 9 evenly spaced times: at 4 fps over 8 s with one turn per second all 9 fell on
+    # whole turns, and a long close-up turned across them left the box (and the camera's view) at the quarter turns
+    import stepterrain.closeup as closeup_module
+    from stepterrain.closeup import closeup_layers
+
+    class NoRenderer:
+        def __init__(self, **kwargs):
+            pass
+
+        def close(self):
+            pass
+
+    boxes = []
+    monkeypatch.setattr(render, "LayeredRenderer", NoRenderer)
+    monkeypatch.setattr(closeup_module, "render_closeups", lambda *args, bounds, **kwargs: boxes.append(bounds))
+    t = terrain()
+    cu = CloseUp(ROI.rectangle((1040.0, 2030.0), (40.0, 6.0)), scale=2.0, offset=(0.0, 0.0, 60.0), spin=(1.0, 8))
+    frames, fps = 33, 4.0
+    animate_closeups(t, [cu], frames=frames, fps=fps, window_size=SIZE, device="cpu")
+    assert len(boxes) == frames
+    box = np.asarray(boxes[0])
+    for i in range(frames):  # frame i at time i / fps: its close-up lies in the box
+        (layer,) = closeup_layers(t, [cu], time=i / fps, device="cpu")
+        assert np.all(layer.vertices >= box[0]) and np.all(layer.vertices <= box[1]), f"frame {i}"
