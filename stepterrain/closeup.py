@@ -1163,7 +1163,10 @@ class AnchorStrip:
 
 
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Bilinear terrain heights at world xy (grid), nearest-vertex heights for a TIN."""
+    """Terrain heights at world xy: on the overview mesh's own triangles for a grid (each cell split along its
+    diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it: a bilinear
+    height left an anchor's foot up to a few metres above or below the drawn surface), nearest-vertex heights for a
+    TIN."""
     if terrain.kind != "grid":
         pts = terrain.points[terrain.point_used.astype(bool)]
         try:
@@ -1182,10 +1185,11 @@ def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64
     j0 = np.minimum(np.floor(fx).astype(np.int64), cols - 2)
     i0 = np.minimum(np.floor(fy).astype(np.int64), rows - 2)
     tx, ty = fx - j0, fy - i0
-    h = terrain.heights.astype(np.float64)
-    bottom = h[i0, j0] + tx * (h[i0, j0 + 1] - h[i0, j0])
-    top = h[i0 + 1, j0] + tx * (h[i0 + 1, j0 + 1] - h[i0 + 1, j0])
-    z = bottom + ty * (top - bottom)
+    h = terrain.heights
+    h00, h01 = h[i0, j0].astype(np.float64), h[i0, j0 + 1].astype(np.float64)
+    h10, h11 = h[i0 + 1, j0].astype(np.float64), h[i0 + 1, j0 + 1].astype(np.float64)
+    z = np.where(tx >= ty, h00 + tx * (h01 - h00) + ty * (h11 - h01),  # triangle (n00, n01, n11)
+                 h00 + ty * (h10 - h00) + tx * (h11 - h10))  # triangle (n00, n11, n10)
     return np.where(np.isfinite(z), z, terrain.height_range[0])
 
 

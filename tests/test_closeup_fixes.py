@@ -12,6 +12,7 @@ from stepterrain import render
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
+from .reference_closeup import surface_heights
 from .test_closeup import hills
 from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
 
@@ -317,3 +318,21 @@ def test_animation_frames_every_turn_of_a_spinning_closeup(monkeypatch):
     for i in range(frames):  # frame i at time i / fps: its close-up lies in the box
         (layer,) = closeup_layers(t, [cu], time=i / fps, device="cpu")
         assert np.all(layer.vertices >= box[0]) and np.all(layer.vertices <= box[1]), f"frame {i}"
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (3.0, -2.0)])
+def test_anchor_feet_lie_on_the_overview_surface(spacing):
+    # the foot of each rung took the bilinear height of its cell, not the height of the overview's triangle there:
+    # the fence stood above or sank below the drawn terrain (up to 1.6 m on the 30 m Big Tujunga DEM)
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(), spacing=spacing, origin=(1000.0, 2000.0))
+    xmin, xmax, ymin, ymax = t.extent
+    cu = CloseUp(ROI.circle(((xmin + xmax) / 2, (ymin + ymax) / 2), 20.0), scale=2.0, offset=(0.0, 0.0, 60.0))
+    (strip,) = anchor_strips(t, [cu], device="cpu")
+    feet = strip.vertices[:: strip.rungs + 1]
+    mesh = t.mesh()  # every triangle of the overview, brute force
+    surface = surface_heights(np.asarray(mesh.vertices), np.asarray(mesh.faces), feet[:, :2])
+    assert len(feet) > 20
+    np.testing.assert_allclose(feet[:, 2], surface, atol=1e-3)
