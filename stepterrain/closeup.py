@@ -343,14 +343,17 @@ class ROI:
     @classmethod
     def slope_above(cls, terrain: Terrain | ArrayLike, degrees: float, *, edge: float = 0.0,
                     region: ArrayLike | None = None) -> ROI:
-        """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees."""
+        """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees.
+
+        The slope is the terrain's (central differences of its heights, as :meth:`height_band`'s grid, one texel per
+        node), also along the edge of a sub-``region``."""
         d = _finite(degrees, "slope threshold")
         if not 0 <= d < 90:
             raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
         edge = finite_number(edge, "edge", lo=0.0)
         t = as_terrain(terrain)
-        heights, center, size = _terrain_window(t, region)
-        slope = np.degrees(_slope(heights, abs(t.spacing[0]), abs(t.spacing[1])))
+        dx, dy = abs(t.spacing[0]), abs(t.spacing[1])
+        slope, center, size = _terrain_window(t, region, field=lambda h: np.degrees(_slope(h, dx, dy)))
         with np.errstate(invalid="ignore", over="ignore"):  # over: a subnormal edge (±inf, clipped as meant)
             m = np.clip((slope - d) / edge, 0, 1) if edge > 0 else (slope > d).astype(np.float32)
         return cls(center, size, np.nan_to_num(m, nan=0.0), "slope_above")
@@ -444,8 +447,12 @@ def _slope(heights: NDArray[np.float32], dx: float, dy: float) -> NDArray[np.flo
     return np.arctan(np.hypot(gx, gy))
 
 
-def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None):
-    """Heights of a grid terrain (rows at increasing y) over its extent or a region, with the box centre/size."""
+def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None, field: Any = None):
+    """Heights of a grid terrain (rows at increasing y) over its extent or a region, with the box centre/size.
+
+    ``field``: a function of a block of those heights (e.g. the slope) returned instead of the heights; it sees the
+    region with one more node on each side where the terrain has one and is then cut to the region, so a gradient
+    at the region's edge is the terrain's own (central differences), not a one-sided one inside the region."""
     t = as_terrain(terrain)
     if t.kind != "grid":
         raise InvalidInputError("generated ROI masks need a grid terrain (a DEM); got a TIN")
@@ -473,10 +480,16 @@ def _terrain_window(terrain: Terrain | ArrayLike, region: ArrayLike | None):
             raise InvalidInputError(
                 f"region {tuple(region)} covers fewer than 2 x 2 terrain nodes of the extent "
                 f"{(xmin, xmax, ymin, ymax)}")
-        heights = heights[ri[0]: ri[-1] + 1, cj[0]: cj[-1] + 1]
+        r0, r1 = max(ri[0] - 1, 0), min(ri[-1] + 2, heights.shape[0])  # one node of margin for ``field``
+        c0, c1 = max(cj[0] - 1, 0), min(cj[-1] + 2, heights.shape[1])
+        inner = (slice(ri[0] - r0, ri[-1] + 1 - r0), slice(cj[0] - c0, cj[-1] + 1 - c0))
+        heights = heights[r0:r1, c0:c1]
         xmin, xmax, ymin, ymax = xs[cj[0]], xs[cj[-1]], ys[ri[0]], ys[ri[-1]]
+    else:
+        inner = (slice(None), slice(None))
+    values = heights if field is None else field(heights)
     center = ((xmin + xmax) / 2, (ymin + ymax) / 2)
-    return np.ascontiguousarray(heights), center, (xmax - xmin, ymax - ymin)
+    return np.ascontiguousarray(values[inner]), center, (xmax - xmin, ymax - ymin)
 
 
 # ------------------------------------------------------------------------------------------------ anchors
@@ -668,12 +681,14 @@ class CloseUp:
             colormap(self.cmap, argument="close-up cmap")  # an unknown name now, not at the first render
 
     def turn(self, time: float) -> float:
-        """β at ``time`` seconds of an animation: the spin adds whole turns, then stops after the repetitions."""
+        """β at ``time`` seconds of an animation: the spin starts at time 0 (before it the close-up stands at its
+        rotation), adds whole turns, then stops after the repetitions."""
         time = _seconds(time)
         if self.spin is None:
             return self.rotation[1]
         speed, reps = self.spin
-        turns = min(abs(speed) * float(time), float(reps))
+        # clamped below at 0: a negative time gave the turn of the positive one (copysign drops the sign of time)
+        turns = min(max(abs(speed) * float(time), 0.0), float(reps))
         return self.rotation[1] + math.copysign(2 * math.pi * turns, speed)
 
     def matrix(self, pivot_z: float = 0.0, *, time: float = 0.0) -> NDArray[np.float64]:
@@ -1148,7 +1163,10 @@ class AnchorStrip:
 
 
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Bilinear terrain heights at world xy (grid), nearest-vertex heights for a TIN."""
+    """Terrain heights at world xy: on the overview mesh's own triangles for a grid (each cell split along its
+    diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it: a bilinear
+    height left an anchor's foot up to a few metres above or below the drawn surface), nearest-vertex heights for a
+    TIN."""
     if terrain.kind != "grid":
         pts = terrain.points[terrain.point_used.astype(bool)]
         try:
@@ -1167,10 +1185,11 @@ def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64
     j0 = np.minimum(np.floor(fx).astype(np.int64), cols - 2)
     i0 = np.minimum(np.floor(fy).astype(np.int64), rows - 2)
     tx, ty = fx - j0, fy - i0
-    h = terrain.heights.astype(np.float64)
-    bottom = h[i0, j0] + tx * (h[i0, j0 + 1] - h[i0, j0])
-    top = h[i0 + 1, j0] + tx * (h[i0 + 1, j0 + 1] - h[i0 + 1, j0])
-    z = bottom + ty * (top - bottom)
+    h = terrain.heights
+    h00, h01 = h[i0, j0].astype(np.float64), h[i0, j0 + 1].astype(np.float64)
+    h10, h11 = h[i0 + 1, j0].astype(np.float64), h[i0 + 1, j0 + 1].astype(np.float64)
+    z = np.where(tx >= ty, h00 + tx * (h01 - h00) + ty * (h11 - h01),  # triangle (n00, n01, n11)
+                 h00 + ty * (h10 - h00) + tx * (h11 - h10))  # triangle (n00, n11, n10)
     return np.where(np.isfinite(z), z, terrain.height_range[0])
 
 
@@ -1877,7 +1896,7 @@ def animate_closeups(
 ) -> list[NDArray[np.uint8]]:
     """Frames of the spinning close-ups (§III.B): frame i at time i / fps, one renderer and camera for all.
 
-    The camera frames the overview and every close-up at every turn (the box swept by the spin), so the
+    The camera frames the overview and every close-up at every frame's turn (the box swept by the spin), so the
     view stays still while the close-ups rotate. ``options`` go to :func:`render_closeups` (``z_scale``,
     ``scalars``, ``cmap``, ``camera``, ``bounds``, ...), all but those set per frame here: ``time``,
     ``renderer`` and ``reuse_overview``. ``progress``: a tqdm bar of the frames on stderr. Every frame is kept
@@ -1904,9 +1923,11 @@ def animate_closeups(
                                 f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
-    if box is None:  # the box swept by the close-ups over a few phases, and the terrain
-        boxes = []
-        for time in np.linspace(0, max(times[-1], 1e-9), 9):
+    if box is None:  # the box swept by the close-ups, at every frame's turns (9 evenly spaced times could all fall on
+        boxes = []  # the same phase of a spin and miss the turned close-up), and the terrain
+        turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
+        _, first = np.unique(turns, axis=0, return_index=True)  # frames with the same turns: the same geometry
+        for time in times[np.sort(first)]:
             for layer in closeup_layers(t, items, time=float(time), device=device):
                 if len(layer.vertices):
                     boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))

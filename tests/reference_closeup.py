@@ -59,3 +59,21 @@ def transform(vertices: np.ndarray, m: np.ndarray, matrix: np.ndarray) -> np.nda
 def culled_faces(faces: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Indices of the faces with a corner of m > 0."""
     return np.array([f for f in range(len(faces)) if max(m[faces[f]]) > 0], dtype=np.int64)
+
+
+def surface_heights(vertices: np.ndarray, faces: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Height of the mesh surface at world points xy (N, 2): the plane of a triangle whose xy holds the point
+    (brute force over every triangle, barycentric); NaN where none does."""
+    corners = np.asarray(vertices, dtype=np.float64)[np.asarray(faces)]
+    a, b, c = corners[:, 0, :2], corners[:, 1, :2], corners[:, 2, :2]
+    det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+    out = np.full(len(xy), np.nan)
+    for n, p in enumerate(np.asarray(xy, dtype=np.float64)):  # plainly, one point at a time
+        u = ((p[0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (p[1] - a[:, 1])) / det
+        v = ((b[:, 0] - a[:, 0]) * (p[1] - a[:, 1]) - (p[0] - a[:, 0]) * (b[:, 1] - a[:, 1])) / det
+        inside = np.flatnonzero((u >= -1e-9) & (v >= -1e-9) & (u + v <= 1 + 1e-9))
+        if len(inside):
+            f = inside[0]
+            z = corners[f, :, 2]
+            out[n] = z[0] + u[f] * (z[1] - z[0]) + v[f] * (z[2] - z[0])
+    return out

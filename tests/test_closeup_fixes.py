@@ -12,6 +12,7 @@ from stepterrain import render
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
+from .reference_closeup import surface_heights
 from .test_closeup import hills
 from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
 
@@ -256,3 +257,82 @@ def test_animate_closeups_shows_progress_when_asked(capfd):
     assert "close-up frames" in capfd.readouterr().err
     with pytest.raises(InvalidInputError, match="progress"):
         animate_closeups(terrain(), [one()], frames=1, window_size=SIZE, progress="yes")
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (30.0, -20.0), (-7.0, 11.0)])
+def test_slope_above_a_region_takes_the_terrains_slope_at_the_regions_edge(spacing):
+    # the slope was taken of the region's heights alone: one-sided differences along its edge marked a node of 13°
+    # as steeper than 30° and missed one of 36°; it is the terrain's slope (central differences) there too
+    from stepterrain.terrain import Terrain
+
+    heights = hills(37, 45, seed=1) * np.float32(max(abs(spacing[0]), abs(spacing[1])) / 2)  # slopes alike
+    t = Terrain.from_heights(heights, spacing=spacing, origin=(500.0, -300.0))
+    xmin, xmax, ymin, ymax = t.extent
+    region = (xmin + 0.2 * (xmax - xmin), xmin + 0.7 * (xmax - xmin), ymin + 0.1 * (ymax - ymin),
+              ymin + 0.5 * (ymax - ymin))
+    roi = ROI.slope_above(t, 20.0, region=region)
+    rows, cols = np.mgrid[0:37, 0:45]
+    x, y = 500.0 + cols * spacing[0], -300.0 + rows * spacing[1]
+    gy, gx = np.gradient(heights.astype(np.float64), spacing[1], spacing[0])  # the whole terrain's slope
+    steep = np.degrees(np.arctan(np.hypot(gx, gy))) > 20.0
+    inside = (x >= region[0]) & (x <= region[1]) & (y >= region[2]) & (y <= region[3])
+    m = roi.factor(np.column_stack([x[inside], y[inside]]))
+    assert 0 < steep[inside].sum() < inside.sum()
+    np.testing.assert_array_equal(m, steep[inside].astype(np.float64))
+
+
+@pytest.mark.parametrize("speed", [0.5, -0.5])
+def test_spin_stands_still_before_time_zero(speed):
+    # copysign took the sign of the speed only: at a negative time the close-up had turned as far as at the positive
+    # one, in the spin's direction (β(−t) = β(t)); before the animation starts it stands at its rotation
+    cu = CloseUp(ROI.circle((0.0, 0.0), 1.0), rotation=(0.0, 0.25), spin=(speed, 2))
+    times = np.linspace(-3.0, 6.0, 37)
+    turns = np.array([cu.turn(float(t)) for t in times])
+    assert np.all(np.diff(turns) * np.sign(speed) >= 0)  # never back against the spin
+    assert np.all(turns[times <= 0] == cu.rotation[1])
+    assert cu.turn(-np.inf) == cu.rotation[1]
+
+
+def test_animation_frames_every_turn_of_a_spinning_closeup(monkeypatch):
+    # the frame box was the union of 9 evenly spaced times: at 4 fps over 8 s with one turn per second all 9 fell on
+    # whole turns, and a long close-up turned across them left the box (and the camera's view) at the quarter turns
+    import stepterrain.closeup as closeup_module
+    from stepterrain.closeup import closeup_layers
+
+    class NoRenderer:
+        def __init__(self, **kwargs):
+            pass
+
+        def close(self):
+            pass
+
+    boxes = []
+    monkeypatch.setattr(render, "LayeredRenderer", NoRenderer)
+    monkeypatch.setattr(closeup_module, "render_closeups", lambda *args, bounds, **kwargs: boxes.append(bounds))
+    t = terrain()
+    cu = CloseUp(ROI.rectangle((1040.0, 2030.0), (40.0, 6.0)), scale=2.0, offset=(0.0, 0.0, 60.0), spin=(1.0, 8))
+    frames, fps = 33, 4.0
+    animate_closeups(t, [cu], frames=frames, fps=fps, window_size=SIZE, device="cpu")
+    assert len(boxes) == frames
+    box = np.asarray(boxes[0])
+    for i in range(frames):  # frame i at time i / fps: its close-up lies in the box
+        (layer,) = closeup_layers(t, [cu], time=i / fps, device="cpu")
+        assert np.all(layer.vertices >= box[0]) and np.all(layer.vertices <= box[1]), f"frame {i}"
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (3.0, -2.0)])
+def test_anchor_feet_lie_on_the_overview_surface(spacing):
+    # the foot of each rung took the bilinear height of its cell, not the height of the overview's triangle there:
+    # the fence stood above or sank below the drawn terrain (up to 1.6 m on the 30 m Big Tujunga DEM)
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(), spacing=spacing, origin=(1000.0, 2000.0))
+    xmin, xmax, ymin, ymax = t.extent
+    cu = CloseUp(ROI.circle(((xmin + xmax) / 2, (ymin + ymax) / 2), 20.0), scale=2.0, offset=(0.0, 0.0, 60.0))
+    (strip,) = anchor_strips(t, [cu], device="cpu")
+    feet = strip.vertices[:: strip.rungs + 1]
+    mesh = t.mesh()  # every triangle of the overview, brute force
+    surface = surface_heights(np.asarray(mesh.vertices), np.asarray(mesh.faces), feet[:, :2])
+    assert len(feet) > 20
+    np.testing.assert_allclose(feet[:, 2], surface, atol=1e-3)
