@@ -824,6 +824,18 @@ def _layer_values(values: Any, n_vertices: int, name: str) -> NDArray[np.float64
     return array
 
 
+def _camera_token(camera: CameraLike) -> Any:
+    """What tells one camera from another exactly: a name, or its numbers' float64 bytes. ``repr`` of a numpy camera
+    prints 8 digits, so two UTM eye positions centimetres apart had one token and the second kept the first's view."""
+    if isinstance(camera, str):
+        return camera
+    try:
+        numbers = np.asarray(camera, dtype=np.float64)
+    except (TypeError, ValueError):  # ragged or not numbers: refused by _camera_position, repr is enough till then
+        return repr(camera)
+    return numbers.shape, numbers.tobytes()
+
+
 class LayeredRenderer:
     """Off-screen layered rendering (paper 001 §IV): one pass per layer into a color and a depth image.
 
@@ -993,16 +1005,17 @@ class LayeredRenderer:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         local = _check_box(box, "box") - self._origin
         local[:, 2] *= self.z_scale
-        token = (repr(camera), local.tobytes())
+        token = (_camera_token(camera), local.tobytes())
         if token == self._view_token:
             return  # the same camera and box: view, lights and clipping range stay (and so may cached passes)
-        self._view_token = token
-        self._view_version += 1
         width, height = self.size
         corners = _box_corners(local)
         position = _camera_position(camera, corners, width / height)
         if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
             _check_visible(corners, position, (width, height), local, self.z_scale)  # (z_scale=1e30: a blank image)
+        # the token once the camera passed its checks: a refused camera asked again is refused again
+        self._view_token = token
+        self._view_version += 1
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         self._plotter.remove_all_lights()

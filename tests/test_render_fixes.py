@@ -244,3 +244,25 @@ def test_a_render_within_the_budget_still_renders(tiny_budget):
     assert render._render_bytes(64, 48) <= st.get_memory_budget()
     image = render.render_mesh(mesh, window_size=(64, 48))
     assert image.shape == (48, 64, 3) and (image < 250).any()
+
+
+@needs_render
+def test_layered_renderer_tells_numpy_cameras_apart_beyond_eight_digits():
+    """set_view kept its view when the camera's repr was the same: numpy prints 8 digits, so an eye moved from
+    1234567.810 to 1234567.814 (4 mm at UTM scale) kept the first eye. A camera refused once was also taken silently
+    when asked again (its token was stored before the checks). Found by reading the view cache (helper 30)."""
+    with render.LayeredRenderer(window_size=(32, 32)) as renderer:
+        renderer.set_mesh("a", VERTICES, FACES)
+        box = [[0, 0, 0], [10, 10, 5]]
+        first = np.array([(1234567.81, -20.0, 20.0), (5.0, 5.0, 0.0), (0.0, 0.0, 1.0)])
+        second = first.copy()
+        second[0, 0] = 1234567.814
+        assert repr(first) == repr(second)  # the old token could not tell them apart
+        renderer.set_view(first, box)
+        eye = np.array(renderer._plotter.camera_position[0])
+        renderer.set_view(second, box)
+        assert np.array(renderer._plotter.camera_position[0])[0] - eye[0] == pytest.approx(0.004, abs=1e-6)
+        degenerate = [(5, 5, 40), (5, 5, 0), (0, 0, 1)]
+        for _ in range(2):
+            with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs"):
+                renderer.set_view(degenerate, box)
