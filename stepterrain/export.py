@@ -219,7 +219,10 @@ def save_mesh(
     element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
 
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
-    stay crisp. Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
+    stay crisp. Vertex colours (sRGB bytes, as matplotlib colormaps and images give them) are stored as glTF's
+    ``COLOR_0`` requires, linear (float32; alpha as it is): a viewer shows the colours of the other formats and of
+    the renders. trimesh's reader hands the linear values back as they are; :func:`read_mesh` gives the bytes.
+    Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
     in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. glTF accessors
@@ -629,16 +632,36 @@ def _empty_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any]
 
 
 # glTF 2.0 constants (§3.6.2, §5.11): component types and buffer view targets
-_GL_UNSIGNED_BYTE, _GL_UNSIGNED_INT, _GL_FLOAT = 5121, 5125, 5126
+_GL_UNSIGNED_INT, _GL_FLOAT = 5125, 5126
 _GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+def _srgb_to_linear(value: NDArray[np.float64]) -> NDArray[np.float64]:
+    """sRGB-encoded values in [0, 1] as linear ones (IEC 61966-2-1's transfer function)."""
+    return np.where(value <= 0.04045, value / 12.92, ((value + 0.055) / 1.055) ** 2.4)  # type: ignore[no-any-return]
+
+
+def _linear_to_srgb(value: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Linear values in [0, 1] as sRGB-encoded ones (the inverse of :func:`_srgb_to_linear`)."""
+    value = np.clip(value, 0.0, 1.0)
+    return np.where(value <= 0.0031308, value * 12.92, 1.055 * value ** (1 / 2.4) - 0.055)  # type: ignore[no-any-return]
+
+
+#: (4, 256) float32: row k maps a colour byte of channel k (R, G, B, A) to glTF's COLOR_0 value. A mesh's vertex
+#: colours are sRGB bytes (as matplotlib, PIL and trimesh give them); COLOR_0 is linear (glTF 2.0 §3.7.2.1, §3.9.2).
+#: Alpha is linear on both sides. float32 keeps every byte apart (read back exactly, :func:`_gltf_srgb_colors`):
+#: 8-bit linear merges the darkest sRGB values.
+_COLOR_0_OF_BYTE = np.vstack([np.tile(_srgb_to_linear(np.arange(256) / 255.0), (3, 1)), np.arange(256) / 255.0]
+                             ).astype(np.float32)
+_CHANNEL_ROWS = np.array([0, 256, 512, 768], np.uint16)  # where channel k's row of _COLOR_0_OF_BYTE starts, flat
 
 
 def _gltf_document(
     mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds
 ) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
-    translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
-    colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
+    translation beyond 65536), indices (uint32), COLOR_0 (linear float32 RGBA, from the sRGB bytes) when the mesh
+    has vertex colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
     ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
     (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -685,10 +708,12 @@ def _gltf_document(
                       "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
                       "max": [float(v) for v in p_hi]})  # fmt: skip
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
-        colors = np.ascontiguousarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out
+        rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        colors = _COLOR_0_OF_BYTE.reshape(-1)[rgba + _CHANNEL_ROWS]  # byte + 256 * channel: one gather
         primitive["attributes"]["COLOR_0"] = len(accessors)
-        accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_BYTE,
-                          "normalized": True, "count": len(colors), "type": "VEC4"})  # fmt: skip
+        accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
+                          "count": len(colors), "type": "VEC4"})  # fmt: skip
     gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
@@ -894,7 +919,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
-    ``force="mesh"`` dropped) comes back as a mesh without faces, and a 3MF of one mesh object (as :func:`save_mesh`
+    ``force="mesh"`` dropped) comes back as a mesh without faces, a glTF's vertex colours come back as sRGB bytes
+    (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
+    exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours.
 
@@ -917,9 +944,61 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         loaded = trimesh.load(file, force="mesh", process=False)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
+        if file.suffix.lower() in (".glb", ".gltf") and isinstance(loaded, trimesh.Trimesh):
+            _srgb_vertex_colors(loaded, file)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
+
+
+def _srgb_vertex_colors(mesh: trimesh.Trimesh, file: Path) -> None:
+    """Give ``mesh``, read from the glTF ``file``, its vertex colours as sRGB bytes, as the other formats hold them:
+    COLOR_0 is linear (glTF 2.0 §3.7.2.1) and trimesh's reader takes its values as bytes as they are. Exact from the
+    file's COLOR_0 when it is one primitive's (as :func:`save_mesh` writes it), else from trimesh's bytes."""
+    if mesh.visual.kind != "vertex":
+        return
+    values = _gltf_color_0(file)
+    if values is None or len(values) != len(mesh.vertices):
+        values = np.asarray(mesh.visual.vertex_colors, dtype=np.float64) / 255.0
+    rgba = np.ones((len(values), 4))
+    rgba[:, : values.shape[1]] = values[:, :4]
+    rgba[:, :3] = _linear_to_srgb(rgba[:, :3])
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.rint(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
+
+
+def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
+    """The COLOR_0 values, in [0, 1], of a glTF or GLB ``file`` holding one mesh of one primitive with its buffer
+    embedded (as :func:`save_mesh` writes it); None for any other layout."""
+    try:
+        data = file.read_bytes()
+        if data[:4] == b"glTF":
+            (json_length,) = struct.unpack_from("<I", data, 12)
+            tree = json.loads(data[20 : 20 + json_length])
+            at = 20 + json_length
+            binary = data[at + 8 : at + 8 + struct.unpack_from("<I", data, at)[0]] if len(data) >= at + 8 else b""
+        else:
+            tree = json.loads(data)
+            uri = (tree.get("buffers") or [{}])[0].get("uri", "")
+            if not uri.startswith("data:"):
+                return None
+            binary = base64.b64decode(uri.split(",", 1)[1])
+        meshes = tree.get("meshes") or []
+        if len(meshes) != 1 or len(meshes[0].get("primitives", [])) != 1 or len(tree.get("buffers", [])) != 1:
+            return None
+        index = meshes[0]["primitives"][0].get("attributes", {}).get("COLOR_0")
+        if index is None:
+            return None
+        accessor = tree["accessors"][index]
+        view = tree["bufferViews"][accessor["bufferView"]]
+        dtype = {_GL_FLOAT: np.dtype("<f4"), 5121: np.dtype("u1"), 5123: np.dtype("<u2")}.get(accessor["componentType"])
+        width = {"VEC3": 3, "VEC4": 4}.get(accessor["type"])
+        if dtype is None or width is None or view.get("byteStride", dtype.itemsize * width) != dtype.itemsize * width:
+            return None
+        start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+        values = np.frombuffer(binary, dtype, accessor["count"] * width, start).reshape(-1, width).astype(np.float64)
+    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
+        return None
+    return values if dtype.kind == "f" else values / np.iinfo(dtype).max
 
 
 def _read_points(file: Path) -> trimesh.Trimesh | None:
