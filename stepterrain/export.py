@@ -189,7 +189,7 @@ def save_mesh(
         The lowest and highest corner (x, y, z) of a set of meshes written one by one that share vertices (tiles
         of one raster, as :func:`~stepterrain.batch.batch` writes them). How coordinates are stored is then
         decided by these, the same for every mesh of the set, instead of by the mesh's own bounds: glTF's node
-        translation (the floor of the lowest corner) and PLY's float32 or float64. A vertex the meshes share is
+        translation (the floor of their centre) and PLY's float32 or float64. A vertex the meshes share is
         then stored identically in each, so they weld exactly. Need not contain the mesh.
 
     Returns
@@ -201,7 +201,7 @@ def save_mesh(
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
-        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
+        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
@@ -226,9 +226,11 @@ def save_mesh(
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
     in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. glTF accessors
-    are float32, so when coordinates exceed 65536 (UTM metres) the vertices are stored relative to a node
-    translation (float64 in the JSON) and loaders that apply the scene graph get world coordinates back at
-    full precision. Textured OBJ meshes also write
+    are float32, so when coordinates exceed 65536 (UTM metres, a globe) the vertices are stored relative to a node
+    translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
+    get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
+    0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
+    meshes also write
     ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
     ``_``: OBJ and MTL readers split file names on it), each atomically; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
@@ -320,12 +322,12 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
 
 def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
-    node translation (the floor of the lowest corner; see :func:`_gltf_document`). numpy's cast made them infinite
+    node translation (:func:`_local_origin`). numpy's cast made them infinite
     (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
-    offset = np.floor(frame[0]) if _is_large(frame) else np.zeros(3)  # glTF's node translation
+    offset = _local_origin(frame)  # glTF's node translation
     if ext == ".stl":
         reach = np.maximum(np.abs(lo), np.abs(hi))
     else:
@@ -333,11 +335,11 @@ def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) 
     if (reach <= FLOAT32_MAX).all():
         return
     axis = int(np.argmax(reach))
-    what = "coordinates" if ext == ".stl" else "coordinates relative to the mesh's lowest corner"
+    what = "coordinates" if ext == ".stl" else "coordinates relative to the mesh's centre"
     raise InvalidInputError(
         f"cannot write {str(target)!r}: {ext} stores float32 {what}, |x| < {FLOAT32_MAX:.2g}; the mesh's "
-        f"{'xyz'[axis]} reaches {float(reach[axis]):.6g}: write .ply or .obj (float64), or move the mesh nearer "
-        "the origin"
+        f"{'xyz'[axis]} reaches {float(reach[axis]):.6g}{'' if ext == '.stl' else ' from it'}: write .ply or .obj "
+        "(float64), or move the mesh nearer the origin"
     )
 
 
@@ -549,6 +551,16 @@ def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
     return lo, hi
 
 
+def _local_origin(frame: Bounds) -> NDArray[np.float64]:
+    """glTF's node translation for coordinates stored relative to it: the floor of the centre of ``frame`` (the
+    vertex bounds, or save_mesh's ``shared_bounds``) when :func:`_is_large`, else 0. The centre, not the lowest
+    corner: float32 positions then reach half the extent, not all of it, and round half as far (a globe's lowest
+    corner, -R, put its far side at 2R: 0.5 m rounding at the earth's radius instead of 0.25 m)."""
+    if not _is_large(frame):
+        return np.zeros(3)
+    return np.floor(frame[0] / 2 + frame[1] / 2)  # halves first: lo + hi overflows beyond 9e307
+
+
 def _is_large(bounds: Bounds) -> bool:
     """True when some coordinate exceeds :data:`_LOCAL_ORIGIN_THRESHOLD` in magnitude (float32 would round it
     to worse than 1/128)."""
@@ -672,7 +684,7 @@ def _gltf_document(
     # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
     positions = recycled_empty(vertices.shape, np.dtype("<f4"))
     if _is_large(frame):
-        offset = np.floor(frame[0])
+        offset = _local_origin(frame)
         np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
         node["translation"] = [float(v) for v in offset]
     else:
@@ -1388,7 +1400,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = np.eye(4)
     if _is_large(bounds):
-        offset = np.floor(bounds[0])
+        offset = _local_origin(bounds)
         mesh = mesh.copy(include_cache=False)
         mesh.vertices = vertices - offset
         transform[:3, 3] = offset

@@ -390,3 +390,18 @@ def test_gltf_vertex_colours_are_linear_and_read_back_as_the_same_srgb_bytes(tmp
     np.testing.assert_allclose(color_0[:, 3], srgb[:, 3] / 255.0, atol=1e-6)  # alpha is linear already
     back = read_mesh(path)  # `info` and batch's previews read with it: the bytes the mesh had
     np.testing.assert_array_equal(back.visual.vertex_colors, srgb)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("centre", [(0.0, 0.0, 0.0), (376328.7, 3807902.8, 1200.0)], ids=["globe", "utm"])
+def test_gltf_positions_of_a_globe_round_within_float32_of_its_radius(tmp_path, ext, centre):
+    # float32 positions were stored relative to the floor of the lowest corner: a globe's far side sat 2R from it,
+    # so a vertex at the earth's radius came back up to 0.5 m off (float32's rounding at 2R), twice what float32
+    # holds for a distance R from the centre
+    radius = 6_371_000.0
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    mesh = trimesh.Trimesh(sphere.vertices * radius * 1.0001 + centre, sphere.faces, process=False)
+    half = np.abs(mesh.vertices - mesh.bounds.mean(axis=0)).max()  # half the extent, about the radius
+    back = trimesh.load(save_mesh(mesh, tmp_path / f"globe{ext}"), force="mesh", process=False)  # node applied
+    error = np.abs(back.vertices - mesh.vertices).max()
+    assert error <= np.spacing(np.float32(half)) / 2 * (1 + 1e-9), error  # half a float32 step at the radius
