@@ -405,3 +405,16 @@ def test_gltf_positions_of_a_globe_round_within_float32_of_its_radius(tmp_path, 
     back = trimesh.load(save_mesh(mesh, tmp_path / f"globe{ext}"), force="mesh", process=False)  # node applied
     error = np.abs(back.vertices - mesh.vertices).max()
     assert error <= np.spacing(np.float32(half)) / 2 * (1 + 1e-9), error  # half a float32 step at the radius
+
+
+@pytest.mark.parametrize("ext", [".ply", ".glb", ".obj"])
+def test_info_does_not_call_points_or_an_empty_mesh_watertight(tmp_path, ext, capsys):
+    # trimesh says a mesh without faces is watertight (no open edge): `info` printed "watertight True" for a file of
+    # points and for an empty mesh, which enclose no volume
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    for name, mesh in (("points", points()), ("empty", empty)):
+        assert cli.main(["info", str(save_mesh(mesh, tmp_path / f"{name}{ext}")), "--json"]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert (summary["faces"], summary["watertight"]) == (0, False), (name, summary)
+    assert cli.main(["info", str(save_mesh(trimesh.creation.box(), tmp_path / f"box{ext}")), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["watertight"] is True
