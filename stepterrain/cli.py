@@ -561,7 +561,8 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "bounds_min": lo,
         "bounds_max": hi,
         "nonfinite_vertices": int(len(vertices) - finite.sum()),
-        "watertight": bool(mesh.is_watertight),
+        # trimesh calls a mesh without faces watertight (no edge is open): points and empty files enclose nothing
+        "watertight": bool(len(mesh.faces) and mesh.is_watertight),
         "winding_consistent": bool(mesh.is_winding_consistent),
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
     }

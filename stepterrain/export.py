@@ -189,7 +189,7 @@ def save_mesh(
         The lowest and highest corner (x, y, z) of a set of meshes written one by one that share vertices (tiles
         of one raster, as :func:`~stepterrain.batch.batch` writes them). How coordinates are stored is then
         decided by these, the same for every mesh of the set, instead of by the mesh's own bounds: glTF's node
-        translation (the floor of the lowest corner) and PLY's float32 or float64. A vertex the meshes share is
+        translation (the floor of their centre) and PLY's float32 or float64. A vertex the meshes share is
         then stored identically in each, so they weld exactly. Need not contain the mesh.
 
     Returns
@@ -201,7 +201,7 @@ def save_mesh(
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
-        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its lowest corner), the
+        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
@@ -219,13 +219,18 @@ def save_mesh(
     element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
 
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
-    stay crisp. Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
+    stay crisp. Vertex colours (sRGB bytes, as matplotlib colormaps and images give them) are stored as glTF's
+    ``COLOR_0`` requires, linear (float32; alpha as it is): a viewer shows the colours of the other formats and of
+    the renders. trimesh's reader hands the linear values back as they are; :func:`read_mesh` gives the bytes.
+    Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
     in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. glTF accessors
-    are float32, so when coordinates exceed 65536 (UTM metres) the vertices are stored relative to a node
-    translation (float64 in the JSON) and loaders that apply the scene graph get world coordinates back at
-    full precision. Textured OBJ meshes also write
+    are float32, so when coordinates exceed 65536 (UTM metres, a globe) the vertices are stored relative to a node
+    translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
+    get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
+    0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
+    meshes also write
     ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
     ``_``: OBJ and MTL readers split file names on it), each atomically; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
@@ -317,12 +322,12 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
 
 def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
-    node translation (the floor of the lowest corner; see :func:`_gltf_document`). numpy's cast made them infinite
+    node translation (:func:`_local_origin`). numpy's cast made them infinite
     (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
-    offset = np.floor(frame[0]) if _is_large(frame) else np.zeros(3)  # glTF's node translation
+    offset = _local_origin(frame)  # glTF's node translation
     if ext == ".stl":
         reach = np.maximum(np.abs(lo), np.abs(hi))
     else:
@@ -330,11 +335,11 @@ def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) 
     if (reach <= FLOAT32_MAX).all():
         return
     axis = int(np.argmax(reach))
-    what = "coordinates" if ext == ".stl" else "coordinates relative to the mesh's lowest corner"
+    what = "coordinates" if ext == ".stl" else "coordinates relative to the mesh's centre"
     raise InvalidInputError(
         f"cannot write {str(target)!r}: {ext} stores float32 {what}, |x| < {FLOAT32_MAX:.2g}; the mesh's "
-        f"{'xyz'[axis]} reaches {float(reach[axis]):.6g}: write .ply or .obj (float64), or move the mesh nearer "
-        "the origin"
+        f"{'xyz'[axis]} reaches {float(reach[axis]):.6g}{'' if ext == '.stl' else ' from it'}: write .ply or .obj "
+        "(float64), or move the mesh nearer the origin"
     )
 
 
@@ -546,6 +551,16 @@ def _vertex_bounds(vertices: NDArray[Any]) -> Bounds:
     return lo, hi
 
 
+def _local_origin(frame: Bounds) -> NDArray[np.float64]:
+    """glTF's node translation for coordinates stored relative to it: the floor of the centre of ``frame`` (the
+    vertex bounds, or save_mesh's ``shared_bounds``) when :func:`_is_large`, else 0. The centre, not the lowest
+    corner: float32 positions then reach half the extent, not all of it, and round half as far (a globe's lowest
+    corner, -R, put its far side at 2R: 0.5 m rounding at the earth's radius instead of 0.25 m)."""
+    if not _is_large(frame):
+        return np.zeros(3)
+    return np.floor(frame[0] / 2 + frame[1] / 2)  # halves first: lo + hi overflows beyond 9e307
+
+
 def _is_large(bounds: Bounds) -> bool:
     """True when some coordinate exceeds :data:`_LOCAL_ORIGIN_THRESHOLD` in magnitude (float32 would round it
     to worse than 1/128)."""
@@ -629,16 +644,36 @@ def _empty_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any]
 
 
 # glTF 2.0 constants (§3.6.2, §5.11): component types and buffer view targets
-_GL_UNSIGNED_BYTE, _GL_UNSIGNED_INT, _GL_FLOAT = 5121, 5125, 5126
+_GL_UNSIGNED_INT, _GL_FLOAT = 5125, 5126
 _GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
+
+
+def _srgb_to_linear(value: NDArray[np.float64]) -> NDArray[np.float64]:
+    """sRGB-encoded values in [0, 1] as linear ones (IEC 61966-2-1's transfer function)."""
+    return np.where(value <= 0.04045, value / 12.92, ((value + 0.055) / 1.055) ** 2.4)  # type: ignore[no-any-return]
+
+
+def _linear_to_srgb(value: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Linear values in [0, 1] as sRGB-encoded ones (the inverse of :func:`_srgb_to_linear`)."""
+    value = np.clip(value, 0.0, 1.0)
+    return np.where(value <= 0.0031308, value * 12.92, 1.055 * value ** (1 / 2.4) - 0.055)  # type: ignore[no-any-return]
+
+
+#: (4, 256) float32: row k maps a colour byte of channel k (R, G, B, A) to glTF's COLOR_0 value. A mesh's vertex
+#: colours are sRGB bytes (as matplotlib, PIL and trimesh give them); COLOR_0 is linear (glTF 2.0 §3.7.2.1, §3.9.2).
+#: Alpha is linear on both sides. float32 keeps every byte apart (read back exactly, :func:`_gltf_srgb_colors`):
+#: 8-bit linear merges the darkest sRGB values.
+_COLOR_0_OF_BYTE = np.vstack([np.tile(_srgb_to_linear(np.arange(256) / 255.0), (3, 1)), np.arange(256) / 255.0]
+                             ).astype(np.float32)
+_CHANNEL_ROWS = np.array([0, 256, 512, 768], np.uint16)  # where channel k's row of _COLOR_0_OF_BYTE starts, flat
 
 
 def _gltf_document(
     mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds
 ) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
-    translation beyond 65536), indices (uint32), COLOR_0 (normalised uint8 RGBA) when the mesh has vertex
-    colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
+    translation beyond 65536), indices (uint32), COLOR_0 (linear float32 RGBA, from the sRGB bytes) when the mesh
+    has vertex colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
     ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
     (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file)."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -649,7 +684,7 @@ def _gltf_document(
     # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
     positions = recycled_empty(vertices.shape, np.dtype("<f4"))
     if _is_large(frame):
-        offset = np.floor(frame[0])
+        offset = _local_origin(frame)
         np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
         node["translation"] = [float(v) for v in offset]
     else:
@@ -685,10 +720,12 @@ def _gltf_document(
                       "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
                       "max": [float(v) for v in p_hi]})  # fmt: skip
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
-        colors = np.ascontiguousarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out
+        rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        colors = _COLOR_0_OF_BYTE.reshape(-1)[rgba + _CHANNEL_ROWS]  # byte + 256 * channel: one gather
         primitive["attributes"]["COLOR_0"] = len(accessors)
-        accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_UNSIGNED_BYTE,
-                          "normalized": True, "count": len(colors), "type": "VEC4"})  # fmt: skip
+        accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
+                          "count": len(colors), "type": "VEC4"})  # fmt: skip
     gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
@@ -894,7 +931,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
-    ``force="mesh"`` dropped) comes back as a mesh without faces, and a 3MF of one mesh object (as :func:`save_mesh`
+    ``force="mesh"`` dropped) comes back as a mesh without faces, a glTF's vertex colours come back as sRGB bytes
+    (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
+    exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours.
 
@@ -917,9 +956,61 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         loaded = trimesh.load(file, force="mesh", process=False)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
+        if file.suffix.lower() in (".glb", ".gltf") and isinstance(loaded, trimesh.Trimesh):
+            _srgb_vertex_colors(loaded, file)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
+
+
+def _srgb_vertex_colors(mesh: trimesh.Trimesh, file: Path) -> None:
+    """Give ``mesh``, read from the glTF ``file``, its vertex colours as sRGB bytes, as the other formats hold them:
+    COLOR_0 is linear (glTF 2.0 §3.7.2.1) and trimesh's reader takes its values as bytes as they are. Exact from the
+    file's COLOR_0 when it is one primitive's (as :func:`save_mesh` writes it), else from trimesh's bytes."""
+    if mesh.visual.kind != "vertex":
+        return
+    values = _gltf_color_0(file)
+    if values is None or len(values) != len(mesh.vertices):
+        values = np.asarray(mesh.visual.vertex_colors, dtype=np.float64) / 255.0
+    rgba = np.ones((len(values), 4))
+    rgba[:, : values.shape[1]] = values[:, :4]
+    rgba[:, :3] = _linear_to_srgb(rgba[:, :3])
+    mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.rint(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
+
+
+def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
+    """The COLOR_0 values, in [0, 1], of a glTF or GLB ``file`` holding one mesh of one primitive with its buffer
+    embedded (as :func:`save_mesh` writes it); None for any other layout."""
+    try:
+        data = file.read_bytes()
+        if data[:4] == b"glTF":
+            (json_length,) = struct.unpack_from("<I", data, 12)
+            tree = json.loads(data[20 : 20 + json_length])
+            at = 20 + json_length
+            binary = data[at + 8 : at + 8 + struct.unpack_from("<I", data, at)[0]] if len(data) >= at + 8 else b""
+        else:
+            tree = json.loads(data)
+            uri = (tree.get("buffers") or [{}])[0].get("uri", "")
+            if not uri.startswith("data:"):
+                return None
+            binary = base64.b64decode(uri.split(",", 1)[1])
+        meshes = tree.get("meshes") or []
+        if len(meshes) != 1 or len(meshes[0].get("primitives", [])) != 1 or len(tree.get("buffers", [])) != 1:
+            return None
+        index = meshes[0]["primitives"][0].get("attributes", {}).get("COLOR_0")
+        if index is None:
+            return None
+        accessor = tree["accessors"][index]
+        view = tree["bufferViews"][accessor["bufferView"]]
+        dtype = {_GL_FLOAT: np.dtype("<f4"), 5121: np.dtype("u1"), 5123: np.dtype("<u2")}.get(accessor["componentType"])
+        width = {"VEC3": 3, "VEC4": 4}.get(accessor["type"])
+        if dtype is None or width is None or view.get("byteStride", dtype.itemsize * width) != dtype.itemsize * width:
+            return None
+        start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+        values = np.frombuffer(binary, dtype, accessor["count"] * width, start).reshape(-1, width).astype(np.float64)
+    except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
+        return None
+    return values if dtype.kind == "f" else values / np.iinfo(dtype).max
 
 
 def _read_points(file: Path) -> trimesh.Trimesh | None:
@@ -1309,7 +1400,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = np.eye(4)
     if _is_large(bounds):
-        offset = np.floor(bounds[0])
+        offset = _local_origin(bounds)
         mesh = mesh.copy(include_cache=False)
         mesh.vertices = vertices - offset
         transform[:3, 3] = offset

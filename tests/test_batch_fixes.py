@@ -79,13 +79,13 @@ def test_save_mesh_shared_bounds_are_checked(tmp_path):
 
     with pytest.raises(InvalidInputError, match=r"shared_bounds must be finite \(2, 3\) corners"):
         save_mesh(trimesh.creation.box(), tmp_path / "box.glb", shared_bounds=[[0, 0, np.nan], [1, 1, 1]])
-    # a box far from the origin, stored relative to the shared corner's floor: world positions come back
+    # a box far from the origin, stored relative to the floor of the shared bounds' centre: world positions come back
     box = trimesh.creation.box()
     box.apply_translation([400000.5, 3800000.25, 10.0])
     out = save_mesh(box, tmp_path / "box.glb", shared_bounds=[[399000.7, 3799000.2, -3.5], [401000.0, 3801000.0, 50]])
     from .test_export import glb_json
 
-    assert glb_json(out)["nodes"][0]["translation"] == [399000.0, 3799000.0, -4.0]
+    assert glb_json(out)["nodes"][0]["translation"] == [400000.0, 3800000.0, 23.0]
     np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, box.vertices, atol=1e-6)
 
 

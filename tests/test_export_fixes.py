@@ -13,7 +13,7 @@ from PIL import Image
 
 from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
-from stepterrain.export import save_image, save_mesh
+from stepterrain.export import read_mesh, save_image, save_mesh
 
 
 @pytest.mark.skipif(not hasattr(os, "symlink"), reason="needs symbolic links")
@@ -106,8 +106,10 @@ def test_vertices_without_faces_are_kept_as_points(tmp_path, ext, capsys):
     cloud = next(iter(back.geometry.values())) if isinstance(back, trimesh.Scene) else back
     assert isinstance(cloud, trimesh.PointCloud)
     np.testing.assert_allclose(cloud.vertices, mesh.vertices, rtol=1e-7)  # glTF stores float32
-    if ext in (".glb", ".gltf", ".ply"):
+    if ext == ".ply":
         np.testing.assert_array_equal(cloud.colors, mesh.visual.vertex_colors)
+    if ext in (".glb", ".gltf", ".ply"):  # glTF's COLOR_0 is linear: read_mesh gives the sRGB bytes back
+        np.testing.assert_array_equal(read_mesh(path).visual.vertex_colors, mesh.visual.vertex_colors)
     assert cli.main(["info", str(path), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert (summary["vertices"], summary["faces"]) == (5, 0)
@@ -338,3 +340,81 @@ def test_a_textured_obj_written_through_a_symbolic_link_has_its_side_files_besid
     save_mesh(mesh, real)  # the same file written by its own name: the same side files, no clash of owners
     assert sorted(p.name for p in (tmp_path / "store").iterdir()) == ["latest.mtl", "latest.obj",
                                                                      "latest_material_0.png"]  # fmt: skip
+
+
+def gltf_tree_and_buffer(path):
+    """A .glb's or self-contained .gltf's JSON and its one binary buffer, read with the standard library."""
+    import base64
+    import struct
+
+    data = path.read_bytes()
+    if path.suffix == ".glb":
+        (length,) = struct.unpack_from("<I", data, 12)
+        tree = json.loads(data[20 : 20 + length])
+        return tree, data[20 + length + 8 :]
+    tree = json.loads(data)
+    return tree, base64.b64decode(tree["buffers"][0]["uri"].split(",", 1)[1])
+
+
+def gltf_attribute(path, name):
+    """The values of the first primitive's attribute ``name`` in [0, 1] or as stored (floats), via its accessor."""
+    tree, binary = gltf_tree_and_buffer(path)
+    accessor = tree["accessors"][tree["meshes"][0]["primitives"][0]["attributes"][name]]
+    view = tree["bufferViews"][accessor["bufferView"]]
+    dtype = {5126: "<f4", 5121: "u1", 5123: "<u2"}[accessor["componentType"]]
+    width = {"VEC2": 2, "VEC3": 3, "VEC4": 4}[accessor["type"]]
+    start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+    values = np.frombuffer(binary, dtype, accessor["count"] * width, start).reshape(-1, width).astype(np.float64)
+    return values / np.iinfo(dtype).max if accessor.get("normalized") else values
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("faces", [True, False], ids=["triangles", "points"])
+def test_gltf_vertex_colours_are_linear_and_read_back_as_the_same_srgb_bytes(tmp_path, ext, faces):
+    # COLOR_0 is linear (glTF 2.0 §3.7.2.1, §3.9.2) but the sRGB bytes of hypsometric colours went in as they were:
+    # three.js, Blender and every other spec-following viewer showed the terrain washed out (mid-grey 128 as 188)
+    import stepterrain as st
+
+    if faces:
+        mesh = st.stepped(np.random.default_rng(5).random((6, 7)) * 30.0, interval=5.0, colors="terrain",
+                          device="cpu")  # fmt: skip
+        mesh.visual.vertex_colors[:3] = [[0, 0, 0, 255], [1, 10, 128, 200], [255, 254, 12, 0]]  # both curve ends
+    else:
+        mesh = points(8)
+    srgb = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+    path = save_mesh(mesh, tmp_path / f"colours{ext}")
+    color_0 = gltf_attribute(path, "COLOR_0")
+    c = srgb[:, :3] / 255.0
+    linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)  # IEC 61966-2-1
+    np.testing.assert_allclose(color_0[:, :3], linear, atol=1e-6)
+    np.testing.assert_allclose(color_0[:, 3], srgb[:, 3] / 255.0, atol=1e-6)  # alpha is linear already
+    back = read_mesh(path)  # `info` and batch's previews read with it: the bytes the mesh had
+    np.testing.assert_array_equal(back.visual.vertex_colors, srgb)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("centre", [(0.0, 0.0, 0.0), (376328.7, 3807902.8, 1200.0)], ids=["globe", "utm"])
+def test_gltf_positions_of_a_globe_round_within_float32_of_its_radius(tmp_path, ext, centre):
+    # float32 positions were stored relative to the floor of the lowest corner: a globe's far side sat 2R from it,
+    # so a vertex at the earth's radius came back up to 0.5 m off (float32's rounding at 2R), twice what float32
+    # holds for a distance R from the centre
+    radius = 6_371_000.0
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    mesh = trimesh.Trimesh(sphere.vertices * radius * 1.0001 + centre, sphere.faces, process=False)
+    half = np.abs(mesh.vertices - mesh.bounds.mean(axis=0)).max()  # half the extent, about the radius
+    back = trimesh.load(save_mesh(mesh, tmp_path / f"globe{ext}"), force="mesh", process=False)  # node applied
+    error = np.abs(back.vertices - mesh.vertices).max()
+    assert error <= np.spacing(np.float32(half)) / 2 * (1 + 1e-9), error  # half a float32 step at the radius
+
+
+@pytest.mark.parametrize("ext", [".ply", ".glb", ".obj"])
+def test_info_does_not_call_points_or_an_empty_mesh_watertight(tmp_path, ext, capsys):
+    # trimesh says a mesh without faces is watertight (no open edge): `info` printed "watertight True" for a file of
+    # points and for an empty mesh, which enclose no volume
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    for name, mesh in (("points", points()), ("empty", empty)):
+        assert cli.main(["info", str(save_mesh(mesh, tmp_path / f"{name}{ext}")), "--json"]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert (summary["faces"], summary["watertight"]) == (0, False), (name, summary)
+    assert cli.main(["info", str(save_mesh(trimesh.creation.box(), tmp_path / f"box{ext}")), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["watertight"] is True
