@@ -848,16 +848,32 @@ def blend_layers(
     a: wp.array2d[wp.vec4],
     b: wp.array2d[wp.vec4],
     weights: wp.array2d[wp.vec4],
+    own_alpha: wp.int32,
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per pixel: a (1 - w) + b w with w the alpha of ``weights`` at the pixel (§3.2.3 blending)."""
+    """One thread per pixel (§3.2.3 blending, straight alpha): b laid over a with coverage c = w * alpha_b, w the
+    alpha of ``weights`` at the pixel (1 when ``own_alpha``: b's alpha alone): alpha c + alpha_a (1 - c), colour
+    (c b + (1 - c) alpha_a a) / alpha; a (1 - w) + b w for opaque layers. A transparent pixel of b (nodata,
+    outside its extent) leaves a as it is; where both are transparent the colours are mixed by w."""
     n = wp.tid() + thread_offset
     cols = a.shape[1]
     i = n // cols
     j = n - i * cols
+    x = a[i, j]
+    y = b[i, j]
     w = weights[i, j][3]
-    rgba_out[i, j] = a[i, j] * (1.0 - w) + b[i, j] * w
+    c = y[3]
+    if own_alpha == 0:
+        c = w * y[3]
+    under = x[3] * (1.0 - c)
+    alpha = c + under
+    if alpha > 0.0:
+        rgb = (wp.vec3(y[0], y[1], y[2]) * c + wp.vec3(x[0], x[1], x[2]) * under) / alpha
+        rgba_out[i, j] = wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
+    else:
+        mixed = x * (1.0 - w) + y * w
+        rgba_out[i, j] = wp.vec4(mixed[0], mixed[1], mixed[2], 0.0)
 
 
 @wp.kernel
