@@ -222,3 +222,21 @@ def test_a_nodata_pixel_of_the_blended_layer_leaves_the_base_under_a_lens():
                     np.full((3, 3), w, np.float32), device="cpu").rgba()
         np.testing.assert_allclose(out[1, 1], [0.0, 0.0, 0.8, 1.0], atol=1e-6)
         np.testing.assert_allclose(out[0, 0], [0.4 * w, 0.4 * w, 0.8 * (1 - w) + 0.4 * w, 1.0], atol=1e-6)
+
+
+def test_resampling_does_not_bleed_the_colour_of_transparent_texels():
+    """Bilinear sampling through a texture matrix interpolated straight (not premultiplied) RGBA: next to a
+    transparent texel its colour leaked in, white from nodata (1, 1, 1, 0) and black from a clear RGBA texel, so a
+    layer resampled onto another's pixels got light or dark fringes along every hole and edge."""
+    extent = (0.0, 4.0, 0.0, 1.0)
+    base = TextureLayer("thematic", np.full((1, 4, 3), 0.5, np.float32), extent)
+    clear = np.zeros((1, 2, 4), np.float32)
+    clear[0, 0] = (1.0, 0.0, 0.0, 1.0)  # red, then a transparent black texel
+    grey = np.array([[0.2, np.nan]], np.float32)  # grey, then nodata
+    # base pixel centres x = 0.5 ... 3.5 are texels u = -0.25 (clamped), 0.25, 0.75, 1.25 (clamped) of b
+    for b, colour in ((TextureLayer("thematic", clear, extent), (1.0, 0.0, 0.0)),
+                      (TextureLayer("luminance", grey, extent), (0.2, 0.2, 0.2))):
+        out = blend(base, b, device="cpu").rgba()[0]
+        for pixel, coverage in ((0, 1.0), (1, 0.75), (2, 0.25), (3, 0.0)):
+            expected = coverage * np.array(colour) + (1 - coverage) * 0.5
+            np.testing.assert_allclose(out[pixel], [*expected, 1.0], atol=1e-6)
