@@ -925,14 +925,18 @@ def modulate_layers(
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per pixel: a.rgb * b.rgb, alpha a.alpha (modulation, e.g. by a topographic layer)."""
+    """One thread per pixel: a.rgb * b.rgb, alpha a.alpha (modulation, e.g. by a topographic layer), by b as far
+    as it covers the pixel: a.rgb * (1 - b.alpha + b.alpha * b.rgb), so a transparent pixel of b (outside its
+    extent, nodata) leaves a as it is."""
     n = wp.tid() + thread_offset
     cols = a.shape[1]
     i = n // cols
     j = n - i * cols
     x = a[i, j]
     y = b[i, j]
-    rgba_out[i, j] = wp.vec4(x[0] * y[0], x[1] * y[1], x[2] * y[2], x[3])
+    keep = 1.0 - y[3]
+    rgba_out[i, j] = wp.vec4(x[0] * (keep + y[3] * y[0]), x[1] * (keep + y[3] * y[1]), x[2] * (keep + y[3] * y[2]),
+                             x[3])
 
 
 @wp.func

@@ -1080,6 +1080,9 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
 def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.DeviceLike = None) -> TextureLayer:
     """Texture layer modulation (§3.2.3, §7): ``a.rgb · b.rgb · ...`` per pixel; alpha stays ``a``'s.
 
+    Each other layer modulates as far as it covers a pixel, ``a.rgb · (1 − alpha_b + alpha_b · b.rgb)``: where it
+    is transparent (outside its extent, nodata) ``a`` stays as it is.
+
     Examples
     --------
     >>> import numpy as np

@@ -18,6 +18,7 @@ from stepterrain.texture import (
     combine,
     highlight_lens,
     hillshade,
+    modulate,
     normal_map,
     relight,
     terrain_layer,
@@ -240,3 +241,14 @@ def test_resampling_does_not_bleed_the_colour_of_transparent_texels():
         for pixel, coverage in ((0, 1.0), (1, 0.75), (2, 0.25), (3, 0.0)):
             expected = coverage * np.array(colour) + (1 - coverage) * 0.5
             np.testing.assert_allclose(out[pixel], [*expected, 1.0], atol=1e-6)
+
+
+def test_modulating_by_a_layer_that_covers_part_of_the_extent_keeps_the_rest():
+    """modulate() multiplied by the RGB of transparent texels too: outside a layer that covers part of the base
+    (partial coverage, border 'transparent', sampled as (0, 0, 0, 0)) the base came out black, though a nodata
+    texel (1, 1, 1, 0) of the same layer left it unchanged."""
+    base = TextureLayer("thematic", np.full((1, 4, 3), 0.8, np.float32), (0.0, 4.0, 0.0, 1.0))
+    west = TextureLayer("luminance", np.full((1, 2), 0.5, np.float32), (0.0, 2.0, 0.0, 1.0))
+    out = modulate(base, west, device="cpu").rgba()[0]
+    np.testing.assert_allclose(out[:2], [[0.4, 0.4, 0.4, 1.0]] * 2, atol=1e-6)
+    np.testing.assert_allclose(out[2:], [[0.8, 0.8, 0.8, 1.0]] * 2, atol=1e-6)
