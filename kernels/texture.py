@@ -817,7 +817,9 @@ def sample_layer(
     rgba_out: wp.array2d[wp.vec4],
 ):
     """One thread per output pixel: the layer's image sampled bilinearly at the pixel centre through the layer's
-    texture matrix (world (x, y, 1) -> texel (column, row, 1), texel centres at integers)."""
+    texture matrix (world (x, y, 1) -> texel (column, row, 1), texel centres at integers). The colours are
+    interpolated premultiplied by alpha (the straight colour of a transparent texel does not bleed into its
+    neighbours') and returned straight; where all four texels are transparent, their colours mixed, alpha 0."""
     n = wp.tid() + thread_offset
     i = n // frame.cols
     j = n - i * frame.cols
@@ -837,9 +839,23 @@ def sample_layer(
     i0 = wp.int32(wp.floor(v))
     fu = u - float(j0)
     fv = v - float(i0)
-    top = texel(image, i0, j0, 0) * (1.0 - fu) + texel(image, i0, j0 + 1, 0) * fu
-    bottom = texel(image, i0 + 1, j0, 0) * (1.0 - fu) + texel(image, i0 + 1, j0 + 1, 0) * fu
-    rgba_out[i, j] = top * (1.0 - fv) + bottom * fv
+    t00 = texel(image, i0, j0, 0)
+    t01 = texel(image, i0, j0 + 1, 0)
+    t10 = texel(image, i0 + 1, j0, 0)
+    t11 = texel(image, i0 + 1, j0 + 1, 0)
+    w00 = (1.0 - fu) * (1.0 - fv)
+    w01 = fu * (1.0 - fv)
+    w10 = (1.0 - fu) * fv
+    w11 = fu * fv
+    alpha = t00[3] * w00 + t01[3] * w01 + t10[3] * w10 + t11[3] * w11
+    straight = t00 * w00 + t01 * w01 + t10 * w10 + t11 * w11
+    if alpha > 0.0:
+        rgb = (wp.vec3(t00[0], t00[1], t00[2]) * (t00[3] * w00) + wp.vec3(t01[0], t01[1], t01[2]) * (t01[3] * w01)
+               + wp.vec3(t10[0], t10[1], t10[2]) * (t10[3] * w10)
+               + wp.vec3(t11[0], t11[1], t11[2]) * (t11[3] * w11)) / alpha
+        rgba_out[i, j] = wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
+    else:
+        rgba_out[i, j] = wp.vec4(straight[0], straight[1], straight[2], 0.0)
 
 
 @wp.kernel
@@ -848,16 +864,32 @@ def blend_layers(
     a: wp.array2d[wp.vec4],
     b: wp.array2d[wp.vec4],
     weights: wp.array2d[wp.vec4],
+    own_alpha: wp.int32,
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per pixel: a (1 - w) + b w with w the alpha of ``weights`` at the pixel (§3.2.3 blending)."""
+    """One thread per pixel (§3.2.3 blending, straight alpha): b laid over a with coverage c = w * alpha_b, w the
+    alpha of ``weights`` at the pixel (1 when ``own_alpha``: b's alpha alone): alpha c + alpha_a (1 - c), colour
+    (c b + (1 - c) alpha_a a) / alpha; a (1 - w) + b w for opaque layers. A transparent pixel of b (nodata,
+    outside its extent) leaves a as it is; where both are transparent the colours are mixed by w."""
     n = wp.tid() + thread_offset
     cols = a.shape[1]
     i = n // cols
     j = n - i * cols
+    x = a[i, j]
+    y = b[i, j]
     w = weights[i, j][3]
-    rgba_out[i, j] = a[i, j] * (1.0 - w) + b[i, j] * w
+    c = y[3]
+    if own_alpha == 0:
+        c = w * y[3]
+    under = x[3] * (1.0 - c)
+    alpha = c + under
+    if alpha > 0.0:
+        rgb = (wp.vec3(y[0], y[1], y[2]) * c + wp.vec3(x[0], x[1], x[2]) * under) / alpha
+        rgba_out[i, j] = wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
+    else:
+        mixed = x * (1.0 - w) + y * w
+        rgba_out[i, j] = wp.vec4(mixed[0], mixed[1], mixed[2], 0.0)
 
 
 @wp.kernel
@@ -893,14 +925,18 @@ def modulate_layers(
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per pixel: a.rgb * b.rgb, alpha a.alpha (modulation, e.g. by a topographic layer)."""
+    """One thread per pixel: a.rgb * b.rgb, alpha a.alpha (modulation, e.g. by a topographic layer), by b as far
+    as it covers the pixel: a.rgb * (1 - b.alpha + b.alpha * b.rgb), so a transparent pixel of b (outside its
+    extent, nodata) leaves a as it is."""
     n = wp.tid() + thread_offset
     cols = a.shape[1]
     i = n // cols
     j = n - i * cols
     x = a[i, j]
     y = b[i, j]
-    rgba_out[i, j] = wp.vec4(x[0] * y[0], x[1] * y[1], x[2] * y[2], x[3])
+    keep = 1.0 - y[3]
+    rgba_out[i, j] = wp.vec4(x[0] * (keep + y[3] * y[0]), x[1] * (keep + y[3] * y[1]), x[2] * (keep + y[3] * y[2]),
+                             x[3])
 
 
 @wp.func

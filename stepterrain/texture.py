@@ -997,6 +997,10 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
 
     ``weights`` is a visibility layer (its alpha; a lens, §5) or an (h, w) array of weights in [0, 1];
     ``None`` uses ``b``'s own alpha. Every layer is sampled through its texture matrix onto ``a``'s pixels.
+    Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
+    ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
+    ``(c · b + (1 − c) · alpha_a · a) / alpha``; for opaque layers that is the formula above. So an opaque ``a``
+    stays opaque, and a transparent pixel of ``b`` (nodata, outside its extent) leaves ``a`` as it is.
 
     Examples
     --------
@@ -1024,7 +1028,7 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     out = wp.empty(shape, dtype=wp.vec4, device=dev)
     launch(texture_kernels.blend_layers, dim=shape[0] * shape[1],
            inputs=[_sampled(a, extent, shape, dev, "a"), _sampled(b, extent, shape, dev, "b"),
-                   _sampled(w, extent, shape, dev, "weights")], outputs=[out], device=dev)
+                   _sampled(w, extent, shape, dev, "weights"), 1 if weights is None else 0], outputs=[out], device=dev)
     return _finish(out, a, "blend")
 
 
@@ -1075,6 +1079,9 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
 
 def modulate(a: TextureLayer, *others: TextureLayer | ArrayLike, device: wp.DeviceLike = None) -> TextureLayer:
     """Texture layer modulation (§3.2.3, §7): ``a.rgb · b.rgb · ...`` per pixel; alpha stays ``a``'s.
+
+    Each other layer modulates as far as it covers a pixel, ``a.rgb · (1 − alpha_b + alpha_b · b.rgb)``: where it
+    is transparent (outside its extent, nodata) ``a`` stays as it is.
 
     Examples
     --------

@@ -13,10 +13,12 @@ from stepterrain.texture import (
     TextureLayer,
     adjust,
     ambient_occlusion,
+    blend,
     cast_shadows,
     combine,
     highlight_lens,
     hillshade,
+    modulate,
     normal_map,
     relight,
     terrain_layer,
@@ -193,3 +195,60 @@ def test_relight_refuses_terrain_and_spacing_with_a_directional_light(given, mes
     with pytest.raises(InvalidInputError, match=message):
         relight(rgb, azimuth=1.0, altitude=0.5, device="cpu", **given)
     assert relight(rgb, azimuth=1.0, altitude=0.5, device="cpu").shape == (3, 3)
+
+
+# ------------------------------------------------------------------------------------------ compositing (h9)
+def test_blending_a_translucent_layer_over_an_opaque_one_stays_opaque():
+    """blend(a, b) with b's own alpha as the weight took the alpha channel through a (1 - w) + b w too: alpha
+    alpha_a (1 - alpha_b) + alpha_b², 0.75 for an opaque a under b at 0.5, so drape() let the background through
+    the opaque base."""
+    grey = TextureLayer("thematic", np.full((2, 2, 3), 0.2, np.float32), (0, 2, 0, 2))
+    red = np.zeros((2, 2, 4), np.float32)
+    red[..., 0] = 1.0
+    red[..., 3] = 0.5
+    out = blend(grey, TextureLayer("thematic", red, (0, 2, 0, 2)), device="cpu").rgba()
+    np.testing.assert_allclose(out[..., 3], 1.0, atol=1e-6)
+    np.testing.assert_allclose(out[..., :3], np.broadcast_to([0.6, 0.1, 0.1], (2, 2, 3)), atol=1e-6)
+
+
+def test_a_nodata_pixel_of_the_blended_layer_leaves_the_base_under_a_lens():
+    """Under a lens (explicit weights) a nodata pixel of b, RGBA (1, 1, 1, 0), replaced a's colour: a transparent
+    white hole in an opaque base where the lens is, grey-white fringes at its soft rim."""
+    base = np.zeros((3, 3, 3), np.float32)
+    base[..., 2] = 0.8
+    values = np.full((3, 3), 0.4, np.float32)
+    values[1, 1] = np.nan
+    for w in (1.0, 0.5):
+        out = blend(TextureLayer("thematic", base, (0, 3, 0, 3)), TextureLayer("luminance", values, (0, 3, 0, 3)),
+                    np.full((3, 3), w, np.float32), device="cpu").rgba()
+        np.testing.assert_allclose(out[1, 1], [0.0, 0.0, 0.8, 1.0], atol=1e-6)
+        np.testing.assert_allclose(out[0, 0], [0.4 * w, 0.4 * w, 0.8 * (1 - w) + 0.4 * w, 1.0], atol=1e-6)
+
+
+def test_resampling_does_not_bleed_the_colour_of_transparent_texels():
+    """Bilinear sampling through a texture matrix interpolated straight (not premultiplied) RGBA: next to a
+    transparent texel its colour leaked in, white from nodata (1, 1, 1, 0) and black from a clear RGBA texel, so a
+    layer resampled onto another's pixels got light or dark fringes along every hole and edge."""
+    extent = (0.0, 4.0, 0.0, 1.0)
+    base = TextureLayer("thematic", np.full((1, 4, 3), 0.5, np.float32), extent)
+    clear = np.zeros((1, 2, 4), np.float32)
+    clear[0, 0] = (1.0, 0.0, 0.0, 1.0)  # red, then a transparent black texel
+    grey = np.array([[0.2, np.nan]], np.float32)  # grey, then nodata
+    # base pixel centres x = 0.5 ... 3.5 are texels u = -0.25 (clamped), 0.25, 0.75, 1.25 (clamped) of b
+    for b, colour in ((TextureLayer("thematic", clear, extent), (1.0, 0.0, 0.0)),
+                      (TextureLayer("luminance", grey, extent), (0.2, 0.2, 0.2))):
+        out = blend(base, b, device="cpu").rgba()[0]
+        for pixel, coverage in ((0, 1.0), (1, 0.75), (2, 0.25), (3, 0.0)):
+            expected = coverage * np.array(colour) + (1 - coverage) * 0.5
+            np.testing.assert_allclose(out[pixel], [*expected, 1.0], atol=1e-6)
+
+
+def test_modulating_by_a_layer_that_covers_part_of_the_extent_keeps_the_rest():
+    """modulate() multiplied by the RGB of transparent texels too: outside a layer that covers part of the base
+    (partial coverage, border 'transparent', sampled as (0, 0, 0, 0)) the base came out black, though a nodata
+    texel (1, 1, 1, 0) of the same layer left it unchanged."""
+    base = TextureLayer("thematic", np.full((1, 4, 3), 0.8, np.float32), (0.0, 4.0, 0.0, 1.0))
+    west = TextureLayer("luminance", np.full((1, 2), 0.5, np.float32), (0.0, 2.0, 0.0, 1.0))
+    out = modulate(base, west, device="cpu").rgba()[0]
+    np.testing.assert_allclose(out[:2], [[0.4, 0.4, 0.4, 1.0]] * 2, atol=1e-6)
+    np.testing.assert_allclose(out[2:], [[0.8, 0.8, 0.8, 1.0]] * 2, atol=1e-6)
