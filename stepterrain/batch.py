@@ -30,7 +30,6 @@ import platform
 import re
 import sys
 import time
-import types
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,7 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._callable_module import make_module_callable
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
 from .terrain import (
@@ -1399,24 +1399,4 @@ def _base_rgb(mesh: Any) -> NDArray[np.float64]:
     return np.tile(np.array([[222.0, 205.0, 170.0]]), (len(mesh.vertices), 1))
 
 
-class _CallableModule(types.ModuleType):
-    """This module, callable as its entry point: ``stepterrain.batch(...)`` runs :func:`batch`, and
-    ``stepterrain.batch.LOCAL_CLUSTER_MALLOC`` (or any name here) reads the module. The package's attribute was the
-    function, so the module's names were reachable only by ``from stepterrain.batch import ...``."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> BatchReport:
-        return self.batch(*args, **kwargs)
-
-    @property
-    def __signature__(self) -> Any:  # inspect.signature(stepterrain.batch) and help() show batch's parameters
-        import inspect
-
-        return inspect.signature(self.batch)
-
-    def __reduce__(self) -> tuple[Any, tuple[str]]:  # pickled by name, as the function was (cloudpickle refused it)
-        import importlib
-
-        return importlib.import_module, (self.__name__,)
-
-
-sys.modules[__name__].__class__ = _CallableModule
+make_module_callable(__name__)  # st.batch(...) runs batch(); st.batch.LOCAL_CLUSTER_MALLOC reads the module

@@ -8,6 +8,9 @@ dynamic data (§4). Typical use:
     mesh = stepterrain.stepped(stepterrain.sample_dem(), interval=100.0)
     mesh.export("steps.glb")
 
+``stepterrain.stepped`` is this module, callable as its function :func:`stepped` (stepterrain._callable_module), so
+``stepterrain.stepped.thresholds_of`` (any name here) works too.
+
 Instead of the paper's geometry shader, which emits a triangle soup per frame, the tessellation runs as two
 count -> scan -> emit passes in Warp (kernels/stepped.py) and yields one welded, indexed mesh: the wall
 bottom and top where a threshold crosses an input edge are shared by both triangles of the edge, so the
@@ -28,6 +31,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._callable_module import make_module_callable
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
     chunk_shift,
@@ -1133,3 +1137,6 @@ def stepped_series(
                 raise
             raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") from None
         yield mesh
+
+
+make_module_callable(__name__)  # st.stepped(...) runs stepped(); st.stepped.thresholds_of reads the module

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import re
 
 import numpy as np
@@ -19,7 +18,7 @@ from stepterrain.terrain import as_terrain
 from .conftest import assert_valid_mesh
 from .test_stepped import compare_with_reference, projected_area
 
-stepped_module = importlib.import_module("stepterrain.stepped")  # the package's `stepped` is the function
+stepped_module = st.stepped  # the module, callable as its function stepped
 
 
 def test_isovalue_memo_is_built_from_the_float32_values_it_is_keyed_by():
@@ -254,3 +253,30 @@ def test_solid_of_a_tin_with_zero_area_faces_is_watertight(kind, low, rise, gamm
     surface = st.stepped(tin, interval=0.7, gamma=gamma)
     expected = float((projected_area(surface) * (surface.triangles[:, :, 2].mean(axis=1) + 1.0)).sum())
     assert mesh.volume == pytest.approx(expected, rel=1e-9)
+
+
+def test_the_package_attribute_stepped_is_the_module_and_its_entry_point():
+    """``stepterrain/__init__`` bound ``st.stepped`` to the function, so ``st.stepped.thresholds_of`` (and every name
+    of the module) raised AttributeError. It is now the module, callable as :func:`stepped` with stepped's signature
+    (the same helper as ``st.batch``), and it pickles by name, as the function does."""
+    import inspect
+    import pickle
+    import sys
+
+    import cloudpickle
+
+    from stepterrain.stepped import stepped
+
+    module = sys.modules["stepterrain.stepped"]
+    assert st.stepped is module
+    assert st.stepped.thresholds_of is thresholds_of and st.stepped.stepped is stepped
+    assert inspect.signature(st.stepped) == inspect.signature(stepped)
+    for dumps, loads in ((pickle.dumps, pickle.loads), (cloudpickle.dumps, cloudpickle.loads)):
+        assert loads(dumps(st.stepped)) is st.stepped
+        assert loads(dumps(stepped)) is stepped
+    heights = np.add.outer(np.arange(6.0), np.arange(6.0)).astype(np.float32)
+    mesh = st.stepped(heights, interval=2.0, device="cpu")
+    expected = stepped(heights, interval=2.0, device="cpu")
+    assert np.array_equal(mesh.vertices, expected.vertices) and np.array_equal(mesh.faces, expected.faces)
+    with pytest.raises(TypeError, match="intervals"):  # the call is stepped's: its keywords are checked
+        st.stepped(heights, intervals=2.0)
