@@ -414,3 +414,16 @@ def test_every_subcommand_help_shows_the_memory_budget_option(command, capsys):
     code, out, err = run(capsys, command, "--help")
     assert code == 0 and "--memory-budget SIZE" in out
 
+
+def test_memory_budget_reaches_the_batch_worker_processes(tmp_path, capsys):
+    """batch's default LocalCluster steps in worker processes, which kept their own (default, 16 GiB) budget:
+    st.set_memory_budget, and so --memory-budget, did not hold for the items. run_item now sets the caller's budget
+    in the worker first."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    src = tile_folder(tmp_path / "tiles")
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--workers", "1", "--retries", "0",
+                         "--memory-budget", "1KiB", "-o", tmp_path / "out")
+    assert code == 1, err  # every item failed, each refused by the budget
+    assert err.count("OutputTooLargeError") >= 2 and "over the memory budget of 1,024 bytes" in err
+    failures = [line for line in err.splitlines() if line.startswith("stepterrain: failed")]  # the summary's lines
+    assert len(failures) == 2 and all("--memory-budget SIZE" in line for line in failures), err
