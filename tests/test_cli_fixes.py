@@ -427,3 +427,18 @@ def test_memory_budget_reaches_the_batch_worker_processes(tmp_path, capsys):
     assert err.count("OutputTooLargeError") >= 2 and "over the memory budget of 1,024 bytes" in err
     failures = [line for line in err.splitlines() if line.startswith("stepterrain: failed")]  # the summary's lines
     assert len(failures) == 2 and all("--memory-budget SIZE" in line for line in failures), err
+
+
+def test_steps_refuses_a_floor_above_the_surface_before_stepping(tmp_path, capsys):
+    """``steps --solid --floor <too high>`` stepped the DEM first: the "heights on a threshold" warning printed before
+    the --floor error. The floor is refused before stepping now: the error alone."""
+    dem = tmp_path / "dem.npy"
+    heights = np.round(np.random.default_rng(0).random((12, 14)) * 100).astype(np.float32)
+    heights[0, 0] = 15.0  # on the threshold between 10 and 20
+    np.save(dem, heights)
+    code, out, err = run(capsys, "-q", "steps", dem, "--interval", "10", "--solid", "--floor", "50",
+                         "-o", tmp_path / "m.stl")
+    assert code == 2
+    assert err.startswith("stepterrain steps: error: --floor must lie below the lowest surface height 0 ")
+    assert "warning" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "m.stl").exists()
