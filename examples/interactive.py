@@ -35,7 +35,12 @@ def dem_grid(size: int) -> pv.ImageData:
 
 
 class SteppedScene:
-    """The state behind the widgets: each callback updates one value and re-steps the grid in place."""
+    """The state behind the widgets: each callback updates one value and re-steps the grid in place.
+
+    A callback given the value the scene already holds keeps the mesh: pyvista runs every widget's callback once
+    when it is created, which stepped the grid four times at startup, and a slider released where it was
+    re-stepped it too.
+    """
 
     def __init__(self, plotter: pv.Plotter, grid: pv.ImageData, *, interval: float, gamma: float,
                  lens_radius: float, z_scale: float = 2.0, device: str | None = None) -> None:  # fmt: skip
@@ -51,16 +56,19 @@ class SteppedScene:
         self.actor = plotter.add_mesh(self.mesh, scalars="RGBA", rgb=True, smooth_shading=False)
 
     def set_interval(self, value: float) -> None:
-        self.interval = float(value)
-        self.update()
+        if float(value) != self.interval:
+            self.interval = float(value)
+            self.update()
 
     def set_gamma(self, value: float) -> None:
-        self.gamma = float(value)
-        self.update()
+        if float(value) != self.gamma:
+            self.gamma = float(value)
+            self.update()
 
     def move_lens(self, center: tuple[float, float, float]) -> None:
-        self.lens_center = (float(center[0]), float(center[1]))
-        self.update()
+        if (float(center[0]), float(center[1])) != self.lens_center:
+            self.lens_center = (float(center[0]), float(center[1]))
+            self.update()
 
     def update(self) -> None:
         terrain = self.grid.stepterrain.terrain()

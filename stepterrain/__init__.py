@@ -28,11 +28,6 @@ from typing import TYPE_CHECKING, Any
 from ._compaction import get_memory_budget, set_memory_budget
 from ._device import get_cpu_threads, get_output_pool_limit, set_cpu_threads, set_output_pool_limit
 from .batch import BatchReport
-
-if TYPE_CHECKING:  # type checkers see the entry point
-    from .batch import batch
-else:  # the module itself, callable as its entry point: st.batch(...) and st.batch.LOCAL_CLUSTER_MALLOC both work
-    from . import batch
 from .errors import (
     DataFileError,
     DeviceError,
@@ -43,7 +38,14 @@ from .errors import (
     StepTerrainError,
 )
 from .io import load_dem, sample_dem
-from .stepped import Lens, circular_lens, isovalues, stepped, stepped_series
+from .stepped import Lens, circular_lens, isovalues, stepped_series
+
+if TYPE_CHECKING:  # type checkers see the entry points
+    from .batch import batch
+    from .stepped import stepped
+else:  # the modules themselves, callable as their entry points (stepterrain._callable_module): st.batch(...) and
+    # st.batch.LOCAL_CLUSTER_MALLOC, st.stepped(...) and st.stepped.thresholds_of all work
+    from . import batch, stepped
 from .terrain import Terrain, heightfield_mesh
 
 __version__ = "0.1.0"

@@ -19,6 +19,9 @@ __all__ = ["count_buffer", "exclusive_offsets", "check_budget", "get_memory_budg
 
 _memory_budget: int = 16 * 1024**3
 
+#: How a refusal of :func:`check_budget` says to raise the budget; the command line names its --memory-budget instead.
+BUDGET_HINT = "raise the budget (stepterrain.set_memory_budget or memory_budget=)"
+
 
 def get_memory_budget() -> int:
     """The largest output, in bytes, a single call may allocate (default 16 GiB); :func:`stepterrain.load_dem`
@@ -59,7 +62,7 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
     if nbytes > limit:
         raise OutputTooLargeError(
             f"{what} would need {_size_text(nbytes)}, over the memory budget of {_size_text(limit)}; {hint}, or "
-            "raise the budget (stepterrain.set_memory_budget or memory_budget=)"
+            f"{BUDGET_HINT}"
         )
 
 

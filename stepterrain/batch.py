@@ -30,7 +30,6 @@ import platform
 import re
 import sys
 import time
-import types
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,8 @@ import numpy as np
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._callable_module import make_module_callable
+from ._compaction import get_memory_budget
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
 from .terrain import (
@@ -451,9 +452,13 @@ def _transient(exc: BaseException) -> bool:
 
 
 def run_item(
-    item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None
+    item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None,
+    memory_budget: int | None = None,
 ) -> ItemResult:
     """Step one item and write its mesh (atomically); the task each dask worker runs.
+
+    ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process first (a
+    worker process has its own, the default, otherwise).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
@@ -461,12 +466,15 @@ def run_item(
     """
     import trimesh
 
+    from ._compaction import set_memory_budget
     from ._device import set_cpu_threads
     from .stepped import stepped
 
     start, cpu_start = time.perf_counter(), time.process_time()
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
+    if memory_budget is not None:
+        set_memory_budget(memory_budget)
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
         terrain = _item_terrain(item, source, options.height_unit)
@@ -906,7 +914,8 @@ def batch(
     scheduler
         ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no
         dask. An address ``"tcp://host:port"``: an existing cluster, reached within ``connect_timeout``
-        seconds. A ``distributed.Client``: used as is, not closed.
+        seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this process's
+        memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item.
     workers : int
         Worker processes of the LocalCluster.
     retries : int
@@ -1293,9 +1302,10 @@ def _run_dask(
     blocks = client.scatter([_item_source(src, item) for item in todo], hash=False) if src is not None else None
     workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
+    memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
     futures = {
         client.submit(run_item, item, blocks[k] if blocks is not None else None, options, str(folder), cpu_threads,
-                      retries=retries, pure=False,
+                      memory_budget, retries=retries, pure=False,
                       key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
         for k, item in enumerate(todo)
     }  # fmt: skip
@@ -1399,24 +1409,4 @@ def _base_rgb(mesh: Any) -> NDArray[np.float64]:
     return np.tile(np.array([[222.0, 205.0, 170.0]]), (len(mesh.vertices), 1))
 
 
-class _CallableModule(types.ModuleType):
-    """This module, callable as its entry point: ``stepterrain.batch(...)`` runs :func:`batch`, and
-    ``stepterrain.batch.LOCAL_CLUSTER_MALLOC`` (or any name here) reads the module. The package's attribute was the
-    function, so the module's names were reachable only by ``from stepterrain.batch import ...``."""
-
-    def __call__(self, *args: Any, **kwargs: Any) -> BatchReport:
-        return self.batch(*args, **kwargs)
-
-    @property
-    def __signature__(self) -> Any:  # inspect.signature(stepterrain.batch) and help() show batch's parameters
-        import inspect
-
-        return inspect.signature(self.batch)
-
-    def __reduce__(self) -> tuple[Any, tuple[str]]:  # pickled by name, as the function was (cloudpickle refused it)
-        import importlib
-
-        return importlib.import_module, (self.__name__,)
-
-
-sys.modules[__name__].__class__ = _CallableModule
+make_module_callable(__name__)  # st.batch(...) runs batch(); st.batch.LOCAL_CLUSTER_MALLOC reads the module

@@ -29,6 +29,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from ._compaction import BUDGET_HINT, get_memory_budget, set_memory_budget
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
@@ -182,6 +183,28 @@ def _load_input(path: str | None, height_unit: str | None) -> Any:
     return sample_dem()
 
 
+#: ``--memory-budget`` units, case-insensitive: decimal (kB, MB, GB, TB), binary (KiB, MiB, GiB, TiB); B or none: bytes.
+_BYTE_UNITS = {"": 1, "b": 1, **{f"{p}b": 1000**k for k, p in enumerate("kmgt", 1)},
+               **{f"{p}ib": 1024**k for k, p in enumerate("kmgt", 1)}}
+_BYTE_SIZE = re.compile(r"^\s*(\d+(\.\d*)?|\.\d+)\s*([a-z]*)\s*$", re.IGNORECASE)
+
+
+def _byte_size(text: str) -> int:
+    """A ``--memory-budget``: bytes (``17179869184``) or a number and a unit (``8GiB``, ``500MB``, ``1.5 GiB``); at
+    least one byte."""
+    match = _BYTE_SIZE.match(text)
+    unit = _BYTE_UNITS.get(match.group(3).lower()) if match else None
+    nbytes = 0
+    if match is not None and unit is not None:  # whole numbers exactly (no float rounding of a long byte count)
+        number = match.group(1)
+        nbytes = int(float(number) * unit) if "." in number else int(number) * unit
+    if nbytes < 1:
+        raise argparse.ArgumentTypeError(
+            f"expected a positive size in bytes, or a number and a unit (B, kB, MB, GB, TB, KiB, MiB, GiB, TiB), "
+            f"e.g. 8GiB or 500MB; got {text!r}")
+    return nbytes
+
+
 def _window(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -215,6 +238,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"stepterrain {__version__}")
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress lines on stderr")
+    parser.add_argument("--memory-budget", type=_byte_size, default=None, metavar="SIZE", help=_MEMORY_BUDGET_HELP)
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     _add_steps(commands)
     for name in CAPABILITY_COMMANDS:
@@ -225,7 +249,21 @@ def build_parser() -> argparse.ArgumentParser:
     for sub in commands.choices.values():  # -q also after the subcommand; SUPPRESS keeps a -q given before it
         sub.add_argument("-q", "--quiet", action="store_true", default=argparse.SUPPRESS,
                          help="no progress lines on stderr")
+        sub.add_argument("--memory-budget", type=_byte_size, default=argparse.SUPPRESS, metavar="SIZE",
+                         help=_MEMORY_BUDGET_HELP)
     return parser
+
+
+_MEMORY_BUDGET_HELP = ("largest output, DEM read or render a step may allocate: bytes or a size such as 8GiB, 500MB "
+                       "(default: the library's, 16 GiB); a run over it stops with exit status 2 before allocating")
+
+#: What a refusal over the memory budget (stepterrain._compaction.check_budget) says, as a command-line user raises it.
+_CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE, e.g. --memory-budget 32GiB)"
+
+
+def _budget_hint_as_option(message: str) -> str:
+    """``message`` with the library's "raise the budget (stepterrain.set_memory_budget ...)" as the option."""
+    return message.replace(BUDGET_HINT, _CLI_BUDGET_HINT)
 
 
 #: Subcommands that live in their capability's own module ``stepterrain._cli_<name>``; each module defines
@@ -654,7 +692,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return EXIT_USAGE
     progress = Progress(quiet=args.quiet)
+    previous_budget = get_memory_budget()
     try:
+        if args.memory_budget is not None:  # for this run only: main() may be called in-process
+            set_memory_budget(args.memory_budget)
         with warnings.catch_warnings():
             warnings.showwarning = _warning_line(args.command)  # restored on exit by catch_warnings
             if getattr(args, "device", None) is not None:  # before any input is read: a large DEM loaded first
@@ -663,8 +704,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 resolve_device(args.device)
             return int(args.run(args, progress))
     except StepTerrainError as exc:
-        print(f"stepterrain {args.command}: error: {_as_option(str(exc), _subcommand(parser, args.command))}",
-              file=sys.stderr)
+        message = _budget_hint_as_option(_as_option(str(exc), _subcommand(parser, args.command)))
+        print(f"stepterrain {args.command}: error: {message}", file=sys.stderr)
         return EXIT_USAGE
     except OSError as exc:  # a write failing below the library's own checks (disk full, permissions)
         print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
@@ -672,6 +713,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("stepterrain: interrupted", file=sys.stderr)
         return 130
+    finally:
+        set_memory_budget(previous_budget)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -8,6 +8,9 @@ dynamic data (§4). Typical use:
     mesh = stepterrain.stepped(stepterrain.sample_dem(), interval=100.0)
     mesh.export("steps.glb")
 
+``stepterrain.stepped`` is this module, callable as its function :func:`stepped` (stepterrain._callable_module), so
+``stepterrain.stepped.thresholds_of`` (any name here) works too.
+
 Instead of the paper's geometry shader, which emits a triangle soup per frame, the tessellation runs as two
 count -> scan -> emit passes in Warp (kernels/stepped.py) and yields one welded, indexed mesh: the wall
 bottom and top where a threshold crosses an input edge are shared by both triangles of the edge, so the
@@ -28,6 +31,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._callable_module import make_module_callable
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
     chunk_shift,
@@ -871,7 +875,9 @@ def stepped(
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
-        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing.
+        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing. A ``floor``
+        not below the surface's lowest point is refused; where the heights tell that point (a TIN, a grid without
+        nodata: the lowest height blended with its isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional
@@ -936,10 +942,54 @@ def stepped(
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
     if t.visual is not None and colors is None and not solid:
         _check_carried_visual(t)
+    if solid and floor is not None:
+        _refuse_floor_above_surface(t, values, gamma, floor)  # before stepping; close_solid has the final word
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget)
     return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
     )
+
+
+def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, floor: Any) -> None:
+    """Refuse, before stepping, a solid's ``floor`` that surely lies at or above the stepped surface's lowest point.
+
+    The node of the lowest height h snaps to its isovalue α (monotone in h: no node and no wall vertex lies lower at
+    the same γ) and is blended to (1 − γ) h + γ α in float32, exact at γ = 0 and 1 and within a few float32 ulps
+    otherwise; for a per-node γ (array, callable, lens) in [0, 1] it lies at most at max(h, α). A floor at or above
+    that (plus the rounding) cannot be below the surface, and stepping a large terrain (with its warnings) only to be
+    refused by :func:`~stepterrain.mesh.close_solid` wasted the work. Only where h is a surface node for sure: a TIN's
+    used points, a grid of at least 2 x 2 without nodata (else each node's triangles would have to be found). A
+    floor that is not a finite float32 number, or a γ out of range, is left to the checks after stepping."""
+    if t.kind == "grid" and (t.has_nodata or min(t.shape) < 2):
+        return
+    try:
+        floor_z = as_number(floor)
+    except (TypeError, ValueError, OverflowError):
+        raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
+    if not (math.isfinite(floor_z) and abs(floor_z) <= FLOAT32_MAX):
+        return
+    scalar = np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens)
+    if scalar:
+        try:
+            g = as_number(gamma)
+        except (TypeError, ValueError, OverflowError):
+            return
+        if not 0.0 <= g <= 1.0:
+            return
+    h = np.float32(t.height_range[0])
+    alpha = values[np.searchsorted(thresholds_of(values), h, side="right")]
+    ulps = 4.0 * float(np.spacing(max(abs(h), abs(alpha))))  # the float32 blend's rounding
+    if scalar:
+        exact = g in (0.0, 1.0)  # (1 - γ) h + γ α is h or α, in float32 as the kernel computes it
+        lowest = float(alpha) if g == 1.0 else float(h) if g == 0.0 else (1.0 - g) * float(h) + g * float(alpha)
+        if floor_z >= lowest + (0.0 if exact else ulps):
+            raise InvalidInputError(
+                f"floor must lie below the lowest surface height {lowest:.9g} (the lowest height {float(h):g} on the "
+                f"isovalue {float(alpha):g}, γ = {g:g}); got {floor_z:.9g}")
+    elif floor_z >= max(float(h), float(alpha)) + ulps:
+        raise InvalidInputError(
+            f"floor must lie below the lowest surface height, at most {max(float(h), float(alpha)):.9g} (the lowest "
+            f"height {float(h):g} and its isovalue {float(alpha):g}, γ varying in [0, 1]); got {floor_z:.9g}")
 
 
 def _assemble(
@@ -1151,3 +1201,6 @@ def stepped_series(
                 raise
             raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") from None
         yield mesh
+
+
+make_module_callable(__name__)  # st.stepped(...) runs stepped(); st.stepped.thresholds_of reads the module

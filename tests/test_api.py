@@ -27,10 +27,13 @@ def test_unknown_name_is_an_attribute_error():
         st.not_a_name  # noqa: B018
 
 
-def test_function_names_survive_importing_their_modules():
-    import stepterrain.stepped  # noqa: F401 - the submodule import must not shadow the function
+def test_entry_points_survive_importing_their_modules():
+    import stepterrain.batch
+    import stepterrain.stepped  # the submodule import binds the module, which is callable as its function
 
-    assert callable(st.stepped) and st.stepped.__module__ == "stepterrain.stepped"
+    assert st.stepped is stepterrain.stepped and st.stepped.stepped.__module__ == "stepterrain.stepped"
+    assert st.batch is stepterrain.batch and st.batch.batch.__module__ == "stepterrain.batch"
+    assert callable(st.stepped) and callable(st.batch)
 
 
 @pytest.mark.parametrize("name", sorted(st._SUBMODULES))

@@ -613,9 +613,9 @@ def four_tiles_twice_retried(tmp_path):
 
 
 def test_transient_failures_are_retried_then_reported(tmp_path, monkeypatch):
-    import sys
+    import stepterrain as st
 
-    stepped_module = sys.modules["stepterrain.stepped"]  # the attribute stepterrain.stepped is the function
+    stepped_module = st.stepped  # the module (callable as its function): batch looks `stepped` up there
     real = stepped_module.stepped
     calls: dict[str, int] = {}
 
@@ -716,9 +716,9 @@ def test_dask_matches_serial_and_reports_failures(tmp_path, threaded_client):
 
 
 def test_dask_task_that_raises_is_retried_then_reported(tmp_path, threaded_client, monkeypatch):
-    import sys
+    import stepterrain as st
 
-    stepped_module = sys.modules["stepterrain.stepped"]
+    stepped_module = st.stepped
     real = stepped_module.stepped
 
     def broken_on_one_tile(terrain, **kwargs):

@@ -375,3 +375,70 @@ def test_a_size_that_renders_nothing_is_not_held_to_the_render_budget(tmp_path, 
     code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--size", "640x400")
     assert code == 0, err
     assert (tmp_path / "m.glb").exists()
+
+
+def test_memory_budget_option_refuses_a_run_then_lets_it_pass(tmp_path, capsys):
+    """A run over the memory budget said "raise the budget (stepterrain.set_memory_budget or memory_budget=)", which
+    a command-line user cannot follow. Every subcommand (and the command before it) takes --memory-budget SIZE now,
+    for that run only, and the refusal names it."""
+    import stepterrain as st
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    before = st.get_memory_budget()
+    for argv in (["steps", dem, "-o", tmp_path / "m.glb", "--memory-budget", "1KiB"],
+                 ["--memory-budget", "1024", "steps", dem, "-o", tmp_path / "m.glb"]):
+        code, out, err = run(capsys, *argv)
+        assert code == 2
+        assert "over the memory budget of 1,024 bytes" in err and "--memory-budget SIZE" in err, err
+        assert "set_memory_budget" not in err
+        assert st.get_memory_budget() == before  # the option holds for its run only
+        assert not (tmp_path / "m.glb").exists()
+    code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--memory-budget", "1MiB")
+    assert code == 0, err
+    assert (tmp_path / "m.glb").exists()
+    assert st.get_memory_budget() == before
+
+
+@pytest.mark.parametrize("command", ["steps", "globe", "closeup", "texture", "batch", "info"])
+@pytest.mark.parametrize("value", ["0", "-1GiB", "8XB", "1e9", "", "0.1"])
+def test_a_bad_memory_budget_is_a_usage_error_naming_the_option(command, value, tmp_path, capsys):
+    code, out, err = run(capsys, command, "--memory-budget", value, "-o", tmp_path / "x.glb")
+    assert code == 2
+    assert "argument --memory-budget: expected a positive size in bytes" in err and repr(value) in err
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command", ["steps", "globe", "closeup", "texture", "batch", "info"])
+def test_every_subcommand_help_shows_the_memory_budget_option(command, capsys):
+    code, out, err = run(capsys, command, "--help")
+    assert code == 0 and "--memory-budget SIZE" in out
+
+
+def test_memory_budget_reaches_the_batch_worker_processes(tmp_path, capsys):
+    """batch's default LocalCluster steps in worker processes, which kept their own (default, 16 GiB) budget:
+    st.set_memory_budget, and so --memory-budget, did not hold for the items. run_item now sets the caller's budget
+    in the worker first."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    src = tile_folder(tmp_path / "tiles")
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--workers", "1", "--retries", "0",
+                         "--memory-budget", "1KiB", "-o", tmp_path / "out")
+    assert code == 1, err  # every item failed, each refused by the budget
+    assert err.count("OutputTooLargeError") >= 2 and "over the memory budget of 1,024 bytes" in err
+    failures = [line for line in err.splitlines() if line.startswith("stepterrain: failed")]  # the summary's lines
+    assert len(failures) == 2 and all("--memory-budget SIZE" in line for line in failures), err
+
+
+def test_steps_refuses_a_floor_above_the_surface_before_stepping(tmp_path, capsys):
+    """``steps --solid --floor <too high>`` stepped the DEM first: the "heights on a threshold" warning printed before
+    the --floor error. The floor is refused before stepping now: the error alone."""
+    dem = tmp_path / "dem.npy"
+    heights = np.round(np.random.default_rng(0).random((12, 14)) * 100).astype(np.float32)
+    heights[0, 0] = 15.0  # on the threshold between 10 and 20
+    np.save(dem, heights)
+    code, out, err = run(capsys, "-q", "steps", dem, "--interval", "10", "--solid", "--floor", "50",
+                         "-o", tmp_path / "m.stl")
+    assert code == 2
+    assert err.startswith("stepterrain steps: error: --floor must lie below the lowest surface height 0 ")
+    assert "warning" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "m.stl").exists()

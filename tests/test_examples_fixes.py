@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from .conftest import needs_render
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
@@ -43,3 +45,34 @@ def test_interactive_refuses_an_image_name_it_cannot_write_before_rendering(tmp_
     assert "--output must end in .png" in capsys.readouterr().err
     assert example.main(["--output", str(tmp_path / "view.jpg"), "--interactive"]) == 0 and len(ran) == 1
     assert example.main(["--output", str(tmp_path / "view.PNG")]) == 0 and len(ran) == 2
+
+
+@needs_render
+def test_interactive_steps_the_dem_once_at_startup(monkeypatch):
+    """Both sliders and the sphere widget run their callback when created (pyvista does, to apply the initial value),
+    and each re-stepped the grid: the scene was stepped four times at startup, the same mesh every time. A setter
+    given the value the scene holds now keeps the mesh; a new value still re-steps once."""
+    import pyvista as pv
+
+    from stepterrain.pyvista_accessor import StepTerrainAccessor
+
+    example = load_example("interactive")
+    calls = []
+    real = StepTerrainAccessor.stepped
+    monkeypatch.setattr(StepTerrainAccessor, "stepped", lambda self, *a, **k: calls.append(a) or real(self, *a, **k))
+    plotter = pv.Plotter(off_screen=True, window_size=(160, 120))
+    try:
+        scene = example.build(plotter, example.dem_grid(24), device="cpu")
+        assert len(calls) == 1 and scene.mesh.n_cells > 0
+        (sphere,) = plotter.widgets.sphere_widgets
+        sphere.SetCenter(1000.0, 2000.0, 0.0)
+        sphere.InvokeEvent("EndInteractionEvent")
+        assert len(calls) == 2 and scene.lens_center == (1000.0, 2000.0)
+        interval_slider, _gamma_slider = plotter.widgets.slider_widgets
+        interval_slider.InvokeEvent("EndInteractionEvent")  # released where it was: nothing changes
+        assert len(calls) == 2
+        interval_slider.GetRepresentation().SetValue(2 * scene.interval)
+        interval_slider.InvokeEvent("EndInteractionEvent")
+        assert len(calls) == 3
+    finally:
+        plotter.close()

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import re
 
 import numpy as np
@@ -19,7 +18,7 @@ from stepterrain.terrain import as_terrain
 from .conftest import assert_valid_mesh
 from .test_stepped import compare_with_reference, projected_area
 
-stepped_module = importlib.import_module("stepterrain.stepped")  # the package's `stepped` is the function
+stepped_module = st.stepped  # the module, callable as its function stepped
 
 
 def test_isovalue_memo_is_built_from_the_float32_values_it_is_keyed_by():
@@ -254,3 +253,95 @@ def test_solid_of_a_tin_with_zero_area_faces_is_watertight(kind, low, rise, gamm
     surface = st.stepped(tin, interval=0.7, gamma=gamma)
     expected = float((projected_area(surface) * (surface.triangles[:, :, 2].mean(axis=1) + 1.0)).sum())
     assert mesh.volume == pytest.approx(expected, rel=1e-9)
+
+
+def test_the_package_attribute_stepped_is_the_module_and_its_entry_point():
+    """``stepterrain/__init__`` bound ``st.stepped`` to the function, so ``st.stepped.thresholds_of`` (and every name
+    of the module) raised AttributeError. It is now the module, callable as :func:`stepped` with stepped's signature
+    (the same helper as ``st.batch``), and it pickles by name, as the function does."""
+    import inspect
+    import pickle
+    import sys
+
+    import cloudpickle
+
+    from stepterrain.stepped import stepped
+
+    module = sys.modules["stepterrain.stepped"]
+    assert st.stepped is module
+    assert st.stepped.thresholds_of is thresholds_of and st.stepped.stepped is stepped
+    assert inspect.signature(st.stepped) == inspect.signature(stepped)
+    for dumps, loads in ((pickle.dumps, pickle.loads), (cloudpickle.dumps, cloudpickle.loads)):
+        assert loads(dumps(st.stepped)) is st.stepped
+        assert loads(dumps(stepped)) is stepped
+    heights = np.add.outer(np.arange(6.0), np.arange(6.0)).astype(np.float32)
+    mesh = st.stepped(heights, interval=2.0, device="cpu")
+    expected = stepped(heights, interval=2.0, device="cpu")
+    assert np.array_equal(mesh.vertices, expected.vertices) and np.array_equal(mesh.faces, expected.faces)
+    with pytest.raises(TypeError, match="intervals"):  # the call is stepped's: its keywords are checked
+        st.stepped(heights, intervals=2.0)
+
+
+def test_a_floor_above_the_surface_is_refused_before_stepping(monkeypatch):
+    """``stepped(solid=True, floor=...)`` stepped the whole terrain, warned that heights sit on thresholds, and only
+    then close_solid refused the floor (the CLI printed the warning, then the --floor error). A floor at or above
+    the lowest node's blended height is refused before stepping now, with no warning."""
+    import warnings
+
+    heights = np.array([[10.0, 15.0, 20.0], [15.0, 25.0, 30.0], [20.0, 30.0, 40.0]], np.float32)  # 15 on a threshold
+    stepped_calls = []
+    real = stepped_module._stepped_arrays
+    monkeypatch.setattr(stepped_module, "_stepped_arrays", lambda *a, **k: stepped_calls.append(1) or real(*a, **k))
+    cases = ((1.0, 10.0, "10"), (1.0, 12.0, "10"), (0.0, 10.0, "10"), (0.5, 11.0, "10"),
+             (np.full((3, 3), 0.5), 10.5, "at most 10"))
+    for gamma, floor, lowest in cases:
+        message = f"^floor must lie below the lowest surface height,? {lowest} "
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(st.InvalidInputError, match=message):
+                st.stepped(heights, interval=10.0, gamma=gamma, solid=True, floor=floor, device="cpu")
+        assert caught == [] and stepped_calls == []
+    with pytest.warns(UserWarning, match="on a threshold"):  # just below: stepped (and warned), then closed
+        mesh = st.stepped(heights, interval=10.0, solid=True, floor=9.5, device="cpu")
+    assert stepped_calls == [1] and mesh.vertices[:, 2].min() == 9.5
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    heights=st_.lists(st_.floats(-2e4, 2e4, width=32), min_size=12, max_size=12),
+    interval=st_.sampled_from([0.7, 3.0, 10.0, 40.0]),
+    gamma=st_.sampled_from([0.0, 1.0, 0.3, 0.5, 0.999, "array"]),
+    offset=st_.sampled_from([-1e-3, -1e-6, 0.0, 1e-6, 1e-3, 1.0]),
+    tin=st_.booleans(),
+)
+def test_the_early_floor_refusal_never_refuses_a_floor_the_solid_takes(heights, interval, gamma, offset, tin):
+    """The check before stepping refuses only floors that close_solid refuses after stepping: floors around the
+    lowest surface point (exactly on it, a float32 rounding away, a bit above or below), at γ 0, 1, in between and
+    per node, on grids and TINs."""
+    import warnings
+
+    z = np.array(heights, np.float32).reshape(3, 4)
+    terrain = st.heightfield_mesh(z) if tin else z
+    g = np.linspace(0.0, 1.0, 12).reshape((12,) if tin else (3, 4)) if gamma == "array" else gamma  # γ per node
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        surface = st.stepped(terrain, interval=interval, gamma=g, device="cpu")
+        floor = float(surface.vertices[:, 2].min()) + offset
+        try:
+            t = as_terrain(terrain)
+            stepped_module._refuse_floor_above_surface(t, st.isovalues(t.height_range, interval=interval), g, floor)
+        except st.InvalidInputError:
+            early = True
+        else:
+            early = False
+        try:
+            st.stepped(terrain, interval=interval, gamma=g, solid=True, floor=floor, device="cpu")
+        except st.InvalidInputError as exc:
+            assert "floor must lie below" in str(exc)
+            refused = True
+        else:
+            refused = False
+    assert refused == (floor >= surface.vertices[:, 2].min())  # the final word: close_solid's
+    assert refused or not early  # never a floor the solid takes
+    if offset >= 0 and not isinstance(g, np.ndarray) and g in (0.0, 1.0):
+        assert early  # γ 0 or 1: the lowest point is known exactly, so every such floor is refused before stepping
