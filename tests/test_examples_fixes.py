@@ -34,7 +34,7 @@ def test_batch_tiles_refuses_an_image_name_it_cannot_write_before_writing_tiles(
 
 
 def test_interactive_refuses_an_image_name_it_cannot_write_before_rendering(tmp_path, monkeypatch, capsys):
-    """--output view.jpg built the scene (stepping the DEM four times and rendering) before save_image refused the
+    """--output view.jpg built the scene (stepping the DEM and rendering) before save_image refused the
     name. Now a usage error before any work; --interactive writes no file, so any name goes there."""
     example = load_example("interactive")
     ran = []
