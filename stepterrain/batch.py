@@ -50,7 +50,9 @@ from .terrain import (
     check_mapped,
     finite_number,
     finite_or_nan,
+    finite_triangles,
     float32_heights,
+    lowest_used_height,
     number_or_nan,
     unmasked,
 )
@@ -405,18 +407,11 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
     )
 
 
-def _finite_triangles(finite: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Per cell of the last two axes, whether its triangles (n00, n01, n11) and (n00, n11, n10), as
-    kernels/stepped.py cuts it, have three finite heights (``finite``: the nodes')."""
-    n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
-    return n00 & n01 & n11, n00 & n11 & n10
-
-
 def _has_surface(terrain: Terrain) -> bool:
     """Whether some triangle of the grid has three finite heights."""
     if not terrain.has_nodata:
         return True
-    upper, lower = _finite_triangles(np.isfinite(terrain.heights))
+    upper, lower = finite_triangles(np.isfinite(terrain.heights))
     return bool(upper.any() or lower.any())
 
 
@@ -1203,22 +1198,14 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
         h = src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
     else:
-        finite = np.isfinite(src.heights)
-        upper, lower = _finite_triangles(finite)
-        used = np.zeros_like(finite)
-        used[..., :-1, :-1] |= upper | lower
-        used[..., :-1, 1:] |= upper
-        used[..., 1:, 1:] |= upper | lower
-        used[..., 1:, :-1] |= lower
-        if not used.any():
+        used_min = lowest_used_height(src.heights)
+        if used_min is None:
             return  # no surface at all: each item says so
-        h = float(np.min(src.heights, where=used, initial=np.inf))
-    from .stepped import thresholds_of
+        h = used_min
+    from .stepped import lowest_surface
 
-    isovalues = np.asarray(values, np.float32)
-    alpha = float(isovalues[np.searchsorted(thresholds_of(isovalues), np.float32(h), side="right")])
-    lowest = (1.0 - gamma) * h + gamma * alpha
-    if floor >= lowest:
+    lowest, alpha, _margin = lowest_surface(h, np.asarray(values, np.float32), gamma)
+    if floor >= lowest:  # without the rounding margin: a floor on the point itself is refused once, up front
         raise InvalidInputError(
             f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
             f"{src.name} (its lowest height {h:g} on the isovalue {alpha:g}, γ = {gamma:g}); got {floor:.9g}"

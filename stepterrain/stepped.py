@@ -60,6 +60,7 @@ from .terrain import (
     finite_number,
     first_index,
     is_real_dtype,
+    lowest_used_height,
     real_numbers,
     unmasked,
     unshared,
@@ -950,46 +951,59 @@ def stepped(
     )
 
 
-def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, floor: Any) -> None:
-    """Refuse, before stepping, a solid's ``floor`` that surely lies at or above the stepped surface's lowest point.
+def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -> tuple[float, float, float]:
+    """``(lowest, α, margin)``: the stepped surface's lowest point when ``h`` is the lowest height a triangle uses,
+    α the isovalue h snaps to (monotone in h: no node and no wall vertex lies lower at the same γ), and the float32
+    rounding of the kernel's blend. ``gamma``: a scalar in [0, 1], (1 − γ) h + γ α, exact (margin 0) at γ = 0 and
+    1; None for a per-node γ (an array, a callable, a lens), at most max(h, α). A solid's floor at or above
+    ``lowest + margin`` cannot lie below the surface (:func:`stepped` and :func:`~stepterrain.batch.batch` refuse
+    it before stepping; :func:`~stepterrain.mesh.close_solid` has the final word)."""
+    h32 = np.float32(h)
+    alpha = values[np.searchsorted(thresholds_of(values), h32, side="right")]
+    margin = 4.0 * float(np.spacing(max(abs(h32), abs(alpha))))
+    if gamma is None:
+        return max(float(h32), float(alpha)), float(alpha), margin
+    if gamma in (0.0, 1.0):  # (1 - γ) h + γ α is h or α, in float32 as the kernel computes it
+        return (float(alpha) if gamma == 1.0 else float(h32)), float(alpha), 0.0
+    return (1.0 - gamma) * float(h32) + gamma * float(alpha), float(alpha), margin
 
-    The node of the lowest height h snaps to its isovalue α (monotone in h: no node and no wall vertex lies lower at
-    the same γ) and is blended to (1 − γ) h + γ α in float32, exact at γ = 0 and 1 and within a few float32 ulps
-    otherwise; for a per-node γ (array, callable, lens) in [0, 1] it lies at most at max(h, α). A floor at or above
-    that (plus the rounding) cannot be below the surface, and stepping a large terrain (with its warnings) only to be
-    refused by :func:`~stepterrain.mesh.close_solid` wasted the work. Only where h is a surface node for sure: a TIN's
-    used points, a grid of at least 2 x 2 without nodata (else each node's triangles would have to be found). A
-    floor that is not a finite float32 number, or a γ out of range, is left to the checks after stepping."""
-    if t.kind == "grid" and (t.has_nodata or min(t.shape) < 2):
-        return
+
+def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, floor: Any) -> None:
+    """Refuse, before stepping, a solid's ``floor`` that surely lies at or above the stepped surface's lowest point
+    (:func:`lowest_surface` of the lowest height a triangle uses): stepping a large terrain (with its warnings) only to
+    be refused by :func:`~stepterrain.mesh.close_solid` wasted the work. A floor that is not a finite float32
+    number, or a γ out of range, is left to the checks after stepping."""
     try:
         floor_z = as_number(floor)
     except (TypeError, ValueError, OverflowError):
         raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
     if not (math.isfinite(floor_z) and abs(floor_z) <= FLOAT32_MAX):
         return
-    scalar = np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens)
-    if scalar:
+    g: float | None = None
+    if np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens):
         try:
             g = as_number(gamma)
         except (TypeError, ValueError, OverflowError):
             return
         if not 0.0 <= g <= 1.0:
             return
-    h = np.float32(t.height_range[0])
-    alpha = values[np.searchsorted(thresholds_of(values), h, side="right")]
-    ulps = 4.0 * float(np.spacing(max(abs(h), abs(alpha))))  # the float32 blend's rounding
-    if scalar:
-        exact = g in (0.0, 1.0)  # (1 - γ) h + γ α is h or α, in float32 as the kernel computes it
-        lowest = float(alpha) if g == 1.0 else float(h) if g == 0.0 else (1.0 - g) * float(h) + g * float(alpha)
-        if floor_z >= lowest + (0.0 if exact else ulps):
-            raise InvalidInputError(
-                f"floor must lie below the lowest surface height {lowest:.9g} (the lowest height {float(h):g} on the "
-                f"isovalue {float(alpha):g}, γ = {g:g}); got {floor_z:.9g}")
-    elif floor_z >= max(float(h), float(alpha)) + ulps:
+    if t.kind == "grid" and (t.has_nodata or min(t.shape) < 2):
+        used_min = lowest_used_height(t.heights)  # only the nodes a triangle with three finite heights uses
+        if used_min is None:
+            return  # no surface: refused after stepping, as it says
+        h = used_min
+    else:
+        h = t.height_range[0]  # a TIN's used points, or a grid without nodata: every node is a triangle's
+    lowest, alpha, margin = lowest_surface(h, values, g)
+    if floor_z < lowest + margin:
+        return
+    if g is not None:
         raise InvalidInputError(
-            f"floor must lie below the lowest surface height, at most {max(float(h), float(alpha)):.9g} (the lowest "
-            f"height {float(h):g} and its isovalue {float(alpha):g}, γ varying in [0, 1]); got {floor_z:.9g}")
+            f"floor must lie below the lowest surface height {lowest:.9g} (the lowest height {float(np.float32(h)):g} "
+            f"on the isovalue {alpha:g}, γ = {g:g}); got {floor_z:.9g}")
+    raise InvalidInputError(
+        f"floor must lie below the lowest surface height, at most {lowest:.9g} (the lowest height "
+        f"{float(np.float32(h)):g} and its isovalue {alpha:g}, γ varying in [0, 1]); got {floor_z:.9g}")
 
 
 def _assemble(

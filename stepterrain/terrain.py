@@ -89,6 +89,28 @@ def check_origin(origin: tuple[float, float], spacing: tuple[float, float], shap
             )
 
 
+def finite_triangles(finite: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Per cell of the last two axes, whether its triangles (n00, n01, n11) and (n00, n11, n10), as
+    kernels/stepped.py cuts it, have three finite heights (``finite``: the nodes')."""
+    n00, n01, n11, n10 = finite[..., :-1, :-1], finite[..., :-1, 1:], finite[..., 1:, 1:], finite[..., 1:, :-1]
+    return n00 & n01 & n11, n00 & n11 & n10
+
+
+def lowest_used_height(heights: NDArray[Any]) -> float | None:
+    """The lowest height of a grid node (or of a (T, H, W) stack's) that a triangle with three finite heights uses;
+    None when no triangle has. Nodes beside nodata that no such triangle uses are in no stepped mesh."""
+    finite = np.isfinite(heights)
+    upper, lower = finite_triangles(finite)
+    used = np.zeros_like(finite)
+    used[..., :-1, :-1] |= upper | lower
+    used[..., :-1, 1:] |= upper
+    used[..., 1:, 1:] |= upper | lower
+    used[..., 1:, :-1] |= lower
+    if not used.any():
+        return None
+    return float(np.min(heights, where=used, initial=np.inf))
+
+
 def is_real_dtype(dtype: np.dtype) -> bool:
     """True for a dtype of real numbers: signed or unsigned integers and floats, not bools. ``np.issubdtype(dtype,
     np.integer)`` also holds for ``timedelta64`` (numpy makes it a subtype of signedinteger): durations were taken

@@ -301,9 +301,21 @@ def test_a_floor_above_the_surface_is_refused_before_stepping(monkeypatch):
             with pytest.raises(st.InvalidInputError, match=message):
                 st.stepped(heights, interval=10.0, gamma=gamma, solid=True, floor=floor, device="cpu")
         assert caught == [] and stepped_calls == []
+    # with nodata the lowest height a triangle uses decides (grids with nodata were left to close_solid): -100 m
+    # sits in no triangle (its neighbours are nodata), the lowest used height is 25 m, on the threshold to 30 m
+    holed = heights.copy()
+    holed[0, 0], holed[0, 1], holed[1, 0] = -100.0, np.nan, np.nan
+    for gamma, floor, lowest in ((1.0, 30.0, "30"), (0.0, 26.0, "25")):
+        with pytest.raises(st.InvalidInputError, match=f"^floor must lie below the lowest surface height {lowest} "):
+            st.stepped(holed, interval=10.0, gamma=gamma, solid=True, floor=floor, device="cpu")
+        assert stepped_calls == []
     with pytest.warns(UserWarning, match="on a threshold"):  # just below: stepped (and warned), then closed
         mesh = st.stepped(heights, interval=10.0, solid=True, floor=9.5, device="cpu")
     assert stepped_calls == [1] and mesh.vertices[:, 2].min() == 9.5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # 25 m on a threshold
+        mesh = st.stepped(holed, interval=10.0, solid=True, floor=20.0, device="cpu")  # above -100 m, below 30 m
+    assert mesh.is_watertight and mesh.vertices[:, 2].min() == 20.0
 
 
 @settings(max_examples=40, deadline=None)
@@ -313,14 +325,17 @@ def test_a_floor_above_the_surface_is_refused_before_stepping(monkeypatch):
     gamma=st_.sampled_from([0.0, 1.0, 0.3, 0.5, 0.999, "array"]),
     offset=st_.sampled_from([-1e-3, -1e-6, 0.0, 1e-6, 1e-3, 1.0]),
     tin=st_.booleans(),
+    hole=st_.sampled_from([None, 0, 5, 11]),
 )
-def test_the_early_floor_refusal_never_refuses_a_floor_the_solid_takes(heights, interval, gamma, offset, tin):
+def test_the_early_floor_refusal_never_refuses_a_floor_the_solid_takes(heights, interval, gamma, offset, tin, hole):
     """The check before stepping refuses only floors that close_solid refuses after stepping: floors around the
     lowest surface point (exactly on it, a float32 rounding away, a bit above or below), at γ 0, 1, in between and
-    per node, on grids and TINs."""
+    per node, on grids and TINs, with a nodata node (a corner's hole leaves a node in no triangle)."""
     import warnings
 
     z = np.array(heights, np.float32).reshape(3, 4)
+    if hole is not None and not tin:  # a grid's nodata (a TIN drops its NaN points, and their γ with them)
+        z.reshape(-1)[hole] = np.nan
     terrain = st.heightfield_mesh(z) if tin else z
     g = np.linspace(0.0, 1.0, 12).reshape((12,) if tin else (3, 4)) if gamma == "array" else gamma  # γ per node
     with warnings.catch_warnings():
