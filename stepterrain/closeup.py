@@ -346,7 +346,8 @@ class ROI:
         """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees.
 
         The slope is the terrain's (central differences of its heights, as :meth:`height_band`'s grid, one texel per
-        node), also along the edge of a sub-``region``."""
+        node), also along the edge of a sub-``region``; next to nodata the one-sided difference to the neighbour with
+        a height. m = 0 at nodata nodes and where a node has no neighbour with a height along an axis."""
         d = _finite(degrees, "slope threshold")
         if not 0 <= d < 90:
             raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
@@ -442,8 +443,30 @@ class ROI:
         return lines
 
 
+def _gradient(heights: NDArray[np.floating], dy: float, dx: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(dh/dy along rows, dh/dx along columns) of a grid with NaN for nodata: ``np.gradient``'s central differences
+    (one-sided at the grid's edges) and, next to a hole, the one-sided difference to the finite neighbour (a central
+    difference there was NaN: slope 0 and aspect north, silently). NaN at a nodata node (np.gradient spanned it
+    from its neighbours) and where no neighbour along an axis has a height (both missing, or the one at the grid's
+    edge)."""
+    h = heights.astype(np.float64)
+    grads = list(np.gradient(h, dy, dx))
+    missing = np.isnan(h)
+    if not missing.any():
+        return grads[0], grads[1]
+    for axis, step in ((0, dy), (1, dx)):  # the two axes, each one vectorised pass
+        g = grads[axis]
+        hole = np.isnan(g) & ~missing
+        diff = np.diff(h, axis=axis) / step  # (h[k + 1] - h[k]) / step, as np.gradient's one-sided edges
+        pad = np.full_like(np.take(h, [0], axis=axis), np.nan)
+        forward = np.concatenate([diff, pad], axis=axis)  # at node k: towards k + 1
+        backward = np.concatenate([pad, diff], axis=axis)  # at node k: from k - 1
+        grads[axis] = np.where(missing, np.nan, np.where(hole, np.where(np.isnan(forward), backward, forward), g))
+    return grads[0], grads[1]
+
+
 def _slope(heights: NDArray[np.float32], dx: float, dy: float) -> NDArray[np.float64]:
-    gy, gx = np.gradient(heights.astype(np.float64), dy, dx)
+    gy, gx = _gradient(heights, dy, dx)
     return np.arctan(np.hypot(gx, gy))
 
 
@@ -596,6 +619,9 @@ class CloseUp:
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
+        Next to nodata the gradient takes the one-sided difference to the neighbour with a height; a node with
+        none along an axis (both neighbours missing) has no slope or aspect and shows in the colormap's "bad"
+        color (matplotlib's default: black), not as flat or facing north.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
         close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
@@ -855,7 +881,9 @@ class CloseUpLayer:
 
     ``mask_factor`` (V,) holds m per vertex, ``original`` (V, 3) V_O, ``faces`` index ``vertices``;
     ``source_faces`` (F,) are the faces' indices in the overview mesh (``Terrain.mesh()``; grid face
-    2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None.
+    2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None;
+    ``scalars`` (V,) the close-up's own ``scalars`` (metres, or radians for slope and aspect; NaN where the nearest
+    node has no gradient) or None.
     Everything but ``vertices`` and ``matrix`` depends on the ROI only and is shared, read-only, by the layers
     of every call with the same ROI objects (the cull is kept; only M is applied again).
     """
@@ -926,13 +954,16 @@ def _pivot_z(terrain: Terrain) -> float:
 
 
 def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: str) -> NDArray[np.float32]:
-    """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid."""
+    """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid (the nearest
+    node's, its gradient as :func:`_gradient` takes it next to nodata); NaN where that node has no gradient (a
+    nodata node, or no neighbour with a height along an axis), which :func:`_colors_for` shows in the colormap's
+    "bad" color rather than as slope 0 or aspect north."""
     if kind == "height" or terrain.kind != "grid":
         return points_local[:, 2].astype(np.float32)
     dx, dy = terrain.spacing
 
     def field() -> NDArray[np.float64]:  # once per terrain and kind, not per call (frames, close-ups)
-        gy, gx = np.gradient(terrain.heights.astype(np.float64), dy, dx)
+        gy, gx = _gradient(terrain.heights, dy, dx)
         if kind == "slope":
             return np.arctan(np.hypot(gx, gy))
         return np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
@@ -940,7 +971,7 @@ def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: s
     field_ = terrain.cached(("closeup", "scalar-field", kind), field)
     j = np.clip(np.rint(points_local[:, 0] / dx).astype(np.int64), 0, field_.shape[1] - 1)
     i = np.clip(np.rint(points_local[:, 1] / dy).astype(np.int64), 0, field_.shape[0] - 1)
-    return np.nan_to_num(field_[i, j]).astype(np.float32)
+    return field_[i, j].astype(np.float32)
 
 
 def _overview_rgb(t: Terrain, mesh: trimesh.Trimesh, scalars: str | None, cmap: str,
@@ -1644,7 +1675,8 @@ def render_closeups(
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
         Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR). Slope and aspect need a
-        grid terrain (a DEM); on a TIN they raise an InvalidInputError.
+        grid terrain (a DEM); on a TIN they raise an InvalidInputError. Next to nodata they use the one-sided
+        difference; a node without a neighbour with a height along an axis shows in ``cmap``'s "bad" color.
     texture : (h, w, 3|4) uint8, optional
         An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float
