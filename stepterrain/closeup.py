@@ -614,7 +614,9 @@ class CloseUp:
     view : "overview" or "billboard"
         Overview-dependent (same camera as the overview) or overview-independent: an orthographic image
         from the fixed direction ``billboard_view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]),
-        placed where the close-up is (§II.C).
+        placed where the close-up is (§II.C). The azimuth is the direction the view comes *from*, clockwise from
+        north (+y), as a camera's in :func:`stepterrain.render.render_mesh`: 0 looks from the north, π/2 from
+        the east, π (the default, at 89° elevation: nearly from above) from the south.
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"

@@ -428,3 +428,20 @@ def test_a_node_without_a_gradient_shows_the_colormaps_bad_color():
     assert none.sum() >= 2  # nodes (20, 11) and (0, 5)
     assert (rgb[none] == bad).all()
     assert not (rgb[~none] == bad).all(axis=1).any()
+
+
+def test_closeup_docstring_states_the_billboard_azimuth_convention_the_render_uses():
+    # CloseUp gave billboard_view as (azimuth, elevation) without saying where the azimuth counts from or which way
+    import inspect
+    import math
+
+    from stepterrain.render import _camera_position  # render_billboard's camera for billboard_view
+
+    doc = " ".join(inspect.getdoc(CloseUp).split())
+    part = doc[doc.index("billboard_view"):doc.index("stepped :")]
+    assert "clockwise from north" in part and "0 looks from the north, π/2 from the east" in part
+    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-2.0, 2.0) for z in (0.0, 0.5)])
+    for azimuth, from_xy in ((0.0, (0.0, 1.0)), (math.pi / 2, (1.0, 0.0)), (math.pi, (0.0, -1.0))):
+        eye, focal, _ = _camera_position((azimuth, 0.4), corners, 1.0)
+        seen_from = np.subtract(eye, focal)[:2]
+        np.testing.assert_allclose(seen_from / np.linalg.norm(seen_from), from_xy, atol=1e-9)
