@@ -1195,22 +1195,85 @@ class AnchorStrip:
     max_length: float
 
 
+def _nearest_vertex_heights(pts: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The z of the point of ``pts`` (P, 3) nearest to each of ``xy`` (N, 2) in projection."""
+    try:
+        from scipy.spatial import cKDTree
+    except ImportError:  # brute force in chunks of at most ~10 M distances
+        chunk = max(1, 10_000_000 // max(len(pts), 1))
+        idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
+                              for i in range(0, len(xy), chunk)])
+    else:
+        idx = cKDTree(pts[:, :2]).query(xy)[1]
+    return pts[idx, 2]
+
+
+def _tin_heights(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Heights of a TIN's drawn triangles at world ``xy`` (N, 2): each point's triangle found in projection and its
+    plane interpolated barycentrically (the nearest vertex's height left a fence foot above or below a coarse
+    TIN's face); points outside every triangle take the nearest used vertex's height.
+
+    Vectorised point location: the triangles whose box meets the points' box are binned on a uniform grid of cells
+    about one median triangle wide (each in every cell its box covers, clipped to the points' box), each point is
+    tested against the triangles of its cell, and the triangle that holds it most (largest smallest barycentric
+    coordinate, within 1e-9) wins."""
+    pts, faces = terrain.points, terrain.faces
+    if len(xy) == 0:
+        return np.zeros(0)
+    z = _nearest_vertex_heights(pts[terrain.point_used.astype(bool)], xy)
+    x0, y0 = xy.min(axis=0)
+    x1, y1 = xy.max(axis=0)
+    fx, fy = pts[:, 0][faces], pts[:, 1][faces]
+    lo_x, hi_x, lo_y, hi_y = fx.min(axis=1), fx.max(axis=1), fy.min(axis=1), fy.max(axis=1)
+    cand = np.flatnonzero((hi_x >= x0) & (lo_x <= x1) & (hi_y >= y0) & (lo_y <= y1))
+    if cand.size == 0:
+        return z
+    lo_x, hi_x, lo_y, hi_y = lo_x[cand], hi_x[cand], lo_y[cand], hi_y[cand]
+    span = max(x1 - x0, y1 - y0)
+    cell = max(float(np.median(np.maximum(hi_x - lo_x, hi_y - lo_y))), span / 4096, 1e-300)
+
+    def cells(v: NDArray[np.float64], v0: float, n: int) -> NDArray[np.int64]:  # monotone in v: a box holds its points
+        return np.clip(np.floor((v - v0) / cell), 0, n - 1).astype(np.int64)
+
+    while True:  # cells twice as wide while a few large triangles among many small ones would fill too many cells
+        nx, ny = int((x1 - x0) // cell) + 1, int((y1 - y0) // cell) + 1
+        cx0, cx1, cy0, cy1 = cells(lo_x, x0, nx), cells(hi_x, x0, nx), cells(lo_y, y0, ny), cells(hi_y, y0, ny)
+        wide = cx1 - cx0 + 1
+        count = wide * (cy1 - cy0 + 1)
+        if count.sum() <= 16 * (len(cand) + len(xy)) or nx * ny == 1:
+            break
+        cell *= 2
+    k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)  # index in the triangle's block
+    wide_r = np.repeat(wide, count)
+    binned = (np.repeat(cy0, count) + k // wide_r) * nx + np.repeat(cx0, count) + k % wide_r
+    order = np.argsort(binned, kind="stable")
+    binned, binned_face = binned[order], np.repeat(cand, count)[order]
+    foot_cell = cells(xy[:, 1], y0, ny) * nx + cells(xy[:, 0], x0, nx)
+    start = np.searchsorted(binned, foot_cell, side="left")
+    n = np.searchsorted(binned, foot_cell, side="right") - start
+    foot = np.repeat(np.arange(len(xy)), n)  # (foot, triangle) pairs to test
+    tri = faces[binned_face[np.repeat(start, n) + np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)]]
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    px, py = xy[foot, 0] - a[:, 0], xy[foot, 1] - a[:, 1]
+    bx, by, qx, qy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1], c[:, 0] - a[:, 0], c[:, 1] - a[:, 1]
+    det = bx * qy - qx * by  # > 0: the TIN is wound counter-clockwise; zero-area slivers are skipped
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = (px * qy - qx * py) / det, (bx * py - px * by) / det  # the weights of b and c
+    score = np.where(det > 0, np.minimum(np.minimum(u, v), 1 - u - v), -np.inf)
+    best = np.lexsort((-score, foot))
+    first = best[np.unique(foot[best], return_index=True)[1]]  # each foot's most-inside triangle
+    held = first[score[first] >= -1e-9]
+    z[foot[held]] = a[held, 2] + u[held] * (b[held, 2] - a[held, 2]) + v[held] * (c[held, 2] - a[held, 2])
+    return z
+
+
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Terrain heights at world xy: on the overview mesh's own triangles for a grid (each cell split along its
-    diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it: a bilinear
-    height left an anchor's foot up to a few metres above or below the drawn surface), nearest-vertex heights for a
-    TIN."""
+    """Terrain heights at world xy on the overview mesh's own triangles: for a grid each cell split along its
+    diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it (a bilinear
+    height left an anchor's foot up to a few metres above or below the drawn surface); for a TIN the triangle
+    holding the point (:func:`_tin_heights`; outside every triangle the nearest vertex's height)."""
     if terrain.kind != "grid":
-        pts = terrain.points[terrain.point_used.astype(bool)]
-        try:
-            from scipy.spatial import cKDTree
-        except ImportError:  # brute force in chunks of at most ~10 M distances
-            chunk = max(1, 10_000_000 // max(len(pts), 1))
-            idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
-                                  for i in range(0, len(xy), chunk)])
-        else:
-            idx = cKDTree(pts[:, :2]).query(xy)[1]
-        return pts[idx, 2]
+        return _tin_heights(terrain, xy)
     rows, cols = terrain.heights.shape
     (ox, oy), (dx, dy) = terrain.origin, terrain.spacing
     fx = np.clip((xy[:, 0] - ox) / dx, 0, cols - 1)
@@ -1240,8 +1303,9 @@ def anchor_strips(
     """The anchor fence of every close-up (§II.D), built by Warp kernels in one launch per stage.
 
     The ROI outline (the contour of the mask at ``anchor.outline_level``) is laid on the overview's terrain
-    (V_O); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O, consecutive points
-    a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
+    (V_O: the height of the drawn triangle under each point; on a TIN, a point outside every triangle takes the
+    nearest vertex's height); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O,
+    consecutive points a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
     transfer function at t (Fig. 4).
 
     Examples
@@ -1339,7 +1403,7 @@ def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> t
     outlines = [(k, line) for k, cu in enumerate(items) for line in cu.roi.outline(cu.anchor.outline_level)]
     if not outlines:
         return None
-    # the terrain under every outline point at once (a TIN builds its nearest-point search once)
+    # the terrain under every outline point at once (a TIN locates every point's triangle in one pass)
     all_z = np.split(_heights_at(t, np.concatenate([line for _, line in outlines])),
                      np.cumsum([len(line) for _, line in outlines])[:-1])
     tolerances = [_fence_tolerance(cu) for cu in items]

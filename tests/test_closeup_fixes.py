@@ -445,3 +445,37 @@ def test_closeup_docstring_states_the_billboard_azimuth_convention_the_render_us
         eye, focal, _ = _camera_position((azimuth, 0.4), corners, 1.0)
         seen_from = np.subtract(eye, focal)[:2]
         np.testing.assert_allclose(seen_from / np.linalg.norm(seen_from), from_xy, atol=1e-9)
+
+
+def test_anchor_feet_lie_on_a_coarse_tins_triangles():
+    # on a TIN each foot took the height of the nearest vertex: on a coarse TIN the fence floated above or sank
+    # below the drawn faces; the feet now lie on the triangle holding them, outside every triangle on the nearest
+    # vertex's height
+    import trimesh
+
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain, heightfield_mesh
+
+    rng = np.random.default_rng(5)
+    heights = (rng.normal(0.0, 25.0, (7, 8)) + 100.0).astype(np.float32)
+    grid = heightfield_mesh(heights, spacing=(40.0, 40.0))
+    vertices = np.asarray(grid.vertices, dtype=np.float64).copy()
+    interior = (vertices[:, 0] > 0) & (vertices[:, 0] < 280) & (vertices[:, 1] > 0) & (vertices[:, 1] < 240)
+    vertices[interior, :2] += rng.uniform(-12.0, 12.0, (int(interior.sum()), 2))  # irregular, still one-to-one
+    vertices[:, :2] += (388000.0, 3798000.0)  # UTM-sized coordinates
+    faces = np.asarray(grid.faces)
+    corner = vertices[faces, :2].mean(axis=1) - (388000.0, 3798000.0)
+    faces = faces[~((corner[:, 0] > 200) & (corner[:, 1] > 160))]  # a notch: part of the fence stands outside
+    t = Terrain.from_mesh(trimesh.Trimesh(vertices, faces, process=False))
+    cus = [CloseUp(ROI.circle((388000.0 + cx, 3798000.0 + cy), 55.0), offset=(0.0, 0.0, 200.0))
+           for cx, cy in ((120.0, 110.0), (235.0, 190.0))]
+    strips = anchor_strips(t, cus, device="cpu")
+    feet = np.concatenate([s.vertices[:: s.rungs + 1] for s in strips])
+    surface = surface_heights(vertices, faces, feet[:, :2])  # brute force over every triangle
+    used = vertices[np.unique(faces)]
+    nearest = used[np.argmin(((feet[:, None, :2] - used[None, :, :2]) ** 2).sum(-1), axis=1), 2]
+    inside = np.isfinite(surface)
+    assert inside.sum() > 40 and (~inside).sum() > 5
+    assert np.abs(nearest[inside] - surface[inside]).max() > 5.0  # the nearest vertex is far off the faces here
+    np.testing.assert_allclose(feet[inside, 2], surface[inside], atol=1e-3)
+    np.testing.assert_allclose(feet[~inside, 2], nearest[~inside], atol=1e-3)
