@@ -346,7 +346,8 @@ class ROI:
         """A generated mask: m = 1 where the slope exceeds ``degrees``, ramping over ``edge`` degrees.
 
         The slope is the terrain's (central differences of its heights, as :meth:`height_band`'s grid, one texel per
-        node), also along the edge of a sub-``region``."""
+        node), also along the edge of a sub-``region``; next to nodata the one-sided difference to the neighbour with
+        a height. m = 0 at nodata nodes and where a node has no neighbour with a height along an axis."""
         d = _finite(degrees, "slope threshold")
         if not 0 <= d < 90:
             raise InvalidInputError(f"slope threshold must lie in [0, 90) degrees; got {degrees}")
@@ -442,8 +443,30 @@ class ROI:
         return lines
 
 
+def _gradient(heights: NDArray[np.floating], dy: float, dx: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(dh/dy along rows, dh/dx along columns) of a grid with NaN for nodata: ``np.gradient``'s central differences
+    (one-sided at the grid's edges) and, next to a hole, the one-sided difference to the finite neighbour (a central
+    difference there was NaN: slope 0 and aspect north, silently). NaN at a nodata node (np.gradient spanned it
+    from its neighbours) and where no neighbour along an axis has a height (both missing, or the one at the grid's
+    edge)."""
+    h = heights.astype(np.float64)
+    grads = list(np.gradient(h, dy, dx))
+    missing = np.isnan(h)
+    if not missing.any():
+        return grads[0], grads[1]
+    for axis, step in ((0, dy), (1, dx)):  # the two axes, each one vectorised pass
+        g = grads[axis]
+        hole = np.isnan(g) & ~missing
+        diff = np.diff(h, axis=axis) / step  # (h[k + 1] - h[k]) / step, as np.gradient's one-sided edges
+        pad = np.full_like(np.take(h, [0], axis=axis), np.nan)
+        forward = np.concatenate([diff, pad], axis=axis)  # at node k: towards k + 1
+        backward = np.concatenate([pad, diff], axis=axis)  # at node k: from k - 1
+        grads[axis] = np.where(missing, np.nan, np.where(hole, np.where(np.isnan(forward), backward, forward), g))
+    return grads[0], grads[1]
+
+
 def _slope(heights: NDArray[np.float32], dx: float, dy: float) -> NDArray[np.float64]:
-    gy, gx = np.gradient(heights.astype(np.float64), dy, dx)
+    gy, gx = _gradient(heights, dy, dx)
     return np.arctan(np.hypot(gx, gy))
 
 
@@ -591,11 +614,16 @@ class CloseUp:
     view : "overview" or "billboard"
         Overview-dependent (same camera as the overview) or overview-independent: an orthographic image
         from the fixed direction ``billboard_view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]),
-        placed where the close-up is (§II.C).
+        placed where the close-up is (§II.C). The azimuth is the direction the view comes *from*, clockwise from
+        north (+y), as a camera's in :func:`stepterrain.render.render_mesh`: 0 looks from the north, π/2 from
+        the east, π (the default, at 89° elevation: nearly from above) from the south.
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
     scalars : None, "height", "slope" or "aspect"
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
+        Next to nodata the gradient takes the one-sided difference to the neighbour with a height; a node with
+        none along an axis (both neighbours missing) has no slope or aspect and shows in the colormap's "bad"
+        color (matplotlib's default: black), not as flat or facing north.
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
         close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
@@ -855,7 +883,9 @@ class CloseUpLayer:
 
     ``mask_factor`` (V,) holds m per vertex, ``original`` (V, 3) V_O, ``faces`` index ``vertices``;
     ``source_faces`` (F,) are the faces' indices in the overview mesh (``Terrain.mesh()``; grid face
-    2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None.
+    2·cell + t, cells row-major, for a DEM; −1 for an MPFR stepped close-up); ``colors`` (V, 3) uint8 or None;
+    ``scalars`` (V,) the close-up's own ``scalars`` (metres, or radians for slope and aspect; NaN where the nearest
+    node has no gradient) or None.
     Everything but ``vertices`` and ``matrix`` depends on the ROI only and is shared, read-only, by the layers
     of every call with the same ROI objects (the cull is kept; only M is applied again).
     """
@@ -926,13 +956,16 @@ def _pivot_z(terrain: Terrain) -> float:
 
 
 def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: str) -> NDArray[np.float32]:
-    """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid."""
+    """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid (the nearest
+    node's, its gradient as :func:`_gradient` takes it next to nodata); NaN where that node has no gradient (a
+    nodata node, or no neighbour with a height along an axis), which :func:`_colors_for` shows in the colormap's
+    "bad" color rather than as slope 0 or aspect north."""
     if kind == "height" or terrain.kind != "grid":
         return points_local[:, 2].astype(np.float32)
     dx, dy = terrain.spacing
 
     def field() -> NDArray[np.float64]:  # once per terrain and kind, not per call (frames, close-ups)
-        gy, gx = np.gradient(terrain.heights.astype(np.float64), dy, dx)
+        gy, gx = _gradient(terrain.heights, dy, dx)
         if kind == "slope":
             return np.arctan(np.hypot(gx, gy))
         return np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
@@ -940,7 +973,7 @@ def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: s
     field_ = terrain.cached(("closeup", "scalar-field", kind), field)
     j = np.clip(np.rint(points_local[:, 0] / dx).astype(np.int64), 0, field_.shape[1] - 1)
     i = np.clip(np.rint(points_local[:, 1] / dy).astype(np.int64), 0, field_.shape[0] - 1)
-    return np.nan_to_num(field_[i, j]).astype(np.float32)
+    return field_[i, j].astype(np.float32)
 
 
 def _overview_rgb(t: Terrain, mesh: trimesh.Trimesh, scalars: str | None, cmap: str,
@@ -1162,22 +1195,85 @@ class AnchorStrip:
     max_length: float
 
 
+def _nearest_vertex_heights(pts: NDArray[np.float64], xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The z of the point of ``pts`` (P, 3) nearest to each of ``xy`` (N, 2) in projection."""
+    try:
+        from scipy.spatial import cKDTree
+    except ImportError:  # brute force in chunks of at most ~10 M distances
+        chunk = max(1, 10_000_000 // max(len(pts), 1))
+        idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
+                              for i in range(0, len(xy), chunk)])
+    else:
+        idx = cKDTree(pts[:, :2]).query(xy)[1]
+    return pts[idx, 2]
+
+
+def _tin_heights(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Heights of a TIN's drawn triangles at world ``xy`` (N, 2): each point's triangle found in projection and its
+    plane interpolated barycentrically (the nearest vertex's height left a fence foot above or below a coarse
+    TIN's face); points outside every triangle take the nearest used vertex's height.
+
+    Vectorised point location: the triangles whose box meets the points' box are binned on a uniform grid of cells
+    about one median triangle wide (each in every cell its box covers, clipped to the points' box), each point is
+    tested against the triangles of its cell, and the triangle that holds it most (largest smallest barycentric
+    coordinate, within 1e-9) wins."""
+    pts, faces = terrain.points, terrain.faces
+    if len(xy) == 0:
+        return np.zeros(0)
+    z = _nearest_vertex_heights(pts[terrain.point_used.astype(bool)], xy)
+    x0, y0 = xy.min(axis=0)
+    x1, y1 = xy.max(axis=0)
+    fx, fy = pts[:, 0][faces], pts[:, 1][faces]
+    lo_x, hi_x, lo_y, hi_y = fx.min(axis=1), fx.max(axis=1), fy.min(axis=1), fy.max(axis=1)
+    cand = np.flatnonzero((hi_x >= x0) & (lo_x <= x1) & (hi_y >= y0) & (lo_y <= y1))
+    if cand.size == 0:
+        return z
+    lo_x, hi_x, lo_y, hi_y = lo_x[cand], hi_x[cand], lo_y[cand], hi_y[cand]
+    span = max(x1 - x0, y1 - y0)
+    cell = max(float(np.median(np.maximum(hi_x - lo_x, hi_y - lo_y))), span / 4096, 1e-300)
+
+    def cells(v: NDArray[np.float64], v0: float, n: int) -> NDArray[np.int64]:  # monotone in v: a box holds its points
+        return np.clip(np.floor((v - v0) / cell), 0, n - 1).astype(np.int64)
+
+    while True:  # cells twice as wide while a few large triangles among many small ones would fill too many cells
+        nx, ny = int((x1 - x0) // cell) + 1, int((y1 - y0) // cell) + 1
+        cx0, cx1, cy0, cy1 = cells(lo_x, x0, nx), cells(hi_x, x0, nx), cells(lo_y, y0, ny), cells(hi_y, y0, ny)
+        wide = cx1 - cx0 + 1
+        count = wide * (cy1 - cy0 + 1)
+        if count.sum() <= 16 * (len(cand) + len(xy)) or nx * ny == 1:
+            break
+        cell *= 2
+    k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)  # index in the triangle's block
+    wide_r = np.repeat(wide, count)
+    binned = (np.repeat(cy0, count) + k // wide_r) * nx + np.repeat(cx0, count) + k % wide_r
+    order = np.argsort(binned, kind="stable")
+    binned, binned_face = binned[order], np.repeat(cand, count)[order]
+    foot_cell = cells(xy[:, 1], y0, ny) * nx + cells(xy[:, 0], x0, nx)
+    start = np.searchsorted(binned, foot_cell, side="left")
+    n = np.searchsorted(binned, foot_cell, side="right") - start
+    foot = np.repeat(np.arange(len(xy)), n)  # (foot, triangle) pairs to test
+    tri = faces[binned_face[np.repeat(start, n) + np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)]]
+    a, b, c = pts[tri[:, 0]], pts[tri[:, 1]], pts[tri[:, 2]]
+    px, py = xy[foot, 0] - a[:, 0], xy[foot, 1] - a[:, 1]
+    bx, by, qx, qy = b[:, 0] - a[:, 0], b[:, 1] - a[:, 1], c[:, 0] - a[:, 0], c[:, 1] - a[:, 1]
+    det = bx * qy - qx * by  # > 0: the TIN is wound counter-clockwise; zero-area slivers are skipped
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u, v = (px * qy - qx * py) / det, (bx * py - px * by) / det  # the weights of b and c
+    score = np.where(det > 0, np.minimum(np.minimum(u, v), 1 - u - v), -np.inf)
+    best = np.lexsort((-score, foot))
+    first = best[np.unique(foot[best], return_index=True)[1]]  # each foot's most-inside triangle
+    held = first[score[first] >= -1e-9]
+    z[foot[held]] = a[held, 2] + u[held] * (b[held, 2] - a[held, 2]) + v[held] * (c[held, 2] - a[held, 2])
+    return z
+
+
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Terrain heights at world xy: on the overview mesh's own triangles for a grid (each cell split along its
-    diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it: a bilinear
-    height left an anchor's foot up to a few metres above or below the drawn surface), nearest-vertex heights for a
-    TIN."""
+    """Terrain heights at world xy on the overview mesh's own triangles: for a grid each cell split along its
+    diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it (a bilinear
+    height left an anchor's foot up to a few metres above or below the drawn surface); for a TIN the triangle
+    holding the point (:func:`_tin_heights`; outside every triangle the nearest vertex's height)."""
     if terrain.kind != "grid":
-        pts = terrain.points[terrain.point_used.astype(bool)]
-        try:
-            from scipy.spatial import cKDTree
-        except ImportError:  # brute force in chunks of at most ~10 M distances
-            chunk = max(1, 10_000_000 // max(len(pts), 1))
-            idx = np.concatenate([np.argmin(((pts[None, :, :2] - xy[i: i + chunk, None, :]) ** 2).sum(-1), axis=1)
-                                  for i in range(0, len(xy), chunk)])
-        else:
-            idx = cKDTree(pts[:, :2]).query(xy)[1]
-        return pts[idx, 2]
+        return _tin_heights(terrain, xy)
     rows, cols = terrain.heights.shape
     (ox, oy), (dx, dy) = terrain.origin, terrain.spacing
     fx = np.clip((xy[:, 0] - ox) / dx, 0, cols - 1)
@@ -1207,8 +1303,9 @@ def anchor_strips(
     """The anchor fence of every close-up (§II.D), built by Warp kernels in one launch per stage.
 
     The ROI outline (the contour of the mask at ``anchor.outline_level``) is laid on the overview's terrain
-    (V_O); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O, consecutive points
-    a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
+    (V_O: the height of the drawn triangle under each point; on a TIN, a point outside every triangle takes the
+    nearest vertex's height); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O,
+    consecutive points a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
     transfer function at t (Fig. 4).
 
     Examples
@@ -1306,7 +1403,7 @@ def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> t
     outlines = [(k, line) for k, cu in enumerate(items) for line in cu.roi.outline(cu.anchor.outline_level)]
     if not outlines:
         return None
-    # the terrain under every outline point at once (a TIN builds its nearest-point search once)
+    # the terrain under every outline point at once (a TIN locates every point's triangle in one pass)
     all_z = np.split(_heights_at(t, np.concatenate([line for _, line in outlines])),
                      np.cumsum([len(line) for _, line in outlines])[:-1])
     tolerances = [_fence_tolerance(cu) for cu in items]
@@ -1644,7 +1741,8 @@ def render_closeups(
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
         Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR). Slope and aspect need a
-        grid terrain (a DEM); on a TIN they raise an InvalidInputError.
+        grid terrain (a DEM); on a TIN they raise an InvalidInputError. Next to nodata they use the one-sided
+        difference; a node without a neighbour with a height along an axis shows in ``cmap``'s "bad" color.
     texture : (h, w, 3|4) uint8, optional
         An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float

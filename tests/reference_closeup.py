@@ -77,3 +77,26 @@ def surface_heights(vertices: np.ndarray, faces: np.ndarray, xy: np.ndarray) -> 
             z = corners[f, :, 2]
             out[n] = z[0] + u[f] * (z[1] - z[0]) + v[f] * (z[2] - z[0])
     return out
+
+
+def nodata_gradient(heights: np.ndarray, dy: float, dx: float) -> tuple[np.ndarray, np.ndarray]:
+    """(dh/dy, dh/dx) of a grid with NaN for nodata, node by node and axis by axis: the central difference where both
+    neighbours have a height, else the one-sided difference to the one that has; NaN where none has (or the node is
+    nodata). Steps are signed: the derivatives are along the world's +y and +x."""
+    h = np.asarray(heights, dtype=np.float64)
+    rows, cols = h.shape
+    out = np.full((2, rows, cols), np.nan)
+    for i in range(rows):  # plainly, one node at a time
+        for j in range(cols):
+            if math.isnan(h[i, j]):
+                continue
+            for axis, (di, dj), step in ((0, (1, 0), dy), (1, (0, 1), dx)):
+                before = h[i - di, j - dj] if i - di >= 0 and j - dj >= 0 else math.nan
+                after = h[i + di, j + dj] if i + di < rows and j + dj < cols else math.nan
+                if not math.isnan(before) and not math.isnan(after):
+                    out[axis, i, j] = (after - before) / (2.0 * step)
+                elif not math.isnan(after):
+                    out[axis, i, j] = (after - h[i, j]) / step
+                elif not math.isnan(before):
+                    out[axis, i, j] = (h[i, j] - before) / step
+    return out[0], out[1]

@@ -12,7 +12,7 @@ from stepterrain import render
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
-from .reference_closeup import surface_heights
+from .reference_closeup import nodata_gradient, surface_heights
 from .test_closeup import hills
 from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
 
@@ -336,3 +336,146 @@ def test_anchor_feet_lie_on_the_overview_surface(spacing):
     surface = surface_heights(np.asarray(mesh.vertices), np.asarray(mesh.faces), feet[:, :2])
     assert len(feet) > 20
     np.testing.assert_allclose(feet[:, 2], surface, atol=1e-3)
+
+
+def holed(seed: int = 2) -> np.ndarray:
+    """Hills with nodata: a 3 x 3 hole, node (20, 11) between two missing nodes along x, a lone missing node, and
+    node (0, 5) at the grid's edge whose only neighbour along y is missing."""
+    heights = hills(33, 41, seed=seed)
+    heights[10:13, 15:18] = np.nan
+    heights[20, 10] = heights[20, 12] = np.nan
+    heights[5, 30] = np.nan
+    heights[1, 5] = np.nan
+    return heights
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (3.0, -2.0), (-2.5, 1.5)])
+@pytest.mark.parametrize("kind", ["slope", "aspect"])
+def test_slope_and_aspect_next_to_nodata_take_the_one_sided_difference(spacing, kind):
+    # np.gradient gave NaN at every node next to a hole, then nan_to_num made it slope 0 / aspect north (0)
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = holed()
+    (ox, oy), (dx, dy) = (1000.0, 2000.0), spacing
+    t = Terrain.from_heights(heights, spacing=spacing, origin=(ox, oy))
+    xmin, xmax, ymin, ymax = t.extent
+    roi = ROI.rectangle(((xmin + xmax) / 2, (ymin + ymax) / 2), (xmax - xmin, ymax - ymin), edge_width=0.5)
+    (layer,) = closeup_layers(t, [CloseUp(roi, scalars=kind)], device="cpu")
+    fj, fi = (layer.original[:, 0] - ox) / dx, (layer.original[:, 1] - oy) / dy
+    j, i = np.rint(fj).astype(int), np.rint(fi).astype(int)
+    np.testing.assert_allclose(np.column_stack([fj, fi]), np.column_stack([j, i]), atol=1e-6)  # at the nodes
+    gy, gx = nodata_gradient(heights, dy, dx)  # world +y and +x
+    expected = np.arctan(np.hypot(gx, gy)) if kind == "slope" else np.mod(np.arctan2(-gx, -gy), 2 * np.pi)
+    expected = expected[i, j]
+    plain_gy, plain_gx = np.gradient(heights.astype(np.float64), dy, dx)
+    one_sided = ~np.isfinite(plain_gx[i, j] + plain_gy[i, j]) & np.isfinite(expected)
+    assert one_sided.sum() > 20 and np.isnan(expected).sum() >= 2  # (20, 11) and (0, 5) are drawn, without gradient
+    np.testing.assert_allclose(layer.scalars, expected, rtol=1e-6, atol=1e-6, equal_nan=True)
+
+
+@pytest.mark.parametrize("spacing", [(2.0, 3.0), (3.0, -2.0), (-2.5, 1.5)])
+@pytest.mark.parametrize("region", [False, True])
+def test_slope_above_next_to_nodata_takes_the_one_sided_difference(spacing, region):
+    # next to a hole the slope was NaN, so m = 0 there however steep the terrain: a steep rim left out of the ROI
+    from stepterrain.terrain import Terrain
+
+    heights = holed(seed=3)
+    dx, dy = spacing
+    t = Terrain.from_heights(heights, spacing=spacing, origin=(500.0, -300.0))
+    xmin, xmax, ymin, ymax = t.extent
+    window = (slice(None), slice(None))
+    box = None
+    if region:  # nodes 4..24 along y and 8..35 along x of the grid as the ROI sees it (rows at increasing y)
+        box = (xmin + 8 * abs(dx), xmin + 35 * abs(dx), ymin + 4 * abs(dy), ymin + 24 * abs(dy))
+        window = (slice(4, 25), slice(8, 36))
+    roi = ROI.slope_above(t, 25.0, edge=10.0, region=box)
+    gy, gx = nodata_gradient(heights, dy, dx)
+    slope = np.degrees(np.arctan(np.hypot(gx, gy)))
+    expected = np.nan_to_num(np.clip((slope - 25.0) / 10.0, 0, 1), nan=0.0)
+    plain_gy, plain_gx = np.gradient(heights.astype(np.float64), dy, dx)  # the slope before the fix
+    plain = np.clip((np.degrees(np.arctan(np.hypot(plain_gx, plain_gy))) - 25.0) / 10.0, 0, 1)
+    flip = (slice(None, None, -1 if dy < 0 else 1), slice(None, None, -1 if dx < 0 else 1))  # rows at increasing y
+    expected, plain = expected[flip][window], plain[flip][window]
+    assert roi.mask.shape == expected.shape
+    one_sided = np.isnan(plain) & (expected > 0)
+    assert one_sided.sum() >= 3
+    np.testing.assert_allclose(roi.mask, expected, atol=1e-6)
+    away = np.isfinite(plain) & np.isfinite(heights[flip][window])  # away from holes: the bits np.gradient gave
+    np.testing.assert_array_equal(roi.mask[away], plain[away].astype(roi.mask.dtype))
+
+
+def test_a_node_without_a_gradient_shows_the_colormaps_bad_color():
+    # a drawn node with no neighbour with a height along x (both missing) was colored as slope 0; it has no slope
+    import matplotlib
+
+    from stepterrain.terrain import Terrain
+
+    heights = holed()
+    t = Terrain.from_heights(heights, spacing=(2.0, -3.0), origin=(0.0, 0.0))
+    cu = CloseUp(ROI.circle((22.0, -60.0), 8.0), offset=(0.0, 0.0, 30.0))
+    scene = closeup_scene(t, [cu], scalars="slope", cmap="magma", device="cpu")
+    overview = np.unique(scene.faces[scene.face_attributes["layer"] == 0])
+    rgb = np.asarray(scene.visual.vertex_colors)[overview, :3]
+    xy = np.asarray(scene.vertices)[overview, :2]
+    table = matplotlib.colormaps["magma"]
+    bad = (np.asarray(table.get_bad())[:3] * 255 + 0.5).astype(np.uint8)
+    flat = (np.asarray(table(0.0))[:3] * 255 + 0.5).astype(np.uint8)
+    assert not np.array_equal(bad, flat)
+    gy, gx = nodata_gradient(heights, -3.0, 2.0)
+    j, i = np.rint(xy[:, 0] / 2.0).astype(int), np.rint(xy[:, 1] / -3.0).astype(int)
+    none = np.isnan(gx[i, j] + gy[i, j])
+    assert none.sum() >= 2  # nodes (20, 11) and (0, 5)
+    assert (rgb[none] == bad).all()
+    assert not (rgb[~none] == bad).all(axis=1).any()
+
+
+def test_closeup_docstring_states_the_billboard_azimuth_convention_the_render_uses():
+    # CloseUp gave billboard_view as (azimuth, elevation) without saying where the azimuth counts from or which way
+    import inspect
+    import math
+
+    from stepterrain.render import _camera_position  # render_billboard's camera for billboard_view
+
+    doc = " ".join(inspect.getdoc(CloseUp).split())
+    part = doc[doc.index("billboard_view"):doc.index("stepped :")]
+    assert "clockwise from north" in part and "0 looks from the north, π/2 from the east" in part
+    corners = np.array([[x, y, z] for x in (-1.0, 1.0) for y in (-2.0, 2.0) for z in (0.0, 0.5)])
+    for azimuth, from_xy in ((0.0, (0.0, 1.0)), (math.pi / 2, (1.0, 0.0)), (math.pi, (0.0, -1.0))):
+        eye, focal, _ = _camera_position((azimuth, 0.4), corners, 1.0)
+        seen_from = np.subtract(eye, focal)[:2]
+        np.testing.assert_allclose(seen_from / np.linalg.norm(seen_from), from_xy, atol=1e-9)
+
+
+def test_anchor_feet_lie_on_a_coarse_tins_triangles():
+    # on a TIN each foot took the height of the nearest vertex: on a coarse TIN the fence floated above or sank
+    # below the drawn faces; the feet now lie on the triangle holding them, outside every triangle on the nearest
+    # vertex's height
+    import trimesh
+
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain, heightfield_mesh
+
+    rng = np.random.default_rng(5)
+    heights = (rng.normal(0.0, 25.0, (7, 8)) + 100.0).astype(np.float32)
+    grid = heightfield_mesh(heights, spacing=(40.0, 40.0))
+    vertices = np.asarray(grid.vertices, dtype=np.float64).copy()
+    interior = (vertices[:, 0] > 0) & (vertices[:, 0] < 280) & (vertices[:, 1] > 0) & (vertices[:, 1] < 240)
+    vertices[interior, :2] += rng.uniform(-12.0, 12.0, (int(interior.sum()), 2))  # irregular, still one-to-one
+    vertices[:, :2] += (388000.0, 3798000.0)  # UTM-sized coordinates
+    faces = np.asarray(grid.faces)
+    corner = vertices[faces, :2].mean(axis=1) - (388000.0, 3798000.0)
+    faces = faces[~((corner[:, 0] > 200) & (corner[:, 1] > 160))]  # a notch: part of the fence stands outside
+    t = Terrain.from_mesh(trimesh.Trimesh(vertices, faces, process=False))
+    cus = [CloseUp(ROI.circle((388000.0 + cx, 3798000.0 + cy), 55.0), offset=(0.0, 0.0, 200.0))
+           for cx, cy in ((120.0, 110.0), (235.0, 190.0))]
+    strips = anchor_strips(t, cus, device="cpu")
+    feet = np.concatenate([s.vertices[:: s.rungs + 1] for s in strips])
+    surface = surface_heights(vertices, faces, feet[:, :2])  # brute force over every triangle
+    used = vertices[np.unique(faces)]
+    nearest = used[np.argmin(((feet[:, None, :2] - used[None, :, :2]) ** 2).sum(-1), axis=1), 2]
+    inside = np.isfinite(surface)
+    assert inside.sum() > 40 and (~inside).sum() > 5
+    assert np.abs(nearest[inside] - surface[inside]).max() > 5.0  # the nearest vertex is far off the faces here
+    np.testing.assert_allclose(feet[inside, 2], surface[inside], atol=1e-3)
+    np.testing.assert_allclose(feet[~inside, 2], nearest[~inside], atol=1e-3)
