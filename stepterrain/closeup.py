@@ -623,7 +623,8 @@ class CloseUp:
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
         Next to nodata the gradient takes the one-sided difference to the neighbour with a height; a node with
         none along an axis (both neighbours missing) has no slope or aspect and shows in the colormap's "bad"
-        color (matplotlib's default: black), not as flat or facing north.
+        color (matplotlib's default: black), not as flat or facing north; so does the aspect of flat ground,
+        which has no downhill direction (it showed as south).
     texture : (h, w, 3|4) uint8 image, optional
         An aerial image over the terrain's extent (row 0 at the north, i.e. the upper y) draped over the
         close-up instead (MPFR with a surface texture, §IV.B); sampled bilinearly per vertex. Kept as a
@@ -958,8 +959,8 @@ def _pivot_z(terrain: Terrain) -> float:
 def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: str) -> NDArray[np.float32]:
     """Height, slope (radians) or aspect (radians clockwise from north) at local points, from the grid (the nearest
     node's, its gradient as :func:`_gradient` takes it next to nodata); NaN where that node has no gradient (a
-    nodata node, or no neighbour with a height along an axis), which :func:`_colors_for` shows in the colormap's
-    "bad" color rather than as slope 0 or aspect north."""
+    nodata node, or no neighbour with a height along an axis), and the aspect of flat ground (no downhill
+    direction), which :func:`_colors_for` shows in the colormap's "bad" color rather than as slope 0 or an aspect."""
     if kind == "height" or terrain.kind != "grid":
         return points_local[:, 2].astype(np.float32)
     dx, dy = terrain.spacing
@@ -968,7 +969,9 @@ def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: s
         gy, gx = _gradient(terrain.heights, dy, dx)
         if kind == "slope":
             return np.arctan(np.hypot(gx, gy))
-        return np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
+        aspect = np.mod(np.arctan2(-gx, -gy), 2 * np.pi)  # the downhill direction, clockwise from north
+        # flat ground has no downhill direction (as gdaldem's aspect marks it): arctan2(-0, -0) said south, silently
+        return np.where((gx == 0) & (gy == 0), np.nan, aspect)
 
     field_ = terrain.cached(("closeup", "scalar-field", kind), field)
     j = np.clip(np.rint(points_local[:, 0] / dx).astype(np.int64), 0, field_.shape[1] - 1)
@@ -1742,7 +1745,8 @@ def render_closeups(
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
         Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR). Slope and aspect need a
         grid terrain (a DEM); on a TIN they raise an InvalidInputError. Next to nodata they use the one-sided
-        difference; a node without a neighbour with a height along an axis shows in ``cmap``'s "bad" color.
+        difference; a node without a neighbour with a height along an axis shows in ``cmap``'s "bad" color, and
+        so does the aspect of flat ground (no downhill direction).
     texture : (h, w, 3|4) uint8, optional
         An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float

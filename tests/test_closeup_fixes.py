@@ -479,3 +479,20 @@ def test_anchor_feet_lie_on_a_coarse_tins_triangles():
     assert np.abs(nearest[inside] - surface[inside]).max() > 5.0  # the nearest vertex is far off the faces here
     np.testing.assert_allclose(feet[inside, 2], surface[inside], atol=1e-3)
     np.testing.assert_allclose(feet[~inside, 2], nearest[~inside], atol=1e-3)
+
+
+def test_flat_ground_has_no_aspect():
+    """arctan2(-0, -0) mod 2π is π: a flat node (a lake, a plateau) was coloured as facing south. It has no downhill
+    direction: NaN, the colormap's "bad" colour, as gdaldem's aspect marks flat ground. Sloping nodes keep their
+    aspect, clockwise from north (a plane falling to the east: π/2)."""
+    from stepterrain.closeup import _vertex_scalars
+    from stepterrain.terrain import Terrain
+
+    heights = np.zeros((6, 7))
+    heights[:, 4:] = -np.arange(3.0) - 1.0  # flat to column 3, then falling to the east (x grows with the column)
+    t = Terrain.from_heights(heights, spacing=(1.0, 1.0))
+    jj, ii = np.meshgrid(np.arange(7), np.arange(6))
+    points = np.column_stack([jj.ravel(), ii.ravel(), heights.ravel()]).astype(np.float32)
+    aspect = _vertex_scalars(t, points, "aspect").reshape(6, 7)
+    assert np.isnan(aspect[:, :3]).all()  # flat: no aspect (was π, south)
+    np.testing.assert_allclose(aspect[:, 4:], np.pi / 2, atol=1e-6)  # falling to the east
