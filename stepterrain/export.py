@@ -219,9 +219,16 @@ def save_mesh(
     element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
 
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
-    stay crisp. Vertex colours (sRGB bytes, as matplotlib colormaps and images give them) are stored as glTF's
-    ``COLOR_0`` requires, linear (float32; alpha as it is): a viewer shows the colours of the other formats and of
-    the renders. trimesh's reader hands the linear values back as they are; :func:`read_mesh` gives the bytes.
+    stay crisp. Every primitive has a matte material (metallicFactor 0, roughnessFactor 1, white baseColorFactor,
+    double-sided; alphaMode BLEND when some vertex alpha is below 255, as a close-up's anchors, else OPAQUE):
+    without one, viewers used glTF's default, metallic 1 (§3.9.6), and showed the terrain as dark metal. A texture
+    given as an image (``TextureVisuals(uv=..., image=...)``) is written at full brightness with that material; a
+    ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). Vertex colours (sRGB bytes, as
+    matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
+    it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
+    material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
+    ``vertex_attributes["color"]`` of a scene's geometry (``force="mesh"`` drops them); :func:`read_mesh` gives
+    the mesh back with its vertex colours, the sRGB bytes written (a plain mesh without colours).
     Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
@@ -668,6 +675,19 @@ _COLOR_0_OF_BYTE = np.vstack([np.tile(_srgb_to_linear(np.arange(256) / 255.0), (
 _CHANNEL_ROWS = np.array([0, 256, 512, 768], np.uint16)  # where channel k's row of _COLOR_0_OF_BYTE starts, flat
 
 
+def _terrain_material(blend: bool) -> dict[str, Any]:
+    """The glTF material of every primitive :func:`save_mesh` writes without a texture. Without one, viewers use
+    glTF's default material (glTF 2.0 §3.9.6: metallicFactor 1, roughnessFactor 1), and three.js, Babylon.js,
+    Blender and model-viewer showed coloured terrain as dark metal. A dielectric (metallicFactor 0) of roughness 1:
+    ground, rock and a print's plastic are matte, and a rough surface has no highlight to shift the hypsometric
+    tints, so viewers show the colours of the renders. baseColorFactor white: COLOR_0 (or white without it) is
+    the colour. Double-sided: terrain surfaces are open, and their undersides (or a mesh wound the other way) were
+    culled; a closed solid only loses back-face culling. ``blend``: some vertex alpha is below 1 (a close-up's
+    fading anchor), which the default OPAQUE mode ignored."""
+    return {"name": "terrain", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
+            "roughnessFactor": 1.0}, "doubleSided": True, "alphaMode": "BLEND" if blend else "OPAQUE"}  # fmt: skip
+
+
 def _gltf_document(
     mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds
 ) -> tuple[dict[str, Any], list[Any]]:
@@ -675,7 +695,8 @@ def _gltf_document(
     translation beyond 65536), indices (uint32), COLOR_0 (linear float32 RGBA, from the sRGB bytes) when the mesh
     has vertex colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
     ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
-    (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file)."""
+    (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file). The one
+    material is :func:`_terrain_material`."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
     assert bounds is not None  # _direct_gltf: the mesh has vertices
@@ -719,6 +740,7 @@ def _gltf_document(
     accessors.append({"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
                       "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
                       "max": [float(v) for v in p_hi]})  # fmt: skip
+    blend = False
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
         # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
@@ -726,6 +748,8 @@ def _gltf_document(
         primitive["attributes"]["COLOR_0"] = len(accessors)
         accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
                           "count": len(colors), "type": "VEC4"})  # fmt: skip
+        blend = bool(len(rgba)) and int(rgba[:, 3].min()) < 255
+    primitive["material"] = 0
     gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
@@ -735,6 +759,7 @@ def _gltf_document(
         "scenes": [{"nodes": [0]}],
         "nodes": [node],
         "meshes": [gltf_mesh],
+        "materials": [_terrain_material(blend)],
         "accessors": accessors,
         "bufferViews": views,
         "buffers": [{"byteLength": offset_bytes}],
@@ -966,16 +991,36 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 def _srgb_vertex_colors(mesh: trimesh.Trimesh, file: Path) -> None:
     """Give ``mesh``, read from the glTF ``file``, its vertex colours as sRGB bytes, as the other formats hold them:
     COLOR_0 is linear (glTF 2.0 §3.7.2.1) and trimesh's reader takes its values as bytes as they are. Exact from the
-    file's COLOR_0 when it is one primitive's (as :func:`save_mesh` writes it), else from trimesh's bytes."""
-    if mesh.visual.kind != "vertex":
+    file's COLOR_0 when it is one primitive's (as :func:`save_mesh` writes it), else from trimesh's bytes. A primitive
+    with a material trimesh reads as a texture without UVs, its COLOR_0 a vertex attribute: one whose material only
+    multiplies by white (:func:`_terrain_material`) is read as the plain or vertex-coloured mesh it is."""
+    visual = mesh.visual
+    plain = visual.kind == "texture" and getattr(visual, "uv", None) is None and _white_material(visual.material)
+    if visual.kind != "vertex" and not plain:
         return
     values = _gltf_color_0(file)
     if values is None or len(values) != len(mesh.vertices):
-        values = np.asarray(mesh.visual.vertex_colors, dtype=np.float64) / 255.0
+        if plain:  # the attribute trimesh kept (a scene's concatenation drops it): as stored, floats or bytes
+            color = np.asarray(visual.vertex_attributes.get("color", np.zeros((0, 4))))
+            if color.ndim != 2 or len(color) != len(mesh.vertices) or len(color) == 0:
+                mesh.visual = trimesh.visual.ColorVisuals(mesh)
+                return
+            values = color.astype(np.float64) / (1.0 if color.dtype.kind == "f" else np.iinfo(color.dtype).max)
+        else:
+            values = np.asarray(mesh.visual.vertex_colors, dtype=np.float64) / 255.0
     rgba = np.ones((len(values), 4))
     rgba[:, : values.shape[1]] = values[:, :4]
     rgba[:, :3] = _linear_to_srgb(rgba[:, :3])
     mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.rint(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
+
+
+def _white_material(material: Any) -> bool:
+    """True for a PBR material of a glTF that sets no texture and a white (or no) base colour factor: it leaves the
+    vertex colours (or white) as they are."""
+    if not isinstance(material, trimesh.visual.material.PBRMaterial) or material.baseColorTexture is not None:
+        return False
+    factor = material.baseColorFactor
+    return factor is None or bool((np.asarray(factor) == 255).all())
 
 
 def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
@@ -1396,7 +1441,11 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
 
 
 def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
-    """One node holding ``mesh``; large coordinates move into the node translation (float64 in JSON)."""
+    """One node holding ``mesh`` (a prepared copy: its visual may be replaced); large coordinates move into the node
+    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it."""
+    material = getattr(mesh.visual, "material", None)
+    if mesh.visual.kind == "texture" and material is not None:
+        mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = np.eye(4)
     if _is_large(bounds):
@@ -1409,3 +1458,21 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
         mesh, geom_name=target.stem or "mesh", node_name=target.stem or "mesh", transform=transform
     )
     return scene
+
+
+def _textured_material(material: Any) -> Any:
+    """The material a textured mesh is written to glTF with. trimesh's ``SimpleMaterial`` (an image given as
+    ``TextureVisuals(uv=..., image=...)``, as :func:`~stepterrain.globe.drape_texture` makes it) became
+    baseColorFactor 0.4 (its default diffuse grey, multiplying the texture: the drape at 40 % brightness) and no
+    metallicFactor (glTF's default 1: dark metal); it is now the image with a white factor (a colour without one),
+    metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` keeps what it sets;
+    an unset metallicFactor becomes 0. Other materials are written as trimesh writes them."""
+    if isinstance(material, trimesh.visual.material.SimpleMaterial):
+        image = material.image
+        return trimesh.visual.material.PBRMaterial(
+            name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
+            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True)
+    if isinstance(material, trimesh.visual.material.PBRMaterial) and material.metallicFactor is None:
+        material = material.copy()
+        material.metallicFactor = 0.0
+    return material

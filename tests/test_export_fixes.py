@@ -418,3 +418,63 @@ def test_info_does_not_call_points_or_an_empty_mesh_watertight(tmp_path, ext, ca
         assert (summary["faces"], summary["watertight"]) == (0, False), (name, summary)
     assert cli.main(["info", str(save_mesh(trimesh.creation.box(), tmp_path / f"box{ext}")), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["watertight"] is True
+
+
+def gltf_materials(path):
+    """(each primitive's material, or None without one) of a .glb/.gltf."""
+    tree, _ = gltf_tree_and_buffer(path)
+    materials = tree.get("materials", [])
+    return [materials[p["material"]] if "material" in p else None
+            for mesh in tree.get("meshes", []) for p in mesh["primitives"]]  # fmt: skip
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("kind", ["coloured", "plain", "points", "closeup"])
+def test_every_gltf_primitive_has_a_matte_material_that_blends_only_translucent_colours(tmp_path, ext, kind):
+    # no primitive had a material: glTF's default (glTF 2.0 §3.9.6) is metallicFactor 1, so three.js, Babylon.js,
+    # Blender and model-viewer showed the terrain as dark metal, and OPAQUE ignored a close-up anchor's vertex alpha
+    import stepterrain as st
+    from stepterrain.closeup import ROI, CloseUp, closeup_scene
+
+    if kind == "closeup":
+        cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), offset=(0.0, 0.0, 10.0))
+        mesh = closeup_scene(np.random.default_rng(2).random((11, 11)).astype(np.float32), [cu], device="cpu")
+    elif kind == "points":
+        mesh = points(8)
+    else:
+        mesh = st.stepped(np.random.default_rng(5).random((6, 7)) * 30.0, interval=5.0,
+                          colors="terrain" if kind == "coloured" else None, device="cpu")  # fmt: skip
+    colored = mesh.visual.kind == "vertex"
+    translucent = colored and int(np.asarray(mesh.visual.vertex_colors)[:, 3].min()) < 255
+    assert translucent == (kind in ("closeup", "points")), "the case does not test what it says"
+    path = save_mesh(mesh, tmp_path / f"{kind}{ext}")
+    (material,) = gltf_materials(path)
+    assert material is not None
+    pbr = material["pbrMetallicRoughness"]
+    assert pbr["metallicFactor"] == 0.0 and pbr["roughnessFactor"] == 1.0
+    assert pbr.get("baseColorFactor", [1.0] * 4) == [1.0] * 4  # the vertex colours are the colour
+    assert material.get("alphaMode", "OPAQUE") == ("BLEND" if translucent else "OPAQUE")
+    assert material["doubleSided"] is True
+    back = read_mesh(path)  # `info` and batch's previews: the colours as they were, none invented for a plain mesh
+    if colored:
+        np.testing.assert_array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
+    else:
+        assert back.visual.kind is None
+    assert cli.main(["info", str(path), "--json"]) == 0
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_draped_image_is_written_to_gltf_at_full_brightness_and_not_metallic(tmp_path, ext):
+    # TextureVisuals(uv, image) (drape_texture's) went through trimesh's SimpleMaterial -> PBR conversion:
+    # baseColorFactor 0.4 (its default diffuse grey multiplied the image) and no metallicFactor (glTF's default 1)
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                image=Image.new("RGB", (2, 2), (200, 10, 10)))  # fmt: skip
+    path = save_mesh(mesh, tmp_path / f"draped{ext}")
+    (material,) = gltf_materials(path)
+    pbr = material["pbrMetallicRoughness"]
+    assert "baseColorTexture" in pbr
+    assert pbr.get("baseColorFactor", [1.0] * 4) == [1.0] * 4
+    assert pbr["metallicFactor"] == 0.0
+    back = trimesh.load(path, force="mesh", process=False)
+    assert np.asarray(back.visual.material.baseColorTexture.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
