@@ -624,14 +624,14 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, 
 
 
 def _direct_gltf(mesh: trimesh.Trimesh) -> bool:
-    """Plain or vertex-coloured meshes with vertices, and vertices without faces (points: a texture has no use
-    there), are written by :func:`_gltf_document`; textured meshes go to trimesh."""
+    """Plain, vertex-coloured and face-coloured meshes with vertices, and vertices without faces (points: a texture
+    has no use there), are written by :func:`_gltf_document`; textured meshes go to trimesh."""
     if len(mesh.vertices) == 0:
         return False
     if len(mesh.faces) == 0:
         return True
     kind = mesh.visual.kind
-    return kind is None or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
+    return kind in (None, "face") or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
 
 
 def _empty_gltf(mesh: trimesh.Trimesh) -> bool:
@@ -693,8 +693,9 @@ def _gltf_document(
 ) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (linear float32 RGBA, from the sRGB bytes) when the mesh
-    has vertex colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
-    ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
+    has vertex colours (face colours: each vertex the mean of its faces'); no normals (flat shading);
+    ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's ``shared_bounds``) decides the translation in
+    place of ``bounds``. A mesh without faces is a points primitive
     (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file). The one
     material is :func:`_terrain_material`."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -741,8 +742,10 @@ def _gltf_document(
                       "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
                       "max": [float(v) for v in p_hi]})  # fmt: skip
     blend = False
-    if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
-        # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out
+    if mesh.visual.kind in ("vertex", "face") and len(mesh.visual.vertex_colors) == len(positions):
+        # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out.
+        # Face colours (glTF has no per-face attribute) are trimesh's vertex colours: each vertex the mean of its
+        # faces' colours, as trimesh's writer gave them (which wrote the bytes as linear values and no material)
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         colors = _COLOR_0_OF_BYTE.reshape(-1)[rgba + _CHANNEL_ROWS]  # byte + 256 * channel: one gather
         primitive["attributes"]["COLOR_0"] = len(accessors)

@@ -478,3 +478,18 @@ def test_a_draped_image_is_written_to_gltf_at_full_brightness_and_not_metallic(t
     assert pbr["metallicFactor"] == 0.0
     back = trimesh.load(path, force="mesh", process=False)
     assert np.asarray(back.visual.material.baseColorTexture.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_gltf_face_colours_are_linear_vertex_colours_with_the_matte_material(tmp_path, ext):
+    # face-coloured meshes went to trimesh's writer: their vertex means stored as bytes taken for linear values
+    # (read back and shown brighter: 200 as 229) and no material (glTF's default: metal)
+    mesh = trimesh.creation.box()
+    mesh.visual.face_colors = np.random.default_rng(4).integers(0, 256, (12, 4), dtype=np.uint8)
+    blended = np.asarray(mesh.visual.vertex_colors).copy()  # trimesh's vertex colours of a face-coloured mesh
+    assert mesh.visual.kind == "face"
+    path = save_mesh(mesh, tmp_path / f"faces{ext}")
+    np.testing.assert_array_equal(read_mesh(path).visual.vertex_colors, blended)
+    (material,) = gltf_materials(path)
+    assert material is not None and material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    assert material["alphaMode"] == ("BLEND" if blended[:, 3].min() < 255 else "OPAQUE")
