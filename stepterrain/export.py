@@ -210,6 +210,13 @@ def save_mesh(
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
 
+    Warns
+    -----
+    UserWarning
+        ``.stl`` stores float32 coordinates (the format has no other type) and they would move some vertex by
+        more than 1e-3 in the mesh's units (1 mm for metres: UTM coordinates round by up to 0.25 m, a whole globe's
+        by 0.5 m); the file is written and the message says by how much and which formats keep float64.
+
     Notes
     -----
     A mesh without vertices and faces (a view that sees nothing, a tile of sea) writes a valid empty file in
@@ -886,7 +893,42 @@ def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
+    _warn_stl_rounding(mesh, target, bounds)
     tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
+
+
+#: How far (in the mesh's units: 1 mm for metres) STL's float32 may move a vertex before save_mesh warns.
+_STL_ROUNDING_TOLERANCE = 1e-3
+
+
+def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:
+    """Warn (a ``UserWarning`` at the caller's line) when STL's float32 moves some coordinate by more than
+    :data:`_STL_ROUNDING_TOLERANCE`: UTM northings came back 0.25 m off, a globe's surface 0.5 m, without a word.
+    A warning, not a refusal: float32 is the format (every STL reader expects it), and a print or a preview is
+    often fine with it; the message says where float64 is kept. Only coordinates beyond 2^15 can round that far
+    (half a float32 step at 32768 is 0.002), so smaller meshes cost nothing, and larger ones one cast: a grid of
+    whole metres (a UTM DEM's posts) is exact in float32 and is not warned about."""
+    if bounds is None:
+        return
+    reach = max(float(np.abs(bounds[0]).max()), float(np.abs(bounds[1]).max()))
+    if np.spacing(np.float32(reach)) / 2 <= _STL_ROUNDING_TOLERANCE:
+        return
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    error = np.abs(vertices.astype(np.float32) - vertices)  # as export_stl rounds them: round to nearest
+    worst = int(np.argmax(error))
+    if error.flat[worst] <= _STL_ROUNDING_TOLERANCE:
+        return
+    import warnings
+
+    row, axis = divmod(worst, vertices.shape[1])
+    value = float(vertices[row, axis])
+    warnings.warn(
+        f"{str(target)!r}: .stl stores float32 coordinates, which move this mesh's vertices by up to "
+        f"{float(error.flat[worst]):.3g} (vertex {row} {'xyz'[axis]} = {value!r} is written as "
+        f"{float(np.float32(value))!r}), more than {_STL_ROUNDING_TOLERANCE:g} (1 mm in metres): write .ply, .obj "
+        "or .3mf to keep float64, or move the mesh to a local origin first",
+        stacklevel=_caller_level(),
+    )
 
 
 _3MF_CONTENT_TYPES = (

@@ -493,3 +493,26 @@ def test_gltf_face_colours_are_linear_vertex_colours_with_the_matte_material(tmp
     (material,) = gltf_materials(path)
     assert material is not None and material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
     assert material["alphaMode"] == ("BLEND" if blended[:, 3].min() < 255 else "OPAQUE")
+
+
+def test_stl_warns_when_float32_moves_a_vertex_more_than_a_millimetre(tmp_path):
+    # STL's float32 rounded UTM northings by up to 0.25 m (a globe's surface by 0.5 m) without a word; only values
+    # beyond float32's reach were refused
+    import warnings
+
+    utm = trimesh.creation.box(extents=(900.0, 900.0, 300.0))
+    utm.vertices += (376328.71, 3807902.83, 1200.0)
+    with pytest.warns(UserWarning, match=r"float32 .*more than 0\.001.*\.ply, \.obj or \.3mf") as caught:
+        path = save_mesh(utm, tmp_path / "utm.stl")
+    assert caught[0].filename == __file__  # at the caller's line, not inside the writer
+    back = trimesh.load(path, process=False)
+    assert np.abs(back.triangles - utm.triangles).max() > 1e-3  # what the warning says: it did round that far
+    whole = trimesh.creation.box(extents=(900.0, 900.0, 300.0))
+    whole.vertices += (376000.0, 3807900.0, 1200.0)  # whole metres: exact in float32
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        save_mesh(whole, tmp_path / "whole.stl")
+        save_mesh(trimesh.creation.box(extents=(9e3, 9e3, 3e3)), tmp_path / "local.stl")  # a local origin
+        save_mesh(utm, tmp_path / "utm.ply")  # float64: nothing to warn about
+    back = trimesh.load(tmp_path / "whole.stl", process=False)
+    np.testing.assert_array_equal(back.triangles, whole.triangles)
