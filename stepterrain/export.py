@@ -174,13 +174,20 @@ def save_mesh(
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        Any mesh; ``face_attributes`` (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and
-        vertex colours are kept where the format can hold them. The mesh is not modified.
+        Any mesh; it is not modified. ``face_attributes`` (e.g. ``level``, ``wall`` of
+        :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k) arrays) are kept by
+        ``.ply`` only, as properties of its face and vertex elements; glTF, OBJ, STL and 3MF drop them. Vertex
+        colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their alpha
+        (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply`` (the face
+        element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and ``.obj``
+        have no per-face colour and store each vertex as the mean of its faces' colours (call
+        ``mesh.unmerge_vertices()`` first to keep them exact), and ``.stl`` drops them. A texture (UVs and an
+        image) is kept by ``.glb``/``.gltf`` and ``.obj`` (with its ``.mtl`` and image) and dropped by the others.
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
         shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
-        ``.3mf`` (exact coordinates, vertex colours as a colour group: a colour 3D print keeps its tints).
+        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
@@ -949,13 +956,20 @@ _ROWS_PER_WRITE = 1 << 16  # OBJ lines and 3MF vertices or triangles formatted a
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
-    p3; trimesh's writer dropped them). Written by us, streamed into the zip: no lxml or networkx needed."""
+    p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
+    zip: no lxml or networkx needed."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    color_index = palette = None
+    color_index = palette = face_index = None
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices) and len(vertices):
         rgba = np.ascontiguousarray(np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4])
         palette, color_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
+        palette = palette.view(np.uint8).reshape(-1, 4)
+    elif mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
+        # one colour per triangle: p1 alone (the core spec: without p2 and p3 it colours the whole triangle); they
+        # were dropped
+        rgba = np.ascontiguousarray(np.asarray(mesh.visual.face_colors, dtype=np.uint8)[:, :4])
+        palette, face_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
         palette = palette.view(np.uint8).reshape(-1, 4)
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
         archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
@@ -975,7 +989,10 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
             out.write(obj + b"<mesh><vertices>")
             _write_rows(write, '<vertex x="{!r}" y="{!r}" z="{!r}"/>', _blocks(vertices))
             out.write(b"</vertices><triangles>")
-            if color_index is None:
+            if face_index is not None:  # each triangle's colour: its index in the palette
+                _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}" p1="{}"/>',
+                            _blocks(np.column_stack([faces, face_index.reshape(-1)])))
+            elif color_index is None:
                 _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}"/>', _blocks(faces))
             else:  # each corner's colour: its vertex's index in the palette
                 _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}" p1="{}" p2="{}" p3="{}"/>',
@@ -1320,7 +1337,8 @@ _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vert
 
 
 def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
-    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA colours, attributes."""
+    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA vertex or face colours,
+    attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
     vertex_columns: list[tuple[str, NDArray[Any]]] = [
@@ -1333,7 +1351,13 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
     vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns] + list(_PLY_RESERVED))
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
-    face_columns = _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
+    face_columns: list[tuple[str, NDArray[Any]]] = []
+    if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
+        # face colours as the face element's red, green, blue, alpha (trimesh's reader reads them back); they were
+        # dropped
+        face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
+        face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header.append(f"element vertex {len(vertices)}")

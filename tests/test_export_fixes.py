@@ -516,3 +516,19 @@ def test_stl_warns_when_float32_moves_a_vertex_more_than_a_millimetre(tmp_path):
         save_mesh(utm, tmp_path / "utm.ply")  # float64: nothing to warn about
     back = trimesh.load(tmp_path / "whole.stl", process=False)
     np.testing.assert_array_equal(back.triangles, whole.triangles)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".3mf"])
+def test_face_colours_are_kept_by_ply_and_3mf(tmp_path, ext):
+    # PLY (face red/green/blue/alpha) and 3MF (a triangle's p1) hold a colour per face, but both writers kept vertex
+    # colours only: a face-coloured mesh came back without colours
+    mesh = trimesh.creation.box()
+    rng = np.random.default_rng(6)
+    mesh.visual.face_colors = rng.integers(0, 256, (12, 4), dtype=np.uint8)
+    mesh.face_attributes["level"] = rng.integers(0, 5, 12)
+    path = save_mesh(mesh, tmp_path / f"faces{ext}")
+    back = read_mesh(path)
+    assert back.visual.kind == "face"
+    np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors)
+    if ext == ".ply":  # the attributes still follow the colours
+        np.testing.assert_array_equal(back.metadata["_ply_raw"]["face"]["data"]["level"], mesh.face_attributes["level"])
