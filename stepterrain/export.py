@@ -174,13 +174,20 @@ def save_mesh(
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        Any mesh; ``face_attributes`` (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and
-        vertex colours are kept where the format can hold them. The mesh is not modified.
+        Any mesh; it is not modified. ``face_attributes`` (e.g. ``level``, ``wall`` of
+        :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k) arrays) are kept by
+        ``.ply`` only, as properties of its face and vertex elements; glTF, OBJ, STL and 3MF drop them. Vertex
+        colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their alpha
+        (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply`` (the face
+        element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and ``.obj``
+        have no per-face colour and store each vertex as the mean of its faces' colours (call
+        ``mesh.unmerge_vertices()`` first to keep them exact), and ``.stl`` drops them. A texture (UVs and an
+        image) is kept by ``.glb``/``.gltf`` and ``.obj`` (with its ``.mtl`` and image) and dropped by the others.
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
         shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
-        ``.3mf`` (exact coordinates, vertex colours as a colour group: a colour 3D print keeps its tints).
+        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
@@ -210,6 +217,13 @@ def save_mesh(
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
 
+    Warns
+    -----
+    UserWarning
+        ``.stl`` stores float32 coordinates (the format has no other type) and they would move some vertex by
+        more than 1e-3 in the mesh's units (1 mm for metres: UTM coordinates round by up to 0.25 m, a whole globe's
+        by 0.5 m); the file is written and the message says by how much and which formats keep float64.
+
     Notes
     -----
     A mesh without vertices and faces (a view that sees nothing, a tile of sea) writes a valid empty file in
@@ -219,9 +233,16 @@ def save_mesh(
     element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
 
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
-    stay crisp. Vertex colours (sRGB bytes, as matplotlib colormaps and images give them) are stored as glTF's
-    ``COLOR_0`` requires, linear (float32; alpha as it is): a viewer shows the colours of the other formats and of
-    the renders. trimesh's reader hands the linear values back as they are; :func:`read_mesh` gives the bytes.
+    stay crisp. Every primitive has a matte material (metallicFactor 0, roughnessFactor 1, white baseColorFactor,
+    double-sided; alphaMode BLEND when some vertex alpha is below 255, as a close-up's anchors, else OPAQUE):
+    without one, viewers used glTF's default, metallic 1 (§3.9.6), and showed the terrain as dark metal. A texture
+    given as an image (``TextureVisuals(uv=..., image=...)``) is written at full brightness with that material; a
+    ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). Vertex colours (sRGB bytes, as
+    matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
+    it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
+    material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
+    ``vertex_attributes["color"]`` of a scene's geometry (``force="mesh"`` drops them); :func:`read_mesh` gives
+    the mesh back with its vertex colours, the sRGB bytes written (a plain mesh without colours).
     Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
@@ -617,14 +638,14 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, 
 
 
 def _direct_gltf(mesh: trimesh.Trimesh) -> bool:
-    """Plain or vertex-coloured meshes with vertices, and vertices without faces (points: a texture has no use
-    there), are written by :func:`_gltf_document`; textured meshes go to trimesh."""
+    """Plain, vertex-coloured and face-coloured meshes with vertices, and vertices without faces (points: a texture
+    has no use there), are written by :func:`_gltf_document`; textured meshes go to trimesh."""
     if len(mesh.vertices) == 0:
         return False
     if len(mesh.faces) == 0:
         return True
     kind = mesh.visual.kind
-    return kind is None or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
+    return kind in (None, "face") or (kind == "vertex" and len(mesh.visual.vertex_colors) == len(mesh.vertices))
 
 
 def _empty_gltf(mesh: trimesh.Trimesh) -> bool:
@@ -668,14 +689,29 @@ _COLOR_0_OF_BYTE = np.vstack([np.tile(_srgb_to_linear(np.arange(256) / 255.0), (
 _CHANNEL_ROWS = np.array([0, 256, 512, 768], np.uint16)  # where channel k's row of _COLOR_0_OF_BYTE starts, flat
 
 
+def _terrain_material(blend: bool) -> dict[str, Any]:
+    """The glTF material of every primitive :func:`save_mesh` writes without a texture. Without one, viewers use
+    glTF's default material (glTF 2.0 §3.9.6: metallicFactor 1, roughnessFactor 1), and three.js, Babylon.js,
+    Blender and model-viewer showed coloured terrain as dark metal. A dielectric (metallicFactor 0) of roughness 1:
+    ground, rock and a print's plastic are matte, and a rough surface has no highlight to shift the hypsometric
+    tints, so viewers show the colours of the renders. baseColorFactor white: COLOR_0 (or white without it) is
+    the colour. Double-sided: terrain surfaces are open, and their undersides (or a mesh wound the other way) were
+    culled; a closed solid only loses back-face culling. ``blend``: some vertex alpha is below 1 (a close-up's
+    fading anchor), which the default OPAQUE mode ignored."""
+    return {"name": "terrain", "pbrMetallicRoughness": {"baseColorFactor": [1.0, 1.0, 1.0, 1.0], "metallicFactor": 0.0,
+            "roughnessFactor": 1.0}, "doubleSided": True, "alphaMode": "BLEND" if blend else "OPAQUE"}  # fmt: skip
+
+
 def _gltf_document(
     mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds
 ) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (linear float32 RGBA, from the sRGB bytes) when the mesh
-    has vertex colours; no normals (flat shading); ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's
-    ``shared_bounds``) decides the translation in place of ``bounds``. A mesh without faces is a points primitive
-    (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file)."""
+    has vertex colours (face colours: each vertex the mean of its faces'); no normals (flat shading);
+    ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's ``shared_bounds``) decides the translation in
+    place of ``bounds``. A mesh without faces is a points primitive
+    (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file). The one
+    material is :func:`_terrain_material`."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     node: dict[str, Any] = {"name": target.stem or "mesh", "mesh": 0}
     assert bounds is not None  # _direct_gltf: the mesh has vertices
@@ -719,13 +755,18 @@ def _gltf_document(
     accessors.append({"bufferView": add_view(positions, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
                       "count": len(positions), "type": "VEC3", "min": [float(v) for v in p_lo],
                       "max": [float(v) for v in p_hi]})  # fmt: skip
-    if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(positions):
-        # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out
+    blend = False
+    if mesh.visual.kind in ("vertex", "face") and len(mesh.visual.vertex_colors) == len(positions):
+        # sRGB bytes to linear float32 (glTF's COLOR_0): written as they were, viewers showed them washed out.
+        # Face colours (glTF has no per-face attribute) are trimesh's vertex colours: each vertex the mean of its
+        # faces' colours, as trimesh's writer gave them (which wrote the bytes as linear values and no material)
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         colors = _COLOR_0_OF_BYTE.reshape(-1)[rgba + _CHANNEL_ROWS]  # byte + 256 * channel: one gather
         primitive["attributes"]["COLOR_0"] = len(accessors)
         accessors.append({"bufferView": add_view(colors, _GL_ARRAY_BUFFER), "componentType": _GL_FLOAT,
                           "count": len(colors), "type": "VEC4"})  # fmt: skip
+        blend = bool(len(rgba)) and int(rgba[:, 3].min()) < 255
+    primitive["material"] = 0
     gltf_mesh: dict[str, Any] = {"name": target.stem or "mesh", "primitives": [primitive]}
     if mesh.metadata:
         gltf_mesh["extras"] = mesh.metadata  # already JSON-safe (_prepared_mesh)
@@ -735,6 +776,7 @@ def _gltf_document(
         "scenes": [{"nodes": [0]}],
         "nodes": [node],
         "meshes": [gltf_mesh],
+        "materials": [_terrain_material(blend)],
         "accessors": accessors,
         "bufferViews": views,
         "buffers": [{"byteLength": offset_bytes}],
@@ -858,7 +900,42 @@ def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
+    _warn_stl_rounding(mesh, target, bounds)
     tmp.write_bytes(trimesh.exchange.stl.export_stl(mesh))
+
+
+#: How far (in the mesh's units: 1 mm for metres) STL's float32 may move a vertex before save_mesh warns.
+_STL_ROUNDING_TOLERANCE = 1e-3
+
+
+def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:
+    """Warn (a ``UserWarning`` at the caller's line) when STL's float32 moves some coordinate by more than
+    :data:`_STL_ROUNDING_TOLERANCE`: UTM northings came back 0.25 m off, a globe's surface 0.5 m, without a word.
+    A warning, not a refusal: float32 is the format (every STL reader expects it), and a print or a preview is
+    often fine with it; the message says where float64 is kept. Only coordinates beyond 2^15 can round that far
+    (half a float32 step at 32768 is 0.002), so smaller meshes cost nothing, and larger ones one cast: a grid of
+    whole metres (a UTM DEM's posts) is exact in float32 and is not warned about."""
+    if bounds is None:
+        return
+    reach = max(float(np.abs(bounds[0]).max()), float(np.abs(bounds[1]).max()))
+    if np.spacing(np.float32(reach)) / 2 <= _STL_ROUNDING_TOLERANCE:
+        return
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    error = np.abs(vertices.astype(np.float32) - vertices)  # as export_stl rounds them: round to nearest
+    worst = int(np.argmax(error))
+    if error.flat[worst] <= _STL_ROUNDING_TOLERANCE:
+        return
+    import warnings
+
+    row, axis = divmod(worst, vertices.shape[1])
+    value = float(vertices[row, axis])
+    warnings.warn(
+        f"{str(target)!r}: .stl stores float32 coordinates, which move this mesh's vertices by up to "
+        f"{float(error.flat[worst]):.3g} (vertex {row} {'xyz'[axis]} = {value!r} is written as "
+        f"{float(np.float32(value))!r}), more than {_STL_ROUNDING_TOLERANCE:g} (1 mm in metres): write .ply, .obj "
+        "or .3mf to keep float64, or move the mesh to a local origin first",
+        stacklevel=_caller_level(),
+    )
 
 
 _3MF_CONTENT_TYPES = (
@@ -879,13 +956,20 @@ _ROWS_PER_WRITE = 1 << 16  # OBJ lines and 3MF vertices or triangles formatted a
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
-    p3; trimesh's writer dropped them). Written by us, streamed into the zip: no lxml or networkx needed."""
+    p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
+    zip: no lxml or networkx needed."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    color_index = palette = None
+    color_index = palette = face_index = None
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices) and len(vertices):
         rgba = np.ascontiguousarray(np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4])
         palette, color_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
+        palette = palette.view(np.uint8).reshape(-1, 4)
+    elif mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
+        # one colour per triangle: p1 alone (the core spec: without p2 and p3 it colours the whole triangle); they
+        # were dropped
+        rgba = np.ascontiguousarray(np.asarray(mesh.visual.face_colors, dtype=np.uint8)[:, :4])
+        palette, face_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
         palette = palette.view(np.uint8).reshape(-1, 4)
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
         archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
@@ -905,7 +989,10 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
             out.write(obj + b"<mesh><vertices>")
             _write_rows(write, '<vertex x="{!r}" y="{!r}" z="{!r}"/>', _blocks(vertices))
             out.write(b"</vertices><triangles>")
-            if color_index is None:
+            if face_index is not None:  # each triangle's colour: its index in the palette
+                _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}" p1="{}"/>',
+                            _blocks(np.column_stack([faces, face_index.reshape(-1)])))
+            elif color_index is None:
                 _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}"/>', _blocks(faces))
             else:  # each corner's colour: its vertex's index in the palette
                 _write_rows(write, '<triangle v1="{}" v2="{}" v3="{}" p1="{}" p2="{}" p3="{}"/>',
@@ -966,16 +1053,36 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 def _srgb_vertex_colors(mesh: trimesh.Trimesh, file: Path) -> None:
     """Give ``mesh``, read from the glTF ``file``, its vertex colours as sRGB bytes, as the other formats hold them:
     COLOR_0 is linear (glTF 2.0 §3.7.2.1) and trimesh's reader takes its values as bytes as they are. Exact from the
-    file's COLOR_0 when it is one primitive's (as :func:`save_mesh` writes it), else from trimesh's bytes."""
-    if mesh.visual.kind != "vertex":
+    file's COLOR_0 when it is one primitive's (as :func:`save_mesh` writes it), else from trimesh's bytes. A primitive
+    with a material trimesh reads as a texture without UVs, its COLOR_0 a vertex attribute: one whose material only
+    multiplies by white (:func:`_terrain_material`) is read as the plain or vertex-coloured mesh it is."""
+    visual = mesh.visual
+    plain = visual.kind == "texture" and getattr(visual, "uv", None) is None and _white_material(visual.material)
+    if visual.kind != "vertex" and not plain:
         return
     values = _gltf_color_0(file)
     if values is None or len(values) != len(mesh.vertices):
-        values = np.asarray(mesh.visual.vertex_colors, dtype=np.float64) / 255.0
+        if plain:  # the attribute trimesh kept (a scene's concatenation drops it): as stored, floats or bytes
+            color = np.asarray(visual.vertex_attributes.get("color", np.zeros((0, 4))))
+            if color.ndim != 2 or len(color) != len(mesh.vertices) or len(color) == 0:
+                mesh.visual = trimesh.visual.ColorVisuals(mesh)
+                return
+            values = color.astype(np.float64) / (1.0 if color.dtype.kind == "f" else np.iinfo(color.dtype).max)
+        else:
+            values = np.asarray(mesh.visual.vertex_colors, dtype=np.float64) / 255.0
     rgba = np.ones((len(values), 4))
     rgba[:, : values.shape[1]] = values[:, :4]
     rgba[:, :3] = _linear_to_srgb(rgba[:, :3])
     mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.rint(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
+
+
+def _white_material(material: Any) -> bool:
+    """True for a PBR material of a glTF that sets no texture and a white (or no) base colour factor: it leaves the
+    vertex colours (or white) as they are."""
+    if not isinstance(material, trimesh.visual.material.PBRMaterial) or material.baseColorTexture is not None:
+        return False
+    factor = material.baseColorFactor
+    return factor is None or bool((np.asarray(factor) == 255).all())
 
 
 def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
@@ -1230,7 +1337,8 @@ _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vert
 
 
 def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
-    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA colours, attributes."""
+    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA vertex or face colours,
+    attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
     vertex_columns: list[tuple[str, NDArray[Any]]] = [
@@ -1243,7 +1351,13 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
     vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns] + list(_PLY_RESERVED))
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
-    face_columns = _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
+    face_columns: list[tuple[str, NDArray[Any]]] = []
+    if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
+        # face colours as the face element's red, green, blue, alpha (trimesh's reader reads them back); they were
+        # dropped
+        face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
+        face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header.append(f"element vertex {len(vertices)}")
@@ -1396,7 +1510,11 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
 
 
 def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
-    """One node holding ``mesh``; large coordinates move into the node translation (float64 in JSON)."""
+    """One node holding ``mesh`` (a prepared copy: its visual may be replaced); large coordinates move into the node
+    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it."""
+    material = getattr(mesh.visual, "material", None)
+    if mesh.visual.kind == "texture" and material is not None:
+        mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = np.eye(4)
     if _is_large(bounds):
@@ -1409,3 +1527,21 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
         mesh, geom_name=target.stem or "mesh", node_name=target.stem or "mesh", transform=transform
     )
     return scene
+
+
+def _textured_material(material: Any) -> Any:
+    """The material a textured mesh is written to glTF with. trimesh's ``SimpleMaterial`` (an image given as
+    ``TextureVisuals(uv=..., image=...)``, as :func:`~stepterrain.globe.drape_texture` makes it) became
+    baseColorFactor 0.4 (its default diffuse grey, multiplying the texture: the drape at 40 % brightness) and no
+    metallicFactor (glTF's default 1: dark metal); it is now the image with a white factor (a colour without one),
+    metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` keeps what it sets;
+    an unset metallicFactor becomes 0. Other materials are written as trimesh writes them."""
+    if isinstance(material, trimesh.visual.material.SimpleMaterial):
+        image = material.image
+        return trimesh.visual.material.PBRMaterial(
+            name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
+            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True)
+    if isinstance(material, trimesh.visual.material.PBRMaterial) and material.metallicFactor is None:
+        material = material.copy()
+        material.metallicFactor = 0.0
+    return material

@@ -418,3 +418,117 @@ def test_info_does_not_call_points_or_an_empty_mesh_watertight(tmp_path, ext, ca
         assert (summary["faces"], summary["watertight"]) == (0, False), (name, summary)
     assert cli.main(["info", str(save_mesh(trimesh.creation.box(), tmp_path / f"box{ext}")), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["watertight"] is True
+
+
+def gltf_materials(path):
+    """(each primitive's material, or None without one) of a .glb/.gltf."""
+    tree, _ = gltf_tree_and_buffer(path)
+    materials = tree.get("materials", [])
+    return [materials[p["material"]] if "material" in p else None
+            for mesh in tree.get("meshes", []) for p in mesh["primitives"]]  # fmt: skip
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("kind", ["coloured", "plain", "points", "closeup"])
+def test_every_gltf_primitive_has_a_matte_material_that_blends_only_translucent_colours(tmp_path, ext, kind):
+    # no primitive had a material: glTF's default (glTF 2.0 §3.9.6) is metallicFactor 1, so three.js, Babylon.js,
+    # Blender and model-viewer showed the terrain as dark metal, and OPAQUE ignored a close-up anchor's vertex alpha
+    import stepterrain as st
+    from stepterrain.closeup import ROI, CloseUp, closeup_scene
+
+    if kind == "closeup":
+        cu = CloseUp(ROI.circle((5.0, 5.0), 3.0), offset=(0.0, 0.0, 10.0))
+        mesh = closeup_scene(np.random.default_rng(2).random((11, 11)).astype(np.float32), [cu], device="cpu")
+    elif kind == "points":
+        mesh = points(8)
+    else:
+        mesh = st.stepped(np.random.default_rng(5).random((6, 7)) * 30.0, interval=5.0,
+                          colors="terrain" if kind == "coloured" else None, device="cpu")  # fmt: skip
+    colored = mesh.visual.kind == "vertex"
+    translucent = colored and int(np.asarray(mesh.visual.vertex_colors)[:, 3].min()) < 255
+    assert translucent == (kind in ("closeup", "points")), "the case does not test what it says"
+    path = save_mesh(mesh, tmp_path / f"{kind}{ext}")
+    (material,) = gltf_materials(path)
+    assert material is not None
+    pbr = material["pbrMetallicRoughness"]
+    assert pbr["metallicFactor"] == 0.0 and pbr["roughnessFactor"] == 1.0
+    assert pbr.get("baseColorFactor", [1.0] * 4) == [1.0] * 4  # the vertex colours are the colour
+    assert material.get("alphaMode", "OPAQUE") == ("BLEND" if translucent else "OPAQUE")
+    assert material["doubleSided"] is True
+    back = read_mesh(path)  # `info` and batch's previews: the colours as they were, none invented for a plain mesh
+    if colored:
+        np.testing.assert_array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
+    else:
+        assert back.visual.kind is None
+    assert cli.main(["info", str(path), "--json"]) == 0
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_draped_image_is_written_to_gltf_at_full_brightness_and_not_metallic(tmp_path, ext):
+    # TextureVisuals(uv, image) (drape_texture's) went through trimesh's SimpleMaterial -> PBR conversion:
+    # baseColorFactor 0.4 (its default diffuse grey multiplied the image) and no metallicFactor (glTF's default 1)
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                image=Image.new("RGB", (2, 2), (200, 10, 10)))  # fmt: skip
+    path = save_mesh(mesh, tmp_path / f"draped{ext}")
+    (material,) = gltf_materials(path)
+    pbr = material["pbrMetallicRoughness"]
+    assert "baseColorTexture" in pbr
+    assert pbr.get("baseColorFactor", [1.0] * 4) == [1.0] * 4
+    assert pbr["metallicFactor"] == 0.0
+    back = trimesh.load(path, force="mesh", process=False)
+    assert np.asarray(back.visual.material.baseColorTexture.convert("RGB"))[0, 0].tolist() == [200, 10, 10]
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_gltf_face_colours_are_linear_vertex_colours_with_the_matte_material(tmp_path, ext):
+    # face-coloured meshes went to trimesh's writer: their vertex means stored as bytes taken for linear values
+    # (read back and shown brighter: 200 as 229) and no material (glTF's default: metal)
+    mesh = trimesh.creation.box()
+    mesh.visual.face_colors = np.random.default_rng(4).integers(0, 256, (12, 4), dtype=np.uint8)
+    blended = np.asarray(mesh.visual.vertex_colors).copy()  # trimesh's vertex colours of a face-coloured mesh
+    assert mesh.visual.kind == "face"
+    path = save_mesh(mesh, tmp_path / f"faces{ext}")
+    np.testing.assert_array_equal(read_mesh(path).visual.vertex_colors, blended)
+    (material,) = gltf_materials(path)
+    assert material is not None and material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    assert material["alphaMode"] == ("BLEND" if blended[:, 3].min() < 255 else "OPAQUE")
+
+
+def test_stl_warns_when_float32_moves_a_vertex_more_than_a_millimetre(tmp_path):
+    # STL's float32 rounded UTM northings by up to 0.25 m (a globe's surface by 0.5 m) without a word; only values
+    # beyond float32's reach were refused
+    import warnings
+
+    utm = trimesh.creation.box(extents=(900.0, 900.0, 300.0))
+    utm.vertices += (376328.71, 3807902.83, 1200.0)
+    with pytest.warns(UserWarning, match=r"float32 .*more than 0\.001.*\.ply, \.obj or \.3mf") as caught:
+        path = save_mesh(utm, tmp_path / "utm.stl")
+    assert caught[0].filename == __file__  # at the caller's line, not inside the writer
+    back = trimesh.load(path, process=False)
+    assert np.abs(back.triangles - utm.triangles).max() > 1e-3  # what the warning says: it did round that far
+    whole = trimesh.creation.box(extents=(900.0, 900.0, 300.0))
+    whole.vertices += (376000.0, 3807900.0, 1200.0)  # whole metres: exact in float32
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        save_mesh(whole, tmp_path / "whole.stl")
+        save_mesh(trimesh.creation.box(extents=(9e3, 9e3, 3e3)), tmp_path / "local.stl")  # a local origin
+        save_mesh(utm, tmp_path / "utm.ply")  # float64: nothing to warn about
+    back = trimesh.load(tmp_path / "whole.stl", process=False)
+    np.testing.assert_array_equal(back.triangles, whole.triangles)
+
+
+@pytest.mark.parametrize("ext", [".ply", ".3mf"])
+def test_face_colours_are_kept_by_ply_and_3mf(tmp_path, ext):
+    # PLY (face red/green/blue/alpha) and 3MF (a triangle's p1) hold a colour per face, but both writers kept vertex
+    # colours only: a face-coloured mesh came back without colours
+    mesh = trimesh.creation.box()
+    rng = np.random.default_rng(6)
+    mesh.visual.face_colors = rng.integers(0, 256, (12, 4), dtype=np.uint8)
+    mesh.face_attributes["level"] = rng.integers(0, 5, 12)
+    path = save_mesh(mesh, tmp_path / f"faces{ext}")
+    back = read_mesh(path)
+    assert back.visual.kind == "face"
+    np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors)
+    if ext == ".ply":  # the attributes still follow the colours
+        np.testing.assert_array_equal(back.metadata["_ply_raw"]["face"]["data"]["level"], mesh.face_attributes["level"])
