@@ -42,6 +42,10 @@ _LOCAL_METRES_TOLERANCE = 0.01
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
+#: .npz keys that georeference the heights, refused without a 'transform' or a 'lat' and 'lon' pair to read them by
+#: (they were ignored, the grid read as 1 m cells at (0, 0)).
+_NPZ_GEOREFERENCE = ("crs", "dx", "dy", "dx_m", "dy_m", "spacing", "origin", "x", "y", "lat", "lon", "units_xy",
+                     "cellsize", "xllcorner", "yllcorner", "bounds", "extent")  # fmt: skip
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
@@ -146,8 +150,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
         without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90 or whose node
         longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or unevenly spaced,
-        an .npz ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known
-        length unit: "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
+        an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
+        one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
+        ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length unit:
+        "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
@@ -389,6 +395,14 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
+    unused = [name for name in arrays if name in _NPZ_GEOREFERENCE]
+    if key is not None and unused:  # np.savez(elevation=z, dx=30, dy=30, crs=...) read as 1 m cells at (0, 0)
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a 'transform' (the GDAL geotransform (x0, dx, 0, y0, 0, -dy)) or 1-D "
+            f"'lat' and 'lon' node axes beside {key!r} to georeference it; got {', '.join(map(repr, unused))} "
+            "but neither, which load_dem does not read (the grid would be 1 m cells at (0, 0)): add a "
+            "'transform', or drop those keys to read it unreferenced"
+        )
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
         heights, _ = _heights_in_metres(

@@ -625,3 +625,20 @@ def test_a_geographic_geotiff_warns_at_the_callers_line_and_front_range_is_withi
         lon = -105.8158333333 + np.arange(0, 758, 21) / 1200
         scale, area, distance = _local_metres_truth(lat, lon, (21 * t.spacing[0], 21 * t.spacing[1]))
         assert max(scale, area, distance) <= 0.01
+
+
+@pytest.mark.parametrize(
+    "keys",
+    [{"dx": 30.0, "dy": 30.0, "crs": "EPSG:32611"}, {"spacing": (30.0, -30.0), "origin": (5e5, 4e6)},
+     {"lat": np.linspace(45.0, 44.0, 3)}, {"lon": np.linspace(5.0, 6.0, 4)}, {"crs": "EPSG:4326"}],
+)  # fmt: skip
+def test_npz_georeferencing_keys_without_a_transform_are_refused_not_ignored(tmp_path, keys):
+    # np.savez(elevation=z, dx=30, dy=30, crs="EPSG:32611") (or spacing/origin, or 'lat' without 'lon') read as an
+    # unreferenced grid of 1 m cells at (0, 0), the keys ignored without a word: a mesh 30 times too small
+    np.savez(tmp_path / "keys.npz", elevation=np.zeros((3, 4), np.float32), **keys)
+    named = ", ".join(repr(k) for k in keys)
+    with pytest.raises(DataFileError, match=rf"keys\.npz.*expected a 'transform'.*'lat' and 'lon'.*got {named} but "
+                                            r"neither.*1 m cells"):
+        load_dem(tmp_path / "keys.npz")
+    np.savez(tmp_path / "plain.npz", elevation=np.zeros((3, 4), np.float32), units="m")  # no such key: unreferenced
+    assert load_dem(tmp_path / "plain.npz").spacing == (1.0, -1.0)
