@@ -108,17 +108,18 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``spacing`` dy > 0 for a south-up one (a positive pixel height), placed right either way.
         Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
         world position and ``spacing`` = (dx, -dy) from the geotransform,
-        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one
-        spacing, exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M`
-        (dx = R·cos φc·Δλ at the latitude φc halfway between the first and last node rows, dy = R·Δφ; an .npz
-        ``dx_m``/``dy_m`` overrides them): ``origin`` = (0, 0) at the top-left node, ``crs`` that projection's PROJ
-        definition and ``source`` names the node's longitude and latitude. Against true WGS 84 ground distances and
-        areas these metres err by the sphere (north-south +0.56 % at the equator to -0.45 % at the poles, east-west
-        -0.11 % to -0.43 %) and by the change of cos φ away from φc (east-west, about tan φc times half the latitude
-        span in radians): the worst scale or cell-area error over a grid 0.5 (1) degree tall is 0.56 (0.56) % at
-        the equator, 0.71 (1.1) % at 45°, 1.3 (2.0) % at 60°, 2.4 (3.9) % at 75°, and a warning names it when it
-        passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS in another linear unit
-        (EPSG:2229 counts US survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same
+        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one spacing,
+        exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (dx = R·cos φc·Δλ at
+        the latitude φc halfway between the first and last node rows, dy = R·Δφ; an .npz's ``dx_m``/``dy_m`` override
+        them, and R and the standard parallel become those they are exact with, or no ``crs``, with a warning, for more
+        metres per degree of longitude than of latitude): ``origin`` = (0, 0) at the top-left node, ``crs`` that
+        projection's PROJ definition and ``source`` names the node's longitude and latitude. Against true WGS 84 ground
+        distances and areas these metres err by the sphere (north-south +0.56 % at the equator to -0.45 % at the poles,
+        east-west -0.11 % to -0.45 %) and by the change of cos φ away from φc (east-west, about tan φc times half the
+        latitude span in radians): the worst scale or cell-area error over a grid 0.5 (1) degree tall is 0.56 (0.56) %
+        at the equator, 0.71 (1.1) % at 45°, 1.3 (2.0) % at 60°, 2.4 (3.9) % at 75°, and a warning names it when it
+        passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS in another linear unit (EPSG:2229
+        counts US survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same
         projection in metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
         rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
         named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
@@ -859,21 +860,37 @@ def _georeferenced(
             "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
+    radius, lat_ts, stated = EARTH_RADIUS_M, centre_lat, metres is not None
     if metres is None:
         metres = (
             EARTH_RADIUS_M * math.cos(math.radians(centre_lat)) * math.radians(abs(dx)),
             EARTH_RADIUS_M * math.radians(abs(dy)),
         )
+    else:  # the file's own metres: the sphere and standard parallel of the projection they are exact in
+        radius = abs(metres[1]) / math.radians(abs(dy))
+        cos_ts = abs(metres[0]) / (radius * math.radians(abs(dx)))
+        lat_ts = math.degrees(math.acos(cos_ts)) if cos_ts <= 1.0 else math.nan
     spacing = (math.copysign(abs(metres[0]), dx), math.copysign(abs(metres[1]), dy))
     _check_local_metres(file, crs, (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(rows) * dy,
                         (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)))
-    local_crs = (
-        f"+proj=eqc +lat_ts={centre_lat:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
-        f"+x_0=0 +y_0=0 +R={EARTH_RADIUS_M} +units=m +no_defs"
+    local_crs: str | None = (
+        f"+proj=eqc +lat_ts={lat_ts:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
+        f"+x_0=0 +y_0=0 +R={radius:.10g} +units=m +no_defs"
     )
+    how = f"dx at lat {centre_lat:.6f}, R = {EARTH_RADIUS_M} m"
+    if stated:  # the crs described R = 6371008.8 m and dx at the centre latitude, not these metres
+        how = f"dx_m, dy_m from the file: lat_ts {lat_ts:.6f}, R = {radius:.10g} m"
+        if math.isnan(lat_ts):
+            local_crs, how = None, "dx_m, dy_m from the file, no CRS"
+            warnings.warn(
+                f"{file.name}: its dx_m, dy_m ({metres[0]:.10g}, {metres[1]:.10g} m) give more metres per degree of "
+                f"longitude than of latitude, which no equidistant cylindrical projection of a sphere does: the grid "
+                "keeps them, without a CRS",
+                stacklevel=4,
+            )
     source = (
         f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
-        f"lat {node_y:.9f}; dx at lat {centre_lat:.6f}, R = {EARTH_RADIUS_M} m)"
+        f"lat {node_y:.9f}; {how})"
     )
     return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
 

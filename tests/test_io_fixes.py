@@ -627,6 +627,36 @@ def test_a_geographic_geotiff_warns_at_the_callers_line_and_front_range_is_withi
         assert max(scale, area, distance) <= 0.01
 
 
+def test_npz_dx_m_dy_m_are_described_by_the_crs_they_are_exact_in(tmp_path):
+    """An .npz's dx_m/dy_m became the spacing, but the crs still said +R=6371008.8 with the standard parallel at the
+    centre latitude: describe_dem's lon/lat extent and an exported GeoTIFF's georeference were off by the ratio (the
+    far corner of a 0.1-degree grid by 0.0003 degrees here, any amount for other metres). The crs now is the sphere
+    and parallel that make those metres exact, checked here by PROJ (rasterio) against the file's own degrees."""
+    from stepterrain.io import describe_dem
+
+    z = np.zeros((11, 21), np.float32)
+    transform = np.array([10.0, 0.01, 0.0, 45.0, 0.0, -0.01])  # node (0, 0) at 10.005E 44.995N
+    np.savez(tmp_path / "m.npz", elevation=z, transform=transform, crs="EPSG:4326", dx_m=785.0, dy_m=1111.0)
+    t = load_dem(tmp_path / "m.npz")
+    assert t.spacing == (785.0, -1111.0)
+    truth = (10.005, 10.005 + 20 * 0.01, 44.995 - 10 * 0.01, 44.995)
+    assert describe_dem(t)["lonlat_extent"] == pytest.approx(truth, abs=1e-9)
+    assert describe_dem(t)["lonlat_step"] == pytest.approx((0.01, -0.01), rel=1e-9)
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import transform as reproject
+
+    lon, lat = reproject(rasterio.crs.CRS.from_string(t.crs), "EPSG:4326", [20 * 785.0], [-10 * 1111.0])
+    assert (lon[0], lat[0]) == pytest.approx((truth[1], truth[2]), abs=1e-9)
+    # more metres per degree of longitude than of latitude (WGS 84 at the equator: N > M): no sphere's equidistant
+    # cylindrical projection has them; the metres are kept, without a crs
+    equator = np.array([10.0, 0.01, 0.0, 0.05, 0.0, -0.01])
+    np.savez(tmp_path / "wide.npz", elevation=z, transform=equator, crs="EPSG:4326", dx_m=1113.195, dy_m=1105.74)
+    message = r"wide\.npz: its dx_m, dy_m \(1113\.195, 1105\.74 m\).*without a CRS"
+    with pytest.warns(UserWarning, match=message) as w:
+        t = load_dem(tmp_path / "wide.npz")
+    assert t.crs is None and t.spacing == (1113.195, -1105.74) and w[0].filename == __file__
+
+
 @pytest.mark.parametrize(
     "keys",
     [{"dx": 30.0, "dy": 30.0, "crs": "EPSG:32611"}, {"spacing": (30.0, -30.0), "origin": (5e5, 4e6)},
