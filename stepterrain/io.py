@@ -34,9 +34,18 @@ SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", ".tif", ".tiff"
 
 #: Mean earth radius (IUGG R1, metres) used to turn geographic degrees into local metres.
 EARTH_RADIUS_M = 6371008.8
+#: WGS 84 semi-major axis (m) and flattening: the ellipsoid the local metres of a geographic grid are checked against.
+_WGS84_A, _WGS84_F = 6378137.0, 1 / 298.257223563
+#: Worst relative error of a geographic grid's local metres (scale along a parallel or a meridian, or cell area)
+#: against WGS 84 over its rows beyond which :func:`load_dem` warns.
+_LOCAL_METRES_TOLERANCE = 0.01
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
+#: .npz keys that georeference the heights, refused without a 'transform' or a 'lat' and 'lon' pair to read them by
+#: (they were ignored, the grid read as 1 m cells at (0, 0)).
+_NPZ_GEOREFERENCE = ("crs", "dx", "dy", "dx_m", "dy_m", "spacing", "origin", "x", "y", "lat", "lon", "units_xy",
+                     "cellsize", "xllcorner", "yllcorner", "bounds", "extent")  # fmt: skip
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
@@ -99,12 +108,19 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``spacing`` dy > 0 for a south-up one (a positive pixel height), placed right either way.
         Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
         world position and ``spacing`` = (dx, -dy) from the geotransform,
-        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres on
-        a sphere of radius :data:`EARTH_RADIUS_M` (dx at the centre latitude): ``origin`` = (0, 0) at the
-        top-left node, ``crs`` the equivalent PROJ equidistant-cylindrical definition and ``source`` names
-        the node's longitude and latitude. A projected CRS in another linear unit (EPSG:2229 counts US
-        survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection in
-        metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
+        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one spacing,
+        exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (dx = R·cos φc·Δλ at
+        the latitude φc halfway between the first and last node rows, dy = R·Δφ; an .npz's ``dx_m``/``dy_m`` override
+        them, and R and the standard parallel become those they are exact with, or no ``crs``, with a warning, for more
+        metres per degree of longitude than of latitude): ``origin`` = (0, 0) at the top-left node, ``crs`` that
+        projection's PROJ definition and ``source`` names the node's longitude and latitude. Against true WGS 84 ground
+        distances and areas these metres err by the sphere (north-south +0.56 % at the equator to -0.45 % at the poles,
+        east-west -0.11 % to -0.45 %) and by the change of cos φ away from φc (east-west, about tan φc times half the
+        latitude span in radians): the worst scale or cell-area error over a grid 0.5 (1) degree tall is 0.56 (0.56) %
+        at the equator, 0.71 (1.1) % at 45°, 1.3 (2.0) % at 60°, 2.4 (3.9) % at 75°, and a warning names it when it
+        passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS in another linear unit (EPSG:2229
+        counts US survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same
+        projection in metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
         rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
         named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
         CRS: EPSG:26911+6360 is NAVD88 height in US survey feet, and ``crs`` is then the horizontal part), in
@@ -117,6 +133,14 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         GeoTIFF's CRS without a geotransform is ignored, with a warning; one referenced by ground control points or
         RPCs instead is refused, see Raises). ``source`` is the file name.
 
+    Warns
+    -----
+    UserWarning
+        At the caller's line: a geographic grid whose local metres err by more than 1 % against WGS 84 in some row
+        (east-west or north-south scale, or cell area; the message names the error, the node latitudes and a
+        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid converted to metres whose
+        heights' unit is not named; a GeoTIFF CRS ignored for want of a geotransform.
+
     Raises
     ------
     InvalidInputError
@@ -127,8 +151,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
         without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90 or whose node
         longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or unevenly spaced,
-        an .npz ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known
-        length unit: "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
+        an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
+        one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
+        ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length unit:
+        "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
@@ -370,6 +396,14 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
+    unused = [name for name in arrays if name in _NPZ_GEOREFERENCE]
+    if key is not None and unused:  # np.savez(elevation=z, dx=30, dy=30, crs=...) read as 1 m cells at (0, 0)
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a 'transform' (the GDAL geotransform (x0, dx, 0, y0, 0, -dy)) or 1-D "
+            f"'lat' and 'lon' node axes beside {key!r} to georeference it; got {', '.join(map(repr, unused))} "
+            "but neither, which load_dem does not read (the grid would be 1 m cells at (0, 0)): add a "
+            "'transform', or drop those keys to read it unreferenced"
+        )
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
         heights, _ = _heights_in_metres(
@@ -826,21 +860,97 @@ def _georeferenced(
             "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
+    radius, lat_ts, stated = EARTH_RADIUS_M, centre_lat, metres is not None
     if metres is None:
         metres = (
             EARTH_RADIUS_M * math.cos(math.radians(centre_lat)) * math.radians(abs(dx)),
             EARTH_RADIUS_M * math.radians(abs(dy)),
         )
+    else:  # the file's own metres: the sphere and standard parallel of the projection they are exact in
+        radius = abs(metres[1]) / math.radians(abs(dy))
+        cos_ts = abs(metres[0]) / (radius * math.radians(abs(dx)))
+        lat_ts = math.degrees(math.acos(cos_ts)) if cos_ts <= 1.0 else math.nan
     spacing = (math.copysign(abs(metres[0]), dx), math.copysign(abs(metres[1]), dy))
-    local_crs = (
-        f"+proj=eqc +lat_ts={centre_lat:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
-        f"+x_0=0 +y_0=0 +R={EARTH_RADIUS_M} +units=m +no_defs"
+    _check_local_metres(file, crs, (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(rows) * dy,
+                        (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)))
+    local_crs: str | None = (
+        f"+proj=eqc +lat_ts={lat_ts:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
+        f"+x_0=0 +y_0=0 +R={radius:.10g} +units=m +no_defs"
     )
+    how = f"dx at lat {centre_lat:.6f}, R = {EARTH_RADIUS_M} m"
+    if stated:  # the crs described R = 6371008.8 m and dx at the centre latitude, not these metres
+        how = f"dx_m, dy_m from the file: lat_ts {lat_ts:.6f}, R = {radius:.10g} m"
+        if math.isnan(lat_ts):
+            local_crs, how = None, "dx_m, dy_m from the file, no CRS"
+            warnings.warn(
+                f"{file.name}: its dx_m, dy_m ({metres[0]:.10g}, {metres[1]:.10g} m) give more metres per degree of "
+                f"longitude than of latitude, which no equidistant cylindrical projection of a sphere does: the grid "
+                "keeps them, without a CRS",
+                stacklevel=4,
+            )
     source = (
         f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
-        f"lat {node_y:.9f}; dx at lat {centre_lat:.6f}, R = {EARTH_RADIUS_M} m)"
+        f"lat {node_y:.9f}; {how})"
     )
     return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
+
+
+def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, float]) -> float:
+    """Worst relative error, over the rows at ``node_lats`` (degrees), of one local spacing of ``per_degree`` (metres
+    per degree of longitude, of latitude) against the WGS 84 ellipsoid: of the scale along the parallel (N cos φ),
+    along the meridian (M) and of their product, the cell area; inf for a row at a pole (a degree of longitude is
+    0 m there)."""
+    phi = np.radians(np.asarray(node_lats, dtype=np.float64))
+    e2 = _WGS84_F * (2.0 - _WGS84_F)
+    w2 = 1.0 - e2 * np.sin(phi) ** 2
+    per_lon = np.radians(_WGS84_A / np.sqrt(w2) * np.cos(phi))  # N(φ) cos φ, metres per degree
+    per_lat = np.radians(_WGS84_A * (1.0 - e2) / w2**1.5)  # M(φ)
+    with np.errstate(divide="ignore"):
+        east = np.where(per_lon > 1e-6, per_degree[0] / np.maximum(per_lon, 1e-6), np.inf)
+    north = per_degree[1] / per_lat
+    worst = np.max(np.maximum(np.maximum(np.abs(east - 1.0), np.abs(north - 1.0)), np.abs(east * north - 1.0)))
+    return float(worst)
+
+
+def _check_local_metres(
+    file: Path, crs: str | None, lons: tuple[float, float], node_lats: NDArray[np.float64],
+    per_degree: tuple[float, float],
+) -> None:
+    """Warn, at the caller of :func:`load_dem`, when a geographic grid's one local spacing errs by more than
+    :data:`_LOCAL_METRES_TOLERANCE` against WGS 84 somewhere in its rows (:func:`local_metres_error`): a tall grid,
+    or one far from the equator, whose east-west metres drift with cos φ. ``lons`` are its first and last node
+    longitudes, for the hint."""
+    error = local_metres_error(node_lats, per_degree)
+    if error <= _LOCAL_METRES_TOLERANCE:
+        return
+    low, high = float(np.min(node_lats)), float(np.max(node_lats))
+    centre, centre_lon = 0.5 * (low + high), 0.5 * (lons[0] + lons[1])
+    if abs(lons[1] - lons[0]) <= 6.0 and high - low <= 20.0 and abs(centre) <= 80.0:
+        zone = int(math.floor(((centre_lon + 180.0) % 360.0) / 6.0)) % 60 + 1
+        code = f"EPSG:{(32600 if centre >= 0 else 32700) + zone}"
+        target = f"{code} (WGS 84 / UTM zone {zone}{'N' if centre >= 0 else 'S'})"
+    elif low >= 60.0 or high <= -60.0:
+        code = f"EPSG:{3413 if centre > 0 else 3031}"
+        target = f"{code} (WGS 84 polar stereographic)"
+    else:
+        code = target = ""
+    if not code:
+        hint = "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
+               "(stepterrain globe)"
+    elif file.suffix.lower() in (".tif", ".tiff"):
+        hint = f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
+    else:
+        hint = f"reproject it first, e.g. to {target}"
+    how = f"up to {100 * error:.3g} %"
+    if math.isinf(error):
+        how = "an unbounded amount (a row of nodes at a pole, where a degree of longitude is 0 m)"
+    warnings.warn(
+        f"{file.name}: {crs or 'geographic'} degrees read as local metres with one spacing "
+        f"({per_degree[0]:.6g} m per degree of longitude, {per_degree[1]:.6g} m per degree of latitude) err against "
+        f"WGS 84 ground distances and cell areas by {how} over its node latitudes {low:.6g} to {high:.6g} "
+        f"({high - low:.6g} degrees), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres {hint}",
+        stacklevel=5,
+    )
 
 
 _PARSED_CRS: dict[str, Any] = {}  # CRS string -> rasterio CRS: a batch reads many files in one CRS

@@ -4,6 +4,8 @@ test failed before its fix)."""
 from __future__ import annotations
 
 import os
+import re
+import warnings
 
 import numpy as np
 import pytest
@@ -14,6 +16,8 @@ from stepterrain.batch import batch
 from stepterrain.errors import DataFileError
 from stepterrain.export import read_mesh, save_image, save_mesh
 from stepterrain.io import load_dem
+
+from .conftest import SHARED_DATA
 
 
 def test_a_png_beyond_pillows_pixel_limit_is_a_data_file_error(tmp_path, monkeypatch):
@@ -509,3 +513,162 @@ def test_the_documented_peak_of_a_geotiff_read_holds(tmp_path, dtype, options, m
     finally:
         st.set_memory_budget(previous)
     assert checked <= peak <= most * rows * cols
+
+
+# WGS 84, for the independent geodesy below (not stepterrain's own)
+_A, _F = 6378137.0, 1 / 298.257223563
+_B, _E2 = _A * (1 - _F), _F * (2 - _F)
+
+
+def _vincenty(lat1, lon1, lat2, lon2):
+    """Geodesic distance (m) on WGS 84 between points in radians: Vincenty's inverse formula, vectorised."""
+    u1, u2 = np.arctan((1 - _F) * np.tan(lat1)), np.arctan((1 - _F) * np.tan(lat2))
+    lam = big_l = lon2 - lon1
+    for _ in range(60):
+        sin_sigma = np.hypot(np.cos(u2) * np.sin(lam), np.cos(u1) * np.sin(u2) - np.sin(u1) * np.cos(u2) * np.cos(lam))
+        cos_sigma = np.sin(u1) * np.sin(u2) + np.cos(u1) * np.cos(u2) * np.cos(lam)
+        sigma = np.arctan2(sin_sigma, cos_sigma)
+        sin_alpha = np.cos(u1) * np.cos(u2) * np.sin(lam) / np.where(sin_sigma > 0, sin_sigma, 1.0)
+        cos2_alpha = 1 - sin_alpha**2
+        cos_2sm = np.where(cos2_alpha > 0, cos_sigma - 2 * np.sin(u1) * np.sin(u2) / np.where(cos2_alpha > 0,
+                                                                                                cos2_alpha, 1.0), 0.0)
+        c = _F / 16 * cos2_alpha * (4 + _F * (4 - 3 * cos2_alpha))
+        lam = big_l + (1 - c) * _F * sin_alpha * (sigma + c * sin_sigma * (cos_2sm + c * cos_sigma * (2 * cos_2sm**2
+                                                                                                     - 1)))
+    u_sq = cos2_alpha * (_A**2 - _B**2) / _B**2
+    big_a = 1 + u_sq / 16384 * (4096 + u_sq * (-768 + u_sq * (320 - 175 * u_sq)))
+    big_b = u_sq / 1024 * (256 + u_sq * (-128 + u_sq * (74 - 47 * u_sq)))
+    delta = big_b * sin_sigma * (cos_2sm + big_b / 4 * (cos_sigma * (2 * cos_2sm**2 - 1) - big_b / 6 * cos_2sm
+                                                        * (4 * sin_sigma**2 - 3) * (4 * cos_2sm**2 - 3)))
+    return _B * big_a * (sigma - delta)
+
+
+def _band_area(lat1, lat2, dlon):
+    """Exact area (m²) of the WGS 84 quadrangle between latitudes lat1, lat2 and dlon of longitude (radians), from
+    the authalic function q(φ)."""
+    e = np.sqrt(_E2)
+
+    def q(phi):
+        s = np.sin(phi)
+        return s / (1 - _E2 * s * s) + np.log((1 + e * s) / (1 - e * s)) / (2 * e)
+
+    return _B**2 * dlon / 2 * np.abs(q(lat2) - q(lat1))
+
+
+def _local_metres_truth(lat, lon, spacing):
+    """Worst relative errors, against WGS 84, of the grid of ``spacing`` (dx, dy) metres load_dem made of the nodes at
+    degrees lat (rows) and lon (columns): of the local scale at the rows (east-west, north-south and their product,
+    the area scale), of the cells' areas (from the band areas) and of the nodes' map distances from the centre node
+    (from Vincenty's geodesics)."""
+    phi, lam = np.radians(lat), np.radians(lon)
+    (dx, dy), dlam, dphi = spacing, abs(lam[1] - lam[0]), abs(phi[1] - phi[0])
+    w = np.sqrt(1 - _E2 * np.sin(phi) ** 2)
+    east, north = abs(dx) / (_A / w * np.cos(phi) * dlam), abs(dy) / (_A * (1 - _E2) / w**3 * dphi)
+    scale = max(np.abs(east - 1).max(), np.abs(north - 1).max(), np.abs(east * north - 1).max())
+    area = np.abs(abs(dx * dy) / _band_area(phi[:-1], phi[1:], dlam) - 1).max()
+    i, j = np.meshgrid(np.arange(len(lat)), np.arange(len(lon)), indexing="ij")
+    ci, cj = len(lat) // 2, len(lon) // 2
+    geodesic = _vincenty(np.full(i.shape, phi[ci]), np.full(i.shape, lam[cj]), phi[i], lam[j])
+    mapped = np.hypot((j - cj) * dx, (i - ci) * dy)
+    away = geodesic > 0
+    return scale, area, np.abs(mapped[away] / geodesic[away] - 1).max()
+
+
+@pytest.mark.parametrize(
+    "lat_c, span, warns",
+    [(0.0, 0.5, False), (0.0, 5.0, False), (0.0, 10.0, False), (45.0, 0.5, False), (-45.0, 0.5, False),
+     (45.0, 1.0, True), (60.0, 0.5, True), (60.0, 5.0, True), (-75.0, 0.5, True), (0.0, 30.0, True)],
+)  # fmt: skip
+def test_a_geographic_grid_whose_one_local_spacing_errs_over_1_percent_warns(tmp_path, lat_c, span, warns):
+    """A geographic grid became local metres with one spacing (a sphere of R = 6371008.8 m, dx at the centre
+    latitude) without a word however tall it was: a 1-degree grid at 45N errs by 1.1 % against WGS 84 east-west, one
+    of 5 degrees at 60N by 8 %. load_dem warns (at the caller's line) when the worst scale or cell-area error over its
+    rows passes 1 %, naming it; grids it keeps quiet about are within 1 % in scale, cell area and node distances."""
+    lat = np.linspace(lat_c + span / 2, lat_c - span / 2, 21)  # north first
+    lon = np.linspace(100.0 - span / 2, 100.0 + span / 2, 21)
+    np.savez(tmp_path / "geo.npz", elevation=np.zeros((21, 21), np.float32), lat=lat, lon=lon)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        t = load_dem(tmp_path / "geo.npz")
+    scale, area, distance = _local_metres_truth(lat, lon, t.spacing)
+    said = [w for w in caught if "read as local metres" in str(w.message)]
+    assert len(said) == int(warns), [str(w.message) for w in caught]
+    if warns:
+        assert said[0].filename == __file__  # at the caller's line
+        message = str(said[0].message)
+        assert f"node latitudes {lat_c - span / 2:.6g} to {lat_c + span / 2:.6g} ({span:.6g} degrees)" in message
+        stated = float(re.search(r"by up to ([0-9.e+]+) %", message).group(1)) / 100
+        assert stated == pytest.approx(scale, rel=6e-3) and stated > 0.01 and area <= stated  # 3 digits stated
+        assert ("EPSG:32747 (WGS 84 / UTM zone 47S)" if lat_c < 0 else "EPSG:32647") in message or span > 20
+    else:
+        assert scale <= 0.01 and area <= 0.01 and distance <= 0.01
+
+
+def test_a_geographic_geotiff_warns_at_the_callers_line_and_front_range_is_within_1_percent(tmp_path):
+    rasterio = pytest.importorskip("rasterio")
+    path = tmp_path / "tall.tif"
+    profile = {"driver": "GTiff", "width": 4, "height": 40, "count": 1, "dtype": "float32", "crs": "EPSG:4326",
+               "transform": rasterio.Affine(0.25, 0.0, 10.0, 0.0, -0.25, 70.0)}
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(np.zeros((40, 4), np.float32), 1)
+    with pytest.warns(UserWarning, match=r"tall\.tif: EPSG:4326 degrees read as local metres.*node latitudes 60\.125 "
+                                         r"to 69\.875 \(9\.75 degrees\).*gdalwarp -r bilinear -t_srs EPSG:32632 "
+                                         r"tall\.tif tall_m\.tif") as caught:
+        load_dem(path)
+    assert caught[0].filename == __file__
+    front_range = SHARED_DATA / "front_range_srtmgl3_3arcsec.tif"
+    if front_range.exists():  # 0.63 degrees at 40N: 0.7 % at worst, quiet
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            t = load_dem(front_range)
+        lat = 40.4658333333 - np.arange(0, 758, 21) / 1200  # every 21st node: 21 times the spacing
+        lon = -105.8158333333 + np.arange(0, 758, 21) / 1200
+        scale, area, distance = _local_metres_truth(lat, lon, (21 * t.spacing[0], 21 * t.spacing[1]))
+        assert max(scale, area, distance) <= 0.01
+
+
+def test_npz_dx_m_dy_m_are_described_by_the_crs_they_are_exact_in(tmp_path):
+    """An .npz's dx_m/dy_m became the spacing, but the crs still said +R=6371008.8 with the standard parallel at the
+    centre latitude: describe_dem's lon/lat extent and an exported GeoTIFF's georeference were off by the ratio (the
+    far corner of a 0.1-degree grid by 0.0003 degrees here, any amount for other metres). The crs now is the sphere
+    and parallel that make those metres exact, checked here by PROJ (rasterio) against the file's own degrees."""
+    from stepterrain.io import describe_dem
+
+    z = np.zeros((11, 21), np.float32)
+    transform = np.array([10.0, 0.01, 0.0, 45.0, 0.0, -0.01])  # node (0, 0) at 10.005E 44.995N
+    np.savez(tmp_path / "m.npz", elevation=z, transform=transform, crs="EPSG:4326", dx_m=785.0, dy_m=1111.0)
+    t = load_dem(tmp_path / "m.npz")
+    assert t.spacing == (785.0, -1111.0)
+    truth = (10.005, 10.005 + 20 * 0.01, 44.995 - 10 * 0.01, 44.995)
+    assert describe_dem(t)["lonlat_extent"] == pytest.approx(truth, abs=1e-9)
+    assert describe_dem(t)["lonlat_step"] == pytest.approx((0.01, -0.01), rel=1e-9)
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import transform as reproject
+
+    lon, lat = reproject(rasterio.crs.CRS.from_string(t.crs), "EPSG:4326", [20 * 785.0], [-10 * 1111.0])
+    assert (lon[0], lat[0]) == pytest.approx((truth[1], truth[2]), abs=1e-9)
+    # more metres per degree of longitude than of latitude (WGS 84 at the equator: N > M): no sphere's equidistant
+    # cylindrical projection has them; the metres are kept, without a crs
+    equator = np.array([10.0, 0.01, 0.0, 0.05, 0.0, -0.01])
+    np.savez(tmp_path / "wide.npz", elevation=z, transform=equator, crs="EPSG:4326", dx_m=1113.195, dy_m=1105.74)
+    message = r"wide\.npz: its dx_m, dy_m \(1113\.195, 1105\.74 m\).*without a CRS"
+    with pytest.warns(UserWarning, match=message) as w:
+        t = load_dem(tmp_path / "wide.npz")
+    assert t.crs is None and t.spacing == (1113.195, -1105.74) and w[0].filename == __file__
+
+
+@pytest.mark.parametrize(
+    "keys",
+    [{"dx": 30.0, "dy": 30.0, "crs": "EPSG:32611"}, {"spacing": (30.0, -30.0), "origin": (5e5, 4e6)},
+     {"lat": np.linspace(45.0, 44.0, 3)}, {"lon": np.linspace(5.0, 6.0, 4)}, {"crs": "EPSG:4326"}],
+)  # fmt: skip
+def test_npz_georeferencing_keys_without_a_transform_are_refused_not_ignored(tmp_path, keys):
+    # np.savez(elevation=z, dx=30, dy=30, crs="EPSG:32611") (or spacing/origin, or 'lat' without 'lon') read as an
+    # unreferenced grid of 1 m cells at (0, 0), the keys ignored without a word: a mesh 30 times too small
+    np.savez(tmp_path / "keys.npz", elevation=np.zeros((3, 4), np.float32), **keys)
+    named = ", ".join(repr(k) for k in keys)
+    with pytest.raises(DataFileError, match=rf"keys\.npz.*expected a 'transform'.*'lat' and 'lon'.*got {named} but "
+                                            r"neither.*1 m cells"):
+        load_dem(tmp_path / "keys.npz")
+    np.savez(tmp_path / "plain.npz", elevation=np.zeros((3, 4), np.float32), units="m")  # no such key: unreferenced
+    assert load_dem(tmp_path / "plain.npz").spacing == (1.0, -1.0)
