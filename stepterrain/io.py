@@ -397,7 +397,7 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
-    unused = [name for name in arrays if name in _NPZ_GEOREFERENCE]
+    unused = npz_georeference_keys(arrays)
     if key is not None and unused:  # np.savez(elevation=z, dx=30, dy=30, crs=...) read as 1 m cells at (0, 0)
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a 'transform' (the GDAL geotransform (x0, dx, 0, y0, 0, -dy)) or 1-D "
@@ -417,6 +417,14 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
         f"'transform' beside it), or exactly one 2-D array; got {described}"
     )
+
+
+def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
+    """The members of an .npz that georeference its heights other than a ``transform`` (:data:`_NPZ_GEOREFERENCE`:
+    ``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...), in the archive's order:
+    :func:`load_dem` refuses them without a ``transform`` or a ``lat`` and ``lon`` pair, and
+    :func:`~stepterrain.batch.load_series` (which reads no georeferencing) always, rather than ignore them."""
+    return [name for name in arrays if name in _NPZ_GEOREFERENCE]
 
 
 def _latlon_geotransform(
