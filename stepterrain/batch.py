@@ -311,8 +311,11 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     (``heights``, ``elevation`` or ``z``) decides when there is one (a 2-D ``elevation`` beside a 3-D texture is
     one raster), and a ``nodata`` number marks missing cells; those and non-finite heights become NaN (nodata).
     A finite height beyond float32, a series that is all nodata, a ``nodata`` that is not one number, and a file
-    that is truncated or declares more data than it holds are a :class:`~stepterrain.errors.DataFileError`."""
-    from .io import nodata_as_nan, npz_heights_key, npz_nodata, read_npy, read_npz
+    that is truncated or declares more data than it holds are a :class:`~stepterrain.errors.DataFileError`; so is
+    an ``.npz`` series with a ``transform`` or other georeferencing keys (``crs``, ``dx``/``dy``,
+    ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...): a series is meshed unreferenced, as 1 m cells at
+    (0, 0), and those keys were ignored without a word."""
+    from .io import nodata_as_nan, npz_georeference_keys, npz_heights_key, npz_nodata, read_npy, read_npz
 
     file = Path(os.fspath(path))
     loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
@@ -324,6 +327,14 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
             key = next((k for k in loaded if loaded[k].ndim == 3), None)
         if key is None or loaded[key].ndim != 3:
             return None
+        unread = [name for name in loaded if name == "transform"] + npz_georeference_keys(loaded)
+        if unread:  # np.savez(heights=stack, transform=..., crs=...) was meshed as 1 m cells at (0, 0)
+            raise DataFileError(
+                f"cannot read {str(file)!r}: a (T, H, W) series is meshed unreferenced, as 1 m cells at (0, 0) "
+                f"(load_series reads no georeferencing); got {', '.join(map(repr, unread))} beside {key!r}, which "
+                "would be ignored: drop those keys to mesh it unreferenced, or save each frame as a 2-D .npz with its "
+                "georeferencing for load_dem (a folder of them is a batch source)"
+            )
         stack, what, nodata = loaded[key], repr(key), npz_nodata(loaded.get("nodata"), file)
     if stack.ndim != 3:
         return None

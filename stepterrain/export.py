@@ -237,7 +237,10 @@ def save_mesh(
     double-sided; alphaMode BLEND when some vertex alpha is below 255, as a close-up's anchors, else OPAQUE):
     without one, viewers used glTF's default, metallic 1 (§3.9.6), and showed the terrain as dark metal. A texture
     given as an image (``TextureVisuals(uv=..., image=...)``) is written at full brightness with that material; a
-    ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). Vertex colours (sRGB bytes, as
+    ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). A texture's alphaMode (unless its
+    ``PBRMaterial`` sets one) follows its alpha: OPAQUE when every texel is opaque, MASK (alphaCutoff 0.5) when
+    alpha is only 0 and 255 (a nodata hole: the mesh still writes depth, so terraces hide each other), BLEND when
+    some texel is partly transparent. Vertex colours (sRGB bytes, as
     matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
     it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
     material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
@@ -253,7 +256,8 @@ def save_mesh(
     0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
     meshes also write
     ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
-    ``_``: OBJ and MTL readers split file names on it), each atomically; one that would
+    ``_``: OBJ and MTL readers split file names on it; an image with transparent texels is also the MTL's
+    dissolve, ``map_d -imfchan m``), each atomically; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -800,6 +804,7 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     mtl_name = f"{stem}.mtl"
     sidecars, material, uv = _obj_material(mesh, mtl_name)
     sidecars = _own_texture_names(sidecars, mtl_name, stem)
+    sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
     for path, data in zip(paths, sidecars.values(), strict=True):
@@ -893,6 +898,24 @@ def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) 
         else:
             out[renamed.get(name, name)] = data
     return out
+
+
+def _alpha_map(sidecars: dict[str, bytes], mtl_name: str, material: Any) -> dict[str, bytes]:
+    """The MTL with ``map_d -imfchan m <image>`` after its ``map_Kd <image>`` when that image has texels of alpha
+    below 255 (:func:`_texture_alpha_mode`): trimesh's MTL named the image only as the diffuse colour, so readers
+    showed its transparent texels (nodata, outside a lens) opaque. ``map_d`` is the MTL's dissolve texture, and
+    ``-imfchan m`` takes it from the image's matte (alpha) channel, as the glTF's alphaMode does."""
+    image = getattr(material, "baseColorTexture", getattr(material, "image", None))
+    if mtl_name not in sidecars or _texture_alpha_mode(image)[0] == "OPAQUE":
+        return sidecars
+    lines = sidecars[mtl_name].decode("utf-8").splitlines()
+    out = []
+    for line in lines:
+        out.append(line)
+        parts = line.split(None, 1)
+        if len(parts) == 2 and parts[0].lower() == "map_kd":
+            out.append(f"map_d -imfchan m {parts[1].strip()}")
+    return {**sidecars, mtl_name: ("\n".join(out) + "\n").encode("utf-8")}
 
 
 def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
@@ -1535,13 +1558,41 @@ def _textured_material(material: Any) -> Any:
     baseColorFactor 0.4 (its default diffuse grey, multiplying the texture: the drape at 40 % brightness) and no
     metallicFactor (glTF's default 1: dark metal); it is now the image with a white factor (a colour without one),
     metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` keeps what it sets;
-    an unset metallicFactor becomes 0. Other materials are written as trimesh writes them."""
+    an unset metallicFactor becomes 0, an unset alphaMode that of its texture. The alphaMode follows the texture
+    (:func:`_texture_alpha_mode`): glTF's default, OPAQUE, showed its transparent texels (nodata, outside a
+    lens) as whatever colour they hold. Other materials are written as trimesh writes them."""
     if isinstance(material, trimesh.visual.material.SimpleMaterial):
         image = material.image
+        mode, cutoff = _texture_alpha_mode(image)
         return trimesh.visual.material.PBRMaterial(
             name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
-            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True)
-    if isinstance(material, trimesh.visual.material.PBRMaterial) and material.metallicFactor is None:
-        material = material.copy()
-        material.metallicFactor = 0.0
+            metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True, alphaMode=mode, alphaCutoff=cutoff)
+    if isinstance(material, trimesh.visual.material.PBRMaterial):
+        mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
+        unset_alpha = material.alphaMode is None and mode != "OPAQUE"
+        if material.metallicFactor is None or unset_alpha:
+            material = material.copy()
+        if material.metallicFactor is None:
+            material.metallicFactor = 0.0
+        if unset_alpha:
+            material.alphaMode, material.alphaCutoff = mode, cutoff
     return material
+
+
+def _texture_alpha_mode(image: Any) -> tuple[str, float | None]:
+    """glTF's alphaMode (and alphaCutoff) for a base colour texture ``image`` (a PIL image, or None): "OPAQUE" when
+    every texel is opaque (or the image has no alpha); "MASK" with cutoff 0.5 when its alpha is only 0 and 255 (a
+    nodata hole, the outside of a hard-edged lens): each texel is shown or not, and the mesh keeps writing depth, so
+    its terraces hide each other as opaque ones do (viewers draw a BLEND mesh without depth writes and without
+    sorting its triangles, which showed far terraces through near ones); "BLEND" when some alpha lies between
+    (a feathered lens, a layer of alpha 0.5), which only blending shows."""
+    if image is None or not hasattr(image, "getbands"):
+        return "OPAQUE", None
+    if not ({"A", "a"} & set(image.getbands()) or "transparency" in image.info):
+        return "OPAQUE", None
+    alpha = np.asarray(image.convert("RGBA"))[..., 3]
+    if alpha.size == 0 or alpha.min() == 255:
+        return "OPAQUE", None
+    if np.isin(alpha, (0, 255)).all():
+        return "MASK", 0.5
+    return "BLEND", None

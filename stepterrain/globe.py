@@ -66,6 +66,7 @@ from .terrain import (
     number_or_nan,
     real_numbers,
     unmasked,
+    unwrapped_longitudes,
 )
 
 __all__ = ["Camera", "Globe", "adaptive_mesh", "drape_colors", "drape_texture", "elevation_colors", "look_from",
@@ -219,6 +220,7 @@ def _latlon_axes(lat: ArrayLike, lon: ArrayLike, shape: tuple[int, int]) -> tupl
         narrow = raw.dtype.kind == "f" and raw.dtype.itemsize < 8 and raw.size and np.isfinite(raw).all()
         roundings.append(float(np.spacing(np.abs(raw).max())) if narrow else 0.0)
     lat, lon = axes
+    lon = unwrapped_longitudes(lon) if lon.ndim == 1 and np.isfinite(lon).all() else lon  # [.., 179.5, -179.5, ..]
     rows, cols = shape
     if lat.shape != (rows,) or lon.shape != (cols,):
         raise InvalidInputError(f"lat and lon must have lengths ({rows},) and ({cols},) matching elevation "
@@ -359,7 +361,9 @@ class Globe:
         lon : (W,) array_like
             Longitudes in degrees, strictly monotone, regular, covering 360° (a duplicated closing column,
             e.g. -180 and 180, is dropped; its heights must repeat the first column's within 1 cm, else the
-            data are inconsistent and refused). Interpolation wraps around the antimeridian.
+            data are inconsistent and refused). Interpolation wraps around the antimeridian. The axis may cross
+            it ([0.5, ..., 179.5, -179.5, ..., -0.5]): it is unwrapped first, 360° added or subtracted where
+            neighbours are more than 180° apart.
         face_size : int
             Nodes per face edge, 2^k + 1 (the paper uses 1025), at most 16385 (int32 node entries).
         radius : float

@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 from ._compaction import check_budget
 from ._files import require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
-from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index
+from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index, unwrapped_longitudes
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
 
@@ -87,7 +87,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
         (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
-        one per row and column, georeference them as geographic, the layout of the global relief grids; a
+        one per row and column, georeference them as geographic, the layout of the global relief grids (``lon``
+        may cross the antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights; a transparent grey value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks
         missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as 8 bits) or
@@ -396,7 +397,7 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             file, heights, transform, crs, geographic=geographic, metres=metres, height_unit=height_unit
         )
 
-    unused = [name for name in arrays if name in _NPZ_GEOREFERENCE]
+    unused = npz_georeference_keys(arrays)
     if key is not None and unused:  # np.savez(elevation=z, dx=30, dy=30, crs=...) read as 1 m cells at (0, 0)
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a 'transform' (the GDAL geotransform (x0, dx, 0, y0, 0, -dy)) or 1-D "
@@ -418,11 +419,20 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     )
 
 
+def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
+    """The members of an .npz that georeference its heights other than a ``transform`` (:data:`_NPZ_GEOREFERENCE`:
+    ``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...), in the archive's order:
+    :func:`load_dem` refuses them without a ``transform`` or a ``lat`` and ``lon`` pair, and
+    :func:`~stepterrain.batch.load_series` (which reads no georeferencing) always, rather than ignore them."""
+    return [name for name in arrays if name in _NPZ_GEOREFERENCE]
+
+
 def _latlon_geotransform(
     lat: NDArray[Any], lon: NDArray[Any], shape: tuple[int, ...], file: Path
 ) -> NDArray[np.float64]:
     """The GDAL geotransform of a grid whose nodes lie at the evenly spaced degrees ``lat`` (one per row) and
-    ``lon`` (one per column), e.g. the cell centres of the global relief grids; else a DataFileError."""
+    ``lon`` (one per column), e.g. the cell centres of the global relief grids; else a DataFileError. ``lon`` may
+    cross the antimeridian ([178, 179, 180, -179]): it is unwrapped first (:func:`unwrapped_longitudes`)."""
     axes = []
     for name, axis, n in (("lon", lon, shape[1]), ("lat", lat, shape[0])):
         values = np.asarray(axis, dtype=np.float64) if axis.dtype.kind in "iuf" else np.empty(0)
@@ -432,6 +442,8 @@ def _latlon_geotransform(
                 f"{'column' if name == 'lon' else 'row'} of the heights {tuple(shape)}; got {axis.dtype} "
                 f"shape {axis.shape}"
             )
+        if name == "lon":  # across the antimeridian: [179.5, -179.5, ...] is a step of 1 degree, not of -359
+            values = unwrapped_longitudes(values)
         step = (values[-1] - values[0]) / (n - 1)
         worst = float(np.abs(np.diff(values) - step).max())
         if step == 0.0:

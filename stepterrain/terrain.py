@@ -303,6 +303,19 @@ def check_mapped(array: Any, name: str) -> None:
         )
 
 
+def unwrapped_longitudes(lon: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A longitude axis (degrees, 1-D) with its jumps across the antimeridian taken out: where neighbours differ by
+    more than 180°, a whole multiple of 360° is added or subtracted from there on (as ``np.unwrap`` with period 360,
+    but in exact multiples), so [178, 179, 180, -179] is [178, 179, 180, 181] and [358, 359, 0, 1] is
+    [358, 359, 360, 361], steps of 1°. Neighbouring columns are thus never more than 180° apart; an axis without
+    such a jump is returned as is, and one that is uneven stays uneven (a jump of 300° becomes one of -60°)."""
+    with np.errstate(over="ignore", invalid="ignore"):  # steps beyond float64 (1e308 to -1e308): left to the caller
+        turns = -np.round(np.diff(lon) / 360.0)
+    if not turns.any() or not np.isfinite(turns).all():
+        return lon
+    return lon + 360.0 * np.concatenate(([0.0], np.cumsum(turns)))
+
+
 def first_index(mask: NDArray[np.bool_]) -> tuple[int, ...]:
     """The index of the first true entry of a non-empty ``mask`` with one (row-major), for error messages."""
     return tuple(int(i) for i in np.argwhere(mask)[0])

@@ -368,3 +368,31 @@ def test_the_package_attribute_batch_is_the_module_and_its_entry_point(tmp_path)
     assert isinstance(report, st.BatchReport) and report.ok and len(report.done) == 4
     with pytest.raises(TypeError, match="tile_sizes"):  # the call is batch's: its keywords are checked
         st.batch(z, tmp_path / "out2", tile_sizes=4)
+
+
+@pytest.mark.parametrize(
+    "keys",
+    [{"transform": np.array([5e5, 30.0, 0.0, 4e6, 0.0, -30.0]), "crs": "EPSG:32611"},
+     {"dx": 30.0, "dy": 30.0, "crs": "EPSG:32611"}, {"spacing": (30.0, -30.0), "origin": (5e5, 4e6)},
+     {"lat": np.linspace(45.0, 44.0, 3), "lon": np.linspace(5.0, 6.0, 4)}],
+)  # fmt: skip
+def test_a_series_npz_with_georeferencing_keys_is_refused_not_meshed_as_metre_cells(tmp_path, keys):
+    # load_series read only the stack and 'nodata': np.savez(heights=(T, H, W), transform=..., crs=...) (or dx/dy,
+    # spacing/origin, lat/lon) was meshed frame by frame as 1 m cells at (0, 0), the keys ignored without a word,
+    # where load_dem refuses such keys it cannot read ("refuse an .npz whose georeferencing keys have no transform")
+    from stepterrain.batch import load_series
+    from stepterrain.errors import DataFileError
+
+    stack = np.random.default_rng(3).random((2, 3, 4)).astype(np.float32) * 100.0
+    np.savez(tmp_path / "series.npz", heights=stack, nodata=-9999.0, **keys)
+    named = ", ".join(repr(k) for k in keys)
+    message = rf"series\.npz.*series is meshed unreferenced, as 1 m cells.*got {named} beside 'heights'"
+    with pytest.raises(DataFileError, match=message):
+        load_series(tmp_path / "series.npz")
+    with pytest.raises(DataFileError, match=message):
+        batch(tmp_path / "series.npz", tmp_path / "out", interval=10.0, scheduler="serial")
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").glob("frame_*"))
+    np.savez(tmp_path / "plain.npz", heights=stack, nodata=-9999.0)  # no such key: a series, unreferenced
+    np.testing.assert_array_equal(load_series(tmp_path / "plain.npz"), stack)
+    np.savez(tmp_path / "raster.npz", heights=stack[0], **keys)  # 2-D: not a series, load_dem's to read or refuse
+    assert load_series(tmp_path / "raster.npz") is None

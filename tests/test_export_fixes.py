@@ -532,3 +532,59 @@ def test_face_colours_are_kept_by_ply_and_3mf(tmp_path, ext):
     np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors)
     if ext == ".ply":  # the attributes still follow the colours
         np.testing.assert_array_equal(back.metadata["_ply_raw"]["face"]["data"]["level"], mesh.face_attributes["level"])
+
+
+def _topographic_texture(alpha: str, simple: bool) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """A stepped DEM with a nodata hole, textured with its topographic layer's RGBA (the hole transparent), as an
+    image (trimesh's SimpleMaterial, drape_texture's) or a PBRMaterial; ``alpha`` "opaque" fills the hole,
+    "half" makes some texels half transparent; and the texture's alpha."""
+    import stepterrain as st
+    from stepterrain.texture import texture_uv, topographic_layer
+
+    z = np.add.outer(np.arange(8.0), np.arange(9.0)) * 40.0
+    z[2:4, 3:5] = np.nan
+    dem = st.Terrain.from_heights(z, spacing=(30.0, -30.0))
+    layer = topographic_layer(dem)
+    rgba = layer.to_uint8()
+    if alpha == "opaque":
+        rgba[..., 3] = 255
+    elif alpha == "half":
+        rgba[5:, :, 3] = 128
+    mesh = st.stepped(dem, interval=100.0, device="cpu")
+    uv = texture_uv(mesh.vertices, layer)
+    image = Image.fromarray(rgba)
+    if simple:
+        mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+    else:
+        material = trimesh.visual.material.PBRMaterial(baseColorTexture=image, metallicFactor=0.0, roughnessFactor=1.0)
+        mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=material)
+    return mesh, rgba[..., 3]
+
+
+@pytest.mark.parametrize("simple", [True, False])
+@pytest.mark.parametrize(("alpha", "mode"), [("opaque", "OPAQUE"), ("hole", "MASK"), ("half", "BLEND")])
+def test_a_texture_with_transparent_texels_gets_an_alpha_mode_in_gltf_and_an_alpha_map_in_obj(tmp_path, alpha, mode,
+                                                                                                 simple):
+    # a texture whose nodata texels are transparent (a topographic layer's RGBA) was written with glTF's default
+    # alphaMode, OPAQUE, and an MTL naming the image only as map_Kd: viewers showed the hole in whatever colour its
+    # texels hold. Alpha of only 0 and 255 is MASK (cutoff 0.5: the mesh still writes depth), partial alpha BLEND
+    from . import gltf_validator
+
+    mesh, texels = _topographic_texture(alpha, simple)
+    assert (texels.min() < 255) == (mode != "OPAQUE") and (np.isin(texels, (0, 255)).all()) == (mode != "BLEND")
+    paths = [save_mesh(mesh, tmp_path / f"{alpha}{ext}") for ext in (".glb", ".gltf")]
+    for path in paths:
+        (material,) = gltf_materials(path)
+        assert material.get("alphaMode", "OPAQUE") == mode
+        assert material.get("alphaCutoff") == (0.5 if mode == "MASK" else None)
+        assert material["pbrMetallicRoughness"]["metallicFactor"] == 0.0
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate(paths)) == []
+    obj = save_mesh(mesh, tmp_path / f"{alpha}.obj")
+    mtl = (tmp_path / f"{alpha}.mtl").read_text().splitlines()
+    (diffuse,) = [line.split()[1] for line in mtl if line.startswith("map_Kd ")]
+    dissolve = [line for line in mtl if line.startswith("map_d ")]
+    assert dissolve == ([] if mode == "OPAQUE" else [f"map_d -imfchan m {diffuse}"])
+    with Image.open(tmp_path / diffuse) as written:  # the image keeps its alpha for map_d to read
+        np.testing.assert_array_equal(np.asarray(written.convert("RGBA"))[..., 3], texels)
+    assert len(read_mesh(obj).faces) == len(mesh.faces)

@@ -480,3 +480,23 @@ def test_a_row_on_a_pole_gives_the_pole_its_mean(north_first):
     assert np.linalg.norm(vertices[north, :2]) < 1e-6 * radius[north]  # the pole node itself
     assert radius[north] - globe.radius == pytest.approx(175.0, abs=0.5)
     assert radius[south] - globe.radius == pytest.approx(-30.0, abs=0.5)
+
+
+@pytest.mark.parametrize("descending", [False, True])
+def test_a_longitude_axis_across_the_antimeridian_is_the_same_globe(descending):
+    """A global grid whose longitudes run from 0.5 to 179.5 and on from -179.5 to -0.5 (columns not rolled to start
+    at the antimeridian) was refused: "lon must be strictly monotone; it repeats or turns at index 180". Its axis is
+    unwrapped across the antimeridian now, as load_dem's is: the globe is that of the rolled grid."""
+    z = np.add.outer(np.linspace(-100.0, 100.0, 180), np.linspace(0.0, 500.0, 360))
+    lon, lat = LON1, LAT1
+    if descending:
+        lon, z = lon[::-1], z[:, ::-1]
+    wrapped_lon, wrapped_z = np.roll(lon, -180), np.roll(z, -180, axis=1)
+    assert np.any(np.diff(wrapped_lon) * np.diff(lon)[0] < 0)  # the axis turns at the antimeridian
+    rolled = Globe.from_latlon(z, lat, lon, face_size=9, device="cpu").mesh()
+    wrapped = Globe.from_latlon(wrapped_z, lat, wrapped_lon, face_size=9, device="cpu").mesh()
+    assert np.array_equal(rolled.faces, wrapped.faces)
+    assert np.allclose(rolled.vertices, wrapped.vertices, rtol=0.0, atol=1e-3)
+    with pytest.raises(InvalidInputError, match="lon must be regularly spaced"):
+        Globe.from_latlon(wrapped_z, lat, np.where(np.arange(360) == 200, wrapped_lon + 0.5, wrapped_lon),
+                          face_size=9, device="cpu")

@@ -672,3 +672,28 @@ def test_npz_georeferencing_keys_without_a_transform_are_refused_not_ignored(tmp
         load_dem(tmp_path / "keys.npz")
     np.savez(tmp_path / "plain.npz", elevation=np.zeros((3, 4), np.float32), units="m")  # no such key: unreferenced
     assert load_dem(tmp_path / "plain.npz").spacing == (1.0, -1.0)
+
+
+@pytest.mark.parametrize(
+    ("lon", "x0", "dx"),
+    [([178.0, 179.0, 180.0, -179.0], 177.5, 1.0), ([179.5, -179.5, -178.5, -177.5], 179.0, 1.0),
+     ([358.0, 359.0, 0.0, 1.0], 357.5, 1.0), ([-179.0, 180.0, 179.0, 178.0], -178.5, -1.0)],
+)  # fmt: skip
+def test_npz_lat_lon_axes_across_the_antimeridian_read_as_the_same_grid_with_a_transform(tmp_path, lon, x0, dx):
+    # a 'lon' axis of evenly spaced nodes that crosses the antimeridian ([178, 179, 180, -179]) was refused as
+    # "'lon' must be evenly spaced degrees; got steps that differ from their mean -119 by up to 240"; it reads as the
+    # grid whose geotransform runs on past 180 (as a GeoTIFF's does), and an axis uneven across it is still refused
+    z = np.arange(12, dtype=np.float32).reshape(3, 4)
+    lat = np.array([10.0, 9.0, 8.0])
+    np.savez(tmp_path / "axes.npz", elevation=z, lat=lat, lon=np.array(lon))
+    np.savez(tmp_path / "transform.npz", elevation=z, transform=np.array([x0, dx, 0.0, 10.5, 0.0, -1.0]),
+             crs="EPSG:4326")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # degrees read as local metres: the same warning, or none, for both
+        axes, transform = load_dem(tmp_path / "axes.npz"), load_dem(tmp_path / "transform.npz")
+    assert (axes.spacing, axes.origin, axes.crs) == (transform.spacing, transform.origin, transform.crs)
+    assert np.array_equal(axes.heights, transform.heights)
+    uneven = np.array(lon) + np.array([0.0, 0.0, 0.0, 1.0])
+    np.savez(tmp_path / "uneven.npz", elevation=z, lat=lat, lon=uneven)
+    with pytest.raises(DataFileError, match=r"uneven\.npz.*'lon' must be evenly spaced degrees"):
+        load_dem(tmp_path / "uneven.npz")
