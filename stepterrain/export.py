@@ -257,7 +257,8 @@ def save_mesh(
     meshes also write
     ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
     ``_``: OBJ and MTL readers split file names on it; an image with transparent texels is also the MTL's
-    dissolve, ``map_d -imfchan m``), each atomically; one that would
+    dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks`` black unless the material sets a base colour,
+    so the texture shows at full brightness, matte), each atomically; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -854,7 +855,11 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         return {}, None, None
     material = visual.material
     if hasattr(material, "to_simple"):
+        unset = getattr(material, "baseColorFactor", None) is None
         material = material.to_simple()
+        if unset:  # trimesh's default Kd 0.4 dims map_Kd to 40 % (MTL multiplies them; three.js does), Ks 0.4 shines
+            material.diffuse = np.array([255, 255, 255, 255], np.uint8)
+            material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
     files, name = material.to_obj(name=trimesh.util.unique_name(material.name, set()))
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():

@@ -588,3 +588,28 @@ def test_a_texture_with_transparent_texels_gets_an_alpha_mode_in_gltf_and_an_alp
     with Image.open(tmp_path / diffuse) as written:  # the image keeps its alpha for map_d to read
         np.testing.assert_array_equal(np.asarray(written.convert("RGBA"))[..., 3], texels)
     assert len(read_mesh(obj).faces) == len(mesh.faces)
+
+
+def test_a_textured_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path):
+    """The .mtl of a draped mesh carried trimesh's default Kd 0.4 and Ks 0.4: the MTL model multiplies map_Kd by Kd
+    (three.js's MTLLoader does), so the texture showed at 40 % brightness, and shiny. The glTF path was fixed for the
+    same default; the OBJ now says Kd 1, Ks 0 (matte, as the glTF material). A base colour the caller set is kept."""
+    from trimesh.visual.material import PBRMaterial
+
+    import stepterrain as st
+
+    dem = st.sample_dem()
+    small = st.Terrain.from_heights(dem.heights[:20, :30], spacing=dem.spacing, origin=dem.origin)
+    mesh = st.drape(st.stepped(small, interval=50.0, device="cpu"), st.topographic_layer(small, device="cpu"))
+
+    def mtl_lines(mesh, name):
+        save_mesh(mesh, tmp_path / f"{name}.obj")
+        text = (tmp_path / f"{name}.mtl").read_text()
+        return {line.split()[0]: [float(v) for v in line.split()[1:]] for line in text.splitlines()
+                if line[:3] in ("Kd ", "Ks ")}  # fmt: skip
+
+    assert mtl_lines(mesh, "plain") == {"Kd": [1.0, 1.0, 1.0], "Ks": [0.0, 0.0, 0.0]}
+    tinted = mesh.copy()
+    tinted.visual.material = PBRMaterial(baseColorTexture=mesh.visual.material.baseColorTexture,
+                                         baseColorFactor=[128, 64, 32, 255])  # fmt: skip
+    assert mtl_lines(tinted, "tinted")["Kd"] == pytest.approx([128 / 255, 64 / 255, 32 / 255])
