@@ -314,8 +314,18 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     that is truncated or declares more data than it holds are a :class:`~stepterrain.errors.DataFileError`; so is
     an ``.npz`` series with a ``transform`` or other georeferencing keys (``crs``, ``dx``/``dy``,
     ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...): a series is meshed unreferenced, as 1 m cells at
-    (0, 0), and those keys were ignored without a word."""
-    from .io import nodata_as_nan, npz_georeference_keys, npz_heights_key, npz_nodata, read_npy, read_npz
+    (0, 0), and those keys were ignored without a word. An ``.npz``'s ``units`` converts the heights to metres as
+    :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError)."""
+    from .io import (
+        _heights_in_metres,
+        _npz_text,
+        nodata_as_nan,
+        npz_georeference_keys,
+        npz_heights_key,
+        npz_nodata,
+        read_npy,
+        read_npz,
+    )
 
     file = Path(os.fspath(path))
     loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
@@ -341,7 +351,10 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "iuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    return nodata_as_nan(stack, file, what, nodata)  # as load_dem reads a 2-D file
+    heights = nodata_as_nan(stack, file, what, nodata)  # as load_dem reads a 2-D file
+    if not isinstance(loaded, np.ndarray):  # 'units' = "ft" was meshed as metres, 3.3 times too high
+        heights, _ = _heights_in_metres(heights, _npz_text(loaded, "units", file), file, "its 'units'")
+    return heights
 
 
 def _terrain_source(terrain: Terrain) -> _Source:

@@ -396,3 +396,22 @@ def test_a_series_npz_with_georeferencing_keys_is_refused_not_meshed_as_metre_ce
     np.testing.assert_array_equal(load_series(tmp_path / "plain.npz"), stack)
     np.savez(tmp_path / "raster.npz", heights=stack[0], **keys)  # 2-D: not a series, load_dem's to read or refuse
     assert load_series(tmp_path / "raster.npz") is None
+
+
+def test_a_series_npz_in_feet_is_meshed_in_metres_as_load_dem_reads_it(tmp_path):
+    """load_series ignored an .npz's 'units': a (T, H, W) series in feet was meshed as metres, 3.28 times too high,
+    where load_dem converts a 2-D file's heights (found by helper 36). An unknown unit is refused as load_dem
+    refuses it."""
+    from stepterrain.batch import load_series
+    from stepterrain.errors import DataFileError
+    from stepterrain.io import load_dem
+
+    stack = np.random.default_rng(4).random((2, 3, 4)).astype(np.float32) * 1000.0
+    np.savez(tmp_path / "feet.npz", heights=stack, units="ft")
+    expected = (stack.astype(np.float64) * 0.3048).astype(np.float32)
+    np.testing.assert_array_equal(load_series(tmp_path / "feet.npz"), expected)
+    np.savez(tmp_path / "frame.npz", heights=stack[1], units="ft")
+    np.testing.assert_array_equal(load_dem(tmp_path / "frame.npz").heights, expected[1])  # as load_dem reads it
+    np.savez(tmp_path / "odd.npz", heights=stack, units="furlong")
+    with pytest.raises(DataFileError, match=r"expected heights in a known length unit .*got 'furlong' \(its 'units'\)"):
+        load_series(tmp_path / "odd.npz")
