@@ -40,7 +40,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
-from ._compaction import get_memory_budget
+from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
 from .terrain import (
@@ -1253,8 +1253,9 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
 def _tick(bar: Any, result: ItemResult) -> None:
     if bar is not None:
         bar.update(1)
-        if result.status == "failed":
-            bar.write(f"failed {result.key}: {result.error}", file=sys.stderr)  # tqdm writes to stdout by default
+        if result.status == "failed":  # a worker process's refusal gives the library's hint: this process's instead
+            error = (result.error or "").replace(BUDGET_HINT, budget_hint())
+            bar.write(f"failed {result.key}: {error}", file=sys.stderr)  # tqdm writes to stdout by default
 
 
 def _run_serial(

@@ -29,7 +29,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ._compaction import BUDGET_HINT, get_memory_budget, set_memory_budget
+from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget, set_memory_budget
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
@@ -693,6 +693,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     progress = Progress(quiet=args.quiet)
     previous_budget = get_memory_budget()
+    previous_hint = budget_hint(_CLI_BUDGET_HINT)  # refusals in this process name the option
     try:
         if args.memory_budget is not None:  # for this run only: main() may be called in-process
             set_memory_budget(args.memory_budget)
@@ -715,6 +716,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     finally:
         set_memory_budget(previous_budget)
+        budget_hint(previous_hint)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -442,3 +442,28 @@ def test_steps_refuses_a_floor_above_the_surface_before_stepping(tmp_path, capsy
     assert err.startswith("stepterrain steps: error: --floor must lie below the lowest surface height 0 ")
     assert "warning" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "m.stl").exists()
+
+
+@pytest.mark.parametrize("scheduler", ["serial", "local"])
+def test_batch_progress_lines_of_a_budget_refusal_name_the_option(scheduler, tmp_path, capsys):
+    """batch's progress bar wrote each failed item as the library worded it, "raise the budget
+    (stepterrain.set_memory_budget or memory_budget=)", under which the summary named --memory-budget: two hints
+    for one refusal, the first one a command-line user cannot follow. Every line names the option now."""
+    import stepterrain as st
+
+    if scheduler == "local":
+        pytest.importorskip("distributed", reason="needs dask.distributed")
+    src = tile_folder(tmp_path / "tiles")
+    argv = ["batch", src, "--interval", "10", "--retries", "0", "--memory-budget", "1KiB", "-o", tmp_path / "out"]
+    argv += ["--scheduler", "serial"] if scheduler == "serial" else ["--workers", "1"]
+    code, out, err = run(capsys, *argv)
+    assert code == 1, err
+    failed = [line for line in err.splitlines() if "OutputTooLargeError" in line]
+    assert len(failed) >= 4, err  # the bar's line and the summary's for each of the two items
+    assert all("--memory-budget SIZE" in line for line in failed), err
+    assert "set_memory_budget" not in err
+    from stepterrain._compaction import BUDGET_HINT, budget_hint
+
+    assert budget_hint() == BUDGET_HINT  # for the run only: the library's own refusals keep the library's hint
+    with pytest.raises(st.errors.OutputTooLargeError, match="stepterrain.set_memory_budget"):
+        st.stepped(np.zeros((40, 40)) + np.arange(40), interval=1, memory_budget=1024)
