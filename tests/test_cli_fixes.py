@@ -467,3 +467,25 @@ def test_batch_progress_lines_of_a_budget_refusal_name_the_option(scheduler, tmp
     assert budget_hint() == BUDGET_HINT  # for the run only: the library's own refusals keep the library's hint
     with pytest.raises(st.errors.OutputTooLargeError, match="stepterrain.set_memory_budget"):
         st.stepped(np.zeros((40, 40)) + np.arange(40), interval=1, memory_budget=1024)
+
+
+def test_batch_warnings_of_worker_processes_are_one_line_each(tmp_path, capsys):
+    """batch's default LocalCluster steps in worker processes, whose warnings (here STL's float32 rounding of UTM
+    coordinates) printed in Python's format: ".../dask/_task_spec.py:768: UserWarning: ..." and a source line
+    "return self.func(*new_argspec)". Workers record them now and the command says each as one warning line."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    src = tmp_path / "tiles"
+    src.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):  # UTM-sized coordinates: float32 keeps them to 0.25 m
+        np.savez(src / f"t{k}.npz", elevation=(rng.random((12, 14)) * 100).astype(np.float32), dx=30.0, dy=30.0,
+                 crs="EPSG:32611", transform=[376313.6554 + 10.1 * k, 30.0, 0.0, 3807917.8276, 0.0, -30.0])
+    code, out, err = run(capsys, "-q", "batch", src, "--interval", "10", "--workers", "1", "--format", ".stl",
+                         "-o", tmp_path / "out")
+    assert code == 0, err
+    lines = err.splitlines()
+    for k in range(2):
+        said = [line for line in lines if f"t{k}.stl" in line]
+        assert len(said) == 1 and said[0].startswith("stepterrain batch: warning: "), err
+        assert "float32" in said[0]
+    assert "UserWarning" not in err and "_task_spec" not in err and "return self.func" not in err
