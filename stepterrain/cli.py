@@ -666,10 +666,15 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
 
 def _warning_line(command: str) -> Any:
     """A ``warnings.showwarning`` that prints the library's warnings as one ``stepterrain CMD: warning:`` line
-    (no source line) on stderr."""
+    (no source line) on stderr; a progress bar on screen (batch's) is cleared first and drawn again below it."""
 
     def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        print(f"stepterrain {command}: warning: {message}", file=sys.stderr, flush=True)
+        text = f"stepterrain {command}: warning: {message}"
+        if "tqdm" in sys.modules:  # else the line was appended to the bar's line
+            sys.modules["tqdm"].tqdm.write(text, file=sys.stderr)
+            sys.stderr.flush()
+        else:
+            print(text, file=sys.stderr, flush=True)
 
     return show
 

@@ -489,3 +489,19 @@ def test_batch_warnings_of_worker_processes_are_one_line_each(tmp_path, capsys):
         assert len(said) == 1 and said[0].startswith("stepterrain batch: warning: "), err
         assert "float32" in said[0]
     assert "UserWarning" not in err and "_task_spec" not in err and "return self.func" not in err
+
+
+def test_a_warning_during_batchs_progress_bar_is_a_line_of_its_own(tmp_path, capsys):
+    """A warning raised while batch's progress bar was drawn went after the bar on its line:
+    "stepterrain batch:  50%|#####     | 1/2 [...]stepterrain batch: warning: ...". The bar is cleared first now."""
+    src = tmp_path / "tiles"
+    src.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):  # UTM-sized coordinates: .stl's float32 moves them by up to 0.25 m, which warns
+        np.savez(src / f"t{k}.npz", elevation=(rng.random((12, 14)) * 100).astype(np.float32), dx=30.0, dy=30.0,
+                 crs="EPSG:32611", transform=[376313.6554 + 10.1 * k, 30.0, 0.0, 3807917.8276, 0.0, -30.0])
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--scheduler", "serial", "--format", ".stl",
+                         "-o", tmp_path / "out")
+    assert code == 0, err
+    said = [line.strip() for line in err.replace("\r", "\n").splitlines() if "warning:" in line]
+    assert len(said) == 2 and all(line.startswith("stepterrain batch: warning: ") for line in said), err
