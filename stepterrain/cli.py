@@ -56,7 +56,7 @@ examples:
       the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range, nodata
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
-      a mesh: vertices, faces, bounds, watertightness, the metadata stepterrain wrote
+      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
 """
 
 _MAIN_EPILOG = """\
@@ -603,6 +603,7 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "watertight": bool(len(mesh.faces) and mesh.is_watertight),
         "winding_consistent": bool(mesh.is_winding_consistent),
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
+        "face_colors": bool(mesh.visual.kind == "face"),  # PLY and 3MF keep them (glTF: vertex means)
     }
     for key, value in (mesh.metadata or {}).items():
         if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary

@@ -505,3 +505,27 @@ def test_a_warning_during_batchs_progress_bar_is_a_line_of_its_own(tmp_path, cap
     assert code == 0, err
     said = [line.strip() for line in err.replace("\r", "\n").splitlines() if "warning:" in line]
     assert len(said) == 2 and all(line.startswith("stepterrain batch: warning: ") for line in said), err
+
+
+@pytest.mark.parametrize("ext", [".ply", ".3mf"])
+def test_info_reports_the_face_colours_ply_and_3mf_keep(ext, tmp_path, capsys):
+    """PLY and 3MF keep face colours (66d79db), but info reported only vertex_colors: a face-coloured file read as
+    "vertex_colors False" and nothing more, as if it had no colours."""
+    import json
+
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    mesh = trimesh.creation.box()
+    mesh.visual.face_colors = np.random.default_rng(2).integers(0, 256, (len(mesh.faces), 4), dtype=np.uint8)
+    plain = trimesh.creation.box()
+    for name, m in (("colored", mesh), ("plain", plain)):
+        save_mesh(m, tmp_path / f"{name}{ext}")
+    code, out, err = run(capsys, "info", tmp_path / f"colored{ext}", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["face_colors"] is True and summary["vertex_colors"] is False
+    code, out, err = run(capsys, "info", tmp_path / f"plain{ext}", "--json")
+    assert code == 0, err
+    assert json.loads(out)["face_colors"] is False
