@@ -529,3 +529,13 @@ def test_info_reports_the_face_colours_ply_and_3mf_keep(ext, tmp_path, capsys):
     code, out, err = run(capsys, "info", tmp_path / f"plain{ext}", "--json")
     assert code == 0, err
     assert json.loads(out)["face_colors"] is False
+
+
+def test_globe_help_states_the_tilt_range_it_checks(capsys):
+    """globe --tilt refuses values outside [0, 90) ("--tilt must lie in [0, 90) degrees"), but its help said only
+    "tilt of the view from straight down, degrees": the limit was found by trial."""
+    code, out, err = run(capsys, "globe", "--help")
+    assert code == 0
+    assert "[0, 90) degrees" in " ".join(out.split())
+    code, out, err = run(capsys, "globe", "--tilt", "90", "-o", "x.glb")
+    assert code == 2 and "--tilt must lie in [0, 90) degrees" in err
