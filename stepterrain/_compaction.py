@@ -22,6 +22,19 @@ _memory_budget: int = 16 * 1024**3
 #: How a refusal of :func:`check_budget` says to raise the budget; the command line names its --memory-budget instead.
 BUDGET_HINT = "raise the budget (stepterrain.set_memory_budget or memory_budget=)"
 
+#: The hint refusals give now: :data:`BUDGET_HINT`, or the command line's while a command runs (:func:`budget_hint`).
+_budget_hint: str = BUDGET_HINT
+
+
+def budget_hint(text: str | None = None) -> str:
+    """How a refusal over the budget says to raise it (:data:`BUDGET_HINT` by default); with ``text``, set it (the
+    command line names its ``--memory-budget``) and return the previous one."""
+    global _budget_hint
+    previous = _budget_hint
+    if text is not None:
+        _budget_hint = text
+    return previous
+
 
 def get_memory_budget() -> int:
     """The largest output, in bytes, a single call may allocate (default 16 GiB); :func:`stepterrain.load_dem`
@@ -62,7 +75,7 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
     if nbytes > limit:
         raise OutputTooLargeError(
             f"{what} would need {_size_text(nbytes)}, over the memory budget of {_size_text(limit)}; {hint}, or "
-            f"{BUDGET_HINT}"
+            f"{_budget_hint}"
         )
 
 

@@ -30,6 +30,7 @@ import platform
 import re
 import sys
 import time
+import warnings
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +41,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
-from ._compaction import get_memory_budget
+from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
 from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
 from .terrain import (
@@ -119,6 +120,8 @@ class ItemResult:
     faces: int = 0
     vertices: int = 0
     bytes: int = 0
+    #: the warnings a worker process raised for the item (each once), warned again in the caller's process
+    warnings: tuple[str, ...] = ()
 
 
 @dataclass
@@ -472,28 +475,42 @@ def _transient(exc: BaseException) -> bool:
 
 def run_item(
     item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None,
-    memory_budget: int | None = None,
+    memory_budget: int | None = None, record_warnings: bool = False,
 ) -> ItemResult:
     """Step one item and write its mesh (atomically); the task each dask worker runs.
 
     ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process first (a
-    worker process has its own, the default, otherwise).
+    worker process has its own, the default, otherwise). ``record_warnings``: the item's warnings go into its
+    result's ``warnings`` instead of the worker's stderr (for single-threaded worker processes: recording is not
+    thread-safe).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
     writing); that and any other exception propagate so the scheduler retries the task.
     """
-    import trimesh
-
     from ._compaction import set_memory_budget
     from ._device import set_cpu_threads
-    from .stepped import stepped
 
     start, cpu_start = time.perf_counter(), time.process_time()
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
     if memory_budget is not None:
         set_memory_budget(memory_budget)
+    if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." plus a source line
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("default")
+            result = _run_item(item, source, options, output_dir, start, cpu_start)
+        said = tuple(dict.fromkeys(str(w.message) for w in caught))
+        return dataclasses.replace(result, warnings=said) if said else result
+    return _run_item(item, source, options, output_dir, start, cpu_start)
+
+
+def _run_item(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, start: float,
+              cpu_start: float) -> ItemResult:
+    import trimesh
+
+    from .stepped import stepped
+
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
         terrain = _item_terrain(item, source, options.height_unit)
@@ -934,7 +951,9 @@ def batch(
         ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no
         dask. An address ``"tcp://host:port"``: an existing cluster, reached within ``connect_timeout``
         seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this process's
-        memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item.
+        memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
+        LocalCluster's workers record each item's warnings, which are warned again in this process (other
+        clusters' workers print theirs).
     workers : int
         Worker processes of the LocalCluster.
     retries : int
@@ -1163,6 +1182,8 @@ def _run_locked(
         for result in stream:
             results[result.key] = result
             recorder.add(result)
+            for message in result.warnings:  # a worker process's, said here as this process's warnings are
+                warnings.warn(message, stacklevel=1)
             _tick(bar, result)
     finally:
         recorder.flush()
@@ -1277,8 +1298,9 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
 def _tick(bar: Any, result: ItemResult) -> None:
     if bar is not None:
         bar.update(1)
-        if result.status == "failed":
-            bar.write(f"failed {result.key}: {result.error}", file=sys.stderr)  # tqdm writes to stdout by default
+        if result.status == "failed":  # a worker process's refusal gives the library's hint: this process's instead
+            error = (result.error or "").replace(BUDGET_HINT, budget_hint())
+            bar.write(f"failed {result.key}: {error}", file=sys.stderr)  # tqdm writes to stdout by default
 
 
 def _run_serial(
@@ -1316,7 +1338,7 @@ def _run_dask(
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
     futures = {
         client.submit(run_item, item, blocks[k] if blocks is not None else None, options, str(folder), cpu_threads,
-                      memory_budget, retries=retries, pure=False,
+                      memory_budget, local, retries=retries, pure=False,
                       key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
         for k, item in enumerate(todo)
     }  # fmt: skip

@@ -29,7 +29,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ._compaction import BUDGET_HINT, get_memory_budget, set_memory_budget
+from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget, set_memory_budget
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
@@ -56,7 +56,7 @@ examples:
       the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range, nodata
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
-      a mesh: vertices, faces, bounds, watertightness, the metadata stepterrain wrote
+      a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
 """
 
 _MAIN_EPILOG = """\
@@ -603,6 +603,7 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "watertight": bool(len(mesh.faces) and mesh.is_watertight),
         "winding_consistent": bool(mesh.is_winding_consistent),
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
+        "face_colors": bool(mesh.visual.kind == "face"),  # PLY and 3MF keep them (glTF: vertex means)
     }
     for key, value in (mesh.metadata or {}).items():
         if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary
@@ -666,10 +667,15 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
 
 def _warning_line(command: str) -> Any:
     """A ``warnings.showwarning`` that prints the library's warnings as one ``stepterrain CMD: warning:`` line
-    (no source line) on stderr."""
+    (no source line) on stderr; a progress bar on screen (batch's) is cleared first and drawn again below it."""
 
     def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        print(f"stepterrain {command}: warning: {message}", file=sys.stderr, flush=True)
+        text = f"stepterrain {command}: warning: {message}"
+        if "tqdm" in sys.modules:  # else the line was appended to the bar's line
+            sys.modules["tqdm"].tqdm.write(text, file=sys.stderr)
+            sys.stderr.flush()
+        else:
+            print(text, file=sys.stderr, flush=True)
 
     return show
 
@@ -693,6 +699,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     progress = Progress(quiet=args.quiet)
     previous_budget = get_memory_budget()
+    previous_hint = budget_hint(_CLI_BUDGET_HINT)  # refusals in this process name the option
     try:
         if args.memory_budget is not None:  # for this run only: main() may be called in-process
             set_memory_budget(args.memory_budget)
@@ -715,6 +722,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     finally:
         set_memory_budget(previous_budget)
+        budget_hint(previous_hint)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -442,3 +442,100 @@ def test_steps_refuses_a_floor_above_the_surface_before_stepping(tmp_path, capsy
     assert err.startswith("stepterrain steps: error: --floor must lie below the lowest surface height 0 ")
     assert "warning" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "m.stl").exists()
+
+
+@pytest.mark.parametrize("scheduler", ["serial", "local"])
+def test_batch_progress_lines_of_a_budget_refusal_name_the_option(scheduler, tmp_path, capsys):
+    """batch's progress bar wrote each failed item as the library worded it, "raise the budget
+    (stepterrain.set_memory_budget or memory_budget=)", under which the summary named --memory-budget: two hints
+    for one refusal, the first one a command-line user cannot follow. Every line names the option now."""
+    import stepterrain as st
+
+    if scheduler == "local":
+        pytest.importorskip("distributed", reason="needs dask.distributed")
+    src = tile_folder(tmp_path / "tiles")
+    argv = ["batch", src, "--interval", "10", "--retries", "0", "--memory-budget", "1KiB", "-o", tmp_path / "out"]
+    argv += ["--scheduler", "serial"] if scheduler == "serial" else ["--workers", "1"]
+    code, out, err = run(capsys, *argv)
+    assert code == 1, err
+    failed = [line for line in err.splitlines() if "OutputTooLargeError" in line]
+    assert len(failed) >= 4, err  # the bar's line and the summary's for each of the two items
+    assert all("--memory-budget SIZE" in line for line in failed), err
+    assert "set_memory_budget" not in err
+    from stepterrain._compaction import BUDGET_HINT, budget_hint
+
+    assert budget_hint() == BUDGET_HINT  # for the run only: the library's own refusals keep the library's hint
+    with pytest.raises(st.errors.OutputTooLargeError, match="stepterrain.set_memory_budget"):
+        st.stepped(np.zeros((40, 40)) + np.arange(40), interval=1, memory_budget=1024)
+
+
+def test_batch_warnings_of_worker_processes_are_one_line_each(tmp_path, capsys):
+    """batch's default LocalCluster steps in worker processes, whose warnings (here STL's float32 rounding of UTM
+    coordinates) printed in Python's format: ".../dask/_task_spec.py:768: UserWarning: ..." and a source line
+    "return self.func(*new_argspec)". Workers record them now and the command says each as one warning line."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    src = tmp_path / "tiles"
+    src.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):  # UTM-sized coordinates: float32 keeps them to 0.25 m
+        np.savez(src / f"t{k}.npz", elevation=(rng.random((12, 14)) * 100).astype(np.float32), dx=30.0, dy=30.0,
+                 crs="EPSG:32611", transform=[376313.6554 + 10.1 * k, 30.0, 0.0, 3807917.8276, 0.0, -30.0])
+    code, out, err = run(capsys, "-q", "batch", src, "--interval", "10", "--workers", "1", "--format", ".stl",
+                         "-o", tmp_path / "out")
+    assert code == 0, err
+    lines = err.splitlines()
+    for k in range(2):
+        said = [line for line in lines if f"t{k}.stl" in line]
+        assert len(said) == 1 and said[0].startswith("stepterrain batch: warning: "), err
+        assert "float32" in said[0]
+    assert "UserWarning" not in err and "_task_spec" not in err and "return self.func" not in err
+
+
+def test_a_warning_during_batchs_progress_bar_is_a_line_of_its_own(tmp_path, capsys):
+    """A warning raised while batch's progress bar was drawn went after the bar on its line:
+    "stepterrain batch:  50%|#####     | 1/2 [...]stepterrain batch: warning: ...". The bar is cleared first now."""
+    src = tmp_path / "tiles"
+    src.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):  # UTM-sized coordinates: .stl's float32 moves them by up to 0.25 m, which warns
+        np.savez(src / f"t{k}.npz", elevation=(rng.random((12, 14)) * 100).astype(np.float32), dx=30.0, dy=30.0,
+                 crs="EPSG:32611", transform=[376313.6554 + 10.1 * k, 30.0, 0.0, 3807917.8276, 0.0, -30.0])
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--scheduler", "serial", "--format", ".stl",
+                         "-o", tmp_path / "out")
+    assert code == 0, err
+    said = [line.strip() for line in err.replace("\r", "\n").splitlines() if "warning:" in line]
+    assert len(said) == 2 and all(line.startswith("stepterrain batch: warning: ") for line in said), err
+
+
+@pytest.mark.parametrize("ext", [".ply", ".3mf"])
+def test_info_reports_the_face_colours_ply_and_3mf_keep(ext, tmp_path, capsys):
+    """PLY and 3MF keep face colours (66d79db), but info reported only vertex_colors: a face-coloured file read as
+    "vertex_colors False" and nothing more, as if it had no colours."""
+    import json
+
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    mesh = trimesh.creation.box()
+    mesh.visual.face_colors = np.random.default_rng(2).integers(0, 256, (len(mesh.faces), 4), dtype=np.uint8)
+    plain = trimesh.creation.box()
+    for name, m in (("colored", mesh), ("plain", plain)):
+        save_mesh(m, tmp_path / f"{name}{ext}")
+    code, out, err = run(capsys, "info", tmp_path / f"colored{ext}", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["face_colors"] is True and summary["vertex_colors"] is False
+    code, out, err = run(capsys, "info", tmp_path / f"plain{ext}", "--json")
+    assert code == 0, err
+    assert json.loads(out)["face_colors"] is False
+
+
+def test_globe_help_states_the_tilt_range_it_checks(capsys):
+    """globe --tilt refuses values outside [0, 90) ("--tilt must lie in [0, 90) degrees"), but its help said only
+    "tilt of the view from straight down, degrees": the limit was found by trial."""
+    code, out, err = run(capsys, "globe", "--help")
+    assert code == 0
+    assert "[0, 90) degrees" in " ".join(out.split())
+    code, out, err = run(capsys, "globe", "--tilt", "90", "-o", "x.glb")
+    assert code == 2 and "--tilt must lie in [0, 90) degrees" in err
