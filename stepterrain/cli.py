@@ -714,6 +714,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         message = _budget_hint_as_option(_as_option(str(exc), _subcommand(parser, args.command)))
         print(f"stepterrain {args.command}: error: {message}", file=sys.stderr)
         return EXIT_USAGE
+    except BrokenPipeError:  # `stepterrain info FILE | head` when the reader left: "error: [Errno 32] Broken pipe"
+        _silence_stdout()
+        return EXIT_BROKEN_PIPE
     except OSError as exc:  # a write failing below the library's own checks (disk full, permissions)
         print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -723,6 +726,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         set_memory_budget(previous_budget)
         budget_hint(previous_hint)
+
+
+#: The exit status of a run whose standard output was closed by its reader (128 + SIGPIPE, as a shell reports a
+#: command that SIGPIPE ended).
+EXIT_BROKEN_PIPE = 141
+
+
+def _silence_stdout() -> None:
+    """Point standard output at the null device, so that the interpreter's final flush of what is still buffered
+    does not raise a second BrokenPipeError at exit (the recipe of Python's signal documentation)."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError, AttributeError):  # a captured stdout (tests, an embedding program) has no fd
+        pass
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -539,3 +539,21 @@ def test_globe_help_states_the_tilt_range_it_checks(capsys):
     assert "[0, 90) degrees" in " ".join(out.split())
     code, out, err = run(capsys, "globe", "--tilt", "90", "-o", "x.glb")
     assert code == 2 and "--tilt must lie in [0, 90) degrees" in err
+
+
+def test_a_reader_that_closes_the_pipe_ends_the_run_quietly(capsys, monkeypatch):
+    """`stepterrain info FILE | head` printed "error: [Errno 32] Broken pipe" and exited 2 (bad input) when head
+    closed the pipe (found by helper 37). The run now ends quietly with 141, the status a shell gives a command
+    that SIGPIPE ended."""
+    import io
+
+    from stepterrain import cli
+
+    class ClosedPipe(io.StringIO):
+        def write(self, text):
+            raise BrokenPipeError(32, "Broken pipe")
+
+    monkeypatch.setattr("sys.stdout", ClosedPipe())
+    sample = Path(cli.__file__).parent / "data" / "big_tujunga_srtm_30m_utm11n.npz"
+    assert cli.main(["info", str(sample)]) == 141
+    assert capsys.readouterr().err == ""
