@@ -60,9 +60,9 @@ def add_parser(commands: Any) -> None:
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
                         "above the terrain there); default 30,10,3R (the whole globe in view)")
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
-                   help="tilt of the view from straight down, degrees (default 0)")
+                   help="tilt of the view from straight down, degrees in [0, 90) (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
-                   help="direction of the tilt, degrees clockwise from north (default 0)")
+                   help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
     p.add_argument("--no-camera", action="store_true",
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
     p.add_argument("--bounds", choices=("cone", "sphere"), default="cone",
