@@ -442,3 +442,14 @@ def test_steps_refuses_a_floor_above_the_surface_before_stepping(tmp_path, capsy
     assert err.startswith("stepterrain steps: error: --floor must lie below the lowest surface height 0 ")
     assert "warning" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "m.stl").exists()
+
+
+def test_a_batch_floor_refusal_names_the_option_once(tmp_path, capsys):
+    """The library's message says ``floor (the CLI's --floor) must ...``; the CLI spelled its argument as the option,
+    which printed "--floor (the CLI's --floor) must lie below" on the command line."""
+    np.save(tmp_path / "series.npy", np.linspace(100.0, 200.0, 2 * 12 * 14, dtype=np.float32).reshape(2, 12, 14))
+    code, _, err = run(capsys, "batch", tmp_path / "series.npy", "--interval", "10", "--solid", "--floor", "150",
+                       "--scheduler", "serial", "-o", tmp_path / "out")
+    assert code == 2
+    assert "--floor must lie below the lowest point" in err
+    assert "the CLI's" not in err
