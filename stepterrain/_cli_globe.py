@@ -62,7 +62,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
-                   help="direction of the tilt, degrees clockwise from north (default 0)")
+                   help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
     p.add_argument("--no-camera", action="store_true",
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
     p.add_argument("--bounds", choices=("cone", "sphere"), default="cone",

@@ -662,7 +662,9 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     option = "--" + match.group(1).replace("_", "-")
     if option not in {string for action in sub._actions for string in action.option_strings}:
         return message
-    return option + " " + message[match.end():]
+    rest = message[match.end():]
+    aside = f"(the CLI's {option}) "  # the library's pointer to the option, once the option leads: said twice
+    return option + " " + (rest[len(aside):] if rest.startswith(aside) else rest)
 
 
 def _warning_line(command: str) -> Any:

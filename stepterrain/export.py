@@ -221,8 +221,9 @@ def save_mesh(
     -----
     UserWarning
         ``.stl`` stores float32 coordinates (the format has no other type) and they would move some vertex by
-        more than 1e-3 in the mesh's units (1 mm for metres: UTM coordinates round by up to 0.25 m, a whole globe's
-        by 0.5 m); the file is written and the message says by how much and which formats keep float64.
+        more than 1e-3 in the mesh's units (1 mm for metres: UTM coordinates round by up to 0.5 m, the embedded
+        DEM's by 0.125 m, a whole globe's by 0.25 m); the file is written and the message says by how much and which
+        formats keep float64.
 
     Notes
     -----
@@ -938,7 +939,8 @@ _STL_ROUNDING_TOLERANCE = 1e-3
 
 def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:
     """Warn (a ``UserWarning`` at the caller's line) when STL's float32 moves some coordinate by more than
-    :data:`_STL_ROUNDING_TOLERANCE`: UTM northings came back 0.25 m off, a globe's surface 0.5 m, without a word.
+    :data:`_STL_ROUNDING_TOLERANCE`: UTM northings came back up to 0.5 m off, a globe's surface 0.25 m, without a
+    word.
     A warning, not a refusal: float32 is the format (every STL reader expects it), and a print or a preview is
     often fine with it; the message says where float64 is kept. Only coordinates beyond 2^15 can round that far
     (half a float32 step at 32768 is 0.002), so smaller meshes cost nothing, and larger ones one cast: a grid of

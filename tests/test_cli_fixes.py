@@ -557,3 +557,14 @@ def test_a_reader_that_closes_the_pipe_ends_the_run_quietly(capsys, monkeypatch)
     sample = Path(cli.__file__).parent / "data" / "big_tujunga_srtm_30m_utm11n.npz"
     assert cli.main(["info", str(sample)]) == 141
     assert capsys.readouterr().err == ""
+
+
+def test_a_batch_floor_refusal_names_the_option_once(tmp_path, capsys):
+    """The library's message says ``floor (the CLI's --floor) must ...``; the CLI spelled its argument as the option,
+    which printed "--floor (the CLI's --floor) must lie below" on the command line."""
+    np.save(tmp_path / "series.npy", np.linspace(100.0, 200.0, 2 * 12 * 14, dtype=np.float32).reshape(2, 12, 14))
+    code, _, err = run(capsys, "batch", tmp_path / "series.npy", "--interval", "10", "--solid", "--floor", "150",
+                       "--scheduler", "serial", "-o", tmp_path / "out")
+    assert code == 2
+    assert "--floor must lie below the lowest point" in err
+    assert "the CLI's" not in err

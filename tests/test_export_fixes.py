@@ -496,7 +496,7 @@ def test_gltf_face_colours_are_linear_vertex_colours_with_the_matte_material(tmp
 
 
 def test_stl_warns_when_float32_moves_a_vertex_more_than_a_millimetre(tmp_path):
-    # STL's float32 rounded UTM northings by up to 0.25 m (a globe's surface by 0.5 m) without a word; only values
+    # STL's float32 rounded UTM northings by up to 0.5 m (a globe's surface by 0.25 m) without a word; only values
     # beyond float32's reach were refused
     import warnings
 
