@@ -944,7 +944,10 @@ def batch(
     interval, levels, base, gamma, colors, solid, floor
         As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
         tiles the isovalues come from the whole source's height range, so every item shares them (tiles
-        weld, frames keep their levels). A folder needs ``interval`` or ``levels``.
+        weld, frames keep their levels). A folder needs ``interval`` or ``levels``. A solid tile or frame is
+        closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
+        source's solid has in :func:`~stepterrain.stepped` (the whole raster, or the series as one raster), so
+        every item stands on the same base; a file of a folder is stepped as ``stepped(load_dem(file), ...)``.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry of an array source (default (1, 1) and (0, 0)).
     scheduler
@@ -1092,6 +1095,8 @@ def batch(
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
         _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
+    elif solid and src is not None and level_values is not None:  # every tile or frame on the whole source's floor
+        floor = _shared_floor(src, level_values, gamma_value, None if interval is None else float(interval))
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
     if src is None:  # no shared height range: check interval/levels/base now, not once per item
@@ -1233,6 +1238,33 @@ def _levels_and_range(
     return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base)), (lo, hi)
 
 
+def _lowest_used(src: _Source) -> float | None:
+    """The lowest height of a node of the whole source that a triangle with three finite heights uses (None: no
+    triangle has)."""
+    if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
+        return src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
+    return lowest_used_height(src.heights)
+
+
+def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
+    """The default floor of a solid over the whole source, :func:`~stepterrain.stepped`'s for the whole raster: one
+    interval (without one, a tenth of the levels' span) below the lowest isovalue or the lowest vertex of the whole
+    stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
+    interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
+    under a floor other than the whole raster's. None when no triangle has three finite heights."""
+    h = _lowest_used(src)
+    if h is None:
+        return None
+    from .stepped import default_floor, thresholds_of
+
+    values32 = np.asarray(values, np.float32)
+    h32 = np.float32(h)
+    alpha = values32[np.searchsorted(thresholds_of(values32), h32, side="right")]  # the isovalue h snaps to
+    g = np.float32(gamma)
+    lowest = (np.float32(1.0) - g) * h32 + g * alpha  # in float32, as kernels/stepped.py's blended computes it
+    return default_floor(values32, float(lowest), interval)
+
+
 def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:
     """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface.
 
@@ -1240,13 +1272,9 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
     so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
     """
-    if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
-        h = src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
-    else:
-        used_min = lowest_used_height(src.heights)
-        if used_min is None:
-            return  # no surface at all: each item says so
-        h = used_min
+    h = _lowest_used(src)
+    if h is None:
+        return  # no surface at all: each item says so
     from .stepped import lowest_surface
 
     lowest, alpha, _margin = lowest_surface(h, np.asarray(values, np.float32), gamma)

@@ -415,3 +415,54 @@ def test_a_series_npz_in_feet_is_meshed_in_metres_as_load_dem_reads_it(tmp_path)
     np.savez(tmp_path / "odd.npz", heights=stack, units="furlong")
     with pytest.raises(DataFileError, match=r"expected heights in a known length unit .*got 'furlong' \(its 'units'\)"):
         load_series(tmp_path / "odd.npz")
+
+
+def _dem_crop() -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
+    """A 64 x 80 crop of the embedded DEM, its spacing and its own UTM origin."""
+    import stepterrain as st
+
+    dem = st.sample_dem()
+    (dx, dy), (x0, y0) = dem.spacing, dem.origin
+    return dem.heights[100:164, 200:280].copy(), dem.spacing, (x0 + 200 * dx, y0 + 100 * dy)
+
+
+@pytest.mark.parametrize("kwargs", [
+    dict(interval=20.0, base=0.5), dict(interval=20.0, base=0.5, gamma=0.4),
+    dict(levels=[1200.3, 1300.3], gamma=0.5),  # heights under the lowest level pull the surface below it
+], ids=["interval", "interval-gamma", "levels-gamma"])  # fmt: skip
+def test_solid_tiles_are_closed_at_the_floor_of_the_whole_rasters_solid(tmp_path, kwargs):
+    """Each tile was stepped alone with the shared levels but without the interval, so its solid's default floor was
+    a tenth of the levels' span under the *tile's* lowest vertex: 954 m under interval=20 where the whole raster's
+    solid stands on 980 m, and with levels and γ < 1 nine different floors in nine tiles. Every tile now stands on
+    the floor ``stepped`` gives the whole raster."""
+    import stepterrain as st
+
+    from .test_export import glb_json
+
+    z, spacing, origin = _dem_crop()
+    z[3:7, 30:40] = np.nan  # nodata on a tile border
+    whole = st.stepped(z, spacing=spacing, origin=origin, solid=True, **kwargs)
+    report = batch(z, tmp_path, tile_size=(20, 27), spacing=spacing, origin=origin, solid=True, format=".glb",
+                   scheduler="serial", **kwargs)  # fmt: skip
+    assert report.ok and len(report.done) == 4 * 3
+    floors = {glb_json(tmp_path / f"{r.key}.glb")["meshes"][0]["extras"]["floor"] for r in report.done}
+    assert floors == {whole.metadata["floor"]}
+    lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
+    np.testing.assert_allclose(lowest, whole.vertices[:, 2].min(), atol=1e-3)  # the base itself lies there
+
+
+def test_solid_frames_of_a_series_stand_on_one_floor(tmp_path):
+    """Every frame of a series was closed under its own lowest vertex: the base jumped from frame to frame. The
+    frames share the floor of the series as one raster (its frames side by side: the same heights and levels)."""
+    import stepterrain as st
+
+    z, _, _ = _dem_crop()
+    frames = np.stack([z[:20, :30], z[20:40, :30] + 40.0, z[40:60, :30] - 30.0])
+    side_by_side = np.concatenate(list(frames), axis=1)
+    for kwargs in (dict(interval=20.0, base=0.5, gamma=0.7), dict(levels=[1150.3, 1250.3, 1400.3], gamma=0.3)):
+        whole = st.stepped(side_by_side, solid=True, **kwargs)
+        report = batch(frames, tmp_path / str(len(kwargs["levels"]) if "levels" in kwargs else "interval"),
+                       solid=True, format=".ply", scheduler="serial", **kwargs)  # fmt: skip
+        assert report.ok and len(report.done) == 3
+        lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
+        np.testing.assert_allclose(lowest, whole.metadata["floor"], atol=1e-4)
