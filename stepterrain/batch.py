@@ -990,7 +990,8 @@ def batch(
         Unknown format, bad source (an array with an infinite height, or a finite one beyond float32, included;
         NaN is nodata), tile size, isovalues, scheduler address or ``metadata`` (not a mapping of JSON values); a
         ``floor`` not below the lowest point of the stepped surface of every tile or frame (a folder's files are
-        read by the items, so there each item fails on its own).
+        read by the items, so there each item fails on its own); a Terrain with a visual (vertex colours or UVs,
+        which its tiles would lose) unless ``colors`` or ``solid`` is given.
     DataFileError
         The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
         it (before any work; the message names that run's pid, host and start time).
@@ -1082,6 +1083,14 @@ def batch(
                 f"height_unit applies to DEM files, read by load_dem; got a {type(source).__name__} source "
                 f"(its heights are used as they are)"
             )
+    if isinstance(source, Terrain) and source.visual is not None and colors is None and not solid:
+        # stepped() carries a grid's vertex colours or UVs onto its steps; the tiles, cut from the heights alone,
+        # were written grey without a word
+        raise InvalidInputError(
+            f"source is a Terrain with a visual ({type(source.visual).__name__}), which batch does not cut into "
+            "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
+            "Terrain without a visual"
+        )
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):

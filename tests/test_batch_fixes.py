@@ -466,3 +466,27 @@ def test_solid_frames_of_a_series_stand_on_one_floor(tmp_path):
         assert report.ok and len(report.done) == 3
         lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
         np.testing.assert_allclose(lowest, whole.metadata["floor"], atol=1e-4)
+
+
+def test_a_terrain_with_vertex_colours_is_refused_not_tiled_grey(tmp_path):
+    """stepped() carries a grid Terrain's vertex colours onto its steps; batch cut its tiles from the heights alone
+    and wrote them without colours (trimesh's grey), silently. Such a source is refused, naming its visual, unless
+    colors= (which replaces the carried colours in stepped() as well) or solid (which carries none) is given."""
+    import stepterrain as st
+    from stepterrain.errors import InvalidInputError
+
+    z, spacing, origin = _dem_crop()
+    z = z[:20, :24]
+    red = np.tile(np.array([[200, 10, 10, 255]], np.uint8), (z.size, 1))
+    terrain = st.Terrain(kind="grid", heights=z, spacing=spacing, origin=origin,
+                         visual=trimesh.visual.ColorVisuals(vertex_colors=red))  # fmt: skip
+    assert (st.stepped(terrain, interval=50.0).visual.vertex_colors == red[0]).all()  # the whole raster is red
+    with pytest.raises(InvalidInputError, match=r"^source is a Terrain with a visual \(ColorVisuals\).*give colors="):
+        batch(terrain, tmp_path / "out", tile_size=10, interval=50.0, format=".ply", scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    report = batch(terrain, tmp_path / "out", tile_size=10, interval=50.0, colors="terrain", format=".ply",
+                   scheduler="serial")  # fmt: skip
+    whole = st.stepped(terrain, interval=50.0, colors="terrain")
+    assert report.ok and {tuple(c) for r in report.done
+                          for c in trimesh.load(r.path, process=False).visual.vertex_colors} == {
+        tuple(c) for c in whole.visual.vertex_colors}  # fmt: skip
