@@ -1166,8 +1166,11 @@ def _run_locked(
     for item in items:
         name = f"{item.key}{ext}"
         if resume and _is_complete(manifest.get(name), fingerprints[item.key], folder, name):
-            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / name),
-                                           bytes=manifest[name]["bytes"])  # fmt: skip
+            entry = manifest[name]  # its counts as recorded (a skipped item reported 0 faces and 0 vertices)
+            counts = {k: entry[k] for k in ("faces", "vertices")
+                      if isinstance(entry.get(k), int) and not isinstance(entry[k], bool) and entry[k] >= 0}
+            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / name), bytes=entry["bytes"],
+                                           **counts)  # fmt: skip
         else:
             todo.append(item)
             manifest.pop(name, None)

@@ -490,3 +490,15 @@ def test_a_terrain_with_vertex_colours_is_refused_not_tiled_grey(tmp_path):
     assert report.ok and {tuple(c) for r in report.done
                           for c in trimesh.load(r.path, process=False).visual.vertex_colors} == {
         tuple(c) for c in whole.visual.vertex_colors}  # fmt: skip
+
+
+def test_a_skipped_item_reports_the_faces_and_vertices_of_its_output(tmp_path):
+    """A rerun reported every complete (skipped) item with 0 faces and 0 vertices, though its output holds the mesh
+    the first run wrote (and the manifest records its counts)."""
+    z, spacing, origin = _dem_crop()
+    first = batch(z[:30, :40], tmp_path, tile_size=16, interval=50.0, base=0.5, format=".ply", scheduler="serial")
+    again = batch(z[:30, :40], tmp_path, tile_size=16, interval=50.0, base=0.5, format=".ply", scheduler="serial")
+    assert len(again.skipped) == len(first.done) == 2 * 3
+    for result in again.skipped:
+        mesh = trimesh.load(result.path, process=False)
+        assert (result.faces, result.vertices) == (len(mesh.faces), len(mesh.vertices)) != (0, 0)
