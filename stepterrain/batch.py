@@ -944,7 +944,10 @@ def batch(
     interval, levels, base, gamma, colors, solid, floor
         As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
         tiles the isovalues come from the whole source's height range, so every item shares them (tiles
-        weld, frames keep their levels). A folder needs ``interval`` or ``levels``.
+        weld, frames keep their levels). A folder needs ``interval`` or ``levels``. A solid tile or frame is
+        closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
+        source's solid has in :func:`~stepterrain.stepped` (the whole raster, or the series as one raster), so
+        every item stands on the same base; a file of a folder is stepped as ``stepped(load_dem(file), ...)``.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry of an array source (default (1, 1) and (0, 0)).
     scheduler
@@ -987,7 +990,8 @@ def batch(
         Unknown format, bad source (an array with an infinite height, or a finite one beyond float32, included;
         NaN is nodata), tile size, isovalues, scheduler address or ``metadata`` (not a mapping of JSON values); a
         ``floor`` not below the lowest point of the stepped surface of every tile or frame (a folder's files are
-        read by the items, so there each item fails on its own).
+        read by the items, so there each item fails on its own); a Terrain with a visual (vertex colours or UVs,
+        which its tiles would lose) unless ``colors`` or ``solid`` is given.
     DataFileError
         The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
         it (before any work; the message names that run's pid, host and start time).
@@ -1079,6 +1083,14 @@ def batch(
                 f"height_unit applies to DEM files, read by load_dem; got a {type(source).__name__} source "
                 f"(its heights are used as they are)"
             )
+    if isinstance(source, Terrain) and source.visual is not None and colors is None and not solid:
+        # stepped() carries a grid's vertex colours or UVs onto its steps; the tiles, cut from the heights alone,
+        # were written grey without a word
+        raise InvalidInputError(
+            f"source is a Terrain with a visual ({type(source.visual).__name__}), which batch does not cut into "
+            "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
+            "Terrain without a visual"
+        )
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):
@@ -1092,6 +1104,8 @@ def batch(
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
         _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
+    elif solid and src is not None and level_values is not None:  # every tile or frame on the whole source's floor
+        floor = _shared_floor(src, level_values, gamma_value, None if interval is None else float(interval))
     if src is None and interval is None and levels is None:
         raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
     if src is None:  # no shared height range: check interval/levels/base now, not once per item
@@ -1152,8 +1166,11 @@ def _run_locked(
     for item in items:
         name = f"{item.key}{ext}"
         if resume and _is_complete(manifest.get(name), fingerprints[item.key], folder, name):
-            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / name),
-                                           bytes=manifest[name]["bytes"])  # fmt: skip
+            entry = manifest[name]  # its counts as recorded (a skipped item reported 0 faces and 0 vertices)
+            counts = {k: entry[k] for k in ("faces", "vertices")
+                      if isinstance(entry.get(k), int) and not isinstance(entry[k], bool) and entry[k] >= 0}
+            results[item.key] = ItemResult(item.key, "skipped", path=str(folder / name), bytes=entry["bytes"],
+                                           **counts)  # fmt: skip
         else:
             todo.append(item)
             manifest.pop(name, None)
@@ -1233,6 +1250,33 @@ def _levels_and_range(
     return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base)), (lo, hi)
 
 
+def _lowest_used(src: _Source) -> float | None:
+    """The lowest height of a node of the whole source that a triangle with three finite heights uses (None: no
+    triangle has)."""
+    if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
+        return src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
+    return lowest_used_height(src.heights)
+
+
+def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
+    """The default floor of a solid over the whole source, :func:`~stepterrain.stepped`'s for the whole raster: one
+    interval (without one, a tenth of the levels' span) below the lowest isovalue or the lowest vertex of the whole
+    stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
+    interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
+    under a floor other than the whole raster's. None when no triangle has three finite heights."""
+    h = _lowest_used(src)
+    if h is None:
+        return None
+    from .stepped import default_floor, thresholds_of
+
+    values32 = np.asarray(values, np.float32)
+    h32 = np.float32(h)
+    alpha = values32[np.searchsorted(thresholds_of(values32), h32, side="right")]  # the isovalue h snaps to
+    g = np.float32(gamma)
+    lowest = (np.float32(1.0) - g) * h32 + g * alpha  # in float32, as kernels/stepped.py's blended computes it
+    return default_floor(values32, float(lowest), interval)
+
+
 def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: float) -> None:
     """Refuse a solid's floor that is not below the lowest point of every frame's or tile's stepped surface.
 
@@ -1240,13 +1284,9 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
     so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
     """
-    if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
-        h = src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
-    else:
-        used_min = lowest_used_height(src.heights)
-        if used_min is None:
-            return  # no surface at all: each item says so
-        h = used_min
+    h = _lowest_used(src)
+    if h is None:
+        return  # no surface at all: each item says so
     from .stepped import lowest_surface
 
     lowest, alpha, _margin = lowest_surface(h, np.asarray(values, np.float32), gamma)

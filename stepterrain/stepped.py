@@ -968,6 +968,26 @@ def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -
     return (1.0 - gamma) * float(h32) + gamma * float(alpha), float(alpha), margin
 
 
+def default_floor(values: NDArray[np.float32], lowest_vertex: float, interval: float | None) -> float:
+    """A solid's default base height: one ``interval`` below the lowest isovalue α_0 or the lowest surface vertex
+    ``lowest_vertex``, whichever is lower (with explicit levels and γ < 1, heights under α_0 pull the surface below
+    it); without an interval a tenth of the levels' span (at least 0.1) below it, and at most down to -3.4e38.
+    :func:`stepped` closes a solid there; :func:`~stepterrain.batch.batch` closes every tile or frame at the one its
+    whole source gives."""
+    lowest = min(float(values[0]), lowest_vertex)
+    if interval:
+        floor = lowest - float(interval)
+    else:  # levels spanning more than float32 holds (-3e38 to 3e38): their span in float64, not inf
+        with np.errstate(over="ignore"):
+            span = float(np.ptp(values))
+        if not math.isfinite(span):
+            span = float(values[-1]) - float(values[0])
+        floor = lowest - max(span, 1.0) * 0.1
+    if floor < -FLOAT32_MAX < lowest:  # a tenth of such a span reaches beyond float32: its lowest value
+        floor = -FLOAT32_MAX
+    return floor
+
+
 def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, floor: Any) -> None:
     """Refuse, before stepping, a solid's ``floor`` that surely lies at or above the stepped surface's lowest point
     (:func:`lowest_surface` of the lowest height a triangle uses): stepping a large terrain (with its warnings) only to
@@ -1053,21 +1073,9 @@ def _assemble(
                 stacklevel=3,
             )
 
-        # below the lowest isovalue and the surface: with explicit levels and γ < 1 heights under the lowest
-        # level pull the surface below it
-        lowest = min(float(values[0]), float(vertices[:, 2].min()))  # faces, hence vertices (checked above)
-        if interval:
-            default_floor = lowest - float(interval)
-        else:  # levels spanning more than float32 holds (-3e38 to 3e38): their span in float64, not inf
-            with np.errstate(over="ignore"):
-                span = float(np.ptp(values))
-            if not math.isfinite(span):
-                span = float(values[-1]) - float(values[0])
-            default_floor = lowest - max(span, 1.0) * 0.1
-        if default_floor < -FLOAT32_MAX < lowest:  # a tenth of such a span reaches beyond float32: its lowest value
-            default_floor = -FLOAT32_MAX
-        try:
-            floor_z = default_floor if floor is None else as_number(floor)
+        try:  # faces, hence vertices (checked above)
+            floor_z = (default_floor(values, float(vertices[:, 2].min()), interval) if floor is None
+                       else as_number(floor))
         except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
         vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z)

@@ -415,3 +415,90 @@ def test_a_series_npz_in_feet_is_meshed_in_metres_as_load_dem_reads_it(tmp_path)
     np.savez(tmp_path / "odd.npz", heights=stack, units="furlong")
     with pytest.raises(DataFileError, match=r"expected heights in a known length unit .*got 'furlong' \(its 'units'\)"):
         load_series(tmp_path / "odd.npz")
+
+
+def _dem_crop() -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
+    """A 64 x 80 crop of the embedded DEM, its spacing and its own UTM origin."""
+    import stepterrain as st
+
+    dem = st.sample_dem()
+    (dx, dy), (x0, y0) = dem.spacing, dem.origin
+    return dem.heights[100:164, 200:280].copy(), dem.spacing, (x0 + 200 * dx, y0 + 100 * dy)
+
+
+@pytest.mark.parametrize("kwargs", [
+    dict(interval=20.0, base=0.5), dict(interval=20.0, base=0.5, gamma=0.4),
+    dict(levels=[1200.3, 1300.3], gamma=0.5),  # heights under the lowest level pull the surface below it
+], ids=["interval", "interval-gamma", "levels-gamma"])  # fmt: skip
+def test_solid_tiles_are_closed_at_the_floor_of_the_whole_rasters_solid(tmp_path, kwargs):
+    """Each tile was stepped alone with the shared levels but without the interval, so its solid's default floor was
+    a tenth of the levels' span under the *tile's* lowest vertex: 954 m under interval=20 where the whole raster's
+    solid stands on 980 m, and with levels and γ < 1 nine different floors in nine tiles. Every tile now stands on
+    the floor ``stepped`` gives the whole raster."""
+    import stepterrain as st
+
+    from .test_export import glb_json
+
+    z, spacing, origin = _dem_crop()
+    z[3:7, 30:40] = np.nan  # nodata on a tile border
+    whole = st.stepped(z, spacing=spacing, origin=origin, solid=True, **kwargs)
+    report = batch(z, tmp_path, tile_size=(20, 27), spacing=spacing, origin=origin, solid=True, format=".glb",
+                   scheduler="serial", **kwargs)  # fmt: skip
+    assert report.ok and len(report.done) == 4 * 3
+    floors = {glb_json(tmp_path / f"{r.key}.glb")["meshes"][0]["extras"]["floor"] for r in report.done}
+    assert floors == {whole.metadata["floor"]}
+    lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
+    np.testing.assert_allclose(lowest, whole.vertices[:, 2].min(), atol=1e-3)  # the base itself lies there
+
+
+def test_solid_frames_of_a_series_stand_on_one_floor(tmp_path):
+    """Every frame of a series was closed under its own lowest vertex: the base jumped from frame to frame. The
+    frames share the floor of the series as one raster (its frames side by side: the same heights and levels)."""
+    import stepterrain as st
+
+    z, _, _ = _dem_crop()
+    frames = np.stack([z[:20, :30], z[20:40, :30] + 40.0, z[40:60, :30] - 30.0])
+    side_by_side = np.concatenate(list(frames), axis=1)
+    for kwargs in (dict(interval=20.0, base=0.5, gamma=0.7), dict(levels=[1150.3, 1250.3, 1400.3], gamma=0.3)):
+        whole = st.stepped(side_by_side, solid=True, **kwargs)
+        report = batch(frames, tmp_path / str(len(kwargs["levels"]) if "levels" in kwargs else "interval"),
+                       solid=True, format=".ply", scheduler="serial", **kwargs)  # fmt: skip
+        assert report.ok and len(report.done) == 3
+        lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
+        np.testing.assert_allclose(lowest, whole.metadata["floor"], atol=1e-4)
+
+
+def test_a_terrain_with_vertex_colours_is_refused_not_tiled_grey(tmp_path):
+    """stepped() carries a grid Terrain's vertex colours onto its steps; batch cut its tiles from the heights alone
+    and wrote them without colours (trimesh's grey), silently. Such a source is refused, naming its visual, unless
+    colors= (which replaces the carried colours in stepped() as well) or solid (which carries none) is given."""
+    import stepterrain as st
+    from stepterrain.errors import InvalidInputError
+
+    z, spacing, origin = _dem_crop()
+    z = z[:20, :24]
+    red = np.tile(np.array([[200, 10, 10, 255]], np.uint8), (z.size, 1))
+    terrain = st.Terrain(kind="grid", heights=z, spacing=spacing, origin=origin,
+                         visual=trimesh.visual.ColorVisuals(vertex_colors=red))  # fmt: skip
+    assert (st.stepped(terrain, interval=50.0).visual.vertex_colors == red[0]).all()  # the whole raster is red
+    with pytest.raises(InvalidInputError, match=r"^source is a Terrain with a visual \(ColorVisuals\).*give colors="):
+        batch(terrain, tmp_path / "out", tile_size=10, interval=50.0, format=".ply", scheduler="serial")
+    assert not (tmp_path / "out").exists()
+    report = batch(terrain, tmp_path / "out", tile_size=10, interval=50.0, colors="terrain", format=".ply",
+                   scheduler="serial")  # fmt: skip
+    whole = st.stepped(terrain, interval=50.0, colors="terrain")
+    assert report.ok and {tuple(c) for r in report.done
+                          for c in trimesh.load(r.path, process=False).visual.vertex_colors} == {
+        tuple(c) for c in whole.visual.vertex_colors}  # fmt: skip
+
+
+def test_a_skipped_item_reports_the_faces_and_vertices_of_its_output(tmp_path):
+    """A rerun reported every complete (skipped) item with 0 faces and 0 vertices, though its output holds the mesh
+    the first run wrote (and the manifest records its counts)."""
+    z, spacing, origin = _dem_crop()
+    first = batch(z[:30, :40], tmp_path, tile_size=16, interval=50.0, base=0.5, format=".ply", scheduler="serial")
+    again = batch(z[:30, :40], tmp_path, tile_size=16, interval=50.0, base=0.5, format=".ply", scheduler="serial")
+    assert len(again.skipped) == len(first.done) == 2 * 3
+    for result in again.skipped:
+        mesh = trimesh.load(result.path, process=False)
+        assert (result.faces, result.vertices) == (len(mesh.faces), len(mesh.vertices)) != (0, 0)
