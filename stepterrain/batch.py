@@ -47,6 +47,7 @@ from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable,
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
+    _described,
     check_flag,
     check_mapped,
     finite_number,
@@ -1051,7 +1052,8 @@ def batch(
         raise InvalidInputError(f"connect_timeout must be a positive number of seconds up to {MAX_CONNECT_TIMEOUT:g} "
                                 f"(a day); got {connect_timeout!r}")
     if not 0.0 <= gamma_value <= 1.0:
-        raise InvalidInputError(f"gamma must be a number in [0, 1] for batch; got {gamma!r}")
+        raise InvalidInputError(f"gamma must be a number in [0, 1] for batch (per-node γ, callables and lenses do "
+                                f"not tile); got {_described(gamma)}")  # an array printed all its rows
     if colors is not None and not isinstance(colors, str):
         raise InvalidInputError(f"colors must be a matplotlib colormap name for batch; got {type(colors).__name__}")
     extras = json_metadata(metadata)  # plain JSON values, so the fingerprint's repr and the workers see those

@@ -912,8 +912,9 @@ _TIMEOUT = r"^connect_timeout must be a positive number of seconds up to 86400 \
 @pytest.mark.parametrize(("kwargs", "match"), [
     ({"connect_timeout": True}, _TIMEOUT + "True$"),
     ({"connect_timeout": "5"}, _TIMEOUT + "'5'$"),
-    ({"gamma": True}, r"^gamma must be a number in \[0, 1\] for batch; got True$"),
-    ({"gamma": "1"}, r"^gamma must be a number in \[0, 1\] for batch; got '1'$"),
+    ({"gamma": True}, r"^gamma must be a number in \[0, 1\] for batch \(per-node .*\); got True$"),
+    ({"gamma": "1"}, r"^gamma must be a number in \[0, 1\] for batch \(per-node .*\); got '1'$"),
+    ({"gamma": np.full((40, 50), 0.5)}, r"for batch \(per-node .*\); got an array of shape \(40, 50\), dtype float64$"),
 ])  # fmt: skip
 def test_bools_and_text_are_no_numbers_for_batch(tmp_path, kwargs, match):
     """connect_timeout=True was a wait of 1 second and gamma=True γ = 1 (bool is an int): a flag in a number's
