@@ -1007,14 +1007,16 @@ def batch(
     path, size and mtime, or a hash of its heights; and the options but the device, which does not change a bit of
     the output) and that file exists with the recorded size. The manifest records each file, so an item's outputs
     in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
-    ``report.notes`` says when the folder holds these items in another format too, and when the manifest could
-    not be read (cut short or edited by hand: every item is redone and the manifest written afresh). Every
-    file is written to a temporary file and renamed, and the manifest is updated only after the rename, so
-    a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
+    ``report.notes`` says when the folder holds these items in another format too, when it holds outputs of
+    items this run does not have (an earlier run's other tile size or source: left as they were), and when the
+    manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
+    afresh). Every file is written to a temporary file and renamed, and the manifest is updated only after the
+    rename, so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
     temporary files the killed run left half-written). Tiles are written with the whole raster's bounds as
     :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type
     for all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's
-    float32 positions are then relative to the raster's lower corner (about 8 mm resolution 100 km from it).
+    float32 positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from
+    it).
     A tile or frame with
     no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
     ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
@@ -1182,6 +1184,13 @@ def _run_locked(
         count = sum(1 for n in manifest if Path(n).suffix in others and Path(n).stem in keys)
         notes.append(f"the manifest also records {count} output(s) of these items in another format "
                      f"({', '.join(others)}), kept beside this run's {ext} files")  # fmt: skip
+    # outputs of items this run does not have (an earlier run's other tile size or source): they stayed, unsaid, and
+    # out/*.glb then loaded overlapping stale tiles with this run's
+    strangers = sorted(n for n in manifest if Path(n).stem not in keys and (folder / n).exists())
+    if strangers:
+        shown = ", ".join(strangers[:3]) + (", ..." if len(strangers) > 3 else "")
+        notes.append(f"the folder holds {len(strangers)} recorded output(s) of items this run does not have ({shown}),"
+                     " from an earlier run with another source or tile size: left as they were")  # fmt: skip
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
