@@ -1093,7 +1093,7 @@ def batch(
     if floor is not None and solid and src is not None and level_values is not None:
         _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
     if src is None and interval is None and levels is None:
-        raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
+        raise InvalidInputError("a folder or list of DEM files needs interval= or levels= (shared by every file)")
     if src is None:  # no shared height range: check interval/levels/base now, not once per item
         from .stepped import isovalues
 
