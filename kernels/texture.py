@@ -918,6 +918,36 @@ def add_layers(
 
 
 @wp.kernel
+def interpolate_layers(
+    thread_offset: wp.int32,
+    a: wp.array2d[wp.vec4],
+    b: wp.array2d[wp.vec4],
+    t: wp.float32,
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per pixel: (1 - t) a + t b interpolated premultiplied (§6 keyframes): alpha
+    (1 - t) alpha_a + t alpha_b, colour ((1 - t) alpha_a a + t alpha_b b) / alpha, so a transparent key (nodata)
+    fades the other out without tinting it; where both are transparent the colours are mixed straight."""
+    n = wp.tid() + thread_offset
+    cols = a.shape[1]
+    i = n // cols
+    j = n - i * cols
+    x = a[i, j]
+    y = b[i, j]
+    wa = (1.0 - t) * x[3]
+    wb = t * y[3]
+    alpha = wa + wb
+    if alpha > 0.0:
+        rgb = (wp.vec3(x[0], x[1], x[2]) * wa + wp.vec3(y[0], y[1], y[2]) * wb) / alpha
+        rgba_out[i, j] = wp.vec4(wp.clamp(rgb[0], 0.0, 1.0), wp.clamp(rgb[1], 0.0, 1.0), wp.clamp(rgb[2], 0.0, 1.0),
+                                 wp.min(alpha, 1.0))
+    else:
+        mixed = x * (1.0 - t) + y * t
+        rgba_out[i, j] = wp.vec4(mixed[0], mixed[1], mixed[2], 0.0)
+
+
+@wp.kernel
 def modulate_layers(
     thread_offset: wp.int32,
     a: wp.array2d[wp.vec4],
@@ -1000,13 +1030,14 @@ def adjust_layer(
 
 
 @wp.func
-def overlap(s: wp.int64, m: wp.int64, r: wp.int64, n: wp.int64) -> wp.float32:
-    """Length of source pixel s ([s m, (s+1) m)) inside target pixel r ([r n, (r+1) n)), over n."""
+def overlap(s: wp.int64, m: wp.int64, r: wp.int64, n: wp.int64) -> wp.int64:
+    """Length of source pixel s ([s m, (s+1) m)) inside target pixel r ([r n, (r+1) n)), in those units (the
+    weight of s in r is this over n)."""
     lo = wp.max(s * m, r * n)
     hi = wp.min((s + wp.int64(1)) * m, (r + wp.int64(1)) * n)
     if hi <= lo:
-        return 0.0
-    return float(hi - lo) / float(n)
+        return wp.int64(0)
+    return hi - lo
 
 
 @wp.kernel
@@ -1024,7 +1055,9 @@ def reduce_band(
 
     Target pixel r along an axis of n source and m target pixels covers source [r n / m, (r + 1) n / m), so
     the image mean is kept exactly (up to the rounding to uint8) for odd sizes too; 2:1 is a 2 x 2 box.
-    ``src`` holds source rows from ``src_row0``, ``dst_out`` target rows from ``dst_row0``.
+    The weighted sum is exact, in int64 (the weights are integer overlaps over n_rows n_cols), and rounded half
+    up, floor(mean + 0.5), as the 2 x 2 box path. ``src`` holds source rows from ``src_row0``, ``dst_out``
+    target rows from ``dst_row0``.
     """
     t = wp.tid() + thread_offset
     cols = dst_out.shape[1]
@@ -1053,12 +1086,13 @@ def reduce_band(
     s_row_hi = wp.int32(((r + wp.int64(1)) * n_rows - wp.int64(1)) // m_rows)
     s_col_lo = wp.int32((c64 * n_cols) // m_cols)
     s_col_hi = wp.int32(((c64 + wp.int64(1)) * n_cols - wp.int64(1)) // m_cols)
+    area = n_rows * n_cols  # the weights' common denominator: the sum is at most 255 area, exact in int64
     for ch in range(channels):
-        total = wp.float32(0.0)
+        total = wp.int64(0)
         for sr in range(s_row_lo, s_row_hi + 1):
             wr = overlap(wp.int64(sr), m_rows, r, n_rows)
-            row_sum = wp.float32(0.0)
+            row_sum = wp.int64(0)
             for sc in range(s_col_lo, s_col_hi + 1):
-                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * float(src[sr - first, sc, ch])
+                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * wp.int64(src[sr - first, sc, ch])
             total += wr * row_sum
-        dst_out[local_r, c, ch] = wp.uint8(wp.int32(wp.floor(wp.min(total, 255.0) + 0.5)))
+        dst_out[local_r, c, ch] = wp.uint8((wp.int64(2) * total + area) // (wp.int64(2) * area))

@@ -1111,7 +1111,7 @@ def batch(
     elif solid and src is not None and level_values is not None:  # every tile or frame on the whole source's floor
         floor = _shared_floor(src, level_values, gamma_value, None if interval is None else float(interval))
     if src is None and interval is None and levels is None:
-        raise InvalidInputError("a folder or list of DEM files needs interval or levels (shared by every file)")
+        raise InvalidInputError("a folder or list of DEM files needs interval= or levels= (shared by every file)")
     if src is None:  # no shared height range: check interval/levels/base now, not once per item
         from .stepped import isovalues
 

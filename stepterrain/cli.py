@@ -636,6 +636,35 @@ _OPTION_ALIASES = {
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
 _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 
+#: A library argument named anywhere in a message, as a whole word: ``name=`` (``needs interval= or levels=``,
+#: ``got interval=5``) or a snake_case name (``use a smaller face_size``). A plain word is not taken for an argument
+#: in mid-sentence ("gives 2000 levels"); quoted text, paths and ``name[k]`` are left as they are.
+_ARGUMENT_ANYWHERE = re.compile(r"(?<![\w./'\"-])([a-z][a-z0-9]*(?:_[a-z0-9]+)*)(?:(=)(?=([^\s;,)]?))|(?![\w=\[-]))")
+
+
+def _library_options(sub: argparse.ArgumentParser) -> dict[str, str]:
+    """The subcommand's options by the library argument each gives: ``face_size`` -> ``--face-size`` (every
+    ``--long-option``), then the names it spells otherwise (the one-word entries of :data:`_OPTION_ALIASES`)."""
+    options = {string[2:].replace("-", "_"): string for action in sub._actions for string in action.option_strings
+               if string.startswith("--")}
+    command = sub.prog.split()[-1]
+    options.update({name: option for name, option in _OPTION_ALIASES.get(command, {}).items() if " " not in name})
+    return options
+
+
+def _names_as_options(message: str, options: dict[str, str]) -> str:
+    """``message`` with each library argument it names anywhere (see :data:`_ARGUMENT_ANYWHERE`) spelled as the
+    option: ``interval=5`` -> ``--interval 5``, ``interval= or`` -> ``--interval or``, ``face_size`` ->
+    ``--face-size``; names the subcommand has no option for stay as they are."""
+
+    def option(match: re.Match[str]) -> str:
+        name, equals, value = match.groups()
+        if name not in options or (equals is None and "_" not in name):
+            return match.group(0)
+        return options[name] + (" " if equals and value else "")
+
+    return _ARGUMENT_ANYWHERE.sub(option, message)
+
 
 def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:
     for action in parser._actions:
@@ -645,27 +674,31 @@ def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.Argument
 
 
 def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
-    """``message`` with its leading library argument spelled as the subcommand's option (``interval must`` ->
-    ``--interval must``, ``device='cuda'`` -> ``--device 'cuda'``) where the subcommand has that option; other
-    messages unchanged. A command-line user never typed ``face_size``."""
+    """``message`` with the library arguments it names spelled as the subcommand's options where it has them: the
+    leading one (``interval must`` -> ``--interval must``, ``device='cuda'`` -> ``--device 'cuda'``), then any
+    other as a whole word (:func:`_names_as_options`: ``needs interval= or levels=`` -> ``needs --interval or
+    --levels``, ``use a smaller face_size`` -> ``use a smaller --face-size``). A command-line user never typed
+    ``face_size``."""
     if sub is None:
         return message
     command = sub.prog.split()[-1]
+    options = _library_options(sub)
     indexed = _CLOSEUP_INDEX.match(message) if command == "closeup" else None
     if indexed is not None:
-        return f"--roi/--roi-relative (close-up {int(indexed.group(1)) + 1}): {message[indexed.end():]}"
+        rest = _names_as_options(message[indexed.end():], options)
+        return f"--roi/--roi-relative (close-up {int(indexed.group(1)) + 1}): {rest}"
     for name, option in _OPTION_ALIASES.get(command, {}).items():
         if message.startswith(name + " "):
-            return option + message[len(name):]
+            return option + _names_as_options(message[len(name):], options)
     match = _ARGUMENT_FIRST.match(message)
     if match is None or message[match.end():].split(" ", 1)[0] in _NOT_ABOUT_THE_ARGUMENT:
-        return message
+        return _names_as_options(message, options)
     option = "--" + match.group(1).replace("_", "-")
-    if option not in {string for action in sub._actions for string in action.option_strings}:
-        return message
+    if option not in options.values():
+        return _names_as_options(message, options)
     rest = message[match.end():]
     aside = f"(the CLI's {option}) "  # the library's pointer to the option, once the option leads: said twice
-    return option + " " + (rest[len(aside):] if rest.startswith(aside) else rest)
+    return option + " " + _names_as_options(rest[len(aside):] if rest.startswith(aside) else rest, options)
 
 
 def _warning_line(command: str) -> Any:

@@ -1036,6 +1036,9 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
                  device: wp.DeviceLike = None) -> TextureLayer:
     """Weighted texture layer addition (§3.2.3, §6): ``Σ w_k · layer_k`` per pixel and channel, clamped to [0, 1].
 
+    Every channel, alpha too, is added straight (not premultiplied), so the colour of a transparent pixel counts
+    as much as an opaque one's; :meth:`TextureAnimation.frame` interpolates its keys premultiplied instead.
+
     Examples
     --------
     >>> import numpy as np
@@ -1326,7 +1329,10 @@ class TextureAnimation:
     """Texture animation (§6): keyframe layers of one image size with strictly increasing time stamps.
 
     Time t selects two consecutive layers with weights 1 − α and α (clamped to the first and last keyframe);
-    :meth:`frame` adds them (weighted addition), no intermediate texture is stored.
+    :meth:`frame` adds them, no intermediate texture is stored. The addition is premultiplied by alpha (unlike
+    :func:`weighted_add`, which adds each channel): alpha ``(1 − α) · alpha_k + α · alpha_k+1``, colour
+    ``((1 − α) · alpha_k · layer_k + α · alpha_k+1 · layer_k+1) / alpha``, so a transparent key (nodata, or no
+    water yet) fades the other key in or out without tinting its colour.
 
     Examples
     --------
@@ -1385,9 +1391,17 @@ class TextureAnimation:
         return self.layers[k], self.layers[k + 1], float(alpha)
 
     def frame(self, t: float, *, device: wp.DeviceLike = None) -> TextureLayer:
-        """The animated layer at time t: (1 − α) · layer k + α · layer k + 1."""
+        """The animated layer at time t: (1 − α) · layer k + α · layer k + 1, premultiplied by alpha."""
         a, b, alpha = self.at(t)
-        return weighted_add([a, b], [1.0 - alpha, alpha], device=device)
+        k = next(i for i, layer in enumerate(self.layers) if layer is a)
+        dev = resolve_device(device)
+        extent, shape = a.frame
+        out = wp.empty(shape, dtype=wp.vec4, device=dev)
+        launch(texture_kernels.interpolate_layers, dim=shape[0] * shape[1],
+               inputs=[_sampled(a, extent, shape, dev, f"layers[{k}]"),
+                       _sampled(b, extent, shape, dev, f"layers[{min(k + 1, len(self.layers) - 1)}]"), alpha],
+               outputs=[out], device=dev)
+        return _finish(out, a, "frame")
 
 
 # ---------------------------------------------------------------------------------------------- draping

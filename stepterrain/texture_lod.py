@@ -309,7 +309,8 @@ class ImagePyramid:
         -----
         Level k+1 pixel r covers source pixels [r n/m, (r+1) n/m) of level k (n source, m = ceil(n / 2)
         target pixels per axis): an area-weighted mean, so every level keeps the image mean up to the rounding
-        to uint8, for odd sizes too (a plain 2 x 2 box when n is even). One Warp thread per target pixel; the
+        to uint8, for odd sizes too (a plain 2 x 2 box when n is even). The mean is summed exactly (integers) and
+        rounded half up, floor(mean + 0.5), on both paths. One Warp thread per target pixel; the
         source is read with ``pread`` and the levels written with ``pwrite``, never mapped while building, so
         the resident memory stays about two bands whatever the image size. An image array the caller can still
         edit is copied first, so that later edits do not make level 0 disagree with the levels built from it: in

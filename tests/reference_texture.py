@@ -7,6 +7,7 @@
   digital line (O(n) per node), in float64.
 * ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
 * ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64.
+* ``reduce_rounded_reference``: the same halving in exact rationals, rounded half up to integers.
 * ``maplibre_reference``: MapLibre GL's hillshade methods transcribed from its fragment shader, in float64.
 """
 
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import math
 import os
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -211,6 +213,27 @@ def reduce_axis(image: np.ndarray, axis: int) -> np.ndarray:
 def reduce_reference(image: np.ndarray) -> np.ndarray:
     """One pyramid level down (both axes), float64 before rounding."""
     return reduce_axis(reduce_axis(image, 0), 1)
+
+
+def reduce_rounded_reference(image: np.ndarray) -> np.ndarray:
+    """One pyramid level down as reduce_reference, but in exact rationals (Python Fractions), then rounded half
+    up, floor(mean + 1/2), to int64: no float sum decides which way a tie goes."""
+    a = np.asarray(image).astype(object)  # Python ints
+    for axis in (0, 1):
+        a = np.moveaxis(a, axis, 0)
+        n = a.shape[0]
+        m = max(1, (n + 1) // 2)
+        out = np.empty((m, *a.shape[1:]), dtype=object)
+        for r in range(m):
+            lo, hi = Fraction(r * n, m), Fraction((r + 1) * n, m)
+            total = Fraction(0)
+            for s in range(math.floor(lo), math.ceil(hi)):
+                w = min(s + 1, hi) - max(s, lo)
+                if w > 0:
+                    total = total + a[s] * (w / (hi - lo))
+            out[r] = total
+        a = np.moveaxis(out, 0, axis)
+    return np.vectorize(lambda v: math.floor(v + Fraction(1, 2)), otypes=[np.int64])(a)
 
 
 def maplibre_reference(heights, spacing=(1.0, 1.0), method="standard", azimuths=(AZIMUTH,), altitudes=(ALTITUDE,),

@@ -385,7 +385,7 @@ def test_unreadable_tile_is_reported_and_the_rest_proceed(tmp_path):
 
 def test_folder_needs_isovalues_and_dems(tmp_path):
     src = make_folder(tmp_path / "in")
-    with pytest.raises(InvalidInputError, match="interval or levels"):
+    with pytest.raises(InvalidInputError, match="needs interval= or levels="):
         batch(src, tmp_path / "out", scheduler="serial")
     (tmp_path / "empty").mkdir()
     with pytest.raises(InvalidInputError, match="holds no DEM file"):

@@ -568,3 +568,39 @@ def test_a_batch_floor_refusal_names_the_option_once(tmp_path, capsys):
     assert code == 2
     assert "--floor must lie below the lowest point" in err
     assert "the CLI's" not in err
+
+
+# ------------------------------------------------------------------------------- library names as options (h20)
+def test_a_folder_without_isovalues_names_the_options(tmp_path, capsys):
+    """batch on a folder without --interval or --levels said "needs interval or levels": library arguments, not
+    the options the user types; only a message's leading argument was spelled as an option."""
+    code, out, err = run(capsys, "-q", "batch", tile_folder(tmp_path / "tiles"), "--scheduler", "serial",
+                         "-o", tmp_path / "out")
+    assert code == 2
+    assert "stepterrain batch: error: a folder or list of DEM files needs --interval or --levels" in err
+
+
+def test_a_globe_over_the_budget_names_the_face_size_option(tmp_path, capsys):
+    """globe refused a face size over the memory budget with "use a smaller face_size" (the library argument)
+    in the middle of the message, where the leading-name rewrite did not reach."""
+    code, out, err = run(capsys, "-q", "--memory-budget", "1MiB", "globe", "--face-size", "257",
+                         "-o", tmp_path / "g.glb")
+    assert code == 2
+    assert "error: a globe of --face-size 257 would need" in err and "use a smaller --face-size, or raise" in err
+    assert "face_size" not in err and not (tmp_path / "g.glb").exists()
+
+
+def test_library_arguments_named_mid_message_are_spelled_as_options():
+    """Arguments written name= or in snake_case anywhere in a message become the subcommand's options; plain words
+    in a sentence ("gives 5e+09 levels"), name[k], quoted text and names the subcommand has no option for stay."""
+    batch, globe = (cli._subcommand(cli.build_parser(), name) for name in ("batch", "globe"))
+    assert cli._as_option("base applies only to interval= (uniform isovalues), not to levels=; got base=3.0 "
+                          "with levels", batch) == ("--base applies only to --interval (uniform isovalues), not to "
+                                                    "--levels; got --base 3.0 with levels")
+    count = "over heights [0, 5] gives 5e+09 levels; at most 1,000 are supported"
+    assert cli._as_option(f"interval=1e-09 {count}", batch) == f"--interval 1e-09 {count}"
+    assert cli._as_option("levels must increase; levels[0]=1.0 and levels[1]=1.0", batch) == (
+        "--levels must increase; levels[0]=1.0 and levels[1]=1.0")
+    assert cli._as_option("a series of face_size 9", batch) == "a series of face_size 9"  # not a batch option
+    assert cli._as_option("got 'face_size' for a globe of face_size=9", globe) == (
+        "got 'face_size' for a globe of --face-size 9")

@@ -9,6 +9,8 @@ from stepterrain.camera import Camera
 from stepterrain.errors import InvalidInputError
 from stepterrain.texture_lod import ImagePyramid, PatchQuadtree, TextureTree, render_with_textures
 
+from .reference_texture import reduce_rounded_reference
+
 
 @pytest.mark.parametrize("fov", [1e-310, 1e-320, 5e-324])
 def test_a_field_of_view_too_narrow_for_a_finite_focal_length_is_named(fov):
@@ -98,3 +100,16 @@ def test_a_ragged_pyramid_image_is_named():
     """np.asarray of ragged rows raised numpy's "inhomogeneous shape" ValueError, naming no argument."""
     with pytest.raises(InvalidInputError, match=r"^image must be .*got rows of different lengths"):
         ImagePyramid.build([[1, 2], [3]], extent=(0, 2, 0, 2), device="cpu")
+
+
+@pytest.mark.parametrize("shape", [(27, 46, 3), (14, 23, 3), (31, 18, 2), (25, 40, 4)])
+def test_pyramid_levels_round_the_exact_area_weighted_mean_half_up(shape):
+    """With an odd dimension reduce_band summed the area weights (overlap / n, 0.6 and 0.4 for 5 -> 3) in float32,
+    so a mean exactly halfway between two grey levels (3 A + 2 B = 10 k + 5) came out just below it now and then
+    and rounded down: a level one grey level off the exact mean, where the even 2 x 2 path rounds half up."""
+    image = np.random.default_rng(27).integers(0, 256, shape, dtype=np.uint8)
+    with ImagePyramid.build(image, device="cpu") as pyramid:
+        previous = image
+        for level in pyramid.levels[1:]:
+            np.testing.assert_array_equal(level, reduce_rounded_reference(previous))
+            previous = np.asarray(level)

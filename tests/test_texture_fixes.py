@@ -10,6 +10,7 @@ import pytest
 from stepterrain.errors import InvalidInputError, StepTerrainError
 from stepterrain.texture import (
     Pipeline,
+    TextureAnimation,
     TextureLayer,
     adjust,
     ambient_occlusion,
@@ -252,3 +253,38 @@ def test_modulating_by_a_layer_that_covers_part_of_the_extent_keeps_the_rest():
     out = modulate(base, west, device="cpu").rgba()[0]
     np.testing.assert_allclose(out[:2], [[0.4, 0.4, 0.4, 1.0]] * 2, atol=1e-6)
     np.testing.assert_allclose(out[2:], [[0.8, 0.8, 0.8, 1.0]] * 2, atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------------ animation (h20)
+def interpolate_reference(a, b, t):
+    """Premultiplied interpolation of two straight RGBA images in float64: alpha (1 - t) alpha_a + t alpha_b,
+    colour ((1 - t) alpha_a a + t alpha_b b) / alpha, straight mix where both are transparent."""
+    a, b = a.astype(np.float64), b.astype(np.float64)
+    wa, wb = (1 - t) * a[..., 3:], t * b[..., 3:]
+    alpha = wa + wb
+    mixed = (1 - t) * a[..., :3] + t * b[..., :3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rgb = np.where(alpha > 0, (wa * a[..., :3] + wb * b[..., :3]) / alpha, mixed)
+    return np.concatenate([rgb, alpha], axis=-1)
+
+
+def test_an_animation_frame_fades_to_a_transparent_key_without_tinting():
+    """TextureAnimation.frame added its two keys per channel, straight RGBA: halfway between an opaque red key and
+    a nodata key (RGBA (1, 1, 1, 0)) it drew pink (1, 0.5, 0.5) at alpha 0.5, and the colour of any transparent
+    texel (the flood example's water colour above the water line) tinted the frames."""
+    extent = (0.0, 3.0, 0.0, 2.0)
+    red = np.zeros((2, 3, 4), np.float32)
+    red[..., 0] = red[..., 3] = 1.0
+    nodata = np.full((2, 3), np.nan, np.float32)
+    keys = [TextureLayer("thematic", red, extent), TextureLayer("luminance", nodata, extent)]
+    np.testing.assert_allclose(TextureAnimation(keys, (0.0, 2.0)).frame(1.0, device="cpu").rgba(),
+                               np.broadcast_to([1.0, 0.0, 0.0, 0.5], (2, 3, 4)), atol=1e-6)
+    rng = np.random.default_rng(20)
+    a, b = rng.random((2, 5, 7, 4)).astype(np.float32)
+    a[0, :, 3] = 0.0  # a transparent row of a, a transparent column of b, one pixel transparent in both
+    b[:, 2, 3] = 0.0
+    keys = [TextureLayer("thematic", a, (0, 7, 0, 5)), TextureLayer("thematic", b, (0, 7, 0, 5))]
+    anim = TextureAnimation(keys, (1.0, 3.0))
+    for t in (1.0, 1.5, 2.3, 3.0):
+        np.testing.assert_allclose(anim.frame(t, device="cpu").rgba(), interpolate_reference(a, b, (t - 1.0) / 2.0),
+                                   atol=2e-6)
