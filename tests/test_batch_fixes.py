@@ -519,3 +519,64 @@ def test_outputs_of_an_earlier_runs_other_tiles_are_noted(tmp_path):
     note = next(n for n in second.notes if "items this run does not have" in n)
     assert note.startswith(f"the folder holds {len(stale)} recorded output(s)")
     assert all((tmp_path / "out" / name).exists() for name in stale)
+
+
+# the top-left cell's centre y is 2000.5, then 3000.5: a world file names the centre, a GeoTransform the corner
+@pytest.mark.parametrize("sidecar, text", [
+    ("dem.tfw", "10\n0\n0\n-10\n1000.5\n{y}\n"),  # a world file: the georeferencing of a TIFF without its own
+    ("DEM.TFW", "10\n0\n0\n-10\n1000.5\n{y}\n"),  # GDAL finds it in upper case too
+    ("dem.tif.aux.xml", "<PAMDataset><GeoTransform>995.5, 10, 0, {y}5.5, 0, -10</GeoTransform></PAMDataset>\n"),
+], ids=["tfw", "TFW", "aux.xml"])
+def test_a_changed_georeferencing_sidecar_redoes_the_geotiff_item(tmp_path, sidecar, text):
+    # the fingerprint of a file item was its path, size and mtime alone: GDAL reads a GeoTIFF's origin from a world
+    # file or a PAM .aux.xml beside it, so a rerun after the sidecar was added or corrected skipped the tile as
+    # complete and kept the mesh at the old origin
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    z = np.add.outer(np.arange(5.0), np.arange(6.0)).astype(np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning: a plain TIFF
+        with rasterio.open(folder / "dem.tif", "w", driver="GTiff", width=6, height=5, count=1,
+                           dtype="float32") as dataset:  # fmt: skip
+            dataset.write(z, 1)
+    out = tmp_path / "out"
+
+    def lowest_y():
+        report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+        assert report.ok
+        mesh = trimesh.load(out / "dem.ply", process=False)
+        return len(report.done), float(np.asarray(mesh.vertices)[:, 1].min())
+
+    assert lowest_y() == (1, -4.0)  # no georeferencing: rows run south from y = 0
+    corner = sidecar.endswith(".xml")
+    (folder / sidecar).write_text(text.format(y="200" if corner else "2000.5"))
+    assert lowest_y() == (1, 2000.5 - 40)  # 4 rows of 10 m south
+    (folder / sidecar).write_text(text.format(y="300" if corner else "3000.5"))  # corrected in place: same size
+    assert lowest_y() == (1, 3000.5 - 40)
+    assert lowest_y() == (0, 3000.5 - 40)  # unchanged: skipped
+
+
+def test_a_file_rewritten_with_its_size_and_mtime_kept_is_redone(tmp_path):
+    # a DEM file replaced by another of the same size with its mtime kept (`cp -p`, `rsync -t`, os.utime) kept
+    # the fingerprint (path, size, mtime), so the rerun skipped it as complete and its mesh stayed the old one
+    import os
+    import time
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    dem = folder / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(5.0), np.arange(6.0)).astype(np.float32))
+    out = tmp_path / "out"
+    report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 1
+    before = os.stat(dem)
+    time.sleep(0.05)  # past the file system's clock tick, so the rewrite's ctime differs
+    np.save(dem, np.full((5, 6), 7.0, np.float32))  # the same size
+    os.utime(dem, ns=(before.st_atime_ns, before.st_mtime_ns))
+    assert os.stat(dem).st_size == before.st_size and os.stat(dem).st_mtime_ns == before.st_mtime_ns
+    report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 1
+    np.testing.assert_allclose(trimesh.load(out / "dem.ply", process=False).vertices[:, 2], 7.0)
