@@ -443,6 +443,13 @@ def _has_surface(terrain: Terrain) -> bool:
     return bool(upper.any() or lower.any())
 
 
+#: glTF extras keys stepterrain writes on every batch output (stepped's and batch's own; :func:`_item_metadata`
+#: adds the item's): a ``metadata`` key among them is refused. ``generator`` is not: the caller's names the program
+_LIBRARY_KEYS: frozenset[str] = frozenset(
+    ("isovalues", "gamma", "source", "crs", "floor", "interval", "base", "empty", "batch_item")
+)
+
+
 def _item_metadata(item: BatchItem) -> dict[str, Any]:
     meta: dict[str, Any] = {"batch_item": item.key}
     if item.kind == "tile":
@@ -1014,7 +1021,11 @@ def batch(
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
-        anything else is refused before any work, naming its key.
+        anything else is refused before any work, naming its key. Keys stepterrain writes itself are refused too:
+        ``isovalues``, ``gamma``, ``source``, ``crs``, ``floor``, ``interval`` and ``base`` (recorded when the
+        isovalues are ``base + k * interval``), ``empty``, ``batch_item`` and each item's own (``input`` for a
+        file, ``frame``, or ``tile_row``, ``tile_col``, ``node_rows``, ``node_cols``); a ``generator`` given
+        replaces ``"stepterrain.batch"``.
     height_unit : str, optional
         The unit of the heights in DEM files (a folder, a list, or one raster file cut into tiles), as
         :func:`~stepterrain.io.load_dem` takes it: for files that name none or name one it does not know.
@@ -1144,6 +1155,12 @@ def batch(
             "Terrain without a visual"
         )
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
+    own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
+    if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
+        raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
+            f"metadata keys {', '.join(map(repr, taken))} are written by stepterrain itself on these outputs "
+            f"(its keys: {', '.join(sorted(own))}); give yours other names"
+        )
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):
             raise InvalidInputError(
@@ -1177,8 +1194,13 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted(extras.items())), height_unit=height_unit,
     )  # fmt: skip
-    if level_values is not None and interval is not None:
-        options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
+    if interval is None and levels is None and z_range is not None:  # the shared levels' default interval
+        from .stepped import nice_interval
+
+        interval = nice_interval(z_range)
+    if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
+        steps = (("interval", float(interval)), ("base", float(base)))
+        options = _Options(**{**options.__dict__, "metadata": options.metadata + steps})
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it

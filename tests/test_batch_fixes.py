@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -94,6 +95,7 @@ _HELD_RUN = """
 import sys, time
 from pathlib import Path
 import re
+from pathlib import Path
 
 import numpy as np
 import stepterrain.batch
@@ -580,3 +582,60 @@ def test_a_file_rewritten_with_its_size_and_mtime_kept_is_redone(tmp_path):
     report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
     assert report.ok and len(report.done) == 1
     np.testing.assert_allclose(trimesh.load(out / "dem.ply", process=False).vertices[:, 2], 7.0)
+
+
+@pytest.mark.parametrize("kwargs, interval, base", [
+    (dict(tile_size=4, interval=2.0, base=0.5), 2.0, 0.5),  # tiles of one raster: shared levels
+    (dict(tile_size=4), 1.0, 0.0),  # the shared levels' default interval
+    (dict(interval=1.5, base=-0.25), 1.5, -0.25),  # a folder: each file's own isovalues
+], ids=["tiles", "default", "folder"])
+def test_outputs_record_the_interval_and_base_of_their_isovalues(tmp_path, kwargs, interval, base):
+    # shared levels recorded `interval` but not `base`, though the isovalues are base + k * interval (a list of more
+    # than 4096 keeps only its ends); a folder's files and the default interval recorded neither
+    from .test_export import glb_json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    source = z
+    if "tile_size" not in kwargs:
+        source = tmp_path / "dems"
+        source.mkdir()
+        np.save(source / "a.npy", z)
+    report = batch(source, tmp_path / "out", scheduler="serial", **kwargs)
+    assert report.ok and report.done
+    for result in report.done:
+        extras = glb_json(Path(result.path))["meshes"][0]["extras"]
+        assert (extras["interval"], extras["base"]) == (interval, base)
+        steps = (np.asarray(extras["isovalues"]) - base) / interval
+        np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
+
+
+@pytest.mark.parametrize("metadata, kwargs, taken", [
+    ({"interval": 5.0}, dict(tile_size=4, interval=2.0), "'interval'"),  # batch's value replaced it silently
+    ({"isovalues": [1, 2], "gamma": 0.5}, dict(tile_size=4, interval=2.0), "'gamma', 'isovalues'"),  # the mesh's
+    ({"tile_row": 9}, dict(tile_size=4, interval=2.0), "'tile_row'"),
+    ({"input": "survey 2020"}, dict(interval=2.0), "'input'"),  # a folder's items record their files there
+], ids=["interval", "isovalues", "tile_row", "input"])
+def test_metadata_keys_the_library_writes_are_refused(tmp_path, metadata, kwargs, taken):
+    # a user's metadata={"interval": ...} was overwritten by batch's own keys without a word, and a user's
+    # "isovalues" or "gamma" replaced the values the mesh was made with
+    from stepterrain.errors import InvalidInputError
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    source = z
+    if "tile_size" not in kwargs:
+        source = tmp_path / "dems"
+        source.mkdir()
+        np.save(source / "a.npy", z)
+    with pytest.raises(InvalidInputError, match=rf"^metadata keys {taken} are written by stepterrain itself"):
+        batch(source, tmp_path / "out", scheduler="serial", metadata=metadata, **kwargs)
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_metadata_keys_the_library_does_not_write_here_are_kept(tmp_path):
+    from .test_export import glb_json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = batch(z, tmp_path / "out", tile_size=4, interval=2.0, scheduler="serial",
+                   metadata={"generator": "my tool", "input": "survey 2020", "frame": 3})  # fmt: skip
+    extras = glb_json(Path(report.done[0].path))["meshes"][0]["extras"]
+    assert (extras["generator"], extras["input"], extras["frame"]) == ("my tool", "survey 2020", 3)
