@@ -443,6 +443,13 @@ def _has_surface(terrain: Terrain) -> bool:
     return bool(upper.any() or lower.any())
 
 
+#: glTF extras keys stepterrain writes on every batch output (stepped's and batch's own; :func:`_item_metadata`
+#: adds the item's): a ``metadata`` key among them is refused. ``generator`` is not: the caller's names the program
+_LIBRARY_KEYS: frozenset[str] = frozenset(
+    ("isovalues", "gamma", "source", "crs", "floor", "interval", "base", "empty", "batch_item")
+)
+
+
 def _item_metadata(item: BatchItem) -> dict[str, Any]:
     meta: dict[str, Any] = {"batch_item": item.key}
     if item.kind == "tile":
@@ -558,21 +565,65 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         shared += f"|height_unit={options.height_unit!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
+    listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
         h = hashlib.blake2b(head, digest_size=16)
         h.update(repr(item).encode())
         if item.kind == "file":
-            try:
-                st = os.stat(item.path)  # type: ignore[arg-type]
-                h.update(f"{os.path.abspath(item.path)}|{st.st_size}|{st.st_mtime_ns}".encode())  # type: ignore[arg-type]
-            except OSError:
-                h.update(b"unreadable")
+            h.update(_file_identity(item.path, listings).encode())  # type: ignore[arg-type]
         elif source is not None:
             block = source.heights[item.index] if item.kind == "frame" else source.heights[
                 item.rows[0]:item.rows[1], item.cols[0]:item.cols[1]]  # fmt: skip
             h.update(np.ascontiguousarray(block).tobytes())
         out[item.key] = h.hexdigest()
     return out
+
+
+#: Files beside a GeoTIFF that GDAL reads with it when load_dem opens it (``{name}``: the file's name, ``{stem}``:
+#: without its extension), matched in any case: the PAM .aux.xml (georeferencing, CRS, nodata, scale and offset,
+#: over the file's own), a .msk mask, a MapInfo .tab or a world file (the georeferencing of a TIFF without its
+#: own) and RPCs (which make load_dem refuse it)
+_GEOTIFF_SIDECARS: tuple[str, ...] = (
+    "{name}.aux.xml", "{stem}.aux", "{name}.msk", "{stem}.tab", "{stem}.tfw", "{stem}.tifw", "{stem}.tiffw",
+    "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd",
+)
+
+
+def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) -> str:
+    """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, and of the
+    sidecar files GDAL reads with a GeoTIFF (:data:`_GEOTIFF_SIDECARS`).
+
+    ctime and inode catch a file rewritten with its size and mtime kept (``cp -p``, ``os.utime``, ``touch -r``):
+    every write or metadata change sets ctime on Linux and macOS (on Windows ``st_ctime`` is the creation time,
+    which a rewrite in place keeps). Renaming, moving or restoring a file from a backup changes them too, so its
+    item is redone once: stat calls, no read of the data. ``listings`` caches each folder's names."""
+    def identity(file: str) -> str:
+        try:
+            st = os.stat(file)
+        except OSError:
+            return f"{file}|unreadable"
+        return f"{file}|{st.st_size}|{st.st_mtime_ns}|{st.st_ctime_ns}|{st.st_ino}"
+
+    file = os.path.abspath(path)
+    parts = [identity(file)]
+    folder, name = os.path.split(file)
+    stem, ext = os.path.splitext(name)
+    if ext.lower() in (".tif", ".tiff"):
+        if folder not in listings:
+            names: dict[str, list[str]] | None = {}
+            try:
+                for entry in os.listdir(folder):
+                    names.setdefault(entry.lower(), []).append(entry)  # type: ignore[union-attr]
+            except OSError:
+                names = None
+            listings[folder] = names
+        found = listings[folder]
+        if found is None:
+            parts.append("unlistable")
+        for pattern in _GEOTIFF_SIDECARS if found is not None else ():
+            for side in sorted(found.get(pattern.format(name=name, stem=stem).lower(), ())):
+                parts.append(identity(os.path.join(folder, side)))
+    return "|".join(parts)
 
 
 def _source_identity(source: _Source | None) -> Any:
@@ -970,7 +1021,11 @@ def batch(
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
-        anything else is refused before any work, naming its key.
+        anything else is refused before any work, naming its key. Keys stepterrain writes itself are refused too:
+        ``isovalues``, ``gamma``, ``source``, ``crs``, ``floor``, ``interval`` and ``base`` (recorded when the
+        isovalues are ``base + k * interval``), ``empty``, ``batch_item`` and each item's own (``input`` for a
+        file, ``frame``, or ``tile_row``, ``tile_col``, ``node_rows``, ``node_cols``); a ``generator`` given
+        replaces ``"stepterrain.batch"``.
     height_unit : str, optional
         The unit of the heights in DEM files (a folder, a list, or one raster file cut into tiles), as
         :func:`~stepterrain.io.load_dem` takes it: for files that name none or name one it does not know.
@@ -1004,8 +1059,12 @@ def batch(
     Notes
     -----
     An item is complete when the manifest records its output file with the same fingerprint (its input: file
-    path, size and mtime, or a hash of its heights; and the options but the device, which does not change a bit of
-    the output) and that file exists with the recorded size. The manifest records each file, so an item's outputs
+    path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
+    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does
+    not change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten
+    with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a
+    file renamed, moved or restored from a backup (and every file item of a run made before stepterrain recorded
+    ctime and inode) is redone once. The manifest records each file, so an item's outputs
     in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
     ``report.notes`` says when the folder holds these items in another format too, when it holds outputs of
     items this run does not have (an earlier run's other tile size or source: left as they were), and when the
@@ -1096,6 +1155,12 @@ def batch(
             "Terrain without a visual"
         )
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
+    own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
+    if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
+        raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
+            f"metadata keys {', '.join(map(repr, taken))} are written by stepterrain itself on these outputs "
+            f"(its keys: {', '.join(sorted(own))}); give yours other names"
+        )
     if spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):
             raise InvalidInputError(
@@ -1129,8 +1194,13 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted(extras.items())), height_unit=height_unit,
     )  # fmt: skip
-    if level_values is not None and interval is not None:
-        options = _Options(**{**options.__dict__, "metadata": options.metadata + (("interval", float(interval)),)})
+    if interval is None and levels is None and z_range is not None:  # the shared levels' default interval
+        from .stepped import nice_interval
+
+        interval = nice_interval(z_range)
+    if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
+        steps = (("interval", float(interval)), ("base", float(base)))
+        options = _Options(**{**options.__dict__, "metadata": options.metadata + steps})
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -94,6 +95,7 @@ _HELD_RUN = """
 import sys, time
 from pathlib import Path
 import re
+from pathlib import Path
 
 import numpy as np
 import stepterrain.batch
@@ -519,3 +521,121 @@ def test_outputs_of_an_earlier_runs_other_tiles_are_noted(tmp_path):
     note = next(n for n in second.notes if "items this run does not have" in n)
     assert note.startswith(f"the folder holds {len(stale)} recorded output(s)")
     assert all((tmp_path / "out" / name).exists() for name in stale)
+
+
+# the top-left cell's centre y is 2000.5, then 3000.5: a world file names the centre, a GeoTransform the corner
+@pytest.mark.parametrize("sidecar, text", [
+    ("dem.tfw", "10\n0\n0\n-10\n1000.5\n{y}\n"),  # a world file: the georeferencing of a TIFF without its own
+    ("DEM.TFW", "10\n0\n0\n-10\n1000.5\n{y}\n"),  # GDAL finds it in upper case too
+    ("dem.tif.aux.xml", "<PAMDataset><GeoTransform>995.5, 10, 0, {y}5.5, 0, -10</GeoTransform></PAMDataset>\n"),
+], ids=["tfw", "TFW", "aux.xml"])
+def test_a_changed_georeferencing_sidecar_redoes_the_geotiff_item(tmp_path, sidecar, text):
+    # the fingerprint of a file item was its path, size and mtime alone: GDAL reads a GeoTIFF's origin from a world
+    # file or a PAM .aux.xml beside it, so a rerun after the sidecar was added or corrected skipped the tile as
+    # complete and kept the mesh at the old origin
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    z = np.add.outer(np.arange(5.0), np.arange(6.0)).astype(np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning: a plain TIFF
+        with rasterio.open(folder / "dem.tif", "w", driver="GTiff", width=6, height=5, count=1,
+                           dtype="float32") as dataset:  # fmt: skip
+            dataset.write(z, 1)
+    out = tmp_path / "out"
+
+    def lowest_y():
+        report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+        assert report.ok
+        mesh = trimesh.load(out / "dem.ply", process=False)
+        return len(report.done), float(np.asarray(mesh.vertices)[:, 1].min())
+
+    assert lowest_y() == (1, -4.0)  # no georeferencing: rows run south from y = 0
+    corner = sidecar.endswith(".xml")
+    (folder / sidecar).write_text(text.format(y="200" if corner else "2000.5"))
+    assert lowest_y() == (1, 2000.5 - 40)  # 4 rows of 10 m south
+    (folder / sidecar).write_text(text.format(y="300" if corner else "3000.5"))  # corrected in place: same size
+    assert lowest_y() == (1, 3000.5 - 40)
+    assert lowest_y() == (0, 3000.5 - 40)  # unchanged: skipped
+
+
+def test_a_file_rewritten_with_its_size_and_mtime_kept_is_redone(tmp_path):
+    # a DEM file replaced by another of the same size with its mtime kept (`cp -p`, `rsync -t`, os.utime) kept
+    # the fingerprint (path, size, mtime), so the rerun skipped it as complete and its mesh stayed the old one
+    import os
+    import time
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    dem = folder / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(5.0), np.arange(6.0)).astype(np.float32))
+    out = tmp_path / "out"
+    report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 1
+    before = os.stat(dem)
+    time.sleep(0.05)  # past the file system's clock tick, so the rewrite's ctime differs
+    np.save(dem, np.full((5, 6), 7.0, np.float32))  # the same size
+    os.utime(dem, ns=(before.st_atime_ns, before.st_mtime_ns))
+    assert os.stat(dem).st_size == before.st_size and os.stat(dem).st_mtime_ns == before.st_mtime_ns
+    report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 1
+    np.testing.assert_allclose(trimesh.load(out / "dem.ply", process=False).vertices[:, 2], 7.0)
+
+
+@pytest.mark.parametrize("kwargs, interval, base", [
+    (dict(tile_size=4, interval=2.0, base=0.5), 2.0, 0.5),  # tiles of one raster: shared levels
+    (dict(tile_size=4), 1.0, 0.0),  # the shared levels' default interval
+    (dict(interval=1.5, base=-0.25), 1.5, -0.25),  # a folder: each file's own isovalues
+], ids=["tiles", "default", "folder"])
+def test_outputs_record_the_interval_and_base_of_their_isovalues(tmp_path, kwargs, interval, base):
+    # shared levels recorded `interval` but not `base`, though the isovalues are base + k * interval (a list of more
+    # than 4096 keeps only its ends); a folder's files and the default interval recorded neither
+    from .test_export import glb_json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    source = z
+    if "tile_size" not in kwargs:
+        source = tmp_path / "dems"
+        source.mkdir()
+        np.save(source / "a.npy", z)
+    report = batch(source, tmp_path / "out", scheduler="serial", **kwargs)
+    assert report.ok and report.done
+    for result in report.done:
+        extras = glb_json(Path(result.path))["meshes"][0]["extras"]
+        assert (extras["interval"], extras["base"]) == (interval, base)
+        steps = (np.asarray(extras["isovalues"]) - base) / interval
+        np.testing.assert_allclose(steps, np.round(steps), atol=1e-9)
+
+
+@pytest.mark.parametrize("metadata, kwargs, taken", [
+    ({"interval": 5.0}, dict(tile_size=4, interval=2.0), "'interval'"),  # batch's value replaced it silently
+    ({"isovalues": [1, 2], "gamma": 0.5}, dict(tile_size=4, interval=2.0), "'gamma', 'isovalues'"),  # the mesh's
+    ({"tile_row": 9}, dict(tile_size=4, interval=2.0), "'tile_row'"),
+    ({"input": "survey 2020"}, dict(interval=2.0), "'input'"),  # a folder's items record their files there
+], ids=["interval", "isovalues", "tile_row", "input"])
+def test_metadata_keys_the_library_writes_are_refused(tmp_path, metadata, kwargs, taken):
+    # a user's metadata={"interval": ...} was overwritten by batch's own keys without a word, and a user's
+    # "isovalues" or "gamma" replaced the values the mesh was made with
+    from stepterrain.errors import InvalidInputError
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    source = z
+    if "tile_size" not in kwargs:
+        source = tmp_path / "dems"
+        source.mkdir()
+        np.save(source / "a.npy", z)
+    with pytest.raises(InvalidInputError, match=rf"^metadata keys {taken} are written by stepterrain itself"):
+        batch(source, tmp_path / "out", scheduler="serial", metadata=metadata, **kwargs)
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_metadata_keys_the_library_does_not_write_here_are_kept(tmp_path):
+    from .test_export import glb_json
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = batch(z, tmp_path / "out", tile_size=4, interval=2.0, scheduler="serial",
+                   metadata={"generator": "my tool", "input": "survey 2020", "frame": 3})  # fmt: skip
+    extras = glb_json(Path(report.done[0].path))["meshes"][0]["extras"]
+    assert (extras["generator"], extras["input"], extras["frame"]) == ("my tool", "survey 2020", 3)
