@@ -1169,6 +1169,11 @@ def batch(
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = dataclasses.replace(src, spacing=probe.spacing, origin=probe.origin)
     level_values, z_range = _levels_and_range(src, interval, levels, base)
+    if interval is None and levels is None and z_range is not None:  # the shared levels' default interval
+        from .stepped import nice_interval
+
+        interval = nice_interval(z_range)  # here, before the floor: without it a solid's default floor was a tenth
+        # of the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
     if src is not None and items and items[0].kind == "tile" and z_range is not None:
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
@@ -1194,10 +1199,6 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted(extras.items())), height_unit=height_unit,
     )  # fmt: skip
-    if interval is None and levels is None and z_range is not None:  # the shared levels' default interval
-        from .stepped import nice_interval
-
-        interval = nice_interval(z_range)
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
         options = _Options(**{**options.__dict__, "metadata": options.metadata + steps})

@@ -431,7 +431,8 @@ def _dem_crop() -> tuple[np.ndarray, tuple[float, float], tuple[float, float]]:
 @pytest.mark.parametrize("kwargs", [
     dict(interval=20.0, base=0.5), dict(interval=20.0, base=0.5, gamma=0.4),
     dict(levels=[1200.3, 1300.3], gamma=0.5),  # heights under the lowest level pull the surface below it
-], ids=["interval", "interval-gamma", "levels-gamma"])  # fmt: skip
+    dict(),  # the default interval: the floor lay a tenth of the levels' span down, not one interval
+], ids=["interval", "interval-gamma", "levels-gamma", "default"])  # fmt: skip
 def test_solid_tiles_are_closed_at_the_floor_of_the_whole_rasters_solid(tmp_path, kwargs):
     """Each tile was stepped alone with the shared levels but without the interval, so its solid's default floor was
     a tenth of the levels' span under the *tile's* lowest vertex: 954 m under interval=20 where the whole raster's
@@ -443,7 +444,8 @@ def test_solid_tiles_are_closed_at_the_floor_of_the_whole_rasters_solid(tmp_path
 
     z, spacing, origin = _dem_crop()
     z[3:7, 30:40] = np.nan  # nodata on a tile border
-    whole = st.stepped(z, spacing=spacing, origin=origin, solid=True, **kwargs)
+    chosen = kwargs or {"interval": st.stepped.nice_interval((np.nanmin(z), np.nanmax(z)))}  # batch's default
+    whole = st.stepped(z, spacing=spacing, origin=origin, solid=True, **chosen)
     report = batch(z, tmp_path, tile_size=(20, 27), spacing=spacing, origin=origin, solid=True, format=".glb",
                    scheduler="serial", **kwargs)  # fmt: skip
     assert report.ok and len(report.done) == 4 * 3
