@@ -487,10 +487,10 @@ def run_item(
 ) -> ItemResult:
     """Step one item and write its mesh (atomically); the task each dask worker runs.
 
-    ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process first (a
-    worker process has its own, the default, otherwise). ``record_warnings``: the item's warnings go into its
-    result's ``warnings`` instead of the worker's stderr (for single-threaded worker processes: recording is not
-    thread-safe).
+    ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process for this
+    item and restored after it (a worker process has its own, the default, otherwise). ``record_warnings``: the
+    item's warnings go into its result's ``warnings`` instead of the worker's stderr (for single-threaded worker
+    processes: recording is not thread-safe).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
@@ -502,15 +502,19 @@ def run_item(
     start, cpu_start = time.perf_counter(), time.process_time()
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
-    if memory_budget is not None:
-        set_memory_budget(memory_budget)
-    if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." plus a source line
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("default")
-            result = _run_item(item, source, options, output_dir, start, cpu_start)
-        said = tuple(dict.fromkeys(str(w.message) for w in caught))
-        return dataclasses.replace(result, warnings=said) if said else result
-    return _run_item(item, source, options, output_dir, start, cpu_start)
+    # the caller's budget for this item only: a remote worker kept it for other clients' tasks afterwards
+    previous_budget = None if memory_budget is None else set_memory_budget(memory_budget)
+    try:
+        if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." + a source line
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("default")
+                result = _run_item(item, source, options, output_dir, start, cpu_start)
+            said = tuple(dict.fromkeys(str(w.message) for w in caught))
+            return dataclasses.replace(result, warnings=said) if said else result
+        return _run_item(item, source, options, output_dir, start, cpu_start)
+    finally:
+        if previous_budget is not None:
+            set_memory_budget(previous_budget)
 
 
 def _run_item(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, start: float,

@@ -641,3 +641,26 @@ def test_metadata_keys_the_library_does_not_write_here_are_kept(tmp_path):
                    metadata={"generator": "my tool", "input": "survey 2020", "frame": 3})  # fmt: skip
     extras = glb_json(Path(report.done[0].path))["meshes"][0]["extras"]
     assert (extras["generator"], extras["input"], extras["frame"]) == ("my tool", "survey 2020", 3)
+
+
+def test_run_item_restores_the_workers_memory_budget(tmp_path):
+    """run_item set the caller's memory budget in the worker process and left it there: a remote worker stepped
+    other clients' tasks under it afterwards (found by helper 28). It holds for the item only, also when the item
+    fails on it."""
+    from stepterrain import get_memory_budget, set_memory_budget
+    from stepterrain.batch import BatchItem, _Options, run_item
+
+    rows, cols = np.mgrid[0:33, 0:33]
+    np.save(tmp_path / "tile.npy", (rows * 3.0 + cols * 2.0).astype(np.float32))
+    options = _Options(5.0, None, 0.5, 1.0, None, False, None, ".ply", "cpu", ())
+    item = BatchItem("tile", "file", path=str(tmp_path / "tile.npy"))
+    before = get_memory_budget()
+    previous = set_memory_budget(before + 4096)  # the worker's own
+    try:
+        refused = run_item(item, None, options, str(tmp_path), memory_budget=1024)
+        assert refused.status == "failed" and "OutputTooLargeError" in refused.error  # the caller's budget held
+        assert get_memory_budget() == before + 4096
+        done = run_item(item, None, options, str(tmp_path), memory_budget=1 << 30)
+        assert done.status == "done" and get_memory_budget() == before + 4096
+    finally:
+        set_memory_budget(previous)
