@@ -77,11 +77,12 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
-                   "(.png, or .tif: a GeoTIFF)")
+                   "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png",
                    help="the texture as PNG, or as a GeoTIFF (.tif, .tiff: georeferenced on the DEM's pixel grid and "
-                        "CRS; needs rasterio, pip install 'stepterrain[geo]')")
+                        "CRS; needs rasterio, pip install 'stepterrain[geo]'); RGBA with alpha 0 at nodata for a DEM "
+                        "with nodata, else RGB")
     p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
                    + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image)")
     p.add_argument("--interval", type=float, metavar="M",
@@ -161,7 +162,10 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if colors is not None:
         composite = tx.modulate(tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), topo,
                                 device=device)
-    image = composite.to_uint8(background=(1.0, 1.0, 1.0))
+    # a DEM with nodata: RGBA, alpha 0 over its nodata (white over a white background hid the holes in a GIS, and the
+    # normals' (0, 0, 1) there read as flat ground); without nodata RGB as before
+    holes = terrain.nodata_mask if terrain.has_nodata else None
+    image = composite.to_uint8() if holes is not None else composite.to_uint8(background=(1.0, 1.0, 1.0))
     normals = tx.normal_map(terrain, z_factor=args.z_factor, device=device) if normals_out else None
     progress.done(f"{image.shape[1]} x {image.shape[0]} pixels")
 
@@ -184,6 +188,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     export.save_image(image, out, **_georeference(out, composite.extent, terrain.crs))
     progress.done(_size(out))
     if normals is not None:
+        if holes is not None:
+            normals = np.dstack([normals, np.where(holes, 0, 255).astype(np.uint8)])
         export.save_image(tx._north_up(terrain, normals), normals_out,
                           **_georeference(normals_out, tx.terrain_extent(terrain), terrain.crs))
         progress.say(f"wrote {normals_out} ({_size(normals_out)})")

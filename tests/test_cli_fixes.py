@@ -604,3 +604,30 @@ def test_library_arguments_named_mid_message_are_spelled_as_options():
     assert cli._as_option("a series of face_size 9", batch) == "a series of face_size 9"  # not a batch option
     assert cli._as_option("got 'face_size' for a globe of face_size=9", globe) == (
         "got 'face_size' for a globe of --face-size 9")
+
+
+@pytest.mark.parametrize("name", ["t.tif", "t.png"])
+def test_texture_of_a_dem_with_nodata_marks_the_holes_transparent(tmp_path, capsys, name):
+    """texture -o flattened the texture over white: a nodata node came out opaque white (255, 255, 255), as bright
+    as lit ground or the top of the terrain colormap, and --normals wrote (0, 0, 1), flat ground; nothing in the
+    GeoTIFF (no alpha band, no nodata value) or PNG told the holes from data. Now both are RGBA, alpha 0 there."""
+    heights = np.arange(30, dtype=np.float32).reshape(5, 6) * 10.0
+    heights[1, 2] = heights[4, 5] = np.nan
+    np.save(dem := tmp_path / "holes.npy", heights)
+    out, normals = tmp_path / name, tmp_path / f"n_{name}"
+    code, _, err = run(capsys, "-q", "texture", dem, "-o", out, "--normals", normals)
+    assert code == 0, err
+    for path in (out, normals):
+        if name.endswith(".tif"):
+            rasterio = pytest.importorskip("rasterio", reason="GeoTIFF output needs rasterio")
+            with rasterio.open(path) as tif:
+                assert tif.count == 4
+                mask = tif.dataset_mask()  # GDAL's reading of the alpha band: 0 = no data
+        else:
+            from PIL import Image
+
+            with Image.open(path) as picture:
+                assert picture.mode == "RGBA"
+                mask = np.asarray(picture)[..., 3]
+        # spacing (1, -1): row 0 is north, so pixel (i, j) is node (i, j)
+        np.testing.assert_array_equal(mask == 0, np.isnan(heights))
