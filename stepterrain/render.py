@@ -194,7 +194,10 @@ def _camera_position(
                                     f"[(eye), (focal point), (view up)]; got {camera!r}")
         azimuth, elevation = float(spec[0]), float(np.clip(spec[1], -math.radians(89.9), math.radians(89.9)))
     view_dir = _direction(azimuth, elevation)
-    up = np.array([0.0, 0.0, 1.0]) if abs(elevation) < math.radians(89.0) else np.array([0.0, 1.0, 0.0])
+    if abs(elevation) < math.radians(89.0):
+        up = np.array([0.0, 0.0, 1.0])
+    else:  # nearly vertical: +z's own direction on screen (the far side up), as just below 89° (+y turned the image)
+        up = -math.copysign(1.0, elevation) * np.array([math.sin(azimuth), math.cos(azimuth), 0.0])
     corners = points
     focal = (corners.min(axis=0) + corners.max(axis=0)) / 2
     forward = -view_dir
@@ -283,9 +286,11 @@ def render_mesh(
         Vertical exaggeration applied for the render only (the mesh is not modified).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
-        direction the camera looks from (radians, azimuth clockwise from north = +y); both are fitted to the
-        bounds. An explicit pyvista camera position is used as given, in the mesh's coordinates minus the
-        centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates precise).
+        direction the camera looks from (radians, azimuth clockwise from north = +y), with the far side up in
+        the image at every elevation; "top" looks straight down, north (+y) up and east (+x) to the right. All
+        are fitted to the bounds. An explicit pyvista camera position is used as given, in the mesh's
+        coordinates minus the centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates
+        precise).
     background : color
         Any pyvista color.
     scalars : None, "level" or "height"
