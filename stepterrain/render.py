@@ -292,7 +292,8 @@ def render_mesh(
         coordinates minus the centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates
         precise).
     background : color
-        Any pyvista color.
+        Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous).
     scalars : None, "level" or "height"
         None: the mesh's vertex colors if it has them, else a uniform light tan. "level": faces colored by
         ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use ``cmap``.
@@ -498,12 +499,20 @@ def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
 
 def _check_background(pv: Any, background: Any) -> None:
     """A colour pyvista reads (a name, '#rrggbb', (r, g, b) in [0, 1] or 0-255), else an InvalidInputError:
-    pyvista's own ValueError came from set_background, after the scene was built."""
+    pyvista's own ValueError came from set_background, after the scene was built. Whole numbers that are all 0 or 1
+    with a 1 among them ((1, 0, 0)) are refused as ambiguous: pyvista reads whole numbers as 0-255, so (1, 0, 0)
+    meant for red rendered black and (1, 1, 1) meant for white too."""
     try:
         pv.Color(background)
     except (ValueError, TypeError):
         raise InvalidInputError(f"background must be a colour (a name, '#rrggbb' or (r, g, b)); got "
                                 f"{background!r}") from None
+    if not isinstance(background, str):
+        parts = np.asarray(background)
+        if parts.dtype.kind in "iub" and parts.size and parts.max() == 1 and parts.min() >= 0:
+            raise InvalidInputError(f"background {background!r} is ambiguous: whole numbers are read as 0-255 (so "
+                                    "it would be nearly black); give floats in [0, 1] such as (1.0, 0.0, 0.0), or "
+                                    "0-255 values")
 
 
 def _whole_pixels(value: Any) -> int | None:

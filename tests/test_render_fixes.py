@@ -302,3 +302,20 @@ def test_the_top_camera_is_north_up_and_east_right(dy):
     row, col = _bump_pixel(render.render_mesh(mesh, window_size=(96, 64), camera="top", scalars="level",
                                               cmap="viridis"))
     assert col > 60 and (row < 24 if dy < 0 else row > 40)
+
+
+@pytest.mark.parametrize("background", [(1, 0, 0), (1, 1, 1), np.array([0, 1, 0])])
+def test_a_background_of_whole_zeros_and_ones_is_refused_as_ambiguous(background):
+    """pyvista reads whole numbers as 0-255: (1, 0, 0) meant for red rendered a black (1, 0, 0) / 255 background."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"background .* is ambiguous"):
+        render.render_mesh(mesh, window_size=(32, 32), background=background)
+
+
+@needs_render
+@pytest.mark.parametrize(("background", "expected"), [((1.0, 0.0, 0.0), (255, 0, 0)), ((255, 0, 0), (255, 0, 0)),
+                                                      ((0, 0, 0), (0, 0, 0)), ("#00ff00", (0, 255, 0))])
+def test_the_background_colour_is_the_one_given(background, expected):
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = render.render_mesh(mesh, window_size=(32, 32), background=background)
+    assert tuple(image[0, 0]) == expected
