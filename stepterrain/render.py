@@ -261,6 +261,16 @@ def _vertex_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
     return None
 
 
+def _face_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
+    """The mesh's face colours (F, 3) uint8 when its visual holds one per face (a PLY or 3MF read back), else None."""
+    visual = mesh.visual
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face":
+        colors = np.asarray(visual.face_colors)
+        if colors.shape == (len(mesh.faces), 4):
+            return np.ascontiguousarray(colors[:, :3], dtype=np.uint8)
+    return None
+
+
 def render_mesh(
     mesh: trimesh.Trimesh,
     *,
@@ -279,7 +289,8 @@ def render_mesh(
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        Any triangle mesh; a stepped terrain renders with its vertex colors when it has them.
+        Any triangle mesh; it renders with its vertex colors (a stepped terrain's), or else its face colors, when it
+        has them.
     window_size : (width, height)
         Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
@@ -295,8 +306,9 @@ def render_mesh(
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous).
     scalars : None, "level" or "height"
-        None: the mesh's vertex colors if it has them, else a uniform light tan. "level": faces colored by
-        ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use ``cmap``.
+        None: the mesh's vertex colors if it has them, else its face colors, else a uniform light tan. "level":
+        faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use
+        ``cmap``.
     cmap : str
         Matplotlib colormap for ``scalars`` (with ``scalars=None`` unused, but it must still be a str).
     show_edges : bool
@@ -360,9 +372,13 @@ def render_mesh(
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
     rgb = _vertex_rgb(mesh) if scalars is None else None
+    face_rgb = _face_rgb(mesh) if scalars is None and rgb is None else None
     if rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)
+    elif face_rgb is not None:
+        poly.cell_data["rgb"] = face_rgb
+        add_kwargs.update(scalars="rgb", rgb=True, preference="cell")
     elif scalars == "level":
         add_kwargs.update(scalars="level", cmap=cmap, preference="cell", show_scalar_bar=False)
     elif scalars == "height":

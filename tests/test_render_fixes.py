@@ -319,3 +319,18 @@ def test_the_background_colour_is_the_one_given(background, expected):
     mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
     image = render.render_mesh(mesh, window_size=(32, 32), background=background)
     assert tuple(image[0, 0]) == expected
+
+
+@needs_render
+def test_face_colours_are_rendered():
+    """A mesh with one colour per face (a PLY or 3MF read back) rendered in the default tan: its colours were dropped
+    without a word."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    mesh.visual.face_colors = [[255, 0, 0, 255], [0, 0, 255, 255]]
+    assert mesh.visual.kind == "face"
+    image = render.render_mesh(mesh, window_size=(64, 48), camera="top").astype(int)
+    red = (image[:, :, 0] > 100) & (image[:, :, 1] < 40) & (image[:, :, 2] < 40)
+    blue = (image[:, :, 2] > 100) & (image[:, :, 0] < 40) & (image[:, :, 1] < 40)
+    assert red.sum() > 100 and blue.sum() > 100
+    rows, cols = np.nonzero(red)
+    assert rows.mean() > 24 and cols.mean() < 32  # face 0 holds the south-west corner: bottom left
