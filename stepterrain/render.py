@@ -194,7 +194,10 @@ def _camera_position(
                                     f"[(eye), (focal point), (view up)]; got {camera!r}")
         azimuth, elevation = float(spec[0]), float(np.clip(spec[1], -math.radians(89.9), math.radians(89.9)))
     view_dir = _direction(azimuth, elevation)
-    up = np.array([0.0, 0.0, 1.0]) if abs(elevation) < math.radians(89.0) else np.array([0.0, 1.0, 0.0])
+    if abs(elevation) < math.radians(89.0):
+        up = np.array([0.0, 0.0, 1.0])
+    else:  # nearly vertical: +z's own direction on screen (the far side up), as just below 89° (+y turned the image)
+        up = -math.copysign(1.0, elevation) * np.array([math.sin(azimuth), math.cos(azimuth), 0.0])
     corners = points
     focal = (corners.min(axis=0) + corners.max(axis=0)) / 2
     forward = -view_dir
@@ -258,6 +261,16 @@ def _vertex_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
     return None
 
 
+def _face_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
+    """The mesh's face colours (F, 3) uint8 when its visual holds one per face (a PLY or 3MF read back), else None."""
+    visual = mesh.visual
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face":
+        colors = np.asarray(visual.face_colors)
+        if colors.shape == (len(mesh.faces), 4):
+            return np.ascontiguousarray(colors[:, :3], dtype=np.uint8)
+    return None
+
+
 def render_mesh(
     mesh: trimesh.Trimesh,
     *,
@@ -276,21 +289,26 @@ def render_mesh(
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        Any triangle mesh; a stepped terrain renders with its vertex colors when it has them.
+        Any triangle mesh; it renders with its vertex colors (a stepped terrain's), or else its face colors, when it
+        has them.
     window_size : (width, height)
         Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
         Vertical exaggeration applied for the render only (the mesh is not modified).
     camera : "oblique", "top", (azimuth, elevation) or [(eye), (focal point), (view up)]
         "oblique" is the fixed reproducible view from just west of south at 45° elevation; a pair gives the
-        direction the camera looks from (radians, azimuth clockwise from north = +y); both are fitted to the
-        bounds. An explicit pyvista camera position is used as given, in the mesh's coordinates minus the
-        centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates precise).
+        direction the camera looks from (radians, azimuth clockwise from north = +y), with the far side up in
+        the image at every elevation; "top" looks straight down, north (+y) up and east (+x) to the right. All
+        are fitted to the bounds. An explicit pyvista camera position is used as given, in the mesh's
+        coordinates minus the centre of ``bounds`` (the render recentres the mesh to keep UTM-sized coordinates
+        precise).
     background : color
-        Any pyvista color.
+        Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous).
     scalars : None, "level" or "height"
-        None: the mesh's vertex colors if it has them, else a uniform light tan. "level": faces colored by
-        ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use ``cmap``.
+        None: the mesh's vertex colors if it has them, else its face colors, else a uniform light tan. "level":
+        faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use
+        ``cmap``.
     cmap : str
         Matplotlib colormap for ``scalars`` (with ``scalars=None`` unused, but it must still be a str).
     show_edges : bool
@@ -354,9 +372,13 @@ def render_mesh(
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
     rgb = _vertex_rgb(mesh) if scalars is None else None
+    face_rgb = _face_rgb(mesh) if scalars is None and rgb is None else None
     if rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)
+    elif face_rgb is not None:
+        poly.cell_data["rgb"] = face_rgb
+        add_kwargs.update(scalars="rgb", rgb=True, preference="cell")
     elif scalars == "level":
         add_kwargs.update(scalars="level", cmap=cmap, preference="cell", show_scalar_bar=False)
     elif scalars == "height":
@@ -493,12 +515,20 @@ def _check_face_indices(faces: ArrayLike, n_vertices: int, name: str) -> None:
 
 def _check_background(pv: Any, background: Any) -> None:
     """A colour pyvista reads (a name, '#rrggbb', (r, g, b) in [0, 1] or 0-255), else an InvalidInputError:
-    pyvista's own ValueError came from set_background, after the scene was built."""
+    pyvista's own ValueError came from set_background, after the scene was built. Whole numbers that are all 0 or 1
+    with a 1 among them ((1, 0, 0)) are refused as ambiguous: pyvista reads whole numbers as 0-255, so (1, 0, 0)
+    meant for red rendered black and (1, 1, 1) meant for white too."""
     try:
         pv.Color(background)
     except (ValueError, TypeError):
         raise InvalidInputError(f"background must be a colour (a name, '#rrggbb' or (r, g, b)); got "
                                 f"{background!r}") from None
+    if not isinstance(background, str):
+        parts = np.asarray(background)
+        if parts.dtype.kind in "iub" and parts.size and parts.max() == 1 and parts.min() >= 0:
+            raise InvalidInputError(f"background {background!r} is ambiguous: whole numbers are read as 0-255 (so "
+                                    "it would be nearly black); give floats in [0, 1] such as (1.0, 0.0, 0.0), or "
+                                    "0-255 values")
 
 
 def _whole_pixels(value: Any) -> int | None:

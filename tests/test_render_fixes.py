@@ -266,3 +266,71 @@ def test_layered_renderer_tells_numpy_cameras_apart_beyond_eight_digits():
         for _ in range(2):
             with pytest.raises(InvalidInputError, match=r"camera \[\(eye\), \(focal point\), \(view up\)\] needs"):
                 renderer.set_view(degenerate, box)
+
+
+def _bump_pixel(image: np.ndarray) -> tuple[float, float]:
+    """Mean (row, column) of the yellow pixels (viridis' top level) of ``image``."""
+    pixels = image.astype(int)
+    yellow = (pixels[:, :, 0] > 150) & (pixels[:, :, 1] > 150) & (pixels[:, :, 2] < 100)
+    rows, cols = np.nonzero(yellow)
+    assert yellow.sum() > 20
+    return rows.mean(), cols.mean()
+
+
+@needs_render
+@pytest.mark.parametrize("azimuth", [0.0, 90.0, 270.0])
+def test_a_near_vertical_camera_keeps_the_far_side_up(azimuth):
+    """At 89° elevation and above the view up switched from +z to +y: the image turned by 180° (from the north) or
+    90° (from the east or west) between 88.9° and 89°, so a bump in the north-east corner jumped across it."""
+    heights = np.zeros((30, 40))
+    heights[2:8, 30:37] = 4.0  # rows first = north (dy < 0), columns to the east
+    mesh = st.stepped(heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), interval=2.0)
+    spots = [_bump_pixel(render.render_mesh(mesh, window_size=(96, 64), camera=(np.radians(azimuth), np.radians(el)),
+                                            scalars="level", cmap="viridis")) for el in (88.9, 89.0, 89.9)]
+    for row, col in spots[1:]:
+        assert abs(row - spots[0][0]) < 4 and abs(col - spots[0][1]) < 4, spots
+    expected = {0.0: (True, False), 90.0: (True, True), 270.0: (False, False)}[azimuth]  # (bottom?, right?)
+    assert (spots[0][0] > 32, spots[0][1] > 48) == expected, spots
+
+
+@needs_render
+@pytest.mark.parametrize("dy", [-1.0, 1.0])
+def test_the_top_camera_is_north_up_and_east_right(dy):
+    heights = np.zeros((30, 40))
+    heights[2:8, 30:37] = 4.0  # first rows: north with dy < 0, south with dy > 0; east columns
+    mesh = st.stepped(heights, spacing=(1.0, dy), origin=(0.0, 0.0), interval=2.0)
+    row, col = _bump_pixel(render.render_mesh(mesh, window_size=(96, 64), camera="top", scalars="level",
+                                              cmap="viridis"))
+    assert col > 60 and (row < 24 if dy < 0 else row > 40)
+
+
+@pytest.mark.parametrize("background", [(1, 0, 0), (1, 1, 1), np.array([0, 1, 0])])
+def test_a_background_of_whole_zeros_and_ones_is_refused_as_ambiguous(background):
+    """pyvista reads whole numbers as 0-255: (1, 0, 0) meant for red rendered a black (1, 0, 0) / 255 background."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"background .* is ambiguous"):
+        render.render_mesh(mesh, window_size=(32, 32), background=background)
+
+
+@needs_render
+@pytest.mark.parametrize(("background", "expected"), [((1.0, 0.0, 0.0), (255, 0, 0)), ((255, 0, 0), (255, 0, 0)),
+                                                      ((0, 0, 0), (0, 0, 0)), ("#00ff00", (0, 255, 0))])
+def test_the_background_colour_is_the_one_given(background, expected):
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = render.render_mesh(mesh, window_size=(32, 32), background=background)
+    assert tuple(image[0, 0]) == expected
+
+
+@needs_render
+def test_face_colours_are_rendered():
+    """A mesh with one colour per face (a PLY or 3MF read back) rendered in the default tan: its colours were dropped
+    without a word."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    mesh.visual.face_colors = [[255, 0, 0, 255], [0, 0, 255, 255]]
+    assert mesh.visual.kind == "face"
+    image = render.render_mesh(mesh, window_size=(64, 48), camera="top").astype(int)
+    red = (image[:, :, 0] > 100) & (image[:, :, 1] < 40) & (image[:, :, 2] < 40)
+    blue = (image[:, :, 2] > 100) & (image[:, :, 0] < 40) & (image[:, :, 1] < 40)
+    assert red.sum() > 100 and blue.sum() > 100
+    rows, cols = np.nonzero(red)
+    assert rows.mean() > 24 and cols.mean() < 32  # face 0 holds the south-west corner: bottom left
