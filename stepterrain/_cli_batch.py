@@ -104,7 +104,6 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
     from .cli import (
-        _budget_hint_as_option,
         _check_output,
         _check_outputs,
         _check_size,
@@ -171,8 +170,8 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
             f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above all "
             f"{len(floor_failed)} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
         )
-    for line in report.summary().splitlines()[1:]:  # the failures: shown under -q too, a budget's hint as an option
-        print(f"stepterrain: {_budget_hint_as_option(line.strip())}", file=progress.stream, flush=True)
+    for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option): shown under -q too
+        print(f"stepterrain: {line.strip()}", file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):
         from .export import save_image
 

@@ -1172,12 +1172,9 @@ def batch(
         probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = dataclasses.replace(src, spacing=probe.spacing, origin=probe.origin)
-    level_values, z_range = _levels_and_range(src, interval, levels, base)
-    if interval is None and levels is None and z_range is not None:  # the shared levels' default interval
-        from .stepped import nice_interval
-
-        interval = nice_interval(z_range)  # here, before the floor: without it a solid's default floor was a tenth
-        # of the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
+    # with the shared levels' default interval, before the floor: without it a solid's default floor was a tenth of
+    # the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
+    level_values, z_range, interval = _levels_and_range(src, interval, levels, base)
     if src is not None and items and items[0].kind == "tile" and z_range is not None:
         src = dataclasses.replace(src, bounds=_raster_bounds(src, z_range))
     if floor is not None and solid and src is not None and level_values is not None:
@@ -1205,7 +1202,7 @@ def batch(
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
-        options = _Options(**{**options.__dict__, "metadata": options.metadata + steps})
+        options = dataclasses.replace(options, metadata=options.metadata + steps)
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
@@ -1282,7 +1279,12 @@ def _run_locked(
             stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
         else:
             stream = _run_dask(todo, src, options, folder, connection, retries)
+        hint = budget_hint()
         for result in stream:
+            if result.error and hint != BUDGET_HINT and BUDGET_HINT in result.error:
+                # a worker process's refusal gives the library's hint: this process's (the CLI's option) instead,
+                # for the progress bar, the report and its summary alike
+                result = dataclasses.replace(result, error=result.error.replace(BUDGET_HINT, hint))
             results[result.key] = result
             recorder.add(result)
             for message in result.warnings:  # a worker process's, said here as this process's warnings are
@@ -1318,10 +1320,11 @@ def _raster_bounds(
 
 def _levels_and_range(
     src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
-) -> tuple[tuple[float, ...] | None, tuple[float, float] | None]:
-    """:func:`_shared_levels`, and the finite heights' (min, max) they came from (None without a source)."""
+) -> tuple[tuple[float, ...] | None, tuple[float, float] | None, float | None]:
+    """:func:`_shared_levels`, the finite heights' (min, max) they came from (None without a source), and the
+    interval: ``interval``, or without it and ``levels`` the default one for that range."""
     if src is None:
-        return None, None
+        return None, None, interval
     from .stepped import isovalues, nice_interval
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
@@ -1333,15 +1336,8 @@ def _levels_and_range(
         lo, hi = float(finite.min()), float(finite.max())
     if interval is None and levels is None:
         interval = nice_interval((lo, hi))
-    return tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base)), (lo, hi)
-
-
-def _lowest_used(src: _Source) -> float | None:
-    """The lowest height of a node of the whole source that a triangle with three finite heights uses (None: no
-    triangle has)."""
-    if src.height_range is not None and min(src.heights.shape[-2:]) >= 2:
-        return src.height_range[0]  # no nodata: every node is a triangle's, and the source's checks found the min
-    return lowest_used_height(src.heights)
+    values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))
+    return values, (lo, hi), interval
 
 
 def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
@@ -1350,14 +1346,14 @@ def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interva
     stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
     interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
     under a floor other than the whole raster's. None when no triangle has three finite heights."""
-    h = _lowest_used(src)
+    h = lowest_used_height(src.heights, src.height_range)  # the source's checks found it without nodata
     if h is None:
         return None
-    from .stepped import default_floor, thresholds_of
+    from .stepped import default_floor, snapped_isovalue
 
     values32 = np.asarray(values, np.float32)
     h32 = np.float32(h)
-    alpha = values32[np.searchsorted(thresholds_of(values32), h32, side="right")]  # the isovalue h snaps to
+    alpha = snapped_isovalue(h32, values32)
     g = np.float32(gamma)
     lowest = (np.float32(1.0) - g) * h32 + g * alpha  # in float32, as kernels/stepped.py's blended computes it
     return default_floor(values32, float(lowest), interval)
@@ -1370,7 +1366,7 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
     so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
     """
-    h = _lowest_used(src)
+    h = lowest_used_height(src.heights, src.height_range)  # the source's checks found it without nodata
     if h is None:
         return  # no surface at all: each item says so
     from .stepped import lowest_surface
@@ -1424,9 +1420,8 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
 def _tick(bar: Any, result: ItemResult) -> None:
     if bar is not None:
         bar.update(1)
-        if result.status == "failed":  # a worker process's refusal gives the library's hint: this process's instead
-            error = (result.error or "").replace(BUDGET_HINT, budget_hint())
-            bar.write(f"failed {result.key}: {error}", file=sys.stderr)  # tqdm writes to stdout by default
+        if result.status == "failed":
+            bar.write(f"failed {result.key}: {result.error}", file=sys.stderr)  # tqdm writes to stdout by default
 
 
 def _run_serial(

@@ -29,7 +29,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget, set_memory_budget
+from ._compaction import budget_hint, get_memory_budget, set_memory_budget
 from .errors import InvalidInputError, StepTerrainError
 from .export import MESH_EXTENSIONS
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
@@ -260,11 +260,6 @@ _MEMORY_BUDGET_HELP = ("largest output, DEM read or render a step may allocate: 
 
 #: What a refusal over the memory budget (stepterrain._compaction.check_budget) says, as a command-line user raises it.
 _CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE, e.g. --memory-budget 32GiB)"
-
-
-def _budget_hint_as_option(message: str) -> str:
-    """``message`` with the library's "raise the budget (stepterrain.set_memory_budget ...)" as the option."""
-    return message.replace(BUDGET_HINT, _CLI_BUDGET_HINT)
 
 
 #: Subcommands that live in their capability's own module ``stepterrain._cli_<name>``; each module defines
@@ -747,7 +742,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 resolve_device(args.device)
             return int(args.run(args, progress))
     except StepTerrainError as exc:
-        message = _budget_hint_as_option(_as_option(str(exc), _subcommand(parser, args.command)))
+        message = _as_option(str(exc), _subcommand(parser, args.command))  # a budget's hint names the option already
         print(f"stepterrain {args.command}: error: {message}", file=sys.stderr)
         return EXIT_USAGE
     except BrokenPipeError:  # `stepterrain info FILE | head` when the reader left: "error: [Errno 32] Broken pipe"

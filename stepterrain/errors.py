@@ -8,6 +8,9 @@ Messages say what was expected, what was got, and where.
 
 from __future__ import annotations
 
+import os
+import sys
+
 __all__ = [
     "StepTerrainError",
     "InvalidInputError",
@@ -45,3 +48,14 @@ class DataFileError(StepTerrainError, OSError):
 
 class SchedulerError(StepTerrainError, ConnectionError):
     """A dask scheduler cannot be reached (address, timeout and cause in the message)."""
+
+
+def caller_stacklevel() -> int:
+    """The ``stacklevel`` for a warning issued by the caller of this function that points at the first frame outside
+    the stepterrain package: the user's call, however deep the warning sits (a fixed level pointed into the library
+    when a public function was reached through another, e.g. load_dem through batch or the CLI)."""
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep  # its subpackage stepterrain.kernels included
+    frame, level = sys._getframe(1), 1
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        frame, level = frame.f_back, level + 1
+    return level

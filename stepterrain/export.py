@@ -15,10 +15,12 @@ import functools
 import json
 import math
 import os
+import re
 import stat
 import struct
 import tempfile
 import threading
+import warnings
 import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
@@ -30,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
 from ._files import require_regular_file
-from .errors import DataFileError, InvalidInputError, MissingDependencyError
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel
 from .terrain import FLOAT32_MAX, as_array, real_numbers
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
@@ -688,7 +690,7 @@ def _linear_to_srgb(value: NDArray[np.float64]) -> NDArray[np.float64]:
 
 #: (4, 256) float32: row k maps a colour byte of channel k (R, G, B, A) to glTF's COLOR_0 value. A mesh's vertex
 #: colours are sRGB bytes (as matplotlib, PIL and trimesh give them); COLOR_0 is linear (glTF 2.0 §3.7.2.1, §3.9.2).
-#: Alpha is linear on both sides. float32 keeps every byte apart (read back exactly, :func:`_gltf_srgb_colors`):
+#: Alpha is linear on both sides. float32 keeps every byte apart (read back exactly, :func:`_srgb_vertex_colors`):
 #: 8-bit linear merges the darkest sRGB values.
 _COLOR_0_OF_BYTE = np.vstack([np.tile(_srgb_to_linear(np.arange(256) / 255.0), (3, 1)), np.arange(256) / 255.0]
                              ).astype(np.float32)
@@ -955,8 +957,6 @@ def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> N
     worst = int(np.argmax(error))
     if error.flat[worst] <= _STL_ROUNDING_TOLERANCE:
         return
-    import warnings
-
     row, axis = divmod(worst, vertices.shape[1])
     value = float(vertices[row, axis])
     warnings.warn(
@@ -964,7 +964,7 @@ def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> N
         f"{float(error.flat[worst]):.3g} (vertex {row} {'xyz'[axis]} = {value!r} is written as "
         f"{float(np.float32(value))!r}), more than {_STL_ROUNDING_TOLERANCE:g} (1 mm in metres): write .ply, .obj "
         "or .3mf to keep float64, or move the mesh to a local origin first",
-        stacklevel=_caller_level(),
+        stacklevel=caller_stacklevel(),
     )
 
 
@@ -1434,8 +1434,6 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
     """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types. A name that
     is no plain ASCII word, or is one of the element's own properties (``taken``), is written under a word made
     from it (``level-2`` -> ``level_2``, ``x`` -> ``x_attr``), with a warning naming both: they were dropped."""
-    import re
-
     used = set(taken)
     renamed: list[str] = []
     columns: list[tuple[str, NDArray[Any]]] = []
@@ -1459,23 +1457,9 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
         else:
             columns += [(n, array[:, k]) for k, n in enumerate(names)]
     if renamed:
-        import warnings
-
         warnings.warn(f"PLY property names must be distinct ASCII words: wrote {', '.join(renamed)}",
-                      stacklevel=_caller_level())
+                      stacklevel=caller_stacklevel())
     return columns
-
-
-def _caller_level() -> int:
-    """The ``stacklevel`` of a warning issued by the caller of this function that points at the first frame
-    outside the stepterrain package (the user's call, however deep the writer sits)."""
-    import sys
-
-    package = os.path.dirname(os.path.abspath(__file__))
-    frame, level = sys._getframe(1), 1
-    while frame is not None and os.path.dirname(os.path.abspath(frame.f_code.co_filename)) == package:
-        frame, level = frame.f_back, level + 1
-    return level
 
 
 #: What a ``metadata`` value may be, in the message that refuses another.

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 
 from ._compaction import check_budget
 from ._files import require_regular_file
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError, caller_stacklevel
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index, unwrapped_longitudes
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
@@ -612,7 +612,7 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
             warnings.warn(
                 f"{file.name}: its CRS {crs} is ignored because the file has no geotransform; read as an "
                 "unreferenced grid, spacing (1, -1) and origin (0, 0)",
-                stacklevel=3,
+                stacklevel=caller_stacklevel(),
             )
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     geotransform = np.array(transform.to_gdal(), dtype=np.float64)
@@ -848,7 +848,7 @@ def _georeferenced(
                 f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
                 f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
                 f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
-                stacklevel=4,
+                stacklevel=caller_stacklevel(),
             )
         source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
         return _grid(
@@ -898,7 +898,7 @@ def _georeferenced(
                 f"{file.name}: its dx_m, dy_m ({metres[0]:.10g}, {metres[1]:.10g} m) give more metres per degree of "
                 f"longitude than of latitude, which no equidistant cylindrical projection of a sphere does: the grid "
                 "keeps them, without a CRS",
-                stacklevel=4,
+                stacklevel=caller_stacklevel(),
             )
     source = (
         f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
@@ -961,7 +961,7 @@ def _check_local_metres(
         f"({per_degree[0]:.6g} m per degree of longitude, {per_degree[1]:.6g} m per degree of latitude) err against "
         f"WGS 84 ground distances and cell areas by {how} over its node latitudes {low:.6g} to {high:.6g} "
         f"({high - low:.6g} degrees), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres {hint}",
-        stacklevel=5,
+        stacklevel=caller_stacklevel(),
     )
 
 

@@ -252,21 +252,13 @@ def _lights(pv: Any, bounds: NDArray[np.float64], fill: tuple[float, float]) -> 
     return lights
 
 
-def _vertex_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
+def _colors_rgb(mesh: trimesh.Trimesh, kind: Literal["vertex", "face"]) -> NDArray[np.uint8] | None:
+    """The mesh's colours (N, 3) uint8 when its visual holds one per ``kind`` ("vertex": a stepped terrain's; "face":
+    a PLY or 3MF read back), else None."""
     visual = mesh.visual
-    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
-        colors = np.asarray(visual.vertex_colors)
-        if colors.shape == (len(mesh.vertices), 4):
-            return np.ascontiguousarray(colors[:, :3], dtype=np.uint8)
-    return None
-
-
-def _face_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
-    """The mesh's face colours (F, 3) uint8 when its visual holds one per face (a PLY or 3MF read back), else None."""
-    visual = mesh.visual
-    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face":
-        colors = np.asarray(visual.face_colors)
-        if colors.shape == (len(mesh.faces), 4):
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == kind:
+        colors = np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors)
+        if colors.shape == (len(mesh.vertices if kind == "vertex" else mesh.faces), 4):
             return np.ascontiguousarray(colors[:, :3], dtype=np.uint8)
     return None
 
@@ -371,8 +363,8 @@ def render_mesh(
     for key, value in face_attributes.items():
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
-    rgb = _vertex_rgb(mesh) if scalars is None else None
-    face_rgb = _face_rgb(mesh) if scalars is None and rgb is None else None
+    rgb = _colors_rgb(mesh, "vertex") if scalars is None else None
+    face_rgb = _colors_rgb(mesh, "face") if scalars is None and rgb is None else None
     if rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)

@@ -951,6 +951,12 @@ def stepped(
     )
 
 
+def snapped_isovalue(h: np.float32, values: NDArray[np.float32]) -> np.float32:
+    """The isovalue the float32 height ``h`` snaps to (§3.2: the nearest; on a threshold, the upper one), as
+    kernels/stepped.py's quantize_levels picks it."""
+    return values[np.searchsorted(thresholds_of(values), h, side="right")]
+
+
 def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -> tuple[float, float, float]:
     """``(lowest, α, margin)``: the stepped surface's lowest point when ``h`` is the lowest height a triangle uses,
     α the isovalue h snaps to (monotone in h: no node and no wall vertex lies lower at the same γ), and the float32
@@ -959,7 +965,7 @@ def lowest_surface(h: float, values: NDArray[np.float32], gamma: float | None) -
     ``lowest + margin`` cannot lie below the surface (:func:`stepped` and :func:`~stepterrain.batch.batch` refuse
     it before stepping; :func:`~stepterrain.mesh.close_solid` has the final word)."""
     h32 = np.float32(h)
-    alpha = values[np.searchsorted(thresholds_of(values), h32, side="right")]
+    alpha = snapped_isovalue(h32, values)
     margin = 4.0 * float(np.spacing(max(abs(h32), abs(alpha))))
     if gamma is None:
         return max(float(h32), float(alpha)), float(alpha), margin
@@ -1007,13 +1013,13 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
             return
         if not 0.0 <= g <= 1.0:
             return
-    if t.kind == "grid" and (t.has_nodata or min(t.shape) < 2):
-        used_min = lowest_used_height(t.heights)  # only the nodes a triangle with three finite heights uses
+    if t.kind == "grid":  # only the nodes a triangle with three finite heights uses
+        used_min = lowest_used_height(t.heights, None if t.has_nodata else t.height_range)
         if used_min is None:
             return  # no surface: refused after stepping, as it says
         h = used_min
     else:
-        h = t.height_range[0]  # a TIN's used points, or a grid without nodata: every node is a triangle's
+        h = t.height_range[0]  # a TIN's used points
     lowest, alpha, margin = lowest_surface(h, values, g)
     if floor_z < lowest + margin:
         return
@@ -1197,15 +1203,8 @@ def stepped_series(
         # a fresh Terrain per frame: what it caches (the heights' upload, whether they hold nodata) belongs to
         # its own heights; the work arrays of the passes come from the per-thread scratch pool, reused
         try:
-            if stack is not None:  # one frame's call
-                t = Terrain.from_heights(
-                    frame,
-                    spacing=(1.0, 1.0) if spacing is None else spacing,
-                    origin=(0.0, 0.0) if origin is None else origin,
-                    _borrow=True,
-                )
-            else:  # a Terrain or a TIN per frame is taken as stepped() takes it ("got dtype object" before)
-                t = as_terrain(frame, spacing=spacing, origin=origin, borrow=True)
+            # one frame's call; a Terrain or a TIN per frame is taken as stepped() takes it ("got dtype object")
+            t = as_terrain(frame, spacing=spacing, origin=origin, borrow=True)
             height_range = t.height_range if values is None else None  # all nodata: an error, as in stepped()
         except InvalidInputError as exc:  # the frame's heights (spacing and origin were checked above)
             raise InvalidInputError(f"frames[{k}]: {exc}") from None

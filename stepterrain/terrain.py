@@ -76,6 +76,15 @@ def check_spacing(dx: float, dy: float, name: str = "spacing") -> tuple[float, f
 _MAX_NODE_SPACINGS = 4.5e11
 
 
+def grid_geometry(spacing: Any, origin: Any, shape: tuple[int, ...]) -> tuple[tuple[float, float], tuple[float, float]]:
+    """A grid's ``spacing`` (a non-zero pair within :data:`SPACING_RANGE`) and ``origin`` (a finite pair) checked,
+    and the nodes of a grid of ``shape`` not too far from zero for float64 (:func:`check_origin`)."""
+    spacing = check_spacing(*_pair(spacing, "spacing", nonzero=True))
+    origin = _pair(origin, "origin", nonzero=False, scalar=False)
+    check_origin(origin, spacing, shape)
+    return spacing, origin
+
+
 def check_origin(origin: tuple[float, float], spacing: tuple[float, float], shape: tuple[int, ...]) -> None:
     """An :class:`InvalidInputError` when a grid's nodes ``origin + (j * dx, i * dy)`` lie so far from zero that
     float64 cannot keep neighbouring nodes apart (see :data:`_MAX_NODE_SPACINGS`)."""
@@ -96,9 +105,13 @@ def finite_triangles(finite: NDArray[np.bool_]) -> tuple[NDArray[np.bool_], NDAr
     return n00 & n01 & n11, n00 & n11 & n10
 
 
-def lowest_used_height(heights: NDArray[Any]) -> float | None:
+def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] | None = None) -> float | None:
     """The lowest height of a grid node (or of a (T, H, W) stack's) that a triangle with three finite heights uses;
-    None when no triangle has. Nodes beside nodata that no such triangle uses are in no stepped mesh."""
+    None when no triangle has. Nodes beside nodata that no such triangle uses are in no stepped mesh.
+    ``height_range``: the heights' (min, max) when they hold no nodata, known to the caller: on a grid of at least
+    2 x 2 every node is then a triangle's, and its min is the answer without a pass."""
+    if height_range is not None and min(heights.shape[-2:]) >= 2:
+        return float(height_range[0])
     finite = np.isfinite(heights)
     upper, lower = finite_triangles(finite)
     used = np.zeros_like(finite)
@@ -459,9 +472,9 @@ class Terrain:
                                         f"{', '.join(extra)} too (a TIN's fields: use kind='tin' or Terrain.from_mesh)")
             array, lo, hi = _heights_array(self.heights)
             set_field(self, "heights", array)  # a copy: unshared with the array given
-            set_field(self, "spacing", check_spacing(*_pair(self.spacing, "spacing", nonzero=True)))
-            set_field(self, "origin", _pair(self.origin, "origin", nonzero=False, scalar=False))
-            check_origin(self.origin, self.spacing, array.shape)
+            spacing, origin = grid_geometry(self.spacing, self.origin, array.shape)
+            set_field(self, "spacing", spacing)
+            set_field(self, "origin", origin)
             self._device_cache["has_nodata"] = math.isnan(lo)
             if not math.isnan(lo):
                 self._device_cache["height_range"] = (lo, hi)
@@ -506,9 +519,7 @@ class Terrain:
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         array, lo, hi = _heights_array(heights, borrow=_borrow)
-        spacing = check_spacing(*_pair(spacing, "spacing", nonzero=True))
-        origin = _pair(origin, "origin", nonzero=False, scalar=False)
-        check_origin(origin, spacing, array.shape)
+        spacing, origin = grid_geometry(spacing, origin, array.shape)
         terrain = cls(
             kind="grid",
             heights=array,

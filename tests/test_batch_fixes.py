@@ -586,6 +586,17 @@ def test_a_file_rewritten_with_its_size_and_mtime_kept_is_redone(tmp_path):
     np.testing.assert_allclose(trimesh.load(out / "dem.ply", process=False).vertices[:, 2], 7.0)
 
 
+def _raster_or_folder(tmp_path, *, tiled):
+    """A 9 x 9 ramp as the batch source: the array itself (cut into tiles), or a folder holding it as a.npy."""
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    if tiled:
+        return z
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    np.save(folder / "a.npy", z)
+    return folder
+
+
 @pytest.mark.parametrize("kwargs, interval, base", [
     (dict(tile_size=4, interval=2.0, base=0.5), 2.0, 0.5),  # tiles of one raster: shared levels
     (dict(tile_size=4), 1.0, 0.0),  # the shared levels' default interval
@@ -596,12 +607,7 @@ def test_outputs_record_the_interval_and_base_of_their_isovalues(tmp_path, kwarg
     # than 4096 keeps only its ends); a folder's files and the default interval recorded neither
     from .test_export import glb_json
 
-    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
-    source = z
-    if "tile_size" not in kwargs:
-        source = tmp_path / "dems"
-        source.mkdir()
-        np.save(source / "a.npy", z)
+    source = _raster_or_folder(tmp_path, tiled="tile_size" in kwargs)
     report = batch(source, tmp_path / "out", scheduler="serial", **kwargs)
     assert report.ok and report.done
     for result in report.done:
@@ -622,12 +628,7 @@ def test_metadata_keys_the_library_writes_are_refused(tmp_path, metadata, kwargs
     # "isovalues" or "gamma" replaced the values the mesh was made with
     from stepterrain.errors import InvalidInputError
 
-    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
-    source = z
-    if "tile_size" not in kwargs:
-        source = tmp_path / "dems"
-        source.mkdir()
-        np.save(source / "a.npy", z)
+    source = _raster_or_folder(tmp_path, tiled="tile_size" in kwargs)
     with pytest.raises(InvalidInputError, match=rf"^metadata keys {taken} are written by stepterrain itself"):
         batch(source, tmp_path / "out", scheduler="serial", metadata=metadata, **kwargs)
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
