@@ -39,6 +39,9 @@ _WGS84_A, _WGS84_F = 6378137.0, 1 / 298.257223563
 #: Worst relative error of a geographic grid's local metres (scale along a parallel or a meridian, or cell area)
 #: against WGS 84 over its rows beyond which :func:`load_dem` warns.
 _LOCAL_METRES_TOLERANCE = 0.01
+#: PROJ names of the Mercator projections, whose metres are ground metres times about 1/cos φ: a grid in one that
+#: errs by more than :data:`_LOCAL_METRES_TOLERANCE` warns (EPSG:3857 is the CRS of web map and terrain tiles).
+_MERCATOR = frozenset({"merc", "webmerc"})
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
@@ -119,8 +122,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         east-west -0.11 % to -0.45 %) and by the change of cos φ away from φc (east-west, about tan φc times half the
         latitude span in radians): the worst scale or cell-area error over a grid 0.5 (1) degree tall is 0.56 (0.56) %
         at the equator, 0.71 (1.1) % at 45°, 1.3 (2.0) % at 60°, 2.4 (3.9) % at 75°, and a warning names it when it
-        passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS in another linear unit (EPSG:2229
-        counts US survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same
+        passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS's coordinates are taken as
+        ground metres (a Mercator one's, EPSG:3857, warn where they are not, see Warns); one in another linear unit
+        (EPSG:2229 counts US survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same
         projection in metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
         rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
         named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
@@ -139,7 +143,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     UserWarning
         At the caller's line: a geographic grid whose local metres err by more than 1 % against WGS 84 in some row
         (east-west or north-south scale, or cell area; the message names the error, the node latitudes and a
-        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid converted to metres whose
+        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid in a Mercator projection
+        (EPSG:3857, the CRS of web map and terrain tiles; EPSG:3395, ...), whose metres are read as stored, that errs
+        by more than 1 % in the same sense (its metres are ground metres times about 1/cos φ: 1.41 at 45°; measured
+        through PROJ, so with rasterio only); a grid converted to metres whose
         heights' unit is not named; a GeoTIFF CRS ignored for want of a geotransform.
 
     Raises
@@ -840,8 +847,11 @@ def _georeferenced(
     node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
     if not geographic:
         projected = _projected_units(crs)
+        node_xs, node_ys = (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(heights.shape[0]) * dy
         if projected is None:
-            return _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs)
+            terrain = _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs)
+            _check_mercator_metres(file, crs, node_xs, node_ys, (dx, dy), 1.0)
+            return terrain
         unit, factor, metre_crs = projected
         if height_unit is None:
             warnings.warn(
@@ -851,10 +861,12 @@ def _georeferenced(
                 stacklevel=caller_stacklevel(),
             )
         source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
-        return _grid(
+        terrain = _grid(
             file, heights, spacing=(dx * factor, dy * factor), origin=(node_x * factor, node_y * factor),
             crs=metre_crs, source=source,
         )
+        _check_mercator_metres(file, crs, node_xs, node_ys, (dx, dy), factor)
+        return terrain
 
     rows = heights.shape[0]
     node_lats = (node_y, node_y + (rows - 1) * dy)
@@ -907,16 +919,25 @@ def _georeferenced(
     return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
 
 
+def _wgs84_metres_per_degree(
+    lats_east: NDArray[np.float64], lats_north: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """WGS 84 ground metres per degree of longitude along the parallels at ``lats_east`` (N(φ) cos φ) and per degree
+    of latitude along the meridian at ``lats_north`` (M(φ)), latitudes in degrees."""
+    e2 = _WGS84_F * (2.0 - _WGS84_F)
+    phi = np.radians(np.asarray(lats_east, dtype=np.float64))
+    per_lon = np.radians(_WGS84_A / np.sqrt(1.0 - e2 * np.sin(phi) ** 2) * np.cos(phi))
+    w2 = 1.0 - e2 * np.sin(np.radians(np.asarray(lats_north, dtype=np.float64))) ** 2
+    per_lat = np.radians(_WGS84_A * (1.0 - e2) / w2**1.5)
+    return per_lon, per_lat
+
+
 def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, float]) -> float:
     """Worst relative error, over the rows at ``node_lats`` (degrees), of one local spacing of ``per_degree`` (metres
     per degree of longitude, of latitude) against the WGS 84 ellipsoid: of the scale along the parallel (N cos φ),
     along the meridian (M) and of their product, the cell area; inf for a row at a pole (a degree of longitude is
     0 m there)."""
-    phi = np.radians(np.asarray(node_lats, dtype=np.float64))
-    e2 = _WGS84_F * (2.0 - _WGS84_F)
-    w2 = 1.0 - e2 * np.sin(phi) ** 2
-    per_lon = np.radians(_WGS84_A / np.sqrt(w2) * np.cos(phi))  # N(φ) cos φ, metres per degree
-    per_lat = np.radians(_WGS84_A * (1.0 - e2) / w2**1.5)  # M(φ)
+    per_lon, per_lat = _wgs84_metres_per_degree(node_lats, node_lats)
     with np.errstate(divide="ignore"):
         east = np.where(per_lon > 1e-6, per_degree[0] / np.maximum(per_lon, 1e-6), np.inf)
     north = per_degree[1] / per_lat
@@ -936,6 +957,79 @@ def _check_local_metres(
     if error <= _LOCAL_METRES_TOLERANCE:
         return
     low, high = float(np.min(node_lats)), float(np.max(node_lats))
+    how = f"up to {100 * error:.3g} %"
+    if math.isinf(error):
+        how = "an unbounded amount (a row of nodes at a pole, where a degree of longitude is 0 m)"
+    warnings.warn(
+        f"{file.name}: {crs or 'geographic'} degrees read as local metres with one spacing "
+        f"({per_degree[0]:.6g} m per degree of longitude, {per_degree[1]:.6g} m per degree of latitude) err against "
+        f"WGS 84 ground distances and cell areas by {how} over its node latitudes {low:.6g} to {high:.6g} "
+        f"({high - low:.6g} degrees), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres "
+        f"{_reprojection_hint(file, lons, low, high)}",
+        stacklevel=caller_stacklevel(),
+    )
+
+
+def _check_mercator_metres(
+    file: Path, crs: str | None, node_xs: tuple[float, float], node_ys: NDArray[np.float64],
+    spacing: tuple[float, float], factor: float,
+) -> None:
+    """Warn, at the caller of :func:`load_dem`, when a grid in a Mercator projection (:data:`_MERCATOR`: EPSG:3857,
+    the CRS of web map and terrain tiles, EPSG:3395, ...) errs by more than :data:`_LOCAL_METRES_TOLERANCE` against
+    WGS 84 ground distances somewhere in its rows: Mercator metres are ground metres times about 1/cos φ (1.41 at
+    45°), so the grid is read as they are, the mesh that much too wide and long for its heights. ``node_xs`` are the
+    first and last node x, ``node_ys`` every row's node y, ``spacing`` (dx, dy), all in the CRS's unit of ``factor``
+    metres. The scale is measured through PROJ over one cell at sampled rows; without rasterio, for a CRS on
+    another body or one PROJ cannot invert, nothing is said."""
+    crs_obj = _crs_object(crs) if crs else None
+    if crs_obj is None:
+        return
+    try:
+        if crs_obj.to_dict().get("proj") not in _MERCATOR:
+            return
+        import rasterio
+        from rasterio.warp import transform
+
+        rows = node_ys[np.unique(np.linspace(0, node_ys.size - 1, min(node_ys.size, 65)).round().astype(np.int64))]
+        x_mid, (dx, dy) = 0.5 * (node_xs[0] + node_xs[1]), spacing
+        xs = np.concatenate([np.full(rows.size, x_mid), np.full(rows.size, x_mid + dx), np.full(rows.size, x_mid)])
+        ys = np.concatenate([rows, rows, rows + dy])
+        with rasterio.Env():
+            lon, lat = (np.asarray(v, dtype=np.float64).reshape(3, -1)
+                        for v in transform(crs_obj, "EPSG:4326", xs.tolist(), ys.tolist()))
+            ends = transform(crs_obj, "EPSG:4326", list(node_xs), [float(rows[0])] * 2)[0]
+    except Exception:  # PROJ cannot take it to WGS 84 degrees (another body, a broken CRS): nothing to compare with
+        return
+    d_lon = np.abs((lon[1] - lon[0] + 180.0) % 360.0 - 180.0)  # one cell east, across the antimeridian too
+    d_lat = np.abs(lat[2] - lat[0])
+    ok = np.isfinite(lat).all(axis=0) & np.isfinite(lon).all(axis=0) & (d_lon > 0) & (d_lat > 0)
+    if not ok.any():
+        return
+    per_lon, per_lat = _wgs84_metres_per_degree(lat[0][ok], 0.5 * (lat[0][ok] + lat[2][ok]))
+    with np.errstate(divide="ignore"):
+        east = abs(dx) * factor / d_lon[ok] / np.maximum(per_lon, 1e-6)
+        north = abs(dy) * factor / d_lat[ok] / per_lat
+    errors = np.maximum(np.maximum(np.abs(east - 1.0), np.abs(north - 1.0)), np.abs(east * north - 1.0))
+    error = float(errors.max())
+    if not error > _LOCAL_METRES_TOLERANCE:
+        return
+    node_lats = lat[0][ok]
+    low, high = float(node_lats.min()), float(node_lats.max())
+    at = int(np.argmax(errors))
+    warnings.warn(
+        f"{file.name}: {crs} is a Mercator projection, whose metres are not ground metres away from the equator: its "
+        f"grid, read as stored, errs against WGS 84 ground distances and cell areas by up to {100 * error:.3g} % over "
+        f"its node latitudes {low:.6g} to {high:.6g} (x {float(east[at]):.4g} east-west and x {float(north[at]):.4g} "
+        f"north-south at latitude {float(node_lats[at]):.6g}: the mesh is that much wider and longer than the ground, "
+        f"its slopes that much flatter), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres "
+        f"{_reprojection_hint(file, (float(ends[0]), float(ends[1])), low, high)}",
+        stacklevel=caller_stacklevel(),
+    )
+
+
+def _reprojection_hint(file: Path, lons: tuple[float, float], low: float, high: float) -> str:
+    """How to reproject a grid whose node longitudes run over ``lons`` and latitudes from ``low`` to ``high`` to true
+    metres: its UTM zone when it fits one, polar stereographic near a pole, else a projected CRS of its region."""
     centre, centre_lon = 0.5 * (low + high), 0.5 * (lons[0] + lons[1])
     if abs(lons[1] - lons[0]) <= 6.0 and high - low <= 20.0 and abs(centre) <= 80.0:
         zone = int(math.floor(((centre_lon + 180.0) % 360.0) / 6.0)) % 60 + 1
@@ -947,22 +1041,11 @@ def _check_local_metres(
     else:
         code = target = ""
     if not code:
-        hint = "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
+        return "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
                "(stepterrain globe)"
-    elif file.suffix.lower() in (".tif", ".tiff"):
-        hint = f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
-    else:
-        hint = f"reproject it first, e.g. to {target}"
-    how = f"up to {100 * error:.3g} %"
-    if math.isinf(error):
-        how = "an unbounded amount (a row of nodes at a pole, where a degree of longitude is 0 m)"
-    warnings.warn(
-        f"{file.name}: {crs or 'geographic'} degrees read as local metres with one spacing "
-        f"({per_degree[0]:.6g} m per degree of longitude, {per_degree[1]:.6g} m per degree of latitude) err against "
-        f"WGS 84 ground distances and cell areas by {how} over its node latitudes {low:.6g} to {high:.6g} "
-        f"({high - low:.6g} degrees), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres {hint}",
-        stacklevel=caller_stacklevel(),
-    )
+    if file.suffix.lower() in (".tif", ".tiff"):
+        return f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
+    return f"reproject it first, e.g. to {target}"
 
 
 _PARSED_CRS: dict[str, Any] = {}  # CRS string -> rasterio CRS: a batch reads many files in one CRS

@@ -697,3 +697,43 @@ def test_npz_lat_lon_axes_across_the_antimeridian_read_as_the_same_grid_with_a_t
     np.savez(tmp_path / "uneven.npz", elevation=z, lat=lat, lon=uneven)
     with pytest.raises(DataFileError, match=r"uneven\.npz.*'lon' must be evenly spaced degrees"):
         load_dem(tmp_path / "uneven.npz")
+
+
+@pytest.mark.parametrize("lat, warns", [(0.0, False), (46.5, True), (-60.0, True)])
+def test_a_web_mercator_grid_warns_that_its_metres_are_not_ground_metres(tmp_path, lat, warns):
+    """A DEM in Web Mercator (EPSG:3857, the CRS of web terrain tiles) was read with its Mercator metres as ground
+    metres without a word: 1/cos φ too wide and long, 1.45 times at 46.5N (the Alps), so every slope was 1.45 times
+    too flat. load_dem warns at the caller's line, naming the scale; checked against the closed-form inverse of the
+    spherical Mercator on WGS 84 (kx = a / (N cos φ)), independent of PROJ. A UTM grid there and a Web Mercator one
+    at the equator (within 1 %) stay quiet."""
+    rasterio = pytest.importorskip("rasterio")
+    a, e2 = 6378137.0, 0.0066943799901413165  # WGS 84
+    y0 = a * np.log(np.tan(np.pi / 4 + np.radians(lat) / 2))
+    profile = {"driver": "GTiff", "width": 4, "height": 3, "count": 1, "dtype": "float32", "crs": "EPSG:3857",
+               "transform": rasterio.Affine(30.0, 0.0, a * np.radians(9.5), 0.0, -30.0, y0 + 45.0)}
+    with rasterio.open(tmp_path / "tiles.tif", "w", **profile) as ds:
+        ds.write(np.full((3, 4), 1000.0, np.float32), 1)
+    np.savez(tmp_path / "tiles.npz", elevation=np.full((3, 4), 1000.0, np.float32), crs="EPSG:3857",
+             transform=np.array(profile["transform"].to_gdal()))  # fmt: skip
+    for name in ("tiles.tif", "tiles.npz"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t = load_dem(tmp_path / name)
+        assert t.spacing == (30.0, -30.0) and t.crs == "EPSG:3857"  # read as stored
+        said = [w for w in caught if "Mercator" in str(w.message)]
+        assert len(said) == int(warns), [str(w.message) for w in caught]
+        if warns:
+            assert said[0].filename == __file__
+            message = str(said[0].message)
+            phi = np.radians(lat)
+            kx = a / (a / np.sqrt(1 - e2 * np.sin(phi) ** 2) * np.cos(phi))
+            stated = float(re.search(r"x ([0-9.]+) east-west", message).group(1))
+            assert stated == pytest.approx(kx, rel=1e-3), message
+            zone = "EPSG:32632" if lat > 0 else "EPSG:32732"
+            assert zone in message and f"{name}: EPSG:3857 is a Mercator projection" in message
+    with rasterio.open(tmp_path / "utm.tif", "w", **{**profile, "crs": "EPSG:32632",
+                       "transform": rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 5150000.0)}) as ds:
+        ds.write(np.full((3, 4), 1000.0, np.float32), 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(tmp_path / "utm.tif")
