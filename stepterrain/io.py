@@ -381,6 +381,18 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         else:
             raw = arrays["transform"]
             transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
+            # rasterio's Affine(dx, 0, x0, 0, -dy, y0) saved as is (np.array(affine), or its first 6 numbers), not as
+            # its to_gdal(): 6 of them were refused as a "rotated" grid (c, e = x0, -dy) or a zero pixel size
+            affine = transform.size in (6, 9) and np.all(np.isfinite(transform)) and transform[1] == 0.0 and \
+                transform[3] == 0.0 and transform[0] != 0.0 and transform[4] != 0.0 and \
+                (transform.size == 6 or tuple(transform[6:]) == (0.0, 0.0, 1.0))
+            if affine:
+                a, _, c, _, e, f = (float(v) for v in transform[:6])
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform (x0, dx, 0, y0, 0, -dy); got "
+                    f"{raw.tolist()}, rasterio's Affine (dx, 0, x0, 0, -dy, y0{', 0, 0, 1' * (transform.size == 9)}) "
+                    f"by the look of it: save transform.to_gdal(), here ({c!r}, {a!r}, 0.0, {f!r}, 0.0, {e!r})"
+                )
             if transform.size != 6 or not np.all(np.isfinite(transform)):
                 raise DataFileError(
                     f"cannot read {str(file)!r}: 'transform' must be a GDAL geotransform of 6 finite numbers "

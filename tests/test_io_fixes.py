@@ -737,3 +737,26 @@ def test_a_web_mercator_grid_warns_that_its_metres_are_not_ground_metres(tmp_pat
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_dem(tmp_path / "utm.tif")
+
+
+@pytest.mark.parametrize("saved", ["first_six", "matrix", "flat_nine"])
+def test_an_npz_transform_in_rasterios_affine_order_is_refused_naming_to_gdal(tmp_path, saved):
+    """np.savez(..., transform=dataset.transform[:6]) (or np.array(dataset.transform)) saves rasterio's Affine order
+    (dx, 0, x0, 0, -dy, y0), not GDAL's: the north-up grid was refused as "a rotated geotransform" (or a list of 9
+    numbers as not 6), sending the user after a rotation that is not there. The error now names the Affine order and
+    gives the GDAL geotransform to save; that geotransform reads as the grid rasterio places."""
+    rasterio = pytest.importorskip("rasterio")
+    affine = rasterio.Affine(30.0, 0.0, 376313.5, 0.0, -30.0, 3807917.5)
+    transform = {"first_six": np.array(affine)[:6], "matrix": np.array(affine).reshape(3, 3),
+                 "flat_nine": np.array(affine)}[saved]  # fmt: skip
+    heights = np.arange(12.0, dtype=np.float32).reshape(3, 4)
+    np.savez(tmp_path / "dem.npz", elevation=heights, transform=transform, crs="EPSG:32611")
+    with pytest.raises(DataFileError, match=r"'transform' must be a GDAL geotransform") as info:
+        load_dem(tmp_path / "dem.npz")
+    message = str(info.value)
+    assert "Affine" in message and "to_gdal()" in message and "rotated" not in message
+    stated = eval(re.search(r"here (\([^)]*\))", message).group(1))  # the geotransform the message gives
+    assert stated == affine.to_gdal()
+    np.savez(tmp_path / "fixed.npz", elevation=heights, transform=np.array(stated), crs="EPSG:32611")
+    t = load_dem(tmp_path / "fixed.npz")
+    assert t.origin == affine @ (0.5, 0.5) and t.spacing == (30.0, -30.0)  # node (0, 0): the top-left cell's centre
