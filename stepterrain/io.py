@@ -93,8 +93,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         one per row and column, georeference them as geographic, the layout of the global relief grids (``lon``
         may cross the antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
-        heightmap, values are heights; a transparent grey value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks
-        missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as 8 bits) or
+        heightmap, values are heights, a 2- or 4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey
+        value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha
+        is refused: Pillow reads it as 8 bits) or
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
@@ -519,6 +520,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
                 )
             stored = {"L": np.uint8, "LA": np.uint8, "I": np.int32, "F": np.float32}.get(mode, np.uint16)  # I;16*
             _check_read_budget(file, (image.height, image.width), np.dtype(stored))
+            # a 2- or 4-bit grey PNG: Pillow scales its samples to 0-255 (x 85, x 17), not its tRNS value
+            low_bits = re.fullmatch(r"L;([24])", str(image.tile[0][3])) if image.tile else None
             array = np.array(image)
             transparent = image.info.get("transparency")  # a grey PNG's tRNS value, GDAL's nodata for PNG
     except Image.DecompressionBombError as exc:  # not an OSError: it went past as Pillow's own exception
@@ -533,6 +536,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
             f"cannot read {str(file)!r}: expected a PNG heightmap; got unreadable content ({exc})"
         ) from exc
     nodata = transparent if isinstance(transparent, int) and not isinstance(transparent, bool) else None
+    if nodata is not None and low_bits:  # the tRNS value in the samples' 0-255 scale (tRNS 15 of 4 bits is 255)
+        nodata *= 255 // (2 ** int(low_bits.group(1)) - 1)
     if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
         array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
     heights = _elevation(array, file, f"{mode} image", nodata)

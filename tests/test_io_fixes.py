@@ -760,3 +760,36 @@ def test_an_npz_transform_in_rasterios_affine_order_is_refused_naming_to_gdal(tm
     np.savez(tmp_path / "fixed.npz", elevation=heights, transform=np.array(stated), crs="EPSG:32611")
     t = load_dem(tmp_path / "fixed.npz")
     assert t.origin == affine @ (0.5, 0.5) and t.spacing == (30.0, -30.0)  # node (0, 0): the top-left cell's centre
+
+
+def _grey_png(path, bits, rows, transparent):
+    """A greyscale PNG of ``bits`` per sample (1, 2 or 4: Pillow writes none), rows of raw samples, a tRNS value."""
+    import struct
+    import zlib
+
+    def chunk(kind, data):
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    per_byte = 8 // bits
+    packed = b""
+    for row in rows:
+        row = list(row) + [0] * (-len(row) % per_byte)
+        packed += b"\0" + bytes(sum(v << (8 - bits * (k + 1)) for k, v in enumerate(row[i:i + per_byte]))
+                                for i in range(0, len(row), per_byte))
+    header = struct.pack(">IIBBBBB", len(rows[0]), len(rows), bits, 0, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"tRNS", struct.pack(">H", transparent))
+                     + chunk(b"IDAT", zlib.compress(packed)) + chunk(b"IEND", b""))
+
+
+@pytest.mark.parametrize("bits", [2, 4])
+def test_the_transparent_value_of_a_2_or_4_bit_png_marks_its_missing_cells(tmp_path, bits):
+    """Pillow reads a 2- or 4-bit grey PNG's samples scaled to 0-255 (x 85, x 17) but reports its tRNS value raw,
+    so the transparent cells (GDAL's nodata for a PNG) were read as heights: a 4-bit map's hole at tRNS 15 became a
+    255 m peak. The tRNS value is now compared in the samples' scale."""
+    top = 2**bits - 1
+    rows = [[0, 1, top], [top, 2, 1], [1, 0, top]]
+    _grey_png(tmp_path / "map.png", bits, rows, transparent=top)
+    t = load_dem(tmp_path / "map.png")
+    raw = np.array(rows)
+    np.testing.assert_array_equal(np.isnan(t.heights), raw == top)
+    np.testing.assert_array_equal(t.heights[raw != top], raw[raw != top] * (255 // top))  # heights as before
