@@ -796,7 +796,8 @@ def nodata_as_nan(
     read into memory."""
     hits = None
     if nodata is not None:
-        hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+        with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
+            hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX

@@ -793,3 +793,15 @@ def test_the_transparent_value_of_a_2_or_4_bit_png_marks_its_missing_cells(tmp_p
     raw = np.array(rows)
     np.testing.assert_array_equal(np.isnan(t.heights), raw == top)
     np.testing.assert_array_equal(t.heights[raw != top], raw[raw != top] * (255 // top))  # heights as before
+
+
+@pytest.mark.parametrize("dtype, nodata", [(np.float32, 1e40), (np.float16, -99999.0)])
+def test_an_npz_nodata_beyond_the_heights_dtype_reads_without_a_numpy_warning(tmp_path, dtype, nodata):
+    """A nodata the heights' float dtype cannot hold (-99999 beside float16 heights) leaked NumPy's "overflow
+    encountered in cast" RuntimeWarning from inside load_dem; it matches no finite height, and none is marked."""
+    heights = np.array([[1.0, 2.0], [np.inf, 4.0]], dtype)
+    np.savez(tmp_path / "dem.npz", elevation=heights, nodata=nodata)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t = load_dem(tmp_path / "dem.npz")
+    np.testing.assert_array_equal(t.heights, np.array([[1.0, 2.0], [np.nan, 4.0]], np.float32))
