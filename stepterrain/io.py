@@ -89,8 +89,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``.npy`` (one (H, W) array), ``.npz`` (heights under the first 2-D key of ``heights``, ``elevation``
         and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
-        (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees,
-        one per row and column, georeference them as geographic, the layout of the global relief grids (``lon``
+        (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees
+        (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and column, georeference them as geographic, the layout of the global relief grids (``lon``
         may cross the antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights, a 2- or 4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey
@@ -471,10 +471,14 @@ def _latlon_geotransform(
                 f"cannot read {str(file)!r}: {name!r} must be evenly spaced degrees, increasing or decreasing; got "
                 f"{n} values from {values[0]:.9g} to {values[-1]:.9g}, no span"
             )
-        if worst > 1e-3 * abs(step):
+        # within 0.1 % of the step, or within the axis's own rounding: a float32 axis of 1 or 3 arc-seconds (an
+        # xarray DEM's coordinates) has steps that differ by one float32 spacing of its degrees, 1.5e-5 near 180
+        rounding = 2.0 * float(np.spacing(np.abs(axis).max())) if axis.dtype.kind == "f" else 0.0
+        if worst > max(1e-3 * abs(step), rounding):
             raise DataFileError(
                 f"cannot read {str(file)!r}: {name!r} must be evenly spaced degrees; got steps that differ from "
                 f"their mean {step:.9g} by up to {worst:.3g}"
+                + (f" (more than the {axis.dtype} rounding of its values, {rounding:.3g})" if rounding else "")
             )
         axes.append((float(values[0]), float(step)))
     (lon0, dlon), (lat0, dlat) = axes

@@ -805,3 +805,30 @@ def test_an_npz_nodata_beyond_the_heights_dtype_reads_without_a_numpy_warning(tm
         warnings.simplefilter("error")
         t = load_dem(tmp_path / "dem.npz")
     np.testing.assert_array_equal(t.heights, np.array([[1.0, 2.0], [np.nan, 4.0]], np.float32))
+
+
+@pytest.mark.parametrize("arcsec", [1, 3])
+def test_npz_lat_lon_axes_in_float32_read_as_evenly_spaced(tmp_path, arcsec):
+    """1-D lat/lon axes stored as float32 (an xarray DEM's coordinates, np.savez(elevation=..., lat=ds.lat.values,
+    lon=ds.lon.values)) at 1 or 3 arc-seconds were refused as "unevenly spaced": float32 rounds degrees near 100-180 to
+    1.5e-5, 1-5 % of such a step, beyond the 0.1 % allowed. Within the axis's own rounding they now read, as the
+    float64 axes they round read; an axis off by more than that is still refused."""
+    step, n = arcsec / 3600.0, 400
+    lat64, lon64 = 40.0 - np.arange(n) * step, 179.8 + np.arange(n) * step  # across the antimeridian in the end
+    lon64 = (lon64 + 180.0) % 360.0 - 180.0
+    heights = np.random.default_rng(0).random((n, n)).astype(np.float32)
+    np.savez(tmp_path / "f64.npz", elevation=heights, lat=lat64, lon=lon64)
+    np.savez(tmp_path / "f32.npz", elevation=heights, lat=lat64.astype(np.float32), lon=lon64.astype(np.float32))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # not the point here
+        exact, rounded = load_dem(tmp_path / "f64.npz"), load_dem(tmp_path / "f32.npz")
+    np.testing.assert_array_equal(rounded.heights, heights)
+    span_error = 2 * float(np.spacing(np.float32(180.0))) / ((n - 1) * step)  # the ends' float32 rounding
+    np.testing.assert_allclose(rounded.spacing, exact.spacing, rtol=span_error)
+    node = re.search(r"lon (\S+), lat (\S+);", rounded.source).groups()
+    assert abs(float(node[0]) - lon64[0]) < 1e-5 and abs(float(node[1]) - lat64[0]) < 1e-5
+    bent = lon64.astype(np.float32)
+    bent[n // 2 :] += np.float32(5e-5)  # one step 5e-5 degrees (3 float32 spacings) longer
+    np.savez(tmp_path / "bent.npz", elevation=heights, lat=lat64.astype(np.float32), lon=bent)
+    with pytest.raises(DataFileError, match=r"'lon' must be evenly spaced degrees.*float32 rounding"):
+        load_dem(tmp_path / "bent.npz")
