@@ -90,8 +90,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
         ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
         (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees
-        (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and column, georeference them as geographic, the layout of the global relief grids (``lon``
-        may cross the antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a
+        (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and column, georeference them as
+        geographic, the layout of the global relief grids (``lon`` may cross the antimeridian, [179.5, -179.5, ...]:
+        a step of 1 degree, read as [179.5, 180.5, ...]); a
         ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
         heightmap, values are heights, a 2- or 4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey
         value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha
