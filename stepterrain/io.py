@@ -126,8 +126,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         at the equator, 0.71 (1.1) % at 45°, 1.3 (2.0) % at 60°, 2.4 (3.9) % at 75°, and a warning names it when it
         passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS's coordinates are taken as
         ground metres (a Mercator one's, EPSG:3857, warn where they are not, see Warns); one in another linear unit
-        (EPSG:2229 counts US survey feet) has ``spacing`` and ``origin`` converted to metres, ``crs`` the same
-        projection in metres ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
+        (EPSG:2229 counts US survey feet), or a local engineering CRS (a site grid, LOCAL_CS) in one, has
+        ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection (or site grid) in metres
+        ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
         rasterio (without it an .npz keeps its CRS's units). Heights are taken as stored unless their unit is
         named (``height_unit``, else a GeoTIFF band's unit, an .npz ``units``, or the vertical unit of a compound
         CRS: EPSG:26911+6360 is NAVD88 height in US survey feet, and ``crs`` is then the horizontal part), in
@@ -1112,17 +1113,32 @@ def _is_geographic(crs: str | None) -> bool:
 
 
 def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
-    """(unit, metres per unit, the same projection in metres) of a projected CRS whose unit is not the
-    metre; None for metres, a geographic or unknown CRS, or without rasterio to look the CRS up."""
+    """(unit, metres per unit, the same projection in metres) of a projected CRS, or a local engineering one (a site
+    grid: LOCAL_CS, ENGCRS), whose unit is not the metre; None for metres, a geographic or unknown CRS, or without
+    rasterio to look the CRS up. (A site grid in feet kept feet as metres while a band's unit "ft" made its heights
+    metres: 3.28 times too wide for them.)"""
     crs_obj = _crs_object(crs) if crs else None
-    if crs_obj is None or not crs_obj.is_projected:
+    if crs_obj is None or crs_obj.is_geographic:
         return None
+    wkt = crs_obj.to_wkt()
     try:
-        unit, factor = crs_obj.linear_units_factor
+        if crs_obj.is_projected:
+            unit, factor = crs_obj.linear_units_factor
+        elif wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
+            unit, factor = crs_obj.units_factor
+        else:  # geocentric, vertical: no horizontal plane in a linear unit
+            return None
     except Exception:  # no linear unit to read: keep the grid in its own units
         return None
     if factor == 1.0:
         return None
+    if not crs_obj.is_projected:  # the site grid in metres: its one UNIT (no PROJ form to change it in)
+        block = _wkt_block(wkt, ("LENGTHUNIT", "UNIT"))
+        try:
+            metre_wkt = wkt.replace(block, 'UNIT["metre",1,AUTHORITY["EPSG","9001"]]', 1) if block else None
+            return str(unit), float(factor), _crs_string(type(crs_obj).from_wkt(metre_wkt)) if metre_wkt else None
+        except Exception:  # a site grid GDAL cannot write back: metres without a CRS to name them
+            return str(unit), float(factor), None
     try:  # PROJ's false easting and northing are metres whatever +units says: only the unit changes
         params = {key: value for key, value in crs_obj.to_dict().items() if key != "to_meter"}
         metre_crs = _crs_string(type(crs_obj).from_dict({**params, "units": "m"})) if params else None

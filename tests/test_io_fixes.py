@@ -832,3 +832,33 @@ def test_npz_lat_lon_axes_in_float32_read_as_evenly_spaced(tmp_path, arcsec):
     np.savez(tmp_path / "bent.npz", elevation=heights, lat=lat64.astype(np.float32), lon=bent)
     with pytest.raises(DataFileError, match=r"'lon' must be evenly spaced degrees.*float32 rounding"):
         load_dem(tmp_path / "bent.npz")
+
+
+def test_a_site_grid_in_feet_has_its_spacing_and_origin_converted_to_metres_with_its_heights(tmp_path):
+    """A GeoTIFF on a local engineering CRS (a site grid, LOCAL_CS: drone and survey DEMs) in US survey feet kept
+    its spacing and origin in feet as metres while the band's unit "US survey foot" made its heights metres: the mesh
+    was 3.28 times too wide for its heights. Spacing and origin now become metres as a projected CRS's do, checked
+    against rasterio's own transform, and the crs is the site grid in metres."""
+    rasterio = pytest.importorskip("rasterio")
+    site = ('LOCAL_CS["site grid",UNIT["US survey foot",0.304800609601219,AUTHORITY["EPSG","9003"]],'
+            'AXIS["Easting",EAST],AXIS["Northing",NORTH]]')
+    heights = np.arange(12.0, dtype=np.float32).reshape(3, 4) + 100.0
+    profile = {"driver": "GTiff", "width": 4, "height": 3, "count": 1, "dtype": "float32", "crs": site,
+               "transform": rasterio.Affine(3.0, 0.0, 1000.0, 0.0, -3.0, 5000.0)}
+    with rasterio.open(tmp_path / "site.tif", "w", **profile) as ds:
+        ds.write(heights, 1)
+        ds.units = ("US survey foot",)
+    foot = 1200 / 3937
+    with rasterio.open(tmp_path / "site.tif") as ds:
+        centre = ds.transform @ (0.5, 0.5)  # node (0, 0) in the file's feet
+        stored = ds.read(1)
+    np.savez(tmp_path / "site.npz", elevation=heights, transform=np.array(profile["transform"].to_gdal()), crs=site,
+             units="US survey foot")  # fmt: skip
+    for name in ("site.tif", "site.npz"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # heights' unit named: nothing to warn about
+            t = load_dem(tmp_path / name)
+        np.testing.assert_allclose(t.spacing, (3.0 * foot, -3.0 * foot), rtol=1e-12)
+        np.testing.assert_allclose(t.origin, (centre[0] * foot, centre[1] * foot), rtol=1e-12)
+        np.testing.assert_allclose(t.heights, stored * foot, rtol=1e-6)
+        assert t.crs is not None and 'UNIT["metre",1' in t.crs and "site grid" in t.crs and "foot" not in t.crs
