@@ -1120,19 +1120,16 @@ def _projected_units(crs: str | None) -> tuple[str, float, str | None] | None:
     crs_obj = _crs_object(crs) if crs else None
     if crs_obj is None or crs_obj.is_geographic:
         return None
-    wkt = crs_obj.to_wkt()
+    wkt = "" if crs_obj.is_projected else crs_obj.to_wkt()
+    if not crs_obj.is_projected and not wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
+        return None  # geocentric, vertical: no horizontal plane in a linear unit
     try:
-        if crs_obj.is_projected:
-            unit, factor = crs_obj.linear_units_factor
-        elif wkt.lstrip().startswith(("LOCAL_CS[", "ENGCRS[", "ENGINEERINGCRS[")):
-            unit, factor = crs_obj.units_factor
-        else:  # geocentric, vertical: no horizontal plane in a linear unit
-            return None
+        unit, factor = crs_obj.linear_units_factor if crs_obj.is_projected else crs_obj.units_factor
     except Exception:  # no linear unit to read: keep the grid in its own units
         return None
     if factor == 1.0:
         return None
-    if not crs_obj.is_projected:  # the site grid in metres: its one UNIT (no PROJ form to change it in)
+    if wkt:  # the site grid in metres: its one UNIT (no PROJ form to change it in)
         block = _wkt_block(wkt, ("LENGTHUNIT", "UNIT"))
         try:
             metre_wkt = wkt.replace(block, 'UNIT["metre",1,AUTHORITY["EPSG","9001"]]', 1) if block else None
