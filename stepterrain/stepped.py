@@ -646,7 +646,13 @@ def blend(
         original[:] = host_copy(arrays.points)
         original[:, 0] += terrain.local_origin[0]
         original[:, 1] += terrain.local_origin[1]
-        values = _gamma_floats(gamma(original), "gamma(points)")
+        try:
+            result = gamma(original)
+        except Exception as exc:  # the caller's error, named as gamma's: it surfaced from deep inside stepped()
+            raise InvalidInputError(
+                f"gamma, a callable of the (V, 3) output vertex positions, raised {type(exc).__name__}: {exc}"
+            ) from exc
+        values = _gamma_floats(result, "gamma(points)")
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
     elif _gamma_ndim(gamma) == 0:
         scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
@@ -687,6 +693,9 @@ def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
         if isinstance(value, np.ndarray):  # real_numbers names its dtype or the bool, which its repr may not show
             raise
         raise InvalidInputError(f"{name} must be {expected}; got {value!r:.80}") from None
+    except Exception as exc:  # an object numpy cannot read (a GPU tensor's __array__ raises TypeError): name it
+        raise InvalidInputError(f"{name} must be {expected}; got a {type(value).__name__} that numpy cannot read "
+                                f"({type(exc).__name__}: {exc})") from exc
 
 
 def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], name: str) -> NDArray[np.float32]:
@@ -711,7 +720,7 @@ def _gamma_ndim(gamma: GammaLike) -> int:
     """0 for a scalar γ, the array's dimensions otherwise; a ragged sequence is an :class:`InvalidInputError`."""
     try:
         return int(np.ndim(gamma))
-    except ValueError:  # ragged nested sequences: _gamma_floats names them
+    except Exception:  # ragged nested sequences (ValueError), an unreadable object: _gamma_floats names them
         return _gamma_floats(gamma, "gamma").ndim
 
 
@@ -1006,7 +1015,7 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
     if not (math.isfinite(floor_z) and abs(floor_z) <= FLOAT32_MAX):
         return
     g: float | None = None
-    if np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens):
+    if not callable(gamma) and not isinstance(gamma, Lens) and _gamma_ndim(gamma) == 0:
         try:
             g = as_number(gamma)
         except (TypeError, ValueError, OverflowError):
@@ -1220,7 +1229,9 @@ def stepped_series(
         except InvalidInputError as exc:  # e.g. colors with a row per isovalue of another frame: name this frame
             if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
                 raise
-            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") from None
+            # the cause kept: a gamma callable's own exception
+            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") \
+                from exc.__cause__
         yield mesh
 
 

@@ -360,3 +360,38 @@ def test_the_early_floor_refusal_never_refuses_a_floor_the_solid_takes(heights, 
     assert refused or not early  # never a floor the solid takes
     if offset >= 0 and not isinstance(g, np.ndarray) and g in (0.0, 1.0):
         assert early  # γ 0 or 1: the lowest point is known exactly, so every such floor is refused before stepping
+
+
+class _Unreadable:
+    """An array-like numpy cannot read, as a GPU tensor (torch on CUDA, cupy): its ``__array__`` raises TypeError."""
+
+    def __array__(self, *args: object, **kwargs: object) -> None:
+        raise TypeError("implicit conversion to a NumPy array is not allowed")
+
+
+@pytest.mark.parametrize(
+    "gamma, cause",
+    [
+        (lambda points: 1 / 0, ZeroDivisionError),  # the callable raises
+        (lambda: 0.5, TypeError),  # a callable of the wrong signature
+        (lambda points: _Unreadable(), TypeError),  # its result cannot be read
+        (_Unreadable(), TypeError),  # γ itself cannot be read
+    ],
+    ids=["raises", "signature", "unreadable-result", "unreadable-gamma"],
+)
+@pytest.mark.parametrize("solid", [False, True])
+def test_a_gamma_that_fails_is_an_error_naming_gamma_with_its_cause(gamma, cause, solid):
+    """A γ callable that raised (or took no argument), or returned an object numpy cannot read (a GPU tensor), and such
+    an object as γ itself, escaped as a bare ZeroDivisionError / TypeError from deep inside stepped(), naming neither
+    gamma nor the argument. They are InvalidInputErrors naming gamma, with the original exception as the cause (its
+    type and message in the text); in a series of frames from an iterable the cause survives the frame's name."""
+    heights = np.random.default_rng(0).random((6, 7)) * 10
+    kwargs = {"solid": True, "floor": -5.0} if solid else {}
+    with pytest.raises(st.InvalidInputError, match=r"^gamma") as info:
+        st.stepped(heights, interval=2.0, gamma=gamma, device="cpu", **kwargs)
+    assert isinstance(info.value.__cause__, cause)
+    assert type(info.value.__cause__).__name__ in str(info.value)
+    assert str(info.value.__cause__) in str(info.value)
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[0\] .*: gamma") as info:
+        list(st.stepped_series(iter([heights, heights]), interval=2.0, gamma=gamma, device="cpu"))
+    assert isinstance(info.value.__cause__, cause)
