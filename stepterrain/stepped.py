@@ -646,7 +646,13 @@ def blend(
         original[:] = host_copy(arrays.points)
         original[:, 0] += terrain.local_origin[0]
         original[:, 1] += terrain.local_origin[1]
-        values = _gamma_floats(gamma(original), "gamma(points)")
+        try:
+            result = gamma(original)
+        except Exception as exc:  # the caller's error, named as gamma's: it surfaced from deep inside stepped()
+            raise InvalidInputError(
+                f"gamma, a callable of the (V, 3) output vertex positions, raised {type(exc).__name__}: {exc}"
+            ) from exc
+        values = _gamma_floats(result, "gamma(points)")
         gammas = wp.array(_check_gamma_values(values, (n,), "gamma(points)"), dtype=wp.float32, device=device)
     elif _gamma_ndim(gamma) == 0:
         scalar = float(_check_gamma_values(_gamma_floats(gamma, "gamma"), (), "gamma"))
@@ -687,6 +693,9 @@ def _gamma_floats(value: Any, name: str) -> NDArray[np.float64]:
         if isinstance(value, np.ndarray):  # real_numbers names its dtype or the bool, which its repr may not show
             raise
         raise InvalidInputError(f"{name} must be {expected}; got {value!r:.80}") from None
+    except Exception as exc:  # an object numpy cannot read (a GPU tensor's __array__ raises TypeError): name it
+        raise InvalidInputError(f"{name} must be {expected}; got a {type(value).__name__} that numpy cannot read "
+                                f"({type(exc).__name__}: {exc})") from exc
 
 
 def _check_gamma_values(values: NDArray[np.float64], shape: tuple[int, ...], name: str) -> NDArray[np.float32]:
@@ -711,7 +720,7 @@ def _gamma_ndim(gamma: GammaLike) -> int:
     """0 for a scalar γ, the array's dimensions otherwise; a ragged sequence is an :class:`InvalidInputError`."""
     try:
         return int(np.ndim(gamma))
-    except ValueError:  # ragged nested sequences: _gamma_floats names them
+    except Exception:  # ragged nested sequences (ValueError), an unreadable object: _gamma_floats names them
         return _gamma_floats(gamma, "gamma").ndim
 
 
@@ -872,7 +881,8 @@ def stepped(
     colors : str or (L, 3|4) array, optional
         Hypsometric vertex colors by level: a matplotlib colormap name (sampled evenly over its land colours:
         'terrain' without its sea-blue first quarter, see :data:`LAND_START`) or one color per isovalue. By default
-        the input's vertex colors or UVs (a TIN with a visual) are carried over.
+        the input's vertex colors or UVs (a TIN with a visual) are carried over; on a solid the skirt and base are
+        grey, or take the UVs of the surface above them.
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
@@ -941,7 +951,7 @@ def stepped(
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
     values = isovalues(t.height_range, interval=interval, levels=levels, base=base)
-    if t.visual is not None and colors is None and not solid:
+    if t.visual is not None and colors is None:
         _check_carried_visual(t)
     if solid and floor is not None:
         _refuse_floor_above_surface(t, values, gamma, floor)  # before stepping; close_solid has the final word
@@ -1006,7 +1016,7 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
     if not (math.isfinite(floor_z) and abs(floor_z) <= FLOAT32_MAX):
         return
     g: float | None = None
-    if np.ndim(gamma) == 0 and not callable(gamma) and not isinstance(gamma, Lens):
+    if not callable(gamma) and not isinstance(gamma, Lens) and _gamma_ndim(gamma) == 0:
         try:
             g = as_number(gamma)
         except (TypeError, ValueError, OverflowError):
@@ -1064,6 +1074,9 @@ def _assemble(
         vertex_levels = np.searchsorted(values, host_copy(arrays.step_heights))
         vertex_colors = np.take(table, vertex_levels, axis=0, mode="clip",
                                 out=recycled_empty((len(vertex_levels), table.shape[1]), np.uint8))
+    carried = None  # the input's vertex colours or UVs on the output vertices
+    if vertex_colors is None and t.visual is not None and arrays.sources is not None:
+        carried = _carry_visual(t, arrays)
     if solid:
         from .mesh import close_solid
 
@@ -1090,6 +1103,8 @@ def _assemble(
         if vertex_colors is not None:  # a surface vertex (or its copy at a pinch) keeps its colour; the base is grey
             skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - len(source), 1))
             vertex_colors = np.concatenate([vertex_colors[source], skirt])
+        if carried is not None:
+            carried = _solid_visual(carried, vertices, source)
         metadata["floor"] = floor_z
     elif floor is not None:
         raise InvalidInputError("floor applies only with solid=True")
@@ -1102,11 +1117,27 @@ def _assemble(
     )
     if vertex_colors is not None:
         mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=vertex_colors)
-    elif t.visual is not None and not solid and arrays.sources is not None:
-        carried = _carry_visual(t, arrays)
-        if carried is not None:
-            mesh.visual = carried
+    elif carried is not None:
+        mesh.visual = carried
     return mesh
+
+
+def _solid_visual(carried: Any, vertices: NDArray[np.float64], source: NDArray[np.int64]) -> Any:
+    """The carried visual of a surface on its solid (:func:`~stepterrain.mesh.close_solid`'s ``vertices``, the
+    surface's first, and ``source``, the surface vertex each of those is or copies): vertex colours with a grey skirt
+    and base, as ``colors=`` gives them; UVs with each skirt and base vertex taking those of a surface vertex on its
+    xy (the texture runs straight down the skirt)."""
+    n = len(source)
+    if isinstance(carried, trimesh.visual.ColorVisuals):
+        skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - n, 1))
+        return trimesh.visual.ColorVisuals(vertex_colors=np.concatenate([carried.vertex_colors[source], skirt]))
+    from .mesh import exact_keys
+
+    uv = carried.uv[source]
+    keys = exact_keys(vertices[:, :2])
+    above = np.empty(int(keys.max()) + 1, np.int64)
+    above[keys[:n]] = np.arange(n)  # a surface vertex per xy (every base vertex lies under one)
+    return trimesh.visual.TextureVisuals(uv=np.concatenate([uv, uv[above[keys[n:]]]]), material=carried.material)
 
 
 def stepped_series(
@@ -1220,7 +1251,9 @@ def stepped_series(
         except InvalidInputError as exc:  # e.g. colors with a row per isovalue of another frame: name this frame
             if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
                 raise
-            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") from None
+            # the cause kept: a gamma callable's own exception
+            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") \
+                from exc.__cause__
         yield mesh
 
 

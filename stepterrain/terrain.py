@@ -829,6 +829,11 @@ def as_terrain(
         if spacing is not None or origin is not None:
             raise InvalidInputError("spacing/origin apply to raw (H, W) arrays only, not to a trimesh TIN")
         return Terrain.from_mesh(terrain)
+    if isinstance(terrain, (trimesh.Scene, trimesh.parent.Geometry)):  # numpy made a 0-d object array of it
+        hint = (" (trimesh.load gives one for a glTF/GLB; load it with trimesh.load(path, force='mesh') or join its "
+                "meshes with scene.to_mesh())" if isinstance(terrain, trimesh.Scene) else "")
+        raise InvalidInputError(f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh TIN; got a "
+                                f"{type(terrain).__module__}.{type(terrain).__name__}{hint}")
     if isinstance(terrain, (str, bytes)) or hasattr(terrain, "__fspath__"):
         raise InvalidInputError(
             f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh; got a path {terrain!r} "

@@ -1382,15 +1382,17 @@ def test_input_uvs_are_carried():
 
 def test_input_uvs_not_one_per_vertex_are_refused_before_stepping():
     """A TIN whose visual.uv has fewer rows than vertices (trimesh keeps it) raised an IndexError from
-    _carry_visual after the kernels ran; now an InvalidInputError names visual.uv. With colors= the input's
-    visual is not carried, so the mesh steps."""
+    _carry_visual after the kernels ran; now an InvalidInputError names visual.uv, for a solid too (it carries the
+    visual as well). With colors= the input's visual is not carried, so the mesh steps."""
     base = st.heightfield_mesh(np.array([[0.0, 1.0], [2.0, 3.0]]))
     base.visual = trimesh.visual.TextureVisuals(uv=np.zeros((2, 2)))
     with pytest.raises(st.InvalidInputError, match=r"^terrain mesh visual.uv must hold one \(u, v\) row per vertex, "
                        r"shape \(4, 2\), to be carried onto the steps; got shape \(2, 2\)"):
         st.stepped(base, interval=1.0)
+    with pytest.raises(st.InvalidInputError, match=r"^terrain mesh visual.uv must hold one \(u, v\) row per vertex"):
+        st.stepped(base, interval=1.0, solid=True)
     assert len(st.stepped(base, interval=1.0, colors="terrain").faces)
-    assert len(st.stepped(base, interval=1.0, solid=True).faces)
+    assert len(st.stepped(base, interval=1.0, colors="terrain", solid=True).faces)
 
 
 @pytest.mark.parametrize(("threads", "chunk"), [(2, 64), (3, 64), (3, 1), (2, 8)])

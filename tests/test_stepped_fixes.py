@@ -360,3 +360,73 @@ def test_the_early_floor_refusal_never_refuses_a_floor_the_solid_takes(heights, 
     assert refused or not early  # never a floor the solid takes
     if offset >= 0 and not isinstance(g, np.ndarray) and g in (0.0, 1.0):
         assert early  # γ 0 or 1: the lowest point is known exactly, so every such floor is refused before stepping
+
+
+class _Unreadable:
+    """An array-like numpy cannot read, as a GPU tensor (torch on CUDA, cupy): its ``__array__`` raises TypeError."""
+
+    def __array__(self, *args: object, **kwargs: object) -> None:
+        raise TypeError("implicit conversion to a NumPy array is not allowed")
+
+
+@pytest.mark.parametrize(
+    "gamma, cause",
+    [
+        (lambda points: 1 / 0, ZeroDivisionError),  # the callable raises
+        (lambda: 0.5, TypeError),  # a callable of the wrong signature
+        (lambda points: _Unreadable(), TypeError),  # its result cannot be read
+        (_Unreadable(), TypeError),  # γ itself cannot be read
+    ],
+    ids=["raises", "signature", "unreadable-result", "unreadable-gamma"],
+)
+@pytest.mark.parametrize("solid", [False, True])
+def test_a_gamma_that_fails_is_an_error_naming_gamma_with_its_cause(gamma, cause, solid):
+    """A γ callable that raised (or took no argument), or returned an object numpy cannot read (a GPU tensor), and such
+    an object as γ itself, escaped as a bare ZeroDivisionError / TypeError from deep inside stepped(), naming neither
+    gamma nor the argument. They are InvalidInputErrors naming gamma, with the original exception as the cause (its
+    type and message in the text); in a series of frames from an iterable the cause survives the frame's name."""
+    heights = np.random.default_rng(0).random((6, 7)) * 10
+    kwargs = {"solid": True, "floor": -5.0} if solid else {}
+    with pytest.raises(st.InvalidInputError, match=r"^gamma") as info:
+        st.stepped(heights, interval=2.0, gamma=gamma, device="cpu", **kwargs)
+    assert isinstance(info.value.__cause__, cause)
+    assert type(info.value.__cause__).__name__ in str(info.value)
+    assert str(info.value.__cause__) in str(info.value)
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[0\] .*: gamma") as info:
+        list(st.stepped_series(iter([heights, heights]), interval=2.0, gamma=gamma, device="cpu"))
+    assert isinstance(info.value.__cause__, cause)
+
+
+@pytest.mark.parametrize("kind", ["colors", "uv"])
+def test_a_solid_keeps_the_colours_or_uvs_carried_from_its_tin(kind):
+    """stepped(tin, solid=True) of a TIN with vertex colours or UVs returned a solid without any visual: the carried
+    visual was built for surfaces only and dropped without a word (colors= kept its colours on solids). A solid now
+    carries them too: the surface's vertices as on the surface, the skirt and base grey (as with colors=) or, for
+    UVs, those of the surface above. Colours and UVs affine in xy must come out affine in xy on every vertex."""
+    rng = np.random.default_rng(4)
+    heights = rng.normal(size=(8, 11)).cumsum(0).cumsum(1) * 3 + 0.1
+    heights[3, 4] = np.nan  # a hole: an inner skirt
+    tin = st.heightfield_mesh(heights, spacing=(1.5, 2.0), origin=(5.0, 7.0))
+    lo, span = tin.vertices[:, :2].min(axis=0), np.ptp(tin.vertices[:, :2], axis=0)
+    ramp = (tin.vertices[:, :2] - lo) / span  # (r, s) in [0, 1], affine in xy
+    if kind == "colors":
+        rgba = np.column_stack([ramp * 255, 255 - ramp[:, 0] * 255, np.full(len(ramp), 255)])
+        tin.visual = trimesh.visual.ColorVisuals(tin, vertex_colors=np.round(rgba).astype(np.uint8))
+    else:
+        tin.visual = trimesh.visual.TextureVisuals(uv=ramp)
+    surface = st.stepped(tin, interval=2.0, gamma=0.6, device="cpu")
+    solid = st.stepped(tin, interval=2.0, gamma=0.6, solid=True, device="cpu")
+    assert solid.is_watertight
+    assert type(solid.visual) is type(surface.visual)
+    expected = (solid.vertices[:, :2] - lo) / span
+    if kind == "uv":
+        assert solid.visual.uv.shape == (len(solid.vertices), 2)
+        np.testing.assert_allclose(solid.visual.uv, expected, atol=1e-6)  # the base's too: the surface above
+    else:
+        colours = solid.visual.vertex_colors.astype(float)
+        grey = (colours[:, :3] == 96).all(axis=1)
+        below = solid.vertices[:, 2] == solid.metadata["floor"]
+        assert grey[below].all()  # the base is grey
+        ours = ~grey
+        assert ours.sum() >= len(surface.vertices)  # every surface vertex keeps its colour (a pinch's copies too)
+        np.testing.assert_allclose(colours[ours, :2], expected[ours] * 255, atol=1.0)

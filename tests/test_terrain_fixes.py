@@ -179,3 +179,20 @@ def test_an_origin_too_far_for_float64_to_keep_the_nodes_apart_is_refused(make, 
         calls[make]()
     near = st.stepped(heights, interval=2.0, spacing=(0.01, -0.01), origin=(4.5e6, 5e5))
     assert near.area_faces.min() > 0
+
+
+def test_a_trimesh_scene_or_point_cloud_as_terrain_is_named_with_a_hint():
+    """trimesh.load of a GLB (stepterrain's own output too) gives a trimesh.Scene, not a Trimesh; stepped() and
+    circular_lens took it for a raw array and said "heights must be a real-valued (H, W) array; got dtype object",
+    naming neither the Scene nor the way out. Such trimesh objects (a Scene, a PointCloud) are now refused by type,
+    a Scene with how to get its mesh; the mesh it gives steps as a TIN."""
+    tin = st.heightfield_mesh(_H)
+    scene = trimesh.load(trimesh.util.wrap_as_stream(tin.export(file_type="glb")), file_type="glb")
+    assert isinstance(scene, trimesh.Scene)
+    for call in (lambda: st.stepped(scene, interval=2.0), lambda: st.circular_lens(scene, (1.0, 1.0), 1.0)):
+        with pytest.raises(InvalidInputError, match=r"^terrain must be .*; got a trimesh\..*Scene .*force='mesh'"):
+            call()
+    with pytest.raises(InvalidInputError, match=r"^terrain must be .*; got a trimesh\..*PointCloud$"):
+        st.stepped(trimesh.PointCloud(tin.vertices), interval=2.0)
+    mesh = trimesh.load(trimesh.util.wrap_as_stream(tin.export(file_type="glb")), file_type="glb", force="mesh")
+    assert st.stepped(mesh, interval=2.0).area == pytest.approx(st.stepped(_H, interval=2.0).area, rel=1e-6)
