@@ -79,6 +79,21 @@ _FACE_BYTES = 24 + 4 + 1
 _COLOR_BYTES = 4 + 8
 
 
+def _let_trimesh_write_bool_ply() -> None:
+    """Let ``mesh.export("x.ply")`` (trimesh's own writer) write a stepped mesh.
+
+    trimesh's PLY writer names each attribute's PLY type from a table of numpy dtypes that has no bool, so a
+    stepped mesh, whose ``face_attributes["wall"]`` is a bool mask, raised ``KeyError: 'b1'`` there. A numpy bool
+    is one byte, 0 or 1: PLY's ``uchar``, which the writer then packs byte for byte. ``setdefault`` leaves a
+    trimesh that knows bools alone, and a trimesh without the table (another layout) is left as it is."""
+    table = getattr(getattr(getattr(trimesh, "exchange", None), "ply", None), "_inverse_dtypes", None)
+    if isinstance(table, dict):
+        table.setdefault("b1", "uchar")
+
+
+_let_trimesh_write_bool_ply()
+
+
 @dataclass(frozen=True)
 class Lens:
     """A γ mask over the terrain's xy extent (paper 000 §4, Fig. 4).

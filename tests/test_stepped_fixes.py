@@ -430,3 +430,20 @@ def test_a_solid_keeps_the_colours_or_uvs_carried_from_its_tin(kind):
         ours = ~grey
         assert ours.sum() >= len(surface.vertices)  # every surface vertex keeps its colour (a pinch's copies too)
         np.testing.assert_allclose(colours[ours, :2], expected[ours] * 255, atol=1.0)
+
+
+def test_trimesh_own_ply_writer_writes_a_stepped_mesh(tmp_path):
+    """trimesh's PLY writer had no PLY type for the bool ``wall`` mask: ``mesh.export("x.ply")`` raised KeyError 'b1'.
+    The file (binary, trimesh's default) now holds the wall mask as uchar 0/1 and the level per face, next to the
+    same faces. (trimesh's ASCII PLY formatter has no bool either; stepterrain.export.save_mesh writes both.)"""
+    dem = st.sample_dem()
+    mesh = st.stepped(dem.heights[:40, :50], interval=50.0, spacing=(30.0, 30.0), colors="terrain")
+    assert mesh.face_attributes["wall"].dtype == np.bool_ and mesh.face_attributes["wall"].any()
+    path = tmp_path / "steps.ply"
+    mesh.export(path)
+    back = trimesh.load(path, process=False)
+    faces = back.metadata["_ply_raw"]["face"]["data"]
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+    np.testing.assert_array_equal(np.asarray(faces["wall"]).reshape(-1), mesh.face_attributes["wall"].astype(np.uint8))
+    np.testing.assert_array_equal(np.asarray(faces["level"]).reshape(-1), mesh.face_attributes["level"])
+    assert b"property uchar wall" in path.read_bytes()[:1000]
