@@ -54,7 +54,7 @@ examples:
 _INFO_EPILOG = """\
 examples:
   stepterrain info
-      the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range, nodata
+      the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range and unit, nodata count and fraction
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
       a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
@@ -554,8 +554,12 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     else:
         width = max(len(k) for k in summary)
         for key, value in summary.items():
-            print(f"{key:<{width}}  {_fmt(value)}")
+            print(f"{key:<{width}}  {_NONE_TEXT.get(key, 'None') if value is None else _fmt(value)}")
     return 0
+
+
+#: What the text output of ``info`` says for a None that is not simply "unknown" (JSON keeps null).
+_NONE_TEXT = {"height_unit": "as stored (no unit named: pass --height-unit to convert)"}
 
 
 def _fmt(value: Any) -> str:

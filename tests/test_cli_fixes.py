@@ -631,3 +631,34 @@ def test_texture_of_a_dem_with_nodata_marks_the_holes_transparent(tmp_path, caps
                 mask = np.asarray(picture)[..., 3]
         # spacing (1, -1): row 0 is north, so pixel (i, j) is node (i, j)
         np.testing.assert_array_equal(mask == 0, np.isnan(heights))
+
+
+def test_info_reports_a_dems_nodata_fraction_and_height_unit(tmp_path, capsys):
+    """info gave a DEM's nodata count but not its share of the grid, and not the unit of its heights: a file in feet
+    (converted to metres by load_dem) and a plain array (heights as stored, unit unknown) read the same."""
+    import json
+
+    heights = np.arange(20.0).reshape(4, 5)
+    heights[0, :3] = np.nan
+    np.savez(tmp_path / "feet.npz", elevation=heights, units="ft")
+    np.save(tmp_path / "plain.npy", heights)
+    code, out, err = run(capsys, "info", tmp_path / "feet.npz", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["nodata_count"] == 3 and summary["nodata_fraction"] == pytest.approx(3 / 20)
+    assert summary["height_unit"] == "m" and summary["height_unit_read"] == "ft"
+    assert summary["height_range"] == pytest.approx([3 * 0.3048, 19 * 0.3048], rel=1e-6)
+    code, out, err = run(capsys, "info", tmp_path / "plain.npy", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["height_unit"] is None and summary["height_unit_read"] is None
+    code, out, err = run(capsys, "info", tmp_path / "plain.npy", "--height-unit", "cm", "--json")
+    summary = json.loads(out)
+    assert summary["height_unit_read"] == "cm" and summary["height_range"] == pytest.approx([0.03, 0.19])
+    code, out, err = run(capsys, "info", tmp_path / "plain.npy")  # text: the same keys, a None unit said in words
+    assert code == 0, err
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["nodata_fraction"] == "0.15" and lines["height_unit"].startswith("as stored")
+    code, out, err = run(capsys, "info")  # the embedded DEM names metres
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["height_unit"] == "m" and lines["nodata_fraction"] == "0"
