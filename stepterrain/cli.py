@@ -543,6 +543,9 @@ def _size(path: Path | str) -> str:
 # ------------------------------------------------------------------------------------------ info
 def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     if args.file and Path(args.file).suffix.lower() in MESH_EXTENSIONS:
+        if args.height_unit is not None:  # it was ignored without a word: a mesh's z is not converted
+            raise InvalidInputError(f"--height-unit applies to a DEM; {args.file!r} is a mesh file, described as "
+                                    f"stored; got --height-unit {args.height_unit!r}")
         summary = _mesh_summary(Path(args.file))
     else:
         from .io import describe_dem

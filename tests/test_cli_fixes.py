@@ -662,3 +662,17 @@ def test_info_reports_a_dems_nodata_fraction_and_height_unit(tmp_path, capsys):
     code, out, err = run(capsys, "info")  # the embedded DEM names metres
     lines = dict(line.split(None, 1) for line in out.splitlines())
     assert lines["height_unit"] == "m" and lines["nodata_fraction"] == "0"
+
+
+def test_info_refuses_a_height_unit_for_a_mesh(tmp_path, capsys):
+    """info's --height-unit is "not for a mesh" (its help), but given with a mesh file it was ignored without a word:
+    the bounds came out as stored while the user asked for feet to be read as such."""
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    save_mesh(trimesh.creation.box(), tmp_path / "box.glb")
+    code, out, err = run(capsys, "info", tmp_path / "box.glb", "--height-unit", "ft")
+    assert code == 2 and out == ""
+    assert "--height-unit applies to a DEM" in err and "box.glb" in err
+    assert run(capsys, "info", tmp_path / "box.glb")[0] == 0
