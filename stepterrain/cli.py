@@ -481,6 +481,16 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
+        if args.gamma > 0.0 and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
+            crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
+            if math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax)) >= radius:
+                why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
+                       f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
+            else:
+                why = (f"is finer than the lens mask's {gamma.mask.shape[1]} x {gamma.mask.shape[0]} samples over "
+                       "the extent: give a larger radius")
+            warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing: it {why}",
+                          stacklevel=1)
 
     # kernels: compile (first run on this machine) or load from Warp's cache
     from ._device import resolve_device

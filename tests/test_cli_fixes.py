@@ -676,3 +676,27 @@ def test_info_refuses_a_height_unit_for_a_mesh(tmp_path, capsys):
     assert code == 2 and out == ""
     assert "--height-unit applies to a DEM" in err and "box.glb" in err
     assert run(capsys, "info", tmp_path / "box.glb")[0] == 0
+
+
+@pytest.mark.parametrize("lens, why", [
+    (("--lens", "-118.2,34.3,5"), "lies outside the terrain's extent"),  # degrees given for a grid in metres
+    (("--lens-relative", "2,2,0.1"), "lies outside the terrain's extent"),
+    (("--lens", "30.05,-20.05,0.01"), "is finer than the lens mask's 512 x 512 samples"),
+])
+def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
+    """A lens given where the terrain is not (longitude and latitude for a UTM grid, a fraction past 1), or finer than
+    the lens mask's samples, left every node's γ at --gamma: the mesh came out fully stepped, exit 0, while the
+    progress line said "original terrain inside"."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", *lens, "--interval", "50", "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    assert len(said) == 1 and "changes nothing" in said[0] and why in said[0], err
+    plain = tmp_path / "plain.ply"
+    assert run(capsys, "steps", tmp_path / "ramp.npy", "--interval", "50", "-o", plain)[0] == 0
+    assert np.array_equal(trimesh.load(tmp_path / "a.ply").vertices, trimesh.load(plain).vertices)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", "--lens-relative", "0.5,0.5,0.2", "--interval", "50",
+                         "-o", tmp_path / "b.ply")
+    assert code == 0 and "warning" not in err  # a lens on the terrain is not warned about
