@@ -572,7 +572,7 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
 
 
 #: What the text output of ``info`` says for a None that is not simply "unknown" (JSON keeps null).
-_NONE_TEXT = {"height_unit": "as stored (no unit named: pass --height-unit to convert)"}
+_NONE_TEXT = {"height_unit": "as stored (no unit named; --height-unit names one)"}
 
 
 def _fmt(value: Any) -> str:
