@@ -54,7 +54,7 @@ examples:
 _INFO_EPILOG = """\
 examples:
   stepterrain info
-      the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range, nodata
+      the embedded Big Tujunga DEM: size, spacing, extent, CRS, height range and unit, nodata count and fraction
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
       a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
@@ -481,6 +481,16 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
+        if args.gamma > 0.0 and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
+            crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
+            if math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax)) >= radius:
+                why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
+                       f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
+            else:
+                why = (f"is finer than the lens mask's {gamma.mask.shape[1]} x {gamma.mask.shape[0]} samples over "
+                       "the extent: give a larger radius")
+            warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing: it {why}",
+                          stacklevel=1)
 
     # kernels: compile (first run on this machine) or load from Warp's cache
     from ._device import resolve_device
@@ -543,6 +553,9 @@ def _size(path: Path | str) -> str:
 # ------------------------------------------------------------------------------------------ info
 def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     if args.file and Path(args.file).suffix.lower() in MESH_EXTENSIONS:
+        if args.height_unit is not None:  # it was ignored without a word: a mesh's z is not converted
+            raise InvalidInputError(f"--height-unit applies to a DEM; {args.file!r} is a mesh file, described as "
+                                    f"stored; got --height-unit {args.height_unit!r}")
         summary = _mesh_summary(Path(args.file))
     else:
         from .io import describe_dem
@@ -554,8 +567,12 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
     else:
         width = max(len(k) for k in summary)
         for key, value in summary.items():
-            print(f"{key:<{width}}  {_fmt(value)}")
+            print(f"{key:<{width}}  {_NONE_TEXT.get(key, 'None') if value is None else _fmt(value)}")
     return 0
+
+
+#: What the text output of ``info`` says for a None that is not simply "unknown" (JSON keeps null).
+_NONE_TEXT = {"height_unit": "as stored (no unit named; --height-unit names one)"}
 
 
 def _fmt(value: Any) -> str:

@@ -252,7 +252,10 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
     dict
         ``kind`` ("grid" or "tin"), ``shape``, ``spacing`` (dx, dy) and ``origin`` (x0, y0) (None for a
         TIN), ``extent`` (xmin, xmax, ymin, ymax), ``height_range`` (min, max) of the finite heights
-        (None when all are nodata), ``nodata_count``, ``crs`` and ``source`` (None when unknown); for a
+        (None when all are nodata), ``nodata_count`` and ``nodata_fraction`` (its share of the heights, 0 to 1),
+        ``height_unit`` ("m" when the heights were read in a named length unit and are metres now, None when no
+        unit was named: as stored) and ``height_unit_read`` (that unit as named, e.g. "ft"; see
+        :attr:`Terrain.height_unit <stepterrain.terrain.Terrain>`), ``crs`` and ``source`` (None when unknown); for a
         geographic grid (read from degrees into local metres: ``crs`` an equidistant cylindrical projection on a
         sphere, as :func:`load_dem` writes it) also ``lonlat_extent`` (lon_min, lon_max, lat_min, lat_max) of
         the nodes and ``lonlat_step`` (dlon, dlat), in degrees, signed as ``spacing`` is (None otherwise).
@@ -263,8 +266,8 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
     >>> import numpy as np, stepterrain as st
     >>> from stepterrain.io import describe_dem
     >>> info = describe_dem(st.Terrain.from_heights([[0.0, np.nan], [2.0, 3.0]], spacing=(10.0, -10.0)))
-    >>> info["shape"], info["extent"], info["height_range"], info["nodata_count"]
-    ((2, 2), (0.0, 10.0, -10.0, 0.0), (0.0, 3.0), 1)
+    >>> info["shape"], info["extent"], info["height_range"], info["nodata_count"], info["nodata_fraction"]
+    ((2, 2), (0.0, 10.0, -10.0, 0.0), (0.0, 3.0), 1, 0.25)
     """
     t = as_terrain(terrain)
     finite = np.isfinite(t.heights)
@@ -273,6 +276,7 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
         height_range = (float(t.heights[finite].min()), float(t.heights[finite].max()))
     grid = t.kind == "grid"
     lonlat = _lonlat_grid(t) if grid else None
+    nodata = int(finite.size - np.count_nonzero(finite))
     return {
         "kind": t.kind,
         "shape": tuple(int(n) for n in t.shape),
@@ -280,7 +284,10 @@ def describe_dem(terrain: Terrain) -> dict[str, Any]:
         "origin": tuple(float(v) for v in t.origin) if grid else None,
         "extent": tuple(float(v) for v in t.extent),
         "height_range": height_range,
-        "nodata_count": int(finite.size - np.count_nonzero(finite)),
+        "nodata_count": nodata,
+        "nodata_fraction": nodata / finite.size if finite.size else 0.0,
+        "height_unit": "m" if t.height_unit else None,
+        "height_unit_read": t.height_unit,
         "crs": t.crs,
         "source": t.source,
         "lonlat_extent": lonlat[0] if lonlat else None,
@@ -314,8 +321,8 @@ def _lonlat_grid(
 
 # ---------------------------------------------------------------------------------------------- readers
 def _load_npy(file: Path, height_unit: str | None) -> Terrain:
-    heights, _ = _heights_in_metres(_elevation(read_npy(file), file, "array"), height_unit, file, "height_unit")
-    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+    heights, unit = _heights_in_metres(_elevation(read_npy(file), file, "array"), height_unit, file, "height_unit")
+    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
 
 
 def read_npy(file: Path, mmap_mode: Literal["r"] | None = None) -> NDArray[Any]:
@@ -366,8 +373,8 @@ def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
 def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     arrays = read_npz(file)
     if isinstance(arrays, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array
-        heights, _ = _heights_in_metres(_elevation(arrays, file, "array"), height_unit, file, "height_unit")
-        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+        heights, unit = _heights_in_metres(_elevation(arrays, file, "array"), height_unit, file, "height_unit")
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
     nodata = npz_nodata(arrays.get("nodata"), file)
     two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
     # the same key with a transform (which georeferences it) and without
@@ -429,11 +436,11 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         )
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
-        heights, _ = _heights_in_metres(
+        heights, unit = _heights_in_metres(
             _elevation(arrays[key], file, repr(key), nodata), height_unit or _npz_text(arrays, "units", file), file,
             named_by,
         )
-        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
     described = ", ".join(f"{k} {v.shape}" for k, v in arrays.items()) or "no arrays"
     raise DataFileError(
         f"cannot read {str(file)!r}: expected an .npz with a key {'/'.join(_GENERIC_KEYS)} (georeferenced by a "
@@ -547,8 +554,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
     if mode == "LA":  # grey + alpha: a transparent cell (alpha 0) is missing, as GDAL reads alpha as the mask
         array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
     heights = _elevation(array, file, f"{mode} image", nodata)
-    heights, _ = _heights_in_metres(heights, height_unit, file, "height_unit")
-    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+    heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
+    return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
@@ -644,7 +651,7 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                 "unreferenced grid, spacing (1, -1) and origin (0, 0)",
                 stacklevel=caller_stacklevel(),
             )
-        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
+        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=height_unit)
     geotransform = np.array(transform.to_gdal(), dtype=np.float64)
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)
     return _georeferenced(
@@ -838,10 +845,11 @@ def _grid(
     origin: tuple[float, float],
     crs: str | None,
     source: str | None = None,
+    height_unit: str | None = None,
 ) -> Terrain:
     try:
         return Terrain.from_heights(
-            heights, spacing=spacing, origin=origin, crs=crs, source=source or file.name
+            heights, spacing=spacing, origin=origin, crs=crs, source=source or file.name, height_unit=height_unit
         )
     except InvalidInputError as exc:
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
@@ -873,7 +881,7 @@ def _georeferenced(
         projected = _projected_units(crs)
         node_xs, node_ys = (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(heights.shape[0]) * dy
         if projected is None:
-            terrain = _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs)
+            terrain = _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs, height_unit=height_unit)
             _check_mercator_metres(file, crs, node_xs, node_ys, (dx, dy), 1.0)
             return terrain
         unit, factor, metre_crs = projected
@@ -887,7 +895,7 @@ def _georeferenced(
         source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
         terrain = _grid(
             file, heights, spacing=(dx * factor, dy * factor), origin=(node_x * factor, node_y * factor),
-            crs=metre_crs, source=source,
+            crs=metre_crs, source=source, height_unit=height_unit,
         )
         _check_mercator_metres(file, crs, node_xs, node_ys, (dx, dy), factor)
         return terrain
@@ -940,7 +948,9 @@ def _georeferenced(
         f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
         f"lat {node_y:.9f}; {how})"
     )
-    return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
+    return _grid(
+        file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source, height_unit=height_unit
+    )
 
 
 def _wgs84_metres_per_degree(

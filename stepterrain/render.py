@@ -253,13 +253,15 @@ def _lights(pv: Any, bounds: NDArray[np.float64], fill: tuple[float, float]) -> 
 
 
 def _colors_rgb(mesh: trimesh.Trimesh, kind: Literal["vertex", "face"]) -> NDArray[np.uint8] | None:
-    """The mesh's colours (N, 3) uint8 when its visual holds one per ``kind`` ("vertex": a stepped terrain's; "face":
-    a PLY or 3MF read back), else None."""
+    """The mesh's colours, (N, 3) uint8, or (N, 4) when some alpha is below 255, when its visual holds one per
+    ``kind`` ("vertex": a stepped terrain's; "face": a PLY or 3MF read back), else None. The alpha was dropped: a
+    mesh coloured semi-transparent (as its GLB shows it, alphaMode BLEND) rendered opaque."""
     visual = mesh.visual
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == kind:
         colors = np.asarray(visual.vertex_colors if kind == "vertex" else visual.face_colors)
         if colors.shape == (len(mesh.vertices if kind == "vertex" else mesh.faces), 4):
-            return np.ascontiguousarray(colors[:, :3], dtype=np.uint8)
+            translucent = len(colors) and int(colors[:, 3].min()) < 255
+            return np.ascontiguousarray(colors if translucent else colors[:, :3], dtype=np.uint8)
     return None
 
 
@@ -282,7 +284,8 @@ def render_mesh(
     ----------
     mesh : trimesh.Trimesh
         Any triangle mesh; it renders with its vertex colors (a stepped terrain's), or else its face colors, when it
-        has them.
+        has them, their alpha included: colours with some alpha below 255 blend with what lies behind them (in depth
+        order, by depth peeling), as the mesh's GLB shows them.
     window_size : (width, height)
         Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
@@ -321,8 +324,9 @@ def render_mesh(
     InvalidInputError
         Bad window size, z_scale, camera, scalars or cmap, an empty mesh, or an infinite vertex (NaN ones are left out).
     OutputTooLargeError
-        The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``) exceed the memory
-        budget (:func:`stepterrain.set_memory_budget`), checked before rendering.
+        The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 104 with it and
+        translucent colours, which take SSAA) exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked
+        before rendering.
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -381,9 +385,12 @@ def render_mesh(
 
     mesh_kwargs = dict(smooth_shading=False, show_edges=show_edges, ambient=_AMBIENT, diffuse=_DIFFUSE,
                        specular=0.0, lighting=True, **add_kwargs)
+    translucent = any(colors is not None and colors.shape[1] == 4 for colors in (rgb, face_rgb))
+    if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
+        _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
     return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
-                  lighting=True)
+                  lighting=True, translucent=translucent)
 
 
 #: The largest half-extent of a framed box (z scaled): the camera fit squares distances, which overflow float64
@@ -572,31 +579,39 @@ def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, in
 #: Rounded up; a 16384 x 16384 render thus needs 12 GiB (20 GiB with MSAA).
 _RENDER_BYTES_PER_PIXEL = 48
 _MSAA_BYTES_PER_PIXEL = 32
+#: What anti-aliasing adds for translucent colours, which take SSAA (the scene drawn larger, then filtered down) in
+#: place of MSAA: ~102 bytes per pixel in all, measured as above.
+_SSAA_BYTES_PER_PIXEL = 56
 _LAYERED_BYTES_PER_PIXEL = 64
 
 
-def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False) -> int:
-    """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL)."""
+def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False,
+                  ssaa: bool = False) -> int:
+    """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL);
+    ``ssaa``: its anti-aliasing is SSAA (translucent colours), not MSAA."""
     per_pixel = _LAYERED_BYTES_PER_PIXEL if layered else _RENDER_BYTES_PER_PIXEL
-    return int(width) * int(height) * (per_pixel + (_MSAA_BYTES_PER_PIXEL if anti_aliasing else 0))
+    extra = (_SSAA_BYTES_PER_PIXEL if ssaa else _MSAA_BYTES_PER_PIXEL) if anti_aliasing else 0
+    return int(width) * int(height) * (per_pixel + extra)
 
 
 def _check_render_budget(width: int, height: int, name: str = "window_size", *, anti_aliasing: bool = False,
-                         layered: bool = False) -> None:
+                         layered: bool = False, ssaa: bool = False) -> None:
     """An :class:`OutputTooLargeError` naming the size and ``name`` (the argument or CLI option giving it) when the
     render's framebuffers and images (:func:`_render_bytes`) exceed the memory budget; called before any render
     starts (and, in the CLI, before the DEM is read)."""
     what = f"an off-screen render of {width} x {height} pixels ({name} {width}x{height}" \
            + (", anti-aliased)" if anti_aliasing else ")")
-    check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered), what,
+    check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa), what,
                  hint=f"give a smaller {name}" + (" or turn anti_aliasing off" if anti_aliasing else ""))
 
 
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64],
            finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
-           size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool) -> NDArray[np.uint8]:
+           size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool,
+           translucent: bool = False) -> NDArray[np.uint8]:
     """One off-screen render of ``poly``: the fitted camera, the key and fill lights, a clipping range that
-    holds the whole mesh; returns the (H, W, 3) image."""
+    holds the whole mesh; returns the (H, W, 3) image. ``translucent``: its colours have alpha, blended in depth
+    order by depth peeling (without it the surface behind showed over the one in front)."""
     width, height = size
     plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
     try:
@@ -605,11 +620,13 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
                 "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
                 "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
             )
-        if anti_aliasing:
-            plotter.enable_anti_aliasing("msaa")
+        if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
+            plotter.enable_anti_aliasing("ssaa" if translucent else "msaa")
         else:
             plotter.disable_anti_aliasing()
         plotter.set_background(background)
+        if translucent:
+            plotter.enable_depth_peeling()
         framed = _box_corners(box) if framed_by_bounds else _frame_points(local, finite)
         position = _camera_position(camera, framed, width / height)
         look_from = np.subtract(position[0], position[1])

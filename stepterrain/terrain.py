@@ -416,7 +416,9 @@ class Terrain:
     without points (N, 3) and faces (F, 3), whose edge tables are then rebuilt and whose ``heights`` must be None or
     its points' z) and takes a float32 copy of the arrays given, so that the caller's later changes to them cannot
     reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh` copy once
-    while checking.
+    while checking. ``height_unit`` is the length unit a grid's heights were read in, as its source named it
+    (:func:`~stepterrain.io.load_dem`: ``height_unit=`` or the file's own; "ft", "m"), the heights being metres
+    since; None when no unit was named: the heights are as stored.
     """
 
     kind: Literal["grid", "tin"]
@@ -431,6 +433,7 @@ class Terrain:
     crs: str | None = None
     source: str | None = None
     visual: Any = None
+    height_unit: str | None = None
     _device_cache: dict = field(default_factory=dict, repr=False, compare=False)
     _owned: InitVar[bool] = False  # the constructors' own arrays (or a borrow within one call): no copy
 
@@ -463,6 +466,8 @@ class Terrain:
             raise InvalidInputError(f"kind must be 'grid' or 'tin'; got {self.kind!r}")
         set_field(self, "crs", optional_text(self.crs, "crs", "e.g. 'EPSG:32611'"))
         set_field(self, "source", optional_text(self.source, "source", "where the terrain comes from"))
+        set_field(self, "height_unit", optional_text(self.height_unit, "height_unit", "the unit the heights were read "
+                                                     "in, e.g. 'ft'"))
         set_field(self, "_device_cache", {})
         if self.kind == "grid":
             extra = [name for name in ("points", "faces", "edges", "face_edges", "point_used")
@@ -512,12 +517,15 @@ class Terrain:
         origin: ArrayLike = (0.0, 0.0),
         crs: str | None = None,
         source: str | None = None,
+        height_unit: str | None = None,
         _borrow: bool = False,
     ) -> Terrain:
-        """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero. (``_borrow``
-        is internal: see :func:`as_terrain`.)"""
+        """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero;
+        ``height_unit`` the length unit the heights were read in, now metres (see the class). (``_borrow`` is
+        internal: see :func:`as_terrain`.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
+        height_unit = optional_text(height_unit, "height_unit", "the unit the heights were read in, e.g. 'ft'")
         array, lo, hi = _heights_array(heights, borrow=_borrow)
         spacing, origin = grid_geometry(spacing, origin, array.shape)
         terrain = cls(
@@ -527,6 +535,7 @@ class Terrain:
             origin=origin,
             crs=crs,
             source=source,
+            height_unit=height_unit,
             _owned=True,
         )
         # the checks' min and max answer has_nodata and, without nodata, height_range: no further passes

@@ -631,3 +631,72 @@ def test_texture_of_a_dem_with_nodata_marks_the_holes_transparent(tmp_path, caps
                 mask = np.asarray(picture)[..., 3]
         # spacing (1, -1): row 0 is north, so pixel (i, j) is node (i, j)
         np.testing.assert_array_equal(mask == 0, np.isnan(heights))
+
+
+def test_info_reports_a_dems_nodata_fraction_and_height_unit(tmp_path, capsys):
+    """info gave a DEM's nodata count but not its share of the grid, and not the unit of its heights: a file in feet
+    (converted to metres by load_dem) and a plain array (heights as stored, unit unknown) read the same."""
+    import json
+
+    heights = np.arange(20.0).reshape(4, 5)
+    heights[0, :3] = np.nan
+    np.savez(tmp_path / "feet.npz", elevation=heights, units="ft")
+    np.save(tmp_path / "plain.npy", heights)
+    code, out, err = run(capsys, "info", tmp_path / "feet.npz", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["nodata_count"] == 3 and summary["nodata_fraction"] == pytest.approx(3 / 20)
+    assert summary["height_unit"] == "m" and summary["height_unit_read"] == "ft"
+    assert summary["height_range"] == pytest.approx([3 * 0.3048, 19 * 0.3048], rel=1e-6)
+    code, out, err = run(capsys, "info", tmp_path / "plain.npy", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["height_unit"] is None and summary["height_unit_read"] is None
+    code, out, err = run(capsys, "info", tmp_path / "plain.npy", "--height-unit", "cm", "--json")
+    summary = json.loads(out)
+    assert summary["height_unit_read"] == "cm" and summary["height_range"] == pytest.approx([0.03, 0.19])
+    code, out, err = run(capsys, "info", tmp_path / "plain.npy")  # text: the same keys, a None unit said in words
+    assert code == 0, err
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["nodata_fraction"] == "0.15" and lines["height_unit"].startswith("as stored")
+    code, out, err = run(capsys, "info")  # the embedded DEM names metres
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["height_unit"] == "m" and lines["nodata_fraction"] == "0"
+
+
+def test_info_refuses_a_height_unit_for_a_mesh(tmp_path, capsys):
+    """info's --height-unit is "not for a mesh" (its help), but given with a mesh file it was ignored without a word:
+    the bounds came out as stored while the user asked for feet to be read as such."""
+    import trimesh
+
+    from stepterrain.export import save_mesh
+
+    save_mesh(trimesh.creation.box(), tmp_path / "box.glb")
+    code, out, err = run(capsys, "info", tmp_path / "box.glb", "--height-unit", "ft")
+    assert code == 2 and out == ""
+    assert "--height-unit applies to a DEM" in err and "box.glb" in err
+    assert run(capsys, "info", tmp_path / "box.glb")[0] == 0
+
+
+@pytest.mark.parametrize("lens, why", [
+    (("--lens", "-118.2,34.3,5"), "lies outside the terrain's extent"),  # degrees given for a grid in metres
+    (("--lens-relative", "2,2,0.1"), "lies outside the terrain's extent"),
+    (("--lens", "30.05,-20.05,0.01"), "is finer than the lens mask's 512 x 512 samples"),
+])
+def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
+    """A lens given where the terrain is not (longitude and latitude for a UTM grid, a fraction past 1), or finer than
+    the lens mask's samples, left every node's γ at --gamma: the mesh came out fully stepped, exit 0, while the
+    progress line said "original terrain inside"."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", *lens, "--interval", "50", "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    assert len(said) == 1 and "changes nothing" in said[0] and why in said[0], err
+    plain = tmp_path / "plain.ply"
+    assert run(capsys, "steps", tmp_path / "ramp.npy", "--interval", "50", "-o", plain)[0] == 0
+    assert np.array_equal(trimesh.load(tmp_path / "a.ply").vertices, trimesh.load(plain).vertices)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", "--lens-relative", "0.5,0.5,0.2", "--interval", "50",
+                         "-o", tmp_path / "b.ply")
+    assert code == 0 and "warning" not in err  # a lens on the terrain is not warned about

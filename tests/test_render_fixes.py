@@ -334,3 +334,65 @@ def test_face_colours_are_rendered():
     assert red.sum() > 100 and blue.sum() > 100
     rows, cols = np.nonzero(red)
     assert rows.mean() > 24 and cols.mean() < 32  # face 0 holds the south-west corner: bottom left
+
+
+def _two_squares(front: tuple[int, ...], back: tuple[int, ...], *, front_first: bool, per: str) -> trimesh.Trimesh:
+    """A unit square at z = 1 coloured ``front`` over one at z = 0 coloured ``back``, as one mesh (vertex or face
+    colours per ``per``), the front square's faces first or last."""
+    squares = [(np.array([[0, 0, z], [1, 0, z], [1, 1, z], [0, 1, z]], float), color)
+               for z, color in ((1.0, front), (0.0, back))]
+    if not front_first:
+        squares.reverse()
+    mesh = trimesh.Trimesh(np.vstack([v for v, _ in squares]), [[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+                           process=False)
+    colors = np.array([c for _, c in squares], np.uint8)
+    if per == "vertex":
+        mesh.visual.vertex_colors = np.repeat(colors, 4, axis=0)
+    else:
+        mesh.visual.face_colors = np.repeat(colors, 2, axis=0)
+    return mesh
+
+
+@needs_render
+@pytest.mark.parametrize("per", ["vertex", "face"])
+@pytest.mark.parametrize("front_first", [True, False])
+def test_colour_alpha_blends_the_front_surface_over_the_one_behind(per, front_first):
+    """render_mesh dropped the alpha of vertex and face colours: a mesh coloured semi-transparent (its GLB written
+    alphaMode BLEND, so viewers show it so) rendered opaque. Now a red square of alpha 192 over an opaque blue one
+    shows 192/255 of the red and 63/255 of the blue, in either face order (depth peeling: without it VTK blended the
+    blue square over the red one)."""
+    def centre(front, back):
+        image = render.render_mesh(_two_squares(front, back, front_first=front_first, per=per), window_size=(64, 64),
+                                   camera="top")
+        return image[28:36, 28:36].reshape(-1, 3).astype(float).mean(axis=0)
+
+    red = centre((255, 0, 0, 255), (0, 0, 255, 255))[0]  # the lit red and blue, opaque
+    blue = centre((0, 0, 255, 255), (255, 0, 0, 255))[2]
+    assert red > 150 and blue > 150
+    blended = centre((255, 0, 0, 192), (0, 0, 255, 255))
+    a = 192 / 255
+    assert blended == pytest.approx([a * red, 0.0, (1 - a) * blue], abs=6)
+    opaque = render.render_mesh(_two_squares((255, 0, 0, 255), (0, 0, 255, 255), front_first=front_first, per=per),
+                                window_size=(64, 64), camera="top")
+    square = (opaque[..., 0] > 100) & (opaque[..., 1] < 40)
+    assert square.sum() > 500 and (opaque[..., 2][square] == 0).all()  # opaque colours still hide what lies behind
+
+
+@needs_render
+def test_anti_aliased_translucent_colours_are_blended_not_blank():
+    """Depth peeling under MSAA rendered a blank image (Mesa), and MSAA without it blended out of depth order:
+    translucent colours anti-alias by SSAA, which blends as the render without anti-aliasing does."""
+    mesh = _two_squares((255, 0, 0, 192), (0, 0, 255, 255), front_first=False, per="vertex")
+    plain, smooth = (render.render_mesh(mesh, window_size=(64, 64), camera="top", anti_aliasing=aa)[28:36, 28:36]
+                     for aa in (False, True))
+    assert np.abs(smooth.astype(int) - plain.astype(int)).max() <= 3 and plain[..., 0].min() > 100
+    bytes_ssaa = render._render_bytes(1000, 1000, anti_aliasing=True, ssaa=True)
+    assert bytes_ssaa > render._render_bytes(1000, 1000, anti_aliasing=True)
+    previous = st.set_memory_budget(bytes_ssaa - 1)  # enough for MSAA, not for SSAA: refused before rendering
+    try:
+        with pytest.raises(OutputTooLargeError, match="anti-aliased"):
+            render.render_mesh(mesh, window_size=(1000, 1000), camera="top", anti_aliasing=True)
+        opaque = _two_squares((255, 0, 0, 255), (0, 0, 255, 255), front_first=False, per="vertex")
+        assert render.render_mesh(opaque, window_size=(1000, 1000), camera="top", anti_aliasing=True).shape[0] == 1000
+    finally:
+        st.set_memory_budget(previous)
