@@ -111,10 +111,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     Raises
     ------
     DataFileError
-        The folder cannot be created or written, ``path`` is a loop of symbolic links, or the finished file
-        cannot be moved onto ``path``.
+        The folder cannot be created or written, ``path`` is a folder or a loop of symbolic links, or the
+        finished file cannot be moved onto ``path``.
     """
     target = _link_target(Path(path))
+    if os.path.isdir(target):  # refused before the content is made: os.replace refused it only after (EISDIR)
+        raise DataFileError(f"cannot write {str(target)!r}: it is a folder; expected a file name")
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         try:
@@ -811,10 +813,20 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
-    for path, data in zip(paths, sidecars.values(), strict=True):
-        with atomic_path(path) as side_tmp:
-            side_tmp.write_bytes(data)
+    with contextlib.ExitStack() as side_files:
+        # each side file replaces its old one only once the OBJ is complete: written first, an OBJ that then failed
+        # (disk full, interrupted, a folder in its place) left the old OBJ with the new texture, or side files of no OBJ
+        for path, data in zip(paths, sidecars.values(), strict=True):
+            side_files.enter_context(atomic_path(path)).write_bytes(data)
+        _write_obj_text(mesh, tmp, mtl_name, material, uv)
     _record_owner(paths, target)
+
+
+def _write_obj_text(
+    mesh: trimesh.Trimesh, tmp: Path, mtl_name: str, material: str | None, uv: NDArray[Any] | None
+) -> None:
+    """:func:`_write_obj`'s ``.obj`` text into ``tmp``: ``mtllib mtl_name`` and ``usemtl material`` (None: no
+    texture), ``v`` lines (RGB for vertex colours), ``vt`` lines of ``uv`` and ``f`` lines."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     colors = None

@@ -613,3 +613,47 @@ def test_a_textured_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path)
     tinted.visual.material = PBRMaterial(baseColorTexture=mesh.visual.material.baseColorTexture,
                                          baseColorFactor=[128, 64, 32, 255])  # fmt: skip
     assert mtl_lines(tinted, "tinted")["Kd"] == pytest.approx([128 / 255, 64 / 255, 32 / 255])
+
+
+def _textured_box(colour):
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (4, 4), colour))
+    return mesh
+
+
+def test_a_textured_obj_that_fails_leaves_the_old_obj_its_own_side_files(tmp_path, monkeypatch):
+    """The .mtl and texture image were written (renamed into place) before the .obj text: when the .obj then failed
+    (disk full, Ctrl-C), the old .obj was kept, as promised, but read the new texture, and a failed write left side
+    files of no OBJ. They now replace the old ones only once the .obj is complete."""
+    import errno
+
+    from stepterrain import export
+
+    save_mesh(_textured_box((255, 0, 0)), tmp_path / "t.obj")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert sorted(before) == ["t.mtl", "t.obj", "t_material_0.png"]
+    write_rows = export._write_rows
+
+    def disk_full(write, row, blocks):
+        if row.startswith("f "):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        write_rows(write, row, blocks)
+
+    monkeypatch.setattr(export, "_write_rows", disk_full)
+    with pytest.raises(DataFileError, match="No space left on device"):
+        save_mesh(_textured_box((0, 0, 255)), tmp_path / "t.obj")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # no temporary file either
+    monkeypatch.setattr(export, "_write_rows", write_rows)
+    with Image.open(tmp_path / "t_material_0.png") as image:
+        assert image.getpixel((0, 0)) == (255, 0, 0)
+
+
+@pytest.mark.parametrize("ext", [".obj", ".glb", ".ply"])
+def test_a_folder_in_place_of_the_output_is_refused_before_anything_is_written(tmp_path, ext):
+    """A folder at the output path was found only when the finished file was renamed onto it (EISDIR): the whole mesh
+    was made first, and a textured OBJ left its .mtl and texture image behind for an OBJ that was never written."""
+    (tmp_path / f"out{ext}").mkdir()
+    with pytest.raises(DataFileError, match=r"out\.\w+': it is a folder; expected a file name"):
+        save_mesh(_textured_box((0, 0, 255)), tmp_path / f"out{ext}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"out{ext}"]
