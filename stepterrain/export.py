@@ -1556,7 +1556,10 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
 
 def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
     """One node holding ``mesh`` (a prepared copy: its visual may be replaced); large coordinates move into the node
-    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it."""
+    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it. Vertex attributes
+    are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare KeyError for an integer or
+    bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as VEC4)."""
+    mesh.vertex_attributes.clear()  # the prepared copy's own dict
     material = getattr(mesh.visual, "material", None)
     if mesh.visual.kind == "texture" and material is not None:
         mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))

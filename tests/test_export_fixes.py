@@ -657,3 +657,20 @@ def test_a_folder_in_place_of_the_output_is_refused_before_anything_is_written(t
     with pytest.raises(DataFileError, match=r"out\.\w+': it is a folder; expected a file name"):
         save_mesh(_textured_box((0, 0, 255)), tmp_path / f"out{ext}")
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"out{ext}"]
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_textured_mesh_with_integer_or_bool_vertex_attributes_writes_gltf_without_them(tmp_path, ext):
+    """glTF drops vertex attributes (save_mesh's docstring), and the untextured writer did; a textured mesh went to
+    trimesh's writer with them, which raised a bare KeyError ('i8') for an integer or bool attribute (a PLY's
+    ``level`` read back, then draped) and wrote float ones as custom attributes."""
+    mesh = _textured_box((0, 0, 255))
+    mesh.vertex_attributes.update(level=np.arange(8), seen=np.arange(8) % 2 == 0, height=np.arange(8.0))
+    mesh.face_attributes["wall"] = np.arange(12) % 2 == 0
+    path = save_mesh(mesh, tmp_path / f"t{ext}")
+    (primitive,) = gltf_tree_and_buffer(path)[0]["meshes"][0]["primitives"]
+    assert sorted(primitive["attributes"]) == ["POSITION", "TEXCOORD_0"]
+    back = read_mesh(path)
+    np.testing.assert_allclose(back.vertices, mesh.vertices, atol=1e-7)
+    np.testing.assert_allclose(back.visual.uv, mesh.visual.uv, atol=1e-7)
+    assert set(mesh.vertex_attributes) == {"level", "seen", "height"}  # the caller's mesh is not modified
