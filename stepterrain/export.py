@@ -51,6 +51,8 @@ _LOCAL_ORIGIN_THRESHOLD = 65536.0
 # Formats that hold triangles only: a mesh of vertices without faces is refused for them (STL has no vertex list;
 # a 3MF mesh object needs triangles and a printer has no use for points).
 _TRIANGLES_ONLY = (".stl", ".3mf")
+# Formats that keep a texture (UVs and an image); the others drop it (see _check_uv).
+_TEXTURED = (".glb", ".gltf", ".obj")
 # (lowest, highest) vertex coordinate per axis, float64; None for a mesh without vertices (_vertex_bounds).
 Bounds = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 _OMIT = object()
@@ -215,8 +217,9 @@ def save_mesh(
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
-        JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
-        texture coordinates are not one per vertex.
+        JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
+        written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, or
+        an image without texture coordinates.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -298,6 +301,8 @@ def save_mesh(
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
     _check_faces(mesh, len(vertices))
+    if ext in _TEXTURED:
+        _check_uv(mesh, ext, target)
     if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
         raise InvalidInputError(
             f"cannot write {str(target)!r}: mesh has {len(vertices)} vertices but no faces, and {ext} stores "
@@ -335,6 +340,36 @@ def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
         f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
         f"has {vertex_count} vertices"
     )
+
+
+def _check_uv(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
+    """Refuse a texture that ``ext`` (one of :data:`_TEXTURED`) would write broken: texture coordinates that are not
+    one finite (u, v) per vertex, or an image without them. An OBJ's ``vt`` index is its vertex's; glTF's
+    TEXCOORD_0 is an attribute of every vertex, and its accessor bounds are JSON: trimesh's writer wrote a texture
+    without TEXCOORD_0 (for too few or no UVs) and NaN bounds (invalid JSON), files the glTF validator refuses, and
+    the OBJ got ``vt nan nan``. glTF points (no faces) are written without their texture."""
+    visual = mesh.visual
+    if visual.kind != "texture" or (ext != ".obj" and len(mesh.faces) == 0):
+        return
+    uv = getattr(visual, "uv", None)
+    vertices = len(mesh.vertices)
+    if uv is None:
+        material = getattr(visual, "material", None)
+        if getattr(material, "baseColorTexture", getattr(material, "image", None)) is None:
+            return  # a material without an image (trimesh reads one from a glTF): nothing to map
+        raise InvalidInputError(f"cannot write {str(target)!r}: mesh has a texture image but no texture coordinates "
+                                f"(UVs); {ext} needs one (u, v) per vertex")
+    uv = np.asarray(uv)
+    if uv.shape != (vertices, 2):
+        raise InvalidInputError(
+            f"cannot write {str(target)!r}: mesh has {len(uv) if uv.ndim else 0} texture coordinates (UVs) "
+            f"{'of shape ' + str(uv.shape) + ' ' if uv.ndim != 2 or uv.shape[1] != 2 else ''}for {vertices} "
+            f"vertices; {ext} needs one (u, v) per vertex"
+        )
+    finite = np.isfinite(uv).all(axis=1)
+    if not finite.all():
+        raise InvalidInputError(f"cannot write {str(target)!r}: texture coordinates (UVs) must be finite; got "
+                                f"{int((~finite).sum())} of {vertices} with NaN or inf")
 
 
 def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
@@ -882,13 +917,8 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
             sidecars[mtl_name] += data
         else:
             sidecars[file_name] = data
-    uv = getattr(visual, "uv", None)
-    uv = np.asarray(uv, dtype=np.float64) if uv is not None and np.ndim(uv) == 2 else None
-    if uv is not None and len(uv) != len(mesh.vertices):  # each face corner's vt index is its vertex's
-        raise InvalidInputError(
-            f"mesh has {len(uv)} texture coordinates (UVs) for {len(mesh.vertices)} vertices; an OBJ needs one "
-            "per vertex"
-        )
+    uv = getattr(visual, "uv", None)  # one per vertex (_check_uv): each face corner's vt index is its vertex's
+    uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
     return sidecars, str(name), uv
 
 

@@ -674,3 +674,20 @@ def test_a_textured_mesh_with_integer_or_bool_vertex_attributes_writes_gltf_with
     np.testing.assert_allclose(back.vertices, mesh.vertices, atol=1e-7)
     np.testing.assert_allclose(back.visual.uv, mesh.visual.uv, atol=1e-7)
     assert set(mesh.vertex_attributes) == {"level", "seen", "height"}  # the caller's mesh is not modified
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj"])
+@pytest.mark.parametrize(("uv", "message"), [
+    (np.full((8, 2), np.nan), r"texture coordinates \(UVs\) must be finite; got 8 of 8 with NaN or inf"),
+    (np.zeros((5, 2)), r"mesh has 5 texture coordinates \(UVs\) for 8 vertices; \.\w+ needs one \(u, v\) per vertex"),
+    (None, r"mesh has a texture image but no texture coordinates \(UVs\); \.\w+ needs one \(u, v\) per vertex"),
+], ids=["nan", "too-few", "none"])  # fmt: skip
+def test_a_texture_whose_uvs_cannot_be_written_is_refused(tmp_path, ext, uv, message):
+    """glTF wrote NaN UVs' accessor bounds as NaN (invalid JSON) and a texture without TEXCOORD_0 for too few or no
+    UVs (MESH_PRIMITIVE_TOO_FEW_TEXCOORDS), files the Khronos validator refuses; the OBJ wrote ``vt nan nan``. They
+    are refused as the OBJ's too few UVs were, before anything is written."""
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (2, 2)))
+    with pytest.raises(InvalidInputError, match=message):
+        save_mesh(mesh, tmp_path / f"box{ext}")
+    assert list(tmp_path.iterdir()) == []
