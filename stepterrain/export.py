@@ -925,12 +925,15 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
     """Prefix texture images with the OBJ's stem (``material_0.png`` -> ``<stem>_material_0.png``) and point
     the MTL at them, so several textured OBJs in one folder keep their own images. Whitespace in a name
-    (a material called "terrain texture") becomes ``_``: MTL readers split ``map_Kd`` lines on it."""
-    renamed = {
-        name: f"{stem}_{'_'.join(name.split())}"
-        for name in sidecars
-        if name != mtl_name and not name.startswith(f"{stem}_")
-    }
+    (a material called "terrain texture") becomes ``_``: MTL readers split ``map_Kd`` lines on it. So do path
+    separators: an image is named after its material, and a material named ``../../x`` (as a glTF file read back
+    may name it) wrote ``x.png`` outside the OBJ's folder, and one named ``a/b`` made a folder beside it."""
+    renamed = {}
+    for name in sidecars:
+        plain = re.sub(r"[\s/\\]+", "_", name.strip())  # one file name in the OBJ's folder
+        plain = plain if plain.startswith(f"{stem}_") else f"{stem}_{plain}"
+        if name != mtl_name and plain != name:
+            renamed[name] = plain
     out: dict[str, bytes] = {}
     for name, data in sidecars.items():
         if name == mtl_name:

@@ -691,3 +691,24 @@ def test_a_texture_whose_uvs_cannot_be_written_is_refused(tmp_path, ext, uv, mes
     with pytest.raises(InvalidInputError, match=message):
         save_mesh(mesh, tmp_path / f"box{ext}")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["../../../escaped", "terrain/v1", "t_a b/c"])
+def test_a_textured_obj_writes_its_image_in_its_own_folder_whatever_the_material_is_called(tmp_path, name):
+    """The texture image is named after its material, and the name went into the path as it was: a material called
+    ``../../../escaped`` (which survives a glTF round trip, so any downloaded file can carry it) wrote
+    ``escaped.png`` outside the output folder, and ``terrain/v1`` made a folder ``t_terrain`` beside the OBJ. Path
+    separators become ``_`` like whitespace (which a name starting with the stem kept)."""
+    out = tmp_path / "a" / "b" / "out"
+    mesh = trimesh.creation.box()
+    material = trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=Image.new("RGB", (4, 4), (9, 9, 9)))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), material=material)
+    save_mesh(mesh, out / "t.obj")
+    written = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file())
+    (image,) = [p for p in written if p.endswith(".png")]
+    assert written == sorted(["a/b/out/t.obj", "a/b/out/t.mtl", image]) and image.startswith("a/b/out/t_")
+    assert [p for p in out.iterdir() if p.is_dir()] == []
+    (map_kd,) = [line for line in (out / "t.mtl").read_text().splitlines() if line.startswith("map_Kd")]
+    assert map_kd == f"map_Kd {image.rsplit('/', 1)[1]}"
+    back = read_mesh(out / "t.obj")
+    assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [9, 9, 9]
