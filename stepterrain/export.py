@@ -910,7 +910,10 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         if unset:  # trimesh's default Kd 0.4 dims map_Kd to 40 % (MTL multiplies them; three.js does), Ks 0.4 shines
             material.diffuse = np.array([255, 255, 255, 255], np.uint8)
             material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
-    files, name = material.to_obj(name=trimesh.util.unique_name(material.name, set()))
+    name = material.name
+    if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
+        name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
+    files, name = material.to_obj(name=trimesh.util.unique_name(name, set()))
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():
         if file_name.lower().endswith(".mtl"):

@@ -712,3 +712,21 @@ def test_a_textured_obj_writes_its_image_in_its_own_folder_whatever_the_material
     assert map_kd == f"map_Kd {image.rsplit('/', 1)[1]}"
     back = read_mesh(out / "t.obj")
     assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [9, 9, 9]
+
+
+def test_a_material_name_with_a_line_break_stays_one_statement_of_the_obj_and_mtl(tmp_path):
+    """``usemtl`` and ``newmtl`` carried the material's name as it was: a line break in it (any glTF material name
+    can hold one) started a statement of its own, here a vertex that shifted every face of the OBJ, and the
+    ``map_Kd`` line lost the image. The name is now one word, as the image's file name is."""
+    mesh = trimesh.creation.box()
+    material = trimesh.visual.material.PBRMaterial(name="rock\nv 9 9 9", baseColorTexture=Image.new("RGB", (4, 4)))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), material=material)
+    obj = save_mesh(mesh, tmp_path / "t.obj")
+    lines = obj.read_text().splitlines()
+    assert sum(line.startswith("v ") for line in lines) == len(mesh.vertices)
+    assert "usemtl rock_v_9_9_9" in lines
+    assert "newmtl rock_v_9_9_9" in (tmp_path / "t.mtl").read_text().splitlines()
+    back = read_mesh(obj)
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+    assert back.visual.material.image is not None
