@@ -1100,7 +1100,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
     exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
-    as vertex colours, or face colours where one vertex has corners of several colours.
+    as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
+    properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
+    keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
+    ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
+    a mesh read and written again lost them).
 
     Raises
     ------
@@ -1128,6 +1132,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = trimesh.load(file, force="mesh", process=False)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
+        if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
+            _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
@@ -1135,6 +1141,37 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
+
+
+#: PLY properties trimesh's reader makes into the mesh itself (positions, normals, colours, UVs, faces): not attributes.
+_PLY_OWN = {
+    "vertex": frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha", "s", "t", "u", "v",
+                         "texture_u", "texture_v"}),
+    "face": frozenset({"vertex_indices", "vertex_index", "red", "green", "blue", "alpha", "texcoord"}),
+}  # fmt: skip
+
+
+def _ply_attributes(mesh: trimesh.Trimesh) -> None:
+    """Give ``mesh``, read from a PLY, the other numeric scalar properties of its vertex and face elements as its
+    ``vertex_attributes`` and ``face_attributes`` (one per vertex or face; trimesh's reader keeps them only in
+    ``metadata["_ply_raw"]``)."""
+    raw = (mesh.metadata or {}).get("_ply_raw")
+    if not isinstance(raw, Mapping):
+        return
+    for element, attributes, count in (("vertex", mesh.vertex_attributes, len(mesh.vertices)),
+                                       ("face", mesh.face_attributes, len(mesh.faces))):  # fmt: skip
+        data = (raw.get(element) or {}).get("data") if isinstance(raw.get(element), Mapping) else None
+        if isinstance(data, np.ndarray) and data.dtype.names:
+            columns = {name: data[name] for name in data.dtype.names}
+        elif isinstance(data, Mapping):
+            columns = dict(data)
+        else:
+            continue
+        for name, column in columns.items():
+            column = np.asarray(column)
+            if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
+                continue
+            attributes.setdefault(str(name), column.astype(column.dtype.newbyteorder("=")))
 
 
 def _color_attribute(scene: Any) -> NDArray[Any] | None:

@@ -730,3 +730,28 @@ def test_a_material_name_with_a_line_break_stays_one_statement_of_the_obj_and_mt
     np.testing.assert_array_equal(back.vertices, mesh.vertices)
     np.testing.assert_array_equal(back.faces, mesh.faces)
     assert back.visual.material.image is not None
+
+
+@pytest.mark.parametrize("faces", [True, False], ids=["triangles", "points"])
+def test_read_mesh_gives_a_plys_attributes_back_and_a_second_write_keeps_them(tmp_path, faces):
+    """save_mesh keeps face and vertex attributes (stepped's ``level`` and ``wall``) in a PLY only, but read_mesh left
+    them in ``metadata["_ply_raw"]``: ``face_attributes`` came back empty, and a mesh read and written again lost
+    them."""
+    mesh = trimesh.creation.box()
+    if not faces:
+        mesh = trimesh.Trimesh(mesh.vertices, np.zeros((0, 3), np.int64), process=False)
+    else:
+        mesh.face_attributes.update(level=np.arange(12) - 3, wall=np.arange(12) % 3 == 0)
+        mesh.visual.face_colors = np.random.default_rng(0).integers(0, 256, (12, 4), dtype=np.uint8)
+    mesh.vertex_attributes.update(height=np.arange(8.0) * 1e10, pair=np.arange(16, dtype=np.float32).reshape(8, 2))
+    back = read_mesh(save_mesh(mesh, tmp_path / "a.ply"))
+    again = read_mesh(save_mesh(back, tmp_path / "b.ply"))
+    for read in (back, again):
+        assert sorted(read.vertex_attributes) == ["height", "pair_0", "pair_1"]
+        np.testing.assert_array_equal(read.vertex_attributes["height"], mesh.vertex_attributes["height"])
+        np.testing.assert_array_equal(read.vertex_attributes["pair_1"], mesh.vertex_attributes["pair"][:, 1])
+        assert sorted(read.face_attributes) == (["level", "wall"] if faces else [])
+        if faces:
+            np.testing.assert_array_equal(read.face_attributes["level"], mesh.face_attributes["level"])
+            np.testing.assert_array_equal(read.face_attributes["wall"], mesh.face_attributes["wall"])
+            np.testing.assert_array_equal(read.visual.face_colors, mesh.visual.face_colors)
