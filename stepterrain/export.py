@@ -193,7 +193,8 @@ def save_mesh(
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
         shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
-        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints).
+        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
@@ -1035,9 +1036,12 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
     p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
-    zip: no lxml or networkx needed."""
+    zip: no lxml or networkx needed. A triangle naming one vertex twice (no area: trimesh's loader makes one of a
+    sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct (core spec §4.1.4.1), and
+    it was written as it was."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
     color_index = palette = face_index = None
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices) and len(vertices):
         rgba = np.ascontiguousarray(np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4])
@@ -1049,6 +1053,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         rgba = np.ascontiguousarray(np.asarray(mesh.visual.face_colors, dtype=np.uint8)[:, :4])
         palette, face_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
         palette = palette.view(np.uint8).reshape(-1, 4)
+        face_index = face_index.reshape(-1)[distinct] if not distinct.all() else face_index
+    if not distinct.all():
+        faces = faces[distinct]
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
         archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
         archive.writestr("_rels/.rels", _3MF_RELS)

@@ -755,3 +755,33 @@ def test_read_mesh_gives_a_plys_attributes_back_and_a_second_write_keeps_them(tm
             np.testing.assert_array_equal(read.face_attributes["level"], mesh.face_attributes["level"])
             np.testing.assert_array_equal(read.face_attributes["wall"], mesh.face_attributes["wall"])
             np.testing.assert_array_equal(read.visual.face_colors, mesh.visual.face_colors)
+
+
+@pytest.mark.parametrize("colours", ["none", "face", "vertex"])
+def test_a_3mf_leaves_out_triangles_that_name_one_vertex_twice(tmp_path, colours):
+    """3MF's v1, v2 and v3 MUST be distinct (core spec 4.1.4.1), but a triangle naming one vertex twice was written
+    as it was: trimesh.load of an STL with a sliver (its default merge of vertices) makes one, and the 3MF was
+    invalid. It has no area and is left out; the others keep their colours."""
+    import re
+    import zipfile
+
+    sliver = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1e-12, 0], [1, 1, 0]],
+                             [[0, 1, 2], [1, 3, 2], [1, 4, 2]], process=False)  # fmt: skip
+    (tmp_path / "in.stl").write_bytes(trimesh.exchange.stl.export_stl(sliver))
+    mesh = trimesh.load(tmp_path / "in.stl")
+    assert mesh.faces.tolist() == [[0, 1, 2], [1, 1, 2], [1, 3, 2]]
+    if colours == "face":
+        mesh.visual.face_colors = [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255]]
+    elif colours == "vertex":
+        mesh.visual.vertex_colors = [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [9, 9, 9, 255]]
+    path = save_mesh(mesh, tmp_path / "out.3mf")
+    model = zipfile.ZipFile(path).read("3D/3dmodel.model").decode()
+    corners = [[int(v) for v in t] for t in re.findall(r'<triangle v1="(\d+)" v2="(\d+)" v3="(\d+)"', model)]
+    assert corners == [[0, 1, 2], [1, 3, 2]]
+    back = read_mesh(path)
+    assert back.faces.tolist() == corners
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    if colours == "face":
+        np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors[[0, 2]])
+    elif colours == "vertex":
+        np.testing.assert_array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
