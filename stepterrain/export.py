@@ -219,8 +219,9 @@ def save_mesh(
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
-        written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, or
-        an image without texture coordinates.
+        written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, an
+        image without texture coordinates, or an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
+        uint8.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -263,11 +264,11 @@ def save_mesh(
     translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
     0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
-    meshes also write
-    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
-    ``_``: OBJ and MTL readers split file names on it; an image with transparent texels is also the MTL's
-    dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks`` black unless the material sets a base colour,
-    so the texture shows at full brightness, matte), each atomically; one that would
+    meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
+    a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
+    image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
+    black unless the material sets a base colour, so the texture shows at full brightness, matte), each
+    atomically, once the OBJ itself is complete; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -905,6 +906,7 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     if not hasattr(visual, "uv") or getattr(visual, "material", None) is None:
         return {}, None, None
     material = visual.material
+    _pil_textures(material)  # the prepared copy's
     if hasattr(material, "to_simple"):
         unset = getattr(material, "baseColorFactor", None) is None
         material = material.to_simple()
@@ -924,6 +926,49 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     uv = getattr(visual, "uv", None)  # one per vertex (_check_uv): each face corner's vt index is its vertex's
     uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
     return sidecars, str(name), uv
+
+
+#: The texture images of trimesh's materials, by class: SimpleMaterial's one image, PBRMaterial's textures.
+_TEXTURE_SLOTS = {
+    "SimpleMaterial": ("image",),
+    "PBRMaterial": ("baseColorTexture", "metallicRoughnessTexture", "normalTexture", "emissiveTexture",
+                    "occlusionTexture"),
+}  # fmt: skip
+#: PIL modes of colour images that PNG cannot hold, and the mode each is written in.
+_PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA"}
+
+
+def _pil_textures(material: Any) -> None:
+    """Make the texture images of ``material`` (a prepared mesh's copy: changed in place) PIL images in PNG or JPEG,
+    as glTF and OBJ readers take them. A numpy array (``TextureVisuals(uv=..., image=array)``, as trimesh allows)
+    was no texture at all in glTF (trimesh's writer skips what is not a PIL image, silently) and an AttributeError
+    in OBJ. An image opened from a WebP, TIFF, GIF or BMP file went to the OBJ's side files in that format, which
+    most MTL readers cannot read (and ``<stem>_<material>.png`` was promised): it is PNG now, as in glTF; a JPEG
+    stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB: PNG cannot hold it (a
+    DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF texture."""
+    from PIL import Image
+
+    for slot in _TEXTURE_SLOTS.get(type(material).__name__, ()):
+        image = getattr(material, slot, None)
+        if image is None:
+            continue
+        if not isinstance(image, Image.Image):
+            array = np.asarray(image)
+            if array.ndim == 3 and array.shape[2] == 1:
+                array = array[..., 0]
+            if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
+                raise InvalidInputError(
+                    f"mesh texture image ({slot}) must be a PIL image or an (H, W), (H, W, 3) or (H, W, 4) uint8 "
+                    f"array; got {type(image).__name__} of dtype {array.dtype} and shape {array.shape}"
+                )
+            image = Image.fromarray(np.ascontiguousarray(array))
+        elif image.mode in _PNG_MODES:
+            image = image.convert(_PNG_MODES[image.mode])
+        elif image.format not in (None, "PNG", "JPEG"):
+            image = image.copy()  # no format: trimesh writes it as PNG
+        else:
+            continue
+        setattr(material, slot, image)
 
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
@@ -1641,6 +1686,8 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as VEC4)."""
     mesh.vertex_attributes.clear()  # the prepared copy's own dict
     material = getattr(mesh.visual, "material", None)
+    if mesh.visual.kind == "texture" and material is not None:
+        _pil_textures(material)
     if mesh.visual.kind == "texture" and material is not None:
         mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)

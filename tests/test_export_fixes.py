@@ -785,3 +785,47 @@ def test_a_3mf_leaves_out_triangles_that_name_one_vertex_twice(tmp_path, colours
         np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors[[0, 2]])
     elif colours == "vertex":
         np.testing.assert_array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
+
+
+@pytest.mark.parametrize("source", ["array", "webp", "tiff", "cmyk"])
+def test_a_texture_image_of_any_kind_is_written_as_a_png_texture(tmp_path, source):
+    """``TextureVisuals(uv=..., image=array)`` (trimesh takes a numpy array) wrote a glTF with no texture at all
+    (trimesh's writer skips what is not a PIL image) and raised a bare AttributeError for an OBJ; an image opened
+    from a WebP or TIFF file went beside the OBJ in that format, which most MTL readers cannot read; a CMYK image
+    was a DataFileError ("cannot write mode CMYK as PNG"). Each is now written as a PNG texture."""
+    from . import gltf_validator
+
+    texels = np.zeros((4, 6, 3), np.uint8)
+    texels[..., 0], texels[..., 1] = 200, np.arange(6) * 40
+    image = texels
+    if source in ("webp", "tiff"):
+        Image.fromarray(texels).save(tmp_path / f"in.{source}", lossless=True)
+        image = Image.open(tmp_path / f"in.{source}")
+    elif source == "cmyk":
+        image = Image.fromarray(texels).convert("CMYK")
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), image=image)
+    paths = [save_mesh(mesh, tmp_path / f"out{ext}") for ext in (".glb", ".gltf", ".obj")]
+    for path in paths[:2]:
+        tree, _ = gltf_tree_and_buffer(path)
+        assert [i["mimeType"] for i in tree["images"]] == ["image/png"]
+        back = read_mesh(path).visual.material.baseColorTexture
+        np.testing.assert_array_equal(np.asarray(back.convert("RGB")), texels)
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate(paths[:2])) == []
+    assert sorted(p.name for p in tmp_path.glob("out*")) == ["out.glb", "out.gltf", "out.mtl", "out.obj",
+                                                            "out_material_0.png"]  # fmt: skip
+    with Image.open(tmp_path / "out_material_0.png") as written:
+        np.testing.assert_array_equal(np.asarray(written.convert("RGB")), texels)
+    np.testing.assert_array_equal(np.asarray(read_mesh(paths[2]).visual.material.image.convert("RGB")), texels)
+
+
+def test_a_texture_array_that_is_no_image_is_refused(tmp_path):
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((8, 2)), image=np.zeros((4, 4, 3), np.float32))
+    for ext in (".glb", ".obj"):
+        with pytest.raises(InvalidInputError, match=r"texture image \(image\) must be a PIL image or an \(H, W\), "
+                                                    r"\(H, W, 3\) or \(H, W, 4\) uint8 array; got ndarray of dtype "
+                                                    r"float32 and shape \(4, 4, 3\)"):  # fmt: skip
+            save_mesh(mesh, tmp_path / f"out{ext}")
+    assert list(tmp_path.iterdir()) == []
