@@ -313,6 +313,8 @@ def save_mesh(
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
+    if ext in _TEXTURED and prepared.visual.kind == "texture" and getattr(prepared.visual, "material", None):
+        _pil_textures(prepared.visual.material)  # before any folder or file is made
     with atomic_path(target) as tmp:
         try:
             writer(prepared, tmp, target, bounds, frame)
@@ -906,7 +908,6 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     if not hasattr(visual, "uv") or getattr(visual, "material", None) is None:
         return {}, None, None
     material = visual.material
-    _pil_textures(material)  # the prepared copy's
     if hasattr(material, "to_simple"):
         unset = getattr(material, "baseColorFactor", None) is None
         material = material.to_simple()
@@ -1686,8 +1687,6 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as VEC4)."""
     mesh.vertex_attributes.clear()  # the prepared copy's own dict
     material = getattr(mesh.visual, "material", None)
-    if mesh.visual.kind == "texture" and material is not None:
-        _pil_textures(material)
     if mesh.visual.kind == "texture" and material is not None:
         mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)

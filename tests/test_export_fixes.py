@@ -827,5 +827,5 @@ def test_a_texture_array_that_is_no_image_is_refused(tmp_path):
         with pytest.raises(InvalidInputError, match=r"texture image \(image\) must be a PIL image or an \(H, W\), "
                                                     r"\(H, W, 3\) or \(H, W, 4\) uint8 array; got ndarray of dtype "
                                                     r"float32 and shape \(4, 4, 3\)"):  # fmt: skip
-            save_mesh(mesh, tmp_path / f"out{ext}")
-    assert list(tmp_path.iterdir()) == []
+            save_mesh(mesh, tmp_path / "new" / f"out{ext}")
+    assert list(tmp_path.iterdir()) == []  # refused before the folder is made
