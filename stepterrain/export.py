@@ -313,8 +313,8 @@ def save_mesh(
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
-    if ext in _TEXTURED and prepared.visual.kind == "texture" and getattr(prepared.visual, "material", None):
-        _pil_textures(prepared.visual.material)  # before any folder or file is made
+    if ext in _TEXTURED and prepared.visual.kind == "texture":
+        _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
     with atomic_path(target) as tmp:
         try:
             writer(prepared, tmp, target, bounds, frame)
