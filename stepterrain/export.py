@@ -929,12 +929,12 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     return sidecars, str(name), uv
 
 
-#: The texture images of trimesh's materials, by class: SimpleMaterial's one image, PBRMaterial's textures.
-_TEXTURE_SLOTS = {
-    "SimpleMaterial": ("image",),
-    "PBRMaterial": ("baseColorTexture", "metallicRoughnessTexture", "normalTexture", "emissiveTexture",
-                    "occlusionTexture"),
-}  # fmt: skip
+#: The texture images of trimesh's materials: SimpleMaterial's one image, PBRMaterial's textures.
+_TEXTURE_SLOTS = (
+    (trimesh.visual.material.SimpleMaterial, ("image",)),
+    (trimesh.visual.material.PBRMaterial, ("baseColorTexture", "metallicRoughnessTexture", "normalTexture",
+                                           "emissiveTexture", "occlusionTexture")),
+)  # fmt: skip
 #: PIL modes of colour images that PNG cannot hold, and the mode each is written in.
 _PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA"}
 
@@ -949,7 +949,8 @@ def _pil_textures(material: Any) -> None:
     DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF texture."""
     from PIL import Image
 
-    for slot in _TEXTURE_SLOTS.get(type(material).__name__, ()):
+    slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
+    for slot in slots:
         image = getattr(material, slot, None)
         if image is None:
             continue
