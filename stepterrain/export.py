@@ -51,6 +51,8 @@ _LOCAL_ORIGIN_THRESHOLD = 65536.0
 # Formats that hold triangles only: a mesh of vertices without faces is refused for them (STL has no vertex list;
 # a 3MF mesh object needs triangles and a printer has no use for points).
 _TRIANGLES_ONLY = (".stl", ".3mf")
+# Formats that keep a texture (UVs and an image); the others drop it (see _check_uv).
+_TEXTURED = (".glb", ".gltf", ".obj")
 # (lowest, highest) vertex coordinate per axis, float64; None for a mesh without vertices (_vertex_bounds).
 Bounds = tuple[NDArray[np.float64], NDArray[np.float64]] | None
 _OMIT = object()
@@ -111,10 +113,12 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     Raises
     ------
     DataFileError
-        The folder cannot be created or written, ``path`` is a loop of symbolic links, or the finished file
-        cannot be moved onto ``path``.
+        The folder cannot be created or written, ``path`` is a folder or a loop of symbolic links, or the
+        finished file cannot be moved onto ``path``.
     """
     target = _link_target(Path(path))
+    if os.path.isdir(target):  # refused before the content is made: os.replace refused it only after (EISDIR)
+        raise DataFileError(f"cannot write {str(target)!r}: it is a folder; expected a file name")
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.exists():
         try:
@@ -189,7 +193,8 @@ def save_mesh(
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
         shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
-        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints).
+        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
@@ -213,8 +218,10 @@ def save_mesh(
         coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
-        JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or an OBJ's
-        texture coordinates are not one per vertex.
+        JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
+        written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, an
+        image without texture coordinates, or an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
+        uint8.
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -257,11 +264,11 @@ def save_mesh(
     translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
     0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
-    meshes also write
-    ``<stem>.mtl`` and their images ``<stem>_<material>.png`` beside ``path`` (whitespace in the stem becomes
-    ``_``: OBJ and MTL readers split file names on it; an image with transparent texels is also the MTL's
-    dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks`` black unless the material sets a base colour,
-    so the texture shows at full brightness, matte), each atomically; one that would
+    meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
+    a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
+    image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
+    black unless the material sets a base colour, so the texture shows at full brightness, matte), each
+    atomically, once the OBJ itself is complete; one that would
     replace an image :func:`save_image` wrote in this process, or a side file of another OBJ, is refused (a
     DataFileError) before any is written. The file appears complete or not at all: the mesh is
     written to a temporary file in the same folder and renamed, and an existing ``path`` is untouched
@@ -296,6 +303,8 @@ def save_mesh(
             f"supported: {', '.join(MESH_EXTENSIONS)}"
         )
     _check_faces(mesh, len(vertices))
+    if ext in _TEXTURED:
+        _check_uv(mesh, ext, target)
     if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
         raise InvalidInputError(
             f"cannot write {str(target)!r}: mesh has {len(vertices)} vertices but no faces, and {ext} stores "
@@ -304,6 +313,8 @@ def save_mesh(
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
     prepared = _prepared_mesh(mesh, extras)
+    if ext in _TEXTURED and prepared.visual.kind == "texture":
+        _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
     with atomic_path(target) as tmp:
         try:
             writer(prepared, tmp, target, bounds, frame)
@@ -333,6 +344,36 @@ def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
         f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
         f"has {vertex_count} vertices"
     )
+
+
+def _check_uv(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
+    """Refuse a texture that ``ext`` (one of :data:`_TEXTURED`) would write broken: texture coordinates that are not
+    one finite (u, v) per vertex, or an image without them. An OBJ's ``vt`` index is its vertex's; glTF's
+    TEXCOORD_0 is an attribute of every vertex, and its accessor bounds are JSON: trimesh's writer wrote a texture
+    without TEXCOORD_0 (for too few or no UVs) and NaN bounds (invalid JSON), files the glTF validator refuses, and
+    the OBJ got ``vt nan nan``. glTF points (no faces) are written without their texture."""
+    visual = mesh.visual
+    if visual.kind != "texture" or (ext != ".obj" and len(mesh.faces) == 0):
+        return
+    uv = getattr(visual, "uv", None)
+    vertices = len(mesh.vertices)
+    if uv is None:
+        material = getattr(visual, "material", None)
+        if getattr(material, "baseColorTexture", getattr(material, "image", None)) is None:
+            return  # a material without an image (trimesh reads one from a glTF): nothing to map
+        raise InvalidInputError(f"cannot write {str(target)!r}: mesh has a texture image but no texture coordinates "
+                                f"(UVs); {ext} needs one (u, v) per vertex")
+    uv = np.asarray(uv)
+    if uv.shape != (vertices, 2):
+        raise InvalidInputError(
+            f"cannot write {str(target)!r}: mesh has {len(uv) if uv.ndim else 0} texture coordinates (UVs) "
+            f"{'of shape ' + str(uv.shape) + ' ' if uv.ndim != 2 or uv.shape[1] != 2 else ''}for {vertices} "
+            f"vertices; {ext} needs one (u, v) per vertex"
+        )
+    finite = np.isfinite(uv).all(axis=1)
+    if not finite.all():
+        raise InvalidInputError(f"cannot write {str(target)!r}: texture coordinates (UVs) must be finite; got "
+                                f"{int((~finite).sum())} of {vertices} with NaN or inf")
 
 
 def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
@@ -811,10 +852,20 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
-    for path, data in zip(paths, sidecars.values(), strict=True):
-        with atomic_path(path) as side_tmp:
-            side_tmp.write_bytes(data)
+    with contextlib.ExitStack() as side_files:
+        # each side file replaces its old one only once the OBJ is complete: written first, an OBJ that then failed
+        # (disk full, interrupted, a folder in its place) left the old OBJ with the new texture, or side files of no OBJ
+        for path, data in zip(paths, sidecars.values(), strict=True):
+            side_files.enter_context(atomic_path(path)).write_bytes(data)
+        _write_obj_text(mesh, tmp, mtl_name, material, uv)
     _record_owner(paths, target)
+
+
+def _write_obj_text(
+    mesh: trimesh.Trimesh, tmp: Path, mtl_name: str, material: str | None, uv: NDArray[Any] | None
+) -> None:
+    """:func:`_write_obj`'s ``.obj`` text into ``tmp``: ``mtllib mtl_name`` and ``usemtl material`` (None: no
+    texture), ``v`` lines (RGB for vertex colours), ``vt`` lines of ``uv`` and ``f`` lines."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     colors = None
@@ -863,32 +914,77 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         if unset:  # trimesh's default Kd 0.4 dims map_Kd to 40 % (MTL multiplies them; three.js does), Ks 0.4 shines
             material.diffuse = np.array([255, 255, 255, 255], np.uint8)
             material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
-    files, name = material.to_obj(name=trimesh.util.unique_name(material.name, set()))
+    name = material.name
+    if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
+        name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
+    files, name = material.to_obj(name=trimesh.util.unique_name(name, set()))
     sidecars = {mtl_name: b"# written by stepterrain\n\n"}
     for file_name, data in files.items():
         if file_name.lower().endswith(".mtl"):
             sidecars[mtl_name] += data
         else:
             sidecars[file_name] = data
-    uv = getattr(visual, "uv", None)
-    uv = np.asarray(uv, dtype=np.float64) if uv is not None and np.ndim(uv) == 2 else None
-    if uv is not None and len(uv) != len(mesh.vertices):  # each face corner's vt index is its vertex's
-        raise InvalidInputError(
-            f"mesh has {len(uv)} texture coordinates (UVs) for {len(mesh.vertices)} vertices; an OBJ needs one "
-            "per vertex"
-        )
+    uv = getattr(visual, "uv", None)  # one per vertex (_check_uv): each face corner's vt index is its vertex's
+    uv = np.asarray(uv, dtype=np.float64) if uv is not None else None
     return sidecars, str(name), uv
+
+
+#: The texture images of trimesh's materials: SimpleMaterial's one image, PBRMaterial's textures.
+_TEXTURE_SLOTS = (
+    (trimesh.visual.material.SimpleMaterial, ("image",)),
+    (trimesh.visual.material.PBRMaterial, ("baseColorTexture", "metallicRoughnessTexture", "normalTexture",
+                                           "emissiveTexture", "occlusionTexture")),
+)  # fmt: skip
+#: PIL modes of colour images that PNG cannot hold, and the mode each is written in.
+_PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA"}
+
+
+def _pil_textures(material: Any) -> None:
+    """Make the texture images of ``material`` (a prepared mesh's copy: changed in place) PIL images in PNG or JPEG,
+    as glTF and OBJ readers take them. A numpy array (``TextureVisuals(uv=..., image=array)``, as trimesh allows)
+    was no texture at all in glTF (trimesh's writer skips what is not a PIL image, silently) and an AttributeError
+    in OBJ. An image opened from a WebP, TIFF, GIF or BMP file went to the OBJ's side files in that format, which
+    most MTL readers cannot read (and ``<stem>_<material>.png`` was promised): it is PNG now, as in glTF; a JPEG
+    stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB: PNG cannot hold it (a
+    DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF texture."""
+    from PIL import Image
+
+    slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
+    for slot in slots:
+        image = getattr(material, slot, None)
+        if image is None:
+            continue
+        if not isinstance(image, Image.Image):
+            array = np.asarray(image)
+            if array.ndim == 3 and array.shape[2] == 1:
+                array = array[..., 0]
+            if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (3, 4))):
+                raise InvalidInputError(
+                    f"mesh texture image ({slot}) must be a PIL image or an (H, W), (H, W, 3) or (H, W, 4) uint8 "
+                    f"array; got {type(image).__name__} of dtype {array.dtype} and shape {array.shape}"
+                )
+            image = Image.fromarray(np.ascontiguousarray(array))
+        elif image.mode in _PNG_MODES:
+            image = image.convert(_PNG_MODES[image.mode])
+        elif image.format not in (None, "PNG", "JPEG"):
+            image = image.copy()  # no format: trimesh writes it as PNG
+        else:
+            continue
+        setattr(material, slot, image)
 
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
     """Prefix texture images with the OBJ's stem (``material_0.png`` -> ``<stem>_material_0.png``) and point
     the MTL at them, so several textured OBJs in one folder keep their own images. Whitespace in a name
-    (a material called "terrain texture") becomes ``_``: MTL readers split ``map_Kd`` lines on it."""
-    renamed = {
-        name: f"{stem}_{'_'.join(name.split())}"
-        for name in sidecars
-        if name != mtl_name and not name.startswith(f"{stem}_")
-    }
+    (a material called "terrain texture") becomes ``_``: MTL readers split ``map_Kd`` lines on it. So do path
+    separators: an image is named after its material, and a material named ``../../x`` (as a glTF file read back
+    may name it) wrote ``x.png`` outside the OBJ's folder, and one named ``a/b`` made a folder beside it."""
+    renamed = {}
+    for name in sidecars:
+        plain = re.sub(r"[\s/\\]+", "_", name.strip())  # one file name in the OBJ's folder
+        plain = plain if plain.startswith(f"{stem}_") else f"{stem}_{plain}"
+        if name != mtl_name and plain != name:
+            renamed[name] = plain
     out: dict[str, bytes] = {}
     for name, data in sidecars.items():
         if name == mtl_name:
@@ -987,9 +1083,12 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
     p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
-    zip: no lxml or networkx needed."""
+    zip: no lxml or networkx needed. A triangle naming one vertex twice (no area: trimesh's loader makes one of a
+    sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct (core spec §4.1.4.1), and
+    it was written as it was."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
     color_index = palette = face_index = None
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices) and len(vertices):
         rgba = np.ascontiguousarray(np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)[:, :4])
@@ -1001,6 +1100,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         rgba = np.ascontiguousarray(np.asarray(mesh.visual.face_colors, dtype=np.uint8)[:, :4])
         palette, face_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
         palette = palette.view(np.uint8).reshape(-1, 4)
+        face_index = face_index.reshape(-1)[distinct] if not distinct.all() else face_index
+    if not distinct.all():
+        faces = faces[distinct]
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
         archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
         archive.writestr("_rels/.rels", _3MF_RELS)
@@ -1052,7 +1154,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
     exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
-    as vertex colours, or face colours where one vertex has corners of several colours.
+    as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
+    properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
+    keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
+    ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
+    a mesh read and written again lost them).
 
     Raises
     ------
@@ -1080,6 +1186,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = trimesh.load(file, force="mesh", process=False)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
+        if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
+            _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
@@ -1087,6 +1195,37 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
+
+
+#: PLY properties trimesh's reader makes into the mesh itself (positions, normals, colours, UVs, faces): not attributes.
+_PLY_OWN = {
+    "vertex": frozenset({"x", "y", "z", "nx", "ny", "nz", "red", "green", "blue", "alpha", "s", "t", "u", "v",
+                         "texture_u", "texture_v"}),
+    "face": frozenset({"vertex_indices", "vertex_index", "red", "green", "blue", "alpha", "texcoord"}),
+}  # fmt: skip
+
+
+def _ply_attributes(mesh: trimesh.Trimesh) -> None:
+    """Give ``mesh``, read from a PLY, the other numeric scalar properties of its vertex and face elements as its
+    ``vertex_attributes`` and ``face_attributes`` (one per vertex or face; trimesh's reader keeps them only in
+    ``metadata["_ply_raw"]``)."""
+    raw = (mesh.metadata or {}).get("_ply_raw")
+    if not isinstance(raw, Mapping):
+        return
+    for element, attributes, count in (("vertex", mesh.vertex_attributes, len(mesh.vertices)),
+                                       ("face", mesh.face_attributes, len(mesh.faces))):  # fmt: skip
+        data = (raw.get(element) or {}).get("data") if isinstance(raw.get(element), Mapping) else None
+        if isinstance(data, np.ndarray) and data.dtype.names:
+            columns = {name: data[name] for name in data.dtype.names}
+        elif isinstance(data, Mapping):
+            columns = dict(data)
+        else:
+            continue
+        for name, column in columns.items():
+            column = np.asarray(column)
+            if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
+                continue
+            attributes.setdefault(str(name), column.astype(column.dtype.newbyteorder("=")))
 
 
 def _color_attribute(scene: Any) -> NDArray[Any] | None:
@@ -1544,7 +1683,10 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
 
 def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
     """One node holding ``mesh`` (a prepared copy: its visual may be replaced); large coordinates move into the node
-    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it."""
+    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it. Vertex attributes
+    are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare KeyError for an integer or
+    bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as VEC4)."""
+    mesh.vertex_attributes.clear()  # the prepared copy's own dict
     material = getattr(mesh.visual, "material", None)
     if mesh.visual.kind == "texture" and material is not None:
         mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))

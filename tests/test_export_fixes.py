@@ -613,3 +613,219 @@ def test_a_textured_obj_shows_its_texture_at_full_brightness_and_matte(tmp_path)
     tinted.visual.material = PBRMaterial(baseColorTexture=mesh.visual.material.baseColorTexture,
                                          baseColorFactor=[128, 64, 32, 255])  # fmt: skip
     assert mtl_lines(tinted, "tinted")["Kd"] == pytest.approx([128 / 255, 64 / 255, 32 / 255])
+
+
+def _textured_box(colour):
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (4, 4), colour))
+    return mesh
+
+
+def test_a_textured_obj_that_fails_leaves_the_old_obj_its_own_side_files(tmp_path, monkeypatch):
+    """The .mtl and texture image were written (renamed into place) before the .obj text: when the .obj then failed
+    (disk full, Ctrl-C), the old .obj was kept, as promised, but read the new texture, and a failed write left side
+    files of no OBJ. They now replace the old ones only once the .obj is complete."""
+    import errno
+
+    from stepterrain import export
+
+    save_mesh(_textured_box((255, 0, 0)), tmp_path / "t.obj")
+    before = {p.name: p.read_bytes() for p in tmp_path.iterdir()}
+    assert sorted(before) == ["t.mtl", "t.obj", "t_material_0.png"]
+    write_rows = export._write_rows
+
+    def disk_full(write, row, blocks):
+        if row.startswith("f "):
+            raise OSError(errno.ENOSPC, "No space left on device")
+        write_rows(write, row, blocks)
+
+    monkeypatch.setattr(export, "_write_rows", disk_full)
+    with pytest.raises(DataFileError, match="No space left on device"):
+        save_mesh(_textured_box((0, 0, 255)), tmp_path / "t.obj")
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == before  # no temporary file either
+    monkeypatch.setattr(export, "_write_rows", write_rows)
+    with Image.open(tmp_path / "t_material_0.png") as image:
+        assert image.getpixel((0, 0)) == (255, 0, 0)
+
+
+@pytest.mark.parametrize("ext", [".obj", ".glb", ".ply"])
+def test_a_folder_in_place_of_the_output_is_refused_before_anything_is_written(tmp_path, ext):
+    """A folder at the output path was found only when the finished file was renamed onto it (EISDIR): the whole mesh
+    was made first, and a textured OBJ left its .mtl and texture image behind for an OBJ that was never written."""
+    (tmp_path / f"out{ext}").mkdir()
+    with pytest.raises(DataFileError, match=r"out\.\w+': it is a folder; expected a file name"):
+        save_mesh(_textured_box((0, 0, 255)), tmp_path / f"out{ext}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"out{ext}"]
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_textured_mesh_with_integer_or_bool_vertex_attributes_writes_gltf_without_them(tmp_path, ext):
+    """glTF drops vertex attributes (save_mesh's docstring), and the untextured writer did; a textured mesh went to
+    trimesh's writer with them, which raised a bare KeyError ('i8') for an integer or bool attribute (a PLY's
+    ``level`` read back, then draped) and wrote float ones as custom attributes."""
+    mesh = _textured_box((0, 0, 255))
+    mesh.vertex_attributes.update(level=np.arange(8), seen=np.arange(8) % 2 == 0, height=np.arange(8.0))
+    mesh.face_attributes["wall"] = np.arange(12) % 2 == 0
+    path = save_mesh(mesh, tmp_path / f"t{ext}")
+    (primitive,) = gltf_tree_and_buffer(path)[0]["meshes"][0]["primitives"]
+    assert sorted(primitive["attributes"]) == ["POSITION", "TEXCOORD_0"]
+    back = read_mesh(path)
+    np.testing.assert_allclose(back.vertices, mesh.vertices, atol=1e-7)
+    np.testing.assert_allclose(back.visual.uv, mesh.visual.uv, atol=1e-7)
+    assert set(mesh.vertex_attributes) == {"level", "seen", "height"}  # the caller's mesh is not modified
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf", ".obj"])
+@pytest.mark.parametrize(("uv", "message"), [
+    (np.full((8, 2), np.nan), r"texture coordinates \(UVs\) must be finite; got 8 of 8 with NaN or inf"),
+    (np.zeros((5, 2)), r"mesh has 5 texture coordinates \(UVs\) for 8 vertices; \.\w+ needs one \(u, v\) per vertex"),
+    (None, r"mesh has a texture image but no texture coordinates \(UVs\); \.\w+ needs one \(u, v\) per vertex"),
+], ids=["nan", "too-few", "none"])  # fmt: skip
+def test_a_texture_whose_uvs_cannot_be_written_is_refused(tmp_path, ext, uv, message):
+    """glTF wrote NaN UVs' accessor bounds as NaN (invalid JSON) and a texture without TEXCOORD_0 for too few or no
+    UVs (MESH_PRIMITIVE_TOO_FEW_TEXCOORDS), files the Khronos validator refuses; the OBJ wrote ``vt nan nan``. They
+    are refused as the OBJ's too few UVs were, before anything is written."""
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (2, 2)))
+    with pytest.raises(InvalidInputError, match=message):
+        save_mesh(mesh, tmp_path / f"box{ext}")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("name", ["../../../escaped", "terrain/v1", "t_a b/c"])
+def test_a_textured_obj_writes_its_image_in_its_own_folder_whatever_the_material_is_called(tmp_path, name):
+    """The texture image is named after its material, and the name went into the path as it was: a material called
+    ``../../../escaped`` (which survives a glTF round trip, so any downloaded file can carry it) wrote
+    ``escaped.png`` outside the output folder, and ``terrain/v1`` made a folder ``t_terrain`` beside the OBJ. Path
+    separators become ``_`` like whitespace (which a name starting with the stem kept)."""
+    out = tmp_path / "a" / "b" / "out"
+    mesh = trimesh.creation.box()
+    material = trimesh.visual.material.PBRMaterial(name=name, baseColorTexture=Image.new("RGB", (4, 4), (9, 9, 9)))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), material=material)
+    save_mesh(mesh, out / "t.obj")
+    written = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*") if p.is_file())
+    (image,) = [p for p in written if p.endswith(".png")]
+    assert written == sorted(["a/b/out/t.obj", "a/b/out/t.mtl", image]) and image.startswith("a/b/out/t_")
+    assert [p for p in out.iterdir() if p.is_dir()] == []
+    (map_kd,) = [line for line in (out / "t.mtl").read_text().splitlines() if line.startswith("map_Kd")]
+    assert map_kd == f"map_Kd {image.rsplit('/', 1)[1]}"
+    back = read_mesh(out / "t.obj")
+    assert np.asarray(back.visual.material.image.convert("RGB"))[0, 0].tolist() == [9, 9, 9]
+
+
+def test_a_material_name_with_a_line_break_stays_one_statement_of_the_obj_and_mtl(tmp_path):
+    """``usemtl`` and ``newmtl`` carried the material's name as it was: a line break in it (any glTF material name
+    can hold one) started a statement of its own, here a vertex that shifted every face of the OBJ, and the
+    ``map_Kd`` line lost the image. The name is now one word, as the image's file name is."""
+    mesh = trimesh.creation.box()
+    material = trimesh.visual.material.PBRMaterial(name="rock\nv 9 9 9", baseColorTexture=Image.new("RGB", (4, 4)))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), material=material)
+    obj = save_mesh(mesh, tmp_path / "t.obj")
+    lines = obj.read_text().splitlines()
+    assert sum(line.startswith("v ") for line in lines) == len(mesh.vertices)
+    assert "usemtl rock_v_9_9_9" in lines
+    assert "newmtl rock_v_9_9_9" in (tmp_path / "t.mtl").read_text().splitlines()
+    back = read_mesh(obj)
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+    assert back.visual.material.image is not None
+
+
+@pytest.mark.parametrize("faces", [True, False], ids=["triangles", "points"])
+def test_read_mesh_gives_a_plys_attributes_back_and_a_second_write_keeps_them(tmp_path, faces):
+    """save_mesh keeps face and vertex attributes (stepped's ``level`` and ``wall``) in a PLY only, but read_mesh left
+    them in ``metadata["_ply_raw"]``: ``face_attributes`` came back empty, and a mesh read and written again lost
+    them."""
+    mesh = trimesh.creation.box()
+    if not faces:
+        mesh = trimesh.Trimesh(mesh.vertices, np.zeros((0, 3), np.int64), process=False)
+    else:
+        mesh.face_attributes.update(level=np.arange(12) - 3, wall=np.arange(12) % 3 == 0)
+        mesh.visual.face_colors = np.random.default_rng(0).integers(0, 256, (12, 4), dtype=np.uint8)
+    mesh.vertex_attributes.update(height=np.arange(8.0) * 1e10, pair=np.arange(16, dtype=np.float32).reshape(8, 2))
+    back = read_mesh(save_mesh(mesh, tmp_path / "a.ply"))
+    again = read_mesh(save_mesh(back, tmp_path / "b.ply"))
+    for read in (back, again):
+        assert sorted(read.vertex_attributes) == ["height", "pair_0", "pair_1"]
+        np.testing.assert_array_equal(read.vertex_attributes["height"], mesh.vertex_attributes["height"])
+        np.testing.assert_array_equal(read.vertex_attributes["pair_1"], mesh.vertex_attributes["pair"][:, 1])
+        assert sorted(read.face_attributes) == (["level", "wall"] if faces else [])
+        if faces:
+            np.testing.assert_array_equal(read.face_attributes["level"], mesh.face_attributes["level"])
+            np.testing.assert_array_equal(read.face_attributes["wall"], mesh.face_attributes["wall"])
+            np.testing.assert_array_equal(read.visual.face_colors, mesh.visual.face_colors)
+
+
+@pytest.mark.parametrize("colours", ["none", "face", "vertex"])
+def test_a_3mf_leaves_out_triangles_that_name_one_vertex_twice(tmp_path, colours):
+    """3MF's v1, v2 and v3 MUST be distinct (core spec 4.1.4.1), but a triangle naming one vertex twice was written
+    as it was: trimesh.load of an STL with a sliver (its default merge of vertices) makes one, and the 3MF was
+    invalid. It has no area and is left out; the others keep their colours."""
+    import re
+    import zipfile
+
+    sliver = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1e-12, 0], [1, 1, 0]],
+                             [[0, 1, 2], [1, 3, 2], [1, 4, 2]], process=False)  # fmt: skip
+    (tmp_path / "in.stl").write_bytes(trimesh.exchange.stl.export_stl(sliver))
+    mesh = trimesh.load(tmp_path / "in.stl")
+    assert mesh.faces.tolist() == [[0, 1, 2], [1, 1, 2], [1, 3, 2]]
+    if colours == "face":
+        mesh.visual.face_colors = [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255]]
+    elif colours == "vertex":
+        mesh.visual.vertex_colors = [[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255], [9, 9, 9, 255]]
+    path = save_mesh(mesh, tmp_path / "out.3mf")
+    model = zipfile.ZipFile(path).read("3D/3dmodel.model").decode()
+    corners = [[int(v) for v in t] for t in re.findall(r'<triangle v1="(\d+)" v2="(\d+)" v3="(\d+)"', model)]
+    assert corners == [[0, 1, 2], [1, 3, 2]]
+    back = read_mesh(path)
+    assert back.faces.tolist() == corners
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    if colours == "face":
+        np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors[[0, 2]])
+    elif colours == "vertex":
+        np.testing.assert_array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
+
+
+@pytest.mark.parametrize("source", ["array", "webp", "tiff", "cmyk"])
+def test_a_texture_image_of_any_kind_is_written_as_a_png_texture(tmp_path, source):
+    """``TextureVisuals(uv=..., image=array)`` (trimesh takes a numpy array) wrote a glTF with no texture at all
+    (trimesh's writer skips what is not a PIL image) and raised a bare AttributeError for an OBJ; an image opened
+    from a WebP or TIFF file went beside the OBJ in that format, which most MTL readers cannot read; a CMYK image
+    was a DataFileError ("cannot write mode CMYK as PNG"). Each is now written as a PNG texture."""
+    from . import gltf_validator
+
+    texels = np.zeros((4, 6, 3), np.uint8)
+    texels[..., 0], texels[..., 1] = 200, np.arange(6) * 40
+    image = texels
+    if source in ("webp", "tiff"):
+        Image.fromarray(texels).save(tmp_path / f"in.{source}", lossless=True)
+        image = Image.open(tmp_path / f"in.{source}")
+    elif source == "cmyk":
+        image = Image.fromarray(texels).convert("CMYK")
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), image=image)
+    paths = [save_mesh(mesh, tmp_path / f"out{ext}") for ext in (".glb", ".gltf", ".obj")]
+    for path in paths[:2]:
+        tree, _ = gltf_tree_and_buffer(path)
+        assert [i["mimeType"] for i in tree["images"]] == ["image/png"]
+        back = read_mesh(path).visual.material.baseColorTexture
+        np.testing.assert_array_equal(np.asarray(back.convert("RGB")), texels)
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate(paths[:2])) == []
+    assert sorted(p.name for p in tmp_path.glob("out*")) == ["out.glb", "out.gltf", "out.mtl", "out.obj",
+                                                            "out_material_0.png"]  # fmt: skip
+    with Image.open(tmp_path / "out_material_0.png") as written:
+        np.testing.assert_array_equal(np.asarray(written.convert("RGB")), texels)
+    np.testing.assert_array_equal(np.asarray(read_mesh(paths[2]).visual.material.image.convert("RGB")), texels)
+
+
+def test_a_texture_array_that_is_no_image_is_refused(tmp_path):
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((8, 2)), image=np.zeros((4, 4, 3), np.float32))
+    for ext in (".glb", ".obj"):
+        with pytest.raises(InvalidInputError, match=r"texture image \(image\) must be a PIL image or an \(H, W\), "
+                                                    r"\(H, W, 3\) or \(H, W, 4\) uint8 array; got ndarray of dtype "
+                                                    r"float32 and shape \(4, 4, 3\)"):  # fmt: skip
+            save_mesh(mesh, tmp_path / "new" / f"out{ext}")
+    assert list(tmp_path.iterdir()) == []  # refused before the folder is made
