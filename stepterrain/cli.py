@@ -429,6 +429,17 @@ def _kernel_cache_warm(device: Any) -> bool | None:
         return None
 
 
+def _nearest_node_distance(terrain: Any, x: float, y: float) -> float:
+    """Distance from (x, y) to the terrain's nearest node (a grid's nearest row and column, a TIN's nearest point)."""
+    if terrain.kind == "grid":
+        rows, cols = terrain.shape
+        (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+        col = min(max(round((x - x0) / dx), 0), cols - 1)
+        row = min(max(round((y - y0) / dy), 0), rows - 1)
+        return math.hypot(x - (x0 + col * dx), y - (y0 + row * dy))
+    return float(np.hypot(terrain.points[:, 0] - x, terrain.points[:, 1] - y).min())
+
+
 def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     import stepterrain as st
 
@@ -481,16 +492,19 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         gamma = st.circular_lens(terrain, (cx, cy), radius, edge_width=args.lens_edge, outside=args.gamma)
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
+        reach = radius + (radius / 4.0 if args.lens_edge is None else args.lens_edge) / 2.0  # γ < --gamma within
         if args.gamma > 0.0 and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
             crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
             if math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax)) >= radius:
                 why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
                        f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
-            else:
-                why = (f"is finer than the lens mask's {gamma.mask.shape[1]} x {gamma.mask.shape[0]} samples over "
-                       "the extent: give a larger radius")
             warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing: it {why}",
                           stacklevel=1)
+        elif args.gamma > 0.0 and _nearest_node_distance(terrain, cx, cy) >= reach:
+            spacing = f" (node spacing {abs(terrain.spacing[0]):.9g} x {abs(terrain.spacing[1]):.9g})"
+            warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing at the terrain's "
+                          f"nodes: it holds none of them{spacing if terrain.kind == 'grid' else ''}; give a larger "
+                          "radius", stacklevel=1)
 
     # kernels: compile (first run on this machine) or load from Warp's cache
     from ._device import resolve_device

@@ -155,7 +155,10 @@ def circular_lens(
     """A soft-edged circular lens: γ = ``inside`` within ``radius`` of ``center``, ``outside`` beyond.
 
     The transition is a smoothstep over ``edge_width`` (default radius / 4) centred on the circle. With the
-    defaults the original terrain shows inside the lens and the steps outside (paper 000 §4, Fig. 4).
+    defaults the original terrain shows inside the lens and the steps outside (paper 000 §4, Fig. 4). The mask
+    holds ``resolution`` x ``resolution`` samples over the lens's square (the circle and its soft edge, clipped to
+    the terrain's extent; the whole extent where the lens misses the terrain), and γ beyond that square is
+    ``outside``: a small lens on a large DEM is as smooth as a large one.
 
     Examples
     --------
@@ -184,12 +187,8 @@ def circular_lens(
         raise InvalidInputError(f"lens resolution must be an int >= 2; got {resolution!r}")
     check_budget(LENS_TEXEL_BYTES * int(resolution) ** 2, f"a lens mask of resolution {int(resolution)}",
                  hint="lower the lens resolution")
-    xmin, xmax, ymin, ymax = t.extent
-    if xmax <= xmin:
-        xmax = xmin + 1.0
-    if ymax <= ymin:
-        ymax = ymin + 1.0
     n = int(resolution)
+    xmin, xmax, ymin, ymax = _lens_box(t.extent, (cx, cy), radius + width / 2.0, n)
     xs = np.linspace(xmin, xmax, n)
     ys = np.linspace(ymin, ymax, n)
     d = np.hypot(xs[None, :] - cx, ys[:, None] - cy)
@@ -201,6 +200,27 @@ def circular_lens(
         s = (d > radius).astype(np.float64)
     mask = float(inside) + (float(outside) - float(inside)) * s
     return Lens(mask.astype(np.float32), (xmin, xmax, ymin, ymax))
+
+
+def _lens_box(
+    extent: tuple[float, float, float, float], center: tuple[float, float], reach: float, n: int
+) -> tuple[float, float, float, float]:
+    """The part of ``extent`` a circular lens's mask covers: the square around ``center`` whose border samples lie
+    beyond ``reach`` (radius + half the soft edge, where γ is ``outside`` exactly), clipped to the terrain's extent;
+    the terrain's whole extent where the square misses it. The mask is clamped to its border values beyond its extent
+    (kernels/stepped.py, sample_lens), so a small lens on a large DEM keeps its ``resolution`` samples on the lens
+    rather than spreading them over the whole terrain."""
+    xmin, xmax, ymin, ymax = extent
+    if xmax <= xmin:
+        xmax = xmin + 1.0
+    if ymax <= ymin:
+        ymax = ymin + 1.0
+    cx, cy = center
+    half = reach * (1.0 + 2.0 / (n - 1))  # a sample's spacing beyond the reach: the border samples are `outside`
+    bx0, bx1, by0, by1 = max(xmin, cx - half), min(xmax, cx + half), max(ymin, cy - half), min(ymax, cy + half)
+    if not (bx1 > bx0 and by1 > by0) or not all(np.isfinite((bx0, bx1, by0, by1))):
+        return xmin, xmax, ymin, ymax  # the lens misses the terrain (or a subnormal reach): γ is `outside` everywhere
+    return bx0, bx1, by0, by1
 
 
 #: Steps aimed at by :func:`nice_interval` (the CLI's default when neither --interval nor --levels is given).

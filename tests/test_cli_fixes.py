@@ -681,12 +681,12 @@ def test_info_refuses_a_height_unit_for_a_mesh(tmp_path, capsys):
 @pytest.mark.parametrize("lens, why", [
     (("--lens", "-118.2,34.3,5"), "lies outside the terrain's extent"),  # degrees given for a grid in metres
     (("--lens-relative", "2,2,0.1"), "lies outside the terrain's extent"),
-    (("--lens", "30.05,-20.05,0.01"), "is finer than the lens mask's 512 x 512 samples"),
+    (("--lens", "30.5,-20.5,0.3"), "holds none of them (node spacing 1 x 1)"),  # between four nodes
 ])
 def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
-    """A lens given where the terrain is not (longitude and latitude for a UTM grid, a fraction past 1), or finer than
-    the lens mask's samples, left every node's γ at --gamma: the mesh came out fully stepped, exit 0, while the
-    progress line said "original terrain inside"."""
+    """A lens given where the terrain is not (longitude and latitude for a UTM grid, a fraction past 1), or between
+    nodes, left every node's γ at --gamma: the mesh came out fully stepped (but for walls between nodes), exit 0,
+    while the progress line said "original terrain inside"."""
     import trimesh
 
     np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)

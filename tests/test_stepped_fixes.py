@@ -95,7 +95,8 @@ def test_a_subnormal_lens_edge_leaks_no_overflow_warning(radius, edge_width):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         lens = st.circular_lens(np.zeros((5, 5)), (2.0, 2.0), radius, edge_width=edge_width, resolution=9)
-    inside = np.hypot(*np.meshgrid(np.linspace(-2, 2, 9), np.linspace(-2, 2, 9))) <= radius
+    x0, x1, y0, y1 = lens.extent  # the mask's samples span the lens's own square
+    inside = np.hypot(*np.meshgrid(np.linspace(x0 - 2, x1 - 2, 9), np.linspace(y0 - 2, y1 - 2, 9))) <= radius
     np.testing.assert_array_equal(lens.mask, np.where(inside, 0.0, 1.0))
 
 
@@ -447,3 +448,27 @@ def test_trimesh_own_ply_writer_writes_a_stepped_mesh(tmp_path):
     np.testing.assert_array_equal(np.asarray(faces["wall"]).reshape(-1), mesh.face_attributes["wall"].astype(np.uint8))
     np.testing.assert_array_equal(np.asarray(faces["level"]).reshape(-1), mesh.face_attributes["level"])
     assert b"property uchar wall" in path.read_bytes()[:1000]
+
+
+def test_a_small_lens_on_a_large_dem_follows_its_smoothstep():
+    """circular_lens spread its 512 x 512 samples over the whole terrain: on the 36 x 19 km sample DEM a 60 m lens
+    fell between the mask's 70 m samples, and the stepped heights in it were up to 19 m off those of the lens's own
+    smoothstep. The mask now covers the lens's square (γ is `outside` beyond it)."""
+    dem = st.sample_dem()
+    x0, x1, y0, y1 = dem.extent
+    cx, cy, radius, edge = (x0 + x1) / 2, (y0 + y1) / 2, 60.0, 30.0
+    lens = st.circular_lens(dem, (cx, cy), radius, edge_width=edge)
+
+    def smoothstep(points):
+        s = np.clip((np.hypot(points[:, 0] - cx, points[:, 1] - cy) - (radius - edge / 2)) / edge, 0.0, 1.0)
+        return s * s * (3.0 - 2.0 * s)
+
+    by_lens = st.stepped(dem, interval=100.0, gamma=lens)
+    exact = st.stepped(dem, interval=100.0, gamma=smoothstep)
+    np.testing.assert_array_equal(by_lens.faces, exact.faces)
+    assert np.abs(by_lens.vertices - exact.vertices).max() < 0.01  # metres, heights 300-2300 m
+    plain = st.stepped(dem, interval=100.0)
+    near = np.hypot(plain.vertices[:, 0] - cx, plain.vertices[:, 1] - cy) < radius - edge / 2
+    assert near.sum() >= 4 and not np.allclose(by_lens.vertices[near, 2], plain.vertices[near, 2])
+    far = np.hypot(plain.vertices[:, 0] - cx, plain.vertices[:, 1] - cy) > radius + edge / 2
+    np.testing.assert_array_equal(by_lens.vertices[far], plain.vertices[far])
