@@ -838,10 +838,35 @@ def _grid_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _S
     ci, cj = np.meshgrid(np.arange(i0, i1), np.arange(j0, j1), indexing="ij")
     cell = (ci * (cols - 1) + cj).reshape(-1)
     source = (2 * cell[:, None] + np.arange(2)[None, :]).reshape(-1)
-    if terrain.nodata_mask.any():
+    if terrain.has_nodata:
         ok = np.isfinite(points[:, 2])[faces].all(axis=1)
         faces, source = faces[ok], source[ok]
+        source = _mesh_face_index(terrain, source, i0, i1)
     return _Source(points, faces.astype(np.int32), source.astype(np.int64))
+
+
+def _mesh_face_index(terrain: Terrain, grid_face: NDArray[np.int64], i0: int, i1: int) -> NDArray[np.int64]:
+    """The index in ``Terrain.mesh()`` of grid faces 2·cell + t (all drawn: no nodata corner) of the cell rows
+    i0..i1 − 1: that mesh leaves out the faces with a nodata corner, so the faces after one move down (2·cell + t
+    named another face of the overview, or none). The drawn faces before each cell row are counted once per
+    terrain; within the window's rows, from column 0."""
+    finite = np.isfinite(terrain.heights)
+
+    def drawn(rows: slice) -> NDArray[np.bool_]:  # (cell rows, 2·(cols − 1)): face 2·j + t of each row drawn
+        f = finite[rows.start: rows.stop + 1]
+        n00, n01, n10, n11 = f[:-1, :-1], f[:-1, 1:], f[1:, :-1], f[1:, 1:]
+        return np.stack([n00 & n01 & n11, n00 & n11 & n10], axis=2).reshape(len(n00), -1)
+
+    def row_starts() -> NDArray[np.int64]:
+        per_row = drawn(slice(0, finite.shape[0] - 1)).sum(axis=1)
+        return np.concatenate([[0], np.cumsum(per_row)]).astype(np.int64)
+
+    starts = terrain.cached(("closeup", "drawn-face-rows"), row_starts)
+    window = drawn(slice(i0, i1))
+    before = np.cumsum(window, axis=1) - window  # drawn faces before each one in its row
+    per_row = window.shape[1]
+    row, within = np.divmod(grid_face, per_row)
+    return starts[row] + before[row - i0, within]
 
 
 def _tin_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _Source:

@@ -496,3 +496,24 @@ def test_flat_ground_has_no_aspect():
     aspect = _vertex_scalars(t, points, "aspect").reshape(6, 7)
     assert np.isnan(aspect[:, :3]).all()  # flat: no aspect (was π, south)
     np.testing.assert_allclose(aspect[:, 4:], np.pi / 2, atol=1e-6)  # falling to the east
+
+
+@pytest.mark.parametrize("spacing", [(10.0, 10.0), (10.0, -10.0), (-10.0, 10.0)])
+def test_source_faces_index_the_overview_mesh_of_a_dem_with_nodata(spacing):
+    """``CloseUpLayer.source_faces`` index ``Terrain.mesh()``'s faces; that mesh leaves out the faces at nodata, so
+    the grid numbering 2·cell + t named other faces of the overview (or past its end) after the first hole."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills()
+    heights[4:7, 10:13] = np.nan  # a hole before the ROI's rows
+    heights[16, 18] = np.nan  # one inside it
+    t = Terrain.from_heights(heights, spacing=spacing, origin=(0.0, 0.0))
+    x0, x1, y0, y1 = t.extent
+    cu = CloseUp(ROI.circle(((x0 + x1) / 2, (y0 + y1) / 2), 100.0), offset=(0.0, 0.0, 50.0))
+    layer = closeup_layers(t, [cu], device="cpu")[0]
+    mesh = t.mesh()
+    assert len(layer.faces) > 100 and layer.source_faces.max() < len(mesh.faces)
+    # each culled face is the overview face it names, corner for corner
+    named = np.asarray(mesh.vertices)[mesh.faces[layer.source_faces]]
+    np.testing.assert_array_equal(layer.original[layer.faces], named)
