@@ -1332,9 +1332,10 @@ def anchor_strips(
 
     The ROI outline (the contour of the mask at ``anchor.outline_level``) is laid on the overview's terrain
     (V_O: the height of the drawn triangle under each point; on a TIN, a point outside every triangle takes the
-    nearest vertex's height); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O,
-    consecutive points a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
-    transfer function at t (Fig. 4).
+    nearest vertex's height), cut at the edge of the terrain's extent, which closes it where the ROI reaches past
+    it (the fence frames the close-up's content); each outline point gets a rung of ``anchor.rungs`` + 1 vertices
+    up to M·V_O, consecutive points a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and
+    the opacity is the transfer function at t (Fig. 4).
 
     Examples
     --------
@@ -1424,11 +1425,107 @@ def _fence_tolerance(cu: CloseUp) -> float:
     return cu.anchor.simplify * texel / max(1.0, *(abs(float(v)) for v in cu.scale))
 
 
+def _perimeter_position(p: NDArray[np.float64], box: tuple[float, float, float, float]) -> NDArray[np.float64]:
+    """Arc length of points on the rectangle ``box`` (xmin, xmax, ymin, ymax) counter-clockwise from its lower-left
+    corner (each point taken on its nearest side)."""
+    x0, x1, y0, y1 = box
+    w, h = x1 - x0, y1 - y0
+    x, y = np.clip(p[:, 0], x0, x1), np.clip(p[:, 1], y0, y1)
+    gaps = np.stack([y - y0, x1 - x, y1 - y, x - x0], axis=1)  # bottom, right, top, left
+    arc = np.stack([x - x0, w + (y - y0), w + h + (x1 - x), 2 * w + h + (y1 - y)], axis=1)
+    return arc[np.arange(len(p)), np.argmin(gaps, axis=1)]
+
+
+def _perimeter_path(s0: float, s1: float, box: tuple[float, float, float, float]) -> NDArray[np.float64]:
+    """The rectangle's boundary from arc length s0 to s1 (counter-clockwise, past the start when s1 <= s0), corners
+    included."""
+    x0, x1, y0, y1 = box
+    w, h = x1 - x0, y1 - y0
+    total = 2 * (w + h)
+    if s1 <= s0:
+        s1 += total
+    corners = np.array([w, w + h, 2 * w + h, total])
+    arcs = [s0, *(c + n * total for n in (0, 1) for c in corners if s0 < c + n * total < s1), s1]
+
+    def at(s: float) -> tuple[float, float]:
+        s = s % total
+        if s <= w:
+            return (x0 + s, y0)
+        if s <= w + h:
+            return (x1, y0 + s - w)
+        if s <= 2 * w + h:
+            return (x1 - (s - w - h), y1)
+        return (x0, y1 - (s - 2 * w - h))
+
+    return np.array([at(s) for s in arcs])
+
+
+def _clip_outline(lines: list[NDArray[np.float64]], roi: ROI, level: float,
+                  box: tuple[float, float, float, float]) -> list[NDArray[np.float64]]:
+    """The outline of the ROI's part over the rectangle ``box`` (the terrain's extent): the outline's pieces inside
+    it (segments cut by Liang-Barsky) and the stretches of the box's boundary where m >= ``level`` (the ROI cut by
+    the terrain's edge), as polylines. Lines wholly inside come back unchanged; with no outline point outside, the
+    same lines."""
+    x0, x1, y0, y1 = box
+    if not lines or all(((ln[:, 0] >= x0) & (ln[:, 0] <= x1) & (ln[:, 1] >= y0) & (ln[:, 1] <= y1)).all()
+                        for ln in lines):
+        return lines
+    pieces: list[NDArray[np.float64]] = []
+    ends: list[NDArray[np.float64]] = []  # points where the outline meets the box's boundary
+    for line in lines:
+        p, d = line[:-1], np.diff(line, axis=0)
+        t0, t1 = np.zeros(len(p)), np.ones(len(p))
+        visible = np.ones(len(p), bool)
+        for pk, qk in ((-d[:, 0], p[:, 0] - x0), (d[:, 0], x1 - p[:, 0]), (-d[:, 1], p[:, 1] - y0),
+                       (d[:, 1], y1 - p[:, 1])):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r = qk / pk
+            visible &= ~((pk == 0) & (qk < 0))
+            t0 = np.where(pk < 0, np.maximum(t0, r), t0)
+            t1 = np.where(pk > 0, np.minimum(t1, r), t1)
+        visible &= t0 < t1
+        start, stop = p + t0[:, None] * d, p + t1[:, None] * d
+        run: list[NDArray[np.float64]] = []
+        runs: list[list[NDArray[np.float64]]] = []
+        last_full: set[int] = set()  # the previous visible segment, when it reached its end point
+        for i in np.flatnonzero(visible):  # a few hundred segments of a cut outline
+            if not run or t0[i] > 0 or i - 1 not in last_full:
+                if run:
+                    runs.append(run)
+                run = [start[i]]
+            run.append(stop[i])
+            last_full = {i} if t1[i] >= 1 else set()
+        if run:
+            runs.append(run)
+        closed = len(line) > 2 and np.array_equal(line[0], line[-1])
+        if closed and len(runs) > 1 and visible[0] and t0[0] <= 0 and visible[-1] and t1[-1] >= 1:
+            runs[0] = runs.pop()[:-1] + runs[0]  # the run through the closing point is one
+        for r in runs:
+            piece = np.array(r)
+            pieces.append(piece)
+            if not np.array_equal(piece[0], piece[-1]):
+                ends += [piece[0], piece[-1]]
+    # the boundary between consecutive meeting points (all of it when there are none) belongs to the ROI's part
+    # where m >= level at its middle
+    arcs = np.unique(_perimeter_position(np.array(ends), box)) if ends else np.zeros(1)
+    total = 2 * (x1 - x0 + y1 - y0)
+    for s0, s1 in zip(arcs, np.roll(arcs, -1), strict=True):
+        mid = s0 + ((s1 - s0) % total or total) / 2  # one stretch: all the way round
+        if roi.factor(_perimeter_path(mid, mid, box)[:1])[0] >= level:
+            pieces.append(_perimeter_path(s0, s1, box))
+    return [piece for piece in pieces if len(piece) > 1]
+
+
 def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> tuple[Any, ...] | None:
     """The M-independent part of :func:`anchor_strips`: the outline points on the terrain (uploaded), their
-    close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline."""
+    close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline.
+    An outline beyond the terrain's extent is cut at its edge, and the edge closes it where the ROI holds it
+    (:func:`_clip_outline`): no fence stands where there is no terrain and no close-up."""
     ox, oy = t.local_origin
-    outlines = [(k, line) for k, cu in enumerate(items) for line in cu.roi.outline(cu.anchor.outline_level)]
+    extent = t.extent
+    outlines = [(k, line) for k, cu in enumerate(items)
+                for line in _clip_outline(cu.roi.outline(cu.anchor.outline_level), cu.roi, cu.anchor.outline_level,
+                                          extent)]
     if not outlines:
         return None
     # the terrain under every outline point at once (a TIN locates every point's triangle in one pass)

@@ -517,3 +517,47 @@ def test_source_faces_index_the_overview_mesh_of_a_dem_with_nodata(spacing):
     # each culled face is the overview face it names, corner for corner
     named = np.asarray(mesh.vertices)[mesh.faces[layer.source_faces]]
     np.testing.assert_array_equal(layer.original[layer.faces], named)
+
+
+def _fence_feet(t, cu):
+    """The fence's feet (P, 3) and the length of the outline they follow (the panels' bottom edges)."""
+    from stepterrain.closeup import anchor_strips
+
+    (strip,) = anchor_strips(t, [cu], device="cpu")
+    feet = strip.vertices[:: strip.rungs + 1]
+    panels = strip.faces[:: 2 * strip.rungs]  # each panel's first face (a + 0, b + 0, b + 1)
+    a, b = feet[panels[:, 0] // (strip.rungs + 1)], feet[panels[:, 1] // (strip.rungs + 1)]
+    return feet, float(np.linalg.norm(a - b, axis=1).sum())
+
+
+@pytest.mark.parametrize(("center", "length"), [((0.0, 100.0), np.pi * 90 + 180), ((0.0, 0.0), np.pi * 45 + 180),
+                                                ((400.0, 200.0), np.pi * 45 + 180), ((200.0, 100.0), np.pi * 180)])
+def test_a_fence_stops_at_the_terrains_edge_and_closes_along_it(center, length):
+    """A ROI reaching past the terrain's edge: the fence followed the whole outline through empty space (a full
+    disc's fence about a half or quarter disc of close-up); it now follows the outline inside the extent and the
+    extent's edge where the ROI holds it (m = 0.5 at radius 90 for a radius 100 with the default soft edge)."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((101, 201), np.float32), spacing=(2.0, 2.0), origin=(0.0, 0.0))
+    cu = CloseUp(ROI.circle(center, 100.0), offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0))
+    feet, followed = _fence_feet(t, cu)
+    assert (feet[:, :2] >= 0).all() and (feet[:, 0] <= 400).all() and (feet[:, 1] <= 200).all()
+    assert followed == pytest.approx(length, rel=1e-3)
+
+
+def test_a_fence_cut_by_the_terrains_edge_closes_only_where_the_roi_holds_the_edge():
+    """Two arms of a U-shaped painted ROI reach into the terrain across its left edge: two fences, each closed along
+    the edge by its arm's width, none along the edge between the arms (m = 0 there)."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((101, 201), np.float32), spacing=(2.0, 2.0), origin=(0.0, 0.0))
+    mask = np.zeros((50, 50))
+    mask[5:45, 5:15] = mask[5:15, 5:45] = mask[35:45, 5:45] = 1  # the U's base lies left of x = 0
+    roi = ROI.painted(mask, (10.0, 100.0), (200.0, 200.0), top_row_north=False)
+    cu = CloseUp(roi, offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0))
+    feet, _ = _fence_feet(t, cu)
+    assert (feet[:, 0] >= 0).all()
+    on_edge = feet[feet[:, 0] == 0, 1]
+    between = (on_edge > 70) & (on_edge < 130)  # the edge between the arms (y ≈ 59..141 lies outside the ROI)
+    assert len(on_edge) >= 4 and not between.any()
+    assert ((on_edge < 65) | (on_edge > 135)).all()
