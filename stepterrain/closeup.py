@@ -890,6 +890,10 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     if terrain.kind == "grid":
         i0, i1, j0, j1 = _grid_window(terrain, cu.roi.box)
         dx, dy = terrain.spacing
+        if i1 <= i0 or j1 <= j0 or not np.isfinite(terrain.heights[i0: i1 + 1, j0: j1 + 1]).any():
+            # no terrain under the ROI (nodata): no geometry, as for a continuous close-up (closeup_layers names it);
+            # the stepped window raised "terrain has no finite height (all nodata)" of a terrain that has heights
+            return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
         window = Terrain.from_heights(terrain.heights[i0: i1 + 1, j0: j1 + 1], spacing=(dx, dy),
                                       origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
     else:
@@ -1048,7 +1052,8 @@ def closeup_layers(
     Raises
     ------
     InvalidInputError
-        A close-up's ROI lies outside the terrain, or a bad close-up.
+        A close-up's ROI lies outside the terrain or holds none of it (its mask 0 at every node with a height: a
+        ROI smaller than the grid spacing, between nodes, or over nodata), or a bad close-up.
 
     Notes
     -----
@@ -1183,6 +1188,9 @@ def closeup_layers(
     cull_key = (joined_key, tuple(id(r) for r in rois))
     kept_points_wp, kept_layer_wp, kept_factors_wp, parts = derived(t.cached(("closeup", "cull"), dict), cull_key,
                                                                     (joined, *rois), cull)
+    for k, (_, static) in enumerate(parts):  # an empty close-up was drawn as a fence about nothing, without a word
+        if not len(static["faces"]):
+            raise InvalidInputError(_no_terrain_message(t, k, items[k]))
     if fresh:
         v_all = fresh[0]
     else:
@@ -1193,6 +1201,20 @@ def closeup_layers(
         v_all = _world(host_copy(vertices_out[:vertex_count]), ox, oy)
     return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
             for k, ((vs, ve), static) in enumerate(parts)]
+
+
+def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
+    """Why close-up k has no geometry: its mask is 0 at every node (point) with a height under it."""
+    bx0, bx1, by0, by1 = cu.roi.box
+    if t.kind == "grid":
+        spacing = f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}"
+        where = "grid node"
+    else:
+        spacing = "the TIN's point spacing"
+        where = "TIN point"
+    return (f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: its mask is 0 at "
+            f"every {where} with a height (a ROI smaller than {spacing}, between the nodes, or over nodata); make it "
+            "larger or move it onto the terrain")
 
 
 def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float64]:

@@ -561,3 +561,23 @@ def test_a_fence_cut_by_the_terrains_edge_closes_only_where_the_roi_holds_the_ed
     between = (on_edge > 70) & (on_edge < 130)  # the edge between the arms (y ≈ 59..141 lies outside the ROI)
     assert len(on_edge) >= 4 and not between.any()
     assert ((on_edge < 65) | (on_edge > 135)).all()
+
+
+@pytest.mark.parametrize("mapping", [{}, {"stepped": 20.0}, {"scalars": "slope"}])
+def test_a_roi_that_holds_no_terrain_is_refused_by_name(mapping):
+    """A ROI between grid nodes (smaller than a cell) or over a nodata hole has no geometry: the close-up was drawn as
+    an anchor fence about nothing, without a word, and a stepped one raised "terrain has no finite height (all
+    nodata)" of a terrain that has heights. Both are now refused, naming the close-up and the cause."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills()
+    heights[5:25, 5:25] = np.nan
+    t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
+    for roi in (ROI.circle((305.0, 255.0), 4.0), ROI.circle((150.0, 150.0), 40.0)):  # inside one cell; in the hole
+        cu = CloseUp(roi, offset=(0.0, 0.0, 50.0), **mapping)
+        expected = r"^closeups\[1\]: ROI box .* holds no terrain: .*grid spacing 10 x 10"
+        with pytest.raises(InvalidInputError, match=expected):
+            closeup_layers(t, [CloseUp(ROI.circle((305.0, 255.0), 30.0)), cu], device="cpu")
+        with pytest.raises(InvalidInputError, match=r"closeups\[0\]: ROI box .* holds no terrain"):
+            closeup_scene(t, [cu], device="cpu")
