@@ -1320,8 +1320,9 @@ def _tin_heights(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float6
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """Terrain heights at world xy on the overview mesh's own triangles: for a grid each cell split along its
     diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it (a bilinear
-    height left an anchor's foot up to a few metres above or below the drawn surface); for a TIN the triangle
-    holding the point (:func:`_tin_heights`; outside every triangle the nearest vertex's height)."""
+    height left an anchor's foot up to a few metres above or below the drawn surface), over nodata (no drawn
+    triangle) the height of the nearest node that has one; for a TIN the triangle holding the point
+    (:func:`_tin_heights`; outside every triangle the nearest vertex's height)."""
     if terrain.kind != "grid":
         return _tin_heights(terrain, xy)
     rows, cols = terrain.heights.shape
@@ -1336,7 +1337,27 @@ def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64
     h10, h11 = h[i0 + 1, j0].astype(np.float64), h[i0 + 1, j0 + 1].astype(np.float64)
     z = np.where(tx >= ty, h00 + tx * (h01 - h00) + ty * (h11 - h01),  # triangle (n00, n01, n11)
                  h00 + ty * (h10 - h00) + tx * (h11 - h10))  # triangle (n00, n11, n10)
-    return np.where(np.isfinite(z), z, terrain.height_range[0])
+    hole = ~np.isfinite(z)
+    if hole.any():  # no drawn triangle there: the nearest node with a height on the hole's rim (the lowest height of
+        z[hole] = _nearest_vertex_heights(_nodata_rim(terrain), xy[hole])  # the terrain dropped the fence to it)
+    return z
+
+
+def _nodata_rim(terrain: Terrain) -> NDArray[np.float64]:
+    """World points (P, 3) of a grid's nodes with a height next to nodata (8-neighbourhood), once per terrain: the
+    nearest of them to a point over a hole is its nearest node with a height."""
+
+    def build() -> NDArray[np.float64]:
+        missing = np.pad(~np.isfinite(terrain.heights), 1)
+        near = np.zeros_like(missing)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                near |= np.roll(np.roll(missing, di, axis=0), dj, axis=1)
+        i, j = np.nonzero(near[1:-1, 1:-1] & ~missing[1:-1, 1:-1])
+        (ox, oy), (dx, dy) = terrain.origin, terrain.spacing
+        return np.column_stack([ox + j * dx, oy + i * dy, terrain.heights[i, j].astype(np.float64)])
+
+    return terrain.cached(("closeup", "nodata-rim"), build)
 
 
 def _closeup_color(cu: CloseUp, k: int) -> tuple[float, float, float]:
@@ -1353,11 +1374,12 @@ def anchor_strips(
     """The anchor fence of every close-up (§II.D), built by Warp kernels in one launch per stage.
 
     The ROI outline (the contour of the mask at ``anchor.outline_level``) is laid on the overview's terrain
-    (V_O: the height of the drawn triangle under each point; on a TIN, a point outside every triangle takes the
-    nearest vertex's height), cut at the edge of the terrain's extent, which closes it where the ROI reaches past
-    it (the fence frames the close-up's content); each outline point gets a rung of ``anchor.rungs`` + 1 vertices
-    up to M·V_O, consecutive points a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and
-    the opacity is the transfer function at t (Fig. 4).
+    (V_O: the height of the drawn triangle under each point; over a DEM's nodata, the nearest node's with a height;
+    on a TIN, a point outside every triangle takes the nearest vertex's height), cut at the edge of the terrain's
+    extent, which closes it where the ROI reaches past it (the fence frames the close-up's content); each outline
+    point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O, consecutive points a fence panel.
+    t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the transfer function at t
+    (Fig. 4).
 
     Examples
     --------

@@ -581,3 +581,27 @@ def test_a_roi_that_holds_no_terrain_is_refused_by_name(mapping):
             closeup_layers(t, [CloseUp(ROI.circle((305.0, 255.0), 30.0)), cu], device="cpu")
         with pytest.raises(InvalidInputError, match=r"closeups\[0\]: ROI box .* holds no terrain"):
             closeup_scene(t, [cu], device="cpu")
+
+
+def test_a_fence_over_nodata_keeps_the_height_of_the_nearest_node_with_one():
+    """An outline crossing a nodata hole: its feet there dropped to the terrain's lowest height (a fence reaching
+    hundreds of metres below the hole's rim); they now take the height of the nearest node with a height."""
+    from stepterrain.terrain import Terrain
+
+    y, x = np.mgrid[0:60, 0:80]
+    heights = (1000 + 5 * x + 3 * y).astype(np.float32)
+    heights[10:40, 10:40] = np.nan
+    t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
+    cu = CloseUp(ROI.circle((400.0, 250.0), 100.0), offset=(0.0, 0.0, 500.0), anchor=AnchorStyle(simplify=0))
+    feet, _ = _fence_feet(t, cu)
+    nodes = np.column_stack([x.reshape(-1) * 10.0, y.reshape(-1) * 10.0, heights.reshape(-1)])
+    nodes = nodes[np.isfinite(nodes[:, 2])]
+    over = feet[feet[:, 0] < 390]  # no drawn triangle (every cell left of x = 390 there has a nodata corner)
+    checked = 0
+    for foot in over:
+        distance = np.hypot(nodes[:, 0] - foot[0], nodes[:, 1] - foot[1])
+        first, second = np.argsort(distance)[:2]
+        if distance[second] - distance[first] > 1e-6:  # one nearest node
+            assert foot[2] == nodes[first, 2]
+            checked += 1
+    assert checked > 5 and feet[:, 2].min() > 1200  # the terrain's lowest height is 1000
