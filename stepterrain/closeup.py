@@ -180,6 +180,32 @@ def _texel_xy(center: tuple[float, float], size: tuple[float, float], rows: int,
     return np.meshgrid(xs, ys)  # (rows, cols) offsets from the centre, row 0 at the lower y
 
 
+def _ellipse_distance(x: NDArray[np.float64], y: NDArray[np.float64], a: float, b: float) -> NDArray[np.float64]:
+    """Signed distance (negative inside) to the ellipse with semi-axes a, b: the nearest point on it by a fixed-point
+    iteration on its evolute (C. Chatfield's), converged to float64 rounding in a few steps. The scaled radius
+    (hypot(x/a, y/b) − 1)·min(a, b) stood in for it and made the soft edge a/b times wider at the ends of the major
+    axis than ``edge_width`` (a 5:1 ellipse's edge of 100 m was 500 m there)."""
+    px, py = np.abs(x), np.abs(y)
+    tx = np.full(px.shape, math.sqrt(0.5))
+    ty = tx.copy()
+    for _ in range(12):
+        ex = (a * a - b * b) * tx**3 / a  # the evolute's point for the current estimate
+        ey = (b * b - a * a) * ty**3 / b
+        r = np.hypot(a * tx - ex, b * ty - ey)
+        qx, qy = px - ex, py - ey
+        q = np.hypot(qx, qy)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nx = np.clip((qx * r / q + ex) / a, 0.0, 1.0)
+            ny = np.clip((qy * r / q + ey) / b, 0.0, 1.0)
+        norm = np.hypot(nx, ny)
+        ok = (q > 0) & (norm > 0)
+        tx = np.where(ok, nx / np.where(ok, norm, 1.0), tx)
+        ty = np.where(ok, ny / np.where(ok, norm, 1.0), ty)
+    distance = np.hypot(px - a * tx, py - b * ty)
+    inside = (px / a) ** 2 + (py / b) ** 2 < 1.0
+    return np.where(inside, -distance, distance)
+
+
 def _box_distance(x: NDArray[np.float64], y: NDArray[np.float64], hx: float, hy: float) -> NDArray[np.float64]:
     qx, qy = np.abs(x) - hx, np.abs(y) - hy
     outside = np.hypot(np.maximum(qx, 0), np.maximum(qy, 0))
@@ -265,7 +291,7 @@ class ROI:
         size = (2 * a, 2 * b)
         rows, cols = _mask_grid(size, resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
-        distance = (np.hypot(x / a, y / b) - 1.0) * min(a, b)
+        distance = np.hypot(x, y) - a if a == b else _ellipse_distance(x, y, a, b)
         return cls(center, size, _smooth_edge(distance, width), "ellipse")
 
     @classmethod

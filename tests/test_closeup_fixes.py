@@ -605,3 +605,20 @@ def test_a_fence_over_nodata_keeps_the_height_of_the_nearest_node_with_one():
             assert foot[2] == nodes[first, 2]
             checked += 1
     assert checked > 5 and feet[:, 2].min() > 1200  # the terrain's lowest height is 1000
+
+
+@pytest.mark.parametrize("radii", [(10.0, 2.0), (2.0, 10.0), (10.0, 6.0)])
+def test_an_ellipses_soft_edge_is_edge_width_wide_all_round(radii):
+    """``edge_width`` is the width of the soft edge inside the rim (ROI.circle's docstring, which ROI.ellipse follows):
+    m = smoothstep(distance to the rim / edge_width) inside. An ellipse's came from its scaled radius, a/b times wider
+    at the ends of the major axis (a 5:1 ellipse's edge of 1 spanned 5 there)."""
+    a, b = radii
+    roi = ROI.ellipse((0.0, 0.0), radii, edge_width=1.0, resolution=1025)
+    angle = np.linspace(0.0, 2 * np.pi, 20_001)
+    rim = np.column_stack([a * np.cos(angle), b * np.sin(angle)])
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (800, 2)) * radii
+    points = points[(points[:, 0] / a) ** 2 + (points[:, 1] / b) ** 2 < 1]
+    depth = np.array([np.hypot(*(rim - p).T).min() for p in points])  # distance to the rim, by brute force
+    x = np.clip(depth, 0.0, 1.0)
+    np.testing.assert_allclose(roi.factor(points), x * x * (3 - 2 * x), atol=0.02)
