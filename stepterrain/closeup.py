@@ -2132,8 +2132,9 @@ def closeup_scene(
 
     The close-ups are their culled layers as the kernels emit them (the soft edge stretched by C, so each
     close-up hangs from its ROI as one connected surface); anchors carry their color and, in the alpha of
-    their vertex colors, the transfer function's opacity. ``face_attributes["layer"]``: 0 for the overview,
-    2k + 1 for close-up k, 2k + 2 for its anchor.
+    their vertex colors, the transfer function's opacity; an inactive close-up's anchor is depicted as
+    ``anchor.inactive`` says, as :func:`render_closeups` draws it (left out, gray, or a quarter of the opacity).
+    ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor.
 
     Examples
     --------
@@ -2156,8 +2157,12 @@ def closeup_scene(
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
         parts.append((layer.vertices, layer.faces, _rgba(rgb, len(layer.vertices), _closeup_color(cu, k)), 2 * k + 1))
-        rgba = _rgba(None, len(strip.vertices), strip.color)
-        rgba[:, 3] = np.clip(np.rint(strip.opacity * 255), 0, 255).astype(np.uint8)
+        if not cu.active and cu.anchor.inactive == "hidden":  # an inactive close-up's anchor as the render draws it
+            continue  # (Fig. 5): hidden, gray or faint; the scene had every anchor as an active one's
+        gray = not cu.active and cu.anchor.inactive == "gray"
+        rgba = _rgba(None, len(strip.vertices), _gray(strip.color) if gray else strip.color)
+        opacity = strip.opacity * (0.25 if not cu.active and cu.anchor.inactive == "faint" else 1.0)
+        rgba[:, 3] = np.clip(np.rint(opacity * 255), 0, 255).astype(np.uint8)
         parts.append((strip.vertices, strip.faces, rgba, 2 * k + 2))
     parts = [p for p in parts if len(p[1])]
     starts = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]

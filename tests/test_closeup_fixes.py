@@ -622,3 +622,26 @@ def test_an_ellipses_soft_edge_is_edge_width_wide_all_round(radii):
     depth = np.array([np.hypot(*(rim - p).T).min() for p in points])  # distance to the rim, by brute force
     x = np.clip(depth, 0.0, 1.0)
     np.testing.assert_allclose(roi.factor(points), x * x * (3 - 2 * x), atol=0.02)
+
+
+def test_the_scene_mesh_depicts_inactive_anchors_as_the_render_does():
+    """closeup_scene exported every anchor as an active close-up's (full color and opacity), whatever ``active`` and
+    ``anchor.inactive`` said; the render hides, grays or fades it (Fig. 5)."""
+    from stepterrain.closeup import _gray
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+
+    def anchor_colors(**kwargs):
+        cu = CloseUp(ROI.circle((40.0, 32.0), 8.0), offset=(0, 0, 50.0), color="red", **kwargs)
+        scene = closeup_scene(t, [cu], device="cpu")
+        return scene.visual.vertex_colors[np.unique(scene.faces[scene.face_attributes["layer"] == 2])]
+
+    active = anchor_colors()
+    assert len(active) and np.all(active[:, :3] == [255, 0, 0])
+    assert len(anchor_colors(active=False, anchor=AnchorStyle(inactive="hidden"))) == 0
+    gray = anchor_colors(active=False, anchor=AnchorStyle(inactive="gray"))
+    assert np.all(gray[:, :3] == np.rint(np.asarray(_gray((1.0, 0.0, 0.0))) * 255))
+    faint = anchor_colors(active=False, anchor=AnchorStyle(inactive="faint"))
+    assert np.all(faint[:, :3] == [255, 0, 0]) and faint[:, 3].max() == np.rint(0.85 * 0.25 * 255)
+    assert active[:, 3].max() == np.rint(0.85 * 255)
