@@ -27,8 +27,21 @@ examples:
       the overview, close-up and anchor as one colored mesh (anchor opacity in the vertex alpha), and a render
 
 --scale, --offset, --rotation, --color and --stepped apply to every close-up when given once, or one per
---roi (in order) when given as often as --roi. Values may start with a minus: --offset -500,0,3000.
+ROI (--roi and --roi-relative, in the order given) when given as often. Values may start with a minus:
+--offset -500,0,3000.
 """
+
+
+class _RoiAction(argparse.Action):
+    """``action="append"`` to its own option's list, and to ``rois`` as (option, value) in command-line order: the
+    close-ups of --roi and --roi-relative given in turn keep that order, which the per-close-up options (and the
+    close-up numbers in messages) follow; every --roi came first, so --color red --color blue went to the wrong
+    close-ups."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:
+        setattr(namespace, self.dest, [*(getattr(namespace, self.dest, None) or []), values])
+        namespace.rois = [*(getattr(namespace, "rois", None) or []), (self.dest, values)]
 
 
 def add_parser(commands: Any) -> None:
@@ -46,9 +59,9 @@ def add_parser(commands: Any) -> None:
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
-    p.add_argument("--roi", type=_floats(3, "x,y,r"), action="append", metavar="x,y,r",
+    p.add_argument("--roi", type=_floats(3, "x,y,r"), action=_RoiAction, metavar="x,y,r",
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
-    p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action="append", metavar="fx,fy,fr",
+    p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action=_RoiAction, metavar="fx,fy,fr",
                    help="ROI centre as fractions of the extent, radius as a fraction of its shorter side")
     p.add_argument("--shape", choices=("circle", "rectangle", "rounded"), default="circle",
                    help="ROI shape from the library (default circle)")
@@ -159,9 +172,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)
-    rois = list(args.roi or [])
-    for fx, fy, fr in args.roi_relative or []:
-        rois.append((xmin + fx * (xmax - xmin), ymin + fy * (ymax - ymin), fr * short))
+    rois = [value if option == "roi" else (xmin + value[0] * (xmax - xmin), ymin + value[1] * (ymax - ymin),
+                                            value[2] * short)
+            for option, value in getattr(args, "rois", None) or []]  # in command-line order
     if not rois:
         rois = [((xmin + xmax) / 2, (ymin + ymax) / 2, 0.12 * short)]
     n = len(rois)

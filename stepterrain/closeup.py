@@ -180,6 +180,32 @@ def _texel_xy(center: tuple[float, float], size: tuple[float, float], rows: int,
     return np.meshgrid(xs, ys)  # (rows, cols) offsets from the centre, row 0 at the lower y
 
 
+def _ellipse_distance(x: NDArray[np.float64], y: NDArray[np.float64], a: float, b: float) -> NDArray[np.float64]:
+    """Signed distance (negative inside) to the ellipse with semi-axes a, b: the nearest point on it by a fixed-point
+    iteration on its evolute (C. Chatfield's), converged to float64 rounding in a few steps. The scaled radius
+    (hypot(x/a, y/b) − 1)·min(a, b) stood in for it and made the soft edge a/b times wider at the ends of the major
+    axis than ``edge_width`` (a 5:1 ellipse's edge of 100 m was 500 m there)."""
+    px, py = np.abs(x), np.abs(y)
+    tx = np.full(px.shape, math.sqrt(0.5))
+    ty = tx.copy()
+    for _ in range(12):
+        ex = (a * a - b * b) * tx**3 / a  # the evolute's point for the current estimate
+        ey = (b * b - a * a) * ty**3 / b
+        r = np.hypot(a * tx - ex, b * ty - ey)
+        qx, qy = px - ex, py - ey
+        q = np.hypot(qx, qy)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            nx = np.clip((qx * r / q + ex) / a, 0.0, 1.0)
+            ny = np.clip((qy * r / q + ey) / b, 0.0, 1.0)
+        norm = np.hypot(nx, ny)
+        ok = (q > 0) & (norm > 0)
+        tx = np.where(ok, nx / np.where(ok, norm, 1.0), tx)
+        ty = np.where(ok, ny / np.where(ok, norm, 1.0), ty)
+    distance = np.hypot(px - a * tx, py - b * ty)
+    inside = (px / a) ** 2 + (py / b) ** 2 < 1.0
+    return np.where(inside, -distance, distance)
+
+
 def _box_distance(x: NDArray[np.float64], y: NDArray[np.float64], hx: float, hy: float) -> NDArray[np.float64]:
     qx, qy = np.abs(x) - hx, np.abs(y) - hy
     outside = np.hypot(np.maximum(qx, 0), np.maximum(qy, 0))
@@ -265,7 +291,7 @@ class ROI:
         size = (2 * a, 2 * b)
         rows, cols = _mask_grid(size, resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
-        distance = (np.hypot(x / a, y / b) - 1.0) * min(a, b)
+        distance = np.hypot(x, y) - a if a == b else _ellipse_distance(x, y, a, b)
         return cls(center, size, _smooth_edge(distance, width), "ellipse")
 
     @classmethod
@@ -838,10 +864,35 @@ def _grid_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _S
     ci, cj = np.meshgrid(np.arange(i0, i1), np.arange(j0, j1), indexing="ij")
     cell = (ci * (cols - 1) + cj).reshape(-1)
     source = (2 * cell[:, None] + np.arange(2)[None, :]).reshape(-1)
-    if terrain.nodata_mask.any():
+    if terrain.has_nodata:
         ok = np.isfinite(points[:, 2])[faces].all(axis=1)
         faces, source = faces[ok], source[ok]
+        source = _mesh_face_index(terrain, source, i0, i1)
     return _Source(points, faces.astype(np.int32), source.astype(np.int64))
+
+
+def _mesh_face_index(terrain: Terrain, grid_face: NDArray[np.int64], i0: int, i1: int) -> NDArray[np.int64]:
+    """The index in ``Terrain.mesh()`` of grid faces 2·cell + t (all drawn: no nodata corner) of the cell rows
+    i0..i1 − 1: that mesh leaves out the faces with a nodata corner, so the faces after one move down (2·cell + t
+    named another face of the overview, or none). The drawn faces before each cell row are counted once per
+    terrain; within the window's rows, from column 0."""
+    finite = np.isfinite(terrain.heights)
+
+    def drawn(rows: slice) -> NDArray[np.bool_]:  # (cell rows, 2·(cols − 1)): face 2·j + t of each row drawn
+        f = finite[rows.start: rows.stop + 1]
+        n00, n01, n10, n11 = f[:-1, :-1], f[:-1, 1:], f[1:, :-1], f[1:, 1:]
+        return np.stack([n00 & n01 & n11, n00 & n11 & n10], axis=2).reshape(len(n00), -1)
+
+    def row_starts() -> NDArray[np.int64]:
+        per_row = drawn(slice(0, finite.shape[0] - 1)).sum(axis=1)
+        return np.concatenate([[0], np.cumsum(per_row)]).astype(np.int64)
+
+    starts = terrain.cached(("closeup", "drawn-face-rows"), row_starts)
+    window = drawn(slice(i0, i1))
+    before = np.cumsum(window, axis=1) - window  # drawn faces before each one in its row
+    per_row = window.shape[1]
+    row, within = np.divmod(grid_face, per_row)
+    return starts[row] + before[row - i0, within]
 
 
 def _tin_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _Source:
@@ -865,6 +916,10 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
     if terrain.kind == "grid":
         i0, i1, j0, j1 = _grid_window(terrain, cu.roi.box)
         dx, dy = terrain.spacing
+        if i1 <= i0 or j1 <= j0 or not np.isfinite(terrain.heights[i0: i1 + 1, j0: j1 + 1]).any():
+            # no terrain under the ROI (nodata): no geometry, as for a continuous close-up (closeup_layers names it);
+            # the stepped window raised "terrain has no finite height (all nodata)" of a terrain that has heights
+            return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
         window = Terrain.from_heights(terrain.heights[i0: i1 + 1, j0: j1 + 1], spacing=(dx, dy),
                                       origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
     else:
@@ -1023,7 +1078,8 @@ def closeup_layers(
     Raises
     ------
     InvalidInputError
-        A close-up's ROI lies outside the terrain, or a bad close-up.
+        A close-up's ROI lies outside the terrain or holds none of it (its mask 0 at every node with a height: a
+        ROI smaller than the grid spacing, between nodes, or over nodata), or a bad close-up.
 
     Notes
     -----
@@ -1158,6 +1214,9 @@ def closeup_layers(
     cull_key = (joined_key, tuple(id(r) for r in rois))
     kept_points_wp, kept_layer_wp, kept_factors_wp, parts = derived(t.cached(("closeup", "cull"), dict), cull_key,
                                                                     (joined, *rois), cull)
+    for k, (_, static) in enumerate(parts):  # an empty close-up was drawn as a fence about nothing, without a word
+        if not len(static["faces"]):
+            raise InvalidInputError(_no_terrain_message(t, k, items[k]))
     if fresh:
         v_all = fresh[0]
     else:
@@ -1168,6 +1227,20 @@ def closeup_layers(
         v_all = _world(host_copy(vertices_out[:vertex_count]), ox, oy)
     return [CloseUpLayer(index=k, vertices=v_all[vs:ve], matrix=matrices[k], **static)
             for k, ((vs, ve), static) in enumerate(parts)]
+
+
+def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
+    """Why close-up k has no geometry: its mask is 0 at every node (point) with a height under it."""
+    bx0, bx1, by0, by1 = cu.roi.box
+    if t.kind == "grid":
+        spacing = f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}"
+        where = "grid node"
+    else:
+        spacing = "the TIN's point spacing"
+        where = "TIN point"
+    return (f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: its mask is 0 at "
+            f"every {where} with a height (a ROI smaller than {spacing}, between the nodes, or over nodata); make it "
+            "larger or move it onto the terrain")
 
 
 def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float64]:
@@ -1273,8 +1346,9 @@ def _tin_heights(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float6
 def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """Terrain heights at world xy on the overview mesh's own triangles: for a grid each cell split along its
     diagonal from node (i, j) to (i + 1, j + 1), as :func:`~stepterrain.terrain.grid_faces` splits it (a bilinear
-    height left an anchor's foot up to a few metres above or below the drawn surface); for a TIN the triangle
-    holding the point (:func:`_tin_heights`; outside every triangle the nearest vertex's height)."""
+    height left an anchor's foot up to a few metres above or below the drawn surface), over nodata (no drawn
+    triangle) the height of the nearest node that has one; for a TIN the triangle holding the point
+    (:func:`_tin_heights`; outside every triangle the nearest vertex's height)."""
     if terrain.kind != "grid":
         return _tin_heights(terrain, xy)
     rows, cols = terrain.heights.shape
@@ -1289,7 +1363,27 @@ def _heights_at(terrain: Terrain, xy: NDArray[np.float64]) -> NDArray[np.float64
     h10, h11 = h[i0 + 1, j0].astype(np.float64), h[i0 + 1, j0 + 1].astype(np.float64)
     z = np.where(tx >= ty, h00 + tx * (h01 - h00) + ty * (h11 - h01),  # triangle (n00, n01, n11)
                  h00 + ty * (h10 - h00) + tx * (h11 - h10))  # triangle (n00, n11, n10)
-    return np.where(np.isfinite(z), z, terrain.height_range[0])
+    hole = ~np.isfinite(z)
+    if hole.any():  # no drawn triangle there: the nearest node with a height on the hole's rim (the lowest height of
+        z[hole] = _nearest_vertex_heights(_nodata_rim(terrain), xy[hole])  # the terrain dropped the fence to it)
+    return z
+
+
+def _nodata_rim(terrain: Terrain) -> NDArray[np.float64]:
+    """World points (P, 3) of a grid's nodes with a height next to nodata (8-neighbourhood), once per terrain: the
+    nearest of them to a point over a hole is its nearest node with a height."""
+
+    def build() -> NDArray[np.float64]:
+        missing = np.pad(~np.isfinite(terrain.heights), 1)
+        near = np.zeros_like(missing)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                near |= np.roll(np.roll(missing, di, axis=0), dj, axis=1)
+        i, j = np.nonzero(near[1:-1, 1:-1] & ~missing[1:-1, 1:-1])
+        (ox, oy), (dx, dy) = terrain.origin, terrain.spacing
+        return np.column_stack([ox + j * dx, oy + i * dy, terrain.heights[i, j].astype(np.float64)])
+
+    return terrain.cached(("closeup", "nodata-rim"), build)
 
 
 def _closeup_color(cu: CloseUp, k: int) -> tuple[float, float, float]:
@@ -1306,10 +1400,12 @@ def anchor_strips(
     """The anchor fence of every close-up (§II.D), built by Warp kernels in one launch per stage.
 
     The ROI outline (the contour of the mask at ``anchor.outline_level``) is laid on the overview's terrain
-    (V_O: the height of the drawn triangle under each point; on a TIN, a point outside every triangle takes the
-    nearest vertex's height); each outline point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O,
-    consecutive points a fence panel. t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the
-    transfer function at t (Fig. 4).
+    (V_O: the height of the drawn triangle under each point; over a DEM's nodata, the nearest node's with a height;
+    on a TIN, a point outside every triangle takes the nearest vertex's height), cut at the edge of the terrain's
+    extent, which closes it where the ROI reaches past it (the fence frames the close-up's content); each outline
+    point gets a rung of ``anchor.rungs`` + 1 vertices up to M·V_O, consecutive points a fence panel.
+    t = ‖V − V_O‖ / D with D the longest rung of the close-up, and the opacity is the transfer function at t
+    (Fig. 4).
 
     Examples
     --------
@@ -1399,11 +1495,107 @@ def _fence_tolerance(cu: CloseUp) -> float:
     return cu.anchor.simplify * texel / max(1.0, *(abs(float(v)) for v in cu.scale))
 
 
+def _perimeter_position(p: NDArray[np.float64], box: tuple[float, float, float, float]) -> NDArray[np.float64]:
+    """Arc length of points on the rectangle ``box`` (xmin, xmax, ymin, ymax) counter-clockwise from its lower-left
+    corner (each point taken on its nearest side)."""
+    x0, x1, y0, y1 = box
+    w, h = x1 - x0, y1 - y0
+    x, y = np.clip(p[:, 0], x0, x1), np.clip(p[:, 1], y0, y1)
+    gaps = np.stack([y - y0, x1 - x, y1 - y, x - x0], axis=1)  # bottom, right, top, left
+    arc = np.stack([x - x0, w + (y - y0), w + h + (x1 - x), 2 * w + h + (y1 - y)], axis=1)
+    return arc[np.arange(len(p)), np.argmin(gaps, axis=1)]
+
+
+def _perimeter_path(s0: float, s1: float, box: tuple[float, float, float, float]) -> NDArray[np.float64]:
+    """The rectangle's boundary from arc length s0 to s1 (counter-clockwise, past the start when s1 <= s0), corners
+    included."""
+    x0, x1, y0, y1 = box
+    w, h = x1 - x0, y1 - y0
+    total = 2 * (w + h)
+    if s1 <= s0:
+        s1 += total
+    corners = np.array([w, w + h, 2 * w + h, total])
+    arcs = [s0, *(c + n * total for n in (0, 1) for c in corners if s0 < c + n * total < s1), s1]
+
+    def at(s: float) -> tuple[float, float]:
+        s = s % total
+        if s <= w:
+            return (x0 + s, y0)
+        if s <= w + h:
+            return (x1, y0 + s - w)
+        if s <= 2 * w + h:
+            return (x1 - (s - w - h), y1)
+        return (x0, y1 - (s - 2 * w - h))
+
+    return np.array([at(s) for s in arcs])
+
+
+def _clip_outline(lines: list[NDArray[np.float64]], roi: ROI, level: float,
+                  box: tuple[float, float, float, float]) -> list[NDArray[np.float64]]:
+    """The outline of the ROI's part over the rectangle ``box`` (the terrain's extent): the outline's pieces inside
+    it (segments cut by Liang-Barsky) and the stretches of the box's boundary where m >= ``level`` (the ROI cut by
+    the terrain's edge), as polylines. Lines wholly inside come back unchanged; with no outline point outside, the
+    same lines."""
+    x0, x1, y0, y1 = box
+    if not lines or all(((ln[:, 0] >= x0) & (ln[:, 0] <= x1) & (ln[:, 1] >= y0) & (ln[:, 1] <= y1)).all()
+                        for ln in lines):
+        return lines
+    pieces: list[NDArray[np.float64]] = []
+    ends: list[NDArray[np.float64]] = []  # points where the outline meets the box's boundary
+    for line in lines:
+        p, d = line[:-1], np.diff(line, axis=0)
+        t0, t1 = np.zeros(len(p)), np.ones(len(p))
+        visible = np.ones(len(p), bool)
+        for pk, qk in ((-d[:, 0], p[:, 0] - x0), (d[:, 0], x1 - p[:, 0]), (-d[:, 1], p[:, 1] - y0),
+                       (d[:, 1], y1 - p[:, 1])):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r = qk / pk
+            visible &= ~((pk == 0) & (qk < 0))
+            t0 = np.where(pk < 0, np.maximum(t0, r), t0)
+            t1 = np.where(pk > 0, np.minimum(t1, r), t1)
+        visible &= t0 < t1
+        start, stop = p + t0[:, None] * d, p + t1[:, None] * d
+        run: list[NDArray[np.float64]] = []
+        runs: list[list[NDArray[np.float64]]] = []
+        last_full: set[int] = set()  # the previous visible segment, when it reached its end point
+        for i in np.flatnonzero(visible):  # a few hundred segments of a cut outline
+            if not run or t0[i] > 0 or i - 1 not in last_full:
+                if run:
+                    runs.append(run)
+                run = [start[i]]
+            run.append(stop[i])
+            last_full = {i} if t1[i] >= 1 else set()
+        if run:
+            runs.append(run)
+        closed = len(line) > 2 and np.array_equal(line[0], line[-1])
+        if closed and len(runs) > 1 and visible[0] and t0[0] <= 0 and visible[-1] and t1[-1] >= 1:
+            runs[0] = runs.pop()[:-1] + runs[0]  # the run through the closing point is one
+        for r in runs:
+            piece = np.array(r)
+            pieces.append(piece)
+            if not np.array_equal(piece[0], piece[-1]):
+                ends += [piece[0], piece[-1]]
+    # the boundary between consecutive meeting points (all of it when there are none) belongs to the ROI's part
+    # where m >= level at its middle
+    arcs = np.unique(_perimeter_position(np.array(ends), box)) if ends else np.zeros(1)
+    total = 2 * (x1 - x0 + y1 - y0)
+    for s0, s1 in zip(arcs, np.roll(arcs, -1), strict=True):
+        mid = s0 + ((s1 - s0) % total or total) / 2  # one stretch: all the way round
+        if roi.factor(_perimeter_path(mid, mid, box)[:1])[0] >= level:
+            pieces.append(_perimeter_path(s0, s1, box))
+    return [piece for piece in pieces if len(piece) > 1]
+
+
 def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> tuple[Any, ...] | None:
     """The M-independent part of :func:`anchor_strips`: the outline points on the terrain (uploaded), their
-    close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline."""
+    close-up ids, the transfer tables, and each strip's faces (read-only); None when no ROI has an outline.
+    An outline beyond the terrain's extent is cut at its edge, and the edge closes it where the ROI holds it
+    (:func:`_clip_outline`): no fence stands where there is no terrain and no close-up."""
     ox, oy = t.local_origin
-    outlines = [(k, line) for k, cu in enumerate(items) for line in cu.roi.outline(cu.anchor.outline_level)]
+    extent = t.extent
+    outlines = [(k, line) for k, cu in enumerate(items)
+                for line in _clip_outline(cu.roi.outline(cu.anchor.outline_level), cu.roi, cu.anchor.outline_level,
+                                          extent)]
     if not outlines:
         return None
     # the terrain under every outline point at once (a TIN locates every point's triangle in one pass)
@@ -1940,8 +2132,9 @@ def closeup_scene(
 
     The close-ups are their culled layers as the kernels emit them (the soft edge stretched by C, so each
     close-up hangs from its ROI as one connected surface); anchors carry their color and, in the alpha of
-    their vertex colors, the transfer function's opacity. ``face_attributes["layer"]``: 0 for the overview,
-    2k + 1 for close-up k, 2k + 2 for its anchor.
+    their vertex colors, the transfer function's opacity; an inactive close-up's anchor is depicted as
+    ``anchor.inactive`` says, as :func:`render_closeups` draws it (left out, gray, or a quarter of the opacity).
+    ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor.
 
     Examples
     --------
@@ -1964,8 +2157,12 @@ def closeup_scene(
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
         parts.append((layer.vertices, layer.faces, _rgba(rgb, len(layer.vertices), _closeup_color(cu, k)), 2 * k + 1))
-        rgba = _rgba(None, len(strip.vertices), strip.color)
-        rgba[:, 3] = np.clip(np.rint(strip.opacity * 255), 0, 255).astype(np.uint8)
+        if not cu.active and cu.anchor.inactive == "hidden":  # an inactive close-up's anchor as the render draws it
+            continue  # (Fig. 5): hidden, gray or faint; the scene had every anchor as an active one's
+        gray = not cu.active and cu.anchor.inactive == "gray"
+        rgba = _rgba(None, len(strip.vertices), _gray(strip.color) if gray else strip.color)
+        opacity = strip.opacity * (0.25 if not cu.active and cu.anchor.inactive == "faint" else 1.0)
+        rgba[:, 3] = np.clip(np.rint(opacity * 255), 0, 255).astype(np.uint8)
         parts.append((strip.vertices, strip.faces, rgba, 2 * k + 2))
     parts = [p for p in parts if len(p[1])]
     starts = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]

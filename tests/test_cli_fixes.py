@@ -700,3 +700,23 @@ def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
     code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", "--lens-relative", "0.5,0.5,0.2", "--interval", "50",
                          "-o", tmp_path / "b.ply")
     assert code == 0 and "warning" not in err  # a lens on the terrain is not warned about
+
+
+def test_closeup_rois_mixed_from_both_options_keep_their_command_line_order(tmp_path, capsys):
+    """--roi-relative, then --roi, with --color once per ROI: every --roi was taken first, so the colors (and any
+    per-close-up option) went to the other close-up than the one given in that place."""
+    import trimesh
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((40, 60)) * 10)  # extent x [0, 59], y [-39, 0] (north-up)
+    out = tmp_path / "scene.ply"
+    code, _, err = run(capsys, "closeup", dem, "--roi-relative", "0.25,0.5,0.15", "--roi", "45,-20,6",
+                       "--color", "#ff0000", "--color", "#0000ff", "--offset", "0,0,100", "-o", out)
+    assert code == 0, err
+    scene = trimesh.load(out, process=False)
+    v, rgb = np.asarray(scene.vertices), np.asarray(scene.visual.vertex_colors)[:, :3]
+    high = v[:, 2] > 50  # the lifted close-ups' outlines (the anchors' tops): red on the left, blue on the right
+    red = high & np.all(rgb == [255, 0, 0], axis=1)
+    blue = high & np.all(rgb == [0, 0, 255], axis=1)
+    assert red.any() and blue.any()
+    assert v[red, 0].max() < 30 < v[blue, 0].min()

@@ -496,3 +496,152 @@ def test_flat_ground_has_no_aspect():
     aspect = _vertex_scalars(t, points, "aspect").reshape(6, 7)
     assert np.isnan(aspect[:, :3]).all()  # flat: no aspect (was π, south)
     np.testing.assert_allclose(aspect[:, 4:], np.pi / 2, atol=1e-6)  # falling to the east
+
+
+@pytest.mark.parametrize("spacing", [(10.0, 10.0), (10.0, -10.0), (-10.0, 10.0)])
+def test_source_faces_index_the_overview_mesh_of_a_dem_with_nodata(spacing):
+    """``CloseUpLayer.source_faces`` index ``Terrain.mesh()``'s faces; that mesh leaves out the faces at nodata, so
+    the grid numbering 2·cell + t named other faces of the overview (or past its end) after the first hole."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills()
+    heights[4:7, 10:13] = np.nan  # a hole before the ROI's rows
+    heights[16, 18] = np.nan  # one inside it
+    t = Terrain.from_heights(heights, spacing=spacing, origin=(0.0, 0.0))
+    x0, x1, y0, y1 = t.extent
+    cu = CloseUp(ROI.circle(((x0 + x1) / 2, (y0 + y1) / 2), 100.0), offset=(0.0, 0.0, 50.0))
+    layer = closeup_layers(t, [cu], device="cpu")[0]
+    mesh = t.mesh()
+    assert len(layer.faces) > 100 and layer.source_faces.max() < len(mesh.faces)
+    # each culled face is the overview face it names, corner for corner
+    named = np.asarray(mesh.vertices)[mesh.faces[layer.source_faces]]
+    np.testing.assert_array_equal(layer.original[layer.faces], named)
+
+
+def _fence_feet(t, cu):
+    """The fence's feet (P, 3) and the length of the outline they follow (the panels' bottom edges)."""
+    from stepterrain.closeup import anchor_strips
+
+    (strip,) = anchor_strips(t, [cu], device="cpu")
+    feet = strip.vertices[:: strip.rungs + 1]
+    panels = strip.faces[:: 2 * strip.rungs]  # each panel's first face (a + 0, b + 0, b + 1)
+    a, b = feet[panels[:, 0] // (strip.rungs + 1)], feet[panels[:, 1] // (strip.rungs + 1)]
+    return feet, float(np.linalg.norm(a - b, axis=1).sum())
+
+
+@pytest.mark.parametrize(("center", "length"), [((0.0, 100.0), np.pi * 90 + 180), ((0.0, 0.0), np.pi * 45 + 180),
+                                                ((400.0, 200.0), np.pi * 45 + 180), ((200.0, 100.0), np.pi * 180)])
+def test_a_fence_stops_at_the_terrains_edge_and_closes_along_it(center, length):
+    """A ROI reaching past the terrain's edge: the fence followed the whole outline through empty space (a full
+    disc's fence about a half or quarter disc of close-up); it now follows the outline inside the extent and the
+    extent's edge where the ROI holds it (m = 0.5 at radius 90 for a radius 100 with the default soft edge)."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((101, 201), np.float32), spacing=(2.0, 2.0), origin=(0.0, 0.0))
+    cu = CloseUp(ROI.circle(center, 100.0), offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0))
+    feet, followed = _fence_feet(t, cu)
+    assert (feet[:, :2] >= 0).all() and (feet[:, 0] <= 400).all() and (feet[:, 1] <= 200).all()
+    assert followed == pytest.approx(length, rel=1e-3)
+
+
+def test_a_fence_cut_by_the_terrains_edge_closes_only_where_the_roi_holds_the_edge():
+    """Two arms of a U-shaped painted ROI reach into the terrain across its left edge: two fences, each closed along
+    the edge by its arm's width, none along the edge between the arms (m = 0 there)."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((101, 201), np.float32), spacing=(2.0, 2.0), origin=(0.0, 0.0))
+    mask = np.zeros((50, 50))
+    mask[5:45, 5:15] = mask[5:15, 5:45] = mask[35:45, 5:45] = 1  # the U's base lies left of x = 0
+    roi = ROI.painted(mask, (10.0, 100.0), (200.0, 200.0), top_row_north=False)
+    cu = CloseUp(roi, offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0))
+    feet, _ = _fence_feet(t, cu)
+    assert (feet[:, 0] >= 0).all()
+    on_edge = feet[feet[:, 0] == 0, 1]
+    between = (on_edge > 70) & (on_edge < 130)  # the edge between the arms (y ≈ 59..141 lies outside the ROI)
+    assert len(on_edge) >= 4 and not between.any()
+    assert ((on_edge < 65) | (on_edge > 135)).all()
+
+
+@pytest.mark.parametrize("mapping", [{}, {"stepped": 20.0}, {"scalars": "slope"}])
+def test_a_roi_that_holds_no_terrain_is_refused_by_name(mapping):
+    """A ROI between grid nodes (smaller than a cell) or over a nodata hole has no geometry: the close-up was drawn as
+    an anchor fence about nothing, without a word, and a stepped one raised "terrain has no finite height (all
+    nodata)" of a terrain that has heights. Both are now refused, naming the close-up and the cause."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills()
+    heights[5:25, 5:25] = np.nan
+    t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
+    for roi in (ROI.circle((305.0, 255.0), 4.0), ROI.circle((150.0, 150.0), 40.0)):  # inside one cell; in the hole
+        cu = CloseUp(roi, offset=(0.0, 0.0, 50.0), **mapping)
+        expected = r"^closeups\[1\]: ROI box .* holds no terrain: .*grid spacing 10 x 10"
+        with pytest.raises(InvalidInputError, match=expected):
+            closeup_layers(t, [CloseUp(ROI.circle((305.0, 255.0), 30.0)), cu], device="cpu")
+        with pytest.raises(InvalidInputError, match=r"closeups\[0\]: ROI box .* holds no terrain"):
+            closeup_scene(t, [cu], device="cpu")
+
+
+def test_a_fence_over_nodata_keeps_the_height_of_the_nearest_node_with_one():
+    """An outline crossing a nodata hole: its feet there dropped to the terrain's lowest height (a fence reaching
+    hundreds of metres below the hole's rim); they now take the height of the nearest node with a height."""
+    from stepterrain.terrain import Terrain
+
+    y, x = np.mgrid[0:60, 0:80]
+    heights = (1000 + 5 * x + 3 * y).astype(np.float32)
+    heights[10:40, 10:40] = np.nan
+    t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
+    cu = CloseUp(ROI.circle((400.0, 250.0), 100.0), offset=(0.0, 0.0, 500.0), anchor=AnchorStyle(simplify=0))
+    feet, _ = _fence_feet(t, cu)
+    nodes = np.column_stack([x.reshape(-1) * 10.0, y.reshape(-1) * 10.0, heights.reshape(-1)])
+    nodes = nodes[np.isfinite(nodes[:, 2])]
+    over = feet[feet[:, 0] < 390]  # no drawn triangle (every cell left of x = 390 there has a nodata corner)
+    checked = 0
+    for foot in over:
+        distance = np.hypot(nodes[:, 0] - foot[0], nodes[:, 1] - foot[1])
+        first, second = np.argsort(distance)[:2]
+        if distance[second] - distance[first] > 1e-6:  # one nearest node
+            assert foot[2] == nodes[first, 2]
+            checked += 1
+    assert checked > 5 and feet[:, 2].min() > 1200  # the terrain's lowest height is 1000
+
+
+@pytest.mark.parametrize("radii", [(10.0, 2.0), (2.0, 10.0), (10.0, 6.0)])
+def test_an_ellipses_soft_edge_is_edge_width_wide_all_round(radii):
+    """``edge_width`` is the width of the soft edge inside the rim (ROI.circle's docstring, which ROI.ellipse follows):
+    m = smoothstep(distance to the rim / edge_width) inside. An ellipse's came from its scaled radius, a/b times wider
+    at the ends of the major axis (a 5:1 ellipse's edge of 1 spanned 5 there)."""
+    a, b = radii
+    roi = ROI.ellipse((0.0, 0.0), radii, edge_width=1.0, resolution=1025)
+    angle = np.linspace(0.0, 2 * np.pi, 20_001)
+    rim = np.column_stack([a * np.cos(angle), b * np.sin(angle)])
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (800, 2)) * radii
+    points = points[(points[:, 0] / a) ** 2 + (points[:, 1] / b) ** 2 < 1]
+    depth = np.array([np.hypot(*(rim - p).T).min() for p in points])  # distance to the rim, by brute force
+    x = np.clip(depth, 0.0, 1.0)
+    np.testing.assert_allclose(roi.factor(points), x * x * (3 - 2 * x), atol=0.02)
+
+
+def test_the_scene_mesh_depicts_inactive_anchors_as_the_render_does():
+    """closeup_scene exported every anchor as an active close-up's (full color and opacity), whatever ``active`` and
+    ``anchor.inactive`` said; the render hides, grays or fades it (Fig. 5)."""
+    from stepterrain.closeup import _gray
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0))
+
+    def anchor_colors(**kwargs):
+        cu = CloseUp(ROI.circle((40.0, 32.0), 8.0), offset=(0, 0, 50.0), color="red", **kwargs)
+        scene = closeup_scene(t, [cu], device="cpu")
+        return scene.visual.vertex_colors[np.unique(scene.faces[scene.face_attributes["layer"] == 2])]
+
+    active = anchor_colors()
+    assert len(active) and np.all(active[:, :3] == [255, 0, 0])
+    assert len(anchor_colors(active=False, anchor=AnchorStyle(inactive="hidden"))) == 0
+    gray = anchor_colors(active=False, anchor=AnchorStyle(inactive="gray"))
+    assert np.all(gray[:, :3] == np.rint(np.asarray(_gray((1.0, 0.0, 0.0))) * 255))
+    faint = anchor_colors(active=False, anchor=AnchorStyle(inactive="faint"))
+    assert np.all(faint[:, :3] == [255, 0, 0]) and faint[:, 3].max() == np.rint(0.85 * 0.25 * 255)
+    assert active[:, 3].max() == np.rint(0.85 * 255)
