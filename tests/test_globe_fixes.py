@@ -500,3 +500,17 @@ def test_a_longitude_axis_across_the_antimeridian_is_the_same_globe(descending):
     with pytest.raises(InvalidInputError, match="lon must be regularly spaced"):
         Globe.from_latlon(wrapped_z, lat, np.where(np.arange(360) == 200, wrapped_lon + 0.5, wrapped_lon),
                           face_size=9, device="cpu")
+
+
+def test_an_eye_exactly_on_the_surface_is_refused():
+    """An eye exactly at the height of the highest node passed unchecked (|eye| >= R + highest returned early), so
+    an eye on the surface of a level globe was meshed, though the contract refuses an eye "at or below the terrain
+    surface"; a metre above it passes."""
+    lat, lon = np.linspace(89.5, -89.5, 180), np.linspace(-179.5, 179.5, 360)
+    globe = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=5, device="cpu")
+    assert not globe.heights.any()
+    top = globe.radius
+    for eye in ((top, 0.0, 0.0), (0.0, -top, 0.0)):
+        with pytest.raises(InvalidInputError, match=r"inside the planet, below the terrain surface"):
+            globe.mesh(error=1000.0, camera=_camera(eye))
+    assert len(globe.mesh(error=1000.0, camera=_camera((top + 1.0, 0.0, 0.0))).faces) > 0
