@@ -514,3 +514,26 @@ def test_an_eye_exactly_on_the_surface_is_refused():
         with pytest.raises(InvalidInputError, match=r"inside the planet, below the terrain surface"):
             globe.mesh(error=1000.0, camera=_camera(eye))
     assert len(globe.mesh(error=1000.0, camera=_camera((top + 1.0, 0.0, 0.0))).faces) > 0
+
+
+@pytest.mark.parametrize("error", [3.5e38, 1e300])
+def test_an_error_beyond_float32_still_cuts_a_padded_grid_back_to_its_rectangle(monkeypatch, error):
+    """adaptive_mesh without a camera refines in one pass over the nodes, which compared e with the error alone: an
+    error at or above the padding's straddle error (3e38: any larger finite error, e.g. 1e300 for "the coarsest
+    mesh") left the padded square's two triangles, vertices beyond the input at (2^k, 2^k) with made-up heights.
+    The node pass now refines the straddling nodes as the breadth-first levels do, and gives their mesh."""
+    import stepterrain.globe as globe_module
+
+    from .test_adaptive import assert_crack_free_rectangle
+
+    z = np.random.default_rng(7).normal(size=(100, 150)).astype(np.float32) * 10.0
+    mesh = adaptive_mesh(z, error=error, spacing=2.0)
+    assert np.asarray(mesh.metadata["node_index"]).max(axis=0).tolist() == [99, 149]
+    assert_crack_free_rectangle(mesh, 100, 150, (2.0, 2.0))
+    monkeypatch.setattr(globe_module, "_NODE_PASS", False)
+    levels = adaptive_mesh(z, error=error, spacing=2.0)
+    assert len(levels.faces) == len(mesh.faces)
+    assert {tuple(sorted(t)) for t in mesh.vertices[mesh.faces].reshape(-1, 9).tolist()} == \
+        {tuple(sorted(t)) for t in levels.vertices[levels.faces].reshape(-1, 9).tolist()}
+    square = adaptive_mesh(np.zeros((2, 2)), error=error)  # a 2 x 2 grid, padded to 3 x 3: one cell
+    assert np.asarray(square.vertices)[:, :2].max() == 1.0 and len(square.faces) == 2
