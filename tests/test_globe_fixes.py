@@ -294,7 +294,9 @@ def test_a_closing_longitude_column_that_differs_from_the_first_is_refused():
         (["--eye", "0,0,1e300"], "--eye altitude must keep the eye within 1e+30 m of the centre; got --radius "
                                  "6.371e+06 + altitude 1e+300 m"),
         (["--radius", "1e35"], "--radius + the --eye altitude must keep the eye within 1e+30 m of the centre; got "
-                               "--radius 1e+35 + altitude 1.9113e+07 m"),
+                               "--radius 1e+35 + altitude 3e+35 m (the default --eye, 3 x --radius)"),
+        (["--radius", "1e35", "--eye", "0,0,1e31"], "--eye altitude must keep the eye within 1e+30 m of the centre; "
+                                                   "got --radius 1e+35 + altitude 1e+31 m"),
     ],
 )
 def test_an_eye_beyond_the_camera_bound_names_the_options(tmp_path, capsys, argv, message):
@@ -537,3 +539,30 @@ def test_an_error_beyond_float32_still_cuts_a_padded_grid_back_to_its_rectangle(
         {tuple(sorted(t)) for t in levels.vertices[levels.faces].reshape(-1, 9).tolist()}
     square = adaptive_mesh(np.zeros((2, 2)), error=error)  # a 2 x 2 grid, padded to 3 x 3: one cell
     assert np.asarray(square.vertices)[:, :2].max() == 1.0 and len(square.faces) == 2
+
+
+@pytest.mark.parametrize("radius", [6.371e5, 6.371e7])
+def test_the_cli_default_eye_sees_the_whole_globe_of_any_radius(tmp_path, monkeypatch, radius):
+    """--help promises a default eye at 3R with the whole globe in view, but the eye stood 3 earth radii above the
+    sphere whatever --radius was: a planet ten times the earth filled the view with a patch of its surface, one a
+    tenth of it was a speck. The default altitude is 3 x --radius now, and the planet's sphere lies inside every
+    plane of the view."""
+    import stepterrain.globe as globe_module
+    from stepterrain.cli import main
+
+    cameras = []
+    real_look_from = globe_module.look_from
+
+    def spy(*args, **kwargs):
+        cameras.append((args, real_look_from(*args, **kwargs)))
+        return cameras[-1][1]
+
+    monkeypatch.setattr(globe_module, "look_from", spy)
+    out = tmp_path / "g.ply"
+    argv = ["-q", "globe", "--radius", f"{radius:g}", "--exaggeration", "0.01", "--face-size", "9", "-o", str(out),
+            "--device", "cpu"]
+    assert main(argv) == 0
+    (args, camera), = cameras
+    assert args == (30.0, 10.0, 3 * radius)
+    planes = camera.planes()
+    assert (planes[:, 3] <= -radius * 1.01).all()  # the centre at least R (and a margin) inside each plane
