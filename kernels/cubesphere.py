@@ -1355,14 +1355,16 @@ def count_refinement(
 @wp.func
 def node_active(values: wp.array[wp.vec4], n: wp.int32, use_geometric: wp.int32, error: wp.float64, i: wp.int32,
                 j: wp.int32) -> wp.int32:
-    """Planar, no view: 1 when the triangles whose refinement node is (i, j) refine (μ = e > ε, as in
-    :func:`count_refinement`); 0 when (i, j) is no grid node (a half-integer midpoint is passed as -1)."""
+    """Planar, no view: 1 when the triangles whose refinement node is (i, j) refine (μ = e > ε, or a padded
+    input's border, as in :func:`refine_decision`); 0 when (i, j) is no grid node (a half-integer midpoint is
+    passed as -1)."""
     if i < 0 or j < 0:
         return 0
+    e = wp.float64(load(values, i * n + j)[0])
     mu = wp.float64(1.0)
     if use_geometric != 0:
-        mu = wp.float64(load(values, i * n + j)[0])
-    if mu > error:
+        mu = e
+    if mu > error or e >= wp.float64(0.5) * STRADDLE_ERROR:  # an error >= STRADDLE_ERROR kept the padding
         return 1
     return 0
 

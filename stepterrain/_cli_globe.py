@@ -19,6 +19,8 @@ from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
 from .io import npz_nodata
 
+_EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
+
 _EPILOG = """\
 examples:
   stepterrain globe -o out/globe.glb --png out/globe.png
@@ -51,14 +53,14 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
-    p.add_argument("--radius", type=float, default=6_371_000.0, metavar="M", help="sphere radius in metres")
+    p.add_argument("--radius", type=float, default=_EARTH_RADIUS, metavar="M", help="sphere radius in metres")
     p.add_argument("--error", type=float, default=500.0, metavar="E",
                    help="metres of error tolerated at the eye's altitude (grows with distance squared); "
                         "0 = full resolution where visible (default 500)")
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
-                   default=(30.0, 10.0, 3 * 6_371_000.0), metavar="LAT,LON,ALT",
+                   default=None, metavar="LAT,LON,ALT",
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
-                        "above the terrain there); default 30,10,3R (the whole globe in view)")
+                        "above the terrain there); default 30,10,3R, R the --radius (the whole globe in view)")
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
@@ -141,19 +143,23 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"got {args.metrics!r} (an empty name)")
     _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
-    lat_deg, lon_deg, altitude = args.eye
+    # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
+    radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
+    # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
+    # its surface and a smaller one as a speck, not the whole globe the help promises)
+    lat_deg, lon_deg, altitude = args.eye if args.eye is not None else (30.0, 10.0, 3 * (radius or _EARTH_RADIUS))
     if not (-90.0 <= lat_deg <= 90.0):
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
         raise InvalidInputError(f"--eye longitude must lie in [-360, 360] degrees; got {lon_deg:g}")
     if altitude <= 0:
         raise InvalidInputError(f"--eye altitude must be above the surface (> 0 m); got {altitude}")
-    # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
-    radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
     if radius + altitude > _MAX_COORDINATE:  # look_from's bound on the eye, which named the library's 'radius'
-        where = "--eye altitude" if altitude > _MAX_COORDINATE else "--radius + the --eye altitude"
+        where = "--eye altitude" if altitude > _MAX_COORDINATE and args.eye is not None else \
+            "--radius + the --eye altitude"
+        default = "" if args.eye is not None else " (the default --eye, 3 x --radius)"
         raise InvalidInputError(f"{where} must keep the eye within {_MAX_COORDINATE:g} m of the centre; got "
-                                f"--radius {args.radius:g} + altitude {altitude:g} m")
+                                f"--radius {args.radius:g} + altitude {altitude:g} m{default}")
     if not (0.0 <= args.tilt < 90.0):
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
     if png is not None:

@@ -307,7 +307,7 @@ class Globe:
             self._height_range = float(heights.min()), float(heights.max())
         lowest, highest = self._height_range
         distance = math.hypot(*eye)
-        if distance >= self.radius + highest:  # above every node: most views, no lookup
+        if distance > self.radius + highest:  # above every node: most views, no lookup (at the highest, looked up)
             return
         surface = self.radius + lowest
         if distance > surface:  # within the relief: the terrain in the eye's direction

@@ -294,7 +294,9 @@ def test_a_closing_longitude_column_that_differs_from_the_first_is_refused():
         (["--eye", "0,0,1e300"], "--eye altitude must keep the eye within 1e+30 m of the centre; got --radius "
                                  "6.371e+06 + altitude 1e+300 m"),
         (["--radius", "1e35"], "--radius + the --eye altitude must keep the eye within 1e+30 m of the centre; got "
-                               "--radius 1e+35 + altitude 1.9113e+07 m"),
+                               "--radius 1e+35 + altitude 3e+35 m (the default --eye, 3 x --radius)"),
+        (["--radius", "1e35", "--eye", "0,0,1e31"], "--eye altitude must keep the eye within 1e+30 m of the centre; "
+                                                   "got --radius 1e+35 + altitude 1e+31 m"),
     ],
 )
 def test_an_eye_beyond_the_camera_bound_names_the_options(tmp_path, capsys, argv, message):
@@ -500,3 +502,67 @@ def test_a_longitude_axis_across_the_antimeridian_is_the_same_globe(descending):
     with pytest.raises(InvalidInputError, match="lon must be regularly spaced"):
         Globe.from_latlon(wrapped_z, lat, np.where(np.arange(360) == 200, wrapped_lon + 0.5, wrapped_lon),
                           face_size=9, device="cpu")
+
+
+def test_an_eye_exactly_on_the_surface_is_refused():
+    """An eye exactly at the height of the highest node passed unchecked (|eye| >= R + highest returned early), so
+    an eye on the surface of a level globe was meshed, though the contract refuses an eye "at or below the terrain
+    surface"; a metre above it passes."""
+    lat, lon = np.linspace(89.5, -89.5, 180), np.linspace(-179.5, 179.5, 360)
+    globe = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=5, device="cpu")
+    assert not globe.heights.any()
+    top = globe.radius
+    for eye in ((top, 0.0, 0.0), (0.0, -top, 0.0)):
+        with pytest.raises(InvalidInputError, match=r"inside the planet, below the terrain surface"):
+            globe.mesh(error=1000.0, camera=_camera(eye))
+    assert len(globe.mesh(error=1000.0, camera=_camera((top + 1.0, 0.0, 0.0))).faces) > 0
+
+
+@pytest.mark.parametrize("error", [3.5e38, 1e300])
+def test_an_error_beyond_float32_still_cuts_a_padded_grid_back_to_its_rectangle(monkeypatch, error):
+    """adaptive_mesh without a camera refines in one pass over the nodes, which compared e with the error alone: an
+    error at or above the padding's straddle error (3e38: any larger finite error, e.g. 1e300 for "the coarsest
+    mesh") left the padded square's two triangles, vertices beyond the input at (2^k, 2^k) with made-up heights.
+    The node pass now refines the straddling nodes as the breadth-first levels do, and gives their mesh."""
+    import stepterrain.globe as globe_module
+
+    from .test_adaptive import assert_crack_free_rectangle
+
+    z = np.random.default_rng(7).normal(size=(100, 150)).astype(np.float32) * 10.0
+    mesh = adaptive_mesh(z, error=error, spacing=2.0)
+    assert np.asarray(mesh.metadata["node_index"]).max(axis=0).tolist() == [99, 149]
+    assert_crack_free_rectangle(mesh, 100, 150, (2.0, 2.0))
+    monkeypatch.setattr(globe_module, "_NODE_PASS", False)
+    levels = adaptive_mesh(z, error=error, spacing=2.0)
+    assert len(levels.faces) == len(mesh.faces)
+    assert {tuple(sorted(t)) for t in mesh.vertices[mesh.faces].reshape(-1, 9).tolist()} == \
+        {tuple(sorted(t)) for t in levels.vertices[levels.faces].reshape(-1, 9).tolist()}
+    square = adaptive_mesh(np.zeros((2, 2)), error=error)  # a 2 x 2 grid, padded to 3 x 3: one cell
+    assert np.asarray(square.vertices)[:, :2].max() == 1.0 and len(square.faces) == 2
+
+
+@pytest.mark.parametrize("radius", [6.371e5, 6.371e7])
+def test_the_cli_default_eye_sees_the_whole_globe_of_any_radius(tmp_path, monkeypatch, radius):
+    """--help promises a default eye at 3R with the whole globe in view, but the eye stood 3 earth radii above the
+    sphere whatever --radius was: a planet ten times the earth filled the view with a patch of its surface, one a
+    tenth of it was a speck. The default altitude is 3 x --radius now, and the planet's sphere lies inside every
+    plane of the view."""
+    import stepterrain.globe as globe_module
+    from stepterrain.cli import main
+
+    cameras = []
+    real_look_from = globe_module.look_from
+
+    def spy(*args, **kwargs):
+        cameras.append((args, real_look_from(*args, **kwargs)))
+        return cameras[-1][1]
+
+    monkeypatch.setattr(globe_module, "look_from", spy)
+    out = tmp_path / "g.ply"
+    argv = ["-q", "globe", "--radius", f"{radius:g}", "--exaggeration", "0.01", "--face-size", "9", "-o", str(out),
+            "--device", "cpu"]
+    assert main(argv) == 0
+    (args, camera), = cameras
+    assert args == (30.0, 10.0, 3 * radius)
+    planes = camera.planes()
+    assert (planes[:, 3] <= -radius * 1.01).all()  # the centre at least R (and a margin) inside each plane
