@@ -63,10 +63,12 @@ def add_parser(commands: Any) -> None:
                    choices=("standard", "multidirectional", "combined", "igor"),
                    help="hillshade variant as gdaldem defines it: standard, multidirectional, combined, igor (default "
                         "standard; MapLibre's shaders are in the Python API only, method='maplibre-...')")
-    p.add_argument("--azimuth", type=float, default=315.0, metavar="DEG",
-                   help="light azimuth, degrees clockwise from north (default 315)")
-    p.add_argument("--altitude", type=float, default=45.0, metavar="DEG",
-                   help="light altitude above the horizon in [0, 90] degrees (default 45)")
+    p.add_argument("--azimuth", type=float, default=None, metavar="DEG",
+                   help="light azimuth, degrees clockwise from north (default 315); multidirectional shades by its "
+                        "four fixed lights, so there it aims --shadows only")
+    p.add_argument("--altitude", type=float, default=None, metavar="DEG",
+                   help="light altitude above the horizon in [0, 90] degrees (default 45); igor ignores it, so "
+                        "there it aims --shadows only")
     p.add_argument("--z-factor", type=float, default=1.0, metavar="Z",
                    help="vertical exaggeration of the shading (default 1)")
     p.add_argument("--shadows", action="store_true", help="self-shadowing by the full-resolution terrain")
@@ -130,10 +132,22 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
     _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
-    if not math.isfinite(args.azimuth):  # named by the library as 'azimuth', in radians
+    if args.azimuth is not None and not math.isfinite(args.azimuth):  # named by the library as 'azimuth', radians
         raise InvalidInputError(f"--azimuth must be a finite number of degrees; got {args.azimuth}")
-    if not (0.0 <= args.altitude <= 90.0):
+    if args.altitude is not None and not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
+    # an option the shading ignores is refused (gdaldem refuses -multidirectional with -az, -igor with -alt): the
+    # texture came out the same whatever was given; with --shadows the light still aims the shadows
+    ignored = {"multidirectional": ("--azimuth", args.azimuth, "its four fixed lights, from 225, 270, 315 and 360 "
+                                                               "degrees"),
+               "igor": ("--altitude", args.altitude, "the light's azimuth and the slope alone")}.get(args.method)
+    if ignored is not None and ignored[1] is not None and not args.shadows:
+        option, value, why = ignored
+        raise InvalidInputError(f"{option} has no effect on --hillshade {args.method}, which shades by {why} (as "
+                                f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
+                                "--shadows")
+    args.azimuth = 315.0 if args.azimuth is None else args.azimuth
+    args.altitude = 45.0 if args.altitude is None else args.altitude
     if args.interval is not None and mesh_out is None and png is None:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):

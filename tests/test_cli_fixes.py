@@ -314,6 +314,30 @@ def test_a_non_finite_texture_azimuth_is_refused_before_the_dem_is_read(tmp_path
     assert "loading" not in err
 
 
+@pytest.mark.parametrize("method, option, value", [("multidirectional", "--azimuth", "100"),
+                                                   ("igor", "--altitude", "10")])
+def test_a_light_option_the_texture_hillshade_ignores_is_refused_unless_it_aims_shadows(tmp_path, capsys, method,
+                                                                                        option, value):
+    """--hillshade multidirectional shades by four fixed lights and igor ignores the altitude: --azimuth 100 (or
+    --altitude 10) wrote the very texture the default light gave, without a word (gdaldem refuses -multidirectional
+    with -az, -igor with -alt). Refused now; with --shadows the light aims the shadows, so it is taken there."""
+    dem = tmp_path / "dem.npy"
+    y, x = np.mgrid[0:24, 0:30]
+    np.save(dem, (40.0 * np.sin(x / 4.0) * np.cos(y / 5.0) + 3.0 * x).astype(np.float32))
+    base = ["texture", dem, "--hillshade", method, "--colormap", "none", "--device", "cpu"]
+    code, _, err = run(capsys, *base, option, value, "-o", tmp_path / "ignored.png")
+    assert code == 2
+    assert f"{option} has no effect on --hillshade {method}" in err and f"got {option} {value} without --shadows" in err
+    assert "loading" not in err and not (tmp_path / "ignored.png").exists()
+    # with --shadows it aims them: a low light from the other side casts other shadows than the default one
+    for name, light in (("default", []), ("given", [option, value] if method == "igor" else [option, "135"])):
+        assert run(capsys, *base, "--shadows", "--shadow-strength", "1", *light, "-o", tmp_path / f"{name}.png")[0] == 0
+    from PIL import Image
+
+    default, given = (np.asarray(Image.open(tmp_path / f"{name}.png")) for name in ("default", "given"))
+    assert not np.array_equal(default, given)
+
+
 def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, capsys):
     """--rotation 0,1e308 was converted to radians first: math.radians(1e308) kept none of the angle, so the close-up
     turned by whatever cos(1.7e306) gave. Whole turns come off first (exactly), so it is 1e308 mod 360 degrees."""
