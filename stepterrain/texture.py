@@ -720,9 +720,9 @@ class TextureLayer:
 
     ``kind``: "thematic" (RGB or RGBA colour), "luminance" (one channel of brightness), "topographic"
     (shading, a luminance layer computed from the terrain, §7) or "visibility" (one channel of alpha, §5).
-    ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1]; row 0 is the
-    north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its
-    RGBA is cached only when the array is read-only, so in-place edits show.
+    ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1], NaN for nodata (a
+    transparent pixel); row 0 is the north edge (ymax), column 0 the west edge; it is kept as given (a numpy
+    memmap stays on disk), and its RGBA is cached only when the array is read-only, so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
     texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
     derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
@@ -812,6 +812,13 @@ class TextureLayer:
             out[..., :3] = values[..., None]
         nodata = ~np.isfinite(out).all(axis=2)
         if nodata.any():
+            # NaN is nodata, as in heights; an infinite value was taken for nodata too: a weight of inf left the
+            # other layer as it was, an inf colour turned transparent
+            infinite = np.isinf(out).any(axis=2)
+            if infinite.any():
+                first = tuple(int(k) for k in np.argwhere(infinite)[0])
+                raise InvalidInputError(f"{self.kind} layer values must be finite or NaN (nodata); got an infinite "
+                                        f"value at pixel {first}")
             out[nodata] = (1.0, 1.0, 1.0, 0.0)
         finite = out[~nodata]
         if finite.size and (finite.min() < -1e-6 or finite.max() > 1.0 + 1e-6):

@@ -288,3 +288,24 @@ def test_an_animation_frame_fades_to_a_transparent_key_without_tinting():
     for t in (1.0, 1.5, 2.3, 3.0):
         np.testing.assert_allclose(anim.frame(t, device="cpu").rgba(), interpolate_reference(a, b, (t - 1.0) / 2.0),
                                    atol=2e-6)
+
+
+# ------------------------------------------------------------------------------------------ layer values (h5)
+def test_an_infinite_layer_value_is_refused_and_nan_stays_nodata():
+    """A layer pixel holding inf was taken for nodata, as NaN is: blend's weights of inf (a weight far above 1) left
+    ``a`` as it was, and an inf colour turned the pixel transparent, without a word. Heights refuse inf and keep
+    NaN as nodata; layers now do the same."""
+    a = TextureLayer("thematic", np.zeros((2, 2, 3), np.float32), (0, 2, 0, 2))
+    weights = np.full((2, 2), 0.5, np.float32)
+    weights[0, 1] = np.inf
+    with pytest.raises(InvalidInputError, match=r"must be finite or NaN \(nodata\); got an infinite value at pixel "
+                                                r"\(0, 1\)"):
+        blend(a, np.ones((2, 2, 3)), weights, device="cpu")
+    colours = np.full((2, 2, 3), 0.5, np.float32)
+    colours[1, 0, 2] = -np.inf
+    with pytest.raises(InvalidInputError, match=r"got an infinite value at pixel \(1, 0\)"):
+        TextureLayer("thematic", colours, (0, 2, 0, 2)).rgba()
+    weights[0, 1] = np.nan  # nodata: a transparent weight keeps a
+    out = blend(a, np.ones((2, 2, 3)), weights, device="cpu").rgba()
+    np.testing.assert_array_equal(out[..., 0], [[0.5, 0.0], [0.5, 0.5]])
+    np.testing.assert_array_equal(out[..., 3], 1.0)
