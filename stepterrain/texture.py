@@ -956,7 +956,16 @@ def _as_layer(value: Any, like: TextureLayer | None, name: str) -> TextureLayer:
         raise InvalidInputError(f"{name} has shape {array.shape[:2]} but the layer it combines with has "
                                 f"{like.shape} (mismatched size)")
     kind: LayerKind = "thematic" if array.ndim == 3 else "luminance"
-    return TextureLayer(kind, array, like.extent, matrix=like.matrix, border=like.border)
+    return _named(name, TextureLayer, kind, array, like.extent, matrix=like.matrix, border=like.border)
+
+
+def _named(name: str, make: Any, *args: Any, **kwargs: Any) -> Any:
+    """``make(*args, **kwargs)``, its InvalidInputError prefixed with the argument ``name``: a layer's checks name
+    its kind ("visibility layer values must ..."), not the argument of an operation that was given the values."""
+    try:
+        return make(*args, **kwargs)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{name}: {exc}") from None
 
 
 def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
@@ -974,7 +983,7 @@ def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
 def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device: wp.Device,
              name: str) -> wp.array:
     """The layer's RGBA on the pixel grid (extent, shape): the image itself when it already is that grid."""
-    rgba = layer.rgba()
+    rgba = _named(name, layer.rgba)
     key = ("device", str(device))
     image = layer._rgba_cache.get(key) if layer._rgba_cache.get("rgba") is rgba else None
     if image is None:
@@ -1028,8 +1037,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
         array = as_array(weights, "weights", "a visibility layer or an (h, w) array")
         if array.ndim != 2:
             raise InvalidInputError(f"weights must be a visibility layer or an (h, w) array; got shape {array.shape}")
-        w = _as_layer(TextureLayer("visibility", array, a.extent, matrix=a.matrix) if array.shape == a.shape
-                      else array, a, "weights")
+        w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
+                      if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)
     extent, shape = a.frame
     out = wp.empty(shape, dtype=wp.vec4, device=dev)

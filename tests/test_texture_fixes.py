@@ -24,6 +24,7 @@ from stepterrain.texture import (
     relight,
     terrain_layer,
     topographic_layer,
+    weighted_add,
 )
 
 from .reference_texture import hillshade_reference
@@ -309,3 +310,24 @@ def test_an_infinite_layer_value_is_refused_and_nan_stays_nodata():
     out = blend(a, np.ones((2, 2, 3)), weights, device="cpu").rgba()
     np.testing.assert_array_equal(out[..., 0], [[0.5, 0.0], [0.5, 0.5]])
     np.testing.assert_array_equal(out[..., 3], 1.0)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda a: blend(a, np.ones((2, 2, 3)), np.full((2, 2), 1.5)), "weights"),
+    (lambda a: blend(a, np.ones((2, 2, 3)), np.ones((2, 2), np.int64)), "weights"),
+    (lambda a: blend(a, np.full((2, 2, 3), 2.0)), "b"),
+    (lambda a: weighted_add([a, np.ones((2, 2, 3)), np.full((2, 2, 3), 3.0)], [1.0, 1.0, 1.0]), r"layers\[2\]"),
+    (lambda a: modulate(a, np.ones((2, 2)), np.full((2, 2), 7, np.int16)), "layer 3"),
+    (lambda a: adjust(TextureLayer("luminance", np.full((2, 2), 3.0), (0, 2, 0, 2))), "layer"),
+    (lambda a: TextureAnimation([a, TextureLayer("luminance", np.full((2, 2), 3.0), (0, 2, 0, 2))],
+                                (0.0, 1.0)).frame(0.5), r"layers\[1\]"),
+], ids=["blend weights range", "blend weights dtype", "blend b", "weighted_add layer", "modulate layer", "adjust",
+        "animation key"])
+def test_bad_layer_values_name_the_argument(call, name):
+    """An operation given values outside [0, 1] (or an image of int dtype) said "visibility layer values must lie in
+    [0, 1]" or "thematic layer image must be uint8 or float": the kind of the layer made from them, not which of
+    weighted_add's layers, modulate's others or blend's b and weights it was."""
+    a = TextureLayer("thematic", np.zeros((2, 2, 3), np.float32), (0, 2, 0, 2))
+    with pytest.raises(InvalidInputError, match=rf"^{name}: (visibility|thematic|luminance) layer "
+                                                r"(values must lie in \[0, 1\]|image must be uint8 or float)"):
+        call(a)
