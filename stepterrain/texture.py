@@ -1011,7 +1011,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
           device: wp.DeviceLike = None) -> TextureLayer:
     """Texture layer blending (§3.2.3): ``a · (1 − w) + b · w`` per pixel, w the alpha of ``weights``.
 
-    ``weights`` is a visibility layer (its alpha; a lens, §5) or an (h, w) array of weights in [0, 1];
+    ``weights`` is a visibility layer (its alpha; a lens, §5), a thematic RGBA layer (its alpha) or an (h, w)
+    array of weights in [0, 1] (a layer without alpha, luminance or RGB, is refused: it would weigh 1);
     ``None`` uses ``b``'s own alpha. Every layer is sampled through its texture matrix onto ``a``'s pixels.
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
@@ -1032,6 +1033,13 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     if weights is None:
         w = b
     elif isinstance(weights, TextureLayer):
+        if weights.kind in ("luminance", "topographic") or (weights.kind == "thematic" and weights.image.shape[2] == 3):
+            # its alpha, the weight, is 1 wherever it has data: the result was b there, its values unread
+            raise InvalidInputError(f"weights must be a layer with an alpha (a visibility layer such as a "
+                                    f"thematic_lens, or a thematic RGBA layer): blend weighs by its alpha; got a "
+                                    f"{weights.kind} layer{' of RGB' if weights.kind == 'thematic' else ''}, opaque "
+                                    "wherever it has data. For weights from its values make "
+                                    "TextureLayer('visibility', values, extent)")
         w = weights
     else:
         array = as_array(weights, "weights", "a visibility layer or an (h, w) array")

@@ -331,3 +331,21 @@ def test_bad_layer_values_name_the_argument(call, name):
     with pytest.raises(InvalidInputError, match=rf"^{name}: (visibility|thematic|luminance) layer "
                                                 r"(values must lie in \[0, 1\]|image must be uint8 or float)"):
         call(a)
+
+
+def test_blend_refuses_weights_without_an_alpha():
+    """blend weighs by the alpha of ``weights``: a luminance layer of weights (or the highlight lens, taken for the
+    thematic one, or an RGB layer) is opaque wherever it has data, so the result was b there whatever its values,
+    without a word. Refused now, naming the fix; visibility and RGBA layers still weigh by their alpha."""
+    extent = (0, 3, 0, 2)
+    a = TextureLayer("thematic", np.zeros((2, 3, 3), np.float32), extent)
+    b = np.ones((2, 3, 3), np.float32)
+    values = np.array([[0.0, 0.25, 0.5], [0.75, 1.0, 0.5]], np.float32)
+    for weights in (TextureLayer("luminance", values, extent), highlight_lens((1.5, 1.0), 1.0),
+                    TextureLayer("thematic", np.repeat(values[..., None], 3, axis=2), extent)):
+        with pytest.raises(InvalidInputError, match=r"^weights must be a layer with an alpha .* got a "
+                                                    rf"{weights.kind} layer.*TextureLayer\('visibility'"):
+            blend(a, b, weights, device="cpu")
+    for weights in (TextureLayer("visibility", values, extent), values,
+                    TextureLayer("thematic", np.dstack([b, values]), extent)):
+        np.testing.assert_allclose(blend(a, b, weights, device="cpu").rgba()[..., 0], values, atol=1e-7)
