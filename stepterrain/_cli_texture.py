@@ -86,7 +86,8 @@ def add_parser(commands: Any) -> None:
                         "CRS; needs rasterio, pip install 'stepterrain[geo]'); RGBA with alpha 0 at nodata for a DEM "
                         "with nodata, else RGB")
     p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
-                   + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image)")
+                   + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image, OBJ writes it beside; .ply and .3mf "
+                   "hold no texture: the texture's colour at each vertex instead; .stl holds no colours)")
     p.add_argument("--interval", type=float, metavar="M",
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
@@ -118,6 +119,23 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
     rgba[~finite, 3] = 0.0
     return rgba
+
+
+def _texture_colours(draped: Any) -> Any:
+    """The draped mesh with its texture's colour at each vertex (the texel its UV falls in) as vertex colours, for
+    the formats that keep vertex colours but no texture (.ply, .3mf): they dropped the texture, and wrote the mesh
+    without any colour."""
+    import trimesh
+
+    picture = np.asarray(draped.visual.material.baseColorTexture.convert("RGB"))
+    rows, cols = picture.shape[:2]
+    uv = np.asarray(draped.visual.uv, dtype=np.float64)  # texel centres at ((j + 0.5) / cols, 1 - (i + 0.5) / rows)
+    j = np.clip(np.floor(uv[:, 0] * cols), 0, cols - 1).astype(np.intp)
+    i = np.clip(np.floor((1.0 - uv[:, 1]) * rows), 0, rows - 1).astype(np.intp)
+    out = trimesh.Trimesh(np.asarray(draped.vertices), np.asarray(draped.faces), process=False,
+                          metadata=dict(draped.metadata), vertex_colors=picture[i, j])
+    out.face_attributes = dict(draped.face_attributes)
+    return out
 
 
 def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
@@ -211,7 +229,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         metadata = {"generator": "stepterrain texture", "input": args.input or "embedded Big Tujunga DEM",
                     "method": args.method, "azimuth_deg": args.azimuth, "altitude_deg": args.altitude,
                     "shadows": bool(args.shadows)}
-        export.save_mesh(draped, mesh_out, metadata=metadata)
+        textured = mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # the formats that keep a texture
+        export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:
         export.save_image(shot, png)

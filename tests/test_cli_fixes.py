@@ -338,6 +338,29 @@ def test_a_light_option_the_texture_hillshade_ignores_is_refused_unless_it_aims_
     assert not np.array_equal(default, given)
 
 
+def test_a_texture_draped_on_a_ply_mesh_becomes_its_vertex_colours(tmp_path, capsys):
+    """`texture --mesh out.ply` (or .3mf) wrote the mesh without any colour: those formats keep no texture, and the
+    draped image was dropped without a word. Each vertex now gets the texture's colour there (the texel it lies
+    in), as `globe --texture` does for them: on the heightfield, exactly the texture PNG's pixel of its node."""
+    import trimesh
+    from PIL import Image
+
+    dem = tmp_path / "dem.npy"
+    y, x = np.mgrid[0:18, 0:23]
+    np.save(dem, (30.0 * np.sin(x / 3.0) + 2.0 * y * y).astype(np.float32))
+    code, _, _ = run(capsys, "texture", dem, "--shadows", "-o", tmp_path / "t.png", "--mesh", tmp_path / "m.ply",
+                     "--device", "cpu")
+    assert code == 0
+    png = np.asarray(Image.open(tmp_path / "t.png"))
+    mesh = trimesh.load(tmp_path / "m.ply", process=False)
+    assert mesh.visual.kind == "vertex"
+    # a file's rows run north to south: node (i, j) at (j, -i), the PNG's pixel (i, j)
+    j, i = np.rint(mesh.vertices[:, 0]).astype(int), np.rint(-mesh.vertices[:, 1]).astype(int)
+    assert len(mesh.vertices) == 18 * 23
+    np.testing.assert_array_equal(mesh.visual.vertex_colors[:, :3], png[i, j])
+    assert len(np.unique(png.reshape(-1, 3), axis=0)) > 50  # a real texture, not one colour
+
+
 def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, capsys):
     """--rotation 0,1e308 was converted to radians first: math.radians(1e308) kept none of the angle, so the close-up
     turned by whatever cos(1.7e306) gave. Whole turns come off first (exactly), so it is 1e308 mod 360 degrees."""
