@@ -72,8 +72,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--z-factor", type=float, default=1.0, metavar="Z",
                    help="vertical exaggeration of the shading (default 1)")
     p.add_argument("--shadows", action="store_true", help="self-shadowing by the full-resolution terrain")
-    p.add_argument("--shadow-strength", type=float, default=0.6, metavar="S",
-                   help="how much a shadow darkens, in [0, 1] (default 0.6)")
+    p.add_argument("--shadow-strength", type=float, default=None, metavar="S",
+                   help="with --shadows: how much a shadow darkens, in [0, 1] (default 0.6)")
     p.add_argument("--occlusion", type=float, default=0.0, metavar="W",
                    help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
@@ -166,6 +166,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                 "--shadows")
     args.azimuth = 315.0 if args.azimuth is None else args.azimuth
     args.altitude = 45.0 if args.altitude is None else args.altitude
+    if args.shadow_strength is not None and not args.shadows:  # it wrote the texture without shadows, the same
+        raise InvalidInputError("--shadow-strength applies only with --shadows")
+    args.shadow_strength = 0.6 if args.shadow_strength is None else args.shadow_strength
     if args.interval is not None and mesh_out is None and png is None:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):

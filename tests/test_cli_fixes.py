@@ -338,6 +338,18 @@ def test_a_light_option_the_texture_hillshade_ignores_is_refused_unless_it_aims_
     assert not np.array_equal(default, given)
 
 
+def test_a_shadow_strength_without_shadows_is_refused(tmp_path, capsys):
+    """--shadow-strength 1 without --shadows (taken for the switch that turns shadows on) wrote the texture without
+    shadows, the very one the default gave, without a word; refused now, as --interval without --mesh or --png."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, (np.random.default_rng(2).random((12, 14)) * 100).astype(np.float32))
+    code, _, err = run(capsys, "texture", dem, "--shadow-strength", "1", "-o", tmp_path / "t.png")
+    assert code == 2
+    assert "--shadow-strength applies only with --shadows" in err
+    assert "loading" not in err and not (tmp_path / "t.png").exists()
+    assert run(capsys, "texture", dem, "--shadows", "--shadow-strength", "1", "-o", tmp_path / "t.png")[0] == 0
+
+
 def test_a_texture_draped_on_a_ply_mesh_becomes_its_vertex_colours(tmp_path, capsys):
     """`texture --mesh out.ply` (or .3mf) wrote the mesh without any colour: those formats keep no texture, and the
     draped image was dropped without a word. Each vertex now gets the texture's colour there (the texel it lies
