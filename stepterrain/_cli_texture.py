@@ -63,15 +63,17 @@ def add_parser(commands: Any) -> None:
                    choices=("standard", "multidirectional", "combined", "igor"),
                    help="hillshade variant as gdaldem defines it: standard, multidirectional, combined, igor (default "
                         "standard; MapLibre's shaders are in the Python API only, method='maplibre-...')")
-    p.add_argument("--azimuth", type=float, default=315.0, metavar="DEG",
-                   help="light azimuth, degrees clockwise from north (default 315)")
-    p.add_argument("--altitude", type=float, default=45.0, metavar="DEG",
-                   help="light altitude above the horizon in [0, 90] degrees (default 45)")
+    p.add_argument("--azimuth", type=float, default=None, metavar="DEG",
+                   help="light azimuth, degrees clockwise from north (default 315); multidirectional shades by its "
+                        "four fixed lights, so there it aims --shadows only")
+    p.add_argument("--altitude", type=float, default=None, metavar="DEG",
+                   help="light altitude above the horizon in [0, 90] degrees (default 45); igor ignores it, so "
+                        "there it aims --shadows only")
     p.add_argument("--z-factor", type=float, default=1.0, metavar="Z",
                    help="vertical exaggeration of the shading (default 1)")
     p.add_argument("--shadows", action="store_true", help="self-shadowing by the full-resolution terrain")
-    p.add_argument("--shadow-strength", type=float, default=0.6, metavar="S",
-                   help="how much a shadow darkens, in [0, 1] (default 0.6)")
+    p.add_argument("--shadow-strength", type=float, default=None, metavar="S",
+                   help="with --shadows: how much a shadow darkens, in [0, 1] (default 0.6)")
     p.add_argument("--occlusion", type=float, default=0.0, metavar="W",
                    help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
@@ -84,7 +86,8 @@ def add_parser(commands: Any) -> None:
                         "CRS; needs rasterio, pip install 'stepterrain[geo]'); RGBA with alpha 0 at nodata for a DEM "
                         "with nodata, else RGB")
     p.add_argument("--mesh", type=_path, metavar="OUT", help="drape the texture on a mesh; format by extension: "
-                   + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image)")
+                   + " ".join(MESH_EXTENSIONS) + " (GLB/glTF embed the image, OBJ writes it beside; .ply and .3mf "
+                   "hold no texture: the texture's colour at each vertex instead; .stl holds no colours)")
     p.add_argument("--interval", type=float, metavar="M",
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
@@ -118,6 +121,23 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     return rgba
 
 
+def _texture_colours(draped: Any) -> Any:
+    """The draped mesh with its texture's colour at each vertex (the texel its UV falls in) as vertex colours, for
+    the formats that keep vertex colours but no texture (.ply, .3mf): they dropped the texture, and wrote the mesh
+    without any colour."""
+    import trimesh
+
+    picture = np.asarray(draped.visual.material.baseColorTexture.convert("RGB"))
+    rows, cols = picture.shape[:2]
+    uv = np.asarray(draped.visual.uv, dtype=np.float64)  # texel centres at ((j + 0.5) / cols, 1 - (i + 0.5) / rows)
+    j = np.clip(np.floor(uv[:, 0] * cols), 0, cols - 1).astype(np.intp)
+    i = np.clip(np.floor((1.0 - uv[:, 1]) * rows), 0, rows - 1).astype(np.intp)
+    out = trimesh.Trimesh(np.asarray(draped.vertices), np.asarray(draped.faces), process=False,
+                          metadata=dict(draped.metadata), vertex_colors=picture[i, j])
+    out.face_attributes = dict(draped.face_attributes)
+    return out
+
+
 def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from . import texture as tx
@@ -130,10 +150,25 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
     _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
-    if not math.isfinite(args.azimuth):  # named by the library as 'azimuth', in radians
+    if args.azimuth is not None and not math.isfinite(args.azimuth):  # named by the library as 'azimuth', radians
         raise InvalidInputError(f"--azimuth must be a finite number of degrees; got {args.azimuth}")
-    if not (0.0 <= args.altitude <= 90.0):
+    if args.altitude is not None and not (0.0 <= args.altitude <= 90.0):
         raise InvalidInputError(f"--altitude must lie in [0, 90] degrees; got {args.altitude:g}")
+    # an option the shading ignores is refused (gdaldem refuses -multidirectional with -az, -igor with -alt): the
+    # texture came out the same whatever was given; with --shadows the light still aims the shadows
+    ignored = {"multidirectional": ("--azimuth", args.azimuth, "its four fixed lights, from 225, 270, 315 and 360 "
+                                                               "degrees"),
+               "igor": ("--altitude", args.altitude, "the light's azimuth and the slope alone")}.get(args.method)
+    if ignored is not None and ignored[1] is not None and not args.shadows:
+        option, value, why = ignored
+        raise InvalidInputError(f"{option} has no effect on --hillshade {args.method}, which shades by {why} (as "
+                                f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
+                                "--shadows")
+    args.azimuth = 315.0 if args.azimuth is None else args.azimuth
+    args.altitude = 45.0 if args.altitude is None else args.altitude
+    if args.shadow_strength is not None and not args.shadows:  # it wrote the texture without shadows, the same
+        raise InvalidInputError("--shadow-strength applies only with --shadows")
+    args.shadow_strength = 0.6 if args.shadow_strength is None else args.shadow_strength
     if args.interval is not None and mesh_out is None and png is None:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
@@ -197,7 +232,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         metadata = {"generator": "stepterrain texture", "input": args.input or "embedded Big Tujunga DEM",
                     "method": args.method, "azimuth_deg": args.azimuth, "altitude_deg": args.altitude,
                     "shadows": bool(args.shadows)}
-        export.save_mesh(draped, mesh_out, metadata=metadata)
+        textured = mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # the formats that keep a texture
+        export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:
         export.save_image(shot, png)

@@ -720,9 +720,9 @@ class TextureLayer:
 
     ``kind``: "thematic" (RGB or RGBA colour), "luminance" (one channel of brightness), "topographic"
     (shading, a luminance layer computed from the terrain, §7) or "visibility" (one channel of alpha, §5).
-    ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1]; row 0 is the
-    north edge (ymax), column 0 the west edge; it is kept as given (a numpy memmap stays on disk), and its
-    RGBA is cached only when the array is read-only, so in-place edits show.
+    ``image``: (h, w, 3|4) for thematic, (h, w) otherwise; uint8 (0-255) or float in [0, 1], NaN for nodata (a
+    transparent pixel); row 0 is the north edge (ymax), column 0 the west edge; it is kept as given (a numpy
+    memmap stays on disk), and its RGBA is cached only when the array is read-only, so in-place edits show.
     ``extent``: (xmin, xmax, ymin, ymax) in world units, the outer edges of the pixels. ``matrix``: the 3 × 3
     texture matrix taking world (x, y, 1) to texel (column, row, 1) (texel centres at integers); ``None``
     derives it from the extent. Moving a layer (a lens) changes only the matrix (:meth:`moved`). ``border``:
@@ -812,6 +812,13 @@ class TextureLayer:
             out[..., :3] = values[..., None]
         nodata = ~np.isfinite(out).all(axis=2)
         if nodata.any():
+            # NaN is nodata, as in heights; an infinite value was taken for nodata too: a weight of inf left the
+            # other layer as it was, an inf colour turned transparent
+            infinite = np.isinf(out).any(axis=2)
+            if infinite.any():
+                first = tuple(int(k) for k in np.argwhere(infinite)[0])
+                raise InvalidInputError(f"{self.kind} layer values must be finite or NaN (nodata); got an infinite "
+                                        f"value at pixel {first}")
             out[nodata] = (1.0, 1.0, 1.0, 0.0)
         finite = out[~nodata]
         if finite.size and (finite.min() < -1e-6 or finite.max() > 1.0 + 1e-6):
@@ -949,7 +956,16 @@ def _as_layer(value: Any, like: TextureLayer | None, name: str) -> TextureLayer:
         raise InvalidInputError(f"{name} has shape {array.shape[:2]} but the layer it combines with has "
                                 f"{like.shape} (mismatched size)")
     kind: LayerKind = "thematic" if array.ndim == 3 else "luminance"
-    return TextureLayer(kind, array, like.extent, matrix=like.matrix, border=like.border)
+    return _named(name, TextureLayer, kind, array, like.extent, matrix=like.matrix, border=like.border)
+
+
+def _named(name: str, make: Any, *args: Any, **kwargs: Any) -> Any:
+    """``make(*args, **kwargs)``, its InvalidInputError prefixed with the argument ``name``: a layer's checks name
+    its kind ("visibility layer values must ..."), not the argument of an operation that was given the values."""
+    try:
+        return make(*args, **kwargs)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{name}: {exc}") from None
 
 
 def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
@@ -967,7 +983,7 @@ def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
 def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device: wp.Device,
              name: str) -> wp.array:
     """The layer's RGBA on the pixel grid (extent, shape): the image itself when it already is that grid."""
-    rgba = layer.rgba()
+    rgba = _named(name, layer.rgba)
     key = ("device", str(device))
     image = layer._rgba_cache.get(key) if layer._rgba_cache.get("rgba") is rgba else None
     if image is None:
@@ -995,7 +1011,8 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
           device: wp.DeviceLike = None) -> TextureLayer:
     """Texture layer blending (§3.2.3): ``a · (1 − w) + b · w`` per pixel, w the alpha of ``weights``.
 
-    ``weights`` is a visibility layer (its alpha; a lens, §5) or an (h, w) array of weights in [0, 1];
+    ``weights`` is a visibility layer (its alpha; a lens, §5), a thematic RGBA layer (its alpha) or an (h, w)
+    array of weights in [0, 1] (a layer without alpha, luminance or RGB, is refused: it would weigh 1);
     ``None`` uses ``b``'s own alpha. Every layer is sampled through its texture matrix onto ``a``'s pixels.
     Colours are straight (not premultiplied) alpha, and ``b`` is laid over ``a`` with coverage
     ``c = w · alpha_b`` (``c = alpha_b`` for ``weights=None``): alpha ``c + alpha_a · (1 − c)``, colour
@@ -1016,13 +1033,20 @@ def blend(a: TextureLayer, b: TextureLayer | ArrayLike, weights: TextureLayer | 
     if weights is None:
         w = b
     elif isinstance(weights, TextureLayer):
+        if weights.kind in ("luminance", "topographic") or (weights.kind == "thematic" and weights.image.shape[2] == 3):
+            # its alpha, the weight, is 1 wherever it has data: the result was b there, its values unread
+            raise InvalidInputError(f"weights must be a layer with an alpha (a visibility layer such as a "
+                                    f"thematic_lens, or a thematic RGBA layer): blend weighs by its alpha; got a "
+                                    f"{weights.kind} layer{' of RGB' if weights.kind == 'thematic' else ''}, opaque "
+                                    "wherever it has data. For weights from its values make "
+                                    "TextureLayer('visibility', values, extent)")
         w = weights
     else:
         array = as_array(weights, "weights", "a visibility layer or an (h, w) array")
         if array.ndim != 2:
             raise InvalidInputError(f"weights must be a visibility layer or an (h, w) array; got shape {array.shape}")
-        w = _as_layer(TextureLayer("visibility", array, a.extent, matrix=a.matrix) if array.shape == a.shape
-                      else array, a, "weights")
+        w = _as_layer(_named("weights", TextureLayer, "visibility", array, a.extent, matrix=a.matrix)
+                      if array.shape == a.shape else array, a, "weights")
     dev = resolve_device(device)
     extent, shape = a.frame
     out = wp.empty(shape, dtype=wp.vec4, device=dev)

@@ -16,11 +16,13 @@ the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid sha
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import shutil
 import tempfile
 import threading
+import uuid
 import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Sequence
@@ -291,7 +293,9 @@ class ImagePyramid:
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
             else (0, W, 0, H), one unit per pixel).
         storage : folder, optional
-            Where the level files go (default: a new temporary folder, deleted by :meth:`close`).
+            Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
+            under temporary names and renamed into place when all are complete, so a failed build leaves the
+            folder's earlier files as they were, and a pyramid built there before keeps its levels.
         anisotropic : bool
             Also store the anisotropic levels (kx, ky): width halved kx times, height ky times (a rip-map),
             used against blurring at grazing angles (§3.2.1).
@@ -342,26 +346,36 @@ class ImagePyramid:
             raise DataFileError(f"cannot create the pyramid storage folder {str(storage)!r}: {exc}") from exc
         dev = resolve_device(device)
         shapes = pyramid_shapes(height, width)
+        # every level file is written under a temporary name and renamed into place once all are complete: writing
+        # over the files of an earlier pyramid in the same storage changed its levels under it (its maps showed the
+        # new image; a smaller one read zeros or crashed with SIGBUS past the shortened file), and a failed build
+        # left truncated files in place of the earlier complete ones
+        staged = _StagedFiles(folder)
         try:
             if changeable and backing is None:  # the caller may edit it later: then level 0 would disagree with
                 source = source.copy()  # the levels below; in memory already, so a copy there (a memcpy)
                 source.flags.writeable = False
             elif changeable:  # a writeable memmap: the copy goes to storage, band by band (memory stays bounded)
-                source = _snapshot(source, folder / "level_0.u8", band_bytes)
-                backing, offset = str(folder / "level_0.u8"), 0
+                path = staged.path("level_0.u8")
+                source = _snapshot(source, path, band_bytes)
+                backing, offset = str(path), 0
             levels: list[NDArray[np.uint8]] = [source]
             reader = _Reader(source, backing, offset)
             for k in range(1, len(shapes)):
-                path = folder / f"level_{k}.u8"
+                path = staged.path(f"level_{k}.u8")
                 _reduce_file(reader, shapes[k - 1], shapes[k], channels, path, band_bytes, dev)
                 reader = _Reader(None, str(path), 0, shape=(*shapes[k], channels))
             for k in range(1, len(shapes)):
-                levels.append(np.memmap(folder / f"level_{k}.u8", dtype=np.uint8, mode="r",
+                levels.append(np.memmap(staged.path(f"level_{k}.u8"), dtype=np.uint8, mode="r",
                                         shape=(*shapes[k], channels)))
             aniso: dict[tuple[int, int], NDArray[np.uint8]] = {}
             if anisotropic:
-                aniso = _anisotropic_levels(levels, shapes, channels, folder, band_bytes, dev)
+                aniso = _anisotropic_levels(levels, shapes, channels, staged, band_bytes, dev)
+            staged.commit()  # the files under their own names, mapped from there (a later build replaces the names)
+            levels = [staged.reopen(level) for level in levels]
+            aniso = {key: staged.reopen(level) for key, level in aniso.items()}
         except BaseException:
+            staged.discard()
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
             raise
@@ -545,8 +559,48 @@ def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[i
         os.close(fd)
 
 
+class _StagedFiles:
+    """The level files of one build, written under temporary names in ``folder`` (``.level_1.u8.<random>.tmp``)
+    and renamed to their own names (``level_1.u8``) together by :meth:`commit`, or removed by :meth:`discard`."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.temporary: dict[str, Path] = {}
+        self.committed: dict[str, Path] = {}  # temporary path -> the level file's own path
+
+    def path(self, name: str) -> Path:
+        """The temporary path of level file ``name`` (the same one on every call)."""
+        if name not in self.temporary:
+            self.temporary[name] = self.folder / f".{name}.{uuid.uuid4().hex}.tmp"
+        return self.temporary[name]
+
+    def commit(self) -> None:
+        for name, temporary in self.temporary.items():
+            final = self.folder / name
+            try:
+                os.replace(temporary, final)
+            except OSError as exc:
+                raise DataFileError(f"cannot write the pyramid level {str(final)!r}: {exc.strerror}") from exc
+            self.committed[os.path.abspath(temporary)] = final
+
+    def reopen(self, level: NDArray[np.uint8]) -> NDArray[np.uint8]:
+        """``level`` mapped from its own name when it was a staged file (the source itself is kept as it is)."""
+        filename = getattr(level, "filename", None)
+        final = self.committed.get(os.path.abspath(filename)) if filename else None
+        if final is None:
+            return level
+        return np.memmap(final, dtype=np.uint8, mode="r", shape=level.shape)
+
+    def discard(self) -> None:
+        for temporary in self.temporary.values():
+            if os.path.abspath(temporary) not in self.committed:
+                with contextlib.suppress(OSError):
+                    os.unlink(temporary)
+
+
 def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int, int]], channels: int,
-                        folder: Path, band_bytes: int, device: wp.Device) -> dict[tuple[int, int], NDArray[np.uint8]]:
+                        staged: _StagedFiles, band_bytes: int,
+                        device: wp.Device) -> dict[tuple[int, int], NDArray[np.uint8]]:
     """Rip-map levels (kx, ky), kx != ky: from level (min, min) halve only the longer-reduced axis."""
     out: dict[tuple[int, int], NDArray[np.uint8]] = {}
     for k in range(len(shapes)):
@@ -563,7 +617,7 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
             else:
                 parent, src_shape = (kx, ky - 1), (heights[ky - 1], widths[kx])
             dst_shape = (heights[ky], widths[kx])
-            path = folder / f"level_{kx}_{ky}.u8"
+            path = staged.path(f"level_{kx}_{ky}.u8")
             source = out[parent]
             backing, offset = _memmap_backing(source)
             if backing is not None:

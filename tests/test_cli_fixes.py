@@ -314,6 +314,65 @@ def test_a_non_finite_texture_azimuth_is_refused_before_the_dem_is_read(tmp_path
     assert "loading" not in err
 
 
+@pytest.mark.parametrize("method, option, value", [("multidirectional", "--azimuth", "100"),
+                                                   ("igor", "--altitude", "10")])
+def test_a_light_option_the_texture_hillshade_ignores_is_refused_unless_it_aims_shadows(tmp_path, capsys, method,
+                                                                                        option, value):
+    """--hillshade multidirectional shades by four fixed lights and igor ignores the altitude: --azimuth 100 (or
+    --altitude 10) wrote the very texture the default light gave, without a word (gdaldem refuses -multidirectional
+    with -az, -igor with -alt). Refused now; with --shadows the light aims the shadows, so it is taken there."""
+    dem = tmp_path / "dem.npy"
+    y, x = np.mgrid[0:24, 0:30]
+    np.save(dem, (40.0 * np.sin(x / 4.0) * np.cos(y / 5.0) + 3.0 * x).astype(np.float32))
+    base = ["texture", dem, "--hillshade", method, "--colormap", "none", "--device", "cpu"]
+    code, _, err = run(capsys, *base, option, value, "-o", tmp_path / "ignored.png")
+    assert code == 2
+    assert f"{option} has no effect on --hillshade {method}" in err and f"got {option} {value} without --shadows" in err
+    assert "loading" not in err and not (tmp_path / "ignored.png").exists()
+    # with --shadows it aims them: a low light from the other side casts other shadows than the default one
+    for name, light in (("default", []), ("given", [option, value] if method == "igor" else [option, "135"])):
+        assert run(capsys, *base, "--shadows", "--shadow-strength", "1", *light, "-o", tmp_path / f"{name}.png")[0] == 0
+    from PIL import Image
+
+    default, given = (np.asarray(Image.open(tmp_path / f"{name}.png")) for name in ("default", "given"))
+    assert not np.array_equal(default, given)
+
+
+def test_a_shadow_strength_without_shadows_is_refused(tmp_path, capsys):
+    """--shadow-strength 1 without --shadows (taken for the switch that turns shadows on) wrote the texture without
+    shadows, the very one the default gave, without a word; refused now, as --interval without --mesh or --png."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, (np.random.default_rng(2).random((12, 14)) * 100).astype(np.float32))
+    code, _, err = run(capsys, "texture", dem, "--shadow-strength", "1", "-o", tmp_path / "t.png")
+    assert code == 2
+    assert "--shadow-strength applies only with --shadows" in err
+    assert "loading" not in err and not (tmp_path / "t.png").exists()
+    assert run(capsys, "texture", dem, "--shadows", "--shadow-strength", "1", "-o", tmp_path / "t.png")[0] == 0
+
+
+def test_a_texture_draped_on_a_ply_mesh_becomes_its_vertex_colours(tmp_path, capsys):
+    """`texture --mesh out.ply` (or .3mf) wrote the mesh without any colour: those formats keep no texture, and the
+    draped image was dropped without a word. Each vertex now gets the texture's colour there (the texel it lies
+    in), as `globe --texture` does for them: on the heightfield, exactly the texture PNG's pixel of its node."""
+    import trimesh
+    from PIL import Image
+
+    dem = tmp_path / "dem.npy"
+    y, x = np.mgrid[0:18, 0:23]
+    np.save(dem, (30.0 * np.sin(x / 3.0) + 2.0 * y * y).astype(np.float32))
+    code, _, _ = run(capsys, "texture", dem, "--shadows", "-o", tmp_path / "t.png", "--mesh", tmp_path / "m.ply",
+                     "--device", "cpu")
+    assert code == 0
+    png = np.asarray(Image.open(tmp_path / "t.png"))
+    mesh = trimesh.load(tmp_path / "m.ply", process=False)
+    assert mesh.visual.kind == "vertex"
+    # a file's rows run north to south: node (i, j) at (j, -i), the PNG's pixel (i, j)
+    j, i = np.rint(mesh.vertices[:, 0]).astype(int), np.rint(-mesh.vertices[:, 1]).astype(int)
+    assert len(mesh.vertices) == 18 * 23
+    np.testing.assert_array_equal(mesh.visual.vertex_colors[:, :3], png[i, j])
+    assert len(np.unique(png.reshape(-1, 3), axis=0)) > 50  # a real texture, not one colour
+
+
 def test_a_closeup_rotation_of_many_turns_is_its_angle_modulo_360(tmp_path, capsys):
     """--rotation 0,1e308 was converted to radians first: math.radians(1e308) kept none of the angle, so the close-up
     turned by whatever cos(1.7e306) gave. Whole turns come off first (exactly), so it is 1e308 mod 360 degrees."""

@@ -113,3 +113,46 @@ def test_pyramid_levels_round_the_exact_area_weighted_mean_half_up(shape):
         for level in pyramid.levels[1:]:
             np.testing.assert_array_equal(level, reduce_rounded_reference(previous))
             previous = np.asarray(level)
+
+
+# ------------------------------------------------------------------------------------------ shared storage (h5)
+def test_a_pyramid_keeps_its_levels_when_another_is_built_into_its_storage(tmp_path, monkeypatch):
+    """A second build into the storage folder of an open pyramid wrote over its level files: the first pyramid's
+    levels showed the second image (and read past a smaller one's shortened files: zeros, or a SIGBUS crash), and a
+    build that failed half-way left truncated files in place of the earlier complete ones. The level files are now
+    written under temporary names and renamed into place once all are complete."""
+    from stepterrain import texture_lod
+
+    storage = tmp_path / "levels"
+    rng = np.random.default_rng(5)
+    first_image, second_image = rng.integers(0, 256, (2, 37, 29, 3), dtype=np.uint8)
+    first = ImagePyramid.build(first_image, storage=storage, anisotropic=True, device="cpu")
+    expected = [np.array(level) for level in first.levels]
+    expected_rip = {key: np.array(level) for key, level in first.anisotropic.items()}
+    np.testing.assert_array_equal(expected[1], reduce_rounded_reference(first_image))
+    names = sorted(p.name for p in storage.iterdir())
+    with ImagePyramid.build(second_image, storage=storage, anisotropic=True, device="cpu") as second:
+        np.testing.assert_array_equal(second.levels[1], reduce_rounded_reference(second_image))
+        assert not np.array_equal(second.levels[1], expected[1])
+        for level, copy in zip(first.levels, expected, strict=True):
+            np.testing.assert_array_equal(level, copy)
+        for key, level in first.anisotropic.items():
+            np.testing.assert_array_equal(level, expected_rip[key])
+        assert sorted(p.name for p in storage.iterdir()) == names  # the second's files under the level names
+        saved = {name: (storage / name).read_bytes() for name in names}
+
+    calls = []
+
+    def failing(*args, **kwargs):  # a build that fails at its third level (disk full, killed)
+        calls.append(1)
+        if len(calls) == 3:
+            raise OSError(28, "No space left on device")
+        return real(*args, **kwargs)
+
+    real = texture_lod._reduce_file
+    monkeypatch.setattr(texture_lod, "_reduce_file", failing)
+    with pytest.raises(OSError):
+        ImagePyramid.build(first_image, storage=storage, device="cpu")
+    assert sorted(p.name for p in storage.iterdir()) == names  # no temporary file left, no level file touched
+    assert all((storage / name).read_bytes() == data for name, data in saved.items())
+    first.close()

@@ -24,6 +24,7 @@ from stepterrain.texture import (
     relight,
     terrain_layer,
     topographic_layer,
+    weighted_add,
 )
 
 from .reference_texture import hillshade_reference
@@ -288,3 +289,63 @@ def test_an_animation_frame_fades_to_a_transparent_key_without_tinting():
     for t in (1.0, 1.5, 2.3, 3.0):
         np.testing.assert_allclose(anim.frame(t, device="cpu").rgba(), interpolate_reference(a, b, (t - 1.0) / 2.0),
                                    atol=2e-6)
+
+
+# ------------------------------------------------------------------------------------------ layer values (h5)
+def test_an_infinite_layer_value_is_refused_and_nan_stays_nodata():
+    """A layer pixel holding inf was taken for nodata, as NaN is: blend's weights of inf (a weight far above 1) left
+    ``a`` as it was, and an inf colour turned the pixel transparent, without a word. Heights refuse inf and keep
+    NaN as nodata; layers now do the same."""
+    a = TextureLayer("thematic", np.zeros((2, 2, 3), np.float32), (0, 2, 0, 2))
+    weights = np.full((2, 2), 0.5, np.float32)
+    weights[0, 1] = np.inf
+    with pytest.raises(InvalidInputError, match=r"must be finite or NaN \(nodata\); got an infinite value at pixel "
+                                                r"\(0, 1\)"):
+        blend(a, np.ones((2, 2, 3)), weights, device="cpu")
+    colours = np.full((2, 2, 3), 0.5, np.float32)
+    colours[1, 0, 2] = -np.inf
+    with pytest.raises(InvalidInputError, match=r"got an infinite value at pixel \(1, 0\)"):
+        TextureLayer("thematic", colours, (0, 2, 0, 2)).rgba()
+    weights[0, 1] = np.nan  # nodata: a transparent weight keeps a
+    out = blend(a, np.ones((2, 2, 3)), weights, device="cpu").rgba()
+    np.testing.assert_array_equal(out[..., 0], [[0.5, 0.0], [0.5, 0.5]])
+    np.testing.assert_array_equal(out[..., 3], 1.0)
+
+
+@pytest.mark.parametrize("call, name", [
+    (lambda a: blend(a, np.ones((2, 2, 3)), np.full((2, 2), 1.5)), "weights"),
+    (lambda a: blend(a, np.ones((2, 2, 3)), np.ones((2, 2), np.int64)), "weights"),
+    (lambda a: blend(a, np.full((2, 2, 3), 2.0)), "b"),
+    (lambda a: weighted_add([a, np.ones((2, 2, 3)), np.full((2, 2, 3), 3.0)], [1.0, 1.0, 1.0]), r"layers\[2\]"),
+    (lambda a: modulate(a, np.ones((2, 2)), np.full((2, 2), 7, np.int16)), "layer 3"),
+    (lambda a: adjust(TextureLayer("luminance", np.full((2, 2), 3.0), (0, 2, 0, 2))), "layer"),
+    (lambda a: TextureAnimation([a, TextureLayer("luminance", np.full((2, 2), 3.0), (0, 2, 0, 2))],
+                                (0.0, 1.0)).frame(0.5), r"layers\[1\]"),
+], ids=["blend weights range", "blend weights dtype", "blend b", "weighted_add layer", "modulate layer", "adjust",
+        "animation key"])
+def test_bad_layer_values_name_the_argument(call, name):
+    """An operation given values outside [0, 1] (or an image of int dtype) said "visibility layer values must lie in
+    [0, 1]" or "thematic layer image must be uint8 or float": the kind of the layer made from them, not which of
+    weighted_add's layers, modulate's others or blend's b and weights it was."""
+    a = TextureLayer("thematic", np.zeros((2, 2, 3), np.float32), (0, 2, 0, 2))
+    with pytest.raises(InvalidInputError, match=rf"^{name}: (visibility|thematic|luminance) layer "
+                                                r"(values must lie in \[0, 1\]|image must be uint8 or float)"):
+        call(a)
+
+
+def test_blend_refuses_weights_without_an_alpha():
+    """blend weighs by the alpha of ``weights``: a luminance layer of weights (or the highlight lens, taken for the
+    thematic one, or an RGB layer) is opaque wherever it has data, so the result was b there whatever its values,
+    without a word. Refused now, naming the fix; visibility and RGBA layers still weigh by their alpha."""
+    extent = (0, 3, 0, 2)
+    a = TextureLayer("thematic", np.zeros((2, 3, 3), np.float32), extent)
+    b = np.ones((2, 3, 3), np.float32)
+    values = np.array([[0.0, 0.25, 0.5], [0.75, 1.0, 0.5]], np.float32)
+    for weights in (TextureLayer("luminance", values, extent), highlight_lens((1.5, 1.0), 1.0),
+                    TextureLayer("thematic", np.repeat(values[..., None], 3, axis=2), extent)):
+        with pytest.raises(InvalidInputError, match=r"^weights must be a layer with an alpha .* got a "
+                                                    rf"{weights.kind} layer.*TextureLayer\('visibility'"):
+            blend(a, b, weights, device="cpu")
+    for weights in (TextureLayer("visibility", values, extent), values,
+                    TextureLayer("thematic", np.dstack([b, values]), extent)):
+        np.testing.assert_allclose(blend(a, b, weights, device="cpu").rgba()[..., 0], values, atol=1e-7)
