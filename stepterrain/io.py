@@ -42,6 +42,9 @@ _LOCAL_METRES_TOLERANCE = 0.01
 #: PROJ names of the Mercator projections, whose metres are ground metres times about 1/cos φ: a grid in one that
 #: errs by more than :data:`_LOCAL_METRES_TOLERANCE` warns (EPSG:3857 is the CRS of web map and terrain tiles).
 _MERCATOR = frozenset({"merc", "webmerc"})
+#: Largest shift, in cells, that dropping a geotransform's rotation terms may make to any node of the grid for them
+#: to be taken as float noise (:func:`negligible_rotation`) rather than refused as a rotated grid.
+_ROTATION_TOLERANCE = 1e-6
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
@@ -160,8 +163,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
-        without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90 or whose node
-        longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or unevenly spaced,
+        without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
+        grid, the float noise some tools write, are taken as 0), a geographic grid whose latitudes lie beyond ±90
+        or whose node longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or
+        unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
         ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length unit:
@@ -386,8 +391,9 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
             # rasterio's Affine(dx, 0, x0, 0, -dy, y0) saved as is (np.array(affine), or its first 6 numbers), not as
             # its to_gdal(): 6 of them were refused as a "rotated" grid (c, e = x0, -dy) or a zero pixel size
-            affine = transform.size in (6, 9) and np.all(np.isfinite(transform)) and transform[1] == 0.0 and \
-                transform[3] == 0.0 and transform[0] != 0.0 and transform[4] != 0.0 and \
+            affine = transform.size in (6, 9) and np.all(np.isfinite(transform)) and transform[0] != 0.0 and \
+                transform[4] != 0.0 and \
+                _negligible_rotation(transform[1], transform[3], transform[0], transform[4], heights.shape) and \
                 (transform.size == 6 or tuple(transform[6:]) == (0.0, 0.0, 1.0))
             if affine:
                 a, _, c, _, e, f = (float(v) for v in transform[:6])
@@ -861,10 +867,12 @@ def _georeferenced(
     A projected CRS in feet (or any unit but the metre) is converted to metres; ``height_unit`` is the
     heights' unit when the file names a known one (they are then metres already), else None."""
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
-    if row_x != 0.0 or col_y != 0.0:
+    if not _negligible_rotation(row_x, col_y, dx, dy, heights.shape):
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
-            f"{tuple(float(v) for v in geotransform)}"
+            f"{tuple(float(v) for v in geotransform)} (its rotation terms move nodes by more than "
+            f"{_ROTATION_TOLERANCE:g} of a cell over {heights.shape[0]} x {heights.shape[1]} nodes; `gdalwarp` makes "
+            "it north-up)"
         )
     if dx == 0.0 or dy == 0.0:
         raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
@@ -941,6 +949,19 @@ def _georeferenced(
         f"lat {node_y:.9f}; {how})"
     )
     return _grid(file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source)
+
+
+def _negligible_rotation(
+    row_x: float, col_y: float, dx: float, dy: float, shape: tuple[int, ...]
+) -> bool:
+    """Whether a geotransform's rotation terms (``row_x``, x per row, and ``col_y``, y per column) are float noise
+    (1e-16, or 1e-12 of the pixel size, as some tools write) rather than a rotation: taken as 0 they move no node of
+    a grid of ``shape`` (H, W) by more than :data:`_ROTATION_TOLERANCE` of the smaller pixel size, i.e.
+    max(|row_x|, |col_y|) * max(H, W) <= 1e-6 * min(|dx|, |dy|). Exact zeros always pass."""
+    if row_x == 0.0 and col_y == 0.0:
+        return True
+    worst = max(abs(row_x), abs(col_y)) * max(shape[0], shape[1])
+    return bool(math.isfinite(worst) and worst <= _ROTATION_TOLERANCE * min(abs(dx), abs(dy)))
 
 
 def _wgs84_metres_per_degree(

@@ -862,3 +862,40 @@ def test_a_site_grid_in_feet_has_its_spacing_and_origin_converted_to_metres_with
         np.testing.assert_allclose(t.origin, (centre[0] * foot, centre[1] * foot), rtol=1e-12)
         np.testing.assert_allclose(t.heights, stored * foot, rtol=1e-6)
         assert t.crs is not None and 'UNIT["metre",1' in t.crs and "site grid" in t.crs and "foot" not in t.crs
+
+
+@pytest.mark.parametrize("noise", [(1e-16, -1e-16), (30e-12, 0.0), (0.0, -3e-11)])
+def test_a_geotransform_whose_rotation_terms_are_float_noise_reads_as_north_up(tmp_path, noise):
+    """A geotransform whose rotation terms are float noise (1e-16, or 1e-12 of the pixel size, as some tools write
+    after a round trip through an Affine or a projection) was refused as "a rotated geotransform", GeoTIFF and .npz
+    alike. Terms that move no node by more than 1e-6 of a cell over the grid are taken as 0 now: the grid reads as
+    the north-up one without them. A real rotation (shifting the last of 300 rows by 3e-6 of a cell, or more) is
+    still refused, and rasterio's Affine order saved with such noise is still told apart (the to_gdal() hint)."""
+    rasterio = pytest.importorskip("rasterio")
+    heights = np.arange(12.0, dtype=np.float32).reshape(3, 4)
+    row_x, col_y = noise
+    gdal = (376298.5, 30.0, row_x, 3807932.5, col_y, -30.0)
+    clean = (376298.5, 30.0, 0.0, 3807932.5, 0.0, -30.0)
+    profile = {"driver": "GTiff", "width": 4, "height": 3, "count": 1, "dtype": "float32", "crs": "EPSG:32611"}
+    for name, transform in (("noisy", gdal), ("clean", clean)):
+        with rasterio.open(tmp_path / f"{name}.tif", "w", **profile,
+                           transform=rasterio.Affine.from_gdal(*transform)) as ds:
+            ds.write(heights, 1)
+        np.savez(tmp_path / f"{name}.npz", elevation=heights, transform=np.array(transform), crs="EPSG:32611")
+    with rasterio.open(tmp_path / "noisy.tif") as ds:
+        assert ds.transform.to_gdal() != clean  # the noise survives the GeoTIFF
+    for ext in ("tif", "npz"):
+        noisy, expected = load_dem(tmp_path / f"noisy.{ext}"), load_dem(tmp_path / f"clean.{ext}")
+        assert (noisy.spacing, noisy.origin, noisy.crs) == (expected.spacing, expected.origin, expected.crs)
+        assert noisy.origin == (376313.5, 3807917.5)
+        np.testing.assert_array_equal(noisy.heights, heights)
+    tall = np.zeros((300, 4), np.float32)  # 300 rows: 1e-8 of a 30 m cell per row shifts the last by 3e-6 of a cell
+    for rotation in (30.0 * 1e-8, 0.5):
+        np.savez(tmp_path / "rotated.npz", elevation=tall, transform=np.array([0.0, 30.0, rotation, 0.0, 0.0, -30.0]),
+                 crs="EPSG:32611")  # fmt: skip
+        with pytest.raises(DataFileError, match=r"rotated\.npz.*expected a north-up grid; got a rotated geotransform"):
+            load_dem(tmp_path / "rotated.npz")
+    affine = np.array([30.0, row_x, 376298.5, col_y, -30.0, 3807932.5])  # rasterio's order, with the noise
+    np.savez(tmp_path / "affine.npz", elevation=heights, transform=affine, crs="EPSG:32611")
+    with pytest.raises(DataFileError, match=r"Affine .*to_gdal\(\)"):
+        load_dem(tmp_path / "affine.npz")
