@@ -52,6 +52,8 @@ _GENERIC_KEYS = ("heights", "elevation", "z")
 #: (they were ignored, the grid read as 1 m cells at (0, 0)).
 _NPZ_GEOREFERENCE = ("crs", "dx", "dy", "dx_m", "dy_m", "spacing", "origin", "x", "y", "lat", "lon", "units_xy",
                      "cellsize", "xllcorner", "yllcorner", "bounds", "extent")  # fmt: skip
+#: 2-D .npz members that are never the heights (an archive of one unnamed array and a 'mask' reads the array).
+_NPZ_NOT_HEIGHTS = ("transform", "mask", "valid")
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
@@ -90,16 +92,18 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     ----------
     path : str or path-like
         ``.npy`` (one (H, W) array), ``.npz`` (heights under the first 2-D key of ``heights``, ``elevation``
-        and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
-        ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
-        (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees
-        (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and column, georeference them as
-        geographic, the layout of the global relief grids (``lon`` may cross the antimeridian, [179.5, -179.5, ...]:
-        a step of 1 degree, read as [179.5, 180.5, ...]); a
-        ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
-        heightmap, values are heights, a 2- or 4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey
-        value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha
-        is refused: Pillow reads it as 8 bits) or
+        and ``z``, or the archive's one 2-D array besides ``mask``/``valid``; a ``transform`` beside them
+        georeferences them, as in the layout of ``shared/data``: ``elevation``, ``transform``, ``crs``, optional
+        ``dx_m``/``dy_m`` and ``units`` (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes
+        of evenly spaced node degrees (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and
+        column, georeference them as geographic, the layout of the global relief grids (``lon`` may cross the
+        antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a ``nodata`` number,
+        0-d or in a one-element array, marks missing cells, and so do a boolean ``mask`` (True = missing, as in a
+        NumPy masked array: ``np.savez(..., elevation=m.data, mask=m.mask)``) and ``valid`` (True = present) of the
+        heights' shape, either or both), ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
+        4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
+        alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
+        8 bits) or
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
@@ -169,7 +173,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length unit:
+        ``nodata`` that is not one real number, a ``mask`` or ``valid`` that is not a boolean array of the heights'
+        shape, nothing but nodata, heights in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -374,14 +379,14 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         heights, _ = _heights_in_metres(_elevation(arrays, file, "array"), height_unit, file, "height_unit")
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
     nodata = npz_nodata(arrays.get("nodata"), file)
-    two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
+    two_d = [key for key, value in arrays.items() if value.ndim == 2 and key not in _NPZ_NOT_HEIGHTS]
     # the same key with a transform (which georeferences it) and without
     key = npz_heights_key(arrays, (2,))
     if key is None and len(two_d) == 1:
         key = two_d[0]
     latlon = "transform" not in arrays and "lat" in arrays and "lon" in arrays
     if key is not None and ("transform" in arrays or latlon):
-        heights = _elevation(arrays[key], file, repr(key), nodata)
+        heights = _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file))
         crs = _npz_text(arrays, "crs", file)
         if latlon:  # degree axes of the nodes (the layout of the global relief grids): geographic by definition
             transform = _latlon_geotransform(arrays["lat"], arrays["lon"], heights.shape, file)
@@ -436,7 +441,8 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
         heights, _ = _heights_in_metres(
-            _elevation(arrays[key], file, repr(key), nodata), height_unit or _npz_text(arrays, "units", file), file,
+            _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file)),
+            height_unit or _npz_text(arrays, "units", file), file,
             named_by,
         )
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None)
@@ -778,11 +784,43 @@ def npz_nodata(value: Any, file: Path) -> float | None:
     return float(arr)
 
 
+def npz_missing(arrays: Mapping[str, NDArray[Any]], key: str, file: Path) -> NDArray[np.bool_] | None:
+    """The cells an .npz marks missing beside its heights ``arrays[key]`` by a boolean ``mask`` (True = missing, as
+    in NumPy's masked arrays: ``np.savez(..., elevation=m.data, mask=m.mask)``) and/or ``valid`` (True = present),
+    of the heights' shape; both: a cell is missing if either says so. None without them (or for heights that are not
+    2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
+    read as heights (0 or -32768 pits), and a 0/255 integer mask (GDAL's mask band, 255 = valid) means the opposite
+    of a 0/1 one."""
+    heights = arrays[key]
+    if heights.ndim != 2 or not ("mask" in arrays or "valid" in arrays):
+        return None
+    missing = None
+    for name, present in (("mask", False), ("valid", True)):
+        value = arrays.get(name)
+        if value is None:
+            continue
+        if value.dtype != np.bool_ or value.shape != heights.shape:
+            meaning = "present" if present else "missing"
+            hint = ""
+            if value.dtype.kind in "iu" and value.size and set(np.unique(value).tolist()) <= {0, 1, 255}:
+                hint = (f"; save {name}=array.astype(bool) for 0/1 with 1 = {meaning}, or valid=array > 0 for GDAL's "
+                        "mask band (read_masks(): 255 = valid)")
+            raise DataFileError(
+                f"cannot read {str(file)!r}: {name!r} must be a boolean array of the heights' shape {heights.shape}, "
+                f"True where a cell is {meaning}; got {value.dtype} of shape {value.shape}{hint}"
+            )
+        cells = ~value if present else value
+        missing = cells if missing is None else missing | cells
+    return missing
+
+
 def _elevation(
-    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
+    missing: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.float32]:
     """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
-    (non-finite values and cells equal to ``nodata``, compared in the array's own dtype)."""
+    (non-finite values, cells equal to ``nodata``, compared in the array's own dtype, and cells True in
+    ``missing``, of the array's shape)."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -796,20 +834,24 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
-    return nodata_as_nan(array, file, what, nodata)
+    return nodata_as_nan(array, file, what, nodata, missing)
 
 
 def nodata_as_nan(
-    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
+    missing: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.float32]:
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
-    values and cells equal to ``nodata`` (compared in the array's own dtype). A finite value beyond float32 or
-    nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is
-    read into memory."""
+    values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
+    array of ``array``'s shape: an .npz ``mask``/``valid``, see :func:`npz_missing`). A finite value beyond float32
+    (in a cell not missing) or nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array
+    (a memory map) is read into memory."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
             hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+    if missing is not None:
+        hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX

@@ -899,3 +899,37 @@ def test_a_geotransform_whose_rotation_terms_are_float_noise_reads_as_north_up(t
     np.savez(tmp_path / "affine.npz", elevation=heights, transform=affine, crs="EPSG:32611")
     with pytest.raises(DataFileError, match=r"Affine .*to_gdal\(\)"):
         load_dem(tmp_path / "affine.npz")
+
+
+def test_an_npz_mask_or_valid_key_marks_missing_cells(tmp_path):
+    """np.savez(..., elevation=m.data, mask=m.mask) (a NumPy masked array's parts) or a 'valid' array beside the
+    heights was ignored silently: the masked cells (0, -32768 fill) read as heights, pits in the mesh. A boolean
+    'mask' (True = missing) and 'valid' (True = present) of the heights' shape now make those cells NaN, with a
+    transform or without, alone or together; an archive of one unnamed array and a mask reads the array. A mask of
+    another dtype or shape is refused, naming what it must be (a 0/255 GDAL mask band means the opposite of 0/1)."""
+    z = np.array([[100, -32768, 102, 103], [104, 105, 0, 107], [108, 109, 110, 111]], np.int16)
+    masked = np.ma.masked_equal(np.where(z == 0, -32768, z), -32768)
+    missing = np.ma.getmaskarray(masked)
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    np.savez(tmp_path / "mask.npz", elevation=z, mask=missing, transform=transform, crs="EPSG:32611")
+    np.savez(tmp_path / "valid.npz", elevation=z, valid=~missing)
+    np.savez(tmp_path / "plain.npz", z, mask=missing)  # arr_0 and a mask
+    half = missing.copy()
+    half[0, 1] = False
+    np.savez(tmp_path / "both.npz", heights=z, mask=half, valid=~(missing & ~half))  # each marks one cell
+    for name in ("mask.npz", "valid.npz", "plain.npz", "both.npz"):
+        h = load_dem(tmp_path / name).heights
+        np.testing.assert_array_equal(np.isnan(h), missing, err_msg=name)
+        np.testing.assert_array_equal(h[~missing], z[~missing].astype(np.float32), err_msg=name)
+    np.savez(tmp_path / "all.npz", elevation=z, mask=np.ones(z.shape, bool))
+    with pytest.raises(DataFileError, match=r"all\.npz.*all nodata"):
+        load_dem(tmp_path / "all.npz")
+    for name, key, value, got in (
+        ("gdal.npz", "mask", np.where(missing, 0, 255).astype(np.uint8), r"uint8 of shape \(3, 4\); save .*valid="),
+        ("shape.npz", "mask", missing[:, :3], r"bool of shape \(3, 3\)"),
+        ("float.npz", "valid", (~missing).astype(float), r"float64 of shape \(3, 4\)"),
+    ):
+        np.savez(tmp_path / name, elevation=z, transform=transform, **{key: value})
+        with pytest.raises(DataFileError, match=rf"{name}.*'{key}' must be a boolean array of the heights' shape "
+                                                rf"\(3, 4\), True where a cell is .*; got {got}"):
+            load_dem(tmp_path / name)
