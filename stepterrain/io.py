@@ -39,9 +39,15 @@ _WGS84_A, _WGS84_F = 6378137.0, 1 / 298.257223563
 #: Worst relative error of a geographic grid's local metres (scale along a parallel or a meridian, or cell area)
 #: against WGS 84 over its rows beyond which :func:`load_dem` warns.
 _LOCAL_METRES_TOLERANCE = 0.01
-#: PROJ names of the Mercator projections, whose metres are ground metres times about 1/cos φ: a grid in one that
-#: errs by more than :data:`_LOCAL_METRES_TOLERANCE` warns (EPSG:3857 is the CRS of web map and terrain tiles).
+#: PROJ names of the Mercator projections, whose metres are ground metres times about 1/cos φ (EPSG:3857 is the CRS
+#: of web map and terrain tiles): the map-scale warning of a projected grid names them.
 _MERCATOR = frozenset({"merc", "webmerc"})
+#: Nodes along each axis at which a projected grid's map scale is measured (:func:`_check_projected_metres`), and the
+#: ground metres between the two neighbours of each, along x and along y, that measure it.
+_SCALE_SAMPLES, _SCALE_STEP_M = 7, 100.0
+#: Largest shift, in cells, that dropping a geotransform's rotation terms may make to any node of the grid for them
+#: to be taken as float noise (:func:`negligible_rotation`) rather than refused as a rotated grid.
+_ROTATION_TOLERANCE = 1e-6
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
@@ -49,6 +55,8 @@ _GENERIC_KEYS = ("heights", "elevation", "z")
 #: (they were ignored, the grid read as 1 m cells at (0, 0)).
 _NPZ_GEOREFERENCE = ("crs", "dx", "dy", "dx_m", "dy_m", "spacing", "origin", "x", "y", "lat", "lon", "units_xy",
                      "cellsize", "xllcorner", "yllcorner", "bounds", "extent")  # fmt: skip
+#: 2-D .npz members that are never the heights (an archive of one unnamed array and a 'mask' reads the array).
+_NPZ_NOT_HEIGHTS = ("transform", "mask", "valid")
 _NPY_MAGIC = b"\x93NUMPY"
 _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
@@ -87,16 +95,18 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     ----------
     path : str or path-like
         ``.npy`` (one (H, W) array), ``.npz`` (heights under the first 2-D key of ``heights``, ``elevation``
-        and ``z``, or the archive's one 2-D array; a ``transform`` beside them georeferences them, as in the layout of
-        ``shared/data``: ``elevation``, ``transform``, ``crs``, optional ``dx_m``/``dy_m`` and ``units``
-        (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes of evenly spaced node degrees
-        (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and column, georeference them as
-        geographic, the layout of the global relief grids (``lon`` may cross the antimeridian, [179.5, -179.5, ...]:
-        a step of 1 degree, read as [179.5, 180.5, ...]); a
-        ``nodata`` number, 0-d or in a one-element array, marks missing cells), ``.png`` (8- or 16-bit greyscale
-        heightmap, values are heights, a 2- or 4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey
-        value (tRNS) or, in 8-bit grey + alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha
-        is refused: Pillow reads it as 8 bits) or
+        and ``z``, or the archive's one 2-D array besides ``mask``/``valid``; a ``transform`` beside them
+        georeferences them, as in the layout of ``shared/data``: ``elevation``, ``transform``, ``crs``, optional
+        ``dx_m``/``dy_m`` and ``units`` (the heights' unit); without a ``transform``, 1-D ``lat`` and ``lon`` axes
+        of evenly spaced node degrees (to 0.1 % of the step, or to the rounding of a float32 axis), one per row and
+        column, georeference them as geographic, the layout of the global relief grids (``lon`` may cross the
+        antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a ``nodata`` number,
+        0-d or in a one-element array, marks missing cells, and so do a boolean ``mask`` (True = missing, as in a
+        NumPy masked array: ``np.savez(..., elevation=m.data, mask=m.mask)``) and ``valid`` (True = present) of the
+        heights' shape, either or both), ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
+        4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
+        alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
+        8 bits) or
         ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
     band : int
         1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
@@ -125,7 +135,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         latitude span in radians): the worst scale or cell-area error over a grid 0.5 (1) degree tall is 0.56 (0.56) %
         at the equator, 0.71 (1.1) % at 45°, 1.3 (2.0) % at 60°, 2.4 (3.9) % at 75°, and a warning names it when it
         passes 1 % (see Warns); a row of nodes at a pole warns always. A projected CRS's coordinates are taken as
-        ground metres (a Mercator one's, EPSG:3857, warn where they are not, see Warns); one in another linear unit
+        ground metres (one whose map scale errs by more than 1 % over the grid warns, see Warns); one in another
+        linear unit
         (EPSG:2229 counts US survey feet), or a local engineering CRS (a site grid, LOCAL_CS) in one, has
         ``spacing`` and ``origin`` converted to metres, ``crs`` the same projection (or site grid) in metres
         ("EPSG:26945") and ``source`` names the unit; looking an EPSG code's unit up needs
@@ -146,11 +157,16 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     UserWarning
         At the caller's line: a geographic grid whose local metres err by more than 1 % against WGS 84 in some row
         (east-west or north-south scale, or cell area; the message names the error, the node latitudes and a
-        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid in a Mercator projection
-        (EPSG:3857, the CRS of web map and terrain tiles; EPSG:3395, ...), whose metres are read as stored, that errs
-        by more than 1 % in the same sense (its metres are ground metres times about 1/cos φ: 1.41 at 45°; measured
-        through PROJ, so with rasterio only); a grid converted to metres whose
-        heights' unit is not named; a GeoTIFF CRS ignored for want of a geotransform.
+        projected CRS to reproject it to, e.g. ``gdalwarp -t_srs EPSG:32613``); a grid in a projected CRS, whose
+        metres are read as stored, that errs by more than 1 % in the same sense somewhere (x or y scale, or cell
+        area, sheared too): a Mercator one (EPSG:3857, the CRS of web map and terrain tiles; EPSG:3395, ...) away
+        from the equator (its metres are ground metres times about 1/cos φ: 1.41 at 45°), a continent-wide Albers or
+        Lambert conformal conic one at its edges (EPSG:5070 errs by 1.7 % at 50° N), a sinusoidal one (MODIS) far
+        from its central meridian, a polar stereographic one away from its true-scale latitude (EPSG:3413 and
+        EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
+        through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
+        message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
+        named; a GeoTIFF CRS ignored for want of a geotransform.
 
     Raises
     ------
@@ -160,11 +176,14 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
-        without a 2-D array, a rotated grid, a geographic grid whose latitudes lie beyond ±90 or whose node
-        longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or unevenly spaced,
+        without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
+        grid, the float noise some tools write, are taken as 0), a geographic grid whose latitudes lie beyond ±90
+        or whose node longitudes span more than 360 degrees, ``lat``/``lon`` axes not matching the heights or
+        unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, nothing but nodata, heights in a unit that is not a known length unit:
+        ``nodata`` that is not one real number, a ``mask`` or ``valid`` that is not a boolean array of the heights'
+        shape, nothing but nodata, heights in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -376,14 +395,14 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
         heights, unit = _heights_in_metres(_elevation(arrays, file, "array"), height_unit, file, "height_unit")
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
     nodata = npz_nodata(arrays.get("nodata"), file)
-    two_d = [key for key, value in arrays.items() if value.ndim == 2 and key != "transform"]
+    two_d = [key for key, value in arrays.items() if value.ndim == 2 and key not in _NPZ_NOT_HEIGHTS]
     # the same key with a transform (which georeferences it) and without
     key = npz_heights_key(arrays, (2,))
     if key is None and len(two_d) == 1:
         key = two_d[0]
     latlon = "transform" not in arrays and "lat" in arrays and "lon" in arrays
     if key is not None and ("transform" in arrays or latlon):
-        heights = _elevation(arrays[key], file, repr(key), nodata)
+        heights = _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file))
         crs = _npz_text(arrays, "crs", file)
         if latlon:  # degree axes of the nodes (the layout of the global relief grids): geographic by definition
             transform = _latlon_geotransform(arrays["lat"], arrays["lon"], heights.shape, file)
@@ -393,8 +412,9 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             transform = np.asarray(raw, dtype=np.float64).reshape(-1) if raw.dtype.kind in "iuf" else np.empty(0)
             # rasterio's Affine(dx, 0, x0, 0, -dy, y0) saved as is (np.array(affine), or its first 6 numbers), not as
             # its to_gdal(): 6 of them were refused as a "rotated" grid (c, e = x0, -dy) or a zero pixel size
-            affine = transform.size in (6, 9) and np.all(np.isfinite(transform)) and transform[1] == 0.0 and \
-                transform[3] == 0.0 and transform[0] != 0.0 and transform[4] != 0.0 and \
+            affine = transform.size in (6, 9) and np.all(np.isfinite(transform)) and transform[0] != 0.0 and \
+                transform[4] != 0.0 and \
+                _negligible_rotation(transform[1], transform[3], transform[0], transform[4], heights.shape) and \
                 (transform.size == 6 or tuple(transform[6:]) == (0.0, 0.0, 1.0))
             if affine:
                 a, _, c, _, e, f = (float(v) for v in transform[:6])
@@ -437,7 +457,8 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     if key is not None:  # the heights' unit applies without a transform too: 'units' = "ft" was ignored here
         named_by = "height_unit" if height_unit else "its 'units'"
         heights, unit = _heights_in_metres(
-            _elevation(arrays[key], file, repr(key), nodata), height_unit or _npz_text(arrays, "units", file), file,
+            _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file)),
+            height_unit or _npz_text(arrays, "units", file), file,
             named_by,
         )
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
@@ -779,11 +800,43 @@ def npz_nodata(value: Any, file: Path) -> float | None:
     return float(arr)
 
 
+def npz_missing(arrays: Mapping[str, NDArray[Any]], key: str, file: Path) -> NDArray[np.bool_] | None:
+    """The cells an .npz marks missing beside its heights ``arrays[key]`` by a boolean ``mask`` (True = missing, as
+    in NumPy's masked arrays: ``np.savez(..., elevation=m.data, mask=m.mask)``) and/or ``valid`` (True = present),
+    of the heights' shape; both: a cell is missing if either says so. None without them (or for heights that are not
+    2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
+    read as heights (0 or -32768 pits), and a 0/255 integer mask (GDAL's mask band, 255 = valid) means the opposite
+    of a 0/1 one."""
+    heights = arrays[key]
+    if heights.ndim != 2 or not ("mask" in arrays or "valid" in arrays):
+        return None
+    missing = None
+    for name, present in (("mask", False), ("valid", True)):
+        value = arrays.get(name)
+        if value is None:
+            continue
+        if value.dtype != np.bool_ or value.shape != heights.shape:
+            meaning = "present" if present else "missing"
+            hint = ""
+            if value.dtype.kind in "iu" and value.size and set(np.unique(value).tolist()) <= {0, 1, 255}:
+                hint = (f"; save {name}=array.astype(bool) for 0/1 with 1 = {meaning}, or valid=array > 0 for GDAL's "
+                        "mask band (read_masks(): 255 = valid)")
+            raise DataFileError(
+                f"cannot read {str(file)!r}: {name!r} must be a boolean array of the heights' shape {heights.shape}, "
+                f"True where a cell is {meaning}; got {value.dtype} of shape {value.shape}{hint}"
+            )
+        cells = ~value if present else value
+        missing = cells if missing is None else missing | cells
+    return missing
+
+
 def _elevation(
-    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
+    missing: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.float32]:
     """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
-    (non-finite values and cells equal to ``nodata``, compared in the array's own dtype)."""
+    (non-finite values, cells equal to ``nodata``, compared in the array's own dtype, and cells True in
+    ``missing``, of the array's shape)."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -797,20 +850,24 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
-    return nodata_as_nan(array, file, what, nodata)
+    return nodata_as_nan(array, file, what, nodata, missing)
 
 
 def nodata_as_nan(
-    array: NDArray[Any], file: Path, what: str, nodata: float | None = None
+    array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
+    missing: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.float32]:
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
-    values and cells equal to ``nodata`` (compared in the array's own dtype). A finite value beyond float32 or
-    nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is
-    read into memory."""
+    values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
+    array of ``array``'s shape: an .npz ``mask``/``valid``, see :func:`npz_missing`). A finite value beyond float32
+    (in a cell not missing) or nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array
+    (a memory map) is read into memory."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
             hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+    if missing is not None:
+        hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX
@@ -869,20 +926,21 @@ def _georeferenced(
     A projected CRS in feet (or any unit but the metre) is converted to metres; ``height_unit`` is the
     heights' unit when the file names a known one (they are then metres already), else None."""
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
-    if row_x != 0.0 or col_y != 0.0:
+    if not _negligible_rotation(row_x, col_y, dx, dy, heights.shape):
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
-            f"{tuple(float(v) for v in geotransform)}"
+            f"{tuple(float(v) for v in geotransform)} (its rotation terms move nodes by more than "
+            f"{_ROTATION_TOLERANCE:g} of a cell over {heights.shape[0]} x {heights.shape[1]} nodes; `gdalwarp` makes "
+            "it north-up)"
         )
     if dx == 0.0 or dy == 0.0:
         raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
     node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
     if not geographic:
         projected = _projected_units(crs)
-        node_xs, node_ys = (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(heights.shape[0]) * dy
         if projected is None:
             terrain = _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs, height_unit=height_unit)
-            _check_mercator_metres(file, crs, node_xs, node_ys, (dx, dy), 1.0)
+            _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, 1.0)
             return terrain
         unit, factor, metre_crs = projected
         if height_unit is None:
@@ -897,7 +955,7 @@ def _georeferenced(
             file, heights, spacing=(dx * factor, dy * factor), origin=(node_x * factor, node_y * factor),
             crs=metre_crs, source=source, height_unit=height_unit,
         )
-        _check_mercator_metres(file, crs, node_xs, node_ys, (dx, dy), factor)
+        _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, factor)
         return terrain
 
     rows = heights.shape[0]
@@ -953,6 +1011,19 @@ def _georeferenced(
     )
 
 
+def _negligible_rotation(
+    row_x: float, col_y: float, dx: float, dy: float, shape: tuple[int, ...]
+) -> bool:
+    """Whether a geotransform's rotation terms (``row_x``, x per row, and ``col_y``, y per column) are float noise
+    (1e-16, or 1e-12 of the pixel size, as some tools write) rather than a rotation: taken as 0 they move no node of
+    a grid of ``shape`` (H, W) by more than :data:`_ROTATION_TOLERANCE` of the smaller pixel size, i.e.
+    max(|row_x|, |col_y|) * max(H, W) <= 1e-6 * min(|dx|, |dy|). Exact zeros always pass."""
+    if row_x == 0.0 and col_y == 0.0:
+        return True
+    worst = max(abs(row_x), abs(col_y)) * max(shape[0], shape[1])
+    return bool(math.isfinite(worst) and worst <= _ROTATION_TOLERANCE * min(abs(dx), abs(dy)))
+
+
 def _wgs84_metres_per_degree(
     lats_east: NDArray[np.float64], lats_north: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -1004,74 +1075,112 @@ def _check_local_metres(
     )
 
 
-def _check_mercator_metres(
-    file: Path, crs: str | None, node_xs: tuple[float, float], node_ys: NDArray[np.float64],
-    spacing: tuple[float, float], factor: float,
+def _check_projected_metres(
+    file: Path, crs: str | None, node: tuple[float, float], spacing: tuple[float, float], shape: tuple[int, ...],
+    factor: float,
 ) -> None:
-    """Warn, at the caller of :func:`load_dem`, when a grid in a Mercator projection (:data:`_MERCATOR`: EPSG:3857,
-    the CRS of web map and terrain tiles, EPSG:3395, ...) errs by more than :data:`_LOCAL_METRES_TOLERANCE` against
-    WGS 84 ground distances somewhere in its rows: Mercator metres are ground metres times about 1/cos φ (1.41 at
-    45°), so the grid is read as they are, the mesh that much too wide and long for its heights. ``node_xs`` are the
-    first and last node x, ``node_ys`` every row's node y, ``spacing`` (dx, dy), all in the CRS's unit of ``factor``
-    metres. The scale is measured through PROJ over one cell at sampled rows; without rasterio, for a CRS on
-    another body or one PROJ cannot invert, nothing is said."""
+    """Warn, at the caller of :func:`load_dem`, when a grid in a projected CRS, whose metres are read as ground
+    metres, errs by more than :data:`_LOCAL_METRES_TOLERANCE` against WGS 84 ground distances or cell areas
+    somewhere: a projection's scale drifts away from its standard point or lines (Mercator 1/cos φ, 1.41 at 45°;
+    a continent-wide Albers or Lambert conformal conic 1-2 % at its edges; a sinusoidal grid far from its central
+    meridian shears and stretches north-south), and the mesh is that much larger or smaller than the ground, its
+    slopes flatter or steeper. ``node`` is node (0, 0), ``spacing`` (dx, dy), both in the CRS's unit of ``factor``
+    metres, ``shape`` the grid's (H, W).
+
+    The scale is measured through PROJ at up to :data:`_SCALE_SAMPLES` x :data:`_SCALE_SAMPLES` nodes (the grid's
+    corners, edges and inside): each node's neighbours :data:`_SCALE_STEP_M` apart along x and along y (central
+    differences) go to WGS 84 degrees and their WGS 84 ground chords (earth-centred coordinates) are compared with
+    the mesh's lengths along x and y and with its cell area (the chords' cross product, so a sheared projection's
+    area too). A UTM grid of a zone's extent (0.9996-1.001) and a small local grid stay within 1 %. Without
+    rasterio, for a CRS on another body or one PROJ cannot invert, nothing is said."""
     crs_obj = _crs_object(crs) if crs else None
     if crs_obj is None:
         return
+    (node_x, node_y), (dx, dy) = node, spacing
+    rows = node_y + dy * np.unique(np.linspace(0, shape[0] - 1, min(shape[0], _SCALE_SAMPLES)).round())
+    cols = node_x + dx * np.unique(np.linspace(0, shape[1] - 1, min(shape[1], _SCALE_SAMPLES)).round())
+    px, py = (v.ravel() for v in np.meshgrid(cols, rows))
+    half = 0.5 * _SCALE_STEP_M / factor  # in the CRS's unit
+    xs = np.concatenate([px, px - half, px + half, px, px])
+    ys = np.concatenate([py, py, py, py - half, py + half])
     try:
-        if crs_obj.to_dict().get("proj") not in _MERCATOR:
-            return
         import rasterio
         from rasterio.warp import transform
 
-        rows = node_ys[np.unique(np.linspace(0, node_ys.size - 1, min(node_ys.size, 65)).round().astype(np.int64))]
-        x_mid, (dx, dy) = 0.5 * (node_xs[0] + node_xs[1]), spacing
-        xs = np.concatenate([np.full(rows.size, x_mid), np.full(rows.size, x_mid + dx), np.full(rows.size, x_mid)])
-        ys = np.concatenate([rows, rows, rows + dy])
         with rasterio.Env():
-            lon, lat = (np.asarray(v, dtype=np.float64).reshape(3, -1)
+            lon, lat = (np.asarray(v, dtype=np.float64).reshape(5, -1)
                         for v in transform(crs_obj, "EPSG:4326", xs.tolist(), ys.tolist()))
-            ends = transform(crs_obj, "EPSG:4326", list(node_xs), [float(rows[0])] * 2)[0]
     except Exception:  # PROJ cannot take it to WGS 84 degrees (another body, a broken CRS): nothing to compare with
         return
-    d_lon = np.abs((lon[1] - lon[0] + 180.0) % 360.0 - 180.0)  # one cell east, across the antimeridian too
-    d_lat = np.abs(lat[2] - lat[0])
-    ok = np.isfinite(lat).all(axis=0) & np.isfinite(lon).all(axis=0) & (d_lon > 0) & (d_lat > 0)
+    ok = np.isfinite(lat).all(axis=0) & np.isfinite(lon).all(axis=0) & (np.abs(lat) <= 90.0).all(axis=0)
     if not ok.any():
         return
-    per_lon, per_lat = _wgs84_metres_per_degree(lat[0][ok], 0.5 * (lat[0][ok] + lat[2][ok]))
-    with np.errstate(divide="ignore"):
-        east = abs(dx) * factor / d_lon[ok] / np.maximum(per_lon, 1e-6)
-        north = abs(dy) * factor / d_lat[ok] / per_lat
-    errors = np.maximum(np.maximum(np.abs(east - 1.0), np.abs(north - 1.0)), np.abs(east * north - 1.0))
+    lon, lat = lon[:, ok], lat[:, ok]
+    ecef = _wgs84_ecef(lon, lat)  # (5, n, 3)
+    along_x, along_y = ecef[2] - ecef[1], ecef[4] - ecef[3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kx = _SCALE_STEP_M / np.linalg.norm(along_x, axis=-1)
+        ky = _SCALE_STEP_M / np.linalg.norm(along_y, axis=-1)
+        karea = _SCALE_STEP_M**2 / np.linalg.norm(np.cross(along_x, along_y), axis=-1)
+    errors = np.maximum(np.maximum(np.abs(kx - 1.0), np.abs(ky - 1.0)), np.abs(karea - 1.0))
+    errors = np.where(np.isnan(errors), np.inf, errors)  # two neighbours on one point: a singular projection there
     error = float(errors.max())
     if not error > _LOCAL_METRES_TOLERANCE:
         return
-    node_lats = lat[0][ok]
+    node_lats, node_lons = lat[0], lon[0]
     low, high = float(node_lats.min()), float(node_lats.max())
+    east = (node_lons - node_lons[0] + 180.0) % 360.0 - 180.0  # relative to one node: across the antimeridian too
+    lons = (float(node_lons[0] + east.min()), float(node_lons[0] + east.max()))
     at = int(np.argmax(errors))
+    try:
+        mercator = crs_obj.to_dict().get("proj") in _MERCATOR
+    except Exception:
+        mercator = False
+    what = (
+        "is a Mercator projection, whose metres are not ground metres away from the equator"
+        if mercator
+        else "is a projection whose metres are ground metres only near its standard point or lines"
+    )
     warnings.warn(
-        f"{file.name}: {crs} is a Mercator projection, whose metres are not ground metres away from the equator: its "
-        f"grid, read as stored, errs against WGS 84 ground distances and cell areas by up to {100 * error:.3g} % over "
-        f"its node latitudes {low:.6g} to {high:.6g} (x {float(east[at]):.4g} east-west and x {float(north[at]):.4g} "
-        f"north-south at latitude {float(node_lats[at]):.6g}: the mesh is that much wider and longer than the ground, "
-        f"its slopes that much flatter), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres "
-        f"{_reprojection_hint(file, (float(ends[0]), float(ends[1])), low, high)}",
+        f"{file.name}: {crs} {what}: its grid, read as stored, errs against WGS 84 ground distances and cell areas by "
+        f"up to {100 * error:.3g} % over its node latitudes {low:.6g} to {high:.6g} (x {float(kx[at]):.4g} east-west "
+        f"and x {float(ky[at]):.4g} north-south along the grid's x and y, x {float(karea[at]):.4g} in cell area, at "
+        f"latitude {float(node_lats[at]):.6g}, longitude {float(node_lons[at]):.6g}: the mesh is that much larger "
+        f"than the ground there, or smaller below 1, its slopes that much flatter or steeper), more than "
+        f"{100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres {_reprojection_hint(file, lons, low, high, crs)}",
         stacklevel=caller_stacklevel(),
     )
 
 
-def _reprojection_hint(file: Path, lons: tuple[float, float], low: float, high: float) -> str:
+def _wgs84_ecef(lon: NDArray[np.float64], lat: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Earth-centred coordinates (metres, a trailing axis of 3) of WGS 84 longitudes and latitudes (degrees) on the
+    ellipsoid: their differences are ground chords, exact at the poles and across the antimeridian."""
+    e2 = _WGS84_F * (2.0 - _WGS84_F)
+    phi, lam = np.radians(lat), np.radians(lon)
+    n = _WGS84_A / np.sqrt(1.0 - e2 * np.sin(phi) ** 2)
+    return np.stack([n * np.cos(phi) * np.cos(lam), n * np.cos(phi) * np.sin(lam), n * (1.0 - e2) * np.sin(phi)],
+                    axis=-1)
+
+
+def _reprojection_hint(
+    file: Path, lons: tuple[float, float], low: float, high: float, current: str | None = None
+) -> str:
     """How to reproject a grid whose node longitudes run over ``lons`` and latitudes from ``low`` to ``high`` to true
-    metres: its UTM zone when it fits one, polar stereographic near a pole, else a projected CRS of its region."""
+    metres: its UTM zone when it fits one (unless that is ``current``, the grid's own CRS), a polar stereographic
+    projection true at its middle latitude near a pole (EPSG:3413 and EPSG:3031, true at 70° N and 71° S, err by 3 %
+    at the poles and 4 % at 60°), else a projected CRS of its region."""
     centre, centre_lon = 0.5 * (low + high), 0.5 * (lons[0] + lons[1])
     if abs(lons[1] - lons[0]) <= 6.0 and high - low <= 20.0 and abs(centre) <= 80.0:
         zone = int(math.floor(((centre_lon + 180.0) % 360.0) / 6.0)) % 60 + 1
         code = f"EPSG:{(32600 if centre >= 0 else 32700) + zone}"
         target = f"{code} (WGS 84 / UTM zone {zone}{'N' if centre >= 0 else 'S'})"
+        if current is not None and current.strip().upper() == code:
+            code = target = ""
     elif low >= 60.0 or high <= -60.0:
-        code = f"EPSG:{3413 if centre > 0 else 3031}"
-        target = f"{code} (WGS 84 polar stereographic)"
+        lon_0 = (centre_lon + 180.0) % 360.0 - 180.0
+        code = f"'+proj=stere +lat_0={90 if centre > 0 else -90} +lat_ts={centre:.1f} +lon_0={lon_0:.1f} " \
+               "+datum=WGS84 +units=m'"
+        target = "a polar stereographic projection true at its middle latitude"
     else:
         code = target = ""
     if not code:
@@ -1079,7 +1188,7 @@ def _reprojection_hint(file: Path, lons: tuple[float, float], low: float, high: 
                "(stepterrain globe)"
     if file.suffix.lower() in (".tif", ".tiff"):
         return f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
-    return f"reproject it first, e.g. to {target}"
+    return f"reproject it first, e.g. to {target}" + ("" if target.startswith(code) else f", {code}")
 
 
 _PARSED_CRS: dict[str, Any] = {}  # CRS string -> rasterio CRS: a batch reads many files in one CRS

@@ -862,3 +862,201 @@ def test_a_site_grid_in_feet_has_its_spacing_and_origin_converted_to_metres_with
         np.testing.assert_allclose(t.origin, (centre[0] * foot, centre[1] * foot), rtol=1e-12)
         np.testing.assert_allclose(t.heights, stored * foot, rtol=1e-6)
         assert t.crs is not None and 'UNIT["metre",1' in t.crs and "site grid" in t.crs and "foot" not in t.crs
+
+
+@pytest.mark.parametrize("noise", [(1e-16, -1e-16), (30e-12, 0.0), (0.0, -3e-11)])
+def test_a_geotransform_whose_rotation_terms_are_float_noise_reads_as_north_up(tmp_path, noise):
+    """A geotransform whose rotation terms are float noise (1e-16, or 1e-12 of the pixel size, as some tools write
+    after a round trip through an Affine or a projection) was refused as "a rotated geotransform", GeoTIFF and .npz
+    alike. Terms that move no node by more than 1e-6 of a cell over the grid are taken as 0 now: the grid reads as
+    the north-up one without them. A real rotation (shifting the last of 300 rows by 3e-6 of a cell, or more) is
+    still refused, and rasterio's Affine order saved with such noise is still told apart (the to_gdal() hint)."""
+    rasterio = pytest.importorskip("rasterio")
+    heights = np.arange(12.0, dtype=np.float32).reshape(3, 4)
+    row_x, col_y = noise
+    gdal = (376298.5, 30.0, row_x, 3807932.5, col_y, -30.0)
+    clean = (376298.5, 30.0, 0.0, 3807932.5, 0.0, -30.0)
+    profile = {"driver": "GTiff", "width": 4, "height": 3, "count": 1, "dtype": "float32", "crs": "EPSG:32611"}
+    for name, transform in (("noisy", gdal), ("clean", clean)):
+        with rasterio.open(tmp_path / f"{name}.tif", "w", **profile,
+                           transform=rasterio.Affine.from_gdal(*transform)) as ds:
+            ds.write(heights, 1)
+        np.savez(tmp_path / f"{name}.npz", elevation=heights, transform=np.array(transform), crs="EPSG:32611")
+    with rasterio.open(tmp_path / "noisy.tif") as ds:
+        assert ds.transform.to_gdal() != clean  # the noise survives the GeoTIFF
+    for ext in ("tif", "npz"):
+        noisy, expected = load_dem(tmp_path / f"noisy.{ext}"), load_dem(tmp_path / f"clean.{ext}")
+        assert (noisy.spacing, noisy.origin, noisy.crs) == (expected.spacing, expected.origin, expected.crs)
+        assert noisy.origin == (376313.5, 3807917.5)
+        np.testing.assert_array_equal(noisy.heights, heights)
+    tall = np.zeros((300, 4), np.float32)  # 300 rows: 1e-8 of a 30 m cell per row shifts the last by 3e-6 of a cell
+    for rotation in (30.0 * 1e-8, 0.5):
+        np.savez(tmp_path / "rotated.npz", elevation=tall, transform=np.array([0.0, 30.0, rotation, 0.0, 0.0, -30.0]),
+                 crs="EPSG:32611")  # fmt: skip
+        with pytest.raises(DataFileError, match=r"rotated\.npz.*expected a north-up grid; got a rotated geotransform"):
+            load_dem(tmp_path / "rotated.npz")
+    affine = np.array([30.0, row_x, 376298.5, col_y, -30.0, 3807932.5])  # rasterio's order, with the noise
+    np.savez(tmp_path / "affine.npz", elevation=heights, transform=affine, crs="EPSG:32611")
+    with pytest.raises(DataFileError, match=r"Affine .*to_gdal\(\)"):
+        load_dem(tmp_path / "affine.npz")
+
+
+def test_an_npz_mask_or_valid_key_marks_missing_cells(tmp_path):
+    """np.savez(..., elevation=m.data, mask=m.mask) (a NumPy masked array's parts) or a 'valid' array beside the
+    heights was ignored silently: the masked cells (0, -32768 fill) read as heights, pits in the mesh. A boolean
+    'mask' (True = missing) and 'valid' (True = present) of the heights' shape now make those cells NaN, with a
+    transform or without, alone or together; an archive of one unnamed array and a mask reads the array. A mask of
+    another dtype or shape is refused, naming what it must be (a 0/255 GDAL mask band means the opposite of 0/1)."""
+    z = np.array([[100, -32768, 102, 103], [104, 105, 0, 107], [108, 109, 110, 111]], np.int16)
+    masked = np.ma.masked_equal(np.where(z == 0, -32768, z), -32768)
+    missing = np.ma.getmaskarray(masked)
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    np.savez(tmp_path / "mask.npz", elevation=z, mask=missing, transform=transform, crs="EPSG:32611")
+    np.savez(tmp_path / "valid.npz", elevation=z, valid=~missing)
+    np.savez(tmp_path / "plain.npz", z, mask=missing)  # arr_0 and a mask
+    half = missing.copy()
+    half[0, 1] = False
+    np.savez(tmp_path / "both.npz", heights=z, mask=half, valid=~(missing & ~half))  # each marks one cell
+    for name in ("mask.npz", "valid.npz", "plain.npz", "both.npz"):
+        h = load_dem(tmp_path / name).heights
+        np.testing.assert_array_equal(np.isnan(h), missing, err_msg=name)
+        np.testing.assert_array_equal(h[~missing], z[~missing].astype(np.float32), err_msg=name)
+    np.savez(tmp_path / "all.npz", elevation=z, mask=np.ones(z.shape, bool))
+    with pytest.raises(DataFileError, match=r"all\.npz.*all nodata"):
+        load_dem(tmp_path / "all.npz")
+    for name, key, value, got in (
+        ("gdal.npz", "mask", np.where(missing, 0, 255).astype(np.uint8), r"uint8 of shape \(3, 4\); save .*valid="),
+        ("shape.npz", "mask", missing[:, :3], r"bool of shape \(3, 3\)"),
+        ("float.npz", "valid", (~missing).astype(float), r"float64 of shape \(3, 4\)"),
+    ):
+        np.savez(tmp_path / name, elevation=z, transform=transform, **{key: value})
+        with pytest.raises(DataFileError, match=rf"{name}.*'{key}' must be a boolean array of the heights' shape "
+                                                rf"\(3, 4\), True where a cell is .*; got {got}"):
+            load_dem(tmp_path / name)
+
+
+_E2 = 0.0066943799901413165  # WGS 84
+_E = np.sqrt(_E2)
+
+
+def _m(phi):
+    return np.cos(phi) / np.sqrt(1 - _E2 * np.sin(phi) ** 2)
+
+
+def _lcc_scale(lat, lat_1=33.0, lat_2=45.0):
+    """Map scale of the two-parallel Lambert conformal conic on WGS 84 at ``lat`` (Snyder 15-9 to 15-11, 14-15)."""
+    def t(phi):
+        return np.tan(np.pi / 4 - phi / 2) / ((1 - _E * np.sin(phi)) / (1 + _E * np.sin(phi))) ** (_E / 2)
+    p1, p2, phi = np.radians([lat_1, lat_2, lat])
+    n = (np.log(_m(p1)) - np.log(_m(p2))) / (np.log(t(p1)) - np.log(t(p2)))
+    return _m(p1) * t(phi) ** n / (_m(phi) * t(p1) ** n)
+
+
+def _albers_parallel_scale(lat, lat_1=29.5, lat_2=45.5):
+    """Scale along the parallel of the Albers equal-area conic on WGS 84 at ``lat`` (Snyder 14-12, 14-13, 3-12);
+    along the meridian it is the inverse."""
+    def q(phi):
+        s = np.sin(phi)
+        return (1 - _E2) * (s / (1 - _E2 * s * s) - np.log((1 - _E * s) / (1 + _E * s)) / (2 * _E))
+    p1, p2, phi = np.radians([lat_1, lat_2, lat])
+    n = (_m(p1) ** 2 - _m(p2) ** 2) / (q(p2) - q(p1))
+    return np.sqrt(_m(p1) ** 2 + n * q(p1) - n * q(phi)) / _m(phi)
+
+
+_LCC = "+proj=lcc +lat_1=33 +lat_2=45 +lat_0=39 +lon_0=-96 +datum=WGS84 +units=m +no_defs"
+_AEA = "+proj=aea +lat_1=29.5 +lat_2=45.5 +lat_0=23 +lon_0=-96 +datum=WGS84 +units=m +no_defs"
+_SINU = "+proj=sinu +lon_0=0 +datum=WGS84 +units=m +no_defs"
+
+
+def _sinusoidal(lon, lat):
+    return 1.0, 1 / np.hypot(1.0, np.radians(lon) * np.sin(np.radians(lat))), 1.0
+
+
+def _web_mercator(lon, lat):
+    phi = np.radians(lat)
+    meridian = (1 - _E2) / (1 - _E2 * np.sin(phi) ** 2) ** 1.5  # M / a
+    return 1 / _m(phi), 1 / (meridian * np.cos(phi)), 1 / (_m(phi) * meridian * np.cos(phi))
+
+
+def _polar_stereographic_at_pole(lon, lat, lat_ts=-71.0):
+    """Scale at the pole of the polar stereographic true at ``lat_ts`` on WGS 84 (Snyder 21-35; EPSG:3031)."""
+    phi = np.radians(abs(lat_ts))
+    t = np.tan(np.pi / 4 - phi / 2) / ((1 - _E * np.sin(phi)) / (1 + _E * np.sin(phi))) ** (_E / 2)
+    k = _m(phi) * np.sqrt((1 + _E) ** (1 + _E) * (1 - _E) ** (1 - _E)) / (2 * t)
+    return k, k, k * k
+
+
+@pytest.mark.parametrize("crs, lon, lat, expected", [
+    (_LCC, -96.0, 25.0, lambda lon, lat: (_lcc_scale(lat), _lcc_scale(lat), _lcc_scale(lat) ** 2)),  # south edge
+    (_LCC, -96.0, 53.0, lambda lon, lat: (_lcc_scale(lat), _lcc_scale(lat), _lcc_scale(lat) ** 2)),  # north edge
+    (_LCC.replace("+units=m", "+units=us-ft"), -96.0, 25.0,
+     lambda lon, lat: (_lcc_scale(lat), _lcc_scale(lat), _lcc_scale(lat) ** 2)),  # in feet
+    (_AEA, -96.0, 50.0, lambda lon, lat: (_albers_parallel_scale(lat), 1 / _albers_parallel_scale(lat), 1.0)),
+    (_SINU, 40.0, 40.0, _sinusoidal),
+    (_SINU, 60.0, 20.0, _sinusoidal),
+    ("EPSG:3857", 9.5, 46.5, _web_mercator),  # spherical Mercator on WGS 84 degrees: not conformal on the ellipsoid
+    ("EPSG:3031", 0.0, -90.0, _polar_stereographic_at_pole),  # Antarctic polar stereographic, true at 71 S
+])  # fmt: skip
+def test_a_projected_grid_whose_map_scale_errs_by_over_1_percent_warns_naming_it(tmp_path, crs, lon, lat, expected):
+    """Only a Mercator grid's map scale was checked: a continent-wide Lambert conformal conic or Albers grid (1-2 %
+    off at its edges) or a sinusoidal one (MODIS) far from its central meridian (stretched north-south by its shear)
+    was read as ground metres without a word. Every projected CRS is measured now (through PROJ at sampled nodes),
+    and the warning's x and y scales and cell-area factor match the closed-form map scales of each projection on
+    WGS 84: conformal conic k along both axes and k² in area; Albers k along the parallel, 1/k along the meridian,
+    area 1; sinusoidal 1 along the parallel, 1/sqrt(1 + (λ sin φ)²) along its grid y (sheared), area 1 (equal-area);
+    Web Mercator a/(N cos φ) east-west and a/(M cos φ) north-south. GeoTIFF and .npz alike; the stated error is the
+    worst of them."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import transform
+
+    (x,), (y,) = transform("EPSG:4326", crs, [lon], [lat])
+    unit = 1200 / 3937 if "us-ft" in crs else 1.0
+    cell = 100.0 / unit  # 100 m
+    gdal = (x - cell / 2, cell, 0.0, y + cell / 2, 0.0, -cell)  # node (0, 0) at (lon, lat)
+    heights = np.full((3, 4), 1000.0, np.float32)
+    with rasterio.open(tmp_path / "grid.tif", "w", driver="GTiff", width=4, height=3, count=1, dtype="float32",
+                       crs=crs, transform=rasterio.Affine.from_gdal(*gdal)) as ds:
+        ds.write(heights, 1)
+    np.savez(tmp_path / "grid.npz", elevation=heights, transform=np.array(gdal), crs=crs, units="m")
+    kx, ky, area = expected(lon, lat)
+    for name in ("grid.tif", "grid.npz"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t = load_dem(tmp_path / name)
+        assert t.spacing == pytest.approx((100.0, -100.0), rel=1e-9)
+        said = [str(w.message) for w in caught if "ground distances and cell areas" in str(w.message)]
+        assert len(said) == 1 and caught[-1].filename == __file__, [str(w.message) for w in caught]
+        stated = re.search(r"by up to ([0-9.]+) % .*\(x ([0-9.]+) east-west and x ([0-9.]+) north-south along the "
+                           r"grid's x and y, x ([0-9.]+) in cell area, at latitude ([-0-9.]+)", said[0])
+        assert stated, said[0]
+        error, sx, sy, sa, at = (float(v) for v in stated.groups())
+        assert (sx, sy, sa) == pytest.approx((kx, ky, area), rel=1e-3), said[0]
+        assert error / 100 == pytest.approx(max(abs(kx - 1), abs(ky - 1), abs(area - 1)), rel=1e-2), said[0]
+        assert at == pytest.approx(lat, abs=0.01)
+        assert ("is a Mercator projection" in said[0]) == (crs == "EPSG:3857")
+        if crs == "EPSG:3031":  # the hint is not the CRS the grid is in already
+            assert "+proj=stere +lat_0=-90 +lat_ts=-90.0" in said[0] and "-t_srs EPSG:3031" not in said[0]
+
+
+@pytest.mark.parametrize("crs, lon, lat, cell, shape", [
+    ("EPSG:32633", 12.0, 0.5, 10000.0, (70, 67)),  # a whole UTM zone at the equator, 3 degrees either side
+    ("EPSG:32633", 15.0, 60.0, 30.0, (50, 40)),  # a small UTM grid
+    ("EPSG:2229", -118.3, 34.1, 10.0, (20, 30)),  # state plane, US survey feet
+    (_LCC, -96.0, 36.0, 1000.0, (40, 40)),  # between the conic's standard parallels
+    (_SINU, 0.5, 40.0, 1000.0, (40, 40)),  # sinusoidal near its central meridian
+    ("EPSG:3857", 9.5, 0.5, 30.0, (30, 30)),  # Web Mercator at the equator
+])  # fmt: skip
+def test_a_projected_grid_within_1_percent_of_ground_metres_stays_quiet(tmp_path, crs, lon, lat, cell, shape):
+    """The generalised map-scale check stays quiet where a projection's metres are ground metres to 1 %: UTM over
+    its zone (0.9996-1.001), a small local grid in state-plane feet, a conic between its standard parallels."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import transform
+
+    (x,), (y,) = transform("EPSG:4326", crs, [lon], [lat])
+    with rasterio.open(tmp_path / "grid.tif", "w", driver="GTiff", width=shape[1], height=shape[0], count=1,
+                       dtype="float32", crs=crs, transform=rasterio.Affine(cell, 0.0, x, 0.0, -cell, y)) as ds:
+        ds.units = ("metre",)
+        ds.write(np.full(shape, 10.0, np.float32), 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(tmp_path / "grid.tif")
