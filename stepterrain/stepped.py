@@ -46,7 +46,7 @@ from ._device import (
     to_device,
     to_numpy,
 )
-from .errors import InvalidInputError, OutputTooLargeError
+from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel
 from .kernels import stepped as stepped_kernels
 from .terrain import (
     FLOAT32_MAX,
@@ -100,7 +100,8 @@ class Lens:
 
     ``mask`` (h, w) holds γ in [0, 1] (0 = original terrain, 1 = fully stepped); row 0 lies at the *lower*
     y of ``extent`` = (xmin, xmax, ymin, ymax) in world units (``None``: the terrain's extent). It is sampled
-    bilinearly at every output vertex, so walls stay vertical.
+    bilinearly at every output vertex, so walls stay vertical; beyond ``extent`` a vertex takes the value of the
+    nearest mask edge (the sampler clamps), so a mask over part of the terrain holds its border value elsewhere.
     """
 
     mask: NDArray[np.float32]
@@ -937,8 +938,8 @@ def stepped(
     -------
     trimesh.Trimesh
         One welded, indexed mesh (``process=False``). ``face_attributes["level"]`` holds each face's level
-        index (a wall's lower level) and ``face_attributes["wall"]`` marks walls. ``metadata`` records the
-        isovalues, γ, source and CRS.
+        index (a wall's lower level; -1 on a solid's skirts and base, which ``wall`` does not mark) and
+        ``face_attributes["wall"]`` marks walls. ``metadata`` records the isovalues, γ, source and CRS.
 
     Raises
     ------
@@ -1124,7 +1125,7 @@ def _assemble(
                 "some heights sit exactly on a threshold (α_i + α_i+1) / 2; the solid may not be watertight "
                 "there. Shift base by a fraction of the interval (e.g. base=0.5, on the command line --base 0.5, for "
                 "integer heights).",
-                stacklevel=3,
+                stacklevel=caller_stacklevel(),
             )
 
         try:  # faces, hence vertices (checked above)

@@ -472,3 +472,23 @@ def test_a_small_lens_on_a_large_dem_follows_its_smoothstep():
     assert near.sum() >= 4 and not np.allclose(by_lens.vertices[near, 2], plain.vertices[near, 2])
     far = np.hypot(plain.vertices[:, 0] - cx, plain.vertices[:, 1] - cy) > radius + edge / 2
     np.testing.assert_array_equal(by_lens.vertices[far], plain.vertices[far])
+
+
+def test_a_solids_skirt_and_base_are_level_minus_one_and_no_wall():
+    # the documented face attributes of a solid: the surface's faces keep their levels and wall marks
+    heights = st.sample_dem().heights[:30, :40]
+    surface = st.stepped(heights, interval=50.0, base=0.5, spacing=(30.0, 30.0))
+    solid = st.stepped(heights, interval=50.0, base=0.5, spacing=(30.0, 30.0), solid=True)
+    levels, walls = solid.face_attributes["level"], solid.face_attributes["wall"]
+    extra = levels == -1
+    assert extra.sum() == len(solid.faces) - len(surface.faces) and not walls[extra].any()
+    assert np.array_equal(np.sort(levels[~extra]), np.sort(surface.face_attributes["level"]))
+    assert walls[~extra].sum() == surface.face_attributes["wall"].sum()
+
+
+def test_the_solids_threshold_warning_points_at_the_callers_line():
+    # a fixed stacklevel=3 pointed into stepterrain/_callable_module.py when stepped() was called as st.stepped(...)
+    heights = np.add.outer(np.arange(6.0), np.arange(7.0)) * 25.0  # 75 and 125 m on the thresholds of interval 50
+    with pytest.warns(UserWarning, match="sit exactly on a threshold") as record:
+        st.stepped(heights, interval=50.0, solid=True)
+    assert [w.filename for w in record] == [__file__]
