@@ -1515,10 +1515,10 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
 
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),
                 background: str = "black", show_edges: bool = False) -> NDArray[np.uint8]:
-    """Render a globe mesh off-screen from ``camera``'s eye towards its target (the render's vertical field of
-    view is :mod:`stepterrain.render`'s 30°: cameras from :func:`look_from` use the same by default). A window over
-    the memory budget is refused (an OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh`
-    refuses it."""
+    """Render a globe mesh off-screen from ``camera``'s eye towards its target, with the camera's vertical field of
+    view (``camera.fov``, at most 179°, VTK's widest; the horizontal one follows from ``window_size``: give it the
+    camera's aspect to see just the view a culled mesh was cut to). A window over the memory budget is refused (an
+    OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh` refuses it."""
     from . import render
 
     if not isinstance(mesh, trimesh.Trimesh):  # a per_face list, None: an AttributeError on .bounds
@@ -1526,6 +1526,13 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
                                 f"got {type(mesh).__name__}")
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+    # the camera's own field of view: a fixed 30° showed a narrower camera's culled mesh as a patch floating in the
+    # black, and only the middle of a wider one's view
+    view_angle = math.degrees(camera.fov)
+    lo, hi = render._VIEW_ANGLE_RANGE
+    if not lo <= view_angle <= hi:  # VTK clamps its view angle to that range: another picture than the camera's
+        raise InvalidInputError(f"camera fov must lie within [{lo:g}, {hi:g}] degrees to render (VTK's range); got "
+                                f"{view_angle:.6g} degrees ({camera.fov:.6g} rad)")
     width, height, _ = render._check_window(window_size, 1.0)
     render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
@@ -1544,7 +1551,7 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     eye, target = ((np.subtract(point, centre) @ frame.T) - middle for point in (camera.eye, camera.target))
     position = [tuple(eye), tuple(target), tuple(frame @ np.asarray(camera.up, dtype=np.float64))]
     return render.render_mesh(local, window_size=window_size, camera=position, background=background,
-                              bounds=local_box, show_edges=show_edges)
+                              bounds=local_box, show_edges=show_edges, view_angle=view_angle)
 
 
 def _view_frame(camera: Camera) -> NDArray[np.float64]:

@@ -13,6 +13,8 @@ import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import Camera, Globe, adaptive_mesh
 
+from .conftest import needs_render
+
 LAT1 = np.linspace(89.5, -89.5, 180)
 LON1 = np.linspace(-179.5, 179.5, 360)
 
@@ -566,3 +568,53 @@ def test_the_cli_default_eye_sees_the_whole_globe_of_any_radius(tmp_path, monkey
     assert args == (30.0, 10.0, 3 * radius)
     planes = camera.planes()
     assert (planes[:, 3] <= -radius * 1.01).all()  # the centre at least R (and a margin) inside each plane
+
+
+@pytest.fixture(scope="module")
+def flat_globe() -> Globe:
+    return Globe.from_latlon(np.zeros((180, 360), np.float32), LAT1, LON1, face_size=65, device="cpu")
+
+
+@needs_render
+def test_render_view_shows_the_view_of_a_camera_narrower_than_30_degrees(flat_globe):
+    """render_view rendered every camera at a fixed 30° vertical field of view: a 10° camera's culled mesh (just
+    its view) showed as a patch floating in the black, 38 % of the picture empty, and unlike the uncut mesh's
+    render. It renders with the camera's own fov now: the ground fills the picture, culled or not."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, tilt=20.0, fov=math.radians(10.0), aspect=1.6)
+    culled = flat_globe.mesh(error=50.0, camera=camera)
+    whole = flat_globe.mesh(error=50.0, camera=camera, cull=False)
+    images = [render_view(m, camera, window_size=(160, 100)).astype(int) for m in (culled, whole)]
+    assert (images[0].max(axis=2) > 0).all()  # no background: the ground covers the whole picture
+    assert (np.abs(images[0] - images[1]).max(axis=2) > 8).mean() < 0.002
+
+
+@needs_render
+def test_render_view_shows_the_whole_view_of_a_camera_wider_than_30_degrees(flat_globe):
+    """A 60° camera tilted 50° from 500 km up sees space above the horizon (68° from straight down) at the top of
+    its view: the fixed 30° render showed only the middle of the view, ground from top to bottom."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, tilt=50.0, fov=math.radians(60.0), aspect=1.6)
+    image = render_view(flat_globe.mesh(error=50.0, camera=camera, cull=False), camera, window_size=(160, 100))
+    ground = image.max(axis=2) > 0
+    dip = math.degrees(math.acos(6_371_000.0 / 6_871_000.0))  # of the horizon below the horizontal: 22°
+    # the horizon's row in the middle column: 90° - dip - 50° above the view's centre, the image 60° tall
+    tan_half = math.tan(math.radians(30.0))
+    horizon = 50.0 - 50.0 * math.tan(math.radians(90.0 - dip - 50.0)) / tan_half
+    column = ground[:, 80]
+    assert not column[: int(horizon) - 2].any() and column[int(horizon) + 2:].all(), (horizon, np.flatnonzero(column))
+    whole = flat_globe.mesh(error=50.0, camera=camera)
+    culled = render_view(whole, camera, window_size=(160, 100)).astype(int)
+    assert (np.abs(culled - image.astype(int)).max(axis=2) > 8).mean() < 0.002
+
+
+def test_render_view_refuses_a_camera_fov_beyond_what_vtk_renders(flat_globe):
+    """VTK clamps a view angle to [1e-8°, 179°]: a wider camera rendered another view than its own, silently."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, fov=math.radians(179.5))
+    with pytest.raises(InvalidInputError, match=r"^camera fov must lie within \[1e-08, 179\] degrees to render "
+                                                r"\(VTK's range\); got 179\.5 degrees"):
+        render_view(flat_globe.mesh(error=1e6), camera, window_size=(64, 64))
