@@ -60,6 +60,7 @@ from .terrain import (
     as_array,
     as_number,
     check_flag,
+    check_origin,
     check_spacing,
     is_name,
     is_real_dtype,
@@ -1227,8 +1228,9 @@ def adaptive_mesh(
     Raises
     ------
     InvalidInputError
-        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, negative error, a camera
-        eye at or below the terrain surface.
+        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, an origin so far from zero
+        for the spacing that float64 cannot keep the nodes apart, negative error, a camera eye at or below the
+        terrain surface.
 
     Examples
     --------
@@ -1256,6 +1258,9 @@ def adaptive_mesh(
     if not (math.isfinite(ox) and math.isfinite(oy)):
         raise InvalidInputError(f"origin must be 2 finite numbers (x0, y0); got {origin!r}")
     rows, cols = z.shape
+    # the vertices are the nodes relative to the origin plus the origin, in float64: origin (1e20, 0) with spacing 1
+    # put every column on one x, a mesh of zero area without a word, as a Terrain's grid would be but for this check
+    check_origin((ox, oy), (dx, dy), z.shape)
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     if cells > _MAX_CELLS:  # before the padding: 32768 << 16 wraps the int32 packed corners
         raise InvalidInputError(f"heights must have at most {_MAX_CELLS + 1} rows and columns (padded to 2^k + 1 "

@@ -618,3 +618,17 @@ def test_render_view_refuses_a_camera_fov_beyond_what_vtk_renders(flat_globe):
     with pytest.raises(InvalidInputError, match=r"^camera fov must lie within \[1e-08, 179\] degrees to render "
                                                 r"\(VTK's range\); got 179\.5 degrees"):
         render_view(flat_globe.mesh(error=1e6), camera, window_size=(64, 64))
+
+
+@pytest.mark.parametrize("origin, spacing", [((1e20, 0.0), 1.0), ((0.0, -1e17), 1.0), ((1e9, 0.0), (1e-3, 1.0))])
+def test_an_origin_float64_cannot_resolve_at_the_spacing_is_refused(origin, spacing):
+    """adaptive_mesh had no bound on origin: with origin (1e20, 0) and spacing 1 every x collapsed to one float64
+    value, a mesh of zero area without a word. Such an origin is refused as a Terrain's grid refuses it, and one
+    float64 resolves still meshes with its columns apart."""
+    z = np.random.default_rng(0).random((9, 9))
+    with pytest.raises(InvalidInputError, match=r"^origin .* lies too far from zero for spacing .*: float64 cannot "
+                                                r"keep the nodes [xy] apart out there"):
+        adaptive_mesh(z, error=0.0, origin=origin, spacing=spacing, device="cpu")
+    mesh = adaptive_mesh(z, error=0.0, origin=(4e11, -4e11), device="cpu")
+    assert len(np.unique(mesh.vertices[:, 0])) == 9 and len(np.unique(mesh.vertices[:, 1])) == 9
+    assert abs(mesh.area - 64.0) < 0.5 * 64
