@@ -632,3 +632,27 @@ def test_an_origin_float64_cannot_resolve_at_the_spacing_is_refused(origin, spac
     mesh = adaptive_mesh(z, error=0.0, origin=(4e11, -4e11), device="cpu")
     assert len(np.unique(mesh.vertices[:, 0])) == 9 and len(np.unique(mesh.vertices[:, 1])) == 9
     assert abs(mesh.area - 64.0) < 0.5 * 64
+
+
+def test_the_cli_takes_an_eye_below_the_sphere_above_terrain_below_sea_level(tmp_path, capsys):
+    """The CLI refused every --eye altitude <= 0, though terrain below the sphere (the Dead Sea's shore, -430 m; an
+    ocean floor) has room above it: `--eye 31.5,35.5,-100` over a -430 m grid was refused. Any altitude above the
+    terrain there is taken now; below it the library's refusal is named by --eye, and an eye at or beyond the
+    centre is refused in the same words."""
+    from stepterrain.cli import main
+
+    grid, out = tmp_path / "deep.npz", tmp_path / "deep.ply"
+    np.savez(grid, elevation=np.full((180, 360), -430.0, np.float32), lat=LAT1, lon=LON1)
+    argv = ["-q", "globe", str(grid), "--face-size", "9", "-o", str(out), "--device", "cpu", "--eye"]
+    assert main([*argv, "31.5,35.5,-100"]) == 0 and out.exists()
+    out.unlink()
+    assert main([*argv, "31.5,35.5,-500"]) == 2
+    assert re.search(r"error: --eye 31\.5,35\.5,-500 lies below the terrain there \(the altitude is metres above the "
+                     r"sphere of --radius\): camera eye \(.*\) lies inside the planet, .*terrain -430\.0 m\)",
+                     capsys.readouterr().err)
+    for altitude in ("-6371000", "-2e7"):
+        assert main([*argv, f"31.5,35.5,{altitude}", "--no-camera"]) == 2
+        assert re.search(r"error: --eye 31\.5,35\.5,-[0-9.e+]+ lies below the terrain there \(the altitude is metres "
+                         r"above the sphere of --radius\): the eye at or beyond the planet's centre \(altitude <= "
+                         r"-6\.371e\+06 m, the --radius\)$", capsys.readouterr().err.strip())
+    assert not out.exists()
