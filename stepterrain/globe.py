@@ -190,11 +190,16 @@ def _user_metric(fn: Any) -> UserMetric:
 
 def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     """A real (H, W) float32 grid with H, W >= 2 and no NaN or inf (the hierarchy has no nodata), or an
-    InvalidInputError naming ``name`` (a masked array's masked entries count as NaN)."""
+    InvalidInputError naming ``name`` (a masked array's masked entries are nodata, refused as such)."""
     z = as_array(unmasked(values), name, "a real (H, W) array with H, W >= 2")
     if z.ndim != 2 or min(z.shape) < 2 or not is_real_dtype(z.dtype):  # not bools, complex or durations
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
                                 f"dtype {z.dtype}")
+    mask = np.ma.getmaskarray(values) if np.ma.isMaskedArray(values) else None
+    if mask is not None and mask.any():  # reported as "NaN or infinite values" where the array held none
+        bad = np.argwhere(mask)
+        raise InvalidInputError(f"{name} has {len(bad)} masked (nodata) entries (first at row {bad[0][0]}, column "
+                                f"{bad[0][1]}); fill them first (e.g. from neighbours)")
     if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
         big = np.isfinite(z) & (np.abs(z) > FLOAT32_MAX)
         if big.any():
@@ -381,9 +386,10 @@ class Globe:
         ------
         InvalidInputError
             Bad face size, grid shape, axes not monotone / regular / global, a closing longitude column that
-            differs from the first, NaN or infinite elevation, radius or exaggeration not positive.
+            differs from the first, NaN, infinite or masked elevation, radius or exaggeration not positive.
         OutputTooLargeError
-            The node arrays would exceed the memory budget (checked before allocating).
+            The node arrays and three float32 copies of the grid (12 bytes a cell) would exceed the memory budget
+            (checked before allocating them).
 
         Notes
         -----
@@ -411,6 +417,14 @@ class Globe:
             raise InvalidInputError(f"exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
                                     f"it); got {exaggeration:g}")
         z = _height_grid(elevation, "elevation")
+        n_entries = 6 * (cells + 1) ** 2
+        slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
+        # the node arrays, the angle tables and three float32 copies of the grid at once: z, its contiguous copy
+        # (reversed axes, a closing column dropped) or the one with the pole rows averaged, and the device's (the
+        # grid's copies went uncounted: a 21600 x 43200 grid needs over 10 GiB for them, whatever the face size)
+        check_budget(n_entries * _BYTES_PER_ENTRY + slots * _BYTES_PER_ANGLE_SLOT + 3 * z.size * z.itemsize,
+                     f"a globe of face_size {cells + 1} from a {z.shape[0]}x{z.shape[1]} grid",
+                     hint="use a smaller face_size or a coarser grid")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
         limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
         if radius > limit:
@@ -448,10 +462,6 @@ class Globe:
             if abs(lat[row] - pole) <= 1e-9 and np.ptp(z[row]) > 0:
                 z = np.array(z)
                 z[row] = z[row].mean(dtype=np.float64)
-        n_entries = 6 * (cells + 1) ** 2
-        slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
-        check_budget(n_entries * _BYTES_PER_ENTRY + slots * _BYTES_PER_ANGLE_SLOT, f"a globe of face_size {cells + 1}",
-                     hint="use a smaller face_size")
         device = resolve_device(device)
         source = cube_kernels.LatLonGrid()
         source.elevation = wp.array(np.ascontiguousarray(z), dtype=wp.float32, device=device)
@@ -1228,7 +1238,7 @@ def adaptive_mesh(
     Raises
     ------
     InvalidInputError
-        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, an origin so far from zero
+        Not a real (H, W) array with H, W >= 2, NaN, infinite or masked heights, bad spacing, an origin so far from zero
         for the spacing that float64 cannot keep the nodes apart, negative error, a camera eye at or below the
         terrain surface.
 

@@ -656,3 +656,32 @@ def test_the_cli_takes_an_eye_below_the_sphere_above_terrain_below_sea_level(tmp
                          r"above the sphere of --radius\): the eye at or beyond the planet's centre \(altitude <= "
                          r"-6\.371e\+06 m, the --radius\)$", capsys.readouterr().err.strip())
     assert not out.exists()
+
+
+def test_masked_heights_are_named_as_masked_not_as_nan():
+    """A masked array's masked entries were reported as 'NaN or infinite values' though the array held none (its
+    data under the mask were 0), for the globe and the planar mesh alike; they are named as masked entries now."""
+    z = np.ma.masked_array(np.zeros((180, 360)), mask=np.zeros((180, 360), bool))
+    z.mask[5, 7] = z.mask[9, 2] = True
+    message = r"has 2 masked \(nodata\) entries \(first at row 5, column 7\); fill them first"
+    with pytest.raises(InvalidInputError, match=rf"^elevation {message}"):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu")
+    with pytest.raises(InvalidInputError, match=rf"^heights {message}"):
+        adaptive_mesh(z[:10, :10], error=1.0, device="cpu")
+    z.mask[:] = False  # a mask with nothing masked is no nodata
+    assert len(adaptive_mesh(z[:9, :9], error=1.0, device="cpu").faces) == 2
+
+
+def test_the_globe_memory_check_counts_the_grids_float32_copies(budget):
+    """Globe.from_latlon checked the node arrays against the memory budget but not the float32 copies of the input
+    grid it makes (the grid, its contiguous or pole-averaged copy, the device's): a 1800 x 3600 grid for a 33²
+    globe passed a 10 MB budget and took 50 MiB (74 with an axis reversed). The check counts three copies now."""
+    lat, lon = np.linspace(89.95, -89.95, 1800), np.linspace(-179.95, 179.95, 3600)
+    z = np.zeros((1800, 3600), np.int16)
+    budget(10_000_000)
+    with pytest.raises(OutputTooLargeError, match=r"^a globe of face_size 33 from a 1800x3600 grid would need 74\.4 "
+                                                  r"MiB, over the memory budget of 9\.5 MiB; use a smaller face_size "
+                                                  r"or a coarser grid"):
+        Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")
+    budget(80 << 20)
+    assert Globe.from_latlon(z, lat, lon, face_size=33, device="cpu").heights.shape == (6, 33, 33)
