@@ -60,7 +60,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--eye", type=_floats(3, "lat,lon,altitude (degrees, degrees, metres)"),
                    default=None, metavar="LAT,LON,ALT",
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
-                        "above the terrain there); default 30,10,3R, R the --radius (the whole globe in view)")
+                        "above the terrain there: negative over land or sea floor below it, such as the Dead Sea); "
+                        "default 30,10,3R, R the --radius (the whole globe in view)")
     p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
@@ -152,8 +153,13 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--eye latitude must lie in [-90, 90]; got {lat_deg}")
     if not (-360.0 <= lon_deg <= 360.0):  # look_from's bound, which named the library's 'longitude'
         raise InvalidInputError(f"--eye longitude must lie in [-360, 360] degrees; got {lon_deg:g}")
-    if altitude <= 0:
-        raise InvalidInputError(f"--eye altitude must be above the surface (> 0 m); got {altitude}")
+    # any altitude above the terrain there, below the sphere too (the Dead Sea lies 430 m under it): the library
+    # refuses an eye below the terrain, named by --eye below. The CLI's own "altitude > 0" refused such views; an
+    # eye at or beyond the centre is below any terrain (every node lies outside the centre), refused here alike
+    if radius > 0 and radius + altitude <= 0:
+        raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
+                                f"altitude is metres above the sphere of --radius): the eye at or beyond the planet's "
+                                f"centre (altitude <= -{radius:g} m, the --radius)")
     if radius + altitude > _MAX_COORDINATE:  # look_from's bound on the eye, which named the library's 'radius'
         where = "--eye altitude" if altitude > _MAX_COORDINATE and args.eye is not None else \
             "--radius + the --eye altitude"

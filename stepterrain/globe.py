@@ -60,6 +60,7 @@ from .terrain import (
     as_array,
     as_number,
     check_flag,
+    check_origin,
     check_spacing,
     is_name,
     is_real_dtype,
@@ -189,11 +190,16 @@ def _user_metric(fn: Any) -> UserMetric:
 
 def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     """A real (H, W) float32 grid with H, W >= 2 and no NaN or inf (the hierarchy has no nodata), or an
-    InvalidInputError naming ``name`` (a masked array's masked entries count as NaN)."""
+    InvalidInputError naming ``name`` (a masked array's masked entries are nodata, refused as such)."""
     z = as_array(unmasked(values), name, "a real (H, W) array with H, W >= 2")
     if z.ndim != 2 or min(z.shape) < 2 or not is_real_dtype(z.dtype):  # not bools, complex or durations
         raise InvalidInputError(f"{name} must be a real (H, W) array with H, W >= 2; got shape {z.shape}, "
                                 f"dtype {z.dtype}")
+    mask = np.ma.getmaskarray(values) if np.ma.isMaskedArray(values) else None
+    if mask is not None and mask.any():  # reported as "NaN or infinite values" where the array held none
+        bad = np.argwhere(mask)
+        raise InvalidInputError(f"{name} has {len(bad)} masked (nodata) entries (first at row {bad[0][0]}, column "
+                                f"{bad[0][1]}); fill them first (e.g. from neighbours)")
     if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
         big = np.isfinite(z) & (np.abs(z) > FLOAT32_MAX)
         if big.any():
@@ -380,9 +386,10 @@ class Globe:
         ------
         InvalidInputError
             Bad face size, grid shape, axes not monotone / regular / global, a closing longitude column that
-            differs from the first, NaN or infinite elevation, radius or exaggeration not positive.
+            differs from the first, NaN, infinite or masked elevation, radius or exaggeration not positive.
         OutputTooLargeError
-            The node arrays would exceed the memory budget (checked before allocating).
+            The node arrays and three float32 copies of the grid (12 bytes a cell) would exceed the memory budget
+            (checked before allocating them).
 
         Notes
         -----
@@ -410,6 +417,14 @@ class Globe:
             raise InvalidInputError(f"exaggeration must be at least {tiny:.3g} (a normal float32, as the kernels take "
                                     f"it); got {exaggeration:g}")
         z = _height_grid(elevation, "elevation")
+        n_entries = 6 * (cells + 1) ** 2
+        slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
+        # the node arrays, the angle tables and three float32 copies of the grid at once: z, its contiguous copy
+        # (reversed axes, a closing column dropped) or the one with the pole rows averaged, and the device's (the
+        # grid's copies went uncounted: a 21600 x 43200 grid needs over 10 GiB for them, whatever the face size)
+        check_budget(n_entries * _BYTES_PER_ENTRY + slots * _BYTES_PER_ANGLE_SLOT + 3 * z.size * z.itemsize,
+                     f"a globe of face_size {cells + 1} from a {z.shape[0]}x{z.shape[1]} grid",
+                     hint="use a smaller face_size or a coarser grid")
         relief = exaggeration * float(np.abs(z).max(initial=0.0))
         limit = float(np.finfo(np.float32).max) / 4  # float32 node heights and positions, and their differences
         if radius > limit:
@@ -447,10 +462,6 @@ class Globe:
             if abs(lat[row] - pole) <= 1e-9 and np.ptp(z[row]) > 0:
                 z = np.array(z)
                 z[row] = z[row].mean(dtype=np.float64)
-        n_entries = 6 * (cells + 1) ** 2
-        slots = (cells // 2 + 1) ** 2  # the angle tables cover a quarter face
-        check_budget(n_entries * _BYTES_PER_ENTRY + slots * _BYTES_PER_ANGLE_SLOT, f"a globe of face_size {cells + 1}",
-                     hint="use a smaller face_size")
         device = resolve_device(device)
         source = cube_kernels.LatLonGrid()
         source.elevation = wp.array(np.ascontiguousarray(z), dtype=wp.float32, device=device)
@@ -1227,8 +1238,9 @@ def adaptive_mesh(
     Raises
     ------
     InvalidInputError
-        Not a real (H, W) array with H, W >= 2, NaN or infinite heights, bad spacing, negative error, a camera
-        eye at or below the terrain surface.
+        Not a real (H, W) array with H, W >= 2, NaN, infinite or masked heights, bad spacing, an origin so far from zero
+        for the spacing that float64 cannot keep the nodes apart, negative error, a camera eye at or below the
+        terrain surface.
 
     Examples
     --------
@@ -1256,6 +1268,9 @@ def adaptive_mesh(
     if not (math.isfinite(ox) and math.isfinite(oy)):
         raise InvalidInputError(f"origin must be 2 finite numbers (x0, y0); got {origin!r}")
     rows, cols = z.shape
+    # the vertices are the nodes relative to the origin plus the origin, in float64: origin (1e20, 0) with spacing 1
+    # put every column on one x, a mesh of zero area without a word, as a Terrain's grid would be but for this check
+    check_origin((ox, oy), (dx, dy), z.shape)
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     if cells > _MAX_CELLS:  # before the padding: 32768 << 16 wraps the int32 packed corners
         raise InvalidInputError(f"heights must have at most {_MAX_CELLS + 1} rows and columns (padded to 2^k + 1 "
@@ -1515,10 +1530,10 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
 
 def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),
                 background: str = "black", show_edges: bool = False) -> NDArray[np.uint8]:
-    """Render a globe mesh off-screen from ``camera``'s eye towards its target (the render's vertical field of
-    view is :mod:`stepterrain.render`'s 30°: cameras from :func:`look_from` use the same by default). A window over
-    the memory budget is refused (an OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh`
-    refuses it."""
+    """Render a globe mesh off-screen from ``camera``'s eye towards its target, with the camera's vertical field of
+    view (``camera.fov``, at most 179°, VTK's widest; the horizontal one follows from ``window_size``: give it the
+    camera's aspect to see just the view a culled mesh was cut to). A window over the memory budget is refused (an
+    OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh` refuses it."""
     from . import render
 
     if not isinstance(mesh, trimesh.Trimesh):  # a per_face list, None: an AttributeError on .bounds
@@ -1526,6 +1541,13 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
                                 f"got {type(mesh).__name__}")
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+    # the camera's own field of view: a fixed 30° showed a narrower camera's culled mesh as a patch floating in the
+    # black, and only the middle of a wider one's view
+    view_angle = math.degrees(camera.fov)
+    lo, hi = render._VIEW_ANGLE_RANGE
+    if not lo <= view_angle <= hi:  # VTK clamps its view angle to that range: another picture than the camera's
+        raise InvalidInputError(f"camera fov must lie within [{lo:g}, {hi:g}] degrees to render (VTK's range); got "
+                                f"{view_angle:.6g} degrees ({camera.fov:.6g} rad)")
     width, height, _ = render._check_window(window_size, 1.0)
     render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
@@ -1544,7 +1566,7 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     eye, target = ((np.subtract(point, centre) @ frame.T) - middle for point in (camera.eye, camera.target))
     position = [tuple(eye), tuple(target), tuple(frame @ np.asarray(camera.up, dtype=np.float64))]
     return render.render_mesh(local, window_size=window_size, camera=position, background=background,
-                              bounds=local_box, show_edges=show_edges)
+                              bounds=local_box, show_edges=show_edges, view_angle=view_angle)
 
 
 def _view_frame(camera: Camera) -> NDArray[np.float64]:

@@ -47,6 +47,7 @@ _DIFFUSE = 0.9
 #: towards the north) and elevation above the horizon.
 _OBLIQUE = (math.radians(190.0), math.radians(45.0))
 _VIEW_ANGLE = 30.0  # degrees, vertical field of view
+_VIEW_ANGLE_RANGE = (1e-8, 179.0)  # degrees: VTK clamps a camera's view angle to this range
 _DEFAULT_COLOR = (0.86, 0.82, 0.74)
 
 CameraLike = Literal["oblique", "top"] | tuple[float, float] | Sequence[Sequence[float]]
@@ -156,11 +157,12 @@ def _screen_axes(forward: NDArray[np.float64], up: NDArray[np.float64]
 
 
 def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], up: NDArray[np.float64],
-                  aspect: float) -> float:
-    """Distance from the box centre along ``view_dir`` at which every corner lies inside the view frustum."""
+                  aspect: float, view_angle: float = _VIEW_ANGLE) -> float:
+    """Distance from the box centre along ``view_dir`` at which every corner lies inside the view frustum
+    (``view_angle``: its vertical field of view, degrees)."""
     forward = -view_dir
     right, true_up = _screen_axes(forward, up)
-    tan_v = math.tan(math.radians(_VIEW_ANGLE) / 2.0)
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
     tan_h = tan_v * aspect
     depth = corners @ forward  # corner offset along the viewing direction (positive: farther away)
     need_v = np.abs(corners @ true_up) / tan_v - depth
@@ -169,7 +171,7 @@ def _fit_distance(corners: NDArray[np.float64], view_dir: NDArray[np.float64], u
 
 
 def _camera_position(
-    camera: CameraLike, points: NDArray[np.float64], aspect: float
+    camera: CameraLike, points: NDArray[np.float64], aspect: float, view_angle: float = _VIEW_ANGLE
 ) -> list[tuple[float, ...]]:
     """A pyvista camera position [(eye), (focal point), (view up)] framing ``points`` (N, 3), centred."""
     if isinstance(camera, str):
@@ -203,7 +205,7 @@ def _camera_position(
     forward = -view_dir
     right, true_up = _screen_axes(forward, up)
     for _ in range(4):  # fit, then recentre the projected box on screen, and fit again
-        distance = _fit_distance(corners - focal, view_dir, up, aspect)
+        distance = _fit_distance(corners - focal, view_dir, up, aspect, view_angle)
         eye = focal + view_dir * distance
         rel = corners - eye
         depth = rel @ forward
@@ -211,7 +213,7 @@ def _camera_position(
         sy = (rel @ true_up) / depth
         shift = right * (sx.max() + sx.min()) / 2 + true_up * (sy.max() + sy.min()) / 2
         focal = focal + shift * distance
-    distance = _fit_distance(corners - focal, view_dir, up, aspect) * 1.06
+    distance = _fit_distance(corners - focal, view_dir, up, aspect, view_angle) * 1.06
     eye = focal + view_dir * distance
     return [tuple(eye.tolist()), tuple(focal.tolist()), tuple(up.tolist())]
 
@@ -277,6 +279,7 @@ def render_mesh(
     show_edges: bool = False,
     anti_aliasing: bool = False,
     bounds: ArrayLike | None = None,
+    view_angle: float = _VIEW_ANGLE,
 ) -> NDArray[np.uint8]:
     """Render ``mesh`` off-screen and return the image.
 
@@ -313,6 +316,9 @@ def render_mesh(
     bounds : (2, 3) array_like, optional
         A world-space box [(xmin, ymin, zmin), (xmax, ymax, zmax)] to frame instead of the mesh itself: the
         same box for every frame of an animation keeps the camera still.
+    view_angle : float
+        The camera's vertical field of view in degrees, in [1e-8, 179] (VTK's range; default 30); the horizontal
+        one follows from the window's aspect. A fitted camera frames the bounds with it.
 
     Returns
     -------
@@ -322,7 +328,8 @@ def render_mesh(
     Raises
     ------
     InvalidInputError
-        Bad window size, z_scale, camera, scalars or cmap, an empty mesh, or an infinite vertex (NaN ones are left out).
+        Bad window size, z_scale, camera, scalars, cmap or view_angle, an empty mesh, or an infinite vertex (NaN ones
+        are left out).
     OutputTooLargeError
         The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 104 with it and
         translucent colours, which take SSAA) exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked
@@ -347,7 +354,13 @@ def render_mesh(
         colormap(cmap, argument="cmap")  # matplotlib's ValueError (or a TypeError for cmap=5) named nothing
     elif not isinstance(cmap, str):  # unused without scalars and passed unchecked; the name is looked up when used
         raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
-    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing)
+    lo, hi = _VIEW_ANGLE_RANGE
+    if not lo <= number_or_nan(view_angle) <= hi:  # VTK clamps the view angle to its range: a different picture
+        raise InvalidInputError(f"view_angle must be a vertical field of view in [{lo:g}, {hi:g}] degrees; got "
+                                f"{view_angle!r}")
+    view_angle = float(view_angle)
+    width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
+                                                              view_angle)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -390,7 +403,7 @@ def render_mesh(
         _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
     return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
-                  lighting=True, translucent=translucent)
+                  lighting=True, translucent=translucent, view_angle=view_angle)
 
 
 #: The largest half-extent of a framed box (z scaled): the camera fit squares distances, which overflow float64
@@ -418,7 +431,7 @@ def _fmt_box(lo: NDArray[np.float64], hi: NDArray[np.float64]) -> str:
 
 def _frame_mesh(
     mesh: trimesh.Trimesh, window_size: tuple[int, int], z_scale: float, bounds: ArrayLike | None,
-    camera: CameraLike, anti_aliasing: bool = False,
+    camera: CameraLike, anti_aliasing: bool = False, view_angle: float = _VIEW_ANGLE,
 ) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """Check the arguments every render shares (before pyvista loads, so a bad one is named even where it
     is missing); return (width, height, vertices, local vertices recentred on the framed box with z scaled,
@@ -448,15 +461,16 @@ def _frame_mesh(
         box[:, 2] *= z_scale
     _check_reach(box, lo, hi, z_scale, "the mesh", f"the framed box {_fmt_box(lo, hi)} is too large", "its centre")
     corners = _box_corners(box)
-    position = _camera_position(camera, corners, width / height)  # raises on a bad camera; cheap (8 corners)
+    position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
     if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
-        _check_visible(corners, position, (width, height), box, z_scale)
+        _check_visible(corners, position, (width, height), box, z_scale, view_angle)
     return width, height, vertices, local, finite, box
 
 
-def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int]) -> tuple[float, float]:
+def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, int],
+                  view_angle: float = _VIEW_ANGLE) -> tuple[float, float]:
     """Width and height in pixels of ``points`` (those in front of the eye) seen from the pyvista camera
-    ``position`` with the renders' vertical field of view, at image ``size``."""
+    ``position`` with the vertical field of view ``view_angle`` (degrees), at image ``size``."""
     eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
     forward = (focal - eye) / np.linalg.norm(focal - eye)
     right, true_up = _screen_axes(forward, up)
@@ -466,17 +480,17 @@ def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, i
     if not front.any():
         return 0.0, 0.0
     sx, sy = (rel[front] @ right) / depth[front], (rel[front] @ true_up) / depth[front]
-    tan_v = math.tan(math.radians(_VIEW_ANGLE) / 2.0)
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
     width, height = size
     tan_h = tan_v * width / height
     return float(np.ptp(sx)) / (2 * tan_h) * width, float(np.ptp(sy)) / (2 * tan_v) * height
 
 
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
-                   z_scale: float) -> None:
+                   z_scale: float, view_angle: float = _VIEW_ANGLE) -> None:
     """An InvalidInputError when the fitted camera shows the framed box less than a pixel wide or tall: a mesh
     whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank."""
-    px, py = _pixel_extent(corners, position, size)
+    px, py = _pixel_extent(corners, position, size, view_angle)
     if min(px, py) >= 1.0:
         return
     dx, dy, dz = (box[1] - box[0]).tolist()
@@ -608,10 +622,11 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64],
            finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
            size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool,
-           translucent: bool = False) -> NDArray[np.uint8]:
+           translucent: bool = False, view_angle: float = _VIEW_ANGLE) -> NDArray[np.uint8]:
     """One off-screen render of ``poly``: the fitted camera, the key and fill lights, a clipping range that
     holds the whole mesh; returns the (H, W, 3) image. ``translucent``: its colours have alpha, blended in depth
-    order by depth peeling (without it the surface behind showed over the one in front)."""
+    order by depth peeling (without it the surface behind showed over the one in front); ``view_angle``: the
+    vertical field of view, degrees."""
     width, height = size
     plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
     try:
@@ -628,7 +643,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
         if translucent:
             plotter.enable_depth_peeling()
         framed = _box_corners(box) if framed_by_bounds else _frame_points(local, finite)
-        position = _camera_position(camera, framed, width / height)
+        position = _camera_position(camera, framed, width / height, view_angle)
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         if lighting:
@@ -636,7 +651,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
                 plotter.add_light(light)
         plotter.add_mesh(poly, **mesh_kwargs)
         plotter.camera_position = position
-        plotter.camera.view_angle = _VIEW_ANGLE
+        plotter.camera.view_angle = view_angle
         seen = local[finite]
         union = np.array([np.minimum(box[0], seen.min(axis=0)), np.maximum(box[1], seen.max(axis=0))])
         plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union)

@@ -950,8 +950,10 @@ def test_memory_budget_refuses_before_allocating():
 
     previous = compaction.set_memory_budget(1 << 20)
     try:
-        # 6 x 1025² entries of 32 bytes and the resampling's angle tables (513² slots of 28 bytes)
-        with pytest.raises(OutputTooLargeError, match="face_size 1025 would need 199.4 MiB.*smaller face_size"):
+        # 6 x 1025² entries of 32 bytes, the resampling's angle tables (513² slots of 28 bytes) and three float32
+        # copies of the 180 x 360 grid
+        with pytest.raises(OutputTooLargeError,
+                           match="face_size 1025 from a 180x360 grid would need 200.1 MiB.*smaller face_size"):
             Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=1025)
     finally:
         compaction.set_memory_budget(previous)

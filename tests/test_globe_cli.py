@@ -45,7 +45,8 @@ def test_globe_from_an_npz_grid(tmp_path):
         (["--metrics", "geometric,,clip"], "got 'geometric,,clip' (an empty name)"),
         (["--error", "-1"], "error must be"),
         (["--eye", "95,0,1e6"], "latitude must lie"),
-        (["--eye", "0,0,-5"], "altitude must be above"),
+        (["--eye", "0,0,-1e7"], "--eye 0,0,-1e+07 lies below the terrain there (the altitude is metres above the "
+                                "sphere of --radius): the eye at or beyond the planet's centre"),
         (["--eye", "0,0,1e300"], "--eye altitude must keep the eye within 1e+30 m of the centre"),  # "Camera eye"
         (["--radius", "1e300"], "radius must be at most 8.5e+37 m (float32 node positions); got 1e+300"),
         (["missing.npz"], "does not exist"),

@@ -13,6 +13,8 @@ import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 from stepterrain.globe import Camera, Globe, adaptive_mesh
 
+from .conftest import needs_render
+
 LAT1 = np.linspace(89.5, -89.5, 180)
 LON1 = np.linspace(-179.5, 179.5, 360)
 
@@ -566,3 +568,120 @@ def test_the_cli_default_eye_sees_the_whole_globe_of_any_radius(tmp_path, monkey
     assert args == (30.0, 10.0, 3 * radius)
     planes = camera.planes()
     assert (planes[:, 3] <= -radius * 1.01).all()  # the centre at least R (and a margin) inside each plane
+
+
+@pytest.fixture(scope="module")
+def flat_globe() -> Globe:
+    return Globe.from_latlon(np.zeros((180, 360), np.float32), LAT1, LON1, face_size=65, device="cpu")
+
+
+@needs_render
+def test_render_view_shows_the_view_of_a_camera_narrower_than_30_degrees(flat_globe):
+    """render_view rendered every camera at a fixed 30° vertical field of view: a 10° camera's culled mesh (just
+    its view) showed as a patch floating in the black, 38 % of the picture empty, and unlike the uncut mesh's
+    render. It renders with the camera's own fov now: the ground fills the picture, culled or not."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, tilt=20.0, fov=math.radians(10.0), aspect=1.6)
+    culled = flat_globe.mesh(error=50.0, camera=camera)
+    whole = flat_globe.mesh(error=50.0, camera=camera, cull=False)
+    images = [render_view(m, camera, window_size=(160, 100)).astype(int) for m in (culled, whole)]
+    assert (images[0].max(axis=2) > 0).all()  # no background: the ground covers the whole picture
+    assert (np.abs(images[0] - images[1]).max(axis=2) > 8).mean() < 0.002
+
+
+@needs_render
+def test_render_view_shows_the_whole_view_of_a_camera_wider_than_30_degrees(flat_globe):
+    """A 60° camera tilted 50° from 500 km up sees space above the horizon (68° from straight down) at the top of
+    its view: the fixed 30° render showed only the middle of the view, ground from top to bottom."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, tilt=50.0, fov=math.radians(60.0), aspect=1.6)
+    image = render_view(flat_globe.mesh(error=50.0, camera=camera, cull=False), camera, window_size=(160, 100))
+    ground = image.max(axis=2) > 0
+    dip = math.degrees(math.acos(6_371_000.0 / 6_871_000.0))  # of the horizon below the horizontal: 22°
+    # the horizon's row in the middle column: 90° - dip - 50° above the view's centre, the image 60° tall
+    tan_half = math.tan(math.radians(30.0))
+    horizon = 50.0 - 50.0 * math.tan(math.radians(90.0 - dip - 50.0)) / tan_half
+    column = ground[:, 80]
+    assert not column[: int(horizon) - 2].any() and column[int(horizon) + 2:].all(), (horizon, np.flatnonzero(column))
+    whole = flat_globe.mesh(error=50.0, camera=camera)
+    culled = render_view(whole, camera, window_size=(160, 100)).astype(int)
+    assert (np.abs(culled - image.astype(int)).max(axis=2) > 8).mean() < 0.002
+
+
+def test_render_view_refuses_a_camera_fov_beyond_what_vtk_renders(flat_globe):
+    """VTK clamps a view angle to [1e-8°, 179°]: a wider camera rendered another view than its own, silently."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, fov=math.radians(179.5))
+    with pytest.raises(InvalidInputError, match=r"^camera fov must lie within \[1e-08, 179\] degrees to render "
+                                                r"\(VTK's range\); got 179\.5 degrees"):
+        render_view(flat_globe.mesh(error=1e6), camera, window_size=(64, 64))
+
+
+@pytest.mark.parametrize("origin, spacing", [((1e20, 0.0), 1.0), ((0.0, -1e17), 1.0), ((1e9, 0.0), (1e-3, 1.0))])
+def test_an_origin_float64_cannot_resolve_at_the_spacing_is_refused(origin, spacing):
+    """adaptive_mesh had no bound on origin: with origin (1e20, 0) and spacing 1 every x collapsed to one float64
+    value, a mesh of zero area without a word. Such an origin is refused as a Terrain's grid refuses it, and one
+    float64 resolves still meshes with its columns apart."""
+    z = np.random.default_rng(0).random((9, 9))
+    with pytest.raises(InvalidInputError, match=r"^origin .* lies too far from zero for spacing .*: float64 cannot "
+                                                r"keep the nodes [xy] apart out there"):
+        adaptive_mesh(z, error=0.0, origin=origin, spacing=spacing, device="cpu")
+    mesh = adaptive_mesh(z, error=0.0, origin=(4e11, -4e11), device="cpu")
+    assert len(np.unique(mesh.vertices[:, 0])) == 9 and len(np.unique(mesh.vertices[:, 1])) == 9
+    assert abs(mesh.area - 64.0) < 0.5 * 64
+
+
+def test_the_cli_takes_an_eye_below_the_sphere_above_terrain_below_sea_level(tmp_path, capsys):
+    """The CLI refused every --eye altitude <= 0, though terrain below the sphere (the Dead Sea's shore, -430 m; an
+    ocean floor) has room above it: `--eye 31.5,35.5,-100` over a -430 m grid was refused. Any altitude above the
+    terrain there is taken now; below it the library's refusal is named by --eye, and an eye at or beyond the
+    centre is refused in the same words."""
+    from stepterrain.cli import main
+
+    grid, out = tmp_path / "deep.npz", tmp_path / "deep.ply"
+    np.savez(grid, elevation=np.full((180, 360), -430.0, np.float32), lat=LAT1, lon=LON1)
+    argv = ["-q", "globe", str(grid), "--face-size", "9", "-o", str(out), "--device", "cpu", "--eye"]
+    assert main([*argv, "31.5,35.5,-100"]) == 0 and out.exists()
+    out.unlink()
+    assert main([*argv, "31.5,35.5,-500"]) == 2
+    assert re.search(r"error: --eye 31\.5,35\.5,-500 lies below the terrain there \(the altitude is metres above the "
+                     r"sphere of --radius\): camera eye \(.*\) lies inside the planet, .*terrain -430\.0 m\)",
+                     capsys.readouterr().err)
+    for altitude in ("-6371000", "-2e7"):
+        assert main([*argv, f"31.5,35.5,{altitude}", "--no-camera"]) == 2
+        assert re.search(r"error: --eye 31\.5,35\.5,-[0-9.e+]+ lies below the terrain there \(the altitude is metres "
+                         r"above the sphere of --radius\): the eye at or beyond the planet's centre \(altitude <= "
+                         r"-6\.371e\+06 m, the --radius\)$", capsys.readouterr().err.strip())
+    assert not out.exists()
+
+
+def test_masked_heights_are_named_as_masked_not_as_nan():
+    """A masked array's masked entries were reported as 'NaN or infinite values' though the array held none (its
+    data under the mask were 0), for the globe and the planar mesh alike; they are named as masked entries now."""
+    z = np.ma.masked_array(np.zeros((180, 360)), mask=np.zeros((180, 360), bool))
+    z.mask[5, 7] = z.mask[9, 2] = True
+    message = r"has 2 masked \(nodata\) entries \(first at row 5, column 7\); fill them first"
+    with pytest.raises(InvalidInputError, match=rf"^elevation {message}"):
+        Globe.from_latlon(z, LAT1, LON1, face_size=5, device="cpu")
+    with pytest.raises(InvalidInputError, match=rf"^heights {message}"):
+        adaptive_mesh(z[:10, :10], error=1.0, device="cpu")
+    z.mask[:] = False  # a mask with nothing masked is no nodata
+    assert len(adaptive_mesh(z[:9, :9], error=1.0, device="cpu").faces) == 2
+
+
+def test_the_globe_memory_check_counts_the_grids_float32_copies(budget):
+    """Globe.from_latlon checked the node arrays against the memory budget but not the float32 copies of the input
+    grid it makes (the grid, its contiguous or pole-averaged copy, the device's): a 1800 x 3600 grid for a 33²
+    globe passed a 10 MB budget and took 50 MiB (74 with an axis reversed). The check counts three copies now."""
+    lat, lon = np.linspace(89.95, -89.95, 1800), np.linspace(-179.95, 179.95, 3600)
+    z = np.zeros((1800, 3600), np.int16)
+    budget(10_000_000)
+    with pytest.raises(OutputTooLargeError, match=r"^a globe of face_size 33 from a 1800x3600 grid would need 74\.4 "
+                                                  r"MiB, over the memory budget of 9\.5 MiB; use a smaller face_size "
+                                                  r"or a coarser grid"):
+        Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")
+    budget(80 << 20)
+    assert Globe.from_latlon(z, lat, lon, face_size=33, device="cpu").heights.shape == (6, 33, 33)

@@ -396,3 +396,30 @@ def test_anti_aliased_translucent_colours_are_blended_not_blank():
         assert render.render_mesh(opaque, window_size=(1000, 1000), camera="top", anti_aliasing=True).shape[0] == 1000
     finally:
         st.set_memory_budget(previous)
+
+
+@needs_render
+def test_view_angle_sets_the_renders_field_of_view():
+    """render_mesh rendered at a fixed 30° vertical field of view, so an explicit camera could not show a narrower
+    or wider view (globe.render_view's camera fov was ignored). view_angle sets it: from an eye 10 m over a 2 m square
+    looking straight down, the square fills a tenth of a 90° picture's side, and a fitted camera still frames the
+    whole mesh at any view angle."""
+    vertices = np.array([[-1, -1, 0], [1, -1, 0], [-1, 1, 0], [1, 1, 0]], float)
+    small = trimesh.Trimesh(vertices, [[0, 1, 2], [1, 3, 2]], process=False)
+    covered = {angle: (render.render_mesh(small, window_size=(64, 64), camera=[(0, 0, 10), (0, 0, 0), (0, 1, 0)],
+                                          background="black", view_angle=angle).max(axis=2) > 0).mean()
+               for angle in (90.0, 30.0, 10.0)}
+    for angle, share in covered.items():  # the square spans 2 / (2 · 10 · tan(angle / 2)) of the picture's side
+        expected = min(1.0, 0.1 / np.tan(np.radians(angle) / 2)) ** 2
+        assert abs(share - expected) < 0.06, covered
+    for angle in (10.0, 90.0):  # fitted cameras frame the mesh alike at any view angle
+        image = render.render_mesh(small, window_size=(64, 64), camera="top", background="black", view_angle=angle)
+        assert 0.7 < (image.max(axis=2) > 0).mean() < 1.0
+
+
+@pytest.mark.parametrize("angle", [0.0, 180.0, 1e-9, float("nan"), "30", True])
+def test_a_view_angle_vtk_cannot_render_is_named(angle):
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"^view_angle must be a vertical field of view in \[1e-08, 179\] "
+                                                r"degrees; got "):
+        render.render_mesh(mesh, window_size=(64, 64), view_angle=angle)
