@@ -42,8 +42,23 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
-from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
+from .errors import (
+    DataFileError,
+    InvalidInputError,
+    MissingDependencyError,
+    SchedulerError,
+    StepTerrainError,
+    caller_stacklevel,
+)
+from .export import (
+    _STL_ROUNDING_RE,
+    _STL_ROUNDING_TOLERANCE,
+    MESH_EXTENSIONS,
+    atomic_path,
+    json_metadata,
+    probe_writable,
+    save_mesh,
+)
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -490,7 +505,7 @@ def run_item(
     ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process for this
     item and restored after it (a worker process has its own, the default, otherwise). ``record_warnings``: the
     item's warnings go into its result's ``warnings`` instead of the worker's stderr (for single-threaded worker
-    processes: recording is not thread-safe).
+    processes and the serial run: recording is not thread-safe).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
@@ -1012,7 +1027,9 @@ def batch(
         seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this process's
         memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
         LocalCluster's workers record each item's warnings, which are warned again in this process (other
-        clusters' workers print theirs).
+        clusters' workers print theirs); STL's float32 rounding (UTM coordinates), which every tile of a raster
+        meets alike, is warned once for the run, with the number of outputs it moved (each item's own message
+        stays in its :class:`ItemResult`'s ``warnings``).
     workers : int
         Worker processes of the LocalCluster.
     retries : int
@@ -1280,6 +1297,8 @@ def _run_locked(
         else:
             stream = _run_dask(todo, src, options, folder, connection, retries)
         hint = budget_hint()
+        level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
+        rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
         for result in stream:
             if result.error and hint != BUDGET_HINT and BUDGET_HINT in result.error:
                 # a worker process's refusal gives the library's hint: this process's (the CLI's option) instead,
@@ -1287,9 +1306,15 @@ def _run_locked(
                 result = dataclasses.replace(result, error=result.error.replace(BUDGET_HINT, hint))
             results[result.key] = result
             recorder.add(result)
-            for message in result.warnings:  # a worker process's, said here as this process's warnings are
-                warnings.warn(message, stacklevel=1)
+            for message in result.warnings:  # a worker process's (or this one's, serial), said here
+                if _STL_ROUNDING_RE.search(message):
+                    rounded.append(message)
+                else:
+                    warnings.warn(message, stacklevel=level)
             _tick(bar, result)
+        if rounded:
+            warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
+                          stacklevel=level)  # fmt: skip
     finally:
         recorder.flush()
         if bar is not None:
@@ -1299,6 +1324,17 @@ def _run_locked(
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description, notes)  # fmt: skip
     return report
+
+
+def _rounding_summary(messages: Sequence[str], written: int) -> str:
+    """One warning for the items' STL float32 rounding warnings (each item's stays in its result's ``warnings``): a
+    batch of UTM tiles warned once per tile, thousands of lines saying the same."""
+    if len(messages) == 1:
+        return messages[0]
+    worst = max(messages, key=lambda m: float(_STL_ROUNDING_RE.search(m)["error"]))  # type: ignore[index]
+    return (f".stl stores float32 coordinates, which move the vertices of {len(messages)} of the {written} outputs "
+            f"written by more than {_STL_ROUNDING_TOLERANCE:g} (each item's warning is in its result's warnings); "
+            f"the worst, {worst}")
 
 
 def _shared_levels(
@@ -1430,8 +1466,8 @@ def _run_serial(
     for item in todo:
         error = ""
         for attempt in range(1, retries + 2):
-            try:
-                result = run_item(item, src, options, str(folder))
+            try:  # its warnings recorded, said by the caller as a worker process's are (STL's rounding once)
+                result = run_item(item, src, options, str(folder), record_warnings=True)
             except Exception as exc:  # noqa: BLE001 - retried, then reported like a failed dask task
                 error = f"{type(exc).__name__}: {exc}"
                 continue

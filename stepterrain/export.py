@@ -937,6 +937,9 @@ def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 #: How far (in the mesh's units: 1 mm for metres) STL's float32 may move a vertex before save_mesh warns.
 _STL_ROUNDING_TOLERANCE = 1e-3
+#: The warning of :func:`_warn_stl_rounding`, its largest move as ``error``: batch says it once for all its files
+_STL_ROUNDING_RE = re.compile(r": \.stl stores float32 coordinates, which move this mesh's vertices by up to "
+                              r"(?P<error>[0-9.e+-]+) ")
 
 
 def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:

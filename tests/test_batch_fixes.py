@@ -665,3 +665,31 @@ def test_run_item_restores_the_workers_memory_budget(tmp_path):
         assert done.status == "done" and get_memory_budget() == before + 4096
     finally:
         set_memory_budget(previous)
+
+
+def test_stls_float32_rounding_is_warned_once_per_batch_with_its_count(tmp_path):
+    """A batch of .stl tiles cut from a UTM raster warned STL's float32 rounding once per tile (each message names
+    its own file, so none was folded): thousands of identical lines for a large raster. It is one warning now,
+    with how many outputs it moved and the worst of them; each item's own message stays in its result."""
+    import warnings
+
+    z = (np.add.outer(np.arange(13.0), np.arange(9.0)) * 10.3).astype(np.float32)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(z, tmp_path / "out", tile_size=4, interval=20.0, format=".stl", scheduler="serial",
+                       origin=(500000.123, 4100000.456), spacing=(30.0, -30.0))  # fmt: skip
+    assert report.ok and len(report.done) == 6
+    said = [w for w in caught if "float32" in str(w.message)]
+    assert len(said) == 1, [str(w.message) for w in caught]
+    text = str(said[0].message)
+    assert "6 of the 6 outputs" in text and "write .ply, .obj or .3mf" in text
+    assert said[0].filename == __file__  # at the caller's line
+    moves = [float(re.search(r"by up to (\S+) ", m)[1]) for r in report.done for m in r.warnings]
+    assert len(moves) == 6 and f"by up to {max(moves):.3g} " in text  # the worst tile's message
+    # a batch of one such tile says its own message, as save_mesh does
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        one = batch(z[:5, :5], tmp_path / "one", tile_size=4, interval=20.0, format=".stl", scheduler="serial",
+                    origin=(500000.123, 4100000.456), spacing=(30.0, -30.0))  # fmt: skip
+    assert [str(w.message) for w in caught] == list(one.done[0].warnings)
+    assert "tile_r0_c0.stl" in str(caught[0].message)
