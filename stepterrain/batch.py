@@ -1321,6 +1321,8 @@ def _run_locked(
             bar.close()
         if connection is not None:
             _disconnect(scheduler, connection)
+    # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
+    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description, notes)  # fmt: skip
     return report
@@ -1493,24 +1495,37 @@ def _run_dask(
     workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
-    futures = {
-        client.submit(run_item, item, blocks[k] if blocks is not None else None, options, str(folder), cpu_threads,
-                      memory_budget, local, retries=retries, pure=False,
-                      key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
-        for k, item in enumerate(todo)
-    }  # fmt: skip
+
+    def submit(item: BatchItem, block: Any) -> Any:
+        return client.submit(run_item, item, block, options, str(folder), cpu_threads, memory_budget, local,
+                             retries=retries, pure=False,
+                             key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}")  # fmt: skip
+
+    futures = {submit(item, blocks[k] if blocks is not None else None): item for k, item in enumerate(todo)}
+    # A worker that dies (killed for memory, a crash) takes the blocks scattered to it along: the scheduler cannot
+    # run their tasks again and cancels them. Those items are scattered and submitted again, up to `retries` times;
+    # they "failed: cancelled" after 0 attempts, about half a LocalCluster's items when one of its two workers died.
+    lost: dict[str, int] = {}
     try:
         # results are gathered on the client's event loop as tasks finish (no blocking round trip per future
         # from this thread); a task that raised asks for its exception (rare: one round trip)
-        for future, result in as_completed(futures, with_results=True, raise_errors=False):
-            item = futures[future]
-            if future.status == "error":
+        completed = as_completed(futures, with_results=True, raise_errors=False)
+        for future, result in completed:
+            item = futures.pop(future)
+            if future.status == "cancelled" and lost.get(item.key, 0) < retries:
+                lost[item.key] = lost.get(item.key, 0) + 1
+                block = client.scatter(_item_source(src, item), hash=False) if src is not None else None
+                again = submit(item, block)
+                futures[again] = item
+                completed.add(again)
+            elif future.status == "error":
                 exc = future.exception()
                 yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=retries + 1)
             elif future.status == "cancelled":
-                yield ItemResult(item.key, "failed", error="cancelled", attempts=0)
+                yield ItemResult(item.key, "failed", attempts=lost.get(item.key, 0),
+                                 error="cancelled" + (" (its worker was lost each time)" if item.key in lost else ""))
             else:
-                yield result
+                yield dataclasses.replace(result, attempts=result.attempts + lost.get(item.key, 0))
     except BaseException:
         client.cancel(list(futures))
         raise

@@ -693,3 +693,36 @@ def test_stls_float32_rounding_is_warned_once_per_batch_with_its_count(tmp_path)
                     origin=(500000.123, 4100000.456), spacing=(30.0, -30.0))  # fmt: skip
     assert [str(w.message) for w in caught] == list(one.done[0].warnings)
     assert "tile_r0_c0.stl" in str(caught[0].message)
+
+
+def test_items_whose_worker_died_are_submitted_again(tmp_path):
+    """A worker process that died (killed for memory, a crash) took the tiles' heights scattered to it along: the
+    scheduler cancelled their tasks and batch reported them "failed: cancelled (after 0 attempt(s))", about half
+    the tiles of a two-worker cluster, retries or not. They are scattered and submitted again now, and the
+    temporary file the dead worker was writing is gone at the end."""
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    import logging
+
+    z = (np.add.outer(np.arange(33.0), np.arange(33.0)) % 7).astype(np.float32)
+    serial = batch(z, tmp_path / "serial", tile_size=8, interval=1.0, scheduler="serial")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
+
+        def die_on_first_item() -> None:  # in one worker process: its first item dies while writing
+            import os
+
+            import stepterrain.batch as module
+
+            def dying(item, source, options, output_dir, *rest):
+                (Path(output_dir) / f".{item.key}{options.ext}.dying012.tmp").write_bytes(b"glTF partial")
+                os._exit(1)
+
+            module._run_item = dying
+
+        client.run(die_on_first_item, workers=[sorted(client.scheduler_info()["workers"])[0]])
+        report = batch(z, tmp_path / "out", tile_size=8, interval=1.0, scheduler=client)
+    assert report.ok, report.summary()
+    assert len(report.done) == 16 and any(r.attempts > 1 for r in report.done)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.name.startswith(".")) == []
+    for r in serial.done:
+        assert Path(r.path).read_bytes() == (tmp_path / "out" / Path(r.path).name).read_bytes()
