@@ -1299,6 +1299,8 @@ def _run_locked(
         hint = budget_hint()
         level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
         rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
+        said: set[str] = set()  # a message many items give alike, once (the serial run's recording of each item
+        # reset Python's registry of warnings already shown, so its "default" filter repeated it for every item)
         for result in stream:
             if result.error and hint != BUDGET_HINT and BUDGET_HINT in result.error:
                 # a worker process's refusal gives the library's hint: this process's (the CLI's option) instead,
@@ -1309,7 +1311,8 @@ def _run_locked(
             for message in result.warnings:  # a worker process's (or this one's, serial), said here
                 if _STL_ROUNDING_RE.search(message):
                     rounded.append(message)
-                else:
+                elif message not in said:
+                    said.add(message)
                     warnings.warn(message, stacklevel=level)
             _tick(bar, result)
         if rounded:

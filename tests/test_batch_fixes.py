@@ -726,3 +726,18 @@ def test_items_whose_worker_died_are_submitted_again(tmp_path):
     assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.name.startswith(".")) == []
     for r in serial.done:
         assert Path(r.path).read_bytes() == (tmp_path / "out" / Path(r.path).name).read_bytes()
+
+
+def test_a_warning_every_item_gives_alike_is_said_once(tmp_path):
+    """Each item's warnings are recorded and said again by the caller (serial runs too, since STL's rounding is
+    said once per batch); a message every tile gives alike (a solid's heights on a threshold) is said once, as
+    Python's "default" filter said it when the serial run warned directly."""
+    import warnings
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)  # whole heights on the thresholds
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        report = batch(z, tmp_path / "out", tile_size=4, interval=2.0, solid=True, scheduler="serial")
+    assert report.ok and sum("watertight" in m for r in report.done for m in r.warnings) >= 2
+    said = [str(w.message) for w in caught if "watertight" in str(w.message)]
+    assert len(said) == 1 and caught[0].filename == __file__
