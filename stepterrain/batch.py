@@ -54,6 +54,7 @@ from .export import (
     _STL_ROUNDING_RE,
     _STL_ROUNDING_TOLERANCE,
     MESH_EXTENSIONS,
+    _temporary_stem,
     atomic_path,
     json_metadata,
     probe_writable,
@@ -732,8 +733,9 @@ _PARTIAL_RE = re.compile(r"^\.(.+)\.[a-z0-9_]{8}\.tmp$")
 
 def _remove_partial(folder: Path, names: Sequence[str]) -> None:
     """Remove what a killed run left half-written: the temporary files of ``names`` (this run's outputs and the
-    manifest) in ``folder``. A rerun writes every one of them afresh, so none of those is in use."""
-    wanted = set(names)
+    manifest) in ``folder``. A rerun writes every one of them afresh, so none of those is in use. A name too long for
+    its temporary file's is cut there as atomic_path cuts it (a 250-byte file name's partial file stayed)."""
+    wanted = {_temporary_stem(name) for name in names}
     try:
         entries = list(os.scandir(folder))
     except OSError:

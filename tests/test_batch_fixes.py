@@ -741,3 +741,21 @@ def test_a_warning_every_item_gives_alike_is_said_once(tmp_path):
     assert report.ok and sum("watertight" in m for r in report.done for m in r.warnings) >= 2
     said = [str(w.message) for w in caught if "watertight" in str(w.message)]
     assert len(said) == 1 and caught[0].filename == __file__
+
+
+def test_a_rerun_removes_the_partial_file_of_an_output_with_a_long_name(tmp_path):
+    """atomic_path cuts a long name for its temporary file (.<name cut>.XXXXXXXX.tmp fits 255 bytes); the rerun looked
+    for the whole name, so a killed run's partial file of a tile file named with 246 characters stayed for good."""
+    from stepterrain.export import _temporary_stem
+
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    name = "t" * 246
+    np.save(src / f"{name}.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    out.mkdir()
+    partial = out / f".{_temporary_stem(name + '.ply')}.abcdefgh.tmp"
+    assert len(partial.name) <= 255 and _temporary_stem(name + ".ply") != name + ".ply"
+    partial.write_bytes(b"glTF partial")
+    report = batch(src, out, interval=2.0, format=".ply", scheduler="serial")
+    assert report.ok and (out / f"{name}.ply").exists(), report.summary()
+    assert not partial.exists()
