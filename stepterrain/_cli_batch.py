@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any
 
-from .errors import InvalidInputError
+from .errors import DeviceError, InvalidInputError
 
 _EPILOG = """\
 examples:
@@ -133,10 +134,14 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
     _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
-    if args.device is not None:
+    if args.device is not None and args.scheduler in (None, "serial"):  # this machine's processes step
         from ._device import resolve_device
 
         resolve_device(args.device)  # an unknown device fails here, before any worker starts
+    elif args.device is not None and not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):
+        # a cluster's workers find their own devices (a GPU this machine may lack): only the name's form here
+        raise DeviceError(f"--device must be cpu, cuda or cuda:N (a Warp device of the workers of --scheduler); "
+                          f"got {args.device!r}")
     if png is not None:
         render.require_offscreen()
 

@@ -759,3 +759,28 @@ def test_a_rerun_removes_the_partial_file_of_an_output_with_a_long_name(tmp_path
     report = batch(src, out, interval=2.0, format=".ply", scheduler="serial")
     assert report.ok and (out / f"{name}.ply").exists(), report.summary()
     assert not partial.exists()
+
+
+def test_cli_batch_on_a_cluster_leaves_the_device_to_its_workers(tmp_path, capsys):
+    """`stepterrain batch --scheduler tcp://gpu-cluster:8786 --device cuda` from a machine without a GPU (a login
+    node) was refused before connecting: "--device 'cuda' needs a CUDA GPU, and Warp finds none on this machine",
+    though the help says "Warp device on the workers". The workers' devices decide now; here only the name's form
+    is checked (a typo is still exit 2 before any work)."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    import warp as wp
+
+    from stepterrain import cli
+
+    from .test_batch import free_port
+
+    if wp.is_cuda_available():
+        pytest.skip("this machine has a CUDA GPU: the local check passes anyway")
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens: the run gets as far as connecting
+    argv = ["batch", "--tile", "64", "-o", str(tmp_path / "o"), "--scheduler", address, "--connect-timeout", "1"]
+    assert cli.main([*argv, "--device", "cuda:0"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot reach the dask scheduler" in err and "CUDA" not in err
+    assert cli.main([*argv, "--device", "tpu:7"]) == 2
+    assert "--device must be cpu, cuda or cuda:N" in capsys.readouterr().err
+    assert cli.main(["batch", "--tile", "64", "-o", str(tmp_path / "o"), "--device", "cuda"]) == 2  # here: refused
+    assert "needs a CUDA GPU" in capsys.readouterr().err
