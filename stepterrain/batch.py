@@ -588,7 +588,10 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
         h = hashlib.blake2b(head, digest_size=16)
-        h.update(repr(item).encode())
+        # a file by its absolute path, as _file_identity names it: the same folder given as "tiles" and then as
+        # "/data/tiles" (or from another working folder) redid every item
+        h.update(repr(item if item.path is None else dataclasses.replace(item, path=os.path.abspath(item.path)))
+                 .encode())  # fmt: skip
         if item.kind == "file":
             h.update(_file_identity(item.path, listings).encode())  # type: ignore[arg-type]
         elif source is not None:
@@ -1081,10 +1084,10 @@ def batch(
 
     Notes
     -----
-    An item is complete when the manifest records its output file with the same fingerprint (its input: file
-    path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
-    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does
-    not change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten
+    An item is complete when the manifest records its output file with the same fingerprint (its input: the
+    file's absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF:
+    world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device,
+    which does not change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten
     with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a
     file renamed, moved or restored from a backup (and every file item of a run made before stepterrain recorded
     ctime and inode) is redone once. The manifest records each file, so an item's outputs

@@ -784,3 +784,23 @@ def test_cli_batch_on_a_cluster_leaves_the_device_to_its_workers(tmp_path, capsy
     assert "--device must be cpu, cuda or cuda:N" in capsys.readouterr().err
     assert cli.main(["batch", "--tile", "64", "-o", str(tmp_path / "o"), "--device", "cuda"]) == 2  # here: refused
     assert "needs a CUDA GPU" in capsys.readouterr().err
+
+
+def test_a_folder_named_another_way_keeps_its_complete_outputs(tmp_path, monkeypatch):
+    """A file item's fingerprint held its path as given: the same folder given as "src" and then as its absolute
+    path (a cron job, another working folder) redid every item, though the files were unchanged."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for k in range(3):
+        np.save(src / f"t{k}.npy", (np.add.outer(np.arange(9.0), np.arange(9.0)) + k).astype(np.float32))
+    monkeypatch.chdir(tmp_path)
+    first = batch("src", tmp_path / "out", interval=2.0, scheduler="serial")
+    assert len(first.done) == 3
+    again = batch(str(src), tmp_path / "out", interval=2.0, scheduler="serial")
+    assert len(again.skipped) == 3, again.summary()
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    listed = batch([Path("..") / "src" / "t0.npy", src / "t1.npy"], tmp_path / "out", interval=2.0, scheduler="serial")
+    assert len(listed.skipped) == 2, listed.summary()
+    np.save(src / "t2.npy", np.zeros((9, 9), np.float32) + np.arange(9.0))  # a changed file is still redone
+    assert [r.key for r in batch(str(src), tmp_path / "out", interval=2.0, scheduler="serial").done] == ["t2"]
