@@ -1087,9 +1087,9 @@ def batch(
     An item is complete when the manifest records its output file with the same fingerprint (its input: the
     file's absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF:
     world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device,
-    which does not change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten
-    with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a
-    file renamed, moved or restored from a backup (and every file item of a run made before stepterrain recorded
+    which does not change a bit of the output) and that file exists with the recorded size. The ctime catches a file
+    rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation
+    time; a file renamed, moved or restored from a backup (and every file item of a run made before stepterrain recorded
     ctime and inode) is redone once. The manifest records each file, so an item's outputs
     in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
     ``report.notes`` says when the folder holds these items in another format too, when it holds outputs of
