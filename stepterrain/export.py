@@ -986,6 +986,18 @@ _3MF_RELS = (
 _ROWS_PER_WRITE = 1 << 16  # OBJ lines and 3MF vertices or triangles formatted at a time
 
 
+def _3mf_member(name: str) -> zipfile.ZipInfo:
+    """A member of a 3MF's zip, dated 1980-01-01 (zip's first date) instead of the clock's time, so that the same mesh
+    gives the same bytes: every 3MF differed from the last (batch outputs of workers=1 and 2, two runs of the CLI),
+    whereas every other format compared equal. Deflated at level 5, as the archive names its own members."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_DEFLATED
+    # the level ZipFile(compresslevel=5) gives the members it makes: ``compress_level`` from Python 3.13 on
+    setattr(info, "compress_level" if hasattr(info, "compress_level") else "_compresslevel", 5)
+    info.external_attr = 0o600 << 16  # rw------- as ZipFile.writestr marks a member it names
+    return info
+
+
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
@@ -1005,9 +1017,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         palette, face_index = np.unique(rgba.view(np.uint32).reshape(-1), return_inverse=True)
         palette = palette.view(np.uint8).reshape(-1, 4)
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
-        archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
-        archive.writestr("_rels/.rels", _3MF_RELS)
-        with archive.open("3D/3dmodel.model", "w", force_zip64=True) as out:
+        archive.writestr(_3mf_member("[Content_Types].xml"), _3MF_CONTENT_TYPES)
+        archive.writestr(_3mf_member("_rels/.rels"), _3MF_RELS)
+        with archive.open(_3mf_member("3D/3dmodel.model"), "w", force_zip64=True) as out:
             out.write(b'<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
                       b'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
                       b'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"><resources>')

@@ -804,3 +804,20 @@ def test_a_folder_named_another_way_keeps_its_complete_outputs(tmp_path, monkeyp
     assert len(listed.skipped) == 2, listed.summary()
     np.save(src / "t2.npy", np.zeros((9, 9), np.float32) + np.arange(9.0))  # a changed file is still redone
     assert [r.key for r in batch(str(src), tmp_path / "out", interval=2.0, scheduler="serial").done] == ["t2"]
+
+
+def test_3mf_outputs_are_the_same_bytes_on_every_run(tmp_path, monkeypatch):
+    """A 3MF's zip members were dated with the clock's time, so the same tiles written twice (workers=1 and 2, a
+    rerun with resume=False, a day later) never compared equal, whereas every other format did."""
+    import time
+    import zipfile
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    first = batch(z, tmp_path / "a", tile_size=4, interval=2.0, format=".3mf", colors="viridis", scheduler="serial")
+    real_localtime = time.localtime
+    monkeypatch.setattr(time, "localtime", lambda secs=None: real_localtime((secs or time.time()) + 86400 + 3))
+    second = batch(z, tmp_path / "b", tile_size=4, interval=2.0, format=".3mf", colors="viridis", scheduler="serial")
+    for a, b in zip(first.done, second.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+        with zipfile.ZipFile(a.path) as archive:
+            assert {info.date_time for info in archive.infolist()} == {(1980, 1, 1, 0, 0, 0)}
