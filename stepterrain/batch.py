@@ -1285,6 +1285,9 @@ def _run_locked(
         shown = ", ".join(strangers[:3]) + (", ..." if len(strangers) > 3 else "")
         notes.append(f"the folder holds {len(strangers)} recorded output(s) of items this run does not have ({shown}),"
                      " from an earlier run with another source or tile size: left as they were")  # fmt: skip
+    # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
+    # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
+    earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
@@ -1331,6 +1334,11 @@ def _run_locked(
             _disconnect(scheduler, connection)
     # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
     _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+    kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
+    if kept:
+        shown = ", ".join(kept[:3]) + (", ..." if len(kept) > 3 else "")
+        notes.append(f"the folder still holds an earlier run's output of {len(kept)} failed item(s) ({shown}), made "
+                     "with that run's input and options, not this one's: redo or remove them before using the folder")
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description, notes)  # fmt: skip
     return report

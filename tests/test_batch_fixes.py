@@ -821,3 +821,24 @@ def test_3mf_outputs_are_the_same_bytes_on_every_run(tmp_path, monkeypatch):
         assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
         with zipfile.ZipFile(a.path) as archive:
             assert {info.date_time for info in archive.infolist()} == {(1980, 1, 1, 0, 0, 0)}
+
+
+def test_a_failed_items_earlier_output_is_noted(tmp_path):
+    """A rerun with other options (or input) whose item failed left that item's output of the earlier run in the
+    folder, unrecorded and unsaid: out/*.glb loaded it beside this run's outputs, its terraces another interval's."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for k in range(3):
+        np.save(src / f"t{k}.npy", (np.add.outer(np.arange(9.0), np.arange(9.0)) + k).astype(np.float32))
+    out = tmp_path / "out"
+    assert batch(src, out, interval=2.0, scheduler="serial").ok
+    (src / "t1.npy").write_bytes(b"not a numpy file")  # t1 fails on the rerun
+    report = batch(src, out, interval=3.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["t1"] and (out / "t1.glb").exists()
+    said = [note for note in report.notes if "failed item" in note]
+    assert len(said) == 1 and "t1.glb" in said[0] and "1 failed item(s)" in said[0], report.notes
+    assert "t1.glb" in report.summary()
+    (src / "t1.npy").unlink()
+    (src / "t2.npy").write_bytes(b"not a numpy file")
+    fresh = batch(src, tmp_path / "fresh", interval=3.0, scheduler="serial")  # a failure with no earlier output
+    assert len(fresh.failed) == 1 and not any("failed item" in note for note in fresh.notes)
