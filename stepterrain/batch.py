@@ -1084,24 +1084,23 @@ def batch(
 
     Notes
     -----
-    An item is complete when the manifest records its output file with the same fingerprint (its input: the
-    file's absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF:
-    world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device,
-    which does not change a bit of the output) and that file exists with the recorded size. The ctime catches a file
-    rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation
-    time; a file renamed, moved or restored from a backup (and every file item of a run made before stepterrain recorded
-    ctime and inode) is redone once. The manifest records each file, so an item's outputs
-    in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
-    ``report.notes`` says when the folder holds these items in another format too, when it holds outputs of
-    items this run does not have (an earlier run's other tile size or source: left as they were), and when the
-    manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
-    afresh). Every file is written to a temporary file and renamed, and the manifest is updated only after the
-    rename, so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
-    temporary files the killed run left half-written). Tiles are written with the whole raster's bounds as
-    :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type
-    for all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's
-    float32 positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from
-    it).
+    An item is complete when the manifest records its output file with the same fingerprint (its input: the file's
+    absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
+    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does not
+    change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten with its
+    size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a file renamed,
+    moved or restored from a backup (and every file item of a run made before stepterrain recorded ctime and inode) is
+    redone once. The manifest records each file, so an item's outputs in two formats (a ``.glb`` run, then a ``.ply``
+    one into the same folder) are both kept and complete; ``report.notes`` says when the folder holds these items in
+    another format too, when it holds outputs of items this run does not have (an earlier run's other tile size or
+    source: left as they were), when a failed item keeps an earlier run's output, and when the manifest could not be
+    read (cut short or edited by hand: every item is redone and the manifest written afresh). Every file is written to a
+    temporary file and renamed, and the manifest is updated only after the rename, so a killed run leaves complete
+    outputs or none and a rerun redoes only what is missing (removing the temporary files the killed run left
+    half-written). Tiles are written with the whole raster's bounds as :func:`~stepterrain.export.save_mesh`'s
+    ``shared_bounds`` (one glTF node translation, one PLY coordinate type for all), so a vertex two tiles share is
+    stored as the same bits in both and the tiles weld exactly; glTF's float32 positions are then relative to the centre
+    of the raster's bounds (about 8 mm resolution 100 km from it).
     A tile or frame with
     no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
     ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
