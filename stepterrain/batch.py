@@ -952,7 +952,9 @@ def _connect(
             "(or pass scheduler='serial')"
         ) from exc
     if isinstance(scheduler, Client):
-        return scheduler, None, f"dask client {scheduler.scheduler.address if scheduler.scheduler else '?'}", False
+        address = scheduler.scheduler.address if scheduler.scheduler else "?"
+        _require_workers(scheduler, f"the dask client's scheduler {address}", connect_timeout)
+        return scheduler, None, f"dask client {address}", False
     if scheduler is None:
         cluster = start_local_cluster(workers)
         client = Client(cluster, timeout=connect_timeout)
@@ -971,7 +973,25 @@ def _connect(
             f"{scheduler!r} answered, but not as a dask scheduler ({type(exc).__name__}: {exc}); check the port: "
             "a scheduler listens on 8786 by default, its HTTP dashboard on 8787"
         ) from exc
+    try:
+        _require_workers(client, f"the dask scheduler {scheduler!r}", connect_timeout)
+    except BaseException:
+        client.close()
+        raise
     return client, None, f"dask scheduler {scheduler}", False
+
+
+def _require_workers(client: Any, what: str, connect_timeout: float) -> None:
+    """Wait up to ``connect_timeout`` for the cluster's first worker. A scheduler without workers left a folder's
+    items waiting for ever, and tiles or frames failed after the timeout with dask's bare "TimeoutError: No valid
+    workers found" (from scattering their heights)."""
+    try:
+        client.wait_for_workers(1, timeout=connect_timeout)
+    except TimeoutError as exc:
+        raise SchedulerError(
+            f"{what} has no worker: none joined within connect_timeout={connect_timeout:g} s; start workers "
+            "(`dask worker <address>`) or wait longer for them (connect_timeout, the CLI's --connect-timeout)"
+        ) from exc
 
 
 # ---------------------------------------------------------------------------------------------- public API
@@ -1027,14 +1047,14 @@ def batch(
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry of an array source (default (1, 1) and (0, 0)).
     scheduler
-        ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no
-        dask. An address ``"tcp://host:port"``: an existing cluster, reached within ``connect_timeout``
-        seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this process's
-        memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
-        LocalCluster's workers record each item's warnings, which are warned again in this process (other
-        clusters' workers print theirs); STL's float32 rounding (UTM coordinates), which every tile of a raster
-        meets alike, is warned once for the run, with the number of outputs it moved (each item's own message
-        stays in its :class:`ItemResult`'s ``warnings``).
+        ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no dask. An
+        address ``"tcp://host:port"``: an existing cluster, reached (and its first worker found: a Client's too) within
+        ``connect_timeout`` seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this
+        process's memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
+        LocalCluster's workers record each item's warnings, which are warned again in this process (other clusters'
+        workers print theirs); STL's float32 rounding (UTM coordinates), which every tile of a raster meets alike, is
+        warned once for the run, with the number of outputs it moved (each item's own message stays in its
+        :class:`ItemResult`'s ``warnings``).
     workers : int
         Worker processes of the LocalCluster.
     retries : int
@@ -1078,7 +1098,8 @@ def batch(
         The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
         it (before any work; the message names that run's pid, host and start time).
     SchedulerError
-        The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``.
+        The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``, or it (or a Client's) has no
+        worker within that time.
     MissingDependencyError
         dask/distributed are not installed (``scheduler="serial"`` needs neither).
 

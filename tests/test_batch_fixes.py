@@ -842,3 +842,40 @@ def test_a_failed_items_earlier_output_is_noted(tmp_path):
     (src / "t2.npy").write_bytes(b"not a numpy file")
     fresh = batch(src, tmp_path / "fresh", interval=3.0, scheduler="serial")  # a failure with no earlier output
     assert len(fresh.failed) == 1 and not any("failed item" in note for note in fresh.notes)
+
+
+@pytest.mark.parametrize("source", ["folder", "tiles"])
+@pytest.mark.parametrize("how", ["address", "client"])
+def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path, source, how):
+    """A reachable scheduler with no worker left a folder's items waiting for ever, and tiles failed after
+    connect_timeout with dask's bare "TimeoutError: No valid workers found". Now a SchedulerError within
+    connect_timeout, and no output folder is left behind."""
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    import logging
+    import threading
+
+    from stepterrain.errors import SchedulerError
+
+    src = tmp_path / "src"
+    src.mkdir()
+    np.save(src / "t0.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    kwargs = dict(tile_size=4) if source == "tiles" else {}
+    data = np.add.outer(np.arange(9.0), np.arange(9.0)) if source == "tiles" else src
+    with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
+        raised: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                batch(data, tmp_path / "out", interval=2.0, connect_timeout=1, **kwargs,
+                      scheduler=cluster.scheduler_address if how == "address" else client)  # fmt: skip
+            except BaseException as exc:  # noqa: BLE001 - checked below
+                raised.append(exc)
+
+        thread = threading.Thread(target=run, daemon=True)  # a hang fails the test instead of stopping the suite
+        thread.start()
+        thread.join(30)
+        assert not thread.is_alive(), "batch still waits for a worker after 30 s"
+    assert len(raised) == 1 and isinstance(raised[0], SchedulerError), raised
+    assert "has no worker: none joined within connect_timeout=1 s" in str(raised[0])
+    assert not (tmp_path / "out").exists()
