@@ -990,7 +990,7 @@ def _require_workers(client: Any, what: str, connect_timeout: float) -> None:
     except TimeoutError as exc:
         raise SchedulerError(
             f"{what} has no worker: none joined within connect_timeout={connect_timeout:g} s; start workers "
-            "(`dask worker <address>`) or wait longer for them (connect_timeout, the CLI's --connect-timeout)"
+            "(`dask worker <address>`) or give them longer to join (a larger connect_timeout)"
         ) from exc
 
 

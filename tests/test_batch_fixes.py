@@ -877,5 +877,5 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path, sourc
         thread.join(30)
         assert not thread.is_alive(), "batch still waits for a worker after 30 s"
     assert len(raised) == 1 and isinstance(raised[0], SchedulerError), raised
-    assert "has no worker: none joined within connect_timeout=1 s" in str(raised[0])
+    assert "has no worker: none joined within connect_timeout=1 s; start workers" in str(raised[0])
     assert not (tmp_path / "out").exists()
