@@ -1323,7 +1323,7 @@ def _run_locked(
         if connection is None:
             stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
         else:
-            stream = _run_dask(todo, src, options, folder, connection, retries)
+            stream = _run_dask(todo, src, options, folder, connection, retries, timeout)
         hint = budget_hint()
         level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
         rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
@@ -1522,7 +1522,10 @@ def _run_dask(
     folder: Path,
     connection: tuple[Any, Any, str, bool],
     retries: int,
+    timeout: float = 10.0,
 ) -> Iterable[ItemResult]:
+    """The items' results as their tasks finish; ``timeout``: the longest wait for a worker to take the heights of
+    an item whose worker died (batch's ``connect_timeout``)."""
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
@@ -1550,7 +1553,13 @@ def _run_dask(
             item = futures.pop(future)
             if future.status == "cancelled" and lost.get(item.key, 0) < retries:
                 lost[item.key] = lost.get(item.key, 0) + 1
-                block = client.scatter(_item_source(src, item), hash=False) if src is not None else None
+                try:  # no worker left (all died) waited for ever
+                    block = None if src is None else client.scatter(_item_source(src, item), hash=False,
+                                                                    timeout=timeout)  # fmt: skip
+                except TimeoutError:
+                    yield ItemResult(item.key, "failed", attempts=lost[item.key], error=(
+                        f"cancelled: its worker was lost, and no worker took its heights within {timeout:g} s"))
+                    continue
                 again = submit(item, block)
                 futures[again] = item
                 completed.add(again)
