@@ -1370,9 +1370,8 @@ def _rounding_summary(messages: Sequence[str], written: int) -> str:
     if len(messages) == 1:
         return messages[0]
     worst = max(messages, key=lambda m: float(_STL_ROUNDING_RE.search(m)["error"]))  # type: ignore[index]
-    return (f".stl stores float32 coordinates, which move the vertices of {len(messages)} of the {written} outputs "
-            f"written by more than {_STL_ROUNDING_TOLERANCE:g} (each item's warning is in its result's warnings); "
-            f"the worst, {worst}")
+    return (f"{len(messages)} of the {written} .stl outputs written have vertices that float32 moves by more than "
+            f"{_STL_ROUNDING_TOLERANCE:g}; the worst, {worst}")
 
 
 def _shared_levels(

@@ -682,7 +682,7 @@ def test_stls_float32_rounding_is_warned_once_per_batch_with_its_count(tmp_path)
     said = [w for w in caught if "float32" in str(w.message)]
     assert len(said) == 1, [str(w.message) for w in caught]
     text = str(said[0].message)
-    assert "6 of the 6 outputs" in text and "write .ply, .obj or .3mf" in text
+    assert "6 of the 6 .stl outputs" in text and "write .ply, .obj or .3mf" in text
     assert said[0].filename == __file__  # at the caller's line
     moves = [float(re.search(r"by up to (\S+) ", m)[1]) for r in report.done for m in r.warnings]
     assert len(moves) == 6 and f"by up to {max(moves):.3g} " in text  # the worst tile's message

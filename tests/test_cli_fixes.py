@@ -486,7 +486,7 @@ def test_batch_warnings_of_worker_processes_are_one_line_each(tmp_path, capsys):
     assert code == 0, err
     said = [line for line in err.splitlines() if "float32" in line]  # the two tiles' rounding, said once for both
     assert len(said) == 1 and said[0].startswith("stepterrain batch: warning: "), err
-    assert "2 of the 2 outputs" in said[0] and any(f"t{k}.stl'" in said[0] for k in range(2))  # the worst
+    assert "2 of the 2 .stl outputs" in said[0] and any(f"t{k}.stl'" in said[0] for k in range(2))  # the worst
     assert "UserWarning" not in err and "_task_spec" not in err and "return self.func" not in err
 
 
