@@ -161,8 +161,11 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
         solid=args.solid, floor=args.floor, scheduler=scheduler, workers=args.workers, retries=args.retries,
         resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
+        # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
+        # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
         metadata={"generator": "stepterrain batch"} if source_folder is not None else {  # a folder's: each file's
-            "generator": "stepterrain batch", "input": args.input or "embedded Big Tujunga DEM"},
+            "generator": "stepterrain batch",
+            "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")

@@ -879,3 +879,22 @@ def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path, sourc
     assert len(raised) == 1 and isinstance(raised[0], SchedulerError), raised
     assert "has no worker: none joined within connect_timeout=1 s; start workers" in str(raised[0])
     assert not (tmp_path / "out").exists()
+
+
+def test_cli_batch_of_a_raster_named_another_way_keeps_its_complete_tiles(tmp_path, monkeypatch, capsys):
+    """`stepterrain batch dem.npy --tile N` recorded its INPUT as given in every tile's metadata, which is part of
+    the tiles' fingerprint: the same raster named from another folder (or by its absolute path) redid every tile."""
+    from stepterrain import cli
+
+    (tmp_path / "data").mkdir()
+    np.save(tmp_path / "data" / "dem.npy", np.add.outer(np.arange(17.0), np.arange(17.0)).astype(np.float32))
+    out = tmp_path / "out"
+    monkeypatch.chdir(tmp_path / "data")
+    assert cli.main(["-q", "batch", "dem.npy", "--tile", "8", "--interval", "2", "--scheduler", "serial",
+                     "-o", str(out)]) == 0  # fmt: skip
+    manifest = (out / MANIFEST_NAME).read_text()
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["batch", str(tmp_path / "data" / "dem.npy"), "--tile", "8", "--interval", "2", "--scheduler",
+                     "serial", "-o", str(out)]) == 0  # fmt: skip
+    assert "0 written, 4 complete already" in capsys.readouterr().err
+    assert (out / MANIFEST_NAME).read_text() == manifest
