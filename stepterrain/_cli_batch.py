@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 from pathlib import Path
 from typing import Any
 
-from .errors import InvalidInputError
+from .errors import DeviceError, InvalidInputError
 
 _EPILOG = """\
 examples:
@@ -133,10 +134,14 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
     _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
-    if args.device is not None:
+    if args.device is not None and args.scheduler in (None, "serial"):  # this machine's processes step
         from ._device import resolve_device
 
         resolve_device(args.device)  # an unknown device fails here, before any worker starts
+    elif args.device is not None and not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):
+        # a cluster's workers find their own devices (a GPU this machine may lack): only the name's form here
+        raise DeviceError(f"--device must be cpu, cuda or cuda:N (a Warp device of the workers of --scheduler); "
+                          f"got {args.device!r}")
     if png is not None:
         render.require_offscreen()
 
@@ -156,8 +161,11 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
         solid=args.solid, floor=args.floor, scheduler=scheduler, workers=args.workers, retries=args.retries,
         resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
+        # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
+        # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
         metadata={"generator": "stepterrain batch"} if source_folder is not None else {  # a folder's: each file's
-            "generator": "stepterrain batch", "input": args.input or "embedded Big Tujunga DEM"},
+            "generator": "stepterrain batch",
+            "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")

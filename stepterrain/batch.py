@@ -42,8 +42,24 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
-from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
+from .errors import (
+    DataFileError,
+    InvalidInputError,
+    MissingDependencyError,
+    SchedulerError,
+    StepTerrainError,
+    caller_stacklevel,
+)
+from .export import (
+    _STL_ROUNDING_RE,
+    _STL_ROUNDING_TOLERANCE,
+    MESH_EXTENSIONS,
+    _temporary_stem,
+    atomic_path,
+    json_metadata,
+    probe_writable,
+    save_mesh,
+)
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -490,7 +506,7 @@ def run_item(
     ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process for this
     item and restored after it (a worker process has its own, the default, otherwise). ``record_warnings``: the
     item's warnings go into its result's ``warnings`` instead of the worker's stderr (for single-threaded worker
-    processes: recording is not thread-safe).
+    processes and the serial run: recording is not thread-safe).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
@@ -572,7 +588,10 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
     for item in items:  # per item, not per cell: hashing is vectorised over each item's bytes
         h = hashlib.blake2b(head, digest_size=16)
-        h.update(repr(item).encode())
+        # a file by its absolute path, as _file_identity names it: the same folder given as "tiles" and then as
+        # "/data/tiles" (or from another working folder) redid every item
+        h.update(repr(item if item.path is None else dataclasses.replace(item, path=os.path.abspath(item.path)))
+                 .encode())  # fmt: skip
         if item.kind == "file":
             h.update(_file_identity(item.path, listings).encode())  # type: ignore[arg-type]
         elif source is not None:
@@ -717,8 +736,9 @@ _PARTIAL_RE = re.compile(r"^\.(.+)\.[a-z0-9_]{8}\.tmp$")
 
 def _remove_partial(folder: Path, names: Sequence[str]) -> None:
     """Remove what a killed run left half-written: the temporary files of ``names`` (this run's outputs and the
-    manifest) in ``folder``. A rerun writes every one of them afresh, so none of those is in use."""
-    wanted = set(names)
+    manifest) in ``folder``. A rerun writes every one of them afresh, so none of those is in use. A name too long for
+    its temporary file's is cut there as atomic_path cuts it (a 250-byte file name's partial file stayed)."""
+    wanted = {_temporary_stem(name) for name in names}
     try:
         entries = list(os.scandir(folder))
     except OSError:
@@ -932,7 +952,9 @@ def _connect(
             "(or pass scheduler='serial')"
         ) from exc
     if isinstance(scheduler, Client):
-        return scheduler, None, f"dask client {scheduler.scheduler.address if scheduler.scheduler else '?'}", False
+        address = scheduler.scheduler.address if scheduler.scheduler else "?"
+        _require_workers(scheduler, f"the dask client's scheduler {address}", connect_timeout)
+        return scheduler, None, f"dask client {address}", False
     if scheduler is None:
         cluster = start_local_cluster(workers)
         client = Client(cluster, timeout=connect_timeout)
@@ -951,7 +973,25 @@ def _connect(
             f"{scheduler!r} answered, but not as a dask scheduler ({type(exc).__name__}: {exc}); check the port: "
             "a scheduler listens on 8786 by default, its HTTP dashboard on 8787"
         ) from exc
+    try:
+        _require_workers(client, f"the dask scheduler {scheduler!r}", connect_timeout)
+    except BaseException:
+        client.close()
+        raise
     return client, None, f"dask scheduler {scheduler}", False
+
+
+def _require_workers(client: Any, what: str, connect_timeout: float) -> None:
+    """Wait up to ``connect_timeout`` for the cluster's first worker. A scheduler without workers left a folder's
+    items waiting for ever, and tiles or frames failed after the timeout with dask's bare "TimeoutError: No valid
+    workers found" (from scattering their heights)."""
+    try:
+        client.wait_for_workers(1, timeout=connect_timeout)
+    except TimeoutError as exc:
+        raise SchedulerError(
+            f"{what} has no worker: none joined within connect_timeout={connect_timeout:g} s; start workers "
+            "(`dask worker <address>`) or give them longer to join (a larger connect_timeout)"
+        ) from exc
 
 
 # ---------------------------------------------------------------------------------------------- public API
@@ -1007,12 +1047,14 @@ def batch(
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry of an array source (default (1, 1) and (0, 0)).
     scheduler
-        ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no
-        dask. An address ``"tcp://host:port"``: an existing cluster, reached within ``connect_timeout``
-        seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this process's
-        memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
-        LocalCluster's workers record each item's warnings, which are warned again in this process (other
-        clusters' workers print theirs).
+        ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no dask. An
+        address ``"tcp://host:port"``: an existing cluster, reached (and its first worker found: a Client's too) within
+        ``connect_timeout`` seconds. A ``distributed.Client``: used as is, not closed. Every worker steps under this
+        process's memory budget (:func:`stepterrain.set_memory_budget`), set in the worker before each item. The
+        LocalCluster's workers record each item's warnings, which are warned again in this process (other clusters'
+        workers print theirs); STL's float32 rounding (UTM coordinates), which every tile of a raster meets alike, is
+        warned once for the run, with the number of outputs it moved (each item's own message stays in its
+        :class:`ItemResult`'s ``warnings``).
     workers : int
         Worker processes of the LocalCluster.
     retries : int
@@ -1056,30 +1098,30 @@ def batch(
         The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
         it (before any work; the message names that run's pid, host and start time).
     SchedulerError
-        The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``.
+        The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``, or it (or a Client's) has no
+        worker within that time.
     MissingDependencyError
         dask/distributed are not installed (``scheduler="serial"`` needs neither).
 
     Notes
     -----
-    An item is complete when the manifest records its output file with the same fingerprint (its input: file
-    path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
-    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does
-    not change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten
-    with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a
-    file renamed, moved or restored from a backup (and every file item of a run made before stepterrain recorded
-    ctime and inode) is redone once. The manifest records each file, so an item's outputs
-    in two formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete;
-    ``report.notes`` says when the folder holds these items in another format too, when it holds outputs of
-    items this run does not have (an earlier run's other tile size or source: left as they were), and when the
-    manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
-    afresh). Every file is written to a temporary file and renamed, and the manifest is updated only after the
-    rename, so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the
-    temporary files the killed run left half-written). Tiles are written with the whole raster's bounds as
-    :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type
-    for all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's
-    float32 positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from
-    it).
+    An item is complete when the manifest records its output file with the same fingerprint (its input: the file's
+    absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
+    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does not
+    change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten with its
+    size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a file renamed,
+    moved or restored from a backup (and every file item of a run made before stepterrain recorded ctime and inode) is
+    redone once. The manifest records each file, so an item's outputs in two formats (a ``.glb`` run, then a ``.ply``
+    one into the same folder) are both kept and complete; ``report.notes`` says when the folder holds these items in
+    another format too, when it holds outputs of items this run does not have (an earlier run's other tile size or
+    source: left as they were), when a failed item keeps an earlier run's output, and when the manifest could not be
+    read (cut short or edited by hand: every item is redone and the manifest written afresh). Every file is written to a
+    temporary file and renamed, and the manifest is updated only after the rename, so a killed run leaves complete
+    outputs or none and a rerun redoes only what is missing (removing the temporary files the killed run left
+    half-written). Tiles are written with the whole raster's bounds as :func:`~stepterrain.export.save_mesh`'s
+    ``shared_bounds`` (one glTF node translation, one PLY coordinate type for all), so a vertex two tiles share is
+    stored as the same bits in both and the tiles weld exactly; glTF's float32 positions are then relative to the centre
+    of the raster's bounds (about 8 mm resolution 100 km from it).
     A tile or frame with
     no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
     ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
@@ -1263,6 +1305,9 @@ def _run_locked(
         shown = ", ".join(strangers[:3]) + (", ..." if len(strangers) > 3 else "")
         notes.append(f"the folder holds {len(strangers)} recorded output(s) of items this run does not have ({shown}),"
                      " from an earlier run with another source or tile size: left as they were")  # fmt: skip
+    # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
+    # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
+    earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
@@ -1278,8 +1323,12 @@ def _run_locked(
         if connection is None:
             stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
         else:
-            stream = _run_dask(todo, src, options, folder, connection, retries)
+            stream = _run_dask(todo, src, options, folder, connection, retries, timeout)
         hint = budget_hint()
+        level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
+        rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
+        said: set[str] = set()  # a message many items give alike, once (the serial run's recording of each item
+        # reset Python's registry of warnings already shown, so its "default" filter repeated it for every item)
         for result in stream:
             if result.error and hint != BUDGET_HINT and BUDGET_HINT in result.error:
                 # a worker process's refusal gives the library's hint: this process's (the CLI's option) instead,
@@ -1287,18 +1336,42 @@ def _run_locked(
                 result = dataclasses.replace(result, error=result.error.replace(BUDGET_HINT, hint))
             results[result.key] = result
             recorder.add(result)
-            for message in result.warnings:  # a worker process's, said here as this process's warnings are
-                warnings.warn(message, stacklevel=1)
+            for message in result.warnings:  # a worker process's (or this one's, serial), said here
+                if _STL_ROUNDING_RE.search(message):
+                    rounded.append(message)
+                elif message not in said:
+                    said.add(message)
+                    warnings.warn(message, stacklevel=level)
             _tick(bar, result)
+        if rounded:
+            warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
+                          stacklevel=level)  # fmt: skip
     finally:
         recorder.flush()
         if bar is not None:
             bar.close()
         if connection is not None:
             _disconnect(scheduler, connection)
+    # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
+    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+    kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
+    if kept:
+        shown = ", ".join(kept[:3]) + (", ..." if len(kept) > 3 else "")
+        notes.append(f"the folder still holds an earlier run's output of {len(kept)} failed item(s) ({shown}), made "
+                     "with that run's input and options, not this one's: redo or remove them before using the folder")
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description, notes)  # fmt: skip
     return report
+
+
+def _rounding_summary(messages: Sequence[str], written: int) -> str:
+    """One warning for the items' STL float32 rounding warnings (each item's stays in its result's ``warnings``): a
+    batch of UTM tiles warned once per tile, thousands of lines saying the same."""
+    if len(messages) == 1:
+        return messages[0]
+    worst = max(messages, key=lambda m: float(_STL_ROUNDING_RE.search(m)["error"]))  # type: ignore[index]
+    return (f"{len(messages)} of the {written} .stl outputs written have vertices that float32 moves by more than "
+            f"{_STL_ROUNDING_TOLERANCE:g}; the worst, {worst}")
 
 
 def _shared_levels(
@@ -1430,8 +1503,8 @@ def _run_serial(
     for item in todo:
         error = ""
         for attempt in range(1, retries + 2):
-            try:
-                result = run_item(item, src, options, str(folder))
+            try:  # its warnings recorded, said by the caller as a worker process's are (STL's rounding once)
+                result = run_item(item, src, options, str(folder), record_warnings=True)
             except Exception as exc:  # noqa: BLE001 - retried, then reported like a failed dask task
                 error = f"{type(exc).__name__}: {exc}"
                 continue
@@ -1448,7 +1521,10 @@ def _run_dask(
     folder: Path,
     connection: tuple[Any, Any, str, bool],
     retries: int,
+    timeout: float = 10.0,
 ) -> Iterable[ItemResult]:
+    """The items' results as their tasks finish; ``timeout``: the longest wait for a worker to take the heights of
+    an item whose worker died (batch's ``connect_timeout``)."""
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
@@ -1457,24 +1533,43 @@ def _run_dask(
     workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
-    futures = {
-        client.submit(run_item, item, blocks[k] if blocks is not None else None, options, str(folder), cpu_threads,
-                      memory_budget, local, retries=retries, pure=False,
-                      key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}"): item
-        for k, item in enumerate(todo)
-    }  # fmt: skip
+
+    def submit(item: BatchItem, block: Any) -> Any:
+        return client.submit(run_item, item, block, options, str(folder), cpu_threads, memory_budget, local,
+                             retries=retries, pure=False,
+                             key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}")  # fmt: skip
+
+    futures = {submit(item, blocks[k] if blocks is not None else None): item for k, item in enumerate(todo)}
+    # A worker that dies (killed for memory, a crash) takes the blocks scattered to it along: the scheduler cannot
+    # run their tasks again and cancels them. Those items are scattered and submitted again, up to `retries` times;
+    # they "failed: cancelled" after 0 attempts, about half a LocalCluster's items when one of its two workers died.
+    lost: dict[str, int] = {}
     try:
         # results are gathered on the client's event loop as tasks finish (no blocking round trip per future
         # from this thread); a task that raised asks for its exception (rare: one round trip)
-        for future, result in as_completed(futures, with_results=True, raise_errors=False):
-            item = futures[future]
-            if future.status == "error":
+        completed = as_completed(futures, with_results=True, raise_errors=False)
+        for future, result in completed:
+            item = futures.pop(future)
+            if future.status == "cancelled" and lost.get(item.key, 0) < retries:
+                lost[item.key] = lost.get(item.key, 0) + 1
+                try:  # no worker left (all died) waited for ever
+                    block = None if src is None else client.scatter(_item_source(src, item), hash=False,
+                                                                    timeout=timeout)  # fmt: skip
+                except TimeoutError:
+                    yield ItemResult(item.key, "failed", attempts=lost[item.key], error=(
+                        f"cancelled: its worker was lost, and no worker took its heights within {timeout:g} s"))
+                    continue
+                again = submit(item, block)
+                futures[again] = item
+                completed.add(again)
+            elif future.status == "error":
                 exc = future.exception()
                 yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=retries + 1)
             elif future.status == "cancelled":
-                yield ItemResult(item.key, "failed", error="cancelled", attempts=0)
+                yield ItemResult(item.key, "failed", attempts=lost.get(item.key, 0),
+                                 error="cancelled" + (" (its worker was lost each time)" if item.key in lost else ""))
             else:
-                yield result
+                yield dataclasses.replace(result, attempts=result.attempts + lost.get(item.key, 0))
     except BaseException:
         client.cancel(list(futures))
         raise

@@ -767,7 +767,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             set_memory_budget(args.memory_budget)
         with warnings.catch_warnings():
             warnings.showwarning = _warning_line(args.command)  # restored on exit by catch_warnings
-            if getattr(args, "device", None) is not None:  # before any input is read: a large DEM loaded first
+            # before any input is read (a large DEM loaded first), unless the work runs on another machine: batch
+            # --scheduler tcp://... --device cuda from a login node without a GPU was refused for lacking one
+            if getattr(args, "device", None) is not None and getattr(args, "scheduler", None) in (None, "serial"):
                 from ._device import resolve_device
 
                 resolve_device(args.device)

@@ -1033,6 +1033,9 @@ def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 #: How far (in the mesh's units: 1 mm for metres) STL's float32 may move a vertex before save_mesh warns.
 _STL_ROUNDING_TOLERANCE = 1e-3
+#: The warning of :func:`_warn_stl_rounding`, its largest move as ``error``: batch says it once for all its files
+_STL_ROUNDING_RE = re.compile(r": \.stl stores float32 coordinates, which move this mesh's vertices by up to "
+                              r"(?P<error>[0-9.e+-]+) ")
 
 
 def _warn_stl_rounding(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> None:
@@ -1079,6 +1082,18 @@ _3MF_RELS = (
 _ROWS_PER_WRITE = 1 << 16  # OBJ lines and 3MF vertices or triangles formatted at a time
 
 
+def _3mf_member(name: str) -> zipfile.ZipInfo:
+    """A member of a 3MF's zip, dated 1980-01-01 (zip's first date) instead of the clock's time, so that the same mesh
+    gives the same bytes: every 3MF differed from the last (batch outputs of workers=1 and 2, two runs of the CLI),
+    whereas every other format compared equal. Deflated at level 5, as the archive names its own members."""
+    info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+    info.compress_type = zipfile.ZIP_DEFLATED
+    # the level ZipFile(compresslevel=5) gives the members it makes: ``compress_level`` from Python 3.13 on
+    setattr(info, "compress_level" if hasattr(info, "compress_level") else "_compresslevel", 5)
+    info.external_attr = 0o600 << 16  # rw------- as ZipFile.writestr marks a member it names
+    return info
+
+
 def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
     """3MF core + materials: one mesh object, coordinates as written by ``repr`` (exact), millimetre units (as
     trimesh writes them), and vertex colours as a ``m:colorgroup`` with each triangle's corners' colours (p1, p2,
@@ -1104,9 +1119,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     if not distinct.all():
         faces = faces[distinct]
     with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED, compresslevel=5) as archive:
-        archive.writestr("[Content_Types].xml", _3MF_CONTENT_TYPES)
-        archive.writestr("_rels/.rels", _3MF_RELS)
-        with archive.open("3D/3dmodel.model", "w", force_zip64=True) as out:
+        archive.writestr(_3mf_member("[Content_Types].xml"), _3MF_CONTENT_TYPES)
+        archive.writestr(_3mf_member("_rels/.rels"), _3MF_RELS)
+        with archive.open(_3mf_member("3D/3dmodel.model"), "w", force_zip64=True) as out:
             out.write(b'<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
                       b'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
                       b'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"><resources>')

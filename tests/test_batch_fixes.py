@@ -665,3 +665,236 @@ def test_run_item_restores_the_workers_memory_budget(tmp_path):
         assert done.status == "done" and get_memory_budget() == before + 4096
     finally:
         set_memory_budget(previous)
+
+
+def test_stls_float32_rounding_is_warned_once_per_batch_with_its_count(tmp_path):
+    """A batch of .stl tiles cut from a UTM raster warned STL's float32 rounding once per tile (each message names
+    its own file, so none was folded): thousands of identical lines for a large raster. It is one warning now,
+    with how many outputs it moved and the worst of them; each item's own message stays in its result."""
+    import warnings
+
+    z = (np.add.outer(np.arange(13.0), np.arange(9.0)) * 10.3).astype(np.float32)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        report = batch(z, tmp_path / "out", tile_size=4, interval=20.0, format=".stl", scheduler="serial",
+                       origin=(500000.123, 4100000.456), spacing=(30.0, -30.0))  # fmt: skip
+    assert report.ok and len(report.done) == 6
+    said = [w for w in caught if "float32" in str(w.message)]
+    assert len(said) == 1, [str(w.message) for w in caught]
+    text = str(said[0].message)
+    assert "6 of the 6 .stl outputs" in text and "write .ply, .obj or .3mf" in text
+    assert said[0].filename == __file__  # at the caller's line
+    moves = [float(re.search(r"by up to (\S+) ", m)[1]) for r in report.done for m in r.warnings]
+    assert len(moves) == 6 and f"by up to {max(moves):.3g} " in text  # the worst tile's message
+    # a batch of one such tile says its own message, as save_mesh does
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        one = batch(z[:5, :5], tmp_path / "one", tile_size=4, interval=20.0, format=".stl", scheduler="serial",
+                    origin=(500000.123, 4100000.456), spacing=(30.0, -30.0))  # fmt: skip
+    assert [str(w.message) for w in caught] == list(one.done[0].warnings)
+    assert "tile_r0_c0.stl" in str(caught[0].message)
+
+
+def test_items_whose_worker_died_are_submitted_again(tmp_path):
+    """A worker process that died (killed for memory, a crash) took the tiles' heights scattered to it along: the
+    scheduler cancelled their tasks and batch reported them "failed: cancelled (after 0 attempt(s))", about half
+    the tiles of a two-worker cluster, retries or not. They are scattered and submitted again now, and the
+    temporary file the dead worker was writing is gone at the end."""
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    import logging
+
+    z = (np.add.outer(np.arange(33.0), np.arange(33.0)) % 7).astype(np.float32)
+    serial = batch(z, tmp_path / "serial", tile_size=8, interval=1.0, scheduler="serial")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
+
+        def die_on_first_item() -> None:  # in one worker process: its first item dies while writing
+            import os
+
+            import stepterrain.batch as module
+
+            def dying(item, source, options, output_dir, *rest):
+                (Path(output_dir) / f".{item.key}{options.ext}.dying012.tmp").write_bytes(b"glTF partial")
+                os._exit(1)
+
+            module._run_item = dying
+
+        client.run(die_on_first_item, workers=[sorted(client.scheduler_info()["workers"])[0]])
+        report = batch(z, tmp_path / "out", tile_size=8, interval=1.0, scheduler=client)
+    assert report.ok, report.summary()
+    assert len(report.done) == 16 and any(r.attempts > 1 for r in report.done)
+    assert sorted(p.name for p in (tmp_path / "out").iterdir() if p.name.startswith(".")) == []
+    for r in serial.done:
+        assert Path(r.path).read_bytes() == (tmp_path / "out" / Path(r.path).name).read_bytes()
+
+
+def test_a_warning_every_item_gives_alike_is_said_once(tmp_path):
+    """Each item's warnings are recorded and said again by the caller (serial runs too, since STL's rounding is
+    said once per batch); a message every tile gives alike (a solid's heights on a threshold) is said once, as
+    Python's "default" filter said it when the serial run warned directly."""
+    import warnings
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)  # whole heights on the thresholds
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("default")
+        report = batch(z, tmp_path / "out", tile_size=4, interval=2.0, solid=True, scheduler="serial")
+    assert report.ok and sum("watertight" in m for r in report.done for m in r.warnings) >= 2
+    said = [str(w.message) for w in caught if "watertight" in str(w.message)]
+    assert len(said) == 1 and caught[0].filename == __file__
+
+
+def test_a_rerun_removes_the_partial_file_of_an_output_with_a_long_name(tmp_path):
+    """atomic_path cuts a long name for its temporary file (.<name cut>.XXXXXXXX.tmp fits 255 bytes); the rerun looked
+    for the whole name, so a killed run's partial file of a tile file named with 246 characters stayed for good."""
+    from stepterrain.export import _temporary_stem
+
+    src, out = tmp_path / "src", tmp_path / "out"
+    src.mkdir()
+    name = "t" * 246
+    np.save(src / f"{name}.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    out.mkdir()
+    partial = out / f".{_temporary_stem(name + '.ply')}.abcdefgh.tmp"
+    assert len(partial.name) <= 255 and _temporary_stem(name + ".ply") != name + ".ply"
+    partial.write_bytes(b"glTF partial")
+    report = batch(src, out, interval=2.0, format=".ply", scheduler="serial")
+    assert report.ok and (out / f"{name}.ply").exists(), report.summary()
+    assert not partial.exists()
+
+
+def test_cli_batch_on_a_cluster_leaves_the_device_to_its_workers(tmp_path, capsys):
+    """`stepterrain batch --scheduler tcp://gpu-cluster:8786 --device cuda` from a machine without a GPU (a login
+    node) was refused before connecting: "--device 'cuda' needs a CUDA GPU, and Warp finds none on this machine",
+    though the help says "Warp device on the workers". The workers' devices decide now; here only the name's form
+    is checked (a typo is still exit 2 before any work)."""
+    pytest.importorskip("distributed", reason="needs dask.distributed")
+    import warp as wp
+
+    from stepterrain import cli
+
+    from .test_batch import free_port
+
+    if wp.is_cuda_available():
+        pytest.skip("this machine has a CUDA GPU: the local check passes anyway")
+    address = f"tcp://127.0.0.1:{free_port()}"  # nothing listens: the run gets as far as connecting
+    argv = ["batch", "--tile", "64", "-o", str(tmp_path / "o"), "--scheduler", address, "--connect-timeout", "1"]
+    assert cli.main([*argv, "--device", "cuda:0"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot reach the dask scheduler" in err and "CUDA" not in err
+    assert cli.main([*argv, "--device", "tpu:7"]) == 2
+    assert "--device must be cpu, cuda or cuda:N" in capsys.readouterr().err
+    assert cli.main(["batch", "--tile", "64", "-o", str(tmp_path / "o"), "--device", "cuda"]) == 2  # here: refused
+    assert "needs a CUDA GPU" in capsys.readouterr().err
+
+
+def test_a_folder_named_another_way_keeps_its_complete_outputs(tmp_path, monkeypatch):
+    """A file item's fingerprint held its path as given: the same folder given as "src" and then as its absolute
+    path (a cron job, another working folder) redid every item, though the files were unchanged."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for k in range(3):
+        np.save(src / f"t{k}.npy", (np.add.outer(np.arange(9.0), np.arange(9.0)) + k).astype(np.float32))
+    monkeypatch.chdir(tmp_path)
+    first = batch("src", tmp_path / "out", interval=2.0, scheduler="serial")
+    assert len(first.done) == 3
+    again = batch(str(src), tmp_path / "out", interval=2.0, scheduler="serial")
+    assert len(again.skipped) == 3, again.summary()
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path / "elsewhere")
+    listed = batch([Path("..") / "src" / "t0.npy", src / "t1.npy"], tmp_path / "out", interval=2.0, scheduler="serial")
+    assert len(listed.skipped) == 2, listed.summary()
+    np.save(src / "t2.npy", np.zeros((9, 9), np.float32) + np.arange(9.0))  # a changed file is still redone
+    assert [r.key for r in batch(str(src), tmp_path / "out", interval=2.0, scheduler="serial").done] == ["t2"]
+
+
+def test_3mf_outputs_are_the_same_bytes_on_every_run(tmp_path, monkeypatch):
+    """A 3MF's zip members were dated with the clock's time, so the same tiles written twice (workers=1 and 2, a
+    rerun with resume=False, a day later) never compared equal, whereas every other format did."""
+    import time
+    import zipfile
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    first = batch(z, tmp_path / "a", tile_size=4, interval=2.0, format=".3mf", colors="viridis", scheduler="serial")
+    real_localtime = time.localtime
+    monkeypatch.setattr(time, "localtime", lambda secs=None: real_localtime((secs or time.time()) + 86400 + 3))
+    second = batch(z, tmp_path / "b", tile_size=4, interval=2.0, format=".3mf", colors="viridis", scheduler="serial")
+    for a, b in zip(first.done, second.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+        with zipfile.ZipFile(a.path) as archive:
+            assert {info.date_time for info in archive.infolist()} == {(1980, 1, 1, 0, 0, 0)}
+
+
+def test_a_failed_items_earlier_output_is_noted(tmp_path):
+    """A rerun with other options (or input) whose item failed left that item's output of the earlier run in the
+    folder, unrecorded and unsaid: out/*.glb loaded it beside this run's outputs, its terraces another interval's."""
+    src = tmp_path / "src"
+    src.mkdir()
+    for k in range(3):
+        np.save(src / f"t{k}.npy", (np.add.outer(np.arange(9.0), np.arange(9.0)) + k).astype(np.float32))
+    out = tmp_path / "out"
+    assert batch(src, out, interval=2.0, scheduler="serial").ok
+    (src / "t1.npy").write_bytes(b"not a numpy file")  # t1 fails on the rerun
+    report = batch(src, out, interval=3.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["t1"] and (out / "t1.glb").exists()
+    said = [note for note in report.notes if "failed item" in note]
+    assert len(said) == 1 and "t1.glb" in said[0] and "1 failed item(s)" in said[0], report.notes
+    assert "t1.glb" in report.summary()
+    (src / "t1.npy").unlink()
+    (src / "t2.npy").write_bytes(b"not a numpy file")
+    fresh = batch(src, tmp_path / "fresh", interval=3.0, scheduler="serial")  # a failure with no earlier output
+    assert len(fresh.failed) == 1 and not any("failed item" in note for note in fresh.notes)
+
+
+@pytest.mark.parametrize("source", ["folder", "tiles"])
+@pytest.mark.parametrize("how", ["address", "client"])
+def test_a_scheduler_without_workers_is_a_clear_error_not_a_hang(tmp_path, source, how):
+    """A reachable scheduler with no worker left a folder's items waiting for ever, and tiles failed after
+    connect_timeout with dask's bare "TimeoutError: No valid workers found". Now a SchedulerError within
+    connect_timeout, and no output folder is left behind."""
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    import logging
+    import threading
+
+    from stepterrain.errors import SchedulerError
+
+    src = tmp_path / "src"
+    src.mkdir()
+    np.save(src / "t0.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    kwargs = dict(tile_size=4) if source == "tiles" else {}
+    data = np.add.outer(np.arange(9.0), np.arange(9.0)) if source == "tiles" else src
+    with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
+        raised: list[BaseException] = []
+
+        def run() -> None:
+            try:
+                batch(data, tmp_path / "out", interval=2.0, connect_timeout=1, **kwargs,
+                      scheduler=cluster.scheduler_address if how == "address" else client)  # fmt: skip
+            except BaseException as exc:  # noqa: BLE001 - checked below
+                raised.append(exc)
+
+        thread = threading.Thread(target=run, daemon=True)  # a hang fails the test instead of stopping the suite
+        thread.start()
+        thread.join(30)
+        assert not thread.is_alive(), "batch still waits for a worker after 30 s"
+    assert len(raised) == 1 and isinstance(raised[0], SchedulerError), raised
+    assert "has no worker: none joined within connect_timeout=1 s; start workers" in str(raised[0])
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_batch_of_a_raster_named_another_way_keeps_its_complete_tiles(tmp_path, monkeypatch, capsys):
+    """`stepterrain batch dem.npy --tile N` recorded its INPUT as given in every tile's metadata, which is part of
+    the tiles' fingerprint: the same raster named from another folder (or by its absolute path) redid every tile."""
+    from stepterrain import cli
+
+    (tmp_path / "data").mkdir()
+    np.save(tmp_path / "data" / "dem.npy", np.add.outer(np.arange(17.0), np.arange(17.0)).astype(np.float32))
+    out = tmp_path / "out"
+    monkeypatch.chdir(tmp_path / "data")
+    assert cli.main(["-q", "batch", "dem.npy", "--tile", "8", "--interval", "2", "--scheduler", "serial",
+                     "-o", str(out)]) == 0  # fmt: skip
+    manifest = (out / MANIFEST_NAME).read_text()
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["batch", str(tmp_path / "data" / "dem.npy"), "--tile", "8", "--interval", "2", "--scheduler",
+                     "serial", "-o", str(out)]) == 0  # fmt: skip
+    assert "0 written, 4 complete already" in capsys.readouterr().err
+    assert (out / MANIFEST_NAME).read_text() == manifest
