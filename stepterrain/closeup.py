@@ -644,7 +644,9 @@ class CloseUp:
         north (+y), as a camera's in :func:`stepterrain.render.render_mesh`: 0 looks from the north, π/2 from
         the east, π (the default, at 89° elevation: nearly from above) from the south.
     stepped : float, optional
-        MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
+        MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``, its
+        levels colored by ``cmap``, else by the colormap the render or scene was given (``cmap`` of
+        :func:`render_closeups`, :func:`closeup_scene`; the CLI's ``--colormap``).
     scalars : None, "height", "slope" or "aspect"
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
         Next to nodata the gradient takes the one-sided difference to the neighbour with a height; a node with
@@ -1064,7 +1066,8 @@ def closeup_layers(
     time : float
         Animation time in seconds (spinning close-ups turn, see :meth:`CloseUp.turn`).
     colors : str
-        Colormap of the stepped close-ups' levels (MPFR).
+        Colormap of the levels of the stepped close-ups (MPFR) that name no ``cmap`` of their own;
+        :func:`render_closeups` and :func:`closeup_scene` give theirs.
     memory_budget : int, optional
         Bytes the output may take (default :func:`stepterrain.get_memory_budget`).
     device : warp device, optional
@@ -1935,10 +1938,11 @@ def render_closeups(
         Vertical exaggeration of the render.
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
-        Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR). Slope and aspect need a
-        grid terrain (a DEM); on a TIN they raise an InvalidInputError. Next to nodata they use the one-sided
-        difference; a node without a neighbour with a height along an axis shows in ``cmap``'s "bad" color, and
-        so does the aspect of flat ground (no downhill direction).
+        Close-ups use it too unless they set their own (SPFR); stepped close-ups (MPFR) color their levels through
+        ``cmap`` unless they name their own. Slope and aspect need a grid terrain (a DEM); on a TIN they raise an
+        InvalidInputError. Next to nodata they use the one-sided difference; a node without a neighbour with a
+        height along an axis shows in ``cmap``'s "bad" color, and so does the aspect of flat ground (no downhill
+        direction).
     texture : (h, w, 3|4) uint8, optional
         An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float
@@ -2018,7 +2022,7 @@ def render_closeups(
             # an image may have changed in place since (the same object): its colors are sampled again
             anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
-        layers = closeup_layers(t, items, time=time, device=device)
+        layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
         if len(memo) >= 8 and memo_key not in memo:
@@ -2134,7 +2138,8 @@ def closeup_scene(
     close-up hangs from its ROI as one connected surface); anchors carry their color and, in the alpha of
     their vertex colors, the transfer function's opacity; an inactive close-up's anchor is depicted as
     ``anchor.inactive`` says, as :func:`render_closeups` draws it (left out, gray, or a quarter of the opacity).
-    ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor.
+    ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor. ``scalars`` and
+    ``cmap`` map the overview and the close-ups as in :func:`render_closeups` (stepped close-ups included).
 
     Examples
     --------
@@ -2152,7 +2157,7 @@ def closeup_scene(
     overview_rgb = _overview_rgb(t, mesh, scalars, cmap, None)
     parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
               _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
-    layers = closeup_layers(t, items, time=time, device=device)
+    layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
     strips = anchor_strips(t, items, time=time, device=device)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
@@ -2227,7 +2232,8 @@ def animate_closeups(
         turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
         _, first = np.unique(turns, axis=0, return_index=True)  # frames with the same turns: the same geometry
         for time in times[np.sort(first)]:
-            for layer in closeup_layers(t, items, time=float(time), device=device):
+            for layer in closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
+                                        device=device):  # the stepped sources the frames use, kept for them
                 if len(layer.vertices):
                     boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
         xmin, xmax, ymin, ymax = t.extent

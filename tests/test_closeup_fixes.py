@@ -645,3 +645,29 @@ def test_the_scene_mesh_depicts_inactive_anchors_as_the_render_does():
     faint = anchor_colors(active=False, anchor=AnchorStyle(inactive="faint"))
     assert np.all(faint[:, :3] == [255, 0, 0]) and faint[:, 3].max() == np.rint(0.85 * 0.25 * 255)
     assert active[:, 3].max() == np.rint(0.85 * 255)
+
+
+def test_a_stepped_closeup_without_its_own_cmap_follows_the_scenes_colormap():
+    """A stepped close-up (MPFR) that names no cmap was coloured with 'terrain' whatever colormap the scene (or the
+    CLI's --colormap) was given; its levels now follow that colormap, and a cmap of its own still wins."""
+    t = terrain()
+
+    def closeup_colors(scene_cmap, **kwargs):
+        scene = closeup_scene(t, [one(stepped=5.0, **kwargs)], cmap=scene_cmap, device="cpu")
+        rgb = scene.visual.vertex_colors[:, :3]
+        return rgb[scene.faces[scene.face_attributes["layer"] == 1].reshape(-1)]
+
+    followed = closeup_colors("viridis")
+    assert np.array_equal(followed, closeup_colors("terrain", cmap="viridis"))
+    assert not np.array_equal(followed, closeup_colors("terrain"))
+    assert np.array_equal(closeup_colors("viridis", cmap="magma"), closeup_colors("terrain", cmap="magma"))
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_stepped_closeup_without_its_own_cmap_is_rendered_in_the_renders_colormap():
+    t = terrain()
+    followed = render_closeups(t, [one(stepped=5.0)], window_size=SIZE, cmap="viridis", device="cpu")
+    named = render_closeups(t, [one(stepped=5.0, cmap="viridis")], window_size=SIZE, cmap="viridis", device="cpu")
+    default = render_closeups(t, [one(stepped=5.0, cmap="terrain")], window_size=SIZE, cmap="viridis", device="cpu")
+    assert np.array_equal(followed, named) and not np.array_equal(followed, default)
