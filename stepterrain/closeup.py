@@ -247,14 +247,13 @@ class ROI:
             raise InvalidInputError(f"ROI mask must be a 2-D array of at least 2 x 2 texels; got shape {mask.shape}")
         # an own copy (ascontiguousarray would alias a float32 caller array): the frozen ROI's mask must not
         # change behind the caches keyed by the ROI, nor the caller's array become read-only
+        dtype = mask.dtype
         mask = np.array(mask, dtype=np.float32, order="C", copy=True)
         if not np.all(np.isfinite(mask)):
             raise InvalidInputError("ROI mask values must be finite, in [0, 1]; got NaN or inf")
         if mask.min() < 0.0 or mask.max() > 1.0:
-            raise InvalidInputError(
-                f"ROI mask values must lie in [0, 1]; got range [{float(mask.min())}, {float(mask.max())}]"
-                " (divide an 8-bit mask by 255)"
-            )
+            raise InvalidInputError(f"ROI mask values must lie in [0, 1]; got range [{float(mask.min())}, "
+                                    f"{float(mask.max())}] ({_mask_hint(dtype, float(mask.min()), float(mask.max()))})")
         mask.setflags(write=False)
         object.__setattr__(self, "mask", mask)
 
@@ -324,7 +323,9 @@ class ROI:
     # -------------------------------------------------------------------------- painted
     @classmethod
     def painted(cls, mask: ArrayLike, center: ArrayLike, size: ArrayLike, *, top_row_north: bool = True) -> ROI:
-        """A painted mask (§III.A.2): any grayscale image, floats in [0, 1] or 8-bit (divided by 255).
+        """A painted mask (§III.A.2): any grayscale image, floats in [0, 1], 8-bit (divided by 255) or 16-bit
+        (uint16, divided by 65535, as a 16-bit PNG or TIFF reads); other integers and booleans are taken as they
+        are (0 and 1).
 
         With ``top_row_north`` (the default, as images are drawn) row 0 is the *upper* y of the box.
         """
@@ -337,6 +338,8 @@ class ROI:
             raise InvalidInputError(f"painted mask must be grayscale (rows, cols); got an RGB(A) image {arr.shape}")
         if np.issubdtype(arr.dtype, np.integer) and arr.dtype.itemsize == 1:
             arr = arr.astype(np.float32) / 255.0
+        elif arr.dtype == np.uint16:  # a 16-bit image: refused as "divide an 8-bit mask by 255"
+            arr = arr.astype(np.float32) / 65535.0
         if arr.ndim == 2 and check_flag(top_row_north, "top_row_north"):
             arr = arr[::-1]
         return cls(center, size, arr, "painted")
@@ -603,6 +606,19 @@ class AnchorStyle:
     def table(self) -> NDArray[np.float32]:
         """The opacity table (K,)."""
         return transfer_function(self.transparency)
+
+
+def _mask_hint(dtype: np.dtype, lo: float, hi: float) -> str:
+    """What to do with a mask whose values leave [0, 1]: the scale of its image's bit depth, from its dtype (a uint8
+    or uint16 image) or else from its range (an image's values as floats)."""
+    if dtype in (np.uint8, np.uint16):
+        article, top = ("an 8", 255) if dtype == np.uint8 else ("a 16", 65535)
+        return f"{article}-bit {dtype} mask: divide it by {top}, or give it to ROI.painted, which does"
+    if lo >= 0 and hi <= 255:
+        return "an 8-bit image's values: divide them by 255"
+    if lo >= 0 and hi <= 65535:
+        return "a 16-bit image's values: divide them by 65535"
+    return "scale it to [0, 1]"
 
 
 # ------------------------------------------------------------------------------------------------ close-up

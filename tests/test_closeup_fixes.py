@@ -671,3 +671,24 @@ def test_a_stepped_closeup_without_its_own_cmap_is_rendered_in_the_renders_color
     named = render_closeups(t, [one(stepped=5.0, cmap="viridis")], window_size=SIZE, cmap="viridis", device="cpu")
     default = render_closeups(t, [one(stepped=5.0, cmap="terrain")], window_size=SIZE, cmap="viridis", device="cpu")
     assert np.array_equal(followed, named) and not np.array_equal(followed, default)
+
+
+def test_a_16_bit_painted_mask_is_scaled_and_a_mask_out_of_range_gets_its_dtypes_hint():
+    """A 16-bit grayscale mask (uint16, as a 16-bit PNG reads) given to ROI.painted, "any grayscale image", was refused
+    with "divide an 8-bit mask by 255"; it is now divided by 65535 as an 8-bit one is by 255. A mask out of [0, 1]
+    given to ROI itself is told the scale of its own dtype or range."""
+    eight = np.zeros((9, 9), np.uint8)
+    eight[2:7, 3:8] = 255
+    eight[4, 4] = 51
+    sixteen = eight.astype(np.uint16) * 257  # the same image at 16 bits
+    as_8, as_16 = (ROI.painted(m, (0.0, 0.0), (8.0, 8.0)) for m in (eight, sixteen))
+    np.testing.assert_array_equal(as_16.mask, as_8.mask)
+    assert as_16.mask.max() == 1.0 and as_16.mask[4, 4] == np.float32(0.2)
+    for mask, hint in [(sixteen, "a 16-bit uint16 mask: divide it by 65535"), (eight, "an 8-bit uint8 mask: "),
+                       (sixteen.astype(np.float64), "a 16-bit image's values: divide them by 65535"),
+                       (eight.astype(np.int32), "an 8-bit image's values: divide them by 255"),
+                       (eight.astype(np.float32) - 100, r"scale it to \[0, 1\]\)")]:
+        with pytest.raises(InvalidInputError, match=r"^ROI mask values must lie in \[0, 1\]; got range .*\(" + hint):
+            ROI((0.0, 0.0), (8.0, 8.0), mask)
+    binary = ROI.painted((eight > 0).astype(np.int64), (0.0, 0.0), (8.0, 8.0))  # other integers as they are: 0/1
+    assert set(np.unique(binary.mask).tolist()) == {0.0, 1.0}
