@@ -1595,14 +1595,39 @@ def _clip_outline(lines: list[NDArray[np.float64]], roi: ROI, level: float,
             if not np.array_equal(piece[0], piece[-1]):
                 ends += [piece[0], piece[-1]]
     # the boundary between consecutive meeting points (all of it when there are none) belongs to the ROI's part
-    # where m >= level at its middle
-    arcs = np.unique(_perimeter_position(np.array(ends), box)) if ends else np.zeros(1)
+    # where m >= level at its middle; but not where an outline piece already runs along it (a ROI whose box edge
+    # is the terrain's: that stretch of fence was drawn twice, once with the outline and once with the boundary)
+    covered = _along_boundary(pieces, box)
     total = 2 * (x1 - x0 + y1 - y0)
+    arcs = np.unique(np.concatenate([_perimeter_position(np.array(ends), box) if ends else np.zeros(1),
+                                     covered.reshape(-1) % total]))
     for s0, s1 in zip(arcs, np.roll(arcs, -1), strict=True):
         mid = s0 + ((s1 - s0) % total or total) / 2  # one stretch: all the way round
+        if ((covered[:, 0] < mid % total) & (mid % total < covered[:, 1])).any():
+            continue
         if roi.factor(_perimeter_path(mid, mid, box)[:1])[0] >= level:
             pieces.append(_perimeter_path(s0, s1, box))
     return [piece for piece in pieces if len(piece) > 1]
+
+
+def _along_boundary(pieces: list[NDArray[np.float64]], box: tuple[float, float, float, float]) -> NDArray[np.float64]:
+    """(K, 2) intervals lo < hi of arc length on the rectangle ``box`` (as :func:`_perimeter_position` counts it) of
+    the polylines' segments that lie along one of its sides (both ends on it, to a rounding of its size)."""
+    x0, x1, y0, y1 = box
+    w, h = x1 - x0, y1 - y0
+    tol = 1e-9 * (w + h)
+    intervals = [np.zeros((0, 2))]
+    for piece in pieces:
+        a, b = piece[:-1], piece[1:]
+        for on, pos in ((lambda p: np.abs(p[:, 1] - y0) <= tol, lambda p: p[:, 0] - x0),  # bottom, right, top, left
+                        (lambda p: np.abs(p[:, 0] - x1) <= tol, lambda p: w + (p[:, 1] - y0)),
+                        (lambda p: np.abs(p[:, 1] - y1) <= tol, lambda p: w + h + (x1 - p[:, 0])),
+                        (lambda p: np.abs(p[:, 0] - x0) <= tol, lambda p: 2 * w + h + (y1 - p[:, 1]))):
+            along = on(a) & on(b)
+            if along.any():
+                ends = np.sort(np.stack([pos(a[along]), pos(b[along])], axis=1), axis=1)
+                intervals.append(ends[ends[:, 1] - ends[:, 0] > tol])
+    return np.concatenate(intervals)
 
 
 def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> tuple[Any, ...] | None:

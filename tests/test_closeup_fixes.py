@@ -692,3 +692,24 @@ def test_a_16_bit_painted_mask_is_scaled_and_a_mask_out_of_range_gets_its_dtypes
             ROI((0.0, 0.0), (8.0, 8.0), mask)
     binary = ROI.painted((eight > 0).astype(np.int64), (0.0, 0.0), (8.0, 8.0))  # other integers as they are: 0/1
     assert set(np.unique(binary.mask).tolist()) == {0.0, 1.0}
+
+
+@pytest.mark.parametrize(("center", "size", "length"), [((50.0, 100.0), (100.0, 300.0), 600.0),
+                                                        ((350.0, 100.0), (100.0, 260.0), 600.0),
+                                                        ((200.0, 20.0), (500.0, 40.0), 880.0)])
+def test_a_fence_along_the_terrains_edge_is_drawn_once(center, size, length):
+    """A painted ROI whose box edge is the terrain's edge (its outline runs along it) and which reaches past the
+    terrain elsewhere: the stretch along the edge was fenced twice, with the outline and again with the terrain's
+    boundary (coincident panels). Each stretch is now fenced once: the feet follow the ROI's part over the terrain."""
+    from collections import Counter
+
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((101, 201), np.float32), spacing=(2.0, 2.0), origin=(0.0, 0.0))
+    roi = ROI.painted(np.ones((20, 20)), center, size)
+    _, followed = _fence_feet(t, CloseUp(roi, offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0)))
+    assert followed == pytest.approx(length, rel=1e-9)
+    (strip,) = anchor_strips(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+    faces = Counter(frozenset(map(tuple, np.round(strip.vertices[f], 6))) for f in strip.faces)
+    assert len(strip.faces) and max(faces.values()) == 1
