@@ -1882,15 +1882,46 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
+def _content_faces(layer: CloseUpLayer, cu: CloseUp) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The faces drawn as the close-up's content and those drawn with its anchor (the soft edge, with ``band``)."""
+    f = layer.faces
+    if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+        full = layer.mask_factor >= 1.0
+        inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
+        return f[inner], f[~inner]
+    # the close-up up to its outline, fully transformed; the strip is the whole anchor
+    seen = layer.mask_factor >= cu.anchor.outline_level
+    inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
+    return f[inner], f[:0]
+
+
+def _drawn_bounds(layer: CloseUpLayer, cu: CloseUp, used: NDArray[np.int64] | None = None
+                  ) -> NDArray[np.float64] | None:
+    """(2, 3) bounds of a close-up's content where it is drawn: without ``anchor.band`` its faces up to the outline
+    fully transformed (M·V_O, up to a cell times the scale beyond the blended V_C of its outermost vertices), else
+    (and for a billboard, drawn apart) the blended vertices V_C. ``used``: the vertices of the content faces."""
+    from .render import _finite_bounds
+
+    if cu.anchor.band or cu.view == "billboard":
+        return _finite_bounds(layer.vertices)
+    if used is None:
+        used = np.unique(_content_faces(layer, cu)[0])
+    if len(used) == 0:
+        return _finite_bounds(layer.vertices)
+    return _finite_bounds(layer.original[used] @ layer.matrix[:3, :3].T + layer.matrix[:3, 3])
+
+
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
                     strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
-                    ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
+                    ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any], dict[int, Any]]:
     """The camera-independent part of a frame: per close-up its anchor mesh (values t), its content mesh
-    (rgb) or billboard. What does not depend on M (which faces are content, the vertex colors) is kept per
-    culled layer (the read-only arrays :func:`closeup_layers` shares between frames)."""
+    (rgb) or billboard, and the bounds of its content where it is drawn (:func:`_drawn_bounds`). What does not
+    depend on M (which faces are content, the vertex colors) is kept per culled layer (the read-only arrays
+    :func:`closeup_layers` shares between frames)."""
     anchors: dict[int, Any] = {}
     contents: dict[int, Any] = {}
     boards: dict[int, Any] = {}
+    drawn: dict[int, Any] = {}
     memo = t.cached(("closeup", "derived"), dict)
     overview = (scalars, cmap, image_texture)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
@@ -1898,23 +1929,18 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
         f = layer.faces
         shared = not (f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable)
 
-        def split(f=f, layer=layer, cu=cu):
-            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
-                full = layer.mask_factor >= 1.0
-                inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
-                return f[inner], f[~inner]
-            # the close-up up to its outline, fully transformed; the strip is the whole anchor
-            seen = layer.mask_factor >= cu.anchor.outline_level
-            inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
-            return f[inner], f[:0]
+        def split(layer=layer, cu=cu):
+            content, band = _content_faces(layer, cu)
+            return content, band, np.unique(content)
 
         key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
-        content_faces, band_faces = (derived(memo, key, (f, layer.mask_factor), split) if shared else split())
+        content_faces, band_faces, used = (derived(memo, key, (f, layer.mask_factor), split) if shared else split())
         if cu.anchor.band:
             content_vertices = layer.vertices
         else:
             content_vertices = layer.original @ layer.matrix[:3, :3].T
             content_vertices += layer.matrix[:3, 3]
+        drawn[k] = _drawn_bounds(layer, cu, used)
         if show_anchor:
             nv = len(strip.vertices)
             if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
@@ -1940,7 +1966,7 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
                 boards[k] = (content_vertices, content_faces, rgb, top)
             else:
                 contents[k] = (content_vertices, content_faces, {"rgb": rgb})
-    return anchors, contents, boards
+    return anchors, contents, boards, drawn
 
 
 def render_closeups(
@@ -2058,17 +2084,17 @@ def render_closeups(
     last = memo.get(memo_key) if reuse_closeups else None
     if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
             and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
-        layers, strips, anchors, contents, boards = last[3]
+        layers, strips, anchors, contents, boards, drawn = last[3]
         if image_texture is not None or any(cu.texture is not None for cu in items):
             # an image may have changed in place since (the same object): its colors are sampled again
-            anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+            anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
         layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
         strips = anchor_strips(t, items, time=time, device=device)
-        anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+        anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
         if len(memo) >= 8 and memo_key not in memo:
             memo.clear()
-        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards))
+        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards, drawn))
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
@@ -2102,8 +2128,8 @@ def render_closeups(
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
         if box is None:
             boxes = [renderer.bounds_of("overview")]
-            for layer, strip in zip(layers, strips, strict=True):
-                boxes += [b for b in map(render._finite_bounds, (layer.vertices, strip.vertices)) if b is not None]
+            for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
+                boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
@@ -2273,10 +2299,12 @@ def animate_closeups(
         turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
         _, first = np.unique(turns, axis=0, return_index=True)  # frames with the same turns: the same geometry
         for time in times[np.sort(first)]:
-            for layer in closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
-                                        device=device):  # the stepped sources the frames use, kept for them
-                if len(layer.vertices):
-                    boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
+            layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
+                                    device=device)  # the stepped sources the frames use, kept for them
+            for cu, layer in zip(items, layers, strict=True):
+                bounds = _drawn_bounds(layer, cu)  # where the close-up is drawn, as render_closeups frames it
+                if bounds is not None:
+                    boxes.append(bounds)
         xmin, xmax, ymin, ymax = t.extent
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))

@@ -713,3 +713,35 @@ def test_a_fence_along_the_terrains_edge_is_drawn_once(center, size, length):
     (strip,) = anchor_strips(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
     faces = Counter(frozenset(map(tuple, np.round(strip.vertices[f], 6))) for f in strip.faces)
     assert len(strip.faces) and max(faces.values()) == 1
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_the_camera_frames_the_closeup_where_it_is_drawn(monkeypatch):
+    """The content is drawn fully transformed (M·V_O) up to its outline, but the camera was fitted to the blended
+    vertices V_C: a close-up moved off the terrain and scaled reached up to a cell times the scale past the fitted
+    box. The box now holds the drawn content, in a render and in an animation."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    y, x = np.mgrid[0:21, 0:21]
+    t = Terrain.from_heights((10 * np.sin(x / 3.0) + 5 * np.cos(y / 4.0)).astype(np.float32), spacing=(10.0, 10.0))
+    cu = CloseUp(ROI.circle((100.0, 100.0), 50.0), scale=3.0, offset=(400.0, 0.0, 0.0))
+    (layer,) = closeup_layers(t, [cu], device="cpu")
+    seen = layer.mask_factor >= cu.anchor.outline_level
+    used = np.unique(layer.faces[seen[layer.faces].any(axis=1)])
+    drawn = layer.original[used] @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+    boxes = []
+    fit = render.LayeredRenderer.set_view
+
+    def spy(self, camera, box):
+        boxes.append(np.asarray(box, np.float64))
+        return fit(self, camera, box)
+
+    monkeypatch.setattr(render.LayeredRenderer, "set_view", spy)
+    render_closeups(t, [cu], window_size=SIZE, camera="top", device="cpu")
+    animate_closeups(t, [cu], frames=2, window_size=SIZE, camera="top", device="cpu")
+    assert len(boxes) == 3
+    for box in boxes:
+        assert (box[0] <= drawn.min(axis=0)).all() and (box[1] >= drawn.max(axis=0)).all()
+    assert drawn[:, 0].max() - layer.vertices[:, 0].max() > 10  # the blended vertices fall short by over a cell
