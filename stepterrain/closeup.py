@@ -1895,11 +1895,12 @@ def _content_faces(layer: CloseUpLayer, cu: CloseUp) -> tuple[NDArray[np.int64],
     return f[inner], f[:0]
 
 
-def _drawn_bounds(layer: CloseUpLayer, cu: CloseUp, used: NDArray[np.int64] | None = None
-                  ) -> NDArray[np.float64] | None:
+def _drawn_bounds(layer: CloseUpLayer, cu: CloseUp, used: NDArray[np.int64] | None = None,
+                  transformed: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
     """(2, 3) bounds of a close-up's content where it is drawn: without ``anchor.band`` its faces up to the outline
     fully transformed (M·V_O, up to a cell times the scale beyond the blended V_C of its outermost vertices), else
-    (and for a billboard, drawn apart) the blended vertices V_C. ``used``: the vertices of the content faces."""
+    (and for a billboard, drawn apart) the blended vertices V_C. ``used``: the vertices of the content faces;
+    ``transformed``: M·V_O of every vertex of the layer, when known."""
     from .render import _finite_bounds
 
     if cu.anchor.band or cu.view == "billboard":
@@ -1908,6 +1909,8 @@ def _drawn_bounds(layer: CloseUpLayer, cu: CloseUp, used: NDArray[np.int64] | No
         used = np.unique(_content_faces(layer, cu)[0])
     if len(used) == 0:
         return _finite_bounds(layer.vertices)
+    if transformed is not None:
+        return _finite_bounds(transformed[used])
     return _finite_bounds(layer.original[used] @ layer.matrix[:3, :3].T + layer.matrix[:3, 3])
 
 
@@ -1940,7 +1943,7 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
         else:
             content_vertices = layer.original @ layer.matrix[:3, :3].T
             content_vertices += layer.matrix[:3, 3]
-        drawn[k] = _drawn_bounds(layer, cu, used)
+        drawn[k] = _drawn_bounds(layer, cu, used, content_vertices)
         if show_anchor:
             nv = len(strip.vertices)
             if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
