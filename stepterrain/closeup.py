@@ -1119,6 +1119,10 @@ def closeup_layers(
     items = _check_closeups(closeups)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, None, items)
+    if any(cu.stepped is not None and cu.cmap is None for cu in items):  # named here, not as a close-up's "cmap"
+        from .stepped import colormap
+
+        colormap(colors, argument="colors")
     device = resolve_device(device)
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
@@ -2072,6 +2076,7 @@ def render_closeups(
             f"too many close-ups for a {width}x{height} window: {len(items)}; it holds at most {limit} "
             f"(one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS})")
     _check_scalars(scalars)
+    _check_cmap(cmap)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, scalars, items)
     image_texture = None if texture is None else _check_texture(texture, "texture")
@@ -2174,6 +2179,13 @@ def _check_scalars(scalars: Any, name: str = "scalars") -> None:
         raise InvalidInputError(f"{name} must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
 
 
+def _check_cmap(cmap: Any) -> None:
+    """The overview's (and the stepped close-ups') colormap, named as ``cmap``; closeup_layers named it "colors"."""
+    from .stepped import colormap
+
+    colormap(cmap, argument="cmap")
+
+
 def _check_grid_scalars(terrain: Terrain, scalars: str | None, items: Sequence[CloseUp]) -> None:
     """Slope and aspect come from a grid's gradient: on a TIN they were its heights (one color), silently."""
     if terrain.kind == "grid":
@@ -2220,6 +2232,7 @@ def closeup_scene(
     [0, 1, 2]
     """
     _check_scalars(scalars)
+    _check_cmap(cmap)
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     _check_grid_scalars(t, scalars, items)

@@ -745,3 +745,14 @@ def test_the_camera_frames_the_closeup_where_it_is_drawn(monkeypatch):
     for box in boxes:
         assert (box[0] <= drawn.min(axis=0)).all() and (box[1] >= drawn.max(axis=0)).all()
     assert drawn[:, 0].max() - layer.vertices[:, 0].max() > 10  # the blended vertices fall short by over a cell
+
+
+def test_an_unknown_colormap_of_the_stepped_closeups_is_named_by_its_argument():
+    """closeup_layers(colors='nope') was refused as "cmap must name a matplotlib colormap", an argument it has not."""
+    from stepterrain.closeup import closeup_layers
+
+    stepped = CloseUp(ROI.circle((20.0, 16.0), 5.0), stepped=5.0)
+    with pytest.raises(InvalidInputError, match=r"^colors must name a matplotlib colormap .*; got 'nope'"):
+        closeup_layers(hills(), [stepped], colors="nope", device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^cmap must name a matplotlib colormap .*; got 'nope'"):
+        closeup_scene(hills(), [stepped], scalars=None, cmap="nope", device="cpu")
