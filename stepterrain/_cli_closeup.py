@@ -83,7 +83,8 @@ def add_parser(commands: Any) -> None:
                    help="overview-independent close-ups: orthographic, seen from above")
     p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default="height",
                    help="overview data mapping (default height)")
-    p.add_argument("--colormap", default="terrain", metavar="NAME", help="matplotlib colormap (default terrain)")
+    p.add_argument("--colormap", default="terrain", metavar="NAME",
+                   help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
     p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",

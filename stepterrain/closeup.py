@@ -247,14 +247,13 @@ class ROI:
             raise InvalidInputError(f"ROI mask must be a 2-D array of at least 2 x 2 texels; got shape {mask.shape}")
         # an own copy (ascontiguousarray would alias a float32 caller array): the frozen ROI's mask must not
         # change behind the caches keyed by the ROI, nor the caller's array become read-only
+        dtype = mask.dtype
         mask = np.array(mask, dtype=np.float32, order="C", copy=True)
         if not np.all(np.isfinite(mask)):
             raise InvalidInputError("ROI mask values must be finite, in [0, 1]; got NaN or inf")
         if mask.min() < 0.0 or mask.max() > 1.0:
-            raise InvalidInputError(
-                f"ROI mask values must lie in [0, 1]; got range [{float(mask.min())}, {float(mask.max())}]"
-                " (divide an 8-bit mask by 255)"
-            )
+            raise InvalidInputError(f"ROI mask values must lie in [0, 1]; got range [{float(mask.min())}, "
+                                    f"{float(mask.max())}] ({_mask_hint(dtype, float(mask.min()), float(mask.max()))})")
         mask.setflags(write=False)
         object.__setattr__(self, "mask", mask)
 
@@ -324,7 +323,9 @@ class ROI:
     # -------------------------------------------------------------------------- painted
     @classmethod
     def painted(cls, mask: ArrayLike, center: ArrayLike, size: ArrayLike, *, top_row_north: bool = True) -> ROI:
-        """A painted mask (§III.A.2): any grayscale image, floats in [0, 1] or 8-bit (divided by 255).
+        """A painted mask (§III.A.2): any grayscale image, floats in [0, 1], 8-bit (divided by 255) or 16-bit
+        (uint16, divided by 65535, as a 16-bit PNG or TIFF reads); other integers and booleans are taken as they
+        are (0 and 1).
 
         With ``top_row_north`` (the default, as images are drawn) row 0 is the *upper* y of the box.
         """
@@ -337,6 +338,8 @@ class ROI:
             raise InvalidInputError(f"painted mask must be grayscale (rows, cols); got an RGB(A) image {arr.shape}")
         if np.issubdtype(arr.dtype, np.integer) and arr.dtype.itemsize == 1:
             arr = arr.astype(np.float32) / 255.0
+        elif arr.dtype == np.uint16:  # a 16-bit image: refused as "divide an 8-bit mask by 255"
+            arr = arr.astype(np.float32) / 65535.0
         if arr.ndim == 2 and check_flag(top_row_north, "top_row_north"):
             arr = arr[::-1]
         return cls(center, size, arr, "painted")
@@ -605,6 +608,19 @@ class AnchorStyle:
         return transfer_function(self.transparency)
 
 
+def _mask_hint(dtype: np.dtype, lo: float, hi: float) -> str:
+    """What to do with a mask whose values leave [0, 1]: the scale of its image's bit depth, from its dtype (a uint8
+    or uint16 image) or else from its range (an image's values as floats)."""
+    if dtype in (np.uint8, np.uint16):
+        article, top = ("an 8", 255) if dtype == np.uint8 else ("a 16", 65535)
+        return f"{article}-bit {dtype} mask: divide it by {top}, or give it to ROI.painted, which does"
+    if lo >= 0 and hi <= 255:
+        return "an 8-bit image's values: divide them by 255"
+    if lo >= 0 and hi <= 65535:
+        return "a 16-bit image's values: divide them by 65535"
+    return "scale it to [0, 1]"
+
+
 # ------------------------------------------------------------------------------------------------ close-up
 def _color(value: Any, name: str) -> tuple[float, float, float]:
     import matplotlib.colors
@@ -644,7 +660,9 @@ class CloseUp:
         north (+y), as a camera's in :func:`stepterrain.render.render_mesh`: 0 looks from the north, π/2 from
         the east, π (the default, at 89° elevation: nearly from above) from the south.
     stepped : float, optional
-        MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``.
+        MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``, its
+        levels colored by ``cmap``, else by the colormap the render or scene was given (``cmap`` of
+        :func:`render_closeups`, :func:`closeup_scene`; the CLI's ``--colormap``).
     scalars : None, "height", "slope" or "aspect"
         The data layer colored by ``cmap`` (None: the overview's mapping); slope and aspect need a grid terrain.
         Next to nodata the gradient takes the one-sided difference to the neighbour with a height; a node with
@@ -1064,7 +1082,8 @@ def closeup_layers(
     time : float
         Animation time in seconds (spinning close-ups turn, see :meth:`CloseUp.turn`).
     colors : str
-        Colormap of the stepped close-ups' levels (MPFR).
+        Colormap of the levels of the stepped close-ups (MPFR) that name no ``cmap`` of their own;
+        :func:`render_closeups` and :func:`closeup_scene` give theirs.
     memory_budget : int, optional
         Bytes the output may take (default :func:`stepterrain.get_memory_budget`).
     device : warp device, optional
@@ -1100,6 +1119,10 @@ def closeup_layers(
     items = _check_closeups(closeups)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, None, items)
+    if any(cu.stepped is not None and cu.cmap is None for cu in items):  # named here, not as a close-up's "cmap"
+        from .stepped import colormap
+
+        colormap(colors, argument="colors")
     device = resolve_device(device)
     if memory_budget is not None:
         budget_value(memory_budget)  # before any work
@@ -1576,14 +1599,39 @@ def _clip_outline(lines: list[NDArray[np.float64]], roi: ROI, level: float,
             if not np.array_equal(piece[0], piece[-1]):
                 ends += [piece[0], piece[-1]]
     # the boundary between consecutive meeting points (all of it when there are none) belongs to the ROI's part
-    # where m >= level at its middle
-    arcs = np.unique(_perimeter_position(np.array(ends), box)) if ends else np.zeros(1)
+    # where m >= level at its middle; but not where an outline piece already runs along it (a ROI whose box edge
+    # is the terrain's: that stretch of fence was drawn twice, once with the outline and once with the boundary)
+    covered = _along_boundary(pieces, box)
     total = 2 * (x1 - x0 + y1 - y0)
+    arcs = np.unique(np.concatenate([_perimeter_position(np.array(ends), box) if ends else np.zeros(1),
+                                     covered.reshape(-1) % total]))
     for s0, s1 in zip(arcs, np.roll(arcs, -1), strict=True):
         mid = s0 + ((s1 - s0) % total or total) / 2  # one stretch: all the way round
+        if ((covered[:, 0] < mid % total) & (mid % total < covered[:, 1])).any():
+            continue
         if roi.factor(_perimeter_path(mid, mid, box)[:1])[0] >= level:
             pieces.append(_perimeter_path(s0, s1, box))
     return [piece for piece in pieces if len(piece) > 1]
+
+
+def _along_boundary(pieces: list[NDArray[np.float64]], box: tuple[float, float, float, float]) -> NDArray[np.float64]:
+    """(K, 2) intervals lo < hi of arc length on the rectangle ``box`` (as :func:`_perimeter_position` counts it) of
+    the polylines' segments that lie along one of its sides (both ends on it, to a rounding of its size)."""
+    x0, x1, y0, y1 = box
+    w, h = x1 - x0, y1 - y0
+    tol = 1e-9 * (w + h)
+    intervals = [np.zeros((0, 2))]
+    for piece in pieces:
+        a, b = piece[:-1], piece[1:]
+        for on, pos in ((lambda p: np.abs(p[:, 1] - y0) <= tol, lambda p: p[:, 0] - x0),  # bottom, right, top, left
+                        (lambda p: np.abs(p[:, 0] - x1) <= tol, lambda p: w + (p[:, 1] - y0)),
+                        (lambda p: np.abs(p[:, 1] - y1) <= tol, lambda p: w + h + (x1 - p[:, 0])),
+                        (lambda p: np.abs(p[:, 0] - x0) <= tol, lambda p: 2 * w + h + (y1 - p[:, 1]))):
+            along = on(a) & on(b)
+            if along.any():
+                ends = np.sort(np.stack([pos(a[along]), pos(b[along])], axis=1), axis=1)
+                intervals.append(ends[ends[:, 1] - ends[:, 0] > tol])
+    return np.concatenate(intervals)
 
 
 def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> tuple[Any, ...] | None:
@@ -1838,15 +1886,49 @@ def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
     return (g, g, g)
 
 
+def _content_faces(layer: CloseUpLayer, cu: CloseUp) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """The faces drawn as the close-up's content and those drawn with its anchor (the soft edge, with ``band``)."""
+    f = layer.faces
+    if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
+        full = layer.mask_factor >= 1.0
+        inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
+        return f[inner], f[~inner]
+    # the close-up up to its outline, fully transformed; the strip is the whole anchor
+    seen = layer.mask_factor >= cu.anchor.outline_level
+    inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
+    return f[inner], f[:0]
+
+
+def _drawn_bounds(layer: CloseUpLayer, cu: CloseUp, used: NDArray[np.int64] | None = None,
+                  transformed: NDArray[np.float64] | None = None) -> NDArray[np.float64] | None:
+    """(2, 3) bounds of a close-up's content where it is drawn: without ``anchor.band`` its faces up to the outline
+    fully transformed (M·V_O, up to a cell times the scale beyond the blended V_C of its outermost vertices), else
+    (and for a billboard, drawn apart) the blended vertices V_C. ``used``: the vertices of the content faces;
+    ``transformed``: M·V_O of every vertex of the layer, when known."""
+    from .render import _finite_bounds
+
+    if cu.anchor.band or cu.view == "billboard":
+        return _finite_bounds(layer.vertices)
+    if used is None:
+        used = np.unique(_content_faces(layer, cu)[0])
+    if len(used) == 0:
+        return _finite_bounds(layer.vertices)
+    if transformed is not None:
+        return _finite_bounds(transformed[used])
+    return _finite_bounds(layer.original[used] @ layer.matrix[:3, :3].T + layer.matrix[:3, 3])
+
+
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
                     strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
-                    ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any]]:
+                    ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any], dict[int, Any]]:
     """The camera-independent part of a frame: per close-up its anchor mesh (values t), its content mesh
-    (rgb) or billboard. What does not depend on M (which faces are content, the vertex colors) is kept per
-    culled layer (the read-only arrays :func:`closeup_layers` shares between frames)."""
+    (rgb) or billboard, and the bounds of its content where it is drawn (:func:`_drawn_bounds`). What does not
+    depend on M (which faces are content, the vertex colors) is kept per culled layer (the read-only arrays
+    :func:`closeup_layers` shares between frames)."""
     anchors: dict[int, Any] = {}
     contents: dict[int, Any] = {}
     boards: dict[int, Any] = {}
+    drawn: dict[int, Any] = {}
     memo = t.cached(("closeup", "derived"), dict)
     overview = (scalars, cmap, image_texture)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
@@ -1854,23 +1936,18 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
         f = layer.faces
         shared = not (f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable)
 
-        def split(f=f, layer=layer, cu=cu):
-            if cu.anchor.band:  # the paper's SPFR: m = 1 is the close-up, 0 < m < 1 joins the anchor
-                full = layer.mask_factor >= 1.0
-                inner = full[f[:, 0]] & full[f[:, 1]] & full[f[:, 2]]
-                return f[inner], f[~inner]
-            # the close-up up to its outline, fully transformed; the strip is the whole anchor
-            seen = layer.mask_factor >= cu.anchor.outline_level
-            inner = seen[f[:, 0]] | seen[f[:, 1]] | seen[f[:, 2]]
-            return f[inner], f[:0]
+        def split(layer=layer, cu=cu):
+            content, band = _content_faces(layer, cu)
+            return content, band, np.unique(content)
 
         key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
-        content_faces, band_faces = (derived(memo, key, (f, layer.mask_factor), split) if shared else split())
+        content_faces, band_faces, used = (derived(memo, key, (f, layer.mask_factor), split) if shared else split())
         if cu.anchor.band:
             content_vertices = layer.vertices
         else:
             content_vertices = layer.original @ layer.matrix[:3, :3].T
             content_vertices += layer.matrix[:3, 3]
+        drawn[k] = _drawn_bounds(layer, cu, used, content_vertices)
         if show_anchor:
             nv = len(strip.vertices)
             if len(band_faces):  # soft-edge faces: t from ‖V_C − V_O‖ normalized by the longest rung
@@ -1896,7 +1973,7 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
                 boards[k] = (content_vertices, content_faces, rgb, top)
             else:
                 contents[k] = (content_vertices, content_faces, {"rgb": rgb})
-    return anchors, contents, boards
+    return anchors, contents, boards, drawn
 
 
 def render_closeups(
@@ -1935,10 +2012,11 @@ def render_closeups(
         Vertical exaggeration of the render.
     scalars, cmap
         The overview's data mapping: "height", "slope", "aspect" through ``cmap``, or None (uniform tan).
-        Close-ups use it too unless they set their own (SPFR) or are stepped (MPFR). Slope and aspect need a
-        grid terrain (a DEM); on a TIN they raise an InvalidInputError. Next to nodata they use the one-sided
-        difference; a node without a neighbour with a height along an axis shows in ``cmap``'s "bad" color, and
-        so does the aspect of flat ground (no downhill direction).
+        Close-ups use it too unless they set their own (SPFR); stepped close-ups (MPFR) color their levels through
+        ``cmap`` unless they name their own. Slope and aspect need a grid terrain (a DEM); on a TIN they raise an
+        InvalidInputError. Next to nodata they use the one-sided difference; a node without a neighbour with a
+        height along an axis shows in ``cmap``'s "bad" color, and so does the aspect of flat ground (no downhill
+        direction).
     texture : (h, w, 3|4) uint8, optional
         An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
     time : float
@@ -1998,6 +2076,7 @@ def render_closeups(
             f"too many close-ups for a {width}x{height} window: {len(items)}; it holds at most {limit} "
             f"(one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS})")
     _check_scalars(scalars)
+    _check_cmap(cmap)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, scalars, items)
     image_texture = None if texture is None else _check_texture(texture, "texture")
@@ -2013,17 +2092,17 @@ def render_closeups(
     last = memo.get(memo_key) if reuse_closeups else None
     if (last is not None and all(a is b for a, b in zip(last[0], items, strict=True)) and last[1] is texture
             and all(np.array_equal(a, b) for a, b in zip(last[2], matrices, strict=True))):
-        layers, strips, anchors, contents, boards = last[3]
+        layers, strips, anchors, contents, boards, drawn = last[3]
         if image_texture is not None or any(cu.texture is not None for cu in items):
             # an image may have changed in place since (the same object): its colors are sampled again
-            anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+            anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
-        layers = closeup_layers(t, items, time=time, device=device)
+        layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
         strips = anchor_strips(t, items, time=time, device=device)
-        anchors, contents, boards = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
+        anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
         if len(memo) >= 8 and memo_key not in memo:
             memo.clear()
-        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards))
+        memo[memo_key] = (tuple(items), texture, matrices, (layers, strips, anchors, contents, boards, drawn))
     clock["transform"] = _time.perf_counter() - start
 
     start = _time.perf_counter()
@@ -2057,8 +2136,8 @@ def render_closeups(
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
         if box is None:
             boxes = [renderer.bounds_of("overview")]
-            for layer, strip in zip(layers, strips, strict=True):
-                boxes += [b for b in map(render._finite_bounds, (layer.vertices, strip.vertices)) if b is not None]
+            for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
+                boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
@@ -2100,6 +2179,13 @@ def _check_scalars(scalars: Any, name: str = "scalars") -> None:
         raise InvalidInputError(f"{name} must be None, 'height', 'slope' or 'aspect'; got {scalars!r}")
 
 
+def _check_cmap(cmap: Any) -> None:
+    """The overview's (and the stepped close-ups') colormap, named as ``cmap``; closeup_layers named it "colors"."""
+    from .stepped import colormap
+
+    colormap(cmap, argument="cmap")
+
+
 def _check_grid_scalars(terrain: Terrain, scalars: str | None, items: Sequence[CloseUp]) -> None:
     """Slope and aspect come from a grid's gradient: on a TIN they were its heights (one color), silently."""
     if terrain.kind == "grid":
@@ -2134,7 +2220,8 @@ def closeup_scene(
     close-up hangs from its ROI as one connected surface); anchors carry their color and, in the alpha of
     their vertex colors, the transfer function's opacity; an inactive close-up's anchor is depicted as
     ``anchor.inactive`` says, as :func:`render_closeups` draws it (left out, gray, or a quarter of the opacity).
-    ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor.
+    ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor. ``scalars`` and
+    ``cmap`` map the overview and the close-ups as in :func:`render_closeups` (stepped close-ups included).
 
     Examples
     --------
@@ -2145,6 +2232,7 @@ def closeup_scene(
     [0, 1, 2]
     """
     _check_scalars(scalars)
+    _check_cmap(cmap)
     t = as_terrain(terrain)
     items = _check_closeups(closeups)
     _check_grid_scalars(t, scalars, items)
@@ -2152,7 +2240,7 @@ def closeup_scene(
     overview_rgb = _overview_rgb(t, mesh, scalars, cmap, None)
     parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
               _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
-    layers = closeup_layers(t, items, time=time, device=device)
+    layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
     strips = anchor_strips(t, items, time=time, device=device)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
@@ -2227,9 +2315,12 @@ def animate_closeups(
         turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
         _, first = np.unique(turns, axis=0, return_index=True)  # frames with the same turns: the same geometry
         for time in times[np.sort(first)]:
-            for layer in closeup_layers(t, items, time=float(time), device=device):
-                if len(layer.vertices):
-                    boxes.append(np.array([layer.vertices.min(0), layer.vertices.max(0)]))
+            layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
+                                    device=device)  # the stepped sources the frames use, kept for them
+            for cu, layer in zip(items, layers, strict=True):
+                bounds = _drawn_bounds(layer, cu)  # where the close-up is drawn, as render_closeups frames it
+                if bounds is not None:
+                    boxes.append(bounds)
         xmin, xmax, ymin, ymax = t.extent
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))

@@ -645,3 +645,114 @@ def test_the_scene_mesh_depicts_inactive_anchors_as_the_render_does():
     faint = anchor_colors(active=False, anchor=AnchorStyle(inactive="faint"))
     assert np.all(faint[:, :3] == [255, 0, 0]) and faint[:, 3].max() == np.rint(0.85 * 0.25 * 255)
     assert active[:, 3].max() == np.rint(0.85 * 255)
+
+
+def test_a_stepped_closeup_without_its_own_cmap_follows_the_scenes_colormap():
+    """A stepped close-up (MPFR) that names no cmap was coloured with 'terrain' whatever colormap the scene (or the
+    CLI's --colormap) was given; its levels now follow that colormap, and a cmap of its own still wins."""
+    t = terrain()
+
+    def closeup_colors(scene_cmap, **kwargs):
+        scene = closeup_scene(t, [one(stepped=5.0, **kwargs)], cmap=scene_cmap, device="cpu")
+        rgb = scene.visual.vertex_colors[:, :3]
+        return rgb[scene.faces[scene.face_attributes["layer"] == 1].reshape(-1)]
+
+    followed = closeup_colors("viridis")
+    assert np.array_equal(followed, closeup_colors("terrain", cmap="viridis"))
+    assert not np.array_equal(followed, closeup_colors("terrain"))
+    assert np.array_equal(closeup_colors("viridis", cmap="magma"), closeup_colors("terrain", cmap="magma"))
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_stepped_closeup_without_its_own_cmap_is_rendered_in_the_renders_colormap():
+    t = terrain()
+    followed = render_closeups(t, [one(stepped=5.0)], window_size=SIZE, cmap="viridis", device="cpu")
+    named = render_closeups(t, [one(stepped=5.0, cmap="viridis")], window_size=SIZE, cmap="viridis", device="cpu")
+    default = render_closeups(t, [one(stepped=5.0, cmap="terrain")], window_size=SIZE, cmap="viridis", device="cpu")
+    assert np.array_equal(followed, named) and not np.array_equal(followed, default)
+
+
+def test_a_16_bit_painted_mask_is_scaled_and_a_mask_out_of_range_gets_its_dtypes_hint():
+    """A 16-bit grayscale mask (uint16, as a 16-bit PNG reads) given to ROI.painted, "any grayscale image", was refused
+    with "divide an 8-bit mask by 255"; it is now divided by 65535 as an 8-bit one is by 255. A mask out of [0, 1]
+    given to ROI itself is told the scale of its own dtype or range."""
+    eight = np.zeros((9, 9), np.uint8)
+    eight[2:7, 3:8] = 255
+    eight[4, 4] = 51
+    sixteen = eight.astype(np.uint16) * 257  # the same image at 16 bits
+    as_8, as_16 = (ROI.painted(m, (0.0, 0.0), (8.0, 8.0)) for m in (eight, sixteen))
+    np.testing.assert_array_equal(as_16.mask, as_8.mask)
+    assert as_16.mask.max() == 1.0 and as_16.mask[4, 4] == np.float32(0.2)
+    for mask, hint in [(sixteen, "a 16-bit uint16 mask: divide it by 65535"), (eight, "an 8-bit uint8 mask: "),
+                       (sixteen.astype(np.float64), "a 16-bit image's values: divide them by 65535"),
+                       (eight.astype(np.int32), "an 8-bit image's values: divide them by 255"),
+                       (eight.astype(np.float32) - 100, r"scale it to \[0, 1\]\)")]:
+        with pytest.raises(InvalidInputError, match=r"^ROI mask values must lie in \[0, 1\]; got range .*\(" + hint):
+            ROI((0.0, 0.0), (8.0, 8.0), mask)
+    binary = ROI.painted((eight > 0).astype(np.int64), (0.0, 0.0), (8.0, 8.0))  # other integers as they are: 0/1
+    assert set(np.unique(binary.mask).tolist()) == {0.0, 1.0}
+
+
+@pytest.mark.parametrize(("center", "size", "length"), [((50.0, 100.0), (100.0, 300.0), 600.0),
+                                                        ((350.0, 100.0), (100.0, 260.0), 600.0),
+                                                        ((200.0, 20.0), (500.0, 40.0), 880.0)])
+def test_a_fence_along_the_terrains_edge_is_drawn_once(center, size, length):
+    """A painted ROI whose box edge is the terrain's edge (its outline runs along it) and which reaches past the
+    terrain elsewhere: the stretch along the edge was fenced twice, with the outline and again with the terrain's
+    boundary (coincident panels). Each stretch is now fenced once: the feet follow the ROI's part over the terrain."""
+    from collections import Counter
+
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((101, 201), np.float32), spacing=(2.0, 2.0), origin=(0.0, 0.0))
+    roi = ROI.painted(np.ones((20, 20)), center, size)
+    _, followed = _fence_feet(t, CloseUp(roi, offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0)))
+    assert followed == pytest.approx(length, rel=1e-9)
+    (strip,) = anchor_strips(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+    faces = Counter(frozenset(map(tuple, np.round(strip.vertices[f], 6))) for f in strip.faces)
+    assert len(strip.faces) and max(faces.values()) == 1
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_the_camera_frames_the_closeup_where_it_is_drawn(monkeypatch):
+    """The content is drawn fully transformed (M·V_O) up to its outline, but the camera was fitted to the blended
+    vertices V_C: a close-up moved off the terrain and scaled reached up to a cell times the scale past the fitted
+    box. The box now holds the drawn content, in a render and in an animation."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    y, x = np.mgrid[0:21, 0:21]
+    t = Terrain.from_heights((10 * np.sin(x / 3.0) + 5 * np.cos(y / 4.0)).astype(np.float32), spacing=(10.0, 10.0))
+    cu = CloseUp(ROI.circle((100.0, 100.0), 50.0), scale=3.0, offset=(400.0, 0.0, 0.0))
+    (layer,) = closeup_layers(t, [cu], device="cpu")
+    seen = layer.mask_factor >= cu.anchor.outline_level
+    used = np.unique(layer.faces[seen[layer.faces].any(axis=1)])
+    drawn = layer.original[used] @ layer.matrix[:3, :3].T + layer.matrix[:3, 3]
+    boxes = []
+    fit = render.LayeredRenderer.set_view
+
+    def spy(self, camera, box):
+        boxes.append(np.asarray(box, np.float64))
+        return fit(self, camera, box)
+
+    monkeypatch.setattr(render.LayeredRenderer, "set_view", spy)
+    render_closeups(t, [cu], window_size=SIZE, camera="top", device="cpu")
+    animate_closeups(t, [cu], frames=2, window_size=SIZE, camera="top", device="cpu")
+    assert len(boxes) == 3
+    for box in boxes:
+        assert (box[0] <= drawn.min(axis=0)).all() and (box[1] >= drawn.max(axis=0)).all()
+    assert drawn[:, 0].max() - layer.vertices[:, 0].max() > 10  # the blended vertices fall short by over a cell
+
+
+def test_an_unknown_colormap_of_the_stepped_closeups_is_named_by_its_argument():
+    """closeup_layers(colors='nope') was refused as "cmap must name a matplotlib colormap", an argument it has not."""
+    from stepterrain.closeup import closeup_layers
+
+    stepped = CloseUp(ROI.circle((20.0, 16.0), 5.0), stepped=5.0)
+    with pytest.raises(InvalidInputError, match=r"^colors must name a matplotlib colormap .*; got 'nope'"):
+        closeup_layers(hills(), [stepped], colors="nope", device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^cmap must name a matplotlib colormap .*; got 'nope'"):
+        closeup_scene(hills(), [stepped], scalars=None, cmap="nope", device="cpu")
