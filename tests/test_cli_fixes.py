@@ -644,7 +644,8 @@ def test_a_globe_over_the_budget_names_the_face_size_option(tmp_path, capsys):
     code, out, err = run(capsys, "-q", "--memory-budget", "1MiB", "globe", "--face-size", "257",
                          "-o", tmp_path / "g.glb")
     assert code == 2
-    assert "error: a globe of --face-size 257 would need" in err and "use a smaller --face-size, or raise" in err
+    assert "error: a globe of --face-size 257 from a 540x1080 grid would need" in err
+    assert "use a smaller --face-size or a coarser grid, or raise" in err
     assert "face_size" not in err and not (tmp_path / "g.glb").exists()
 
 
