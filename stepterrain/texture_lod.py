@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
-from .io import picture_uint8
+from .io import _ROTATION_TOLERANCE, _negligible_rotation, picture_uint8
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
@@ -94,11 +94,21 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a plain TIFF: pixel units, no warning
             with rasterio.open(image) as dataset:
                 transform = dataset.transform
-                if transform.is_identity or transform.b != 0 or transform.d != 0:
-                    return None
-                left, bottom, right, top = dataset.bounds
+                shape = (int(dataset.height), int(dataset.width))
     except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
         return None
+    if transform.is_identity:
+        return None
+    # rotation terms of float noise (1e-16, as some tools write) are read as 0, by load_dem's rule, so a texture and
+    # its DEM are judged alike: any non-zero term fell back to pixel units (0, W, 0, H), silently misplaced
+    if not _negligible_rotation(transform.b, transform.d, transform.a, transform.e, shape):
+        raise InvalidInputError(
+            f"image {str(image)!r} is georeferenced with a rotated geotransform {tuple(transform)[:6]} (its rotation "
+            f"terms move pixels by more than {_ROTATION_TOLERANCE:g} of a pixel over {shape[0]} x {shape[1]} "
+            "pixels); a pyramid's extent is north-up: `gdalwarp` makes the image north-up, or pass "
+            "extent=(xmin, xmax, ymin, ymax) for it as it is")
+    left, right = transform.c, transform.c + transform.a * shape[1]  # the bounds without the noise terms
+    top, bottom = transform.f, transform.f + transform.e * shape[0]
     if transform.a < 0 or transform.e > 0:  # its bounds came back as an extent with ymin > ymax, "not given"
         raise InvalidInputError(
             f"image {str(image)!r} is georeferenced with its rows running south to north or its columns east to "
@@ -307,7 +317,8 @@ class ImagePyramid:
         DataFileError
             Missing or corrupt image file, or the storage folder cannot be written.
         InvalidInputError
-            Not a uint8 image of 1-4 channels, or a bad extent.
+            Not a uint8 image of 1-4 channels, or a bad extent; a GeoTIFF that is rotated (rotation terms of float
+            noise, as load_dem reads them, count as 0), south-up or east-to-west, without ``extent``.
 
         Notes
         -----

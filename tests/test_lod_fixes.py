@@ -156,3 +156,32 @@ def test_a_pyramid_keeps_its_levels_when_another_is_built_into_its_storage(tmp_p
     assert sorted(p.name for p in storage.iterdir()) == names  # no temporary file left, no level file touched
     assert all((storage / name).read_bytes() == data for name, data in saved.items())
     first.close()
+
+
+@pytest.mark.parametrize(
+    ("transform", "extent"),
+    [
+        ((2.0, 1e-17, 100.0, -1e-17, -2.0, 50.0), (100.0, 120.0, 34.0, 50.0)),  # float noise: placed, as load_dem does
+        ((2.0, 0.1, 100.0, 0.1, -2.0, 50.0), None),  # a real rotation: refused by name
+    ],
+)
+def test_a_geotiff_texture_with_rotation_terms_is_judged_like_its_dem(tmp_path, transform, extent):
+    """Any non-zero rotation term sent a GeoTIFF back to pixel units, (0, W, 0, H), without a word: terms of float
+    noise (1e-17) that load_dem reads as north-up put the texture nowhere near its DEM, and a really rotated image
+    was draped as if north-up over a made-up extent."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    path = tmp_path / "texture.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=8, width=10, count=3, dtype="uint8", crs="EPSG:32633",
+                       transform=Affine(*transform)) as dataset:  # fmt: skip
+        dataset.write(np.zeros((3, 8, 10), np.uint8))
+    if extent is None:
+        with pytest.raises(InvalidInputError, match=r"texture\.tif' is georeferenced with a rotated geotransform "
+                                                    r"\(2\.0, 0\.1, .*gdalwarp.*pass extent="):
+            ImagePyramid.build(path, device="cpu")
+        with ImagePyramid.build(path, extent=(0.0, 10.0, 0.0, 8.0), device="cpu") as pyramid:  # placed by the caller
+            assert pyramid.extent == (0.0, 10.0, 0.0, 8.0)
+    else:
+        with ImagePyramid.build(path, device="cpu") as pyramid:
+            assert pyramid.extent == pytest.approx(extent, abs=1e-9)
