@@ -797,10 +797,17 @@ class TextureLayer:
         return replace(self, matrix=self.matrix @ shift, _rgba_cache={})
 
     def rgba(self) -> NDArray[np.float32]:
-        """The image as (h, w, 4) float32 RGBA in [0, 1] (luminance: grey, opaque; visibility: white, alpha)."""
+        """The image as (h, w, 4) float32 RGBA in [0, 1] (luminance: grey, opaque; visibility: white, alpha).
+
+        Its 16 bytes per pixel are checked against the memory budget (:func:`stepterrain.set_memory_budget`) before
+        anything is allocated: an :class:`~stepterrain.errors.OutputTooLargeError` (a memory-mapped gigapixel image
+        ran out of memory instead)."""
         cached = self._rgba_cache.get("rgba")
         if cached is not None:
             return cached
+        h, w = self.shape
+        check_budget(16 * h * w, f"the (h, w, 4) float32 RGBA of a {w} x {h} {self.kind} layer",
+                     hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
         image = np.asarray(self.image)
         values = image.astype(np.float32) / 255.0 if image.dtype == np.uint8 else image.astype(np.float32)
         out = np.ones((*self.shape, 4), dtype=np.float32)

@@ -349,3 +349,24 @@ def test_blend_refuses_weights_without_an_alpha():
     for weights in (TextureLayer("visibility", values, extent), values,
                     TextureLayer("thematic", np.dstack([b, values]), extent)):
         np.testing.assert_allclose(blend(a, b, weights, device="cpu").rgba()[..., 0], values, atol=1e-7)
+
+
+def test_a_layer_s_rgba_over_the_memory_budget_is_refused_before_it_is_allocated(tmp_path):
+    """rgba() expanded an image to 16 bytes a pixel (float32 RGBA) without looking at the memory budget: a
+    memory-mapped gigapixel layer ran the machine out of memory instead of an OutputTooLargeError naming the size."""
+    import stepterrain as st
+
+    path = tmp_path / "big.npy"
+    np.lib.format.open_memmap(path, mode="w+", dtype=np.uint8, shape=(600, 500, 3)).flush()  # 4.6 MiB as RGBA
+    layer = TextureLayer("thematic", np.load(path, mmap_mode="r"), (0, 500, 0, 600))
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"RGBA of a 500 x 600 thematic layer would need 4\.6 MiB, "
+                                                         r"over the memory budget of 1\.0 MiB; crop or downsample"):
+            layer.rgba()
+        with pytest.raises(st.OutputTooLargeError):  # the operations that read a layer's RGBA are refused as well
+            adjust(layer, brightness=0.5, device="cpu")
+    finally:
+        st.set_memory_budget(previous)
+    rgba = layer.rgba()  # within the budget: as before
+    assert rgba.shape == (600, 500, 4) and rgba.dtype == np.float32 and (rgba[..., 3] == 1.0).all()
