@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import mmap
 import os
 import shutil
 import tempfile
@@ -326,8 +327,10 @@ class ImagePyramid:
         target pixels per axis): an area-weighted mean, so every level keeps the image mean up to the rounding
         to uint8, for odd sizes too (a plain 2 x 2 box when n is even). The mean is summed exactly (integers) and
         rounded half up, floor(mean + 0.5), on both paths. One Warp thread per target pixel; the
-        source is read with ``pread`` and the levels written with ``pwrite``, never mapped while building, so
-        the resident memory stays about two bands whatever the image size. An image array the caller can still
+        levels are written with ``pwrite`` and read back with ``pread``, never mapped while building; a memmap
+        source is read through its own mapping (not its file name, which may name a replacement by now), each band's
+        pages dropped from the resident set once copied, so the resident memory stays about two bands whatever the
+        image size. An image array the caller can still
         edit is copied first, so that later edits do not make level 0 disagree with the levels built from it: in
         memory (the image's bytes once more; about 7 % of the build time at 2048²), a writeable memmap band by band
         into ``storage`` (``level_0.u8``). A read-only array that owns its pixels, or a .npy path, is not copied.
@@ -340,7 +343,7 @@ class ImagePyramid:
         ...     [level.shape for level in pyramid.levels]
         [(5, 3, 3), (3, 2, 3), (2, 1, 3), (1, 1, 3)]
         """
-        source, backing, offset, changeable = _source_image(image)
+        source, backing, _, changeable = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         if extent is None:
             extent = _georeferenced_extent(image) or (0.0, float(width), 0.0, float(height))
@@ -369,9 +372,8 @@ class ImagePyramid:
             elif changeable:  # a writeable memmap: the copy goes to storage, band by band (memory stays bounded)
                 path = staged.path("level_0.u8")
                 source = _snapshot(source, path, band_bytes)
-                backing, offset = str(path), 0
             levels: list[NDArray[np.uint8]] = [source]
-            reader = _Reader(source, backing, offset)
+            reader = _Reader(source, None, 0)  # level 0 itself, through its mapping (never its file name)
             for k in range(1, len(shapes)):
                 path = staged.path(f"level_{k}.u8")
                 _reduce_file(reader, shapes[k - 1], shapes[k], channels, path, band_bytes, dev)
@@ -502,7 +504,12 @@ def _window_expected(rows: int, cols: int, level: int) -> str:
 
 
 class _Reader:
-    """Rows of an (H, W, C) uint8 image, read with ``pread`` from its file when it has one (no mapping)."""
+    """Rows of an (H, W, C) uint8 image: copied from ``array`` (a memmap's pages dropped from the resident set after
+    each band), else read with ``pread`` from the file ``path`` that this build wrote (no mapping).
+
+    A memmap is read through its own mapping, never through its file name: the file may have been replaced since it
+    was mapped (a level of a pyramid whose storage a later build reused), and a same-size replacement was read
+    without a word, the levels built from another image than level 0."""
 
     def __init__(self, array: NDArray[np.uint8] | None, path: str | None, offset: int,
                  shape: tuple[int, int, int] | None = None) -> None:
@@ -514,7 +521,12 @@ class _Reader:
     def rows(self, r0: int, r1: int) -> NDArray[np.uint8]:
         _, width, channels = self.shape
         if self.path is None:
-            return np.ascontiguousarray(self.array[r0:r1])
+            band = self.array[r0:r1]
+            if not isinstance(band, np.memmap):
+                return np.ascontiguousarray(band)
+            out = np.array(band, order="C")  # a band-sized copy, like pread's
+            _drop_resident(band)
+            return out
         row_bytes = width * channels
         out = np.empty((r1 - r0, width, channels), dtype=np.uint8)
         try:
@@ -534,6 +546,21 @@ class _Reader:
         finally:
             os.close(fd)
         return out
+
+
+def _drop_resident(band: np.memmap) -> None:
+    """Drop the pages under ``band`` (a C-contiguous run of a memmap) from this process's resident set
+    (``madvise(MADV_DONTNEED)``; the file's data stay in the page cache), so reading a memmap band by band keeps the
+    resident memory about one band. Nothing where the platform lacks it."""
+    mapping = getattr(band, "_mmap", None)
+    if mapping is None or not band.flags.c_contiguous or not hasattr(mmap, "MADV_DONTNEED") or band.nbytes == 0:
+        return
+    try:
+        start = int(band.ctypes.data) - int(np.frombuffer(mapping, dtype=np.uint8).ctypes.data)
+        first = start - start % mmap.PAGESIZE
+        mapping.madvise(mmap.MADV_DONTNEED, first, min(len(mapping), start + band.nbytes) - first)
+    except (ValueError, OSError):  # a closed or odd mapping: the band was read, only its pages stay resident
+        pass
 
 
 def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[int, int], channels: int,
@@ -629,12 +656,7 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
                 parent, src_shape = (kx, ky - 1), (heights[ky - 1], widths[kx])
             dst_shape = (heights[ky], widths[kx])
             path = staged.path(f"level_{kx}_{ky}.u8")
-            source = out[parent]
-            backing, offset = _memmap_backing(source)
-            if backing is not None:
-                reader = _Reader(None, str(backing), offset, shape=(*src_shape, channels))
-            else:
-                reader = _Reader(np.asarray(source), None, 0)
+            reader = _Reader(out[parent], None, 0)  # level 0 or a staged level, through its mapping
             _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)
             out[(kx, ky)] = np.memmap(path, dtype=np.uint8, mode="r", shape=(*dst_shape, channels))
     return out

@@ -185,3 +185,16 @@ def test_a_geotiff_texture_with_rotation_terms_is_judged_like_its_dem(tmp_path, 
     else:
         with ImagePyramid.build(path, device="cpu") as pyramid:
             assert pyramid.extent == pytest.approx(extent, abs=1e-9)
+
+
+@pytest.mark.parametrize("anisotropic", [False, True])
+def test_a_pyramid_of_a_memmap_whose_file_was_replaced_reads_the_mapped_pixels(tmp_path, anisotropic):
+    """build read a memmap source through its file name: a level of a pyramid whose storage a later build reused
+    (its file replaced by one of the same size) gave levels 1+ of the other image under level 0 of this one."""
+    first = ImagePyramid.build(np.full((16, 16, 3), 10, np.uint8), storage=tmp_path, device="cpu")
+    level = first.levels[1]  # maps tmp_path / level_1.u8
+    ImagePyramid.build(np.full((16, 16, 3), 250, np.uint8), storage=tmp_path, device="cpu")  # replaces that file
+    with ImagePyramid.build(level, anisotropic=anisotropic, device="cpu") as pyramid:
+        assert [int(v.max()) for v in pyramid.levels] == [10, 10, 10, 10]
+        assert all(int(v.max()) == 10 for v in pyramid.anisotropic.values())
+    first.close()
