@@ -667,7 +667,9 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
 class GeometryPatch:
     """A node N of the geometry multiresolution model H(G) (§3.1): grid nodes rows[0]..rows[1] x
     cols[0]..cols[1] (inclusive), approximated by every ``stride``-th node; ``error`` e(N) is the largest
-    vertical distance between the terrain and that approximation; ``box`` B(N) = (min xyz, max xyz)."""
+    vertical distance between the terrain and that approximation (the triangles :func:`paint_with_textures` draws;
+    where a nodata node leaves terrain with data undrawn, at least the coarse cell's diagonal); ``box`` B(N) =
+    (min xyz, max xyz)."""
 
     domain: Extent
     rows: tuple[int, int]
@@ -717,7 +719,8 @@ class PatchQuadtree:
         stride = 2 ** (self.depth - depth)
         domain = self._domain(rows, cols)
         box = np.array([[domain[0], domain[2], zmin], [domain[1], domain[3], zmax]])
-        patch = GeometryPatch(domain, rows, cols, depth, stride, _approximation_error(block, stride), box, parent)
+        error = _approximation_error(block, stride, t.spacing)
+        patch = GeometryPatch(domain, rows, cols, depth, stride, error, box, parent)
         if depth < self.depth and (rows[1] - rows[0] > 1 or cols[1] - cols[0] > 1):
             rm = (rows[0] + rows[1]) // 2
             cm = (cols[0] + cols[1]) // 2
@@ -736,8 +739,14 @@ class PatchQuadtree:
         return out
 
 
-def _approximation_error(block: NDArray[np.float32], stride: int) -> float:
-    """Max |h − bilinear interpolation of every stride-th node (last row/column kept)| over the block."""
+def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0)) -> float:
+    """e(N): max |h − G(N)| over the block's nodes with data, G(N) the mesh :func:`paint_with_textures` draws (every
+    stride-th node, last row/column kept, two triangles a cell split along (r, c)-(r+1, c+1) as
+    :func:`~stepterrain.terrain.grid_faces`; a triangle with a nodata corner is not drawn).
+
+    A node with data that no drawn triangle covers (the approximation's hole around a nodata node is wider than the
+    terrain's) counts as the coarse cell's diagonal, stride × hypot(dx, dy) in world units: γ(N) then refines the
+    patch once that hole spans more than γ_user pixels on screen (its vertical distance is undefined)."""
     if stride <= 1:
         return 0.0
     z = np.asarray(block, dtype=np.float64)
@@ -745,21 +754,45 @@ def _approximation_error(block: NDArray[np.float32], stride: int) -> float:
     ri = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
     ci = np.unique(np.r_[np.arange(0, cols, stride), cols - 1])
     coarse = z[np.ix_(ri, ci)]
-    r = np.arange(rows)
-    c = np.arange(cols)
-    k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, max(len(ri) - 2, 0))
-    m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, max(len(ci) - 2, 0))
     if len(ri) == 1 or len(ci) == 1:
         return float(np.nanmax(np.abs(z - np.nanmean(coarse)))) if np.isfinite(z).any() else 0.0
-    fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
-    fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
-    a = coarse[k][:, m]
-    b = coarse[k][:, m + 1]
-    cc = coarse[k + 1][:, m]
-    d = coarse[k + 1][:, m + 1]
-    approx = (a * (1 - fc) + b * fc) * (1 - fr) + (cc * (1 - fc) + d * fc) * fr
-    diff = np.abs(z - approx)
-    return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+    r = np.arange(rows)
+    c = np.arange(cols)
+    if np.isfinite(coarse).all():  # every triangle drawn: a node's own cell covers it
+        k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, len(ri) - 2)
+        m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, len(ci) - 2)
+        fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
+        fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
+        a, b = coarse[k][:, m], coarse[k][:, m + 1]
+        cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
+        value = np.where(fc >= fr, a + (b - a) * fc + (d - b) * fr, a + (cc - a) * fr + (d - cc) * fc)
+        diff = np.abs(z - value)
+        return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+    worst = np.zeros(z.shape)
+    covered = np.zeros(z.shape, dtype=bool)
+    # a node on a coarse row or column lies in the cells on both sides of it: where one side's triangle is not drawn
+    # (a nodata corner), the other may cover it, so both sides are tried
+    for side_r in ("left", "right"):
+        k = np.clip(np.searchsorted(ri, r, side=side_r) - 1, 0, len(ri) - 2)
+        fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
+        for side_c in ("left", "right"):
+            m = np.clip(np.searchsorted(ci, c, side=side_c) - 1, 0, len(ci) - 2)
+            fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
+            a, b = coarse[k][:, m], coarse[k][:, m + 1]
+            cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
+            for inside, value in (
+                (fc >= fr, a + (b - a) * fc + (d - b) * fr),  # (n00, n01, n11)
+                (fc <= fr, a + (cc - a) * fr + (d - cc) * fc),  # (n00, n11, n10)
+            ):
+                drawn = inside & np.isfinite(value)  # NaN where a corner is nodata
+                with np.errstate(invalid="ignore"):
+                    np.fmax(worst, np.where(drawn, np.abs(z - value), 0.0), out=worst)
+                covered |= drawn
+    data = np.isfinite(z)
+    error = float(worst[data & covered].max()) if (data & covered).any() else 0.0
+    if (data & ~covered).any():
+        error = max(error, stride * math.hypot(*spacing))
+    return error
 
 
 # ---------------------------------------------------------------------------------------------- texture tree

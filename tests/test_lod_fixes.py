@@ -198,3 +198,66 @@ def test_a_pyramid_of_a_memmap_whose_file_was_replaced_reads_the_mapped_pixels(t
         assert [int(v.max()) for v in pyramid.levels] == [10, 10, 10, 10]
         assert all(int(v.max()) == 10 for v in pyramid.anisotropic.values())
     first.close()
+
+
+def _drawn_mesh_error(block, stride, spacing):
+    """e(N) by brute force: every node with data against every drawn triangle of the coarse mesh containing it
+    (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node no triangle covers
+    counts as the coarse cell's diagonal. A leaf (stride 1) is the terrain itself: 0."""
+    if stride == 1:
+        return 0.0
+    rows, cols = block.shape
+    ri = sorted({*range(0, rows, stride), rows - 1})
+    ci = sorted({*range(0, cols, stride), cols - 1})
+    triangles = []
+    for k in range(len(ri) - 1):
+        for m in range(len(ci) - 1):
+            n00, n01 = (ri[k], ci[m]), (ri[k], ci[m + 1])
+            n10, n11 = (ri[k + 1], ci[m]), (ri[k + 1], ci[m + 1])
+            for tri in ((n00, n01, n11), (n00, n11, n10)):
+                if all(np.isfinite(block[p]) for p in tri):
+                    triangles.append(tri)
+    worst = 0.0
+    for i in range(rows):
+        for j in range(cols):
+            if not np.isfinite(block[i, j]):
+                continue
+            covered = False
+            for (r0, c0), (r1, c1), (r2, c2) in triangles:
+                det = (r1 - r0) * (c2 - c0) - (r2 - r0) * (c1 - c0)
+                w1 = ((i - r0) * (c2 - c0) - (r2 - r0) * (j - c0)) / det
+                w2 = ((r1 - r0) * (j - c0) - (i - r0) * (c1 - c0)) / det
+                if min(w1, w2, 1.0 - w1 - w2) < -1e-12:
+                    continue
+                covered = True
+                value = (1 - w1 - w2) * block[r0, c0] + w1 * block[r1, c1] + w2 * block[r2, c2]
+                worst = max(worst, abs(float(block[i, j]) - float(value)))
+            if not covered:
+                worst = max(worst, stride * float(np.hypot(*spacing)))
+    return worst
+
+
+def test_the_geometric_error_is_the_distance_to_the_drawn_mesh_near_nodata_too():
+    """e(N) was measured against a bilinear surface (up to a quarter of a cell's twist off the two triangles a
+    patch is drawn with) and skipped every cell with a nodata corner: beside a hole the terrain's error went
+    unmeasured, and terrain with data that the coarse mesh leaves undrawn (its hole around a nodata node is a coarse
+    cell wider) counted as 0, so a flat DEM with one void drew its root with a hole 2 × stride cells wide from
+    any distance."""
+    rng = np.random.default_rng(0)
+    heights = np.cumsum(np.cumsum(rng.normal(0.0, 1.0, (33, 33)), 0), 1).astype(np.float32)
+    heights[8:11, 15:18] = np.nan  # a void over the coarse node (8, 16)
+    heights[20, 4] = heights[3, 27] = np.nan
+    spacing = (2.0, -1.5)
+    quadtree = PatchQuadtree(heights, leaf_size=4, spacing=spacing)
+    for patch in quadtree.patches():
+        block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1].astype(np.float64)
+        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, spacing), rel=1e-9, abs=1e-9)
+    flat = np.zeros((33, 33), np.float32)
+    flat[16, 16] = np.nan  # one void, on a node of the root's coarse mesh
+    root = PatchQuadtree(flat, leaf_size=4).root
+    assert root.error == pytest.approx(8 * np.sqrt(2.0))  # stride 8: the undrawn ground is up to a cell across
+    camera = Camera((16.0, -10.0, 20.0), (16.0, 16.0, 0.0))
+    with ImagePyramid.build(np.zeros((32, 32, 3), np.uint8), extent=root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, PatchQuadtree(flat, leaf_size=4), max_texture_size=64)
+        items = render_with_textures(tree.quadtree.root, [tree.root], camera, gamma_user=1.0)
+        assert any(item.geometry.stride == 1 for item in items)  # refined near the void, not drawn at the root
