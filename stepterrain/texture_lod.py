@@ -1134,7 +1134,8 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     """``paintWithTextures(N, T)`` (§4) as a mesh: the geometry patch at its level of detail (every
     ``stride``-th node of its block, the last row and column kept) textured with the sub-image of the chosen
     texture patch of ``layer`` (UVs through the patch's georeferenced window; a 1-channel pyramid drapes as
-    luminance, a 2-channel one as grey + alpha, i.e. RGBA). Returns a ``trimesh.Trimesh``;
+    luminance, a 2-channel one as grey + alpha, i.e. RGBA; with nodata, as :func:`~stepterrain.heightfield_mesh`, no
+    face touches a NaN node and those nodes are left out). Returns a ``trimesh.Trimesh``;
     an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
     Examples
@@ -1168,6 +1169,13 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
                                 terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
+    finite = np.isfinite(vertices[:, 2])
+    if not finite.all():  # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were
+        faces = faces[finite[faces].all(axis=1)]  # kept: NaN vertices in the mesh, its faces spanning the void)
+        keep = np.zeros(len(vertices), dtype=bool)
+        keep[faces.reshape(-1)] = True
+        faces = (np.cumsum(keep) - 1)[faces]
+        vertices = vertices[keep]
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     texture = item.textures[layer]
     image = np.asarray(texture.image())

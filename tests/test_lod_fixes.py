@@ -261,3 +261,23 @@ def test_the_geometric_error_is_the_distance_to_the_drawn_mesh_near_nodata_too()
         tree = TextureTree(pyramid, PatchQuadtree(flat, leaf_size=4), max_texture_size=64)
         items = render_with_textures(tree.quadtree.root, [tree.root], camera, gamma_user=1.0)
         assert any(item.geometry.stride == 1 for item in items)  # refined near the void, not drawn at the root
+
+
+def test_a_painted_patch_leaves_nodata_out_as_heightfield_mesh_does():
+    """paint_with_textures kept NaN heights as vertices: every patch over a void gave a mesh with NaN vertices
+    and faces spanning the void (NaN areas and normals; an export of it is broken)."""
+    from stepterrain.terrain import heightfield_mesh
+    from stepterrain.texture_lod import paint_with_textures
+
+    heights = np.random.default_rng(2).normal(0.0, 1.0, (17, 17)).astype(np.float32)
+    heights[8, 8] = heights[3, 12] = np.nan
+    quadtree = PatchQuadtree(heights, leaf_size=8)
+    camera = Camera((8.0, -1.0, 3.0), (8.0, 8.0, 0.0))  # close: every leaf drawn at full resolution
+    with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        items = render_with_textures(quadtree.root, [tree.root], camera)
+        assert len(items) == 4 and all(item.geometry.is_leaf for item in items)
+        meshes = [paint_with_textures(item) for item in items]
+    assert all(np.isfinite(mesh.vertices).all() for mesh in meshes)
+    assert sum(len(mesh.faces) for mesh in meshes) == len(heightfield_mesh(heights).faces)  # 512 - 6 - 2 faces
+    assert sum(mesh.area for mesh in meshes) == pytest.approx(heightfield_mesh(heights).area)
