@@ -621,7 +621,10 @@ def relight(
     azimuth, altitude : float
         A directional light (radians), or
     point : (x, y, z)
-        a point light in the terrain's world coordinates; needs ``terrain`` (the surface positions).
+        a point light in the terrain's world coordinates, z in the heights' units; needs ``terrain`` (the surface
+        positions). With ``z_factor`` the scene is exaggerated as a whole: the surface (heights × z_factor, whose
+        normals :func:`normal_map` encoded) and the light (z × z_factor), so a light 50 m above the ground stays
+        50 m × z_factor above it.
     terrain, z_factor, spacing
         For a point light, the surface as given to :func:`normal_map`; ``z_factor`` must be a positive number
         with either light. ``terrain`` and ``spacing`` given with a directional light are refused (they would
@@ -671,10 +674,13 @@ def relight(
         raise InvalidInputError(f"normals of shape {rgb.shape[:2]} do not match the terrain's {t.heights.shape} "
                                 "nodes (mismatched size); relight the normal map of this terrain")
     grid = _height_grid(t, z_factor, dev)
-    local = (float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]))
+    # the light is in world units, the surface shaded is the exaggerated one (heights x z_factor, which the normals
+    # are of): its z is exaggerated with it, or a lamp 50 m above ground at z_factor 3 lit it from below (black)
+    local = (float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]) * z_factor)
     if max(abs(c) for c in local) > _MAX_SLOPE:  # |point - surface|² in float32 overflowed: a black image
         raise InvalidInputError(f"point must lie within {_MAX_SLOPE:g} of the terrain's origin (float32 "
-                                f"distances); got {tuple(float(c) for c in position)}")
+                                f"distances, z x z_factor); got {tuple(float(c) for c in position)}"
+                                f"{f' at z_factor {z_factor:g}' if z_factor != 1.0 else ''}")
     local = wp.vec3(*local)
     launch(texture_kernels.relight_point, dim=rgb.shape[0] * rgb.shape[1], inputs=[texels, grid, local],
            outputs=[out], device=dev)

@@ -370,3 +370,23 @@ def test_a_layer_s_rgba_over_the_memory_budget_is_refused_before_it_is_allocated
         st.set_memory_budget(previous)
     rgba = layer.rgba()  # within the budget: as before
     assert rgba.shape == (600, 500, 4) and rgba.dtype == np.float32 and (rgba[..., 3] == 1.0).all()
+
+
+@pytest.mark.parametrize("z_factor", [0.5, 3.0])
+def test_a_point_light_is_exaggerated_with_the_surface(z_factor):
+    """relight compared the point light's z, in world units, with the exaggerated surface (heights × z_factor):
+    at z_factor 3 a light 50 m above a plain at 100 m lay below its exaggerated 300 m and lit nothing (black)."""
+    flat = np.full((21, 21), 100.0, np.float32)
+    shade = relight(normal_map(flat, z_factor=z_factor, device="cpu"), point=(10.0, 10.0, 150.0), terrain=flat,
+                    z_factor=z_factor, device="cpu")
+    i, j = np.meshgrid(np.arange(21), np.arange(21), indexing="ij")
+    above = 50.0 * z_factor  # the light over the exaggerated plain
+    np.testing.assert_allclose(shade, above / np.sqrt((i - 10.0) ** 2 + (j - 10.0) ** 2 + above**2), atol=0.01)
+    # the same scene exaggerated beforehand, at z_factor 1: the surface and the light scaled alike
+    heights = np.random.default_rng(4).normal(100.0, 2.0, (15, 17)).astype(np.float32)
+    ours = relight(normal_map(heights, z_factor=z_factor, device="cpu"), point=(6.0, 9.0, 120.0), terrain=heights,
+                   z_factor=z_factor, device="cpu")
+    scaled = heights * np.float32(z_factor)
+    theirs = relight(normal_map(scaled, device="cpu"), point=(6.0, 9.0, 120.0 * z_factor), terrain=scaled,
+                     device="cpu")
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)
