@@ -390,3 +390,36 @@ def test_a_point_light_is_exaggerated_with_the_surface(z_factor):
     theirs = relight(normal_map(scaled, device="cpu"), point=(6.0, 9.0, 120.0 * z_factor), terrain=scaled,
                      device="cpu")
     np.testing.assert_allclose(ours, theirs, atol=1e-5)
+
+
+@pytest.mark.parametrize(("call", "match"), [
+    (lambda z: hillshade(z, method="multidirectional", azimuth=1.0, device="cpu"),
+     r"^azimuth has no effect on method='multidirectional', which shades by its four fixed lights.*got azimuth=1\.0 "
+     r"without shadows"),
+    (lambda z: hillshade(z, method="igor", altitude=0.3, device="cpu"),
+     r"^altitude has no effect on method='igor'.*got altitude=0\.3 without shadows"),
+    (lambda z: hillshade(z, shadow_strength=0.3, device="cpu"),
+     r"^shadow_strength applies only with shadows=True .*got shadow_strength=0\.3 with shadows=False"),
+    (lambda z: topographic_layer(z, shadows=False, shadow_strength=0.3, device="cpu"),
+     r"^shadow_strength applies only with shadows=True"),
+    (lambda z: topographic_layer(z, method="multidirectional", shadows=False, azimuth=1.0, device="cpu"),
+     r"^azimuth has no effect on method='multidirectional'"),
+], ids=["multidirectional azimuth", "igor altitude", "hillshade strength", "topographic strength",
+        "topographic azimuth"])
+def test_an_argument_the_shading_ignores_is_refused(call, match):
+    """hillshade(method="multidirectional", azimuth=...) (four fixed lights), method="igor" with an altitude and
+    shadow_strength without shadows (in hillshade and topographic_layer) shaded exactly as without them, without a
+    word; the CLI and gdaldem refuse the like. Left at their defaults (None) the results are unchanged, and with
+    shadows the angles aim the shadows."""
+    heights = np.random.default_rng(5).normal(0.0, 20.0, (12, 14)).astype(np.float32)
+    with pytest.raises(InvalidInputError, match=match):
+        call(heights)
+    default = hillshade(heights, azimuth=math.radians(315.0), altitude=math.radians(45.0), device="cpu")
+    np.testing.assert_array_equal(hillshade(heights, device="cpu"), default)
+    for method in ("multidirectional", "igor"):
+        hillshade(heights, method=method, device="cpu")
+        aimed = hillshade(heights, method=method, azimuth=1.0, altitude=0.3, shadows=True, device="cpu")
+        assert aimed.shape == heights.shape
+    layer = topographic_layer(heights, device="cpu").image
+    np.testing.assert_array_equal(layer, topographic_layer(heights, shadow_strength=0.6, device="cpu").image)
+    topographic_layer(heights, shadows=False, device="cpu")
