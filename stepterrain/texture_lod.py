@@ -187,7 +187,10 @@ def _snapshot(source: NDArray[np.uint8], path: Path, band_bytes: int) -> NDArray
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
     try:
         for r0 in range(0, height, band):  # a handful of bands, never a loop over pixels
-            _write_at(fd, source[r0 : r0 + band], r0 * width * channels)
+            rows = source[r0 : r0 + band]
+            _write_at(fd, rows, r0 * width * channels)
+            if isinstance(rows, np.memmap):  # its pages stayed resident: the whole image by the end
+                _drop_resident(rows)
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
     finally:
@@ -551,9 +554,11 @@ class _Reader:
 def _drop_resident(band: np.memmap) -> None:
     """Drop the pages under ``band`` (a C-contiguous run of a memmap) from this process's resident set
     (``madvise(MADV_DONTNEED)``; the file's data stay in the page cache), so reading a memmap band by band keeps the
-    resident memory about one band. Nothing where the platform lacks it."""
+    resident memory about one band. Nothing where the platform lacks it, nor for a copy-on-write map (mode "c"):
+    there it would discard the caller's edits, which live in those pages only."""
     mapping = getattr(band, "_mmap", None)
-    if mapping is None or not band.flags.c_contiguous or not hasattr(mmap, "MADV_DONTNEED") or band.nbytes == 0:
+    if (mapping is None or getattr(band, "mode", "c") == "c" or not band.flags.c_contiguous
+            or not hasattr(mmap, "MADV_DONTNEED") or band.nbytes == 0):
         return
     try:
         start = int(band.ctypes.data) - int(np.frombuffer(mapping, dtype=np.uint8).ctypes.data)

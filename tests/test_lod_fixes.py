@@ -281,3 +281,52 @@ def test_a_painted_patch_leaves_nodata_out_as_heightfield_mesh_does():
     assert all(np.isfinite(mesh.vertices).all() for mesh in meshes)
     assert sum(len(mesh.faces) for mesh in meshes) == len(heightfield_mesh(heights).faces)  # 512 - 6 - 2 faces
     assert sum(mesh.area for mesh in meshes) == pytest.approx(heightfield_mesh(heights).area)
+
+
+def test_a_writeable_memmap_is_copied_into_storage_with_memory_bounded(tmp_path):
+    """The copy of a writeable memmap into storage (level_0.u8) read it through its mapping, band by band, but left
+    every page resident: the peak resident set rose by the whole image (48 MB here), not about a band."""
+    import subprocess
+    import sys
+    import textwrap
+
+    source = tmp_path / "big.npy"
+    image = np.lib.format.open_memmap(source, mode="w+", dtype=np.uint8, shape=(4000, 4000, 3))
+    image[::7] = 200
+    image.flush()
+    del image
+    script = textwrap.dedent(f"""
+        import numpy as np
+        from stepterrain.texture_lod import ImagePyramid
+        ImagePyramid.build(np.zeros((1001, 1003, 3), np.uint8), band_bytes=1 << 20, device="cpu").close()
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+        image = np.load({str(source)!r}, mmap_mode="r+")  # writeable: copied into storage first
+        open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident set
+        before = status("VmRSS")
+        pyramid = ImagePyramid.build(image, band_bytes=1 << 20, device="cpu")
+        rise = status("VmHWM") - before
+        assert pyramid.levels[-1].shape == (1, 1, 3) and 25 <= int(pyramid.levels[-1][0, 0, 0]) <= 32
+        pyramid.close()
+        print(rise)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    if result.returncode != 0 and "clear_refs" in result.stderr:
+        pytest.skip("/proc/self/clear_refs is not writable here")
+    assert result.returncode == 0, result.stderr
+    rise = int(result.stdout.strip().splitlines()[-1])
+    assert rise < 20 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB for a 48 MB image"
+
+
+def test_a_copy_on_write_memmap_keeps_its_edits_through_a_build(tmp_path):
+    """Dropping a band's pages after reading it (to keep the resident set small) must spare a copy-on-write map: its
+    edits live in those pages only, and madvise(MADV_DONTNEED) would put the file's pixels back under the caller."""
+    np.save(tmp_path / "image.npy", np.zeros((256, 256, 3), np.uint8))
+    image = np.load(tmp_path / "image.npy", mmap_mode="c")
+    image[:] = 77  # edits in memory only
+    with ImagePyramid.build(image, band_bytes=1 << 14, device="cpu") as pyramid:
+        assert [int(level.min()) for level in pyramid.levels] == [77] * len(pyramid.levels)
+    assert int(image.min()) == int(image.max()) == 77
+    assert int(np.load(tmp_path / "image.npy").max()) == 0  # and the file as it was
