@@ -164,6 +164,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} has no effect on --hillshade {args.method}, which shades by {why} (as "
                                 f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
                                 "--shadows")
+    # the library refuses an angle its method ignores, as this does: only the angles given are passed on
+    given = {"azimuth": args.azimuth is not None, "altitude": args.altitude is not None}
     args.azimuth = 315.0 if args.azimuth is None else args.azimuth
     args.altitude = 45.0 if args.altitude is None else args.altitude
     if args.shadow_strength is not None and not args.shadows:  # it wrote the texture without shadows, the same
@@ -188,10 +190,12 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                      + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
     progress.stage("texture", f"topographic texture on {device}: {what}")
     # degrees wrapped into one turn: the library's radians-or-degrees warning (past 4π) is for API callers
-    azimuth = args.azimuth % 360.0
-    topo = tx.topographic_layer(terrain, azimuth=math.radians(azimuth), altitude=math.radians(args.altitude),
-                                z_factor=args.z_factor, method=args.method, shadows=args.shadows,
-                                shadow_strength=args.shadow_strength, occlusion=args.occlusion, device=device)
+    azimuth = math.radians(args.azimuth % 360.0) if given["azimuth"] else None
+    altitude = math.radians(args.altitude) if given["altitude"] else None
+    topo = tx.topographic_layer(terrain, azimuth=azimuth, altitude=altitude, z_factor=args.z_factor,
+                                method=args.method, shadows=args.shadows,
+                                shadow_strength=args.shadow_strength if args.shadows else None,
+                                occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain, args.colormap)
     composite = topo
     if colors is not None:

@@ -193,12 +193,12 @@ def _result(host: NDArray[Any] | None, array: wp.array) -> NDArray[Any]:
 def hillshade(
     terrain: Terrain | ArrayLike,
     *,
-    azimuth: float = DEFAULT_AZIMUTH,
-    altitude: float = DEFAULT_ALTITUDE,
+    azimuth: float | None = None,
+    altitude: float | None = None,
     z_factor: float = 1.0,
     method: str = "standard",
     shadows: bool = False,
-    shadow_strength: float = 1.0,
+    shadow_strength: float | None = None,
     spacing: ArrayLike | None = None,
     device: wp.DeviceLike = None,
     exaggeration: float | None = None,
@@ -212,11 +212,14 @@ def hillshade(
     ----------
     terrain : Terrain or (H, W) array_like
         Heights (NaN = nodata); a raw array takes ``spacing`` (dx, dy), default (1, 1).
-    azimuth, altitude : float
+    azimuth, altitude : float, optional
         Direction the light comes from: azimuth clockwise from north (+y), altitude above the horizon in
-        [0, π/2], radians, not degrees: the defaults are GDAL's ``-az 315 -alt 45``, ``math.radians(315)``
+        [0, π/2], radians, not degrees: the defaults (None) are GDAL's ``-az 315 -alt 45``, ``math.radians(315)``
         and ``math.radians(45)`` (the CLI's ``--azimuth``/``--altitude`` take degrees). An azimuth beyond two
-        turns (4π) is taken for degrees given by mistake and warned about (it is still used as radians).
+        turns (4π) is taken for degrees given by mistake and warned about (it is still used as radians). As
+        gdaldem refuses ``-multidirectional`` with ``-az`` and ``-igor`` with ``-alt``, an azimuth given with
+        ``method="multidirectional"`` (four fixed lights) or an altitude with ``"igor"`` (no altitude) is refused
+        unless ``shadows=True``, which they aim.
     z_factor : float
         Vertical exaggeration applied to the heights (GDAL's ``-z``).
     method : "standard", "multidirectional", "combined" or "igor"
@@ -231,8 +234,9 @@ def hillshade(
         return an (H, W, 4) RGBA overlay, see Notes.
     shadows : bool
         Darken pixels that the terrain shadows from the light (see :func:`cast_shadows`) by ``shadow_strength``.
-    shadow_strength : float
-        In [0, 1]: a shadowed pixel keeps ``1 − shadow_strength`` of its shade.
+    shadow_strength : float, optional
+        In [0, 1]: a shadowed pixel keeps ``1 − shadow_strength`` of its shade (default 1); refused without
+        ``shadows=True`` (it would have no effect).
     device : warp device, optional
     exaggeration : float, optional
         MapLibre methods only: ``hillshade-exaggeration`` in [0, 1], default 0.5.
@@ -252,7 +256,8 @@ def hillshade(
     Raises
     ------
     InvalidInputError
-        Altitude outside [0°, 90°], non-finite azimuth, non-positive z factor, unknown method, bad heights.
+        Altitude outside [0°, 90°], non-finite azimuth, non-positive z factor, unknown method, bad heights; an
+        argument the shading would ignore (see ``azimuth``, ``shadow_strength``).
 
     Notes
     -----
@@ -291,15 +296,31 @@ def hillshade(
     """
     t = _grid_terrain(terrain, spacing)
     shadows = check_flag(shadows, "shadows")
+    if shadow_strength is not None and not shadows:  # it was ignored: the shade came out the same whatever it was
+        raise InvalidInputError(f"shadow_strength applies only with shadows=True (it darkens the shadowed pixels); "
+                                f"got shadow_strength={shadow_strength!r} with shadows=False")
     if _is_name(method, MAPLIBRE_METHODS):
         if shadows:
             raise InvalidInputError(f"shadows=True applies to the grey methods {', '.join(HILLSHADE_METHODS)}; "
                                     f"got method={method!r} (an RGBA overlay)")
-        return _maplibre_hillshade(t, azimuth, altitude, z_factor, method, exaggeration, shadow_color,
-                                   highlight_color, accent_color, device)
+        return _maplibre_hillshade(t, DEFAULT_AZIMUTH if azimuth is None else azimuth,
+                                   DEFAULT_ALTITUDE if altitude is None else altitude, z_factor, method, exaggeration,
+                                   shadow_color, highlight_color, accent_color, device)
     if not _is_name(method, HILLSHADE_METHODS):
         raise InvalidInputError(f"method must be one of {', '.join(HILLSHADE_METHODS + MAPLIBRE_METHODS)}; "
                                 f"got {method!r}")
+    # an angle the shading ignores is refused, as gdaldem refuses -multidirectional with -az and -igor with -alt (and
+    # the CLI its --azimuth and --altitude): the shade came out the same whatever was given; shadows it still aims
+    ignored = {"multidirectional": ("azimuth", azimuth, "its four fixed lights, from azimuths 225°, 270°, 315° and "
+                                                        "360°"),
+               "igor": ("altitude", altitude, "the light's azimuth and the slope alone")}.get(method)
+    if ignored is not None and ignored[1] is not None and not shadows:
+        name, value, why = ignored
+        raise InvalidInputError(f"{name} has no effect on method={method!r}, which shades by {why} (as gdaldem "
+                                f"-{method}); it aims shadows=True only; got {name}={value!r} without shadows")
+    azimuth = DEFAULT_AZIMUTH if azimuth is None else azimuth
+    altitude = DEFAULT_ALTITUDE if altitude is None else altitude
+    shadow_strength = 1.0 if shadow_strength is None else shadow_strength
     for name, value in (("exaggeration", exaggeration), ("shadow_color", shadow_color),
                         ("highlight_color", highlight_color), ("accent_color", accent_color)):
         if value is not None:
@@ -621,7 +642,10 @@ def relight(
     azimuth, altitude : float
         A directional light (radians), or
     point : (x, y, z)
-        a point light in the terrain's world coordinates; needs ``terrain`` (the surface positions).
+        a point light in the terrain's world coordinates, z in the heights' units; needs ``terrain`` (the surface
+        positions). With ``z_factor`` the scene is exaggerated as a whole: the surface (heights × z_factor, whose
+        normals :func:`normal_map` encoded) and the light (z × z_factor), so a light 50 m above the ground stays
+        50 m × z_factor above it.
     terrain, z_factor, spacing
         For a point light, the surface as given to :func:`normal_map`; ``z_factor`` must be a positive number
         with either light. ``terrain`` and ``spacing`` given with a directional light are refused (they would
@@ -671,10 +695,13 @@ def relight(
         raise InvalidInputError(f"normals of shape {rgb.shape[:2]} do not match the terrain's {t.heights.shape} "
                                 "nodes (mismatched size); relight the normal map of this terrain")
     grid = _height_grid(t, z_factor, dev)
-    local = (float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]))
+    # the light is in world units, the surface shaded is the exaggerated one (heights x z_factor, which the normals
+    # are of): its z is exaggerated with it, or a lamp 50 m above ground at z_factor 3 lit it from below (black)
+    local = (float(position[0] - t.origin[0]), float(position[1] - t.origin[1]), float(position[2]) * z_factor)
     if max(abs(c) for c in local) > _MAX_SLOPE:  # |point - surface|² in float32 overflowed: a black image
         raise InvalidInputError(f"point must lie within {_MAX_SLOPE:g} of the terrain's origin (float32 "
-                                f"distances); got {tuple(float(c) for c in position)}")
+                                f"distances, z x z_factor); got {tuple(float(c) for c in position)}"
+                                f"{f' at z_factor {z_factor:g}' if z_factor != 1.0 else ''}")
     local = wp.vec3(*local)
     launch(texture_kernels.relight_point, dim=rgb.shape[0] * rgb.shape[1], inputs=[texels, grid, local],
            outputs=[out], device=dev)
@@ -797,10 +824,17 @@ class TextureLayer:
         return replace(self, matrix=self.matrix @ shift, _rgba_cache={})
 
     def rgba(self) -> NDArray[np.float32]:
-        """The image as (h, w, 4) float32 RGBA in [0, 1] (luminance: grey, opaque; visibility: white, alpha)."""
+        """The image as (h, w, 4) float32 RGBA in [0, 1] (luminance: grey, opaque; visibility: white, alpha).
+
+        Its 16 bytes per pixel are checked against the memory budget (:func:`stepterrain.set_memory_budget`) before
+        anything is allocated: an :class:`~stepterrain.errors.OutputTooLargeError` (a memory-mapped gigapixel image
+        ran out of memory instead)."""
         cached = self._rgba_cache.get("rgba")
         if cached is not None:
             return cached
+        h, w = self.shape
+        check_budget(16 * h * w, f"the (h, w, 4) float32 RGBA of a {w} x {h} {self.kind} layer",
+                     hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
         image = np.asarray(self.image)
         values = image.astype(np.float32) / 255.0 if image.dtype == np.uint8 else image.astype(np.float32)
         out = np.ones((*self.shape, 4), dtype=np.float32)
@@ -891,12 +925,12 @@ def terrain_layer(terrain: Terrain | ArrayLike, image: ArrayLike, kind: LayerKin
 def topographic_layer(
     terrain: Terrain | ArrayLike,
     *,
-    azimuth: float = DEFAULT_AZIMUTH,
-    altitude: float = DEFAULT_ALTITUDE,
+    azimuth: float | None = None,
+    altitude: float | None = None,
     z_factor: float = 1.0,
     method: Literal["standard", "multidirectional", "combined", "igor"] = "standard",
     shadows: bool = True,
-    shadow_strength: float = 0.6,
+    shadow_strength: float | None = None,
     occlusion: float = 0.0,
     ambient: float = 0.25,
     spacing: ArrayLike | None = None,
@@ -904,12 +938,17 @@ def topographic_layer(
 ) -> TextureLayer:
     """A topographic texture layer (§7): hillshade, self-shadowing and optional ambient occlusion.
 
-    The luminance is ``ambient + (1 − ambient) · shade``, shadows darken by ``shadow_strength`` and
-    ``occlusion`` in [0, 1] mixes in horizon-based ambient occlusion (``1 − occlusion · (1 − ao)``).
-    ``method`` is one of :data:`HILLSHADE_METHODS` (gdaldem's grey variants, as in :func:`hillshade`), not a
-    MapLibre method. Modulate a thematic layer with it (:func:`modulate`) as in Fig. 5.
+    The luminance is ``ambient + (1 − ambient) · shade``, shadows darken by ``shadow_strength`` (default 0.6;
+    refused with ``shadows=False``, where it would have no effect) and ``occlusion`` in [0, 1] mixes in
+    horizon-based ambient occlusion (``1 − occlusion · (1 − ao)``). ``method`` is one of :data:`HILLSHADE_METHODS`
+    (gdaldem's grey variants, as in :func:`hillshade`, which refuses the angles they ignore likewise), not a
+    MapLibre method; ``azimuth`` and ``altitude`` default to GDAL's 315° and 45° (radians). Modulate a thematic
+    layer with it (:func:`modulate`) as in Fig. 5.
     """
     t = _grid_terrain(terrain, spacing)
+    shadows = check_flag(shadows, "shadows")
+    if shadows and shadow_strength is None:
+        shadow_strength = 0.6
     if _is_name(method, MAPLIBRE_METHODS):
         raise InvalidInputError(f"a topographic layer takes a grey method ({', '.join(HILLSHADE_METHODS)}); got "
                                 f"{method!r}: its premultiplied RGBA overlay, with RGB divided by alpha, makes a "

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import mmap
 import os
 import shutil
 import tempfile
@@ -38,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError
-from .io import picture_uint8
+from .io import _ROTATION_TOLERANCE, _negligible_rotation, picture_uint8
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
@@ -94,11 +95,21 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a plain TIFF: pixel units, no warning
             with rasterio.open(image) as dataset:
                 transform = dataset.transform
-                if transform.is_identity or transform.b != 0 or transform.d != 0:
-                    return None
-                left, bottom, right, top = dataset.bounds
+                shape = (int(dataset.height), int(dataset.width))
     except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
         return None
+    if transform.is_identity:
+        return None
+    # rotation terms of float noise (1e-16, as some tools write) are read as 0, by load_dem's rule, so a texture and
+    # its DEM are judged alike: any non-zero term fell back to pixel units (0, W, 0, H), silently misplaced
+    if not _negligible_rotation(transform.b, transform.d, transform.a, transform.e, shape):
+        raise InvalidInputError(
+            f"image {str(image)!r} is georeferenced with a rotated geotransform {tuple(transform)[:6]} (its rotation "
+            f"terms move pixels by more than {_ROTATION_TOLERANCE:g} of a pixel over {shape[0]} x {shape[1]} "
+            "pixels); a pyramid's extent is north-up: `gdalwarp` makes the image north-up, or pass "
+            "extent=(xmin, xmax, ymin, ymax) for it as it is")
+    left, right = transform.c, transform.c + transform.a * shape[1]  # the bounds without the noise terms
+    top, bottom = transform.f, transform.f + transform.e * shape[0]
     if transform.a < 0 or transform.e > 0:  # its bounds came back as an extent with ymin > ymax, "not given"
         raise InvalidInputError(
             f"image {str(image)!r} is georeferenced with its rows running south to north or its columns east to "
@@ -176,7 +187,10 @@ def _snapshot(source: NDArray[np.uint8], path: Path, band_bytes: int) -> NDArray
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
     try:
         for r0 in range(0, height, band):  # a handful of bands, never a loop over pixels
-            _write_at(fd, source[r0 : r0 + band], r0 * width * channels)
+            rows = source[r0 : r0 + band]
+            _write_at(fd, rows, r0 * width * channels)
+            if isinstance(rows, np.memmap):  # its pages stayed resident: the whole image by the end
+                _drop_resident(rows)
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
     finally:
@@ -307,7 +321,8 @@ class ImagePyramid:
         DataFileError
             Missing or corrupt image file, or the storage folder cannot be written.
         InvalidInputError
-            Not a uint8 image of 1-4 channels, or a bad extent.
+            Not a uint8 image of 1-4 channels, or a bad extent; a GeoTIFF that is rotated (rotation terms of float
+            noise, as load_dem reads them, count as 0), south-up or east-to-west, without ``extent``.
 
         Notes
         -----
@@ -315,8 +330,10 @@ class ImagePyramid:
         target pixels per axis): an area-weighted mean, so every level keeps the image mean up to the rounding
         to uint8, for odd sizes too (a plain 2 x 2 box when n is even). The mean is summed exactly (integers) and
         rounded half up, floor(mean + 0.5), on both paths. One Warp thread per target pixel; the
-        source is read with ``pread`` and the levels written with ``pwrite``, never mapped while building, so
-        the resident memory stays about two bands whatever the image size. An image array the caller can still
+        levels are written with ``pwrite`` and read back with ``pread``, never mapped while building; a memmap
+        source is read through its own mapping (not its file name, which may name a replacement by now), each band's
+        pages dropped from the resident set once copied, so the resident memory stays about two bands whatever the
+        image size. An image array the caller can still
         edit is copied first, so that later edits do not make level 0 disagree with the levels built from it: in
         memory (the image's bytes once more; about 7 % of the build time at 2048²), a writeable memmap band by band
         into ``storage`` (``level_0.u8``). A read-only array that owns its pixels, or a .npy path, is not copied.
@@ -329,7 +346,7 @@ class ImagePyramid:
         ...     [level.shape for level in pyramid.levels]
         [(5, 3, 3), (3, 2, 3), (2, 1, 3), (1, 1, 3)]
         """
-        source, backing, offset, changeable = _source_image(image)
+        source, backing, _, changeable = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         if extent is None:
             extent = _georeferenced_extent(image) or (0.0, float(width), 0.0, float(height))
@@ -358,9 +375,8 @@ class ImagePyramid:
             elif changeable:  # a writeable memmap: the copy goes to storage, band by band (memory stays bounded)
                 path = staged.path("level_0.u8")
                 source = _snapshot(source, path, band_bytes)
-                backing, offset = str(path), 0
             levels: list[NDArray[np.uint8]] = [source]
-            reader = _Reader(source, backing, offset)
+            reader = _Reader(source, None, 0)  # level 0 itself, through its mapping (never its file name)
             for k in range(1, len(shapes)):
                 path = staged.path(f"level_{k}.u8")
                 _reduce_file(reader, shapes[k - 1], shapes[k], channels, path, band_bytes, dev)
@@ -491,7 +507,12 @@ def _window_expected(rows: int, cols: int, level: int) -> str:
 
 
 class _Reader:
-    """Rows of an (H, W, C) uint8 image, read with ``pread`` from its file when it has one (no mapping)."""
+    """Rows of an (H, W, C) uint8 image: copied from ``array`` (a memmap's pages dropped from the resident set after
+    each band), else read with ``pread`` from the file ``path`` that this build wrote (no mapping).
+
+    A memmap is read through its own mapping, never through its file name: the file may have been replaced since it
+    was mapped (a level of a pyramid whose storage a later build reused), and a same-size replacement was read
+    without a word, the levels built from another image than level 0."""
 
     def __init__(self, array: NDArray[np.uint8] | None, path: str | None, offset: int,
                  shape: tuple[int, int, int] | None = None) -> None:
@@ -503,7 +524,12 @@ class _Reader:
     def rows(self, r0: int, r1: int) -> NDArray[np.uint8]:
         _, width, channels = self.shape
         if self.path is None:
-            return np.ascontiguousarray(self.array[r0:r1])
+            band = self.array[r0:r1]
+            if not isinstance(band, np.memmap):
+                return np.ascontiguousarray(band)
+            out = np.array(band, order="C")  # a band-sized copy, like pread's
+            _drop_resident(band)
+            return out
         row_bytes = width * channels
         out = np.empty((r1 - r0, width, channels), dtype=np.uint8)
         try:
@@ -523,6 +549,23 @@ class _Reader:
         finally:
             os.close(fd)
         return out
+
+
+def _drop_resident(band: np.memmap) -> None:
+    """Drop the pages under ``band`` (a C-contiguous run of a memmap) from this process's resident set
+    (``madvise(MADV_DONTNEED)``; the file's data stay in the page cache), so reading a memmap band by band keeps the
+    resident memory about one band. Nothing where the platform lacks it, nor for a copy-on-write map (mode "c"):
+    there it would discard the caller's edits, which live in those pages only."""
+    mapping = getattr(band, "_mmap", None)
+    if (mapping is None or getattr(band, "mode", "c") == "c" or not band.flags.c_contiguous
+            or not hasattr(mmap, "MADV_DONTNEED") or band.nbytes == 0):
+        return
+    try:
+        start = int(band.ctypes.data) - int(np.frombuffer(mapping, dtype=np.uint8).ctypes.data)
+        first = start - start % mmap.PAGESIZE
+        mapping.madvise(mmap.MADV_DONTNEED, first, min(len(mapping), start + band.nbytes) - first)
+    except (ValueError, OSError):  # a closed or odd mapping: the band was read, only its pages stay resident
+        pass
 
 
 def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[int, int], channels: int,
@@ -618,12 +661,7 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
                 parent, src_shape = (kx, ky - 1), (heights[ky - 1], widths[kx])
             dst_shape = (heights[ky], widths[kx])
             path = staged.path(f"level_{kx}_{ky}.u8")
-            source = out[parent]
-            backing, offset = _memmap_backing(source)
-            if backing is not None:
-                reader = _Reader(None, str(backing), offset, shape=(*src_shape, channels))
-            else:
-                reader = _Reader(np.asarray(source), None, 0)
+            reader = _Reader(out[parent], None, 0)  # level 0 or a staged level, through its mapping
             _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)
             out[(kx, ky)] = np.memmap(path, dtype=np.uint8, mode="r", shape=(*dst_shape, channels))
     return out
@@ -634,7 +672,9 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
 class GeometryPatch:
     """A node N of the geometry multiresolution model H(G) (§3.1): grid nodes rows[0]..rows[1] x
     cols[0]..cols[1] (inclusive), approximated by every ``stride``-th node; ``error`` e(N) is the largest
-    vertical distance between the terrain and that approximation; ``box`` B(N) = (min xyz, max xyz)."""
+    vertical distance between the terrain and that approximation (the triangles :func:`paint_with_textures` draws;
+    where a nodata node leaves terrain with data undrawn, at least the coarse cell's diagonal); ``box`` B(N) =
+    (min xyz, max xyz)."""
 
     domain: Extent
     rows: tuple[int, int]
@@ -684,7 +724,8 @@ class PatchQuadtree:
         stride = 2 ** (self.depth - depth)
         domain = self._domain(rows, cols)
         box = np.array([[domain[0], domain[2], zmin], [domain[1], domain[3], zmax]])
-        patch = GeometryPatch(domain, rows, cols, depth, stride, _approximation_error(block, stride), box, parent)
+        error = _approximation_error(block, stride, t.spacing)
+        patch = GeometryPatch(domain, rows, cols, depth, stride, error, box, parent)
         if depth < self.depth and (rows[1] - rows[0] > 1 or cols[1] - cols[0] > 1):
             rm = (rows[0] + rows[1]) // 2
             cm = (cols[0] + cols[1]) // 2
@@ -703,8 +744,14 @@ class PatchQuadtree:
         return out
 
 
-def _approximation_error(block: NDArray[np.float32], stride: int) -> float:
-    """Max |h − bilinear interpolation of every stride-th node (last row/column kept)| over the block."""
+def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple[float, float] = (1.0, 1.0)) -> float:
+    """e(N): max |h − G(N)| over the block's nodes with data, G(N) the mesh :func:`paint_with_textures` draws (every
+    stride-th node, last row/column kept, two triangles a cell split along (r, c)-(r+1, c+1) as
+    :func:`~stepterrain.terrain.grid_faces`; a triangle with a nodata corner is not drawn).
+
+    A node with data that no drawn triangle covers (the approximation's hole around a nodata node is wider than the
+    terrain's) counts as the coarse cell's diagonal, stride × hypot(dx, dy) in world units: γ(N) then refines the
+    patch once that hole spans more than γ_user pixels on screen (its vertical distance is undefined)."""
     if stride <= 1:
         return 0.0
     z = np.asarray(block, dtype=np.float64)
@@ -712,21 +759,45 @@ def _approximation_error(block: NDArray[np.float32], stride: int) -> float:
     ri = np.unique(np.r_[np.arange(0, rows, stride), rows - 1])
     ci = np.unique(np.r_[np.arange(0, cols, stride), cols - 1])
     coarse = z[np.ix_(ri, ci)]
-    r = np.arange(rows)
-    c = np.arange(cols)
-    k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, max(len(ri) - 2, 0))
-    m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, max(len(ci) - 2, 0))
     if len(ri) == 1 or len(ci) == 1:
         return float(np.nanmax(np.abs(z - np.nanmean(coarse)))) if np.isfinite(z).any() else 0.0
-    fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
-    fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
-    a = coarse[k][:, m]
-    b = coarse[k][:, m + 1]
-    cc = coarse[k + 1][:, m]
-    d = coarse[k + 1][:, m + 1]
-    approx = (a * (1 - fc) + b * fc) * (1 - fr) + (cc * (1 - fc) + d * fc) * fr
-    diff = np.abs(z - approx)
-    return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+    r = np.arange(rows)
+    c = np.arange(cols)
+    if np.isfinite(coarse).all():  # every triangle drawn: a node's own cell covers it
+        k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, len(ri) - 2)
+        m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, len(ci) - 2)
+        fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
+        fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
+        a, b = coarse[k][:, m], coarse[k][:, m + 1]
+        cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
+        value = np.where(fc >= fr, a + (b - a) * fc + (d - b) * fr, a + (cc - a) * fr + (d - cc) * fc)
+        diff = np.abs(z - value)
+        return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
+    worst = np.zeros(z.shape)
+    covered = np.zeros(z.shape, dtype=bool)
+    # a node on a coarse row or column lies in the cells on both sides of it: where one side's triangle is not drawn
+    # (a nodata corner), the other may cover it, so both sides are tried
+    for side_r in ("left", "right"):
+        k = np.clip(np.searchsorted(ri, r, side=side_r) - 1, 0, len(ri) - 2)
+        fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
+        for side_c in ("left", "right"):
+            m = np.clip(np.searchsorted(ci, c, side=side_c) - 1, 0, len(ci) - 2)
+            fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
+            a, b = coarse[k][:, m], coarse[k][:, m + 1]
+            cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
+            for inside, value in (
+                (fc >= fr, a + (b - a) * fc + (d - b) * fr),  # (n00, n01, n11)
+                (fc <= fr, a + (cc - a) * fr + (d - cc) * fc),  # (n00, n11, n10)
+            ):
+                drawn = inside & np.isfinite(value)  # NaN where a corner is nodata
+                with np.errstate(invalid="ignore"):
+                    np.fmax(worst, np.where(drawn, np.abs(z - value), 0.0), out=worst)
+                covered |= drawn
+    data = np.isfinite(z)
+    error = float(worst[data & covered].max()) if (data & covered).any() else 0.0
+    if (data & ~covered).any():
+        error = max(error, stride * math.hypot(*spacing))
+    return error
 
 
 # ---------------------------------------------------------------------------------------------- texture tree
@@ -1068,7 +1139,8 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     """``paintWithTextures(N, T)`` (§4) as a mesh: the geometry patch at its level of detail (every
     ``stride``-th node of its block, the last row and column kept) textured with the sub-image of the chosen
     texture patch of ``layer`` (UVs through the patch's georeferenced window; a 1-channel pyramid drapes as
-    luminance, a 2-channel one as grey + alpha, i.e. RGBA). Returns a ``trimesh.Trimesh``;
+    luminance, a 2-channel one as grey + alpha, i.e. RGBA; with nodata, as :func:`~stepterrain.heightfield_mesh`, no
+    face touches a NaN node and those nodes are left out). Returns a ``trimesh.Trimesh``;
     an item whose layer has no texture patch yet raises :class:`~stepterrain.errors.InvalidInputError`.
 
     Examples
@@ -1102,6 +1174,13 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
                                 terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
+    finite = np.isfinite(vertices[:, 2])
+    if not finite.all():  # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were
+        faces = faces[finite[faces].all(axis=1)]  # kept: NaN vertices in the mesh, its faces spanning the void)
+        keep = np.zeros(len(vertices), dtype=bool)
+        keep[faces.reshape(-1)] = True
+        faces = (np.cumsum(keep) - 1)[faces]
+        vertices = vertices[keep]
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     texture = item.textures[layer]
     image = np.asarray(texture.image())

@@ -156,3 +156,177 @@ def test_a_pyramid_keeps_its_levels_when_another_is_built_into_its_storage(tmp_p
     assert sorted(p.name for p in storage.iterdir()) == names  # no temporary file left, no level file touched
     assert all((storage / name).read_bytes() == data for name, data in saved.items())
     first.close()
+
+
+@pytest.mark.parametrize(
+    ("transform", "extent"),
+    [
+        ((2.0, 1e-17, 100.0, -1e-17, -2.0, 50.0), (100.0, 120.0, 34.0, 50.0)),  # float noise: placed, as load_dem does
+        ((2.0, 0.1, 100.0, 0.1, -2.0, 50.0), None),  # a real rotation: refused by name
+    ],
+)
+def test_a_geotiff_texture_with_rotation_terms_is_judged_like_its_dem(tmp_path, transform, extent):
+    """Any non-zero rotation term sent a GeoTIFF back to pixel units, (0, W, 0, H), without a word: terms of float
+    noise (1e-17) that load_dem reads as north-up put the texture nowhere near its DEM, and a really rotated image
+    was draped as if north-up over a made-up extent."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    path = tmp_path / "texture.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=8, width=10, count=3, dtype="uint8", crs="EPSG:32633",
+                       transform=Affine(*transform)) as dataset:  # fmt: skip
+        dataset.write(np.zeros((3, 8, 10), np.uint8))
+    if extent is None:
+        with pytest.raises(InvalidInputError, match=r"texture\.tif' is georeferenced with a rotated geotransform "
+                                                    r"\(2\.0, 0\.1, .*gdalwarp.*pass extent="):
+            ImagePyramid.build(path, device="cpu")
+        with ImagePyramid.build(path, extent=(0.0, 10.0, 0.0, 8.0), device="cpu") as pyramid:  # placed by the caller
+            assert pyramid.extent == (0.0, 10.0, 0.0, 8.0)
+    else:
+        with ImagePyramid.build(path, device="cpu") as pyramid:
+            assert pyramid.extent == pytest.approx(extent, abs=1e-9)
+
+
+@pytest.mark.parametrize("anisotropic", [False, True])
+def test_a_pyramid_of_a_memmap_whose_file_was_replaced_reads_the_mapped_pixels(tmp_path, anisotropic):
+    """build read a memmap source through its file name: a level of a pyramid whose storage a later build reused
+    (its file replaced by one of the same size) gave levels 1+ of the other image under level 0 of this one."""
+    first = ImagePyramid.build(np.full((16, 16, 3), 10, np.uint8), storage=tmp_path, device="cpu")
+    level = first.levels[1]  # maps tmp_path / level_1.u8
+    ImagePyramid.build(np.full((16, 16, 3), 250, np.uint8), storage=tmp_path, device="cpu")  # replaces that file
+    with ImagePyramid.build(level, anisotropic=anisotropic, device="cpu") as pyramid:
+        assert [int(v.max()) for v in pyramid.levels] == [10, 10, 10, 10]
+        assert all(int(v.max()) == 10 for v in pyramid.anisotropic.values())
+    first.close()
+
+
+def _drawn_mesh_error(block, stride, spacing):
+    """e(N) by brute force: every node with data against every drawn triangle of the coarse mesh containing it
+    (paint_with_textures' mesh: grid_faces' split, no triangle with a nodata corner); a node no triangle covers
+    counts as the coarse cell's diagonal. A leaf (stride 1) is the terrain itself: 0."""
+    if stride == 1:
+        return 0.0
+    rows, cols = block.shape
+    ri = sorted({*range(0, rows, stride), rows - 1})
+    ci = sorted({*range(0, cols, stride), cols - 1})
+    triangles = []
+    for k in range(len(ri) - 1):
+        for m in range(len(ci) - 1):
+            n00, n01 = (ri[k], ci[m]), (ri[k], ci[m + 1])
+            n10, n11 = (ri[k + 1], ci[m]), (ri[k + 1], ci[m + 1])
+            for tri in ((n00, n01, n11), (n00, n11, n10)):
+                if all(np.isfinite(block[p]) for p in tri):
+                    triangles.append(tri)
+    worst = 0.0
+    for i in range(rows):
+        for j in range(cols):
+            if not np.isfinite(block[i, j]):
+                continue
+            covered = False
+            for (r0, c0), (r1, c1), (r2, c2) in triangles:
+                det = (r1 - r0) * (c2 - c0) - (r2 - r0) * (c1 - c0)
+                w1 = ((i - r0) * (c2 - c0) - (r2 - r0) * (j - c0)) / det
+                w2 = ((r1 - r0) * (j - c0) - (i - r0) * (c1 - c0)) / det
+                if min(w1, w2, 1.0 - w1 - w2) < -1e-12:
+                    continue
+                covered = True
+                value = (1 - w1 - w2) * block[r0, c0] + w1 * block[r1, c1] + w2 * block[r2, c2]
+                worst = max(worst, abs(float(block[i, j]) - float(value)))
+            if not covered:
+                worst = max(worst, stride * float(np.hypot(*spacing)))
+    return worst
+
+
+def test_the_geometric_error_is_the_distance_to_the_drawn_mesh_near_nodata_too():
+    """e(N) was measured against a bilinear surface (up to a quarter of a cell's twist off the two triangles a
+    patch is drawn with) and skipped every cell with a nodata corner: beside a hole the terrain's error went
+    unmeasured, and terrain with data that the coarse mesh leaves undrawn (its hole around a nodata node is a coarse
+    cell wider) counted as 0, so a flat DEM with one void drew its root with a hole 2 × stride cells wide from
+    any distance."""
+    rng = np.random.default_rng(0)
+    heights = np.cumsum(np.cumsum(rng.normal(0.0, 1.0, (33, 33)), 0), 1).astype(np.float32)
+    heights[8:11, 15:18] = np.nan  # a void over the coarse node (8, 16)
+    heights[20, 4] = heights[3, 27] = np.nan
+    spacing = (2.0, -1.5)
+    quadtree = PatchQuadtree(heights, leaf_size=4, spacing=spacing)
+    for patch in quadtree.patches():
+        block = heights[patch.rows[0]: patch.rows[1] + 1, patch.cols[0]: patch.cols[1] + 1].astype(np.float64)
+        assert patch.error == pytest.approx(_drawn_mesh_error(block, patch.stride, spacing), rel=1e-9, abs=1e-9)
+    flat = np.zeros((33, 33), np.float32)
+    flat[16, 16] = np.nan  # one void, on a node of the root's coarse mesh
+    root = PatchQuadtree(flat, leaf_size=4).root
+    assert root.error == pytest.approx(8 * np.sqrt(2.0))  # stride 8: the undrawn ground is up to a cell across
+    camera = Camera((16.0, -10.0, 20.0), (16.0, 16.0, 0.0))
+    with ImagePyramid.build(np.zeros((32, 32, 3), np.uint8), extent=root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, PatchQuadtree(flat, leaf_size=4), max_texture_size=64)
+        items = render_with_textures(tree.quadtree.root, [tree.root], camera, gamma_user=1.0)
+        assert any(item.geometry.stride == 1 for item in items)  # refined near the void, not drawn at the root
+
+
+def test_a_painted_patch_leaves_nodata_out_as_heightfield_mesh_does():
+    """paint_with_textures kept NaN heights as vertices: every patch over a void gave a mesh with NaN vertices
+    and faces spanning the void (NaN areas and normals; an export of it is broken)."""
+    from stepterrain.terrain import heightfield_mesh
+    from stepterrain.texture_lod import paint_with_textures
+
+    heights = np.random.default_rng(2).normal(0.0, 1.0, (17, 17)).astype(np.float32)
+    heights[8, 8] = heights[3, 12] = np.nan
+    quadtree = PatchQuadtree(heights, leaf_size=8)
+    camera = Camera((8.0, -1.0, 3.0), (8.0, 8.0, 0.0))  # close: every leaf drawn at full resolution
+    with ImagePyramid.build(np.full((32, 32, 3), 90, np.uint8), extent=quadtree.root.domain, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, quadtree, max_texture_size=16)
+        items = render_with_textures(quadtree.root, [tree.root], camera)
+        assert len(items) == 4 and all(item.geometry.is_leaf for item in items)
+        meshes = [paint_with_textures(item) for item in items]
+    assert all(np.isfinite(mesh.vertices).all() for mesh in meshes)
+    assert sum(len(mesh.faces) for mesh in meshes) == len(heightfield_mesh(heights).faces)  # 512 - 6 - 2 faces
+    assert sum(mesh.area for mesh in meshes) == pytest.approx(heightfield_mesh(heights).area)
+
+
+def test_a_writeable_memmap_is_copied_into_storage_with_memory_bounded(tmp_path):
+    """The copy of a writeable memmap into storage (level_0.u8) read it through its mapping, band by band, but left
+    every page resident: the peak resident set rose by the whole image (48 MB here), not about a band."""
+    import subprocess
+    import sys
+    import textwrap
+
+    source = tmp_path / "big.npy"
+    image = np.lib.format.open_memmap(source, mode="w+", dtype=np.uint8, shape=(4000, 4000, 3))
+    image[::7] = 200
+    image.flush()
+    del image
+    script = textwrap.dedent(f"""
+        import numpy as np
+        from stepterrain.texture_lod import ImagePyramid
+        ImagePyramid.build(np.zeros((1001, 1003, 3), np.uint8), band_bytes=1 << 20, device="cpu").close()
+        def status(key):
+            for line in open("/proc/self/status"):
+                if line.startswith(key):
+                    return int(line.split()[1]) * 1024
+        image = np.load({str(source)!r}, mmap_mode="r+")  # writeable: copied into storage first
+        open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident set
+        before = status("VmRSS")
+        pyramid = ImagePyramid.build(image, band_bytes=1 << 20, device="cpu")
+        rise = status("VmHWM") - before
+        assert pyramid.levels[-1].shape == (1, 1, 3) and 25 <= int(pyramid.levels[-1][0, 0, 0]) <= 32
+        pyramid.close()
+        print(rise)
+    """)
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
+    if result.returncode != 0 and "clear_refs" in result.stderr:
+        pytest.skip("/proc/self/clear_refs is not writable here")
+    assert result.returncode == 0, result.stderr
+    rise = int(result.stdout.strip().splitlines()[-1])
+    assert rise < 20 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB for a 48 MB image"
+
+
+def test_a_copy_on_write_memmap_keeps_its_edits_through_a_build(tmp_path):
+    """Dropping a band's pages after reading it (to keep the resident set small) must spare a copy-on-write map: its
+    edits live in those pages only, and madvise(MADV_DONTNEED) would put the file's pixels back under the caller."""
+    np.save(tmp_path / "image.npy", np.zeros((256, 256, 3), np.uint8))
+    image = np.load(tmp_path / "image.npy", mmap_mode="c")
+    image[:] = 77  # edits in memory only
+    with ImagePyramid.build(image, band_bytes=1 << 14, device="cpu") as pyramid:
+        assert [int(level.min()) for level in pyramid.levels] == [77] * len(pyramid.levels)
+    assert int(image.min()) == int(image.max()) == 77
+    assert int(np.load(tmp_path / "image.npy").max()) == 0  # and the file as it was

@@ -237,3 +237,18 @@ def test_example_flood_mp4_without_ffmpeg_names_the_extra(tmp_path, monkeypatch)
         example.main(["--size", "32", "--frames", "2", "--keyframes", "2", "--mp4",
                       "--output", str(tmp_path / "flood.png"), "--device", "cpu"])
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("method", ["multidirectional", "igor"])
+def test_cli_texture_of_a_method_that_ignores_an_angle_passes_only_the_angles_given(tmp_path, small_dem, method):
+    """The command line resolved --azimuth and --altitude to 315 and 45 and passed them on: hillshade, which refuses an
+    angle its method ignores, would refuse `--hillshade multidirectional` (or igor) given no angle at all. The
+    texture is the library's default-light one."""
+    from stepterrain import texture as tx
+    from stepterrain.io import load_dem
+
+    out = tmp_path / "t.png"
+    assert main(["texture", str(small_dem), "--hillshade", method, "--colormap", "none", "-o", str(out),
+                 "--device", "cpu"]) == 0
+    layer = tx.topographic_layer(load_dem(small_dem), method=method, shadows=False, device="cpu")
+    np.testing.assert_array_equal(read_png(out)[..., 0], layer.to_uint8(background=(1.0, 1.0, 1.0))[..., 0])

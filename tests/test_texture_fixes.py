@@ -349,3 +349,77 @@ def test_blend_refuses_weights_without_an_alpha():
     for weights in (TextureLayer("visibility", values, extent), values,
                     TextureLayer("thematic", np.dstack([b, values]), extent)):
         np.testing.assert_allclose(blend(a, b, weights, device="cpu").rgba()[..., 0], values, atol=1e-7)
+
+
+def test_a_layer_s_rgba_over_the_memory_budget_is_refused_before_it_is_allocated(tmp_path):
+    """rgba() expanded an image to 16 bytes a pixel (float32 RGBA) without looking at the memory budget: a
+    memory-mapped gigapixel layer ran the machine out of memory instead of an OutputTooLargeError naming the size."""
+    import stepterrain as st
+
+    path = tmp_path / "big.npy"
+    np.lib.format.open_memmap(path, mode="w+", dtype=np.uint8, shape=(600, 500, 3)).flush()  # 4.6 MiB as RGBA
+    layer = TextureLayer("thematic", np.load(path, mmap_mode="r"), (0, 500, 0, 600))
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        with pytest.raises(st.OutputTooLargeError, match=r"RGBA of a 500 x 600 thematic layer would need 4\.6 MiB, "
+                                                         r"over the memory budget of 1\.0 MiB; crop or downsample"):
+            layer.rgba()
+        with pytest.raises(st.OutputTooLargeError):  # the operations that read a layer's RGBA are refused as well
+            adjust(layer, brightness=0.5, device="cpu")
+    finally:
+        st.set_memory_budget(previous)
+    rgba = layer.rgba()  # within the budget: as before
+    assert rgba.shape == (600, 500, 4) and rgba.dtype == np.float32 and (rgba[..., 3] == 1.0).all()
+
+
+@pytest.mark.parametrize("z_factor", [0.5, 3.0])
+def test_a_point_light_is_exaggerated_with_the_surface(z_factor):
+    """relight compared the point light's z, in world units, with the exaggerated surface (heights × z_factor):
+    at z_factor 3 a light 50 m above a plain at 100 m lay below its exaggerated 300 m and lit nothing (black)."""
+    flat = np.full((21, 21), 100.0, np.float32)
+    shade = relight(normal_map(flat, z_factor=z_factor, device="cpu"), point=(10.0, 10.0, 150.0), terrain=flat,
+                    z_factor=z_factor, device="cpu")
+    i, j = np.meshgrid(np.arange(21), np.arange(21), indexing="ij")
+    above = 50.0 * z_factor  # the light over the exaggerated plain
+    np.testing.assert_allclose(shade, above / np.sqrt((i - 10.0) ** 2 + (j - 10.0) ** 2 + above**2), atol=0.01)
+    # the same scene exaggerated beforehand, at z_factor 1: the surface and the light scaled alike
+    heights = np.random.default_rng(4).normal(100.0, 2.0, (15, 17)).astype(np.float32)
+    ours = relight(normal_map(heights, z_factor=z_factor, device="cpu"), point=(6.0, 9.0, 120.0), terrain=heights,
+                   z_factor=z_factor, device="cpu")
+    scaled = heights * np.float32(z_factor)
+    theirs = relight(normal_map(scaled, device="cpu"), point=(6.0, 9.0, 120.0 * z_factor), terrain=scaled,
+                     device="cpu")
+    np.testing.assert_allclose(ours, theirs, atol=1e-5)
+
+
+@pytest.mark.parametrize(("call", "match"), [
+    (lambda z: hillshade(z, method="multidirectional", azimuth=1.0, device="cpu"),
+     r"^azimuth has no effect on method='multidirectional', which shades by its four fixed lights.*got azimuth=1\.0 "
+     r"without shadows"),
+    (lambda z: hillshade(z, method="igor", altitude=0.3, device="cpu"),
+     r"^altitude has no effect on method='igor'.*got altitude=0\.3 without shadows"),
+    (lambda z: hillshade(z, shadow_strength=0.3, device="cpu"),
+     r"^shadow_strength applies only with shadows=True .*got shadow_strength=0\.3 with shadows=False"),
+    (lambda z: topographic_layer(z, shadows=False, shadow_strength=0.3, device="cpu"),
+     r"^shadow_strength applies only with shadows=True"),
+    (lambda z: topographic_layer(z, method="multidirectional", shadows=False, azimuth=1.0, device="cpu"),
+     r"^azimuth has no effect on method='multidirectional'"),
+], ids=["multidirectional azimuth", "igor altitude", "hillshade strength", "topographic strength",
+        "topographic azimuth"])
+def test_an_argument_the_shading_ignores_is_refused(call, match):
+    """hillshade(method="multidirectional", azimuth=...) (four fixed lights), method="igor" with an altitude and
+    shadow_strength without shadows (in hillshade and topographic_layer) shaded exactly as without them, without a
+    word; the CLI and gdaldem refuse the like. Left at their defaults (None) the results are unchanged, and with
+    shadows the angles aim the shadows."""
+    heights = np.random.default_rng(5).normal(0.0, 20.0, (12, 14)).astype(np.float32)
+    with pytest.raises(InvalidInputError, match=match):
+        call(heights)
+    default = hillshade(heights, azimuth=math.radians(315.0), altitude=math.radians(45.0), device="cpu")
+    np.testing.assert_array_equal(hillshade(heights, device="cpu"), default)
+    for method in ("multidirectional", "igor"):
+        hillshade(heights, method=method, device="cpu")
+        aimed = hillshade(heights, method=method, azimuth=1.0, altitude=0.3, shadows=True, device="cpu")
+        assert aimed.shape == heights.shape
+    layer = topographic_layer(heights, device="cpu").image
+    np.testing.assert_array_equal(layer, topographic_layer(heights, shadow_strength=0.6, device="cpu").image)
+    topographic_layer(heights, shadows=False, device="cpu")
