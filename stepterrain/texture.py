@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, recycled_empty, resolve_device, scratch
-from .errors import InvalidInputError
+from .errors import InvalidInputError, caller_stacklevel
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
 from .terrain import (
@@ -108,12 +108,12 @@ def _grid_terrain(terrain: Any, spacing: Any, origin: Any = None) -> Terrain:
     return t
 
 
-def _azimuth(value: Any, *, stacklevel: int) -> float:
+def _azimuth(value: Any) -> float:
     """A finite azimuth in radians; one beyond two full turns is most likely degrees given as radians: warned."""
     azimuth = _finite(value, "azimuth")
     if abs(azimuth) > 4 * math.pi:  # two turns: degrees of any usual light (13° and up), not a computed angle
         warnings.warn(f"azimuth is in radians; got {azimuth:g}, more than two full turns. Degrees? Pass "
-                      f"math.radians({azimuth:g}) = {math.radians(azimuth):.4f}", stacklevel=stacklevel + 1)
+                      f"math.radians({azimuth:g}) = {math.radians(azimuth):.4f}", stacklevel=caller_stacklevel())
     return azimuth
 
 
@@ -124,7 +124,7 @@ def _turn(azimuth: float) -> float:
 
 
 def _light(azimuth: float, altitude: float) -> tuple[float, float]:
-    azimuth = _azimuth(azimuth, stacklevel=3)
+    azimuth = _azimuth(azimuth)
     altitude = _finite(altitude, "altitude", lo=0.0, hi=math.pi / 2, unit="rad")
     return azimuth, altitude
 
@@ -384,7 +384,7 @@ def _angles(value: Any, name: str, many: bool, **bounds: Any) -> list[float]:
     if not values:
         raise InvalidInputError(f"{name} must hold at least one angle; got an empty sequence")
     if name == "azimuth":
-        return [_azimuth(v, stacklevel=5) for v in values]  # the comprehension is a frame of its own
+        return [_azimuth(v) for v in values]
     return [_finite(v, name, **bounds) for v in values]
 
 

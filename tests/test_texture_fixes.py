@@ -423,3 +423,18 @@ def test_an_argument_the_shading_ignores_is_refused(call, match):
     layer = topographic_layer(heights, device="cpu").image
     np.testing.assert_array_equal(layer, topographic_layer(heights, shadow_strength=0.6, device="cpu").image)
     topographic_layer(heights, shadows=False, device="cpu")
+
+
+def test_the_degrees_warning_points_at_the_callers_line():
+    # a fixed stacklevel pointed into stepterrain/texture.py when topographic_layer reached the azimuth check
+    import stepterrain.texture as tx
+
+    heights = np.add.outer(np.arange(12.0), np.arange(14.0)) * 3.0
+    calls = [lambda: tx.topographic_layer(heights, azimuth=315.0),
+             lambda: tx.hillshade(heights, azimuth=315.0),
+             lambda: tx.hillshade(heights, method="maplibre-multidirectional", azimuth=[1.0, 270.0]),
+             lambda: tx.cast_shadows(heights, azimuth=-400.0, altitude=0.7)]
+    for call in calls:
+        with pytest.warns(UserWarning, match="azimuth is in radians") as record:
+            call()
+        assert {w.filename for w in record if "radians" in str(w.message)} == {__file__}
