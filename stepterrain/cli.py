@@ -117,6 +117,12 @@ class Progress:
         return elapsed
 
 
+def _counted(count: int, noun: str, plural: str | None = None) -> str:
+    """``count`` and ``noun`` for progress and summary lines: "1 level", "2 levels", "1,024 vertices" (``plural``
+    when adding an s is wrong). The lines said "1 levels" and "1 workers"."""
+    return f"{count:,} {noun if count == 1 else plural or noun + 's'}"
+
+
 # ------------------------------------------------------------------------------------------ argument types
 @contextlib.contextmanager
 def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
@@ -476,7 +482,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
-                     f"giving {len(values)} levels over heights {lo:g} to {hi:g} (aim ~{TARGET_STEPS} steps)")
+                     f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
+                     f"(aim ~{TARGET_STEPS} steps)")
     colors = _level_colors(args.colormap, len(values))
 
     # γ: scalar or a lens
@@ -520,11 +527,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     # step
     gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
-    progress.stage("step", f"stepping on {device}: {len(values)} levels ({values[0]:g} to {values[-1]:g}), "
+    progress.stage("step", f"stepping on {device}: {_counted(len(values), 'level')} ({values[0]:g} to {values[-1]:g}), "
                            f"gamma {gamma_text}")
     mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
                       colors=colors, solid=args.solid, floor=args.floor, device=device)
-    progress.done(f"{len(mesh.faces):,} faces, {len(mesh.vertices):,} vertices")
+    progress.done(f"{_counted(len(mesh.faces), 'face')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
 

@@ -779,3 +779,34 @@ def test_closeup_rois_mixed_from_both_options_keep_their_command_line_order(tmp_
     blue = high & np.all(rgb == [0, 0, 255], axis=1)
     assert red.any() and blue.any()
     assert v[red, 0].max() < 30 < v[blue, 0].min()
+
+
+def test_counts_in_progress_lines_agree_with_their_nouns(tmp_path, capsys, monkeypatch):
+    """Progress and summary lines said "1 levels", "a LocalCluster of 1 workers", "holds at most 1 close-ups",
+    "tiles of (4, 6) cells": a count of one takes the singular (cli._counted), a tile R x C."""
+    assert [cli._counted(n, "vertex", "vertices") for n in (0, 1, 2, 1024)] == [
+        "0 vertices", "1 vertex", "2 vertices", "1,024 vertices"]
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, _, err = run(capsys, "steps", dem, "--levels", "5", "-o", tmp_path / "one.glb")
+    assert code == 0 and "stepping on cpu: 1 level (5 to 5)" in err.replace("cuda", "cpu") and "1 levels" not in err
+    code, _, err = run(capsys, "steps", dem, "--levels", "3,5", "-o", tmp_path / "two.glb")
+    assert code == 0 and ": 2 levels (3 to 5)" in err
+
+    import stepterrain.batch
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt  # the stage line is out; no cluster is started
+
+    monkeypatch.setattr(stepterrain.batch, "batch", stop)
+    _, _, err = run(capsys, "batch", dem, "--tile", "4x6", "--interval", "1", "--workers", "1", "-o", tmp_path / "o")
+    assert "in tiles of 4 x 6 cells" in err and "on a LocalCluster of 1 worker\n" in err and "1 workers" not in err
+    _, _, err = run(capsys, "batch", dem, "--tile", "4", "--interval", "1", "--workers", "3", "-o", tmp_path / "o")
+    assert "in tiles of 4 x 4 cells" in err and "on a LocalCluster of 3 workers" in err
+
+
+@needs_render
+def test_a_window_for_one_close_up_says_so_in_the_singular(tmp_path, capsys):
+    code, _, err = run(capsys, "closeup", "--roi-relative", "0.3,0.3,0.1", "--roi-relative", "0.6,0.6,0.1",
+                       "--size", "64x64", "--png", tmp_path / "c.png", "-o", tmp_path / "c.glb")
+    assert code == 2 and "holds at most 1 close-up (one per 64x64 pixels" in err
