@@ -104,6 +104,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
     from .cli import (
+        _as_option,
         _check_output,
         _check_outputs,
         _check_size,
@@ -111,6 +112,8 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         _counted,
         _isovalue_base,
         _load_input,
+        _subcommand,
+        build_parser,
     )
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
@@ -172,8 +175,9 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
             f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above "
             f"{'the only one' if n == 1 else f'all {n}'} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
         )
+    sub = _subcommand(build_parser(), "batch")  # a failure's library arguments as the options (interval= -> --interval)
     for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option): shown under -q too
-        print(f"stepterrain: {line.strip()}", file=progress.stream, flush=True)
+        print(f"stepterrain: {_as_option(line.strip(), sub)}", file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):
         from .export import save_image
 

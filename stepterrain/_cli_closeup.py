@@ -191,8 +191,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option
             try:
                 isovalues(terrain.height_range, interval=interval)
-            except InvalidInputError as exc:
-                raise InvalidInputError(f"--stepped {interval:g}: {exc}") from None
+            except InvalidInputError as exc:  # "interval=1e-09 over ..." reads "--stepped 1e-09 over ..." (cli's
+                text = str(exc)  # _OPTION_ALIASES): not after "--stepped 1e-09: "
+                raise InvalidInputError(text if text.startswith("interval") else f"--stepped {interval:g}: {text}"
+                                        ) from None
     anchor = AnchorStyle(args.anchor)
     # repetitions enough for the animation; |spin| * frames / fps overflowed to inf (an OverflowError in ceil) for
     # --spin 1e308: capped where float64 still counts whole turns

@@ -810,3 +810,51 @@ def test_a_window_for_one_close_up_says_so_in_the_singular(tmp_path, capsys):
     code, _, err = run(capsys, "closeup", "--roi-relative", "0.3,0.3,0.1", "--roi-relative", "0.6,0.6,0.1",
                        "--size", "64x64", "--png", tmp_path / "c.png", "-o", tmp_path / "c.glb")
     assert code == 2 and "holds at most 1 close-up (one per 64x64 pixels" in err
+
+
+def test_library_names_that_leaked_to_the_command_line_are_spelled_as_options(tmp_path, capsys):
+    """Found by provoking each subcommand's errors: library argument names the option rewrite missed reached the
+    user as they were: steps' and batch's "bring base closer" (a plain word mid-sentence), batch's "tile_size
+    applies to one raster" (--tile) and its failure lines (printed raw: "interval=1.0 with base=1e+39"), closeup's
+    "--stepped 1e-09: interval=1e-09 over heights", globe's budget hint "raise the error" (--error)."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, (np.add.outer(np.arange(6.0), np.arange(7.0)) + 1000).astype(np.float32))
+    folder = tile_folder(tmp_path / "tiles")
+    leaks = ("bring base", "interval=", "base=", "tile_size", "raise the error")
+    cases = [
+        (["steps", dem, "--interval", "1", "--base", "1e39", "-o", tmp_path / "s.glb"],
+         "error: --interval 1.0 with --base 1e+39 gives isovalues", "bring --base closer to the heights"),
+        (["batch", folder, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "error: --tile applies to one raster, not to a folder of tiles", ""),
+        (["batch", folder, "--interval", "1", "--base", "1e39", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "failed t0: InvalidInputError: --interval 1.0 with --base 1e+39 gives", "bring --base closer"),
+        (["closeup", dem, "--roi", "3,-3,2", "--stepped", "1e-9", "-o", tmp_path / "c.glb"],
+         "error: --stepped 1e-09 over heights [1000, 1011] gives", ""),
+    ]
+    for argv, expected, also in cases:
+        code, _, err = run(capsys, "-q", *argv)
+        assert code != 0 and expected in err and also in err, (argv, err)
+        assert not any(leak in err for leak in leaks), err
+    globe = cli._subcommand(cli.build_parser(), "globe")
+    assert cli._as_option("the mesh would need 5 GiB; raise the error or narrow the view", globe) == (
+        "the mesh would need 5 GiB; raise --error or narrow the view")
+
+
+def test_library_names_in_warnings_are_spelled_as_options(tmp_path, capsys):
+    """Warnings reached the command line as the library words them: "Shift base by ... (e.g. base=0.5, on the
+    command line --base 0.5, ...)" and a GeoTIFF in feet's "pass height_unit='US survey foot'"."""
+    dem = tmp_path / "int.npy"
+    np.save(dem, np.add.outer(np.arange(10.0), np.arange(10.0)).astype(np.float32))
+    code, _, err = run(capsys, "-q", "steps", dem, "--interval", "2", "--solid", "-o", tmp_path / "s.glb")
+    assert code == 0 and "warning: some heights sit exactly on a threshold" in err
+    assert "Shift --base by a fraction of the interval (e.g. --base 0.5, for integer heights)" in err
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF needs rasterio")
+    from affine import Affine
+
+    tif = tmp_path / "ft.tif"
+    with rasterio.open(tif, "w", driver="GTiff", height=10, width=10, count=1, dtype="float32", crs="EPSG:2229",
+                       transform=Affine(30.0, 0.0, 6400000.0, 0.0, -30.0, 1900000.0)) as out:
+        out.write(np.add.outer(np.arange(10.0), np.arange(10.0)).astype(np.float32) * 10 + 1000, 1)
+    for argv in (["steps", tif, "--interval", "20", "-o", tmp_path / "f.glb"], ["info", tif]):
+        code, _, err = run(capsys, "-q", *argv)
+        assert code == 0 and "pass --height-unit 'US survey foot'" in err and "height_unit" not in err, err
