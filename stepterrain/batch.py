@@ -43,7 +43,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, SchedulerError, StepTerrainError
-from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh
+from .export import MESH_EXTENSIONS, atomic_path, json_metadata, probe_writable, save_mesh, unwritable_reason
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -703,8 +703,9 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Pa
         raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
     try:
         folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
+    except OSError as exc:  # unwritable_reason: /proc said "No such file or directory" of itself
+        raise DataFileError(f"cannot create the output folder {str(folder)!r}: "
+                            f"{unwritable_reason(exc, folder)}") from exc
     error = probe_writable(folder)
     if error is not None:
         raise DataFileError(f"output folder {str(folder)!r} is not writable: {error.strerror or error}") from error

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import stepterrain as st
 from stepterrain import cli
 
 from .conftest import needs_render
@@ -858,3 +859,39 @@ def test_library_names_in_warnings_are_spelled_as_options(tmp_path, capsys):
     for argv in (["steps", tif, "--interval", "20", "-o", tmp_path / "f.glb"], ["info", tif]):
         code, _, err = run(capsys, "-q", *argv)
         assert code == 0 and "pass --height-unit 'US survey foot'" in err and "height_unit" not in err, err
+
+
+@pytest.mark.skipif(not Path("/proc/self/mounts").is_file(), reason="needs Linux's /proc")
+def test_an_output_on_a_virtual_file_system_is_refused_with_the_true_reason(tmp_path, capsys):
+    """--output /proc/x.glb was refused as "folder '/proc' is not writable (No such file or directory)": the kernel's
+    answer for a file /proc will not hold, of a folder that exists. The reason now says what the folder is (a proc or
+    sysfs file system), for the CLI's check, batch's output folder and save_mesh alike; a file taken for a folder is
+    named as a file."""
+    import errno
+
+    from stepterrain import export
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    cases = [
+        (["steps", dem, "--interval", "1", "-o", "/proc/x.glb"],
+         "folder '/proc' is not writable (it lies on a proc file system"),
+        (["steps", dem, "--interval", "1", "-o", "/proc/a/b/x.glb"],
+         "folder '/proc' is not writable (it lies on a proc file system"),
+        (["texture", dem, "-o", "/sys/x.png"], "folder '/sys' is not writable (it lies on a sysfs file system"),
+        (["batch", dem, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", "/proc/out"],
+         "cannot create the output folder '/proc/out': '/proc' lies on a proc file system"),
+        (["batch", dem, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", dem / "out" / "deeper"],
+         f"cannot create the output folder '{dem / 'out' / 'deeper'}': '{dem}' is a file, not a folder"),
+    ]
+    for argv, expected in cases:
+        code, _, err = run(capsys, "-q", *argv)
+        assert code == 2 and expected in err and "No such file or directory" not in err, err
+    mesh = st.stepped(np.load(dem), interval=1.0)
+    with pytest.raises(st.DataFileError, match="'/proc': it lies on a proc file system") as refused:
+        export.save_mesh(mesh, "/proc/x.glb")
+    assert "No such file" not in str(refused.value)
+    # an ENOENT of an ordinary folder that exists: not "No such file or directory" as the whole reason
+    reason = export.unwritable_reason(OSError(errno.ENOENT, "No such file or directory"), tmp_path)
+    assert reason.startswith("it exists but refuses new entries")
+    assert export.unwritable_reason(OSError(errno.EACCES, "Permission denied"), tmp_path) == "Permission denied"
