@@ -105,12 +105,16 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
     from .cli import (
+        _as_option,
         _check_output,
         _check_outputs,
         _check_size,
         _colormap,
+        _counted,
         _isovalue_base,
         _load_input,
+        _subcommand,
+        build_parser,
     )
 
     png = _check_output(args.png, (".png",), "--png") if args.png else None
@@ -153,9 +157,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         what = "the embedded Big Tujunga DEM"
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
     scheduler = args.scheduler
-    progress.stage("batch", f"stepping {what}" + (f" in tiles of {tile} cells" if tile else "")
-                   + f" -> {Path(args.output)}/*{_check_ext(args.format)}"
-                   + f" on {scheduler or f'a LocalCluster of {args.workers} workers'}")
+    rows, cols = (tile, tile) if isinstance(tile, int) else tile or (0, 0)  # "(512, 1024) cells" read as Python
+    cluster = f"a LocalCluster of {_counted(args.workers, 'worker')}"
+    progress.stage("batch", f"stepping {what}" + (f" in tiles of {rows} x {cols} cells" if tile else "")
+                   + f" -> {Path(args.output)}/*{_check_ext(args.format)}" + f" on {scheduler or cluster}")
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
@@ -173,13 +178,14 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     # item's surface is a usage error, said once, not a list of identical failures
     floor_failed = [r for r in report.failed if "floor must lie below" in (r.error or "")]  # mesh.close_solid's
     if args.floor is not None and floor_failed and len(floor_failed) == len(report.results):
-        first = floor_failed[0]
+        first, n = floor_failed[0], len(floor_failed)
         raise InvalidInputError(
-            f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above all "
-            f"{len(floor_failed)} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
+            f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above "
+            f"{'the only one' if n == 1 else f'all {n}'} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
         )
+    sub = _subcommand(build_parser(), "batch")  # a failure's library arguments as the options (interval= -> --interval)
     for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option): shown under -q too
-        print(f"stepterrain: {line.strip()}", file=progress.stream, flush=True)
+        print(f"stepterrain: {_as_option(line.strip(), sub)}", file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):
         from .export import save_image
 

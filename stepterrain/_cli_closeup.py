@@ -113,7 +113,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from ._compaction import check_budget
-    from .cli import _check_output, _check_outputs, _check_size, _load_input
+    from .cli import _check_output, _check_outputs, _check_size, _counted, _load_input
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
@@ -158,9 +158,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
             raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
     n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
     if (images or anim is not None) and n_rois > max_closeups(args.size):
-        raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most {max_closeups(args.size)} "
-                                f"close-ups (one per {_MIN_PIXELS_PER_CLOSEUP}x{_MIN_PIXELS_PER_CLOSEUP} pixels, at "
-                                f"most {_MAX_CLOSEUPS}); got {n_rois}")
+        raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most "
+                                f"{_counted(max_closeups(args.size), 'close-up')} (one per {_MIN_PIXELS_PER_CLOSEUP}x"
+                                f"{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS}); got {n_rois}")
     if images or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
     if anim is not None:  # refused here, not after loading the DEM and the still render (animate_closeups' check)
@@ -192,8 +192,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option
             try:
                 isovalues(terrain.height_range, interval=interval)
-            except InvalidInputError as exc:
-                raise InvalidInputError(f"--stepped {interval:g}: {exc}") from None
+            except InvalidInputError as exc:  # "interval=1e-09 over ..." reads "--stepped 1e-09 over ..." (cli's
+                text = str(exc)  # _OPTION_ALIASES): not after "--stepped 1e-09: "
+                raise InvalidInputError(text if text.startswith("interval") else f"--stepped {interval:g}: {text}"
+                                        ) from None
     anchor = AnchorStyle(args.anchor)
     # repetitions enough for the animation; |spin| * frames / fps overflowed to inf (an OverflowError in ceil) for
     # --spin 1e308: capped where float64 still counts whole turns
@@ -224,17 +226,17 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if mesh_out is not None:
         from .closeup import closeup_scene
 
-        progress.stage("mesh", f"building the scene mesh with {n} close-up{'s' if n != 1 else ''}")
+        progress.stage("mesh", f"building the scene mesh with {_counted(n, 'close-up')}")
         scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
-        progress.done(f"{len(scene.faces):,} faces,")
+        progress.done(f"{_counted(len(scene.faces), 'face')},")
     if images:
-        progress.stage("render", f"rendering {n} close-up{'s' if n != 1 else ''} at {args.size[0]}x{args.size[1]}")
+        progress.stage("render", f"rendering {_counted(n, 'close-up')} at {args.size[0]}x{args.size[1]}")
         timings: dict[str, float] = {}
         image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
         progress.done(f"transform {timings['transform']:.2f} s, passes {timings['render']:.2f} s, "
                       f"composite {timings['composite']:.2f} s;")
     if anim is not None:
-        progress.stage("animate", f"rendering {args.frames} frames for {anim}")
+        progress.stage("animate", f"rendering {_counted(args.frames, 'frame')} for {anim}")
         frames = animate_closeups(terrain, closeups, frames=args.frames, fps=args.fps, window_size=args.size,
                                   progress=not progress.quiet, **options)
         progress.done()

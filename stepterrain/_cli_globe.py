@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from .camera import _MAX_COORDINATE
-from .cli import Progress, _check_output, _check_outputs, _check_size, _floats, _path, _size, _window
+from .cli import Progress, _check_output, _check_outputs, _check_size, _counted, _floats, _path, _size, _window
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
 from .io import npz_nodata
@@ -194,7 +194,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     progress.stage("mesh", f"refining: error {args.error:g}, {args.bounds}s, metrics {','.join(metrics)}")
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=args.bounds,
                       metrics=metrics, cull=not args.no_cull)
-    progress.done(f"{len(mesh.faces):,} triangles, {len(mesh.vertices):,} vertices")
+    progress.done(f"{_counted(len(mesh.faces), 'triangle')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
         raise InvalidInputError("the view sees no part of the globe (every triangle was clipped); "
                                 "point the eye at the earth or pass --no-cull")

@@ -21,6 +21,7 @@ from .cli import (
     _check_outputs,
     _check_size,
     _colormap,
+    _counted,
     _load_input,
     _path,
     _size,
@@ -217,7 +218,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         base = (st.stepped(terrain, interval=args.interval, device=device) if args.interval is not None
                 else terrain.mesh())
         draped = tx.drape(base, composite)
-        progress.done(f"{len(draped.faces):,} faces")
+        progress.done(f"{_counted(len(draped.faces), 'face')}")
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
             shot = render.render_textured_mesh(draped, window_size=args.size, z_scale=args.z_scale, lighting=False)

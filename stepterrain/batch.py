@@ -59,6 +59,7 @@ from .export import (
     json_metadata,
     probe_writable,
     save_mesh,
+    unwritable_reason,
 )
 from .terrain import (
     FLOAT32_MAX,
@@ -722,8 +723,9 @@ def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Pa
         raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
     try:
         folder.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror or exc}") from exc
+    except OSError as exc:  # unwritable_reason: /proc said "No such file or directory" of itself
+        raise DataFileError(f"cannot create the output folder {str(folder)!r}: "
+                            f"{unwritable_reason(exc, folder)}") from exc
     error = probe_writable(folder)
     if error is not None:
         raise DataFileError(f"output folder {str(folder)!r} is not writable: {error.strerror or error}") from error

@@ -117,6 +117,12 @@ class Progress:
         return elapsed
 
 
+def _counted(count: int, noun: str, plural: str | None = None) -> str:
+    """``count`` and ``noun`` for progress and summary lines: "1 level", "2 levels", "1,024 vertices" (``plural``
+    when adding an s is wrong). The lines said "1 levels" and "1 workers"."""
+    return f"{count:,} {noun if count == 1 else plural or noun + 's'}"
+
+
 # ------------------------------------------------------------------------------------------ argument types
 @contextlib.contextmanager
 def usage_errors(parser: argparse.ArgumentParser) -> Iterator[None]:
@@ -476,7 +482,8 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     values = st.isovalues((lo, hi), interval=interval, levels=args.levels, base=base)
     if args.interval is None and args.levels is None:
         progress.say(f"no --interval or --levels given: using --interval {interval:g}, a round interval "
-                     f"giving {len(values)} levels over heights {lo:g} to {hi:g} (aim ~{TARGET_STEPS} steps)")
+                     f"giving {_counted(len(values), 'level')} over heights {lo:g} to {hi:g} "
+                     f"(aim ~{TARGET_STEPS} steps)")
     colors = _level_colors(args.colormap, len(values))
 
     # γ: scalar or a lens
@@ -520,11 +527,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     # step
     gamma_text = "lens" if isinstance(gamma, st.Lens) else f"{args.gamma:g}"
-    progress.stage("step", f"stepping on {device}: {len(values)} levels ({values[0]:g} to {values[-1]:g}), "
+    progress.stage("step", f"stepping on {device}: {_counted(len(values), 'level')} ({values[0]:g} to {values[-1]:g}), "
                            f"gamma {gamma_text}")
     mesh = st.stepped(terrain, interval=interval, levels=args.levels, base=base, gamma=gamma,
                       colors=colors, solid=args.solid, floor=args.floor, device=device)
-    progress.done(f"{len(mesh.faces):,} faces, {len(mesh.vertices):,} vertices")
+    progress.done(f"{_counted(len(mesh.faces), 'face')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
 
@@ -653,11 +660,29 @@ _NOT_ABOUT_THE_ARGUMENT = frozenset({"has", "folder", "file", "is", "of", "with"
 
 #: Library argument names whose option is spelled otherwise, per subcommand (checked before the general rule).
 #: closeup's CloseUp checks name "close-up scale" etc., which reached the command line as they were.
+#: The one-word entries apply mid-message too: batch's ``tile_size`` is --tile, a stepped close-up's ``interval=`` is
+#: --stepped, a render's ``window_size`` is --size.
 _OPTION_ALIASES = {
-    "steps": {"lens edge_width": "--lens-edge"},
+    "steps": {"lens edge_width": "--lens-edge", "window_size": "--size"},
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
-                "close-up color": "--color", "close-up stepped interval": "--stepped"},
+                "close-up color": "--color", "close-up stepped interval": "--stepped", "interval": "--stepped",
+                "window_size": "--size"},
+    "batch": {"tile_size": "--tile", "window_size": "--size"},
+    "globe": {"window_size": "--size"},
+    "texture": {"window_size": "--size"},
 }
+
+#: Library arguments named as plain words in mid-sentence, which the general rule leaves alone (a plain word may be
+#: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
+_OPTION_PHRASES = {
+    "steps": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
+    "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
+    "globe": {"raise the error": "raise --error"},
+}
+
+#: The library's own pointer to the option after an argument now spelled as that option: "--base 0.5, on the
+#: command line --base 0.5," said it twice.
+_SAID_TWICE = re.compile(r"(--[a-z][a-z0-9-]* [^\s,;()]+), on the command line \1")
 
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
 _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
@@ -703,11 +728,20 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     """``message`` with the library arguments it names spelled as the subcommand's options where it has them: the
     leading one (``interval must`` -> ``--interval must``, ``device='cuda'`` -> ``--device 'cuda'``), then any
     other as a whole word (:func:`_names_as_options`: ``needs interval= or levels=`` -> ``needs --interval or
-    --levels``, ``use a smaller face_size`` -> ``use a smaller --face-size``). A command-line user never typed
-    ``face_size``."""
+    --levels``, ``use a smaller face_size`` -> ``use a smaller --face-size``), then the plain-word phrases of
+    :data:`_OPTION_PHRASES` (``bring base closer`` -> ``bring --base closer``). A command-line user never typed
+    ``face_size``. For errors, warnings and batch's failure lines alike."""
     if sub is None:
         return message
     command = sub.prog.split()[-1]
+    text = _leading_as_option(message, sub, command)
+    for phrase, spelled in _OPTION_PHRASES.get(command, {}).items():
+        text = text.replace(phrase, spelled)
+    return _SAID_TWICE.sub(r"\1", text)
+
+
+def _leading_as_option(message: str, sub: argparse.ArgumentParser, command: str) -> str:
+    """:func:`_as_option` but for its phrases."""
     options = _library_options(sub)
     indexed = _CLOSEUP_INDEX.match(message) if command == "closeup" else None
     if indexed is not None:
@@ -727,12 +761,14 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     return option + " " + _names_as_options(rest[len(aside):] if rest.startswith(aside) else rest, options)
 
 
-def _warning_line(command: str) -> Any:
+def _warning_line(command: str, sub: argparse.ArgumentParser | None = None) -> Any:
     """A ``warnings.showwarning`` that prints the library's warnings as one ``stepterrain CMD: warning:`` line
-    (no source line) on stderr; a progress bar on screen (batch's) is cleared first and drawn again below it."""
+    (no source line) on stderr, the library arguments they name spelled as ``sub``'s options (:func:`_as_option`:
+    ``pass height_unit='ft'`` -> ``pass --height-unit 'ft'``); a progress bar on screen (batch's) is cleared first
+    and drawn again below it."""
 
     def show(message: Any, category: Any, filename: str, lineno: int, file: Any = None, line: Any = None) -> None:
-        text = f"stepterrain {command}: warning: {message}"
+        text = f"stepterrain {command}: warning: {_as_option(str(message), sub)}"
         if "tqdm" in sys.modules:  # else the line was appended to the bar's line
             sys.modules["tqdm"].tqdm.write(text, file=sys.stderr)
             sys.stderr.flush()
@@ -766,7 +802,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.memory_budget is not None:  # for this run only: main() may be called in-process
             set_memory_budget(args.memory_budget)
         with warnings.catch_warnings():
-            warnings.showwarning = _warning_line(args.command)  # restored on exit by catch_warnings
+            # restored on exit by catch_warnings
+            warnings.showwarning = _warning_line(args.command, _subcommand(parser, args.command))
             # before any input is read (a large DEM loaded first), unless the work runs on another machine: batch
             # --scheduler tcp://... --device cuda from a login node without a GPU was refused for lacking one
             if getattr(args, "device", None) is not None and getattr(args, "scheduler", None) in (None, "serial"):

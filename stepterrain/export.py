@@ -74,15 +74,64 @@ def _file_mode() -> int:
 
 
 def probe_writable(folder: Path) -> OSError | None:
-    """Create and remove a file in the existing ``folder``: the error when that fails, else None. (``os.access``
-    says yes to root on a read-only mount; a real file does not.)"""
+    """Create and remove a file in the existing ``folder``: the error when that fails, else None, its ``strerror``
+    the true reason (:func:`unwritable_reason`). (``os.access`` says yes to root on a read-only mount; a real file
+    does not.)"""
     try:
         fd, probe = tempfile.mkstemp(prefix=".stepterrain-probe.", dir=folder)
     except OSError as exc:
-        return exc
+        return OSError(exc.errno, unwritable_reason(exc, folder), str(folder))
     os.close(fd)
     os.unlink(probe)
     return None
+
+
+#: File systems the kernel makes up (process, device and control information), which hold no files of ours: /proc
+#: refuses a new file with ENOENT ("No such file or directory", of a folder that exists), /sys with EACCES, as root.
+_VIRTUAL_FILE_SYSTEMS = frozenset({
+    "proc", "sysfs", "cgroup", "cgroup2", "devpts", "debugfs", "tracefs", "securityfs", "pstore", "bpf", "configfs",
+    "fusectl", "efivarfs", "binfmt_misc", "nsfs", "mqueue", "rpc_pipefs", "autofs", "selinuxfs"})
+
+
+def _file_system_type(folder: Path) -> str | None:
+    """The type of the file system ``folder`` lies on (``proc``, ``ext4``, ...) from /proc/self/mounts (the longest
+    mount point holding it), None where that cannot be read (not Linux)."""
+    try:
+        with open("/proc/self/mounts", encoding="utf-8", errors="replace") as mounts:
+            entries = [line.split()[1:3] for line in mounts if len(line.split()) >= 3]
+        where = os.path.realpath(folder)
+    except OSError:
+        return None
+    best, kind = "", None
+    for point, fs in entries:
+        point = re.sub(r"\\([0-7]{3})", lambda m: chr(int(m.group(1), 8)), point)  # "\040" is a blank
+        inside = where == point or where.startswith(point.rstrip("/") + "/")
+        if inside and len(point) >= len(best):
+            best, kind = point, fs
+    return kind
+
+
+def unwritable_reason(error: OSError, folder: Path) -> str:
+    """Why a file (or a folder) cannot be made in ``folder``, or in its nearest existing parent when it is missing,
+    from the ``error`` making it raised, worded true: a virtual file system says what it is (the kernel's error
+    there, "No such file or directory" for /proc, which exists, was taken for the reason); an ENOENT of an existing
+    folder says that it refuses new entries, an ENOTDIR below a file names the file; other errors keep the system's
+    words ("Permission denied", "Read-only file system")."""
+    import errno
+
+    existing = Path(os.path.abspath(folder))
+    with contextlib.suppress(OSError):
+        while not existing.exists() and existing != existing.parent:
+            existing = existing.parent
+    kind = _file_system_type(existing)
+    where = "it" if existing == Path(os.path.abspath(folder)) else repr(str(existing))
+    if kind in _VIRTUAL_FILE_SYSTEMS:
+        return f"{where} lies on a {kind} file system, made up by the kernel, which holds no files of ours"
+    if error.errno == errno.ENOENT and os.path.isdir(existing):
+        return f"{where} exists but refuses new entries (the system answered 'No such file or directory')"
+    if error.errno == errno.ENOTDIR and existing.exists() and not existing.is_dir():
+        return f"{where} is a file, not a folder"
+    return str(error.strerror or error)
 
 
 #: The longest file name (bytes) most file systems hold; a temporary name adds 14 bytes (".", ".XXXXXXXX.tmp").
@@ -124,15 +173,17 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         try:
             folder.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
-            raise DataFileError(f"cannot create the output folder {str(folder)!r}: {exc.strerror}") from exc
+            raise DataFileError(f"cannot create the output folder {str(folder)!r}: "
+                                f"{unwritable_reason(exc, folder)}") from exc
     if not folder.is_dir():
         raise DataFileError(f"output folder {str(folder)!r} is not a folder")
     if not os.access(folder, os.W_OK):
         raise DataFileError(f"output folder {str(folder)!r} is not writable")
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{_temporary_stem(target.name)}.", suffix=".tmp", dir=folder)
-    except OSError as exc:
-        raise DataFileError(f"cannot write in the output folder {str(folder)!r}: {exc.strerror}") from exc
+    except OSError as exc:  # the true reason: /proc said "No such file or directory" of itself
+        raise DataFileError(f"cannot write in the output folder {str(folder)!r}: "
+                            f"{unwritable_reason(exc, folder)}") from exc
     os.close(fd)
     tmp_path = Path(tmp)
     try:

@@ -331,9 +331,9 @@ def render_mesh(
         Bad window size, z_scale, camera, scalars, cmap or view_angle, an empty mesh, or an infinite vertex (NaN ones
         are left out).
     OutputTooLargeError
-        The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 104 with it and
-        translucent colours, which take SSAA) exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked
-        before rendering.
+        The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 288 with it and
+        translucent colours, which take SSAA with depth peeling) exceed the memory budget
+        (:func:`stepterrain.set_memory_budget`), checked before rendering.
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -593,9 +593,10 @@ def _check_window(window_size: tuple[int, int], z_scale: float) -> tuple[int, in
 #: Rounded up; a 16384 x 16384 render thus needs 12 GiB (20 GiB with MSAA).
 _RENDER_BYTES_PER_PIXEL = 48
 _MSAA_BYTES_PER_PIXEL = 32
-#: What anti-aliasing adds for translucent colours, which take SSAA (the scene drawn larger, then filtered down) in
-#: place of MSAA: ~102 bytes per pixel in all, measured as above.
-_SSAA_BYTES_PER_PIXEL = 56
+#: What anti-aliasing adds for translucent colours (or textures), which take SSAA (the scene drawn larger, then
+#: filtered down) in place of MSAA, with depth peeling's buffers at the larger size: ~283 bytes per pixel in all,
+#: measured as above (1024² to 3072²).
+_SSAA_BYTES_PER_PIXEL = 240
 _LAYERED_BYTES_PER_PIXEL = 64
 
 
@@ -635,13 +636,15 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
                 "off-screen rendering needs OpenGL, but VTK could not create a context; install Mesa "
                 "(libegl1, libgl1-mesa-dri or libosmesa6) or run where a GPU driver is present"
             )
-        if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
-            plotter.enable_anti_aliasing("ssaa" if translucent else "msaa")
+        if anti_aliasing and not translucent:
+            plotter.enable_anti_aliasing("msaa")
         else:
             plotter.disable_anti_aliasing()
         plotter.set_background(background)
         if translucent:
             plotter.enable_depth_peeling()
+            if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
+                _ssaa_with_depth_peeling(plotter.renderer)
         framed = _box_corners(box) if framed_by_bounds else _frame_points(local, finite)
         position = _camera_position(camera, framed, width / height, view_angle)
         look_from = np.subtract(position[0], position[1])
@@ -662,6 +665,27 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
     if image is None or image.ndim != 3 or image.shape[:2] != (height, width):
         raise MissingDependencyError("off-screen rendering produced no image; the OpenGL context is unusable")
     return np.ascontiguousarray(image[:, :, :3], dtype=np.uint8)
+
+
+def _ssaa_with_depth_peeling(renderer: Any) -> None:
+    """Render through an SSAA pass whose translucent step peels depth as ``renderer`` does without passes (dual
+    depth peeling, its number of peels and occlusion ratio). pyvista's SSAA pass replaced the renderer's own
+    drawing, whose depth peeling it never reached: translucent faces blended in the order they were drawn, so a
+    surface drawn after the one in front of it hid it."""
+    from vtkmodules.vtkRenderingOpenGL2 import vtkCameraPass, vtkDualDepthPeelingPass, vtkRenderStepsPass, vtkSSAAPass
+
+    steps = vtkRenderStepsPass()
+    peeling = vtkDualDepthPeelingPass()
+    peeling.SetTranslucentPass(steps.GetTranslucentPass())
+    peeling.SetVolumetricPass(steps.GetVolumetricPass())
+    peeling.SetMaximumNumberOfPeels(renderer.GetMaximumNumberOfPeels())
+    peeling.SetOcclusionRatio(renderer.GetOcclusionRatio())
+    steps.SetTranslucentPass(peeling)
+    camera = vtkCameraPass()
+    camera.SetDelegatePass(steps)
+    ssaa = vtkSSAAPass()
+    ssaa.SetDelegatePass(camera)
+    renderer.SetPass(ssaa)
 
 
 def _box_corners(box: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -709,6 +733,12 @@ def render_textured_mesh(
     Same camera, lights and framing as :func:`render_mesh`. ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
 
+    A texture with some alpha below 255 (an alpha band, or a PNG's transparent colour) blends with what lies behind
+    it, in depth order (depth peeling), as the mesh's GLB shows it; a material's glTF ``alphaMode`` is followed when
+    set (OPAQUE: alpha ignored; MASK: each texel shown or hidden at ``alphaCutoff``). Anti-aliasing such a render
+    takes SSAA, as translucent colours do in :func:`render_mesh`. An opaque texture (:func:`~stepterrain.texture.drape`
+    composites its layer over a background) renders opaque.
+
     Raises
     ------
     InvalidInputError
@@ -731,11 +761,14 @@ def render_textured_mesh(
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
     uv = _texture_coordinates(uv)
-    picture = _texture_picture(image)
+    picture = _texture_alpha(_texture_picture(image), material)
+    translucent = picture.ndim == 3 and picture.shape[2] == 4
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
                                                                anti_aliasing)
+    if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
+        _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
 
     pv = _import_pyvista()
     _check_background(pv, background)
@@ -746,19 +779,42 @@ def render_textured_mesh(
                        diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
-                  lighting=lighting)
+                  lighting=lighting, translucent=translucent)
+
+
+def _texture_alpha(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
+    """The texture ``picture`` as VTK gets it: RGBA when some alpha is below 255 (blended as the mesh's GLB shows
+    it), else without its alpha (an opaque texture renders as before). A material's glTF alphaMode is followed
+    when set: OPAQUE ignores the alpha, MASK shows a texel (alpha 255) or hides it (alpha 0) at its alphaCutoff
+    (0.5 unset). The alpha was dropped: a texture with transparent texels (nodata, the outside of a lens) rendered
+    them opaque, in whatever colour they hold."""
+    if picture.ndim != 3 or picture.shape[2] != 4:
+        return picture
+    mode = getattr(material, "alphaMode", None)
+    alpha = picture[..., 3]
+    if mode == "MASK":
+        cutoff = getattr(material, "alphaCutoff", None)
+        cutoff = 0.5 if cutoff is None else float(cutoff)
+        picture = picture.copy()
+        picture[..., 3] = np.where(alpha / 255.0 >= cutoff, 255, 0).astype(np.uint8)
+        alpha = picture[..., 3]
+    if mode == "OPAQUE" or not alpha.size or int(alpha.min()) == 255:
+        return np.ascontiguousarray(picture[..., :3])
+    return picture
 
 
 def _texture_picture(image: Any) -> NDArray[np.uint8]:
-    """The texture image as the contiguous uint8 array VTK gets, else an InvalidInputError: casting to uint8
-    wrapped a uint16 array modulo 256 and truncated a float one in [0, 1] to black, and Pillow's conversion of a
-    16-bit image to RGB saturated it almost all white (:func:`~stepterrain.io.picture_uint8` scales it, as the
-    texture pyramid reads it)."""
+    """The texture image as the contiguous uint8 array VTK gets, (H, W, 4) when it has alpha (an alpha band or a
+    transparent colour), else an InvalidInputError: casting to uint8 wrapped a uint16 array modulo 256 and truncated
+    a float one in [0, 1] to black, and Pillow's conversion of a 16-bit image to RGB saturated it almost all white
+    (:func:`~stepterrain.io.picture_uint8` scales it, as the texture pyramid reads it)."""
     from .io import picture_uint8
 
     what = "the mesh's texture image"
     if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image
-        return np.ascontiguousarray(picture_uint8(image, what))
+        if "transparency" in getattr(image, "info", {}) and image.mode in ("P", "L", "RGB"):
+            image = image.convert("RGBA")  # a palette's or a PNG's transparent colour (tRNS)
+        return np.ascontiguousarray(picture_uint8(image, what, alpha=True))
     array = np.asarray(image)
     if array.dtype != np.uint8 or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] in (1, 3, 4))) \
             or array.size == 0:

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import stepterrain as st
 from stepterrain import cli
 
 from .conftest import needs_render
@@ -779,3 +780,118 @@ def test_closeup_rois_mixed_from_both_options_keep_their_command_line_order(tmp_
     blue = high & np.all(rgb == [0, 0, 255], axis=1)
     assert red.any() and blue.any()
     assert v[red, 0].max() < 30 < v[blue, 0].min()
+
+
+def test_counts_in_progress_lines_agree_with_their_nouns(tmp_path, capsys, monkeypatch):
+    """Progress and summary lines said "1 levels", "a LocalCluster of 1 workers", "holds at most 1 close-ups",
+    "tiles of (4, 6) cells": a count of one takes the singular (cli._counted), a tile R x C."""
+    assert [cli._counted(n, "vertex", "vertices") for n in (0, 1, 2, 1024)] == [
+        "0 vertices", "1 vertex", "2 vertices", "1,024 vertices"]
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    code, _, err = run(capsys, "steps", dem, "--levels", "5", "-o", tmp_path / "one.glb")
+    assert code == 0 and "stepping on cpu: 1 level (5 to 5)" in err.replace("cuda", "cpu") and "1 levels" not in err
+    code, _, err = run(capsys, "steps", dem, "--levels", "3,5", "-o", tmp_path / "two.glb")
+    assert code == 0 and ": 2 levels (3 to 5)" in err
+
+    import stepterrain.batch
+
+    def stop(*args, **kwargs):
+        raise KeyboardInterrupt  # the stage line is out; no cluster is started
+
+    monkeypatch.setattr(stepterrain.batch, "batch", stop)
+    _, _, err = run(capsys, "batch", dem, "--tile", "4x6", "--interval", "1", "--workers", "1", "-o", tmp_path / "o")
+    assert "in tiles of 4 x 6 cells" in err and "on a LocalCluster of 1 worker\n" in err and "1 workers" not in err
+    _, _, err = run(capsys, "batch", dem, "--tile", "4", "--interval", "1", "--workers", "3", "-o", tmp_path / "o")
+    assert "in tiles of 4 x 4 cells" in err and "on a LocalCluster of 3 workers" in err
+
+
+@needs_render
+def test_a_window_for_one_close_up_says_so_in_the_singular(tmp_path, capsys):
+    code, _, err = run(capsys, "closeup", "--roi-relative", "0.3,0.3,0.1", "--roi-relative", "0.6,0.6,0.1",
+                       "--size", "64x64", "--png", tmp_path / "c.png", "-o", tmp_path / "c.glb")
+    assert code == 2 and "holds at most 1 close-up (one per 64x64 pixels" in err
+
+
+def test_library_names_that_leaked_to_the_command_line_are_spelled_as_options(tmp_path, capsys):
+    """Found by provoking each subcommand's errors: library argument names the option rewrite missed reached the
+    user as they were: steps' and batch's "bring base closer" (a plain word mid-sentence), batch's "tile_size
+    applies to one raster" (--tile) and its failure lines (printed raw: "interval=1.0 with base=1e+39"), closeup's
+    "--stepped 1e-09: interval=1e-09 over heights", globe's budget hint "raise the error" (--error)."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, (np.add.outer(np.arange(6.0), np.arange(7.0)) + 1000).astype(np.float32))
+    folder = tile_folder(tmp_path / "tiles")
+    leaks = ("bring base", "interval=", "base=", "tile_size", "raise the error")
+    cases = [
+        (["steps", dem, "--interval", "1", "--base", "1e39", "-o", tmp_path / "s.glb"],
+         "error: --interval 1.0 with --base 1e+39 gives isovalues", "bring --base closer to the heights"),
+        (["batch", folder, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "error: --tile applies to one raster, not to a folder of tiles", ""),
+        (["batch", folder, "--interval", "1", "--base", "1e39", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "failed t0: InvalidInputError: --interval 1.0 with --base 1e+39 gives", "bring --base closer"),
+        (["closeup", dem, "--roi", "3,-3,2", "--stepped", "1e-9", "-o", tmp_path / "c.glb"],
+         "error: --stepped 1e-09 over heights [1000, 1011] gives", ""),
+    ]
+    for argv, expected, also in cases:
+        code, _, err = run(capsys, "-q", *argv)
+        assert code != 0 and expected in err and also in err, (argv, err)
+        assert not any(leak in err for leak in leaks), err
+    globe = cli._subcommand(cli.build_parser(), "globe")
+    assert cli._as_option("the mesh would need 5 GiB; raise the error or narrow the view", globe) == (
+        "the mesh would need 5 GiB; raise --error or narrow the view")
+
+
+def test_library_names_in_warnings_are_spelled_as_options(tmp_path, capsys):
+    """Warnings reached the command line as the library words them: "Shift base by ... (e.g. base=0.5, on the
+    command line --base 0.5, ...)" and a GeoTIFF in feet's "pass height_unit='US survey foot'"."""
+    dem = tmp_path / "int.npy"
+    np.save(dem, np.add.outer(np.arange(10.0), np.arange(10.0)).astype(np.float32))
+    code, _, err = run(capsys, "-q", "steps", dem, "--interval", "2", "--solid", "-o", tmp_path / "s.glb")
+    assert code == 0 and "warning: some heights sit exactly on a threshold" in err
+    assert "Shift --base by a fraction of the interval (e.g. --base 0.5, for integer heights)" in err
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF needs rasterio")
+    from affine import Affine
+
+    tif = tmp_path / "ft.tif"
+    with rasterio.open(tif, "w", driver="GTiff", height=10, width=10, count=1, dtype="float32", crs="EPSG:2229",
+                       transform=Affine(30.0, 0.0, 6400000.0, 0.0, -30.0, 1900000.0)) as out:
+        out.write(np.add.outer(np.arange(10.0), np.arange(10.0)).astype(np.float32) * 10 + 1000, 1)
+    for argv in (["steps", tif, "--interval", "20", "-o", tmp_path / "f.glb"], ["info", tif]):
+        code, _, err = run(capsys, "-q", *argv)
+        assert code == 0 and "pass --height-unit 'US survey foot'" in err and "height_unit" not in err, err
+
+
+@pytest.mark.skipif(not Path("/proc/self/mounts").is_file(), reason="needs Linux's /proc")
+def test_an_output_on_a_virtual_file_system_is_refused_with_the_true_reason(tmp_path, capsys):
+    """--output /proc/x.glb was refused as "folder '/proc' is not writable (No such file or directory)": the kernel's
+    answer for a file /proc will not hold, of a folder that exists. The reason now says what the folder is (a proc or
+    sysfs file system), for the CLI's check, batch's output folder and save_mesh alike; a file taken for a folder is
+    named as a file."""
+    import errno
+
+    from stepterrain import export
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    cases = [
+        (["steps", dem, "--interval", "1", "-o", "/proc/x.glb"],
+         "folder '/proc' is not writable (it lies on a proc file system"),
+        (["steps", dem, "--interval", "1", "-o", "/proc/a/b/x.glb"],
+         "folder '/proc' is not writable (it lies on a proc file system"),
+        (["texture", dem, "-o", "/sys/x.png"], "folder '/sys' is not writable (it lies on a sysfs file system"),
+        (["batch", dem, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", "/proc/out"],
+         "cannot create the output folder '/proc/out': '/proc' lies on a proc file system"),
+        (["batch", dem, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", dem / "out" / "deeper"],
+         f"cannot create the output folder '{dem / 'out' / 'deeper'}': '{dem}' is a file, not a folder"),
+    ]
+    for argv, expected in cases:
+        code, _, err = run(capsys, "-q", *argv)
+        assert code == 2 and expected in err and "No such file or directory" not in err, err
+    mesh = st.stepped(np.load(dem), interval=1.0)
+    with pytest.raises(st.DataFileError, match="'/proc': it lies on a proc file system") as refused:
+        export.save_mesh(mesh, "/proc/x.glb")
+    assert "No such file" not in str(refused.value)
+    # an ENOENT of an ordinary folder that exists: not "No such file or directory" as the whole reason
+    reason = export.unwritable_reason(OSError(errno.ENOENT, "No such file or directory"), tmp_path)
+    assert reason.startswith("it exists but refuses new entries")
+    assert export.unwritable_reason(OSError(errno.EACCES, "Permission denied"), tmp_path) == "Permission denied"

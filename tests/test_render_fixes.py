@@ -423,3 +423,107 @@ def test_a_view_angle_vtk_cannot_render_is_named(angle):
     with pytest.raises(InvalidInputError, match=r"^view_angle must be a vertical field of view in \[1e-08, 179\] "
                                                 r"degrees; got "):
         render.render_mesh(mesh, window_size=(64, 64), view_angle=angle)
+
+
+@needs_render
+@pytest.mark.parametrize("front_first", [True, False])
+def test_anti_aliased_translucent_colours_blend_in_depth_order(front_first):
+    """pyvista's SSAA pass replaced the renderer's own drawing, so depth peeling never ran under anti-aliasing: the
+    faces blended in the order they were drawn, and an opaque square drawn after the translucent one in front of it
+    hid it (pure blue where 3/4 red showed without anti-aliasing)."""
+    mesh = _two_squares((255, 0, 0, 192), (0, 0, 255, 255), front_first=front_first, per="vertex")
+    plain, smooth = (render.render_mesh(mesh, window_size=(64, 64), camera="top", anti_aliasing=aa)[28:36, 28:36]
+                     for aa in (False, True))
+    assert np.abs(smooth.astype(int) - plain.astype(int)).max() <= 3 and smooth[..., 0].min() > 100
+
+
+def _two_textured_squares(texture: object, *, front_first: bool, material: str = "simple", **material_kw
+                          ) -> trimesh.Trimesh:
+    """``_two_squares`` textured: the front square (z = 1) takes texel (0, 0) of a 2 x 1 ``texture`` (an array or a
+    Pillow image), the back one (z = 0) texel (0, 1)."""
+    mesh = _two_squares((0, 0, 0, 255), (0, 0, 0, 255), front_first=front_first, per="vertex")
+    front_uv, back_uv = [0.25, 0.5], [0.75, 0.5]
+    uv = np.array([front_uv] * 4 + [back_uv] * 4 if front_first else [back_uv] * 4 + [front_uv] * 4)
+    if material == "pbr":
+        mat = trimesh.visual.material.PBRMaterial(baseColorTexture=texture, **material_kw)
+    else:
+        mat = trimesh.visual.material.SimpleMaterial(image=texture)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=mat)
+    return mesh
+
+
+@needs_render
+@pytest.mark.parametrize("anti_aliasing", [False, True])
+@pytest.mark.parametrize("front_first", [True, False])
+@pytest.mark.parametrize("as_image", [True, False])
+def test_texture_alpha_blends_the_front_surface_over_the_one_behind(as_image, front_first, anti_aliasing):
+    """render_textured_mesh dropped the texture's alpha (a Pillow image was converted to RGB, an RGBA array drawn
+    without depth peeling): a texel of alpha 192 rendered opaque. Now, unlit, a red texel of alpha 192 over an
+    opaque blue one shows 192/255 of the red and 63/255 of the blue in either face order, anti-aliased or not."""
+    def centre(front, back):
+        texture = np.array([[front, back]], np.uint8)
+        mesh = _two_textured_squares(Image.fromarray(texture, "RGBA") if as_image else texture,
+                                     front_first=front_first)
+        image = render.render_textured_mesh(mesh, window_size=(64, 64), camera="top", lighting=False,
+                                            anti_aliasing=anti_aliasing)
+        return image[28:36, 28:36].reshape(-1, 3).astype(float)
+
+    opaque = centre((255, 0, 0, 255), (0, 0, 255, 255))
+    assert (opaque == [255, 0, 0]).all()  # an opaque texture hides what lies behind, as before
+    blended = centre((255, 0, 0, 192), (0, 0, 255, 255))
+    assert blended.mean(axis=0) == pytest.approx([192, 0, 63], abs=3)
+    assert np.ptp(blended, axis=0).max() <= 3
+
+
+@needs_render
+def test_texture_transparency_follows_png_transparency_and_gltf_alpha_mode():
+    """A palette PNG's transparent colour (tRNS) hides its texels; a glTF material's alphaMode is followed when set:
+    OPAQUE ignores the alpha, MASK shows or hides each texel at alphaCutoff."""
+    def centre(mesh):
+        image = render.render_textured_mesh(mesh, window_size=(64, 64), camera="top", lighting=False)
+        return image[28:36, 28:36].reshape(-1, 3).mean(axis=0)
+
+    palette = Image.fromarray(np.array([[[255, 0, 0], [0, 0, 255]]], np.uint8)).convert("P")
+    palette.info["transparency"] = palette.getpixel((0, 0))  # the red entry
+    assert centre(_two_textured_squares(palette, front_first=True)) == pytest.approx([0, 0, 255], abs=1)
+    texture = Image.fromarray(np.array([[[255, 0, 0, 100], [0, 0, 255, 255]]], np.uint8), "RGBA")
+    for kw, expected in (({"alphaMode": "OPAQUE"}, [255, 0, 0]), ({"alphaMode": "MASK"}, [0, 0, 255]),
+                         ({"alphaMode": "MASK", "alphaCutoff": 0.3}, [255, 0, 0]),
+                         ({"alphaMode": "BLEND"}, [100, 0, 155]), ({}, [100, 0, 155])):
+        mesh = _two_textured_squares(texture, front_first=True, material="pbr", **kw)
+        assert centre(mesh) == pytest.approx(expected, abs=2), kw
+
+
+@needs_render
+def test_anti_aliased_translucent_texture_is_checked_against_the_budget_for_ssaa():
+    """An anti-aliased render of a translucent texture takes SSAA with depth peeling: its memory is refused before
+    rendering, as for translucent colours; an opaque texture is checked for MSAA only."""
+    texture = np.array([[[255, 0, 0, 192], [0, 0, 255, 255]]], np.uint8)
+    bytes_ssaa = render._render_bytes(1000, 1000, anti_aliasing=True, ssaa=True)
+    previous = st.set_memory_budget(bytes_ssaa - 1)
+    try:
+        with pytest.raises(OutputTooLargeError, match="anti-aliased"):
+            render.render_textured_mesh(_two_textured_squares(texture, front_first=True), window_size=(1000, 1000),
+                                        camera="top", anti_aliasing=True)
+        opaque = texture.copy()
+        opaque[..., 3] = 255
+        shot = render.render_textured_mesh(_two_textured_squares(opaque, front_first=True), window_size=(1000, 1000),
+                                           camera="top", anti_aliasing=True, lighting=False)
+        assert (shot[500, 500] == [255, 0, 0]).all()
+    finally:
+        st.set_memory_budget(previous)
+
+
+@needs_render
+def test_the_drape_of_a_translucent_layer_renders_as_before():
+    """drape composites its layer over a background, so its texture is opaque: it renders as the composited image,
+    the layer's alpha already spent."""
+    from stepterrain.texture import TextureLayer, drape
+
+    mesh = st.heightfield_mesh(np.zeros((3, 3)))
+    rgba = np.zeros((2, 2, 4), np.float32)
+    rgba[...] = (1.0, 0.0, 0.0, 0.5)
+    draped = drape(mesh, TextureLayer("thematic", rgba, (-0.5, 2.5, -0.5, 2.5)), background=(0.0, 0.0, 1.0))
+    assert draped.visual.material.baseColorTexture.mode == "RGB"
+    image = render.render_textured_mesh(draped, window_size=(64, 64), camera="top", lighting=False)
+    assert image[32, 32] == pytest.approx([128, 0, 128], abs=1)
