@@ -657,6 +657,7 @@ _OPTION_ALIASES = {
     "steps": {"lens edge_width": "--lens-edge"},
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
                 "close-up color": "--color", "close-up stepped interval": "--stepped"},
+    "batch": {"tile_size": "--tile"},  # "tile_size applies to one raster" reached the command line as it was
 }
 
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
@@ -666,6 +667,10 @@ _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 #: ``got interval=5``) or a snake_case name (``use a smaller face_size``). A plain word is not taken for an argument
 #: in mid-sentence ("gives 2000 levels"); quoted text, paths and ``name[k]`` are left as they are.
 _ARGUMENT_ANYWHERE = re.compile(r"(?<![\w./'\"-])([a-z][a-z0-9]*(?:_[a-z0-9]+)*)(?:(=)(?=([^\s;,)]?))|(?![\w=\[-]))")
+
+
+#: An option followed by the library's pointer to that same option: ``--tile (the CLI's --tile)``.
+_CLI_ASIDE = re.compile(r"(--[a-z][a-z0-9-]*) \(the CLI's \1\)")
 
 
 def _library_options(sub: argparse.ArgumentParser) -> dict[str, str]:
@@ -689,7 +694,8 @@ def _names_as_options(message: str, options: dict[str, str]) -> str:
             return match.group(0)
         return options[name] + (" " if equals and value else "")
 
-    return _ARGUMENT_ANYWHERE.sub(option, message)
+    # the library's pointer to the option, now that the option is named: "give --tile (the CLI's --tile)" said it twice
+    return _CLI_ASIDE.sub(r"\1", _ARGUMENT_ANYWHERE.sub(option, message))
 
 
 def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:
