@@ -329,19 +329,24 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
     The file is read as :func:`~stepterrain.io.load_dem` reads a 2-D one: in an ``.npz`` the key it reads
     (``heights``, ``elevation`` or ``z``) decides when there is one (a 2-D ``elevation`` beside a 3-D texture is
-    one raster), and a ``nodata`` number marks missing cells; those and non-finite heights become NaN (nodata).
-    A finite height beyond float32, a series that is all nodata, a ``nodata`` that is not one number, and a file
+    one raster), and a ``nodata`` number marks missing cells, and so do a boolean ``mask`` (True = missing) and
+    ``valid`` (True = present), either or both, each of the series' (T, H, W) shape (one per frame) or of one frame's
+    (H, W) (the same cells in every frame); those cells and non-finite heights become NaN (nodata).
+    A finite height beyond float32, a series that is all nodata, a ``nodata`` that is not one number, a ``mask`` or
+    ``valid`` that is not a boolean array of one of those shapes, and a file
     that is truncated or declares more data than it holds are a :class:`~stepterrain.errors.DataFileError`; so is
     an ``.npz`` series with a ``transform`` or other georeferencing keys (``crs``, ``dx``/``dy``,
     ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...): a series is meshed unreferenced, as 1 m cells at
     (0, 0), and those keys were ignored without a word. An ``.npz``'s ``units`` converts the heights to metres as
     :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError)."""
     from .io import (
+        _NPZ_NOT_HEIGHTS,
         _heights_in_metres,
         _npz_text,
         nodata_as_nan,
         npz_georeference_keys,
         npz_heights_key,
+        npz_missing,
         npz_nodata,
         read_npy,
         read_npz,
@@ -349,12 +354,13 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
     file = Path(os.fspath(path))
     loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
+    missing = None
     if isinstance(loaded, np.ndarray):
         stack, what, nodata = loaded, "array", None
     else:  # the key load_dem reads ('elevation' ..., 2-D or 3-D here) decides: not any 3-D member
         key = npz_heights_key(loaded, (2, 3))
-        if key is None:
-            key = next((k for k in loaded if loaded[k].ndim == 3), None)
+        if key is None:  # a (T, H, W) mask is no series of heights
+            key = next((k for k in loaded if loaded[k].ndim == 3 and k not in _NPZ_NOT_HEIGHTS), None)
         if key is None or loaded[key].ndim != 3:
             return None
         unread = [name for name in loaded if name == "transform"] + npz_georeference_keys(loaded)
@@ -371,7 +377,9 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "iuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    heights = nodata_as_nan(stack, file, what, nodata)  # as load_dem reads a 2-D file
+    if not isinstance(loaded, np.ndarray):  # a mask's cells were read as heights (0 or -32768 pits) in every frame
+        missing = npz_missing(loaded, key, file, series=True)
+    heights = nodata_as_nan(stack, file, what, nodata, missing)  # as load_dem reads a 2-D file
     if not isinstance(loaded, np.ndarray):  # 'units' = "ft" was meshed as metres, 3.3 times too high
         heights, _ = _heights_in_metres(heights, _npz_text(loaded, "units", file), file, "its 'units'")
     return heights
@@ -1027,7 +1035,7 @@ def batch(
     source
         A folder of DEM files (.npy .npz .png .tif; one output per file, named after it), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
-        an ``.npz``'s ``nodata`` value are nodata) or a (T, H, W) array (one output per frame,
+        an ``.npz``'s ``nodata`` value, ``mask`` and ``valid`` mark nodata) or a (T, H, W) array (one output per frame,
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
         array) cut into tiles of ``tile_size`` cells (``tile_r0_c0`` ...; neighbours share border nodes).
     output_dir : str or path-like

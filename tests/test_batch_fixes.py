@@ -898,3 +898,43 @@ def test_cli_batch_of_a_raster_named_another_way_keeps_its_complete_tiles(tmp_pa
                      "serial", "-o", str(out)]) == 0  # fmt: skip
     assert "0 written, 4 complete already" in capsys.readouterr().err
     assert (out / MANIFEST_NAME).read_text() == manifest
+
+
+def test_a_series_npz_honours_its_mask_and_valid_as_load_dem_does(tmp_path):
+    """load_dem reads an .npz's boolean ``mask`` (True = missing) and ``valid`` (True = present) as nodata, but
+    load_series ignored them: a (T, H, W) series saved from a masked array was meshed with its masked cells as
+    heights (0 or -32768 pits in every frame). A (H, W) mask marks the same cells of every frame, a (T, H, W) one
+    each frame's own; any other shape or dtype is refused, as load_dem refuses it."""
+    from stepterrain.batch import load_series
+    from stepterrain.errors import DataFileError
+
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    stack = np.stack([z, z + 1.0, z + 2.0])
+    stack[:, 2, 3] = -32768.0  # the masked cell's stored value
+    every = np.zeros(z.shape, bool)
+    every[2, 3] = True
+    np.savez(tmp_path / "every.npz", heights=stack, mask=every)
+    got = load_series(tmp_path / "every.npz")
+    assert np.isnan(got).sum() == 3 and np.isnan(got[:, 2, 3]).all()
+    assert np.array_equal(got[1][~every], stack[1][~every])
+    per_frame = np.zeros(stack.shape, bool)
+    per_frame[1, 0, 0] = True
+    valid = ~per_frame
+    valid[:, 2, 3] = False
+    np.savez(tmp_path / "frames.npz", elevation=stack, valid=valid)
+    got = load_series(tmp_path / "frames.npz")
+    assert np.array_equal(np.isnan(got), ~valid)
+    np.savez(tmp_path / "both.npz", z=stack, mask=per_frame, valid=~every)  # missing where either says so
+    assert np.array_equal(np.isnan(load_series(tmp_path / "both.npz")), per_frame | every)
+    # a batch of it steps the frames without the pit: no vertex near -32768
+    report = batch(tmp_path / "every.npz", tmp_path / "out", interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 3
+    assert min(trimesh.load(r.path).vertices[:, 2].min() for r in report.done) >= 0.0
+    np.savez(tmp_path / "bad.npz", heights=stack, mask=every[:, :4])
+    with pytest.raises(DataFileError, match=r"'mask' must be a boolean array of the series' shape \(3, 6, 7\)"):
+        load_series(tmp_path / "bad.npz")
+    np.savez(tmp_path / "ints.npz", heights=stack, valid=valid.astype(np.uint8) * 255)
+    with pytest.raises(DataFileError, match="GDAL's mask band"):
+        load_series(tmp_path / "ints.npz")
+    np.savez(tmp_path / "unnamed.npz", mask=per_frame, stack=stack)  # the mask is not the series
+    assert np.array_equal(np.isnan(load_series(tmp_path / "unnamed.npz")), per_frame)
