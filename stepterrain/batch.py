@@ -392,16 +392,21 @@ def _terrain_source(terrain: Terrain) -> _Source:
 
 
 def _file_items(files: Sequence[Path]) -> list[BatchItem]:
-    stems = [f.stem for f in files]
+    # names compared in lower case: on a case-insensitive file system (macOS, Windows) A.tif's output A.glb and
+    # a.tif's a.glb are one file, the second item overwriting the first (and resumed from its manifest entry)
+    stems = [f.stem.lower() for f in files]
     duplicated = {s for s in stems if stems.count(s) > 1}
-    keys = [f.name.replace(".", "_") if f.stem in duplicated else f.stem for f in files]
-    if len(set(keys)) != len(keys):  # the same file twice, or a.npy beside a.npz (a_npy, a_npz) and a_npy.tif
-        first: dict[str, Path] = {}
+    keys = [f.name.replace(".", "_") if f.stem.lower() in duplicated else f.stem for f in files]
+    if len({k.lower() for k in keys}) != len(keys):  # the same file twice, a.npy beside a.npz (a_npy, a_npz) and
+        first: dict[str, tuple[str, Path]] = {}  # a_npy.tif, or A.tif beside a.tif
         for key, f in zip(keys, files, strict=True):
-            if key in first:
-                raise InvalidInputError(f"source files {str(first[key])!r} and {str(f)!r} would both write the output "
-                                        f"{key!r} (outputs are named after their files); rename one")
-            first[key] = f
+            if key.lower() in first:
+                other, earlier = first[key.lower()]
+                outputs = (f"both write the output {key!r}" if other == key else f"write the outputs {other!r} and "
+                           f"{key!r}, one file on a case-insensitive file system (macOS, Windows)")
+                raise InvalidInputError(f"source files {str(earlier)!r} and {str(f)!r} would {outputs} (outputs are "
+                                        "named after their files); rename one")
+            first[key.lower()] = (key, f)
     return [BatchItem(key=k, kind="file", path=str(f)) for k, f in zip(keys, files, strict=True)]
 
 
@@ -1033,7 +1038,9 @@ def batch(
     Parameters
     ----------
     source
-        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it), a list of DEM files,
+        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it: ``dem.tif`` writes
+        ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
+        ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
         an ``.npz``'s ``nodata`` value, ``mask`` and ``valid`` mark nodata) or a (T, H, W) array (one output per frame,
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)

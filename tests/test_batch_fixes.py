@@ -938,3 +938,30 @@ def test_a_series_npz_honours_its_mask_and_valid_as_load_dem_does(tmp_path):
         load_series(tmp_path / "ints.npz")
     np.savez(tmp_path / "unnamed.npz", mask=per_frame, stack=stack)  # the mask is not the series
     assert np.array_equal(np.isnan(load_series(tmp_path / "unnamed.npz")), per_frame)
+
+
+def test_file_names_differing_only_in_case_do_not_share_an_output(tmp_path):
+    """A.npy and a.npy wrote A.glb and a.glb: one file on a case-insensitive file system (macOS, Windows), the second
+    item overwriting the first's output, which a rerun then skipped as complete. Names are compared in lower case:
+    A.npy beside a.npz are renamed as a.npy beside a.npz are (A_npy, a_npz), and A.npy beside a.npy is refused."""
+    from stepterrain.batch import plan_items
+    from stepterrain.errors import InvalidInputError
+
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    np.save(mixed / "A.npy", z)
+    np.savez(mixed / "a.npz", heights=z + 5.0)
+    np.save(mixed / "b.npy", z)
+    items, _ = plan_items(mixed)
+    assert [i.key for i in items] == ["A_npy", "a_npz", "b"]
+    report = batch(mixed, tmp_path / "out", interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and sorted(Path(r.path).name.lower() for r in report.done) == ["a_npy.ply", "a_npz.ply", "b.ply"]
+    same = tmp_path / "same"
+    same.mkdir()
+    np.save(same / "A.npy", z)
+    np.save(same / "a.npy", z + 5.0)
+    with pytest.raises(InvalidInputError, match=r"source files '.*A.npy' and '.*a.npy' would write the outputs 'A_npy' "
+                                                r"and 'a_npy', one file on a case-insensitive file system"):
+        batch(same, tmp_path / "out2", interval=1.0, scheduler="serial")
+    assert not (tmp_path / "out2").exists()
