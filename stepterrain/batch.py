@@ -29,9 +29,11 @@ import os
 import platform
 import re
 import sys
+import threading
 import time
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -510,6 +512,51 @@ def _transient(exc: BaseException) -> bool:
     return False
 
 
+class _BudgetLease:
+    """The memory budget of the items one worker process runs at once. A dask worker of several threads ran them
+    concurrently, each setting the process-wide budget and restoring the one it found: the second found the first's,
+    so the worker kept a client's budget for good, and an item stepped under the budget another item had just put
+    back (or another client's). Here the first item in sets its budget and the last one out restores the process's;
+    an item with another budget (another client's) waits until the items under the one set are done, and items of
+    the budget set wait behind it (so that it is not kept waiting for ever)."""
+
+    def __init__(self) -> None:
+        self._changed = threading.Condition()
+        self._budget: int | None = None  # set while items hold it
+        self._holders = 0
+        self._previous = 0  # the process's own, restored by the last holder
+        self._others = 0  # items waiting for a budget other than the one set
+
+    @contextmanager
+    def hold(self, budget: int) -> Iterator[None]:
+        from ._compaction import set_memory_budget
+
+        with self._changed:
+            if self._holders and self._budget != budget:
+                self._others += 1
+                try:
+                    self._changed.wait_for(lambda: not self._holders)
+                finally:
+                    self._others -= 1
+            else:
+                self._changed.wait_for(lambda: not self._holders or (self._budget == budget and not self._others))
+            if not self._holders:
+                self._previous, self._budget = set_memory_budget(budget), budget
+            self._holders += 1
+        try:
+            yield
+        finally:
+            with self._changed:
+                self._holders -= 1
+                if not self._holders:
+                    set_memory_budget(self._previous)
+                    self._budget = None
+                    self._changed.notify_all()
+
+
+_BUDGET_LEASE = _BudgetLease()
+
+
 def run_item(
     item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None,
     memory_budget: int | None = None, record_warnings: bool = False,
@@ -517,23 +564,24 @@ def run_item(
     """Step one item and write its mesh (atomically); the task each dask worker runs.
 
     ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process for this
-    item and restored after it (a worker process has its own, the default, otherwise). ``record_warnings``: the
-    item's warnings go into its result's ``warnings`` instead of the worker's stderr (for single-threaded worker
-    processes and the serial run: recording is not thread-safe).
+    item and restored after it (a worker process has its own, the default, otherwise); items a worker's threads run at
+    once share it when it is the same, and one with another waits for the others to finish (:class:`_BudgetLease`).
+    ``cpu_threads`` is set only in the LocalCluster's workers of one thread each (and not restored).
+    ``record_warnings``: the item's warnings go into its result's ``warnings`` instead of the worker's stderr (for
+    single-threaded worker processes and the serial run: recording is not thread-safe).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
     writing); that and any other exception propagate so the scheduler retries the task.
     """
-    from ._compaction import set_memory_budget
+    from ._compaction import budget_value
     from ._device import set_cpu_threads
 
     start, cpu_start = time.perf_counter(), time.process_time()
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
     # the caller's budget for this item only: a remote worker kept it for other clients' tasks afterwards
-    previous_budget = None if memory_budget is None else set_memory_budget(memory_budget)
-    try:
+    with nullcontext() if memory_budget is None else _BUDGET_LEASE.hold(budget_value(memory_budget)):
         if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." + a source line
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("default")
@@ -541,9 +589,6 @@ def run_item(
             said = tuple(dict.fromkeys(str(w.message) for w in caught))
             return dataclasses.replace(result, warnings=said) if said else result
         return _run_item(item, source, options, output_dir, start, cpu_start)
-    finally:
-        if previous_budget is not None:
-            set_memory_budget(previous_budget)
 
 
 def _run_item(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, start: float,

@@ -965,3 +965,67 @@ def test_file_names_differing_only_in_case_do_not_share_an_output(tmp_path):
                                                 r"and 'a_npy', one file on a case-insensitive file system"):
         batch(same, tmp_path / "out2", interval=1.0, scheduler="serial")
     assert not (tmp_path / "out2").exists()
+
+
+def test_items_run_at_once_by_a_threaded_worker_each_step_under_their_own_budget(tmp_path, monkeypatch):
+    """A dask worker of several threads (``dask worker --nthreads 4``) runs items at once; each set the process-wide
+    memory budget and put back the one it had found. The second item found the first's and put that back (the worker
+    kept a client's budget for good), and an item stepped under the budget another item had just restored, or under
+    another client's. Items of one budget now share it, an item with another waits for them, and the worker's own is
+    restored after the last."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import stepterrain.batch as batch_module
+    from stepterrain import get_memory_budget, set_memory_budget
+    from stepterrain.batch import BatchItem, ItemResult, _Options, run_item
+
+    seen: dict[str, list[int]] = {}
+    running = {"now": 0, "most": 0}
+    lock = threading.Lock()
+
+    def recording(item, source, options, output_dir, start, cpu_start):
+        with lock:
+            running["now"] += 1
+            running["most"] = max(running["most"], running["now"])
+        seen[item.key] = [get_memory_budget()]
+        time.sleep(0.02 + 0.01 * (int(item.key[4:]) % 3))  # others start and finish meanwhile
+        seen[item.key].append(get_memory_budget())
+        with lock:
+            running["now"] -= 1
+        return ItemResult(item.key, "done", attempts=1)
+
+    def run_all(budgets):
+        with ThreadPoolExecutor(4) as pool:
+            return list(pool.map(lambda key: run_item(BatchItem(key, "file", path="x.npy"), None, options,
+                                                      str(tmp_path), memory_budget=budgets[key]), budgets))  # fmt: skip
+
+    monkeypatch.setattr(batch_module, "_run_item", recording)
+    options = _Options(5.0, None, 0.0, 1.0, None, False, None, ".ply", "cpu", ())
+    own = get_memory_budget() + 4096
+    previous = set_memory_budget(own)  # the worker's own
+    try:
+        one = {f"item{k}": 1 << 20 for k in range(8)}  # one client's items
+        assert [r.status for r in run_all(one)] == ["done"] * 8
+        assert {key: values for key, values in seen.items() if values != [one[key]] * 2} == {}
+        assert running["most"] > 1 and get_memory_budget() == own  # they did run at once
+        seen.clear()
+        two = {f"item{k}": (1 << 20) if k % 3 else (1 << 21) for k in range(16)}  # two clients' items
+        assert [r.status for r in run_all(two)] == ["done"] * 16
+        assert {key: values for key, values in seen.items() if values != [two[key]] * 2} == {}
+        assert get_memory_budget() == own
+    finally:
+        set_memory_budget(previous)
+
+    # the real thing: a budget too small for the tile refuses it, a large one writes it, whichever runs beside it
+    monkeypatch.undo()
+    rows, cols = np.mgrid[0:33, 0:33]
+    np.save(tmp_path / "tile.npy", (rows * 3.0 + cols * 2.0).astype(np.float32))
+    real = _Options(5.0, None, 0.5, 1.0, None, False, None, ".ply", "cpu", ())
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda k: run_item(BatchItem(f"tile{k}", "file", path=str(tmp_path / "tile.npy")),
+                                                   None, real, str(tmp_path), memory_budget=1024 if k % 2 else 1 << 30),
+                                range(12)))  # fmt: skip
+    assert [r.status for r in results] == ["done", "failed"] * 6
+    assert all("OutputTooLargeError" in r.error for r in results if r.status == "failed")
