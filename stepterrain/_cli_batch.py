@@ -87,7 +87,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--scheduler", metavar="ADDR",
                    help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
                         "(default: a LocalCluster of --workers processes)")
-    p.add_argument("--workers", type=int, default=2, metavar="N", help="LocalCluster worker processes (default 2)")
+    p.add_argument("--workers", type=int, metavar="N",
+                   help="LocalCluster worker processes (default 2); not with --scheduler")
     p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
                    help="seconds to reach --scheduler before giving up (default 10)")
     p.add_argument("--retries", type=int, default=2, metavar="N",
@@ -123,6 +124,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     base = _isovalue_base(args)
     if args.floor is not None and not args.solid:
         raise InvalidInputError("--floor applies only with --solid")
+    if args.workers is not None and args.scheduler is not None:  # the LocalCluster's: ignored without a word
+        raise InvalidInputError(f"--workers applies only to the default LocalCluster, not with --scheduler; got "
+                                f"--workers {args.workers} with --scheduler {args.scheduler}")
+    workers = 2 if args.workers is None else args.workers
     _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input}, png=png)
     if png is not None and Path(os.path.abspath(png)) == Path(os.path.abspath(args.output)):
@@ -158,13 +163,13 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
     scheduler = args.scheduler
     rows, cols = (tile, tile) if isinstance(tile, int) else tile or (0, 0)  # "(512, 1024) cells" read as Python
-    cluster = f"a LocalCluster of {_counted(args.workers, 'worker')}"
+    cluster = f"a LocalCluster of {_counted(workers, 'worker')}"
     progress.stage("batch", f"stepping {what}" + (f" in tiles of {rows} x {cols} cells" if tile else "")
                    + f" -> {Path(args.output)}/*{_check_ext(args.format)}" + f" on {scheduler or cluster}")
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
-        solid=args.solid, floor=args.floor, scheduler=scheduler, workers=args.workers, retries=args.retries,
+        solid=args.solid, floor=args.floor, scheduler=scheduler, workers=workers, retries=args.retries,
         resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
         # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all

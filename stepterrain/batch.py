@@ -29,9 +29,11 @@ import os
 import platform
 import re
 import sys
+import threading
 import time
 import warnings
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
@@ -330,19 +332,24 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
     The file is read as :func:`~stepterrain.io.load_dem` reads a 2-D one: in an ``.npz`` the key it reads
     (``heights``, ``elevation`` or ``z``) decides when there is one (a 2-D ``elevation`` beside a 3-D texture is
-    one raster), and a ``nodata`` number marks missing cells; those and non-finite heights become NaN (nodata).
-    A finite height beyond float32, a series that is all nodata, a ``nodata`` that is not one number, and a file
+    one raster), and a ``nodata`` number marks missing cells, and so do a boolean ``mask`` (True = missing) and
+    ``valid`` (True = present), either or both, each of the series' (T, H, W) shape (one per frame) or of one frame's
+    (H, W) (the same cells in every frame); those cells and non-finite heights become NaN (nodata).
+    A finite height beyond float32, a series that is all nodata, a ``nodata`` that is not one number, a ``mask`` or
+    ``valid`` that is not a boolean array of one of those shapes, and a file
     that is truncated or declares more data than it holds are a :class:`~stepterrain.errors.DataFileError`; so is
     an ``.npz`` series with a ``transform`` or other georeferencing keys (``crs``, ``dx``/``dy``,
     ``spacing``/``origin``, ``x``/``y``, ``lat``/``lon``, ...): a series is meshed unreferenced, as 1 m cells at
     (0, 0), and those keys were ignored without a word. An ``.npz``'s ``units`` converts the heights to metres as
     :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError)."""
     from .io import (
+        _NPZ_NOT_HEIGHTS,
         _heights_in_metres,
         _npz_text,
         nodata_as_nan,
         npz_georeference_keys,
         npz_heights_key,
+        npz_missing,
         npz_nodata,
         read_npy,
         read_npz,
@@ -350,12 +357,13 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
 
     file = Path(os.fspath(path))
     loaded = read_npy(file, mmap_mode="r") if file.suffix.lower() == ".npy" else read_npz(file)
+    missing = None
     if isinstance(loaded, np.ndarray):
         stack, what, nodata = loaded, "array", None
     else:  # the key load_dem reads ('elevation' ..., 2-D or 3-D here) decides: not any 3-D member
         key = npz_heights_key(loaded, (2, 3))
-        if key is None:
-            key = next((k for k in loaded if loaded[k].ndim == 3), None)
+        if key is None:  # a (T, H, W) mask is no series of heights
+            key = next((k for k in loaded if loaded[k].ndim == 3 and k not in _NPZ_NOT_HEIGHTS), None)
         if key is None or loaded[key].ndim != 3:
             return None
         unread = [name for name in loaded if name == "transform"] + npz_georeference_keys(loaded)
@@ -372,7 +380,9 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if stack.dtype.kind not in "iuf" or min(stack.shape) < 1 or stack.shape[1] < 2 or stack.shape[2] < 2:
         raise DataFileError(f"{str(file)!r} holds a (T, H, W) array of shape {stack.shape}, dtype {stack.dtype}; "
                             "expected real heights with H, W >= 2")
-    heights = nodata_as_nan(stack, file, what, nodata)  # as load_dem reads a 2-D file
+    if not isinstance(loaded, np.ndarray):  # a mask's cells were read as heights (0 or -32768 pits) in every frame
+        missing = npz_missing(loaded, key, file, series=True)
+    heights = nodata_as_nan(stack, file, what, nodata, missing)  # as load_dem reads a 2-D file
     if not isinstance(loaded, np.ndarray):  # 'units' = "ft" was meshed as metres, 3.3 times too high
         heights, _ = _heights_in_metres(heights, _npz_text(loaded, "units", file), file, "its 'units'")
     return heights
@@ -385,16 +395,21 @@ def _terrain_source(terrain: Terrain) -> _Source:
 
 
 def _file_items(files: Sequence[Path]) -> list[BatchItem]:
-    stems = [f.stem for f in files]
+    # names compared in lower case: on a case-insensitive file system (macOS, Windows) A.tif's output A.glb and
+    # a.tif's a.glb are one file, the second item overwriting the first (and resumed from its manifest entry)
+    stems = [f.stem.lower() for f in files]
     duplicated = {s for s in stems if stems.count(s) > 1}
-    keys = [f.name.replace(".", "_") if f.stem in duplicated else f.stem for f in files]
-    if len(set(keys)) != len(keys):  # the same file twice, or a.npy beside a.npz (a_npy, a_npz) and a_npy.tif
-        first: dict[str, Path] = {}
+    keys = [f.name.replace(".", "_") if f.stem.lower() in duplicated else f.stem for f in files]
+    if len({k.lower() for k in keys}) != len(keys):  # the same file twice, a.npy beside a.npz (a_npy, a_npz) and
+        first: dict[str, tuple[str, Path]] = {}  # a_npy.tif, or A.tif beside a.tif
         for key, f in zip(keys, files, strict=True):
-            if key in first:
-                raise InvalidInputError(f"source files {str(first[key])!r} and {str(f)!r} would both write the output "
-                                        f"{key!r} (outputs are named after their files); rename one")
-            first[key] = f
+            if key.lower() in first:
+                other, earlier = first[key.lower()]
+                outputs = (f"both write the output {key!r}" if other == key else f"write the outputs {other!r} and "
+                           f"{key!r}, one file on a case-insensitive file system (macOS, Windows)")
+                raise InvalidInputError(f"source files {str(earlier)!r} and {str(f)!r} would {outputs} (outputs are "
+                                        "named after their files); rename one")
+            first[key.lower()] = (key, f)
     return [BatchItem(key=k, kind="file", path=str(f)) for k, f in zip(keys, files, strict=True)]
 
 
@@ -498,6 +513,51 @@ def _transient(exc: BaseException) -> bool:
     return False
 
 
+class _BudgetLease:
+    """The memory budget of the items one worker process runs at once. A dask worker of several threads ran them
+    concurrently, each setting the process-wide budget and restoring the one it found: the second found the first's,
+    so the worker kept a client's budget for good, and an item stepped under the budget another item had just put
+    back (or another client's). Here the first item in sets its budget and the last one out restores the process's;
+    an item with another budget (another client's) waits until the items under the one set are done, and items of
+    the budget set wait behind it (so that it is not kept waiting for ever)."""
+
+    def __init__(self) -> None:
+        self._changed = threading.Condition()
+        self._budget: int | None = None  # set while items hold it
+        self._holders = 0
+        self._previous = 0  # the process's own, restored by the last holder
+        self._others = 0  # items waiting for a budget other than the one set
+
+    @contextmanager
+    def hold(self, budget: int) -> Iterator[None]:
+        from ._compaction import set_memory_budget
+
+        with self._changed:
+            if self._holders and self._budget != budget:
+                self._others += 1
+                try:
+                    self._changed.wait_for(lambda: not self._holders)
+                finally:
+                    self._others -= 1
+            else:
+                self._changed.wait_for(lambda: not self._holders or (self._budget == budget and not self._others))
+            if not self._holders:
+                self._previous, self._budget = set_memory_budget(budget), budget
+            self._holders += 1
+        try:
+            yield
+        finally:
+            with self._changed:
+                self._holders -= 1
+                if not self._holders:
+                    set_memory_budget(self._previous)
+                    self._budget = None
+                    self._changed.notify_all()
+
+
+_BUDGET_LEASE = _BudgetLease()
+
+
 def run_item(
     item: BatchItem, source: _Source | None, options: _Options, output_dir: str, cpu_threads: int | None = None,
     memory_budget: int | None = None, record_warnings: bool = False,
@@ -505,23 +565,24 @@ def run_item(
     """Step one item and write its mesh (atomically); the task each dask worker runs.
 
     ``memory_budget``: the caller's :func:`~stepterrain.get_memory_budget`, set in the worker's process for this
-    item and restored after it (a worker process has its own, the default, otherwise). ``record_warnings``: the
-    item's warnings go into its result's ``warnings`` instead of the worker's stderr (for single-threaded worker
-    processes and the serial run: recording is not thread-safe).
+    item and restored after it (a worker process has its own, the default, otherwise); items a worker's threads run at
+    once share it when it is the same, and one with another waits for the others to finish (:class:`_BudgetLease`).
+    ``cpu_threads`` is set only in the LocalCluster's workers of one thread each (and not restored).
+    ``record_warnings``: the item's warnings go into its result's ``warnings`` instead of the worker's stderr (for
+    single-threaded worker processes and the serial run: recording is not thread-safe).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
     writing); that and any other exception propagate so the scheduler retries the task.
     """
-    from ._compaction import set_memory_budget
+    from ._compaction import budget_value
     from ._device import set_cpu_threads
 
     start, cpu_start = time.perf_counter(), time.process_time()
     if cpu_threads is not None:
         set_cpu_threads(cpu_threads)
     # the caller's budget for this item only: a remote worker kept it for other clients' tasks afterwards
-    previous_budget = None if memory_budget is None else set_memory_budget(memory_budget)
-    try:
+    with nullcontext() if memory_budget is None else _BUDGET_LEASE.hold(budget_value(memory_budget)):
         if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." + a source line
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("default")
@@ -529,9 +590,6 @@ def run_item(
             said = tuple(dict.fromkeys(str(w.message) for w in caught))
             return dataclasses.replace(result, warnings=said) if said else result
         return _run_item(item, source, options, output_dir, start, cpu_start)
-    finally:
-        if previous_budget is not None:
-            set_memory_budget(previous_budget)
 
 
 def _run_item(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, start: float,
@@ -1027,9 +1085,11 @@ def batch(
     Parameters
     ----------
     source
-        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it), a list of DEM files,
+        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it: ``dem.tif`` writes
+        ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
+        ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
-        an ``.npz``'s ``nodata`` value are nodata) or a (T, H, W) array (one output per frame,
+        an ``.npz``'s ``nodata`` value, ``mask`` and ``valid`` mark nodata) or a (T, H, W) array (one output per frame,
         ``frame_0000`` ...), or one raster (a ``.tif``/``.npz``/... file, a grid :class:`Terrain` or an (H, W)
         array) cut into tiles of ``tile_size`` cells (``tile_r0_c0`` ...; neighbours share border nodes).
     output_dir : str or path-like

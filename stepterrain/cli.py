@@ -667,7 +667,7 @@ _OPTION_ALIASES = {
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
                 "close-up color": "--color", "close-up stepped interval": "--stepped", "interval": "--stepped",
                 "window_size": "--size"},
-    "batch": {"tile_size": "--tile", "window_size": "--size"},
+    "batch": {"tile_size": "--tile", "window_size": "--size"},  # "tile_size applies to one raster" reached it as it was
     "globe": {"window_size": "--size"},
     "texture": {"window_size": "--size"},
 }
@@ -693,6 +693,10 @@ _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
 _ARGUMENT_ANYWHERE = re.compile(r"(?<![\w./'\"-])([a-z][a-z0-9]*(?:_[a-z0-9]+)*)(?:(=)(?=([^\s;,)]?))|(?![\w=\[-]))")
 
 
+#: An option followed by the library's pointer to that same option: ``--tile (the CLI's --tile)``.
+_CLI_ASIDE = re.compile(r"(--[a-z][a-z0-9-]*) \(the CLI's \1\)")
+
+
 def _library_options(sub: argparse.ArgumentParser) -> dict[str, str]:
     """The subcommand's options by the library argument each gives: ``face_size`` -> ``--face-size`` (every
     ``--long-option``), then the names it spells otherwise (the one-word entries of :data:`_OPTION_ALIASES`)."""
@@ -714,7 +718,8 @@ def _names_as_options(message: str, options: dict[str, str]) -> str:
             return match.group(0)
         return options[name] + (" " if equals and value else "")
 
-    return _ARGUMENT_ANYWHERE.sub(option, message)
+    # the library's pointer to the option, now that the option is named: "give --tile (the CLI's --tile)" said it twice
+    return _CLI_ASIDE.sub(r"\1", _ARGUMENT_ANYWHERE.sub(option, message))
 
 
 def _subcommand(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser | None:

@@ -800,33 +800,43 @@ def npz_nodata(value: Any, file: Path) -> float | None:
     return float(arr)
 
 
-def npz_missing(arrays: Mapping[str, NDArray[Any]], key: str, file: Path) -> NDArray[np.bool_] | None:
+def npz_missing(
+    arrays: Mapping[str, NDArray[Any]], key: str, file: Path, *, series: bool = False
+) -> NDArray[np.bool_] | None:
     """The cells an .npz marks missing beside its heights ``arrays[key]`` by a boolean ``mask`` (True = missing, as
     in NumPy's masked arrays: ``np.savez(..., elevation=m.data, mask=m.mask)``) and/or ``valid`` (True = present),
     of the heights' shape; both: a cell is missing if either says so. None without them (or for heights that are not
     2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
     read as heights (0 or -32768 pits), and a 0/255 integer mask (GDAL's mask band, 255 = valid) means the opposite
-    of a 0/1 one."""
+    of a 0/1 one.
+
+    ``series``: the heights are a (T, H, W) series (:func:`stepterrain.batch.load_series`), and a mask is either
+    (T, H, W), one per frame, or (H, W), the same cells of every frame; the result has the heights' shape."""
     heights = arrays[key]
-    if heights.ndim != 2 or not ("mask" in arrays or "valid" in arrays):
+    if heights.ndim != (3 if series else 2) or not ("mask" in arrays or "valid" in arrays):
         return None
+    shapes = (heights.shape, heights.shape[1:]) if series else (heights.shape,)
     missing = None
     for name, present in (("mask", False), ("valid", True)):
         value = arrays.get(name)
         if value is None:
             continue
-        if value.dtype != np.bool_ or value.shape != heights.shape:
+        if value.dtype != np.bool_ or value.shape not in shapes:
             meaning = "present" if present else "missing"
             hint = ""
             if value.dtype.kind in "iu" and value.size and set(np.unique(value).tolist()) <= {0, 1, 255}:
                 hint = (f"; save {name}=array.astype(bool) for 0/1 with 1 = {meaning}, or valid=array > 0 for GDAL's "
                         "mask band (read_masks(): 255 = valid)")
+            shape = (f"the series' shape {heights.shape} (one per frame) or a frame's {heights.shape[1:]} (every "
+                     "frame's)") if series else f"the heights' shape {heights.shape}"
             raise DataFileError(
-                f"cannot read {str(file)!r}: {name!r} must be a boolean array of the heights' shape {heights.shape}, "
+                f"cannot read {str(file)!r}: {name!r} must be a boolean array of {shape}, "
                 f"True where a cell is {meaning}; got {value.dtype} of shape {value.shape}{hint}"
             )
         cells = ~value if present else value
         missing = cells if missing is None else missing | cells
+    if missing is not None and missing.shape != heights.shape:  # a frame's mask: the same cells of every frame
+        missing = np.broadcast_to(missing, heights.shape)
     return missing
 
 

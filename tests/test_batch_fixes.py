@@ -898,3 +898,134 @@ def test_cli_batch_of_a_raster_named_another_way_keeps_its_complete_tiles(tmp_pa
                      "serial", "-o", str(out)]) == 0  # fmt: skip
     assert "0 written, 4 complete already" in capsys.readouterr().err
     assert (out / MANIFEST_NAME).read_text() == manifest
+
+
+def test_a_series_npz_honours_its_mask_and_valid_as_load_dem_does(tmp_path):
+    """load_dem reads an .npz's boolean ``mask`` (True = missing) and ``valid`` (True = present) as nodata, but
+    load_series ignored them: a (T, H, W) series saved from a masked array was meshed with its masked cells as
+    heights (0 or -32768 pits in every frame). A (H, W) mask marks the same cells of every frame, a (T, H, W) one
+    each frame's own; any other shape or dtype is refused, as load_dem refuses it."""
+    from stepterrain.batch import load_series
+    from stepterrain.errors import DataFileError
+
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    stack = np.stack([z, z + 1.0, z + 2.0])
+    stack[:, 2, 3] = -32768.0  # the masked cell's stored value
+    every = np.zeros(z.shape, bool)
+    every[2, 3] = True
+    np.savez(tmp_path / "every.npz", heights=stack, mask=every)
+    got = load_series(tmp_path / "every.npz")
+    assert np.isnan(got).sum() == 3 and np.isnan(got[:, 2, 3]).all()
+    assert np.array_equal(got[1][~every], stack[1][~every])
+    per_frame = np.zeros(stack.shape, bool)
+    per_frame[1, 0, 0] = True
+    valid = ~per_frame
+    valid[:, 2, 3] = False
+    np.savez(tmp_path / "frames.npz", elevation=stack, valid=valid)
+    got = load_series(tmp_path / "frames.npz")
+    assert np.array_equal(np.isnan(got), ~valid)
+    np.savez(tmp_path / "both.npz", z=stack, mask=per_frame, valid=~every)  # missing where either says so
+    assert np.array_equal(np.isnan(load_series(tmp_path / "both.npz")), per_frame | every)
+    # a batch of it steps the frames without the pit: no vertex near -32768
+    report = batch(tmp_path / "every.npz", tmp_path / "out", interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 3
+    assert min(trimesh.load(r.path).vertices[:, 2].min() for r in report.done) >= 0.0
+    np.savez(tmp_path / "bad.npz", heights=stack, mask=every[:, :4])
+    with pytest.raises(DataFileError, match=r"'mask' must be a boolean array of the series' shape \(3, 6, 7\)"):
+        load_series(tmp_path / "bad.npz")
+    np.savez(tmp_path / "ints.npz", heights=stack, valid=valid.astype(np.uint8) * 255)
+    with pytest.raises(DataFileError, match="GDAL's mask band"):
+        load_series(tmp_path / "ints.npz")
+    np.savez(tmp_path / "unnamed.npz", mask=per_frame, stack=stack)  # the mask is not the series
+    assert np.array_equal(np.isnan(load_series(tmp_path / "unnamed.npz")), per_frame)
+
+
+def test_file_names_differing_only_in_case_do_not_share_an_output(tmp_path):
+    """A.npy and a.npy wrote A.glb and a.glb: one file on a case-insensitive file system (macOS, Windows), the second
+    item overwriting the first's output, which a rerun then skipped as complete. Names are compared in lower case:
+    A.npy beside a.npz are renamed as a.npy beside a.npz are (A_npy, a_npz), and A.npy beside a.npy is refused."""
+    from stepterrain.batch import plan_items
+    from stepterrain.errors import InvalidInputError
+
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    np.save(mixed / "A.npy", z)
+    np.savez(mixed / "a.npz", heights=z + 5.0)
+    np.save(mixed / "b.npy", z)
+    items, _ = plan_items(mixed)
+    assert [i.key for i in items] == ["A_npy", "a_npz", "b"]
+    report = batch(mixed, tmp_path / "out", interval=1.0, format=".ply", scheduler="serial")
+    assert report.ok and sorted(Path(r.path).name.lower() for r in report.done) == ["a_npy.ply", "a_npz.ply", "b.ply"]
+    same = tmp_path / "same"
+    same.mkdir()
+    np.save(same / "A.npy", z)
+    np.save(same / "a.npy", z + 5.0)
+    with pytest.raises(InvalidInputError, match=r"source files '.*A.npy' and '.*a.npy' would write the outputs 'A_npy' "
+                                                r"and 'a_npy', one file on a case-insensitive file system"):
+        batch(same, tmp_path / "out2", interval=1.0, scheduler="serial")
+    assert not (tmp_path / "out2").exists()
+
+
+def test_items_run_at_once_by_a_threaded_worker_each_step_under_their_own_budget(tmp_path, monkeypatch):
+    """A dask worker of several threads (``dask worker --nthreads 4``) runs items at once; each set the process-wide
+    memory budget and put back the one it had found. The second item found the first's and put that back (the worker
+    kept a client's budget for good), and an item stepped under the budget another item had just restored, or under
+    another client's. Items of one budget now share it, an item with another waits for them, and the worker's own is
+    restored after the last."""
+    import threading
+    import time
+    from concurrent.futures import ThreadPoolExecutor
+
+    import stepterrain.batch as batch_module
+    from stepterrain import get_memory_budget, set_memory_budget
+    from stepterrain.batch import BatchItem, ItemResult, _Options, run_item
+
+    seen: dict[str, list[int]] = {}
+    running = {"now": 0, "most": 0}
+    lock = threading.Lock()
+
+    def recording(item, source, options, output_dir, start, cpu_start):
+        with lock:
+            running["now"] += 1
+            running["most"] = max(running["most"], running["now"])
+        seen[item.key] = [get_memory_budget()]
+        time.sleep(0.02 + 0.01 * (int(item.key[4:]) % 3))  # others start and finish meanwhile
+        seen[item.key].append(get_memory_budget())
+        with lock:
+            running["now"] -= 1
+        return ItemResult(item.key, "done", attempts=1)
+
+    def run_all(budgets):
+        with ThreadPoolExecutor(4) as pool:
+            return list(pool.map(lambda key: run_item(BatchItem(key, "file", path="x.npy"), None, options,
+                                                      str(tmp_path), memory_budget=budgets[key]), budgets))  # fmt: skip
+
+    monkeypatch.setattr(batch_module, "_run_item", recording)
+    options = _Options(5.0, None, 0.0, 1.0, None, False, None, ".ply", "cpu", ())
+    own = get_memory_budget() + 4096
+    previous = set_memory_budget(own)  # the worker's own
+    try:
+        one = {f"item{k}": 1 << 20 for k in range(8)}  # one client's items
+        assert [r.status for r in run_all(one)] == ["done"] * 8
+        assert {key: values for key, values in seen.items() if values != [one[key]] * 2} == {}
+        assert running["most"] > 1 and get_memory_budget() == own  # they did run at once
+        seen.clear()
+        two = {f"item{k}": (1 << 20) if k % 3 else (1 << 21) for k in range(16)}  # two clients' items
+        assert [r.status for r in run_all(two)] == ["done"] * 16
+        assert {key: values for key, values in seen.items() if values != [two[key]] * 2} == {}
+        assert get_memory_budget() == own
+    finally:
+        set_memory_budget(previous)
+
+    # the real thing: a budget too small for the tile refuses it, a large one writes it, whichever runs beside it
+    monkeypatch.undo()
+    rows, cols = np.mgrid[0:33, 0:33]
+    np.save(tmp_path / "tile.npy", (rows * 3.0 + cols * 2.0).astype(np.float32))
+    real = _Options(5.0, None, 0.5, 1.0, None, False, None, ".ply", "cpu", ())
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(lambda k: run_item(BatchItem(f"tile{k}", "file", path=str(tmp_path / "tile.npy")),
+                                                   None, real, str(tmp_path), memory_budget=1024 if k % 2 else 1 << 30),
+                                range(12)))  # fmt: skip
+    assert [r.status for r in results] == ["done", "failed"] * 6
+    assert all("OutputTooLargeError" in r.error for r in results if r.status == "failed")

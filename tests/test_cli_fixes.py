@@ -895,3 +895,33 @@ def test_an_output_on_a_virtual_file_system_is_refused_with_the_true_reason(tmp_
     reason = export.unwritable_reason(OSError(errno.ENOENT, "No such file or directory"), tmp_path)
     assert reason.startswith("it exists but refuses new entries")
     assert export.unwritable_reason(OSError(errno.EACCES, "Permission denied"), tmp_path) == "Permission denied"
+
+
+@pytest.mark.parametrize("scheduler", ["serial", "tcp://127.0.0.1:1"])
+def test_batch_refuses_workers_with_a_scheduler_that_ignores_them(scheduler, tmp_path, capsys):
+    """--workers sizes the default LocalCluster only: with --scheduler serial (or a cluster's address) it was
+    ignored without a word, as if the run used 4 workers; refused before any work, naming both options."""
+    src = tile_folder(tmp_path / "tiles")
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--scheduler", scheduler, "--workers", "4",
+                         "-o", tmp_path / "out")
+    assert code == 2
+    said = err.splitlines()[-1]
+    assert "--workers" in said and "--scheduler" in said and scheduler in said, err
+    assert not (tmp_path / "out").exists()
+    code, out, err = run(capsys, "batch", src, "--interval", "10", "--scheduler", "serial", "-o", tmp_path / "out")
+    assert code == 0, err  # without --workers, a scheduler runs as it did
+
+
+def test_batch_names_its_tile_option_not_the_librarys_tile_size(tmp_path, capsys):
+    """The library's tile_size (the command line's --tile) is spelled otherwise than the option, so the mapping of
+    library names to options missed it: "error: tile_size applies to one raster", an argument the user never typed;
+    and a raster without --tile said "give tile_size (the CLI's --tile)"."""
+    src = tile_folder(tmp_path / "tiles")
+    code, out, err = run(capsys, "-q", "batch", src, "--tile", "4", "--interval", "10", "--scheduler", "serial",
+                         "-o", tmp_path / "out")
+    assert code == 2
+    assert "error: --tile applies to one raster, not to a folder of tiles" in err and "tile_size" not in err, err
+    code, out, err = run(capsys, "-q", "batch", src / "t0.npy", "--interval", "10", "--scheduler", "serial",
+                         "-o", tmp_path / "out")
+    assert code == 2
+    assert "is one 2-D raster: give --tile to cut it into tiles" in err and "tile_size" not in err, err
