@@ -728,8 +728,8 @@ class Terrain:
 def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
     """Unique undirected edges and, per face, the edge from corner k to corner k+1."""
     directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    dkey = directed[:, 0] * n_points + directed[:, 1]
-    if len(np.unique(dkey)) != len(dkey):
+    dkey = np.sort(directed[:, 0] * n_points + directed[:, 1])  # not np.unique: numpy 2.4 hashes, 70x slower
+    if (dkey[1:] == dkey[:-1]).any():
         raise InvalidInputError(
             "terrain mesh faces must project one-to-one onto the xy plane; an edge is used twice in the same "
             "direction (overlapping or inconsistently wound faces)"
