@@ -549,7 +549,10 @@ class Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
         Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped;
-        faces that fold over in projection, or edges shared by more than two faces, are refused. The result
+        faces that fold over in projection, faces that overlap others in xy (two sheets one above the other, a
+        spiral ramp over itself, a triangle inside another's face: an intersection of positive area; faces that
+        only touch, at a corner or along an edge, are fine) and edges shared by more than two faces are refused,
+        the error naming two overlapping faces and a point of xy inside both. The result
         (edge table and device uploads included) is cached on the mesh and reused while its vertices, faces
         and visual stay the same.
         """
@@ -632,6 +635,20 @@ class Terrain:
                 f"({int(negative.sum())} of {len(faces)} faces are wound against the rest)"
             )
         edges, face_edges = _edge_table(faces, len(points))
+        corner = used_xy.min(axis=0)
+        with np.errstate(over="ignore"):  # a stray point (on no kept face) far away may go to inf: no face's
+            overlap = _overlap_in_xy(xy - corner, faces, positive, face_edges, len(edges))
+        if overlap is not None:  # faces that do not fold, stacked or wrapped over each other (see _overlap_in_xy)
+            first, second, point, count = overlap
+            kept = np.flatnonzero(valid)  # the faces' indices in the mesh given
+            x, y = point + corner
+            named = "terrain mesh" if source is None else f"terrain mesh (from {source!r})"
+            raise InvalidInputError(
+                f"{named} faces must project one-to-one onto the xy plane; faces {int(kept[first])} and "
+                f"{int(kept[second])} overlap in xy around ({x:.10g}, {y:.10g}) (at least {count} of its {len(faces)} "
+                "faces with finite heights overlap another: two sheets one above the other, or a surface that wraps "
+                "over itself)"
+            )
         return cls(
             kind="tin",
             heights=np.ascontiguousarray(points[:, 2], dtype=np.float32),
@@ -728,8 +745,8 @@ class Terrain:
 def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
     """Unique undirected edges and, per face, the edge from corner k to corner k+1."""
     directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    dkey = directed[:, 0] * n_points + directed[:, 1]
-    if len(np.unique(dkey)) != len(dkey):
+    dkey = np.sort(directed[:, 0] * n_points + directed[:, 1])  # not np.unique: numpy 2.4 hashes, 70x slower
+    if (dkey[1:] == dkey[:-1]).any():
         raise InvalidInputError(
             "terrain mesh faces must project one-to-one onto the xy plane; an edge is used twice in the same "
             "direction (overlapping or inconsistently wound faces)"
@@ -742,6 +759,217 @@ def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int
         raise InvalidInputError("terrain mesh has an edge shared by more than two faces; expected a 2-manifold TIN")
     edges = np.stack([unique // n_points, unique % n_points], axis=1).astype(np.int32)
     return edges, inverse.reshape(-1, 3).astype(np.int32)
+
+
+#: faces overlap in xy when each pokes more than this fraction of the smaller one's size (the larger side of its
+#: bounding box) past every edge line of the other: faces that abut along an edge, meet at a corner or touch along
+#: collinear boundaries (T-junctions, a point rounded onto a neighbour's edge) do not overlap
+_OVERLAP_DEPTH = 1e-6
+#: candidate pairs of faces made and tested at once (about 0.5 kB each while tested)
+_PAIR_CHUNK = 1 << 18
+
+
+def _overlap_in_xy(
+    xy: NDArray[np.float64], faces: NDArray[np.int64], positive: NDArray[np.bool_], face_edges: NDArray[np.int32],
+    n_edges: int,
+) -> tuple[int, int, NDArray[np.float64], int] | None:
+    """Two faces of positive area whose projections overlap (an intersection of positive area), else None:
+    (face, face, a point of xy inside both, how many faces were found overlapping another: a lower bound, as the
+    faces inside two stacked sheets are not tested). ``faces`` are wound counter-clockwise (``positive``: of
+    positive area), ``xy`` the points relative to the faces' lower-left corner.
+
+    Faces wound alike that share their interior edges with opposite windings (:func:`_edge_table`) cover each
+    point of the plane w times, w changing only across their boundary edges. A region where w >= 2 has a corner on
+    a boundary edge, and a face along that edge overlaps another face there. So only the faces with a boundary edge
+    are tested, against every face whose bounding box overlaps theirs, each pair by its six edge lines (separating
+    axes). Pairs come from a uniform grid in levels: each face lies in the level whose cells are at least its size,
+    so in at most 2 x 2 cells, and a pair is met in the coarser face's level. Two sheets one above the other, a
+    spiral ramp over itself, an island inside another face: their boundary faces overlap. A welded TIN has few
+    boundary faces: the cost is one pass over all faces' bounding boxes and one over the points (about 0.1 s for
+    a million faces); a triangle soup's faces are welded by their xy first (:func:`_unmatched_in_xy`)."""
+    kept = np.flatnonzero(positive)
+    if len(kept) < 2:
+        return None
+    if len(kept) < len(faces):
+        faces, face_edges = faces[kept], face_edges[kept]
+    corners = faces.T.copy()  # (3, m): contiguous columns, each reduction below a pass over plain arrays
+    once = np.bincount(face_edges.reshape(-1), minlength=n_edges) == 1  # edges of one face of positive area
+    edge_once = once[face_edges]
+    on_boundary = edge_once[:, 0] | edge_once[:, 1] | edge_once[:, 2]
+    if on_boundary.sum() * 8 > len(faces):  # a triangle soup, or sheets not welded: their own points' edges
+        on_boundary = _unmatched_in_xy(xy, faces)
+    lo, hi = np.empty((2, len(faces))), np.empty((2, len(faces)))  # the faces' bounding boxes, x and y rows
+    for axis in range(2):
+        coordinate = np.ascontiguousarray(xy[:, axis])
+        c0, c1, c2 = coordinate[corners[0]], coordinate[corners[1]], coordinate[corners[2]]
+        np.minimum(np.minimum(c0, c1, out=lo[axis]), c2, out=lo[axis])
+        np.maximum(np.maximum(c0, c1, out=hi[axis]), c2, out=hi[axis])
+    size = np.maximum(hi[0] - lo[0], hi[1] - lo[1])
+    extent = np.array([hi[0].max(), hi[1].max()])  # xy is relative to the lower-left corner
+    span = float(extent.max())
+    # the cells: a little over a face size (of a sample), at most about 2**20 a side. Few boundary faces (a welded
+    # TIN): cells that hold 99 % of the faces, so that few levels make few passes over the points; many (a triangle
+    # soup): the median size, so that a cell holds few faces to test
+    boundary = np.flatnonzero(on_boundary)
+    share = 99 if len(boundary) * 8 < len(faces) else 50
+    cell = max(1.01 * float(np.percentile(size[:: max(len(size) // 65536, 1)], share)), span * 2.0**-20)
+    level = np.zeros(len(size), dtype=np.int64)
+    if size.max() > cell:  # faces of several sizes (a regular grid's are all within one cell)
+        level = np.maximum(np.ceil(np.log2(size / cell)), 0).astype(np.int64)
+        level += cell * np.exp2(level) < size  # log2's rounding: every face within its level's cells
+    hits = []
+    for lv in np.flatnonzero(np.bincount(level)):
+        # the pairs whose coarser face lies in this level: boundary faces of this level or finer against the
+        # faces of this level, and boundary faces of this level against finer faces
+        queries = boundary[level[boundary] <= lv]
+        coarse_boundary = bool((level[boundary] == lv).any())
+        others = (level <= lv) if coarse_boundary else (level == lv)
+        if len(queries) == 0:
+            continue
+        for a, b in _box_pairs(lo, hi, queries, others, cell * 2.0**lv, extent, xy, corners[0]):
+            keep = (a != b) & (np.maximum(level[a], level[b]) == lv)
+            # a pair of two boundary faces meets from both sides: tested once
+            keep &= ~((b < a) & on_boundary[b] & ((level[a] == lv) | coarse_boundary))
+            a, b = a[keep], b[keep]
+            depth = _OVERLAP_DEPTH * np.minimum(size[a], size[b]) + 1e-12 * span
+            overlap = _triangles_overlap(xy[faces[a]], xy[faces[b]], depth)
+            if overlap.any():
+                hits.append(np.stack([a[overlap], b[overlap]], axis=1))
+    if not hits:
+        return None
+    found = np.sort(np.concatenate(hits), axis=1)
+    one, two = found[np.lexsort((found[:, 1], found[:, 0]))[0]]  # the lowest pair: the same on every run
+    point = _overlap_point(xy[faces[one]], xy[faces[two]])
+    return int(kept[one]), int(kept[two]), point, len(np.unique(found))
+
+
+def _unmatched_in_xy(xy: NDArray[np.float64], faces: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Per face (counter-clockwise, of positive area), whether it has an edge that no other face crosses to: the
+    faces' corners welded by their xy, an edge used by exactly two faces in opposite directions is shared, any other
+    is a boundary (a triangle soup has few once welded; sheets stacked on one xy grid share edges in one direction).
+    The plane's cover by the faces changes only across the boundaries, as :func:`_overlap_in_xy` needs."""
+    order = np.lexsort((xy[:, 1], xy[:, 0]))
+    step = xy[order[1:]] != xy[order[:-1]]
+    label = np.empty(len(xy), dtype=np.int64)
+    label[order] = np.cumsum(np.r_[False, step[:, 0] | step[:, 1]])
+    start, end = label[faces], label[np.roll(faces, -1, axis=1)]  # corner k to corner k + 1
+    key = np.minimum(start, end) * len(xy) + np.maximum(start, end)
+    sorted_at = np.argsort(key.reshape(-1))
+    key_sorted = key.reshape(-1)[sorted_at]
+    forward = (start < end).reshape(-1)[sorted_at]
+    first = np.r_[True, key_sorted[1:] != key_sorted[:-1]]
+    group = np.cumsum(first) - 1
+    uses = np.bincount(group)
+    ahead = np.bincount(group, weights=forward)
+    shared = (uses == 2) & (ahead == 1)  # one face each way
+    unmatched = np.empty(key.size, dtype=bool)
+    unmatched[sorted_at] = ~shared[group]
+    unmatched = unmatched.reshape(-1, 3)
+    return unmatched[:, 0] | unmatched[:, 1] | unmatched[:, 2]
+
+
+def _box_pairs(lo: NDArray[np.float64], hi: NDArray[np.float64], queries: NDArray[np.int64],
+               others: NDArray[np.bool_], width: float, extent: NDArray[np.float64], xy: NDArray[np.float64],
+               anchor: NDArray[np.int64]):
+    """Chunks (a, b) of the pairs of a face in ``queries`` and one in ``others`` (a mask) whose bounding boxes
+    (``lo``, ``hi``: (2, m), x and y rows) overlap with positive area, each pair once, from a grid of square cells
+    of side ``width`` over [0, ``extent``]. A box covers the cells that its interior meets; a pair is kept in the
+    cell of its common part's lower-left corner only. The faces of ``others`` are at most ``width`` in size, and
+    each has its point ``anchor`` (of ``xy``): its box lies within a cell of that point's."""
+    side = int(extent[0] // width) + 3  # cells -1 to side - 2 along x: a dilation stays in the table
+    rows = int(extent[1] // width) + 3
+
+    def cells(ids: NDArray[np.int64]) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        first = np.floor(lo[:, ids] / width).astype(np.int64)
+        n = np.maximum(np.ceil(hi[:, ids] / width).astype(np.int64) - 1, first) - first + 1
+        count = n[0] * n[1]
+        owner = np.repeat(np.arange(len(ids)), count)
+        k = np.arange(len(owner)) - np.repeat(np.cumsum(count) - count, count)
+        return ids[owner], first[0, owner] + 1 + k % n[0, owner] + (first[1, owner] + 1 + k // n[0, owner]) * side
+
+    q_face, q_key = cells(queries)
+    # the others near a query's cell (their anchor within one cell of it): a welded TIN's boundary faces lie in few
+    # cells, so a pass over the points leaves few faces
+    near_keys = np.unique(q_key)
+    near_keys = np.unique((near_keys[:, None] + (np.array([-1, 0, 1])[:, None] * side + [-1, 0, 1]).ravel()).ravel())
+    candidates = np.flatnonzero(others)
+    anchors = anchor[candidates] if len(candidates) < len(xy) // 2 else None  # few: their points only
+    points = xy if anchors is None else xy[anchors]
+    point_cell = np.clip(np.floor(points / width), -1, [side - 2, rows - 2])  # a stray point's too (no face's)
+    point_key = (point_cell.astype(np.int64) + 1) @ np.array([1, side])
+    if side * rows <= 8 * len(anchor) + (1 << 20):
+        table = np.zeros(side * rows, dtype=bool)
+        table[near_keys] = True
+        point_near = table[point_key]
+    else:
+        point_near = np.isin(point_key, near_keys)
+    o_face, o_key = cells(candidates[point_near if anchors is not None else point_near[anchor[candidates]]])
+    flip = len(q_key) > len(o_key)  # sort the smaller side, look the larger one up in it
+    s_face, s_key, l_face, l_key = (o_face, o_key, q_face, q_key) if not flip else (q_face, q_key, o_face, o_key)
+    order = np.argsort(s_key, kind="stable")
+    s_face, s_key = s_face[order], s_key[order]
+    start = np.searchsorted(s_key, l_key, side="left")
+    count = np.searchsorted(s_key, l_key, side="right") - start
+    has = np.flatnonzero(count)
+    l_face, l_key, start, count = l_face[has], l_key[has], start[has], count[has]
+    total = np.cumsum(count)
+    begin = 0
+    while begin < len(count):  # chunks of about _PAIR_CHUNK pairs
+        before = total[begin - 1] if begin else 0
+        end = max(int(np.searchsorted(total, before + _PAIR_CHUNK, side="right")), begin + 1)
+        n = count[begin:end]
+        row = np.repeat(np.arange(begin, end), n)
+        at = start[row] + np.arange(len(row)) - np.repeat(np.cumsum(n) - n, n)
+        a, b = l_face[row], s_face[at]
+        if flip:
+            a, b = b, a
+        both_lo, both_hi = np.maximum(lo[:, a], lo[:, b]), np.minimum(hi[:, a], hi[:, b])
+        meet = (both_lo[0] < both_hi[0]) & (both_lo[1] < both_hi[1])
+        corner = np.maximum(np.maximum(np.floor(lo[:, a] / width), np.floor(lo[:, b] / width)),
+                            np.minimum(np.floor(both_lo / width), np.ceil(both_hi / width) - 1)).astype(np.int64) + 1
+        meet &= corner[0] + corner[1] * side == l_key[row]
+        yield a[meet], b[meet]
+        begin = end
+
+
+def _triangles_overlap(a: NDArray[np.float64], b: NDArray[np.float64], depth: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Per pair of counter-clockwise triangles (k, 3, 2), whether each pokes more than ``depth`` past every edge
+    line of the other: no edge line separates them (separating axes), so their intersection has positive area."""
+
+    def apart(t: NDArray[np.float64], u: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Whether an edge line of t has u on its outer side, within depth."""
+        out = np.zeros(len(t), dtype=bool)
+        for i in range(3):  # the three edges, each vectorised over the pairs
+            edge = t[:, (i + 1) % 3] - t[:, i]
+            rel = u - t[:, i, None]
+            inward = edge[:, None, 0] * rel[..., 1] - edge[:, None, 1] * rel[..., 0]  # |edge| x distance inside
+            out |= inward.max(axis=1) <= depth * np.hypot(edge[:, 0], edge[:, 1])
+        return out
+
+    return ~apart(a, b) & ~apart(b, a)
+
+
+def _overlap_point(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A point inside both counter-clockwise triangles a and b (3, 2) that overlap: the centroid of a clipped by
+    b's three edge lines (Sutherland-Hodgman)."""
+    polygon = list(a)
+    for i in range(3):
+        p, q = b[i], b[(i + 1) % 3]
+        side = [float((q[0] - p[0]) * (v[1] - p[1]) - (q[1] - p[1]) * (v[0] - p[0])) for v in polygon]
+        clipped = []
+        for k, v in enumerate(polygon):
+            w, sv, sw = polygon[k - 1], side[k], side[k - 1]
+            if (sv >= 0) != (sw >= 0):  # the edge w-v crosses the line
+                clipped.append(w + (v - w) * (sw / (sw - sv)))
+            if sv >= 0:
+                clipped.append(v)
+        polygon = clipped
+    ring = np.array(polygon) if polygon else a
+    x, y = ring[:, 0], ring[:, 1]
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    if abs(cross.sum()) <= 0:
+        return ring.mean(axis=0)
+    return np.array([((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]) / (3 * cross.sum())
 
 
 def grid_faces(rows: int, cols: int, flip: bool = False) -> NDArray[np.int64]:

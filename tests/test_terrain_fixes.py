@@ -7,6 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st_
 
 import stepterrain as st
 from stepterrain.errors import InvalidInputError
@@ -89,8 +91,8 @@ def test_a_terrain_built_directly_takes_lists_and_other_dtypes_as_float32():
     """A list of rows failed in stepped ('list' object has no attribute 'min'); float64 and int heights and a
     Fortran-ordered array are now the same float32 grid as from_heights makes, and mesh the same."""
     reference = st.stepped(st.Terrain.from_heights(_H, spacing=(2.0, 3.0)), interval=2.0, device="cpu")
-    for given in (_H.tolist(), _H.astype(np.float64), _H.astype(np.int32), np.asfortranarray(_H)):
-        terrain = st.Terrain(kind="grid", heights=given, spacing=(2.0, 3.0))
+    for heights in (_H.tolist(), _H.astype(np.float64), _H.astype(np.int32), np.asfortranarray(_H)):
+        terrain = st.Terrain(kind="grid", heights=heights, spacing=(2.0, 3.0))
         assert terrain.heights.dtype == np.float32 and terrain.heights.flags.c_contiguous
         mesh = st.stepped(terrain, interval=2.0, device="cpu")
         np.testing.assert_array_equal(mesh.vertices, reference.vertices)
@@ -196,3 +198,264 @@ def test_a_trimesh_scene_or_point_cloud_as_terrain_is_named_with_a_hint():
         st.stepped(trimesh.PointCloud(tin.vertices), interval=2.0)
     mesh = trimesh.load(trimesh.util.wrap_as_stream(tin.export(file_type="glb")), file_type="glb", force="mesh")
     assert st.stepped(mesh, interval=2.0).area == pytest.approx(st.stepped(_H, interval=2.0).area, rel=1e-6)
+
+
+# ------------------------------------------------------------------ TIN faces that overlap in xy without folding
+
+
+def _sheet(rows=5, cols=6, spacing=1.0, origin=(0.0, 0.0), z=0.0, angle=0.0, centre=None):
+    """A rough heightfield sheet as a TIN, turned by ``angle`` about its middle and moved so the middle is ``centre``
+    (else laid from ``origin``)."""
+    heights = z + np.random.default_rng(rows * cols).random((rows, cols)) * 3.0
+    mesh = st.heightfield_mesh(heights, spacing=spacing, origin=origin)
+    if centre is not None:
+        xy = mesh.vertices[:, :2] - mesh.vertices[:, :2].mean(axis=0)
+        turn = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        mesh.vertices[:, :2] = xy @ turn.T + centre
+    return mesh
+
+
+def _joined(*meshes, process=False):
+    """The meshes as one TIN, each keeping its own vertices (duplicates where they touch)."""
+    offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])
+    return trimesh.Trimesh(np.vstack([m.vertices for m in meshes]),
+                           np.vstack([m.faces + o for m, o in zip(meshes, offsets, strict=False)]), process=process)
+
+
+def _ramp(turns, rise=0.0, segments=36):
+    """A spiral ramp: an annulus between radii 1 and 2 (both growing by ``rise`` over the turns) climbing 1 per
+    segment, ``turns`` times round."""
+    t = np.linspace(0.0, 2.0 * np.pi * turns, round(segments * turns) + 1)
+    grow = np.linspace(0.0, rise, len(t))
+    rims = [np.column_stack([(r + grow) * np.cos(t), (r + grow) * np.sin(t), np.arange(len(t))]) for r in (1.0, 2.0)]
+    n = len(t)
+    k = np.arange(n - 1)
+    faces = np.concatenate([np.column_stack([k, n + k, n + k + 1]), np.column_stack([k, n + k + 1, k + 1])])
+    return trimesh.Trimesh(np.vstack(rims), faces, process=False)
+
+
+def _soup(mesh):
+    """The mesh as a triangle soup: three points of its own per face (as an STL file read without merging)."""
+    return trimesh.Trimesh(mesh.triangles.reshape(-1, 3), np.arange(3 * len(mesh.faces)).reshape(-1, 3),
+                           process=False)
+
+
+def _doubled_fan():
+    """8 faces round a middle point, a quarter turn each, so winding twice round it (radius 1, then 2): all wound
+    alike, every inner edge shared by two faces wound oppositely."""
+    angle, radius = np.arange(8) * np.pi / 2, np.repeat([1.0, 2.0], 4)
+    rim = np.column_stack([radius * np.cos(angle), radius * np.sin(angle), np.arange(8.0)])
+    return trimesh.Trimesh(np.vstack([[0.0, 0.0, 0.0], rim]), [[0, 1 + k, 1 + (k + 1) % 8] for k in range(8)],
+                           process=False)
+
+
+def _cross(u, v):
+    """The z of the cross product of xy vectors (..., 2)."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _inside(point, triangle):
+    """Whether ``point`` lies strictly inside the xy projection of ``triangle`` (3, 3), either winding."""
+    a, b, c = triangle[:, :2]
+    sides = [_cross(q - p, point - p) for p, q in ((a, b), (b, c), (c, a))]
+    return min(sides) > 0 or max(sides) < 0
+
+
+_OVERLAP = (r"^terrain mesh faces must project one-to-one onto the xy plane; faces (\d+) and (\d+) overlap in xy "
+            r"around \(([-\d.e+]+), ([-\d.e+]+)\) \(at least \d+ of its \d+ faces with finite heights overlap another: "
+            r"two sheets one above the other, or a surface that wraps over itself\)$")
+
+
+def _refused_overlap(mesh):
+    """The two faces and the point the overlap error names; asserts the point lies inside both faces in xy."""
+    import re
+
+    with pytest.raises(InvalidInputError, match=_OVERLAP) as info:
+        st.stepped(mesh, interval=1.0)
+    first, second, x, y = re.match(_OVERLAP, str(info.value)).groups()
+    first, second, point = int(first), int(second), np.array([float(x), float(y)])
+    assert first != second
+    assert _inside(point, mesh.triangles[first]) and _inside(point, mesh.triangles[second])
+    return first, second, point
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    u=st_.floats(0.02, 0.98), v=st_.floats(0.02, 0.98), angle=st_.floats(0.0, 2.0 * np.pi),
+    spacing=st_.floats(0.2, 3.0), lift=st_.floats(-20.0, 20.0), rows=st_.integers(2, 5), cols=st_.integers(2, 5),
+)
+def test_a_second_sheet_overlapping_the_first_in_xy_is_refused_naming_two_faces_and_a_point(
+    u, v, angle, spacing, lift, rows, cols
+):
+    """Issue 2 accepts a TIN "whose faces project one-to-one onto the xy plane" and refuses "TIN faces that fold
+    over in projection"; the check looked only at each face's winding and at edges used twice the same way, so two
+    separate sheets one above the other (all faces wound alike, no shared edge) were stepped into overlapping
+    terraces and walls. Any second sheet whose middle lies inside the first (so that they overlap) is now refused,
+    naming two faces that overlap and a point inside both, wherever it lies, however turned, sized and lifted."""
+    first = _sheet()
+    second = _sheet(rows, cols, spacing, z=lift, angle=angle, centre=(u * 5.0, v * 4.0))
+    _refused_overlap(_joined(first, second))
+    _refused_overlap(_joined(second, first))
+
+
+@pytest.mark.parametrize(
+    "mesh",
+    [
+        _ramp(2.0),  # a parking-garage ramp: the second turn right above the first
+        _ramp(1.3, rise=0.5),  # growing, but not enough to clear the first turn
+        _joined(_sheet(11, 11), trimesh.Trimesh([[1.2, 1.2, 9.0], [2.5, 1.2, 9.0], [1.2, 2.5, 9.0]], [[0, 1, 2]])),
+        _joined(trimesh.Trimesh([[0, 0, 0], [9, 0, 0], [0, 9, 0]], [[0, 1, 2]]),
+                trimesh.Trimesh([[1, 1, 5], [2, 1, 5], [1, 2, 5]], [[0, 1, 2]])),  # a face inside another's face
+        _doubled_fan(),
+        _soup(_joined(_sheet(), _sheet(z=9.0))),  # two sheets on one xy grid, as a triangle soup
+    ],
+    ids=["spiral ramp", "widening spiral ramp", "triangle over a grid", "triangle in a face", "doubled fan",
+         "stacked soups"],
+)
+def test_a_tin_that_wraps_over_itself_or_holds_a_face_over_another_is_refused(mesh):
+    """A sheet that wraps round over itself (a spiral ramp), a fan that winds twice round a point, a lone face above
+    another component's face: no face folds and no edge is used twice the same way, so all were stepped into
+    overlapping nonsense. Refused, naming two overlapping faces and a point inside both."""
+    _refused_overlap(mesh)
+
+
+def _holed(poke=0.0):
+    """A 11 x 11 sheet with nodata in its middle (a hole from x, y = 2 to 8), and a face in the hole reaching
+    ``poke`` past its right side."""
+    heights = np.random.default_rng(1).random((11, 11))
+    heights[3:8, 3:8] = np.nan
+    island = trimesh.Trimesh([[4.2, 4.2, 5.0], [8.0 + poke, 4.2, 5.0], [4.2, 5.8, 5.0]], [[0, 1, 2]])
+    return _joined(st.heightfield_mesh(heights), island)
+
+
+_NAN_CORNER = _sheet().vertices.copy()
+_NAN_CORNER[0, 2] = np.nan
+
+_TOUCHING = {
+    "one sheet": _sheet(),
+    "abutting sheets, vertices duplicated": _joined(_sheet(), _sheet(origin=(5.0, 0.0))),
+    "sheets meeting at a corner": _joined(_sheet(), _sheet(origin=(5.0, 4.0))),
+    "sheets meeting at a corner, diagonally": _joined(_sheet(), _sheet(origin=(5.0, -4.0))),
+    "abutting sheets, shifted (T-junctions)": _joined(_sheet(), _sheet(origin=(5.0, 0.5))),
+    "abutting sheets, finer (T-junctions)": _joined(_sheet(), _sheet(9, 11, 0.5, origin=(5.0, 0.0))),
+    "abutting sheets, welded": _joined(_sheet(), _sheet(origin=(5.0, 0.0)), process=True),
+    "sheets apart": _joined(_sheet(), _sheet(origin=(9.0, 9.0))),
+    "triangle soup": _soup(_sheet()),
+    "triangle soups abutting": _soup(_joined(_sheet(), _sheet(origin=(5.0, 0.5)))),
+    "a face in a hole": _holed(),
+    "a face touching the side of a hole": _holed(0.0),
+    "an L-shaped outline": trimesh.Trimesh(_sheet().vertices, _sheet().faces[
+        ~((_sheet().triangles[:, :, 0].mean(axis=1) > 2.0) & (_sheet().triangles[:, :, 1].mean(axis=1) > 2.0))],
+        process=False),
+    "one turn of a spiral ramp, its ends abutting": _ramp(1.0),
+    "a spiral ramp widening clear of itself": _ramp(1.5, rise=3.0),
+    "nodata, unused and duplicate points": trimesh.Trimesh(np.vstack([_NAN_CORNER, [[99, 99, 0], [2, 2, 0]]]),
+                                                           _sheet().faces, process=False),
+}
+
+
+@pytest.mark.parametrize("name", list(_TOUCHING))
+def test_tin_faces_that_only_touch_in_xy_are_stepped(name):
+    """What must stay accepted beside the overlap check: sheets that abut along an edge (shared or duplicated
+    vertices, or T-junctions), meet at a corner, lie apart, a triangle soup, holes (a face in one, touching its
+    side), non-convex outlines, a one-turn ramp whose ends abut, nodata and unused points. Overlap means an
+    intersection of positive area: the terraces cover the input's projected area exactly once."""
+    mesh = _TOUCHING[name]
+    stepped = st.stepped(mesh, interval=0.5)
+    kept = np.isfinite(mesh.triangles[:, :, 2]).all(axis=1)
+    tri = mesh.triangles[kept][:, :, :2]
+    area = 0.5 * np.abs(_cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])).sum()
+    terrace = stepped.triangles[~stepped.face_attributes["wall"]][:, :, :2]
+    covered = 0.5 * _cross(terrace[:, 1] - terrace[:, 0], terrace[:, 2] - terrace[:, 0])
+    assert covered.min() > -1e-9
+    assert covered.sum() == pytest.approx(area, rel=1e-6)
+
+
+def test_a_face_poking_out_of_a_hole_over_the_sheet_is_refused():
+    """A face in a nodata hole is a separate patch (accepted above); one reaching past the hole's side over the
+    sheet overlaps it there."""
+    first, second, point = _refused_overlap(_holed(0.5))
+    assert point[0] > 8.0
+
+
+@pytest.mark.parametrize("kind", ["grid", "rtin"])
+def test_a_real_dem_tin_is_stepped_and_a_copy_shifted_over_it_refused(kind):
+    """Real TINs of a shared DEM (its grid meshed by heightfield_mesh, and a Martini RTIN of it: faces of many sizes)
+    pass the overlap check, their terraces covering them once; a copy moved by a fraction of the extent and lifted
+    (as a second survey over the first) overlaps it and is refused."""
+    from .conftest import real_dem
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=129, step=2)
+    if kind == "grid":
+        mesh = st.heightfield_mesh(heights, spacing=(60.0, -60.0), origin=(380000.0, 3800000.0))
+    else:
+        pymartini = pytest.importorskip("pymartini")
+        points, faces = pymartini.Martini(129).create_tile(heights).get_mesh(20.0)
+        col, row = points.reshape(-1, 2).T.astype(np.int64)
+        mesh = trimesh.Trimesh(np.column_stack([380000.0 + 60.0 * col, 3800000.0 - 60.0 * row, heights[row, col]]),
+                               faces.reshape(-1, 3).astype(np.int64), process=False)
+        assert mesh.area_faces.max() > 16 * mesh.area_faces.min()  # faces of many sizes
+    stepped = st.stepped(mesh, interval=50.0)
+    terrace = stepped.triangles[~stepped.face_attributes["wall"]][:, :, :2]
+    tri = mesh.triangles[:, :, :2]
+    assert np.abs(_cross(terrace[:, 1] - terrace[:, 0], terrace[:, 2] - terrace[:, 0])).sum() == pytest.approx(
+        np.abs(_cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])).sum(), rel=1e-6)
+    copy = mesh.copy()
+    copy.vertices += [0.37 * 128 * 60.0, -0.21 * 128 * 60.0, 500.0]
+    _refused_overlap(_joined(mesh, copy))
+
+
+def _clipped_area(a, b):
+    """The area of the intersection of two counter-clockwise triangles' xy (3, 2): a clipped by b's edge lines."""
+    polygon = list(a)
+    for p, q in zip(b, np.roll(b, -1, axis=0), strict=True):
+        side = [_cross(q - p, v - p) for v in polygon]
+        clipped = []
+        for k, v in enumerate(polygon):
+            if (side[k] > 0) != (side[k - 1] > 0):
+                clipped.append(polygon[k - 1] + (v - polygon[k - 1]) * (side[k - 1] / (side[k - 1] - side[k])))
+            if side[k] > 0:
+                clipped.append(v)
+        polygon = clipped
+        if not polygon:
+            return 0.0
+    ring = np.array(polygon)
+    return 0.5 * abs(_cross(ring, np.roll(ring, -1, axis=0)).sum())
+
+
+_TRIANGLE = st_.tuples(st_.floats(-3.0, 33.0), st_.floats(-3.0, 33.0), st_.floats(-1.5, 1.3), st_.floats(0.0, 6.3),
+                       st_.floats(0.3, 2.8), st_.floats(0.3, 2.8))
+
+
+@settings(max_examples=40, deadline=None)
+@given(triangles=st_.lists(_TRIANGLE, min_size=1, max_size=8), sheet=st_.booleans())
+def test_random_faces_over_a_sheet_are_refused_exactly_when_some_overlap(triangles, sheet):
+    """Against an independent count (the intersections' areas by clipping, every pair whose boxes meet): faces of
+    sizes over three decades, alone (a triangle soup: every face on a boundary) or beside a welded 30 x 30 sheet
+    (few boundary faces), are refused exactly when two overlap with positive area."""
+    from hypothesis import assume, event
+
+    corners = []
+    for x, y, scale, turn, first, second in triangles:
+        angles = turn + np.array([0.0, first, first + second])
+        corners.append(np.column_stack([x + 10**scale * np.cos(angles), y + 10**scale * np.sin(angles)]))
+    parts = [trimesh.Trimesh(np.column_stack([c, np.full(3, 5.0)]), [[0, 1, 2]], process=False) for c in corners]
+    if sheet:
+        parts.insert(0, st.heightfield_mesh(np.random.default_rng(3).random((31, 31))))
+    mesh = _joined(*parts)
+    tri = mesh.triangles[:, :, :2]
+    lo, hi = tri.min(axis=1), tri.max(axis=1)
+    size = (hi - lo).max(axis=1)
+    first, second = np.triu_indices(len(tri), 1)
+    near = (np.maximum(lo[first], lo[second]) < np.minimum(hi[first], hi[second])).all(axis=1)
+    near &= second >= len(tri) - len(corners)  # the sheet's own faces do not overlap
+    overlap = False
+    for i, j in zip(first[near], second[near], strict=True):
+        share = _clipped_area(tri[i], tri[j]) / min(size[i], size[j]) ** 2
+        assume(not 1e-15 < share < 1e-4)  # a near touch: either answer is right
+        overlap |= share > 0
+    event(f"{'overlapping' if overlap else 'apart'}, {'beside a sheet' if sheet else 'alone'}")
+    if overlap:
+        _refused_overlap(mesh)
+    else:
+        assert st.Terrain.from_mesh(mesh).faces.shape == (len(tri), 3)
