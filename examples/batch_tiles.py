@@ -34,6 +34,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    if not all(8 <= side <= 16384 for side in args.window):  # refused by the render, after the tiles were written
+        parser.error(f"--window must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.window))}")
     if Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # found after the tiles were written, beside it
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}, the tiles go beside it; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback

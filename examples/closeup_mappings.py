@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
 import stepterrain as st
 from stepterrain.cli import usage_errors
@@ -48,6 +49,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.gif and args.frames < 1:  # refused by the library only after the PNG was written
         parser.error(f"--frames must be at least 1; got {args.frames}")
+    if args.gif and Path(args.gif).suffix.lower() not in (".gif", ".mp4"):  # refused after the PNG was written too
+        parser.error(f"--gif must end in .gif or .mp4; got {args.gif!r}")
+    if args.gif and Path(args.gif).suffix.lower() == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            parser.error("--gif: MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

@@ -46,7 +46,7 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))  # not line 1 only
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     parser.add_argument("--size", type=int, default=513, help="nodes per cube face edge, 2^k+1 (default 513)")
     parser.add_argument("--output", type=Path, default=Path("out/globe.png"), help="PNG to write")
@@ -57,6 +57,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--close-error", type=float, default=100.0,
                         help="close view: error in metres tolerated at the eye's altitude (default 100)")
     args = parser.parse_args(argv)
+    if not all(8 <= side <= 16384 for side in args.panel):  # 0 0 raised a ZeroDivisionError in the camera's aspect
+        parser.error(f"--panel must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.panel))}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

@@ -76,3 +76,47 @@ def test_interactive_steps_the_dem_once_at_startup(monkeypatch):
         assert len(calls) == 3
     finally:
         plotter.close()
+
+
+EXAMPLE_ARGUMENTS_FOUND_LATE = [
+    # --panel 0 0 raised a ZeroDivisionError (the cameras' aspect w / h), with a traceback
+    ("globe", ["--size", "3", "--panel", "0", "0"], "--panel must be W H of 8 to 16384 pixels"),
+    # the overview's window was refused by the render after every tile had been stepped and written
+    ("batch_tiles", ["--size", "12", "--tile", "4", "--scheduler", "serial", "--window", "0", "0"],
+     "--window must be W H of 8 to 16384 pixels"),
+    # an animation name save_animation refuses: the PNG was rendered and written, the frames rendered, then exit 2
+    ("closeup_mappings", ["--size", "48", "--window", "200", "150", "--frames", "2", "--gif", "{tmp}/spin.avi"],
+     "--gif must end in .gif or .mp4"),
+]
+
+
+@pytest.mark.parametrize("name, argv, message", EXAMPLE_ARGUMENTS_FOUND_LATE,
+                         ids=[c[0] for c in EXAMPLE_ARGUMENTS_FOUND_LATE])
+def test_examples_refuse_bad_arguments_before_any_work(name, argv, message, tmp_path, capsys):
+    """Arguments the library refuses only at the end were found after the work and, for batch_tiles and
+    closeup_mappings, after outputs were written: a failed command left them behind. Now usage errors (exit 2, one
+    line) before any work, and nothing is written."""
+    example = load_example(name)
+    argv = [a.format(tmp=tmp_path) for a in argv] + ["--output", str(tmp_path / "out.png"), "--device", "cpu"]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: " in err and message in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_closeup_mappings_refuses_an_mp4_without_imageio_ffmpeg_before_any_work(tmp_path, monkeypatch, capsys):
+    """--gif spin.mp4 without the video extra rendered and wrote the PNG and rendered every frame before
+    save_animation raised; now a usage error naming the extra, and nothing is written."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import imageio_ffmpeg raises ImportError
+    example = load_example("closeup_mappings")
+    argv = ["--size", "48", "--window", "200", "150", "--frames", "2", "--gif", str(tmp_path / "spin.mp4"),
+            "--output", str(tmp_path / "out.png"), "--device", "cpu"]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    assert "pip install 'stepterrain[video]'" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
