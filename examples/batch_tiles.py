@@ -23,7 +23,9 @@ from stepterrain.terrain import Terrain
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=1197, help="DEM nodes across (default: full 1197)")
+    parser.add_argument("--size", type=int, default=1197,
+                        help="keep every (1197 // SIZE)-th DEM node: SIZE to 2 x SIZE - 1 nodes across, all 1197 from "
+                             "SIZE 599 on (default: all 1197)")
     parser.add_argument("--tile", type=int, default=256, help="cells per tile (default 256)")
     parser.add_argument("--interval", type=float, default=100.0, help="step interval in metres (default 100)")
     parser.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
