@@ -120,3 +120,25 @@ def test_closeup_mappings_refuses_an_mp4_without_imageio_ffmpeg_before_any_work(
     assert exit_info.value.code == 2
     assert "pip install 'stepterrain[video]'" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_flood_mp4_keeps_the_frame_size(tmp_path):
+    """--mp4 wrote the frames through imageio's default macro_block_size of 16, which stretched every frame whose
+    sides are not multiples of 16 (a 20 x 20 crop became a 32 x 32 video, with a warning); the GIF and PNG kept
+    20 x 20. Now the MP4 keeps the frame size, as closeup.save_animation does."""
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+    import numpy as np
+
+    example = load_example("flood")
+    out = tmp_path / "flood.png"
+    argv = ["--size", "20", "--frames", "3", "--keyframes", "2", "--mp4", "--output", str(out), "--device", "cpu"]
+    assert example.main(argv) == 0
+    gif = iio.imread(out.with_suffix(".gif"), index=None)
+    video = iio.imread(out.with_suffix(".mp4"), index=None, extension=".mp4")
+    assert gif.shape[:3] == (3, 20, 20)
+    assert video.shape[:3] == (3, 20, 20)
+    # the same picture, not a rescaled one: H.264 is lossy, so compare the last frame's mean colour and pattern
+    last = gif[-1][..., :3].astype(float)
+    np.testing.assert_allclose(video[-1].reshape(-1, 3).mean(0), last.reshape(-1, 3).mean(0), atol=8)
+    assert np.corrcoef(video[-1].astype(float).mean(-1).ravel(), last.mean(-1).ravel())[0, 1] > 0.8
