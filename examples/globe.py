@@ -1,12 +1,13 @@
 """The earth on the cube sphere: a far view and a clipped close view, cone frustums against spheres (paper 003,
 Abb. 11 and 12).
 
-The embedded ETOPO 2022 relief (20 arc-minutes) is resampled onto 6 x SIZE² nodes and meshed four times with
-the same error bound:
+The embedded ETOPO 2022 relief (20 arc-minutes) is resampled onto 6 x SIZE² nodes and meshed four times, each
+view with its own error bound (--far-error, --close-error), cones and spheres with the same one:
 
 1. far view, cone frustums (rendered from the eye);  2. far view, bounding spheres;
-3. close view from 400 km above the Alps looking north, cone frustums, clipped to the view and rendered from
-   an overview camera with the triangle edges, so the saving outside the view shows;  4. the same, spheres.
+3. close view from 400 km above the Ligurian coast (44° N, 9° E), tilted 65° to look north over the Alps, cone
+   frustums, clipped to the view and rendered from an overview camera with the triangle edges, so the saving
+   outside the view shows;  4. the same, spheres.
 
 Each panel is labelled with its triangle count (the paper reports spheres needing ~1.4x the triangles).
 
