@@ -54,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     report = batch(terrain, tiles, tile_size=args.tile, interval=args.interval, base=0.5, colors="terrain",
                    scheduler=args.scheduler, workers=args.workers, device=args.device)  # fmt: skip
     print(report.summary(), file=sys.stderr)
+    if not (report.done or report.skipped):  # every tile failed (listed above): no picture to render, exit 1
+        return 1
     save_image(overview_image(report, window_size=tuple(args.window), z_scale=2.0), output)
     return 0 if report.ok else 1
 

@@ -142,3 +142,23 @@ def test_flood_mp4_keeps_the_frame_size(tmp_path):
     last = gif[-1][..., :3].astype(float)
     np.testing.assert_allclose(video[-1].reshape(-1, 3).mean(0), last.reshape(-1, 3).mean(0), atol=8)
     assert np.corrcoef(video[-1].astype(float).mean(-1).ravel(), last.mean(-1).ravel())[0, 1] > 0.8
+
+
+def test_batch_tiles_exits_1_when_every_tile_failed(tmp_path, monkeypatch, capsys):
+    """When every tile failed (--device cuda on workers without a GPU), the summary listed the failures and then
+    the overview was refused as a usage error, exit 2 with the usage line: 'error: the batch wrote no output to
+    show', as if the arguments were wrong. Now exit 1 after the summary, as for a partial failure, and no picture."""
+    from stepterrain.batch import BatchReport, ItemResult
+
+    example = load_example("batch_tiles")
+
+    def failing_batch(terrain, output_dir, **options):
+        results = [ItemResult(key=f"tile_r0_c{k}", status="failed", error="DeviceError: no GPU") for k in range(3)]
+        return BatchReport(output_dir=Path(output_dir), results=results)
+
+    monkeypatch.setattr(example, "batch", failing_batch)
+    out = tmp_path / "overview.png"
+    assert example.main(["--size", "12", "--tile", "4", "--scheduler", "serial", "--output", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "failed tile_r0_c0" in err and "usage:" not in err
+    assert not out.exists()
