@@ -162,3 +162,22 @@ def test_batch_tiles_exits_1_when_every_tile_failed(tmp_path, monkeypatch, capsy
     err = capsys.readouterr().err
     assert "failed tile_r0_c0" in err and "usage:" not in err
     assert not out.exists()
+
+
+def test_adaptive_mesh_example_meshes_the_dem_the_right_way_up():
+    """examples/adaptive_mesh.py gave adaptive_mesh the DEM's rows as stored, north to south, but adaptive_mesh puts
+    row i at y = i * spacing (south to north): every panel showed the terrain mirrored north to south (beside
+    stepped_terrain.py's panels of the same crop). The crop now hands the rows over south first."""
+    import numpy as np
+
+    import stepterrain as st
+
+    example = load_example("adaptive_mesh")
+    heights, spacing = example.crop(64)
+    dem = st.sample_dem()
+    stride = 643 // 64  # the crop's own arithmetic for 643 x 1197 nodes
+    n, i0, j0 = 64, (643 - 64 * stride) // 2, (1197 - 64 * stride) // 2
+    assert heights.shape == (n, n) and spacing == 30.0 * stride
+    columns = slice(j0, j0 + n * stride, stride)
+    np.testing.assert_array_equal(heights[0], dem.heights[i0 + (n - 1) * stride, columns])  # the southern row
+    np.testing.assert_array_equal(heights[-1], dem.heights[i0, columns])  # the northern row
