@@ -22,6 +22,7 @@ import pyvista as pv
 from stepterrain import circular_lens, sample_dem
 from stepterrain.cli import usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
+from stepterrain.render import require_offscreen
 
 
 def dem_grid(size: int) -> pv.ImageData:
@@ -123,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.interactive:  # headless: EGL or OSMesa as the library's renders pick it (VTK tried X first)
+        require_offscreen()
     plotter = pv.Plotter(off_screen=not args.interactive, window_size=tuple(args.window))
     plotter.set_background("white")
     build(plotter, dem_grid(args.size), device=args.device)
