@@ -70,10 +70,12 @@ def run(args: argparse.Namespace) -> int:
                                           origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
     cus = closeups(terrain)
     image = render_closeups(terrain, cus, window_size=tuple(args.window), z_scale=2.0, device=args.device)
-    save_png(image, args.output)
-    if args.gif:
+    frames = None
+    if args.gif:  # before the PNG is written: frames refused for the memory budget left the PNG behind
         frames = animate_closeups(terrain, cus[:1], frames=args.frames, fps=12.0, window_size=tuple(args.window),
                                   z_scale=2.0, device=args.device)
+    save_png(image, args.output)
+    if frames is not None:
         save_animation(frames, args.gif, fps=12.0)
     return 0
 

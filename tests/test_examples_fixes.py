@@ -87,11 +87,14 @@ EXAMPLE_ARGUMENTS_FOUND_LATE = [
     # an animation name save_animation refuses: the PNG was rendered and written, the frames rendered, then exit 2
     ("closeup_mappings", ["--size", "48", "--window", "200", "150", "--frames", "2", "--gif", "{tmp}/spin.avi"],
      "--gif must end in .gif or .mp4"),
+    # frames over the memory budget: animate_closeups refused them after the PNG had been written
+    ("closeup_mappings", ["--size", "48", "--window", "200", "150", "--frames", "10000000", "--gif", "{tmp}/spin.gif"],
+     "would need"),
 ]
 
 
 @pytest.mark.parametrize("name, argv, message", EXAMPLE_ARGUMENTS_FOUND_LATE,
-                         ids=[c[0] for c in EXAMPLE_ARGUMENTS_FOUND_LATE])
+                         ids=[f"{c[0]}-{k}" for k, c in enumerate(EXAMPLE_ARGUMENTS_FOUND_LATE)])
 def test_examples_refuse_bad_arguments_before_any_work(name, argv, message, tmp_path, capsys):
     """Arguments the library refuses only at the end were found after the work and, for batch_tiles and
     closeup_mappings, after outputs were written: a failed command left them behind. Now usage errors (exit 2, one
