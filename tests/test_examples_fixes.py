@@ -206,3 +206,26 @@ def test_interactive_headless_run_picks_an_offscreen_context_without_vtk_warning
 
     with Image.open(out) as image:
         assert image.size == (64, 48)
+
+
+@pytest.mark.parametrize("name, argv", [
+    ("dynamic_peaks", ["--size", "16", "--window", "128", "96", "--frames", "60"]),
+    ("flood", ["--size", "64", "--frames", "200", "--keyframes", "2"]),
+])
+def test_animations_refuse_frames_over_the_memory_budget_before_any_work(name, argv, tmp_path, capsys):
+    """dynamic_peaks.py and flood.py keep every frame for the GIF (and stack them once more to write it), with no
+    check: a large --frames ran the machine out of memory after minutes of work. The frames they would hold are now
+    checked against the memory budget (st.set_memory_budget) before any work: a usage error, nothing written."""
+    import stepterrain as st
+
+    example = load_example(name)
+    previous = st.set_memory_budget(4 << 20)  # room for the embedded DEM's read (2.9 MiB), not for the frames
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            example.main([*argv, "--output", str(tmp_path / "out.png"), "--device", "cpu"])
+    finally:
+        st.set_memory_budget(previous)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--frames" in err and "over the memory budget" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
