@@ -32,7 +32,7 @@ def crop(size: int) -> tuple[np.ndarray, float]:
     n = min(size, rows // stride, cols // stride)
     i0, j0 = (rows - n * stride) // 2, (cols - n * stride) // 2
     heights = dem.heights[i0 : i0 + n * stride : stride, j0 : j0 + n * stride : stride]
-    return np.ascontiguousarray(heights[::-1]), abs(dem.spacing[0]) * stride  # as stored: a mirror image
+    return np.ascontiguousarray(heights[::-1]), abs(dem.spacing[0]) * stride  # rows as stored: a mirror image
 
 
 def true_error(mesh, heights: np.ndarray, spacing: float) -> float:
