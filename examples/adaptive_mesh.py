@@ -24,14 +24,15 @@ from stepterrain.render import render_mesh
 
 
 def crop(size: int) -> tuple[np.ndarray, float]:
-    """The embedded DEM, centre-cropped and subsampled to about ``size`` x ``size`` nodes, and its spacing."""
+    """The embedded DEM, centre-cropped and subsampled to about ``size`` x ``size`` nodes, rows south to north as
+    :func:`adaptive_mesh` takes them (row i at y = i * spacing; the DEM's rows run north to south), and its spacing."""
     dem = st.sample_dem()
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n = min(size, rows // stride, cols // stride)
     i0, j0 = (rows - n * stride) // 2, (cols - n * stride) // 2
     heights = dem.heights[i0 : i0 + n * stride : stride, j0 : j0 + n * stride : stride]
-    return np.ascontiguousarray(heights), abs(dem.spacing[0]) * stride
+    return np.ascontiguousarray(heights[::-1]), abs(dem.spacing[0]) * stride  # rows as stored: a mirror image
 
 
 def true_error(mesh, heights: np.ndarray, spacing: float) -> float:

@@ -23,7 +23,9 @@ from stepterrain.terrain import Terrain
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=1197, help="DEM nodes across (default: full 1197)")
+    parser.add_argument("--size", type=int, default=1197,
+                        help="keep every (1197 // SIZE)-th DEM node: SIZE to 2 x SIZE - 1 nodes across, all 1197 from "
+                             "SIZE 599 on (default: all 1197)")
     parser.add_argument("--tile", type=int, default=256, help="cells per tile (default 256)")
     parser.add_argument("--interval", type=float, default=100.0, help="step interval in metres (default 100)")
     parser.add_argument("--workers", type=int, default=2, help="LocalCluster worker processes (default 2)")
@@ -34,6 +36,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.size < 2:  # 0 raised a ZeroDivisionError in the crop; below 2 is no grid
         parser.error(f"--size must be at least 2 nodes; got {args.size}")
+    if not all(8 <= side <= 16384 for side in args.window):  # refused by the render, after the tiles were written
+        parser.error(f"--window must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.window))}")
     if Path(args.output).suffix.lower() not in IMAGE_EXTENSIONS:  # found after the tiles were written, beside it
         parser.error(f"--output must end in {', '.join(IMAGE_EXTENSIONS)}, the tiles go beside it; got {args.output!r}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
@@ -50,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     report = batch(terrain, tiles, tile_size=args.tile, interval=args.interval, base=0.5, colors="terrain",
                    scheduler=args.scheduler, workers=args.workers, device=args.device)  # fmt: skip
     print(report.summary(), file=sys.stderr)
+    if not (report.done or report.skipped):  # every tile failed (listed above): no picture to render, exit 1
+        return 1
     save_image(overview_image(report, window_size=tuple(args.window), z_scale=2.0), output)
     return 0 if report.ok else 1
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
 import stepterrain as st
 from stepterrain.cli import usage_errors
@@ -48,6 +49,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.gif and args.frames < 1:  # refused by the library only after the PNG was written
         parser.error(f"--frames must be at least 1; got {args.frames}")
+    if args.gif and Path(args.gif).suffix.lower() not in (".gif", ".mp4"):  # refused after the PNG was written too
+        parser.error(f"--gif must end in .gif or .mp4; got {args.gif!r}")
+    if args.gif and Path(args.gif).suffix.lower() == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+        except ImportError:
+            parser.error("--gif: MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 
@@ -62,10 +70,12 @@ def run(args: argparse.Namespace) -> int:
                                           origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
     cus = closeups(terrain)
     image = render_closeups(terrain, cus, window_size=tuple(args.window), z_scale=2.0, device=args.device)
-    save_png(image, args.output)
-    if args.gif:
+    frames = None
+    if args.gif:  # before the PNG is written: frames refused for the memory budget left the PNG behind
         frames = animate_closeups(terrain, cus[:1], frames=args.frames, fps=12.0, window_size=tuple(args.window),
                                   z_scale=2.0, device=args.device)
+    save_png(image, args.output)
+    if frames is not None:
         save_animation(frames, args.gif, fps=12.0)
     return 0
 

@@ -64,6 +64,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--size must be >= 2 and --frames >= 1")
     if args.output.suffix.lower() != ".png":  # the GIF goes beside it: --output x.gif wrote the GIF, then failed
         parser.error(f"--output must end in .png (the GIF is written beside it); got {str(args.output)!r}")
+    width, height = args.window
+    held = args.frames * (4 * args.size**2 + 2 * 3 * max(width, 0) * max(height, 0))  # heights, frames, GIF stack
+    if held > st.get_memory_budget():  # every frame is kept for the GIF: a large --frames ran out of memory
+        parser.error(f"--frames {args.frames} of {args.size} x {args.size} nodes and {width} x {height} pixels would "
+                     f"hold {held / 2**20:,.1f} MiB, over the memory budget of {st.get_memory_budget() / 2**20:,.1f} "
+                     "MiB; give fewer frames or a smaller --size or --window")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

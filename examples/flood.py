@@ -22,8 +22,9 @@ from pathlib import Path
 import matplotlib
 import numpy as np
 
+from stepterrain import get_memory_budget
 from stepterrain.cli import usage_errors
-from stepterrain.errors import MissingDependencyError
+from stepterrain.errors import MissingDependencyError, OutputTooLargeError
 from stepterrain.export import atomic_path, save_image
 from stepterrain.texture import TextureAnimation, blend, modulate, terrain_layer, topographic_layer
 
@@ -45,13 +46,15 @@ def require_video() -> None:
 def write_mp4(frames: list[np.ndarray], path: Path) -> Path:
     """H.264 MP4 of the RGB frames through imageio's ffmpeg plugin, written atomically.
 
-    The container is named (``-f mp4``): the temporary file's ``.tmp`` suffix would not tell ffmpeg."""
+    The container is named (``-f mp4``): the temporary file's ``.tmp`` suffix would not tell ffmpeg. The frames keep
+    their size (H.264 takes even sides only: an odd one is stretched by a pixel)."""
     require_video()
     import imageio.v3 as iio
 
     with atomic_path(path) as tmp:
         iio.imwrite(tmp, np.stack([f[..., :3] for f in frames]), extension=".mp4", plugin="FFMPEG",
-                    fps=1000.0 / FRAME_MS, codec="libx264", output_params=["-f", "mp4"])
+                    fps=1000.0 / FRAME_MS, codec="libx264", output_params=["-f", "mp4"],
+                    macro_block_size=2)  # keep the frame size (imageio's 16 stretched a 20 x 20 crop to 32 x 32)
     return path
 
 
@@ -93,6 +96,12 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     terrain = crop_sample(args.size)
+    held = args.frames * terrain.heights.size * 3 * (3 if args.mp4 else 2)  # the frames, the GIF's (and MP4's) stack
+    if held > get_memory_budget():  # every frame is kept for the GIF: a large --frames ran out of memory
+        raise OutputTooLargeError(
+            f"--frames {args.frames} of {terrain.shape[1]} x {terrain.shape[0]} pixels would hold {held / 2**20:,.1f} "
+            f"MiB, over the memory budget of {get_memory_budget() / 2**20:,.1f} MiB; give fewer frames or a smaller "
+            "--size")
     lo, hi = terrain.height_range
     h = terrain.heights
     hyps = matplotlib.colormaps["terrain"](0.25 + 0.75 * (h - lo) / max(hi - lo, 1e-9))[..., :3].astype(np.float32)

@@ -1,12 +1,13 @@
 """The earth on the cube sphere: a far view and a clipped close view, cone frustums against spheres (paper 003,
 Abb. 11 and 12).
 
-The embedded ETOPO 2022 relief (20 arc-minutes) is resampled onto 6 x SIZE² nodes and meshed four times with
-the same error bound:
+The embedded ETOPO 2022 relief (20 arc-minutes) is resampled onto 6 x SIZE² nodes and meshed four times, each
+view with its own error bound (--far-error, --close-error), cones and spheres with the same one:
 
 1. far view, cone frustums (rendered from the eye);  2. far view, bounding spheres;
-3. close view from 400 km above the Alps looking north, cone frustums, clipped to the view and rendered from
-   an overview camera with the triangle edges, so the saving outside the view shows;  4. the same, spheres.
+3. close view from 400 km above the Ligurian coast (44° N, 9° E), tilted 65° to look north over the Alps, cone
+   frustums, clipped to the view and rendered from an overview camera with the triangle edges, so the saving
+   outside the view shows;  4. the same, spheres.
 
 Each panel is labelled with its triangle count (the paper reports spheres needing ~1.4x the triangles).
 
@@ -46,7 +47,7 @@ def label(image: np.ndarray, text: str) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))  # not line 1 only
     parser.add_argument("--device", default=None, help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     parser.add_argument("--size", type=int, default=513, help="nodes per cube face edge, 2^k+1 (default 513)")
     parser.add_argument("--output", type=Path, default=Path("out/globe.png"), help="PNG to write")
@@ -57,6 +58,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--close-error", type=float, default=100.0,
                         help="close view: error in metres tolerated at the eye's altitude (default 100)")
     args = parser.parse_args(argv)
+    if not all(8 <= side <= 16384 for side in args.panel):  # 0 0 raised a ZeroDivisionError in the camera's aspect
+        parser.error(f"--panel must be W H of 8 to 16384 pixels each; got {' '.join(map(str, args.panel))}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

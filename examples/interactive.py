@@ -22,10 +22,12 @@ import pyvista as pv
 from stepterrain import circular_lens, sample_dem
 from stepterrain.cli import usage_errors
 from stepterrain.export import IMAGE_EXTENSIONS, save_image
+from stepterrain.render import require_offscreen
 
 
 def dem_grid(size: int) -> pv.ImageData:
-    """The embedded Big Tujunga DEM resampled to about ``size`` nodes across, as a pyvista ImageData."""
+    """The embedded Big Tujunga DEM, every (1197 // ``size``)-th node (``size`` to 2 ``size`` - 1 nodes across, at
+    most 1197), as a pyvista ImageData."""
     terrain = sample_dem()
     step = max(1, terrain.shape[1] // size)
     heights = terrain.heights[::step, ::step][::-1]  # rows south to north: y grows with the row index
@@ -103,7 +105,9 @@ def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None)
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--size", type=int, default=240, help="DEM nodes across (default 240)")
+    parser.add_argument("--size", type=int, default=240,
+                        help="keep every (1197 // SIZE)-th DEM node: SIZE to 2 x SIZE - 1 nodes across, all 1197 from "
+                             "SIZE 599 on (default 240: 300 nodes)")
     parser.add_argument("--window", type=int, nargs=2, default=(1024, 768), metavar=("W", "H"))
     parser.add_argument("--output", default="interactive.png", help="PNG of the initial view (headless)")
     parser.add_argument("--interactive", action="store_true", help="open a window instead of writing a PNG")
@@ -120,6 +124,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.interactive:  # headless: EGL or OSMesa as the library's renders pick it (VTK tried X first)
+        require_offscreen()
     plotter = pv.Plotter(off_screen=not args.interactive, window_size=tuple(args.window))
     plotter.set_background("white")
     build(plotter, dem_grid(args.size), device=args.device)

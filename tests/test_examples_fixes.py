@@ -76,3 +76,156 @@ def test_interactive_steps_the_dem_once_at_startup(monkeypatch):
         assert len(calls) == 3
     finally:
         plotter.close()
+
+
+EXAMPLE_ARGUMENTS_FOUND_LATE = [
+    # --panel 0 0 raised a ZeroDivisionError (the cameras' aspect w / h), with a traceback
+    ("globe", ["--size", "3", "--panel", "0", "0"], "--panel must be W H of 8 to 16384 pixels"),
+    # the overview's window was refused by the render after every tile had been stepped and written
+    ("batch_tiles", ["--size", "12", "--tile", "4", "--scheduler", "serial", "--window", "0", "0"],
+     "--window must be W H of 8 to 16384 pixels"),
+    # an animation name save_animation refuses: the PNG was rendered and written, the frames rendered, then exit 2
+    ("closeup_mappings", ["--size", "48", "--window", "200", "150", "--frames", "2", "--gif", "{tmp}/spin.avi"],
+     "--gif must end in .gif or .mp4"),
+    # frames over the memory budget: animate_closeups refused them after the PNG had been written
+    ("closeup_mappings", ["--size", "48", "--window", "200", "150", "--frames", "10000000", "--gif", "{tmp}/spin.gif"],
+     "would need"),
+]
+
+
+@pytest.mark.parametrize("name, argv, message", EXAMPLE_ARGUMENTS_FOUND_LATE,
+                         ids=[f"{c[0]}-{k}" for k, c in enumerate(EXAMPLE_ARGUMENTS_FOUND_LATE)])
+def test_examples_refuse_bad_arguments_before_any_work(name, argv, message, tmp_path, capsys):
+    """Arguments the library refuses only at the end were found after the work and, for batch_tiles and
+    closeup_mappings, after outputs were written: a failed command left them behind. Now usage errors (exit 2, one
+    line) before any work, and nothing is written."""
+    example = load_example(name)
+    argv = [a.format(tmp=tmp_path) for a in argv] + ["--output", str(tmp_path / "out.png"), "--device", "cpu"]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: " in err and message in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_closeup_mappings_refuses_an_mp4_without_imageio_ffmpeg_before_any_work(tmp_path, monkeypatch, capsys):
+    """--gif spin.mp4 without the video extra rendered and wrote the PNG and rendered every frame before
+    save_animation raised; now a usage error naming the extra, and nothing is written."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import imageio_ffmpeg raises ImportError
+    example = load_example("closeup_mappings")
+    argv = ["--size", "48", "--window", "200", "150", "--frames", "2", "--gif", str(tmp_path / "spin.mp4"),
+            "--output", str(tmp_path / "out.png"), "--device", "cpu"]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    assert "pip install 'stepterrain[video]'" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_flood_mp4_keeps_the_frame_size(tmp_path):
+    """--mp4 wrote the frames through imageio's default macro_block_size of 16, which stretched every frame whose
+    sides are not multiples of 16 (a 20 x 20 crop became a 32 x 32 video, with a warning); the GIF and PNG kept
+    20 x 20. Now the MP4 keeps the frame size, as closeup.save_animation does."""
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+    import numpy as np
+
+    example = load_example("flood")
+    out = tmp_path / "flood.png"
+    argv = ["--size", "20", "--frames", "3", "--keyframes", "2", "--mp4", "--output", str(out), "--device", "cpu"]
+    assert example.main(argv) == 0
+    gif = iio.imread(out.with_suffix(".gif"), index=None)
+    video = iio.imread(out.with_suffix(".mp4"), index=None, extension=".mp4")
+    assert gif.shape[:3] == (3, 20, 20)
+    assert video.shape[:3] == (3, 20, 20)
+    # the same picture, not a rescaled one: H.264 is lossy, so compare the last frame's mean colour and pattern
+    last = gif[-1][..., :3].astype(float)
+    np.testing.assert_allclose(video[-1].reshape(-1, 3).mean(0), last.reshape(-1, 3).mean(0), atol=8)
+    assert np.corrcoef(video[-1].astype(float).mean(-1).ravel(), last.mean(-1).ravel())[0, 1] > 0.8
+
+
+def test_batch_tiles_exits_1_when_every_tile_failed(tmp_path, monkeypatch, capsys):
+    """When every tile failed (--device cuda on workers without a GPU), the summary listed the failures and then
+    the overview was refused as a usage error, exit 2 with the usage line: 'error: the batch wrote no output to
+    show', as if the arguments were wrong. Now exit 1 after the summary, as for a partial failure, and no picture."""
+    from stepterrain.batch import BatchReport, ItemResult
+
+    example = load_example("batch_tiles")
+
+    def failing_batch(terrain, output_dir, **options):
+        results = [ItemResult(key=f"tile_r0_c{k}", status="failed", error="DeviceError: no GPU") for k in range(3)]
+        return BatchReport(output_dir=Path(output_dir), results=results)
+
+    monkeypatch.setattr(example, "batch", failing_batch)
+    out = tmp_path / "overview.png"
+    assert example.main(["--size", "12", "--tile", "4", "--scheduler", "serial", "--output", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "failed tile_r0_c0" in err and "usage:" not in err
+    assert not out.exists()
+
+
+def test_adaptive_mesh_example_meshes_the_dem_the_right_way_up():
+    """examples/adaptive_mesh.py gave adaptive_mesh the DEM's rows as stored, north to south, but adaptive_mesh puts
+    row i at y = i * spacing (south to north): every panel showed the terrain mirrored north to south (beside
+    stepped_terrain.py's panels of the same crop). The crop now hands the rows over south first."""
+    import numpy as np
+
+    import stepterrain as st
+
+    example = load_example("adaptive_mesh")
+    heights, spacing = example.crop(64)
+    dem = st.sample_dem()
+    stride = 643 // 64  # the crop's own arithmetic for 643 x 1197 nodes
+    n, i0, j0 = 64, (643 - 64 * stride) // 2, (1197 - 64 * stride) // 2
+    assert heights.shape == (n, n) and spacing == 30.0 * stride
+    columns = slice(j0, j0 + n * stride, stride)
+    np.testing.assert_array_equal(heights[0], dem.heights[i0 + (n - 1) * stride, columns])  # the southern row
+    np.testing.assert_array_equal(heights[-1], dem.heights[i0, columns])  # the northern row
+
+
+@needs_render
+def test_interactive_headless_run_picks_an_offscreen_context_without_vtk_warnings(tmp_path):
+    """Headless (no DISPLAY), interactive.py let VTK try an X window first: every run printed VTK's
+    'bad X server connection' warning before falling back. It now picks EGL or OSMesa as the library's renders do
+    (render.require_offscreen), and writes the same picture."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "VTK_DEFAULT_OPENGL_WINDOW")}
+    out = tmp_path / "view.png"
+    argv = [sys.executable, str(EXAMPLES / "interactive.py"), "--size", "12", "--window", "64", "48",
+            "--output", str(out), "--device", "cpu"]
+    done = subprocess.run(argv, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert "X server" not in done.stderr and "WARN" not in done.stderr, done.stderr
+    from PIL import Image
+
+    with Image.open(out) as image:
+        assert image.size == (64, 48)
+
+
+@pytest.mark.parametrize("name, argv", [
+    ("dynamic_peaks", ["--size", "16", "--window", "128", "96", "--frames", "60"]),
+    ("flood", ["--size", "64", "--frames", "200", "--keyframes", "2"]),
+])
+def test_animations_refuse_frames_over_the_memory_budget_before_any_work(name, argv, tmp_path, capsys):
+    """dynamic_peaks.py and flood.py keep every frame for the GIF (and stack them once more to write it), with no
+    check: a large --frames ran the machine out of memory after minutes of work. The frames they would hold are now
+    checked against the memory budget (st.set_memory_budget) before any work: a usage error, nothing written."""
+    import stepterrain as st
+
+    example = load_example(name)
+    previous = st.set_memory_budget(4 << 20)  # room for the embedded DEM's read (2.9 MiB), not for the frames
+    try:
+        with pytest.raises(SystemExit) as exit_info:
+            example.main([*argv, "--output", str(tmp_path / "out.png"), "--device", "cpu"])
+    finally:
+        st.set_memory_budget(previous)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--frames" in err and "over the memory budget" in err and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
