@@ -11,10 +11,11 @@ dynamic data (§4). Typical use:
 ``stepterrain.stepped`` is this module, callable as its function :func:`stepped` (stepterrain._callable_module), so
 ``stepterrain.stepped.thresholds_of`` (any name here) works too.
 
-Instead of the paper's geometry shader, which emits a triangle soup per frame, the tessellation runs as two
-count -> scan -> emit passes in Warp (kernels/stepped.py) and yields one welded, indexed mesh: the wall
-bottom and top where a threshold crosses an input edge are shared by both triangles of the edge, so the
-result is crack-free by construction.
+Instead of the paper's geometry shader, which emits a triangle soup per frame, the tessellation runs as
+count -> scan -> emit in Warp (kernels/stepped.py) and yields one welded, indexed mesh: the wall bottom and top
+where a threshold crosses an input edge are shared by both triangles of the edge, so the result is crack-free by
+construction. A TIN counts and emits its vertices and its faces in two such passes; a grid counts both in one walk
+over chunks of nodes (only the chunk totals are scanned) and emits both in another (see :func:`step_arrays`).
 """
 
 from __future__ import annotations
