@@ -329,6 +329,18 @@ def unwrapped_longitudes(lon: NDArray[np.float64]) -> NDArray[np.float64]:
     return lon + 360.0 * np.concatenate(([0.0], np.cumsum(turns)))
 
 
+def sorted_unique(values: NDArray[np.integer]) -> NDArray[np.integer]:
+    """``np.unique(values)`` of integers (flattened, sorted, each value once) by a sort and a neighbour compare:
+    numpy 2.x hashes integers for a value-only ``np.unique``, 5-7x slower than this for a close-up's 0.6-1.4M face
+    corners (int64) of the shared DEM, ~70x for 3M distinct int64 keys. (Floats would keep each NaN, which
+    ``np.unique`` collapses: integers only.)"""
+    ordered = np.sort(values, axis=None)
+    keep = np.empty(ordered.size, dtype=bool)
+    keep[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=keep[1:])
+    return ordered[keep]
+
+
 def first_index(mask: NDArray[np.bool_]) -> tuple[int, ...]:
     """The index of the first true entry of a non-empty ``mask`` with one (row-major), for error messages."""
     return tuple(int(i) for i in np.argwhere(mask)[0])

@@ -523,3 +523,43 @@ def test_folded_faces_are_counted_named_placed_and_the_hints_in_the_refusal_work
     covered = _cross(terrace[:, 1] - terrace[:, 0], terrace[:, 2] - terrace[:, 0])
     assert covered.min() > -1e-9  # one-to-one: its terraces cover the points' hull once
     assert 0.5 * covered.sum() == pytest.approx(scipy.spatial.ConvexHull(mesh.vertices[:, :2]).volume, rel=1e-9)
+
+
+# ------------------------------------------------------------------ sorted_unique: np.unique without numpy 2's hash
+@settings(max_examples=60, deadline=None)
+@given(
+    values=st_.lists(st_.integers(-(2**62), 2**62), max_size=200), spread=st_.integers(1, 2**40),
+    dtype=st_.sampled_from([np.int64, np.int32, np.uint32, np.int8]), rows=st_.integers(1, 3),
+)
+def test_sorted_unique_gives_what_np_unique_gives(values, spread, dtype, rows):
+    """A value-only np.unique of integers hashes in numpy 2.x (5-7x slower than a sort for a close-up's 0.6-1.4M face
+    corners of the shared DEM, which render_closeups and animate_closeups take per close-up and frame): the helper
+    that replaces it sorts, and must give exactly np.unique's answer: values, dtype and 1-D shape, for any integer
+    dtype and shape, repeats, extremes and the empty array."""
+    from stepterrain.terrain import sorted_unique
+
+    info = np.iinfo(dtype)
+    array = (np.array(values, dtype=np.int64) % spread) if len(values) else np.zeros(0, np.int64)
+    array = np.clip(array + info.min // 2, info.min, info.max).astype(dtype)
+    array = np.repeat(array, rows).reshape(-1, rows) if rows > 1 else array  # a 2-D array too: flattened
+    got, want = sorted_unique(array), np.unique(array)
+    assert got.dtype == want.dtype and got.shape == want.shape
+    assert np.array_equal(got, want)
+
+
+def test_sorted_unique_gives_a_close_up_s_used_vertices_as_np_unique_did():
+    """The close-up content faces of the shared DEM (the call render_closeups and animate_closeups make): the same
+    vertices as np.unique, so the same drawn bounds."""
+    from stepterrain import closeup
+    from stepterrain.terrain import sorted_unique
+
+    from .conftest import real_dem
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=200, step=2)
+    cu = st.CloseUp(st.ROI.circle((100.0, 100.0), 60.0), offset=(0.0, 0.0, 50.0), scale=2.0)
+    layer = closeup.closeup_layers(heights, [cu], device="cpu")[0]
+    content = closeup._content_faces(layer, cu)[0]
+    assert content.size > 10000
+    used = sorted_unique(content)
+    assert np.array_equal(used, np.unique(content))
+    assert np.array_equal(closeup._drawn_bounds(layer, cu), closeup._drawn_bounds(layer, cu, np.unique(content)))
