@@ -459,3 +459,107 @@ def test_random_faces_over_a_sheet_are_refused_exactly_when_some_overlap(triangl
         _refused_overlap(mesh)
     else:
         assert st.Terrain.from_mesh(mesh).faces.shape == (len(tri), 3)
+
+
+# ------------------------------------------------------------------ TIN faces that fold over: a refusal with a way out
+_FOLDED = (r"^terrain mesh(?: \(from '([^']*)'\))? faces must project one-to-one onto the xy plane; (\d+) of its (\d+) "
+           r"faces with finite heights fold over \(wound against the rest\): faces? ([\d, .]+), the first around "
+           r"\(([-\d.e+]+), ([-\d.e+]+)\)\. ")
+
+
+def _folded_sheet(moved, clockwise):
+    """A 9 x 12 sheet whose interior vertices ``moved`` are pushed 1.4 spacings in x, across their neighbours' edges
+    (as quadric decimation moves a vertex), wound clockwise seen from +z if ``clockwise``."""
+    mesh = _sheet(9, 12, origin=(1000.0, 2000.0))
+    vertices = mesh.vertices.copy()
+    for row, col in moved:
+        vertices[row * 12 + col, :2] += [1.4, 0.3]
+    faces = mesh.faces[:, ::-1] if clockwise else mesh.faces
+    return trimesh.Trimesh(vertices, faces, process=False)
+
+
+@pytest.mark.parametrize("clockwise", [False, True], ids=["counter-clockwise", "clockwise"])
+@pytest.mark.parametrize("moved", [[(4, 5)], [(2, 2), (2, 8), (6, 2), (6, 8)]], ids=["one vertex", "four vertices"])
+def test_folded_faces_are_counted_named_placed_and_the_hints_in_the_refusal_work(moved, clockwise):
+    """A DEM's TIN decimated by trimesh's simplify_quadric_decimation folds a few faces (4 of 384k for the shared
+    DEM's full grid at a quarter of its faces, 5 of 154k at a tenth): the refusal named one face and a count, with no
+    way out, and dropping only the folded faces is refused in turn (their neighbours overlap others). It now says how
+    many fold, names the first few (by index in the mesh given) and a point inside the first, and gives code that
+    makes the mesh acceptable: dropping every face touching a folded one, or a 2-D Delaunay triangulation; both,
+    run as the message prints them, are stepped (whichever way the mesh is wound)."""
+    import re
+
+    mesh = _folded_sheet(moved, clockwise)
+    tri = mesh.triangles[:, :, :2]
+    area2 = _cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    folded = np.flatnonzero(area2 > 0 if clockwise else area2 < 0)
+    assert 0 < len(folded) < len(area2) / 2
+    with pytest.raises(InvalidInputError, match=_FOLDED) as info:
+        st.Terrain.from_mesh(mesh, source="decimated.ply")
+    message = str(info.value)
+    source, count, total, listed, x, y = re.match(_FOLDED, message).groups()
+    assert (source, int(count), int(total)) == ("decimated.ply", len(folded), len(mesh.faces))
+    named = [int(k) for k in listed.replace(", ...", "").split(", ")]
+    assert named == folded[:5].tolist() and listed.endswith("...") == (len(folded) > 5)
+    assert _inside(np.array([float(x), float(y)]), mesh.triangles[named[0]])
+
+    alone = mesh.copy()  # dropping only the folded faces leaves their neighbours overlapping: refused
+    alone.update_faces(np.setdiff1d(np.arange(len(mesh.faces)), folded))
+    _refused_overlap(alone)
+
+    dropped = mesh.copy()  # the message's update_faces call, as printed
+    exec(re.search(r"(mesh\.update_faces\(.*?\));", message).group(1), {"np": np, "mesh": dropped})
+    assert 0 < len(mesh.faces) - len(dropped.faces) <= 20 * len(moved)  # small holes round the moved vertices
+    assert len(st.stepped(dropped, interval=0.5).faces) > 0
+
+    pytest.importorskip("scipy")
+    import scipy.spatial
+
+    names = {"trimesh": trimesh, "scipy": scipy, "mesh": mesh.copy()}  # the message's re-triangulation, as printed
+    exec(re.search(r"(mesh = trimesh\.Trimesh\(.*?\.simplices\))", message).group(1), names)
+    assert np.array_equal(names["mesh"].vertices, mesh.vertices)
+    stepped = st.stepped(names["mesh"], interval=0.5)
+    terrace = stepped.triangles[~stepped.face_attributes["wall"]][:, :, :2]
+    covered = _cross(terrace[:, 1] - terrace[:, 0], terrace[:, 2] - terrace[:, 0])
+    assert covered.min() > -1e-9  # one-to-one: its terraces cover the points' hull once
+    assert 0.5 * covered.sum() == pytest.approx(scipy.spatial.ConvexHull(mesh.vertices[:, :2]).volume, rel=1e-9)
+
+
+# ------------------------------------------------------------------ sorted_unique: np.unique without numpy 2's hash
+@settings(max_examples=60, deadline=None)
+@given(
+    values=st_.lists(st_.integers(-(2**62), 2**62), max_size=200), spread=st_.integers(1, 2**40),
+    dtype=st_.sampled_from([np.int64, np.int32, np.uint32, np.int8]), rows=st_.integers(1, 3),
+)
+def test_sorted_unique_gives_what_np_unique_gives(values, spread, dtype, rows):
+    """A value-only np.unique of integers hashes in numpy 2.x (5-7x slower than a sort for a close-up's 0.6-1.4M face
+    corners of the shared DEM, which render_closeups and animate_closeups take per close-up and frame): the helper
+    that replaces it sorts, and must give exactly np.unique's answer: values, dtype and 1-D shape, for any integer
+    dtype and shape, repeats, extremes and the empty array."""
+    from stepterrain.terrain import sorted_unique
+
+    info = np.iinfo(dtype)
+    array = (np.array(values, dtype=np.int64) % spread) if len(values) else np.zeros(0, np.int64)
+    array = np.clip(array + info.min // 2, info.min, info.max).astype(dtype)
+    array = np.repeat(array, rows).reshape(-1, rows) if rows > 1 else array  # a 2-D array too: flattened
+    got, want = sorted_unique(array), np.unique(array)
+    assert got.dtype == want.dtype and got.shape == want.shape
+    assert np.array_equal(got, want)
+
+
+def test_sorted_unique_gives_a_close_up_s_used_vertices_as_np_unique_did():
+    """The close-up content faces of the shared DEM (the call render_closeups and animate_closeups make): the same
+    vertices as np.unique, so the same drawn bounds."""
+    from stepterrain import closeup
+    from stepterrain.terrain import sorted_unique
+
+    from .conftest import real_dem
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=200, step=2)
+    cu = st.CloseUp(st.ROI.circle((100.0, 100.0), 60.0), offset=(0.0, 0.0, 50.0), scale=2.0)
+    layer = closeup.closeup_layers(heights, [cu], device="cpu")[0]
+    content = closeup._content_faces(layer, cu)[0]
+    assert content.size > 10000
+    used = sorted_unique(content)
+    assert np.array_equal(used, np.unique(content))
+    assert np.array_equal(closeup._drawn_bounds(layer, cu), closeup._drawn_bounds(layer, cu, np.unique(content)))
