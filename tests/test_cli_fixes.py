@@ -823,12 +823,16 @@ def test_library_names_that_leaked_to_the_command_line_are_spelled_as_options(tm
     folder = tile_folder(tmp_path / "tiles")
     leaks = ("bring base", "interval=", "base=", "tile_size", "raise the error")
     cases = [
+        (["steps", dem, "--interval", "1", "--base", "1e20", "-o", tmp_path / "s.glb"],
+         "error: --interval 1 with --base 1e+20, more than 2**53", "bring --base closer to the heights"),
         (["steps", dem, "--interval", "1", "--base", "1e39", "-o", tmp_path / "s.glb"],
-         "error: --interval 1.0 with --base 1e+39 gives isovalues", "bring --base closer to the heights"),
+         "error: --base must fit in float32 (|x| < 3.4e+38)", ""),
         (["batch", folder, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", tmp_path / "b"],
          "error: --tile applies to one raster, not to a folder of tiles", ""),
-        (["batch", folder, "--interval", "1", "--base", "1e39", "--scheduler", "serial", "-o", tmp_path / "b"],
-         "failed t0: InvalidInputError: --interval 1.0 with --base 1e+39 gives", "bring --base closer"),
+        (["batch", folder, "--interval", "1", "--base", "1e20", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "error: --interval 1 with --base 1e+20, more than 2**53", "bring --base closer"),  # up front: any heights
+        (["batch", folder, "--interval", "1e-5", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "failed t0: InvalidInputError: --interval 1e-05 over heights", ""),
         (["closeup", dem, "--roi", "3,-3,2", "--stepped", "1e-9", "-o", tmp_path / "c.glb"],
          "error: --stepped 1e-09 over heights [1000, 1011] gives", ""),
     ]
