@@ -51,6 +51,7 @@ from .errors import (
     SchedulerError,
     StepTerrainError,
     caller_stacklevel,
+    counted,
 )
 from .export import (
     _STL_ROUNDING_RE,
@@ -176,9 +177,10 @@ class BatchReport:
         """A few lines: counts, time, then one line per failure with its reason."""
         lines = [
             f"{len(self.done)} written, {len(self.skipped)} complete already (skipped), {len(self.failed)} failed "
-            f"of {len(self.results)} items in {self.seconds:.1f} s on {self.scheduler}; output {self.output_dir}"
+            f"of {counted(len(self.results), 'item')} in {self.seconds:.1f} s on {self.scheduler}; output "
+            f"{self.output_dir}"
         ]
-        lines += [f"  failed {r.key}: {r.error} (after {r.attempts} attempt(s))" for r in self.failed]
+        lines += [f"  failed {r.key}: {r.error} (after {counted(r.attempts, 'attempt')})" for r in self.failed]
         lines += [f"  note: {note}" for note in self.notes]
         return "\n".join(lines)
 
@@ -1358,15 +1360,15 @@ def _run_locked(
     others = sorted({Path(n).suffix for n in manifest if Path(n).suffix != ext and Path(n).stem in keys})
     if others:
         count = sum(1 for n in manifest if Path(n).suffix in others and Path(n).stem in keys)
-        notes.append(f"the manifest also records {count} output(s) of these items in another format "
+        notes.append(f"the manifest also records {counted(count, 'output')} of these items in another format "
                      f"({', '.join(others)}), kept beside this run's {ext} files")  # fmt: skip
     # outputs of items this run does not have (an earlier run's other tile size or source): they stayed, unsaid, and
     # out/*.glb then loaded overlapping stale tiles with this run's
     strangers = sorted(n for n in manifest if Path(n).stem not in keys and (folder / n).exists())
     if strangers:
         shown = ", ".join(strangers[:3]) + (", ..." if len(strangers) > 3 else "")
-        notes.append(f"the folder holds {len(strangers)} recorded output(s) of items this run does not have ({shown}),"
-                     " from an earlier run with another source or tile size: left as they were")  # fmt: skip
+        notes.append(f"the folder holds {counted(len(strangers), 'recorded output')} of items this run does not have "
+                     f"({shown}), from an earlier run with another source or tile size: left as they were")  # fmt: skip
     # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
     # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
     earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
@@ -1419,8 +1421,9 @@ def _run_locked(
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
     if kept:
         shown = ", ".join(kept[:3]) + (", ..." if len(kept) > 3 else "")
-        notes.append(f"the folder still holds an earlier run's output of {len(kept)} failed item(s) ({shown}), made "
-                     "with that run's input and options, not this one's: redo or remove them before using the folder")
+        notes.append(f"the folder still holds an earlier run's output of {counted(len(kept), 'failed item')} "
+                     f"({shown}), made with that run's input and options, not this one's: redo or remove them before "
+                     "using the folder")
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description, notes)  # fmt: skip
     return report

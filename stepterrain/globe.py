@@ -48,7 +48,7 @@ from ._device import (
     to_numpy,
 )
 from .camera import _MAX_COORDINATE, Camera
-from .errors import DataFileError, InvalidInputError, OutputTooLargeError
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
 from .io import picture_uint8
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
@@ -209,8 +209,9 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     mask = np.ma.getmaskarray(values) if np.ma.isMaskedArray(values) else None
     if mask is not None and mask.any():  # reported as "NaN or infinite values" where the array held none
         bad = np.argwhere(mask)
-        raise InvalidInputError(f"{name} has {len(bad)} masked (nodata) entries (first at row {bad[0][0]}, column "
-                                f"{bad[0][1]}); fill them first (e.g. from neighbours)")
+        entries = counted(len(bad), "masked (nodata) entry", "masked (nodata) entries")
+        raise InvalidInputError(f"{name} has {entries} (first at row {bad[0][0]}, column {bad[0][1]}); fill them "
+                                "first (e.g. from neighbours)")
     if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
         big = np.isfinite(z) & (np.abs(z) > FLOAT32_MAX)
         if big.any():
@@ -220,7 +221,7 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     z = z.astype(np.float32)
     if not np.isfinite(z).all():
         bad = np.argwhere(~np.isfinite(z))
-        raise InvalidInputError(f"{name} has {len(bad)} NaN or infinite values (first at row {bad[0][0]}, "
+        raise InvalidInputError(f"{name} has {counted(len(bad), 'NaN or infinite value')} (first at row {bad[0][0]}, "
                                 f"column {bad[0][1]}); fill them first (e.g. from neighbours)")
     return z
 
@@ -280,8 +281,9 @@ def _check_closing_column(z: NDArray[np.float32], lat: NDArray[np.float64], lon:
         worst = int(np.argmax(gap))
         raise InvalidInputError(
             f"elevation's closing column (lon {lon[-1]:.9g}) must repeat its first column (lon {lon[0]:.9g}), the same "
-            f"meridian, within {_CLOSING_TOLERANCE:g} m; got {int((gap > allowed).sum())} rows that differ, by up to "
-            f"{gap[worst]:.6g} m (at lat {lat[worst]:.9g}: {last[worst]:.9g} m against {first[worst]:.9g} m): "
+            f"meridian, within {_CLOSING_TOLERANCE:g} m; got {counted(int((gap > allowed).sum()), 'row')} that "
+            f"{'differs' if (gap > allowed).sum() == 1 else 'differ'}, by up to {gap[worst]:.6g} m (at lat "
+            f"{lat[worst]:.9g}: {last[worst]:.9g} m against {first[worst]:.9g} m): "
             "inconsistent data; fix the grid or drop one of the two columns")
 
 
@@ -1595,8 +1597,9 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
     if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
-        raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got {len(mesh.faces)} "
-                                "faces: a view that clips every triangle gives an empty mesh)")
+        raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got "
+                                f"{counted(len(mesh.faces), 'face')}: a view that clips every triangle gives an empty "
+                                "mesh)")
     # rendered in the east / north / up frame of the ground under the view, so that the render's light comes from
     # the north-west of that ground, as over a local terrain (in the world frame it came from the north-west of the
     # equatorial plane: a close view over New Zealand was lit from below the horizon and came out dim)

@@ -24,7 +24,14 @@ from numpy.typing import NDArray
 
 from ._compaction import check_budget
 from ._files import require_regular_file
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError, caller_stacklevel
+from .errors import (
+    DataFileError,
+    InvalidInputError,
+    MissingDependencyError,
+    StepTerrainError,
+    caller_stacklevel,
+    counted,
+)
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index, unwrapped_longitudes
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
@@ -488,7 +495,7 @@ def _latlon_geotransform(
         values = np.asarray(axis, dtype=np.float64) if axis.dtype.kind in "iuf" else np.empty(0)
         if values.ndim != 1 or values.size != n or n < 2 or not np.all(np.isfinite(values)):
             raise DataFileError(
-                f"cannot read {str(file)!r}: {name!r} must hold {n} finite degrees, one per "
+                f"cannot read {str(file)!r}: {name!r} must hold {counted(n, 'finite degree')}, one per "
                 f"{'column' if name == 'lon' else 'row'} of the heights {tuple(shape)}; got {axis.dtype} "
                 f"shape {axis.shape}"
             )
@@ -686,7 +693,7 @@ def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) 
     cells without a word. Its cells are not a regular grid in any CRS until warped, which load_dem does not do."""
     points, crs_obj = gcps
     if points:
-        what = f"{len(points)} ground control points (GCPs) in {_crs_string(crs_obj) or 'an unknown CRS'}"
+        what = f"{counted(len(points), 'ground control point')} (GCPs) in {_crs_string(crs_obj) or 'an unknown CRS'}"
     elif rpcs is not None:
         what = "rational polynomial coefficients (RPCs)"
     else:

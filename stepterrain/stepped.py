@@ -46,7 +46,7 @@ from ._device import (
     to_device,
     to_numpy,
 )
-from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel
+from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .kernels import stepped as stepped_kernels
 from .terrain import (
     FLOAT32_MAX,
@@ -1312,7 +1312,7 @@ def stepped_series(
             if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
                 raise
             # the cause kept: a gamma callable's own exception
-            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") \
+            raise InvalidInputError(f"frames[{k}] ({counted(len(frame_values), 'isovalue')}, shape {t.shape}): {exc}") \
                 from exc.__cause__
         yield mesh
 

@@ -172,9 +172,9 @@ def test_a_rerun_in_another_format_keeps_both_formats_recorded_and_says_so(tmp_p
     glb = {r.key: (tmp_path / f"{r.key}.glb").read_bytes() for r in first.done}
     ply = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial", format=".ply")
     assert len(ply.done) == 4 and not ply.skipped  # the .glb outputs do not count as complete .ply ones
-    assert ply.notes == ["the manifest also records 4 output(s) of these items in another format (.glb), kept "
+    assert ply.notes == ["the manifest also records 4 outputs of these items in another format (.glb), kept "
                          "beside this run's .ply files"]  # fmt: skip
-    assert "note: the manifest also records 4 output(s)" in ply.summary()
+    assert "note: the manifest also records 4 outputs" in ply.summary()
     recorded = json.loads((tmp_path / MANIFEST_NAME).read_text())["items"]
     assert sorted(recorded) == sorted(f"{k}{e}" for k in glb for e in (".glb", ".ply"))
     # both formats are complete: reruns in either skip everything, and the .glb files are the first run's
@@ -521,7 +521,7 @@ def test_outputs_of_an_earlier_runs_other_tiles_are_noted(tmp_path):
     stale = {Path(r.path).name for r in first.done} - {Path(r.path).name for r in second.done}
     assert second.ok and stale
     note = next(n for n in second.notes if "items this run does not have" in n)
-    assert note.startswith(f"the folder holds {len(stale)} recorded output(s)")
+    assert len(stale) > 1 and note.startswith(f"the folder holds {len(stale)} recorded outputs of items")
     assert all((tmp_path / "out" / name).exists() for name in stale)
 
 
@@ -836,7 +836,7 @@ def test_a_failed_items_earlier_output_is_noted(tmp_path):
     report = batch(src, out, interval=3.0, scheduler="serial")
     assert [r.key for r in report.failed] == ["t1"] and (out / "t1.glb").exists()
     said = [note for note in report.notes if "failed item" in note]
-    assert len(said) == 1 and "t1.glb" in said[0] and "1 failed item(s)" in said[0], report.notes
+    assert len(said) == 1 and "t1.glb" in said[0] and "1 failed item (" in said[0], report.notes
     assert "t1.glb" in report.summary()
     (src / "t1.npy").unlink()
     (src / "t2.npy").write_bytes(b"not a numpy file")
@@ -1029,3 +1029,18 @@ def test_items_run_at_once_by_a_threaded_worker_each_step_under_their_own_budget
                                 range(12)))  # fmt: skip
     assert [r.status for r in results] == ["done", "failed"] * 6
     assert all("OutputTooLargeError" in r.error for r in results if r.status == "failed")
+
+
+def test_a_report_of_one_item_and_one_attempt_says_so_in_the_singular(tmp_path):
+    """BatchReport.summary() said "failed of 1 items" and "(after 1 attempt(s))"; the notes "1 failed item(s)" and
+    "4 output(s)". Counts and nouns now agree (stepterrain.errors.counted, the library's messages alike)."""
+    from stepterrain.batch import BatchReport, ItemResult
+
+    one = BatchReport(tmp_path, [ItemResult("t0", "failed", error="InvalidInputError: no", attempts=1)], 0.1)
+    assert one.summary().splitlines() == [
+        f"0 written, 0 complete already (skipped), 1 failed of 1 item in 0.1 s on serial; output {tmp_path}",
+        "  failed t0: InvalidInputError: no (after 1 attempt)",
+    ]
+    two = BatchReport(tmp_path, [ItemResult(f"t{k}", "failed", error="x", attempts=2) for k in range(2)], 0.1)
+    assert "1 failed of 2 items" not in two.summary() and "2 failed of 2 items" in two.summary()
+    assert "(after 2 attempts)" in two.summary()

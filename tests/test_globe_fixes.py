@@ -685,3 +685,22 @@ def test_the_globe_memory_check_counts_the_grids_float32_copies(budget):
         Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")
     budget(80 << 20)
     assert Globe.from_latlon(z, lat, lon, face_size=33, device="cpu").heights.shape == (6, 33, 33)
+
+
+def test_one_bad_height_is_named_in_the_singular():
+    """globe and adaptive_mesh said "elevation has 1 NaN or infinite values" and "heights has 1 masked (nodata)
+    entries" (likewise "1 rows that differ" of a closing column): counts and nouns now agree."""
+    z = np.zeros((5, 5))
+    z[1, 2] = np.nan
+    with pytest.raises(InvalidInputError, match=r"^heights has 1 NaN or infinite value \(first at row 1, column 2\)"):
+        adaptive_mesh(z, error=1.0)
+    z[3, 3] = np.inf
+    with pytest.raises(InvalidInputError, match=r"^heights has 2 NaN or infinite values \(first at row 1, column 2\)"):
+        adaptive_mesh(z, error=1.0)
+    with pytest.raises(InvalidInputError, match=r"^heights has 1 masked \(nodata\) entry \(first at row 0, column 4\)"):
+        adaptive_mesh(np.ma.masked_equal(np.eye(5, k=4) * 7.0, 7.0), error=1.0)
+    lat, lon = np.linspace(90.0, -90.0, 19), np.linspace(-180.0, 180.0, 37)
+    relief = np.zeros((19, 37))
+    relief[7, -1] = 500.0  # one row whose closing column differs
+    with pytest.raises(InvalidInputError, match=r"got 1 row that differs, by up to 500 m"):
+        Globe.from_latlon(relief, lat, lon, face_size=9, device="cpu")
