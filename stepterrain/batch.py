@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -180,7 +180,7 @@ class BatchReport:
             f"of {counted(len(self.results), 'item')} in {self.seconds:.1f} s on {self.scheduler}; output "
             f"{self.output_dir}"
         ]
-        lines += [f"  failed {r.key}: {r.error} (after {counted(r.attempts, 'attempt')})" for r in self.failed]
+        lines += [f"  {_failure_line(r)}" for r in self.failed]
         lines += [f"  note: {note}" for note in self.notes]
         return "\n".join(lines)
 
@@ -1077,7 +1077,7 @@ def batch(
     retries: int = 2,
     resume: bool = True,
     connect_timeout: float = 10.0,
-    progress: bool = False,
+    progress: bool | Callable[[str], str] = False,
     metadata: Mapping[str, Any] | None = None,
     height_unit: str | None = None,
     device: wp.DeviceLike = None,
@@ -1126,8 +1126,10 @@ def batch(
         unreadable tile) fails at once.
     resume : bool
         Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
-    progress : bool
-        A tqdm progress bar on stderr.
+    progress : bool or callable
+        A tqdm progress bar on stderr, which writes each failed item's line (the one of
+        :meth:`BatchReport.summary`) as the item fails; a callable ``line -> str`` draws the bar and rewords those
+        lines (the command line prefixes them and spells library arguments as its options).
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
@@ -1230,7 +1232,8 @@ def batch(
     extras = json_metadata(metadata)  # plain JSON values, so the fingerprint's repr and the workers see those
     check_flag(solid, "solid")
     check_flag(resume, "resume")
-    check_flag(progress, "progress")
+    if not callable(progress):
+        check_flag(progress, "progress")
     if device is not None:
         if not isinstance(device, (str, wp.Device)):  # str() of it reached every item, each failing alike
             raise InvalidInputError(
@@ -1332,7 +1335,7 @@ def _run_locked(
     retries: int,
     resume: bool,
     timeout: float,
-    progress: bool,
+    progress: bool | Callable[[str], str],
     start: float,
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked."""
@@ -1382,7 +1385,8 @@ def _run_locked(
         _remove_empty(made)  # nothing was written: leave no empty output folder behind
         raise
     description = "serial" if connection is None else connection[2]
-    bar = _progress_bar(len(items), len(results), progress)
+    bar = _progress_bar(len(items), len(results), bool(progress))
+    reworded = progress if callable(progress) else None
     try:
         if connection is None:
             stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
@@ -1406,7 +1410,7 @@ def _run_locked(
                 elif message not in said:
                     said.add(message)
                     warnings.warn(message, stacklevel=level)
-            _tick(bar, result)
+            _tick(bar, result, reworded)
         if rounded:
             warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
                           stacklevel=level)  # fmt: skip
@@ -1555,11 +1559,18 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
     return tqdm(total=total, initial=initial, desc="stepterrain batch", unit="item")
 
 
-def _tick(bar: Any, result: ItemResult) -> None:
+def _tick(bar: Any, result: ItemResult, reworded: Callable[[str], str] | None = None) -> None:
     if bar is not None:
         bar.update(1)
         if result.status == "failed":
-            bar.write(f"failed {result.key}: {result.error}", file=sys.stderr)  # tqdm writes to stdout by default
+            line = _failure_line(result)
+            # tqdm writes to stdout by default
+            bar.write(line if reworded is None else reworded(line), file=sys.stderr)
+
+
+def _failure_line(result: ItemResult) -> str:
+    """A failed item's line, as the progress bar writes it and :meth:`BatchReport.summary` lists it."""
+    return f"failed {result.key}: {result.error} (after {counted(result.attempts, 'attempt')})"
 
 
 def _run_serial(

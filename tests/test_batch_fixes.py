@@ -1044,3 +1044,22 @@ def test_a_report_of_one_item_and_one_attempt_says_so_in_the_singular(tmp_path):
     two = BatchReport(tmp_path, [ItemResult(f"t{k}", "failed", error="x", attempts=2) for k in range(2)], 0.1)
     assert "1 failed of 2 items" not in two.summary() and "2 failed of 2 items" in two.summary()
     assert "(after 2 attempts)" in two.summary()
+
+
+def test_the_progress_bar_writes_each_failure_as_the_summary_lists_it_reworded_by_a_callable(tmp_path, capsys):
+    """The progress bar wrote a failed item's line its own way ("failed t0: ..." without its attempts) and the CLI
+    could not reword it (its library argument names), so the command line printed each failure twice. The bar's
+    line is the summary's now, and progress= takes a callable that rewords it."""
+    folder = tmp_path / "dems"  # a folder: each file's heights are known only to its item, which fails
+    folder.mkdir()
+    for k in range(2):
+        np.save(folder / f"t{k}.npy", np.add.outer(np.arange(6.0), np.arange(7.0)) * 10.0)
+    report = batch(folder, tmp_path / "a", interval=1e-9, scheduler="serial", progress=True)
+    err = capsys.readouterr().err
+    expected = [line.strip() for line in report.summary().splitlines()[1:]]
+    assert len(expected) == len(report.results) == 2 and all("(after 1 attempt)" in line for line in expected)
+    assert [line for line in expected if line in err] == expected
+    report = batch(folder, tmp_path / "b", interval=1e-9, scheduler="serial",
+                   progress=lambda line: "<< " + line.upper())
+    err = capsys.readouterr().err
+    assert err.count("<< FAILED T") == 2 and "interval=1e-09" not in err
