@@ -587,7 +587,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
-    """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band.
+    """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band (a
+    premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA).
 
     A 16-bit greyscale image (modes ``I;16*``, and ``I`` within 0-65535) is scaled by its full range (value / 257,
     as Pillow reads 16-bit RGB): Pillow's own conversion to RGB saturates every value above 255, which draped a
@@ -601,7 +602,13 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
             raise InvalidInputError(f"{what} must be an 8-bit or 16-bit image; got Pillow mode {mode} with values "
                                     f"{low:g} to {high:g}")
         return np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
+    if mode in _PREMULTIPLIED:  # alpha band "a": RGBa kept no alpha (converted to RGB), La raised Pillow's ValueError
+        picture = picture.convert(_PREMULTIPLIED[mode])  # un-premultiplied, as RGBA and LA are
     return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
+
+
+#: Pillow's premultiplied-alpha modes and the straight-alpha ones they convert to (dividing the colour by alpha).
+_PREMULTIPLIED = {"RGBa": "RGBA", "La": "LA"}
 
 
 def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
