@@ -572,7 +572,8 @@ class Globe:
         metrics : names and callables
             Any of "geometric", "distance", "clip" (§7.1-§7.3), multiplied (§7.4). A callable
             ``f(points (M, 3) float64, bounding_radius (M,)) -> (M,)`` is a user metric multiplied in per level; it
-            must not grow from a node to its children (saturated), or cracks may appear.
+            must not grow from a node to its children (saturated), or cracks may appear (and an
+            InvalidInputError where a triangle refined without the neighbour owning its new node).
         distance_scale : float, optional
             ℓ in metres (see ``error``); default: the eye's altitude above the sphere of radius R, at least
             one node spacing.
@@ -1120,6 +1121,10 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     # (the one-launch split's entries come whole, the corners first, in a fresh array: no copy)
     entries = vertex_chunks[0] if split is not None else _concat(vertex_chunks, wp.int32, device)
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
+    if users:  # a user metric that grows from a node to its children can refine a triangle without the neighbour
+        # that owns its refinement node, whose vertex is then never emitted: its faces read an unwritten vertex_id
+        # (a segmentation fault, or faces on another call's vertices); marked -1 here, refused after emit_faces
+        vertex_id.fill_(-1)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
                    min_elements=_SPLIT_REFINE)
@@ -1150,6 +1155,15 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)
     launch_chunked(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id],
                    [faces_out, wide, face_index], device, min_elements=_SPLIT_EMIT)
+    if users:
+        emitted = host_copy(faces_out if culled else wide)
+        if emitted.size and int(emitted.min()) < 0:
+            names = ", ".join(repr(getattr(fn, "__name__", fn)) for fn in users)
+            raise InvalidInputError(
+                f"user metric {names} is not saturated: it grows from a node to its children somewhere, so a triangle "
+                "refined without its neighbour and left a mesh node without a vertex; a user metric must not grow "
+                "as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
+            )
     if culled:  # drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used.zero_()  # the flags and count_buffer's final 0

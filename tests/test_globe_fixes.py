@@ -704,3 +704,28 @@ def test_one_bad_height_is_named_in_the_singular():
     relief[7, -1] = 500.0  # one row whose closing column differs
     with pytest.raises(InvalidInputError, match=r"got 1 row that differs, by up to 500 m"):
         Globe.from_latlon(relief, lat, lon, face_size=9, device="cpu")
+
+
+def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_vertices():
+    """A user metric that grows from a node to its children (a step in space, decided at the node's point alone) can
+    refine a triangle whose neighbour, which owns the refinement node, never exists: the node's vertex was never
+    emitted and its faces read an unwritten vertex_id. Globe.mesh returned faces indexing up to 1.4e9 of 4,103
+    vertices, adaptive_mesh a mesh over more than its rectangle, or crashed the interpreter (a segmentation fault
+    in the culling pass). Such faces are refused now, naming the metric; a saturated metric meshes as before."""
+    def north(points, radius):  # decided at the node's point: a child across the line grows from 0.5 to 1.5
+        return (points[:, 1] > 1500.0) + 0.5
+
+    import stepterrain as st
+
+    z = np.ascontiguousarray(st.sample_dem().heights[:70, :90])
+    with pytest.raises(InvalidInputError, match=r"^user metric 'north' is not saturated: it grows from a node to "):
+        adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", north), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^user metric '<lambda>' is not saturated"):
+        Globe.sample(face_size=65).mesh(error=200.0, metrics=("geometric", lambda p, r: (p[:, 2] > 0) * 1.0))
+
+    def sphere(points, radius):  # decided by the whole bounding sphere: nested spheres never grow across the line
+        return (points[:, 1] + radius > 1500.0) + 0.5
+
+    mesh = adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", sphere), device="cpu")
+    assert np.asarray(mesh.faces).max() < len(mesh.vertices)
+    assert (mesh.area_faces * mesh.face_normals[:, 2]).sum() == pytest.approx(69 * 89 * 900.0, rel=1e-9)
