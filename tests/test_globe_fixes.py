@@ -706,6 +706,18 @@ def test_one_bad_height_is_named_in_the_singular():
         Globe.from_latlon(relief, lat, lon, face_size=9, device="cpu")
 
 
+def test_the_cli_names_one_nodata_cell_in_the_singular(tmp_path, capsys):
+    """``stepterrain globe`` said "'elevation' has 1 nodata cells" of a grid missing one cell."""
+    from stepterrain.cli import main
+
+    elevation = np.zeros((180, 360), np.int16)
+    elevation[3, 7] = -32768
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, np.int16))
+    assert main(["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(tmp_path / "g.ply")]) == 2
+    assert "'elevation' has 1 nodata cell (nodata -32768; first at row 3, column 7)" in capsys.readouterr().err
+
+
 def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_vertices():
     """A user metric that grows from a node to its children (a step in space, decided at the node's point alone) can
     refine a triangle whose neighbour, which owns the refinement node, never exists: the node's vertex was never
