@@ -968,7 +968,14 @@ def start_local_cluster(workers: int) -> Any:
     from distributed import LocalCluster
 
     environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **LOCAL_CLUSTER_MALLOC}
+    # a nanny takes a pre-spawn variable from this process's os.environ before the configuration, and writes its
+    # own into os.environ when it spawns its worker: after any earlier LocalCluster of the session (dask's
+    # MALLOC_TRIM_THRESHOLD_=65536 left in os.environ) the configuration below was ignored, and this cluster's
+    # values stayed in the caller's environment (its later subprocesses started with them). Set for the start
+    # only, then put back as they were
+    before = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
     try:
+        os.environ.update({key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()})
         # the nannies hand this configuration to their workers, and set the environment before they start them
         with dask.config.set({**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}):
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
@@ -978,6 +985,12 @@ def start_local_cluster(workers: int) -> Any:
             f"cannot start a LocalCluster of {workers} worker processes: {exc} (from a script, call batch() under "
             "`if __name__ == '__main__':`: the workers start by importing the script)"
         ) from exc
+    finally:
+        for key, value in before.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def _scheduler_error(scheduler: Any) -> InvalidInputError:

@@ -1063,3 +1063,30 @@ def test_the_progress_bar_writes_each_failure_as_the_summary_lists_it_reworded_b
                    progress=lambda line: "<< " + line.upper())
     err = capsys.readouterr().err
     assert err.count("<< FAILED T") == 2 and "interval=1e-09" not in err
+
+
+def test_the_default_clusters_malloc_settings_hold_after_another_cluster_and_stay_out_of_os_environ():
+    """distributed's nanny takes a pre-spawn variable from os.environ before the configuration, and writes its own
+    into os.environ when it spawns a worker. After any LocalCluster of the session (dask's defaults), batch's default
+    cluster started its workers with MALLOC_TRIM_THRESHOLD_=65536, not LOCAL_CLUSTER_MALLOC (test_batch.py's check
+    failed when this file's cluster tests ran first), and its own values stayed in the caller's os.environ."""
+    import logging
+    import os
+
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    from stepterrain.batch import LOCAL_CLUSTER_MALLOC, start_local_cluster
+
+    keys = sorted(LOCAL_CLUSTER_MALLOC)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL):
+        pass  # dask's own values, now in os.environ
+    before = {key: os.environ.get(key) for key in keys}
+    cluster = start_local_cluster(1)
+    try:
+        after = {key: os.environ.get(key) for key in keys}
+        with distributed.Client(cluster) as client:
+            (environ,) = client.run(lambda: {key: os.environ.get(key) for key in keys}).values()
+    finally:
+        cluster.close()
+    assert environ == {key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()}
+    assert after == before
