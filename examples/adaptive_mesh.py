@@ -23,26 +23,29 @@ from stepterrain.globe import adaptive_mesh
 from stepterrain.render import render_mesh
 
 
-def crop(size: int) -> tuple[np.ndarray, float]:
-    """The embedded DEM, centre-cropped and subsampled to about ``size`` x ``size`` nodes, rows south to north as
-    :func:`adaptive_mesh` takes them (row i at y = i * spacing; the DEM's rows run north to south), and its spacing."""
+def crop(size: int) -> st.Terrain:
+    """The embedded DEM, centre-cropped and subsampled to about ``size`` x ``size`` nodes (north-up, as stored:
+    :func:`adaptive_mesh` takes its negative dy and north-west origin as they are)."""
     dem = st.sample_dem()
     rows, cols = dem.shape
     stride = max(1, min(rows, cols) // size)
     n = min(size, rows // stride, cols // stride)
     i0, j0 = (rows - n * stride) // 2, (cols - n * stride) // 2
     heights = dem.heights[i0 : i0 + n * stride : stride, j0 : j0 + n * stride : stride]
-    return np.ascontiguousarray(heights[::-1]), abs(dem.spacing[0]) * stride  # rows as stored: a mirror image
+    (dx, dy), (x0, y0) = dem.spacing, dem.origin
+    return st.Terrain.from_heights(heights, spacing=(dx * stride, dy * stride), origin=(x0 + j0 * dx, y0 + i0 * dy),
+                                   crs=dem.crs, source=dem.source)
 
 
-def true_error(mesh, heights: np.ndarray, spacing: float) -> float:
+def true_error(mesh, terrain: st.Terrain) -> float:
     """The largest |z - mesh(x, y)| over every grid node (linear interpolation on the mesh's triangles)."""
     import matplotlib.tri as mtri
 
-    v = np.asarray(mesh.vertices)
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    v = np.asarray(mesh.vertices) - [x0, y0, 0.0]  # relative to node (0, 0): no UTM millions in the interpolation
     interp = mtri.LinearTriInterpolator(mtri.Triangulation(v[:, 0], v[:, 1], np.asarray(mesh.faces)), v[:, 2])
-    i, j = np.mgrid[0 : heights.shape[0], 0 : heights.shape[1]]
-    return float(np.abs(np.asarray(interp(j * spacing, i * spacing)) - heights).max())
+    i, j = np.mgrid[0 : terrain.shape[0], 0 : terrain.shape[1]]
+    return float(np.abs(np.asarray(interp(j * dx, i * dy)) - terrain.heights).max())
 
 
 def label(image: np.ndarray, text: str) -> np.ndarray:
@@ -71,11 +74,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    heights, spacing = crop(args.size)
+    terrain = crop(args.size)
     panels = []
     for error in args.errors:
-        mesh = adaptive_mesh(heights, error=error, spacing=spacing, device=args.device)
-        worst = true_error(mesh, heights, spacing)
+        mesh = adaptive_mesh(terrain, error=error, device=args.device)
+        worst = true_error(mesh, terrain)
         image = render_mesh(mesh, window_size=tuple(args.panel), z_scale=1.5, scalars="height", show_edges=True)
         panels.append(label(image, f"error <= {error:g} m: {len(mesh.faces):,} triangles, max {worst:.2f} m"))
     save_image(np.concatenate(panels, axis=1), args.output)

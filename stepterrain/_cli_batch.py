@@ -166,11 +166,17 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     cluster = f"a LocalCluster of {_counted(workers, 'worker')}"
     progress.stage("batch", f"stepping {what}" + (f" in tiles of {rows} x {cols} cells" if tile else "")
                    + f" -> {Path(args.output)}/*{_check_ext(args.format)}" + f" on {scheduler or cluster}")
+    sub = _subcommand(build_parser(), "batch")  # a failure's library arguments as the options (interval= -> --interval)
+
+    def failure_line(line: str) -> str:  # the bar's line of a failed item, as the summary's below
+        return f"stepterrain: {_as_option(line, sub)}"
+
     report = batch(
         source, args.output, format=args.format, tile_size=tile, interval=args.interval, levels=args.levels,
         base=base, gamma=args.gamma, colors=None if args.colormap.lower() == "none" else args.colormap,
         solid=args.solid, floor=args.floor, scheduler=scheduler, workers=workers, retries=args.retries,
-        resume=not args.no_resume, connect_timeout=args.connect_timeout, progress=not progress.quiet,
+        resume=not args.no_resume, connect_timeout=args.connect_timeout,
+        progress=False if progress.quiet else failure_line,
         # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
         metadata={"generator": "stepterrain batch"} if source_folder is not None else {  # a folder's: each file's
@@ -188,9 +194,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
             f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above "
             f"{'the only one' if n == 1 else f'all {n}'} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
         )
-    sub = _subcommand(build_parser(), "batch")  # a failure's library arguments as the options (interval= -> --interval)
-    for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option): shown under -q too
-        print(f"stepterrain: {_as_option(line.strip(), sub)}", file=progress.stream, flush=True)
+    for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option) and the notes
+        if not progress.quiet and line.startswith("  failed "):  # the bar wrote it as the item failed: once
+            continue
+        print(failure_line(line.strip()), file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):
         from .export import save_image
 

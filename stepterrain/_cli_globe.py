@@ -117,8 +117,9 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         missing = elevation == (elevation.dtype.type(nodata) if elevation.dtype.kind == "f" else nodata)
         if missing.any():
             row, col = np.argwhere(missing)[0]
-            raise InvalidInputError(f"{path!r}: 'elevation' has {int(missing.sum())} nodata cells (nodata {nodata:g}; "
-                                    f"first at row {row}, column {col}); the globe needs a height everywhere: fill "
+            cells = _counted(int(missing.sum()), "nodata cell")
+            raise InvalidInputError(f"{path!r}: 'elevation' has {cells} (nodata {nodata:g}; first at row {row}, "
+                                    f"column {col}); the globe needs a height everywhere: fill "
                                     "them first (e.g. from neighbours)")
     return lat, lon, elevation
 

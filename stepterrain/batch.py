@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +51,7 @@ from .errors import (
     SchedulerError,
     StepTerrainError,
     caller_stacklevel,
+    counted,
 )
 from .export import (
     _STL_ROUNDING_RE,
@@ -176,9 +177,10 @@ class BatchReport:
         """A few lines: counts, time, then one line per failure with its reason."""
         lines = [
             f"{len(self.done)} written, {len(self.skipped)} complete already (skipped), {len(self.failed)} failed "
-            f"of {len(self.results)} items in {self.seconds:.1f} s on {self.scheduler}; output {self.output_dir}"
+            f"of {counted(len(self.results), 'item')} in {self.seconds:.1f} s on {self.scheduler}; output "
+            f"{self.output_dir}"
         ]
-        lines += [f"  failed {r.key}: {r.error} (after {r.attempts} attempt(s))" for r in self.failed]
+        lines += [f"  {_failure_line(r)}" for r in self.failed]
         lines += [f"  note: {note}" for note in self.notes]
         return "\n".join(lines)
 
@@ -966,7 +968,14 @@ def start_local_cluster(workers: int) -> Any:
     from distributed import LocalCluster
 
     environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **LOCAL_CLUSTER_MALLOC}
+    # a nanny takes a pre-spawn variable from this process's os.environ before the configuration, and writes its
+    # own into os.environ when it spawns its worker: after any earlier LocalCluster of the session (dask's
+    # MALLOC_TRIM_THRESHOLD_=65536 left in os.environ) the configuration below was ignored, and this cluster's
+    # values stayed in the caller's environment (its later subprocesses started with them). Set for the start
+    # only, then put back as they were
+    before = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
     try:
+        os.environ.update({key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()})
         # the nannies hand this configuration to their workers, and set the environment before they start them
         with dask.config.set({**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}):
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
@@ -976,6 +985,12 @@ def start_local_cluster(workers: int) -> Any:
             f"cannot start a LocalCluster of {workers} worker processes: {exc} (from a script, call batch() under "
             "`if __name__ == '__main__':`: the workers start by importing the script)"
         ) from exc
+    finally:
+        for key, value in before.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def _scheduler_error(scheduler: Any) -> InvalidInputError:
@@ -1075,7 +1090,7 @@ def batch(
     retries: int = 2,
     resume: bool = True,
     connect_timeout: float = 10.0,
-    progress: bool = False,
+    progress: bool | Callable[[str], str] = False,
     metadata: Mapping[str, Any] | None = None,
     height_unit: str | None = None,
     device: wp.DeviceLike = None,
@@ -1124,8 +1139,10 @@ def batch(
         unreadable tile) fails at once.
     resume : bool
         Skip items already complete in ``output_dir`` (see Notes); ``False`` redoes everything.
-    progress : bool
-        A tqdm progress bar on stderr.
+    progress : bool or callable
+        A tqdm progress bar on stderr, which writes each failed item's line (the one of
+        :meth:`BatchReport.summary`) as the item fails; a callable ``line -> str`` draws the bar and rewords those
+        lines (the command line prefixes them and spells library arguments as its options).
     metadata : mapping, optional
         Added to every output's glTF ``extras``: JSON values (str, number, bool, None, lists and dicts of those
         with string keys), numpy scalars and arrays included, as in :func:`~stepterrain.export.save_mesh`;
@@ -1228,7 +1245,8 @@ def batch(
     extras = json_metadata(metadata)  # plain JSON values, so the fingerprint's repr and the workers see those
     check_flag(solid, "solid")
     check_flag(resume, "resume")
-    check_flag(progress, "progress")
+    if not callable(progress):
+        check_flag(progress, "progress")
     if device is not None:
         if not isinstance(device, (str, wp.Device)):  # str() of it reached every item, each failing alike
             raise InvalidInputError(
@@ -1330,7 +1348,7 @@ def _run_locked(
     retries: int,
     resume: bool,
     timeout: float,
-    progress: bool,
+    progress: bool | Callable[[str], str],
     start: float,
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked."""
@@ -1358,15 +1376,15 @@ def _run_locked(
     others = sorted({Path(n).suffix for n in manifest if Path(n).suffix != ext and Path(n).stem in keys})
     if others:
         count = sum(1 for n in manifest if Path(n).suffix in others and Path(n).stem in keys)
-        notes.append(f"the manifest also records {count} output(s) of these items in another format "
+        notes.append(f"the manifest also records {counted(count, 'output')} of these items in another format "
                      f"({', '.join(others)}), kept beside this run's {ext} files")  # fmt: skip
     # outputs of items this run does not have (an earlier run's other tile size or source): they stayed, unsaid, and
     # out/*.glb then loaded overlapping stale tiles with this run's
     strangers = sorted(n for n in manifest if Path(n).stem not in keys and (folder / n).exists())
     if strangers:
         shown = ", ".join(strangers[:3]) + (", ..." if len(strangers) > 3 else "")
-        notes.append(f"the folder holds {len(strangers)} recorded output(s) of items this run does not have ({shown}),"
-                     " from an earlier run with another source or tile size: left as they were")  # fmt: skip
+        notes.append(f"the folder holds {counted(len(strangers), 'recorded output')} of items this run does not have "
+                     f"({shown}), from an earlier run with another source or tile size: left as they were")  # fmt: skip
     # outputs an earlier run left of the items this run writes: one that fails keeps it, made with other input or
     # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
     earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
@@ -1380,7 +1398,8 @@ def _run_locked(
         _remove_empty(made)  # nothing was written: leave no empty output folder behind
         raise
     description = "serial" if connection is None else connection[2]
-    bar = _progress_bar(len(items), len(results), progress)
+    bar = _progress_bar(len(items), len(results), bool(progress))
+    reworded = progress if callable(progress) else None
     try:
         if connection is None:
             stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
@@ -1404,7 +1423,7 @@ def _run_locked(
                 elif message not in said:
                     said.add(message)
                     warnings.warn(message, stacklevel=level)
-            _tick(bar, result)
+            _tick(bar, result, reworded)
         if rounded:
             warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
                           stacklevel=level)  # fmt: skip
@@ -1419,8 +1438,9 @@ def _run_locked(
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
     if kept:
         shown = ", ".join(kept[:3]) + (", ..." if len(kept) > 3 else "")
-        notes.append(f"the folder still holds an earlier run's output of {len(kept)} failed item(s) ({shown}), made "
-                     "with that run's input and options, not this one's: redo or remove them before using the folder")
+        notes.append(f"the folder still holds an earlier run's output of {counted(len(kept), 'failed item')} "
+                     f"({shown}), made with that run's input and options, not this one's: redo or remove them before "
+                     "using the folder")
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
                          time.perf_counter() - start, description, notes)  # fmt: skip
     return report
@@ -1552,11 +1572,18 @@ def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
     return tqdm(total=total, initial=initial, desc="stepterrain batch", unit="item")
 
 
-def _tick(bar: Any, result: ItemResult) -> None:
+def _tick(bar: Any, result: ItemResult, reworded: Callable[[str], str] | None = None) -> None:
     if bar is not None:
         bar.update(1)
         if result.status == "failed":
-            bar.write(f"failed {result.key}: {result.error}", file=sys.stderr)  # tqdm writes to stdout by default
+            line = _failure_line(result)
+            # tqdm writes to stdout by default
+            bar.write(line if reworded is None else reworded(line), file=sys.stderr)
+
+
+def _failure_line(result: ItemResult) -> str:
+    """A failed item's line, as the progress bar writes it and :meth:`BatchReport.summary` lists it."""
+    return f"failed {result.key}: {result.error} (after {counted(result.attempts, 'attempt')})"
 
 
 def _run_serial(

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import Same, derived
-from .errors import InvalidInputError, MissingDependencyError
+from .errors import InvalidInputError, MissingDependencyError, counted
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
@@ -401,7 +401,8 @@ class ROI:
             raise InvalidInputError(f"level must be a whole isovalue index; got {level!r}")
         level = int(level)
         if not 0 <= level < len(values):
-            raise InvalidInputError(f"level must index the {len(values)} isovalues (0..{len(values) - 1}); got {level}")
+            raise InvalidInputError(f"level must index the {counted(len(values), 'isovalue')} (0..{len(values) - 1}); "
+                                    f"got {level}")
         # the stepped kernels' float32 thresholds: a height on one belongs to the upper level there and here (their
         # float64 midpoints put a height between the two roundings on the other side)
         thresholds = thresholds_of(values)

@@ -59,3 +59,9 @@ def caller_stacklevel() -> int:
     while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
         frame, level = frame.f_back, level + 1
     return level
+
+
+def counted(count: int, noun: str, plural: str | None = None) -> str:
+    """``count`` and ``noun`` for a message: "1 item", "2 items", "1 NaN or infinite value" (``plural`` where adding
+    an s is wrong: "vertex", "vertices"). Messages said "of 1 items" and "1 NaN or infinite values"."""
+    return f"{count} {noun if count == 1 else plural or noun + 's'}"

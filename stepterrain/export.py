@@ -32,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
 from ._files import require_regular_file
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .terrain import FLOAT32_MAX, as_array, real_numbers
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
@@ -358,8 +358,8 @@ def save_mesh(
         _check_uv(mesh, ext, target)
     if len(mesh.faces) == 0 and len(vertices) and ext in _TRIANGLES_ONLY:
         raise InvalidInputError(
-            f"cannot write {str(target)!r}: mesh has {len(vertices)} vertices but no faces, and {ext} stores "
-            "triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
+            f"cannot write {str(target)!r}: mesh has {counted(len(vertices), 'vertex', 'vertices')} but no faces, and "
+            f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
@@ -393,7 +393,7 @@ def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
     bad = int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
     raise InvalidInputError(
         f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
-        f"has {vertex_count} vertices"
+        f"has {counted(vertex_count, 'vertex', 'vertices')}"
     )
 
 

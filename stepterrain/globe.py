@@ -48,7 +48,7 @@ from ._device import (
     to_numpy,
 )
 from .camera import _MAX_COORDINATE, Camera
-from .errors import DataFileError, InvalidInputError, OutputTooLargeError
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
 from .io import picture_uint8
 from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
@@ -57,6 +57,7 @@ from .kernels.memory import vec3l
 from .stepped import LAND_START
 from .terrain import (
     FLOAT32_MAX,
+    Terrain,
     as_array,
     as_number,
     check_flag,
@@ -142,6 +143,16 @@ def _positive(value: Any, name: str) -> float:
     return v
 
 
+def _nonzero(value: Any, name: str) -> float:
+    try:
+        v = as_number(value)
+    except (TypeError, ValueError):
+        raise InvalidInputError(f"{name} must be a non-zero number; got {value!r}") from None
+    if not (math.isfinite(v) and v != 0):
+        raise InvalidInputError(f"{name} must be a non-zero finite number; got {value!r}")
+    return v
+
+
 def _error_value(error: Any) -> float:
     try:
         v = as_number(error)
@@ -198,8 +209,9 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     mask = np.ma.getmaskarray(values) if np.ma.isMaskedArray(values) else None
     if mask is not None and mask.any():  # reported as "NaN or infinite values" where the array held none
         bad = np.argwhere(mask)
-        raise InvalidInputError(f"{name} has {len(bad)} masked (nodata) entries (first at row {bad[0][0]}, column "
-                                f"{bad[0][1]}); fill them first (e.g. from neighbours)")
+        entries = counted(len(bad), "masked (nodata) entry", "masked (nodata) entries")
+        raise InvalidInputError(f"{name} has {entries} (first at row {bad[0][0]}, column {bad[0][1]}); fill them "
+                                "first (e.g. from neighbours)")
     if z.dtype.kind == "f" and z.dtype.itemsize > 4:  # finite beyond float32 overflowed to inf in the cast below
         big = np.isfinite(z) & (np.abs(z) > FLOAT32_MAX)
         if big.any():
@@ -209,7 +221,7 @@ def _height_grid(values: ArrayLike, name: str) -> NDArray[np.float32]:
     z = z.astype(np.float32)
     if not np.isfinite(z).all():
         bad = np.argwhere(~np.isfinite(z))
-        raise InvalidInputError(f"{name} has {len(bad)} NaN or infinite values (first at row {bad[0][0]}, "
+        raise InvalidInputError(f"{name} has {counted(len(bad), 'NaN or infinite value')} (first at row {bad[0][0]}, "
                                 f"column {bad[0][1]}); fill them first (e.g. from neighbours)")
     return z
 
@@ -269,8 +281,9 @@ def _check_closing_column(z: NDArray[np.float32], lat: NDArray[np.float64], lon:
         worst = int(np.argmax(gap))
         raise InvalidInputError(
             f"elevation's closing column (lon {lon[-1]:.9g}) must repeat its first column (lon {lon[0]:.9g}), the same "
-            f"meridian, within {_CLOSING_TOLERANCE:g} m; got {int((gap > allowed).sum())} rows that differ, by up to "
-            f"{gap[worst]:.6g} m (at lat {lat[worst]:.9g}: {last[worst]:.9g} m against {first[worst]:.9g} m): "
+            f"meridian, within {_CLOSING_TOLERANCE:g} m; got {counted(int((gap > allowed).sum()), 'row')} that "
+            f"{'differs' if (gap > allowed).sum() == 1 else 'differ'}, by up to {gap[worst]:.6g} m (at lat "
+            f"{lat[worst]:.9g}: {last[worst]:.9g} m against {first[worst]:.9g} m): "
             "inconsistent data; fix the grid or drop one of the two columns")
 
 
@@ -559,7 +572,8 @@ class Globe:
         metrics : names and callables
             Any of "geometric", "distance", "clip" (§7.1-§7.3), multiplied (§7.4). A callable
             ``f(points (M, 3) float64, bounding_radius (M,)) -> (M,)`` is a user metric multiplied in per level; it
-            must not grow from a node to its children (saturated), or cracks may appear.
+            must not grow from a node to its children (saturated), or cracks may appear (and an
+            InvalidInputError where a triangle refined without the neighbour owning its new node).
         distance_scale : float, optional
             ℓ in metres (see ``error``); default: the eye's altitude above the sphere of radius R, at least
             one node spacing.
@@ -1107,6 +1121,10 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     # (the one-launch split's entries come whole, the corners first, in a fresh array: no copy)
     entries = vertex_chunks[0] if split is not None else _concat(vertex_chunks, wp.int32, device)
     vertex_id = scratch("globe.vertex_id", faces * n * n, wp.int32, device)
+    if users:  # a user metric that grows from a node to its children can refine a triangle without the neighbour
+        # that owns its refinement node, whose vertex is then never emitted: its faces read an unwritten vertex_id
+        # (a segmentation fault, or faces on another call's vertices); marked -1 here, refused after emit_faces
+        vertex_id.fill_(-1)
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
                    min_elements=_SPLIT_REFINE)
@@ -1137,6 +1155,15 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     face_index = wp.empty(n_faces, dtype=wp.int32, device=device)
     launch_chunked(cube_kernels.emit_faces, n_leaves, [grid, leaves, keep, offsets, vertex_id],
                    [faces_out, wide, face_index], device, min_elements=_SPLIT_EMIT)
+    if users:
+        emitted = host_copy(faces_out if culled else wide)
+        if emitted.size and int(emitted.min()) < 0:
+            names = ", ".join(repr(getattr(fn, "__name__", fn)) for fn in users)
+            raise InvalidInputError(
+                f"user metric {names} is not saturated: it grows from a node to its children somewhere, so a triangle "
+                "refined without its neighbour and left a mesh node without a vertex; a user metric must not grow "
+                "as the bounding spheres shrink (decide by the whole sphere, points and bounding_radius)"
+            )
     if culled:  # drop the vertices no face uses any more
         used = count_buffer("globe.used", n_vertices, device)
         used.zero_()  # the flags and count_buffer's final 0
@@ -1193,12 +1220,12 @@ def _cube_points(entry: NDArray[np.int64], n: int, cells: int) -> NDArray[np.int
 
 # ------------------------------------------------------------------------------------------ planar case
 def adaptive_mesh(
-    heights: ArrayLike,
+    heights: ArrayLike | Terrain,
     *,
     error: float,
-    spacing: float | tuple[float, float] = 1.0,
+    spacing: float | tuple[float, float] | None = None,
     camera: Camera | None = None,
-    origin: tuple[float, float] = (0.0, 0.0),
+    origin: tuple[float, float] | None = None,
     metrics: Sequence[str | UserMetric] = METRICS,
     distance_scale: float | None = None,
     cull: bool = True,
@@ -1208,21 +1235,24 @@ def adaptive_mesh(
 
     Parameters
     ----------
-    heights : (H, W) array_like
+    heights : (H, W) array_like or Terrain
         Heights in metres; row i at y = y0 + i·dy, column j at x = x0 + j·dx. Any size up to 16385 rows and
         columns: padded internally to (2^k + 1)² by repeating the edge, and the mesh is cut back to the input
-        rectangle exactly.
+        rectangle exactly. A grid :class:`~stepterrain.Terrain` (``load_dem``'s) brings its own spacing and
+        origin (a north-up DEM as it is: dy < 0, origin its north-west node).
     error : float
         Without a camera: the largest vertical distance allowed between any grid node and the mesh (a
         true bound, checked per triangle over every node it covers, not the 1-level look-ahead). With a
         camera: see :meth:`Globe.mesh` (spheres only).
     spacing : float or (dx, dy)
-        Positive node spacing.
+        Node spacing (default 1); either may be negative, as a north-up DEM's dy (rows running north to south):
+        the vertices lie at the same positions as :func:`~stepterrain.heightfield_mesh`'s, the faces stay
+        counter-clockwise seen from +z.
     camera : Camera, optional
         Eye and frustum in the mesh's coordinates (origin included). An eye over the grid's rectangle must lie
         above the terrain surface there (the heights interpolated under it); beside the rectangle, anywhere.
     origin : (x0, y0)
-        Position of node (0, 0).
+        Position of node (0, 0) (default (0, 0)).
     metrics, cull, device
         As for :meth:`Globe.mesh`; a user metric's points are in the mesh's coordinates (origin included), as the
         camera's.
@@ -1238,9 +1268,9 @@ def adaptive_mesh(
     Raises
     ------
     InvalidInputError
-        Not a real (H, W) array with H, W >= 2, NaN, infinite or masked heights, bad spacing, an origin so far from zero
-        for the spacing that float64 cannot keep the nodes apart, negative error, a camera eye at or below the
-        terrain surface.
+        Not a real (H, W) array with H, W >= 2 (or a TIN Terrain), NaN, infinite or masked heights, bad spacing, an
+        origin so far from zero for the spacing that float64 cannot keep the nodes apart, spacing or origin with a
+        Terrain, negative error, a camera eye at or below the terrain surface.
 
     Examples
     --------
@@ -1252,15 +1282,21 @@ def adaptive_mesh(
     error = _error_value(error)
     cull = check_flag(cull, "cull")
     names, users = _metric_options(metrics, "sphere", planar=True)
-    if hasattr(heights, "heights") and hasattr(heights, "spacing"):  # a Terrain
-        raise InvalidInputError("heights must be an (H, W) array; got a Terrain: pass terrain.heights and its "
-                                "node spacing (spacing=, positive; x runs along columns, y along rows)")
+    if isinstance(heights, Terrain):
+        if heights.kind != "grid":
+            raise InvalidInputError("heights must be an (H, W) array or a grid Terrain; got a TIN Terrain (the "
+                                    "hierarchy needs a regular grid)")
+        if spacing is not None or origin is not None:
+            raise InvalidInputError("spacing/origin apply to raw (H, W) arrays only; the Terrain already has them")
+        heights, spacing, origin = heights.heights, heights.spacing, heights.origin
     z = _height_grid(heights, "heights")
+    spacing = 1.0 if spacing is None else spacing
+    origin = (0.0, 0.0) if origin is None else origin
     try:
         dx, dy = (spacing, spacing) if np.isscalar(spacing) else tuple(spacing)  # type: ignore[misc]
     except (TypeError, ValueError):
         raise InvalidInputError(f"spacing must be a number or (dx, dy); got {spacing!r}") from None
-    dx, dy = check_spacing(_positive(dx, "spacing dx"), _positive(dy, "spacing dy"))
+    dx, dy = check_spacing(_nonzero(dx, "spacing dx"), _nonzero(dy, "spacing dy"))
     try:  # as_number: "12" was iterated as (1.0, 2.0) and True taken as 1.0
         ox, oy = (as_number(v) for v in origin)
     except (TypeError, ValueError):
@@ -1271,6 +1307,17 @@ def adaptive_mesh(
     # the vertices are the nodes relative to the origin plus the origin, in float64: origin (1e20, 0) with spacing 1
     # put every column on one x, a mesh of zero area without a word, as a Terrain's grid would be but for this check
     check_origin((ox, oy), (dx, dy), z.shape)
+    # a negative spacing (a north-up DEM's dy): the grid mirrored onto a positive one with the same nodes, its
+    # origin the node at the low end (row i at y0 + i·dy is row rows-1-i of the mirror), meshed as that one, and
+    # the vertices put back where the given grid has them; the mirror's faces are counter-clockwise seen from +z
+    flip_x, flip_y = dx < 0, dy < 0
+    user_origin = (ox, oy)
+    if flip_x:
+        z, ox, dx = z[:, ::-1], ox + (cols - 1) * dx, -dx
+    if flip_y:
+        z, oy, dy = z[::-1], oy + (rows - 1) * dy, -dy
+    if flip_x or flip_y:
+        z = np.ascontiguousarray(z)
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     if cells > _MAX_CELLS:  # before the padding: 32768 << 16 wraps the int32 packed corners
         raise InvalidInputError(f"heights must have at most {_MAX_CELLS + 1} rows and columns (padded to 2^k + 1 "
@@ -1304,10 +1351,22 @@ def adaptive_mesh(
                     origin=(ox, oy))
     assert isinstance(mesh, trimesh.Trimesh)
     entry = np.asarray(mesh.metadata.pop("node_entry"))
-    mesh.metadata["node_index"] = np.column_stack([entry // n, entry % n])
+    row, col = entry // n, entry % n
+    if flip_y:
+        row = rows - 1 - row
+    if flip_x:
+        col = cols - 1 - col
+    mesh.metadata["node_index"] = np.column_stack([row, col])
     mesh.face_attributes.pop("cube_face", None)
     if ox or oy:
         mesh.vertices = mesh.vertices + np.array([ox, oy, 0.0])
+    if flip_x or flip_y:  # heightfield_mesh's x0 + j·dx, y0 + i·dy: not the mirror's, one rounding away
+        vertices = np.array(mesh.vertices)
+        if flip_x:
+            vertices[:, 0] = user_origin[0] + col * -dx
+        if flip_y:
+            vertices[:, 1] = user_origin[1] + row * -dy
+        mesh.vertices = vertices
     return mesh
 
 
@@ -1552,8 +1611,9 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
     if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
-        raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got {len(mesh.faces)} "
-                                "faces: a view that clips every triangle gives an empty mesh)")
+        raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got "
+                                f"{counted(len(mesh.faces), 'face')}: a view that clips every triangle gives an empty "
+                                "mesh)")
     # rendered in the east / north / up frame of the ground under the view, so that the render's light comes from
     # the north-west of that ground, as over a local terrain (in the world frame it came from the north-west of the
     # equatorial plane: a close view over New Zealand was lit from below the horizon and came out dim)

@@ -24,7 +24,14 @@ from numpy.typing import NDArray
 
 from ._compaction import check_budget
 from ._files import require_regular_file
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, StepTerrainError, caller_stacklevel
+from .errors import (
+    DataFileError,
+    InvalidInputError,
+    MissingDependencyError,
+    StepTerrainError,
+    caller_stacklevel,
+    counted,
+)
 from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index, unwrapped_longitudes
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
@@ -488,7 +495,7 @@ def _latlon_geotransform(
         values = np.asarray(axis, dtype=np.float64) if axis.dtype.kind in "iuf" else np.empty(0)
         if values.ndim != 1 or values.size != n or n < 2 or not np.all(np.isfinite(values)):
             raise DataFileError(
-                f"cannot read {str(file)!r}: {name!r} must hold {n} finite degrees, one per "
+                f"cannot read {str(file)!r}: {name!r} must hold {counted(n, 'finite degree')}, one per "
                 f"{'column' if name == 'lon' else 'row'} of the heights {tuple(shape)}; got {axis.dtype} "
                 f"shape {axis.shape}"
             )
@@ -580,7 +587,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
-    """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band.
+    """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band (a
+    premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA).
 
     A 16-bit greyscale image (modes ``I;16*``, and ``I`` within 0-65535) is scaled by its full range (value / 257,
     as Pillow reads 16-bit RGB): Pillow's own conversion to RGB saturates every value above 255, which draped a
@@ -594,7 +602,13 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
             raise InvalidInputError(f"{what} must be an 8-bit or 16-bit image; got Pillow mode {mode} with values "
                                     f"{low:g} to {high:g}")
         return np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
+    if mode in _PREMULTIPLIED:  # alpha band "a": RGBa kept no alpha (converted to RGB), La raised Pillow's ValueError
+        picture = picture.convert(_PREMULTIPLIED[mode])  # un-premultiplied, as RGBA and LA are
     return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
+
+
+#: Pillow's premultiplied-alpha modes and the straight-alpha ones they convert to (dividing the colour by alpha).
+_PREMULTIPLIED = {"RGBa": "RGBA", "La": "LA"}
 
 
 def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
@@ -686,7 +700,7 @@ def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) 
     cells without a word. Its cells are not a regular grid in any CRS until warped, which load_dem does not do."""
     points, crs_obj = gcps
     if points:
-        what = f"{len(points)} ground control points (GCPs) in {_crs_string(crs_obj) or 'an unknown CRS'}"
+        what = f"{counted(len(points), 'ground control point')} (GCPs) in {_crs_string(crs_obj) or 'an unknown CRS'}"
     elif rpcs is not None:
         what = "rational polynomial coefficients (RPCs)"
     else:

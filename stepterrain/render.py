@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget
 from ._memo import derived
-from .errors import InvalidInputError, MissingDependencyError
+from .errors import InvalidInputError, MissingDependencyError, counted
 from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
@@ -1351,8 +1351,8 @@ class LayeredRenderer:
         # an infinite vertex left VTK's render blank, one NaN vertex made the centre (every coordinate) NaN
         bounds = _finite_bounds(vertices, "vertices")
         if bounds is None:
-            raise InvalidInputError(f"vertices must include a finite vertex; got {len(vertices)} vertices, none finite "
-                                    "(nothing to render)")
+            raise InvalidInputError(f"vertices must include a finite vertex; got "
+                                    f"{counted(len(vertices), 'vertex', 'vertices')}, none finite (nothing to render)")
         faces = _layer_faces(faces, "faces")
         _check_face_indices(faces, len(vertices), "faces")
         if rgb is not None:

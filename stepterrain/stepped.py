@@ -47,7 +47,7 @@ from ._device import (
     to_device,
     to_numpy,
 )
-from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel
+from .errors import InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .kernels import stepped as stepped_kernels
 from .terrain import (
     FLOAT32_MAX,
@@ -264,7 +264,8 @@ def isovalues(
         to float32), or two of them (or two isovalues of an interval) that are neighbouring float32 values (the
         threshold between them would round onto the lower one); a ``height_range`` that is not finite (min, max)
         with min <= max, or spans more than float32 holds (max - min > 3.4e38: the step kernels take height
-        differences in float32).
+        differences in float32); a ``base`` beyond float32, or more than 2**53 intervals from zero and from the
+        heights (float64 rounds it by more than an interval: bring it closer to the heights).
 
     Examples
     --------
@@ -299,7 +300,7 @@ def isovalues(
         if np.abs(values64).max() > FLOAT32_MAX:
             raise InvalidInputError(f"levels must fit in float32 (|x| < 3.4e+38); got {values64.tolist()[:10]}")
         values = values64.astype(np.float32)
-        bad = np.flatnonzero(np.diff(values) <= 0)
+        bad = np.flatnonzero(values[1:] <= values[:-1])  # np.diff overflowed (and warned) from -3.4e38 to 3.4e38
         if bad.size:
             i = int(bad[0]) + 1
             if values64[i] > values64[i - 1]:  # increasing as given, equal once rounded to the kernels' float32
@@ -336,20 +337,38 @@ def isovalues(
             f"interval={step:g} with base={base:g} over heights [{lo:g}, {hi:g}] gives more levels than float64 can "
             f"count; at most {MAX_LEVELS:,} are supported"
         )
+    if abs(base) > FLOAT32_MAX:  # base + k * interval was 0 there: 1e39 + (-1e39 + 1) rounds to 1e39 + -1e39
+        raise InvalidInputError(
+            f"base must fit in float32 (|x| < 3.4e+38), as the isovalues it offsets do; got {base:g}"
+        )
     k0, k1 = math.floor(k0f), math.ceil(k1f)
     if k1 - k0 + 1 > MAX_LEVELS:
         raise InvalidInputError(
             f"interval={step:g} over heights [{lo:g}, {hi:g}] gives {float(k1 - k0 + 1):.3g} levels; at most "
             f"{MAX_LEVELS:,} are supported"
         )
-    values64 = base + np.arange(k0, k1 + 1, dtype=np.float64) * step
-    if np.abs(values64).max() > FLOAT32_MAX:
-        raise InvalidInputError(
-            f"interval={step} with base={base} gives isovalues beyond float32 (|x| < 3.4e+38); "
-            f"got [{values64[0]}, {values64[-1]}]"
+    far = max(abs(k0f), abs(k1f))
+    if far > _EXACT_COUNT and abs(base) > step * _EXACT_COUNT:  # base's rounding error alone exceeds an interval:
+        # base + k * interval near the heights cancels to that error (base=1e20, interval=1 gave [0.0, 0.0])
+        raise InvalidInputError(  # the heights are not named: batch checks its arguments over heights [0, 0]
+            f"interval={step:g} with base={base:g}, more than 2**53 intervals from zero: float64 rounds it by more "
+            "than an interval, so the isovalues near the heights cannot be computed; bring base closer to the heights"
         )
-    values = values64.astype(np.float32)
-    if values[0] > np.float32(lo) or values[-1] < np.float32(hi):  # float32 rounding is monotone
+    for widened in (False, True):
+        values64 = base + np.arange(k0, k1 + 1, dtype=np.float64) * step
+        if np.abs(values64).max() > FLOAT32_MAX:
+            raise InvalidInputError(
+                f"interval={step} with base={base} gives isovalues beyond float32 (|x| < 3.4e+38); "
+                f"got [{values64[0]}, {values64[-1]}]"
+            )
+        values = values64.astype(np.float32)
+        below, above = values[0] > np.float32(lo), values[-1] < np.float32(hi)  # float32 rounding is monotone
+        if not (below or above) or widened:
+            break
+        # the heights were lost in lo - base (interval=3.4e38, base=-3.4e38 over [1000, 1011]: k0 = k1 = 1, the one
+        # isovalue 0 below them): one more interval on the short side covers them
+        k0, k1 = k0 - int(below), k1 + int(above)
+    if below or above:
         raise InvalidInputError(
             f"interval={step} with base={base} gives isovalues [{values[0]}, {values[-1]}] that do not cover the "
             f"heights [{lo}, {hi}] in float32; bring base closer to the heights"
@@ -365,6 +384,11 @@ def isovalues(
             f"whose heights would step up; use an interval of at least {2 * (b - a):g} there"
         )
     return _check_span(lo, hi, values)
+
+
+#: The largest count of intervals float64 holds exactly (2**53): a base that many intervals from zero and from the
+#: heights rounds by more than an interval, and ``base + k * interval`` near the heights cancels to that error.
+_EXACT_COUNT = 2.0**53
 
 
 def _unseparated(values: NDArray[np.float32]) -> int | None:
@@ -1289,7 +1313,7 @@ def stepped_series(
             if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
                 raise
             # the cause kept: a gamma callable's own exception
-            raise InvalidInputError(f"frames[{k}] ({len(frame_values)} isovalues, shape {t.shape}): {exc}") \
+            raise InvalidInputError(f"frames[{k}] ({counted(len(frame_values), 'isovalue')}, shape {t.shape}): {exc}") \
                 from exc.__cause__
         yield mesh
 

@@ -24,7 +24,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget
-from .errors import InvalidInputError
+from .errors import InvalidInputError, counted
 
 __all__ = ["Terrain", "heightfield_mesh", "as_terrain"]
 
@@ -591,14 +591,14 @@ class Terrain:
             bad = int(np.flatnonzero(outside.any(axis=1))[0])
             raise InvalidInputError(
                 f"terrain mesh faces must index its vertices (0 to {len(points) - 1}); face {bad} is "
-                f"{faces[bad].tolist()}; the mesh has {len(points)} vertices"
+                f"{faces[bad].tolist()}; the mesh has {counted(len(points), 'vertex', 'vertices')}"
             )
         repeated = (faces[:, 0] == faces[:, 1]) | (faces[:, 1] == faces[:, 2]) | (faces[:, 0] == faces[:, 2])
         if repeated.any():
             bad = int(np.flatnonzero(repeated)[0])
             raise InvalidInputError(
                 f"terrain mesh faces must have three distinct vertices; face {bad} is {faces[bad].tolist()} "
-                f"({int(repeated.sum())} such faces): drop them first, e.g. "
+                f"({counted(int(repeated.sum()), 'such face')}): drop them first, e.g. "
                 "mesh.update_faces(mesh.faces[:, 0] != mesh.faces[:, 1]) and the like"
             )
         if not np.all(np.isfinite(points[:, :2])):
@@ -637,9 +637,9 @@ class Terrain:
             positive, negative = negative, positive
         if not positive.any():  # zero-area slivers beside real faces are stepped; a TIN of nothing else is a line
             raise InvalidInputError(
-                f"terrain mesh faces must project one-to-one onto the xy plane; none of its {len(faces)} faces with "
-                f"finite heights has an area in xy (the points lie on a line or at one point: x over {span[0]:.6g}, "
-                f"y over {span[1]:.6g}), so it is no height field"
+                f"terrain mesh faces must project one-to-one onto the xy plane; none of its "
+                f"{counted(len(faces), 'face')} with finite heights has an area in xy (the points lie on a line or at "
+                f"one point: x over {span[0]:.6g}, y over {span[1]:.6g}), so it is no height field"
             )
         if negative.any():
             raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source))

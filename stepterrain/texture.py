@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, recycled_empty, resolve_device, scratch
-from .errors import InvalidInputError, caller_stacklevel
+from .errors import InvalidInputError, caller_stacklevel, counted
 from .kernels import texture as texture_kernels
 from .stepped import LENS_TEXEL_BYTES
 from .terrain import (
@@ -1117,8 +1117,8 @@ def weighted_add(layers: Sequence[TextureLayer | ArrayLike], weights: Sequence[f
     layers = list(layers)
     values = list(weights)
     if len(layers) < 1 or len(layers) != len(values):
-        raise InvalidInputError(f"weighted_add needs one weight per layer; got {len(layers)} layers and "
-                                f"{len(values)} weights")
+        raise InvalidInputError(f"weighted_add needs one weight per layer; got {counted(len(layers), 'layer')} and "
+                                f"{counted(len(values), 'weight')}")
     checked = [_finite(w, f"weights[{k}]") for k, w in enumerate(values)]
     first = _as_layer(layers[0], None, "layers[0]")
     others = [_as_layer(layer, first, f"layers[{k + 1}]") for k, layer in enumerate(layers[1:])]
@@ -1430,7 +1430,8 @@ class TextureAnimation:
             if layer.shape != layers[0].shape:  # frame() resamples onto the earlier key: frames changed size
                 raise InvalidInputError(f"layers[{k}] has shape {layer.shape} but layers[0] has {layers[0].shape} "
                                         "(mismatched size); keyframes must all be images of one size")
-        expected = f"{len(layers)} finite, strictly increasing numbers (one per layer)"
+        many = f"{len(layers)} finite, strictly increasing numbers" if len(layers) > 1 else "1 finite number"
+        expected = f"{many} (one per layer)"
         if self.times is None or isinstance(self.times, (str, bytes)):  # numpy's ValueError or TypeError otherwise
             raise InvalidInputError(f"times must be {expected}; got {self.times!r}")
         times = real_numbers(self.times, "times", expected).reshape(-1)

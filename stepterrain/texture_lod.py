@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
-from .errors import DataFileError, InvalidInputError
+from .errors import DataFileError, InvalidInputError, counted
 from .io import _ROTATION_TOLERANCE, _negligible_rotation, picture_uint8
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
@@ -265,8 +265,8 @@ class ImagePyramid:
         height, width, channels = levels[0].shape
         shapes = [(*shape, channels) for shape in pyramid_shapes(height, width)]
         if len(levels) != len(shapes):  # TextureTree found no level that fits, and blamed the extent
-            raise InvalidInputError(f"levels must run from the image down to 1 x 1: {len(shapes)} levels for a "
-                                    f"{height} x {width} image; got {len(levels)}")
+            raise InvalidInputError(f"levels must run from the image down to 1 x 1: {counted(len(shapes), 'level')} "
+                                    f"for a {height} x {width} image; got {len(levels)}")
         for k in range(1, len(levels)):
             if levels[k].shape != shapes[k]:
                 raise InvalidInputError(f"levels[{k}] must have shape {shapes[k]} (levels[{k - 1}] halved, rounded "
@@ -439,8 +439,8 @@ class ImagePyramid:
         Python's negative indexing, True level 1."""
         levels = self.levels  # a closed pyramid is refused first
         if isinstance(level, bool) or not isinstance(level, (int, np.integer)) or not 0 <= level < len(levels):
-            raise InvalidInputError(f"level must index the pyramid's {len(levels)} levels (0 to {len(levels) - 1}); "
-                                    f"got {level!r}")
+            raise InvalidInputError(f"level must index the pyramid's {counted(len(levels), 'level')} (0 to "
+                                    f"{len(levels) - 1}); got {level!r}")
         return levels[level]
 
     def shape(self, level: int) -> tuple[int, int]:
@@ -1198,6 +1198,7 @@ def _tree_of(item: DrawItem, layer: int) -> TextureTree | None:
     if not isinstance(item, DrawItem):
         raise InvalidInputError(f"item must be a DrawItem (from render_with_textures); got {type(item).__name__}")
     if isinstance(layer, bool) or not isinstance(layer, (int, np.integer)) or not 0 <= layer < len(item.textures):
-        raise InvalidInputError(f"layer must index the item's {len(item.textures)} texture layers; got {layer}")
+        raise InvalidInputError(f"layer must index the item's {counted(len(item.textures), 'texture layer')}; got "
+                                f"{layer}")
     texture = item.textures[layer]
     return None if texture is None else texture.tree

@@ -271,7 +271,7 @@ def test_bad_planar_input():
         adaptive_mesh(np.ma.masked_equal(np.where(np.eye(4, k=-1) > 0, -9999.0, 0.0), -9999.0), error=1.0)
     with pytest.raises(InvalidInputError, match="error must be"):
         adaptive_mesh(np.zeros((4, 4)), error=-1.0)
-    with pytest.raises(InvalidInputError, match="spacing dx must be a positive"):
+    with pytest.raises(InvalidInputError, match="spacing dx must be a non-zero"):
         adaptive_mesh(np.zeros((4, 4)), error=1.0, spacing=(0.0, 1.0))
     with pytest.raises(InvalidInputError, match="planar case supports bounds='sphere'"):
         from stepterrain.globe import _metric_options
@@ -279,11 +279,46 @@ def test_bad_planar_input():
         _metric_options(("geometric",), "cone", planar=True)
 
 
-def test_a_terrain_object_is_refused_with_what_to_pass():
+def test_a_north_up_dem_meshes_as_it_is_not_mirrored():
+    """adaptive_mesh took positive spacing only and refused a Terrain: a north-up DEM (load_dem's, dy < 0, origin the
+    north-west node) had to be handed over as heights[::-1] with the south-west node as origin, or came out mirrored
+    north to south. A negative dy (or dx) and a grid Terrain now give the mesh of that flipped grid, each vertex at
+    x0 + j·dx, y0 + i·dy of the node metadata["node_index"] names (as heightfield_mesh places it), at its height,
+    counter-clockwise seen from +z; a camera and a user metric see the same world positions."""
     import stepterrain as st
 
-    with pytest.raises(InvalidInputError, match="got a Terrain: pass terrain.heights"):
-        adaptive_mesh(st.Terrain.from_heights(np.zeros((5, 5))), error=1.0)
+    sample = st.sample_dem()
+    z = np.ascontiguousarray(sample.heights[:70, :90])
+    (x0, y0), (dx, dy) = sample.origin, sample.spacing
+    assert dy < 0
+    north_up = st.Terrain.from_heights(z, spacing=sample.spacing, origin=sample.origin)
+    south_west = (x0, y0 + (z.shape[0] - 1) * dy)
+    cam = Camera(eye=(x0 + 500.0, y0 - 300.0, 4000.0), target=(x0 + 1500.0, y0 - 1500.0, 1000.0), fov=math.radians(50))
+    north = ("geometric", lambda p, r: 1.0 + (p[:, 1] + r > y0 - 600.0))  # saturated: the spheres are nested
+    for options in ({}, {"camera": cam}, {"metrics": north}):
+        flipped = adaptive_mesh(z[::-1], error=3.0, spacing=-dy, origin=south_west, **options)
+        for mesh in (adaptive_mesh(north_up, error=3.0, **options),
+                     adaptive_mesh(z, error=3.0, spacing=(dx, dy), origin=sample.origin, **options)):
+            i, j = mesh.metadata["node_index"].T
+            np.testing.assert_array_equal(mesh.vertices[:, 0], x0 + j * dx)
+            np.testing.assert_array_equal(mesh.vertices[:, 1], y0 + i * dy)
+            np.testing.assert_array_equal(mesh.vertices[:, 2], z[i, j])
+            assert (mesh.face_normals[:, 2] > 0).all() and mesh.is_winding_consistent
+            assert len(mesh.faces) == len(flipped.faces)
+            same = {tuple(v) for v in np.round(mesh.vertices[mesh.faces].reshape(-1, 9), 6)}
+            assert same == {tuple(v) for v in np.round(flipped.vertices[flipped.faces].reshape(-1, 9), 6)}
+    # x mirrored as well: rows and columns both run the other way; the nodes and the true error bound hold
+    mesh = adaptive_mesh(z, error=3.0, spacing=(-30.0, -30.0))
+    i, j = mesh.metadata["node_index"].T
+    np.testing.assert_array_equal(mesh.vertices[:, :2], np.column_stack([-30.0 * j, -30.0 * i]))
+    assert (mesh.face_normals[:, 2] > 0).all()
+    assert true_errors(mesh, z.astype(np.float64), (-30.0, -30.0)).max() <= 3.0 + 1e-3
+    with pytest.raises(InvalidInputError, match="spacing/origin apply to raw .* the Terrain already has them"):
+        adaptive_mesh(north_up, error=1.0, spacing=30.0)
+    with pytest.raises(InvalidInputError, match="got a TIN Terrain"):
+        adaptive_mesh(st.Terrain.from_mesh(st.heightfield_mesh(z[:4, :4])), error=1.0)
+    with pytest.raises(InvalidInputError, match="spacing dx must be a non-zero finite number; got 0.0"):
+        adaptive_mesh(z, error=1.0, spacing=(0.0, 1.0))
 
 
 @pytest.mark.parametrize(
@@ -298,7 +333,7 @@ def test_a_terrain_object_is_refused_with_what_to_pass():
         ({"origin": "12"}, r"origin must be 2 finite numbers \(x0, y0\); got '12'"),
         ({"origin": (True, 0.0)}, r"origin must be 2 finite numbers \(x0, y0\); got \(True, 0.0\)"),
         ({"spacing": (1.0, 2.0, 3.0)}, r"spacing must be a number or \(dx, dy\); got \(1.0, 2.0, 3.0\)"),
-        ({"spacing": None}, r"spacing must be a number or \(dx, dy\); got None"),
+        ({"spacing": (1.0,)}, r"spacing must be a number or \(dx, dy\); got \(1.0,\)"),
         # float32 node positions: 1e-300 became 0 (every node at x = 0, a zero-area mesh, silently)
         ({"spacing": 1e-300}, r"spacing must lie between 1e-30 and 1e\+30 in magnitude .*got \(1e-300, 1e-300\)"),
         ({"spacing": (1.0, 1e31)}, r"spacing must lie between 1e-30 and 1e\+30 in magnitude .*got \(1.0, 1e\+31\)"),

@@ -172,9 +172,9 @@ def test_a_rerun_in_another_format_keeps_both_formats_recorded_and_says_so(tmp_p
     glb = {r.key: (tmp_path / f"{r.key}.glb").read_bytes() for r in first.done}
     ply = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial", format=".ply")
     assert len(ply.done) == 4 and not ply.skipped  # the .glb outputs do not count as complete .ply ones
-    assert ply.notes == ["the manifest also records 4 output(s) of these items in another format (.glb), kept "
+    assert ply.notes == ["the manifest also records 4 outputs of these items in another format (.glb), kept "
                          "beside this run's .ply files"]  # fmt: skip
-    assert "note: the manifest also records 4 output(s)" in ply.summary()
+    assert "note: the manifest also records 4 outputs" in ply.summary()
     recorded = json.loads((tmp_path / MANIFEST_NAME).read_text())["items"]
     assert sorted(recorded) == sorted(f"{k}{e}" for k in glb for e in (".glb", ".ply"))
     # both formats are complete: reruns in either skip everything, and the .glb files are the first run's
@@ -521,7 +521,7 @@ def test_outputs_of_an_earlier_runs_other_tiles_are_noted(tmp_path):
     stale = {Path(r.path).name for r in first.done} - {Path(r.path).name for r in second.done}
     assert second.ok and stale
     note = next(n for n in second.notes if "items this run does not have" in n)
-    assert note.startswith(f"the folder holds {len(stale)} recorded output(s)")
+    assert len(stale) > 1 and note.startswith(f"the folder holds {len(stale)} recorded outputs of items")
     assert all((tmp_path / "out" / name).exists() for name in stale)
 
 
@@ -836,7 +836,7 @@ def test_a_failed_items_earlier_output_is_noted(tmp_path):
     report = batch(src, out, interval=3.0, scheduler="serial")
     assert [r.key for r in report.failed] == ["t1"] and (out / "t1.glb").exists()
     said = [note for note in report.notes if "failed item" in note]
-    assert len(said) == 1 and "t1.glb" in said[0] and "1 failed item(s)" in said[0], report.notes
+    assert len(said) == 1 and "t1.glb" in said[0] and "1 failed item (" in said[0], report.notes
     assert "t1.glb" in report.summary()
     (src / "t1.npy").unlink()
     (src / "t2.npy").write_bytes(b"not a numpy file")
@@ -1029,3 +1029,64 @@ def test_items_run_at_once_by_a_threaded_worker_each_step_under_their_own_budget
                                 range(12)))  # fmt: skip
     assert [r.status for r in results] == ["done", "failed"] * 6
     assert all("OutputTooLargeError" in r.error for r in results if r.status == "failed")
+
+
+def test_a_report_of_one_item_and_one_attempt_says_so_in_the_singular(tmp_path):
+    """BatchReport.summary() said "failed of 1 items" and "(after 1 attempt(s))"; the notes "1 failed item(s)" and
+    "4 output(s)". Counts and nouns now agree (stepterrain.errors.counted, the library's messages alike)."""
+    from stepterrain.batch import BatchReport, ItemResult
+
+    one = BatchReport(tmp_path, [ItemResult("t0", "failed", error="InvalidInputError: no", attempts=1)], 0.1)
+    assert one.summary().splitlines() == [
+        f"0 written, 0 complete already (skipped), 1 failed of 1 item in 0.1 s on serial; output {tmp_path}",
+        "  failed t0: InvalidInputError: no (after 1 attempt)",
+    ]
+    two = BatchReport(tmp_path, [ItemResult(f"t{k}", "failed", error="x", attempts=2) for k in range(2)], 0.1)
+    assert "1 failed of 2 items" not in two.summary() and "2 failed of 2 items" in two.summary()
+    assert "(after 2 attempts)" in two.summary()
+
+
+def test_the_progress_bar_writes_each_failure_as_the_summary_lists_it_reworded_by_a_callable(tmp_path, capsys):
+    """The progress bar wrote a failed item's line its own way ("failed t0: ..." without its attempts) and the CLI
+    could not reword it (its library argument names), so the command line printed each failure twice. The bar's
+    line is the summary's now, and progress= takes a callable that rewords it."""
+    folder = tmp_path / "dems"  # a folder: each file's heights are known only to its item, which fails
+    folder.mkdir()
+    for k in range(2):
+        np.save(folder / f"t{k}.npy", np.add.outer(np.arange(6.0), np.arange(7.0)) * 10.0)
+    report = batch(folder, tmp_path / "a", interval=1e-9, scheduler="serial", progress=True)
+    err = capsys.readouterr().err
+    expected = [line.strip() for line in report.summary().splitlines()[1:]]
+    assert len(expected) == len(report.results) == 2 and all("(after 1 attempt)" in line for line in expected)
+    assert [line for line in expected if line in err] == expected
+    report = batch(folder, tmp_path / "b", interval=1e-9, scheduler="serial",
+                   progress=lambda line: "<< " + line.upper())
+    err = capsys.readouterr().err
+    assert err.count("<< FAILED T") == 2 and "interval=1e-09" not in err
+
+
+def test_the_default_clusters_malloc_settings_hold_after_another_cluster_and_stay_out_of_os_environ():
+    """distributed's nanny takes a pre-spawn variable from os.environ before the configuration, and writes its own
+    into os.environ when it spawns a worker. After any LocalCluster of the session (dask's defaults), batch's default
+    cluster started its workers with MALLOC_TRIM_THRESHOLD_=65536, not LOCAL_CLUSTER_MALLOC (test_batch.py's check
+    failed when this file's cluster tests ran first), and its own values stayed in the caller's os.environ."""
+    import logging
+    import os
+
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    from stepterrain.batch import LOCAL_CLUSTER_MALLOC, start_local_cluster
+
+    keys = sorted(LOCAL_CLUSTER_MALLOC)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL):
+        pass  # dask's own values, now in os.environ
+    before = {key: os.environ.get(key) for key in keys}
+    cluster = start_local_cluster(1)
+    try:
+        after = {key: os.environ.get(key) for key in keys}
+        with distributed.Client(cluster) as client:
+            (environ,) = client.run(lambda: {key: os.environ.get(key) for key in keys}).values()
+    finally:
+        cluster.close()
+    assert environ == {key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()}
+    assert after == before

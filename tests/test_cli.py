@@ -116,10 +116,11 @@ def test_closeup_help_shows_negative_lists_as_plain_values(dem, tmp_path, capsys
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["steps", "{dem}", "--interval", "2", "--base", "-1e20", "-o", "{out}.glb"], "--base -1e+20 gives isovalues"),
+        (["steps", "{dem}", "--interval", "2", "--base", "-1e20", "-o", "{out}.glb"],
+         "with --base -1e+20, more than 2**53 intervals"),
         (["steps", "{dem}", "--interval", "2", "--base", "-inf", "-o", "{out}.glb"], "base must be finite; got -inf"),
         (["batch", "{dem}", "--tile", "8", "--interval", "2", "--base", "-1e20", "--scheduler", "serial",
-          "-o", "{out}"], "--base -1e+20 gives isovalues"),
+          "-o", "{out}"], "with --base -1e+20, more than 2**53 intervals"),
         (["texture", "{dem}", "--azimuth", "-1e400", "-o", "{out}.png"], "--azimuth must be a finite number"),
         (["batch", "{dem}", "--tile", "8", "--levels", "1,2", "--base", "-0.5", "--scheduler", "serial",
           "-o", "{out}"], "--base applies only to uniform isovalues"),

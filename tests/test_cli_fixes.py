@@ -519,7 +519,7 @@ def test_batch_progress_lines_of_a_budget_refusal_name_the_option(scheduler, tmp
     code, out, err = run(capsys, *argv)
     assert code == 1, err
     failed = [line for line in err.splitlines() if "OutputTooLargeError" in line]
-    assert len(failed) >= 4, err  # the bar's line and the summary's for each of the two items
+    assert len(failed) == 2, err  # the bar's line for each of the two items (the summary's no more: said once)
     assert all("--memory-budget SIZE" in line for line in failed), err
     assert "set_memory_budget" not in err
     from stepterrain._compaction import BUDGET_HINT, budget_hint
@@ -823,12 +823,16 @@ def test_library_names_that_leaked_to_the_command_line_are_spelled_as_options(tm
     folder = tile_folder(tmp_path / "tiles")
     leaks = ("bring base", "interval=", "base=", "tile_size", "raise the error")
     cases = [
+        (["steps", dem, "--interval", "1", "--base", "1e20", "-o", tmp_path / "s.glb"],
+         "error: --interval 1 with --base 1e+20, more than 2**53", "bring --base closer to the heights"),
         (["steps", dem, "--interval", "1", "--base", "1e39", "-o", tmp_path / "s.glb"],
-         "error: --interval 1.0 with --base 1e+39 gives isovalues", "bring --base closer to the heights"),
+         "error: --base must fit in float32 (|x| < 3.4e+38)", ""),
         (["batch", folder, "--tile", "4", "--interval", "1", "--scheduler", "serial", "-o", tmp_path / "b"],
          "error: --tile applies to one raster, not to a folder of tiles", ""),
-        (["batch", folder, "--interval", "1", "--base", "1e39", "--scheduler", "serial", "-o", tmp_path / "b"],
-         "failed t0: InvalidInputError: --interval 1.0 with --base 1e+39 gives", "bring --base closer"),
+        (["batch", folder, "--interval", "1", "--base", "1e20", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "error: --interval 1 with --base 1e+20, more than 2**53", "bring --base closer"),  # up front: any heights
+        (["batch", folder, "--interval", "1e-5", "--scheduler", "serial", "-o", tmp_path / "b"],
+         "failed t0: InvalidInputError: --interval 1e-05 over heights", ""),
         (["closeup", dem, "--roi", "3,-3,2", "--stepped", "1e-9", "-o", tmp_path / "c.glb"],
          "error: --stepped 1e-09 over heights [1000, 1011] gives", ""),
     ]
@@ -925,3 +929,21 @@ def test_batch_names_its_tile_option_not_the_librarys_tile_size(tmp_path, capsys
                          "-o", tmp_path / "out")
     assert code == 2
     assert "is one 2-D raster: give --tile to cut it into tiles" in err and "tile_size" not in err, err
+
+
+def test_batch_with_its_progress_bar_says_each_failure_once_as_options(tmp_path, capsys):
+    """Without -q, batch printed each failed item twice: the progress bar's line as the library worded it
+    ("failed t0: InvalidInputError: interval=1e-05 over heights ...") and the summary's line spelled as options. The
+    bar's line is now the summary's, spelled as options, and the summary leaves it out; under -q the summary says it."""
+    src = tile_folder(tmp_path / "tiles")
+    argv = ["batch", src, "--interval", "1e-5", "--scheduler", "serial", "-o", tmp_path / "out"]
+    for quiet in ((), ("-q",)):
+        code, _, err = run(capsys, *quiet, *argv)
+        assert code == 1, err
+        lines = [line.strip() for line in err.replace("\r", "\n").splitlines()]
+        failed = [line for line in lines if "InvalidInputError" in line]
+        for key in ("t0", "t1"):
+            (line,) = [line for line in failed if f"failed {key}:" in line]
+            assert line.startswith(f"stepterrain: failed {key}: InvalidInputError: --interval 1e-05 over heights ")
+            assert line.endswith("(after 1 attempt)"), line
+        assert len(failed) == 2 and "interval=" not in err, err

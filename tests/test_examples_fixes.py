@@ -168,22 +168,26 @@ def test_batch_tiles_exits_1_when_every_tile_failed(tmp_path, monkeypatch, capsy
 
 
 def test_adaptive_mesh_example_meshes_the_dem_the_right_way_up():
-    """examples/adaptive_mesh.py gave adaptive_mesh the DEM's rows as stored, north to south, but adaptive_mesh puts
+    """examples/adaptive_mesh.py gave adaptive_mesh the DEM's rows as stored, north to south, but adaptive_mesh put
     row i at y = i * spacing (south to north): every panel showed the terrain mirrored north to south (beside
-    stepped_terrain.py's panels of the same crop). The crop now hands the rows over south first."""
+    stepped_terrain.py's panels of the same crop). The crop is now a north-up Terrain, which adaptive_mesh takes as
+    it is: every vertex lies at the DEM node of its height, and the example's true error is measured there."""
     import numpy as np
 
     import stepterrain as st
 
     example = load_example("adaptive_mesh")
-    heights, spacing = example.crop(64)
+    terrain = example.crop(64)
+    mesh = st.adaptive_mesh(terrain, error=10.0)  # as run() calls it
     dem = st.sample_dem()
     stride = 643 // 64  # the crop's own arithmetic for 643 x 1197 nodes
-    n, i0, j0 = 64, (643 - 64 * stride) // 2, (1197 - 64 * stride) // 2
-    assert heights.shape == (n, n) and spacing == 30.0 * stride
-    columns = slice(j0, j0 + n * stride, stride)
-    np.testing.assert_array_equal(heights[0], dem.heights[i0 + (n - 1) * stride, columns])  # the southern row
-    np.testing.assert_array_equal(heights[-1], dem.heights[i0, columns])  # the northern row
+    assert terrain.shape == (64, 64) and terrain.spacing == (30.0 * stride, -30.0 * stride)
+    (x0, y0), (dx, dy) = dem.origin, dem.spacing
+    i, j = (mesh.vertices[:, 1] - y0) / dy, (mesh.vertices[:, 0] - x0) / dx
+    assert np.allclose(i, np.round(i), atol=1e-6) and np.allclose(j, np.round(j), atol=1e-6)
+    np.testing.assert_array_equal(mesh.vertices[:, 2], dem.heights[np.round(i).astype(int), np.round(j).astype(int)])
+    assert (mesh.face_normals[:, 2] > 0).all()
+    assert 0.0 < example.true_error(mesh, terrain) <= 10.0 + 1e-3
 
 
 @needs_render

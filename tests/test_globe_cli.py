@@ -139,11 +139,11 @@ def test_example_adaptive_mesh(tmp_path, capsys):
     with Image.open(out) as image:
         pixels = np.asarray(image)
     assert pixels.shape[:2] == (100, 240) and pixels.std() > 5
-    heights, spacing = example.crop(33)
+    terrain = example.crop(33)
     from stepterrain.globe import adaptive_mesh
 
     for error in (20.0, 2.0):
-        assert example.true_error(adaptive_mesh(heights, error=error, spacing=spacing), heights, spacing) <= error
+        assert example.true_error(adaptive_mesh(terrain, error=error), terrain) <= error
 
 
 def test_globe_texture_is_embedded_in_the_glb(tmp_path):

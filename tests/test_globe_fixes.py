@@ -685,3 +685,59 @@ def test_the_globe_memory_check_counts_the_grids_float32_copies(budget):
         Globe.from_latlon(z, lat, lon, face_size=33, device="cpu")
     budget(80 << 20)
     assert Globe.from_latlon(z, lat, lon, face_size=33, device="cpu").heights.shape == (6, 33, 33)
+
+
+def test_one_bad_height_is_named_in_the_singular():
+    """globe and adaptive_mesh said "elevation has 1 NaN or infinite values" and "heights has 1 masked (nodata)
+    entries" (likewise "1 rows that differ" of a closing column): counts and nouns now agree."""
+    z = np.zeros((5, 5))
+    z[1, 2] = np.nan
+    with pytest.raises(InvalidInputError, match=r"^heights has 1 NaN or infinite value \(first at row 1, column 2\)"):
+        adaptive_mesh(z, error=1.0)
+    z[3, 3] = np.inf
+    with pytest.raises(InvalidInputError, match=r"^heights has 2 NaN or infinite values \(first at row 1, column 2\)"):
+        adaptive_mesh(z, error=1.0)
+    with pytest.raises(InvalidInputError, match=r"^heights has 1 masked \(nodata\) entry \(first at row 0, column 4\)"):
+        adaptive_mesh(np.ma.masked_equal(np.eye(5, k=4) * 7.0, 7.0), error=1.0)
+    lat, lon = np.linspace(90.0, -90.0, 19), np.linspace(-180.0, 180.0, 37)
+    relief = np.zeros((19, 37))
+    relief[7, -1] = 500.0  # one row whose closing column differs
+    with pytest.raises(InvalidInputError, match=r"got 1 row that differs, by up to 500 m"):
+        Globe.from_latlon(relief, lat, lon, face_size=9, device="cpu")
+
+
+def test_the_cli_names_one_nodata_cell_in_the_singular(tmp_path, capsys):
+    """``stepterrain globe`` said "'elevation' has 1 nodata cells" of a grid missing one cell."""
+    from stepterrain.cli import main
+
+    elevation = np.zeros((180, 360), np.int16)
+    elevation[3, 7] = -32768
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, nodata=np.array(-32768, np.int16))
+    assert main(["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(tmp_path / "g.ply")]) == 2
+    assert "'elevation' has 1 nodata cell (nodata -32768; first at row 3, column 7)" in capsys.readouterr().err
+
+
+def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_vertices():
+    """A user metric that grows from a node to its children (a step in space, decided at the node's point alone) can
+    refine a triangle whose neighbour, which owns the refinement node, never exists: the node's vertex was never
+    emitted and its faces read an unwritten vertex_id. Globe.mesh returned faces indexing up to 1.4e9 of 4,103
+    vertices, adaptive_mesh a mesh over more than its rectangle, or crashed the interpreter (a segmentation fault
+    in the culling pass). Such faces are refused now, naming the metric; a saturated metric meshes as before."""
+    def north(points, radius):  # decided at the node's point: a child across the line grows from 0.5 to 1.5
+        return (points[:, 1] > 1500.0) + 0.5
+
+    import stepterrain as st
+
+    z = np.ascontiguousarray(st.sample_dem().heights[:70, :90])
+    with pytest.raises(InvalidInputError, match=r"^user metric 'north' is not saturated: it grows from a node to "):
+        adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", north), device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^user metric '<lambda>' is not saturated"):
+        Globe.sample(face_size=65).mesh(error=200.0, metrics=("geometric", lambda p, r: (p[:, 2] > 0) * 1.0))
+
+    def sphere(points, radius):  # decided by the whole bounding sphere: nested spheres never grow across the line
+        return (points[:, 1] + radius > 1500.0) + 0.5
+
+    mesh = adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", sphere), device="cpu")
+    assert np.asarray(mesh.faces).max() < len(mesh.vertices)
+    assert (mesh.area_faces * mesh.face_normals[:, 2]).sum() == pytest.approx(69 * 89 * 900.0, rel=1e-9)

@@ -476,6 +476,28 @@ def test_texture_alpha_blends_the_front_surface_over_the_one_behind(as_image, fr
 
 
 @needs_render
+@pytest.mark.parametrize("mode", ["RGBa", "La"])
+def test_a_premultiplied_alpha_texture_blends_as_its_straight_alpha_twin(mode):
+    """Pillow's premultiplied-alpha modes rendered without their alpha: an RGBa texture was converted to RGB (its
+    translucent texel drawn opaque), an La one raised Pillow's "conversion from La to L not supported". They are
+    un-premultiplied to RGBA and LA now: a texel of alpha 192 over an opaque one blends as the RGBA image does."""
+    straight = Image.fromarray(np.array([[[255, 0, 0, 192], [0, 0, 255, 255]]], np.uint8), "RGBA")
+    if mode == "La":
+        straight = straight.convert("LA")
+    texture = straight.convert(mode)
+    assert texture.mode == mode
+
+    def centre(image):
+        mesh = _two_textured_squares(image, front_first=True)
+        shot = render.render_textured_mesh(mesh, window_size=(64, 64), camera="top", lighting=False)
+        return shot[28:36, 28:36].reshape(-1, 3).mean(axis=0)
+
+    expected = [192, 0, 63] if mode == "RGBa" else [192 * 76 / 255 + 63 * 29 / 255] * 3  # grey: 0.299 R, 0.114 B
+    assert centre(straight) == pytest.approx(expected, abs=3)
+    assert centre(texture) == pytest.approx(centre(straight), abs=2)
+
+
+@needs_render
 def test_texture_transparency_follows_png_transparency_and_gltf_alpha_mode():
     """A palette PNG's transparent colour (tRNS) hides its texels; a glTF material's alphaMode is followed when set:
     OPAQUE ignores the alpha, MASK shows or hides each texel at alphaCutoff."""

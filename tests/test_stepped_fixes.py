@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+import warnings
 
 import numpy as np
 import pytest
@@ -492,3 +493,27 @@ def test_the_solids_threshold_warning_points_at_the_callers_line():
     with pytest.warns(UserWarning, match="sit exactly on a threshold") as record:
         st.stepped(heights, interval=50.0, solid=True)
     assert [w.filename for w in record] == [__file__]
+
+
+def test_a_base_far_from_the_heights_is_named_not_reported_as_isovalues_0_0():
+    """``stepterrain steps --interval 1 --base 1e39`` (and base=1e20 over heights near 0) said the interval "gives
+    isovalues [0.0, 0.0] that do not cover the heights": base + k * interval near the heights cancelled to base's
+    rounding error, values no interval ever gives. A base beyond float32 is refused as levels beyond it are, and one
+    whose rounding exceeds an interval says why; heights lost in lo - base (interval=3.4e38, base=-3.4e38 over
+    [1000, 1011]: k0 = k1 = 1, the one isovalue 0 below them) get the interval above them, and levels from -3.4e38 to
+    3.4e38 no longer overflow numpy's diff (a RuntimeWarning)."""
+    heights = np.add.outer(np.arange(6.0), np.arange(7.0)) + 1000.0
+    with pytest.raises(st.InvalidInputError, match=r"^base must fit in float32 \(\|x\| < 3.4e\+38\), .*; got 1e\+39$"):
+        st.isovalues((315.0, 2295.0), interval=1.0, base=1e39)
+    with pytest.raises(st.InvalidInputError, match=r"^interval=1 with base=1e\+20, more than 2\*\*53 intervals from "
+                                                   r"zero: float64 rounds it by more than an interval"):
+        st.isovalues((0.0, 10.0), interval=1.0, base=1e20)
+    assert st.isovalues((1000.0, 1011.0), interval=3.4e38, base=-3.4e38).tolist() == [0.0, np.float32(3.4e38)]
+    assert st.isovalues((0.0, 10.0), interval=1e30, base=3e38).tolist() == [0.0, np.float32(1e30)]
+    assert st.isovalues((0.0, 10.0), interval=1e12, base=1e20).tolist() == [0.0, np.float32(1e12)]  # no cancellation
+    mesh = st.stepped(heights, interval=3.4e38, base=-3.4e38)
+    assert (mesh.vertices[:, 2] == 0.0).all()  # every height below the threshold 1.7e38 steps down to 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = st.stepped(heights, levels=[-3.4e38, 3.4e38])
+    assert np.isfinite(mesh.vertices).all() and (mesh.vertices[:, 2] == np.float32(3.4e38)).all()
