@@ -51,6 +51,7 @@ async function validate(file) {
     }
     if (reports[file].errors || reports[file].warnings) ok = false;
   }
+  // exit once stdout is flushed: process.exit() right after write() cut a pipe's output at its 64 KiB buffer
+  process.exitCode = ok ? 0 : 1;
   process.stdout.write(JSON.stringify({ validator: validator.version(), reports }) + "\n");
-  process.exit(ok ? 0 : 1);
 })();

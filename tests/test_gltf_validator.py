@@ -63,3 +63,16 @@ def test_validator_catches_a_broken_file(tmp_path):
 def test_empty_mesh_has_no_errors_or_warnings(tmp_path):
     empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
     assert_valid([save_mesh(empty, tmp_path / "empty.glb")])
+
+
+def test_a_report_past_the_pipes_64_kib_arrives_whole(tmp_path):
+    # the script called process.exit() right after writing its JSON, which cut the pipe's output at 64 KiB: the
+    # end-of-session validation of every GLB the suite wrote failed with "Unterminated string" once there were many
+    good = save_mesh(trimesh.creation.box(), tmp_path / "box.glb").read_bytes()
+    paths = []
+    for k in range(700):
+        path = tmp_path / f"copy_{k:04d}_{'x' * 40}.glb"
+        path.write_bytes(good)
+        paths.append(path)
+    reports = gltf_validator.validate(paths)
+    assert len(reports) == len(paths) and gltf_validator.problems(reports) == []
