@@ -40,6 +40,7 @@ from .stepped import LAND_START
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
+    _edge_table,
     _pair,
     as_terrain,
     check_flag,
@@ -928,6 +929,62 @@ def _tin_source(terrain: Terrain, box: tuple[float, float, float, float]) -> _So
     return _Source(points[used], inverse.reshape(-1, 3).astype(np.int32), np.flatnonzero(keep).astype(np.int64))
 
 
+#: how far past the ROI box (a fraction of the TIN's xy span and of the box's size) a TIN face's xy bounding box may
+#: lie and still be stepped for a stepped close-up: the cull's float32 test (kernels/closeup.py, mask_factor) and the
+#: float32 wall crossings round by a few ulps, so a face just outside the box in float64 could keep a corner
+_TIN_WINDOW_MARGIN = 1e-5
+
+
+def _tin_face_boxes(terrain: Terrain) -> tuple[Any, ...]:
+    """Per TIN face its local xy bounding box (x0, x1, y0, y1; float32, as the culls compare them), and the TIN's
+    largest local coordinate: built once per terrain, so a stepped close-up compares boxes only."""
+    points = terrain.local_points()
+    fx, fy = points[terrain.faces, 0], points[terrain.faces, 1]
+    span = float(np.abs(points[terrain.point_used != 0, :2]).max())
+    return fx.min(1), fx.max(1), fy.min(1), fy.max(1), span
+
+
+def _tin_point_faces(terrain: Terrain) -> tuple[NDArray[np.int64], NDArray[np.int32]]:
+    """The faces around each TIN point (CSR: point p's are ``faces[starts[p]:starts[p + 1]]``), built once."""
+    corners = terrain.faces.reshape(-1)
+    order = np.argsort(corners, kind="stable")
+    starts = np.concatenate([[0], np.cumsum(np.bincount(corners, minlength=len(terrain.points)))]).astype(np.int64)
+    return starts, (order // 3).astype(np.int32)
+
+
+def _tin_window(terrain: Terrain, box: tuple[float, float, float, float]) -> Terrain | None:
+    """The part of a TIN that a stepped close-up of ``box`` can keep: the faces whose xy bounding box meets the
+    box (with a margin for float32 rounding), and every face around their points, so that the stepped kernels see
+    the whole neighbourhood of each such point (its twin and peak flags, kernels/stepped.py, mark_tin_twins, come
+    from all its edges). Points and faces keep their order (the edge table too: it is sorted by point pair), and
+    the local origin is the whole TIN's, so the faces that can touch the box step to the very vertices, faces and
+    order that stepping the whole TIN gives; the cull keeps no other face (their corners lie outside the box).
+    None when no face meets the box."""
+    ox, oy = terrain.local_origin
+    faces = terrain.faces
+    x0, x1, y0, y1, span = terrain.cached(("closeup", "tin-face-boxes"), lambda: _tin_face_boxes(terrain))
+    pad = _TIN_WINDOW_MARGIN * max(span, box[1] - box[0], box[3] - box[2])
+    near = np.flatnonzero((x1 >= box[0] - ox - pad) & (x0 <= box[1] - ox + pad)
+                          & (y1 >= box[2] - oy - pad) & (y0 <= box[3] - oy + pad))
+    if not len(near):
+        return None
+    starts, point_faces = terrain.cached(("closeup", "tin-point-faces"), lambda: _tin_point_faces(terrain))
+    corners = np.unique(faces[near].reshape(-1))
+    first, count = starts[corners], starts[corners + 1] - starts[corners]
+    at = np.repeat(first - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(count.sum())
+    chosen = faces[np.unique(point_faces[at])]  # the faces around the near faces' points, in the TIN's order
+    used = np.unique(chosen.reshape(-1))  # sorted: the points' order kept
+    index = np.empty(len(terrain.points), dtype=np.int64)
+    index[used] = np.arange(len(used))
+    sub_faces = index[chosen]
+    edges, face_edges = _edge_table(sub_faces, len(used))
+    window = Terrain(kind="tin", heights=terrain.heights[used].copy(), points=terrain.points[used], faces=sub_faces,
+                     edges=edges, face_edges=face_edges, point_used=np.ones(len(used), np.int32),
+                     source=terrain.source, _owned=True)
+    window.cached("local_origin", lambda: (ox, oy))  # the whole TIN's: the same float32 local points
+    return window
+
+
 def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Device) -> _Source:
     """MPFR: the stepped terrain (paper 000) of the ROI window, hypsometric colors, isovalues of the whole terrain."""
     from .stepped import isovalues, stepped
@@ -943,7 +1000,9 @@ def _stepped_source(terrain: Terrain, cu: CloseUp, colors: str, device: wp.Devic
         window = Terrain.from_heights(terrain.heights[i0: i1 + 1, j0: j1 + 1], spacing=(dx, dy),
                                       origin=(terrain.origin[0] + j0 * dx, terrain.origin[1] + i0 * dy))
     else:
-        window = terrain
+        window = _tin_window(terrain, cu.roi.box)
+        if window is None:  # no face under the ROI box: no geometry (closeup_layers names it)
+            return _Source(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), np.zeros(0, np.int64))
     table = _colors_for(np.asarray(values, np.float32), colors, float(values[0]), float(values[-1]))
     mesh = stepped(window, levels=values, gamma=float(cu.gamma), colors=table, device=device)
     ox, oy = terrain.local_origin

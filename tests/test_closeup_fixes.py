@@ -756,3 +756,58 @@ def test_an_unknown_colormap_of_the_stepped_closeups_is_named_by_its_argument():
         closeup_layers(hills(), [stepped], colors="nope", device="cpu")
     with pytest.raises(InvalidInputError, match=r"^cmap must name a matplotlib colormap .*; got 'nope'"):
         closeup_scene(hills(), [stepped], scalars=None, cmap="nope", device="cpu")
+
+
+def _stepped_closeup_tins():
+    """Two real TINs: a crop of the sample DEM meshed as a heightfield (integer heights: many on thresholds, so
+    twins), with nodata holes and a stray point, and a Delaunay TIN of jittered points of the same DEM."""
+    import trimesh
+    from scipy.spatial import Delaunay
+
+    from stepterrain import heightfield_mesh, sample_dem
+
+    dem = sample_dem()
+    h = np.array(dem.heights[:90, :110], dtype=np.float32)
+    h[40:43, 60:62] = np.nan
+    grid = heightfield_mesh(h, spacing=(30.0, -30.0), origin=(390000.0, 3800000.0))
+    grid = trimesh.Trimesh(np.vstack([grid.vertices, [[1e6, 1e7, 5.0]]]), grid.faces, process=False)
+    rng = np.random.default_rng(7)
+    ij = rng.integers(0, 90, (3000, 2))
+    xy = ij[:, ::-1] * 30.0 + rng.uniform(-9.0, 9.0, (3000, 2)) + (400000.0, 3700000.0)
+    xy, first = np.unique(xy, axis=0, return_index=True)
+    z = np.asarray(dem.heights, dtype=np.float64)[ij[first, 0], ij[first, 1]]
+    delaunay = trimesh.Trimesh(np.c_[xy, z], Delaunay(xy).simplices, process=False)
+    return [(grid, [ROI.circle((391500.0, 3798500.0), 400.0), ROI.rectangle((390100.0, 3797400.0), (500.0, 700.0))]),
+            (delaunay, [ROI.ellipse((401200.0, 3701300.0), (500.0, 250.0)), ROI.circle((400050.0, 3700060.0), 300.0)])]
+
+
+@pytest.mark.parametrize("case", [0, 1])
+def test_a_stepped_closeup_on_a_tin_steps_only_the_faces_near_its_roi(monkeypatch, case):
+    """A stepped close-up (MPFR) of a TIN stepped the whole TIN for every close-up and then culled it to the ROI: its
+    cost followed the terrain's size, not the ROI's (0.5 s for a small ROI on a 1M-face TIN). It steps the faces that
+    can touch the ROI now, to exactly the geometry (vertices, faces, order, colours, mask) of the whole TIN culled,
+    with the whole terrain's isovalues."""
+    import stepterrain.stepped as stepped_module
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    mesh, rois = _stepped_closeup_tins()[case]
+    step = stepped_module.stepped
+    closeups = [CloseUp(rois[0], stepped=20.0, scale=2.0), CloseUp(rois[1], stepped=35.0, gamma=0.4, cmap="viridis")]
+    whole = Terrain.from_mesh(mesh.copy())  # own caches: the close-ups' sources are built again
+    monkeypatch.setattr(stepped_module, "stepped", lambda window, **kw: step(whole, **kw))  # the whole TIN stepped
+    expected = closeup_layers(whole, closeups, device="cpu")
+    stepped_faces = []
+
+    def spy(window, **kw):
+        stepped_faces.append(len(window.faces))
+        return step(window, **kw)
+
+    monkeypatch.setattr(stepped_module, "stepped", spy)
+    t = Terrain.from_mesh(mesh)
+    got = closeup_layers(t, closeups, device="cpu")
+    assert len(stepped_faces) == 2 and max(stepped_faces) < len(t.faces) / 4
+    for a, b in zip(expected, got, strict=True):
+        assert len(a.faces) > 50
+        for name in ("vertices", "faces", "colors", "mask_factor", "original", "source_faces"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
