@@ -527,8 +527,14 @@ class _Reader:
             band = self.array[r0:r1]
             if not isinstance(band, np.memmap):
                 return np.ascontiguousarray(band)
-            out = np.array(band, order="C")  # a band-sized copy, like pread's
-            _drop_resident(band)
+            # a band-sized copy, like pread's, taken a few MiB at a time with each piece's pages dropped at once:
+            # the whole band's mapped pages resident beside its copy put the peak up by a band (83 -> 119 MB)
+            out = np.empty(band.shape, dtype=np.uint8)
+            step = max(1, _DROP_BYTES // max(1, width * channels))
+            for a in range(0, r1 - r0, step):
+                piece = band[a : a + step]
+                out[a : a + step] = piece
+                _drop_resident(piece)
             return out
         row_bytes = width * channels
         out = np.empty((r1 - r0, width, channels), dtype=np.uint8)
@@ -549,6 +555,10 @@ class _Reader:
         finally:
             os.close(fd)
         return out
+
+
+#: Bytes of a memmap band copied between two drops of its pages from the resident set (:meth:`_Reader.rows`).
+_DROP_BYTES = 4 << 20
 
 
 def _drop_resident(band: np.memmap) -> None:
