@@ -710,14 +710,17 @@ class Terrain:
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
-        """(xmin, xmax, ymin, ymax) in world units."""
-        if self.kind == "tin":
-            used = self.points[self.point_used.astype(bool)]
-            return (float(used[:, 0].min()), float(used[:, 0].max()), float(used[:, 1].min()), float(used[:, 1].max()))
+        """(xmin, xmax, ymin, ymax) in world units (a TIN's computed once: its points are read-only)."""
+        if self.kind == "tin":  # over every used point: ~11 ms a call at 1 M faces, which each close-up paid
+            return self.cached("extent", self._tin_extent)
         h, w = self.heights.shape
         xs = (self.origin[0], self.origin[0] + (w - 1) * self.spacing[0])
         ys = (self.origin[1], self.origin[1] + (h - 1) * self.spacing[1])
         return (min(xs), max(xs), min(ys), max(ys))
+
+    def _tin_extent(self) -> tuple[float, float, float, float]:
+        used = self.points[self.point_used.astype(bool)]
+        return (float(used[:, 0].min()), float(used[:, 0].max()), float(used[:, 1].min()), float(used[:, 1].max()))
 
     @property
     def local_origin(self) -> tuple[float, float]:
