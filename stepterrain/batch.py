@@ -535,14 +535,20 @@ class _BudgetLease:
         from ._compaction import set_memory_budget
 
         with self._changed:
-            if self._holders and self._budget != budget:
-                self._others += 1
-                try:
-                    self._changed.wait_for(lambda: not self._holders)
-                finally:
+            # counted in _others whenever it waits for another budget: an item that first waited behind one (its
+            # own budget set) and then found another's set (that item took the worker first) waited uncounted, and
+            # the other budget's items that kept arriving joined ahead of it, one after another
+            other = False
+            try:
+                while self._holders and (self._budget != budget or (self._others and not other)):
+                    if self._budget != budget and not other:
+                        other = True
+                        self._others += 1
+                    self._changed.wait()
+            finally:
+                if other:
                     self._others -= 1
-            else:
-                self._changed.wait_for(lambda: not self._holders or (self._budget == budget and not self._others))
+                    self._changed.notify_all()  # items of the budget set waited behind it
             if not self._holders:
                 self._previous, self._budget = set_memory_budget(budget), budget
             self._holders += 1

@@ -1090,3 +1090,69 @@ def test_the_default_clusters_malloc_settings_hold_after_another_cluster_and_sta
         cluster.close()
     assert environ == {key: str(value) for key, value in LOCAL_CLUSTER_MALLOC.items()}
     assert after == before
+
+
+def test_an_item_of_another_budget_is_not_starved_by_items_that_keep_arriving(tmp_path, monkeypatch):
+    """An item of budget A waited, behind an item of budget B, for the A items running; when the B item took the
+    worker first, the A item waited uncounted, so B items that kept arriving (another client's thousands of tiles on
+    a worker of several threads) joined the B one ahead of it, each in turn: it waited until the last B item was done.
+    It now counts as waiting for another budget whenever it waits for one, so that B items queue behind it."""
+    import threading
+    import time
+
+    import stepterrain.batch as batch_module
+    from stepterrain.batch import BatchItem, ItemResult, _BudgetLease, _Options, run_item
+
+    releases: dict[str, threading.Event] = {}
+    inside: list[str] = []
+
+    def blocking(item, source, options, output_dir, start, cpu_start):
+        inside.append(item.key)
+        releases[item.key].wait(10)
+        return ItemResult(item.key, "done", attempts=1)
+
+    def start(key, budget):
+        releases[key] = threading.Event()
+        thread = threading.Thread(target=run_item, args=(BatchItem(key, "file", path="x.npy"), None, options,
+                                                         str(tmp_path)), kwargs={"memory_budget": budget}, daemon=True)
+        thread.start()
+        return thread
+
+    def until(condition):
+        end = time.monotonic() + 5
+        while not condition() and time.monotonic() < end:
+            time.sleep(0.002)
+        return condition()
+
+    monkeypatch.setattr(batch_module, "_run_item", blocking)
+    options = _Options(5.0, None, 0.0, 1.0, None, False, None, ".ply", "cpu", ())
+    a, b = 1 << 30, 1 << 31
+    checked = 0
+    for trial in range(40):  # which waiter takes the worker when the A item is done is the threads' race
+        lease = _BudgetLease()
+        monkeypatch.setattr(batch_module, "_BUDGET_LEASE", lease)
+        inside.clear()
+        threads = [start(f"a0-{trial}", a)]
+        assert until(lambda trial=trial: inside == [f"a0-{trial}"])
+        threads.append(start(f"b0-{trial}", b))  # waits for the A item: another budget
+        assert until(lambda lease=lease: lease._others == 1)
+        threads.append(start(f"a1-{trial}", a))  # waits behind the B one
+        time.sleep(0.02)
+        assert inside == [f"a0-{trial}"]
+        releases[f"a0-{trial}"].set()
+        assert until(lambda: len(inside) == 2)
+        if inside[1] == f"b0-{trial}":  # the B item took the worker, the A one waits for it
+            checked += 1
+            threads.append(start(f"b1-{trial}", b))  # a B item arriving now queues behind the waiting A one
+            time.sleep(0.05)
+            assert inside == [f"a0-{trial}", f"b0-{trial}"], "a later B item went ahead of the waiting A item"
+        for event in releases.values():
+            event.set()
+        for thread in threads:
+            thread.join(10)
+        assert len(inside) == len(threads) and lease._holders == 0 and lease._others == 0
+        if checked >= 3:
+            break
+    if not checked:
+        pytest.skip("the A item took the worker first in every trial")
+
