@@ -992,11 +992,16 @@ def start_local_cluster(workers: int) -> Any:
             "`if __name__ == '__main__':`: the workers start by importing the script)"
         ) from exc
     finally:
-        for key, value in before.items():
-            if value is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = value
+        _restore_environ(before)
+
+
+def _restore_environ(before: Mapping[str, str | None]) -> None:
+    """Put the variables of ``before`` back in os.environ as they were (None: not set)."""
+    for key, value in before.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
 
 
 def _scheduler_error(scheduler: Any) -> InvalidInputError:
@@ -1397,6 +1402,9 @@ def _run_locked(
 
     recorder = _Recorder(folder, manifest, fingerprints)
     serial = isinstance(scheduler, str) and scheduler == "serial"
+    # a nanny writes its pre-spawn variables into os.environ again when it restarts a worker that died: put back
+    # when the default cluster is closed, as start_local_cluster puts them back once its workers have started
+    environ = {key: os.environ.get(key) for key in LOCAL_CLUSTER_MALLOC}
     try:
         connection = None if serial or not todo else _connect(scheduler, workers, timeout)
     except BaseException:
@@ -1438,7 +1446,11 @@ def _run_locked(
         if bar is not None:
             bar.close()
         if connection is not None:
-            _disconnect(scheduler, connection)
+            try:
+                _disconnect(scheduler, connection)
+            finally:
+                if connection[1] is not None:  # the default LocalCluster, closed
+                    _restore_environ(environ)
     # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
     _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]

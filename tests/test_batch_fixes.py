@@ -1156,3 +1156,42 @@ def test_an_item_of_another_budget_is_not_starved_by_items_that_keep_arriving(tm
     if not checked:
         pytest.skip("the A item took the worker first in every trial")
 
+
+def test_the_default_clusters_malloc_settings_stay_out_of_os_environ_when_a_worker_is_restarted(tmp_path, monkeypatch):
+    """start_local_cluster puts os.environ back after the workers start, but a nanny writes its pre-spawn variables
+    into os.environ again whenever it restarts a worker that died (killed for memory, a crash: the items batch then
+    submits again), so LOCAL_CLUSTER_MALLOC stayed in the caller's environment after such a run, for its later
+    subprocesses and the next LocalCluster of the session (whose nannies prefer os.environ to their configuration)."""
+    import os
+
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    import stepterrain.batch as batch_module
+    from stepterrain.batch import LOCAL_CLUSTER_MALLOC
+
+    keys = sorted(LOCAL_CLUSTER_MALLOC)
+    for key in keys:
+        monkeypatch.delenv(key, raising=False)
+    start = batch_module.start_local_cluster
+
+    def start_with_a_dying_worker(workers):  # the worker process dies on its first item; its nanny restarts it
+        cluster = start(workers)
+
+        def die_on_first_item() -> None:
+            import os
+
+            import stepterrain.batch as module
+
+            def dying(*args):
+                os._exit(1)
+
+            module._run_item = dying
+
+        with distributed.Client(cluster) as client:
+            client.run(die_on_first_item)
+        return cluster
+
+    monkeypatch.setattr(batch_module, "start_local_cluster", start_with_a_dying_worker)
+    z = (np.add.outer(np.arange(17.0), np.arange(17.0)) % 7).astype(np.float32)
+    report = batch(z, tmp_path / "out", tile_size=8, interval=1.0, workers=1, retries=2)
+    assert report.ok and len(report.done) == 4 and any(r.attempts > 1 for r in report.done), report.summary()
+    assert {key: os.environ.get(key) for key in keys} == dict.fromkeys(keys)
