@@ -1044,7 +1044,7 @@ def _connect(
     if scheduler is None:
         cluster = start_local_cluster(workers)
         client = Client(cluster, timeout=connect_timeout)
-        return client, cluster, f"LocalCluster ({workers} worker processes)", True
+        return client, cluster, f"LocalCluster ({counted(workers, 'worker process', 'worker processes')})", True
     if not isinstance(scheduler, str):
         raise _scheduler_error(scheduler)  # has .submit but is no dask Client
     try:

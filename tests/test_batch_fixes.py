@@ -1195,3 +1195,12 @@ def test_the_default_clusters_malloc_settings_stay_out_of_os_environ_when_a_work
     report = batch(z, tmp_path / "out", tile_size=8, interval=1.0, workers=1, retries=2)
     assert report.ok and len(report.done) == 4 and any(r.attempts > 1 for r in report.done), report.summary()
     assert {key: os.environ.get(key) for key in keys} == dict.fromkeys(keys)
+
+
+def test_a_one_worker_cluster_is_described_in_the_singular(tmp_path):
+    # the run's description said "LocalCluster (1 worker processes)"
+    pytest.importorskip("distributed")
+    heights = np.add.outer(np.arange(9.0), np.arange(9.0)) * 10.0
+    report = batch(heights, tmp_path / "out", tile_size=4, interval=25.0, base=0.5, workers=1)
+    assert report.scheduler == "LocalCluster (1 worker process)", report.scheduler
+    assert not report.failed
