@@ -864,18 +864,25 @@ def _overlap_in_xy(
         level = np.maximum(np.ceil(np.log2(size / cell)), 0).astype(np.int64)
         level += cell * np.exp2(level) < size  # log2's rounding: every face within its level's cells
     hits = []
+    searches = []
     for lv in np.flatnonzero(np.bincount(level)):
         # the pairs whose coarser face lies in this level: boundary faces of this level or finer against the
-        # faces of this level, and boundary faces of this level against finer faces
-        queries = boundary[level[boundary] <= lv]
-        coarse_boundary = bool((level[boundary] == lv).any())
-        others = (level <= lv) if coarse_boundary else (level == lv)
-        if len(queries) == 0:
+        # faces of this level, and boundary faces of this level against finer faces that are not on the boundary
+        # (a finer boundary face meets them in the first search). Two searches, not boundary faces of this level
+        # or finer against all faces of this level or finer: in a cell of this level, that paired every fine
+        # boundary face with every fine face (an RTIN with a flat area's large faces on its boundary and a rough
+        # one's small faces: seconds, growing as the cube of the grid's side)
+        searches.append((lv, boundary[level[boundary] <= lv], level == lv))
+        coarse = boundary[level[boundary] == lv]
+        if len(coarse):
+            searches.append((lv, coarse, (level < lv) & ~on_boundary))
+    for lv, queries, others in searches:
+        if len(queries) == 0 or not others.any():
             continue
         for a, b in _box_pairs(lo, hi, queries, others, cell * 2.0**lv, extent, xy, corners[0]):
             keep = (a != b) & (np.maximum(level[a], level[b]) == lv)
-            # a pair of two boundary faces meets from both sides: tested once
-            keep &= ~((b < a) & on_boundary[b] & ((level[a] == lv) | coarse_boundary))
+            # a pair of two boundary faces of this level meets from both sides: tested once
+            keep &= ~((b < a) & on_boundary[b] & (level[a] == lv))
             a, b = a[keep], b[keep]
             depth = _OVERLAP_DEPTH * np.minimum(size[a], size[b]) + 1e-12 * span
             overlap = _triangles_overlap(xy[faces[a]], xy[faces[b]], depth)
