@@ -768,7 +768,9 @@ def _folded_message(
     ways out: quadric decimation of a DEM's TIN (trimesh's simplify_quadric_decimation) folds a few faces where it
     moves a vertex across an edge, and the faces round such a vertex then overlap their other neighbours too, so
     dropping the folded faces alone is refused by the overlap check; dropping every face touching one, or a 2-D
-    Delaunay triangulation of the points, was accepted for the real DEM's decimations."""
+    Delaunay triangulation of the points, was accepted for the real DEM's decimations. The Delaunay is taken from the
+    points' corner: on map coordinates as given (UTM, x ~ 5e5 and y ~ 4e6 m) Qhull folds a few faces of a dense
+    TIN itself (3 of 400 k for 200 k points over 2 km), and the mesh printed as the way out was refused in turn."""
     folded = np.flatnonzero(negative)
     named = [int(kept[k]) for k in folded[:_FOLDS_NAMED]]
     listed = ", ".join(map(str, named)) + (", ..." if len(folded) > _FOLDS_NAMED else "")
@@ -781,7 +783,9 @@ def _folded_message(
         f"({x:.10g}, {y:.10g}). Decimation that moves vertices (e.g. trimesh's simplify_quadric_decimation) folds a "
         "face where it moves a vertex across an edge, and the faces around it then overlap others, so dropping only "
         "the folded faces is not enough: re-triangulate the points in xy, e.g. mesh = trimesh.Trimesh(mesh.vertices, "
-        "scipy.spatial.Delaunay(mesh.vertices[:, :2]).simplices) (it covers the points' convex hull); or drop every "
+        "scipy.spatial.Delaunay(mesh.vertices[:, :2] - mesh.vertices[:, :2].min(axis=0)).simplices) (it covers the "
+        "points' convex hull; taken from their corner, as Qhull folds a few faces at map coordinates such as UTM's); "
+        "or drop every "
         "face touching a folded one (small holes): mesh.update_faces(~np.isin(mesh.faces, "
         f"mesh.faces[mesh.face_normals[:, 2] {sign} 0]).any(axis=1)); or mesh the grid with stepterrain.adaptive_mesh "
         "(an RTIN within a vertical error bound, which never folds)"

@@ -619,3 +619,29 @@ def test_the_overlap_check_still_finds_a_small_face_under_a_large_boundary_face(
                 st.Terrain.from_mesh(mesh)
         else:
             st.Terrain.from_mesh(mesh)
+
+
+def test_the_refusals_delaunay_way_out_works_at_utm_coordinates():
+    # a TIN of scattered survey points in UTM (x ~ 5e5, y ~ 4e6 m): scipy's Delaunay of them as given folds a few
+    # faces (Qhull's precision at that offset), so that mesh is refused as folded, and the message's own way out,
+    # Delaunay(mesh.vertices[:, :2]), gave the same folded mesh again. Taken from the points' corner, it is accepted.
+    import re
+
+    pytest.importorskip("scipy")
+    import scipy.spatial
+
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(0.0, 500.0, (50000, 2)) + [500000.0, 4000000.0]
+    points = np.c_[xy, rng.normal(100.0, 1.0, len(xy))]
+    mesh = trimesh.Trimesh(points, scipy.spatial.Delaunay(xy).simplices, process=False)
+    with pytest.raises(InvalidInputError, match=_FOLDED) as info:
+        st.Terrain.from_mesh(mesh)
+    names = {"trimesh": trimesh, "scipy": scipy, "mesh": mesh.copy()}  # the message's re-triangulation, as printed
+    exec(re.search(r"(mesh = trimesh\.Trimesh\(.*?\.simplices\))", str(info.value)).group(1), names)
+    again = names["mesh"]
+    tin = st.Terrain.from_mesh(again)
+    assert np.array_equal(again.vertices, points)  # every point kept (Qhull left out 226 of them as given)
+    tri = again.triangles[:, :, :2] - xy.min(axis=0)
+    area2 = _cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    assert area2.min() > 0 and len(tin.faces) == len(again.faces)  # every face kept, none folded
+    assert 0.5 * area2.sum() == pytest.approx(scipy.spatial.ConvexHull(xy - xy.min(axis=0)).volume, rel=1e-9)
