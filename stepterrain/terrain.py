@@ -768,7 +768,9 @@ def _folded_message(
     ways out: quadric decimation of a DEM's TIN (trimesh's simplify_quadric_decimation) folds a few faces where it
     moves a vertex across an edge, and the faces round such a vertex then overlap their other neighbours too, so
     dropping the folded faces alone is refused by the overlap check; dropping every face touching one, or a 2-D
-    Delaunay triangulation of the points, was accepted for the real DEM's decimations."""
+    Delaunay triangulation of the points, was accepted for the real DEM's decimations. The Delaunay is taken from the
+    points' corner: on map coordinates as given (UTM, x ~ 5e5 and y ~ 4e6 m) Qhull folds a few faces of a dense
+    TIN itself (3 of 400 k for 200 k points over 2 km), and the mesh printed as the way out was refused in turn."""
     folded = np.flatnonzero(negative)
     named = [int(kept[k]) for k in folded[:_FOLDS_NAMED]]
     listed = ", ".join(map(str, named)) + (", ..." if len(folded) > _FOLDS_NAMED else "")
@@ -781,7 +783,9 @@ def _folded_message(
         f"({x:.10g}, {y:.10g}). Decimation that moves vertices (e.g. trimesh's simplify_quadric_decimation) folds a "
         "face where it moves a vertex across an edge, and the faces around it then overlap others, so dropping only "
         "the folded faces is not enough: re-triangulate the points in xy, e.g. mesh = trimesh.Trimesh(mesh.vertices, "
-        "scipy.spatial.Delaunay(mesh.vertices[:, :2]).simplices) (it covers the points' convex hull); or drop every "
+        "scipy.spatial.Delaunay(mesh.vertices[:, :2] - mesh.vertices[:, :2].min(axis=0)).simplices) (it covers the "
+        "points' convex hull; taken from their corner, as Qhull folds a few faces at map coordinates such as UTM's); "
+        "or drop every "
         "face touching a folded one (small holes): mesh.update_faces(~np.isin(mesh.faces, "
         f"mesh.faces[mesh.face_normals[:, 2] {sign} 0]).any(axis=1)); or mesh the grid with stepterrain.adaptive_mesh "
         "(an RTIN within a vertical error bound, which never folds)"
@@ -864,18 +868,25 @@ def _overlap_in_xy(
         level = np.maximum(np.ceil(np.log2(size / cell)), 0).astype(np.int64)
         level += cell * np.exp2(level) < size  # log2's rounding: every face within its level's cells
     hits = []
+    searches = []
     for lv in np.flatnonzero(np.bincount(level)):
         # the pairs whose coarser face lies in this level: boundary faces of this level or finer against the
-        # faces of this level, and boundary faces of this level against finer faces
-        queries = boundary[level[boundary] <= lv]
-        coarse_boundary = bool((level[boundary] == lv).any())
-        others = (level <= lv) if coarse_boundary else (level == lv)
-        if len(queries) == 0:
+        # faces of this level, and boundary faces of this level against finer faces that are not on the boundary
+        # (a finer boundary face meets them in the first search). Two searches, not boundary faces of this level
+        # or finer against all faces of this level or finer: in a cell of this level, that paired every fine
+        # boundary face with every fine face (an RTIN with a flat area's large faces on its boundary and a rough
+        # one's small faces: seconds, growing as the cube of the grid's side)
+        searches.append((lv, boundary[level[boundary] <= lv], level == lv))
+        coarse = boundary[level[boundary] == lv]
+        if len(coarse):
+            searches.append((lv, coarse, (level < lv) & ~on_boundary))
+    for lv, queries, others in searches:
+        if len(queries) == 0 or not others.any():
             continue
         for a, b in _box_pairs(lo, hi, queries, others, cell * 2.0**lv, extent, xy, corners[0]):
             keep = (a != b) & (np.maximum(level[a], level[b]) == lv)
-            # a pair of two boundary faces meets from both sides: tested once
-            keep &= ~((b < a) & on_boundary[b] & ((level[a] == lv) | coarse_boundary))
+            # a pair of two boundary faces of this level meets from both sides: tested once
+            keep &= ~((b < a) & on_boundary[b] & (level[a] == lv))
             a, b = a[keep], b[keep]
             depth = _OVERLAP_DEPTH * np.minimum(size[a], size[b]) + 1e-12 * span
             overlap = _triangles_overlap(xy[faces[a]], xy[faces[b]], depth)
