@@ -108,10 +108,10 @@ class MapLibreStyle:
 
 
 @wp.func
-def pixel_of(n: wp.int32, cols: wp.int32) -> wp.vec2i:
+def pixel_of(n: wp.int32, cols: wp.int32):
     """(row, column) of element ``n`` of a row-major image ``cols`` wide: a per-pixel thread's pixel."""
     i = n // cols
-    return wp.vec2i(i, n - i * cols)
+    return i, n - i * cols
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -540,9 +540,7 @@ def maplibre_shade_heights(
     """One thread per pixel: the MapLibre hillshade layer's premultiplied RGBA from the full-resolution Horn
     gradient (beyond the border the edge repeats, next to nodata the centre height: :func:`window_height`); NaN
     at nodata."""
-    ij = pixel_of(wp.tid() + thread_offset, grid.cols)
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, grid.cols)
     colour = wp.vec4(wp.nan)
     if not wp.isnan(grid.heights[i, j]):
         gradient = horn_gradient(grid, i, j, 0)
@@ -560,9 +558,7 @@ def encode_normals(
 ):
     """One thread per node: its unit normal (x east, y north, z up) as RGB, n * 127.5 + 127.5 rounded; the
     gradient of :func:`shade_heights` (gdaldem's border), so that relighting gives the hillshade."""
-    ij = pixel_of(wp.tid() + thread_offset, grid.cols)
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, grid.cols)
     normal = wp.vec3(0.0, 0.0, 1.0)
     if not wp.isnan(grid.heights[i, j]):
         normal = surface_normal(horn_gradient(grid, i, j, 1))
@@ -586,9 +582,7 @@ def relight_directional(
     shade_out: wp.array2d[wp.float32],
 ):
     """One thread per texel: max(0, n . l) for a directional light (the normal texture is not recomputed)."""
-    ij = pixel_of(wp.tid() + thread_offset, rgb.shape[1])
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, rgb.shape[1])
     shade_out[i, j] = wp.max(wp.dot(decode_normal(rgb, i, j), light), 0.0)
 
 
@@ -602,9 +596,7 @@ def relight_point(
     shade_out: wp.array2d[wp.float32],
 ):
     """One thread per texel: max(0, n . l) with l the unit vector from the texel's surface point to the light."""
-    ij = pixel_of(wp.tid() + thread_offset, rgb.shape[1])
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, rgb.shape[1])
     h = grid.heights[i, j]
     if wp.isnan(h):
         shade_out[i, j] = h
@@ -825,9 +817,7 @@ def sample_layer(
     texture matrix (world (x, y, 1) -> texel (column, row, 1), texel centres at integers). The colours are
     interpolated premultiplied by alpha (the straight colour of a transparent texel does not bleed into its
     neighbours') and returned straight; where all four texels are transparent, their colours mixed, alpha 0."""
-    ij = pixel_of(wp.tid() + thread_offset, frame.cols)
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
     world = wp.vec3(frame.origin[0] + float(j) * frame.pixel[0], frame.origin[1] + float(i) * frame.pixel[1], 1.0)
     t = matrix * world
     u = t[0]
@@ -877,9 +867,7 @@ def blend_layers(
     alpha of ``weights`` at the pixel (1 when ``own_alpha``: b's alpha alone): alpha c + alpha_a (1 - c), colour
     (c b + (1 - c) alpha_a a) / alpha; a (1 - w) + b w for opaque layers. A transparent pixel of b (nodata,
     outside its extent) leaves a as it is; where both are transparent the colours are mixed by w."""
-    ij = pixel_of(wp.tid() + thread_offset, a.shape[1])
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, a.shape[1])
     x = a[i, j]
     y = b[i, j]
     w = weights[i, j][3]
@@ -909,9 +897,7 @@ def add_layers(
 ):
     """One thread per pixel: weight_a a + weight_b b (weighted addition), each channel clamped to [0, 1] when
     ``clamp`` is 1 (the last term of a sum)."""
-    ij = pixel_of(wp.tid() + thread_offset, a.shape[1])
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, a.shape[1])
     s = a[i, j] * weight_a + b[i, j] * weight_b
     if clamp == 0:
         rgba_out[i, j] = s
@@ -932,9 +918,7 @@ def interpolate_layers(
     """One thread per pixel: (1 - t) a + t b interpolated premultiplied (§6 keyframes): alpha
     (1 - t) alpha_a + t alpha_b, colour ((1 - t) alpha_a a + t alpha_b b) / alpha, so a transparent key (nodata)
     fades the other out without tinting it; where both are transparent the colours are mixed straight."""
-    ij = pixel_of(wp.tid() + thread_offset, a.shape[1])
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, a.shape[1])
     x = a[i, j]
     y = b[i, j]
     wa = (1.0 - t) * x[3]
@@ -960,9 +944,7 @@ def modulate_layers(
     """One thread per pixel: a.rgb * b.rgb, alpha a.alpha (modulation, e.g. by a topographic layer), by b as far
     as it covers the pixel: a.rgb * (1 - b.alpha + b.alpha * b.rgb), so a transparent pixel of b (outside its
     extent, nodata) leaves a as it is."""
-    ij = pixel_of(wp.tid() + thread_offset, a.shape[1])
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, a.shape[1])
     x = a[i, j]
     y = b[i, j]
     keep = 1.0 - y[3]
@@ -994,9 +976,7 @@ def adjust_layer(
 ):
     """One thread per pixel: CesiumJS's imagery-layer adjustments in its order (brightness, contrast, hue,
     saturation, gamma), then alpha, the split (keep one side of a vertical line) and the cutout rectangle."""
-    ij = pixel_of(wp.tid() + thread_offset, frame.cols)
-    i = ij[0]
-    j = ij[1]
+    i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
     x = image[i, j]
     rgb = wp.vec3(x[0], x[1], x[2])
     rgb = rgb * adjustment.brightness  # mix(0, color, brightness)
