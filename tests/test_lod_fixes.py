@@ -10,6 +10,7 @@ from stepterrain.errors import InvalidInputError
 from stepterrain.texture_lod import ImagePyramid, PatchQuadtree, TextureTree, render_with_textures
 
 from .reference_texture import reduce_rounded_reference
+from .test_texture_lod import big_memmap_npy, pyramid_build_rise
 
 
 @pytest.mark.parametrize("fov", [1e-310, 1e-320, 5e-324])
@@ -286,37 +287,9 @@ def test_a_painted_patch_leaves_nodata_out_as_heightfield_mesh_does():
 def test_a_writeable_memmap_is_copied_into_storage_with_memory_bounded(tmp_path):
     """The copy of a writeable memmap into storage (level_0.u8) read it through its mapping, band by band, but left
     every page resident: the peak resident set rose by the whole image (48 MB here), not about a band."""
-    import subprocess
-    import sys
-    import textwrap
-
-    source = tmp_path / "big.npy"
-    image = np.lib.format.open_memmap(source, mode="w+", dtype=np.uint8, shape=(4000, 4000, 3))
-    image[::7] = 200
-    image.flush()
-    del image
-    script = textwrap.dedent(f"""
-        import numpy as np
-        from stepterrain.texture_lod import ImagePyramid
-        ImagePyramid.build(np.zeros((1001, 1003, 3), np.uint8), band_bytes=1 << 20, device="cpu").close()
-        def status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-        image = np.load({str(source)!r}, mmap_mode="r+")  # writeable: copied into storage first
-        open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident set
-        before = status("VmRSS")
-        pyramid = ImagePyramid.build(image, band_bytes=1 << 20, device="cpu")
-        rise = status("VmHWM") - before
-        assert pyramid.levels[-1].shape == (1, 1, 3) and 25 <= int(pyramid.levels[-1][0, 0, 0]) <= 32
-        pyramid.close()
-        print(rise)
-    """)
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
-    if result.returncode != 0 and "clear_refs" in result.stderr:
-        pytest.skip("/proc/self/clear_refs is not writable here")
-    assert result.returncode == 0, result.stderr
-    rise = int(result.stdout.strip().splitlines()[-1])
+    source = big_memmap_npy(tmp_path)
+    rise = pyramid_build_rise(f"np.load({str(source)!r}, mmap_mode='r+')",  # writeable: copied into storage first
+                              1 << 20, check="assert 25 <= int(pyramid.levels[-1][0, 0, 0]) <= 32")
     assert rise < 20 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB for a 48 MB image"
 
 
@@ -337,34 +310,5 @@ def test_a_memmap_band_is_copied_without_its_whole_mapping_resident(tmp_path):
     resident, and only then dropped them: the peak rose by a band more than pread's copy (52 MB against 40 MB
     for 16 MB bands of a 48 MB image; the benchmark's 16384 x 8192 pyramid 83 -> 119 MB). The band is now copied a
     few MiB at a time, each piece's pages dropped at once."""
-    import subprocess
-    import sys
-    import textwrap
-
-    source = tmp_path / "big.npy"
-    image = np.lib.format.open_memmap(source, mode="w+", dtype=np.uint8, shape=(4000, 4000, 3))
-    image[::7] = 200
-    image.flush()
-    del image
-    script = textwrap.dedent(f"""
-        import numpy as np
-        from stepterrain.texture_lod import ImagePyramid
-        ImagePyramid.build(np.zeros((1001, 1003, 3), np.uint8), band_bytes=1 << 20, device="cpu").close()
-        def status(key):
-            for line in open("/proc/self/status"):
-                if line.startswith(key):
-                    return int(line.split()[1]) * 1024
-        open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident set
-        before = status("VmRSS")
-        pyramid = ImagePyramid.build({str(source)!r}, band_bytes=16 << 20, device="cpu")
-        rise = status("VmHWM") - before
-        assert pyramid.levels[-1].shape == (1, 1, 3)
-        pyramid.close()
-        print(rise)
-    """)
-    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)
-    if result.returncode != 0 and "clear_refs" in result.stderr:
-        pytest.skip("/proc/self/clear_refs is not writable here")
-    assert result.returncode == 0, result.stderr
-    rise = int(result.stdout.strip().splitlines()[-1])
+    rise = pyramid_build_rise(repr(str(big_memmap_npy(tmp_path))), 16 << 20)
     assert rise < 46 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB with 16 MB bands"

@@ -113,13 +113,20 @@ def test_pyramid_of_a_sliced_memmap_reads_the_slice(tmp_path):
         np.testing.assert_array_equal(ours.anisotropic[(1, 0)], copy.anisotropic[(1, 0)])
 
 
-def test_pyramid_memory_bounded_for_memmap_larger_than_budget(tmp_path):
-    """Build from a 48 MB memory-mapped .npy with 1 MB bands: the resident set must not grow by the image."""
+def big_memmap_npy(tmp_path: Path) -> Path:
+    """A 48 MB (4000, 4000, 3) uint8 .npy (every 7th row 200, else 0), written through a memmap."""
     source = tmp_path / "big.npy"
     image = np.lib.format.open_memmap(source, mode="w+", dtype=np.uint8, shape=(4000, 4000, 3))
     image[::7] = 200
     image.flush()
     del image
+    return source
+
+
+def pyramid_build_rise(image: str, band_bytes: int, check: str = "") -> int:
+    """The peak resident set's rise (bytes) while ``ImagePyramid.build(<image>, band_bytes=...)`` runs in a fresh
+    process (``image``: a Python expression, evaluated before the measurement), after a warm-up build; ``check``: one
+    more line of assertions on ``pyramid``. Skips where /proc/self/clear_refs cannot be written."""
     script = textwrap.dedent(f"""
         import numpy as np
         from stepterrain.texture_lod import ImagePyramid
@@ -129,11 +136,13 @@ def test_pyramid_memory_bounded_for_memmap_larger_than_budget(tmp_path):
             for line in open("/proc/self/status"):
                 if line.startswith(key):
                     return int(line.split()[1]) * 1024
+        image = {image}
         open("/proc/self/clear_refs", "w").write("5")   # reset the peak resident set
         before = status("VmRSS")
-        pyramid = ImagePyramid.build({str(source)!r}, band_bytes=1 << 20, device="cpu")
+        pyramid = ImagePyramid.build(image, band_bytes={band_bytes}, device="cpu")
         rise = status("VmHWM") - before
         assert pyramid.levels[-1].shape == (1, 1, 3)
+        {check}
         pyramid.close()
         print(rise)
     """)
@@ -141,7 +150,12 @@ def test_pyramid_memory_bounded_for_memmap_larger_than_budget(tmp_path):
     if result.returncode != 0 and "clear_refs" in result.stderr:
         pytest.skip("/proc/self/clear_refs is not writable here")
     assert result.returncode == 0, result.stderr
-    rise = int(result.stdout.strip().splitlines()[-1])
+    return int(result.stdout.strip().splitlines()[-1])
+
+
+def test_pyramid_memory_bounded_for_memmap_larger_than_budget(tmp_path):
+    """Build from a 48 MB memory-mapped .npy with 1 MB bands: the resident set must not grow by the image."""
+    rise = pyramid_build_rise(repr(str(big_memmap_npy(tmp_path))), 1 << 20)
     assert rise < 20 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB for a 48 MB image"
 
 
