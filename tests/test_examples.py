@@ -23,6 +23,18 @@ def load_example(name: str):
     return module
 
 
+def assert_usage_error_writing_nothing(name: str, argv: list[str], message: str, folder: Path, capsys) -> None:
+    """Example ``name`` run with ``argv`` ends as an argparse error (exit 2, ``message`` on stderr, no traceback)
+    and ``folder`` stays empty."""
+    example = load_example(name)
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "error: " in err and message in err and "Traceback" not in err
+    assert list(folder.iterdir()) == []
+
+
 def read_png(path: Path) -> np.ndarray:
     from PIL import Image
 

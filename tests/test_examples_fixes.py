@@ -2,21 +2,12 @@
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import pytest
 
 from .conftest import needs_render
-
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-
-
-def load_example(name: str):
-    spec = importlib.util.spec_from_file_location(f"example_{name}_fixes", EXAMPLES / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from .test_examples import EXAMPLES, assert_usage_error_writing_nothing, load_example
 
 
 def test_batch_tiles_refuses_an_image_name_it_cannot_write_before_writing_tiles(tmp_path, capsys):
@@ -99,14 +90,8 @@ def test_examples_refuse_bad_arguments_before_any_work(name, argv, message, tmp_
     """Arguments the library refuses only at the end were found after the work and, for batch_tiles and
     closeup_mappings, after outputs were written: a failed command left them behind. Now usage errors (exit 2, one
     line) before any work, and nothing is written."""
-    example = load_example(name)
     argv = [a.format(tmp=tmp_path) for a in argv] + ["--output", str(tmp_path / "out.png"), "--device", "cpu"]
-    with pytest.raises(SystemExit) as exit_info:
-        example.main(argv)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err
-    assert "error: " in err and message in err and "Traceback" not in err
-    assert list(tmp_path.iterdir()) == []
+    assert_usage_error_writing_nothing(name, argv, message, tmp_path, capsys)
 
 
 def test_closeup_mappings_refuses_an_mp4_without_imageio_ffmpeg_before_any_work(tmp_path, monkeypatch, capsys):
