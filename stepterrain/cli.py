@@ -30,7 +30,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from ._compaction import budget_hint, get_memory_budget, set_memory_budget
-from .errors import InvalidInputError, StepTerrainError
+from .errors import InvalidInputError, StepTerrainError, counted
 from .export import MESH_EXTENSIONS
 from .stepped import TARGET_STEPS, colormap, colormap_samples, nice_interval
 
@@ -118,9 +118,9 @@ class Progress:
 
 
 def _counted(count: int, noun: str, plural: str | None = None) -> str:
-    """``count`` and ``noun`` for progress and summary lines: "1 level", "2 levels", "1,024 vertices" (``plural``
-    when adding an s is wrong). The lines said "1 levels" and "1 workers"."""
-    return f"{count:,} {noun if count == 1 else plural or noun + 's'}"
+    """``count`` and ``noun`` for progress and summary lines, the count grouped: "1 level", "1,024 vertices"
+    (:func:`stepterrain.errors.counted`). The lines said "1 levels" and "1 workers"."""
+    return counted(count, noun, plural, grouped=True)
 
 
 # ------------------------------------------------------------------------------------------ argument types

@@ -61,7 +61,9 @@ def caller_stacklevel() -> int:
     return level
 
 
-def counted(count: int, noun: str, plural: str | None = None) -> str:
+def counted(count: int, noun: str, plural: str | None = None, *, grouped: bool = False) -> str:
     """``count`` and ``noun`` for a message: "1 item", "2 items", "1 NaN or infinite value" (``plural`` where adding
-    an s is wrong: "vertex", "vertices"). Messages said "of 1 items" and "1 NaN or infinite values"."""
-    return f"{count} {noun if count == 1 else plural or noun + 's'}"
+    an s is wrong: "vertex", "vertices"); ``grouped``: the count with thousands separators ("1,024 vertices", as
+    the CLI's progress lines write counts). Messages said "of 1 items" and "1 NaN or infinite values"."""
+    number = f"{count:,}" if grouped else f"{count}"
+    return f"{number} {noun if count == 1 else plural or noun + 's'}"
