@@ -46,7 +46,7 @@ class _RoiAction(argparse.Action):
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_height_unit, _floats, _path, _window
+    from .cli import _add_input_options, _floats, _path, _window
 
     p = commands.add_parser(
         "closeup",
@@ -58,7 +58,7 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
-    _add_height_unit(p)
+    _add_input_options(p)
     p.add_argument("--roi", type=_floats(3, "x,y,r"), action=_RoiAction, metavar="x,y,r",
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")
     p.add_argument("--roi-relative", type=_floats(3, "fx,fy,fr"), action=_RoiAction, metavar="fx,fy,fr",
@@ -169,7 +169,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                      "(kept, then copied once by the writer)", hint="render fewer or smaller frames")
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit)
+    terrain = _load_input(args.input, args.height_unit, crop=args.crop, coarsen=args.coarsen)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)

@@ -16,7 +16,7 @@ import numpy as np
 
 from .cli import (
     Progress,
-    _add_height_unit,
+    _add_input_options,
     _check_output,
     _check_outputs,
     _check_size,
@@ -59,7 +59,7 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
-    _add_height_unit(p)
+    _add_input_options(p)
     p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
                    choices=("standard", "multidirectional", "combined", "igor"),
                    help="hillshade variant as gdaldem defines it: standard, multidirectional, combined, igor (default "
@@ -183,7 +183,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit)
+    terrain = _load_input(args.input, args.height_unit, crop=args.crop, coarsen=args.coarsen)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
 
     device = resolve_device(args.device)

@@ -59,6 +59,10 @@ def set_memory_budget(nbytes: int) -> int:
     return previous
 
 
+#: What makes a stepped output smaller: the default hint of :func:`check_budget`.
+SMALLER_HINT = "crop or coarsen the input (Terrain.crop, Terrain.coarsen; --crop, --coarsen) or coarsen the isovalues"
+
+
 def budget_value(nbytes: object, name: str = "memory_budget") -> int:
     """``nbytes`` checked as a memory budget: a positive int of bytes (an :class:`InvalidInputError` naming
     ``name`` otherwise)."""
@@ -68,7 +72,7 @@ def budget_value(nbytes: object, name: str = "memory_budget") -> int:
 
 
 def check_budget(nbytes: int, what: str, budget: int | None = None, *,
-                 hint: str = "coarsen the input or the isovalues") -> None:
+                 hint: str = SMALLER_HINT) -> None:
     """Raise :class:`OutputTooLargeError` when ``nbytes`` exceeds the budget, naming the size; ``budget`` (a
     caller's ``memory_budget=``) is checked first, ``hint`` says what would make the output smaller."""
     limit = _memory_budget if budget is None else budget_value(budget)

@@ -178,16 +178,51 @@ def _add_height_unit(p: argparse.ArgumentParser, help: str | None = None) -> Non
                                 "else as stored)")
 
 
-def _load_input(path: str | None, height_unit: str | None) -> Any:
-    """The DEM at ``path`` (``--height-unit`` applied), else the embedded one (where a unit is refused)."""
+def _positive_int(text: str) -> int:
+    """A count option (``--coarsen``): a whole number >= 1, refused by argparse before any file is read."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive whole number; got {text!r}")
+    return value
+
+
+def _add_input_options(p: argparse.ArgumentParser) -> None:
+    """The INPUT DEM's options: ``--height-unit``, ``--crop`` and ``--coarsen`` (see :func:`_load_input`)."""
+    _add_height_unit(p)
+    p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
+                   help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
+                        "prints; a geographic DEM's local metres)")
+    p.add_argument("--coarsen", type=_positive_int, metavar="N",
+                   help="average N x N blocks of nodes into one (nodata ignored), after --crop: a DEM too big "
+                        "for the memory budget, or more detail than needed")
+
+
+def _load_input(path: str | None, height_unit: str | None, *, crop: Sequence[float] | None = None,
+                coarsen: int | None = None) -> Any:
+    """The DEM at ``path`` (``--height-unit`` applied), else the embedded one (where a unit is refused); then
+    ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen`` (:meth:`Terrain.coarsen`, block means)."""
     from .io import load_dem, sample_dem
 
     if path:
-        return load_dem(path, height_unit=height_unit)
-    if height_unit is not None:
+        terrain = load_dem(path, height_unit=height_unit)
+    elif height_unit is not None:
         raise InvalidInputError(
             f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {height_unit!r}")
-    return sample_dem()
+    else:
+        terrain = sample_dem()
+    try:  # the methods' refusals, prefixed with the option that passed their argument
+        option = "--crop"
+        if crop is not None:
+            terrain = terrain.crop(crop)
+        option = "--coarsen"
+        if coarsen is not None:
+            terrain = terrain.coarsen(coarsen)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{option}: {exc}") from None
+    return terrain
 
 
 #: ``--memory-budget`` units, case-insensitive: decimal (kB, MB, GB, TB), binary (KiB, MiB, GiB, TiB); B or none: bytes.
@@ -294,7 +329,7 @@ def _add_steps(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
-    _add_height_unit(p)
+    _add_input_options(p)
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
                      help=f"uniform isovalues base + k*M (default: a round M giving ~{TARGET_STEPS} steps)")
@@ -471,7 +506,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     # load
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit)
+    terrain = _load_input(args.input, args.height_unit, crop=args.crop, coarsen=args.coarsen)
     lo, hi = terrain.height_range
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes, heights {lo:g} to {hi:g},")
 

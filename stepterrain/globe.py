@@ -1324,7 +1324,7 @@ def adaptive_mesh(
                                 f"nodes, int32 packed corners); got shape {z.shape}")
     n = cells + 1
     check_budget(n * n * _BYTES_PER_ENTRY, f"an adaptive mesh of a {rows}x{cols} grid (padded to {n}x{n})",
-                 hint="coarsen the input")
+                 hint="crop or coarsen the input (Terrain.crop, Terrain.coarsen)")
     highest = float(z.max()) if camera is not None else 0.0  # of the unpadded grid (the padding repeats its edges)
     if camera is not None:
         if not isinstance(camera, Camera):

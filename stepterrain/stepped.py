@@ -33,7 +33,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
-from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
+from ._compaction import SMALLER_HINT, budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
     chunk_shift,
     chunked_threads,
@@ -662,7 +662,7 @@ def _check_int32_total(counts: wp.array, bound: int, what: str) -> None:
     if total > _INT32_MAX:
         raise OutputTooLargeError(
             f"the stepped mesh would have {total:,} {what}, more than the {_INT32_MAX:,} one call can index; "
-            "coarsen the input or the isovalues"
+            + SMALLER_HINT
         )
 
 

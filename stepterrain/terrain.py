@@ -753,6 +753,136 @@ class Terrain:
             return trimesh.Trimesh(self.points, self.faces, process=False)
         return heightfield_mesh(self.heights, spacing=self.spacing, origin=self.origin)
 
+    # ------------------------------------------------------------------ smaller grids
+    def crop(self, extent: ArrayLike) -> Terrain:
+        """The grid's nodes inside ``extent`` = (xmin, xmax, ymin, ymax), in the terrain's own coordinates (those
+        of :attr:`extent` and ``stepterrain info``; a geographic DEM's local metres), bounds included.
+
+        The nodes keep their positions and heights: ``origin`` becomes the first kept node's position, ``spacing``,
+        ``crs``, ``source`` and ``height_unit`` stay, so a cropped mesh lies exactly on the uncropped one. A grid
+        too big to step or mesh whole (an :class:`~stepterrain.errors.OutputTooLargeError`) can be cropped to the
+        part that matters, here or with ``--crop`` on the command line.
+
+        Raises
+        ------
+        InvalidInputError
+            A TIN, an ``extent`` that is not four finite numbers with xmin <= xmax and ymin <= ymax, one that holds
+            fewer than 2 x 2 nodes of the grid, or only nodata.
+
+        Examples
+        --------
+        >>> t = Terrain.from_heights(np.arange(20.0).reshape(4, 5), spacing=(10.0, 10.0))
+        >>> c = t.crop((10.0, 30.0, 0.0, 15.0))
+        >>> c.shape, c.origin, c.extent
+        ((2, 3), (10.0, 0.0), (10.0, 30.0, 0.0, 10.0))
+        """
+        self._grid_only("crop", "cut its mesh instead, e.g. with trimesh's slice_plane")
+        try:
+            bounds = real_numbers(extent, "extent", "(xmin, xmax, ymin, ymax)")
+        except InvalidInputError:
+            bounds = np.array([])
+        if bounds.shape != (4,) or not np.all(np.isfinite(bounds)) or bounds[0] > bounds[1] or bounds[2] > bounds[3]:
+            raise InvalidInputError(f"extent must be 4 finite numbers (xmin, xmax, ymin, ymax), xmin <= xmax and "
+                                    f"ymin <= ymax, in the terrain's coordinates (its extent is "
+                                    f"{self._extent_text()}); got {extent!r}")
+        (rows, cols), (dx, dy), (ox, oy) = self.heights.shape, self.spacing, self.origin
+        j0, j1 = _node_span(float(bounds[0]), float(bounds[1]), ox, dx, cols)
+        i0, i1 = _node_span(float(bounds[2]), float(bounds[3]), oy, dy, rows)
+        if j1 - j0 < 1 or i1 - i0 < 1:
+            raise InvalidInputError(
+                f"extent {tuple(float(v) for v in bounds)} (xmin, xmax, ymin, ymax) holds "
+                f"{max(i1 - i0 + 1, 0)} x {max(j1 - j0 + 1, 0)} nodes of the grid, fewer than the 2 x 2 a mesh needs; "
+                f"the terrain's extent is {self._extent_text()}, spacing {self.spacing}")
+        kept = self.heights[i0:i1 + 1, j0:j1 + 1]
+        if not np.isfinite(kept).any():
+            raise InvalidInputError(f"extent {tuple(float(v) for v in bounds)} holds only nodata "
+                                    f"({kept.shape[0]} x {kept.shape[1]} nodes)")
+        return self._subgrid(kept, (dx, dy), (ox + j0 * dx, oy + i0 * dy))
+
+    def coarsen(self, factor: int, *, method: Literal["mean", "nearest"] = "mean") -> Terrain:
+        """A grid ``factor`` times coarser in x and y: for a DEM too big to step or mesh whole, or more detail than
+        a view needs (``--coarsen`` on the command line).
+
+        Parameters
+        ----------
+        factor : int
+            Nodes per new node along each axis (>= 1; 1 gives the terrain itself).
+        method : {"mean", "nearest"}
+            ``"mean"`` (default): each new node is the mean of a ``factor`` x ``factor`` block of nodes, placed at
+            the block's centre, nodata ignored (a block of nodata only stays nodata), as ``gdalwarp -r average``
+            averages whole cells; rows and columns beyond the last whole block are dropped. ``"nearest"``: every
+            ``factor``-th node from node (0, 0), heights unchanged (peaks between them are lost), as
+            ``gdal_translate -r nearest``.
+
+        ``crs``, ``source`` and ``height_unit`` stay; ``spacing`` grows ``factor`` times.
+
+        Raises
+        ------
+        InvalidInputError
+            A TIN, ``factor`` not a positive integer or so large that fewer than 2 x 2 nodes remain, an unknown
+            ``method``.
+
+        Examples
+        --------
+        >>> t = Terrain.from_heights(np.arange(16.0).reshape(4, 4), spacing=(10.0, 10.0))
+        >>> m = t.coarsen(2)
+        >>> m.heights.tolist(), m.spacing, m.origin
+        ([[2.5, 4.5], [10.5, 12.5]], (20.0, 20.0), (5.0, 5.0))
+        >>> t.coarsen(3, method="nearest").heights.tolist()
+        [[0.0, 3.0], [12.0, 15.0]]
+        """
+        self._grid_only("coarsen", "simplify its mesh instead, e.g. with adaptive_mesh on a grid")
+        if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, numbers.Integral) or factor < 1:
+            raise InvalidInputError(f"factor must be a positive integer (nodes per new node along each axis); "
+                                    f"got {factor!r}")
+        if method not in ("mean", "nearest"):
+            raise InvalidInputError(f"method must be 'mean' or 'nearest'; got {method!r}")
+        f = int(factor)
+        if f == 1:
+            return self
+        (rows, cols), (dx, dy), (ox, oy) = self.heights.shape, self.spacing, self.origin
+        shape = (rows // f, cols // f) if method == "mean" else ((rows - 1) // f + 1, (cols - 1) // f + 1)
+        if min(shape) < 2:
+            raise InvalidInputError(f"factor {f} leaves {shape[0]} x {shape[1]} nodes of the {rows} x {cols} grid "
+                                    f"({method}), fewer than the 2 x 2 a mesh needs")
+        if method == "nearest":
+            return self._subgrid(self.heights[::f, ::f], (f * dx, f * dy), (ox, oy))
+        h, w = shape
+        total = np.zeros((h, w), dtype=np.float64)
+        count = np.zeros((h, w), dtype=np.int64)
+        for r in range(f):  # a block row at a time: temporaries of 1/f of the grid, not the grid in float64
+            block = self.heights[r:h * f:f, :w * f].reshape(h, w, f)
+            finite = np.isfinite(block)
+            total += np.where(finite, block, 0.0).sum(axis=2, dtype=np.float64)
+            count += finite.sum(axis=2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = (total / count).astype(np.float32)
+        half = (f - 1) / 2
+        return self._subgrid(mean, (f * dx, f * dy), (ox + half * dx, oy + half * dy))
+
+    def _grid_only(self, what: str, instead: str) -> None:
+        if self.kind != "grid":
+            raise InvalidInputError(f"{what} applies to a grid Terrain; got a TIN ({instead})")
+
+    def _extent_text(self) -> str:
+        return "(" + ", ".join(f"{v:.10g}" for v in self.extent) + ")"
+
+    def _subgrid(self, heights: NDArray[np.float32], spacing: tuple[float, float],
+                 origin: tuple[float, float]) -> Terrain:
+        return Terrain.from_heights(np.ascontiguousarray(heights), spacing=spacing, origin=origin, crs=self.crs,
+                                    source=self.source, height_unit=self.height_unit)
+
+
+def _node_span(lo: float, hi: float, origin: float, step: float, n: int) -> tuple[int, int]:
+    """First and last of the ``n`` node indices k with lo <= origin + k·step <= hi (a bound a billionth of a step
+    beside a node still takes it: the rounding of a coordinate typed back); last < first when none."""
+    a, b = (lo - origin) / step, (hi - origin) / step
+    if step < 0:
+        a, b = b, a
+    first = max(0.0, math.ceil(min(a - 1e-9, n)))
+    last = min(n - 1.0, math.floor(max(b + 1e-9, -1.0)))
+    return int(first), int(last)
+
 
 #: folded faces named by index in the refusal (the count gives the rest)
 _FOLDS_NAMED = 5

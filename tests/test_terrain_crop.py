@@ -1,0 +1,238 @@
+"""Terrain.crop and Terrain.coarsen (and --crop / --coarsen): smaller grids of a DEM too big to step whole.
+
+Checked against brute force over the nodes' world positions (heightfield_mesh's vertices) and NumPy block means,
+on hand-made grids, hypothesis grids with either spacing sign, and the real DEMs in shared/data.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st_
+
+import stepterrain as st
+from stepterrain import cli
+from stepterrain.errors import InvalidInputError
+
+from .conftest import SHARED_DATA
+
+
+def _nodes(terrain):
+    """(H*W, 3) node positions and heights, row-major: x0 + j·dx, y0 + i·dy (heightfield_mesh's placement)."""
+    rows, cols = terrain.shape
+    i, j = np.mgrid[0:rows, 0:cols]
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    return np.column_stack([(x0 + j * dx).ravel(), (y0 + i * dy).ravel(), terrain.heights.ravel()])
+
+
+def _grid(rows, cols, spacing=(10.0, -10.0), origin=(500.0, 900.0), seed=0, nodata=0.0):
+    rng = np.random.default_rng(seed)
+    z = rng.normal(size=(rows, cols)).cumsum(axis=0).cumsum(axis=1).astype(np.float32)
+    if nodata:
+        z[rng.random(z.shape) < nodata] = np.nan
+    return st.Terrain.from_heights(z, spacing=spacing, origin=origin, crs="EPSG:32611", source="t.tif",
+                                   height_unit="ft")
+
+
+# ------------------------------------------------------------------------------------------ crop
+def test_crop_keeps_the_nodes_inside_bounds_included_at_their_positions():
+    t = _grid(6, 8)  # x 500..570, y 900..850 (north-up: dy < 0)
+    c = t.crop((510.0, 540.0, 860.0, 880.0))
+    assert c.shape == (3, 4)
+    assert c.extent == (510.0, 540.0, 860.0, 880.0)
+    assert c.origin == (510.0, 880.0) and c.spacing == t.spacing
+    np.testing.assert_array_equal(c.heights, t.heights[2:5, 1:5])
+    assert (c.crs, c.source, c.height_unit) == (t.crs, t.source, t.height_unit)
+    # a bound a hair inside a node drops it; a hair outside (the rounding of a typed coordinate) keeps it
+    assert t.crop((510.0 + 1e-6, 540.0, 860.0, 880.0)).shape == (3, 3)
+    assert t.crop((510.0 - 1e-6, 540.0 + 1e-12, 860.0, 880.0)).shape == (3, 4)
+    assert t.crop((-1e300, 1e300, -1e300, 1e300)).shape == t.shape  # beyond the grid: clamped
+
+
+@settings(max_examples=60, deadline=None)
+@given(rows=st_.integers(2, 9), cols=st_.integers(2, 9), dx=st_.sampled_from([1.0, -1.0, 2.5, -30.0]),
+       dy=st_.sampled_from([1.0, -1.0, 0.5, -30.0]), seed=st_.integers(0, 10**6))
+def test_crop_keeps_exactly_the_nodes_brute_force_finds_inside(rows, cols, dx, dy, seed):
+    t = _grid(rows, cols, spacing=(dx, dy), origin=(100.0, -40.0), seed=seed)
+    rng = np.random.default_rng(seed)
+    xmin, xmax, ymin, ymax = t.extent
+    x0, x1 = np.sort(rng.uniform(xmin - 2 * abs(dx), xmax + 2 * abs(dx), 2))
+    y0, y1 = np.sort(rng.uniform(ymin - 2 * abs(dy), ymax + 2 * abs(dy), 2))
+    nodes = _nodes(t)
+    inside = (nodes[:, 0] >= x0) & (nodes[:, 0] <= x1) & (nodes[:, 1] >= y0) & (nodes[:, 1] <= y1)
+    mask = inside.reshape(rows, cols)
+    kept_rows, kept_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
+    if len(kept_rows) < 2 or len(kept_cols) < 2:
+        with pytest.raises(InvalidInputError, match=r"^extent \(.*\) \(xmin, xmax, ymin, ymax\) holds \d+ x \d+ "
+                                                    r"nodes of the grid, fewer than the 2 x 2 a mesh needs"):
+            t.crop((x0, x1, y0, y1))
+        return
+    c = t.crop((x0, x1, y0, y1))
+    # the kept nodes form the rectangle brute force finds, at the same positions with the same heights
+    np.testing.assert_array_equal(_nodes(c), nodes[inside])
+    assert mask.sum() == len(kept_rows) * len(kept_cols)
+
+
+def test_a_cropped_stepped_mesh_lies_on_the_whole_one():
+    t = st.sample_dem()
+    xmin, xmax, ymin, ymax = t.extent
+    c = t.crop((xmin + 3000.0, xmin + 9000.0, ymin + 4000.0, ymin + 8000.0))
+    whole = st.stepped(t, interval=50.0, base=0.0, device="cpu")
+    part = st.stepped(c, interval=50.0, base=0.0, device="cpu")
+    # every terrace vertex (a node) of the part is a vertex of the whole at the same position: one frame
+    whole_set = {tuple(v) for v in np.round(np.asarray(whole.vertices), 6)}
+    nodes = {tuple(n) for n in np.round(_nodes(c)[:, :2], 6)}
+    at_nodes = {tuple(v) for v in np.round(np.asarray(part.vertices), 6) if tuple(v[:2]) in nodes}
+    assert len(at_nodes) > 1000 and at_nodes <= whole_set
+    assert part.bounds[0][0] >= c.extent[0] and part.bounds[1][0] <= c.extent[1]
+    assert part.bounds[0][1] >= c.extent[2] and part.bounds[1][1] <= c.extent[3]
+
+
+@pytest.mark.parametrize(
+    ("extent", "message"),
+    [
+        ((0.0, 1.0, 2.0), r"^extent must be 4 finite numbers \(xmin, xmax, ymin, ymax\), xmin <= xmax and ymin <= "
+                          r"ymax, in the terrain's coordinates \(its extent is \(500, 570, 850, 900\)\); got "
+                          r"\(0\.0, 1\.0, 2\.0\)$"),
+        ((560.0, 510.0, 860.0, 880.0), r"xmin <= xmax .* got \(560\.0, 510\.0, 860\.0, 880\.0\)$"),
+        ((510.0, 560.0, math.nan, 880.0), r"^extent must be 4 finite numbers"),
+        ("510,560,860,880", r"^extent must be 4 finite numbers"),
+        ((510.0, 515.0, 860.0, 880.0), r"holds 3 x 1 nodes of the grid, fewer than the 2 x 2 a mesh needs; the "
+                                       r"terrain's extent is \(500, 570, 850, 900\), spacing \(10\.0, -10\.0\)$"),
+        ((0.0, 1.0, 0.0, 1.0), r"holds 0 x 0 nodes"),
+    ],
+)
+def test_crop_refuses_bad_extents(extent, message):
+    with pytest.raises(InvalidInputError, match=message):
+        _grid(6, 8).crop(extent)
+
+
+def test_crop_refuses_only_nodata_and_tins():
+    z = np.ones((5, 5), dtype=np.float32)
+    z[:, :3] = np.nan
+    with pytest.raises(InvalidInputError, match=r"^extent \(0\.0, 2\.0, 0\.0, 4\.0\) holds only nodata \(5 x 3 "
+                                                r"nodes\)$"):
+        st.Terrain.from_heights(z).crop((0.0, 2.0, 0.0, 4.0))
+    tin = st.Terrain.from_mesh(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]], process=False))
+    for call in (lambda: tin.crop((0, 1, 0, 1)), lambda: tin.coarsen(2)):
+        with pytest.raises(InvalidInputError, match=r"applies to a grid Terrain; got a TIN"):
+            call()
+
+
+# ------------------------------------------------------------------------------------------ coarsen
+def _block_means(z, f):
+    h, w = z.shape[0] // f, z.shape[1] // f
+    out = np.full((h, w), np.nan)
+    for i in range(h):
+        for j in range(w):
+            block = z[i * f:(i + 1) * f, j * f:(j + 1) * f].astype(np.float64)
+            if np.isfinite(block).any():
+                out[i, j] = np.nanmean(block)
+    return out
+
+
+@settings(max_examples=40, deadline=None)
+@given(rows=st_.integers(2, 17), cols=st_.integers(2, 17), f=st_.integers(1, 5),
+       dx=st_.sampled_from([1.0, -2.0, 30.0]), dy=st_.sampled_from([-1.0, 3.0, -30.0]),
+       nodata=st_.sampled_from([0.0, 0.3, 0.9]), seed=st_.integers(0, 10**6))
+def test_coarsen_mean_is_the_block_mean_at_the_block_centre(rows, cols, f, dx, dy, nodata, seed):
+    t = _grid(rows, cols, spacing=(dx, dy), origin=(7.0, 11.0), seed=seed, nodata=nodata)
+    if f == 1:
+        assert t.coarsen(1) is t
+        return
+    if rows // f < 2 or cols // f < 2:
+        with pytest.raises(InvalidInputError, match=rf"^factor {f} leaves {rows // f} x {cols // f} nodes of the "
+                                                    rf"{rows} x {cols} grid \(mean\), fewer than the 2 x 2"):
+            t.coarsen(f)
+        return
+    c = t.coarsen(f)
+    expected = _block_means(t.heights, f)
+    np.testing.assert_allclose(c.heights, expected, rtol=1e-6, atol=1e-5)
+    np.testing.assert_array_equal(np.isnan(c.heights), np.isnan(expected))
+    assert c.spacing == (f * dx, f * dy)
+    # each new node sits at the mean position of its block's nodes
+    nodes = _nodes(t)[:, :2].reshape(rows, cols, 2)[: rows // f * f, : cols // f * f]
+    centres = nodes.reshape(rows // f, f, cols // f, f, 2).mean(axis=(1, 3))
+    np.testing.assert_allclose(_nodes(c)[:, :2].reshape(centres.shape), centres, rtol=0, atol=1e-9)
+    assert (c.crs, c.source, c.height_unit) == (t.crs, t.source, t.height_unit)
+
+
+def test_coarsen_nearest_keeps_every_nth_node():
+    t = _grid(7, 10)
+    c = t.coarsen(3, method="nearest")
+    np.testing.assert_array_equal(c.heights, t.heights[::3, ::3])
+    assert c.origin == t.origin and c.spacing == (30.0, -30.0)
+    np.testing.assert_array_equal(_nodes(c), _nodes(t).reshape(7, 10, 3)[::3, ::3].reshape(-1, 3))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        (dict(factor=0), r"^factor must be a positive integer \(nodes per new node along each axis\); got 0$"),
+        (dict(factor=2.0), r"^factor must be a positive integer .* got 2\.0$"),
+        (dict(factor=True), r"^factor must be a positive integer .* got True$"),
+        (dict(factor=2, method="cubic"), r"^method must be 'mean' or 'nearest'; got 'cubic'$"),
+        (dict(factor=4), r"^factor 4 leaves 1 x 2 nodes of the 6 x 8 grid \(mean\), fewer than the 2 x 2"),
+        (dict(factor=6, method="nearest"), r"^factor 6 leaves 1 x 2 nodes of the 6 x 8 grid \(nearest\)"),
+    ],
+)
+def test_coarsen_refuses_bad_factors(kwargs, message):
+    with pytest.raises(InvalidInputError, match=message):
+        _grid(6, 8).coarsen(**kwargs)
+
+
+def test_coarsen_keeps_a_real_dems_heights_and_volume():
+    """Big Tujunga (UTM, with its nodata) and the Front Range (degrees as local metres): block means keep the
+    height range within the original and the mean height (the volume over the area) to a small fraction."""
+    for name in ("big_tujunga_srtm_30m_utm11n.tif", "front_range_srtmgl3_3arcsec.tif"):
+        t = st.load_dem(SHARED_DATA / name)
+        c = t.coarsen(4)
+        lo, hi = t.height_range
+        clo, chi = c.height_range
+        assert lo <= clo and chi <= hi
+        whole = t.heights[: c.shape[0] * 4, : c.shape[1] * 4]
+        assert abs(np.nanmean(c.heights, dtype=np.float64) - np.nanmean(whole, dtype=np.float64)) < 1.0
+        assert c.crs == t.crs and c.source == t.source
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def test_steps_crop_and_coarsen_mesh_the_smaller_grid(tmp_path, capsys):
+    t = st.sample_dem()
+    xmin, _, ymin, _ = t.extent
+    crop = (xmin + 3000.0, xmin + 15000.0, ymin + 2000.0, ymin + 14000.0)
+    out = tmp_path / "part.ply"
+    code = cli.main(["steps", "--crop", ",".join(f"{v:.3f}" for v in crop), "--coarsen", "2", "--interval", "100",
+                     "-o", str(out)])
+    _, err = capsys.readouterr()
+    assert code == 0, err
+    expected = t.crop(crop).coarsen(2)
+    assert f"{expected.shape[0]} x {expected.shape[1]} nodes" in err
+    mesh = st.export.read_mesh(out)
+    reference = st.stepped(expected, interval=100.0, device="cpu")
+    assert len(mesh.faces) == len(reference.faces)
+    np.testing.assert_allclose(mesh.bounds[:, :2], reference.bounds[:, :2], atol=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--coarsen", "0"], "argument --coarsen: expected a positive whole number; got '0'"),
+        (["--coarsen", "2.5"], "argument --coarsen: expected a positive whole number; got '2.5'"),
+        (["--crop", "1,2,3"], "argument --crop: expected xmin,xmax,ymin,ymax; got '1,2,3'"),
+        (["--crop", "0,1,0,1"], "error: --crop: extent (0.0, 1.0, 0.0, 1.0) (xmin, xmax, ymin, ymax) holds 0 x 0 "
+                                "nodes of the grid"),
+        (["--coarsen", "700"], "error: --coarsen: factor 700 leaves 0 x 1 nodes of the 643 x 1197 grid (mean)"),
+    ],
+)
+@pytest.mark.parametrize("command", ["steps", "closeup", "texture"])
+def test_bad_crop_and_coarsen_exit_2_writing_nothing(tmp_path, capsys, command, argv, message):
+    code = cli.main([command, *argv, "-o", str(tmp_path / "x.png" if command != "steps" else tmp_path / "x.glb")])
+    _, err = capsys.readouterr()
+    assert code == 2
+    assert message in err, err
+    assert "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
