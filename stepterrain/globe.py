@@ -329,7 +329,9 @@ class Globe:
         if distance > self.radius + highest:  # above every node: most views, no lookup (at the highest, looked up)
             return
         surface = self.radius + lowest
-        if distance > surface:  # within the relief: the terrain in the eye's direction
+        if distance > 0:  # the terrain in the eye's direction (never below the lowest node): the bound within the
+            # relief, and what the refusal of an eye below every node names (it named the lowest node, e.g. the
+            # deepest trench's -8396 m for an eye 11 km under the Himalaya, where the terrain is +4821 m)
             surface = self.radius + self._height_under(np.asarray(eye, dtype=np.float64) / distance)
         if distance <= max(surface, 0.0):
             raise InvalidInputError(f"camera eye {eye} lies inside the planet, below the terrain surface in its "

@@ -741,3 +741,21 @@ def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_
     mesh = adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", sphere), device="cpu")
     assert np.asarray(mesh.faces).max() < len(mesh.vertices)
     assert (mesh.area_faces * mesh.face_normals[:, 2]).sum() == pytest.approx(69 * 89 * 900.0, rel=1e-9)
+
+
+def test_an_eye_below_every_node_is_refused_naming_the_terrain_in_its_direction():
+    """An eye below the lowest node was refused naming the lowest node's height as "the surface there": 4.5 km under
+    sea level beneath the 6 km mountain the message said "terrain -4000.0 m" (on the real relief, an eye 11 km under
+    the Himalaya read the Mariana trench's -8396 m). It names the terrain in the eye's direction now, as for an eye
+    within the relief; the eye at the centre names the lowest node."""
+    globe = _mountain_globe()
+    R = globe.radius
+    lowest = float(globe.heights.min())
+    assert lowest == pytest.approx(-4000.0, abs=1.0)
+    with pytest.raises(InvalidInputError, match=r"\|eye\| = 6366500\.0 m, the surface there 637[5-7]\d{3}\.\d m from "
+                                                r"the centre \(radius 6371000\.0 m, terrain \+[5-6]\d{3}\.\d m\)"):
+        globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 0.0, R - 4500.0)))
+    with pytest.raises(InvalidInputError, match=r"terrain -1000\.0 m\)"):  # the plateau, not the sea floor
+        globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 90.0, R - 4500.0)))
+    with pytest.raises(InvalidInputError, match=rf"\|eye\| = 0\.0 m, .* terrain {lowest:+.1f} m\)"):
+        globe.mesh(error=1000.0, camera=Camera(eye=(0.0, 0.0, 0.0), target=(1.0, 0.0, 0.0)))
