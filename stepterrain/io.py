@@ -647,6 +647,7 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                     )
                 _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
                 masked = dataset.read(band, masked=True)
+                unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 unit = dataset.units[band - 1]
                 transform = dataset.transform
@@ -666,6 +667,9 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     # and the stored band and its mask stayed alive to the end): float64 stays float64 until _elevation, which names
     # a value beyond float32 (a cast here made it nodata)
     mask = np.ma.getmask(masked)
+    if unmasked is not None:
+        mask = unmasked if mask is np.ma.nomask else np.logical_or(mask, unmasked, out=unmasked)
+    del unmasked
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         array = masked.data.astype(np.float64)
         array *= scale
@@ -695,6 +699,28 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     return _georeferenced(
         file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
     )
+
+
+def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> NDArray[np.bool_] | None:
+    """The cells of ``band`` (stored values ``data``) that its nodata value or an alpha band of ``dataset`` marks
+    missing where GDAL's mask does not use them, else None. GDAL masks a band by one of its internal mask, its nodata
+    value and an alpha band, in that order (RFC 15), so with an internal mask a cell at the nodata value read as a
+    height (a -9999 m pit), and with a nodata value a transparent cell did. The nodata value is compared in the
+    band's own dtype, as GDAL compares it; alpha 0 is missing, as GDAL's alpha mask reads it."""
+    from rasterio.enums import ColorInterp, MaskFlags
+
+    flags = dataset.mask_flag_enums[band - 1]
+    missing = None
+    nodata = dataset.nodatavals[band - 1]
+    if MaskFlags.nodata not in flags and nodata is not None and not math.isnan(nodata):
+        with np.errstate(over="ignore"):  # a nodata beyond a float band's dtype is inf: no finite cell
+            missing = data == (data.dtype.type(nodata) if data.dtype.kind == "f" else nodata)
+    if MaskFlags.alpha not in flags:
+        for index, interp in enumerate(dataset.colorinterp, start=1):
+            if interp == ColorInterp.alpha and index != band:
+                transparent = dataset.read(index) == 0
+                missing = transparent if missing is None else np.logical_or(missing, transparent, out=missing)
+    return missing
 
 
 def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) -> None:

@@ -1137,3 +1137,38 @@ def test_a_geographic_grid_in_grads_or_east_of_another_prime_meridian_is_placed_
     lon, lat = reproject(rasterio.crs.CRS.from_string(t.crs), "+proj=longlat +R=6371008.8 +no_defs",
                          [20 * t.spacing[0]], [10 * t.spacing[1]])
     assert (lon[0], lat[0]) == pytest.approx((lon1, lat1), abs=1e-8)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int16, np.uint8])
+def test_a_geotiffs_nodata_internal_mask_and_alpha_band_all_mark_missing_cells(tmp_path, dtype):
+    """GDAL's mask of a band is one of its internal mask, its nodata value and an alpha band, in that order: the
+    others a file also has went unread. A cell at the nodata value (-9999, 255) beside an internal mask was read as a
+    height (a -9999 m pit), and a transparent cell of a grey + alpha file that also names a nodata value as one.
+    Each now marks its missing cells, as load_dem says (the file's nodata value, an internal mask or an alpha
+    band)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.enums import ColorInterp
+
+    nodata = 255 if dtype == np.uint8 else -9999
+    z = (np.arange(20).reshape(4, 5) + 1).astype(dtype)
+    z[0, 0] = nodata
+    base = {"driver": "GTiff", "width": 5, "height": 4, "dtype": z.dtype.name, "crs": "EPSG:32611", "nodata": nodata,
+            "transform": rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)}
+    with rasterio.open(tmp_path / "masked.tif", "w", count=1, **base) as ds:
+        ds.write(z, 1)
+        mask = np.full((4, 5), 255, np.uint8)
+        mask[3, 3] = 0
+        ds.write_mask(mask)  # an internal mask (.msk inside the file)
+    with rasterio.open(tmp_path / "alpha.tif", "w", count=2, photometric="MINISBLACK", alpha="YES", **base) as ds:
+        alpha = np.full((4, 5), 255, dtype)
+        alpha[2, 1] = 0
+        ds.write(np.stack([z, alpha]))
+        ds.colorinterp = [ColorInterp.gray, ColorInterp.alpha]
+    with rasterio.open(tmp_path / "alpha.tif") as ds:  # an alpha band GDAL's mask leaves out for the nodata value
+        assert ds.colorinterp[1] == ColorInterp.alpha and ds.mask_flag_enums[0] == [rasterio.enums.MaskFlags.nodata]
+    for name, hole in (("masked.tif", (3, 3)), ("alpha.tif", (2, 1))):
+        t = load_dem(tmp_path / name)
+        expected = z.astype(np.float32)
+        expected[0, 0] = expected[hole] = np.nan
+        np.testing.assert_array_equal(t.heights, expected)
+        assert t.height_range == (2.0, 20.0)
