@@ -17,7 +17,7 @@ import warnings
 import zipfile
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -132,7 +132,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
         world position and ``spacing`` = (dx, -dy) from the geotransform,
         ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one spacing,
-        exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (dx = R·cos φc·Δλ at
+        exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (another body's
+        CRS, Mars or the Moon (IAU_2015:49900, ``+R=3396190``): its ellipsoid's mean radius a·(1 - f/3), its errors
+        below measured against that ellipsoid; angles in grads (EPSG:4807) and longitudes from another prime meridian
+        (Paris) are read as degrees east of Greenwich first) (dx = R·cos φc·Δλ at
         the latitude φc halfway between the first and last node rows, dy = R·Δφ; an .npz's ``dx_m``/``dy_m`` override
         them, and R and the standard parallel become those they are exact with, or no ``crs``, with a warning, for more
         metres per degree of longitude than of latitude): ``origin`` = (0, 0) at the top-left node, ``crs`` that
@@ -644,6 +647,7 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                     )
                 _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
                 masked = dataset.read(band, masked=True)
+                unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data)
                 scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
                 unit = dataset.units[band - 1]
                 transform = dataset.transform
@@ -663,6 +667,9 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     # and the stored band and its mask stayed alive to the end): float64 stays float64 until _elevation, which names
     # a value beyond float32 (a cast here made it nodata)
     mask = np.ma.getmask(masked)
+    if unmasked is not None:
+        mask = unmasked if mask is np.ma.nomask else np.logical_or(mask, unmasked, out=unmasked)
+    del unmasked
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         array = masked.data.astype(np.float64)
         array *= scale
@@ -692,6 +699,28 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     return _georeferenced(
         file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
     )
+
+
+def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> NDArray[np.bool_] | None:
+    """The cells of ``band`` (stored values ``data``) that its nodata value or an alpha band of ``dataset`` marks
+    missing where GDAL's mask does not use them, else None. GDAL masks a band by one of its internal mask, its nodata
+    value and an alpha band, in that order (RFC 15), so with an internal mask a cell at the nodata value read as a
+    height (a -9999 m pit), and with a nodata value a transparent cell did. The nodata value is compared in the
+    band's own dtype, as GDAL compares it; alpha 0 is missing, as GDAL's alpha mask reads it."""
+    from rasterio.enums import ColorInterp, MaskFlags
+
+    flags = dataset.mask_flag_enums[band - 1]
+    missing = None
+    nodata = dataset.nodatavals[band - 1]
+    if MaskFlags.nodata not in flags and nodata is not None and not math.isnan(nodata):
+        with np.errstate(over="ignore"):  # a nodata beyond a float band's dtype is inf: no finite cell
+            missing = data == (data.dtype.type(nodata) if data.dtype.kind == "f" else nodata)
+    if MaskFlags.alpha not in flags:
+        for index, interp in enumerate(dataset.colorinterp, start=1):
+            if interp == ColorInterp.alpha and index != band:
+                transparent = dataset.read(index) == 0
+                missing = transparent if missing is None else np.logical_or(missing, transparent, out=missing)
+    return missing
 
 
 def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) -> None:
@@ -982,6 +1011,10 @@ def _georeferenced(
         _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, factor)
         return terrain
 
+    body = _geographic_body(crs)
+    if body.degrees != 1.0 or body.meridian != 0.0:  # grads (EPSG:4807), or longitudes east of Paris: read as such
+        x0, dx, y0, dy = x0 * body.degrees + body.meridian, dx * body.degrees, y0 * body.degrees, dy * body.degrees
+        node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
     rows = heights.shape[0]
     node_lats = (node_y, node_y + (rows - 1) * dy)
     if not all(abs(lat) <= 90.0 + 1e-9 for lat in node_lats):  # metres would be made of impossible degrees
@@ -998,11 +1031,11 @@ def _georeferenced(
             "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
-    radius, lat_ts, stated = EARTH_RADIUS_M, centre_lat, metres is not None
+    radius, lat_ts, stated = body.radius, centre_lat, metres is not None
     if metres is None:
         metres = (
-            EARTH_RADIUS_M * math.cos(math.radians(centre_lat)) * math.radians(abs(dx)),
-            EARTH_RADIUS_M * math.radians(abs(dy)),
+            radius * math.cos(math.radians(centre_lat)) * math.radians(abs(dx)),
+            radius * math.radians(abs(dy)),
         )
     else:  # the file's own metres: the sphere and standard parallel of the projection they are exact in
         radius = abs(metres[1]) / math.radians(abs(dy))
@@ -1010,12 +1043,12 @@ def _georeferenced(
         lat_ts = math.degrees(math.acos(cos_ts)) if cos_ts <= 1.0 else math.nan
     spacing = (math.copysign(abs(metres[0]), dx), math.copysign(abs(metres[1]), dy))
     _check_local_metres(file, crs, (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(rows) * dy,
-                        (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)))
+                        (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)), body)
     local_crs: str | None = (
         f"+proj=eqc +lat_ts={lat_ts:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
         f"+x_0=0 +y_0=0 +R={radius:.10g} +units=m +no_defs"
     )
-    how = f"dx at lat {centre_lat:.6f}, R = {EARTH_RADIUS_M} m"
+    how = f"dx at lat {centre_lat:.6f}, R = {radius:.10g} m"
     if stated:  # the crs described R = 6371008.8 m and dx at the centre latitude, not these metres
         how = f"dx_m, dy_m from the file: lat_ts {lat_ts:.6f}, R = {radius:.10g} m"
         if math.isnan(lat_ts):
@@ -1048,25 +1081,87 @@ def _negligible_rotation(
     return bool(math.isfinite(worst) and worst <= _ROTATION_TOLERANCE * min(abs(dx), abs(dy)))
 
 
+class _Body(NamedTuple):
+    """What a geographic CRS's coordinates mean (:func:`_geographic_body`): ``degrees`` per unit of its angles (0.9
+    for grads), its prime ``meridian`` in degrees east of Greenwich (Paris: 2.33722917), the semi-major axis ``a``
+    (m) and flattening ``f`` of its ellipsoid and its ``name``, the ``radius`` (m) of the sphere its degrees become
+    metres on, and whether it is the ``earth`` (WGS 84 and :data:`EARTH_RADIUS_M` then)."""
+
+    degrees: float = 1.0
+    meridian: float = 0.0
+    a: float = _WGS84_A
+    f: float = _WGS84_F
+    name: str = "WGS 84"
+    radius: float = EARTH_RADIUS_M
+    earth: bool = True
+
+
+_EARTH = _Body()
+
+
+def _geographic_body(crs: str | None) -> _Body:
+    """The angular unit, prime meridian and body of a geographic CRS (its GDAL WKT's GEOGCS: PRIMEM in degrees, as
+    GDAL writes it, UNIT in radians, SPHEROID a and 1/f): an earth ellipsoid (a within 1 % of WGS 84's) is compared
+    with WGS 84 and made metres on the sphere of :data:`EARTH_RADIUS_M`, another body's (Mars, the Moon: IAU_2015
+    codes, ``+R=3396190``) with its own ellipsoid on the sphere of its mean radius a·(1 - f/3) (IUGG R1). Degrees
+    from Greenwich on the earth without rasterio to read the CRS, or for a CRS it cannot."""
+    crs_obj = _crs_object(crs) if crs else None
+    try:
+        wkt = crs_obj.to_wkt() if crs_obj is not None else ""
+    except Exception:  # no WKT1 form: nothing to read
+        wkt = ""
+    geogcs = _wkt_block(wkt, ("GEOGCS",)) if wkt else None
+    if geogcs is None:
+        return _EARTH
+
+    def numbers(keyword: str) -> tuple[str, list[float]]:
+        block = _wkt_block(geogcs, (keyword,)) or ""
+        parts = block.split('"')
+        fields = re.split(r"[,\]]", parts[2]) if len(parts) > 2 else []
+        values = []
+        for field in fields:
+            try:
+                values.append(float(field))
+            except ValueError:
+                if values:
+                    break
+        return (parts[1] if len(parts) > 1 else ""), values
+
+    name, spheroid = numbers("SPHEROID")
+    _, meridian = numbers("PRIMEM")
+    _, unit = numbers("UNIT")
+    degrees = math.degrees(unit[0]) if unit and math.isfinite(unit[0]) and unit[0] > 0 else 1.0
+    if abs(degrees - 1.0) < 1e-12:  # the degree, as WKT rounds it (0.0174532925199433)
+        degrees = 1.0
+    body = _EARTH._replace(degrees=degrees, meridian=meridian[0] if meridian and math.isfinite(meridian[0]) else 0.0)
+    if len(spheroid) < 2 or not (math.isfinite(spheroid[0]) and spheroid[0] > 0 and math.isfinite(spheroid[1])):
+        return body
+    a, inverse = spheroid[0], spheroid[1]
+    if abs(a / _WGS84_A - 1.0) <= 0.01:  # an earth ellipsoid (Clarke, Bessel, GRS 80, ...): the earth's sphere
+        return body
+    f = 1.0 / inverse if inverse > 1.0 else 0.0
+    return body._replace(a=a, f=f, name=name or "its", radius=a * (1.0 - f / 3.0), earth=False)
+
+
 def _wgs84_metres_per_degree(
-    lats_east: NDArray[np.float64], lats_north: NDArray[np.float64]
+    lats_east: NDArray[np.float64], lats_north: NDArray[np.float64], body: _Body = _EARTH
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """WGS 84 ground metres per degree of longitude along the parallels at ``lats_east`` (N(φ) cos φ) and per degree
-    of latitude along the meridian at ``lats_north`` (M(φ)), latitudes in degrees."""
-    e2 = _WGS84_F * (2.0 - _WGS84_F)
+    """WGS 84 (or ``body``'s ellipsoid's) ground metres per degree of longitude along the parallels at ``lats_east``
+    (N(φ) cos φ) and per degree of latitude along the meridian at ``lats_north`` (M(φ)), latitudes in degrees."""
+    e2 = body.f * (2.0 - body.f)
     phi = np.radians(np.asarray(lats_east, dtype=np.float64))
-    per_lon = np.radians(_WGS84_A / np.sqrt(1.0 - e2 * np.sin(phi) ** 2) * np.cos(phi))
+    per_lon = np.radians(body.a / np.sqrt(1.0 - e2 * np.sin(phi) ** 2) * np.cos(phi))
     w2 = 1.0 - e2 * np.sin(np.radians(np.asarray(lats_north, dtype=np.float64))) ** 2
-    per_lat = np.radians(_WGS84_A * (1.0 - e2) / w2**1.5)
+    per_lat = np.radians(body.a * (1.0 - e2) / w2**1.5)
     return per_lon, per_lat
 
 
-def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, float]) -> float:
+def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, float], body: _Body = _EARTH) -> float:
     """Worst relative error, over the rows at ``node_lats`` (degrees), of one local spacing of ``per_degree`` (metres
-    per degree of longitude, of latitude) against the WGS 84 ellipsoid: of the scale along the parallel (N cos φ),
-    along the meridian (M) and of their product, the cell area; inf for a row at a pole (a degree of longitude is
-    0 m there)."""
-    per_lon, per_lat = _wgs84_metres_per_degree(node_lats, node_lats)
+    per degree of longitude, of latitude) against the WGS 84 ellipsoid (or ``body``'s): of the scale along the
+    parallel (N cos φ), along the meridian (M) and of their product, the cell area; inf for a row at a pole (a degree
+    of longitude is 0 m there)."""
+    per_lon, per_lat = _wgs84_metres_per_degree(node_lats, node_lats, body)
     with np.errstate(divide="ignore"):
         east = np.where(per_lon > 1e-6, per_degree[0] / np.maximum(per_lon, 1e-6), np.inf)
     north = per_degree[1] / per_lat
@@ -1076,13 +1171,14 @@ def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, 
 
 def _check_local_metres(
     file: Path, crs: str | None, lons: tuple[float, float], node_lats: NDArray[np.float64],
-    per_degree: tuple[float, float],
+    per_degree: tuple[float, float], body: _Body = _EARTH,
 ) -> None:
     """Warn, at the caller of :func:`load_dem`, when a geographic grid's one local spacing errs by more than
-    :data:`_LOCAL_METRES_TOLERANCE` against WGS 84 somewhere in its rows (:func:`local_metres_error`): a tall grid,
-    or one far from the equator, whose east-west metres drift with cos φ. ``lons`` are its first and last node
-    longitudes, for the hint."""
-    error = local_metres_error(node_lats, per_degree)
+    :data:`_LOCAL_METRES_TOLERANCE` against WGS 84 (another body's own ellipsoid, ``body``) somewhere in its rows
+    (:func:`local_metres_error`): a tall grid, or one far from the equator, whose east-west metres drift with cos φ.
+    ``lons`` are its first and last node longitudes, for the hint (an earth CRS's, as a projection on another body
+    has no EPSG code)."""
+    error = local_metres_error(node_lats, per_degree, body)
     if error <= _LOCAL_METRES_TOLERANCE:
         return
     low, high = float(np.min(node_lats)), float(np.max(node_lats))
@@ -1092,9 +1188,10 @@ def _check_local_metres(
     warnings.warn(
         f"{file.name}: {crs or 'geographic'} degrees read as local metres with one spacing "
         f"({per_degree[0]:.6g} m per degree of longitude, {per_degree[1]:.6g} m per degree of latitude) err against "
-        f"WGS 84 ground distances and cell areas by {how} over its node latitudes {low:.6g} to {high:.6g} "
-        f"({high - low:.6g} degrees), more than {100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres "
-        f"{_reprojection_hint(file, lons, low, high)}",
+        f"{body.name if body.earth else f'the {body.name} ellipsoid'}'s ground distances and cell areas by "
+        f"{how} over its node latitudes {low:.6g} to {high:.6g} ({high - low:.6g} degrees), more than "
+        f"{100 * _LOCAL_METRES_TOLERANCE:g} %; for true metres "
+        f"{_reprojection_hint(file, lons, low, high, earth=body.earth)}",
         stacklevel=caller_stacklevel(),
     )
 
@@ -1187,14 +1284,16 @@ def _wgs84_ecef(lon: NDArray[np.float64], lat: NDArray[np.float64]) -> NDArray[n
 
 
 def _reprojection_hint(
-    file: Path, lons: tuple[float, float], low: float, high: float, current: str | None = None
+    file: Path, lons: tuple[float, float], low: float, high: float, current: str | None = None, *, earth: bool = True
 ) -> str:
     """How to reproject a grid whose node longitudes run over ``lons`` and latitudes from ``low`` to ``high`` to true
     metres: its UTM zone when it fits one (unless that is ``current``, the grid's own CRS), a polar stereographic
     projection true at its middle latitude near a pole (EPSG:3413 and EPSG:3031, true at 70° N and 71° S, err by 3 %
     at the poles and 4 % at 60°), else a projected CRS of its region."""
     centre, centre_lon = 0.5 * (low + high), 0.5 * (lons[0] + lons[1])
-    if abs(lons[1] - lons[0]) <= 6.0 and high - low <= 20.0 and abs(centre) <= 80.0:
+    if not earth:  # another body (Mars, the Moon): no EPSG projection of it
+        code = target = ""
+    elif abs(lons[1] - lons[0]) <= 6.0 and high - low <= 20.0 and abs(centre) <= 80.0:
         zone = int(math.floor(((centre_lon + 180.0) % 360.0) / 6.0)) % 60 + 1
         code = f"EPSG:{(32600 if centre >= 0 else 32700) + zone}"
         target = f"{code} (WGS 84 / UTM zone {zone}{'N' if centre >= 0 else 'S'})"

@@ -39,7 +39,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError, counted
-from .io import _ROTATION_TOLERANCE, _negligible_rotation, picture_uint8
+from .io import _ROTATION_TOLERANCE, _crs_string, _negligible_rotation, _projected_units, picture_uint8
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
@@ -81,7 +81,9 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
 
 
 def _georeferenced_extent(image: Any) -> Extent | None:
-    """(xmin, xmax, ymin, ymax) of a GeoTIFF path from its own georeferencing (rasterio), else None."""
+    """(xmin, xmax, ymin, ymax) of a GeoTIFF path from its own georeferencing (rasterio), else None; in metres for
+    a projected CRS (or a site grid) in feet or another linear unit, as :func:`~stepterrain.io.load_dem` reads a DEM
+    in it (the bounds of an orthophoto in EPSG:2229 stayed in feet, refused against its DEM's metres)."""
     if not isinstance(image, (str, os.PathLike)) or Path(image).suffix.lower() not in (".tif", ".tiff"):
         return None
     try:
@@ -96,6 +98,7 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             with rasterio.open(image) as dataset:
                 transform = dataset.transform
                 shape = (int(dataset.height), int(dataset.width))
+                crs = _crs_string(dataset.crs)
     except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
         return None
     if transform.is_identity:
@@ -115,7 +118,9 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             f"image {str(image)!r} is georeferenced with its rows running south to north or its columns east to "
             f"west (pixel size {transform.a:g} x {transform.e:g}); a pyramid's row 0 is the north edge and column 0 "
             "the west edge: write the image north-up, or pass extent=(xmin, xmax, ymin, ymax) for it as it is")
-    return float(left), float(right), float(bottom), float(top)
+    units = _projected_units(crs)
+    factor = units[1] if units is not None else 1.0  # feet -> metres
+    return float(left * factor), float(right * factor), float(bottom * factor), float(top * factor)
 
 
 def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]:
@@ -305,7 +310,8 @@ class ImagePyramid:
             TIFF are read with Pillow)
         extent : (xmin, xmax, ymin, ymax), optional
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
-            else (0, W, 0, H), one unit per pixel).
+            in metres for a CRS in feet or another linear unit, as load_dem reads a DEM in it; else (0, W, 0, H),
+            one unit per pixel).
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the

@@ -1060,3 +1060,115 @@ def test_a_projected_grid_within_1_percent_of_ground_metres_stays_quiet(tmp_path
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_dem(tmp_path / "grid.tif")
+
+
+def _geographic_tif(path, crs, x0, y0, step, shape=(11, 21)):
+    rasterio = pytest.importorskip("rasterio")
+    profile = {"driver": "GTiff", "width": shape[1], "height": shape[0], "count": 1, "dtype": "float32", "crs": crs,
+               "transform": rasterio.Affine(step, 0.0, x0, 0.0, -step, y0)}
+    with rasterio.open(path, "w", **profile) as ds:
+        ds.write(np.zeros(shape, np.float32), 1)
+    return path
+
+
+@pytest.mark.parametrize("crs, radius", [
+    ("IAU_2015:49900", 3396190.0),  # Mars (2015) sphere, ocentric
+    ("+proj=longlat +R=3396190 +no_defs", 3396190.0),
+    ("IAU_2015:30100", 1737400.0),  # Moon (2015) sphere
+    ("+proj=longlat +a=3396190 +rf=169.894447223612 +no_defs", 3396190.0 * (1 - 1 / (3 * 169.894447223612))),
+])
+def test_a_geographic_grid_on_another_body_becomes_metres_of_that_body(tmp_path, crs, radius):
+    """Degrees of a Mars or Moon DEM became metres of the earth's sphere (R = 6371008.8 m): a Mars grid 1.88 times too
+    wide and long for its heights, its crs an earth projection that put an exported texture on the earth. They are
+    now metres of the CRS's own body (a sphere of its ellipsoid's mean radius), checked against the file's degrees
+    through PROJ, and the 1 % check compares them with that body, not with WGS 84 (which warned of a 47 % error)."""
+    from stepterrain.io import describe_dem
+
+    path = _geographic_tif(tmp_path / "body.tif", crs, 10.0, 5.0, 0.01)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        t = load_dem(path)
+    centre = np.radians(5.0 - 0.055)
+    assert t.spacing == pytest.approx((radius * np.cos(centre) * np.radians(0.01), -radius * np.radians(0.01)),
+                                      rel=1e-9)
+    truth = (10.005, 10.205, 4.895, 4.995)
+    assert describe_dem(t)["lonlat_extent"] == pytest.approx(truth, abs=1e-9)
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import transform as reproject
+
+    sphere = f"+proj=longlat +R={radius!r} +no_defs"  # the far corner node back to degrees on that body's sphere
+    x, y = 20 * t.spacing[0], 10 * t.spacing[1]
+    lon, lat = reproject(rasterio.crs.CRS.from_string(t.crs), rasterio.crs.CRS.from_string(sphere), [x], [y])
+    assert (lon[0], lat[0]) == pytest.approx((truth[1], truth[2]), abs=1e-9)
+    # a grid 10 degrees tall at 60-70 N errs by cos φ against the body's own ellipsoid, named as such (no earth UTM)
+    tall = _geographic_tif(tmp_path / "tall.tif", crs, 10.0, 70.0, 0.25, shape=(40, 4))
+    with pytest.warns(UserWarning, match=r"tall\.tif: .*degrees read as local metres.*node latitudes 60\.125 to "
+                                         r"69\.875") as caught:
+        load_dem(tall)
+    assert "WGS 84" not in str(caught[0].message) and "UTM" not in str(caught[0].message)
+
+
+@pytest.mark.parametrize("crs, x0, y0, step", [
+    ("EPSG:4807", 0.0, 50.0, 0.01),  # NTF (Paris): grads east of Paris
+    ('GEOGCS["NTF (Paris) in degrees",DATUM["NTF",SPHEROID["Clarke 1880 (IGN)",6378249.2,293.466021293627]],'
+     'PRIMEM["Paris",2.33722917],UNIT["degree",0.0174532925199433],AXIS["Latitude",NORTH],AXIS["Longitude",EAST]]',
+     0.0, 45.0, 0.01),
+])
+def test_a_geographic_grid_in_grads_or_east_of_another_prime_meridian_is_placed_by_greenwich_degrees(
+        tmp_path, crs, x0, y0, step):
+    """A geographic CRS whose angles are grads (EPSG:4807, NTF (Paris)) had its grads read as degrees (the grid 10 %
+    too large, its latitudes 10 % off), and one whose longitudes count from the Paris meridian had them read as
+    Greenwich longitudes: describe_dem's extent and the crs (so an exported GeoTIFF texture) lay 2.34 degrees west.
+    Checked against PROJ (rasterio) taking the file's own node coordinates to NTF degrees from Greenwich
+    (EPSG:4275)."""
+    from stepterrain.io import EARTH_RADIUS_M, describe_dem
+
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.warp import transform as reproject
+
+    path = _geographic_tif(tmp_path / "ntf.tif", crs, x0, y0, step)
+    t = load_dem(path)
+    with rasterio.open(path) as ds:
+        (ax, ay), (bx, by) = ds.xy(0, 0), ds.xy(10, 20)
+    (lon0, lon1), (lat0, lat1) = reproject(ds.crs, "EPSG:4275", [ax, bx], [ay, by])
+    info = describe_dem(t)
+    assert info["lonlat_extent"] == pytest.approx((lon0, lon1, lat1, lat0), abs=1e-8)  # PROJ: Paris 2°20'14.025"
+    assert -t.spacing[1] == pytest.approx(EARTH_RADIUS_M * np.radians(lat0 - lat1) / 10, rel=1e-3)
+    lon, lat = reproject(rasterio.crs.CRS.from_string(t.crs), "+proj=longlat +R=6371008.8 +no_defs",
+                         [20 * t.spacing[0]], [10 * t.spacing[1]])
+    assert (lon[0], lat[0]) == pytest.approx((lon1, lat1), abs=1e-8)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.int16, np.uint8])
+def test_a_geotiffs_nodata_internal_mask_and_alpha_band_all_mark_missing_cells(tmp_path, dtype):
+    """GDAL's mask of a band is one of its internal mask, its nodata value and an alpha band, in that order: the
+    others a file also has went unread. A cell at the nodata value (-9999, 255) beside an internal mask was read as a
+    height (a -9999 m pit), and a transparent cell of a grey + alpha file that also names a nodata value as one.
+    Each now marks its missing cells, as load_dem says (the file's nodata value, an internal mask or an alpha
+    band)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.enums import ColorInterp
+
+    nodata = 255 if dtype == np.uint8 else -9999
+    z = (np.arange(20).reshape(4, 5) + 1).astype(dtype)
+    z[0, 0] = nodata
+    base = {"driver": "GTiff", "width": 5, "height": 4, "dtype": z.dtype.name, "crs": "EPSG:32611", "nodata": nodata,
+            "transform": rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)}
+    with rasterio.open(tmp_path / "masked.tif", "w", count=1, **base) as ds:
+        ds.write(z, 1)
+        mask = np.full((4, 5), 255, np.uint8)
+        mask[3, 3] = 0
+        ds.write_mask(mask)  # an internal mask (.msk inside the file)
+    with rasterio.open(tmp_path / "alpha.tif", "w", count=2, photometric="MINISBLACK", alpha="YES", **base) as ds:
+        alpha = np.full((4, 5), 255, dtype)
+        alpha[2, 1] = 0
+        ds.write(np.stack([z, alpha]))
+        ds.colorinterp = [ColorInterp.gray, ColorInterp.alpha]
+    with rasterio.open(tmp_path / "alpha.tif") as ds:  # an alpha band GDAL's mask leaves out for the nodata value
+        assert ds.colorinterp[1] == ColorInterp.alpha and ds.mask_flag_enums[0] == [rasterio.enums.MaskFlags.nodata]
+    for name, hole in (("masked.tif", (3, 3)), ("alpha.tif", (2, 1))):
+        t = load_dem(tmp_path / name)
+        expected = z.astype(np.float32)
+        expected[0, 0] = expected[hole] = np.nan
+        np.testing.assert_array_equal(t.heights, expected)
+        assert t.height_range == (2.0, 20.0)

@@ -312,3 +312,33 @@ def test_a_memmap_band_is_copied_without_its_whole_mapping_resident(tmp_path):
     few MiB at a time, each piece's pages dropped at once."""
     rise = pyramid_build_rise(repr(str(big_memmap_npy(tmp_path))), 16 << 20)
     assert rise < 46 * 1024**2, f"peak resident set rose by {rise / 1024**2:.1f} MB with 16 MB bands"
+
+
+def test_a_geotiff_texture_in_feet_drapes_its_dem_in_feet_read_as_metres(tmp_path):
+    """load_dem reads a DEM in a CRS in feet (EPSG:2229, US survey feet) as metres, but the pyramid of an orthophoto
+    in the same CRS kept its bounds in feet: TextureTree refused the pair as a "mismatched extent" (6.4e6 ft against
+    1.95e6 m). The bounds become metres by the same factor, so the texture's pixels cover the DEM's cells as rasterio
+    places both (the DEM's node (0, 0) at the centre of its first cell, a texture pixel of half its size)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import load_dem
+
+    dem, ortho = tmp_path / "dem_ft.tif", tmp_path / "ortho_ft.tif"
+    with rasterio.open(dem, "w", driver="GTiff", height=17, width=17, count=1, dtype="float32", crs="EPSG:2229",
+                       transform=Affine(10.0, 0.0, 6.4e6, 0.0, -10.0, 1.9e6)) as dataset:  # fmt: skip
+        dataset.write(np.zeros((1, 17, 17), np.float32))
+        dataset.units = ["US survey foot"]
+    with rasterio.open(ortho, "w", driver="GTiff", height=34, width=34, count=3, dtype="uint8", crs="EPSG:2229",
+                       transform=Affine(5.0, 0.0, 6.4e6, 0.0, -5.0, 1.9e6)) as dataset:  # fmt: skip
+        dataset.write(np.zeros((3, 34, 34), np.uint8))
+    terrain = load_dem(dem)
+    foot = 1200 / 3937
+    with ImagePyramid.build(ortho, device="cpu") as pyramid:
+        assert pyramid.extent == pytest.approx((6.4e6 * foot, 6.40017e6 * foot, 1.89983e6 * foot, 1.9e6 * foot),
+                                               rel=1e-12)
+        x0, x1, y0, y1 = terrain.extent  # the nodes: half a cell (5 ft) inside the texture's edges
+        assert (x0 - pyramid.extent[0], pyramid.extent[1] - x1) == pytest.approx((5 * foot, 5 * foot), rel=1e-6)
+        assert (y0 - pyramid.extent[2], pyramid.extent[3] - y1) == pytest.approx((5 * foot, 5 * foot), rel=1e-6)
+        tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8))
+        assert tree.root is not None
