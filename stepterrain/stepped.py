@@ -65,6 +65,7 @@ from .terrain import (
     real_numbers,
     unmasked,
     unshared,
+    used_height_range,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -1298,7 +1299,9 @@ def stepped_series(
                 Terrain.from_heights(stack[k])
             except InvalidInputError as exc:
                 raise InvalidInputError(f"frames[{k}]: {exc}") from None
-        values = isovalues((lo, hi), interval=interval, levels=levels, base=base)
+        # the isovalues span the heights a triangle uses, as each frame's Terrain.height_range (a node on none is in
+        # no mesh): a lone pixel in a void moved every frame's levels and colours
+        values = isovalues(used_height_range(stack) or (lo, hi), interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

@@ -547,3 +547,38 @@ def test_the_linear_level_estimate_is_taken_only_where_it_lands_near_the_level(v
     x = (heights - np.float32(iso.first)) * np.float32(iso.inv_gap) + np.float32(1.0)  # float32, as level_of
     estimate = np.where(x >= len(thresholds), len(thresholds), np.maximum(x, 0).astype(np.int64))
     assert np.abs(estimate - exact).max() <= 3
+
+
+def test_grid_isovalues_ignore_heights_on_no_complete_triangle():
+    """A grid node whose every cell touches nodata is in no triangle, so in no stepped mesh; its height still set the
+    isovalues (the TIN of the same grid, heightfield_mesh, ignored it since test_tin_isovalues_ignore_heights_on_no_
+    kept_face): a lone pixel in a void (here -9999 beside a void column) moved the hypsometric colours of every level
+    and the level indices, lowered the solid's default floor by 10 km, warned of heights on thresholds that open no
+    solid, and made interval=0.001 "too many levels" for 1.3 m of terrain."""
+    h = np.add.outer(np.arange(5.0), np.arange(6.0)) * 0.3 + 100.1  # no height on a threshold k + 0.5
+    h[:, 4] = np.nan
+    h[2, 5] = -9999.0  # the strip of column 5 has no complete triangle
+    h[3, 5] = 101.5  # on the threshold between isovalues 101 and 102
+    tin = st.heightfield_mesh(h)
+    for kwargs in ({"interval": 1.0, "colors": "terrain"}, {"interval": 1.0, "solid": True}, {"interval": 0.001}):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no warning of heights on thresholds
+            grid_mesh, tin_mesh = st.stepped(h, **kwargs), st.stepped(tin, **kwargs)
+        assert grid_mesh.metadata == tin_mesh.metadata  # the isovalues, and a solid's floor
+        order = [np.lexsort(m.triangles.reshape(len(m.faces), 9).T) for m in (grid_mesh, tin_mesh)]
+        np.testing.assert_array_equal(grid_mesh.triangles[order[0]], tin_mesh.triangles[order[1]])
+        np.testing.assert_array_equal(grid_mesh.face_attributes["level"][order[0]],
+                                      tin_mesh.face_attributes["level"][order[1]])
+        if "colors" in kwargs:  # by face corner: the two number their vertices differently
+            np.testing.assert_array_equal(grid_mesh.visual.vertex_colors[grid_mesh.faces[order[0]]],
+                                          tin_mesh.visual.vertex_colors[tin_mesh.faces[order[1]]])
+    assert st.Terrain.from_heights(h).height_range == (float(np.float32(100.1)), float(np.float32(102.2)))
+    expected = st.stepped(tin, interval=1.0).metadata["isovalues"]
+    for frame in st.stepped_series(np.stack([h, h]), interval=1.0):  # a stack's shared isovalues
+        assert frame.metadata["isovalues"] == expected
+    from stepterrain.batch import _shared_levels, plan_items
+
+    _, src = plan_items(h.astype(np.float32), tile_size=2)  # batch's tiles of the raster
+    assert list(_shared_levels(src, 1.0, None, 0.0)) == expected
+    # finite heights on no triangle at all: an empty mesh, as before
+    assert len(st.stepped(np.array([[1.0, np.nan], [np.nan, np.nan]]), interval=1.0).faces) == 0
