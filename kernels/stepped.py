@@ -53,8 +53,9 @@ class Isovalues:
 
     values: wp.array[wp.float32]
     thresholds: wp.array[wp.float32]
-    # near-uniform thresholds (every gap within 25 % of their mean): level_of starts from the linear estimate
-    # (h - first) · inv_gap + 1 and corrects it by comparisons, instead of a binary search
+    # near-uniform thresholds (every gap within 25 % of their mean, the estimate within two levels of every
+    # threshold's count): level_of starts from the linear estimate (h - first) · inv_gap + 1 and corrects it by
+    # comparisons, instead of a binary search
     uniform: wp.int32
     first: wp.float32
     inv_gap: wp.float32

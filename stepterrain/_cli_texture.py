@@ -115,7 +115,7 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     cmap, lo_frac = found
     heights = terrain.heights
     finite = np.isfinite(heights)
-    lo, hi = terrain.height_range  # computed once per terrain (the texture's relief check asked already)
+    lo, hi = terrain.finite_height_range  # computed once per terrain (the texture's relief check asked already)
     scaled = np.clip((heights - lo) / max(hi - lo, 1e-12), 0, 1)
     rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
     rgba[~finite, 3] = 0.0

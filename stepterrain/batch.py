@@ -77,6 +77,7 @@ from .terrain import (
     lowest_used_height,
     number_or_nan,
     unmasked,
+    used_height_range,
 )
 
 __all__ = [
@@ -1494,19 +1495,20 @@ def _raster_bounds(
 def _levels_and_range(
     src: _Source | None, interval: float | None, levels: ArrayLike | None, base: float
 ) -> tuple[tuple[float, ...] | None, tuple[float, float] | None, float | None]:
-    """:func:`_shared_levels`, the finite heights' (min, max) they came from (None without a source), and the
-    interval: ``interval``, or without it and ``levels`` the default one for that range."""
+    """:func:`_shared_levels`, the (min, max) of the heights they came from (those a triangle uses, as
+    :attr:`~stepterrain.terrain.Terrain.height_range`; None without a source), and the interval: ``interval``, or
+    without it and ``levels`` the default one for that range."""
     if src is None:
         return None, None, interval
     from .stepped import isovalues, nice_interval
 
     if src.height_range is not None:  # found by the source's checks: no further pass, no copy
         lo, hi = src.height_range
-    else:  # nodata (or a series file): the finite heights' range
-        finite = src.heights[np.isfinite(src.heights)]
-        if finite.size == 0:
+    else:  # nodata (or a series file): the range of the nodes a triangle uses, as stepped() takes it
+        used = used_height_range(src.heights)
+        if used is None:
             raise InvalidInputError(f"source {src.name!r} holds no finite height")
-        lo, hi = float(finite.min()), float(finite.max())
+        lo, hi = used
     if interval is None and levels is None:
         interval = nice_interval((lo, hi))
     values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, levels=levels, base=base))

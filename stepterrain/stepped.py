@@ -65,6 +65,7 @@ from .terrain import (
     real_numbers,
     unmasked,
     unshared,
+    used_height_range,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -467,8 +468,27 @@ def _build_isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> st
     iso.uniform, iso.first, iso.inv_gap = 0, 0.0, 0.0
     gaps = np.diff(thresholds.astype(np.float64))
     if len(gaps) and np.all(np.abs(gaps - gaps.mean()) <= 0.25 * gaps.mean()):
-        iso.uniform, iso.first, iso.inv_gap = 1, float(thresholds[0]), float(1.0 / gaps.mean())
+        first, inv_gap = float(thresholds[0]), float(1.0 / gaps.mean())
+        if _estimate_error(thresholds, np.float32(first), np.float32(inv_gap)) <= _ESTIMATE_ERROR_MAX:
+            iso.uniform, iso.first, iso.inv_gap = 1, first, inv_gap
     return iso
+
+
+#: How many levels level_of's linear estimate (kernels/stepped.py) may miss a threshold's count by for
+#: :func:`_build_isovalue_struct` to take it; beyond, a binary search.
+_ESTIMATE_ERROR_MAX = 2
+
+
+def _estimate_error(thresholds: NDArray[np.float32], first: np.float32, inv_gap: np.float32) -> int:
+    """The most level_of's linear estimate ``(h - first) * inv_gap + 1`` (float32, as the kernel computes it) misses
+    the count of thresholds <= h by at a threshold h (between two thresholds, by at most one more): the walk from the
+    estimate to the exact level takes that many steps. Gaps each within 25 % of their mean do not bound it: their
+    differences add up (thousands of levels in two intervals, or log-spaced, put it hundreds of levels off)."""
+    n = len(thresholds)
+    with np.errstate(over="ignore", invalid="ignore"):  # thresholds spanning beyond float32 (-3e38 to 3e38): inf, n
+        x = (thresholds - first) * inv_gap + np.float32(1.0)
+        estimate = np.clip(x, np.float32(0.0), np.float32(n)).astype(np.int64)  # level_of's k: 0, int(x) or n
+    return int(np.abs(estimate - np.arange(1, n + 1)).max())
 
 
 def _grid_struct(terrain: Terrain, device: wp.Device) -> stepped_kernels.HeightField:
@@ -1279,7 +1299,9 @@ def stepped_series(
                 Terrain.from_heights(stack[k])
             except InvalidInputError as exc:
                 raise InvalidInputError(f"frames[{k}]: {exc}") from None
-        values = isovalues((lo, hi), interval=interval, levels=levels, base=base)
+        # the isovalues span the heights a triangle uses, as each frame's Terrain.height_range (a node on none is in
+        # no mesh): a lone pixel in a void moved every frame's levels and colours
+        values = isovalues(used_height_range(stack) or (lo, hi), interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

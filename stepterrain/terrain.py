@@ -112,16 +112,35 @@ def lowest_used_height(heights: NDArray[Any], height_range: tuple[float, float] 
     2 x 2 every node is then a triangle's, and its min is the answer without a pass."""
     if height_range is not None and min(heights.shape[-2:]) >= 2:
         return float(height_range[0])
+    used = used_nodes(np.isfinite(heights))
+    if not used.any():
+        return None
+    return float(np.min(heights, where=used, initial=np.inf))
+
+
+def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
+    """(min, max) of the grid nodes (of a (T, H, W) stack's frames) that a triangle with three finite heights uses;
+    of the finite heights where no triangle has three (a mesh without faces); None when no height is finite.
+    :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh."""
     finite = np.isfinite(heights)
+    used = used_nodes(finite)
+    if not used.any():
+        used = finite
+        if not used.any():
+            return None
+    return float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))
+
+
+def used_nodes(finite: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Per grid node (of the last two axes of ``finite``, the nodes' finite flags), whether a triangle with three
+    finite heights uses it: the nodes of a stepped mesh. A finite node whose every cell touches nodata is in none."""
     upper, lower = finite_triangles(finite)
     used = np.zeros_like(finite)
     used[..., :-1, :-1] |= upper | lower
     used[..., :-1, 1:] |= upper
     used[..., 1:, 1:] |= upper | lower
     used[..., 1:, :-1] |= lower
-    if not used.any():
-        return None
-    return float(np.min(heights, where=used, initial=np.inf))
+    return used
 
 
 def is_real_dtype(dtype: np.dtype) -> bool:
@@ -689,21 +708,46 @@ class Terrain:
         return bool(self.cached("has_nodata", lambda: bool(np.isnan(self.heights.min()))))
 
     def used_heights(self) -> NDArray[np.float32]:
-        """The heights the surface is made of: a grid's finite ones, a TIN's points on kept faces (a copy)."""
-        return self.heights[np.isfinite(self.heights)] if self.kind == "grid" else self.heights[self.point_used != 0]
+        """The heights the surface is made of (a copy): a grid's nodes on a triangle with three finite heights
+        (:func:`used_nodes`; all of them without nodata), a TIN's points on kept faces."""
+        if self.kind == "tin":
+            return self.heights[self.point_used != 0]
+        if not self.has_nodata:
+            return self.heights.reshape(-1).copy()
+        return self.heights[used_nodes(np.isfinite(self.heights))]
 
     @property
     def height_range(self) -> tuple[float, float]:
-        """(min, max) of the finite heights (of a TIN: of its points on kept faces); computed once per terrain.
-        A grid without nodata takes two passes and no copy (``used_heights`` masks and copies)."""
+        """(min, max) of the heights the surface is made of (:meth:`used_heights`: a grid's node on no triangle with
+        three finite heights, a TIN's point on no kept face, is in no mesh and would move the isovalues, the colours by
+        level and a solid's floor); of a grid's finite heights where no triangle has three (its mesh is empty);
+        computed once per terrain. A grid without nodata takes two passes and no copy."""
 
         def compute() -> tuple[float, ...]:
-            if self.kind == "grid" and not self.has_nodata:
-                return float(self.heights.min()), float(self.heights.max())
+            if self.kind == "grid":
+                if not self.has_nodata:
+                    return float(self.heights.min()), float(self.heights.max())
+                return used_height_range(self.heights) or ()
             finite = self.used_heights()
             return (float(finite.min()), float(finite.max())) if finite.size else ()
 
         lo_hi = self.cached("height_range", compute)
+        if not lo_hi:
+            raise InvalidInputError("terrain has no finite height (all nodata)")
+        return lo_hi
+
+    @property
+    def finite_height_range(self) -> tuple[float, float]:
+        """(min, max) of every finite height, a grid's nodes on no triangle included (a texture shades every pixel;
+        :attr:`height_range` is the stepped surface's); computed once per terrain. A TIN's is its height_range."""
+        if self.kind == "tin" or not self.has_nodata:
+            return self.height_range
+
+        def compute() -> tuple[float, ...]:
+            finite = self.heights[np.isfinite(self.heights)]
+            return (float(finite.min()), float(finite.max())) if finite.size else ()
+
+        lo_hi = self.cached("finite_height_range", compute)
         if not lo_hi:
             raise InvalidInputError("terrain has no finite height (all nodata)")
         return lo_hi

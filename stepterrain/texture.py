@@ -144,7 +144,7 @@ def _height_grid(t: Terrain, z_factor: float, device: wp.Device) -> texture_kern
         return wp.array(t.heights, dtype=wp.float32, device=device, copy=not device.is_cpu)
 
     try:
-        lo, hi = t.height_range
+        lo, hi = t.finite_height_range  # every pixel is shaded, one on no triangle too
     except InvalidInputError:  # all nodata: nothing to shade
         lo = hi = 0.0
     rise, run = hi - lo, min(abs(t.spacing[0]), abs(t.spacing[1]))

@@ -1343,19 +1343,24 @@ def test_as_terrain_accepts_every_input_kind(dem):
 @given(arrays(np.float32, st_.tuples(st_.integers(2, 7), st_.integers(2, 7)),
               elements=st_.one_of(st_.floats(-1e4, 1e4, width=32), st_.just(np.nan))))
 def test_height_range_is_the_finite_min_and_max(heights):
-    """The grid's cheap path (no nodata: min and max, no copy) and the masked path agree with nanmin/nanmax;
-    a TIN counts only the points on kept faces; all nodata is refused by name."""
+    """The grid's cheap path (no nodata: min and max, no copy) and the masked path agree with nanmin/nanmax where
+    every finite node is on a triangle; a grid and its TIN count only the nodes (points) on a triangle with three
+    finite heights (kept faces), the grid its finite heights where there is none; all nodata is refused by name."""
     t = as_terrain(heights)
     if np.isnan(heights).all():
         with pytest.raises(st.InvalidInputError, match="no finite height"):
             _ = t.height_range
         return
-    expected = (float(np.nanmin(heights)), float(np.nanmax(heights)))
-    assert t.height_range == expected and t.height_range == expected  # computed once, then cached
     mesh = st.heightfield_mesh(heights)
     if len(mesh.faces):  # a TIN: the heights of the points on its faces (NaN nodes are on none)
         z = np.asarray(mesh.vertices)[np.unique(mesh.faces), 2]
-        assert as_terrain(mesh).height_range == (float(z.min()), float(z.max()))
+        expected = (float(z.min()), float(z.max()))
+        assert as_terrain(mesh).height_range == expected
+    else:
+        expected = (float(np.nanmin(heights)), float(np.nanmax(heights)))
+    if not np.isnan(heights).any():
+        assert expected == (float(heights.min()), float(heights.max()))
+    assert t.height_range == expected and t.height_range == expected  # computed once, then cached
 
 
 def test_tin_edge_table_is_built_once_and_rebuilt_after_a_change():

@@ -517,3 +517,68 @@ def test_a_base_far_from_the_heights_is_named_not_reported_as_isovalues_0_0():
         warnings.simplefilter("error")
         mesh = st.stepped(heights, levels=[-3.4e38, 3.4e38])
     assert np.isfinite(mesh.vertices).all() and (mesh.vertices[:, 2] == np.float32(3.4e38)).all()
+
+
+@pytest.mark.parametrize(
+    ("values", "uniform"),
+    [
+        (np.concatenate([np.arange(1000.0, 1250.0, 0.05), np.arange(1250.0, 1500.0, 0.06)]), False),  # two intervals
+        (np.geomspace(1000.0, 1450.0, 5000), False),  # every gap within 25 % of the mean, drifting from -18 to +18 %
+        (np.arange(5000) * 2.5 - 10.0, True),
+        (st.isovalues((0.0, 4000.0), interval=0.5, base=0.25), True),
+        (st.isovalues((4.0e6, 4.004e6), interval=2.0), True),  # float32 rounds them: gaps of 2 +- a quarter ulp
+    ],
+)
+def test_the_linear_level_estimate_is_taken_only_where_it_lands_near_the_level(values, uniform):
+    """quantize_levels' estimate-and-correct (kernels/stepped.py, level_of) walks from the linear estimate
+    (h - first) * inv_gap + 1 to the exact level one threshold at a time. It was taken whenever every gap lay within
+    25 % of their mean, which bounds each gap but not their sum: thousands of levels whose gaps drift (two intervals,
+    0.05 up to 1250 m and 0.06 above; log-spaced levels) put the estimate hundreds of levels off, and every node
+    walked that far: quantizing 512² nodes took 0.87-1.13 s instead of 7 ms (the binary search: 27 ms even at a
+    million levels). The estimate is now taken only where it lands within two levels of every threshold's count."""
+    values = np.asarray(values, np.float32)
+    iso = stepped_module._build_isovalue_struct(values, resolve_device("cpu"))
+    assert iso.uniform == int(uniform)  # evenly spaced isovalues (rounded to float32) keep the fast path
+    if not iso.uniform:
+        return
+    thresholds = thresholds_of(values)
+    heights = np.concatenate([thresholds, (thresholds[:-1] + thresholds[1:]) / 2]).astype(np.float32)
+    exact = np.searchsorted(thresholds, heights, side="right")
+    x = (heights - np.float32(iso.first)) * np.float32(iso.inv_gap) + np.float32(1.0)  # float32, as level_of
+    estimate = np.where(x >= len(thresholds), len(thresholds), np.maximum(x, 0).astype(np.int64))
+    assert np.abs(estimate - exact).max() <= 3
+
+
+def test_grid_isovalues_ignore_heights_on_no_complete_triangle():
+    """A grid node whose every cell touches nodata is in no triangle, so in no stepped mesh; its height still set the
+    isovalues (the TIN of the same grid, heightfield_mesh, ignored it since test_tin_isovalues_ignore_heights_on_no_
+    kept_face): a lone pixel in a void (here -9999 beside a void column) moved the hypsometric colours of every level
+    and the level indices, lowered the solid's default floor by 10 km, warned of heights on thresholds that open no
+    solid, and made interval=0.001 "too many levels" for 1.3 m of terrain."""
+    h = np.add.outer(np.arange(5.0), np.arange(6.0)) * 0.3 + 100.1  # no height on a threshold k + 0.5
+    h[:, 4] = np.nan
+    h[2, 5] = -9999.0  # the strip of column 5 has no complete triangle
+    h[3, 5] = 101.5  # on the threshold between isovalues 101 and 102
+    tin = st.heightfield_mesh(h)
+    for kwargs in ({"interval": 1.0, "colors": "terrain"}, {"interval": 1.0, "solid": True}, {"interval": 0.001}):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no warning of heights on thresholds
+            grid_mesh, tin_mesh = st.stepped(h, **kwargs), st.stepped(tin, **kwargs)
+        assert grid_mesh.metadata == tin_mesh.metadata  # the isovalues, and a solid's floor
+        order = [np.lexsort(m.triangles.reshape(len(m.faces), 9).T) for m in (grid_mesh, tin_mesh)]
+        np.testing.assert_array_equal(grid_mesh.triangles[order[0]], tin_mesh.triangles[order[1]])
+        np.testing.assert_array_equal(grid_mesh.face_attributes["level"][order[0]],
+                                      tin_mesh.face_attributes["level"][order[1]])
+        if "colors" in kwargs:  # by face corner: the two number their vertices differently
+            np.testing.assert_array_equal(grid_mesh.visual.vertex_colors[grid_mesh.faces[order[0]]],
+                                          tin_mesh.visual.vertex_colors[tin_mesh.faces[order[1]]])
+    assert st.Terrain.from_heights(h).height_range == (float(np.float32(100.1)), float(np.float32(102.2)))
+    expected = st.stepped(tin, interval=1.0).metadata["isovalues"]
+    for frame in st.stepped_series(np.stack([h, h]), interval=1.0):  # a stack's shared isovalues
+        assert frame.metadata["isovalues"] == expected
+    from stepterrain.batch import _shared_levels, plan_items
+
+    _, src = plan_items(h.astype(np.float32), tile_size=2)  # batch's tiles of the raster
+    assert list(_shared_levels(src, 1.0, None, 0.0)) == expected
+    # finite heights on no triangle at all: an empty mesh, as before
+    assert len(st.stepped(np.array([[1.0, np.nan], [np.nan, np.nan]]), interval=1.0).faces) == 0
