@@ -673,3 +673,28 @@ def test_render_with_textures_thresholds_are_numbers_of_pixels(kwargs, match):
     quadtree, tree, pyramid, camera = lod_setup()
     with pyramid, pytest.raises(InvalidInputError, match=match):
         render_with_textures(quadtree.root, [tree.root], camera, **kwargs)
+
+
+def test_pyramid_of_an_image_with_a_transparent_colour_keeps_it_transparent(tmp_path):
+    """A palette PNG (or an L / RGB one) whose transparent colour is a tRNS chunk (Pillow's info["transparency"], as
+    gdal_translate writes nodata to a paletted PNG) has no alpha band: the pyramid converted it to RGB and drew the
+    transparent pixels opaque in their palette colour. They are alpha 0 now, as render_textured_mesh reads them."""
+    from PIL import Image
+
+    palette = Image.new("P", (4, 2))
+    palette.putpalette([255, 0, 0, 0, 255, 0] + [0] * 762)
+    palette.putdata([0, 1, 1, 0, 0, 0, 1, 1])
+    palette.save(tmp_path / "palette.png", transparency=1)
+    grey = Image.fromarray(np.array([[10, 200, 200, 10], [10, 10, 200, 200]], np.uint8))
+    grey.save(tmp_path / "grey.png", transparency=200)
+    rgb = Image.fromarray(np.array([[[255, 0, 0], [0, 255, 0], [0, 255, 0], [255, 0, 0]]] * 2, np.uint8))
+    rgb.save(tmp_path / "rgb.png", transparency=(0, 255, 0))
+    for name, opaque in (("palette.png", (255, 0, 0)), ("grey.png", (10, 10, 10)), ("rgb.png", (255, 0, 0))):
+        with Image.open(tmp_path / name) as picture:
+            expected = np.asarray(picture.convert("RGBA"))
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            level = np.asarray(pyramid.levels[0])
+            assert level.shape[2] == 4, name
+            np.testing.assert_array_equal(level, expected)
+            assert level[..., 3].tolist() != [[255] * 4] * 2  # some pixels transparent
+            assert (level[level[..., 3] == 255][:, :3] == opaque).all()
