@@ -39,7 +39,15 @@ from numpy.typing import ArrayLike, NDArray
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
 from .errors import DataFileError, InvalidInputError, counted
-from .io import _ROTATION_TOLERANCE, _negligible_rotation, picture_uint8
+from .io import (
+    _ROTATION_TOLERANCE,
+    _crs_object,
+    _crs_string,
+    _is_geographic,
+    _negligible_rotation,
+    lonlat_as_local_metres,
+    picture_uint8,
+)
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
@@ -80,8 +88,8 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     return shapes
 
 
-def _georeferenced_extent(image: Any) -> Extent | None:
-    """(xmin, xmax, ymin, ymax) of a GeoTIFF path from its own georeferencing (rasterio), else None."""
+def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
+    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path from its own georeferencing (rasterio), else None."""
     if not isinstance(image, (str, os.PathLike)) or Path(image).suffix.lower() not in (".tif", ".tiff"):
         return None
     try:
@@ -96,6 +104,7 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             with rasterio.open(image) as dataset:
                 transform = dataset.transform
                 shape = (int(dataset.height), int(dataset.width))
+                crs = _crs_string(dataset.crs)
     except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
         return None
     if transform.is_identity:
@@ -115,7 +124,7 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             f"image {str(image)!r} is georeferenced with its rows running south to north or its columns east to "
             f"west (pixel size {transform.a:g} x {transform.e:g}); a pyramid's row 0 is the north edge and column 0 "
             "the west edge: write the image north-up, or pass extent=(xmin, xmax, ymin, ymax) for it as it is")
-    return float(left), float(right), float(bottom), float(top)
+    return (float(left), float(right), float(bottom), float(top)), crs
 
 
 def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]:
@@ -234,7 +243,8 @@ def _storage_folder(storage: Any) -> Path | None:
 
 class ImagePyramid:
     """An image pyramid (paper 004 §3.2.1): level 0 is the image, each next level half the size (ceil), down to
-    1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north).
+    1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north) in the coordinate reference
+    system ``crs`` (None: unknown; :class:`TextureTree` refuses a terrain whose own ``crs`` is another).
 
     Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``. Level 0 is the source itself
     when nothing can change it (an image file; a .npy stays on disk, memory-mapped read-only); an array the caller
@@ -245,12 +255,14 @@ class ImagePyramid:
     """
 
     def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: str | os.PathLike[str] | None,
-                 anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False) -> None:
+                 anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False,
+                 crs: str | None = None) -> None:
         """Wrap levels already built (:meth:`build` is the usual constructor), e.g. reopened from a ``storage``
         folder with ``numpy.memmap``: ``levels`` from the image (level 0) down to 1 x 1, each (h, w, C) uint8 of
         the sizes :func:`pyramid_shapes` gives; ``anisotropic`` the rip-map levels by (kx, ky); ``owned``:
-        :meth:`close` deletes ``storage``. The levels are used as given, not copied (:meth:`build` copies an image
-        the caller can still edit). A bad argument raises an :class:`InvalidInputError` naming it."""
+        :meth:`close` deletes ``storage``; ``crs`` the extent's CRS. The levels are used as given, not copied
+        (:meth:`build` copies an image the caller can still edit). A bad argument raises an
+        :class:`InvalidInputError` naming it."""
         expected = "a list of (H, W, C) uint8 arrays from the image (level 0) down to 1 x 1"
         if isinstance(levels, (str, bytes)) or not isinstance(levels, Sequence) or not levels:
             got = "an empty list" if isinstance(levels, Sequence) and not levels else type(levels).__name__
@@ -280,6 +292,7 @@ class ImagePyramid:
             raise InvalidInputError("owned=True deletes the storage folder on close(); got storage=None")
         self._levels = levels
         self.extent = _check_extent(extent)
+        self.crs = _optional_crs(crs)
         self.storage = folder
         self._anisotropic = anisotropic or {}
         self._owned = owned
@@ -296,6 +309,7 @@ class ImagePyramid:
         anisotropic: bool = False,
         band_bytes: int = _BAND_BYTES,
         device: wp.DeviceLike = None,
+        crs: str | None = None,
     ) -> ImagePyramid:
         """Build the pyramid of ``image`` band by band, so memory stays bounded by ``band_bytes``.
 
@@ -306,6 +320,9 @@ class ImagePyramid:
         extent : (xmin, xmax, ymin, ymax), optional
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
             else (0, W, 0, H), one unit per pixel).
+        crs : str, optional
+            The coordinate reference system of the extent, e.g. ``"EPSG:32611"`` (default: a GeoTIFF's own when its
+            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS.
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
@@ -348,8 +365,16 @@ class ImagePyramid:
         """
         source, backing, _, changeable = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
+        crs = _optional_crs(crs)
         if extent is None:
-            extent = _georeferenced_extent(image) or (0.0, float(width), 0.0, float(height))
+            georeferenced = _georeferenced_extent(image)
+            if georeferenced is not None:
+                if crs is not None and georeferenced[1] is not None and not _same_crs(crs, georeferenced[1]):
+                    raise InvalidInputError(f"crs {crs!r} is not the CRS {georeferenced[1]!r} of image {str(image)!r}, "
+                                            "whose bounds are the extent; pass extent= in crs to place it yourself")
+                extent, crs = georeferenced[0], crs or georeferenced[1]
+            else:
+                extent = (0.0, float(width), 0.0, float(height))
         extent = _check_extent(extent)
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
@@ -395,7 +420,7 @@ class ImagePyramid:
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
             raise
-        return cls(levels, extent, folder, aniso, owned)
+        return cls(levels, extent, folder, aniso, owned, crs)
 
     # ------------------------------------------------------------------ access
     def _open(self, what: str) -> None:
@@ -498,6 +523,20 @@ class ImagePyramid:
         until read)."""
         r0, r1, c0, c1 = self._window(level, window)
         return self._level(level)[r0:r1, c0:c1]
+
+
+def _optional_crs(crs: Any) -> str | None:
+    if crs is not None and (not isinstance(crs, str) or not crs.strip()):
+        raise InvalidInputError(f"crs must be a CRS string (e.g. 'EPSG:32611') or None; got {crs!r}")
+    return crs
+
+
+def _same_crs(a: str, b: str) -> bool:
+    """Whether two CRS strings name the same CRS (rasterio's comparison where both parse, else the strings)."""
+    if a.strip().upper() == b.strip().upper():
+        return True
+    parsed_a, parsed_b = _crs_object(a), _crs_object(b)
+    return parsed_a is not None and parsed_b is not None and parsed_a == parsed_b
 
 
 def _window_expected(rows: int, cols: int, level: int) -> str:
@@ -866,6 +905,25 @@ def _overlap(a: Extent, b: Extent) -> bool:
     return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
 
 
+def _check_same_crs(pyramid: ImagePyramid, terrain: Terrain) -> None:
+    """An InvalidInputError when the pyramid's extent and the terrain lie in different known CRSs: the extents were
+    compared as numbers, so a Blue Marble in degrees (-180..180) over a DEM in degrees read as local metres (0..53 km)
+    draped lon 0..180, lat -90..0 on it without a word. For that DEM the message gives the image's exact extent in
+    its metres (linear in longitude and latitude)."""
+    if pyramid.crs is None or terrain.crs is None or _same_crs(pyramid.crs, terrain.crs):
+        return
+    hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain.crs}' ...`)"
+    xmin, xmax, ymin, ymax = pyramid.extent
+    local = lonlat_as_local_metres(terrain.crs, (xmin, xmax), (ymin, ymax)) if _is_geographic(pyramid.crs) else None
+    if local is not None:
+        (x0, x1), (y0, y1) = local
+        hint = (f"the terrain is a DEM in degrees read as local equirectangular metres, linear in longitude and "
+                f"latitude, so ImagePyramid.build(..., extent=({x0:.6f}, {x1:.6f}, {y0:.6f}, {y1:.6f}), "
+                f"crs=terrain.crs) places this image on it exactly")
+    raise InvalidInputError(f"the image is in CRS {pyramid.crs!r} but the terrain is in {terrain.crs!r} (mismatched "
+                            f"CRS: the extent {pyramid.extent} is not in the terrain's coordinates); {hint}")
+
+
 class TextureTree:
     """The texture tree of one layer over a :class:`PatchQuadtree` (§3.2.2 and §4, partial textures).
 
@@ -881,6 +939,7 @@ class TextureTree:
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
         if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
+        _check_same_crs(pyramid, quadtree.terrain)
         self.pyramid = pyramid
         self.quadtree = quadtree
         self.max_texture_size = max_texture_size

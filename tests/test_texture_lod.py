@@ -698,3 +698,44 @@ def test_pyramid_of_an_image_with_a_transparent_colour_keeps_it_transparent(tmp_
             np.testing.assert_array_equal(level, expected)
             assert level[..., 3].tolist() != [[255] * 4] * 2  # some pixels transparent
             assert (level[level[..., 3] == 255][:, :3] == opaque).all()
+
+
+def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
+    """The Blue Marble GeoTIFF (EPSG:4326, -180..180) over the Front Range DEM in degrees, which load_dem reads as
+    local equirectangular metres (0..53 km): the extents were compared as numbers, so the tree draped lon 0..180,
+    lat -90..0 (the Indian Ocean) on Colorado without a word. The pyramid keeps the GeoTIFF's CRS and the tree
+    refuses another CRS than the terrain's, naming both; for a DEM read in local metres it gives the image's exact
+    extent there, which places the image's Colorado pixels on the DEM."""
+    pytest.importorskip("rasterio")
+    import stepterrain as st
+
+    from .reference_texture import find_shared
+
+    front_range = st.load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    tujunga = st.load_dem(find_shared("big_tujunga_srtm_30m_utm11n.tif"))
+    marble = find_shared("earth_day_bluemarble_3840x1920.tif")
+    with ImagePyramid.build(marble, device="cpu") as pyramid:
+        assert pyramid.crs == "EPSG:4326"
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
+                                                    r"'EPSG:32611' \(mismatched CRS.*gdalwarp -t_srs 'EPSG:32611'"):
+            TextureTree(pyramid, PatchQuadtree(tujunga))
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
+                                                    r"'\+proj=eqc .*extent=\(([^)]*)\)") as caught:
+            TextureTree(pyramid, PatchQuadtree(front_range))
+    extent = tuple(float(v) for v in re.search(r"extent=\(([^)]*)\)", str(caught.value)).group(1).split(","))
+    with ImagePyramid.build(marble, extent=extent, crs=front_range.crs, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, PatchQuadtree(front_range))
+        # the DEM's nodes span lon -105.8158..-105.1846, lat 39.8346..40.4658: Blue Marble pixels of 0.09375°
+        lon = (-105.815833, -105.184583)
+        lat = (39.834583, 40.465833)
+        cols = [math.floor((lon[0] + 180) / 0.09375), math.ceil((lon[1] + 180) / 0.09375)]
+        rows = [math.floor((90 - lat[1]) / 0.09375), math.ceil((90 - lat[0]) / 0.09375)]
+        assert tree.root.level == 0
+        assert pyramid.window(0, front_range.extent) == (rows[0], rows[1], cols[0], cols[1]) == tree.root.window
+    with ImagePyramid.build(marble, extent=extent, device="cpu") as pyramid:  # an extent given: its CRS unknown
+        assert pyramid.crs is None and TextureTree(pyramid, PatchQuadtree(front_range)).root.level == 0
+    with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:32611' is not the CRS 'EPSG:4326' of image .*pass "
+                                                r"extent= in crs"):
+        ImagePyramid.build(marble, crs="EPSG:32611", device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^crs must be a CRS string \(e\.g\. 'EPSG:32611'\) or None; got 5$"):
+        ImagePyramid.build(np.zeros((2, 2, 3), np.uint8), crs=5, device="cpu")
