@@ -346,11 +346,16 @@ class ImagePyramid:
         Level k+1 pixel r covers source pixels [r n/m, (r+1) n/m) of level k (n source, m = ceil(n / 2)
         target pixels per axis): an area-weighted mean, so every level keeps the image mean up to the rounding
         to uint8, for odd sizes too (a plain 2 x 2 box when n is even). The mean is summed exactly (integers) and
-        rounded half up, floor(mean + 0.5), on both paths. One Warp thread per target pixel; the
-        levels are written with ``pwrite`` and read back with ``pread``, never mapped while building; a memmap
-        source is read through its own mapping (not its file name, which may name a replacement by now), each band's
-        pages dropped from the resident set once copied, so the resident memory stays about two bands whatever the
-        image size. An image array the caller can still
+        rounded half up, floor(mean + 0.5), on both paths. An image with alpha (2 channels, grey + alpha, or 4, RGBA;
+        straight alpha, as PNG and glTF hold it) averages its colour weighted by alpha, sum(w a c) / sum(w a), so a
+        transparent pixel's colour (a nodata collar's black) does not darken the edge of the coarser levels; its alpha
+        and premultiplied colour keep their means. The values are averaged as stored (sRGB-encoded bytes, gamma
+        space, as GDAL's overviews and Pillow's reduce average), not in linear light: a fine black-and-white
+        pattern averages to 128, which displays darker than its linear-light mean (188). One Warp thread per target
+        pixel; the levels are written with ``pwrite`` and read back with ``pread``, never mapped while building; a
+        memmap source is read through its own mapping (not its file name, which may name a replacement by now), each
+        band's pages dropped from the resident set once copied, so the resident memory stays about two bands whatever
+        the image size. An image array the caller can still
         edit is copied first, so that later edits do not make level 0 disagree with the levels built from it: in
         memory (the image's bytes once more; about 7 % of the build time at 2048²), a writeable memmap band by band
         into ``storage`` (``level_0.u8``). A read-only array that owns its pixels, or a .npy path, is not copied.
