@@ -155,6 +155,9 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
                 raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
+            mask = _nodata_mask(path, image.shape[:2]) if image.shape[2] == 3 else None  # alpha: Pillow read it
+            if mask is not None:
+                image = np.concatenate([image, mask[:, :, None]], axis=2)
     array = image if isinstance(image, np.ndarray) else as_array(image, "image", "an (H, W) or (H, W, C) uint8 array")
     if array.dtype != np.uint8:
         raise InvalidInputError(f"pyramid image must be uint8 (0-255); got dtype {array.dtype}")
@@ -167,6 +170,32 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
         array.flags.writeable = False
         return array, backing, offset, False
     return array, backing, offset, _may_change(array)
+
+
+def _nodata_mask(path: Path, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:
+    """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) when some pixel
+    is missing, else None (no rasterio, not a GeoTIFF, nothing masked). Pillow reads nodata as ordinary pixels: an
+    orthophoto's collar tagged nodata=0 was draped opaque black."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return None
+    try:
+        import rasterio
+        from rasterio.enums import MaskFlags
+        from rasterio.errors import NotGeoreferencedWarning
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as dataset:
+                if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
+                    return None
+                mask = dataset.dataset_mask()
+    except Exception:  # noqa: BLE001 - Pillow read it, GDAL cannot: no mask to add
+        return None
+    if mask.shape != tuple(shape) or mask.min() == 255:
+        return None
+    return np.where(mask > 0, 255, 0).astype(np.uint8)
 
 
 def _may_change(array: NDArray[Any]) -> bool:
@@ -316,7 +345,8 @@ class ImagePyramid:
         Parameters
         ----------
         image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
-            TIFF are read with Pillow)
+            TIFF are read with Pillow; a transparent colour, and a GeoTIFF's nodata or mask band, read with
+            rasterio, become alpha)
         extent : (xmin, xmax, ymin, ymax), optional
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
             else (0, W, 0, H), one unit per pixel).

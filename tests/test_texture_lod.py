@@ -746,3 +746,31 @@ def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
         ImagePyramid.build(marble, crs="EPSG:32611", device="cpu")
     with pytest.raises(InvalidInputError, match=r"^crs must be a CRS string \(e\.g\. 'EPSG:32611'\) or None; got 5$"):
         ImagePyramid.build(np.zeros((2, 2, 3), np.uint8), crs=5, device="cpu")
+
+
+def test_pyramid_of_a_geotiff_with_nodata_makes_it_transparent(tmp_path):
+    """A GeoTIFF's nodata (an orthophoto's black collar tagged nodata=0, as gdalwarp -dstnodata 0 writes it) was read
+    by Pillow as ordinary pixels: the pyramid drew the collar opaque black over the terrain. Its GDAL mask (rasterio's
+    dataset_mask: nodata, a mask band) becomes the pyramid's alpha, so the collar is transparent; a GeoTIFF without
+    nodata keeps its 3 channels."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    rgb = np.random.default_rng(3).integers(1, 256, (3, 6, 8), dtype=np.uint8)
+    rgb[:, :, :3] = 0  # the collar: every band 0
+    grey = rgb[:1].copy()
+    profile = {"driver": "GTiff", "height": 6, "width": 8, "dtype": "uint8", "crs": "EPSG:32611",
+               "transform": Affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0)}
+    for name, bands, nodata in (("rgb.tif", rgb, 0), ("grey.tif", grey, 0), ("plain.tif", rgb, None)):
+        with rasterio.open(tmp_path / name, "w", count=len(bands), nodata=nodata, **profile) as dataset:
+            dataset.write(bands)
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            level = np.asarray(pyramid.levels[0])
+            colour = np.repeat(bands, 3, axis=0) if len(bands) == 1 else bands
+            np.testing.assert_array_equal(level[..., :3], np.moveaxis(colour, 0, 2))
+            if nodata is None:
+                assert level.shape[2] == 3
+                continue
+            assert level.shape[2] == 4, name
+            np.testing.assert_array_equal(level[..., 3], np.where(np.arange(8) < 3, 0, 255)[None, :].repeat(6, 0))
+            assert (np.asarray(pyramid.levels[1])[..., 3] > 0).any()
