@@ -38,9 +38,10 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
-from .errors import DataFileError, InvalidInputError, counted
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
 from .io import (
     _ROTATION_TOLERANCE,
+    _check_read_budget,
     _crs_object,
     _crs_string,
     _is_geographic,
@@ -154,7 +155,9 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
             except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
-                raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
+                image = _raster_uint8(path)  # a TIFF Pillow cannot identify (16-bit bands) that GDAL reads
+                if image is None:
+                    raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
             mask = _nodata_mask(path, image.shape[:2]) if image.shape[2] == 3 else None  # alpha: Pillow read it
             if mask is not None:
                 image = np.concatenate([image, mask[:, :, None]], axis=2)
@@ -170,6 +173,38 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
         array.flags.writeable = False
         return array, backing, offset, False
     return array, backing, offset, _may_change(array)
+
+
+def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
+    """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
+    read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: 1 band grey (as RGB), 2 grey + alpha
+    and 4 RGBA (as RGBA), 3 RGB; 16-bit values scaled by their full range (value / 257). None without rasterio or
+    when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return None
+    try:
+        import rasterio
+        from rasterio.errors import NotGeoreferencedWarning
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as dataset:
+                count, types = dataset.count, sorted(set(dataset.dtypes))
+                if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
+                    raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
+                                            f"{counted(count, 'band')} of {', '.join(types)}")
+                _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
+                data = dataset.read()
+    except (InvalidInputError, OutputTooLargeError):
+        raise
+    except Exception:  # noqa: BLE001 - GDAL cannot read it either: the caller's DataFileError
+        return None
+    if data.dtype == np.uint16:
+        data = np.round(data / 257.0).astype(np.uint8)
+    bands = {1: [0, 0, 0], 2: [0, 0, 0, 1], 3: [0, 1, 2], 4: [0, 1, 2, 3]}[count]
+    return np.ascontiguousarray(np.moveaxis(data[bands], 0, 2))
 
 
 def _nodata_mask(path: Path, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:

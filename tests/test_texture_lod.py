@@ -774,3 +774,38 @@ def test_pyramid_of_a_geotiff_with_nodata_makes_it_transparent(tmp_path):
             assert level.shape[2] == 4, name
             np.testing.assert_array_equal(level[..., 3], np.where(np.arange(8) < 3, 0, 255)[None, :].repeat(6, 0))
             assert (np.asarray(pyramid.levels[1])[..., 3] > 0).any()
+
+
+def test_pyramid_of_a_16_bit_rgb_geotiff_is_read_by_its_range(tmp_path):
+    """A 16-bit 3-band GeoTIFF (satellite imagery: Landsat, Sentinel-2 composites, written as bands rather than
+    photometric RGB) is one Pillow cannot identify: the pyramid called the file unreadable ("cannot identify image
+    file"). It is read with rasterio and scaled by its full
+    range to 8 bits (value / 257, as a 16-bit greyscale file is); a float one is refused by name."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    data = np.random.default_rng(4).integers(0, 65536, (3, 6, 8)).astype(np.uint16)
+    data[:, 0, 0] = (0, 65535, 257 * 100 + 128)  # 100.498 rounds to 100
+    profile = {"driver": "GTiff", "height": 6, "width": 8, "crs": "EPSG:32611",
+               "transform": Affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0)}
+    with rasterio.open(tmp_path / "rgb16.tif", "w", count=3, dtype="uint16", **profile) as out:  # bands, not RGB
+        out.write(data)
+    with ImagePyramid.build(tmp_path / "rgb16.tif", device="cpu") as pyramid:
+        level = np.asarray(pyramid.levels[0])
+        np.testing.assert_array_equal(level, np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2))
+        assert level[0, 0].tolist() == [0, 255, 100]
+        assert pyramid.crs == "EPSG:32611" and pyramid.extent == (376000.0, 376240.0, 3807820.0, 3808000.0)
+    with rasterio.open(tmp_path / "rgbf.tif", "w", count=3, dtype="float32", **profile) as out:
+        out.write(data.astype(np.float32) / 65535.0)
+    with pytest.raises(InvalidInputError, match=r"image .*rgbf\.tif' must be an 8-bit or 16-bit image of 1-4 "
+                                                r"bands; got 3 bands of float32$"):
+        ImagePyramid.build(tmp_path / "rgbf.tif", device="cpu")
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    previous = st.set_memory_budget(100)  # the 3 x 6 x 8 bands' 576 bytes (as float32) are over it: refused, not read
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"rgb16\.tif' \(the image: 3 x 6 x 8 cells of uint16\)"):
+            ImagePyramid.build(tmp_path / "rgb16.tif", device="cpu")
+    finally:
+        st.set_memory_budget(previous)
