@@ -38,7 +38,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
-from .errors import DataFileError, InvalidInputError, OutputTooLargeError, counted
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
 from .io import (
     _ROTATION_TOLERANCE,
     _check_read_budget,
@@ -152,6 +152,7 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
             try:
                 with Image.open(path) as picture:
                     image = picture_uint8(picture, f"image {str(path)!r}", alpha=True)
+                    _warn_exif_orientation(picture, path)
             except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
@@ -173,6 +174,28 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
         array.flags.writeable = False
         return array, backing, offset, False
     return array, backing, offset, _may_change(array)
+
+
+#: EXIF orientations (tag 0x0112) other than 1, as a viewer turns the stored pixels to show them.
+_EXIF_TURNS = {2: "mirrored left to right", 3: "rotated 180°", 4: "mirrored top to bottom",
+               5: "mirrored and rotated 90° counter-clockwise", 6: "rotated 90° clockwise",
+               7: "mirrored and rotated 90° clockwise", 8: "rotated 90° counter-clockwise"}
+
+
+def _warn_exif_orientation(picture: Any, path: Path) -> None:
+    """Warn when an image file carries an EXIF orientation other than 1: viewers show it turned, the pyramid (as GDAL
+    and QGIS) takes its stored pixels, so an extent given for the picture as seen places it turned."""
+    try:
+        orientation = picture.getexif().get(0x0112)
+    except Exception:  # noqa: BLE001 - unreadable EXIF: nothing to say
+        return
+    turn = _EXIF_TURNS.get(orientation)
+    if turn is None:
+        return
+    width, height = picture.size
+    warnings.warn(f"image {str(path)!r} has EXIF orientation {orientation} ({turn} to view): it is drawn as stored, "
+                  f"{width} x {height} pixels, as GDAL reads it; to use it as viewers show it, build from "
+                  "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))", stacklevel=caller_stacklevel())
 
 
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
@@ -381,7 +404,7 @@ class ImagePyramid:
         ----------
         image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
             TIFF are read with Pillow; a transparent colour, and a GeoTIFF's nodata or mask band, read with
-            rasterio, become alpha)
+            rasterio, become alpha; an EXIF orientation is not applied, as GDAL does not apply it: warned)
         extent : (xmin, xmax, ymin, ymax), optional
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
             else (0, W, 0, H), one unit per pixel).

@@ -809,3 +809,29 @@ def test_pyramid_of_a_16_bit_rgb_geotiff_is_read_by_its_range(tmp_path):
             ImagePyramid.build(tmp_path / "rgb16.tif", device="cpu")
     finally:
         st.set_memory_budget(previous)
+
+
+def test_pyramid_of_an_exif_rotated_photo_warns_that_it_is_drawn_as_stored(tmp_path):
+    """A phone's JPEG stores its pixels landscape with an EXIF orientation tag (6: turn 90° clockwise to view): every
+    viewer shows it turned, the pyramid took the stored pixels (as GDAL and QGIS read a JPEG), so an extent given for
+    the picture as seen drew it turned and stretched without a word. It is still drawn as stored, with a warning that
+    says so and how to turn it (PIL.ImageOps.exif_transpose)."""
+    import warnings
+
+    from PIL import Image
+
+    stored = np.zeros((4, 6, 3), np.uint8)
+    stored[0, 0] = (255, 0, 0)
+    for orientation in (6, 1):
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        Image.fromarray(stored).save(tmp_path / f"photo{orientation}.png", exif=exif)
+    with pytest.warns(UserWarning, match=r"photo6\.png' has EXIF orientation 6 \(rotated 90° clockwise to view\): "
+                                         r"it is drawn as stored, 6 x 4 pixels, .*ImageOps\.exif_transpose"):
+        pyramid = ImagePyramid.build(tmp_path / "photo6.png", device="cpu")
+    with pyramid:
+        np.testing.assert_array_equal(pyramid.levels[0], stored)
+        assert pyramid.extent == (0.0, 6.0, 0.0, 4.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ImagePyramid.build(tmp_path / "photo1.png", device="cpu").close()
