@@ -200,13 +200,16 @@ def _warn_exif_orientation(picture: Any, path: Path) -> None:
 
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
-    read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: 1 band grey (as RGB), 2 grey + alpha
-    and 4 RGBA (as RGBA), 3 RGB; 16-bit values scaled by their full range (value / 257). None without rasterio or
+    read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: the band whose colour interpretation
+    is alpha (GDAL's ALPHA=YES) as alpha (RGBA), of the others the first three as RGB or the only one as grey (as
+    RGB); a fourth band that is not alpha is left out, as Pillow leaves out an extra sample (the near-infrared of an
+    RGB + NIR image is no alpha); 16-bit values scaled by their full range (value / 257). None without rasterio or
     when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
     if path.suffix.lower() not in (".tif", ".tiff"):
         return None
     try:
         import rasterio
+        from rasterio.enums import ColorInterp
         from rasterio.errors import NotGeoreferencedWarning
     except ImportError:
         return None
@@ -215,6 +218,7 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(path) as dataset:
                 count, types = dataset.count, sorted(set(dataset.dtypes))
+                alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
                 if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
                     raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
                                             f"{counted(count, 'band')} of {', '.join(types)}")
@@ -226,7 +230,8 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
         return None
     if data.dtype == np.uint16:
         data = np.round(data / 257.0).astype(np.uint8)
-    bands = {1: [0, 0, 0], 2: [0, 0, 0, 1], 3: [0, 1, 2], 4: [0, 1, 2, 3]}[count]
+    colour = [k for k in range(count) if k not in alphas]
+    bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
     return np.ascontiguousarray(np.moveaxis(data[bands], 0, 2))
 
 

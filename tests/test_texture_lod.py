@@ -835,3 +835,23 @@ def test_pyramid_of_an_exif_rotated_photo_warns_that_it_is_drawn_as_stored(tmp_p
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         ImagePyramid.build(tmp_path / "photo1.png", device="cpu").close()
+
+
+def test_pyramid_of_a_four_band_16_bit_geotiff_takes_alpha_only_from_an_alpha_band(tmp_path):
+    """A 4-band 16-bit RGB + near-infrared GeoTIFF (NAIP, PlanetScope) read through rasterio took the NIR band for
+    alpha: vegetation opaque, water transparent. Only a band whose colour interpretation is alpha (GDAL's ALPHA=YES,
+    which marks the first extra band) is alpha; a fourth band that is not is left out (as Pillow reads an extra
+    sample)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    data = np.random.default_rng(6).integers(0, 65536, (4, 5, 7)).astype(np.uint16)
+    profile = {"driver": "GTiff", "height": 5, "width": 7, "count": 4, "dtype": "uint16",
+               "transform": Affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0)}
+    scaled = np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2)
+    for name, options, expected in (("rgbn.tif", {}, scaled[..., :3]),
+                                    ("alpha.tif", {"alpha": "YES"}, scaled[..., [0, 2, 3, 1]])):
+        with rasterio.open(tmp_path / name, "w", **profile, **options) as out:
+            out.write(data)
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            np.testing.assert_array_equal(pyramid.levels[0], expected)
