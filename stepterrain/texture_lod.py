@@ -46,6 +46,7 @@ from .io import (
     _crs_string,
     _is_geographic,
     _negligible_rotation,
+    _wkt_block,
     lonlat_as_local_metres,
     picture_uint8,
 )
@@ -629,8 +630,30 @@ def _optional_crs(crs: Any) -> str | None:
     return crs
 
 
+def _horizontal_crs(crs: str) -> str:
+    """The horizontal part of ``crs`` as a short string (``EPSG:32611`` where it has a code): a compound CRS (UTM +
+    NAVD88 height, as a DEM's GeoTIFF may carry) places an image as its horizontal CRS does. The string itself
+    without rasterio or where it does not parse."""
+    parsed = _crs_object(crs)
+    if parsed is None:
+        return crs
+    try:
+        wkt = parsed.to_wkt()
+        if wkt.lstrip().startswith(("COMPD_CS[", "COMPOUNDCRS[")):
+            block = _wkt_block(wkt, ("PROJCS", "PROJCRS", "GEOGCS", "GEOGCRS"))
+            return crs if block is None else _crs_string(type(parsed).from_wkt(block)) or crs
+        epsg = parsed.to_epsg()
+        return crs if epsg is None else f"EPSG:{epsg}"
+    except Exception:  # noqa: BLE001 - a CRS rasterio reads but cannot split or name: as given
+        return crs
+
+
 def _same_crs(a: str, b: str) -> bool:
-    """Whether two CRS strings name the same CRS (rasterio's comparison where both parse, else the strings)."""
+    """Whether two CRS strings name the same horizontal CRS (rasterio's comparison where both parse, else the
+    strings)."""
+    if a.strip().upper() == b.strip().upper():
+        return True
+    a, b = _horizontal_crs(a), _horizontal_crs(b)
     if a.strip().upper() == b.strip().upper():
         return True
     parsed_a, parsed_b = _crs_object(a), _crs_object(b)
@@ -1010,7 +1033,8 @@ def _check_same_crs(pyramid: ImagePyramid, terrain: Terrain) -> None:
     its metres (linear in longitude and latitude)."""
     if pyramid.crs is None or terrain.crs is None or _same_crs(pyramid.crs, terrain.crs):
         return
-    hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain.crs}' ...`)"
+    image_crs, terrain_crs = _horizontal_crs(pyramid.crs), _horizontal_crs(terrain.crs)
+    hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain_crs}' ...`)"
     xmin, xmax, ymin, ymax = pyramid.extent
     local = lonlat_as_local_metres(terrain.crs, (xmin, xmax), (ymin, ymax)) if _is_geographic(pyramid.crs) else None
     if local is not None:
@@ -1018,7 +1042,7 @@ def _check_same_crs(pyramid: ImagePyramid, terrain: Terrain) -> None:
         hint = (f"the terrain is a DEM in degrees read as local equirectangular metres, linear in longitude and "
                 f"latitude, so ImagePyramid.build(..., extent=({x0:.6f}, {x1:.6f}, {y0:.6f}, {y1:.6f}), "
                 f"crs=terrain.crs) places this image on it exactly")
-    raise InvalidInputError(f"the image is in CRS {pyramid.crs!r} but the terrain is in {terrain.crs!r} (mismatched "
+    raise InvalidInputError(f"the image is in CRS {image_crs!r} but the terrain is in {terrain_crs!r} (mismatched "
                             f"CRS: the extent {pyramid.extent} is not in the terrain's coordinates); {hint}")
 
 

@@ -855,3 +855,37 @@ def test_pyramid_of_a_four_band_16_bit_geotiff_takes_alpha_only_from_an_alpha_ba
             out.write(data)
         with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
             np.testing.assert_array_equal(pyramid.levels[0], expected)
+
+
+def test_texture_tree_takes_an_image_in_the_horizontal_crs_of_a_compound_crs_dem(tmp_path):
+    """A DEM whose GeoTIFF carries a compound CRS (WGS 84 / UTM 11N + NAVD88 height) and an orthophoto in EPSG:32611
+    lie in the same horizontal coordinates: the CRS check compared the whole CRSs and refused the pair (with the
+    compound CRS's whole WKT in the message). The horizontal parts are compared, and named by their EPSG codes."""
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    from rasterio.crs import CRS
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+
+    heights = np.random.default_rng(7).random((1, 32, 32)).astype(np.float32) * 100
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", height=32, width=32, count=1, dtype="float32",
+                       crs=CRS.from_user_input("EPSG:32611+5703"),
+                       transform=Affine(30.0, 0.0, 380000.0, 0.0, -30.0, 3800000.0)) as out:
+        out.write(heights)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        terrain = st.load_dem(tmp_path / "dem.tif")
+    assert "NAVD88" in terrain.crs
+    for name, crs in (("utm.tif", "EPSG:32611"), ("utm12.tif", "EPSG:32612")):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", height=16, width=16, count=3, dtype="uint8", crs=crs,
+                           transform=Affine(60.0, 0.0, 380000.0, 0.0, -60.0, 3800000.0), photometric="RGB") as out:
+            out.write(np.full((3, 16, 16), 90, np.uint8))
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            if crs == "EPSG:32611":
+                assert TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8)).root.level == 0
+            else:
+                with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:32612' but the terrain is in "
+                                                            r"'EPSG:32611' \(mismatched CRS"):
+                    TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8))
