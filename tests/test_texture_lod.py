@@ -889,3 +889,22 @@ def test_texture_tree_takes_an_image_in_the_horizontal_crs_of_a_compound_crs_dem
                 with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:32612' but the terrain is in "
                                                             r"'EPSG:32611' \(mismatched CRS"):
                     TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8))
+
+
+def test_texture_tree_takes_the_geotiff_of_a_texture_of_a_dem_in_degrees(tmp_path):
+    """The round trip the docs describe: a texture of the Front Range DEM (degrees read as local metres) saved as a
+    GeoTIFF on its grid and CRS, then a pyramid of that file over the same DEM: the CRS check must take it (the file's
+    CRS is the DEM's equirectangular one, written back as WKT), at full resolution over the whole DEM."""
+    pytest.importorskip("rasterio")
+    import stepterrain as st
+    from stepterrain.texture import topographic_layer
+
+    from .reference_texture import find_shared
+
+    dem = st.load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    layer = topographic_layer(dem, shadows=False, device="cpu")
+    st.export.save_image(layer.to_uint8(), tmp_path / "shade.tif", extent=layer.extent, crs=dem.crs)
+    with ImagePyramid.build(tmp_path / "shade.tif", device="cpu") as pyramid:
+        assert pyramid.crs is not None and pyramid.extent == pytest.approx(layer.extent)
+        tree = TextureTree(pyramid, PatchQuadtree(dem, leaf_size=256), max_texture_size=1024)
+        assert tree.root.level == 0 and tree.root.window == (0, 758, 0, 758)
