@@ -1039,10 +1039,16 @@ def reduce_band(
     The weighted sum is exact, in int64 (the weights are integer overlaps over n_rows n_cols), and rounded half
     up, floor(mean + 0.5), as the 2 x 2 box path. ``src`` holds source rows from ``src_row0``, ``dst_out``
     target rows from ``dst_row0``.
+
+    An image with alpha (2 channels, grey + alpha, or 4, RGBA; straight alpha) averages its colour weighted by
+    alpha, sum(w a c) / sum(w a) (premultiplied, then divided by the mean alpha): the colour of transparent pixels
+    (a nodata collar's black) bled into the edge pixels of every coarser level, a dark rim. Where every pixel
+    covered is transparent, the plain mean. An opaque image gets exactly the plain mean.
     """
     t = wp.tid() + thread_offset
     cols = dst_out.shape[1]
     channels = dst_out.shape[2]
+    alpha = channels - 1 if channels == 2 or channels == 4 else -1  # the alpha channel, or none
     local_r = t // cols
     c = t - local_r * cols
     r = wp.int64(local_r) + dst_row0
@@ -1055,11 +1061,33 @@ def reduce_band(
         # even sizes: the 2 x 2 box in integers, (sum + 2) // 4 = floor(mean + 0.5), as the general path gives
         sr = wp.int32(r) * 2 - first
         sc = c * 2
+        a00 = wp.int32(1)
+        a01 = wp.int32(1)
+        a10 = wp.int32(1)
+        a11 = wp.int32(1)
+        coverage = wp.int32(4)  # sum of the weights: 4 x 1 without alpha
+        if alpha >= 0:
+            a00 = wp.int32(src[sr, sc, alpha])
+            a01 = wp.int32(src[sr, sc + 1, alpha])
+            a10 = wp.int32(src[sr + 1, sc, alpha])
+            a11 = wp.int32(src[sr + 1, sc + 1, alpha])
+            coverage = a00 + a01 + a10 + a11
+            if coverage == 0:  # all transparent: the plain mean
+                a00 = wp.int32(1)
+                a01 = wp.int32(1)
+                a10 = wp.int32(1)
+                a11 = wp.int32(1)
+                coverage = wp.int32(4)
         ch = wp.int32(0)
         while ch < channels:  # (a while loop: Warp's dynamic range() costs about 3 ns an iteration on the CPU)
-            box = (wp.int32(src[sr, sc, ch]) + wp.int32(src[sr, sc + 1, ch]) + wp.int32(src[sr + 1, sc, ch])
-                   + wp.int32(src[sr + 1, sc + 1, ch]) + 2)
-            dst_out[local_r, c, ch] = wp.uint8(box // 4)
+            if ch == alpha or alpha < 0:
+                box = (wp.int32(src[sr, sc, ch]) + wp.int32(src[sr, sc + 1, ch]) + wp.int32(src[sr + 1, sc, ch])
+                       + wp.int32(src[sr + 1, sc + 1, ch]) + 2)
+                dst_out[local_r, c, ch] = wp.uint8(box // 4)
+            else:
+                weighted = (a00 * wp.int32(src[sr, sc, ch]) + a01 * wp.int32(src[sr, sc + 1, ch])
+                            + a10 * wp.int32(src[sr + 1, sc, ch]) + a11 * wp.int32(src[sr + 1, sc + 1, ch]))
+                dst_out[local_r, c, ch] = wp.uint8((2 * weighted + coverage) // (2 * coverage))
             ch += 1
         return
     c64 = wp.int64(c)
@@ -1068,12 +1096,31 @@ def reduce_band(
     s_col_lo = wp.int32((c64 * n_cols) // m_cols)
     s_col_hi = wp.int32(((c64 + wp.int64(1)) * n_cols - wp.int64(1)) // m_cols)
     area = n_rows * n_cols  # the weights' common denominator: the sum is at most 255 area, exact in int64
-    for ch in range(channels):
-        total = wp.int64(0)
+    weight_sum = area  # the colour's denominator: sum(w a), at most 255 area (sums at most 255^2 area: exact)
+    weigh = wp.int32(0)
+    if alpha >= 0:
+        weight_sum = wp.int64(0)
         for sr in range(s_row_lo, s_row_hi + 1):
             wr = overlap(wp.int64(sr), m_rows, r, n_rows)
             row_sum = wp.int64(0)
             for sc in range(s_col_lo, s_col_hi + 1):
-                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * wp.int64(src[sr - first, sc, ch])
+                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * wp.int64(src[sr - first, sc, alpha])
+            weight_sum += wr * row_sum
+        if weight_sum > wp.int64(0):
+            weigh = wp.int32(1)
+        else:  # all transparent: the plain mean
+            weight_sum = area
+    for ch in range(channels):
+        total = wp.int64(0)
+        by_alpha = weigh == 1 and ch != alpha
+        for sr in range(s_row_lo, s_row_hi + 1):
+            wr = overlap(wp.int64(sr), m_rows, r, n_rows)
+            row_sum = wp.int64(0)
+            for sc in range(s_col_lo, s_col_hi + 1):
+                value = wp.int64(src[sr - first, sc, ch])
+                if by_alpha:
+                    value = value * wp.int64(src[sr - first, sc, alpha])
+                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * value
             total += wr * row_sum
-        dst_out[local_r, c, ch] = wp.uint8((wp.int64(2) * total + area) // (wp.int64(2) * area))
+        denominator = weight_sum if by_alpha else area
+        dst_out[local_r, c, ch] = wp.uint8((wp.int64(2) * total + denominator) // (wp.int64(2) * denominator))

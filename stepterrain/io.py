@@ -15,7 +15,7 @@ import os
 import re
 import warnings
 import zipfile
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
@@ -330,8 +330,20 @@ def _lonlat_grid(
     """(lon_min, lon_max, lat_min, lat_max) of a grid's nodes and its (dlon, dlat), in degrees, when its ``crs``
     is a spherical equidistant cylindrical projection (``+proj=eqc ... +R=``, what geographic files become in
     :func:`load_dem`): x = R·(λ - λ0)·cos φts + x0, y = R·(φ - φ0) + y0 inverted; else None."""
-    crs = t.crs or ""
-    params = dict(token[1:].partition("=")[::2] for token in crs.split() if token.startswith("+"))
+    found = _spherical_eqc(t.crs)
+    if found is None:
+        return None
+    radius, x_radius, lat_0, lon_0, x_0, y_0 = found
+    (x_min, x_max, y_min, y_max), (dx, dy) = t.extent, t.spacing
+    lon = (lon_0 + math.degrees((x_min - x_0) / x_radius), lon_0 + math.degrees((x_max - x_0) / x_radius))
+    lat = (lat_0 + math.degrees((y_min - y_0) / radius), lat_0 + math.degrees((y_max - y_0) / radius))
+    return (*lon, *lat), (math.degrees(dx / x_radius), math.degrees(dy / radius))
+
+
+def _spherical_eqc(crs: str | None) -> tuple[float, float, float, float, float, float] | None:
+    """(R, R·cos φts, φ0, λ0, x0, y0) of a spherical equidistant cylindrical ``crs`` (``+proj=eqc ... +R=``, what
+    geographic files become in :func:`load_dem`), else None."""
+    params = dict(token[1:].partition("=")[::2] for token in (crs or "").split() if token.startswith("+"))
     if params.get("proj") != "eqc" or "R" not in params or "ellps" in params or "datum" in params:
         return None
     try:
@@ -342,10 +354,20 @@ def _lonlat_grid(
     x_radius = radius * math.cos(math.radians(lat_ts))
     if not radius > 0.0 or not x_radius > 0.0:
         return None
-    (x_min, x_max, y_min, y_max), (dx, dy) = t.extent, t.spacing
-    lon = (lon_0 + math.degrees((x_min - x_0) / x_radius), lon_0 + math.degrees((x_max - x_0) / x_radius))
-    lat = (lat_0 + math.degrees((y_min - y_0) / radius), lat_0 + math.degrees((y_max - y_0) / radius))
-    return (*lon, *lat), (math.degrees(dx / x_radius), math.degrees(dy / radius))
+    return radius, x_radius, lat_0, lon_0, x_0, y_0
+
+
+def lonlat_as_local_metres(crs: str | None, lons: Sequence[float], lats: Sequence[float]) -> tuple[list[float],
+                                                                                                  list[float]] | None:
+    """Longitudes and latitudes (degrees) as x and y of the local equirectangular metres a geographic DEM is read in
+    (:func:`load_dem`; ``crs`` as its Terrain holds it): x = R·cos φts·(λ − λ0) + x0, y = R·(φ − φ0) + y0, linear,
+    so an extent in degrees maps onto an extent in those metres exactly; None when ``crs`` is not such a CRS."""
+    found = _spherical_eqc(crs)
+    if found is None:
+        return None
+    radius, x_radius, lat_0, lon_0, x_0, y_0 = found
+    return ([x_0 + x_radius * math.radians(lon - lon_0) for lon in lons],
+            [y_0 + radius * math.radians(lat - lat_0) for lat in lats])
 
 
 # ---------------------------------------------------------------------------------------------- readers
@@ -591,7 +613,8 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
     """An opened Pillow image as an (H, W, 3) uint8 array, (H, W, 4) with ``alpha`` when it has an alpha band (a
-    premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA).
+    premultiplied one, modes ``RGBa`` and ``La``, un-premultiplied as RGBA and LA) or a transparent colour (a
+    palette's, an L or RGB PNG's tRNS: Pillow's ``info["transparency"]``).
 
     A 16-bit greyscale image (modes ``I;16*``, and ``I`` within 0-65535) is scaled by its full range (value / 257,
     as Pillow reads 16-bit RGB): Pillow's own conversion to RGB saturates every value above 255, which draped a
@@ -607,6 +630,10 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
         return np.repeat(np.round(gray / 257.0).astype(np.uint8)[..., None], 3, axis=2)
     if mode in _PREMULTIPLIED:  # alpha band "a": RGBa kept no alpha (converted to RGB), La raised Pillow's ValueError
         picture = picture.convert(_PREMULTIPLIED[mode])  # un-premultiplied, as RGBA and LA are
+    elif alpha and mode in ("P", "L", "RGB") and "transparency" in picture.info:
+        # a palette's or a PNG's transparent colour (tRNS) is alpha without an alpha band: converted to RGB, its
+        # pixels came out opaque in whatever colour they hold
+        picture = picture.convert("RGBA")
     return np.asarray(picture.convert("RGBA" if alpha and "A" in picture.getbands() else "RGB"))
 
 

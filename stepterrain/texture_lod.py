@@ -38,8 +38,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._device import host_copy, launch, resolve_device
 from .camera import Camera
-from .errors import DataFileError, InvalidInputError, counted
-from .io import _ROTATION_TOLERANCE, _crs_string, _negligible_rotation, _projected_units, picture_uint8
+from .errors import DataFileError, InvalidInputError, OutputTooLargeError, caller_stacklevel, counted
+from .io import (
+    _ROTATION_TOLERANCE,
+    _check_read_budget,
+    _crs_object,
+    _crs_string,
+    _is_geographic,
+    _negligible_rotation,
+    _projected_units,
+    _wkt_block,
+    lonlat_as_local_metres,
+    picture_uint8,
+)
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
 from .texture import _check_extent
@@ -80,10 +91,11 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     return shapes
 
 
-def _georeferenced_extent(image: Any) -> Extent | None:
-    """(xmin, xmax, ymin, ymax) of a GeoTIFF path from its own georeferencing (rasterio), else None; in metres for
-    a projected CRS (or a site grid) in feet or another linear unit, as :func:`~stepterrain.io.load_dem` reads a DEM
-    in it (the bounds of an orthophoto in EPSG:2229 stayed in feet, refused against its DEM's metres)."""
+def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
+    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path from its own georeferencing (rasterio), else None;
+    in metres for a projected CRS (or a site grid) in feet or another linear unit, with that projection in metres
+    as the CRS, as :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229
+    stayed in feet, refused against its DEM's metres)."""
     if not isinstance(image, (str, os.PathLike)) or Path(image).suffix.lower() not in (".tif", ".tiff"):
         return None
     try:
@@ -119,8 +131,10 @@ def _georeferenced_extent(image: Any) -> Extent | None:
             f"west (pixel size {transform.a:g} x {transform.e:g}); a pyramid's row 0 is the north edge and column 0 "
             "the west edge: write the image north-up, or pass extent=(xmin, xmax, ymin, ymax) for it as it is")
     units = _projected_units(crs)
-    factor = units[1] if units is not None else 1.0  # feet -> metres
-    return float(left * factor), float(right * factor), float(bottom * factor), float(top * factor)
+    factor = 1.0
+    if units is not None:  # feet -> metres, named as load_dem names the DEM's CRS
+        _, factor, crs = units
+    return (float(left * factor), float(right * factor), float(bottom * factor), float(top * factor)), crs
 
 
 def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]:
@@ -147,10 +161,16 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
             try:
                 with Image.open(path) as picture:
                     image = picture_uint8(picture, f"image {str(path)!r}", alpha=True)
+                    _warn_exif_orientation(picture, path)
             except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
-                raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
+                image = _raster_uint8(path)  # a TIFF Pillow cannot identify (16-bit bands) that GDAL reads
+                if image is None:
+                    raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
+            mask = _nodata_mask(path, image.shape[:2]) if image.shape[2] == 3 else None  # alpha: Pillow read it
+            if mask is not None:
+                image = np.concatenate([image, mask[:, :, None]], axis=2)
     array = image if isinstance(image, np.ndarray) else as_array(image, "image", "an (H, W) or (H, W, C) uint8 array")
     if array.dtype != np.uint8:
         raise InvalidInputError(f"pyramid image must be uint8 (0-255); got dtype {array.dtype}")
@@ -163,6 +183,91 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
         array.flags.writeable = False
         return array, backing, offset, False
     return array, backing, offset, _may_change(array)
+
+
+#: EXIF orientations (tag 0x0112) other than 1, as a viewer turns the stored pixels to show them.
+_EXIF_TURNS = {2: "mirrored left to right", 3: "rotated 180°", 4: "mirrored top to bottom",
+               5: "mirrored and rotated 90° counter-clockwise", 6: "rotated 90° clockwise",
+               7: "mirrored and rotated 90° clockwise", 8: "rotated 90° counter-clockwise"}
+
+
+def _warn_exif_orientation(picture: Any, path: Path) -> None:
+    """Warn when an image file carries an EXIF orientation other than 1: viewers show it turned, the pyramid (as GDAL
+    and QGIS) takes its stored pixels, so an extent given for the picture as seen places it turned."""
+    try:
+        orientation = picture.getexif().get(0x0112)
+    except Exception:  # noqa: BLE001 - unreadable EXIF: nothing to say
+        return
+    turn = _EXIF_TURNS.get(orientation)
+    if turn is None:
+        return
+    width, height = picture.size
+    warnings.warn(f"image {str(path)!r} has EXIF orientation {orientation} ({turn} to view): it is drawn as stored, "
+                  f"{width} x {height} pixels, as GDAL reads it; to use it as viewers show it, build from "
+                  "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))", stacklevel=caller_stacklevel())
+
+
+def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
+    """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
+    read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: the band whose colour interpretation
+    is alpha (GDAL's ALPHA=YES) as alpha (RGBA), of the others the first three as RGB or the only one as grey (as
+    RGB); a fourth band that is not alpha is left out, as Pillow leaves out an extra sample (the near-infrared of an
+    RGB + NIR image is no alpha); 16-bit values scaled by their full range (value / 257). None without rasterio or
+    when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return None
+    try:
+        import rasterio
+        from rasterio.enums import ColorInterp
+        from rasterio.errors import NotGeoreferencedWarning
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as dataset:
+                count, types = dataset.count, sorted(set(dataset.dtypes))
+                alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
+                if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
+                    raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
+                                            f"{counted(count, 'band')} of {', '.join(types)}")
+                _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
+                data = dataset.read()
+    except (InvalidInputError, OutputTooLargeError):
+        raise
+    except Exception:  # noqa: BLE001 - GDAL cannot read it either: the caller's DataFileError
+        return None
+    if data.dtype == np.uint16:
+        data = np.round(data / 257.0).astype(np.uint8)
+    colour = [k for k in range(count) if k not in alphas]
+    bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
+    return np.ascontiguousarray(np.moveaxis(data[bands], 0, 2))
+
+
+def _nodata_mask(path: Path, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:
+    """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) when some pixel
+    is missing, else None (no rasterio, not a GeoTIFF, nothing masked). Pillow reads nodata as ordinary pixels: an
+    orthophoto's collar tagged nodata=0 was draped opaque black."""
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return None
+    try:
+        import rasterio
+        from rasterio.enums import MaskFlags
+        from rasterio.errors import NotGeoreferencedWarning
+    except ImportError:
+        return None
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", NotGeoreferencedWarning)
+            with rasterio.open(path) as dataset:
+                if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
+                    return None
+                mask = dataset.dataset_mask()
+    except Exception:  # noqa: BLE001 - Pillow read it, GDAL cannot: no mask to add
+        return None
+    if mask.shape != tuple(shape) or mask.min() == 255:
+        return None
+    return np.where(mask > 0, 255, 0).astype(np.uint8)
 
 
 def _may_change(array: NDArray[Any]) -> bool:
@@ -239,7 +344,8 @@ def _storage_folder(storage: Any) -> Path | None:
 
 class ImagePyramid:
     """An image pyramid (paper 004 §3.2.1): level 0 is the image, each next level half the size (ceil), down to
-    1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north).
+    1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north) in the coordinate reference
+    system ``crs`` (None: unknown; :class:`TextureTree` refuses a terrain whose own ``crs`` is another).
 
     Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``. Level 0 is the source itself
     when nothing can change it (an image file; a .npy stays on disk, memory-mapped read-only); an array the caller
@@ -250,12 +356,14 @@ class ImagePyramid:
     """
 
     def __init__(self, levels: list[NDArray[np.uint8]], extent: Extent, storage: str | os.PathLike[str] | None,
-                 anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False) -> None:
+                 anisotropic: dict[tuple[int, int], NDArray[np.uint8]] | None = None, owned: bool = False,
+                 crs: str | None = None) -> None:
         """Wrap levels already built (:meth:`build` is the usual constructor), e.g. reopened from a ``storage``
         folder with ``numpy.memmap``: ``levels`` from the image (level 0) down to 1 x 1, each (h, w, C) uint8 of
         the sizes :func:`pyramid_shapes` gives; ``anisotropic`` the rip-map levels by (kx, ky); ``owned``:
-        :meth:`close` deletes ``storage``. The levels are used as given, not copied (:meth:`build` copies an image
-        the caller can still edit). A bad argument raises an :class:`InvalidInputError` naming it."""
+        :meth:`close` deletes ``storage``; ``crs`` the extent's CRS. The levels are used as given, not copied
+        (:meth:`build` copies an image the caller can still edit). A bad argument raises an
+        :class:`InvalidInputError` naming it."""
         expected = "a list of (H, W, C) uint8 arrays from the image (level 0) down to 1 x 1"
         if isinstance(levels, (str, bytes)) or not isinstance(levels, Sequence) or not levels:
             got = "an empty list" if isinstance(levels, Sequence) and not levels else type(levels).__name__
@@ -285,6 +393,7 @@ class ImagePyramid:
             raise InvalidInputError("owned=True deletes the storage folder on close(); got storage=None")
         self._levels = levels
         self.extent = _check_extent(extent)
+        self.crs = _optional_crs(crs)
         self.storage = folder
         self._anisotropic = anisotropic or {}
         self._owned = owned
@@ -301,17 +410,22 @@ class ImagePyramid:
         anisotropic: bool = False,
         band_bytes: int = _BAND_BYTES,
         device: wp.DeviceLike = None,
+        crs: str | None = None,
     ) -> ImagePyramid:
         """Build the pyramid of ``image`` band by band, so memory stays bounded by ``band_bytes``.
 
         Parameters
         ----------
         image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
-            TIFF are read with Pillow)
+            TIFF are read with Pillow; a transparent colour, and a GeoTIFF's nodata or mask band, read with
+            rasterio, become alpha; an EXIF orientation is not applied, as GDAL does not apply it: warned)
         extent : (xmin, xmax, ymin, ymax), optional
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
             in metres for a CRS in feet or another linear unit, as load_dem reads a DEM in it; else (0, W, 0, H),
             one unit per pixel).
+        crs : str, optional
+            The coordinate reference system of the extent, e.g. ``"EPSG:32611"`` (default: a GeoTIFF's own when its
+            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS.
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
@@ -335,11 +449,16 @@ class ImagePyramid:
         Level k+1 pixel r covers source pixels [r n/m, (r+1) n/m) of level k (n source, m = ceil(n / 2)
         target pixels per axis): an area-weighted mean, so every level keeps the image mean up to the rounding
         to uint8, for odd sizes too (a plain 2 x 2 box when n is even). The mean is summed exactly (integers) and
-        rounded half up, floor(mean + 0.5), on both paths. One Warp thread per target pixel; the
-        levels are written with ``pwrite`` and read back with ``pread``, never mapped while building; a memmap
-        source is read through its own mapping (not its file name, which may name a replacement by now), each band's
-        pages dropped from the resident set once copied, so the resident memory stays about two bands whatever the
-        image size. An image array the caller can still
+        rounded half up, floor(mean + 0.5), on both paths. An image with alpha (2 channels, grey + alpha, or 4, RGBA;
+        straight alpha, as PNG and glTF hold it) averages its colour weighted by alpha, sum(w a c) / sum(w a), so a
+        transparent pixel's colour (a nodata collar's black) does not darken the edge of the coarser levels; its alpha
+        and premultiplied colour keep their means. The values are averaged as stored (sRGB-encoded bytes, gamma
+        space, as GDAL's overviews and Pillow's reduce average), not in linear light: a fine black-and-white
+        pattern averages to 128, which displays darker than its linear-light mean (188). One Warp thread per target
+        pixel; the levels are written with ``pwrite`` and read back with ``pread``, never mapped while building; a
+        memmap source is read through its own mapping (not its file name, which may name a replacement by now), each
+        band's pages dropped from the resident set once copied, so the resident memory stays about two bands whatever
+        the image size. An image array the caller can still
         edit is copied first, so that later edits do not make level 0 disagree with the levels built from it: in
         memory (the image's bytes once more; about 7 % of the build time at 2048²), a writeable memmap band by band
         into ``storage`` (``level_0.u8``). A read-only array that owns its pixels, or a .npy path, is not copied.
@@ -354,8 +473,16 @@ class ImagePyramid:
         """
         source, backing, _, changeable = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
+        crs = _optional_crs(crs)
         if extent is None:
-            extent = _georeferenced_extent(image) or (0.0, float(width), 0.0, float(height))
+            georeferenced = _georeferenced_extent(image)
+            if georeferenced is not None:
+                if crs is not None and georeferenced[1] is not None and not _same_crs(crs, georeferenced[1]):
+                    raise InvalidInputError(f"crs {crs!r} is not the CRS {georeferenced[1]!r} of image {str(image)!r}, "
+                                            "whose bounds are the extent; pass extent= in crs to place it yourself")
+                extent, crs = georeferenced[0], crs or georeferenced[1]
+            else:
+                extent = (0.0, float(width), 0.0, float(height))
         extent = _check_extent(extent)
         if isinstance(band_bytes, bool) or not isinstance(band_bytes, int) or band_bytes < 1:
             raise InvalidInputError(f"band_bytes must be a positive int; got {band_bytes!r}")
@@ -401,7 +528,7 @@ class ImagePyramid:
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
             raise
-        return cls(levels, extent, folder, aniso, owned)
+        return cls(levels, extent, folder, aniso, owned, crs)
 
     # ------------------------------------------------------------------ access
     def _open(self, what: str) -> None:
@@ -504,6 +631,42 @@ class ImagePyramid:
         until read)."""
         r0, r1, c0, c1 = self._window(level, window)
         return self._level(level)[r0:r1, c0:c1]
+
+
+def _optional_crs(crs: Any) -> str | None:
+    if crs is not None and (not isinstance(crs, str) or not crs.strip()):
+        raise InvalidInputError(f"crs must be a CRS string (e.g. 'EPSG:32611') or None; got {crs!r}")
+    return crs
+
+
+def _horizontal_crs(crs: str) -> str:
+    """The horizontal part of ``crs`` as a short string (``EPSG:32611`` where it has a code): a compound CRS (UTM +
+    NAVD88 height, as a DEM's GeoTIFF may carry) places an image as its horizontal CRS does. The string itself
+    without rasterio or where it does not parse."""
+    parsed = _crs_object(crs)
+    if parsed is None:
+        return crs
+    try:
+        wkt = parsed.to_wkt()
+        if wkt.lstrip().startswith(("COMPD_CS[", "COMPOUNDCRS[")):
+            block = _wkt_block(wkt, ("PROJCS", "PROJCRS", "GEOGCS", "GEOGCRS"))
+            return crs if block is None else _crs_string(type(parsed).from_wkt(block)) or crs
+        epsg = parsed.to_epsg()
+        return crs if epsg is None else f"EPSG:{epsg}"
+    except Exception:  # noqa: BLE001 - a CRS rasterio reads but cannot split or name: as given
+        return crs
+
+
+def _same_crs(a: str, b: str) -> bool:
+    """Whether two CRS strings name the same horizontal CRS (rasterio's comparison where both parse, else the
+    strings)."""
+    if a.strip().upper() == b.strip().upper():
+        return True
+    a, b = _horizontal_crs(a), _horizontal_crs(b)
+    if a.strip().upper() == b.strip().upper():
+        return True
+    parsed_a, parsed_b = _crs_object(a), _crs_object(b)
+    return parsed_a is not None and parsed_b is not None and parsed_a == parsed_b
 
 
 def _window_expected(rows: int, cols: int, level: int) -> str:
@@ -872,6 +1035,26 @@ def _overlap(a: Extent, b: Extent) -> bool:
     return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
 
 
+def _check_same_crs(pyramid: ImagePyramid, terrain: Terrain) -> None:
+    """An InvalidInputError when the pyramid's extent and the terrain lie in different known CRSs: the extents were
+    compared as numbers, so a Blue Marble in degrees (-180..180) over a DEM in degrees read as local metres (0..53 km)
+    draped lon 0..180, lat -90..0 on it without a word. For that DEM the message gives the image's exact extent in
+    its metres (linear in longitude and latitude)."""
+    if pyramid.crs is None or terrain.crs is None or _same_crs(pyramid.crs, terrain.crs):
+        return
+    image_crs, terrain_crs = _horizontal_crs(pyramid.crs), _horizontal_crs(terrain.crs)
+    hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain_crs}' ...`)"
+    xmin, xmax, ymin, ymax = pyramid.extent
+    local = lonlat_as_local_metres(terrain.crs, (xmin, xmax), (ymin, ymax)) if _is_geographic(pyramid.crs) else None
+    if local is not None:
+        (x0, x1), (y0, y1) = local
+        hint = (f"the terrain is a DEM in degrees read as local equirectangular metres, linear in longitude and "
+                f"latitude, so ImagePyramid.build(..., extent=({x0:.6f}, {x1:.6f}, {y0:.6f}, {y1:.6f}), "
+                f"crs=terrain.crs) places this image on it exactly")
+    raise InvalidInputError(f"the image is in CRS {image_crs!r} but the terrain is in {terrain_crs!r} (mismatched "
+                            f"CRS: the extent {pyramid.extent} is not in the terrain's coordinates); {hint}")
+
+
 class TextureTree:
     """The texture tree of one layer over a :class:`PatchQuadtree` (§3.2.2 and §4, partial textures).
 
@@ -887,6 +1070,7 @@ class TextureTree:
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
         if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
+        _check_same_crs(pyramid, quadtree.terrain)
         self.pyramid = pyramid
         self.quadtree = quadtree
         self.max_texture_size = max_texture_size

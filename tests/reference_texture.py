@@ -6,7 +6,8 @@
 * ``shadows_reference``: brute-force ray march from every node towards the light over the nodes of its
   digital line (O(n) per node), in float64.
 * ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
-* ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64.
+* ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64 (colour weighted by alpha in
+  an image with alpha).
 * ``reduce_rounded_reference``: the same halving in exact rationals, rounded half up to integers.
 * ``maplibre_reference``: MapLibre GL's hillshade methods transcribed from its fragment shader, in float64.
 """
@@ -210,14 +211,26 @@ def reduce_axis(image: np.ndarray, axis: int) -> np.ndarray:
     return np.moveaxis(out, 0, axis)
 
 
+def _has_alpha(image: np.ndarray) -> bool:
+    """Whether a pyramid image carries alpha: 2 channels (grey + alpha) or 4 (RGBA), straight alpha."""
+    return np.ndim(image) == 3 and np.shape(image)[2] in (2, 4)
+
+
 def reduce_reference(image: np.ndarray) -> np.ndarray:
-    """One pyramid level down (both axes), float64 before rounding."""
-    return reduce_axis(reduce_axis(image, 0), 1)
+    """One pyramid level down (both axes), float64 before rounding. With alpha the colour is averaged weighted by
+    alpha (premultiplied mean / mean alpha), the plain mean where every pixel covered is transparent."""
+    plain = reduce_axis(reduce_axis(image, 0), 1)
+    if not _has_alpha(image):
+        return plain
+    a = np.asarray(image, dtype=np.float64)
+    premultiplied = reduce_axis(reduce_axis(a[..., :-1] * a[..., -1:], 0), 1)
+    coverage = plain[..., -1:]
+    colour = np.where(coverage > 0, premultiplied / np.where(coverage > 0, coverage, 1.0), plain[..., :-1])
+    return np.concatenate([colour, coverage], axis=2)
 
 
-def reduce_rounded_reference(image: np.ndarray) -> np.ndarray:
-    """One pyramid level down as reduce_reference, but in exact rationals (Python Fractions), then rounded half
-    up, floor(mean + 1/2), to int64: no float sum decides which way a tie goes."""
+def _reduce_exact(image: np.ndarray) -> np.ndarray:
+    """The area-weighted halving in exact rationals (an object array of Fractions), unrounded."""
     a = np.asarray(image).astype(object)  # Python ints
     for axis in (0, 1):
         a = np.moveaxis(a, axis, 0)
@@ -233,7 +246,25 @@ def reduce_rounded_reference(image: np.ndarray) -> np.ndarray:
                     total = total + a[s] * (w / (hi - lo))
             out[r] = total
         a = np.moveaxis(out, 0, axis)
-    return np.vectorize(lambda v: math.floor(v + Fraction(1, 2)), otypes=[np.int64])(a)
+    return a
+
+
+def reduce_rounded_reference(image: np.ndarray) -> np.ndarray:
+    """One pyramid level down as reduce_reference (colour weighted by alpha in an image with alpha), but in exact
+    rationals (Python Fractions), then rounded half up, floor(mean + 1/2), to int64: no float sum decides which way a
+    tie goes."""
+    mean = _reduce_exact(image)
+    if _has_alpha(image):
+        ints = np.asarray(image).astype(object)
+        premultiplied = _reduce_exact(ints[..., :-1] * ints[..., -1:])
+        coverage = mean[..., -1:]
+        covered = np.vectorize(lambda v: v > 0, otypes=[bool])(coverage)
+        ratio = np.empty(premultiplied.shape, dtype=object)
+        for index in np.ndindex(premultiplied.shape):
+            cover = coverage[index[:-1] + (0,)]
+            ratio[index] = premultiplied[index] / cover if covered[index[:-1] + (0,)] else mean[index]
+        mean = np.concatenate([ratio, coverage], axis=2)
+    return np.vectorize(lambda v: math.floor(v + Fraction(1, 2)), otypes=[np.int64])(mean)
 
 
 def maplibre_reference(heights, spacing=(1.0, 1.0), method="standard", azimuths=(AZIMUTH,), altitudes=(ALTITUDE,),

@@ -342,3 +342,29 @@ def test_a_geotiff_texture_in_feet_drapes_its_dem_in_feet_read_as_metres(tmp_pat
         assert (y0 - pyramid.extent[2], pyramid.extent[3] - y1) == pytest.approx((5 * foot, 5 * foot), rel=1e-6)
         tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8))
         assert tree.root is not None
+
+
+@pytest.mark.parametrize("size", [(8, 12), (9, 13)])  # the 2 x 2 box path and the area-weighted one
+def test_pyramid_levels_of_an_image_with_alpha_take_no_colour_from_transparent_pixels(size):
+    """A straight-alpha image with a transparent collar (RGB 0, alpha 0, as gdalwarp -dstalpha writes outside the
+    data) was averaged channel by channel: the collar's black bled into every coarser level's edge pixels, white
+    land becoming (128, 128, 128, 128), a dark rim once composited. The colour is averaged weighted by alpha (the
+    premultiplied mean over the mean alpha), so the edge is white at half alpha; RGBA and grey + alpha alike."""
+    rows, cols = size
+    image = np.zeros((rows, cols, 4), np.uint8)
+    image[:, : cols // 2 + 1] = (255, 255, 255, 255)  # white land, then the transparent black collar
+    grey_alpha = image[..., [0, 3]]
+    for source in (image, grey_alpha):
+        with ImagePyramid.build(source, device="cpu") as pyramid:
+            for level in pyramid.levels[1:]:
+                level = np.asarray(level)
+                seen = level[..., -1] > 0
+                assert seen.any() and (level[..., -1] < 255).any()  # some edge pixels are partly transparent
+                assert (level[seen][:, :-1] == 255).all()  # every pixel that shows anything shows white
+    rgba = np.random.default_rng(8).integers(0, 256, (rows, cols, 4), dtype=np.uint8)
+    rgba[..., 3] *= np.random.default_rng(9).random((rows, cols)) < 0.5  # half the pixels transparent
+    with ImagePyramid.build(rgba, device="cpu") as pyramid:
+        previous = rgba
+        for level in pyramid.levels[1:]:
+            np.testing.assert_array_equal(level, reduce_rounded_reference(previous))
+            previous = np.asarray(level)

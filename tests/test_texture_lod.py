@@ -47,8 +47,15 @@ def test_pyramid_levels_match_reference_and_keep_the_mean(device, shape):
         for level in pyramid.levels[1:]:
             exact = reduce_reference(previous)
             assert np.abs(level.astype(np.float64) - exact).max() <= 0.5 + 1e-4
-            # area weighting keeps the mean; rounding each pixel to uint8 moves it by at most 0.5
-            assert abs(level.mean() - previous.astype(np.float64).mean()) <= 0.5
+            # area weighting keeps the mean; rounding each pixel to uint8 moves it by at most 0.5. With alpha (2 or 4
+            # channels) it keeps the alpha's mean and the premultiplied colour's, c · a / 255 (by at most 0.5 + 0.5)
+            if shape[2] in (2, 4):
+                new, old = np.asarray(level, dtype=np.float64), previous.astype(np.float64)
+                assert abs(new[..., -1].mean() - old[..., -1].mean()) <= 0.5
+                premultiplied = [(x[..., :-1] * x[..., -1:] / 255.0).mean() for x in (new, old)]
+                assert abs(premultiplied[0] - premultiplied[1]) <= 1.0 + 1e-9
+            else:
+                assert abs(level.mean() - previous.astype(np.float64).mean()) <= 0.5
             previous = np.asarray(level)
 
 
@@ -673,3 +680,231 @@ def test_render_with_textures_thresholds_are_numbers_of_pixels(kwargs, match):
     quadtree, tree, pyramid, camera = lod_setup()
     with pyramid, pytest.raises(InvalidInputError, match=match):
         render_with_textures(quadtree.root, [tree.root], camera, **kwargs)
+
+
+def test_pyramid_of_an_image_with_a_transparent_colour_keeps_it_transparent(tmp_path):
+    """A palette PNG (or an L / RGB one) whose transparent colour is a tRNS chunk (Pillow's info["transparency"], as
+    gdal_translate writes nodata to a paletted PNG) has no alpha band: the pyramid converted it to RGB and drew the
+    transparent pixels opaque in their palette colour. They are alpha 0 now, as render_textured_mesh reads them."""
+    from PIL import Image
+
+    palette = Image.new("P", (4, 2))
+    palette.putpalette([255, 0, 0, 0, 255, 0] + [0] * 762)
+    palette.putdata([0, 1, 1, 0, 0, 0, 1, 1])
+    palette.save(tmp_path / "palette.png", transparency=1)
+    grey = Image.fromarray(np.array([[10, 200, 200, 10], [10, 10, 200, 200]], np.uint8))
+    grey.save(tmp_path / "grey.png", transparency=200)
+    rgb = Image.fromarray(np.array([[[255, 0, 0], [0, 255, 0], [0, 255, 0], [255, 0, 0]]] * 2, np.uint8))
+    rgb.save(tmp_path / "rgb.png", transparency=(0, 255, 0))
+    for name, opaque in (("palette.png", (255, 0, 0)), ("grey.png", (10, 10, 10)), ("rgb.png", (255, 0, 0))):
+        with Image.open(tmp_path / name) as picture:
+            expected = np.asarray(picture.convert("RGBA"))
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            level = np.asarray(pyramid.levels[0])
+            assert level.shape[2] == 4, name
+            np.testing.assert_array_equal(level, expected)
+            assert level[..., 3].tolist() != [[255] * 4] * 2  # some pixels transparent
+            assert (level[level[..., 3] == 255][:, :3] == opaque).all()
+
+
+def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
+    """The Blue Marble GeoTIFF (EPSG:4326, -180..180) over the Front Range DEM in degrees, which load_dem reads as
+    local equirectangular metres (0..53 km): the extents were compared as numbers, so the tree draped lon 0..180,
+    lat -90..0 (the Indian Ocean) on Colorado without a word. The pyramid keeps the GeoTIFF's CRS and the tree
+    refuses another CRS than the terrain's, naming both; for a DEM read in local metres it gives the image's exact
+    extent there, which places the image's Colorado pixels on the DEM."""
+    pytest.importorskip("rasterio")
+    import stepterrain as st
+
+    from .reference_texture import find_shared
+
+    front_range = st.load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    tujunga = st.load_dem(find_shared("big_tujunga_srtm_30m_utm11n.tif"))
+    marble = find_shared("earth_day_bluemarble_3840x1920.tif")
+    with ImagePyramid.build(marble, device="cpu") as pyramid:
+        assert pyramid.crs == "EPSG:4326"
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
+                                                    r"'EPSG:32611' \(mismatched CRS.*gdalwarp -t_srs 'EPSG:32611'"):
+            TextureTree(pyramid, PatchQuadtree(tujunga))
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
+                                                    r"'\+proj=eqc .*extent=\(([^)]*)\)") as caught:
+            TextureTree(pyramid, PatchQuadtree(front_range))
+    extent = tuple(float(v) for v in re.search(r"extent=\(([^)]*)\)", str(caught.value)).group(1).split(","))
+    with ImagePyramid.build(marble, extent=extent, crs=front_range.crs, device="cpu") as pyramid:
+        tree = TextureTree(pyramid, PatchQuadtree(front_range))
+        # the DEM's nodes span lon -105.8158..-105.1846, lat 39.8346..40.4658: Blue Marble pixels of 0.09375°
+        lon = (-105.815833, -105.184583)
+        lat = (39.834583, 40.465833)
+        cols = [math.floor((lon[0] + 180) / 0.09375), math.ceil((lon[1] + 180) / 0.09375)]
+        rows = [math.floor((90 - lat[1]) / 0.09375), math.ceil((90 - lat[0]) / 0.09375)]
+        assert tree.root.level == 0
+        assert pyramid.window(0, front_range.extent) == (rows[0], rows[1], cols[0], cols[1]) == tree.root.window
+    with ImagePyramid.build(marble, extent=extent, device="cpu") as pyramid:  # an extent given: its CRS unknown
+        assert pyramid.crs is None and TextureTree(pyramid, PatchQuadtree(front_range)).root.level == 0
+    with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:32611' is not the CRS 'EPSG:4326' of image .*pass "
+                                                r"extent= in crs"):
+        ImagePyramid.build(marble, crs="EPSG:32611", device="cpu")
+    with pytest.raises(InvalidInputError, match=r"^crs must be a CRS string \(e\.g\. 'EPSG:32611'\) or None; got 5$"):
+        ImagePyramid.build(np.zeros((2, 2, 3), np.uint8), crs=5, device="cpu")
+
+
+def test_pyramid_of_a_geotiff_with_nodata_makes_it_transparent(tmp_path):
+    """A GeoTIFF's nodata (an orthophoto's black collar tagged nodata=0, as gdalwarp -dstnodata 0 writes it) was read
+    by Pillow as ordinary pixels: the pyramid drew the collar opaque black over the terrain. Its GDAL mask (rasterio's
+    dataset_mask: nodata, a mask band) becomes the pyramid's alpha, so the collar is transparent; a GeoTIFF without
+    nodata keeps its 3 channels."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    rgb = np.random.default_rng(3).integers(1, 256, (3, 6, 8), dtype=np.uint8)
+    rgb[:, :, :3] = 0  # the collar: every band 0
+    grey = rgb[:1].copy()
+    profile = {"driver": "GTiff", "height": 6, "width": 8, "dtype": "uint8", "crs": "EPSG:32611",
+               "transform": Affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0)}
+    for name, bands, nodata in (("rgb.tif", rgb, 0), ("grey.tif", grey, 0), ("plain.tif", rgb, None)):
+        with rasterio.open(tmp_path / name, "w", count=len(bands), nodata=nodata, **profile) as dataset:
+            dataset.write(bands)
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            level = np.asarray(pyramid.levels[0])
+            colour = np.repeat(bands, 3, axis=0) if len(bands) == 1 else bands
+            np.testing.assert_array_equal(level[..., :3], np.moveaxis(colour, 0, 2))
+            if nodata is None:
+                assert level.shape[2] == 3
+                continue
+            assert level.shape[2] == 4, name
+            np.testing.assert_array_equal(level[..., 3], np.where(np.arange(8) < 3, 0, 255)[None, :].repeat(6, 0))
+            assert (np.asarray(pyramid.levels[1])[..., 3] > 0).any()
+
+
+def test_pyramid_of_a_16_bit_rgb_geotiff_is_read_by_its_range(tmp_path):
+    """A 16-bit 3-band GeoTIFF (satellite imagery: Landsat, Sentinel-2 composites, written as bands rather than
+    photometric RGB) is one Pillow cannot identify: the pyramid called the file unreadable ("cannot identify image
+    file"). It is read with rasterio and scaled by its full
+    range to 8 bits (value / 257, as a 16-bit greyscale file is); a float one is refused by name."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    data = np.random.default_rng(4).integers(0, 65536, (3, 6, 8)).astype(np.uint16)
+    data[:, 0, 0] = (0, 65535, 257 * 100 + 128)  # 100.498 rounds to 100
+    profile = {"driver": "GTiff", "height": 6, "width": 8, "crs": "EPSG:32611",
+               "transform": Affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0)}
+    with rasterio.open(tmp_path / "rgb16.tif", "w", count=3, dtype="uint16", **profile) as out:  # bands, not RGB
+        out.write(data)
+    with ImagePyramid.build(tmp_path / "rgb16.tif", device="cpu") as pyramid:
+        level = np.asarray(pyramid.levels[0])
+        np.testing.assert_array_equal(level, np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2))
+        assert level[0, 0].tolist() == [0, 255, 100]
+        assert pyramid.crs == "EPSG:32611" and pyramid.extent == (376000.0, 376240.0, 3807820.0, 3808000.0)
+    with rasterio.open(tmp_path / "rgbf.tif", "w", count=3, dtype="float32", **profile) as out:
+        out.write(data.astype(np.float32) / 65535.0)
+    with pytest.raises(InvalidInputError, match=r"image .*rgbf\.tif' must be an 8-bit or 16-bit image of 1-4 "
+                                                r"bands; got 3 bands of float32$"):
+        ImagePyramid.build(tmp_path / "rgbf.tif", device="cpu")
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    previous = st.set_memory_budget(100)  # the 3 x 6 x 8 bands' 576 bytes (as float32) are over it: refused, not read
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"rgb16\.tif' \(the image: 3 x 6 x 8 cells of uint16\)"):
+            ImagePyramid.build(tmp_path / "rgb16.tif", device="cpu")
+    finally:
+        st.set_memory_budget(previous)
+
+
+def test_pyramid_of_an_exif_rotated_photo_warns_that_it_is_drawn_as_stored(tmp_path):
+    """A phone's JPEG stores its pixels landscape with an EXIF orientation tag (6: turn 90° clockwise to view): every
+    viewer shows it turned, the pyramid took the stored pixels (as GDAL and QGIS read a JPEG), so an extent given for
+    the picture as seen drew it turned and stretched without a word. It is still drawn as stored, with a warning that
+    says so and how to turn it (PIL.ImageOps.exif_transpose)."""
+    import warnings
+
+    from PIL import Image
+
+    stored = np.zeros((4, 6, 3), np.uint8)
+    stored[0, 0] = (255, 0, 0)
+    for orientation in (6, 1):
+        exif = Image.Exif()
+        exif[0x0112] = orientation
+        Image.fromarray(stored).save(tmp_path / f"photo{orientation}.png", exif=exif)
+    with pytest.warns(UserWarning, match=r"photo6\.png' has EXIF orientation 6 \(rotated 90° clockwise to view\): "
+                                         r"it is drawn as stored, 6 x 4 pixels, .*ImageOps\.exif_transpose"):
+        pyramid = ImagePyramid.build(tmp_path / "photo6.png", device="cpu")
+    with pyramid:
+        np.testing.assert_array_equal(pyramid.levels[0], stored)
+        assert pyramid.extent == (0.0, 6.0, 0.0, 4.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ImagePyramid.build(tmp_path / "photo1.png", device="cpu").close()
+
+
+def test_pyramid_of_a_four_band_16_bit_geotiff_takes_alpha_only_from_an_alpha_band(tmp_path):
+    """A 4-band 16-bit RGB + near-infrared GeoTIFF (NAIP, PlanetScope) read through rasterio took the NIR band for
+    alpha: vegetation opaque, water transparent. Only a band whose colour interpretation is alpha (GDAL's ALPHA=YES,
+    which marks the first extra band) is alpha; a fourth band that is not is left out (as Pillow reads an extra
+    sample)."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    data = np.random.default_rng(6).integers(0, 65536, (4, 5, 7)).astype(np.uint16)
+    profile = {"driver": "GTiff", "height": 5, "width": 7, "count": 4, "dtype": "uint16",
+               "transform": Affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0)}
+    scaled = np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2)
+    for name, options, expected in (("rgbn.tif", {}, scaled[..., :3]),
+                                    ("alpha.tif", {"alpha": "YES"}, scaled[..., [0, 2, 3, 1]])):
+        with rasterio.open(tmp_path / name, "w", **profile, **options) as out:
+            out.write(data)
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            np.testing.assert_array_equal(pyramid.levels[0], expected)
+
+
+def test_texture_tree_takes_an_image_in_the_horizontal_crs_of_a_compound_crs_dem(tmp_path):
+    """A DEM whose GeoTIFF carries a compound CRS (WGS 84 / UTM 11N + NAVD88 height) and an orthophoto in EPSG:32611
+    lie in the same horizontal coordinates: the CRS check compared the whole CRSs and refused the pair (with the
+    compound CRS's whole WKT in the message). The horizontal parts are compared, and named by their EPSG codes."""
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    from rasterio.crs import CRS
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+
+    heights = np.random.default_rng(7).random((1, 32, 32)).astype(np.float32) * 100
+    with rasterio.open(tmp_path / "dem.tif", "w", driver="GTiff", height=32, width=32, count=1, dtype="float32",
+                       crs=CRS.from_user_input("EPSG:32611+5703"),
+                       transform=Affine(30.0, 0.0, 380000.0, 0.0, -30.0, 3800000.0)) as out:
+        out.write(heights)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        terrain = st.load_dem(tmp_path / "dem.tif")
+    assert "NAVD88" in terrain.crs
+    for name, crs in (("utm.tif", "EPSG:32611"), ("utm12.tif", "EPSG:32612")):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", height=16, width=16, count=3, dtype="uint8", crs=crs,
+                           transform=Affine(60.0, 0.0, 380000.0, 0.0, -60.0, 3800000.0), photometric="RGB") as out:
+            out.write(np.full((3, 16, 16), 90, np.uint8))
+        with ImagePyramid.build(tmp_path / name, device="cpu") as pyramid:
+            if crs == "EPSG:32611":
+                assert TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8)).root.level == 0
+            else:
+                with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:32612' but the terrain is in "
+                                                            r"'EPSG:32611' \(mismatched CRS"):
+                    TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=8))
+
+
+def test_texture_tree_takes_the_geotiff_of_a_texture_of_a_dem_in_degrees(tmp_path):
+    """The round trip the docs describe: a texture of the Front Range DEM (degrees read as local metres) saved as a
+    GeoTIFF on its grid and CRS, then a pyramid of that file over the same DEM: the CRS check must take it (the file's
+    CRS is the DEM's equirectangular one, written back as WKT), at full resolution over the whole DEM."""
+    pytest.importorskip("rasterio")
+    import stepterrain as st
+    from stepterrain.texture import topographic_layer
+
+    from .reference_texture import find_shared
+
+    dem = st.load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    layer = topographic_layer(dem, shadows=False, device="cpu")
+    st.export.save_image(layer.to_uint8(), tmp_path / "shade.tif", extent=layer.extent, crs=dem.crs)
+    with ImagePyramid.build(tmp_path / "shade.tif", device="cpu") as pyramid:
+        assert pyramid.crs is not None and pyramid.extent == pytest.approx(layer.extent)
+        tree = TextureTree(pyramid, PatchQuadtree(dem, leaf_size=256), max_texture_size=1024)
+        assert tree.root.level == 0 and tree.root.window == (0, 758, 0, 758)
