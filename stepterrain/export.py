@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import base64
 import contextlib
-import functools
+import errno
 import json
 import math
 import os
 import queue
 import re
+import secrets
 import stat
 import string
 import struct
@@ -67,14 +68,6 @@ _OWNERS: dict[str, str] = {}
 _OWNERS_LOCK = threading.Lock()
 
 
-@functools.cache
-def _file_mode() -> int:
-    """0o666 less the process umask: the mode ``open()`` would have given a new file."""
-    umask = os.umask(0o022)
-    os.umask(umask)
-    return 0o666 & ~umask
-
-
 def probe_writable(folder: Path) -> OSError | None:
     """Create and remove a file in the existing ``folder``: the error when that fails, else None, its ``strerror``
     the true reason (:func:`unwritable_reason`). (``os.access`` says yes to root on a read-only mount; a real file
@@ -119,8 +112,6 @@ def unwritable_reason(error: OSError, folder: Path) -> str:
     there, "No such file or directory" for /proc, which exists, was taken for the reason); an ENOENT of an existing
     folder says that it refuses new entries, an ENOTDIR below a file names the file; other errors keep the system's
     words ("Permission denied", "Read-only file system")."""
-    import errno
-
     existing = Path(os.path.abspath(folder))
     with contextlib.suppress(OSError):
         while not existing.exists() and existing != existing.parent:
@@ -154,8 +145,9 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
     A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
-    until the new content is complete. A new file gets the usual permissions (0o666 less the umask); a file
-    replaced keeps its own (a private 0o600 file stays private).
+    until the new content is complete. A new file gets the usual permissions (0o666 less the umask in force, or
+    what the folder's default ACL gives, as ``open()`` makes it); a file replaced keeps its own (a private 0o600
+    file stays private).
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
@@ -182,20 +174,19 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     if not os.access(folder, os.W_OK):
         raise DataFileError(f"output folder {str(folder)!r} is not writable")
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{_temporary_stem(target.name)}.", suffix=".tmp", dir=folder)
+        tmp_path = _new_temporary(folder, target.name)
     except OSError as exc:  # the true reason: /proc said "No such file or directory" of itself
         raise DataFileError(f"cannot write in the output folder {str(folder)!r}: "
                             f"{unwritable_reason(exc, folder)}") from exc
-    os.close(fd)
-    tmp_path = Path(tmp)
     try:
         yield tmp_path
-        try:  # mkstemp's file is 0o600; the umask's mode widened a replaced private file to 0o644
-            mode = stat.S_IMODE(os.stat(target).st_mode)
+        try:  # a replaced file keeps its mode: the umask's widened a private 0o600 file to 0o644
+            mode: int | None = stat.S_IMODE(os.stat(target).st_mode)
         except OSError:
-            mode = _file_mode()
-        with contextlib.suppress(OSError):
-            os.chmod(tmp_path, mode)
+            mode = None  # a new file keeps the mode it was made with
+        if mode is not None:
+            with contextlib.suppress(OSError):
+                os.chmod(tmp_path, mode)
         try:
             os.replace(tmp_path, target)
         except OSError as exc:
@@ -204,6 +195,28 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+#: How a temporary file is opened: a new name only, never through a symbolic link, not inherited by child processes.
+_TEMPORARY_FLAGS = (os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+                    | getattr(os, "O_BINARY", 0))
+
+
+def _new_temporary(folder: Path, name: str) -> Path:
+    """A new empty file ``.<name>.XXXXXXXX.tmp`` (8 random characters) in ``folder``, made as ``open()`` makes a file:
+    0o666 less the umask in force, or what the folder's default ACL gives. (mkstemp's 0o600 widened to the umask's
+    mode, read once per process, kept the first write's umask: after ``os.umask(0o077)`` new files still came out
+    0o644.) ``O_EXCL`` makes two processes writing the same target take different names."""
+    stem = _temporary_stem(name)
+    for _ in range(100):
+        tmp = folder / f".{stem}.{secrets.token_hex(4)}.tmp"
+        try:
+            fd = os.open(tmp, _TEMPORARY_FLAGS, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return tmp
+    raise FileExistsError(errno.EEXIST, "no free temporary file name", str(folder))
 
 
 def _link_target(path: Path) -> Path:

@@ -192,6 +192,45 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
         assert path.stat().st_mode & 0o777 == mode
 
 
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+@pytest.mark.parametrize("umask", [0o077, 0o002], ids=["0o077", "0o002"])
+def test_a_new_file_gets_the_mode_of_the_umask_in_force_when_it_is_written(tmp_path, umask):
+    # the umask was read once per process (the first write's) and mkstemp's 0o600 widened to that mode: after
+    # os.umask(0o077), meant to keep outputs private, every new file still came out 0o644 (world-readable)
+    save_image(np.zeros((2, 2, 3), np.uint8), tmp_path / "first.png")  # under the test run's own umask
+    old = os.umask(umask)
+    try:
+        written = [save_mesh(trimesh.creation.box(), tmp_path / "m.ply"),
+                   save_image(np.zeros((2, 2, 3), np.uint8), tmp_path / "i.png")]
+    finally:
+        os.umask(old)
+    assert {path.name: path.stat().st_mode & 0o777 for path in written} == {"m.ply": 0o666 & ~umask,
+                                                                            "i.png": 0o666 & ~umask}
+
+
+@pytest.mark.skipif(not hasattr(os, "setxattr"), reason="POSIX ACLs through Linux extended attributes")
+def test_a_new_file_in_a_folder_with_a_default_acl_gets_the_mode_open_gives(tmp_path):
+    # mkstemp's 0o600 then a chmod to 0o666 less the umask: a folder's default ACL granting a group rw- gave the
+    # new file an ACL mask of r--, so the group could not write it (open() gives rw-, as the ACL says)
+    import struct
+
+    def entry(tag: int, perm: int, ident: int = 0xFFFFFFFF) -> bytes:
+        return struct.pack("<HHI", tag, perm, ident)
+
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    acl = struct.pack("<I", 2) + entry(1, 7) + entry(4, 7) + entry(8, 7, 1234) + entry(0x10, 7) + entry(0x20, 5)
+    try:
+        os.setxattr(folder, "system.posix_acl_default", acl)
+    except OSError as exc:
+        pytest.skip(f"no POSIX ACLs here: {exc}")
+    with open(folder / "plain", "w", encoding="utf-8"):
+        pass
+    written = save_image(np.zeros((2, 2, 3), np.uint8), folder / "i.png")
+    assert written.stat().st_mode & 0o777 == (folder / "plain").stat().st_mode & 0o777
+    assert os.getxattr(written, "system.posix_acl_access") == os.getxattr(folder / "plain", "system.posix_acl_access")
+
+
 def test_a_textured_obj_named_with_spaces_names_its_side_files_in_one_word(tmp_path):
     # "mtllib my terrain.mtl" and "map_Kd my terrain_material_0.png": OBJ/MTL readers that split lines on whitespace,
     # as the formats say, looked for "my" and "terrain.mtl" and lost the texture
