@@ -145,7 +145,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
     A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
-    until the new content is complete. A new file gets the usual permissions (0o666 less the umask in force, or
+    until the new content is complete, and flushed to disk (fsync) before it replaces ``path``, so not even a crash
+    of the machine loses both. A new file gets the usual permissions (0o666 less the umask in force, or
     what the folder's default ACL gives, as ``open()`` makes it); a file replaced keeps its own (a private 0o600
     file stays private).
 
@@ -184,10 +185,11 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
             mode: int | None = stat.S_IMODE(os.stat(target).st_mode)
         except OSError:
             mode = None  # a new file keeps the mode it was made with
-        if mode is not None:
-            with contextlib.suppress(OSError):
-                os.chmod(tmp_path, mode)
         try:
+            if mode is not None:
+                _flush_to_disk(tmp_path)
+                with contextlib.suppress(OSError):
+                    os.chmod(tmp_path, mode)
             os.replace(tmp_path, target)
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
@@ -195,6 +197,18 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _flush_to_disk(path: Path) -> None:
+    """fsync ``path``'s content, before it is renamed over an existing file: renamed from the page cache, a crash
+    (power loss) right after could leave the name with an empty file (XFS; ext4 flushes a rename over a file
+    itself), the old content gone and the new one never written. A new file, which has no old content to lose, is
+    not flushed: about 5-10 ms a file here, a batch of small tiles took twice as long."""
+    fd = os.open(path, os.O_RDONLY if os.name == "posix" else os.O_RDWR)  # Windows' fsync needs a writeable handle
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
 
 #: How a temporary file is opened: a new name only, never through a symbolic link, not inherited by child processes.
@@ -924,6 +938,8 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         for path, data in zip(paths, sidecars.values(), strict=True):
             side_files.enter_context(atomic_path(path)).write_bytes(data)
         _write_obj_text(mesh, tmp, mtl_name, material, uv)
+        if sidecars and os.path.exists(target):  # flushed as atomic_path will (once more, cheaply) before the side
+            _flush_to_disk(tmp)  # files replace theirs: its failure left the old OBJ with the new texture
     _record_owner(paths, target)
 
 
