@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 
 import numpy as np
 import pytest
@@ -298,6 +299,23 @@ def test_a_textured_obj_that_cannot_be_flushed_keeps_its_old_side_files(tmp_path
     with pytest.raises(DataFileError, match=r"Input/output error"):
         save_mesh(textured((10, 200, 10)), tmp_path / "t.obj")
     assert {path.name: path.read_bytes() for path in tmp_path.iterdir()} == old
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes (POSIX)")
+@pytest.mark.parametrize("through_a_link", [False, True], ids=["named", "linked"])
+def test_a_target_that_is_a_named_pipe_or_a_device_is_refused_not_replaced(tmp_path, through_a_link):
+    # os.replace put a regular file in place of a named pipe (its reader waited for ever) or of a device: as root, a
+    # link out.glb -> /dev/null (to discard the mesh) replaced /dev/null itself with the GLB
+    special = tmp_path / "pipe.glb"
+    os.mkfifo(special)
+    target = special
+    if through_a_link:
+        target = tmp_path / "out.png"
+        target.symlink_to(special)
+    with pytest.raises(DataFileError, match=r"^cannot write '.*pipe\.glb': it is a named pipe, not a regular file"):
+        _image_or_mesh(target)
+    assert stat.S_ISFIFO(os.stat(special).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"pipe.glb", target.name})
 
 
 def test_a_textured_obj_named_with_spaces_names_its_side_files_in_one_word(tmp_path):
