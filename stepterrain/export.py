@@ -207,12 +207,21 @@ def _flush_to_disk(path: Path) -> None:
     """fsync ``path``'s content, before it is renamed over an existing file: renamed from the page cache, a crash
     (power loss) right after could leave the name with an empty file (XFS; ext4 flushes a rename over a file
     itself), the old content gone and the new one never written. A new file, which has no old content to lose, is
-    not flushed: about 5-10 ms a file here, a batch of small tiles took twice as long."""
+    not flushed: about 5-10 ms a file here, a batch of small tiles took twice as long. A file system that cannot
+    flush (EINVAL, ENOTSUP, ENOSYS) is not a write error; a failed flush (EIO, ENOSPC, EDQUOT) is."""
     fd = os.open(path, os.O_RDONLY if os.name == "posix" else os.O_RDWR)  # Windows' fsync needs a writeable handle
     try:
         os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in _NO_FLUSH:
+            raise
     finally:
         os.close(fd)
+
+
+#: fsync's errors that mean "this file system does not flush", not "the data were lost".
+_NO_FLUSH = frozenset(code for code in (errno.EINVAL, errno.ENOTSUP, getattr(errno, "EOPNOTSUPP", None), errno.ENOSYS)
+                      if code is not None)
 
 
 #: How a temporary file is opened: a new name only, never through a symbolic link, not inherited by child processes.

@@ -276,6 +276,23 @@ def test_a_replacement_that_cannot_be_flushed_keeps_the_old_file(tmp_path, monke
     assert target.read_bytes() == old and [p.name for p in tmp_path.iterdir()] == ["m.glb"]
 
 
+@pytest.mark.parametrize("code", ["EINVAL", "ENOTSUP", "ENOSYS"])
+def test_a_file_system_that_cannot_flush_still_gets_its_file_replaced(tmp_path, monkeypatch, code):
+    # fsync's "not supported here" is no write error: the replacement went through on such a file system before
+    # the flush was added, and must still
+    import errno
+
+    target = save_mesh(trimesh.creation.box(), tmp_path / "m.ply")
+
+    def unsupported(fd: int) -> None:
+        raise OSError(getattr(errno, code), os.strerror(getattr(errno, code)))
+
+    monkeypatch.setattr(os, "fsync", unsupported)
+    save_mesh(trimesh.creation.icosphere(), target)
+    assert len(trimesh.load(target).faces) == len(trimesh.creation.icosphere().faces)
+    assert [p.name for p in tmp_path.iterdir()] == ["m.ply"]
+
+
 @pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="names an open file through /proc (Linux)")
 def test_a_textured_obj_that_cannot_be_flushed_keeps_its_old_side_files(tmp_path, monkeypatch):
     # the side files replaced theirs before the OBJ's own fsync: when that failed (or the run was interrupted during
