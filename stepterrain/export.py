@@ -145,10 +145,10 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on error it is removed.
 
     A failed or killed run never leaves a truncated file at ``path``, and an existing ``path`` is kept
-    until the new content is complete, and flushed to disk (fsync) before it replaces ``path``, so not even a crash
-    of the machine loses both. A new file gets the usual permissions (0o666 less the umask in force, or
-    what the folder's default ACL gives, as ``open()`` makes it); a file replaced keeps its own (a private 0o600
-    file stays private).
+    until the new content is complete and flushed to disk (fsync), so not even a crash of the machine loses both
+    (a new file, with no old content to lose, is not flushed). A new file gets the usual permissions (0o666 less
+    the umask in force, or what the folder's default ACL gives, as ``open()`` makes it); a file replaced keeps its
+    own (a private 0o600 file stays private).
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
