@@ -400,11 +400,11 @@ def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
 def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path | None) -> None:
     """Refuse, before any work, output options that name the same file (the second write would replace the
     first), an input file (``inputs``: option name -> path, e.g. ``{"INPUT": args.input}``; the write would
-    replace the input) or a file that cannot be written (the path is a folder, or its nearest existing folder is
-    a file or not writable): a command with several outputs would otherwise write the first and fail on the
-    next. Creates nothing."""
+    replace the input) or a file that cannot be written (the path is a folder, a named pipe or a device, or its
+    nearest existing folder is a file or not writable): a command with several outputs would otherwise write the
+    first and fail on the next. Creates nothing."""
     from .errors import DataFileError
-    from .export import probe_writable
+    from .export import _special_file_kind, probe_writable
 
     seen: dict[Path, str] = {}
     for option, path in paths.items():
@@ -423,6 +423,9 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
                                             "the input: give the output its own name")
             if key.is_dir():
                 raise DataFileError(f"{name} {str(path)!r} is a folder; expected a file name")
+            special = _special_file_kind(key)
+            if special is not None:  # refused by atomic_path too, but only once the work was done
+                raise DataFileError(f"{name} {str(path)!r} is a {special}, not a regular file; expected a file name")
             folder = key.parent
             while not folder.exists() and folder != folder.parent:
                 folder = folder.parent

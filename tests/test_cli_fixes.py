@@ -941,3 +941,22 @@ def test_batch_with_its_progress_bar_says_each_failure_once_as_options(tmp_path,
             assert line.startswith(f"stepterrain: failed {key}: InvalidInputError: --interval 1e-05 over heights ")
             assert line.endswith("(after 1 attempt)"), line
         assert len(failed) == 2 and "interval=" not in err, err
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "mkfifo"), reason="named pipes (POSIX)")
+def test_an_output_that_is_a_named_pipe_is_refused_before_any_work(tmp_path, capsys):
+    """save_mesh now refuses a named pipe or a device at the output (os.replace put a regular file in its place), but
+    only once the mesh was stepped and the mesh before it written: --png pipe.png left x.glb written and exit 1."""
+    import os
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32))
+    os.mkfifo(tmp_path / "pipe.png")
+    (tmp_path / "link.png").symlink_to(tmp_path / "pipe.png")
+    for png in ("pipe.png", "link.png"):
+        code, _, err = run(capsys, "-q", "steps", dem, "--interval", "1", "-o", tmp_path / "x.glb",
+                           "--png", tmp_path / png)
+        assert code == 2, err
+        line = one_error_line(err, "steps")
+        assert f"--png '{tmp_path / png}' is a named pipe, not a regular file" in line
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "link.png", "pipe.png"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 
 import numpy as np
 import pytest
@@ -190,6 +191,148 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
         path.chmod(mode)
         write(path)
         assert path.stat().st_mode & 0o777 == mode
+
+
+@pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
+@pytest.mark.parametrize("umask", [0o077, 0o002], ids=["0o077", "0o002"])
+def test_a_new_file_gets_the_mode_of_the_umask_in_force_when_it_is_written(tmp_path, umask):
+    # the umask was read once per process (the first write's) and mkstemp's 0o600 widened to that mode: after
+    # os.umask(0o077), meant to keep outputs private, every new file still came out 0o644 (world-readable)
+    save_image(np.zeros((2, 2, 3), np.uint8), tmp_path / "first.png")  # under the test run's own umask
+    old = os.umask(umask)
+    try:
+        written = [save_mesh(trimesh.creation.box(), tmp_path / "m.ply"),
+                   save_image(np.zeros((2, 2, 3), np.uint8), tmp_path / "i.png")]
+    finally:
+        os.umask(old)
+    assert {path.name: path.stat().st_mode & 0o777 for path in written} == {"m.ply": 0o666 & ~umask,
+                                                                            "i.png": 0o666 & ~umask}
+
+
+@pytest.mark.skipif(not hasattr(os, "setxattr"), reason="POSIX ACLs through Linux extended attributes")
+def test_a_new_file_in_a_folder_with_a_default_acl_gets_the_mode_open_gives(tmp_path):
+    # mkstemp's 0o600 then a chmod to 0o666 less the umask: a folder's default ACL granting a group rw- gave the
+    # new file an ACL mask of r--, so the group could not write it (open() gives rw-, as the ACL says)
+    import struct
+
+    def entry(tag: int, perm: int, ident: int = 0xFFFFFFFF) -> bytes:
+        return struct.pack("<HHI", tag, perm, ident)
+
+    folder = tmp_path / "shared"
+    folder.mkdir()
+    acl = struct.pack("<I", 2) + entry(1, 7) + entry(4, 7) + entry(8, 7, 1234) + entry(0x10, 7) + entry(0x20, 5)
+    try:
+        os.setxattr(folder, "system.posix_acl_default", acl)
+    except OSError as exc:
+        pytest.skip(f"no POSIX ACLs here: {exc}")
+    with open(folder / "plain", "w", encoding="utf-8"):
+        pass
+    written = save_image(np.zeros((2, 2, 3), np.uint8), folder / "i.png")
+    assert written.stat().st_mode & 0o777 == (folder / "plain").stat().st_mode & 0o777
+    assert os.getxattr(written, "system.posix_acl_access") == os.getxattr(folder / "plain", "system.posix_acl_access")
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="names an open file through /proc (Linux)")
+def test_a_replaced_file_is_flushed_to_disk_before_the_rename_and_a_new_one_is_not(tmp_path, monkeypatch):
+    # the new content was renamed over the old file straight from the page cache: a crash (power loss) right after
+    # could leave the name with an empty file on XFS (ext4 flushes a rename over a file itself), the old content gone
+    # and the new one never written; a new file, which has no old content to lose, is not flushed (a batch of small
+    # tiles took twice as long with an fsync each)
+    target, image = tmp_path / "m.ply", tmp_path / "i.png"
+    save_mesh(trimesh.creation.box(), target)
+    save_image(np.zeros((2, 2, 3), np.uint8), image)
+    old = {target: target.read_bytes(), image: image.read_bytes()}
+    synced: list[tuple[str, bool]] = []
+    real_fsync = os.fsync
+
+    def spy(fd: int) -> None:
+        name = os.path.basename(os.readlink(f"/proc/self/fd/{fd}"))  # ".m.ply.XXXXXXXX.tmp"
+        replaced = tmp_path / ".".join(name.split(".")[1:3])
+        synced.append((name, replaced.read_bytes() == old[replaced]))  # flushed while the old file is in place
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", spy)
+    save_mesh(trimesh.creation.icosphere(), target)
+    save_image(np.full((2, 2, 3), 9, np.uint8), image)
+    assert [(name.split(".")[1:3], kept) for name, kept in synced] == [(["m", "ply"], True), (["i", "png"], True)]
+    assert all(name.startswith(".") and name.endswith(".tmp") for name, _ in synced)  # the temporary files
+    assert target.read_bytes() != old[target] and sorted(p.name for p in tmp_path.iterdir()) == ["i.png", "m.ply"]
+    synced.clear()
+    save_mesh(trimesh.creation.box(), tmp_path / "new.glb")
+    assert synced == []
+
+
+def test_a_replacement_that_cannot_be_flushed_keeps_the_old_file(tmp_path, monkeypatch):
+    # an fsync error (EIO, a full quota on NFS) is the last word on whether the content reached the disk
+    target = save_mesh(trimesh.creation.box(), tmp_path / "m.glb")
+    old = target.read_bytes()
+
+    def failing(fd: int) -> None:
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(os, "fsync", failing)
+    with pytest.raises(DataFileError, match=r"^cannot write '.*m\.glb': Input/output error$"):
+        save_mesh(trimesh.creation.icosphere(), target)
+    assert target.read_bytes() == old and [p.name for p in tmp_path.iterdir()] == ["m.glb"]
+
+
+@pytest.mark.parametrize("code", ["EINVAL", "ENOTSUP", "ENOSYS"])
+def test_a_file_system_that_cannot_flush_still_gets_its_file_replaced(tmp_path, monkeypatch, code):
+    # fsync's "not supported here" is no write error: the replacement went through on such a file system before
+    # the flush was added, and must still
+    import errno
+
+    target = save_mesh(trimesh.creation.box(), tmp_path / "m.ply")
+
+    def unsupported(fd: int) -> None:
+        raise OSError(getattr(errno, code), os.strerror(getattr(errno, code)))
+
+    monkeypatch.setattr(os, "fsync", unsupported)
+    save_mesh(trimesh.creation.icosphere(), target)
+    assert len(trimesh.load(target).faces) == len(trimesh.creation.icosphere().faces)
+    assert [p.name for p in tmp_path.iterdir()] == ["m.ply"]
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="names an open file through /proc (Linux)")
+def test_a_textured_obj_that_cannot_be_flushed_keeps_its_old_side_files(tmp_path, monkeypatch):
+    # the side files replaced theirs before the OBJ's own fsync: when that failed (or the run was interrupted during
+    # it), the old OBJ was left with the new material and texture
+    def textured(color: tuple[int, int, int]) -> trimesh.Trimesh:
+        mesh = trimesh.creation.box()
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)),
+                                                    image=Image.new("RGB", (2, 2), color))  # fmt: skip
+        return mesh
+
+    save_mesh(textured((200, 10, 10)), tmp_path / "t.obj")
+    old = {path.name: path.read_bytes() for path in tmp_path.iterdir()}
+    real_fsync = os.fsync
+
+    def failing_for_the_obj(fd: int) -> None:
+        if ".t.obj." in os.path.basename(os.readlink(f"/proc/self/fd/{fd}")):
+            raise OSError(5, "Input/output error")
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", failing_for_the_obj)
+    with pytest.raises(DataFileError, match=r"Input/output error"):
+        save_mesh(textured((10, 200, 10)), tmp_path / "t.obj")
+    assert {path.name: path.read_bytes() for path in tmp_path.iterdir()} == old
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes (POSIX)")
+@pytest.mark.parametrize("through_a_link", [False, True], ids=["named", "linked"])
+def test_a_target_that_is_a_named_pipe_or_a_device_is_refused_not_replaced(tmp_path, through_a_link):
+    # os.replace put a regular file in place of a named pipe (its reader waited for ever) or of a device: as root, a
+    # link out.glb -> /dev/null (to discard the mesh) replaced /dev/null itself with the GLB
+    special = tmp_path / "pipe.glb"
+    os.mkfifo(special)
+    target = special
+    if through_a_link:
+        target = tmp_path / "out.png"
+        target.symlink_to(special)
+    with pytest.raises(DataFileError, match=r"^cannot write '.*pipe\.glb': it is a named pipe, not a regular file"):
+        _image_or_mesh(target)
+    assert stat.S_ISFIFO(os.stat(special).st_mode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted({"pipe.glb", target.name})
 
 
 def test_a_textured_obj_named_with_spaces_names_its_side_files_in_one_word(tmp_path):
