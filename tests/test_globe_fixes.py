@@ -741,3 +741,22 @@ def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_
     mesh = adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", sphere), device="cpu")
     assert np.asarray(mesh.faces).max() < len(mesh.vertices)
     assert (mesh.area_faces * mesh.face_normals[:, 2]).sum() == pytest.approx(69 * 89 * 900.0, rel=1e-9)
+
+
+@needs_render
+def test_render_view_never_shows_more_than_the_camera_saw(flat_globe):
+    """render_view's horizontal extent followed the window, and its window defaulted to 1280 x 800 whatever the
+    camera: a 9:16 camera's culled mesh rendered by default (or in any window wider than 9:16) showed the ground the
+    camera had culled away as black at the picture's sides (16 % of it). The window now defaults to the camera's
+    viewport, and a wider one keeps the camera's horizontal extent: culled or not, the same picture, no black."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, tilt=20.0, fov=math.radians(20.0), aspect=9 / 16)
+    culled = flat_globe.mesh(error=50.0, camera=camera)
+    whole = flat_globe.mesh(error=50.0, camera=camera, cull=False)
+    assert render_view(culled, camera).shape == (800, 450, 3)  # the camera's viewport
+    for size in [(90, 160), (160, 90), (100, 100)]:
+        images = [render_view(m, camera, window_size=size).astype(int) for m in (culled, whole)]
+        assert images[0].shape == (size[1], size[0], 3)
+        assert (images[0].max(axis=2) > 0).all(), size  # no background: the ground covers the whole picture
+        assert (np.abs(images[0] - images[1]).max(axis=2) > 8).mean() < 0.002, size
