@@ -1108,7 +1108,8 @@ class LayeredRenderer:
 
     # -------------------------------------------------------------------------- view
     def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
-        """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range. A
+        """Camera (as in :func:`render_mesh` with ``bounds=box``: an explicit position is in world coordinates minus
+        the centre of ``box``, z scaled) fitted to the world ``box`` (2, 3), its lights and clipping range. A
         fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
         small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank."""
         if self._origin is None:
@@ -1123,6 +1124,11 @@ class LayeredRenderer:
         position = _camera_position(camera, corners, width / height)
         if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
             _check_visible(corners, position, (width, height), local, self.z_scale)  # (z_scale=1e30: a blank image)
+        else:  # an explicit position is relative to the centre of ``box``, as render_mesh's to that of its bounds: it
+            # was taken relative to the first mesh's centre, another view wherever the box was not centred on it
+            centre = local.mean(axis=0)
+            position = [tuple((np.asarray(position[0]) + centre).tolist()),
+                        tuple((np.asarray(position[1]) + centre).tolist()), position[2]]
         # the token once the camera passed its checks: a refused camera asked again is refused again
         self._view_token = token
         self._view_version += 1

@@ -549,3 +549,29 @@ def test_the_drape_of_a_translucent_layer_renders_as_before():
     assert draped.visual.material.baseColorTexture.mode == "RGB"
     image = render.render_textured_mesh(draped, window_size=(64, 64), camera="top", lighting=False)
     assert image[32, 32] == pytest.approx([128, 0, 128], abs=1)
+
+
+@needs_render
+def test_an_explicit_camera_is_relative_to_the_centre_of_the_box_in_every_entry_point():
+    """LayeredRenderer.set_view (and so render_closeups) took an explicit [(eye), (focal point), (view up)] relative
+    to the centre of the first mesh uploaded, while render_mesh, which both name as their model, takes it relative to
+    the centre of ``bounds``: with a box not centred on the terrain (room above it for lifted close-ups, or the default
+    box of overview and close-ups together) the same camera showed the terrain 27 rows higher in a 100-row picture."""
+    from stepterrain.closeup import render_closeups
+    from stepterrain.terrain import as_terrain
+
+    heights = (np.random.default_rng(0).random((30, 40)) * 5).astype(np.float32)
+    terrain = as_terrain(heights)
+    mesh = terrain.mesh()
+    rgb = np.tile(np.array([[200, 120, 60]], np.uint8), (len(mesh.vertices), 1))
+    mesh.visual.vertex_colors = rgb
+    box = np.array([mesh.vertices.min(axis=0), mesh.vertices.max(axis=0) + [5.0, 0.0, 30.0]])  # off the mesh's centre
+    camera = [(0.0, -60.0, 40.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    alone = render.render_mesh(mesh, window_size=(160, 100), camera=camera, bounds=box)
+    with render.LayeredRenderer(window_size=(160, 100)) as renderer:
+        renderer.set_mesh("terrain", mesh.vertices, mesh.faces, rgb=rgb)
+        renderer.set_view(camera, box)
+        layered, _ = renderer.render(["terrain"])
+    np.testing.assert_array_equal(layered, alone)
+    overview = render_closeups(terrain, [], window_size=(160, 100), camera=camera, bounds=box, device="cpu")
+    np.testing.assert_array_equal((overview < 250).any(axis=2), (alone < 250).any(axis=2))  # the same pixels drawn
