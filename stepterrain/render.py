@@ -463,7 +463,7 @@ def _frame_mesh(
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
     if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
-        _check_visible(corners, position, (width, height), box, z_scale, view_angle)
+        _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera)
     return width, height, vertices, local, finite, box
 
 
@@ -487,16 +487,27 @@ def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, i
 
 
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
-                   z_scale: float, view_angle: float = _VIEW_ANGLE) -> None:
-    """An InvalidInputError when the fitted camera shows the framed box less than a pixel wide or tall: a mesh
+                   z_scale: float, view_angle: float = _VIEW_ANGLE, camera: CameraLike = "oblique") -> None:
+    """An InvalidInputError when the fitted ``camera`` shows the framed box less than a pixel wide or tall: a mesh
     whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank."""
     px, py = _pixel_extent(corners, position, size, view_angle)
     if min(px, py) >= 1.0:
         return
     dx, dy, dz = (box[1] - box[0]).tolist()
     across, tall = max(dx, dy), dz / z_scale
-    hint = (f"; a z_scale near {across / tall:.3g} makes it as tall as it is wide" if across > 0 and tall > 0
-            else "; it has no extent in one direction")
+    hint = "; it has no extent in one direction"
+    if across > 0 and tall > 0:
+        # the z_scale that makes the box as tall as it is wide, named only where the camera then sees it: a strip
+        # of ground seen from the top is too thin across whatever its height (it named a z_scale that failed alike)
+        even = box.copy()
+        even[:, 2] *= across / dz  # box is z-scaled: dz > 0 as tall > 0
+        even_corners = _box_corners(even)
+        if min(_pixel_extent(even_corners, _camera_position(camera, even_corners, size[0] / size[1], view_angle),
+                             size, view_angle)) >= 1.0:
+            hint = f"; a z_scale near {across / tall:.3g} makes it as tall as it is wide"
+        else:
+            hint = (f"; a z_scale near {across / tall:.3g}, as tall as it is wide, does not show it from this "
+                    "camera either: look from another direction (camera) or give a larger window_size")
     raise InvalidInputError(
         f"the mesh would render {px:.2g} x {py:.2g} pixels: it spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall "
         f"(with z_scale={z_scale:g}), too thin to see from a camera fitted to it{hint}"
@@ -1123,7 +1134,7 @@ class LayeredRenderer:
         corners = _box_corners(local)
         position = _camera_position(camera, corners, width / height)
         if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
-            _check_visible(corners, position, (width, height), local, self.z_scale)  # (z_scale=1e30: a blank image)
+            _check_visible(corners, position, (width, height), local, self.z_scale, camera=camera)
         else:  # an explicit position is relative to the centre of ``box``, as render_mesh's to that of its bounds: it
             # was taken relative to the first mesh's centre, another view wherever the box was not centred on it
             centre = local.mean(axis=0)

@@ -575,3 +575,25 @@ def test_an_explicit_camera_is_relative_to_the_centre_of_the_box_in_every_entry_
     np.testing.assert_array_equal(layered, alone)
     overview = render_closeups(terrain, [], window_size=(160, 100), camera=camera, bounds=box, device="cpu")
     np.testing.assert_array_equal((overview < 250).any(axis=2), (alone < 250).any(axis=2))  # the same pixels drawn
+
+
+@needs_render
+def test_the_z_scale_a_too_thin_error_suggests_renders_or_is_not_suggested():
+    """A fitted camera refusing a mesh too thin to see named the z_scale that makes it as tall as it is wide, even
+    where height was not what was thin: a 2-row strip seen from the top (199 x 1 across) was told 'a z_scale near
+    39.9', which failed with the same message. The z_scale is now offered as the fix only where that camera then
+    sees the mesh; elsewhere the message says it does not help."""
+    import re
+
+    strip = st.heightfield_mesh((np.random.default_rng(0).random((2, 200)) * 5).astype(np.float32))
+    tower = st.heightfield_mesh(np.array([[0, 0], [0, 1e6]], np.float32))
+    for mesh, camera, helps in ((strip, "top", False), (tower, "oblique", True)):
+        with pytest.raises(InvalidInputError, match="too thin to see") as caught:
+            render.render_mesh(mesh, window_size=(160, 90), camera=camera)
+        scale = float(re.search(r"a z_scale near ([0-9.e+-]+)", str(caught.value))[1])
+        assert ("does not show it from this camera" not in str(caught.value)) == helps
+        if helps:
+            assert render.render_mesh(mesh, window_size=(160, 90), camera=camera, z_scale=scale).shape == (90, 160, 3)
+        else:
+            with pytest.raises(InvalidInputError, match="too thin to see"):
+                render.render_mesh(mesh, window_size=(160, 90), camera=camera, z_scale=scale)
