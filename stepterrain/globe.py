@@ -1605,6 +1605,9 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
         raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
     # the window defaulted to 1280 x 800 whatever the camera: a portrait camera's culled mesh rendered with its
     # sides cut away (16 % of the picture black for a 9:16 camera)
+    if window_size is None and not all(8 <= side <= 16384 for side in camera.viewport):
+        raise InvalidInputError(f"camera viewport {camera.viewport[0]}x{camera.viewport[1]} is no window to render "
+                                "(8 to 16384 pixels a side); give window_size")
     width, height, _ = render._check_window(camera.viewport if window_size is None else window_size, 1.0)
     # the camera's own field of view: a fixed 30° showed a narrower camera's culled mesh as a patch floating in the
     # black, and only the middle of a wider one's view. A window wider than the camera keeps the camera's

@@ -760,3 +760,5 @@ def test_render_view_never_shows_more_than_the_camera_saw(flat_globe):
         assert images[0].shape == (size[1], size[0], 3)
         assert (images[0].max(axis=2) > 0).all(), size  # no background: the ground covers the whole picture
         assert (np.abs(images[0] - images[1]).max(axis=2) > 8).mean() < 0.002, size
+    with pytest.raises(InvalidInputError, match=r"^camera viewport 4x3 is no window to render .*; give window_size"):
+        render_view(culled, Camera(eye=camera.eye, target=camera.target, up=camera.up, viewport=(4, 3)))
