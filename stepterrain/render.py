@@ -100,7 +100,8 @@ def _import_pyvista() -> Any:
     # silence "bad X server connection" and similar start-up warnings; real errors still raise below
     vtkObject.GlobalWarningDisplayOff()
     vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
-    pyvista.OFF_SCREEN = True
+    # every plotter here is made with off_screen=True; pyvista.OFF_SCREEN, which it set, is the caller's: set, it
+    # kept every later pv.Plotter() and mesh.plot() of the process from opening a window
     return pyvista
 
 

@@ -597,3 +597,20 @@ def test_the_z_scale_a_too_thin_error_suggests_renders_or_is_not_suggested():
         else:
             with pytest.raises(InvalidInputError, match="too thin to see"):
                 render.render_mesh(mesh, window_size=(160, 90), camera=camera, z_scale=scale)
+
+
+@needs_render
+def test_a_render_leaves_pyvistas_global_off_screen_setting_alone(monkeypatch):
+    """Loading pyvista for a render set pyvista.OFF_SCREEN = True for the whole process: after one st.render_mesh (or
+    offscreen_available) every later pv.Plotter() and mesh.plot() of the caller's rendered off-screen, with no window
+    and no word. The library's own plotters are made off-screen explicitly; the global stays the caller's."""
+    import pyvista as pv
+
+    from stepterrain.closeup import render_closeups
+
+    monkeypatch.setattr(pv, "OFF_SCREEN", False)
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    assert render.render_mesh(mesh, window_size=(32, 32)).shape == (32, 32, 3)
+    assert render.offscreen_available()[0]
+    render_closeups(np.zeros((8, 8), np.float32), [], window_size=(32, 32), device="cpu")
+    assert pv.OFF_SCREEN is False
