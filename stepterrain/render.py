@@ -657,8 +657,8 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
             plotter.enable_depth_peeling()
             if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
                 _ssaa_with_depth_peeling(plotter.renderer)
-        framed = _box_corners(box) if framed_by_bounds else _frame_points(local, finite)
-        position = _camera_position(camera, framed, width / height, view_angle)
+        position = (_camera_position(camera, _box_corners(box), width / height, view_angle) if framed_by_bounds
+                    else _fit_points(camera, local, finite, width / height, view_angle))
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         if lighting:
@@ -704,11 +704,37 @@ def _box_corners(box: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array([[x, y, z] for x in box[:, 0] for y in box[:, 1] for z in box[:, 2]])
 
 
-def _frame_points(local: NDArray[np.float64], finite: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """At most ~100k finite vertices, evenly strided: the camera frames the mesh itself, not its box."""
+def _fit_points(camera: CameraLike, local: NDArray[np.float64], finite: NDArray[np.bool_], aspect: float,
+                view_angle: float) -> list[tuple[float, ...]]:
+    """:func:`_camera_position` framing the finite vertices of ``local`` themselves (not their box): fitted to at most
+    ~100k of them, evenly strided, then to those the fit left outside the view, until none is (the strided ones
+    alone missed a tower or a mast of a few vertices, cut off at the picture's edge)."""
     points = local[finite]
     stride = max(1, len(points) // 100_000)
-    return points[::stride]
+    framed = points[::stride]
+    position = _camera_position(camera, framed, aspect, view_angle)
+    if stride == 1 or not (isinstance(camera, str) or np.shape(camera) == (2,)):  # all framed, or not fitted
+        return position
+    for _ in range(8):
+        outside = _outside_view(points, position, aspect, view_angle)
+        if not outside.any():
+            break
+        framed = np.concatenate([framed, points[outside]])
+        position = _camera_position(camera, framed, aspect, view_angle)
+    return position
+
+
+def _outside_view(points: NDArray[np.float64], position: Any, aspect: float, view_angle: float) -> NDArray[np.bool_]:
+    """Which ``points`` lie outside the view of the pyvista camera ``position`` (vertical field of view
+    ``view_angle`` degrees, width / height ``aspect``), behind the eye included."""
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    forward = (focal - eye) / np.linalg.norm(focal - eye)
+    right, true_up = _screen_axes(forward, up)
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
+    rel = points - eye
+    depth = rel @ forward
+    inside = (depth > 0) & (np.abs(rel @ right) <= depth * (tan_v * aspect)) & (np.abs(rel @ true_up) <= depth * tan_v)
+    return ~inside
 
 
 def _clipping_range(position: Any, bounds: NDArray[np.float64]) -> tuple[float, float]:

@@ -614,3 +614,25 @@ def test_a_render_leaves_pyvistas_global_off_screen_setting_alone(monkeypatch):
     assert render.offscreen_available()[0]
     render_closeups(np.zeros((8, 8), np.float32), [], window_size=(32, 32), device="cpu")
     assert pv.OFF_SCREEN is False
+
+
+@needs_render
+def test_a_fitted_camera_frames_every_vertex_of_a_large_mesh():
+    """render_mesh fitted its camera to at most ~100k vertices of a mesh, every k-th: a tower or a mast made of
+    vertices between those (a building in a DSM of a million nodes) was cut off at the top of the picture. The fit
+    now takes in the vertices the strided one leaves outside the view, until none is."""
+    ground = np.array([[0, 0, 0], [800, 0, 0], [800, 800, 0], [0, 800, 0]], float)
+    tower = trimesh.creation.box(extents=(60, 60, 2000))
+    tower.vertices += (400, 700, 1000)
+    filler = np.full((250_000, 3), 400.0)  # unused vertices on the ground (framed too) set the stride to 2
+    filler[:, 2] = 0.0
+    pairs = np.repeat(np.asarray(tower.vertices), 2, axis=0)
+    pairs[::2] = (400.0, 400.0, 0.0)  # each tower vertex after a ground one: the tower's at odd indices, none strided
+    vertices = np.concatenate([ground, filler, pairs])
+    tower_index = len(ground) + len(filler) + 1 + 2 * np.arange(len(tower.vertices))
+    faces = np.concatenate([[[0, 1, 2], [0, 2, 3]], tower_index[np.asarray(tower.faces)]])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    assert len(vertices) // 100_000 == 2 and (tower_index % 2 == 1).all()
+    image = render.render_mesh(mesh, window_size=(200, 150))
+    drawn = (image < 250).any(axis=2)
+    assert drawn[:20].any() and not drawn[0].any()  # the tower's top shows, below the picture's edge
