@@ -636,3 +636,14 @@ def test_a_fitted_camera_frames_every_vertex_of_a_large_mesh():
     image = render.render_mesh(mesh, window_size=(200, 150))
     drawn = (image < 250).any(axis=2)
     assert drawn[:20].any() and not drawn[0].any()  # the tower's top shows, below the picture's edge
+
+
+@needs_render
+def test_an_eye_close_over_a_large_mesh_sees_the_ground_in_front_of_it():
+    """With the eye inside the box of the mesh the near plane lay at a ten-thousandth of the far one: 2.2 m over a
+    30 km square, so an eye 1 m over the ground looking 45° down saw the ground clipped away (the background). The
+    near plane now stays within half the eye's distance to the mesh: the ground fills the picture."""
+    ground = trimesh.Trimesh([[-15e3, -15e3, 0], [15e3, -15e3, 0], [15e3, 15e3, 0], [-15e3, 15e3, 0]],
+                             [[0, 1, 2], [0, 2, 3]], process=False)
+    image = render.render_mesh(ground, window_size=(64, 48), camera=[(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0, 0, 1)])
+    assert (image < 250).any(axis=2).all()
