@@ -303,7 +303,8 @@ def render_mesh(
         precise).
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
-        all 0 or 1, such as (1, 0, 0), are refused as ambiguous).
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
+        image has no alpha channel).
     scalars : None, "level" or "height"
         None: the mesh's vertex colors if it has them, else its face colors, else a uniform light tan. "level":
         faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use
@@ -545,10 +546,13 @@ def _check_background(pv: Any, background: Any) -> None:
     with a 1 among them ((1, 0, 0)) are refused as ambiguous: pyvista reads whole numbers as 0-255, so (1, 0, 0)
     meant for red rendered black and (1, 1, 1) meant for white too."""
     try:
-        pv.Color(background)
+        color = pv.Color(background)
     except (ValueError, TypeError):
         raise InvalidInputError(f"background must be a colour (a name, '#rrggbb' or (r, g, b)); got "
                                 f"{background!r}") from None
+    if color.opacity < 255:  # its alpha was dropped: (1.0, 1.0, 1.0, 0.0) asked for transparency, got opaque white
+        raise InvalidInputError(f"background must be opaque: renders are (H, W, 3) RGB images, with no alpha; got "
+                                f"{background!r} (alpha {color.opacity / 255:.3g}); give an opaque colour")
     if not isinstance(background, str):
         parts = np.asarray(background)
         if parts.dtype.kind in "iub" and parts.size and parts.max() == 1 and parts.min() >= 0:

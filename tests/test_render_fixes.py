@@ -647,3 +647,15 @@ def test_an_eye_close_over_a_large_mesh_sees_the_ground_in_front_of_it():
                              [[0, 1, 2], [0, 2, 3]], process=False)
     image = render.render_mesh(ground, window_size=(64, 48), camera=[(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0, 0, 1)])
     assert (image < 250).any(axis=2).all()
+
+
+@needs_render
+@pytest.mark.parametrize("background", [(1.0, 1.0, 1.0, 0.0), (0, 0, 0, 0), "#ff000080"])
+def test_a_translucent_background_is_refused_not_rendered_opaque(background):
+    """A background with alpha (a transparent white asked for a PNG with no background) was taken and its alpha
+    dropped: the render came back opaque white (or black, or red), an (H, W, 3) image, without a word."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"^background must be opaque: renders are \(H, W, 3\) RGB"):
+        render.render_mesh(mesh, window_size=(32, 32), background=background)
+    with pytest.raises(InvalidInputError, match=r"^background must be opaque"):
+        render.LayeredRenderer(window_size=(32, 32), background=background)
