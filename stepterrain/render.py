@@ -674,7 +674,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
         plotter.camera.view_angle = view_angle
         seen = local[finite]
         union = np.array([np.minimum(box[0], seen.min(axis=0)), np.maximum(box[1], seen.max(axis=0))])
-        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union, (local, faces))
+        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union, [(local, faces)])
         image = plotter.screenshot(return_img=True)
     finally:
         with contextlib.suppress(Exception):
@@ -743,13 +743,13 @@ def _outside_view(points: NDArray[np.float64], position: Any, aspect: float, vie
 
 
 def _clipping_range(position: Any, bounds: NDArray[np.float64],
-                    mesh: tuple[NDArray[np.float64], ArrayLike] | None = None) -> tuple[float, float]:
+                    meshes: Sequence[tuple[NDArray[np.float64], ArrayLike]] = ()) -> tuple[float, float]:
     """(near, far) holding all of ``bounds``: far beyond its farthest corner, near half the eye's distance to the
     box itself (0 inside it, then far / 10^4). Half the distance to the nearest *corner* clipped nearer geometry:
     a globe seen from 400 km up had its near plane 1,000-3,000 km out, and the far side's inner faces showed
     through where the terrain was cut away.
 
-    With ``mesh`` = (vertices, faces) the near plane comes no nearer than half the eye's distance to the mesh
+    With ``meshes``, (vertices, faces) pairs, the near plane comes no nearer than half the eye's distance to the mesh
     (a lower bound of it, :func:`_mesh_distance`, at least far / 10^7) where far / 10^4 would lie beyond that: an eye
     inside the box of a large mesh, close over its ground (a globe seen from 300 m, a walk-through of a DEM), had
     the ground up to far / 10^4 (1.6 km for the earth) clipped away, and the far side of the globe showed there."""
@@ -757,8 +757,9 @@ def _clipping_range(position: Any, bounds: NDArray[np.float64],
     far = float(np.linalg.norm(_box_corners(bounds) - eye, axis=1).max()) * 1.05
     gap = np.maximum(np.maximum(bounds[0] - eye, eye - bounds[1]), 0.0)  # per axis, 0 where the eye is within
     near = max(far * 1e-4, float(np.linalg.norm(gap)) * 0.5)
-    if mesh is not None and near > float(np.linalg.norm(gap)) * 0.5:  # the floor decides: may it clip the mesh?
-        near = max(float(np.linalg.norm(gap)) * 0.5, min(near, max(0.5 * _mesh_distance(eye, *mesh), far * 1e-7)))
+    if meshes and near > float(np.linalg.norm(gap)) * 0.5:  # the floor decides: may it clip a mesh?
+        closest = min(_mesh_distance(eye, vertices, faces) for vertices, faces in meshes)
+        near = max(float(np.linalg.norm(gap)) * 0.5, min(near, max(0.5 * closest, far * 1e-7)))
     return near, far
 
 
@@ -1188,7 +1189,8 @@ class LayeredRenderer:
         """Camera (as in :func:`render_mesh` with ``bounds=box``: an explicit position is in world coordinates minus
         the centre of ``box``, z scaled) fitted to the world ``box`` (2, 3), its lights and clipping range. A
         fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
-        small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank."""
+        small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank. The
+        near plane keeps off the meshes uploaded by then, as render_mesh's keeps off its mesh."""
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         local = _check_box(box, "box") - self._origin
@@ -1218,7 +1220,9 @@ class LayeredRenderer:
         self._plotter.camera.view_angle = _VIEW_ANGLE
         seen = [local] + list(self._local_bounds.values())
         union = np.array([np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)])
-        self._plotter.camera.clipping_range = _clipping_range(self._plotter.camera_position, union)
+        # the meshes uploaded by now (the overview, before its close-ups) keep the near plane off a close eye's ground
+        meshes = [(np.asarray(entry[0].points, dtype=np.float64), entry[2]) for entry in self._meshes.values()]
+        self._plotter.camera.clipping_range = _clipping_range(self._plotter.camera_position, union, meshes)
         self._box = local
 
     # -------------------------------------------------------------------------- passes

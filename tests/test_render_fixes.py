@@ -659,3 +659,17 @@ def test_a_translucent_background_is_refused_not_rendered_opaque(background):
         render.render_mesh(mesh, window_size=(32, 32), background=background)
     with pytest.raises(InvalidInputError, match=r"^background must be opaque"):
         render.LayeredRenderer(window_size=(32, 32), background=background)
+
+
+@needs_render
+def test_render_closeups_with_an_eye_close_over_a_large_terrain_sees_the_ground():
+    """LayeredRenderer.set_view (render_closeups' camera) had render_mesh's near plane at a ten-thousandth of the far
+    one with the eye inside the box: an eye 1 m over a 30 km terrain, looking 45° down, rendered only background. The
+    near plane keeps off the meshes uploaded when the view is set, as render_mesh's keeps off its mesh."""
+    from stepterrain.closeup import render_closeups
+    from stepterrain.terrain import Terrain
+
+    terrain = Terrain.from_heights(np.zeros((301, 301), np.float32), spacing=(100.0, 100.0))
+    image = render_closeups(terrain, [], window_size=(64, 48), camera=[(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0, 0, 1)],
+                            device="cpu")
+    assert (image < 250).any(axis=2).all()
