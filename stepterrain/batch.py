@@ -1714,7 +1714,8 @@ def overview_image(
     """An off-screen picture of a batch's outputs: the welded mosaic of tiles, or a contact sheet of items.
 
     ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
-    tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side.
+    tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
+    cells sharing the window. The picture is ``window_size`` (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read, after the window is checked against the memory budget (an
     OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
     """
@@ -1750,12 +1751,21 @@ def overview_image(
     n = len(meshes)
     cols = math.ceil(math.sqrt(n))
     rows = math.ceil(n / cols)
-    w, h = max(16, width // cols), max(16, height // rows)
-    sheet = np.full((rows * h, cols * w, 3), 255, np.uint8)
+    # the cells share the window's pixels exactly: width // cols per cell made the sheet narrower or shorter than
+    # window_size (1280 x 798 for 1280 x 800 and 10 items), and a 16-pixel floor per cell wider or taller (64 x 48
+    # for 40 x 40); a cell below the 8 pixels a render takes is rendered at 8 and scaled down to it
+    xs = [c * width // cols for c in range(cols + 1)]
+    ys = [r * height // rows for r in range(rows + 1)]
+    sheet = np.full((height, width, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
         r, c = divmod(k, cols)
-        picture = render.render_mesh(mesh, window_size=(w, h), z_scale=z_scale)
-        sheet[r * h : (r + 1) * h, c * w : (c + 1) * w] = picture[..., :3]
+        w, h = xs[c + 1] - xs[c], ys[r + 1] - ys[r]
+        picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale)[..., :3]
+        if picture.shape[:2] != (h, w):
+            from PIL import Image
+
+            picture = np.asarray(Image.fromarray(picture).resize((w, h), Image.Resampling.LANCZOS))
+        sheet[ys[r] : ys[r + 1], xs[c] : xs[c + 1]] = picture
     return sheet
 
 

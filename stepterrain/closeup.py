@@ -2068,7 +2068,8 @@ def render_closeups(
     window_size : (width, height)
     camera : "oblique", "top", (azimuth, elevation) or a pyvista camera position
         As in :func:`stepterrain.render.render_mesh`, fitted to ``bounds`` (default: overview, close-ups and
-        anchors together).
+        anchors together); an explicit position is relative to the centre of that box, as render_mesh's to the
+        centre of its ``bounds``.
     z_scale : float
         Vertical exaggeration of the render.
     scalars, cmap

@@ -1589,12 +1589,15 @@ def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float
                   near=near, far=distance + max(distance, top) + radius)
 
 
-def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] = (1280, 800),
+def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int, int] | None = None,
                 background: str = "black", show_edges: bool = False) -> NDArray[np.uint8]:
-    """Render a globe mesh off-screen from ``camera``'s eye towards its target, with the camera's vertical field of
-    view (``camera.fov``, at most 179°, VTK's widest; the horizontal one follows from ``window_size``: give it the
-    camera's aspect to see just the view a culled mesh was cut to). A window over the memory budget is refused (an
-    OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh` refuses it."""
+    """Render a globe mesh off-screen from ``camera``'s eye towards its target, with the camera's field of view
+    (``camera.fov``, at most 179°, VTK's widest) and, by default, its ``viewport`` as the window (1280 x 800 for
+    :func:`look_from`'s default aspect 1.6). A ``window_size`` of another aspect than the camera's shows the largest
+    centred part of the camera's view with the window's aspect, never more: a mesh culled to the camera
+    (``Globe.mesh(camera=...)``) fills the picture, with no cut-away ground at its edges. A window over the memory
+    budget is refused (an OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh` refuses
+    it."""
     from . import render
 
     if not isinstance(mesh, trimesh.Trimesh):  # a per_face list, None: an AttributeError on .bounds
@@ -1602,14 +1605,25 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
                                 f"got {type(mesh).__name__}")
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
+    # the window defaulted to 1280 x 800 whatever the camera: a portrait camera's culled mesh rendered with its
+    # sides cut away (16 % of the picture black for a 9:16 camera)
+    if window_size is None and not all(8 <= side <= 16384 for side in camera.viewport):
+        raise InvalidInputError(f"camera viewport {camera.viewport[0]}x{camera.viewport[1]} is no window to render "
+                                "(8 to 16384 pixels a side); give window_size")
+    width, height, _ = render._check_window(camera.viewport if window_size is None else window_size, 1.0)
     # the camera's own field of view: a fixed 30° showed a narrower camera's culled mesh as a patch floating in the
-    # black, and only the middle of a wider one's view
-    view_angle = math.degrees(camera.fov)
+    # black, and only the middle of a wider one's view. A window wider than the camera keeps the camera's
+    # horizontal extent (its vertical one narrows): VTK's horizontal extent follows the window, and a wider one
+    # showed the ground the camera had culled away at the picture's sides
+    wider = width / height > camera.aspect
+    view_angle = math.degrees(2.0 * math.atan(math.tan(camera.fov / 2.0) * camera.aspect * height / width)
+                              if wider else camera.fov)
     lo, hi = render._VIEW_ANGLE_RANGE
     if not lo <= view_angle <= hi:  # VTK clamps its view angle to that range: another picture than the camera's
         raise InvalidInputError(f"camera fov must lie within [{lo:g}, {hi:g}] degrees to render (VTK's range); got "
-                                f"{view_angle:.6g} degrees ({camera.fov:.6g} rad)")
-    width, height, _ = render._check_window(window_size, 1.0)
+                                f"{view_angle:.6g} degrees ({camera.fov:.6g} rad)"
+                                + (f", narrowed to the {width}x{height} window, wider than the camera's aspect "
+                                   f"{camera.aspect:.6g}" if wider else ""))
     render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
     if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
@@ -1627,7 +1641,7 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     middle = local_box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``
     eye, target = ((np.subtract(point, centre) @ frame.T) - middle for point in (camera.eye, camera.target))
     position = [tuple(eye), tuple(target), tuple(frame @ np.asarray(camera.up, dtype=np.float64))]
-    return render.render_mesh(local, window_size=window_size, camera=position, background=background,
+    return render.render_mesh(local, window_size=(width, height), camera=position, background=background,
                               bounds=local_box, show_edges=show_edges, view_angle=view_angle)
 
 

@@ -100,7 +100,8 @@ def _import_pyvista() -> Any:
     # silence "bad X server connection" and similar start-up warnings; real errors still raise below
     vtkObject.GlobalWarningDisplayOff()
     vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
-    pyvista.OFF_SCREEN = True
+    # every plotter here is made with off_screen=True; pyvista.OFF_SCREEN, which it set, is the caller's: set, it
+    # kept every later pv.Plotter() and mesh.plot() of the process from opening a window
     return pyvista
 
 
@@ -302,7 +303,8 @@ def render_mesh(
         precise).
     background : color
         Any pyvista color: a name, '#rrggbb', (r, g, b) floats in [0, 1] or whole numbers in 0-255 (whole numbers
-        all 0 or 1, such as (1, 0, 0), are refused as ambiguous).
+        all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
+        image has no alpha channel).
     scalars : None, "level" or "height"
         None: the mesh's vertex colors if it has them, else its face colors, else a uniform light tan. "level":
         faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use
@@ -401,7 +403,8 @@ def render_mesh(
     translucent = any(colors is not None and colors.shape[1] == 4 for colors in (rgb, face_rgb))
     if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
         _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
-    return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
+    return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
+                  framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=True, translucent=translucent, view_angle=view_angle)
 
@@ -463,7 +466,7 @@ def _frame_mesh(
     corners = _box_corners(box)
     position = _camera_position(camera, corners, width / height, view_angle)  # raises on a bad camera; 8 corners
     if isinstance(camera, str) or np.shape(camera) == (2,):  # a fitted camera: it frames the box's larger side
-        _check_visible(corners, position, (width, height), box, z_scale, view_angle)
+        _check_visible(corners, position, (width, height), box, z_scale, view_angle, camera)
     return width, height, vertices, local, finite, box
 
 
@@ -487,16 +490,27 @@ def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, i
 
 
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
-                   z_scale: float, view_angle: float = _VIEW_ANGLE) -> None:
-    """An InvalidInputError when the fitted camera shows the framed box less than a pixel wide or tall: a mesh
+                   z_scale: float, view_angle: float = _VIEW_ANGLE, camera: CameraLike = "oblique") -> None:
+    """An InvalidInputError when the fitted ``camera`` shows the framed box less than a pixel wide or tall: a mesh
     whose height range (times ``z_scale``) dwarfs its horizontal extent, or the reverse, rendered blank."""
     px, py = _pixel_extent(corners, position, size, view_angle)
     if min(px, py) >= 1.0:
         return
     dx, dy, dz = (box[1] - box[0]).tolist()
     across, tall = max(dx, dy), dz / z_scale
-    hint = (f"; a z_scale near {across / tall:.3g} makes it as tall as it is wide" if across > 0 and tall > 0
-            else "; it has no extent in one direction")
+    hint = "; it has no extent in one direction"
+    if across > 0 and tall > 0:
+        # the z_scale that makes the box as tall as it is wide, named only where the camera then sees it: a strip
+        # of ground seen from the top is too thin across whatever its height (it named a z_scale that failed alike)
+        even = box.copy()
+        even[:, 2] *= across / dz  # box is z-scaled: dz > 0 as tall > 0
+        even_corners = _box_corners(even)
+        if min(_pixel_extent(even_corners, _camera_position(camera, even_corners, size[0] / size[1], view_angle),
+                             size, view_angle)) >= 1.0:
+            hint = f"; a z_scale near {across / tall:.3g} makes it as tall as it is wide"
+        else:
+            hint = (f"; a z_scale near {across / tall:.3g}, as tall as it is wide, does not show it from this "
+                    "camera either: look from another direction (camera) or give a larger window_size")
     raise InvalidInputError(
         f"the mesh would render {px:.2g} x {py:.2g} pixels: it spans {dx:.3g} x {dy:.3g} across and {dz:.3g} tall "
         f"(with z_scale={z_scale:g}), too thin to see from a camera fitted to it{hint}"
@@ -532,10 +546,13 @@ def _check_background(pv: Any, background: Any) -> None:
     with a 1 among them ((1, 0, 0)) are refused as ambiguous: pyvista reads whole numbers as 0-255, so (1, 0, 0)
     meant for red rendered black and (1, 1, 1) meant for white too."""
     try:
-        pv.Color(background)
+        color = pv.Color(background)
     except (ValueError, TypeError):
         raise InvalidInputError(f"background must be a colour (a name, '#rrggbb' or (r, g, b)); got "
                                 f"{background!r}") from None
+    if color.opacity < 255:  # its alpha was dropped: (1.0, 1.0, 1.0, 0.0) asked for transparency, got opaque white
+        raise InvalidInputError(f"background must be opaque: renders are (H, W, 3) RGB images, with no alpha; got "
+                                f"{background!r} (alpha {color.opacity / 255:.3g}); give an opaque colour")
     if not isinstance(background, str):
         parts = np.asarray(background)
         if parts.dtype.kind in "iub" and parts.size and parts.max() == 1 and parts.min() >= 0:
@@ -620,7 +637,7 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
                  hint=f"give a smaller {name}" + (" or turn anti_aliasing off" if anti_aliasing else ""))
 
 
-def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64],
+def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64], faces: ArrayLike,
            finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
            size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool,
            translucent: bool = False, view_angle: float = _VIEW_ANGLE) -> NDArray[np.uint8]:
@@ -645,8 +662,8 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
             plotter.enable_depth_peeling()
             if anti_aliasing:  # MSAA with depth peeling rendered blank (Mesa), without it out of depth order: SSAA
                 _ssaa_with_depth_peeling(plotter.renderer)
-        framed = _box_corners(box) if framed_by_bounds else _frame_points(local, finite)
-        position = _camera_position(camera, framed, width / height, view_angle)
+        position = (_camera_position(camera, _box_corners(box), width / height, view_angle) if framed_by_bounds
+                    else _fit_points(camera, local, finite, width / height, view_angle))
         look_from = np.subtract(position[0], position[1])
         fill = (math.atan2(look_from[0], look_from[1]), _FILL_ELEVATION)
         if lighting:
@@ -657,7 +674,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
         plotter.camera.view_angle = view_angle
         seen = local[finite]
         union = np.array([np.minimum(box[0], seen.min(axis=0)), np.maximum(box[1], seen.max(axis=0))])
-        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union)
+        plotter.camera.clipping_range = _clipping_range(plotter.camera_position, union, [(local, faces)])
         image = plotter.screenshot(return_img=True)
     finally:
         with contextlib.suppress(Exception):
@@ -692,22 +709,82 @@ def _box_corners(box: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.array([[x, y, z] for x in box[:, 0] for y in box[:, 1] for z in box[:, 2]])
 
 
-def _frame_points(local: NDArray[np.float64], finite: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """At most ~100k finite vertices, evenly strided: the camera frames the mesh itself, not its box."""
+def _fit_points(camera: CameraLike, local: NDArray[np.float64], finite: NDArray[np.bool_], aspect: float,
+                view_angle: float) -> list[tuple[float, ...]]:
+    """:func:`_camera_position` framing the finite vertices of ``local`` themselves (not their box): fitted to at most
+    ~100k of them, evenly strided, then to those the fit left outside the view, until none is (the strided ones
+    alone missed a tower or a mast of a few vertices, cut off at the picture's edge)."""
     points = local[finite]
     stride = max(1, len(points) // 100_000)
-    return points[::stride]
+    framed = points[::stride]
+    position = _camera_position(camera, framed, aspect, view_angle)
+    if stride == 1 or not (isinstance(camera, str) or np.shape(camera) == (2,)):  # all framed, or not fitted
+        return position
+    for _ in range(8):
+        outside = _outside_view(points, position, aspect, view_angle)
+        if not outside.any():
+            break
+        framed = np.concatenate([framed, points[outside]])
+        position = _camera_position(camera, framed, aspect, view_angle)
+    return position
 
 
-def _clipping_range(position: Any, bounds: NDArray[np.float64]) -> tuple[float, float]:
+def _outside_view(points: NDArray[np.float64], position: Any, aspect: float, view_angle: float) -> NDArray[np.bool_]:
+    """Which ``points`` lie outside the view of the pyvista camera ``position`` (vertical field of view
+    ``view_angle`` degrees, width / height ``aspect``), behind the eye included."""
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    forward = (focal - eye) / np.linalg.norm(focal - eye)
+    right, true_up = _screen_axes(forward, up)
+    tan_v = math.tan(math.radians(view_angle) / 2.0)
+    rel = points - eye
+    depth = rel @ forward
+    inside = (depth > 0) & (np.abs(rel @ right) <= depth * (tan_v * aspect)) & (np.abs(rel @ true_up) <= depth * tan_v)
+    return ~inside
+
+
+def _clipping_range(position: Any, bounds: NDArray[np.float64],
+                    meshes: Sequence[tuple[NDArray[np.float64], ArrayLike]] = ()) -> tuple[float, float]:
     """(near, far) holding all of ``bounds``: far beyond its farthest corner, near half the eye's distance to the
     box itself (0 inside it, then far / 10^4). Half the distance to the nearest *corner* clipped nearer geometry:
     a globe seen from 400 km up had its near plane 1,000-3,000 km out, and the far side's inner faces showed
-    through where the terrain was cut away."""
+    through where the terrain was cut away.
+
+    With ``meshes``, (vertices, faces) pairs, the near plane comes no nearer than half the eye's distance to the mesh
+    (a lower bound of it, :func:`_mesh_distance`, at least far / 10^7) where far / 10^4 would lie beyond that: an eye
+    inside the box of a large mesh, close over its ground (a globe seen from 300 m, a walk-through of a DEM), had
+    the ground up to far / 10^4 (1.6 km for the earth) clipped away, and the far side of the globe showed there."""
     eye = np.asarray(position[0], dtype=np.float64)
     far = float(np.linalg.norm(_box_corners(bounds) - eye, axis=1).max()) * 1.05
     gap = np.maximum(np.maximum(bounds[0] - eye, eye - bounds[1]), 0.0)  # per axis, 0 where the eye is within
-    return max(far * 1e-4, float(np.linalg.norm(gap)) * 0.5), far
+    near = max(far * 1e-4, float(np.linalg.norm(gap)) * 0.5)
+    if meshes and near > float(np.linalg.norm(gap)) * 0.5:  # the floor decides: may it clip a mesh?
+        closest = min(_mesh_distance(eye, vertices, faces) for vertices, faces in meshes)
+        near = max(float(np.linalg.norm(gap)) * 0.5, min(near, max(0.5 * closest, far * 1e-7)))
+    return near, far
+
+
+def _mesh_distance(eye: NDArray[np.float64], vertices: NDArray[np.float64], faces: ArrayLike) -> float:
+    """A lower bound of the distance from ``eye`` to the triangles ``faces`` of ``vertices`` (those with a NaN
+    vertex, not drawn, left out): per triangle the larger of the eye's distance to its plane and its farthest
+    vertex's distance less its longest edge (no point of a triangle lies farther than that from a vertex).
+    Component by component (about 0.3 s for two million triangles; norms over (F, 3, 3) took 6 s)."""
+    index = np.asarray(faces, dtype=np.int64)
+    rel = vertices - eye
+    reach2 = np.einsum("ij,ij->i", rel, rel)  # squared distance of each vertex from the eye
+    a, b, c = index[:, 0], index[:, 1], index[:, 2]
+    x, y, z = (np.ascontiguousarray(rel[:, k]) for k in range(3))
+    ax, ay, az, bx, by, bz, cx, cy, cz = x[a], y[a], z[a], x[b], y[b], z[b], x[c], y[c], z[c]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        reach = np.sqrt(np.maximum(np.maximum(reach2[a], reach2[b]), reach2[c]))
+        ux, uy, uz, vx, vy, vz = bx - ax, by - ay, bz - az, cx - ax, cy - ay, cz - az
+        edge2 = np.maximum(np.maximum(ux * ux + uy * uy + uz * uz, vx * vx + vy * vy + vz * vz),
+                           (cx - bx) ** 2 + (cy - by) ** 2 + (cz - bz) ** 2)
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        length = np.sqrt(nx * nx + ny * ny + nz * nz)
+        plane = np.abs(nx * ax + ny * ay + nz * az) / length  # the eye is the origin of rel
+        bound = np.maximum(reach - np.sqrt(edge2), np.where(length > 0, plane, 0.0))
+    bound = bound[np.isfinite(reach)]
+    return float(max(bound.min(), 0.0)) if len(bound) else 0.0
 
 
 def save_png(image: NDArray[np.uint8], path: str | os.PathLike[str]) -> Path:
@@ -777,7 +854,8 @@ def render_textured_mesh(
     texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
     mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
                        diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
-    return _shoot(pv, poly, mesh_kwargs, local=local, finite=finite, box=box, framed_by_bounds=bounds is not None,
+    return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
+                  framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting, translucent=translucent)
 
@@ -1108,9 +1186,11 @@ class LayeredRenderer:
 
     # -------------------------------------------------------------------------- view
     def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
-        """Camera (as in :func:`render_mesh`) fitted to the world ``box`` (2, 3), its lights and clipping range. A
+        """Camera (as in :func:`render_mesh` with ``bounds=box``: an explicit position is in world coordinates minus
+        the centre of ``box``, z scaled) fitted to the world ``box`` (2, 3), its lights and clipping range. A
         fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
-        small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank."""
+        small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank. The
+        near plane keeps off the meshes uploaded by then, as render_mesh's keeps off its mesh."""
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
         local = _check_box(box, "box") - self._origin
@@ -1122,7 +1202,12 @@ class LayeredRenderer:
         corners = _box_corners(local)
         position = _camera_position(camera, corners, width / height)
         if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
-            _check_visible(corners, position, (width, height), local, self.z_scale)  # (z_scale=1e30: a blank image)
+            _check_visible(corners, position, (width, height), local, self.z_scale, camera=camera)
+        else:  # an explicit position is relative to the centre of ``box``, as render_mesh's to that of its bounds: it
+            # was taken relative to the first mesh's centre, another view wherever the box was not centred on it
+            centre = local.mean(axis=0)
+            position = [tuple((np.asarray(position[0]) + centre).tolist()),
+                        tuple((np.asarray(position[1]) + centre).tolist()), position[2]]
         # the token once the camera passed its checks: a refused camera asked again is refused again
         self._view_token = token
         self._view_version += 1
@@ -1135,7 +1220,9 @@ class LayeredRenderer:
         self._plotter.camera.view_angle = _VIEW_ANGLE
         seen = [local] + list(self._local_bounds.values())
         union = np.array([np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)])
-        self._plotter.camera.clipping_range = _clipping_range(self._plotter.camera_position, union)
+        # the meshes uploaded by now (the overview, before its close-ups) keep the near plane off a close eye's ground
+        meshes = [(np.asarray(entry[0].points, dtype=np.float64), entry[2]) for entry in self._meshes.values()]
+        self._plotter.camera.clipping_range = _clipping_range(self._plotter.camera_position, union, meshes)
         self._box = local
 
     # -------------------------------------------------------------------------- passes

@@ -1204,3 +1204,28 @@ def test_a_one_worker_cluster_is_described_in_the_singular(tmp_path):
     report = batch(heights, tmp_path / "out", tile_size=4, interval=25.0, base=0.5, workers=1)
     assert report.scheduler == "LocalCluster (1 worker process)", report.scheduler
     assert not report.failed
+
+
+@pytest.mark.render
+def test_the_contact_sheet_is_the_window_size_asked_for(tmp_path):
+    """overview_image's contact sheet gave each item width // cols x height // rows pixels, at least 16: 10 items in
+    1280 x 800 came back 1280 x 798 (the CLI's 'rendering an overview 1280x800' wrote that), in 100 x 100 as 100 x 99,
+    in 40 x 40 as 64 x 48. The cells now share the window's pixels exactly, each item still rendered in its cell."""
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    z = (np.random.default_rng(0).random((10, 9, 9)) * 5).astype(np.float32)
+    report = batch(z, tmp_path, interval=1.0, scheduler="serial", format=".ply")
+    assert report.ok
+    for size in [(100, 100), (40, 40), (33, 17)]:
+        sheet = overview_image(report, window_size=size)
+        assert sheet.shape == (size[1], size[0], 3), size
+    sheet = overview_image(report, window_size=(100, 100))  # 4 x 3 cells: 25 wide, 33 / 33 / 34 tall
+    drawn = (sheet < 250).any(axis=2)
+    for k in range(10):
+        r, c = divmod(k, 4)
+        assert drawn[r * 100 // 3 : (r + 1) * 100 // 3, c * 25 : (c + 1) * 25].mean() > 0.05, k  # each item shows
+    assert not drawn[2 * 100 // 3 :, 50:].any()  # cells 10 and 11 hold no item

@@ -759,3 +759,42 @@ def test_an_eye_below_every_node_is_refused_naming_the_terrain_in_its_direction(
         globe.mesh(error=1000.0, camera=_camera(_eye(0.0, 90.0, R - 4500.0)))
     with pytest.raises(InvalidInputError, match=rf"\|eye\| = 0\.0 m, .* terrain {lowest:+.1f} m\)"):
         globe.mesh(error=1000.0, camera=Camera(eye=(0.0, 0.0, 0.0), target=(1.0, 0.0, 0.0)))
+
+
+@needs_render
+def test_render_view_never_shows_more_than_the_camera_saw(flat_globe):
+    """render_view's horizontal extent followed the window, and its window defaulted to 1280 x 800 whatever the
+    camera: a 9:16 camera's culled mesh rendered by default (or in any window wider than 9:16) showed the ground the
+    camera had culled away as black at the picture's sides (16 % of it). The window now defaults to the camera's
+    viewport, and a wider one keeps the camera's horizontal extent: culled or not, the same picture, no black."""
+    from stepterrain.globe import look_from, render_view
+
+    camera = look_from(45.0, 10.0, 500_000.0, tilt=20.0, fov=math.radians(20.0), aspect=9 / 16)
+    culled = flat_globe.mesh(error=50.0, camera=camera)
+    whole = flat_globe.mesh(error=50.0, camera=camera, cull=False)
+    assert render_view(culled, camera).shape == (800, 450, 3)  # the camera's viewport
+    for size in [(90, 160), (160, 90), (100, 100)]:
+        images = [render_view(m, camera, window_size=size).astype(int) for m in (culled, whole)]
+        assert images[0].shape == (size[1], size[0], 3)
+        assert (images[0].max(axis=2) > 0).all(), size  # no background: the ground covers the whole picture
+        assert (np.abs(images[0] - images[1]).max(axis=2) > 8).mean() < 0.002, size
+    with pytest.raises(InvalidInputError, match=r"^camera viewport 4x3 is no window to render .*; give window_size"):
+        render_view(culled, Camera(eye=camera.eye, target=camera.target, up=camera.up, viewport=(4, 3)))
+
+
+@needs_render
+def test_render_view_close_over_the_ground_does_not_clip_the_ground_away(flat_globe):
+    """render_view's near plane lay at far / 10^4 wherever the eye was inside the mesh's box: 1.3-1.6 km for the
+    earth. From 10 m (or 300 m, tilted 70°) the ground in front of the eye was clipped away and the picture showed the
+    inside of the far side of the globe instead, culled mesh or not. The near plane now stays within half the eye's
+    distance to the mesh: every pixel shows ground near the eye (coloured red; vertices 1000 km off and more blue)."""
+    from stepterrain.globe import look_from, render_view
+
+    for altitude, tilt in ((10.0, 45.0), (300.0, 70.0)):
+        camera = look_from(45.0, 10.0, altitude, tilt=tilt, aspect=1.6)
+        for cull in (True, False):
+            mesh = flat_globe.mesh(error=50.0, camera=camera, cull=cull)
+            near = np.linalg.norm(mesh.vertices - np.array(camera.eye), axis=1) < 1e6
+            mesh.visual.vertex_colors = np.where(near[:, None], [255, 0, 0, 255], [0, 0, 255, 255]).astype(np.uint8)
+            image = render_view(mesh, camera, window_size=(160, 100)).astype(int)
+            assert (image[:, :, 0] > image[:, :, 2]).all(), (altitude, tilt, cull)

@@ -549,3 +549,127 @@ def test_the_drape_of_a_translucent_layer_renders_as_before():
     assert draped.visual.material.baseColorTexture.mode == "RGB"
     image = render.render_textured_mesh(draped, window_size=(64, 64), camera="top", lighting=False)
     assert image[32, 32] == pytest.approx([128, 0, 128], abs=1)
+
+
+@needs_render
+def test_an_explicit_camera_is_relative_to_the_centre_of_the_box_in_every_entry_point():
+    """LayeredRenderer.set_view (and so render_closeups) took an explicit [(eye), (focal point), (view up)] relative
+    to the centre of the first mesh uploaded, while render_mesh, which both name as their model, takes it relative to
+    the centre of ``bounds``: with a box not centred on the terrain (room above it for lifted close-ups, or the default
+    box of overview and close-ups together) the same camera showed the terrain 27 rows higher in a 100-row picture."""
+    from stepterrain.closeup import render_closeups
+    from stepterrain.terrain import as_terrain
+
+    heights = (np.random.default_rng(0).random((30, 40)) * 5).astype(np.float32)
+    terrain = as_terrain(heights)
+    mesh = terrain.mesh()
+    rgb = np.tile(np.array([[200, 120, 60]], np.uint8), (len(mesh.vertices), 1))
+    mesh.visual.vertex_colors = rgb
+    box = np.array([mesh.vertices.min(axis=0), mesh.vertices.max(axis=0) + [5.0, 0.0, 30.0]])  # off the mesh's centre
+    camera = [(0.0, -60.0, 40.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    alone = render.render_mesh(mesh, window_size=(160, 100), camera=camera, bounds=box)
+    with render.LayeredRenderer(window_size=(160, 100)) as renderer:
+        renderer.set_mesh("terrain", mesh.vertices, mesh.faces, rgb=rgb)
+        renderer.set_view(camera, box)
+        layered, _ = renderer.render(["terrain"])
+    np.testing.assert_array_equal(layered, alone)
+    overview = render_closeups(terrain, [], window_size=(160, 100), camera=camera, bounds=box, device="cpu")
+    np.testing.assert_array_equal((overview < 250).any(axis=2), (alone < 250).any(axis=2))  # the same pixels drawn
+
+
+@needs_render
+def test_the_z_scale_a_too_thin_error_suggests_renders_or_is_not_suggested():
+    """A fitted camera refusing a mesh too thin to see named the z_scale that makes it as tall as it is wide, even
+    where height was not what was thin: a 2-row strip seen from the top (199 x 1 across) was told 'a z_scale near
+    39.9', which failed with the same message. The z_scale is now offered as the fix only where that camera then
+    sees the mesh; elsewhere the message says it does not help."""
+    import re
+
+    strip = st.heightfield_mesh((np.random.default_rng(0).random((2, 200)) * 5).astype(np.float32))
+    tower = st.heightfield_mesh(np.array([[0, 0], [0, 1e6]], np.float32))
+    for mesh, camera, helps in ((strip, "top", False), (tower, "oblique", True)):
+        with pytest.raises(InvalidInputError, match="too thin to see") as caught:
+            render.render_mesh(mesh, window_size=(160, 90), camera=camera)
+        scale = float(re.search(r"a z_scale near ([0-9.e+-]+)", str(caught.value))[1])
+        assert ("does not show it from this camera" not in str(caught.value)) == helps
+        if helps:
+            assert render.render_mesh(mesh, window_size=(160, 90), camera=camera, z_scale=scale).shape == (90, 160, 3)
+        else:
+            with pytest.raises(InvalidInputError, match="too thin to see"):
+                render.render_mesh(mesh, window_size=(160, 90), camera=camera, z_scale=scale)
+
+
+@needs_render
+def test_a_render_leaves_pyvistas_global_off_screen_setting_alone(monkeypatch):
+    """Loading pyvista for a render set pyvista.OFF_SCREEN = True for the whole process: after one st.render_mesh (or
+    offscreen_available) every later pv.Plotter() and mesh.plot() of the caller's rendered off-screen, with no window
+    and no word. The library's own plotters are made off-screen explicitly; the global stays the caller's."""
+    import pyvista as pv
+
+    from stepterrain.closeup import render_closeups
+
+    monkeypatch.setattr(pv, "OFF_SCREEN", False)
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    assert render.render_mesh(mesh, window_size=(32, 32)).shape == (32, 32, 3)
+    assert render.offscreen_available()[0]
+    render_closeups(np.zeros((8, 8), np.float32), [], window_size=(32, 32), device="cpu")
+    assert pv.OFF_SCREEN is False
+
+
+@needs_render
+def test_a_fitted_camera_frames_every_vertex_of_a_large_mesh():
+    """render_mesh fitted its camera to at most ~100k vertices of a mesh, every k-th: a tower or a mast made of
+    vertices between those (a building in a DSM of a million nodes) was cut off at the top of the picture. The fit
+    now takes in the vertices the strided one leaves outside the view, until none is."""
+    ground = np.array([[0, 0, 0], [800, 0, 0], [800, 800, 0], [0, 800, 0]], float)
+    tower = trimesh.creation.box(extents=(60, 60, 2000))
+    tower.vertices += (400, 700, 1000)
+    filler = np.full((250_000, 3), 400.0)  # unused vertices on the ground (framed too) set the stride to 2
+    filler[:, 2] = 0.0
+    pairs = np.repeat(np.asarray(tower.vertices), 2, axis=0)
+    pairs[::2] = (400.0, 400.0, 0.0)  # each tower vertex after a ground one: the tower's at odd indices, none strided
+    vertices = np.concatenate([ground, filler, pairs])
+    tower_index = len(ground) + len(filler) + 1 + 2 * np.arange(len(tower.vertices))
+    faces = np.concatenate([[[0, 1, 2], [0, 2, 3]], tower_index[np.asarray(tower.faces)]])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    assert len(vertices) // 100_000 == 2 and (tower_index % 2 == 1).all()
+    image = render.render_mesh(mesh, window_size=(200, 150))
+    drawn = (image < 250).any(axis=2)
+    assert drawn[:20].any() and not drawn[0].any()  # the tower's top shows, below the picture's edge
+
+
+@needs_render
+def test_an_eye_close_over_a_large_mesh_sees_the_ground_in_front_of_it():
+    """With the eye inside the box of the mesh the near plane lay at a ten-thousandth of the far one: 2.2 m over a
+    30 km square, so an eye 1 m over the ground looking 45° down saw the ground clipped away (the background). The
+    near plane now stays within half the eye's distance to the mesh: the ground fills the picture."""
+    ground = trimesh.Trimesh([[-15e3, -15e3, 0], [15e3, -15e3, 0], [15e3, 15e3, 0], [-15e3, 15e3, 0]],
+                             [[0, 1, 2], [0, 2, 3]], process=False)
+    image = render.render_mesh(ground, window_size=(64, 48), camera=[(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0, 0, 1)])
+    assert (image < 250).any(axis=2).all()
+
+
+@needs_render
+@pytest.mark.parametrize("background", [(1.0, 1.0, 1.0, 0.0), (0, 0, 0, 0), "#ff000080"])
+def test_a_translucent_background_is_refused_not_rendered_opaque(background):
+    """A background with alpha (a transparent white asked for a PNG with no background) was taken and its alpha
+    dropped: the render came back opaque white (or black, or red), an (H, W, 3) image, without a word."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    with pytest.raises(InvalidInputError, match=r"^background must be opaque: renders are \(H, W, 3\) RGB"):
+        render.render_mesh(mesh, window_size=(32, 32), background=background)
+    with pytest.raises(InvalidInputError, match=r"^background must be opaque"):
+        render.LayeredRenderer(window_size=(32, 32), background=background)
+
+
+@needs_render
+def test_render_closeups_with_an_eye_close_over_a_large_terrain_sees_the_ground():
+    """LayeredRenderer.set_view (render_closeups' camera) had render_mesh's near plane at a ten-thousandth of the far
+    one with the eye inside the box: an eye 1 m over a 30 km terrain, looking 45° down, rendered only background. The
+    near plane keeps off the meshes uploaded when the view is set, as render_mesh's keeps off its mesh."""
+    from stepterrain.closeup import render_closeups
+    from stepterrain.terrain import Terrain
+
+    terrain = Terrain.from_heights(np.zeros((301, 301), np.float32), spacing=(100.0, 100.0))
+    image = render_closeups(terrain, [], window_size=(64, 48), camera=[(0.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0, 0, 1)],
+                            device="cpu")
+    assert (image < 250).any(axis=2).all()
