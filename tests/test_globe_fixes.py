@@ -741,3 +741,37 @@ def test_a_user_metric_that_is_not_saturated_is_refused_not_meshed_on_unwritten_
     mesh = adaptive_mesh(z, error=3.0, spacing=30.0, metrics=("geometric", sphere), device="cpu")
     assert np.asarray(mesh.faces).max() < len(mesh.vertices)
     assert (mesh.area_faces * mesh.face_normals[:, 2]).sum() == pytest.approx(69 * 89 * 900.0, rel=1e-9)
+
+
+def test_the_cli_refuses_view_options_that_do_nothing_and_records_only_what_was_applied(tmp_path, capsys):
+    """``globe --no-camera --metrics geometric,clip`` and ``--no-camera --no-cull`` (or ``--no-cull`` without the
+    clip metric) were accepted and did nothing: the library ignores the view's metrics without a camera and culls
+    only by the clip metric; the progress line and the mesh's metadata named 'geometric,distance,clip' and an eye
+    for a mesh refined by the geometric error alone. Such options are refused by name now, and a --no-camera mesh
+    records the metrics it was refined by (geometric) and no eye."""
+    from stepterrain.cli import main
+    from stepterrain.export import read_mesh
+
+    out = tmp_path / "g.glb"
+    base = ["globe", "--face-size", "9", "--device", "cpu", "-o", str(out)]
+    for extra, message in [
+        (["--no-camera", "--metrics", "geometric,clip"], "error: --metrics clip needs the camera: not with "
+                                                          "--no-camera, which refines by the geometric error alone"),
+        (["--no-camera", "--metrics", "distance,geometric,clip"], "error: --metrics distance,clip need the camera"),
+        (["--no-camera", "--no-cull"], "error: --no-cull applies only with the camera"),
+        (["--metrics", "geometric,distance", "--no-cull"], "error: --no-cull applies only with the clip metric "
+                                                           "(only it culls); got --metrics geometric,distance"),
+    ]:
+        assert main([*base, *extra]) == 2, extra
+        assert message in capsys.readouterr().err, extra
+        assert not out.exists()
+
+    assert main([*base, "--no-camera", "--error", "0"]) == 0
+    assert "metrics geometric\n" in capsys.readouterr().err
+    meta = read_mesh(out).metadata
+    assert meta["metrics"] == "geometric" and "eye_lat_lon_alt" not in meta
+    assert len(read_mesh(out).faces) == 12 * 8**2  # error 0 without a camera: the full-resolution sphere
+
+    assert main([*base, "--eye", "46,9,400000", "--no-cull"]) == 0  # with the camera: as before
+    meta = read_mesh(out).metadata
+    assert meta["metrics"] == "geometric,distance,clip" and meta["eye_lat_lon_alt"] == [46.0, 9.0, 400000.0]
