@@ -941,3 +941,35 @@ def test_batch_with_its_progress_bar_says_each_failure_once_as_options(tmp_path,
             assert line.startswith(f"stepterrain: failed {key}: InvalidInputError: --interval 1e-05 over heights ")
             assert line.endswith("(after 1 attempt)"), line
         assert len(failed) == 2 and "interval=" not in err, err
+
+
+def test_info_shows_the_list_metadata_stepterrain_writes(tmp_path, capsys):
+    """info showed only a mesh's scalar metadata: the eye a view-dependent globe mesh was refined for
+    (eye_lat_lon_alt), a batch tile's node_rows/node_cols and a stepped mesh's isovalues were left out, though its
+    help promises 'the metadata stepterrain wrote'. Lists of plain values are shown now: in full in JSON, in the text
+    output in full up to 8 values, a longer one by its first values, its last and its length."""
+    import json
+
+    globe = tmp_path / "globe.glb"
+    code, out, err = run(capsys, "-q", "globe", "--face-size", "9", "--eye", "46,9,400000", "-o", globe,
+                         "--device", "cpu")
+    assert code == 0, err
+    code, out, err = run(capsys, "info", globe, "--json")
+    assert code == 0, err
+    assert json.loads(out)["meta.eye_lat_lon_alt"] == [46.0, 9.0, 400000.0]
+    code, out, err = run(capsys, "info", globe)
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["meta.eye_lat_lon_alt"] == "(46, 9, 400000)"
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(6.0), np.arange(7.0)) * 10.0)
+    steps = tmp_path / "steps.glb"
+    levels = ",".join(str(v) for v in range(0, 130, 10))  # 13 isovalues
+    code, out, err = run(capsys, "-q", "steps", tmp_path / "ramp.npy", "--levels", levels, "-o", steps,
+                         "--device", "cpu")
+    assert code == 0, err
+    code, out, err = run(capsys, "info", steps, "--json")
+    assert json.loads(out)["meta.isovalues"] == [float(v) for v in range(0, 130, 10)]
+    code, out, err = run(capsys, "info", steps)
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["meta.isovalues"] == "(0, 10, 20, 30, 40, 50, ..., 120; 13 values)"
+    assert lines["meta.isovalues_count"] == "13"
