@@ -775,3 +775,23 @@ def test_the_cli_refuses_view_options_that_do_nothing_and_records_only_what_was_
     assert main([*base, "--eye", "46,9,400000", "--no-cull"]) == 0  # with the camera: as before
     meta = read_mesh(out).metadata
     assert meta["metrics"] == "geometric,distance,clip" and meta["eye_lat_lon_alt"] == [46.0, 9.0, 400000.0]
+
+
+def test_drape_colors_given_the_mesh_says_to_pass_its_vertices():
+    """drape_texture takes the mesh, so a user passed the mesh to drape_colors too, and was told 'vertices must be a
+    (V, 3) array of planet-centred positions (real numbers); got dtype object: <trimesh.Trimesh(...)>'. The message
+    now says to pass mesh.vertices; with them the colours are one RGBA per vertex, sampled from the image."""
+    from stepterrain.globe import drape_colors
+
+    mesh = _small_globe().mesh()
+    image = np.zeros((90, 180, 3), np.uint8)
+    image[:45] = (200, 10, 10)  # the northern hemisphere red, the southern black
+    message = (r"^vertices must be a \(V, 3\) array of planet-centred positions; got a trimesh\.Trimesh: pass its "
+               r"vertices, mesh\.visual\.vertex_colors = drape_colors\(mesh\.vertices, image\)$")
+    with pytest.raises(InvalidInputError, match=message):
+        drape_colors(mesh, image)
+    colors = drape_colors(mesh.vertices, image)
+    assert colors.shape == (len(mesh.vertices), 4)
+    north = np.asarray(mesh.vertices)[:, 2] > 0.1 * np.linalg.norm(mesh.vertices, axis=1)
+    assert (colors[north] == (200, 10, 10, 255)).all() and (colors[~north & (np.asarray(mesh.vertices)[:, 2] < 0)]
+                                                              [:, 0] < 200).all()
