@@ -86,7 +86,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")

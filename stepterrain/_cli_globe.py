@@ -80,7 +80,7 @@ def add_parser(commands: Any) -> None:
                    help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
                         "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.3mf "
                         "and the --png render; default: colours by elevation")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")

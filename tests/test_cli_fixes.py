@@ -973,3 +973,18 @@ def test_info_shows_the_list_metadata_stepterrain_writes(tmp_path, capsys):
     lines = dict(line.split(None, 1) for line in out.splitlines())
     assert lines["meta.isovalues"] == "(0, 10, 20, 30, 40, 50, ..., 120; 13 values)"
     assert lines["meta.isovalues_count"] == "13"
+
+
+def test_every_device_option_says_its_default(capsys):
+    """``stepterrain steps --help`` and ``batch --help`` said '--device ... (default: Warp's)', while globe, closeup and
+    texture said only 'Warp device: cpu, cuda, cuda:0', as if they had another default (they have the same: Warp's,
+    the first GPU where there is one)."""
+    parser = cli.build_parser()
+    subcommands = next(a for a in parser._actions if a.dest == "command").choices
+    seen = []
+    for name, sub in subcommands.items():
+        for action in sub._actions:
+            if "--device" in action.option_strings:
+                assert action.default is None and action.help.endswith("(default: Warp's)"), (name, action.help)
+                seen.append(name)
+    assert sorted(seen) == ["batch", "closeup", "globe", "steps", "texture"]
