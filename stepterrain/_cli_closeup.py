@@ -189,6 +189,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     colors = _per_closeup(args.color, n, None, "--color")
     steps = _per_closeup(args.stepped, n, None, "--stepped")
     for interval in steps:
+        if interval is not None and not (math.isfinite(interval) and interval >= 0):  # 0 is allowed: continuous
+            raise InvalidInputError(f"--stepped must be a finite number >= 0 (0: a continuous close-up); got "
+                                    f"{interval:g}")
         if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option
             try:
                 isovalues(terrain.height_range, interval=interval)

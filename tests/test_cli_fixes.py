@@ -988,3 +988,23 @@ def test_every_device_option_says_its_default(capsys):
                 assert action.default is None and action.help.endswith("(default: Warp's)"), (name, action.help)
                 seen.append(name)
     assert sorted(seen) == ["batch", "closeup", "globe", "steps", "texture"]
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf"])
+def test_closeup_stepped_refusal_says_zero_is_allowed(value, tmp_path, capsys):
+    """``closeup --stepped -1`` said '--stepped must be a positive finite number', though its help says '0:
+    continuous' and --stepped 0 is accepted; the refusal now names the range the option takes, and 0 still renders a
+    continuous close-up."""
+    out = tmp_path / "c.png"
+    code, _, err = run(capsys, "-q", "closeup", "--stepped", value, "-o", out, "--size", "128x96")
+    assert code == 2 and not out.exists()
+    assert f"error: --stepped must be a finite number >= 0 (0: a continuous close-up); got {float(value):g}" in err, err
+    if value == "-1" and cli_renders():  # 0: the continuous close-up, accepted as before
+        code, _, err = run(capsys, "-q", "closeup", "--stepped", "0", "-o", out, "--size", "128x96")
+        assert code == 0 and out.exists(), err
+
+
+def cli_renders() -> bool:
+    from stepterrain import render
+
+    return bool(render.offscreen_available()[0])
