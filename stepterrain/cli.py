@@ -355,9 +355,12 @@ def _isovalue_base(args: argparse.Namespace) -> float:
 def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     out = Path(path)
     if out.suffix.lower() not in extensions:
+        # 'steps -o render.png' (closeup's and texture's --output take a .png): the picture has an option of its own
+        png = out.suffix.lower() == ".png" and what == "--output"
+        render = "; --png writes a render, beside the mesh" if png else ""
         raise InvalidInputError(
             f"{what} {path!r} has an unknown extension {out.suffix!r}; "
-            f"expected one of {', '.join(extensions)}"
+            f"expected one of {', '.join(extensions)}{render}"
         )
     return out
 

@@ -1008,3 +1008,16 @@ def cli_renders() -> bool:
     from stepterrain import render
 
     return bool(render.offscreen_available()[0])
+
+
+@pytest.mark.parametrize("command", ["steps", "globe"])
+def test_a_mesh_output_named_png_points_to_the_png_option(command, tmp_path, capsys):
+    """closeup's and texture's --output take a .png, so ``stepterrain steps -o terrain.png`` was a natural try; it
+    said only that '.png' is an unknown extension. The refusal now says that --png writes a render, beside the mesh;
+    other extensions are refused as before."""
+    code, _, err = run(capsys, "-q", command, "-o", tmp_path / "terrain.png")
+    assert code == 2 and not (tmp_path / "terrain.png").exists()
+    assert err.rstrip().endswith("has an unknown extension '.png'; expected one of .glb, .gltf, .obj, .ply, .stl, "
+                                 ".3mf; --png writes a render, beside the mesh"), err
+    code, _, err = run(capsys, "-q", command, "-o", tmp_path / "terrain.dae")
+    assert code == 2 and err.rstrip().endswith("expected one of .glb, .gltf, .obj, .ply, .stl, .3mf"), err
