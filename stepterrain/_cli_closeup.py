@@ -86,7 +86,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")
@@ -189,6 +189,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     colors = _per_closeup(args.color, n, None, "--color")
     steps = _per_closeup(args.stepped, n, None, "--stepped")
     for interval in steps:
+        if interval is not None and not (math.isfinite(interval) and interval >= 0):  # 0 is allowed: continuous
+            raise InvalidInputError(f"--stepped must be a finite number >= 0 (0: a continuous close-up); got "
+                                    f"{interval:g}")
         if interval:  # the levels of a stepped close-up span the terrain's height range: named by the option
             try:
                 isovalues(terrain.height_range, interval=interval)

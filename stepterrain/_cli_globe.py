@@ -20,6 +20,7 @@ from .export import MESH_EXTENSIONS
 from .io import npz_nodata
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
+_METRICS = "geometric,distance,clip"  # --metrics' default with the camera (globe.METRICS)
 
 _EPILOG = """\
 examples:
@@ -70,14 +71,16 @@ def add_parser(commands: Any) -> None:
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
     p.add_argument("--bounds", choices=("cone", "sphere"), default="cone",
                    help="bounding shapes: cone frustums (default) or spheres")
-    p.add_argument("--metrics", default="geometric,distance,clip", metavar="a,b,c",
-                   help="metrics multiplied together (default geometric,distance,clip)")
-    p.add_argument("--no-cull", action="store_true", help="keep triangles outside the view (a closed mesh)")
+    p.add_argument("--metrics", default=None, metavar="a,b,c",
+                   help="metrics multiplied together (default geometric,distance,clip; with --no-camera geometric: "
+                        "distance and clip need the camera)")
+    p.add_argument("--no-cull", action="store_true",
+                   help="keep triangles outside the view (a closed mesh); with the camera and the clip metric")
     p.add_argument("--texture", type=_path, metavar="IMAGE",
                    help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
                         "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.3mf "
                         "and the --png render; default: colours by elevation")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")
@@ -139,10 +142,24 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
-    metrics = tuple(m.strip() for m in args.metrics.split(","))
+    metrics = tuple(m.strip() for m in (args.metrics if args.metrics is not None else _METRICS).split(","))
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
                                 f"got {args.metrics!r} (an empty name)")
+    # the library ignores the view's metrics without a camera, and culls only by the clip metric: such options
+    # were accepted, did nothing, and the mesh's metadata and the progress line named metrics that were not applied
+    viewed = [m for m in metrics if m in ("distance", "clip")]
+    if args.no_camera:
+        if viewed and args.metrics is not None:
+            verb = "needs" if len(viewed) == 1 else "need"
+            raise InvalidInputError(f"--metrics {','.join(viewed)} {verb} the camera: not with --no-camera, which "
+                                    "refines by the geometric error alone")
+        if args.no_cull:
+            raise InvalidInputError("--no-cull applies only with the camera (with --no-camera nothing is culled)")
+        metrics = tuple(m for m in metrics if m not in viewed)
+    elif args.no_cull and "clip" not in metrics:
+        raise InvalidInputError(f"--no-cull applies only with the clip metric (only it culls); got --metrics "
+                                f"{args.metrics}")
     _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
@@ -223,9 +240,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         "error": args.error,
         "bounds": args.bounds,
         "metrics": ",".join(metrics),
-        "eye_lat_lon_alt": [lat_deg, lon_deg, altitude],
         "exaggeration": args.exaggeration,
     }
+    if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png render)
+        metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
     mesh.metadata.pop("node_entry", None)
     written = export.save_mesh(textured if textured is not None else mesh, out, metadata=metadata)
     progress.done(_size(written))

@@ -81,7 +81,7 @@ def add_parser(commands: Any) -> None:
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
                    "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0")
+    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png",
                    help="the texture as PNG, or as a GeoTIFF (.tif, .tiff: georeferenced on the DEM's pixel grid and "
                         "CRS; needs rasterio, pip install 'stepterrain[geo]'); RGBA with alpha 0 at nodata for a DEM "

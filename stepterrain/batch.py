@@ -279,7 +279,18 @@ def plan_items(
             raise InvalidInputError(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
-        terrain = load_dem(path, height_unit=height_unit)
+        try:
+            terrain = load_dem(path, height_unit=height_unit)
+        except DataFileError:
+            # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
+            # as if the file were broken; a series in memory says what the option is for
+            series = _series_or_none(path)
+            if series is not None:
+                raise InvalidInputError(
+                    f"tile_size applies to one (H, W) raster; got a (T, H, W) series {series.shape} in "
+                    f"{str(path)!r}: leave tile_size (the CLI's --tile) out to mesh one item per frame"
+                ) from None
+            raise
         return _tile_items(terrain.heights.shape, tile_size), _terrain_source(terrain)
     if isinstance(source, Terrain):
         if source.kind != "grid":
@@ -389,6 +400,16 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     if not isinstance(loaded, np.ndarray):  # 'units' = "ft" was meshed as metres, 3.3 times too high
         heights, _ = _heights_in_metres(heights, _npz_text(loaded, "units", file), file, "its 'units'")
     return heights
+
+
+def _series_or_none(path: Path) -> NDArray[np.float32] | None:
+    """The (T, H, W) series in an .npy or .npz file that load_dem refused, else None (not a series, or no good)."""
+    if path.suffix.lower() not in (".npy", ".npz"):
+        return None
+    try:
+        return load_series(path)
+    except DataFileError:
+        return None
 
 
 def _terrain_source(terrain: Terrain) -> _Source:

@@ -390,9 +390,12 @@ def _isovalue_base(args: argparse.Namespace) -> float:
 def _check_output(path: str, extensions: Sequence[str], what: str) -> Path:
     out = Path(path)
     if out.suffix.lower() not in extensions:
+        # 'steps -o render.png' (closeup's and texture's --output take a .png): the picture has an option of its own
+        png = out.suffix.lower() == ".png" and what == "--output"
+        render = "; --png writes a render, beside the mesh" if png else ""
         raise InvalidInputError(
             f"{what} {path!r} has an unknown extension {out.suffix!r}; "
-            f"expected one of {', '.join(extensions)}"
+            f"expected one of {', '.join(extensions)}{render}"
         )
     return out
 
@@ -638,8 +641,15 @@ def _fmt(value: Any) -> str:
     if isinstance(value, float):
         return f"{value:.2f}".rstrip("0").rstrip(".") if abs(value) >= 1e4 else f"{value:.6g}"
     if isinstance(value, (tuple, list)):
+        if len(value) > _FMT_ITEMS:  # a long list (isovalues at a fine interval): its ends and its length
+            shown = [_fmt(v) for v in value[: _FMT_ITEMS - 2]] + ["...", _fmt(value[-1])]
+            return "(" + ", ".join(shown) + f"; {len(value)} values)"
         return "(" + ", ".join(_fmt(v) for v in value) + ")"
     return str(value)
+
+
+#: The most items of a list the text output of ``info`` writes out in full (JSON writes every one).
+_FMT_ITEMS = 8
 
 
 def _mesh_summary(path: Path) -> dict[str, Any]:
@@ -682,7 +692,11 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
             value = value.strip("\x00").strip()
             if not value:
                 continue
-        if isinstance(value, (str, int, float, bool)) and key not in summary:
+        # lists of plain values too: the globe's eye (eye_lat_lon_alt), a batch tile's node_rows/node_cols, the
+        # isovalues; they were left out, so `info` showed no eye for a view-dependent globe mesh
+        if isinstance(value, (tuple, list)) and all(isinstance(v, (str, int, float, bool)) for v in value):
+            value = list(value)
+        if isinstance(value, (str, int, float, bool, list)) and key not in summary:
             summary[f"meta.{key}"] = value
     return summary
 

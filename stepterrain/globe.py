@@ -1495,8 +1495,22 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     Raises
     ------
     InvalidInputError
-        The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3), not finite or at the centre.
+        The image is not (H, W, 3|4) or cannot be read; ``vertices`` not (V, 3) (a mesh: pass ``mesh.vertices``),
+        not finite or at the centre.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> lat = np.linspace(89.5, -89.5, 180); lon = np.linspace(-179.5, 179.5, 360)
+    >>> mesh = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=9, device="cpu").mesh()
+    >>> mesh.visual.vertex_colors = drape_colors(mesh.vertices, np.zeros((90, 180, 3), np.uint8))
+    >>> mesh.visual.vertex_colors.shape == (len(mesh.vertices), 4)
+    True
     """
+    if isinstance(vertices, trimesh.Trimesh):  # drape_texture takes the mesh; this one read it as 'dtype object'
+        raise InvalidInputError("vertices must be a (V, 3) array of planet-centred positions; got a "
+                                "trimesh.Trimesh: pass its vertices, mesh.visual.vertex_colors = "
+                                "drape_colors(mesh.vertices, image)")
     pixels = _texture_pixels(image)
     v = real_numbers(vertices, "vertices", "a (V, 3) array of planet-centred positions")
     if v.ndim != 2 or v.shape[1] != 3:

@@ -1229,3 +1229,32 @@ def test_the_contact_sheet_is_the_window_size_asked_for(tmp_path):
         r, c = divmod(k, 4)
         assert drawn[r * 100 // 3 : (r + 1) * 100 // 3, c * 25 : (c + 1) * 25].mean() > 0.05, k  # each item shows
     assert not drawn[2 * 100 // 3 :, 50:].any()  # cells 10 and 11 hold no item
+
+
+@pytest.mark.parametrize("ext", [".npy", ".npz"])
+def test_a_series_file_with_a_tile_size_is_told_what_the_option_is_for(tmp_path, capsys, ext):
+    """``stepterrain batch series.npy --tile 32`` said "cannot read 'series.npy': expected a 2-D (H, W) elevation
+    grid; got array of shape (6, 64, 80)", as if the file were broken (the same series in memory said that tile_size
+    applies to one raster). A series file with a tile size says so now, naming --tile on the command line; without
+    it the file meshes one item per frame, and a 2-D file still tiles."""
+    from stepterrain.cli import main
+    from stepterrain.errors import InvalidInputError
+
+    stack = np.add.outer(np.arange(3.0), np.add.outer(np.arange(9.0), np.arange(11.0))).astype(np.float32)
+    path = tmp_path / f"series{ext}"
+    np.save(path, stack) if ext == ".npy" else np.savez(path, heights=stack)
+    with pytest.raises(InvalidInputError, match=r"^tile_size applies to one \(H, W\) raster; got a \(T, H, W\) "
+                                                r"series \(3, 9, 11\) in '.*series\.np[yz]': leave tile_size "
+                                                r"\(the CLI's --tile\) out to mesh one item per frame$"):
+        batch(path, tmp_path / "out", tile_size=4, interval=1.0, scheduler="serial")
+    assert main(["-q", "batch", str(path), "--tile", "4", "-o", str(tmp_path / "cli"), "--scheduler", "serial"]) == 2
+    err = capsys.readouterr().err
+    assert "error: --tile applies to one (H, W) raster; got a (T, H, W) series (3, 9, 11) in " in err, err
+    assert "leave --tile out to mesh one item per frame" in err and not (tmp_path / "cli").exists()
+
+    report = batch(path, tmp_path / "frames", interval=1.0, scheduler="serial")
+    assert report.ok and len(report.done) == 3
+    flat = tmp_path / f"one{ext}"
+    np.save(flat, stack[0]) if ext == ".npy" else np.savez(flat, heights=stack[0])
+    report = batch(flat, tmp_path / "tiles", tile_size=4, interval=1.0, scheduler="serial")
+    assert report.ok and sorted(r.key for r in report.done)[:2] == ["tile_r0_c0", "tile_r0_c1"]

@@ -960,3 +960,83 @@ def test_an_output_that_is_a_named_pipe_is_refused_before_any_work(tmp_path, cap
         line = one_error_line(err, "steps")
         assert f"--png '{tmp_path / png}' is a named pipe, not a regular file" in line
         assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "link.png", "pipe.png"]
+
+
+def test_info_shows_the_list_metadata_stepterrain_writes(tmp_path, capsys):
+    """info showed only a mesh's scalar metadata: the eye a view-dependent globe mesh was refined for
+    (eye_lat_lon_alt), a batch tile's node_rows/node_cols and a stepped mesh's isovalues were left out, though its
+    help promises 'the metadata stepterrain wrote'. Lists of plain values are shown now: in full in JSON, in the text
+    output in full up to 8 values, a longer one by its first values, its last and its length."""
+    import json
+
+    globe = tmp_path / "globe.glb"
+    code, out, err = run(capsys, "-q", "globe", "--face-size", "9", "--eye", "46,9,400000", "-o", globe,
+                         "--device", "cpu")
+    assert code == 0, err
+    code, out, err = run(capsys, "info", globe, "--json")
+    assert code == 0, err
+    assert json.loads(out)["meta.eye_lat_lon_alt"] == [46.0, 9.0, 400000.0]
+    code, out, err = run(capsys, "info", globe)
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["meta.eye_lat_lon_alt"] == "(46, 9, 400000)"
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(6.0), np.arange(7.0)) * 10.0)
+    steps = tmp_path / "steps.glb"
+    levels = ",".join(str(v) for v in range(0, 130, 10))  # 13 isovalues
+    code, out, err = run(capsys, "-q", "steps", tmp_path / "ramp.npy", "--levels", levels, "-o", steps,
+                         "--device", "cpu")
+    assert code == 0, err
+    code, out, err = run(capsys, "info", steps, "--json")
+    assert json.loads(out)["meta.isovalues"] == [float(v) for v in range(0, 130, 10)]
+    code, out, err = run(capsys, "info", steps)
+    lines = dict(line.split(None, 1) for line in out.splitlines())
+    assert lines["meta.isovalues"] == "(0, 10, 20, 30, 40, 50, ..., 120; 13 values)"
+    assert lines["meta.isovalues_count"] == "13"
+
+
+def test_every_device_option_says_its_default(capsys):
+    """``stepterrain steps --help`` and ``batch --help`` said '--device ... (default: Warp's)', while globe, closeup and
+    texture said only 'Warp device: cpu, cuda, cuda:0', as if they had another default (they have the same: Warp's,
+    the first GPU where there is one)."""
+    parser = cli.build_parser()
+    subcommands = next(a for a in parser._actions if a.dest == "command").choices
+    seen = []
+    for name, sub in subcommands.items():
+        for action in sub._actions:
+            if "--device" in action.option_strings:
+                assert action.default is None and action.help.endswith("(default: Warp's)"), (name, action.help)
+                seen.append(name)
+    assert sorted(seen) == ["batch", "closeup", "globe", "steps", "texture"]
+
+
+@pytest.mark.parametrize("value", ["-1", "nan", "inf"])
+def test_closeup_stepped_refusal_says_zero_is_allowed(value, tmp_path, capsys):
+    """``closeup --stepped -1`` said '--stepped must be a positive finite number', though its help says '0:
+    continuous' and --stepped 0 is accepted; the refusal now names the range the option takes, and 0 still renders a
+    continuous close-up."""
+    out = tmp_path / "c.png"
+    code, _, err = run(capsys, "-q", "closeup", "--stepped", value, "-o", out, "--size", "128x96")
+    assert code == 2 and not out.exists()
+    assert f"error: --stepped must be a finite number >= 0 (0: a continuous close-up); got {float(value):g}" in err, err
+    if value == "-1" and cli_renders():  # 0: the continuous close-up, accepted as before
+        code, _, err = run(capsys, "-q", "closeup", "--stepped", "0", "-o", out, "--size", "128x96")
+        assert code == 0 and out.exists(), err
+
+
+def cli_renders() -> bool:
+    from stepterrain import render
+
+    return bool(render.offscreen_available()[0])
+
+
+@pytest.mark.parametrize("command", ["steps", "globe"])
+def test_a_mesh_output_named_png_points_to_the_png_option(command, tmp_path, capsys):
+    """closeup's and texture's --output take a .png, so ``stepterrain steps -o terrain.png`` was a natural try; it
+    said only that '.png' is an unknown extension. The refusal now says that --png writes a render, beside the mesh;
+    other extensions are refused as before."""
+    code, _, err = run(capsys, "-q", command, "-o", tmp_path / "terrain.png")
+    assert code == 2 and not (tmp_path / "terrain.png").exists()
+    assert err.rstrip().endswith("has an unknown extension '.png'; expected one of .glb, .gltf, .obj, .ply, .stl, "
+                                 ".3mf; --png writes a render, beside the mesh"), err
+    code, _, err = run(capsys, "-q", command, "-o", tmp_path / "terrain.dae")
+    assert code == 2 and err.rstrip().endswith("expected one of .glb, .gltf, .obj, .ply, .stl, .3mf"), err

@@ -798,3 +798,57 @@ def test_render_view_close_over_the_ground_does_not_clip_the_ground_away(flat_gl
             mesh.visual.vertex_colors = np.where(near[:, None], [255, 0, 0, 255], [0, 0, 255, 255]).astype(np.uint8)
             image = render_view(mesh, camera, window_size=(160, 100)).astype(int)
             assert (image[:, :, 0] > image[:, :, 2]).all(), (altitude, tilt, cull)
+
+
+def test_the_cli_refuses_view_options_that_do_nothing_and_records_only_what_was_applied(tmp_path, capsys):
+    """``globe --no-camera --metrics geometric,clip`` and ``--no-camera --no-cull`` (or ``--no-cull`` without the
+    clip metric) were accepted and did nothing: the library ignores the view's metrics without a camera and culls
+    only by the clip metric; the progress line and the mesh's metadata named 'geometric,distance,clip' and an eye
+    for a mesh refined by the geometric error alone. Such options are refused by name now, and a --no-camera mesh
+    records the metrics it was refined by (geometric) and no eye."""
+    from stepterrain.cli import main
+    from stepterrain.export import read_mesh
+
+    out = tmp_path / "g.glb"
+    base = ["globe", "--face-size", "9", "--device", "cpu", "-o", str(out)]
+    for extra, message in [
+        (["--no-camera", "--metrics", "geometric,clip"], "error: --metrics clip needs the camera: not with "
+                                                          "--no-camera, which refines by the geometric error alone"),
+        (["--no-camera", "--metrics", "distance,geometric,clip"], "error: --metrics distance,clip need the camera"),
+        (["--no-camera", "--no-cull"], "error: --no-cull applies only with the camera"),
+        (["--metrics", "geometric,distance", "--no-cull"], "error: --no-cull applies only with the clip metric "
+                                                           "(only it culls); got --metrics geometric,distance"),
+    ]:
+        assert main([*base, *extra]) == 2, extra
+        assert message in capsys.readouterr().err, extra
+        assert not out.exists()
+
+    assert main([*base, "--no-camera", "--error", "0"]) == 0
+    assert "metrics geometric\n" in capsys.readouterr().err
+    meta = read_mesh(out).metadata
+    assert meta["metrics"] == "geometric" and "eye_lat_lon_alt" not in meta
+    assert len(read_mesh(out).faces) == 12 * 8**2  # error 0 without a camera: the full-resolution sphere
+
+    assert main([*base, "--eye", "46,9,400000", "--no-cull"]) == 0  # with the camera: as before
+    meta = read_mesh(out).metadata
+    assert meta["metrics"] == "geometric,distance,clip" and meta["eye_lat_lon_alt"] == [46.0, 9.0, 400000.0]
+
+
+def test_drape_colors_given_the_mesh_says_to_pass_its_vertices():
+    """drape_texture takes the mesh, so a user passed the mesh to drape_colors too, and was told 'vertices must be a
+    (V, 3) array of planet-centred positions (real numbers); got dtype object: <trimesh.Trimesh(...)>'. The message
+    now says to pass mesh.vertices; with them the colours are one RGBA per vertex, sampled from the image."""
+    from stepterrain.globe import drape_colors
+
+    mesh = _small_globe().mesh()
+    image = np.zeros((90, 180, 3), np.uint8)
+    image[:45] = (200, 10, 10)  # the northern hemisphere red, the southern black
+    message = (r"^vertices must be a \(V, 3\) array of planet-centred positions; got a trimesh\.Trimesh: pass its "
+               r"vertices, mesh\.visual\.vertex_colors = drape_colors\(mesh\.vertices, image\)$")
+    with pytest.raises(InvalidInputError, match=message):
+        drape_colors(mesh, image)
+    colors = drape_colors(mesh.vertices, image)
+    assert colors.shape == (len(mesh.vertices), 4)
+    north = np.asarray(mesh.vertices)[:, 2] > 0.1 * np.linalg.norm(mesh.vertices, axis=1)
+    assert (colors[north] == (200, 10, 10, 255)).all() and (colors[~north & (np.asarray(mesh.vertices)[:, 2] < 0)]
+                                                              [:, 0] < 200).all()
