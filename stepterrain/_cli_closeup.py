@@ -169,7 +169,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                      "(kept, then copied once by the writer)", hint="render fewer or smaller frames")
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit, crop=args.crop, coarsen=args.coarsen)
+    terrain = _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop,
+                          coarsen=args.coarsen)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)

@@ -183,7 +183,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit, crop=args.crop, coarsen=args.coarsen)
+    terrain = _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop,
+                          coarsen=args.coarsen)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
 
     device = resolve_device(args.device)

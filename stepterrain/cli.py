@@ -189,9 +189,21 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _cell_size(text: str) -> tuple[float, ...]:
+    """A ``--spacing``: one cell size D or dx,dy, positive metres."""
+    what = "one cell size D or dx,dy in positive metres"
+    values = _floats(None, what)(text)
+    if len(values) > 2 or min(values) <= 0:
+        raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
+    return values
+
+
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     """The INPUT DEM's options: ``--height-unit``, ``--crop`` and ``--coarsen`` (see :func:`_load_input`)."""
     _add_height_unit(p)
+    p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
+                   help="the node spacing in metres of an INPUT with no georeferencing (.npy, a PNG heightmap, a "
+                        "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
                         "prints; a geographic DEM's local metres)")
@@ -200,10 +212,11 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                         "for the memory budget, or more detail than needed")
 
 
-def _load_input(path: str | None, height_unit: str | None, *, crop: Sequence[float] | None = None,
-                coarsen: int | None = None) -> Any:
+def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[float] | None = None,
+                crop: Sequence[float] | None = None, coarsen: int | None = None) -> Any:
     """The DEM at ``path`` (``--height-unit`` applied), else the embedded one (where a unit is refused); then
-    ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen`` (:meth:`Terrain.coarsen`, block means)."""
+    ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen``
+    (:meth:`Terrain.coarsen`, block means)."""
     from .io import load_dem, sample_dem
 
     if path:
@@ -213,6 +226,15 @@ def _load_input(path: str | None, height_unit: str | None, *, crop: Sequence[flo
             f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {height_unit!r}")
     else:
         terrain = sample_dem()
+    if spacing is not None:
+        if terrain.crs is not None or terrain.spacing != (1.0, -1.0) or terrain.origin != (0.0, 0.0):
+            raise InvalidInputError(
+                f"--spacing applies to a DEM file with no georeferencing (.npy, a PNG heightmap, a GeoTIFF without a "
+                f"geotransform); {path or 'the embedded DEM'} places its nodes itself: spacing {terrain.spacing}, "
+                f"origin {terrain.origin}" + (f", CRS {terrain.crs}" if terrain.crs else ""))
+        dx, dy = (spacing[0], spacing[-1])
+        terrain = type(terrain).from_heights(terrain.heights, spacing=(dx, -dy), source=terrain.source,
+                                             height_unit=terrain.height_unit)
     try:  # the methods' refusals, prefixed with the option that passed their argument
         option = "--crop"
         if crop is not None:
@@ -512,7 +534,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     # load
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit, crop=args.crop, coarsen=args.coarsen)
+    terrain = _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen)
     lo, hi = terrain.height_range
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes, heights {lo:g} to {hi:g},")
 

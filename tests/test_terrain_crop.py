@@ -1,4 +1,5 @@
-"""Terrain.crop and Terrain.coarsen (and --crop / --coarsen): smaller grids of a DEM too big to step whole.
+"""Terrain.crop and Terrain.coarsen (and --crop / --coarsen): smaller grids of a DEM too big to step whole; and
+--spacing, the cell size of a DEM file with no georeferencing.
 
 Checked against brute force over the nodes' world positions (heightfield_mesh's vertices) and NumPy block means,
 on hand-made grids, hypothesis grids with either spacing sign, and the real DEMs in shared/data.
@@ -235,4 +236,41 @@ def test_bad_crop_and_coarsen_exit_2_writing_nothing(tmp_path, capsys, command, 
     assert code == 2
     assert message in err, err
     assert "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------------------------------------ --spacing
+def test_spacing_places_a_plain_array_dem_as_the_api_would(tmp_path, capsys):
+    """A .npy (or PNG) DEM has no georeferencing: read as 1 m cells, a 30 m DEM rendered as a spike forest, and
+    the CLI had no way to say otherwise. --spacing D (or dx,dy) gives its cells, rows north to south."""
+    z = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"][:60, :80].astype(np.float32)
+    source = tmp_path / "dem.npy"
+    np.save(source, z)
+    for given, spacing in (("30", (30.0, -30.0)), ("30,20", (30.0, -20.0))):
+        out = tmp_path / "dem.ply"
+        assert cli.main(["-q", "steps", str(source), "--spacing", given, "--interval", "50", "-o", str(out)]) == 0
+        mesh = st.export.read_mesh(out)
+        reference = st.stepped(st.Terrain.from_heights(z, spacing=spacing), interval=50.0, device="cpu")
+        assert len(mesh.faces) == len(reference.faces)
+        np.testing.assert_allclose(mesh.bounds, reference.bounds, atol=1e-3)
+        assert mesh.bounds[1][0] - mesh.bounds[0][0] == pytest.approx(79 * spacing[0])
+        assert mesh.bounds[1][1] - mesh.bounds[0][1] == pytest.approx(59 * -spacing[1])
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize(
+    ("source", "value", "message"),
+    [
+        (None, "0", "argument --spacing: expected one cell size D or dx,dy in positive metres; got '0'"),
+        (None, "1,2,3", "argument --spacing: expected one cell size D or dx,dy in positive metres; got '1,2,3'"),
+        (None, "30", "error: --spacing applies to a DEM file with no georeferencing (.npy, a PNG heightmap, a GeoTIFF "
+                     "without a geotransform); the embedded DEM places its nodes itself: spacing (30.0, -30.0)"),
+        ("front_range_srtmgl3_3arcsec.tif", "30", "front_range_srtmgl3_3arcsec.tif places its nodes itself"),
+    ],
+)
+def test_spacing_is_refused_where_the_file_places_its_nodes(tmp_path, capsys, source, value, message):
+    argv = ["steps"] + ([str(SHARED_DATA / source)] if source else []) + ["--spacing", value]
+    code = cli.main([*argv, "-o", str(tmp_path / "x.glb")])
+    _, err = capsys.readouterr()
+    assert code == 2 and message in err, err
     assert list(tmp_path.iterdir()) == []
