@@ -89,8 +89,9 @@ def add_parser(commands: Any) -> None:
                         "(default: a LocalCluster of --workers processes)")
     p.add_argument("--workers", type=int, metavar="N",
                    help="LocalCluster worker processes (default 2); not with --scheduler")
-    p.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
-                   help="seconds to reach --scheduler before giving up (default 10)")
+    p.add_argument("--connect-timeout", type=float, default=None, metavar="S",
+                   help="seconds to reach --scheduler (or start the LocalCluster) before giving up (default 10); "
+                        "not with --scheduler serial")
     p.add_argument("--retries", type=int, default=2, metavar="N",
                    help="extra attempts for an item whose task failed (default 2)")
     p.add_argument("--no-resume", action="store_true", help="redo every item, even complete ones")
@@ -139,6 +140,11 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         # a folder's DEM files are its .npy .npz .png .tif: the next run read the overview as a tile and failed on it
         raise InvalidInputError(f"--png {str(png)!r} lies in the INPUT folder {args.input!r}, where a rerun would read "
                                 "it as a DEM tile; write the overview elsewhere")
+    if args.connect_timeout is not None and args.scheduler == "serial":  # no cluster to reach: ignored without a word
+        raise InvalidInputError(f"--connect-timeout applies to a dask cluster, not with --scheduler serial; got "
+                                f"--connect-timeout {args.connect_timeout:g}")
+    if args.connect_timeout is None:
+        args.connect_timeout = 10.0
     if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= MAX_CONNECT_TIMEOUT):
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")

@@ -831,6 +831,9 @@ def test_cli_batch_folder_exit_codes(tmp_path, capsys):
         # 1e300 s waited without end for an unreachable scheduler
         (["--connect-timeout", "1e300", "--scheduler", "tcp://127.0.0.1:1"], "up to 86400 (a day); got 1e+300"),
         (["--colormap", "nope"], "--colormap must name"),  # was "colors must name ..." from each item
+        # no cluster to reach: the timeout was ignored without a word, as --workers with --scheduler was
+        (["--connect-timeout", "5", "--scheduler", "serial"],
+         "--connect-timeout applies to a dask cluster, not with --scheduler serial; got --connect-timeout 5"),
     ],
 )
 def test_cli_batch_bad_input_exit_2(tmp_path, capsys, argv, match):

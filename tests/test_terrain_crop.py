@@ -246,9 +246,9 @@ def test_spacing_places_a_plain_array_dem_as_the_api_would(tmp_path, capsys):
     z = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"][:60, :80].astype(np.float32)
     source = tmp_path / "dem.npy"
     np.save(source, z)
-    for given, spacing in (("30", (30.0, -30.0)), ("30,20", (30.0, -20.0))):
+    for typed, spacing in (("30", (30.0, -30.0)), ("30,20", (30.0, -20.0))):
         out = tmp_path / "dem.ply"
-        assert cli.main(["-q", "steps", str(source), "--spacing", given, "--interval", "50", "-o", str(out)]) == 0
+        assert cli.main(["-q", "steps", str(source), "--spacing", typed, "--interval", "50", "-o", str(out)]) == 0
         mesh = st.export.read_mesh(out)
         reference = st.stepped(st.Terrain.from_heights(z, spacing=spacing), interval=50.0, device="cpu")
         assert len(mesh.faces) == len(reference.faces)
