@@ -1453,6 +1453,8 @@ def _run_locked(
                     _restore_environ(environ)
     # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
     _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+    if recorder.unrecorded is not None:
+        notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
     if kept:
         shown = ", ".join(kept[:3]) + (", ..." if len(kept) > 3 else "")
@@ -1553,12 +1555,18 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
 
 
 class _Recorder:
-    """Keeps the manifest: finished items are added and the file is rewritten at most once a second."""
+    """Keeps the manifest: finished items are added and the file is rewritten at most once a second.
+
+    A rewrite that fails (a full disk, a folder gone read-only) does not end the run: the outputs are written
+    atomically and complete without it, and a rerun redoes what it does not record. The entries stay to write at
+    the next flush; :attr:`unrecorded` says how many outputs of this run the manifest on disk lacks, and why."""
 
     def __init__(self, folder: Path, entries: dict[str, Any], fingerprints: Mapping[str, str]) -> None:
         self.folder, self.entries, self.fingerprints = folder, entries, fingerprints
         self.dirty = False
         self.last = 0.0
+        self.pending = 0  # outputs of this run added since the manifest was last written
+        self.error: str | None = None  # why the last rewrite failed (None: it did not)
 
     def add(self, result: ItemResult) -> None:
         if result.status != "done" or result.path is None:
@@ -1572,14 +1580,27 @@ class _Recorder:
             "vertices": result.vertices,
         }
         self.dirty = True
+        self.pending += 1
         if time.monotonic() - self.last > _MANIFEST_FLUSH_S:
             self.flush()
 
     def flush(self) -> None:
         if self.dirty:
-            _write_manifest(self.folder, self.entries)
-            self.dirty = False
+            try:
+                _write_manifest(self.folder, self.entries)
+            except OSError as exc:  # also the DataFileError of atomic_path: ENOSPC ended the whole run, unattributed
+                self.error = exc.strerror or str(exc)
+            else:
+                self.dirty, self.pending, self.error = False, 0, None
             self.last = time.monotonic()
+
+    @property
+    def unrecorded(self) -> str | None:
+        """A note when the manifest on disk lacks outputs of this run (its last rewrite failed), else None."""
+        if self.error is None:
+            return None
+        return (f"the manifest {MANIFEST_NAME} could not be written ({self.error}): it does not record "
+                f"{counted(self.pending, 'output')} of this run (written complete), which a rerun redoes")
 
 
 def _progress_bar(total: int, initial: int, enabled: bool) -> Any:

@@ -1204,3 +1204,32 @@ def test_a_one_worker_cluster_is_described_in_the_singular(tmp_path):
     report = batch(heights, tmp_path / "out", tile_size=4, interval=25.0, base=0.5, workers=1)
     assert report.scheduler == "LocalCluster (1 worker process)", report.scheduler
     assert not report.failed
+
+
+def test_a_manifest_that_cannot_be_written_does_not_abort_the_run(tmp_path, monkeypatch):
+    # A disk that filled up just as the manifest was rewritten (a tile fitted, the manifest's page did not) ended the
+    # whole run with "stepterrain batch: error: [Errno 28] No space left on device", exit 2: no file named, the items
+    # after it never run, the tiles already written neither recorded nor reported
+    import errno
+
+    import stepterrain.batch as batch_module
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    out = tmp_path / "out"
+    real = batch_module._write_manifest
+
+    def full_disk(output_dir, entries):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(batch_module, "_write_manifest", full_disk)
+    report = batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+    assert report.ok and len(report.done) == 4  # every item ran, and its output is there, complete
+    assert all(Path(r.path).stat().st_size == r.bytes for r in report.done)
+    assert not (out / MANIFEST_NAME).exists()
+    note = [n for n in report.notes if MANIFEST_NAME in n]
+    assert len(note) == 1 and "No space left on device" in note[0] and "4 outputs" in note[0], report.notes
+    assert note[0] in report.summary()
+    monkeypatch.setattr(batch_module, "_write_manifest", real)  # space again: the rerun redoes what went unrecorded
+    again = batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+    assert len(again.done) == 4 and not again.notes
+    assert len(batch(z, out, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
