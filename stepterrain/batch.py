@@ -1545,8 +1545,9 @@ def _run_locked(
                 finally:
                     if connection[1] is not None:  # the default LocalCluster, closed
                         _restore_environ(environ)
-    # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
-    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+        # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
+        # partial file stayed until a rerun) left its temporary file: the folder is still ours
+        _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
     if recorder.unrecorded is not None:
         notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
