@@ -1520,17 +1520,14 @@ def _run_locked(
         if rounded:
             warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
                           stacklevel=level)  # fmt: skip
-    except BaseException:
-        interrupted = True  # Ctrl-C, or an error of this process
-        raise
-    else:
-        interrupted = False
     finally:
-        # the default LocalCluster's scheduler runs in this process: as it goes down under an interrupted run, it
+        # the default LocalCluster's scheduler runs in this process: as it went down under an interrupted run, it
         # logged a CRITICAL traceback for each task still reported to the closed client and an ERROR listing every
-        # heights block its workers held (hundreds of kB on the terminal after Ctrl-C), none of them the user's
+        # heights block its workers held (hundreds of kB on the terminal after Ctrl-C); after a run of many items,
+        # interrupted or not, a worker logged "ERROR - Failed to communicate with scheduler during heartbeat" and
+        # its traceback as the cluster closed. None of them the user's: the cluster is closed in silence
         own = connection is not None and connection[1] is not None
-        with _dask_logs_silenced(connection[0]) if interrupted and own else nullcontext():  # type: ignore[index]
+        with _dask_logs_silenced(connection[0]) if own else nullcontext():  # type: ignore[index]
             if connection is not None and isinstance(stream, Generator):
                 # interrupted in this loop (Ctrl-C as a result was recorded): the generator cancels its tasks now,
                 # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored

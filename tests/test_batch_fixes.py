@@ -1313,3 +1313,14 @@ def test_ctrl_c_while_the_local_cluster_starts_closes_it(tmp_path, capfd, unrais
     finally:
         signal.signal(signal.SIGINT, before)
     assert interrupted_run_leaves(out, capfd, unraisable) == []  # nothing written: the folder made is removed
+
+
+def test_a_run_of_many_items_on_the_local_cluster_ends_without_dask_errors(tmp_path, capfd):
+    # every `stepterrain batch` of some hundreds of small tiles on the default LocalCluster, written in full, ended
+    # with a worker's "distributed.worker - ERROR - Failed to communicate with scheduler during heartbeat" and a
+    # 30-line traceback on stderr as the cluster closed: an error after a run that succeeded
+    z = np.add.outer(np.arange(24 * 8 + 1.0), np.arange(24 * 8 + 1.0)).astype(np.float32)
+    report = batch(z, tmp_path, tile_size=8, interval=2.0, workers=2)
+    assert report.ok and len(report.done) == 24 * 24
+    err = capfd.readouterr().err
+    assert "ERROR" not in err and "Traceback" not in err, err[-3000:]
