@@ -29,7 +29,8 @@ examples:
 
 exit status: 0 every item written or complete already; 1 some items failed (listed with their reasons);
 2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable, a --floor
-not below the stepped surface of every item).
+not below the stepped surface of every item); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM): finished
+outputs are kept, partial files removed, and a rerun goes on from there.
 """
 
 

@@ -28,11 +28,12 @@ import math
 import os
 import platform
 import re
+import signal
 import sys
 import threading
 import time
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -983,6 +984,73 @@ LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
 LOCAL_CLUSTER_MALLOC: dict[str, int] = {"MALLOC_MMAP_THRESHOLD_": 1 << 30, "MALLOC_TRIM_THRESHOLD_": 1 << 30}
 
 
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """Hold back SIGINT and SIGTERM while dask starts something that an exception in the middle leaves half made;
+    a signal that came meanwhile goes to its own handler when the block ends (Ctrl-C: KeyboardInterrupt there).
+
+    A LocalCluster interrupted while its nannies started was never closed: dask's exit hook then failed on it
+    ("Exception ignored in atexit callback ... AssertionError: Status.init"); heights half scattered or tasks half
+    submitted reached a scheduler whose client had closed, which logged a CRITICAL traceback for each of them.
+    Only a Python handler is held back (a signal ignored or left to the system stays so), and only in the main
+    thread, the one Python's handlers run in. The same signal a second time goes to its handler at once: a second
+    Ctrl-C still ends a start or a scatter that hangs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: dict[int, Any] = {}
+    came: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        if signum in came:
+            held[signum](signum, frame)
+        came.append(signum)
+
+    for number in (signal.SIGINT, getattr(signal, "SIGTERM", None)):
+        handler = None if number is None else signal.getsignal(number)
+        if callable(handler):
+            held[number] = handler  # type: ignore[index]
+            signal.signal(number, hold)  # type: ignore[arg-type]
+    try:
+        yield
+    finally:
+        for number, handler in held.items():
+            signal.signal(number, handler)
+    for number, handler in held.items():
+        if number in came:
+            handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
+
+
+def _silence_dask_logs() -> list[tuple[logging.Logger, int]]:
+    """Turn dask.distributed's loggers in this process off; return their levels before."""
+    loggers = [logging.getLogger("distributed")] + [
+        logger for name, logger in list(logging.root.manager.loggerDict.items())
+        if name.startswith("distributed.") and isinstance(logger, logging.Logger) and logger.level != logging.NOTSET
+    ]  # fmt: skip
+    levels = [(logger, logger.level) for logger in loggers]
+    for logger, _level in levels:
+        logger.setLevel(logging.CRITICAL + 1)
+    return levels
+
+
+@contextmanager
+def _dask_logs_silenced(client: Any = None) -> Iterator[None]:
+    """Nothing logged by dask.distributed's loggers in this process while the block runs (their levels put back
+    after it), nor, given the default LocalCluster's client, by its worker processes, which are closed in the block
+    (a worker whose scheduler went down before it logged "Failed to communicate with scheduler during heartbeat")."""
+    levels = _silence_dask_logs()
+    try:
+        if client is not None:
+            try:
+                client.run(_silence_dask_logs, on_error="ignore", callback_timeout=5)
+            except Exception:  # noqa: BLE001 - its workers' last words are all it costs
+                pass
+        yield
+    finally:
+        for logger, level in levels:
+            logger.setLevel(level)
+
+
 def start_local_cluster(workers: int) -> Any:
     """The default cluster of :func:`batch`: ``workers`` processes of one thread each, profiler off, quiet logs,
     malloc tuned for tile-sized arrays (:data:`LOCAL_CLUSTER_MALLOC`).
@@ -1064,8 +1132,18 @@ def _connect(
         _require_workers(scheduler, f"the dask client's scheduler {address}", connect_timeout)
         return scheduler, None, f"dask client {address}", False
     if scheduler is None:
-        cluster = start_local_cluster(workers)
-        client = Client(cluster, timeout=connect_timeout)
+        client = cluster = None
+        try:
+            with _signals_held():  # Ctrl-C as the workers start: the cluster is closed below, not left half made
+                cluster = start_local_cluster(workers)
+                client = Client(cluster, timeout=connect_timeout)
+        except BaseException:
+            with _dask_logs_silenced():
+                if client is not None:
+                    client.close()
+                if cluster is not None:
+                    cluster.close()
+            raise
         return client, cluster, f"LocalCluster ({counted(workers, 'worker process', 'worker processes')})", True
     if not isinstance(scheduler, str):
         raise _scheduler_error(scheduler)  # has .submit but is no dask Client
@@ -1436,9 +1514,10 @@ def _run_locked(
     description = "serial" if connection is None else connection[2]
     bar = _progress_bar(len(items), len(results), bool(progress))
     reworded = progress if callable(progress) else None
+    stream: Iterable[ItemResult] = ()
     try:
         if connection is None:
-            stream: Iterable[ItemResult] = _run_serial(todo, src, options, folder, retries)
+            stream = _run_serial(todo, src, options, folder, retries)
         else:
             stream = _run_dask(todo, src, options, folder, connection, retries, timeout)
         hint = budget_hint()
@@ -1464,17 +1543,32 @@ def _run_locked(
             warnings.warn(_rounding_summary(rounded, sum(r.status == "done" for r in results.values())),
                           stacklevel=level)  # fmt: skip
     finally:
-        recorder.flush()
-        if bar is not None:
-            bar.close()
-        if connection is not None:
-            try:
-                _disconnect(scheduler, connection)
-            finally:
-                if connection[1] is not None:  # the default LocalCluster, closed
-                    _restore_environ(environ)
-    # a worker killed while writing (its items run again) left its temporary file: the folder is still ours
-    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+        # the default LocalCluster's scheduler runs in this process: as it went down under an interrupted run, it
+        # logged a CRITICAL traceback for each task still reported to the closed client and an ERROR listing every
+        # heights block its workers held (hundreds of kB on the terminal after Ctrl-C); after a run of many items,
+        # interrupted or not, a worker logged "ERROR - Failed to communicate with scheduler during heartbeat" and
+        # its traceback as the cluster closed. None of them the user's: the cluster is closed in silence
+        own = connection is not None and connection[1] is not None
+        with _dask_logs_silenced(connection[0]) if own else nullcontext():  # type: ignore[index]
+            if connection is not None and isinstance(stream, Generator):
+                # interrupted in this loop (Ctrl-C as a result was recorded): the generator cancels its tasks now,
+                # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
+                # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
+                stream.close()
+            recorder.flush()
+            if bar is not None:
+                bar.close()
+            if connection is not None:
+                try:
+                    _disconnect(scheduler, connection)
+                finally:
+                    if connection[1] is not None:  # the default LocalCluster, closed
+                        _restore_environ(environ)
+        # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
+        # partial file stayed until a rerun) left its temporary file: the folder is still ours
+        _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+    if recorder.unrecorded is not None:
+        notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
     if kept:
         shown = ", ".join(kept[:3]) + (", ..." if len(kept) > 3 else "")
@@ -1576,12 +1670,18 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
 
 
 class _Recorder:
-    """Keeps the manifest: finished items are added and the file is rewritten at most once a second."""
+    """Keeps the manifest: finished items are added and the file is rewritten at most once a second.
+
+    A rewrite that fails (a full disk, a folder gone read-only) does not end the run: the outputs are written
+    atomically and complete without it, and a rerun redoes what it does not record. The entries stay to write at
+    the next flush; :attr:`unrecorded` says how many outputs of this run the manifest on disk lacks, and why."""
 
     def __init__(self, folder: Path, entries: dict[str, Any], fingerprints: Mapping[str, str]) -> None:
         self.folder, self.entries, self.fingerprints = folder, entries, fingerprints
         self.dirty = False
         self.last = 0.0
+        self.pending = 0  # outputs of this run added since the manifest was last written
+        self.error: str | None = None  # why the last rewrite failed (None: it did not)
 
     def add(self, result: ItemResult) -> None:
         if result.status != "done" or result.path is None:
@@ -1595,14 +1695,27 @@ class _Recorder:
             "vertices": result.vertices,
         }
         self.dirty = True
+        self.pending += 1
         if time.monotonic() - self.last > _MANIFEST_FLUSH_S:
             self.flush()
 
     def flush(self) -> None:
         if self.dirty:
-            _write_manifest(self.folder, self.entries)
-            self.dirty = False
+            try:
+                _write_manifest(self.folder, self.entries)
+            except OSError as exc:  # also the DataFileError of atomic_path: ENOSPC ended the whole run, unattributed
+                self.error = exc.strerror or str(exc)
+            else:
+                self.dirty, self.pending, self.error = False, 0, None
             self.last = time.monotonic()
+
+    @property
+    def unrecorded(self) -> str | None:
+        """A note when the manifest on disk lacks outputs of this run (its last rewrite failed), else None."""
+        if self.error is None:
+            return None
+        return (f"the manifest {MANIFEST_NAME} could not be written ({self.error}): it does not record "
+                f"{counted(self.pending, 'output')} of this run (written complete), which a rerun redoes")
 
 
 def _progress_bar(total: int, initial: int, enabled: bool) -> Any:
@@ -1658,8 +1771,6 @@ def _run_dask(
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
-    # each task gets its own block of the heights (scattered once), not the whole raster on every worker
-    blocks = client.scatter([_item_source(src, item) for item in todo], hash=False) if src is not None else None
     workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
@@ -1669,12 +1780,17 @@ def _run_dask(
                              retries=retries, pure=False,
                              key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}")  # fmt: skip
 
-    futures = {submit(item, blocks[k] if blocks is not None else None): item for k, item in enumerate(todo)}
+    blocks: list[Any] | None = None
+    futures: dict[Any, BatchItem] = {}
     # A worker that dies (killed for memory, a crash) takes the blocks scattered to it along: the scheduler cannot
     # run their tasks again and cancels them. Those items are scattered and submitted again, up to `retries` times;
     # they "failed: cancelled" after 0 attempts, about half a LocalCluster's items when one of its two workers died.
     lost: dict[str, int] = {}
     try:
+        with _signals_held():  # Ctrl-C here cancels all of them below, not those submitted so far
+            # each task gets its own block of the heights (scattered once), not the whole raster on every worker
+            blocks = client.scatter([_item_source(src, item) for item in todo], hash=False) if src is not None else None
+            futures = {submit(item, blocks[k] if blocks is not None else None): item for k, item in enumerate(todo)}
         # results are gathered on the client's event loop as tasks finish (no blocking round trip per future
         # from this thread); a task that raised asks for its exception (rare: one round trip)
         completed = as_completed(futures, with_results=True, raise_errors=False)
@@ -1700,8 +1816,11 @@ def _run_dask(
                                  error="cancelled" + (" (its worker was lost each time)" if item.key in lost else ""))
             else:
                 yield dataclasses.replace(result, attempts=result.attempts + lost.get(item.key, 0))
-    except BaseException:
-        client.cancel(list(futures))
+    except BaseException:  # also GeneratorExit: the caller stopped reading (Ctrl-C in its loop), see _run_locked
+        # the unfinished tasks and the heights scattered for them: the scheduler forgets them before the client
+        # closes, instead of reporting them to a client gone (a CRITICAL traceback each) and of losing its
+        # workers' scattered data as the cluster closes (an ERROR listing every block)
+        client.cancel(list(futures) + list(blocks or ()))
         raise
 
 

@@ -20,7 +20,9 @@ import json
 import math
 import os
 import re
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -858,7 +860,8 @@ def _warning_line(command: str, sub: argparse.ArgumentParser | None = None) -> A
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``stepterrain`` command; return the exit status (0 ok, 2 bad input or usage, 130 interrupted).
+    """Run the ``stepterrain`` command; return the exit status (0 ok, 2 bad input or usage, 130 interrupted, 143
+    terminated: SIGTERM, which ends the run as Ctrl-C does, its partial files removed).
 
     ``argv`` defaults to ``sys.argv[1:]``. Errors derived from :class:`~stepterrain.errors.StepTerrainError`
     print one line on stderr, without a traceback.
@@ -877,6 +880,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     progress = Progress(quiet=args.quiet)
     previous_budget = get_memory_budget()
     previous_hint = budget_hint(_CLI_BUDGET_HINT)  # refusals in this process name the option
+    previous_term = _terminate_as_interrupt()
     try:
         if args.memory_budget is not None:  # for this run only: main() may be called in-process
             set_memory_budget(args.memory_budget)
@@ -900,12 +904,42 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:  # a write failing below the library's own checks (disk full, permissions)
         print(f"stepterrain {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        if isinstance(exc, _Terminated):
+            print("stepterrain: terminated", file=sys.stderr)
+            return EXIT_TERMINATED
         print("stepterrain: interrupted", file=sys.stderr)
         return 130
     finally:
         set_memory_budget(previous_budget)
         budget_hint(previous_hint)
+        if previous_term is not None:
+            signal.signal(signal.SIGTERM, previous_term)
+
+
+#: The exit status of a run ended by SIGTERM (128 + 15, as a shell reports a command that SIGTERM killed).
+EXIT_TERMINATED = 143
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM during a command, raised as Ctrl-C raises KeyboardInterrupt, so that the run ends as after Ctrl-C."""
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    raise _Terminated
+
+
+def _terminate_as_interrupt() -> Any:
+    """Make SIGTERM raise :class:`_Terminated` while the command runs; return the handler to put back, or None
+    when it was left alone. `kill`, `timeout` or a job scheduler's SIGTERM killed the process outright: the file
+    being written stayed as a hidden partial file (tens of MB of a tile), batch's manifest lost its last second of
+    finished items and the LocalCluster's semaphores were reported leaked. Only the system's default action is
+    replaced (a program that calls main() and handles SIGTERM keeps its handler), and only in the main thread."""
+    if not hasattr(signal, "SIGTERM") or threading.current_thread() is not threading.main_thread():
+        return None
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 #: The exit status of a run whose standard output was closed by its reader (128 + SIGPIPE, as a shell reports a

@@ -1258,3 +1258,123 @@ def test_a_series_file_with_a_tile_size_is_told_what_the_option_is_for(tmp_path,
     np.save(flat, stack[0]) if ext == ".npy" else np.savez(flat, heights=stack[0])
     report = batch(flat, tmp_path / "tiles", tile_size=4, interval=1.0, scheduler="serial")
     assert report.ok and sorted(r.key for r in report.done)[:2] == ["tile_r0_c0", "tile_r0_c1"]
+
+
+def test_a_manifest_that_cannot_be_written_does_not_abort_the_run(tmp_path, monkeypatch):
+    # A disk that filled up just as the manifest was rewritten (a tile fitted, the manifest's page did not) ended the
+    # whole run with "stepterrain batch: error: [Errno 28] No space left on device", exit 2: no file named, the items
+    # after it never run, the tiles already written neither recorded nor reported
+    import errno
+
+    import stepterrain.batch as batch_module
+
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    out = tmp_path / "out"
+    real = batch_module._write_manifest
+
+    def full_disk(output_dir, entries):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(batch_module, "_write_manifest", full_disk)
+    report = batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+    assert report.ok and len(report.done) == 4  # every item ran, and its output is there, complete
+    assert all(Path(r.path).stat().st_size == r.bytes for r in report.done)
+    assert not (out / MANIFEST_NAME).exists()
+    note = [n for n in report.notes if MANIFEST_NAME in n]
+    assert len(note) == 1 and "No space left on device" in note[0] and "4 outputs" in note[0], report.notes
+    assert note[0] in report.summary()
+    monkeypatch.setattr(batch_module, "_write_manifest", real)  # space again: the rerun redoes what went unrecorded
+    again = batch(z, out, tile_size=4, interval=2.0, scheduler="serial")
+    assert len(again.done) == 4 and not again.notes
+    assert len(batch(z, out, tile_size=4, interval=2.0, scheduler="serial").skipped) == 4
+
+
+def interrupted_run_leaves(out, capfd, unraisable):
+    """What an interrupted run on the default LocalCluster left: asserts that no worker process, lock file,
+    temporary file, traceback or log line of dask's scheduler remains, and returns the folder's file names."""
+    import gc
+    import multiprocessing
+
+    from stepterrain.batch import LOCK_NAME
+
+    gc.collect()  # a generator of the run left for the garbage collector fails here (sys.unraisablehook)
+    err = capfd.readouterr().err
+    assert unraisable == [], unraisable
+    assert "Traceback" not in err and "distributed.scheduler" not in err and "Exception ignored" not in err, err[-3000:]
+    assert multiprocessing.active_children() == []  # the cluster's worker processes are gone
+    names = sorted(p.name for p in out.iterdir()) if out.exists() else []
+    assert LOCK_NAME not in names and not [n for n in names if n.endswith(".tmp")]
+    return names
+
+
+@pytest.fixture
+def unraisable(monkeypatch):
+    import sys
+
+    caught: list[str] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda info: caught.append(f"{info.exc_type.__name__}: "
+                                                                           f"{info.exc_value} in {info.object!r}"))
+    return caught
+
+
+def test_ctrl_c_while_a_result_is_drawn_cancels_the_clusters_tasks_quietly(tmp_path, capfd, unraisable):
+    # Ctrl-C while the progress bar drew a result (in batch's loop, not inside dask's wait) left the tasks to the
+    # garbage collector, which ran the generator's cancel after the client had closed: "Exception ignored in:
+    # <generator object _run_dask>" ... "RuntimeError: IOLoop is closed" on stderr, and as the LocalCluster went
+    # down its scheduler logged a CRITICAL traceback per task still reported to the closed client
+    src = tmp_path / "dems"
+    src.mkdir()
+    (src / "a_broken.npy").write_bytes(b"not a DEM")  # the first item: fails at once, and its line is drawn
+    rng = np.random.default_rng(0)
+    for k in range(12):
+        np.save(src / f"t{k:02d}.npy", (rng.random((30, 30)) * 100).astype(np.float32))
+
+    def ctrl_c(line):
+        raise KeyboardInterrupt
+
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        batch(src, out, interval=10.0, workers=2, progress=ctrl_c)
+    interrupted_run_leaves(out, capfd, unraisable)
+    report = batch(src, out, interval=10.0, scheduler="serial")  # the rerun completes the rest
+    assert [r.key for r in report.failed] == ["a_broken"] and len(report.done) + len(report.skipped) == 12
+
+
+def test_ctrl_c_while_the_local_cluster_starts_closes_it(tmp_path, capfd, unraisable, monkeypatch):
+    # Ctrl-C while the LocalCluster's workers started left the cluster unclosed: its worker processes lived on
+    # until the interpreter's exit, where dask's exit hook failed on it ("Exception ignored in atexit callback
+    # <function close_clusters> ... AssertionError: Status.init")
+    import signal
+
+    import distributed
+
+    class InterruptedAsItStarts(distributed.LocalCluster):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            # the user's Ctrl-C as the workers come up: Python's handler of SIGINT, run here as the signal would run
+            # it (os.kill ran it wherever the main thread next ran Python code: in a gc callback of dask's, whose
+            # exceptions are ignored, at times)
+            signal.getsignal(signal.SIGINT)(signal.SIGINT, None)
+
+    monkeypatch.setattr(distributed, "LocalCluster", InterruptedAsItStarts)
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    out = tmp_path / "out"
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the tests run with it ignored
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            batch(z, out, tile_size=4, interval=2.0, workers=1)
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Python's handler is back
+    finally:
+        signal.signal(signal.SIGINT, before)
+    assert interrupted_run_leaves(out, capfd, unraisable) == []  # nothing written: the folder made is removed
+
+
+def test_a_run_of_many_items_on_the_local_cluster_ends_without_dask_errors(tmp_path, capfd):
+    # every `stepterrain batch` of some hundreds of small tiles on the default LocalCluster, written in full, ended
+    # with a worker's "distributed.worker - ERROR - Failed to communicate with scheduler during heartbeat" and a
+    # 30-line traceback on stderr as the cluster closed: an error after a run that succeeded
+    z = np.add.outer(np.arange(24 * 8 + 1.0), np.arange(24 * 8 + 1.0)).astype(np.float32)
+    report = batch(z, tmp_path, tile_size=8, interval=2.0, workers=2)
+    assert report.ok and len(report.done) == 24 * 24
+    err = capfd.readouterr().err
+    assert "ERROR" not in err and "Traceback" not in err, err[-3000:]
