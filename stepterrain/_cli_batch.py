@@ -21,6 +21,8 @@ examples:
       the embedded Big Tujunga DEM cut into 256-cell tiles (shared borders), one .glb each, 2 local workers
   stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
       every DEM file in a folder (.npy .npz .png .tif), one PLY each
+  stepterrain batch dem_tiles/n3*.tif --interval 50 -o out/
+      the DEM files a shell glob names, one .glb each
   stepterrain batch series.npy --interval 0.1 -o out/frames --png out/frames.png
       a (T, H, W) time series, one mesh per frame with the same isovalues, and a contact sheet
   stepterrain batch big.tif --tile 1024 --interval 100 --scheduler tcp://10.0.0.5:8786 -o out/
@@ -60,9 +62,9 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="a folder of DEM files, a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
-                        "default: the embedded Big Tujunga DEM")
+    p.add_argument("input", nargs="*", type=_path, metavar="INPUT",
+                   help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif), a (T, H, W) "
+                        ".npy/.npz series, or one DEM to cut with --tile; default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
                    help="output folder (created if missing)")
@@ -120,6 +122,11 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         build_parser,
     )
 
+    files = list(args.input)  # several: one item each, as a folder's files
+    if len(files) > 1 and args.tile is not None:
+        raise InvalidInputError(f"--tile cuts one DEM into tiles; got {len(files)} INPUT files (each file is one "
+                                "item): give one file, or leave --tile out")
+    args.input = None if not files else files[0] if len(files) == 1 else files
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
@@ -131,12 +138,12 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
                                 f"--workers {args.workers} with --scheduler {args.scheduler}")
     workers = 2 if args.workers is None else args.workers
     _check_size(args.size, renders=png is not None)
-    _check_outputs({"INPUT": args.input}, png=png)
+    _check_outputs({"INPUT" if len(files) == 1 else f"INPUT {k + 1}": f for k, f in enumerate(files)}, png=png)
     if png is not None and Path(os.path.abspath(png)) == Path(os.path.abspath(args.output)):
         # the overview went to the folder the meshes had just been written into: every item done, then an error
         raise InvalidInputError(f"--output and --png name the same path {args.output!r}; give the overview "
                                 "its own file name")
-    source_folder = Path(args.input).resolve() if args.input and Path(args.input).is_dir() else None
+    source_folder = Path(files[0]).resolve() if len(files) == 1 and Path(files[0]).is_dir() else None
     if png is not None and png.resolve().parent == source_folder:
         # a folder's DEM files are its .npy .npz .png .tif: the next run read the overview as a tile and failed on it
         raise InvalidInputError(f"--png {str(png)!r} lies in the INPUT folder {args.input!r}, where a rerun would read "
@@ -163,7 +170,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
 
     if args.input:  # read by batch (a folder's files by its workers), --height-unit passed on
         source: Any = args.input
-        what = args.input
+        what = args.input if len(files) == 1 else f"{len(files)} DEM files"
     else:  # the embedded DEM, which refuses a --height-unit
         source = _load_input(None, args.height_unit)
         what = "the embedded Big Tujunga DEM"
@@ -186,7 +193,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         progress=False if progress.quiet else failure_line,
         # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
-        metadata={"generator": "stepterrain batch"} if source_folder is not None else {  # a folder's: each file's
+        metadata={"generator": "stepterrain batch"} if source_folder is not None or len(files) > 1 else {  # each file's
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, device=args.device,

@@ -1378,3 +1378,41 @@ def test_a_run_of_many_items_on_the_local_cluster_ends_without_dask_errors(tmp_p
     assert report.ok and len(report.done) == 24 * 24
     err = capfd.readouterr().err
     assert "ERROR" not in err and "Traceback" not in err, err[-3000:]
+
+
+def test_the_cli_takes_several_dem_files_as_a_shell_glob_gives_them(tmp_path, capsys):
+    """`stepterrain batch tiles/*.tif -o out` failed with argparse's "unrecognized arguments" though the library
+    takes a list of files: each file is one item now, meshed as stepped(load_dem(file)) is, and a rerun skips them;
+    --tile (which cuts one raster) is refused with several, and an output naming one of them too."""
+    import stepterrain as st
+    from stepterrain import cli
+    from stepterrain.export import read_mesh
+
+    from .conftest import SHARED_DATA
+
+    z = np.load(SHARED_DATA / "big_tujunga_srtm_30m_utm11n.npz")["elevation"].astype(np.float32)
+    from PIL import Image
+
+    files = []
+    for k in range(3):  # the middle one a 16-bit PNG heightmap
+        part = z[:60, k * 60: (k + 1) * 60 + 1]
+        files.append(tmp_path / f"t{k}.{'png' if k == 1 else 'npy'}")
+        if k == 1:
+            Image.fromarray(np.round(part).astype(np.uint16)).save(files[-1])
+        else:
+            np.save(files[-1], part)
+    out = tmp_path / "out"
+    argv = ["batch", *map(str, files), "--interval", "100", "--scheduler", "serial", "-o", str(out)]
+    assert cli.main(argv) == 0
+    assert "stepping 3 DEM files" in capsys.readouterr().err
+    for f in files:
+        mesh, expected = read_mesh(out / f"{f.stem}.glb"), st.stepped(st.load_dem(f), interval=100.0, device="cpu")
+        assert len(mesh.faces) == len(expected.faces)
+        np.testing.assert_allclose(mesh.bounds, expected.bounds, atol=1e-3)
+    assert cli.main(argv) == 0
+    assert "0 written, 3 complete already, 0 failed" in capsys.readouterr().err
+    for extra, message in ((["--tile", "20"], "--tile cuts one DEM into tiles; got 3 INPUT files"),
+                           (["--png", str(files[1])], f"--png {str(files[1])!r} is the INPUT 2 file")):
+        assert cli.main([*argv[:-2], "-o", str(tmp_path / "other"), *extra]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "other").exists()
