@@ -550,7 +550,9 @@ def _check_background(pv: Any, background: Any) -> None:
     except (ValueError, TypeError):
         raise InvalidInputError(f"background must be a colour (a name, '#rrggbb' or (r, g, b)); got "
                                 f"{background!r}") from None
-    if color.opacity < 255:  # its alpha was dropped: (1.0, 1.0, 1.0, 0.0) asked for transparency, got opaque white
+    # its alpha was dropped: (1.0, 1.0, 1.0, 0.0) asked for transparency, got opaque white. An alpha written 1 is
+    # opaque however it is read (pyvista takes a whole 1 as 1/255: CSS's rgba(255, 128, 0, 1) was refused)
+    if color.opacity < 255 and not _alpha_is_one(background):
         raise InvalidInputError(f"background must be opaque: renders are (H, W, 3) RGB images, with no alpha; got "
                                 f"{background!r} (alpha {color.opacity / 255:.3g}); give an opaque colour")
     if not isinstance(background, str):
@@ -560,6 +562,16 @@ def _check_background(pv: Any, background: Any) -> None:
                                     "it would be nearly black); give floats in [0, 1] such as (1.0, 0.0, 0.0), or "
                                     "0-255 values")
 
+
+def _alpha_is_one(background: Any) -> bool:
+    """Whether ``background`` is a sequence of four numbers whose last, the alpha, is 1."""
+    if isinstance(background, str):
+        return False
+    try:
+        parts = np.asarray(background, dtype=np.float64)
+    except (TypeError, ValueError):
+        return False
+    return parts.shape == (4,) and bool(parts[3] == 1.0)
 
 def _whole_pixels(value: Any) -> int | None:
     """``value`` as an int when it is a whole number (640 or 640.0), else None: int() truncated 64.7, read

@@ -661,6 +661,17 @@ def test_a_translucent_background_is_refused_not_rendered_opaque(background):
         render.LayeredRenderer(window_size=(32, 32), background=background)
 
 
+
+@needs_render
+@pytest.mark.parametrize("background", [(255, 128, 0, 1), (1.0, 0.5, 0.0, 1), (255, 128, 0, 1.0), (255, 128, 0, 255)])
+def test_a_background_with_an_alpha_of_one_is_opaque_not_refused(background):
+    """The translucent-background refusal read an alpha written 1 as pyvista reads a whole number, 1/255: CSS's
+    rgba(255, 128, 0, 1), opaque orange, which rendered orange before, was refused as 'alpha 0.00392'. An alpha of
+    1 is opaque whichever way it is read; the render's background is the colour asked for."""
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = render.render_mesh(mesh, window_size=(32, 32), background=background)
+    assert image[0, 0].tolist() == [255, 128, 0]
+
 @needs_render
 def test_render_closeups_with_an_eye_close_over_a_large_terrain_sees_the_ground():
     """LayeredRenderer.set_view (render_closeups' camera) had render_mesh's near plane at a ten-thousandth of the far
@@ -691,8 +702,8 @@ def test_keeping_the_near_plane_off_a_large_mesh_costs_no_more_memory_than_a_fit
                             np.column_stack([corner + 1, corner + n + 1, corner + n])])
     mesh = trimesh.Trimesh(np.column_stack([x.ravel(), y.ravel(), heights.ravel()]), faces, process=False)
     centre = mesh.bounds.mean(axis=0)
-    close = [(200.0 - centre[0], 200.0 - centre[1], 5.0 - centre[2]), (250.0 - centre[0], 250.0 - centre[1], -centre[2]),
-             (0, 0, 1)]  # 5 m over the ground in the middle, looking down at 45 degrees: inside the box
+    eye, target = np.array([200.0, 200.0, 5.0]) - centre, np.array([250.0, 250.0, 0.0]) - centre
+    close = [tuple(eye), tuple(target), (0, 0, 1)]  # 5 m over the ground in the middle, 45 degrees down: in the box
     peaks = {}
     for name, camera in (("fitted", "oblique"), ("close", close)):
         tracemalloc.start()
