@@ -62,6 +62,7 @@ from .export import (
     atomic_path,
     json_metadata,
     probe_writable,
+    replacing_without_flush,
     save_mesh,
     unwritable_reason,
 )
@@ -644,7 +645,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
                 terrain, interval=options.interval, levels=options.levels, base=options.base, gamma=options.gamma,
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
             )  # fmt: skip
-        save_mesh(mesh, target, metadata=metadata, shared_bounds=None if source is None else source.bounds)
+        with replacing_without_flush():  # a tile a crash empties fails the manifest's size check: redone, not lost
+            save_mesh(mesh, target, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
     except StepTerrainError as exc:
         if _transient(exc):

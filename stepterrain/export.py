@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import contextlib
+import contextvars
 import errno
 import json
 import math
@@ -190,7 +191,7 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         except OSError:
             mode = None  # a new file keeps the mode it was made with
         try:
-            if mode is not None:
+            if mode is not None and _FLUSH_REPLACED.get():
                 _flush_to_disk(tmp_path)
                 with contextlib.suppress(OSError):
                     os.chmod(tmp_path, mode)
@@ -201,6 +202,23 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+#: Whether :func:`atomic_path` flushes a file it replaces (see :func:`replacing_without_flush`).
+_FLUSH_REPLACED: contextvars.ContextVar[bool] = contextvars.ContextVar("stepterrain_flush_replaced", default=True)
+
+
+@contextlib.contextmanager
+def replacing_without_flush() -> Iterator[None]:
+    """Within (this thread or task): :func:`atomic_path` replaces a file without flushing the new content first.
+    For writes whose loss in a crash is noticed and redone: batch's outputs, whose manifest records each file's size
+    (an emptied one is redone by the next run); flushing every replaced tile doubled a rerun of many small tiles
+    (``--no-resume``: 816 tiles of 32 cells, 11 s of 22 s). The replacement stays atomic."""
+    token = _FLUSH_REPLACED.set(False)
+    try:
+        yield
+    finally:
+        _FLUSH_REPLACED.reset(token)
 
 
 def _flush_to_disk(path: Path) -> None:
