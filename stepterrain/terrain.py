@@ -1216,22 +1216,23 @@ def grid_faces(rows: int, cols: int, flip: bool = False) -> NDArray[np.int64]:
 
 
 def heightfield_mesh(
-    heights: ArrayLike,
+    heights: ArrayLike | Terrain,
     *,
-    spacing: ArrayLike = (1.0, 1.0),
-    origin: ArrayLike = (0.0, 0.0),
+    spacing: ArrayLike | None = None,
+    origin: ArrayLike | None = None,
 ) -> trimesh.Trimesh:
     """Triangulate a regular heightfield.
 
     Parameters
     ----------
-    heights : (H, W) array_like
-        Heights; NaN marks nodata (so do a numpy masked array's masked entries).
+    heights : (H, W) array_like or grid Terrain
+        Heights; NaN marks nodata (so do a numpy masked array's masked entries). A grid :class:`Terrain`
+        (``load_dem``'s) brings its own spacing and origin (as :meth:`Terrain.mesh`).
     spacing : (dx, dy)
-        Node spacing; x runs along columns, y along rows. Either may be negative (then the winding is
-        swapped so faces stay counter-clockwise seen from +z).
+        Node spacing (default (1, 1)); x runs along columns, y along rows. Either may be negative (then the winding
+        is swapped so faces stay counter-clockwise seen from +z).
     origin : (x0, y0)
-        World position of node (0, 0).
+        World position of node (0, 0) (default (0, 0)).
 
     Returns
     -------
@@ -1243,8 +1244,8 @@ def heightfield_mesh(
     Raises
     ------
     InvalidInputError
-        ``heights`` is not a real (H, W) array with H, W >= 2, has infinite values or finite ones beyond
-        float32, or ``spacing`` has a zero.
+        ``heights`` is not a real (H, W) array with H, W >= 2 (or a grid Terrain), has infinite values or finite
+        ones beyond float32, or ``spacing`` has a zero; spacing or origin given with a Terrain.
 
     Examples
     --------
@@ -1255,7 +1256,16 @@ def heightfield_mesh(
     >>> bool((m.face_normals[:, 2] > 0).all())
     True
     """
-    t = Terrain.from_heights(heights, spacing=spacing, origin=origin)
+    if isinstance(heights, Terrain):  # was read as an array: "dtype object", naming no way out
+        if heights.kind != "grid":
+            raise InvalidInputError("heights must be an (H, W) array or a grid Terrain; got a TIN Terrain (its mesh "
+                                    "is terrain.mesh())")
+        if spacing is not None or origin is not None:
+            raise InvalidInputError("spacing/origin apply to a raw (H, W) array; the Terrain has its own")
+        t = heights
+    else:
+        t = Terrain.from_heights(heights, spacing=(1.0, 1.0) if spacing is None else spacing,
+                                 origin=(0.0, 0.0) if origin is None else origin)
     rows, cols = t.heights.shape
     dx, dy = t.spacing
     faces = grid_faces(rows, cols, flip=dx * dy < 0)

@@ -634,3 +634,19 @@ def test_the_refusals_delaunay_way_out_works_at_utm_coordinates():
     area2 = _cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     assert area2.min() > 0 and len(tin.faces) == len(again.faces)  # every face kept, none folded
     assert 0.5 * area2.sum() == pytest.approx(scipy.spatial.ConvexHull(xy - xy.min(axis=0)).volume, rel=1e-9)
+
+
+def test_heightfield_mesh_takes_a_grid_terrain_with_its_own_spacing_and_origin():
+    """heightfield_mesh(load_dem(...)) read the Terrain as an array: "dtype object", naming no way out. A grid
+    Terrain is meshed with its own spacing and origin, as Terrain.mesh(); spacing/origin beside it, or a TIN, are
+    refused by name."""
+    terrain = st.Terrain.from_heights(_H, spacing=(30.0, -30.0), origin=(376000.0, 3.8e6))
+    mesh, expected = st.heightfield_mesh(terrain), terrain.mesh()
+    np.testing.assert_array_equal(mesh.vertices, expected.vertices)
+    np.testing.assert_array_equal(mesh.faces, expected.faces)
+    assert mesh.bounds[0][0] == 376000.0 and mesh.bounds[1][1] == 3.8e6
+    with pytest.raises(InvalidInputError, match=r"^spacing/origin apply to a raw \(H, W\) array; the Terrain has"):
+        st.heightfield_mesh(terrain, spacing=(1.0, 1.0))
+    tin = st.Terrain.from_mesh(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]], process=False))
+    with pytest.raises(InvalidInputError, match=r"got a TIN Terrain \(its mesh is terrain.mesh\(\)\)$"):
+        st.heightfield_mesh(tin)
