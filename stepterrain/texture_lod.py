@@ -207,18 +207,14 @@ def _warn_exif_orientation(picture: Any, path: Path) -> None:
                   "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))", stacklevel=caller_stacklevel())
 
 
-def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
-    """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
-    read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: the band whose colour interpretation
-    is alpha (GDAL's ALPHA=YES) as alpha (RGBA), of the others the first three as RGB or the only one as grey (as
-    RGB); a fourth band that is not alpha is left out, as Pillow leaves out an extra sample (the near-infrared of an
-    RGB + NIR image is no alpha); 16-bit values scaled by their full range (value / 257). None without rasterio or
-    when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
+def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
+    """``read(dataset)`` of a .tif/.tiff ``path`` opened with rasterio (a plain TIFF without the warning that it is not
+    georeferenced); None for another extension, without rasterio, or when GDAL cannot read the file (Pillow's
+    verdict stands). ``read``'s own refusals (InvalidInputError, OutputTooLargeError) go through."""
     if path.suffix.lower() not in (".tif", ".tiff"):
         return None
     try:
         import rasterio
-        from rasterio.enums import ColorInterp
         from rasterio.errors import NotGeoreferencedWarning
     except ImportError:
         return None
@@ -226,17 +222,35 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", NotGeoreferencedWarning)
             with rasterio.open(path) as dataset:
-                count, types = dataset.count, sorted(set(dataset.dtypes))
-                alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
-                if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
-                    raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
-                                            f"{counted(count, 'band')} of {', '.join(types)}")
-                _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
-                data = dataset.read()
+                return read(dataset)
     except (InvalidInputError, OutputTooLargeError):
         raise
-    except Exception:  # noqa: BLE001 - GDAL cannot read it either: the caller's DataFileError
+    except Exception:  # noqa: BLE001 - GDAL cannot read it either
         return None
+
+
+def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
+    """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
+    read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: the band whose colour interpretation
+    is alpha (GDAL's ALPHA=YES) as alpha (RGBA), of the others the first three as RGB or the only one as grey (as
+    RGB); a fourth band that is not alpha is left out, as Pillow leaves out an extra sample (the near-infrared of an
+    RGB + NIR image is no alpha); 16-bit values scaled by their full range (value / 257). None without rasterio or
+    when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
+    def read(dataset: Any) -> tuple[NDArray[Any], int, list[int]]:
+        from rasterio.enums import ColorInterp
+
+        count, types = dataset.count, sorted(set(dataset.dtypes))
+        alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
+        if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
+            raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
+                                    f"{counted(count, 'band')} of {', '.join(types)}")
+        _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
+        return dataset.read(), count, alphas
+
+    found = _read_tiff(path, read)
+    if found is None:
+        return None
+    data, count, alphas = found
     if data.dtype == np.uint16:
         data = np.round(data / 257.0).astype(np.uint8)
     colour = [k for k in range(count) if k not in alphas]
@@ -248,22 +262,16 @@ def _nodata_mask(path: Path, shape: tuple[int, ...]) -> NDArray[np.uint8] | None
     """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) when some pixel
     is missing, else None (no rasterio, not a GeoTIFF, nothing masked). Pillow reads nodata as ordinary pixels: an
     orthophoto's collar tagged nodata=0 was draped opaque black."""
-    if path.suffix.lower() not in (".tif", ".tiff"):
-        return None
-    try:
-        import rasterio
+
+    def read(dataset: Any) -> NDArray[np.uint8] | None:
         from rasterio.enums import MaskFlags
-        from rasterio.errors import NotGeoreferencedWarning
-    except ImportError:
-        return None
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as dataset:
-                if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
-                    return None
-                mask = dataset.dataset_mask()
-    except Exception:  # noqa: BLE001 - Pillow read it, GDAL cannot: no mask to add
+
+        if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
+            return None
+        return dataset.dataset_mask()
+
+    mask = _read_tiff(path, read)
+    if mask is None:
         return None
     if mask.shape != tuple(shape) or mask.min() == 255:
         return None
