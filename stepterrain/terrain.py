@@ -123,6 +123,8 @@ def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
     of the finite heights where no triangle has three (a mesh without faces); None when no height is finite.
     :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh."""
     finite = np.isfinite(heights)
+    if finite.all():  # every node is a triangle's (or, under 2 x 2, none is: the finite heights): no masks
+        return float(heights.min()), float(heights.max())
     used = used_nodes(finite)
     if not used.any():
         used = finite
