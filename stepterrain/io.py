@@ -1058,7 +1058,9 @@ def _georeferenced(
             "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
-    radius, lat_ts, stated = body.radius, centre_lat, metres is not None
+    # R as the crs writes it (10 digits: the mean radius of Mars is 3389526.666...): metres from another R read back
+    # as lon/lat steps of 0.009999999999016579 for 0.01
+    radius, lat_ts, stated = float(f"{body.radius:.10g}"), centre_lat, metres is not None
     if metres is None:
         metres = (
             radius * math.cos(math.radians(centre_lat)) * math.radians(abs(dx)),

@@ -1300,8 +1300,9 @@ def stepped_series(
             except InvalidInputError as exc:
                 raise InvalidInputError(f"frames[{k}]: {exc}") from None
         # the isovalues span the heights a triangle uses, as each frame's Terrain.height_range (a node on none is in
-        # no mesh): a lone pixel in a void moved every frame's levels and colours
-        values = isovalues(used_height_range(stack) or (lo, hi), interval=interval, levels=levels, base=base)
+        # no mesh): a lone pixel in a void moved every frame's levels and colours; without nodata, the finite range
+        used = (lo, hi) if finite.size == stack.size else used_height_range(stack)
+        values = isovalues(used or (lo, hi), interval=interval, levels=levels, base=base)
         iterable: Iterable[ArrayLike] = stack
     else:
         values = None

@@ -123,6 +123,8 @@ def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
     of the finite heights where no triangle has three (a mesh without faces); None when no height is finite.
     :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh."""
     finite = np.isfinite(heights)
+    if finite.all():  # every node is a triangle's (or, under 2 x 2, none is: the finite heights): no masks
+        return float(heights.min()), float(heights.max())
     used = used_nodes(finite)
     if not used.any():
         used = finite
@@ -800,7 +802,9 @@ class Terrain:
     # ------------------------------------------------------------------ smaller grids
     def crop(self, extent: ArrayLike) -> Terrain:
         """The grid's nodes inside ``extent`` = (xmin, xmax, ymin, ymax), in the terrain's own coordinates (those
-        of :attr:`extent` and ``stepterrain info``; a geographic DEM's local metres), bounds included.
+        of :attr:`extent` and ``stepterrain info``; a geographic DEM's local metres), bounds included; a node at most
+        half a centimetre (and a hundredth of a step) outside is kept too, as the rounding of a coordinate typed back
+        from ``stepterrain info``'s 2 decimals.
 
         The nodes keep their positions and heights: ``origin`` becomes the first kept node's position, ``spacing``,
         ``crs``, ``source`` and ``height_unit`` stay, so a cropped mesh lies exactly on the uncropped one. A grid
@@ -917,14 +921,23 @@ class Terrain:
                                     source=self.source, height_unit=self.height_unit)
 
 
+#: How far outside ``Terrain.crop``'s extent a node may lie and still be kept, in coordinate units: the rounding of
+#: the coordinates ``stepterrain info`` prints (2 decimals from 1e4 up, 6 significant digits below) and crop's messages
+#: (10 significant digits) that a user types back; at most :data:`_CROP_SLACK_STEPS` of a step, at least 1e-9 of one.
+_CROP_SLACK = 0.005
+_CROP_SLACK_STEPS = 0.01
+
+
 def _node_span(lo: float, hi: float, origin: float, step: float, n: int) -> tuple[int, int]:
-    """First and last of the ``n`` node indices k with lo <= origin + k·step <= hi (a bound a billionth of a step
-    beside a node still takes it: the rounding of a coordinate typed back); last < first when none."""
-    a, b = (lo - origin) / step, (hi - origin) / step
+    """First and last of the ``n`` node indices k with lo <= origin + k·step <= hi (a bound within
+    :data:`_CROP_SLACK` beside a node still takes it: the rounding of a coordinate typed back, half a centimetre of
+    the UTM origin `stepterrain info` prints to 2 decimals was 1e-4 of a 30 m step); last < first when none."""
+    a, b = (lo - origin) / step, (hi - origin) / step  # inf for a bound of 1e300 over a spacing of 1e-10
     if step < 0:
         a, b = b, a
-    first = max(0.0, math.ceil(min(a - 1e-9, n)))
-    last = min(n - 1.0, math.floor(max(b + 1e-9, -1.0)))
+    slack = max(1e-9, min(_CROP_SLACK / abs(step), _CROP_SLACK_STEPS))  # in steps
+    first = max(0, math.ceil(min(max(a - slack, -1.0), n)))  # clamped before ceil/floor: inf has no integer
+    last = min(n - 1, math.floor(max(min(b + slack, n), -1.0)))
     return int(first), int(last)
 
 

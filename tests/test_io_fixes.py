@@ -1172,3 +1172,20 @@ def test_a_geotiffs_nodata_internal_mask_and_alpha_band_all_mark_missing_cells(t
         expected[0, 0] = expected[hole] = np.nan
         np.testing.assert_array_equal(t.heights, expected)
         assert t.height_range == (2.0, 20.0)
+
+
+def test_the_crs_of_a_grid_on_another_body_states_the_radius_its_metres_are_of(tmp_path):
+    """49e81b3 made another body's degrees metres of its mean radius a·(1 - f/3), for Mars 3389526.666...; the crs
+    wrote R to 10 digits (3389526.667) while the spacing used the unrounded radius, so the grid read back through its
+    own crs (describe_dem, a texture's extent, PROJ) was off by 1e-10 of itself: lonlat_step 0.009999999999016579
+    for 0.01, `stepterrain info --json` printing that. The metres are now of the radius the crs states."""
+    from stepterrain.io import describe_dem
+
+    crs = "+proj=longlat +a=3396190 +rf=169.894447223612 +no_defs"  # Mars 2000's ellipsoid
+    t = load_dem(_geographic_tif(tmp_path / "mars.tif", crs, 10.0, 5.0, 0.01))
+    stated = float(re.search(r"\+R=(\S+)", t.crs).group(1))
+    assert stated != 3396190.0 * (1 - 1 / (3 * 169.894447223612))  # a radius with more digits than the crs holds
+    assert abs(t.spacing[1]) == pytest.approx(stated * np.radians(0.01), rel=1e-15)
+    info = describe_dem(t)
+    assert info["lonlat_step"] == pytest.approx((0.01, -0.01), rel=1e-14)
+    assert info["lonlat_extent"] == pytest.approx((10.005, 10.205, 4.895, 4.995), rel=1e-14)

@@ -368,3 +368,33 @@ def test_pyramid_levels_of_an_image_with_alpha_take_no_colour_from_transparent_p
         for level in pyramid.levels[1:]:
             np.testing.assert_array_equal(level, reduce_rounded_reference(previous))
             previous = np.asarray(level)
+
+
+def test_a_16_bit_geotiffs_read_stays_near_the_memory_budgets_count(tmp_path):
+    """ImagePyramid.build of a 16-bit multi-band GeoTIFF (read with rasterio since ff1b0cd) checked the read against
+    the memory budget at 4 bytes a cell (as load_dem counts a raster) and then scaled all bands at once through
+    float64 (value / 257, then np.round): 18 bytes a cell at its peak, so an orthophoto the budget let through took
+    four and a half times what it counted. The bands are now read and scaled one at a time in integers (the same
+    bytes: v / 257 is never halfway between two integers): the read's peak stays under the 4 bytes counted."""
+    rasterio = pytest.importorskip("rasterio")
+    import tracemalloc
+
+    from rasterio.transform import Affine
+
+    rows, cols = 512, 512
+    data = np.random.default_rng(8).integers(0, 65536, (3, rows, cols)).astype(np.uint16)
+    data[0, :128] = np.arange(65536).reshape(128, 512)  # every 16-bit value
+    with rasterio.open(tmp_path / "rgb16.tif", "w", driver="GTiff", height=rows, width=cols, count=3, dtype="uint16",
+                       crs="EPSG:32611", transform=Affine(1.0, 0.0, 0.0, 0.0, -1.0, float(rows))) as out:
+        out.write(data)
+    from stepterrain.texture_lod import _raster_uint8
+
+    _raster_uint8(tmp_path / "rgb16.tif")  # the imports' and GDAL's one-time allocations, not counted
+    tracemalloc.start()
+    try:
+        image = _raster_uint8(tmp_path / "rgb16.tif")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    np.testing.assert_array_equal(image, np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2))
+    assert peak < 4 * data.size, f"{peak / data.size:.1f} bytes a cell"

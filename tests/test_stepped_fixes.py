@@ -582,3 +582,27 @@ def test_grid_isovalues_ignore_heights_on_no_complete_triangle():
     assert list(_shared_levels(src, 1.0, None, 0.0)) == expected
     # finite heights on no triangle at all: an empty mesh, as before
     assert len(st.stepped(np.array([[1.0, np.nan], [np.nan, np.nan]]), interval=1.0).faces) == 0
+
+
+def test_a_stack_without_nodata_takes_no_pass_over_its_triangles_for_its_range(monkeypatch, tmp_path):
+    """stepped_series of a (T, H, W) stack, and batch's shared levels of a series file, took the range of the nodes a
+    complete triangle uses (6d3155e) for every stack, nodata or not: five boolean masks of the stack's size and a
+    masked min and max, 2.5 s for a 64 x 1024 x 1024 stack whose finite range (0.9 s, already taken) is the same
+    answer without nodata. Such a stack now takes no mask of triangles; one with nodata still does."""
+    import stepterrain.terrain as terrain_module
+    from stepterrain.batch import _shared_levels, plan_items
+
+    rng = np.random.default_rng(3)
+    stack = rng.normal(100.0, 20.0, (3, 12, 10)).astype(np.float32)
+    expected = [m.metadata["isovalues"] for m in st.stepped_series(stack, interval=5.0)]
+    np.save(tmp_path / "series.npy", stack)
+    calls = []
+    real = terrain_module.used_nodes
+    monkeypatch.setattr(terrain_module, "used_nodes", lambda finite: calls.append(finite.shape) or real(finite))
+    assert [m.metadata["isovalues"] for m in st.stepped_series(stack, interval=5.0)] == expected
+    _, src = plan_items(tmp_path / "series.npy")
+    assert list(_shared_levels(src, 5.0, None, 0.0)) == expected[0]
+    assert calls == []
+    stack[1, 4, 4] = np.nan  # nodata: the triangles decide
+    next(st.stepped_series(stack, interval=5.0))
+    assert calls == [stack.shape]

@@ -48,8 +48,10 @@ def test_crop_keeps_the_nodes_inside_bounds_included_at_their_positions():
     assert c.origin == (510.0, 880.0) and c.spacing == t.spacing
     np.testing.assert_array_equal(c.heights, t.heights[2:5, 1:5])
     assert (c.crs, c.source, c.height_unit) == (t.crs, t.source, t.height_unit)
-    # a bound a hair inside a node drops it; a hair outside (the rounding of a typed coordinate) keeps it
-    assert t.crop((510.0 + 1e-6, 540.0, 860.0, 880.0)).shape == (3, 3)
+    # a bound a centimetre inside a node drops it; within half a centimetre (the rounding of a coordinate typed back
+    # from `stepterrain info`) keeps it
+    assert t.crop((510.0 + 0.01, 540.0, 860.0, 880.0)).shape == (3, 3)
+    assert t.crop((510.0 + 0.004, 540.0 - 0.004, 860.0, 880.0)).shape == (3, 4)
     assert t.crop((510.0 - 1e-6, 540.0 + 1e-12, 860.0, 880.0)).shape == (3, 4)
     assert t.crop((-1e300, 1e300, -1e300, 1e300)).shape == t.shape  # beyond the grid: clamped
 
@@ -64,7 +66,9 @@ def test_crop_keeps_exactly_the_nodes_brute_force_finds_inside(rows, cols, dx, d
     x0, x1 = np.sort(rng.uniform(xmin - 2 * abs(dx), xmax + 2 * abs(dx), 2))
     y0, y1 = np.sort(rng.uniform(ymin - 2 * abs(dy), ymax + 2 * abs(dy), 2))
     nodes = _nodes(t)
-    inside = (nodes[:, 0] >= x0) & (nodes[:, 0] <= x1) & (nodes[:, 1] >= y0) & (nodes[:, 1] <= y1)
+    # a node within half a centimetre (at most a hundredth of a step) outside is kept: typed-back rounding
+    sx, sy = (max(1e-9 * abs(d), min(0.005, 0.01 * abs(d))) for d in (dx, dy))
+    inside = (nodes[:, 0] >= x0 - sx) & (nodes[:, 0] <= x1 + sx) & (nodes[:, 1] >= y0 - sy) & (nodes[:, 1] <= y1 + sy)
     mask = inside.reshape(rows, cols)
     kept_rows, kept_cols = np.flatnonzero(mask.any(axis=1)), np.flatnonzero(mask.any(axis=0))
     if len(kept_rows) < 2 or len(kept_cols) < 2:
@@ -274,3 +278,24 @@ def test_spacing_is_refused_where_the_file_places_its_nodes(tmp_path, capsys, so
     _, err = capsys.readouterr()
     assert code == 2 and message in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_crop_to_the_extent_stepterrain_info_prints_keeps_every_node(capsys):
+    """--crop takes the coordinates `stepterrain info` prints, which are rounded (2 decimals from 1e4 up; the crop's
+    own messages 10 significant digits): the Big Tujunga DEM's whole extent typed back from them lost its west column
+    and south row (642 x 1196 of 643 x 1197 nodes), the UTM origin's rounding being 1e-4 of a step, not 1e-9. A bound
+    too far out to step to (1e300 with spacing 1e-10) is clamped, not an OverflowError."""
+    path = SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif"
+    t = st.load_dem(path)
+    assert cli.main(["info", str(path)]) == 0
+    line = next(row for row in capsys.readouterr().out.splitlines() if row.startswith("extent "))
+    printed = tuple(float(v) for v in line.split(None, 1)[1].strip("()").split(","))
+    assert printed != t.extent  # rounded
+    assert t.crop(printed).shape == t.shape
+    own = tuple(float(v) for v in t._extent_text().strip("()").split(","))
+    assert t.crop(own).shape == t.shape
+    # a bound a hundredth of a step inside a node still drops it (30 m spacing: 0.3 m)
+    xmin, xmax, ymin, ymax = t.extent
+    assert t.crop((xmin + 0.3, xmax, ymin, ymax - 0.3)).shape == (t.shape[0] - 1, t.shape[1] - 1)
+    tiny = st.Terrain.from_heights(np.zeros((3, 4), np.float32), spacing=(1e-10, -1e-10))
+    assert tiny.crop((-1e300, 1e300, -1e300, 1e300)).shape == (3, 4)
