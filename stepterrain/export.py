@@ -191,8 +191,9 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         except OSError:
             mode = None  # a new file keeps the mode it was made with
         try:
-            if mode is not None and _FLUSH_REPLACED.get():
-                _flush_to_disk(tmp_path)
+            if mode is not None:
+                if _FLUSH_REPLACED.get():
+                    _flush_to_disk(tmp_path)
                 with contextlib.suppress(OSError):
                     os.chmod(tmp_path, mode)
             os.replace(tmp_path, target)
@@ -981,8 +982,10 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         for path, data in zip(paths, sidecars.values(), strict=True):
             side_files.enter_context(atomic_path(path)).write_bytes(data)
         _write_obj_text(mesh, tmp, mtl_name, material, uv)
-        if sidecars and os.path.exists(target):  # flushed as atomic_path will (once more, cheaply) before the side
-            _flush_to_disk(tmp)  # files replace theirs: its failure left the old OBJ with the new texture
+        # flushed as atomic_path will (once more, cheaply) before the side files replace theirs: its failure left
+        # the old OBJ with the new texture
+        if sidecars and os.path.exists(target) and _FLUSH_REPLACED.get():
+            _flush_to_disk(tmp)
     _record_owner(paths, target)
 
 

@@ -1434,9 +1434,11 @@ def test_a_rerun_over_complete_tiles_replaces_them_without_flushing_each(tmp_pat
         real_fsync(fd)
 
     monkeypatch.setattr(os, "fsync", spy)
+    (tmp_path / "tile_r0_c0.glb").chmod(0o600)
     report = batch(z, tmp_path, tile_size=4, interval=2.0, scheduler="serial", resume=False)
     assert len(report.done) == 16
     assert flushed and all(name.startswith(f".{MANIFEST_NAME}.") for name in flushed), flushed
+    assert (tmp_path / "tile_r0_c0.glb").stat().st_mode & 0o777 == 0o600  # a replaced file keeps its mode still
     from stepterrain.export import save_mesh
 
     flushed.clear()
