@@ -113,7 +113,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from ._compaction import check_budget
-    from .cli import _check_output, _check_outputs, _check_size, _counted, _load_input
+    from .cli import _check_output, _check_outputs, _check_size, _counted, _input_metadata, _load_input
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
@@ -248,8 +248,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         from .export import save_mesh
 
         progress.stage("write", f"writing {mesh_out}")
-        save_mesh(scene, mesh_out, metadata={"generator": "stepterrain closeup",
-                                              "input": args.input or "embedded Big Tujunga DEM", "closeups": n})
+        save_mesh(scene, mesh_out, metadata={"generator": "stepterrain closeup", **_input_metadata(args),
+                                              "closeups": n})
         progress.done()
     if image is not None:
         for path in images:

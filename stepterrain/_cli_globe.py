@@ -69,8 +69,9 @@ def add_parser(commands: Any) -> None:
                    help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
     p.add_argument("--no-camera", action="store_true",
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
-    p.add_argument("--bounds", choices=("cone", "sphere"), default="cone",
-                   help="bounding shapes: cone frustums (default) or spheres")
+    p.add_argument("--bounds", choices=("cone", "sphere"), default=None,
+                   help="bounding shapes the distance and clip metrics measure: cone frustums (default) or "
+                        "spheres; with the camera")
     p.add_argument("--metrics", default=None, metavar="a,b,c",
                    help="metrics multiplied together (default geometric,distance,clip; with --no-camera geometric: "
                         "distance and clip need the camera)")
@@ -160,6 +161,15 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     elif args.no_cull and "clip" not in metrics:
         raise InvalidInputError(f"--no-cull applies only with the clip metric (only it culls); got --metrics "
                                 f"{args.metrics}")
+    # the bounding shapes are measured only against the eye (distance) and the view (clip): --bounds sphere with
+    # --no-camera made the same mesh as cones, and the metadata and progress line named the shapes all the same
+    shaped = not args.no_camera and bool(viewed)
+    if args.bounds is not None and not shaped:
+        why = "--no-camera" if args.no_camera else f"--metrics {args.metrics}"
+        raise InvalidInputError(f"--bounds applies only with the camera and the distance or clip metric (the "
+                                f"bounding shapes are measured against the eye and the view); got --bounds "
+                                f"{args.bounds} with {why}")
+    bounds = args.bounds or "cone"
     _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
@@ -209,8 +219,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         except InvalidInputError as exc:
             raise InvalidInputError(f"--eye {lat_deg:g},{lon_deg:g},{altitude:g} lies below the terrain there (the "
                                     f"altitude is metres above the sphere of --radius): {exc}") from None
-    progress.stage("mesh", f"refining: error {args.error:g}, {args.bounds}s, metrics {','.join(metrics)}")
-    mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=args.bounds,
+    shapes = f"{bounds}s, " if shaped else ""
+    progress.stage("mesh", f"refining: error {args.error:g}, {shapes}metrics {','.join(metrics)}")
+    mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=bounds,
                       metrics=metrics, cull=not args.no_cull)
     progress.done(f"{_counted(len(mesh.faces), 'triangle')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
     if len(mesh.faces) == 0:
@@ -238,10 +249,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         "input": args.input or "embedded ETOPO 2022 global relief, 20 arc-minutes",
         "face_size": args.face_size,
         "error": args.error,
-        "bounds": args.bounds,
         "metrics": ",".join(metrics),
         "exaggeration": args.exaggeration,
     }
+    if shaped:  # the bounding shapes the distance and clip metrics measured
+        metadata["bounds"] = bounds
     if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png render)
         metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
     mesh.metadata.pop("node_entry", None)

@@ -22,6 +22,7 @@ from .cli import (
     _check_size,
     _colormap,
     _counted,
+    _input_metadata,
     _load_input,
     _path,
     _size,
@@ -235,7 +236,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                           **_georeference(normals_out, tx.terrain_extent(terrain), terrain.crs))
         progress.say(f"wrote {normals_out} ({_size(normals_out)})")
     if draped is not None and mesh_out is not None:
-        metadata = {"generator": "stepterrain texture", "input": args.input or "embedded Big Tujunga DEM",
+        metadata = {"generator": "stepterrain texture", **_input_metadata(args),
                     "method": args.method, "azimuth_deg": args.azimuth, "altitude_deg": args.altitude,
                     "shadows": bool(args.shadows)}
         textured = mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # the formats that keep a texture

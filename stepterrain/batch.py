@@ -305,12 +305,30 @@ def plan_items(
         isinstance(s, (str, os.PathLike)) for s in source
     ):
         files = [Path(os.fspath(s)) for s in source]
+        # checked here, as one file or a folder is: a folder among them was named "must end in .npy ...", a missing
+        # file failed as an item after the cluster had started and the others were written, and a file given twice
+        # (tiles/*.tif tiles/a.tif) was refused as two files writing one output, "rename one"
+        folder = next((f for f in files if f.is_dir()), None)
+        if folder is not None:
+            raise InvalidInputError(
+                f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
+                f"in it), or its files")
         bad = [str(f) for f in files if f.suffix.lower() not in _DEM_EXTENSIONS]
         if bad:
             raise InvalidInputError(
                 f"source files must end in {', '.join(_DEM_EXTENSIONS)}; got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
+        missing = [str(f) for f in files if not f.exists()]
+        if missing:
+            raise DataFileError(f"source file {missing[0]!r} does not exist"
+                                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+        seen: dict[Path, Path] = {}
+        for f in files:
+            same = seen.setdefault(f.resolve(), f)
+            if same is not f:
+                twice = repr(str(f)) if str(same) == str(f) else f"as {str(same)!r} and {str(f)!r}"
+                raise InvalidInputError(f"source names one file twice, {twice}; give each file once")
         return _file_items(files), None
     expected = "source must be a folder, a list of DEM files, a Terrain, an (H, W) raster or a (T, H, W) series"
     check_mapped(source, "source")  # np.load(mmap_mode="r"): the float32 copy below reads it all into memory
@@ -1282,13 +1300,15 @@ def batch(
     ------
     InvalidInputError
         Unknown format, bad source (an array with an infinite height, or a finite one beyond float32, included;
-        NaN is nodata), tile size, isovalues, scheduler address or ``metadata`` (not a mapping of JSON values); a
-        ``floor`` not below the lowest point of the stepped surface of every tile or frame (a folder's files are
-        read by the items, so there each item fails on its own); a Terrain with a visual (vertex colours or UVs,
-        which its tiles would lose) unless ``colors`` or ``solid`` is given.
+        NaN is nodata; a list of files holding a folder or one file twice), tile size, isovalues, scheduler address
+        or ``metadata`` (not a mapping of JSON values); a ``floor`` not below the lowest point of the stepped
+        surface of every tile or frame (a folder's files are read by the items, so there each item fails on its
+        own); a Terrain with a visual (vertex colours or UVs, which its tiles would lose) unless ``colors`` or
+        ``solid`` is given.
     DataFileError
-        The source does not exist, or ``output_dir`` cannot be created or written, or another batch run is using
-        it (before any work; the message names that run's pid, host and start time).
+        The source (or a file of a list of them) does not exist, or ``output_dir`` cannot be created or written,
+        or another batch run is using it (before any work; the message names that run's pid, host and start
+        time).
     SchedulerError
         The scheduler at ``scheduler`` cannot be reached within ``connect_timeout``, or it (or a Client's) has no
         worker within that time.

@@ -249,6 +249,21 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     return terrain
 
 
+def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
+    """The INPUT and the options of :func:`_add_input_options` given, for a mesh's metadata: a cropped or coarsened
+    mesh recorded only its whole file as its input, as if it covered all of it at the file's spacing."""
+    metadata: dict[str, Any] = {"input": args.input or "embedded Big Tujunga DEM"}
+    if args.height_unit is not None:
+        metadata["height_unit"] = args.height_unit
+    if args.spacing is not None:
+        metadata["spacing"] = [float(args.spacing[0]), float(args.spacing[-1])]
+    if args.crop is not None:
+        metadata["crop"] = [float(v) for v in args.crop]
+    if args.coarsen is not None:
+        metadata["coarsen"] = int(args.coarsen)
+    return metadata
+
+
 #: ``--memory-budget`` units, case-insensitive: decimal (kB, MB, GB, TB), binary (KiB, MiB, GiB, TiB); B or none: bytes.
 _BYTE_UNITS = {"": 1, "b": 1, **{f"{p}b": 1000**k for k, p in enumerate("kmgt", 1)},
                **{f"{p}ib": 1024**k for k, p in enumerate("kmgt", 1)}}
@@ -613,7 +628,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     progress.stage("write", f"writing {out}")
     metadata = {
         "generator": "stepterrain steps",
-        "input": args.input or "embedded Big Tujunga DEM",
+        **_input_metadata(args),
         "isovalues_count": int(len(values)),
         "interval": interval,
         "gamma": "lens" if isinstance(gamma, st.Lens) else float(args.gamma),

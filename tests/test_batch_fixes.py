@@ -1444,3 +1444,27 @@ def test_a_rerun_over_complete_tiles_replaces_them_without_flushing_each(tmp_pat
     flushed.clear()
     save_mesh(trimesh.creation.box(), tmp_path / "tile_r0_c0.glb")  # outside batch: flushed as before
     assert len(flushed) == 1
+
+
+def test_several_input_files_are_checked_before_the_run_a_folder_a_missing_file_and_one_file_twice(tmp_path, capsys):
+    """Several INPUT files (a shell glob): a folder among them was refused as 'source files must end in .npy ...';
+    a missing file (a typo) failed as an item after the cluster had started and the others were written (exit 1);
+    one file given twice (tiles/*.tif tiles/a.tif) was refused as two files writing one output, 'rename one'. Each is
+    refused up front now (exit 2, nothing written), by what it is."""
+    from stepterrain import cli
+
+    (tmp_path / "tiles").mkdir()
+    a, b = tmp_path / "tiles" / "a.npy", tmp_path / "tiles" / "b.npy"
+    for f in (a, b):
+        np.save(f, np.arange(12, dtype=np.float32).reshape(3, 4))
+    out = tmp_path / "out"
+    cases = (([a, tmp_path / "tiles"], f"source lists the folder {str(tmp_path / 'tiles')!r} among DEM files"),
+             ([a, tmp_path / "nope.npy"], f"source file {str(tmp_path / 'nope.npy')!r} does not exist"),
+             ([a, b, a], f"source names one file twice, {str(a)!r}; give each file once"),
+             ([a, tmp_path / "tiles" / ".." / "tiles" / "a.npy"], "source names one file twice, as "))
+    for files, message in cases:
+        argv = ["batch", *map(str, files), "--interval", "1", "--scheduler", "serial", "-q", "-o", str(out)]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert message in err and "rename one" not in err, err
+        assert not out.exists()

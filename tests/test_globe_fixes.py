@@ -852,3 +852,31 @@ def test_drape_colors_given_the_mesh_says_to_pass_its_vertices():
     north = np.asarray(mesh.vertices)[:, 2] > 0.1 * np.linalg.norm(mesh.vertices, axis=1)
     assert (colors[north] == (200, 10, 10, 255)).all() and (colors[~north & (np.asarray(mesh.vertices)[:, 2] < 0)]
                                                               [:, 0] < 200).all()
+
+
+def test_the_cli_refuses_bounds_that_nothing_measures_and_records_the_shapes_only_where_measured(tmp_path, capsys):
+    """``globe --no-camera --bounds sphere`` (or --bounds with --metrics geometric) was accepted and made the same
+    mesh as cones: the bounding shapes are measured only by the distance and clip metrics, against the eye and the
+    view; the progress line and the metadata said 'spheres' all the same, and a --no-camera mesh recorded
+    'bounds: cone'. Such a --bounds is refused by name now, and the shapes are recorded only where measured."""
+    from stepterrain.cli import main
+    from stepterrain.export import read_mesh
+
+    out = tmp_path / "g.glb"
+    base = ["globe", "--face-size", "9", "--device", "cpu", "-o", str(out)]
+    for extra, why in ((["--no-camera"], "--no-camera"), (["--metrics", "geometric"], "--metrics geometric")):
+        assert main([*base, *extra, "--bounds", "sphere"]) == 2, extra
+        assert (f"error: --bounds applies only with the camera and the distance or clip metric (the bounding shapes "
+                f"are measured against the eye and the view); got --bounds sphere with {why}"
+                in capsys.readouterr().err), extra
+        assert not out.exists()
+        assert main([*base, *extra]) == 0
+        assert "error 500, metrics geometric\n" in capsys.readouterr().err
+        assert "bounds" not in read_mesh(out).metadata
+        out.unlink()
+
+    assert main([*base, "--bounds", "sphere", "--metrics", "geometric,distance"]) == 0  # measured: as before
+    assert "error 500, spheres, metrics geometric,distance\n" in capsys.readouterr().err
+    assert read_mesh(out).metadata["bounds"] == "sphere"
+    assert main(base) == 0
+    assert read_mesh(out).metadata["bounds"] == "cone"

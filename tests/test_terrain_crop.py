@@ -299,3 +299,32 @@ def test_crop_to_the_extent_stepterrain_info_prints_keeps_every_node(capsys):
     assert t.crop((xmin + 0.3, xmax, ymin, ymax - 0.3)).shape == (t.shape[0] - 1, t.shape[1] - 1)
     tiny = st.Terrain.from_heights(np.zeros((3, 4), np.float32), spacing=(1e-10, -1e-10))
     assert tiny.crop((-1e300, 1e300, -1e300, 1e300)).shape == (3, 4)
+
+
+def test_a_cropped_or_coarsened_mesh_records_the_input_options_in_its_metadata(tmp_path, capsys):
+    """A mesh of `steps`, `closeup` or `texture --mesh` with --crop/--coarsen (or --spacing) recorded only its input
+    file as its source, as if it covered the whole file at the file's spacing: `stepterrain info` of the output said
+    nothing of the crop. The input options given are recorded beside the input now (none when not given)."""
+    rng = np.random.default_rng(3)
+    dem = tmp_path / "dem.npy"
+    np.save(dem, (rng.random((40, 60)) * 100).astype(np.float32))
+    options = ["--spacing", "10,20", "--crop", "50,500,-600,-100", "--coarsen", "2"]
+    expected = {"input": str(dem), "spacing": [10.0, 20.0], "crop": [50.0, 500.0, -600.0, -100.0], "coarsen": 2}
+    runs = {"steps": ["steps", str(dem), *options, "--interval", "10", "-o", str(tmp_path / "s.glb")],
+            "closeup": ["closeup", str(dem), *options, "-o", str(tmp_path / "c.glb")],
+            "texture": ["texture", str(dem), *options, "-o", str(tmp_path / "t.png"),
+                        "--mesh", str(tmp_path / "t.glb")]}
+    for name, argv in runs.items():
+        assert cli.main(argv) == 0, capsys.readouterr().err
+        mesh = st.export.read_mesh(argv[-1])
+        assert {k: mesh.metadata.get(k) for k in expected} == expected, name
+        part = st.Terrain.from_heights(np.load(dem), spacing=(10.0, -20.0)).crop((50, 500, -600, -100)).coarsen(2)
+        xmin, xmax, ymin, ymax = part.extent
+        assert mesh.bounds[0, 0] >= xmin - 1e-6 and mesh.bounds[1, 1] <= ymax + 1e-6, name
+    capsys.readouterr()
+    assert cli.main(["info", str(tmp_path / "s.glb")]) == 0
+    info = capsys.readouterr().out
+    assert "meta.crop" in info and "(50, 500, -600, -100)" in info and "meta.coarsen" in info
+    assert cli.main(["steps", str(dem), "--interval", "10", "-o", str(tmp_path / "whole.glb")]) == 0
+    meta = st.export.read_mesh(tmp_path / "whole.glb").metadata
+    assert meta["input"] == str(dem) and not {"spacing", "crop", "coarsen", "height_unit"} & set(meta)
