@@ -1073,6 +1073,7 @@ def writer(mesh, tmp, target, bounds, *shared):
     real(mesh, tmp, target, bounds, *shared)
 export._WRITERS[".glb"] = writer
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as a shell's command has it, also under a runner ignoring it
     sys.exit(main(["-q", "batch", "--tile", "128", "-o", {str(out)!r}]
                   + ({{"serial": ["--scheduler", "serial"], "local": ["--workers", "1"]}}[{scheduler!r}])))
 """
