@@ -1069,7 +1069,7 @@ def writer(mesh, tmp, target, bounds, *shared):
         tmp.write_bytes(b"glTF half a file")
         os.kill(os.getppid() if {scheduler == "local"} else os.getpid(), signal.SIGTERM)
         if {scheduler == "local"}:
-            import time; time.sleep(30)  # the worker is closed with its cluster
+            import time; time.sleep(120)  # the worker is closed with its cluster (in seconds, even on a busy machine)
     real(mesh, tmp, target, bounds, *shared)
 export._WRITERS[".glb"] = writer
 if __name__ == "__main__":
