@@ -1069,10 +1069,11 @@ def writer(mesh, tmp, target, bounds, *shared):
         tmp.write_bytes(b"glTF half a file")
         os.kill(os.getppid() if {scheduler == "local"} else os.getpid(), signal.SIGTERM)
         if {scheduler == "local"}:
-            import time; time.sleep(30)  # the worker is closed with its cluster
+            import time; time.sleep(120)  # the worker is closed with its cluster (in seconds, even on a busy machine)
     real(mesh, tmp, target, bounds, *shared)
 export._WRITERS[".glb"] = writer
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as a shell's command has it, also under a runner ignoring it
     sys.exit(main(["-q", "batch", "--tile", "128", "-o", {str(out)!r}]
                   + ({{"serial": ["--scheduler", "serial"], "local": ["--workers", "1"]}}[{scheduler!r}])))
 """
