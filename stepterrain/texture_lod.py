@@ -96,23 +96,14 @@ def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
     in metres for a projected CRS (or a site grid) in feet or another linear unit, with that projection in metres
     as the CRS, as :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229
     stayed in feet, refused against its DEM's metres)."""
-    if not isinstance(image, (str, os.PathLike)) or Path(image).suffix.lower() not in (".tif", ".tiff"):
+    if not isinstance(image, (str, os.PathLike)):
         return None
-    try:
-        import rasterio
-    except ImportError:
+    # a plain TIFF (or one GDAL cannot read): pixel units, no warning
+    found = _read_tiff(Path(image), lambda dataset: (dataset.transform, (int(dataset.height), int(dataset.width)),
+                                                      _crs_string(dataset.crs)))
+    if found is None:
         return None
-    from rasterio.errors import NotGeoreferencedWarning
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a plain TIFF: pixel units, no warning
-            with rasterio.open(image) as dataset:
-                transform = dataset.transform
-                shape = (int(dataset.height), int(dataset.width))
-                crs = _crs_string(dataset.crs)
-    except Exception:  # noqa: BLE001 - not readable as a georeferenced raster: fall back to pixel units
-        return None
+    transform, shape, crs = found
     if transform.is_identity:
         return None
     # rotation terms of float noise (1e-16, as some tools write) are read as 0, by load_dem's rule, so a texture and
