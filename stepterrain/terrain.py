@@ -868,7 +868,7 @@ class Terrain:
         ------
         InvalidInputError
             A TIN, ``factor`` not a positive integer or so large that fewer than 2 x 2 nodes remain, an unknown
-            ``method``.
+            ``method``, a result of nodata only.
 
         Examples
         --------
@@ -894,7 +894,9 @@ class Terrain:
             raise InvalidInputError(f"factor {f} leaves {shape[0]} x {shape[1]} nodes of the {rows} x {cols} grid "
                                     f"({method}), fewer than the 2 x 2 a mesh needs")
         if method == "nearest":
-            return self._subgrid(self.heights[::f, ::f], (f * dx, f * dy), (ox, oy))
+            kept = self.heights[::f, ::f]
+            self._some_finite(kept, f, method)
+            return self._subgrid(kept, (f * dx, f * dy), (ox, oy))
         h, w = shape
         total = np.zeros((h, w), dtype=np.float64)
         count = np.zeros((h, w), dtype=np.int64)
@@ -905,8 +907,18 @@ class Terrain:
             count += finite.sum(axis=2)
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = (total / count).astype(np.float32)
+        self._some_finite(mean, f, method)
         half = (f - 1) / 2
         return self._subgrid(mean, (f * dx, f * dy), (ox + half * dx, oy + half * dy))
+
+    def _some_finite(self, coarse: NDArray[np.float32], factor: int, method: str) -> None:
+        """An InvalidInputError when the coarse grid holds only nodata (its finite nodes all in the rows and columns
+        it leaves out), as crop refuses an extent of nodata only."""
+        if not np.isfinite(coarse).any():
+            rows, cols = self.heights.shape
+            raise InvalidInputError(f"factor {factor} ({method}) leaves only nodata of the {rows} x {cols} grid: its "
+                                    f"finite nodes lie in the rows and columns the {coarse.shape[0]} x "
+                                    f"{coarse.shape[1]} coarse nodes leave out")
 
     def _grid_only(self, what: str, instead: str) -> None:
         if self.kind != "grid":

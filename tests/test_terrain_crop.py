@@ -328,3 +328,18 @@ def test_a_cropped_or_coarsened_mesh_records_the_input_options_in_its_metadata(t
     assert cli.main(["steps", str(dem), "--interval", "10", "-o", str(tmp_path / "whole.glb")]) == 0
     meta = st.export.read_mesh(tmp_path / "whole.glb").metadata
     assert meta["input"] == str(dem) and not {"spacing", "crop", "coarsen", "height_unit"} & set(meta)
+
+
+def test_coarsen_refuses_a_result_of_nodata_only():
+    """coarsen gave a grid of nodata only where the finite nodes all lay in the rows and columns it drops (crop
+    refuses an extent of nodata only): every later step failed on it ("no finite height") far from the cause."""
+    z = np.full((5, 7), np.nan, np.float32)
+    z[4, :] = 1.0  # the last row only: block means over rows 0-3 (factor 2) and rows 0, 2, 4 (nearest 2) differ
+    with pytest.raises(InvalidInputError, match=r"^factor 2 \(mean\) leaves only nodata of the 5 x 7 grid"):
+        st.Terrain.from_heights(z).coarsen(2)
+    assert np.isfinite(st.Terrain.from_heights(z).coarsen(2, method="nearest").heights).sum() == 4
+    z[4, :] = np.nan
+    z[1, 1] = z[1, 3] = 2.0  # odd rows and columns: nearest keeps rows/columns 0, 2, 4
+    with pytest.raises(InvalidInputError, match=r"^factor 2 \(nearest\) leaves only nodata of the 5 x 7 grid"):
+        st.Terrain.from_heights(z).coarsen(2, method="nearest")
+    assert np.isfinite(st.Terrain.from_heights(z).coarsen(2).heights).sum() == 2
