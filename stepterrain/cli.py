@@ -833,6 +833,8 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
     text = _leading_as_option(message, sub, command)
     for phrase, spelled in _OPTION_PHRASES.get(command, {}).items():
         text = text.replace(phrase, spelled)
+    if text.startswith("--device must be one of "):  # the library's device=None is the option left out here
+        text = text.replace(" (or None); got", ", or left out for Warp's default; got", 1)
     return _SAID_TWICE.sub(r"\1", text)
 
 

@@ -1089,3 +1089,16 @@ if __name__ == "__main__":
     assert len(written) == 2  # complete, as atomic writes leave them
     if scheduler == "serial":  # a worker's finished items may not have reached the client yet: redone by a rerun
         assert sorted(json.loads((out / MANIFEST_NAME).read_text())["items"]) == written
+
+
+@pytest.mark.parametrize("command", ["steps", "globe", "closeup", "texture", "batch"])
+def test_an_unknown_device_names_leaving_the_option_out_not_none(tmp_path, capsys, command):
+    """'--device gpu' said "--device must be one of ['cpu'] (or None)": None is the library's default, which the
+    command line spells by leaving --device out."""
+    out = tmp_path / ("out" if command == "batch" else "x.png")
+    extra = ["--scheduler", "serial"] if command == "batch" else []
+    assert cli.main([command, "--device", "gpu", *extra, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--device must be one of ['cpu'" in err and ", or left out for Warp's default; got 'gpu'" in err, err
+    assert "None" not in err
+    assert list(tmp_path.iterdir()) == []
