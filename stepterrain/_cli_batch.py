@@ -50,7 +50,7 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_height_unit, _floats, _path, _window
+    from .cli import _add_device, _add_height_unit, _floats, _path, _window
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -98,8 +98,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--retries", type=int, default=2, metavar="N",
                    help="extra attempts for an item whose task failed (default 2)")
     p.add_argument("--no-resume", action="store_true", help="redo every item, even complete ones")
-    p.add_argument("--device", default=None, metavar="DEVICE",
-                   help="Warp device on the workers: cpu, cuda, cuda:0 (default: Warp's)")
+    _add_device(p, " on the workers")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")

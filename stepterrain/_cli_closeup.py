@@ -46,7 +46,7 @@ class _RoiAction(argparse.Action):
 
 def add_parser(commands: Any) -> None:
     """Add the ``closeup`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_input_options, _floats, _path, _window
+    from .cli import _add_device, _add_input_options, _floats, _path, _window
 
     p = commands.add_parser(
         "closeup",
@@ -86,7 +86,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
     p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
+    _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")
@@ -113,7 +113,7 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from ._compaction import check_budget
-    from .cli import _check_output, _check_outputs, _check_size, _counted, _input_metadata, _load_input
+    from .cli import _check_output, _check_outputs, _check_size, _counted, _input_metadata, _input_terrain
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
@@ -169,8 +169,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
                      "(kept, then copied once by the writer)", hint="render fewer or smaller frames")
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop,
-                          coarsen=args.coarsen)
+    terrain = _input_terrain(args)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     xmin, xmax, ymin, ymax = terrain.extent
     short = min(xmax - xmin, ymax - ymin)

@@ -14,7 +14,18 @@ from typing import Any
 import numpy as np
 
 from .camera import _MAX_COORDINATE
-from .cli import Progress, _check_output, _check_outputs, _check_size, _counted, _floats, _path, _size, _window
+from .cli import (
+    Progress,
+    _add_device,
+    _check_output,
+    _check_outputs,
+    _check_size,
+    _counted,
+    _floats,
+    _path,
+    _size,
+    _window,
+)
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
 from .io import npz_nodata
@@ -81,7 +92,7 @@ def add_parser(commands: Any) -> None:
                    help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
                         "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.3mf "
                         "and the --png render; default: colours by elevation")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
+    _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")

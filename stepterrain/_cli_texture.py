@@ -16,6 +16,7 @@ import numpy as np
 
 from .cli import (
     Progress,
+    _add_device,
     _add_input_options,
     _check_output,
     _check_outputs,
@@ -23,7 +24,7 @@ from .cli import (
     _colormap,
     _counted,
     _input_metadata,
-    _load_input,
+    _input_terrain,
     _path,
     _size,
     _window,
@@ -82,7 +83,7 @@ def add_parser(commands: Any) -> None:
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
                    "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
-    p.add_argument("--device", default=None, metavar="DEVICE", help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
+    _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT.png",
                    help="the texture as PNG, or as a GeoTIFF (.tif, .tiff: georeferenced on the DEM's pixel grid and "
                         "CRS; needs rasterio, pip install 'stepterrain[geo]'); RGBA with alpha 0 at nodata for a DEM "
@@ -184,8 +185,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop,
-                          coarsen=args.coarsen)
+    terrain = _input_terrain(args)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
 
     device = resolve_device(args.device)

@@ -201,7 +201,8 @@ def _cell_size(text: str) -> tuple[float, ...]:
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
-    """The INPUT DEM's options: ``--height-unit``, ``--crop`` and ``--coarsen`` (see :func:`_load_input`)."""
+    """The INPUT DEM's options: ``--height-unit``, ``--spacing``, ``--crop`` and ``--coarsen`` (see
+    :func:`_load_input`)."""
     _add_height_unit(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of an INPUT with no georeferencing (.npy, a PNG heightmap, a "
@@ -247,6 +248,17 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     except InvalidInputError as exc:
         raise InvalidInputError(f"{option}: {exc}") from None
     return terrain
+
+
+def _input_terrain(args: argparse.Namespace) -> Any:
+    """The INPUT DEM of a subcommand with :func:`_add_input_options`, its options applied (:func:`_load_input`)."""
+    return _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen)
+
+
+def _add_device(p: argparse.ArgumentParser, where: str = "") -> None:
+    """``--device``: the Warp device (``where`` it runs, e.g. " on the workers"), Warp's default when left out."""
+    p.add_argument("--device", default=None, metavar="DEVICE",
+                   help=f"Warp device{where}: cpu, cuda, cuda:0 (default: Warp's)")
 
 
 def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
@@ -389,8 +401,7 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid (default one step below)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
-    p.add_argument("--device", default=None, metavar="DEVICE",
-                   help="Warp device: cpu, cuda, cuda:0 (default: Warp's)")
+    _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render")
@@ -551,7 +562,7 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
 
     # load
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
-    terrain = _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen)
+    terrain = _input_terrain(args)
     lo, hi = terrain.height_range
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes, heights {lo:g} to {hi:g},")
 
