@@ -1049,8 +1049,7 @@ def reduce_band(
     cols = dst_out.shape[1]
     channels = dst_out.shape[2]
     alpha = channels - 1 if channels == 2 or channels == 4 else -1  # the alpha channel, or none
-    local_r = t // cols
-    c = t - local_r * cols
+    local_r, c = pixel_of(t, cols)
     r = wp.int64(local_r) + dst_row0
     n_rows = wp.int64(src_shape[0])
     m_rows = wp.int64(dst_shape[0])

@@ -156,11 +156,9 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
     _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
-    if args.device is not None and args.scheduler in (None, "serial"):  # this machine's processes step
-        from ._device import resolve_device
-
-        resolve_device(args.device)  # an unknown device fails here, before any worker starts
-    elif args.device is not None and not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):
+    # this machine's device (no --scheduler, or serial) was resolved by main() before any input was read
+    remote = args.scheduler not in (None, "serial")
+    if args.device is not None and remote and not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):
         # a cluster's workers find their own devices (a GPU this machine may lack): only the name's form here
         raise DeviceError(f"--device must be cpu, cuda or cuda:N (a Warp device of the workers of --scheduler); "
                           f"got {args.device!r}")

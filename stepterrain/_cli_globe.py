@@ -28,10 +28,9 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
-from .io import npz_nodata
+from .io import equals_nodata, npz_nodata
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
-_METRICS = "geometric,distance,clip"  # --metrics' default with the camera (globe.METRICS)
 
 _EPILOG = """\
 examples:
@@ -129,7 +128,8 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise InvalidInputError(f"{path!r}: 'elevation' must be a 2-D (H, W) array; got shape {elevation.shape}")
     if nodata is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         # the nodata cells (as io.load_dem finds them) were meshed as heights: a -32768 m pit per missing cell
-        missing = elevation == (elevation.dtype.type(nodata) if elevation.dtype.kind == "f" else nodata)
+        with np.errstate(over="ignore"):  # a nodata beyond the dtype: no cell
+            missing = equals_nodata(elevation, nodata)
         if missing.any():
             row, col = np.argwhere(missing)[0]
             cells = _counted(int(missing.sum()), "nodata cell")
@@ -142,6 +142,7 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from .globe import (
+        METRICS,
         Globe,
         _texture_pixels,
         drape_colors,
@@ -154,7 +155,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, MESH_EXTENSIONS, "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
-    metrics = tuple(m.strip() for m in (args.metrics if args.metrics is not None else _METRICS).split(","))
+    metrics = tuple(m.strip() for m in (args.metrics if args.metrics is not None else ",".join(METRICS)).split(","))
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
                                 f"got {args.metrics!r} (an empty name)")

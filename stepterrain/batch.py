@@ -1700,7 +1700,6 @@ class _Recorder:
 
     def __init__(self, folder: Path, entries: dict[str, Any], fingerprints: Mapping[str, str]) -> None:
         self.folder, self.entries, self.fingerprints = folder, entries, fingerprints
-        self.dirty = False
         self.last = 0.0
         self.pending = 0  # outputs of this run added since the manifest was last written
         self.error: str | None = None  # why the last rewrite failed (None: it did not)
@@ -1716,19 +1715,18 @@ class _Recorder:
             "faces": result.faces,
             "vertices": result.vertices,
         }
-        self.dirty = True
         self.pending += 1
         if time.monotonic() - self.last > _MANIFEST_FLUSH_S:
             self.flush()
 
     def flush(self) -> None:
-        if self.dirty:
+        if self.pending:  # entries added since the manifest was last written
             try:
                 _write_manifest(self.folder, self.entries)
             except OSError as exc:  # also the DataFileError of atomic_path: ENOSPC ended the whole run, unattributed
                 self.error = exc.strerror or str(exc)
             else:
-                self.dirty, self.pending, self.error = False, 0, None
+                self.pending, self.error = 0, None
             self.last = time.monotonic()
 
     @property

@@ -45,6 +45,7 @@ from .terrain import (
     as_terrain,
     check_flag,
     finite_number,
+    finite_triangles,
     grid_faces,
     is_name,
     number_or_nan,
@@ -900,9 +901,8 @@ def _mesh_face_index(terrain: Terrain, grid_face: NDArray[np.int64], i0: int, i1
     finite = np.isfinite(terrain.heights)
 
     def drawn(rows: slice) -> NDArray[np.bool_]:  # (cell rows, 2·(cols − 1)): face 2·j + t of each row drawn
-        f = finite[rows.start: rows.stop + 1]
-        n00, n01, n10, n11 = f[:-1, :-1], f[:-1, 1:], f[1:, :-1], f[1:, 1:]
-        return np.stack([n00 & n01 & n11, n00 & n11 & n10], axis=2).reshape(len(n00), -1)
+        upper, lower = finite_triangles(finite[rows.start: rows.stop + 1])
+        return np.stack([upper, lower], axis=2).reshape(len(upper), -1)
 
     def row_starts() -> NDArray[np.int64]:
         per_row = drawn(slice(0, finite.shape[0] - 1)).sum(axis=1)
@@ -969,11 +969,11 @@ def _tin_window(terrain: Terrain, box: tuple[float, float, float, float]) -> Ter
     if not len(near):
         return None
     starts, point_faces = terrain.cached(("closeup", "tin-point-faces"), lambda: _tin_point_faces(terrain))
-    corners = np.unique(faces[near].reshape(-1))
+    corners = sorted_unique(faces[near])
     first, count = starts[corners], starts[corners + 1] - starts[corners]
     at = np.repeat(first - np.concatenate([[0], np.cumsum(count)[:-1]]), count) + np.arange(count.sum())
-    chosen = faces[np.unique(point_faces[at])]  # the faces around the near faces' points, in the TIN's order
-    used = np.unique(chosen.reshape(-1))  # sorted: the points' order kept
+    chosen = faces[sorted_unique(point_faces[at])]  # the faces around the near faces' points, in the TIN's order
+    used = sorted_unique(chosen)  # sorted: the points' order kept
     index = np.empty(len(terrain.points), dtype=np.int64)
     index[used] = np.arange(len(used))
     sub_faces = index[chosen]

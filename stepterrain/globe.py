@@ -1318,8 +1318,6 @@ def adaptive_mesh(
         z, ox, dx = z[:, ::-1], ox + (cols - 1) * dx, -dx
     if flip_y:
         z, oy, dy = z[::-1], oy + (rows - 1) * dy, -dy
-    if flip_x or flip_y:
-        z = np.ascontiguousarray(z)
     cells = 1 << max(1, math.ceil(math.log2(max(rows, cols) - 1)))
     if cells > _MAX_CELLS:  # before the padding: 32768 << 16 wraps the int32 packed corners
         raise InvalidInputError(f"heights must have at most {_MAX_CELLS + 1} rows and columns (padded to 2^k + 1 "

@@ -728,6 +728,13 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     )
 
 
+def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
+    """Where ``array`` equals ``nodata``, compared in the array's own dtype as GDAL compares it (a float nodata
+    rounded to a float32 band's value); a nodata beyond the dtype (inf there) matches no finite cell: call under
+    ``np.errstate(over="ignore")``."""
+    return array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+
+
 def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> NDArray[np.bool_] | None:
     """The cells of ``band`` (stored values ``data``) that its nodata value or an alpha band of ``dataset`` marks
     missing where GDAL's mask does not use them, else None. GDAL masks a band by one of its internal mask, its nodata
@@ -741,7 +748,7 @@ def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> ND
     nodata = dataset.nodatavals[band - 1]
     if MaskFlags.nodata not in flags and nodata is not None and not math.isnan(nodata):
         with np.errstate(over="ignore"):  # a nodata beyond a float band's dtype is inf: no finite cell
-            missing = data == (data.dtype.type(nodata) if data.dtype.kind == "f" else nodata)
+            missing = equals_nodata(data, nodata)
     if MaskFlags.alpha not in flags:
         for index, interp in enumerate(dataset.colorinterp, start=1):
             if interp == ColorInterp.alpha and index != band:
@@ -945,7 +952,7 @@ def nodata_as_nan(
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
-            hits = array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
+            hits = equals_nodata(array, nodata)
     if missing is not None:
         hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
@@ -1173,14 +1180,14 @@ def _geographic_body(crs: str | None) -> _Body:
 
 
 def _wgs84_metres_per_degree(
-    lats_east: NDArray[np.float64], lats_north: NDArray[np.float64], body: _Body = _EARTH
+    lats: NDArray[np.float64], body: _Body = _EARTH
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """WGS 84 (or ``body``'s ellipsoid's) ground metres per degree of longitude along the parallels at ``lats_east``
-    (N(φ) cos φ) and per degree of latitude along the meridian at ``lats_north`` (M(φ)), latitudes in degrees."""
+    """WGS 84 (or ``body``'s ellipsoid's) ground metres per degree of longitude along the parallels at ``lats``
+    (N(φ) cos φ) and per degree of latitude along the meridian there (M(φ)), latitudes in degrees."""
     e2 = body.f * (2.0 - body.f)
-    phi = np.radians(np.asarray(lats_east, dtype=np.float64))
-    per_lon = np.radians(body.a / np.sqrt(1.0 - e2 * np.sin(phi) ** 2) * np.cos(phi))
-    w2 = 1.0 - e2 * np.sin(np.radians(np.asarray(lats_north, dtype=np.float64))) ** 2
+    phi = np.radians(np.asarray(lats, dtype=np.float64))
+    w2 = 1.0 - e2 * np.sin(phi) ** 2
+    per_lon = np.radians(body.a / np.sqrt(w2) * np.cos(phi))
     per_lat = np.radians(body.a * (1.0 - e2) / w2**1.5)
     return per_lon, per_lat
 
@@ -1190,7 +1197,7 @@ def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, 
     per degree of longitude, of latitude) against the WGS 84 ellipsoid (or ``body``'s): of the scale along the
     parallel (N cos φ), along the meridian (M) and of their product, the cell area; inf for a row at a pole (a degree
     of longitude is 0 m there)."""
-    per_lon, per_lat = _wgs84_metres_per_degree(node_lats, node_lats, body)
+    per_lon, per_lat = _wgs84_metres_per_degree(node_lats, body)
     with np.errstate(divide="ignore"):
         east = np.where(per_lon > 1e-6, per_degree[0] / np.maximum(per_lon, 1e-6), np.inf)
     north = per_degree[1] / per_lat

@@ -768,12 +768,13 @@ def _clipping_range(position: Any, bounds: NDArray[np.float64],
     eye = np.asarray(position[0], dtype=np.float64)
     far = float(np.linalg.norm(_box_corners(bounds) - eye, axis=1).max()) * 1.05
     gap = np.maximum(np.maximum(bounds[0] - eye, eye - bounds[1]), 0.0)  # per axis, 0 where the eye is within
-    near = max(far * 1e-4, float(np.linalg.norm(gap)) * 0.5)
-    if meshes and near > float(np.linalg.norm(gap)) * 0.5:  # the floor decides: may it clip a mesh?
+    box_near = float(np.linalg.norm(gap)) * 0.5
+    near = max(far * 1e-4, box_near)
+    if meshes and near > box_near:  # the floor decides: may it clip a mesh?
         # only triangles within 2 near of the eye can move it: the others are skipped cheaply (all of a 20M-face
         # mesh's took 4.6 GB and longer than the render itself)
         closest = min(_mesh_distance(eye, vertices, faces, within=2.0 * near) for vertices, faces in meshes)
-        near = max(float(np.linalg.norm(gap)) * 0.5, min(near, max(0.5 * closest, far * 1e-7)))
+        near = max(box_near, min(near, max(0.5 * closest, far * 1e-7)))
     return near, far
 
 
