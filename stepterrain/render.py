@@ -94,15 +94,42 @@ def _import_pyvista() -> Any:
     _select_backend()
     try:
         import pyvista
-        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
     except ImportError as exc:  # pragma: no cover - pyvista is a core dependency
         raise MissingDependencyError(f"rendering needs pyvista: pip install 'pyvista>=0.44' ({exc})") from exc
-    # silence "bad X server connection" and similar start-up warnings; real errors still raise below
-    vtkObject.GlobalWarningDisplayOff()
-    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_ERROR)
     # every plotter here is made with off_screen=True; pyvista.OFF_SCREEN, which it set, is the caller's: set, it
     # kept every later pv.Plotter() and mesh.plot() of the process from opening a window
     return pyvista
+
+
+@contextlib.contextmanager
+def _quiet_vtk() -> Any:
+    """VTK's warnings off and its log on stderr at errors only while stepterrain renders ("bad X server
+    connection" and similar start-up warnings; real errors still raise), then both as they were. They were set
+    for the whole process on the first render: a user's own VTK and pyvista code in it lost its warnings."""
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
+
+    shown = vtkObject.GetGlobalWarningDisplay()
+    # VTK has no getter for the stderr verbosity alone; the cutoff over all sinks is what pyvista.vtk_verbosity reads
+    verbosity = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkObject.GlobalWarningDisplayOff()
+    vtkLogger.SetStderrVerbosity(min(verbosity, vtkLogger.VERBOSITY_ERROR))  # a quieter setting stays
+    try:
+        yield
+    finally:
+        vtkObject.SetGlobalWarningDisplay(shown)
+        vtkLogger.SetStderrVerbosity(verbosity)
+
+
+def _quietly(method: Any) -> Any:
+    """``method`` run within :func:`_quiet_vtk`."""
+    import functools
+
+    @functools.wraps(method)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        with _quiet_vtk():
+            return method(*args, **kwargs)
+
+    return wrapper
 
 
 def require_offscreen() -> str:
@@ -116,6 +143,7 @@ def require_offscreen() -> str:
     return _select_backend()
 
 
+@_quietly
 def offscreen_available() -> tuple[bool, str]:
     """(True, backend) when an off-screen OpenGL context can be made here, else (False, the reason).
 
@@ -649,6 +677,7 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
                  hint=f"give a smaller {name}" + (" or turn anti_aliasing off" if anti_aliasing else ""))
 
 
+@_quietly
 def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np.float64], faces: ArrayLike,
            finite: NDArray[np.bool_], box: NDArray[np.float64], framed_by_bounds: bool, camera: CameraLike,
            size: tuple[int, int], background: Any, anti_aliasing: bool, lighting: bool,
@@ -1095,6 +1124,7 @@ class LayeredRenderer:
         self._box: NDArray[np.float64] | None = None
         self._view_token: Any = None
 
+    @_quietly
     def _new_plotter(self, size: tuple[int, int]) -> Any:
         plotter = self._pv.Plotter(off_screen=True, window_size=size, lighting="none")
         if not plotter.render_window.SupportsOpenGL():
@@ -1124,6 +1154,7 @@ class LayeredRenderer:
         local[:, 2] *= self.z_scale
         return local
 
+    @_quietly
     def set_mesh(self, name: str, vertices: ArrayLike, faces: ArrayLike, *, rgb: ArrayLike | None = None,
                  values: ArrayLike | None = None, key: Any = None, bounds: ArrayLike | None = None) -> None:
         """Upload (or replace) the mesh ``name`` (a string): lit, with vertex ``rgb`` (V, 3) uint8 (or (V, 4), or
@@ -1203,6 +1234,7 @@ class LayeredRenderer:
         self._bounds[name] = np.array([lo, hi])
         self._local_bounds[name] = local_box
 
+    @_quietly
     def remove(self, name: str) -> None:
         """Drop the mesh ``name`` if present."""
         actor = self._actors.pop(name, None)
@@ -1214,6 +1246,7 @@ class LayeredRenderer:
         self._local_bounds.pop(name, None)
 
     # -------------------------------------------------------------------------- view
+    @_quietly
     def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
         """Camera (as in :func:`render_mesh` with ``bounds=box``: an explicit position is in world coordinates minus
         the centre of ``box``, z scaled) fitted to the world ``box`` (2, 3), its lights and clipping range. A
@@ -1255,6 +1288,7 @@ class LayeredRenderer:
         self._box = local
 
     # -------------------------------------------------------------------------- passes
+    @_quietly
     def _read(self, plotter: Any, rect: tuple[int, int, int, int] | None = None
               ) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
         from vtkmodules.util.numpy_support import vtk_to_numpy
@@ -1454,6 +1488,7 @@ class LayeredRenderer:
         row = height - (ndc[:, 1] + 1) / 2 * height
         return np.column_stack([col, row])
 
+    @_quietly
     def render_billboard(self, vertices: ArrayLike, faces: ArrayLike, rgb: ArrayLike | None,
                          view: tuple[float, float], anchor_points: ArrayLike
                          ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], NDArray[np.float32]]:
@@ -1530,6 +1565,7 @@ class LayeredRenderer:
         depth[r0:r1, c0:c1] = np.where(covered, 0.0, np.inf)
         return color, coverage, depth
 
+    @_quietly
     def close(self) -> None:
         """Release the render window."""
         with contextlib.suppress(Exception):

@@ -714,3 +714,40 @@ def test_keeping_the_near_plane_off_a_large_mesh_costs_no_more_memory_than_a_fit
             tracemalloc.stop()
         assert (image < 250).any(axis=2).mean() > 0.5, name
     assert peaks["close"] < 1.5 * peaks["fitted"], peaks
+
+
+@needs_render
+@pytest.mark.parametrize("shown, verbosity", [(1, "VERBOSITY_WARNING"), (1, "VERBOSITY_INFO"), (0, "VERBOSITY_OFF")])
+def test_a_render_leaves_the_users_vtk_warning_settings_as_they_were(shown, verbosity):
+    """The first render turned VTK's warnings off (vtkObject.GlobalWarningDisplayOff) and its stderr log down to
+    errors for the whole process: a user's own pyvista and VTK code in it lost its warnings from then on. stepterrain
+    quiets VTK only while it renders now, and restores the caller's settings after every entry point."""
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
+
+    from stepterrain.closeup import render_closeups
+    from stepterrain.terrain import Terrain
+
+    old = (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff())
+    try:
+        vtkObject.SetGlobalWarningDisplay(shown)
+        vtkLogger.SetStderrVerbosity(getattr(vtkLogger, verbosity))
+        before = (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff())
+        mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+        render.render_mesh(mesh, window_size=(32, 32))
+        assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+        assert render.offscreen_available()[0]
+        assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+        terrain = Terrain.from_heights(np.arange(100, dtype=np.float32).reshape(10, 10), spacing=(1.0, 1.0))
+        render_closeups(terrain, [], window_size=(32, 32), device="cpu")
+        assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+        with render.LayeredRenderer(window_size=(32, 32)) as renderer:
+            renderer.set_mesh("m", VERTICES, FACES)
+            assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+            renderer.set_view("oblique", [(0, 0, 0), (10, 10, 5)])
+            renderer.render(["m"])
+            assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+        assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+    finally:
+        vtkObject.SetGlobalWarningDisplay(old[0])
+        vtkLogger.SetStderrVerbosity(old[1])
+
