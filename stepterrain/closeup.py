@@ -2056,6 +2056,7 @@ def render_closeups(
     merge_passes: bool = True,
     timings: dict[str, float] | None = None,
     device: wp.DeviceLike = None,
+    view_angle: float = 30.0,
 ) -> NDArray[np.uint8]:
     """Render the overview with its close-ups: layered passes into color + depth, then compositing (§IV).
 
@@ -2099,6 +2100,9 @@ def render_closeups(
         few pixels), with fewer passes.
     timings : dict, optional
         Filled with seconds spent in "transform", "render" and "composite".
+    view_angle : float
+        The camera's vertical field of view in degrees, in [1e-8, 179], as in
+        :func:`stepterrain.render.render_mesh` (default 30); a fitted camera frames the box with it.
 
     Returns
     -------
@@ -2143,6 +2147,7 @@ def render_closeups(
     _check_grid_scalars(t, scalars, items)
     image_texture = None if texture is None else _check_texture(texture, "texture")
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
+    view_angle = render._check_view_angle(view_angle)
     clock = timings if timings is not None else {}
     start = _time.perf_counter()
     pivot = _pivot_z(t)
@@ -2201,7 +2206,7 @@ def render_closeups(
             for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
                 boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
-        renderer.set_view(camera, box)
+        renderer.set_view(camera, box, view_angle=view_angle)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
         anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)

@@ -384,11 +384,7 @@ def render_mesh(
         colormap(cmap, argument="cmap")  # matplotlib's ValueError (or a TypeError for cmap=5) named nothing
     elif not isinstance(cmap, str):  # unused without scalars and passed unchecked; the name is looked up when used
         raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
-    lo, hi = _VIEW_ANGLE_RANGE
-    if not lo <= number_or_nan(view_angle) <= hi:  # VTK clamps the view angle to its range: a different picture
-        raise InvalidInputError(f"view_angle must be a vertical field of view in [{lo:g}, {hi:g}] degrees; got "
-                                f"{view_angle!r}")
-    view_angle = float(view_angle)
+    view_angle = _check_view_angle(view_angle)
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
                                                               view_angle)
     face_attributes = {}
@@ -435,6 +431,15 @@ def render_mesh(
                   framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=True, translucent=translucent, view_angle=view_angle)
+
+
+def _check_view_angle(view_angle: Any) -> float:
+    """``view_angle`` as a float in :data:`_VIEW_ANGLE_RANGE` degrees, else an InvalidInputError naming it."""
+    lo, hi = _VIEW_ANGLE_RANGE
+    if not lo <= number_or_nan(view_angle) <= hi:  # VTK clamps the view angle to its range: a different picture
+        raise InvalidInputError(f"view_angle must be a vertical field of view in [{lo:g}, {hi:g}] degrees; got "
+                                f"{view_angle!r}")
+    return float(view_angle)
 
 
 #: The largest half-extent of a framed box (z scaled): the camera fit squares distances, which overflow float64
@@ -862,10 +867,12 @@ def render_textured_mesh(
     lighting: bool = True,
     anti_aliasing: bool = False,
     bounds: ArrayLike | None = None,
+    view_angle: float = _VIEW_ANGLE,
 ) -> NDArray[np.uint8]:
     """Render a mesh with its texture (``trimesh.visual.TextureVisuals``: UVs and a base-colour image) off-screen.
 
-    Same camera, lights and framing as :func:`render_mesh`. ``lighting=False`` shows the texture unlit (a
+    Same camera (its vertical field of view ``view_angle`` in degrees too), lights and framing as
+    :func:`render_mesh`. ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
 
     A texture with some alpha below 255 (an alpha band, or a PNG's transparent colour) blends with what lies behind
@@ -878,7 +885,7 @@ def render_textured_mesh(
     ------
     InvalidInputError
         The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, an infinite vertex, or a
-        bad window size, z_scale or camera.
+        bad window size, z_scale, camera or view_angle.
     OutputTooLargeError
         The render's memory exceeds the memory budget, as in :func:`render_mesh`.
     MissingDependencyError
@@ -900,8 +907,9 @@ def render_textured_mesh(
     translucent = picture.ndim == 3 and picture.shape[2] == 4
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
+    view_angle = _check_view_angle(view_angle)
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
-                                                               anti_aliasing)
+                                                               anti_aliasing, view_angle)
     if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
         _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
 
@@ -915,7 +923,7 @@ def render_textured_mesh(
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
                   framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
-                  lighting=lighting, translucent=translucent)
+                  lighting=lighting, translucent=translucent, view_angle=view_angle)
 
 
 def _texture_alpha(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
@@ -1247,24 +1255,26 @@ class LayeredRenderer:
 
     # -------------------------------------------------------------------------- view
     @_quietly
-    def set_view(self, camera: CameraLike, box: ArrayLike) -> None:
+    def set_view(self, camera: CameraLike, box: ArrayLike, *, view_angle: float = _VIEW_ANGLE) -> None:
         """Camera (as in :func:`render_mesh` with ``bounds=box``: an explicit position is in world coordinates minus
-        the centre of ``box``, z scaled) fitted to the world ``box`` (2, 3), its lights and clipping range. A
+        the centre of ``box``, z scaled) fitted to the world ``box`` (2, 3) with the vertical field of view
+        ``view_angle`` (degrees, as render_mesh's), its lights and clipping range. A
         fitted camera that would show the z-scaled box less than a pixel wide or tall (a ``z_scale`` far too large or
         small for the terrain) is an InvalidInputError, as in :func:`render_mesh`: such a render came out blank. The
         near plane keeps off the meshes uploaded by then, as render_mesh's keeps off its mesh."""
         if self._origin is None:
             raise InvalidInputError("set_view needs a mesh first (set_mesh)")
+        view_angle = _check_view_angle(view_angle)
         local = _check_box(box, "box") - self._origin
         local[:, 2] *= self.z_scale
-        token = (_camera_token(camera), local.tobytes())
+        token = (_camera_token(camera), local.tobytes(), view_angle)
         if token == self._view_token:
             return  # the same camera and box: view, lights and clipping range stay (and so may cached passes)
         width, height = self.size
         corners = _box_corners(local)
-        position = _camera_position(camera, corners, width / height)
+        position = _camera_position(camera, corners, width / height, view_angle)
         if isinstance(camera, str) or np.shape(camera) == (2,):  # fitted: as render_mesh, a sliver is refused
-            _check_visible(corners, position, (width, height), local, self.z_scale, camera=camera)
+            _check_visible(corners, position, (width, height), local, self.z_scale, view_angle, camera)
         else:  # an explicit position is relative to the centre of ``box``, as render_mesh's to that of its bounds: it
             # was taken relative to the first mesh's centre, another view wherever the box was not centred on it
             centre = local.mean(axis=0)
@@ -1279,7 +1289,7 @@ class LayeredRenderer:
         for light in _lights(self._pv, local, fill):
             self._plotter.add_light(light)
         self._plotter.camera_position = position
-        self._plotter.camera.view_angle = _VIEW_ANGLE
+        self._plotter.camera.view_angle = view_angle
         seen = [local] + list(self._local_bounds.values())
         union = np.array([np.min([b[0] for b in seen], axis=0), np.max([b[1] for b in seen], axis=0)])
         # the meshes uploaded by now (the overview, before its close-ups) keep the near plane off a close eye's ground

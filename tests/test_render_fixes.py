@@ -751,3 +751,59 @@ def test_a_render_leaves_the_users_vtk_warning_settings_as_they_were(shown, verb
         vtkObject.SetGlobalWarningDisplay(old[0])
         vtkLogger.SetStderrVerbosity(old[1])
 
+
+def _textured_square(rgba: np.ndarray) -> trimesh.Trimesh:
+    """A 10 x 10 square, a hill at one corner, with ``rgba`` as its texture (row 0 at the north)."""
+    uv = VERTICES[:, :2] / 10.0
+    visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(rgba))
+    return trimesh.Trimesh(VERTICES, FACES, visual=visual, process=False)
+
+
+def _covered(image: np.ndarray) -> np.ndarray:
+    return (image < 250).any(axis=2)
+
+
+@needs_render
+@pytest.mark.parametrize("camera", ["oblique", "top", (0.5, 0.6)])
+def test_render_textured_mesh_takes_view_angle_and_frames_as_render_mesh(camera):
+    """render_mesh took a view_angle (the globe's camera field of view goes through it), render_textured_mesh had
+    none: a textured mesh could only be shown at 30 degrees, and a textured and a coloured render of one mesh could not
+    be matched at another field of view. It takes one now, fitted and framed as render_mesh's: the same pixels are
+    covered, and a narrower angle from the same explicit eye shows the mesh larger."""
+    gray = np.full((4, 4, 3), 120, np.uint8)
+    textured = _textured_square(gray)
+    plain = trimesh.Trimesh(VERTICES, FACES, process=False)
+    for view_angle in (10.0, 30.0, 90.0):
+        a = render.render_textured_mesh(textured, window_size=(64, 48), camera=camera, view_angle=view_angle)
+        b = render.render_mesh(plain, window_size=(64, 48), camera=camera, view_angle=view_angle)
+        assert np.array_equal(_covered(a), _covered(b)), view_angle
+    eye = [(0.0, -40.0, 30.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    wide = render.render_textured_mesh(textured, window_size=(64, 48), camera=eye, view_angle=40.0)
+    narrow = render.render_textured_mesh(textured, window_size=(64, 48), camera=eye, view_angle=20.0)
+    assert _covered(narrow).sum() > 3 * _covered(wide).sum()
+    with pytest.raises(InvalidInputError, match=r"^view_angle must be a vertical field of view in \[1e-08, 179\]"):
+        render.render_textured_mesh(textured, window_size=(64, 48), view_angle=180.0)
+
+
+@needs_render
+def test_render_closeups_takes_view_angle():
+    """render_closeups had no view_angle, unlike render_mesh: its LayeredRenderer always set VTK's 30 degrees. The
+    angle now reaches the renderer's camera and its fit: with no close-ups the composite is the overview's render
+    as render_mesh draws it at that angle (the same pixels covered), and a narrower angle from the same explicit eye
+    shows the terrain larger."""
+    from stepterrain.closeup import render_closeups
+    from stepterrain.terrain import Terrain
+
+    terrain = Terrain.from_heights(np.add.outer(np.arange(20.0), np.arange(30.0)).astype(np.float32),
+                                   spacing=(1.0, 1.0))
+    mesh = terrain.mesh()
+    for view_angle in (10.0, 60.0):
+        layered = render_closeups(terrain, [], window_size=(64, 48), scalars=None, view_angle=view_angle, device="cpu")
+        plain = render.render_mesh(mesh, window_size=(64, 48), bounds=mesh.bounds, view_angle=view_angle)
+        assert np.abs(layered.astype(int) - plain.astype(int)).max() <= 1, view_angle
+    eye = [(0.0, -60.0, 40.0), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    wide, narrow = (render_closeups(terrain, [], window_size=(64, 48), camera=eye, view_angle=angle, device="cpu")
+                    for angle in (40.0, 20.0))
+    assert _covered(narrow).sum() > 2 * _covered(wide).sum()
+    with pytest.raises(InvalidInputError, match=r"^view_angle must be a vertical field of view"):
+        render_closeups(terrain, [], window_size=(64, 48), view_angle=0.0, device="cpu")
