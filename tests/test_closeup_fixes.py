@@ -734,9 +734,9 @@ def test_the_camera_frames_the_closeup_where_it_is_drawn(monkeypatch):
     boxes = []
     fit = render.LayeredRenderer.set_view
 
-    def spy(self, camera, box):
+    def spy(self, camera, box, **kwargs):
         boxes.append(np.asarray(box, np.float64))
-        return fit(self, camera, box)
+        return fit(self, camera, box, **kwargs)
 
     monkeypatch.setattr(render.LayeredRenderer, "set_view", spy)
     render_closeups(t, [cu], window_size=SIZE, camera="top", device="cpu")
