@@ -1115,13 +1115,17 @@ def _vertex_scalars(terrain: Terrain, points_local: NDArray[np.float32], kind: s
 
 def _overview_rgb(t: Terrain, mesh: trimesh.Trimesh, scalars: str | None, cmap: str,
                   image_texture: Any) -> NDArray[np.uint8] | None:
-    """The overview's vertex colours: an aerial image, else a colormap of its scalars, else None (plain)."""
-    if image_texture is not None:
+    """The overview's vertex colours: an aerial image, else a colormap of its scalars, else None (plain); an image
+    with alpha laid over the colormap (or the plain tan)."""
+    if image_texture is not None and image_texture.shape[2] == 3:
         return _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2])
-    if scalars is None:
-        return None
-    local = (np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]).astype(np.float32)
-    return _colors_for(_vertex_scalars(t, local, scalars), cmap, *_scalar_range(t, scalars))
+    colors = None
+    if scalars is not None:
+        local = (np.asarray(mesh.vertices, np.float64) - [*t.local_origin, 0.0]).astype(np.float32)
+        colors = _colors_for(_vertex_scalars(t, local, scalars), cmap, *_scalar_range(t, scalars))
+    if image_texture is None:
+        return colors
+    return _texture_rgb(t, image_texture, np.asarray(mesh.vertices)[:, :2], colors)
 
 
 def closeup_layers(
@@ -1898,17 +1902,23 @@ def _scalar_range(terrain: Terrain, kind: str) -> tuple[float, float]:
 _DEFAULT_CMAPS = {"height": "terrain", "slope": "magma", "aspect": "twilight"}
 
 
-def _check_texture(image: Any, name: str) -> NDArray[np.uint8]:
+def _check_texture(image: Any, name: str, alpha: bool = False) -> NDArray[np.uint8]:
+    """``image`` as a contiguous (h, w, 3) uint8 array, (h, w, 4) with ``alpha`` where some alpha is below 255."""
     arr = np.asarray(image)
     if arr.ndim != 3 or arr.shape[2] not in (3, 4) or arr.shape[0] < 2 or arr.shape[1] < 2:
         raise InvalidInputError(f"{name} must be an (h, w, 3|4) image of at least 2 x 2 pixels; got shape {arr.shape}")
     if arr.dtype != np.uint8:
         raise InvalidInputError(f"{name} must be uint8 (0-255); got dtype {arr.dtype}")
+    if alpha and arr.shape[2] == 4 and int(arr[..., 3].min()) < 255:
+        return np.ascontiguousarray(arr)
     return np.ascontiguousarray(arr[..., :3])
 
 
-def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.float64]) -> NDArray[np.uint8]:
-    """Bilinear samples of an image spread over the terrain's extent (row 0 at the upper y) at world xy."""
+def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.float64],
+                 under: NDArray[np.uint8] | None = None) -> NDArray[np.uint8]:
+    """Bilinear samples of an image spread over the terrain's extent (row 0 at the upper y) at world xy. An (h, w, 4)
+    image is sampled premultiplied and laid over ``under`` (V, 3) (None: the plain tan of an uncoloured mesh) by its
+    alpha: its transparent texels show what lies under them."""
     xmin, xmax, ymin, ymax = terrain.extent
     h, w = image.shape[:2]
     fx = np.clip((xy[:, 0] - xmin) / max(xmax - xmin, 1e-12), 0, 1) * (w - 1)
@@ -1917,9 +1927,18 @@ def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.floa
     i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
     tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
     img = image.astype(np.float32)
+    if img.shape[2] == 4:  # premultiplied: a transparent texel's colour does not bleed into its neighbours
+        img[..., :3] *= img[..., 3:] / 255.0
     top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
     bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
-    return np.clip(np.rint(top + ty * (bottom - top)), 0, 255).astype(np.uint8)
+    sampled = top + ty * (bottom - top)
+    if img.shape[2] == 4:
+        from .render import _DEFAULT_COLOR
+
+        below = (np.asarray(under, np.float32) if under is not None
+                 else np.float32(255.0) * np.asarray(_DEFAULT_COLOR, np.float32))
+        sampled = sampled[:, :3] + (1.0 - sampled[:, 3:] / 255.0) * below
+    return np.clip(np.rint(sampled), 0, 255).astype(np.uint8)
 
 
 def _layer_rgb(terrain: Terrain, layer: CloseUpLayer, cu: CloseUp, overview: tuple[str | None, str, Any]
@@ -1932,13 +1951,16 @@ def _layer_rgb(terrain: Terrain, layer: CloseUpLayer, cu: CloseUp, overview: tup
     if layer.colors is not None:
         return layer.colors
     scalars, cmap, texture = overview
-    if texture is not None:
+    if texture is not None and texture.shape[2] == 3:
         return _texture_rgb(terrain, texture, layer.original[:, :2])
-    if scalars is None:
-        return None
-    values = _vertex_scalars(terrain, (layer.original - [*terrain.local_origin, 0.0]).astype(np.float32), scalars)
-    lo, hi = _scalar_range(terrain, scalars)
-    return _colors_for(values, cmap, lo, hi)
+    colors = None
+    if scalars is not None:
+        values = _vertex_scalars(terrain, (layer.original - [*terrain.local_origin, 0.0]).astype(np.float32), scalars)
+        lo, hi = _scalar_range(terrain, scalars)
+        colors = _colors_for(values, cmap, lo, hi)
+    if texture is None:
+        return colors
+    return _texture_rgb(terrain, texture, layer.original[:, :2], colors)  # laid over the mapping by its alpha
 
 
 def _gray(rgb: tuple[float, float, float]) -> tuple[float, float, float]:
@@ -2081,7 +2103,9 @@ def render_closeups(
         height along an axis shows in ``cmap``'s "bad" color, and so does the aspect of flat ground (no downhill
         direction).
     texture : (h, w, 3|4) uint8, optional
-        An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead.
+        An aerial image over the terrain's extent (row 0 at the upper y) draped over the overview instead. Its alpha,
+        where below 255, lays it over the overview's own mapping (``scalars`` through ``cmap``, or the plain tan):
+        transparent texels (nodata, outside the image's footprint) show that mapping, not their RGB.
     time : float
         Animation time (spinning close-ups).
     renderer : stepterrain.render.LayeredRenderer, optional
@@ -2145,7 +2169,7 @@ def render_closeups(
     _check_cmap(cmap)
     _check_in_terrain(t, items)
     _check_grid_scalars(t, scalars, items)
-    image_texture = None if texture is None else _check_texture(texture, "texture")
+    image_texture = None if texture is None else _check_texture(texture, "texture", alpha=True)
     box = None if bounds is None else render._check_box(bounds, "bounds")  # before any work; text was taken
     view_angle = render._check_view_angle(view_angle)
     clock = timings if timings is not None else {}

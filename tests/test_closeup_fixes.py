@@ -811,3 +811,35 @@ def test_a_stepped_closeup_on_a_tin_steps_only_the_faces_near_its_roi(monkeypatc
         assert len(a.faces) > 50
         for name in ("vertices", "faces", "colors", "mask_factor", "original", "source_faces"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("scalars", ["height", None])
+def test_an_overview_texture_with_transparent_texels_shows_the_overview_mapping_under_them(scalars):
+    """render_closeups took an (h, w, 4) texture and dropped its alpha: texels with alpha 0 (nodata, outside an aerial
+    image's footprint) rendered opaque in whatever RGB they held (here red). The texture is now laid over the
+    overview's own mapping by its alpha: the transparent half shows the render without a texture, the opaque half
+    the image, and an opaque RGBA texture renders as its RGB."""
+    t = terrain()
+    red = np.zeros((16, 16, 4), np.uint8)
+    red[..., 0] = 255
+    red[:, :8, 3] = 255  # the west half opaque, the east half transparent
+    plain = render_closeups(t, [], window_size=SIZE, scalars=scalars, camera="top", device="cpu")
+    draped = render_closeups(t, [], window_size=SIZE, scalars=scalars, camera="top", texture=red, device="cpu")
+    east = slice(SIZE[0] // 2 + 8, None)
+    west = slice(8, SIZE[0] // 2 - 8)
+
+    def reddish(image):
+        rgb = image.astype(int)
+        return (rgb[..., 0] > 150) & (rgb[..., 1] < 90) & (rgb[..., 2] < 90)
+
+    assert np.abs(draped[:, east].astype(int) - plain[:, east].astype(int)).max() <= 1
+    assert not reddish(draped[:, east]).any()
+    assert reddish(draped[:, west]).mean() > 0.3  # the terrain fills ~40 % of the window
+    opaque = red.copy()
+    opaque[..., 3] = 255
+    as_rgba = render_closeups(t, [], window_size=SIZE, scalars=scalars, camera="top", texture=opaque, device="cpu")
+    as_rgb = render_closeups(t, [], window_size=SIZE, scalars=scalars, camera="top", texture=opaque[..., :3].copy(),
+                             device="cpu")
+    assert np.array_equal(as_rgba, as_rgb)
