@@ -507,11 +507,7 @@ def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, i
                   view_angle: float = _VIEW_ANGLE) -> tuple[float, float]:
     """Width and height in pixels of ``points`` (those in front of the eye) seen from the pyvista camera
     ``position`` with the vertical field of view ``view_angle`` (degrees), at image ``size``."""
-    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
-    forward = (focal - eye) / np.linalg.norm(focal - eye)
-    right, true_up = _screen_axes(forward, up)
-    rel = points - eye
-    depth = rel @ forward
+    rel, depth, right, true_up = _eye_frame(points, position)
     front = depth > 0
     if not front.any():
         return 0.0, 0.0
@@ -520,6 +516,17 @@ def _pixel_extent(points: NDArray[np.float64], position: Any, size: tuple[int, i
     width, height = size
     tan_h = tan_v * width / height
     return float(np.ptp(sx)) / (2 * tan_h) * width, float(np.ptp(sy)) / (2 * tan_v) * height
+
+
+def _eye_frame(points: NDArray[np.float64], position: Any
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """(``points`` less the eye, their depths along the view direction, the screen's right and up vectors) of the
+    pyvista camera ``position``."""
+    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
+    forward = (focal - eye) / np.linalg.norm(focal - eye)
+    right, true_up = _screen_axes(forward, up)
+    rel = points - eye
+    return rel, rel @ forward, right, true_up
 
 
 def _check_visible(corners: NDArray[np.float64], position: Any, size: tuple[int, int], box: NDArray[np.float64],
@@ -778,12 +785,8 @@ def _fit_points(camera: CameraLike, local: NDArray[np.float64], finite: NDArray[
 def _outside_view(points: NDArray[np.float64], position: Any, aspect: float, view_angle: float) -> NDArray[np.bool_]:
     """Which ``points`` lie outside the view of the pyvista camera ``position`` (vertical field of view
     ``view_angle`` degrees, width / height ``aspect``), behind the eye included."""
-    eye, focal, up = (np.asarray(v, dtype=np.float64) for v in position)
-    forward = (focal - eye) / np.linalg.norm(focal - eye)
-    right, true_up = _screen_axes(forward, up)
+    rel, depth, right, true_up = _eye_frame(points, position)
     tan_v = math.tan(math.radians(view_angle) / 2.0)
-    rel = points - eye
-    depth = rel @ forward
     inside = (depth > 0) & (np.abs(rel @ right) <= depth * (tan_v * aspect)) & (np.abs(rel @ true_up) <= depth * tan_v)
     return ~inside
 
