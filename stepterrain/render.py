@@ -875,7 +875,8 @@ def render_textured_mesh(
     """Render a mesh with its texture (``trimesh.visual.TextureVisuals``: UVs and a base-colour image) off-screen.
 
     Same camera (its vertical field of view ``view_angle`` in degrees too), lights and framing as
-    :func:`render_mesh`. ``lighting=False`` shows the texture unlit (a
+    :func:`render_mesh`. The texture is sampled linearly (bilinear), as a glTF viewer shows the mesh's GLB.
+    ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
 
     A texture with some alpha below 255 (an alpha band, or a PNG's transparent colour) blends with what lies behind
@@ -921,6 +922,7 @@ def render_textured_mesh(
     poly = _polydata(pv, local, mesh.faces)
     poly.active_texture_coordinates = uv
     texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
+    texture.interpolate = True  # linear, as a glTF viewer samples the GLB: nearest drew a magnified texel as a block
     mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
                        diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,

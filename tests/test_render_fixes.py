@@ -807,3 +807,22 @@ def test_render_closeups_takes_view_angle():
     assert _covered(narrow).sum() > 2 * _covered(wide).sum()
     with pytest.raises(InvalidInputError, match=r"^view_angle must be a vertical field of view"):
         render_closeups(terrain, [], window_size=(64, 48), view_angle=0.0, device="cpu")
+
+
+@needs_render
+def test_a_magnified_texture_is_filtered_linearly_not_drawn_as_blocks():
+    """render_textured_mesh gave VTK its texture without interpolation: magnified (a DEM's topographic texture, one
+    texel per node, on a 1280-pixel window), each texel was drawn as a flat block with hard steps between, where a
+    glTF viewer shows the mesh's GLB (no sampler: linear filtering) smooth. A ramp of 9 texels, one per node, now
+    renders as a ramp: many grey levels, rising steadily along the row, the texel value at each node."""
+    from stepterrain.texture import TextureLayer, drape
+
+    mesh = st.heightfield_mesh(np.zeros((9, 9)))
+    ramp = np.tile(np.arange(9) / 8.0, (9, 1))
+    draped = drape(mesh, TextureLayer("luminance", ramp, (-0.5, 8.5, -0.5, 8.5)))
+    image = render.render_textured_mesh(draped, window_size=(160, 120), camera="top", lighting=False)
+    row = image[60, :, 0].astype(int)
+    on_mesh = row[np.argmax(row < 255):]  # from the west edge (black) to the east edge (white, as the background)
+    on_mesh = on_mesh[: np.argmax(on_mesh == 255) + 1]
+    assert len(np.unique(on_mesh)) > 40
+    assert (np.diff(on_mesh) >= 0).all() and np.diff(on_mesh).max() <= 8
