@@ -44,9 +44,11 @@ from .io import (
     _check_read_budget,
     _crs_object,
     _crs_string,
+    _geographic_body,
     _is_geographic,
     _negligible_rotation,
     _projected_units,
+    _spherical_eqc,
     _wkt_block,
     lonlat_as_local_metres,
     picture_uint8,
@@ -352,7 +354,8 @@ def _storage_folder(storage: Any) -> Path | None:
 class ImagePyramid:
     """An image pyramid (paper 004 §3.2.1): level 0 is the image, each next level half the size (ceil), down to
     1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north) in the coordinate reference
-    system ``crs`` (None: unknown; :class:`TextureTree` refuses a terrain whose own ``crs`` is another).
+    system ``crs`` (None: unknown; :class:`TextureTree` refuses a terrain whose own ``crs`` is another, except a
+    geographic ``crs`` on a DEM load_dem read from degrees into local metres, where it places the extent exactly).
 
     Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``. Level 0 is the source itself
     when nothing can change it (an image file; a .npy stays on disk, memory-mapped read-only); an array the caller
@@ -432,7 +435,9 @@ class ImagePyramid:
             one unit per pixel).
         crs : str, optional
             The coordinate reference system of the extent, e.g. ``"EPSG:32611"`` (default: a GeoTIFF's own when its
-            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS.
+            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS, but
+            places an image in degrees (EPSG:4326, ...) on a DEM that load_dem read from degrees (of the same body)
+            into local metres exactly, through the linear map of those metres.
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
@@ -1042,22 +1047,56 @@ def _overlap(a: Extent, b: Extent) -> bool:
     return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
 
 
-def _check_same_crs(pyramid: ImagePyramid, terrain: Terrain) -> None:
-    """An InvalidInputError when the pyramid's extent and the terrain lie in different known CRSs: the extents were
-    compared as numbers, so a Blue Marble in degrees (-180..180) over a DEM in degrees read as local metres (0..53 km)
-    draped lon 0..180, lat -90..0 on it without a word. For that DEM the message gives the image's exact extent in
-    its metres (linear in longitude and latitude)."""
+class _PlacedPyramid(ImagePyramid):
+    """A pyramid's levels over another ``extent`` in another ``crs`` (:func:`_placed`): no copy, and the levels are
+    read through the pyramid itself, so closing it closes this view too (closing the view closes nothing)."""
+
+    def __init__(self, source: ImagePyramid, extent: Extent, crs: str | None) -> None:  # noqa: D107
+        self.source = source
+        self.extent = _check_extent(extent)
+        self.crs = crs
+        self.storage = source.storage
+        self._owned = False
+        self._closed = False
+
+    @property
+    def levels(self) -> list[NDArray[np.uint8]]:
+        return self.source.levels
+
+    @property
+    def anisotropic(self) -> dict[tuple[int, int], NDArray[np.uint8]]:
+        return self.source.anisotropic
+
+
+def _placed(pyramid: ImagePyramid, terrain: Terrain) -> ImagePyramid:
+    """The pyramid in the terrain's coordinates: itself when their CRSs agree or one is unknown; a view of it over
+    its extent in the local equirectangular metres of a DEM that load_dem read from degrees (the terrain's ``crs`` a
+    spherical ``+proj=eqc``) when the image is in a geographic CRS of the same body (an orthophoto in EPSG:4326 on an
+    SRTM tile in EPSG:4326: those metres are linear in longitude and latitude, so the extent maps exactly; the
+    image's grads or prime meridian are read as load_dem reads the DEM's, and its longitudes are taken by whole
+    turns nearest the terrain, so an image in 0..360 places on a DEM at -105); else an InvalidInputError naming
+    both CRSs: the extents were compared as numbers, so a Blue Marble in degrees (-180..180) over the metres of a
+    DEM in UTM (or of another body) draped it anywhere without a word."""
     if pyramid.crs is None or terrain.crs is None or _same_crs(pyramid.crs, terrain.crs):
-        return
+        return pyramid
     image_crs, terrain_crs = _horizontal_crs(pyramid.crs), _horizontal_crs(terrain.crs)
     hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain_crs}' ...`)"
-    xmin, xmax, ymin, ymax = pyramid.extent
-    local = lonlat_as_local_metres(terrain.crs, (xmin, xmax), (ymin, ymax)) if _is_geographic(pyramid.crs) else None
-    if local is not None:
-        (x0, x1), (y0, y1) = local
-        hint = (f"the terrain is a DEM in degrees read as local equirectangular metres, linear in longitude and "
-                f"latitude, so ImagePyramid.build(..., extent=({x0:.6f}, {x1:.6f}, {y0:.6f}, {y1:.6f}), "
-                f"crs=terrain.crs) places this image on it exactly")
+    local = _spherical_eqc(terrain.crs)
+    if local is not None and _is_geographic(image_crs):
+        radius, x_radius, _, lon_0, x_0, _ = local
+        body = _geographic_body(image_crs)
+        if abs(body.radius / radius - 1.0) <= 0.01:  # the same body (the earth: any earth ellipsoid, as load_dem)
+            xmin, xmax, ymin, ymax = pyramid.extent
+            lons = [v * body.degrees + body.meridian for v in (xmin, xmax)]
+            centre = lon_0 + math.degrees((0.5 * (terrain.extent[0] + terrain.extent[1]) - x_0) / x_radius)
+            turns = 360.0 * round((centre - 0.5 * (lons[0] + lons[1])) / 360.0)
+            found = lonlat_as_local_metres(terrain.crs, [v + turns for v in lons],
+                                           [v * body.degrees for v in (ymin, ymax)])
+            if found is not None:
+                (x0, x1), (y0, y1) = found
+                return _PlacedPyramid(pyramid, (x0, x1, y0, y1), terrain.crs)
+        hint = (f"the terrain is a DEM in degrees of a body of radius {radius:.10g} m read as local metres, but the "
+                f"image's CRS is of a body of radius {body.radius:.10g} m")
     raise InvalidInputError(f"the image is in CRS {image_crs!r} but the terrain is in {terrain_crs!r} (mismatched "
                             f"CRS: the extent {pyramid.extent} is not in the terrain's coordinates); {hint}")
 
@@ -1067,7 +1106,9 @@ class TextureTree:
 
     Each texture patch names the finest pyramid level whose window over its geometry patch fits
     ``max_texture_size`` per side; subtrees are pruned below patches already at full resolution (level 0);
-    geometry patches the image does not overlap get no texture patch.
+    geometry patches the image does not overlap get no texture patch. ``tree.pyramid`` is the pyramid, or for an
+    image in degrees on a DEM read from degrees into local metres a view of it over its extent in those metres
+    (the same levels, read through the pyramid: closing it closes the view).
     """
 
     def __init__(self, pyramid: ImagePyramid, quadtree: PatchQuadtree, *, max_texture_size: int = 1024) -> None:
@@ -1077,7 +1118,7 @@ class TextureTree:
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
         if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
-        _check_same_crs(pyramid, quadtree.terrain)
+        pyramid = _placed(pyramid, quadtree.terrain)
         self.pyramid = pyramid
         self.quadtree = quadtree
         self.max_texture_size = max_texture_size

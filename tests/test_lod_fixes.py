@@ -398,3 +398,58 @@ def test_a_16_bit_geotiffs_read_stays_near_the_memory_budgets_count(tmp_path):
         tracemalloc.stop()
     np.testing.assert_array_equal(image, np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2))
     assert peak < 4 * data.size, f"{peak / data.size:.1f} bytes a cell"
+
+
+def test_a_geotiff_texture_in_degrees_drapes_its_dem_in_degrees_read_as_local_metres(tmp_path):
+    """The most common GIS case: an SRTM DEM in EPSG:4326 (the Front Range) and an orthophoto in EPSG:4326 over it.
+    load_dem reads the DEM into local equirectangular metres, so the image's extent in degrees was refused as another
+    CRS (the user had to copy an extent out of the message). The tree places it through the exact, linear map of
+    those metres: every painted vertex of an image on the DEM's own grid, each pixel coding its row and column,
+    samples its own node's pixel, for longitudes given in -180..180 or 0..360 alike; an image of another body (a
+    sphere of Mars' radius) is still refused."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import load_dem
+    from stepterrain.texture_lod import paint_with_textures
+
+    from .reference_texture import find_shared
+
+    source = find_shared("front_range_srtmgl3_3arcsec.tif")
+    terrain = load_dem(source)
+    with rasterio.open(source) as dataset:
+        profile, transform = dataset.profile, dataset.transform
+    profile.update(count=3, dtype="uint8", nodata=None, predictor=1)
+    rows, cols = np.indices(terrain.shape)
+    code = np.stack([rows % 256, cols % 256, 16 * (rows // 256) + cols // 256]).astype(np.uint8)
+    east = tmp_path / "ortho.tif"
+    with rasterio.open(east, "w", **profile) as out:
+        out.write(code)
+    shifted = tmp_path / "ortho_360.tif"
+    with rasterio.open(shifted, "w", **{**profile, "transform": Affine.translation(360.0, 0.0) @ transform}) as out:
+        out.write(code)
+    (x0, y0), (dx, dy) = terrain.origin, terrain.spacing
+    for path in (east, shifted):
+        with ImagePyramid.build(path, device="cpu") as pyramid:
+            assert pyramid.crs == "EPSG:4326"
+            tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=128), max_texture_size=1024)
+            assert tree.root.level == 0 and tree.root.window == (0, 758, 0, 758)
+            camera = Camera((x0 + 400 * dx, y0 + 900 * dy, 3e4), (x0 + 400 * dx, y0 + 400 * dy, 3000.0))
+            painted = 0
+            for item in render_with_textures(tree.quadtree.root, [tree.root], camera):
+                mesh = paint_with_textures(item)
+                image = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+                height, width = image.shape[:2]
+                u, v = mesh.visual.uv.T
+                texels = image[np.minimum((1.0 - v) * height, height - 1).astype(int),
+                               np.minimum(u * width, width - 1).astype(int)]
+                node_rows = np.rint((mesh.vertices[:, 1] - y0) / dy).astype(int)
+                node_cols = np.rint((mesh.vertices[:, 0] - x0) / dx).astype(int)
+                np.testing.assert_array_equal(texels, code[:, node_rows, node_cols].T)
+                painted += len(mesh.vertices)
+            assert painted > 10_000
+    with ImagePyramid.build(east, extent=(0, 1, 0, 1), crs="+proj=longlat +R=3396190 +no_defs",
+                            device="cpu") as pyramid:
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS .*mismatched CRS.*radius 6371008.8 m.*"
+                                                    r"radius 3396190 m"):
+            TextureTree(pyramid, PatchQuadtree(terrain))
