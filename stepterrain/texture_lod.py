@@ -1085,9 +1085,14 @@ def _placed(pyramid: ImagePyramid, terrain: Terrain) -> ImagePyramid:
     if local is not None and _is_geographic(image_crs):
         radius, x_radius, _, lon_0, x_0, _ = local
         body = _geographic_body(image_crs)
+        if body.east < 0:  # column 0 at xmin, the smallest west longitude: the image would run east to west
+            raise InvalidInputError(
+                f"the image is in CRS {image_crs!r}, whose longitude axis increases westwards, so its extent "
+                f"{pyramid.extent} (column 0 at xmin) runs east to west; give the image north-up and east-right "
+                "in a CRS whose longitudes increase eastwards (e.g. `gdalwarp -t_srs EPSG:4326`)")
         if abs(body.radius / radius - 1.0) <= 0.01:  # the same body (the earth: any earth ellipsoid, as load_dem)
             xmin, xmax, ymin, ymax = pyramid.extent
-            lons = [v * body.degrees + body.meridian for v in (xmin, xmax)]
+            lons = [body.meridian + v * body.degrees for v in (xmin, xmax)]
             centre = lon_0 + math.degrees((0.5 * (terrain.extent[0] + terrain.extent[1]) - x_0) / x_radius)
             turns = 360.0 * round((centre - 0.5 * (lons[0] + lons[1])) / 360.0)
             found = lonlat_as_local_metres(terrain.crs, [v + turns for v in lons],

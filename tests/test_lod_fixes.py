@@ -453,3 +453,24 @@ def test_a_geotiff_texture_in_degrees_drapes_its_dem_in_degrees_read_as_local_me
         with pytest.raises(InvalidInputError, match=r"^the image is in CRS .*mismatched CRS.*radius 6371008.8 m.*"
                                                     r"radius 3396190 m"):
             TextureTree(pyramid, PatchQuadtree(terrain))
+
+
+def test_an_image_in_a_west_positive_geographic_crs_is_refused_on_a_dem_in_degrees():
+    """An image whose CRS's longitudes increase westwards (AXIS["Longitude",WEST]): its extent puts column 0 at
+    xmin, the smallest west longitude, the east edge, so the image runs east to west; placed as east degrees it drew
+    mirrored without a word. The tree refuses it, saying why; the same image in EPSG:4326 is placed."""
+    pytest.importorskip("rasterio")
+    from stepterrain.io import load_dem
+
+    from .reference_texture import find_shared
+
+    west = ('GEOGCS["WGS 84 west-positive",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+            'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AXIS["Latitude",NORTH],AXIS["Longitude",WEST]]')
+    terrain = load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    image = np.zeros((8, 8, 3), np.uint8)
+    with ImagePyramid.build(image, extent=(105.2, 105.8, 39.9, 40.4), crs=west, device="cpu") as pyramid:
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS .*longitude axis increases westwards.*"
+                                                    r"runs east to west.*EPSG:4326"):
+            TextureTree(pyramid, PatchQuadtree(terrain))
+    with ImagePyramid.build(image, extent=(-105.8, -105.2, 39.9, 40.4), crs="EPSG:4326", device="cpu") as pyramid:
+        assert TextureTree(pyramid, PatchQuadtree(terrain)).root is not None
