@@ -130,9 +130,9 @@ def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
     return (float(left * factor), float(right * factor), float(bottom * factor), float(top * factor)), crs
 
 
-def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]:
-    """(array (H, W, C) uint8, backing file or None, byte offset of the data in it, whether its pixels can change
-    after this: the caller's writeable array, or a view of one)."""
+def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool]:
+    """(array (H, W, C) uint8, backing file or None, whether its pixels can change after this: the caller's
+    writeable array, or a view of one)."""
     path = None
     if isinstance(image, (bytes, bytearray)):  # np.asarray made it a dtype |S array, refused as not uint8
         raise InvalidInputError("image must be an (H, W) or (H, W, C) uint8 array or a path (a str or os.PathLike); "
@@ -171,11 +171,11 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
         array = array[:, :, None]
     if array.ndim != 3 or array.shape[0] < 1 or array.shape[1] < 1 or not 1 <= array.shape[2] <= 4:
         raise InvalidInputError(f"pyramid image must be (H, W) or (H, W, C<=4); got shape {array.shape}")
-    backing, offset = _memmap_backing(array)
+    backing = _memmap_backing(array)
     if path is not None:  # pixels this call decoded or mapped read-only: level 0 as they are, and read-only
         array.flags.writeable = False
-        return array, backing, offset, False
-    return array, backing, offset, _may_change(array)
+        return array, backing, False
+    return array, backing, _may_change(array)
 
 
 #: EXIF orientations (tag 0x0112) other than 1, as a viewer turns the stored pixels to show them.
@@ -325,18 +325,11 @@ def _write_at(fd: int, data: NDArray[Any], offset: int) -> None:
         written += os.pwrite(fd, view[written:], offset + written)
 
 
-def _memmap_backing(array: NDArray[Any]) -> tuple[str | None, int]:
-    """(file, byte offset of ``array``'s first element in it) for a C-contiguous memmap, else (None, 0).
-
-    A slice of a memmap (``mm[10:20]``) keeps its parent's ``offset`` attribute, so the offset is taken
-    from the data pointer relative to the outermost memmap over the same mapping."""
+def _memmap_backing(array: NDArray[Any]) -> str | None:
+    """The file of a C-contiguous memmap, else None."""
     if not (isinstance(array, np.memmap) and array.filename and array.flags.c_contiguous):
-        return None, 0
-    root = array
-    while isinstance(root.base, np.memmap):
-        root = root.base
-    start = int(array.__array_interface__["data"][0]) - int(root.__array_interface__["data"][0])
-    return array.filename, int(root.offset) + start
+        return None
+    return array.filename
 
 
 def _storage_folder(storage: Any) -> Path | None:
@@ -483,7 +476,7 @@ class ImagePyramid:
         ...     [level.shape for level in pyramid.levels]
         [(5, 3, 3), (3, 2, 3), (2, 1, 3), (1, 1, 3)]
         """
-        source, backing, _, changeable = _source_image(image)
+        source, backing, changeable = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         crs = _optional_crs(crs)
         if extent is None:
@@ -521,11 +514,11 @@ class ImagePyramid:
                 path = staged.path("level_0.u8")
                 source = _snapshot(source, path, band_bytes)
             levels: list[NDArray[np.uint8]] = [source]
-            reader = _Reader(source, None, 0)  # level 0 itself, through its mapping (never its file name)
+            reader = _Reader(source, None)  # level 0 itself, through its mapping (never its file name)
             for k in range(1, len(shapes)):
                 path = staged.path(f"level_{k}.u8")
                 _reduce_file(reader, shapes[k - 1], shapes[k], channels, path, band_bytes, dev)
-                reader = _Reader(None, str(path), 0, shape=(*shapes[k], channels))
+                reader = _Reader(None, str(path), shape=(*shapes[k], channels))
             for k in range(1, len(shapes)):
                 levels.append(np.memmap(staged.path(f"level_{k}.u8"), dtype=np.uint8, mode="r",
                                         shape=(*shapes[k], channels)))
@@ -695,11 +688,10 @@ class _Reader:
     was mapped (a level of a pyramid whose storage a later build reused), and a same-size replacement was read
     without a word, the levels built from another image than level 0."""
 
-    def __init__(self, array: NDArray[np.uint8] | None, path: str | None, offset: int,
+    def __init__(self, array: NDArray[np.uint8] | None, path: str | None,
                  shape: tuple[int, int, int] | None = None) -> None:
         self.array = array
         self.path = path
-        self.offset = offset
         self.shape = tuple(array.shape) if array is not None else shape
 
     def rows(self, r0: int, r1: int) -> NDArray[np.uint8]:
@@ -727,12 +719,12 @@ class _Reader:
             view = memoryview(out).cast("B")
             done, want = 0, (r1 - r0) * row_bytes
             while done < want:
-                n = os.preadv(fd, [view[done:]], self.offset + r0 * row_bytes + done)
+                n = os.preadv(fd, [view[done:]], r0 * row_bytes + done)
                 if n <= 0:
                     raise DataFileError(f"{self.path!r} is shorter than its image ({self.shape}); truncated?")
                 done += n
             if hasattr(os, "posix_fadvise"):  # the pages are not needed again by this pass
-                os.posix_fadvise(fd, self.offset + r0 * row_bytes, want, os.POSIX_FADV_DONTNEED)
+                os.posix_fadvise(fd, r0 * row_bytes, want, os.POSIX_FADV_DONTNEED)
         finally:
             os.close(fd)
         return out
@@ -852,7 +844,7 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
                 parent, src_shape = (kx, ky - 1), (heights[ky - 1], widths[kx])
             dst_shape = (heights[ky], widths[kx])
             path = staged.path(f"level_{kx}_{ky}.u8")
-            reader = _Reader(out[parent], None, 0)  # level 0 or a staged level, through its mapping
+            reader = _Reader(out[parent], None)  # level 0 or a staged level, through its mapping
             _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)
             out[(kx, ky)] = np.memmap(path, dtype=np.uint8, mode="r", shape=(*dst_shape, channels))
     return out
@@ -1411,7 +1403,7 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     """
     import trimesh
 
-    from .terrain import grid_faces
+    from .terrain import grid_faces, without_nan_nodes
     from .texture import TextureLayer, drape
 
     tree = _tree_of(item, layer)
@@ -1427,13 +1419,9 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
                                 terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
-    finite = np.isfinite(vertices[:, 2])
-    if not finite.all():  # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were
-        faces = faces[finite[faces].all(axis=1)]  # kept: NaN vertices in the mesh, its faces spanning the void)
-        keep = np.zeros(len(vertices), dtype=bool)
-        keep[faces.reshape(-1)] = True
-        faces = (np.cumsum(keep) - 1)[faces]
-        vertices = vertices[keep]
+    # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were kept: NaN vertices in
+    # the mesh, its faces spanning the void)
+    vertices, faces, _ = without_nan_nodes(vertices, faces)
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     texture = item.textures[layer]
     image = np.asarray(texture.image())
