@@ -93,17 +93,19 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     return shapes
 
 
-def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
-    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path from its own georeferencing (rasterio), else None;
-    in metres for a projected CRS (or a site grid) in feet or another linear unit, with that projection in metres
-    as the CRS, as :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229
-    stayed in feet, refused against its DEM's metres)."""
-    if not isinstance(image, (str, os.PathLike)):
-        return None
-    # a plain TIFF (or one GDAL cannot read): pixel units, no warning
-    found = _read_tiff(Path(image), lambda dataset: (dataset.transform, (int(dataset.height), int(dataset.width)),
-                                                      _crs_string(dataset.crs)))
-    if found is None:
+def _georeferencing(dataset: Any) -> tuple[Any, tuple[int, int], str | None]:
+    """(transform, (height, width), CRS string) of an open rasterio dataset, for :func:`_georeferenced_extent`."""
+    return dataset.transform, (int(dataset.height), int(dataset.width)), _crs_string(dataset.crs)
+
+
+def _georeferenced_extent(image: Any, found: tuple[Any, tuple[int, int], str | None] | None) -> tuple[
+        Extent, str | None] | None:
+    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path ``image`` from its own georeferencing ``found``
+    (:func:`_georeferencing`, read with its pixels by :func:`_source_image`), else None; in metres for a projected
+    CRS (or a site grid) in feet or another linear unit, with that projection in metres as the CRS, as
+    :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229 stayed in feet,
+    refused against its DEM's metres)."""
+    if found is None:  # not a TIFF path, or one GDAL cannot read: pixel units, no warning
         return None
     transform, shape, crs = found
     if transform.is_identity:
@@ -130,10 +132,12 @@ def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
     return (float(left * factor), float(right * factor), float(bottom * factor), float(top * factor)), crs
 
 
-def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool]:
+def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool, Any]:
     """(array (H, W, C) uint8, backing file or None, whether its pixels can change after this: the caller's
-    writeable array, or a view of one)."""
+    writeable array, or a view of one; a TIFF path's :func:`_georeferencing`, else None). A TIFF is opened with
+    rasterio once, for its georeferencing, its nodata mask and (where Pillow cannot read it) its pixels."""
     path = None
+    georeferencing = None
     if isinstance(image, (bytes, bytearray)):  # np.asarray made it a dtype |S array, refused as not uint8
         raise InvalidInputError("image must be an (H, W) or (H, W, C) uint8 array or a path (a str or os.PathLike); "
                                 f"got {type(image).__name__}")
@@ -158,10 +162,12 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool]:
             except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
-                image = _raster_uint8(path)  # a TIFF Pillow cannot identify (16-bit bands) that GDAL reads
-                if image is None:
+                found = _read_tiff(path, _tiff_reader(path, None))  # a TIFF Pillow cannot identify (16-bit bands)
+                if found is None:  # that GDAL reads
                     raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
-            mask = _nodata_mask(path, image.shape[:2]) if image.shape[2] == 3 else None  # alpha: Pillow read it
+                image, mask, georeferencing = found
+            else:
+                image, mask, georeferencing = _read_tiff(path, _tiff_reader(path, image)) or (image, None, None)
             if mask is not None:
                 image = np.concatenate([image, mask[:, :, None]], axis=2)
     array = image if isinstance(image, np.ndarray) else as_array(image, "image", "an (H, W) or (H, W, C) uint8 array")
@@ -174,8 +180,8 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool]:
     backing = _memmap_backing(array)
     if path is not None:  # pixels this call decoded or mapped read-only: level 0 as they are, and read-only
         array.flags.writeable = False
-        return array, backing, False
-    return array, backing, _may_change(array)
+        return array, backing, False, georeferencing
+    return array, backing, _may_change(array), None
 
 
 #: EXIF orientations (tag 0x0112) other than 1, as a viewer turns the stored pixels to show them.
@@ -222,6 +228,26 @@ def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
         return None
 
 
+def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any], Any]:
+    """A :func:`_read_tiff` reader giving (image, nodata mask or None, georeferencing or None) in one open: ``image``
+    as Pillow read it, or (None) its pixels read with rasterio (:func:`_raster_uint8`); the mask of a 3-channel
+    image (:func:`_nodata_mask`); :func:`_georeferencing`. A mask or georeferencing GDAL cannot read is None, and
+    the others stand, as when each was read in an open of its own."""
+
+    def read(dataset: Any) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None, Any]:
+        pixels = _raster_pixels(path, dataset) if image is None else image
+        mask = None
+        if pixels.shape[2] == 3:  # alpha: Pillow (or the alpha band) gave it
+            with contextlib.suppress(Exception):
+                mask = _nodata_mask(dataset, pixels.shape[:2])
+        georeferencing = None
+        with contextlib.suppress(Exception):
+            georeferencing = _georeferencing(dataset)
+        return pixels, mask, georeferencing
+
+    return read
+
+
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
     read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: the band whose colour interpretation
@@ -229,51 +255,46 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     RGB); a fourth band that is not alpha is left out, as Pillow leaves out an extra sample (the near-infrared of an
     RGB + NIR image is no alpha); 16-bit values scaled by their full range (value / 257). None without rasterio or
     when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
-
-    def read(dataset: Any) -> NDArray[np.uint8]:
-        from rasterio.enums import ColorInterp
-
-        count, types = dataset.count, sorted(set(dataset.dtypes))
-        alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
-        if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
-            raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
-                                    f"{counted(count, 'band')} of {', '.join(types)}")
-        _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
-        colour = [k for k in range(count) if k not in alphas]
-        bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
-        # band by band, 16 bits scaled by a table: all bands through float64 at once peaked at 18 bytes a cell,
-        # four and a half times what the budget counted
-        image = np.empty((dataset.height, dataset.width, len(bands)), dtype=np.uint8)
-        scale = None  # round(v / 257) = (2 v + 257) // 514 (v / 257 is never halfway), per 16-bit value
-        if types == ["uint16"]:
-            scale = ((np.arange(65536, dtype=np.uint32) * 2 + 257) // 514).astype(np.uint8)
-        for k, band in enumerate(bands):
-            if k and band == bands[k - 1]:  # grey as RGB: the band once
-                image[:, :, k] = image[:, :, k - 1]
-                continue
-            data = dataset.read(band + 1)
-            image[:, :, k] = data if scale is None else scale[data]
-            del data
-        return image
-
-    return _read_tiff(path, read)
+    return _read_tiff(path, lambda dataset: _raster_pixels(path, dataset))
 
 
-def _nodata_mask(path: Path, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:
-    """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) when some pixel
-    is missing, else None (no rasterio, not a GeoTIFF, nothing masked). Pillow reads nodata as ordinary pixels: an
-    orthophoto's collar tagged nodata=0 was draped opaque black."""
+def _raster_pixels(path: Path, dataset: Any) -> NDArray[np.uint8]:
+    """The pixels of :func:`_raster_uint8` from its open rasterio ``dataset``."""
+    from rasterio.enums import ColorInterp
 
-    def read(dataset: Any) -> NDArray[np.uint8] | None:
-        from rasterio.enums import MaskFlags
+    count, types = dataset.count, sorted(set(dataset.dtypes))
+    alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
+    if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
+        raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
+                                f"{counted(count, 'band')} of {', '.join(types)}")
+    _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
+    colour = [k for k in range(count) if k not in alphas]
+    bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
+    # band by band, 16 bits scaled by a table: all bands through float64 at once peaked at 18 bytes a cell,
+    # four and a half times what the budget counted
+    image = np.empty((dataset.height, dataset.width, len(bands)), dtype=np.uint8)
+    scale = None  # round(v / 257) = (2 v + 257) // 514 (v / 257 is never halfway), per 16-bit value
+    if types == ["uint16"]:
+        scale = ((np.arange(65536, dtype=np.uint32) * 2 + 257) // 514).astype(np.uint8)
+    for k, band in enumerate(bands):
+        if k and band == bands[k - 1]:  # grey as RGB: the band once
+            image[:, :, k] = image[:, :, k - 1]
+            continue
+        data = dataset.read(band + 1)
+        image[:, :, k] = data if scale is None else scale[data]
+        del data
+    return image
 
-        if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
-            return None
-        return dataset.dataset_mask()
 
-    mask = _read_tiff(path, read)
-    if mask is None:
+def _nodata_mask(dataset: Any, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:
+    """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) of an open
+    rasterio ``dataset`` when some pixel is missing, else None (nothing masked, another shape than ``shape``).
+    Pillow reads nodata as ordinary pixels: an orthophoto's collar tagged nodata=0 was draped opaque black."""
+    from rasterio.enums import MaskFlags
+
+    if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
         return None
+    mask = dataset.dataset_mask()
     if mask.shape != tuple(shape) or mask.min() == 255:
         return None
     return np.where(mask > 0, 255, 0).astype(np.uint8)
@@ -476,11 +497,11 @@ class ImagePyramid:
         ...     [level.shape for level in pyramid.levels]
         [(5, 3, 3), (3, 2, 3), (2, 1, 3), (1, 1, 3)]
         """
-        source, backing, changeable = _source_image(image)
+        source, backing, changeable, georeferencing = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         crs = _optional_crs(crs)
         if extent is None:
-            georeferenced = _georeferenced_extent(image)
+            georeferenced = _georeferenced_extent(image, georeferencing)
             if georeferenced is not None:
                 if crs is not None and georeferenced[1] is not None and not _same_crs(crs, georeferenced[1]):
                     raise InvalidInputError(f"crs {crs!r} is not the CRS {georeferenced[1]!r} of image {str(image)!r}, "

@@ -474,3 +474,27 @@ def test_an_image_in_a_west_positive_geographic_crs_is_refused_on_a_dem_in_degre
             TextureTree(pyramid, PatchQuadtree(terrain))
     with ImagePyramid.build(image, extent=(-105.8, -105.2, 39.9, 40.4), crs="EPSG:4326", device="cpu") as pyramid:
         assert TextureTree(pyramid, PatchQuadtree(terrain)).root is not None
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "uint16"])  # Pillow reads the pixels / rasterio does
+def test_a_geotiff_pyramid_opens_the_file_with_rasterio_once(tmp_path, monkeypatch, dtype):
+    """A GeoTIFF texture was opened with rasterio two or three times per build: for its pixels (a 16-bit one),
+    its nodata mask and its extent. One open now reads all three, with the same pixels, alpha and extent."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    rgb = np.random.default_rng(0).integers(1, 255, (3, 6, 8), dtype=np.uint8)
+    rgb[:, :, :2] = 0  # a nodata collar
+    scale = 257 if dtype == "uint16" else 1
+    with rasterio.open(tmp_path / "ortho.tif", "w", driver="GTiff", height=6, width=8, count=3, dtype=dtype,
+                       crs="EPSG:32611", nodata=0, transform=Affine(2.0, 0.0, 376000.0, 0.0, -2.0, 3808000.0)) as out:
+        out.write(rgb.astype(dtype) * scale)
+    opened = []
+    real_open = rasterio.open
+    monkeypatch.setattr(rasterio, "open", lambda *args, **kwargs: opened.append(args) or real_open(*args, **kwargs))
+    with ImagePyramid.build(tmp_path / "ortho.tif", device="cpu") as pyramid:
+        level = np.asarray(pyramid.levels[0])
+        assert len(opened) == 1
+        assert pyramid.extent == (376000.0, 376016.0, 3807988.0, 3808000.0) and pyramid.crs == "EPSG:32611"
+        np.testing.assert_array_equal(level[..., :3], rgb.transpose(1, 2, 0))
+        np.testing.assert_array_equal(level[..., 3], np.where(rgb[0] > 0, 255, 0))
