@@ -1062,9 +1062,9 @@ def _overlap(a: Extent, b: Extent) -> bool:
 
 class _PlacedPyramid(ImagePyramid):
     """A pyramid's levels over another ``extent`` in another ``crs`` (:func:`_placed`): no copy, and the levels are
-    read through the pyramid itself, so closing it closes this view too (closing the view closes nothing)."""
+    read through the pyramid itself, so closing it closes this view too (closing the view closes only the view)."""
 
-    def __init__(self, source: ImagePyramid, extent: Extent, crs: str | None) -> None:  # noqa: D107
+    def __init__(self, source: ImagePyramid, extent: Extent, crs: str | None) -> None:
         self.source = source
         self.extent = _check_extent(extent)
         self.crs = crs
@@ -1074,10 +1074,12 @@ class _PlacedPyramid(ImagePyramid):
 
     @property
     def levels(self) -> list[NDArray[np.uint8]]:
+        self._open("its levels")
         return self.source.levels
 
     @property
     def anisotropic(self) -> dict[tuple[int, int], NDArray[np.uint8]]:
+        self._open("its anisotropic levels")
         return self.source.anisotropic
 
 

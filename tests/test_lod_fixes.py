@@ -448,6 +448,8 @@ def test_a_geotiff_texture_in_degrees_drapes_its_dem_in_degrees_read_as_local_me
                 np.testing.assert_array_equal(texels, code[:, node_rows, node_cols].T)
                 painted += len(mesh.vertices)
             assert painted > 10_000
+        with pytest.raises(InvalidInputError, match=r"^the ImagePyramid is closed"):  # the view reads through it
+            tree.pyramid.sub_image(0, (0, 1, 0, 1))
     with ImagePyramid.build(east, extent=(0, 1, 0, 1), crs="+proj=longlat +R=3396190 +no_defs",
                             device="cpu") as pyramid:
         with pytest.raises(InvalidInputError, match=r"^the image is in CRS .*mismatched CRS.*radius 6371008.8 m.*"
