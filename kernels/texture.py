@@ -1097,29 +1097,31 @@ def reduce_band(
     area = n_rows * n_cols  # the weights' common denominator: the sum is at most 255 area, exact in int64
     weight_sum = area  # the colour's denominator: sum(w a), at most 255 area (sums at most 255^2 area: exact)
     weigh = wp.int32(0)
+    alpha_total = wp.int64(0)  # sum(w a): the alpha channel's own weighted sum, taken once
     if alpha >= 0:
-        weight_sum = wp.int64(0)
         for sr in range(s_row_lo, s_row_hi + 1):
             wr = overlap(wp.int64(sr), m_rows, r, n_rows)
             row_sum = wp.int64(0)
             for sc in range(s_col_lo, s_col_hi + 1):
                 row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * wp.int64(src[sr - first, sc, alpha])
-            weight_sum += wr * row_sum
-        if weight_sum > wp.int64(0):
+            alpha_total += wr * row_sum
+        if alpha_total > wp.int64(0):
             weigh = wp.int32(1)
-        else:  # all transparent: the plain mean
-            weight_sum = area
+            weight_sum = alpha_total
+        # else all transparent: the plain mean (over area)
     for ch in range(channels):
-        total = wp.int64(0)
+        total = alpha_total  # the alpha channel: summed above
         by_alpha = weigh == 1 and ch != alpha
-        for sr in range(s_row_lo, s_row_hi + 1):
-            wr = overlap(wp.int64(sr), m_rows, r, n_rows)
-            row_sum = wp.int64(0)
-            for sc in range(s_col_lo, s_col_hi + 1):
-                value = wp.int64(src[sr - first, sc, ch])
-                if by_alpha:
-                    value = value * wp.int64(src[sr - first, sc, alpha])
-                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * value
-            total += wr * row_sum
+        if ch != alpha:
+            total = wp.int64(0)
+            for sr in range(s_row_lo, s_row_hi + 1):
+                wr = overlap(wp.int64(sr), m_rows, r, n_rows)
+                row_sum = wp.int64(0)
+                for sc in range(s_col_lo, s_col_hi + 1):
+                    value = wp.int64(src[sr - first, sc, ch])
+                    if by_alpha:
+                        value = value * wp.int64(src[sr - first, sc, alpha])
+                    row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * value
+                total += wr * row_sum
         denominator = weight_sum if by_alpha else area
         dst_out[local_r, c, ch] = wp.uint8((wp.int64(2) * total + denominator) // (wp.int64(2) * denominator))

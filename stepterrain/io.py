@@ -134,8 +134,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one spacing,
         exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (another body's
         CRS, Mars or the Moon (IAU_2015:49900, ``+R=3396190``): its ellipsoid's mean radius a·(1 - f/3), its errors
-        below measured against that ellipsoid; angles in grads (EPSG:4807) and longitudes from another prime meridian
-        (Paris) are read as degrees east of Greenwich first) (dx = R·cos φc·Δλ at
+        below measured against that ellipsoid; angles in grads (EPSG:4807), longitudes from another prime meridian
+        (Paris) and longitudes on a west-positive axis (``AXIS["Longitude",WEST]``, as planetographic CRSs have them)
+        are read as degrees east of Greenwich first) (dx = R·cos φc·Δλ at
         the latitude φc halfway between the first and last node rows, dy = R·Δφ; an .npz's ``dx_m``/``dy_m`` override
         them, and R and the standard parallel become those they are exact with, or no ``crs``, with a warning, for more
         metres per degree of longitude than of latitude): ``origin`` = (0, 0) at the top-left node, ``crs`` that
@@ -1046,8 +1047,10 @@ def _georeferenced(
         return terrain
 
     body = _geographic_body(crs)
-    if body.degrees != 1.0 or body.meridian != 0.0:  # grads (EPSG:4807), or longitudes east of Paris: read as such
-        x0, dx, y0, dy = x0 * body.degrees + body.meridian, dx * body.degrees, y0 * body.degrees, dy * body.degrees
+    if body.degrees != 1.0 or body.meridian != 0.0 or body.east != 1.0:  # grads (EPSG:4807), longitudes east of
+        # Paris, or west longitudes (taken as east ones, the grid sat mirrored at the mirrored longitude): as such
+        x0, dx = body.meridian + body.east * x0 * body.degrees, body.east * dx * body.degrees
+        y0, dy = y0 * body.degrees, dy * body.degrees
         node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
     rows = heights.shape[0]
     node_lats = (node_y, node_y + (rows - 1) * dy)
@@ -1121,7 +1124,8 @@ class _Body(NamedTuple):
     """What a geographic CRS's coordinates mean (:func:`_geographic_body`): ``degrees`` per unit of its angles (0.9
     for grads), its prime ``meridian`` in degrees east of Greenwich (Paris: 2.33722917), the semi-major axis ``a``
     (m) and flattening ``f`` of its ellipsoid and its ``name``, the ``radius`` (m) of the sphere its degrees become
-    metres on, and whether it is the ``earth`` (WGS 84 and :data:`EARTH_RADIUS_M` then)."""
+    metres on, and whether it is the ``earth`` (WGS 84 and :data:`EARTH_RADIUS_M` then); ``east`` is -1 for a
+    longitude axis that increases westwards (``AXIS["Longitude",WEST]``), else 1."""
 
     degrees: float = 1.0
     meridian: float = 0.0
@@ -1130,6 +1134,7 @@ class _Body(NamedTuple):
     name: str = "WGS 84"
     radius: float = EARTH_RADIUS_M
     earth: bool = True
+    east: float = 1.0
 
 
 _EARTH = _Body()
@@ -1169,7 +1174,9 @@ def _geographic_body(crs: str | None) -> _Body:
     degrees = math.degrees(unit[0]) if unit and math.isfinite(unit[0]) and unit[0] > 0 else 1.0
     if abs(degrees - 1.0) < 1e-12:  # the degree, as WKT rounds it (0.0174532925199433)
         degrees = 1.0
-    body = _EARTH._replace(degrees=degrees, meridian=meridian[0] if meridian and math.isfinite(meridian[0]) else 0.0)
+    west = re.search(r'AXIS\["[^"]*",\s*WEST\s*\]', geogcs) is not None  # the longitude axis increases westwards
+    body = _EARTH._replace(degrees=degrees, meridian=meridian[0] if meridian and math.isfinite(meridian[0]) else 0.0,
+                           east=-1.0 if west else 1.0)
     if len(spheroid) < 2 or not (math.isfinite(spheroid[0]) and spheroid[0] > 0 and math.isfinite(spheroid[1])):
         return body
     a, inverse = spheroid[0], spheroid[1]

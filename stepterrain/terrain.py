@@ -1300,16 +1300,24 @@ def heightfield_mesh(
         axis=1,
     )
     metadata: dict[str, Any] = {"grid_shape": (rows, cols), "spacing": (dx, dy), "origin": t.origin}
-    finite = np.isfinite(vertices[:, 2])
-    if not finite.all():
-        faces = faces[finite[faces].all(axis=1)]
-        keep = np.zeros(len(vertices), dtype=bool)
-        keep[faces.reshape(-1)] = True
-        remap = np.cumsum(keep) - 1
-        faces = remap[faces]
-        metadata["node_index"] = np.flatnonzero(keep)
-        vertices = vertices[keep]
+    vertices, faces, kept = without_nan_nodes(vertices, faces)
+    if kept is not None:
+        metadata["node_index"] = kept
     return trimesh.Trimesh(vertices, faces, process=False, metadata=metadata)
+
+
+def without_nan_nodes(vertices: NDArray[np.float64], faces: NDArray[np.int64]) -> tuple[
+        NDArray[np.float64], NDArray[np.int64], NDArray[np.int64] | None]:
+    """(vertices, faces, kept) of a grid mesh whose nodata nodes have z = NaN: no face touches a NaN vertex and the
+    vertices no face uses go, ``kept`` their old indices (None, and the arrays as given, when every z is finite)."""
+    finite = np.isfinite(vertices[:, 2])
+    if finite.all():
+        return vertices, faces, None
+    faces = faces[finite[faces].all(axis=1)]
+    keep = np.zeros(len(vertices), dtype=bool)
+    keep[faces.reshape(-1)] = True
+    faces = (np.cumsum(keep) - 1)[faces]
+    return vertices[keep], faces, np.flatnonzero(keep)
 
 
 def as_terrain(

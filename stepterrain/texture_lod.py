@@ -44,9 +44,11 @@ from .io import (
     _check_read_budget,
     _crs_object,
     _crs_string,
+    _geographic_body,
     _is_geographic,
     _negligible_rotation,
     _projected_units,
+    _spherical_eqc,
     _wkt_block,
     lonlat_as_local_metres,
     picture_uint8,
@@ -91,17 +93,19 @@ def pyramid_shapes(height: int, width: int) -> list[tuple[int, int]]:
     return shapes
 
 
-def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
-    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path from its own georeferencing (rasterio), else None;
-    in metres for a projected CRS (or a site grid) in feet or another linear unit, with that projection in metres
-    as the CRS, as :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229
-    stayed in feet, refused against its DEM's metres)."""
-    if not isinstance(image, (str, os.PathLike)):
-        return None
-    # a plain TIFF (or one GDAL cannot read): pixel units, no warning
-    found = _read_tiff(Path(image), lambda dataset: (dataset.transform, (int(dataset.height), int(dataset.width)),
-                                                      _crs_string(dataset.crs)))
-    if found is None:
+def _georeferencing(dataset: Any) -> tuple[Any, tuple[int, int], str | None]:
+    """(transform, (height, width), CRS string) of an open rasterio dataset, for :func:`_georeferenced_extent`."""
+    return dataset.transform, (int(dataset.height), int(dataset.width)), _crs_string(dataset.crs)
+
+
+def _georeferenced_extent(image: Any, found: tuple[Any, tuple[int, int], str | None] | None) -> tuple[
+        Extent, str | None] | None:
+    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path ``image`` from its own georeferencing ``found``
+    (:func:`_georeferencing`, read with its pixels by :func:`_source_image`), else None; in metres for a projected
+    CRS (or a site grid) in feet or another linear unit, with that projection in metres as the CRS, as
+    :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229 stayed in feet,
+    refused against its DEM's metres)."""
+    if found is None:  # not a TIFF path, or one GDAL cannot read: pixel units, no warning
         return None
     transform, shape, crs = found
     if transform.is_identity:
@@ -128,10 +132,12 @@ def _georeferenced_extent(image: Any) -> tuple[Extent, str | None] | None:
     return (float(left * factor), float(right * factor), float(bottom * factor), float(top * factor)), crs
 
 
-def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]:
-    """(array (H, W, C) uint8, backing file or None, byte offset of the data in it, whether its pixels can change
-    after this: the caller's writeable array, or a view of one)."""
+def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool, Any]:
+    """(array (H, W, C) uint8, backing file or None, whether its pixels can change after this: the caller's
+    writeable array, or a view of one; a TIFF path's :func:`_georeferencing`, else None). A TIFF is opened with
+    rasterio once, for its georeferencing, its nodata mask and (where Pillow cannot read it) its pixels."""
     path = None
+    georeferencing = None
     if isinstance(image, (bytes, bytearray)):  # np.asarray made it a dtype |S array, refused as not uint8
         raise InvalidInputError("image must be an (H, W) or (H, W, C) uint8 array or a path (a str or os.PathLike); "
                                 f"got {type(image).__name__}")
@@ -156,10 +162,12 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
             except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
                 raise
             except (UnidentifiedImageError, OSError, ValueError) as exc:
-                image = _raster_uint8(path)  # a TIFF Pillow cannot identify (16-bit bands) that GDAL reads
-                if image is None:
+                found = _read_tiff(path, _tiff_reader(path, None))  # a TIFF Pillow cannot identify (16-bit bands)
+                if found is None:  # that GDAL reads
                     raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
-            mask = _nodata_mask(path, image.shape[:2]) if image.shape[2] == 3 else None  # alpha: Pillow read it
+                image, mask, georeferencing = found
+            else:
+                image, mask, georeferencing = _read_tiff(path, _tiff_reader(path, image)) or (image, None, None)
             if mask is not None:
                 image = np.concatenate([image, mask[:, :, None]], axis=2)
     array = image if isinstance(image, np.ndarray) else as_array(image, "image", "an (H, W) or (H, W, C) uint8 array")
@@ -169,11 +177,11 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, int, bool]
         array = array[:, :, None]
     if array.ndim != 3 or array.shape[0] < 1 or array.shape[1] < 1 or not 1 <= array.shape[2] <= 4:
         raise InvalidInputError(f"pyramid image must be (H, W) or (H, W, C<=4); got shape {array.shape}")
-    backing, offset = _memmap_backing(array)
+    backing = _memmap_backing(array)
     if path is not None:  # pixels this call decoded or mapped read-only: level 0 as they are, and read-only
         array.flags.writeable = False
-        return array, backing, offset, False
-    return array, backing, offset, _may_change(array)
+        return array, backing, False, georeferencing
+    return array, backing, _may_change(array), None
 
 
 #: EXIF orientations (tag 0x0112) other than 1, as a viewer turns the stored pixels to show them.
@@ -220,6 +228,26 @@ def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
         return None
 
 
+def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any], Any]:
+    """A :func:`_read_tiff` reader giving (image, nodata mask or None, georeferencing or None) in one open: ``image``
+    as Pillow read it, or (None) its pixels read with rasterio (:func:`_raster_uint8`); the mask of a 3-channel
+    image (:func:`_nodata_mask`); :func:`_georeferencing`. A mask or georeferencing GDAL cannot read is None, and
+    the others stand, as when each was read in an open of its own."""
+
+    def read(dataset: Any) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None, Any]:
+        pixels = _raster_pixels(path, dataset) if image is None else image
+        mask = None
+        if pixels.shape[2] == 3:  # alpha: Pillow (or the alpha band) gave it
+            with contextlib.suppress(Exception):
+                mask = _nodata_mask(dataset, pixels.shape[:2])
+        georeferencing = None
+        with contextlib.suppress(Exception):
+            georeferencing = _georeferencing(dataset)
+        return pixels, mask, georeferencing
+
+    return read
+
+
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     """A TIFF that Pillow cannot identify (a 3-band 16-bit satellite image, written as bands, not photometric RGB)
     read with rasterio as :func:`~stepterrain.io.picture_uint8` reads an image: the band whose colour interpretation
@@ -227,51 +255,46 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     RGB); a fourth band that is not alpha is left out, as Pillow leaves out an extra sample (the near-infrared of an
     RGB + NIR image is no alpha); 16-bit values scaled by their full range (value / 257). None without rasterio or
     when GDAL cannot read it either; an InvalidInputError for bands of another count or type."""
-
-    def read(dataset: Any) -> NDArray[np.uint8]:
-        from rasterio.enums import ColorInterp
-
-        count, types = dataset.count, sorted(set(dataset.dtypes))
-        alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
-        if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
-            raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
-                                    f"{counted(count, 'band')} of {', '.join(types)}")
-        _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
-        colour = [k for k in range(count) if k not in alphas]
-        bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
-        # band by band, 16 bits scaled by a table: all bands through float64 at once peaked at 18 bytes a cell,
-        # four and a half times what the budget counted
-        image = np.empty((dataset.height, dataset.width, len(bands)), dtype=np.uint8)
-        scale = None  # round(v / 257) = (2 v + 257) // 514 (v / 257 is never halfway), per 16-bit value
-        if types == ["uint16"]:
-            scale = ((np.arange(65536, dtype=np.uint32) * 2 + 257) // 514).astype(np.uint8)
-        for k, band in enumerate(bands):
-            if k and band == bands[k - 1]:  # grey as RGB: the band once
-                image[:, :, k] = image[:, :, k - 1]
-                continue
-            data = dataset.read(band + 1)
-            image[:, :, k] = data if scale is None else scale[data]
-            del data
-        return image
-
-    return _read_tiff(path, read)
+    return _read_tiff(path, lambda dataset: _raster_pixels(path, dataset))
 
 
-def _nodata_mask(path: Path, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:
-    """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) when some pixel
-    is missing, else None (no rasterio, not a GeoTIFF, nothing masked). Pillow reads nodata as ordinary pixels: an
-    orthophoto's collar tagged nodata=0 was draped opaque black."""
+def _raster_pixels(path: Path, dataset: Any) -> NDArray[np.uint8]:
+    """The pixels of :func:`_raster_uint8` from its open rasterio ``dataset``."""
+    from rasterio.enums import ColorInterp
 
-    def read(dataset: Any) -> NDArray[np.uint8] | None:
-        from rasterio.enums import MaskFlags
+    count, types = dataset.count, sorted(set(dataset.dtypes))
+    alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
+    if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
+        raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
+                                f"{counted(count, 'band')} of {', '.join(types)}")
+    _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
+    colour = [k for k in range(count) if k not in alphas]
+    bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
+    # band by band, 16 bits scaled by a table: all bands through float64 at once peaked at 18 bytes a cell,
+    # four and a half times what the budget counted
+    image = np.empty((dataset.height, dataset.width, len(bands)), dtype=np.uint8)
+    scale = None  # round(v / 257) = (2 v + 257) // 514 (v / 257 is never halfway), per 16-bit value
+    if types == ["uint16"]:
+        scale = ((np.arange(65536, dtype=np.uint32) * 2 + 257) // 514).astype(np.uint8)
+    for k, band in enumerate(bands):
+        if k and band == bands[k - 1]:  # grey as RGB: the band once
+            image[:, :, k] = image[:, :, k - 1]
+            continue
+        data = dataset.read(band + 1)
+        image[:, :, k] = data if scale is None else scale[data]
+        del data
+    return image
 
-        if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
-            return None
-        return dataset.dataset_mask()
 
-    mask = _read_tiff(path, read)
-    if mask is None:
+def _nodata_mask(dataset: Any, shape: tuple[int, ...]) -> NDArray[np.uint8] | None:
+    """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) of an open
+    rasterio ``dataset`` when some pixel is missing, else None (nothing masked, another shape than ``shape``).
+    Pillow reads nodata as ordinary pixels: an orthophoto's collar tagged nodata=0 was draped opaque black."""
+    from rasterio.enums import MaskFlags
+
+    if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
         return None
+    mask = dataset.dataset_mask()
     if mask.shape != tuple(shape) or mask.min() == 255:
         return None
     return np.where(mask > 0, 255, 0).astype(np.uint8)
@@ -323,18 +346,11 @@ def _write_at(fd: int, data: NDArray[Any], offset: int) -> None:
         written += os.pwrite(fd, view[written:], offset + written)
 
 
-def _memmap_backing(array: NDArray[Any]) -> tuple[str | None, int]:
-    """(file, byte offset of ``array``'s first element in it) for a C-contiguous memmap, else (None, 0).
-
-    A slice of a memmap (``mm[10:20]``) keeps its parent's ``offset`` attribute, so the offset is taken
-    from the data pointer relative to the outermost memmap over the same mapping."""
+def _memmap_backing(array: NDArray[Any]) -> str | None:
+    """The file of a C-contiguous memmap, else None."""
     if not (isinstance(array, np.memmap) and array.filename and array.flags.c_contiguous):
-        return None, 0
-    root = array
-    while isinstance(root.base, np.memmap):
-        root = root.base
-    start = int(array.__array_interface__["data"][0]) - int(root.__array_interface__["data"][0])
-    return array.filename, int(root.offset) + start
+        return None
+    return array.filename
 
 
 def _storage_folder(storage: Any) -> Path | None:
@@ -352,7 +368,8 @@ def _storage_folder(storage: Any) -> Path | None:
 class ImagePyramid:
     """An image pyramid (paper 004 §3.2.1): level 0 is the image, each next level half the size (ceil), down to
     1 x 1, over a georeferenced ``extent`` (xmin, xmax, ymin, ymax; row 0 = north) in the coordinate reference
-    system ``crs`` (None: unknown; :class:`TextureTree` refuses a terrain whose own ``crs`` is another).
+    system ``crs`` (None: unknown; :class:`TextureTree` refuses a terrain whose own ``crs`` is another, except a
+    geographic ``crs`` on a DEM load_dem read from degrees into local metres, where it places the extent exactly).
 
     Levels 1+ are raw uint8 files in ``storage`` opened as read-only ``numpy.memmap``. Level 0 is the source itself
     when nothing can change it (an image file; a .npy stays on disk, memory-mapped read-only); an array the caller
@@ -432,7 +449,9 @@ class ImagePyramid:
             one unit per pixel).
         crs : str, optional
             The coordinate reference system of the extent, e.g. ``"EPSG:32611"`` (default: a GeoTIFF's own when its
-            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS.
+            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS, but
+            places an image in degrees (EPSG:4326, ...) on a DEM that load_dem read from degrees (of the same body)
+            into local metres exactly, through the linear map of those metres.
         storage : folder, optional
             Where the level files go (default: a new temporary folder, deleted by :meth:`close`). They are written
             under temporary names and renamed into place when all are complete, so a failed build leaves the
@@ -478,11 +497,11 @@ class ImagePyramid:
         ...     [level.shape for level in pyramid.levels]
         [(5, 3, 3), (3, 2, 3), (2, 1, 3), (1, 1, 3)]
         """
-        source, backing, _, changeable = _source_image(image)
+        source, backing, changeable, georeferencing = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         crs = _optional_crs(crs)
         if extent is None:
-            georeferenced = _georeferenced_extent(image)
+            georeferenced = _georeferenced_extent(image, georeferencing)
             if georeferenced is not None:
                 if crs is not None and georeferenced[1] is not None and not _same_crs(crs, georeferenced[1]):
                     raise InvalidInputError(f"crs {crs!r} is not the CRS {georeferenced[1]!r} of image {str(image)!r}, "
@@ -516,11 +535,11 @@ class ImagePyramid:
                 path = staged.path("level_0.u8")
                 source = _snapshot(source, path, band_bytes)
             levels: list[NDArray[np.uint8]] = [source]
-            reader = _Reader(source, None, 0)  # level 0 itself, through its mapping (never its file name)
+            reader = _Reader(source, None)  # level 0 itself, through its mapping (never its file name)
             for k in range(1, len(shapes)):
                 path = staged.path(f"level_{k}.u8")
                 _reduce_file(reader, shapes[k - 1], shapes[k], channels, path, band_bytes, dev)
-                reader = _Reader(None, str(path), 0, shape=(*shapes[k], channels))
+                reader = _Reader(None, str(path), shape=(*shapes[k], channels))
             for k in range(1, len(shapes)):
                 levels.append(np.memmap(staged.path(f"level_{k}.u8"), dtype=np.uint8, mode="r",
                                         shape=(*shapes[k], channels)))
@@ -690,11 +709,10 @@ class _Reader:
     was mapped (a level of a pyramid whose storage a later build reused), and a same-size replacement was read
     without a word, the levels built from another image than level 0."""
 
-    def __init__(self, array: NDArray[np.uint8] | None, path: str | None, offset: int,
+    def __init__(self, array: NDArray[np.uint8] | None, path: str | None,
                  shape: tuple[int, int, int] | None = None) -> None:
         self.array = array
         self.path = path
-        self.offset = offset
         self.shape = tuple(array.shape) if array is not None else shape
 
     def rows(self, r0: int, r1: int) -> NDArray[np.uint8]:
@@ -722,12 +740,12 @@ class _Reader:
             view = memoryview(out).cast("B")
             done, want = 0, (r1 - r0) * row_bytes
             while done < want:
-                n = os.preadv(fd, [view[done:]], self.offset + r0 * row_bytes + done)
+                n = os.preadv(fd, [view[done:]], r0 * row_bytes + done)
                 if n <= 0:
                     raise DataFileError(f"{self.path!r} is shorter than its image ({self.shape}); truncated?")
                 done += n
             if hasattr(os, "posix_fadvise"):  # the pages are not needed again by this pass
-                os.posix_fadvise(fd, self.offset + r0 * row_bytes, want, os.POSIX_FADV_DONTNEED)
+                os.posix_fadvise(fd, r0 * row_bytes, want, os.POSIX_FADV_DONTNEED)
         finally:
             os.close(fd)
         return out
@@ -847,7 +865,7 @@ def _anisotropic_levels(levels: list[NDArray[np.uint8]], shapes: list[tuple[int,
                 parent, src_shape = (kx, ky - 1), (heights[ky - 1], widths[kx])
             dst_shape = (heights[ky], widths[kx])
             path = staged.path(f"level_{kx}_{ky}.u8")
-            reader = _Reader(out[parent], None, 0)  # level 0 or a staged level, through its mapping
+            reader = _Reader(out[parent], None)  # level 0 or a staged level, through its mapping
             _reduce_file(reader, src_shape, dst_shape, channels, path, band_bytes, device)
             out[(kx, ky)] = np.memmap(path, dtype=np.uint8, mode="r", shape=(*dst_shape, channels))
     return out
@@ -1042,22 +1060,63 @@ def _overlap(a: Extent, b: Extent) -> bool:
     return a[0] < b[1] and b[0] < a[1] and a[2] < b[3] and b[2] < a[3]
 
 
-def _check_same_crs(pyramid: ImagePyramid, terrain: Terrain) -> None:
-    """An InvalidInputError when the pyramid's extent and the terrain lie in different known CRSs: the extents were
-    compared as numbers, so a Blue Marble in degrees (-180..180) over a DEM in degrees read as local metres (0..53 km)
-    draped lon 0..180, lat -90..0 on it without a word. For that DEM the message gives the image's exact extent in
-    its metres (linear in longitude and latitude)."""
+class _PlacedPyramid(ImagePyramid):
+    """A pyramid's levels over another ``extent`` in another ``crs`` (:func:`_placed`): no copy, and the levels are
+    read through the pyramid itself, so closing it closes this view too (closing the view closes only the view)."""
+
+    def __init__(self, source: ImagePyramid, extent: Extent, crs: str | None) -> None:
+        self.source = source
+        self.extent = _check_extent(extent)
+        self.crs = crs
+        self.storage = source.storage
+        self._owned = False
+        self._closed = False
+
+    @property
+    def levels(self) -> list[NDArray[np.uint8]]:
+        self._open("its levels")
+        return self.source.levels
+
+    @property
+    def anisotropic(self) -> dict[tuple[int, int], NDArray[np.uint8]]:
+        self._open("its anisotropic levels")
+        return self.source.anisotropic
+
+
+def _placed(pyramid: ImagePyramid, terrain: Terrain) -> ImagePyramid:
+    """The pyramid in the terrain's coordinates: itself when their CRSs agree or one is unknown; a view of it over
+    its extent in the local equirectangular metres of a DEM that load_dem read from degrees (the terrain's ``crs`` a
+    spherical ``+proj=eqc``) when the image is in a geographic CRS of the same body (an orthophoto in EPSG:4326 on an
+    SRTM tile in EPSG:4326: those metres are linear in longitude and latitude, so the extent maps exactly; the
+    image's grads or prime meridian are read as load_dem reads the DEM's, and its longitudes are taken by whole
+    turns nearest the terrain, so an image in 0..360 places on a DEM at -105); else an InvalidInputError naming
+    both CRSs: the extents were compared as numbers, so a Blue Marble in degrees (-180..180) over the metres of a
+    DEM in UTM (or of another body) draped it anywhere without a word."""
     if pyramid.crs is None or terrain.crs is None or _same_crs(pyramid.crs, terrain.crs):
-        return
+        return pyramid
     image_crs, terrain_crs = _horizontal_crs(pyramid.crs), _horizontal_crs(terrain.crs)
     hint = f"reproject the image to the terrain's CRS first (`gdalwarp -t_srs '{terrain_crs}' ...`)"
-    xmin, xmax, ymin, ymax = pyramid.extent
-    local = lonlat_as_local_metres(terrain.crs, (xmin, xmax), (ymin, ymax)) if _is_geographic(pyramid.crs) else None
-    if local is not None:
-        (x0, x1), (y0, y1) = local
-        hint = (f"the terrain is a DEM in degrees read as local equirectangular metres, linear in longitude and "
-                f"latitude, so ImagePyramid.build(..., extent=({x0:.6f}, {x1:.6f}, {y0:.6f}, {y1:.6f}), "
-                f"crs=terrain.crs) places this image on it exactly")
+    local = _spherical_eqc(terrain.crs)
+    if local is not None and _is_geographic(image_crs):
+        radius, x_radius, _, lon_0, x_0, _ = local
+        body = _geographic_body(image_crs)
+        if body.east < 0:  # column 0 at xmin, the smallest west longitude: the image would run east to west
+            raise InvalidInputError(
+                f"the image is in CRS {image_crs!r}, whose longitude axis increases westwards, so its extent "
+                f"{pyramid.extent} (column 0 at xmin) runs east to west; give the image north-up and east-right "
+                "in a CRS whose longitudes increase eastwards (e.g. `gdalwarp -t_srs EPSG:4326`)")
+        if abs(body.radius / radius - 1.0) <= 0.01:  # the same body (the earth: any earth ellipsoid, as load_dem)
+            xmin, xmax, ymin, ymax = pyramid.extent
+            lons = [body.meridian + v * body.degrees for v in (xmin, xmax)]
+            centre = lon_0 + math.degrees((0.5 * (terrain.extent[0] + terrain.extent[1]) - x_0) / x_radius)
+            turns = 360.0 * round((centre - 0.5 * (lons[0] + lons[1])) / 360.0)
+            found = lonlat_as_local_metres(terrain.crs, [v + turns for v in lons],
+                                           [v * body.degrees for v in (ymin, ymax)])
+            if found is not None:
+                (x0, x1), (y0, y1) = found
+                return _PlacedPyramid(pyramid, (x0, x1, y0, y1), terrain.crs)
+        hint = (f"the terrain is a DEM in degrees of a body of radius {radius:.10g} m read as local metres, but the "
+                f"image's CRS is of a body of radius {body.radius:.10g} m")
     raise InvalidInputError(f"the image is in CRS {image_crs!r} but the terrain is in {terrain_crs!r} (mismatched "
                             f"CRS: the extent {pyramid.extent} is not in the terrain's coordinates); {hint}")
 
@@ -1067,7 +1126,9 @@ class TextureTree:
 
     Each texture patch names the finest pyramid level whose window over its geometry patch fits
     ``max_texture_size`` per side; subtrees are pruned below patches already at full resolution (level 0);
-    geometry patches the image does not overlap get no texture patch.
+    geometry patches the image does not overlap get no texture patch. ``tree.pyramid`` is the pyramid, or for an
+    image in degrees on a DEM read from degrees into local metres a view of it over its extent in those metres
+    (the same levels, read through the pyramid: closing it closes the view).
     """
 
     def __init__(self, pyramid: ImagePyramid, quadtree: PatchQuadtree, *, max_texture_size: int = 1024) -> None:
@@ -1077,7 +1138,7 @@ class TextureTree:
             raise InvalidInputError(f"quadtree must be a PatchQuadtree; got {type(quadtree).__name__}")
         if isinstance(max_texture_size, bool) or not isinstance(max_texture_size, int) or max_texture_size < 1:
             raise InvalidInputError(f"max_texture_size must be a positive int; got {max_texture_size!r}")
-        _check_same_crs(pyramid, quadtree.terrain)
+        pyramid = _placed(pyramid, quadtree.terrain)
         self.pyramid = pyramid
         self.quadtree = quadtree
         self.max_texture_size = max_texture_size
@@ -1365,7 +1426,7 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     """
     import trimesh
 
-    from .terrain import grid_faces
+    from .terrain import grid_faces, without_nan_nodes
     from .texture import TextureLayer, drape
 
     tree = _tree_of(item, layer)
@@ -1381,13 +1442,9 @@ def paint_with_textures(item: DrawItem, layer: int = 0) -> Any:
     vertices = np.column_stack([terrain.origin[0] + jj.reshape(-1) * dx, terrain.origin[1] + ii.reshape(-1) * dy,
                                 terrain.heights[np.ix_(rows, cols)].reshape(-1).astype(np.float64)])
     faces = grid_faces(len(rows), len(cols), flip=dx * dy < 0)
-    finite = np.isfinite(vertices[:, 2])
-    if not finite.all():  # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were
-        faces = faces[finite[faces].all(axis=1)]  # kept: NaN vertices in the mesh, its faces spanning the void)
-        keep = np.zeros(len(vertices), dtype=bool)
-        keep[faces.reshape(-1)] = True
-        faces = (np.cumsum(keep) - 1)[faces]
-        vertices = vertices[keep]
+    # nodata, as heightfield_mesh: no face touches a NaN node, and the NaN nodes go (they were kept: NaN vertices in
+    # the mesh, its faces spanning the void)
+    vertices, faces, _ = without_nan_nodes(vertices, faces)
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     texture = item.textures[layer]
     image = np.asarray(texture.image())

@@ -1189,3 +1189,25 @@ def test_the_crs_of_a_grid_on_another_body_states_the_radius_its_metres_are_of(t
     info = describe_dem(t)
     assert info["lonlat_step"] == pytest.approx((0.01, -0.01), rel=1e-14)
     assert info["lonlat_extent"] == pytest.approx((10.005, 10.205, 4.895, 4.995), rel=1e-14)
+
+
+def test_a_geographic_grid_on_a_west_positive_longitude_axis_is_placed_by_greenwich_east_degrees(tmp_path):
+    """A geographic CRS whose longitude axis increases westwards (AXIS["Longitude",WEST], as planetographic CRSs
+    such as IAU_2015:49901 have it) had its west longitudes read as east ones: the Front Range (105.8 W) stored
+    east-right in such a CRS (x0 = 105.816 W, dx = -0.000833) was read at 105.8 E, mirrored (x spacing negative for
+    columns that run east). It now reads as the same grid as the EPSG:4326 GeoTIFF: crs, spacing, lon/lat extent."""
+    from stepterrain.io import describe_dem
+
+    from .reference_texture import find_shared
+
+    west = ('GEOGCS["WGS 84 west-positive",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+            'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AXIS["Latitude",NORTH],AXIS["Longitude",WEST]]')
+    pytest.importorskip("rasterio")
+    source = np.load(find_shared("front_range_srtmgl3_3arcsec.npz"))
+    x0, dx, _, y0, _, dy = (float(v) for v in source["transform"])
+    path = tmp_path / "front_range_west.npz"
+    np.savez(path, elevation=source["elevation"], crs=west, transform=np.array([-x0, -dx, 0.0, y0, 0.0, dy]))
+    t, reference = load_dem(path), load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    assert t.crs == reference.crs and t.spacing == pytest.approx(reference.spacing, rel=1e-12)
+    assert describe_dem(t)["lonlat_extent"] == pytest.approx(describe_dem(reference)["lonlat_extent"], abs=1e-9)
+    np.testing.assert_array_equal(t.heights, reference.heights)

@@ -398,3 +398,105 @@ def test_a_16_bit_geotiffs_read_stays_near_the_memory_budgets_count(tmp_path):
         tracemalloc.stop()
     np.testing.assert_array_equal(image, np.moveaxis(np.round(data / 257.0).astype(np.uint8), 0, 2))
     assert peak < 4 * data.size, f"{peak / data.size:.1f} bytes a cell"
+
+
+def test_a_geotiff_texture_in_degrees_drapes_its_dem_in_degrees_read_as_local_metres(tmp_path):
+    """The most common GIS case: an SRTM DEM in EPSG:4326 (the Front Range) and an orthophoto in EPSG:4326 over it.
+    load_dem reads the DEM into local equirectangular metres, so the image's extent in degrees was refused as another
+    CRS (the user had to copy an extent out of the message). The tree places it through the exact, linear map of
+    those metres: every painted vertex of an image on the DEM's own grid, each pixel coding its row and column,
+    samples its own node's pixel, for longitudes given in -180..180 or 0..360 alike; an image of another body (a
+    sphere of Mars' radius) is still refused."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain.io import load_dem
+    from stepterrain.texture_lod import paint_with_textures
+
+    from .reference_texture import find_shared
+
+    source = find_shared("front_range_srtmgl3_3arcsec.tif")
+    terrain = load_dem(source)
+    with rasterio.open(source) as dataset:
+        profile, transform = dataset.profile, dataset.transform
+    profile.update(count=3, dtype="uint8", nodata=None, predictor=1)
+    rows, cols = np.indices(terrain.shape)
+    code = np.stack([rows % 256, cols % 256, 16 * (rows // 256) + cols // 256]).astype(np.uint8)
+    east = tmp_path / "ortho.tif"
+    with rasterio.open(east, "w", **profile) as out:
+        out.write(code)
+    shifted = tmp_path / "ortho_360.tif"
+    with rasterio.open(shifted, "w", **{**profile, "transform": Affine.translation(360.0, 0.0) @ transform}) as out:
+        out.write(code)
+    (x0, y0), (dx, dy) = terrain.origin, terrain.spacing
+    for path in (east, shifted):
+        with ImagePyramid.build(path, device="cpu") as pyramid:
+            assert pyramid.crs == "EPSG:4326"
+            tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=128), max_texture_size=1024)
+            assert tree.root.level == 0 and tree.root.window == (0, 758, 0, 758)
+            camera = Camera((x0 + 400 * dx, y0 + 900 * dy, 3e4), (x0 + 400 * dx, y0 + 400 * dy, 3000.0))
+            painted = 0
+            for item in render_with_textures(tree.quadtree.root, [tree.root], camera):
+                mesh = paint_with_textures(item)
+                image = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+                height, width = image.shape[:2]
+                u, v = mesh.visual.uv.T
+                texels = image[np.minimum((1.0 - v) * height, height - 1).astype(int),
+                               np.minimum(u * width, width - 1).astype(int)]
+                node_rows = np.rint((mesh.vertices[:, 1] - y0) / dy).astype(int)
+                node_cols = np.rint((mesh.vertices[:, 0] - x0) / dx).astype(int)
+                np.testing.assert_array_equal(texels, code[:, node_rows, node_cols].T)
+                painted += len(mesh.vertices)
+            assert painted > 10_000
+        with pytest.raises(InvalidInputError, match=r"^the ImagePyramid is closed"):  # the view reads through it
+            tree.pyramid.sub_image(0, (0, 1, 0, 1))
+    with ImagePyramid.build(east, extent=(0, 1, 0, 1), crs="+proj=longlat +R=3396190 +no_defs",
+                            device="cpu") as pyramid:
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS .*mismatched CRS.*radius 6371008.8 m.*"
+                                                    r"radius 3396190 m"):
+            TextureTree(pyramid, PatchQuadtree(terrain))
+
+
+def test_an_image_in_a_west_positive_geographic_crs_is_refused_on_a_dem_in_degrees():
+    """An image whose CRS's longitudes increase westwards (AXIS["Longitude",WEST]): its extent puts column 0 at
+    xmin, the smallest west longitude, the east edge, so the image runs east to west; placed as east degrees it drew
+    mirrored without a word. The tree refuses it, saying why; the same image in EPSG:4326 is placed."""
+    pytest.importorskip("rasterio")
+    from stepterrain.io import load_dem
+
+    from .reference_texture import find_shared
+
+    west = ('GEOGCS["WGS 84 west-positive",DATUM["WGS_1984",SPHEROID["WGS 84",6378137,298.257223563]],'
+            'PRIMEM["Greenwich",0],UNIT["degree",0.0174532925199433],AXIS["Latitude",NORTH],AXIS["Longitude",WEST]]')
+    terrain = load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    image = np.zeros((8, 8, 3), np.uint8)
+    with ImagePyramid.build(image, extent=(105.2, 105.8, 39.9, 40.4), crs=west, device="cpu") as pyramid:
+        with pytest.raises(InvalidInputError, match=r"^the image is in CRS .*longitude axis increases westwards.*"
+                                                    r"runs east to west.*EPSG:4326"):
+            TextureTree(pyramid, PatchQuadtree(terrain))
+    with ImagePyramid.build(image, extent=(-105.8, -105.2, 39.9, 40.4), crs="EPSG:4326", device="cpu") as pyramid:
+        assert TextureTree(pyramid, PatchQuadtree(terrain)).root is not None
+
+
+@pytest.mark.parametrize("dtype", ["uint8", "uint16"])  # Pillow reads the pixels / rasterio does
+def test_a_geotiff_pyramid_opens_the_file_with_rasterio_once(tmp_path, monkeypatch, dtype):
+    """A GeoTIFF texture was opened with rasterio two or three times per build: for its pixels (a 16-bit one),
+    its nodata mask and its extent. One open now reads all three, with the same pixels, alpha and extent."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    rgb = np.random.default_rng(0).integers(1, 255, (3, 6, 8), dtype=np.uint8)
+    rgb[:, :, :2] = 0  # a nodata collar
+    scale = 257 if dtype == "uint16" else 1
+    with rasterio.open(tmp_path / "ortho.tif", "w", driver="GTiff", height=6, width=8, count=3, dtype=dtype,
+                       crs="EPSG:32611", nodata=0, transform=Affine(2.0, 0.0, 376000.0, 0.0, -2.0, 3808000.0)) as out:
+        out.write(rgb.astype(dtype) * scale)
+    opened = []
+    real_open = rasterio.open
+    monkeypatch.setattr(rasterio, "open", lambda *args, **kwargs: opened.append(args) or real_open(*args, **kwargs))
+    with ImagePyramid.build(tmp_path / "ortho.tif", device="cpu") as pyramid:
+        level = np.asarray(pyramid.levels[0])
+        assert len(opened) == 1
+        assert pyramid.extent == (376000.0, 376016.0, 3807988.0, 3808000.0) and pyramid.crs == "EPSG:32611"
+        np.testing.assert_array_equal(level[..., :3], rgb.transpose(1, 2, 0))
+        np.testing.assert_array_equal(level[..., 3], np.where(rgb[0] > 0, 255, 0))

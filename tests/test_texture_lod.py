@@ -711,8 +711,8 @@ def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
     """The Blue Marble GeoTIFF (EPSG:4326, -180..180) over the Front Range DEM in degrees, which load_dem reads as
     local equirectangular metres (0..53 km): the extents were compared as numbers, so the tree draped lon 0..180,
     lat -90..0 (the Indian Ocean) on Colorado without a word. The pyramid keeps the GeoTIFF's CRS and the tree
-    refuses another CRS than the terrain's, naming both; for a DEM read in local metres it gives the image's exact
-    extent there, which places the image's Colorado pixels on the DEM."""
+    refuses another CRS than the terrain's, naming both; on a DEM read from degrees into local metres it places the
+    image at its exact extent there (as the extent given in those metres does): its Colorado pixels on the DEM."""
     pytest.importorskip("rasterio")
     import stepterrain as st
 
@@ -726,10 +726,10 @@ def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
         with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
                                                     r"'EPSG:32611' \(mismatched CRS.*gdalwarp -t_srs 'EPSG:32611'"):
             TextureTree(pyramid, PatchQuadtree(tujunga))
-        with pytest.raises(InvalidInputError, match=r"^the image is in CRS 'EPSG:4326' but the terrain is in "
-                                                    r"'\+proj=eqc .*extent=\(([^)]*)\)") as caught:
-            TextureTree(pyramid, PatchQuadtree(front_range))
-    extent = tuple(float(v) for v in re.search(r"extent=\(([^)]*)\)", str(caught.value)).group(1).split(","))
+        placed = TextureTree(pyramid, PatchQuadtree(front_range))
+        assert placed.pyramid.crs == front_range.crs and placed.pyramid.levels is pyramid.levels
+        extent = placed.pyramid.extent
+        placed_window = placed.root.window
     with ImagePyramid.build(marble, extent=extent, crs=front_range.crs, device="cpu") as pyramid:
         tree = TextureTree(pyramid, PatchQuadtree(front_range))
         # the DEM's nodes span lon -105.8158..-105.1846, lat 39.8346..40.4658: Blue Marble pixels of 0.09375°
@@ -739,6 +739,7 @@ def test_texture_tree_refuses_an_image_in_another_crs_than_the_terrain():
         rows = [math.floor((90 - lat[1]) / 0.09375), math.ceil((90 - lat[0]) / 0.09375)]
         assert tree.root.level == 0
         assert pyramid.window(0, front_range.extent) == (rows[0], rows[1], cols[0], cols[1]) == tree.root.window
+        assert placed_window == tree.root.window
     with ImagePyramid.build(marble, extent=extent, device="cpu") as pyramid:  # an extent given: its CRS unknown
         assert pyramid.crs is None and TextureTree(pyramid, PatchQuadtree(front_range)).root.level == 0
     with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:32611' is not the CRS 'EPSG:4326' of image .*pass "
