@@ -52,6 +52,7 @@ from .terrain import (
     real_numbers,
     real_vector,
     sorted_unique,
+    used_nodes,
 )
 
 __all__ = [
@@ -1318,7 +1319,9 @@ def closeup_layers(
 
 
 def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
-    """Why close-up k has no geometry: its mask is 0 at every node (point) with a height under it."""
+    """Why close-up k has no geometry: its mask is 0 at every node (point) of a triangle with three heights under
+    it; where some node with a height has m > 0 but joins no such triangle (a grid node with nodata all around it, a
+    TIN point on no face), that is named: the message said its mask was 0 at every node with a height."""
     bx0, bx1, by0, by1 = cu.roi.box
     if t.kind == "grid":
         spacing = f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}"
@@ -1326,9 +1329,35 @@ def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
     else:
         spacing = "the TIN's point spacing"
         where = "TIN point"
-    return (f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: its mask is 0 at "
-            f"every {where} with a height (a ROI smaller than {spacing}, between the nodes, or over nodata); make it "
-            "larger or move it onto the terrain")
+    head = f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: "
+    lone = _lone_heights_under(t, cu.roi)
+    if lone:  # it said "its mask is 0 at every grid node with a height" of nodes with a height inside the ROI
+        around = f": nodata around {'it' if lone == 1 else 'them'}" if t.kind == "grid" else ""
+        nodes = counted(lone, f"{where} with a height", f"{where}s with a height")
+        return (head + f"its mask is above 0 only at {nodes} that {'joins' if lone == 1 else 'join'} no triangle "
+                f"with three heights (the overview has no surface there{around}); move it onto the terrain")
+    return (head + f"its mask is 0 at every {where} with a height (a ROI smaller than {spacing}, between the nodes, "
+            "or over nodata); make it larger or move it onto the terrain")
+
+
+def _lone_heights_under(t: Terrain, roi: ROI) -> int:
+    """How many nodes (points) with a height, inside ``roi``'s box, have a mask factor above 0 but lie on no triangle
+    with three heights (error path only: a pass over the box's nodes)."""
+    if t.kind == "grid":
+        rows, cols = t.heights.shape
+        i0, i1, j0, j1 = _grid_window(t, roi.box)
+        r0, c0 = max(i0 - 1, 0), max(j0 - 1, 0)  # a node's triangles reach one node beyond the window
+        finite = np.isfinite(t.heights[r0: min(i1 + 2, rows), c0: min(j1 + 2, cols)])
+        window = (slice(i0 - r0, i1 + 1 - r0), slice(j0 - c0, j1 + 1 - c0))
+        lone = (finite & ~used_nodes(finite))[window].reshape(-1)
+        jj, ii = np.meshgrid(np.arange(j0, j1 + 1), np.arange(i0, i1 + 1))
+        xy = np.column_stack([t.origin[0] + jj.reshape(-1) * t.spacing[0], t.origin[1] + ii.reshape(-1) * t.spacing[1]])
+    else:
+        xy = t.points[:, :2]
+        lone = np.isfinite(t.heights) & (t.point_used == 0)
+    if not lone.any():
+        return 0
+    return int((roi.factor(xy[lone]) > 0).sum())
 
 
 def _world(local: NDArray[np.float32], ox: float, oy: float) -> NDArray[np.float64]:

@@ -469,7 +469,10 @@ def _build_isovalue_struct(values: NDArray[np.float32], device: wp.Device) -> st
     gaps = np.diff(thresholds.astype(np.float64))
     if len(gaps) and np.all(np.abs(gaps - gaps.mean()) <= 0.25 * gaps.mean()):
         first, inv_gap = float(thresholds[0]), float(1.0 / gaps.mean())
-        if _estimate_error(thresholds, np.float32(first), np.float32(inv_gap)) <= _ESTIMATE_ERROR_MAX:
+        # the kernel's inv_gap is float32: gaps below 2.9e-39 (subnormal heights) have none, the binary search serves
+        # them (the cast to inf warned "overflow encountered in cast", an error under -W error)
+        if inv_gap <= FLOAT32_MAX and _estimate_error(thresholds, np.float32(first),
+                                                      np.float32(inv_gap)) <= _ESTIMATE_ERROR_MAX:
             iso.uniform, iso.first, iso.inv_gap = 1, first, inv_gap
     return iso
 

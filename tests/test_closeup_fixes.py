@@ -843,3 +843,42 @@ def test_an_overview_texture_with_transparent_texels_shows_the_overview_mapping_
     as_rgb = render_closeups(t, [], window_size=SIZE, scalars=scalars, camera="top", texture=opaque[..., :3].copy(),
                              device="cpu")
     assert np.array_equal(as_rgba, as_rgb)
+
+
+@pytest.mark.parametrize("mapping", [{}, {"stepped": 20.0}, {"scalars": "slope"}])
+def test_a_roi_over_lone_heights_names_them_instead_of_a_mask_of_zero(mapping):
+    """A ROI over nodes with a height that join no triangle (a grid with nodata on every other node, a TIN point on
+    no face) was refused with "its mask is 0 at every grid node with a height", of nodes inside the ROI whose mask is
+    1: the refusal now names those nodes and why they give no surface. A ROI whose mask is 0 at every node keeps the
+    old message."""
+    import trimesh
+
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills(9, 11)
+    sparse = heights.copy()
+    sparse[::2, ::2] = np.nan  # a checkerboard of nodata: every cell has a nodata corner, no triangle is drawn
+    sparse[1::2, 1::2] = np.nan
+    t = Terrain.from_heights(sparse, spacing=(10.0, 10.0), origin=(500000.0, 4500000.0))
+    roi = ROI.circle((500050.0, 4500040.0), 20.0)
+    inside = (roi.factor(np.column_stack([500000.0 + np.tile(np.arange(11), 9) * 10.0,
+                                          4500000.0 + np.repeat(np.arange(9), 11) * 10.0])) > 0)
+    expected_nodes = int((inside & np.isfinite(sparse).reshape(-1)).sum())
+    assert expected_nodes >= 4
+    with pytest.raises(InvalidInputError, match=rf"^closeups\[0\]: ROI box .* holds no terrain: its mask is above 0 "
+                                                rf"only at {expected_nodes} grid nodes with a height that join no "
+                                                r"triangle with three heights \(.*nodata around them\)") as info:
+        closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0), **mapping)], device="cpu")
+    assert "mask is 0 at every" not in str(info.value)
+    # a TIN point on no face (inside the TIN's extent), under the ROI: named as such
+    points = np.array([[0.0, 0.0, 1.0], [100.0, 0.0, 2.0], [0.0, 100.0, 3.0], [80.0, 80.0, 4.0]])
+    tin = trimesh.Trimesh(points, [[0, 1, 2]], process=False)
+    with pytest.raises(InvalidInputError, match=r"mask is above 0 only at 1 TIN point with a height that joins no "
+                                                r"triangle with three heights \(the overview has no surface there\)"):
+        closeup_scene(tin, [CloseUp(ROI.circle((80.0, 80.0), 3.0), offset=(0.0, 0.0, 5.0))], device="cpu")
+    # the mask 0 at every node with a height (a ROI inside one cell of the full grid): the message as it was
+    full = Terrain.from_heights(heights, spacing=(10.0, 10.0))
+    with pytest.raises(InvalidInputError, match=r"its mask is 0 at every grid node with a height"):
+        closeup_layers(full, [CloseUp(ROI.circle((55.0, 45.0), 3.0), offset=(0.0, 0.0, 50.0), **mapping)],
+                       device="cpu")

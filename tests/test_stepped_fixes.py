@@ -606,3 +606,20 @@ def test_a_stack_without_nodata_takes_no_pass_over_its_triangles_for_its_range(m
     stack[1, 4, 4] = np.nan  # nodata: the triangles decide
     next(st.stepped_series(stack, interval=5.0))
     assert calls == [stack.shape]
+
+
+def test_heights_of_subnormal_scale_step_without_an_overflow_warning():
+    """Isovalues 1e-39 apart (heights of float32's subnormal scale) have a threshold gap whose inverse, the level
+    estimate's float32 inv_gap, overflows: its cast warned "RuntimeWarning: overflow encountered in cast" from deep
+    inside stepped() (an error under -W error, as in a test suite that turns warnings into errors). Such isovalues
+    take the binary search, silently, and the mesh is the reference's."""
+    heights = np.random.default_rng(0).uniform(0.0, 1e-38, (8, 9))
+    values = st.isovalues((float(heights.astype(np.float32).min()), float(heights.astype(np.float32).max())),
+                          interval=1e-39)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        iso = stepped_module._build_isovalue_struct(values, resolve_device("cpu"))
+        mesh = st.stepped(heights, interval=1e-39)
+    assert iso.uniform == 0
+    assert len(mesh.faces) > 0 and np.isin(mesh.vertices[:, 2].astype(np.float32), values).all()
+    compare_with_reference(heights, values, "cpu")
