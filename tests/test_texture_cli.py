@@ -348,6 +348,50 @@ def test_cli_texture_image_png_with_extent_drapes_the_mesh(tmp_path, capsys):
     assert embedded.shape == draped.shape and np.array_equal(embedded, draped)
 
 
+def test_cli_texture_image_in_degrees_lies_on_a_dem_in_degrees(tmp_path):
+    """A GeoTIFF in EPSG:4326 on the Front Range SRTM tile in EPSG:4326 (read as local equirectangular metres):
+    placed by its degrees through those metres, pixel (i, j) of the image on node (i, j) of the same grid."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+
+    from .conftest import shared_file
+
+    source = shared_file("front_range_srtmgl3_3arcsec.tif")
+    with rasterio.open(source) as dem:
+        pixels = coded_pixels(*dem.shape)
+        image = write_geotiff(tmp_path / "ortho.tif", pixels, dem.transform, dem.crs)
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image), "--colormap", "none")
+    grey = texture_of(tmp_path, "grey", str(source), "--colormap", "none")[..., :1]
+    assert np.abs(draped - pixels * grey / 255.0).max() <= 1.0
+    assert np.abs(draped[500, 100] - pixels[500, 100] * grey[500, 100] / 255.0).max() <= 1.0
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_path):
+    """A DEM with a nodata hole: the texture with --image is RGBA with alpha 0 over the hole (the image covers it,
+    the DEM has no ground there) and opaque elsewhere; --png renders the draped image."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+
+    from .conftest import shared_file
+
+    with rasterio.open(shared_file(TUJUNGA)) as dem:
+        heights, transform, crs = dem.read(1).astype(np.float32), dem.transform, dem.crs
+    heights[200:260, 300:400] = -9999.0
+    source = tmp_path / "holes.tif"
+    with rasterio.open(source, "w", driver="GTiff", height=heights.shape[0], width=heights.shape[1], count=1,
+                       dtype="float32", crs=crs, transform=transform, nodata=-9999.0) as out:
+        out.write(heights, 1)
+    image = write_geotiff(tmp_path / "ortho.tif", coded_pixels(*heights.shape), transform, crs)
+    png = tmp_path / "render.png"
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image), "--png", str(png), "--size", "320x200")
+    hole = np.zeros(heights.shape, bool)
+    hole[200:260, 300:400] = True
+    assert draped.shape == (*heights.shape, 4)
+    assert (draped[hole, 3] == 0).all() and (draped[~hole, 3] == 255).all()
+    shot = read_png(png)
+    assert shot.shape[:2] == (200, 320) and shot[..., :3].std() > 20
+
+
 @pytest.mark.parametrize("case, match", [
     ("missing", "--image '{image}' does not exist"),
     ("not an image", "--image '{image}': cannot read it as an image"),
