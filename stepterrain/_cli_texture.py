@@ -23,13 +23,14 @@ from .cli import (
     _check_size,
     _colormap,
     _counted,
+    _floats,
     _input_metadata,
     _input_terrain,
     _path,
     _size,
     _window,
 )
-from .errors import InvalidInputError, MissingDependencyError
+from .errors import DataFileError, InvalidInputError, MissingDependencyError
 from .export import IMAGE_EXTENSIONS, MESH_EXTENSIONS
 
 _EPILOG = """\
@@ -45,6 +46,11 @@ examples:
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
   stepterrain texture --normals normals.png -o shade.png
       also the normals encoded as RGB (relight them later without recomputing, paper 004 §7.4)
+  stepterrain texture dem.tif --image ortho.tif --colormap none --shadows -o draped.tif --mesh out/ortho.glb
+      your own orthophoto (a GeoTIFF in the DEM's CRS, placed by its georeferencing) shaded by the hillshade and
+      shadows, on the DEM's grid and draped on the mesh
+  stepterrain texture dem.npy --spacing 30 --image map.png --image-extent=0,1500,0,1200 -o tex.png --png out/map.png
+      a PNG without georeferencing, its outer pixel edges at x 0..1500, y 0..1200 in the DEM's coordinates
 """
 
 
@@ -81,6 +87,18 @@ def add_parser(commands: Any) -> None:
                    help="weight in [0, 1] of horizon-based ambient occlusion (default 0: off)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the hypsometric thematic layer, or 'none' (default terrain)")
+    p.add_argument("--image", type=_path, metavar="PATH",
+                   help="your own image (an orthophoto, a map) as the thematic layer, laid over the --colormap's "
+                        "colours (or, with --colormap none, over plain white) and shaded by the hillshade, --shadows "
+                        "and --occlusion as the colours are; where it is transparent (alpha, a GeoTIFF's nodata) or "
+                        "outside it those show. A GeoTIFF is placed by its georeferencing: in the DEM's CRS, or in "
+                        "degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to the "
+                        "DEM's grid through an image pyramid (the decoded image is checked against --memory-budget)")
+    p.add_argument("--image-extent", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
+                   help="with --image: the outer edges of its pixels in the DEM's coordinates (those `stepterrain "
+                        "info` prints, as --crop takes them; a geographic DEM's local metres); needed for an image "
+                        "without georeferencing (PNG, JPEG, a TIFF without a geotransform); for a GeoTIFF it "
+                        "replaces the georeferencing")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
                    "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
     _add_device(p)
@@ -124,6 +142,39 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     return rgba
 
 
+def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
+    """``--image`` and ``--image-extent`` before any work: the file exists and, without an extent, places itself (a
+    georeferenced GeoTIFF); an image without georeferencing would lie at x 0..W, y 0..H, one unit per pixel."""
+    from .texture import _check_extent
+    from .texture_lod import _read_tiff, is_georeferenced
+
+    if path is None:
+        if extent is not None:
+            raise InvalidInputError("--image-extent applies only with --image")
+        return
+    file = Path(path)
+    if file.is_dir():
+        raise DataFileError(f"--image {path!r} is a folder; expected an image file")
+    if not file.is_file():
+        raise DataFileError(f"--image {path!r} does not exist")
+    if extent is not None:
+        _check_extent(extent, "--image-extent")
+        return
+    if is_georeferenced(file):
+        return
+    from PIL import Image
+
+    try:  # the header only: a file that is no image is named so, not asked for an extent
+        with Image.open(file):
+            pass
+    except Exception as exc:  # noqa: BLE001 - Pillow's many refusals (a TIFF only GDAL reads is an image too)
+        if not _read_tiff(file, lambda dataset: True):
+            raise DataFileError(f"--image {path!r}: cannot read it as an image ({exc})") from exc
+    raise InvalidInputError(f"--image {path!r} carries no georeferencing (a PNG or JPEG, or a TIFF without a "
+                            "geotransform): give --image-extent xmin,xmax,ymin,ymax, the outer edges of its pixels "
+                            "in the DEM's coordinates")
+
+
 def _texture_colours(draped: Any) -> Any:
     """The draped mesh with its texture's colour at each vertex (the texel its UV falls in) as vertex colours, for
     the formats that keep vertex colours but no texture (.ply, .3mf): they dropped the texture, and wrote the mesh
@@ -152,7 +203,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     normals_out = _check_output(args.normals, IMAGE_EXTENSIONS, "--normals") if args.normals else None
     if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
-    _check_outputs({"INPUT": args.input}, output=out, mesh=mesh_out, png=png, normals=normals_out)
+    _check_outputs({"INPUT": args.input, "--image": args.image}, output=out, mesh=mesh_out, png=png,
+                   normals=normals_out)
+    _check_image(args.image, args.image_extent)
     if args.azimuth is not None and not math.isfinite(args.azimuth):  # named by the library as 'azimuth', radians
         raise InvalidInputError(f"--azimuth must be a finite number of degrees; got {args.azimuth}")
     if args.altitude is not None and not (0.0 <= args.altitude <= 90.0):
@@ -187,8 +240,18 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = _input_terrain(args)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
-
     device = resolve_device(args.device)
+    picture = None
+    if args.image is not None:
+        from .texture_lod import image_layer
+
+        progress.stage("image", f"placing {args.image} over the DEM")
+        try:
+            picture = image_layer(args.image, terrain, extent=args.image_extent, device=device)
+        except InvalidInputError as exc:  # a CRS mismatch, an image off the DEM: named as the option gave it
+            raise InvalidInputError(f"--image {args.image!r}: {exc}") from None
+        progress.done(f"{picture.shape[1]} x {picture.shape[0]} pixels over the DEM,")
+
     what = ", ".join(["hillshade " + args.method] + (["shadows"] if args.shadows else [])
                      + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
     progress.stage("texture", f"topographic texture on {device}: {what}")
@@ -201,7 +264,11 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                 occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain, args.colormap)
     composite = topo
-    if colors is not None:
+    if picture is not None:  # the image over the colours (white without), shaded as the colours are
+        base = picture if colors is None else tx.blend(
+            tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), picture, device=device)
+        composite = tx.modulate(topo, base, device=device)  # alpha: the shading's, 0 at the DEM's nodata
+    elif colors is not None:
         composite = tx.modulate(tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), topo,
                                 device=device)
     # a DEM with nodata: RGBA, alpha 0 over its nodata (white over a white background hid the holes in a GIS, and the
@@ -239,6 +306,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         metadata = {"generator": "stepterrain texture", **_input_metadata(args),
                     "method": args.method, "azimuth_deg": args.azimuth, "altitude_deg": args.altitude,
                     "shadows": bool(args.shadows)}
+        if args.image is not None:
+            metadata["image"] = str(args.image)
         textured = mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # the formats that keep a texture
         export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")

@@ -55,7 +55,7 @@ from .io import (
 )
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
-from .texture import _check_extent
+from .texture import TextureLayer, _check_extent, _grid_terrain, terrain_extent
 
 __all__ = [
     "ImagePyramid",
@@ -71,6 +71,8 @@ __all__ = [
     "visual_geometric_error",
     "visual_texture_error",
     "pyramid_shapes",
+    "image_layer",
+    "is_georeferenced",
 ]
 
 Extent = tuple[float, float, float, float]
@@ -157,11 +159,15 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool, Any]
 
             try:
                 with Image.open(path) as picture:
+                    # its pixels are decoded whole (level 0): checked first, as a GeoTIFF read with rasterio is
+                    _check_read_budget(path, (len(picture.getbands()), picture.height, picture.width),
+                                       np.dtype(np.uint8), "the image")
                     image = picture_uint8(picture, f"image {str(path)!r}", alpha=True)
                     _warn_exif_orientation(picture, path)
-            except InvalidInputError:  # a ValueError too: readable, but not an image a pyramid holds
+            except (InvalidInputError, OutputTooLargeError):  # readable, but not an image a pyramid holds, or too big
                 raise
-            except (UnidentifiedImageError, OSError, ValueError) as exc:
+            except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
+                # past Pillow's decompression-bomb limit (not an OSError: it went past raw), a TIFF reads with rasterio
                 found = _read_tiff(path, _tiff_reader(path, None))  # a TIFF Pillow cannot identify (16-bit bands)
                 if found is None:  # that GDAL reads
                     raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
@@ -1174,6 +1180,73 @@ class TextureTree:
             out.append(patch)
             stack.extend(patch.children.values())
         return out
+
+
+def is_georeferenced(image: str | os.PathLike[str]) -> bool:
+    """Whether the image file ``image`` places itself: a TIFF whose geotransform (read with rasterio) is not the
+    identity, as :meth:`ImagePyramid.build` reads its extent from it. False for a PNG or JPEG, a plain TIFF, or
+    without rasterio."""
+    path = Path(image)
+    found = _read_tiff(path, lambda dataset: not dataset.transform.is_identity) if path.is_file() else None
+    return bool(found)
+
+
+def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, extent: ArrayLike | None = None,
+                device: wp.DeviceLike = None, name: str = "image") -> TextureLayer:
+    """An image placed over a grid ``terrain`` as a thematic layer (RGB, or RGBA: alpha 0 at its nodata or
+    transparent pixels), at about the terrain's resolution: the pixels of the image over the terrain's area from the
+    coarsest level of its :class:`ImagePyramid` whose pixels are no larger than the terrain's node spacing (the image
+    itself when it is that coarse already). The pyramid is built band by band in a temporary folder and deleted
+    after, so memory holds the decoded image (checked against the memory budget) and the window read, never its
+    full-resolution copy in floats. Combine the layer with the terrain's layers as any other
+    (:func:`~stepterrain.texture.blend`, :func:`~stepterrain.texture.modulate`): it is sampled bilinearly onto
+    theirs, transparent outside its extent.
+
+    ``image`` (a path, or an array as :meth:`ImagePyramid.build` takes it) is placed as :class:`TextureTree` places
+    a pyramid: a GeoTIFF by its own georeferencing, in the terrain's CRS (refused in another, with the ``gdalwarp``
+    to run), or in degrees over a DEM load_dem read from degrees; an image without georeferencing (an array, a PNG,
+    a JPEG, a plain TIFF) needs ``extent`` = (xmin, xmax, ymin, ymax), the outer edges of its pixels in the
+    terrain's own coordinates (those of ``terrain.extent``; a geographic DEM's local metres), which also places a
+    GeoTIFF there instead of its georeferencing.
+
+    Raises
+    ------
+    DataFileError
+        A missing or unreadable image file.
+    InvalidInputError
+        An image without georeferencing and no ``extent``; a CRS mismatch; an image that does not overlap the
+        terrain; what :meth:`ImagePyramid.build` refuses.
+    OutputTooLargeError
+        The decoded image over the memory budget (:func:`stepterrain.set_memory_budget`).
+    """
+    t = _grid_terrain(terrain, None)
+    target = terrain_extent(t)
+    sx, sy = abs(t.spacing[0]), abs(t.spacing[1])
+    with ImagePyramid.build(image, extent=extent, device=device) as pyramid:  # a file it cannot read is refused here
+        if extent is None and not (isinstance(image, (str, os.PathLike)) and is_georeferenced(image)):
+            # it would lie at (0, W, 0, H), one unit per pixel: anywhere on the terrain
+            what = f"image {str(image)!r}" if isinstance(image, (str, os.PathLike)) else "an image array"
+            raise InvalidInputError(f"{what} carries no georeferencing (an array, a PNG or JPEG, a TIFF without a "
+                                    "geotransform): pass extent=(xmin, xmax, ymin, ymax), the outer edges of its "
+                                    "pixels in the terrain's coordinates")
+        placed = _placed(pyramid, t)
+        level = 0
+        for k in range(1, len(placed.levels)):
+            px, py = placed.pixel_size(k)
+            if px > sx * (1 + 1e-9) or py > sy * (1 + 1e-9):
+                break
+            level = k
+        window = placed.window(level, target)
+        if window is None:
+            raise InvalidInputError(f"the image extent {placed.extent} does not overlap the terrain's {target} "
+                                    "(mismatched extent)")
+        pixels = np.array(placed.sub_image(level, window))  # a copy: the level files go with the pyramid
+        where = placed.window_extent(level, window)
+    channels = pixels.shape[2]
+    if channels < 3:  # grey, grey + alpha: as RGB(A)
+        pixels = np.concatenate([np.repeat(pixels[:, :, :1], 3, axis=2), pixels[:, :, 1:]], axis=2)
+    pixels.flags.writeable = False  # its RGBA is cached
+    return TextureLayer("thematic", pixels, where, name=name)
 
 
 # ---------------------------------------------------------------------------------------------- camera, errors

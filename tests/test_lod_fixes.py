@@ -500,3 +500,36 @@ def test_a_geotiff_pyramid_opens_the_file_with_rasterio_once(tmp_path, monkeypat
         assert pyramid.extent == (376000.0, 376016.0, 3807988.0, 3808000.0) and pyramid.crs == "EPSG:32611"
         np.testing.assert_array_equal(level[..., :3], rgb.transpose(1, 2, 0))
         np.testing.assert_array_equal(level[..., 3], np.where(rgb[0] > 0, 255, 0))
+
+
+def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_tiff_reads_with_rasterio(
+        tmp_path, monkeypatch):
+    """ImagePyramid.build decoded a PNG or JPEG whole with Pillow whatever the memory budget (only a TIFF read with
+    rasterio was checked), and an image past Pillow's decompression-bomb limit raised Pillow's own
+    DecompressionBombError, a TIFF too, though rasterio reads it. Now the decode is checked first (an
+    OutputTooLargeError naming the file), a TIFF past Pillow's limit is read with rasterio, and a PNG past it is a
+    DataFileError naming it."""
+    import PIL.Image
+
+    import stepterrain as st
+    from stepterrain.errors import DataFileError, OutputTooLargeError
+    from stepterrain.texture_lod import ImagePyramid
+
+    pixels = np.random.default_rng(5).integers(0, 256, (60, 80, 3), dtype=np.uint8)
+    png = tmp_path / "map.png"
+    PIL.Image.fromarray(pixels).save(png)
+    previous = st.set_memory_budget(4 * 60 * 80 * 3 - 1)  # the check counts 4 bytes a sample, as rasterio's read
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"reading '.*map\.png' \(the image: 3 x 60 x 80 cells"):
+            ImagePyramid.build(png, device="cpu")
+    finally:
+        st.set_memory_budget(previous)
+    rasterio = pytest.importorskip("rasterio")
+    tif = tmp_path / "map.tif"
+    with rasterio.open(tif, "w", driver="GTiff", height=60, width=80, count=3, dtype="uint8") as out:
+        out.write(np.moveaxis(pixels, 2, 0))
+    monkeypatch.setattr(PIL.Image, "MAX_IMAGE_PIXELS", 1000)  # 4800 pixels: past twice the limit, an error
+    with ImagePyramid.build(tif, device="cpu") as pyramid:
+        assert np.array_equal(pyramid.levels[0], pixels)
+    with pytest.raises(DataFileError, match=r"cannot read '.*map\.png' as an image: .*decompression bomb"):
+        ImagePyramid.build(png, device="cpu")

@@ -252,3 +252,182 @@ def test_cli_texture_of_a_method_that_ignores_an_angle_passes_only_the_angles_gi
                  "--device", "cpu"]) == 0
     layer = tx.topographic_layer(load_dem(small_dem), method=method, shadows=False, device="cpu")
     np.testing.assert_array_equal(read_png(out)[..., 0], layer.to_uint8(background=(1.0, 1.0, 1.0))[..., 0])
+
+
+# ------------------------------------------------------------------------------------------ --image
+TUJUNGA = "big_tujunga_srtm_30m_utm11n.tif"
+
+
+def coded_pixels(rows: int, cols: int) -> np.ndarray:
+    """(rows, cols, 3) uint8 colours that name their pixel: red from the row, green from the column."""
+    i, j = np.mgrid[0:rows, 0:cols]
+    return np.stack([(i * 7) % 256, (j * 5) % 256, ((i + j) * 3) % 256], axis=2).astype(np.uint8)
+
+
+def write_geotiff(path: Path, pixels: np.ndarray, transform, crs) -> Path:
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    with rasterio.open(path, "w", driver="GTiff", height=pixels.shape[0], width=pixels.shape[1],
+                       count=pixels.shape[2], dtype="uint8", crs=crs, transform=transform) as out:
+        out.write(np.moveaxis(pixels, 2, 0))
+        if pixels.shape[2] == 4:
+            from rasterio.enums import ColorInterp
+
+            out.colorinterp = [ColorInterp.red, ColorInterp.green, ColorInterp.blue, ColorInterp.alpha]
+    return path
+
+
+def texture_of(tmp_path: Path, name: str, *argv: str) -> np.ndarray:
+    out = tmp_path / f"{name}.png"
+    assert main(["-q", "texture", *argv, "-o", str(out), "--device", "cpu"]) == 0
+    return read_png(out).astype(np.float64)
+
+
+def test_cli_texture_image_geotiff_is_placed_by_its_georeferencing_and_shaded(tmp_path, capsys):
+    """--image GEOTIFF: a colour-coded image over part of the Big Tujunga DEM (rows 100-399, columns 200-699 of its
+    grid, same CRS), alpha 0 in its first 50 rows. Where it is opaque the texture is the image's pixel at that
+    node shaded by the hillshade (the --colormap none texture's grey); where it is transparent and outside it, the
+    texture is the one without --image (hypsometric colours shaded). -o .tif lies on the DEM's grid."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    with rasterio.open(source) as dem:
+        transform, crs = dem.transform, dem.crs
+    pixels = np.dstack([coded_pixels(300, 500), np.full((300, 500), 255, np.uint8)])
+    pixels[:50, :, 3] = 0
+    image = write_geotiff(tmp_path / "ortho.tif", pixels, transform @ Affine.translation(200, 100), crs)
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image))
+    grey = texture_of(tmp_path, "grey", str(source), "--colormap", "none")[..., 0]
+    plain = texture_of(tmp_path, "plain", str(source))
+    inside = (slice(150, 400), slice(200, 700))  # the opaque part, in the DEM's rows and columns
+    expected = pixels[50:, :, :3] * grey[inside][..., None] / 255.0
+    assert np.abs(draped[inside] - expected).max() <= 1.0
+    assert draped[234, 456].tolist() == pytest.approx((pixels[134, 256, :3] * grey[234, 456] / 255).tolist(), abs=1)
+    outside = np.ones(draped.shape[:2], bool)
+    outside[inside] = False
+    assert np.array_equal(draped[outside], plain[outside])  # the transparent rows and off the image
+    assert (draped[outside] != 0).any() and np.abs(draped[inside] - plain[inside]).max() > 50
+    # --colormap none: the image over white, so off it the grey hillshade; -o .tif on the DEM's own grid
+    out = tmp_path / "draped.tif"
+    assert main(["-q", "texture", str(source), "--image", str(image), "--colormap", "none", "-o", str(out)]) == 0
+    with rasterio.open(out) as tex:
+        assert tex.crs == crs and tex.transform.almost_equals(transform, precision=1e-6)
+        shaded = np.moveaxis(tex.read(), 0, 2).astype(np.float64)
+    assert np.abs(shaded[inside] - expected).max() <= 1.0
+    off = np.abs(shaded[outside] - grey[outside][:, None])  # float32 noise of the sampling: a rounding tie or two
+    assert off.max() <= 1.0 and (off > 0).mean() < 1e-4
+    assert capsys.readouterr().err == ""
+
+
+def test_cli_texture_image_png_with_extent_drapes_the_mesh(tmp_path, capsys):
+    """--image PNG --image-extent: a PNG of the DEM's own grid, placed by the extent of its outer pixel edges in
+    the DEM's coordinates, gives the texture a GeoTIFF of it gives; --mesh drapes that texture (the GLB's image)."""
+    from PIL import Image
+
+    from stepterrain import load_dem
+    from stepterrain.texture import terrain_extent
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    terrain = load_dem(source)
+    pixels = coded_pixels(*terrain.shape)
+    png = tmp_path / "map.png"
+    Image.fromarray(pixels).save(png)
+    extent = ",".join(f"{v!r}" for v in terrain_extent(terrain))
+    mesh = tmp_path / "draped.glb"
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(png), f"--image-extent={extent}",
+                        "--colormap", "none", "--mesh", str(mesh))
+    grey = texture_of(tmp_path, "grey", str(source), "--colormap", "none")[..., :1]
+    assert np.abs(draped - pixels * grey / 255.0).max() <= 1.0
+    assert np.abs(draped[321, 654] - pixels[321, 654] * grey[321, 654] / 255.0).max() <= 1.0
+    back = trimesh.load(mesh, force="mesh", process=False)
+    embedded = np.asarray(back.visual.material.baseColorTexture.convert("RGB")).astype(np.float64)
+    assert embedded.shape == draped.shape and np.array_equal(embedded, draped)
+
+
+def test_cli_texture_image_in_degrees_lies_on_a_dem_in_degrees(tmp_path):
+    """A GeoTIFF in EPSG:4326 on the Front Range SRTM tile in EPSG:4326 (read as local equirectangular metres):
+    placed by its degrees through those metres, pixel (i, j) of the image on node (i, j) of the same grid."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+
+    from .conftest import shared_file
+
+    source = shared_file("front_range_srtmgl3_3arcsec.tif")
+    with rasterio.open(source) as dem:
+        pixels = coded_pixels(*dem.shape)
+        image = write_geotiff(tmp_path / "ortho.tif", pixels, dem.transform, dem.crs)
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image), "--colormap", "none")
+    grey = texture_of(tmp_path, "grey", str(source), "--colormap", "none")[..., :1]
+    assert np.abs(draped - pixels * grey / 255.0).max() <= 1.0
+    assert np.abs(draped[500, 100] - pixels[500, 100] * grey[500, 100] / 255.0).max() <= 1.0
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_path):
+    """A DEM with a nodata hole: the texture with --image is RGBA with alpha 0 over the hole (the image covers it,
+    the DEM has no ground there) and opaque elsewhere; --png renders the draped image."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+
+    from .conftest import shared_file
+
+    with rasterio.open(shared_file(TUJUNGA)) as dem:
+        heights, transform, crs = dem.read(1).astype(np.float32), dem.transform, dem.crs
+    heights[200:260, 300:400] = -9999.0
+    source = tmp_path / "holes.tif"
+    with rasterio.open(source, "w", driver="GTiff", height=heights.shape[0], width=heights.shape[1], count=1,
+                       dtype="float32", crs=crs, transform=transform, nodata=-9999.0) as out:
+        out.write(heights, 1)
+    image = write_geotiff(tmp_path / "ortho.tif", coded_pixels(*heights.shape), transform, crs)
+    png = tmp_path / "render.png"
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image), "--png", str(png), "--size", "320x200")
+    hole = np.zeros(heights.shape, bool)
+    hole[200:260, 300:400] = True
+    assert draped.shape == (*heights.shape, 4)
+    assert (draped[hole, 3] == 0).all() and (draped[~hole, 3] == 255).all()
+    shot = read_png(png)
+    assert shot.shape[:2] == (200, 320) and shot[..., :3].std() > 20
+
+
+@pytest.mark.parametrize("case, match", [
+    ("missing", "--image '{image}' does not exist"),
+    ("not an image", "--image '{image}': cannot read it as an image"),
+    ("png without extent", "--image '{image}' carries no georeferencing (a PNG or JPEG, or a TIFF without a "
+                           "geotransform): give --image-extent xmin,xmax,ymin,ymax"),
+    ("extent without image", "--image-extent applies only with --image"),
+    ("bad extent", "--image-extent must be finite (xmin, xmax, ymin, ymax) with xmin < xmax"),
+    ("crs mismatch", "--image '{image}': the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611' "
+                     "(mismatched CRS"),
+    ("off the dem", "does not overlap the terrain's"),
+    ("over the budget", "reading '{image}' (the image: 3 x 643 x 1197 cells of uint8)"),
+])
+def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
+    """Each refusal exits 2 before writing anything, naming the option and what it got."""
+    from PIL import Image
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    image = tmp_path / ("ortho.tif" if case == "crs mismatch" else "map.png")
+    argv = ["--image", str(image)]
+    if case == "not an image":
+        image.write_text("not an image\n")
+    elif case in ("png without extent", "off the dem", "over the budget", "bad extent"):
+        Image.fromarray(coded_pixels(643, 1197)).save(image)
+        argv += {"png without extent": [], "off the dem": ["--image-extent=0,100,0,100"],
+                 "bad extent": ["--image-extent=10,0,0,100"],
+                 "over the budget": ["--image-extent=376313,412223,3788627,3807917", "--memory-budget", "6MB"]}[case]
+    elif case == "extent without image":
+        argv = ["--image-extent=0,100,0,100"]
+    elif case == "crs mismatch":
+        rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+        with rasterio.open(source) as dem:
+            write_geotiff(image, coded_pixels(*dem.shape), dem.transform, "EPSG:32610")
+    out = tmp_path / "t.png"
+    assert main(["texture", str(source), *argv, "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert match.format(image=image) in err, err
+    assert not out.exists()

@@ -909,3 +909,24 @@ def test_texture_tree_takes_the_geotiff_of_a_texture_of_a_dem_in_degrees(tmp_pat
         assert pyramid.crs is not None and pyramid.extent == pytest.approx(layer.extent)
         tree = TextureTree(pyramid, PatchQuadtree(dem, leaf_size=256), max_texture_size=1024)
         assert tree.root.level == 0 and tree.root.window == (0, 758, 0, 758)
+
+
+def test_image_layer_reads_the_pyramid_level_of_the_terrain_resolution_over_the_terrain_only():
+    """image_layer: an image four times finer than the terrain's nodes comes from its pyramid's level 2 (pixels of
+    the node spacing), only the window over the terrain (the image reaches past it), placed by ``extent``; an
+    image without georeferencing and no extent is refused, as it would lie in pixel units anywhere."""
+    from stepterrain.terrain import Terrain
+    from stepterrain.texture import terrain_extent
+    from stepterrain.texture_lod import image_layer
+
+    terrain = Terrain.from_heights(np.zeros((20, 30), np.float32), spacing=(4.0, -4.0), origin=(1000.0, 2000.0))
+    xmin, xmax, ymin, ymax = terrain_extent(terrain)
+    pixels = np.random.default_rng(7).integers(0, 256, (144, 120, 3), dtype=np.uint8)
+    extent = (xmin, xmax, ymin - 16 * 4.0, ymax)  # 16 nodes' worth more image south of the terrain (at 1 m pixels)
+    layer = image_layer(pixels, terrain, extent=extent, device="cpu")
+    with ImagePyramid.build(pixels, extent=extent, device="cpu") as pyramid:
+        level2 = np.asarray(pyramid.levels[2])
+    assert layer.kind == "thematic" and layer.shape == (20, 30)
+    assert layer.extent == pytest.approx((xmin, xmax, ymin, ymax)) and np.array_equal(layer.image, level2[:20])
+    with pytest.raises(InvalidInputError, match="carries no georeferencing .*pass extent="):
+        image_layer(pixels, terrain, device="cpu")
