@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -525,9 +527,13 @@ def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_
     finally:
         st.set_memory_budget(previous)
     rasterio = pytest.importorskip("rasterio")
+    from rasterio.errors import NotGeoreferencedWarning
+
     tif = tmp_path / "map.tif"
-    with rasterio.open(tif, "w", driver="GTiff", height=60, width=80, count=3, dtype="uint8") as out:
-        out.write(np.moveaxis(pixels, 2, 0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)  # a plain TIFF, on purpose
+        with rasterio.open(tif, "w", driver="GTiff", height=60, width=80, count=3, dtype="uint8") as out:
+            out.write(np.moveaxis(pixels, 2, 0))
     monkeypatch.setattr(PIL.Image, "MAX_IMAGE_PIXELS", 1000)  # 4800 pixels: past twice the limit, an error
     with ImagePyramid.build(tif, device="cpu") as pyramid:
         assert np.array_equal(pyramid.levels[0], pixels)
