@@ -51,6 +51,8 @@ examples:
       shadows, on the DEM's grid and draped on the mesh
   stepterrain texture dem.npy --spacing 30 --image map.png --image-extent=0,1500,0,1200 -o tex.png --png out/map.png
       a PNG without georeferencing, its outer pixel edges at x 0..1500, y 0..1200 in the DEM's coordinates
+  stepterrain texture dem.tif --image ortho.tif --hillshade none -o ortho.png --mesh out/ortho.glb
+      the orthophoto as it is (its own light), no hillshade over it
 """
 
 
@@ -69,16 +71,18 @@ def add_parser(commands: Any) -> None:
                    help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
     _add_input_options(p)
     p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
-                   choices=("standard", "multidirectional", "combined", "igor"),
+                   choices=("standard", "multidirectional", "combined", "igor", "none"),
                    help="hillshade variant as gdaldem defines it: standard, multidirectional, combined, igor (default "
-                        "standard; MapLibre's shaders are in the Python API only, method='maplibre-...')")
+                        "standard; MapLibre's shaders are in the Python API only, method='maplibre-...'), or none: "
+                        "no hillshade, every node fully lit (an orthophoto's own light kept), --shadows and "
+                        "--occlusion still darken")
     p.add_argument("--azimuth", type=float, default=None, metavar="DEG",
                    help="light azimuth, degrees clockwise from north (default 315); multidirectional shades by its "
                         "four fixed lights, so there it aims --shadows only")
     p.add_argument("--altitude", type=float, default=None, metavar="DEG",
                    help="light altitude above the horizon in [0, 90] degrees (default 45); igor ignores it, so "
                         "there it aims --shadows only")
-    p.add_argument("--z-factor", type=float, default=1.0, metavar="Z",
+    p.add_argument("--z-factor", type=float, default=None, metavar="Z",
                    help="vertical exaggeration of the shading (default 1)")
     p.add_argument("--shadows", action="store_true", help="self-shadowing by the full-resolution terrain")
     p.add_argument("--shadow-strength", type=float, default=None, metavar="S",
@@ -140,6 +144,47 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     rgba = cmap(lo_frac + (1 - lo_frac) * np.where(finite, scaled, 0.0)).astype(np.float32)
     rgba[~finite, 3] = 0.0
     return rgba
+
+
+def _check_unshaded(args: argparse.Namespace, normals: bool) -> None:
+    """``--hillshade none`` before any work: an option only the hillshade uses is refused (the texture came out the
+    same whatever it was), and a texture of nothing at all (plain white) too."""
+    if not args.shadows:
+        for option, value in (("--azimuth", args.azimuth), ("--altitude", args.altitude)):
+            if value is not None:
+                raise InvalidInputError(f"{option} has no effect with --hillshade none (no light shades the "
+                                        f"terrain); it aims --shadows only; got {option} {value:g} without --shadows")
+    if args.z_factor is not None and not (args.shadows or args.occlusion > 0 or args.normals):
+        raise InvalidInputError(f"--z-factor has no effect with --hillshade none unless --shadows, --occlusion or "
+                                f"--normals use the relief; got --z-factor {args.z_factor:g}")
+    if (args.colormap.lower() == "none" and args.image is None and not args.shadows
+            and not args.occlusion > 0):
+        raise InvalidInputError("--hillshade none with --colormap none and no --image, --shadows or --occlusion "
+                                "leaves nothing to draw (a plain white texture); give one of them")
+
+
+def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | None, altitude: float | None,
+                    device: Any) -> Any:
+    """``--hillshade none``: the topographic layer of :func:`~stepterrain.texture.topographic_layer` with a shade of 1
+    at every node (its ``ambient + (1 − ambient) · shade``: 1 where lit), darkened by --shadows and --occlusion as
+    there; NaN at nodata, so the texture is transparent there as with a hillshade."""
+    from . import texture as tx
+    from .terrain import finite_number
+
+    occlusion = finite_number(args.occlusion, "occlusion", lo=0.0, hi=1.0)  # named as topographic_layer names them
+    strength = finite_number(args.shadow_strength, "shadow_strength", lo=0.0, hi=1.0)
+    shade = np.where(terrain.nodata_mask, np.float32(np.nan), np.float32(1.0)) if terrain.has_nodata else \
+        np.ones(terrain.heights.shape, np.float32)
+    if args.shadows:
+        kwargs = {k: v for k, v in (("azimuth", azimuth), ("altitude", altitude)) if v is not None}
+        shadow = tx.cast_shadows(terrain, z_factor=args.z_factor, device=device, **kwargs)
+        shade = shade * (1.0 - np.float32(strength) * shadow)
+    ambient = np.float32(0.25)  # topographic_layer's default
+    luminance = ambient + (1.0 - ambient) * shade
+    if occlusion > 0:
+        ao = tx.ambient_occlusion(terrain, z_factor=args.z_factor, device=device)
+        luminance = luminance * (1.0 - np.float32(occlusion) * (1.0 - ao))
+    return tx.terrain_layer(terrain, luminance.astype(np.float32), "topographic", name="topographic")
 
 
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
@@ -220,6 +265,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"{option} has no effect on --hillshade {args.method}, which shades by {why} (as "
                                 f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
                                 "--shadows")
+    if args.method == "none":  # no hillshade: what only shapes the hillshade would come out the same whatever it was
+        _check_unshaded(args, normals_out is not None)
     # the library refuses an angle its method ignores, as this does: only the angles given are passed on
     given = {"azimuth": args.azimuth is not None, "altitude": args.altitude is not None}
     args.azimuth = 315.0 if args.azimuth is None else args.azimuth
@@ -227,6 +274,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     if args.shadow_strength is not None and not args.shadows:  # it wrote the texture without shadows, the same
         raise InvalidInputError("--shadow-strength applies only with --shadows")
     args.shadow_strength = 0.6 if args.shadow_strength is None else args.shadow_strength
+    args.z_factor = 1.0 if args.z_factor is None else args.z_factor
     if args.interval is not None and mesh_out is None and png is None:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
@@ -252,16 +300,20 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             raise InvalidInputError(f"--image {args.image!r}: {exc}") from None
         progress.done(f"{picture.shape[1]} x {picture.shape[0]} pixels over the DEM,")
 
-    what = ", ".join(["hillshade " + args.method] + (["shadows"] if args.shadows else [])
+    what = ", ".join([("hillshade " + args.method) if args.method != "none" else "no hillshade"]
+                     + (["shadows"] if args.shadows else [])
                      + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
     progress.stage("texture", f"topographic texture on {device}: {what}")
     # degrees wrapped into one turn: the library's radians-or-degrees warning (past 4π) is for API callers
     azimuth = math.radians(args.azimuth % 360.0) if given["azimuth"] else None
     altitude = math.radians(args.altitude) if given["altitude"] else None
-    topo = tx.topographic_layer(terrain, azimuth=azimuth, altitude=altitude, z_factor=args.z_factor,
-                                method=args.method, shadows=args.shadows,
-                                shadow_strength=args.shadow_strength if args.shadows else None,
-                                occlusion=args.occlusion, device=device)
+    if args.method == "none":
+        topo = _unshaded_layer(terrain, args, azimuth, altitude, device)
+    else:
+        topo = tx.topographic_layer(terrain, azimuth=azimuth, altitude=altitude, z_factor=args.z_factor,
+                                    method=args.method, shadows=args.shadows,
+                                    shadow_strength=args.shadow_strength if args.shadows else None,
+                                    occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain, args.colormap)
     composite = topo
     if picture is not None:  # the image over the colours (white without), shaded as the colours are

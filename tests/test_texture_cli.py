@@ -431,3 +431,56 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     err = capsys.readouterr().err
     assert match.format(image=image) in err, err
     assert not out.exists()
+
+
+def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_darken(tmp_path):
+    """--hillshade none: no hillshade, every node fully lit, so an orthophoto keeps its own light. The texture is the
+    PNG of the DEM's own grid exactly (what --image places there), and without --image the hypsometric colours of
+    the default texture's colormap exactly; --shadows (a low sun) darkens the nodes cast_shadows marks to 0.25 + 0.75 · 0.4 of
+    their colour (topographic_layer's formula with a shade of 1) and leaves the lit ones as they are."""
+    from PIL import Image
+
+    from stepterrain import load_dem
+    from stepterrain.texture import _north_up, cast_shadows, terrain_extent
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    terrain = load_dem(source)
+    pixels = coded_pixels(*terrain.shape)
+    png = tmp_path / "map.png"
+    Image.fromarray(pixels).save(png)
+    extent = ",".join(f"{v!r}" for v in terrain_extent(terrain))
+    image = ("--image", str(png), f"--image-extent={extent}")
+    unshaded = texture_of(tmp_path, "unshaded", str(source), *image, "--hillshade", "none", "--colormap", "none")
+    assert np.array_equal(unshaded, pixels)  # the image itself, no light on it
+    shaded = texture_of(tmp_path, "shaded", str(source), *image, "--colormap", "none")
+    assert np.abs(shaded - pixels).max() > 100  # the default hillshade does shade it
+    # the colours alone: the default texture's colours without the shading, lit nodes unchanged under --shadows
+    colours = texture_of(tmp_path, "colours", str(source), "--hillshade", "none")
+    shadowed = texture_of(tmp_path, "shadowed", str(source), "--hillshade", "none", "--shadows", "--altitude", "15")
+    mask = _north_up(terrain, cast_shadows(terrain, altitude=np.radians(15.0), device="cpu")).astype(bool)
+    assert 0.01 < mask.mean() < 0.5
+    assert np.array_equal(shadowed[~mask], colours[~mask])
+    assert np.abs(shadowed[mask] - colours[mask] * (0.25 + 0.75 * 0.4)).max() <= 1.0
+    assert len(np.unique(colours.reshape(-1, 3), axis=0)) > 50  # a colormap over the relief, not one colour
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--azimuth", "200"], "--azimuth has no effect with --hillshade none (no light shades the terrain); it aims "
+                           "--shadows only; got --azimuth 200 without --shadows"),
+    (["--altitude", "30"], "--altitude has no effect with --hillshade none"),
+    (["--z-factor", "2"], "--z-factor has no effect with --hillshade none unless --shadows, --occlusion or --normals "
+                          "use the relief; got --z-factor 2"),
+    (["--colormap", "none"], "--hillshade none with --colormap none and no --image, --shadows or --occlusion leaves "
+                             "nothing to draw"),
+    (["--shadows", "--occlusion", "nan"], "--occlusion must be finite; got nan"),
+    (["--shadows", "--shadow-strength", "1.5"], "--shadow-strength must lie in [0, 1]"),
+])
+def test_cli_texture_hillshade_none_refuses_what_only_the_hillshade_uses(tmp_path, capsys, argv, message):
+    """Options that would change nothing without a hillshade, and a texture of nothing at all, are refused by name
+    before anything is written; a bad --occlusion or --shadow-strength is named as with a hillshade."""
+    out = tmp_path / "t.png"
+    assert main(["-q", "texture", "--hillshade", "none", *argv, "-o", str(out), "--device", "cpu"]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()
