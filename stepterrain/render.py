@@ -875,7 +875,9 @@ def render_textured_mesh(
     """Render a mesh with its texture (``trimesh.visual.TextureVisuals``: UVs and a base-colour image) off-screen.
 
     Same camera (its vertical field of view ``view_angle`` in degrees too), lights and framing as
-    :func:`render_mesh`. The texture is sampled linearly (bilinear), as a glTF viewer shows the mesh's GLB.
+    :func:`render_mesh`. The texture is sampled linearly (bilinear) where magnified and through mipmaps (trilinear)
+    where shrunk on screen, as a glTF viewer shows the mesh's GLB: a texture finer than the picture renders as the
+    average of the texels under each pixel, not as one of them.
     ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
 
@@ -923,6 +925,12 @@ def render_textured_mesh(
     poly.active_texture_coordinates = uv
     texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
     texture.interpolate = True  # linear, as a glTF viewer samples the GLB: nearest drew a magnified texel as a block
+    # and mipmapped (trilinear), as a glTF viewer's default sampler: a texture larger than its picture (a DEM's, one
+    # texel per node, in a 1280-pixel window) took one texel of many per pixel and shimmered, fine detail as noise
+    texture.mipmap = True
+    # isotropic, as three.js's default: VTK's 4x anisotropic filtering blended a constant-UV face's texel with its
+    # neighbours on Mesa's llvmpipe (a face of one texel came out in a mix of two)
+    texture.SetMaximumAnisotropicFiltering(1.0)
     mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
                        diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,

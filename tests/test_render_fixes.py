@@ -826,3 +826,17 @@ def test_a_magnified_texture_is_filtered_linearly_not_drawn_as_blocks():
     on_mesh = on_mesh[: np.argmax(on_mesh == 255) + 1]
     assert len(np.unique(on_mesh)) > 40
     assert (np.diff(on_mesh) >= 0).all() and np.diff(on_mesh).max() <= 8
+
+
+@needs_render
+def test_a_texture_shrunk_on_screen_is_mipmapped_not_aliased():
+    """render_textured_mesh's texture had no mipmaps: shrunk on screen (a texture of more texels than the pixels it
+    covers), each pixel took one texel of many, and a fine pattern shimmered as noise. A 1024² one-texel checker on
+    a quad ~100 pixels wide now renders as its mean grey, evenly; without mipmaps pixels were near black or white."""
+    checker = (np.add.outer(np.arange(1024), np.arange(1024)) % 2 * 255).astype(np.uint8)
+    mesh = trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), [[0, 1, 2], [0, 2, 3]],
+                           process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.vertices[:, :2], image=Image.fromarray(checker))
+    image = render.render_textured_mesh(mesh, window_size=(128, 128), camera="top", lighting=False)
+    centre = image[40:88, 40:88].astype(float)
+    assert np.abs(centre - 127.5).max() <= 8  # every pixel the checker's mean, not one of its texels
