@@ -840,3 +840,24 @@ def test_a_texture_shrunk_on_screen_is_mipmapped_not_aliased():
     image = render.render_textured_mesh(mesh, window_size=(128, 128), camera="top", lighting=False)
     centre = image[40:88, 40:88].astype(float)
     assert np.abs(centre - 127.5).max() <= 8  # every pixel the checker's mean, not one of its texels
+
+
+@needs_render
+def test_render_mesh_draws_a_textured_mesh_with_its_texture():
+    """render_mesh drew a textured mesh (drape's, a GLB read back: TextureVisuals) in the plain tan, its texture
+    dropped. It now draws the texture, lit, as render_textured_mesh(lighting=True) does, pixel for pixel; a
+    coloured mesh still renders with its colours, and scalars= still colours by the colormap."""
+    from stepterrain.texture import TextureLayer, drape
+
+    mesh = st.heightfield_mesh(np.zeros((11, 11)))
+    picture = np.zeros((20, 20, 3), np.uint8)
+    picture[:10, :, 0] = 255  # north half red
+    picture[10:, :, 2] = 255  # south half blue
+    textured = drape(mesh, TextureLayer("thematic", picture, (-0.5, 10.5, -0.5, 10.5)))
+    shot = render.render_mesh(textured, window_size=(120, 120), camera="top")
+    north, south = shot[30, 60].astype(int), shot[90, 60].astype(int)
+    assert north[0] > 150 and north[1:].max() < 20 and south[2] > 150 and south[:2].max() < 20
+    np.testing.assert_array_equal(
+        shot, render.render_textured_mesh(textured, window_size=(120, 120), camera="top", lighting=True))
+    by_height = render.render_mesh(textured, window_size=(120, 120), camera="top", scalars="height")
+    assert not (by_height[30, 60].astype(int)[1:] < 20).all()  # the colormap, not the texture
