@@ -1200,6 +1200,8 @@ class LayeredRenderer:
                  values: ArrayLike | None = None, key: Any = None, bounds: ArrayLike | None = None) -> None:
         """Upload (or replace) the mesh ``name`` (a string): lit, with vertex ``rgb`` (V, 3) uint8 (or (V, 4), or
         numbers in 0-255) or the default tan, or unlit with ``values`` (V,) in [0, 1] as gray levels (not both).
+        A (V, 4) ``rgb``'s alpha is ignored: the layer is drawn opaque (layers are read back opaque and composited
+        by depth, with no blending; blend a translucent colour over what lies behind it before passing it).
         The first mesh fixes the local origin. ``bounds``: the (2, 3) bounds of the finite vertices when the caller
         already has them. A NaN vertex is left out of the framing (its faces are not drawn); an infinite one, like
         any bad argument, raises an InvalidInputError naming it."""
