@@ -883,7 +883,8 @@ def render_textured_mesh(
     Same camera (its vertical field of view ``view_angle`` in degrees too), lights and framing as
     :func:`render_mesh`. The texture is sampled linearly (bilinear) where magnified and through mipmaps (trilinear)
     where shrunk on screen, as a glTF viewer shows the mesh's GLB: a texture finer than the picture renders as the
-    average of the texels under each pixel, not as one of them.
+    average of the texels under each pixel, not as one of them. A PBR material's ``baseColorFactor`` multiplies the
+    texture, in linear light, as glTF defines the base colour.
     ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
 
@@ -942,7 +943,37 @@ def _mesh_texture(mesh: trimesh.Trimesh) -> tuple[NDArray[np.float32], NDArray[n
         image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         return None
-    return _texture_coordinates(uv), _texture_alpha(_texture_picture(image), material)
+    return _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material), material)
+
+
+def _base_color_factor(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
+    """``picture`` times a PBR material's baseColorFactor, as glTF defines the base colour and a viewer shows the
+    mesh's GLB (:func:`~stepterrain.export.save_mesh` writes the factor): the colour in linear light (the texture
+    decoded from sRGB, the product encoded back), the alpha as it is, where the material blends or masks (its
+    alphaMode, or unset with a texture with alpha, which the GLB gets as BLEND or MASK; unset with an opaque texture
+    it is OPAQUE, glTF's default). The factor was ignored: a tinted or dimmed texture rendered at full brightness."""
+    factor = getattr(material, "baseColorFactor", None)
+    if not isinstance(material, trimesh.visual.material.PBRMaterial) or factor is None:
+        return picture
+    factor = np.asarray(factor, dtype=np.float64).reshape(-1)
+    if factor.shape != (4,) or (factor == 255).all():  # trimesh holds it as RGBA bytes
+        return picture
+    from .export import _linear_to_srgb, _srgb_to_linear
+
+    rgb = picture if picture.ndim == 3 else picture[..., None]
+    alpha = rgb[..., 3] if rgb.shape[2] == 4 else None
+    rgb = rgb[..., :3] if rgb.shape[2] >= 3 else np.repeat(rgb, 3, axis=2)  # grey: one channel
+    levels = _srgb_to_linear(np.arange(256) / 255.0)
+    mode = getattr(material, "alphaMode", None)
+    blends = mode in ("BLEND", "MASK") or (mode is None and alpha is not None and alpha.size and int(alpha.min()) < 255)
+    out = np.empty(rgb.shape[:2] + (4 if alpha is not None or (blends and factor[3] < 255) else 3,), dtype=np.uint8)
+    for c in range(3):  # a table of the 256 levels per channel: no float copy of a large texture
+        table = np.rint(_linear_to_srgb(levels * (factor[c] / 255.0)) * 255.0).astype(np.uint8)
+        out[..., c] = table[rgb[..., c]]
+    if out.shape[2] == 4:
+        table = np.rint(np.arange(256) * (factor[3] / 255.0 if blends else 1.0)).astype(np.uint8)
+        out[..., 3] = table[alpha] if alpha is not None else table[255]
+    return out
 
 
 def _texture(pv: Any, poly: Any, uv: NDArray[np.float32], picture: NDArray[np.uint8]) -> Any:

@@ -861,3 +861,29 @@ def test_render_mesh_draws_a_textured_mesh_with_its_texture():
         shot, render.render_textured_mesh(textured, window_size=(120, 120), camera="top", lighting=True))
     by_height = render.render_mesh(textured, window_size=(120, 120), camera="top", scalars="height")
     assert not (by_height[30, 60].astype(int)[1:] < 20).all()  # the colormap, not the texture
+
+
+@needs_render
+def test_a_pbr_texture_is_multiplied_by_its_base_color_factor():
+    """render_textured_mesh (and render_mesh) ignored a PBR material's baseColorFactor, which glTF multiplies with
+    the texture and save_mesh writes to the GLB: a tinted or dimmed texture rendered at full brightness, a factor's
+    alpha (alphaMode BLEND) opaque. The colour is multiplied in linear light, as a viewer shows the GLB: a texel of
+    200 times 0.5 is 147; with BLEND an alpha factor 0.5 lays the texel half over the background; unset alphaMode
+    over an opaque texture is glTF's OPAQUE, the factor's alpha ignored."""
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+
+    def centre(factor, alpha_mode=None):
+        mesh = trimesh.Trimesh(quad, [[0, 1, 2], [0, 2, 3]], process=False)
+        material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.new("RGB", (4, 4), (200, 200, 200)),
+                                                       baseColorFactor=factor, alphaMode=alpha_mode)
+        mesh.visual = trimesh.visual.TextureVisuals(uv=quad[:, :2], material=material)
+        shot = render.render_textured_mesh(mesh, window_size=(64, 64), camera="top", lighting=False,
+                                           background="black")
+        return shot[32, 32].astype(int).tolist()
+
+    linear = ((200 / 255 + 0.055) / 1.055) ** 2.4 * (128 / 255)  # trimesh holds the factor as bytes: 0.5 is 128
+    half = round((1.055 * linear ** (1 / 2.4) - 0.055) * 255)
+    assert centre([1.0, 0.5, 0.0, 1.0]) == [200, half, 0]
+    assert centre([1.0, 1.0, 1.0, 0.5], "BLEND") == pytest.approx([100, 100, 100], abs=1)
+    assert centre([1.0, 1.0, 1.0, 0.5]) == [200, 200, 200]
+    assert centre([1.0, 1.0, 1.0, 1.0]) == [200, 200, 200]
