@@ -949,7 +949,7 @@ def _mesh_texture(mesh: trimesh.Trimesh) -> tuple[NDArray[np.float32], NDArray[n
 def _base_color_factor(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
     """``picture`` times a PBR material's baseColorFactor, as glTF defines the base colour and a viewer shows the
     mesh's GLB (:func:`~stepterrain.export.save_mesh` writes the factor): the colour in linear light (the texture
-    decoded from sRGB, the product encoded back), the alpha as it is, where the material blends or masks (its
+    decoded from sRGB, the product encoded back), the alpha times the factor's where the material blends or masks (its
     alphaMode, or unset with a texture with alpha, which the GLB gets as BLEND or MASK; unset with an opaque texture
     it is OPAQUE, glTF's default). The factor was ignored: a tinted or dimmed texture rendered at full brightness."""
     factor = getattr(material, "baseColorFactor", None)
