@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -77,6 +78,9 @@ def add_parser(commands: Any) -> None:
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
     p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
                    help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
+    p.add_argument("--view-angle", type=float, default=30.0, metavar="DEG",
+                   help="vertical field of view of the eye in [1e-08, 179] degrees (default 30): the view the mesh "
+                        "is refined and culled for, and the --png render's")
     p.add_argument("--no-camera", action="store_true",
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
     p.add_argument("--bounds", choices=("cone", "sphere"), default=None,
@@ -208,6 +212,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"--radius {args.radius:g} + altitude {altitude:g} m{default}")
     if not (0.0 <= args.tilt < 90.0):
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
+    lo, hi = render._VIEW_ANGLE_RANGE  # VTK's: the --png render's camera takes no other
+    if not lo <= args.view_angle <= hi:  # NaN too
+        raise InvalidInputError(f"--view-angle must be a vertical field of view in [{lo:g}, {hi:g}] degrees; got "
+                                f"{args.view_angle:g}")
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
@@ -224,6 +232,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
 
     aspect = args.size[0] / args.size[1]
     camera = look_from(lat_deg, lon_deg, altitude, tilt=args.tilt, heading=args.heading, aspect=aspect,
+                       fov=math.radians(args.view_angle),
                        radius=args.radius, max_radius=globe.radius + float(globe.heights.max()))
     if not args.no_camera or png is not None:  # the eye meshes or renders: above the terrain there, named by --eye
         try:

@@ -317,7 +317,9 @@ def render_mesh(
     mesh : trimesh.Trimesh
         Any triangle mesh; it renders with its vertex colors (a stepped terrain's), or else its face colors, when it
         has them, their alpha included: colours with some alpha below 255 blend with what lies behind them (in depth
-        order, by depth peeling), as the mesh's GLB shows them.
+        order, by depth peeling), as the mesh's GLB shows them. A textured mesh (``TextureVisuals`` with one UV per
+        vertex and an image: :func:`~stepterrain.texture.drape`'s, a GLB read back) renders with its texture, lit,
+        as :func:`render_textured_mesh` with ``lighting=True`` draws it (which also draws it unlit).
     window_size : (width, height)
         Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
@@ -334,9 +336,9 @@ def render_mesh(
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
         image has no alpha channel).
     scalars : None, "level" or "height"
-        None: the mesh's vertex colors if it has them, else its face colors, else a uniform light tan. "level":
-        faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z. Both use
-        ``cmap``.
+        None: the mesh's texture or vertex colors if it has them, else its face colors, else a uniform light tan.
+        "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z.
+        Both use ``cmap``.
     cmap : str
         Matplotlib colormap for ``scalars`` (with ``scalars=None`` unused, but it must still be a str).
     show_edges : bool
@@ -358,8 +360,8 @@ def render_mesh(
     Raises
     ------
     InvalidInputError
-        Bad window size, z_scale, camera, scalars, cmap or view_angle, an empty mesh, or an infinite vertex (NaN ones
-        are left out).
+        Bad window size, z_scale, camera, scalars, cmap or view_angle, an empty mesh, an infinite vertex (NaN ones
+        are left out), or a textured mesh's bad UVs or texture image (as :func:`render_textured_mesh`).
     OutputTooLargeError
         The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 288 with it and
         translucent colours, which take SSAA with depth peeling) exceed the memory budget
@@ -387,6 +389,7 @@ def render_mesh(
     view_angle = _check_view_angle(view_angle)
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
                                                               view_angle)
+    textured = _mesh_texture(mesh) if scalars is None else None
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -408,7 +411,9 @@ def render_mesh(
     add_kwargs: dict[str, Any] = {}
     rgb = _colors_rgb(mesh, "vertex") if scalars is None else None
     face_rgb = _colors_rgb(mesh, "face") if scalars is None and rgb is None else None
-    if rgb is not None:
+    if textured is not None:  # it drew in the plain tan: a draped DEM or a GLB read back lost its texture
+        add_kwargs.update(texture=_texture(pv, poly, *textured))
+    elif rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)
     elif face_rgb is not None:
@@ -424,7 +429,8 @@ def render_mesh(
 
     mesh_kwargs = dict(smooth_shading=False, show_edges=show_edges, ambient=_AMBIENT, diffuse=_DIFFUSE,
                        specular=0.0, lighting=True, **add_kwargs)
-    translucent = any(colors is not None and colors.shape[1] == 4 for colors in (rgb, face_rgb))
+    translucent = (any(colors is not None and colors.shape[1] == 4 for colors in (rgb, face_rgb))
+                   or (textured is not None and textured[1].ndim == 3 and textured[1].shape[2] == 4))
     if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
         _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
@@ -875,7 +881,10 @@ def render_textured_mesh(
     """Render a mesh with its texture (``trimesh.visual.TextureVisuals``: UVs and a base-colour image) off-screen.
 
     Same camera (its vertical field of view ``view_angle`` in degrees too), lights and framing as
-    :func:`render_mesh`. The texture is sampled linearly (bilinear), as a glTF viewer shows the mesh's GLB.
+    :func:`render_mesh`. The texture is sampled linearly (bilinear) where magnified and through mipmaps (trilinear)
+    where shrunk on screen, as a glTF viewer shows the mesh's GLB: a texture finer than the picture renders as the
+    average of the texels under each pixel, not as one of them. A PBR material's ``baseColorFactor`` multiplies the
+    texture, in linear light, as glTF defines the base colour.
     ``lighting=False`` shows the texture unlit (a
     topographic texture already carries its shading, paper 004 §7); True adds the key and fill lights.
 
@@ -897,17 +906,11 @@ def render_textured_mesh(
     """
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
-    visual = mesh.visual
-    uv = getattr(visual, "uv", None)
-    material = getattr(visual, "material", None)
-    image = None
-    if material is not None:
-        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
-    if uv is None or image is None or len(uv) != len(mesh.vertices):
+    found = _mesh_texture(mesh)
+    if found is None:
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
-    uv = _texture_coordinates(uv)
-    picture = _texture_alpha(_texture_picture(image), material)
+    uv, picture = found
     translucent = picture.ndim == 3 and picture.shape[2] == 4
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
@@ -920,15 +923,71 @@ def render_textured_mesh(
     pv = _import_pyvista()
     _check_background(pv, background)
     poly = _polydata(pv, local, mesh.faces)
-    poly.active_texture_coordinates = uv
-    texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
-    texture.interpolate = True  # linear, as a glTF viewer samples the GLB: nearest drew a magnified texel as a block
-    mesh_kwargs = dict(texture=texture, smooth_shading=False, ambient=_AMBIENT if lighting else 1.0,
-                       diffuse=_DIFFUSE if lighting else 0.0, specular=0.0, lighting=lighting)
+    mesh_kwargs = dict(texture=_texture(pv, poly, uv, picture), smooth_shading=False,
+                       ambient=_AMBIENT if lighting else 1.0, diffuse=_DIFFUSE if lighting else 0.0, specular=0.0,
+                       lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
                   framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
                   lighting=lighting, translucent=translucent, view_angle=view_angle)
+
+
+def _mesh_texture(mesh: trimesh.Trimesh) -> tuple[NDArray[np.float32], NDArray[np.uint8]] | None:
+    """The (UVs, texture picture) a textured mesh (TextureVisuals with one UV per vertex and a base-colour image) is
+    drawn with, checked (an InvalidInputError for bad ones), else None."""
+    visual = mesh.visual
+    uv = getattr(visual, "uv", None)
+    material = getattr(visual, "material", None)
+    image = None
+    if material is not None:
+        image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
+    if uv is None or image is None or len(uv) != len(mesh.vertices):
+        return None
+    return _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material), material)
+
+
+def _base_color_factor(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
+    """``picture`` times a PBR material's baseColorFactor, as glTF defines the base colour and a viewer shows the
+    mesh's GLB (:func:`~stepterrain.export.save_mesh` writes the factor): the colour in linear light (the texture
+    decoded from sRGB, the product encoded back), the alpha times the factor's where the material blends or masks (its
+    alphaMode, or unset with a texture with alpha, which the GLB gets as BLEND or MASK; unset with an opaque texture
+    it is OPAQUE, glTF's default). The factor was ignored: a tinted or dimmed texture rendered at full brightness."""
+    factor = getattr(material, "baseColorFactor", None)
+    if not isinstance(material, trimesh.visual.material.PBRMaterial) or factor is None:
+        return picture
+    factor = np.asarray(factor, dtype=np.float64).reshape(-1)
+    if factor.shape != (4,) or (factor == 255).all():  # trimesh holds it as RGBA bytes
+        return picture
+    from .export import _linear_to_srgb, _srgb_to_linear
+
+    rgb = picture if picture.ndim == 3 else picture[..., None]
+    alpha = rgb[..., 3] if rgb.shape[2] == 4 else None
+    rgb = rgb[..., :3] if rgb.shape[2] >= 3 else np.repeat(rgb, 3, axis=2)  # grey: one channel
+    levels = _srgb_to_linear(np.arange(256) / 255.0)
+    mode = getattr(material, "alphaMode", None)
+    blends = mode in ("BLEND", "MASK") or (mode is None and alpha is not None and alpha.size and int(alpha.min()) < 255)
+    out = np.empty(rgb.shape[:2] + (4 if alpha is not None or (blends and factor[3] < 255) else 3,), dtype=np.uint8)
+    for c in range(3):  # a table of the 256 levels per channel: no float copy of a large texture
+        table = np.rint(_linear_to_srgb(levels * (factor[c] / 255.0)) * 255.0).astype(np.uint8)
+        out[..., c] = table[rgb[..., c]]
+    if out.shape[2] == 4:
+        table = np.rint(np.arange(256) * (factor[3] / 255.0 if blends else 1.0)).astype(np.uint8)
+        out[..., 3] = table[alpha] if alpha is not None else table[255]
+    return out
+
+
+def _texture(pv: Any, poly: Any, uv: NDArray[np.float32], picture: NDArray[np.uint8]) -> Any:
+    """The pv.Texture of ``picture`` for ``poly``, whose texture coordinates become ``uv``."""
+    poly.active_texture_coordinates = uv
+    texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
+    texture.interpolate = True  # linear, as a glTF viewer samples the GLB: nearest drew a magnified texel as a block
+    # and mipmapped (trilinear), as a glTF viewer's default sampler: a texture larger than its picture (a DEM's, one
+    # texel per node, in a 1280-pixel window) took one texel of many per pixel and shimmered, fine detail as noise
+    texture.mipmap = True
+    # isotropic, as three.js's default: VTK's 4x anisotropic filtering blended a constant-UV face's texel with its
+    # neighbours on Mesa's llvmpipe (a face of one texel came out in a mix of two)
+    texture.SetMaximumAnisotropicFiltering(1.0)
+    return texture
 
 
 def _texture_alpha(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
@@ -1172,6 +1231,8 @@ class LayeredRenderer:
                  values: ArrayLike | None = None, key: Any = None, bounds: ArrayLike | None = None) -> None:
         """Upload (or replace) the mesh ``name`` (a string): lit, with vertex ``rgb`` (V, 3) uint8 (or (V, 4), or
         numbers in 0-255) or the default tan, or unlit with ``values`` (V,) in [0, 1] as gray levels (not both).
+        A (V, 4) ``rgb``'s alpha is ignored: the layer is drawn opaque (layers are read back opaque and composited
+        by depth, with no blending; blend a translucent colour over what lies behind it before passing it).
         The first mesh fixes the local origin. ``bounds``: the (2, 3) bounds of the finite vertices when the caller
         already has them. A NaN vertex is left out of the framing (its faces are not drawn); an infinite one, like
         any bad argument, raises an InvalidInputError naming it."""

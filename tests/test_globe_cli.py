@@ -195,3 +195,31 @@ def test_globe_npz_elevation_not_2d_exits_2(tmp_path, capsys, elevation):
     err = capsys.readouterr().err.strip()
     assert err == (f"stepterrain globe: error: {str(grid)!r}: 'elevation' must be a 2-D (H, W) array; got shape "
                    f"{np.shape(elevation)}")
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_globe_view_angle_sets_the_eye_s_field_of_view(tmp_path, capsys):
+    """The globe command placed its eye (--eye, --tilt, --heading) but had no field of view: the mesh was always
+    refined and culled for, and the --png rendered at, look_from's 30 degrees. --view-angle sets it: a narrower view
+    keeps fewer triangles and its render sees a smaller part of the globe (the whole globe from 3 R at 30 degrees, a
+    patch filling the picture at 10); the default is 30 as before; a bad one is named."""
+    from PIL import Image
+
+    def run(*extra: str) -> tuple[int, np.ndarray]:
+        out, png = tmp_path / "g.ply", tmp_path / "g.png"
+        assert main(["-q", "globe", "--face-size", "33", "--error", "500", "-o", str(out), "--png", str(png),
+                     "--size", "160x100", "--device", "cpu", *extra]) == 0
+        with Image.open(png) as image:
+            return len(trimesh.load(out, process=False).faces), np.asarray(image)
+
+    faces30, wide = run()
+    assert run("--view-angle", "30")[0] == faces30
+    faces10, narrow = run("--view-angle", "10")
+    assert faces10 < faces30
+    space = lambda image: (image.max(axis=2) < 8).mean()  # noqa: E731 - black sky round the globe
+    assert space(wide) > 0.2 and space(narrow) < 0.05
+    for bad in ("0", "180", "nan"):
+        assert main(["globe", "--face-size", "9", "--view-angle", bad, "-o", str(tmp_path / "x.glb")]) == 2
+        assert f"--view-angle must be a vertical field of view in [1e-08, 179] degrees; got {bad}" \
+            in capsys.readouterr().err

@@ -826,3 +826,64 @@ def test_a_magnified_texture_is_filtered_linearly_not_drawn_as_blocks():
     on_mesh = on_mesh[: np.argmax(on_mesh == 255) + 1]
     assert len(np.unique(on_mesh)) > 40
     assert (np.diff(on_mesh) >= 0).all() and np.diff(on_mesh).max() <= 8
+
+
+@needs_render
+def test_a_texture_shrunk_on_screen_is_mipmapped_not_aliased():
+    """render_textured_mesh's texture had no mipmaps: shrunk on screen (a texture of more texels than the pixels it
+    covers), each pixel took one texel of many, and a fine pattern shimmered as noise. A 1024² one-texel checker on
+    a quad ~100 pixels wide now renders as its mean grey, evenly; without mipmaps pixels were near black or white."""
+    checker = (np.add.outer(np.arange(1024), np.arange(1024)) % 2 * 255).astype(np.uint8)
+    mesh = trimesh.Trimesh(np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float), [[0, 1, 2], [0, 2, 3]],
+                           process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.vertices[:, :2], image=Image.fromarray(checker))
+    image = render.render_textured_mesh(mesh, window_size=(128, 128), camera="top", lighting=False)
+    centre = image[40:88, 40:88].astype(float)
+    assert np.abs(centre - 127.5).max() <= 8  # every pixel the checker's mean, not one of its texels
+
+
+@needs_render
+def test_render_mesh_draws_a_textured_mesh_with_its_texture():
+    """render_mesh drew a textured mesh (drape's, a GLB read back: TextureVisuals) in the plain tan, its texture
+    dropped. It now draws the texture, lit, as render_textured_mesh(lighting=True) does, pixel for pixel; a
+    coloured mesh still renders with its colours, and scalars= still colours by the colormap."""
+    from stepterrain.texture import TextureLayer, drape
+
+    mesh = st.heightfield_mesh(np.zeros((11, 11)))
+    picture = np.zeros((20, 20, 3), np.uint8)
+    picture[:10, :, 0] = 255  # north half red
+    picture[10:, :, 2] = 255  # south half blue
+    textured = drape(mesh, TextureLayer("thematic", picture, (-0.5, 10.5, -0.5, 10.5)))
+    shot = render.render_mesh(textured, window_size=(120, 120), camera="top")
+    north, south = shot[30, 60].astype(int), shot[90, 60].astype(int)
+    assert north[0] > 150 and north[1:].max() < 20 and south[2] > 150 and south[:2].max() < 20
+    np.testing.assert_array_equal(
+        shot, render.render_textured_mesh(textured, window_size=(120, 120), camera="top", lighting=True))
+    by_height = render.render_mesh(textured, window_size=(120, 120), camera="top", scalars="height")
+    assert not (by_height[30, 60].astype(int)[1:] < 20).all()  # the colormap, not the texture
+
+
+@needs_render
+def test_a_pbr_texture_is_multiplied_by_its_base_color_factor():
+    """render_textured_mesh (and render_mesh) ignored a PBR material's baseColorFactor, which glTF multiplies with
+    the texture and save_mesh writes to the GLB: a tinted or dimmed texture rendered at full brightness, a factor's
+    alpha (alphaMode BLEND) opaque. The colour is multiplied in linear light, as a viewer shows the GLB: a texel of
+    200 times 0.5 is 147; with BLEND an alpha factor 0.5 lays the texel half over the background; unset alphaMode
+    over an opaque texture is glTF's OPAQUE, the factor's alpha ignored."""
+    quad = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], float)
+
+    def centre(factor, alpha_mode=None):
+        mesh = trimesh.Trimesh(quad, [[0, 1, 2], [0, 2, 3]], process=False)
+        material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.new("RGB", (4, 4), (200, 200, 200)),
+                                                       baseColorFactor=factor, alphaMode=alpha_mode)
+        mesh.visual = trimesh.visual.TextureVisuals(uv=quad[:, :2], material=material)
+        shot = render.render_textured_mesh(mesh, window_size=(64, 64), camera="top", lighting=False,
+                                           background="black")
+        return shot[32, 32].astype(int).tolist()
+
+    linear = ((200 / 255 + 0.055) / 1.055) ** 2.4 * (128 / 255)  # trimesh holds the factor as bytes: 0.5 is 128
+    half = round((1.055 * linear ** (1 / 2.4) - 0.055) * 255)
+    assert centre([1.0, 0.5, 0.0, 1.0]) == [200, half, 0]
+    assert centre([1.0, 1.0, 1.0, 0.5], "BLEND") == pytest.approx([100, 100, 100], abs=1)
+    assert centre([1.0, 1.0, 1.0, 0.5]) == [200, 200, 200]
+    assert centre([1.0, 1.0, 1.0, 1.0]) == [200, 200, 200]
