@@ -1538,11 +1538,12 @@ def _run_locked(
     bar = _progress_bar(len(items), len(results), bool(progress))
     reworded = progress if callable(progress) else None
     stream: Iterable[ItemResult] = ()
+    salvage: list[ItemResult] = []  # results that had reached this process when the run was interrupted
     try:
         if connection is None:
             stream = _run_serial(todo, src, options, folder, retries)
         else:
-            stream = _run_dask(todo, src, options, folder, connection, retries, timeout)
+            stream = _run_dask(todo, src, options, folder, connection, retries, timeout, salvage)
         hint = budget_hint()
         level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
         rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
@@ -1578,6 +1579,8 @@ def _run_locked(
                 # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
                 # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
                 stream.close()
+            for result in salvage:  # finished before the interrupt: recorded, so that a rerun does not redo them
+                recorder.add(result)
             recorder.flush()
             if bar is not None:
                 bar.close()
@@ -1845,12 +1848,15 @@ def _run_dask(
     connection: tuple[Any, Any, str, bool],
     retries: int,
     timeout: float = 10.0,
+    salvage: list[ItemResult] | None = None,
 ) -> Iterable[ItemResult]:
     """The items' results as their tasks finish; ``timeout``: the longest wait for a worker to take the heights of
     an item whose worker died (batch's ``connect_timeout``).
 
     Small items run several to a task (:func:`_task_groups`, :func:`run_items`); a task of several that does not
-    finish (its worker died) is submitted again item by item, so a failure stays the item's own."""
+    finish (its worker died) is submitted again item by item, so a failure stays the item's own. ``salvage``: where
+    the results that had reached this process but were not yet yielded go when the caller stops reading
+    (Ctrl-C), so that it can record them."""
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
@@ -1876,6 +1882,8 @@ def _run_dask(
     groups = _task_groups(todo, src, threads)
     blocks: list[Any] | None = None
     futures: dict[Any, list[BatchItem]] = {}
+    pending: list[ItemResult] = []  # the finished task's results not yet yielded
+    completed = None
     # A worker that dies (killed for memory, a crash) takes the blocks scattered to it along: the scheduler cannot
     # run their tasks again and cancels them. Those items are scattered and submitted again, up to `retries` times;
     # they "failed: cancelled" after 0 attempts, about half a LocalCluster's items when one of its two workers died.
@@ -1919,9 +1927,17 @@ def _run_dask(
                 yield ItemResult(item.key, "failed", attempts=lost.get(item.key, 0),
                                  error="cancelled" + (" (its worker was lost each time)" if item.key in lost else ""))
             else:
-                for done in result if len(group) > 1 else [result]:
-                    yield dataclasses.replace(done, attempts=done.attempts + lost.get(done.key, 0))
+                pending = list(result) if len(group) > 1 else [result]
+                while pending:  # each kept there until the caller has taken it (salvaged if it stops meanwhile)
+                    yield dataclasses.replace(pending[0], attempts=pending[0].attempts + lost.get(pending[0].key, 0))
+                    pending.pop(0)
     except BaseException:  # also GeneratorExit: the caller stopped reading (Ctrl-C in its loop), see _run_locked
+        if salvage is not None:  # finished, and in this process: recorded by the caller, not redone by a rerun
+            salvage.extend(pending)
+            for future, result in completed.next_batch(block=False) if completed is not None else ():
+                if future.status == "finished":
+                    group = futures.pop(future, None)
+                    salvage.extend(result if group is not None and len(group) > 1 else [result])
         # the unfinished tasks and the heights scattered for them: the scheduler forgets them before the client
         # closes, instead of reporting them to a client gone (a CRITICAL traceback each) and of losing its
         # workers' scattered data as the cluster closes (an ERROR listing every block)

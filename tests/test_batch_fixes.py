@@ -1563,3 +1563,33 @@ def test_task_groups_keep_large_items_alone_and_every_thread_busy():
     large, src = plan_items(np.zeros((2049, 1025), np.float32), tile_size=1024)
     assert _task_groups(large, src, threads=1) == [[item] for item in large]
 
+
+def test_results_that_reached_the_caller_before_ctrl_c_are_recorded(tmp_path, threaded_cluster_client):
+    """Ctrl-C as the progress bar drew an item: the items whose results had already come back from the cluster
+    (written complete) were not recorded in the manifest, so a rerun redid them."""
+    import json
+    import time
+
+    src = tmp_path / "dems"
+    src.mkdir()
+    (src / "a_broken.npy").write_bytes(b"not a DEM")  # among the first items: its failure line is drawn
+    rng = np.random.default_rng(0)
+    for k in range(12):
+        np.save(src / f"t{k:02d}.npy", (rng.random((30, 30)) * 100).astype(np.float32))
+    out = tmp_path / "out"
+    client = threaded_cluster_client
+
+    def ctrl_c_once_all_are_back(line):
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (len(list(out.glob("t*.glb"))) == 12 and all(
+                state.status == "finished" for state in client.futures.values())):
+            time.sleep(0.05)
+        time.sleep(0.5)  # their results reach this process
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        batch(src, out, interval=10.0, scheduler=client, progress=ctrl_c_once_all_are_back)
+    recorded = json.loads((out / MANIFEST_NAME).read_text())["items"]
+    assert sorted(recorded) == [f"t{k:02d}.glb" for k in range(12)]
+    report = batch(src, out, interval=10.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["a_broken"] and len(report.skipped) == 12 and not report.done
