@@ -22,7 +22,7 @@ examples:
   stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
       every DEM file in a folder (.npy .npz .png .tif), one PLY each
   stepterrain batch dem_tiles/n3*.tif --interval 50 -o out/
-      the DEM files a shell glob names, one .glb each
+      the DEM files a shell glob names, one .glb each (one file without --tile: one item, as among several)
   stepterrain batch series.npy --interval 0.1 -o out/frames --png out/frames.png
       a (T, H, W) time series, one mesh per frame with the same isovalues, and a contact sheet
   stepterrain batch big.tif --tile 1024 --interval 100 --scheduler tcp://10.0.0.5:8786 -o out/
@@ -63,8 +63,9 @@ def add_parser(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="*", type=_path, metavar="INPUT",
-                   help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif), a (T, H, W) "
-                        ".npy/.npz series, or one DEM to cut with --tile; default: the embedded Big Tujunga DEM")
+                   help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif; one DEM file without "
+                        "--tile is one item too), a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
+                        "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
                    help="output folder (created if missing)")
@@ -107,7 +108,7 @@ def add_parser(commands: Any) -> None:
 
 def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     from . import render
-    from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
+    from .batch import MAX_CONNECT_TIMEOUT, _check_ext, _one_raster_file, batch, overview_image
     from .cli import (
         _as_option,
         _check_output,
@@ -125,7 +126,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     if len(files) > 1 and args.tile is not None:
         raise InvalidInputError(f"--tile cuts one DEM into tiles; got {len(files)} INPUT files (each file is one "
                                 "item): give one file, or leave --tile out")
-    args.input = None if not files else files[0] if len(files) == 1 else files
+    # one DEM file without --tile (a shell glob that matched one, tiles/*.tif) is one item, as several are: it was
+    # refused with "give --tile to cut it into tiles"; a (T, H, W) series stays one item per frame
+    listed = len(files) > 1 or (len(files) == 1 and args.tile is None and _one_raster_file(Path(files[0])))
+    args.input = files if listed else files[0] if files else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
@@ -167,7 +171,9 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
 
     if args.input:  # read by batch (a folder's files by its workers), --height-unit passed on
         source: Any = args.input
-        what = args.input if len(files) == 1 else f"{len(files)} DEM files"
+        what = args.input
+        if listed:  # one: said how to cut it into tiles instead
+            what = _counted(len(files), "DEM file") + (f" ({files[0]}; --tile N cuts it)" if len(files) == 1 else "")
     else:  # the embedded DEM, which refuses a --height-unit
         source = _load_input(None, args.height_unit)
         what = "the embedded Big Tujunga DEM"
@@ -190,7 +196,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         progress=False if progress.quiet else failure_line,
         # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
-        metadata={"generator": "stepterrain batch"} if source_folder is not None or len(files) > 1 else {  # each file's
+        metadata={"generator": "stepterrain batch"} if source_folder is not None or listed else {  # each file's
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, device=args.device,

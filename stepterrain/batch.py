@@ -433,6 +433,22 @@ def _series_or_none(path: Path) -> NDArray[np.float32] | None:
         return None
 
 
+def _one_raster_file(path: Path) -> bool:
+    """Whether ``path`` is a DEM file holding one (H, W) raster: not a folder, nor a (T, H, W) series (an ``.npy``'s
+    header read only). False when it cannot tell (a file it cannot read): the single-file source says why."""
+    suffix = path.suffix.lower()
+    if not path.is_file() or suffix not in _DEM_EXTENSIONS:
+        return False
+    if suffix not in (".npy", ".npz"):
+        return True
+    from .io import read_npy
+
+    try:
+        return read_npy(path, mmap_mode="r").ndim == 2 if suffix == ".npy" else load_series(path) is None
+    except (DataFileError, InvalidInputError):
+        return False
+
+
 def _terrain_source(terrain: Terrain) -> _Source:
     known = None if terrain.has_nodata else terrain.height_range  # both cached by Terrain.from_heights
     return _Source(terrain.heights, terrain.spacing, terrain.origin, terrain.crs, terrain.source or "raster",

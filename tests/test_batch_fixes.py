@@ -1593,3 +1593,31 @@ def test_results_that_reached_the_caller_before_ctrl_c_are_recorded(tmp_path, th
     assert sorted(recorded) == [f"t{k:02d}.glb" for k in range(12)]
     report = batch(src, out, interval=10.0, scheduler="serial")
     assert [r.key for r in report.failed] == ["a_broken"] and len(report.skipped) == 12 and not report.done
+
+
+def test_the_cli_takes_one_dem_file_without_tile_as_one_item(tmp_path, capsys):
+    """`stepterrain batch tiles/*.tif -o out` where the glob matched one file failed with "give --tile to cut it
+    into tiles": one INPUT was always the raster to cut. One DEM file without --tile is one item now, written and
+    recorded as among several (the glob matching two files later skips it); with --tile it is still cut, and a
+    (T, H, W) series file is still one item per frame."""
+    from stepterrain import cli
+
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    z = np.add.outer(np.arange(20.0), np.arange(20.0)).astype(np.float32)
+    np.save(tiles / "a.npy", z)
+    out = tmp_path / "out"
+    argv = ["batch", "--interval", "5", "--scheduler", "serial", "-o", str(out)]
+    assert cli.main([*argv, str(tiles / "a.npy")]) == 0
+    assert "stepping 1 DEM file (" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["a.glb", MANIFEST_NAME]
+    first = (out / "a.glb").read_bytes()
+    np.save(tiles / "b.npy", z * 2)
+    assert cli.main([*argv, str(tiles / "a.npy"), str(tiles / "b.npy")]) == 0
+    assert "1 written, 1 complete already, 0 failed" in capsys.readouterr().err
+    assert (out / "a.glb").read_bytes() == first
+    assert cli.main([*argv[:-1], str(tmp_path / "cut"), str(tiles / "a.npy"), "--tile", "10"]) == 0
+    assert len(list((tmp_path / "cut").glob("tile_*.glb"))) == 4
+    np.save(tmp_path / "series.npy", np.stack([z, z + 1]))
+    assert cli.main([*argv[:-1], str(tmp_path / "frames"), str(tmp_path / "series.npy")]) == 0
+    assert sorted(p.name for p in (tmp_path / "frames").glob("*.glb")) == ["frame_0000.glb", "frame_0001.glb"]
