@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import re
@@ -103,10 +104,10 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")
-    p.set_defaults(run=_run_batch)
+    p.set_defaults(run=functools.partial(_run_batch, sub=p))  # its failure lines spell library arguments as p's options
 
 
-def _run_batch(args: argparse.Namespace, progress: Any) -> int:
+def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentParser) -> int:
     from . import render
     from .batch import MAX_CONNECT_TIMEOUT, _check_ext, _one_raster_file, batch, overview_image
     from .cli import (
@@ -118,8 +119,6 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         _counted,
         _isovalue_base,
         _load_input,
-        _subcommand,
-        build_parser,
     )
 
     files = list(args.input)  # several: one item each, as a folder's files
@@ -183,8 +182,6 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     cluster = f"a LocalCluster of {_counted(workers, 'worker')}"
     progress.stage("batch", f"stepping {what}" + (f" in tiles of {rows} x {cols} cells" if tile else "")
                    + f" -> {Path(args.output)}/*{_check_ext(args.format)}" + f" on {scheduler or cluster}")
-    sub = _subcommand(build_parser(), "batch")  # a failure's library arguments as the options (interval= -> --interval)
-
     def failure_line(line: str) -> str:  # the bar's line of a failed item, as the summary's below
         return f"stepterrain: {_as_option(line, sub)}"
 

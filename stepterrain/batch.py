@@ -1503,7 +1503,8 @@ def _run_locked(
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked."""
     ext = options.ext
-    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+    outputs = [f"{item.key}{ext}" for item in items]
+    _remove_partial(folder, outputs + [MANIFEST_NAME])
 
     fingerprints = _fingerprints(items, src, options)
     # read without resume too: the entries of other items and other formats stay recorded
@@ -1608,7 +1609,7 @@ def _run_locked(
                         _restore_environ(environ)
         # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
         # partial file stayed until a rerun) left its temporary file: the folder is still ours
-        _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+        _remove_partial(folder, outputs + [MANIFEST_NAME])
     if recorder.unrecorded is not None:
         notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
