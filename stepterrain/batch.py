@@ -1825,16 +1825,18 @@ _TASKS_PER_THREAD = 4
 
 
 def _item_nodes(item: BatchItem, source: _Source | None) -> int:
-    """About how many height nodes ``item`` steps: a tile's or frame's exactly; a file's from its size (4 bytes a
-    node, as float32; a file that cannot be read counts as large, a task of its own)."""
+    """About how many height nodes ``item`` steps: a tile's or frame's exactly; a file's from its size (an .npy's
+    4 bytes a node, as float32; a compressed file's 1 byte a node, as a DEM compresses up to about 4 times; a file that
+    cannot be read counts as large, a task of its own)."""
     if item.kind == "tile":
         return (item.rows[1] - item.rows[0]) * (item.cols[1] - item.cols[0])
     if item.kind == "frame" and source is not None:
         return int(np.prod(source.heights.shape[1:]))
     try:
-        return os.stat(item.path).st_size // 4  # type: ignore[arg-type]
+        size = os.stat(item.path).st_size  # type: ignore[arg-type]
     except (OSError, TypeError):
         return _TASK_NODES
+    return size // 4 if str(item.path).lower().endswith(".npy") else size
 
 
 def _task_groups(todo: Sequence[BatchItem], source: _Source | None, threads: int) -> list[list[BatchItem]]:
@@ -1877,9 +1879,9 @@ def _run_dask(
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
-    info = client.scheduler_info().get("workers", {})
-    workers = max(1, len(info)) if local else 1
-    threads = max(1, sum(int(w.get("nthreads", 1)) for w in info.values()))
+    workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
+    # every worker's (scheduler_info lists only the first 5 in some dask versions)
+    threads = max(1, sum(client.nthreads().values()))
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
 
