@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import math
 import os
 import re
@@ -22,7 +23,7 @@ examples:
   stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
       every DEM file in a folder (.npy .npz .png .tif), one PLY each
   stepterrain batch dem_tiles/n3*.tif --interval 50 -o out/
-      the DEM files a shell glob names, one .glb each
+      the DEM files a shell glob names, one .glb each (one file without --tile: one item, as among several)
   stepterrain batch series.npy --interval 0.1 -o out/frames --png out/frames.png
       a (T, H, W) time series, one mesh per frame with the same isovalues, and a contact sheet
   stepterrain batch big.tif --tile 1024 --interval 100 --scheduler tcp://10.0.0.5:8786 -o out/
@@ -63,8 +64,9 @@ def add_parser(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="*", type=_path, metavar="INPUT",
-                   help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif), a (T, H, W) "
-                        ".npy/.npz series, or one DEM to cut with --tile; default: the embedded Big Tujunga DEM")
+                   help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif; one DEM file without "
+                        "--tile is one item too), a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
+                        "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
                    help="output folder (created if missing)")
@@ -102,12 +104,12 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
     p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")
-    p.set_defaults(run=_run_batch)
+    p.set_defaults(run=functools.partial(_run_batch, sub=p))  # its failure lines spell library arguments as p's options
 
 
-def _run_batch(args: argparse.Namespace, progress: Any) -> int:
+def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentParser) -> int:
     from . import render
-    from .batch import MAX_CONNECT_TIMEOUT, _check_ext, batch, overview_image
+    from .batch import MAX_CONNECT_TIMEOUT, _check_ext, _one_raster_file, batch, overview_image
     from .cli import (
         _as_option,
         _check_output,
@@ -117,15 +119,16 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         _counted,
         _isovalue_base,
         _load_input,
-        _subcommand,
-        build_parser,
     )
 
     files = list(args.input)  # several: one item each, as a folder's files
     if len(files) > 1 and args.tile is not None:
         raise InvalidInputError(f"--tile cuts one DEM into tiles; got {len(files)} INPUT files (each file is one "
                                 "item): give one file, or leave --tile out")
-    args.input = None if not files else files[0] if len(files) == 1 else files
+    # one DEM file without --tile (a shell glob that matched one, tiles/*.tif) is one item, as several are: it was
+    # refused with "give --tile to cut it into tiles"; a (T, H, W) series stays one item per frame
+    listed = len(files) > 1 or (len(files) == 1 and args.tile is None and _one_raster_file(Path(files[0])))
+    args.input = files if listed else files[0] if files else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
         raise InvalidInputError(f"--gamma must lie in [0, 1] (0 = original, 1 = stepped); got {args.gamma}")
@@ -167,7 +170,9 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
 
     if args.input:  # read by batch (a folder's files by its workers), --height-unit passed on
         source: Any = args.input
-        what = args.input if len(files) == 1 else f"{len(files)} DEM files"
+        what = args.input
+        if listed:  # one: said how to cut it into tiles instead
+            what = _counted(len(files), "DEM file") + (f" ({files[0]}; --tile N cuts it)" if len(files) == 1 else "")
     else:  # the embedded DEM, which refuses a --height-unit
         source = _load_input(None, args.height_unit)
         what = "the embedded Big Tujunga DEM"
@@ -177,8 +182,6 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
     cluster = f"a LocalCluster of {_counted(workers, 'worker')}"
     progress.stage("batch", f"stepping {what}" + (f" in tiles of {rows} x {cols} cells" if tile else "")
                    + f" -> {Path(args.output)}/*{_check_ext(args.format)}" + f" on {scheduler or cluster}")
-    sub = _subcommand(build_parser(), "batch")  # a failure's library arguments as the options (interval= -> --interval)
-
     def failure_line(line: str) -> str:  # the bar's line of a failed item, as the summary's below
         return f"stepterrain: {_as_option(line, sub)}"
 
@@ -190,7 +193,7 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         progress=False if progress.quiet else failure_line,
         # "input" is part of every item's fingerprint: by its absolute path, so that the raster named from another
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
-        metadata={"generator": "stepterrain batch"} if source_folder is not None or len(files) > 1 else {  # each file's
+        metadata={"generator": "stepterrain batch"} if source_folder is not None or listed else {  # each file's
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, device=args.device,

@@ -9,7 +9,8 @@ share their border nodes and their isovalues, so their stepped meshes weld witho
     report = batch("dem_tiles/", "out/", interval=50.0)                   # LocalCluster, one .glb per tile
     report = batch(load_dem("big.tif"), "out/", tile_size=1024, interval=100.0, scheduler="tcp://host:8786")
 
-Each item runs as one dask task (``stepped`` + ``export.save_mesh``, written atomically). A manifest in the
+Each item runs as one dask task (``stepped`` + ``export.save_mesh``, written atomically), small ones (tiles of
+64², say) several to a task, each still done, retried and reported on its own. A manifest in the
 output folder records every finished item with a fingerprint of its input and options; a rerun skips items
 whose output is complete (recorded, same fingerprint, file present with the recorded size) and redoes the
 rest. Failures are retried (disk and network errors too), then reported with their reason; bad input data
@@ -430,6 +431,22 @@ def _series_or_none(path: Path) -> NDArray[np.float32] | None:
         return load_series(path)
     except DataFileError:
         return None
+
+
+def _one_raster_file(path: Path) -> bool:
+    """Whether ``path`` is a DEM file holding one (H, W) raster: not a folder, nor a (T, H, W) series (an ``.npy``'s
+    header read only). False when it cannot tell (a file it cannot read): the single-file source says why."""
+    suffix = path.suffix.lower()
+    if not path.is_file() or suffix not in _DEM_EXTENSIONS:
+        return False
+    if suffix not in (".npy", ".npz"):
+        return True
+    from .io import read_npy
+
+    try:
+        return read_npy(path, mmap_mode="r").ndim == 2 if suffix == ".npy" else load_series(path) is None
+    except (DataFileError, InvalidInputError):
+        return False
 
 
 def _terrain_source(terrain: Terrain) -> _Source:
@@ -1486,7 +1503,8 @@ def _run_locked(
 ) -> BatchReport:
     """:func:`batch` once the arguments are checked and the output folder is locked."""
     ext = options.ext
-    _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+    outputs = [f"{item.key}{ext}" for item in items]
+    _remove_partial(folder, outputs + [MANIFEST_NAME])
 
     fingerprints = _fingerprints(items, src, options)
     # read without resume too: the entries of other items and other formats stay recorded
@@ -1537,11 +1555,12 @@ def _run_locked(
     bar = _progress_bar(len(items), len(results), bool(progress))
     reworded = progress if callable(progress) else None
     stream: Iterable[ItemResult] = ()
+    salvage: list[ItemResult] = []  # results that had reached this process when the run was interrupted
     try:
         if connection is None:
             stream = _run_serial(todo, src, options, folder, retries)
         else:
-            stream = _run_dask(todo, src, options, folder, connection, retries, timeout)
+            stream = _run_dask(todo, src, options, folder, connection, retries, timeout, salvage)
         hint = budget_hint()
         level = caller_stacklevel()  # the caller's line, as save_mesh and load_dem point their warnings
         rounded: list[str] = []  # STL's float32 rounding, one message per tile of a UTM raster: said once below
@@ -1577,6 +1596,8 @@ def _run_locked(
                 # while the client is open; closed by the garbage collector after it, it failed ("Exception ignored
                 # in: <generator object _run_dask>" ... "RuntimeError: IOLoop is closed") and left them running
                 stream.close()
+            for result in salvage:  # finished before the interrupt: recorded, so that a rerun does not redo them
+                recorder.add(result)
             recorder.flush()
             if bar is not None:
                 bar.close()
@@ -1588,7 +1609,7 @@ def _run_locked(
                         _restore_environ(environ)
         # a worker killed while writing (its items run again, or its cluster closed under an interrupted run: the
         # partial file stayed until a rerun) left its temporary file: the folder is still ours
-        _remove_partial(folder, [f"{item.key}{ext}" for item in items] + [MANIFEST_NAME])
+        _remove_partial(folder, outputs + [MANIFEST_NAME])
     if recorder.unrecorded is not None:
         notes.append(recorder.unrecorded)
     kept = [f"{i.key}{ext}" for i in items if i.key in earlier and results[i.key].status == "failed"]
@@ -1763,18 +1784,79 @@ def _failure_line(result: ItemResult) -> str:
 def _run_serial(
     todo: Iterable[BatchItem], src: _Source | None, options: _Options, folder: Path, retries: int
 ) -> Iterable[ItemResult]:
+    for item in todo:  # its warnings recorded, said by the caller as a worker process's are (STL's rounding once)
+        yield _run_retried(item, src, options, str(folder), retries, record_warnings=True)
+
+
+def _run_retried(item: BatchItem, source: _Source | None, options: _Options, output_dir: str, retries: int,
+                 **kwargs: Any) -> ItemResult:
+    """:func:`run_item` up to ``retries + 1`` times in this process, as the serial run and a task of several items
+    run each item: an exception is retried, then reported as the item's failure like a failed dask task."""
+    error = ""
+    for attempt in range(1, retries + 2):
+        try:
+            result = run_item(item, source, options, output_dir, **kwargs)
+        except Exception as exc:  # noqa: BLE001 - retried, then reported like a failed dask task
+            error = f"{type(exc).__name__}: {exc}"
+            continue
+        return dataclasses.replace(result, attempts=attempt)
+    return ItemResult(item.key, "failed", error=error, attempts=retries + 1)
+
+
+def run_items(
+    items: Sequence[BatchItem], sources: Sequence[_Source | None], options: _Options, output_dir: str,
+    retries: int, cpu_threads: int | None = None, memory_budget: int | None = None, record_warnings: bool = False,
+) -> list[ItemResult]:
+    """Several small items in one dask task (:func:`_task_groups`), one after the other, each with its own block of
+    the heights (``sources``, or Nones): one :class:`ItemResult` per item, in order. An item whose
+    :func:`run_item` raises is retried here up to ``retries`` times and then reported failed, as the serial run
+    does, so that one item's error neither fails nor redoes the others of its task."""
+    return [_run_retried(item, source, options, output_dir, retries, cpu_threads=cpu_threads,
+                         memory_budget=memory_budget, record_warnings=record_warnings)
+            for item, source in zip(items, sources, strict=True)]  # fmt: skip
+
+
+#: Nodes of heights a dask task of small items reaches before it takes no more (:func:`_task_groups`): a task costs
+#: the scheduler and its worker some milliseconds, more than stepping and writing a tile of 64² (~2 ms on one
+#: core), so hundreds of small tiles ran several times slower on the LocalCluster than serially.
+_TASK_NODES = 1 << 18
+#: Tasks per worker thread the grouping leaves at least (work to balance between the workers, progress to show).
+_TASKS_PER_THREAD = 4
+
+
+def _item_nodes(item: BatchItem, source: _Source | None) -> int:
+    """About how many height nodes ``item`` steps: a tile's or frame's exactly; a file's from its size (an .npy's
+    4 bytes a node, as float32; a compressed file's 1 byte a node, as a DEM compresses up to about 4 times; a file that
+    cannot be read counts as large, a task of its own)."""
+    if item.kind == "tile":
+        return (item.rows[1] - item.rows[0]) * (item.cols[1] - item.cols[0])
+    if item.kind == "frame" and source is not None:
+        return int(np.prod(source.heights.shape[1:]))
+    try:
+        size = os.stat(item.path).st_size  # type: ignore[arg-type]
+    except (OSError, TypeError):
+        return _TASK_NODES
+    return size // 4 if str(item.path).lower().endswith(".npy") else size
+
+
+def _task_groups(todo: Sequence[BatchItem], source: _Source | None, threads: int) -> list[list[BatchItem]]:
+    """``todo`` in consecutive groups, one dask task each: small items together, up to :data:`_TASK_NODES` nodes a
+    task, and never so few tasks that a worker thread gets fewer than :data:`_TASKS_PER_THREAD`; a large item is a
+    task of its own."""
+    most = max(1, -(-len(todo) // (_TASKS_PER_THREAD * max(1, threads))))  # items per task
+    groups: list[list[BatchItem]] = []
+    group: list[BatchItem] = []
+    nodes = 0
     for item in todo:
-        error = ""
-        for attempt in range(1, retries + 2):
-            try:  # its warnings recorded, said by the caller as a worker process's are (STL's rounding once)
-                result = run_item(item, src, options, str(folder), record_warnings=True)
-            except Exception as exc:  # noqa: BLE001 - retried, then reported like a failed dask task
-                error = f"{type(exc).__name__}: {exc}"
-                continue
-            yield ItemResult(**{**result.__dict__, "attempts": attempt})
-            break
-        else:
-            yield ItemResult(item.key, "failed", error=error, attempts=retries + 1)
+        n = _item_nodes(item, source)
+        if group and (nodes + n > _TASK_NODES or len(group) >= most):
+            groups.append(group)
+            group, nodes = [], 0
+        group.append(item)
+        nodes += n
+    if group:
+        groups.append(group)
+    return groups
 
 
 def _run_dask(
@@ -1785,23 +1867,42 @@ def _run_dask(
     connection: tuple[Any, Any, str, bool],
     retries: int,
     timeout: float = 10.0,
+    salvage: list[ItemResult] | None = None,
 ) -> Iterable[ItemResult]:
     """The items' results as their tasks finish; ``timeout``: the longest wait for a worker to take the heights of
-    an item whose worker died (batch's ``connect_timeout``)."""
+    an item whose worker died (batch's ``connect_timeout``).
+
+    Small items run several to a task (:func:`_task_groups`, :func:`run_items`); a task of several that does not
+    finish (its worker died) is submitted again item by item, so a failure stays the item's own. ``salvage``: where
+    the results that had reached this process but were not yet yielded go when the caller stops reading
+    (Ctrl-C), so that it can record them."""
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
     workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
+    # every worker's (scheduler_info lists only the first 5 in some dask versions)
+    threads = max(1, sum(client.nthreads().values()))
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
 
-    def submit(item: BatchItem, block: Any) -> Any:
-        return client.submit(run_item, item, block, options, str(folder), cpu_threads, memory_budget, local,
-                             retries=retries, pure=False,
-                             key=f"stepterrain-batch-{item.key}-{os.getpid()}-{time.monotonic_ns()}")  # fmt: skip
+    def submit(group: list[BatchItem], block: Any) -> Any:
+        key = f"stepterrain-batch-{group[0].key}{f'+{len(group) - 1}' if len(group) > 1 else ''}-{os.getpid()}-" \
+              f"{time.monotonic_ns()}"
+        if len(group) > 1:  # each item retried in the task: one that raises leaves the others' results
+            return client.submit(run_items, group, block if block is not None else [None] * len(group), options,
+                                 str(folder), retries, cpu_threads, memory_budget, local, pure=False, key=key)
+        return client.submit(run_item, group[0], block, options, str(folder), cpu_threads, memory_budget, local,
+                             retries=retries, pure=False, key=key)  # fmt: skip
 
+    def heights(group: list[BatchItem]) -> Any:  # what a task of the group reads: one block, or a list of them
+        assert src is not None
+        return _item_source(src, group[0]) if len(group) == 1 else [_item_source(src, item) for item in group]
+
+    groups = _task_groups(todo, src, threads)
     blocks: list[Any] | None = None
-    futures: dict[Any, BatchItem] = {}
+    futures: dict[Any, list[BatchItem]] = {}
+    pending: list[ItemResult] = []  # the finished task's results not yet yielded
+    completed = None
     # A worker that dies (killed for memory, a crash) takes the blocks scattered to it along: the scheduler cannot
     # run their tasks again and cancels them. Those items are scattered and submitted again, up to `retries` times;
     # they "failed: cancelled" after 0 attempts, about half a LocalCluster's items when one of its two workers died.
@@ -1809,34 +1910,53 @@ def _run_dask(
     try:
         with _signals_held():  # Ctrl-C here cancels all of them below, not those submitted so far
             # each task gets its own block of the heights (scattered once), not the whole raster on every worker
-            blocks = client.scatter([_item_source(src, item) for item in todo], hash=False) if src is not None else None
-            futures = {submit(item, blocks[k] if blocks is not None else None): item for k, item in enumerate(todo)}
+            blocks = client.scatter([heights(g) for g in groups], hash=False) if src is not None else None
+            futures = {submit(g, blocks[k] if blocks is not None else None): g for k, g in enumerate(groups)}
         # results are gathered on the client's event loop as tasks finish (no blocking round trip per future
         # from this thread); a task that raised asks for its exception (rare: one round trip)
         completed = as_completed(futures, with_results=True, raise_errors=False)
         for future, result in completed:
-            item = futures.pop(future)
-            if future.status == "cancelled" and lost.get(item.key, 0) < retries:
-                lost[item.key] = lost.get(item.key, 0) + 1
+            group = futures.pop(future)
+            if len(group) > 1 and future.status != "finished":  # its worker died: each item on its own now
+                again = [(item, future.status) for item in group]
+            elif future.status == "cancelled" and lost.get(group[0].key, 0) < retries:
+                again = [(group[0], "cancelled")]
+            else:
+                again = []
+            for item, status in again:
+                if status == "cancelled":
+                    lost[item.key] = lost.get(item.key, 0) + 1
                 try:  # no worker left (all died) waited for ever
                     block = None if src is None else client.scatter(_item_source(src, item), hash=False,
                                                                     timeout=timeout)  # fmt: skip
                 except TimeoutError:
-                    yield ItemResult(item.key, "failed", attempts=lost[item.key], error=(
+                    yield ItemResult(item.key, "failed", attempts=lost.get(item.key, 0), error=(
                         f"cancelled: its worker was lost, and no worker took its heights within {timeout:g} s"))
                     continue
-                again = submit(item, block)
-                futures[again] = item
-                completed.add(again)
-            elif future.status == "error":
+                resubmitted = submit([item], block)
+                futures[resubmitted] = [item]
+                completed.add(resubmitted)
+            if again:
+                continue
+            item = group[0]
+            if future.status == "error":
                 exc = future.exception()
                 yield ItemResult(item.key, "failed", error=f"{type(exc).__name__}: {exc}", attempts=retries + 1)
             elif future.status == "cancelled":
                 yield ItemResult(item.key, "failed", attempts=lost.get(item.key, 0),
                                  error="cancelled" + (" (its worker was lost each time)" if item.key in lost else ""))
             else:
-                yield dataclasses.replace(result, attempts=result.attempts + lost.get(item.key, 0))
+                pending = list(result) if len(group) > 1 else [result]
+                while pending:  # each kept there until the caller has taken it (salvaged if it stops meanwhile)
+                    yield dataclasses.replace(pending[0], attempts=pending[0].attempts + lost.get(pending[0].key, 0))
+                    pending.pop(0)
     except BaseException:  # also GeneratorExit: the caller stopped reading (Ctrl-C in its loop), see _run_locked
+        if salvage is not None:  # finished, and in this process: recorded by the caller, not redone by a rerun
+            salvage.extend(pending)
+            for future, result in completed.next_batch(block=False) if completed is not None else ():
+                if future.status == "finished":
+                    group = futures.pop(future, None)
+                    salvage.extend(result if group is not None and len(group) > 1 else [result])
         # the unfinished tasks and the heights scattered for them: the scheduler forgets them before the client
         # closes, instead of reporting them to a client gone (a CRITICAL traceback each) and of losing its
         # workers' scattered data as the cluster closes (an ERROR listing every block)

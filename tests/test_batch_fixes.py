@@ -1468,3 +1468,156 @@ def test_several_input_files_are_checked_before_the_run_a_folder_a_missing_file_
         err = capsys.readouterr().err
         assert message in err and "rename one" not in err, err
         assert not out.exists()
+
+
+@pytest.fixture
+def threaded_cluster_client():
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    import logging
+
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0",
+                                  silence_logs=logging.CRITICAL) as cluster, distributed.Client(cluster) as client:
+        yield client
+
+
+def counting_submits(client, monkeypatch) -> list[str]:
+    """The functions of the tasks batch submits to ``client``, by name, as it submits them."""
+    submitted: list[str] = []
+    real = client.submit
+
+    def submit(function, *args, **kwargs):
+        submitted.append(function.__name__)
+        return real(function, *args, **kwargs)
+
+    monkeypatch.setattr(client, "submit", submit)
+    return submitted
+
+
+def test_small_tiles_run_several_to_a_dask_task_with_the_serial_run_s_outputs_and_manifest(
+        tmp_path, threaded_cluster_client, monkeypatch):
+    """Each item was one dask task: hundreds of small tiles ran several times slower on a LocalCluster than serially
+    (the scheduler's and worker's cost per task above a 64² tile's ~2 ms). Small items now run several to a task,
+    with the results, files and manifest entries of one item per task, and a rerun skips them all."""
+    import json
+
+    z = (np.add.outer(np.arange(33.0), np.arange(33.0)) % 7).astype(np.float32)
+    serial = batch(z, tmp_path / "serial", tile_size=4, interval=1.0, scheduler="serial")
+    submitted = counting_submits(threaded_cluster_client, monkeypatch)
+    grouped = batch(z, tmp_path / "dask", tile_size=4, interval=1.0, scheduler=threaded_cluster_client)
+    assert grouped.ok and len(grouped.done) == 64
+    assert set(submitted) == {"run_items"} and len(submitted) == 8  # 64 items, 4 tasks per worker thread
+    assert [(r.key, r.status, r.attempts, r.faces, r.vertices, r.bytes) for r in grouped.results] == [
+        (r.key, r.status, r.attempts, r.faces, r.vertices, r.bytes) for r in serial.results]
+    for a, b in zip(serial.done, grouped.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+    assert json.loads((tmp_path / "dask" / MANIFEST_NAME).read_text()) == json.loads(
+        (tmp_path / "serial" / MANIFEST_NAME).read_text())
+    again = batch(z, tmp_path / "dask", tile_size=4, interval=1.0, scheduler=threaded_cluster_client)
+    assert len(again.skipped) == 64 and len(submitted) == 8  # nothing to submit
+
+
+def test_an_item_failing_in_a_task_of_several_fails_alone(tmp_path, threaded_cluster_client, monkeypatch):
+    """A task of several small items: one that raises is retried and reported on its own (its attempts and reason),
+    an unreadable file fails at once, and the other items of their tasks are written once."""
+    import stepterrain as st
+
+    real = st.stepped.stepped
+    calls: dict[str, int] = {}
+
+    def broken_on_one_tile(terrain, **kwargs):
+        calls[terrain.source] = calls.get(terrain.source, 0) + 1
+        if terrain.source.endswith("[4:9, 8:13]"):
+            raise RuntimeError("always broken")
+        return real(terrain, **kwargs)
+
+    monkeypatch.setattr(st.stepped, "stepped", broken_on_one_tile)  # the threaded workers share this module
+    z = (np.add.outer(np.arange(33.0), np.arange(33.0)) % 7).astype(np.float32)
+    submitted = counting_submits(threaded_cluster_client, monkeypatch)
+    report = batch(z, tmp_path / "tiles", tile_size=4, interval=1.0, scheduler=threaded_cluster_client, retries=2)
+    assert set(submitted) == {"run_items"} and len(submitted) < 64
+    assert [(r.key, r.error, r.attempts) for r in report.failed] == [("tile_r1_c2", "RuntimeError: always broken", 3)]
+    assert len(report.done) == 63 and all(r.attempts == 1 for r in report.done)
+    assert sorted(calls.values()) == [1] * 63 + [3]  # the others of its task were not redone
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    for k in range(16):
+        np.save(folder / f"dem_{k:02d}.npy", (np.arange(30.0)[:, None] * np.arange(1, 31)[None] % 11).astype("f4"))
+    (folder / "dem_05.npy").write_bytes(b"\x93NUMPY garbage")
+    submitted.clear()
+    files = batch(folder, tmp_path / "files", interval=1.0, scheduler=threaded_cluster_client)
+    assert set(submitted) == {"run_items"} and len(submitted) == 8
+    assert [(r.key, r.attempts) for r in files.failed] == [("dem_05", 1)] and "DataFileError" in files.failed[0].error
+    assert len(files.done) == 15
+
+
+def test_task_groups_keep_large_items_alone_and_every_thread_busy():
+    from stepterrain.batch import _TASK_NODES, _TASKS_PER_THREAD, _task_groups, plan_items
+
+    items, src = plan_items(np.zeros((1025, 1025), np.float32), tile_size=64)  # 256 tiles of 65² nodes
+    groups = _task_groups(items, src, threads=2)
+    assert [i for g in groups for i in g] == items  # every item once, in order
+    assert len(groups) == 2 * _TASKS_PER_THREAD and {len(g) for g in groups} == {32}
+    many = _task_groups(items, src, threads=1) if len(items) * 65 * 65 > 2 * _TASK_NODES else None
+    assert many is not None and all(len(g) * 65 * 65 <= _TASK_NODES for g in many)  # capped by nodes, not threads
+    large, src = plan_items(np.zeros((2049, 1025), np.float32), tile_size=1024)
+    assert _task_groups(large, src, threads=1) == [[item] for item in large]
+
+
+def test_results_that_reached_the_caller_before_ctrl_c_are_recorded(tmp_path, threaded_cluster_client):
+    """Ctrl-C as the progress bar drew an item: the items whose results had already come back from the cluster
+    (written complete) were not recorded in the manifest, so a rerun redid them."""
+    import json
+    import time
+
+    src = tmp_path / "dems"
+    src.mkdir()
+    (src / "a_broken.npy").write_bytes(b"not a DEM")  # among the first items: its failure line is drawn
+    rng = np.random.default_rng(0)
+    for k in range(12):
+        np.save(src / f"t{k:02d}.npy", (rng.random((30, 30)) * 100).astype(np.float32))
+    out = tmp_path / "out"
+    client = threaded_cluster_client
+
+    def ctrl_c_once_all_are_back(line):
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not (len(list(out.glob("t*.glb"))) == 12 and all(
+                state.status == "finished" for state in client.futures.values())):
+            time.sleep(0.05)
+        time.sleep(0.5)  # their results reach this process
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        batch(src, out, interval=10.0, scheduler=client, progress=ctrl_c_once_all_are_back)
+    recorded = json.loads((out / MANIFEST_NAME).read_text())["items"]
+    assert sorted(recorded) == [f"t{k:02d}.glb" for k in range(12)]
+    report = batch(src, out, interval=10.0, scheduler="serial")
+    assert [r.key for r in report.failed] == ["a_broken"] and len(report.skipped) == 12 and not report.done
+
+
+def test_the_cli_takes_one_dem_file_without_tile_as_one_item(tmp_path, capsys):
+    """`stepterrain batch tiles/*.tif -o out` where the glob matched one file failed with "give --tile to cut it
+    into tiles": one INPUT was always the raster to cut. One DEM file without --tile is one item now, written and
+    recorded as among several (the glob matching two files later skips it); with --tile it is still cut, and a
+    (T, H, W) series file is still one item per frame."""
+    from stepterrain import cli
+
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    z = np.add.outer(np.arange(20.0), np.arange(20.0)).astype(np.float32)
+    np.save(tiles / "a.npy", z)
+    out = tmp_path / "out"
+    argv = ["batch", "--interval", "5", "--scheduler", "serial", "-o", str(out)]
+    assert cli.main([*argv, str(tiles / "a.npy")]) == 0
+    assert "stepping 1 DEM file (" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["a.glb", MANIFEST_NAME]
+    first = (out / "a.glb").read_bytes()
+    np.save(tiles / "b.npy", z * 2)
+    assert cli.main([*argv, str(tiles / "a.npy"), str(tiles / "b.npy")]) == 0
+    assert "1 written, 1 complete already, 0 failed" in capsys.readouterr().err
+    assert (out / "a.glb").read_bytes() == first
+    assert cli.main([*argv[:-1], str(tmp_path / "cut"), str(tiles / "a.npy"), "--tile", "10"]) == 0
+    assert len(list((tmp_path / "cut").glob("tile_*.glb"))) == 4
+    np.save(tmp_path / "series.npy", np.stack([z, z + 1]))
+    assert cli.main([*argv[:-1], str(tmp_path / "frames"), str(tmp_path / "series.npy")]) == 0
+    assert sorted(p.name for p in (tmp_path / "frames").glob("*.glb")) == ["frame_0000.glb", "frame_0001.glb"]
