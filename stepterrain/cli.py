@@ -591,14 +591,21 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
         reach = radius + (radius / 4.0 if args.lens_edge is None else args.lens_edge) / 2.0  # γ < --gamma within
-        if args.gamma > 0.0 and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
+        # γ is float32 in the kernels: a --gamma below its least (1e-50) is 0, the original surface, lens or not
+        stepping = bool(np.float32(args.gamma) > 0.0)
+        if stepping and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
             crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
-            if math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax)) >= radius:
+            outside = math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax))
+            if outside >= radius:
                 why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
                        f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
+            else:  # a sliver of it overlaps the extent, between the mask's samples (the run ended in UnboundLocalError)
+                why = (f"reaches only {radius - outside:.3g} into the terrain's extent x {xmin:.9g} to {xmax:.9g}, "
+                       f"y {ymin:.9g} to {ymax:.9g}, less than its mask resolves; move it inside or give a larger "
+                       "radius")
             warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing: it {why}",
                           stacklevel=1)
-        elif args.gamma > 0.0 and _nearest_node_distance(terrain, cx, cy) >= reach:
+        elif stepping and _nearest_node_distance(terrain, cx, cy) >= reach:
             spacing = f" (node spacing {abs(terrain.spacing[0]):.9g} x {abs(terrain.spacing[1]):.9g})"
             warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing at the terrain's "
                           f"nodes: it holds none of them{spacing if terrain.kind == 'grid' else ''}; give a larger "

@@ -756,6 +756,31 @@ def test_steps_warns_when_the_lens_changes_nothing(lens, why, tmp_path, capsys):
     assert code == 0 and "warning" not in err  # a lens on the terrain is not warned about
 
 
+@pytest.mark.parametrize("options, why", [
+    # the lens reaches 2e-7 m into the extent, between the mask's samples: every sample is --gamma
+    (("--lens", "61.9999998,-20,3", "--lens-edge", "0"), "reaches only 2e-07 into the terrain's extent"),
+    (("--lens", "30,-20,5", "--gamma", "1e-50"), None),  # γ 1e-50 is float32 0: the original surface, lens or not
+])
+def test_steps_lens_over_the_terrain_that_changes_nothing_is_no_unbound_local(options, why, tmp_path, capsys):
+    """A lens overlapping the terrain's extent whose mask still held --gamma everywhere (a sliver of it between the
+    mask's samples, or a --gamma that float32 rounds to 0) ended the run in "UnboundLocalError: cannot access local
+    variable 'why'" (a traceback, exit 1): the warning's reason was set only for a lens outside the extent."""
+    import trimesh
+
+    np.save(tmp_path / "ramp.npy", np.add.outer(np.arange(40.0), np.arange(60.0)) * 10.0)
+    code, out, err = run(capsys, "steps", tmp_path / "ramp.npy", *options, "--interval", "50", "-o", tmp_path / "a.ply")
+    assert code == 0, err
+    said = [line for line in err.splitlines() if "warning:" in line]
+    if why is None:
+        assert said == [], err
+    else:
+        assert len(said) == 1 and "changes nothing" in said[0] and why in said[0], err
+    gamma = [v for k, v in zip(options, options[1:], strict=False) if k == "--gamma"] or ["1"]
+    plain = tmp_path / "plain.ply"
+    assert run(capsys, "steps", tmp_path / "ramp.npy", "--gamma", gamma[0], "--interval", "50", "-o", plain)[0] == 0
+    assert np.array_equal(trimesh.load(tmp_path / "a.ply").vertices, trimesh.load(plain).vertices)
+
+
 def test_closeup_rois_mixed_from_both_options_keep_their_command_line_order(tmp_path, capsys):
     """--roi-relative, then --roi, with --color once per ROI: every --roi was taken first, so the colors (and any
     per-close-up option) went to the other close-up than the one given in that place."""
