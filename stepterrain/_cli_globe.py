@@ -73,9 +73,9 @@ def add_parser(commands: Any) -> None:
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
                         "above the terrain there: negative over land or sea floor below it, such as the Dead Sea); "
                         "default 30,10,3R, R the --radius (the whole globe in view)")
-    p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--tilt", type=float, default=None, metavar="DEG",
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
-    p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--heading", type=float, default=None, metavar="DEG",
                    help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
     p.add_argument("--no-camera", action="store_true",
                    help="no view dependence: refine by the geometric error alone (--error in metres)")
@@ -95,7 +95,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="render size, and the view's aspect with the camera (default 1280x800)")
     p.set_defaults(run=_run_globe)
 
 
@@ -182,6 +183,13 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"bounding shapes are measured against the eye and the view); got --bounds "
                                 f"{args.bounds} with {why}")
     bounds = args.bounds or "cone"
+    # the view's options place the camera (the mesh's view dependence) and the --png render: with --no-camera and
+    # no --png they did nothing, and the run said nothing of it
+    unused = [option for option, value in (("--eye", args.eye), ("--tilt", args.tilt), ("--heading", args.heading),
+                                           ("--size", args.size)) if value is not None]
+    args.tilt = 0.0 if args.tilt is None else args.tilt
+    args.heading = 0.0 if args.heading is None else args.heading
+    args.size = (1280, 800) if args.size is None else args.size
     _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
@@ -208,6 +216,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"--radius {args.radius:g} + altitude {altitude:g} m{default}")
     if not (0.0 <= args.tilt < 90.0):
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
+    if args.no_camera and png is None and unused:  # (checked after their values, which are named first)
+        names = " and ".join([", ".join(unused[:-1]), unused[-1]] if len(unused) > 1 else unused)
+        raise InvalidInputError(f"{names} {'applies' if len(unused) == 1 else 'apply'} only with the camera or a --png "
+                                "render (with --no-camera the mesh is refined by the geometric error alone); got "
+                                f"{'it' if len(unused) == 1 else 'them'} with --no-camera and no --png")
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
