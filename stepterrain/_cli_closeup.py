@@ -132,15 +132,18 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     mesh_out = out if out.suffix.lower() != ".png" else None
-    images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
     _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
+    if png is not None and mesh_out is None:  # the same render was written to both files
+        raise InvalidInputError(f"--png applies only with a mesh --output (a .png --output is the render already); "
+                                f"got --output {args.output!r} with --png {args.png!r}")
+    picture = out if mesh_out is None else png  # the still render's one file, if any
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
-    _check_size(args.size, renders=bool(images) or anim is not None, layered=True)
+    _check_size(args.size, renders=picture is not None or anim is not None, layered=True)
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):
@@ -157,11 +160,11 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         if not fr > 0:
             raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
     n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
-    if (images or anim is not None) and n_rois > max_closeups(args.size):
+    if (picture is not None or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most "
                                 f"{_counted(max_closeups(args.size), 'close-up')} (one per {_MIN_PIXELS_PER_CLOSEUP}x"
                                 f"{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS}); got {n_rois}")
-    if images or anim is not None:
+    if picture is not None or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
     if anim is not None:  # refused here, not after loading the DEM and the still render (animate_closeups' check)
         width, height = args.size  # every frame is kept until written, and the writer (np.stack) copies them all once
@@ -232,7 +235,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         progress.stage("mesh", f"building the scene mesh with {_counted(n, 'close-up')}")
         scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
         progress.done(f"{_counted(len(scene.faces), 'face')},")
-    if images:
+    if picture is not None:
         progress.stage("render", f"rendering {_counted(n, 'close-up')} at {args.size[0]}x{args.size[1]}")
         timings: dict[str, float] = {}
         image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
@@ -250,11 +253,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         save_mesh(scene, mesh_out, metadata={"generator": "stepterrain closeup", **_input_metadata(args),
                                               "closeups": n})
         progress.done()
-    if image is not None:
-        for path in images:
-            progress.stage("write", f"writing {path}")
-            render.save_png(image, path)
-            progress.done()
+    if image is not None and picture is not None:
+        progress.stage("write", f"writing {picture}")
+        render.save_png(image, picture)
+        progress.done()
     if frames is not None and anim is not None:
         progress.stage("write", f"writing {anim}")
         save_animation(frames, anim, fps=args.fps)

@@ -811,3 +811,23 @@ def test_a_stepped_closeup_on_a_tin_steps_only_the_faces_near_its_roi(monkeypatc
         assert len(a.faces) > 50
         for name in ("vertices", "faces", "colors", "mask_factor", "original", "source_faces"):
             assert np.array_equal(getattr(a, name), getattr(b, name)), name
+
+
+def test_cli_closeup_png_beside_a_png_output_is_refused(tmp_path, capsys):
+    """``closeup -o a.png --png b.png`` rendered once and wrote the same picture to both files: --png is the render
+    beside a mesh --output (its help), and a .png --output is the render already. Refused by name now, before any
+    work and with no file written; beside a mesh --output it is taken as before (checked up to the renderer)."""
+    from stepterrain import cli
+
+    argv = ["-q", "closeup", "--device", "cpu", "-o", str(tmp_path / "a.png"), "--png", str(tmp_path / "b.png")]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == (f"stepterrain closeup: error: --png applies only with a mesh --output (a .png --output is the "
+                   f"render already); got --output {str(tmp_path / 'a.png')!r} with --png {str(tmp_path / 'b.png')!r}"
+                   "\n"), err
+    assert list(tmp_path.iterdir()) == []
+    # beside a mesh: past the check (a --size too small for the close-up stops it before any work)
+    assert cli.main(["-q", "closeup", "-o", str(tmp_path / "s.ply"), "--png", str(tmp_path / "b.png"),
+                     "--size", "8x8"]) == 2
+    assert "--size 8x8 holds at most 0 close-ups" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
