@@ -93,10 +93,10 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
     p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
     p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
-    p.add_argument("--spin", type=float, default=0.25, metavar="TURNS/S",
+    p.add_argument("--spin", type=float, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second (default 0.25)")
-    p.add_argument("--frames", type=int, default=24, metavar="N", help="animation frames (default 24)")
-    p.add_argument("--fps", type=float, default=12.0, metavar="FPS", help="animation frame rate (default 12)")
+    p.add_argument("--frames", type=int, default=None, metavar="N", help="animation frames (default 24)")
+    p.add_argument("--fps", type=float, default=None, metavar="FPS", help="animation frame rate (default 12)")
     p.set_defaults(run=_run_closeup)
 
 
@@ -113,7 +113,15 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from ._compaction import check_budget
-    from .cli import _check_output, _check_outputs, _check_size, _counted, _input_metadata, _input_terrain
+    from .cli import (
+        _check_output,
+        _check_outputs,
+        _check_size,
+        _counted,
+        _input_metadata,
+        _input_terrain,
+        _refuse_unused,
+    )
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
@@ -144,6 +152,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
     _check_size(args.size, renders=picture is not None or anim is not None, layered=True)
+    # the animation's options: the still render and the scene mesh are the close-ups at time 0, before any spin
+    unanimated = [option for option, value in (("--spin", args.spin), ("--frames", args.frames), ("--fps", args.fps))
+                  if value is not None]
+    args.spin = 0.25 if args.spin is None else args.spin
+    args.frames = 24 if args.frames is None else args.frames
+    args.fps = 12.0 if args.fps is None else args.fps
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):
@@ -152,6 +166,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_fps(args.fps, anim.suffix.lower(), "--fps")
     if not math.isfinite(args.spin) or args.spin == 0:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
+    if anim is None:  # (after their values, which are named first)
+        _refuse_unused(unanimated, "--gif (the still render and the scene mesh show the close-ups before any spin)",
+                       "without --gif")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
     # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle

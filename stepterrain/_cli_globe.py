@@ -23,6 +23,7 @@ from .cli import (
     _counted,
     _floats,
     _path,
+    _refuse_unused,
     _size,
     _window,
 )
@@ -216,11 +217,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"--radius {args.radius:g} + altitude {altitude:g} m{default}")
     if not (0.0 <= args.tilt < 90.0):
         raise InvalidInputError(f"--tilt must lie in [0, 90) degrees; got {args.tilt}")
-    if args.no_camera and png is None and unused:  # (checked after their values, which are named first)
-        names = " and ".join([", ".join(unused[:-1]), unused[-1]] if len(unused) > 1 else unused)
-        raise InvalidInputError(f"{names} {'applies' if len(unused) == 1 else 'apply'} only with the camera or a --png "
-                                "render (with --no-camera the mesh is refined by the geometric error alone); got "
-                                f"{'it' if len(unused) == 1 else 'them'} with --no-camera and no --png")
+    if args.no_camera and png is None:  # (after their values, which are named first)
+        _refuse_unused(unused, "the camera or a --png render (with --no-camera the mesh is refined by the geometric "
+                       "error alone)", "with --no-camera and no --png")
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built

@@ -306,6 +306,15 @@ def _window(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _refuse_unused(options: Sequence[str], needs: str, got: str) -> None:
+    """Refuse the ``options`` given that do nothing in this run (none: nothing to refuse), naming them: "--a and --b
+    apply only with ``needs``; got them ``got``"."""
+    if options:
+        names = " and ".join([", ".join(options[:-1]), options[-1]] if len(options) > 1 else options)
+        verb, them = ("applies", "it") if len(options) == 1 else ("apply", "them")
+        raise InvalidInputError(f"{names} {verb} only with {needs}; got {them} {got}")
+
+
 def _check_size(size: tuple[int, int], *, renders: bool = True, layered: bool = False) -> None:
     """``--size`` of every subcommand: 8 to 16384 pixels per side (an InvalidInputError, exit code 2). When the run
     ``renders`` (a --png, a close-up image), the render's memory is checked against the memory budget too, before

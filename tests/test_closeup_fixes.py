@@ -831,3 +831,24 @@ def test_cli_closeup_png_beside_a_png_output_is_refused(tmp_path, capsys):
                      "--size", "8x8"]) == 2
     assert "--size 8x8 holds at most 0 close-ups" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_closeup_animation_options_without_gif_are_refused(tmp_path, capsys):
+    """``closeup --spin 1 --frames 48 --fps 24 -o still.png`` (or -o scene.ply) was accepted and made the same still
+    render or scene mesh as without them: both show the close-ups at time 0, before any spin. Without --gif they are
+    refused by name now, after their values are checked, and with no file written."""
+    from stepterrain import cli
+
+    for output in ("still.png", "scene.ply"):
+        for extra, names, verb in ((["--spin", "1"], "--spin", "applies"),
+                                   (["--frames", "48", "--fps", "24"], "--frames and --fps", "apply"),
+                                   (["--spin", "-2", "--frames", "3", "--fps", "6"], "--spin, --frames and --fps",
+                                    "apply")):
+            assert cli.main(["-q", "closeup", "-o", str(tmp_path / output), *extra]) == 2
+            pronoun = "it" if verb == "applies" else "them"
+            assert capsys.readouterr().err == (
+                f"stepterrain closeup: error: {names} {verb} only with --gif (the still render and the scene mesh "
+                f"show the close-ups before any spin); got {pronoun} without --gif\n")
+    assert cli.main(["-q", "closeup", "-o", str(tmp_path / "scene.ply"), "--fps", "0"]) == 2  # the value first
+    assert "--fps must be a positive number; got 0" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
