@@ -101,7 +101,7 @@ def add_parser(commands: Any) -> None:
     _add_device(p, " on the workers")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH", help="--png size (default 1280x800)")
     p.set_defaults(run=_run_batch)
 
 
@@ -115,8 +115,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         _check_size,
         _colormap,
         _counted,
+        _given,
         _isovalue_base,
         _load_input,
+        _refuse_unused,
         _subcommand,
         build_parser,
     )
@@ -136,7 +138,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--workers applies only to the default LocalCluster, not with --scheduler; got "
                                 f"--workers {args.workers} with --scheduler {args.scheduler}")
     workers = 2 if args.workers is None else args.workers
+    render_options = _given(args, {"size": (1280, 800)})
     _check_size(args.size, renders=png is not None)
+    if png is None:  # (after its value, which is named first) it was ignored
+        _refuse_unused(render_options, "--png (the overview render)", "without --png")
     _check_outputs({"INPUT" if len(files) == 1 else f"INPUT {k + 1}": f for k, f in enumerate(files)}, png=png)
     if png is not None and Path(os.path.abspath(png)) == Path(os.path.abspath(args.output)):
         # the overview went to the folder the meshes had just been written into: every item done, then an error

@@ -85,13 +85,15 @@ def add_parser(commands: Any) -> None:
                    help="overview data mapping (default height)")
     p.add_argument("--colormap", default="terrain", metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
-    p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
+    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the render and the animation (default 2)")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
-    p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="image size of the render and the animation (default 1280x720)")
     p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
     p.add_argument("--spin", type=float, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second (default 0.25)")
@@ -118,6 +120,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_outputs,
         _check_size,
         _counted,
+        _given,
         _input_metadata,
         _input_terrain,
         _refuse_unused,
@@ -148,16 +151,13 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     picture = out if mesh_out is None else png  # the still render's one file, if any
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
+    render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720)})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
     _check_size(args.size, renders=picture is not None or anim is not None, layered=True)
     # the animation's options: the still render and the scene mesh are the close-ups at time 0, before any spin
-    unanimated = [option for option, value in (("--spin", args.spin), ("--frames", args.frames), ("--fps", args.fps))
-                  if value is not None]
-    args.spin = 0.25 if args.spin is None else args.spin
-    args.frames = 24 if args.frames is None else args.frames
-    args.fps = 12.0 if args.fps is None else args.fps
+    unanimated = _given(args, {"spin": 0.25, "frames": 24, "fps": 12.0})
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):
@@ -169,6 +169,9 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if anim is None:  # (after their values, which are named first)
         _refuse_unused(unanimated, "--gif (the still render and the scene mesh show the close-ups before any spin)",
                        "without --gif")
+        if picture is None:  # the scene mesh alone: --size and --z-scale shape the renders only
+            _refuse_unused(render_options, "a render (a .png --output, --png or --gif)",
+                           f"with the mesh --output {args.output!r} alone")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
     # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle

@@ -22,6 +22,7 @@ from .cli import (
     _check_size,
     _counted,
     _floats,
+    _given,
     _path,
     _refuse_unused,
     _size,
@@ -186,11 +187,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     bounds = args.bounds or "cone"
     # the view's options place the camera (the mesh's view dependence) and the --png render: with --no-camera and
     # no --png they did nothing, and the run said nothing of it
-    unused = [option for option, value in (("--eye", args.eye), ("--tilt", args.tilt), ("--heading", args.heading),
-                                           ("--size", args.size)) if value is not None]
-    args.tilt = 0.0 if args.tilt is None else args.tilt
-    args.heading = 0.0 if args.heading is None else args.heading
-    args.size = (1280, 800) if args.size is None else args.size
+    unused = ["--eye"] * (args.eye is not None) + _given(args, {"tilt": 0.0, "heading": 0.0, "size": (1280, 800)})
     _check_size(args.size, renders=png is not None)
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading

@@ -306,6 +306,18 @@ def _window(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _given(args: argparse.Namespace, defaults: dict[str, Any]) -> list[str]:
+    """The options among ``defaults`` (dest -> its value when left out; the option's default None) given on the command
+    line, as ``--option`` names; those left out are set to their default. For :func:`_refuse_unused`."""
+    given = []
+    for dest, default in defaults.items():
+        if getattr(args, dest) is None:
+            setattr(args, dest, default)
+        else:
+            given.append("--" + dest.replace("_", "-"))
+    return given
+
+
 def _refuse_unused(options: Sequence[str], needs: str, got: str) -> None:
     """Refuse the ``options`` given that do nothing in this run (none: nothing to refuse), naming them: "--a and --b
     apply only with ``needs``; got them ``got``"."""
@@ -414,10 +426,10 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH",
-                   help="render size (default 1280x800)")
-    p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
-                   help="vertical exaggeration of the render only (default 2)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="render size, with --png (default 1280x800)")
+    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the render only, with --png (default 2)")
     p.set_defaults(run=_run_steps)
 
 
@@ -562,9 +574,12 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size, renders=png is not None)
+    if png is None:  # (after their values, which are named first) they shape the render alone, and were ignored
+        _refuse_unused(render_options, "--png (the render)", "without --png")
     _check_outputs({"INPUT": args.input}, output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here

@@ -423,10 +423,13 @@ def test_a_render_size_over_the_memory_budget_is_refused_before_the_dem_is_read(
 
 
 def test_a_size_that_renders_nothing_is_not_held_to_the_render_budget(tmp_path, capsys, tiny_budget):
-    """Only a run that renders allocates the window: steps without --png still meshes under a small budget."""
+    """Only a run that renders allocates the window: steps without --png still meshes under a small budget (its
+    default --size unchecked; a --size given without --png is refused as doing nothing, by name, not by the budget)."""
     dem = tmp_path / "dem.npy"
     np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
     code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--size", "640x400")
+    assert code == 2 and "error: --size applies only with --png (the render); got it without --png" in err, err
+    code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb")
     assert code == 0, err
     assert (tmp_path / "m.glb").exists()
 
@@ -1102,3 +1105,30 @@ def test_an_unknown_device_names_leaving_the_option_out_not_none(tmp_path, capsy
     assert "--device must be one of ['cpu'" in err and ", or left out for Warp's default; got 'gpu'" in err, err
     assert "None" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command, argv, given, needs, got", [
+    ("steps", ["-o", "{tmp}/m.glb", "--size", "64x48"], "--size applies", "--png (the render)", "it without --png"),
+    ("steps", ["-o", "{tmp}/m.glb", "--z-scale", "5", "--size", "64x48"], "--size and --z-scale apply",
+     "--png (the render)", "them without --png"),
+    ("texture", ["-o", "{tmp}/t.png", "--mesh", "{tmp}/t.glb", "--z-scale", "5"], "--z-scale applies",
+     "--png (the render of the draped mesh)", "it without --png"),
+    ("batch", ["--scheduler", "serial", "-o", "{tmp}/out", "--size", "64x48"], "--size applies",
+     "--png (the overview render)", "it without --png"),
+    ("closeup", ["-o", "{tmp}/s.ply", "--z-scale", "5"], "--z-scale applies",
+     "a render (a .png --output, --png or --gif)", "it with the mesh --output '{tmp}/s.ply' alone"),
+])
+def test_render_options_without_a_render_are_refused_by_name(tmp_path, capsys, command, argv, given, needs, got):
+    """``steps -o m.glb --size 64x48 --z-scale 5`` (and texture's, batch's, a close-up scene mesh's --size and
+    --z-scale without a render) were accepted and made the same files as without them: they shape the render alone.
+    Refused by name now, before any work; their values are still checked first."""
+    argv = [str(a).replace("{tmp}", str(tmp_path)) for a in argv]
+    code, _, err = run(capsys, "-q", command, *argv)
+    assert code == 2
+    assert one_error_line(err, command) == (f"stepterrain {command}: error: {given} only with {needs}; got "
+                                            f"{got.replace('{tmp}', str(tmp_path))}")
+    assert list(tmp_path.iterdir()) == []
+    if "--z-scale" in argv:  # a bad value is named as such first
+        argv[argv.index("--z-scale") + 1] = "-1"
+        code, _, err = run(capsys, "-q", command, *argv)
+        assert code == 2 and "--z-scale must be a positive number; got -1.0" in err, err

@@ -333,7 +333,7 @@ def test_cli_closeup_writes_a_scene_mesh(dem, tmp_path):
 
 def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
     out = str(tmp_path / "x.ply")  # a mesh output: the argument errors show where no renderer exists too
-    assert cli.main(["closeup", str(dem), "--roi", "9999,9999,5", "-o", out, "--size", "160x120"]) == 2
+    assert cli.main(["closeup", str(dem), "--roi", "9999,9999,5", "-o", out]) == 2
     assert "outside the terrain" in capsys.readouterr().err
     assert cli.main(["closeup", str(dem), "--scale", "0", "-o", out]) == 2
     assert "scale must be positive" in capsys.readouterr().err
