@@ -268,7 +268,9 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
     if args.height_unit is not None:
         metadata["height_unit"] = args.height_unit
     if args.spacing is not None:
-        metadata["spacing"] = [float(args.spacing[0]), float(args.spacing[-1])]
+        # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
+        # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))
+        metadata["spacing"] = [float(args.spacing[0]), -float(args.spacing[-1])]
     if args.crop is not None:
         metadata["crop"] = [float(v) for v in args.crop]
     if args.coarsen is not None:

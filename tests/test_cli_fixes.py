@@ -1132,3 +1132,22 @@ def test_render_options_without_a_render_are_refused_by_name(tmp_path, capsys, c
         argv[argv.index("--z-scale") + 1] = "-1"
         code, _, err = run(capsys, "-q", command, *argv)
         assert code == 2 and "--z-scale must be a positive number; got -1.0" in err, err
+
+
+def test_a_meshs_spacing_metadata_is_the_dems_signed_spacing(tmp_path, capsys):
+    """``--spacing 30,20`` was recorded in a mesh's metadata as given, (30, 20), while the DEM it placed has spacing
+    (30, -20) (rows run north to south) as `info` prints it and as the library records it in a heightfield mesh:
+    texture's draped mesh said (1, -1) without --spacing and (30, 20) with it. Every subcommand records the DEM's
+    signed spacing now, the form `info` prints for the DEM."""
+    from stepterrain.export import read_mesh
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    for command, argv in (("steps", ["-o", tmp_path / "s.glb"]),
+                          ("texture", ["-o", tmp_path / "t.png", "--mesh", tmp_path / "t.glb"]),
+                          ("closeup", ["-o", tmp_path / "c.glb"])):
+        for spacing, expected in (("30", [30.0, -30.0]), ("30,20", [30.0, -20.0])):
+            code, _, err = run(capsys, "-q", command, dem, "--spacing", spacing, *argv)
+            assert code == 0, err
+            mesh = read_mesh(next(p for p in argv if str(p).endswith(".glb")))
+            assert list(mesh.metadata["spacing"]) == expected, (command, spacing, mesh.metadata["spacing"])
