@@ -189,6 +189,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # no --png they did nothing, and the run said nothing of it
     unused = ["--eye"] * (args.eye is not None) + _given(args, {"tilt": 0.0, "heading": 0.0, "size": (1280, 800)})
     _check_size(args.size, renders=png is not None)
+    if args.texture is not None and png is None and out.suffix.lower() == ".stl":  # colours nowhere: it did nothing
+        raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
+                                f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
     radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0

@@ -576,6 +576,12 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
+    if (args.lens is not None or args.lens_relative is not None) and args.gamma == 0.0:
+        # original terrain inside the lens, --gamma 0 (the original terrain) outside: the mesh was the same without it
+        option = "--lens" if args.lens is not None else "--lens-relative"
+        raise InvalidInputError(f"{option} shows the original terrain inside it and --gamma outside: with --gamma 0 "
+                                f"the terrain is original everywhere and the lens changes nothing; give --gamma > 0 "
+                                f"or leave {option} out")
     render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
@@ -617,14 +623,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         progress.say(f"lens at ({cx:.1f}, {cy:.1f}), radius {radius:.1f}: original terrain inside, "
                      f"gamma {args.gamma:g} outside")
         reach = radius + (radius / 4.0 if args.lens_edge is None else args.lens_edge) / 2.0  # γ < --gamma within
-        if args.gamma > 0.0 and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
+        if not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
             crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
             if math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax)) >= radius:
                 why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
                        f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
             warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing: it {why}",
                           stacklevel=1)
-        elif args.gamma > 0.0 and _nearest_node_distance(terrain, cx, cy) >= reach:
+        elif _nearest_node_distance(terrain, cx, cy) >= reach:
             spacing = f" (node spacing {abs(terrain.spacing[0]):.9g} x {abs(terrain.spacing[1]):.9g})"
             warnings.warn(f"the lens at ({cx:.9g}, {cy:.9g}), radius {radius:.9g}, changes nothing at the terrain's "
                           f"nodes: it holds none of them{spacing if terrain.kind == 'grid' else ''}; give a larger "

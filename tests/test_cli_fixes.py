@@ -1151,3 +1151,35 @@ def test_a_meshs_spacing_metadata_is_the_dems_signed_spacing(tmp_path, capsys):
             assert code == 0, err
             mesh = read_mesh(next(p for p in argv if str(p).endswith(".glb")))
             assert list(mesh.metadata["spacing"]) == expected, (command, spacing, mesh.metadata["spacing"])
+
+
+def test_options_that_change_nothing_are_refused_lens_at_gamma_0_and_texture_on_stl(tmp_path, capsys):
+    """``steps --lens-relative 0.5,0.5,0.2 --gamma 0`` (original terrain inside the lens, --gamma 0 outside: the
+    original everywhere) and ``globe --texture IMAGE -o g.stl`` without --png (an STL holds no colours) were accepted
+    and wrote the files they write without the option. Refused by name now; with --gamma > 0, a .ply or a --png they
+    pass."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    for lens in (["--lens-relative", "0.5,0.5,0.2"], ["--lens", "6,-5,3"]):
+        code, _, err = run(capsys, "-q", "steps", dem, *lens, "--gamma", "0", "-o", tmp_path / "m.glb")
+        assert code == 2
+        assert one_error_line(err, "steps").endswith(
+            f"error: {lens[0]} shows the original terrain inside it and --gamma outside: with --gamma 0 the terrain "
+            f"is original everywhere and the lens changes nothing; give --gamma > 0 or leave {lens[0]} out")
+        assert not (tmp_path / "m.glb").exists()
+        code, _, err = run(capsys, "-q", "steps", dem, *lens, "--gamma", "0.5", "-o", tmp_path / "m.glb")
+        assert code == 0, err
+        (tmp_path / "m.glb").unlink()
+    picture = tmp_path / "tex.png"
+    from PIL import Image
+
+    Image.fromarray(np.zeros((18, 36, 3), np.uint8)).save(picture)
+    base = ["-q", "globe", "--face-size", "9", "--no-camera", "--texture", picture, "--device", "cpu"]
+    code, _, err = run(capsys, *base, "-o", tmp_path / "g.stl")
+    assert code == 2
+    assert one_error_line(err, "globe") == (
+        f"stepterrain globe: error: --texture colours the mesh and the --png render; an .stl --output holds no "
+        f"colours: got --texture {str(picture)!r} with --output {str(tmp_path / 'g.stl')!r} and no --png")
+    assert not (tmp_path / "g.stl").exists()
+    code, _, err = run(capsys, *base, "-o", tmp_path / "g.ply")
+    assert code == 0, err
