@@ -161,6 +161,10 @@ def _run_batch(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
     _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
+    if args.colormap.lower() != "none" and _check_ext(args.format) == ".stl":  # the colours were dropped unsaid
+        raise InvalidInputError(f"--colormap colours the meshes by level; --format .stl holds no colours (the --png "
+                                f"overview reads the files): got --colormap {args.colormap}; write .ply, .3mf or .glb "
+                                "for colours, or leave --colormap out")
     # this machine's device (no --scheduler, or serial) was resolved by main() before any input was read
     remote = args.scheduler not in (None, "serial")
     if args.device is not None and remote and not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):

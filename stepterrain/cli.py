@@ -422,7 +422,7 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("--solid", action="store_true",
                    help="close into a watertight solid (side skirts and a base)")
     p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid (default one step below)")
-    p.add_argument("--colormap", default="terrain", metavar="NAME",
+    p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
@@ -588,6 +588,11 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     _check_size(args.size, renders=png is not None)
     if png is None:  # (after their values, which are named first) they shape the render alone, and were ignored
         _refuse_unused(render_options, "--png (the render)", "without --png")
+    if args.colormap is not None and args.colormap.lower() != "none" and png is None and out.suffix.lower() == ".stl":
+        # the level colours were dropped unsaid: an STL holds none, and no render showed them
+        raise InvalidInputError(f"--colormap colours the mesh and the --png render; an .stl --output holds no "
+                                f"colours: got --colormap {args.colormap} with --output {args.output!r} and no --png")
+    args.colormap = "terrain" if args.colormap is None else args.colormap
     _check_outputs({"INPUT": args.input}, output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here

@@ -1183,3 +1183,32 @@ def test_options_that_change_nothing_are_refused_lens_at_gamma_0_and_texture_on_
     assert not (tmp_path / "g.stl").exists()
     code, _, err = run(capsys, *base, "-o", tmp_path / "g.ply")
     assert code == 0, err
+
+
+def test_a_colormap_an_stl_cannot_hold_is_refused(tmp_path, capsys):
+    """``steps --colormap viridis -o m.stl`` (no --png) and ``batch --colormap viridis --format .stl`` wrote meshes
+    without any colour and said nothing: an STL holds none (batch's --png overview reads the files, so it shows none
+    either). Refused by name now; without --colormap, with 'none', with --png (steps renders its mesh in memory) or
+    another format they pass."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    out = tmp_path / "m.stl"
+    code, _, err = run(capsys, "-q", "steps", dem, "--colormap", "viridis", "-o", out)
+    assert code == 2
+    assert one_error_line(err, "steps") == (
+        f"stepterrain steps: error: --colormap colours the mesh and the --png render; an .stl --output holds no "
+        f"colours: got --colormap viridis with --output {str(out)!r} and no --png")
+    assert list(tmp_path.iterdir()) == [dem]
+    for extra in ([], ["--colormap", "none"]):
+        code, _, err = run(capsys, "-q", "steps", dem, *extra, "-o", out)
+        assert code == 0 and out.exists(), err
+        out.unlink()
+    code, _, err = run(capsys, "-q", "batch", dem, "--colormap", "viridis", "--format", ".stl", "--scheduler",
+                       "serial", "-o", tmp_path / "out")
+    assert code == 2
+    assert "error: --colormap colours the meshes by level; --format .stl holds no colours" in one_error_line(err,
+                                                                                                           "batch")
+    assert list(tmp_path.iterdir()) == [dem]
+    code, _, err = run(capsys, "-q", "batch", dem, "--tile", "8", "--colormap", "viridis", "--format", ".ply",
+                       "--scheduler", "serial", "-o", tmp_path / "out")
+    assert code == 0 and any((tmp_path / "out").glob("*.ply")), err
