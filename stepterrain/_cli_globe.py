@@ -162,6 +162,14 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
                                 f"got {args.metrics!r} (an empty name)")
+    unknown = [m for m in metrics if m not in METRICS]  # the library's message offered callables, which no option takes
+    if unknown:
+        raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
+                                f"got {args.metrics!r} ({', '.join(repr(m) for m in unknown)} unknown)")
+    repeated = sorted({m for m in metrics if metrics.count(m) > 1})
+    if repeated:  # a metric multiplied in twice is the same metric: the metadata and progress line named it twice
+        raise InvalidInputError(f"--metrics names each metric once; got {args.metrics!r} ({', '.join(repeated)} "
+                                "repeated)")
     # the library ignores the view's metrics without a camera, and culls only by the clip metric: such options
     # were accepted, did nothing, and the mesh's metadata and the progress line named metrics that were not applied
     viewed = [m for m in metrics if m in ("distance", "clip")]

@@ -910,3 +910,23 @@ def test_the_views_options_with_no_camera_and_no_png_are_refused_by_name(tmp_pat
         assert main([*base, *with_camera]) == 0 and out.exists()  # with the camera: the view
         out.unlink()
     assert main([*base, "--no-camera"]) == 0 and out.exists()
+
+
+def test_the_cli_names_unknown_and_repeated_metrics_in_its_own_terms(tmp_path, capsys):
+    """``globe --metrics clip,bogus`` said "--metrics must be names among ('geometric', 'distance', 'clip') or
+    callables", offering callables no option can pass; ``--metrics geometric,geometric`` was accepted (the library
+    takes a set: the mesh of ``geometric``) while the metadata and progress line named the metric twice. Both are
+    refused in the option's terms now, before any work."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    base = ["globe", "--face-size", "9", "-o", str(out), "--device", "cpu", "--metrics"]
+    for metrics, why in (("clip,bogus", "('bogus' unknown)"), ("Geometric,x", "('Geometric', 'x' unknown)")):
+        assert main([*base, metrics]) == 2
+        assert capsys.readouterr().err == (f"stepterrain globe: error: --metrics must be names among geometric, "
+                                           f"distance, clip separated by commas; got {metrics!r} {why}\n")
+    assert main([*base, "geometric,clip,geometric"]) == 2
+    assert capsys.readouterr().err == ("stepterrain globe: error: --metrics names each metric once; got "
+                                       "'geometric,clip,geometric' (geometric repeated)\n")
+    assert not out.exists()
+    assert main(["-q", *base, "geometric,clip"]) == 0 and out.exists()
