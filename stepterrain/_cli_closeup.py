@@ -130,6 +130,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _MAX_OFFSET,
         _MIN_PIXELS_PER_CLOSEUP,
         ROI,
+        TRANSFER_PRESETS,
         AnchorStyle,
         CloseUp,
         _check_fps,
@@ -155,6 +156,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
+    if args.anchor not in TRANSFER_PRESETS:  # the library's message offered an opacity table, which no option takes
+        raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")
     _check_size(args.size, renders=picture is not None or anim is not None, layered=True)
     # the animation's options: the still render and the scene mesh are the close-ups at time 0, before any spin
     unanimated = _given(args, {"spin": 0.25, "frames": 24, "fps": 12.0})

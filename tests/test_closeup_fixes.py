@@ -852,3 +852,19 @@ def test_cli_closeup_animation_options_without_gif_are_refused(tmp_path, capsys)
     assert cli.main(["-q", "closeup", "-o", str(tmp_path / "scene.ply"), "--fps", "0"]) == 2  # the value first
     assert "--fps must be a positive number; got 0" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_closeup_an_unknown_anchor_names_the_presets_alone(tmp_path, capsys):
+    """``closeup --anchor bogus`` said "--anchor transparency must be one of [...] or an opacity table" (the library's
+    words: no option takes a table), and only after the DEM was loaded. It names the presets in the option's terms
+    now, before any work; every preset passes."""
+    from stepterrain import cli
+    from stepterrain.closeup import TRANSFER_PRESETS
+
+    out = tmp_path / "s.ply"
+    assert cli.main(["-q", "closeup", "--anchor", "bogus", "-o", str(out)]) == 2
+    assert capsys.readouterr().err == ("stepterrain closeup: error: --anchor must be one of opaque, linear, inverse, "
+                                       "ends, hidden; got 'bogus'\n")
+    assert not out.exists()
+    for preset in TRANSFER_PRESETS:
+        assert cli.main(["-q", "closeup", "--anchor", preset, "-o", str(out), "--device", "cpu"]) == 0, preset
