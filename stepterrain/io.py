@@ -226,6 +226,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
     ext = file.suffix.lower()
     if ext not in SUPPORTED_EXTENSIONS:
+        if os.path.isdir(file):  # `steps tiles/` said "unknown DEM extension '(none)'"
+            raise DataFileError(f"DEM path {str(file)!r} is a folder; expected a DEM file "
+                                f"({', '.join(SUPPORTED_EXTENSIONS)})")
         raise InvalidInputError(
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"

@@ -1189,3 +1189,22 @@ def test_the_crs_of_a_grid_on_another_body_states_the_radius_its_metres_are_of(t
     info = describe_dem(t)
     assert info["lonlat_step"] == pytest.approx((0.01, -0.01), rel=1e-14)
     assert info["lonlat_extent"] == pytest.approx((10.005, 10.205, 4.895, 4.995), rel=1e-14)
+
+
+def test_a_folder_given_as_a_dem_is_named_as_a_folder(tmp_path, capsys):
+    """``load_dem('tiles')`` (and ``stepterrain steps tiles/``, ``info tiles``) said "unknown DEM extension '(none)'"
+    of a folder: the extension was not the matter. It says the path is a folder now (exit 2 on the command line); a
+    file without a known extension is refused as before."""
+    from stepterrain import cli
+    from stepterrain.errors import InvalidInputError
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    with pytest.raises(DataFileError, match=r"^DEM path '.*tiles' is a folder; expected a DEM file \(\.npy, \.npz, "):
+        load_dem(folder)
+    assert cli.main(["info", str(folder)]) == 2
+    assert f"stepterrain info: error: DEM path {str(folder)!r} is a folder; expected a DEM file" in \
+        capsys.readouterr().err
+    (tmp_path / "dem").write_bytes(b"")
+    with pytest.raises(InvalidInputError, match=r"unknown DEM extension '\(none\)'"):
+        load_dem(tmp_path / "dem")
