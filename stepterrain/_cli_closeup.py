@@ -83,7 +83,7 @@ def add_parser(commands: Any) -> None:
                    help="overview-independent close-ups: orthographic, seen from above")
     p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default="height",
                    help="overview data mapping (default height)")
-    p.add_argument("--colormap", default="terrain", metavar="NAME",
+    p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render and the animation (default 2)")
@@ -155,6 +155,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720)})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    if args.colormap is not None and args.scalars == "none" and not any(args.stepped or []):
+        # nothing is coloured by it: the same image and scene mesh as without it
+        raise InvalidInputError(f"--colormap colours the overview's --scalars and the --stepped close-ups; with "
+                                f"--scalars none and no --stepped close-up it colours nothing; got --colormap "
+                                f"{args.colormap}")
+    args.colormap = "terrain" if args.colormap is None else args.colormap
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
     if args.anchor not in TRANSFER_PRESETS:  # the library's message offered an opacity table, which no option takes
         raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")

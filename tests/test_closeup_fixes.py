@@ -868,3 +868,20 @@ def test_cli_closeup_an_unknown_anchor_names_the_presets_alone(tmp_path, capsys)
     assert not out.exists()
     for preset in TRANSFER_PRESETS:
         assert cli.main(["-q", "closeup", "--anchor", preset, "-o", str(out), "--device", "cpu"]) == 0, preset
+
+
+def test_cli_closeup_a_colormap_that_colours_nothing_is_refused(tmp_path, capsys):
+    """``closeup --scalars none --colormap viridis`` without a --stepped close-up made the same image and scene mesh
+    as without --colormap: it colours the overview's scalars and the stepped close-ups' levels only. Refused by name
+    now, before any work; with a --stepped close-up (its levels take the colormap) it passes."""
+    from stepterrain import cli
+
+    out = tmp_path / "s.ply"
+    for stepped in ([], ["--stepped", "0"]):
+        assert cli.main(["-q", "closeup", "--scalars", "none", "--colormap", "viridis", *stepped, "-o", str(out)]) == 2
+        assert capsys.readouterr().err == (
+            "stepterrain closeup: error: --colormap colours the overview's --scalars and the --stepped close-ups; "
+            "with --scalars none and no --stepped close-up it colours nothing; got --colormap viridis\n")
+        assert not out.exists()
+    assert cli.main(["-q", "closeup", "--scalars", "none", "--colormap", "viridis", "--stepped", "100", "-o", str(out),
+                     "--device", "cpu"]) == 0 and out.exists()
