@@ -103,7 +103,7 @@ def add_parser(commands: Any) -> None:
     _add_device(p, " on the workers")
     p.add_argument("--png", type=_path, metavar="OUT.png",
                    help="also render an overview: the welded tiles, or a contact sheet of up to 16 items")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="--png size (default 1280x800)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH", help="--png size (default 1280x800)")
     p.set_defaults(run=functools.partial(_run_batch, sub=p))  # its failure lines spell library arguments as p's options
 
 
@@ -117,8 +117,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         _check_size,
         _colormap,
         _counted,
+        _given,
         _isovalue_base,
         _load_input,
+        _refuse_unused,
     )
 
     files = list(args.input)  # several: one item each, as a folder's files
@@ -139,7 +141,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         raise InvalidInputError(f"--workers applies only to the default LocalCluster, not with --scheduler; got "
                                 f"--workers {args.workers} with --scheduler {args.scheduler}")
     workers = 2 if args.workers is None else args.workers
+    render_options = _given(args, {"size": (1280, 800)})
     _check_size(args.size, renders=png is not None)
+    if png is None:  # (after its value, which is named first) it was ignored
+        _refuse_unused(render_options, "--png (the overview render)", "without --png")
     _check_outputs({"INPUT" if len(files) == 1 else f"INPUT {k + 1}": f for k, f in enumerate(files)}, png=png)
     if png is not None and Path(os.path.abspath(png)) == Path(os.path.abspath(args.output)):
         # the overview went to the folder the meshes had just been written into: every item done, then an error
@@ -159,6 +164,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
     _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
+    if args.colormap.lower() != "none" and _check_ext(args.format) == ".stl":  # the colours were dropped unsaid
+        raise InvalidInputError(f"--colormap colours the meshes by level; --format .stl holds no colours (the --png "
+                                f"overview reads the files): got --colormap {args.colormap}; write .ply, .3mf or .glb "
+                                "for colours, or leave --colormap out")
     # this machine's device (no --scheduler, or serial) was resolved by main() before any input was read
     remote = args.scheduler not in (None, "serial")
     if args.device is not None and remote and not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):

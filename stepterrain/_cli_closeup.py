@@ -83,20 +83,22 @@ def add_parser(commands: Any) -> None:
                    help="overview-independent close-ups: orthographic, seen from above")
     p.add_argument("--scalars", choices=("height", "slope", "aspect", "none"), default="height",
                    help="overview data mapping (default height)")
-    p.add_argument("--colormap", default="terrain", metavar="NAME",
+    p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap of the overview and the stepped close-ups (default terrain)")
-    p.add_argument("--z-scale", type=float, default=2.0, metavar="S", help="vertical exaggeration (default 2)")
+    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the render and the animation (default 2)")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="the rendered image (.png), or the scene as a mesh by extension: " + " ".join(MESH_EXTENSIONS)
                    + " (overview, close-ups and anchors with vertex colors; .stl holds no colors)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write the render here (with a mesh --output)")
-    p.add_argument("--size", type=_window, default=(1280, 720), metavar="WxH", help="image size (default 1280x720)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="image size of the render and the animation (default 1280x720)")
     p.add_argument("--gif", type=_path, metavar="OUT.gif|OUT.mp4", help="also write a spinning animation")
-    p.add_argument("--spin", type=float, default=0.25, metavar="TURNS/S",
+    p.add_argument("--spin", type=float, default=None, metavar="TURNS/S",
                    help="spin speed of the animation in turns per second (default 0.25)")
-    p.add_argument("--frames", type=int, default=24, metavar="N", help="animation frames (default 24)")
-    p.add_argument("--fps", type=float, default=12.0, metavar="FPS", help="animation frame rate (default 12)")
+    p.add_argument("--frames", type=int, default=None, metavar="N", help="animation frames (default 24)")
+    p.add_argument("--fps", type=float, default=None, metavar="FPS", help="animation frame rate (default 12)")
     p.set_defaults(run=_run_closeup)
 
 
@@ -113,12 +115,22 @@ def _per_closeup(values: list | None, n: int, default: Any, name: str) -> list:
 def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     from . import render
     from ._compaction import check_budget
-    from .cli import _check_output, _check_outputs, _check_size, _counted, _input_metadata, _input_terrain
+    from .cli import (
+        _check_output,
+        _check_outputs,
+        _check_size,
+        _counted,
+        _given,
+        _input_metadata,
+        _input_terrain,
+        _refuse_unused,
+    )
     from .closeup import (
         _MAX_CLOSEUPS,
         _MAX_OFFSET,
         _MIN_PIXELS_PER_CLOSEUP,
         ROI,
+        TRANSFER_PRESETS,
         AnchorStyle,
         CloseUp,
         _check_fps,
@@ -132,15 +144,29 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
     out = _check_output(args.output, (".png", *MESH_EXTENSIONS), "--output")
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     mesh_out = out if out.suffix.lower() != ".png" else None
-    images = [p for p in ((out if mesh_out is None else None), png) if p is not None]
     anim = _check_output(args.gif, (".gif", ".mp4"), "--gif") if args.gif else None
     _check_outputs({"INPUT": args.input}, output=out, png=png, gif=anim)
+    if png is not None and mesh_out is None:  # the same render was written to both files
+        raise InvalidInputError(f"--png applies only with a mesh --output (a .png --output is the render already); "
+                                f"got --output {args.output!r} with --png {args.png!r}")
+    picture = out if mesh_out is None else png  # the still render's one file, if any
     if anim is not None and anim.suffix.lower() == ".mp4" and importlib.util.find_spec("imageio_ffmpeg") is None:
         raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
+    render_options = _given(args, {"z_scale": 2.0, "size": (1280, 720)})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    if args.colormap is not None and args.scalars == "none" and not any(args.stepped or []):
+        # nothing is coloured by it: the same image and scene mesh as without it
+        raise InvalidInputError(f"--colormap colours the overview's --scalars and the --stepped close-ups; with "
+                                f"--scalars none and no --stepped close-up it colours nothing; got --colormap "
+                                f"{args.colormap}")
+    args.colormap = "terrain" if args.colormap is None else args.colormap
     colormap(args.colormap, argument="--colormap")  # an unknown name fails here, before any work
-    _check_size(args.size, renders=bool(images) or anim is not None, layered=True)
+    if args.anchor not in TRANSFER_PRESETS:  # the library's message offered an opacity table, which no option takes
+        raise InvalidInputError(f"--anchor must be one of {', '.join(TRANSFER_PRESETS)}; got {args.anchor!r}")
+    _check_size(args.size, renders=picture is not None or anim is not None, layered=True)
+    # the animation's options: the still render and the scene mesh are the close-ups at time 0, before any spin
+    unanimated = _given(args, {"spin": 0.25, "frames": 24, "fps": 12.0})
     if args.frames < 1:
         raise InvalidInputError(f"--frames must be >= 1; got {args.frames}")
     if not (math.isfinite(args.fps) and args.fps > 0):
@@ -149,6 +175,12 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         _check_fps(args.fps, anim.suffix.lower(), "--fps")
     if not math.isfinite(args.spin) or args.spin == 0:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
+    if anim is None:  # (after their values, which are named first)
+        _refuse_unused(unanimated, "--gif (the still render and the scene mesh show the close-ups before any spin)",
+                       "without --gif")
+        if picture is None:  # the scene mesh alone: --size and --z-scale shape the renders only
+            _refuse_unused(render_options, "a render (a .png --output, --png or --gif)",
+                           f"with the mesh --output {args.output!r} alone")
     if args.edge is not None and not (math.isfinite(args.edge) and args.edge >= 0):
         raise InvalidInputError(f"--edge must be >= 0; got {args.edge}")
     # degrees (finite: _floats), whole turns taken off exactly: math.radians(1e308) kept none of the angle
@@ -157,11 +189,11 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         if not fr > 0:
             raise InvalidInputError(f"--roi-relative radius fraction must be positive; got {fr:g}")
     n_rois = len(args.roi or []) + len(args.roi_relative or []) or 1
-    if (images or anim is not None) and n_rois > max_closeups(args.size):
+    if (picture is not None or anim is not None) and n_rois > max_closeups(args.size):
         raise InvalidInputError(f"--size {args.size[0]}x{args.size[1]} holds at most "
                                 f"{_counted(max_closeups(args.size), 'close-up')} (one per {_MIN_PIXELS_PER_CLOSEUP}x"
                                 f"{_MIN_PIXELS_PER_CLOSEUP} pixels, at most {_MAX_CLOSEUPS}); got {n_rois}")
-    if images or anim is not None:
+    if picture is not None or anim is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here
     if anim is not None:  # refused here, not after loading the DEM and the still render (animate_closeups' check)
         width, height = args.size  # every frame is kept until written, and the writer (np.stack) copies them all once
@@ -232,7 +264,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         progress.stage("mesh", f"building the scene mesh with {_counted(n, 'close-up')}")
         scene = closeup_scene(terrain, closeups, scalars=scalars, cmap=args.colormap, device=args.device)
         progress.done(f"{_counted(len(scene.faces), 'face')},")
-    if images:
+    if picture is not None:
         progress.stage("render", f"rendering {_counted(n, 'close-up')} at {args.size[0]}x{args.size[1]}")
         timings: dict[str, float] = {}
         image = render_closeups(terrain, closeups, window_size=args.size, timings=timings, **options)
@@ -250,11 +282,10 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         save_mesh(scene, mesh_out, metadata={"generator": "stepterrain closeup", **_input_metadata(args),
                                               "closeups": n})
         progress.done()
-    if image is not None:
-        for path in images:
-            progress.stage("write", f"writing {path}")
-            render.save_png(image, path)
-            progress.done()
+    if image is not None and picture is not None:
+        progress.stage("write", f"writing {picture}")
+        render.save_png(image, picture)
+        progress.done()
     if frames is not None and anim is not None:
         progress.stage("write", f"writing {anim}")
         save_animation(frames, anim, fps=args.fps)

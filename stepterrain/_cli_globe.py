@@ -23,7 +23,9 @@ from .cli import (
     _check_size,
     _counted,
     _floats,
+    _given,
     _path,
+    _refuse_unused,
     _size,
     _window,
 )
@@ -74,11 +76,11 @@ def add_parser(commands: Any) -> None:
                    help="eye position: latitude, longitude (degrees) and altitude (metres above the sphere, and "
                         "above the terrain there: negative over land or sea floor below it, such as the Dead Sea); "
                         "default 30,10,3R, R the --radius (the whole globe in view)")
-    p.add_argument("--tilt", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--tilt", type=float, default=None, metavar="DEG",
                    help="tilt of the view from straight down, in [0, 90) degrees (default 0)")
-    p.add_argument("--heading", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--heading", type=float, default=None, metavar="DEG",
                    help="direction of the tilt, degrees clockwise from north; whole turns are taken off (default 0)")
-    p.add_argument("--view-angle", type=float, default=30.0, metavar="DEG",
+    p.add_argument("--view-angle", type=float, default=None, metavar="DEG",
                    help="vertical field of view of the eye in [1e-08, 179] degrees (default 30): the view the mesh "
                         "is refined and culled for, and the --png render's")
     p.add_argument("--no-camera", action="store_true",
@@ -99,7 +101,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render from the eye")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="render size, and the view's aspect with the camera (default 1280x800)")
     p.set_defaults(run=_run_globe)
 
 
@@ -163,6 +166,14 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if "" in metrics:  # '' or 'geometric,,clip': a metric left out, not fewer metrics
         raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
                                 f"got {args.metrics!r} (an empty name)")
+    unknown = [m for m in metrics if m not in METRICS]  # the library's message offered callables, which no option takes
+    if unknown:
+        raise InvalidInputError(f"--metrics must be names among geometric, distance, clip separated by commas; "
+                                f"got {args.metrics!r} ({', '.join(repr(m) for m in unknown)} unknown)")
+    repeated = sorted({m for m in metrics if metrics.count(m) > 1})
+    if repeated:  # a metric multiplied in twice is the same metric: the metadata and progress line named it twice
+        raise InvalidInputError(f"--metrics names each metric once; got {args.metrics!r} ({', '.join(repeated)} "
+                                "repeated)")
     # the library ignores the view's metrics without a camera, and culls only by the clip metric: such options
     # were accepted, did nothing, and the mesh's metadata and the progress line named metrics that were not applied
     viewed = [m for m in metrics if m in ("distance", "clip")]
@@ -186,7 +197,14 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"bounding shapes are measured against the eye and the view); got --bounds "
                                 f"{args.bounds} with {why}")
     bounds = args.bounds or "cone"
+    # the view's options place the camera (the mesh's view dependence) and the --png render: with --no-camera and
+    # no --png they did nothing, and the run said nothing of it
+    unused = ["--eye"] * (args.eye is not None) + _given(args, {"tilt": 0.0, "heading": 0.0, "size": (1280, 800),
+                                                                 "view_angle": 30.0})
     _check_size(args.size, renders=png is not None)
+    if args.texture is not None and png is None and out.suffix.lower() == ".stl":  # colours nowhere: it did nothing
+        raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
+                                f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
     radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
@@ -216,6 +234,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if not lo <= args.view_angle <= hi:  # NaN too
         raise InvalidInputError(f"--view-angle must be a vertical field of view in [{lo:g}, {hi:g}] degrees; got "
                                 f"{args.view_angle:g}")
+    if args.no_camera and png is None:  # (after their values, which are named first)
+        _refuse_unused(unused, "the camera or a --png render (with --no-camera the mesh is refined by the geometric "
+                       "error alone)", "with --no-camera and no --png")
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built

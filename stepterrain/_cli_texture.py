@@ -24,9 +24,11 @@ from .cli import (
     _colormap,
     _counted,
     _floats,
+    _given,
     _input_metadata,
     _input_terrain,
     _path,
+    _refuse_unused,
     _size,
     _window,
 )
@@ -117,9 +119,10 @@ def add_parser(commands: Any) -> None:
                    help="with --mesh/--png: drape on the stepped terrain with this step interval (default: the "
                         "continuous heightfield)")
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render of the draped mesh")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH", help="render size (default 1280x800)")
-    p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
-                   help="vertical exaggeration of the render only (default 2)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="render size, with --png (default 1280x800)")
+    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the render only, with --png (default 2)")
     p.set_defaults(run=_run_texture)
 
 
@@ -279,9 +282,12 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError("--interval applies only with --mesh or --png")
     if args.interval is not None and not (math.isfinite(args.interval) and args.interval > 0):
         raise InvalidInputError(f"--interval must be a positive number; got {args.interval:g}")
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
     _check_size(args.size, renders=png is not None)
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
+    if png is None:  # (after their values, which are named first) they shape the render alone, and were ignored
+        _refuse_unused(render_options, "--png (the render of the draped mesh)", "without --png")
     if png is not None:
         render.require_offscreen()
 

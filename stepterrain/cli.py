@@ -268,7 +268,9 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
     if args.height_unit is not None:
         metadata["height_unit"] = args.height_unit
     if args.spacing is not None:
-        metadata["spacing"] = [float(args.spacing[0]), float(args.spacing[-1])]
+        # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
+        # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))
+        metadata["spacing"] = [float(args.spacing[0]), -float(args.spacing[-1])]
     if args.crop is not None:
         metadata["crop"] = [float(v) for v in args.crop]
     if args.coarsen is not None:
@@ -304,6 +306,27 @@ def _window(text: str) -> tuple[int, int]:
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT, e.g. 1280x800; got {text!r}") from None
     return w, h
+
+
+def _given(args: argparse.Namespace, defaults: dict[str, Any]) -> list[str]:
+    """The options among ``defaults`` (dest -> its value when left out; the option's default None) given on the command
+    line, as ``--option`` names; those left out are set to their default. For :func:`_refuse_unused`."""
+    given = []
+    for dest, default in defaults.items():
+        if getattr(args, dest) is None:
+            setattr(args, dest, default)
+        else:
+            given.append("--" + dest.replace("_", "-"))
+    return given
+
+
+def _refuse_unused(options: Sequence[str], needs: str, got: str) -> None:
+    """Refuse the ``options`` given that do nothing in this run (none: nothing to refuse), naming them: "--a and --b
+    apply only with ``needs``; got them ``got``"."""
+    if options:
+        names = " and ".join([", ".join(options[:-1]), options[-1]] if len(options) > 1 else options)
+        verb, them = ("applies", "it") if len(options) == 1 else ("apply", "them")
+        raise InvalidInputError(f"{names} {verb} only with {needs}; got {them} {got}")
 
 
 def _check_size(size: tuple[int, int], *, renders: bool = True, layered: bool = False) -> None:
@@ -399,16 +422,16 @@ def _add_steps(commands: Any) -> None:
     p.add_argument("--solid", action="store_true",
                    help="close into a watertight solid (side skirts and a base)")
     p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid (default one step below)")
-    p.add_argument("--colormap", default="terrain", metavar="NAME",
+    p.add_argument("--colormap", default=None, metavar="NAME",
                    help="matplotlib colormap for the level colors, or 'none' (default terrain, land part)")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
     p.add_argument("--png", type=_path, metavar="OUT.png", help="also write an off-screen render")
-    p.add_argument("--size", type=_window, default=(1280, 800), metavar="WxH",
-                   help="render size (default 1280x800)")
-    p.add_argument("--z-scale", type=float, default=2.0, metavar="S",
-                   help="vertical exaggeration of the render only (default 2)")
+    p.add_argument("--size", type=_window, default=None, metavar="WxH",
+                   help="render size, with --png (default 1280x800)")
+    p.add_argument("--z-scale", type=float, default=None, metavar="S",
+                   help="vertical exaggeration of the render only, with --png (default 2)")
     p.set_defaults(run=_run_steps)
 
 
@@ -553,9 +576,23 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--lens-relative radius fraction must be positive; got {args.lens_relative[2]:g}")
     if args.lens_edge is not None and args.lens is None and args.lens_relative is None:
         raise InvalidInputError("--lens-edge applies only with --lens or --lens-relative")
+    if (args.lens is not None or args.lens_relative is not None) and args.gamma == 0.0:
+        # original terrain inside the lens, --gamma 0 (the original terrain) outside: the mesh was the same without it
+        option = "--lens" if args.lens is not None else "--lens-relative"
+        raise InvalidInputError(f"{option} shows the original terrain inside it and --gamma outside: with --gamma 0 "
+                                f"the terrain is original everywhere and the lens changes nothing; give --gamma > 0 "
+                                f"or leave {option} out")
+    render_options = _given(args, {"size": (1280, 800), "z_scale": 2.0})
     if not (math.isfinite(args.z_scale) and args.z_scale > 0):
         raise InvalidInputError(f"--z-scale must be a positive number; got {args.z_scale}")
     _check_size(args.size, renders=png is not None)
+    if png is None:  # (after their values, which are named first) they shape the render alone, and were ignored
+        _refuse_unused(render_options, "--png (the render)", "without --png")
+    if args.colormap is not None and args.colormap.lower() != "none" and png is None and out.suffix.lower() == ".stl":
+        # the level colours were dropped unsaid: an STL holds none, and no render showed them
+        raise InvalidInputError(f"--colormap colours the mesh and the --png render; an .stl --output holds no "
+                                f"colours: got --colormap {args.colormap} with --output {args.output!r} and no --png")
+    args.colormap = "terrain" if args.colormap is None else args.colormap
     _check_outputs({"INPUT": args.input}, output=out, png=png)
     if png is not None:
         render.require_offscreen()  # fail before any work when no OpenGL context can exist here

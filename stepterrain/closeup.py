@@ -2030,6 +2030,23 @@ def _drawn_bounds(layer: CloseUpLayer, cu: CloseUp, used: NDArray[np.int64] | No
     return _finite_bounds(layer.original[used] @ layer.matrix[:3, :3].T + layer.matrix[:3, 3])
 
 
+def _content_split(t: Terrain, layer: CloseUpLayer, cu: CloseUp
+                   ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+    """:func:`_content_faces` of a layer (content and band faces) and the vertices of its content faces, kept per
+    culled layer when its arrays are the read-only ones :func:`closeup_layers` shares between frames (it does not
+    depend on M)."""
+    f = layer.faces
+
+    def split() -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        content, band = _content_faces(layer, cu)
+        return content, band, sorted_unique(content)
+
+    if f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable:
+        return split()
+    key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
+    return derived(t.cached(("closeup", "derived"), dict), key, (f, layer.mask_factor), split)
+
+
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
                     strips: Sequence[AnchorStrip], scalars: str | None, cmap: str, image_texture: Any
                     ) -> tuple[dict[int, Any], dict[int, Any], dict[int, Any], dict[int, Any]]:
@@ -2045,15 +2062,9 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
     overview = (scalars, cmap, image_texture)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         show_anchor = cu.active or cu.anchor.inactive != "hidden"
-        f = layer.faces
-        shared = not (f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable)
-
-        def split(layer=layer, cu=cu):
-            content, band = _content_faces(layer, cu)
-            return content, band, sorted_unique(content)
-
-        key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
-        content_faces, band_faces, used = (derived(memo, key, (f, layer.mask_factor), split) if shared else split())
+        shared = not (layer.faces.flags.writeable or layer.mask_factor.flags.writeable
+                      or layer.original.flags.writeable)
+        content_faces, band_faces, used = _content_split(t, layer, cu)
         if cu.anchor.band:
             content_vertices = layer.vertices
         else:
@@ -2438,7 +2449,9 @@ def animate_closeups(
             layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
                                     device=device)  # the stepped sources the frames use, kept for them
             for cu, layer in zip(items, layers, strict=True):
-                bounds = _drawn_bounds(layer, cu)  # where the close-up is drawn, as render_closeups frames it
+                # where the close-up is drawn, as render_closeups frames it (its face split kept for the frames)
+                used = None if cu.anchor.band or cu.view == "billboard" else _content_split(t, layer, cu)[2]
+                bounds = _drawn_bounds(layer, cu, used)
                 if bounds is not None:
                     boxes.append(bounds)
         xmin, xmax, ymin, ymax = t.extent

@@ -162,9 +162,9 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         symbolic links, or the finished file cannot be flushed to disk or moved onto ``path``.
     """
     target = _link_target(Path(path))
-    if os.path.isdir(target):  # refused before the content is made: os.replace refused it only after (EISDIR)
+    special = _special_file_kind(target, folders=True)  # one stat of the target for both refusals
+    if special == "folder":  # refused before the content is made: os.replace refused it only after (EISDIR)
         raise DataFileError(f"cannot write {str(target)!r}: it is a folder; expected a file name")
-    special = _special_file_kind(target)
     if special is not None:  # os.replace put a regular file in its place: as root, a link to /dev/null replaced it
         raise DataFileError(f"cannot write {str(target)!r}: it is a {special}, not a regular file; expected the "
                             "name of a file (written whole, then renamed into place)")
@@ -265,13 +265,15 @@ def _new_temporary(folder: Path, name: str) -> Path:
     raise FileExistsError(errno.EEXIST, "no free temporary file name", str(folder))
 
 
-def _special_file_kind(path: Path) -> str | None:
+def _special_file_kind(path: Path, folders: bool = False) -> str | None:
     """What ``path`` is when it exists and is neither a regular file nor a folder (a named pipe, a device, a
-    socket), else None."""
+    socket), else None; with ``folders``, "folder" for a folder too (one stat for both checks)."""
     try:
         mode = os.stat(path).st_mode
     except OSError:
         return None
+    if folders and stat.S_ISDIR(mode):
+        return "folder"
     kinds = ((stat.S_ISFIFO, "named pipe"), (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"),
              (stat.S_ISSOCK, "socket"))
     return next((kind for test, kind in kinds if test(mode)), None)

@@ -133,34 +133,28 @@ def _face_cells(face_size: Any, name: str = "face_size") -> int:
     return cells
 
 
-def _positive(value: Any, name: str) -> float:
+def _number(value: Any, name: str, kind: str, ok: Callable[[float], bool], unit: str = "") -> float:
+    """``value`` as a float, finite and ``ok``; else "``name`` must be a ``kind`` number``unit``" ("a ``kind`` finite
+    number" for a number that is not, NaN or inf)."""
     try:
         v = as_number(value)
     except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a positive number; got {value!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise InvalidInputError(f"{name} must be a positive finite number; got {value!r}")
+        raise InvalidInputError(f"{name} must be a {kind}number{unit}; got {value!r}") from None
+    if not (math.isfinite(v) and ok(v)):
+        raise InvalidInputError(f"{name} must be a {kind}finite number{unit}; got {value!r}")
     return v
+
+
+def _positive(value: Any, name: str) -> float:
+    return _number(value, name, "positive ", lambda v: v > 0)
 
 
 def _nonzero(value: Any, name: str) -> float:
-    try:
-        v = as_number(value)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"{name} must be a non-zero number; got {value!r}") from None
-    if not (math.isfinite(v) and v != 0):
-        raise InvalidInputError(f"{name} must be a non-zero finite number; got {value!r}")
-    return v
+    return _number(value, name, "non-zero ", lambda v: v != 0)
 
 
 def _error_value(error: Any) -> float:
-    try:
-        v = as_number(error)
-    except (TypeError, ValueError):
-        raise InvalidInputError(f"error must be a number >= 0 (metres); got {error!r}") from None
-    if not (math.isfinite(v) and v >= 0):
-        raise InvalidInputError(f"error must be a finite number >= 0 (metres); got {error!r}")
-    return v
+    return _number(error, "error", "", lambda v: v >= 0, " >= 0 (metres)")
 
 
 def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> tuple[set[str], list[UserMetric]]:

@@ -227,6 +227,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
     ext = file.suffix.lower()
     if ext not in SUPPORTED_EXTENSIONS:
+        if os.path.isdir(file):  # `steps tiles/` said "unknown DEM extension '(none)'"
+            raise DataFileError(f"DEM path {str(file)!r} is a folder; expected a DEM file "
+                                f"({', '.join(SUPPORTED_EXTENSIONS)})")
         raise InvalidInputError(
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
@@ -1024,21 +1027,19 @@ def _georeferenced(
     if dx == 0.0 or dy == 0.0:
         raise DataFileError(f"cannot read {str(file)!r}: geotransform has a zero pixel size ({dx}, {dy})")
     node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
-    if not geographic:
+    if not geographic:  # metres as stored; another unit (feet, ...) converted, as the CRS's metre twin
         projected = _projected_units(crs)
-        if projected is None:
-            terrain = _grid(file, heights, spacing=(dx, dy), origin=(node_x, node_y), crs=crs, height_unit=height_unit)
-            _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, 1.0)
-            return terrain
-        unit, factor, metre_crs = projected
-        if height_unit is None:
-            warnings.warn(
-                f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
-                f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
-                f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
-                stacklevel=caller_stacklevel(),
-            )
-        source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
+        factor, metre_crs, source = 1.0, crs, None
+        if projected is not None:
+            unit, factor, metre_crs = projected
+            if height_unit is None:
+                warnings.warn(
+                    f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
+                    f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
+                    f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
+                    stacklevel=caller_stacklevel(),
+                )
+            source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
         terrain = _grid(
             file, heights, spacing=(dx * factor, dy * factor), origin=(node_x * factor, node_y * factor),
             crs=metre_crs, source=source, height_unit=height_unit,

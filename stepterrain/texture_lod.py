@@ -971,34 +971,39 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
     coarse = z[np.ix_(ri, ci)]
     if len(ri) == 1 or len(ci) == 1:
         return float(np.nanmax(np.abs(z - np.nanmean(coarse)))) if np.isfinite(z).any() else 0.0
+    def cells(index: NDArray[np.intp], at: NDArray[np.intp], side: Any) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
+        """Each node's coarse cell along one axis (the one on ``side`` for a node on a coarse line), and its fraction
+        across that cell."""
+        k = np.clip(np.searchsorted(index, at, side=side) - 1, 0, len(index) - 2)
+        return k, (at - index[k]) / (index[k + 1] - index[k])
+
+    def planes(k: NDArray[np.intp], m: NDArray[np.intp], fr: NDArray[np.float64], fc: NDArray[np.float64]) -> tuple:
+        """The heights of the cell's two triangles at each node: (n00, n01, n11), drawn where fc >= fr, and (n00, n11,
+        n10), drawn where fc <= fr (NaN where a corner is nodata)."""
+        a, b = coarse[k][:, m], coarse[k][:, m + 1]
+        cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
+        return a + (b - a) * fc + (d - b) * fr, a + (cc - a) * fr + (d - cc) * fc
+
     r = np.arange(rows)
     c = np.arange(cols)
     if np.isfinite(coarse).all():  # every triangle drawn: a node's own cell covers it
-        k = np.clip(np.searchsorted(ri, r, side="right") - 1, 0, len(ri) - 2)
-        m = np.clip(np.searchsorted(ci, c, side="right") - 1, 0, len(ci) - 2)
-        fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
-        fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
-        a, b = coarse[k][:, m], coarse[k][:, m + 1]
-        cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
-        value = np.where(fc >= fr, a + (b - a) * fc + (d - b) * fr, a + (cc - a) * fr + (d - cc) * fc)
-        diff = np.abs(z - value)
+        (k, fr), (m, fc) = cells(ri, r, "right"), cells(ci, c, "right")
+        fr, fc = fr[:, None], fc[None, :]
+        upper, lower = planes(k, m, fr, fc)
+        diff = np.abs(z - np.where(fc >= fr, upper, lower))
         return float(np.nanmax(diff)) if np.isfinite(diff).any() else 0.0
     worst = np.zeros(z.shape)
     covered = np.zeros(z.shape, dtype=bool)
     # a node on a coarse row or column lies in the cells on both sides of it: where one side's triangle is not drawn
     # (a nodata corner), the other may cover it, so both sides are tried
     for side_r in ("left", "right"):
-        k = np.clip(np.searchsorted(ri, r, side=side_r) - 1, 0, len(ri) - 2)
-        fr = ((r - ri[k]) / (ri[k + 1] - ri[k]))[:, None]
+        k, fr = cells(ri, r, side_r)
+        fr = fr[:, None]
         for side_c in ("left", "right"):
-            m = np.clip(np.searchsorted(ci, c, side=side_c) - 1, 0, len(ci) - 2)
-            fc = ((c - ci[m]) / (ci[m + 1] - ci[m]))[None, :]
-            a, b = coarse[k][:, m], coarse[k][:, m + 1]
-            cc, d = coarse[k + 1][:, m], coarse[k + 1][:, m + 1]
-            for inside, value in (
-                (fc >= fr, a + (b - a) * fc + (d - b) * fr),  # (n00, n01, n11)
-                (fc <= fr, a + (cc - a) * fr + (d - cc) * fc),  # (n00, n11, n10)
-            ):
+            m, fc = cells(ci, c, side_c)
+            fc = fc[None, :]
+            upper, lower = planes(k, m, fr, fc)
+            for inside, value in ((fc >= fr, upper), (fc <= fr, lower)):
                 drawn = inside & np.isfinite(value)  # NaN where a corner is nodata
                 with np.errstate(invalid="ignore"):
                     np.fmax(worst, np.where(drawn, np.abs(z - value), 0.0), out=worst)

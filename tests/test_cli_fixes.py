@@ -423,10 +423,13 @@ def test_a_render_size_over_the_memory_budget_is_refused_before_the_dem_is_read(
 
 
 def test_a_size_that_renders_nothing_is_not_held_to_the_render_budget(tmp_path, capsys, tiny_budget):
-    """Only a run that renders allocates the window: steps without --png still meshes under a small budget."""
+    """Only a run that renders allocates the window: steps without --png still meshes under a small budget (its
+    default --size unchecked; a --size given without --png is refused as doing nothing, by name, not by the budget)."""
     dem = tmp_path / "dem.npy"
     np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
     code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--size", "640x400")
+    assert code == 2 and "error: --size applies only with --png (the render); got it without --png" in err, err
+    code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb")
     assert code == 0, err
     assert (tmp_path / "m.glb").exists()
 
@@ -1128,3 +1131,110 @@ def test_an_unknown_device_names_leaving_the_option_out_not_none(tmp_path, capsy
     assert "--device must be one of ['cpu'" in err and ", or left out for Warp's default; got 'gpu'" in err, err
     assert "None" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("command, argv, given, needs, got", [
+    ("steps", ["-o", "{tmp}/m.glb", "--size", "64x48"], "--size applies", "--png (the render)", "it without --png"),
+    ("steps", ["-o", "{tmp}/m.glb", "--z-scale", "5", "--size", "64x48"], "--size and --z-scale apply",
+     "--png (the render)", "them without --png"),
+    ("texture", ["-o", "{tmp}/t.png", "--mesh", "{tmp}/t.glb", "--z-scale", "5"], "--z-scale applies",
+     "--png (the render of the draped mesh)", "it without --png"),
+    ("batch", ["--scheduler", "serial", "-o", "{tmp}/out", "--size", "64x48"], "--size applies",
+     "--png (the overview render)", "it without --png"),
+    ("closeup", ["-o", "{tmp}/s.ply", "--z-scale", "5"], "--z-scale applies",
+     "a render (a .png --output, --png or --gif)", "it with the mesh --output '{tmp}/s.ply' alone"),
+])
+def test_render_options_without_a_render_are_refused_by_name(tmp_path, capsys, command, argv, given, needs, got):
+    """``steps -o m.glb --size 64x48 --z-scale 5`` (and texture's, batch's, a close-up scene mesh's --size and
+    --z-scale without a render) were accepted and made the same files as without them: they shape the render alone.
+    Refused by name now, before any work; their values are still checked first."""
+    argv = [str(a).replace("{tmp}", str(tmp_path)) for a in argv]
+    code, _, err = run(capsys, "-q", command, *argv)
+    assert code == 2
+    assert one_error_line(err, command) == (f"stepterrain {command}: error: {given} only with {needs}; got "
+                                            f"{got.replace('{tmp}', str(tmp_path))}")
+    assert list(tmp_path.iterdir()) == []
+    if "--z-scale" in argv:  # a bad value is named as such first
+        argv[argv.index("--z-scale") + 1] = "-1"
+        code, _, err = run(capsys, "-q", command, *argv)
+        assert code == 2 and "--z-scale must be a positive number; got -1.0" in err, err
+
+
+def test_a_meshs_spacing_metadata_is_the_dems_signed_spacing(tmp_path, capsys):
+    """``--spacing 30,20`` was recorded in a mesh's metadata as given, (30, 20), while the DEM it placed has spacing
+    (30, -20) (rows run north to south) as `info` prints it and as the library records it in a heightfield mesh:
+    texture's draped mesh said (1, -1) without --spacing and (30, 20) with it. Every subcommand records the DEM's
+    signed spacing now, the form `info` prints for the DEM."""
+    from stepterrain.export import read_mesh
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    for command, argv in (("steps", ["-o", tmp_path / "s.glb"]),
+                          ("texture", ["-o", tmp_path / "t.png", "--mesh", tmp_path / "t.glb"]),
+                          ("closeup", ["-o", tmp_path / "c.glb"])):
+        for spacing, expected in (("30", [30.0, -30.0]), ("30,20", [30.0, -20.0])):
+            code, _, err = run(capsys, "-q", command, dem, "--spacing", spacing, *argv)
+            assert code == 0, err
+            mesh = read_mesh(next(p for p in argv if str(p).endswith(".glb")))
+            assert list(mesh.metadata["spacing"]) == expected, (command, spacing, mesh.metadata["spacing"])
+
+
+def test_options_that_change_nothing_are_refused_lens_at_gamma_0_and_texture_on_stl(tmp_path, capsys):
+    """``steps --lens-relative 0.5,0.5,0.2 --gamma 0`` (original terrain inside the lens, --gamma 0 outside: the
+    original everywhere) and ``globe --texture IMAGE -o g.stl`` without --png (an STL holds no colours) were accepted
+    and wrote the files they write without the option. Refused by name now; with --gamma > 0, a .ply or a --png they
+    pass."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    for lens in (["--lens-relative", "0.5,0.5,0.2"], ["--lens", "6,-5,3"]):
+        code, _, err = run(capsys, "-q", "steps", dem, *lens, "--gamma", "0", "-o", tmp_path / "m.glb")
+        assert code == 2
+        assert one_error_line(err, "steps").endswith(
+            f"error: {lens[0]} shows the original terrain inside it and --gamma outside: with --gamma 0 the terrain "
+            f"is original everywhere and the lens changes nothing; give --gamma > 0 or leave {lens[0]} out")
+        assert not (tmp_path / "m.glb").exists()
+        code, _, err = run(capsys, "-q", "steps", dem, *lens, "--gamma", "0.5", "-o", tmp_path / "m.glb")
+        assert code == 0, err
+        (tmp_path / "m.glb").unlink()
+    picture = tmp_path / "tex.png"
+    from PIL import Image
+
+    Image.fromarray(np.zeros((18, 36, 3), np.uint8)).save(picture)
+    base = ["-q", "globe", "--face-size", "9", "--no-camera", "--texture", picture, "--device", "cpu"]
+    code, _, err = run(capsys, *base, "-o", tmp_path / "g.stl")
+    assert code == 2
+    assert one_error_line(err, "globe") == (
+        f"stepterrain globe: error: --texture colours the mesh and the --png render; an .stl --output holds no "
+        f"colours: got --texture {str(picture)!r} with --output {str(tmp_path / 'g.stl')!r} and no --png")
+    assert not (tmp_path / "g.stl").exists()
+    code, _, err = run(capsys, *base, "-o", tmp_path / "g.ply")
+    assert code == 0, err
+
+
+def test_a_colormap_an_stl_cannot_hold_is_refused(tmp_path, capsys):
+    """``steps --colormap viridis -o m.stl`` (no --png) and ``batch --colormap viridis --format .stl`` wrote meshes
+    without any colour and said nothing: an STL holds none (batch's --png overview reads the files, so it shows none
+    either). Refused by name now; without --colormap, with 'none', with --png (steps renders its mesh in memory) or
+    another format they pass."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)).astype(np.float32) * 100)
+    out = tmp_path / "m.stl"
+    code, _, err = run(capsys, "-q", "steps", dem, "--colormap", "viridis", "-o", out)
+    assert code == 2
+    assert one_error_line(err, "steps") == (
+        f"stepterrain steps: error: --colormap colours the mesh and the --png render; an .stl --output holds no "
+        f"colours: got --colormap viridis with --output {str(out)!r} and no --png")
+    assert list(tmp_path.iterdir()) == [dem]
+    for extra in ([], ["--colormap", "none"]):
+        code, _, err = run(capsys, "-q", "steps", dem, *extra, "-o", out)
+        assert code == 0 and out.exists(), err
+        out.unlink()
+    code, _, err = run(capsys, "-q", "batch", dem, "--colormap", "viridis", "--format", ".stl", "--scheduler",
+                       "serial", "-o", tmp_path / "out")
+    assert code == 2
+    assert "error: --colormap colours the meshes by level; --format .stl holds no colours" in one_error_line(err,
+                                                                                                           "batch")
+    assert list(tmp_path.iterdir()) == [dem]
+    code, _, err = run(capsys, "-q", "batch", dem, "--tile", "8", "--colormap", "viridis", "--format", ".ply",
+                       "--scheduler", "serial", "-o", tmp_path / "out")
+    assert code == 0 and any((tmp_path / "out").glob("*.ply")), err

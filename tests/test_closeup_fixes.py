@@ -882,3 +882,77 @@ def test_a_roi_over_lone_heights_names_them_instead_of_a_mask_of_zero(mapping):
     with pytest.raises(InvalidInputError, match=r"its mask is 0 at every grid node with a height"):
         closeup_layers(full, [CloseUp(ROI.circle((55.0, 45.0), 3.0), offset=(0.0, 0.0, 50.0), **mapping)],
                        device="cpu")
+
+
+def test_cli_closeup_png_beside_a_png_output_is_refused(tmp_path, capsys):
+    """``closeup -o a.png --png b.png`` rendered once and wrote the same picture to both files: --png is the render
+    beside a mesh --output (its help), and a .png --output is the render already. Refused by name now, before any
+    work and with no file written; beside a mesh --output it is taken as before (checked up to the renderer)."""
+    from stepterrain import cli
+
+    argv = ["-q", "closeup", "--device", "cpu", "-o", str(tmp_path / "a.png"), "--png", str(tmp_path / "b.png")]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err == (f"stepterrain closeup: error: --png applies only with a mesh --output (a .png --output is the "
+                   f"render already); got --output {str(tmp_path / 'a.png')!r} with --png {str(tmp_path / 'b.png')!r}"
+                   "\n"), err
+    assert list(tmp_path.iterdir()) == []
+    # beside a mesh: past the check (a --size too small for the close-up stops it before any work)
+    assert cli.main(["-q", "closeup", "-o", str(tmp_path / "s.ply"), "--png", str(tmp_path / "b.png"),
+                     "--size", "8x8"]) == 2
+    assert "--size 8x8 holds at most 0 close-ups" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_closeup_animation_options_without_gif_are_refused(tmp_path, capsys):
+    """``closeup --spin 1 --frames 48 --fps 24 -o still.png`` (or -o scene.ply) was accepted and made the same still
+    render or scene mesh as without them: both show the close-ups at time 0, before any spin. Without --gif they are
+    refused by name now, after their values are checked, and with no file written."""
+    from stepterrain import cli
+
+    for output in ("still.png", "scene.ply"):
+        for extra, names, verb in ((["--spin", "1"], "--spin", "applies"),
+                                   (["--frames", "48", "--fps", "24"], "--frames and --fps", "apply"),
+                                   (["--spin", "-2", "--frames", "3", "--fps", "6"], "--spin, --frames and --fps",
+                                    "apply")):
+            assert cli.main(["-q", "closeup", "-o", str(tmp_path / output), *extra]) == 2
+            pronoun = "it" if verb == "applies" else "them"
+            assert capsys.readouterr().err == (
+                f"stepterrain closeup: error: {names} {verb} only with --gif (the still render and the scene mesh "
+                f"show the close-ups before any spin); got {pronoun} without --gif\n")
+    assert cli.main(["-q", "closeup", "-o", str(tmp_path / "scene.ply"), "--fps", "0"]) == 2  # the value first
+    assert "--fps must be a positive number; got 0" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_cli_closeup_an_unknown_anchor_names_the_presets_alone(tmp_path, capsys):
+    """``closeup --anchor bogus`` said "--anchor transparency must be one of [...] or an opacity table" (the library's
+    words: no option takes a table), and only after the DEM was loaded. It names the presets in the option's terms
+    now, before any work; every preset passes."""
+    from stepterrain import cli
+    from stepterrain.closeup import TRANSFER_PRESETS
+
+    out = tmp_path / "s.ply"
+    assert cli.main(["-q", "closeup", "--anchor", "bogus", "-o", str(out)]) == 2
+    assert capsys.readouterr().err == ("stepterrain closeup: error: --anchor must be one of opaque, linear, inverse, "
+                                       "ends, hidden; got 'bogus'\n")
+    assert not out.exists()
+    for preset in TRANSFER_PRESETS:
+        assert cli.main(["-q", "closeup", "--anchor", preset, "-o", str(out), "--device", "cpu"]) == 0, preset
+
+
+def test_cli_closeup_a_colormap_that_colours_nothing_is_refused(tmp_path, capsys):
+    """``closeup --scalars none --colormap viridis`` without a --stepped close-up made the same image and scene mesh
+    as without --colormap: it colours the overview's scalars and the stepped close-ups' levels only. Refused by name
+    now, before any work; with a --stepped close-up (its levels take the colormap) it passes."""
+    from stepterrain import cli
+
+    out = tmp_path / "s.ply"
+    for stepped in ([], ["--stepped", "0"]):
+        assert cli.main(["-q", "closeup", "--scalars", "none", "--colormap", "viridis", *stepped, "-o", str(out)]) == 2
+        assert capsys.readouterr().err == (
+            "stepterrain closeup: error: --colormap colours the overview's --scalars and the --stepped close-ups; "
+            "with --scalars none and no --stepped close-up it colours nothing; got --colormap viridis\n")
+        assert not out.exists()
+    assert cli.main(["-q", "closeup", "--scalars", "none", "--colormap", "viridis", "--stepped", "100", "-o", str(out),
+                     "--device", "cpu"]) == 0 and out.exists()

@@ -333,7 +333,7 @@ def test_cli_closeup_writes_a_scene_mesh(dem, tmp_path):
 
 def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
     out = str(tmp_path / "x.ply")  # a mesh output: the argument errors show where no renderer exists too
-    assert cli.main(["closeup", str(dem), "--roi", "9999,9999,5", "-o", out, "--size", "160x120"]) == 2
+    assert cli.main(["closeup", str(dem), "--roi", "9999,9999,5", "-o", out]) == 2
     assert "outside the terrain" in capsys.readouterr().err
     assert cli.main(["closeup", str(dem), "--scale", "0", "-o", out]) == 2
     assert "scale must be positive" in capsys.readouterr().err
@@ -355,13 +355,15 @@ def test_cli_closeup_bad_input_exits_2(dem, tmp_path, capsys):
     assert not (tmp_path / "x.ply").exists()
 
 
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_cli_closeup_a_huge_spin_is_no_overflow(dem, tmp_path, capsys):
-    """The spin's repetitions ceil(|spin| * frames / fps) overflowed to inf: an OverflowError traceback, exit 1,
-    even without --gif."""
-    out = tmp_path / "scene.ply"
-    assert cli.main(["closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--spin", "1e308", "-o", str(out),
-                     "--device", "cpu"]) == 0, capsys.readouterr().err
-    assert out.exists()
+    """The spin's repetitions ceil(|spin| * frames / fps) overflowed to inf: an OverflowError traceback, exit 1
+    (without --gif too, where --spin is refused now: it does nothing there)."""
+    out, gif = tmp_path / "scene.ply", tmp_path / "spin.gif"
+    assert cli.main(["-q", "closeup", str(dem), "--roi-relative", "0.5,0.5,0.2", "--spin", "1e308", "-o", str(out),
+                     "--gif", str(gif), "--frames", "1", "--size", "160x120", "--device", "cpu"]) == 0, \
+        capsys.readouterr().err
+    assert out.exists() and gif.exists()
 
 
 def test_cli_closeup_mp4_without_ffmpeg_is_refused_before_any_output(dem, tmp_path, capsys, monkeypatch):

@@ -194,7 +194,8 @@ def test_the_surface_bound_is_the_node_height_at_a_node(face_size):
 def test_the_cli_names_an_eye_below_the_terrain_by_its_option(tmp_path, capsys):
     """``--eye 28,87,100`` (100 m above the sphere over the Himalaya, whose terrain stands ~2.6 km high on 33² faces)
     is refused by its option; the library's message named only a planet-centred "camera eye" the user never gave.
-    With --no-camera (and no --png) the eye is not used, so it passes."""
+    With --no-camera (and no --png) the eye is not used: refused as an option that does nothing, and the same run
+    without it passes."""
     from stepterrain.cli import main
 
     out = tmp_path / "g.ply"
@@ -205,7 +206,10 @@ def test_the_cli_names_an_eye_below_the_terrain_by_its_option(tmp_path, capsys):
                      r"of --radius\): camera eye \(.*\) lies inside the planet, below the terrain surface in its "
                      r"direction: \|eye\| = 6371100\.0 m", err), err
     assert not out.exists()
-    assert main([*argv, "--no-camera"]) == 0 and out.exists()
+    assert main([*argv, "--no-camera"]) == 2
+    assert "error: --eye applies only with the camera or a --png render" in capsys.readouterr().err
+    assert not out.exists()
+    assert main([*argv[:3], *argv[5:], "--no-camera"]) == 0 and out.exists()
 
 
 @pytest.mark.parametrize("dtype", [np.int16, np.float32])
@@ -880,3 +884,50 @@ def test_the_cli_refuses_bounds_that_nothing_measures_and_records_the_shapes_onl
     assert read_mesh(out).metadata["bounds"] == "sphere"
     assert main(base) == 0
     assert read_mesh(out).metadata["bounds"] == "cone"
+
+
+def test_the_views_options_with_no_camera_and_no_png_are_refused_by_name(tmp_path, capsys):
+    """``globe --no-camera --eye 46,9,400000`` (or --tilt, --heading, --size, --view-angle) without --png was
+    accepted and did nothing: the mesh is refined by the geometric error alone and nothing is rendered from the eye,
+    so the run made the mesh it makes without them. They are refused by name now; with --png they place the render,
+    and with the camera they shape the view, so those runs pass."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    base = ["-q", "globe", "--face-size", "9", "--error", "0", "-o", str(out), "--device", "cpu"]
+    for extra, names, verb in (
+        (["--eye", "46,9,400000"], "--eye", "applies"),
+        (["--tilt", "30", "--heading", "90"], "--tilt and --heading", "apply"),
+        (["--size", "64x48"], "--size", "applies"),
+        (["--view-angle", "20"], "--view-angle", "applies"),
+        (["--eye", "46,9,400000", "--tilt", "30", "--size", "64x48"], "--eye, --tilt and --size", "apply"),
+    ):
+        assert main([*base, "--no-camera", *extra]) == 2
+        err = capsys.readouterr().err
+        assert f"error: {names} {verb} only with the camera or a --png render (with --no-camera the mesh is refined " \
+               "by the geometric error alone); got" in err, err
+        assert not out.exists()
+        with_camera = extra if "--eye" in extra else [*extra, "--eye", "46,9,400000"]
+        assert main([*base, *with_camera]) == 0 and out.exists()  # with the camera: the view
+        out.unlink()
+    assert main([*base, "--no-camera"]) == 0 and out.exists()
+
+
+def test_the_cli_names_unknown_and_repeated_metrics_in_its_own_terms(tmp_path, capsys):
+    """``globe --metrics clip,bogus`` said "--metrics must be names among ('geometric', 'distance', 'clip') or
+    callables", offering callables no option can pass; ``--metrics geometric,geometric`` was accepted (the library
+    takes a set: the mesh of ``geometric``) while the metadata and progress line named the metric twice. Both are
+    refused in the option's terms now, before any work."""
+    from stepterrain.cli import main
+
+    out = tmp_path / "g.ply"
+    base = ["globe", "--face-size", "9", "-o", str(out), "--device", "cpu", "--metrics"]
+    for metrics, why in (("clip,bogus", "('bogus' unknown)"), ("Geometric,x", "('Geometric', 'x' unknown)")):
+        assert main([*base, metrics]) == 2
+        assert capsys.readouterr().err == (f"stepterrain globe: error: --metrics must be names among geometric, "
+                                           f"distance, clip separated by commas; got {metrics!r} {why}\n")
+    assert main([*base, "geometric,clip,geometric"]) == 2
+    assert capsys.readouterr().err == ("stepterrain globe: error: --metrics names each metric once; got "
+                                       "'geometric,clip,geometric' (geometric repeated)\n")
+    assert not out.exists()
+    assert main(["-q", *base, "geometric,clip"]) == 0 and out.exists()

@@ -1211,3 +1211,22 @@ def test_a_geographic_grid_on_a_west_positive_longitude_axis_is_placed_by_greenw
     assert t.crs == reference.crs and t.spacing == pytest.approx(reference.spacing, rel=1e-12)
     assert describe_dem(t)["lonlat_extent"] == pytest.approx(describe_dem(reference)["lonlat_extent"], abs=1e-9)
     np.testing.assert_array_equal(t.heights, reference.heights)
+
+
+def test_a_folder_given_as_a_dem_is_named_as_a_folder(tmp_path, capsys):
+    """``load_dem('tiles')`` (and ``stepterrain steps tiles/``, ``info tiles``) said "unknown DEM extension '(none)'"
+    of a folder: the extension was not the matter. It says the path is a folder now (exit 2 on the command line); a
+    file without a known extension is refused as before."""
+    from stepterrain import cli
+    from stepterrain.errors import InvalidInputError
+
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    with pytest.raises(DataFileError, match=r"^DEM path '.*tiles' is a folder; expected a DEM file \(\.npy, \.npz, "):
+        load_dem(folder)
+    assert cli.main(["info", str(folder)]) == 2
+    assert f"stepterrain info: error: DEM path {str(folder)!r} is a folder; expected a DEM file" in \
+        capsys.readouterr().err
+    (tmp_path / "dem").write_bytes(b"")
+    with pytest.raises(InvalidInputError, match=r"unknown DEM extension '\(none\)'"):
+        load_dem(tmp_path / "dem")

@@ -309,7 +309,9 @@ def test_a_cropped_or_coarsened_mesh_records_the_input_options_in_its_metadata(t
     dem = tmp_path / "dem.npy"
     np.save(dem, (rng.random((40, 60)) * 100).astype(np.float32))
     options = ["--spacing", "10,20", "--crop", "50,500,-600,-100", "--coarsen", "2"]
-    expected = {"input": str(dem), "spacing": [10.0, 20.0], "crop": [50.0, 500.0, -600.0, -100.0], "coarsen": 2}
+    # spacing as the DEM it placed has it, (dx, -dy): rows run north to south (test_cli_fixes'
+    # test_a_meshs_spacing_metadata_is_the_dems_signed_spacing)
+    expected = {"input": str(dem), "spacing": [10.0, -20.0], "crop": [50.0, 500.0, -600.0, -100.0], "coarsen": 2}
     runs = {"steps": ["steps", str(dem), *options, "--interval", "10", "-o", str(tmp_path / "s.glb")],
             "closeup": ["closeup", str(dem), *options, "-o", str(tmp_path / "c.glb")],
             "texture": ["texture", str(dem), *options, "-o", str(tmp_path / "t.png"),

@@ -436,8 +436,9 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
 def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_darken(tmp_path):
     """--hillshade none: no hillshade, every node fully lit, so an orthophoto keeps its own light. The texture is the
     PNG of the DEM's own grid exactly (what --image places there), and without --image the hypsometric colours of
-    the default texture's colormap exactly; --shadows (a low sun) darkens the nodes cast_shadows marks to 0.25 + 0.75 · 0.4 of
-    their colour (topographic_layer's formula with a shade of 1) and leaves the lit ones as they are."""
+    the default texture's colormap exactly; --shadows (a low sun) darkens the nodes cast_shadows marks to
+    0.25 + 0.75 · 0.4 of their colour (topographic_layer's formula with a shade of 1) and leaves the lit ones as they
+    are."""
     from PIL import Image
 
     from stepterrain import load_dem
