@@ -562,6 +562,35 @@ def lowest_bit(k: wp.int32) -> wp.int32:
     return k & (-k)
 
 
+@wp.func
+def padding_row_unread(grid: CubeSphereGrid, i: wp.int32) -> wp.int32:
+    """1 when no node of row i of a padded planar input is read (:func:`padding_tier` 2 for all: below the input
+    by PADDING_WRITTEN times the row's lowest bit or more, which bounds the spacing of every node in it)."""
+    if i >= grid.rows_valid and i - grid.rows_valid + 1 >= PADDING_WRITTEN * lowest_bit(i):
+        return 1
+    return 0
+
+
+@wp.func
+def padding_entry_step(grid: CubeSphereGrid, i: wp.int32, j: wp.int32, row_unread: wp.int32):
+    """Stepping over a padded planar input's entries in memory order: (1 when node (i, j) is read, entries to the
+    next one that may be): to the next row from a row that nothing reads (:func:`padding_row_unread`), from
+    column j to j + lowest_bit(j) where j lies so far right that it and the columns in between (smaller lowest
+    bits, further out) are not read, else 1."""
+    if row_unread != 0:
+        return wp.int32(0), grid.n - j
+    read = wp.int32(0)
+    bits = i | j
+    if bits == 0:
+        read = 1
+    elif padding_tier(grid, i, j, lowest_bit(bits)) < 2:
+        read = 1
+    step = wp.int32(1)
+    if j >= grid.cols_valid and j - grid.cols_valid + 1 >= PADDING_WRITTEN * lowest_bit(j):
+        step = lowest_bit(j)
+    return read, step
+
+
 @wp.kernel
 def project_nodes(
     thread_offset: wp.int32,
@@ -583,30 +612,58 @@ def project_nodes(
             positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
             entry += 1
         return
-    n = grid.n
-    beyond_i = wp.int32(0)  # the row's nodes all beyond PADDING_WRITTEN: skipped
-    i = entry / n
-    j = entry - i * n
-    if i >= grid.rows_valid and i - grid.rows_valid + 1 >= PADDING_WRITTEN * lowest_bit(i):
-        beyond_i = 1
+    i = entry / grid.n
+    j = entry - i * grid.n
+    beyond_i = padding_row_unread(grid, i)
     while entry < last:
-        step = n - j  # to the next row
-        if beyond_i == 0:
-            step = 1
-            bits = i | j
-            if bits == 0 or padding_tier(grid, i, j, lowest_bit(bits)) < 2:
-                p = entry_position64(grid, entry)
-                positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
-            if j >= grid.cols_valid and j - grid.cols_valid + 1 >= PADDING_WRITTEN * lowest_bit(j):
-                step = lowest_bit(j)  # the columns in between have smaller spacings and lie further out
+        read = wp.int32(0)
+        step = wp.int32(0)
+        read, step = padding_entry_step(grid, i, j, beyond_i)
+        if read != 0:
+            p = entry_position64(grid, entry)
+            positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
         entry += step
         j += step
-        if j >= n:
+        if j >= grid.n:
             j = 0
             i += 1
-            beyond_i = 0
-            if i >= grid.rows_valid and i - grid.rows_valid + 1 >= PADDING_WRITTEN * lowest_bit(i):
-                beyond_i = 1
+            beyond_i = padding_row_unread(grid, i)
+
+
+@wp.kernel
+def pad_heights(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,  # planar, padded (its heights are the output)
+    source: wp.array[wp.float32],  # the input's rows_valid x cols_valid heights, row-major
+    # outputs
+    heights_out: wp.array[wp.float32],  # n·n entries (grid.heights)
+):
+    """A padded planar input's heights (count = n·n entries): node (min(i, last row), min(j, last column)) of the
+    input, the edge repeated, at every entry that anything reads (:func:`padding_tier` below 2: the input's
+    rectangle, and the padding's nodes that may reach it); the rest, all but a band of the padding, is stepped
+    over as in :func:`project_nodes` and never written (a 50 x 16385 strip's padded square holds 268 M nodes)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    entry = first
+    i = entry / grid.n
+    j = entry - i * grid.n
+    beyond_i = padding_row_unread(grid, i)
+    while entry < last:
+        read = wp.int32(0)
+        step = wp.int32(0)
+        read, step = padding_entry_step(grid, i, j, beyond_i)
+        if read != 0:
+            row = wp.min(i, grid.rows_valid - 1)
+            col = wp.min(j, grid.cols_valid - 1)
+            heights_out[entry] = load(source, row * grid.cols_valid + col)
+        entry += step
+        j += step
+        if j >= grid.n:
+            j = 0
+            i += 1
+            beyond_i = padding_row_unread(grid, i)
 
 
 # ---------------------------------------------------------------------------------------------------------

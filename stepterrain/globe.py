@@ -648,22 +648,32 @@ def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDAr
 _HUGE_PAGE = 1 << 21
 
 
-def _node_array(n: int, dtype: Any, device: wp.Device, *, zero: bool = False) -> wp.array:
+def _node_array(n: int, dtype: Any, device: wp.Device, *, zero: bool = False, dense: int | None = None) -> wp.array:
     """``wp.empty(n, dtype)`` (``wp.zeros`` with ``zero``); on the CPU, large arrays in 2 MiB-aligned memory
-    advised as huge pages (an anonymous map: zeros, each page written when first touched)."""
+    advised as huge pages (an anonymous map: zeros, each page written when first touched). ``dense``: only the
+    first that many elements are advised (a padded planar input's rows; beyond them the kernels write a sparse
+    few, each of which would fault in and clear a whole 2 MiB page)."""
     nbytes = n * wp.types.type_size_in_bytes(dtype)
     if not device.is_cpu or nbytes < 4 * _HUGE_PAGE or not hasattr(mmap, "MADV_HUGEPAGE"):
         return (wp.zeros if zero else wp.empty)(n, dtype=dtype, device=device)
     buffer = mmap.mmap(-1, nbytes + _HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
     address = ctypes.addressof(ctypes.c_char.from_buffer(buffer))
     offset = (-address) % _HUGE_PAGE
+    advised = len(buffer) if dense is None else offset + dense * wp.types.type_size_in_bytes(dtype)
+    advised = min(len(buffer), -(-advised // _HUGE_PAGE) * _HUGE_PAGE)
     try:
-        buffer.madvise(mmap.MADV_HUGEPAGE, 0, len(buffer))
+        buffer.madvise(mmap.MADV_HUGEPAGE, 0, advised)
     except OSError:  # pragma: no cover - no THP in this kernel: ordinary pages
         pass
     scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
     host = np.frombuffer(buffer, dtype=np.uint8, count=nbytes, offset=offset).view(scalar)
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
+
+
+def _dense_entries(grid: Any) -> int:
+    """Entries of a planar grid's rows that its kernels fill (the input's, and the padding's below it that
+    ``cube_kernels.padding_tier`` computes at the finest spacing); below them only a sparse few."""
+    return min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1) * grid.n
 
 
 def _cell_surface(z00: float, z01: float, z10: float, z11: float, u: float, v: float) -> float:
@@ -698,10 +708,12 @@ def _check_planar_eye(eye: tuple[float, float, float], z: NDArray[np.float32], s
 
 
 def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tuple[int, int], *, shapes: bool,
-                 device: wp.Device) -> Any:
-    """The planar grid of a (2^k + 1)² height array (padded beyond the ``valid`` rows and columns); node positions
+                 device: wp.Device, n: int | None = None) -> Any:
+    """The planar grid of a (2^k + 1)² height array (padded beyond the ``valid`` rows and columns), or with ``n``
+    of the input itself (shape ``valid``), padded here to n x n by repeating its edge at the entries anything
+    reads (``cube_kernels.pad_heights``: not the whole square, which a long strip's would dwarf); node positions
     (j·dx, i·dy, z) only with ``shapes`` (else an empty array: see :func:`_node_parameters`)."""
-    n = z.shape[0]
+    n = z.shape[0] if n is None else n
     grid = cube_kernels.CubeSphereGrid()
     grid.cells = n - 1
     grid.n = n
@@ -709,7 +721,12 @@ def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tu
     grid.radius = 0.0
     grid.spacing = wp.vec2d(*spacing)
     grid.rows_valid, grid.cols_valid = valid
-    grid.heights = to_device(z.reshape(-1), wp.float32, device)
+    if z.shape == (n, n):
+        grid.heights = to_device(z.reshape(-1), wp.float32, device)
+    else:
+        source = to_device(z.reshape(-1), wp.float32, device)
+        grid.heights = _node_array(n * n, wp.float32, device, zero=True, dense=_dense_entries(grid))  # 0 where unread
+        launch_chunked(cube_kernels.pad_heights, n * n, [grid, source], [grid.heights], device)
     grid.positions = wp.empty(n * n if shapes else 0, dtype=wp.vec3, device=device)
     if shapes:
         launch_chunked(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
@@ -724,7 +741,7 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device, s
     # a padded input's nodes far out in the padding are never written (cube_kernels.padding_tier) nor read: zeros,
     # not whatever the memory held
     padded = faces == 1 and (grid.rows_valid, grid.cols_valid) != (grid.n, grid.n)
-    params.values = _node_array(n_entries, wp.vec4, device, zero=padded)
+    params.values = _node_array(n_entries, wp.vec4, device, zero=padded, dense=_dense_entries(grid) if padded else None)
     outputs = [params.values]
     launch_chunked(cube_kernels.zero_corners, 4 * faces, [grid.n], outputs, device)  # the rest is written below
     angles = int(faces == 6)
@@ -1261,7 +1278,7 @@ def adaptive_mesh(
         Heights in metres; row i at y = y0 + i·dy, column j at x = x0 + j·dx. Any size up to 16385 rows and
         columns: padded internally to (2^k + 1)² by repeating the edge, and the mesh is cut back to the input
         rectangle exactly. The padding is neither measured nor refined but where it meets the input's border, so
-        a rectangle takes about the time its own nodes take (the padded square's memory is still reserved). A
+        a rectangle takes about the time its own nodes take (the memory budget still counts the padded square). A
         grid :class:`~stepterrain.Terrain` (``load_dem``'s) brings its own spacing and origin (a north-up DEM as
         it is: dy < 0, origin its north-west node).
     error : float
@@ -1354,14 +1371,12 @@ def adaptive_mesh(
         _check_planar_eye(camera.eye, z, (dx, dy), (ox, oy), highest)
         camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
                                      target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
-    if (rows, cols) != (n, n):
-        z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
     device = resolve_device(device)
     # without a view (no camera, or neither the distance nor the clip metric) and without user metrics, the
     # refinement reads e alone: the node positions and the bounding radii are not computed
     viewed = camera is not None and bool(names & {"distance", "clip"})
     shapes = bool(users) or viewed or error == 0.0
-    grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device)
+    grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device, n=n)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
     if distance_scale is None:

@@ -77,7 +77,10 @@ def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monk
     """16386 rows pad to 32769² nodes, whose corner row 32768 << 16 does not fit the int32 packed corners: with
     the budget raised, adaptive_mesh padded the grid (4 GB), then crashed with numpy's OverflowError."""
 
+    import stepterrain.globe as globe_module
+
     monkeypatch.setattr(np, "pad", _no_allocation)
+    monkeypatch.setattr(globe_module, "_node_array", _no_allocation)  # the padded heights (in place, not np.pad)
     budget(1 << 50)
     with pytest.raises(InvalidInputError, match=r"^heights must have at most 16385 rows and columns \(padded to "
                                                 r"2\^k \+ 1 nodes, int32 packed corners\); got shape \(16386, 2\)$"):
@@ -972,3 +975,27 @@ def test_a_square_or_rectangle_meshes_as_before_the_padding_was_skipped():
         plain = adaptive_mesh(grid, error=3.0, spacing=30.0)
         viewed = adaptive_mesh(grid, error=3.0, spacing=30.0, camera=camera, cull=False)
         assert (len(plain.faces), digest(plain), len(viewed.faces), digest(viewed)) == want, (rows, cols)
+
+
+def test_a_long_strip_is_not_padded_to_its_whole_square():
+    """A 50 x 16385 strip (0.8 M nodes) took 21 s, 19 of them in np.pad's edge-repeated 16385² copy (1 GB) of which
+    the mesh reads a band along the strip and the coarse nodes: the heights are padded in place now, at the entries
+    something reads (the rest of the square is never touched), with the mesh unchanged."""
+    import stepterrain.globe as globe_module
+    from stepterrain._device import resolve_device
+
+    from .test_adaptive import assert_crack_free_rectangle, true_errors
+
+    z = (1.0 + np.random.default_rng(5).random((3, 1025))).astype(np.float32)
+    grid = globe_module._planar_grid(z, (1.0, 1.0), z.shape, shapes=False, device=resolve_device("cpu"), n=1025)
+    heights = grid.heights.numpy().reshape(1025, 1025)
+    np.testing.assert_array_equal(heights[:3], z)  # the input itself
+    np.testing.assert_array_equal(heights[3:12], np.broadcast_to(z[-1], (9, 1025)))  # its last row repeated below
+    assert np.count_nonzero(heights) < 0.05 * heights.size  # not the whole square
+    padded = np.pad(z, ((0, 1022), (0, 0)), mode="edge")
+    written = heights != 0
+    np.testing.assert_array_equal(heights[written], padded[written])  # what is written is the edge repeated
+    for error in (0.0, 0.3):
+        mesh = adaptive_mesh(z, error=error)
+        assert_crack_free_rectangle(mesh, 3, 1025)
+        assert true_errors(mesh, z).max() <= error + 1e-6
