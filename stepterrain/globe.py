@@ -662,7 +662,8 @@ def _node_array(n: int, dtype: Any, device: wp.Device, *, zero: bool = False, de
     advised = len(buffer) if dense is None else offset + dense * wp.types.type_size_in_bytes(dtype)
     advised = min(len(buffer), -(-advised // _HUGE_PAGE) * _HUGE_PAGE)
     try:
-        buffer.madvise(mmap.MADV_HUGEPAGE, 0, advised)
+        if dense != 0:
+            buffer.madvise(mmap.MADV_HUGEPAGE, 0, advised)
     except OSError:  # pragma: no cover - no THP in this kernel: ordinary pages
         pass
     scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
@@ -672,7 +673,11 @@ def _node_array(n: int, dtype: Any, device: wp.Device, *, zero: bool = False, de
 
 def _dense_entries(grid: Any) -> int:
     """Entries of a planar grid's rows that its kernels fill (the input's, and the padding's below it that
-    ``cube_kernels.padding_tier`` computes at the finest spacing); below them only a sparse few."""
+    ``cube_kernels.padding_tier`` computes at the finest spacing); below them only a sparse few. 0 when the
+    input fills less than half of each row (a tall strip): a 2 MiB page would hold little more than the rows'
+    starts."""
+    if 2 * grid.cols_valid < grid.n:
+        return 0
     return min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1) * grid.n
 
 
