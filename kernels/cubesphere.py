@@ -58,6 +58,19 @@ ABSOLUTE_MARGIN = wp.constant(wp.float64(2.0**-22))
 #: node whose e reaches it refines whatever the view or user metrics say (else the mesh would keep the padding).
 #: Nodes store e in float32: the refinement test compares with half of it, clear of that rounding.
 STRADDLE_ERROR = wp.constant(wp.float64(3.0e38))
+#: e of a planar triangle wholly in a padded input's padding (below its last row or right of its last column, or
+#: off the grid): negative, so saturation's max passes it over wherever a real error meets it. A node whose e
+#: stays negative (its diamond and all its descendants' in the padding) never refines, whatever the view, the
+#: user metrics or an error of 0 say: its triangles would be dropped from the mesh anyway, and no error was
+#: measured over them (the padding's heights are no input).
+PADDING_ERROR = wp.constant(wp.float64(-1.0))
+#: How far (in units of a node's spacing s) below the input's last row or right of its last column a planar
+#: node's diamond and all its descendants' reach at most: 3s (a diagonal node's children, axis nodes at s, reach
+#: 2s, their children s/2 further, and so on), one s spare. A node that far out is all padding (see
+#: :func:`padding_tier`); its children lie within s of it with half its spacing or more, so within
+#: :data:`PADDING_WRITTEN` of theirs.
+PADDING_REACH = wp.constant(4)
+PADDING_WRITTEN = wp.constant(10)
 #: :func:`edge_slope` of an edge whose bound does not move by a whole number of columns per row.
 NO_SLOPE = wp.constant(1 << 30)
 
@@ -543,6 +556,41 @@ def resample_latlon(
         entry += 1
 
 
+@wp.func
+def lowest_bit(k: wp.int32) -> wp.int32:
+    """The largest power of two dividing k > 0."""
+    return k & (-k)
+
+
+@wp.func
+def padding_row_unread(grid: CubeSphereGrid, i: wp.int32) -> wp.int32:
+    """1 when no node of row i of a padded planar input is read (:func:`padding_tier` 2 for all: below the input
+    by PADDING_WRITTEN times the row's lowest bit or more, which bounds the spacing of every node in it)."""
+    if i >= grid.rows_valid and i - grid.rows_valid + 1 >= PADDING_WRITTEN * lowest_bit(i):
+        return 1
+    return 0
+
+
+@wp.func
+def padding_entry_step(grid: CubeSphereGrid, i: wp.int32, j: wp.int32, row_unread: wp.int32):
+    """Stepping over a padded planar input's entries in memory order: (1 when node (i, j) is read, entries to the
+    next one that may be): to the next row from a row that nothing reads (:func:`padding_row_unread`), from
+    column j to j + lowest_bit(j) where j lies so far right that it and the columns in between (smaller lowest
+    bits, further out) are not read, else 1."""
+    if row_unread != 0:
+        return wp.int32(0), grid.n - j
+    read = wp.int32(0)
+    bits = i | j
+    if bits == 0:
+        read = 1
+    elif padding_tier(grid, i, j, lowest_bit(bits)) < 2:
+        read = 1
+    step = wp.int32(1)
+    if j >= grid.cols_valid and j - grid.cols_valid + 1 >= PADDING_WRITTEN * lowest_bit(j):
+        step = lowest_bit(j)
+    return read, step
+
+
 @wp.kernel
 def project_nodes(
     thread_offset: wp.int32,
@@ -552,14 +600,70 @@ def project_nodes(
     # outputs
     positions_out: wp.array[wp.vec3],
 ):
-    """One thread per entry: v = (R + z) · w / ||w|| rounded to float32 (planar: (j·dx, i·dy, z))."""
+    """One thread per entry: v = (R + z) · w / ||w|| rounded to float32 (planar: (j·dx, i·dy, z)). A padded planar
+    input's nodes that nothing reads (:func:`padding_tier` 2) are stepped over, not written: whole rows, and
+    from column j to j + lowest_bit(j) (the spacing of a node is at most the lowest bit of its row and column)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     entry = first
+    if grid.planar == 0 or (grid.rows_valid == grid.n and grid.cols_valid == grid.n):
+        while entry < last:
+            p = entry_position64(grid, entry)
+            positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+            entry += 1
+        return
+    i = entry / grid.n
+    j = entry - i * grid.n
+    beyond_i = padding_row_unread(grid, i)
     while entry < last:
-        p = entry_position64(grid, entry)
-        positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
-        entry += 1
+        read = wp.int32(0)
+        step = wp.int32(0)
+        read, step = padding_entry_step(grid, i, j, beyond_i)
+        if read != 0:
+            p = entry_position64(grid, entry)
+            positions_out[entry] = wp.vec3(wp.float32(p[0]), wp.float32(p[1]), wp.float32(p[2]))
+        entry += step
+        j += step
+        if j >= grid.n:
+            j = 0
+            i += 1
+            beyond_i = padding_row_unread(grid, i)
+
+
+@wp.kernel
+def pad_heights(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    grid: CubeSphereGrid,  # planar, padded (its heights are the output)
+    source: wp.array[wp.float32],  # the input's rows_valid x cols_valid heights, row-major
+    # outputs
+    heights_out: wp.array[wp.float32],  # n·n entries (grid.heights)
+):
+    """A padded planar input's heights (count = n·n entries): node (min(i, last row), min(j, last column)) of the
+    input, the edge repeated, at every entry that anything reads (:func:`padding_tier` below 2: the input's
+    rectangle, and the padding's nodes that may reach it); the rest, all but a band of the padding, is stepped
+    over as in :func:`project_nodes` and never written (a 50 x 16385 strip's padded square holds 268 M nodes)."""
+    first = (wp.tid() + thread_offset) * chunk
+    last = wp.min(first + chunk, count)
+    entry = first
+    i = entry / grid.n
+    j = entry - i * grid.n
+    beyond_i = padding_row_unread(grid, i)
+    while entry < last:
+        read = wp.int32(0)
+        step = wp.int32(0)
+        read, step = padding_entry_step(grid, i, j, beyond_i)
+        if read != 0:
+            row = wp.min(i, grid.rows_valid - 1)
+            col = wp.min(j, grid.cols_valid - 1)
+            heights_out[entry] = load(source, row * grid.cols_valid + col)
+        entry += step
+        j += step
+        if j >= grid.n:
+            j = 0
+            i += 1
+            beyond_i = padding_row_unread(grid, i)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -609,6 +713,63 @@ def depth_slots(depth: int) -> int:
     """Threads per face of the launch over ``depth`` (host side twin of :func:`depth_node`)."""
     t = depth >> 1
     return 1 << (2 * t) if depth % 2 == 0 else 1 << (2 * t + 2)
+
+
+@wp.func
+def padded_depth_box(cells: wp.int32, rows_valid: wp.int32, cols_valid: wp.int32, depth: wp.int32) -> wp.vec4i:
+    """A padded planar input's launch over ``depth``: the nodes that :func:`padding_tier` writes lie in rows
+    i <= rows_valid - 2 + PADDING_WRITTEN·s and columns j <= cols_valid - 2 + PADDING_WRITTEN·s; the counts of
+    :func:`depth_node`'s a and b there: (A, B) at an even depth (i = s(2a + 1), j = s(2b + 1)); at an odd one
+    (A, B) of the axis nodes along i (i = s(2a + 1), j = 2sb), then (B', A') of those along j (i = 2sb,
+    j = s(2a + 1))."""
+    t = depth >> 1
+    q = 1 << t
+    s = cells >> (t + 1)
+    rows = wp.min(cells, rows_valid - 2 + PADDING_WRITTEN * s)
+    cols = wp.min(cells, cols_valid - 2 + PADDING_WRITTEN * s)
+    odd_i = wp.min(q, (rows / s + 1) / 2)  # a with s(2a + 1) <= rows
+    odd_j = wp.min(q, (cols / s + 1) / 2)
+    if (depth & 1) == 0:
+        return wp.vec4i(odd_i, odd_j, 0, 0)
+    return wp.vec4i(odd_i, wp.min(q, cols / (2 * s)) + 1, wp.min(q, rows / (2 * s)) + 1, odd_j)
+
+
+def padded_depth_slots(cells: int, rows_valid: int, cols_valid: int, depth: int) -> int:
+    """Threads of a padded planar input's launch over ``depth`` (host side twin of :func:`padded_depth_box`)."""
+    t = depth >> 1
+    q = 1 << t
+    s = cells >> (t + 1)
+    rows = min(cells, rows_valid - 2 + int(PADDING_WRITTEN) * s)
+    cols = min(cells, cols_valid - 2 + int(PADDING_WRITTEN) * s)
+    odd_i = min(q, (rows // s + 1) // 2)
+    odd_j = min(q, (cols // s + 1) // 2)
+    if depth % 2 == 0:
+        return odd_i * odd_j
+    return odd_i * (min(q, cols // (2 * s)) + 1) + (min(q, rows // (2 * s)) + 1) * odd_j
+
+
+@wp.func
+def padded_depth_node(depth: wp.int32, tid: wp.int32, cells: wp.int32, box: wp.vec4i) -> wp.vec4i:
+    """:func:`depth_node` of a padded planar input's launch over ``depth`` (:func:`padded_depth_box`): the same
+    (face 0, i, j, kind), over the box of nodes that may be written only."""
+    t = depth >> 1
+    s = cells >> (t + 1)
+    if (depth & 1) == 0:
+        a = tid / box[1]
+        b = tid - a * box[1]
+        kind = wp.int32(1)
+        if ((a + b) & 1) == 0:
+            kind = 0
+        return wp.vec4i(0, s * (2 * a + 1), s * (2 * b + 1), kind)
+    along_i = box[0] * box[1]
+    if tid < along_i:
+        a = tid / box[1]
+        b = tid - a * box[1]
+        return wp.vec4i(0, s * (2 * a + 1), 2 * s * b, 2)
+    rest = tid - along_i
+    b = rest / box[3]
+    a = rest - b * box[3]
+    return wp.vec4i(0, 2 * s * b, s * (2 * a + 1), 3)
 
 
 @wp.func
@@ -662,6 +823,36 @@ def straddles_input(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i)
 
 
 @wp.func
+def in_padding(grid: CubeSphereGrid, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.int32:
+    """Planar, padded input: 1 when the triangle lies wholly in the padding (at or below the input's last row, or
+    at or right of its last column: no input node inside it but on that border, whose nodes its neighbour inside
+    covers); the mesh drops such a triangle (:func:`count_kept_faces`, the same test)."""
+    i0 = wp.min(a[0], wp.min(b[0], c[0]))
+    j0 = wp.min(a[1], wp.min(b[1], c[1]))
+    if i0 >= grid.rows_valid - 1 or j0 >= grid.cols_valid - 1:
+        return 1
+    return 0
+
+
+@wp.func
+def padding_tier(grid: CubeSphereGrid, i: wp.int32, j: wp.int32, s: wp.int32) -> wp.int32:
+    """Planar, padded input: what the node parameters do with node (i, j) of spacing s. 0: computed (its
+    diamond or a descendant's may reach into the input); 1: all padding, written as :data:`PADDING_ERROR`
+    without reading anything (a computed node may read it as a child, the refinement as a refinement node); 2:
+    never read by anything (no computed node has it as a child, no refining node's triangles contain it), not
+    written. Always 0 on an input that needs no padding."""
+    out = i - grid.rows_valid + 1
+    out_j = j - grid.cols_valid + 1
+    if out_j > out:
+        out = out_j
+    if out < PADDING_REACH * s:
+        return 0
+    if out < PADDING_WRITTEN * s:
+        return 1
+    return 2
+
+
+@wp.func
 def edge_bound(w: wp.int32, step: wp.int32) -> wp.int32:
     """The bound that w + k·step >= 0 puts on k: k >= it (step > 0) or k <= it (step < 0); 0 for step 0
     (exact: float64 quotients of small integers, which are exact or far from the next integer)."""
@@ -709,9 +900,10 @@ def edge_limits(w: wp.int32, step: wp.int32, bound: wp.int32, lo: wp.int32, hi: 
 @wp.func
 def triangle_true_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: wp.vec2i, c: wp.vec2i) -> wp.float64:
     """Planar only: the largest vertical distance between a grid node inside triangle (a, b, c) and the
-    triangle's plane (0 when the triangle leaves the grid)."""
-    if in_grid(grid, c[0], c[1]) == 0:
-        return wp.float64(0.0)
+    triangle's plane (:data:`PADDING_ERROR` when the triangle leaves the grid or lies in a padded input's
+    padding, :data:`STRADDLE_ERROR` when it straddles the input's border)."""
+    if in_grid(grid, c[0], c[1]) == 0 or in_padding(grid, a, b, c) != 0:
+        return PADDING_ERROR
     if straddles_input(grid, a, b, c) != 0:
         return STRADDLE_ERROR
     base = face * grid.n * grid.n
@@ -810,8 +1002,8 @@ def small_triangle_error(grid: CubeSphereGrid, face: wp.int32, a: wp.vec2i, b: w
     corners and its edges' integer midpoints, in closed form: bit-identical (the corners' weights are |area|
     and the midpoints' |area| / 2, powers of two, so the barycentric formula gives exactly (z_p + z_q) / 2)
     without the branchy row scan, which costs ~100 ns per triangle in mispredictions."""
-    if in_grid(grid, c[0], c[1]) == 0:
-        return wp.float64(0.0)
+    if in_grid(grid, c[0], c[1]) == 0 or in_padding(grid, a, b, c) != 0:
+        return PADDING_ERROR
     if straddles_input(grid, a, b, c) != 0:
         return STRADDLE_ERROR
     n = grid.n
@@ -986,7 +1178,12 @@ def saturate_planar_fine(
             hyp = wp.vec2i(1, 1)
             if (((i >> 1) + (j >> 1)) & 1) != 0:
                 hyp = wp.vec2i(1, -1)
+        tier = wp.int32(0)
         if hyp[0] != 0 or hyp[1] != 0:
+            tier = padding_tier(grid, i, j, 1)
+            if tier == 1:
+                values_out[entry] = wp.vec4(wp.float32(PADDING_ERROR), 0.0, 0.0, 0.0)
+        if tier == 0 and (hyp[0] != 0 or hyp[1] != 0):
             a = wp.vec2i(i + hyp[0], j + hyp[1])
             b = wp.vec2i(i - hyp[0], j - hyp[1])
             apex = wp.vec2i(i + hyp[1], j - hyp[0])
@@ -1003,7 +1200,7 @@ def saturate_planar_fine(
                     child = entry + d[0] * n + d[1]
                     q = values_out[child]
                     e = wp.max(e, wp.float64(q[0]))
-                    if shapes != 0:
+                    if shapes != 0 and q[0] >= wp.float32(0.0):  # (a child all padding never refines: no radius)
                         r = wp.max(r, wp.length(v - bounds.to_vec3d(grid.positions[child])) + wp.float64(q[1]))
                 if shapes != 0:
                     scale = wp.length(v) * ABSOLUTE_MARGIN
@@ -1012,6 +1209,9 @@ def saturate_planar_fine(
             out[0] = wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN))
             values_out[entry] = out
         j += 1
+        if j - grid.cols_valid + 1 >= PADDING_WRITTEN and j < n:  # the rest of the row: tier 2 (s = 1)
+            entry += n - j
+            j = n
         if j == n:
             j = 0
             i += 1
@@ -1039,9 +1239,18 @@ def saturate_node_parameters(
     of the positions the metrics see (< 0.45 m per node at the earth's radius)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
+    padded = wp.int32(0)
+    box = wp.vec4i(0, 0, 0, 0)
+    if grid.planar != 0 and (grid.rows_valid < grid.n or grid.cols_valid < grid.n):
+        padded = 1
+        box = padded_depth_box(grid.cells, grid.rows_valid, grid.cols_valid, depth)
     slot = first
     while slot < last:
-        node = depth_node(depth, slot, grid.cells)
+        node = wp.vec4i(0, 0, 0, 0)
+        if padded != 0:
+            node = padded_depth_node(depth, slot, grid.cells, box)
+        else:
+            node = depth_node(depth, slot, grid.cells)
         slot += 1  # here, not at the end: a padding slot's continue below must not skip it
         kind = node[3]
         if kind < 0:
@@ -1053,6 +1262,12 @@ def saturate_node_parameters(
         nn = grid.n * grid.n
         base = face * nn
         entry = base + i * grid.n + j
+        if grid.planar != 0:
+            tier = padding_tier(grid, i, j, s)
+            if tier == 1:
+                values_out[entry] = wp.vec4(wp.float32(PADDING_ERROR), 0.0, 0.0, 0.0)
+            if tier != 0:
+                continue
         with_angle = wp.int32(0)
         if angles != 0 and face == 0:
             with_angle = 1
@@ -1099,7 +1314,7 @@ def saturate_node_parameters(
                         child_local = child % nn
                     q = params.values[child]
                     e = wp.max(e, wp.float64(q[0]))
-                    if shapes != 0:
+                    if shapes != 0 and q[0] >= wp.float32(0.0):  # (a child all padding never refines: no radius)
                         c = bounds.to_vec3d(grid.positions[child])
                         r = wp.max(r, wp.length(v - c) + wp.float64(q[1]))
                     if grid.planar == 0:
@@ -1255,6 +1470,8 @@ def refine_decision(planar: wp.int32, eye: wp.vec3d, planes: wp.array[wp.vec4d],
     inside the view, so this node's clip test is skipped (the same decision)."""
     e = q[0]
     refine = wp.int32(0)
+    if planar != 0 and e < wp.float32(0.0):
+        return 0  # in a padded input's padding, with all its descendants
     if need_position == 0:
         # no view: μ = e (· user factor); skip the loads of the shape parameters (memory-bound)
         mu = factor
@@ -1361,6 +1578,8 @@ def node_active(values: wp.array[wp.vec4], n: wp.int32, use_geometric: wp.int32,
     if i < 0 or j < 0:
         return 0
     e = wp.float64(load(values, i * n + j)[0])
+    if e < wp.float64(0.0):
+        return 0  # in a padded input's padding (see PADDING_ERROR)
     mu = wp.float64(1.0)
     if use_geometric != 0:
         mu = e
@@ -1443,6 +1662,27 @@ def node_leaves(grid: CubeSphereGrid, values: wp.array[wp.vec4], use_geometric: 
 vec32i = wp.types.vector(length=32, dtype=wp.int32)
 
 
+@wp.func
+def refined_node_level(cells: wp.int32, i: wp.int32, j: wp.int32) -> wp.vec2i:
+    """(level, triangles) that refined node (i, j) adds to a planar refinement's counts: its diamond's triangles
+    (2, or 1 on the grid's border) each give two triangles one level below its depth."""
+    hyp = node_hypotenuse(i, j)
+    size = wp.max(wp.abs(hyp[0]), wp.abs(hyp[1]))
+    depth = wp.int32(0)
+    while (cells >> (depth + 1)) > size:
+        depth += 1
+    depth = 2 * depth
+    sides = wp.int32(2)
+    if hyp[0] == 0 or hyp[1] == 0:
+        depth += 1
+        across = i
+        if hyp[0] != 0:
+            across = j
+        if across == 0 or across == cells:
+            sides = 1
+    return wp.vec2i(depth + 1, 2 * sides)
+
+
 @wp.kernel
 def count_levels(
     thread_offset: wp.int32,
@@ -1453,8 +1693,7 @@ def count_levels(
     # outputs
     level_counts: wp.array2d[wp.int32],  # (threads, 32): per thread, triangles per level from its entries
 ):
-    """Triangles per level of a planar refinement from its refined nodes: each refined node's diamond
-    triangles (2, or 1 on the border) each give two triangles one level below its depth."""
+    """Triangles per level of a planar refinement from its refined nodes (:func:`refined_node_level`)."""
     t = wp.tid() + thread_offset
     first = t * chunk
     last = wp.min(first + chunk, count)
@@ -1465,22 +1704,56 @@ def count_levels(
         entry = load(entries, k)
         i = entry / n
         j = entry - i * n
-        hyp = node_hypotenuse(i, j)
-        size = wp.max(wp.abs(hyp[0]), wp.abs(hyp[1]))
-        depth = wp.int32(0)
-        while (cells >> (depth + 1)) > size:
-            depth += 1
-        depth = 2 * depth
-        sides = wp.int32(2)
-        if hyp[0] == 0 or hyp[1] == 0:
-            depth += 1
-            across = i
-            if hyp[0] != 0:
-                across = j
-            if across == 0 or across == cells:
-                sides = 1
-        acc[depth + 1] = acc[depth + 1] + 2 * sides
+        level = refined_node_level(cells, i, j)
+        acc[level[0]] = acc[level[0]] + level[1]
         k += 1
+    for d in range(32):
+        level_counts[t, d] = acc[d]
+
+
+@wp.kernel
+def count_padding_levels(
+    thread_offset: wp.int32,
+    count: wp.int32,  # the grid's rows
+    chunk: wp.int32,  # rows per thread (a few threads, each with its own row of counters)
+    grid: CubeSphereGrid,
+    params: NodeParameters,
+    use_geometric: wp.int32,
+    error: wp.float64,
+    # outputs
+    level_counts: wp.array2d[wp.int32],  # (threads, 32): per thread, triangles per level
+):
+    """:func:`count_levels` of the refined nodes in a padded input's padding (beyond its last row or column),
+    which :func:`count_node_leaves` leaves out: the breadth-first refinement visits their triangles too. Only
+    the nodes that :func:`padding_tier` computes can refine; the rest are stepped over (a row at a time, or
+    from column j to j + lowest_bit(j), past nodes whose spacing, at most their lowest bit, puts them beyond
+    :data:`PADDING_REACH`), so the pass costs about the padding's border, not its area."""
+    t = wp.tid() + thread_offset
+    first = t * chunk
+    last = wp.min(first + chunk, count)
+    acc = vec32i()
+    last_i = grid.rows_valid - 1
+    last_j = grid.cols_valid - 1
+    i = first
+    while i < last:
+        if i > last_i and i - last_i >= PADDING_REACH * lowest_bit(i):
+            i += 1  # every node of the row has a spacing of at most lowest_bit(i): all beyond reach
+            continue
+        j = wp.int32(0)
+        if i <= last_i:
+            j = last_j + 1
+        while j < grid.n:
+            hyp = node_hypotenuse(i, j)
+            s = wp.max(wp.abs(hyp[0]), wp.abs(hyp[1]))
+            if s > 0 and padding_tier(grid, i, j, s) == 0:
+                if node_active(params.values, grid.n, use_geometric, error, i, j) != 0:
+                    level = refined_node_level(grid.cells, i, j)
+                    acc[level[0]] = acc[level[0]] + level[1]
+            if j > last_j and j - last_j >= PADDING_REACH * lowest_bit(j):
+                j += lowest_bit(j)  # the columns before j + lowest_bit(j) have smaller spacings, and lie further out
+            else:
+                j += 1
+        i += 1
     for d in range(32):
         level_counts[t, d] = acc[d]
 
@@ -1500,27 +1773,30 @@ def count_node_leaves(
 ):
     """Planar without a view: the breadth-first refinement in one pass over the nodes (memory order). With μ = e
     a node's decision does not depend on the path to it, and saturation makes every triangle of a refining
-    node's diamond exist, so each node counts its leaves and whether it becomes a vertex on its own."""
+    node's diamond exist, so each node counts its leaves and whether it becomes a vertex on its own.
+
+    The nodes of the input's rectangle only (count = rows_valid · cols_valid, slot k = i · cols_valid + j): a
+    node beyond it (in a padded input's padding) is a corner of no triangle the mesh keeps, nor are its leaves."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:
         return
-    n = grid.n
-    i = first / n
-    j = first - i * n
+    cols = grid.cols_valid
+    i = first / cols
+    j = first - i * cols
     entry = first
     while entry < last:
         leaves = wp.int32(0)
         vertex = wp.int32(0)
         hyp = node_hypotenuse(i, j)
         if hyp[0] != 0 or hyp[1] != 0:
-            vertex = node_active(params.values, n, use_geometric, error, i, j)
+            vertex = node_active(params.values, grid.n, use_geometric, error, i, j)
             if vertex != 0 or (2 * i == grid.cells and 2 * j == grid.cells):
                 leaves = node_leaves(grid, params.values, use_geometric, error, i, j, hyp, vertex, 0, no_leaves, 0)
         store(counts_out, entry, leaves)
         store(counts_out, count + 1 + entry, vertex)
         j += 1
-        if j == n:
+        if j == cols:
             j = 0
             i += 1
         entry += 1
@@ -1544,27 +1820,28 @@ def emit_node_leaves(
     leaves_out: wp.array[wp.vec4i],
     vertex_entries_out: wp.array[wp.int32],
 ):
-    """One pass over the nodes: each node's leaves from its offset, and its entry when it becomes a vertex."""
+    """One pass over the nodes (those of :func:`count_node_leaves`): each node's leaves from its offset, and its
+    entry when it becomes a vertex."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     if first >= last:
         return
-    n = grid.n
-    i = first / n
-    j = first - i * n
-    entry = first
-    while entry < last:
-        vertex = load(counts, count + 1 + entry)
-        if load(counts, entry) != 0:
+    cols = grid.cols_valid
+    i = first / cols
+    j = first - i * cols
+    slot = first
+    while slot < last:
+        vertex = load(counts, count + 1 + slot)
+        if load(counts, slot) != 0:
             node_leaves(grid, params.values, use_geometric, error, i, j, node_hypotenuse(i, j), vertex, 1, leaves_out,
-                        load(offsets, entry))
+                        load(offsets, slot))
         if vertex != 0:
-            store(vertex_entries_out, load(offsets, count + 1 + entry) - load(offsets, count + 1), entry)
+            store(vertex_entries_out, load(offsets, count + 1 + slot) - load(offsets, count + 1), i * grid.n + j)
         j += 1
-        if j == n:
+        if j == cols:
             j = 0
             i += 1
-        entry += 1
+        slot += 1
 
 
 @wp.func

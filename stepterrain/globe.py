@@ -642,21 +642,37 @@ def load_global_relief() -> tuple[NDArray[np.float64], NDArray[np.float64], NDAr
 _HUGE_PAGE = 1 << 21
 
 
-def _node_array(n: int, dtype: Any, device: wp.Device) -> wp.array:
-    """``wp.empty(n, dtype)``; on the CPU, large arrays in 2 MiB-aligned memory advised as huge pages."""
+def _node_array(n: int, dtype: Any, device: wp.Device, *, zero: bool = False, dense: int | None = None) -> wp.array:
+    """``wp.empty(n, dtype)`` (``wp.zeros`` with ``zero``); on the CPU, large arrays in 2 MiB-aligned memory
+    advised as huge pages (an anonymous map: zeros, each page written when first touched). ``dense``: only the
+    first that many elements are advised (a padded planar input's rows; beyond them the kernels write a sparse
+    few, each of which would fault in and clear a whole 2 MiB page)."""
     nbytes = n * wp.types.type_size_in_bytes(dtype)
     if not device.is_cpu or nbytes < 4 * _HUGE_PAGE or not hasattr(mmap, "MADV_HUGEPAGE"):
-        return wp.empty(n, dtype=dtype, device=device)
+        return (wp.zeros if zero else wp.empty)(n, dtype=dtype, device=device)
     buffer = mmap.mmap(-1, nbytes + _HUGE_PAGE, flags=mmap.MAP_PRIVATE | mmap.MAP_ANONYMOUS)
     address = ctypes.addressof(ctypes.c_char.from_buffer(buffer))
     offset = (-address) % _HUGE_PAGE
+    advised = len(buffer) if dense is None else offset + dense * wp.types.type_size_in_bytes(dtype)
+    advised = min(len(buffer), -(-advised // _HUGE_PAGE) * _HUGE_PAGE)
     try:
-        buffer.madvise(mmap.MADV_HUGEPAGE, 0, len(buffer))
+        if dense != 0:
+            buffer.madvise(mmap.MADV_HUGEPAGE, 0, advised)
     except OSError:  # pragma: no cover - no THP in this kernel: ordinary pages
         pass
     scalar = {wp.float32: np.float32, wp.int32: np.int32}[getattr(dtype, "_wp_scalar_type_", dtype)]
     host = np.frombuffer(buffer, dtype=np.uint8, count=nbytes, offset=offset).view(scalar)
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
+
+
+def _dense_entries(grid: Any) -> int:
+    """Entries of a planar grid's rows that its kernels fill (the input's, and the padding's below it that
+    ``cube_kernels.padding_tier`` computes at the finest spacing); below them only a sparse few. 0 when the
+    input fills less than half of each row (a tall strip): a 2 MiB page would hold little more than the rows'
+    starts."""
+    if 2 * grid.cols_valid < grid.n:
+        return 0
+    return min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1) * grid.n
 
 
 def _cell_surface(z00: float, z01: float, z10: float, z11: float, u: float, v: float) -> float:
@@ -691,10 +707,12 @@ def _check_planar_eye(eye: tuple[float, float, float], z: NDArray[np.float32], s
 
 
 def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tuple[int, int], *, shapes: bool,
-                 device: wp.Device) -> Any:
-    """The planar grid of a (2^k + 1)² height array (padded beyond the ``valid`` rows and columns); node positions
+                 device: wp.Device, n: int | None = None) -> Any:
+    """The planar grid of a (2^k + 1)² height array (padded beyond the ``valid`` rows and columns), or with ``n``
+    of the input itself (shape ``valid``), padded here to n x n by repeating its edge at the entries anything
+    reads (``cube_kernels.pad_heights``: not the whole square, which a long strip's would dwarf); node positions
     (j·dx, i·dy, z) only with ``shapes`` (else an empty array: see :func:`_node_parameters`)."""
-    n = z.shape[0]
+    n = z.shape[0] if n is None else n
     grid = cube_kernels.CubeSphereGrid()
     grid.cells = n - 1
     grid.n = n
@@ -702,7 +720,12 @@ def _planar_grid(z: NDArray[np.float32], spacing: tuple[float, float], valid: tu
     grid.radius = 0.0
     grid.spacing = wp.vec2d(*spacing)
     grid.rows_valid, grid.cols_valid = valid
-    grid.heights = to_device(z.reshape(-1), wp.float32, device)
+    if z.shape == (n, n):
+        grid.heights = to_device(z.reshape(-1), wp.float32, device)
+    else:
+        source = to_device(z.reshape(-1), wp.float32, device)
+        grid.heights = _node_array(n * n, wp.float32, device, zero=True, dense=_dense_entries(grid))  # 0 where unread
+        launch_chunked(cube_kernels.pad_heights, n * n, [grid, source], [grid.heights], device)
     grid.positions = wp.empty(n * n if shapes else 0, dtype=wp.vec3, device=device)
     if shapes:
         launch_chunked(cube_kernels.project_nodes, n * n, [grid], [grid.positions], device)
@@ -714,7 +737,10 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device, s
     (planar only): e alone, r = h = 0, without reading ``grid.positions``: all a mesh without a view needs."""
     n_entries = faces * grid.n * grid.n
     params = cube_kernels.NodeParameters()
-    params.values = _node_array(n_entries, wp.vec4, device)
+    # a padded input's nodes far out in the padding are never written (cube_kernels.padding_tier) nor read: zeros,
+    # not whatever the memory held
+    padded = faces == 1 and (grid.rows_valid, grid.cols_valid) != (grid.n, grid.n)
+    params.values = _node_array(n_entries, wp.vec4, device, zero=padded, dense=_dense_entries(grid) if padded else None)
     outputs = [params.values]
     launch_chunked(cube_kernels.zero_corners, 4 * faces, [grid.n], outputs, device)  # the rest is written below
     angles = int(faces == 6)
@@ -725,13 +751,18 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device, s
         if depth == levels - 2 and faces == 6 and levels >= 2:  # the 2 x 2 cell centres, likewise
             launch_chunked(cube_kernels.saturate_cell_centres, faces * grid.n * grid.n, [grid], outputs, device)
             continue
-        if depth >= levels - 2 and faces == 1:  # planar: the two deepest levels likewise
-            launch_chunked(cube_kernels.saturate_planar_fine, grid.n * grid.n,
+        if depth >= levels - 2 and faces == 1:  # planar: the two deepest levels likewise (the rows below a padded
+            # input's last one by PADDING_WRITTEN or more are never read: cube_kernels.padding_tier)
+            rows = min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1)
+            launch_chunked(cube_kernels.saturate_planar_fine, rows * grid.n,
                            [grid, int(depth == levels - 2), int(shapes)], outputs, device)
             continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
         # other with their hierarchy); copied to the other faces below
-        launch_chunked(cube_kernels.saturate_node_parameters, faces * cube_kernels.depth_slots(depth),
+        slots = faces * cube_kernels.depth_slots(depth)
+        if padded:  # the nodes that may be written only (cube_kernels.padded_depth_box)
+            slots = cube_kernels.padded_depth_slots(grid.cells, grid.rows_valid, grid.cols_valid, depth)
+        launch_chunked(cube_kernels.saturate_node_parameters, slots,
                [grid, depth, angles, int(shapes), params], outputs, device)
     if angles:
         nn = grid.n * grid.n
@@ -878,8 +909,9 @@ def _check_int32(count: int, limit: int, what: str, items: str, where: str) -> N
 
 def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float,
                    device: wp.Device) -> tuple[wp.array, wp.array, list[int]]:
-    """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes."""
-    count = grid.n * grid.n
+    """Leaves and new vertex entries of a planar mesh without a view, in one pass over the nodes of the input's
+    rectangle (a padded input's padding holds no vertex or face of the mesh)."""
+    count = grid.rows_valid * grid.cols_valid
     counts = scratch("globe.nodes.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
     no_leaves = wp.empty(0, dtype=wp.vec4i, device=device)
     launch_chunked(cube_kernels.count_node_leaves, count, [grid, params, use_geometric, error, no_leaves], [counts],
@@ -891,17 +923,27 @@ def _planar_leaves(grid: Any, params: Any, use_geometric: int, error: float,
     entries = wp.empty(total - n_leaves, dtype=wp.int32, device=device)
     launch_chunked(cube_kernels.emit_node_leaves, count, [grid, params, use_geometric, error, counts, offsets],
                    [leaves, entries], device)
-    return leaves, entries, _planar_levels(entries, grid.cells, device)
+    padding = None
+    if (grid.rows_valid, grid.cols_valid) != (grid.n, grid.n):  # the padding's refined nodes, in the levels too
+        threads = 64
+        padding = wp.empty((threads, 32), dtype=wp.int32, device=device)
+        launch(cube_kernels.count_padding_levels, threads,
+               [grid.n, -(-grid.n // threads), grid, params, use_geometric, error], [padding], device)
+    return leaves, entries, _planar_levels(entries, grid.cells, device, padding)
 
 
-def _planar_levels(entries: wp.array, cells: int, device: wp.Device) -> list[int]:
+def _planar_levels(entries: wp.array, cells: int, device: wp.Device, padding: wp.array | None = None) -> list[int]:
     """Triangles per level of a planar refinement from its refined nodes (the new vertices): two roots, then
-    two children per triangle of each refined node's diamond (the counts the breadth-first levels report)."""
+    two children per triangle of each refined node's diamond (the counts the breadth-first levels report);
+    ``padding``: the counts of a padded input's refined nodes beyond its rectangle (``count_padding_levels``)."""
     rows = 64
     counts = wp.empty((rows, 32), dtype=wp.int32, device=device)
     launch(cube_kernels.count_levels, rows, [entries.shape[0], -(-entries.shape[0] // rows), cells, entries],
            [counts], device)
-    per_level = [2, *counts.numpy().sum(axis=0)[1:].tolist()]
+    totals = counts.numpy().sum(axis=0)
+    if padding is not None:
+        totals = totals + padding.numpy().sum(axis=0)
+    per_level = [2, *totals[1:].tolist()]
     while per_level and per_level[-1] == 0:
         per_level.pop()
     return per_level
@@ -1234,8 +1276,10 @@ def adaptive_mesh(
     heights : (H, W) array_like or Terrain
         Heights in metres; row i at y = y0 + i·dy, column j at x = x0 + j·dx. Any size up to 16385 rows and
         columns: padded internally to (2^k + 1)² by repeating the edge, and the mesh is cut back to the input
-        rectangle exactly. A grid :class:`~stepterrain.Terrain` (``load_dem``'s) brings its own spacing and
-        origin (a north-up DEM as it is: dy < 0, origin its north-west node).
+        rectangle exactly. The padding is neither measured nor refined but where it meets the input's border, so
+        a rectangle takes about the time its own nodes take (the memory budget still counts the padded square). A
+        grid :class:`~stepterrain.Terrain` (``load_dem``'s) brings its own spacing and origin (a north-up DEM as
+        it is: dy < 0, origin its north-west node).
     error : float
         Without a camera: the largest vertical distance allowed between any grid node and the mesh (a
         true bound, checked per triangle over every node it covers, not the 1-level look-ahead). With a
@@ -1326,14 +1370,12 @@ def adaptive_mesh(
         _check_planar_eye(camera.eye, z, (dx, dy), (ox, oy), highest)
         camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
                                      target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
-    if (rows, cols) != (n, n):
-        z = np.pad(z, ((0, n - rows), (0, n - cols)), mode="edge")
     device = resolve_device(device)
     # without a view (no camera, or neither the distance nor the clip metric) and without user metrics, the
     # refinement reads e alone: the node positions and the bounding radii are not computed
     viewed = camera is not None and bool(names & {"distance", "clip"})
     shapes = bool(users) or viewed or error == 0.0
-    grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device)
+    grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device, n=n)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
     if distance_scale is None:

@@ -77,7 +77,10 @@ def test_a_planar_grid_beyond_the_packed_corners_is_refused_by_name(budget, monk
     """16386 rows pad to 32769² nodes, whose corner row 32768 << 16 does not fit the int32 packed corners: with
     the budget raised, adaptive_mesh padded the grid (4 GB), then crashed with numpy's OverflowError."""
 
+    import stepterrain.globe as globe_module
+
     monkeypatch.setattr(np, "pad", _no_allocation)
+    monkeypatch.setattr(globe_module, "_node_array", _no_allocation)  # the padded heights (in place, not np.pad)
     budget(1 << 50)
     with pytest.raises(InvalidInputError, match=r"^heights must have at most 16385 rows and columns \(padded to "
                                                 r"2\^k \+ 1 nodes, int32 packed corners\); got shape \(16386, 2\)$"):
@@ -931,3 +934,119 @@ def test_the_cli_names_unknown_and_repeated_metrics_in_its_own_terms(tmp_path, c
                                        "'geometric,clip,geometric' (geometric repeated)\n")
     assert not out.exists()
     assert main(["-q", *base, "geometric,clip"]) == 0 and out.exists()
+
+
+def test_a_rectangle_does_not_refine_or_measure_its_padding():
+    """adaptive_mesh pads an (H, W) grid to (2^k + 1)², and a rectangle paid for the whole square: every node of the
+    padding had its true error measured over the repeated edge, and the refinement ran through the padding down to
+    wherever those errors led (with error=0 to every cell), all of it dropped from the mesh (Big Tujunga, 643 x 1197,
+    took 4x the time of a square with as many cells). The padding's triangles now count as no error and refine
+    only where they straddle the input's border; the nodes far out in it are not even visited."""
+    import stepterrain.globe as globe_module
+    from stepterrain._device import resolve_device
+
+    from .test_adaptive import assert_crack_free_rectangle
+
+    z = np.random.default_rng(3).normal(size=(3, 129)).astype(np.float32)
+    for node_pass in (True, False):
+        globe_module._NODE_PASS = node_pass
+        try:
+            for shape, error in (((3, 129), 0.0), ((129, 3), 0.0), ((3, 129), 0.5)):
+                grid = z if shape == (3, 129) else np.ascontiguousarray(z.T)
+                mesh = adaptive_mesh(grid, error=error)
+                assert_crack_free_rectangle(mesh, *shape)
+                # the triangles the refinement visited: about twice the mesh's, not the 2 x 128² of the padded square
+                assert sum(mesh.metadata["levels"]) < 6 * 2 * 128 * 2, (shape, error, node_pass)
+        finally:
+            globe_module._NODE_PASS = True
+    device = resolve_device("cpu")
+    padded = np.pad(z, ((0, 126), (0, 0)), mode="edge")
+    grid = globe_module._planar_grid(padded, (1.0, 1.0), z.shape, shapes=False, device=device)
+    params = globe_module._node_parameters(grid, faces=1, levels=14, device=device, shapes=False)
+    written = np.count_nonzero(params.values.numpy()[:, 0])
+    assert written < 0.2 * 129 * 129  # the nodes near the input's three rows (and the coarse ones), not all 129²
+
+
+_SHAPES = [(3, 129), (129, 3), (2, 9), (37, 200), (200, 37), (70, 260), (65, 40)]
+
+
+@pytest.mark.parametrize("shape", _SHAPES)
+@pytest.mark.parametrize("node_pass", [True, False])
+def test_a_rectangle_keeps_the_true_bound_and_is_crack_free(shape, node_pass, monkeypatch):
+    """Not refining the padding must leave the rectangle's mesh what it was: the error a true bound over every
+    input node (brute force), welded, counter-clockwise, its border the rectangle's only (no crack where the
+    refinement stops at the padding), vertices at the input's nodes, with a view and user metrics too."""
+    import stepterrain.globe as globe_module
+
+    from .test_adaptive import assert_crack_free_rectangle, dem, true_errors
+
+    monkeypatch.setattr(globe_module, "_NODE_PASS", node_pass)
+    rows, cols = shape
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", rows, cols)
+    z = z + np.random.default_rng(rows * cols).normal(0.0, 0.5, z.shape).astype(np.float32)
+    spacing = (30.0, 20.0)
+    for error in (0.0, 1.0, 8.0):
+        mesh = adaptive_mesh(z, error=error, spacing=spacing)
+        assert_crack_free_rectangle(mesh, rows, cols, spacing)
+        assert true_errors(mesh, z, spacing).max() <= error + 1e-3
+        index = np.asarray(mesh.metadata["node_index"])
+        assert index.min() == 0 and index[:, 0].max() == rows - 1 and index[:, 1].max() == cols - 1
+        np.testing.assert_array_equal(mesh.vertices[:, 2], z[index[:, 0], index[:, 1]])
+    users = adaptive_mesh(z, error=2.0, spacing=spacing,
+                          metrics=("geometric", lambda p, r: 1.0 + (p[:, 0] - r < 15.0 * cols)))
+    assert_crack_free_rectangle(users, rows, cols, spacing)
+    assert true_errors(users, z, spacing).max() <= 2.0 + 1e-3
+    eye = (-300.0, -300.0, float(z.max()) + 500.0)
+    camera = Camera(eye=eye, target=(30.0 * cols, 20.0 * rows, float(z.min())), fov=0.9)
+    viewed = adaptive_mesh(z, error=1.0, spacing=spacing, camera=camera, cull=False)
+    assert_crack_free_rectangle(viewed, rows, cols, spacing)
+
+
+def test_a_square_or_rectangle_meshes_as_before_the_padding_was_skipped():
+    """The padding's errors never decided a triangle inside the rectangle: the same faces on the same nodes as
+    before it was skipped (digests of the meshes then), for a square, which has no padding, and rectangles."""
+    import hashlib
+
+    from .test_adaptive import dem
+
+    z = dem("big_tujunga_srtm_30m_utm11n.npz", 150, 150)
+    camera = Camera(eye=(1000.0, 1000.0, 3500.0), target=(4000.0, 4000.0, 1000.0), fov=0.9)
+    expected = {(129, 129): (15354, "5baf4491733294a9", 2095, "503caa91cd981e10"),
+                (100, 150): (13335, "58e1a798f59ad680", 2055, "9998d20c844e5f23"),
+                (150, 100): (14113, "aa8a24760d3033f6", 2240, "deb0857b337d7a06")}
+
+    def digest(mesh):
+        h = hashlib.sha256()
+        h.update(np.ascontiguousarray(np.asarray(mesh.faces, dtype=np.int64)).tobytes())
+        h.update(np.ascontiguousarray(np.asarray(mesh.metadata["node_index"], dtype=np.int64)).tobytes())
+        return h.hexdigest()[:16]
+
+    for (rows, cols), want in expected.items():
+        grid = np.ascontiguousarray(z[:rows, :cols])
+        plain = adaptive_mesh(grid, error=3.0, spacing=30.0)
+        viewed = adaptive_mesh(grid, error=3.0, spacing=30.0, camera=camera, cull=False)
+        assert (len(plain.faces), digest(plain), len(viewed.faces), digest(viewed)) == want, (rows, cols)
+
+
+def test_a_long_strip_is_not_padded_to_its_whole_square():
+    """A 50 x 16385 strip (0.8 M nodes) took 21 s, 19 of them in np.pad's edge-repeated 16385² copy (1 GB) of which
+    the mesh reads a band along the strip and the coarse nodes: the heights are padded in place now, at the entries
+    something reads (the rest of the square is never touched), with the mesh unchanged."""
+    import stepterrain.globe as globe_module
+    from stepterrain._device import resolve_device
+
+    from .test_adaptive import assert_crack_free_rectangle, true_errors
+
+    z = (1.0 + np.random.default_rng(5).random((3, 1025))).astype(np.float32)
+    grid = globe_module._planar_grid(z, (1.0, 1.0), z.shape, shapes=False, device=resolve_device("cpu"), n=1025)
+    heights = grid.heights.numpy().reshape(1025, 1025)
+    np.testing.assert_array_equal(heights[:3], z)  # the input itself
+    np.testing.assert_array_equal(heights[3:12], np.broadcast_to(z[-1], (9, 1025)))  # its last row repeated below
+    assert np.count_nonzero(heights) < 0.05 * heights.size  # not the whole square
+    padded = np.pad(z, ((0, 1022), (0, 0)), mode="edge")
+    written = heights != 0
+    np.testing.assert_array_equal(heights[written], padded[written])  # what is written is the edge repeated
+    for error in (0.0, 0.3):
+        mesh = adaptive_mesh(z, error=error)
+        assert_crack_free_rectangle(mesh, 3, 1025)
+        assert true_errors(mesh, z).max() <= error + 1e-6
