@@ -55,6 +55,9 @@ examples:
       a PNG without georeferencing, its outer pixel edges at x 0..1500, y 0..1200 in the DEM's coordinates
   stepterrain texture dem.tif --image ortho.tif --hillshade none -o ortho.png --mesh out/ortho.glb
       the orthophoto as it is (its own light), no hillshade over it
+  stepterrain texture dem.tif --image ortho.tif --texel-size 0.5 -o ortho.tif --mesh out/ortho.glb
+      a texture of 0.5 m texels over the (say 30 m) DEM: the orthophoto's detail kept in the GeoTIFF (on that finer
+      grid, exactly over the DEM) and the GLB, the hillshade interpolated onto it
 """
 
 
@@ -99,12 +102,22 @@ def add_parser(commands: Any) -> None:
                         "and --occlusion as the colours are; where it is transparent (alpha, a GeoTIFF's nodata) or "
                         "outside it those show. A GeoTIFF is placed by its georeferencing: in the DEM's CRS, or in "
                         "degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to the "
-                        "DEM's grid through an image pyramid (the decoded image is checked against --memory-budget)")
+                        "DEM's grid (or --texel-size's) through an image pyramid (the decoded image is checked against "
+                        "--memory-budget)")
     p.add_argument("--image-extent", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="with --image: the outer edges of its pixels in the DEM's coordinates (those `stepterrain "
                         "info` prints, as --crop takes them; a geographic DEM's local metres); needed for an image "
                         "without georeferencing (PNG, JPEG, a TIFF without a geotransform); for a GeoTIFF it "
                         "replaces the georeferencing")
+    p.add_argument("--texel-size", type=float, metavar="M",
+                   help="metres (the DEM's units) per texel of the texture, for -o, --mesh and --png alike (default: "
+                        "the DEM's node spacing, one texel per node); finer keeps an --image's detail (a 0.5 m "
+                        "orthophoto on a 30 m DEM: --texel-size 0.5), the hillshade, shadows and colours "
+                        "interpolated onto it; the DEM's extent in whole texels no larger than M (a GeoTIFF -o on that "
+                        "finer grid, exactly over the DEM). No larger than the node spacing; the texture is checked "
+                        "against --memory-budget, and a textured --mesh or --png refuses more than "
+                        f"{_GPU_TEXTURE_LIMIT} texels a side (the largest texture GPUs load); --normals stay on the "
+                        "DEM's grid")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
                    "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
     _add_device(p)
@@ -124,6 +137,60 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--z-scale", type=float, default=None, metavar="S",
                    help="vertical exaggeration of the render only, with --png (default 2)")
     p.set_defaults(run=_run_texture)
+
+
+#: The largest texture a side that GPUs load (OpenGL's GL_MAX_TEXTURE_SIZE on current desktop GPUs, WebGL2 and
+#: glTF viewers often less): a finer --texel-size texture for a textured --mesh or a --png render is refused above it.
+_GPU_TEXTURE_LIMIT = 16384
+
+#: Bytes per texel of a --texel-size texture while it is composed: a handful of float32 RGBA layers (16 bytes a texel
+#: each) on its grid at once (the resampled shading and colours, the image sampled onto them, each operation's
+#: result and its host copy), then its uint8 image.
+_COMPOSE_BYTES_PER_TEXEL = 6 * 16 + 4
+
+
+def _texel_grid(terrain: Any, texel: float) -> tuple[tuple[float, float, float, float], tuple[int, int]]:
+    """``--texel-size``'s pixel grid: the DEM's texture extent (its node extent plus half a cell, the extent of a
+    texture on its nodes) cut into whole texels no larger than ``texel`` (a size within a part in 10^9 of dividing
+    it exactly divides it: 10 over a 30 m grid is three texels a cell), as (extent, (rows, cols))."""
+    from .texture import terrain_extent
+
+    extent = terrain_extent(terrain)
+    width, height = extent[1] - extent[0], extent[3] - extent[2]
+    cols, rows = (max(1, math.ceil(span / texel * (1.0 - 1e-9))) for span in (width, height))
+    return extent, (rows, cols)
+
+
+def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> tuple[Any, tuple[int, int]]:
+    """``--texel-size`` once the DEM is loaded, before any work: no coarser than its node spacing, its texture within
+    the memory budget and, for a textured mesh or a render (``textured_gpu`` names it), a GPU's texture size."""
+    from ._compaction import check_budget
+
+    sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
+    spacing = max(sx, sy)  # square texels: a geographic DEM's x and y spacings differ
+    if texel > spacing * (1.0 + 1e-9):
+        shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the larger of its {sx:g} x {sy:g}"
+        raise InvalidInputError(f"--texel-size must be no larger than the DEM's node spacing ({shown}; the default is "
+                                f"one texel per node): it makes the texture finer; got --texel-size {texel:g}")
+    extent, (rows, cols) = _texel_grid(terrain, texel)
+    check_budget(_COMPOSE_BYTES_PER_TEXEL * rows * cols,
+                 f"the {cols} x {rows} texel texture of --texel-size {texel:g} (float32 RGBA layers while it is "
+                 "composed)", hint="give a larger --texel-size (or --crop the DEM)")
+    if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:
+        raise InvalidInputError(f"--texel-size {texel:g} makes a {cols} x {rows} texel texture, over the "
+                                f"{_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for {textured_gpu}: "
+                                "give a larger --texel-size (or --crop the DEM), or write the texture with -o alone")
+    return extent, (rows, cols)
+
+
+def _on_grid(layer: Any, extent: Any, shape: tuple[int, int], device: Any) -> Any:
+    """``layer`` (on the DEM's nodes) resampled bilinearly onto the --texel-size grid, as ``blend`` and ``modulate``
+    sample their other layers (premultiplied by alpha: a nodata hole stays transparent, its edge partly)."""
+    from ._device import host_copy
+    from .texture import TextureLayer, _sampled
+
+    return TextureLayer("thematic", host_copy(_sampled(layer, extent, shape, device, "layer")), extent,
+                        name=layer.name)
 
 
 def _is_tiff(path: Path | None) -> bool:
@@ -290,18 +357,28 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         _refuse_unused(render_options, "--png (the render of the draped mesh)", "without --png")
     if png is not None:
         render.require_offscreen()
+    if args.texel_size is not None and not (math.isfinite(args.texel_size) and args.texel_size > 0):
+        raise InvalidInputError(f"--texel-size must be a positive number of the DEM's units (metres) per texel; got "
+                                f"{args.texel_size:g}")
 
     progress.stage("load", f"loading {args.input if args.input else 'the embedded Big Tujunga DEM'}")
     terrain = _input_terrain(args)
     progress.done(f"{' x '.join(str(n) for n in terrain.shape)} nodes,")
     device = resolve_device(args.device)
+    grid = None  # --texel-size: the texture's (extent, shape), finer than the DEM's nodes
+    if args.texel_size is not None:
+        textured = [name for name, wanted in (
+            (f"--mesh {mesh_out}", mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")),
+            ("--png", png is not None)) if wanted]
+        grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None)
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer
 
         progress.stage("image", f"placing {args.image} over the DEM")
         try:
-            picture = image_layer(args.image, terrain, extent=args.image_extent, device=device)
+            picture = image_layer(args.image, terrain, extent=args.image_extent, device=device,
+                                  texel_size=args.texel_size)
         except InvalidInputError as exc:  # a CRS mismatch, an image off the DEM: named as the option gave it
             raise InvalidInputError(f"--image {args.image!r}: {exc}") from None
         progress.done(f"{picture.shape[1]} x {picture.shape[0]} pixels over the DEM,")
@@ -321,14 +398,16 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                     shadow_strength=args.shadow_strength if args.shadows else None,
                                     occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain, args.colormap)
+    hypsometric = None if colors is None else tx.terrain_layer(terrain, colors, "thematic", name="hypsometric")
+    if grid is not None:  # the layers on the DEM's nodes interpolated onto the finer grid, the image sampled there
+        topo = _on_grid(topo, *grid, device)
+        hypsometric = None if hypsometric is None else _on_grid(hypsometric, *grid, device)
     composite = topo
     if picture is not None:  # the image over the colours (white without), shaded as the colours are
-        base = picture if colors is None else tx.blend(
-            tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), picture, device=device)
+        base = picture if hypsometric is None else tx.blend(hypsometric, picture, device=device)
         composite = tx.modulate(topo, base, device=device)  # alpha: the shading's, 0 at the DEM's nodata
-    elif colors is not None:
-        composite = tx.modulate(tx.terrain_layer(terrain, colors, "thematic", name="hypsometric"), topo,
-                                device=device)
+    elif hypsometric is not None:
+        composite = tx.modulate(hypsometric, topo, device=device)
     # a DEM with nodata: RGBA, alpha 0 over its nodata (white over a white background hid the holes in a GIS, and the
     # normals' (0, 0, 1) there read as flat ground); without nodata RGB as before
     holes = terrain.nodata_mask if terrain.has_nodata else None
@@ -366,6 +445,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                     "shadows": bool(args.shadows)}
         if args.image is not None:
             metadata["image"] = str(args.image)
+        if args.texel_size is not None:
+            metadata["texel_size"] = args.texel_size
         textured = mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # the formats that keep a texture
         export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")

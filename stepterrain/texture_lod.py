@@ -54,7 +54,7 @@ from .io import (
     picture_uint8,
 )
 from .kernels import texture as texture_kernels
-from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, real_numbers
+from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, finite_number, real_numbers
 from .texture import TextureLayer, _check_extent, _grid_terrain, terrain_extent
 
 __all__ = [
@@ -1197,15 +1197,16 @@ def is_georeferenced(image: str | os.PathLike[str]) -> bool:
 
 
 def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, extent: ArrayLike | None = None,
-                device: wp.DeviceLike = None, name: str = "image") -> TextureLayer:
+                device: wp.DeviceLike = None, name: str = "image", texel_size: float | None = None) -> TextureLayer:
     """An image placed over a grid ``terrain`` as a thematic layer (RGB, or RGBA: alpha 0 at its nodata or
     transparent pixels), at about the terrain's resolution: the pixels of the image over the terrain's area from the
     coarsest level of its :class:`ImagePyramid` whose pixels are no larger than the terrain's node spacing (the image
-    itself when it is that coarse already). The pyramid is built band by band in a temporary folder and deleted
-    after, so memory holds the decoded image (checked against the memory budget) and the window read, never its
-    full-resolution copy in floats. Combine the layer with the terrain's layers as any other
-    (:func:`~stepterrain.texture.blend`, :func:`~stepterrain.texture.modulate`): it is sampled bilinearly onto
-    theirs, transparent outside its extent.
+    itself when it is that coarse already); ``texel_size`` (world units, > 0) asks for that resolution instead (a
+    texture finer than the DEM keeps an orthophoto's detail: the coarsest level no coarser than ``texel_size``). The
+    pyramid is built band by band in a temporary folder and deleted after, so memory holds the decoded image (checked
+    against the memory budget) and the window read, never its full-resolution copy in floats. Combine the layer with
+    the terrain's layers as any other (:func:`~stepterrain.texture.blend`, :func:`~stepterrain.texture.modulate`): it
+    is sampled bilinearly onto theirs, transparent outside its extent.
 
     ``image`` (a path, or an array as :meth:`ImagePyramid.build` takes it) is placed as :class:`TextureTree` places
     a pyramid: a GeoTIFF by its own georeferencing, in the terrain's CRS (refused in another, with the ``gdalwarp``
@@ -1227,6 +1228,8 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     t = _grid_terrain(terrain, None)
     target = terrain_extent(t)
     sx, sy = abs(t.spacing[0]), abs(t.spacing[1])
+    if texel_size is not None:
+        sx = sy = finite_number(texel_size, "texel_size", positive=True)
     with ImagePyramid.build(image, extent=extent, device=device) as pyramid:  # a file it cannot read is refused here
         if extent is None and not (isinstance(image, (str, os.PathLike)) and is_georeferenced(image)):
             # it would lie at (0, W, 0, H), one unit per pixel: anywhere on the terrain

@@ -485,3 +485,102 @@ def test_cli_texture_hillshade_none_refuses_what_only_the_hillshade_uses(tmp_pat
     assert main(["-q", "texture", "--hillshade", "none", *argv, "-o", str(out), "--device", "cpu"]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def _fine_ortho(tmp_path: Path) -> tuple[Path, np.ndarray, object, str]:
+    """A 5 m GeoTIFF (6 x 6 pixels a DEM cell) over the Big Tujunga DEM's cells rows 100-199, columns 200-349, in its
+    CRS: the colour-coded pattern, one white pixel in a black 12 x 12 square at image pixel (303, 405)."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import shared_file
+
+    with rasterio.open(shared_file(TUJUNGA)) as dem:
+        transform, crs = dem.transform, dem.crs
+    pixels = coded_pixels(600, 900)
+    pixels[297:309, 399:411] = 0
+    pixels[303, 405] = 255
+    image = write_geotiff(tmp_path / "ortho5.tif", pixels, transform @ Affine.translation(200, 100)
+                          @ Affine.scale(1 / 6), crs)
+    return image, pixels, transform, crs
+
+
+def _crop_nodes(rows: tuple[int, int], cols: tuple[int, int]) -> str:
+    """--crop keeping the Big Tujunga DEM's nodes rows[0]..rows[1], cols[0]..cols[1] (inclusive)."""
+    x0, y0 = 376328.6554542635, 3807902.8276283755  # node (0, 0); 30 m spacing
+    return (f"--crop={x0 + 30 * cols[0] - 1!r},{x0 + 30 * cols[1] + 1!r},{y0 - 30 * rows[1] - 1!r},"
+            f"{y0 - 30 * rows[0] + 1!r}")
+
+
+def test_cli_texture_texel_size_keeps_a_fine_images_detail(tmp_path):
+    """--texel-size 5 on the 30 m DEM (cropped to nodes rows 90-209, columns 190-359): the texture has 6 x 6 texels
+    a node, the 5 m orthophoto's pixels at their own positions (texel (60 + i, 60 + j) is image pixel (i, j), exactly
+    with --hillshade none), its lone white pixel too; the -o GeoTIFF's transform is the DEM's with 5 m pixels, from
+    the same corner; at the default texel size (one per node) that pixel is averaged away."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import shared_file
+
+    image, pixels, transform, crs = _fine_ortho(tmp_path)
+    crop = _crop_nodes((90, 209), (190, 359))
+    common = [str(shared_file(TUJUNGA)), crop, "--image", str(image), "--colormap", "none", "--hillshade", "none"]
+    fine = texture_of(tmp_path, "fine", *common, "--texel-size", "5")
+    assert fine.shape == (120 * 6, 170 * 6, 3)
+    assert np.array_equal(fine[60:660, 60:960], pixels)
+    assert fine[60 + 303, 60 + 405].tolist() == [255, 255, 255]
+    coarse = texture_of(tmp_path, "coarse", *common)
+    assert coarse.shape == (120, 170, 3)
+    assert coarse[10 + 50, 10 + 67].max() < 32  # the node at image pixel (303, 405): black around it, white lost
+    out = tmp_path / "fine.tif"
+    assert main(["-q", "texture", *common, "--texel-size", "5", "-o", str(out), "--device", "cpu"]) == 0
+    with rasterio.open(out) as tex:
+        assert tex.crs == crs and tex.shape == (720, 1020)
+        corner = transform @ Affine.translation(190, 90)  # the cropped DEM's north-west pixel corner
+        assert tex.transform.almost_equals(corner @ Affine.scale(1 / 6), precision=1e-6)
+        assert np.array_equal(np.moveaxis(tex.read(), 0, 2)[60:660, 60:960], pixels)
+
+
+def test_cli_texture_texel_size_shades_the_finer_grid_and_drapes_it(tmp_path, small_dem):
+    """--texel-size 0.25 on a DEM of 1 m spacing: the shaded hypsometric texture at 4 texels a node, the texture on
+    the nodes interpolated (each node's own texel colour near its centre: the 2 x 2 texels around a node centre
+    average it), the GLB's embedded image that size and the draped UVs mapping a node to its texels."""
+    coarse = texture_of(tmp_path, "coarse", str(small_dem), "--shadows")
+    mesh = tmp_path / "fine.glb"
+    fine = texture_of(tmp_path, "fine", str(small_dem), "--shadows", "--texel-size", "0.25", "--mesh", str(mesh))
+    assert coarse.shape == (40, 50, 3) and fine.shape == (160, 200, 3)
+    around = fine.reshape(40, 4, 50, 4, 3)[:, 1:3, :, 1:3].mean(axis=(1, 3))  # 2 x 2 texels around each node centre
+    assert np.abs(around - coarse)[1:-1, 1:-1].mean() < 2.0
+    back = trimesh.load(mesh, force="mesh", process=False)
+    embedded = np.asarray(back.visual.material.baseColorTexture.convert("RGB"))
+    assert embedded.shape == (160, 200, 3) and np.array_equal(embedded, fine)
+    uv = np.asarray(back.visual.uv)
+    xy = np.asarray(back.vertices)[:, :2]  # the nodes' x 0..49, y -39..0; the texture's extent half a node beyond
+    assert np.allclose(uv[:, 0], (xy[:, 0] + 0.5) / 50) and np.allclose(uv[:, 1], (xy[:, 1] + 39.5) / 40)
+
+
+@pytest.mark.parametrize("argv,match", [
+    (["--texel-size", "0"], "--texel-size must be a positive number of the DEM's units (metres) per texel; got 0"),
+    (["--texel-size", "-2"], "--texel-size must be a positive number of the DEM's units (metres) per texel; got -2"),
+    (["--texel-size", "nan"], "--texel-size must be a positive number of the DEM's units (metres) per texel; got nan"),
+    (["--texel-size", "45"], "--texel-size must be no larger than the DEM's node spacing (30; the default is one "
+                             "texel per node): it makes the texture finer; got --texel-size 45"),
+    (["--texel-size", "1", "--memory-budget", "1GiB"],
+     "the 35910 x 19290 texel texture of --texel-size 1 (float32 RGBA layers while it is composed) would need "),
+    (["--texel-size", "2", "--memory-budget", "64GiB", "--mesh", "{tmp}/m.glb"],
+     "--texel-size 2 makes a 17955 x 9645 texel texture, over the 16384 texels a side GPUs load as one texture, for "
+     "--mesh {tmp}/m.glb: give a larger --texel-size"),
+])
+def test_cli_texture_texel_size_is_refused_by_name(tmp_path, capsys, argv, match):
+    """Each bad --texel-size exits 2 before any work, naming the option and what it got (the size over the budget,
+    the texels a side over a GPU's texture limit for a textured mesh)."""
+    from .conftest import shared_file
+
+    out = tmp_path / "t.png"
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    assert main(["texture", str(shared_file(TUJUNGA)), *argv, "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert match.format(tmp=tmp_path) in err, err
+    if "budget" in " ".join(argv) and "64GiB" not in argv:
+        assert "give a larger --texel-size" in err
+    assert not out.exists()

@@ -930,3 +930,25 @@ def test_image_layer_reads_the_pyramid_level_of_the_terrain_resolution_over_the_
     assert layer.extent == pytest.approx((xmin, xmax, ymin, ymax)) and np.array_equal(layer.image, level2[:20])
     with pytest.raises(InvalidInputError, match="carries no georeferencing .*pass extent="):
         image_layer(pixels, terrain, device="cpu")
+
+
+def test_image_layer_texel_size_reads_the_finer_level_asked_for():
+    """image_layer(texel_size=...): the same 1 m image over a terrain of 4 m nodes comes from the level no coarser
+    than the texel size asked for (2 m: level 1, 1 m: the image itself), over the terrain only; a texel size that is
+    not a positive finite number is refused by name."""
+    from stepterrain.terrain import Terrain
+    from stepterrain.texture import terrain_extent
+    from stepterrain.texture_lod import image_layer
+
+    terrain = Terrain.from_heights(np.zeros((20, 30), np.float32), spacing=(4.0, -4.0), origin=(1000.0, 2000.0))
+    xmin, xmax, ymin, ymax = terrain_extent(terrain)
+    pixels = np.random.default_rng(7).integers(0, 256, (144, 120, 3), dtype=np.uint8)
+    extent = (xmin, xmax, ymin - 16 * 4.0, ymax)
+    with ImagePyramid.build(pixels, extent=extent, device="cpu") as pyramid:
+        level1 = np.asarray(pyramid.levels[1])
+    for texel, expected in ((2.0, level1[:40]), (1.0, pixels[:80]), (1.5, pixels[:80])):
+        layer = image_layer(pixels, terrain, extent=extent, device="cpu", texel_size=texel)
+        assert layer.extent == pytest.approx((xmin, xmax, ymin, ymax)) and np.array_equal(layer.image, expected)
+    for bad in (0, -1.0, float("nan"), "x"):
+        with pytest.raises(InvalidInputError, match="texel_size must be"):
+            image_layer(pixels, terrain, extent=extent, device="cpu", texel_size=bad)
