@@ -157,6 +157,15 @@ def _error_value(error: Any) -> float:
     return _number(error, "error", "", lambda v: v >= 0, " >= 0 (metres)")
 
 
+def _check_distance_scale(value: Any, camera: Camera | None, names: set[str]) -> None:
+    """``distance_scale`` is ℓ of the distance metric alone: given without a camera or without that metric it changed
+    nothing (the mesh came out the same whatever it was), so it is refused, as ``floor`` without ``solid=True``."""
+    if value is not None and (camera is None or "distance" not in names):
+        why = "without a camera" if camera is None else f"with metrics {', '.join(sorted(names))} (no 'distance')"
+        raise InvalidInputError(f"distance_scale applies only with a camera and the 'distance' metric (ℓ of its "
+                                f"error · (ℓ / d)²); got distance_scale={value!r} {why}")
+
+
 def _metric_options(metrics: Sequence[Any] | str, bounds: str, planar: bool) -> tuple[set[str], list[UserMetric]]:
     if not is_name(bounds, ("cone", "sphere")):
         raise InvalidInputError(f"bounds must be 'cone' or 'sphere'; got {bounds!r}")
@@ -572,7 +581,8 @@ class Globe:
             InvalidInputError where a triangle refined without the neighbour owning its new node).
         distance_scale : float, optional
             ℓ in metres (see ``error``); default: the eye's altitude above the sphere of radius R, at least
-            one node spacing.
+            one node spacing. Only with a camera and the distance metric (refused otherwise: it would change
+            nothing).
         cull : bool
             With the clip metric and a camera, drop leaf triangles wholly outside the frustum (the mesh then
             has a border where the view ends; without culling it stays closed).
@@ -610,6 +620,7 @@ class Globe:
             if not isinstance(camera, Camera):
                 raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
             self._check_eye(camera.eye)
+        _check_distance_scale(distance_scale, camera, names)
         if distance_scale is None:
             altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
             distance_scale = max(altitude, self.radius * math.pi / 2 / self.cells)
@@ -1297,7 +1308,8 @@ def adaptive_mesh(
         As for :meth:`Globe.mesh`; a user metric's points are in the mesh's coordinates (origin included), as the
         camera's.
     distance_scale : float, optional
-        ℓ for the distance metric; default: the eye's height above the highest node, at least one spacing.
+        ℓ for the distance metric; default: the eye's height above the highest node, at least one spacing. Only
+        with a camera and the distance metric (refused otherwise: it would change nothing).
 
     Returns
     -------
@@ -1378,6 +1390,7 @@ def adaptive_mesh(
     grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device, n=n)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
+    _check_distance_scale(distance_scale, camera, names)
     if distance_scale is None:
         above = camera.eye[2] - highest if camera is not None else 0.0
         distance_scale = max(above, dx, dy)

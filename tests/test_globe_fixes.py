@@ -1050,3 +1050,25 @@ def test_a_long_strip_is_not_padded_to_its_whole_square():
         mesh = adaptive_mesh(z, error=error)
         assert_crack_free_rectangle(mesh, 3, 1025)
         assert true_errors(mesh, z).max() <= error + 1e-6
+
+
+def test_a_distance_scale_that_changes_nothing_is_refused():
+    """``distance_scale`` is ℓ of the distance metric; without a camera, or with metrics that leave the distance
+    out, it was accepted and ignored (the mesh the same whatever it was). Refused now, naming why; with a camera and
+    the distance metric it still shapes the mesh."""
+    z = np.add.outer(np.sin(np.arange(33.0) / 3.0), np.cos(np.arange(33.0) / 4.0)) * 20.0
+    eye = Camera(eye=(16.0, 16.0, 200.0), target=(16.0, 16.0, 0.0), up=(0.0, 1.0, 0.0))
+    with pytest.raises(InvalidInputError, match=r"^distance_scale applies only with a camera and the 'distance' "
+                                                r"metric .*; got distance_scale=50\.0 without a camera$"):
+        adaptive_mesh(z, error=0.5, distance_scale=50.0, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"got distance_scale=50\.0 with metrics clip, geometric \(no "
+                                                r"'distance'\)$"):
+        adaptive_mesh(z, error=0.5, camera=eye, metrics=("geometric", "clip"), distance_scale=50.0, device="cpu")
+    near = adaptive_mesh(z, error=0.5, camera=eye, distance_scale=20.0, device="cpu")
+    far = adaptive_mesh(z, error=0.5, camera=eye, distance_scale=2000.0, device="cpu")
+    assert len(far.faces) > len(near.faces)  # a longer ℓ tolerates less at the same distance: it still counts
+    lat = np.linspace(89.5, -89.5, 18)
+    lon = np.linspace(-175.0, 175.0, 36)
+    globe = Globe.from_latlon(np.zeros((18, 36)), lat, lon, face_size=9, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"got distance_scale=1000\.0 without a camera$"):
+        globe.mesh(error=10.0, distance_scale=1000.0)
