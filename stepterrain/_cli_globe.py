@@ -95,8 +95,8 @@ def add_parser(commands: Any) -> None:
                    help="keep triangles outside the view (a closed mesh); with the camera and the clip metric")
     p.add_argument("--texture", type=_path, metavar="IMAGE",
                    help="plate-carree image (row 0 at 90N, column 0 at 180W) draped by latitude and longitude: "
-                        "embedded as the mesh's texture in .glb/.gltf/.obj, as vertex colours in .ply/.3mf "
-                        "and the --png render; default: colours by elevation")
+                        "embedded as the mesh's texture in .glb/.gltf/.obj and drawn as a texture in the --png "
+                        "render, as vertex colours in .ply/.3mf; default: colours by elevation")
     _add_device(p)
     p.add_argument("-o", "--output", type=_path, required=True, metavar="OUT",
                    help="mesh file; format by extension: " + " ".join(MESH_EXTENSIONS))
@@ -271,10 +271,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 "point the eye at the earth or pass --no-cull")
 
     textured = None
+    keeps_texture = out.suffix.lower() in (".glb", ".gltf", ".obj")
     if pixels is not None:
         mesh.visual.vertex_colors = drape_colors(mesh.vertices, pixels)
-        if out.suffix.lower() in (".glb", ".gltf", ".obj"):
-            textured = drape_texture(mesh, pixels)
+        if keeps_texture or png is not None:  # the render draws the image itself (vertex colours blurred it to
+            textured = drape_texture(mesh, pixels)  # the mesh's triangles: far from the eye, whole countries)
     else:
         heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / args.exaggeration
         mesh.visual.vertex_colors = elevation_colors(heights)
@@ -282,7 +283,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     image = None
     if png is not None:
         progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen from the eye")
-        image = render_view(mesh, camera, window_size=args.size)
+        image = render_view(textured if textured is not None else mesh, camera, window_size=args.size)
         progress.done()
 
     progress.stage("write", f"writing {out}")
@@ -299,7 +300,7 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if not args.no_camera:  # the eye the mesh was refined for (with --no-camera it only places a --png render)
         metadata["eye_lat_lon_alt"] = [lat_deg, lon_deg, altitude]
     mesh.metadata.pop("node_entry", None)
-    written = export.save_mesh(textured if textured is not None else mesh, out, metadata=metadata)
+    written = export.save_mesh(textured if textured is not None and keeps_texture else mesh, out, metadata=metadata)
     progress.done(_size(written))
     if image is not None:
         progress.stage("write_png", f"writing {png}")

@@ -223,3 +223,32 @@ def test_globe_view_angle_sets_the_eye_s_field_of_view(tmp_path, capsys):
         assert main(["globe", "--face-size", "9", "--view-angle", bad, "-o", str(tmp_path / "x.glb")]) == 2
         assert f"--view-angle must be a vertical field of view in [1e-08, 179] degrees; got {bad}" \
             in capsys.readouterr().err
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_globe_texture_is_drawn_as_a_texture_in_the_png(tmp_path):
+    """``globe --texture bluemarble.jpg --png``: the render showed the image as vertex colours, one colour per mesh
+    vertex, so from 3000 km over the Mediterranean the coasts were blurred into the triangles of the adaptive mesh
+    (hundreds of km wide there). The render now draws the draped texture (the GLB's): it equals the render of the
+    written GLB from the same camera, where the .ply run's vertex-coloured mesh differs from it by far more."""
+    from stepterrain.export import read_mesh
+    from stepterrain.globe import look_from, render_view
+
+    from .conftest import shared_file
+
+    picture = shared_file("earth_day_bluemarble_3840x1920.jpg")
+    base = ["-q", "globe", "--texture", str(picture), "--eye", "40,10,3000000", "--size", "320x200",
+            "--device", "cpu"]
+    assert main([*base, "-o", str(tmp_path / "g.glb"), "--png", str(tmp_path / "g.png")]) == 0
+    from PIL import Image
+
+    shot = np.asarray(Image.open(tmp_path / "g.png").convert("RGB")).astype(float)
+    camera = look_from(40.0, 10.0, 3000000.0)
+    from_glb = render_view(read_mesh(tmp_path / "g.glb"), camera, window_size=(320, 200)).astype(float)
+    assert np.abs(shot - from_glb).mean() < 2.0
+    assert main([*base, "-o", str(tmp_path / "g.ply")]) == 0
+    coloured = read_mesh(tmp_path / "g.ply")
+    assert coloured.visual.kind == "vertex"  # the .ply keeps its vertex colours
+    blurred = render_view(coloured, camera, window_size=(320, 200)).astype(float)
+    assert np.abs(blurred - from_glb).mean() > 4 * max(np.abs(shot - from_glb).mean(), 1.0)
