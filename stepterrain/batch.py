@@ -1076,12 +1076,27 @@ def _silence_dask_logs() -> list[tuple[logging.Logger, int]]:
     return levels
 
 
+#: The blocks of :func:`_dask_logs_silenced` running in this process (every thread), and the levels the loggers had
+#: before the first: the last block out puts them back.
+_LOGS_SILENCED = threading.Lock()
+_logs_silenced_blocks = 0
+_logs_levels: dict[logging.Logger, int] = {}
+
+
 @contextmanager
 def _dask_logs_silenced(client: Any = None) -> Iterator[None]:
     """Nothing logged by dask.distributed's loggers in this process while the block runs (their levels put back
     after it), nor, given the default LocalCluster's client, by its worker processes, which are closed in the block
-    (a worker whose scheduler went down before it logged "Failed to communicate with scheduler during heartbeat")."""
-    levels = _silence_dask_logs()
+    (a worker whose scheduler went down before it logged "Failed to communicate with scheduler during heartbeat").
+
+    The loggers are the process's: blocks in several threads at once (runs in two threads closing their clusters)
+    keep them off until the last one ends, which puts back the levels they had before the first (each putting back
+    the levels it found left them off for good when two overlapped)."""
+    global _logs_silenced_blocks
+    with _LOGS_SILENCED:
+        for logger, level in _silence_dask_logs():  # a logger already off keeps the level saved by the first block
+            _logs_levels.setdefault(logger, level)
+        _logs_silenced_blocks += 1
     try:
         if client is not None:
             try:
@@ -1090,8 +1105,12 @@ def _dask_logs_silenced(client: Any = None) -> Iterator[None]:
                 pass
         yield
     finally:
-        for logger, level in levels:
-            logger.setLevel(level)
+        with _LOGS_SILENCED:
+            _logs_silenced_blocks -= 1
+            if _logs_silenced_blocks == 0:
+                for logger, level in _logs_levels.items():
+                    logger.setLevel(level)
+                _logs_levels.clear()
 
 
 def start_local_cluster(workers: int) -> Any:

@@ -1679,3 +1679,44 @@ def test_serial_batches_in_two_threads_leave_the_warning_machinery_to_the_proces
     recwarn.clear()
     warnings.warn("a warning of the process after the runs", UserWarning, stacklevel=1)
     assert [str(w.message) for w in recwarn] == ["a warning of the process after the runs"]
+
+
+def test_dask_logs_silenced_in_two_threads_at_once_get_their_levels_back():
+    """A dask run silences dask.distributed's loggers while its cluster closes and put back the levels it found: two
+    runs closing their clusters in two threads at once left the loggers off for good (the second found the first's
+    silence and put it back after the first had restored the user's levels). The overlap is forced: the first block
+    ends while the second runs."""
+    import logging
+    import threading
+
+    from stepterrain.batch import _dask_logs_silenced
+
+    logger = logging.getLogger("distributed")
+    old = logger.level
+    try:
+        logger.setLevel(logging.WARNING)
+        first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
+        seen = {}
+
+        def first():
+            with _dask_logs_silenced():
+                first_in.set()
+                second_in.wait(10)
+            first_out.set()
+
+        def second():
+            first_in.wait(10)
+            with _dask_logs_silenced():
+                second_in.set()
+                first_out.wait(10)
+                seen["while the second runs"] = logger.level
+
+        threads = [threading.Thread(target=first), threading.Thread(target=second)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(20)
+        assert seen == {"while the second runs": logging.CRITICAL + 1}
+        assert logger.level == logging.WARNING
+    finally:
+        logger.setLevel(old)
