@@ -623,6 +623,11 @@ class _BudgetLease:
 
 
 _BUDGET_LEASE = _BudgetLease()
+#: Held while an item's warnings are recorded (:func:`run_item`): Python's warning filters and display are the
+#: process's, and ``warnings.catch_warnings`` puts back what it found on exit. Two serial runs in two threads recorded
+#: at once: the second put back the first's recorder, so that every later warning of the process went into a list
+#: nobody read, and the "default" filter stayed before the user's own.
+_RECORDING = threading.Lock()
 
 
 def run_item(
@@ -636,7 +641,8 @@ def run_item(
     once share it when it is the same, and one with another waits for the others to finish (:class:`_BudgetLease`).
     ``cpu_threads`` is set only in the LocalCluster's workers of one thread each (and not restored).
     ``record_warnings``: the item's warnings go into its result's ``warnings`` instead of the worker's stderr (for
-    single-threaded worker processes and the serial run: recording is not thread-safe).
+    single-threaded worker processes and the serial run: Python records a process's warnings, so items recorded in
+    several threads of one process, serial runs in threads, run one at a time).
 
     Bad input data (:class:`~stepterrain.errors.StepTerrainError`) gives a ``failed`` result at once, unless
     a transient OSError lies under it (EIO, ENOSPC, ETIMEDOUT, ...: a disk or network hiccup while reading or
@@ -651,7 +657,7 @@ def run_item(
     # the caller's budget for this item only: a remote worker kept it for other clients' tasks afterwards
     with nullcontext() if memory_budget is None else _BUDGET_LEASE.hold(budget_value(memory_budget)):
         if record_warnings:  # a worker process printed them as "<dask's file>:768: UserWarning: ..." + a source line
-            with warnings.catch_warnings(record=True) as caught:
+            with _RECORDING, warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("default")
                 result = _run_item(item, source, options, output_dir, start, cpu_start)
             said = tuple(dict.fromkeys(str(w.message) for w in caught))
@@ -1070,12 +1076,27 @@ def _silence_dask_logs() -> list[tuple[logging.Logger, int]]:
     return levels
 
 
+#: The blocks of :func:`_dask_logs_silenced` running in this process (every thread), and the levels the loggers had
+#: before the first: the last block out puts them back.
+_LOGS_SILENCED = threading.Lock()
+_logs_silenced_blocks = 0
+_logs_levels: dict[logging.Logger, int] = {}
+
+
 @contextmanager
 def _dask_logs_silenced(client: Any = None) -> Iterator[None]:
     """Nothing logged by dask.distributed's loggers in this process while the block runs (their levels put back
     after it), nor, given the default LocalCluster's client, by its worker processes, which are closed in the block
-    (a worker whose scheduler went down before it logged "Failed to communicate with scheduler during heartbeat")."""
-    levels = _silence_dask_logs()
+    (a worker whose scheduler went down before it logged "Failed to communicate with scheduler during heartbeat").
+
+    The loggers are the process's: blocks in several threads at once (runs in two threads closing their clusters)
+    keep them off until the last one ends, which puts back the levels they had before the first (each putting back
+    the levels it found left them off for good when two overlapped)."""
+    global _logs_silenced_blocks
+    with _LOGS_SILENCED:
+        for logger, level in _silence_dask_logs():  # a logger already off keeps the level saved by the first block
+            _logs_levels.setdefault(logger, level)
+        _logs_silenced_blocks += 1
     try:
         if client is not None:
             try:
@@ -1084,8 +1105,12 @@ def _dask_logs_silenced(client: Any = None) -> Iterator[None]:
                 pass
         yield
     finally:
-        for logger, level in levels:
-            logger.setLevel(level)
+        with _LOGS_SILENCED:
+            _logs_silenced_blocks -= 1
+            if _logs_silenced_blocks == 0:
+                for logger, level in _logs_levels.items():
+                    logger.setLevel(level)
+                _logs_levels.clear()
 
 
 def start_local_cluster(workers: int) -> Any:

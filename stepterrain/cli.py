@@ -937,6 +937,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     ``argv`` defaults to ``sys.argv[1:]``. Errors derived from :class:`~stepterrain.errors.StepTerrainError`
     print one line on stderr, without a traceback.
+
+    One command at a time in a process: while it runs, its ``--memory-budget`` is the process's memory budget and
+    its warning lines replace ``warnings.showwarning`` (both put back after), for every thread. Threads that serve
+    requests call the library's functions instead (``memory_budget=`` gives a call its own budget).
     """
     parser = build_parser()
     try:

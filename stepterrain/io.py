@@ -13,6 +13,7 @@ import importlib.resources
 import math
 import os
 import re
+import threading
 import warnings
 import zipfile
 from collections.abc import Mapping, Sequence
@@ -645,46 +646,64 @@ def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np
 _PREMULTIPLIED = {"RGBa": "RGBA", "La": "LA"}
 
 
+#: Held while a raster is opened with rasterio's NotGeoreferencedWarning filtered out (:func:`open_raster`).
+_OPEN_QUIETLY = threading.Lock()
+
+
+def open_raster(path: str | os.PathLike[str]) -> Any:
+    """``rasterio.open(path)`` without rasterio's NotGeoreferencedWarning ("Dataset has no geotransform ..."), which
+    it gives when it opens a plain TIFF; the caller closes the dataset (``with open_raster(path) as dataset``).
+
+    ``warnings.catch_warnings`` swaps the filters of the whole process and puts back the list it found: two threads
+    reading plain TIFFs at once (a service loading DEMs, building pyramids) left the "ignore" filter in the process
+    for good, as the second put back the first's list. The opens are one at a time here, and only the opens (the
+    warning comes from the open; the reads run at once)."""
+    import rasterio
+    from rasterio.errors import NotGeoreferencedWarning
+
+    with _OPEN_QUIETLY, warnings.catch_warnings():
+        warnings.simplefilter("ignore", NotGeoreferencedWarning)
+        return rasterio.open(path)
+
+
 def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     try:
-        import rasterio
+        import rasterio  # noqa: F401 - only whether it is there
         from rasterio.enums import ColorInterp
-        from rasterio.errors import NotGeoreferencedWarning, RasterioError
+        from rasterio.errors import RasterioError
     except ImportError as exc:
         raise MissingDependencyError(
             "reading GeoTIFF needs rasterio: pip install 'stepterrain[geo]'"
         ) from exc
 
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(file) as dataset:
-                if band > dataset.count:
-                    raise InvalidInputError(
-                        f"band must be between 1 and {dataset.count} for {str(file)!r}; got band={band}"
-                    )
-                interp = dataset.colorinterp[band - 1]
-                if interp not in (ColorInterp.gray, ColorInterp.undefined):  # an alpha band was read as heights
-                    what = (
-                        "an alpha (transparency) band, which masks the other bands"
-                        if interp == ColorInterp.alpha
-                        else f"a colour image band ({interp.name})"
-                        if interp.name in _COLOUR_BANDS
-                        else f"an image band ({interp.name})"
-                    )
-                    raise DataFileError(
-                        f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
-                        f"{what}, not elevation data"
-                    )
-                _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
-                masked = dataset.read(band, masked=True)
-                unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data)
-                scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
-                unit = dataset.units[band - 1]
-                transform = dataset.transform
-                crs_obj = dataset.crs
-                if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
-                    _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
+        with open_raster(file) as dataset:
+            if band > dataset.count:
+                raise InvalidInputError(
+                    f"band must be between 1 and {dataset.count} for {str(file)!r}; got band={band}"
+                )
+            interp = dataset.colorinterp[band - 1]
+            if interp not in (ColorInterp.gray, ColorInterp.undefined):  # an alpha band was read as heights
+                what = (
+                    "an alpha (transparency) band, which masks the other bands"
+                    if interp == ColorInterp.alpha
+                    else f"a colour image band ({interp.name})"
+                    if interp.name in _COLOUR_BANDS
+                    else f"an image band ({interp.name})"
+                )
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
+                    f"{what}, not elevation data"
+                )
+            _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
+            masked = dataset.read(band, masked=True)
+            unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data)
+            scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
+            unit = dataset.units[band - 1]
+            transform = dataset.transform
+            crs_obj = dataset.crs
+            if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
+                _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"

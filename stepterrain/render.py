@@ -17,6 +17,7 @@ import math
 import numbers
 import os
 import sys
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, Literal
@@ -101,23 +102,42 @@ def _import_pyvista() -> Any:
     return pyvista
 
 
+#: Renders in progress in this process (every thread) that quieted VTK, and the caller's settings the first one saved:
+#: :func:`_quiet_vtk` restores them when the last one ends.
+_QUIET_LOCK = threading.Lock()
+_quiet_depth = 0
+_quiet_saved: tuple[int, int] = (1, 0)
+
+
 @contextlib.contextmanager
 def _quiet_vtk() -> Any:
     """VTK's warnings off and its log on stderr at errors only while stepterrain renders ("bad X server
     connection" and similar start-up warnings; real errors still raise), then both as they were. They were set
-    for the whole process on the first render: a user's own VTK and pyvista code in it lost its warnings."""
+    for the whole process on the first render: a user's own VTK and pyvista code in it lost its warnings.
+
+    Both settings are VTK's, for the whole process: renders in several threads at once keep them quiet until the last
+    one ends, which restores what the first one found (each restoring what it found left them off for good when two
+    overlapped: the second found the first's quiet settings and put them back after the first had restored)."""
     from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
 
-    shown = vtkObject.GetGlobalWarningDisplay()
-    # VTK has no getter for the stderr verbosity alone; the cutoff over all sinks is what pyvista.vtk_verbosity reads
-    verbosity = vtkLogger.GetCurrentVerbosityCutoff()
-    vtkObject.GlobalWarningDisplayOff()
-    vtkLogger.SetStderrVerbosity(min(verbosity, vtkLogger.VERBOSITY_ERROR))  # a quieter setting stays
+    global _quiet_depth, _quiet_saved
+    with _QUIET_LOCK:
+        if _quiet_depth == 0:
+            # VTK has no getter for the stderr verbosity alone; the cutoff over all sinks is what pyvista.vtk_verbosity
+            # reads
+            _quiet_saved = (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff())
+            vtkObject.GlobalWarningDisplayOff()
+            # a quieter setting stays
+            vtkLogger.SetStderrVerbosity(min(_quiet_saved[1], vtkLogger.VERBOSITY_ERROR))
+        _quiet_depth += 1
     try:
         yield
     finally:
-        vtkObject.SetGlobalWarningDisplay(shown)
-        vtkLogger.SetStderrVerbosity(verbosity)
+        with _QUIET_LOCK:
+            _quiet_depth -= 1
+            if _quiet_depth == 0:
+                vtkObject.SetGlobalWarningDisplay(_quiet_saved[0])
+                vtkLogger.SetStderrVerbosity(_quiet_saved[1])
 
 
 def _quietly(method: Any) -> Any:

@@ -51,6 +51,7 @@ from .io import (
     _spherical_eqc,
     _wkt_block,
     lonlat_as_local_metres,
+    open_raster,
     picture_uint8,
 )
 from .kernels import texture as texture_kernels
@@ -219,15 +220,12 @@ def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
     if path.suffix.lower() not in (".tif", ".tiff"):
         return None
     try:
-        import rasterio
-        from rasterio.errors import NotGeoreferencedWarning
+        import rasterio  # noqa: F401 - only whether it is there
     except ImportError:
         return None
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", NotGeoreferencedWarning)
-            with rasterio.open(path) as dataset:
-                return read(dataset)
+        with open_raster(path) as dataset:
+            return read(dataset)
     except (InvalidInputError, OutputTooLargeError):
         raise
     except Exception:  # noqa: BLE001 - GDAL cannot read it either

@@ -1621,3 +1621,102 @@ def test_the_cli_takes_one_dem_file_without_tile_as_one_item(tmp_path, capsys):
     np.save(tmp_path / "series.npy", np.stack([z, z + 1]))
     assert cli.main([*argv[:-1], str(tmp_path / "frames"), str(tmp_path / "series.npy")]) == 0
     assert sorted(p.name for p in (tmp_path / "frames").glob("*.glb")) == ["frame_0000.glb", "frame_0001.glb"]
+
+
+def test_serial_batches_in_two_threads_leave_the_warning_machinery_to_the_process(tmp_path, monkeypatch, recwarn):
+    """A serial run records each item's warnings with warnings.catch_warnings(record=True), which sets the process's
+    filters and display and puts back what it found. Two serial runs in two threads (a web service) recorded at once:
+    the second put back the first's recorder, so every later warning of the process went into a list nobody read,
+    and its "default" filter stayed before the user's. The overlap is forced: the first item ends its recording while
+    the second records."""
+    import threading
+    import time
+    import warnings
+
+    from stepterrain import batch as batch_module
+
+    real = batch_module._run_item
+    guard, arrived = threading.Lock(), []
+    both_in, first_out = threading.Event(), threading.Event()
+
+    def overlapping(*args, **kwargs):
+        with guard:
+            arrived.append(None)
+            first = len(arrived) == 1
+        if first:
+            both_in.wait(1.0)  # the second thread's item starts while this one records (unless it must wait)
+            result = real(*args, **kwargs)
+            first_out.set()
+            return result
+        both_in.set()
+        result = real(*args, **kwargs)
+        first_out.wait(5.0)
+        time.sleep(0.05)  # the first has put back what its recording found
+        return result
+
+    monkeypatch.setattr(batch_module, "_run_item", overlapping)
+    heights = np.add.outer(np.arange(12), np.arange(12)).astype(np.float32) * 10.0  # heights on the thresholds
+    before = list(warnings.filters)
+    reports, errors = {}, []
+
+    def run(k):
+        try:
+            reports[k] = batch(heights, output_dir=tmp_path / f"out{k}", tile_size=12, interval=20.0, base=0.0,
+                               solid=True, scheduler="serial", progress=False)
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert not errors and sorted(reports) == [0, 1]
+    for report in reports.values():  # each item's own warning, in its own result
+        assert report.ok and len(report.results) == 1
+        assert any("on a threshold" in message for message in report.results[0].warnings)
+    assert warnings.filters == before
+    recwarn.clear()
+    warnings.warn("a warning of the process after the runs", UserWarning, stacklevel=1)
+    assert [str(w.message) for w in recwarn] == ["a warning of the process after the runs"]
+
+
+def test_dask_logs_silenced_in_two_threads_at_once_get_their_levels_back():
+    """A dask run silences dask.distributed's loggers while its cluster closes and put back the levels it found: two
+    runs closing their clusters in two threads at once left the loggers off for good (the second found the first's
+    silence and put it back after the first had restored the user's levels). The overlap is forced: the first block
+    ends while the second runs."""
+    import logging
+    import threading
+
+    from stepterrain.batch import _dask_logs_silenced
+
+    logger = logging.getLogger("distributed")
+    old = logger.level
+    try:
+        logger.setLevel(logging.WARNING)
+        first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
+        seen = {}
+
+        def first():
+            with _dask_logs_silenced():
+                first_in.set()
+                second_in.wait(10)
+            first_out.set()
+
+        def second():
+            first_in.wait(10)
+            with _dask_logs_silenced():
+                second_in.set()
+                first_out.wait(10)
+                seen["while the second runs"] = logger.level
+
+        threads = [threading.Thread(target=first), threading.Thread(target=second)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(20)
+        assert seen == {"while the second runs": logging.CRITICAL + 1}
+        assert logger.level == logging.WARNING
+    finally:
+        logger.setLevel(old)

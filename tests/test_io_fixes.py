@@ -1230,3 +1230,54 @@ def test_a_folder_given_as_a_dem_is_named_as_a_folder(tmp_path, capsys):
     (tmp_path / "dem").write_bytes(b"")
     with pytest.raises(InvalidInputError, match=r"unknown DEM extension '\(none\)'"):
         load_dem(tmp_path / "dem")
+
+
+def test_plain_tiffs_read_in_threads_at_once_leave_the_warning_filters_as_they_were(tmp_path, monkeypatch):
+    """load_dem and ImagePyramid.build hid rasterio's NotGeoreferencedWarning of a plain TIFF with
+    warnings.catch_warnings, which swaps the filters of the whole process and puts back the list it found: two
+    threads reading at once (a service loading DEMs) left the "ignore" filter in the process for good, as the second
+    put back the list holding the first's. Each open here takes 10 ms, so that the threads' opens overlap."""
+    import threading
+    import time
+
+    rasterio = pytest.importorskip("rasterio")
+    from stepterrain.texture_lod import ImagePyramid
+
+    heights = np.arange(20 * 30, dtype=np.float32).reshape(20, 30)
+    dem, picture = tmp_path / "plain_dem.tif", tmp_path / "plain_picture.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # plain TIFFs, on purpose
+        with rasterio.open(dem, "w", driver="GTiff", height=20, width=30, count=1, dtype="float32") as out:
+            out.write(heights[None])
+    pixels = (np.arange(16 * 24 * 3) % 251).astype(np.uint8).reshape(16, 24, 3)
+    Image.fromarray(pixels).save(picture)
+    real_open = rasterio.open
+
+    def slow_open(*args, **kwargs):
+        time.sleep(0.01)
+        return real_open(*args, **kwargs)
+
+    monkeypatch.setattr(rasterio, "open", slow_open)
+    before = list(warnings.filters)
+    read, errors = [], []
+    start = threading.Barrier(4)
+
+    def work(k):
+        try:
+            start.wait(10)
+            for _ in range(6):
+                if k % 2:
+                    read.append(np.array_equal(load_dem(dem).heights, heights))
+                else:
+                    with ImagePyramid.build(picture, device="cpu") as pyramid:
+                        read.append(np.array_equal(pyramid.levels[0], pixels))
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(60)
+    assert not errors and read == [True] * 24
+    assert warnings.filters == before

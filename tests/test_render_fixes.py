@@ -887,3 +887,63 @@ def test_a_pbr_texture_is_multiplied_by_its_base_color_factor():
     assert centre([1.0, 1.0, 1.0, 0.5], "BLEND") == pytest.approx([100, 100, 100], abs=1)
     assert centre([1.0, 1.0, 1.0, 0.5]) == [200, 200, 200]
     assert centre([1.0, 1.0, 1.0, 1.0]) == [200, 200, 200]
+
+
+@needs_render
+def test_renders_in_two_threads_at_once_leave_the_users_vtk_warning_settings_as_they_were():
+    """Each render saved VTK's process-wide warning settings, quieted them and put back what it had saved: two
+    renders overlapping in two threads (a web service) left the warnings off for good, as the second saved the
+    first's quiet settings and restored them after the first had restored the user's. The overlap is forced here:
+    the first render ends while the second is still in its quiet section."""
+    import threading
+
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkObject
+
+    old = (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff())
+    try:
+        vtkObject.SetGlobalWarningDisplay(1)
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_WARNING)
+        before = (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff())
+        first_in, second_in, first_out = threading.Event(), threading.Event(), threading.Event()
+        seen = {}
+
+        def first():
+            with render._quiet_vtk():
+                first_in.set()
+                second_in.wait(10)
+            first_out.set()
+
+        def second():
+            first_in.wait(10)
+            with render._quiet_vtk():
+                second_in.set()
+                first_out.wait(10)
+                seen["quiet while the second renders"] = vtkObject.GetGlobalWarningDisplay()
+
+        threads = [threading.Thread(target=first), threading.Thread(target=second)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(20)
+        assert seen == {"quiet while the second renders": 0}
+        assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+        # and through the entry points, four threads rendering at once: the same images as one at a time
+        mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+        alone = render.render_mesh(mesh, window_size=(32, 24))
+        images = []
+        barrier = threading.Barrier(4)
+
+        def draw():
+            barrier.wait(10)
+            images.extend(render.render_mesh(mesh, window_size=(32, 24)) for _ in range(3))
+
+        threads = [threading.Thread(target=draw) for _ in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(60)
+        assert len(images) == 12 and all(np.array_equal(image, alone) for image in images)
+        assert (vtkObject.GetGlobalWarningDisplay(), vtkLogger.GetCurrentVerbosityCutoff()) == before
+    finally:
+        vtkObject.SetGlobalWarningDisplay(old[0])
+        vtkLogger.SetStderrVerbosity(old[1])
