@@ -22,10 +22,14 @@ from numpy.typing import ArrayLike, NDArray
 from .errors import InvalidInputError, MissingDependencyError
 from .terrain import Terrain, finite_or_nan, float32_heights, grid_faces
 
-__all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES"]
+__all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES", "RGBA_ALIAS"]
 
 #: Point-data names tried, in order, when ``elevation`` is not given and the grid has no active scalars.
 ELEVATION_NAMES = ("elevation", "Elevation", "height", "heights", "z", "Z")
+
+#: The point-data name under which the stepped colours ("RGBA") are also the active scalars: pyvista plots an
+#: array ending in "_rgba" as colours, so ``steps.plot()`` shows them (``"RGBA"`` needs ``rgb=True``).
+RGBA_ALIAS = "colors_rgba"
 
 #: What to do with elevation found in cell data: the terraces are cut at grid nodes.
 _CELL_DATA_HINT = " (stepping needs one height per point: convert with grid.cell_data_to_point_data())"
@@ -148,7 +152,8 @@ class StepTerrainAccessor:
         -------
         pyvista.PolyData
             Triangles; cell data ``level`` (int32) and ``wall`` (bool as uint8); point data ``RGBA`` (uint8)
-            when ``colors`` is given; ``field_data["isovalues"]``.
+            when ``colors`` is given, sharing its buffer with the active scalars ``colors_rgba`` (a name pyvista
+            plots as colours: ``steps.plot()`` shows them); ``field_data["isovalues"]``.
 
         Examples
         --------
@@ -180,6 +185,11 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
             poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else array
     if mesh.visual.kind == "vertex":
         poly.point_data["RGBA"] = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+        # pyvista shows an array as colours (no colormap, no scalar bar) only when its name ends in "_rgb" or
+        # "_rgba": steps.plot() drew "RGBA" through viridis, with a bar of 'RGBA' magnitudes. The same bytes (one
+        # buffer, no copy) under RGBA_ALIAS are the active scalars, so the default plot shows the level colours.
+        poly.point_data[RGBA_ALIAS] = poly.point_data["RGBA"]
+        poly.point_data.active_scalars_name = RGBA_ALIAS
     if "isovalues" in mesh.metadata:
         poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
     return poly

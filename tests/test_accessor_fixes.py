@@ -7,7 +7,9 @@ import pytest
 import pyvista as pv
 
 import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
+from stepterrain import render
 from stepterrain.errors import InvalidInputError
+from stepterrain.pyvista_accessor import RGBA_ALIAS
 
 
 def test_structured_grid_with_elevation_in_cell_data_is_refused_not_stepped_flat():
@@ -33,3 +35,39 @@ def test_image_data_elevation_in_cell_data_is_named_in_the_error():
         grid.stepterrain.stepped(interval=1.0)
     with pytest.raises(InvalidInputError, match=r"got 'height'.*cell_data_to_point_data"):
         grid.stepterrain.stepped(interval=1.0, elevation="height")
+
+
+@pytest.mark.skipif(not render.offscreen_available()[0], reason="no off-screen OpenGL context")
+def test_default_plot_of_coloured_steps_shows_the_level_colours_not_a_colormap():
+    """steps.plot() / add_mesh(steps) of a grid stepped with colors= drew the "RGBA" bytes through viridis with a
+    scalar bar of their magnitudes: pyvista plots an array as colours only when its name ends in "_rgb"/"_rgba" (or
+    with rgb=True). Found by plotting the accessor's result as a pyvista user would. "RGBA" stays; the same buffer
+    is also the active scalars "colors_rgba", so the default plot shows the level colours, no bar."""
+    y, x = np.mgrid[0:40, 0:40]
+    grid = pv.ImageData(dimensions=(40, 40, 1), spacing=(10.0, 10.0, 1.0))
+    grid["elevation"] = (300 * np.exp(-((x - 20.0) ** 2 + (y - 20.0) ** 2) / 150.0)).ravel()
+    table = np.array([[255, 0, 0], [0, 160, 0], [0, 0, 255], [255, 255, 0], [255, 0, 255], [0, 255, 255],
+                      [128, 64, 0]], np.uint8)  # fmt: skip
+    steps = grid.stepterrain.stepped(levels=np.arange(0.0, 301.0, 50.0), colors=table, device="cpu")
+
+    def shot(**kwargs):
+        plotter = pv.Plotter(off_screen=True, window_size=(200, 200), lighting=None)
+        plotter.add_mesh(steps, **kwargs)
+        plotter.view_xy()
+        plotter.background_color = "black"
+        image = plotter.screenshot(return_img=True)
+        plotter.close()
+        return image
+
+    image = shot()  # what steps.plot() draws, here unlit and from above
+    assert np.array_equal(image, shot(scalars="RGBA", rgb=True))
+    levels = np.unique(steps.cell_data["level"])
+    centre = image[100, 100, :3].astype(int)  # the summit's terrace, unlit: its colour exactly
+    np.testing.assert_array_equal(centre, table[levels.max()], err_msg="the summit is not drawn in its colour")
+    pixels = image[..., :3].reshape(-1, 3)
+    pixels = pixels[pixels.any(axis=1)]  # the terrain, not the black background
+    in_table = (pixels[:, None, :] == table[None]).all(axis=2).any(axis=1)
+    assert in_table.mean() > 0.8, f"{in_table.mean():.0%} of the terrain's pixels are level colours"  # edges blend
+    assert steps.point_data["RGBA"].shape == (steps.n_points, 4)  # the documented name is kept
+    assert np.shares_memory(steps.point_data["RGBA"], steps.point_data[RGBA_ALIAS])
+    assert steps.active_scalars_name == RGBA_ALIAS
