@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import pyvista as pv
+import trimesh
 
 import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
 from stepterrain import render
@@ -71,3 +72,22 @@ def test_default_plot_of_coloured_steps_shows_the_level_colours_not_a_colormap()
     assert steps.point_data["RGBA"].shape == (steps.n_points, 4)  # the documented name is kept
     assert np.shares_memory(steps.point_data["RGBA"], steps.point_data[RGBA_ALIAS])
     assert steps.active_scalars_name == RGBA_ALIAS
+
+
+def test_to_polydata_hands_the_faces_to_vtk_without_a_padded_copy():
+    """grid.stepterrain.stepped built VTK's cells as a padded [3, a, b, c] int64 copy of the faces, converted again by
+    VTK: 2.5 s and 550 MB more for 13 M faces (a 2600² grid stepped), almost all of its time past the kernels. Found
+    by timing the conversion of a 13 M-face mesh (now 0.05 s). VTK's connectivity is now the faces' own buffer."""
+    from stepterrain.pyvista_accessor import to_polydata
+
+    grid = pv.ImageData(dimensions=(30, 20, 1), spacing=(10.0, 10.0, 1.0))
+    grid["elevation"] = np.random.default_rng(1).random(600) * 100
+    mesh = stepterrain.stepped(grid.stepterrain.terrain(), interval=20.0, colors="terrain", device="cpu")
+    poly = to_polydata(mesh)
+    connectivity = pv.convert_array(poly.GetPolys().GetConnectivityArray())
+    assert np.shares_memory(connectivity, mesh.faces), "the faces were copied"
+    np.testing.assert_array_equal(poly.regular_faces, mesh.faces)
+    np.testing.assert_array_equal(poly.cell_data["level"], mesh.face_attributes["level"])
+    np.testing.assert_array_equal(poly.point_data["RGBA"], mesh.visual.vertex_colors)
+    empty = to_polydata(trimesh.Trimesh(np.zeros((4, 3)), np.zeros((0, 3), np.int64), process=False))
+    assert (empty.n_points, empty.n_cells) == (4, 0)
