@@ -49,6 +49,11 @@ _OBLIQUE = (math.radians(190.0), math.radians(45.0))
 _VIEW_ANGLE = 30.0  # degrees, vertical field of view
 _VIEW_ANGLE_RANGE = (1e-8, 179.0)  # degrees: VTK clamps a camera's view angle to this range
 _DEFAULT_COLOR = (0.86, 0.82, 0.74)
+#: add_mesh arguments pyvista otherwise takes from ``pv.global_theme``: a pyvista user's theme (show_edges, opacity,
+#: silhouette, show_vertices) changed every render (edges over a textured mesh or close-ups, a half-transparent
+#: terrain, dots at every vertex), and a values pass of the LayeredRenderer read the edges' colour as values.
+_UNTHEMED: dict[str, Any] = {"show_edges": False, "opacity": 1.0, "silhouette": False, "show_vertices": False,
+                             "smooth_shading": False}
 
 CameraLike = Literal["oblique", "top"] | tuple[float, float] | Sequence[Sequence[float]]
 
@@ -728,7 +733,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
         if lighting:
             for light in _lights(pv, box, fill):
                 plotter.add_light(light)
-        plotter.add_mesh(poly, **mesh_kwargs)
+        plotter.add_mesh(poly, **{**_UNTHEMED, **mesh_kwargs})
         plotter.camera_position = position
         plotter.camera.view_angle = view_angle
         seen = local[finite]
@@ -1302,8 +1307,8 @@ class LayeredRenderer:
             else:
                 kwargs.update(color=_DEFAULT_COLOR)
             kwargs.update(ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0, lighting=True)
-        self._actors[name] = self._plotter.add_mesh(poly, smooth_shading=False, show_scalar_bar=False,
-                                                    reset_camera=False, **kwargs)
+        self._actors[name] = self._plotter.add_mesh(poly, **_UNTHEMED, show_scalar_bar=False, reset_camera=False,
+                                                    **kwargs)
         self._keys[name] = key
         self._bounds[name] = np.array([lo, hi])
         self._local_bounds[name] = local_box
@@ -1610,7 +1615,7 @@ class LayeredRenderer:
             if rgb is not None:
                 poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
                 kwargs = {"scalars": "rgb", "rgb": True}
-            plotter.add_mesh(poly, smooth_shading=False, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
+            plotter.add_mesh(poly, **_UNTHEMED, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
                              show_scalar_bar=False, **kwargs)
             box = bounds - centre  # the finite vertices' local bounds
             box[:, 2] *= self.z_scale
