@@ -892,10 +892,11 @@ def test_a_pbr_texture_is_multiplied_by_its_base_color_factor():
 
 @needs_render
 def test_a_pyvista_users_global_theme_leaves_the_renders_alone():
-    """render_mesh, render_textured_mesh and the LayeredRenderer took show_edges, opacity, silhouette and
-    show_vertices from pv.global_theme when not given: a pyvista user's theme drew edges over a textured mesh and
-    the close-ups, a half-transparent terrain, dots at every vertex, and a values pass read edge colours as values.
-    Found by rendering with a pyvista user's theme set. Now those are pinned, as smooth shading and lights were."""
+    """render_mesh, render_textured_mesh and the LayeredRenderer took show_edges, opacity, silhouette,
+    show_vertices and the camera orientation widget from pv.global_theme: a pyvista user's theme drew edges over a
+    textured mesh and the close-ups, a half-transparent terrain, dots at every vertex, a widget in the corner, and a
+    values pass read edge colours as values. Found by rendering with a pyvista user's theme set. Now stepterrain's
+    plotters get pyvista's default theme, and add_mesh those settings, as smooth shading and lights were."""
     import pyvista as pv
 
     heights = np.add.outer(np.arange(12.0), np.arange(16.0)) ** 1.5
@@ -921,6 +922,7 @@ def test_a_pyvista_users_global_theme_leaves_the_renders_alone():
         pv.global_theme.opacity = 0.5
         pv.global_theme.silhouette.enabled = True
         pv.global_theme.show_vertices = True
+        pv.global_theme.enable_camera_orientation_widget = True
         themed = shots()
     finally:
         pv.global_theme.load_theme(theme)
