@@ -43,7 +43,8 @@ except ImportError as exc:  # pragma: no cover - pyvista is a core dependency
 class StepTerrainAccessor:
     """``dataset.stepterrain``: stepped terrain for a pyvista ``ImageData`` or ``StructuredGrid`` with elevation.
 
-    The grid must be one node thick in z (dimensions (W, H, 1)). Elevation is the point-data array named by
+    The grid must be one node thick in z (dimensions (W, H, 1)); an ImageData's direction_matrix may flip x and/or
+    y (``np.diag([1, -1, 1])``: a north-up raster's rows as they are), not rotate. Elevation is the point-data array named by
     ``elevation``, else the active scalars, else the first of :data:`ELEVATION_NAMES`; a StructuredGrid
     without any of them uses its points' z. Elevation found only in cell data (one value per cell, under one of
     :data:`ELEVATION_NAMES`) is refused, naming ``grid.cell_data_to_point_data()``: steps are cut at nodes.
@@ -107,9 +108,16 @@ class StepTerrainAccessor:
         ds = self._dataset
         heights = self.elevation(elevation)
         if isinstance(ds, pv.ImageData):
-            if np.any(np.asarray(ds.direction_matrix) != np.eye(3)):
-                raise InvalidInputError("a rotated ImageData (non-identity direction_matrix) cannot be stepped")
-            dx, dy, dz = (float(s) for s in ds.spacing)
+            direction = np.asarray(ds.direction_matrix, dtype=np.float64)
+            signs = np.diag(direction)
+            # an axis flipped (diag(1, -1, 1): rows north to south, as a north-up raster) is a negative spacing, as
+            # load_dem's dy < 0; it was refused as "rotated" (a rotation, or z flipped, still is)
+            if not (np.array_equal(direction, np.diag(signs)) and np.all(np.abs(signs) == 1) and signs[2] == 1):
+                raise InvalidInputError(
+                    "a rotated ImageData cannot be stepped: its direction_matrix must be the identity or flip x and/or "
+                    f"y (diag(+-1, +-1, 1)); got {direction.tolist()}"
+                )
+            dx, dy, dz = (float(s) * float(f) for s, f in zip(ds.spacing, signs, strict=True))
             # node (i, j) lies at origin + (extent start + (i, j)) x spacing: a grid cut out of a larger one (a VOI,
             # a .vti piece) or given an offset starts past 0, and its origin alone put the terraces there
             i0, _, j0, _, k0, _ = (int(e) for e in ds.extent)

@@ -91,3 +91,28 @@ def test_to_polydata_hands_the_faces_to_vtk_without_a_padded_copy():
     np.testing.assert_array_equal(poly.point_data["RGBA"], mesh.visual.vertex_colors)
     empty = to_polydata(trimesh.Trimesh(np.zeros((4, 3)), np.zeros((0, 3), np.int64), process=False))
     assert (empty.n_points, empty.n_cells) == (4, 0)
+
+
+@pytest.mark.parametrize("flip", [(1, -1), (-1, 1), (-1, -1)])
+def test_image_data_with_a_flipped_axis_steps_where_its_points_are(flip):
+    """An ImageData whose direction_matrix flips y (diag(1, -1, 1): rows north to south, a north-up raster as it
+    is, without heights[::-1]) or x was refused as "a rotated ImageData". Found by stepping grids as a pyvista
+    user lays a DEM out. A flip is a negative spacing, as load_dem's dy < 0: the steps now lie on the grid's own
+    points, as stepped() steps the heights from node (0, 0) with that spacing; a rotation is still refused."""
+    heights = (np.random.default_rng(0).random((5, 6)) * 10).astype(np.float32)
+    sx, sy = flip
+    grid = pv.ImageData(dimensions=(6, 5, 1), spacing=(30.0, 20.0, 1.0), origin=(1000.0, 5000.0, 0.0),
+                        direction_matrix=np.diag([sx, sy, 1]))  # fmt: skip
+    grid.extent = (2, 7, 3, 7, 0, 0)
+    grid["elevation"] = heights.ravel()
+    steps = grid.stepterrain.stepped(interval=2.0, device="cpu")
+    # node (0, 0) at the grid's first point, the flipped axes' spacing negative: as load_dem gives a north-up DEM
+    expected = stepterrain.stepped(heights, interval=2.0, spacing=(30.0 * sx, 20.0 * sy), origin=grid.points[0, :2],
+                                   device="cpu")  # fmt: skip
+    np.testing.assert_allclose(steps.bounds[:4], grid.bounds[:4])
+    np.testing.assert_allclose(steps.points, expected.vertices, atol=1e-9)
+    np.testing.assert_array_equal(steps.regular_faces, expected.faces)
+    rotated = pv.ImageData(dimensions=(6, 5, 1), direction_matrix=[[0, -1, 0], [1, 0, 0], [0, 0, 1]])
+    rotated["elevation"] = heights.ravel()
+    with pytest.raises(InvalidInputError, match=r"rotated ImageData .*direction_matrix .*got \[\[0\.0, -1\.0"):
+        rotated.stepterrain.stepped(interval=2.0)
