@@ -1,4 +1,5 @@
-"""A pyvista dataset accessor: ``grid.stepterrain.stepped(interval=50)`` on ImageData and StructuredGrid.
+"""A pyvista dataset accessor: ``grid.stepterrain.stepped(interval=50)`` on ImageData, RectilinearGrid and
+StructuredGrid.
 
 Paper 000 (Glander, Trapp & Döllner, *3D Isocontours*, Eurographics 2010, §3) for pyvista users: a grid that
 carries elevation (a point-data array, or the z of a StructuredGrid's points) steps into terraces and walls
@@ -41,13 +42,16 @@ except ImportError as exc:  # pragma: no cover - pyvista is a core dependency
 
 
 class StepTerrainAccessor:
-    """``dataset.stepterrain``: stepped terrain for a pyvista ``ImageData`` or ``StructuredGrid`` with elevation.
+    """``dataset.stepterrain``: stepped terrain for a pyvista ``ImageData``, ``RectilinearGrid`` (pyvista-xarray's
+    DEM: evenly spaced x and y, ascending or descending, step as a grid; others as a TIN on its nodes) or
+    ``StructuredGrid`` with elevation.
 
     The grid must be one node thick in z (dimensions (W, H, 1)); an ImageData's direction_matrix may flip x and/or
-    y (``np.diag([1, -1, 1])``: a north-up raster's rows as they are), not rotate. Elevation is the point-data array named by
-    ``elevation``, else the active scalars, else the first of :data:`ELEVATION_NAMES`; a StructuredGrid
-    without any of them uses its points' z. Elevation found only in cell data (one value per cell, under one of
-    :data:`ELEVATION_NAMES`) is refused, naming ``grid.cell_data_to_point_data()``: steps are cut at nodes.
+    y (``np.diag([1, -1, 1])``: a north-up raster's rows as they are), not rotate. Elevation is the point-data
+    array named by ``elevation``, else the active scalars, else the first of :data:`ELEVATION_NAMES`; a
+    StructuredGrid without any of them uses its points' z. Elevation found only in cell data (one value per cell,
+    under one of :data:`ELEVATION_NAMES`) is refused, naming ``grid.cell_data_to_point_data()``: steps are cut at
+    nodes.
     """
 
     def __init__(self, dataset: Any) -> None:
@@ -104,7 +108,8 @@ class StepTerrainAccessor:
         return values
 
     def terrain(self, elevation: str | None = None) -> Terrain | trimesh.Trimesh:
-        """The grid as what :func:`~stepterrain.stepped` takes: a grid Terrain (ImageData) or a TIN mesh."""
+        """The grid as what :func:`~stepterrain.stepped` takes: a grid Terrain (an ImageData, an evenly spaced
+        RectilinearGrid) or a TIN mesh (a StructuredGrid, an unevenly spaced RectilinearGrid)."""
         ds = self._dataset
         heights = self.elevation(elevation)
         if isinstance(ds, pv.ImageData):
@@ -129,15 +134,25 @@ class StepTerrainAccessor:
             if oz != 0.0:  # added in float64: a sum beyond float32 is named, not inf
                 heights = float32_heights(heights.astype(np.float64) + oz, "elevation + the grid's origin z")
             return Terrain.from_heights(heights, spacing=(dx, dy), origin=(ox, oy), source="pyvista.ImageData")
-        if isinstance(ds, pv.StructuredGrid):
+        if isinstance(ds, pv.RectilinearGrid):  # what pyvista-xarray makes of a DEM: x and y coordinate arrays
+            xs, ys, zs = (np.asarray(c, dtype=np.float64) for c in (ds.x, ds.y, ds.z))
+            if not (np.isfinite(xs).all() and np.isfinite(ys).all() and np.isfinite(zs).all()):
+                raise InvalidInputError("the grid's x, y and z coordinates must be finite")
+            if zs[0] != 0.0:  # the plane's z, as an ImageData's origin z
+                heights = float32_heights(heights.astype(np.float64) + zs[0], "elevation + the grid's z")
+            dx, dy = _uniform_step(xs), _uniform_step(ys)
+            if dx is not None and dy is not None:  # evenly spaced (y often north to south, dy < 0): a grid Terrain
+                return Terrain.from_heights(heights, spacing=(dx, dy), origin=(xs[0], ys[0]),
+                                            source="pyvista.RectilinearGrid")  # fmt: skip
+        if isinstance(ds, (pv.StructuredGrid, pv.RectilinearGrid)):  # unevenly spaced: a TIN on the grid's nodes
             ny, nx = heights.shape
             points = np.asarray(ds.points, dtype=np.float64).copy()
             points[:, 2] = heights.reshape(-1)
             # Terrain.from_mesh flips a clockwise grid and refuses one that folds over in projection
             mesh = trimesh.Trimesh(points, grid_faces(ny, nx), process=False)
             return mesh
-        raise InvalidInputError(  # pragma: no cover - the accessor is registered on these two classes only
-            f"stepterrain steps ImageData and StructuredGrid; got {type(ds).__name__}"
+        raise InvalidInputError(  # pragma: no cover - the accessor is registered on these three classes only
+            f"stepterrain steps ImageData, RectilinearGrid and StructuredGrid; got {type(ds).__name__}"
         )
 
     # ------------------------------------------------------------------------------------------ stepping
@@ -204,7 +219,14 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     return poly
 
 
-for _cls in (pv.ImageData, pv.StructuredGrid):
+def _uniform_step(coords: NDArray[np.float64]) -> float | None:
+    """The step of evenly spaced coordinates (each within 1e-6 of a step of where it should be), else None."""
+    step = float(coords[-1] - coords[0]) / (len(coords) - 1)
+    even = coords[0] + np.arange(len(coords)) * step
+    return step if step != 0.0 and float(np.abs(coords - even).max()) <= 1e-6 * abs(step) else None
+
+
+for _cls in (pv.ImageData, pv.RectilinearGrid, pv.StructuredGrid):
     try:
         pv.register_dataset_accessor("stepterrain", _cls)(StepTerrainAccessor)
     except (ValueError, RuntimeError):  # already registered (module reloaded)

@@ -1349,7 +1349,7 @@ def as_terrain(
         # numpy made a 0-d object array of a pyvista dataset too ("got dtype object"), naming neither it nor the way
         kind = type(terrain).__name__  # from pyvista to what stepterrain takes
         hint = (" (pass grid.stepterrain.terrain(), or step it where it is with grid.stepterrain.stepped(...))"
-                if kind in ("ImageData", "StructuredGrid") else
+                if kind in ("ImageData", "RectilinearGrid", "StructuredGrid") else
                 " (a TIN: pass pyvista.to_trimesh(mesh.triangulate()))" if kind == "PolyData" else "")
         raise InvalidInputError(f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh TIN; got a "
                                 f"pyvista.{kind}{hint}")

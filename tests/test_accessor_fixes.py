@@ -116,3 +116,30 @@ def test_image_data_with_a_flipped_axis_steps_where_its_points_are(flip):
     rotated["elevation"] = heights.ravel()
     with pytest.raises(InvalidInputError, match=r"rotated ImageData .*direction_matrix .*got \[\[0\.0, -1\.0"):
         rotated.stepterrain.stepped(interval=2.0)
+
+
+def test_rectilinear_grid_steps_as_a_grid_or_a_tin():
+    """A RectilinearGrid (what pyvista-xarray makes of a rioxarray DEM: x and y coordinate arrays, y often north
+    to south) had no accessor: grid.stepterrain raised an AttributeError. Found by laying a DEM out as GIS users
+    bring one into pyvista. Evenly spaced coordinates now step as the grid Terrain they are (descending y a negative
+    spacing, as load_dem's), uneven ones as a TIN on the grid's nodes, the plane's z added as an ImageData's origin."""
+    heights = (np.random.default_rng(2).random((5, 7)) * 40).astype(np.float32)  # row 0 north
+    xs = 500.0 + 30.0 * np.arange(7)
+    ys = 9000.0 - 20.0 * np.arange(5)  # north to south
+    grid = pv.RectilinearGrid(xs, ys, [3.0])
+    grid["elevation"] = heights.ravel()
+    steps = grid.stepterrain.stepped(interval=5.0, colors="terrain", device="cpu")
+    expected = stepterrain.stepped(heights + 3.0, interval=5.0, spacing=(30.0, -20.0), origin=(500.0, 9000.0),
+                                   colors="terrain", device="cpu")  # fmt: skip
+    np.testing.assert_allclose(steps.points, expected.vertices, atol=1e-6)
+    np.testing.assert_array_equal(steps.regular_faces, expected.faces)
+    np.testing.assert_array_equal(steps.cell_data["level"], expected.face_attributes["level"])
+    uneven = pv.RectilinearGrid(np.r_[xs[:3], xs[3:] + 12.0], ys)  # one column 42 m wide
+    uneven["elevation"] = heights.ravel()
+    tin = uneven.stepterrain.terrain()
+    assert isinstance(tin, trimesh.Trimesh)
+    np.testing.assert_allclose(tin.vertices[:, :2], uneven.points[:, :2])
+    np.testing.assert_allclose(tin.vertices[:, 2], heights.ravel())
+    tin_steps = uneven.stepterrain.stepped(interval=5.0, device="cpu")
+    np.testing.assert_allclose(tin_steps.bounds[:4], uneven.bounds[:4])
+    assert np.allclose(tin_steps.points[:, 2] % 5.0, 0.0)
