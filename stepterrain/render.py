@@ -50,6 +50,12 @@ _OBLIQUE = (math.radians(190.0), math.radians(45.0))
 _VIEW_ANGLE = 30.0  # degrees, vertical field of view
 _VIEW_ANGLE_RANGE = (1e-8, 179.0)  # degrees: VTK clamps a camera's view angle to this range
 _DEFAULT_COLOR = (0.86, 0.82, 0.74)
+#: add_mesh arguments pyvista otherwise takes from the plotter's theme (_default_theme's, not ``pv.global_theme``): a
+#: pyvista user's theme (show_edges, opacity, silhouette, show_vertices) changed every render (edges over a textured
+#: mesh or close-ups, a half-transparent terrain, dots at every vertex), and a LayeredRenderer values pass read the
+#: edges' colour as values.
+_UNTHEMED: dict[str, Any] = {"show_edges": False, "opacity": 1.0, "silhouette": False, "show_vertices": False,
+                             "smooth_shading": False}
 
 CameraLike = Literal["oblique", "top"] | tuple[float, float] | Sequence[Sequence[float]]
 
@@ -89,6 +95,12 @@ def _polydata(pv: Any, vertices: NDArray[Any], faces: NDArray[Any]) -> Any:
     points = np.asarray(vertices, dtype=np.float64)
     triangles = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     return pv.PolyData.from_regular_faces(points, triangles, deep=False)
+
+
+def _default_theme(pv: Any) -> Any:
+    """pyvista's default theme, for stepterrain's own plotters: ``pv.global_theme`` as a pyvista user set it (a camera
+    orientation widget, edges, opacity, a silhouette, vertices shown) changed every render."""
+    return pv.themes.DocumentTheme()
 
 
 def _import_pyvista() -> Any:
@@ -725,7 +737,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
     order by depth peeling (without it the surface behind showed over the one in front); ``view_angle``: the
     vertical field of view, degrees."""
     width, height = size
-    plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none")
+    plotter = pv.Plotter(off_screen=True, window_size=(width, height), lighting="none", theme=_default_theme(pv))
     try:
         if not plotter.render_window.SupportsOpenGL():
             raise MissingDependencyError(
@@ -748,7 +760,7 @@ def _shoot(pv: Any, poly: Any, mesh_kwargs: dict[str, Any], *, local: NDArray[np
         if lighting:
             for light in _lights(pv, box, fill):
                 plotter.add_light(light)
-        plotter.add_mesh(poly, **mesh_kwargs)
+        plotter.add_mesh(poly, **{**_UNTHEMED, **mesh_kwargs})
         plotter.camera_position = position
         plotter.camera.view_angle = view_angle
         seen = local[finite]
@@ -1218,7 +1230,7 @@ class LayeredRenderer:
 
     @_quietly
     def _new_plotter(self, size: tuple[int, int]) -> Any:
-        plotter = self._pv.Plotter(off_screen=True, window_size=size, lighting="none")
+        plotter = self._pv.Plotter(off_screen=True, window_size=size, lighting="none", theme=_default_theme(self._pv))
         if not plotter.render_window.SupportsOpenGL():
             plotter.close()
             raise MissingDependencyError(
@@ -1322,8 +1334,8 @@ class LayeredRenderer:
             else:
                 kwargs.update(color=_DEFAULT_COLOR)
             kwargs.update(ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0, lighting=True)
-        self._actors[name] = self._plotter.add_mesh(poly, smooth_shading=False, show_scalar_bar=False,
-                                                    reset_camera=False, **kwargs)
+        self._actors[name] = self._plotter.add_mesh(poly, **_UNTHEMED, show_scalar_bar=False, reset_camera=False,
+                                                    **kwargs)
         self._keys[name] = key
         self._bounds[name] = np.array([lo, hi])
         self._local_bounds[name] = local_box
@@ -1630,7 +1642,7 @@ class LayeredRenderer:
             if rgb is not None:
                 poly.point_data["rgb"] = np.ascontiguousarray(np.asarray(rgb)[:, :3], dtype=np.uint8)
                 kwargs = {"scalars": "rgb", "rgb": True}
-            plotter.add_mesh(poly, smooth_shading=False, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
+            plotter.add_mesh(poly, **_UNTHEMED, ambient=_AMBIENT, diffuse=_DIFFUSE, specular=0.0,
                              show_scalar_bar=False, **kwargs)
             box = bounds - centre  # the finite vertices' local bounds
             box[:, 2] *= self.z_scale

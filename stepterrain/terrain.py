@@ -1345,6 +1345,14 @@ def as_terrain(
                 "meshes with scene.to_mesh())" if isinstance(terrain, trimesh.Scene) else "")
         raise InvalidInputError(f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh TIN; got a "
                                 f"{type(terrain).__module__}.{type(terrain).__name__}{hint}")
+    if type(terrain).__module__.split(".")[0] == "pyvista":  # not imported here: import stepterrain leaves VTK alone
+        # numpy made a 0-d object array of a pyvista dataset too ("got dtype object"), naming neither it nor the way
+        kind = type(terrain).__name__  # from pyvista to what stepterrain takes
+        hint = (" (pass grid.stepterrain.terrain(), or step it where it is with grid.stepterrain.stepped(...))"
+                if kind in ("ImageData", "RectilinearGrid", "StructuredGrid") else
+                " (a TIN: pass pyvista.to_trimesh(mesh.triangulate()))" if kind == "PolyData" else "")
+        raise InvalidInputError(f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh TIN; got a "
+                                f"pyvista.{kind}{hint}")
     if isinstance(terrain, (str, bytes)) or hasattr(terrain, "__fspath__"):
         raise InvalidInputError(
             f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh; got a path {terrain!r} "

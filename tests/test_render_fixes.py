@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import warnings
 from pathlib import Path
 
@@ -947,3 +948,42 @@ def test_renders_in_two_threads_at_once_leave_the_users_vtk_warning_settings_as_
     finally:
         vtkObject.SetGlobalWarningDisplay(old[0])
         vtkLogger.SetStderrVerbosity(old[1])
+
+
+def test_a_pyvista_users_global_theme_leaves_the_renders_alone():
+    """render_mesh, render_textured_mesh and the LayeredRenderer took show_edges, opacity, silhouette,
+    show_vertices and the camera orientation widget from pv.global_theme: a pyvista user's theme drew edges over a
+    textured mesh and the close-ups, a half-transparent terrain, dots at every vertex, a widget in the corner, and a
+    values pass read edge colours as values. Found by rendering with a pyvista user's theme set. Now stepterrain's
+    plotters get pyvista's default theme, and add_mesh those settings, as smooth shading and lights were."""
+    import pyvista as pv
+
+    heights = np.add.outer(np.arange(12.0), np.arange(16.0)) ** 1.5
+    steps = st.stepped(heights.astype(np.float32), interval=8.0, colors="terrain", device="cpu")
+    picture = np.random.default_rng(0).integers(0, 256, (16, 16, 3), dtype=np.uint8)
+    textured = steps.copy()
+    uv = steps.vertices[:, :2] / [15.0, 11.0]
+    textured.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(picture))
+    values = np.linspace(0.0, 1.0, len(steps.vertices))
+
+    def shots():
+        with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+            renderer.set_mesh("values", steps.vertices, steps.faces, values=values)
+            renderer.set_view("oblique", renderer.bounds_of("values"))
+            layered = renderer.render(["values"])[0]
+        return [render.render_mesh(steps, window_size=(64, 48)),
+                render.render_textured_mesh(textured, window_size=(64, 48)), layered]
+
+    plain = shots()
+    theme = copy.deepcopy(pv.global_theme)
+    try:
+        pv.global_theme.show_edges = True
+        pv.global_theme.opacity = 0.5
+        pv.global_theme.silhouette.enabled = True
+        pv.global_theme.show_vertices = True
+        pv.global_theme.enable_camera_orientation_widget = True
+        themed = shots()
+    finally:
+        pv.global_theme.load_theme(theme)
+    for name, a, b in zip(("render_mesh", "render_textured_mesh", "LayeredRenderer"), plain, themed, strict=True):
+        assert np.array_equal(a, b), f"{name}: {np.mean(np.any(a != b, axis=2)):.0%} of the pixels changed by the theme"

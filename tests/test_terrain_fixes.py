@@ -650,3 +650,27 @@ def test_heightfield_mesh_takes_a_grid_terrain_with_its_own_spacing_and_origin()
     tin = st.Terrain.from_mesh(trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 1]], [[0, 1, 2]], process=False))
     with pytest.raises(InvalidInputError, match=r"got a TIN Terrain \(its mesh is terrain.mesh\(\)\)$"):
         st.heightfield_mesh(tin)
+
+
+def test_a_pyvista_dataset_as_terrain_is_named_with_the_way_in():
+    """A pyvista user passing a grid or mesh to stepped(), circular_lens or topographic_layer was told "heights must
+    be a real-valued (H, W) array; got dtype object" (numpy made a 0-d object array of it), naming neither the
+    dataset nor the accessor. Found by walking through the library as a pyvista user. Now the dataset is named, a
+    grid with grid.stepterrain.terrain() / .stepped(), a PolyData with pyvista.to_trimesh; those ways in step."""
+    pv = pytest.importorskip("pyvista")
+    import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
+
+    grid = pv.ImageData(dimensions=(_H.shape[1], _H.shape[0], 1))
+    grid["elevation"] = _H.ravel()
+    surface = pv.wrap(st.heightfield_mesh(_H))  # a TIN as PolyData
+    calls = (lambda t: st.stepped(t, interval=2.0), lambda t: st.circular_lens(t, (1.0, 1.0), 1.0))
+    for call in calls:
+        for dataset in (grid, grid.cast_to_structured_grid()):
+            way_in = rf"^terrain must be .*; got a pyvista\.{type(dataset).__name__} \(pass grid\.stepterrain\.terrain"
+            with pytest.raises(InvalidInputError, match=way_in):
+                call(dataset)
+        with pytest.raises(InvalidInputError, match=r"got a pyvista\.PolyData \(a TIN: pass pyvista\.to_trimesh"):
+            call(surface)
+    expected = st.stepped(_H, interval=2.0)
+    assert st.stepped(grid.stepterrain.terrain(), interval=2.0).area == pytest.approx(expected.area, rel=1e-6)
+    assert st.stepped(pv.to_trimesh(surface), interval=2.0).area == pytest.approx(expected.area, rel=1e-6)
