@@ -37,6 +37,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._device import recycled_empty
 from ._files import require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
+from .mesh import mesh_argument
 from .terrain import FLOAT32_MAX, as_array, real_numbers
 
 __all__ = ["atomic_path", "save_mesh", "save_image", "MESH_EXTENSIONS", "add_write_listener"]
@@ -305,16 +306,17 @@ def save_mesh(
 
     Parameters
     ----------
-    mesh : trimesh.Trimesh
-        Any mesh; it is not modified. ``face_attributes`` (e.g. ``level``, ``wall`` of
-        :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k) arrays) are kept by
-        ``.ply`` only, as properties of its face and vertex elements; glTF, OBJ, STL and 3MF drop them. Vertex
-        colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their alpha
-        (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply`` (the face
-        element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and ``.obj``
-        have no per-face colour and store each vertex as the mean of its faces' colours (call
-        ``mesh.unmerge_vertices()`` first to keep them exact), and ``.stl`` drops them. A texture (UVs and an
-        image) is kept by ``.glb``/``.gltf`` and ``.obj`` (with its ``.mtl`` and image) and dropped by the others.
+    mesh : trimesh.Trimesh or pyvista.PolyData
+        Any mesh; it is not modified. A PolyData of triangles (``grid.stepterrain.stepped``'s) is written as its Trimesh
+        (:func:`~stepterrain.pyvista_accessor.from_polydata`: colours, level/wall, metadata kept). ``face_attributes``
+        (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k)
+        arrays) are kept by ``.ply`` only, as properties of its face and vertex elements; glTF, OBJ, STL and 3MF drop
+        them. Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without
+        their alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
+        (the face element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and
+        ``.obj`` have no per-face colour and store each vertex as the mean of its faces' colours (call
+        ``mesh.unmerge_vertices()`` first to keep them exact), and ``.stl`` drops them. A texture (UVs and an image) is
+        kept by ``.glb``/``.gltf`` and ``.obj`` (with its ``.mtl`` and image) and dropped by the others.
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
@@ -410,8 +412,7 @@ def save_mesh(
     >>> len(trimesh.load(out).faces)
     12
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
     extras = json_metadata(metadata)
     target = _target(path)
     ext = target.suffix.lower()

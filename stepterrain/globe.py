@@ -54,6 +54,7 @@ from .kernels import bounds as bounds_kernels
 from .kernels import compaction as compaction_kernels
 from .kernels import cubesphere as cube_kernels
 from .kernels.memory import vec3l
+from .mesh import mesh_argument
 from .stepped import LAND_START
 from .terrain import (
     FLOAT32_MAX,
@@ -1493,8 +1494,7 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     >>> len(textured.visual.uv) == len(textured.vertices) > len(g.mesh().vertices)
     True
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
     pixels = _texture_pixels(image)
     from PIL import Image
 
@@ -1661,9 +1661,8 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     it."""
     from . import render
 
-    if not isinstance(mesh, trimesh.Trimesh):  # a per_face list, None: an AttributeError on .bounds
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh (render the meshes of per_face=True one by one); "
-                                f"got {type(mesh).__name__}")
+    # a per_face list, None: an AttributeError on .bounds; a pyvista PolyData as its Trimesh
+    mesh = mesh_argument(mesh, hint=" (render the meshes of per_face=True one by one)")
     if not isinstance(camera, Camera):
         raise InvalidInputError(f"camera must be a stepterrain.globe.Camera; got {type(camera).__name__}")
     # the window defaulted to 1280 x 800 whatever the camera: a portrait camera's culled mesh rendered with its

@@ -9,13 +9,37 @@ All vectorised numpy: no Python loop over faces or vertices.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
+import trimesh
 from numpy.typing import NDArray
 
 from .errors import InvalidInputError
 from .terrain import FLOAT32_MAX
 
-__all__ = ["close_solid", "boundary_edges", "exact_keys"]
+__all__ = ["close_solid", "boundary_edges", "exact_keys", "mesh_argument"]
+
+
+def mesh_argument(mesh: Any, name: str = "mesh", hint: str = "") -> trimesh.Trimesh:
+    """``mesh`` as a ``trimesh.Trimesh``: itself, or a ``pyvista.PolyData`` of triangles (``grid.stepterrain.stepped``'s
+    result) converted by :func:`stepterrain.pyvista_accessor.from_polydata` (colours, level/wall, metadata kept);
+    else an InvalidInputError naming ``name`` (``hint`` added to it). pyvista is imported only for its own objects.
+    """
+    if isinstance(mesh, trimesh.Trimesh):
+        return mesh
+    if type(mesh).__module__.split(".")[0] == "pyvista":  # imported already: the object is pyvista's
+        import pyvista as pv
+
+        if isinstance(mesh, pv.PolyData):
+            from .pyvista_accessor import from_polydata
+
+            return from_polydata(mesh, name)
+        # a grid (ImageData, ...): its surface, or its steps, is a PolyData
+        hint = (f" (a pyvista.{type(mesh).__name__}: pass its surface, {name}.extract_surface().triangulate(), or "
+                f"its steps, {name}.stepterrain.stepped(...)){hint}")
+    raise InvalidInputError(f"{name} must be a trimesh.Trimesh or a pyvista.PolyData of triangles{hint}; got "
+                            f"{type(mesh).__name__}")
 
 
 def exact_keys(xy: NDArray[np.float64]) -> NDArray[np.int64]:

@@ -13,6 +13,7 @@ without leaving pyvista. Importing this module registers the accessor; pyvista d
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -20,10 +21,10 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import InvalidInputError, MissingDependencyError
+from .errors import InvalidInputError, MissingDependencyError, caller_stacklevel
 from .terrain import Terrain, finite_or_nan, float32_heights, grid_faces
 
-__all__ = ["StepTerrainAccessor", "to_polydata", "ELEVATION_NAMES", "RGBA_ALIAS"]
+__all__ = ["StepTerrainAccessor", "to_polydata", "from_polydata", "ELEVATION_NAMES", "RGBA_ALIAS"]
 
 #: Point-data names tried, in order, when ``elevation`` is not given and the grid has no active scalars.
 ELEVATION_NAMES = ("elevation", "Elevation", "height", "heights", "z", "Z")
@@ -167,16 +168,21 @@ class StepTerrainAccessor:
         solid: bool = False,
         floor: float | None = None,
         elevation: str | None = None,
+        memory_budget: int | None = None,
         device: wp.DeviceLike = None,
     ) -> Any:
-        """Stepped terrain of the grid as ``pyvista.PolyData`` (see :func:`stepterrain.stepped`).
+        """Stepped terrain of the grid as ``pyvista.PolyData`` (see :func:`stepterrain.stepped`; ``memory_budget``
+        as there: bytes the output may take, else an OutputTooLargeError naming its size).
 
         Returns
         -------
         pyvista.PolyData
-            Triangles; cell data ``level`` (int32) and ``wall`` (bool as uint8); point data ``RGBA`` (uint8)
-            when ``colors`` is given, sharing its buffer with the active scalars ``colors_rgba`` (a name pyvista
-            plots as colours: ``steps.plot()`` shows them); ``field_data["isovalues"]``.
+            As :func:`to_polydata` makes it: triangles; cell data ``level`` (int32) and ``wall`` (bool as uint8);
+            point data ``RGBA`` (uint8) when ``colors`` is given, sharing its buffer with the active scalars
+            ``colors_rgba`` (a name pyvista plots as colours: ``steps.plot()`` shows them);
+            ``field_data["isovalues"]``; the mesh metadata (source, CRS, γ, isovalues, floor) in ``user_dict``.
+            :func:`~stepterrain.export.save_mesh`, :func:`~stepterrain.render.render_mesh` and
+            :func:`~stepterrain.texture.drape` take it as it is (see :func:`from_polydata`).
 
         Examples
         --------
@@ -193,12 +199,23 @@ class StepTerrainAccessor:
         if interval is None and levels is None:
             raise InvalidInputError("give interval (uniform isovalues) or levels (explicit isovalues)")
         mesh = stepped(self.terrain(elevation), interval=interval, levels=levels, base=base, gamma=gamma,
-                       colors=colors, solid=solid, floor=floor, device=device)  # fmt: skip
+                       colors=colors, solid=solid, floor=floor, memory_budget=memory_budget,
+                       device=device)  # fmt: skip
         return to_polydata(mesh)
 
 
 def to_polydata(mesh: trimesh.Trimesh) -> Any:
-    """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, face attributes, vertex colours, isovalues."""
+    """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, face attributes, vertex colours, metadata.
+
+    ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
+    point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours). Face attributes
+    become cell data (bools as uint8), ``isovalues`` a float64 ``field_data`` array, and every metadata item that
+    is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as
+    ``pv.wrap`` keeps them; an item that is not is left out with a warning naming it. :func:`from_polydata` is the
+    way back.
+    """
+    from .export import json_metadata
+
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     # VTK's offsets and connectivity on the faces as they are: a padded [3, a, b, c] copy took 2.5 s and 550 MB
     # more for 13 M faces (a 2600² grid stepped), almost all of grid.stepterrain.stepped's time past the kernels
@@ -216,7 +233,82 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
         poly.point_data.active_scalars_name = RGBA_ALIAS
     if "isovalues" in mesh.metadata:
         poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
+    # only the isovalues were kept (source, CRS, gamma, floor dropped), where pv.wrap keeps them in user_dict
+    kept, dropped = {}, []
+    for key, value in mesh.metadata.items():
+        try:
+            kept.update(json_metadata({key: value}))
+        except InvalidInputError:
+            dropped.append(key)
+    if dropped:
+        warnings.warn(f"to_polydata: mesh.metadata items {dropped!r} are not JSON and were left out of user_dict",
+                      stacklevel=caller_stacklevel())
+    if kept:
+        poly.user_dict.update(kept)
     return poly
+
+
+def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
+    """A ``pyvista.PolyData`` of triangles as a ``trimesh.Trimesh``: the way back from :func:`to_polydata`
+    (``grid.stepterrain.stepped``'s result), which :func:`~stepterrain.export.save_mesh`,
+    :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
+
+    Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
+    active scalars named ``*_rgb``/``*_rgba``), uint8 with 3 or 4 columns, become the vertex colours (pv.to_trimesh
+    leaves them as a plain vertex attribute, so they were not written nor drawn); other point data become vertex
+    attributes (normals and texture coordinates aside: a PolyData holds no texture image, drape it instead). Cell
+    data become face attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data
+    (``isovalues`` as a list) become the metadata. ``name`` names the argument in errors.
+
+    Raises
+    ------
+    InvalidInputError
+        ``poly`` is not a PolyData, or holds cells other than triangles (vertices, lines, strips, polygons of
+        more corners: ``poly.triangulate()`` makes triangles of them).
+    """
+    from pyvista.core.dataobject import USER_DICT_KEY
+
+    if not isinstance(poly, pv.PolyData):
+        raise InvalidInputError(f"{name} must be a pyvista.PolyData; got {type(poly).__name__}")
+    if poly.n_cells and not poly.is_all_triangles:
+        others = {"vertex cells": poly.n_verts, "lines": poly.n_lines, "strips": poly.n_strips,
+                  "polygons of 4 or more corners": int((np.diff(poly.GetPolys().GetOffsetsArray()) != 3).sum())
+                  if poly.GetNumberOfPolys() else 0}  # fmt: skip
+        found = ", ".join(f"{n} {kind}" for kind, n in others.items() if n)
+        raise InvalidInputError(f"{name} must be a PolyData of triangles only; got {found} (make triangles of "
+                                f"them with {name}.triangulate())")
+    vertices = np.array(poly.points, dtype=np.float64)
+    faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
+    point_data, cell_data = poly.point_data, poly.cell_data
+    skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name}
+    colour_name = next((n for n in (RGBA_ALIAS, "RGBA") if n in point_data), None)
+    active = point_data.active_scalars_name
+    if colour_name is None and active is not None and active.lower().endswith(("_rgb", "_rgba")):
+        colour_name = active
+    colors = None
+    if colour_name is not None:
+        values = np.asarray(point_data[colour_name])
+        if values.dtype == np.uint8 and values.ndim == 2 and values.shape[1] in (3, 4):
+            colors = values.copy()
+            # "RGBA" and its alias share one buffer (to_polydata): neither is a vertex attribute besides
+            skipped |= {colour_name} | {n for n in (RGBA_ALIAS, "RGBA") if n in point_data and
+                                        np.array_equal(np.asarray(point_data[n]), values)}  # fmt: skip
+    vertex_attributes = {n: np.array(point_data[n]) for n in point_data.keys() if n not in skipped}
+    face_attributes = {}
+    for key in cell_data.keys():
+        if key == cell_data.active_normals_name:
+            continue
+        values = np.array(cell_data[key])
+        if key == "wall" and values.dtype == np.uint8 and values.max(initial=0) <= 1:  # bool as uint8 in VTK
+            values = values.astype(bool)
+        face_attributes[key] = values
+    metadata: dict[str, Any] = dict(poly.user_dict) if USER_DICT_KEY in poly.field_data else {}
+    for key in poly.field_data.keys():
+        if key != USER_DICT_KEY and key not in metadata:
+            values = np.array(poly.field_data[key])
+            metadata[key] = values.tolist() if key == "isovalues" else values
+    return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors, face_attributes=face_attributes,
+                           vertex_attributes=vertex_attributes, metadata=metadata)
 
 
 def _uniform_step(coords: NDArray[np.float64]) -> float | None:

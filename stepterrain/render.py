@@ -29,6 +29,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import check_budget
 from ._memo import derived
 from .errors import InvalidInputError, MissingDependencyError, counted
+from .mesh import mesh_argument
 from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
 
 __all__ = ["render_mesh", "save_png", "offscreen_available", "require_offscreen", "KEY_LIGHT_AZIMUTH",
@@ -346,12 +347,14 @@ def render_mesh(
 
     Parameters
     ----------
-    mesh : trimesh.Trimesh
-        Any triangle mesh; it renders with its vertex colors (a stepped terrain's), or else its face colors, when it
-        has them, their alpha included: colours with some alpha below 255 blend with what lies behind them (in depth
-        order, by depth peeling), as the mesh's GLB shows them. A textured mesh (``TextureVisuals`` with one UV per
-        vertex and an image: :func:`~stepterrain.texture.drape`'s, a GLB read back) renders with its texture, lit,
-        as :func:`render_textured_mesh` with ``lighting=True`` draws it (which also draws it unlit).
+    mesh : trimesh.Trimesh or pyvista.PolyData
+        Any triangle mesh (a PolyData of triangles as its Trimesh, see
+        :func:`~stepterrain.pyvista_accessor.from_polydata`); it renders with its vertex colors (a stepped
+        terrain's), or else its face colors, when it has them, their alpha included: colours with some alpha below
+        255 blend with what lies behind them (in depth order, by depth peeling), as the mesh's GLB shows them. A
+        textured mesh (``TextureVisuals`` with one UV per vertex and an image: :func:`~stepterrain.texture.drape`'s,
+        a GLB read back) renders with its texture, lit, as :func:`render_textured_mesh` with ``lighting=True`` draws
+        it (which also draws it unlit).
     window_size : (width, height)
         Image size in pixels: two whole numbers, each 8 to 16384.
     z_scale : float
@@ -419,6 +422,7 @@ def render_mesh(
     elif not isinstance(cmap, str):  # unused without scalars and passed unchecked; the name is looked up when used
         raise InvalidInputError(f"cmap must name a matplotlib colormap (e.g. 'terrain', 'viridis'); got {cmap!r}")
     view_angle = _check_view_angle(view_angle)
+    mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
                                                               view_angle)
     textured = _mesh_texture(mesh) if scalars is None else None
@@ -936,8 +940,7 @@ def render_textured_mesh(
     MissingDependencyError
         No off-screen OpenGL context can be made.
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
     found = _mesh_texture(mesh)
     if found is None:
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "

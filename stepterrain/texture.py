@@ -32,6 +32,7 @@ from ._compaction import check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, recycled_empty, resolve_device, scratch
 from .errors import InvalidInputError, caller_stacklevel, counted
 from .kernels import texture as texture_kernels
+from .mesh import mesh_argument
 from .stepped import LENS_TEXEL_BYTES
 from .terrain import (
     FLOAT32_MAX,
@@ -1513,8 +1514,9 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     image (composited over ``background``) as the base colour of a PBR material (metallic 0, roughness 1).
 
     Works on any mesh of the library whose xy lie in the layer's world coordinates (stepped terrain, a
-    heightfield, a TIN). Export it with :func:`stepterrain.export.save_mesh` (GLB embeds the image) and
-    render it with :func:`stepterrain.render.render_textured_mesh`.
+    heightfield, a TIN; a pyvista PolyData of triangles as its Trimesh, see
+    :func:`~stepterrain.pyvista_accessor.from_polydata`). Export it with :func:`stepterrain.export.save_mesh` (GLB
+    embeds the image) and render it with :func:`stepterrain.render.render_textured_mesh`.
 
     Examples
     --------
@@ -1525,8 +1527,7 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     >>> textured.visual.uv.tolist()[0]   # node (0, 0) at (0, 0): west, south (v up)
     [0.25, 0.25]
     """
-    if not isinstance(mesh, trimesh.Trimesh):
-        raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
+    mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
     if not isinstance(layer, TextureLayer):
         raise InvalidInputError(f"layer must be a TextureLayer; got {type(layer).__name__}")
     if not isinstance(name, str):  # the material's name: a number or None went into the GLB as given

@@ -143,3 +143,96 @@ def test_rectilinear_grid_steps_as_a_grid_or_a_tin():
     tin_steps = uneven.stepterrain.stepped(interval=5.0, device="cpu")
     np.testing.assert_allclose(tin_steps.bounds[:4], uneven.bounds[:4])
     assert np.allclose(tin_steps.points[:, 2] % 5.0, 0.0)
+
+
+def _coloured_steps() -> tuple[pv.PolyData, trimesh.Trimesh]:
+    """A grid stepped with colours through the accessor, and the same steps as stepterrain's Trimesh."""
+    import stepterrain as st
+
+    grid = pv.ImageData(dimensions=(7, 6, 1), spacing=(30, 30, 1), origin=(500.0, 900.0, 0.0))
+    grid["elevation"] = np.random.default_rng(3).uniform(0, 300, 42)
+    poly = grid.stepterrain.stepped(interval=50, colors="terrain")
+    mesh = st.stepped(grid.stepterrain.terrain(), interval=50, colors="terrain")
+    return poly, mesh
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".ply", ".obj"])
+def test_save_mesh_takes_the_accessors_polydata_as_its_trimesh(tmp_path, suffix):
+    """save_mesh, render_mesh and drape refused grid.stepterrain.stepped's PolyData ("mesh must be a
+    trimesh.Trimesh; got PolyData") and pv.to_trimesh leaves its colours a plain vertex attribute (not written).
+    Now the PolyData is taken as its Trimesh (from_polydata): the file is the Trimesh's, byte for byte (positions,
+    faces, colours, and the GLB's extras: source, isovalues, gamma), and reads back with the same arrays."""
+    from stepterrain.export import save_mesh
+
+    poly, mesh = _coloured_steps()
+    (tmp_path / "poly").mkdir(), (tmp_path / "mesh").mkdir()
+    a = save_mesh(poly, tmp_path / "poly" / f"steps{suffix}")  # one name: the GLB holds it
+    b = save_mesh(mesh, tmp_path / "mesh" / f"steps{suffix}")
+    assert a.read_bytes() == b.read_bytes()
+    back = trimesh.load(a, force="mesh", process=False)
+    ref = trimesh.load(b, force="mesh", process=False)
+    assert np.array_equal(back.vertices, ref.vertices) and np.array_equal(back.faces, ref.faces)
+    if suffix == ".ply":  # unwelded: the points, faces and colours of the PolyData itself
+        assert np.allclose(back.vertices, poly.points) and np.array_equal(back.faces, poly.regular_faces)
+        assert np.array_equal(back.visual.vertex_colors, poly.point_data[RGBA_ALIAS])
+
+
+def test_render_and_drape_take_the_accessors_polydata_and_refuse_other_cells_naming_triangulate():
+    """render_mesh and drape took only a Trimesh; a PolyData from the accessor is now drawn (level colours) and
+    draped as its Trimesh. A PolyData of quads, or a grid, is refused naming the way to triangles."""
+    import stepterrain as st
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+    from stepterrain.texture import TextureLayer
+
+    poly, mesh = _coloured_steps()
+    back = from_polydata(poly)
+    assert np.array_equal(back.faces, mesh.faces) and np.array_equal(back.vertices, mesh.vertices)
+    assert np.array_equal(back.visual.vertex_colors, mesh.visual.vertex_colors)
+    assert back.face_attributes["wall"].dtype == bool
+    assert np.array_equal(back.face_attributes["wall"], mesh.face_attributes["wall"])
+    assert np.array_equal(back.face_attributes["level"], mesh.face_attributes["level"])
+    assert back.metadata == mesh.metadata
+    assert to_polydata(back).user_dict == poly.user_dict
+    kwargs = {"window_size": (48, 32)}
+    assert np.array_equal(render.render_mesh(poly, **kwargs), render.render_mesh(mesh, **kwargs))
+    layer = TextureLayer("luminance", np.linspace(0, 1, 20).reshape(4, 5), (500.0, 680.0, 900.0, 1050.0))
+    assert np.array_equal(st.drape(poly, layer).visual.uv, st.drape(mesh, layer).visual.uv)
+    with pytest.raises(InvalidInputError, match=r"triangles only; got 1 polygons of 4 or more.*mesh\.triangulate\(\)"):
+        render.render_mesh(pv.Plane(i_resolution=1, j_resolution=1), **kwargs)
+    with pytest.raises(InvalidInputError, match=r"pyvista\.ImageData.*extract_surface\(\)\.triangulate\(\)"):
+        render.render_mesh(pv.ImageData(dimensions=(3, 3, 1)), **kwargs)
+
+
+def test_to_polydata_keeps_the_json_metadata_in_user_dict():
+    """to_polydata kept only the isovalues (source, CRS, gamma, floor dropped), where pv.wrap keeps a Trimesh's
+    metadata in user_dict. Every JSON item now goes there (numpy values as plain numbers), the isovalues also stay
+    a field_data array; an item that is not JSON is left out with a warning naming it."""
+    import stepterrain as st
+    from stepterrain.pyvista_accessor import to_polydata
+
+    terrain = st.Terrain.from_heights(np.random.default_rng(1).uniform(0, 90, (5, 6)), crs="EPSG:32633",
+                                      source="tile.tif")
+    mesh = st.stepped(terrain, interval=20, gamma=0.75, solid=True, floor=-10)
+    poly = to_polydata(mesh)
+    user = dict(poly.user_dict)
+    assert user == dict(mesh.metadata)
+    assert {"source", "crs", "gamma", "floor", "isovalues"} <= set(user)
+    assert user["crs"] == "EPSG:32633" and user["floor"] == -10 and user["gamma"] == 0.75
+    assert np.array_equal(poly.field_data["isovalues"], mesh.metadata["isovalues"])
+    mesh.metadata["mask"] = np.array([1, 2], np.int64)
+    mesh.metadata["owner"] = {"ann"}
+    with pytest.warns(UserWarning, match=r"\['owner'\] are not JSON"):
+        poly = to_polydata(mesh)
+    assert poly.user_dict["mask"] == [1, 2] and "owner" not in poly.user_dict
+
+
+def test_accessor_takes_memory_budget():
+    """grid.stepterrain.stepped had no memory_budget (a TypeError) where stepterrain.stepped takes one: it is passed
+    through, a small one refused before the output is made, naming its size."""
+    from stepterrain.errors import OutputTooLargeError
+
+    grid = pv.ImageData(dimensions=(6, 5, 1))
+    grid["elevation"] = np.arange(30.0) * 10
+    with pytest.raises(OutputTooLargeError, match=r"would need [\d,]+ bytes, over the memory budget of 1,000 bytes"):
+        grid.stepterrain.stepped(interval=50, memory_budget=1000)
+    assert grid.stepterrain.stepped(interval=50, memory_budget=10**8).n_cells > 0

@@ -91,6 +91,9 @@ def check_promises(page: str, ns: dict, folder: Path) -> None:
         assert ns["report"].ok and len(ns["report"].done) == 2
         assert sorted(p.name for p in (folder / "out").glob("*.glb")) == ["tile_0.glb", "tile_1.glb"]
         assert ns["steps"].n_cells > 0 and "level" in ns["steps"].cell_data
+        assert (folder / "steps.glb").stat().st_size > 0
+        assert dict(ns["poly"].user_dict) == ns["mesh"].metadata and "colors_rgba" in ns["poly"].point_data
+        assert np.array_equal(ns["back"].visual.vertex_colors, ns["mesh"].visual.vertex_colors)
 
 
 # ------------------------------------------------------------------------- the examples of `stepterrain COMMAND --help`

@@ -342,7 +342,8 @@ def test_one_reduction_finds_any_face_index_outside(tmp_path, index):
 
 
 def test_not_a_mesh(tmp_path):
-    with pytest.raises(InvalidInputError, match="mesh must be a trimesh.Trimesh; got ndarray"):
+    with pytest.raises(InvalidInputError,
+                       match="mesh must be a trimesh.Trimesh or a pyvista.PolyData of triangles; got ndarray"):
         save_mesh(np.zeros((3, 3)), tmp_path / "m.glb")
 
 
