@@ -1350,7 +1350,8 @@ def as_terrain(
         kind = type(terrain).__name__  # from pyvista to what stepterrain takes
         hint = (" (pass grid.stepterrain.terrain(), or step it where it is with grid.stepterrain.stepped(...))"
                 if kind in ("ImageData", "RectilinearGrid", "StructuredGrid") else
-                " (a TIN: pass pyvista.to_trimesh(mesh.triangulate()))" if kind == "PolyData" else "")
+                " (a TIN: pass stepterrain.pyvista_accessor.from_polydata(mesh.triangulate()), which keeps its "
+                "colours)" if kind == "PolyData" else "")
         raise InvalidInputError(f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh TIN; got a "
                                 f"pyvista.{kind}{hint}")
     if isinstance(terrain, (str, bytes)) or hasattr(terrain, "__fspath__"):

@@ -656,7 +656,8 @@ def test_a_pyvista_dataset_as_terrain_is_named_with_the_way_in():
     """A pyvista user passing a grid or mesh to stepped(), circular_lens or topographic_layer was told "heights must
     be a real-valued (H, W) array; got dtype object" (numpy made a 0-d object array of it), naming neither the
     dataset nor the accessor. Found by walking through the library as a pyvista user. Now the dataset is named, a
-    grid with grid.stepterrain.terrain() / .stepped(), a PolyData with pyvista.to_trimesh; those ways in step."""
+    grid with grid.stepterrain.terrain() / .stepped(), a PolyData with pyvista_accessor.from_polydata (keeping its
+    colours, where pyvista.to_trimesh drops them); those ways in step."""
     pv = pytest.importorskip("pyvista")
     import stepterrain.pyvista_accessor  # noqa: F401 - registers the accessor
 
@@ -669,8 +670,12 @@ def test_a_pyvista_dataset_as_terrain_is_named_with_the_way_in():
             way_in = rf"^terrain must be .*; got a pyvista\.{type(dataset).__name__} \(pass grid\.stepterrain\.terrain"
             with pytest.raises(InvalidInputError, match=way_in):
                 call(dataset)
-        with pytest.raises(InvalidInputError, match=r"got a pyvista\.PolyData \(a TIN: pass pyvista\.to_trimesh"):
+        with pytest.raises(InvalidInputError, match=r"got a pyvista\.PolyData \(a TIN: pass stepterrain\."
+                                                    r"pyvista_accessor\.from_polydata\(mesh\.triangulate\(\)\)"):
             call(surface)
     expected = st.stepped(_H, interval=2.0)
     assert st.stepped(grid.stepterrain.terrain(), interval=2.0).area == pytest.approx(expected.area, rel=1e-6)
-    assert st.stepped(pv.to_trimesh(surface), interval=2.0).area == pytest.approx(expected.area, rel=1e-6)
+    from stepterrain.pyvista_accessor import from_polydata
+
+    assert st.stepped(from_polydata(surface.triangulate()), interval=2.0).area == pytest.approx(expected.area,
+                                                                                                rel=1e-6)
