@@ -22,6 +22,10 @@ examples:
       the embedded Big Tujunga DEM cut into 256-cell tiles (shared borders), one .glb each, 2 local workers
   stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
       every DEM file in a folder (.npy .npz .png .tif), one PLY each
+  stepterrain batch npy_tiles/ --spacing 30 --coarsen 2 --interval 50 -o out/half
+      .npy tiles (no georeferencing) of 30 m cells, each averaged to 60 m
+  stepterrain batch big.tif --crop 380000,390000,3790000,3800000 --coarsen 4 --tile 256 -o out/
+      a part of one raster, coarsened before it is cut, so that the tiles still weld
   stepterrain batch dem_tiles/n3*.tif --interval 50 -o out/
       the DEM files a shell glob names, one .glb each (one file without --tile: one item, as among several)
   stepterrain batch series.npy --interval 0.1 -o out/frames --png out/frames.png
@@ -51,7 +55,7 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_device, _add_height_unit, _floats, _path, _window
+    from .cli import _add_device, _add_height_unit, _cell_size, _floats, _path, _positive_int, _window
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -68,6 +72,17 @@ def add_parser(commands: Any) -> None:
                         "--tile is one item too), a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
                         "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
+    p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
+                   help="the node spacing in metres of DEM files with no georeferencing (.npy, a PNG heightmap, a "
+                        "GeoTIFF without a geotransform), each read as 1 m cells otherwise; rows run north to south; "
+                        "a file that places its nodes itself is refused (in a folder: its item fails)")
+    p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
+                   help="keep the nodes inside this extent (the coordinates `stepterrain info` prints) of the one "
+                        "raster cut with --tile, or of every frame of a series; not for several files or a folder")
+    p.add_argument("--coarsen", type=_positive_int, metavar="N",
+                   help="average N x N blocks of nodes into one (nodata ignored), after --crop: the raster before "
+                        "--tile cuts it (--tile then counts coarse cells; the tiles still weld), every frame, or "
+                        "each file")
     p.add_argument("-o", "--output", type=_path, required=True, metavar="DIR",
                    help="output folder (created if missing)")
     p.add_argument("--format", default=".glb", metavar="EXT",
@@ -86,7 +101,9 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--gamma", type=float, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     p.add_argument("--colormap", default="none", metavar="NAME",
-                   help="matplotlib colormap for level colors, or 'none' (default none)")
+                   help="matplotlib colormap for level colors, or 'none' (default none, unlike steps' terrain: "
+                        "the files of a folder each spread the colours over their own levels, so one height "
+                        "would differ in colour between neighbours; tiles and frames share levels and colours)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
     p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid")
     p.add_argument("--scheduler", metavar="ADDR",
@@ -183,7 +200,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         if listed:  # one: said how to cut it into tiles instead
             what = _counted(len(files), "DEM file") + (f" ({files[0]}; --tile N cuts it)" if len(files) == 1 else "")
     else:  # the embedded DEM, which refuses a --height-unit
-        source = _load_input(None, args.height_unit)
+        source = _load_input(None, args.height_unit, spacing=args.spacing)  # which refuses a --spacing too
+        args.spacing = None
         what = "the embedded Big Tujunga DEM"
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
     scheduler = args.scheduler
@@ -205,7 +223,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         metadata={"generator": "stepterrain batch"} if source_folder is not None or listed else {  # each file's
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
-        height_unit=args.height_unit, device=args.device,
+        height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's heights are known only item by item (tiles and series are checked up front): a floor above every

@@ -206,6 +206,11 @@ class _Options:
     #: the DEM files' height unit (:func:`~stepterrain.io.load_dem`'s ``height_unit``); out of the repr, so that a
     #: run without it keeps the fingerprints of runs made before it existed (:func:`_fingerprints` adds it when set)
     height_unit: str | None = dataclasses.field(default=None, repr=False)
+    #: DEM files without georeferencing: their (dx, dy) cell size in metres, rows north to south (``spacing=``), and
+    #: the N of ``coarsen=``, applied to each file as it is read; out of the repr as ``height_unit`` (the
+    #: metadata's ``spacing`` and ``coarsen``, part of the repr, record them for the fingerprint)
+    file_spacing: tuple[float, float] | None = dataclasses.field(default=None, repr=False)
+    coarsen: int | None = dataclasses.field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -507,11 +512,17 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
 
 
 # ---------------------------------------------------------------------------------------------- one item
-def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None) -> Terrain:
+def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None,
+                  spacing: tuple[float, float] | None = None, coarsen: int | None = None) -> Terrain:
     if item.kind == "file":
         from .io import load_dem
 
-        return load_dem(item.path, height_unit=height_unit)  # type: ignore[arg-type]
+        terrain = load_dem(item.path, height_unit=height_unit)  # type: ignore[arg-type]
+        if spacing is not None:
+            _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
+            terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,
+                                           height_unit=terrain.height_unit)  # fmt: skip
+        return terrain if coarsen is None else _coarsened(terrain, coarsen)
     assert source is not None
     frame0, row0, col0 = source.offset
     if item.kind == "frame":
@@ -526,6 +537,74 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
         crs=source.crs,
         source=f"{source.name}[{r0}:{r1}, {c0}:{c1}]",
     )
+
+
+def _check_unreferenced(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float], name: str) -> None:
+    """An InvalidInputError naming ``spacing=`` when a DEM file places its nodes itself (load_dem reads a file
+    without georeferencing as 1 m cells at (0, 0), rows north to south)."""
+    if crs is not None or spacing != (1.0, -1.0) or origin != (0.0, 0.0):
+        raise InvalidInputError(
+            f"spacing applies to DEM files with no georeferencing (.npy, a PNG heightmap, a GeoTIFF without a "
+            f"geotransform); {name!r} places its nodes itself: spacing {spacing}, origin {origin}"
+            + (f", CRS {crs}" if crs else ""))
+
+
+def _file_spacing(spacing: ArrayLike) -> tuple[float, float]:
+    """``spacing=`` for DEM files without georeferencing: one cell size D or (dx, dy), positive metres, as the
+    Terrain spacing (dx, -dy) (rows north to south, as load_dem reads them)."""
+    try:
+        values = np.asarray(spacing, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        values = np.array([])
+    if isinstance(spacing, (str, bytes, bool)) or values.size not in (1, 2) or not np.all(np.isfinite(values)) or (
+            values.min() <= 0):
+        raise InvalidInputError(f"spacing must be one cell size D or (dx, dy) in positive metres for DEM files with "
+                                f"no georeferencing (rows run north to south); got {spacing!r}")
+    return float(values[0]), -float(values[-1])
+
+
+def _coarsened(terrain: Terrain, factor: int) -> Terrain:
+    """``terrain.coarsen(factor)`` (block means), its refusal naming ``coarsen``."""
+    try:
+        return terrain.coarsen(factor)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"coarsen={factor}: {exc}") from None
+
+
+def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) -> _Source:
+    """``src`` cropped to ``crop`` (:meth:`Terrain.crop`), then coarsened ``coarsen`` times (:meth:`Terrain.coarsen`,
+    block means): one raster before it is cut into tiles, so that the tiles still share their border nodes (tiles
+    coarsened one by one would not: a tile's blocks start at its own first node), or every frame of a series alike."""
+    series = src.heights.ndim == 3
+    rows, cols = src.heights.shape[-2:]
+    # the geometry from a probe of the source's shape (a series' frames share it; a frame of nodata only is an empty
+    # item, which Terrain.crop and .coarsen would refuse)
+    probe = Terrain.from_heights(np.zeros((rows, cols), np.float32), spacing=src.spacing, origin=src.origin)
+    heights = src.heights
+    if crop is not None:
+        try:
+            cropped = probe.crop(crop)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"crop {exc}") from None  # "crop extent (...) holds 0 x 0 nodes ..."
+        (dx, dy), (ox, oy) = src.spacing, src.origin
+        j0, i0 = round((cropped.origin[0] - ox) / dx), round((cropped.origin[1] - oy) / dy)
+        i1, j1 = i0 + cropped.heights.shape[0], j0 + cropped.heights.shape[1]
+        heights, probe = heights[..., i0:i1, j0:j1], cropped
+        if not np.isfinite(heights).any():
+            raise InvalidInputError(f"crop extent {tuple(float(v) for v in np.asarray(crop, np.float64).reshape(-1))}"
+                                    f" holds only nodata of the source ({i1 - i0} x {j1 - j0} nodes)")
+    if coarsen is not None:
+        coarse = _coarsened(probe, coarsen)
+        frames = []
+        for frame in (heights if series else heights[None]):
+            if np.isfinite(frame).any():
+                frames.append(_coarsened(Terrain.from_heights(frame, spacing=probe.spacing,
+                                                              origin=probe.origin), coarsen).heights)  # fmt: skip
+            else:  # nodata only: stays so, an empty item
+                frames.append(np.full(coarse.heights.shape, np.nan, np.float32))
+        heights, probe = np.stack(frames) if series else frames[0], coarse
+    return dataclasses.replace(src, heights=np.ascontiguousarray(heights), spacing=probe.spacing, origin=probe.origin,
+                               height_range=None)
 
 
 def _has_surface(terrain: Terrain) -> bool:
@@ -673,7 +752,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
 
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
-        terrain = _item_terrain(item, source, options.height_unit)
+        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if item.kind != "file" and not _has_surface(terrain):
             # a piece of the source with no triangle of three finite heights (sea off a coast, a gap in a series):
@@ -1258,6 +1337,8 @@ def batch(
     floor: float | None = None,
     spacing: ArrayLike | None = None,
     origin: ArrayLike | None = None,
+    crop: ArrayLike | None = None,
+    coarsen: int | None = None,
     scheduler: Any = None,
     workers: int = 2,
     retries: int = 2,
@@ -1295,7 +1376,23 @@ def batch(
         source's solid has in :func:`~stepterrain.stepped` (the whole raster, or the series as one raster), so
         every item stands on the same base; a file of a folder is stepped as ``stepped(load_dem(file), ...)``.
     spacing, origin : (dx, dy), (x0, y0)
-        Grid geometry of an array source (default (1, 1) and (0, 0)).
+        Grid geometry of an array source (default (1, 1) and (0, 0)). ``spacing`` also applies to DEM files with no
+        georeferencing (.npy, a PNG heightmap, a GeoTIFF without a geotransform; a folder's, a list's, one raster's
+        to tile or a series file's), which load_dem reads as 1 m cells: one cell size D or (dx, dy), positive
+        metres, rows running north to south as load_dem reads them (the Terrain's spacing ``(dx, -dy)``, recorded as
+        ``spacing`` in every output's metadata); a file that places its nodes itself is refused (in a folder or
+        list: its item fails, naming it). ``origin`` applies to arrays only.
+    crop : (xmin, xmax, ymin, ymax), optional
+        Keep the source's nodes inside this extent (:meth:`~stepterrain.terrain.Terrain.crop`, in the source's
+        coordinates) before it is cut into tiles (``tile_size`` counts the cropped raster's cells), or in every frame
+        of a series. Not for a folder or list of DEM files, which each cover their own extent. Recorded as ``crop``
+        in every output's metadata.
+    coarsen : int, optional
+        Average N x N blocks of nodes into one (:meth:`~stepterrain.terrain.Terrain.coarsen`, nodata ignored),
+        after ``crop``: one raster before it is cut into tiles (``tile_size`` counts coarse cells), so that the
+        tiles still share their border nodes and weld (tiles coarsened one by one would not), every frame of a
+        series, each file of a folder or list as it is read (after ``spacing``). Recorded as ``coarsen`` in every
+        output's metadata.
     scheduler
         ``None``: a LocalCluster of ``workers`` processes (one thread each). ``"serial"``: this process, no dask. An
         address ``"tcp://host:port"``: an existing cluster, reached (and its first worker found: a Client's too) within
@@ -1436,6 +1533,11 @@ def batch(
         floor = finite_number(floor, "floor")
     if floor is not None and abs(floor) > FLOAT32_MAX:
         raise InvalidInputError(f"floor must fit in float32 (|x| < {FLOAT32_MAX:.2g}); got {floor:g}")
+    if coarsen is not None and (isinstance(coarsen, (bool, np.bool_)) or not isinstance(coarsen, (int, np.integer))
+                                or coarsen < 1):
+        raise InvalidInputError(f"coarsen must be a positive integer (nodes per new node along each axis); "
+                                f"got {coarsen!r}")
+    coarsen = None if coarsen is None else int(coarsen)
     if height_unit is not None:
         from .io import check_height_unit
 
@@ -1462,13 +1564,43 @@ def batch(
             f"metadata keys {', '.join(map(repr, taken))} are written by stepterrain itself on these outputs "
             f"(its keys: {', '.join(sorted(own))}); give yours other names"
         )
-    if spacing is not None or origin is not None:
+    files = isinstance(source, (str, os.PathLike)) or (isinstance(source, (list, tuple)) and src is None)
+    file_spacing = None
+    recorded: dict[str, Any] = {}  # the file options, as steps, closeup and texture record them
+    if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
+        raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
+    if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south
+        file_spacing = _file_spacing(spacing)
+        recorded["spacing"] = list(file_spacing)
+        if src is not None:  # one raster to tile, or a series file: read already
+            _check_unreferenced(src.crs, src.spacing, src.origin, os.fspath(source))  # type: ignore[arg-type]
+            src = dataclasses.replace(src, spacing=file_spacing)
+            file_spacing = None
+    elif spacing is not None or origin is not None:
         if src is None or not isinstance(source, np.ndarray | list | tuple):
             raise InvalidInputError(
-                "spacing and origin apply to an array source; a file, a folder or a Terrain has its own")
+                "spacing and origin apply to an array source or to DEM files with no georeferencing; a Terrain has "
+                "its own")
         probe = Terrain.from_heights(np.zeros((2, 2), np.float32), spacing=spacing if spacing is not None else (1, 1),
                                      origin=origin if origin is not None else (0, 0))  # fmt: skip
         src = dataclasses.replace(src, spacing=probe.spacing, origin=probe.origin)
+    if crop is not None and src is None:
+        raise InvalidInputError(
+            f"crop applies to one raster (cut into tiles with tile_size) or a (T, H, W) series; the files of a "
+            f"{'folder' if isinstance(source, (str, os.PathLike)) else 'list'} each cover their own extent: crop them "
+            f"one by one, or give one raster with tile_size; got crop={crop!r}")
+    if src is not None and (crop is not None or coarsen is not None):  # before tiling: the tiles still weld
+        src = _reshaped_source(src, crop, coarsen)
+        items = _tile_items(src.heights.shape, tile_size) if items and items[0].kind == "tile" else _frame_items(
+            src.heights)  # type: ignore[arg-type]
+    if crop is not None:
+        recorded["crop"] = [float(v) for v in np.asarray(crop, np.float64).reshape(-1)]
+    if coarsen is not None:
+        recorded["coarsen"] = coarsen
+    if taken := sorted(set(extras) & set(recorded)):
+        raise InvalidInputError(f"metadata keys {', '.join(map(repr, taken))} are written by stepterrain itself on "
+                                f"these outputs (the {', '.join(f'{k}=' for k in taken)} given); give yours other "
+                                "names")
     # with the shared levels' default interval, before the floor: without it a solid's default floor was a tenth of
     # the levels' span down, not one interval (952.5 m for tiles where stepped() puts the whole at 975 m)
     level_values, z_range, interval = _levels_and_range(src, interval, levels, base)
@@ -1495,7 +1627,8 @@ def batch(
         base=0.0 if level_values is not None else float(base),  # shared levels hold the base already
         gamma=gamma_value, colors=colors, solid=bool(solid),
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
-        metadata=tuple(sorted(extras.items())), height_unit=height_unit,
+        metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
+        file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))

@@ -407,12 +407,14 @@ def test_unknown_extension_and_unwritable_output(tmp_path):
 
 
 def test_spacing_for_a_folder_of_files_is_refused_not_ignored(tmp_path):
-    # a folder's (or a file list's) files carry their own geometry: spacing/origin used to vanish silently
+    # a folder's (or a file list's) files carry their own geometry: spacing/origin used to vanish silently; a
+    # spacing now places files without georeferencing (load_dem's 1 m cells), given as positive cell sizes
     src = make_folder(tmp_path / "in")
-    for kwargs in ({"spacing": (30.0, -30.0)}, {"origin": (5.0e5, 0.0)}):
-        with pytest.raises(InvalidInputError, match="spacing and origin apply to an array source"):
+    for kwargs, match in (({"spacing": (30.0, -30.0)}, r"spacing must be one cell size D or \(dx, dy\) in positive"),
+                          ({"origin": (5.0e5, 0.0)}, "origin applies to an array source")):
+        with pytest.raises(InvalidInputError, match=match):
             batch(src, tmp_path / "out", interval=10.0, scheduler="serial", **kwargs)
-        with pytest.raises(InvalidInputError, match="spacing and origin apply to an array source"):
+        with pytest.raises(InvalidInputError, match=match):
             batch(sorted(src.glob("*.npy")), tmp_path / "out", interval=10.0, scheduler="serial", **kwargs)
     assert not (tmp_path / "out").exists()
 

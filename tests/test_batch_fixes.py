@@ -1720,3 +1720,117 @@ def test_dask_logs_silenced_in_two_threads_at_once_get_their_levels_back():
         assert logger.level == logging.WARNING
     finally:
         logger.setLevel(old)
+
+
+# ---------------------------------------------------------------------------------------------- input options
+def _unreferenced_tiles(folder: Path) -> list[Path]:
+    """Two .npy tiles (no georeferencing: load_dem reads 1 m cells) cut from the real Big Tujunga DEM."""
+    from .conftest import real_dem
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=41, step=1)
+    folder.mkdir()
+    files = [folder / "west.npy", folder / "east.npy"]
+    np.save(files[0], heights[:, :21])
+    np.save(files[1], heights[:, 20:])
+    return files
+
+
+def test_cli_batch_spacing_and_coarsen_apply_to_each_file_and_are_recorded(tmp_path, capsys):
+    """``stepterrain batch tiles/ --spacing 30 --coarsen 2`` was refused by argparse (batch had neither option, which
+    steps, closeup and texture share), and the library's spacing= refused a folder: a folder of .npy tiles at 30 m
+    was meshed as 1 m cells. Each file is now read, placed at 30 m and coarsened as ``steps`` does it, the options
+    are recorded in every mesh's metadata, and a rerun with another --coarsen or --spacing redoes the items."""
+    from stepterrain import cli
+    from stepterrain.io import load_dem
+    from stepterrain.stepped import stepped
+
+    from .test_export import glb_json
+
+    files = _unreferenced_tiles(tmp_path / "tiles")
+    out = tmp_path / "out"
+    argv = ["-q", "batch", str(tmp_path / "tiles"), "--interval", "50", "--scheduler", "serial", "-o", str(out)]
+    assert cli.main(argv + ["--spacing", "30", "--coarsen", "2"]) == 0
+    for f in files:
+        mesh = trimesh.load(out / f"{f.stem}.glb", force="mesh", process=False)
+        expected = stepped(_placed(load_dem(f), 30.0).coarsen(2), interval=50.0)
+        assert len(mesh.faces) == len(expected.faces)
+        np.testing.assert_allclose(mesh.bounds, expected.bounds, atol=1e-2)
+        extras = glb_json(out / f"{f.stem}.glb")["meshes"][0]["extras"]
+        assert extras["spacing"] == [30.0, -30.0] and extras["coarsen"] == 2 and "crop" not in extras
+    # a node every 60 m: 21 columns -> 10 coarse nodes
+    east = trimesh.load(out / "east.glb", force="mesh", process=False)
+    assert east.bounds[1, 0] - east.bounds[0, 0] == pytest.approx(9 * 60.0, abs=1e-2)
+    capsys.readouterr()
+    assert cli.main(["batch", *argv[2:], "--spacing", "30", "--coarsen", "2"]) == 0
+    assert "0 written, 2 complete already" in capsys.readouterr().err
+    for options in (["--spacing", "30", "--coarsen", "3"], ["--spacing", "30,20", "--coarsen", "3"],
+                    ["--coarsen", "3"]):
+        assert cli.main(["batch", *argv[2:], *options]) == 0
+        assert "2 written, 0 complete already" in capsys.readouterr().err, options
+
+
+def _placed(terrain, d):
+    from stepterrain import Terrain
+
+    return Terrain.from_heights(terrain.heights, spacing=(d, -d))
+
+
+def test_coarsened_tiles_of_one_raster_weld_as_the_coarsened_raster(tmp_path):
+    """Coarsening is applied to the raster before it is cut (crop first), so the tiles still share their border
+    nodes: their welded mosaic is the cropped, coarsened raster stepped whole, with no crack at a seam (tiles
+    coarsened one by one would put their blocks apart). batch had no crop= nor coarsen=."""
+    from stepterrain.io import load_dem
+    from stepterrain.stepped import isovalues, stepped
+
+    from .conftest import shared_file
+    from .test_batch import weld
+
+    dem = shared_file("big_tujunga_srtm_30m_utm11n.npz")
+    whole = load_dem(dem)
+    (x0, x1, y0, y1) = whole.extent
+    crop = (x0 + 3000.0, x0 + 9000.0, y0 + 4000.0, y0 + 9000.0)
+    report = batch(str(dem), tmp_path / "out", tile_size=(16, 24), crop=crop, coarsen=3, interval=100.0,
+                   format=".ply", scheduler="serial")
+    reference = whole.crop(crop).coarsen(3)
+    rows, cols = reference.heights.shape
+    assert report.ok and len(report.done) == -(-(rows - 1) // 16) * -(-(cols - 1) // 24) > 4
+    meshes = [trimesh.load(r.path, force="mesh", process=False) for r in report.done]
+    vertices, faces = weld(meshes, decimals=2)
+    values = isovalues(reference.height_range, interval=100.0)
+    expected = stepped(reference, levels=values)
+    assert len(faces) == len(expected.faces)
+    np.testing.assert_allclose([vertices.min(0), vertices.max(0)], expected.bounds, atol=1e-2)
+    edges = boundary_edges(faces)
+    xy = vertices[edges][:, :, :2]
+    (ex0, ex1, ey0, ey1) = reference.extent
+    on_border = (np.isclose(xy[:, :, 0], ex0, atol=1e-2).all(1) | np.isclose(xy[:, :, 0], ex1, atol=1e-2).all(1)
+                 | np.isclose(xy[:, :, 1], ey0, atol=1e-2).all(1) | np.isclose(xy[:, :, 1], ey1, atol=1e-2).all(1))
+    assert on_border.all(), f"{(~on_border).sum()} boundary edges inside the mosaic (cracks at seams)"
+
+
+def test_batch_input_options_are_refused_where_they_do_not_apply(tmp_path, capsys):
+    """--crop of several files, --spacing of a georeferenced raster or of the embedded DEM: refused by name (exit 2)
+    before any work, as steps refuses a --spacing of a georeferenced file."""
+    from stepterrain import cli
+    from stepterrain.errors import InvalidInputError
+
+    from .conftest import shared_file
+
+    _unreferenced_tiles(tmp_path / "tiles")
+    out = tmp_path / "out"
+    for argv, said in (
+        ([str(tmp_path / "tiles"), "--interval", "50", "--crop", "0,10,-10,0"], "--crop applies to one raster"),
+        ([str(shared_file("big_tujunga_srtm_30m_utm11n.npz")), "--tile", "64", "--spacing", "30"],
+         "--spacing applies to DEM files with no georeferencing"),
+        (["--spacing", "30"], "--spacing applies to a DEM file with no georeferencing"),
+        (["--coarsen", "0"], "argument --coarsen: expected a positive whole number"),
+    ):
+        assert cli.main(["batch", *argv, "--scheduler", "serial", "-o", str(out)]) == 2
+        assert said in capsys.readouterr().err, argv
+    assert not out.exists()
+    with pytest.raises(InvalidInputError, match="coarsen must be a positive integer"):
+        batch(str(tmp_path / "tiles"), out, interval=50.0, coarsen=True, scheduler="serial")
+    with pytest.raises(InvalidInputError, match=r"spacing must be one cell size D or \(dx, dy\) in positive"):
+        batch(str(tmp_path / "tiles"), out, interval=50.0, spacing=(30.0, -30.0), scheduler="serial")
+    with pytest.raises(InvalidInputError, match="metadata keys 'coarsen' are written by stepterrain"):
+        batch(str(tmp_path / "tiles"), out, interval=50.0, coarsen=2, metadata={"coarsen": 1}, scheduler="serial")
