@@ -1202,9 +1202,10 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     itself when it is that coarse already); ``texel_size`` (world units, > 0) asks for that resolution instead (a
     texture finer than the DEM keeps an orthophoto's detail: the coarsest level no coarser than ``texel_size``). The
     pyramid is built band by band in a temporary folder and deleted after, so memory holds the decoded image (checked
-    against the memory budget) and the window read, never its full-resolution copy in floats. Combine the layer with
-    the terrain's layers as any other (:func:`~stepterrain.texture.blend`, :func:`~stepterrain.texture.modulate`): it
-    is sampled bilinearly onto theirs, transparent outside its extent.
+    against the memory budget) and the window read (a pixel beyond the terrain on each side, within the image, so a
+    texel near its edge interpolates as over the whole image), never its full-resolution copy in floats. Combine the
+    layer with the terrain's layers as any other (:func:`~stepterrain.texture.blend`,
+    :func:`~stepterrain.texture.modulate`): it is sampled bilinearly onto theirs, transparent outside its extent.
 
     ``image`` (a path, or an array as :meth:`ImagePyramid.build` takes it) is placed as :class:`TextureTree` places
     a pyramid: a GeoTIFF by its own georeferencing, in the terrain's CRS (refused in another, with the ``gdalwarp``
@@ -1246,6 +1247,12 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
         if window is None:
             raise InvalidInputError(f"the image extent {placed.extent} does not overlap the terrain's {target} "
                                     "(mismatched extent)")
+        # a pixel more on each side (within the image): a texel near the terrain's edge is interpolated with the
+        # image's next pixel beyond it, not the window's edge pixel repeated (a cropped DEM, or a tile beside
+        # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes)
+        r0, r1, c0, c1 = window
+        rows, cols = placed.shape(level)
+        window = (max(r0 - 1, 0), min(r1 + 1, rows), max(c0 - 1, 0), min(c1 + 1, cols))
         pixels = np.array(placed.sub_image(level, window))  # a copy: the level files go with the pyramid
         where = placed.window_extent(level, window)
     channels = pixels.shape[2]

@@ -584,3 +584,31 @@ def test_cli_texture_texel_size_is_refused_by_name(tmp_path, capsys, argv, match
     if "budget" in " ".join(argv) and "64GiB" not in argv:
         assert "give a larger --texel-size" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("texel", [None, "10"])
+def test_cli_texture_image_on_a_cropped_dem_keeps_its_colours_at_the_crops_edge(tmp_path, texel):
+    """--image over a --crop of the DEM: the texture of the crop is the texture of a larger crop over the same nodes
+    (texels), also next to the crop's edges, to a grey level. image_layer read only the image's pixels over the
+    terrain, so a texel near its edge was interpolated with the window's edge pixel repeated instead of the image's
+    next pixel beyond it: the colours there depended on where the DEM was cropped (tiles of one orthophoto did not
+    match at their seams)."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import shared_file
+
+    with rasterio.open(shared_file(TUJUNGA)) as dem:
+        transform, crs = dem.transform, dem.crs
+    pixels = np.random.default_rng(5).integers(0, 256, (60, 80, 3), dtype=np.uint8)  # 45 m pixels, off the nodes
+    image = write_geotiff(tmp_path / "noise.tif", pixels, transform @ Affine.translation(95.3, 95.7)
+                          @ Affine.scale(1.5), crs)
+    common = [str(shared_file(TUJUNGA)), "--image", str(image), "--colormap", "none", "--hillshade", "none"]
+    common += [] if texel is None else ["--texel-size", texel]
+    per_node = 1 if texel is None else 3
+    large = texture_of(tmp_path, "large", *common, _crop_nodes((100, 180), (100, 210)))
+    small = texture_of(tmp_path, "small", *common, _crop_nodes((120, 160), (130, 180)))
+    assert small.shape == (41 * per_node, 51 * per_node, 3)
+    r0, c0 = 20 * per_node, 30 * per_node
+    # a grey level of float32 rounding (the sampling runs relative to each texture's corner); was 8 at the edges
+    assert np.abs(small - large[r0:r0 + small.shape[0], c0:c0 + small.shape[1]]).max() <= 1.0
