@@ -402,6 +402,12 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("crs mismatch", "--image '{image}': the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611' "
                      "(mismatched CRS"),
     ("off the dem", "does not overlap the terrain's"),
+    ("south up", "with its rows running south to north or its columns east to west (pixel size 30 x 30); a "
+                 "pyramid's row 0 is the north edge and column 0 the west edge: write the image north-up, or give "
+                 "--image-extent xmin,xmax,ymin,ymax for it as it is"),
+    ("rotated", "rotated geotransform (30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0) (its rotation terms move pixels "
+                "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp` makes "
+                "the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
     ("over the budget", "reading '{image}' (the image: 3 x 643 x 1197 cells of uint8)"),
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
@@ -411,7 +417,7 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     from .conftest import shared_file
 
     source = shared_file(TUJUNGA)
-    image = tmp_path / ("ortho.tif" if case == "crs mismatch" else "map.png")
+    image = tmp_path / ("ortho.tif" if case in ("crs mismatch", "south up", "rotated") else "map.png")
     argv = ["--image", str(image)]
     if case == "not an image":
         image.write_text("not an image\n")
@@ -426,6 +432,12 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
         rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
         with rasterio.open(source) as dem:
             write_geotiff(image, coded_pixels(*dem.shape), dem.transform, "EPSG:32610")
+    elif case in ("south up", "rotated"):  # the library's extent= was named, not the option
+        from rasterio.transform import Affine
+
+        transform = (Affine(30.0, 0.0, 376313.0, 0.0, 30.0, 3788627.0) if case == "south up"
+                     else Affine(30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0))
+        write_geotiff(image, coded_pixels(64, 64), transform, "EPSG:32611")
     out = tmp_path / "t.png"
     assert main(["texture", str(source), *argv, "-o", str(out), "--device", "cpu"]) == 2
     err = capsys.readouterr().err
