@@ -624,3 +624,27 @@ def test_cli_texture_image_on_a_cropped_dem_keeps_its_colours_at_the_crops_edge(
     r0, c0 = 20 * per_node, 30 * per_node
     # a grey level of float32 rounding (the sampling runs relative to each texture's corner); was 8 at the edges
     assert np.abs(small - large[r0:r0 + small.shape[0], c0:c0 + small.shape[1]]).max() <= 1.0
+
+
+def test_cli_texture_a_global_image_drapes_a_dem_across_the_antimeridian(tmp_path):
+    """A whole-world image in degrees (1 degree pixels: the western hemisphere one colour, the eastern another) on a
+    DEM in degrees from 178 E to 182 E (178 E to 178 W): the image goes on past its seam at 180, so the nodes east
+    of 180.5 take the western hemisphere's colour and those west of 179.5 the eastern's. image_layer placed the image
+    at one turn only, so the nodes on the far side of the seam were left transparent (white)."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    pixels = np.empty((180, 360, 3), np.uint8)
+    pixels[:, :180] = (10, 20, 30)  # 180 W .. 0
+    pixels[:, 180:] = (200, 100, 50)  # 0 .. 180 E
+    image = write_geotiff(tmp_path / "world.tif", pixels, Affine(1.0, 0.0, -180.0, 0.0, -1.0, 90.0), "EPSG:4326")
+    dem = tmp_path / "across.tif"
+    heights = np.random.default_rng(3).normal(100.0, 5.0, (9, 17)).astype(np.float32)
+    with rasterio.open(dem, "w", driver="GTiff", height=9, width=17, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(0.25, 0.0, 177.875, 0.0, -0.25, -15.875)) as out:  # nodes at 178 .. 182 E
+        out.write(heights, 1)
+    draped = texture_of(tmp_path, "draped", str(dem), "--image", str(image), "--colormap", "none",
+                        "--hillshade", "none")
+    lons = 178.0 + 0.25 * np.arange(17)
+    assert (draped[:, lons <= 179.5] == (200, 100, 50)).all()
+    assert (draped[:, lons >= 180.5] == (10, 20, 30)).all()
