@@ -824,6 +824,8 @@ _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
     "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
     "globe": {"raise the error": "raise --error"},
+    # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
+    "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
 }
 
 #: The library's own pointer to the option after an argument now spelled as that option: "--base 0.5, on the

@@ -1071,12 +1071,14 @@ def _overlap(a: Extent, b: Extent) -> bool:
 
 class _PlacedPyramid(ImagePyramid):
     """A pyramid's levels over another ``extent`` in another ``crs`` (:func:`_placed`): no copy, and the levels are
-    read through the pyramid itself, so closing it closes this view too (closing the view closes only the view)."""
+    read through the pyramid itself, so closing it closes this view too (closing the view closes only the view).
+    ``whole_turn``: the image spans 360 degrees of longitude, so its east edge meets its west edge."""
 
-    def __init__(self, source: ImagePyramid, extent: Extent, crs: str | None) -> None:
+    def __init__(self, source: ImagePyramid, extent: Extent, crs: str | None, whole_turn: bool = False) -> None:
         self.source = source
         self.extent = _check_extent(extent)
         self.crs = crs
+        self.whole_turn = whole_turn
         self.storage = source.storage
         self._owned = False
         self._closed = False
@@ -1123,7 +1125,8 @@ def _placed(pyramid: ImagePyramid, terrain: Terrain) -> ImagePyramid:
                                            [v * body.degrees for v in (ymin, ymax)])
             if found is not None:
                 (x0, x1), (y0, y1) = found
-                return _PlacedPyramid(pyramid, (x0, x1, y0, y1), terrain.crs)
+                whole_turn = abs(abs(lons[1] - lons[0]) - 360.0) <= 1e-9 * 360.0  # a global image: it wraps
+                return _PlacedPyramid(pyramid, (x0, x1, y0, y1), terrain.crs, whole_turn)
         hint = (f"the terrain is a DEM in degrees of a body of radius {radius:.10g} m read as local metres, but the "
                 f"image's CRS is of a body of radius {body.radius:.10g} m")
     raise InvalidInputError(f"the image is in CRS {image_crs!r} but the terrain is in {terrain_crs!r} (mismatched "
@@ -1202,16 +1205,18 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     itself when it is that coarse already); ``texel_size`` (world units, > 0) asks for that resolution instead (a
     texture finer than the DEM keeps an orthophoto's detail: the coarsest level no coarser than ``texel_size``). The
     pyramid is built band by band in a temporary folder and deleted after, so memory holds the decoded image (checked
-    against the memory budget) and the window read, never its full-resolution copy in floats. Combine the layer with
-    the terrain's layers as any other (:func:`~stepterrain.texture.blend`, :func:`~stepterrain.texture.modulate`): it
-    is sampled bilinearly onto theirs, transparent outside its extent.
+    against the memory budget) and the window read (a pixel beyond the terrain on each side, within the image, so a
+    texel near its edge interpolates as over the whole image), never its full-resolution copy in floats. Combine the
+    layer with the terrain's layers as any other (:func:`~stepterrain.texture.blend`,
+    :func:`~stepterrain.texture.modulate`): it is sampled bilinearly onto theirs, transparent outside its extent.
 
     ``image`` (a path, or an array as :meth:`ImagePyramid.build` takes it) is placed as :class:`TextureTree` places
     a pyramid: a GeoTIFF by its own georeferencing, in the terrain's CRS (refused in another, with the ``gdalwarp``
-    to run), or in degrees over a DEM load_dem read from degrees; an image without georeferencing (an array, a PNG,
-    a JPEG, a plain TIFF) needs ``extent`` = (xmin, xmax, ymin, ymax), the outer edges of its pixels in the
-    terrain's own coordinates (those of ``terrain.extent``; a geographic DEM's local metres), which also places a
-    GeoTIFF there instead of its georeferencing.
+    to run), or in degrees over a DEM load_dem read from degrees (one spanning 360 degrees of longitude, a world
+    image, goes on past its seam: a DEM across the antimeridian takes its other end there); an image without
+    georeferencing (an array, a PNG, a JPEG, a plain TIFF) needs ``extent`` = (xmin, xmax, ymin, ymax), the outer
+    edges of its pixels in the terrain's own coordinates (those of ``terrain.extent``; a geographic DEM's local
+    metres), which also places a GeoTIFF there instead of its georeferencing.
 
     Raises
     ------
@@ -1246,13 +1251,40 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
         if window is None:
             raise InvalidInputError(f"the image extent {placed.extent} does not overlap the terrain's {target} "
                                     "(mismatched extent)")
+        # a pixel more on each side (within the image): a texel near the terrain's edge is interpolated with the
+        # image's next pixel beyond it, not the window's edge pixel repeated (a cropped DEM, or a tile beside
+        # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes)
+        r0, r1, c0, c1 = window
+        rows, cols = placed.shape(level)
+        window = (max(r0 - 1, 0), min(r1 + 1, rows), max(c0 - 1, 0), min(c1 + 1, cols))
         pixels = np.array(placed.sub_image(level, window))  # a copy: the level files go with the pyramid
         where = placed.window_extent(level, window)
+        if getattr(placed, "whole_turn", False):  # a global image (360 degrees) goes on past its seam
+            pixels, where = _wrapped(placed, level, window, pixels, where, target)
     channels = pixels.shape[2]
     if channels < 3:  # grey, grey + alpha: as RGB(A)
         pixels = np.concatenate([np.repeat(pixels[:, :, :1], 3, axis=2), pixels[:, :, 1:]], axis=2)
     pixels.flags.writeable = False  # its RGBA is cached
     return TextureLayer("thematic", pixels, where, name=name)
+
+
+def _wrapped(placed: ImagePyramid, level: int, window: tuple[int, int, int, int], pixels: NDArray[np.uint8],
+             where: Extent, target: Extent) -> tuple[NDArray[np.uint8], Extent]:
+    """The window ``pixels`` over ``where`` of an image spanning a whole turn of longitude, grown over the part of
+    ``target`` past its west or east edge by the image's columns from its other end (and one more, as image_layer's
+    margin): a DEM across the antimeridian (or across the seam of a 0..360 image) was draped on one side only, the
+    other left transparent."""
+    r0, r1, _, _ = window
+    rows, cols = placed.shape(level)
+    px = placed.pixel_size(level)[0]
+    xmin, xmax, ymin, ymax = where
+    west = min(cols, math.ceil((xmin - target[0]) / px - 1e-9) + 1) if xmin > target[0] else 0
+    east = min(cols, math.ceil((target[1] - xmax) / px - 1e-9) + 1) if xmax < target[1] else 0
+    if west:
+        pixels = np.concatenate([np.asarray(placed.sub_image(level, (r0, r1, cols - west, cols))), pixels], axis=1)
+    if east:
+        pixels = np.concatenate([pixels, np.asarray(placed.sub_image(level, (r0, r1, 0, east)))], axis=1)
+    return pixels, (xmin - west * px, xmax + east * px, ymin, ymax)
 
 
 # ---------------------------------------------------------------------------------------------- camera, errors

@@ -402,6 +402,12 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("crs mismatch", "--image '{image}': the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611' "
                      "(mismatched CRS"),
     ("off the dem", "does not overlap the terrain's"),
+    ("south up", "with its rows running south to north or its columns east to west (pixel size 30 x 30); a "
+                 "pyramid's row 0 is the north edge and column 0 the west edge: write the image north-up, or give "
+                 "--image-extent xmin,xmax,ymin,ymax for it as it is"),
+    ("rotated", "rotated geotransform (30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0) (its rotation terms move pixels "
+                "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp` makes "
+                "the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
     ("over the budget", "reading '{image}' (the image: 3 x 643 x 1197 cells of uint8)"),
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
@@ -411,7 +417,7 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     from .conftest import shared_file
 
     source = shared_file(TUJUNGA)
-    image = tmp_path / ("ortho.tif" if case == "crs mismatch" else "map.png")
+    image = tmp_path / ("ortho.tif" if case in ("crs mismatch", "south up", "rotated") else "map.png")
     argv = ["--image", str(image)]
     if case == "not an image":
         image.write_text("not an image\n")
@@ -426,6 +432,12 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
         rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
         with rasterio.open(source) as dem:
             write_geotiff(image, coded_pixels(*dem.shape), dem.transform, "EPSG:32610")
+    elif case in ("south up", "rotated"):  # the library's extent= was named, not the option
+        from rasterio.transform import Affine
+
+        transform = (Affine(30.0, 0.0, 376313.0, 0.0, 30.0, 3788627.0) if case == "south up"
+                     else Affine(30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0))
+        write_geotiff(image, coded_pixels(64, 64), transform, "EPSG:32611")
     out = tmp_path / "t.png"
     assert main(["texture", str(source), *argv, "-o", str(out), "--device", "cpu"]) == 2
     err = capsys.readouterr().err
@@ -584,3 +596,55 @@ def test_cli_texture_texel_size_is_refused_by_name(tmp_path, capsys, argv, match
     if "budget" in " ".join(argv) and "64GiB" not in argv:
         assert "give a larger --texel-size" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("texel", [None, "10"])
+def test_cli_texture_image_on_a_cropped_dem_keeps_its_colours_at_the_crops_edge(tmp_path, texel):
+    """--image over a --crop of the DEM: the texture of the crop is the texture of a larger crop over the same nodes
+    (texels), also next to the crop's edges, to a grey level. image_layer read only the image's pixels over the
+    terrain, so a texel near its edge was interpolated with the window's edge pixel repeated instead of the image's
+    next pixel beyond it: the colours there depended on where the DEM was cropped (tiles of one orthophoto did not
+    match at their seams)."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    from .conftest import shared_file
+
+    with rasterio.open(shared_file(TUJUNGA)) as dem:
+        transform, crs = dem.transform, dem.crs
+    pixels = np.random.default_rng(5).integers(0, 256, (60, 80, 3), dtype=np.uint8)  # 45 m pixels, off the nodes
+    image = write_geotiff(tmp_path / "noise.tif", pixels, transform @ Affine.translation(95.3, 95.7)
+                          @ Affine.scale(1.5), crs)
+    common = [str(shared_file(TUJUNGA)), "--image", str(image), "--colormap", "none", "--hillshade", "none"]
+    common += [] if texel is None else ["--texel-size", texel]
+    per_node = 1 if texel is None else 3
+    large = texture_of(tmp_path, "large", *common, _crop_nodes((100, 180), (100, 210)))
+    small = texture_of(tmp_path, "small", *common, _crop_nodes((120, 160), (130, 180)))
+    assert small.shape == (41 * per_node, 51 * per_node, 3)
+    r0, c0 = 20 * per_node, 30 * per_node
+    # a grey level of float32 rounding (the sampling runs relative to each texture's corner); was 8 at the edges
+    assert np.abs(small - large[r0:r0 + small.shape[0], c0:c0 + small.shape[1]]).max() <= 1.0
+
+
+def test_cli_texture_a_global_image_drapes_a_dem_across_the_antimeridian(tmp_path):
+    """A whole-world image in degrees (1 degree pixels: the western hemisphere one colour, the eastern another) on a
+    DEM in degrees from 178 E to 182 E (178 E to 178 W): the image goes on past its seam at 180, so the nodes east
+    of 180.5 take the western hemisphere's colour and those west of 179.5 the eastern's. image_layer placed the image
+    at one turn only, so the nodes on the far side of the seam were left transparent (white)."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from rasterio.transform import Affine
+
+    pixels = np.empty((180, 360, 3), np.uint8)
+    pixels[:, :180] = (10, 20, 30)  # 180 W .. 0
+    pixels[:, 180:] = (200, 100, 50)  # 0 .. 180 E
+    image = write_geotiff(tmp_path / "world.tif", pixels, Affine(1.0, 0.0, -180.0, 0.0, -1.0, 90.0), "EPSG:4326")
+    dem = tmp_path / "across.tif"
+    heights = np.random.default_rng(3).normal(100.0, 5.0, (9, 17)).astype(np.float32)
+    with rasterio.open(dem, "w", driver="GTiff", height=9, width=17, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(0.25, 0.0, 177.875, 0.0, -0.25, -15.875)) as out:  # nodes at 178 .. 182 E
+        out.write(heights, 1)
+    draped = texture_of(tmp_path, "draped", str(dem), "--image", str(image), "--colormap", "none",
+                        "--hillshade", "none")
+    lons = 178.0 + 0.25 * np.arange(17)
+    assert (draped[:, lons <= 179.5] == (200, 100, 50)).all()
+    assert (draped[:, lons >= 180.5] == (10, 20, 30)).all()

@@ -913,7 +913,8 @@ def test_texture_tree_takes_the_geotiff_of_a_texture_of_a_dem_in_degrees(tmp_pat
 
 def test_image_layer_reads_the_pyramid_level_of_the_terrain_resolution_over_the_terrain_only():
     """image_layer: an image four times finer than the terrain's nodes comes from its pyramid's level 2 (pixels of
-    the node spacing), only the window over the terrain (the image reaches past it), placed by ``extent``; an
+    the node spacing), only the window over the terrain and one pixel beyond it where the image reaches past it (its
+    south edge here, for the bilinear sampling of the texels there), placed by ``extent``; an
     image without georeferencing and no extent is refused, as it would lie in pixel units anywhere."""
     from stepterrain.terrain import Terrain
     from stepterrain.texture import terrain_extent
@@ -926,8 +927,8 @@ def test_image_layer_reads_the_pyramid_level_of_the_terrain_resolution_over_the_
     layer = image_layer(pixels, terrain, extent=extent, device="cpu")
     with ImagePyramid.build(pixels, extent=extent, device="cpu") as pyramid:
         level2 = np.asarray(pyramid.levels[2])
-    assert layer.kind == "thematic" and layer.shape == (20, 30)
-    assert layer.extent == pytest.approx((xmin, xmax, ymin, ymax)) and np.array_equal(layer.image, level2[:20])
+    assert layer.kind == "thematic" and layer.shape == (21, 30)
+    assert layer.extent == pytest.approx((xmin, xmax, ymin - 4.0, ymax)) and np.array_equal(layer.image, level2[:21])
     with pytest.raises(InvalidInputError, match="carries no georeferencing .*pass extent="):
         image_layer(pixels, terrain, device="cpu")
 
@@ -946,9 +947,10 @@ def test_image_layer_texel_size_reads_the_finer_level_asked_for():
     extent = (xmin, xmax, ymin - 16 * 4.0, ymax)
     with ImagePyramid.build(pixels, extent=extent, device="cpu") as pyramid:
         level1 = np.asarray(pyramid.levels[1])
-    for texel, expected in ((2.0, level1[:40]), (1.0, pixels[:80]), (1.5, pixels[:80])):
+    for texel, expected in ((2.0, level1[:41]), (1.0, pixels[:81]), (1.5, pixels[:81])):  # a pixel more south
         layer = image_layer(pixels, terrain, extent=extent, device="cpu", texel_size=texel)
-        assert layer.extent == pytest.approx((xmin, xmax, ymin, ymax)) and np.array_equal(layer.image, expected)
+        south = ymin - 80.0 / (len(expected) - 1)  # one pixel of the level below the terrain's 80 m
+        assert layer.extent == pytest.approx((xmin, xmax, south, ymax)) and np.array_equal(layer.image, expected)
     for bad in (0, -1.0, float("nan"), "x"):
         with pytest.raises(InvalidInputError, match="texel_size must be"):
             image_layer(pixels, terrain, extent=extent, device="cpu", texel_size=bad)
