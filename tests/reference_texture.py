@@ -121,7 +121,9 @@ def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=A
 
 
 def line_geometry(shape, spacing, azimuth):
-    """Major axis, walking direction, digital-line offsets and the away-from-light unit vector."""
+    """Major axis, walking direction, digital-line offsets and the away-from-light unit vector. The lines are
+    anchored at the middle of the major axis and rounded symmetrically, so a layout with reversed rows or columns
+    (dy or dx negated) has the same lines through the same terrain."""
     rows, cols = shape
     dx, dy = spacing
     ti, tj = math.cos(azimuth) / dy, math.sin(azimuth) / dx
@@ -129,7 +131,12 @@ def line_geometry(shape, spacing, azimuth):
         major_j, n_major, n_minor, slope, forward = True, cols, rows, ti / tj, (-1 if tj > 0 else 1)
     else:
         major_j, n_major, n_minor, slope, forward = False, rows, cols, tj / ti, (-1 if ti > 0 else 1)
-    offsets = np.floor(slope * np.arange(n_major, dtype=np.float64) + 0.5).astype(np.int64)
+    k = np.arange(n_major, dtype=np.float64)
+    if max(abs(ti), abs(tj)) <= min(abs(ti), abs(tj)) * (1 + 1e-9):  # a diagonal: exactly through nodes
+        offsets = (np.sign(slope) * k).astype(np.int64)
+    else:  # nearest to the line through the middle of the major axis, halves towards it (symmetric under flips)
+        x = slope * (k - (n_major - 1) / 2)
+        offsets = np.where(x >= 0, np.ceil(x - 0.5), np.floor(x + 0.5)).astype(np.int64)
     away = (-math.sin(azimuth), -math.cos(azimuth))
     return major_j, n_major, n_minor, forward, offsets, away
 
