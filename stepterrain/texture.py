@@ -423,13 +423,15 @@ def _maplibre_hillshade(t: Terrain, azimuth: Any, altitude: Any, z_factor: float
     return _result(host, out)
 
 
-def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float, altitude: float,
-           device: wp.Device) -> tuple[texture_kernels.Sweep, int]:
-    """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py) and their count."""
+def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float | tuple[float, float],
+           altitude: float, device: wp.Device) -> tuple[texture_kernels.Sweep, int]:
+    """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py) and their count; the
+    azimuth in radians or as its (sine, cosine)."""
     rows, cols = shape
     dx, dy = spacing
-    toward_i = math.cos(azimuth) / dy  # index-space step towards the light
-    toward_j = math.sin(azimuth) / dx
+    sin_az, cos_az = azimuth if isinstance(azimuth, tuple) else (math.sin(azimuth), math.cos(azimuth))
+    toward_i = cos_az / dy  # index-space step towards the light
+    toward_j = sin_az / dx
     sweep = texture_kernels.Sweep()
     # a diagonal light (the default 315°, equal |dx| and |dy|; sin and cos differ there in the last bit) sweeps
     # along rows, the faster axis on CPUs (see _LINES_PER_THREAD_CPU), at slope ±1 exactly: a diagonal's digital
@@ -450,10 +452,26 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float,
     sweep.n_lines = c_max - c_min + 1
     sweep.major_j, sweep.n_major, sweep.n_minor = major_j, n_major, n_minor
     sweep.forward, sweep.c_min = forward, c_min
-    sweep.away = wp.vec2(-math.sin(azimuth), -math.cos(azimuth))
+    sweep.away = wp.vec2(-sin_az, -cos_az)
     tan_altitude = math.tan(altitude) if altitude < math.pi / 2 else 3.0e38
-    sweep.rise = wp.vec2(dx * -math.sin(azimuth) * tan_altitude, dy * -math.cos(azimuth) * tan_altitude)
+    sweep.rise = wp.vec2(dx * -sin_az * tan_altitude, dy * -cos_az * tan_altitude)
     return sweep, sweep.n_lines
+
+
+def compass(k: int, n: int) -> tuple[float, float]:
+    """(sine, cosine) of the azimuth k/n of a turn, mirror-exact: reduced to the first octant by exact integer
+    arithmetic, so azimuths mirrored across an axis or a diagonal (k/n against 1/2 − k/n, −k/n, 1/4 − k/n) give
+    exactly the mirrored vectors (math.sin(π/2 − a) and math.cos(a) differ in the last bit, and a digital line
+    rounded at a tie then took other nodes), and the diagonals equal sine and cosine."""
+    m = (4 * k) % (4 * n)  # the azimuth in quarter turns is m / n
+    quadrant, r = divmod(m, n)  # angle within the quadrant: r / n quarter turns
+    if 2 * r == n:
+        s = c = math.sqrt(0.5)
+    elif 2 * r < n:
+        s, c = math.sin(math.pi / 2 * r / n), math.cos(math.pi / 2 * r / n)
+    else:
+        c, s = math.sin(math.pi / 2 * (n - r) / n), math.cos(math.pi / 2 * (n - r) / n)
+    return ((s, c), (c, -s), (-s, -c), (-c, s))[quadrant]
 
 
 def minor_offsets(n_major: int, slope: float) -> NDArray[np.int32]:
@@ -573,7 +591,8 @@ def ambient_occlusion(
     directions, 0.81-0.86 s on one core, 1.85 s one line at a time. The lines are anchored at the grid's middle
     and rounded symmetrically (:func:`minor_offsets`), so one terrain gives the same occlusion laid out north-up
     (dy < 0) or south-up, with its columns either way; a mirrored terrain gives the mirror image where the
-    directions are symmetric under that mirror (rows reversed, dy kept: an even count; transposed: a multiple of 4).
+    directions are symmetric under that mirror (rows reversed, dy kept: an even count; transposed: a multiple of 4;
+    :func:`compass` makes their vectors exact mirror images).
 
     Examples
     --------
@@ -593,8 +612,7 @@ def ambient_occlusion(
     hull = scratch("texture.hull", t.heights.size, wp.vec2, dev)
     weight = 1.0 / int(directions)
     for k in range(int(directions)):  # one pass per direction (a handful), never per pixel
-        azimuth = 2.0 * math.pi * k / int(directions)
-        sweep, n_lines = _sweep(t.heights.shape, t.spacing, azimuth, math.radians(45.0), dev)
+        sweep, n_lines = _sweep(t.heights.shape, t.spacing, compass(k, int(directions)), math.radians(45.0), dev)
         counts = count_buffer("texture.lines", n_lines, dev)
         launch(texture_kernels.count_line_nodes, dim=n_lines, inputs=[sweep], outputs=[counts], device=dev)
         offsets, _total = exclusive_offsets(counts, name="texture.lines")

@@ -466,9 +466,21 @@ def test_occlusion_does_not_depend_on_which_way_the_rows_and_columns_run_propert
     """ambient_occlusion of one terrain laid out north-up (dy < 0) and south-up, or with its columns reversed
     (dx < 0), differed by up to 0.05-0.15: the sweep lines were anchored at major index 0 (the other edge of the
     terrain in the flipped layout) and rounded floor(x + 1/2), so the two layouts walked different nodes. The lines
-    are now anchored at the middle and rounded symmetrically (and the distances measured from the grid's centre)."""
+    are now anchored at the middle and rounded symmetrically (and the distances measured from the grid's centre).
+    A mirrored terrain gives the mirror image when the directions are symmetric: transposed with non-square
+    pixels it did not (sin(π/2 − a) and cos(a) differ in the last bit, and a line rounded at a tie took other
+    nodes); the directions' vectors are now mirror-exact (texture.compass)."""
     results = [back(ambient_occlusion(z, directions=directions, spacing=s, device="cpu"))
                for z, s, back in _layouts(heights, spacing)]
+    # the terrain mirrored (not the same terrain): the mirror image where the directions map onto themselves
+    results.append(ambient_occlusion(heights[:, ::-1].copy(), directions=directions, spacing=spacing,
+                                     device="cpu")[:, ::-1])
+    if directions % 2 == 0:
+        results.append(ambient_occlusion(heights[::-1].copy(), directions=directions, spacing=spacing,
+                                         device="cpu")[::-1])
+    if directions % 4 == 0:  # transposed, its spacing swapped: mirrored across a diagonal
+        results.append(ambient_occlusion(heights.T.copy(), directions=directions, spacing=spacing[::-1],
+                                         device="cpu").T)
     for other in results[1:]:
         np.testing.assert_allclose(other, results[0], atol=1e-6)
     np.testing.assert_allclose(results[0], occlusion_reference(heights, spacing, directions), atol=2e-5)
@@ -529,3 +541,21 @@ def test_real_terrain_shades_alike_north_up_south_up_and_mirrored():
     for other in (ambient_occlusion(heights[::-1].copy(), directions=16, spacing=(60.0, 60.0), device="cpu")[::-1],
                   ambient_occlusion(heights.T.copy(), directions=16, spacing=(60.0, 60.0), device="cpu").T):
         np.testing.assert_allclose(other, ao, atol=1e-6)
+
+
+@pytest.mark.parametrize("directions", [8, 16])
+def test_occlusion_of_a_mirrored_terrain_is_its_mirror_image_on_non_square_pixels(directions):
+    """Big Tujunga on 60 x 15 m pixels (89 x 69 nodes) mirrored north-south or across a diagonal (transposed, the
+    spacing swapped): the occlusion was not the mirror image (up to 0.19): the direction at 2π k/n and its mirror
+    image took sin and cos that differ in the last bit (sin(π/2 − a) against cos(a)), and the digital lines of
+    slope ¼ · tan 45° rounded their ties apart. The directions' vectors are now exact mirror images (compass)."""
+    heights = real_dem_crop("big_tujunga_srtm_30m_utm11n.npz", size=90, step=2)[:89, :69]
+    spacing = (60.0, 15.0)
+    ao = ambient_occlusion(heights, directions=directions, spacing=spacing, device="cpu")
+    mirrored = [ambient_occlusion(heights[::-1].copy(), directions=directions, spacing=spacing, device="cpu")[::-1],
+                ambient_occlusion(heights[:, ::-1].copy(), directions=directions, spacing=spacing,
+                                  device="cpu")[:, ::-1],
+                ambient_occlusion(heights.T.copy(), directions=directions, spacing=spacing[::-1], device="cpu").T]
+    for other in mirrored:
+        np.testing.assert_allclose(other, ao, atol=1e-6)
+    np.testing.assert_allclose(ao, occlusion_reference(heights, spacing, directions), atol=2e-5)
