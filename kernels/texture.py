@@ -16,8 +16,11 @@ Conventions (shared with ``stepterrain.texture`` and ``tests/reference_texture.p
   dy < 0). World +y is north; azimuths are clockwise from north, altitudes above the horizon, radians.
 * Images are (H, W) or (H, W, 4) float32 RGBA in [0, 1], pixel (i, j) = grid node (i, j).
 * A sweep line is a digital line: along its major axis it visits every index once; its minor index is
-  ``c + minor_offsets[major]`` with ``minor_offsets[k] = floor(slope * k + 0.5)``, so lines with consecutive
-  integer ``c`` partition the grid. The ray of a node towards the light visits the nodes of its own line.
+  ``c + minor_offsets[major]`` with ``minor_offsets[k] = round(slope * (k - (n_major - 1) / 2))``, halves towards
+  0 (``stepterrain.texture.minor_offsets``), so lines with consecutive integer ``c`` partition the grid. The ray of
+  a node towards the light visits the nodes of its own line. Distances along the light are measured from the
+  grid's centre: with the lines' symmetric rounding, a layout with its rows or columns reversed (dy or dx
+  negated) sweeps the same nodes with the same float32 values.
 """
 
 from __future__ import annotations
@@ -652,8 +655,11 @@ def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
 
 @wp.func
 def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32) -> wp.float32:
-    """How far node (i, j) lies along the away-from-light direction (world units, local origin)."""
-    return float(j) * grid.spacing[0] * sweep.away[0] + float(i) * grid.spacing[1] * sweep.away[1]
+    """How far node (i, j) lies along the away-from-light direction (world units, from the grid's centre: the
+    same float32 value whichever way the rows and columns run)."""
+    x = (float(j) - 0.5 * float(grid.cols - 1)) * grid.spacing[0]
+    y = (float(i) - 0.5 * float(grid.rows - 1)) * grid.spacing[1]
+    return x * sweep.away[0] + y * sweep.away[1]
 
 
 @wp.kernel
@@ -677,6 +683,8 @@ def sweep_shadows(
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
         horizons[line] = wp.float32(-3.0e38)
+    centre_i = 0.5 * float(grid.rows - 1)  # the rise measured from the grid's centre, as in distance_away
+    centre_j = 0.5 * float(grid.cols - 1)
     span_first = line_span(sweep, first)
     span_last = line_span(sweep, last - 1)
     span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
@@ -697,7 +705,8 @@ def sweep_shadows(
             if grid.has_nodata != 0 and wp.isnan(h):
                 store(shadow_out, i, j, wp.uint8(0))
             else:
-                g = h * grid.z_factor + (float(j) * sweep.rise[0] + float(i) * sweep.rise[1])
+                g = h * grid.z_factor + ((float(j) - centre_j) * sweep.rise[0]
+                                         + (float(i) - centre_i) * sweep.rise[1])
                 if g < load(horizons, line):
                     store(shadow_out, i, j, wp.uint8(1))
                 else:

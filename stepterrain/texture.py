@@ -424,23 +424,27 @@ def _maplibre_hillshade(t: Terrain, azimuth: Any, altitude: Any, z_factor: float
     return _result(host, out)
 
 
-def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float, altitude: float,
-           device: wp.Device) -> tuple[texture_kernels.Sweep, int]:
-    """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py) and their count."""
+def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float | tuple[float, float],
+           altitude: float, device: wp.Device) -> tuple[texture_kernels.Sweep, int]:
+    """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py) and their count; the
+    azimuth in radians or as its (sine, cosine)."""
     rows, cols = shape
     dx, dy = spacing
-    toward_i = math.cos(azimuth) / dy  # index-space step towards the light
-    toward_j = math.sin(azimuth) / dx
+    sin_az, cos_az = azimuth if isinstance(azimuth, tuple) else (math.sin(azimuth), math.cos(azimuth))
+    toward_i = cos_az / dy  # index-space step towards the light
+    toward_j = sin_az / dx
     sweep = texture_kernels.Sweep()
     # a diagonal light (the default 315°, equal |dx| and |dy|; sin and cos differ there in the last bit) sweeps
-    # along rows, the faster axis on CPUs (see _LINES_PER_THREAD_CPU): a diagonal's digital lines are the same
-    # nodes in the same order along either axis (floor(±k·(1 + 1e-9) + 0.5) = ±k for every k of a grid)
+    # along rows, the faster axis on CPUs (see _LINES_PER_THREAD_CPU), at slope ±1 exactly: a diagonal's digital
+    # lines are the same nodes in the same order along either axis
     if abs(toward_j) > abs(toward_i) * (1.0 + 1e-9):
         major_j, n_major, n_minor = 1, cols, rows
         slope, forward = toward_i / toward_j, -1 if toward_j > 0 else 1
     else:
         major_j, n_major, n_minor = 0, rows, cols
         slope, forward = toward_j / toward_i, -1 if toward_i > 0 else 1
+        if abs(toward_i) <= abs(toward_j) * (1.0 + 1e-9):
+            slope = math.copysign(1.0, slope)
     offsets = minor_offsets(n_major, slope)
     c_min = -int(offsets.max())
     c_max = n_minor - 1 - int(offsets.min())
@@ -449,15 +453,42 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float,
     sweep.n_lines = c_max - c_min + 1
     sweep.major_j, sweep.n_major, sweep.n_minor = major_j, n_major, n_minor
     sweep.forward, sweep.c_min = forward, c_min
-    sweep.away = wp.vec2(-math.sin(azimuth), -math.cos(azimuth))
+    sweep.away = wp.vec2(-sin_az, -cos_az)
     tan_altitude = math.tan(altitude) if altitude < math.pi / 2 else 3.0e38
-    sweep.rise = wp.vec2(dx * -math.sin(azimuth) * tan_altitude, dy * -math.cos(azimuth) * tan_altitude)
+    sweep.rise = wp.vec2(dx * -sin_az * tan_altitude, dy * -cos_az * tan_altitude)
     return sweep, sweep.n_lines
 
 
+def compass(k: int, n: int) -> tuple[float, float]:
+    """(sine, cosine) of the azimuth k/n of a turn, mirror-exact: reduced to the first octant by exact integer
+    arithmetic, so azimuths mirrored across an axis or a diagonal (k/n against 1/2 − k/n, −k/n, 1/4 − k/n) give
+    exactly the mirrored vectors (math.sin(π/2 − a) and math.cos(a) differ in the last bit, and a digital line
+    rounded at a tie then took other nodes), and the diagonals equal sine and cosine."""
+    m = (4 * k) % (4 * n)  # the azimuth in quarter turns is m / n
+    quadrant, r = divmod(m, n)  # angle within the quadrant: r / n quarter turns
+    if 2 * r == n:
+        s = c = math.sqrt(0.5)
+    elif 2 * r < n:
+        s, c = math.sin(math.pi / 2 * r / n), math.cos(math.pi / 2 * r / n)
+    else:
+        c, s = math.sin(math.pi / 2 * (n - r) / n), math.cos(math.pi / 2 * (n - r) / n)
+    return ((s, c), (c, -s), (-s, -c), (-c, s))[quadrant]
+
+
 def minor_offsets(n_major: int, slope: float) -> NDArray[np.int32]:
-    """Minor index of a digital line at each major index: floor(slope · k + 0.5), in float64."""
-    return np.floor(slope * np.arange(n_major, dtype=np.float64) + 0.5).astype(np.int32)
+    """Minor index of a digital line at each major index k: slope · (k − (n_major − 1)/2) rounded to the nearest
+    integer, halves towards 0, in float64 (slope ±1: ±k exactly).
+
+    The lines are anchored at the middle of the major axis and rounded symmetrically, so the same terrain laid out
+    with its rows or columns reversed (dy or dx negated, a north-up raster against a south-up one) sweeps the same
+    nodes: reversing the major axis maps k − (n − 1)/2 to its negative as the slope changes sign, reversing the
+    minor axis negates the slope, and the rounding is odd. Anchored at k = 0 with ``floor(x + 0.5)`` the lines of
+    the two layouts differed by the fraction of slope · (n − 1), and the shadows and occlusion with them."""
+    k = np.arange(n_major, dtype=np.float64)
+    if abs(slope) == 1.0:  # exact diagonals: every line through nodes
+        return (slope * k).astype(np.int32)
+    x = slope * (k - 0.5 * (n_major - 1))
+    return (np.sign(x) * np.ceil(np.abs(x) - 0.5)).astype(np.int32)
 
 
 def _shadow_array(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, altitude: float,
@@ -513,7 +544,8 @@ def cast_shadows(
     Notes
     -----
     Sweep lines: digital lines parallel to the light's azimuth (along the dominant axis each visits one node
-    per row or column; the minor index is ``c + floor(slope · k + 0.5)``, so the lines partition the grid).
+    per row or column; the minor index is ``c + round(slope · (k − (n − 1)/2))``, halves rounded towards 0,
+    so the lines partition the grid and are the same nodes whichever way the rows and columns run).
     One thread walks a line away from the light keeping the running horizon ``max(z + t·tan(altitude))``
     over the nodes seen so far (t = distance along the light's horizontal direction); a node is shadowed
     when that maximum exceeds its own value, i.e. when an earlier node of its line rises above the ray from
@@ -557,7 +589,11 @@ def ambient_occlusion(
     the azimuth. The stacks take one slot per node, allocated by count -> scan
     (``_compaction.exclusive_offsets``). Cost: O(directions · pixels). A CUDA thread walks one line; a CPU thread
     a bundle of adjacent lines in lockstep (neighbouring nodes one after another; the same values): 2048², 16
-    directions, 0.81-0.86 s on one core, 1.85 s one line at a time.
+    directions, 0.81-0.86 s on one core, 1.85 s one line at a time. The lines are anchored at the grid's middle
+    and rounded symmetrically (:func:`minor_offsets`), so one terrain gives the same occlusion laid out north-up
+    (dy < 0) or south-up, with its columns either way; a mirrored terrain gives the mirror image where the
+    directions are symmetric under that mirror (rows reversed, dy kept: an even count; transposed: a multiple of 4;
+    :func:`compass` makes their vectors exact mirror images).
 
     Examples
     --------
@@ -577,8 +613,7 @@ def ambient_occlusion(
     hull = scratch("texture.hull", t.heights.size, wp.vec2, dev)
     weight = 1.0 / int(directions)
     for k in range(int(directions)):  # one pass per direction (a handful), never per pixel
-        azimuth = 2.0 * math.pi * k / int(directions)
-        sweep, n_lines = _sweep(t.heights.shape, t.spacing, azimuth, math.radians(45.0), dev)
+        sweep, n_lines = _sweep(t.heights.shape, t.spacing, compass(k, int(directions)), math.radians(45.0), dev)
         counts = count_buffer("texture.lines", n_lines, dev)
         launch(texture_kernels.count_line_nodes, dim=n_lines, inputs=[sweep], outputs=[counts], device=dev)
         offsets, _total = exclusive_offsets(counts, name="texture.lines")

@@ -121,16 +121,25 @@ def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=A
 
 
 def line_geometry(shape, spacing, azimuth):
-    """Major axis, walking direction, digital-line offsets and the away-from-light unit vector."""
+    """Major axis, walking direction, digital-line offsets and the away-from-light unit vector (the azimuth in
+    radians or as its (sin, cos)). The lines are
+    anchored at the middle of the major axis and rounded symmetrically, so a layout with reversed rows or columns
+    (dy or dx negated) has the same lines through the same terrain."""
     rows, cols = shape
     dx, dy = spacing
-    ti, tj = math.cos(azimuth) / dy, math.sin(azimuth) / dx
+    sin_az, cos_az = azimuth if isinstance(azimuth, tuple) else (math.sin(azimuth), math.cos(azimuth))
+    ti, tj = cos_az / dy, sin_az / dx
     if abs(tj) >= abs(ti):
         major_j, n_major, n_minor, slope, forward = True, cols, rows, ti / tj, (-1 if tj > 0 else 1)
     else:
         major_j, n_major, n_minor, slope, forward = False, rows, cols, tj / ti, (-1 if ti > 0 else 1)
-    offsets = np.floor(slope * np.arange(n_major, dtype=np.float64) + 0.5).astype(np.int64)
-    away = (-math.sin(azimuth), -math.cos(azimuth))
+    k = np.arange(n_major, dtype=np.float64)
+    if max(abs(ti), abs(tj)) <= min(abs(ti), abs(tj)) * (1 + 1e-9):  # a diagonal: exactly through nodes
+        offsets = (np.sign(slope) * k).astype(np.int64)
+    else:  # nearest to the line through the middle of the major axis, halves towards it (symmetric under flips)
+        x = slope * (k - (n_major - 1) / 2)
+        offsets = np.where(x >= 0, np.ceil(x - 0.5), np.floor(x + 0.5)).astype(np.int64)
+    away = (-sin_az, -cos_az)
     return major_j, n_major, n_minor, forward, offsets, away
 
 
@@ -173,6 +182,18 @@ def shadows_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALT
     return shadow.astype(np.uint8)
 
 
+def compass(k, n):
+    """(sin, cos) of k/n of a turn through the symmetries of the square: the angle within its quarter turn is taken
+    from the nearer axis (a diagonal is sqrt(1/2) twice), so mirrored directions are exact mirror images."""
+    quarter, r = divmod((4 * k) % (4 * n), n)
+    near = min(r, n - r)
+    a, b = math.sin(math.pi / 2 * near / n), math.cos(math.pi / 2 * near / n)
+    s, c = (a, b) if 2 * r < n else (b, a) if 2 * r > n else (math.sqrt(0.5), math.sqrt(0.5))
+    for _ in range(quarter):  # a quarter turn clockwise: (sin, cos) -> (cos, -sin)
+        s, c = c, -s
+    return s, c
+
+
 def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0) -> np.ndarray:
     z = np.asarray(heights, dtype=np.float64) * z_factor
     rows, cols = z.shape
@@ -180,8 +201,7 @@ def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0
     i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     total = np.zeros(z.shape)
     for k in range(directions):
-        azimuth = 2 * math.pi * k / directions
-        steps, away = _line_nodes(z.shape, spacing, azimuth)
+        steps, away = _line_nodes(z.shape, spacing, compass(k, directions))
         t = j * dx * away[0] + i * dy * away[1]
         best = np.full(z.shape, -np.inf)
         for inside, ii, jj in steps:
