@@ -745,6 +745,15 @@ def test_cli_texture_image_world_file_crs_rules(tmp_path, capsys):
     err = refused(shared_file("front_range_srtmgl3_3arcsec.tif"), degrees)
     assert "is georeferenced without a CRS, but the terrain is a DEM in degrees read as local metres" in err
     assert "put a .prj with the image's CRS beside it (EPSG:4326 for degrees), or give --image-extent" in err
+    degrees.with_suffix(".prj").write_text(CRS.from_epsg(4326).to_wkt())  # with its CRS: placed as a GeoTIFF is
+    front_range = shared_file("front_range_srtmgl3_3arcsec.tif")
+    on_degrees = texture_of(tmp_path, "degrees", str(front_range), "--image", str(degrees), "--colormap", "none",
+                            "--hillshade", "none")
+    geotiff = write_geotiff(tmp_path / "degrees.tif", read_png(degrees), Affine(0.001, 0, -105.7, 0, -0.001, 40.4),
+                            "EPSG:4326")
+    from_geotiff = texture_of(tmp_path, "degrees_tif", str(front_range), "--image", str(geotiff), "--colormap",
+                              "none", "--hillshade", "none")
+    assert (on_degrees != 255).any() and np.array_equal(on_degrees, from_geotiff)
     far = tmp_path / "far" / "ortho.png"
     far.parent.mkdir()
     write_world_image(far, coded_pixels(60, 80), Affine(30, 0, 1000, 0, -30, 2000), None)
