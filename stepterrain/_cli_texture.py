@@ -51,6 +51,8 @@ examples:
   stepterrain texture dem.tif --image ortho.tif --colormap none --shadows -o draped.tif --mesh out/ortho.glb
       your own orthophoto (a GeoTIFF in the DEM's CRS, placed by its georeferencing) shaded by the hillshade and
       shadows, on the DEM's grid and draped on the mesh
+  stepterrain texture dem.tif --image ortho.jpg -o draped.png
+      a JPEG placed by the world file beside it (ortho.jgw; its CRS from ortho.prj, else taken as the DEM's)
   stepterrain texture dem.npy --spacing 30 --image map.png --image-extent=0,1500,0,1200 -o tex.png --png out/map.png
       a PNG without georeferencing, its outer pixel edges at x 0..1500, y 0..1200 in the DEM's coordinates
   stepterrain texture dem.tif --image ortho.tif --hillshade none -o ortho.png --mesh out/ortho.glb
@@ -100,15 +102,17 @@ def add_parser(commands: Any) -> None:
                    help="your own image (an orthophoto, a map) as the thematic layer, laid over the --colormap's "
                         "colours (or, with --colormap none, over plain white) and shaded by the hillshade, --shadows "
                         "and --occlusion as the colours are; where it is transparent (alpha, a GeoTIFF's nodata) or "
-                        "outside it those show. A GeoTIFF is placed by its georeferencing: in the DEM's CRS, or in "
-                        "degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to the "
-                        "DEM's grid (or --texel-size's) through an image pyramid (the decoded image is checked against "
-                        "--memory-budget)")
+                        "outside it those show. A GeoTIFF, or a JPEG or PNG with a world file beside it (.jgw, .pgw, "
+                        ".wld; its CRS from a .prj or .aux.xml beside it), is placed by its georeferencing: in the "
+                        "DEM's CRS (one without a CRS is taken in the DEM's CRS, refused over a DEM in degrees), or "
+                        "in degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to "
+                        "the DEM's grid (or --texel-size's) through an image pyramid (the decoded image is checked "
+                        "against --memory-budget)")
     p.add_argument("--image-extent", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="with --image: the outer edges of its pixels in the DEM's coordinates (those `stepterrain "
                         "info` prints, as --crop takes them; a geographic DEM's local metres); needed for an image "
-                        "without georeferencing (PNG, JPEG, a TIFF without a geotransform); for a GeoTIFF it "
-                        "replaces the georeferencing")
+                        "without georeferencing (PNG, JPEG without a world file, a TIFF without a geotransform); for "
+                        "a georeferenced image it replaces the georeferencing")
     p.add_argument("--texel-size", type=float, metavar="M",
                    help="metres (the DEM's units) per texel of the texture, for -o, --mesh and --png alike (default: "
                         "the DEM's node spacing, one texel per node); finer keeps an --image's detail (a 0.5 m "
@@ -259,7 +263,8 @@ def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | Non
 
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     """``--image`` and ``--image-extent`` before any work: the file exists and, without an extent, places itself (a
-    georeferenced GeoTIFF); an image without georeferencing would lie at x 0..W, y 0..H, one unit per pixel."""
+    georeferenced GeoTIFF, a JPEG or PNG with a world file); an image without georeferencing would lie at x 0..W,
+    y 0..H, one unit per pixel."""
     from .texture import _check_extent
     from .texture_lod import _read_tiff, is_georeferenced
 
@@ -285,9 +290,9 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     except Exception as exc:  # noqa: BLE001 - Pillow's many refusals (a TIFF only GDAL reads is an image too)
         if not _read_tiff(file, lambda dataset: True):
             raise DataFileError(f"--image {path!r}: cannot read it as an image ({exc})") from exc
-    raise InvalidInputError(f"--image {path!r} carries no georeferencing (a PNG or JPEG, or a TIFF without a "
-                            "geotransform): give --image-extent xmin,xmax,ymin,ymax, the outer edges of its pixels "
-                            "in the DEM's coordinates")
+    raise InvalidInputError(f"--image {path!r} carries no georeferencing (a PNG or JPEG without a world file "
+                            "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "
+                            "xmin,xmax,ymin,ymax, the outer edges of its pixels in the DEM's coordinates")
 
 
 def _texture_colours(draped: Any) -> Any:

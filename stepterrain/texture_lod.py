@@ -103,12 +103,13 @@ def _georeferencing(dataset: Any) -> tuple[Any, tuple[int, int], str | None]:
 
 def _georeferenced_extent(image: Any, found: tuple[Any, tuple[int, int], str | None] | None) -> tuple[
         Extent, str | None] | None:
-    """((xmin, xmax, ymin, ymax), CRS or None) of a GeoTIFF path ``image`` from its own georeferencing ``found``
-    (:func:`_georeferencing`, read with its pixels by :func:`_source_image`), else None; in metres for a projected
+    """((xmin, xmax, ymin, ymax), CRS or None) of an image path ``image`` from its own georeferencing ``found`` (a
+    GeoTIFF's, or a JPEG's or PNG's world file: :func:`_georeferencing`, read with its pixels by
+    :func:`_source_image`), else None; in metres for a projected
     CRS (or a site grid) in feet or another linear unit, with that projection in metres as the CRS, as
     :func:`~stepterrain.io.load_dem` reads a DEM in it (the bounds of an orthophoto in EPSG:2229 stayed in feet,
     refused against its DEM's metres)."""
-    if found is None:  # not a TIFF path, or one GDAL cannot read: pixel units, no warning
+    if found is None:  # not an image path, or one GDAL cannot read: pixel units, no warning
         return None
     transform, shape, crs = found
     if transform.is_identity:
@@ -137,8 +138,9 @@ def _georeferenced_extent(image: Any, found: tuple[Any, tuple[int, int], str | N
 
 def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool, Any]:
     """(array (H, W, C) uint8, backing file or None, whether its pixels can change after this: the caller's
-    writeable array, or a view of one; a TIFF path's :func:`_georeferencing`, else None). A TIFF is opened with
-    rasterio once, for its georeferencing, its nodata mask and (where Pillow cannot read it) its pixels."""
+    writeable array, or a view of one; an image path's :func:`_georeferencing`, else None). An image file is
+    opened with rasterio once, for its georeferencing (a GeoTIFF's own, a world file beside a JPEG or PNG), its
+    nodata mask and (a TIFF Pillow cannot read) its pixels."""
     path = None
     georeferencing = None
     if isinstance(image, (bytes, bytearray)):  # np.asarray made it a dtype |S array, refused as not uint8
@@ -174,7 +176,10 @@ def _source_image(image: Any) -> tuple[NDArray[np.uint8], str | None, bool, Any]
                     raise DataFileError(f"cannot read {str(path)!r} as an image: {exc}") from exc
                 image, mask, georeferencing = found
             else:
-                image, mask, georeferencing = _read_tiff(path, _tiff_reader(path, image)) or (image, None, None)
+                # any format GDAL reads, not only a TIFF: a JPEG or PNG is georeferenced by its world file (.jgw,
+                # .pgw, .wld) or .aux.xml, which GDAL reads (it was placed at (0, W, 0, H), "no georeferencing")
+                found = _read_tiff(path, _tiff_reader(path, image), any_format=True)
+                image, mask, georeferencing = found or (image, None, None)
             if mask is not None:
                 image = np.concatenate([image, mask[:, :, None]], axis=2)
     array = image if isinstance(image, np.ndarray) else as_array(image, "image", "an (H, W) or (H, W, C) uint8 array")
@@ -213,11 +218,13 @@ def _warn_exif_orientation(picture: Any, path: Path) -> None:
                   "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))", stacklevel=caller_stacklevel())
 
 
-def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
-    """``read(dataset)`` of a .tif/.tiff ``path`` opened with rasterio (a plain TIFF without the warning that it is not
-    georeferenced); None for another extension, without rasterio, or when GDAL cannot read the file (Pillow's
-    verdict stands). ``read``'s own refusals (InvalidInputError, OutputTooLargeError) go through."""
-    if path.suffix.lower() not in (".tif", ".tiff"):
+def _read_tiff(path: Path, read: Callable[[Any], Any], any_format: bool = False) -> Any:
+    """``read(dataset)`` of a .tif/.tiff ``path`` (with ``any_format``, of any image file but .npy: a JPEG or PNG
+    that GDAL georeferences by its world file) opened with rasterio (a plain image without the warning that it is
+    not georeferenced); None for another extension, without rasterio, or when GDAL cannot read the file (Pillow's
+    verdict stands). ``read``'s own refusals (InvalidInputError, OutputTooLargeError, DataFileError) go through."""
+    suffix = path.suffix.lower()
+    if suffix not in (".tif", ".tiff") and (not any_format or suffix == ".npy"):
         return None
     try:
         import rasterio  # noqa: F401 - only whether it is there
@@ -226,7 +233,7 @@ def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
     try:
         with open_raster(path) as dataset:
             return read(dataset)
-    except (InvalidInputError, OutputTooLargeError):
+    except (InvalidInputError, OutputTooLargeError, DataFileError):
         raise
     except Exception:  # noqa: BLE001 - GDAL cannot read it either
         return None
@@ -235,8 +242,9 @@ def _read_tiff(path: Path, read: Callable[[Any], Any]) -> Any:
 def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any], Any]:
     """A :func:`_read_tiff` reader giving (image, nodata mask or None, georeferencing or None) in one open: ``image``
     as Pillow read it, or (None) its pixels read with rasterio (:func:`_raster_uint8`); the mask of a 3-channel
-    image (:func:`_nodata_mask`); :func:`_georeferencing`. A mask or georeferencing GDAL cannot read is None, and
-    the others stand, as when each was read in an open of its own."""
+    image (:func:`_nodata_mask`); :func:`_georeferencing` (its CRS from a .prj beside it where GDAL reads none:
+    :func:`_prj_crs`). A mask or georeferencing GDAL cannot read is None, and the others stand, as when each was
+    read in an open of its own."""
 
     def read(dataset: Any) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None, Any]:
         pixels = _raster_pixels(path, dataset) if image is None else image
@@ -247,9 +255,33 @@ def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any],
         georeferencing = None
         with contextlib.suppress(Exception):
             georeferencing = _georeferencing(dataset)
+        if georeferencing is not None and georeferencing[2] is None and not georeferencing[0].is_identity:
+            georeferencing = (*georeferencing[:2], _prj_crs(path))
         return pixels, mask, georeferencing
 
     return read
+
+
+def _prj_crs(path: Path) -> str | None:
+    """The CRS in a .prj file beside the image ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for a
+    world file's CRS, which GDAL does not read for a JPEG or PNG: their CRS was unknown), for an image GDAL
+    georeferences without a CRS; None without one. A .prj that is no CRS is refused, naming it: the image would
+    be taken in the terrain's CRS without a word."""
+    for prj in (path.with_suffix(".prj"), path.with_name(path.name + ".prj")):
+        if not prj.is_file():
+            continue
+        from rasterio.crs import CRS
+
+        try:
+            text = prj.read_text(errors="replace").strip()
+        except OSError as exc:
+            raise DataFileError(f"cannot read {str(prj)!r}, the CRS of image {str(path)!r}: {exc}") from exc
+        try:
+            return _crs_string(CRS.from_user_input(text))
+        except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
+            raise InvalidInputError(f"{str(prj)!r} beside image {str(path)!r} is not a CRS (WKT, as GIS software "
+                                    f"writes it beside a world file): {exc}") from exc
+    return None
 
 
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
@@ -448,12 +480,14 @@ class ImagePyramid:
             TIFF are read with Pillow; a transparent colour, and a GeoTIFF's nodata or mask band, read with
             rasterio, become alpha; an EXIF orientation is not applied, as GDAL does not apply it: warned)
         extent : (xmin, xmax, ymin, ymax), optional
-            World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, read with rasterio,
+            World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, or a JPEG's or PNG's
+            from the world file beside it (``.jgw``, ``.pgw``, ``.wld``, or an ``.aux.xml``), read with rasterio,
             in metres for a CRS in feet or another linear unit, as load_dem reads a DEM in it; else (0, W, 0, H),
             one unit per pixel).
         crs : str, optional
             The coordinate reference system of the extent, e.g. ``"EPSG:32611"`` (default: a GeoTIFF's own when its
-            extent is read from it, else None, unknown). :class:`TextureTree` refuses a terrain in another CRS, but
+            extent is read from it, a world file's from the ``.prj`` (or ``.aux.xml``) beside the image, else None,
+            unknown: taken in the terrain's coordinates). :class:`TextureTree` refuses a terrain in another CRS, but
             places an image in degrees (EPSG:4326, ...) on a DEM that load_dem read from degrees (of the same body)
             into local metres exactly, through the linear map of those metres.
         storage : folder, optional
@@ -471,7 +505,8 @@ class ImagePyramid:
         DataFileError
             Missing or corrupt image file, or the storage folder cannot be written.
         InvalidInputError
-            Not a uint8 image of 1-4 channels, or a bad extent; a GeoTIFF that is rotated (rotation terms of float
+            Not a uint8 image of 1-4 channels, or a bad extent; a .prj beside a georeferenced image that is no
+            CRS; a GeoTIFF (or world file) that is rotated (rotation terms of float
             noise, as load_dem reads them, count as 0), south-up or east-to-west, without ``extent``.
 
         Notes
@@ -1189,11 +1224,13 @@ class TextureTree:
 
 
 def is_georeferenced(image: str | os.PathLike[str]) -> bool:
-    """Whether the image file ``image`` places itself: a TIFF whose geotransform (read with rasterio) is not the
-    identity, as :meth:`ImagePyramid.build` reads its extent from it. False for a PNG or JPEG, a plain TIFF, or
+    """Whether the image file ``image`` places itself: a GeoTIFF, or a JPEG or PNG with a world file (``.jgw``,
+    ``.pgw``, ``.wld``) or ``.aux.xml`` beside it, whose geotransform (read with rasterio) is not the identity, as
+    :meth:`ImagePyramid.build` reads its extent from it. False for a PNG or JPEG without one, a plain TIFF, or
     without rasterio."""
     path = Path(image)
-    found = _read_tiff(path, lambda dataset: not dataset.transform.is_identity) if path.is_file() else None
+    found = (_read_tiff(path, lambda dataset: not dataset.transform.is_identity, any_format=True) if path.is_file()
+             else None)
     return bool(found)
 
 
@@ -1211,19 +1248,22 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     :func:`~stepterrain.texture.modulate`): it is sampled bilinearly onto theirs, transparent outside its extent.
 
     ``image`` (a path, or an array as :meth:`ImagePyramid.build` takes it) is placed as :class:`TextureTree` places
-    a pyramid: a GeoTIFF by its own georeferencing, in the terrain's CRS (refused in another, with the ``gdalwarp``
-    to run), or in degrees over a DEM load_dem read from degrees (one spanning 360 degrees of longitude, a world
-    image, goes on past its seam: a DEM across the antimeridian takes its other end there); an image without
-    georeferencing (an array, a PNG, a JPEG, a plain TIFF) needs ``extent`` = (xmin, xmax, ymin, ymax), the outer
-    edges of its pixels in the terrain's own coordinates (those of ``terrain.extent``; a geographic DEM's local
-    metres), which also places a GeoTIFF there instead of its georeferencing.
+    a pyramid: a GeoTIFF, or a JPEG or PNG with a world file (its CRS from a .prj or .aux.xml beside it), by its own
+    georeferencing, in the terrain's CRS (refused in another, with the ``gdalwarp`` to run; one without a CRS is
+    taken in the terrain's coordinates, refused over a DEM load_dem read from degrees), or in degrees over a DEM
+    load_dem read from degrees (one spanning 360 degrees of longitude, a world image, goes on past its seam: a DEM
+    across the antimeridian takes its other end there); an image without georeferencing (an array, a PNG or JPEG
+    without a world file, a plain TIFF) needs ``extent`` = (xmin, xmax, ymin, ymax), the outer edges of its pixels
+    in the terrain's own coordinates (those of ``terrain.extent``; a geographic DEM's local metres), which also
+    places a georeferenced image there instead of its georeferencing.
 
     Raises
     ------
     DataFileError
         A missing or unreadable image file.
     InvalidInputError
-        An image without georeferencing and no ``extent``; a CRS mismatch; an image that does not overlap the
+        An image without georeferencing and no ``extent``; one georeferenced without a CRS over a DEM in degrees;
+        a CRS mismatch; an image that does not overlap the
         terrain; what :meth:`ImagePyramid.build` refuses.
     OutputTooLargeError
         The decoded image over the memory budget (:func:`stepterrain.set_memory_budget`).
@@ -1237,9 +1277,18 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
         if extent is None and not (isinstance(image, (str, os.PathLike)) and is_georeferenced(image)):
             # it would lie at (0, W, 0, H), one unit per pixel: anywhere on the terrain
             what = f"image {str(image)!r}" if isinstance(image, (str, os.PathLike)) else "an image array"
-            raise InvalidInputError(f"{what} carries no georeferencing (an array, a PNG or JPEG, a TIFF without a "
-                                    "geotransform): pass extent=(xmin, xmax, ymin, ymax), the outer edges of its "
-                                    "pixels in the terrain's coordinates")
+            raise InvalidInputError(f"{what} carries no georeferencing (an array, a PNG or JPEG without a world "
+                                    "file, a TIFF without a geotransform): pass extent=(xmin, xmax, ymin, ymax), "
+                                    "the outer edges of its pixels in the terrain's coordinates")
+        unknown = extent is None and pyramid.crs is None  # georeferenced by the file, in no CRS it names
+        if unknown and t.crs is not None and _spherical_eqc(t.crs) is not None:
+            # the local metres load_dem made of a DEM's degrees are no file's coordinates: a world file in degrees
+            # without a .prj was compared with them as numbers (placed as a patch of a few metres, or nowhere)
+            raise InvalidInputError(f"image {str(image)!r} is georeferenced without a CRS, but the terrain is a DEM in "
+                                    f"degrees read as local metres ({t.crs!r}), which no image file is in: put a "
+                                    ".prj with the image's CRS beside it (EPSG:4326 for degrees), or pass "
+                                    "extent=(xmin, xmax, ymin, ymax), the outer edges of its pixels in the "
+                                    "terrain's coordinates")
         placed = _placed(pyramid, t)
         level = 0
         for k in range(1, len(placed.levels)):
@@ -1249,8 +1298,13 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
             level = k
         window = placed.window(level, target)
         if window is None:
+            hint = ""
+            if unknown:  # its coordinates were taken as the terrain's: they may be in another CRS
+                hint = ("; the image is georeferenced without a CRS, so it was taken in the terrain's CRS: put a .prj "
+                        "with its CRS beside it, or pass extent=(xmin, xmax, ymin, ymax), the outer edges of its "
+                        "pixels in the terrain's coordinates")
             raise InvalidInputError(f"the image extent {placed.extent} does not overlap the terrain's {target} "
-                                    "(mismatched extent)")
+                                    f"(mismatched extent){hint}")
         # a pixel more on each side (within the image): a texel near the terrain's edge is interpolated with the
         # image's next pixel beyond it, not the window's edge pixel repeated (a cropped DEM, or a tile beside
         # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes)

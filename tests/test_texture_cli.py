@@ -395,8 +395,9 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
 @pytest.mark.parametrize("case, match", [
     ("missing", "--image '{image}' does not exist"),
     ("not an image", "--image '{image}': cannot read it as an image"),
-    ("png without extent", "--image '{image}' carries no georeferencing (a PNG or JPEG, or a TIFF without a "
-                           "geotransform): give --image-extent xmin,xmax,ymin,ymax"),
+    ("png without extent", "--image '{image}' carries no georeferencing (a PNG or JPEG without a world file (.pgw, "
+                           ".jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "
+                           "xmin,xmax,ymin,ymax"),
     ("extent without image", "--image-extent applies only with --image"),
     ("bad extent", "--image-extent must be finite (xmin, xmax, ymin, ymax) with xmin < xmax"),
     ("crs mismatch", "--image '{image}': the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611' "
@@ -648,3 +649,126 @@ def test_cli_texture_a_global_image_drapes_a_dem_across_the_antimeridian(tmp_pat
     lons = 178.0 + 0.25 * np.arange(17)
     assert (draped[:, lons <= 179.5] == (200, 100, 50)).all()
     assert (draped[:, lons >= 180.5] == (10, 20, 30)).all()
+
+
+def write_world_image(path: Path, pixels: np.ndarray, transform, wkt: str | None) -> np.ndarray:
+    """``pixels`` saved as a JPEG or PNG (by ``path``'s extension) with a world file written by hand beside it (A, D,
+    B, E, C, F: the pixel size, the rotation terms, and the centre of the top-left pixel), and a .prj of ``wkt``;
+    the pixels as Pillow decodes them back (a JPEG's are not those saved)."""
+    from PIL import Image
+
+    Image.fromarray(pixels).save(path, quality=90)
+    a, b, c, d, e, f = tuple(transform)[:6]
+    world = path.with_suffix({".jpg": ".jgw", ".png": ".pgw"}[path.suffix])
+    centre_x, centre_y = c + 0.5 * a + 0.5 * b, f + 0.5 * d + 0.5 * e
+    world.write_text("\n".join(f"{v!r}" for v in (a, d, b, e, centre_x, centre_y)) + "\n")
+    if wkt is not None:
+        path.with_suffix(".prj").write_text(wkt)
+    return read_png(path)
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png"])
+def test_cli_texture_image_with_a_world_file_is_placed_as_a_geotiff(tmp_path, suffix):
+    """--image ORTHO.jpg/.png with a world file (.jgw/.pgw) and a .prj beside it (the DEM's CRS), a colour-coded
+    image of 30 m pixels over rows 100-159, columns 200-279 of the Big Tujunga DEM: each pixel (as Pillow decodes it)
+    lands on its node, and the texture (and image_layer's layer) is the one a GeoTIFF of those pixels on the same
+    grid gives. A JPEG or PNG was taken as not georeferenced (GDAL reads world files; rasterio was asked only for a
+    .tif), so --image-extent was demanded."""
+    rasterio = pytest.importorskip("rasterio", reason="world files are read with rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain import load_dem
+    from stepterrain.texture_lod import ImagePyramid, image_layer, is_georeferenced
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    with rasterio.open(source) as dem:
+        transform, crs = dem.transform, dem.crs
+    placed = transform @ Affine.translation(200, 100)
+    image = tmp_path / f"ortho{suffix}"
+    pixels = write_world_image(image, coded_pixels(60, 80), placed, crs.to_wkt())
+    assert is_georeferenced(image)
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image), "--colormap", "none",
+                        "--hillshade", "none")
+    assert np.array_equal(draped[100:160, 200:280], pixels)  # each pixel on its node
+    assert draped[123, 245].tolist() == pixels[23, 45].tolist()
+    off = np.ones(draped.shape[:2], bool)
+    off[100:160, 200:280] = False
+    assert (draped[off] == 255).all()  # white off the image (--colormap none)
+    geotiff = write_geotiff(tmp_path / "ortho.tif", pixels, placed, crs)
+    assert np.array_equal(draped, texture_of(tmp_path, "geotiff", str(source), "--image", str(geotiff),
+                                             "--colormap", "none", "--hillshade", "none"))
+    terrain = load_dem(source)
+    layer, reference = image_layer(image, terrain, device="cpu"), image_layer(geotiff, terrain, device="cpu")
+    assert layer.extent == reference.extent and np.array_equal(layer.image, reference.image)
+    with ImagePyramid.build(image, device="cpu") as pyramid:  # its CRS from the .prj
+        assert pyramid.crs == "EPSG:32611" and pyramid.extent == pytest.approx(
+            (placed.c, placed.c + 80 * 30.0, placed.f - 60 * 30.0, placed.f))
+
+
+def test_cli_texture_image_world_file_crs_rules(tmp_path, capsys):
+    """A world file without a CRS is taken in the DEM's CRS, as a GeoTIFF without one (placed as with its .prj);
+    over a DEM in degrees (read as local metres, no file's coordinates) it is refused, naming a .prj and
+    --image-extent, as it is when its extent misses the DEM; an .aux.xml's CRS counts (another one refused), a
+    .prj that is no CRS is refused by name, and a rotated world file is refused as a rotated GeoTIFF is."""
+    rasterio = pytest.importorskip("rasterio", reason="world files are read with rasterio")
+    from rasterio.crs import CRS
+    from rasterio.transform import Affine
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    with rasterio.open(source) as dem:
+        transform, crs = dem.transform, dem.crs
+    placed = transform @ Affine.translation(200, 100)
+    with_prj = tmp_path / "with" / "ortho.png"
+    with_prj.parent.mkdir()
+    write_world_image(with_prj, coded_pixels(60, 80), placed, crs.to_wkt())
+    bare = tmp_path / "bare" / "ortho.png"
+    bare.parent.mkdir()
+    pixels = write_world_image(bare, coded_pixels(60, 80), placed, None)
+    draped = texture_of(tmp_path, "bare", str(source), "--image", str(bare), "--colormap", "none",
+                        "--hillshade", "none")
+    assert np.array_equal(draped[100:160, 200:280], pixels)
+    assert np.array_equal(draped, texture_of(tmp_path, "prj", str(source), "--image", str(with_prj),
+                                             "--colormap", "none", "--hillshade", "none"))
+
+    def refused(dem: Path, image: Path) -> str:
+        assert main(["-q", "texture", str(dem), "--image", str(image), "-o", str(tmp_path / "x.png"),
+                     "--device", "cpu"]) == 2
+        return capsys.readouterr().err
+
+    degrees = tmp_path / "degrees" / "ortho.png"  # a world file in degrees over the Front Range DEM, no .prj
+    degrees.parent.mkdir()
+    write_world_image(degrees, coded_pixels(60, 80), Affine(0.001, 0, -105.7, 0, -0.001, 40.4), None)
+    err = refused(shared_file("front_range_srtmgl3_3arcsec.tif"), degrees)
+    assert "is georeferenced without a CRS, but the terrain is a DEM in degrees read as local metres" in err
+    assert "put a .prj with the image's CRS beside it (EPSG:4326 for degrees), or give --image-extent" in err
+    degrees.with_suffix(".prj").write_text(CRS.from_epsg(4326).to_wkt())  # with its CRS: placed as a GeoTIFF is
+    front_range = shared_file("front_range_srtmgl3_3arcsec.tif")
+    on_degrees = texture_of(tmp_path, "degrees", str(front_range), "--image", str(degrees), "--colormap", "none",
+                            "--hillshade", "none")
+    geotiff = write_geotiff(tmp_path / "degrees.tif", read_png(degrees), Affine(0.001, 0, -105.7, 0, -0.001, 40.4),
+                            "EPSG:4326")
+    from_geotiff = texture_of(tmp_path, "degrees_tif", str(front_range), "--image", str(geotiff), "--colormap",
+                              "none", "--hillshade", "none")
+    assert (on_degrees != 255).any() and np.array_equal(on_degrees, from_geotiff)
+    far = tmp_path / "far" / "ortho.png"
+    far.parent.mkdir()
+    write_world_image(far, coded_pixels(60, 80), Affine(30, 0, 1000, 0, -30, 2000), None)
+    err = refused(source, far)
+    assert "(mismatched extent); the image is georeferenced without a CRS, so it was taken in the terrain's CRS: " \
+           "put a .prj with its CRS beside it, or give --image-extent" in err
+    aux = tmp_path / "aux" / "ortho.png"
+    aux.parent.mkdir()
+    write_world_image(aux, coded_pixels(60, 80), placed, None)
+    Path(f"{aux}.aux.xml").write_text(f"<PAMDataset><SRS>{CRS.from_epsg(32610).to_wkt()}</SRS></PAMDataset>")
+    assert "the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611'" in refused(source, aux)
+    bare.with_suffix(".prj").write_text("not a CRS")
+    assert f"'{bare.with_suffix('.prj')}' beside image '{bare}' is not a CRS" in refused(source, bare)
+    rotated = tmp_path / "rotated" / "ortho.jpg"
+    rotated.parent.mkdir()
+    write_world_image(rotated, coded_pixels(60, 80), placed @ Affine.rotation(5), crs.to_wkt())
+    err = refused(source, rotated)
+    assert "rotated geotransform" in err and "`gdalwarp` makes the image north-up, or give --image-extent" in err
