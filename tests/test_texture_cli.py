@@ -613,8 +613,9 @@ def _one_at_a_time(topo, colours, picture, extent, shape, background):
 def test_composed_texture_is_the_layer_operations_one_at_a_time_bit_for_bit(fine):
     """texture._composed (the command's one pass, uint8 out) gives the bytes of blend, modulate and to_uint8 one layer
     at a time: a DEM with a nodata hole, its shading and hypsometric colours on the nodes (fine 1: the texture's grid;
-    3: resampled onto 3 x 3 texels a node), a picture sampled onto the grid (RGBA, part transparent, part half) or on
-    the grid itself (uint8 RGB, RGBA, read as they are), with and without colours, RGBA and over a background."""
+    3: resampled onto 3 x 3 texels a node), a picture sampled onto the grid (RGBA, part transparent, part half; its
+    border transparent or its edge texels repeated) or on the grid itself (uint8 RGB, RGBA, read as they are), with
+    and without colours, RGBA and over a background."""
     from stepterrain import texture as tx
 
     rng = np.random.default_rng(7)
@@ -628,8 +629,9 @@ def test_composed_texture_is_the_layer_operations_one_at_a_time_bit_for_bit(fine
     sampled[:10, :, 3] = 0
     sampled[20:25, :, 3] = 128
     sampled.flags.writeable = False
-    pictures = [None, tx.TextureLayer("thematic", sampled, (extent[0] + 100, extent[1] - 200, extent[2] + 50,
-                                                            extent[3] - 40))]
+    inside = (extent[0] + 100, extent[1] - 200, extent[2] + 50, extent[3] - 40)
+    pictures = [None, tx.TextureLayer("thematic", sampled, inside),
+                tx.TextureLayer("thematic", sampled, inside, border="edge")]
     for channels in (3, 4):
         own = rng.integers(0, 256, (*shape, channels), dtype=np.uint8)
         own[..., 3:][:5] = 0
