@@ -812,21 +812,13 @@ def texel(image: wp.array2d[wp.vec4], i: wp.int32, j: wp.int32, border: wp.int32
     return image[wp.clamp(i, 0, rows - 1), wp.clamp(j, 0, cols - 1)]
 
 
-@wp.kernel
-def sample_layer(
-    thread_offset: wp.int32,
-    frame: PixelFrame,
-    image: wp.array2d[wp.vec4],
-    matrix: wp.mat33,
-    border: wp.int32,
-    # outputs
-    rgba_out: wp.array2d[wp.vec4],
-):
-    """One thread per output pixel: the layer's image sampled bilinearly at the pixel centre through the layer's
-    texture matrix (world (x, y, 1) -> texel (column, row, 1), texel centres at integers). The colours are
-    interpolated premultiplied by alpha (the straight colour of a transparent texel does not bleed into its
-    neighbours') and returned straight; where all four texels are transparent, their colours mixed, alpha 0."""
-    i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
+@wp.func
+def sample_at(frame: PixelFrame, image: wp.array2d[wp.vec4], matrix: wp.mat33, border: wp.int32, i: wp.int32,
+              j: wp.int32) -> wp.vec4:
+    """The layer's image sampled bilinearly at the centre of pixel (i, j) of ``frame`` through the layer's texture
+    matrix (world (x, y, 1) -> texel (column, row, 1), texel centres at integers). The colours are interpolated
+    premultiplied by alpha (the straight colour of a transparent texel does not bleed into its neighbours') and
+    returned straight; where all four texels are transparent, their colours mixed, alpha 0."""
     world = wp.vec3(frame.origin[0] + float(j) * frame.pixel[0], frame.origin[1] + float(i) * frame.pixel[1], 1.0)
     t = matrix * world
     u = t[0]
@@ -835,8 +827,7 @@ def sample_layer(
     cols = image.shape[1]
     if border == 1:  # half a texel beyond the outer centres still belongs to the image (edge texels)
         if u < -0.5 or v < -0.5 or u > float(cols) - 0.5 or v > float(rows) - 0.5:
-            rgba_out[i, j] = wp.vec4(0.0, 0.0, 0.0, 0.0)
-            return
+            return wp.vec4(0.0, 0.0, 0.0, 0.0)
     u = wp.clamp(u, 0.0, float(cols - 1))
     v = wp.clamp(v, 0.0, float(rows - 1))
     j0 = wp.int32(wp.floor(u))
@@ -857,9 +848,46 @@ def sample_layer(
         rgb = (wp.vec3(t00[0], t00[1], t00[2]) * (t00[3] * w00) + wp.vec3(t01[0], t01[1], t01[2]) * (t01[3] * w01)
                + wp.vec3(t10[0], t10[1], t10[2]) * (t10[3] * w10)
                + wp.vec3(t11[0], t11[1], t11[2]) * (t11[3] * w11)) / alpha
-        rgba_out[i, j] = wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
-    else:
-        rgba_out[i, j] = wp.vec4(straight[0], straight[1], straight[2], 0.0)
+        return wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
+    return wp.vec4(straight[0], straight[1], straight[2], 0.0)
+
+
+@wp.kernel
+def sample_layer(
+    thread_offset: wp.int32,
+    frame: PixelFrame,
+    image: wp.array2d[wp.vec4],
+    matrix: wp.mat33,
+    border: wp.int32,
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per output pixel: the layer's image sampled bilinearly at the pixel centre (:func:`sample_at`)."""
+    i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
+    rgba_out[i, j] = sample_at(frame, image, matrix, border, i, j)
+
+
+@wp.func
+def blend_over(x: wp.vec4, y: wp.vec4, w: wp.float32, own_alpha: wp.int32) -> wp.vec4:
+    """One pixel of :func:`blend_layers`: y laid over x with coverage w * alpha_y (alpha_y alone when
+    ``own_alpha``)."""
+    c = y[3]
+    if own_alpha == 0:
+        c = w * y[3]
+    under = x[3] * (1.0 - c)
+    alpha = c + under
+    if alpha > 0.0:
+        rgb = (wp.vec3(y[0], y[1], y[2]) * c + wp.vec3(x[0], x[1], x[2]) * under) / alpha
+        return wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
+    mixed = x * (1.0 - w) + y * w
+    return wp.vec4(mixed[0], mixed[1], mixed[2], 0.0)
+
+
+@wp.func
+def modulated(x: wp.vec4, y: wp.vec4) -> wp.vec4:
+    """One pixel of :func:`modulate_layers`: x.rgb * (1 - y.alpha + y.alpha * y.rgb), alpha x.alpha."""
+    keep = 1.0 - y[3]
+    return wp.vec4(x[0] * (keep + y[3] * y[0]), x[1] * (keep + y[3] * y[1]), x[2] * (keep + y[3] * y[2]), x[3])
 
 
 @wp.kernel
@@ -877,20 +905,7 @@ def blend_layers(
     (c b + (1 - c) alpha_a a) / alpha; a (1 - w) + b w for opaque layers. A transparent pixel of b (nodata,
     outside its extent) leaves a as it is; where both are transparent the colours are mixed by w."""
     i, j = pixel_of(wp.tid() + thread_offset, a.shape[1])
-    x = a[i, j]
-    y = b[i, j]
-    w = weights[i, j][3]
-    c = y[3]
-    if own_alpha == 0:
-        c = w * y[3]
-    under = x[3] * (1.0 - c)
-    alpha = c + under
-    if alpha > 0.0:
-        rgb = (wp.vec3(y[0], y[1], y[2]) * c + wp.vec3(x[0], x[1], x[2]) * under) / alpha
-        rgba_out[i, j] = wp.vec4(rgb[0], rgb[1], rgb[2], alpha)
-    else:
-        mixed = x * (1.0 - w) + y * w
-        rgba_out[i, j] = wp.vec4(mixed[0], mixed[1], mixed[2], 0.0)
+    rgba_out[i, j] = blend_over(a[i, j], b[i, j], weights[i, j][3], own_alpha)
 
 
 @wp.kernel
@@ -954,11 +969,88 @@ def modulate_layers(
     as it covers the pixel: a.rgb * (1 - b.alpha + b.alpha * b.rgb), so a transparent pixel of b (outside its
     extent, nodata) leaves a as it is."""
     i, j = pixel_of(wp.tid() + thread_offset, a.shape[1])
-    x = a[i, j]
-    y = b[i, j]
-    keep = 1.0 - y[3]
-    rgba_out[i, j] = wp.vec4(x[0] * (keep + y[3] * y[0]), x[1] * (keep + y[3] * y[1]), x[2] * (keep + y[3] * y[2]),
-                             x[3])
+    rgba_out[i, j] = modulated(a[i, j], b[i, j])
+
+
+@wp.func
+def clamped(c: wp.vec4) -> wp.vec4:
+    """Each channel clamped to [0, 1], as a layer's RGBA is (``TextureLayer.rgba``)."""
+    return wp.vec4(wp.clamp(c[0], 0.0, 1.0), wp.clamp(c[1], 0.0, 1.0), wp.clamp(c[2], 0.0, 1.0),
+                   wp.clamp(c[3], 0.0, 1.0))
+
+
+@wp.func
+def layer_at(frame: PixelFrame, image: wp.array2d[wp.vec4], matrix: wp.mat33, mode: wp.int32, i: wp.int32,
+             j: wp.int32) -> wp.vec4:
+    """A layer at pixel (i, j) of ``frame``: its own texel (mode 0: the layer is that pixel grid), sampled
+    bilinearly with a transparent border (mode 1) or with its edge texels repeated (mode 2)."""
+    if mode == 0:
+        return image[i, j]
+    return sample_at(frame, image, matrix, wp.where(mode == 1, 1, 0), i, j)
+
+
+@wp.func
+def byte_layer_at(frame: PixelFrame, image: wp.array3d[wp.uint8], matrix: wp.mat33, mode: wp.int32, i: wp.int32,
+                  j: wp.int32) -> wp.vec4:
+    """:func:`layer_at` of a uint8 RGB or RGBA image read as it is (mode 0 only: its own pixel grid), each channel
+    / 255 as ``TextureLayer.rgba`` reads it, opaque without alpha."""
+    alpha = 1.0
+    if image.shape[2] == 4:
+        alpha = float(image[i, j, 3]) / 255.0
+    return wp.vec4(float(image[i, j, 0]) / 255.0, float(image[i, j, 1]) / 255.0, float(image[i, j, 2]) / 255.0,
+                   alpha)
+
+
+@wp.kernel
+def compose_texture(
+    thread_offset: wp.int32,
+    frame: PixelFrame,
+    shading: wp.array2d[wp.vec4],
+    shading_matrix: wp.mat33,
+    shading_mode: wp.int32,
+    colours: wp.array2d[wp.vec4],
+    colours_matrix: wp.mat33,
+    colours_mode: wp.int32,
+    picture: wp.array2d[wp.vec4],
+    picture_bytes: wp.array3d[wp.uint8],
+    picture_matrix: wp.mat33,
+    picture_mode: wp.int32,
+    background: wp.vec3,
+    over_background: wp.int32,
+    # outputs
+    image_out: wp.array3d[wp.uint8],
+):
+    """One thread per texel of ``frame``: the topographic texture composed in one pass, as the layer operations
+    compose it one layer at a time (``stepterrain texture``): the shading (a topographic layer) and the colours
+    (a thematic layer) sampled onto the texel and clamped to [0, 1] (each a layer of its own there); a picture
+    laid over the colours (:func:`blend_over` by its own alpha; alone without colours) and modulated by the
+    shading (:func:`modulated`; the colours modulated by it without a picture; the shading alone without either);
+    written as uint8, ``rint(255 * c)`` of each channel clamped, RGBA, or RGB composited over ``background`` when
+    ``over_background`` (``TextureLayer.to_uint8``). A mode is :func:`layer_at`'s, -1 for a layer not given;
+    ``picture_mode`` 3 reads ``picture_bytes`` (uint8 on the texel grid) instead of ``picture``."""
+    i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
+    c = clamped(layer_at(frame, shading, shading_matrix, shading_mode, i, j))
+    if picture_mode >= 0:
+        p = wp.vec4(0.0)
+        if picture_mode == 3:
+            p = byte_layer_at(frame, picture_bytes, picture_matrix, 0, i, j)
+        else:
+            p = layer_at(frame, picture, picture_matrix, picture_mode, i, j)
+        if colours_mode >= 0:
+            h = clamped(layer_at(frame, colours, colours_matrix, colours_mode, i, j))
+            p = clamped(blend_over(h, p, p[3], 1))
+        c = clamped(modulated(c, p))
+    elif colours_mode >= 0:
+        h = clamped(layer_at(frame, colours, colours_matrix, colours_mode, i, j))
+        c = clamped(modulated(h, c))
+    if over_background == 1:
+        a = c[3]
+        for k in range(3):
+            v = c[k] * a + background[k] * (1.0 - a)
+            image_out[i, j, k] = wp.uint8(wp.rint(wp.clamp(v, 0.0, 1.0) * 255.0))
+    else:
+        for k in range(4):
+            image_out[i, j, k] = wp.uint8(wp.rint(c[k] * 255.0))
 
 
 @wp.func

@@ -147,10 +147,11 @@ def add_parser(commands: Any) -> None:
 #: glTF viewers often less): a finer --texel-size texture for a textured --mesh or a --png render is refused above it.
 _GPU_TEXTURE_LIMIT = 16384
 
-#: Bytes per texel of a --texel-size texture while it is composed: a handful of float32 RGBA layers (16 bytes a texel
-#: each) on its grid at once (the resampled shading and colours, the image sampled onto them, each operation's
-#: result and its host copy), then its uint8 image.
-_COMPOSE_BYTES_PER_TEXEL = 6 * 16 + 4
+#: Bytes per texel of a --texel-size texture while it is composed and written: the image's float32 RGBA where it is
+#: resampled (16 bytes a pixel, at about the texel size), the uint8 texture (composed in one pass, no float32 layers on
+#: its grid) and its copies for the file, the drape and the render (Pillow keeps RGB as 4 bytes a pixel); measured
+#: 30 (-o) and 42 (with --mesh) on Big Tujunga at 7 m, 14 M texels.
+_COMPOSE_BYTES_PER_TEXEL = 48
 
 
 def _texel_grid(terrain: Any, texel: float) -> tuple[tuple[float, float, float, float], tuple[int, int]]:
@@ -178,23 +179,13 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> t
                                 f"one texel per node): it makes the texture finer; got --texel-size {texel:g}")
     extent, (rows, cols) = _texel_grid(terrain, texel)
     check_budget(_COMPOSE_BYTES_PER_TEXEL * rows * cols,
-                 f"the {cols} x {rows} texel texture of --texel-size {texel:g} (float32 RGBA layers while it is "
-                 "composed)", hint="give a larger --texel-size (or --crop the DEM)")
+                 f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
+                 "written)", hint="give a larger --texel-size (or --crop the DEM)")
     if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:
         raise InvalidInputError(f"--texel-size {texel:g} makes a {cols} x {rows} texel texture, over the "
                                 f"{_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for {textured_gpu}: "
                                 "give a larger --texel-size (or --crop the DEM), or write the texture with -o alone")
     return extent, (rows, cols)
-
-
-def _on_grid(layer: Any, extent: Any, shape: tuple[int, int], device: Any) -> Any:
-    """``layer`` (on the DEM's nodes) resampled bilinearly onto the --texel-size grid, as ``blend`` and ``modulate``
-    sample their other layers (premultiplied by alpha: a nodata hole stays transparent, its edge partly)."""
-    from ._device import host_copy
-    from .texture import TextureLayer, _sampled
-
-    return TextureLayer("thematic", host_copy(_sampled(layer, extent, shape, device, "layer")), extent,
-                        name=layer.name)
 
 
 def _is_tiff(path: Path | None) -> bool:
@@ -404,19 +395,16 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                     occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain, args.colormap)
     hypsometric = None if colors is None else tx.terrain_layer(terrain, colors, "thematic", name="hypsometric")
-    if grid is not None:  # the layers on the DEM's nodes interpolated onto the finer grid, the image sampled there
-        topo = _on_grid(topo, *grid, device)
-        hypsometric = None if hypsometric is None else _on_grid(hypsometric, *grid, device)
-    composite = topo
-    if picture is not None:  # the image over the colours (white without), shaded as the colours are
-        base = picture if hypsometric is None else tx.blend(hypsometric, picture, device=device)
-        composite = tx.modulate(topo, base, device=device)  # alpha: the shading's, 0 at the DEM's nodata
-    elif hypsometric is not None:
-        composite = tx.modulate(hypsometric, topo, device=device)
+    # the image over the colours (white without), shaded as the colours are (alpha: the shading's, 0 at the DEM's
+    # nodata); the layers on the DEM's nodes interpolated onto the --texel-size grid, the image sampled there: one
+    # pass writing the uint8 texture (tx._composed), as blend, modulate and to_uint8 compose it
+    extent, shape = grid if grid is not None else topo.frame
     # a DEM with nodata: RGBA, alpha 0 over its nodata (white over a white background hid the holes in a GIS, and the
     # normals' (0, 0, 1) there read as flat ground); without nodata RGB as before
     holes = terrain.nodata_mask if terrain.has_nodata else None
-    image = composite.to_uint8() if holes is not None else composite.to_uint8(background=(1.0, 1.0, 1.0))
+    image = tx._composed(topo, hypsometric, picture, extent, shape, None if holes is not None else (1.0, 1.0, 1.0),
+                         device)
+    composite = tx.TextureLayer("thematic", image, extent, name="texture")  # its grid, for the drape's UVs
     normals = tx.normal_map(terrain, z_factor=args.z_factor, device=device) if normals_out else None
     progress.done(f"{image.shape[1]} x {image.shape[0]} pixels")
 
@@ -428,7 +416,10 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                                      if args.interval is not None else "heightfield"))
         base = (st.stepped(terrain, interval=args.interval, device=device) if args.interval is not None
                 else terrain.mesh())
-        draped = tx.drape(base, composite)
+        white = np.ones(3)  # drape's default background: the image composed over it, RGB
+        over_white = image if holes is None else tx._composed(topo, hypsometric, picture, extent, shape, white,
+                                                              device)
+        draped = tx._draped(base, composite, over_white, white, "terrain texture")
         progress.done(f"{_counted(len(draped.faces), 'face')}")
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")

@@ -1078,6 +1078,61 @@ def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device
     return out
 
 
+def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int, int], device: wp.Device,
+                    name: str, raw: bool = False) -> tuple[wp.array, wp.mat33, int]:
+    """A layer of :func:`_composed` as ``compose_texture`` takes it: its RGBA (or, ``raw``, its own uint8 pixels,
+    mode 3, where it is that pixel grid), its local texture matrix and its mode (-1: no layer; 0: the layer is the
+    pixel grid; 1 and 2: sampled with a transparent or an edge border), checked as :func:`_sampled` checks it."""
+    identity = wp.mat33(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
+    if layer is None:
+        return wp.empty((1, 1), dtype=wp.vec4, device=device), identity, -1
+    same = layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
+    image = np.asarray(layer.image)
+    if raw and same and image.dtype == np.uint8 and image.ndim == 3:  # read as rgba() reads it, without its floats
+        return wp.array(np.ascontiguousarray(image), dtype=wp.uint8, device=device), identity, 3
+    if not same and not _overlaps(layer, extent):
+        raise InvalidInputError(f"{name} covers none of the extent {extent} it is combined on (mismatched extent); "
+                                "give layers over the same area, or border='edge'")
+    rgba = _named(name, layer.rgba)
+    key = ("device", str(device))
+    array = layer._rgba_cache.get(key) if layer._rgba_cache.get("rgba") is rgba else None
+    if array is None:
+        array = wp.array(rgba, dtype=wp.vec4, device=device, copy=not device.is_cpu)
+    if same:
+        return array, identity, 0
+    return array, _local_matrix(layer.matrix, extent), 1 if layer.border == "transparent" else 2
+
+
+def _composed(shading: TextureLayer, colours: TextureLayer | None, picture: TextureLayer | None, extent: Extent,
+              shape: tuple[int, int], background: Sequence[float] | None, device: wp.DeviceLike = None
+              ) -> NDArray[np.uint8]:
+    """The texture ``stepterrain texture`` composes, as uint8 on the pixel grid (extent, shape), in one kernel pass
+    (``compose_texture``): the same values as the layer operations one at a time, each layer resampled onto the
+    grid (``_sampled``) and clamped as a layer's RGBA is, then ``blend(colours, picture)`` (the picture alone
+    without colours) and ``modulate(shading, that)`` (``modulate(colours, shading)`` without a picture; the
+    shading alone without either), ``.to_uint8(background)``; without their float32 RGBA layers on the grid
+    (16 bytes a texel each, several at once, and their checks): the uint8 image and the layers' own RGBA."""
+    dev = resolve_device(device)
+    rows, cols = shape
+    channels = 4 if background is None else 3
+    out = np.empty((rows, cols, channels), dtype=np.uint8)
+    target = wp.array(out, dtype=wp.uint8, device=dev, copy=False) if dev.is_cpu else \
+        wp.empty((rows, cols, channels), dtype=wp.uint8, device=dev)
+    inputs = [_composed_input(shading, extent, shape, dev, "shading"),
+              _composed_input(colours, extent, shape, dev, "colours")]
+    picture_input = _composed_input(picture, extent, shape, dev, "picture", raw=True)
+    no_bytes = wp.empty((1, 1, 1), dtype=wp.uint8, device=dev)
+    if picture_input[2] == 3:
+        picture_args = [wp.empty((1, 1), dtype=wp.vec4, device=dev), picture_input[0], *picture_input[1:]]
+    else:
+        picture_args = [picture_input[0], no_bytes, *picture_input[1:]]
+    bg = wp.vec3(0.0, 0.0, 0.0) if background is None else wp.vec3(*(float(np.float32(v)) for v in background))
+    launch(texture_kernels.compose_texture, dim=rows * cols,
+           inputs=[_frame(extent, shape), *inputs[0], *inputs[1], *picture_args, bg, 0 if background is None else 1],
+           outputs=[target], device=dev)
+    return out if dev.is_cpu else host_copy(target)
+
+
 def _finish(out: wp.array, like: TextureLayer, name: str) -> TextureLayer:
     return TextureLayer("thematic", host_copy(out), like.extent, border="transparent", name=name)
 
@@ -1570,11 +1625,17 @@ def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[fl
     bg = real_vector(background, "background", "(r, g, b) in [0, 1]", 3)
     if bg.min() < 0 or bg.max() > 1:
         raise InvalidInputError(f"background must be (r, g, b) in [0, 1]; got {background!r}")
+    return _draped(mesh, layer, layer.to_uint8(background=bg), bg, name)
+
+
+def _draped(mesh: trimesh.Trimesh, layer: TextureLayer, image: NDArray[np.uint8], bg: NDArray[np.float64],
+            name: str) -> trimesh.Trimesh:
+    """:func:`drape` given the layer's image, ``layer.to_uint8(background=bg)``, made already (the texture
+    command's, composed as uint8 on the layer's grid)."""
     from PIL import Image
 
     vertices = np.asarray(mesh.vertices)
     uv = texture_uv(vertices, layer)
-    image = layer.to_uint8(background=bg)
     if len(uv) and (uv.min() < 0.0 or uv.max() > 1.0):  # the mesh reaches past the image: its border decides there
         image, uv = _covering_image(image, layer, vertices, bg)
     picture = Image.fromarray(image)

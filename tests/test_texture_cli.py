@@ -579,7 +579,7 @@ def test_cli_texture_texel_size_shades_the_finer_grid_and_drapes_it(tmp_path, sm
     (["--texel-size", "45"], "--texel-size must be no larger than the DEM's node spacing (30; the default is one "
                              "texel per node): it makes the texture finer; got --texel-size 45"),
     (["--texel-size", "1", "--memory-budget", "1GiB"],
-     "the 35910 x 19290 texel texture of --texel-size 1 (float32 RGBA layers while it is composed) would need "),
+     "the 35910 x 19290 texel texture of --texel-size 1 (while it is composed and written) would need "),
     (["--texel-size", "2", "--memory-budget", "64GiB", "--mesh", "{tmp}/m.glb"],
      "--texel-size 2 makes a 17955 x 9645 texel texture, over the 16384 texels a side GPUs load as one texture, for "
      "--mesh {tmp}/m.glb: give a larger --texel-size"),
@@ -772,3 +772,89 @@ def test_cli_texture_image_world_file_crs_rules(tmp_path, capsys):
     write_world_image(rotated, coded_pixels(60, 80), placed @ Affine.rotation(5), crs.to_wkt())
     err = refused(source, rotated)
     assert "rotated geotransform" in err and "`gdalwarp` makes the image north-up, or give --image-extent" in err
+
+
+def _one_at_a_time(topo, colours, picture, extent, shape, background):
+    """The texture as the command composed it before its one-pass kernel: each layer sampled onto the grid as a
+    float32 layer of its own, ``blend``, ``modulate`` and ``to_uint8`` one after another."""
+    import warp as wp
+
+    from stepterrain import texture as tx
+
+    dev = wp.get_device("cpu")
+
+    def on_grid(layer):
+        return tx.TextureLayer("thematic", tx._sampled(layer, extent, shape, dev, "layer").numpy(), extent)
+
+    topo = on_grid(topo)
+    colours = None if colours is None else on_grid(colours)
+    composite = topo
+    if picture is not None:
+        base = picture if colours is None else tx.blend(colours, picture, device=dev)
+        composite = tx.modulate(topo, base, device=dev)
+    elif colours is not None:
+        composite = tx.modulate(colours, topo, device=dev)
+    return composite.to_uint8(background=background)
+
+
+@pytest.mark.parametrize("fine", [1, 3])
+def test_composed_texture_is_the_layer_operations_one_at_a_time_bit_for_bit(fine):
+    """texture._composed (the command's one pass, uint8 out) gives the bytes of blend, modulate and to_uint8 one layer
+    at a time: a DEM with a nodata hole, its shading and hypsometric colours on the nodes (fine 1: the texture's grid;
+    3: resampled onto 3 x 3 texels a node), a picture sampled onto the grid (RGBA, part transparent, part half; its
+    border transparent or its edge texels repeated) or on the grid itself (uint8 RGB, RGBA, read as they are), with
+    and without colours, RGBA and over a background."""
+    from stepterrain import texture as tx
+
+    rng = np.random.default_rng(7)
+    heights = np.cumsum(rng.normal(size=(23, 31)), axis=0) * 5.0 + np.linspace(0, 40, 31)
+    heights[8:12, 10:15] = np.nan
+    topo = tx.topographic_layer(heights, spacing=(30.0, -30.0), shadows=True, device="cpu")
+    colours = tx.terrain_layer(heights, rng.random((23, 31, 4)).astype(np.float32), spacing=(30.0, -30.0))
+    extent = topo.extent
+    shape = (23 * fine, 31 * fine)
+    sampled = rng.integers(0, 256, (40, 50, 4), dtype=np.uint8)
+    sampled[:10, :, 3] = 0
+    sampled[20:25, :, 3] = 128
+    sampled.flags.writeable = False
+    inside = (extent[0] + 100, extent[1] - 200, extent[2] + 50, extent[3] - 40)
+    pictures = [None, tx.TextureLayer("thematic", sampled, inside),
+                tx.TextureLayer("thematic", sampled, inside, border="edge")]
+    for channels in (3, 4):
+        own = rng.integers(0, 256, (*shape, channels), dtype=np.uint8)
+        own[..., 3:][:5] = 0
+        own.flags.writeable = False
+        pictures.append(tx.TextureLayer("thematic", own, extent))
+    for picture in pictures:
+        for hypsometric in (None, colours):
+            for background in (None, (1.0, 1.0, 1.0), (0.2, 0.5, 0.9)):
+                got = tx._composed(topo, hypsometric, picture, extent, shape, background, "cpu")
+                want = _one_at_a_time(topo, hypsometric, picture, extent, shape, background)
+                assert got.dtype == np.uint8 and got.shape == want.shape == (*shape, 4 if background is None else 3)
+                assert np.array_equal(got, want)
+
+
+def test_cli_texture_texel_size_composes_without_float_layers_on_its_grid(tmp_path):
+    """--texel-size with an --image on the cropped Big Tujunga DEM, 5 m and 2.5 m (734 400 and 2 937 600 texels): the
+    texture is composed in one pass into uint8, no float32 RGBA layer (16 bytes a texel) on its grid: the Python
+    allocations' peak grows by under 16 bytes a texel more (it grew by about 90: the resampled layers, their checked
+    copies, blend's and modulate's results and to_uint8's temporaries)."""
+    import tracemalloc
+
+    from .conftest import shared_file
+
+    image, _, _, _ = _fine_ortho(tmp_path)
+    argv = ["-q", "texture", str(shared_file(TUJUNGA)), _crop_nodes((90, 209), (190, 359)), "--image", str(image),
+            "--shadows", "-o", str(tmp_path / "t.png"), "--device", "cpu"]
+    assert main([*argv, "--texel-size", "5"]) == 0  # kernels compiled, modules imported
+    peaks = []
+    for size in ("5", "2.5"):
+        tracemalloc.start()
+        try:
+            assert main([*argv, "--texel-size", size]) == 0
+            peaks.append(tracemalloc.get_traced_memory()[1])
+        finally:
+            tracemalloc.stop()
+    assert read_png(tmp_path / "t.png").shape == (1440, 2040, 3)
+    per_texel = (peaks[1] - peaks[0]) / (1440 * 2040 - 720 * 1020)
+    assert per_texel < 16, f"{per_texel:.1f} bytes a texel"
