@@ -238,6 +238,8 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
         dx, dy = (spacing[0], spacing[-1])
         terrain = type(terrain).from_heights(terrain.heights, spacing=(dx, -dy), source=terrain.source,
                                              height_unit=terrain.height_unit)
+    if crop is not None:
+        _refuse_degrees(terrain, crop, "--crop")
     try:  # the methods' refusals, prefixed with the option that passed their argument
         option = "--crop"
         if crop is not None:
@@ -248,6 +250,33 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     except InvalidInputError as exc:
         raise InvalidInputError(f"{option}: {exc}") from None
     return terrain
+
+
+def _refuse_degrees(terrain: Any, extent: Sequence[float], option: str) -> None:
+    """An extent option given in degrees for a DEM load_dem read from degrees (whose coordinates are local metres)
+    is refused, with the same extent in those metres: read as degrees it overlaps the DEM's longitudes and
+    latitudes, read as metres it misses the DEM, or covers under 1% of it (a whole-world image's -180,180,-90,90
+    would have draped a 360 x 180 m corner)."""
+    from .io import _lonlat_grid, lonlat_as_local_metres
+
+    lonlat = _lonlat_grid(terrain) if terrain.kind == "grid" else None
+    if lonlat is None or not all(math.isfinite(v) for v in extent):
+        return
+    x0, x1, y0, y1 = (float(v) for v in extent)
+    (lon0, lon1, lat0, lat1), _ = lonlat
+    lon0, lon1, lat0, lat1 = min(lon0, lon1), max(lon0, lon1), min(lat0, lat1), max(lat0, lat1)
+    if not (x0 < lon1 and x1 > lon0 and y0 < lat1 and y1 > lat0):
+        return  # as degrees it is not over the DEM: its numbers are not degrees meant for it
+    ex0, ex1, ey0, ey1 = terrain.extent
+    overlap = max(0.0, min(x1, ex1) - max(x0, ex0)) * max(0.0, min(y1, ey1) - max(y0, ey0))
+    if overlap >= 0.01 * (ex1 - ex0) * (ey1 - ey0):
+        return
+    (mx0, mx1), (my0, my1) = lonlat_as_local_metres(terrain.crs, [x0, x1], [y0, y1])
+    raise InvalidInputError(
+        f"{option}={x0:g},{x1:g},{y0:g},{y1:g} looks like degrees (over the DEM's longitudes {lon0:.6g}..{lon1:.6g} "
+        f"and latitudes {lat0:.6g}..{lat1:.6g}), but a DEM in degrees is read as local metres (its extent "
+        f"{tuple(round(v, 2) for v in terrain.extent)}, as `stepterrain info` prints it), which {option} takes: "
+        f"those degrees are {option}={mx0:.2f},{mx1:.2f},{my0:.2f},{my1:.2f}")
 
 
 def _input_terrain(args: argparse.Namespace) -> Any:
