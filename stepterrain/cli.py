@@ -254,24 +254,15 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
 
 def _refuse_degrees(terrain: Any, extent: Sequence[float], option: str) -> None:
     """An extent option given in degrees for a DEM load_dem read from degrees (whose coordinates are local metres)
-    is refused, with the same extent in those metres: read as degrees it overlaps the DEM's longitudes and
-    latitudes, read as metres it misses the DEM, or covers under 1% of it (a whole-world image's -180,180,-90,90
-    would have draped a 360 x 180 m corner)."""
-    from .io import _lonlat_grid, lonlat_as_local_metres
+    is refused, with the same extent in those metres (:func:`~stepterrain.io.extent_in_degrees_as_metres`): a
+    whole-world image's -180,180,-90,90 would have draped a 360 x 180 m corner."""
+    from .io import extent_in_degrees_as_metres
 
-    lonlat = _lonlat_grid(terrain) if terrain.kind == "grid" else None
-    if lonlat is None or not all(math.isfinite(v) for v in extent):
+    found = extent_in_degrees_as_metres(terrain, extent)
+    if found is None:
         return
     x0, x1, y0, y1 = (float(v) for v in extent)
-    (lon0, lon1, lat0, lat1), _ = lonlat
-    lon0, lon1, lat0, lat1 = min(lon0, lon1), max(lon0, lon1), min(lat0, lat1), max(lat0, lat1)
-    if not (x0 < lon1 and x1 > lon0 and y0 < lat1 and y1 > lat0):
-        return  # as degrees it is not over the DEM: its numbers are not degrees meant for it
-    ex0, ex1, ey0, ey1 = terrain.extent
-    overlap = max(0.0, min(x1, ex1) - max(x0, ex0)) * max(0.0, min(y1, ey1) - max(y0, ey0))
-    if overlap >= 0.01 * (ex1 - ex0) * (ey1 - ey0):
-        return
-    (mx0, mx1), (my0, my1) = lonlat_as_local_metres(terrain.crs, [x0, x1], [y0, y1])
+    (lon0, lon1, lat0, lat1), (mx0, mx1, my0, my1) = found
     raise InvalidInputError(
         f"{option}={x0:g},{x1:g},{y0:g},{y1:g} looks like degrees (over the DEM's longitudes {lon0:.6g}..{lon1:.6g} "
         f"and latitudes {lat0:.6g}..{lat1:.6g}), but a DEM in degrees is read as local metres (its extent "
