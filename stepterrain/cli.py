@@ -240,6 +240,7 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
                                              height_unit=terrain.height_unit)
     if crop is not None:
         _refuse_degrees(terrain, crop, "--crop")
+        _refuse_gdal_order(terrain, crop)
     try:  # the methods' refusals, prefixed with the option that passed their argument
         option = "--crop"
         if crop is not None:
@@ -264,10 +265,27 @@ def _refuse_degrees(terrain: Any, extent: Sequence[float], option: str) -> None:
     x0, x1, y0, y1 = (float(v) for v in extent)
     (lon0, lon1, lat0, lat1), (mx0, mx1, my0, my1) = found
     raise InvalidInputError(
-        f"{option}={x0:g},{x1:g},{y0:g},{y1:g} looks like degrees (over the DEM's longitudes {lon0:.6g}..{lon1:.6g} "
-        f"and latitudes {lat0:.6g}..{lat1:.6g}), but a DEM in degrees is read as local metres (its extent "
-        f"{tuple(round(v, 2) for v in terrain.extent)}, as `stepterrain info` prints it), which {option} takes: "
-        f"those degrees are {option}={mx0:.2f},{mx1:.2f},{my0:.2f},{my1:.2f}")
+        f"{option}={x0:.10g},{x1:.10g},{y0:.10g},{y1:.10g} looks like degrees (over the DEM's longitudes "
+        f"{lon0:.6g}..{lon1:.6g} and latitudes {lat0:.6g}..{lat1:.6g}), but a DEM in degrees is read as local "
+        f"metres (its extent {tuple(round(v, 2) for v in terrain.extent)}, as `stepterrain info` prints it), which "
+        f"{option} takes: those degrees are {option}={mx0:.2f},{mx1:.2f},{my0:.2f},{my1:.2f}")
+
+
+def _refuse_gdal_order(terrain: Any, crop: Sequence[float]) -> None:
+    """A ``--crop`` in GDAL's order (-te and rasterio's bounds: xmin,ymin,xmax,ymax) is refused, with the numbers in
+    ours: projected bounds read as xmin,xmax,ymin,ymax span a box more than 10 times the DEM's width and height (an
+    easting to a northing, each way), cropping one corner of it, where the other order crops a box on the DEM."""
+    x0, x1, y0, y1 = (float(v) for v in crop)
+    ex0, ex1, ey0, ey1 = terrain.extent
+    if not (x0 < y0 and x1 < y1):  # the numbers in GDAL's order make no box
+        return
+    if not (min(y0, ex1) > max(x0, ex0) and min(y1, ey1) > max(x1, ey0)):  # nor one over the DEM
+        return
+    if x1 - x0 > 10 * (ex1 - ex0) and y1 - y0 > 10 * (ey1 - ey0):
+        raise InvalidInputError(
+            f"--crop={x0:.10g},{x1:.10g},{y0:.10g},{y1:.10g} spans more than 10 times the DEM's width and height "
+            f"(its extent {tuple(round(v, 2) for v in terrain.extent)}): its numbers are xmin,xmax,ymin,ymax, not "
+            f"GDAL's -te xmin,ymin,xmax,ymax; in this order that box is --crop={x0:.10g},{y0:.10g},{x1:.10g},{y1:.10g}")
 
 
 def _input_terrain(args: argparse.Namespace) -> Any:

@@ -14,6 +14,7 @@ import pytest
 import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st_
+from PIL import Image
 
 import stepterrain as st
 from stepterrain import cli
@@ -371,3 +372,25 @@ def test_a_crop_in_degrees_of_a_dem_in_degrees_is_named_with_its_metres(tmp_path
     assert cli.main(["batch", str(shared_file("front_range_srtmgl3_3arcsec.npz")), "--tile", "128",
                      "--crop=" + ",".join(repr(v) for v in box), "--scheduler", "serial", "-o", str(out)]) == 2
     assert "it looks like degrees" in capsys.readouterr().err
+
+
+def test_a_crop_in_gdals_order_is_refused_with_the_numbers_in_ours(tmp_path, capsys):
+    """--crop takes xmin,xmax,ymin,ymax; GDAL's -te and rasterio's bounds give xmin,ymin,xmax,ymax. Big Tujunga's
+    bounds in that order (easting to northing, each way) cropped one corner of a 3400 km box without a word: the
+    nodes north-east of (xmin, xmax), not the box meant. Refused now, naming our order and the same box in it, which
+    crops what Terrain.crop does for it; a crop that runs past the DEM's edges in the right order is kept."""
+    import re
+
+    from .conftest import shared_file
+
+    source = str(shared_file("big_tujunga_srtm_30m_utm11n.npz"))
+    out = tmp_path / "t.png"
+    assert cli.main(["texture", source, "--crop", "380000,3790000,390000,3800000", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "not GDAL's -te xmin,ymin,xmax,ymax" in err and not out.exists(), err
+    ours = re.search(r"that box is --crop=(\S+)", err).group(1)
+    assert ours == "380000,390000,3790000,3800000"
+    assert cli.main(["-q", "texture", source, "--crop", ours, "-o", str(out)]) == 0
+    with Image.open(out) as image:
+        assert image.size[::-1] == st.load_dem(source).crop((380000, 390000, 3790000, 3800000)).shape
+    assert cli.main(["-q", "texture", source, "--crop", "380000,500000,3700000,3800000", "-o", str(out)]) == 0
