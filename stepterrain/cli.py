@@ -669,11 +669,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         # γ is float32 in the kernels: a --gamma below its least (1e-50) is 0, the original surface, lens or not
         stepping = bool(np.float32(args.gamma) > 0.0)
         if stepping and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
+            from .io import degrees_hint
+
             crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
             outside = math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax))
             if outside >= radius:
                 why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
-                       f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
+                       f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)"
+                       + degrees_hint(terrain, (cx - radius, cx + radius, cy - radius, cy + radius)))
             else:  # a sliver of it overlaps the extent, between the mask's samples (the run ended in UnboundLocalError)
                 why = (f"reaches only {radius - outside:.3g} into the terrain's extent x {xmin:.9g} to {xmax:.9g}, "
                        f"y {ymin:.9g} to {ymax:.9g}, less than its mask resolves; move it inside or give a larger "

@@ -400,6 +400,18 @@ def extent_in_degrees_as_metres(
     return (lon0, lon1, lat0, lat1), (mx0, mx1, my0, my1)
 
 
+def degrees_hint(terrain: Terrain, box: Sequence[float]) -> str:
+    """For a refusal of a ``box`` (xmin, xmax, ymin, ymax: a circle's or ROI's) off a DEM read from degrees, what to
+    add when it looks given in degrees (:func:`extent_in_degrees_as_metres`): its centre in the DEM's metres."""
+    found = extent_in_degrees_as_metres(terrain, box)
+    if found is None:
+        return ""
+    (mx0, mx1, my0, my1) = found[1]
+    return (f"; it looks like degrees, but a DEM in degrees is read as local metres (`stepterrain info` prints its "
+            f"extent): the centre ({(box[0] + box[1]) / 2:.10g}, {(box[2] + box[3]) / 2:.10g}) is there "
+            f"({(mx0 + mx1) / 2:.2f}, {(my0 + my1) / 2:.2f}), and a radius is in metres too")
+
+
 # ---------------------------------------------------------------------------------------------- readers
 def _load_npy(file: Path, height_unit: str | None) -> Terrain:
     heights, unit = _heights_in_metres(_elevation(read_npy(file), file, "array"), height_unit, file, "height_unit")
