@@ -28,6 +28,7 @@ from .cli import (
     _input_metadata,
     _input_terrain,
     _path,
+    _refuse_degrees,
     _refuse_unused,
     _size,
     _window,
@@ -170,6 +171,7 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> t
     """``--texel-size`` once the DEM is loaded, before any work: no coarser than its node spacing, its texture within
     the memory budget and, for a textured mesh or a render (``textured_gpu`` names it), a GPU's texture size."""
     from ._compaction import check_budget
+    from .io import _lonlat_grid
 
     sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
     spacing = max(sx, sy)  # square texels: a geographic DEM's x and y spacings differ
@@ -177,14 +179,18 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> t
         shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the larger of its {sx:g} x {sy:g}"
         raise InvalidInputError(f"--texel-size must be no larger than the DEM's node spacing ({shown}; the default is "
                                 f"one texel per node): it makes the texture finer; got --texel-size {texel:g}")
+    larger = "give a larger --texel-size (or --crop the DEM)"
+    if _lonlat_grid(terrain) is not None:  # a size in degrees is the likely mistake
+        larger = (f"give a larger --texel-size, in metres: a DEM in degrees is read as local metres (its node spacing "
+                  f"{sx:g} x {sy:g} m), not in degrees (or --crop the DEM)")
     extent, (rows, cols) = _texel_grid(terrain, texel)
     check_budget(_COMPOSE_BYTES_PER_TEXEL * rows * cols,
                  f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
-                 "written)", hint="give a larger --texel-size (or --crop the DEM)")
+                 "written)", hint=larger)
     if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:
         raise InvalidInputError(f"--texel-size {texel:g} makes a {cols} x {rows} texel texture, over the "
                                 f"{_GPU_TEXTURE_LIMIT} texels a side GPUs load as one texture, for {textured_gpu}: "
-                                "give a larger --texel-size (or --crop the DEM), or write the texture with -o alone")
+                                f"{larger}, or write the texture with -o alone")
     return extent, (rows, cols)
 
 
@@ -370,6 +376,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer
+
+        if args.image_extent is not None:
+            _refuse_degrees(terrain, args.image_extent, "--image-extent")
 
         progress.stage("image", f"placing {args.image} over the DEM")
         try:

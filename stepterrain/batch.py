@@ -579,7 +579,8 @@ def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) 
     rows, cols = src.heights.shape[-2:]
     # the geometry from a probe of the source's shape (a series' frames share it; a frame of nodata only is an empty
     # item, which Terrain.crop and .coarsen would refuse)
-    probe = Terrain.from_heights(np.zeros((rows, cols), np.float32), spacing=src.spacing, origin=src.origin)
+    probe = Terrain.from_heights(np.zeros((rows, cols), np.float32), spacing=src.spacing, origin=src.origin,
+                                 crs=src.crs)  # the CRS for crop's refusal of an extent in degrees
     heights = src.heights
     if crop is not None:
         try:

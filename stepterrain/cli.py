@@ -238,6 +238,9 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
         dx, dy = (spacing[0], spacing[-1])
         terrain = type(terrain).from_heights(terrain.heights, spacing=(dx, -dy), source=terrain.source,
                                              height_unit=terrain.height_unit)
+    if crop is not None:
+        _refuse_degrees(terrain, crop, "--crop")
+        _refuse_gdal_order(terrain, crop)
     try:  # the methods' refusals, prefixed with the option that passed their argument
         option = "--crop"
         if crop is not None:
@@ -248,6 +251,41 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     except InvalidInputError as exc:
         raise InvalidInputError(f"{option}: {exc}") from None
     return terrain
+
+
+def _refuse_degrees(terrain: Any, extent: Sequence[float], option: str) -> None:
+    """An extent option given in degrees for a DEM load_dem read from degrees (whose coordinates are local metres)
+    is refused, with the same extent in those metres (:func:`~stepterrain.io.extent_in_degrees_as_metres`): a
+    whole-world image's -180,180,-90,90 would have draped a 360 x 180 m corner."""
+    from .io import extent_in_degrees_as_metres
+
+    found = extent_in_degrees_as_metres(terrain, extent)
+    if found is None:
+        return
+    x0, x1, y0, y1 = (float(v) for v in extent)
+    (lon0, lon1, lat0, lat1), (mx0, mx1, my0, my1) = found
+    raise InvalidInputError(
+        f"{option}={x0:.10g},{x1:.10g},{y0:.10g},{y1:.10g} looks like degrees (over the DEM's longitudes "
+        f"{lon0:.6g}..{lon1:.6g} and latitudes {lat0:.6g}..{lat1:.6g}), but a DEM in degrees is read as local "
+        f"metres (its extent {tuple(round(v, 2) for v in terrain.extent)}, as `stepterrain info` prints it), which "
+        f"{option} takes: those degrees are {option}={mx0:.2f},{mx1:.2f},{my0:.2f},{my1:.2f}")
+
+
+def _refuse_gdal_order(terrain: Any, crop: Sequence[float]) -> None:
+    """A ``--crop`` in GDAL's order (-te and rasterio's bounds: xmin,ymin,xmax,ymax) is refused, with the numbers in
+    ours: projected bounds read as xmin,xmax,ymin,ymax span a box more than 10 times the DEM's width and height (an
+    easting to a northing, each way), cropping one corner of it, where the other order crops a box on the DEM."""
+    x0, x1, y0, y1 = (float(v) for v in crop)
+    ex0, ex1, ey0, ey1 = terrain.extent
+    if not (x0 < y0 and x1 < y1):  # the numbers in GDAL's order make no box
+        return
+    if not (min(y0, ex1) > max(x0, ex0) and min(y1, ey1) > max(x1, ey0)):  # nor one over the DEM
+        return
+    if x1 - x0 > 10 * (ex1 - ex0) and y1 - y0 > 10 * (ey1 - ey0):
+        raise InvalidInputError(
+            f"--crop={x0:.10g},{x1:.10g},{y0:.10g},{y1:.10g} spans more than 10 times the DEM's width and height "
+            f"(its extent {tuple(round(v, 2) for v in terrain.extent)}): its numbers are xmin,xmax,ymin,ymax, not "
+            f"GDAL's -te xmin,ymin,xmax,ymax; in this order that box is --crop={x0:.10g},{y0:.10g},{x1:.10g},{y1:.10g}")
 
 
 def _input_terrain(args: argparse.Namespace) -> Any:
@@ -631,11 +669,14 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         # γ is float32 in the kernels: a --gamma below its least (1e-50) is 0, the original surface, lens or not
         stepping = bool(np.float32(args.gamma) > 0.0)
         if stepping and not (gamma.mask < np.float32(args.gamma)).any():  # the mesh came out as without it
+            from .io import degrees_hint
+
             crs = f" in the DEM's CRS, {terrain.crs}" if terrain.crs else ""
             outside = math.hypot(max(xmin - cx, 0.0, cx - xmax), max(ymin - cy, 0.0, cy - ymax))
             if outside >= radius:
                 why = (f"lies outside the terrain's extent x {xmin:.9g} to {xmax:.9g}, y {ymin:.9g} to {ymax:.9g} "
-                       f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)")
+                       f"(--lens takes world coordinates{crs}; --lens-relative fractions of the extent)"
+                       + degrees_hint(terrain, (cx - radius, cx + radius, cy - radius, cy + radius)))
             else:  # a sliver of it overlaps the extent, between the mask's samples (the run ended in UnboundLocalError)
                 why = (f"reaches only {radius - outside:.3g} into the terrain's extent x {xmin:.9g} to {xmax:.9g}, "
                        f"y {ymin:.9g} to {ymax:.9g}, less than its mask resolves; move it inside or give a larger "

@@ -34,6 +34,7 @@ from ._compaction import budget_value, check_budget, count_buffer, exclusive_off
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import Same, derived
 from .errors import InvalidInputError, MissingDependencyError, counted
+from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
 from .stepped import LAND_START
@@ -841,7 +842,7 @@ def _check_in_terrain(terrain: Terrain, closeups: Sequence[CloseUp]) -> None:
         if bx1 < xmin or bx0 > xmax or by1 < ymin or by0 > ymax:
             raise InvalidInputError(
                 f"closeups[{i}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] lies outside the terrain's "
-                f"extent x [{xmin:g}, {xmax:g}], y [{ymin:g}, {ymax:g}]")
+                f"extent x [{xmin:g}, {xmax:g}], y [{ymin:g}, {ymax:g}]{degrees_hint(terrain, (bx0, bx1, by0, by1))}")
 
 
 # ------------------------------------------------------------------------------------------------ geometry

@@ -375,6 +375,43 @@ def lonlat_as_local_metres(crs: str | None, lons: Sequence[float], lats: Sequenc
             [y_0 + radius * math.radians(lat - lat_0) for lat in lats])
 
 
+def extent_in_degrees_as_metres(
+    terrain: Terrain, extent: Sequence[float],
+) -> tuple[tuple[float, float, float, float], tuple[float, float, float, float]] | None:
+    """For a grid :func:`load_dem` read from degrees (local metres), an ``extent`` (xmin, xmax, ymin, ymax) that
+    looks given in degrees: as degrees it overlaps the DEM's longitudes and latitudes, as metres it misses the DEM or
+    covers under 1% of it. Then the DEM's (lon_min, lon_max, lat_min, lat_max) and the extent in its metres
+    (:func:`lonlat_as_local_metres`), else None."""
+    lonlat = _lonlat_grid(terrain) if terrain.kind == "grid" else None
+    if lonlat is None or len(extent) != 4 or not all(math.isfinite(float(v)) for v in extent):
+        return None
+    x0, x1, y0, y1 = (float(v) for v in extent)
+    (lon0, lon1, lat0, lat1), _ = lonlat
+    lon0, lon1, lat0, lat1 = min(lon0, lon1), max(lon0, lon1), min(lat0, lat1), max(lat0, lat1)
+    if not (x0 < lon1 and x1 > lon0 and y0 < lat1 and y1 > lat0):
+        return None  # as degrees it is not over the DEM: its numbers are not degrees meant for it
+    ex0, ex1, ey0, ey1 = terrain.extent
+    overlap = max(0.0, min(x1, ex1) - max(x0, ex0)) * max(0.0, min(y1, ey1) - max(y0, ey0))
+    if overlap >= 0.01 * (ex1 - ex0) * (ey1 - ey0):
+        return None
+    found = lonlat_as_local_metres(terrain.crs, [x0, x1], [y0, y1])
+    assert found is not None  # _lonlat_grid read the same CRS
+    (mx0, mx1), (my0, my1) = found
+    return (lon0, lon1, lat0, lat1), (mx0, mx1, my0, my1)
+
+
+def degrees_hint(terrain: Terrain, box: Sequence[float]) -> str:
+    """For a refusal of a ``box`` (xmin, xmax, ymin, ymax: a circle's or ROI's) off a DEM read from degrees, what to
+    add when it looks given in degrees (:func:`extent_in_degrees_as_metres`): its centre in the DEM's metres."""
+    found = extent_in_degrees_as_metres(terrain, box)
+    if found is None:
+        return ""
+    (mx0, mx1, my0, my1) = found[1]
+    return (f"; it looks like degrees, but a DEM in degrees is read as local metres (`stepterrain info` prints its "
+            f"extent): the centre ({(box[0] + box[1]) / 2:.10g}, {(box[2] + box[3]) / 2:.10g}) is there "
+            f"({(mx0 + mx1) / 2:.2f}, {(my0 + my1) / 2:.2f}), and a radius is in metres too")
+
+
 # ---------------------------------------------------------------------------------------------- readers
 def _load_npy(file: Path, height_unit: str | None) -> Terrain:
     heights, unit = _heights_in_metres(_elevation(read_npy(file), file, "array"), height_unit, file, "height_unit")

@@ -815,7 +815,8 @@ class Terrain:
         ------
         InvalidInputError
             A TIN, an ``extent`` that is not four finite numbers with xmin <= xmax and ymin <= ymax, one that holds
-            fewer than 2 x 2 nodes of the grid, or only nodata.
+            fewer than 2 x 2 nodes of the grid (one in degrees of a DEM read from degrees is named with its metres),
+            or only nodata.
 
         Examples
         --------
@@ -837,10 +838,15 @@ class Terrain:
         j0, j1 = _node_span(float(bounds[0]), float(bounds[1]), ox, dx, cols)
         i0, i1 = _node_span(float(bounds[2]), float(bounds[3]), oy, dy, rows)
         if j1 - j0 < 1 or i1 - i0 < 1:
+            from .io import extent_in_degrees_as_metres
+
+            degrees = extent_in_degrees_as_metres(self, [float(v) for v in bounds])
             raise InvalidInputError(
                 f"extent {tuple(float(v) for v in bounds)} (xmin, xmax, ymin, ymax) holds "
                 f"{max(i1 - i0 + 1, 0)} x {max(j1 - j0 + 1, 0)} nodes of the grid, fewer than the 2 x 2 a mesh needs; "
-                f"the terrain's extent is {self._extent_text()}, spacing {self.spacing}")
+                f"the terrain's extent is {self._extent_text()}, spacing {self.spacing}" + (
+                    "" if degrees is None else "; it looks like degrees, but a DEM in degrees is read as local metres: "
+                    "those degrees are ({:.2f}, {:.2f}, {:.2f}, {:.2f})".format(*degrees[1])))
         kept = self.heights[i0:i1 + 1, j0:j1 + 1]
         if not np.isfinite(kept).any():
             raise InvalidInputError(f"extent {tuple(float(v) for v in bounds)} holds only nodata "

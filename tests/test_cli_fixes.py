@@ -1238,3 +1238,28 @@ def test_a_colormap_an_stl_cannot_hold_is_refused(tmp_path, capsys):
     code, _, err = run(capsys, "-q", "batch", dem, "--tile", "8", "--colormap", "viridis", "--format", ".ply",
                        "--scheduler", "serial", "-o", tmp_path / "out")
     assert code == 0 and any((tmp_path / "out").glob("*.ply")), err
+
+
+def test_a_roi_or_lens_in_degrees_of_a_dem_in_degrees_names_its_centre_in_metres(tmp_path, capsys):
+    """closeup --roi=-105.5,40.1,0.05 on the Front Range tile (in degrees, read as local metres) was refused as
+    outside the extent, steps --lens warned it changed nothing, naming the metres extent only. Both now say it looks
+    like degrees and give the centre in the DEM's metres, where a close-up then lies."""
+    import re
+
+    from stepterrain.io import lonlat_as_local_metres
+
+    from .conftest import shared_file
+
+    source = str(shared_file("front_range_srtmgl3_3arcsec.npz"))
+    xs, ys = lonlat_as_local_metres(st.load_dem(source).crs, [-105.5], [40.1])
+    out = tmp_path / "c.png"
+    assert cli.main(["closeup", source, "--roi=-105.5,40.1,0.05", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    found = re.search(r"it looks like degrees.*the centre \(-105\.5, 40\.1\) is there \((\S+), (\S+)\)", err)
+    assert found and not out.exists(), err
+    assert (float(found[1]), float(found[2])) == pytest.approx((xs[0], ys[0]), abs=0.01)
+    assert cli.main(["-q", "closeup", source, f"--roi={found[1]},{found[2]},4000", "-o", str(out)]) == 0
+    capsys.readouterr()
+    assert cli.main(["-q", "steps", source, "--lens=-105.5,40.1,0.05", "-o", str(tmp_path / "s.glb")]) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"changes nothing.*it looks like degrees.*\(-105\.5, 40\.1\) is there", err), err

@@ -14,6 +14,7 @@ import pytest
 import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st_
+from PIL import Image
 
 import stepterrain as st
 from stepterrain import cli
@@ -345,3 +346,51 @@ def test_coarsen_refuses_a_result_of_nodata_only():
     with pytest.raises(InvalidInputError, match=r"^factor 2 \(nearest\) leaves only nodata of the 5 x 7 grid"):
         st.Terrain.from_heights(z).coarsen(2, method="nearest")
     assert np.isfinite(st.Terrain.from_heights(z).coarsen(2).heights).sum() == 2
+
+
+def test_a_crop_in_degrees_of_a_dem_in_degrees_is_named_with_its_metres(tmp_path, capsys):
+    """A DEM in degrees is read as local metres; a crop in degrees held 0 x 0 nodes, the message naming the metres
+    extent only. Terrain.crop (and so batch's crop=/--crop) now says the extent looks like degrees and gives it in
+    the DEM's metres, which crop the nodes inside those degrees: 200 x 200 of the Front Range tile here."""
+    from stepterrain.io import describe_dem
+
+    from .conftest import shared_file
+
+    dem = st.load_dem(shared_file("front_range_srtmgl3_3arcsec.npz"))
+    (lon0, _, _, lat1), (dlon, dlat) = describe_dem(dem)["lonlat_extent"], describe_dem(dem)["lonlat_step"]
+    # nodes 100..299 west to east, 50..249 north to south: the box's edges lie halfway between nodes
+    box = (lon0 + 99.5 * dlon, lon0 + 299.5 * dlon, lat1 + 249.5 * dlat, lat1 + 49.5 * dlat)
+    with pytest.raises(InvalidInputError, match="it looks like degrees") as caught:
+        dem.crop(box)
+    metres = [float(v) for v in str(caught.value).rsplit("those degrees are (", 1)[1].rstrip(")").split(",")]
+    assert dem.crop(metres).shape == (200, 200)
+    np.testing.assert_array_equal(dem.crop(metres).heights, dem.heights[50:250, 100:300])
+    with pytest.raises(InvalidInputError, match="0 x 0 nodes") as caught:  # metres off the DEM: no degrees named
+        dem.crop((-500.0, -100.0, 100.0, 500.0))
+    assert "degrees" not in str(caught.value)
+    out = tmp_path / "out"
+    assert cli.main(["batch", str(shared_file("front_range_srtmgl3_3arcsec.npz")), "--tile", "128",
+                     "--crop=" + ",".join(repr(v) for v in box), "--scheduler", "serial", "-o", str(out)]) == 2
+    assert "it looks like degrees" in capsys.readouterr().err
+
+
+def test_a_crop_in_gdals_order_is_refused_with_the_numbers_in_ours(tmp_path, capsys):
+    """--crop takes xmin,xmax,ymin,ymax; GDAL's -te and rasterio's bounds give xmin,ymin,xmax,ymax. Big Tujunga's
+    bounds in that order (easting to northing, each way) cropped one corner of a 3400 km box without a word: the
+    nodes north-east of (xmin, xmax), not the box meant. Refused now, naming our order and the same box in it, which
+    crops what Terrain.crop does for it; a crop that runs past the DEM's edges in the right order is kept."""
+    import re
+
+    from .conftest import shared_file
+
+    source = str(shared_file("big_tujunga_srtm_30m_utm11n.npz"))
+    out = tmp_path / "t.png"
+    assert cli.main(["texture", source, "--crop", "380000,3790000,390000,3800000", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "not GDAL's -te xmin,ymin,xmax,ymax" in err and not out.exists(), err
+    ours = re.search(r"that box is --crop=(\S+)", err).group(1)
+    assert ours == "380000,390000,3790000,3800000"
+    assert cli.main(["-q", "texture", source, "--crop", ours, "-o", str(out)]) == 0
+    with Image.open(out) as image:
+        assert image.size[::-1] == st.load_dem(source).crop((380000, 390000, 3790000, 3800000)).shape
+    assert cli.main(["-q", "texture", source, "--crop", "380000,500000,3700000,3800000", "-o", str(out)]) == 0

@@ -365,6 +365,48 @@ def test_cli_texture_image_in_degrees_lies_on_a_dem_in_degrees(tmp_path):
     assert np.abs(draped[500, 100] - pixels[500, 100] * grey[500, 100] / 255.0).max() <= 1.0
 
 
+def test_cli_extents_and_texel_size_in_degrees_for_a_dem_in_degrees_are_refused_with_their_metres(tmp_path, capsys):
+    """A DEM in degrees is read as local metres, which --image-extent, --crop and --texel-size take. Given in degrees
+    (a whole-world JPEG's -180,180,-90,90), --image-extent draped the image on a 360 x 180 m corner of the Front
+    Range tile without a word, and --crop said it held 0 x 0 nodes: both are refused now, naming the same extent in
+    the DEM's metres, which places the image exactly where the same pixels lie as a GeoTIFF in degrees, and crops the
+    nodes inside those degrees. --texel-size 0.0001 (degrees) is told it is in metres, with the node spacing."""
+    import re
+
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from PIL import Image
+
+    from .conftest import shared_file
+
+    source = shared_file("front_range_srtmgl3_3arcsec.tif")
+    with rasterio.open(source) as dem:
+        pixels, bounds, step = coded_pixels(*dem.shape), dem.bounds, dem.res[0]
+    image = tmp_path / "map.png"
+    Image.fromarray(pixels).save(image)
+    degrees = f"{bounds.left!r},{bounds.right!r},{bounds.bottom!r},{bounds.top!r}"
+    out = tmp_path / "t.png"
+    assert main(["texture", str(source), "--image", str(image), f"--image-extent={degrees}", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--image-extent=" in err and "looks like degrees" in err and not out.exists(), err
+    metres = re.search(r"those degrees are --image-extent=(\S+)", err).group(1)
+    draped = texture_of(tmp_path, "draped", str(source), "--image", str(image), f"--image-extent={metres}",
+                        "--colormap", "none")
+    grey = texture_of(tmp_path, "grey", str(source), "--colormap", "none")[..., :1]
+    assert np.abs(draped - pixels * grey / 255.0).max() <= 1.0
+
+    # nodes 100..299 west to east, 50..249 north to south: the box's edges lie halfway between nodes
+    box = (bounds.left + 100 * step, bounds.left + 300 * step, bounds.top - 250 * step, bounds.top - 50 * step)
+    assert main(["texture", str(source), "--crop=" + ",".join(repr(v) for v in box), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--crop=" in err and "looks like degrees" in err and "0 x 0 nodes" not in err, err
+    crop = re.search(r"those degrees are --crop=(\S+)", err).group(1)
+    assert texture_of(tmp_path, "cropped", str(source), f"--crop={crop}").shape == (200, 200, 3)
+
+    assert main(["texture", str(source), "--texel-size", "0.0001", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--texel-size, in metres" in err and "node spacing 70.827 x 92.6626 m), not in degrees" in err, err
+
+
 @pytest.mark.render
 @pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
 def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_path):
