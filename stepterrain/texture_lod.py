@@ -653,8 +653,9 @@ class ImagePyramid:
         return (xmax - xmin) / cols, (ymax - ymin) / rows
 
     def window(self, level: int, domain: Extent) -> tuple[int, int, int, int] | None:
-        """(r0, r1, c0, c1): the smallest pixel window of ``level`` covering ``domain`` (clipped to the image),
-        or None when the image does not overlap it."""
+        """(r0, r1, c0, c1): the smallest pixel window of ``level`` covering ``domain`` (clipped to the image; for
+        a world image spanning a whole turn of longitude, placed on a DEM in degrees, the columns go on past its
+        west or east edge, read from its other end), or None when the image does not overlap it."""
         domain = _check_extent(domain, "domain")  # NaN raised math.floor's ValueError, text a TypeError
         rows, cols = self.shape(level)
         px, py = self.pixel_size(level)
@@ -663,10 +664,31 @@ class ImagePyramid:
         c1 = math.ceil((domain[1] - xmin) / px - 1e-9)
         r0 = math.floor((ymax - domain[3]) / py + 1e-9)
         r1 = math.ceil((ymax - domain[2]) / py - 1e-9)
-        c0, c1, r0, r1 = max(c0, 0), min(c1, cols), max(r0, 0), min(r1, rows)
+        if not self._wraps:
+            c0, c1 = max(c0, 0), min(c1, cols)
+        r0, r1 = max(r0, 0), min(r1, rows)
         if c0 >= c1 or r0 >= r1:
             return None
         return r0, r1, c0, c1
+
+    @property
+    def _wraps(self) -> bool:
+        """Whether the image spans a whole turn of longitude, so its columns go on past its east edge from its west
+        edge (a window may then reach past either, up to a turn: see :func:`_placed`)."""
+        return bool(getattr(self, "whole_turn", False))
+
+    def _with_margin(self, level: int, window: tuple[int, int, int, int]) -> tuple[int, int, int, int]:
+        """``window`` grown by one pixel on each side within the image (past its seam for a world image): a
+        bilinear sample within half a pixel of the window's edge then takes the image's next pixel, as over the
+        whole image, instead of repeating the edge pixel (adjacent crops or texture patches differed at their
+        seams)."""
+        r0, r1, c0, c1 = window
+        rows, cols = self.shape(level)
+        if not self._wraps:
+            c0, c1 = max(c0 - 1, 0), min(c1 + 1, cols)
+        else:
+            c0, c1 = c0 - 1, c1 + 1
+        return max(r0 - 1, 0), min(r1 + 1, rows), c0, c1
 
     def _window(self, level: int, window: Any) -> tuple[int, int, int, int]:
         """``window`` (r0, r1, c0, c1) as ints when it is a non-empty pixel window of ``level``, else an
@@ -676,12 +698,15 @@ class ImagePyramid:
         if type(window) is tuple and len(window) == 4 and all(type(v) is int for v in window):
             r0, r1, c0, c1 = window  # what window() gives and a TexturePatch holds: read on every traversal
         else:
-            given = real_numbers(window, "window", _window_expected(rows, cols, level))
+            expected = _window_expected(rows, cols, level, self._wraps)
+            given = real_numbers(window, "window", expected)
             if given.shape != (4,) or not np.all(given == np.round(given)):  # NaN and inf fail too
-                raise InvalidInputError(f"window must be {_window_expected(rows, cols, level)}; got {window!r}")
+                raise InvalidInputError(f"window must be {expected}; got {window!r}")
             r0, r1, c0, c1 = (int(v) for v in given)
-        if not (0 <= r0 < r1 <= rows and 0 <= c0 < c1 <= cols):
-            raise InvalidInputError(f"window must be {_window_expected(rows, cols, level)}; got {window!r}")
+        columns = (-cols <= c0 < c1 <= 2 * cols) if self._wraps else (0 <= c0 < c1 <= cols)
+        if not (0 <= r0 < r1 <= rows and columns):
+            raise InvalidInputError(f"window must be {_window_expected(rows, cols, level, self._wraps)}; got "
+                                    f"{window!r}")
         return r0, r1, c0, c1
 
     def window_extent(self, level: int, window: tuple[int, int, int, int]) -> Extent:
@@ -693,9 +718,12 @@ class ImagePyramid:
 
     def sub_image(self, level: int, window: tuple[int, int, int, int]) -> NDArray[np.uint8]:
         """A view of a pixel window of ``level`` (as :meth:`window` gives it; no copy: a memmap slice stays on disk
-        until read)."""
+        until read; a copy of a world image's window past its seam, its columns read from the other end)."""
         r0, r1, c0, c1 = self._window(level, window)
-        return self._level(level)[r0:r1, c0:c1]
+        pixels = self._level(level)
+        if 0 <= c0 and c1 <= pixels.shape[1]:
+            return pixels[r0:r1, c0:c1]
+        return np.take(pixels[r0:r1], np.arange(c0, c1) % pixels.shape[1], axis=1)
 
 
 def _optional_crs(crs: Any) -> str | None:
@@ -734,10 +762,11 @@ def _same_crs(a: str, b: str) -> bool:
     return parsed_a is not None and parsed_b is not None and parsed_a == parsed_b
 
 
-def _window_expected(rows: int, cols: int, level: int) -> str:
+def _window_expected(rows: int, cols: int, level: int, wraps: bool = False) -> str:
     """What :meth:`ImagePyramid.sub_image` and :meth:`ImagePyramid.window_extent` take as a window of ``level``."""
-    return (f"(r0, r1, c0, c1) whole pixel indices with 0 <= r0 < r1 <= {rows} and 0 <= c0 < c1 <= {cols} "
-            f"(level {level})")
+    columns = (f"{-cols} <= c0 < c1 <= {2 * cols}, past the seam of a world image" if wraps
+               else f"0 <= c0 < c1 <= {cols}")
+    return f"(r0, r1, c0, c1) whole pixel indices with 0 <= r0 < r1 <= {rows} and {columns} (level {level})"
 
 
 class _Reader:
@@ -1052,7 +1081,8 @@ def _approximation_error(block: NDArray[np.float32], stride: int, spacing: tuple
 @dataclass(eq=False)
 class TexturePatch:
     """A node M of a texture tree (§3.2.2): the pyramid ``level`` and the pixel ``window`` (r0, r1, c0, c1) of
-    that level covering its geometry patch (or the part of it the image covers). Holds no image data."""
+    that level covering its geometry patch (or the part of it the image covers) and one pixel beyond it on each side
+    within the image (columns past a world image's seam: see :class:`TextureTree`). Holds no image data."""
 
     tree: TextureTree
     geometry: GeometryPatch
@@ -1085,7 +1115,7 @@ class TexturePatch:
         return (r1 - r0) * (c1 - c0) * int(self.tree.pyramid.levels[self.level].shape[2])
 
     def image(self) -> NDArray[np.uint8]:
-        """The sub-image, a view into the pyramid level (no copy)."""
+        """The sub-image, a view into the pyramid level (no copy; a copy for a window past a world image's seam)."""
         return self.tree.pyramid.sub_image(self.level, self.window)
 
     def child_for(self, geometry: GeometryPatch) -> TexturePatch | None:
@@ -1172,10 +1202,16 @@ class TextureTree:
     """The texture tree of one layer over a :class:`PatchQuadtree` (§3.2.2 and §4, partial textures).
 
     Each texture patch names the finest pyramid level whose window over its geometry patch fits
-    ``max_texture_size`` per side; subtrees are pruned below patches already at full resolution (level 0);
-    geometry patches the image does not overlap get no texture patch. ``tree.pyramid`` is the pyramid, or for an
-    image in degrees on a DEM read from degrees into local metres a view of it over its extent in those metres
-    (the same levels, read through the pyramid: closing it closes the view).
+    ``max_texture_size`` per side, and takes one pixel more on each side of it (within the image; a border, as
+    OpenGL's, not counted in that size: a patch's texture is up to ``max_texture_size`` + 2 per side), so a texel
+    near the patch's edge interpolates as over the whole level and adjacent patches at one level agree along their
+    seam (the UVs map the window's extent, :attr:`TexturePatch.domain`, so a texel's centre stays on its world
+    position). Subtrees are pruned below patches already at full resolution (level 0); geometry patches the image
+    does not overlap get no texture patch. ``tree.pyramid`` is the pyramid, or for an image in degrees on a DEM read
+    from degrees into local metres a view of it over its extent in those metres (the same levels, read through the
+    pyramid: closing it closes the view); a world image in degrees (360 degrees of longitude) goes on past its seam
+    there, so a DEM across the antimeridian is textured on both sides (the window
+    of a patch across the seam, :meth:`TexturePatch.image`, is then a copy).
     """
 
     def __init__(self, pyramid: ImagePyramid, quadtree: PatchQuadtree, *, max_texture_size: int = 1024) -> None:
@@ -1202,7 +1238,10 @@ class TextureTree:
                 return None
             r0, r1, c0, c1 = window
             if r1 - r0 <= self.max_texture_size and c1 - c0 <= self.max_texture_size:
-                choice = (level, window)
+                # a pixel more on each side (OpenGL's texture border, §4: not counted in the size), as image_layer's:
+                # the patch's texels within half a pixel of its edge were sampled from its edge pixel repeated, so
+                # adjacent patches at one level differed at their seam
+                choice = (level, self.pyramid._with_margin(level, window))
                 break
         if choice is None:  # pragma: no cover - the 1 x 1 level always fits
             return None
@@ -1307,38 +1346,16 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
                                     f"(mismatched extent){hint}")
         # a pixel more on each side (within the image): a texel near the terrain's edge is interpolated with the
         # image's next pixel beyond it, not the window's edge pixel repeated (a cropped DEM, or a tile beside
-        # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes)
-        r0, r1, c0, c1 = window
-        rows, cols = placed.shape(level)
-        window = (max(r0 - 1, 0), min(r1 + 1, rows), max(c0 - 1, 0), min(c1 + 1, cols))
+        # another, took other colours on its nodes near the edge than the whole DEM did on the same nodes); a world
+        # image's window goes on past its seam (a DEM across the antimeridian was draped on one side only)
+        window = placed._with_margin(level, window)
         pixels = np.array(placed.sub_image(level, window))  # a copy: the level files go with the pyramid
         where = placed.window_extent(level, window)
-        if getattr(placed, "whole_turn", False):  # a global image (360 degrees) goes on past its seam
-            pixels, where = _wrapped(placed, level, window, pixels, where, target)
     channels = pixels.shape[2]
     if channels < 3:  # grey, grey + alpha: as RGB(A)
         pixels = np.concatenate([np.repeat(pixels[:, :, :1], 3, axis=2), pixels[:, :, 1:]], axis=2)
     pixels.flags.writeable = False  # its RGBA is cached
     return TextureLayer("thematic", pixels, where, name=name)
-
-
-def _wrapped(placed: ImagePyramid, level: int, window: tuple[int, int, int, int], pixels: NDArray[np.uint8],
-             where: Extent, target: Extent) -> tuple[NDArray[np.uint8], Extent]:
-    """The window ``pixels`` over ``where`` of an image spanning a whole turn of longitude, grown over the part of
-    ``target`` past its west or east edge by the image's columns from its other end (and one more, as image_layer's
-    margin): a DEM across the antimeridian (or across the seam of a 0..360 image) was draped on one side only, the
-    other left transparent."""
-    r0, r1, _, _ = window
-    rows, cols = placed.shape(level)
-    px = placed.pixel_size(level)[0]
-    xmin, xmax, ymin, ymax = where
-    west = min(cols, math.ceil((xmin - target[0]) / px - 1e-9) + 1) if xmin > target[0] else 0
-    east = min(cols, math.ceil((target[1] - xmax) / px - 1e-9) + 1) if xmax < target[1] else 0
-    if west:
-        pixels = np.concatenate([np.asarray(placed.sub_image(level, (r0, r1, cols - west, cols))), pixels], axis=1)
-    if east:
-        pixels = np.concatenate([pixels, np.asarray(placed.sub_image(level, (r0, r1, 0, east)))], axis=1)
-    return pixels, (xmin - west * px, xmax + east * px, ymin, ymax)
 
 
 # ---------------------------------------------------------------------------------------------- camera, errors

@@ -539,3 +539,106 @@ def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_
         assert np.array_equal(pyramid.levels[0], pixels)
     with pytest.raises(DataFileError, match=r"cannot read '.*map\.png' as an image: .*decompression bomb"):
         ImagePyramid.build(png, device="cpu")
+
+
+def _bilinear(image, extent, x, y):
+    """A texture sampler's colours (bilinear, texel centres at half-pixels, clamped to the edge) of ``image`` over
+    ``extent`` at world points (x, y)."""
+    image = np.asarray(image, np.float64)
+    rows, cols = image.shape[:2]
+    xmin, xmax, ymin, ymax = extent
+    u = np.clip((x - xmin) / (xmax - xmin) * cols - 0.5, 0, cols - 1)
+    v = np.clip((ymax - y) / (ymax - ymin) * rows - 0.5, 0, rows - 1)
+    c0, r0 = np.minimum(np.floor(u).astype(int), cols - 2), np.minimum(np.floor(v).astype(int), rows - 2)
+    fu, fv = (u - c0)[:, None], (v - r0)[:, None]
+    return (image[r0, c0] * (1 - fu) * (1 - fv) + image[r0, c0 + 1] * fu * (1 - fv)
+            + image[r0 + 1, c0] * (1 - fu) * fv + image[r0 + 1, c0 + 1] * fu * fv)
+
+
+def _painted_against_level(tree, patch, level_image, level_extent):
+    """The largest difference (grey levels) between the colours paint_with_textures gives the vertices of ``patch``'s
+    geometry (its texture sampled at their UVs) and ``level_image`` over ``level_extent`` sampled at their world
+    positions."""
+    from stepterrain.texture_lod import DrawItem, paint_with_textures
+
+    mesh = paint_with_textures(DrawItem(patch.geometry, (patch,), (False,)))
+    image = np.asarray(mesh.visual.material.baseColorTexture.convert("RGB"))
+    height, width = image.shape[:2]
+    u, v = mesh.visual.uv.T
+    # the UVs as a sampler reads them: the painted texture over the unit square
+    painted = _bilinear(image, (0.0, 1.0, 0.0, 1.0), u, v)
+    whole = _bilinear(level_image, level_extent, mesh.vertices[:, 0], mesh.vertices[:, 1])
+    return float(np.abs(painted - whole).max())
+
+
+def test_adjacent_texture_patches_agree_with_their_level_along_their_seam():
+    """A texture patch's window was the tight pixel window over its geometry patch, so a texel within half an image
+    pixel of the patch's edge was sampled from its edge pixel repeated instead of interpolated with the next one:
+    two adjacent patches at one level gave other colours along their shared edge than each other and than the
+    level sampled as a whole (Front Range + Blue Marble: up to 21.8 grey levels; a hillshade GeoTIFF of Big
+    Tujunga, up to 77). The window now takes a pixel more on each side (as image_layer's): every painted vertex of
+    every patch takes the colour of the whole level at its world position, and a texel's centre stays on its
+    world position (the UVs map the grown window)."""
+    pytest.importorskip("rasterio")
+    import stepterrain as st
+    from stepterrain.texture import TextureLayer, texture_uv
+
+    from .reference_texture import find_shared
+
+    terrain = st.load_dem(find_shared("front_range_srtmgl3_3arcsec.tif"))
+    with ImagePyramid.build(find_shared("earth_day_bluemarble_3840x1920.tif"), device="cpu") as pyramid:
+        for size in (2, 4):
+            tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=64), max_texture_size=size)
+            patches = tree.patches()
+            assert len({m.level for m in patches}) > 1
+            for m in patches:
+                r0, r1, c0, c1 = m.window
+                assert r1 - r0 <= size + 2 and c1 - c0 <= size + 2  # a border, as OpenGL's
+                level = tree.pyramid.levels[m.level]
+                assert _painted_against_level(tree, m, level, tree.pyramid.extent) < 1e-6
+                # the centre of the window's pixel (1, 1) (the first inside the margin) is at texel (1, 1) of M
+                px, py = m.texel_size
+                centre = [[m.domain[0] + 1.5 * px, m.domain[3] - 1.5 * py]]
+                uv = texture_uv(centre, TextureLayer("thematic", np.asarray(m.image()), m.domain))[0]
+                np.testing.assert_allclose([uv[0] * (c1 - c0) - 0.5, (1 - uv[1]) * (r1 - r0) - 0.5], [1, 1],
+                                           atol=1e-9)
+                np.testing.assert_array_equal(m.image()[1, 1], level[r0 + 1, c0 + 1])
+
+
+def test_a_world_image_textures_a_dem_across_the_antimeridian(tmp_path):
+    """The Blue Marble (360 degrees of longitude, EPSG:4326) over a DEM in degrees from 170 E to 170 W (the 1-degree
+    global relief around Fiji): the tree placed the image at one turn only, so the 24 of 64 leaf patches east of 180
+    got no texture patch (left untextured). The image now goes on past its seam, as image_layer's: every leaf patch
+    has one, and every painted vertex takes the colour of the level wrapped across the seam."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+
+    from .reference_texture import find_shared
+
+    with np.load(find_shared("global_relief_1deg.npz")) as data:
+        relief = data["elevation"].astype(np.float32)
+    heights = np.concatenate([relief[100:116, 350:], relief[100:116, :10]], axis=1)  # 170.5 E .. 189.5 E
+    dem = tmp_path / "fiji.tif"
+    with rasterio.open(dem, "w", driver="GTiff", height=16, width=20, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(1.0, 0.0, 170.0, 0.0, -1.0, -10.0)) as out:
+        out.write(heights, 1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # degrees read as local metres over 15 degrees of latitude
+        terrain = st.load_dem(dem)
+    with ImagePyramid.build(find_shared("earth_day_bluemarble_3840x1920.tif"), device="cpu") as pyramid:
+        tree = TextureTree(pyramid, PatchQuadtree(terrain, leaf_size=4), max_texture_size=64)
+        xmin, xmax, ymin, ymax = tree.pyramid.extent
+        assert xmax < tree.quadtree.root.domain[1]  # the DEM reaches past the image's east edge (180)
+        textured = 0
+        stack = [(tree.quadtree.root, tree.root)]
+        while stack:
+            geometry, patch = stack.pop()
+            assert patch is not None, f"no texture over {geometry.domain}"
+            level = tree.pyramid.levels[patch.level]
+            wrapped = np.concatenate([level, level], axis=1)  # the image's next turn east
+            assert _painted_against_level(tree, patch, wrapped, (xmin, 2 * xmax - xmin, ymin, ymax)) < 1e-6
+            textured += geometry.is_leaf
+            stack.extend((child, patch.child_for(child)) for child in geometry.children)
+        assert textured == 64
