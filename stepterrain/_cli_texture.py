@@ -118,8 +118,9 @@ def add_parser(commands: Any) -> None:
                         "the DEM's node spacing, one texel per node); finer keeps an --image's detail (a 0.5 m "
                         "orthophoto on a 30 m DEM: --texel-size 0.5), the hillshade, shadows and colours "
                         "interpolated onto it; the DEM's extent in whole texels no larger than M (a GeoTIFF -o on that "
-                        "finer grid, exactly over the DEM). No larger than the node spacing; the texture is checked "
-                        "against --memory-budget, and a textured --mesh or --png refuses more than "
+                        "finer grid, exactly over the DEM). No larger than the node spacing (the smaller of a "
+                        "geographic DEM's x and y spacings: the texture no coarser than the DEM either way); the "
+                        "texture is checked against --memory-budget, and a textured --mesh or --png refuses more than "
                         f"{_GPU_TEXTURE_LIMIT} texels a side (the largest texture GPUs load); --normals stay on the "
                         "DEM's grid")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
@@ -172,9 +173,11 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> t
     from ._compaction import check_budget
 
     sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
-    spacing = max(sx, sy)  # square texels: a geographic DEM's x and y spacings differ
+    # square texels no coarser than the nodes either way: a geographic DEM's x and y spacings differ, and a texel of
+    # the larger made the texture coarser than the DEM along the other
+    spacing = min(sx, sy)
     if texel > spacing * (1.0 + 1e-9):
-        shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the larger of its {sx:g} x {sy:g}"
+        shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the smaller of its {sx:g} x {sy:g}"
         raise InvalidInputError(f"--texel-size must be no larger than the DEM's node spacing ({shown}; the default is "
                                 f"one texel per node): it makes the texture finer; got --texel-size {texel:g}")
     extent, (rows, cols) = _texel_grid(terrain, texel)

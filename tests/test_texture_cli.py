@@ -599,6 +599,25 @@ def test_cli_texture_texel_size_is_refused_by_name(tmp_path, capsys, argv, match
     assert not out.exists()
 
 
+def test_cli_texture_texel_size_is_no_coarser_than_a_geographic_dem_either_way(tmp_path, capsys):
+    """The Front Range DEM in degrees, read as local metres, has nodes 70.8 m apart in x and 92.7 m in y: a
+    --texel-size up to the larger spacing was taken (90: 597 texels across its 758 nodes, coarser than the DEM in x,
+    while --help says "no larger than the node spacing"). The smaller spacing is the limit now, named with both;
+    just under it the texture has at least one texel a node both ways."""
+    from .conftest import shared_file
+
+    source = str(shared_file("front_range_srtmgl3_3arcsec.tif"))
+    out = tmp_path / "t.png"
+    assert main(["-q", "texture", source, "--texel-size", "90", "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert ("--texel-size must be no larger than the DEM's node spacing (70.827, the smaller of its 70.827 x "
+            "92.6626; the default is one texel per node)") in err and "got --texel-size 90" in err, err
+    assert not out.exists()
+    assert main(["-q", "texture", source, "--texel-size", "70.8", "-o", str(out), "--device", "cpu"]) == 0
+    rows, cols = read_png(out).shape[:2]
+    assert cols >= 758 and rows >= 758, (rows, cols)
+
+
 @pytest.mark.parametrize("texel", [None, "10"])
 def test_cli_texture_image_on_a_cropped_dem_keeps_its_colours_at_the_crops_edge(tmp_path, texel):
     """--image over a --crop of the DEM: the texture of the crop is the texture of a larger crop over the same nodes
