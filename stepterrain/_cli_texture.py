@@ -257,10 +257,11 @@ def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | Non
 
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     """``--image`` and ``--image-extent`` before any work: the file exists and, without an extent, places itself (a
-    georeferenced GeoTIFF, a JPEG or PNG with a world file); an image without georeferencing would lie at x 0..W,
-    y 0..H, one unit per pixel."""
+    georeferenced GeoTIFF, a JPEG or PNG with a world file) north-up (a rotated or south-up one was refused only once
+    the DEM was loaded); an image without georeferencing would lie at x 0..W, y 0..H, one unit per pixel. The file
+    is opened once (with GDAL, and Pillow reads the header of one GDAL finds no georeferencing in)."""
     from .texture import _check_extent
-    from .texture_lod import _read_tiff, is_georeferenced
+    from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff
 
     if path is None:
         if extent is not None:
@@ -274,7 +275,12 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     if extent is not None:
         _check_extent(extent, "--image-extent")
         return
-    if is_georeferenced(file):
+    found = _read_tiff(file, _georeferencing, any_format=True)  # as ImagePyramid.build reads it; None: GDAL cannot
+    if found is not None and not found[0].is_identity:
+        try:  # a rotated, south-up or east-to-west geotransform is refused as the pyramid's build refuses it
+            _georeferenced_extent(file, found)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"--image {path!r}: {exc}") from None
         return
     from PIL import Image
 
@@ -282,7 +288,7 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
         with Image.open(file):
             pass
     except Exception as exc:  # noqa: BLE001 - Pillow's many refusals (a TIFF only GDAL reads is an image too)
-        if not _read_tiff(file, lambda dataset: True):
+        if found is None or not _is_tiff(file):
             raise DataFileError(f"--image {path!r}: cannot read it as an image ({exc})") from exc
     raise InvalidInputError(f"--image {path!r} carries no georeferencing (a PNG or JPEG without a world file "
                             "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "

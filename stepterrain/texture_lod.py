@@ -458,6 +458,7 @@ class ImagePyramid:
         self._anisotropic = anisotropic or {}
         self._owned = owned
         self._closed = False
+        self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -539,8 +540,10 @@ class ImagePyramid:
         source, backing, changeable, georeferencing = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         crs = _optional_crs(crs)
+        placed_by_file = False
         if extent is None:
             georeferenced = _georeferenced_extent(image, georeferencing)
+            placed_by_file = georeferenced is not None
             if georeferenced is not None:
                 if crs is not None and georeferenced[1] is not None and not _same_crs(crs, georeferenced[1]):
                     raise InvalidInputError(f"crs {crs!r} is not the CRS {georeferenced[1]!r} of image {str(image)!r}, "
@@ -593,7 +596,9 @@ class ImagePyramid:
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
             raise
-        return cls(levels, extent, folder, aniso, owned, crs)
+        pyramid = cls(levels, extent, folder, aniso, owned, crs)
+        pyramid._georeferenced = placed_by_file
+        return pyramid
 
     # ------------------------------------------------------------------ access
     def _open(self, what: str) -> None:
@@ -1274,7 +1279,7 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     if texel_size is not None:
         sx = sy = finite_number(texel_size, "texel_size", positive=True)
     with ImagePyramid.build(image, extent=extent, device=device) as pyramid:  # a file it cannot read is refused here
-        if extent is None and not (isinstance(image, (str, os.PathLike)) and is_georeferenced(image)):
+        if extent is None and not pyramid._georeferenced:  # its file's georeferencing, read as it was built
             # it would lie at (0, W, 0, H), one unit per pixel: anywhere on the terrain
             what = f"image {str(image)!r}" if isinstance(image, (str, os.PathLike)) else "an image array"
             raise InvalidInputError(f"{what} carries no georeferencing (an array, a PNG or JPEG without a world "

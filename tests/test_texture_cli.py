@@ -412,7 +412,9 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("over the budget", "reading '{image}' (the image: 3 x 643 x 1197 cells of uint8)"),
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
-    """Each refusal exits 2 before writing anything, naming the option and what it got."""
+    """Each refusal exits 2 before writing anything, naming the option and what it got; what the image file alone
+    tells (a rotated or south-up geotransform too, which was refused only once the DEM was loaded) before the DEM is
+    loaded."""
     from PIL import Image
 
     from .conftest import shared_file
@@ -444,6 +446,37 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     err = capsys.readouterr().err
     assert match.format(image=image) in err, err
     assert not out.exists()
+    assert ("stepterrain: loading" in err) == (case in ("crs mismatch", "off the dem", "over the budget")), err
+
+
+def test_cli_texture_image_geotiff_is_opened_once_to_check_and_once_to_read(tmp_path, monkeypatch):
+    """--image ortho.tif was opened with GDAL three times: by the CLI's check (is_georeferenced), by the pyramid's
+    build (pixels, mask, georeferencing), and by image_layer asking is_georeferenced again after the build. The
+    check's open now also refuses a rotated image, and image_layer asks the pyramid how it was placed: two opens,
+    the same texture."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from stepterrain import texture_lod
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    with rasterio.open(source) as dem:
+        transform, crs = dem.transform, dem.crs
+    from rasterio.transform import Affine
+
+    image = write_geotiff(tmp_path / "ortho.tif", coded_pixels(60, 80), transform @ Affine.translation(200, 100), crs)
+    opened = []
+    real = texture_lod.open_raster
+
+    def counted(path, *args, **kwargs):
+        opened.append(Path(path).name)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(texture_lod, "open_raster", counted)
+    draped = texture_of(tmp_path, "ortho", str(source), "--image", str(image), "--colormap", "none",
+                        "--hillshade", "none")
+    assert opened.count("ortho.tif") == 2, opened
+    assert np.array_equal(draped[100:160, 200:280], coded_pixels(60, 80))
 
 
 def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_darken(tmp_path):
