@@ -261,7 +261,7 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     the DEM was loaded); an image without georeferencing would lie at x 0..W, y 0..H, one unit per pixel. The file
     is opened once (with GDAL, and Pillow reads the header of one GDAL finds no georeferencing in)."""
     from .texture import _check_extent
-    from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff
+    from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff, _world_file_hint
 
     if path is None:
         if extent is not None:
@@ -291,8 +291,9 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
         if found is None or not _is_tiff(file):
             raise DataFileError(f"--image {path!r}: cannot read it as an image ({exc})") from exc
     raise InvalidInputError(f"--image {path!r} carries no georeferencing (a PNG or JPEG without a world file "
-                            "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "
-                            "xmin,xmax,ymin,ymax, the outer edges of its pixels in the DEM's coordinates")
+                            "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): "
+                            f"{_world_file_hint(file)}, or give --image-extent xmin,xmax,ymin,ymax, the outer edges "
+                            "of its pixels in the DEM's coordinates")
 
 
 def _texture_colours(draped: Any) -> Any:

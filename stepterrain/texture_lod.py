@@ -1228,6 +1228,15 @@ class TextureTree:
         return out
 
 
+def _world_file_hint(path: Path) -> str:
+    """How to georeference the image file ``path`` beside it, for a refusal of one without georeferencing: GDAL's
+    world file name for it (the extension's first and last letters and "w": ortho.jgw for ortho.jpg or .jpeg,
+    .pgw for a PNG, .tfw for a TIFF; .wld without an extension) and the .prj that names its CRS."""
+    ext = path.suffix.lower().lstrip(".")
+    world = path.with_suffix(f".{ext[0]}{ext[-1]}w" if ext else ".wld").name
+    return f"put a world file {world!r} beside it, with its CRS in {path.with_suffix('.prj').name!r}"
+
+
 def is_georeferenced(image: str | os.PathLike[str]) -> bool:
     """Whether the image file ``image`` places itself: a GeoTIFF, or a JPEG or PNG with a world file (``.jgw``,
     ``.pgw``, ``.wld``) or ``.aux.xml`` beside it, whose geotransform (read with rasterio) is not the identity, as
@@ -1281,10 +1290,13 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     with ImagePyramid.build(image, extent=extent, device=device) as pyramid:  # a file it cannot read is refused here
         if extent is None and not pyramid._georeferenced:  # its file's georeferencing, read as it was built
             # it would lie at (0, W, 0, H), one unit per pixel: anywhere on the terrain
-            what = f"image {str(image)!r}" if isinstance(image, (str, os.PathLike)) else "an image array"
+            path = isinstance(image, (str, os.PathLike))
+            what = f"image {str(image)!r}" if path else "an image array"
             raise InvalidInputError(f"{what} carries no georeferencing (an array, a PNG or JPEG without a world "
-                                    "file, a TIFF without a geotransform): pass extent=(xmin, xmax, ymin, ymax), "
-                                    "the outer edges of its pixels in the terrain's coordinates")
+                                    "file, a TIFF without a geotransform): "
+                                    + (f"{_world_file_hint(Path(image))}, or " if path else "")
+                                    + "pass extent=(xmin, xmax, ymin, ymax), the outer edges of its pixels in the "
+                                    "terrain's coordinates")
         unknown = extent is None and pyramid.crs is None  # georeferenced by the file, in no CRS it names
         if unknown and t.crs is not None and _spherical_eqc(t.crs) is not None:
             # the local metres load_dem made of a DEM's degrees are no file's coordinates: a world file in degrees

@@ -11,6 +11,7 @@ import trimesh
 
 from stepterrain import render
 from stepterrain.cli import main
+from stepterrain.errors import InvalidInputError
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 AVAILABLE, REASON = render.offscreen_available()
@@ -396,8 +397,8 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("missing", "--image '{image}' does not exist"),
     ("not an image", "--image '{image}': cannot read it as an image"),
     ("png without extent", "--image '{image}' carries no georeferencing (a PNG or JPEG without a world file (.pgw, "
-                           ".jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "
-                           "xmin,xmax,ymin,ymax"),
+                           ".jgw, .wld) beside it, or a TIFF without a geotransform): put a world file 'map.pgw' "
+                           "beside it, with its CRS in 'map.prj', or give --image-extent xmin,xmax,ymin,ymax"),
     ("extent without image", "--image-extent applies only with --image"),
     ("bad extent", "--image-extent must be finite (xmin, xmax, ymin, ymax) with xmin < xmax"),
     ("crs mismatch", "--image '{image}': the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611' "
@@ -477,6 +478,39 @@ def test_cli_texture_image_geotiff_is_opened_once_to_check_and_once_to_read(tmp_
                         "--hillshade", "none")
     assert opened.count("ortho.tif") == 2, opened
     assert np.array_equal(draped[100:160, 200:280], coded_pixels(60, 80))
+
+
+@pytest.mark.parametrize("suffix, world", [(".jpg", "photo.jgw"), (".jpeg", "photo.jgw"), (".png", "photo.pgw")])
+def test_cli_texture_image_without_georeferencing_names_both_ways_to_place_it(tmp_path, capsys, suffix, world):
+    """A JPEG (or PNG) with neither a world file nor --image-extent: the refusal named only --image-extent, though a
+    world file beside it (with a .prj of its CRS) places it as well; both are named now, the world file as GDAL looks
+    for it, and following the hint (the world file it names, the .prj it names) places the image."""
+    pytest.importorskip("rasterio", reason="world files are read with rasterio")
+    from PIL import Image
+
+    from stepterrain.io import load_dem
+    from stepterrain.texture_lod import image_layer
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    image = tmp_path / f"photo{suffix}"
+    Image.fromarray(coded_pixels(40, 50)).save(image)
+    assert main(["-q", "texture", str(source), "--image", str(image), "-o", str(tmp_path / "x.png"),
+                 "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert (f"carries no georeferencing (a PNG or JPEG without a world file (.pgw, .jgw, .wld) beside it, or a TIFF "
+            f"without a geotransform): put a world file {world!r} beside it, with its CRS in 'photo.prj', or give "
+            "--image-extent xmin,xmax,ymin,ymax, the outer edges of its pixels in the DEM's coordinates") in err, err
+    terrain = load_dem(source)
+    with pytest.raises(InvalidInputError, match=f"put a world file '{world}' beside it, with its CRS in 'photo.prj', "
+                                                r"or pass extent=\(xmin, xmax, ymin, ymax\)"):
+        image_layer(image, terrain, device="cpu")
+    xmin, ymax = 376313.0 + 30 * 200, 3807917.0 - 30 * 100  # the hint followed: placed by the files it names
+    (tmp_path / world).write_text(f"30\n0\n0\n-30\n{xmin + 15}\n{ymax - 15}\n")
+    (tmp_path / "photo.prj").write_text(terrain.crs)
+    assert image_layer(image, terrain, device="cpu").extent == pytest.approx((xmin, xmin + 50 * 30,
+                                                                               ymax - 40 * 30, ymax))
 
 
 def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_darken(tmp_path):
