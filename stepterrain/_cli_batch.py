@@ -36,9 +36,17 @@ examples:
 
 exit status: 0 every item written or complete already; 1 some items failed (listed with their reasons);
 2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable, a --floor
-not below the stepped surface of every item); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM): finished
-outputs are kept, partial files removed, and a rerun goes on from there.
+not below the stepped surface of every item, a --spacing for DEM files that all place their nodes themselves, a
+--coarsen that leaves every item too few nodes or only nodata); 130 interrupted (Ctrl-C), 143 terminated
+(SIGTERM): finished outputs are kept, partial files removed, and a rerun goes on from there.
 """
+
+
+def _failed_alike(report: Any, marker: str) -> list[Any]:
+    """The failed items when every item of ``report`` failed with an error holding ``marker`` (one option refused by
+    every input alike), else none."""
+    failed = [r for r in report.failed if marker in (r.error or "")]
+    return failed if failed and len(failed) == len(report.results) else []
 
 
 def _tile(text: str) -> int | tuple[int, int]:
@@ -75,7 +83,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of DEM files with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), each read as 1 m cells otherwise; rows run north to south; "
-                        "a file that places its nodes itself is refused (in a folder: its item fails)")
+                        "a file that places its nodes itself is refused (in a folder: its item fails; every item: exit "
+                        "status 2)")
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the nodes inside this extent (the coordinates `stepterrain info` prints) of the one "
                         "raster cut with --tile, or of every frame of a series; not for several files or a folder")
@@ -226,15 +235,32 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
-    # a folder's heights are known only item by item (tiles and series are checked up front): a floor above every
-    # item's surface is a usage error, said once, not a list of identical failures
-    floor_failed = [r for r in report.failed if "floor must lie below" in (r.error or "")]  # mesh.close_solid's
-    if args.floor is not None and floor_failed and len(floor_failed) == len(report.results):
+    # a folder's heights and georeferencing are known only item by item (tiles and series are checked up front): a
+    # floor above every item's surface, a --spacing for files that all place their nodes themselves, a --coarsen
+    # every file refuses, is a usage error, said once, not a list of identical failures
+    floor_failed = _failed_alike(report, "floor must lie below")  # mesh.close_solid's
+    if args.floor is not None and floor_failed:
         first, n = floor_failed[0], len(floor_failed)
         raise InvalidInputError(
             f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above "
             f"{'the only one' if n == 1 else f'all {n}'} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
         )
+    placed = _failed_alike(report, "places its nodes itself: ")  # batch._check_unreferenced's
+    if args.spacing is not None and placed:
+        first, n = placed[0], len(placed)
+        raise InvalidInputError(
+            "--spacing applies to DEM files with no georeferencing (.npy, a PNG heightmap, a GeoTIFF without a "
+            "geotransform); " + ("the only input places its nodes itself" if n == 1 else
+                                   f"all {n} inputs place their nodes themselves")
+            + f" (e.g. {first.key}: {(first.error or '').split('places its nodes itself: ', 1)[-1]}): "
+            "leave --spacing out")
+    coarsened = _failed_alike(report, f"coarsen={args.coarsen}: ")  # batch._coarsened's
+    if args.coarsen is not None and coarsened:
+        first, n = coarsened[0], len(coarsened)
+        raise InvalidInputError(
+            f"--coarsen {args.coarsen} leaves no mesh of {'the only input' if n == 1 else f'any of the {n} inputs'} "
+            f"(e.g. {first.key}: {(first.error or '').split(f'coarsen={args.coarsen}: ', 1)[-1]}): give a smaller "
+            "--coarsen")
     for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option) and the notes
         if not progress.quiet and line.startswith("  failed "):  # the bar wrote it as the item failed: once
             continue

@@ -119,8 +119,9 @@ def add_parser(commands: Any) -> None:
                         "the DEM's node spacing, one texel per node); finer keeps an --image's detail (a 0.5 m "
                         "orthophoto on a 30 m DEM: --texel-size 0.5), the hillshade, shadows and colours "
                         "interpolated onto it; the DEM's extent in whole texels no larger than M (a GeoTIFF -o on that "
-                        "finer grid, exactly over the DEM). No larger than the node spacing; the texture is checked "
-                        "against --memory-budget, and a textured --mesh or --png refuses more than "
+                        "finer grid, exactly over the DEM). No larger than the node spacing (the smaller of a "
+                        "geographic DEM's x and y spacings: the texture no coarser than the DEM either way); the "
+                        "texture is checked against --memory-budget, and a textured --mesh or --png refuses more than "
                         f"{_GPU_TEXTURE_LIMIT} texels a side (the largest texture GPUs load); --normals stay on the "
                         "DEM's grid")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
@@ -174,9 +175,11 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> t
     from .io import _lonlat_grid
 
     sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
-    spacing = max(sx, sy)  # square texels: a geographic DEM's x and y spacings differ
+    # square texels no coarser than the nodes either way: a geographic DEM's x and y spacings differ, and a texel of
+    # the larger made the texture coarser than the DEM along the other
+    spacing = min(sx, sy)
     if texel > spacing * (1.0 + 1e-9):
-        shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the larger of its {sx:g} x {sy:g}"
+        shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the smaller of its {sx:g} x {sy:g}"
         raise InvalidInputError(f"--texel-size must be no larger than the DEM's node spacing ({shown}; the default is "
                                 f"one texel per node): it makes the texture finer; got --texel-size {texel:g}")
     larger = "give a larger --texel-size (or --crop the DEM)"
@@ -260,10 +263,11 @@ def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | Non
 
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     """``--image`` and ``--image-extent`` before any work: the file exists and, without an extent, places itself (a
-    georeferenced GeoTIFF, a JPEG or PNG with a world file); an image without georeferencing would lie at x 0..W,
-    y 0..H, one unit per pixel."""
+    georeferenced GeoTIFF, a JPEG or PNG with a world file) north-up (a rotated or south-up one was refused only once
+    the DEM was loaded); an image without georeferencing would lie at x 0..W, y 0..H, one unit per pixel. The file
+    is opened once (with GDAL, and Pillow reads the header of one GDAL finds no georeferencing in)."""
     from .texture import _check_extent
-    from .texture_lod import _read_tiff, is_georeferenced
+    from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff, _world_file_hint
 
     if path is None:
         if extent is not None:
@@ -277,7 +281,12 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
     if extent is not None:
         _check_extent(extent, "--image-extent")
         return
-    if is_georeferenced(file):
+    found = _read_tiff(file, _georeferencing, any_format=True)  # as ImagePyramid.build reads it; None: GDAL cannot
+    if found is not None and not found[0].is_identity:
+        try:  # a rotated, south-up or east-to-west geotransform is refused as the pyramid's build refuses it
+            _georeferenced_extent(file, found)
+        except InvalidInputError as exc:
+            raise InvalidInputError(f"--image {path!r}: {exc}") from None
         return
     from PIL import Image
 
@@ -285,11 +294,12 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
         with Image.open(file):
             pass
     except Exception as exc:  # noqa: BLE001 - Pillow's many refusals (a TIFF only GDAL reads is an image too)
-        if not _read_tiff(file, lambda dataset: True):
+        if found is None or not _is_tiff(file):
             raise DataFileError(f"--image {path!r}: cannot read it as an image ({exc})") from exc
     raise InvalidInputError(f"--image {path!r} carries no georeferencing (a PNG or JPEG without a world file "
-                            "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "
-                            "xmin,xmax,ymin,ymax, the outer edges of its pixels in the DEM's coordinates")
+                            "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): "
+                            f"{_world_file_hint(file)}, or give --image-extent xmin,xmax,ymin,ymax, the outer edges "
+                            "of its pixels in the DEM's coordinates")
 
 
 def _texture_colours(draped: Any) -> Any:

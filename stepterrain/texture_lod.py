@@ -458,6 +458,7 @@ class ImagePyramid:
         self._anisotropic = anisotropic or {}
         self._owned = owned
         self._closed = False
+        self._georeferenced = False  # build() placed it by its file's georeferencing (image_layer asks, not reopens)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -539,8 +540,10 @@ class ImagePyramid:
         source, backing, changeable, georeferencing = _source_image(image)
         height, width, channels = (int(n) for n in source.shape)
         crs = _optional_crs(crs)
+        placed_by_file = False
         if extent is None:
             georeferenced = _georeferenced_extent(image, georeferencing)
+            placed_by_file = georeferenced is not None
             if georeferenced is not None:
                 if crs is not None and georeferenced[1] is not None and not _same_crs(crs, georeferenced[1]):
                     raise InvalidInputError(f"crs {crs!r} is not the CRS {georeferenced[1]!r} of image {str(image)!r}, "
@@ -593,7 +596,9 @@ class ImagePyramid:
             if owned:
                 shutil.rmtree(folder, ignore_errors=True)
             raise
-        return cls(levels, extent, folder, aniso, owned, crs)
+        pyramid = cls(levels, extent, folder, aniso, owned, crs)
+        pyramid._georeferenced = placed_by_file
+        return pyramid
 
     # ------------------------------------------------------------------ access
     def _open(self, what: str) -> None:
@@ -1262,6 +1267,15 @@ class TextureTree:
         return out
 
 
+def _world_file_hint(path: Path) -> str:
+    """How to georeference the image file ``path`` beside it, for a refusal of one without georeferencing: GDAL's
+    world file name for it (the extension's first and last letters and "w": ortho.jgw for ortho.jpg or .jpeg,
+    .pgw for a PNG, .tfw for a TIFF; .wld without an extension) and the .prj that names its CRS."""
+    ext = path.suffix.lower().lstrip(".")
+    world = path.with_suffix(f".{ext[0]}{ext[-1]}w" if ext else ".wld").name
+    return f"put a world file {world!r} beside it, with its CRS in {path.with_suffix('.prj').name!r}"
+
+
 def is_georeferenced(image: str | os.PathLike[str]) -> bool:
     """Whether the image file ``image`` places itself: a GeoTIFF, or a JPEG or PNG with a world file (``.jgw``,
     ``.pgw``, ``.wld``) or ``.aux.xml`` beside it, whose geotransform (read with rasterio) is not the identity, as
@@ -1313,12 +1327,15 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     if texel_size is not None:
         sx = sy = finite_number(texel_size, "texel_size", positive=True)
     with ImagePyramid.build(image, extent=extent, device=device) as pyramid:  # a file it cannot read is refused here
-        if extent is None and not (isinstance(image, (str, os.PathLike)) and is_georeferenced(image)):
+        if extent is None and not pyramid._georeferenced:  # its file's georeferencing, read as it was built
             # it would lie at (0, W, 0, H), one unit per pixel: anywhere on the terrain
-            what = f"image {str(image)!r}" if isinstance(image, (str, os.PathLike)) else "an image array"
+            path = isinstance(image, (str, os.PathLike))
+            what = f"image {str(image)!r}" if path else "an image array"
             raise InvalidInputError(f"{what} carries no georeferencing (an array, a PNG or JPEG without a world "
-                                    "file, a TIFF without a geotransform): pass extent=(xmin, xmax, ymin, ymax), "
-                                    "the outer edges of its pixels in the terrain's coordinates")
+                                    "file, a TIFF without a geotransform): "
+                                    + (f"{_world_file_hint(Path(image))}, or " if path else "")
+                                    + "pass extent=(xmin, xmax, ymin, ymax), the outer edges of its pixels in the "
+                                    "terrain's coordinates")
         unknown = extent is None and pyramid.crs is None  # georeferenced by the file, in no CRS it names
         if unknown and t.crs is not None and _spherical_eqc(t.crs) is not None:
             # the local metres load_dem made of a DEM's degrees are no file's coordinates: a world file in degrees

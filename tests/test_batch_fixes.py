@@ -1769,6 +1769,50 @@ def test_cli_batch_spacing_and_coarsen_apply_to_each_file_and_are_recorded(tmp_p
         assert "2 written, 0 complete already" in capsys.readouterr().err, options
 
 
+def test_cli_batch_spacing_or_coarsen_refused_by_every_file_exits_2_once(tmp_path, capsys):
+    """``batch FOLDER --spacing 30`` over a folder whose files all place their nodes themselves (GeoTIFFs), or a
+    --coarsen that leaves every file fewer than 2 x 2 nodes, failed item by item, a wall of identical failures and
+    exit status 1, while a --floor above every surface is one usage error: these are said once too now, naming the
+    option, exit 2. A folder where some files pass still lists the others' failures, exit 1."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFFs are written with rasterio")
+    from rasterio.transform import Affine
+
+    from stepterrain import cli
+
+    from .conftest import real_dem
+
+    heights = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=41, step=1)
+    geo = tmp_path / "geo"
+    geo.mkdir()
+    for k in range(2):
+        with rasterio.open(geo / f"g{k}.tif", "w", driver="GTiff", height=41, width=20, count=1, dtype="float32",
+                           crs="EPSG:32611", transform=Affine(30, 0, 380000 + 600 * k, 0, -30, 3800000)) as dst:
+            dst.write(heights[:, 20 * k:20 * k + 20], 1)
+    out = tmp_path / "out"
+    argv = ["-q", "batch", "--interval", "50", "--scheduler", "serial", "-o", str(out)]
+    assert cli.main([*argv, str(geo), "--spacing", "30"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain batch: error: --spacing applies to DEM files with no georeferencing (.npy, a "
+                          "PNG heightmap, a GeoTIFF without a geotransform); all 2 inputs place their nodes "
+                          "themselves (e.g. g0: spacing (30.0, -30.0), origin (380015.0, 3799985.0), CRS EPSG:32611)"
+                          ": leave --spacing out") and err.count("\n") == 1, err
+    assert cli.main([*argv, str(geo / "g1.tif"), "--spacing", "30"]) == 2  # one file, one item
+    assert "; the only input places its nodes itself (e.g. g1: " in capsys.readouterr().err
+    assert not list(out.glob("*.glb"))
+    assert cli.main([*argv, str(geo), "--coarsen", "25"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("stepterrain batch: error: --coarsen 25 leaves no mesh of any of the 2 inputs (e.g. g0: "
+                          "factor 25 leaves 1 x 0 nodes of the 41 x 20 grid (mean)") and err.count("\n") == 1, err
+    # a file that passes: the others' failures are their own, listed, exit 1 as before
+    np.save(geo / "plain.npy", heights)  # 41 x 41 nodes
+    assert cli.main([*argv, str(geo), "--spacing", "30"]) == 1
+    err = capsys.readouterr().err
+    assert "failed g0: InvalidInputError: spacing applies" in err and "failed g1:" in err and "error:" not in err
+    assert cli.main([*argv, str(geo), "--coarsen", "15"]) == 1  # plain.npy's 2 x 2 coarse nodes pass
+    err = capsys.readouterr().err
+    assert "failed g0: InvalidInputError: --coarsen 15: factor 15 leaves 2 x 1 nodes" in err and "error:" not in err
+
+
 def _placed(terrain, d):
     from stepterrain import Terrain
 

@@ -11,6 +11,7 @@ import trimesh
 
 from stepterrain import render
 from stepterrain.cli import main
+from stepterrain.errors import InvalidInputError
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 AVAILABLE, REASON = render.offscreen_available()
@@ -438,8 +439,8 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("missing", "--image '{image}' does not exist"),
     ("not an image", "--image '{image}': cannot read it as an image"),
     ("png without extent", "--image '{image}' carries no georeferencing (a PNG or JPEG without a world file (.pgw, "
-                           ".jgw, .wld) beside it, or a TIFF without a geotransform): give --image-extent "
-                           "xmin,xmax,ymin,ymax"),
+                           ".jgw, .wld) beside it, or a TIFF without a geotransform): put a world file 'map.pgw' "
+                           "beside it, with its CRS in 'map.prj', or give --image-extent xmin,xmax,ymin,ymax"),
     ("extent without image", "--image-extent applies only with --image"),
     ("bad extent", "--image-extent must be finite (xmin, xmax, ymin, ymax) with xmin < xmax"),
     ("crs mismatch", "--image '{image}': the image is in CRS 'EPSG:32610' but the terrain is in 'EPSG:32611' "
@@ -454,7 +455,9 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("over the budget", "reading '{image}' (the image: 3 x 643 x 1197 cells of uint8)"),
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
-    """Each refusal exits 2 before writing anything, naming the option and what it got."""
+    """Each refusal exits 2 before writing anything, naming the option and what it got; what the image file alone
+    tells (a rotated or south-up geotransform too, which was refused only once the DEM was loaded) before the DEM is
+    loaded."""
     from PIL import Image
 
     from .conftest import shared_file
@@ -486,6 +489,70 @@ def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     err = capsys.readouterr().err
     assert match.format(image=image) in err, err
     assert not out.exists()
+    assert ("stepterrain: loading" in err) == (case in ("crs mismatch", "off the dem", "over the budget")), err
+
+
+def test_cli_texture_image_geotiff_is_opened_once_to_check_and_once_to_read(tmp_path, monkeypatch):
+    """--image ortho.tif was opened with GDAL three times: by the CLI's check (is_georeferenced), by the pyramid's
+    build (pixels, mask, georeferencing), and by image_layer asking is_georeferenced again after the build. The
+    check's open now also refuses a rotated image, and image_layer asks the pyramid how it was placed: two opens,
+    the same texture."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
+    from stepterrain import texture_lod
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    with rasterio.open(source) as dem:
+        transform, crs = dem.transform, dem.crs
+    from rasterio.transform import Affine
+
+    image = write_geotiff(tmp_path / "ortho.tif", coded_pixels(60, 80), transform @ Affine.translation(200, 100), crs)
+    opened = []
+    real = texture_lod.open_raster
+
+    def counted(path, *args, **kwargs):
+        opened.append(Path(path).name)
+        return real(path, *args, **kwargs)
+
+    monkeypatch.setattr(texture_lod, "open_raster", counted)
+    draped = texture_of(tmp_path, "ortho", str(source), "--image", str(image), "--colormap", "none",
+                        "--hillshade", "none")
+    assert opened.count("ortho.tif") == 2, opened
+    assert np.array_equal(draped[100:160, 200:280], coded_pixels(60, 80))
+
+
+@pytest.mark.parametrize("suffix, world", [(".jpg", "photo.jgw"), (".jpeg", "photo.jgw"), (".png", "photo.pgw")])
+def test_cli_texture_image_without_georeferencing_names_both_ways_to_place_it(tmp_path, capsys, suffix, world):
+    """A JPEG (or PNG) with neither a world file nor --image-extent: the refusal named only --image-extent, though a
+    world file beside it (with a .prj of its CRS) places it as well; both are named now, the world file as GDAL looks
+    for it, and following the hint (the world file it names, the .prj it names) places the image."""
+    pytest.importorskip("rasterio", reason="world files are read with rasterio")
+    from PIL import Image
+
+    from stepterrain.io import load_dem
+    from stepterrain.texture_lod import image_layer
+
+    from .conftest import shared_file
+
+    source = shared_file(TUJUNGA)
+    image = tmp_path / f"photo{suffix}"
+    Image.fromarray(coded_pixels(40, 50)).save(image)
+    assert main(["-q", "texture", str(source), "--image", str(image), "-o", str(tmp_path / "x.png"),
+                 "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert (f"carries no georeferencing (a PNG or JPEG without a world file (.pgw, .jgw, .wld) beside it, or a TIFF "
+            f"without a geotransform): put a world file {world!r} beside it, with its CRS in 'photo.prj', or give "
+            "--image-extent xmin,xmax,ymin,ymax, the outer edges of its pixels in the DEM's coordinates") in err, err
+    terrain = load_dem(source)
+    with pytest.raises(InvalidInputError, match=f"put a world file '{world}' beside it, with its CRS in 'photo.prj', "
+                                                r"or pass extent=\(xmin, xmax, ymin, ymax\)"):
+        image_layer(image, terrain, device="cpu")
+    xmin, ymax = 376313.0 + 30 * 200, 3807917.0 - 30 * 100  # the hint followed: placed by the files it names
+    (tmp_path / world).write_text(f"30\n0\n0\n-30\n{xmin + 15}\n{ymax - 15}\n")
+    (tmp_path / "photo.prj").write_text(terrain.crs)
+    assert image_layer(image, terrain, device="cpu").extent == pytest.approx((xmin, xmin + 50 * 30,
+                                                                               ymax - 40 * 30, ymax))
 
 
 def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_darken(tmp_path):
@@ -639,6 +706,25 @@ def test_cli_texture_texel_size_is_refused_by_name(tmp_path, capsys, argv, match
     if "budget" in " ".join(argv) and "64GiB" not in argv:
         assert "give a larger --texel-size" in err
     assert not out.exists()
+
+
+def test_cli_texture_texel_size_is_no_coarser_than_a_geographic_dem_either_way(tmp_path, capsys):
+    """The Front Range DEM in degrees, read as local metres, has nodes 70.8 m apart in x and 92.7 m in y: a
+    --texel-size up to the larger spacing was taken (90: 597 texels across its 758 nodes, coarser than the DEM in x,
+    while --help says "no larger than the node spacing"). The smaller spacing is the limit now, named with both;
+    just under it the texture has at least one texel a node both ways."""
+    from .conftest import shared_file
+
+    source = str(shared_file("front_range_srtmgl3_3arcsec.tif"))
+    out = tmp_path / "t.png"
+    assert main(["-q", "texture", source, "--texel-size", "90", "-o", str(out), "--device", "cpu"]) == 2
+    err = capsys.readouterr().err
+    assert ("--texel-size must be no larger than the DEM's node spacing (70.827, the smaller of its 70.827 x "
+            "92.6626; the default is one texel per node)") in err and "got --texel-size 90" in err, err
+    assert not out.exists()
+    assert main(["-q", "texture", source, "--texel-size", "70.8", "-o", str(out), "--device", "cpu"]) == 0
+    rows, cols = read_png(out).shape[:2]
+    assert cols >= 758 and rows >= 758, (rows, cols)
 
 
 @pytest.mark.parametrize("texel", [None, "10"])
