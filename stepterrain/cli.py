@@ -864,7 +864,7 @@ _OPTION_ALIASES = {
 _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
     "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
-    "globe": {"raise the error": "raise --error"},
+    "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
 }

@@ -252,3 +252,12 @@ def test_globe_texture_is_drawn_as_a_texture_in_the_png(tmp_path):
     assert coloured.visual.kind == "vertex"  # the .ply keeps its vertex colours
     blurred = render_view(coloured, camera, window_size=(320, 200)).astype(float)
     assert np.abs(blurred - from_glb).mean() > 4 * max(np.abs(shot - from_glb).mean(), 1.0)
+
+
+def test_an_inside_out_globe_names_both_options(tmp_path, capsys):
+    """``globe --exaggeration 2000`` puts the Mariana Trench through the earth's centre; the refusal said
+    "--radius + exaggeration · elevation", naming one option and the library's word for the other."""
+    out = tmp_path / "g.ply"
+    assert main(["-q", "globe", "--exaggeration", "2000", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
+    assert "error: --radius + --exaggeration · elevation must stay > 0" in capsys.readouterr().err
+    assert not out.exists()
