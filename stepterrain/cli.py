@@ -863,7 +863,9 @@ _OPTION_ALIASES = {
 #: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
 _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
-    "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
+    "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by",
+              # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
+              ": spacing applies to DEM files": ": --spacing applies to DEM files"},
     "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},

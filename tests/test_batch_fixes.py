@@ -1807,7 +1807,7 @@ def test_cli_batch_spacing_or_coarsen_refused_by_every_file_exits_2_once(tmp_pat
     np.save(geo / "plain.npy", heights)  # 41 x 41 nodes
     assert cli.main([*argv, str(geo), "--spacing", "30"]) == 1
     err = capsys.readouterr().err
-    assert "failed g0: InvalidInputError: spacing applies" in err and "failed g1:" in err and "error:" not in err
+    assert "failed g0: InvalidInputError: --spacing applies" in err and "failed g1:" in err and "error:" not in err
     assert cli.main([*argv, str(geo), "--coarsen", "15"]) == 1  # plain.npy's 2 x 2 coarse nodes pass
     err = capsys.readouterr().err
     assert "failed g0: InvalidInputError: --coarsen 15: factor 15 leaves 2 x 1 nodes" in err and "error:" not in err
@@ -1878,3 +1878,28 @@ def test_batch_input_options_are_refused_where_they_do_not_apply(tmp_path, capsy
         batch(str(tmp_path / "tiles"), out, interval=50.0, spacing=(30.0, -30.0), scheduler="serial")
     with pytest.raises(InvalidInputError, match="metadata keys 'coarsen' are written by stepterrain"):
         batch(str(tmp_path / "tiles"), out, interval=50.0, coarsen=2, metadata={"coarsen": 1}, scheduler="serial")
+
+
+def test_cli_batch_spacing_failure_line_of_a_georeferenced_file_names_the_option(tmp_path, capsys):
+    """``batch FOLDER --spacing 30`` over a folder of a .npy and the real Big Tujunga GeoTIFF: the GeoTIFF's failure
+    line said "spacing applies to DEM files with no georeferencing", the library's argument, mid-line after the
+    item's key and error type where the leading-argument rule does not look. It names --spacing now; the file's own
+    "spacing (30.0, -30.0)" after it is a value, left as it is, and the .npy is written."""
+    import shutil
+
+    from stepterrain import cli
+
+    from .conftest import real_dem, shared_file
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    shutil.copy(shared_file("big_tujunga_srtm_30m_utm11n.tif"), folder / "tujunga.tif")
+    np.save(folder / "plain.npy", real_dem("big_tujunga_srtm_30m_utm11n.npz", size=41, step=1))
+    out = tmp_path / "out"
+    assert cli.main(["-q", "batch", str(folder), "--spacing", "30", "--interval", "50", "--scheduler", "serial",
+                     "-o", str(out)]) == 1
+    err = capsys.readouterr().err
+    line = next(x for x in err.splitlines() if "failed tujunga" in x)
+    assert "InvalidInputError: --spacing applies to DEM files with no georeferencing" in line, err
+    assert " spacing applies" not in line and "places its nodes itself: spacing (30.0, -30.0)" in line, line
+    assert [p.name for p in out.glob("*.glb")] == ["plain.glb"]
