@@ -261,18 +261,20 @@ def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | Non
     return tx.terrain_layer(terrain, luminance.astype(np.float32), "topographic", name="topographic")
 
 
-def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
+def _check_image(path: str | None, extent: tuple[float, ...] | None) -> tuple[int, int] | None:
     """``--image`` and ``--image-extent`` before any work: the file exists and, without an extent, places itself (a
     georeferenced GeoTIFF, a JPEG or PNG with a world file) north-up (a rotated or south-up one was refused only once
     the DEM was loaded); an image without georeferencing would lie at x 0..W, y 0..H, one unit per pixel. The file
-    is opened once (with GDAL, and Pillow reads the header of one GDAL finds no georeferencing in)."""
+    is opened once (with GDAL, and Pillow reads the header of one GDAL finds no georeferencing in). With an extent,
+    the image's (width, height) from its header, for :func:`_refuse_gdal_image_extent` (None where Pillow cannot
+    read it)."""
     from .texture import _check_extent
     from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff, _world_file_hint
 
     if path is None:
         if extent is not None:
             raise InvalidInputError("--image-extent applies only with --image")
-        return
+        return None
     file = Path(path)
     if file.is_dir():
         raise DataFileError(f"--image {path!r} is a folder; expected an image file")
@@ -280,14 +282,20 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
         raise DataFileError(f"--image {path!r} does not exist")
     if extent is not None:
         _check_extent(extent, "--image-extent")
-        return
+        from PIL import Image
+
+        try:  # the header only
+            with Image.open(file) as image:
+                return image.size
+        except Exception:  # noqa: BLE001 - a TIFF only GDAL reads: left to image_layer, unchecked
+            return None
     found = _read_tiff(file, _georeferencing, any_format=True)  # as ImagePyramid.build reads it; None: GDAL cannot
     if found is not None and not found[0].is_identity:
         try:  # a rotated, south-up or east-to-west geotransform is refused as the pyramid's build refuses it
             _georeferenced_extent(file, found)
         except InvalidInputError as exc:
             raise InvalidInputError(f"--image {path!r}: {exc}") from None
-        return
+        return None
     from PIL import Image
 
     try:  # the header only: a file that is no image is named so, not asked for an extent
@@ -300,6 +308,33 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> None:
                             "(.pgw, .jgw, .wld) beside it, or a TIFF without a geotransform): "
                             f"{_world_file_hint(file)}, or give --image-extent xmin,xmax,ymin,ymax, the outer edges "
                             "of its pixels in the DEM's coordinates")
+
+
+def _refuse_gdal_image_extent(terrain: Any, extent: tuple[float, ...], size: tuple[int, int]) -> None:
+    """An ``--image-extent`` in GDAL's order (-te and rasterio's bounds: xmin,ymin,xmax,ymax) is refused, with the
+    numbers in ours (xmin,xmax,ymin,ymax), where the same numbers in GDAL's order make a box over the DEM with
+    nearly square pixels (within 2x) while as given its pixels are over 20 times longer one way than the other, or
+    it spans more than 10 times the DEM's width and height (projected bounds: an easting to a northing, each way):
+    the DEM took a pixel or two of the image, smeared over it. ``size``: the image's (width, height)."""
+    x0, x1, y0, y1 = (float(v) for v in extent)
+    width, height = size
+    ex0, ex1, ey0, ey1 = terrain.extent
+    if not (x0 < y0 and x1 < y1):  # the numbers in GDAL's order make no box
+        return
+    if not (min(y0, ex1) > max(x0, ex0) and min(y1, ey1) > max(x1, ey0)):  # nor one over the DEM
+        return
+
+    def aspect(dx: float, dy: float) -> float:  # of a pixel, >= 1
+        return max(dx / width, dy / height) / min(dx / width, dy / height)
+
+    if aspect(y0 - x0, y1 - x1) > 2:
+        return
+    if aspect(x1 - x0, y1 - y0) > 20 or (x1 - x0 > 10 * (ex1 - ex0) and y1 - y0 > 10 * (ey1 - ey0)):
+        raise InvalidInputError(
+            f"--image-extent={x0:.10g},{x1:.10g},{y0:.10g},{y1:.10g} puts the {width} x {height} pixel image "
+            f"{x1 - x0:.6g} x {y1 - y0:.6g} units over the DEM's {ex1 - ex0:.6g} x {ey1 - ey0:.6g} (its extent "
+            f"{tuple(round(v, 2) for v in terrain.extent)}): its numbers are xmin,xmax,ymin,ymax, not GDAL's -te "
+            f"xmin,ymin,xmax,ymax; in this order that box is --image-extent={x0:.10g},{y0:.10g},{x1:.10g},{y1:.10g}")
 
 
 def _texture_colours(draped: Any) -> Any:
@@ -332,7 +367,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
     _check_outputs({"INPUT": args.input, "--image": args.image}, output=out, mesh=mesh_out, png=png,
                    normals=normals_out)
-    _check_image(args.image, args.image_extent)
+    image_size = _check_image(args.image, args.image_extent)
     if args.azimuth is not None and not math.isfinite(args.azimuth):  # named by the library as 'azimuth', radians
         raise InvalidInputError(f"--azimuth must be a finite number of degrees; got {args.azimuth}")
     if args.altitude is not None and not (0.0 <= args.altitude <= 90.0):
@@ -389,6 +424,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
 
         if args.image_extent is not None:
             _refuse_degrees(terrain, args.image_extent, "--image-extent")
+            if image_size is not None:
+                _refuse_gdal_image_extent(terrain, args.image_extent, image_size)
 
         progress.stage("image", f"placing {args.image} over the DEM")
         try:

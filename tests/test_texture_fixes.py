@@ -559,3 +559,36 @@ def test_occlusion_of_a_mirrored_terrain_is_its_mirror_image_on_non_square_pixel
     for other in mirrored:
         np.testing.assert_allclose(other, ao, atol=1e-6)
     np.testing.assert_allclose(ao, occlusion_reference(heights, spacing, directions), atol=2e-5)
+
+
+def test_an_image_extent_in_gdals_order_is_refused_with_the_numbers_in_ours(tmp_path, capsys):
+    """--image-extent takes xmin,xmax,ymin,ymax; GDAL's -te and rasterio's bounds give xmin,ymin,xmax,ymax. Big
+    Tujunga's bounds typed in that order placed a 120 x 64 PNG over a 3400 km box (an easting to a northing, each
+    way) and draped the pixel or two over the DEM, a smear, without a word. Refused now, naming our order and the
+    same box in it, whose pixels are square; that box drapes the whole image, and an image extent a few times the
+    DEM's in the right order is kept."""
+    import re
+
+    from PIL import Image
+
+    from stepterrain import cli
+
+    from .conftest import shared_file
+
+    source = str(shared_file("big_tujunga_srtm_30m_utm11n.tif"))
+    rng = np.random.default_rng(3)
+    image = tmp_path / "map.png"
+    Image.fromarray(rng.integers(0, 256, (64, 120, 3), dtype=np.uint8)).save(image)
+    out = tmp_path / "t.png"
+    gdal = "376328.66,3788642.83,412208.66,3807902.83"  # xmin,ymin,xmax,ymax of the DEM
+    argv = ["-q", "texture", source, "--image", str(image), "-o", str(out)]
+    assert cli.main([*argv, "--image-extent", gdal]) == 2
+    err = capsys.readouterr().err
+    assert "not GDAL's -te xmin,ymin,xmax,ymax" in err and not out.exists(), err
+    ours = re.search(r"that box is --image-extent=(\S+)", err).group(1)
+    assert ours == "376328.66,412208.66,3788642.83,3807902.83"
+    assert cli.main([*argv, "--image-extent", ours]) == 0
+    with Image.open(out) as texture:  # the image's many colours, not a pixel or two smeared over the DEM
+        assert len(np.unique(np.asarray(texture.convert("RGB")).reshape(-1, 3), axis=0)) > 100_000  # the smear: 12661
+    out.unlink()
+    assert cli.main([*argv, "--image-extent", "340000,450000,3760000,3830000"]) == 0 and out.exists()
