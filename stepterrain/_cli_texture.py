@@ -253,7 +253,7 @@ def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | Non
         kwargs = {k: v for k, v in (("azimuth", azimuth), ("altitude", altitude)) if v is not None}
         shadow = tx.cast_shadows(terrain, z_factor=args.z_factor, device=device, **kwargs)
         shade = shade * (1.0 - np.float32(strength) * shadow)
-    ambient = np.float32(0.25)  # topographic_layer's default
+    ambient = np.float32(tx.DEFAULT_AMBIENT)  # topographic_layer's default
     luminance = ambient + (1.0 - ambient) * shade
     if occlusion > 0:
         ao = tx.ambient_occlusion(terrain, z_factor=args.z_factor, device=device)

@@ -81,6 +81,8 @@ MAPLIBRE_DEFAULTS = {"exaggeration": 0.5, "shadow_color": (0.0, 0.0, 0.0, 1.0),
 LAYER_KINDS: tuple[str, ...] = ("thematic", "luminance", "topographic", "visibility")
 BLEND_MODES: tuple[str, ...] = ("blend", "add", "modulate")
 DEFAULT_AZIMUTH = math.radians(315.0)
+#: The luminance of an unlit (fully self-shaded) node in :func:`topographic_layer`: ambient + (1 − ambient) · shade.
+DEFAULT_AMBIENT = 0.25
 DEFAULT_ALTITUDE = math.radians(45.0)
 # Adjacent sweep lines one CPU thread walks in lockstep (cache reuse; 1 on CUDA), by the sweep's major axis. Along
 # rows (``major_j`` 0) a step's lines are neighbouring columns, one contiguous run: the more the better. Along
@@ -968,7 +970,7 @@ def topographic_layer(
     shadows: bool = True,
     shadow_strength: float | None = None,
     occlusion: float = 0.0,
-    ambient: float = 0.25,
+    ambient: float = DEFAULT_AMBIENT,
     spacing: ArrayLike | None = None,
     device: wp.DeviceLike = None,
 ) -> TextureLayer:

@@ -265,6 +265,21 @@ def coded_pixels(rows: int, cols: int) -> np.ndarray:
     return np.stack([(i * 7) % 256, (j * 5) % 256, ((i + j) * 3) % 256], axis=2).astype(np.uint8)
 
 
+def coded_png_over_the_dem(tmp_path: Path, source: Path):
+    """The DEM ``source``, a PNG of :func:`coded_pixels` on its own grid, and that grid's extent as
+    ``--image-extent`` takes it: (terrain, pixels, png path, "xmin,xmax,ymin,ymax")."""
+    from PIL import Image
+
+    from stepterrain import load_dem
+    from stepterrain.texture import terrain_extent
+
+    terrain = load_dem(source)
+    pixels = coded_pixels(*terrain.shape)
+    png = tmp_path / "map.png"
+    Image.fromarray(pixels).save(png)
+    return terrain, pixels, png, ",".join(f"{v!r}" for v in terrain_extent(terrain))
+
+
 def write_geotiff(path: Path, pixels: np.ndarray, transform, crs) -> Path:
     rasterio = pytest.importorskip("rasterio", reason="GeoTIFF images need rasterio")
     with rasterio.open(path, "w", driver="GTiff", height=pixels.shape[0], width=pixels.shape[1],
@@ -325,19 +340,12 @@ def test_cli_texture_image_geotiff_is_placed_by_its_georeferencing_and_shaded(tm
 def test_cli_texture_image_png_with_extent_drapes_the_mesh(tmp_path, capsys):
     """--image PNG --image-extent: a PNG of the DEM's own grid, placed by the extent of its outer pixel edges in
     the DEM's coordinates, gives the texture a GeoTIFF of it gives; --mesh drapes that texture (the GLB's image)."""
-    from PIL import Image
 
-    from stepterrain import load_dem
-    from stepterrain.texture import terrain_extent
 
     from .conftest import shared_file
 
     source = shared_file(TUJUNGA)
-    terrain = load_dem(source)
-    pixels = coded_pixels(*terrain.shape)
-    png = tmp_path / "map.png"
-    Image.fromarray(pixels).save(png)
-    extent = ",".join(f"{v!r}" for v in terrain_extent(terrain))
+    terrain, pixels, png, extent = coded_png_over_the_dem(tmp_path, source)
     mesh = tmp_path / "draped.glb"
     draped = texture_of(tmp_path, "draped", str(source), "--image", str(png), f"--image-extent={extent}",
                         "--colormap", "none", "--mesh", str(mesh))
@@ -561,19 +569,13 @@ def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_d
     the default texture's colormap exactly; --shadows (a low sun) darkens the nodes cast_shadows marks to
     0.25 + 0.75 · 0.4 of their colour (topographic_layer's formula with a shade of 1) and leaves the lit ones as they
     are."""
-    from PIL import Image
 
-    from stepterrain import load_dem
-    from stepterrain.texture import _north_up, cast_shadows, terrain_extent
+    from stepterrain.texture import _north_up, cast_shadows
 
     from .conftest import shared_file
 
     source = shared_file(TUJUNGA)
-    terrain = load_dem(source)
-    pixels = coded_pixels(*terrain.shape)
-    png = tmp_path / "map.png"
-    Image.fromarray(pixels).save(png)
-    extent = ",".join(f"{v!r}" for v in terrain_extent(terrain))
+    terrain, pixels, png, extent = coded_png_over_the_dem(tmp_path, source)
     image = ("--image", str(png), f"--image-extent={extent}")
     unshaded = texture_of(tmp_path, "unshaded", str(source), *image, "--hillshade", "none", "--colormap", "none")
     assert np.array_equal(unshaded, pixels)  # the image itself, no light on it
