@@ -990,10 +990,9 @@ def layer_at(frame: PixelFrame, image: wp.array2d[wp.vec4], matrix: wp.mat33, mo
 
 
 @wp.func
-def byte_layer_at(frame: PixelFrame, image: wp.array3d[wp.uint8], matrix: wp.mat33, mode: wp.int32, i: wp.int32,
-                  j: wp.int32) -> wp.vec4:
-    """:func:`layer_at` of a uint8 RGB or RGBA image read as it is (mode 0 only: its own pixel grid), each channel
-    / 255 as ``TextureLayer.rgba`` reads it, opaque without alpha."""
+def byte_texel(image: wp.array3d[wp.uint8], i: wp.int32, j: wp.int32) -> wp.vec4:
+    """Texel (i, j) of a uint8 RGB or RGBA image on the output's own pixel grid (:func:`layer_at`'s mode 0), each
+    channel / 255 as ``TextureLayer.rgba`` reads it, opaque without alpha."""
     alpha = 1.0
     if image.shape[2] == 4:
         alpha = float(image[i, j, 3]) / 255.0
@@ -1033,7 +1032,7 @@ def compose_texture(
     if picture_mode >= 0:
         p = wp.vec4(0.0)
         if picture_mode == 3:
-            p = byte_layer_at(frame, picture_bytes, picture_matrix, 0, i, j)
+            p = byte_texel(picture_bytes, i, j)
         else:
             p = layer_at(frame, picture, picture_matrix, picture_mode, i, j)
         if colours_mode >= 0:

@@ -220,7 +220,7 @@ def _hypsometric(terrain: Any, name: str) -> np.ndarray | None:
     return rgba
 
 
-def _check_unshaded(args: argparse.Namespace, normals: bool) -> None:
+def _check_unshaded(args: argparse.Namespace) -> None:
     """``--hillshade none`` before any work: an option only the hillshade uses is refused (the texture came out the
     same whatever it was), and a texture of nothing at all (plain white) too."""
     if not args.shadows:
@@ -383,7 +383,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
                                 f"gdaldem -{args.method}); it aims --shadows only; got {option} {value:g} without "
                                 "--shadows")
     if args.method == "none":  # no hillshade: what only shapes the hillshade would come out the same whatever it was
-        _check_unshaded(args, normals_out is not None)
+        _check_unshaded(args)
     # the library refuses an angle its method ignores, as this does: only the angles given are passed on
     given = {"azimuth": args.azimuth is not None, "altitude": args.altitude is not None}
     args.azimuth = 315.0 if args.azimuth is None else args.azimuth

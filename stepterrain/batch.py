@@ -2038,9 +2038,9 @@ def _run_dask(
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
-    workers = max(1, len(client.scheduler_info().get("workers", {}))) if local else 1
-    # every worker's (scheduler_info lists only the first 5 in some dask versions)
-    threads = max(1, sum(client.nthreads().values()))
+    nthreads = client.nthreads()  # every worker's (scheduler_info lists only the first 5 in some dask versions)
+    workers = max(1, len(nthreads)) if local else 1
+    threads = max(1, sum(nthreads.values()))
     cpu_threads = max(1, (os.cpu_count() or 1) // workers) if local else None
     memory_budget = get_memory_budget()  # this process's: worker processes have their own (the default)
 

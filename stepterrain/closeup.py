@@ -2042,10 +2042,16 @@ def _content_split(t: Terrain, layer: CloseUpLayer, cu: CloseUp
         content, band = _content_faces(layer, cu)
         return content, band, sorted_unique(content)
 
-    if f.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable:
+    if not _shared_layer(layer):
         return split()
     key = ("split", id(f), id(layer.mask_factor), cu.anchor.band, cu.anchor.outline_level)
     return derived(t.cached(("closeup", "derived"), dict), key, (f, layer.mask_factor), split)
+
+
+def _shared_layer(layer: CloseUpLayer) -> bool:
+    """Whether a culled layer's arrays are the read-only ones :func:`closeup_layers` shares between frames (what is
+    derived from them may be kept per layer); a user's writable copy may change under a memo."""
+    return not (layer.faces.flags.writeable or layer.mask_factor.flags.writeable or layer.original.flags.writeable)
 
 
 def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer],
@@ -2063,8 +2069,7 @@ def _frame_geometry(t: Terrain, items: Sequence[CloseUp], layers: Sequence[Close
     overview = (scalars, cmap, image_texture)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         show_anchor = cu.active or cu.anchor.inactive != "hidden"
-        shared = not (layer.faces.flags.writeable or layer.mask_factor.flags.writeable
-                      or layer.original.flags.writeable)
+        shared = _shared_layer(layer)
         content_faces, band_faces, used = _content_split(t, layer, cu)
         if cu.anchor.band:
             content_vertices = layer.vertices

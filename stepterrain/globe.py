@@ -677,6 +677,12 @@ def _node_array(n: int, dtype: Any, device: wp.Device, *, zero: bool = False, de
     return wp.array(host, dtype=dtype, shape=(n,), device=device, copy=False)  # keeps ``host`` (and the map)
 
 
+def _written_rows(grid: Any) -> int:
+    """Rows of a planar grid its kernels fill at the finest spacing: the input's, and the padding's below it that
+    ``cube_kernels.padding_tier`` computes (those PADDING_WRITTEN or more below its last row are never read)."""
+    return min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1)
+
+
 def _dense_entries(grid: Any) -> int:
     """Entries of a planar grid's rows that its kernels fill (the input's, and the padding's below it that
     ``cube_kernels.padding_tier`` computes at the finest spacing); below them only a sparse few. 0 when the
@@ -684,7 +690,7 @@ def _dense_entries(grid: Any) -> int:
     starts."""
     if 2 * grid.cols_valid < grid.n:
         return 0
-    return min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1) * grid.n
+    return _written_rows(grid) * grid.n
 
 
 def _cell_surface(z00: float, z01: float, z10: float, z11: float, u: float, v: float) -> float:
@@ -765,8 +771,7 @@ def _node_parameters(grid: Any, *, faces: int, levels: int, device: wp.Device, s
             continue
         if depth >= levels - 2 and faces == 1:  # planar: the two deepest levels likewise (the rows below a padded
             # input's last one by PADDING_WRITTEN or more are never read: cube_kernels.padding_tier)
-            rows = min(grid.n, grid.rows_valid + int(cube_kernels.PADDING_WRITTEN) - 1)
-            launch_chunked(cube_kernels.saturate_planar_fine, rows * grid.n,
+            launch_chunked(cube_kernels.saturate_planar_fine, _written_rows(grid) * grid.n,
                            [grid, int(depth == levels - 2), int(shapes)], outputs, device)
             continue
         # α only on face 0 (it depends on the grid alone, and the cube's rotations map the faces onto each
@@ -1384,6 +1389,11 @@ def adaptive_mesh(
         camera = dataclasses.replace(camera, eye=tuple(np.subtract(camera.eye, (ox, oy, 0.0))),
                                      target=tuple(np.subtract(camera.target, (ox, oy, 0.0))))
     device = resolve_device(device)
+    _check_distance_scale(distance_scale, camera, names)  # before the grid's passes, as Globe.mesh checks it
+    if distance_scale is None:
+        above = camera.eye[2] - highest if camera is not None else 0.0
+        distance_scale = max(above, dx, dy)
+    distance_scale = _positive(distance_scale, "distance_scale")
     # without a view (no camera, or neither the distance nor the clip metric) and without user metrics, the
     # refinement reads e alone: the node positions and the bounding radii are not computed
     viewed = camera is not None and bool(names & {"distance", "clip"})
@@ -1391,11 +1401,7 @@ def adaptive_mesh(
     grid = _planar_grid(z, (dx, dy), (rows, cols), shapes=shapes, device=device, n=n)
     levels = 2 * int(round(math.log2(cells)))
     params = _node_parameters(grid, faces=1, levels=levels, device=device, shapes=shapes)
-    _check_distance_scale(distance_scale, camera, names)
-    if distance_scale is None:
-        above = camera.eye[2] - highest if camera is not None else 0.0
-        distance_scale = max(above, dx, dy)
-    view = _view(camera, error, names, "sphere", _positive(distance_scale, "distance_scale"), device)
+    view = _view(camera, error, names, "sphere", distance_scale, device)
     mesh = _extract(grid, params, view, users, levels, faces=1,
                     cull=bool(cull and camera is not None and "clip" in names), per_face=False, device=device,
                     origin=(ox, oy))

@@ -797,7 +797,7 @@ class Terrain:
         """The terrain as a ``trimesh.Trimesh`` (see :func:`heightfield_mesh`)."""
         if self.kind == "tin":
             return trimesh.Trimesh(self.points, self.faces, process=False)
-        return heightfield_mesh(self.heights, spacing=self.spacing, origin=self.origin)
+        return heightfield_mesh(self)
 
     # ------------------------------------------------------------------ smaller grids
     def crop(self, extent: ArrayLike) -> Terrain:

@@ -1117,9 +1117,7 @@ def _composed(shading: TextureLayer, colours: TextureLayer | None, picture: Text
     dev = resolve_device(device)
     rows, cols = shape
     channels = 4 if background is None else 3
-    out = np.empty((rows, cols, channels), dtype=np.uint8)
-    target = wp.array(out, dtype=wp.uint8, device=dev, copy=False) if dev.is_cpu else \
-        wp.empty((rows, cols, channels), dtype=wp.uint8, device=dev)
+    host, target = _output((rows, cols, channels), np.uint8, wp.uint8, dev)
     inputs = [_composed_input(shading, extent, shape, dev, "shading"),
               _composed_input(colours, extent, shape, dev, "colours")]
     picture_input = _composed_input(picture, extent, shape, dev, "picture", raw=True)
@@ -1132,7 +1130,7 @@ def _composed(shading: TextureLayer, colours: TextureLayer | None, picture: Text
     launch(texture_kernels.compose_texture, dim=rows * cols,
            inputs=[_frame(extent, shape), *inputs[0], *inputs[1], *picture_args, bg, 0 if background is None else 1],
            outputs=[target], device=dev)
-    return out if dev.is_cpu else host_copy(target)
+    return _result(host, target)
 
 
 def _finish(out: wp.array, like: TextureLayer, name: str) -> TextureLayer:
