@@ -237,30 +237,6 @@ def _check_unshaded(args: argparse.Namespace) -> None:
                                 "leaves nothing to draw (a plain white texture); give one of them")
 
 
-def _unshaded_layer(terrain: Any, args: argparse.Namespace, azimuth: float | None, altitude: float | None,
-                    device: Any) -> Any:
-    """``--hillshade none``: the topographic layer of :func:`~stepterrain.texture.topographic_layer` with a shade of 1
-    at every node (its ``ambient + (1 − ambient) · shade``: 1 where lit), darkened by --shadows and --occlusion as
-    there; NaN at nodata, so the texture is transparent there as with a hillshade."""
-    from . import texture as tx
-    from .terrain import finite_number
-
-    occlusion = finite_number(args.occlusion, "occlusion", lo=0.0, hi=1.0)  # named as topographic_layer names them
-    strength = finite_number(args.shadow_strength, "shadow_strength", lo=0.0, hi=1.0)
-    shade = np.where(terrain.nodata_mask, np.float32(np.nan), np.float32(1.0)) if terrain.has_nodata else \
-        np.ones(terrain.heights.shape, np.float32)
-    if args.shadows:
-        kwargs = {k: v for k, v in (("azimuth", azimuth), ("altitude", altitude)) if v is not None}
-        shadow = tx.cast_shadows(terrain, z_factor=args.z_factor, device=device, **kwargs)
-        shade = shade * (1.0 - np.float32(strength) * shadow)
-    ambient = np.float32(tx.DEFAULT_AMBIENT)  # topographic_layer's default
-    luminance = ambient + (1.0 - ambient) * shade
-    if occlusion > 0:
-        ao = tx.ambient_occlusion(terrain, z_factor=args.z_factor, device=device)
-        luminance = luminance * (1.0 - np.float32(occlusion) * (1.0 - ao))
-    return tx.terrain_layer(terrain, luminance.astype(np.float32), "topographic", name="topographic")
-
-
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> tuple[int, int] | None:
     """``--image`` and ``--image-extent`` before any work: the file exists and, without an extent, places itself (a
     georeferenced GeoTIFF, a JPEG or PNG with a world file) north-up (a rotated or south-up one was refused only once
@@ -442,13 +418,11 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     # degrees wrapped into one turn: the library's radians-or-degrees warning (past 4π) is for API callers
     azimuth = math.radians(args.azimuth % 360.0) if given["azimuth"] else None
     altitude = math.radians(args.altitude) if given["altitude"] else None
-    if args.method == "none":
-        topo = _unshaded_layer(terrain, args, azimuth, altitude, device)
-    else:
-        topo = tx.topographic_layer(terrain, azimuth=azimuth, altitude=altitude, z_factor=args.z_factor,
-                                    method=args.method, shadows=args.shadows,
-                                    shadow_strength=args.shadow_strength if args.shadows else None,
-                                    occlusion=args.occlusion, device=device)
+    # --hillshade none: topographic_layer's method "none" (a shade of 1, darkened by --shadows and --occlusion alone)
+    topo = tx.topographic_layer(terrain, azimuth=azimuth, altitude=altitude, z_factor=args.z_factor,
+                                method=args.method, shadows=args.shadows,
+                                shadow_strength=args.shadow_strength if args.shadows else None,
+                                occlusion=args.occlusion, device=device)
     colors = _hypsometric(terrain, args.colormap)
     hypsometric = None if colors is None else tx.terrain_layer(terrain, colors, "thematic", name="hypsometric")
     # the image over the colours (white without), shaded as the colours are (alpha: the shading's, 0 at the DEM's

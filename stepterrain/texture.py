@@ -960,13 +960,39 @@ def terrain_layer(terrain: Terrain | ArrayLike, image: ArrayLike, kind: LayerKin
     return TextureLayer(kind, _north_up(t, array), terrain_extent(t), name=name)
 
 
+def _unshaded(t: Terrain, azimuth: float | None, altitude: float | None, z_factor: float, shadows: bool,
+              shadow_strength: float | None, device: wp.DeviceLike) -> NDArray[np.float32]:
+    """:func:`topographic_layer`'s shade for ``method="none"``: 1 at every node (NaN at nodata), times
+    ``1 − shadow_strength`` where :func:`cast_shadows` shadows it; the light is refused without shadows (it aims
+    them only), as :func:`hillshade` refuses an angle its method ignores."""
+    if not shadows:
+        for name, value in (("azimuth", azimuth), ("altitude", altitude)):
+            if value is not None:
+                raise InvalidInputError(f"{name} has no effect on method='none' (no light shades the terrain); it "
+                                        f"aims shadows=True only; got {name}={value!r} without shadows")
+    if shadow_strength is not None and not shadows:  # as hillshade refuses it
+        raise InvalidInputError(f"shadow_strength applies only with shadows=True (it darkens the shadowed pixels); "
+                                f"got shadow_strength={shadow_strength!r} with shadows=False")
+    shade = np.where(t.nodata_mask, np.float32(np.nan), np.float32(1.0)) if t.has_nodata else \
+        np.ones(t.heights.shape, np.float32)
+    if shadows:
+        strength = _finite(shadow_strength, "shadow_strength", lo=0.0, hi=1.0)
+        shadow = cast_shadows(t, azimuth=DEFAULT_AZIMUTH if azimuth is None else azimuth,
+                              altitude=DEFAULT_ALTITUDE if altitude is None else altitude, z_factor=z_factor,
+                              device=device)
+        shade = shade * (1.0 - np.float32(strength) * shadow)
+    else:
+        _finite(z_factor, "z_factor", positive=True)  # checked as the hillshade checks it
+    return shade
+
+
 def topographic_layer(
     terrain: Terrain | ArrayLike,
     *,
     azimuth: float | None = None,
     altitude: float | None = None,
     z_factor: float = 1.0,
-    method: Literal["standard", "multidirectional", "combined", "igor"] = "standard",
+    method: Literal["standard", "multidirectional", "combined", "igor", "none"] = "standard",
     shadows: bool = True,
     shadow_strength: float | None = None,
     occlusion: float = 0.0,
@@ -980,8 +1006,11 @@ def topographic_layer(
     refused with ``shadows=False``, where it would have no effect) and ``occlusion`` in [0, 1] mixes in
     horizon-based ambient occlusion (``1 − occlusion · (1 − ao)``). ``method`` is one of :data:`HILLSHADE_METHODS`
     (gdaldem's grey variants, as in :func:`hillshade`, which refuses the angles they ignore likewise), not a
-    MapLibre method; ``azimuth`` and ``altitude`` default to GDAL's 315° and 45° (radians). Modulate a thematic
-    layer with it (:func:`modulate`) as in Fig. 5.
+    MapLibre method; ``azimuth`` and ``altitude`` default to GDAL's 315° and 45° (radians). ``method="none"``
+    leaves the hillshade out: a shade of 1 at every node (NaN at nodata), so the layer is 1 where nothing darkens it,
+    darkened by the shadows and the occlusion alone (the CLI's ``--hillshade none``); the light then aims the shadows
+    only, and an azimuth or altitude without ``shadows`` is refused. Modulate a thematic layer with it
+    (:func:`modulate`) as in Fig. 5.
     """
     t = _grid_terrain(terrain, spacing)
     shadows = check_flag(shadows, "shadows")
@@ -993,8 +1022,11 @@ def topographic_layer(
                                 "thematic layer")
     ambient = _finite(ambient, "ambient", lo=0.0, hi=1.0)
     occlusion = _finite(occlusion, "occlusion", lo=0.0, hi=1.0)
-    shade = hillshade(t, azimuth=azimuth, altitude=altitude, z_factor=z_factor, method=method, shadows=shadows,
-                      shadow_strength=shadow_strength, device=device)
+    if _is_name(method, ("none",)):
+        shade = _unshaded(t, azimuth, altitude, z_factor, shadows, shadow_strength, device)
+    else:
+        shade = hillshade(t, azimuth=azimuth, altitude=altitude, z_factor=z_factor, method=method, shadows=shadows,
+                          shadow_strength=shadow_strength, device=device)
     luminance = ambient + (1.0 - ambient) * shade
     if occlusion > 0:
         ao = ambient_occlusion(t, z_factor=z_factor, device=device)

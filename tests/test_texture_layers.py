@@ -602,3 +602,24 @@ def test_texture_uv_checks_points_and_layer():
     with pytest.raises(st.InvalidInputError, match="layer must be a TextureLayer; got str"):
         texture_uv([[0.0, 0.0]], "x")
     assert texture_uv([[0.5, 0.5, np.nan]], layer).tolist() == [[0.5, 0.5]]  # z is not used: NaN heights are fine
+
+
+def test_topographic_layer_without_a_hillshade_is_darkened_by_its_shadows_alone():
+    """method="none" (the CLI's --hillshade none): 1 where nothing darkens a node, ambient + (1 − ambient) ·
+    (1 − shadow_strength) in the shadow, NaN at nodata; the light without shadows is refused."""
+    wall = np.zeros((3, 8), np.float32)
+    wall[:, 2] = 10.0  # a wall west of the middle
+    wall[0, 7] = np.nan
+    light = {"azimuth": math.radians(270), "altitude": math.radians(45)}
+    shadow = st.texture.cast_shadows(wall, **light, device="cpu")[::-1]  # the layer is north-up (rows reversed)
+    layer_ = topographic_layer(wall, method="none", shadow_strength=0.4, **light, device="cpu")
+    image = layer_.image
+    assert np.isnan(image[2, 7]) and np.isfinite(np.delete(image.ravel(), 2 * 8 + 7)).all()
+    finite = np.isfinite(image)
+    expected = np.where(shadow == 1, 0.25 + 0.75 * 0.6, 1.0)
+    np.testing.assert_allclose(image[finite], expected[finite], rtol=1e-6)
+    assert (shadow[finite] == 1).any() and (shadow[finite] == 0).any()
+    unlit = topographic_layer(wall, method="none", shadows=False, device="cpu").image
+    assert np.all(unlit[np.isfinite(unlit)] == 1.0)
+    with pytest.raises(InvalidInputError, match=r"azimuth has no effect on method='none'"):
+        topographic_layer(wall, method="none", shadows=False, azimuth=1.0, device="cpu")
