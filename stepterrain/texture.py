@@ -1089,22 +1089,38 @@ def _overlaps(layer: TextureLayer, extent: Extent) -> bool:
                 or world[:, 1].min() >= ymax)
 
 
-def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device: wp.Device,
-             name: str) -> wp.array:
-    """The layer's RGBA on the pixel grid (extent, shape): the image itself when it already is that grid."""
-    rgba = _named(name, layer.rgba)
-    key = ("device", str(device))
-    image = layer._rgba_cache.get(key) if layer._rgba_cache.get("rgba") is rgba else None
-    if image is None:
-        image = wp.array(rgba, dtype=wp.vec4, device=device, copy=not device.is_cpu)
-        if layer._rgba_cache.get("rgba") is rgba:  # only beside a cached RGBA (an image that cannot change)
-            layer._rgba_cache[key] = image
-    same = layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
-    if same:
-        return image
+def _is_grid(layer: TextureLayer, extent: Extent, shape: tuple[int, int]) -> bool:
+    """Whether the layer's pixels are the pixel grid (extent, shape) itself (read as they are, not resampled)."""
+    return layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
+
+
+def _check_overlaps(layer: TextureLayer, extent: Extent, name: str) -> None:
     if not _overlaps(layer, extent):
         raise InvalidInputError(f"{name} covers none of the extent {extent} it is combined on (mismatched extent); "
                                 "give layers over the same area, or border='edge'")
+
+
+def _device_rgba(layer: TextureLayer, device: wp.Device, name: str, keep: bool = True) -> wp.array:
+    """The layer's RGBA (its errors named ``name``) as a vec4 array on ``device``: the one cached beside the layer's
+    cached RGBA (an image that cannot change), else a new one, cached there when ``keep``."""
+    rgba = _named(name, layer.rgba)
+    key = ("device", str(device))
+    cached = layer._rgba_cache.get("rgba") is rgba
+    image = layer._rgba_cache.get(key) if cached else None
+    if image is None:
+        image = wp.array(rgba, dtype=wp.vec4, device=device, copy=not device.is_cpu)
+        if cached and keep:
+            layer._rgba_cache[key] = image
+    return image
+
+
+def _sampled(layer: TextureLayer, extent: Extent, shape: tuple[int, int], device: wp.Device,
+             name: str) -> wp.array:
+    """The layer's RGBA on the pixel grid (extent, shape): the image itself when it already is that grid."""
+    image = _device_rgba(layer, device, name)
+    if _is_grid(layer, extent, shape):
+        return image
+    _check_overlaps(layer, extent, name)
     out = wp.empty(shape, dtype=wp.vec4, device=device)
     launch(texture_kernels.sample_layer, dim=shape[0] * shape[1],
            inputs=[_frame(extent, shape), image, _local_matrix(layer.matrix, extent),
@@ -1120,18 +1136,13 @@ def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int
     identity = wp.mat33(1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0)
     if layer is None:
         return wp.empty((1, 1), dtype=wp.vec4, device=device), identity, -1
-    same = layer.shape == shape and np.allclose(layer.matrix, _affine(extent, shape), rtol=0, atol=1e-9)
+    same = _is_grid(layer, extent, shape)
     image = np.asarray(layer.image)
     if raw and same and image.dtype == np.uint8 and image.ndim == 3:  # read as rgba() reads it, without its floats
         return wp.array(np.ascontiguousarray(image), dtype=wp.uint8, device=device), identity, 3
-    if not same and not _overlaps(layer, extent):
-        raise InvalidInputError(f"{name} covers none of the extent {extent} it is combined on (mismatched extent); "
-                                "give layers over the same area, or border='edge'")
-    rgba = _named(name, layer.rgba)
-    key = ("device", str(device))
-    array = layer._rgba_cache.get(key) if layer._rgba_cache.get("rgba") is rgba else None
-    if array is None:
-        array = wp.array(rgba, dtype=wp.vec4, device=device, copy=not device.is_cpu)
+    if not same:
+        _check_overlaps(layer, extent, name)
+    array = _device_rgba(layer, device, name, keep=False)  # not kept: the composed texture holds no float layers
     if same:
         return array, identity, 0
     return array, _local_matrix(layer.matrix, extent), 1 if layer.border == "transparent" else 2
