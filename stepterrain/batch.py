@@ -541,12 +541,14 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
 
 def _check_unreferenced(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float], name: str) -> None:
     """An InvalidInputError naming ``spacing=`` when a DEM file places its nodes itself (load_dem reads a file
-    without georeferencing as 1 m cells at (0, 0), rows north to south)."""
-    if crs is not None or spacing != (1.0, -1.0) or origin != (0.0, 0.0):
+    without georeferencing as 1 m cells at (0, 0), rows north to south: io.own_placement)."""
+    from .io import own_placement
+
+    placed = own_placement(crs, spacing, origin)
+    if placed is not None:
         raise InvalidInputError(
             f"spacing applies to DEM files with no georeferencing (.npy, a PNG heightmap, a GeoTIFF without a "
-            f"geotransform); {name!r} places its nodes itself: spacing {spacing}, origin {origin}"
-            + (f", CRS {crs}" if crs else ""))
+            f"geotransform); {name!r} places its nodes itself: {placed}")
 
 
 def _file_spacing(spacing: ArrayLike) -> tuple[float, float]:

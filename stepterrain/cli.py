@@ -220,7 +220,7 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     """The DEM at ``path`` (``--height-unit`` applied), else the embedded one (where a unit is refused); then
     ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen``
     (:meth:`Terrain.coarsen`, block means)."""
-    from .io import load_dem, sample_dem
+    from .io import load_dem, own_placement, sample_dem
 
     if path:
         terrain = load_dem(path, height_unit=height_unit)
@@ -230,11 +230,11 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     else:
         terrain = sample_dem()
     if spacing is not None:
-        if terrain.crs is not None or terrain.spacing != (1.0, -1.0) or terrain.origin != (0.0, 0.0):
+        placed = own_placement(terrain.crs, terrain.spacing, terrain.origin)
+        if placed is not None:
             raise InvalidInputError(
                 f"--spacing applies to a DEM file with no georeferencing (.npy, a PNG heightmap, a GeoTIFF without a "
-                f"geotransform); {path or 'the embedded DEM'} places its nodes itself: spacing {terrain.spacing}, "
-                f"origin {terrain.origin}" + (f", CRS {terrain.crs}" if terrain.crs else ""))
+                f"geotransform); {path or 'the embedded DEM'} places its nodes itself: {placed}")
         dx, dy = (spacing[0], spacing[-1])
         terrain = type(terrain).from_heights(terrain.heights, spacing=(dx, -dy), source=terrain.source,
                                              height_unit=terrain.height_unit)

@@ -251,6 +251,15 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ) from exc
 
 
+def own_placement(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float]) -> str | None:
+    """How a DEM that :func:`load_dem` read places its nodes ("spacing (30.0, -30.0), origin (x, y), CRS ..."), or
+    None for a file with no georeferencing, which it reads as 1 m cells at (0, 0), rows north to south: the one a
+    cell size given for the file (the CLI's ``--spacing``, batch's ``spacing=``) may replace."""
+    if crs is None and spacing == (1.0, -1.0) and origin == (0.0, 0.0):
+        return None
+    return f"spacing {spacing}, origin {origin}" + (f", CRS {crs}" if crs else "")
+
+
 def sample_dem() -> Terrain:
     """The embedded default DEM: 30 m SRTM of the Big Tujunga catchment, San Gabriel Mountains, California.
 
