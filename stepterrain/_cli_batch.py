@@ -49,6 +49,19 @@ def _failed_alike(report: Any, marker: str) -> list[Any]:
     return failed if failed and len(failed) == len(report.results) else []
 
 
+def _refuse_alike(report: Any, marker: str, head: str, inputs: tuple[str, str], tail: str,
+                  after: str | None = None) -> None:
+    """One usage error where every item of ``report`` failed with ``marker`` in its error (an option every input
+    refused alike), not a list of identical failures: ``head``, then ``inputs`` (for one input, or for n: ``{n}``),
+    the first failure ``(e.g. KEY: its error after 'after', default the marker)`` and ``tail``."""
+    failed = _failed_alike(report, marker)
+    if failed:
+        first, n = failed[0], len(failed)
+        example = (first.error or "").split(marker if after is None else after, 1)[-1]
+        raise InvalidInputError(f"{head}{inputs[0] if n == 1 else inputs[1].format(n=n)} (e.g. {first.key}: "
+                                f"{example}){tail}")
+
+
 def _tile(text: str) -> int | tuple[int, int]:
     try:
         parts = [int(v) for v in text.lower().split("x")]
@@ -238,29 +251,17 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
     # a folder's heights and georeferencing are known only item by item (tiles and series are checked up front): a
     # floor above every item's surface, a --spacing for files that all place their nodes themselves, a --coarsen
     # every file refuses, is a usage error, said once, not a list of identical failures
-    floor_failed = _failed_alike(report, "floor must lie below")  # mesh.close_solid's
-    if args.floor is not None and floor_failed:
-        first, n = floor_failed[0], len(floor_failed)
-        raise InvalidInputError(
-            f"--floor {args.floor:g} must lie below the stepped surface of every input; it lies above "
-            f"{'the only one' if n == 1 else f'all {n}'} (e.g. {first.key}: {(first.error or '').split(': ', 1)[-1]})"
-        )
-    placed = _failed_alike(report, "places its nodes itself: ")  # batch._check_unreferenced's
-    if args.spacing is not None and placed:
-        first, n = placed[0], len(placed)
-        raise InvalidInputError(
-            "--spacing applies to DEM files with no georeferencing (.npy, a PNG heightmap, a GeoTIFF without a "
-            "geotransform); " + ("the only input places its nodes itself" if n == 1 else
-                                   f"all {n} inputs place their nodes themselves")
-            + f" (e.g. {first.key}: {(first.error or '').split('places its nodes itself: ', 1)[-1]}): "
-            "leave --spacing out")
-    coarsened = _failed_alike(report, f"coarsen={args.coarsen}: ")  # batch._coarsened's
-    if args.coarsen is not None and coarsened:
-        first, n = coarsened[0], len(coarsened)
-        raise InvalidInputError(
-            f"--coarsen {args.coarsen} leaves no mesh of {'the only input' if n == 1 else f'any of the {n} inputs'} "
-            f"(e.g. {first.key}: {(first.error or '').split(f'coarsen={args.coarsen}: ', 1)[-1]}): give a smaller "
-            "--coarsen")
+    if args.floor is not None:  # mesh.close_solid's
+        _refuse_alike(report, "floor must lie below", f"--floor {args.floor:g} must lie below the stepped surface of "
+                      "every input; it lies above ", ("the only one", "all {n}"), "", after=": ")
+    if args.spacing is not None:  # batch._check_unreferenced's
+        _refuse_alike(report, "places its nodes itself: ", "--spacing applies to DEM files with no georeferencing "
+                      "(.npy, a PNG heightmap, a GeoTIFF without a geotransform); ",
+                      ("the only input places its nodes itself", "all {n} inputs place their nodes themselves"),
+                      ": leave --spacing out")
+    if args.coarsen is not None:  # batch._coarsened's
+        _refuse_alike(report, f"coarsen={args.coarsen}: ", f"--coarsen {args.coarsen} leaves no mesh of ",
+                      ("the only input", "any of the {n} inputs"), ": give a smaller --coarsen")
     for line in report.summary().splitlines()[1:]:  # the failures (a budget's hint as the option) and the notes
         if not progress.quiet and line.startswith("  failed "):  # the bar wrote it as the item failed: once
             continue
