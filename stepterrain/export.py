@@ -192,9 +192,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         except OSError:
             mode = None  # a new file keeps the mode it was made with
         try:
+            _flush_if_replacing(tmp_path, mode is not None)
             if mode is not None:
-                if _FLUSH_REPLACED.get():
-                    _flush_to_disk(tmp_path)
                 with contextlib.suppress(OSError):
                     os.chmod(tmp_path, mode)
             os.replace(tmp_path, target)
@@ -221,6 +220,13 @@ def replacing_without_flush() -> Iterator[None]:
         yield
     finally:
         _FLUSH_REPLACED.reset(token)
+
+
+def _flush_if_replacing(tmp: Path, replaces: bool) -> None:
+    """fsync ``tmp`` where it ``replaces`` an existing file, unless within :func:`replacing_without_flush`: the rule
+    of :func:`atomic_path`, and of the OBJ writer before its side files replace theirs."""
+    if replaces and _FLUSH_REPLACED.get():
+        _flush_to_disk(tmp)
 
 
 def _flush_to_disk(path: Path) -> None:
@@ -987,8 +993,8 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         _write_obj_text(mesh, tmp, mtl_name, material, uv)
         # flushed as atomic_path will (once more, cheaply) before the side files replace theirs: its failure left
         # the old OBJ with the new texture
-        if sidecars and os.path.exists(target) and _FLUSH_REPLACED.get():
-            _flush_to_disk(tmp)
+        if sidecars:
+            _flush_if_replacing(tmp, os.path.exists(target))
     _record_owner(paths, target)
 
 
