@@ -1222,17 +1222,7 @@ def _geographic_body(crs: str | None) -> _Body:
         return _EARTH
 
     def numbers(keyword: str) -> tuple[str, list[float]]:
-        block = _wkt_block(geogcs, (keyword,)) or ""
-        parts = block.split('"')
-        fields = re.split(r"[,\]]", parts[2]) if len(parts) > 2 else []
-        values = []
-        for field in fields:
-            try:
-                values.append(float(field))
-            except ValueError:
-                if values:
-                    break
-        return (parts[1] if len(parts) > 1 else ""), values
+        return _wkt_name_numbers(_wkt_block(geogcs, (keyword,)) or "")
 
     name, spheroid = numbers("SPHEROID")
     _, meridian = numbers("PRIMEM")
@@ -1509,6 +1499,20 @@ def _wkt_block(wkt: str, keywords: tuple[str, ...]) -> str | None:
     return None
 
 
+def _wkt_name_numbers(block: str) -> tuple[str, list[float]]:
+    """The quoted name of a WKT ``KEYWORD["name",n1,n2,...]`` block ("" without one) and the numbers right after
+    it, up to the first field that is not one (an AUTHORITY, the closing bracket): ``SPHEROID["WGS 84",6378137,
+    298.257223563,AUTHORITY["EPSG","7030"]]`` gives ("WGS 84", [6378137.0, 298.257223563])."""
+    parts = block.split('"')
+    values: list[float] = []
+    for field in re.split(r"[,\]]", parts[2].lstrip(" ,")) if len(parts) > 2 else []:
+        try:
+            values.append(float(field))
+        except ValueError:
+            break
+    return (parts[1] if len(parts) > 1 else ""), values
+
+
 def _compound_heights(crs: str | None) -> tuple[str, float | None, str | None] | None:
     """(the vertical part's length unit, its metres per unit as the WKT states it (None when it states none), the
     horizontal part as a CRS string) of a compound CRS (e.g. "EPSG:26911+6360", NAD83 / UTM 11N + NAVD88 height in
@@ -1528,12 +1532,9 @@ def _compound_heights(crs: str | None) -> tuple[str, float | None, str | None] |
         horizontal_crs = _crs_string(type(crs_obj).from_wkt(horizontal)) if horizontal else None
     except Exception:  # keep the compound CRS when its horizontal part does not stand alone
         horizontal_crs = crs
-    parts = unit.split('"')
-    name, rest = parts[1], parts[2] if len(parts) > 2 else ""
-    try:  # UNIT["British foot (Sears 1922)",0.304799471538676,...]: the metres per unit after the name
-        factor = float(re.split(r"[,\]]", rest.lstrip(" ,"), maxsplit=1)[0])
-    except ValueError:
-        factor = math.nan
+    # UNIT["British foot (Sears 1922)",0.304799471538676,...]: the metres per unit after the name
+    name, values = _wkt_name_numbers(unit)
+    factor = values[0] if values else math.nan
     return name, factor if math.isfinite(factor) and factor > 0 else None, horizontal_crs
 
 
