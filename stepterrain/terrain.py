@@ -133,6 +133,11 @@ def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
     return float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))
 
 
+def _min_max(values: NDArray[Any]) -> tuple[float, ...]:
+    """(min, max) of ``values`` as floats; () of none."""
+    return (float(values.min()), float(values.max())) if values.size else ()
+
+
 def used_nodes(finite: NDArray[np.bool_]) -> NDArray[np.bool_]:
     """Per grid node (of the last two axes of ``finite``, the nodes' finite flags), whether a triangle with three
     finite heights uses it: the nodes of a stepped mesh. A finite node whose every cell touches nodata is in none."""
@@ -730,13 +735,9 @@ class Terrain:
                 if not self.has_nodata:
                     return float(self.heights.min()), float(self.heights.max())
                 return used_height_range(self.heights) or ()
-            finite = self.used_heights()
-            return (float(finite.min()), float(finite.max())) if finite.size else ()
+            return _min_max(self.used_heights())
 
-        lo_hi = self.cached("height_range", compute)
-        if not lo_hi:
-            raise InvalidInputError("terrain has no finite height (all nodata)")
-        return lo_hi
+        return self._cached_range("height_range", compute)
 
     @property
     def finite_height_range(self) -> tuple[float, float]:
@@ -744,12 +745,11 @@ class Terrain:
         :attr:`height_range` is the stepped surface's); computed once per terrain. A TIN's is its height_range."""
         if self.kind == "tin" or not self.has_nodata:
             return self.height_range
+        return self._cached_range("finite_height_range", lambda: _min_max(self.heights[np.isfinite(self.heights)]))
 
-        def compute() -> tuple[float, ...]:
-            finite = self.heights[np.isfinite(self.heights)]
-            return (float(finite.min()), float(finite.max())) if finite.size else ()
-
-        lo_hi = self.cached("finite_height_range", compute)
+    def _cached_range(self, key: str, compute: Any) -> tuple[float, float]:
+        """``compute()``'s (min, max), computed once per terrain (``key``); () from it: no finite height, refused."""
+        lo_hi = self.cached(key, compute)
         if not lo_hi:
             raise InvalidInputError("terrain has no finite height (all nodata)")
         return lo_hi
