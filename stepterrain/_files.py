@@ -1,12 +1,23 @@
-"""The one check that an input path names an existing regular file, shared by load_dem and read_mesh."""
+"""The path checks shared by the readers and writers: a path argument as a Path (load_dem, save_mesh and
+save_image, batch's output folder) and an input path naming an existing regular file (load_dem, read_mesh)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import Any
 
-from .errors import DataFileError
+from .errors import DataFileError, InvalidInputError
 
-__all__ = ["require_regular_file"]
+__all__ = ["as_path", "require_regular_file"]
+
+
+def as_path(value: Any, name: str) -> Path:
+    """``value`` as a Path, else an InvalidInputError naming the argument ``name``: not a str or path-like."""
+    try:
+        return Path(os.fspath(value))
+    except TypeError as exc:
+        raise InvalidInputError(f"{name} must be a str or os.PathLike; got {type(value).__name__}") from exc
 
 
 def require_regular_file(file: Path, missing: str, irregular: str) -> None:

@@ -46,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
+from ._files import as_path
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -919,10 +920,7 @@ def _is_complete(entry: Any, fingerprint: str, output_dir: Path, name: str) -> b
 def _check_output_dir(output_dir: str | os.PathLike[str]) -> tuple[Path, list[Path]]:
     """The output folder, made if missing, and the folders this made (deepest first) so that a run that fails
     before writing anything can take them away again."""
-    try:
-        folder = Path(os.fspath(output_dir))
-    except TypeError as exc:
-        raise InvalidInputError(f"output_dir must be a str or os.PathLike; got {type(output_dir).__name__}") from exc
+    folder = as_path(output_dir, "output_dir")
     made = []
     try:  # a name too long for the file system (ENAMETOOLONG) raised os.stat's bare OSError from exists()
         if folder.exists() and not folder.is_dir():

@@ -35,7 +35,7 @@ import trimesh
 from numpy.typing import ArrayLike, NDArray
 
 from ._device import recycled_empty
-from ._files import require_regular_file
+from ._files import as_path, require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
 from .mesh import mesh_argument
 from .terrain import FLOAT32_MAX, as_array, real_numbers
@@ -1662,10 +1662,7 @@ def _3mf_rgba(text: str) -> tuple[int, int, int, int]:
 def _target(path: str | os.PathLike[str]) -> Path:
     """``path`` as a Path, else an :class:`InvalidInputError`: not a str or path-like, or holding a NUL character
     (which no file name can: tempfile's ValueError "embedded null byte" came out of the write)."""
-    try:
-        target = Path(os.fspath(path))
-    except TypeError as exc:
-        raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
+    target = as_path(path, "path")
     if "\x00" in str(target):
         raise InvalidInputError(f"path must be a file name without NUL characters; got {str(target)!r}")
     return target

@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
-from ._files import require_regular_file
+from ._files import as_path, require_regular_file
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -222,10 +222,7 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
-    try:
-        file = Path(os.fspath(path))
-    except TypeError as exc:
-        raise InvalidInputError(f"path must be a str or os.PathLike; got {type(path).__name__}") from exc
+    file = as_path(path, "path")
     ext = file.suffix.lower()
     if ext not in SUPPORTED_EXTENSIONS:
         if os.path.isdir(file):  # `steps tiles/` said "unknown DEM extension '(none)'"
