@@ -1729,6 +1729,9 @@ _PLY_TYPES: dict[str, str] = {
     "<f8": "double",
 }
 _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vertex_indices"})
+# An attribute is not written under a name readers take for something else (:data:`_PLY_OWN`: ``nx``, ``u``, ``s``
+# ... of a vertex, ``texcoord`` of a face): trimesh's reader and VTK's made such a column normals or texture
+# coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
 
 
 def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
@@ -1744,7 +1747,8 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns] + list(_PLY_RESERVED))
+    vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns]
+                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]))
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
     face_columns: list[tuple[str, NDArray[Any]]] = []
     if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
@@ -1752,7 +1756,7 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
         # dropped
         face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
         face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header.append(f"element vertex {len(vertices)}")
@@ -1778,8 +1782,9 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
 def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:
     """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types. A name that
-    is no plain ASCII word, or is one of the element's own properties (``taken``), is written under a word made
-    from it (``level-2`` -> ``level_2``, ``x`` -> ``x_attr``), with a warning naming both: they were dropped."""
+    is no plain ASCII word, or is one of the element's own properties (``taken``: also the names readers take for
+    normals or UVs, ``nx`` or ``u``), is written under a word made from it (``level-2`` -> ``level_2``, ``x`` ->
+    ``x_attr``), with a warning naming both: they were dropped."""
     used = set(taken)
     renamed: list[str] = []
     columns: list[tuple[str, NDArray[Any]]] = []
@@ -1803,7 +1808,9 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
         else:
             columns += [(n, array[:, k]) for k, n in enumerate(names)]
     if renamed:
-        warnings.warn(f"PLY property names must be distinct ASCII words: wrote {', '.join(renamed)}",
+        warnings.warn("PLY property names must be distinct ASCII words other than the element's own (x, nx, u, s, "
+                      "red, texcoord, ...: readers take those for coordinates, normals, UVs or colours): wrote "
+                      f"{', '.join(renamed)}",
                       stacklevel=caller_stacklevel())
     return columns
 

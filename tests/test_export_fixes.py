@@ -1051,3 +1051,26 @@ def test_a_3mf_whose_model_stream_fails_raises_at_once_and_keeps_the_old_file(tm
     assert len(calls) < 10  # of the ~340 blocks: the failure stopped the writer
     assert not any(t.name == "stepterrain-3mf-writer" for t in threading.enumerate())
     assert [p.name for p in tmp_path.iterdir()] == ["m.3mf"] and path.read_bytes() == before
+
+
+@pytest.mark.parametrize("element, names", [("vertex", ("nx", "ny", "nz")), ("vertex", ("u", "v")),
+                                            ("vertex", ("s",)), ("vertex", ("texture_u",)), ("face", ("texcoord",)),
+                                            ("face", ("vertex_index",))])
+def test_ply_attributes_named_as_normals_or_uvs_are_renamed_and_read_back(tmp_path, element, names):
+    """A vertex attribute named ``nx``/``ny``/``nz``, ``u``/``v``, ``s``/``t`` or ``texture_u`` was written under that
+    name: trimesh's reader (and VTK's) took the columns for normals or texture coordinates, read_mesh left them out,
+    and a face attribute named ``texcoord`` made the PLY unreadable (an IndexError in trimesh's reader)."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    attributes = mesh.vertex_attributes if element == "vertex" else mesh.face_attributes
+    count = len(mesh.vertices) if element == "vertex" else len(mesh.faces)
+    for k, name in enumerate(names):
+        attributes[name] = np.arange(count, dtype=np.float32) * (k + 2) + 0.5
+    with pytest.warns(UserWarning, match="PLY property names") as record:
+        path = save_mesh(mesh, tmp_path / "a.ply")
+    assert all(f"{name!r} as '{name}_attr'" in str(record[0].message) for name in names)
+    back = read_mesh(path)
+    assert len(back.faces) == len(mesh.faces) and back.visual.kind is None  # no texture made of the attribute
+    got = back.vertex_attributes if element == "vertex" else back.face_attributes
+    assert sorted(got) == sorted(f"{name}_attr" for name in names)
+    for name in names:
+        np.testing.assert_array_equal(got[f"{name}_attr"], attributes[name])
