@@ -150,7 +150,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     until the new content is complete and flushed to disk (fsync), so not even a crash of the machine loses both
     (a new file, with no old content to lose, is not flushed). A new file gets the usual permissions (0o666 less
     the umask in force, or what the folder's default ACL gives, as ``open()`` makes it); a file replaced keeps its
-    own (a private 0o600 file stays private).
+    own (a private 0o600 file stays private), and its owner and group where the system lets the writer give them
+    (root any; another user a group of theirs), as ``open()`` keeps them.
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
@@ -188,15 +189,17 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp_path
         try:  # a replaced file keeps its mode: the umask's widened a private 0o600 file to 0o644
-            mode: int | None = stat.S_IMODE(os.stat(target).st_mode)
+            old: os.stat_result | None = os.stat(target)
         except OSError:
-            mode = None  # a new file keeps the mode it was made with
+            old = None  # a new file keeps the mode it was made with
         try:
-            if mode is not None:
+            if old is not None:
                 if _FLUSH_REPLACED.get():
                     _flush_to_disk(tmp_path)
                 with contextlib.suppress(OSError):
-                    os.chmod(tmp_path, mode)
+                    _keep_owner(tmp_path, old)  # before chmod: a change of owner clears set-id bits
+                with contextlib.suppress(OSError):
+                    os.chmod(tmp_path, stat.S_IMODE(old.st_mode))
             os.replace(tmp_path, target)
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
@@ -204,6 +207,22 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _keep_owner(path: Path, old: os.stat_result) -> None:
+    """Give the new file ``path`` the owner and group of the file it replaces (``old``), as far as the system allows:
+    root (a container writing into a user's folder) replaced a user's file with one of root's, which the user could
+    then no longer write, and a file shared through its group went to the writer's own group, its members locked
+    out (``open(path, "w")`` keeps both). Another user can only give a group of theirs; what is refused stays."""
+    if not hasattr(os, "chown"):
+        return
+    new = os.stat(path)
+    if (new.st_uid, new.st_gid) == (old.st_uid, old.st_gid):
+        return
+    try:
+        os.chown(path, old.st_uid, old.st_gid)
+    except PermissionError:  # not root: the group alone, where the writer belongs to it
+        os.chown(path, -1, old.st_gid)
 
 
 #: Whether :func:`atomic_path` flushes a file it replaces (see :func:`replacing_without_flush`).

@@ -193,6 +193,42 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
         assert path.stat().st_mode & 0o777 == mode
 
 
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() != 0, reason="giving a file to another user needs root")
+def test_a_replaced_file_keeps_its_owner_and_group(tmp_path, monkeypatch):
+    """Root (a container writing into a user's folder) replaced the user's mesh, image or OBJ side file with one
+    owned by root:root, which the user could no longer write; ``open(path, "w")`` keeps the owner. A writer that may
+    not give the owner (not root) still gives the group, where it belongs to it."""
+    obj = _textured_box((200, 10, 10))
+    outputs = ((tmp_path / "m.glb", lambda p: save_mesh(trimesh.creation.box(), p)),
+               (tmp_path / "i.png", lambda p: save_image(np.zeros((2, 2, 3), np.uint8), p)),
+               (tmp_path / "t.obj", lambda p: save_mesh(obj, p)))  # fmt: skip
+    for path, write in outputs:
+        write(path)
+    files = sorted(tmp_path.iterdir())
+    assert {f.name for f in files} >= {"m.glb", "i.png", "t.obj", "t.mtl"} and len(files) == 5  # + the texture
+    for f in files:
+        os.chown(f, 4321, 8765)
+        f.chmod(0o2664)  # set-gid: a change of owner clears it, so the mode is given after
+    for path, write in outputs:
+        write(path)
+    for f in tmp_path.iterdir():
+        assert (f.stat().st_uid, f.stat().st_gid, f.stat().st_mode & 0o7777) == (4321, 8765, 0o2664), f.name
+
+    chown = os.chown
+
+    def not_root(path, uid, gid):  # as another user: only the group, one of theirs
+        if uid != -1:
+            raise PermissionError(1, "Operation not permitted")
+        chown(path, uid, gid)
+
+    os.chown(tmp_path / "m.glb", 0, 0)
+    os.chown(tmp_path / "i.png", 0, 8765)
+    monkeypatch.setattr(os, "chown", not_root)
+    for path, write in outputs[:2]:
+        write(path)
+        assert (path.stat().st_uid, path.stat().st_gid) == (0, 0 if path.name == "m.glb" else 8765)
+
+
 @pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
 @pytest.mark.parametrize("umask", [0o077, 0o002], ids=["0o077", "0o002"])
 def test_a_new_file_gets_the_mode_of_the_umask_in_force_when_it_is_written(tmp_path, umask):
