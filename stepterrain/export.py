@@ -1117,7 +1117,11 @@ _TEXTURE_SLOTS = (
                                            "emissiveTexture", "occlusionTexture")),
 )  # fmt: skip
 #: PIL modes of colour images that PNG cannot hold, and the mode each is written in.
-_PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA"}
+_PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA",
+              "PA": "RGBA"}
+#: PIL modes a PNG texture holds as they are (Pillow writes them); another (32-bit "I" or float "F", a DEM or a
+#: hillshade opened from a GeoTIFF) has no PNG of its own and no colour to convert to without a scale.
+_PNG_HOLDS = frozenset({"1", "L", "LA", "P", "RGB", "RGBA", "I;16", "I;16B"})
 
 
 def _pil_textures(material: Any) -> None:
@@ -1126,8 +1130,10 @@ def _pil_textures(material: Any) -> None:
     was no texture at all in glTF (trimesh's writer skips what is not a PIL image, silently) and an AttributeError
     in OBJ. An image opened from a WebP, TIFF, GIF or BMP file went to the OBJ's side files in that format, which
     most MTL readers cannot read (and ``<stem>_<material>.png`` was promised): it is PNG now, as in glTF; a JPEG
-    stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB: PNG cannot hold it (a
-    DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF texture."""
+    stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB, and a palette one with alpha
+    (PA) to RGBA: PNG cannot hold them (a DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF
+    texture. An image of 32-bit integers or floats (mode I or F: a GeoTIFF of heights opened as the texture) is
+    refused, before any file is made: it was the same DataFileError, once the folder was made."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1147,6 +1153,12 @@ def _pil_textures(material: Any) -> None:
             image = Image.fromarray(np.ascontiguousarray(array))
         elif image.mode in _PNG_MODES:
             image = image.convert(_PNG_MODES[image.mode])
+        elif image.mode not in _PNG_HOLDS:
+            raise InvalidInputError(
+                f"mesh texture image ({slot}) must be a PIL image of 8-bit colours (mode RGB, RGBA, L, LA, P or 1; "
+                f"or I;16) or a uint8 array; got a PIL image of mode {image.mode!r}, which a PNG texture cannot hold: "
+                "scale its values to 0-255 and give it as uint8"
+            )
         elif image.format not in (None, "PNG", "JPEG"):
             image = image.copy()  # no format: trimesh writes it as PNG
         else:

@@ -1014,6 +1014,36 @@ def test_a_texture_array_that_is_no_image_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []  # refused before the folder is made
 
 
+@pytest.mark.parametrize("mode", ["F", "I"])
+def test_a_texture_image_of_32_bit_values_is_refused_before_anything_is_written(tmp_path, mode):
+    """A PIL image of floats or 32-bit integers (a GeoTIFF of heights or a float hillshade opened as the texture)
+    was a DataFileError ("cannot write mode F as PNG"), as if the file were at fault, raised once the folder was
+    made. It is refused as the input it is, naming the mode, before anything is written."""
+    Image.fromarray(np.linspace(0, 900, 24, dtype=np.float32).reshape(4, 6)).convert(mode).save(tmp_path / "h.tif")
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((8, 2)), image=Image.open(tmp_path / "h.tif"))
+    assert mesh.visual.material.image.mode == mode
+    for ext in (".glb", ".gltf", ".obj"):
+        with pytest.raises(InvalidInputError, match=rf"texture image \(image\) must be a PIL image of 8-bit colours "
+                                                    rf".* got a PIL image of mode '{mode}'"):  # fmt: skip
+            save_mesh(mesh, tmp_path / "new" / f"out{ext}")
+    assert [p.name for p in tmp_path.iterdir()] == ["h.tif"]  # refused before the folder is made
+
+
+def test_a_palette_texture_with_alpha_is_written_as_rgba(tmp_path):
+    """A palette image with alpha (mode PA) was a DataFileError ("cannot write mode PA as PNG"); it is RGBA now."""
+    rgba = np.zeros((4, 6, 4), np.uint8)
+    rgba[..., 0], rgba[..., 3] = 200, np.where(np.arange(6) < 3, 255, 0)
+    image = Image.fromarray(rgba).convert("PA")
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), image=image)
+    expected = np.asarray(image.convert("RGBA"))
+    for ext in (".glb", ".obj"):
+        back = read_mesh(save_mesh(mesh, tmp_path / f"out{ext}")).visual.material
+        texture = back.baseColorTexture if ext == ".glb" else back.image
+        np.testing.assert_array_equal(np.asarray(texture.convert("RGBA")), expected)
+
+
 def _old_write_rows(write, row, blocks):
     """The reference: the text writers' rows as they were formatted before the joined fast path (one str.format)."""
     for block in blocks:
