@@ -986,16 +986,7 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside (runs
     of whitespace in the stem become ``_``). A ``target`` that is a symbolic link is written as the file it points to:
     the side files go beside that file and take its stem, where a reader opening it looks for them."""
-    # the .obj bytes replace the file the link points to (atomic_path); side files written beside the link were
-    # missing beside that file, and an OBJ reader opening it found no material or texture
-    target = _link_target(target)
-    # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
-    # the line as the format says (tinyobjloader, many slicers), and the texture was not found
-    stem = "_".join(target.stem.split()) or "mesh"
-    mtl_name = f"{stem}.mtl"
-    sidecars, material, uv = _obj_material(mesh, mtl_name)
-    sidecars = _own_texture_names(sidecars, mtl_name, stem)
-    sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
+    target, mtl_name, sidecars, material, uv = _obj_side_files(mesh, target)
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
     with contextlib.ExitStack() as side_files:
@@ -1009,6 +1000,48 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         if sidecars and os.path.exists(target) and _FLUSH_REPLACED.get():
             _flush_to_disk(tmp)
     _record_owner(paths, target)
+
+
+def _obj_side_files(
+    mesh: trimesh.Trimesh, target: Path
+) -> tuple[Path, str, dict[str, bytes], str | None, NDArray[Any] | None]:
+    """:func:`_write_obj`'s file names and side files for the prepared ``mesh``: the file ``target`` names (through
+    symbolic links), its ``.mtl`` name, the side files ({name: bytes} beside that file: the ``.mtl`` and texture
+    images; {} without a texture), the material name and the UVs (see :func:`_obj_material`)."""
+    # the .obj bytes replace the file the link points to (atomic_path); side files written beside the link were
+    # missing beside that file, and an OBJ reader opening it found no material or texture
+    target = _link_target(target)
+    # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
+    # the line as the format says (tinyobjloader, many slicers), and the texture was not found
+    stem = "_".join(target.stem.split()) or "mesh"
+    mtl_name = f"{stem}.mtl"
+    sidecars, material, uv = _obj_material(mesh, mtl_name)
+    sidecars = _own_texture_names(sidecars, mtl_name, stem)
+    sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
+    return target, mtl_name, sidecars, material, uv
+
+
+def _side_files(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> list[Path]:
+    """The files :func:`save_mesh` writes beside ``path`` for ``mesh``: a textured OBJ's ``.mtl`` and texture images
+    (beside the file a symbolic link ``path`` points to); [] for the other formats and a mesh without a texture.
+    Writes nothing. A command checks with it, before any work, that they replace none of its inputs or other
+    outputs (a texture image named as the orthophoto it drapes was replaced by it without a word).
+
+    Raises
+    ------
+    InvalidInputError
+        As :func:`save_mesh` for ``mesh`` and ``path`` (their checks that need no vertex: a texture image of no
+        colours, a path that is no str).
+    """
+    target = _target(path)
+    if target.suffix.lower() != ".obj":
+        return []
+    prepared = _prepared_mesh(mesh_argument(mesh), None)
+    if prepared.visual.kind != "texture":
+        return []
+    _pil_textures(getattr(prepared.visual, "material", None))
+    target, _, sidecars, _, _ = _obj_side_files(prepared, target)
+    return [target.parent / name for name in sidecars]
 
 
 def _write_obj_text(
