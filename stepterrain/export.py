@@ -1421,7 +1421,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
-    ``force="mesh"`` dropped) comes back as a mesh without faces, a glTF's vertex colours come back as sRGB bytes
+    ``force="mesh"`` dropped) comes back as a mesh without faces, an empty glTF (a node without a mesh) with its
+    node's ``extras`` as its metadata (trimesh drops them), a glTF's vertex colours come back as sRGB bytes
     (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
     exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
@@ -1457,6 +1458,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = trimesh.load(file, force="mesh", process=False)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
+            if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
+                loaded.metadata.update(_empty_gltf_extras(file))
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
@@ -1541,6 +1544,25 @@ def _white_material(material: Any) -> bool:
         return False
     factor = material.baseColorFactor
     return factor is None or bool((np.asarray(factor) == 255).all())
+
+
+def _empty_gltf_extras(file: Path) -> dict[str, Any]:
+    """The ``extras`` of the one node of a glTF or GLB ``file`` without meshes: an empty mesh as :func:`save_mesh`
+    writes it, its metadata there (glTF has no mesh without a primitive), which trimesh's reader drops: ``stepterrain
+    info`` of a batch's tile of sea showed none of the metadata of its other tiles. {} for any other file."""
+    try:
+        data = file.read_bytes()
+        if data[:4] == b"glTF":
+            (json_length,) = struct.unpack_from("<I", data, 12)
+            data = data[20 : 20 + json_length]
+        tree = json.loads(data)
+    except (OSError, ValueError, struct.error):
+        return {}
+    nodes = tree.get("nodes") if isinstance(tree, dict) else None
+    if tree.get("meshes") or not isinstance(nodes, list) or len(nodes) != 1 or not isinstance(nodes[0], dict):
+        return {}
+    extras = nodes[0].get("extras")
+    return dict(extras) if isinstance(extras, dict) else {}
 
 
 def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:

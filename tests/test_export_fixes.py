@@ -1140,3 +1140,19 @@ def test_ply_attributes_named_as_normals_or_uvs_are_renamed_and_read_back(tmp_pa
     assert sorted(got) == sorted(f"{name}_attr" for name in names)
     for name in names:
         np.testing.assert_array_equal(got[f"{name}_attr"], attributes[name])
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_an_empty_gltf_reads_back_with_its_metadata(tmp_path, ext, capsys):
+    """An empty mesh (a batch's tile of sea) is written as a node without a mesh, its metadata in the node's extras,
+    but trimesh's reader drops node extras: read_mesh and ``stepterrain info`` gave it none, while the same tile
+    with triangles had its crs, spacing and origin."""
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    metadata = {"crs": "EPSG:32611", "spacing": [30.0, 30.0], "origin": [376328.66, 3807902.83]}
+    path = save_mesh(empty, tmp_path / f"sea{ext}", metadata=metadata)
+    back = read_mesh(path)
+    assert len(back.vertices) == len(back.faces) == 0
+    assert {key: back.metadata.get(key) for key in metadata} == metadata
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["faces"] == 0 and summary["meta.crs"] == "EPSG:32611", summary
