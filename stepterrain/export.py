@@ -362,7 +362,8 @@ def save_mesh(
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
-        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), the
+        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), would make
+        a ``.glb`` over 4 GiB (its lengths are 32-bit; the message names the formats that hold it), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
@@ -458,6 +459,8 @@ def save_mesh(
         )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
+    if ext == ".glb":
+        _check_glb_size(mesh, target)
     prepared = _prepared_mesh(mesh, extras)
     if ext in _TEXTURED and prepared.visual.kind == "texture":
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
@@ -796,8 +799,11 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         if blocks:
             length = tree["buffers"][0]["byteLength"]
             binary = [struct.pack("<I4s", length, b"BIN\x00"), *(memoryview(block).cast("B") for block in blocks)]
+        total = 12 + 8 + len(header) + (8 + length if blocks else 0)
+        if total > _GLB_MAX_BYTES:
+            _refuse_glb_size(target, total, mesh)
         parts = [
-            struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + (8 + length if blocks else 0)),
+            struct.pack("<4sII", b"glTF", 2, total),
             struct.pack("<I4s", len(header), b"JSON"),
             header,
             *binary,
@@ -806,8 +812,40 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
             for part in parts:
                 fh.write(part)
         return
-    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False)
+    try:  # a textured mesh: trimesh packs the lengths as uint32 (numpy's OverflowError beyond)
+        data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False)
+    except (OverflowError, struct.error):
+        _refuse_glb_size(target, None, mesh)
+    if len(data) > _GLB_MAX_BYTES:
+        _refuse_glb_size(target, len(data), mesh)
     tmp.write_bytes(data)
+
+
+#: The largest GLB: its header's length and its chunks' are uint32 (glTF 2.0 §4.4.3.1, §4.4.3.2).
+_GLB_MAX_BYTES = 2**32 - 1
+
+
+def _check_glb_size(mesh: trimesh.Trimesh, target: Path) -> None:
+    """Refuse, before any work, a mesh whose GLB would exceed :data:`_GLB_MAX_BYTES`, counting its binary buffer
+    alone (float32 positions, uint32 indices, float32 RGBA colours or float32 UVs; the writers check the whole
+    file): the lengths overflowed once the buffer was built, a bare struct.error (numpy's OverflowError for a
+    texture), after seconds of work and gigabytes of memory."""
+    vertices, faces = len(mesh.vertices), len(mesh.faces)
+    need = 12 * vertices + 12 * faces
+    kind = mesh.visual.kind
+    need += 16 * vertices if kind in ("vertex", "face") and faces else 8 * vertices if kind == "texture" else 0
+    if need > _GLB_MAX_BYTES:
+        _refuse_glb_size(target, need, mesh)
+
+
+def _refuse_glb_size(target: Path, size: int | None, mesh: trimesh.Trimesh) -> None:
+    """The InvalidInputError of a GLB over :data:`_GLB_MAX_BYTES` (``size`` its bytes, at least; None: unknown)."""
+    needs = "more" if size is None else f"{size / 2**30:.3g} GiB" if size >= 2**30 else f"{size:,} bytes"
+    raise InvalidInputError(
+        f"cannot write {str(target)!r}: a .glb holds at most 4 GiB (its lengths are 32-bit, glTF 2.0 §4.4.3), and "
+        f"this mesh of {counted(len(mesh.vertices), 'vertex', 'vertices')} and {counted(len(mesh.faces), 'face')} "
+        f"needs {needs}: write .ply, .obj or .3mf, or split it into tiles (stepterrain batch) or coarsen it"
+    )
 
 
 def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:

@@ -1156,3 +1156,23 @@ def test_an_empty_gltf_reads_back_with_its_metadata(tmp_path, ext, capsys):
     assert cli.main(["info", str(path), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["faces"] == 0 and summary["meta.crs"] == "EPSG:32611", summary
+
+
+@pytest.mark.parametrize("limit, where", [(200, "before any work"), (900, "once the file is laid out")])
+@pytest.mark.parametrize("kind", ["plain", "vertex", "texture"])
+def test_a_glb_over_4_gib_is_refused_by_name(tmp_path, monkeypatch, kind, limit, where):
+    """A GLB's lengths are uint32 (glTF 2.0 4.4.3): a mesh whose buffer passed 4 GiB (a 10k x 10k DEM with
+    colours) raised a bare struct.error (numpy's OverflowError for a texture) once the buffer was built. Refused now
+    by name, before the work where the counts tell (the limit is lowered here to keep the meshes small), and
+    nothing is left behind."""
+    from stepterrain import export
+
+    mesh = trimesh.creation.box() if kind != "texture" else _textured_box((200, 10, 10))
+    if kind == "vertex":
+        mesh.visual.vertex_colors = np.arange(32, dtype=np.uint8).reshape(8, 4)
+    monkeypatch.setattr(export, "_GLB_MAX_BYTES", limit, raising=False)
+    with pytest.raises(InvalidInputError, match=r"a \.glb holds at most 4 GiB .* this mesh of 8 vertices and 12 faces "
+                                                r"needs [0-9,]+ bytes: write \.ply, \.obj or \.3mf"):  # fmt: skip
+        save_mesh(mesh, tmp_path / "big.glb")
+    assert list(tmp_path.iterdir()) == []
+    assert len(read_mesh(save_mesh(mesh, tmp_path / "big.ply")).faces) == 12  # the others hold it
