@@ -20,6 +20,7 @@ from .cli import (
     _add_device,
     _check_output,
     _check_outputs,
+    _check_side_files,
     _check_size,
     _counted,
     _floats,
@@ -34,6 +35,21 @@ from .export import MESH_EXTENSIONS
 from .io import equals_nodata, npz_nodata
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
+
+
+def _drape_side_files(out: Path) -> list[Path]:
+    """The side files the --output writes for a --texture drape (a textured OBJ's .mtl and image): those of a
+    one-triangle mesh draped as :func:`~stepterrain.globe.drape_texture` drapes the globe."""
+    if out.suffix.lower() != ".obj":
+        return []
+    import trimesh
+
+    from .export import _side_files
+    from .globe import drape_texture
+
+    triangle = trimesh.Trimesh([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1, 2]], process=False)
+    return _side_files(drape_texture(triangle, np.zeros((2, 4, 3), np.uint8)), out)
+
 
 _EPILOG = """\
 examples:
@@ -206,6 +222,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
                                 f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
+    if args.texture is not None:  # a textured OBJ's .mtl and texture image, named as drape_texture's will be
+        _check_side_files("--output", out, _drape_side_files(out), {"INPUT": args.input, "--texture": args.texture},
+                          {"--png": png})
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
     radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
     # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of

@@ -20,6 +20,7 @@ from .cli import (
     _add_input_options,
     _check_output,
     _check_outputs,
+    _check_side_files,
     _check_size,
     _colormap,
     _counted,
@@ -330,6 +331,23 @@ def _texture_colours(draped: Any) -> Any:
     return out
 
 
+#: The material of the --mesh drape (its name names a textured OBJ's image: ``<stem>_terrain_texture.png``).
+_DRAPE_MATERIAL = "terrain texture"
+
+
+def _drape_stand_in() -> Any:
+    """A one-triangle mesh draped as the --mesh is (:func:`~stepterrain.texture._draped`, the material
+    :data:`_DRAPE_MATERIAL`, an RGB image): its side files are named as the --mesh's will be."""
+    import trimesh
+
+    from . import texture as tx
+
+    pixels = np.zeros((2, 2, 3), np.uint8)
+    layer = tx.TextureLayer("thematic", pixels, (0.0, 1.0, 0.0, 1.0), name="texture")
+    triangle = trimesh.Trimesh([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [[0, 1, 2]], process=False)
+    return tx._draped(triangle, layer, pixels, np.ones(3), _DRAPE_MATERIAL)
+
+
 def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from . import texture as tx
@@ -343,6 +361,10 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         raise MissingDependencyError("writing a GeoTIFF needs rasterio: pip install 'stepterrain[geo]'")
     _check_outputs({"INPUT": args.input, "--image": args.image}, output=out, mesh=mesh_out, png=png,
                    normals=normals_out)
+    if mesh_out is not None:  # a textured OBJ's .mtl and texture image, named as the drape will name them
+        _check_side_files("--mesh", mesh_out, export._side_files(_drape_stand_in(), mesh_out),
+                          {"INPUT": args.input, "--image": args.image},
+                          {"--output": out, "--png": png, "--normals": normals_out})
     image_size = _check_image(args.image, args.image_extent)
     if args.azimuth is not None and not math.isfinite(args.azimuth):  # named by the library as 'azimuth', radians
         raise InvalidInputError(f"--azimuth must be a finite number of degrees; got {args.azimuth}")
@@ -449,7 +471,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         white = np.ones(3)  # drape's default background: the image composed over it, RGB
         over_white = image if holes is None else tx._composed(topo, hypsometric, picture, extent, shape, white,
                                                               device)
-        draped = tx._draped(base, composite, over_white, white, "terrain texture")
+        draped = tx._draped(base, composite, over_white, white, _DRAPE_MATERIAL)
         progress.done(f"{_counted(len(draped.faces), 'face')}")
         if png is not None:
             progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")

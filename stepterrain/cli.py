@@ -553,6 +553,32 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
                                 f"({error.strerror})") from error
 
 
+def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[str, str | None],
+                      outputs: dict[str, Path | None]) -> None:
+    """Refuse, before any work, a side file ``sides`` of the output ``option`` ``path`` (a textured OBJ's .mtl and
+    texture image, :func:`~stepterrain.export._side_files`) that is an input file (``inputs``: name -> path) or
+    another output (``outputs``: option -> path). ``texture --image terrain_texture.png --mesh terrain.obj`` replaced
+    the orthophoto given with the OBJ's texture image of the same name, without a word; ``-o terrain_texture.png
+    --mesh terrain.obj`` wrote the texture and then refused the mesh."""
+    for side in sides:
+        key = Path(os.path.abspath(side))
+        for name, given in [*inputs.items(), *outputs.items()]:
+            if not given:
+                continue
+            try:
+                same = Path(os.path.abspath(given)) == key or (key.exists() and Path(given).exists()
+                                                               and os.path.samefile(key, given))
+            except OSError:
+                same = False
+            if not same:
+                continue
+            what = (f"the {name} file, which it would replace" if name in inputs
+                    else f"what {name} names: one would replace the other")  # fmt: skip
+            raise InvalidInputError(f"{option} {str(path)!r} writes {key.name!r} beside it (its "
+                                    f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), which is "
+                                    f"{what}; give {option} or {name} another name")
+
+
 def _colormap(name: str) -> tuple[Any, float] | None:
     """The matplotlib colormap ``--colormap NAME`` names and the fraction its land colours start at
     (``stepped.LAND_START``); None for 'none'."""

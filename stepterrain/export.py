@@ -150,7 +150,8 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     until the new content is complete and flushed to disk (fsync), so not even a crash of the machine loses both
     (a new file, with no old content to lose, is not flushed). A new file gets the usual permissions (0o666 less
     the umask in force, or what the folder's default ACL gives, as ``open()`` makes it); a file replaced keeps its
-    own (a private 0o600 file stays private).
+    own (a private 0o600 file stays private), and its owner and group where the system lets the writer give them
+    (root any; another user a group of theirs), as ``open()`` keeps them.
 
     A ``path`` that is a symbolic link is written through: the temporary file goes beside the file the link
     points to and replaces that file, so the link stays and shows the new content. A dangling link gets its
@@ -188,14 +189,16 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     try:
         yield tmp_path
         try:  # a replaced file keeps its mode: the umask's widened a private 0o600 file to 0o644
-            mode: int | None = stat.S_IMODE(os.stat(target).st_mode)
+            old: os.stat_result | None = os.stat(target)
         except OSError:
-            mode = None  # a new file keeps the mode it was made with
+            old = None  # a new file keeps the mode it was made with
         try:
-            _flush_if_replacing(tmp_path, mode is not None)
-            if mode is not None:
+            _flush_if_replacing(tmp_path, old is not None)
+            if old is not None:
                 with contextlib.suppress(OSError):
-                    os.chmod(tmp_path, mode)
+                    _keep_owner(tmp_path, old)  # before chmod: a change of owner clears set-id bits
+                with contextlib.suppress(OSError):
+                    os.chmod(tmp_path, stat.S_IMODE(old.st_mode))
             os.replace(tmp_path, target)
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror}") from exc
@@ -203,6 +206,22 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def _keep_owner(path: Path, old: os.stat_result) -> None:
+    """Give the new file ``path`` the owner and group of the file it replaces (``old``), as far as the system allows:
+    root (a container writing into a user's folder) replaced a user's file with one of root's, which the user could
+    then no longer write, and a file shared through its group went to the writer's own group, its members locked
+    out (``open(path, "w")`` keeps both). Another user can only give a group of theirs; what is refused stays."""
+    if not hasattr(os, "chown"):
+        return
+    new = os.stat(path)
+    if (new.st_uid, new.st_gid) == (old.st_uid, old.st_gid):
+        return
+    try:
+        os.chown(path, old.st_uid, old.st_gid)
+    except PermissionError:  # not root: the group alone, where the writer belongs to it
+        os.chown(path, -1, old.st_gid)
 
 
 #: Whether :func:`atomic_path` flushes a file it replaces (see :func:`replacing_without_flush`).
@@ -349,7 +368,8 @@ def save_mesh(
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
-        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), the
+        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), would make
+        a ``.glb`` over 4 GiB (its lengths are 32-bit; the message names the formats that hold it), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
@@ -445,6 +465,8 @@ def save_mesh(
         )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
     _check_float32_reach(bounds, ext, target, frame)
+    if ext == ".glb":
+        _check_glb_size(mesh, target)
     prepared = _prepared_mesh(mesh, extras)
     if ext in _TEXTURED and prepared.visual.kind == "texture":
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
@@ -783,8 +805,11 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         if blocks:
             length = tree["buffers"][0]["byteLength"]
             binary = [struct.pack("<I4s", length, b"BIN\x00"), *(memoryview(block).cast("B") for block in blocks)]
+        total = 12 + 8 + len(header) + (8 + length if blocks else 0)
+        if total > _GLB_MAX_BYTES:
+            _refuse_glb_size(target, total, mesh)
         parts = [
-            struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(header) + (8 + length if blocks else 0)),
+            struct.pack("<4sII", b"glTF", 2, total),
             struct.pack("<I4s", len(header), b"JSON"),
             header,
             *binary,
@@ -793,8 +818,40 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
             for part in parts:
                 fh.write(part)
         return
-    data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False)
+    try:  # a textured mesh: trimesh packs the lengths as uint32 (numpy's OverflowError beyond)
+        data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False)
+    except (OverflowError, struct.error):
+        _refuse_glb_size(target, None, mesh)
+    if len(data) > _GLB_MAX_BYTES:
+        _refuse_glb_size(target, len(data), mesh)
     tmp.write_bytes(data)
+
+
+#: The largest GLB: its header's length and its chunks' are uint32 (glTF 2.0 §4.4.3.1, §4.4.3.2).
+_GLB_MAX_BYTES = 2**32 - 1
+
+
+def _check_glb_size(mesh: trimesh.Trimesh, target: Path) -> None:
+    """Refuse, before any work, a mesh whose GLB would exceed :data:`_GLB_MAX_BYTES`, counting its binary buffer
+    alone (float32 positions, uint32 indices, float32 RGBA colours or float32 UVs; the writers check the whole
+    file): the lengths overflowed once the buffer was built, a bare struct.error (numpy's OverflowError for a
+    texture), after seconds of work and gigabytes of memory."""
+    vertices, faces = len(mesh.vertices), len(mesh.faces)
+    need = 12 * vertices + 12 * faces
+    kind = mesh.visual.kind
+    need += 16 * vertices if kind in ("vertex", "face") and faces else 8 * vertices if kind == "texture" else 0
+    if need > _GLB_MAX_BYTES:
+        _refuse_glb_size(target, need, mesh)
+
+
+def _refuse_glb_size(target: Path, size: int | None, mesh: trimesh.Trimesh) -> None:
+    """The InvalidInputError of a GLB over :data:`_GLB_MAX_BYTES` (``size`` its bytes, at least; None: unknown)."""
+    needs = "more" if size is None else f"{size / 2**30:.3g} GiB" if size >= 2**30 else f"{size:,} bytes"
+    raise InvalidInputError(
+        f"cannot write {str(target)!r}: a .glb holds at most 4 GiB (its lengths are 32-bit, glTF 2.0 §4.4.3), and "
+        f"this mesh of {counted(len(mesh.vertices), 'vertex', 'vertices')} and {counted(len(mesh.faces), 'face')} "
+        f"needs {needs}: write .ply, .obj or .3mf, or split it into tiles (stepterrain batch) or coarsen it"
+    )
 
 
 def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
@@ -973,16 +1030,7 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     millimetre mesh in kilometres lost its detail. Textured meshes get ``<stem>.mtl`` and their images beside (runs
     of whitespace in the stem become ``_``). A ``target`` that is a symbolic link is written as the file it points to:
     the side files go beside that file and take its stem, where a reader opening it looks for them."""
-    # the .obj bytes replace the file the link points to (atomic_path); side files written beside the link were
-    # missing beside that file, and an OBJ reader opening it found no material or texture
-    target = _link_target(target)
-    # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
-    # the line as the format says (tinyobjloader, many slicers), and the texture was not found
-    stem = "_".join(target.stem.split()) or "mesh"
-    mtl_name = f"{stem}.mtl"
-    sidecars, material, uv = _obj_material(mesh, mtl_name)
-    sidecars = _own_texture_names(sidecars, mtl_name, stem)
-    sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
+    target, mtl_name, sidecars, material, uv = _obj_side_files(mesh, target)
     paths = [target.parent / name for name in sidecars]
     _check_owner(paths, target)  # all of them before the first is written
     with contextlib.ExitStack() as side_files:
@@ -996,6 +1044,48 @@ def _write_obj(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         if sidecars:
             _flush_if_replacing(tmp, os.path.exists(target))
     _record_owner(paths, target)
+
+
+def _obj_side_files(
+    mesh: trimesh.Trimesh, target: Path
+) -> tuple[Path, str, dict[str, bytes], str | None, NDArray[Any] | None]:
+    """:func:`_write_obj`'s file names and side files for the prepared ``mesh``: the file ``target`` names (through
+    symbolic links), its ``.mtl`` name, the side files ({name: bytes} beside that file: the ``.mtl`` and texture
+    images; {} without a texture), the material name and the UVs (see :func:`_obj_material`)."""
+    # the .obj bytes replace the file the link points to (atomic_path); side files written beside the link were
+    # missing beside that file, and an OBJ reader opening it found no material or texture
+    target = _link_target(target)
+    # side files are named without whitespace: "mtllib my terrain.mtl" names two files for OBJ readers that split
+    # the line as the format says (tinyobjloader, many slicers), and the texture was not found
+    stem = "_".join(target.stem.split()) or "mesh"
+    mtl_name = f"{stem}.mtl"
+    sidecars, material, uv = _obj_material(mesh, mtl_name)
+    sidecars = _own_texture_names(sidecars, mtl_name, stem)
+    sidecars = _alpha_map(sidecars, mtl_name, getattr(mesh.visual, "material", None))
+    return target, mtl_name, sidecars, material, uv
+
+
+def _side_files(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> list[Path]:
+    """The files :func:`save_mesh` writes beside ``path`` for ``mesh``: a textured OBJ's ``.mtl`` and texture images
+    (beside the file a symbolic link ``path`` points to); [] for the other formats and a mesh without a texture.
+    Writes nothing. A command checks with it, before any work, that they replace none of its inputs or other
+    outputs (a texture image named as the orthophoto it drapes was replaced by it without a word).
+
+    Raises
+    ------
+    InvalidInputError
+        As :func:`save_mesh` for ``mesh`` and ``path`` (their checks that need no vertex: a texture image of no
+        colours, a path that is no str).
+    """
+    target = _target(path)
+    if target.suffix.lower() != ".obj":
+        return []
+    prepared = _prepared_mesh(mesh_argument(mesh), None)
+    if prepared.visual.kind != "texture":
+        return []
+    _pil_textures(getattr(prepared.visual, "material", None))
+    target, _, sidecars, _, _ = _obj_side_files(prepared, target)
+    return [target.parent / name for name in sidecars]
 
 
 def _write_obj_text(
@@ -1104,7 +1194,11 @@ _TEXTURE_SLOTS = (
                                            "emissiveTexture", "occlusionTexture")),
 )  # fmt: skip
 #: PIL modes of colour images that PNG cannot hold, and the mode each is written in.
-_PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA"}
+_PNG_MODES = {"CMYK": "RGB", "YCbCr": "RGB", "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB", "RGBa": "RGBA", "La": "LA",
+              "PA": "RGBA"}
+#: PIL modes a PNG texture holds as they are (Pillow writes them); another (32-bit "I" or float "F", a DEM or a
+#: hillshade opened from a GeoTIFF) has no PNG of its own and no colour to convert to without a scale.
+_PNG_HOLDS = frozenset({"1", "L", "LA", "P", "RGB", "RGBA", "I;16", "I;16B"})
 
 
 def _pil_textures(material: Any) -> None:
@@ -1113,8 +1207,10 @@ def _pil_textures(material: Any) -> None:
     was no texture at all in glTF (trimesh's writer skips what is not a PIL image, silently) and an AttributeError
     in OBJ. An image opened from a WebP, TIFF, GIF or BMP file went to the OBJ's side files in that format, which
     most MTL readers cannot read (and ``<stem>_<material>.png`` was promised): it is PNG now, as in glTF; a JPEG
-    stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB: PNG cannot hold it (a
-    DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF texture."""
+    stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB, and a palette one with alpha
+    (PA) to RGBA: PNG cannot hold them (a DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF
+    texture. An image of 32-bit integers or floats (mode I or F: a GeoTIFF of heights opened as the texture) is
+    refused, before any file is made: it was the same DataFileError, once the folder was made."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1134,6 +1230,12 @@ def _pil_textures(material: Any) -> None:
             image = Image.fromarray(np.ascontiguousarray(array))
         elif image.mode in _PNG_MODES:
             image = image.convert(_PNG_MODES[image.mode])
+        elif image.mode not in _PNG_HOLDS:
+            raise InvalidInputError(
+                f"mesh texture image ({slot}) must be a PIL image of 8-bit colours (mode RGB, RGBA, L, LA, P or 1; "
+                f"or I;16) or a uint8 array; got a PIL image of mode {image.mode!r}, which a PNG texture cannot hold: "
+                "scale its values to 0-255 and give it as uint8"
+            )
         elif image.format not in (None, "PNG", "JPEG"):
             image = image.copy()  # no format: trimesh writes it as PNG
         else:
@@ -1363,7 +1465,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
 
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
-    ``force="mesh"`` dropped) comes back as a mesh without faces, a glTF's vertex colours come back as sRGB bytes
+    ``force="mesh"`` dropped) comes back as a mesh without faces, an empty glTF (a node without a mesh) with its
+    node's ``extras`` as its metadata (trimesh drops them), a glTF's vertex colours come back as sRGB bytes
     (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
     exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
@@ -1399,6 +1502,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = trimesh.load(file, force="mesh", process=False)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
+            if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
+                loaded.metadata.update(_empty_gltf_extras(file))
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
@@ -1483,6 +1588,25 @@ def _white_material(material: Any) -> bool:
         return False
     factor = material.baseColorFactor
     return factor is None or bool((np.asarray(factor) == 255).all())
+
+
+def _empty_gltf_extras(file: Path) -> dict[str, Any]:
+    """The ``extras`` of the one node of a glTF or GLB ``file`` without meshes: an empty mesh as :func:`save_mesh`
+    writes it, its metadata there (glTF has no mesh without a primitive), which trimesh's reader drops: ``stepterrain
+    info`` of a batch's tile of sea showed none of the metadata of its other tiles. {} for any other file."""
+    try:
+        data = file.read_bytes()
+        if data[:4] == b"glTF":
+            (json_length,) = struct.unpack_from("<I", data, 12)
+            data = data[20 : 20 + json_length]
+        tree = json.loads(data)
+    except (OSError, ValueError, struct.error):
+        return {}
+    nodes = tree.get("nodes") if isinstance(tree, dict) else None
+    if tree.get("meshes") or not isinstance(nodes, list) or len(nodes) != 1 or not isinstance(nodes[0], dict):
+        return {}
+    extras = nodes[0].get("extras")
+    return dict(extras) if isinstance(extras, dict) else {}
 
 
 def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
@@ -1732,6 +1856,9 @@ _PLY_TYPES: dict[str, str] = {
     "<f8": "double",
 }
 _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vertex_indices"})
+# An attribute is not written under a name readers take for something else (:data:`_PLY_OWN`: ``nx``, ``u``, ``s``
+# ... of a vertex, ``texcoord`` of a face): trimesh's reader and VTK's made such a column normals or texture
+# coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
 
 
 def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
@@ -1747,7 +1874,8 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns] + list(_PLY_RESERVED))
+    vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns]
+                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]))
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
     face_columns: list[tuple[str, NDArray[Any]]] = []
     if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
@@ -1755,7 +1883,7 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
         # dropped
         face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
         face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED])
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header.append(f"element vertex {len(vertices)}")
@@ -1781,8 +1909,9 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
 def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:
     """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types. A name that
-    is no plain ASCII word, or is one of the element's own properties (``taken``), is written under a word made
-    from it (``level-2`` -> ``level_2``, ``x`` -> ``x_attr``), with a warning naming both: they were dropped."""
+    is no plain ASCII word, or is one of the element's own properties (``taken``: also the names readers take for
+    normals or UVs, ``nx`` or ``u``), is written under a word made from it (``level-2`` -> ``level_2``, ``x`` ->
+    ``x_attr``), with a warning naming both: they were dropped."""
     used = set(taken)
     renamed: list[str] = []
     columns: list[tuple[str, NDArray[Any]]] = []
@@ -1806,7 +1935,9 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
         else:
             columns += [(n, array[:, k]) for k, n in enumerate(names)]
     if renamed:
-        warnings.warn(f"PLY property names must be distinct ASCII words: wrote {', '.join(renamed)}",
+        warnings.warn("PLY property names must be distinct ASCII words other than the element's own (x, nx, u, s, "
+                      "red, texcoord, ...: readers take those for coordinates, normals, UVs or colours): wrote "
+                      f"{', '.join(renamed)}",
                       stacklevel=caller_stacklevel())
     return columns
 

@@ -193,6 +193,42 @@ def test_a_replaced_file_keeps_its_permissions(tmp_path, mode):
         assert path.stat().st_mode & 0o777 == mode
 
 
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() != 0, reason="giving a file to another user needs root")
+def test_a_replaced_file_keeps_its_owner_and_group(tmp_path, monkeypatch):
+    """Root (a container writing into a user's folder) replaced the user's mesh, image or OBJ side file with one
+    owned by root:root, which the user could no longer write; ``open(path, "w")`` keeps the owner. A writer that may
+    not give the owner (not root) still gives the group, where it belongs to it."""
+    obj = _textured_box((200, 10, 10))
+    outputs = ((tmp_path / "m.glb", lambda p: save_mesh(trimesh.creation.box(), p)),
+               (tmp_path / "i.png", lambda p: save_image(np.zeros((2, 2, 3), np.uint8), p)),
+               (tmp_path / "t.obj", lambda p: save_mesh(obj, p)))  # fmt: skip
+    for path, write in outputs:
+        write(path)
+    files = sorted(tmp_path.iterdir())
+    assert {f.name for f in files} >= {"m.glb", "i.png", "t.obj", "t.mtl"} and len(files) == 5  # + the texture
+    for f in files:
+        os.chown(f, 4321, 8765)
+        f.chmod(0o2664)  # set-gid: a change of owner clears it, so the mode is given after
+    for path, write in outputs:
+        write(path)
+    for f in tmp_path.iterdir():
+        assert (f.stat().st_uid, f.stat().st_gid, f.stat().st_mode & 0o7777) == (4321, 8765, 0o2664), f.name
+
+    chown = os.chown
+
+    def not_root(path, uid, gid):  # as another user: only the group, one of theirs
+        if uid != -1:
+            raise PermissionError(1, "Operation not permitted")
+        chown(path, uid, gid)
+
+    os.chown(tmp_path / "m.glb", 0, 0)
+    os.chown(tmp_path / "i.png", 0, 8765)
+    monkeypatch.setattr(os, "chown", not_root)
+    for path, write in outputs[:2]:
+        write(path)
+        assert (path.stat().st_uid, path.stat().st_gid) == (0, 0 if path.name == "m.glb" else 8765)
+
+
 @pytest.mark.skipif(os.name != "posix", reason="POSIX permission bits")
 @pytest.mark.parametrize("umask", [0o077, 0o002], ids=["0o077", "0o002"])
 def test_a_new_file_gets_the_mode_of_the_umask_in_force_when_it_is_written(tmp_path, umask):
@@ -978,6 +1014,36 @@ def test_a_texture_array_that_is_no_image_is_refused(tmp_path):
     assert list(tmp_path.iterdir()) == []  # refused before the folder is made
 
 
+@pytest.mark.parametrize("mode", ["F", "I"])
+def test_a_texture_image_of_32_bit_values_is_refused_before_anything_is_written(tmp_path, mode):
+    """A PIL image of floats or 32-bit integers (a GeoTIFF of heights or a float hillshade opened as the texture)
+    was a DataFileError ("cannot write mode F as PNG"), as if the file were at fault, raised once the folder was
+    made. It is refused as the input it is, naming the mode, before anything is written."""
+    Image.fromarray(np.linspace(0, 900, 24, dtype=np.float32).reshape(4, 6)).convert(mode).save(tmp_path / "h.tif")
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.zeros((8, 2)), image=Image.open(tmp_path / "h.tif"))
+    assert mesh.visual.material.image.mode == mode
+    for ext in (".glb", ".gltf", ".obj"):
+        with pytest.raises(InvalidInputError, match=rf"texture image \(image\) must be a PIL image of 8-bit colours "
+                                                    rf".* got a PIL image of mode '{mode}'"):  # fmt: skip
+            save_mesh(mesh, tmp_path / "new" / f"out{ext}")
+    assert [p.name for p in tmp_path.iterdir()] == ["h.tif"]  # refused before the folder is made
+
+
+def test_a_palette_texture_with_alpha_is_written_as_rgba(tmp_path):
+    """A palette image with alpha (mode PA) was a DataFileError ("cannot write mode PA as PNG"); it is RGBA now."""
+    rgba = np.zeros((4, 6, 4), np.uint8)
+    rgba[..., 0], rgba[..., 3] = 200, np.where(np.arange(6) < 3, 255, 0)
+    image = Image.fromarray(rgba).convert("PA")
+    mesh = trimesh.creation.box()
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((8, 2)), image=image)
+    expected = np.asarray(image.convert("RGBA"))
+    for ext in (".glb", ".obj"):
+        back = read_mesh(save_mesh(mesh, tmp_path / f"out{ext}")).visual.material
+        texture = back.baseColorTexture if ext == ".glb" else back.image
+        np.testing.assert_array_equal(np.asarray(texture.convert("RGBA")), expected)
+
+
 def _old_write_rows(write, row, blocks):
     """The reference: the text writers' rows as they were formatted before the joined fast path (one str.format)."""
     for block in blocks:
@@ -1051,3 +1117,62 @@ def test_a_3mf_whose_model_stream_fails_raises_at_once_and_keeps_the_old_file(tm
     assert len(calls) < 10  # of the ~340 blocks: the failure stopped the writer
     assert not any(t.name == "stepterrain-3mf-writer" for t in threading.enumerate())
     assert [p.name for p in tmp_path.iterdir()] == ["m.3mf"] and path.read_bytes() == before
+
+
+@pytest.mark.parametrize("element, names", [("vertex", ("nx", "ny", "nz")), ("vertex", ("u", "v")),
+                                            ("vertex", ("s",)), ("vertex", ("texture_u",)), ("face", ("texcoord",)),
+                                            ("face", ("vertex_index",))])
+def test_ply_attributes_named_as_normals_or_uvs_are_renamed_and_read_back(tmp_path, element, names):
+    """A vertex attribute named ``nx``/``ny``/``nz``, ``u``/``v``, ``s``/``t`` or ``texture_u`` was written under that
+    name: trimesh's reader (and VTK's) took the columns for normals or texture coordinates, read_mesh left them out,
+    and a face attribute named ``texcoord`` made the PLY unreadable (an IndexError in trimesh's reader)."""
+    mesh = trimesh.creation.icosphere(subdivisions=1)
+    attributes = mesh.vertex_attributes if element == "vertex" else mesh.face_attributes
+    count = len(mesh.vertices) if element == "vertex" else len(mesh.faces)
+    for k, name in enumerate(names):
+        attributes[name] = np.arange(count, dtype=np.float32) * (k + 2) + 0.5
+    with pytest.warns(UserWarning, match="PLY property names") as record:
+        path = save_mesh(mesh, tmp_path / "a.ply")
+    assert all(f"{name!r} as '{name}_attr'" in str(record[0].message) for name in names)
+    back = read_mesh(path)
+    assert len(back.faces) == len(mesh.faces) and back.visual.kind is None  # no texture made of the attribute
+    got = back.vertex_attributes if element == "vertex" else back.face_attributes
+    assert sorted(got) == sorted(f"{name}_attr" for name in names)
+    for name in names:
+        np.testing.assert_array_equal(got[f"{name}_attr"], attributes[name])
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_an_empty_gltf_reads_back_with_its_metadata(tmp_path, ext, capsys):
+    """An empty mesh (a batch's tile of sea) is written as a node without a mesh, its metadata in the node's extras,
+    but trimesh's reader drops node extras: read_mesh and ``stepterrain info`` gave it none, while the same tile
+    with triangles had its crs, spacing and origin."""
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
+    metadata = {"crs": "EPSG:32611", "spacing": [30.0, 30.0], "origin": [376328.66, 3807902.83]}
+    path = save_mesh(empty, tmp_path / f"sea{ext}", metadata=metadata)
+    back = read_mesh(path)
+    assert len(back.vertices) == len(back.faces) == 0
+    assert {key: back.metadata.get(key) for key in metadata} == metadata
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["faces"] == 0 and summary["meta.crs"] == "EPSG:32611", summary
+
+
+@pytest.mark.parametrize("limit, where", [(200, "before any work"), (900, "once the file is laid out")])
+@pytest.mark.parametrize("kind", ["plain", "vertex", "texture"])
+def test_a_glb_over_4_gib_is_refused_by_name(tmp_path, monkeypatch, kind, limit, where):
+    """A GLB's lengths are uint32 (glTF 2.0 4.4.3): a mesh whose buffer passed 4 GiB (a 10k x 10k DEM with
+    colours) raised a bare struct.error (numpy's OverflowError for a texture) once the buffer was built. Refused now
+    by name, before the work where the counts tell (the limit is lowered here to keep the meshes small), and
+    nothing is left behind."""
+    from stepterrain import export
+
+    mesh = trimesh.creation.box() if kind != "texture" else _textured_box((200, 10, 10))
+    if kind == "vertex":
+        mesh.visual.vertex_colors = np.arange(32, dtype=np.uint8).reshape(8, 4)
+    monkeypatch.setattr(export, "_GLB_MAX_BYTES", limit, raising=False)
+    with pytest.raises(InvalidInputError, match=r"a \.glb holds at most 4 GiB .* this mesh of 8 vertices and 12 faces "
+                                                r"needs [0-9,]+ bytes: write \.ply, \.obj or \.3mf"):  # fmt: skip
+        save_mesh(mesh, tmp_path / "big.glb")
+    assert list(tmp_path.iterdir()) == []
+    assert len(read_mesh(save_mesh(mesh, tmp_path / "big.ply")).faces) == 12  # the others hold it

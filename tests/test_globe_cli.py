@@ -261,3 +261,25 @@ def test_an_inside_out_globe_names_both_options(tmp_path, capsys):
     assert main(["-q", "globe", "--exaggeration", "2000", "--face-size", "9", "-o", str(out), "--device", "cpu"]) == 2
     assert "error: --radius + --exaggeration · elevation must stay > 0" in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_globe_obj_texture_image_never_replaces_the_texture_given(tmp_path, capsys):
+    """``--texture earth_material_0.png -o earth.obj``: the OBJ's texture image, written beside it as
+    ``earth_material_0.png``, replaced the picture given, without a word. Refused by name before any work."""
+    from PIL import Image
+
+    picture = tmp_path / "earth_material_0.png"
+    Image.fromarray(np.full((32, 64, 3), (200, 30, 30), np.uint8)).save(picture)
+    before = picture.read_bytes()
+    out = tmp_path / "earth.obj"
+    assert main(["-q", "globe", "--face-size", "9", "--error", "0", "--no-camera", "--texture", str(picture),
+                 "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"--output {str(out)!r} writes 'earth_material_0.png' beside it (its texture image), which is the " \
+           "--texture file" in err, err
+    assert picture.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == [picture.name]
+    assert main(["-q", "globe", "--face-size", "9", "--error", "0", "--no-camera", "--texture", str(picture),
+                 "-o", str(tmp_path / "globe.obj")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["earth_material_0.png", "globe.mtl", "globe.obj",
+                                                          "globe_material_0.png"]
+    assert picture.read_bytes() == before

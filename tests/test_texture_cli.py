@@ -50,17 +50,15 @@ def test_cli_texture_png_and_glb(tmp_path, small_dem, capsys):
 
 def test_cli_texture_obj_image_does_not_replace_the_normal_map(tmp_path, small_dem, capsys):
     """--mesh t.obj writes its texture as t_terrain_texture.png: named so, --normals was replaced by it without a
-    word (the OBJ written after it). The OBJ is refused now, naming both files, and the normal map is kept."""
+    word (the OBJ written after it). It was then refused once the texture and normal map were written; now before
+    any work, naming both options, and nothing is written."""
     normals = tmp_path / "t_terrain_texture.png"
     code = main(["texture", str(small_dem), "-o", str(tmp_path / "t.png"), "--mesh", str(tmp_path / "t.obj"),
                  "--normals", str(normals), "--device", "cpu"])
     err = capsys.readouterr().err
-    assert code == 2 and "t_terrain_texture.png' as a side file of" in err and "earlier as an image" in err, err
-    assert not (tmp_path / "t.obj").exists() and not (tmp_path / "t.mtl").exists()
-    alone = tmp_path / "alone"  # the normal map of the same command without the OBJ
-    assert main(["texture", str(small_dem), "-o", str(alone / "t.png"), "--normals", str(alone / "n.png"),
-                 "--device", "cpu"]) == 0
-    np.testing.assert_array_equal(read_png(normals), read_png(alone / "n.png"))
+    assert code == 2 and "writes 't_terrain_texture.png' beside it (its texture image), which is what --normals " \
+                         "names" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hill.npy"]
 
 
 def test_cli_texture_azimuth_is_degrees_clockwise_from_north(tmp_path, capsys):
@@ -988,3 +986,29 @@ def test_cli_texture_texel_size_composes_without_float_layers_on_its_grid(tmp_pa
     assert read_png(tmp_path / "t.png").shape == (1440, 2040, 3)
     per_texel = (peaks[1] - peaks[0]) / (1440 * 2040 - 720 * 1020)
     assert per_texel < 16, f"{per_texel:.1f} bytes a texel"
+
+
+def test_cli_texture_obj_side_files_never_replace_the_image_or_another_output(tmp_path, small_dem, capsys):
+    """A textured --mesh OBJ writes its texture image beside it, ``<stem>_terrain_texture.png`` (``terrain.obj``:
+    ``terrain_texture.png``). ``--image terrain_texture.png --mesh terrain.obj`` replaced the orthophoto given with
+    that image, without a word; ``-o terrain_texture.png --mesh terrain.obj`` wrote the texture, then refused the
+    mesh. Both are refused by name before any work, and the side files named are those the drape writes."""
+    _, _, png, extent = coded_png_over_the_dem(tmp_path, small_dem)
+    photo = png.rename(tmp_path / "terrain_texture.png")
+    before = photo.read_bytes()
+    obj = tmp_path / "terrain.obj"
+    for argv, other in (
+        (["--image", str(photo), f"--image-extent={extent}", "-o", str(tmp_path / "t.png")], "--image file"),
+        (["-o", str(photo)], "what --output names"),
+        (["-o", str(tmp_path / "t.png"), "--normals", str(photo)], "what --normals names"),
+    ):
+        assert main(["-q", "texture", str(small_dem), "--mesh", str(obj), *argv]) == 2
+        err = capsys.readouterr().err
+        assert f"--mesh {str(obj)!r} writes " in err and other in err, err
+        assert photo.read_bytes() == before
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["hill.npy", "terrain_texture.png"]
+    assert main(["-q", "texture", str(small_dem), "--mesh", str(tmp_path / "other.obj"), "--image", str(photo),
+                 f"--image-extent={extent}", "-o", str(tmp_path / "t.png")]) == 0
+    assert photo.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["hill.npy", "other.mtl", "other.obj",
+                                                          "other_terrain_texture.png", "t.png", "terrain_texture.png"]
