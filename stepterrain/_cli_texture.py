@@ -418,6 +418,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             (f"--mesh {mesh_out}", mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")),
             ("--png", png is not None)) if wanted]
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None)
+    if png is not None:  # the render holds the texture too, one texel per node or --texel-size's: before any work
+        render._check_render_budget(args.size[0], args.size[1], "--size",
+                                    texture=grid[1] if grid is not None else terrain.shape)
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer
