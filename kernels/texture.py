@@ -1126,8 +1126,10 @@ def reduce_band(
     thread_offset: wp.int32,
     src: wp.array3d[wp.uint8],
     src_row0: wp.int64,
+    src_col0: wp.int64,
     src_shape: wp.vec2i,
     dst_row0: wp.int64,
+    dst_col0: wp.int64,
     dst_shape: wp.vec2i,
     # outputs
     dst_out: wp.array3d[wp.uint8],
@@ -1137,8 +1139,9 @@ def reduce_band(
     Target pixel r along an axis of n source and m target pixels covers source [r n / m, (r + 1) n / m), so
     the image mean is kept exactly (up to the rounding to uint8) for odd sizes too; 2:1 is a 2 x 2 box.
     The weighted sum is exact, in int64 (the weights are integer overlaps over n_rows n_cols), and rounded half
-    up, floor(mean + 0.5), as the 2 x 2 box path. ``src`` holds source rows from ``src_row0``, ``dst_out``
-    target rows from ``dst_row0``.
+    up, floor(mean + 0.5), as the 2 x 2 box path. ``src`` holds source rows from ``src_row0`` and columns from
+    ``src_col0``, ``dst_out`` target rows from ``dst_row0`` and columns from ``dst_col0`` (a window of the level:
+    its pixels are those of the whole level's, the sizes ``src_shape`` and ``dst_shape`` being the levels').
 
     An image with alpha (2 channels, grey + alpha, or 4, RGBA; straight alpha) averages its colour weighted by
     alpha, sum(w a c) / sum(w a) (premultiplied, then divided by the mean alpha): the colour of transparent pixels
@@ -1149,17 +1152,19 @@ def reduce_band(
     cols = dst_out.shape[1]
     channels = dst_out.shape[2]
     alpha = channels - 1 if channels == 2 or channels == 4 else -1  # the alpha channel, or none
-    local_r, c = pixel_of(t, cols)
+    local_r, local_c = pixel_of(t, cols)
     r = wp.int64(local_r) + dst_row0
+    c = wp.int32(wp.int64(local_c) + dst_col0)
     n_rows = wp.int64(src_shape[0])
     m_rows = wp.int64(dst_shape[0])
     n_cols = wp.int64(src_shape[1])
     m_cols = wp.int64(dst_shape[1])
     first = wp.int32(src_row0)
+    first_col = wp.int32(src_col0)
     if n_rows == wp.int64(2) * m_rows and n_cols == wp.int64(2) * m_cols:
         # even sizes: the 2 x 2 box in integers, (sum + 2) // 4 = floor(mean + 0.5), as the general path gives
         sr = wp.int32(r) * 2 - first
-        sc = c * 2
+        sc = c * 2 - first_col
         a00 = wp.int32(1)
         a01 = wp.int32(1)
         a10 = wp.int32(1)
@@ -1182,11 +1187,11 @@ def reduce_band(
             if ch == alpha or alpha < 0:
                 box = (wp.int32(src[sr, sc, ch]) + wp.int32(src[sr, sc + 1, ch]) + wp.int32(src[sr + 1, sc, ch])
                        + wp.int32(src[sr + 1, sc + 1, ch]) + 2)
-                dst_out[local_r, c, ch] = wp.uint8(box // 4)
+                dst_out[local_r, local_c, ch] = wp.uint8(box // 4)
             else:
                 weighted = (a00 * wp.int32(src[sr, sc, ch]) + a01 * wp.int32(src[sr, sc + 1, ch])
                             + a10 * wp.int32(src[sr + 1, sc, ch]) + a11 * wp.int32(src[sr + 1, sc + 1, ch]))
-                dst_out[local_r, c, ch] = wp.uint8((2 * weighted + coverage) // (2 * coverage))
+                dst_out[local_r, local_c, ch] = wp.uint8((2 * weighted + coverage) // (2 * coverage))
             ch += 1
         return
     c64 = wp.int64(c)
@@ -1203,7 +1208,7 @@ def reduce_band(
             wr = overlap(wp.int64(sr), m_rows, r, n_rows)
             row_sum = wp.int64(0)
             for sc in range(s_col_lo, s_col_hi + 1):
-                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * wp.int64(src[sr - first, sc, alpha])
+                row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * wp.int64(src[sr - first, sc - first_col, alpha])
             alpha_total += wr * row_sum
         if alpha_total > wp.int64(0):
             weigh = wp.int32(1)
@@ -1218,10 +1223,10 @@ def reduce_band(
                 wr = overlap(wp.int64(sr), m_rows, r, n_rows)
                 row_sum = wp.int64(0)
                 for sc in range(s_col_lo, s_col_hi + 1):
-                    value = wp.int64(src[sr - first, sc, ch])
+                    value = wp.int64(src[sr - first, sc - first_col, ch])
                     if by_alpha:
-                        value = value * wp.int64(src[sr - first, sc, alpha])
+                        value = value * wp.int64(src[sr - first, sc - first_col, alpha])
                     row_sum += overlap(wp.int64(sc), m_cols, c64, n_cols) * value
                 total += wr * row_sum
         denominator = weight_sum if by_alpha else area
-        dst_out[local_r, c, ch] = wp.uint8((wp.int64(2) * total + denominator) // (wp.int64(2) * denominator))
+        dst_out[local_r, local_c, ch] = wp.uint8((wp.int64(2) * total + denominator) // (wp.int64(2) * denominator))

@@ -109,7 +109,7 @@ def add_parser(commands: Any) -> None:
                         "DEM's CRS (one without a CRS is taken in the DEM's CRS, refused over a DEM in degrees), or "
                         "in degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to "
                         "the DEM's grid (or --texel-size's) through an image pyramid (the decoded image is checked "
-                        "against --memory-budget)")
+                        "against --memory-budget; of a GeoTIFF, only its window over the DEM is read and checked)")
     p.add_argument("--image-extent", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="with --image: the outer edges of its pixels in the DEM's coordinates (those `stepterrain "
                         "info` prints, as --crop takes them; a geographic DEM's local metres); needed for an image "
@@ -416,6 +416,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             (f"--mesh {mesh_out}", mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")),
             ("--png", png is not None)) if wanted]
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None)
+    if png is not None:  # the render holds the texture too, one texel per node or --texel-size's: before any work
+        render._check_render_budget(args.size[0], args.size[1], "--size",
+                                    texture=grid[1] if grid is not None else terrain.shape)
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer

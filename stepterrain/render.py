@@ -399,8 +399,8 @@ def render_mesh(
         are left out), or a textured mesh's bad UVs or texture image (as :func:`render_textured_mesh`).
     OutputTooLargeError
         The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 288 with it and
-        translucent colours, which take SSAA with depth peeling) exceed the memory budget
-        (:func:`stepterrain.set_memory_budget`), checked before rendering.
+        translucent colours, which take SSAA with depth peeling), with a textured mesh's texture (16 bytes per
+        texel), exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked before rendering.
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -426,6 +426,8 @@ def render_mesh(
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
                                                               view_angle)
     textured = _mesh_texture(mesh) if scalars is None else None
+    if textured is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB)
+        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -468,7 +470,8 @@ def render_mesh(
     translucent = (any(colors is not None and colors.shape[1] == 4 for colors in (rgb, face_rgb))
                    or (textured is not None and textured[1].ndim == 3 and textured[1].shape[2] == 4))
     if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
-        _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
+        _check_render_budget(width, height, anti_aliasing=True, ssaa=True,
+                             texture=None if textured is None else textured[1].shape)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
                   framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
@@ -709,26 +712,41 @@ _MSAA_BYTES_PER_PIXEL = 32
 #: measured as above (1024² to 3072²).
 _SSAA_BYTES_PER_PIXEL = 240
 _LAYERED_BYTES_PER_PIXEL = 64
+#: Bytes a render holds per texel of a textured mesh's texture, measured as above (peak RSS less that of the same
+#: render with a 16 x 16 texture) with RGB textures of 4096² to 17000² in a 320 x 200 window: ~11-12 (VTK's copy of
+#: the image, the texture and its mipmaps that llvmpipe holds), ~15 past OpenGL's largest texture (16384 a side),
+#: which VTK resamples first. Rounded up; the mesh's own image is not counted. A 17000² texture took 4.6 GB.
+_TEXTURE_BYTES_PER_TEXEL = 16
 
 
 def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False,
-                  ssaa: bool = False) -> int:
+                  ssaa: bool = False, texels: int = 0) -> int:
     """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL);
-    ``ssaa``: its anti-aliasing is SSAA (translucent colours), not MSAA."""
+    ``ssaa``: its anti-aliasing is SSAA (translucent colours), not MSAA; ``texels``: those of a textured mesh's
+    texture (see _TEXTURE_BYTES_PER_TEXEL)."""
     per_pixel = _LAYERED_BYTES_PER_PIXEL if layered else _RENDER_BYTES_PER_PIXEL
     extra = (_SSAA_BYTES_PER_PIXEL if ssaa else _MSAA_BYTES_PER_PIXEL) if anti_aliasing else 0
-    return int(width) * int(height) * (per_pixel + extra)
+    return int(width) * int(height) * (per_pixel + extra) + int(texels) * _TEXTURE_BYTES_PER_TEXEL
 
 
 def _check_render_budget(width: int, height: int, name: str = "window_size", *, anti_aliasing: bool = False,
-                         layered: bool = False, ssaa: bool = False) -> None:
+                         layered: bool = False, ssaa: bool = False, texture: tuple[int, ...] | None = None) -> None:
     """An :class:`OutputTooLargeError` naming the size and ``name`` (the argument or CLI option giving it) when the
     render's framebuffers and images (:func:`_render_bytes`) exceed the memory budget; called before any render
-    starts (and, in the CLI, before the DEM is read)."""
+    starts (and, in the CLI, before the DEM is read). ``texture``: the (rows, cols) of a textured mesh's texture,
+    whose texels count too (only the window was counted: a 17000 x 17000 texture in a small window took 4.6 GB past
+    any budget)."""
     what = f"an off-screen render of {width} x {height} pixels ({name} {width}x{height}" \
            + (", anti-aliased)" if anti_aliasing else ")")
-    check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa), what,
-                 hint=f"give a smaller {name}" + (" or turn anti_aliasing off" if anti_aliasing else ""))
+    texels = 0
+    hint = f"give a smaller {name}" + (" or turn anti_aliasing off" if anti_aliasing else "")
+    if texture is not None:
+        rows, cols = (int(n) for n in texture[:2])
+        texels = rows * cols
+        what += f" of a mesh with a {cols} x {rows} texel texture"
+        hint += " or a smaller texture (a larger texel size, or the image resampled)"
+    check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa,
+                               texels=texels), what, hint=hint)
 
 
 @_quietly
@@ -936,7 +954,8 @@ def render_textured_mesh(
         The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, an infinite vertex, or a
         bad window size, z_scale, camera or view_angle.
     OutputTooLargeError
-        The render's memory exceeds the memory budget, as in :func:`render_mesh`.
+        The render's memory, its window's and its texture's (16 bytes per texel), exceeds the memory budget, as in
+        :func:`render_mesh`.
     MissingDependencyError
         No off-screen OpenGL context can be made.
     """
@@ -952,8 +971,8 @@ def render_textured_mesh(
     view_angle = _check_view_angle(view_angle)
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
                                                                anti_aliasing, view_angle)
-    if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
-        _check_render_budget(width, height, anti_aliasing=True, ssaa=True)
+    # the texture's texels too; SSAA, not MSAA, for a translucent one (see _shoot): more memory
+    _check_render_budget(width, height, anti_aliasing=anti_aliasing, ssaa=translucent, texture=picture.shape)
 
     pv = _import_pyvista()
     _check_background(pv, background)

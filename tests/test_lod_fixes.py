@@ -642,3 +642,57 @@ def test_a_world_image_textures_a_dem_across_the_antimeridian(tmp_path):
             textured += geometry.is_leaf
             stack.extend((child, patch.child_for(child)) for child in geometry.children)
         assert textured == 64
+
+
+@pytest.mark.parametrize("nodata", [None, 0])
+def test_a_geotiff_image_layer_reads_only_its_window_over_the_terrain(tmp_path, monkeypatch, nodata):
+    """image_layer of a GeoTIFF decoded the whole image (checked against the memory budget: a 20000 x 20000
+    orthophoto under the Big Tujunga DEM took 3 GB and 45 s, and one past the budget was refused though the DEM
+    covers a corner of it) and built every level of it, to keep one window of one level. Now only the image's window
+    over the terrain is read, a band of rows at a time, and reduced to that level: the pixels are those of the whole
+    image's pyramid (odd sizes, the area-weighted path; a nodata collar as alpha), the budget counts the window, and
+    the reads cover the window, a tenth of the image, not the image."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.io import DatasetReader
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+    from stepterrain.terrain import Terrain
+    from stepterrain.texture_lod import image_layer
+
+    rows, cols, west, north, pixel = 1501, 2003, 5000.0, 9000.0, 2.0  # odd sizes: weights across the window's edge
+    data = np.random.default_rng(11).integers(1, 256, (3, rows, cols), dtype=np.uint8)
+    if nodata is not None:
+        data[:, 900:, :400] = 0  # a collar reaching under the terrain's south-west corner
+    path = tmp_path / "ortho.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=3, dtype="uint8", crs="EPSG:32611",
+                       transform=Affine(pixel, 0.0, west, 0.0, -pixel, north), tiled=True, blockxsize=256,
+                       blockysize=256, compress="deflate", nodata=nodata) as out:
+        out.write(data)
+    terrain = Terrain.from_heights(np.zeros((31, 41), np.float32), spacing=(30.0, -30.0),
+                                   origin=(west + 501.0, north - 1203.0), crs="EPSG:32611")
+    array = np.moveaxis(data, 0, 2)  # the same pixels as an array: the whole image's pyramid
+    if nodata is not None:
+        array = np.concatenate([array, np.where((data != 0).any(axis=0), 255, 0).astype(np.uint8)[:, :, None]], 2)
+    extent = (west, west + cols * pixel, north - rows * pixel, north)
+    read_cells = []
+    original = DatasetReader.read
+
+    def read(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        read_cells.append(out.shape[-2] * out.shape[-1])
+        return out
+
+    monkeypatch.setattr(DatasetReader, "read", read)
+    for texel in (None, 3.0):  # level 3 (16 m pixels, for the 30 m nodes), level 0 (the image's own pixels)
+        options = {} if texel is None else {"texel_size": texel}
+        expected = image_layer(array, terrain, extent=extent, device="cpu", **options)
+        read_cells.clear()
+        previous = st.set_memory_budget(rows * cols * 3 * 4 // 2)  # the whole image's decode (4 bytes counted) is past
+        try:
+            layer = image_layer(path, terrain, device="cpu", **options)
+        finally:
+            st.set_memory_budget(previous)
+        assert layer.extent == pytest.approx(expected.extent, abs=1e-9)
+        np.testing.assert_array_equal(layer.image, expected.image)
+        assert 0 < sum(read_cells) < rows * cols / 8, f"{sum(read_cells)} of {rows * cols} pixels read"

@@ -987,3 +987,28 @@ def test_a_pyvista_users_global_theme_leaves_the_renders_alone():
         pv.global_theme.load_theme(theme)
     for name, a, b in zip(("render_mesh", "render_textured_mesh", "LayeredRenderer"), plain, themed, strict=True):
         assert np.array_equal(a, b), f"{name}: {np.mean(np.any(a != b, axis=2)):.0%} of the pixels changed by the theme"
+
+
+@pytest.mark.parametrize("name", ["render_mesh", "render_textured_mesh"])
+@pytest.mark.parametrize("channels", [3, 4])
+def test_a_textured_meshs_texture_counts_against_the_render_budget(tiny_budget, monkeypatch, name, channels):
+    """Only the window was counted: a mesh draped with a big texture (an orthophoto at its own resolution) rendered in
+    a small window took ~12 bytes per texel more (VTK's copy, the texture and mipmaps llvmpipe holds; 4.6 GB for a
+    17000 x 17000 texture, measured) past any budget. The texture's texels now count, 16 bytes each: a window that
+    fits with a small texture is refused with a 1024 x 512 texel one, before the render starts, naming the texture."""
+    monkeypatch.setattr(render, "_import_pyvista", _no_render)
+    size = (64, 48)
+    assert render._render_bytes(*size) + render._TEXTURE_BYTES_PER_TEXEL * 4 * 4 <= st.get_memory_budget()
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    image = np.full((512, 1024, channels), 128, np.uint8)
+    if channels == 4:
+        image[:, :, 3] = 200  # translucent: SSAA is not asked for (no anti-aliasing), the texels count alike
+    mesh.visual = trimesh.visual.TextureVisuals(uv=VERTICES[:, :2] / 10.0, image=image)
+    call = getattr(render, name)
+    with pytest.raises(OutputTooLargeError, match=r"^an off-screen render of 64 x 48 pixels \(window_size 64x48\) "
+                                                   r"of a mesh with a 1024 x 512 texel texture would need 8\.1 MiB, "
+                                                   r"over the memory budget of 1\.0 MiB; give a smaller window_size "
+                                                   r"or a smaller texture"):
+        call(mesh, window_size=size)
+    with pytest.raises(AssertionError, match="the render started"):  # a small texture fits: the render begins
+        call(_textured_quad(), window_size=size)

@@ -1012,3 +1012,19 @@ def test_cli_texture_obj_side_files_never_replace_the_image_or_another_output(tm
     assert photo.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["hill.npy", "other.mtl", "other.obj",
                                                           "other_terrain_texture.png", "t.png", "terrain_texture.png"]
+
+
+def test_cli_texture_png_counts_the_texture_against_the_budget_before_any_work(tmp_path, small_dem, capsys):
+    """--png counted only its --size window against --memory-budget; the render holds the draped texture too (16
+    bytes a texel), which render_textured_mesh now counts. The run checks it with the window once the DEM is read,
+    before the texture is composed: exit 2 naming --size and the texture's texels, nothing written."""
+    window = render._render_bytes(64, 48)
+    with_texture = render._render_bytes(64, 48, texels=40 * 50)
+    budget = (window + with_texture) // 2  # the window alone fits
+    out = tmp_path / "t.png"
+    code = main(["texture", str(small_dem), "-o", str(out), "--png", str(tmp_path / "r.png"), "--size", "64x48",
+                 "--memory-budget", str(budget), "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh with a 50 x 40 texel " \
+                         "texture would need" in err, err
+    assert "topographic texture" not in err and not out.exists() and not (tmp_path / "r.png").exists()
