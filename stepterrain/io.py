@@ -132,7 +132,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``spacing`` dy > 0 for a south-up one (a positive pixel height), placed right either way.
         Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
         world position and ``spacing`` = (dx, -dy) from the geotransform,
-        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one spacing,
+        ``crs`` the file's CRS ("EPSG:32611"; for a TIFF georeferenced without one, by a world file ``.tfw``, the CRS
+        of a ``.prj`` beside it, ``dem.prj`` or ``dem.tif.prj``, as GIS software writes it and GDAL does not read it
+        for a TIFF). A geographic CRS (degrees) is converted to local metres with one spacing,
         exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (another body's
         CRS, Mars or the Moon (IAU_2015:49900, ``+R=3396190``): its ellipsoid's mean radius a·(1 - f/3), its errors
         below measured against that ellipsoid; angles in grads (EPSG:4807), longitudes from another prime meridian
@@ -195,7 +197,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
         ``nodata`` that is not one real number, a ``mask`` or ``valid`` that is not a boolean array of the heights'
-        shape, nothing but nodata, heights in a unit that is not a known length unit:
+        shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS, nothing but nodata, heights in a
+        unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -741,6 +744,9 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
             crs_obj = dataset.crs
             if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
                 _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
+            elif crs_obj is None:  # a world file's grid: its CRS in a .prj beside it (degrees were read as metres)
+                prj = prj_crs(file, "DEM", DataFileError)
+                crs_obj = _crs_object(prj) if prj else None
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
@@ -815,6 +821,28 @@ def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> ND
                 transparent = dataset.read(index) == 0
                 missing = transparent if missing is None else np.logical_or(missing, transparent, out=missing)
     return missing
+
+
+def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
+    """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
+    a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
+    georeferences without a CRS; None without one. A .prj that is no CRS is refused (a ``refusal``), naming it and
+    ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word."""
+    for prj in (path.with_suffix(".prj"), path.with_name(path.name + ".prj")):
+        if not prj.is_file():
+            continue
+        from rasterio.crs import CRS
+
+        try:
+            text = prj.read_text(errors="replace").strip()
+        except OSError as exc:
+            raise DataFileError(f"cannot read {str(prj)!r}, the CRS of {what} {str(path)!r}: {exc}") from exc
+        try:
+            return _crs_string(CRS.from_user_input(text))
+        except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
+            raise refusal(f"{str(prj)!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
+                          f"beside a world file): {exc}") from exc
+    return None
 
 
 def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) -> None:
