@@ -56,6 +56,9 @@ _SCALE_SAMPLES, _SCALE_STEP_M = 7, 100.0
 #: Largest shift, in cells, that dropping a geotransform's rotation terms may make to any node of the grid for them
 #: to be taken as float noise (:func:`negligible_rotation`) rather than refused as a rotated grid.
 _ROTATION_TOLERANCE = 1e-6
+#: Heights spanning more than this many times a grid's width and height, georeferenced without a CRS inside longitudes
+#: and latitudes, make :func:`load_dem` warn that its coordinates look like degrees read as metres.
+_DEGREES_RELIEF = 100.0
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
@@ -180,7 +183,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
         through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
-        named; a GeoTIFF CRS ignored for want of a geotransform.
+        named; a GeoTIFF CRS ignored for want of a geotransform; a grid georeferenced without a CRS whose
+        coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
+        times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
+        give it.
 
     Raises
     ------
@@ -1129,6 +1135,8 @@ def _georeferenced(
             crs=metre_crs, source=source, height_unit=height_unit,
         )
         _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, factor)
+        if crs is None:
+            _check_degrees_without_crs(file, terrain)
         return terrain
 
     body = _geographic_body(crs)
@@ -1189,6 +1197,35 @@ def _georeferenced(
     )
     return _grid(
         file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source, height_unit=height_unit
+    )
+
+
+def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
+    """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS looks given in degrees: its
+    nodes lie within longitudes and latitudes (x in [-180, 360], y in [-90, 90]) and its heights span more than
+    :data:`_DEGREES_RELIEF` times its width and height. Read as metres (a GeoTIFF whose CRS was lost, a world file
+    without its .prj), an SRTM tile became a needle a few centimetres wide under hundreds of metres of relief,
+    without a word; no terrain in one unit is that steep."""
+    x_min, x_max, y_min, y_max = terrain.extent
+    if not (-180.0 <= x_min and x_max <= 360.0 and -90.0 <= y_min and y_max <= 90.0):
+        return
+    low, high = terrain.height_range
+    across = max(x_max - x_min, y_max - y_min)
+    if not high - low > _DEGREES_RELIEF * across:
+        return
+    name = file.name
+    if file.suffix.lower() in (".tif", ".tiff"):
+        hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
+                f"`gdal_edit.py -a_srs EPSG:4326 {name}`")
+    else:
+        hint = "save it beside the 'transform' (crs='EPSG:4326')"
+    dx, dy = terrain.spacing
+    warnings.warn(
+        f"{name}: it names no CRS, so its coordinates were read as metres, but they look like degrees: nodes at x "
+        f"{x_min:.9g} to {x_max:.9g}, y {y_min:.9g} to {y_max:.9g} (cells of {abs(dx):.6g} x {abs(dy):.6g}) under "
+        f"heights spanning {high - low:.6g}, {(high - low) / across:.3g} times the grid's size; if they are degrees, "
+        f"give the file its CRS: {hint}",
+        stacklevel=caller_stacklevel(),
     )
 
 

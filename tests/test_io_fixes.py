@@ -1324,3 +1324,33 @@ def test_a_tiff_georeferenced_by_a_world_file_takes_its_crs_from_the_prj_beside_
     broken = world_tiff("broken.tif", 30.0, 500000.0, -30.0, 4000000.0, ("broken.prj", "not a CRS"))
     with pytest.raises(DataFileError, match=r"broken\.prj' beside DEM '.*broken\.tif' is not a CRS"):
         load_dem(broken)
+
+
+def test_a_grid_in_degrees_without_a_crs_warns_that_it_was_read_as_metres(tmp_path):
+    """A GeoTIFF whose CRS was lost (or a world file without its .prj) in degrees was read as metres without a word:
+    the Front Range tile became a needle 0.06 m wide under 644 m of relief (the render then refused it as too thin).
+    load_dem warns, naming the CRS to give it; a grid in metres without a CRS and a small one in one unit do not."""
+    rasterio = pytest.importorskip("rasterio")
+
+    def no_crs_tiff(name, z, a, c, e, f):
+        path = tmp_path / name
+        with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
+                           transform=rasterio.Affine(a, 0.0, c, 0.0, e, f)) as ds:  # fmt: skip
+            ds.write(z.astype(np.float32), 1)
+        return path
+
+    with rasterio.open(SHARED_DATA / "front_range_srtmgl3_3arcsec.tif") as ds:
+        z, t = ds.read(1, window=((0, 40), (0, 50))), ds.transform
+    degrees = no_crs_tiff("front.tif", z, t.a, t.c, t.e, t.f)
+    with pytest.warns(UserWarning, match=r"front\.tif: it names no CRS, so its coordinates were read as metres, but "
+                                         r"they look like degrees: nodes at x -105\.81.*assign it: `gdal_edit\.py "
+                                         r"-a_srs EPSG:4326 front\.tif`"):
+        terrain = load_dem(degrees)
+    assert terrain.crs is None and terrain.spacing == (t.a, t.e)  # read as before: the warning says what to do
+
+    metres = no_crs_tiff("site.tif", z, 30.0, 1000.0, -30.0, 2000.0)  # a local grid in metres: 1470 m wide
+    bench = no_crs_tiff("bench.tif", np.add.outer(np.arange(20.0), np.arange(30.0)) * 0.01, 0.01, 0.0, -0.01, 0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(metres)
+        load_dem(bench)  # a 0.3 m model with 0.48 m of relief, in metres near (0, 0)
