@@ -63,6 +63,8 @@ examples:
       bounding spheres instead of cone frustums, no clipping
   stepterrain globe relief.npz --texture bluemarble.jpg -o textured.glb
       a lat/lon grid (.npz with elevation, lat, lon in degrees) draped with a plate-carree image
+  stepterrain globe gebco_2024_1deg.tif -o gebco.glb
+      a global GeoTIFF in degrees (EPSG:4326), longitudes -180..180 or 0..360
 """
 
 
@@ -79,7 +81,8 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value are "
-                        "refused: fill them first); default: the embedded ETOPO 2022 20'")
+                        "refused: fill them first), or a GeoTIFF in degrees (EPSG:4326; nodata refused as well); "
+                        "default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
     p.add_argument("--exaggeration", type=float, default=1.0, metavar="X", help="vertical exaggeration (default 1)")
@@ -128,8 +131,11 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise DataFileError(f"INPUT {path!r} does not exist")
     if not file.is_file():
         raise DataFileError(f"INPUT {path!r} is not a file")
+    if file.suffix.lower() in (".tif", ".tiff"):
+        return _load_geotiff_grid(file)
     if file.suffix.lower() != ".npz":
-        raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays; got {path!r}")
+        raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a GeoTIFF in degrees; "
+                                f"got {path!r}")
     try:
         data = np.load(file)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
@@ -160,6 +166,32 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                                     f"column {col}); the globe needs a height everywhere: fill "
                                     "them first (e.g. from neighbours)")
     return lat, lon, elevation
+
+
+def _load_geotiff_grid(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A global GeoTIFF in a geographic CRS as (lat, lon, elevation): the heights as load_dem reads them (nodata, an
+    internal mask, scale and offset, a height unit, a .prj; missing cells as NaN, which the globe refuses: fill them
+    first), and the node degrees of its rows and columns from the degrees it read (stored order: north-first for a
+    north-up file, longitudes 0..360 or -180..180 as the file has them). It was refused as not an .npz: a GIS user's
+    global grid (ETOPO, GEBCO) is a GeoTIFF. load_dem's warning that its local metres err far from the equator is
+    left out: the globe reads degrees."""
+    import warnings
+
+    from .io import _spherical_eqc, describe_dem, load_dem
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r".* degrees read as local metres with one spacing")
+        terrain = load_dem(file)
+    eqc = _spherical_eqc(terrain.crs)
+    step = describe_dem(terrain)["lonlat_step"]
+    if eqc is None or step is None or terrain.origin != (0.0, 0.0):
+        raise InvalidInputError(f"INPUT {str(file)!r} must be a GeoTIFF in a geographic CRS (degrees: EPSG:4326); got "
+                                f"CRS {terrain.crs or 'none'}; gdalwarp -t_srs EPSG:4326 makes it one")
+    _, _, lat_0, lon_0, _, _ = eqc  # node (0, 0), the origin of load_dem's local metres
+    rows, cols = terrain.shape
+    lat = lat_0 + step[1] * np.arange(rows, dtype=np.float64)
+    lon = lon_0 + step[0] * np.arange(cols, dtype=np.float64)
+    return lat, lon, terrain.heights
 
 
 def _run_globe(args: argparse.Namespace, progress: Progress) -> int:

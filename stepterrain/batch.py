@@ -821,10 +821,10 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
 #: Files beside a GeoTIFF that GDAL reads with it when load_dem opens it (``{name}``: the file's name, ``{stem}``:
 #: without its extension), matched in any case: the PAM .aux.xml (georeferencing, CRS, nodata, scale and offset,
 #: over the file's own), a .msk mask, a MapInfo .tab or a world file (the georeferencing of a TIFF without its
-#: own) and RPCs (which make load_dem refuse it)
+#: own), RPCs (which make load_dem refuse it) and the .prj load_dem reads itself (the CRS of a world file's grid)
 _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{name}.aux.xml", "{stem}.aux", "{name}.msk", "{stem}.tab", "{stem}.tfw", "{stem}.tifw", "{stem}.tiffw",
-    "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd",
+    "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd", "{stem}.prj", "{name}.prj",
 )
 
 

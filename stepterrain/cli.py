@@ -180,6 +180,13 @@ def _add_height_unit(p: argparse.ArgumentParser, help: str | None = None) -> Non
                                 "else as stored)")
 
 
+def _add_band(p: argparse.ArgumentParser) -> None:
+    """``--band``: load_dem's ``band``, the GeoTIFF band an INPUT's heights are read from (the first, else)."""
+    p.add_argument("--band", type=_positive_int, default=None, metavar="N",
+                   help="the 1-based band of a GeoTIFF INPUT to read the heights from (default 1, as GDAL's tools "
+                        "read it); other formats hold one band")
+
+
 def _positive_int(text: str) -> int:
     """A count option (``--coarsen``): a whole number >= 1, refused by argparse before any file is read."""
     try:
@@ -204,6 +211,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     """The INPUT DEM's options: ``--height-unit``, ``--spacing``, ``--crop`` and ``--coarsen`` (see
     :func:`_load_input`)."""
     _add_height_unit(p)
+    _add_band(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of an INPUT with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
@@ -216,17 +224,19 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
 
 
 def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[float] | None = None,
-                crop: Sequence[float] | None = None, coarsen: int | None = None) -> Any:
-    """The DEM at ``path`` (``--height-unit`` applied), else the embedded one (where a unit is refused); then
-    ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and ``--coarsen``
-    (:meth:`Terrain.coarsen`, block means)."""
+                crop: Sequence[float] | None = None, coarsen: int | None = None, band: int | None = None) -> Any:
+    """The DEM at ``path`` (``--height-unit`` and ``--band`` applied), else the embedded one (where a unit or a band
+    is refused); then ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and
+    ``--coarsen`` (:meth:`Terrain.coarsen`, block means)."""
     from .io import load_dem, own_placement, sample_dem
 
     if path:
-        terrain = load_dem(path, height_unit=height_unit)
+        terrain = load_dem(path, band=1 if band is None else band, height_unit=height_unit)
     elif height_unit is not None:
         raise InvalidInputError(
             f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {height_unit!r}")
+    elif band is not None:
+        raise InvalidInputError(f"--band applies to a GeoTIFF INPUT; the embedded DEM holds one band; got {band}")
     else:
         terrain = sample_dem()
     if spacing is not None:
@@ -290,7 +300,8 @@ def _refuse_gdal_order(terrain: Any, crop: Sequence[float]) -> None:
 
 def _input_terrain(args: argparse.Namespace) -> Any:
     """The INPUT DEM of a subcommand with :func:`_add_input_options`, its options applied (:func:`_load_input`)."""
-    return _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen)
+    return _load_input(args.input, args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen,
+                       band=args.band)
 
 
 def _add_device(p: argparse.ArgumentParser, where: str = "") -> None:
@@ -305,6 +316,8 @@ def _input_metadata(args: argparse.Namespace) -> dict[str, Any]:
     metadata: dict[str, Any] = {"input": args.input or "embedded Big Tujunga DEM"}
     if args.height_unit is not None:
         metadata["height_unit"] = args.height_unit
+    if args.band is not None:  # which of the file's bands the heights are
+        metadata["band"] = int(args.band)
     if args.spacing is not None:
         # the DEM's (dx, dy) as Terrain.spacing, `info` and a heightfield mesh's own metadata give it: rows run north
         # to south, dy negative (--spacing 30 recorded (30, 30), and replaced a draped mesh's (30, -30))
@@ -485,6 +498,7 @@ def _add_info(commands: Any) -> None:
     p.add_argument("file", nargs="?", type=_path, metavar="FILE", help="default: the embedded DEM")
     _add_height_unit(p, help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names "
                               "none or one not known; not for a mesh")
+    _add_band(p)
     p.add_argument("--json", action="store_true", help="print JSON instead of aligned text")
     p.set_defaults(run=_run_info)
 
@@ -779,11 +793,14 @@ def _run_info(args: argparse.Namespace, progress: Progress) -> int:
         if args.height_unit is not None:  # it was ignored without a word: a mesh's z is not converted
             raise InvalidInputError(f"--height-unit applies to a DEM; {args.file!r} is a mesh file, described as "
                                     f"stored; got --height-unit {args.height_unit!r}")
+        if args.band is not None:
+            raise InvalidInputError(f"--band applies to a GeoTIFF DEM; {args.file!r} is a mesh file; got --band "
+                                    f"{args.band}")
         summary = _mesh_summary(Path(args.file))
     else:
         from .io import describe_dem
 
-        terrain = _load_input(args.file, args.height_unit)
+        terrain = _load_input(args.file, args.height_unit, band=args.band)
         summary = describe_dem(terrain)
     if args.json:
         print(json.dumps(summary, indent=2, default=str))

@@ -56,6 +56,9 @@ _SCALE_SAMPLES, _SCALE_STEP_M = 7, 100.0
 #: Largest shift, in cells, that dropping a geotransform's rotation terms may make to any node of the grid for them
 #: to be taken as float noise (:func:`negligible_rotation`) rather than refused as a rotated grid.
 _ROTATION_TOLERANCE = 1e-6
+#: Heights spanning more than this many times a grid's width and height, georeferenced without a CRS inside longitudes
+#: and latitudes, make :func:`load_dem` warn that its coordinates look like degrees read as metres.
+_DEGREES_RELIEF = 100.0
 
 _SAMPLE_NAME = "big_tujunga_srtm_30m_utm11n.npz"
 _GENERIC_KEYS = ("heights", "elevation", "z")
@@ -132,7 +135,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         ``spacing`` dy > 0 for a south-up one (a positive pixel height), placed right either way.
         Georeferenced files: node (0, 0) is the centre of the top-left cell (first stored row), ``origin`` its
         world position and ``spacing`` = (dx, -dy) from the geotransform,
-        ``crs`` the file's CRS ("EPSG:32611"). A geographic CRS (degrees) is converted to local metres with one spacing,
+        ``crs`` the file's CRS ("EPSG:32611"; for a TIFF georeferenced without one, by a world file ``.tfw``, the CRS
+        of a ``.prj`` beside it, ``dem.prj`` or ``dem.tif.prj``, as GIS software writes it and GDAL does not read it
+        for a TIFF). A geographic CRS (degrees) is converted to local metres with one spacing,
         exact in an equidistant cylindrical projection on a sphere of radius :data:`EARTH_RADIUS_M` (another body's
         CRS, Mars or the Moon (IAU_2015:49900, ``+R=3396190``): its ellipsoid's mean radius a·(1 - f/3), its errors
         below measured against that ellipsoid; angles in grads (EPSG:4807), longitudes from another prime meridian
@@ -178,7 +183,10 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
         through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
-        named; a GeoTIFF CRS ignored for want of a geotransform.
+        named; a GeoTIFF CRS ignored for want of a geotransform; a grid georeferenced without a CRS whose
+        coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
+        times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
+        give it.
 
     Raises
     ------
@@ -195,7 +203,8 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
         ``nodata`` that is not one real number, a ``mask`` or ``valid`` that is not a boolean array of the heights'
-        shape, nothing but nodata, heights in a unit that is not a known length unit:
+        shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS, nothing but nodata, heights in a
+        unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -747,6 +756,9 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
             crs_obj = dataset.crs
             if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
                 _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
+            elif crs_obj is None:  # a world file's grid: its CRS in a .prj beside it (degrees were read as metres)
+                prj = prj_crs(file, "DEM", DataFileError)
+                crs_obj = _crs_object(prj) if prj else None
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
@@ -821,6 +833,28 @@ def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> ND
                 transparent = dataset.read(index) == 0
                 missing = transparent if missing is None else np.logical_or(missing, transparent, out=missing)
     return missing
+
+
+def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
+    """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
+    a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
+    georeferences without a CRS; None without one. A .prj that is no CRS is refused (a ``refusal``), naming it and
+    ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word."""
+    for prj in (path.with_suffix(".prj"), path.with_name(path.name + ".prj")):
+        if not prj.is_file():
+            continue
+        from rasterio.crs import CRS
+
+        try:
+            text = prj.read_text(errors="replace").strip()
+        except OSError as exc:
+            raise DataFileError(f"cannot read {str(prj)!r}, the CRS of {what} {str(path)!r}: {exc}") from exc
+        try:
+            return _crs_string(CRS.from_user_input(text))
+        except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
+            raise refusal(f"{str(prj)!r} beside {what} {str(path)!r} is not a CRS (WKT, as GIS software writes it "
+                          f"beside a world file): {exc}") from exc
+    return None
 
 
 def _refuse_warped_georeferencing(file: Path, gcps: tuple[Any, Any], rpcs: Any) -> None:
@@ -1107,6 +1141,8 @@ def _georeferenced(
             crs=metre_crs, source=source, height_unit=height_unit,
         )
         _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, factor)
+        if crs is None:
+            _check_degrees_without_crs(file, terrain)
         return terrain
 
     body = _geographic_body(crs)
@@ -1167,6 +1203,35 @@ def _georeferenced(
     )
     return _grid(
         file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source, height_unit=height_unit
+    )
+
+
+def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
+    """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS looks given in degrees: its
+    nodes lie within longitudes and latitudes (x in [-180, 360], y in [-90, 90]) and its heights span more than
+    :data:`_DEGREES_RELIEF` times its width and height. Read as metres (a GeoTIFF whose CRS was lost, a world file
+    without its .prj), an SRTM tile became a needle a few centimetres wide under hundreds of metres of relief,
+    without a word; no terrain in one unit is that steep."""
+    x_min, x_max, y_min, y_max = terrain.extent
+    if not (-180.0 <= x_min and x_max <= 360.0 and -90.0 <= y_min and y_max <= 90.0):
+        return
+    low, high = terrain.height_range
+    across = max(x_max - x_min, y_max - y_min)
+    if not high - low > _DEGREES_RELIEF * across:
+        return
+    name = file.name
+    if file.suffix.lower() in (".tif", ".tiff"):
+        hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
+                f"`gdal_edit.py -a_srs EPSG:4326 {name}`")
+    else:
+        hint = "save it beside the 'transform' (crs='EPSG:4326')"
+    dx, dy = terrain.spacing
+    warnings.warn(
+        f"{name}: it names no CRS, so its coordinates were read as metres, but they look like degrees: nodes at x "
+        f"{x_min:.9g} to {x_max:.9g}, y {y_min:.9g} to {y_max:.9g} (cells of {abs(dx):.6g} x {abs(dy):.6g}) under "
+        f"heights spanning {high - low:.6g}, {(high - low) / across:.3g} times the grid's size; if they are degrees, "
+        f"give the file its CRS: {hint}",
+        stacklevel=caller_stacklevel(),
     )
 
 

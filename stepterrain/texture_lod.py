@@ -53,6 +53,7 @@ from .io import (
     lonlat_as_local_metres,
     open_raster,
     picture_uint8,
+    prj_crs,
 )
 from .kernels import texture as texture_kernels
 from .terrain import Terrain, as_array, as_number, as_terrain, check_flag, finite_number, real_numbers
@@ -289,25 +290,11 @@ def _dataset_georeferencing(path: Path, dataset: Any) -> Any:
 
 
 def _prj_crs(path: Path) -> str | None:
-    """The CRS in a .prj file beside the image ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for a
-    world file's CRS, which GDAL does not read for a JPEG or PNG: their CRS was unknown), for an image GDAL
-    georeferences without a CRS; None without one. A .prj that is no CRS is refused, naming it: the image would
-    be taken in the terrain's CRS without a word."""
-    for prj in (path.with_suffix(".prj"), path.with_name(path.name + ".prj")):
-        if not prj.is_file():
-            continue
-        from rasterio.crs import CRS
-
-        try:
-            text = prj.read_text(errors="replace").strip()
-        except OSError as exc:
-            raise DataFileError(f"cannot read {str(prj)!r}, the CRS of image {str(path)!r}: {exc}") from exc
-        try:
-            return _crs_string(CRS.from_user_input(text))
-        except Exception as exc:  # noqa: BLE001 - rasterio's CRSError, or a WKT it parses but cannot name
-            raise InvalidInputError(f"{str(prj)!r} beside image {str(path)!r} is not a CRS (WKT, as GIS software "
-                                    f"writes it beside a world file): {exc}") from exc
-    return None
+    """The CRS in a .prj file beside the image ``path`` (:func:`~stepterrain.io.prj_crs`: ``ortho.prj`` or
+    ``ortho.jpg.prj``, which GDAL does not read for a JPEG or PNG), for an image GDAL georeferences without a CRS;
+    None without one. A .prj that is no CRS is refused, naming it: the image would be taken in the terrain's CRS
+    without a word."""
+    return prj_crs(path, "image")
 
 
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:

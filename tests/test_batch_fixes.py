@@ -563,6 +563,39 @@ def test_a_changed_georeferencing_sidecar_redoes_the_geotiff_item(tmp_path, side
     assert lowest_y() == (0, 3000.5 - 40)  # unchanged: skipped
 
 
+def test_a_changed_prj_beside_a_world_file_tiff_redoes_its_item(tmp_path):
+    # load_dem reads the CRS of a TIFF georeferenced by a world file from the .prj beside it (GDAL does not): a rerun
+    # after the .prj was added or corrected skipped the item as complete, its mesh in the old CRS's units
+    rasterio = pytest.importorskip("rasterio")
+    import warnings
+
+    from rasterio.crs import CRS
+
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    z = np.add.outer(np.arange(5.0), np.arange(6.0)).astype(np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning: a plain TIFF
+        with rasterio.open(folder / "dem.tif", "w", driver="GTiff", width=6, height=5, count=1,
+                           dtype="float32") as dataset:  # fmt: skip
+            dataset.write(z, 1)
+    (folder / "dem.tfw").write_text("10\n0\n0\n-10\n6400005\n1900005\n")
+    out = tmp_path / "out"
+
+    def lowest_y():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # feet as metres, heights kept as stored
+            report = batch(folder, out, interval=1.0, format=".ply", scheduler="serial")
+        assert report.ok
+        mesh = trimesh.load(out / "dem.ply", process=False)
+        return len(report.done), round(float(np.asarray(mesh.vertices)[:, 1].min()), 3)
+
+    assert lowest_y() == (1, 1900005.0 - 40)  # no CRS: the world file's numbers as they are
+    (folder / "dem.prj").write_text(CRS.from_epsg(2229).to_wkt())  # US survey feet
+    assert lowest_y() == (1, round((1900005.0 - 40) * 1200 / 3937, 3))
+    assert lowest_y()[0] == 0  # unchanged: skipped
+
+
 def test_a_file_rewritten_with_its_size_and_mtime_kept_is_redone(tmp_path):
     # a DEM file replaced by another of the same size with its mtime kept (`cp -p`, `rsync -t`, os.utime) kept
     # the fingerprint (path, size, mtime), so the rerun skipped it as complete and its mesh stayed the old one

@@ -1263,3 +1263,40 @@ def test_a_roi_or_lens_in_degrees_of_a_dem_in_degrees_names_its_centre_in_metres
     assert cli.main(["-q", "steps", source, "--lens=-105.5,40.1,0.05", "-o", str(tmp_path / "s.glb")]) == 0
     err = capsys.readouterr().err
     assert re.search(r"changes nothing.*it looks like degrees.*\(-105\.5, 40\.1\) is there", err), err
+
+
+def test_band_picks_the_band_of_a_multiband_geotiff_input(tmp_path, capsys):
+    """A multi-band GeoTIFF (a DSM and a DTM, or years of a survey) was read as its first band by every command, and
+    no option reached the others: load_dem's band= had none on the command line. --band N reads band N (steps,
+    closeup, texture through the INPUT options, and info); a band the file lacks, a single-band format, the embedded
+    DEM and a mesh file are refused naming --band."""
+    rasterio = pytest.importorskip("rasterio")
+    import json
+
+    import trimesh
+
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    path = tmp_path / "stack.tif"
+    with rasterio.open(path, "w", driver="GTiff", width=7, height=6, count=3, dtype="float32", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as ds:  # fmt: skip
+        for band in (1, 2, 3):
+            ds.write(z + 1000.0 * band, band)
+    code, out, _ = run(capsys, "info", path, "--band", "2", "--json")
+    assert code == 0 and json.loads(out)["height_range"] == [2000.0, 2011.0]
+    code, _, err = run(capsys, "-q", "steps", path, "--band", "3", "--interval", "2", "-o", tmp_path / "b3.ply")
+    assert code == 0, err
+    mesh = trimesh.load(tmp_path / "b3.ply", process=False)
+    assert 3000.0 <= mesh.bounds[0][2] and mesh.bounds[1][2] <= 3012.0
+    assert cli._load_input(str(path), None).height_range == (1000.0, 1011.0)  # the first band without --band
+
+    np.save(tmp_path / "one.npy", z)
+    for argv, message in [
+        (("info", path, "--band", "4"), "--band must be between 1 and 3 for"),
+        (("-q", "steps", tmp_path / "one.npy", "--band", "2", "-o", tmp_path / "x.ply"),
+         "--band applies to GeoTIFF only"),
+        (("info", "--band", "2"), "--band applies to a GeoTIFF INPUT; the embedded DEM holds one band"),
+        (("info", tmp_path / "b3.ply", "--band", "2"), "--band applies to a GeoTIFF DEM;"),
+    ]:
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and message in err, err
+    assert not (tmp_path / "x.ply").exists()

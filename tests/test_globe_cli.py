@@ -35,6 +35,54 @@ def test_globe_from_an_npz_grid(tmp_path):
     assert out.stat().st_size > 0
 
 
+def test_globe_from_a_geotiff_in_degrees(tmp_path, capsys):
+    """A global GeoTIFF (ETOPO, GEBCO: the GIS user's global grid) was refused as "INPUT must be a .npz". It is read as
+    load_dem reads it (here scale and offset), its node degrees from its geotransform, longitudes 0..360 or
+    -180..180, north-up or south-up: the same mesh as the .npz of the same grid. A projected GeoTIFF and nodata
+    cells are refused."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    z = (np.add.outer(np.arange(18), np.arange(36)) % 50 * 100).astype(np.int16)  # metres / 10 below, + 5 m
+    lat, lon = 85.0 - 10.0 * np.arange(18), 5.0 + 10.0 * np.arange(36)
+
+    def geotiff(name, data, transform, crs="EPSG:4326", nodata=None):
+        path = tmp_path / name
+        with rasterio.open(path, "w", driver="GTiff", width=36, height=18, count=1, dtype="int16", crs=crs,
+                           transform=transform, nodata=nodata) as ds:  # fmt: skip
+            ds.write(data, 1)
+            ds.scales, ds.offsets = (10.0,), (5.0,)
+        return path
+
+    def mesh(source):
+        out = tmp_path / f"{Path(source).stem}.ply"
+        code = main(["-q", "globe", str(source), "--face-size", "9", "--no-camera", "--error", "0", "-o", str(out)])
+        assert code == 0, capsys.readouterr().err
+        return trimesh.load(out, process=False)
+
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=z * 10.0 + 5.0, lat=lat, lon=lon)
+    expected = mesh(grid)
+    for path in (geotiff("east.tif", z, Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0)),  # longitudes 0..360
+                 geotiff("south_up.tif", z[::-1], Affine(10.0, 0.0, 0.0, 0.0, 10.0, -90.0))):
+        got = mesh(path)
+        assert np.allclose(got.vertices, expected.vertices, rtol=0, atol=1e-3) and np.array_equal(got.faces,
+                                                                                                  expected.faces)
+    west = np.roll(z, 18, axis=1)  # the same grid in longitudes -180..180
+    got = mesh(geotiff("west.tif", west, Affine(10.0, 0.0, -180.0, 0.0, -10.0, 90.0)))
+    assert np.allclose(got.vertices, expected.vertices, rtol=0, atol=1e-3)
+
+    projected = geotiff("utm.tif", z, Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0), crs="EPSG:32611")
+    holes = z.copy()
+    holes[3, 4] = -32768
+    for path, message in [(projected, "must be a GeoTIFF in a geographic CRS (degrees: EPSG:4326); got CRS EPSG:32611"),
+                          (geotiff("holes.tif", holes, Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0), nodata=-32768),
+                           "elevation has 1 NaN or infinite value (first at row 3, column 4)")]:
+        assert main(["globe", str(path), "--face-size", "9", "-o", str(tmp_path / "x.glb")]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "x.glb").exists()
+
+
 @pytest.mark.parametrize(
     "argv, message",
     [

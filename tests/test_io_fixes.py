@@ -1281,3 +1281,76 @@ def test_plain_tiffs_read_in_threads_at_once_leave_the_warning_filters_as_they_w
         thread.join(60)
     assert not errors and read == [True] * 24
     assert warnings.filters == before
+
+
+def test_a_tiff_georeferenced_by_a_world_file_takes_its_crs_from_the_prj_beside_it(tmp_path):
+    """A TIFF with a world file (.tfw) and a .prj beside it, as ESRI software delivers a DEM: GDAL reads the world
+    file's geotransform but not the .prj for a TIFF, so the grid had no CRS; one in degrees was read as metres (cells
+    of 0.000833 m under 3000 m of relief: a needle mesh) and one in US survey feet kept feet as metres. The .prj is
+    read as the texture's --image reads it beside an image; one that is no CRS is refused by name."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    z = (np.arange(12.0).reshape(3, 4) * 10 + 3000).astype(np.int16)
+
+    def world_tiff(name, a, c, e, f, prj):
+        path = tmp_path / name
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+            with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=1, dtype="int16") as ds:
+                ds.write(z, 1)
+        # the world file's six lines: pixel size x, two rotation terms, pixel size y, centre of the top-left pixel
+        path.with_suffix(".tfw").write_text(f"{a!r}\n0.0\n0.0\n{e!r}\n{c + a / 2!r}\n{f + e / 2!r}\n")
+        if prj is not None:
+            path.with_name(prj[0]).write_text(prj[1])
+        return path
+
+    degrees = world_tiff("front.tif", 1 / 1200, -105.8, -1 / 1200, 40.4, ("front.prj", CRS.from_epsg(4326).to_wkt()))
+    t = load_dem(degrees)
+    assert t.crs is not None and t.crs.startswith("+proj=eqc")
+    assert t.spacing[0] == pytest.approx(70.6, abs=0.1) and t.spacing[1] == pytest.approx(-92.66, abs=0.01)
+    assert "lon -105.799583333, lat 40.399583333" in t.source
+
+    feet = world_tiff("site.tif", 100.0, 6.4e6, -100.0, 1.9e6, ("site.tif.prj", CRS.from_epsg(2229).to_wkt()))
+    with pytest.warns(UserWarning, match="EPSG:2229 is in US survey foot units"):
+        t = load_dem(feet)
+    assert t.crs == "EPSG:26945" and t.spacing == pytest.approx((30.480060960121925, -30.480060960121925))
+    assert t.origin == pytest.approx((6400050.0 * 1200 / 3937, 1899950.0 * 1200 / 3937))
+
+    bare = world_tiff("bare.tif", 30.0, 500000.0, -30.0, 4000000.0, None)  # no .prj: no CRS, as before
+    t = load_dem(bare)
+    assert t.crs is None and t.spacing == (30.0, -30.0) and t.origin == (500015.0, 3999985.0)
+
+    broken = world_tiff("broken.tif", 30.0, 500000.0, -30.0, 4000000.0, ("broken.prj", "not a CRS"))
+    with pytest.raises(DataFileError, match=r"broken\.prj' beside DEM '.*broken\.tif' is not a CRS"):
+        load_dem(broken)
+
+
+def test_a_grid_in_degrees_without_a_crs_warns_that_it_was_read_as_metres(tmp_path):
+    """A GeoTIFF whose CRS was lost (or a world file without its .prj) in degrees was read as metres without a word:
+    the Front Range tile became a needle 0.06 m wide under 644 m of relief (the render then refused it as too thin).
+    load_dem warns, naming the CRS to give it; a grid in metres without a CRS and a small one in one unit do not."""
+    rasterio = pytest.importorskip("rasterio")
+
+    def no_crs_tiff(name, z, a, c, e, f):
+        path = tmp_path / name
+        with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
+                           transform=rasterio.Affine(a, 0.0, c, 0.0, e, f)) as ds:  # fmt: skip
+            ds.write(z.astype(np.float32), 1)
+        return path
+
+    with rasterio.open(SHARED_DATA / "front_range_srtmgl3_3arcsec.tif") as ds:
+        z, t = ds.read(1, window=((0, 40), (0, 50))), ds.transform
+    degrees = no_crs_tiff("front.tif", z, t.a, t.c, t.e, t.f)
+    with pytest.warns(UserWarning, match=r"front\.tif: it names no CRS, so its coordinates were read as metres, but "
+                                         r"they look like degrees: nodes at x -105\.81.*assign it: `gdal_edit\.py "
+                                         r"-a_srs EPSG:4326 front\.tif`"):
+        terrain = load_dem(degrees)
+    assert terrain.crs is None and terrain.spacing == (t.a, t.e)  # read as before: the warning says what to do
+
+    metres = no_crs_tiff("site.tif", z, 30.0, 1000.0, -30.0, 2000.0)  # a local grid in metres: 1470 m wide
+    bench = no_crs_tiff("bench.tif", np.add.outer(np.arange(20.0), np.arange(30.0)) * 0.01, 0.01, 0.0, -0.01, 0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(metres)
+        load_dem(bench)  # a 0.3 m model with 0.48 m of relief, in metres near (0, 0)
