@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import given
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
@@ -592,3 +593,79 @@ def test_an_image_extent_in_gdals_order_is_refused_with_the_numbers_in_ours(tmp_
         assert len(np.unique(np.asarray(texture.convert("RGB")).reshape(-1, 3), axis=0)) > 100_000  # the smear: 12661
     out.unlink()
     assert cli.main([*argv, "--image-extent", "340000,450000,3760000,3830000"]) == 0 and out.exists()
+
+
+# ------------------------------------------------------------------------------------------ writing big textures
+def test_composed_pair_gives_the_rgba_and_the_rgb_over_a_background_of_two_passes_in_one(monkeypatch):
+    """texture._composed_pair (a DEM with nodata, `stepterrain texture --mesh/--png`: the RGBA file and the drape's RGB
+    over white, which the command composed in two kernel passes, 8 s each at 77 M texels) gives, from one pass of
+    compose_texture, the bytes _composed gives RGBA and over the background: shading with a nodata hole, colours,
+    pictures sampled (part transparent, part half) or on the grid, on the node grid and 3 x 3 texels a node."""
+    from stepterrain import texture as tx
+
+    rng = np.random.default_rng(11)
+    heights = np.cumsum(rng.normal(size=(23, 31)), axis=0) * 5.0 + np.linspace(0, 40, 31)
+    heights[8:12, 10:15] = np.nan
+    topo = tx.topographic_layer(heights, spacing=(30.0, -30.0), shadows=True, device="cpu")
+    colours = tx.terrain_layer(heights, rng.random((23, 31, 4)).astype(np.float32), spacing=(30.0, -30.0))
+    extent = topo.extent
+    sampled = rng.integers(0, 256, (40, 50, 4), dtype=np.uint8)
+    sampled[:10, :, 3] = 0
+    sampled[20:25, :, 3] = 128
+    inside = (extent[0] + 100, extent[1] - 200, extent[2] + 50, extent[3] - 40)
+    launches = []
+    original = tx.launch
+
+    def counting(kernel, *args, **kwargs):
+        launches.append(kernel.key)
+        return original(kernel, *args, **kwargs)
+
+    for fine in (1, 3):
+        shape = (23 * fine, 31 * fine)
+        own = rng.integers(0, 256, (*shape, 4), dtype=np.uint8)
+        own[:5, :, 3] = 0
+        for picture in (None, tx.TextureLayer("thematic", sampled, inside), tx.TextureLayer("thematic", own, extent)):
+            for hypsometric in (None, colours):
+                for over in ((1.0, 1.0, 1.0), (0.2, 0.5, 0.9)):
+                    monkeypatch.setattr(tx, "launch", counting)
+                    launches.clear()
+                    rgba, rgb = tx._composed_pair(topo, hypsometric, picture, extent, shape, None, over, "cpu")
+                    assert launches == ["compose_texture"]
+                    monkeypatch.setattr(tx, "launch", original)
+                    assert np.array_equal(rgba, tx._composed(topo, hypsometric, picture, extent, shape, None, "cpu"))
+                    assert np.array_equal(rgb, tx._composed(topo, hypsometric, picture, extent, shape, over, "cpu"))
+
+
+def test_cli_texture_of_a_dem_with_nodata_composes_once_for_the_file_and_the_drape(tmp_path, monkeypatch):
+    """stepterrain texture over a DEM with nodata, -o and --mesh: the RGBA texture and the drape's RGB over white came
+    from two passes of compose_texture (8 s each at 77 M texels); one now. The GLB's texture is the file's RGB where
+    it is opaque and white over the nodata hole (alpha 0), as before."""
+    from PIL import Image
+
+    from stepterrain import texture as tx
+    from stepterrain.cli import main
+
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    heights = (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32)
+    heights[10:15, 20:30] = np.nan
+    np.save(tmp_path / "holes.npy", heights)
+    launches = []
+    original = tx.launch
+
+    def counting(kernel, *args, **kwargs):
+        launches.append(kernel.key)
+        return original(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(tx, "launch", counting)
+    out, glb = tmp_path / "tex.png", tmp_path / "out.glb"
+    assert main(["texture", str(tmp_path / "holes.npy"), "--spacing", "30", "-o", str(out), "--mesh", str(glb),
+                 "--device", "cpu"]) == 0
+    assert launches.count("compose_texture") == 1
+    with Image.open(out) as picture:
+        rgba = np.asarray(picture)
+    assert rgba.shape == (40, 50, 4) and set(np.unique(rgba[..., 3])) == {0, 255}
+    embedded = np.asarray(trimesh.load(glb, force="mesh").visual.material.baseColorTexture)
+    assert embedded.shape == (40, 50, 3)
+    opaque = rgba[..., 3] == 255
+    assert np.array_equal(embedded[opaque], rgba[..., :3][opaque])
+    assert (embedded[~opaque] == 255).all()
