@@ -12,6 +12,7 @@ from __future__ import annotations
 import base64
 import contextlib
 import contextvars
+import copy
 import errno
 import io
 import json
@@ -1134,7 +1135,10 @@ def _write_rows(write: Callable[[str], Any], row: str, blocks: Iterable[NDArray[
 
 def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes], str | None, NDArray[Any] | None]:
     """A textured mesh's OBJ side files ({name: bytes}: the ``.mtl`` and its images, as trimesh's ``to_obj`` makes
-    them), material name and (V, 2) UVs (None without UVs); ({}, None, None) for a mesh without a material."""
+    them), material name and (V, 2) UVs (None without UVs); ({}, None, None) for a mesh without a material. Its PNG
+    image is encoded by :func:`_png_data` (trimesh's ``to_obj`` deflated it again at zlib's default)."""
+    from PIL import Image
+
     visual = mesh.visual
     if not hasattr(visual, "uv") or getattr(visual, "material", None) is None:
         return {}, None, None
@@ -1145,6 +1149,10 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
         if unset:  # trimesh's default Kd 0.4 dims map_Kd to 40 % (MTL multiplies them; three.js does), Ks 0.4 shines
             material.diffuse = np.array([255, 255, 255, 255], np.uint8)
             material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
+    image = getattr(material, "image", None)
+    if isinstance(image, Image.Image) and image.format in (None, "PNG"):  # trimesh's to_obj writes it as PNG
+        material = copy.copy(material)  # the mesh's own (a SimpleMaterial): _alpha_map reads its image after
+        material.image = _EncodedImage(_png_data(image), "PNG")  # once, as a glTF's texture (_encoded_textures)
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
         name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
@@ -2009,12 +2017,18 @@ def _encoded_textures(material: Any) -> None:
         image = getattr(material, slot, None)
         if not isinstance(image, Image.Image) or image.format == "JPEG":
             continue
-        data = _written_png(image) if _png_options(image) else None
-        if data is None:
-            buffer = io.BytesIO()
-            image.save(buffer, format="PNG", **_png_options(image))
-            data = buffer.getvalue()
-        setattr(material, slot, _EncodedImage(data, "PNG"))
+        setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
+
+
+def _png_data(image: Any) -> bytes:
+    """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`): the bytes of the large PNG it
+    last wrote when that holds the same pixels (:func:`_written_png`), else encoded here."""
+    data = _written_png(image) if _png_options(image) else None
+    if data is None:
+        buffer = io.BytesIO()
+        image.save(buffer, format="PNG", **_png_options(image))
+        data = buffer.getvalue()
+    return data
 
 
 def _textured_material(material: Any) -> Any:

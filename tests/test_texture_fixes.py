@@ -755,3 +755,38 @@ def test_cli_texture_of_a_dem_with_nodata_composes_once_for_the_file_and_the_dra
     opaque = rgba[..., 3] == 255
     assert np.array_equal(embedded[opaque], rgba[..., :3][opaque])
     assert (embedded[~opaque] == 255).all()
+
+
+def test_cli_texture_obj_side_image_is_the_written_pngs_bytes(tmp_path, monkeypatch):
+    """stepterrain texture -o tex.png --mesh out.obj (a large texture): trimesh's to_obj deflated the texture again
+    for the OBJ's side image, at zlib's default. It is deflated once: the side image is the -o file's bytes, and
+    decodes to the texture; a texture no PNG file holds is deflated once, with the large-PNG settings."""
+    import io
+
+    from PIL import Image
+
+    from stepterrain import export
+    from stepterrain.cli import main
+
+    monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    sizes = _png_encodes(monkeypatch)
+    out, obj = tmp_path / "tex.png", tmp_path / "out.obj"
+    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+                 "--mesh", str(obj), "--device", "cpu"]) == 0
+    assert sizes == [(150, 120)]
+    (side,) = [p for p in tmp_path.glob("out_*.png")]
+    assert side.read_bytes() == out.read_bytes()
+    with Image.open(out) as picture:
+        texture = np.asarray(picture)
+    mesh = trimesh.load(tmp_path / "out.obj", force="mesh")
+    assert np.array_equal(np.asarray(mesh.visual.material.image.convert("RGB")), texture)
+    export._LAST_PNG.clear()
+    sizes.clear()
+    export.save_mesh(mesh, tmp_path / "again.obj")
+    assert sizes == [(150, 120)]
+    rle = io.BytesIO()
+    Image.fromarray(texture).save(rle, format="PNG", compress_type=3)
+    (again,) = [p for p in tmp_path.glob("again_*.png")]
+    assert again.read_bytes() == rle.getvalue()
