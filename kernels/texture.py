@@ -1018,6 +1018,7 @@ def compose_texture(
     over_background: wp.int32,
     # outputs
     image_out: wp.array3d[wp.uint8],
+    over_out: wp.array3d[wp.uint8],
 ):
     """One thread per texel of ``frame``: the topographic texture composed in one pass, as the layer operations
     compose it one layer at a time (``stepterrain texture``): the shading (a topographic layer) and the colours
@@ -1025,8 +1026,10 @@ def compose_texture(
     laid over the colours (:func:`blend_over` by its own alpha; alone without colours) and modulated by the
     shading (:func:`modulated`; the colours modulated by it without a picture; the shading alone without either);
     written as uint8, ``rint(255 * c)`` of each channel clamped, RGBA, or RGB composited over ``background`` when
-    ``over_background`` (``TextureLayer.to_uint8``). A mode is :func:`layer_at`'s, -1 for a layer not given;
-    ``picture_mode`` 3 reads ``picture_bytes`` (uint8 on the texel grid) instead of ``picture``."""
+    ``over_background`` is 1 (``TextureLayer.to_uint8``); when it is 2, both: the RGBA to ``image_out`` and the RGB
+    over ``background`` to ``over_out`` (a DEM with nodata: the texture file's and the drape's, one pass). A mode
+    is :func:`layer_at`'s, -1 for a layer not given; ``picture_mode`` 3 reads ``picture_bytes`` (uint8 on the texel
+    grid) instead of ``picture``."""
     i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
     c = clamped(layer_at(frame, shading, shading_matrix, shading_mode, i, j))
     if picture_mode >= 0:
@@ -1050,6 +1053,11 @@ def compose_texture(
     else:
         for k in range(4):
             image_out[i, j, k] = wp.uint8(wp.rint(c[k] * 255.0))
+        if over_background == 2:
+            a = c[3]
+            for k in range(3):
+                v = c[k] * a + background[k] * (1.0 - a)
+                over_out[i, j, k] = wp.uint8(wp.rint(wp.clamp(v, 0.0, 1.0) * 255.0))
 
 
 @wp.func

@@ -1151,16 +1151,33 @@ def _composed_input(layer: TextureLayer | None, extent: Extent, shape: tuple[int
 def _composed(shading: TextureLayer, colours: TextureLayer | None, picture: TextureLayer | None, extent: Extent,
               shape: tuple[int, int], background: Sequence[float] | None, device: wp.DeviceLike = None
               ) -> NDArray[np.uint8]:
+    """The texture :func:`_composed_pair` composes, alone."""
+    return _composed_pair(shading, colours, picture, extent, shape, background, None, device)[0]
+
+
+def _composed_pair(shading: TextureLayer, colours: TextureLayer | None, picture: TextureLayer | None, extent: Extent,
+                   shape: tuple[int, int], background: Sequence[float] | None, over: Sequence[float] | None,
+                   device: wp.DeviceLike = None) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None]:
     """The texture ``stepterrain texture`` composes, as uint8 on the pixel grid (extent, shape), in one kernel pass
     (``compose_texture``): the same values as the layer operations one at a time, each layer resampled onto the
     grid (``_sampled``) and clamped as a layer's RGBA is, then ``blend(colours, picture)`` (the picture alone
     without colours) and ``modulate(shading, that)`` (``modulate(colours, shading)`` without a picture; the
     shading alone without either), ``.to_uint8(background)``; without their float32 RGBA layers on the grid
-    (16 bytes a texel each, several at once, and their checks): the uint8 image and the layers' own RGBA."""
+    (16 bytes a texel each, several at once, and their checks): the uint8 image and the layers' own RGBA.
+
+    :func:`_composed_pair` with ``background`` None and an ``over`` colour also returns the RGB texture over
+    ``over`` from the same pass (``.to_uint8(over)``, byte for byte what :func:`_composed` over it gives): a DEM
+    with nodata wants both, the RGBA file and the drape's RGB, and composing it twice took twice the kernel's time
+    (8 s a pass at 77 M texels); else its second item is None."""
     dev = resolve_device(device)
     rows, cols = shape
     channels = 4 if background is None else 3
     host, target = _output((rows, cols, channels), np.uint8, wp.uint8, dev)
+    both = background is None and over is not None
+    if both:
+        over_host, over_target = _output((rows, cols, 3), np.uint8, wp.uint8, dev)
+    else:
+        over_host, over_target = None, wp.empty((1, 1, 1), dtype=wp.uint8, device=dev)
     inputs = [_composed_input(shading, extent, shape, dev, "shading"),
               _composed_input(colours, extent, shape, dev, "colours")]
     picture_input = _composed_input(picture, extent, shape, dev, "picture", raw=True)
@@ -1169,11 +1186,13 @@ def _composed(shading: TextureLayer, colours: TextureLayer | None, picture: Text
         picture_args = [wp.empty((1, 1), dtype=wp.vec4, device=dev), picture_input[0], *picture_input[1:]]
     else:
         picture_args = [picture_input[0], no_bytes, *picture_input[1:]]
-    bg = wp.vec3(0.0, 0.0, 0.0) if background is None else wp.vec3(*(float(np.float32(v)) for v in background))
+    under = background if background is not None else over
+    bg = wp.vec3(0.0, 0.0, 0.0) if under is None else wp.vec3(*(float(np.float32(v)) for v in under))
     launch(texture_kernels.compose_texture, dim=rows * cols,
-           inputs=[_frame(extent, shape), *inputs[0], *inputs[1], *picture_args, bg, 0 if background is None else 1],
-           outputs=[target], device=dev)
-    return _result(host, target)
+           inputs=[_frame(extent, shape), *inputs[0], *inputs[1], *picture_args, bg,
+                   2 if both else 0 if background is None else 1],
+           outputs=[target, over_target], device=dev)
+    return _result(host, target), (_result(over_host, over_target) if both else None)
 
 
 def _finish(out: wp.array, like: TextureLayer, name: str) -> TextureLayer:

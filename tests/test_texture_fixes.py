@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+import trimesh
 from hypothesis import given
 from hypothesis import strategies as hst
 from hypothesis.extra.numpy import arrays
@@ -592,3 +593,200 @@ def test_an_image_extent_in_gdals_order_is_refused_with_the_numbers_in_ours(tmp_
         assert len(np.unique(np.asarray(texture.convert("RGB")).reshape(-1, 3), axis=0)) > 100_000  # the smear: 12661
     out.unlink()
     assert cli.main([*argv, "--image-extent", "340000,450000,3760000,3830000"]) == 0 and out.exists()
+
+
+# ------------------------------------------------------------------------------------------ writing big textures
+def _png_encodes(monkeypatch) -> list[tuple[int, int]]:
+    """The (width, height) of every image Pillow deflates as PNG from here on (``Image.SAVE['PNG']`` wrapped)."""
+    from PIL import Image
+
+    Image.init()
+    original = Image.SAVE["PNG"]
+    sizes: list[tuple[int, int]] = []
+
+    def counting(im, fp, filename, *args, **kwargs):
+        sizes.append(im.size)
+        return original(im, fp, filename, *args, **kwargs)
+
+    monkeypatch.setitem(Image.SAVE, "PNG", counting)
+    return sizes
+
+
+def test_a_large_png_is_deflated_with_z_rle_and_decodes_to_the_same_pixels(tmp_path, monkeypatch):
+    """save_image deflates a PNG of more than export._FAST_PNG_PIXELS pixels with zlib's Z_RLE strategy (about 4x
+    faster than the default level 6: 29-31 s of a 77 M texel texture's 38 s went to deflating it): the file decodes
+    to exactly the image given; a smaller one is written byte for byte as Pillow's default writes it."""
+    import io
+
+    from PIL import Image
+
+    from stepterrain import export
+
+    monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
+    rng = np.random.default_rng(3)
+    big = (np.cumsum(rng.integers(0, 3, (90, 80, 4)), axis=1) % 256).astype(np.uint8)
+    small = big[:50, :50, :3]
+    for image, fast in ((big, True), (small, False)):
+        out = export.save_image(image, tmp_path / f"{image.shape[0]}.png")
+        with Image.open(out) as picture:
+            assert np.array_equal(np.asarray(picture), image)
+        default = io.BytesIO()
+        Image.fromarray(image).save(default, format="PNG")
+        rle = io.BytesIO()
+        Image.fromarray(image).save(rle, format="PNG", compress_type=3)
+        assert out.read_bytes() == (rle if fast else default).getvalue()
+
+
+def test_cli_texture_glb_takes_the_written_pngs_bytes_instead_of_deflating_the_texture_again(tmp_path, monkeypatch):
+    """stepterrain texture -o tex.png --mesh out.glb (--texel-size, a large texture): the texture was deflated twice,
+    for the PNG and again inside trimesh's glTF writer (at zlib's default). It is deflated once: the GLB embeds the
+    PNG file's bytes; its image decodes to the texture, and the GLB validates. A texture no PNG file holds is
+    deflated once for a GLB, by save_mesh with the large-PNG settings (Z_RLE), not again by trimesh."""
+    from PIL import Image
+
+    from stepterrain import export
+    from stepterrain.cli import main
+
+    from . import gltf_validator
+
+    monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    sizes = _png_encodes(monkeypatch)
+    out, glb = tmp_path / "tex.png", tmp_path / "out.glb"
+    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+                 "--mesh", str(glb), "--device", "cpu"]) == 0
+    with Image.open(out) as picture:
+        texture = np.asarray(picture)
+    assert texture.shape == (120, 150, 3)
+    assert sizes == [(150, 120)]  # the -o file alone
+    embedded = trimesh.load(glb, force="mesh").visual.material.baseColorTexture
+    assert np.array_equal(np.asarray(embedded), texture)
+    assert out.read_bytes() in glb.read_bytes()
+    ok, _ = gltf_validator.available()
+    if ok:
+        assert gltf_validator.problems(gltf_validator.validate([glb])) == []
+    textured = trimesh.load(glb, force="mesh")
+    keyed = Image.fromarray(texture)  # the file's pixels, but its PNG carries a transparent colour: not the file's
+    keyed.info["transparency"] = tuple(int(v) for v in texture[0, 0])
+    textured.visual.material.baseColorTexture = keyed
+    sizes.clear()
+    export.save_mesh(textured, tmp_path / "keyed.glb")
+    assert sizes == [(150, 120)] and b"tRNS" in (tmp_path / "keyed.glb").read_bytes()
+    export._LAST_PNG.clear()  # a texture no PNG holds: deflated once for the GLB, with Z_RLE
+    sizes.clear()
+    textured = trimesh.load(glb, force="mesh")
+    export.save_mesh(textured, tmp_path / "again.glb")
+    assert sizes == [(150, 120)]
+    again = trimesh.load(tmp_path / "again.glb", force="mesh").visual.material.baseColorTexture
+    assert np.array_equal(np.asarray(again), texture)
+
+
+def test_composed_pair_gives_the_rgba_and_the_rgb_over_a_background_of_two_passes_in_one(monkeypatch):
+    """texture._composed_pair (a DEM with nodata, `stepterrain texture --mesh/--png`: the RGBA file and the drape's RGB
+    over white, which the command composed in two kernel passes, 8 s each at 77 M texels) gives, from one pass of
+    compose_texture, the bytes _composed gives RGBA and over the background: shading with a nodata hole, colours,
+    pictures sampled (part transparent, part half) or on the grid, on the node grid and 3 x 3 texels a node."""
+    from stepterrain import texture as tx
+
+    rng = np.random.default_rng(11)
+    heights = np.cumsum(rng.normal(size=(23, 31)), axis=0) * 5.0 + np.linspace(0, 40, 31)
+    heights[8:12, 10:15] = np.nan
+    topo = tx.topographic_layer(heights, spacing=(30.0, -30.0), shadows=True, device="cpu")
+    colours = tx.terrain_layer(heights, rng.random((23, 31, 4)).astype(np.float32), spacing=(30.0, -30.0))
+    extent = topo.extent
+    sampled = rng.integers(0, 256, (40, 50, 4), dtype=np.uint8)
+    sampled[:10, :, 3] = 0
+    sampled[20:25, :, 3] = 128
+    inside = (extent[0] + 100, extent[1] - 200, extent[2] + 50, extent[3] - 40)
+    launches = []
+    original = tx.launch
+
+    def counting(kernel, *args, **kwargs):
+        launches.append(kernel.key)
+        return original(kernel, *args, **kwargs)
+
+    for fine in (1, 3):
+        shape = (23 * fine, 31 * fine)
+        own = rng.integers(0, 256, (*shape, 4), dtype=np.uint8)
+        own[:5, :, 3] = 0
+        for picture in (None, tx.TextureLayer("thematic", sampled, inside), tx.TextureLayer("thematic", own, extent)):
+            for hypsometric in (None, colours):
+                for over in ((1.0, 1.0, 1.0), (0.2, 0.5, 0.9)):
+                    monkeypatch.setattr(tx, "launch", counting)
+                    launches.clear()
+                    rgba, rgb = tx._composed_pair(topo, hypsometric, picture, extent, shape, None, over, "cpu")
+                    assert launches == ["compose_texture"]
+                    monkeypatch.setattr(tx, "launch", original)
+                    assert np.array_equal(rgba, tx._composed(topo, hypsometric, picture, extent, shape, None, "cpu"))
+                    assert np.array_equal(rgb, tx._composed(topo, hypsometric, picture, extent, shape, over, "cpu"))
+
+
+def test_cli_texture_of_a_dem_with_nodata_composes_once_for_the_file_and_the_drape(tmp_path, monkeypatch):
+    """stepterrain texture over a DEM with nodata, -o and --mesh: the RGBA texture and the drape's RGB over white came
+    from two passes of compose_texture (8 s each at 77 M texels); one now. The GLB's texture is the file's RGB where
+    it is opaque and white over the nodata hole (alpha 0), as before."""
+    from PIL import Image
+
+    from stepterrain import texture as tx
+    from stepterrain.cli import main
+
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    heights = (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32)
+    heights[10:15, 20:30] = np.nan
+    np.save(tmp_path / "holes.npy", heights)
+    launches = []
+    original = tx.launch
+
+    def counting(kernel, *args, **kwargs):
+        launches.append(kernel.key)
+        return original(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(tx, "launch", counting)
+    out, glb = tmp_path / "tex.png", tmp_path / "out.glb"
+    assert main(["texture", str(tmp_path / "holes.npy"), "--spacing", "30", "-o", str(out), "--mesh", str(glb),
+                 "--device", "cpu"]) == 0
+    assert launches.count("compose_texture") == 1
+    with Image.open(out) as picture:
+        rgba = np.asarray(picture)
+    assert rgba.shape == (40, 50, 4) and set(np.unique(rgba[..., 3])) == {0, 255}
+    embedded = np.asarray(trimesh.load(glb, force="mesh").visual.material.baseColorTexture)
+    assert embedded.shape == (40, 50, 3)
+    opaque = rgba[..., 3] == 255
+    assert np.array_equal(embedded[opaque], rgba[..., :3][opaque])
+    assert (embedded[~opaque] == 255).all()
+
+
+def test_cli_texture_obj_side_image_is_the_written_pngs_bytes(tmp_path, monkeypatch):
+    """stepterrain texture -o tex.png --mesh out.obj (a large texture): trimesh's to_obj deflated the texture again
+    for the OBJ's side image, at zlib's default. It is deflated once: the side image is the -o file's bytes, and
+    decodes to the texture; a texture no PNG file holds is deflated once, with the large-PNG settings."""
+    import io
+
+    from PIL import Image
+
+    from stepterrain import export
+    from stepterrain.cli import main
+
+    monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    sizes = _png_encodes(monkeypatch)
+    out, obj = tmp_path / "tex.png", tmp_path / "out.obj"
+    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+                 "--mesh", str(obj), "--device", "cpu"]) == 0
+    assert sizes == [(150, 120)]
+    (side,) = [p for p in tmp_path.glob("out_*.png")]
+    assert side.read_bytes() == out.read_bytes()
+    with Image.open(out) as picture:
+        texture = np.asarray(picture)
+    mesh = trimesh.load(tmp_path / "out.obj", force="mesh")
+    assert np.array_equal(np.asarray(mesh.visual.material.image.convert("RGB")), texture)
+    export._LAST_PNG.clear()
+    sizes.clear()
+    export.save_mesh(mesh, tmp_path / "again.obj")
+    assert sizes == [(150, 120)]
+    rle = io.BytesIO()
+    Image.fromarray(texture).save(rle, format="PNG", compress_type=3)
+    (again,) = [p for p in tmp_path.glob("again_*.png")]
+    assert again.read_bytes() == rle.getvalue()
