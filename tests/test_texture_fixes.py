@@ -775,7 +775,7 @@ def test_cli_texture_obj_side_image_is_the_written_pngs_bytes(tmp_path, monkeypa
     out, obj = tmp_path / "tex.png", tmp_path / "out.obj"
     assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
                  "--mesh", str(obj), "--device", "cpu"]) == 0
-    assert sizes == [(150, 120)]
+    assert sizes == [(2, 2), (150, 120)]  # the 2 x 2 stand-in whose side files are checked before any work, once
     (side,) = [p for p in tmp_path.glob("out_*.png")]
     assert side.read_bytes() == out.read_bytes()
     with Image.open(out) as picture:
