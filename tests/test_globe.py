@@ -12,6 +12,7 @@ import trimesh
 import warp as wp
 from hypothesis import Phase, given, settings
 from hypothesis import strategies as hst
+from stepterrain.kernels import bounds as bk
 from stepterrain.kernels import cubesphere as cs
 
 from stepterrain import globe as globe_module
@@ -303,6 +304,120 @@ def test_plane_distance_formulas_agree_with_brute_force_in_all_three_cases():
         inv = _distances([p], [(1.0, h, alpha)], (0, 0, 0), (*(-n), -a))[0]
         assert -inv[3] == pytest.approx((samples @ n + a).min(), abs=2e-3)
     assert cases == {1, 2, 3}
+
+
+def _cone_eye_distance_2d(p, h, alpha, eye) -> float:
+    """d(eye, cone frustum) by reduction to the plane through the axis and the eye: the frustum's section is
+    {ρ (cos θ, sin θ): ρ in [bottom, top], |θ| <= α}; an eye at angle β <= α from the axis is above, inside or below
+    it; one further off is nearest to the edge θ = α, a segment (the arcs' nearest points are its ends)."""
+    length = float(np.linalg.norm(p))
+    top, bottom = length + h, max(length - h, 0.0)
+    v = float(np.linalg.norm(eye))
+    if v == 0.0:
+        return bottom
+    beta = math.atan2(float(np.linalg.norm(np.cross(eye, p))), float(eye @ p))
+    if beta <= alpha:
+        return max(v - top, bottom - v, 0.0)
+    q = np.array([v * math.cos(beta), v * math.sin(beta)])
+    u = np.array([math.cos(alpha), math.sin(alpha)])
+    a, b = bottom * u, top * u
+    s = float(np.clip((q - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0))
+    return float(np.linalg.norm(q - a - s * (b - a)))
+
+
+def _cone_plane_max(p, h, alpha, plane):
+    """max of ⟨n, x⟩ + a over the cone frustum (per plane of a (K, 4) stack): over the directions within α of the
+    axis ⟨n, d⟩ peaks at cos(max(angle(n, axis) − α, 0)), taken at the top radius when positive, else at the
+    bottom."""
+    plane = np.asarray(plane, dtype=np.float64)
+    n, a = plane[..., :3], plane[..., 3]
+    length = float(np.linalg.norm(p))
+    top, bottom = length + h, max(length - h, 0.0)
+    c = np.cos(np.maximum(np.arctan2(np.linalg.norm(np.cross(n, p), axis=-1), n @ p) - alpha, 0.0))
+    return a + np.where(c >= 0, top * c, bottom * c)
+
+
+_unit = hst.tuples(*[hst.floats(-1.0, 1.0)] * 3).filter(lambda v: math.hypot(*v) > 0.1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(axis=_unit, length=hst.floats(0.1, 1000.0), height=hst.floats(1e-4, 3.0), alpha=hst.floats(0.0, 1.5),
+       eye_dir=_unit, eye_at=hst.floats(0.0, 3.0), normal=_unit, offset=hst.floats(-3.0, 3.0))
+def test_property_shape_distances_equal_the_planar_section_reference(axis, length, height, alpha, eye_dir, eye_at,
+                                                                     normal, offset):
+    """Random cone frustums (h up to 3 |p|: the bottom clamped at the centre; opening up to 1.5 rad), eyes anywhere
+    (the centre and the axis included) and planes: d(v, B) and the largest plane distance equal the exact references
+    of the frustum's planar section, and the sphere's are ‖p − v‖ − r (at least 0) and ⟨n, p⟩ + a + r."""
+    p = np.asarray(axis) / np.linalg.norm(axis) * length
+    h = height * length
+    eye = np.asarray(eye_dir) / np.linalg.norm(eye_dir) * eye_at * length
+    if eye_at < 0.05:
+        eye = np.zeros(3)
+    n = np.asarray(normal) / np.linalg.norm(normal)
+    plane = (*n, offset * length)
+    r = 0.5 * length
+    got = _distances([p], [(r, h, alpha)], eye, plane)[0]
+    scale = length + h + float(np.linalg.norm(eye))
+    assert got[0] == pytest.approx(max(float(np.linalg.norm(p - eye)) - r, 0.0), abs=1e-12 * scale)
+    assert got[1] == pytest.approx(_cone_eye_distance_2d(p, h, alpha, eye), abs=1e-9 * scale)
+    assert got[2] == pytest.approx(float(n @ p) + plane[3] + r, abs=1e-12 * scale)
+    assert got[3] == pytest.approx(_cone_plane_max(p, h, alpha, plane), abs=1e-9 * scale)
+    # the smallest signed distance is minus the inverted plane's largest
+    inverted = _distances([p], [(r, h, alpha)], eye, tuple(-np.asarray(plane)))[0]
+    assert -inverted[3] <= got[3] + 1e-9 * scale
+
+
+@wp.kernel
+def _view_sides(planes: wp.array[wp.vec4d], centres: wp.array[wp.vec3d], params: wp.array[wp.vec3d],
+                sides: wp.array[wp.vec2i]):
+    """sphere_view_side and cone_view_side of each shape (r, h, α)."""
+    i = wp.tid()
+    p = centres[i]
+    q = params[i]
+    p_len = wp.length(p)
+    sides[i] = wp.vec2i(bk.sphere_view_side(planes, p, q[0]),
+                        bk.cone_view_side(planes, p, p / p_len, p_len, q[1], q[2], bk.sin_cos(q[2])))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), fov=hst.floats(0.2, 2.0), aspect=hst.floats(0.3, 3.0),
+       spread=hst.floats(0.01, 2.0), wide=hst.booleans())
+def test_property_view_sides_of_shapes_agree_with_their_exact_plane_distances(seed, fov, aspect, spread, wide):
+    """The clip test of 200 random spheres and cone frustums against a random view frustum: a shape said to lie wholly
+    outside lies outside one plane (its exact smallest distance to it >= 0: nothing visible is culled), one said to
+    lie wholly inside lies inside every plane (its descendants skip the clip test), and a shape wholly outside one
+    plane is said so (the test is exact per plane)."""
+    rng = np.random.default_rng(seed)
+    eye = rng.normal(size=3) * 3.0
+    cam = Camera(eye=tuple(eye), target=tuple(rng.normal(size=3)), up=tuple(rng.normal(size=3)), fov=fov,
+                 aspect=aspect, near=0.05, far=float(rng.uniform(2.0, 12.0)))
+    planes = cam.planes().astype(np.float64)
+    count = 200
+    centres = rng.normal(size=(count, 3)) * 3.0
+    length = np.linalg.norm(centres, axis=1)
+    params = np.column_stack([length * spread * rng.uniform(0.0, 1.0, count),
+                              length * spread * rng.uniform(0.0, 1.5 if wide else 0.2, count),
+                              rng.uniform(0.0, 1.4 if wide else spread * 0.2, count)])
+    device = wp.get_device("cpu")
+    sides = wp.empty(count, dtype=wp.vec2i, device=device)
+    wp.launch(_view_sides, count, [wp.array(planes, dtype=wp.vec4d, device=device),
+                                   wp.array(centres, dtype=wp.vec3d, device=device),
+                                   wp.array(params, dtype=wp.vec3d, device=device)], [sides], device=device)
+    sides = sides.numpy()
+    outside, inside = int(bk.OUTSIDE), int(bk.INSIDE)
+    for k in range(count):
+        p, (r, h, alpha) = centres[k], params[k]
+        tol = 1e-9 * (np.linalg.norm(p) + r + h + 1.0)
+        sphere_max = planes[:, :3] @ p + planes[:, 3] + r  # per plane: the largest and smallest signed distance
+        sphere_min = sphere_max - 2 * r
+        cone_max = _cone_plane_max(p, h, alpha, planes)
+        cone_min = -_cone_plane_max(p, h, alpha, -planes)
+        for side, lo, hi in ((sides[k][0], sphere_min, sphere_max), (sides[k][1], cone_min, cone_max)):
+            if side == outside:
+                assert (lo >= -tol).any(), f"shape {k} culled though it reaches into every half-space"
+            elif side == inside:
+                assert (hi <= tol).all(), f"shape {k} said inside though it reaches out of a plane"
+            assert side == outside or not (lo > tol).any(), f"shape {k} wholly outside a plane but not culled"
 
 
 def test_camera_planes_contain_what_it_sees():
