@@ -321,7 +321,8 @@ def _cone_eye_distance_2d(p, h, alpha, eye) -> float:
     q = np.array([v * math.cos(beta), v * math.sin(beta)])
     u = np.array([math.cos(alpha), math.sin(alpha)])
     a, b = bottom * u, top * u
-    s = float(np.clip((q - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0))
+    span = float((b - a) @ (b - a))  # 0 for h = 0: the segment is a point
+    s = float(np.clip((q - a) @ (b - a) / span, 0.0, 1.0)) if span > 0 else 0.0
     return float(np.linalg.norm(q - a - s * (b - a)))
 
 
@@ -474,6 +475,62 @@ def test_refinement_matches_reference_visit(small_globe):
     mesh = g.mesh(error=eps)
     assert _triangles_as_points(mesh, g) == sorted(out)
     del pos
+
+
+def _reference_refines(p, e, r, h, alpha, eye, planes, error, scale, cone) -> bool:
+    """μ = e · (ℓ / d)² > ε (§7.2, §7.4; d = 0, the eye inside the shape: refine unless e = 0) and the shape not
+    wholly outside a frustum plane (§7.3), with the exact distances of the shape (the references above)."""
+    if e <= 0.0:
+        return False
+    if cone:
+        d = _cone_eye_distance_2d(p, h, alpha, eye)
+        lowest = -_cone_plane_max(p, h, alpha, -planes)
+    else:
+        d = max(float(np.linalg.norm(p - eye)) - r, 0.0)
+        lowest = planes[:, :3] @ p + planes[:, 3] - r
+    if d > 0.0 and e * (scale / d) ** 2 <= error:
+        return False
+    return not (lowest > 0.0).any()
+
+
+@settings(max_examples=8, deadline=None)
+@given(distance=hst.floats(1.02, 3.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.5, 1.5),
+       log_error=hst.floats(2.0, 6.0), cone=hst.booleans(), seed=hst.integers(0, 2**32 - 1))
+def test_property_refinement_with_a_camera_matches_the_reference_visit(small_globe, distance, lon, lat, log_error,
+                                                                      cone, seed):
+    """Random views of the globe, geometric, distance and clip metrics on cones or spheres: the Warp refinement (with
+    its quick rejects and accepts, its clip test skipped below shapes found inside) equals the recursive visit of §5.2
+    deciding each node by the exact μ = e · (ℓ / d)² > ε and the exact clip test, on the same node parameters."""
+    g = small_globe
+    error = 10.0**log_error  # the node errors span about 1e3 to 1e6 m (curvature and 20x relief)
+    rng = np.random.default_rng(seed)
+    params = {k: v.reshape(-1).astype(np.float64) for k, v in g.node_parameters().items()}
+    pos = g.positions.reshape(-1, 3).astype(np.float64)
+    n = g.face_size
+    eye = distance * R * np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    cam = Camera(eye=tuple(eye), target=tuple(rng.normal(size=3) * 0.5 * R), up=tuple(rng.normal(size=3)),
+                 fov=float(rng.uniform(0.3, 1.2)), aspect=float(rng.uniform(0.5, 2.0)), near=1.0,
+                 far=float(rng.uniform(1.0, 4.0)) * R)
+    planes = cam.planes().astype(np.float64)
+    scale = float(np.linalg.norm(eye)) - R
+    levels, _, _ = ref.bisection_tree(g.cells)
+    out = []
+
+    def visit(f, a, b, c):
+        if ref.splits(a, b):
+            m = ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2)
+            k = f * n * n + m[0] * n + m[1]
+            if _reference_refines(pos[k], params["geometric_error"][k], params["bounding_radius"][k],
+                                  params["cone_height"][k], params["cone_angle"][k], eye, planes, error, scale, cone):
+                visit(f, c, a, m)
+                visit(f, b, c, m)
+                return
+        out.append(tuple(sorted(ref.cube_point(f, *q, g.cells) for q in (a, b, c))))
+
+    for f, a, b, c in levels[0]:
+        visit(f, a, b, c)
+    mesh = g.mesh(error=error, camera=cam, bounds="cone" if cone else "sphere", distance_scale=scale, cull=False)
+    assert _triangles_as_points(mesh, g) == sorted(out)
 
 
 def _assert_culled_exactly(closed, culled, cam):
