@@ -1704,9 +1704,32 @@ def _clip_outline(lines: list[NDArray[np.float64]], roi: ROI, level: float,
         mid = s0 + ((s1 - s0) % total or total) / 2  # one stretch: all the way round
         if ((covered[:, 0] < mid % total) & (mid % total < covered[:, 1])).any():
             continue
-        if roi.factor(_perimeter_path(mid, mid, box)[:1])[0] >= level:
+        if _holds(_perimeter_path(mid, mid, box)[0], lines, roi, level, 1e-9 * (x1 - x0 + y1 - y0)):
             pieces.append(_perimeter_path(s0, s1, box))
     return [piece for piece in pieces if len(piece) > 1]
+
+
+def _holds(q: NDArray[np.float64], lines: list[NDArray[np.float64]], roi: ROI, level: float, tol: float) -> bool:
+    """Whether point q lies in the ROI's part where m >= ``level`` as its outline ``lines`` (closed: the mask is padded
+    with 0) bound it: inside an odd number of them (even-odd rule). The outline is contourpy's piecewise linear
+    contour, not the bilinear m's level curve: m at a point near the outline can fall on the other side of it, and a
+    boundary stretch between two meeting points of the fence was left open (or fenced where the ROI does not hold
+    it). On an outline line itself (within ``tol``), m decides."""
+    x, y = float(q[0]), float(q[1])
+    inside = False
+    for line in lines:
+        a, b = line[:-1], line[1:]
+        ab = b - a
+        length2 = np.einsum("ij,ij->i", ab, ab)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            along = np.clip(np.where(length2 > 0, ((q - a) * ab).sum(axis=1) / length2, 0.0), 0.0, 1.0)
+        if len(a) and float(np.hypot(*(a + along[:, None] * ab - q).T).min()) <= tol:
+            return bool(roi.factor(q[None, :])[0] >= level)
+        crosses = (a[:, 1] > y) != (b[:, 1] > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xi = a[:, 0] + (y - a[:, 1]) * ab[:, 0] / ab[:, 1]
+        inside ^= bool(np.count_nonzero(crosses & (x < xi)) % 2)
+    return inside
 
 
 def _along_boundary(pieces: list[NDArray[np.float64]], box: tuple[float, float, float, float]) -> NDArray[np.float64]:

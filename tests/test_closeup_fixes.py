@@ -7,6 +7,9 @@ import warnings
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as hs
+from hypothesis.extra import numpy as hnp
 
 from stepterrain import render
 from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
@@ -956,3 +959,48 @@ def test_cli_closeup_a_colormap_that_colours_nothing_is_refused(tmp_path, capsys
         assert not out.exists()
     assert cli.main(["-q", "closeup", "--scalars", "none", "--colormap", "viridis", "--stepped", "100", "-o", str(out),
                      "--device", "cpu"]) == 0 and out.exists()
+
+
+def _odd_feet(strip) -> list[tuple[float, float]]:
+    """The fence's feet (x, y) at an odd number of panel ends: where the fence is left open (none for closed fences)."""
+    from collections import Counter
+
+    r1 = strip.rungs + 1
+    panels = strip.faces[:: 2 * strip.rungs]  # each panel's first face (a + 0, b + 0, b + 1)
+    feet = np.round(strip.vertices[:: r1, :2], 9)
+    ends = Counter(map(tuple, np.concatenate([feet[panels[:, 0] // r1], feet[panels[:, 1] // r1]])))
+    return [foot for foot, count in ends.items() if count % 2]
+
+
+def test_a_painted_fence_cut_by_the_terrains_edge_closes_where_its_outline_encloses_the_edge():
+    """A painted ROI cut by the terrain's bottom edge: its outline (contourpy's piecewise linear contour of the mask)
+    crosses the edge at x = 0.5 and x = 12.95 and encloses the edge between them, but m at that stretch's midpoint
+    (bilinear, 0.46) fell below the outline level 0.5, so the stretch was not fenced: the fence stood open, a 12 m
+    gap between its two ends on the edge. The stretch is now judged by the outline itself (even-odd rule)."""
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((21, 21), np.float32), spacing=(1.0, 1.0))
+    roi = ROI((10.0, 6.0), (19.0, 29.0), [[0.6, 0.0], [0.4, 1.0]])  # row 0 at the lower y
+    (strip,) = anchor_strips(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0), anchor=AnchorStyle(simplify=0))], device="cpu")
+    assert _odd_feet(strip) == []
+    on_edge = strip.vertices[:: strip.rungs + 1][strip.vertices[:: strip.rungs + 1, 1] == 0.0, 0]
+    assert on_edge.min() == pytest.approx(0.5) and on_edge.max() == pytest.approx(12.948, abs=1e-3)
+
+
+@settings(max_examples=40, deadline=None)
+@given(mask=hnp.arrays(np.float64, hs.tuples(hs.integers(2, 3), hs.integers(2, 3)), elements=hs.floats(0.0, 1.0)),
+       fx=hs.floats(-0.45, 0.45), fy=hs.floats(-0.45, 0.45), w=hs.floats(3.0, 30.0), h=hs.floats(3.0, 30.0),
+       level=hs.floats(0.05, 0.95))
+def test_property_a_fence_cut_by_the_terrains_edge_is_closed(mask, fx, fy, w, h, level):
+    """Any painted ROI over a terrain's corner (its box across both edges): the fence (the outline inside the extent,
+    closed along the edges where the ROI holds them) has no open end: every foot is the end of an even number of
+    panels."""
+    from stepterrain.closeup import anchor_strips
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((21, 21), np.float32), spacing=(1.0, 1.0))
+    cu = CloseUp(ROI((fx * w, fy * h), (w, h), mask), offset=(0.0, 0.0, 50.0),
+                 anchor=AnchorStyle(simplify=0, outline_level=level))
+    (strip,) = anchor_strips(t, [cu], device="cpu")
+    assert _odd_feet(strip) == []

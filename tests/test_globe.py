@@ -12,6 +12,7 @@ import trimesh
 import warp as wp
 from hypothesis import Phase, given, settings
 from hypothesis import strategies as hst
+from stepterrain.kernels import bounds as bk
 from stepterrain.kernels import cubesphere as cs
 
 from stepterrain import globe as globe_module
@@ -305,6 +306,121 @@ def test_plane_distance_formulas_agree_with_brute_force_in_all_three_cases():
     assert cases == {1, 2, 3}
 
 
+def _cone_eye_distance_2d(p, h, alpha, eye) -> float:
+    """d(eye, cone frustum) by reduction to the plane through the axis and the eye: the frustum's section is
+    {ρ (cos θ, sin θ): ρ in [bottom, top], |θ| <= α}; an eye at angle β <= α from the axis is above, inside or below
+    it; one further off is nearest to the edge θ = α, a segment (the arcs' nearest points are its ends)."""
+    length = float(np.linalg.norm(p))
+    top, bottom = length + h, max(length - h, 0.0)
+    v = float(np.linalg.norm(eye))
+    if v == 0.0:
+        return bottom
+    beta = math.atan2(float(np.linalg.norm(np.cross(eye, p))), float(eye @ p))
+    if beta <= alpha:
+        return max(v - top, bottom - v, 0.0)
+    q = np.array([v * math.cos(beta), v * math.sin(beta)])
+    u = np.array([math.cos(alpha), math.sin(alpha)])
+    a, b = bottom * u, top * u
+    span = float((b - a) @ (b - a))  # 0 for h = 0: the segment is a point
+    s = float(np.clip((q - a) @ (b - a) / span, 0.0, 1.0)) if span > 0 else 0.0
+    return float(np.linalg.norm(q - a - s * (b - a)))
+
+
+def _cone_plane_max(p, h, alpha, plane):
+    """max of ⟨n, x⟩ + a over the cone frustum (per plane of a (K, 4) stack): over the directions within α of the
+    axis ⟨n, d⟩ peaks at cos(max(angle(n, axis) − α, 0)), taken at the top radius when positive, else at the
+    bottom."""
+    plane = np.asarray(plane, dtype=np.float64)
+    n, a = plane[..., :3], plane[..., 3]
+    length = float(np.linalg.norm(p))
+    top, bottom = length + h, max(length - h, 0.0)
+    c = np.cos(np.maximum(np.arctan2(np.linalg.norm(np.cross(n, p), axis=-1), n @ p) - alpha, 0.0))
+    return a + np.where(c >= 0, top * c, bottom * c)
+
+
+_unit = hst.tuples(*[hst.floats(-1.0, 1.0)] * 3).filter(lambda v: math.hypot(*v) > 0.1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(axis=_unit, length=hst.floats(0.1, 1000.0), height=hst.floats(1e-4, 3.0), alpha=hst.floats(0.0, 1.5),
+       eye_dir=_unit, eye_at=hst.floats(0.0, 3.0), normal=_unit, offset=hst.floats(-3.0, 3.0))
+def test_property_shape_distances_equal_the_planar_section_reference(axis, length, height, alpha, eye_dir, eye_at,
+                                                                     normal, offset):
+    """Random cone frustums (h up to 3 |p|: the bottom clamped at the centre; opening up to 1.5 rad), eyes anywhere
+    (the centre and the axis included) and planes: d(v, B) and the largest plane distance equal the exact references
+    of the frustum's planar section, and the sphere's are ‖p − v‖ − r (at least 0) and ⟨n, p⟩ + a + r."""
+    p = np.asarray(axis) / np.linalg.norm(axis) * length
+    h = height * length
+    eye = np.asarray(eye_dir) / np.linalg.norm(eye_dir) * eye_at * length
+    if eye_at < 0.05:
+        eye = np.zeros(3)
+    n = np.asarray(normal) / np.linalg.norm(normal)
+    plane = (*n, offset * length)
+    r = 0.5 * length
+    got = _distances([p], [(r, h, alpha)], eye, plane)[0]
+    scale = length + h + float(np.linalg.norm(eye))
+    assert got[0] == pytest.approx(max(float(np.linalg.norm(p - eye)) - r, 0.0), abs=1e-12 * scale)
+    assert got[1] == pytest.approx(_cone_eye_distance_2d(p, h, alpha, eye), abs=1e-9 * scale)
+    assert got[2] == pytest.approx(float(n @ p) + plane[3] + r, abs=1e-12 * scale)
+    assert got[3] == pytest.approx(_cone_plane_max(p, h, alpha, plane), abs=1e-9 * scale)
+    # the smallest signed distance is minus the inverted plane's largest
+    inverted = _distances([p], [(r, h, alpha)], eye, tuple(-np.asarray(plane)))[0]
+    assert -inverted[3] <= got[3] + 1e-9 * scale
+
+
+@wp.kernel
+def _view_sides(planes: wp.array[wp.vec4d], centres: wp.array[wp.vec3d], params: wp.array[wp.vec3d],
+                sides: wp.array[wp.vec2i]):
+    """sphere_view_side and cone_view_side of each shape (r, h, α)."""
+    i = wp.tid()
+    p = centres[i]
+    q = params[i]
+    p_len = wp.length(p)
+    sides[i] = wp.vec2i(bk.sphere_view_side(planes, p, q[0]),
+                        bk.cone_view_side(planes, p, p / p_len, p_len, q[1], q[2], bk.sin_cos(q[2])))
+
+
+@settings(max_examples=25, deadline=None)
+@given(seed=hst.integers(0, 2**32 - 1), fov=hst.floats(0.2, 2.0), aspect=hst.floats(0.3, 3.0),
+       spread=hst.floats(0.01, 2.0), wide=hst.booleans())
+def test_property_view_sides_of_shapes_agree_with_their_exact_plane_distances(seed, fov, aspect, spread, wide):
+    """The clip test of 200 random spheres and cone frustums against a random view frustum: a shape said to lie wholly
+    outside lies outside one plane (its exact smallest distance to it >= 0: nothing visible is culled), one said to
+    lie wholly inside lies inside every plane (its descendants skip the clip test), and a shape wholly outside one
+    plane is said so (the test is exact per plane)."""
+    rng = np.random.default_rng(seed)
+    eye = rng.normal(size=3) * 3.0
+    cam = Camera(eye=tuple(eye), target=tuple(rng.normal(size=3)), up=tuple(rng.normal(size=3)), fov=fov,
+                 aspect=aspect, near=0.05, far=float(rng.uniform(2.0, 12.0)))
+    planes = cam.planes().astype(np.float64)
+    count = 200
+    centres = rng.normal(size=(count, 3)) * 3.0
+    length = np.linalg.norm(centres, axis=1)
+    params = np.column_stack([length * spread * rng.uniform(0.0, 1.0, count),
+                              length * spread * rng.uniform(0.0, 1.5 if wide else 0.2, count),
+                              rng.uniform(0.0, 1.4 if wide else spread * 0.2, count)])
+    device = wp.get_device("cpu")
+    sides = wp.empty(count, dtype=wp.vec2i, device=device)
+    wp.launch(_view_sides, count, [wp.array(planes, dtype=wp.vec4d, device=device),
+                                   wp.array(centres, dtype=wp.vec3d, device=device),
+                                   wp.array(params, dtype=wp.vec3d, device=device)], [sides], device=device)
+    sides = sides.numpy()
+    outside, inside = int(bk.OUTSIDE), int(bk.INSIDE)
+    for k in range(count):
+        p, (r, h, alpha) = centres[k], params[k]
+        tol = 1e-9 * (np.linalg.norm(p) + r + h + 1.0)
+        sphere_max = planes[:, :3] @ p + planes[:, 3] + r  # per plane: the largest and smallest signed distance
+        sphere_min = sphere_max - 2 * r
+        cone_max = _cone_plane_max(p, h, alpha, planes)
+        cone_min = -_cone_plane_max(p, h, alpha, -planes)
+        for side, lo, hi in ((sides[k][0], sphere_min, sphere_max), (sides[k][1], cone_min, cone_max)):
+            if side == outside:
+                assert (lo >= -tol).any(), f"shape {k} culled though it reaches into every half-space"
+            elif side == inside:
+                assert (hi <= tol).all(), f"shape {k} said inside though it reaches out of a plane"
+            assert side == outside or not (lo > tol).any(), f"shape {k} wholly outside a plane but not culled"
+
+
 def test_camera_planes_contain_what_it_sees():
     cam = Camera(eye=(0.0, -10.0, 0.0), target=(0.0, 0.0, 0.0), fov=math.radians(60), aspect=1.5, near=1.0,
                  far=50.0)
@@ -359,6 +475,62 @@ def test_refinement_matches_reference_visit(small_globe):
     mesh = g.mesh(error=eps)
     assert _triangles_as_points(mesh, g) == sorted(out)
     del pos
+
+
+def _reference_refines(p, e, r, h, alpha, eye, planes, error, scale, cone) -> bool:
+    """μ = e · (ℓ / d)² > ε (§7.2, §7.4; d = 0, the eye inside the shape: refine unless e = 0) and the shape not
+    wholly outside a frustum plane (§7.3), with the exact distances of the shape (the references above)."""
+    if e <= 0.0:
+        return False
+    if cone:
+        d = _cone_eye_distance_2d(p, h, alpha, eye)
+        lowest = -_cone_plane_max(p, h, alpha, -planes)
+    else:
+        d = max(float(np.linalg.norm(p - eye)) - r, 0.0)
+        lowest = planes[:, :3] @ p + planes[:, 3] - r
+    if d > 0.0 and e * (scale / d) ** 2 <= error:
+        return False
+    return not (lowest > 0.0).any()
+
+
+@settings(max_examples=8, deadline=None)
+@given(distance=hst.floats(1.02, 3.0), lon=hst.floats(-math.pi, math.pi), lat=hst.floats(-1.5, 1.5),
+       log_error=hst.floats(2.0, 6.0), cone=hst.booleans(), seed=hst.integers(0, 2**32 - 1))
+def test_property_refinement_with_a_camera_matches_the_reference_visit(small_globe, distance, lon, lat, log_error,
+                                                                      cone, seed):
+    """Random views of the globe, geometric, distance and clip metrics on cones or spheres: the Warp refinement (with
+    its quick rejects and accepts, its clip test skipped below shapes found inside) equals the recursive visit of §5.2
+    deciding each node by the exact μ = e · (ℓ / d)² > ε and the exact clip test, on the same node parameters."""
+    g = small_globe
+    error = 10.0**log_error  # the node errors span about 1e3 to 1e6 m (curvature and 20x relief)
+    rng = np.random.default_rng(seed)
+    params = {k: v.reshape(-1).astype(np.float64) for k, v in g.node_parameters().items()}
+    pos = g.positions.reshape(-1, 3).astype(np.float64)
+    n = g.face_size
+    eye = distance * R * np.array([math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)])
+    cam = Camera(eye=tuple(eye), target=tuple(rng.normal(size=3) * 0.5 * R), up=tuple(rng.normal(size=3)),
+                 fov=float(rng.uniform(0.3, 1.2)), aspect=float(rng.uniform(0.5, 2.0)), near=1.0,
+                 far=float(rng.uniform(1.0, 4.0)) * R)
+    planes = cam.planes().astype(np.float64)
+    scale = float(np.linalg.norm(eye)) - R
+    levels, _, _ = ref.bisection_tree(g.cells)
+    out = []
+
+    def visit(f, a, b, c):
+        if ref.splits(a, b):
+            m = ((a[0] + b[0]) // 2, (a[1] + b[1]) // 2)
+            k = f * n * n + m[0] * n + m[1]
+            if _reference_refines(pos[k], params["geometric_error"][k], params["bounding_radius"][k],
+                                  params["cone_height"][k], params["cone_angle"][k], eye, planes, error, scale, cone):
+                visit(f, c, a, m)
+                visit(f, b, c, m)
+                return
+        out.append(tuple(sorted(ref.cube_point(f, *q, g.cells) for q in (a, b, c))))
+
+    for f, a, b, c in levels[0]:
+        visit(f, a, b, c)
+    mesh = g.mesh(error=error, camera=cam, bounds="cone" if cone else "sphere", distance_scale=scale, cull=False)
+    assert _triangles_as_points(mesh, g) == sorted(out)
 
 
 def _assert_culled_exactly(closed, culled, cam):
