@@ -122,15 +122,24 @@ def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
     """(min, max) of the grid nodes (of a (T, H, W) stack's frames) that a triangle with three finite heights uses;
     of the finite heights where no triangle has three (a mesh without faces); None when no height is finite.
     :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh."""
+    return _used_span(heights)[0]
+
+
+def _used_span(heights: NDArray[Any]) -> tuple[tuple[float, float] | None, bool]:
+    """(:func:`used_height_range`, whether a triangle with three finite heights uses some node) in one pass over
+    the triangles: :class:`Terrain` keeps both, so that a solid's floor check asks the grid's triangles no second
+    time."""
     finite = np.isfinite(heights)
     if finite.all():  # every node is a triangle's (or, under 2 x 2, none is: the finite heights): no masks
-        return float(heights.min()), float(heights.max())
+        return (float(heights.min()), float(heights.max())), min(heights.shape[-2:]) >= 2
     used = used_nodes(finite)
-    if not used.any():
+    any_used = bool(used.any())
+    if not any_used:
         used = finite
         if not used.any():
-            return None
-    return float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))
+            return None, False
+    return ((float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))),
+            any_used)
 
 
 def used_nodes(finite: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -729,7 +738,7 @@ class Terrain:
             if self.kind == "grid":
                 if not self.has_nodata:
                     return float(self.heights.min()), float(self.heights.max())
-                return used_height_range(self.heights) or ()
+                return self._used_span()[0] or ()
             finite = self.used_heights()
             return (float(finite.min()), float(finite.max())) if finite.size else ()
 
@@ -737,6 +746,32 @@ class Terrain:
         if not lo_hi:
             raise InvalidInputError("terrain has no finite height (all nodata)")
         return lo_hi
+
+    def _used_span(self) -> tuple[tuple[float, float] | None, bool]:
+        """A grid's :func:`_used_span` (its used range, whether some triangle has three finite heights); computed
+        once per terrain (the heights are read-only): :attr:`height_range` and :meth:`_has_triangles` of a grid with
+        nodata share its pass over the triangles."""
+        return self.cached("used_span", lambda: _used_span(self.heights))
+
+    def _has_triangles(self) -> bool:
+        """Whether the surface has a face: a grid triangle with three finite heights (every grid without nodata has
+        one), a TIN's kept face."""
+        if self.kind == "tin":
+            return bool(self.point_used.any())
+        return not self.has_nodata or self._used_span()[1]
+
+    def _uses_height_in(self, values: ArrayLike) -> bool:
+        """Whether a height the surface uses (:meth:`used_heights`) is one of ``values``, without copying the used
+        heights: a grid's heights are compared where they lie, and only when one of ``values`` is among them and the
+        grid has nodata are its triangles asked whether one uses such a node."""
+        if self.kind == "tin":
+            return bool(np.isin(self.used_heights(), values).any())
+        found = np.isin(self.heights, values)  # NaN (nodata) is in no values
+        if not found.any():
+            return False
+        if not self.has_nodata:
+            return True
+        return bool((found & used_nodes(np.isfinite(self.heights))).any())
 
     @property
     def finite_height_range(self) -> tuple[float, float]:
