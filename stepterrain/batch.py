@@ -440,18 +440,29 @@ def _series_or_none(path: Path) -> NDArray[np.float32] | None:
 
 def _one_raster_file(path: Path) -> bool:
     """Whether ``path`` is a DEM file holding one (H, W) raster: not a folder, nor a (T, H, W) series (an ``.npy``'s
-    header read only). False when it cannot tell (a file it cannot read): the single-file source says why."""
+    or ``.npz``'s headers read only: the CLI read an .npz whole here, then again as the series or the raster item).
+    False when it cannot tell (a file whose headers it cannot read): the single-file source says why."""
     suffix = path.suffix.lower()
     if not path.is_file() or suffix not in _DEM_EXTENSIONS:
         return False
     if suffix not in (".npy", ".npz"):
         return True
-    from .io import read_npy
+    from .io import _NPZ_NOT_HEIGHTS, npz_heights_key, npz_member_ndims, read_npy
 
     try:
-        return read_npy(path, mmap_mode="r").ndim == 2 if suffix == ".npy" else load_series(path) is None
+        if suffix == ".npy":
+            return read_npy(path, mmap_mode="r").ndim == 2
+        ndims = npz_member_ndims(path)  # the headers only: a series is read once, by plan_items; a raster by its item
     except (DataFileError, InvalidInputError):
         return False
+    if isinstance(ndims, int):  # an .npy under an .npz name
+        return ndims != 3
+    # load_series's choice of the heights (None: one raster), from the members' dimensions
+    shaped = {name: np.empty((0,) * ndim) for name, ndim in ndims.items()}
+    key = npz_heights_key(shaped, (2, 3))
+    if key is None:
+        key = next((k for k in shaped if shaped[k].ndim == 3 and k not in _NPZ_NOT_HEIGHTS), None)
+    return key is None or shaped[key].ndim != 3
 
 
 def _terrain_source(terrain: Terrain) -> _Source:
