@@ -478,6 +478,49 @@ def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
         ) from exc
 
 
+def npz_member_ndims(file: Path) -> dict[str, int] | int:
+    """What :func:`read_npz` would return, as each array's number of dimensions read from its .npy header: the
+    members' data is not read (a decision before the one read that needs only the shapes: batch's one INPUT, a
+    raster or a series). The checks the headers allow are :func:`read_npz`'s (declared sizes against the members',
+    the memory budget; unreadable archives), in its words; a member's damaged data is left to the read."""
+    if _check_magic(file, (_ZIP_MAGIC, _EMPTY_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive").startswith(_NPY_MAGIC):
+        return read_npy(file, mmap_mode="r").ndim  # a map: its header only
+    try:
+        archive = np.load(file, allow_pickle=False)  # the zip directory only
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
+        ) from exc
+    try:
+        with archive:
+            return {key: _npz_member_ndim(archive, key, file) for key in archive.files}
+    except DataFileError:
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
+        ) from exc
+
+
+def _npz_member_ndim(archive: Any, key: str, file: Path) -> int:
+    """:func:`_npz_member`'s array's number of dimensions, from its header (0 for a member that is no .npy: NumPy
+    reads its bytes, a 0-d array)."""
+    name = f"{key}.npy" if f"{key}.npy" in archive.zip.namelist() else key
+    with archive.zip.open(name) as member:
+        _check_declared_size(member, archive.zip.getinfo(name).file_size, file, f"member {key!r}")
+    with archive.zip.open(name) as member:
+        if member.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
+            return 0
+        member.seek(0)
+        version = np.lib.format.read_magic(member)
+        read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+        if read is not None:
+            shape, _, dtype = read(member)
+            if not dtype.hasobject:
+                return len(shape)
+    return _npz_member(archive, key, file).ndim  # another header version, or pickled objects: as read_npz reads it
+
+
 def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     arrays = read_npz(file)
     if isinstance(arrays, np.ndarray):  # a .npy saved under a .npz name: take it as a plain array

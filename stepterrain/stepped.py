@@ -61,7 +61,6 @@ from .terrain import (
     finite_number,
     first_index,
     is_real_dtype,
-    lowest_used_height,
     real_numbers,
     unmasked,
     unshared,
@@ -1107,13 +1106,9 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
             return
         if not 0.0 <= g <= 1.0:
             return
-    if t.kind == "grid":  # only the nodes a triangle with three finite heights uses
-        used_min = lowest_used_height(t.heights, None if t.has_nodata else t.height_range)
-        if used_min is None:
-            return  # no surface: refused after stepping, as it says
-        h = used_min
-    else:
-        h = t.height_range[0]  # a TIN's used points
+    if not t._has_triangles():
+        return  # no surface: refused after stepping, as it says
+    h = t.height_range[0]  # of the nodes a triangle with three finite heights uses (a TIN's used points)
     lowest, alpha, margin = lowest_surface(h, values, g)
     if floor_z < lowest + margin:
         return
@@ -1168,7 +1163,7 @@ def _assemble(
             raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
                                     "finite heights (all cells touch nodata)")
         # the heights the surface uses: a TIN's unused points (no face) cannot make it leak
-        if np.isin(t.used_heights(), thresholds_of(values)).any():
+        if t._uses_height_in(thresholds_of(values)):
             warnings.warn(
                 "some heights sit exactly on a threshold (α_i + α_i+1) / 2; the solid may not be watertight "
                 "there. Shift base by a fraction of the interval (e.g. base=0.5, on the command line --base 0.5, for "

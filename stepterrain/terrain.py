@@ -122,15 +122,24 @@ def used_height_range(heights: NDArray[Any]) -> tuple[float, float] | None:
     """(min, max) of the grid nodes (of a (T, H, W) stack's frames) that a triangle with three finite heights uses;
     of the finite heights where no triangle has three (a mesh without faces); None when no height is finite.
     :attr:`Terrain.height_range` of a grid with nodata: a node on no triangle is in no stepped mesh."""
+    return _used_span(heights)[0]
+
+
+def _used_span(heights: NDArray[Any]) -> tuple[tuple[float, float] | None, bool]:
+    """(:func:`used_height_range`, whether a triangle with three finite heights uses some node) in one pass over
+    the triangles: :class:`Terrain` keeps both, so that a solid's floor check asks the grid's triangles no second
+    time."""
     finite = np.isfinite(heights)
     if finite.all():  # every node is a triangle's (or, under 2 x 2, none is: the finite heights): no masks
-        return float(heights.min()), float(heights.max())
+        return (float(heights.min()), float(heights.max())), min(heights.shape[-2:]) >= 2
     used = used_nodes(finite)
-    if not used.any():
+    any_used = bool(used.any())
+    if not any_used:
         used = finite
         if not used.any():
-            return None
-    return float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))
+            return None, False
+    return ((float(np.min(heights, where=used, initial=np.inf)), float(np.max(heights, where=used, initial=-np.inf))),
+            any_used)
 
 
 def _min_max(values: NDArray[Any]) -> tuple[float, ...]:
@@ -734,10 +743,36 @@ class Terrain:
             if self.kind == "grid":
                 if not self.has_nodata:
                     return float(self.heights.min()), float(self.heights.max())
-                return used_height_range(self.heights) or ()
+                return self._used_span()[0] or ()
             return _min_max(self.used_heights())
 
         return self._cached_range("height_range", compute)
+
+    def _used_span(self) -> tuple[tuple[float, float] | None, bool]:
+        """A grid's :func:`_used_span` (its used range, whether some triangle has three finite heights); computed
+        once per terrain (the heights are read-only): :attr:`height_range` and :meth:`_has_triangles` of a grid with
+        nodata share its pass over the triangles."""
+        return self.cached("used_span", lambda: _used_span(self.heights))
+
+    def _has_triangles(self) -> bool:
+        """Whether the surface has a face: a grid triangle with three finite heights (every grid without nodata has
+        one), a TIN's kept face."""
+        if self.kind == "tin":
+            return bool(self.point_used.any())
+        return not self.has_nodata or self._used_span()[1]
+
+    def _uses_height_in(self, values: ArrayLike) -> bool:
+        """Whether a height the surface uses (:meth:`used_heights`) is one of ``values``, without copying the used
+        heights: a grid's heights are compared where they lie, and only when one of ``values`` is among them and the
+        grid has nodata are its triangles asked whether one uses such a node."""
+        if self.kind == "tin":
+            return bool(np.isin(self.used_heights(), values).any())
+        found = np.isin(self.heights, values)  # NaN (nodata) is in no values
+        if not found.any():
+            return False
+        if not self.has_nodata:
+            return True
+        return bool((found & used_nodes(np.isfinite(self.heights))).any())
 
     @property
     def finite_height_range(self) -> tuple[float, float]:
@@ -825,6 +860,17 @@ class Terrain:
         >>> c.shape, c.origin, c.extent
         ((2, 3), (10.0, 0.0), (10.0, 30.0, 0.0, 10.0))
         """
+        i0, i1, j0, j1, bounds = self._crop_nodes(extent)
+        kept = self.heights[i0:i1 + 1, j0:j1 + 1]
+        if not np.isfinite(kept).any():
+            raise InvalidInputError(f"extent {tuple(float(v) for v in bounds)} holds only nodata "
+                                    f"({kept.shape[0]} x {kept.shape[1]} nodes)")
+        (dx, dy), (ox, oy) = self.spacing, self.origin
+        return self._subgrid(kept, (dx, dy), (ox + j0 * dx, oy + i0 * dy))
+
+    def _crop_nodes(self, extent: ArrayLike) -> tuple[int, int, int, int, NDArray[np.float64]]:
+        """:meth:`crop`'s first and last rows and columns (i0, i1, j0, j1, inclusive) and the extent's numbers, its
+        refusals of the extent included, from the grid's geometry alone (no height read)."""
         self._grid_only("crop", "cut its mesh instead, e.g. with trimesh's slice_plane")
         try:
             bounds = real_numbers(extent, "extent", "(xmin, xmax, ymin, ymax)")
@@ -847,11 +893,7 @@ class Terrain:
                 f"the terrain's extent is {self._extent_text()}, spacing {self.spacing}" + (
                     "" if degrees is None else "; it looks like degrees, but a DEM in degrees is read as local metres: "
                     "those degrees are ({:.2f}, {:.2f}, {:.2f}, {:.2f})".format(*degrees[1])))
-        kept = self.heights[i0:i1 + 1, j0:j1 + 1]
-        if not np.isfinite(kept).any():
-            raise InvalidInputError(f"extent {tuple(float(v) for v in bounds)} holds only nodata "
-                                    f"({kept.shape[0]} x {kept.shape[1]} nodes)")
-        return self._subgrid(kept, (dx, dy), (ox + j0 * dx, oy + i0 * dy))
+        return i0, i1, j0, j1, bounds
 
     def coarsen(self, factor: int, *, method: Literal["mean", "nearest"] = "mean") -> Terrain:
         """A grid ``factor`` times coarser in x and y: for a DEM too big to step or mesh whole, or more detail than
@@ -885,24 +927,13 @@ class Terrain:
         >>> t.coarsen(3, method="nearest").heights.tolist()
         [[0.0, 3.0], [12.0, 15.0]]
         """
-        self._grid_only("coarsen", "simplify its mesh instead, e.g. with adaptive_mesh on a grid")
-        if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, numbers.Integral) or factor < 1:
-            raise InvalidInputError(f"factor must be a positive integer (nodes per new node along each axis); "
-                                    f"got {factor!r}")
-        if method not in ("mean", "nearest"):
-            raise InvalidInputError(f"method must be 'mean' or 'nearest'; got {method!r}")
-        f = int(factor)
+        f, shape, spacing, origin = self._coarse_geometry(factor, method)
         if f == 1:
             return self
-        (rows, cols), (dx, dy), (ox, oy) = self.heights.shape, self.spacing, self.origin
-        shape = (rows // f, cols // f) if method == "mean" else ((rows - 1) // f + 1, (cols - 1) // f + 1)
-        if min(shape) < 2:
-            raise InvalidInputError(f"factor {f} leaves {shape[0]} x {shape[1]} nodes of the {rows} x {cols} grid "
-                                    f"({method}), fewer than the 2 x 2 a mesh needs")
         if method == "nearest":
             kept = self.heights[::f, ::f]
             self._some_finite(kept, f, method)
-            return self._subgrid(kept, (f * dx, f * dy), (ox, oy))
+            return self._subgrid(kept, spacing, origin)
         h, w = shape
         total = np.zeros((h, w), dtype=np.float64)
         count = np.zeros((h, w), dtype=np.int64)
@@ -914,8 +945,43 @@ class Terrain:
         with np.errstate(invalid="ignore", divide="ignore"):
             mean = (total / count).astype(np.float32)
         self._some_finite(mean, f, method)
+        return self._subgrid(mean, spacing, origin)
+
+    def _coarse_geometry(self, factor: int, method: str = "mean") -> tuple[int, tuple[int, int], tuple[float, float],
+                                                                             tuple[float, float]]:
+        """:meth:`coarsen`'s factor, shape, spacing and origin, its refusals of ``factor`` and ``method`` included,
+        from the grid's geometry alone (no height read); factor 1: the grid's own."""
+        self._grid_only("coarsen", "simplify its mesh instead, e.g. with adaptive_mesh on a grid")
+        if isinstance(factor, (bool, np.bool_)) or not isinstance(factor, numbers.Integral) or factor < 1:
+            raise InvalidInputError(f"factor must be a positive integer (nodes per new node along each axis); "
+                                    f"got {factor!r}")
+        if method not in ("mean", "nearest"):
+            raise InvalidInputError(f"method must be 'mean' or 'nearest'; got {method!r}")
+        f = int(factor)
+        (rows, cols), (dx, dy), (ox, oy) = self.heights.shape, self.spacing, self.origin
+        if f == 1:
+            return f, (rows, cols), (dx, dy), (ox, oy)
+        shape = (rows // f, cols // f) if method == "mean" else ((rows - 1) // f + 1, (cols - 1) // f + 1)
+        if min(shape) < 2:
+            raise InvalidInputError(f"factor {f} leaves {shape[0]} x {shape[1]} nodes of the {rows} x {cols} grid "
+                                    f"({method}), fewer than the 2 x 2 a mesh needs")
+        if method == "nearest":
+            return f, shape, (f * dx, f * dy), (ox, oy)
         half = (f - 1) / 2
-        return self._subgrid(mean, (f * dx, f * dy), (ox + half * dx, oy + half * dy))
+        return f, shape, (f * dx, f * dy), (ox + half * dx, oy + half * dy)
+
+    @classmethod
+    def _geometry_only(cls, shape: tuple[int, int], spacing: tuple[float, float], origin: tuple[float, float],
+                       crs: str | None) -> Terrain:
+        """A grid of ``shape`` nodes whose heights are one zero, broadcast (no allocation, no pass): for
+        :meth:`_crop_nodes` and :meth:`_coarse_geometry` of heights held elsewhere (a series' frames); ``spacing`` and
+        ``origin`` checked as :meth:`from_heights` checks them."""
+        spacing, origin = grid_geometry(spacing, origin, shape)
+        terrain = cls(kind="grid", heights=np.broadcast_to(np.float32(0.0), shape), spacing=spacing, origin=origin,
+                      crs=crs, _owned=True)
+        terrain._device_cache["has_nodata"] = False
+        terrain._device_cache["height_range"] = (0.0, 0.0)
+        return terrain
 
     def _some_finite(self, coarse: NDArray[np.float32], factor: int, method: str) -> None:
         """An InvalidInputError when the coarse grid holds only nodata (its finite nodes all in the rows and columns

@@ -1004,3 +1004,53 @@ def test_property_a_fence_cut_by_the_terrains_edge_is_closed(mask, fx, fy, w, h,
                  anchor=AnchorStyle(simplify=0, outline_level=level))
     (strip,) = anchor_strips(t, [cu], device="cpu")
     assert _odd_feet(strip) == []
+
+
+def test_texture_colours_convert_only_the_texels_they_sample():
+    """_texture_rgb (a close-up's or overview's aerial image, every frame) converted the whole image to float32 and,
+    for RGBA, premultiplied all of it on every call: 66 ms a frame for a 2048 x 2048 RGBA texture under 20 000
+    vertices (3.6 ms now). Only the four texels each vertex samples are converted and premultiplied; the colours are
+    the whole-image formula's, byte for byte (RGBA over the tan and over given colours, RGB, outside the extent)."""
+    from stepterrain import Terrain
+    from stepterrain.closeup import _texture_rgb
+    from stepterrain.render import _DEFAULT_COLOR
+
+    calls = []
+
+    class Counted(np.ndarray):
+        def astype(self, *args, **kwargs):
+            calls.append(self.shape)
+            return np.asarray(self).astype(*args, **kwargs)
+
+    rng = np.random.default_rng(11)
+    t = Terrain.from_heights(np.zeros((40, 50), np.float32), spacing=(30.0, -30.0), origin=(1000.0, 5000.0))
+    xmin, xmax, ymin, ymax = t.extent
+    n = 5000
+    xy = np.column_stack([rng.uniform(xmin - 60, xmax + 60, n), rng.uniform(ymin - 60, ymax + 60, n)])
+    under = rng.integers(0, 256, (n, 3), dtype=np.uint8)
+    rgba = rng.integers(0, 256, (64, 96, 4), dtype=np.uint8)
+    rgba[..., 3] = np.where(rng.random((64, 96)) < 0.3, 0, rgba[..., 3])
+
+    def whole_image(image, below=None):  # the formula as it was, over the whole image
+        h, w = image.shape[:2]
+        fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin), 0, 1) * (w - 1)
+        fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin), 0, 1) * (h - 1)
+        j0, i0 = np.minimum(np.floor(fx).astype(np.int64), w - 2), np.minimum(np.floor(fy).astype(np.int64), h - 2)
+        tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
+        img = image.astype(np.float32)
+        if img.shape[2] == 4:
+            img[..., :3] *= img[..., 3:] / 255.0
+        top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
+        bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
+        sampled = top + ty * (bottom - top)
+        if img.shape[2] == 4:
+            below = (np.asarray(below, np.float32) if below is not None
+                     else np.float32(255.0) * np.asarray(_DEFAULT_COLOR, np.float32))
+            sampled = sampled[:, :3] + (1.0 - sampled[:, 3:] / 255.0) * below
+        return np.clip(np.rint(sampled), 0, 255).astype(np.uint8)
+
+    for image, below in ((rgba, None), (rgba, under), (np.ascontiguousarray(rgba[..., :3]), None)):
+        calls.clear()
+        got = _texture_rgb(t, image.view(Counted), xy, below)
+        np.testing.assert_array_equal(got, whole_image(image, below))
+        assert image.shape not in calls and calls, calls  # the sampled texels only, never the whole image

@@ -623,3 +623,50 @@ def test_heights_of_subnormal_scale_step_without_an_overflow_warning():
     assert iso.uniform == 0
     assert len(mesh.faces) > 0 and np.isin(mesh.vertices[:, 2].astype(np.float32), values).all()
     compare_with_reference(heights, values, "cpu")
+
+
+def test_a_solid_of_a_grid_with_nodata_asks_its_triangles_once(monkeypatch):
+    """stepped(solid=True, floor=...) of a grid with nodata found the nodes a triangle with three finite heights uses
+    three times: for the isovalues (Terrain.height_range), for the floor check (lowest_used_height) and for the
+    threshold warning (Terrain.used_heights, a copy of them), ~45 ms each at 4000 x 4000. The terrain keeps the first
+    pass's range and whether a triangle has three finite heights, and the warning compares the heights where they lie,
+    asking the triangles again only when a height sits on a threshold. The answers are the same: a lone finite node
+    beside nodata (on no triangle) neither lowers the floor's bound nor warns from a threshold; a used one does."""
+    import stepterrain.terrain as terrain_module
+
+    heights = np.random.default_rng(5).uniform(100.0, 200.0, (12, 14)).astype(np.float32) + np.float32(0.25)
+    heights = np.where(np.isin(heights, thresholds_of(st.isovalues((100.0, 201.0), interval=10.0))), 150.25, heights)
+    heights[4:6, 5:8] = np.nan
+    heights[1, 1] = np.nan  # node (0, 0) is then on no triangle: a lone node, far below the rest
+    heights[0, 0] = 95.0
+    heights[10, 12] = np.nan  # and node (11, 13)
+    lowest_used = float(np.min(heights[~np.isnan(heights)][1:]))
+    expected = st.stepped(st.Terrain.from_heights(heights), interval=10.0, solid=True, floor=60.0)
+    calls = []
+    real = terrain_module.used_nodes
+    monkeypatch.setattr(terrain_module, "used_nodes", lambda finite: calls.append(finite.shape) or real(finite))
+    mesh = st.stepped(heights, interval=10.0, solid=True, floor=60.0)  # below the used nodes, above the lone one
+    assert calls == [heights.shape]
+    np.testing.assert_array_equal(mesh.vertices, expected.vertices)
+    np.testing.assert_array_equal(mesh.faces, expected.faces)
+    assert mesh.is_watertight and mesh.vertices[:, 2].min() == 60.0
+    with pytest.raises(st.InvalidInputError, match="floor must lie below the lowest surface height"):
+        st.stepped(heights, interval=10.0, solid=True, floor=lowest_used)  # the used nodes' lowest, not the lone one's
+    lone_on_threshold = heights.copy()
+    lone_on_threshold[11, 13] = 105.0
+    assert 105.0 in thresholds_of(st.isovalues(st.Terrain.from_heights(heights).height_range, interval=10.0))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a lone node's height on a threshold cannot open the solid: no warning
+        st.stepped(lone_on_threshold, interval=10.0, solid=True)
+    used_on_threshold = heights.copy()
+    used_on_threshold[8, 8] = 115.0
+    calls.clear()
+    with pytest.warns(UserWarning, match="exactly on a threshold"):
+        st.stepped(used_on_threshold, interval=10.0, solid=True)
+    assert len(calls) == 2  # the range, then the triangles at the nodes on a threshold
+    assert st.Terrain.from_heights(heights).height_range == (lowest_used, float(np.nanmax(heights)))
+    # a grid whose finite nodes are on no triangle: no surface, refused after stepping as before
+    lone = np.full((3, 3), np.nan, np.float32)
+    lone[0, 0] = 5.0
+    with pytest.raises(st.InvalidInputError, match="solid=True needs a surface"):
+        st.stepped(lone, interval=1.0, solid=True, floor=10.0)
