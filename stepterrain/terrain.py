@@ -826,6 +826,19 @@ class Terrain:
         ((2, 3), (10.0, 0.0), (10.0, 30.0, 0.0, 10.0))
         """
         self._grid_only("crop", "cut its mesh instead, e.g. with trimesh's slice_plane")
+        bounds, (i0, i1), (j0, j1) = self._crop_nodes(extent)
+        (dx, dy), (ox, oy) = self.spacing, self.origin
+        kept = self.heights[i0:i1 + 1, j0:j1 + 1]
+        if not np.isfinite(kept).any():
+            raise crop_of_nodata(bounds, kept.shape)
+        return self._subgrid(kept, (dx, dy), (ox + j0 * dx, oy + i0 * dy))
+
+    def _crop_nodes(self, extent: ArrayLike) -> tuple[tuple[float, float, float, float], tuple[int, int],
+                                                      tuple[int, int]]:
+        """The ``extent`` of :meth:`crop` checked, as 4 floats, and the first and last row and column of the nodes it
+        keeps, ``(bounds, (i0, i1), (j0, j1))``; its refusals but that of nodata only (:func:`crop_of_nodata`). Only
+        the grid's shape, spacing, origin and crs are read: :func:`~stepterrain.io.load_dem` asks it of a
+        :func:`header_grid` before it reads a GeoTIFF's window."""
         try:
             bounds = real_numbers(extent, "extent", "(xmin, xmax, ymin, ymax)")
         except InvalidInputError:
@@ -847,11 +860,7 @@ class Terrain:
                 f"the terrain's extent is {self._extent_text()}, spacing {self.spacing}" + (
                     "" if degrees is None else "; it looks like degrees, but a DEM in degrees is read as local metres: "
                     "those degrees are ({:.2f}, {:.2f}, {:.2f}, {:.2f})".format(*degrees[1])))
-        kept = self.heights[i0:i1 + 1, j0:j1 + 1]
-        if not np.isfinite(kept).any():
-            raise InvalidInputError(f"extent {tuple(float(v) for v in bounds)} holds only nodata "
-                                    f"({kept.shape[0]} x {kept.shape[1]} nodes)")
-        return self._subgrid(kept, (dx, dy), (ox + j0 * dx, oy + i0 * dy))
+        return (float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])), (i0, i1), (j0, j1)
 
     def coarsen(self, factor: int, *, method: Literal["mean", "nearest"] = "mean") -> Terrain:
         """A grid ``factor`` times coarser in x and y: for a DEM too big to step or mesh whole, or more detail than
@@ -937,6 +946,23 @@ class Terrain:
                  origin: tuple[float, float]) -> Terrain:
         return Terrain.from_heights(np.ascontiguousarray(heights), spacing=spacing, origin=origin, crs=self.crs,
                                     source=self.source, height_unit=self.height_unit)
+
+
+def crop_of_nodata(bounds: tuple[float, ...], shape: tuple[int, ...]) -> InvalidInputError:
+    """:meth:`Terrain.crop`'s refusal of an extent (``bounds``, checked) whose kept nodes (``shape``) are all
+    nodata."""
+    return InvalidInputError(f"extent {tuple(bounds)} holds only nodata ({shape[0]} x {shape[1]} nodes)")
+
+
+def header_grid(shape: tuple[int, int], *, spacing: tuple[float, float], origin: tuple[float, float],
+                crs: str | None, source: str | None, height_unit: str | None) -> Terrain:
+    """A grid Terrain of ``shape`` whose geometry is checked as :meth:`Terrain.from_heights` checks it but whose
+    heights are one read-only zero broadcast over it (no memory per node): the whole grid of a file
+    :func:`~stepterrain.io.load_dem` reads only a window of, to place the window (:meth:`Terrain._crop_nodes`) and
+    name the grid's extent in refusals. Its heights mean nothing: it is never meshed."""
+    spacing, origin = grid_geometry(spacing, origin, shape)
+    return Terrain(kind="grid", heights=np.broadcast_to(np.float32(0.0), shape), spacing=spacing, origin=origin,
+                   crs=crs, source=source, height_unit=height_unit, _owned=True)
 
 
 #: How far outside ``Terrain.crop``'s extent a node may lie and still be kept, in coordinate units: the rounding of
