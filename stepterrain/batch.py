@@ -212,6 +212,9 @@ class _Options:
     #: metadata's ``spacing`` and ``coarsen``, part of the repr, record them for the fingerprint)
     file_spacing: tuple[float, float] | None = dataclasses.field(default=None, repr=False)
     coarsen: int | None = dataclasses.field(default=None, repr=False)
+    #: the GeoTIFF band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
+    #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
+    band: int | None = dataclasses.field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -247,6 +250,7 @@ def plan_items(
     *,
     tile_size: int | tuple[int, int] | None = None,
     height_unit: str | None = None,
+    band: int | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
     """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice.
 
@@ -283,13 +287,18 @@ def plan_items(
                         f"height_unit applies to DEM files, read by load_dem; a (T, H, W) series {str(path)!r} is "
                         f"read as stored; got height_unit={height_unit!r}"
                     )
+                if band is not None and band != 1:  # as load_dem refuses a band of a format with one
+                    raise InvalidInputError(
+                        f"band applies to GeoTIFF only; the (T, H, W) series {str(path)!r} holds one band, got "
+                        f"band={band}"
+                    )
                 # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
                 return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
             raise InvalidInputError(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         try:
-            terrain = load_dem(path, height_unit=height_unit)
+            terrain = load_dem(path, height_unit=height_unit, band=1 if band is None else band)
         except DataFileError:
             # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
             # as if the file were broken; a series in memory says what the option is for
@@ -514,11 +523,12 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
 
 # ---------------------------------------------------------------------------------------------- one item
 def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None,
-                  spacing: tuple[float, float] | None = None, coarsen: int | None = None) -> Terrain:
+                  spacing: tuple[float, float] | None = None, coarsen: int | None = None,
+                  band: int | None = None) -> Terrain:
     if item.kind == "file":
         from .io import load_dem
 
-        terrain = load_dem(item.path, height_unit=height_unit)  # type: ignore[arg-type]
+        terrain = load_dem(item.path, height_unit=height_unit, band=1 if band is None else band)  # type: ignore[arg-type]
         if spacing is not None:
             _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
             terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,
@@ -756,7 +766,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
 
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
-        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen)
+        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen,
+                                options.band)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if item.kind != "file" and not _has_surface(terrain):
             # a piece of the source with no triangle of three finite heights (sea off a coast, a gap in a series):
@@ -799,6 +810,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     shared = repr(dataclasses.replace(options, device=None))
     if options.height_unit is not None:
         shared += f"|height_unit={options.height_unit!r}"
+    if options.band is not None:
+        shared += f"|band={options.band!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
     listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
@@ -1348,6 +1361,7 @@ def batch(
     progress: bool | Callable[[str], str] = False,
     metadata: Mapping[str, Any] | None = None,
     height_unit: str | None = None,
+    band: int | None = None,
     device: wp.DeviceLike = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
@@ -1426,6 +1440,11 @@ def batch(
         The unit of the heights in DEM files (a folder, a list, or one raster file cut into tiles), as
         :func:`~stepterrain.io.load_dem` takes it: for files that name none or name one it does not know.
         Not for arrays, Terrains or (T, H, W) series, whose heights are used as they are.
+    band : int, optional
+        The 1-based band of the DEM files (a folder, a list, or one raster file cut into tiles) to read the heights
+        from, as :func:`~stepterrain.io.load_dem` takes it (default: the first): a GeoTIFF's; a file of another
+        format holds one band and refuses another (in a folder or list: its item fails, naming it). Recorded as
+        ``band`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
         "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
@@ -1550,6 +1569,17 @@ def batch(
                 f"height_unit applies to DEM files, read by load_dem; got a {type(source).__name__} source "
                 f"(its heights are used as they are)"
             )
+    if band is not None:
+        if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)) or band < 1:
+            raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+        band = int(band)
+        if not isinstance(source, (str, os.PathLike, list, tuple)) or (
+            isinstance(source, (list, tuple)) and not all(isinstance(f, (str, os.PathLike)) for f in source)
+        ):
+            raise InvalidInputError(
+                f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "
+                f"source, which holds one band; got band={band}"
+            )
     if isinstance(source, Terrain) and source.visual is not None and colors is None and not solid:
         # stepped() carries a grid's vertex colours or UVs onto its steps; the tiles, cut from the heights alone,
         # were written grey without a word
@@ -1558,7 +1588,7 @@ def batch(
             "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
             "Terrain without a visual"
         )
-    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
+    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
     if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
         raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
@@ -1568,6 +1598,8 @@ def batch(
     files = isinstance(source, (str, os.PathLike)) or (isinstance(source, (list, tuple)) and src is None)
     file_spacing = None
     recorded: dict[str, Any] = {}  # the file options, as steps, closeup and texture record them
+    if band is not None:  # which of the files' bands the heights are
+        recorded["band"] = band
     if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
         raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
     if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south
@@ -1630,6 +1662,7 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
         file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
+        band=band,
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
