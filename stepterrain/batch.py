@@ -251,8 +251,11 @@ def plan_items(
     tile_size: int | tuple[int, int] | None = None,
     height_unit: str | None = None,
     band: int | None = None,
+    crop: ArrayLike | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
-    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice.
+    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
+    cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes are those
+    :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
 
     Examples
     --------
@@ -298,7 +301,13 @@ def plan_items(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         try:
-            terrain = load_dem(path, height_unit=height_unit, band=1 if band is None else band)
+            if crop is not None and path.suffix.lower() in (".tif", ".tiff"):  # the crop's window only
+                from .io import read_dem
+
+                terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=crop,
+                                   refuse=lambda whole: _check_crop(whole, crop))
+            else:
+                terrain = load_dem(path, height_unit=height_unit, band=1 if band is None else band)
         except DataFileError:
             # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
             # as if the file were broken; a series in memory says what the option is for
@@ -582,6 +591,15 @@ def _coarsened(terrain: Terrain, factor: int) -> Terrain:
         return terrain.coarsen(factor)
     except InvalidInputError as exc:
         raise InvalidInputError(f"coarsen={factor}: {exc}") from None
+
+
+def _check_crop(terrain: Terrain, crop: ArrayLike) -> None:
+    """:meth:`Terrain.crop`'s refusals of ``crop`` for ``terrain`` but that of nodata only, named as
+    :func:`_reshaped_source` names them (a GeoTIFF read only in the crop's window is checked so first)."""
+    try:
+        terrain._crop_nodes(crop)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"crop {exc}") from None  # "crop extent (...) holds 0 x 0 nodes ..."
 
 
 def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) -> _Source:
@@ -1400,8 +1418,10 @@ def batch(
     crop : (xmin, xmax, ymin, ymax), optional
         Keep the source's nodes inside this extent (:meth:`~stepterrain.terrain.Terrain.crop`, in the source's
         coordinates) before it is cut into tiles (``tile_size`` counts the cropped raster's cells), or in every frame
-        of a series. Not for a folder or list of DEM files, which each cover their own extent. Recorded as ``crop``
-        in every output's metadata.
+        of a series. A GeoTIFF to tile (without ``spacing``) is read only in the crop's window
+        (:func:`~stepterrain.io.load_dem`'s ``crop``): a part of a raster too big for the memory budget. Not for a
+        folder or list of DEM files, which each cover their own extent. Recorded as ``crop`` in every output's
+        metadata.
     coarsen : int, optional
         Average N x N blocks of nodes into one (:meth:`~stepterrain.terrain.Terrain.coarsen`, nodata ignored),
         after ``crop``: one raster before it is cut into tiles (``tile_size`` counts coarse cells), so that the
@@ -1588,7 +1608,12 @@ def batch(
             "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
             "Terrain without a visual"
         )
-    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band)
+    # a GeoTIFF to tile with crop is read only in the crop's window (a crop of a raster over the memory budget), but
+    # for a spacing=, which places the raster (and so the crop) anew after it is read
+    windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
+        source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in (".tif", ".tiff")
+    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band,
+                            crop=crop if windowed else None)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
     if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
         raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
@@ -1623,7 +1648,7 @@ def batch(
             f"{'folder' if isinstance(source, (str, os.PathLike)) else 'list'} each cover their own extent: crop them "
             f"one by one, or give one raster with tile_size; got crop={crop!r}")
     if src is not None and (crop is not None or coarsen is not None):  # before tiling: the tiles still weld
-        src = _reshaped_source(src, crop, coarsen)
+        src = _reshaped_source(src, None if windowed else crop, coarsen)
         items = _tile_items(src.heights.shape, tile_size) if items and items[0].kind == "tile" else _frame_items(
             src.heights)  # type: ignore[arg-type]
     if crop is not None:
