@@ -142,8 +142,9 @@ def load_dem(
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>`: the extent is in the grid's own coordinates, those
         described under Returns, a geographic DEM's local metres placed by its whole grid). A GeoTIFF's whole grid is
         then placed from its header and only the window of those nodes is read, its size checked against the memory
-        budget instead of the whole file's: a small crop of a DEM over the budget. Other formats are read whole
-        first.
+        budget instead of the whole file's: a small crop of a DEM over the budget (its warnings are the whole
+        read's, but that of a grid without a CRS that looks like degrees weighs the crop's heights; heights beyond
+        float32 outside the window go unread). Other formats are read whole first.
 
     Returns
     -------
