@@ -76,7 +76,7 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_device, _add_height_unit, _cell_size, _floats, _path, _positive_int, _window
+    from .cli import _add_band, _add_device, _add_height_unit, _cell_size, _floats, _path, _positive_int, _window
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -93,6 +93,7 @@ def add_parser(commands: Any) -> None:
                         "--tile is one item too), a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
                         "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
+    _add_band(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
                    help="the node spacing in metres of DEM files with no georeferencing (.npy, a PNG heightmap, a "
                         "GeoTIFF without a geotransform), each read as 1 m cells otherwise; rows run north to south; "
@@ -222,7 +223,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         if listed:  # one: said how to cut it into tiles instead
             what = _counted(len(files), "DEM file") + (f" ({files[0]}; --tile N cuts it)" if len(files) == 1 else "")
     else:  # the embedded DEM, which refuses a --height-unit
-        source = _load_input(None, args.height_unit, spacing=args.spacing)  # which refuses a --spacing too
+        source = _load_input(None, args.height_unit, spacing=args.spacing, band=args.band)  # and --spacing, --band
         args.spacing = None
         what = "the embedded Big Tujunga DEM"
     tile = args.tile if args.tile is not None else (256 if not args.input else None)
@@ -246,6 +247,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
+        band=args.band,
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's heights and georeferencing are known only item by item (tiles and series are checked up front): a
@@ -259,6 +261,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
                       "(.npy, a PNG heightmap, a GeoTIFF without a geotransform); ",
                       ("the only input places its nodes itself", "all {n} inputs place their nodes themselves"),
                       ": leave --spacing out")
+    if args.band is not None:  # load_dem's, for files of one band
+        _refuse_alike(report, "band applies to GeoTIFF only; ", f"--band {args.band} applies to GeoTIFF only; ",
+                      ("the only input holds one band", "all {n} inputs hold one band"), ": leave --band out",
+                      after="holds one band, ")
     if args.coarsen is not None:  # batch._coarsened's
         _refuse_alike(report, f"coarsen={args.coarsen}: ", f"--coarsen {args.coarsen} leaves no mesh of ",
                       ("the only input", "any of the {n} inputs"), ": give a smaller --coarsen")

@@ -212,6 +212,9 @@ class _Options:
     #: metadata's ``spacing`` and ``coarsen``, part of the repr, record them for the fingerprint)
     file_spacing: tuple[float, float] | None = dataclasses.field(default=None, repr=False)
     coarsen: int | None = dataclasses.field(default=None, repr=False)
+    #: the GeoTIFF band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
+    #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
+    band: int | None = dataclasses.field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -247,8 +250,12 @@ def plan_items(
     *,
     tile_size: int | tuple[int, int] | None = None,
     height_unit: str | None = None,
+    band: int | None = None,
+    crop: ArrayLike | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
-    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice.
+    """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
+    cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes are those
+    :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
 
     Examples
     --------
@@ -283,13 +290,24 @@ def plan_items(
                         f"height_unit applies to DEM files, read by load_dem; a (T, H, W) series {str(path)!r} is "
                         f"read as stored; got height_unit={height_unit!r}"
                     )
+                if band is not None and band != 1:  # as load_dem refuses a band of a format with one
+                    raise InvalidInputError(
+                        f"band applies to GeoTIFF only; the (T, H, W) series {str(path)!r} holds one band, got "
+                        f"band={band}"
+                    )
                 # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
                 return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
             raise InvalidInputError(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         try:
-            terrain = load_dem(path, height_unit=height_unit)
+            if crop is not None and path.suffix.lower() in (".tif", ".tiff"):  # the crop's window only
+                from .io import read_dem
+
+                terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=crop,
+                                   refuse=lambda whole: _check_crop(whole, crop))
+            else:
+                terrain = load_dem(path, height_unit=height_unit, band=1 if band is None else band)
         except DataFileError:
             # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
             # as if the file were broken; a series in memory says what the option is for
@@ -525,11 +543,12 @@ def _tile_items(shape: tuple[int, ...], tile_size: int | tuple[int, int]) -> lis
 
 # ---------------------------------------------------------------------------------------------- one item
 def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | None = None,
-                  spacing: tuple[float, float] | None = None, coarsen: int | None = None) -> Terrain:
+                  spacing: tuple[float, float] | None = None, coarsen: int | None = None,
+                  band: int | None = None) -> Terrain:
     if item.kind == "file":
         from .io import load_dem
 
-        terrain = load_dem(item.path, height_unit=height_unit)  # type: ignore[arg-type]
+        terrain = load_dem(item.path, height_unit=height_unit, band=1 if band is None else band)  # type: ignore[arg-type]
         if spacing is not None:
             _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
             terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,
@@ -585,6 +604,15 @@ def _coarsened(terrain: Terrain, factor: int) -> Terrain:
         raise InvalidInputError(f"coarsen={factor}: {exc}") from None
 
 
+def _check_crop(terrain: Terrain, crop: ArrayLike) -> None:
+    """:meth:`Terrain.crop`'s refusals of ``crop`` for ``terrain`` but that of nodata only, named as
+    :func:`_reshaped_source` names them (a GeoTIFF read only in the crop's window is checked so first)."""
+    try:
+        terrain._crop_nodes(crop)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"crop {exc}") from None  # "crop extent (...) holds 0 x 0 nodes ..."
+
+
 def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) -> _Source:
     """``src`` cropped to ``crop`` (:meth:`Terrain.crop`), then coarsened ``coarsen`` times (:meth:`Terrain.coarsen`,
     block means): one raster before it is cut into tiles, so that the tiles still share their border nodes (tiles
@@ -598,7 +626,7 @@ def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) 
     heights = src.heights
     if crop is not None:
         try:
-            i0, i1, j0, j1, _ = probe._crop_nodes(crop)
+            _, (i0, i1), (j0, j1) = probe._crop_nodes(crop)
         except InvalidInputError as exc:
             raise InvalidInputError(f"crop {exc}") from None  # "crop extent (...) holds 0 x 0 nodes ..."
         (dx, dy), (ox, oy) = src.spacing, src.origin
@@ -771,7 +799,8 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
 
     target = Path(output_dir) / f"{item.key}{options.ext}"
     try:
-        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen)
+        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen,
+                                options.band)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if item.kind != "file" and not _has_surface(terrain):
             # a piece of the source with no triangle of three finite heights (sea off a coast, a gap in a series):
@@ -814,6 +843,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     shared = repr(dataclasses.replace(options, device=None))
     if options.height_unit is not None:
         shared += f"|height_unit={options.height_unit!r}"
+    if options.band is not None:
+        shared += f"|band={options.band!r}"
     head = json.dumps([shared, _source_identity(source)], sort_keys=True).encode()
     out = {}
     listings: dict[str, dict[str, list[str]] | None] = {}  # folder -> lower-case name -> names: one listing per folder
@@ -1363,6 +1394,7 @@ def batch(
     progress: bool | Callable[[str], str] = False,
     metadata: Mapping[str, Any] | None = None,
     height_unit: str | None = None,
+    band: int | None = None,
     device: wp.DeviceLike = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
@@ -1401,8 +1433,10 @@ def batch(
     crop : (xmin, xmax, ymin, ymax), optional
         Keep the source's nodes inside this extent (:meth:`~stepterrain.terrain.Terrain.crop`, in the source's
         coordinates) before it is cut into tiles (``tile_size`` counts the cropped raster's cells), or in every frame
-        of a series. Not for a folder or list of DEM files, which each cover their own extent. Recorded as ``crop``
-        in every output's metadata.
+        of a series. A GeoTIFF to tile (without ``spacing``) is read only in the crop's window
+        (:func:`~stepterrain.io.load_dem`'s ``crop``): a part of a raster too big for the memory budget. Not for a
+        folder or list of DEM files, which each cover their own extent. Recorded as ``crop`` in every output's
+        metadata.
     coarsen : int, optional
         Average N x N blocks of nodes into one (:meth:`~stepterrain.terrain.Terrain.coarsen`, nodata ignored),
         after ``crop``: one raster before it is cut into tiles (``tile_size`` counts coarse cells), so that the
@@ -1441,6 +1475,11 @@ def batch(
         The unit of the heights in DEM files (a folder, a list, or one raster file cut into tiles), as
         :func:`~stepterrain.io.load_dem` takes it: for files that name none or name one it does not know.
         Not for arrays, Terrains or (T, H, W) series, whose heights are used as they are.
+    band : int, optional
+        The 1-based band of the DEM files (a folder, a list, or one raster file cut into tiles) to read the heights
+        from, as :func:`~stepterrain.io.load_dem` takes it (default: the first): a GeoTIFF's; a file of another
+        format holds one band and refuses another (in a folder or list: its item fails, naming it). Recorded as
+        ``band`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
         "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
@@ -1565,6 +1604,17 @@ def batch(
                 f"height_unit applies to DEM files, read by load_dem; got a {type(source).__name__} source "
                 f"(its heights are used as they are)"
             )
+    if band is not None:
+        if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)) or band < 1:
+            raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+        band = int(band)
+        if not isinstance(source, (str, os.PathLike, list, tuple)) or (
+            isinstance(source, (list, tuple)) and not all(isinstance(f, (str, os.PathLike)) for f in source)
+        ):
+            raise InvalidInputError(
+                f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "
+                f"source, which holds one band; got band={band}"
+            )
     if isinstance(source, Terrain) and source.visual is not None and colors is None and not solid:
         # stepped() carries a grid's vertex colours or UVs onto its steps; the tiles, cut from the heights alone,
         # were written grey without a word
@@ -1573,7 +1623,12 @@ def batch(
             "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
             "Terrain without a visual"
         )
-    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit)
+    # a GeoTIFF to tile with crop is read only in the crop's window (a crop of a raster over the memory budget), but
+    # for a spacing=, which places the raster (and so the crop) anew after it is read
+    windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
+        source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in (".tif", ".tiff")
+    items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band,
+                            crop=crop if windowed else None)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}
     if taken := sorted(set(extras) & own):  # the library's value replaced the caller's without a word, or the
         raise InvalidInputError(  # caller's the mesh's own (isovalues, gamma, CRS)
@@ -1583,6 +1638,8 @@ def batch(
     files = isinstance(source, (str, os.PathLike)) or (isinstance(source, (list, tuple)) and src is None)
     file_spacing = None
     recorded: dict[str, Any] = {}  # the file options, as steps, closeup and texture record them
+    if band is not None:  # which of the files' bands the heights are
+        recorded["band"] = band
     if origin is not None and (files or src is None or not isinstance(source, np.ndarray | list | tuple)):
         raise InvalidInputError("origin applies to an array source; a file, a folder or a Terrain has its own")
     if spacing is not None and files:  # a file without georeferencing: load_dem's 1 m cells, rows north to south
@@ -1606,7 +1663,7 @@ def batch(
             f"{'folder' if isinstance(source, (str, os.PathLike)) else 'list'} each cover their own extent: crop them "
             f"one by one, or give one raster with tile_size; got crop={crop!r}")
     if src is not None and (crop is not None or coarsen is not None):  # before tiling: the tiles still weld
-        src = _reshaped_source(src, crop, coarsen)
+        src = _reshaped_source(src, None if windowed else crop, coarsen)
         items = _tile_items(src.heights.shape, tile_size) if items and items[0].kind == "tile" else _frame_items(
             src.heights)  # type: ignore[arg-type]
     if crop is not None:
@@ -1645,6 +1702,7 @@ def batch(
         floor=None if floor is None else float(floor), ext=ext, device=None if device is None else str(device),
         metadata=tuple(sorted({**extras, **recorded}.items())), height_unit=height_unit,
         file_spacing=file_spacing, coarsen=coarsen if src is None else None,  # a source's: coarsened already
+        band=band,
     )  # fmt: skip
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))

@@ -217,7 +217,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                         "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
-                        "prints; a geographic DEM's local metres)")
+                        "prints; a geographic DEM's local metres); of a GeoTIFF only this window is read")
     p.add_argument("--coarsen", type=_positive_int, metavar="N",
                    help="average N x N blocks of nodes into one (nodata ignored), after --crop: a DEM too big "
                         "for the memory budget, or more detail than needed")
@@ -227,10 +227,20 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
                 crop: Sequence[float] | None = None, coarsen: int | None = None, band: int | None = None) -> Any:
     """The DEM at ``path`` (``--height-unit`` and ``--band`` applied), else the embedded one (where a unit or a band
     is refused); then ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and
-    ``--coarsen`` (:meth:`Terrain.coarsen`, block means)."""
-    from .io import load_dem, own_placement, sample_dem
+    ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop`` without ``--spacing`` is load_dem's
+    ``crop``: a GeoTIFF's window is all that is read (a crop of a file over the memory budget), the same nodes."""
+    from .io import load_dem, own_placement, read_dem, sample_dem
 
-    if path:
+    def refuse(whole: Any) -> None:
+        assert crop is not None
+        _refuse_degrees(whole, crop, "--crop")
+        _refuse_gdal_order(whole, crop)
+
+    if path and crop is not None and spacing is None:
+        terrain = read_dem(path, band=1 if band is None else band, height_unit=height_unit, crop=crop,
+                           option="--crop", refuse=refuse)
+        crop = None  # done
+    elif path:
         terrain = load_dem(path, band=1 if band is None else band, height_unit=height_unit)
     elif height_unit is not None:
         raise InvalidInputError(
@@ -249,8 +259,7 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
         terrain = type(terrain).from_heights(terrain.heights, spacing=(dx, -dy), source=terrain.source,
                                              height_unit=terrain.height_unit)
     if crop is not None:
-        _refuse_degrees(terrain, crop, "--crop")
-        _refuse_gdal_order(terrain, crop)
+        refuse(terrain)
     try:  # the methods' refusals, prefixed with the option that passed their argument
         option = "--crop"
         if crop is not None:

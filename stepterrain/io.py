@@ -16,7 +16,7 @@ import re
 import threading
 import warnings
 import zipfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Literal, NamedTuple
 
@@ -33,7 +33,15 @@ from .errors import (
     caller_stacklevel,
     counted,
 )
-from .terrain import FLOAT32_MAX, Terrain, as_terrain, first_index, unwrapped_longitudes
+from .terrain import (
+    FLOAT32_MAX,
+    Terrain,
+    as_terrain,
+    crop_of_nodata,
+    first_index,
+    header_grid,
+    unwrapped_longitudes,
+)
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
 
@@ -99,7 +107,10 @@ _KNOWN_UNITS = "m, km, dm, cm, mm, ft (international foot), US survey foot"
 
 
 # ---------------------------------------------------------------------------------------------- public API
-def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None) -> Terrain:
+def load_dem(
+    path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
+    crop: Sequence[float] | None = None,
+) -> Terrain:
     """Read an elevation raster into a :class:`Terrain`, choosing the reader by file extension.
 
     Parameters
@@ -126,6 +137,14 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         The heights' length unit, overriding the one the file names (if any): "m", "ft", "US survey foot", "km",
         "cm", ... (see Returns). For a file that names none (a PNG, a plain array) or one not on that list
         ("metres above sea level"): ``height_unit="m"`` takes the heights as stored.
+    crop : (xmin, xmax, ymin, ymax), optional
+        Keep only the nodes inside this extent: the Terrain ``load_dem(path).crop(crop)`` gives (see
+        :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>`: the extent is in the grid's own coordinates, those
+        described under Returns, a geographic DEM's local metres placed by its whole grid). A GeoTIFF's whole grid is
+        then placed from its header and only the window of those nodes is read, its size checked against the memory
+        budget instead of the whole file's: a small crop of a DEM over the budget (its warnings are the whole
+        read's, but that of a grid without a CRS that looks like degrees weighs the crop's heights; heights beyond
+        float32 outside the window go unread). Other formats are read whole first.
 
     Returns
     -------
@@ -191,8 +210,9 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     Raises
     ------
     InvalidInputError
-        Unknown extension (the message lists the supported ones), ``band`` not a valid band number, or
-        ``height_unit`` not a known length unit (the message lists them).
+        Unknown extension (the message lists the supported ones), ``band`` not a valid band number,
+        ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
+        :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
         The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
@@ -211,12 +231,13 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     MissingDependencyError
         A GeoTIFF is given and rasterio is not installed.
     OutputTooLargeError
-        The file's declared cells exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked from
-        its header before reading. What is checked is the larger of the stored values and the float32 heights
-        the Terrain keeps: cells x max(stored bytes per cell, 4). That is a lower bound of what the read
-        allocates at its peak: the stored band, a mask, and float32 or float64 working copies (nodata, a
-        GeoTIFF's scale and offset, a height unit) live together for a moment, about 8-9 bytes per cell for
-        8-, 16- and 32-bit rasters and up to about 16 for float64 or scaled bands, so leave that much headroom.
+        The file's declared cells (with a GeoTIFF's ``crop``, its window's) exceed the memory budget
+        (:func:`stepterrain.set_memory_budget`), checked from its header before reading. What is checked is the
+        larger of the stored values and the float32 heights the Terrain keeps: cells x max(stored bytes per cell,
+        4). That is a lower bound of what the read allocates at its peak: the stored band, a mask, and float32 or
+        float64 working copies (nodata, a GeoTIFF's scale and offset, a height unit) live together for a moment,
+        about 8-9 bytes per cell for 8-, 16- and 32-bit rasters and up to about 16 for float64 or scaled bands, so
+        leave that much headroom.
 
     Examples
     --------
@@ -226,7 +247,19 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
     >>> t = st.load_dem(path)
     >>> t.shape, t.spacing, t.heights.dtype.name
     ((3, 4), (1.0, -1.0), 'float32')
+    >>> st.load_dem(path, crop=(1.0, 2.0, -2.0, -1.0)).heights.tolist()
+    [[5.0, 6.0], [9.0, 10.0]]
     """
+    return read_dem(path, band=band, height_unit=height_unit, crop=crop)
+
+
+def read_dem(
+    path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
+    crop: Sequence[float] | None = None, option: str = "crop", refuse: Callable[[Terrain], None] | None = None,
+) -> Terrain:
+    """:func:`load_dem`, its ``crop`` refusals named ``option`` (the CLI's "--crop") and, with ``crop``, ``refuse``
+    called with the whole grid before it is cropped (for a GeoTIFF, a :func:`~stepterrain.terrain.header_grid`:
+    geometry and CRS, no heights), to refuse a crop the caller's own way before any pixel of it is read."""
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
     if height_unit is not None:
@@ -248,13 +281,23 @@ def load_dem(path: str | os.PathLike[str], *, band: int = 1, height_unit: str | 
         )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
-        return _load_geotiff(file, int(band), height_unit) if reader is None else reader(file, height_unit)
+        if reader is None:
+            return _load_geotiff(file, int(band), height_unit, crop, option, refuse)
+        terrain = reader(file, height_unit)
     except MemoryError as exc:  # a header declaring 400000 x 400000 cells (a sparse GeoTIFF of a few MB)
         if isinstance(exc, StepTerrainError):
             raise
         raise DataFileError(
             f"cannot read {str(file)!r}: expected elevation data that fits in memory; got {exc}"
         ) from exc
+    if crop is None:
+        return terrain
+    if refuse is not None:
+        refuse(terrain)
+    try:
+        return terrain.crop(crop)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"{option}: {exc}") from None
 
 
 def own_placement(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float]) -> str | None:
@@ -761,16 +804,23 @@ def open_raster(path: str | os.PathLike[str]) -> Any:
         return rasterio.open(path)
 
 
-def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
+def _load_geotiff(
+    file: Path, band: int, height_unit: str | None, crop: Sequence[float] | None = None, option: str = "crop",
+    refuse: Callable[[Terrain], None] | None = None,
+) -> Terrain:
+    """A GeoTIFF's band as :func:`load_dem` reads it; with ``crop`` only the window of the nodes
+    ``Terrain.crop(crop)`` keeps (see :func:`read_dem`)."""
     try:
         import rasterio  # noqa: F401 - only whether it is there
         from rasterio.enums import ColorInterp
         from rasterio.errors import RasterioError
+        from rasterio.windows import Window
     except ImportError as exc:
         raise MissingDependencyError(
             "reading GeoTIFF needs rasterio: pip install 'stepterrain[geo]'"
         ) from exc
 
+    window = header = place = None
     try:
         with open_raster(file) as dataset:
             if band > dataset.count:
@@ -790,18 +840,42 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
                     f"cannot read {str(file)!r}: expected an elevation band (grey or undefined); band {band} is "
                     f"{what}, not elevation data"
                 )
-            _check_read_budget(file, (dataset.height, dataset.width), np.dtype(dataset.dtypes[band - 1]))
-            masked = dataset.read(band, masked=True)
-            unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data)
             scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
-            unit = dataset.units[band - 1]
+            file_unit = dataset.units[band - 1]
             transform = dataset.transform
             crs_obj = dataset.crs
+            shape = (dataset.height, dataset.width)
             if transform.is_identity:  # no geotransform: perhaps ground control points or RPCs instead
                 _refuse_warped_georeferencing(file, dataset.gcps, dataset.rpcs)
             elif crs_obj is None:  # a world file's grid: its CRS in a .prj beside it (degrees were read as metres)
                 prj = prj_crs(file, "DEM", DataFileError)
                 crs_obj = _crs_object(prj) if prj else None
+            crs = _crs_string(crs_obj)
+            named_by = (
+                "height_unit" if height_unit else f"band {band}'s unit" if file_unit else f"the vertical unit of {crs}"
+            )
+            unit, crs, factor = _vertical_unit(height_unit or file_unit, crs)
+            if crop is not None:  # the whole grid placed from the header, then only the crop's window read
+                # the unit as _heights_in_metres returns it: the Terrain's height_unit
+                kept_unit = unit if unit and unit.strip() else None
+                header, place = _geotiff_header(file, shape, transform, crs_obj, crs, kept_unit)
+                if refuse is not None:
+                    refuse(header)
+                try:
+                    bounds, (i0, i1), (j0, j1) = header._crop_nodes(crop)
+                except InvalidInputError as exc:
+                    raise InvalidInputError(f"{option}: {exc}") from None
+                window = Window(j0, i0, j1 - j0 + 1, i1 - i0 + 1)
+                _check_read_budget(file, (i1 - i0 + 1, j1 - j0 + 1), np.dtype(dataset.dtypes[band - 1]),
+                                   f"rows {i0}-{i1}, columns {j0}-{j1} of its {shape[0]} x {shape[1]}, the crop's",
+                                   hint=f"make the {option} smaller, or coarsen the file first (gdal_translate "
+                                        "-outsize)")
+            else:
+                _check_read_budget(file, shape, np.dtype(dataset.dtypes[band - 1]),
+                                   hint="crop or coarsen it first (load_dem's crop=, --crop on the command line, "
+                                        "reads only the crop's window; gdal_translate -outsize coarsens)")
+            masked = dataset.read(band, masked=True, window=window)
+            unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
@@ -828,25 +902,56 @@ def _load_geotiff(file: Path, band: int, height_unit: str | None) -> Terrain:
     if mask is not np.ma.nomask:
         np.copyto(array, np.nan, where=mask)
     del mask
-    crs = _crs_string(crs_obj)
-    named_by = "height_unit" if height_unit else f"band {band}'s unit" if unit else f"the vertical unit of {crs}"
-    unit, crs, factor = _vertical_unit(height_unit or unit, crs)
+    if window is not None and not np.isfinite(array).any():
+        raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}")  # as Terrain.crop refuses it
     heights = _elevation(array, file, f"band {band}")
     del array  # a float64 band's copy, before the heights are converted to metres
     heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
+    if header is not None and place is not None:  # the crop's nodes, where Terrain.crop puts them
+        (dx, dy), (ox, oy) = header.spacing, header.origin
+        terrain = _grid(file, heights, spacing=(dx, dy), origin=(ox + j0 * dx, oy + i0 * dy), crs=header.crs,
+                        source=header.source, height_unit=header.height_unit)
+        _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its crop's heights
+        return terrain
     if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
-        if crs_obj is not None:
-            warnings.warn(
-                f"{file.name}: its CRS {crs} is ignored because the file has no geotransform; read as an "
-                "unreferenced grid, spacing (1, -1) and origin (0, 0)",
-                stacklevel=caller_stacklevel(),
-            )
+        _warn_crs_without_geotransform(file, crs_obj, crs)
         return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=height_unit)
     geotransform = np.array(transform.to_gdal(), dtype=np.float64)
     geographic = bool(crs_obj is not None and crs_obj.is_geographic)
     return _georeferenced(
         file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
     )
+
+
+def _warn_crs_without_geotransform(file: Path, crs_obj: Any, crs: str | None) -> None:
+    """Warn that a GeoTIFF's CRS is ignored for want of a geotransform (read as an unreferenced grid)."""
+    if crs_obj is not None:
+        warnings.warn(
+            f"{file.name}: its CRS {crs} is ignored because the file has no geotransform; read as an "
+            "unreferenced grid, spacing (1, -1) and origin (0, 0)",
+            stacklevel=caller_stacklevel(),
+        )
+
+
+def _geotiff_header(
+    file: Path, shape: tuple[int, int], transform: Any, crs_obj: Any, crs: str | None, height_unit: str | None,
+) -> tuple[Terrain, _Placement]:
+    """The whole grid of a GeoTIFF of ``shape`` as :func:`_load_geotiff` places it (its warnings and refusals told),
+    from its header alone: a :func:`~stepterrain.terrain.header_grid` (no heights) and its placement, whose
+    :func:`_check_placed` warnings are told once the heights are read."""
+    if transform.is_identity:
+        _warn_crs_without_geotransform(file, crs_obj, crs)
+        place = _Placement((1.0, -1.0), (0.0, 0.0), None, file.name, None)
+    else:
+        place = _placement(file, shape, np.array(transform.to_gdal(), dtype=np.float64), crs,
+                           geographic=bool(crs_obj is not None and crs_obj.is_geographic), metres=None,
+                           height_unit=height_unit)
+    try:
+        header = header_grid(shape, spacing=place.spacing, origin=place.origin, crs=place.crs, source=place.source,
+                             height_unit=height_unit)
+    except InvalidInputError as exc:  # as _grid refuses the whole grid's geometry
+        raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
+    return header, place
 
 
 def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
@@ -856,8 +961,11 @@ def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
     return array == (array.dtype.type(nodata) if array.dtype.kind == "f" else nodata)
 
 
-def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> NDArray[np.bool_] | None:
-    """The cells of ``band`` (stored values ``data``) that its nodata value or an alpha band of ``dataset`` marks
+def _missing_beyond_gdal_mask(
+    dataset: Any, band: int, data: NDArray[Any], window: Any = None,
+) -> NDArray[np.bool_] | None:
+    """The cells of ``band`` (stored values ``data``, of ``window`` if given) that its nodata value or an alpha band
+    of ``dataset`` marks
     missing where GDAL's mask does not use them, else None. GDAL masks a band by one of its internal mask, its nodata
     value and an alpha band, in that order (RFC 15), so with an internal mask a cell at the nodata value read as a
     height (a -9999 m pit), and with a nodata value a transparent cell did. The nodata value is compared in the
@@ -873,7 +981,7 @@ def _missing_beyond_gdal_mask(dataset: Any, band: int, data: NDArray[Any]) -> ND
     if MaskFlags.alpha not in flags:
         for index, interp in enumerate(dataset.colorinterp, start=1):
             if interp == ColorInterp.alpha and index != band:
-                transparent = dataset.read(index) == 0
+                transparent = dataset.read(index, window=window) == 0
                 missing = transparent if missing is None else np.logical_or(missing, transparent, out=missing)
     return missing
 
@@ -959,7 +1067,8 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
     _check_read_budget(file, tuple(shape), dtype, what)
 
 
-def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster") -> None:
+def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster",
+                       hint: str = "crop or coarsen it first (gdal_translate -srcwin or -outsize)") -> None:
     """An :class:`~stepterrain.errors.OutputTooLargeError` naming ``file``, its declared shape and the bytes, before
     reading, when its cells (as stored, at least float32 as the Terrain keeps them) exceed the memory budget
     (:func:`stepterrain.set_memory_budget`): a header declaring 400000 x 400000 cells otherwise allocated until the
@@ -970,7 +1079,7 @@ def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what
     check_budget(
         cells * max(dtype.itemsize, 4),
         f"reading {str(file)!r} ({what}: {' x '.join(str(int(n)) for n in shape)} cells of {dtype})",
-        hint="crop or coarsen it first (gdal_translate -srcwin or -outsize)",
+        hint=hint,
     )
 
 
@@ -1142,6 +1251,18 @@ def _grid(
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
 
 
+class _Placement(NamedTuple):
+    """Where :func:`load_dem` puts a georeferenced grid's nodes (:func:`_placement`), known from its header alone:
+    the Terrain's ``spacing``, ``origin``, ``crs`` and ``source``, and ``projected`` the arguments of
+    :func:`_check_projected_metres` (None for a geographic grid, checked by :func:`_check_local_metres` already)."""
+
+    spacing: tuple[float, float]
+    origin: tuple[float, float]
+    crs: str | None
+    source: str | None
+    projected: tuple[Any, ...] | None
+
+
 def _georeferenced(
     file: Path,
     heights: NDArray[np.float32],
@@ -1155,12 +1276,43 @@ def _georeferenced(
     """Grid from a GDAL geotransform of the cell corners: node (0, 0) is the centre of the top-left cell.
     A projected CRS in feet (or any unit but the metre) is converted to metres; ``height_unit`` is the
     heights' unit when the file names a known one (they are then metres already), else None."""
+    place = _placement(file, heights.shape, geotransform, crs, geographic=geographic, metres=metres,
+                       height_unit=height_unit)
+    terrain = _grid(file, heights, spacing=place.spacing, origin=place.origin, crs=place.crs, source=place.source,
+                    height_unit=height_unit)
+    _check_placed(file, place, terrain)
+    return terrain
+
+
+def _check_placed(file: Path, place: _Placement, terrain: Terrain) -> None:
+    """The warnings of a projected grid (:func:`_check_projected_metres`) or one without a CRS
+    (:func:`_check_degrees_without_crs`) read into ``terrain`` as ``place`` placed it."""
+    if place.projected is None:
+        return
+    _check_projected_metres(file, *place.projected)
+    if place.projected[0] is None:
+        _check_degrees_without_crs(file, terrain)
+
+
+def _placement(
+    file: Path,
+    shape: tuple[int, ...],
+    geotransform: NDArray[np.float64],
+    crs: str | None,
+    *,
+    geographic: bool,
+    metres: tuple[float, float] | None,
+    height_unit: str | None,
+) -> _Placement:
+    """The placement of a grid of ``shape`` by :func:`_georeferenced`, from its geotransform, CRS and shape alone
+    (no heights), its refusals and warnings but those of :func:`_check_placed` given: :func:`load_dem` places a
+    GeoTIFF's whole grid so before it reads a window of it (``crop=``)."""
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
-    if not _negligible_rotation(row_x, col_y, dx, dy, heights.shape):
+    if not _negligible_rotation(row_x, col_y, dx, dy, shape):
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a north-up grid; got a rotated geotransform "
             f"{tuple(float(v) for v in geotransform)} (its rotation terms move nodes by more than "
-            f"{_ROTATION_TOLERANCE:g} of a cell over {heights.shape[0]} x {heights.shape[1]} nodes; `gdalwarp` makes "
+            f"{_ROTATION_TOLERANCE:g} of a cell over {shape[0]} x {shape[1]} nodes; `gdalwarp` makes "
             "it north-up)"
         )
     if dx == 0.0 or dy == 0.0:
@@ -1179,14 +1331,8 @@ def _georeferenced(
                     stacklevel=caller_stacklevel(),
                 )
             source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
-        terrain = _grid(
-            file, heights, spacing=(dx * factor, dy * factor), origin=(node_x * factor, node_y * factor),
-            crs=metre_crs, source=source, height_unit=height_unit,
-        )
-        _check_projected_metres(file, crs, (node_x, node_y), (dx, dy), heights.shape, factor)
-        if crs is None:
-            _check_degrees_without_crs(file, terrain)
-        return terrain
+        return _Placement((dx * factor, dy * factor), (node_x * factor, node_y * factor), metre_crs,
+                          source or file.name, (crs, (node_x, node_y), (dx, dy), tuple(shape), factor))
 
     body = _geographic_body(crs)
     if body.degrees != 1.0 or body.meridian != 0.0 or body.east != 1.0:  # grads (EPSG:4807), longitudes east of
@@ -1194,7 +1340,7 @@ def _georeferenced(
         x0, dx = body.meridian + body.east * x0 * body.degrees, body.east * dx * body.degrees
         y0, dy = y0 * body.degrees, dy * body.degrees
         node_x, node_y = x0 + 0.5 * dx, y0 + 0.5 * dy
-    rows = heights.shape[0]
+    rows = shape[0]
     node_lats = (node_y, node_y + (rows - 1) * dy)
     if not all(abs(lat) <= 90.0 + 1e-9 for lat in node_lats):  # metres would be made of impossible degrees
         raise DataFileError(
@@ -1202,11 +1348,11 @@ def _georeferenced(
             f"from {min(node_lats):.9g} to {max(node_lats):.9g}; expected them within [-90, 90] (a projected grid "
             "labelled with a geographic CRS?)"
         )
-    lon_span = (heights.shape[1] - 1) * abs(dx)
+    lon_span = (shape[1] - 1) * abs(dx)
     if lon_span > 360.0 + 1e-9:  # the nodes went round the globe more than once: a strip wider than the earth
         raise DataFileError(
             f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node longitudes "
-            f"span {lon_span:.9g} degrees ({heights.shape[1]} columns of {abs(dx):.9g}); expected at most 360 (a "
+            f"span {lon_span:.9g} degrees ({shape[1]} columns of {abs(dx):.9g}); expected at most 360 (a "
             "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
@@ -1223,7 +1369,7 @@ def _georeferenced(
         cos_ts = abs(metres[0]) / (radius * math.radians(abs(dx)))
         lat_ts = math.degrees(math.acos(cos_ts)) if cos_ts <= 1.0 else math.nan
     spacing = (math.copysign(abs(metres[0]), dx), math.copysign(abs(metres[1]), dy))
-    _check_local_metres(file, crs, (node_x, node_x + (heights.shape[1] - 1) * dx), node_y + np.arange(rows) * dy,
+    _check_local_metres(file, crs, (node_x, node_x + (shape[1] - 1) * dx), node_y + np.arange(rows) * dy,
                         (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)), body)
     local_crs: str | None = (
         f"+proj=eqc +lat_ts={lat_ts:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
@@ -1244,9 +1390,7 @@ def _georeferenced(
         f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
         f"lat {node_y:.9f}; {how})"
     )
-    return _grid(
-        file, heights, spacing=spacing, origin=(0.0, 0.0), crs=local_crs, source=source, height_unit=height_unit
-    )
+    return _Placement(spacing, (0.0, 0.0), local_crs, source, None)
 
 
 def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:

@@ -860,17 +860,20 @@ class Terrain:
         >>> c.shape, c.origin, c.extent
         ((2, 3), (10.0, 0.0), (10.0, 30.0, 0.0, 10.0))
         """
-        i0, i1, j0, j1, bounds = self._crop_nodes(extent)
+        bounds, (i0, i1), (j0, j1) = self._crop_nodes(extent)
         kept = self.heights[i0:i1 + 1, j0:j1 + 1]
         if not np.isfinite(kept).any():
-            raise InvalidInputError(f"extent {tuple(float(v) for v in bounds)} holds only nodata "
-                                    f"({kept.shape[0]} x {kept.shape[1]} nodes)")
+            raise crop_of_nodata(bounds, kept.shape)
         (dx, dy), (ox, oy) = self.spacing, self.origin
         return self._subgrid(kept, (dx, dy), (ox + j0 * dx, oy + i0 * dy))
 
-    def _crop_nodes(self, extent: ArrayLike) -> tuple[int, int, int, int, NDArray[np.float64]]:
-        """:meth:`crop`'s first and last rows and columns (i0, i1, j0, j1, inclusive) and the extent's numbers, its
-        refusals of the extent included, from the grid's geometry alone (no height read)."""
+    def _crop_nodes(self, extent: ArrayLike) -> tuple[tuple[float, float, float, float], tuple[int, int],
+                                                      tuple[int, int]]:
+        """The ``extent`` of :meth:`crop` checked, as 4 floats, and the first and last row and column of the nodes it
+        keeps, ``(bounds, (i0, i1), (j0, j1))``; its refusals but that of nodata only (:func:`crop_of_nodata`). Only
+        the grid's shape, spacing, origin and crs are read (no height): :func:`~stepterrain.io.load_dem` asks it of a
+        :func:`header_grid` before it reads a GeoTIFF's window, and the batch of a crop of a :meth:`_geometry_only`
+        grid."""
         self._grid_only("crop", "cut its mesh instead, e.g. with trimesh's slice_plane")
         try:
             bounds = real_numbers(extent, "extent", "(xmin, xmax, ymin, ymax)")
@@ -893,7 +896,7 @@ class Terrain:
                 f"the terrain's extent is {self._extent_text()}, spacing {self.spacing}" + (
                     "" if degrees is None else "; it looks like degrees, but a DEM in degrees is read as local metres: "
                     "those degrees are ({:.2f}, {:.2f}, {:.2f}, {:.2f})".format(*degrees[1])))
-        return i0, i1, j0, j1, bounds
+        return (float(bounds[0]), float(bounds[1]), float(bounds[2]), float(bounds[3])), (i0, i1), (j0, j1)
 
     def coarsen(self, factor: int, *, method: Literal["mean", "nearest"] = "mean") -> Terrain:
         """A grid ``factor`` times coarser in x and y: for a DEM too big to step or mesh whole, or more detail than
@@ -972,13 +975,13 @@ class Terrain:
 
     @classmethod
     def _geometry_only(cls, shape: tuple[int, int], spacing: tuple[float, float], origin: tuple[float, float],
-                       crs: str | None) -> Terrain:
+                       crs: str | None, *, source: str | None = None, height_unit: str | None = None) -> Terrain:
         """A grid of ``shape`` nodes whose heights are one zero, broadcast (no allocation, no pass): for
         :meth:`_crop_nodes` and :meth:`_coarse_geometry` of heights held elsewhere (a series' frames); ``spacing`` and
         ``origin`` checked as :meth:`from_heights` checks them."""
         spacing, origin = grid_geometry(spacing, origin, shape)
         terrain = cls(kind="grid", heights=np.broadcast_to(np.float32(0.0), shape), spacing=spacing, origin=origin,
-                      crs=crs, _owned=True)
+                      crs=crs, source=source, height_unit=height_unit, _owned=True)
         terrain._device_cache["has_nodata"] = False
         terrain._device_cache["height_range"] = (0.0, 0.0)
         return terrain
@@ -1003,6 +1006,21 @@ class Terrain:
                  origin: tuple[float, float]) -> Terrain:
         return Terrain.from_heights(np.ascontiguousarray(heights), spacing=spacing, origin=origin, crs=self.crs,
                                     source=self.source, height_unit=self.height_unit)
+
+
+def crop_of_nodata(bounds: tuple[float, ...], shape: tuple[int, ...]) -> InvalidInputError:
+    """:meth:`Terrain.crop`'s refusal of an extent (``bounds``, checked) whose kept nodes (``shape``) are all
+    nodata."""
+    return InvalidInputError(f"extent {tuple(bounds)} holds only nodata ({shape[0]} x {shape[1]} nodes)")
+
+
+def header_grid(shape: tuple[int, int], *, spacing: tuple[float, float], origin: tuple[float, float],
+                crs: str | None, source: str | None, height_unit: str | None) -> Terrain:
+    """A grid Terrain of ``shape`` (:meth:`Terrain._geometry_only`: geometry checked as :meth:`Terrain.from_heights`
+    checks it, heights one read-only zero broadcast over it, no memory per node): the whole grid of a file
+    :func:`~stepterrain.io.load_dem` reads only a window of, to place the window (:meth:`Terrain._crop_nodes`) and
+    name the grid's extent in refusals. Its heights mean nothing: it is never meshed."""
+    return Terrain._geometry_only(shape, spacing, origin, crs, source=source, height_unit=height_unit)
 
 
 #: How far outside ``Terrain.crop``'s extent a node may lie and still be kept, in coordinate units: the rounding of

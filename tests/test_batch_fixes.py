@@ -2047,3 +2047,43 @@ def test_cli_batch_reads_one_npz_input_once(tmp_path, monkeypatch, capsys):
     assert got == {name: one_raster(tmp_path / name) for name in names}
     assert [name for name in names if got[name]] == ["texture.npz", "mask3d.npz", "flat.npz", "npy2d.npz", "bytes.npz",
                                                       "one.npz"]
+
+
+def test_batch_crop_of_a_geotiff_to_tile_reads_only_the_crops_window(tmp_path, capsys):
+    """batch (and batch --crop --tile) read the whole GeoTIFF to tile before cropping it, so a raster over the memory
+    budget was refused even for a small crop of it. Its crop's window is all that is read now (load_dem's crop=):
+    the same tiles, fingerprints aside, as the whole raster cropped (here the Terrain read whole, tiled with the same
+    crop), and the same refusals of a crop that holds too few nodes; --coarsen still applies after."""
+    import stepterrain as st
+    from stepterrain import cli
+    from stepterrain.errors import InvalidInputError, OutputTooLargeError
+    from stepterrain.io import load_dem
+
+    from .conftest import shared_file
+
+    tif = shared_file("big_tujunga_srtm_30m_utm11n.tif")  # 643 x 1197: 3.1 MB as float32 heights
+    whole = load_dem(tif)
+    x0, _, _, y1 = whole.extent
+    crop = (x0 + 3000.0, x0 + 6000.0, y1 - 5000.0, y1 - 2000.0)  # 101 x 101 nodes
+    reference = batch(whole, tmp_path / "ref", tile_size=40, crop=crop, coarsen=2, interval=100.0, format=".ply",
+                      scheduler="serial")
+    previous = st.set_memory_budget(1_000_000)
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"the raster: 643 x 1197 cells"):
+            batch(str(tif), tmp_path / "whole", tile_size=40, interval=100.0, scheduler="serial")
+        report = batch(str(tif), tmp_path / "out", tile_size=40, crop=crop, coarsen=2, interval=100.0, format=".ply",
+                       scheduler="serial")
+        with pytest.raises(InvalidInputError, match=r"^crop extent \(0\.0, 1\.0, 0\.0, 1\.0\) \(xmin, xmax, ymin, "
+                                                    r"ymax\) holds 0 x 0 nodes of the grid"):
+            batch(str(tif), tmp_path / "x", tile_size=40, crop=(0.0, 1.0, 0.0, 1.0), scheduler="serial")
+        assert cli.main(["-q", "batch", str(tif), "--tile", "40", "--crop", ",".join(map(repr, crop)), "--interval",
+                         "100", "--scheduler", "serial", "--format", ".ply", "-o", str(tmp_path / "cli")]) == 0
+    finally:
+        st.set_memory_budget(previous)
+    assert report.ok and [r.key for r in report.done] == [r.key for r in reference.done] and len(report.done) == 4
+    for got, expected in zip(report.done, reference.done, strict=True):
+        a, b = (trimesh.load(r.path, process=False) for r in (got, expected))
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.faces, b.faces)
+    assert len(list((tmp_path / "cli").glob("*.ply"))) == 9 and not (tmp_path / "x").exists()
+    capsys.readouterr()

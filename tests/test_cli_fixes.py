@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -1300,3 +1301,77 @@ def test_band_picks_the_band_of_a_multiband_geotiff_input(tmp_path, capsys):
         code, _, err = run(capsys, *argv)
         assert code == 2 and message in err, err
     assert not (tmp_path / "x.ply").exists()
+
+
+def test_batch_band_reaches_every_file_its_fingerprint_and_metadata(tmp_path, capsys):
+    """steps, closeup, texture and info got --band N; batch had none (nor batch(band=)), so a folder of multi-band
+    GeoTIFFs (a DSM and a DTM each) or one to tile was stepped from its first band only. band= now reaches load_dem
+    for every file (read by the workers: it travels with the options) and for the raster cut into tiles, is
+    recorded as 'band' in every output's metadata and enters the fingerprint (a rerun with another band redoes the
+    items); an array, a Terrain or a series is refused, a file of one band fails as load_dem refuses it, and the
+    command line's --band does the same (the embedded DEM and a folder of single-band files refused naming it)."""
+    rasterio = pytest.importorskip("rasterio")
+    import trimesh
+
+    from stepterrain import batch
+    from stepterrain.errors import InvalidInputError
+
+    from .test_export import glb_json
+
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32)
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    for k, name in enumerate(("a.tif", "b.tif")):
+        with rasterio.open(folder / name, "w", driver="GTiff", width=7, height=6, count=2, dtype="float32",
+                           crs="EPSG:32611", transform=rasterio.Affine(30.0, 0.0, 500000.0 + 180 * k, 0.0, -30.0,
+                                                                       4000000.0)) as ds:  # fmt: skip
+            ds.write(z, 1)
+            ds.write(z + 1000.0, 2)
+
+    def z_range(path):
+        bounds = trimesh.load(path, process=False).bounds
+        return bounds[0][2], bounds[1][2]
+
+    out = tmp_path / "out"
+    report = batch(folder, out, interval=2.0, scheduler="serial", format=".ply", band=2)
+    assert report.ok and len(report.done) == 2
+    assert all(1000.0 <= lo and hi <= 1012.0 for lo, hi in (z_range(r.path) for r in report.done))
+    assert len(batch(folder, out, interval=2.0, scheduler="serial", format=".ply", band=2).skipped) == 2
+    first = batch(folder, out, interval=2.0, scheduler="serial", format=".ply", band=1)
+    assert len(first.done) == 2 and all(z_range(r.path)[1] <= 12.0 for r in first.done)  # redone, not skipped
+
+    glb = batch(folder / "a.tif", tmp_path / "tiled", tile_size=3, interval=2.0, scheduler="serial", band=2)
+    assert glb.ok and len(glb.done) == 4
+    extras = glb_json(Path(glb.done[0].path))["meshes"][0]["extras"]
+    assert extras["band"] == 2 and extras["isovalues"][0] >= 1000.0
+    assert glb_json(Path(batch(folder, tmp_path / "g", interval=2.0, scheduler="serial",
+                               band=2).done[0].path))["meshes"][0]["extras"]["band"] == 2
+
+    np.save(tmp_path / "one.npy", z)
+    np.save(tmp_path / "series.npy", np.stack([z, z]))
+    for source, tile, band, message in [
+        (z, 3, 2, "band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a ndarray source"),
+        (tmp_path / "series.npy", None, 2, "band applies to GeoTIFF only; the (T, H, W) series"),
+        (folder / "a.tif", 3, 3, "band must be between 1 and 2 for"),  # one raster to tile: read before any work
+    ]:
+        with pytest.raises(InvalidInputError, match=re.escape(message)):
+            batch(source, tmp_path / "x", tile_size=tile, interval=2.0, scheduler="serial", band=band)
+    with pytest.raises(InvalidInputError, match="band must be a positive 1-based band number; got 0"):
+        batch(folder, tmp_path / "x", interval=2.0, scheduler="serial", band=0)
+    failed = batch([tmp_path / "one.npy", folder / "a.tif"], tmp_path / "y", interval=2.0, scheduler="serial",
+                   band=2)
+    assert len(failed.done) == 1 and "band applies to GeoTIFF only" in failed.failed[0].error
+
+    code, _, err = run(capsys, "-q", "batch", folder, "--band", "2", "--interval", "2", "--scheduler", "serial",
+                       "--format", ".ply", "-o", tmp_path / "cli")
+    assert code == 0, err
+    assert all(z_range(p)[0] >= 1000.0 for p in (tmp_path / "cli").glob("*.ply"))
+    code, _, err = run(capsys, "-q", "batch", "--band", "2", "--scheduler", "serial", "-o", tmp_path / "emb")
+    assert code == 2 and "--band applies to a GeoTIFF INPUT; the embedded DEM holds one band" in err
+    npys = tmp_path / "npys"
+    npys.mkdir()
+    np.save(npys / "one.npy", z)
+    code, _, err = run(capsys, "-q", "batch", npys, "--band", "2", "--interval", "2", "--scheduler", "serial",
+                       "-o", tmp_path / "n")
+    assert code == 2 and "--band 2 applies to GeoTIFF only; the only input holds one band" in err, err
+    assert not (tmp_path / "x").exists() and not (tmp_path / "emb").exists()

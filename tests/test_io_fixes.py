@@ -1354,3 +1354,139 @@ def test_a_grid_in_degrees_without_a_crs_warns_that_it_was_read_as_metres(tmp_pa
         warnings.simplefilter("error")
         load_dem(metres)
         load_dem(bench)  # a 0.3 m model with 0.48 m of relief, in metres near (0, 0)
+
+
+def _window_flavours(tmp_path):
+    """GeoTIFFs of every placement load_dem reads (the shared DEMs, north-up and south-up metres, degrees north-up
+    and south-up far north, a CRS in feet with a scaled band, nodata by value and by alpha band, no geotransform),
+    each with extents to crop (random boxes, boxes past the edges, on nodes, too small, nodata only, in degrees)."""
+    rasterio = pytest.importorskip("rasterio")
+    rng = np.random.default_rng(7)
+    z = (rng.random((37, 53)) * 900.0 + 100.0).astype(np.float32)
+    z[:9, :11] = -9999.0  # a corner of nodata: a crop there holds only nodata
+    z[20, 30] = -9999.0
+
+    def tiff(name, data, transform, crs, nodata=None, **extra):
+        path = tmp_path / name
+        count = 1 + ("alpha" in extra)
+        with warnings.catch_warnings():  # plain.tif: "GDAL may ignore this matrix", as wanted (no geotransform)
+            warnings.simplefilter("ignore", rasterio.errors.NotGeoreferencedWarning)
+            dataset = rasterio.open(path, "w", driver="GTiff", width=data.shape[1], height=data.shape[0], count=count,
+                                    dtype=data.dtype, crs=crs, transform=transform, nodata=nodata)
+        with dataset as ds:
+            ds.write(data, 1)
+            if "scales" in extra:
+                ds.scales, ds.offsets, ds.units = extra["scales"], extra["offsets"], extra["units"]
+            if "alpha" in extra:
+                ds.write(extra["alpha"], 2)
+                ds.colorinterp = [rasterio.enums.ColorInterp.gray, rasterio.enums.ColorInterp.alpha]
+        return path
+
+    affine = rasterio.Affine
+    alpha = np.full(z.shape, 255, np.uint8)
+    alpha[30:, 40:] = 0
+    files = [
+        SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif",
+        SHARED_DATA / "front_range_srtmgl3_3arcsec.tif",
+        tiff("north.tif", z, affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0), "EPSG:32611", -9999.0),
+        tiff("south.tif", z, affine(30.0, 0.0, 376000.0, 0.0, 30.0, 3790000.0), "EPSG:32611", -9999.0),
+        tiff("deg_north.tif", z, affine(0.01, 0.0, -105.5, 0.0, -0.01, 64.3), "EPSG:4326", -9999.0),
+        tiff("deg_south.tif", z, affine(0.01, 0.0, 170.2, 0.0, 0.01, -70.4), "EPSG:4326", -9999.0),
+        tiff("feet.tif", np.where(z < 0, 0, z * 10).astype(np.uint16), affine(100.0, 0.0, 6400000.0, 0.0, -100.0,
+             1900000.0), "EPSG:2229", 0, scales=[0.1], offsets=[-5.0], units=["ft"]),
+        tiff("alpha.tif", z, affine(30.0, 0.0, 376000.0, 0.0, -30.0, 3808000.0), "EPSG:32611", None, alpha=alpha),
+        tiff("plain.tif", z, affine(1.0, 0.0, 0.0, 0.0, 1.0, 0.0), None, -9999.0),
+    ]
+    for path in files:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            whole = load_dem(path)
+        x0, x1, y0, y1 = whole.extent
+        (dx, dy), (ox, oy) = whole.spacing, whole.origin
+        extents = [tuple(sorted(rng.uniform(x0, x1, 2))) + tuple(sorted(rng.uniform(y0, y1, 2))) for _ in range(6)]
+        extents += [
+            (x0 - 1e6, x1 + 1e6, y0 - 1e6, y1 + 1e6),  # the whole grid
+            (ox + 3 * dx, ox + 7 * dx, oy + 2 * dy, oy + 5 * dy)[:2] + tuple(sorted((oy + 2 * dy, oy + 5 * dy))),
+            (x0, x0 + 0.5 * abs(dx), y0, y1),  # one column: refused
+            (x1 + 10 * abs(dx), x1 + 20 * abs(dx), y0, y1),  # off the grid: refused
+        ]
+        if path.name in ("north.tif", "deg_north.tif"):  # the nodata corner: refused
+            extents.append((ox, ox + 8 * dx, oy + 6 * dy, oy))
+        if path.name == "deg_north.tif":  # in degrees: refused naming its metres
+            extents.append((-105.4, -105.2, 64.0, 64.2))
+        yield path, whole, extents
+
+
+def test_load_dem_crop_reads_the_window_that_terrain_crop_keeps(tmp_path):
+    """--crop (and Terrain.crop after load_dem) read the whole GeoTIFF first, so a file over the memory budget was
+    refused even for a small crop of it. load_dem(path, crop=extent) places the whole grid from the header and reads
+    only the window: the same Terrain as load_dem(path).crop(extent) (heights, nodata, spacing, origin, crs, source,
+    height unit; a degrees DEM's local metres of its whole grid), the same warnings, and the same refusals after
+    'crop: ', for GeoTIFFs of every placement; other formats are read whole and cropped."""
+    from stepterrain.errors import InvalidInputError
+
+    def outcome(call):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                result = call()
+            except InvalidInputError as exc:
+                result = exc
+        return result, [str(w.message) for w in caught]
+
+    checked = refused = 0
+    for path, whole, extents in _window_flavours(tmp_path):
+        for extent in extents:
+            expected, said = outcome(lambda: load_dem(path).crop(extent))  # noqa: B023
+            got, told = outcome(lambda: load_dem(path, crop=extent))  # noqa: B023
+            assert told == said, (path.name, extent)
+            if isinstance(expected, Exception):
+                assert isinstance(got, InvalidInputError) and str(got) == f"crop: {expected}", (path.name, extent)
+                refused += 1
+                continue
+            assert not isinstance(got, Exception), (path.name, extent, got)
+            assert got.shape == expected.shape and (got.shape != whole.shape or extent[1] - extent[0] > 1e6)
+            np.testing.assert_array_equal(got.heights, expected.heights)
+            assert (got.spacing, got.origin, got.crs, got.source, got.height_unit) == \
+                (expected.spacing, expected.origin, expected.crs, expected.source, expected.height_unit)
+            assert got.has_nodata == expected.has_nodata and got.height_range == expected.height_range
+            checked += 1
+    assert checked >= 50 and refused >= 15
+    np.save(tmp_path / "plain.npy", whole.heights)
+    t = load_dem(tmp_path / "plain.npy", crop=(3.0, 9.0, -12.0, -4.0))  # other formats: read whole, cropped
+    assert t.shape == (9, 7) and t.origin == (3.0, -4.0)
+    with pytest.raises(InvalidInputError, match=r"^crop: extent \(3\.0, 3\.5, -12\.0, -4\.0\) .* holds 9 x 1 nodes"):
+        load_dem(tmp_path / "plain.npy", crop=(3.0, 3.5, -12.0, -4.0))
+
+
+def test_load_dem_crop_checks_only_the_window_against_the_memory_budget(tmp_path):
+    """A GeoTIFF over the memory budget was refused (pointing at gdal_translate) even when only a small crop of it
+    was wanted: load_dem read it whole, then cropped. Its crop's window is now what is checked and read: a budget
+    under the whole file's bytes and over the window's reads the crop, the same nodes as the whole read's crop; a
+    window over the budget is refused naming its rows and columns."""
+    import stepterrain as st
+    from stepterrain.errors import OutputTooLargeError
+
+    path = SHARED_DATA / "big_tujunga_srtm_30m_utm11n.tif"  # 643 x 1197 float32 or int16: over 1.5 MB as float32
+    whole = load_dem(path)
+    (x0, _, _, y1), (dx, dy) = whole.extent, whole.spacing
+    extent = (x0 + 100 * dx, x0 + 199 * dx, y1 + 299 * dy, y1 + 200 * dy)  # 100 x 100 nodes: 40,000 bytes
+    expected = whole.crop(extent)
+    assert expected.shape == (100, 100)
+    previous = st.set_memory_budget(100_000)
+    try:
+        with pytest.raises(OutputTooLargeError, match=r"the raster: 643 x 1197 cells .* crop or coarsen it first "
+                                                      r"\(load_dem's crop=, --crop on the command line, reads only "
+                                                      r"the crop's window"):
+            load_dem(path)
+        got = load_dem(path, crop=extent)
+        np.testing.assert_array_equal(got.heights, expected.heights)
+        assert (got.spacing, got.origin, got.crs, got.source) == (expected.spacing, expected.origin, expected.crs,
+                                                                  expected.source)
+        st.set_memory_budget(39_999)
+        with pytest.raises(OutputTooLargeError, match=r"\(rows 200-299, columns 100-199 of its 643 x 1197, the crop's: "
+                                                      r"100 x 100 cells of .*\) would need 40,000 bytes.*make the crop "
+                                                      r"smaller"):
+            load_dem(path, crop=extent)
+    finally:
+        st.set_memory_budget(previous)

@@ -394,3 +394,41 @@ def test_a_crop_in_gdals_order_is_refused_with_the_numbers_in_ours(tmp_path, cap
     with Image.open(out) as image:
         assert image.size[::-1] == st.load_dem(source).crop((380000, 390000, 3790000, 3800000)).shape
     assert cli.main(["-q", "texture", source, "--crop", "380000,500000,3700000,3800000", "-o", str(out)]) == 0
+
+
+def test_steps_crop_of_a_geotiff_over_the_memory_budget_reads_only_its_window(tmp_path, capsys):
+    """steps/closeup/texture --crop read the whole GeoTIFF, then cropped it: a DEM over the memory budget was refused
+    (naming gdal_translate) even for a crop far inside it. A GeoTIFF's --crop is load_dem's crop= now: only its
+    window is read and checked against the budget, the same nodes and mesh as the whole read's crop (then
+    --coarsen, as before); the refusals of a crop in degrees or in GDAL's order still name the whole DEM's extent,
+    before anything is read."""
+    from .conftest import shared_file
+
+    source = shared_file("big_tujunga_srtm_30m_utm11n.tif")  # 643 x 1197: 3.1 MB as float32 heights
+    whole = st.load_dem(source)
+    x0, _, _, y1 = whole.extent
+    crop = (x0 + 3000.0, x0 + 6000.0, y1 - 5000.0, y1 - 2000.0)  # 101 x 101 nodes
+    budget = ["--memory-budget", "2000000"]  # the mesh fits; the whole file does not
+    out = tmp_path / "part.ply"
+    code = cli.main(["steps", str(source), "--crop", ",".join(map(repr, crop)), "--interval", "100", "-o", str(out),
+                     *budget])
+    assert code == 0, capsys.readouterr().err
+    mesh = st.export.read_mesh(out)
+    reference = st.stepped(whole.crop(crop), interval=100.0, device="cpu")
+    assert mesh.faces.shape == reference.faces.shape
+    np.testing.assert_allclose(mesh.bounds, reference.bounds, atol=1e-3)
+    assert cli.main(["-q", "steps", str(source), "--interval", "100", "-o", str(out), *budget]) == 2
+    assert "the raster: 643 x 1197 cells" in capsys.readouterr().err  # the whole file is over that budget
+    code = cli.main(["steps", str(source), "--crop", ",".join(map(repr, crop)), "--coarsen", "2", "--interval", "100",
+                     "-o", str(out), *budget])
+    assert code == 0 and f"{whole.crop(crop).coarsen(2).shape[0]} x" in capsys.readouterr().err
+    gdal = f"{crop[0]!r},{crop[2]!r},{crop[1]!r},{crop[3]!r}"
+    assert cli.main(["-q", "steps", str(source), "--crop", gdal, "-o", str(out), "--memory-budget", "1000"]) == 2
+    assert "not GDAL's -te xmin,ymin,xmax,ymax" in capsys.readouterr().err
+    assert cli.main(["-q", "steps", str(source), "--crop", "0,1,0,1", "-o", str(out), *budget]) == 2
+    assert "error: --crop: extent (0.0, 1.0, 0.0, 1.0) (xmin, xmax, ymin, ymax) holds 0 x 0 nodes of the grid" in \
+        capsys.readouterr().err
+    degrees = shared_file("front_range_srtmgl3_3arcsec.tif")
+    assert cli.main(["-q", "steps", str(degrees), "--crop", "-105.5,-105.4,39.9,40.0", "-o", str(out),
+                     "--memory-budget", "1000"]) == 2
+    assert "--crop=-105.5,-105.4,39.9,40 looks like degrees" in capsys.readouterr().err
