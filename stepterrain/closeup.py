@@ -1979,13 +1979,19 @@ def _texture_rgb(terrain: Terrain, image: NDArray[np.uint8], xy: NDArray[np.floa
     j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
     i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
     tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
-    img = image.astype(np.float32)
-    if img.shape[2] == 4:  # premultiplied: a transparent texel's colour does not bleed into its neighbours
-        img[..., :3] *= img[..., 3:] / 255.0
-    top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
-    bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
+
+    def texels(i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.float32]:
+        # the four texels of each vertex in floats, not the whole image (16 bytes a texel of RGBA, on every call)
+        found = image[i, j].astype(np.float32)
+        if found.shape[1] == 4:  # premultiplied: a transparent texel's colour does not bleed into its neighbours
+            found[:, :3] *= found[:, 3:] / 255.0
+        return found
+
+    c00, c01, c10, c11 = texels(i0, j0), texels(i0, j0 + 1), texels(i0 + 1, j0), texels(i0 + 1, j0 + 1)
+    top = c00 + tx * (c01 - c00)
+    bottom = c10 + tx * (c11 - c10)
     sampled = top + ty * (bottom - top)
-    if img.shape[2] == 4:
+    if image.shape[2] == 4:
         from .render import _DEFAULT_COLOR
 
         below = (np.asarray(under, np.float32) if under is not None
