@@ -292,6 +292,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
     pixels = _texture_pixels(args.texture) if args.texture else None  # decoded once for both drapes
+    if png is not None and pixels is not None:  # the render holds the draped texture too (16 bytes a texel)
+        render._check_render_budget(args.size[0], args.size[1], "--size", texture=pixels.shape)
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
     lat, lon, elevation = _load_grid(args.input) if args.input else load_global_relief()

@@ -990,8 +990,12 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
     a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
     georeferences without a CRS; None without one. A .prj that is no CRS is refused (a ``refusal``), naming it and
-    ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word."""
-    for prj in (path.with_suffix(".prj"), path.with_name(path.name + ".prj")):
+    ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
+    extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
+    file ``DEM.TFW``)."""
+    prjs = [path.with_suffix(ext) for ext in (".prj", ".PRJ")] + [path.with_name(path.name + ext)
+                                                                  for ext in (".prj", ".PRJ")]
+    for prj in prjs:
         if not prj.is_file():
             continue
         from rasterio.crs import CRS

@@ -1020,6 +1020,9 @@ def topographic_layer(
         raise InvalidInputError(f"a topographic layer takes a grey method ({', '.join(HILLSHADE_METHODS)}); got "
                                 f"{method!r}: its premultiplied RGBA overlay, with RGB divided by alpha, makes a "
                                 "thematic layer")
+    if not _is_name(method, (*HILLSHADE_METHODS, "none")):  # hillshade's refusal listed its MapLibre methods, not none
+        raise InvalidInputError(f"method must be one of {', '.join(HILLSHADE_METHODS)} or none (no hillshade: the "
+                                f"shadows and occlusion alone); got {method!r}")
     ambient = _finite(ambient, "ambient", lo=0.0, hi=1.0)
     occlusion = _finite(occlusion, "occlusion", lo=0.0, hi=1.0)
     if _is_name(method, ("none",)):

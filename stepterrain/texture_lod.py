@@ -1322,7 +1322,8 @@ class _WindowedTiff:
 
     :meth:`open` takes only a file whose pixels the whole read takes with rasterio alike: one Pillow cannot read
     (those :func:`_raster_uint8` reads), or one Pillow reads as L, RGB or RGBA from 1, 3 or 4 bands (the fourth
-    alpha), without a transparent colour nor JPEG compression (Pillow decodes its YCbCr otherwise than GDAL); else
+    alpha), without a transparent colour nor JPEG compression (Pillow decodes its YCbCr otherwise than GDAL) nor a
+    MinIsWhite grey (Pillow gives 255 - stored, as a viewer shows it, GDAL the stored values); else
     None (16 bits, a JPEG-compressed TIFF Pillow reads, ...: :meth:`ImagePyramid.build`, which decodes it whole).
     A 3-band image with a GDAL mask (nodata, a mask band) always gets its alpha (255 where valid): the whole read gave
     none where no pixel of the whole image is masked, which only the whole image tells."""
@@ -1352,6 +1353,8 @@ class _WindowedTiff:
             dataset = stack.enter_context(open_raster(path))
             count, types, interps = dataset.count, set(dataset.dtypes), list(dataset.colorinterp)
             jpeg = str(getattr(dataset.compression, "name", dataset.compression)).lower() in ("jpeg", "ojpeg")
+            # MinIsWhite grey: Pillow turns it round (255 - stored, as shown), GDAL reads it as stored
+            min_is_white = dataset.tags(ns="IMAGE_STRUCTURE").get("MINISWHITE", "").upper() == "YES"
             masked = not all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums)
         except Exception:  # noqa: BLE001 - GDAL cannot read it: ImagePyramid.build says what is wrong
             return None
@@ -1362,7 +1365,7 @@ class _WindowedTiff:
         bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas  # as _raster_pixels takes them
         mode = _pillow_mode(path)
         if mode is not None:  # Pillow reads it (the whole read's pixels): only where rasterio's are the same
-            if jpeg or mode not in (("L", False), ("RGB", False), ("RGBA", False)):
+            if jpeg or min_is_white or mode not in (("L", False), ("RGB", False), ("RGBA", False)):
                 return None  # JPEG tiles: Pillow's YCbCr decoding and GDAL's differ (up to 21 levels)
             if mode[0] != {1: "L", 3: "RGB", 4: "RGBA"}.get(count) or (count == 4) != bool(alphas):
                 return None
@@ -1452,7 +1455,8 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     against the memory budget) and the window read (a pixel beyond the terrain on each side, within the image, so a
     texel near its edge interpolates as over the whole image), never its full-resolution copy in floats. Of a TIFF of
     8-bit bands (a GeoTIFF orthophoto) only the window over the terrain is decoded, a band of rows at a time, and
-    reduced to that level alone (the same pixels as the whole pyramid's; not a JPEG-compressed TIFF Pillow reads):
+    reduced to that level alone (the same pixels as the whole pyramid's; not a JPEG-compressed TIFF Pillow reads
+    nor a MinIsWhite grey one):
     memory holds a band and the window read, the budget checks the window, and an image far larger than the terrain
     costs the time of its window only (a 20000 x 20000 GeoTIFF under a 1197 x 643 node DEM: `stepterrain texture`
     peaked at 0.98 GB, GDAL's block cache included, and placed it in 10 s, from 3.1 GB and 34 s). A 3-band image

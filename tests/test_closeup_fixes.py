@@ -1054,3 +1054,53 @@ def test_texture_colours_convert_only_the_texels_they_sample():
         got = _texture_rgb(t, image.view(Counted), xy, below)
         np.testing.assert_array_equal(got, whole_image(image, below))
         assert image.shape not in calls and calls, calls  # the sampled texels only, never the whole image
+
+
+def test_an_overview_texture_is_sampled_at_its_vertices_without_a_float_copy_of_the_image():
+    """The colours of a textured overview or close-up (render_closeups' texture=, per layer and per frame) converted
+    the whole texture to float32 on every call to sample four texels a vertex: an 8000 x 8000 RGBA orthophoto took
+    1 GB of floats (16 bytes a texel, past any memory budget) and 5 s a call. Only the vertices' texels are taken
+    in floats now; the colours are bit for bit those of the whole image's floats (premultiplied where alpha, laid
+    over what lies under them)."""
+    import tracemalloc
+
+    from stepterrain.closeup import _texture_rgb
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(np.zeros((20, 30), np.float32), spacing=(10.0, -10.0))
+    xmin, xmax, ymin, ymax = t.extent
+    rng = np.random.default_rng(3)
+    xy = np.column_stack([rng.uniform(xmin - 5, xmax + 5, 500), rng.uniform(ymin - 5, ymax + 5, 500)])
+    xy[:4] = [[xmin, ymin], [xmax, ymax], [xmin, ymax], [xmax, ymin]]  # the image's corners and edges
+    under = rng.integers(0, 256, (500, 3), dtype=np.uint8)
+
+    def whole_image_floats(image, under):  # the former sampling, from the whole image in float32
+        h, w = image.shape[:2]
+        fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin), 0, 1) * (w - 1)
+        fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin), 0, 1) * (h - 1)
+        j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
+        i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
+        tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
+        img = image.astype(np.float32)
+        if img.shape[2] == 4:
+            img[..., :3] *= img[..., 3:] / 255.0
+        top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
+        bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
+        sampled = top + ty * (bottom - top)
+        if img.shape[2] == 4:
+            sampled = sampled[:, :3] + (1.0 - sampled[:, 3:] / 255.0) * np.asarray(under, np.float32)
+        return np.clip(np.rint(sampled), 0, 255).astype(np.uint8)
+
+    for shape in ((7, 9, 3), (7, 9, 4), (2, 2, 4), (1000, 1000, 4)):
+        image = rng.integers(0, 256, shape, dtype=np.uint8)
+        if shape[2] == 4:
+            image[..., 3][rng.random(shape[:2]) < 0.3] = 0  # transparent texels
+        np.testing.assert_array_equal(_texture_rgb(t, image, xy, under if shape[2] == 4 else None),
+                                      whole_image_floats(image, under))
+    tracemalloc.start()
+    try:
+        _texture_rgb(t, image, xy, under)  # the 1000 x 1000 RGBA image: 16 MB of floats whole
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 1_000_000, f"{peak} bytes at the peak for 500 vertices of a {image.shape} texture"

@@ -331,3 +331,32 @@ def test_globe_obj_texture_image_never_replaces_the_texture_given(tmp_path, caps
     assert sorted(p.name for p in tmp_path.iterdir()) == ["earth_material_0.png", "globe.mtl", "globe.obj",
                                                           "globe_material_0.png"]
     assert picture.read_bytes() == before
+
+
+@pytest.mark.skipif(not AVAILABLE, reason=REASON)
+def test_globe_png_counts_the_texture_against_the_budget_before_any_work(tmp_path, capsys, monkeypatch):
+    """``globe --texture ... --png`` whose --size fitted --memory-budget but not with the draped texture (the render
+    counts 16 bytes a texel) loaded the relief, built the globe and meshed it, then refused the render. The texture
+    is counted with the window once it is decoded, before any work: exit 2 naming --size and the texture's texels,
+    the globe never built, nothing written."""
+    from PIL import Image
+
+    from stepterrain import globe
+
+    picture = tmp_path / "earth.png"
+    Image.fromarray(np.zeros((100, 200, 3), np.uint8)).save(picture)
+    window = render._render_bytes(64, 48)
+    with_texture = render._render_bytes(64, 48, texels=100 * 200)
+    budget = (window + with_texture) // 2  # the window alone fits
+
+    def built(*args, **kwargs):
+        raise AssertionError("the globe was built before the render's budget was checked")
+
+    monkeypatch.setattr(globe.Globe, "from_latlon", built)
+    out, png = tmp_path / "g.glb", tmp_path / "g.png"
+    code = main(["globe", "--face-size", "9", "--texture", str(picture), "-o", str(out), "--png", str(png),
+                 "--size", "64x48", "--memory-budget", str(budget), "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh with a 200 x 100 texel " \
+                         "texture would need" in err, err
+    assert not out.exists() and not png.exists()

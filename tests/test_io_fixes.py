@@ -1326,6 +1326,39 @@ def test_a_tiff_georeferenced_by_a_world_file_takes_its_crs_from_the_prj_beside_
         load_dem(broken)
 
 
+def test_an_upper_case_prj_beside_a_world_file_tiff_gives_its_crs(tmp_path):
+    """DEM.TIF with DEM.TFW and DEM.PRJ (as DOS-era ESRI data ships, all upper case): GDAL reads the world file in
+    either case, but load_dem looked for dem.prj / DEM.TIF.prj in lower case only, so the grid in degrees was read as
+    metres (a needle of cells 0.000833 m wide), as was an image's (texture --image ORTHO.TIF). The .prj is now found
+    in either case, as the world file is."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.crs import CRS
+
+    from stepterrain.texture_lod import ImagePyramid
+
+    z = (np.arange(12.0).reshape(3, 4) * 10 + 3000).astype(np.int16)
+    path = tmp_path / "DEM.TIF"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # rasterio's NotGeoreferencedWarning for the bare TIFF
+        with rasterio.open(path, "w", driver="GTiff", width=4, height=3, count=1, dtype="int16") as ds:
+            ds.write(z, 1)
+    a, c, e, f = 1 / 1200, -105.8, -1 / 1200, 40.4
+    (tmp_path / "DEM.TFW").write_text(f"{a!r}\n0.0\n0.0\n{e!r}\n{c + a / 2!r}\n{f + e / 2!r}\n")
+    (tmp_path / "DEM.PRJ").write_text(CRS.from_epsg(4326).to_wkt())
+    t = load_dem(path)
+    assert t.crs is not None and t.crs.startswith("+proj=eqc")
+    assert t.spacing[0] == pytest.approx(70.6, abs=0.1) and t.spacing[1] == pytest.approx(-92.66, abs=0.01)
+    image = tmp_path / "ORTHO.TIF"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with rasterio.open(image, "w", driver="GTiff", width=4, height=3, count=3, dtype="uint8") as ds:
+            ds.write(np.zeros((3, 3, 4), np.uint8))
+    (tmp_path / "ORTHO.TFW").write_text((tmp_path / "DEM.TFW").read_text())
+    (tmp_path / "ORTHO.TIF.PRJ").write_text(CRS.from_epsg(4326).to_wkt())
+    with ImagePyramid.build(image, device="cpu") as pyramid:
+        assert pyramid.crs == "EPSG:4326"
+
+
 def test_a_grid_in_degrees_without_a_crs_warns_that_it_was_read_as_metres(tmp_path):
     """A GeoTIFF whose CRS was lost (or a world file without its .prj) in degrees was read as metres without a word:
     the Front Range tile became a needle 0.06 m wide under 644 m of relief (the render then refused it as too thin).

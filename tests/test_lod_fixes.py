@@ -696,3 +696,35 @@ def test_a_geotiff_image_layer_reads_only_its_window_over_the_terrain(tmp_path, 
         assert layer.extent == pytest.approx(expected.extent, abs=1e-9)
         np.testing.assert_array_equal(layer.image, expected.image)
         assert 0 < sum(read_cells) < rows * cols / 8, f"{sum(read_cells)} of {rows * cols} pixels read"
+
+
+def test_a_min_is_white_geotiff_image_layer_is_drawn_as_pillow_shows_it(tmp_path):
+    """A grey GeoTIFF stored with PhotometricInterpretation MinIsWhite (0 is white: a scanned map) is read by Pillow
+    with its grey turned round (255 - stored, as viewers show it) and by GDAL as stored. image_layer's window read
+    (rasterio) took it as stored, where the whole read (Pillow) had drawn it as shown: the map was draped as its
+    negative. Such a file is read whole, as before: the layer's pixels are those of the picture Pillow shows."""
+    rasterio = pytest.importorskip("rasterio")
+    from PIL import Image
+    from rasterio.transform import Affine
+
+    from stepterrain.terrain import Terrain
+    from stepterrain.texture_lod import image_layer
+
+    rows, cols, west, north, pixel = 201, 303, 1000.0, 5000.0, 2.0
+    stored = np.random.default_rng(5).integers(0, 256, (rows, cols), dtype=np.uint8)
+    path = tmp_path / "scan.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=1, dtype="uint8", crs="EPSG:32611",
+                       transform=Affine(pixel, 0.0, west, 0.0, -pixel, north), photometric="MINISWHITE") as out:
+        out.write(stored[None])
+    with Image.open(path) as picture:
+        shown = np.asarray(picture)
+    assert (shown == 255 - stored).all()  # as Pillow (and a viewer) shows it
+    terrain = Terrain.from_heights(np.zeros((11, 13), np.float32), spacing=(10.0, -10.0),
+                                   origin=(west + 101.0, north - 99.0), crs="EPSG:32611")
+    extent = (west, west + cols * pixel, north - rows * pixel, north)
+    for texel in (None, 1.0):  # a reduced level, the image's own pixels
+        options = {} if texel is None else {"texel_size": texel}
+        expected = image_layer(shown, terrain, extent=extent, device="cpu", **options)
+        layer = image_layer(path, terrain, device="cpu", **options)
+        assert layer.extent == pytest.approx(expected.extent, abs=1e-9)
+        np.testing.assert_array_equal(layer.image, expected.image)

@@ -623,3 +623,15 @@ def test_topographic_layer_without_a_hillshade_is_darkened_by_its_shadows_alone(
     assert np.all(unlit[np.isfinite(unlit)] == 1.0)
     with pytest.raises(InvalidInputError, match=r"azimuth has no effect on method='none'"):
         topographic_layer(wall, method="none", shadows=False, azimuth=1.0, device="cpu")
+
+
+@pytest.mark.parametrize("method", ["None", "none ", "basic"])
+def test_topographic_layer_refuses_an_unknown_method_naming_the_ones_it_takes(method):
+    """An unknown method was refused by hillshade's message, "method must be one of standard, ..., igor,
+    maplibre-standard, ...": it listed the MapLibre methods topographic_layer refuses and not "none", which it
+    takes. The refusal now lists its own: the grey methods and none."""
+    with pytest.raises(InvalidInputError) as caught:
+        topographic_layer(np.zeros((3, 3), np.float32), method=method, device="cpu")
+    message = str(caught.value)
+    assert message == (f"method must be one of standard, multidirectional, combined, igor or none (no hillshade: the "
+                       f"shadows and occlusion alone); got {method!r}")
