@@ -406,7 +406,11 @@ def save_mesh(
     ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). A texture's alphaMode (unless its
     ``PBRMaterial`` sets one) follows its alpha: OPAQUE when every texel is opaque, MASK (alphaCutoff 0.5) when
     alpha is only 0 and 255 (a nodata hole: the mesh still writes depth, so terraces hide each other), BLEND when
-    some texel is partly transparent. Vertex colours (sRGB bytes, as
+    some texel is partly transparent. A texture image opened from a JPEG file (``Image.open("photo.jpg")``) is
+    embedded (and an OBJ's side image written) as that file's bytes, unchanged, while its pixels are still the
+    file's (and it has no EXIF turn); one changed since, or decoded from bytes, is encoded as JPEG at quality 95
+    with full-resolution chroma (off by a few levels at most; Pillow's default, 75 with 4:2:0, by up to 119).
+    Other textures are lossless PNG. Vertex colours (sRGB bytes, as
     matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
     it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
     material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
@@ -1249,6 +1253,9 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     if isinstance(image, Image.Image) and image.format in (None, "PNG"):  # trimesh's to_obj writes it as PNG
         material = copy.copy(material)  # the mesh's own (a SimpleMaterial): _alpha_map reads its image after
         material.image = _EncodedImage(_png_data(image), "PNG")  # once, as a glTF's texture (_encoded_textures)
+    elif isinstance(image, Image.Image) and image.format == "JPEG":  # the file's bytes, as a glTF's (_jpeg_data)
+        material = copy.copy(material)
+        material.image = _EncodedImage(_jpeg_data(image), "JPEG")
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
         name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
@@ -1885,6 +1892,7 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
         out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=np.array(mesh.visual.vertex_colors))
     elif kind is not None:
         out.visual = mesh.visual.copy()
+        _share_texture_images(getattr(mesh.visual, "material", None), getattr(out.visual, "material", None))
     out.units = mesh.units
     merged = dict(mesh.metadata)
     if metadata:
@@ -1893,6 +1901,23 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     out.face_attributes = _attributes(mesh.face_attributes, len(mesh.faces))
     out.vertex_attributes = _attributes(mesh.vertex_attributes, len(mesh.vertices))
     return out
+
+
+def _share_texture_images(material: Any, copied: Any) -> None:
+    """Give ``copied`` (the prepared copy's material) the texture images of ``material`` themselves: trimesh's
+    ``PBRMaterial.copy`` copied each PIL image with ``Image.copy()``, which drops its ``format`` and file name, so a
+    texture opened from a JPEG was written as a PNG three times its size (and an OBJ's ``.png``), and :func:`_jpeg_data`
+    could not find its file. The writers replace images on the copy (:func:`_pil_textures`,
+    :func:`_encoded_textures`), never change them in place."""
+    from PIL import Image
+
+    slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
+    if type(copied) is not type(material):
+        return
+    for slot in slots:
+        image = getattr(material, slot, None)
+        if isinstance(image, Image.Image):
+            setattr(copied, slot, image)
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
@@ -2144,14 +2169,18 @@ def _encoded_textures(material: Any) -> None:
     ``stepterrain texture --mesh``), and hashed the material through the decoded image's bytes first. The PNG
     decodes to the same pixels either way. A large image :func:`save_image` has just written as PNG (the texture
     ``stepterrain texture -o tex.png --mesh out.glb`` drapes) takes that file's bytes (:func:`_written_png`) instead
-    of being deflated a second time. A JPEG is left to trimesh, which writes it as JPEG."""
+    of being deflated a second time. An image opened from a JPEG stays a JPEG (:func:`_jpeg_data`): trimesh's writer
+    re-encoded it at Pillow's default quality."""
     from PIL import Image
 
     for slot in _TEXTURE_SLOTS[1][1]:
         image = getattr(material, slot, None)
-        if not isinstance(image, Image.Image) or image.format == "JPEG":
+        if not isinstance(image, Image.Image):
             continue
-        setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
+        if image.format == "JPEG":
+            setattr(material, slot, _EncodedImage(_jpeg_data(image), "JPEG"))
+        else:
+            setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
 
 
 def _png_data(image: Any) -> bytes:
@@ -2163,6 +2192,51 @@ def _png_data(image: Any) -> bytes:
         image.save(buffer, format="PNG", **_png_options(image))
         data = buffer.getvalue()
     return data
+
+
+#: The JPEG quality a texture image opened from a JPEG is re-encoded at when it is not that file's pixels any more
+#: (:func:`_jpeg_data`), without chroma subsampling.
+_JPEG_QUALITY = 95
+
+
+def _jpeg_data(image: Any) -> bytes:
+    """A PIL image opened from a JPEG (``format`` "JPEG") as JPEG bytes, for a glTF's embedded texture or an OBJ's
+    side image: the bytes of the file it was opened from, unchanged, when that file still decodes to the image's
+    pixels (:func:`_source_jpeg`); else encoded here at quality :data:`_JPEG_QUALITY` with 4:4:4 chroma (an image
+    changed in place since, or decoded from bytes). trimesh's writers called ``save(format="JPEG")``: Pillow's
+    default quality 75 with 4:2:0 chroma, a second lossy generation (the 3840 x 1920 Blue Marble: 4.7 MB -> 0.78 MB,
+    its colours off by up to 119 levels, 4.9 on average, at coastlines and city lights); at quality 95 and 4:4:4 they
+    are off by at most 6 levels, 0.06 on average, for a file the size of the source's."""
+    data = _source_jpeg(image)
+    if data is None:
+        buffer = io.BytesIO()
+        image.save(buffer, format="JPEG", quality=_JPEG_QUALITY, subsampling=0)
+        data = buffer.getvalue()
+    return data
+
+
+def _source_jpeg(image: Any) -> bytes | None:
+    """The bytes of the JPEG file ``image`` (a PIL image) was opened from (its ``filename``), when the file decodes to
+    the same mode, size and pixels and carries no EXIF orientation but the upright one; else None (no file name, the
+    file gone or changed, the image changed since, or a phone's photo stored turned: browsers, and so web glTF
+    viewers, turn it upright by its tag, the texture is its stored pixels)."""
+    from PIL import Image
+
+    name = getattr(image, "filename", None)
+    if not name or not isinstance(name, (str, bytes, os.PathLike)):
+        return None
+    try:
+        data = Path(os.fsdecode(name)).read_bytes()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # warned when the image was opened
+            with Image.open(io.BytesIO(data)) as source:
+                if (source.format != "JPEG" or source.mode != image.mode or source.size != image.size
+                        or source.getexif().get(0x0112, 1) != 1):
+                    return None
+                same = _pixels_digest(source) == _pixels_digest(image)
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
+        return None
+    return data if same else None
 
 
 def _textured_material(material: Any) -> Any:
@@ -2184,7 +2258,8 @@ def _textured_material(material: Any) -> Any:
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
         if material.metallicFactor is None or unset_alpha:
-            material = material.copy()
+            material, original = material.copy(), material
+            _share_texture_images(original, material)  # a JPEG stays one (Image.copy() dropped its format)
         if material.metallicFactor is None:
             material.metallicFactor = 0.0
         if unset_alpha:

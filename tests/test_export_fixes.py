@@ -1176,3 +1176,62 @@ def test_a_glb_over_4_gib_is_refused_by_name(tmp_path, monkeypatch, kind, limit,
         save_mesh(mesh, tmp_path / "big.glb")
     assert list(tmp_path.iterdir()) == []
     assert len(read_mesh(save_mesh(mesh, tmp_path / "big.ply")).faces) == 12  # the others hold it
+
+
+def _photo(path, size=(96, 64), quality=90):
+    """A JPEG file of a noisy colour picture (sharp edges: a second lossy pass shows) and its bytes."""
+    rng = np.random.default_rng(3)
+    pixels = rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)
+    pixels[:, : size[0] // 2] = (200, 30, 40)
+    Image.fromarray(pixels).save(path, format="JPEG", quality=quality)
+    return path.read_bytes()
+
+
+def _glb_image(path):
+    tree, binary = gltf_tree_and_buffer(path)
+    (image,) = tree["images"]
+    view = tree["bufferViews"][image["bufferView"]]
+    start = view.get("byteOffset", 0)
+    return image["mimeType"], binary[start : start + view["byteLength"]]
+
+
+@pytest.mark.parametrize("material", ["simple", "pbr"])
+def test_a_texture_opened_from_a_jpeg_is_embedded_as_the_file_s_bytes(tmp_path, material):
+    """An image opened from a JPEG went through trimesh's ``save(format="JPEG")``: Pillow's default quality 75 and
+    4:2:0 chroma, a second lossy generation (the Blue Marble's colours off by up to 119 levels). The GLB now embeds,
+    and the OBJ's side image is, the file's bytes unchanged."""
+    source = _photo(tmp_path / "photo.jpg")
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    with Image.open(tmp_path / "photo.jpg") as image:
+        if material == "simple":
+            mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+        else:
+            pbr = trimesh.visual.material.PBRMaterial(baseColorTexture=image)
+            mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=pbr)
+        mime, data = _glb_image(save_mesh(mesh, tmp_path / "t.glb"))
+        save_mesh(mesh, tmp_path / "t.obj")
+    assert mime == "image/jpeg"
+    assert data[: len(source)] == source and data[len(source) :].strip(b"\0 ") == b""  # padded to 4 bytes at most
+    (side,) = tmp_path.glob("t_*.jpeg")
+    assert side.read_bytes() == source
+    assert len(read_mesh(tmp_path / "t.glb").faces) == 12
+
+
+def test_a_jpeg_texture_changed_since_it_was_opened_is_encoded_at_high_quality(tmp_path):
+    """A JPEG image painted on after opening is not the file any more: it is encoded again, at quality 95 without
+    chroma subsampling (a few levels off), not at Pillow's default (tens of levels off at sharp colour edges)."""
+    source = _photo(tmp_path / "photo.jpg")
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    with Image.open(tmp_path / "photo.jpg") as image:
+        image.paste((0, 0, 255), (10, 10, 40, 30))  # in place: still a JPEG image
+        expected = np.asarray(image).astype(int)
+        mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+        mime, data = _glb_image(save_mesh(mesh, tmp_path / "t.glb"))
+        save_mesh(mesh, tmp_path / "t.obj")
+    assert mime == "image/jpeg" and not data.startswith(source)
+    for encoded in (data, next(tmp_path.glob("t_*.jpeg")).read_bytes()):
+        with Image.open(__import__("io").BytesIO(encoded)) as back:
+            error = np.abs(np.asarray(back.convert("RGB")).astype(int) - expected)
+        assert error.mean() < 2.0 and np.percentile(error, 99) < 16, (error.mean(), np.percentile(error, 99))
