@@ -15,6 +15,7 @@ import contextvars
 import copy
 import errno
 import io
+import itertools
 import json
 import math
 import os
@@ -1558,7 +1559,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
-    a mesh read and written again lost them).
+    a mesh read and written again lost them). An OBJ whose faces name vertex indices only (``f 1 2 3``: one
+    :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their order, as the other
+    formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than were written); one
+    with texture or normal indices comes back with the vertices its faces name, one per distinct (v, vt, vn) corner.
 
     Raises
     ------
@@ -1582,8 +1586,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             scene = trimesh.load_scene(file, process=False)
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
-        else:
-            loaded = trimesh.load(file, force="mesh", process=False)
+        else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
+            plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
+            order = {"maintain_order": True} if plain_obj else {}
+            loaded = trimesh.load(file, force="mesh", process=False, **order)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
@@ -1727,6 +1733,32 @@ def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return None
     return values if dtype.kind == "f" else values / np.iinfo(dtype).max
+
+
+#: An OBJ face statement with a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``) and a material statement.
+_OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
+_OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
+
+
+def _obj_faces_name_vertices_only(file: Path) -> bool:
+    """Whether the OBJ ``file``'s faces name vertex indices only (no ``vt`` or ``vn`` index) and it has at most one
+    ``usemtl``: what :func:`save_mesh` writes for a mesh without a texture. trimesh's reader then keeps every ``v``
+    with ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain info`` counted
+    fewer than were written, and a mesh read back was renumbered); with texture or normal indices that option takes
+    one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file with unused
+    vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh, so those keep trimesh's
+    default. Scanned without reading the file into memory."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return False
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:  # no match object outlives it
+            if data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None:  # type: ignore[call-overload]
+                return False
+            if data.find(b"usemtl") < 0:
+                return True
+            return sum(1 for _ in itertools.islice(_OBJ_USEMTL.finditer(data), 2)) < 2  # type: ignore[call-overload]
 
 
 def _read_points(file: Path) -> trimesh.Trimesh | None:

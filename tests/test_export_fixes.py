@@ -1235,3 +1235,34 @@ def test_a_jpeg_texture_changed_since_it_was_opened_is_encoded_at_high_quality(t
         with Image.open(__import__("io").BytesIO(encoded)) as back:
             error = np.abs(np.asarray(back.convert("RGB")).astype(int) - expected)
         assert error.mean() < 2.0 and np.percentile(error, 99) < 16, (error.mean(), np.percentile(error, 99))
+
+
+def test_an_obj_keeps_the_vertices_no_face_names_and_a_textured_one_its_uv_seams(tmp_path, capsys):
+    """trimesh's OBJ reader dropped the vertices no face names (read_mesh passed process=False, which does not
+    keep them): ``stepterrain info`` counted 4 of the 6 vertices written, and the mesh came back renumbered (PLY,
+    glTF and 3MF keep all 6). An OBJ of vertex indices only now keeps them, in order, with their colours; one with
+    UV indices still splits a vertex per UV (maintain_order would give a seam vertex the median of its UVs), and
+    one of several materials does not repeat every vertex in each material's mesh."""
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [5, 5, 5], [0, 1, 0], [1, 1, 0], [9, 9, 9]], float)
+    faces = np.array([[0, 1, 3], [1, 4, 3]])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    colours = np.arange(24, dtype=np.uint8).reshape(6, 4) * 10
+    colours[:, 3] = 255
+    mesh.visual.vertex_colors = colours
+    back = read_mesh(save_mesh(mesh, tmp_path / "m.obj"))
+    assert np.array_equal(back.vertices, vertices) and np.array_equal(back.faces, faces)
+    assert np.array_equal(back.visual.vertex_colors, colours)
+    assert cli.main(["info", str(tmp_path / "m.obj"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["vertices"], summary["faces"]) == (6, 2), summary
+    # a UV seam: vertex 2 has UV (0, 0) in one face and (1, 0) in the other
+    (tmp_path / "seam.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\n"
+                                       "f 1/1 2/2 3/3\nf 2/1 4/4 3/3\n")
+    seam = read_mesh(tmp_path / "seam.obj")
+    corners = np.asarray(seam.visual.uv)[seam.faces]
+    assert np.array_equal(corners, [[[0, 0], [1, 0], [0, 1]], [[0, 0], [1, 1], [0, 1]]])
+    assert np.array_equal(np.asarray(seam.vertices)[seam.faces][:, :, :2], [[[0, 0], [1, 0], [0, 1]],
+                                                                            [[1, 0], [1, 1], [0, 1]]])
+    (tmp_path / "two.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 2 4 3\n")
+    two = read_mesh(tmp_path / "two.obj")
+    assert len(two.faces) == 2 and len(two.vertices) == 6  # each material's mesh its 3 corners, not all 4 twice
