@@ -377,8 +377,8 @@ def save_mesh(
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
         written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, an
-        image without texture coordinates, or an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
-        uint8.
+        image without texture coordinates, an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
+        uint8, or a palette image whose palette lacks colours its pixels use (``Image.new("P", ...)``'s is empty).
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -1295,7 +1295,8 @@ def _pil_textures(material: Any) -> None:
     stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB, and a palette one with alpha
     (PA) to RGBA: PNG cannot hold them (a DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF
     texture. An image of 32-bit integers or floats (mode I or F: a GeoTIFF of heights opened as the texture) is
-    refused, before any file is made: it was the same DataFileError, once the folder was made."""
+    refused, before any file is made: it was the same DataFileError, once the folder was made. So is a palette image
+    whose palette lacks colours its pixels use (:func:`_palette_shortfall`)."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1313,6 +1314,14 @@ def _pil_textures(material: Any) -> None:
                     f"array; got {type(image).__name__} of dtype {array.dtype} and shape {array.shape}"
                 )
             image = Image.fromarray(np.ascontiguousarray(array))
+        elif image.mode in ("P", "PA") and (shortfall := _palette_shortfall(image)) is not None:
+            colours, top = shortfall
+            raise InvalidInputError(
+                f"mesh texture image ({slot}) is a palette image (mode {image.mode!r}) whose pixels use palette index "
+                f"{top} but whose palette holds {counted(colours, 'colour', 'colours')} (Image.new('P', ...) makes "
+                "none): its texels have no colour to write; give it a palette (image.putpalette(...)), or convert it "
+                "to 'L' or 'RGB' first"
+            )
         elif image.mode in _PNG_MODES:
             image = image.convert(_PNG_MODES[image.mode])
         elif image.mode not in _PNG_HOLDS:
@@ -1326,6 +1335,17 @@ def _pil_textures(material: Any) -> None:
         else:
             continue
         setattr(material, slot, image)
+
+
+def _palette_shortfall(image: Any) -> tuple[int, int] | None:
+    """(palette colours, highest index its pixels use) of a palette image (mode P or PA) whose pixels use an index
+    beyond its palette; None when the palette covers them. Pillow's ``Image.new("P", ...)`` has an empty palette (a
+    copy of it, as trimesh's material copy made, none at all): Pillow's PNG writer raised a bare UnboundLocalError
+    for none, and wrote a PNG whose indices name no palette entry, invalid (PNG §11.2.3), for an empty one."""
+    extrema = image.getextrema()
+    top = int(extrema[0][1] if image.mode == "PA" else extrema[1])
+    colours = len(image.getpalette() or []) // 3 if image.palette is not None else 0
+    return (colours, top) if top >= colours else None
 
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:

@@ -1266,3 +1266,34 @@ def test_an_obj_keeps_the_vertices_no_face_names_and_a_textured_one_its_uv_seams
     (tmp_path / "two.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 2 4 3\n")
     two = read_mesh(tmp_path / "two.obj")
     assert len(two.faces) == 2 and len(two.vertices) == 6  # each material's mesh its 3 corners, not all 4 twice
+
+
+def _short_palette():
+    image = Image.new("P", (4, 4), 5)
+    image.putpalette([255, 0, 0, 0, 255, 0])  # 2 colours; the pixels use index 5
+    return image
+
+
+@pytest.mark.parametrize("ext", [".glb", ".obj"])
+@pytest.mark.parametrize("make, top, colours", [(lambda: Image.new("P", (4, 4)), 0, "0 colours"),
+                                                (lambda: Image.new("P", (4, 4), 3), 3, "0 colours"),
+                                                (_short_palette, 5, "2 colours")], ids=["new", "new-3", "short"])
+def test_a_palette_texture_whose_palette_lacks_its_colours_is_refused_by_name(tmp_path, ext, make, top, colours):
+    """``Image.new("P", ...)`` as a texture raised a bare UnboundLocalError from inside Pillow's PNG writer (its
+    empty palette is none at all once trimesh copied the material), after the folder was made; a palette shorter
+    than the indices used wrote a PNG whose texels name no colour. Refused now, before any file is made; a palette
+    image whose palette covers its pixels is written with its colours."""
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=make())
+    with pytest.raises(InvalidInputError, match=rf"mesh texture image \(image\) is a palette image \(mode 'P'\) whose "
+                                                rf"pixels use palette index {top} but whose palette holds {colours}"):
+        save_mesh(mesh, tmp_path / "out" / f"t{ext}")
+    assert list(tmp_path.iterdir()) == []
+    good = Image.new("P", (4, 4), 1)
+    good.putpalette([255, 0, 0, 0, 255, 0])
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=good)
+    back = read_mesh(save_mesh(mesh, tmp_path / f"t{ext}"))
+    material = back.visual.material
+    texture = getattr(material, "baseColorTexture", None) or material.image
+    assert np.array_equal(np.unique(np.asarray(texture.convert("RGB")).reshape(-1, 3), axis=0), [[0, 255, 0]])
