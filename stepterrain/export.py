@@ -1,7 +1,7 @@
 """Mesh and image export by file extension, written atomically (temporary file in the target folder + rename).
 
 Shared output room of every capability (papers 000-004): glTF/GLB (flat-shaded, metadata in ``extras``),
-OBJ, PLY, STL and 3MF meshes, and PNG images.
+OBJ, PLY (metadata in header comments), STL and 3MF meshes, and PNG images.
 
     from stepterrain.export import save_mesh
     save_mesh(mesh, "out/steps.glb", metadata={"interval": 100.0})
@@ -352,7 +352,8 @@ def save_mesh(
         ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
-        Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
+        Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
+        (``comment stepterrain-metadata {...}`` lines; see Notes); ignored by OBJ, STL and 3MF.
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
         scalars and arrays become numbers and lists.
     shared_bounds : (2, 3) array_like, optional
@@ -420,7 +421,11 @@ def save_mesh(
     Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
-    in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. glTF accessors
+    in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. A ``.ply`` holds the
+    same values as one compact JSON object (ASCII, no whitespace: spaces in strings as ``\\u0020``) on header lines
+    ``comment stepterrain-metadata <text>``, split into pieces of at most 400 characters joined back in order (PLY
+    readers read header lines into fixed buffers: MeshLab's of 512 bytes, VTK's of 4096); usually one line. Readers
+    that do not know it skip comments; :func:`read_mesh` gives it back as the mesh's metadata. glTF accessors
     are float32, so when coordinates exceed 65536 (UTM metres, a globe) the vertices are stored relative to a node
     translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
@@ -1579,10 +1584,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
-    a mesh read and written again lost them). An OBJ whose faces name vertex indices only (``f 1 2 3``: one
-    :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their order, as the other
-    formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than were written); one
-    with texture or normal indices comes back with the vertices its faces name, one per distinct (v, vt, vn) corner.
+    a mesh read and written again lost them), and the metadata :func:`save_mesh` wrote in its header comments as
+    the mesh's ``metadata`` (trimesh's reader skips comments). An OBJ whose faces name vertex indices only
+    (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
+    order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
+    were written); one with texture or normal indices comes back with the vertices its faces name, one per
+    distinct (v, vt, vn) corner.
 
     Raises
     ------
@@ -1616,6 +1623,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 loaded.metadata.update(_empty_gltf_extras(file))
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _ply_attributes(loaded)
+            loaded.metadata.update(_ply_metadata(file))
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
@@ -2040,6 +2048,7 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
+    header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")
@@ -2059,6 +2068,56 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     for name, column in face_columns:
         face_block[name] = column
     return ("\n".join(header) + "\n").encode("ascii") + vertex_block.tobytes() + face_block.tobytes()
+
+
+#: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
+_PLY_METADATA = "comment stepterrain-metadata "
+#: The most characters of metadata JSON on one comment line: with its start, a header line of at most 430 characters.
+#: PLY readers read header lines into fixed buffers: MeshLab's (vcglib) 512 bytes, rply's 1024, VTK's 4096 (pyvista
+#: read nothing from a file with a longer line).
+_PLY_METADATA_PIECE = 400
+#: How far into a PLY file :func:`_ply_metadata` looks for the end of its header.
+_PLY_HEADER_LIMIT = 64 << 20
+
+
+def _ply_metadata_pieces(metadata: Mapping[str, Any]) -> list[str]:
+    """A mesh's metadata (JSON-safe: :func:`_prepared_mesh`'s, as a glTF's ``extras`` holds it) as the pieces of
+    one compact JSON text, in order, for the PLY header's ``comment stepterrain-metadata <piece>`` lines (none
+    without metadata). The text has no whitespace, so a reader that splits header lines into words sees the piece as
+    one word, and joining the pieces gives it back: ASCII only, spaces in strings written ``\\u0020``, and the
+    words readers look for anywhere in a line (trimesh takes ``TextureFile`` in any line for a texture's file name,
+    ``end_header`` ends a header) escaped by their last letter. Each piece is at most :data:`_PLY_METADATA_PIECE`
+    characters: a crs, spacing and origin fit on one line."""
+    if not metadata:
+        return []
+    text = json.dumps(metadata, ensure_ascii=True, allow_nan=False, separators=(",", ":")).replace(" ", "\\u0020")
+    text = re.sub(r"(?i)end_heade(r)|texturefil(e)",
+                  lambda found: f"{found.group(0)[:-1]}\\u{ord(found.group(0)[-1]):04x}", text)
+    return [text[start : start + _PLY_METADATA_PIECE] for start in range(0, len(text), _PLY_METADATA_PIECE)]
+
+
+def _ply_metadata(file: Path) -> dict[str, Any]:
+    """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
+    lines, :func:`_ply_metadata_pieces`); {} without any, or when they do not join into a JSON object (a header
+    edited by hand: the mesh is still read)."""
+    pieces = []
+    start = _PLY_METADATA.encode("ascii")
+    with open(file, "rb") as stream:
+        if stream.readline(16).strip() != b"ply":
+            return {}
+        while stream.tell() < _PLY_HEADER_LIMIT:
+            line = stream.readline(1 << 20)
+            if not line or line.strip() == b"end_header":
+                break
+            if line.startswith(start):
+                pieces.append(line[len(start) :].strip())
+    if not pieces:
+        return {}
+    try:
+        value = json.loads(b"".join(pieces).decode("ascii"))
+    except ValueError:  # UnicodeDecodeError and JSONDecodeError
+        return {}
+    return value if isinstance(value, dict) else {}
 
 
 def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:

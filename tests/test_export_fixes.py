@@ -1297,3 +1297,37 @@ def test_a_palette_texture_whose_palette_lacks_its_colours_is_refused_by_name(tm
     material = back.visual.material
     texture = getattr(material, "baseColorTexture", None) or material.image
     assert np.array_equal(np.unique(np.asarray(texture.convert("RGB")).reshape(-1, 3), axis=0), [[0, 255, 0]])
+
+
+@pytest.mark.parametrize("kind", ["triangles", "points", "empty"])
+def test_ply_keeps_the_metadata_in_its_header_comments(tmp_path, capsys, kind):
+    """A PLY dropped the metadata a glTF keeps in its extras (crs, spacing, origin, generator): ``stepterrain info``
+    of a .ply showed none. It is now compact JSON on ``comment stepterrain-metadata`` header lines (no whitespace,
+    lines of at most 430 characters: MeshLab reads header lines into 512 bytes, VTK into 4096), read back by
+    read_mesh; trimesh's and pyvista's readers still read the mesh, and the words readers look for in a header
+    (end_header, TextureFile) cannot appear in it."""
+    import pyvista
+
+    meshes = {"triangles": trimesh.creation.box(), "points": points(),
+              "empty": trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)}
+    mesh = meshes[kind]
+    metadata = {"crs": "EPSG:32611", "spacing": [30.0, -30.0], "origin": [376328.655, 3807902.827],
+                "generator": "stepterrain steps", "note": "a b\tc end_header TextureFile x.png \u00fc",
+                "wkt": 'PROJCS["WGS 84 / UTM zone 11N",GEOGCS["WGS 84",DATUM["WGS_1984"]]]' * 12,
+                "levels": list(range(400)), "nothing": None, "solid": False}
+    path = save_mesh(mesh, tmp_path / "m.ply", metadata=metadata)
+    header, _ = path.read_bytes().split(b"\nend_header\n", 1)
+    lines = header.split(b"\n")
+    assert max(map(len, lines)) <= 430 and sum(line.startswith(b"comment stepterrain-metadata ") for line in lines) > 5
+    assert not any(b"texturefile" in line.lower() or b"end_header" in line for line in lines)
+    assert all(len(line.split()) <= 5 for line in lines)
+    back = read_mesh(path)
+    assert {key: back.metadata.get(key) for key in metadata} == metadata
+    assert len(back.vertices) == len(mesh.vertices) and len(back.faces) == len(mesh.faces)
+    if kind != "empty":  # trimesh reads an empty PLY as an empty Scene, and VTK as nothing, as before
+        assert len(trimesh.load(path, process=False).vertices) == len(mesh.vertices)
+        assert pyvista.read(path).n_points == len(mesh.vertices)
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["meta.crs"] == "EPSG:32611" and summary["meta.origin"] == [376328.655, 3807902.827], summary
+    assert "crs" not in read_mesh(save_mesh(mesh, tmp_path / "plain.ply")).metadata
