@@ -1964,11 +1964,11 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
 
 
 def _share_texture_images(material: Any, copied: Any) -> None:
-    """Give ``copied`` (the prepared copy's material) the texture images of ``material`` themselves: trimesh's
-    ``PBRMaterial.copy`` copied each PIL image with ``Image.copy()``, which drops its ``format`` and file name, so a
-    texture opened from a JPEG was written as a PNG three times its size (and an OBJ's ``.png``), and :func:`_jpeg_data`
-    could not find its file. The writers replace images on the copy (:func:`_pil_textures`,
-    :func:`_encoded_textures`), never change them in place."""
+    """Give ``copied`` (the prepared copy's material) the texture images of ``material`` opened from a JPEG
+    themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with ``Image.copy()``, which drops its ``format``
+    and file name, so such a texture was written as a PNG three times its size (and an OBJ's ``.png``), and
+    :func:`_jpeg_data` could not find its file. The writers replace images on the copy (:func:`_pil_textures`,
+    :func:`_encoded_textures`), never change them in place; other images keep their copies."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1976,7 +1976,7 @@ def _share_texture_images(material: Any, copied: Any) -> None:
         return
     for slot in slots:
         image = getattr(material, slot, None)
-        if isinstance(image, Image.Image):
+        if isinstance(image, Image.Image) and image.format == "JPEG":
             setattr(copied, slot, image)
 
 
