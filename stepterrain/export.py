@@ -1,7 +1,7 @@
 """Mesh and image export by file extension, written atomically (temporary file in the target folder + rename).
 
 Shared output room of every capability (papers 000-004): glTF/GLB (flat-shaded, metadata in ``extras``),
-OBJ, PLY, STL and 3MF meshes, and PNG images.
+OBJ, PLY (metadata in header comments), STL and 3MF meshes, and PNG images.
 
     from stepterrain.export import save_mesh
     save_mesh(mesh, "out/steps.glb", metadata={"interval": 100.0})
@@ -15,6 +15,7 @@ import contextvars
 import copy
 import errno
 import io
+import itertools
 import json
 import math
 import os
@@ -351,7 +352,8 @@ def save_mesh(
         ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
-        Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` (ignored by the other formats).
+        Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
+        (``comment stepterrain-metadata {...}`` lines; see Notes); ignored by OBJ, STL and 3MF.
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
         scalars and arrays become numbers and lists.
     shared_bounds : (2, 3) array_like, optional
@@ -376,8 +378,8 @@ def save_mesh(
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
         JSON (a set, bytes, an object; the message names its key) or a key that is not a string, or a texture
         written (``.glb``, ``.gltf``, ``.obj``) has texture coordinates that are not one finite (u, v) per vertex, an
-        image without texture coordinates, or an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
-        uint8.
+        image without texture coordinates, an image given as an array that is not (H, W), (H, W, 3) or (H, W, 4)
+        uint8, or a palette image whose palette lacks colours its pixels use (``Image.new("P", ...)``'s is empty).
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
@@ -406,7 +408,11 @@ def save_mesh(
     ``PBRMaterial`` keeps what it sets (an unset metallicFactor becomes 0). A texture's alphaMode (unless its
     ``PBRMaterial`` sets one) follows its alpha: OPAQUE when every texel is opaque, MASK (alphaCutoff 0.5) when
     alpha is only 0 and 255 (a nodata hole: the mesh still writes depth, so terraces hide each other), BLEND when
-    some texel is partly transparent. Vertex colours (sRGB bytes, as
+    some texel is partly transparent. A texture image opened from a JPEG file (``Image.open("photo.jpg")``) is
+    embedded (and an OBJ's side image written) as that file's bytes, unchanged, while its pixels are still the
+    file's (and it has no EXIF turn); one changed since, or decoded from bytes, is encoded as JPEG at quality 95
+    with full-resolution chroma (off by a few levels at most; Pillow's default, 75 with 4:2:0, by up to 119).
+    Other textures are lossless PNG. Vertex colours (sRGB bytes, as
     matplotlib colormaps and images give them) are stored as glTF's ``COLOR_0`` requires, linear (float32; alpha as
     it is): a viewer shows the colours of the other formats and of the renders. trimesh's reader, meeting the
     material, makes a ``TextureVisuals`` without UVs and keeps the linear values only as its
@@ -415,7 +421,11 @@ def save_mesh(
     Their extras hold JSON values only: numpy scalars become numbers, short arrays lists,
     non-finite floats ``null`` (JSON has no NaN or Infinity), paths their ``str``; arrays longer than 4096
     elements and keys starting with ``_`` are left out. Other values of ``metadata`` are refused; those already
-    in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. glTF accessors
+    in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. A ``.ply`` holds the
+    same values as one compact JSON object (ASCII, no whitespace: spaces in strings as ``\\u0020``) on header lines
+    ``comment stepterrain-metadata <text>``, split into pieces of at most 400 characters joined back in order (PLY
+    readers read header lines into fixed buffers: MeshLab's of 512 bytes, VTK's of 4096); usually one line. Readers
+    that do not know it skip comments; :func:`read_mesh` gives it back as the mesh's metadata. glTF accessors
     are float32, so when coordinates exceed 65536 (UTM metres, a globe) the vertices are stored relative to a node
     translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
@@ -1249,6 +1259,9 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
     if isinstance(image, Image.Image) and image.format in (None, "PNG"):  # trimesh's to_obj writes it as PNG
         material = copy.copy(material)  # the mesh's own (a SimpleMaterial): _alpha_map reads its image after
         material.image = _EncodedImage(_png_data(image), "PNG")  # once, as a glTF's texture (_encoded_textures)
+    elif isinstance(image, Image.Image) and image.format == "JPEG":  # the file's bytes, as a glTF's (_jpeg_data)
+        material = copy.copy(material)
+        material.image = _EncodedImage(_jpeg_data(image), "JPEG")
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
         name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
@@ -1287,7 +1300,8 @@ def _pil_textures(material: Any) -> None:
     stays a JPEG. A CMYK (or other non-RGB colour space) image is converted to RGB, and a palette one with alpha
     (PA) to RGBA: PNG cannot hold them (a DataFileError, as if the file were at fault) and a CMYK JPEG is no glTF
     texture. An image of 32-bit integers or floats (mode I or F: a GeoTIFF of heights opened as the texture) is
-    refused, before any file is made: it was the same DataFileError, once the folder was made."""
+    refused, before any file is made: it was the same DataFileError, once the folder was made. So is a palette image
+    whose palette lacks colours its pixels use (:func:`_palette_shortfall`)."""
     from PIL import Image
 
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
@@ -1305,6 +1319,14 @@ def _pil_textures(material: Any) -> None:
                     f"array; got {type(image).__name__} of dtype {array.dtype} and shape {array.shape}"
                 )
             image = Image.fromarray(np.ascontiguousarray(array))
+        elif image.mode in ("P", "PA") and (shortfall := _palette_shortfall(image)) is not None:
+            colours, top = shortfall
+            raise InvalidInputError(
+                f"mesh texture image ({slot}) is a palette image (mode {image.mode!r}) whose pixels use palette index "
+                f"{top} but whose palette holds {counted(colours, 'colour', 'colours')} (Image.new('P', ...) makes "
+                "none): its texels have no colour to write; give it a palette (image.putpalette(...)), or convert it "
+                "to 'L' or 'RGB' first"
+            )
         elif image.mode in _PNG_MODES:
             image = image.convert(_PNG_MODES[image.mode])
         elif image.mode not in _PNG_HOLDS:
@@ -1318,6 +1340,17 @@ def _pil_textures(material: Any) -> None:
         else:
             continue
         setattr(material, slot, image)
+
+
+def _palette_shortfall(image: Any) -> tuple[int, int] | None:
+    """(palette colours, highest index its pixels use) of a palette image (mode P or PA) whose pixels use an index
+    beyond its palette; None when the palette covers them. Pillow's ``Image.new("P", ...)`` has an empty palette (a
+    copy of it, as trimesh's material copy made, none at all): Pillow's PNG writer raised a bare UnboundLocalError
+    for none, and wrote a PNG whose indices name no palette entry, invalid (PNG §11.2.3), for an empty one."""
+    extrema = image.getextrema()
+    top = int(extrema[0][1] if image.mode == "PA" else extrema[1])
+    colours = len(image.getpalette() or []) // 3 if image.palette is not None else 0
+    return (colours, top) if top >= colours else None
 
 
 def _own_texture_names(sidecars: Mapping[str, bytes], mtl_name: str, stem: str) -> dict[str, bytes]:
@@ -1551,7 +1584,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
-    a mesh read and written again lost them).
+    a mesh read and written again lost them), and the metadata :func:`save_mesh` wrote in its header comments as
+    the mesh's ``metadata`` (trimesh's reader skips comments). An OBJ whose faces name vertex indices only
+    (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
+    order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
+    were written); one with texture or normal indices comes back with the vertices its faces name, one per
+    distinct (v, vt, vn) corner.
 
     Raises
     ------
@@ -1575,14 +1613,17 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             scene = trimesh.load_scene(file, process=False)
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
-        else:
-            loaded = trimesh.load(file, force="mesh", process=False)
+        else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
+            plain_obj = file.suffix.lower() == ".obj" and _obj_faces_name_vertices_only(file)
+            order = {"maintain_order": True} if plain_obj else {}
+            loaded = trimesh.load(file, force="mesh", process=False, **order)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file))
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _ply_attributes(loaded)
+            loaded.metadata.update(_ply_metadata(file))
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
@@ -1720,6 +1761,32 @@ def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return None
     return values if dtype.kind == "f" else values / np.iinfo(dtype).max
+
+
+#: An OBJ face statement with a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``) and a material statement.
+_OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
+_OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
+
+
+def _obj_faces_name_vertices_only(file: Path) -> bool:
+    """Whether the OBJ ``file``'s faces name vertex indices only (no ``vt`` or ``vn`` index) and it has at most one
+    ``usemtl``: what :func:`save_mesh` writes for a mesh without a texture. trimesh's reader then keeps every ``v``
+    with ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain info`` counted
+    fewer than were written, and a mesh read back was renumbered); with texture or normal indices that option takes
+    one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file with unused
+    vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh, so those keep trimesh's
+    default. Scanned without reading the file into memory."""
+    import mmap
+
+    with open(file, "rb") as stream:
+        if os.fstat(stream.fileno()).st_size == 0:
+            return False
+        with mmap.mmap(stream.fileno(), 0, access=mmap.ACCESS_READ) as data:  # no match object outlives it
+            if data.find(b"/") >= 0 and _OBJ_FACE_WITH_SLASH.search(data) is not None:  # type: ignore[call-overload]
+                return False
+            if data.find(b"usemtl") < 0:
+                return True
+            return sum(1 for _ in itertools.islice(_OBJ_USEMTL.finditer(data), 2)) < 2  # type: ignore[call-overload]
 
 
 def _read_points(file: Path) -> trimesh.Trimesh | None:
@@ -1885,6 +1952,7 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
         out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=np.array(mesh.visual.vertex_colors))
     elif kind is not None:
         out.visual = mesh.visual.copy()
+        _share_texture_images(getattr(mesh.visual, "material", None), getattr(out.visual, "material", None))
     out.units = mesh.units
     merged = dict(mesh.metadata)
     if metadata:
@@ -1893,6 +1961,23 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     out.face_attributes = _attributes(mesh.face_attributes, len(mesh.faces))
     out.vertex_attributes = _attributes(mesh.vertex_attributes, len(mesh.vertices))
     return out
+
+
+def _share_texture_images(material: Any, copied: Any) -> None:
+    """Give ``copied`` (the prepared copy's material) the texture images of ``material`` opened from a JPEG
+    themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with ``Image.copy()``, which drops its ``format``
+    and file name, so such a texture was written as a PNG three times its size (and an OBJ's ``.png``), and
+    :func:`_jpeg_data` could not find its file. The writers replace images on the copy (:func:`_pil_textures`,
+    :func:`_encoded_textures`), never change them in place; other images keep their copies."""
+    from PIL import Image
+
+    slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
+    if type(copied) is not type(material):
+        return
+    for slot in slots:
+        image = getattr(material, slot, None)
+        if isinstance(image, Image.Image) and image.format == "JPEG":
+            setattr(copied, slot, image)
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
@@ -1963,6 +2048,7 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
+    header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")
@@ -1982,6 +2068,56 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     for name, column in face_columns:
         face_block[name] = column
     return ("\n".join(header) + "\n").encode("ascii") + vertex_block.tobytes() + face_block.tobytes()
+
+
+#: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
+_PLY_METADATA = "comment stepterrain-metadata "
+#: The most characters of metadata JSON on one comment line: with its start, a header line of at most 430 characters.
+#: PLY readers read header lines into fixed buffers: MeshLab's (vcglib) 512 bytes, rply's 1024, VTK's 4096 (pyvista
+#: read nothing from a file with a longer line).
+_PLY_METADATA_PIECE = 400
+#: How far into a PLY file :func:`_ply_metadata` looks for the end of its header.
+_PLY_HEADER_LIMIT = 64 << 20
+
+
+def _ply_metadata_pieces(metadata: Mapping[str, Any]) -> list[str]:
+    """A mesh's metadata (JSON-safe: :func:`_prepared_mesh`'s, as a glTF's ``extras`` holds it) as the pieces of
+    one compact JSON text, in order, for the PLY header's ``comment stepterrain-metadata <piece>`` lines (none
+    without metadata). The text has no whitespace, so a reader that splits header lines into words sees the piece as
+    one word, and joining the pieces gives it back: ASCII only, spaces in strings written ``\\u0020``, and the
+    words readers look for anywhere in a line (trimesh takes ``TextureFile`` in any line for a texture's file name,
+    ``end_header`` ends a header) escaped by their last letter. Each piece is at most :data:`_PLY_METADATA_PIECE`
+    characters: a crs, spacing and origin fit on one line."""
+    if not metadata:
+        return []
+    text = json.dumps(metadata, ensure_ascii=True, allow_nan=False, separators=(",", ":")).replace(" ", "\\u0020")
+    text = re.sub(r"(?i)end_heade(r)|texturefil(e)",
+                  lambda found: f"{found.group(0)[:-1]}\\u{ord(found.group(0)[-1]):04x}", text)
+    return [text[start : start + _PLY_METADATA_PIECE] for start in range(0, len(text), _PLY_METADATA_PIECE)]
+
+
+def _ply_metadata(file: Path) -> dict[str, Any]:
+    """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
+    lines, :func:`_ply_metadata_pieces`); {} without any, or when they do not join into a JSON object (a header
+    edited by hand: the mesh is still read)."""
+    pieces = []
+    start = _PLY_METADATA.encode("ascii")
+    with open(file, "rb") as stream:
+        if stream.readline(16).strip() != b"ply":
+            return {}
+        while stream.tell() < _PLY_HEADER_LIMIT:
+            line = stream.readline(1 << 20)
+            if not line or line.strip() == b"end_header":
+                break
+            if line.startswith(start):
+                pieces.append(line[len(start) :].strip())
+    if not pieces:
+        return {}
+    try:
+        value = json.loads(b"".join(pieces).decode("ascii"))
+    except ValueError:  # UnicodeDecodeError and JSONDecodeError
+        return {}
+    return value if isinstance(value, dict) else {}
 
 
 def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:
@@ -2144,14 +2280,18 @@ def _encoded_textures(material: Any) -> None:
     ``stepterrain texture --mesh``), and hashed the material through the decoded image's bytes first. The PNG
     decodes to the same pixels either way. A large image :func:`save_image` has just written as PNG (the texture
     ``stepterrain texture -o tex.png --mesh out.glb`` drapes) takes that file's bytes (:func:`_written_png`) instead
-    of being deflated a second time. A JPEG is left to trimesh, which writes it as JPEG."""
+    of being deflated a second time. An image opened from a JPEG stays a JPEG (:func:`_jpeg_data`): trimesh's writer
+    re-encoded it at Pillow's default quality."""
     from PIL import Image
 
     for slot in _TEXTURE_SLOTS[1][1]:
         image = getattr(material, slot, None)
-        if not isinstance(image, Image.Image) or image.format == "JPEG":
+        if not isinstance(image, Image.Image):
             continue
-        setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
+        if image.format == "JPEG":
+            setattr(material, slot, _EncodedImage(_jpeg_data(image), "JPEG"))
+        else:
+            setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
 
 
 def _png_data(image: Any) -> bytes:
@@ -2163,6 +2303,51 @@ def _png_data(image: Any) -> bytes:
         image.save(buffer, format="PNG", **_png_options(image))
         data = buffer.getvalue()
     return data
+
+
+#: The JPEG quality a texture image opened from a JPEG is re-encoded at when it is not that file's pixels any more
+#: (:func:`_jpeg_data`), without chroma subsampling.
+_JPEG_QUALITY = 95
+
+
+def _jpeg_data(image: Any) -> bytes:
+    """A PIL image opened from a JPEG (``format`` "JPEG") as JPEG bytes, for a glTF's embedded texture or an OBJ's
+    side image: the bytes of the file it was opened from, unchanged, when that file still decodes to the image's
+    pixels (:func:`_source_jpeg`); else encoded here at quality :data:`_JPEG_QUALITY` with 4:4:4 chroma (an image
+    changed in place since, or decoded from bytes). trimesh's writers called ``save(format="JPEG")``: Pillow's
+    default quality 75 with 4:2:0 chroma, a second lossy generation (the 3840 x 1920 Blue Marble: 4.7 MB -> 0.78 MB,
+    its colours off by up to 119 levels, 4.9 on average, at coastlines and city lights); at quality 95 and 4:4:4 they
+    are off by at most 6 levels, 0.06 on average, for a file the size of the source's."""
+    data = _source_jpeg(image)
+    if data is None:
+        buffer = io.BytesIO()
+        image.save(buffer, format="JPEG", quality=_JPEG_QUALITY, subsampling=0)
+        data = buffer.getvalue()
+    return data
+
+
+def _source_jpeg(image: Any) -> bytes | None:
+    """The bytes of the JPEG file ``image`` (a PIL image) was opened from (its ``filename``), when the file decodes to
+    the same mode, size and pixels and carries no EXIF orientation but the upright one; else None (no file name, the
+    file gone or changed, the image changed since, or a phone's photo stored turned: browsers, and so web glTF
+    viewers, turn it upright by its tag, the texture is its stored pixels)."""
+    from PIL import Image
+
+    name = getattr(image, "filename", None)
+    if not name or not isinstance(name, (str, bytes, os.PathLike)):
+        return None
+    try:
+        data = Path(os.fsdecode(name)).read_bytes()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # warned when the image was opened
+            with Image.open(io.BytesIO(data)) as source:
+                if (source.format != "JPEG" or source.mode != image.mode or source.size != image.size
+                        or source.getexif().get(0x0112, 1) != 1):
+                    return None
+                same = _pixels_digest(source) == _pixels_digest(image)
+    except (OSError, ValueError, SyntaxError, Image.DecompressionBombError):
+        return None
+    return data if same else None
 
 
 def _textured_material(material: Any) -> Any:
@@ -2184,7 +2369,8 @@ def _textured_material(material: Any) -> Any:
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
         if material.metallicFactor is None or unset_alpha:
-            material = material.copy()
+            material, original = material.copy(), material
+            _share_texture_images(original, material)  # a JPEG stays one (Image.copy() dropped its format)
         if material.metallicFactor is None:
             material.metallicFactor = 0.0
         if unset_alpha:

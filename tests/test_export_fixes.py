@@ -1176,3 +1176,158 @@ def test_a_glb_over_4_gib_is_refused_by_name(tmp_path, monkeypatch, kind, limit,
         save_mesh(mesh, tmp_path / "big.glb")
     assert list(tmp_path.iterdir()) == []
     assert len(read_mesh(save_mesh(mesh, tmp_path / "big.ply")).faces) == 12  # the others hold it
+
+
+def _photo(path, size=(96, 64), quality=90):
+    """A JPEG file of a noisy colour picture (sharp edges: a second lossy pass shows) and its bytes."""
+    rng = np.random.default_rng(3)
+    pixels = rng.integers(0, 256, (size[1], size[0], 3), dtype=np.uint8)
+    pixels[:, : size[0] // 2] = (200, 30, 40)
+    Image.fromarray(pixels).save(path, format="JPEG", quality=quality)
+    return path.read_bytes()
+
+
+def _glb_image(path):
+    tree, binary = gltf_tree_and_buffer(path)
+    (image,) = tree["images"]
+    view = tree["bufferViews"][image["bufferView"]]
+    start = view.get("byteOffset", 0)
+    return image["mimeType"], binary[start : start + view["byteLength"]]
+
+
+@pytest.mark.parametrize("material", ["simple", "pbr"])
+def test_a_texture_opened_from_a_jpeg_is_embedded_as_the_file_s_bytes(tmp_path, material):
+    """An image opened from a JPEG went through trimesh's ``save(format="JPEG")``: Pillow's default quality 75 and
+    4:2:0 chroma, a second lossy generation (the Blue Marble's colours off by up to 119 levels). The GLB now embeds,
+    and the OBJ's side image is, the file's bytes unchanged."""
+    source = _photo(tmp_path / "photo.jpg")
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    with Image.open(tmp_path / "photo.jpg") as image:
+        if material == "simple":
+            mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+        else:
+            pbr = trimesh.visual.material.PBRMaterial(baseColorTexture=image)
+            mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=pbr)
+        mime, data = _glb_image(save_mesh(mesh, tmp_path / "t.glb"))
+        save_mesh(mesh, tmp_path / "t.obj")
+    assert mime == "image/jpeg"
+    assert data[: len(source)] == source and data[len(source) :].strip(b"\0 ") == b""  # padded to 4 bytes at most
+    (side,) = tmp_path.glob("t_*.jpeg")
+    assert side.read_bytes() == source
+    assert len(read_mesh(tmp_path / "t.glb").faces) == 12
+
+
+def test_a_jpeg_texture_changed_since_it_was_opened_is_encoded_at_high_quality(tmp_path):
+    """A JPEG image painted on after opening is not the file any more: it is encoded again, at quality 95 without
+    chroma subsampling (a few levels off), not at Pillow's default (tens of levels off at sharp colour edges)."""
+    source = _photo(tmp_path / "photo.jpg")
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    with Image.open(tmp_path / "photo.jpg") as image:
+        image.paste((0, 0, 255), (10, 10, 40, 30))  # in place: still a JPEG image
+        expected = np.asarray(image).astype(int)
+        mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=image)
+        mime, data = _glb_image(save_mesh(mesh, tmp_path / "t.glb"))
+        save_mesh(mesh, tmp_path / "t.obj")
+    assert mime == "image/jpeg" and not data.startswith(source)
+    for encoded in (data, next(tmp_path.glob("t_*.jpeg")).read_bytes()):
+        with Image.open(__import__("io").BytesIO(encoded)) as back:
+            error = np.abs(np.asarray(back.convert("RGB")).astype(int) - expected)
+        assert error.mean() < 2.0 and np.percentile(error, 99) < 16, (error.mean(), np.percentile(error, 99))
+
+
+def test_an_obj_keeps_the_vertices_no_face_names_and_a_textured_one_its_uv_seams(tmp_path, capsys):
+    """trimesh's OBJ reader dropped the vertices no face names (read_mesh passed process=False, which does not
+    keep them): ``stepterrain info`` counted 4 of the 6 vertices written, and the mesh came back renumbered (PLY,
+    glTF and 3MF keep all 6). An OBJ of vertex indices only now keeps them, in order, with their colours; one with
+    UV indices still splits a vertex per UV (maintain_order would give a seam vertex the median of its UVs), and
+    one of several materials does not repeat every vertex in each material's mesh."""
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [5, 5, 5], [0, 1, 0], [1, 1, 0], [9, 9, 9]], float)
+    faces = np.array([[0, 1, 3], [1, 4, 3]])
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    colours = np.arange(24, dtype=np.uint8).reshape(6, 4) * 10
+    colours[:, 3] = 255
+    mesh.visual.vertex_colors = colours
+    back = read_mesh(save_mesh(mesh, tmp_path / "m.obj"))
+    assert np.array_equal(back.vertices, vertices) and np.array_equal(back.faces, faces)
+    assert np.array_equal(back.visual.vertex_colors, colours)
+    assert cli.main(["info", str(tmp_path / "m.obj"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert (summary["vertices"], summary["faces"]) == (6, 2), summary
+    # a UV seam: vertex 2 has UV (0, 0) in one face and (1, 0) in the other
+    (tmp_path / "seam.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nvt 1 1\n"
+                                       "f 1/1 2/2 3/3\nf 2/1 4/4 3/3\n")
+    seam = read_mesh(tmp_path / "seam.obj")
+    corners = np.asarray(seam.visual.uv)[seam.faces]
+    assert np.array_equal(corners, [[[0, 0], [1, 0], [0, 1]], [[0, 0], [1, 1], [0, 1]]])
+    assert np.array_equal(np.asarray(seam.vertices)[seam.faces][:, :, :2], [[[0, 0], [1, 0], [0, 1]],
+                                                                            [[1, 0], [1, 1], [0, 1]]])
+    (tmp_path / "two.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nusemtl a\nf 1 2 3\nusemtl b\nf 2 4 3\n")
+    two = read_mesh(tmp_path / "two.obj")
+    assert len(two.faces) == 2 and len(two.vertices) == 6  # each material's mesh its 3 corners, not all 4 twice
+
+
+def _short_palette():
+    image = Image.new("P", (4, 4), 5)
+    image.putpalette([255, 0, 0, 0, 255, 0])  # 2 colours; the pixels use index 5
+    return image
+
+
+@pytest.mark.parametrize("ext", [".glb", ".obj"])
+@pytest.mark.parametrize("make, top, colours", [(lambda: Image.new("P", (4, 4)), 0, "0 colours"),
+                                                (lambda: Image.new("P", (4, 4), 3), 3, "0 colours"),
+                                                (_short_palette, 5, "2 colours")], ids=["new", "new-3", "short"])
+def test_a_palette_texture_whose_palette_lacks_its_colours_is_refused_by_name(tmp_path, ext, make, top, colours):
+    """``Image.new("P", ...)`` as a texture raised a bare UnboundLocalError from inside Pillow's PNG writer (its
+    empty palette is none at all once trimesh copied the material), after the folder was made; a palette shorter
+    than the indices used wrote a PNG whose texels name no colour. Refused now, before any file is made; a palette
+    image whose palette covers its pixels is written with its colours."""
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=make())
+    with pytest.raises(InvalidInputError, match=rf"mesh texture image \(image\) is a palette image \(mode 'P'\) whose "
+                                                rf"pixels use palette index {top} but whose palette holds {colours}"):
+        save_mesh(mesh, tmp_path / "out" / f"t{ext}")
+    assert list(tmp_path.iterdir()) == []
+    good = Image.new("P", (4, 4), 1)
+    good.putpalette([255, 0, 0, 0, 255, 0])
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=good)
+    back = read_mesh(save_mesh(mesh, tmp_path / f"t{ext}"))
+    material = back.visual.material
+    texture = getattr(material, "baseColorTexture", None) or material.image
+    assert np.array_equal(np.unique(np.asarray(texture.convert("RGB")).reshape(-1, 3), axis=0), [[0, 255, 0]])
+
+
+@pytest.mark.parametrize("kind", ["triangles", "points", "empty"])
+def test_ply_keeps_the_metadata_in_its_header_comments(tmp_path, capsys, kind):
+    """A PLY dropped the metadata a glTF keeps in its extras (crs, spacing, origin, generator): ``stepterrain info``
+    of a .ply showed none. It is now compact JSON on ``comment stepterrain-metadata`` header lines (no whitespace,
+    lines of at most 430 characters: MeshLab reads header lines into 512 bytes, VTK into 4096), read back by
+    read_mesh; trimesh's and pyvista's readers still read the mesh, and the words readers look for in a header
+    (end_header, TextureFile) cannot appear in it."""
+    import pyvista
+
+    meshes = {"triangles": trimesh.creation.box(), "points": points(),
+              "empty": trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)}
+    mesh = meshes[kind]
+    metadata = {"crs": "EPSG:32611", "spacing": [30.0, -30.0], "origin": [376328.655, 3807902.827],
+                "generator": "stepterrain steps", "note": "a b\tc end_header TextureFile x.png \u00fc",
+                "wkt": 'PROJCS["WGS 84 / UTM zone 11N",GEOGCS["WGS 84",DATUM["WGS_1984"]]]' * 12,
+                "levels": list(range(400)), "nothing": None, "solid": False}
+    path = save_mesh(mesh, tmp_path / "m.ply", metadata=metadata)
+    header, _ = path.read_bytes().split(b"\nend_header\n", 1)
+    lines = header.split(b"\n")
+    assert max(map(len, lines)) <= 430 and sum(line.startswith(b"comment stepterrain-metadata ") for line in lines) > 5
+    assert not any(b"texturefile" in line.lower() or b"end_header" in line for line in lines)
+    assert all(len(line.split()) <= 5 for line in lines)
+    back = read_mesh(path)
+    assert {key: back.metadata.get(key) for key in metadata} == metadata
+    assert len(back.vertices) == len(mesh.vertices) and len(back.faces) == len(mesh.faces)
+    if kind != "empty":  # trimesh reads an empty PLY as an empty Scene, and VTK as nothing, as before
+        assert len(trimesh.load(path, process=False).vertices) == len(mesh.vertices)
+        assert pyvista.read(path).n_points == len(mesh.vertices)
+    assert cli.main(["info", str(path), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["meta.crs"] == "EPSG:32611" and summary["meta.origin"] == [376328.655, 3807902.827], summary
+    assert "crs" not in read_mesh(save_mesh(mesh, tmp_path / "plain.ply")).metadata
