@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import Same, derived
-from .errors import InvalidInputError, MissingDependencyError, counted
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
@@ -2548,10 +2548,65 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
         except ImportError as exc:
             raise MissingDependencyError("MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'") from exc
     with atomic_path(target) as tmp:
-        if suffix == ".gif":
-            iio.imwrite(tmp, np.stack(stack), extension=".gif", duration=1000.0 / fps, loop=0)
-        else:
-            iio.imwrite(tmp, np.stack(stack), extension=".mp4", plugin="FFMPEG", fps=fps, codec="libx264",
-                        macro_block_size=2,  # keep the frame size (H.264 needs it even only)
-                        output_params=["-f", "mp4"])  # the .tmp suffix would not tell ffmpeg the container
+        try:
+            if suffix == ".gif":
+                _write_gif(stack, tmp, fps)
+            else:
+                iio.imwrite(tmp, np.stack(stack), extension=".mp4", plugin="FFMPEG", fps=fps, codec="libx264",
+                            macro_block_size=2,  # keep the frame size (H.264 needs it even only)
+                            output_params=["-f", "mp4"])  # the .tmp suffix would not tell ffmpeg the container
+                unfinished = _unfinished_mp4(tmp)
+                if unfinished is not None:
+                    raise DataFileError(f"cannot write {str(target)!r}: ffmpeg did not finish the MP4 ({unfinished}; "
+                                        f"a full disk? ffmpeg's messages above say why)")
+        except OSError as exc:
+            if isinstance(exc, DataFileError):
+                raise
+            raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from exc
     return target
+
+
+def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> None:
+    """The frames as a looping GIF at ``tmp``, written by Pillow as imageio's pillow plugin wrote it (the same bytes).
+    Through imageio a failed write (a full disk) kept the plugin's frames queued: its ``__del__`` wrote them once more
+    and printed a second traceback ("Exception ignored in PluginV3.__del__") after the error."""
+    from PIL import Image
+
+    pictures = [Image.fromarray(frame) for frame in frames]
+    more = {"save_all": True, "append_images": pictures[1:]} if len(pictures) > 1 else {}
+    with open(tmp, "wb") as fh:
+        pictures[0].save(fh, format="GIF", duration=1000.0 / fps, loop=0, **more)
+
+
+def _unfinished_mp4(file: Path) -> str | None:
+    """Why the MP4 ffmpeg wrote at ``file`` is incomplete, else None: its top-level boxes must fill the file exactly
+    and hold the media ('mdat') and the index ('moov', written last). ffmpeg that failed (ENOSPC while muxing or
+    writing the trailer) exited with an error that imageio-ffmpeg does not check: the truncated file, empty or
+    without its index, replaced the old output as if written."""
+    import struct
+
+    size = file.stat().st_size
+    found: set[bytes] = set()
+    with open(file, "rb") as fh:
+        at = 0
+        while at < size:
+            head = fh.read(8)
+            if len(head) < 8:
+                return f"{size:,} bytes, cut in a box header"
+            length, kind = struct.unpack(">I4s", head)
+            if length == 1:  # a 64-bit size follows
+                extra = fh.read(8)
+                if len(extra) < 8:
+                    return f"{size:,} bytes, cut in a box header"
+                length = struct.unpack(">Q", extra)[0]
+            elif length == 0:  # the box runs to the end of the file
+                length = size - at
+            if length < 8 or at + length > size:
+                return f"{size:,} bytes, its {kind.decode('latin-1')!r} box cut short"
+            found.add(kind)
+            at += length
+            fh.seek(at)
+    missing = [name for name in ("mdat", "moov") if name.encode() not in found]
+    if missing:
+        return f"{size:,} bytes, without its {' and '.join(repr(name) for name in missing)} box"
+    return None

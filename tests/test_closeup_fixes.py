@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import warnings
 
@@ -956,3 +957,64 @@ def test_cli_closeup_a_colormap_that_colours_nothing_is_refused(tmp_path, capsys
         assert not out.exists()
     assert cli.main(["-q", "closeup", "--scalars", "none", "--colormap", "viridis", "--stepped", "100", "-o", str(out),
                      "--device", "cpu"]) == 0 and out.exists()
+
+
+def test_save_animation_on_a_full_disk_raises_data_file_error_and_keeps_the_old_gif(tmp_path, monkeypatch):
+    """A GIF that met a full disk raised the bare OSError "[Errno 28] No space left on device" (the CLI's closeup
+    --gif said that much, no file named), and imageio's plugin wrote its queued frames once more in __del__, printing
+    a second traceback. Now a DataFileError naming the file; the old GIF stays, no temporary file is left."""
+    import errno
+
+    from PIL import ImageFile
+
+    from stepterrain.closeup import save_animation
+    from stepterrain.errors import DataFileError
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    old = tmp_path / "spin.gif"
+    old.write_bytes(b"the old animation")
+    monkeypatch.setattr(ImageFile, "_save", full)
+    frames = [np.full((16, 24, 3), k * 40, np.uint8) for k in range(4)]
+    with pytest.raises(DataFileError, match=rf"^cannot write {re.escape(repr(str(old)))}: No space left on device"):
+        save_animation(frames, old, fps=4.0)
+    assert [p.name for p in tmp_path.iterdir()] == ["spin.gif"]
+    assert old.read_bytes() == b"the old animation"
+
+
+@pytest.mark.parametrize("keep", [0, 0.5])
+def test_save_animation_refuses_an_mp4_ffmpeg_did_not_finish(tmp_path, monkeypatch, keep):
+    """ffmpeg that failed while writing an MP4 (a full disk: "Error writing trailer: No space left on device")
+    exits with an error imageio-ffmpeg does not check: save_animation returned the path, and the truncated file (empty,
+    or with its 'moov' index missing or cut: unplayable) replaced the old output. Simulated here by cutting the file
+    ffmpeg wrote as it would have stopped; now a DataFileError naming the file, the old MP4 kept, no temporary file
+    left."""
+    import importlib.util
+
+    if importlib.util.find_spec("imageio_ffmpeg") is None:
+        pytest.skip("MP4 output needs imageio-ffmpeg")
+    import imageio.v3 as iio
+
+    from stepterrain.closeup import save_animation
+    from stepterrain.errors import DataFileError
+
+    real = iio.imwrite
+
+    def dying(uri, image, **kwargs):
+        real(uri, image, **kwargs)
+        with open(uri, "r+b") as fh:  # what a full disk left: nothing, or the media without the index written last
+            fh.truncate(int(os.path.getsize(uri) * keep))
+
+    old = tmp_path / "spin.mp4"
+    old.write_bytes(b"the old animation")
+    frames = [np.full((16, 24, 3), k * 40, np.uint8) for k in range(4)]
+    monkeypatch.setattr(iio, "imwrite", dying)
+    with pytest.raises(DataFileError, match=rf"^cannot write {re.escape(repr(str(old)))}: ffmpeg did not finish the "
+                                            r"MP4 \([0-9,]+ bytes, (its|without its) .*box"):
+        save_animation(frames, old, fps=4.0)
+    assert [p.name for p in tmp_path.iterdir()] == ["spin.mp4"]
+    assert old.read_bytes() == b"the old animation"
+    monkeypatch.setattr(iio, "imwrite", real)
+    video = iio.imread(save_animation(frames, old, fps=4.0), index=None, plugin="FFMPEG")
+    assert video.shape[:3] == (4, 16, 24)
