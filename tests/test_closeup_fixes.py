@@ -1018,3 +1018,23 @@ def test_save_animation_refuses_an_mp4_ffmpeg_did_not_finish(tmp_path, monkeypat
     monkeypatch.setattr(iio, "imwrite", real)
     video = iio.imread(save_animation(frames, old, fps=4.0), index=None, plugin="FFMPEG")
     assert video.shape[:3] == (4, 16, 24)
+
+
+def test_closeup_layers_budget_counts_what_the_cull_holds_not_only_its_joined_inputs():
+    """closeup_layers checked its geometry as the joined inputs alone (32 bytes a source point, 28 a face), while the
+    cull holds its own pass (transformed points, factors, counts, kept faces) and its results (float64 vertices and
+    originals, int64 faces twice, sources, uploads) beside them: a stepped close-up of 2.2 M points and 4.4 M faces
+    was checked as 183 MiB and took 736 MiB, so a memory_budget the check allowed was overrun four times. Now 163
+    bytes a point and 96 a face are counted (737.8 MiB there)."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(65, 65, seed=2), spacing=(1.0, 1.0))
+    cu = CloseUp(ROI.rectangle((32.0, 32.0), (80.0, 80.0)), offset=(0.0, 0.0, 30.0))  # every node and cell
+    n_points, n_faces = 65 * 65, 2 * 64 * 64
+    joined_only = 32 * n_points + 28 * n_faces  # what was checked: 364,576 bytes
+    with pytest.raises(OutputTooLargeError, match=r"^close-up geometry would need 1\.4 MiB, over the memory budget "
+                                                  r"of 0\.7 MiB"):
+        closeup_layers(t, [cu], memory_budget=2 * joined_only, device="cpu")
+    (layer,) = closeup_layers(t, [cu], memory_budget=163 * n_points + 96 * n_faces, device="cpu")
+    assert len(layer.faces) == n_faces and len(layer.vertices) == n_points
