@@ -1128,6 +1128,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
                 grid, params, view, triangles, levels, _SMALL_LEVELS, track=bool(flags[2]), cull=cull,
                 leaf_chunks=leaf_chunks, vertex_chunks=vertex_chunks, mask_chunks=mask_chunks, per_level=per_level,
                 device=device)
+    level_scratch = 0
     for depth in range(first_depth, levels + 1):
         count = triangles.shape[0]
         if count == 0:
@@ -1135,6 +1136,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
         counts = scratch("globe.refine.counts", 2 * count + 2, wp.int32, device)  # the kernel writes every slot
         factors = _user_factors(users, grid, host, triangles, device, origin) if users else no_factors
         track = bool(flags[2]) and count >= _TRACK_MIN
+        # the pool keeps each pass's counts, offsets and inside flags (scratch), sized by the largest level
+        level_scratch = max(level_scratch, 8 * (2 * count + 2) + (4 * count if track else 0))
         if track and masks is None:
             masks = wp.zeros(count, dtype=wp.int32, device=device)  # nothing known yet
         elif not track:
@@ -1169,7 +1172,17 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     n_leaves = sum(chunk.shape[0] for chunk in leaf_chunks)
     n_vertices = vertex_chunks[0].shape[0] if split is not None else sum(c.shape[0] for c in vertex_chunks)
     _check_int32(n_leaves, _MAX_INT32 - 1, "the mesh", "faces", "its face counts and offsets")
-    check_budget(n_vertices * _MESH_VERTEX_BYTES + n_leaves * _MESH_FACE_BYTES,
+    whole = len(leaf_chunks) == 1 and unknown >= 0  # every leaf from the one tracked launch
+    counted_faces = not (faces > 1 and (not cull or (whole and unknown == 0)))  # a count of the faces kept
+    # the mesh's arrays and what the passes below hold beside them: the leaves of every level (and their joined
+    # copy), the joined vertex entries, the per-node vertex ids, the keep counts and offsets and the leaf masks (the
+    # mesh's own arrays alone were counted: a 12.6 M-face mesh checked as 504 MiB peaked at 1.1 GiB)
+    leaf_bytes = 16 * (1 + (sum(1 for chunk in leaf_chunks if chunk.shape[0]) > 1))
+    if counted_faces:
+        leaf_bytes += 8 + 4 * any(chunk is not None for chunk in mask_chunks)
+    vertex_bytes = _MESH_VERTEX_BYTES + (4 if split is None else 0)
+    check_budget(n_vertices * vertex_bytes + n_leaves * (_MESH_FACE_BYTES + leaf_bytes) + 4 * faces * n * n
+                 + level_scratch,
                  f"the mesh ({n_vertices:,} vertices, up to {n_leaves:,} faces)",
                  hint="raise the error or narrow the view")
     leaves = _concat(leaf_chunks, wp.vec4i, device, share=True)  # read by the face passes only
@@ -1183,8 +1196,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     vertices = wp.empty(n_vertices, dtype=wp.vec3d, device=device)
     launch_chunked(cube_kernels.emit_vertices, n_vertices, [grid, entries], [vertex_id, vertices], device,
                    min_elements=_SPLIT_REFINE)
-    whole = len(leaf_chunks) == 1 and unknown >= 0  # every leaf from the one tracked launch
-    if faces > 1 and (not cull or (whole and unknown == 0)):
+    if not counted_faces:
         keep = offsets = none  # nothing to cull, no padding: every leaf is a face (emit_faces' "every")
         n_faces = n_leaves
     else:
@@ -1203,6 +1215,12 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
                        device)
         offsets, n_faces = exclusive_offsets(keep, "globe.keep")
     culled = n_faces < n_leaves
+    if culled:  # the kept faces as int32, then remapped onto the vertices still used, then as int64 (trimesh's);
+        # the used flags, their offsets and the used vertices and entries (no wide faces: those are the int64 ones)
+        check_budget(n_vertices * (vertex_bytes + 8 + 28) + n_leaves * leaf_bytes + 4 * faces * n * n
+                     + level_scratch + n_faces * (12 + 4 + 12 + 24),
+                     f"the mesh ({n_vertices:,} vertices before culling, {n_faces:,} faces kept of {n_leaves:,})",
+                     hint="raise the error or narrow the view")
     # nothing culled: the kernel writes the final int64 faces (trimesh's dtype; on the CPU straight into numpy), not
     # int32 ones to convert (2 ms of a 200k-face view); culled, int32 faces are compacted below, then converted
     wide_host, wide = empty_shared((0 if culled else n_faces, 3), np.int64, vec3l, device)

@@ -779,6 +779,11 @@ def _invertible(matrix: NDArray[np.float64]) -> bool:
         return False
 
 
+#: Bytes a pixel of :meth:`TextureLayer.rgba` at its peak: the float32 RGBA, the finite flags of its channels and the
+#: nodata mask and its negation.
+_RGBA_BYTES = 16 + 4 + 1 + 1
+
+
 @dataclass(frozen=True, eq=False)
 class TextureLayer:
     """One texture layer (paper 004 §3.2.3): an image over a georeferenced extent, and its texture matrix.
@@ -864,24 +869,32 @@ class TextureLayer:
     def rgba(self) -> NDArray[np.float32]:
         """The image as (h, w, 4) float32 RGBA in [0, 1] (luminance: grey, opaque; visibility: white, alpha).
 
-        Its 16 bytes per pixel are checked against the memory budget (:func:`stepterrain.set_memory_budget`) before
-        anything is allocated: an :class:`~stepterrain.errors.OutputTooLargeError` (a memory-mapped gigapixel image
-        ran out of memory instead)."""
+        Its 16 bytes per pixel (22 with the masks made while it is checked) are checked against the memory budget
+        (:func:`stepterrain.set_memory_budget`) before anything is allocated: an
+        :class:`~stepterrain.errors.OutputTooLargeError` (a memory-mapped gigapixel image ran out of memory instead)."""
         cached = self._rgba_cache.get("rgba")
         if cached is not None:
             return cached
         h, w = self.shape
-        check_budget(16 * h * w, f"the (h, w, 4) float32 RGBA of a {w} x {h} {self.kind} layer",
+        # the RGBA and, while it is checked, the per-channel finite flags and the per-pixel nodata mask
+        check_budget(_RGBA_BYTES * h * w, f"the (h, w, 4) float32 RGBA of a {w} x {h} {self.kind} layer",
                      hint="crop or downsample the image (texture_lod.ImagePyramid serves a large one by level)")
         image = np.asarray(self.image)
-        values = image.astype(np.float32) / 255.0 if image.dtype == np.uint8 else image.astype(np.float32)
         out = np.ones((*self.shape, 4), dtype=np.float32)
+        # the image goes straight into its channels, scaled there: a float32 copy of it and its scaled copy (12 + 12
+        # bytes a pixel of RGB) were made first, and the finite pixels were copied out for their range (16 more), so
+        # a layer checked as 16 bytes a pixel took 62
         if self.kind == "thematic":
-            out[..., : values.shape[2]] = values
+            channels = out[..., : image.shape[2]]
+            channels[...] = image
         elif self.kind == "visibility":
-            out[..., 3] = values
+            channels = out[..., 3]
+            channels[...] = image
         else:
-            out[..., :3] = values[..., None]
+            channels = out[..., :3]
+            channels[...] = image[..., None]
+        if image.dtype == np.uint8:
+            channels /= np.float32(255.0)
         nodata = ~np.isfinite(out).all(axis=2)
         if nodata.any():
             # NaN is nodata, as in heights; an infinite value was taken for nodata too: a weight of inf left the
@@ -892,10 +905,12 @@ class TextureLayer:
                 raise InvalidInputError(f"{self.kind} layer values must be finite or NaN (nodata); got an infinite "
                                         f"value at pixel {first}")
             out[nodata] = (1.0, 1.0, 1.0, 0.0)
-        finite = out[~nodata]
-        if finite.size and (finite.min() < -1e-6 or finite.max() > 1.0 + 1e-6):
+        valid = ~nodata[..., None]  # the range of the pixels with data, read in place (no copy of them)
+        lo = float(np.min(out, where=valid, initial=np.inf))
+        hi = float(np.max(out, where=valid, initial=-np.inf))
+        if lo < -1e-6 or hi > 1.0 + 1e-6:
             raise InvalidInputError(f"{self.kind} layer values must lie in [0, 1] (or uint8 0-255); got "
-                                    f"[{float(finite.min()):g}, {float(finite.max()):g}]")
+                                    f"[{lo:g}, {hi:g}]")
         np.clip(out, 0.0, 1.0, out=out)
         if not image.flags.writeable:  # a writeable image (kept as given) may change later: never cached
             out.setflags(write=False)  # handed out again and wrapped for the kernels: an edit would change them all

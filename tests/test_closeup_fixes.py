@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import warnings
 
@@ -1104,3 +1105,84 @@ def test_an_overview_texture_is_sampled_at_its_vertices_without_a_float_copy_of_
     finally:
         tracemalloc.stop()
     assert peak < 1_000_000, f"{peak} bytes at the peak for 500 vertices of a {image.shape} texture"
+
+
+def test_save_animation_on_a_full_disk_raises_data_file_error_and_keeps_the_old_gif(tmp_path, monkeypatch):
+    """A GIF that met a full disk raised the bare OSError "[Errno 28] No space left on device" (the CLI's closeup
+    --gif said that much, no file named), and imageio's plugin wrote its queued frames once more in __del__, printing
+    a second traceback. Now a DataFileError naming the file; the old GIF stays, no temporary file is left."""
+    import errno
+
+    from PIL import ImageFile
+
+    from stepterrain.closeup import save_animation
+    from stepterrain.errors import DataFileError
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    old = tmp_path / "spin.gif"
+    old.write_bytes(b"the old animation")
+    monkeypatch.setattr(ImageFile, "_save", full)
+    frames = [np.full((16, 24, 3), k * 40, np.uint8) for k in range(4)]
+    with pytest.raises(DataFileError, match=rf"^cannot write {re.escape(repr(str(old)))}: No space left on device"):
+        save_animation(frames, old, fps=4.0)
+    assert [p.name for p in tmp_path.iterdir()] == ["spin.gif"]
+    assert old.read_bytes() == b"the old animation"
+
+
+@pytest.mark.parametrize("keep", [0, 0.5])
+def test_save_animation_refuses_an_mp4_ffmpeg_did_not_finish(tmp_path, monkeypatch, keep):
+    """ffmpeg that failed while writing an MP4 (a full disk: "Error writing trailer: No space left on device")
+    exits with an error imageio-ffmpeg does not check: save_animation returned the path, and the truncated file (empty,
+    or with its 'moov' index missing or cut: unplayable) replaced the old output. Simulated here by cutting the file
+    ffmpeg wrote as it would have stopped; now a DataFileError naming the file, the old MP4 kept, no temporary file
+    left."""
+    import importlib.util
+
+    if importlib.util.find_spec("imageio_ffmpeg") is None:
+        pytest.skip("MP4 output needs imageio-ffmpeg")
+    import imageio.v3 as iio
+
+    from stepterrain.closeup import save_animation
+    from stepterrain.errors import DataFileError
+
+    real = iio.imwrite
+
+    def dying(uri, image, **kwargs):
+        real(uri, image, **kwargs)
+        with open(uri, "r+b") as fh:  # what a full disk left: nothing, or the media without the index written last
+            fh.truncate(int(os.path.getsize(uri) * keep))
+
+    old = tmp_path / "spin.mp4"
+    old.write_bytes(b"the old animation")
+    frames = [np.full((16, 24, 3), k * 40, np.uint8) for k in range(4)]
+    monkeypatch.setattr(iio, "imwrite", dying)
+    with pytest.raises(DataFileError, match=rf"^cannot write {re.escape(repr(str(old)))}: ffmpeg did not finish the "
+                                            r"MP4 \([0-9,]+ bytes, (its|without its) .*box"):
+        save_animation(frames, old, fps=4.0)
+    assert [p.name for p in tmp_path.iterdir()] == ["spin.mp4"]
+    assert old.read_bytes() == b"the old animation"
+    monkeypatch.setattr(iio, "imwrite", real)
+    video = iio.imread(save_animation(frames, old, fps=4.0), index=None, plugin="FFMPEG")
+    assert video.shape[:3] == (4, 16, 24)
+
+
+def test_closeup_layers_budget_counts_what_the_cull_holds_not_only_its_joined_inputs():
+    """closeup_layers checked its geometry as the joined inputs alone (32 bytes a source point, 28 a face), while the
+    cull holds its own pass (transformed points, factors, counts, kept faces) and its results (float64 vertices and
+    originals, int64 faces twice, sources, uploads) beside them: a stepped close-up of 2.2 M points and 4.4 M faces
+    was checked as 183 MiB and took 736 MiB, so a memory_budget the check allowed was overrun four times. Now 163
+    bytes a point and 96 a face are counted (737.8 MiB there)."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(65, 65, seed=2), spacing=(1.0, 1.0))
+    cu = CloseUp(ROI.rectangle((32.0, 32.0), (80.0, 80.0)), offset=(0.0, 0.0, 30.0))  # every node and cell
+    n_points, n_faces = 65 * 65, 2 * 64 * 64
+    joined_only = 32 * n_points + 28 * n_faces  # what was checked: 364,576 bytes
+    with pytest.raises(OutputTooLargeError, match=r"^close-up geometry would need 1\.4 MiB, over the memory budget "
+                                                  r"of 0\.7 MiB"):
+        closeup_layers(t, [cu], memory_budget=2 * joined_only, device="cpu")
+    (layer,) = closeup_layers(t, [cu], memory_budget=163 * n_points + 96 * n_faces, device="cpu")
+    assert len(layer.faces) == n_faces and len(layer.vertices) == n_points

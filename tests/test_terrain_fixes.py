@@ -679,3 +679,33 @@ def test_a_pyvista_dataset_as_terrain_is_named_with_the_way_in():
 
     assert st.stepped(from_polydata(surface.triangulate()), interval=2.0).area == pytest.approx(expected.area,
                                                                                                 rel=1e-6)
+
+
+def test_heightfield_mesh_is_checked_against_the_memory_budget_before_it_is_built(monkeypatch):
+    """heightfield_mesh (Terrain.mesh, the close-up overview, a drape on the DEM's own surface) had no memory check:
+    a DEM read under the budget at 4 bytes a node became a mesh of ~144 bytes a node at its peak (int64 faces,
+    float64 vertices and the index grids they are built from; more with nodata), so a budget that admitted the DEM
+    let its mesh take 36 times as much. Now the mesh is refused before anything is allocated, naming the grid."""
+    import stepterrain as st
+    import stepterrain.terrain as terrain_module
+    from stepterrain.errors import OutputTooLargeError
+
+    heights = np.zeros((300, 400), np.float32)
+    previous = st.set_memory_budget(144 * 300 * 400 - 1)
+    try:
+        monkeypatch.setattr(terrain_module, "grid_faces", lambda *a, **k: pytest.fail("allocated before the check"))
+        with pytest.raises(OutputTooLargeError, match=r"^the heightfield mesh of a 300 x 400 grid would need "
+                                                      r"16\.5 MiB, over the memory budget of 16\.5 MiB; crop or "
+                                                      r"coarsen the terrain"):
+            st.heightfield_mesh(heights)
+        with_nodata = heights.copy()
+        with_nodata[5, 5] = np.nan
+        st.set_memory_budget(144 * 300 * 400)  # enough without nodata, not with it
+        with pytest.raises(OutputTooLargeError, match=r"^the heightfield mesh of a 300 x 400 grid would need "
+                                                      r"22\.4 MiB"):
+            st.Terrain.from_heights(with_nodata, spacing=(1.0, 1.0)).mesh()
+        monkeypatch.undo()
+        mesh = st.heightfield_mesh(heights)
+        assert (len(mesh.vertices), len(mesh.faces)) == (300 * 400, 2 * 299 * 399)
+    finally:
+        st.set_memory_budget(previous)

@@ -363,11 +363,11 @@ def test_a_layer_s_rgba_over_the_memory_budget_is_refused_before_it_is_allocated
     import stepterrain as st
 
     path = tmp_path / "big.npy"
-    np.lib.format.open_memmap(path, mode="w+", dtype=np.uint8, shape=(600, 500, 3)).flush()  # 4.6 MiB as RGBA
+    np.lib.format.open_memmap(path, mode="w+", dtype=np.uint8, shape=(600, 500, 3)).flush()  # 6.3 MiB
     layer = TextureLayer("thematic", np.load(path, mmap_mode="r"), (0, 500, 0, 600))
     previous = st.set_memory_budget(1 << 20)
     try:
-        with pytest.raises(st.OutputTooLargeError, match=r"RGBA of a 500 x 600 thematic layer would need 4\.6 MiB, "
+        with pytest.raises(st.OutputTooLargeError, match=r"RGBA of a 500 x 600 thematic layer would need 6\.3 MiB, "
                                                          r"over the memory budget of 1\.0 MiB; crop or downsample"):
             layer.rgba()
         with pytest.raises(st.OutputTooLargeError):  # the operations that read a layer's RGBA are refused as well
@@ -790,3 +790,41 @@ def test_cli_texture_obj_side_image_is_the_written_pngs_bytes(tmp_path, monkeypa
     Image.fromarray(texture).save(rle, format="PNG", compress_type=3)
     (again,) = [p for p in tmp_path.glob("again_*.png")]
     assert again.read_bytes() == rle.getvalue()
+
+
+@pytest.mark.parametrize("kind, dtype, shape", [("thematic", np.uint8, (600, 500, 3)),
+                                                 ("thematic", np.float32, (600, 500, 4)),
+                                                 ("luminance", np.uint8, (600, 500))])
+def test_rgba_allocates_no_more_than_its_budget_check_counted(monkeypatch, kind, dtype, shape):
+    """TextureLayer.rgba() checked 16 bytes a pixel (the float32 RGBA) against the memory budget, then made a float32
+    copy of the image, its scaled copy and a copy of every finite pixel for their range: 62 bytes a pixel at its peak
+    (a 3000² layer checked as 137 MiB took 532 MiB). The image now goes straight into the RGBA's channels and the range
+    is read in place; its peak (numpy's allocations, traced) stays within what the check counted, and the RGBA is
+    the same."""
+    import tracemalloc
+
+    import stepterrain.texture as texture
+
+    rng = np.random.default_rng(3)
+    image = rng.integers(0, 256, shape).astype(np.uint8) if dtype == np.uint8 else rng.random(shape, np.float32)
+    image.setflags(write=False)
+    counted = []
+    check = texture.check_budget
+    monkeypatch.setattr(texture, "check_budget", lambda nbytes, *a, **k: (counted.append(nbytes), check(nbytes, *a,
+                                                                                                         **k))[1])
+    layer = TextureLayer(kind, image, (0, 500, 0, 600))
+    tracemalloc.start()
+    try:
+        out = layer.rgba()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert len(counted) == 1  # checked once, before anything was allocated
+    assert peak <= counted[0], f"rgba() allocated {peak:,} bytes at its peak; its check counted {counted[0]:,}"
+    scaled = image.astype(np.float32) / 255.0 if dtype == np.uint8 else image
+    expected = np.ones((600, 500, 4), np.float32)
+    if kind == "thematic":
+        expected[..., : shape[2]] = scaled
+    else:
+        expected[..., :3] = scaled[..., None]
+    np.testing.assert_array_equal(out, expected)
