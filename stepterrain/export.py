@@ -2248,7 +2248,9 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     transform = np.eye(4)
     if _is_large(bounds):
         offset = _local_origin(bounds)
-        mesh = mesh.copy(include_cache=False)
+        copied = mesh.copy(include_cache=False)  # its material's copy dropped a JPEG's format (Image.copy())
+        _share_texture_images(getattr(mesh.visual, "material", None), getattr(copied.visual, "material", None))
+        mesh = copied
         mesh.vertices = vertices - offset
         transform[:3, 3] = offset
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):

@@ -1195,13 +1195,17 @@ def _glb_image(path):
     return image["mimeType"], binary[start : start + view["byteLength"]]
 
 
+@pytest.mark.parametrize("offset", [0.0, 6.4e6], ids=["local", "large"])
 @pytest.mark.parametrize("material", ["simple", "pbr"])
-def test_a_texture_opened_from_a_jpeg_is_embedded_as_the_file_s_bytes(tmp_path, material):
+def test_a_texture_opened_from_a_jpeg_is_embedded_as_the_file_s_bytes(tmp_path, material, offset):
     """An image opened from a JPEG went through trimesh's ``save(format="JPEG")``: Pillow's default quality 75 and
     4:2:0 chroma, a second lossy generation (the Blue Marble's colours off by up to 119 levels). The GLB now embeds,
-    and the OBJ's side image is, the file's bytes unchanged."""
+    and the OBJ's side image is, the file's bytes unchanged. So too for a mesh in large coordinates (UTM, a globe's
+    6.4e6 m), whose GLB moves them into the node's translation on a copy of the mesh: that copy's Image.copy()
+    dropped the JPEG's format, and the Blue Marble draped on a globe was a 14.7 MB PNG (a 4.7 MB JPEG)."""
     source = _photo(tmp_path / "photo.jpg")
     mesh = trimesh.creation.box()
+    mesh.apply_translation([offset, 0.0, 0.0])
     uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
     with Image.open(tmp_path / "photo.jpg") as image:
         if material == "simple":
