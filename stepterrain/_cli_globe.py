@@ -309,7 +309,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # decoded once for both drapes; a JPEG used as is (picture) is embedded as its file's bytes, not a PNG 3x larger
     pixels, picture = _texture_image(args.texture) if args.texture else (None, None)
     if png is not None and pixels is not None:  # the render holds the draped texture too (16 bytes a texel)
-        render._check_render_budget(args.size[0], args.size[1], "--size", texture=pixels.shape)
+        render._check_render_budget(args.size[0], args.size[1], "--size", texture=pixels.shape,
+                                    smaller_texture="a smaller --texture image (resampled to fewer pixels)")
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
     lat, lon, elevation = _load_grid(args.input) if args.input else load_global_relief()

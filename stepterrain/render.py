@@ -721,6 +721,10 @@ _LAYERED_BYTES_PER_PIXEL = 64
 _TEXTURE_BYTES_PER_TEXEL = 16
 
 
+#: The render budget's hint for a smaller texture, in the library (:func:`_check_render_budget`).
+_SMALLER_TEXTURE = "a smaller texture (a larger texel size, or the image resampled)"
+
+
 def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False,
                   ssaa: bool = False, texels: int = 0) -> int:
     """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL);
@@ -732,12 +736,14 @@ def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layer
 
 
 def _check_render_budget(width: int, height: int, name: str = "window_size", *, anti_aliasing: bool = False,
-                         layered: bool = False, ssaa: bool = False, texture: tuple[int, ...] | None = None) -> None:
+                         layered: bool = False, ssaa: bool = False, texture: tuple[int, ...] | None = None,
+                         smaller_texture: str = _SMALLER_TEXTURE) -> None:
     """An :class:`OutputTooLargeError` naming the size and ``name`` (the argument or CLI option giving it) when the
     render's framebuffers and images (:func:`_render_bytes`) exceed the memory budget; called before any render
     starts (and, in the CLI, before the DEM is read). ``texture``: the (rows, cols) of a textured mesh's texture,
     whose texels count too (only the window was counted: a 17000 x 17000 texture in a small window took 4.6 GB past
-    any budget)."""
+    any budget); ``smaller_texture``: how the caller makes it smaller, in the hint (a command names its own option:
+    the library's "a larger texel size" named none ``stepterrain globe`` has)."""
     what = f"an off-screen render of {width} x {height} pixels ({name} {width}x{height}" \
            + (", anti-aliased)" if anti_aliasing else ")")
     texels = 0
@@ -746,7 +752,7 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
         rows, cols = (int(n) for n in texture[:2])
         texels = rows * cols
         what += f" of a mesh with a {cols} x {rows} texel texture"
-        hint += " or a smaller texture (a larger texel size, or the image resampled)"
+        hint += f" or {smaller_texture}"
     check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa,
                                texels=texels), what, hint=hint)
 
