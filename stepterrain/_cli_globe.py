@@ -37,18 +37,33 @@ from .io import equals_nodata, npz_nodata
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
 
 
-def _drape_side_files(out: Path) -> list[Path]:
+def _drape_side_files(out: Path, texture: str) -> list[Path]:
     """The side files the --output writes for a --texture drape (a textured OBJ's .mtl and image): those of a
-    one-triangle mesh draped as :func:`~stepterrain.globe.drape_texture` drapes the globe."""
+    one-triangle mesh draped as :func:`~stepterrain.globe.drape_texture` drapes the globe with ``texture`` (a JPEG
+    it embeds as it is is written as .jpeg, see :func:`~stepterrain.globe._kept_jpeg`; only its header is read
+    here, an unreadable file is named when the texture is read)."""
     if out.suffix.lower() != ".obj":
         return []
+    import io
+
     import trimesh
+    from PIL import Image
 
     from .export import _side_files
-    from .globe import drape_texture
+    from .globe import _drape_texture, _kept_jpeg
 
+    picture = None
+    try:
+        with Image.open(texture) as source:
+            jpeg = _kept_jpeg(source)
+    except (OSError, ValueError, Image.DecompressionBombError):
+        jpeg = False
+    if jpeg:
+        buffer = io.BytesIO()
+        Image.new("RGB", (4, 2)).save(buffer, format="JPEG")
+        picture = Image.open(buffer)
     triangle = trimesh.Trimesh([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [[0, 1, 2]], process=False)
-    return _side_files(drape_texture(triangle, np.zeros((2, 4, 3), np.uint8)), out)
+    return _side_files(_drape_texture(triangle, np.zeros((2, 4, 3), np.uint8), picture), out)
 
 
 _EPILOG = """\
@@ -199,9 +214,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     from .globe import (
         METRICS,
         Globe,
-        _texture_pixels,
+        _drape_texture,
+        _texture_image,
         drape_colors,
-        drape_texture,
         elevation_colors,
         load_global_relief,
         look_from,
@@ -255,8 +270,8 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
                                 f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
     if args.texture is not None:  # a textured OBJ's .mtl and texture image, named as drape_texture's will be
-        _check_side_files("--output", out, _drape_side_files(out), {"INPUT": args.input, "--texture": args.texture},
-                          {"--png": png})
+        _check_side_files("--output", out, _drape_side_files(out, args.texture),
+                          {"INPUT": args.input, "--texture": args.texture}, {"--png": png})
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
     radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
     # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
@@ -291,9 +306,11 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     if png is not None:
         render.require_offscreen()
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
-    pixels = _texture_pixels(args.texture) if args.texture else None  # decoded once for both drapes
+    # decoded once for both drapes; a JPEG used as is (picture) is embedded as its file's bytes, not a PNG 3x larger
+    pixels, picture = _texture_image(args.texture) if args.texture else (None, None)
     if png is not None and pixels is not None:  # the render holds the draped texture too (16 bytes a texel)
-        render._check_render_budget(args.size[0], args.size[1], "--size", texture=pixels.shape)
+        render._check_render_budget(args.size[0], args.size[1], "--size", texture=pixels.shape,
+                                    smaller_texture="a smaller --texture image (resampled to fewer pixels)")
 
     progress.stage("load", f"loading {args.input or 'the embedded ETOPO 2022 relief (20 arc-minutes)'}")
     lat, lon, elevation = _load_grid(args.input) if args.input else load_global_relief()
@@ -327,8 +344,10 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     keeps_texture = out.suffix.lower() in (".glb", ".gltf", ".obj")
     if pixels is not None:
         mesh.visual.vertex_colors = drape_colors(mesh.vertices, pixels)
-        if keeps_texture or png is not None:  # the render draws the image itself (vertex colours blurred it to
-            textured = drape_texture(mesh, pixels)  # the mesh's triangles: far from the eye, whole countries)
+        # the render draws the image itself (vertex colours blurred it to the mesh's triangles: far from the eye,
+        # whole countries)
+        if keeps_texture or png is not None:
+            textured = _drape_texture(mesh, pixels, picture)
     else:
         heights = globe.heights.reshape(-1)[mesh.metadata["node_entry"]] / args.exaggeration
         mesh.visual.vertex_colors = elevation_colors(heights)

@@ -419,7 +419,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None)
     if png is not None:  # the render holds the texture too, one texel per node or --texel-size's: before any work
         render._check_render_budget(args.size[0], args.size[1], "--size",
-                                    texture=grid[1] if grid is not None else terrain.shape)
+                                    texture=grid[1] if grid is not None else terrain.shape,
+                                    smaller_texture="a larger --texel-size (or --crop the DEM)" if grid is not None else
+                                    "a smaller texture (one texel per DEM node: --coarsen or --crop the DEM)")
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer

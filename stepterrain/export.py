@@ -626,7 +626,9 @@ def _png_options(picture: Any) -> dict[str, Any]:
 
 
 # The last large PNG save_image wrote: (its pixels' digest, its path, the file's (inode, size, mtime)), so that a glTF
-# texture of the same pixels takes the file's bytes (_encoded_textures) instead of deflating them again.
+# texture of the same pixels takes the file's bytes (_encoded_textures) instead of deflating them again. The stamp is
+# the temporary file's, taken before the rename (which keeps the inode, size and mtime): stamped after it, at the
+# path, it could be another writer's file that replaced this one in between, paired with this one's digest.
 _LAST_PNG: list[tuple[bytes, Path, tuple[int, int, int]]] = []
 
 
@@ -646,8 +648,9 @@ def _pixels_digest(picture: Any, array: NDArray[np.uint8] | None = None) -> byte
     return digest.digest()
 
 
-def _file_stamp(path: Path) -> tuple[int, int, int]:
-    info = path.stat()
+def _file_stamp(path: Path | int) -> tuple[int, int, int]:
+    """A file's (inode, size, mtime): of ``path``, or of an open file descriptor."""
+    info = os.fstat(path) if isinstance(path, int) else path.stat()
     return info.st_ino, info.st_size, info.st_mtime_ns
 
 
@@ -660,9 +663,10 @@ def _written_png(picture: Any) -> bytes | None:
         return None
     digest, path, stamp = _LAST_PNG[0]
     try:
-        if _file_stamp(path) != stamp or _pixels_digest(picture) != digest:
-            return None
-        data = path.read_bytes()
+        with path.open("rb") as file:  # the bytes read are those of the file stamped (not one renamed over it since)
+            if _file_stamp(file.fileno()) != stamp or _pixels_digest(picture) != digest:
+                return None
+            data = file.read()
     except OSError:
         return None
     return data if len(data) == stamp[1] else None
@@ -747,6 +751,7 @@ def save_image(
     pixels = np.ascontiguousarray(array)
     picture = Image.fromarray(pixels)  # uint8 (H, W, 3|4) -> RGB or RGBA
     _check_owner([target], target)
+    stamp = None
     with atomic_path(target) as tmp:
         try:
             if suffix == ".png":
@@ -755,10 +760,12 @@ def save_image(
                 picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
+        if suffix == ".png" and _png_options(picture):  # a large one: a glTF of the same texture takes its bytes
+            with contextlib.suppress(OSError):
+                stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
     _record_owner([target], target)
-    if suffix == ".png" and _png_options(picture):  # a large one: a glTF of the same texture takes its bytes
-        with contextlib.suppress(OSError):
-            _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), _file_stamp(target))]
+    if stamp is not None:
+        _LAST_PNG[:] = [(_pixels_digest(picture, pixels), target.absolute(), stamp)]
     return target
 
 
@@ -2248,7 +2255,9 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     transform = np.eye(4)
     if _is_large(bounds):
         offset = _local_origin(bounds)
-        mesh = mesh.copy(include_cache=False)
+        copied = mesh.copy(include_cache=False)  # its material's copy dropped a JPEG's format (Image.copy())
+        _share_texture_images(getattr(mesh.visual, "material", None), getattr(copied.visual, "material", None))
+        mesh = copied
         mesh.vertices = vertices - offset
         transform[:3, 3] = offset
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):

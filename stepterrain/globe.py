@@ -1471,12 +1471,29 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
     """An (H, W, 3|4) uint8 image from a path (16-bit greyscale files too: :func:`~stepterrain.io.picture_uint8`)
     or an array."""
+    return _texture_image(image)[0]
+
+
+def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
+    """:func:`_texture_pixels`' image, and the PIL image a drape embeds as it is (:func:`_drape_texture`): that of a
+    path to a JPEG file used as is (:func:`_kept_jpeg`), whose own bytes :func:`~stepterrain.export.save_mesh` then
+    embeds (the 3840 x 1920 Blue Marble, 4.7 MB, was a 14.7 MB PNG in the GLB); else None (the pixels are
+    embedded, as PNG)."""
+    kept = None
     if isinstance(image, (str, bytes)) or hasattr(image, "__fspath__"):
         from PIL import Image
 
         try:
-            with Image.open(image) as picture:  # type: ignore[arg-type]
-                image = picture_uint8(picture, f"texture {str(image)!r}")
+            picture = Image.open(image)  # type: ignore[arg-type]
+            try:
+                if _kept_jpeg(picture):
+                    picture.load()  # its pixels, and Pillow closes the file it opened
+                    kept, image = picture, np.asarray(picture)
+                else:
+                    image = picture_uint8(picture, f"texture {str(image)!r}")
+            finally:
+                if kept is None:
+                    picture.close()
         except OSError as exc:
             raise DataFileError(f"cannot read texture {image!r}: {exc}") from exc
     pixels = np.asarray(image)
@@ -1488,12 +1505,22 @@ def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
             raise InvalidInputError(f"texture values must lie in [0, 255] (or [0, 1] floats); got dtype {pixels.dtype}")
         scale = 255.0 if pixels.dtype.kind == "f" and pixels.max() <= 1.0 else 1.0
         pixels = np.round(pixels.astype(np.float64) * scale).astype(np.uint8)
-    return pixels
+    return pixels, kept
+
+
+def _kept_jpeg(picture: Any) -> bool:
+    """Whether a drape embeds ``picture`` (a PIL image opened from a file, not yet decoded) as it is: an RGB JPEG
+    (:func:`_texture_pixels` decodes it to its own pixels; a drape changes none, the antimeridian wraps by UVs past
+    1) with no EXIF turn (its stored pixels are the texture; a viewer would turn the file's JPEG upright). A greyscale
+    or CMYK JPEG, converted to RGB, and any other format are embedded as their pixels (PNG)."""
+    return bool(picture.format == "JPEG" and picture.mode == "RGB" and picture.getexif().get(0x0112, 1) == 1)
 
 
 def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trimesh:
     """A copy of a globe mesh textured with a global plate-carrée image (paper 003 §5.3: a global texture
-    draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded.
+    draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded: the path of an RGB JPEG
+    embeds the file's own bytes (the image is used as it is: see :func:`~stepterrain.export.save_mesh`'s Notes),
+    any other image its pixels, as PNG.
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
     90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
@@ -1519,7 +1546,12 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     True
     """
     mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
-    pixels = _texture_pixels(image)
+    return _drape_texture(mesh, *_texture_image(image))
+
+
+def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: Any = None) -> trimesh.Trimesh:
+    """:func:`drape_texture` of ``mesh`` (a Trimesh) with the texture's ``pixels``; ``picture``: the PIL image to
+    embed instead of them, when the texture is a JPEG file's used as is (:func:`_texture_image`)."""
     from PIL import Image
 
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -1555,7 +1587,7 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     out = trimesh.Trimesh(vertices[sources], new_faces, process=False, metadata=dict(mesh.metadata),
                           face_attributes={k: np.asarray(a) for k, a in mesh.face_attributes.items()})  # fmt: skip
     out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies
-    out.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(pixels))
+    out.visual = trimesh.visual.TextureVisuals(uv=uv, image=picture if picture is not None else Image.fromarray(pixels))
     return out
 
 

@@ -425,9 +425,11 @@ def render_mesh(
     mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
                                                               view_angle)
-    textured = _mesh_texture(mesh) if scalars is None else None
-    if textured is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB)
-        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape)
+    source = _texture_source(mesh) if scalars is None else None
+    if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
+        # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
+        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]))
+    textured = _decoded_texture(*source) if source is not None else None
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -719,6 +721,10 @@ _LAYERED_BYTES_PER_PIXEL = 64
 _TEXTURE_BYTES_PER_TEXEL = 16
 
 
+#: The render budget's hint for a smaller texture, in the library (:func:`_check_render_budget`).
+_SMALLER_TEXTURE = "a smaller texture (a larger texel size, or the image resampled)"
+
+
 def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False,
                   ssaa: bool = False, texels: int = 0) -> int:
     """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL);
@@ -730,12 +736,14 @@ def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layer
 
 
 def _check_render_budget(width: int, height: int, name: str = "window_size", *, anti_aliasing: bool = False,
-                         layered: bool = False, ssaa: bool = False, texture: tuple[int, ...] | None = None) -> None:
+                         layered: bool = False, ssaa: bool = False, texture: tuple[int, ...] | None = None,
+                         smaller_texture: str = _SMALLER_TEXTURE) -> None:
     """An :class:`OutputTooLargeError` naming the size and ``name`` (the argument or CLI option giving it) when the
     render's framebuffers and images (:func:`_render_bytes`) exceed the memory budget; called before any render
     starts (and, in the CLI, before the DEM is read). ``texture``: the (rows, cols) of a textured mesh's texture,
     whose texels count too (only the window was counted: a 17000 x 17000 texture in a small window took 4.6 GB past
-    any budget)."""
+    any budget); ``smaller_texture``: how the caller makes it smaller, in the hint (a command names its own option:
+    the library's "a larger texel size" named none ``stepterrain globe`` has)."""
     what = f"an off-screen render of {width} x {height} pixels ({name} {width}x{height}" \
            + (", anti-aliased)" if anti_aliasing else ")")
     texels = 0
@@ -744,7 +752,7 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
         rows, cols = (int(n) for n in texture[:2])
         texels = rows * cols
         what += f" of a mesh with a {cols} x {rows} texel texture"
-        hint += " or a smaller texture (a larger texel size, or the image resampled)"
+        hint += f" or {smaller_texture}"
     check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa,
                                texels=texels), what, hint=hint)
 
@@ -960,17 +968,19 @@ def render_textured_mesh(
         No off-screen OpenGL context can be made.
     """
     mesh = mesh_argument(mesh)  # a pyvista PolyData (grid.stepterrain.stepped's) as its Trimesh
-    found = _mesh_texture(mesh)
-    if found is None:
+    source = _texture_source(mesh)
+    if source is None:
         raise InvalidInputError("mesh has no texture: expected TextureVisuals with one UV per vertex and an image "
                                 "(see stepterrain.texture.drape)")
-    uv, picture = found
-    translucent = picture.ndim == 3 and picture.shape[2] == 4
     lighting = check_flag(lighting, "lighting")
     anti_aliasing = check_flag(anti_aliasing, "anti_aliasing")
     view_angle = _check_view_angle(view_angle)
     width, height, _vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera,
                                                                anti_aliasing, view_angle)
+    # the texels counted from the texture's size before it is decoded (see render_mesh)
+    _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]))
+    uv, picture = _decoded_texture(*source)
+    translucent = picture.ndim == 3 and picture.shape[2] == 4
     # the texture's texels too; SSAA, not MSAA, for a translucent one (see _shoot): more memory
     _check_render_budget(width, height, anti_aliasing=anti_aliasing, ssaa=translucent, texture=picture.shape)
 
@@ -986,9 +996,9 @@ def render_textured_mesh(
                   lighting=lighting, translucent=translucent, view_angle=view_angle)
 
 
-def _mesh_texture(mesh: trimesh.Trimesh) -> tuple[NDArray[np.float32], NDArray[np.uint8]] | None:
-    """The (UVs, texture picture) a textured mesh (TextureVisuals with one UV per vertex and a base-colour image) is
-    drawn with, checked (an InvalidInputError for bad ones), else None."""
+def _texture_source(mesh: trimesh.Trimesh) -> tuple[Any, Any, Any] | None:
+    """(UVs, base-colour image, material) of a textured mesh (TextureVisuals with one UV per vertex and an image), as
+    they are (the image not decoded), else None."""
     visual = mesh.visual
     uv = getattr(visual, "uv", None)
     material = getattr(visual, "material", None)
@@ -997,6 +1007,25 @@ def _mesh_texture(mesh: trimesh.Trimesh) -> tuple[NDArray[np.float32], NDArray[n
         image = getattr(material, "baseColorTexture", None) or getattr(material, "image", None)
     if uv is None or image is None or len(uv) != len(mesh.vertices):
         return None
+    return uv, image, material
+
+
+def _texture_shape(image: Any) -> tuple[int, int]:
+    """(rows, cols) of a texture image without decoding it: a PIL image's size (known from a file's header), an
+    array's shape (a 1-D or empty one: (0, 0), refused when the image is read)."""
+    if hasattr(image, "convert") and hasattr(image, "mode"):  # a Pillow image (as _texture_picture tells one)
+        width, height = image.size
+        return int(height), int(width)
+    try:
+        shape = tuple(getattr(image, "shape", None) or np.shape(image))
+    except (TypeError, ValueError):  # a ragged list: refused when the image is read
+        return 0, 0
+    return (int(shape[0]), int(shape[1])) if len(shape) >= 2 else (0, 0)
+
+
+def _decoded_texture(uv: Any, image: Any, material: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+    """The (UVs, texture picture) a textured mesh is drawn with, from its :func:`_texture_source`: the image decoded,
+    both checked (an InvalidInputError for bad ones)."""
     return _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material), material)
 
 

@@ -1195,13 +1195,17 @@ def _glb_image(path):
     return image["mimeType"], binary[start : start + view["byteLength"]]
 
 
+@pytest.mark.parametrize("offset", [0.0, 6.4e6], ids=["local", "large"])
 @pytest.mark.parametrize("material", ["simple", "pbr"])
-def test_a_texture_opened_from_a_jpeg_is_embedded_as_the_file_s_bytes(tmp_path, material):
+def test_a_texture_opened_from_a_jpeg_is_embedded_as_the_file_s_bytes(tmp_path, material, offset):
     """An image opened from a JPEG went through trimesh's ``save(format="JPEG")``: Pillow's default quality 75 and
     4:2:0 chroma, a second lossy generation (the Blue Marble's colours off by up to 119 levels). The GLB now embeds,
-    and the OBJ's side image is, the file's bytes unchanged."""
+    and the OBJ's side image is, the file's bytes unchanged. So too for a mesh in large coordinates (UTM, a globe's
+    6.4e6 m), whose GLB moves them into the node's translation on a copy of the mesh: that copy's Image.copy()
+    dropped the JPEG's format, and the Blue Marble draped on a globe was a 14.7 MB PNG (a 4.7 MB JPEG)."""
     source = _photo(tmp_path / "photo.jpg")
     mesh = trimesh.creation.box()
+    mesh.apply_translation([offset, 0.0, 0.0])
     uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
     with Image.open(tmp_path / "photo.jpg") as image:
         if material == "simple":
@@ -1331,3 +1335,64 @@ def test_ply_keeps_the_metadata_in_its_header_comments(tmp_path, capsys, kind):
     summary = json.loads(capsys.readouterr().out)
     assert summary["meta.crs"] == "EPSG:32611" and summary["meta.origin"] == [376328.655, 3807902.827], summary
     assert "crs" not in read_mesh(save_mesh(mesh, tmp_path / "plain.ply")).metadata
+
+
+def test_a_large_png_replaced_by_another_writer_after_the_rename_is_not_taken_for_this_one(tmp_path, monkeypatch):
+    """save_image records a large PNG's pixels digest and file stamp, so a glTF of the same texture embeds the file's
+    bytes. The stamp was taken at the path after the rename: another writer's file, renamed over it in between, was
+    stamped and paired with this image's digest, and the GLB embedded the other writer's picture. The stamp is now
+    the temporary file's, before the rename (the inode survives it): the other file does not match it, and the
+    texture is encoded from its own pixels."""
+    import contextlib
+    import io
+
+    from stepterrain import export
+
+    monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 100)
+    rng = np.random.default_rng(8)
+    mine = rng.integers(0, 256, (30, 40, 3), dtype=np.uint8)
+    theirs = 255 - mine
+    other = tmp_path / "theirs.png"
+    Image.fromarray(theirs).save(other, **export._png_options(Image.fromarray(theirs)))
+    target = tmp_path / "tex.png"
+    original = export.atomic_path
+
+    @contextlib.contextmanager
+    def swapped(path):
+        with original(path) as tmp:
+            yield tmp
+        os.replace(other, target)  # the other writer's rename lands right after this one's
+
+    monkeypatch.setattr(export, "atomic_path", swapped)
+    export.save_image(mine, target)
+    monkeypatch.setattr(export, "atomic_path", original)
+    with Image.open(target) as back:
+        assert np.array_equal(np.asarray(back), theirs)  # the path holds the other writer's picture now
+    mesh = trimesh.creation.box()
+    uv = np.random.default_rng(0).random((len(mesh.vertices), 2))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(mine))
+    mime, data = _glb_image(save_mesh(mesh, tmp_path / "t.glb"))
+    with Image.open(io.BytesIO(data)) as embedded:
+        assert mime == "image/png" and np.array_equal(np.asarray(embedded), mine)
+    # the file written and not replaced: its bytes are taken, as before
+    export.save_image(mine, target)
+    mime, data = _glb_image(save_mesh(mesh, tmp_path / "u.glb"))
+    assert data[: target.stat().st_size] == target.read_bytes()
+    # replaced by a file of the same size between the reader's stamp check and its read: the bytes read are those
+    # of the file stamped, or none (the path was read again after the check, and its length alone compared)
+    written = bytearray(target.read_bytes())
+    written[len(written) // 2 : len(written) // 2 + 8] = bytes(8)
+    other.write_bytes(bytes(written))
+    digest = export._pixels_digest
+
+    def digest_then_swap(*args, **kwargs):
+        if other.exists():
+            os.replace(other, target)
+        return digest(*args, **kwargs)
+
+    monkeypatch.setattr(export, "_pixels_digest", digest_then_swap)
+    mime, data = _glb_image(save_mesh(mesh, tmp_path / "v.glb"))
+    monkeypatch.setattr(export, "_pixels_digest", digest)
+    assert target.read_bytes() == bytes(written) and not data.startswith(bytes(written))
+    with Image.open(io.BytesIO(data)) as embedded:
+        assert np.array_equal(np.asarray(embedded), mine)

@@ -360,3 +360,6 @@ def test_globe_png_counts_the_texture_against_the_budget_before_any_work(tmp_pat
     assert code == 2 and "an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh with a 200 x 100 texel " \
                          "texture would need" in err, err
     assert not out.exists() and not png.exists()
+    # the hint names the command's own way to a smaller texture (it has no texel size, which the hint suggested)
+    assert "give a smaller --size or a smaller --texture image (resampled to fewer pixels)" in err, err
+    assert "texel size" not in err, err

@@ -1089,3 +1089,68 @@ def test_a_distance_scale_that_changes_nothing_is_refused():
     globe = Globe.from_latlon(np.zeros((18, 36)), lat, lon, face_size=9, device="cpu")
     with pytest.raises(InvalidInputError, match=r"got distance_scale=1000\.0 without a camera$"):
         globe.mesh(error=10.0, distance_scale=1000.0)
+
+
+def _glb_texture(path):
+    """(mimeType, bytes) of a GLB's one embedded image."""
+    import json
+    import struct
+
+    data = path.read_bytes()
+    length = struct.unpack_from("<I", data, 12)[0]
+    tree = json.loads(data[20 : 20 + length])
+    binary = data[20 + length + 8 :]
+    (image,) = tree["images"]
+    view = tree["bufferViews"][image["bufferView"]]
+    start = view.get("byteOffset", 0)
+    return image["mimeType"], binary[start : start + view["byteLength"]]
+
+
+def test_a_jpeg_texture_draped_on_the_globe_is_embedded_as_the_file_s_bytes(tmp_path, capsys):
+    """``stepterrain globe --texture earth.jpg`` and ``drape_texture(mesh, "earth.jpg")`` decoded the JPEG to an array
+    and embedded it as a lossless PNG: the 3840 x 1920 Blue Marble, 4.7 MB, was 14.7 MB in the GLB. The drape uses
+    the image as it is (no flip, crop or padding: the antimeridian wraps by UVs past 1), so an RGB JPEG's own file
+    is embedded now, as save_mesh embeds an image opened from a JPEG; the texture's pixels are the same. A greyscale
+    JPEG (converted to RGB) and a PNG are embedded as their pixels, as before. An OBJ's texture image is the .jpeg
+    file, and the CLI's check that it replaces none of its inputs names that file."""
+    from PIL import Image
+
+    from stepterrain.cli import main
+    from stepterrain.export import save_mesh
+    from stepterrain.globe import drape_texture
+
+    rng = np.random.default_rng(5)
+    pixels = rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)
+    pixels[:, :32] = (200, 30, 40)
+    photo = tmp_path / "earth.jpg"
+    Image.fromarray(pixels).save(photo, format="JPEG", quality=90)
+    source = photo.read_bytes()
+    with Image.open(photo) as decoded:
+        expected = np.asarray(decoded.convert("RGB"))
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    textured = drape_texture(mesh, photo)
+    assert np.array_equal(np.asarray(textured.visual.material.image), expected)
+    assert np.array_equal(textured.visual.uv, drape_texture(mesh, expected).visual.uv)
+    mime, data = _glb_texture(save_mesh(textured, tmp_path / "lib.glb"))
+    assert mime == "image/jpeg" and data[: len(source)] == source and data[len(source) :].strip(b"\0 ") == b""
+    # the CLI: GLB and OBJ
+    base = ["-q", "globe", "--face-size", "9", "--error", "0", "--no-camera", "--texture", str(photo)]
+    assert main([*base, "-o", str(tmp_path / "cli.glb")]) == 0
+    mime, data = _glb_texture(tmp_path / "cli.glb")
+    assert mime == "image/jpeg" and data[: len(source)] == source
+    assert main([*base, "-o", str(tmp_path / "obj" / "earth.obj")]) == 0
+    assert sorted(p.name for p in (tmp_path / "obj").iterdir()) == ["earth.mtl", "earth.obj",
+                                                                    "earth_material_0.jpeg"]
+    assert (tmp_path / "obj" / "earth_material_0.jpeg").read_bytes() == source
+    # a texture named as the OBJ's .jpeg image is refused before any work, not replaced
+    clash = tmp_path / "obj" / "earth_material_0.jpeg"
+    assert main([*base[:-1], str(clash), "-o", str(tmp_path / "obj" / "earth.obj")]) == 2
+    assert "writes 'earth_material_0.jpeg' beside it (its texture image), which is the --texture file" \
+        in capsys.readouterr().err
+    assert clash.read_bytes() == source
+    # a greyscale JPEG and a PNG: their pixels, as PNG
+    Image.fromarray(pixels[..., 0]).save(tmp_path / "grey.jpg", format="JPEG")
+    Image.fromarray(pixels).save(tmp_path / "earth.png")
+    for name in ("grey.jpg", "earth.png"):
+        mime, data = _glb_texture(save_mesh(drape_texture(mesh, tmp_path / name), tmp_path / f"{name}.glb"))
+        assert mime == "image/png", name

@@ -1012,3 +1012,24 @@ def test_a_textured_meshs_texture_counts_against_the_render_budget(tiny_budget, 
         call(mesh, window_size=size)
     with pytest.raises(AssertionError, match="the render started"):  # a small texture fits: the render begins
         call(_textured_quad(), window_size=size)
+
+
+@pytest.mark.parametrize("name", ["render_mesh", "render_textured_mesh"])
+def test_a_texture_over_the_render_budget_is_refused_before_it_is_decoded(tiny_budget, monkeypatch, tmp_path, name):
+    """The texture was decoded (a PIL image opened from a file, 4 bytes a texel as RGBA, more with a baseColorFactor)
+    before its texels were counted against the budget: the refusal came after the largest allocation of all. Its
+    size is known from the file's header: the render is refused with the image still undecoded."""
+    monkeypatch.setattr(render, "_import_pyvista", _no_render)
+
+    def decoded(*args, **kwargs):
+        raise AssertionError("the texture was decoded before the budget was checked")
+
+    Image.fromarray(np.full((512, 1024, 3), 90, np.uint8)).save(tmp_path / "big.png")
+    picture = Image.open(tmp_path / "big.png")  # lazily: the header read, the pixels not
+    mesh = trimesh.Trimesh(VERTICES, FACES, process=False)
+    mesh.visual = trimesh.visual.TextureVisuals(uv=VERTICES[:, :2] / 10.0, image=picture)
+    monkeypatch.setattr(render, "_texture_picture", decoded)
+    with pytest.raises(OutputTooLargeError, match=r"of a mesh with a 1024 x 512 texel texture would need 8\.1 MiB"):
+        getattr(render, name)(mesh, window_size=(64, 48))
+    assert picture._im is None  # never loaded
+    picture.close()

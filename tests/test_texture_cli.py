@@ -1028,3 +1028,12 @@ def test_cli_texture_png_counts_the_texture_against_the_budget_before_any_work(t
     assert code == 2 and "an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh with a 50 x 40 texel " \
                          "texture would need" in err, err
     assert "topographic texture" not in err and not out.exists() and not (tmp_path / "r.png").exists()
+    # the hint names what makes the texture smaller here: a texel a node without --texel-size, else a larger one
+    assert "give a smaller --size or a smaller texture (one texel per DEM node: --coarsen or --crop the DEM)" in err
+    window = render._render_bytes(1024, 768)  # a window larger than the texture's composition needs
+    budget = window + render._TEXTURE_BYTES_PER_TEXEL * 150 * 120 // 2
+    code = main(["texture", str(small_dem), "--spacing", "30", "--texel-size", "10", "-o", str(out), "--png",
+                 str(tmp_path / "r.png"), "--size", "1024x768", "--memory-budget", str(budget), "--device", "cpu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "of a mesh with a 150 x 120 texel texture would need" in err, err
+    assert "give a smaller --size or a larger --texel-size (or --crop the DEM), or raise" in err, err
