@@ -586,7 +586,9 @@ class Terrain:
     def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None) -> Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
-        Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped;
+        Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped; points that
+        coincide (the same x, y and z, and vertex colour or UV) are welded, so a triangle soup (an STL file) or a
+        mesh of several parts (a glTF's primitives) steps as one welded surface, and its solid has no walls inside;
         faces that fold over in projection, faces that overlap others in xy (two sheets one above the other, a
         spiral ramp over itself, a triangle inside another's face: an intersection of positive area; faces that
         only touch, at a corner or along an edge, are fine) and edges shared by more than two faces are refused,
@@ -669,7 +671,20 @@ class Terrain:
             )
         if negative.any():
             raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source))
-        edges, face_edges = _edge_table(faces, len(points))
+        welded = _welded(points, faces, visual)
+        try:
+            edges, face_edges = _edge_table(welded, len(points))
+        except InvalidInputError:
+            if welded is faces:
+                raise
+            # coincident points kept apart (two copies of a face, welded, share their edges): as given, the overlap
+            # check below names the faces
+            edges, face_edges = _edge_table(faces, len(points))
+        else:
+            if welded is not faces:
+                faces = welded
+                point_used[:] = 0
+                point_used[faces.reshape(-1)] = 1
         corner = used_xy.min(axis=0)
         with np.errstate(over="ignore"):  # a stray point (on no kept face) far away may go to inf: no face's
             overlap = _overlap_in_xy(xy - corner, faces, positive, face_edges, len(edges))
@@ -995,6 +1010,46 @@ def _folded_message(
         f"mesh.faces[mesh.face_normals[:, 2] {sign} 0]).any(axis=1)); or mesh the grid with stepterrain.adaptive_mesh "
         "(an RTIN within a vertical error bound, which never folds)"
     )
+
+
+def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) -> NDArray[np.int64]:
+    """``faces`` with the points they use that coincide (the same x, y and z, and the same vertex colour or UV where
+    ``visual`` carries them onto the steps) replaced by the first of them. A TIN read from STL (a triangle soup: three
+    points of its own per face), or from a glTF of several primitives (each with its own copies of the points on
+    their seams), is then stepped as the surface it is: one welded mesh, and a solid without walls round every face
+    (or seam) inside it. A face two of whose corners coincide (zero area) keeps its corners, and so does every point
+    coinciding with them."""
+    used = np.flatnonzero(np.bincount(faces.reshape(-1), minlength=len(points)))  # not np.unique: 70x slower
+    columns = [points[used] + 0.0]  # -0.0 as 0.0
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
+        columns.append(np.asarray(visual.vertex_colors, dtype=np.float64)[used])
+    elif isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
+        uv = np.asarray(visual.uv)
+        if uv.ndim != 2 or len(uv) != len(points):  # refused before stepping (_check_carried_visual)
+            return faces
+        columns.append(uv.astype(np.float64)[used])
+    bits = np.ascontiguousarray(np.column_stack(columns)).view(np.uint64)  # equal keys: equal bits
+    mixed = np.zeros(len(bits), dtype=np.uint64)
+    for k in range(bits.shape[1]):  # a hash of the key: sorted by it, equal keys lie together (unless a collision
+        # interleaves two keys: a weld missed, never a wrong one)
+        mixed = (mixed ^ bits[:, k]) * np.uint64(0x9E3779B97F4A7C15)
+        mixed ^= mixed >> np.uint64(29)
+    if not (np.diff(np.sort(mixed)) == 0).any():  # no two keys alike (most TINs): nothing to weld
+        return faces
+    order = np.argsort(mixed)
+    ordered = bits[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    starts = np.flatnonzero(first)
+    canonical = np.arange(len(points))
+    canonical[used[order]] = np.repeat(used[np.minimum.reduceat(order, starts)], np.diff(np.append(starts, len(order))))
+    welded = canonical[faces]
+    degenerate = (welded[:, 0] == welded[:, 1]) | (welded[:, 1] == welded[:, 2]) | (welded[:, 0] == welded[:, 2])
+    if degenerate.any():
+        apart = np.isin(canonical, welded[degenerate])
+        canonical[apart] = np.flatnonzero(apart)
+        welded = canonical[faces]
+    return welded
 
 
 def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:

@@ -679,3 +679,61 @@ def test_a_pyvista_dataset_as_terrain_is_named_with_the_way_in():
 
     assert st.stepped(from_polydata(surface.triangulate()), interval=2.0).area == pytest.approx(expected.area,
                                                                                                 rel=1e-6)
+
+
+# ------------------------------------------------------------------ TINs whose points are copied per face or per part
+def _boundary_edges(mesh):
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return int((counts == 1).sum())
+
+
+@pytest.mark.parametrize("ext", [".stl", ".glb"])
+def test_a_tin_read_from_stl_or_from_a_gltf_of_two_parts_steps_welded(tmp_path, ext):
+    """An STL holds three points per face (read_mesh, as trimesh, gives a triangle soup) and a glTF exported as two
+    primitives or nodes holds two copies of the points on their seam. The TIN's edge table paired edges by point
+    index only, so these were stepped as separate faces: no vertex shared (1 boundary edge per output edge), and
+    solid=True closed every face of the STL (or each part) with its own skirt, walls back to back inside the solid,
+    twice as many faces as the same TIN welded. Coincident points (same x, y, z) are welded: the steps of the file
+    equal those of the welded TIN."""
+    from stepterrain.export import read_mesh
+
+    tin = _sheet(7, 8, spacing=10.0, origin=(394000.0, 3798000.0))
+    tin.vertices[:, 2] = np.round(tin.vertices[:, 2] * 8.0, 3)
+    path = tmp_path / f"tin{ext}"
+    if ext == ".stl":
+        tin.export(path)
+    else:  # two parts, each with its own copy of the points on the seam
+        half = len(tin.faces) // 2
+        scene = trimesh.Scene()
+        for part in (tin.faces[:half], tin.faces[half:]):
+            used = np.unique(part)
+            scene.add_geometry(trimesh.Trimesh(tin.vertices[used], np.searchsorted(used, part), process=False))
+        scene.export(path)
+    read = read_mesh(path)
+    assert len(read.vertices) > len(tin.vertices)  # copies: read as the file holds them
+    for solid in (False, True):
+        want = st.stepped(tin, interval=4.0, base=0.25, solid=solid)
+        got = st.stepped(read, interval=4.0, base=0.25, solid=solid)
+        assert (len(got.vertices), len(got.faces)) == (len(want.vertices), len(want.faces))
+        assert _boundary_edges(got) == _boundary_edges(want) == (0 if solid else _boundary_edges(want))
+        assert got.is_watertight == solid
+        np.testing.assert_allclose(np.sort(got.vertices, axis=0), np.sort(want.vertices, axis=0), atol=2e-3)
+        assert got.volume == pytest.approx(want.volume, rel=1e-6) if solid else got.area == pytest.approx(want.area)
+
+
+def test_welding_keeps_points_apart_where_colours_differ_or_a_face_would_lose_a_corner():
+    """Coincident points are welded only where what the steps carry agrees: a colour seam keeps its two colours,
+    and a face two of whose corners coincide (zero area) keeps them (welding them would leave it two corners)."""
+    tin = _sheet(4, 4)
+    soup = _soup(tin)
+    colours = np.repeat(np.array([[255, 0, 0, 255], [0, 0, 255, 255]], np.uint8), [9, len(soup.vertices) - 9], axis=0)
+    soup.visual = trimesh.visual.ColorVisuals(soup, vertex_colors=colours)
+    faces = st.Terrain.from_mesh(soup).faces
+    seam = len(np.unique(faces))
+    assert len(np.unique(tin.faces)) < seam < len(soup.vertices)  # welded, except across the first 3 faces' colours
+    steps = st.stepped(soup, interval=0.5)
+    assert {tuple(c) for c in np.asarray(steps.visual.vertex_colors)} == {(255, 0, 0, 255), (0, 0, 255, 255)}
+    sliver = trimesh.Trimesh(np.vstack([tin.vertices, tin.vertices[:2]]),
+                             np.vstack([tin.faces, [[0, len(tin.vertices), 1]]]), process=False)
+    assert st.Terrain.from_mesh(sliver).faces[-1].tolist() == [0, len(tin.vertices), 1]
+    assert len(st.stepped(sliver, interval=0.5).faces) >= len(st.stepped(tin, interval=0.5).faces)
