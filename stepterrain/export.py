@@ -1560,7 +1560,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     DataFileError
         The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
         whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
-        in the message and is the ``__cause__``.
+        in the message and is the ``__cause__``. An ``.stl`` or ``.obj`` that trimesh reads as no vertices must be an
+        empty mesh of its format (a binary STL's length as its header counts, an ASCII one's ``solid`` ...
+        ``endsolid``; OBJ statements and comments only): an STL cut short, or a file of another format under
+        either extension, is refused.
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -1581,6 +1584,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = _read_points(file) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file))
+            if len(loaded.vertices) == 0:  # trimesh reads anything as an empty STL or OBJ: is it one?
+                _check_empty(file)
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
@@ -1720,6 +1725,48 @@ def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
     except (OSError, ValueError, KeyError, IndexError, TypeError, AttributeError, struct.error):
         return None
     return values if dtype.kind == "f" else values / np.iinfo(dtype).max
+
+
+#: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with
+_OBJ_STATEMENTS = frozenset(
+    "v vt vn vp f l p o g s mg mtllib usemtl maplib usemap cstype deg bmat step curv curv2 surf parm trim hole scrv sp "
+    "end con lod bevel c_interp d_interp trace_obj shadow_obj ctech stech call csh".split()
+)
+
+
+def _check_empty(file: Path) -> None:
+    """Raise a ValueError unless ``file``, which trimesh read as a mesh without vertices, is an empty mesh of its
+    format. trimesh's STL reader takes a file whose length does not match a binary STL's header (cut short,
+    another format) as ASCII, and its OBJ reader skips lines it does not know: either read any file (a PLY or GLB
+    under the wrong extension, random bytes, an STL cut short) as an empty mesh, which ``stepterrain info``
+    described as one."""
+    suffix = file.suffix.lower()
+    size = file.stat().st_size
+    with open(file, "rb") as stream:
+        head = stream.read(4096)
+        stream.seek(max(size - 4096, 0))
+        tail = stream.read()
+    if suffix == ".stl":
+        count = int.from_bytes(head[80:84], "little") if size >= 84 else None
+        if count is not None and size == 84 + 50 * count:
+            return  # a binary STL (of no triangles, as trimesh read it)
+        text = head.lstrip().lower()
+        if text.startswith(b"solid") and b"endsolid" in tail.lower():
+            return  # an ASCII STL of no facets
+        binary = (f"the header's count of {count} triangles makes {84 + 50 * count} bytes" if count is not None
+                  else "at least 84 bytes")
+        raise ValueError(f"not an STL file: its {size} bytes are neither a binary STL (84 bytes of header and 50 per "
+                         f"triangle: {binary}) nor an ASCII STL ('solid' ... 'endsolid'); is it cut short, or of "
+                         "another format?")
+    if suffix == ".obj":
+        with open(file, "rb") as stream:
+            for number, line in enumerate(stream, 1):
+                words = line.split(maxsplit=1)
+                if not words or words[0].startswith(b"#"):
+                    continue
+                if words[0].decode("latin-1") not in _OBJ_STATEMENTS:
+                    raise ValueError(f"not an OBJ file: line {number} starts with {words[0][:20]!r}, not an OBJ "
+                                     "statement (v, vt, vn, f, o, g, usemtl, ...); is it of another format?")
 
 
 def _read_points(file: Path) -> trimesh.Trimesh | None:

@@ -1176,3 +1176,40 @@ def test_a_glb_over_4_gib_is_refused_by_name(tmp_path, monkeypatch, kind, limit,
         save_mesh(mesh, tmp_path / "big.glb")
     assert list(tmp_path.iterdir()) == []
     assert len(read_mesh(save_mesh(mesh, tmp_path / "big.ply")).faces) == 12  # the others hold it
+
+
+def test_an_stl_or_obj_that_is_not_one_is_refused_not_read_as_an_empty_mesh(tmp_path, capsys):
+    """trimesh's STL reader took a file whose length does not match a binary STL's header as ASCII and found no
+    facets; its OBJ reader skipped every line it did not know. So an STL cut short (a binary one, or an ASCII one
+    without its endsolid), random bytes, or a PLY or GLB under the wrong extension read as an empty mesh, and
+    `stepterrain info` printed "vertices 0" with exit status 0; st.stepped then said "terrain mesh has no faces".
+    They are refused now, naming the format; empty meshes of the formats (as save_mesh writes them) still read."""
+    tin = trimesh.Trimesh([[0, 0, 0], [1, 0, 0.5], [1, 1, 1.5], [0, 1, 1]], [[0, 1, 2], [0, 2, 3]], process=False)
+    good = {"binary.stl": trimesh.exchange.stl.export_stl(tin),
+            "ascii.stl": trimesh.exchange.stl.export_stl_ascii(tin).encode(),
+            "tin.ply": trimesh.exchange.ply.export_ply(tin), "tin.glb": trimesh.exchange.gltf.export_glb(tin.scene())}
+    bad = {"cut.stl": (good["binary.stl"][:-7], r"not an STL file: its 177 bytes .* header's count of 2 triangles "
+                                                r"makes 184 bytes"),
+           "cut_ascii.stl": (good["ascii.stl"][:-30], "not an STL file"),
+           "noise.stl": (bytes(range(256)) * 3, "not an STL file"), "zero.stl": (b"", "not an STL file: its 0 bytes"),
+           "ply.obj": (good["tin.ply"], r"not an OBJ file: line 1 starts with b'ply'"),
+           "glb.obj": (good["tin.glb"], r"not an OBJ file: line 1 starts with b'glTF"),
+           "ply.stl": (good["tin.ply"], "not an STL file"),
+           "text.obj": (b"hello\nworld\n", "not an OBJ file: line 1 starts with b'hello'")}
+    for name, data in good.items():
+        (tmp_path / name).write_bytes(data)
+    for name in ("binary.stl", "ascii.stl"):
+        assert len(read_mesh(tmp_path / name).faces) == 2
+    for name, (data, message) in bad.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(DataFileError, match=rf"cannot read '.*{name}' as a mesh: ValueError: {message}"):
+            read_mesh(tmp_path / name)
+    assert cli.main(["info", str(tmp_path / "ply.obj")]) == 2
+    assert "not an OBJ file" in capsys.readouterr().err
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int))
+    for ext in (".stl", ".obj"):  # stepterrain's own empty meshes, an empty OBJ, an ASCII STL of no facets
+        assert len(read_mesh(save_mesh(empty, tmp_path / f"empty{ext}")).vertices) == 0
+    for name, data in (("blank.obj", b""), ("comments.obj", b"# nothing\n\ng empty\n"),
+                       ("solid.stl", b"solid empty\nendsolid empty\n")):
+        (tmp_path / name).write_bytes(data)
+        assert len(read_mesh(tmp_path / name).vertices) == 0
