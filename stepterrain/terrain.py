@@ -668,9 +668,11 @@ class Terrain:
                 f"terrain mesh faces must project one-to-one onto the xy plane; none of its "
                 f"{counted(len(faces), 'face')} with finite heights has an area in xy (the points lie on a line or at "
                 f"one point: x over {span[0]:.6g}, y over {span[1]:.6g}), so it is no height field"
+                f"{_y_up_hint(points, faces)}"
             )
         if negative.any():
-            raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source))
+            raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
+                                    + _y_up_hint(points, faces))
         welded = _welded(points, faces, visual)
         try:
             edges, face_edges = _edge_table(welded, len(points))
@@ -697,7 +699,7 @@ class Terrain:
                 f"{named} faces must project one-to-one onto the xy plane; faces {int(kept[first])} and "
                 f"{int(kept[second])} overlap in xy around ({x:.10g}, {y:.10g}) (at least {count} of its {len(faces)} "
                 "faces with finite heights overlap another: two sheets one above the other, or a surface that wraps "
-                "over itself)"
+                f"over itself){_y_up_hint(points, faces)}"
             )
         return cls(
             kind="tin",
@@ -976,6 +978,23 @@ def _node_span(lo: float, hi: float, origin: float, step: float, n: int) -> tupl
 
 #: folded faces named by index in the refusal (the count gives the rest)
 _FOLDS_NAMED = 5
+
+
+def _y_up_hint(points: NDArray[np.float64], faces: NDArray[np.int64]) -> str:
+    """What to add to the refusal of a TIN that is a height field along y, not z: a terrain read from a file with y
+    up (glTF's convention, which Blender and three.js export; read_mesh and trimesh give its coordinates as stored),
+    which folds or lies on a line in xy. Told apart by the faces' areas seen along each axis (signed: a surface
+    facing up one axis), the largest along y; "" for other meshes."""
+    corners = points[faces]
+    with np.errstate(over="ignore", invalid="ignore"):
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        net, total = np.abs(normal.sum(axis=0)), np.abs(normal).sum(axis=0)
+    if not (net[1] > max(net[0], net[2]) and net[1] > 0.5 * total[1]):  # NaN (inf coordinates) too
+        return ""
+    return (". Its faces face along y more than along z, as a terrain's do in a file with y up (glTF's convention: "
+            "Blender's and three.js' exports; read_mesh gives the coordinates as stored): if it is one, turn it z-up, "
+            "mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])), as Blender does on "
+            "import")
 
 
 def _folded_message(

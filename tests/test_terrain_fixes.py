@@ -737,3 +737,36 @@ def test_welding_keeps_points_apart_where_colours_differ_or_a_face_would_lose_a_
                              np.vstack([tin.faces, [[0, len(tin.vertices), 1]]]), process=False)
     assert st.Terrain.from_mesh(sliver).faces[-1].tolist() == [0, len(tin.vertices), 1]
     assert len(st.stepped(sliver, interval=0.5).faces) >= len(st.stepped(tin, interval=0.5).faces)
+
+
+def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
+    """glTF's y is up: Blender and three.js export a terrain with its heights along y, and read_mesh (as trimesh)
+    gives the coordinates as stored. Such a TIN folds over or overlaps itself in xy, and the refusal spoke only of
+    decimation and Delaunay. It now says the faces face along y and names the turn to z-up (what Blender's importer
+    does), after which the TIN steps as the z-up one."""
+    from stepterrain.export import read_mesh
+
+    tin = _sheet(6, 7, spacing=10.0)
+    tin.vertices[:, 2] *= 4.0
+    y_up = tin.copy()
+    y_up.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # as glTF exporters store it
+    np.testing.assert_allclose(y_up.vertices[:, 1], tin.vertices[:, 2], atol=1e-9)
+    path = tmp_path / "blender.glb"
+    y_up.export(path)
+    mesh = read_mesh(path)
+    hint = r"Its faces face along y more than along z, .* if it is one, turn it z-up, mesh\.apply_transform\("
+    with pytest.raises(InvalidInputError, match=r"^terrain mesh faces must project one-to-one onto the xy plane; .*"
+                                                + hint):
+        st.stepped(mesh, interval=2.0)
+    flat = y_up.copy()
+    flat.vertices[:, 1] = 5.0  # and a flat one (its heights along y alike): a line in xy
+    with pytest.raises(InvalidInputError, match=r"so it is no height field\. " + hint):
+        st.stepped(flat, interval=2.0)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # the turn the message names
+    want = st.stepped(tin, interval=2.0)
+    got = st.stepped(mesh, interval=2.0)
+    assert len(got.faces) == len(want.faces) and got.area == pytest.approx(want.area, rel=1e-5)
+    for other in (trimesh.creation.box(), trimesh.creation.icosphere(), _joined(_sheet(), _sheet(z=9.0))):
+        with pytest.raises(InvalidInputError) as info:  # not terrains with y up: no such hint
+            st.stepped(other, interval=0.5)
+        assert "along y" not in str(info.value)
