@@ -672,7 +672,7 @@ class Terrain:
             )
         if negative.any():
             raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
-                                    + _y_up_hint(points, faces))
+                                    + _y_up_hint(points, faces) + _float32_hint(points, point_used))
         welded = _welded(points, faces, visual)
         try:
             edges, face_edges = _edge_table(welded, len(points))
@@ -699,7 +699,7 @@ class Terrain:
                 f"{named} faces must project one-to-one onto the xy plane; faces {int(kept[first])} and "
                 f"{int(kept[second])} overlap in xy around ({x:.10g}, {y:.10g}) (at least {count} of its {len(faces)} "
                 "faces with finite heights overlap another: two sheets one above the other, or a surface that wraps "
-                f"over itself){_y_up_hint(points, faces)}"
+                f"over itself){_y_up_hint(points, faces)}{_float32_hint(points, point_used)}"
             )
         return cls(
             kind="tin",
@@ -995,6 +995,23 @@ def _y_up_hint(points: NDArray[np.float64], faces: NDArray[np.int64]) -> str:
             "Blender's and three.js' exports; read_mesh gives the coordinates as stored): if it is one, turn it z-up, "
             "mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])), as Blender does on "
             "import")
+
+
+def _float32_hint(points: NDArray[np.float64], point_used: NDArray[np.int32]) -> str:
+    """What to add to the refusal of a TIN that folds or overlaps in xy when its used points' x and y are all float32
+    values at map coordinates, where float32's steps are coarse (0.25 m at a UTM northing): a glTF or STL written by
+    another program without a local origin rounded the points, which folds the faces of a dense TIN. "" otherwise."""
+    xy = points[point_used != 0, :2]
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not len(xy) or not np.array_equal(xy.astype(np.float32), xy):
+            return ""
+        step = float(np.spacing(np.float32(np.abs(xy).max())))
+    if step < 1e-3:
+        return ""
+    return (f". Its x and y are all float32 values (as glTF and STL store them), which at these coordinates lie "
+            f"{step:.3g} apart: the file rounded the points, which folds faces of a dense TIN; a Delaunay "
+            "triangulation of the points in xy (scipy.spatial.Delaunay, taken from their corner) meshes them as they "
+            "are, or have the TIN written relative to a local origin (or as .ply or .obj, in float64)")
 
 
 def _folded_message(

@@ -770,3 +770,36 @@ def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
         with pytest.raises(InvalidInputError) as info:  # not terrains with y up: no such hint
             st.stepped(other, interval=0.5)
         assert "along y" not in str(info.value)
+
+
+def test_a_utm_tin_rounded_by_a_float32_file_is_refused_saying_so(tmp_path):
+    """A glTF (or STL) written by another program holds float32 positions; at a UTM northing those lie 0.25 m apart,
+    so a dense TIN at map coordinates comes back with its points rounded and some faces folded. The refusal spoke of
+    decimation; it now says the points are float32 values that far apart (the file rounded them), and the Delaunay
+    it names steps them. A TIN at float64 map coordinates, or rounded at local ones, gets no such hint."""
+    from scipy.spatial import Delaunay
+
+    from stepterrain.export import read_mesh
+
+    rng = np.random.default_rng(1)
+    xy = rng.random((3000, 2)) * 100.0 + (394000.0, 3798000.0)
+    tin = trimesh.Trimesh(np.column_stack([xy, 100.0 + 5.0 * np.sin(xy[:, 0] / 7.0)]),
+                          Delaunay(xy - xy.min(axis=0)).simplices, process=False)
+    assert len(st.stepped(tin, interval=1.0).faces)
+    path = tmp_path / "utm.glb"
+    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Trimesh(tin.vertices.astype(np.float32), tin.faces,
+                                                                       process=False).scene()))
+    rounded = read_mesh(path)
+    assert 0.0 < np.abs(rounded.vertices - tin.vertices).max() <= 0.125
+    with pytest.raises(InvalidInputError, match=r"fold over .*\. Its x and y are all float32 values \(as glTF and STL "
+                                                r"store them\), which at these coordinates lie 0\.25 apart: the file "
+                                                r"rounded the points"):
+        st.stepped(rounded, interval=1.0)
+    corner = rounded.vertices[:, :2].min(axis=0)
+    remeshed = trimesh.Trimesh(rounded.vertices, Delaunay(rounded.vertices[:, :2] - corner).simplices, process=False)
+    assert len(st.stepped(remeshed, interval=1.0).faces)
+    local = trimesh.Trimesh(rounded.vertices - (*corner, 0.0), rounded.faces, process=False)
+    for other in (local, _joined(_sheet(), _sheet(z=9.0))):  # rounded at local coordinates; float64 stacked sheets
+        with pytest.raises(InvalidInputError) as info:
+            st.stepped(other, interval=1.0)
+        assert "float32" not in str(info.value)
