@@ -1560,10 +1560,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     DataFileError
         The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
         whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
-        in the message and is the ``__cause__``. An ``.stl`` or ``.obj`` that trimesh reads as no vertices must be an
-        empty mesh of its format (a binary STL's length as its header counts, an ASCII one's ``solid`` ...
-        ``endsolid``; OBJ statements and comments only): an STL cut short, or a file of another format under
-        either extension, is refused.
+        in the message and is the ``__cause__``. An ``.stl`` must be one (a binary STL's length as its header
+        counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
+        one (OBJ statements and comments only): an STL cut short, or a file of another format under either
+        extension, is refused.
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -1584,8 +1584,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = _read_points(file) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file))
-            if len(loaded.vertices) == 0:  # trimesh reads anything as an empty STL or OBJ: is it one?
-                _check_empty(file)
+            if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
+                _check_format(file)
+        if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
+            _check_format(file)
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
@@ -1734,12 +1736,12 @@ _OBJ_STATEMENTS = frozenset(
 )
 
 
-def _check_empty(file: Path) -> None:
-    """Raise a ValueError unless ``file``, which trimesh read as a mesh without vertices, is an empty mesh of its
-    format. trimesh's STL reader takes a file whose length does not match a binary STL's header (cut short,
-    another format) as ASCII, and its OBJ reader skips lines it does not know: either read any file (a PLY or GLB
-    under the wrong extension, random bytes, an STL cut short) as an empty mesh, which ``stepterrain info``
-    described as one."""
+def _check_format(file: Path) -> None:
+    """Raise a ValueError unless ``file`` is a whole STL (binary or ASCII), or, an OBJ trimesh read as a mesh without
+    vertices, an empty OBJ. trimesh's STL reader takes a file whose length does not match a binary STL's header (cut
+    short, another format) as ASCII, and its OBJ reader skips lines it does not know: either read any file (a PLY or
+    GLB under the wrong extension, random bytes, an STL cut short) as an empty mesh, which ``stepterrain info``
+    described as one; and an ASCII STL of several solids cut short was read as the solids before the cut."""
     suffix = file.suffix.lower()
     size = file.stat().st_size
     with open(file, "rb") as stream:
@@ -1752,7 +1754,10 @@ def _check_empty(file: Path) -> None:
             return  # a binary STL (of no triangles, as trimesh read it)
         text = head.lstrip().lower()
         if text.startswith(b"solid") and b"endsolid" in tail.lower():
-            return  # an ASCII STL of no facets
+            return  # an ASCII STL
+        if text.startswith(b"solid") and b"facet" in text:
+            raise ValueError(f"not a whole STL file: an ASCII STL ('solid' ... 'facet' ...) of {size} bytes without "
+                             "its closing 'endsolid'; is it cut short?")
         binary = (f"the header's count of {count} triangles makes {84 + 50 * count} bytes" if count is not None
                   else "at least 84 bytes")
         raise ValueError(f"not an STL file: its {size} bytes are neither a binary STL (84 bytes of header and 50 per "

@@ -1190,7 +1190,8 @@ def test_an_stl_or_obj_that_is_not_one_is_refused_not_read_as_an_empty_mesh(tmp_
             "tin.ply": trimesh.exchange.ply.export_ply(tin), "tin.glb": trimesh.exchange.gltf.export_glb(tin.scene())}
     bad = {"cut.stl": (good["binary.stl"][:-7], r"not an STL file: its 177 bytes .* header's count of 2 triangles "
                                                 r"makes 184 bytes"),
-           "cut_ascii.stl": (good["ascii.stl"][:-30], "not an STL file"),
+           "cut_ascii.stl": (good["ascii.stl"][:-30], r"not a whole STL file: an ASCII STL .* without its closing "
+                                                      r"'endsolid'; is it cut short\?"),
            "noise.stl": (bytes(range(256)) * 3, "not an STL file"), "zero.stl": (b"", "not an STL file: its 0 bytes"),
            "ply.obj": (good["tin.ply"], r"not an OBJ file: line 1 starts with b'ply'"),
            "glb.obj": (good["tin.glb"], r"not an OBJ file: line 1 starts with b'glTF"),
@@ -1213,3 +1214,17 @@ def test_an_stl_or_obj_that_is_not_one_is_refused_not_read_as_an_empty_mesh(tmp_
                        ("solid.stl", b"solid empty\nendsolid empty\n")):
         (tmp_path / name).write_bytes(data)
         assert len(read_mesh(tmp_path / name).vertices) == 0
+
+
+def test_an_ascii_stl_of_several_solids_cut_short_is_refused_not_read_as_its_first_solids(tmp_path):
+    """trimesh's ASCII STL reader reads solid by solid and stops where no 'endsolid' follows: an STL of two solids (as
+    CAD programs write a part of several bodies) cut short in the second read as the first alone, without a word.
+    read_mesh checks every STL now, and the whole file still reads."""
+    box, ball = trimesh.creation.box(), trimesh.creation.icosphere(subdivisions=1)
+    text = (trimesh.exchange.stl.export_stl_ascii(box) + "\n" + trimesh.exchange.stl.export_stl_ascii(ball)).encode()
+    (tmp_path / "whole.stl").write_bytes(text)
+    assert len(read_mesh(tmp_path / "whole.stl").faces) == len(box.faces) + len(ball.faces)
+    (tmp_path / "cut.stl").write_bytes(text[: len(text) * 3 // 4])
+    with pytest.raises(DataFileError, match=r"cannot read '.*cut\.stl' as a mesh: ValueError: not a whole STL file: "
+                                            r"an ASCII STL .* without its closing 'endsolid'; is it cut short\?$"):
+        read_mesh(tmp_path / "cut.stl")
