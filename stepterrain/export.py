@@ -1562,8 +1562,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
         in the message and is the ``__cause__``. An ``.stl`` must be one (a binary STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
-        one (OBJ statements and comments only): an STL cut short, or a file of another format under either
-        extension, is refused.
+        one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
+        ASCII PLY cut short, or a file of another format under the extension, is refused.
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -1589,6 +1589,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
             _check_format(file)
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
+            _check_ply_rows(loaded)
             _ply_attributes(loaded)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
@@ -1605,6 +1606,27 @@ _PLY_OWN = {
                          "texture_u", "texture_v"}),
     "face": frozenset({"vertex_indices", "vertex_index", "red", "green", "blue", "alpha", "texcoord"}),
 }  # fmt: skip
+
+
+def _check_ply_rows(mesh: trimesh.Trimesh) -> None:
+    """Raise a ValueError where an element of the PLY ``mesh`` was read from holds fewer rows than its header
+    declares: trimesh's ASCII reader takes the rows there are, so an ASCII PLY cut short read as the faces (or
+    points) before the cut (a binary one is refused by trimesh for its length)."""
+    raw = (mesh.metadata or {}).get("_ply_raw")
+    if not isinstance(raw, Mapping):
+        return
+    for element, values in raw.items():
+        declared = values.get("length") if isinstance(values, Mapping) else None
+        data = values.get("data") if isinstance(values, Mapping) else None
+        if isinstance(data, np.ndarray):
+            rows = len(data)
+        elif isinstance(data, Mapping) and data:
+            rows = min(len(column) for column in data.values())
+        else:
+            continue
+        if isinstance(declared, (int, np.integer)) and rows < declared:
+            raise ValueError(f"not a whole PLY file: its header declares {declared} {element} rows, the file holds "
+                             f"{rows}; is it cut short?")
 
 
 def _ply_attributes(mesh: trimesh.Trimesh) -> None:

@@ -12,6 +12,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+import stepterrain as st
 from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
 from stepterrain.export import read_mesh, save_image, save_mesh
@@ -1228,3 +1229,25 @@ def test_an_ascii_stl_of_several_solids_cut_short_is_refused_not_read_as_its_fir
     with pytest.raises(DataFileError, match=r"cannot read '.*cut\.stl' as a mesh: ValueError: not a whole STL file: "
                                             r"an ASCII STL .* without its closing 'endsolid'; is it cut short\?$"):
         read_mesh(tmp_path / "cut.stl")
+
+
+@pytest.mark.parametrize("points", [False, True])
+def test_an_ascii_ply_cut_short_is_refused_not_read_as_the_rows_before_the_cut(tmp_path, points):
+    """trimesh's ASCII PLY reader slices the rows there are: a file cut short (an interrupted download or copy)
+    whose header declares 242 faces read as the 220 before the cut, and a point cloud as its first points, without
+    a word (a binary PLY cut short is refused by trimesh for its length). read_mesh compares each element's rows
+    with its header's count; the whole files still read."""
+    heights = np.random.default_rng(4).random((12, 12))
+    mesh = st.heightfield_mesh(heights)
+    if points:
+        mesh = trimesh.PointCloud(mesh.vertices)
+    text = trimesh.exchange.ply.export_ply(mesh, encoding="ascii")
+    (tmp_path / "whole.ply").write_bytes(text)
+    whole = read_mesh(tmp_path / "whole.ply")
+    assert (len(whole.vertices), len(whole.faces)) == (144, 0 if points else 242)
+    (tmp_path / "cut.ply").write_bytes(text[: text.rindex(b"\n", 0, len(text) - 300) + 1])  # whole rows
+    element, count = ("vertex", 144) if points else ("face", 242)
+    with pytest.raises(DataFileError, match=rf"cannot read '.*cut\.ply' as a mesh: ValueError: not a whole PLY file: "
+                                            rf"its header declares {count} {element} rows, the file holds \d+; is it "
+                                            r"cut short\?$"):
+        read_mesh(tmp_path / "cut.ply")
