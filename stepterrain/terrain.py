@@ -613,7 +613,11 @@ class Terrain:
         points = np.array(mesh.vertices, dtype=np.float64)
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
-            raise InvalidInputError("terrain mesh has no faces; expected a triangulated surface")
+            cloud = (f"; got {counted(len(points), 'point')} without faces (a point cloud, as a .ply or .xyz of "
+                     "survey points reads): triangulate them in xy first, e.g. mesh = trimesh.Trimesh(mesh.vertices, "
+                     "scipy.spatial.Delaunay(mesh.vertices[:, :2] - mesh.vertices[:, :2].min(axis=0)).simplices)"
+                     if len(points) >= 3 else "")
+            raise InvalidInputError(f"terrain mesh has no faces; expected a triangulated surface{cloud}")
         outside = (faces < 0) | (faces >= len(points))  # numpy would wrap -1 silently, and raise IndexError beyond
         if outside.any():
             bad = int(np.flatnonzero(outside.any(axis=1))[0])

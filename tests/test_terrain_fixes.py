@@ -803,3 +803,27 @@ def test_a_utm_tin_rounded_by_a_float32_file_is_refused_saying_so(tmp_path):
         with pytest.raises(InvalidInputError) as info:
             st.stepped(other, interval=1.0)
         assert "float32" not in str(info.value)
+
+
+def test_a_point_cloud_is_refused_with_the_triangulation_that_steps_it(tmp_path):
+    """A TIN's points without faces (a PLY of survey points, read by read_mesh as a mesh without faces) was refused
+    as "terrain mesh has no faces; expected a triangulated surface", leaving the user to find out how. It now names
+    the point count and the Delaunay triangulation in xy (from the points' corner), which steps."""
+    from scipy.spatial import Delaunay
+
+    from stepterrain.export import read_mesh
+
+    rng = np.random.default_rng(2)
+    xyz = np.column_stack([rng.random((200, 2)) * 500.0 + (394000.0, 3798000.0), rng.random(200) * 40.0])
+    path = tmp_path / "survey.ply"
+    path.write_bytes(trimesh.exchange.ply.export_ply(trimesh.PointCloud(xyz)))
+    mesh = read_mesh(path)
+    with pytest.raises(InvalidInputError, match=r"^terrain mesh has no faces; expected a triangulated surface; got "
+                                                r"200 points without faces \(a point cloud.*\): triangulate them in xy "
+                                                r"first, e\.g\. mesh = trimesh\.Trimesh\(mesh\.vertices, "
+                                                r"scipy\.spatial\.Delaunay\("):
+        st.stepped(mesh, interval=5.0)
+    mesh = trimesh.Trimesh(mesh.vertices, Delaunay(mesh.vertices[:, :2] - mesh.vertices[:, :2].min(axis=0)).simplices)
+    assert len(st.stepped(mesh, interval=5.0).faces) > len(mesh.faces)
+    with pytest.raises(InvalidInputError, match=r"^terrain mesh has no faces; expected a triangulated surface$"):
+        st.stepped(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), interval=5.0)  # nothing at all
