@@ -1057,7 +1057,7 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
     ``visual`` carries them onto the steps) replaced by the first of them. A TIN read from STL (a triangle soup: three
     points of its own per face), or from a glTF of several primitives (each with its own copies of the points on
     their seams), is then stepped as the surface it is: one welded mesh, and a solid without walls round every face
-    (or seam) inside it. A face two of whose corners coincide (zero area) keeps its corners, and so does every point
+    (or seam) inside it. A face two of whose corners coincide (zero area) keeps them apart, and so does every point
     coinciding with them."""
     used = np.flatnonzero(np.bincount(faces.reshape(-1), minlength=len(points)))  # not np.unique: 70x slower
     columns = [points[used] + 0.0]  # -0.0 as 0.0
@@ -1085,8 +1085,10 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
     canonical[used[order]] = np.repeat(used[np.minimum.reduceat(order, starts)], np.diff(np.append(starts, len(order))))
     welded = canonical[faces]
     degenerate = (welded[:, 0] == welded[:, 1]) | (welded[:, 1] == welded[:, 2]) | (welded[:, 0] == welded[:, 2])
-    if degenerate.any():
-        apart = np.isin(canonical, welded[degenerate])
+    if degenerate.any():  # the points that would coincide in such a face stay apart (its third corner is welded)
+        corners = welded[degenerate]
+        twice = np.where(corners[:, 1] == corners[:, 2], corners[:, 1], corners[:, 0])
+        apart = np.isin(canonical, twice)
         canonical[apart] = np.flatnonzero(apart)
         welded = canonical[faces]
     return welded

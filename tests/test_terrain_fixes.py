@@ -827,3 +827,22 @@ def test_a_point_cloud_is_refused_with_the_triangulation_that_steps_it(tmp_path)
     assert len(st.stepped(mesh, interval=5.0).faces) > len(mesh.faces)
     with pytest.raises(InvalidInputError, match=r"^terrain mesh has no faces; expected a triangulated surface$"):
         st.stepped(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), interval=5.0)  # nothing at all
+
+
+def test_a_zero_area_face_in_a_triangle_soup_keeps_only_its_coincident_corners_apart():
+    """An STL's sliver (two corners at one point, as CAD exports leave them) keeps those corners apart when the soup
+    is welded (welding them would leave the face two corners); its third corner was kept apart too, with every copy
+    of it in the soup, so the faces round it stayed unwelded (walls inside the solid there). Only the coincident
+    point stays apart now."""
+    tin = _sheet(5, 6)
+    a, b = tin.faces[7][:2]
+    soup = _soup(trimesh.Trimesh(np.vstack([tin.vertices, tin.vertices[a]]),
+                                 np.vstack([tin.faces, [[len(tin.vertices), a, b]]]), process=False))
+    faces = st.Terrain.from_mesh(soup).faces
+    corners = soup.vertices[soup.faces]
+    at_b = (corners == tin.vertices[b]).all(axis=2)
+    assert at_b[-1].any() and len(np.unique(faces[at_b])) == 1  # every copy of b welded, the sliver's included
+    at_a = (corners == tin.vertices[a]).all(axis=2)
+    assert len(np.unique(faces[at_a])) == at_a.sum()  # the coincident point's copies as given
+    steps = st.stepped(soup, interval=0.5, base=0.25, solid=True)
+    assert steps.is_watertight
