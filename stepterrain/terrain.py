@@ -679,13 +679,13 @@ class Terrain:
                                     + _y_up_hint(points, faces) + _float32_hint(points, point_used))
         welded = _welded(points, faces, visual)
         try:
-            edges, face_edges = _edge_table(welded, len(points))
+            edges, face_edges = _edge_table(welded, len(points), np.flatnonzero(valid))
         except InvalidInputError:
             if welded is faces:
                 raise
             # coincident points kept apart (two copies of a face, welded, share their edges): as given, the overlap
             # check below names the faces
-            edges, face_edges = _edge_table(faces, len(points))
+            edges, face_edges = _edge_table(faces, len(points), np.flatnonzero(valid))
         else:
             if welded is not faces:
                 faces = welded
@@ -1094,14 +1094,26 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
     return welded
 
 
-def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
-    """Unique undirected edges and, per face, the edge from corner k to corner k+1."""
+def _edge_table(faces: NDArray[np.int64], n_points: int,
+                kept: NDArray[np.int64] | None = None) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
+    """Unique undirected edges and, per face, the edge from corner k to corner k+1. An edge used twice in the same
+    direction is refused naming the two faces (by their index in the mesh given: ``kept[k]`` for face k where
+    given) and the edge's points."""
     directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     dkey = np.sort(directed[:, 0] * n_points + directed[:, 1])  # not np.unique: numpy 2.4 hashes, 70x slower
     if (dkey[1:] == dkey[:-1]).any():
+        order = np.argsort(directed[:, 0] * n_points + directed[:, 1], kind="stable")
+        twice = int(np.flatnonzero(dkey[1:] == dkey[:-1])[0])
+        first, second = (int(order[k]) // 3 for k in (twice, twice + 1))
+        copies = sorted(faces[first].tolist()) == sorted(faces[second].tolist())
+        way_out = " (two copies of one face: drop one, e.g. mesh.update_faces(mesh.unique_faces()))" if copies else ""
+        start, end = (int(v) for v in directed[order[twice]])
+        if kept is not None:
+            first, second = int(kept[first]), int(kept[second])
         raise InvalidInputError(
             "terrain mesh faces must project one-to-one onto the xy plane; an edge is used twice in the same "
-            "direction (overlapping or inconsistently wound faces)"
+            f"direction (overlapping or inconsistently wound faces): faces {first} and {second} both run from point "
+            f"{start} to point {end}{way_out}"
         )
     lo = directed.min(axis=1)
     hi = directed.max(axis=1)

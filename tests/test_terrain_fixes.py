@@ -846,3 +846,20 @@ def test_a_zero_area_face_in_a_triangle_soup_keeps_only_its_coincident_corners_a
     assert len(np.unique(faces[at_a])) == at_a.sum()  # the coincident point's copies as given
     steps = st.stepped(soup, interval=0.5, base=0.25, solid=True)
     assert steps.is_watertight
+
+
+def test_an_edge_used_twice_in_one_direction_is_refused_naming_the_faces():
+    """A mesh from another program with a face twice (the same three indices, as some exporters and merges leave
+    them) was refused as "an edge is used twice in the same direction" without saying where: among 10^5 faces the
+    user could not find it. The refusal now names the two faces by their index in the mesh given (past dropped
+    nodata faces), the edge's points, and for two copies of one face the way to drop them, after which it steps."""
+    mesh = st.heightfield_mesh(np.random.default_rng(0).random((5, 5)))
+    mesh.vertices[2, 2] = np.nan  # faces before the copy are dropped: the indices are still the mesh's own
+    doubled = trimesh.Trimesh(mesh.vertices, np.vstack([mesh.faces, mesh.faces[30:31]]), process=False)
+    with pytest.raises(InvalidInputError, match=r"an edge is used twice in the same direction \(overlapping or "
+                                                r"inconsistently wound faces\): faces 30 and 32 both run from point "
+                                                r"\d+ to point \d+ \(two copies of one face: drop one, e\.g\. "
+                                                r"mesh\.update_faces\(mesh\.unique_faces\(\)\)\)$"):
+        st.stepped(doubled, interval=0.2)
+    doubled.update_faces(doubled.unique_faces())
+    assert len(st.stepped(doubled, interval=0.2).faces) == len(st.stepped(mesh, interval=0.2).faces)
