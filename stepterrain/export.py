@@ -1575,6 +1575,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         gltf = file.suffix.lower() in (".glb", ".gltf")
         color = None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
+            _check_dense_gltf(file)
             scene = trimesh.load_scene(file, process=False)
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
@@ -1694,6 +1695,32 @@ def _white_material(material: Any) -> bool:
         return False
     factor = material.baseColorFactor
     return factor is None or bool((np.asarray(factor) == 255).all())
+
+
+def _check_dense_gltf(file: Path) -> None:
+    """Raise a ValueError where a primitive of the glTF or GLB ``file`` takes its positions or indices from a sparse
+    accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
+    replacements, so the mesh came back with the base values (a terrain flat at z = 0) without a word. Reads the
+    JSON only; a file whose JSON cannot be read is left to trimesh's reader."""
+    try:
+        with open(file, "rb") as stream:
+            head = stream.read(20)
+            if head[:4] == b"glTF" and len(head) == 20:
+                tree = json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+            else:
+                tree = json.loads(head + stream.read())
+        accessors = tree.get("accessors") or []
+        for mesh in tree.get("meshes") or []:
+            for primitive in mesh.get("primitives") or []:
+                used = [("POSITION", (primitive.get("attributes") or {}).get("POSITION")),
+                        ("indices", primitive.get("indices"))]
+                for name, index in used:
+                    if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("sparse"):
+                        sparse = f"glTF accessor {index} (a primitive's {name}) is sparse"
+                        raise ValueError(f"{sparse}, which trimesh's reader reads as its base values alone: write "
+                                         "the file without sparse accessors (Blender and most exporters do)")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
+        return
 
 
 def _empty_gltf_extras(file: Path) -> dict[str, Any]:

@@ -1251,3 +1251,47 @@ def test_an_ascii_ply_cut_short_is_refused_not_read_as_the_rows_before_the_cut(t
                                             rf"its header declares {count} {element} rows, the file holds \d+; is it "
                                             r"cut short\?$"):
         read_mesh(tmp_path / "cut.ply")
+
+
+def test_a_gltf_with_sparse_positions_is_refused_not_read_as_its_base_values(tmp_path):
+    """glTF's sparse accessors (base values, or zeros, with some elements replaced) are ignored by trimesh's reader:
+    a terrain whose heights were stored as a sparse POSITION over a flat base came back flat at z = 0 without a
+    word, and stepped as such. read_mesh refuses it, naming the accessor; the same file dense still reads."""
+    import struct
+
+    points = np.array([[0, 0, 0], [1, 0, 0.5], [1, 1, 1.5], [0, 1, 1]], np.float32)
+    flat = points.copy()
+    flat[:, 2] = 0.0
+
+    def glb(sparse):
+        parts = [flat.tobytes() if sparse else points.tobytes(), np.array([0, 1, 2, 0, 2, 3], np.uint16).tobytes(),
+                 np.array([1, 2, 3], np.uint16).tobytes(), points[1:].tobytes()]
+        offsets, blob = [], b""
+        for part in parts:
+            blob += b"\0" * (-len(blob) % 4)
+            offsets.append(len(blob))
+            blob += part
+        blob += b"\0" * (-len(blob) % 4)
+        position = {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0],
+                    "max": [1, 1, 1.5]}
+        if sparse:
+            position["sparse"] = {"count": 3, "indices": {"bufferView": 2, "componentType": 5123},
+                                  "values": {"bufferView": 3}}
+        tree = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+                "accessors": [position, {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+                "bufferViews": [{"buffer": 0, "byteOffset": o, "byteLength": len(p)} for o, p in zip(offsets, parts,
+                                                                                                     strict=True)],
+                "buffers": [{"byteLength": len(blob)}]}
+        text = json.dumps(tree).encode()
+        text += b" " * (-len(text) % 4)
+        return (struct.pack("<III", 0x46546C67, 2, 28 + len(text) + len(blob))
+                + struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob)
+
+    (tmp_path / "dense.glb").write_bytes(glb(False))
+    np.testing.assert_array_equal(read_mesh(tmp_path / "dense.glb").vertices, points)
+    (tmp_path / "sparse.glb").write_bytes(glb(True))
+    with pytest.raises(DataFileError, match=r"cannot read '.*sparse\.glb' as a mesh: ValueError: glTF accessor 0 \(a "
+                                            r"primitive's POSITION\) is sparse, which trimesh's reader reads as its "
+                                            r"base values alone"):
+        read_mesh(tmp_path / "sparse.glb")
