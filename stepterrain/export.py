@@ -14,6 +14,7 @@ import contextlib
 import contextvars
 import copy
 import errno
+import importlib.util
 import io
 import json
 import math
@@ -1700,8 +1701,9 @@ def _white_material(material: Any) -> bool:
 def _check_dense_gltf(file: Path) -> None:
     """Raise a ValueError where a primitive of the glTF or GLB ``file`` takes its positions or indices from a sparse
     accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
-    replacements, so the mesh came back with the base values (a terrain flat at z = 0) without a word. Reads the
-    JSON only; a file whose JSON cannot be read is left to trimesh's reader."""
+    replacements, so the mesh came back with the base values (a terrain flat at z = 0) without a word; and where the
+    file requires a compression trimesh's reader cannot decode here (Draco without DracoPy: every position 0, with
+    a log line only; meshopt). Reads the JSON only; a file whose JSON cannot be read is left to trimesh's reader."""
     try:
         with open(file, "rb") as stream:
             head = stream.read(20)
@@ -1709,6 +1711,15 @@ def _check_dense_gltf(file: Path) -> None:
                 tree = json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
             else:
                 tree = json.loads(head + stream.read())
+        required = set(tree.get("extensionsRequired") or [])
+        if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
+            raise ValueError("the glTF's meshes are Draco-compressed (KHR_draco_mesh_compression), which trimesh's "
+                             "reader decodes only with DracoPy installed (pip install DracoPy); without it, it reads "
+                             "every position as 0")
+        if "EXT_meshopt_compression" in required:
+            raise ValueError("the glTF's buffers are meshopt-compressed (EXT_meshopt_compression, required), which "
+                             "trimesh's reader cannot decode (it reads the compressed bytes as positions): write the "
+                             "file without that compression")
         accessors = tree.get("accessors") or []
         for mesh in tree.get("meshes") or []:
             for primitive in mesh.get("primitives") or []:

@@ -1295,3 +1295,37 @@ def test_a_gltf_with_sparse_positions_is_refused_not_read_as_its_base_values(tmp
                                             r"primitive's POSITION\) is sparse, which trimesh's reader reads as its "
                                             r"base values alone"):
         read_mesh(tmp_path / "sparse.glb")
+
+
+@pytest.mark.parametrize("extension, message", [
+    ("KHR_draco_mesh_compression", r"the glTF's meshes are Draco-compressed \(KHR_draco_mesh_compression\), which "
+                                   r"trimesh's reader decodes only with DracoPy installed \(pip install DracoPy\)"),
+    ("EXT_meshopt_compression", r"the glTF's buffers are meshopt-compressed \(EXT_meshopt_compression, required\), "
+                                r"which trimesh's reader cannot decode"),
+])
+def test_a_gltf_compressed_beyond_the_reader_is_refused_not_read_as_zeros(tmp_path, monkeypatch, extension, message):
+    """A Draco-compressed GLB (gltf-transform's, Blender's option, Cesium's) read, without DracoPy, as a mesh whose
+    every position is 0 and every face (0, 0, 0), with only a log line: `stepterrain info` printed its bounds as
+    (0, 0, 0) and st.stepped refused faces "with three distinct vertices". A required meshopt compression read the
+    compressed bytes. read_mesh refuses both, naming the extension (and DracoPy for Draco)."""
+    import importlib.util
+    import struct
+
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "DracoPy" else real_find_spec(name, *a))
+    primitive = {"attributes": {"POSITION": 0}, "indices": 1}
+    if extension.startswith("KHR_draco"):
+        primitive["extensions"] = {extension: {"bufferView": 0, "attributes": {"POSITION": 0}}}
+    tree = {"asset": {"version": "2.0"}, "extensionsUsed": [extension], "extensionsRequired": [extension],
+            "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}], "meshes": [{"primitives": [primitive]}],
+            "accessors": [{"componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1.5]},
+                          {"componentType": 5123, "count": 6, "type": "SCALAR"}],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 16}], "buffers": [{"byteLength": 16}]}
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    (tmp_path / "packed.glb").write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(text) + 16)
+                                          + struct.pack("<II", len(text), 0x4E4F534A) + text
+                                          + struct.pack("<II", 16, 0x004E4942) + bytes(16))
+    with pytest.raises(DataFileError, match=rf"cannot read '.*packed\.glb' as a mesh: ValueError: {message}"):
+        read_mesh(tmp_path / "packed.glb")
