@@ -1564,7 +1564,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         in the message and is the ``__cause__``. An ``.stl`` must be one (a binary STL's length as its header
         counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
         one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
-        ASCII PLY cut short, or a file of another format under the extension, is refused.
+        ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
+        vertex the file does not have (a PLY's or glTF's index as stored).
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -1590,6 +1591,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_format(file)
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
             _check_format(file)
+        if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):  # a PLY's or glTF's indices as stored
+            faces = np.asarray(loaded.faces)
+            outside = (faces < 0) | (faces >= len(loaded.vertices))
+            if outside.any():
+                bad = int(np.flatnonzero(outside.any(axis=1))[0])
+                raise ValueError(f"face {bad} names vertex {int(faces[bad][outside[bad]][0])}, and the file has "
+                                 f"{counted(len(loaded.vertices), 'vertex', 'vertices')}")
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _check_ply_rows(loaded)
             _ply_attributes(loaded)

@@ -1329,3 +1329,20 @@ def test_a_gltf_compressed_beyond_the_reader_is_refused_not_read_as_zeros(tmp_pa
                                           + struct.pack("<II", 16, 0x004E4942) + bytes(16))
     with pytest.raises(DataFileError, match=rf"cannot read '.*packed\.glb' as a mesh: ValueError: {message}"):
         read_mesh(tmp_path / "packed.glb")
+
+
+@pytest.mark.parametrize("index", [9, -1])
+def test_a_ply_face_naming_a_vertex_the_file_lacks_is_refused(tmp_path, capsys, index):
+    """A PLY face naming vertex 9 of 3 (or -1: a corrupt or hand-edited file) read as it was: `stepterrain info`
+    described it as a mesh of 2 faces with exit status 0, and only stepping or saving it refused it. (trimesh's OBJ
+    reader already raised an IndexError.) read_mesh refuses it, naming the face, the vertex and the count."""
+    header = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+              "element face 2\nproperty list uchar int vertex_indices\nend_header\n")
+    (tmp_path / "bad.ply").write_text(header + f"0 0 0\n1 0 0\n1 1 1\n3 0 1 2\n3 0 2 {index}\n")
+    (tmp_path / "good.ply").write_text(header + "0 0 0\n1 0 0\n1 1 1\n3 0 1 2\n3 0 2 1\n")
+    assert read_mesh(tmp_path / "good.ply").faces.tolist() == [[0, 1, 2], [0, 2, 1]]
+    with pytest.raises(DataFileError, match=rf"cannot read '.*bad\.ply' as a mesh: ValueError: face 1 names vertex "
+                                            rf"{index}, and the file has 3 vertices$"):
+        read_mesh(tmp_path / "bad.ply")
+    assert cli.main(["info", str(tmp_path / "bad.ply")]) == 2
+    assert f"face 1 names vertex {index}" in capsys.readouterr().err
