@@ -1711,14 +1711,25 @@ def _check_dense_gltf(file: Path) -> None:
     accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
     replacements, so the mesh came back with the base values (a terrain flat at z = 0) without a word; and where the
     file requires a compression trimesh's reader cannot decode here (Draco without DracoPy: every position 0, with
-    a log line only; meshopt). Reads the JSON only; a file whose JSON cannot be read is left to trimesh's reader."""
+    a log line only; meshopt); and where a ``.gltf`` is not JSON. Reads the JSON only (a GLB's chunk); a GLB whose
+    JSON cannot be read is left to trimesh's reader."""
     try:
         with open(file, "rb") as stream:
             head = stream.read(20)
+            if file.suffix.lower() == ".gltf" and head[:4] == b"glTF":
+                raise ValueError("a GLB (binary glTF: it starts with b'glTF') under the extension .gltf, which names "
+                                 "the JSON form: rename it .glb")
             if head[:4] == b"glTF" and len(head) == 20:
                 tree = json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+            elif file.suffix.lower() == ".gltf":
+                text = head + stream.read()
+                try:
+                    tree = json.loads(text)
+                except ValueError as exc:  # trimesh's reader said "FileNotFoundError: model.gltf" of random bytes
+                    why = f"{type(exc).__name__}: {exc}"
+                    raise ValueError(f"not a glTF file: its JSON does not parse ({why})") from None
             else:
-                tree = json.loads(head + stream.read())
+                return  # not a GLB: trimesh's reader says so
         required = set(tree.get("extensionsRequired") or [])
         if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
             raise ValueError("the glTF's meshes are Draco-compressed (KHR_draco_mesh_compression), which trimesh's "

@@ -1346,3 +1346,23 @@ def test_a_ply_face_naming_a_vertex_the_file_lacks_is_refused(tmp_path, capsys, 
         read_mesh(tmp_path / "bad.ply")
     assert cli.main(["info", str(tmp_path / "bad.ply")]) == 2
     assert f"face 1 names vertex {index}" in capsys.readouterr().err
+
+
+def test_a_gltf_that_is_not_json_is_refused_saying_what_it_is(tmp_path):
+    """trimesh's reader answered a .gltf that is not JSON (random bytes, text) and a GLB named .gltf with
+    "FileNotFoundError: model.gltf", naming a file nobody had. read_mesh now says the file is not a glTF (the JSON
+    error) or is a GLB under .gltf (rename it .glb); a real .gltf still reads."""
+    box = trimesh.creation.box()
+    (tmp_path / "real.gltf").write_bytes(trimesh.exchange.gltf.export_gltf(box.scene(), embed_buffers=True)
+                                         ["model.gltf"])
+    assert len(read_mesh(tmp_path / "real.gltf").faces) == 12
+    not_json = r"not a glTF file: its JSON does not parse"
+    cases = {"noise.gltf": (bytes(range(200, 256)) * 4, not_json + r" \(UnicodeDecodeError"),
+             "text.gltf": (b"hello world\n", not_json + r" \(JSONDecodeError"),
+             "binary.gltf": (trimesh.exchange.gltf.export_glb(box.scene()),
+                             r"a GLB \(binary glTF: it starts with b'glTF'\) under the extension \.gltf, which names "
+                             r"the JSON form: rename it \.glb$")}
+    for name, (data, message) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(DataFileError, match=rf"cannot read '.*{name}' as a mesh: ValueError: {message}"):
+            read_mesh(tmp_path / name)
