@@ -14,6 +14,7 @@ import contextlib
 import contextvars
 import copy
 import errno
+import importlib.util
 import io
 import itertools
 import json
@@ -1605,7 +1606,11 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     DataFileError
         The file does not exist, is not a regular file, or cannot be read as a mesh: the reader's error (trimesh's,
         whatever its kind: an IndexError for an OBJ face naming a missing vertex, a KeyError for a PLY without x) is
-        in the message and is the ``__cause__``.
+        in the message and is the ``__cause__``. An ``.stl`` must be one (a binary STL's length as its header
+        counts, an ASCII one's ``solid`` ... ``endsolid``), and an ``.obj`` that trimesh reads as no vertices an empty
+        one (OBJ statements and comments only), and a ``.ply`` must hold the rows its header declares: an STL or
+        ASCII PLY cut short, or a file of another format under the extension, is refused, and so is a face naming a
+        vertex the file does not have (a PLY's or glTF's index as stored).
     """
     file = _target(path)
     require_regular_file(file, "mesh file", "mesh file")
@@ -1617,6 +1622,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         gltf = file.suffix.lower() in (".glb", ".gltf")
         color = None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
+            _check_dense_gltf(file)
             scene = trimesh.load_scene(file, process=False)
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
@@ -1628,7 +1634,19 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded = _read_points(file) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file))
+            if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
+                _check_format(file)
+        if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
+            _check_format(file)
+        if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):  # a PLY's or glTF's indices as stored
+            faces = np.asarray(loaded.faces)
+            outside = (faces < 0) | (faces >= len(loaded.vertices))
+            if outside.any():
+                bad = int(np.flatnonzero(outside.any(axis=1))[0])
+                raise ValueError(f"face {bad} names vertex {int(faces[bad][outside[bad]][0])}, and the file has "
+                                 f"{counted(len(loaded.vertices), 'vertex', 'vertices')}")
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
+            _check_ply_rows(loaded)
             _ply_attributes(loaded)
             loaded.metadata.update(_ply_metadata(file))
         if gltf and isinstance(loaded, trimesh.Trimesh):
@@ -1646,6 +1664,27 @@ _PLY_OWN = {
                          "texture_u", "texture_v"}),
     "face": frozenset({"vertex_indices", "vertex_index", "red", "green", "blue", "alpha", "texcoord"}),
 }  # fmt: skip
+
+
+def _check_ply_rows(mesh: trimesh.Trimesh) -> None:
+    """Raise a ValueError where an element of the PLY ``mesh`` was read from holds fewer rows than its header
+    declares: trimesh's ASCII reader takes the rows there are, so an ASCII PLY cut short read as the faces (or
+    points) before the cut (a binary one is refused by trimesh for its length)."""
+    raw = (mesh.metadata or {}).get("_ply_raw")
+    if not isinstance(raw, Mapping):
+        return
+    for element, values in raw.items():
+        declared = values.get("length") if isinstance(values, Mapping) else None
+        data = values.get("data") if isinstance(values, Mapping) else None
+        if isinstance(data, np.ndarray):
+            rows = len(data)
+        elif isinstance(data, Mapping) and data:
+            rows = min(len(column) for column in data.values())
+        else:
+            continue
+        if isinstance(declared, (int, np.integer)) and rows < declared:
+            raise ValueError(f"not a whole PLY file: its header declares {declared} {element} rows, the file holds "
+                             f"{rows}; is it cut short?")
 
 
 def _ply_attributes(mesh: trimesh.Trimesh) -> None:
@@ -1713,6 +1752,53 @@ def _white_material(material: Any) -> bool:
         return False
     factor = material.baseColorFactor
     return factor is None or bool((np.asarray(factor) == 255).all())
+
+
+def _check_dense_gltf(file: Path) -> None:
+    """Raise a ValueError where a primitive of the glTF or GLB ``file`` takes its positions or indices from a sparse
+    accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
+    replacements, so the mesh came back with the base values (a terrain flat at z = 0) without a word; and where the
+    file requires a compression trimesh's reader cannot decode here (Draco without DracoPy: every position 0, with
+    a log line only; meshopt); and where a ``.gltf`` is not JSON. Reads the JSON only (a GLB's chunk); a GLB whose
+    JSON cannot be read is left to trimesh's reader."""
+    try:
+        with open(file, "rb") as stream:
+            head = stream.read(20)
+            if file.suffix.lower() == ".gltf" and head[:4] == b"glTF":
+                raise ValueError("a GLB (binary glTF: it starts with b'glTF') under the extension .gltf, which names "
+                                 "the JSON form: rename it .glb")
+            if head[:4] == b"glTF" and len(head) == 20:
+                tree = json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+            elif file.suffix.lower() == ".gltf":
+                text = head + stream.read()
+                try:
+                    tree = json.loads(text)
+                except ValueError as exc:  # trimesh's reader said "FileNotFoundError: model.gltf" of random bytes
+                    why = f"{type(exc).__name__}: {exc}"
+                    raise ValueError(f"not a glTF file: its JSON does not parse ({why})") from None
+            else:
+                return  # not a GLB: trimesh's reader says so
+        required = set(tree.get("extensionsRequired") or [])
+        if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
+            raise ValueError("the glTF's meshes are Draco-compressed (KHR_draco_mesh_compression), which trimesh's "
+                             "reader decodes only with DracoPy installed (pip install DracoPy); without it, it reads "
+                             "every position as 0")
+        if "EXT_meshopt_compression" in required:
+            raise ValueError("the glTF's buffers are meshopt-compressed (EXT_meshopt_compression, required), which "
+                             "trimesh's reader cannot decode (it reads the compressed bytes as positions): write the "
+                             "file without that compression")
+        accessors = tree.get("accessors") or []
+        for mesh in tree.get("meshes") or []:
+            for primitive in mesh.get("primitives") or []:
+                used = [("POSITION", (primitive.get("attributes") or {}).get("POSITION")),
+                        ("indices", primitive.get("indices"))]
+                for name, index in used:
+                    if isinstance(index, int) and 0 <= index < len(accessors) and accessors[index].get("sparse"):
+                        sparse = f"glTF accessor {index} (a primitive's {name}) is sparse"
+                        raise ValueError(f"{sparse}, which trimesh's reader reads as its base values alone: write "
+                                         "the file without sparse accessors (Blender and most exporters do)")
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
+        return
 
 
 def _empty_gltf_extras(file: Path) -> dict[str, Any]:
@@ -1794,6 +1880,51 @@ def _obj_faces_name_vertices_only(file: Path) -> bool:
             if data.find(b"usemtl") < 0:
                 return True
             return sum(1 for _ in itertools.islice(_OBJ_USEMTL.finditer(data), 2)) < 2  # type: ignore[call-overload]
+
+
+#: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with
+_OBJ_STATEMENTS = frozenset(
+    "v vt vn vp f l p o g s mg mtllib usemtl maplib usemap cstype deg bmat step curv curv2 surf parm trim hole scrv sp "
+    "end con lod bevel c_interp d_interp trace_obj shadow_obj ctech stech call csh".split()
+)
+
+
+def _check_format(file: Path) -> None:
+    """Raise a ValueError unless ``file`` is a whole STL (binary or ASCII), or, an OBJ trimesh read as a mesh without
+    vertices, an empty OBJ. trimesh's STL reader takes a file whose length does not match a binary STL's header (cut
+    short, another format) as ASCII, and its OBJ reader skips lines it does not know: either read any file (a PLY or
+    GLB under the wrong extension, random bytes, an STL cut short) as an empty mesh, which ``stepterrain info``
+    described as one; and an ASCII STL of several solids cut short was read as the solids before the cut."""
+    suffix = file.suffix.lower()
+    size = file.stat().st_size
+    with open(file, "rb") as stream:
+        head = stream.read(4096)
+        stream.seek(max(size - 4096, 0))
+        tail = stream.read()
+    if suffix == ".stl":
+        count = int.from_bytes(head[80:84], "little") if size >= 84 else None
+        if count is not None and size == 84 + 50 * count:
+            return  # a binary STL (of no triangles, as trimesh read it)
+        text = head.lstrip().lower()
+        if text.startswith(b"solid") and b"endsolid" in tail.lower():
+            return  # an ASCII STL
+        if text.startswith(b"solid") and b"facet" in text:
+            raise ValueError(f"not a whole STL file: an ASCII STL ('solid' ... 'facet' ...) of {size} bytes without "
+                             "its closing 'endsolid'; is it cut short?")
+        binary = (f"the header's count of {count} triangles makes {84 + 50 * count} bytes" if count is not None
+                  else "at least 84 bytes")
+        raise ValueError(f"not an STL file: its {size} bytes are neither a binary STL (84 bytes of header and 50 per "
+                         f"triangle: {binary}) nor an ASCII STL ('solid' ... 'endsolid'); is it cut short, or of "
+                         "another format?")
+    if suffix == ".obj":
+        with open(file, "rb") as stream:
+            for number, line in enumerate(stream, 1):
+                words = line.split(maxsplit=1)
+                if not words or words[0].startswith(b"#"):
+                    continue
+                if words[0].decode("latin-1") not in _OBJ_STATEMENTS:
+                    raise ValueError(f"not an OBJ file: line {number} starts with {words[0][:20]!r}, not an OBJ "
+                                     "statement (v, vt, vn, f, o, g, usemtl, ...); is it of another format?")
 
 
 def _read_points(file: Path) -> trimesh.Trimesh | None:

@@ -595,7 +595,10 @@ class Terrain:
     def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None) -> Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
-        Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped;
+        Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped; points that
+        coincide (the same x, y and z, and vertex colour or UV) are welded, so a triangle soup (an STL file) or a
+        mesh of several parts (a glTF's primitives) steps as one welded surface, and its solid has no walls inside
+        (a per-node γ array is read at the first of such points);
         faces that fold over in projection, faces that overlap others in xy (two sheets one above the other, a
         spiral ramp over itself, a triangle inside another's face: an intersection of positive area; faces that
         only touch, at a corner or along an edge, are fine) and edges shared by more than two faces are refused,
@@ -620,7 +623,11 @@ class Terrain:
         points = np.array(mesh.vertices, dtype=np.float64)
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
-            raise InvalidInputError("terrain mesh has no faces; expected a triangulated surface")
+            cloud = (f"; got {counted(len(points), 'point')} without faces (a point cloud, as a .ply or .xyz of "
+                     "survey points reads): triangulate them in xy first, e.g. mesh = trimesh.Trimesh(mesh.vertices, "
+                     "scipy.spatial.Delaunay(mesh.vertices[:, :2] - mesh.vertices[:, :2].min(axis=0)).simplices)"
+                     if len(points) >= 3 else "")
+            raise InvalidInputError(f"terrain mesh has no faces; expected a triangulated surface{cloud}")
         outside = (faces < 0) | (faces >= len(points))  # numpy would wrap -1 silently, and raise IndexError beyond
         if outside.any():
             bad = int(np.flatnonzero(outside.any(axis=1))[0])
@@ -675,10 +682,25 @@ class Terrain:
                 f"terrain mesh faces must project one-to-one onto the xy plane; none of its "
                 f"{counted(len(faces), 'face')} with finite heights has an area in xy (the points lie on a line or at "
                 f"one point: x over {span[0]:.6g}, y over {span[1]:.6g}), so it is no height field"
+                f"{_y_up_hint(points, faces)}"
             )
         if negative.any():
-            raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source))
-        edges, face_edges = _edge_table(faces, len(points))
+            raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
+                                    + _y_up_hint(points, faces) + _float32_hint(points, point_used))
+        welded = _welded(points, faces, visual)
+        try:
+            edges, face_edges = _edge_table(welded, len(points), np.flatnonzero(valid))
+        except InvalidInputError:
+            if welded is faces:
+                raise
+            # coincident points kept apart (two copies of a face, welded, share their edges): as given, the overlap
+            # check below names the faces
+            edges, face_edges = _edge_table(faces, len(points), np.flatnonzero(valid))
+        else:
+            if welded is not faces:
+                faces = welded
+                point_used[:] = 0
+                point_used[faces.reshape(-1)] = 1
         corner = used_xy.min(axis=0)
         with np.errstate(over="ignore"):  # a stray point (on no kept face) far away may go to inf: no face's
             overlap = _overlap_in_xy(xy - corner, faces, positive, face_edges, len(edges))
@@ -691,7 +713,7 @@ class Terrain:
                 f"{named} faces must project one-to-one onto the xy plane; faces {int(kept[first])} and "
                 f"{int(kept[second])} overlap in xy around ({x:.10g}, {y:.10g}) (at least {count} of its {len(faces)} "
                 "faces with finite heights overlap another: two sheets one above the other, or a surface that wraps "
-                "over itself)"
+                f"over itself){_y_up_hint(points, faces)}{_float32_hint(points, point_used)}"
             )
         return cls(
             kind="tin",
@@ -1047,6 +1069,40 @@ def _node_span(lo: float, hi: float, origin: float, step: float, n: int) -> tupl
 _FOLDS_NAMED = 5
 
 
+def _y_up_hint(points: NDArray[np.float64], faces: NDArray[np.int64]) -> str:
+    """What to add to the refusal of a TIN that is a height field along y, not z: a terrain read from a file with y
+    up (glTF's convention, which Blender and three.js export; read_mesh and trimesh give its coordinates as stored),
+    which folds or lies on a line in xy. Told apart by the faces' areas seen along each axis (signed: a surface
+    facing up one axis), the largest along y; "" for other meshes."""
+    corners = points[faces]
+    with np.errstate(over="ignore", invalid="ignore"):
+        normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        net, total = np.abs(normal.sum(axis=0)), np.abs(normal).sum(axis=0)
+    if not (net[1] > max(net[0], net[2]) and net[1] > 0.5 * total[1]):  # NaN (inf coordinates) too
+        return ""
+    return (". Its faces face along y more than along z, as a terrain's do in a file with y up (glTF's convention: "
+            "Blender's and three.js' exports; read_mesh gives the coordinates as stored): if it is one, turn it z-up, "
+            "mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])), as Blender does on "
+            "import")
+
+
+def _float32_hint(points: NDArray[np.float64], point_used: NDArray[np.int32]) -> str:
+    """What to add to the refusal of a TIN that folds or overlaps in xy when its used points' x and y are all float32
+    values at map coordinates, where float32's steps are coarse (0.25 m at a UTM northing): a glTF or STL written by
+    another program without a local origin rounded the points, which folds the faces of a dense TIN. "" otherwise."""
+    xy = points[point_used != 0, :2]
+    with np.errstate(over="ignore", invalid="ignore"):
+        if not len(xy) or not np.array_equal(xy.astype(np.float32), xy):
+            return ""
+        step = float(np.spacing(np.float32(np.abs(xy).max())))
+    if step < 1e-3:
+        return ""
+    return (f". Its x and y are all float32 values (as glTF and STL store them), which at these coordinates lie "
+            f"{step:.3g} apart: the file rounded the points, which folds faces of a dense TIN; a Delaunay "
+            "triangulation of the points in xy (scipy.spatial.Delaunay, taken from their corner) meshes them as they "
+            "are, or have the TIN written relative to a local origin (or as .ply or .obj, in float64)")
+
+
 def _folded_message(
     points: NDArray[np.float64], faces: NDArray[np.int64], negative: NDArray[np.bool_], kept: NDArray[np.int64],
     flipped: bool, source: str | None,
@@ -1081,14 +1137,68 @@ def _folded_message(
     )
 
 
-def _edge_table(faces: NDArray[np.int64], n_points: int) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
-    """Unique undirected edges and, per face, the edge from corner k to corner k+1."""
+def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) -> NDArray[np.int64]:
+    """``faces`` with the points they use that coincide (the same x, y and z, and the same vertex colour or UV where
+    ``visual`` carries them onto the steps) replaced by the first of them. A TIN read from STL (a triangle soup: three
+    points of its own per face), or from a glTF of several primitives (each with its own copies of the points on
+    their seams), is then stepped as the surface it is: one welded mesh, and a solid without walls round every face
+    (or seam) inside it. A face two of whose corners coincide (zero area) keeps them apart, and so does every point
+    coinciding with them."""
+    used = np.flatnonzero(np.bincount(faces.reshape(-1), minlength=len(points)))  # not np.unique: 70x slower
+    columns = [points[used] + 0.0]  # -0.0 as 0.0
+    if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
+        columns.append(np.asarray(visual.vertex_colors, dtype=np.float64)[used])
+    elif isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
+        uv = np.asarray(visual.uv)
+        if uv.ndim != 2 or len(uv) != len(points):  # refused before stepping (_check_carried_visual)
+            return faces
+        columns.append(uv.astype(np.float64)[used])
+    bits = np.ascontiguousarray(np.column_stack(columns)).view(np.uint64)  # equal keys: equal bits
+    mixed = np.zeros(len(bits), dtype=np.uint64)
+    for k in range(bits.shape[1]):  # a hash of the key: sorted by it, equal keys lie together (unless a collision
+        # interleaves two keys: a weld missed, never a wrong one)
+        mixed = (mixed ^ bits[:, k]) * np.uint64(0x9E3779B97F4A7C15)
+        mixed ^= mixed >> np.uint64(29)
+    if not (np.diff(np.sort(mixed)) == 0).any():  # no two keys alike (most TINs): nothing to weld
+        return faces
+    order = np.argsort(mixed)
+    ordered = bits[order]
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = (ordered[1:] != ordered[:-1]).any(axis=1)
+    starts = np.flatnonzero(first)
+    canonical = np.arange(len(points))
+    canonical[used[order]] = np.repeat(used[np.minimum.reduceat(order, starts)], np.diff(np.append(starts, len(order))))
+    welded = canonical[faces]
+    degenerate = (welded[:, 0] == welded[:, 1]) | (welded[:, 1] == welded[:, 2]) | (welded[:, 0] == welded[:, 2])
+    if degenerate.any():  # the points that would coincide in such a face stay apart (its third corner is welded)
+        corners = welded[degenerate]
+        twice = np.where(corners[:, 1] == corners[:, 2], corners[:, 1], corners[:, 0])
+        apart = np.isin(canonical, twice)
+        canonical[apart] = np.flatnonzero(apart)
+        welded = canonical[faces]
+    return welded
+
+
+def _edge_table(faces: NDArray[np.int64], n_points: int,
+                kept: NDArray[np.int64] | None = None) -> tuple[NDArray[np.int32], NDArray[np.int32]]:
+    """Unique undirected edges and, per face, the edge from corner k to corner k+1. An edge used twice in the same
+    direction is refused naming the two faces (by their index in the mesh given: ``kept[k]`` for face k where
+    given) and the edge's points."""
     directed = faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
     dkey = np.sort(directed[:, 0] * n_points + directed[:, 1])  # not np.unique: numpy 2.4 hashes, 70x slower
     if (dkey[1:] == dkey[:-1]).any():
+        order = np.argsort(directed[:, 0] * n_points + directed[:, 1], kind="stable")
+        twice = int(np.flatnonzero(dkey[1:] == dkey[:-1])[0])
+        first, second = (int(order[k]) // 3 for k in (twice, twice + 1))
+        copies = sorted(faces[first].tolist()) == sorted(faces[second].tolist())
+        way_out = " (two copies of one face: drop one, e.g. mesh.update_faces(mesh.unique_faces()))" if copies else ""
+        start, end = (int(v) for v in directed[order[twice]])
+        if kept is not None:
+            first, second = int(kept[first]), int(kept[second])
         raise InvalidInputError(
             "terrain mesh faces must project one-to-one onto the xy plane; an edge is used twice in the same "
-            "direction (overlapping or inconsistently wound faces)"
+            f"direction (overlapping or inconsistently wound faces): faces {first} and {second} both run from point "
+            f"{start} to point {end}{way_out}"
         )
     lo = directed.min(axis=1)
     hi = directed.max(axis=1)

@@ -12,6 +12,7 @@ import pytest
 import trimesh
 from PIL import Image
 
+import stepterrain as st
 from stepterrain import cli
 from stepterrain.errors import DataFileError, InvalidInputError
 from stepterrain.export import read_mesh, save_image, save_mesh
@@ -1396,3 +1397,192 @@ def test_a_large_png_replaced_by_another_writer_after_the_rename_is_not_taken_fo
     assert target.read_bytes() == bytes(written) and not data.startswith(bytes(written))
     with Image.open(io.BytesIO(data)) as embedded:
         assert np.array_equal(np.asarray(embedded), mine)
+
+
+def test_an_stl_or_obj_that_is_not_one_is_refused_not_read_as_an_empty_mesh(tmp_path, capsys):
+    """trimesh's STL reader took a file whose length does not match a binary STL's header as ASCII and found no
+    facets; its OBJ reader skipped every line it did not know. So an STL cut short (a binary one, or an ASCII one
+    without its endsolid), random bytes, or a PLY or GLB under the wrong extension read as an empty mesh, and
+    `stepterrain info` printed "vertices 0" with exit status 0; st.stepped then said "terrain mesh has no faces".
+    They are refused now, naming the format; empty meshes of the formats (as save_mesh writes them) still read."""
+    tin = trimesh.Trimesh([[0, 0, 0], [1, 0, 0.5], [1, 1, 1.5], [0, 1, 1]], [[0, 1, 2], [0, 2, 3]], process=False)
+    good = {"binary.stl": trimesh.exchange.stl.export_stl(tin),
+            "ascii.stl": trimesh.exchange.stl.export_stl_ascii(tin).encode(),
+            "tin.ply": trimesh.exchange.ply.export_ply(tin), "tin.glb": trimesh.exchange.gltf.export_glb(tin.scene())}
+    bad = {"cut.stl": (good["binary.stl"][:-7], r"not an STL file: its 177 bytes .* header's count of 2 triangles "
+                                                r"makes 184 bytes"),
+           "cut_ascii.stl": (good["ascii.stl"][:-30], r"not a whole STL file: an ASCII STL .* without its closing "
+                                                      r"'endsolid'; is it cut short\?"),
+           "noise.stl": (bytes(range(256)) * 3, "not an STL file"), "zero.stl": (b"", "not an STL file: its 0 bytes"),
+           "ply.obj": (good["tin.ply"], r"not an OBJ file: line 1 starts with b'ply'"),
+           "glb.obj": (good["tin.glb"], r"not an OBJ file: line 1 starts with b'glTF"),
+           "ply.stl": (good["tin.ply"], "not an STL file"),
+           "text.obj": (b"hello\nworld\n", "not an OBJ file: line 1 starts with b'hello'")}
+    for name, data in good.items():
+        (tmp_path / name).write_bytes(data)
+    for name in ("binary.stl", "ascii.stl"):
+        assert len(read_mesh(tmp_path / name).faces) == 2
+    for name, (data, message) in bad.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(DataFileError, match=rf"cannot read '.*{name}' as a mesh: ValueError: {message}"):
+            read_mesh(tmp_path / name)
+    assert cli.main(["info", str(tmp_path / "ply.obj")]) == 2
+    assert "not an OBJ file" in capsys.readouterr().err
+    empty = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int))
+    for ext in (".stl", ".obj"):  # stepterrain's own empty meshes, an empty OBJ, an ASCII STL of no facets
+        assert len(read_mesh(save_mesh(empty, tmp_path / f"empty{ext}")).vertices) == 0
+    for name, data in (("blank.obj", b""), ("comments.obj", b"# nothing\n\ng empty\n"),
+                       ("solid.stl", b"solid empty\nendsolid empty\n")):
+        (tmp_path / name).write_bytes(data)
+        assert len(read_mesh(tmp_path / name).vertices) == 0
+
+
+def test_an_ascii_stl_of_several_solids_cut_short_is_refused_not_read_as_its_first_solids(tmp_path):
+    """trimesh's ASCII STL reader reads solid by solid and stops where no 'endsolid' follows: an STL of two solids (as
+    CAD programs write a part of several bodies) cut short in the second read as the first alone, without a word.
+    read_mesh checks every STL now, and the whole file still reads."""
+    box, ball = trimesh.creation.box(), trimesh.creation.icosphere(subdivisions=1)
+    text = (trimesh.exchange.stl.export_stl_ascii(box) + "\n" + trimesh.exchange.stl.export_stl_ascii(ball)).encode()
+    (tmp_path / "whole.stl").write_bytes(text)
+    assert len(read_mesh(tmp_path / "whole.stl").faces) == len(box.faces) + len(ball.faces)
+    (tmp_path / "cut.stl").write_bytes(text[: len(text) * 3 // 4])
+    with pytest.raises(DataFileError, match=r"cannot read '.*cut\.stl' as a mesh: ValueError: not a whole STL file: "
+                                            r"an ASCII STL .* without its closing 'endsolid'; is it cut short\?$"):
+        read_mesh(tmp_path / "cut.stl")
+
+
+@pytest.mark.parametrize("points", [False, True])
+def test_an_ascii_ply_cut_short_is_refused_not_read_as_the_rows_before_the_cut(tmp_path, points):
+    """trimesh's ASCII PLY reader slices the rows there are: a file cut short (an interrupted download or copy)
+    whose header declares 242 faces read as the 220 before the cut, and a point cloud as its first points, without
+    a word (a binary PLY cut short is refused by trimesh for its length). read_mesh compares each element's rows
+    with its header's count; the whole files still read."""
+    heights = np.random.default_rng(4).random((12, 12))
+    mesh = st.heightfield_mesh(heights)
+    if points:
+        mesh = trimesh.PointCloud(mesh.vertices)
+    text = trimesh.exchange.ply.export_ply(mesh, encoding="ascii")
+    (tmp_path / "whole.ply").write_bytes(text)
+    whole = read_mesh(tmp_path / "whole.ply")
+    assert (len(whole.vertices), len(whole.faces)) == (144, 0 if points else 242)
+    (tmp_path / "cut.ply").write_bytes(text[: text.rindex(b"\n", 0, len(text) - 300) + 1])  # whole rows
+    element, count = ("vertex", 144) if points else ("face", 242)
+    with pytest.raises(DataFileError, match=rf"cannot read '.*cut\.ply' as a mesh: ValueError: not a whole PLY file: "
+                                            rf"its header declares {count} {element} rows, the file holds \d+; is it "
+                                            r"cut short\?$"):
+        read_mesh(tmp_path / "cut.ply")
+
+
+def test_a_gltf_with_sparse_positions_is_refused_not_read_as_its_base_values(tmp_path):
+    """glTF's sparse accessors (base values, or zeros, with some elements replaced) are ignored by trimesh's reader:
+    a terrain whose heights were stored as a sparse POSITION over a flat base came back flat at z = 0 without a
+    word, and stepped as such. read_mesh refuses it, naming the accessor; the same file dense still reads."""
+    import struct
+
+    points = np.array([[0, 0, 0], [1, 0, 0.5], [1, 1, 1.5], [0, 1, 1]], np.float32)
+    flat = points.copy()
+    flat[:, 2] = 0.0
+
+    def glb(sparse):
+        parts = [flat.tobytes() if sparse else points.tobytes(), np.array([0, 1, 2, 0, 2, 3], np.uint16).tobytes(),
+                 np.array([1, 2, 3], np.uint16).tobytes(), points[1:].tobytes()]
+        offsets, blob = [], b""
+        for part in parts:
+            blob += b"\0" * (-len(blob) % 4)
+            offsets.append(len(blob))
+            blob += part
+        blob += b"\0" * (-len(blob) % 4)
+        position = {"bufferView": 0, "componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0],
+                    "max": [1, 1, 1.5]}
+        if sparse:
+            position["sparse"] = {"count": 3, "indices": {"bufferView": 2, "componentType": 5123},
+                                  "values": {"bufferView": 3}}
+        tree = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+                "accessors": [position, {"bufferView": 1, "componentType": 5123, "count": 6, "type": "SCALAR"}],
+                "bufferViews": [{"buffer": 0, "byteOffset": o, "byteLength": len(p)} for o, p in zip(offsets, parts,
+                                                                                                     strict=True)],
+                "buffers": [{"byteLength": len(blob)}]}
+        text = json.dumps(tree).encode()
+        text += b" " * (-len(text) % 4)
+        return (struct.pack("<III", 0x46546C67, 2, 28 + len(text) + len(blob))
+                + struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob)
+
+    (tmp_path / "dense.glb").write_bytes(glb(False))
+    np.testing.assert_array_equal(read_mesh(tmp_path / "dense.glb").vertices, points)
+    (tmp_path / "sparse.glb").write_bytes(glb(True))
+    with pytest.raises(DataFileError, match=r"cannot read '.*sparse\.glb' as a mesh: ValueError: glTF accessor 0 \(a "
+                                            r"primitive's POSITION\) is sparse, which trimesh's reader reads as its "
+                                            r"base values alone"):
+        read_mesh(tmp_path / "sparse.glb")
+
+
+@pytest.mark.parametrize("extension, message", [
+    ("KHR_draco_mesh_compression", r"the glTF's meshes are Draco-compressed \(KHR_draco_mesh_compression\), which "
+                                   r"trimesh's reader decodes only with DracoPy installed \(pip install DracoPy\)"),
+    ("EXT_meshopt_compression", r"the glTF's buffers are meshopt-compressed \(EXT_meshopt_compression, required\), "
+                                r"which trimesh's reader cannot decode"),
+])
+def test_a_gltf_compressed_beyond_the_reader_is_refused_not_read_as_zeros(tmp_path, monkeypatch, extension, message):
+    """A Draco-compressed GLB (gltf-transform's, Blender's option, Cesium's) read, without DracoPy, as a mesh whose
+    every position is 0 and every face (0, 0, 0), with only a log line: `stepterrain info` printed its bounds as
+    (0, 0, 0) and st.stepped refused faces "with three distinct vertices". A required meshopt compression read the
+    compressed bytes. read_mesh refuses both, naming the extension (and DracoPy for Draco)."""
+    import importlib.util
+    import struct
+
+    real_find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec",
+                        lambda name, *a: None if name == "DracoPy" else real_find_spec(name, *a))
+    primitive = {"attributes": {"POSITION": 0}, "indices": 1}
+    if extension.startswith("KHR_draco"):
+        primitive["extensions"] = {extension: {"bufferView": 0, "attributes": {"POSITION": 0}}}
+    tree = {"asset": {"version": "2.0"}, "extensionsUsed": [extension], "extensionsRequired": [extension],
+            "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}], "meshes": [{"primitives": [primitive]}],
+            "accessors": [{"componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1.5]},
+                          {"componentType": 5123, "count": 6, "type": "SCALAR"}],
+            "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 16}], "buffers": [{"byteLength": 16}]}
+    text = json.dumps(tree).encode()
+    text += b" " * (-len(text) % 4)
+    (tmp_path / "packed.glb").write_bytes(struct.pack("<III", 0x46546C67, 2, 28 + len(text) + 16)
+                                          + struct.pack("<II", len(text), 0x4E4F534A) + text
+                                          + struct.pack("<II", 16, 0x004E4942) + bytes(16))
+    with pytest.raises(DataFileError, match=rf"cannot read '.*packed\.glb' as a mesh: ValueError: {message}"):
+        read_mesh(tmp_path / "packed.glb")
+
+
+@pytest.mark.parametrize("index", [9, -1])
+def test_a_ply_face_naming_a_vertex_the_file_lacks_is_refused(tmp_path, capsys, index):
+    """A PLY face naming vertex 9 of 3 (or -1: a corrupt or hand-edited file) read as it was: `stepterrain info`
+    described it as a mesh of 2 faces with exit status 0, and only stepping or saving it refused it. (trimesh's OBJ
+    reader already raised an IndexError.) read_mesh refuses it, naming the face, the vertex and the count."""
+    header = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+              "element face 2\nproperty list uchar int vertex_indices\nend_header\n")
+    (tmp_path / "bad.ply").write_text(header + f"0 0 0\n1 0 0\n1 1 1\n3 0 1 2\n3 0 2 {index}\n")
+    (tmp_path / "good.ply").write_text(header + "0 0 0\n1 0 0\n1 1 1\n3 0 1 2\n3 0 2 1\n")
+    assert read_mesh(tmp_path / "good.ply").faces.tolist() == [[0, 1, 2], [0, 2, 1]]
+    with pytest.raises(DataFileError, match=rf"cannot read '.*bad\.ply' as a mesh: ValueError: face 1 names vertex "
+                                            rf"{index}, and the file has 3 vertices$"):
+        read_mesh(tmp_path / "bad.ply")
+    assert cli.main(["info", str(tmp_path / "bad.ply")]) == 2
+    assert f"face 1 names vertex {index}" in capsys.readouterr().err
+
+
+def test_a_gltf_that_is_not_json_is_refused_saying_what_it_is(tmp_path):
+    """trimesh's reader answered a .gltf that is not JSON (random bytes, text) and a GLB named .gltf with
+    "FileNotFoundError: model.gltf", naming a file nobody had. read_mesh now says the file is not a glTF (the JSON
+    error) or is a GLB under .gltf (rename it .glb); a real .gltf still reads."""
+    box = trimesh.creation.box()
+    (tmp_path / "real.gltf").write_bytes(trimesh.exchange.gltf.export_gltf(box.scene(), embed_buffers=True)
+                                         ["model.gltf"])
+    assert len(read_mesh(tmp_path / "real.gltf").faces) == 12
+    not_json = r"not a glTF file: its JSON does not parse"
+    cases = {"noise.gltf": (bytes(range(200, 256)) * 4, not_json + r" \(UnicodeDecodeError"),
+             "text.gltf": (b"hello world\n", not_json + r" \(JSONDecodeError"),
+             "binary.gltf": (trimesh.exchange.gltf.export_glb(box.scene()),
+                             r"a GLB \(binary glTF: it starts with b'glTF'\) under the extension \.gltf, which names "
+                             r"the JSON form: rename it \.glb$")}
+    for name, (data, message) in cases.items():
+        (tmp_path / name).write_bytes(data)
+        with pytest.raises(DataFileError, match=rf"cannot read '.*{name}' as a mesh: ValueError: {message}"):
+            read_mesh(tmp_path / name)

@@ -709,3 +709,187 @@ def test_heightfield_mesh_is_checked_against_the_memory_budget_before_it_is_buil
         assert (len(mesh.vertices), len(mesh.faces)) == (300 * 400, 2 * 299 * 399)
     finally:
         st.set_memory_budget(previous)
+
+
+# ------------------------------------------------------------------ TINs whose points are copied per face or per part
+def _boundary_edges(mesh):
+    _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
+    return int((counts == 1).sum())
+
+
+@pytest.mark.parametrize("ext", [".stl", ".glb"])
+def test_a_tin_read_from_stl_or_from_a_gltf_of_two_parts_steps_welded(tmp_path, ext):
+    """An STL holds three points per face (read_mesh, as trimesh, gives a triangle soup) and a glTF exported as two
+    primitives or nodes holds two copies of the points on their seam. The TIN's edge table paired edges by point
+    index only, so these were stepped as separate faces: no vertex shared (1 boundary edge per output edge), and
+    solid=True closed every face of the STL (or each part) with its own skirt, walls back to back inside the solid,
+    twice as many faces as the same TIN welded. Coincident points (same x, y, z) are welded: the steps of the file
+    equal those of the welded TIN."""
+    from stepterrain.export import read_mesh
+
+    tin = _sheet(7, 8, spacing=10.0, origin=(394000.0, 3798000.0))
+    tin.vertices[:, 2] = np.round(tin.vertices[:, 2] * 8.0, 3)
+    path = tmp_path / f"tin{ext}"
+    if ext == ".stl":
+        tin.export(path)
+    else:  # two parts, each with its own copy of the points on the seam
+        half = len(tin.faces) // 2
+        scene = trimesh.Scene()
+        for part in (tin.faces[:half], tin.faces[half:]):
+            used = np.unique(part)
+            scene.add_geometry(trimesh.Trimesh(tin.vertices[used], np.searchsorted(used, part), process=False))
+        scene.export(path)
+    read = read_mesh(path)
+    assert len(read.vertices) > len(tin.vertices)  # copies: read as the file holds them
+    for solid in (False, True):
+        want = st.stepped(tin, interval=4.0, base=0.25, solid=solid)
+        got = st.stepped(read, interval=4.0, base=0.25, solid=solid)
+        assert (len(got.vertices), len(got.faces)) == (len(want.vertices), len(want.faces))
+        assert _boundary_edges(got) == _boundary_edges(want) == (0 if solid else _boundary_edges(want))
+        assert got.is_watertight == solid
+        np.testing.assert_allclose(np.sort(got.vertices, axis=0), np.sort(want.vertices, axis=0), atol=2e-3)
+        assert got.volume == pytest.approx(want.volume, rel=1e-6) if solid else got.area == pytest.approx(want.area)
+
+
+def test_welding_keeps_points_apart_where_colours_differ_or_a_face_would_lose_a_corner():
+    """Coincident points are welded only where what the steps carry agrees: a colour seam keeps its two colours,
+    and a face two of whose corners coincide (zero area) keeps them (welding them would leave it two corners)."""
+    tin = _sheet(4, 4)
+    soup = _soup(tin)
+    colours = np.repeat(np.array([[255, 0, 0, 255], [0, 0, 255, 255]], np.uint8), [9, len(soup.vertices) - 9], axis=0)
+    soup.visual = trimesh.visual.ColorVisuals(soup, vertex_colors=colours)
+    faces = st.Terrain.from_mesh(soup).faces
+    seam = len(np.unique(faces))
+    assert len(np.unique(tin.faces)) < seam < len(soup.vertices)  # welded, except across the first 3 faces' colours
+    steps = st.stepped(soup, interval=0.5)
+    assert {tuple(c) for c in np.asarray(steps.visual.vertex_colors)} == {(255, 0, 0, 255), (0, 0, 255, 255)}
+    sliver = trimesh.Trimesh(np.vstack([tin.vertices, tin.vertices[:2]]),
+                             np.vstack([tin.faces, [[0, len(tin.vertices), 1]]]), process=False)
+    assert st.Terrain.from_mesh(sliver).faces[-1].tolist() == [0, len(tin.vertices), 1]
+    assert len(st.stepped(sliver, interval=0.5).faces) >= len(st.stepped(tin, interval=0.5).faces)
+
+
+def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
+    """glTF's y is up: Blender and three.js export a terrain with its heights along y, and read_mesh (as trimesh)
+    gives the coordinates as stored. Such a TIN folds over or overlaps itself in xy, and the refusal spoke only of
+    decimation and Delaunay. It now says the faces face along y and names the turn to z-up (what Blender's importer
+    does), after which the TIN steps as the z-up one."""
+    from stepterrain.export import read_mesh
+
+    tin = _sheet(6, 7, spacing=10.0)
+    tin.vertices[:, 2] *= 4.0
+    y_up = tin.copy()
+    y_up.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # as glTF exporters store it
+    np.testing.assert_allclose(y_up.vertices[:, 1], tin.vertices[:, 2], atol=1e-9)
+    path = tmp_path / "blender.glb"
+    y_up.export(path)
+    mesh = read_mesh(path)
+    hint = r"Its faces face along y more than along z, .* if it is one, turn it z-up, mesh\.apply_transform\("
+    with pytest.raises(InvalidInputError, match=r"^terrain mesh faces must project one-to-one onto the xy plane; .*"
+                                                + hint):
+        st.stepped(mesh, interval=2.0)
+    flat = y_up.copy()
+    flat.vertices[:, 1] = 5.0  # and a flat one (its heights along y alike): a line in xy
+    with pytest.raises(InvalidInputError, match=r"so it is no height field\. " + hint):
+        st.stepped(flat, interval=2.0)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # the turn the message names
+    want = st.stepped(tin, interval=2.0)
+    got = st.stepped(mesh, interval=2.0)
+    assert len(got.faces) == len(want.faces) and got.area == pytest.approx(want.area, rel=1e-5)
+    for other in (trimesh.creation.box(), trimesh.creation.icosphere(), _joined(_sheet(), _sheet(z=9.0))):
+        with pytest.raises(InvalidInputError) as info:  # not terrains with y up: no such hint
+            st.stepped(other, interval=0.5)
+        assert "along y" not in str(info.value)
+
+
+def test_a_utm_tin_rounded_by_a_float32_file_is_refused_saying_so(tmp_path):
+    """A glTF (or STL) written by another program holds float32 positions; at a UTM northing those lie 0.25 m apart,
+    so a dense TIN at map coordinates comes back with its points rounded and some faces folded. The refusal spoke of
+    decimation; it now says the points are float32 values that far apart (the file rounded them), and the Delaunay
+    it names steps them. A TIN at float64 map coordinates, or rounded at local ones, gets no such hint."""
+    from scipy.spatial import Delaunay
+
+    from stepterrain.export import read_mesh
+
+    rng = np.random.default_rng(1)
+    xy = rng.random((3000, 2)) * 100.0 + (394000.0, 3798000.0)
+    tin = trimesh.Trimesh(np.column_stack([xy, 100.0 + 5.0 * np.sin(xy[:, 0] / 7.0)]),
+                          Delaunay(xy - xy.min(axis=0)).simplices, process=False)
+    assert len(st.stepped(tin, interval=1.0).faces)
+    path = tmp_path / "utm.glb"
+    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Trimesh(tin.vertices.astype(np.float32), tin.faces,
+                                                                       process=False).scene()))
+    rounded = read_mesh(path)
+    assert 0.0 < np.abs(rounded.vertices - tin.vertices).max() <= 0.125
+    with pytest.raises(InvalidInputError, match=r"fold over .*\. Its x and y are all float32 values \(as glTF and STL "
+                                                r"store them\), which at these coordinates lie 0\.25 apart: the file "
+                                                r"rounded the points"):
+        st.stepped(rounded, interval=1.0)
+    corner = rounded.vertices[:, :2].min(axis=0)
+    remeshed = trimesh.Trimesh(rounded.vertices, Delaunay(rounded.vertices[:, :2] - corner).simplices, process=False)
+    assert len(st.stepped(remeshed, interval=1.0).faces)
+    local = trimesh.Trimesh(rounded.vertices - (*corner, 0.0), rounded.faces, process=False)
+    for other in (local, _joined(_sheet(), _sheet(z=9.0))):  # rounded at local coordinates; float64 stacked sheets
+        with pytest.raises(InvalidInputError) as info:
+            st.stepped(other, interval=1.0)
+        assert "float32" not in str(info.value)
+
+
+def test_a_point_cloud_is_refused_with_the_triangulation_that_steps_it(tmp_path):
+    """A TIN's points without faces (a PLY of survey points, read by read_mesh as a mesh without faces) was refused
+    as "terrain mesh has no faces; expected a triangulated surface", leaving the user to find out how. It now names
+    the point count and the Delaunay triangulation in xy (from the points' corner), which steps."""
+    from scipy.spatial import Delaunay
+
+    from stepterrain.export import read_mesh
+
+    rng = np.random.default_rng(2)
+    xyz = np.column_stack([rng.random((200, 2)) * 500.0 + (394000.0, 3798000.0), rng.random(200) * 40.0])
+    path = tmp_path / "survey.ply"
+    path.write_bytes(trimesh.exchange.ply.export_ply(trimesh.PointCloud(xyz)))
+    mesh = read_mesh(path)
+    with pytest.raises(InvalidInputError, match=r"^terrain mesh has no faces; expected a triangulated surface; got "
+                                                r"200 points without faces \(a point cloud.*\): triangulate them in xy "
+                                                r"first, e\.g\. mesh = trimesh\.Trimesh\(mesh\.vertices, "
+                                                r"scipy\.spatial\.Delaunay\("):
+        st.stepped(mesh, interval=5.0)
+    mesh = trimesh.Trimesh(mesh.vertices, Delaunay(mesh.vertices[:, :2] - mesh.vertices[:, :2].min(axis=0)).simplices)
+    assert len(st.stepped(mesh, interval=5.0).faces) > len(mesh.faces)
+    with pytest.raises(InvalidInputError, match=r"^terrain mesh has no faces; expected a triangulated surface$"):
+        st.stepped(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)), interval=5.0)  # nothing at all
+
+
+def test_a_zero_area_face_in_a_triangle_soup_keeps_only_its_coincident_corners_apart():
+    """An STL's sliver (two corners at one point, as CAD exports leave them) keeps those corners apart when the soup
+    is welded (welding them would leave the face two corners); its third corner was kept apart too, with every copy
+    of it in the soup, so the faces round it stayed unwelded (walls inside the solid there). Only the coincident
+    point stays apart now."""
+    tin = _sheet(5, 6)
+    a, b = tin.faces[7][:2]
+    soup = _soup(trimesh.Trimesh(np.vstack([tin.vertices, tin.vertices[a]]),
+                                 np.vstack([tin.faces, [[len(tin.vertices), a, b]]]), process=False))
+    faces = st.Terrain.from_mesh(soup).faces
+    corners = soup.vertices[soup.faces]
+    at_b = (corners == tin.vertices[b]).all(axis=2)
+    assert at_b[-1].any() and len(np.unique(faces[at_b])) == 1  # every copy of b welded, the sliver's included
+    at_a = (corners == tin.vertices[a]).all(axis=2)
+    assert len(np.unique(faces[at_a])) == at_a.sum()  # the coincident point's copies as given
+    steps = st.stepped(soup, interval=0.5, base=0.25, solid=True)
+    assert steps.is_watertight
+
+
+def test_an_edge_used_twice_in_one_direction_is_refused_naming_the_faces():
+    """A mesh from another program with a face twice (the same three indices, as some exporters and merges leave
+    them) was refused as "an edge is used twice in the same direction" without saying where: among 10^5 faces the
+    user could not find it. The refusal now names the two faces by their index in the mesh given (past dropped
+    nodata faces), the edge's points, and for two copies of one face the way to drop them, after which it steps."""
+    mesh = st.heightfield_mesh(np.random.default_rng(0).random((5, 5)))
+    mesh.vertices[2, 2] = np.nan  # faces before the copy are dropped: the indices are still the mesh's own
+    doubled = trimesh.Trimesh(mesh.vertices, np.vstack([mesh.faces, mesh.faces[30:31]]), process=False)
+    with pytest.raises(InvalidInputError, match=r"an edge is used twice in the same direction \(overlapping or "
+                                                r"inconsistently wound faces\): faces 30 and 32 both run from point "
+                                                r"\d+ to point \d+ \(two copies of one face: drop one, e\.g\. "
+                                                r"mesh\.update_faces\(mesh\.unique_faces\(\)\)\)$"):
+        st.stepped(doubled, interval=0.2)
+    doubled.update_faces(doubled.unique_faces())
+    assert len(st.stepped(doubled, interval=0.2).faces) == len(st.stepped(mesh, interval=0.2).faces)
