@@ -1322,8 +1322,9 @@ class _WindowedTiff:
 
     :meth:`open` takes only a file whose pixels the whole read takes with rasterio alike: one Pillow cannot read
     (those :func:`_raster_uint8` reads), or one Pillow reads as L, RGB or RGBA from 1, 3 or 4 bands (the fourth
-    alpha), without a transparent colour nor JPEG compression (Pillow decodes its YCbCr otherwise than GDAL); else
-    None (16 bits, a JPEG-compressed TIFF Pillow reads, ...: :meth:`ImagePyramid.build`, which decodes it whole).
+    alpha), without a transparent colour nor JPEG compression (Pillow decodes its YCbCr otherwise than GDAL), neither
+    min-is-white nor of 1-7 bit samples (Pillow inverts or scales them, GDAL gives them as stored); else None (16
+    bits, a JPEG-compressed TIFF Pillow reads, ...: :meth:`ImagePyramid.build`, which decodes it whole).
     A 3-band image with a GDAL mask (nodata, a mask band) always gets its alpha (255 where valid): the whole read gave
     none where no pixel of the whole image is masked, which only the whole image tells."""
 
@@ -1353,9 +1354,14 @@ class _WindowedTiff:
             count, types, interps = dataset.count, set(dataset.dtypes), list(dataset.colorinterp)
             jpeg = str(getattr(dataset.compression, "name", dataset.compression)).lower() in ("jpeg", "ojpeg")
             masked = not all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums)
+            structure = {**dataset.tags(ns="IMAGE_STRUCTURE"), **dataset.tags(1, ns="IMAGE_STRUCTURE")}
         except Exception:  # noqa: BLE001 - GDAL cannot read it: ImagePyramid.build says what is wrong
             return None
         if types != {"uint8"} or not 1 <= count <= 4:
+            return None
+        if structure.get("MINISWHITE") == "YES" or structure.get("NBITS", "8") != "8":
+            # GDAL gives the stored values: Pillow inverts a min-is-white grey (0 is white) and scales 1-7 bit
+            # samples to 0-255 (a 4-bit 15 is 255), so the windows were the negative, or nearly black
             return None
         alphas = [k for k, interp in enumerate(interps) if interp == ColorInterp.alpha][:1]
         colour = [k for k in range(count) if k not in alphas]

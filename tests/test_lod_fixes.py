@@ -696,3 +696,38 @@ def test_a_geotiff_image_layer_reads_only_its_window_over_the_terrain(tmp_path, 
         assert layer.extent == pytest.approx(expected.extent, abs=1e-9)
         np.testing.assert_array_equal(layer.image, expected.image)
         assert 0 < sum(read_cells) < rows * cols / 8, f"{sum(read_cells)} of {rows * cols} pixels read"
+
+
+@pytest.mark.parametrize("kind", ["min-is-white", "4-bit"])
+def test_a_grey_geotiff_pillow_reads_otherwise_than_gdal_keeps_its_image_layer_pixels(tmp_path, kind):
+    """image_layer read a GeoTIFF of 8-bit bands window by window with rasterio, which gives the stored values, where
+    the whole read (Pillow) gives the picture: a min-is-white grey (0 is white, as scanned maps are stored) came out
+    as its negative and a 4-bit grey (0-15, Pillow scales 15 to 255) nearly black. Such a TIFF is read as before
+    now, with the pixels Pillow reads: the layer is the one of those pixels as an array."""
+    rasterio = pytest.importorskip("rasterio")
+    import PIL.Image
+    from rasterio.transform import Affine
+
+    from stepterrain.terrain import Terrain
+    from stepterrain.texture_lod import image_layer
+
+    rows, cols = 61, 83
+    grey = np.random.default_rng(12).integers(0, 256, (1, rows, cols), dtype=np.uint8)
+    options = {"photometric": "MINISWHITE"} if kind == "min-is-white" else {"nbits": 4}
+    if kind == "4-bit":
+        grey //= 16
+    path = tmp_path / "scan.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=1, dtype="uint8", crs="EPSG:32611",
+                       transform=Affine(10.0, 0.0, 5000.0, 0.0, -10.0, 9000.0), **options) as out:
+        out.write(grey)
+    with PIL.Image.open(path) as picture:
+        pixels = np.asarray(picture.convert("L"))
+    assert not np.array_equal(pixels, grey[0])  # Pillow's picture is not the stored values
+    terrain = Terrain.from_heights(np.zeros((9, 11), np.float32), spacing=(30.0, -30.0), origin=(5100.0, 8800.0),
+                                   crs="EPSG:32611")
+    extent = (5000.0, 5000.0 + cols * 10.0, 9000.0 - rows * 10.0, 9000.0)
+    for texel in (None, 10.0):
+        options = {} if texel is None else {"texel_size": texel}
+        expected = image_layer(pixels, terrain, extent=extent, device="cpu", **options)
+        layer = image_layer(path, terrain, device="cpu", **options)
+        np.testing.assert_array_equal(layer.image, expected.image)
