@@ -510,7 +510,8 @@ def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_
     rasterio was checked), and an image past Pillow's decompression-bomb limit raised Pillow's own
     DecompressionBombError, a TIFF too, though rasterio reads it. Now the decode is checked first (an
     OutputTooLargeError naming the file), a TIFF past Pillow's limit is read with rasterio, and a PNG past it is a
-    DataFileError naming it."""
+    DataFileError naming it. (A PNG Pillow reads as RGB is read a band of rows at a time since: no decode to check,
+    test_an_image_file_pyramid_is_built_a_band_of_rows_at_a_time; a JPEG is still decoded whole.)"""
     import PIL.Image
 
     import stepterrain as st
@@ -520,10 +521,12 @@ def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_
     pixels = np.random.default_rng(5).integers(0, 256, (60, 80, 3), dtype=np.uint8)
     png = tmp_path / "map.png"
     PIL.Image.fromarray(pixels).save(png)
+    jpeg = tmp_path / "map.jpg"
+    PIL.Image.fromarray(pixels).save(jpeg)
     previous = st.set_memory_budget(4 * 60 * 80 * 3 - 1)  # the check counts 4 bytes a sample, as rasterio's read
     try:
-        with pytest.raises(OutputTooLargeError, match=r"reading '.*map\.png' \(the image: 3 x 60 x 80 cells"):
-            ImagePyramid.build(png, device="cpu")
+        with pytest.raises(OutputTooLargeError, match=r"reading '.*map\.jpg' \(the image: 3 x 60 x 80 cells"):
+            ImagePyramid.build(jpeg, device="cpu")
     finally:
         st.set_memory_budget(previous)
     rasterio = pytest.importorskip("rasterio")
@@ -731,3 +734,71 @@ def test_a_grey_geotiff_pillow_reads_otherwise_than_gdal_keeps_its_image_layer_p
         expected = image_layer(pixels, terrain, extent=extent, device="cpu", **options)
         layer = image_layer(path, terrain, device="cpu", **options)
         np.testing.assert_array_equal(layer.image, expected.image)
+
+
+@pytest.mark.parametrize("kind", ["rgb with nodata", "rgb, nodata nowhere", "rgba", "grey", "png"])
+def test_an_image_file_pyramid_is_built_a_band_of_rows_at_a_time(tmp_path, monkeypatch, kind):
+    """ImagePyramid.build of an image file decoded it whole into memory as level 0 (checked against the memory
+    budget: a 16000 x 16000 GeoTIFF orthophoto took 2 GB) before building the levels band by band. A TIFF of 8-bit
+    bands, or a PNG, that GDAL reads as the whole read does is now read a band of rows at a time (whole blocks) into
+    level 0's file in storage and reduced from there: the levels are byte for byte those of the same pixels built
+    as an array (odd sizes; a nodata collar as alpha, none where no pixel is nodata), each row is read once, in bands
+    of the band size, and a memory budget below the whole decode no longer refuses it."""
+    rasterio = pytest.importorskip("rasterio")
+    import PIL.Image
+    import PIL.ImageFile
+    from rasterio.io import DatasetReader
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+
+    rows, cols = 301, 203
+    count = {"rgba": 4, "grey": 1}.get(kind, 3)
+    data = np.random.default_rng(13).integers(1, 256, (count, rows, cols), dtype=np.uint8)
+    array = np.moveaxis(data, 0, 2)
+    if count == 1:
+        array = np.repeat(array, 3, axis=2)  # a grey image is read as RGB
+    if kind == "rgb with nodata":
+        data[:, 200:, :90] = 0  # a collar
+        array = np.concatenate([array, np.where((data != 0).any(axis=0), 255, 0).astype(np.uint8)[:, :, None]], 2)
+    if kind == "png":
+        path = tmp_path / "map.png"
+        PIL.Image.fromarray(array).save(path)
+    else:
+        path = tmp_path / "ortho.tif"
+        with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=count, dtype="uint8",
+                           crs="EPSG:32611", transform=Affine(2.0, 0.0, 5000.0, 0.0, -2.0, 9000.0), tiled=True,
+                           blockxsize=32, blockysize=32, compress="deflate", alpha="YES" if count == 4 else None,
+                           nodata=0 if "nodata" in kind else None) as out:
+            out.write(data)
+    read_rows = []
+    original = DatasetReader.read
+
+    def read(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        read_rows.append(out.shape[-2])
+        return out
+
+    monkeypatch.setattr(DatasetReader, "read", read)
+    decoded = []  # Pillow reads the header only (a PNG's EXIF orientation too: getexif() decoded the image)
+    monkeypatch.setattr(PIL.ImageFile.ImageFile, "load", lambda self: decoded.append(self))
+    band_bytes = 45 * cols * array.shape[2]  # 45 rows a band: 32 in whole blocks of a TIFF (a PNG's are rows)
+    previous = st.set_memory_budget(rows * cols * array.shape[2])  # a quarter of the whole decode's count
+    try:
+        pyramid = ImagePyramid.build(path, storage=tmp_path / "levels", band_bytes=band_bytes, anisotropic=True,
+                                     device="cpu")
+    finally:
+        st.set_memory_budget(previous)
+    with pyramid, ImagePyramid.build(array, anisotropic=True, device="cpu") as expected:
+        assert pyramid.levels[0].shape == array.shape
+        for level, want in zip(pyramid.levels, expected.levels, strict=True):
+            np.testing.assert_array_equal(level, want)
+        for key, want in expected.anisotropic.items():
+            np.testing.assert_array_equal(pyramid.anisotropic[key], want)
+        assert str(pyramid.levels[0].filename) == str(tmp_path / "levels" / "level_0.u8")
+        assert not pyramid.levels[0].flags.writeable
+        if kind != "png":
+            assert pyramid.extent == (5000.0, 5000.0 + 2 * cols, 9000.0 - 2 * rows, 9000.0)
+            assert pyramid.crs == "EPSG:32611"
+    assert sum(read_rows) == rows and max(read_rows) == (45 if kind == "png" else 32), read_rows
+    assert not decoded
