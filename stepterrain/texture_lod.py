@@ -1477,6 +1477,8 @@ class _WindowedTiff:
                 return None  # JPEG tiles: Pillow's YCbCr decoding and GDAL's differ (up to 21 levels)
             if mode != {1: "L", 3: "RGB", 4: "RGBA"}.get(count) or (count == 4) != bool(alphas):
                 return None
+        if found is not None:  # warned here, as the whole read warns (a file left to it is warned of there, once)
+            found[3]()
         return cls(path, dataset, bands, masked and len(bands) == 3, _dataset_georeferencing(path, dataset))
 
     def rows(self, window: tuple[int, int, int, int], r0: int, r1: int) -> NDArray[np.uint8]:
@@ -1539,10 +1541,10 @@ class _RasterRows:
         return self.image.rows(self.window, r0, r1)
 
 
-def _pillow_mode(path: Path) -> tuple[str, bool, bool] | None:
-    """(Pillow's mode, whether it has a transparent colour, whether it is interlaced) of the image file ``path``,
-    opened without decoding its pixels (warning of an EXIF orientation, as reading it with Pillow does); None where
-    Pillow cannot open it."""
+def _pillow_mode(path: Path) -> tuple[str, bool, bool, Callable[[], None]] | None:
+    """(Pillow's mode, whether it has a transparent colour, whether it is interlaced, a function warning of its EXIF
+    orientation as reading it with Pillow does: :func:`_warn_exif_orientation`) of the image file ``path``, opened
+    without decoding its pixels; None where Pillow cannot open it."""
     from PIL import Image
 
     try:
@@ -1554,8 +1556,11 @@ def _pillow_mode(path: Path) -> tuple[str, bool, bool] | None:
                 data = _png_exif(path)
                 if data:
                     exif.load(data)
-            _warn_exif_orientation(picture, path, exif)
-            return picture.mode, "transparency" in picture.info, bool(picture.info.get("interlace"))
+            else:
+                with contextlib.suppress(Exception):  # unreadable EXIF: nothing to warn of
+                    exif = picture.getexif()
+            return (picture.mode, "transparency" in picture.info, bool(picture.info.get("interlace")),
+                    lambda: _warn_exif_orientation(picture, path, exif))
     except Exception:  # noqa: BLE001 - UnidentifiedImageError, DecompressionBombError, OSError: rasterio reads it
         return None
 

@@ -802,3 +802,41 @@ def test_an_image_file_pyramid_is_built_a_band_of_rows_at_a_time(tmp_path, monke
             assert pyramid.crs == "EPSG:32611"
     assert sum(read_rows) == rows and max(read_rows) == (45 if kind == "png" else 32), read_rows
     assert not decoded
+
+
+@pytest.mark.parametrize("kind", ["rgb, exif after the pixels", "palette"])
+def test_an_image_files_exif_orientation_is_warned_of_once_without_decoding_it(tmp_path, monkeypatch, kind):
+    """ImagePyramid.build warned of a palette PNG's EXIF orientation twice (once looking whether to read it by bands,
+    once decoding it whole), and finding a PNG's eXIf chunk after its image data through Pillow's getexif() decoded
+    the whole image. It is warned of once, where the image is read, and a PNG read by bands is never decoded whole."""
+    pytest.importorskip("rasterio")
+    import PIL.Image
+    import PIL.ImageFile
+
+    pixels = np.random.default_rng(14).integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    exif = PIL.Image.Exif()
+    exif[0x0112] = 6
+    path = tmp_path / "photo.png"
+    (PIL.Image.fromarray(pixels).quantize(64) if kind == "palette" else PIL.Image.fromarray(pixels)).save(path,
+                                                                                                        exif=exif)
+    if kind != "palette":  # the eXIf chunk moved after IDAT, where some writers put it
+        data, chunks, at = path.read_bytes(), [], 8
+        while at < len(data):
+            end = at + 12 + int.from_bytes(data[at:at + 4], "big")
+            chunks.append(data[at:end])
+            at = end
+        moved = [c for c in chunks if c[4:8] != b"eXIf"]
+        path.write_bytes(data[:8] + b"".join(moved[:-1] + [c for c in chunks if c[4:8] == b"eXIf"] + moved[-1:]))
+        decoded = []
+        monkeypatch.setattr(PIL.ImageFile.ImageFile, "load", lambda self: decoded.append(self))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with ImagePyramid.build(path, device="cpu") as pyramid:
+            assert pyramid.levels[0].shape == (20, 30, 3)
+            if kind != "palette":
+                np.testing.assert_array_equal(pyramid.levels[0], pixels)
+                assert not decoded
+    assert [str(w.message) for w in caught if "EXIF" in str(w.message)] == [
+        f"image {str(path)!r} has EXIF orientation 6 (rotated 90° clockwise to view): it is drawn as stored, 30 x 20 "
+        "pixels, as GDAL reads it; to use it as viewers show it, build from "
+        "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))"]
