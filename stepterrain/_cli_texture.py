@@ -110,7 +110,8 @@ def add_parser(commands: Any) -> None:
                         "DEM's CRS (one without a CRS is taken in the DEM's CRS, refused over a DEM in degrees), or "
                         "in degrees over a DEM in degrees (another CRS is refused: gdalwarp it first); resampled to "
                         "the DEM's grid (or --texel-size's) through an image pyramid (the decoded image is checked "
-                        "against --memory-budget; of a GeoTIFF, only its window over the DEM is read and checked)")
+                        "against --memory-budget; of a GeoTIFF or PNG, only its window over the DEM is read and "
+                        "checked)")
     p.add_argument("--image-extent", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="with --image: the outer edges of its pixels in the DEM's coordinates (those `stepterrain "
                         "info` prints, as --crop takes them; a geographic DEM's local metres); needed for an image "

@@ -510,7 +510,8 @@ def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_
     rasterio was checked), and an image past Pillow's decompression-bomb limit raised Pillow's own
     DecompressionBombError, a TIFF too, though rasterio reads it. Now the decode is checked first (an
     OutputTooLargeError naming the file), a TIFF past Pillow's limit is read with rasterio, and a PNG past it is a
-    DataFileError naming it."""
+    DataFileError naming it. (A PNG Pillow reads as RGB is read a band of rows at a time since: no decode to check,
+    test_an_image_file_pyramid_is_built_a_band_of_rows_at_a_time; a JPEG is still decoded whole.)"""
     import PIL.Image
 
     import stepterrain as st
@@ -520,10 +521,12 @@ def test_an_image_pillow_decodes_is_checked_against_the_memory_budget_and_a_big_
     pixels = np.random.default_rng(5).integers(0, 256, (60, 80, 3), dtype=np.uint8)
     png = tmp_path / "map.png"
     PIL.Image.fromarray(pixels).save(png)
+    jpeg = tmp_path / "map.jpg"
+    PIL.Image.fromarray(pixels).save(jpeg)
     previous = st.set_memory_budget(4 * 60 * 80 * 3 - 1)  # the check counts 4 bytes a sample, as rasterio's read
     try:
-        with pytest.raises(OutputTooLargeError, match=r"reading '.*map\.png' \(the image: 3 x 60 x 80 cells"):
-            ImagePyramid.build(png, device="cpu")
+        with pytest.raises(OutputTooLargeError, match=r"reading '.*map\.jpg' \(the image: 3 x 60 x 80 cells"):
+            ImagePyramid.build(jpeg, device="cpu")
     finally:
         st.set_memory_budget(previous)
     rasterio = pytest.importorskip("rasterio")
@@ -698,33 +701,142 @@ def test_a_geotiff_image_layer_reads_only_its_window_over_the_terrain(tmp_path, 
         assert 0 < sum(read_cells) < rows * cols / 8, f"{sum(read_cells)} of {rows * cols} pixels read"
 
 
-def test_a_min_is_white_geotiff_image_layer_is_drawn_as_pillow_shows_it(tmp_path):
-    """A grey GeoTIFF stored with PhotometricInterpretation MinIsWhite (0 is white: a scanned map) is read by Pillow
-    with its grey turned round (255 - stored, as viewers show it) and by GDAL as stored. image_layer's window read
-    (rasterio) took it as stored, where the whole read (Pillow) had drawn it as shown: the map was draped as its
-    negative. Such a file is read whole, as before: the layer's pixels are those of the picture Pillow shows."""
+@pytest.mark.parametrize("kind", ["min-is-white", "4-bit"])
+def test_a_grey_geotiff_pillow_reads_otherwise_than_gdal_keeps_its_image_layer_pixels(tmp_path, kind):
+    """image_layer read a GeoTIFF of 8-bit bands window by window with rasterio, which gives the stored values, where
+    the whole read (Pillow) gives the picture: a min-is-white grey (0 is white, as scanned maps are stored) came out
+    as its negative and a 4-bit grey (0-15, Pillow scales 15 to 255) nearly black. Such a TIFF is read as before
+    now, with the pixels Pillow reads: the layer is the one of those pixels as an array."""
     rasterio = pytest.importorskip("rasterio")
-    from PIL import Image
+    import PIL.Image
     from rasterio.transform import Affine
 
     from stepterrain.terrain import Terrain
     from stepterrain.texture_lod import image_layer
 
-    rows, cols, west, north, pixel = 201, 303, 1000.0, 5000.0, 2.0
-    stored = np.random.default_rng(5).integers(0, 256, (rows, cols), dtype=np.uint8)
+    rows, cols = 61, 83
+    grey = np.random.default_rng(12).integers(0, 256, (1, rows, cols), dtype=np.uint8)
+    options = {"photometric": "MINISWHITE"} if kind == "min-is-white" else {"nbits": 4}
+    if kind == "4-bit":
+        grey //= 16
     path = tmp_path / "scan.tif"
     with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=1, dtype="uint8", crs="EPSG:32611",
-                       transform=Affine(pixel, 0.0, west, 0.0, -pixel, north), photometric="MINISWHITE") as out:
-        out.write(stored[None])
-    with Image.open(path) as picture:
-        shown = np.asarray(picture)
-    assert (shown == 255 - stored).all()  # as Pillow (and a viewer) shows it
-    terrain = Terrain.from_heights(np.zeros((11, 13), np.float32), spacing=(10.0, -10.0),
-                                   origin=(west + 101.0, north - 99.0), crs="EPSG:32611")
-    extent = (west, west + cols * pixel, north - rows * pixel, north)
-    for texel in (None, 1.0):  # a reduced level, the image's own pixels
+                       transform=Affine(10.0, 0.0, 5000.0, 0.0, -10.0, 9000.0), **options) as out:
+        out.write(grey)
+    with PIL.Image.open(path) as picture:
+        pixels = np.asarray(picture.convert("L"))
+    assert not np.array_equal(pixels, grey[0])  # Pillow's picture is not the stored values
+    terrain = Terrain.from_heights(np.zeros((9, 11), np.float32), spacing=(30.0, -30.0), origin=(5100.0, 8800.0),
+                                   crs="EPSG:32611")
+    extent = (5000.0, 5000.0 + cols * 10.0, 9000.0 - rows * 10.0, 9000.0)
+    for texel in (None, 10.0):
         options = {} if texel is None else {"texel_size": texel}
-        expected = image_layer(shown, terrain, extent=extent, device="cpu", **options)
+        expected = image_layer(pixels, terrain, extent=extent, device="cpu", **options)
         layer = image_layer(path, terrain, device="cpu", **options)
-        assert layer.extent == pytest.approx(expected.extent, abs=1e-9)
         np.testing.assert_array_equal(layer.image, expected.image)
+
+
+@pytest.mark.parametrize("kind", ["rgb with nodata", "rgb, nodata nowhere", "rgba", "grey", "png"])
+def test_an_image_file_pyramid_is_built_a_band_of_rows_at_a_time(tmp_path, monkeypatch, kind):
+    """ImagePyramid.build of an image file decoded it whole into memory as level 0 (checked against the memory
+    budget: a 16000 x 16000 GeoTIFF orthophoto took 2 GB) before building the levels band by band. A TIFF of 8-bit
+    bands, or a PNG, that GDAL reads as the whole read does is now read a band of rows at a time (whole blocks) into
+    level 0's file in storage and reduced from there: the levels are byte for byte those of the same pixels built
+    as an array (odd sizes; a nodata collar as alpha, none where no pixel is nodata), each row is read once, in bands
+    of the band size, and a memory budget below the whole decode no longer refuses it."""
+    rasterio = pytest.importorskip("rasterio")
+    import PIL.Image
+    import PIL.ImageFile
+    from rasterio.io import DatasetReader
+    from rasterio.transform import Affine
+
+    import stepterrain as st
+
+    rows, cols = 301, 203
+    count = {"rgba": 4, "grey": 1}.get(kind, 3)
+    data = np.random.default_rng(13).integers(1, 256, (count, rows, cols), dtype=np.uint8)
+    array = np.moveaxis(data, 0, 2)
+    if count == 1:
+        array = np.repeat(array, 3, axis=2)  # a grey image is read as RGB
+    if kind == "rgb with nodata":
+        data[:, 200:, :90] = 0  # a collar
+        array = np.concatenate([array, np.where((data != 0).any(axis=0), 255, 0).astype(np.uint8)[:, :, None]], 2)
+    if kind == "png":
+        path = tmp_path / "map.png"
+        PIL.Image.fromarray(array).save(path)
+    else:
+        path = tmp_path / "ortho.tif"
+        with rasterio.open(path, "w", driver="GTiff", height=rows, width=cols, count=count, dtype="uint8",
+                           crs="EPSG:32611", transform=Affine(2.0, 0.0, 5000.0, 0.0, -2.0, 9000.0), tiled=True,
+                           blockxsize=32, blockysize=32, compress="deflate", alpha="YES" if count == 4 else None,
+                           nodata=0 if "nodata" in kind else None) as out:
+            out.write(data)
+    read_rows = []
+    original = DatasetReader.read
+
+    def read(self, *args, **kwargs):
+        out = original(self, *args, **kwargs)
+        read_rows.append(out.shape[-2])
+        return out
+
+    monkeypatch.setattr(DatasetReader, "read", read)
+    decoded = []  # Pillow reads the header only (a PNG's EXIF orientation too: getexif() decoded the image)
+    monkeypatch.setattr(PIL.ImageFile.ImageFile, "load", lambda self: decoded.append(self))
+    band_bytes = 45 * cols * array.shape[2]  # 45 rows a band: 32 in whole blocks of a TIFF (a PNG's are rows)
+    previous = st.set_memory_budget(rows * cols * array.shape[2])  # a quarter of the whole decode's count
+    try:
+        pyramid = ImagePyramid.build(path, storage=tmp_path / "levels", band_bytes=band_bytes, anisotropic=True,
+                                     device="cpu")
+    finally:
+        st.set_memory_budget(previous)
+    with pyramid, ImagePyramid.build(array, anisotropic=True, device="cpu") as expected:
+        assert pyramid.levels[0].shape == array.shape
+        for level, want in zip(pyramid.levels, expected.levels, strict=True):
+            np.testing.assert_array_equal(level, want)
+        for key, want in expected.anisotropic.items():
+            np.testing.assert_array_equal(pyramid.anisotropic[key], want)
+        assert str(pyramid.levels[0].filename) == str(tmp_path / "levels" / "level_0.u8")
+        assert not pyramid.levels[0].flags.writeable
+        if kind != "png":
+            assert pyramid.extent == (5000.0, 5000.0 + 2 * cols, 9000.0 - 2 * rows, 9000.0)
+            assert pyramid.crs == "EPSG:32611"
+    assert sum(read_rows) == rows and max(read_rows) == (45 if kind == "png" else 32), read_rows
+    assert not decoded
+
+
+@pytest.mark.parametrize("kind", ["rgb, exif after the pixels", "palette"])
+def test_an_image_files_exif_orientation_is_warned_of_once_without_decoding_it(tmp_path, monkeypatch, kind):
+    """ImagePyramid.build warned of a palette PNG's EXIF orientation twice (once looking whether to read it by bands,
+    once decoding it whole), and finding a PNG's eXIf chunk after its image data through Pillow's getexif() decoded
+    the whole image. It is warned of once, where the image is read, and a PNG read by bands is never decoded whole."""
+    pytest.importorskip("rasterio")
+    import PIL.Image
+    import PIL.ImageFile
+
+    pixels = np.random.default_rng(14).integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    exif = PIL.Image.Exif()
+    exif[0x0112] = 6
+    path = tmp_path / "photo.png"
+    (PIL.Image.fromarray(pixels).quantize(64) if kind == "palette" else PIL.Image.fromarray(pixels)).save(path,
+                                                                                                        exif=exif)
+    if kind != "palette":  # the eXIf chunk moved after IDAT, where some writers put it
+        data, chunks, at = path.read_bytes(), [], 8
+        while at < len(data):
+            end = at + 12 + int.from_bytes(data[at:at + 4], "big")
+            chunks.append(data[at:end])
+            at = end
+        moved = [c for c in chunks if c[4:8] != b"eXIf"]
+        path.write_bytes(data[:8] + b"".join(moved[:-1] + [c for c in chunks if c[4:8] == b"eXIf"] + moved[-1:]))
+        decoded = []
+        monkeypatch.setattr(PIL.ImageFile.ImageFile, "load", lambda self: decoded.append(self))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with ImagePyramid.build(path, device="cpu") as pyramid:
+            assert pyramid.levels[0].shape == (20, 30, 3)
+            if kind != "palette":
+                np.testing.assert_array_equal(pyramid.levels[0], pixels)
+                assert not decoded
+    assert [str(w.message) for w in caught if "EXIF" in str(w.message)] == [
+        f"image {str(path)!r} has EXIF orientation 6 (rotated 90° clockwise to view): it is drawn as stored, 30 x 20 "
+        "pixels, as GDAL reads it; to use it as viewers show it, build from "
+        "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))"]

@@ -458,7 +458,7 @@ def test_cli_texture_image_keeps_the_dems_nodata_transparent_and_renders(tmp_pat
     ("rotated", "rotated geotransform (30.0, 2.0, 376313.0, 2.0, -30.0, 3807917.0) (its rotation terms move pixels "
                 "by more than 1e-06 of a pixel over 64 x 64 pixels); a pyramid's extent is north-up: `gdalwarp` makes "
                 "the image north-up, or give --image-extent xmin,xmax,ymin,ymax for it as it is"),
-    ("over the budget", "reading '{image}' (the image: 3 x 643 x 1197 cells of uint8)"),
+    ("over the budget", "reading '{image}' (the image's window: 3 x 643 x 1197 cells of uint8)"),  # a PNG: its window
 ])
 def test_cli_texture_image_is_refused_clearly(tmp_path, capsys, case, match):
     """Each refusal exits 2 before writing anything, naming the option and what it got; what the image file alone
