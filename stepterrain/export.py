@@ -16,7 +16,6 @@ import copy
 import errno
 import importlib.util
 import io
-import itertools
 import json
 import math
 import os
@@ -1859,16 +1858,18 @@ def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
 #: An OBJ face statement with a texture or normal index (``f 1/1 2/2 3/3``, ``f 1//1 ...``) and a material statement.
 _OBJ_FACE_WITH_SLASH = re.compile(rb"^[ \t]*f[ \t][^\n]*/", re.MULTILINE)
 _OBJ_USEMTL = re.compile(rb"^[ \t]*usemtl[ \t]", re.MULTILINE)
+_OBJ_FACE = re.compile(rb"^[ \t]*f[ \t]", re.MULTILINE)
 
 
 def _obj_faces_name_vertices_only(file: Path) -> bool:
     """Whether the OBJ ``file``'s faces name vertex indices only (no ``vt`` or ``vn`` index) and it has at most one
-    ``usemtl``: what :func:`save_mesh` writes for a mesh without a texture. trimesh's reader then keeps every ``v``
-    with ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain info`` counted
-    fewer than were written, and a mesh read back was renumbered); with texture or normal indices that option takes
-    one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file with unused
-    vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh, so those keep trimesh's
-    default. Scanned without reading the file into memory."""
+    ``usemtl``, before any face: what :func:`save_mesh` writes for a mesh without a texture. trimesh's reader then
+    keeps every ``v`` with ``maintain_order=True`` (by default it drops the vertices no face names, so ``stepterrain
+    info`` counted fewer than were written, and a mesh read back was renumbered); with texture or normal indices that
+    option takes one UV per vertex (a vertex on a UV seam got the median of its UVs) and lost the texture of a file
+    with unused vertices, and with several ``usemtl`` it repeated every vertex in each material's mesh (faces
+    before the one ``usemtl`` make a mesh without a material: two), so those keep trimesh's default. Scanned without
+    reading the file into memory."""
     import mmap
 
     with open(file, "rb") as stream:
@@ -1879,7 +1880,14 @@ def _obj_faces_name_vertices_only(file: Path) -> bool:
                 return False
             if data.find(b"usemtl") < 0:
                 return True
-            return sum(1 for _ in itertools.islice(_OBJ_USEMTL.finditer(data), 2)) < 2  # type: ignore[call-overload]
+            first = _OBJ_USEMTL.search(data)  # type: ignore[call-overload]
+            if first is None:
+                return True
+            start, end = first.span()
+            del first
+            # one material, for every face: not a second usemtl, nor faces before this one (a group of their own)
+            return (_OBJ_USEMTL.search(data, end) is None  # type: ignore[call-overload]
+                    and _OBJ_FACE.search(data, 0, start) is None)  # type: ignore[call-overload]
 
 
 #: the statements of Wavefront OBJ (and of its curves and surfaces), which an OBJ's lines start with

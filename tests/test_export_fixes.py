@@ -1273,6 +1273,27 @@ def test_an_obj_keeps_the_vertices_no_face_names_and_a_textured_one_its_uv_seams
     assert len(two.faces) == 2 and len(two.vertices) == 6  # each material's mesh its 3 corners, not all 4 twice
 
 
+def test_an_obj_with_faces_before_its_one_material_is_not_read_with_every_vertex_twice(tmp_path, capsys):
+    """An OBJ (another tool's) whose first faces come before its one ``usemtl`` was read with maintain_order, as
+    one of a single material: trimesh makes the faces before it a mesh of their own, and maintain_order repeated
+    every vertex in each (10 vertices for the 5 of the file, ``stepterrain info`` counting them; trimesh's default
+    read 6, the corners of each group). Such a file keeps trimesh's default, as one of several materials does."""
+    (tmp_path / "x.mtl").write_text("newmtl red\nKd 1 0 0\n")
+    (tmp_path / "late.obj").write_text("mtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 5 5\n"
+                                       "f 1 2 3\nusemtl red\nf 1 3 4\n")
+    late = read_mesh(tmp_path / "late.obj")
+    assert len(late.faces) == 2 and len(late.vertices) == 6  # each group's 3 corners, not all 5 twice
+    corners = sorted(np.asarray(late.vertices)[late.faces].tolist())
+    assert corners == [[[0, 0, 0], [1, 0, 0], [1, 1, 0]], [[0, 0, 0], [1, 1, 0], [0, 1, 0]]]
+    assert cli.main(["info", str(tmp_path / "late.obj"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["vertices"] == 6
+    # its one usemtl before every face: one material, every vertex kept in order
+    (tmp_path / "early.obj").write_text("mtllib x.mtl\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 5 5\n"
+                                        "usemtl red\nf 1 2 3\nf 1 3 4\n")
+    early = read_mesh(tmp_path / "early.obj")
+    assert len(early.vertices) == 5 and np.array_equal(early.faces, [[0, 1, 2], [0, 2, 3]])
+
+
 def _short_palette():
     image = Image.new("P", (4, 4), 5)
     image.putpalette([255, 0, 0, 0, 255, 0])  # 2 colours; the pixels use index 5
