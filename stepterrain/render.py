@@ -1262,7 +1262,9 @@ class LayeredRenderer:
         color, depth = renderer.render(["overview"])   # depth: z-buffer in [0, 1), inf where empty
 
     A window whose passes would exceed the memory budget (about 64 bytes per pixel with the images read back) is
-    refused when the renderer is made, with an OutputTooLargeError.
+    refused when the renderer is made, with an OutputTooLargeError; so is a :meth:`set_mesh` whose mesh, with those
+    already held, would (their copies for rendering, about 40 bytes per face and 112 per vertex, as in
+    :func:`render_mesh`).
     """
 
     def __init__(self, *, window_size: tuple[int, int] = (1280, 720),
@@ -1349,6 +1351,10 @@ class LayeredRenderer:
             values = _layer_values(values, len(vertices), name)
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
+        # the copies of every mesh held, this one's included, as render_mesh counts its mesh's (only the window was)
+        held = [(entry[0].n_points, len(entry[2])) for other, entry in self._meshes.items() if other != name]
+        _check_render_budget(*self.size, layered=True, mesh=(len(vertices) + sum(v for v, _ in held),
+                                                             len(faces) + sum(f for _, f in held)))
         lo, hi = bounds
         origin = (lo + hi) / 2.0 if self._origin is None else self._origin
         local_box = np.array([lo, hi]) - origin

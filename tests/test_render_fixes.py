@@ -1070,3 +1070,25 @@ def test_face_colours_count_against_the_render_budget(tiny_budget, monkeypatch):
     mesh.visual.face_colors = np.full((len(mesh.faces), 4), 200, np.uint8)
     with pytest.raises(OutputTooLargeError, match=r"of a mesh of 7,938 faces and 4,096 vertices would need"):
         render.render_mesh(mesh, window_size=(64, 48))
+
+
+@needs_render
+def test_layered_renderer_counts_every_mesh_it_holds_against_the_budget():
+    """A LayeredRenderer (render_closeups') checked its window alone, while it holds a render copy of every mesh set
+    on it at once: the meshes are counted now, each set_mesh adding its mesh to those held (a mesh replaced by name
+    counted once), before it is uploaded."""
+    mesh = _grid_mesh(40)  # 3,042 faces, 1,600 vertices
+    one = render._render_bytes(64, 48, layered=True, vertices=1600, faces=3042)
+    two = render._render_bytes(64, 48, layered=True, vertices=3200, faces=6084)
+    previous = st.set_memory_budget(two)
+    try:
+        assert one < two < render._render_bytes(64, 48, layered=True, vertices=4800, faces=9126)
+        with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+            renderer.set_mesh("a", mesh.vertices, mesh.faces)
+            renderer.set_mesh("b", mesh.vertices + 50.0, mesh.faces)
+            renderer.set_mesh("a", mesh.vertices + 1.0, mesh.faces)  # replaced: still two meshes held
+            with pytest.raises(OutputTooLargeError, match=r"of a mesh of 9,126 faces and 4,800 vertices would need"):
+                renderer.set_mesh("c", mesh.vertices + 100.0, mesh.faces)
+            assert sorted(renderer._meshes) == ["a", "b"]  # refused before it was uploaded
+    finally:
+        st.set_memory_budget(previous)
