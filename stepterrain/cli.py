@@ -738,6 +738,10 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
                           f"nodes: it holds none of them{spacing if terrain.kind == 'grid' else ''}; give a larger "
                           "radius", stacklevel=1)
 
+    if png is not None:  # the render's copies of the mesh, at least the DEM's surface: before stepping
+        render._check_render_budget(args.size[0], args.size[1], "--size", mesh=_surface_size(terrain),
+                                    mesh_hint=_STEPS_RENDER_HINT, at_least=True)
+
     # kernels: compile (first run on this machine) or load from Warp's cache
     from ._device import resolve_device
 
@@ -760,16 +764,20 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
     if len(mesh.faces) == 0:
         warnings.warn("the mesh is empty: no triangle of the input has three finite heights", stacklevel=1)
 
+    from . import export
+
+    export._check_write_budget(mesh, out.suffix.lower(), out)  # before the render: a write refused after it wasted it
+
     # render first (in memory), so a run that fails anywhere writes neither file
     image = None
-    if png is not None:
+    if png is not None:  # the mesh known: its copies for the render checked before it starts
+        render._check_render_budget(args.size[0], args.size[1], "--size", mesh=(len(mesh.vertices), len(mesh.faces)),
+                                    mesh_hint=_STEPS_RENDER_HINT)
         progress.stage("render", f"rendering {args.size[0]}x{args.size[1]} off-screen")
         image = render.render_mesh(mesh, window_size=args.size, z_scale=args.z_scale)
         progress.done()
 
     # write: each file atomically (temporary file + rename)
-    from . import export
-
     progress.stage("write", f"writing {out}")
     metadata = {
         "generator": "stepterrain steps",
@@ -786,6 +794,25 @@ def _run_steps(args: argparse.Namespace, progress: Progress) -> int:
         export.save_image(image, png)
         progress.done(_size(png))
     return 0
+
+
+#: What makes the mesh of a ``steps --png`` render smaller (a smaller --size does not: the mesh's copies weigh most).
+_STEPS_RENDER_HINT = "give a larger --interval, --coarsen N or a --crop, or leave --png out"
+
+
+def _surface_size(terrain: Any) -> tuple[int, int]:
+    """(vertices, faces) of ``terrain``'s own surface, the fewest its stepped mesh has: a vertex per node a triangle
+    with three finite heights uses, at least a terrace face per such triangle (walls and twins add more)."""
+    from .terrain import finite_triangles, used_nodes
+
+    if terrain.kind == "tin":
+        return int(np.count_nonzero(terrain.point_used)), len(terrain.faces)  # the faces with three finite heights
+    rows, cols = terrain.shape
+    if not terrain.has_nodata:
+        return rows * cols, 2 * (rows - 1) * (cols - 1)
+    finite = np.isfinite(terrain.heights)
+    upper, lower = finite_triangles(finite)
+    return int(np.count_nonzero(used_nodes(finite))), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
 
 
 def _size(path: Path | str) -> str:

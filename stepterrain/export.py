@@ -37,6 +37,7 @@ import numpy as np
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
+from ._compaction import check_budget
 from ._device import recycled_empty
 from ._files import as_path, require_regular_file
 from .errors import DataFileError, InvalidInputError, MissingDependencyError, caller_stacklevel, counted
@@ -383,6 +384,11 @@ def save_mesh(
     DataFileError
         The target folder cannot be created or written, or a textured OBJ's side file would replace another
         output this process wrote (see Notes).
+    OutputTooLargeError
+        Writing the mesh would take more memory than the memory budget (:func:`stepterrain.set_memory_budget`):
+        beyond the mesh, about 24 bytes a vertex and 40 a face for ``.glb`` (``.gltf`` 64 and 176, ``.obj`` 16 and 48,
+        ``.ply`` 40 and 144, ``.stl`` 8 and 352, ``.3mf`` 4 and 28; face colours add up to 400 a face, a texture's
+        UVs up to 96 a vertex), checked before any work.
 
     Warns
     -----
@@ -479,6 +485,7 @@ def save_mesh(
     _check_float32_reach(bounds, ext, target, frame)
     if ext == ".glb":
         _check_glb_size(mesh, target)
+    _check_write_budget(mesh, ext, target)
     prepared = _prepared_mesh(mesh, extras)
     if ext in _TEXTURED and prepared.visual.kind == "texture":
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
@@ -492,6 +499,45 @@ def save_mesh(
     for listener in tuple(_WRITE_LISTENERS):
         listener(target)
     return target
+
+
+#: Bytes :func:`save_mesh` holds at its peak beyond the mesh, per vertex and per face, by format: the prepared copy,
+#: the arrays each writer packs (float32 positions, uint32 indices, linear colours, text rows, trimesh's exporters).
+#: Measured as the process's peak RSS (VmHWM) less that before the call: a stepped mesh of 9.1 M faces and 4.6 M
+#: vertices with vertex colours took 317 MiB as .glb, 379 .obj, 1100 .ply, 2408 .stl, 175 .3mf and 1416 .gltf; an
+#: unmerged mesh of 3.9 M faces and 11.7 M vertices 181, 136, 728, 1012, 75 and 1077 MiB (nothing was checked: a
+#: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %.
+_WRITE_BYTES: dict[str, tuple[int, int]] = {
+    ".glb": (24, 40), ".gltf": (64, 176), ".obj": (16, 48), ".ply": (40, 144), ".stl": (8, 352), ".3mf": (4, 28),
+}
+#: What face colours add (per face) where a format has none and writes each vertex as the mean of its faces' colours
+#: (glTF, OBJ), or packs them per face (PLY, 3MF): the unmerged mesh above with face colours took 1276 MiB more as
+#: .glb, 1197 as .obj, 310 as .ply, 952 as .3mf (342, 320, 83 and 255 bytes a face). Rounded up.
+_FACE_COLOR_WRITE_BYTES: dict[str, int] = {".glb": 400, ".gltf": 400, ".obj": 400, ".ply": 96, ".3mf": 320}
+#: What a texture's UVs add (per vertex) where they are written (trimesh's glTF exporter packs a textured mesh): the
+#: unmerged mesh above with a 16² texture took 816 MiB more as .glb, 333 as .obj (73 and 30 bytes a vertex).
+_TEXTURE_WRITE_BYTES: dict[str, int] = {".glb": 96, ".gltf": 96, ".obj": 40}
+
+
+def _check_write_budget(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
+    """An :class:`OutputTooLargeError` before any work when writing ``mesh`` as ``ext`` would take more than the
+    memory budget (:data:`_WRITE_BYTES`): nothing was checked, and the writers' copies grew with the mesh."""
+    n_vertices, n_faces = len(mesh.vertices), len(mesh.faces)
+    face_colors, textured = mesh.visual.kind == "face", mesh.visual.kind == "texture"
+
+    def need(e: str) -> int:
+        per_vertex, per_face = _WRITE_BYTES[e]
+        per_face += _FACE_COLOR_WRITE_BYTES.get(e, 0) if face_colors else 0
+        per_vertex += _TEXTURE_WRITE_BYTES.get(e, 0) if textured else 0
+        return per_vertex * n_vertices + per_face * n_faces
+
+    less = sorted((e for e in _WRITE_BYTES if need(e) < need(ext)), key=need)
+    check_budget(need(ext),
+                 f"writing {str(target)!r} ({ext}, a mesh of {counted(n_faces, 'face', grouped=True)} and "
+                 f"{counted(n_vertices, 'vertex', 'vertices', grouped=True)}"
+                 + (" with face colours)" if face_colors else ")"),
+                 hint="write a mesh of fewer faces (a larger interval, a coarsened or cropped DEM, tiles)"
+                      + (f" or a format that needs less memory ({', '.join(less)}, from the least)" if less else ""))
 
 
 def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:

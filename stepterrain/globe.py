@@ -1740,7 +1740,8 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
                                 f"{view_angle:.6g} degrees ({camera.fov:.6g} rad)"
                                 + (f", narrowed to the {width}x{height} window, wider than the camera's aspect "
                                    f"{camera.aspect:.6g}" if wider else ""))
-    render._check_render_budget(width, height)  # before the mesh is copied into the view's frame
+    # its copies for the render too, before the mesh is copied into the view's frame
+    render._check_render_budget(width, height, mesh=(len(mesh.vertices), len(mesh.faces)))
     box = render._finite_bounds(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
     if box is None or len(mesh.faces) == 0:  # numpy's AxisError on the empty bounds (a view that clips everything)
         raise InvalidInputError(f"mesh has no faces with finite vertices; nothing to render (got "

@@ -400,7 +400,9 @@ def render_mesh(
     OutputTooLargeError
         The render's framebuffers and image (about 48 bytes per pixel, 80 with ``anti_aliasing``, 288 with it and
         translucent colours, which take SSAA with depth peeling), with a textured mesh's texture (16 bytes per
-        texel), exceed the memory budget (:func:`stepterrain.set_memory_budget`), checked before rendering.
+        texel) and the copies of the mesh made for rendering (about 40 bytes per face, 64 with face colours, and
+        112 per vertex: an 18 M-face stepped mesh needs 1.7 GiB in any window), exceed the memory budget
+        (:func:`stepterrain.set_memory_budget`), checked before rendering.
     MissingDependencyError
         No off-screen OpenGL context can be made (no display, no EGL/OSMesa).
 
@@ -426,9 +428,10 @@ def render_mesh(
     width, height, vertices, local, finite, box = _frame_mesh(mesh, window_size, z_scale, bounds, camera, anti_aliasing,
                                                               view_angle)
     source = _texture_source(mesh) if scalars is None else None
+    size = (len(vertices), len(mesh.faces))  # the mesh's copies count too (_frame_mesh checked them uncoloured)
     if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
         # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
-        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]))
+        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]), mesh=size)
     textured = _decoded_texture(*source) if source is not None else None
     face_attributes = {}
     if scalars == "level":
@@ -443,14 +446,17 @@ def render_mesh(
                                     f"({len(mesh.faces)}); got {np.shape(mesh.face_attributes['level'])}")
         face_attributes["level"] = levels
 
+    rgb = _colors_rgb(mesh, "vertex") if scalars is None else None
+    face_rgb = _colors_rgb(mesh, "face") if scalars is None and rgb is None else None
+    if face_rgb is not None:  # a colour per face costs more than one per vertex
+        _check_render_budget(width, height, anti_aliasing=anti_aliasing, mesh=size, face_colors=True)
+
     pv = _import_pyvista()
     _check_background(pv, background)
     poly = _polydata(pv, local, mesh.faces)
     for key, value in face_attributes.items():
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
-    rgb = _colors_rgb(mesh, "vertex") if scalars is None else None
-    face_rgb = _colors_rgb(mesh, "face") if scalars is None and rgb is None else None
     if textured is not None:  # it drew in the plain tan: a draped DEM or a GLB read back lost its texture
         add_kwargs.update(texture=_texture(pv, poly, *textured))
     elif rgb is not None:
@@ -473,7 +479,8 @@ def render_mesh(
                    or (textured is not None and textured[1].ndim == 3 and textured[1].shape[2] == 4))
     if translucent and anti_aliasing:  # SSAA, not MSAA (see _shoot): more memory
         _check_render_budget(width, height, anti_aliasing=True, ssaa=True,
-                             texture=None if textured is None else textured[1].shape)
+                             texture=None if textured is None else textured[1].shape, mesh=size,
+                             face_colors=face_rgb is not None)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
                   framed_by_bounds=bounds is not None,
                   camera=camera, size=(width, height), background=background, anti_aliasing=anti_aliasing,
@@ -524,7 +531,8 @@ def _frame_mesh(
     if len(mesh.faces) == 0:
         raise InvalidInputError("mesh has no faces; nothing to render")
     width, height, z_scale = _check_window(window_size, z_scale)
-    _check_render_budget(width, height, anti_aliasing=anti_aliasing)
+    # the mesh's copies too, before the first of them (the recentred vertices below)
+    _check_render_budget(width, height, anti_aliasing=anti_aliasing, mesh=(len(mesh.vertices), len(mesh.faces)))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     _check_face_indices(mesh.faces, len(vertices), "mesh.faces")
     finite = np.isfinite(vertices).all(axis=1)
@@ -719,6 +727,19 @@ _LAYERED_BYTES_PER_PIXEL = 64
 #: the image, the texture and its mipmaps that llvmpipe holds), ~15 past OpenGL's largest texture (16384 a side),
 #: which VTK resamples first. Rounded up; the mesh's own image is not counted. A 17000² texture took 4.6 GB.
 _TEXTURE_BYTES_PER_TEXEL = 16
+#: Bytes a render holds per vertex and per face of its mesh, beyond its window's: the recentred float64 copy of the
+#: vertices, the PolyData's cells, VTK's and llvmpipe's buffers (points, indices, cell normals for flat shading).
+#: Measured as above (peak RSS less that before the call, 400 x 300 window) on meshes of 0.5 M to 18 M faces: a grid
+#: of 8 M faces and 4 M vertices took 557 MiB, its unmerged copy (8 M faces, 24 M vertices) 2272 MiB, the stepped
+#: embedded DEM at interval 5 (18.2 M faces, 9.1 M vertices) 1.2-1.3 GiB where only the window (5.5 MiB) was
+#: checked: ~26 per face and ~94 per vertex fitted (plus ~30 MiB however small the mesh). Vertex colours added 0-19
+#: per vertex, UVs (a texture) 5-25 per vertex, face colours 13-19 per face. Rounded up (those included), they do not
+#: depend on the window: only a mesh of fewer faces and vertices makes them smaller.
+_RENDER_BYTES_PER_FACE = 40
+_RENDER_BYTES_PER_VERTEX = 112
+_FACE_COLOR_BYTES_PER_FACE = 24
+#: What makes a render of a mesh too large for the budget smaller, when the mesh weighs most.
+_MESH_HINT = "render a mesh of fewer faces (a larger interval, a coarsened or cropped DEM)"
 
 
 #: The render budget's hint for a smaller texture, in the library (:func:`_check_render_budget`).
@@ -726,24 +747,33 @@ _SMALLER_TEXTURE = "a smaller texture (a larger texel size, or the image resampl
 
 
 def _render_bytes(width: int, height: int, *, anti_aliasing: bool = False, layered: bool = False,
-                  ssaa: bool = False, texels: int = 0) -> int:
+                  ssaa: bool = False, texels: int = 0, vertices: int = 0, faces: int = 0,
+                  face_colors: bool = False) -> int:
     """Memory an off-screen render of width x height pixels holds at its peak (see _RENDER_BYTES_PER_PIXEL);
     ``ssaa``: its anti-aliasing is SSAA (translucent colours), not MSAA; ``texels``: those of a textured mesh's
-    texture (see _TEXTURE_BYTES_PER_TEXEL)."""
+    texture (see _TEXTURE_BYTES_PER_TEXEL); ``vertices``, ``faces``: the mesh's (see _RENDER_BYTES_PER_FACE),
+    ``face_colors``: drawn with a colour per face."""
     per_pixel = _LAYERED_BYTES_PER_PIXEL if layered else _RENDER_BYTES_PER_PIXEL
     extra = (_SSAA_BYTES_PER_PIXEL if ssaa else _MSAA_BYTES_PER_PIXEL) if anti_aliasing else 0
-    return int(width) * int(height) * (per_pixel + extra) + int(texels) * _TEXTURE_BYTES_PER_TEXEL
+    per_face = _RENDER_BYTES_PER_FACE + (_FACE_COLOR_BYTES_PER_FACE if face_colors else 0)
+    return (int(width) * int(height) * (per_pixel + extra) + int(texels) * _TEXTURE_BYTES_PER_TEXEL
+            + int(vertices) * _RENDER_BYTES_PER_VERTEX + int(faces) * per_face)
 
 
 def _check_render_budget(width: int, height: int, name: str = "window_size", *, anti_aliasing: bool = False,
                          layered: bool = False, ssaa: bool = False, texture: tuple[int, ...] | None = None,
-                         smaller_texture: str = _SMALLER_TEXTURE) -> None:
+                         smaller_texture: str = _SMALLER_TEXTURE, mesh: tuple[int, int] | None = None,
+                         face_colors: bool = False, mesh_hint: str = _MESH_HINT, at_least: bool = False) -> None:
     """An :class:`OutputTooLargeError` naming the size and ``name`` (the argument or CLI option giving it) when the
     render's framebuffers and images (:func:`_render_bytes`) exceed the memory budget; called before any render
     starts (and, in the CLI, before the DEM is read). ``texture``: the (rows, cols) of a textured mesh's texture,
     whose texels count too (only the window was counted: a 17000 x 17000 texture in a small window took 4.6 GB past
     any budget); ``smaller_texture``: how the caller makes it smaller, in the hint (a command names its own option:
-    the library's "a larger texel size" named none ``stepterrain globe`` has)."""
+    the library's "a larger texel size" named none ``stepterrain globe`` has). ``mesh``: the (vertices, faces) of
+    the mesh drawn, whose copies count too (``face_colors``: drawn with a colour per face; only the window was
+    counted: an 18 M-face stepped mesh took 1.2 GiB in a 400 x 300 window checked as 5.5 MiB); ``mesh_hint`` says how
+    to make it smaller when it weighs more than the window; ``at_least``: ``mesh`` is the fewest the mesh will have
+    (the CLI's, before it is made)."""
     what = f"an off-screen render of {width} x {height} pixels ({name} {width}x{height}" \
            + (", anti-aliased)" if anti_aliasing else ")")
     texels = 0
@@ -753,8 +783,15 @@ def _check_render_budget(width: int, height: int, name: str = "window_size", *, 
         texels = rows * cols
         what += f" of a mesh with a {cols} x {rows} texel texture"
         hint += f" or {smaller_texture}"
-    check_budget(_render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa,
-                               texels=texels), what, hint=hint)
+    n_vertices, n_faces = (0, 0) if mesh is None else (int(n) for n in mesh)
+    need = _render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa, texels=texels,
+                         vertices=n_vertices, faces=n_faces, face_colors=face_colors)
+    window = _render_bytes(width, height, anti_aliasing=anti_aliasing, layered=layered, ssaa=ssaa, texels=texels)
+    if 2 * window < need:  # the mesh's copies weigh most: named, and a smaller window does not help
+        size = f"{counted(n_faces, 'face', grouped=True)} and {counted(n_vertices, 'vertex', 'vertices', grouped=True)}"
+        what += (" and" if texture is not None else " of a mesh") + f" of {'at least ' if at_least else ''}{size}"
+        hint = f"{mesh_hint} (its copies for rendering grow with the mesh, not with the {name})"
+    check_budget(need, what, hint=hint)
 
 
 @_quietly
@@ -962,8 +999,8 @@ def render_textured_mesh(
         The mesh has no UVs, UVs that are not (V, 2) finite numbers, or no texture image, an infinite vertex, or a
         bad window size, z_scale, camera or view_angle.
     OutputTooLargeError
-        The render's memory, its window's and its texture's (16 bytes per texel), exceeds the memory budget, as in
-        :func:`render_mesh`.
+        The render's memory, its window's, its texture's (16 bytes per texel) and its mesh's copies (about 40 bytes
+        per face and 112 per vertex), exceeds the memory budget, as in :func:`render_mesh`.
     MissingDependencyError
         No off-screen OpenGL context can be made.
     """
@@ -982,7 +1019,8 @@ def render_textured_mesh(
     uv, picture = _decoded_texture(*source)
     translucent = picture.ndim == 3 and picture.shape[2] == 4
     # the texture's texels too; SSAA, not MSAA, for a translucent one (see _shoot): more memory
-    _check_render_budget(width, height, anti_aliasing=anti_aliasing, ssaa=translucent, texture=picture.shape)
+    _check_render_budget(width, height, anti_aliasing=anti_aliasing, ssaa=translucent, texture=picture.shape,
+                         mesh=(len(local), len(mesh.faces)))
 
     pv = _import_pyvista()
     _check_background(pv, background)
@@ -1253,7 +1291,9 @@ class LayeredRenderer:
         color, depth = renderer.render(["overview"])   # depth: z-buffer in [0, 1), inf where empty
 
     A window whose passes would exceed the memory budget (about 64 bytes per pixel with the images read back) is
-    refused when the renderer is made, with an OutputTooLargeError.
+    refused when the renderer is made, with an OutputTooLargeError; so is a :meth:`set_mesh` whose mesh, with those
+    already held, would (their copies for rendering, about 40 bytes per face and 112 per vertex, as in
+    :func:`render_mesh`).
     """
 
     def __init__(self, *, window_size: tuple[int, int] = (1280, 720),
@@ -1340,6 +1380,10 @@ class LayeredRenderer:
             values = _layer_values(values, len(vertices), name)
         if len(faces) == 0 or bounds is None:
             raise InvalidInputError(f"layer {name!r} has no faces or no finite vertex; nothing to render")
+        # the copies of every mesh held, this one's included, as render_mesh counts its mesh's (only the window was)
+        held = [(entry[0].n_points, len(entry[2])) for other, entry in self._meshes.items() if other != name]
+        _check_render_budget(*self.size, layered=True, mesh=(len(vertices) + sum(v for v, _ in held),
+                                                             len(faces) + sum(f for _, f in held)))
         lo, hi = bounds
         origin = (lo + hi) / 2.0 if self._origin is None else self._origin
         local_box = np.array([lo, hi]) - origin

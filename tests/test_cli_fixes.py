@@ -1375,3 +1375,46 @@ def test_batch_band_reaches_every_file_its_fingerprint_and_metadata(tmp_path, ca
                        "-o", tmp_path / "n")
     assert code == 2 and "--band 2 applies to GeoTIFF only; the only input holds one band" in err, err
     assert not (tmp_path / "x").exists() and not (tmp_path / "emb").exists()
+
+
+def test_steps_png_counts_the_mesh_against_the_render_budget(tmp_path, capsys):
+    """steps --png checked the render's window alone (5.5 MiB at --size 400x300) while the render's copies of the mesh
+    grow with it: the embedded DEM at --interval 5 (18 M faces) took 1.2-1.5 GiB in the render step. Now the DEM's
+    surface (the fewest faces the mesh can have) is checked before stepping, and the stepped mesh before the render,
+    each naming the mesh's size and options that make it smaller (a smaller --size does not); nothing is written."""
+    rng = np.random.default_rng(0)
+    big, small = tmp_path / "big.npy", tmp_path / "small.npy"
+    np.save(big, rng.random((80, 80)) * 100)
+    np.save(small, rng.random((30, 30)) * 100)
+    args = ["--interval", "2", "--png", tmp_path / "r.png", "--size", "64x48", "-o", tmp_path / "m.glb"]
+    code, _, err = run(capsys, "--memory-budget", "1MiB", "steps", big, *args)
+    assert code == 2
+    assert "stepping" not in err  # refused from the DEM's surface, before the step
+    assert ("error: an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh of at least 12,482 faces and "
+            "6,400 vertices would need") in err
+    assert "give a larger --interval, --coarsen N or a --crop, or leave --png out" in err
+    code, _, err = run(capsys, "--memory-budget", "12MiB", "steps", small, *args)  # the mesh fits, its render not
+    assert code == 2
+    assert re.search(r"\n[^\n]*error: an off-screen render of 64 x 48 pixels \(--size 64x48\) of a mesh of "
+                     r"[0-9,]+ faces and [0-9,]+ vertices would need [0-9.]+ MiB, over the memory budget of 12\.0 MiB",
+                     err), err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.npy", "small.npy"]
+
+
+def test_steps_checks_the_mesh_file_against_the_budget_before_the_render(tmp_path, capsys, monkeypatch):
+    """The mesh file's write (its writers' copies: ~24 bytes a vertex and 40 a face for .glb, 352 a face for .stl) is
+    checked as soon as the mesh is known: a write refused after the render wasted the render."""
+    from stepterrain import render
+
+    def no_render(*args, **kwargs):
+        raise AssertionError("the render started before the write was checked")
+
+    monkeypatch.setattr(render, "render_mesh", no_render)
+    dem = tmp_path / "small.npy"
+    np.save(dem, np.random.default_rng(0).random((30, 30)) * 100)
+    code, _, err = run(capsys, "--memory-budget", "40MiB", "steps", dem, "--interval", "2", "--png", tmp_path / "r.png",
+                       "--size", "64x48", "-o", tmp_path / "m.stl")
+    assert code == 2
+    assert re.search(r"error: writing '.*m\.stl' \(\.stl, a mesh of [0-9,]+ faces and [0-9,]+ vertices\) would "
+                     r"need", err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.npy"]

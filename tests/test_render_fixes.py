@@ -1033,3 +1033,83 @@ def test_a_texture_over_the_render_budget_is_refused_before_it_is_decoded(tiny_b
         getattr(render, name)(mesh, window_size=(64, 48))
     assert picture._im is None  # never loaded
     picture.close()
+
+
+def _grid_mesh(n: int) -> trimesh.Trimesh:
+    """A heightfield of n x n nodes: 2 (n - 1)² faces, n² vertices."""
+    x, y = np.meshgrid(np.arange(n, dtype=float), np.arange(n, dtype=float))
+    z = np.random.default_rng(0).random((n, n))
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    return trimesh.Trimesh(np.stack([x.ravel(), y.ravel(), z.ravel()], 1), faces, process=False)
+
+
+@pytest.mark.parametrize("name", ["render_mesh", "render_textured_mesh", "globe.render_view"])
+def test_a_mesh_whose_render_copies_are_over_the_budget_is_refused_whatever_the_window(name, tiny_budget,
+                                                                                          monkeypatch):
+    """Only the window (and a texture's texels) was counted, while the copies made for rendering (the recentred
+    vertices, the PolyData's cells, VTK's and llvmpipe's buffers) grow with the mesh: ~26 bytes a face and ~94 a
+    vertex measured, so the stepped embedded DEM at interval 5 (18 M faces) took 1.2-1.5 GiB in a 400 x 300 render
+    checked as 5.5 MiB. The mesh is now counted before any copy of it is made, and the message says that a smaller
+    window does not help."""
+    from stepterrain import globe
+
+    monkeypatch.setattr(render, "_import_pyvista", _no_render)
+    monkeypatch.setattr(globe, "_view_frame", _no_render)
+    mesh = _grid_mesh(80)  # 12,482 faces, 6,400 vertices
+    if name == "render_textured_mesh":
+        mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.vertices[:, :2] / 80.0,
+                                                    image=Image.fromarray(np.zeros((4, 4, 3), np.uint8)))
+    assert render._render_bytes(64, 48, texels=16) <= st.get_memory_budget() // 4  # the window alone fits
+    assert render._render_bytes(64, 48, vertices=6400, faces=12482) > st.get_memory_budget()
+    call = {
+        "render_mesh": lambda: render.render_mesh(mesh, window_size=(64, 48)),
+        "render_textured_mesh": lambda: render.render_textured_mesh(mesh, window_size=(64, 48)),
+        "globe.render_view": lambda: globe.render_view(mesh, globe.look_from(0.0, 0.0, 1000.0, radius=100.0),
+                                                       window_size=(64, 48)),
+    }[name]
+    with pytest.raises(OutputTooLargeError, match=r"^an off-screen render of 64 x 48 pixels \(window_size 64x48\) of "
+                                                   r"a mesh .*12,482 faces and 6,400 vertices would need .* MiB, over "
+                                                   r"the memory budget of 1\.0 MiB; render a mesh of fewer faces .*"
+                                                   r"not with the window_size\)"):
+        call()
+    with pytest.raises(AssertionError, match="the render started"):  # a mesh of a quarter the nodes fits
+        render.render_mesh(_grid_mesh(40), window_size=(64, 48))
+
+
+def test_face_colours_count_against_the_render_budget(tiny_budget, monkeypatch):
+    """A colour per face (a PLY or 3MF read back) costs more to render than none (VTK's cell colours): a mesh that
+    fits plain is refused with face colours once they push it over the budget."""
+    monkeypatch.setattr(render, "_import_pyvista", _no_render)
+    mesh = _grid_mesh(64)  # 7,938 faces, 4,096 vertices
+    size = dict(vertices=4096, faces=7938)
+    assert render._render_bytes(64, 48, **size) <= st.get_memory_budget() < render._render_bytes(
+        64, 48, face_colors=True, **size)
+    with pytest.raises(AssertionError, match="the render started"):
+        render.render_mesh(mesh, window_size=(64, 48))
+    mesh.visual.face_colors = np.full((len(mesh.faces), 4), 200, np.uint8)
+    with pytest.raises(OutputTooLargeError, match=r"of a mesh of 7,938 faces and 4,096 vertices would need"):
+        render.render_mesh(mesh, window_size=(64, 48))
+
+
+@needs_render
+def test_layered_renderer_counts_every_mesh_it_holds_against_the_budget():
+    """A LayeredRenderer (render_closeups') checked its window alone, while it holds a render copy of every mesh set
+    on it at once: the meshes are counted now, each set_mesh adding its mesh to those held (a mesh replaced by name
+    counted once), before it is uploaded."""
+    mesh = _grid_mesh(40)  # 3,042 faces, 1,600 vertices
+    one = render._render_bytes(64, 48, layered=True, vertices=1600, faces=3042)
+    two = render._render_bytes(64, 48, layered=True, vertices=3200, faces=6084)
+    previous = st.set_memory_budget(two)
+    try:
+        assert one < two < render._render_bytes(64, 48, layered=True, vertices=4800, faces=9126)
+        with render.LayeredRenderer(window_size=(64, 48)) as renderer:
+            renderer.set_mesh("a", mesh.vertices, mesh.faces)
+            renderer.set_mesh("b", mesh.vertices + 50.0, mesh.faces)
+            renderer.set_mesh("a", mesh.vertices + 1.0, mesh.faces)  # replaced: still two meshes held
+            with pytest.raises(OutputTooLargeError, match=r"of a mesh of 9,126 faces and 4,800 vertices would need"):
+                renderer.set_mesh("c", mesh.vertices + 100.0, mesh.faces)
+            assert sorted(renderer._meshes) == ["a", "b"]  # refused before it was uploaded
+    finally:
+        st.set_memory_budget(previous)

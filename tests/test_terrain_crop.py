@@ -409,7 +409,7 @@ def test_steps_crop_of_a_geotiff_over_the_memory_budget_reads_only_its_window(tm
     x0, _, _, y1 = whole.extent
     crop = (x0 + 3000.0, x0 + 6000.0, y1 - 5000.0, y1 - 2000.0)  # 101 x 101 nodes
     budget = ["--memory-budget", "2000000"]  # the mesh fits; the whole file does not
-    out = tmp_path / "part.ply"
+    out = tmp_path / "part.glb"  # a .ply's write (~4 MB for this mesh: its copies, counted now) would not fit
     code = cli.main(["steps", str(source), "--crop", ",".join(map(repr, crop)), "--interval", "100", "-o", str(out),
                      *budget])
     assert code == 0, capsys.readouterr().err
