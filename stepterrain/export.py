@@ -406,6 +406,11 @@ def save_mesh(
     as points by ``.glb``/``.gltf`` (a points primitive), ``.obj`` (``v`` lines) and ``.ply`` (the vertex
     element), which read back as a point cloud; ``.stl`` and ``.3mf`` hold triangles only and refuse it.
 
+    glTF/GLB files are y-up, as glTF 2.0 §3.4 requires: the positions are stored as the mesh holds them, z up, under a
+    node turning them -90 degrees about x (rotation quaternion (-sqrt(0.5), 0, 0, sqrt(0.5)); a textured mesh, which
+    trimesh's writer writes, the same turn as the node's matrix), so that the world coordinates are (x, z, -y): heights
+    along +Y, north (+y) along -Z, and Blender, three.js and model-viewer show a terrain (a globe's pole axis) upright.
+    :func:`read_mesh` turns them back z-up exactly; ``trimesh.load`` gives the y-up world.
     glTF/GLB files carry no vertex normals, so viewers shade faces flat (glTF 2.0 §3.7.2.1) and stair edges
     stay crisp. Every primitive has a matte material (metallicFactor 0, roughnessFactor 1, white baseColorFactor,
     double-sided; alphaMode BLEND when some vertex alpha is below 255, as a close-up's anchors, else OPAQUE):
@@ -433,7 +438,8 @@ def save_mesh(
     readers read header lines into fixed buffers: MeshLab's of 512 bytes, VTK's of 4096); usually one line. Readers
     that do not know it skip comments; :func:`read_mesh` gives it back as the mesh's metadata. glTF accessors
     are float32, so when coordinates exceed 65536 (UTM metres, a globe) the vertices are stored relative to a node
-    translation (float64 in the JSON: the floor of the centre of the bounds) and loaders that apply the scene graph
+    translation (float64 in the JSON: the floor of the centre of the bounds, (ox, oz, -oy) in the turned world frame)
+    and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
     0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
     meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
@@ -1036,6 +1042,17 @@ def _empty_document(mesh: trimesh.Trimesh, target: Path) -> tuple[dict[str, Any]
     return tree, []
 
 
+#: The node transform of every mesh save_mesh writes to glTF: stepterrain's z-up coordinates (as the positions hold
+#: them) into glTF's y-up world (glTF 2.0 §3.4: +Y up, and +Z toward the viewer): -90 degrees about x, so that
+#: (x, y, z) is (x, z, -y) there: heights along +Y, north along -Z. Without it, Blender's importer (y-up to its
+#: z-up) stood a terrain on its edge, and three.js, model-viewer and Cesium orbited it about the wrong axis.
+_Z_UP_TO_Y_UP = np.array([[1.0, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0], [0, 0, 0, 1]])
+#: The same turn as the node's rotation, a unit quaternion (x, y, z, w); sqrt(0.5) to float64's last digit, which
+#: readers (trimesh) turn into the exact matrix above.
+_Z_UP_TO_Y_UP_QUATERNION = (-float(np.sqrt(0.5)), 0.0, 0.0, float(np.sqrt(0.5)))
+#: Its inverse, a glTF's y-up world coordinates as stepterrain's z-up ones: (x, y, z) -> (x, -z, y).
+_Y_UP_TO_Z_UP = _Z_UP_TO_Y_UP.T.copy()
+
 # glTF 2.0 constants (§3.6.2, §5.11): component types and buffer view targets
 _GL_UNSIGNED_INT, _GL_FLOAT = 5125, 5126
 _GL_ARRAY_BUFFER, _GL_ELEMENT_ARRAY_BUFFER = 34962, 34963
@@ -1091,10 +1108,11 @@ def _gltf_document(
     offset = np.zeros(3)
     # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
     positions = recycled_empty(vertices.shape, np.dtype("<f4"))
+    node["rotation"] = list(_Z_UP_TO_Y_UP_QUATERNION)  # z-up positions, a y-up world (glTF 2.0 §3.4)
     if _is_large(frame):
         offset = _local_origin(frame)
         np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
-        node["translation"] = [float(v) for v in offset]
+        node["translation"] = [float(v) + 0.0 for v in _Z_UP_TO_Y_UP[:3, :3] @ offset]  # in the world frame; no -0
     else:
         np.copyto(positions, vertices, casting="unsafe")
     # v -> float32(v - offset) is monotonic, so the bounds of the stored values are the converted bounds
@@ -1626,7 +1644,10 @@ _WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds, Bounds], None
 def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     """A mesh file read back as one ``trimesh.Trimesh`` (``process=False``), as ``stepterrain info`` describes it.
 
-    trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates), plus what it misses in the files
+    trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates; a glTF's world, y-up by its spec, turned
+    z-up, (x, y, z) -> (x, -z, y): a file :func:`save_mesh` wrote gives back exactly the vertices written, to float32's
+    rounding about its local origin, and one written before its glTF files were turned y-up, whose nodes were not
+    rotated, as it stands), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
     ``force="mesh"`` dropped) comes back as a mesh without faces, an empty glTF (a node without a mesh) with its
     node's ``extras`` as its metadata (trimesh drops them), a glTF's vertex colours come back as sRGB bytes
@@ -1665,10 +1686,12 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if own is not None:
                 return own
         gltf = file.suffix.lower() in (".glb", ".gltf")
-        color = None
+        color, y_up = None, False
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
-            _check_dense_gltf(file)
+            y_up = not _stored_z_up(_check_dense_gltf(file))
             scene = trimesh.load_scene(file, process=False)
+            if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
+                scene.apply_transform(_Y_UP_TO_Z_UP)
             color = _color_attribute(scene)
             loaded = scene.to_mesh()
         else:  # an OBJ of faces of vertex indices only keeps the vertices no face names (_obj_faces_name_vertices_only)
@@ -1676,7 +1699,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             order = {"maintain_order": True} if plain_obj else {}
             loaded = trimesh.load(file, force="mesh", process=False, **order)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-            loaded = _read_points(file) or loaded
+            loaded = _read_points(file, gltf and y_up) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file))
             if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
@@ -1799,13 +1822,13 @@ def _white_material(material: Any) -> bool:
     return factor is None or bool((np.asarray(factor) == 255).all())
 
 
-def _check_dense_gltf(file: Path) -> None:
+def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     """Raise a ValueError where a primitive of the glTF or GLB ``file`` takes its positions or indices from a sparse
     accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
     replacements, so the mesh came back with the base values (a terrain flat at z = 0) without a word; and where the
     file requires a compression trimesh's reader cannot decode here (Draco without DracoPy: every position 0, with
-    a log line only; meshopt); and where a ``.gltf`` is not JSON. Reads the JSON only (a GLB's chunk); a GLB whose
-    JSON cannot be read is left to trimesh's reader."""
+    a log line only; meshopt); and where a ``.gltf`` is not JSON. Reads the JSON only (a GLB's chunk), and gives it
+    back (None where it cannot be read: a GLB whose JSON cannot be read is left to trimesh's reader)."""
     try:
         with open(file, "rb") as stream:
             head = stream.read(20)
@@ -1822,7 +1845,7 @@ def _check_dense_gltf(file: Path) -> None:
                     why = f"{type(exc).__name__}: {exc}"
                     raise ValueError(f"not a glTF file: its JSON does not parse ({why})") from None
             else:
-                return  # not a GLB: trimesh's reader says so
+                return None  # not a GLB: trimesh's reader says so
         required = set(tree.get("extensionsRequired") or [])
         if "KHR_draco_mesh_compression" in required and importlib.util.find_spec("DracoPy") is None:
             raise ValueError("the glTF's meshes are Draco-compressed (KHR_draco_mesh_compression), which trimesh's "
@@ -1843,7 +1866,19 @@ def _check_dense_gltf(file: Path) -> None:
                         raise ValueError(f"{sparse}, which trimesh's reader reads as its base values alone: write "
                                          "the file without sparse accessors (Blender and most exporters do)")
     except (OSError, UnicodeDecodeError, json.JSONDecodeError, struct.error, AttributeError, TypeError):
-        return
+        return None
+    return tree if isinstance(tree, dict) else None
+
+
+def _stored_z_up(tree: dict[str, Any] | None) -> bool:
+    """True for a glTF whose world holds z up, against glTF's convention (§3.4: +Y up): one stepterrain wrote before it
+    turned its meshes y-up, generator "stepterrain" and no node rotated (its nodes held a translation at most). Every
+    other glTF is y-up, and :func:`read_mesh` turns it z-up."""
+    if not isinstance(tree, dict) or not isinstance(tree.get("asset"), dict):
+        return False
+    nodes = tree.get("nodes")
+    return (tree["asset"].get("generator") == "stepterrain" and isinstance(nodes, list)
+            and not any(isinstance(node, dict) and ("rotation" in node or "matrix" in node) for node in nodes))
 
 
 def _empty_gltf_extras(file: Path) -> dict[str, Any]:
@@ -1981,10 +2016,12 @@ def _check_format(file: Path) -> None:
                                      "statement (v, vt, vn, f, o, g, usemtl, ...); is it of another format?")
 
 
-def _read_points(file: Path) -> trimesh.Trimesh | None:
-    """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None
-    without any."""
+def _read_points(file: Path, y_up: bool = False) -> trimesh.Trimesh | None:
+    """The point clouds of ``file`` (in world coordinates, with their colours; ``y_up``: a glTF's, turned z-up) as one
+    mesh without faces; None without any."""
     loaded = trimesh.load(file, process=False)
+    if y_up and isinstance(loaded, trimesh.Scene):
+        loaded.apply_transform(_Y_UP_TO_Z_UP)
     parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
     clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
     if not clouds:
@@ -2437,14 +2474,14 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     if mesh.visual.kind == "texture" and material is not None:
         mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    transform = np.eye(4)
+    transform = _Z_UP_TO_Y_UP.copy()  # exact 0 and ±1: trimesh writes it as the node's matrix
     if _is_large(bounds):
         offset = _local_origin(bounds)
         copied = mesh.copy(include_cache=False)  # its material's copy dropped a JPEG's format (Image.copy())
         _share_texture_images(getattr(mesh.visual, "material", None), getattr(copied.visual, "material", None))
         mesh = copied
         mesh.vertices = vertices - offset
-        transform[:3, 3] = offset
+        transform[:3, 3] = _Z_UP_TO_Y_UP[:3, :3] @ offset + 0.0  # in the world frame
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
         _encoded_textures(mesh.visual.material)  # the prepared copy's own material (or _textured_material's)
     scene = trimesh.Scene()

@@ -6,7 +6,7 @@ step tessellation with terraces and walls (§3.2, Fig. 2-3), the γ interpolatio
 dynamic data (§4). Typical use:
 
     mesh = stepterrain.stepped(stepterrain.sample_dem(), interval=100.0)
-    mesh.export("steps.glb")
+    stepterrain.export.save_mesh(mesh, "steps.glb")  # y-up, as glTF viewers expect (trimesh's export keeps z up)
 
 ``stepterrain.stepped`` is this module, callable as its function :func:`stepped` (stepterrain._callable_module), so
 ``stepterrain.stepped.thresholds_of`` (any name here) works too.

@@ -1071,17 +1071,19 @@ _FOLDS_NAMED = 5
 
 def _y_up_hint(points: NDArray[np.float64], faces: NDArray[np.int64]) -> str:
     """What to add to the refusal of a TIN that is a height field along y, not z: a terrain read from a file with y
-    up (glTF's convention, which Blender and three.js export; read_mesh and trimesh give its coordinates as stored),
-    which folds or lies on a line in xy. Told apart by the faces' areas seen along each axis (signed: a surface
-    facing up one axis), the largest along y; "" for other meshes."""
+    up (Blender's OBJ export by default, three.js' exporters; OBJ, PLY and STL have no axis convention, and read_mesh
+    gives their coordinates as stored, while it turns a glTF, y-up by its spec, z-up itself), which folds or lies on
+    a line in xy. Told apart by the faces' areas seen along each axis (signed: a surface facing up one axis), the
+    largest along y; "" for other meshes."""
     corners = points[faces]
     with np.errstate(over="ignore", invalid="ignore"):
         normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
         net, total = np.abs(normal.sum(axis=0)), np.abs(normal).sum(axis=0)
     if not (net[1] > max(net[0], net[2]) and net[1] > 0.5 * total[1]):  # NaN (inf coordinates) too
         return ""
-    return (". Its faces face along y more than along z, as a terrain's do in a file with y up (glTF's convention: "
-            "Blender's and three.js' exports; read_mesh gives the coordinates as stored): if it is one, turn it z-up, "
+    return (". Its faces face along y more than along z, as a terrain's do in a file with y up (Blender's OBJ "
+            "export, three.js' exporters; read_mesh gives an OBJ's, PLY's or STL's coordinates as stored, and turns a "
+            "glTF z-up): if it is one, turn it z-up, "
             "mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0])), as Blender does on "
             "import")
 
@@ -1555,8 +1557,9 @@ def as_terrain(
             raise InvalidInputError("spacing/origin apply to raw (H, W) arrays only, not to a trimesh TIN")
         return Terrain.from_mesh(terrain)
     if isinstance(terrain, (trimesh.Scene, trimesh.parent.Geometry)):  # numpy made a 0-d object array of it
-        hint = (" (trimesh.load gives one for a glTF/GLB; load it with trimesh.load(path, force='mesh') or join its "
-                "meshes with scene.to_mesh())" if isinstance(terrain, trimesh.Scene) else "")
+        hint = (" (trimesh.load gives one for a glTF/GLB; read the file with stepterrain.export.read_mesh(path): one "
+                "mesh, z up, where trimesh.load(path, force='mesh') and scene.to_mesh() give glTF's y-up world, a "
+                "terrain on its edge)" if isinstance(terrain, trimesh.Scene) else "")
         raise InvalidInputError(f"terrain must be an (H, W) array, a Terrain or a trimesh.Trimesh TIN; got a "
                                 f"{type(terrain).__module__}.{type(terrain).__name__}{hint}")
     if type(terrain).__module__.split(".")[0] == "pyvista":  # not imported here: import stepterrain leaves VTK alone

@@ -39,7 +39,10 @@ TUJUNGA = "big_tujunga_srtm_30m_utm11n.npz"
 
 
 def load(path: Path | str) -> trimesh.Trimesh:
-    return trimesh.load(path, force="mesh", process=False)
+    """A tile's mesh in stepterrain's frame: read_mesh turns a glTF's y-up world back z-up."""
+    from stepterrain.export import read_mesh
+
+    return read_mesh(path)
 
 
 def weld(meshes: list[trimesh.Trimesh], decimals: int = 3) -> tuple[np.ndarray, np.ndarray]:

@@ -10,6 +10,7 @@ import pytest
 import trimesh
 
 from stepterrain.batch import MANIFEST_NAME, batch
+from stepterrain.export import read_mesh
 from stepterrain.mesh import boundary_edges
 
 
@@ -54,7 +55,7 @@ def test_tiles_written_as_float32_weld_exactly(tmp_path, fmt, spacing, origin):
     report = batch(z, tmp_path, tile_size=(16, 20), interval=3.0, spacing=spacing, origin=origin, format=fmt,
                    scheduler="serial")  # fmt: skip
     assert report.ok and len(report.done) == 2 * 2
-    meshes = [trimesh.load(r.path, force="mesh", process=False) for r in report.done]  # node translations applied
+    meshes = [read_mesh(r.path) for r in report.done]  # node translations applied
     vertices = np.concatenate([np.asarray(m.vertices, np.float64) for m in meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in meshes])[:-1]
     faces = np.concatenate([np.asarray(m.faces) + o for m, o in zip(meshes, offsets, strict=True)])
@@ -86,8 +87,9 @@ def test_save_mesh_shared_bounds_are_checked(tmp_path):
     out = save_mesh(box, tmp_path / "box.glb", shared_bounds=[[399000.7, 3799000.2, -3.5], [401000.0, 3801000.0, 50]])
     from .test_export import glb_json
 
-    assert glb_json(out)["nodes"][0]["translation"] == [400000.0, 3800000.0, 23.0]
-    np.testing.assert_allclose(trimesh.load(out, force="mesh", process=False).vertices, box.vertices, atol=1e-6)
+    # the local origin (400000, 3800000, 23) in glTF's y-up world: (ox, oz, -oy)
+    assert glb_json(out)["nodes"][0]["translation"] == [400000.0, 23.0, -3800000.0]
+    np.testing.assert_allclose(read_mesh(out).vertices, box.vertices, atol=1e-6)
 
 
 # a batch run in another process that holds its first item until the file `go` appears (`started` says it began)
@@ -451,7 +453,7 @@ def test_solid_tiles_are_closed_at_the_floor_of_the_whole_rasters_solid(tmp_path
     assert report.ok and len(report.done) == 4 * 3
     floors = {glb_json(tmp_path / f"{r.key}.glb")["meshes"][0]["extras"]["floor"] for r in report.done}
     assert floors == {whole.metadata["floor"]}
-    lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
+    lowest = [read_mesh(r.path).vertices[:, 2].min() for r in report.done]
     np.testing.assert_allclose(lowest, whole.vertices[:, 2].min(), atol=1e-3)  # the base itself lies there
 
 
@@ -468,7 +470,7 @@ def test_solid_frames_of_a_series_stand_on_one_floor(tmp_path):
         report = batch(frames, tmp_path / str(len(kwargs["levels"]) if "levels" in kwargs else "interval"),
                        solid=True, format=".ply", scheduler="serial", **kwargs)  # fmt: skip
         assert report.ok and len(report.done) == 3
-        lowest = [trimesh.load(r.path, force="mesh", process=False).vertices[:, 2].min() for r in report.done]
+        lowest = [read_mesh(r.path).vertices[:, 2].min() for r in report.done]
         np.testing.assert_allclose(lowest, whole.metadata["floor"], atol=1e-4)
 
 
@@ -1784,14 +1786,14 @@ def test_cli_batch_spacing_and_coarsen_apply_to_each_file_and_are_recorded(tmp_p
     argv = ["-q", "batch", str(tmp_path / "tiles"), "--interval", "50", "--scheduler", "serial", "-o", str(out)]
     assert cli.main(argv + ["--spacing", "30", "--coarsen", "2"]) == 0
     for f in files:
-        mesh = trimesh.load(out / f"{f.stem}.glb", force="mesh", process=False)
+        mesh = read_mesh(out / f"{f.stem}.glb")
         expected = stepped(_placed(load_dem(f), 30.0).coarsen(2), interval=50.0)
         assert len(mesh.faces) == len(expected.faces)
         np.testing.assert_allclose(mesh.bounds, expected.bounds, atol=1e-2)
         extras = glb_json(out / f"{f.stem}.glb")["meshes"][0]["extras"]
         assert extras["spacing"] == [30.0, -30.0] and extras["coarsen"] == 2 and "crop" not in extras
     # a node every 60 m: 21 columns -> 10 coarse nodes
-    east = trimesh.load(out / "east.glb", force="mesh", process=False)
+    east = read_mesh(out / "east.glb")
     assert east.bounds[1, 0] - east.bounds[0, 0] == pytest.approx(9 * 60.0, abs=1e-2)
     capsys.readouterr()
     assert cli.main(["batch", *argv[2:], "--spacing", "30", "--coarsen", "2"]) == 0
@@ -1871,7 +1873,7 @@ def test_coarsened_tiles_of_one_raster_weld_as_the_coarsened_raster(tmp_path):
     reference = whole.crop(crop).coarsen(3)
     rows, cols = reference.heights.shape
     assert report.ok and len(report.done) == -(-(rows - 1) // 16) * -(-(cols - 1) // 24) > 4
-    meshes = [trimesh.load(r.path, force="mesh", process=False) for r in report.done]
+    meshes = [read_mesh(r.path) for r in report.done]
     vertices, faces = weld(meshes, decimals=2)
     values = isovalues(reference.height_range, interval=100.0)
     expected = stepped(reference, levels=values)
@@ -2067,7 +2069,7 @@ def test_batch_crop_of_a_geotiff_to_tile_reads_only_the_crops_window(tmp_path, c
     crop = (x0 + 3000.0, x0 + 6000.0, y1 - 5000.0, y1 - 2000.0)  # 101 x 101 nodes
     reference = batch(whole, tmp_path / "ref", tile_size=40, crop=crop, coarsen=2, interval=100.0, format=".ply",
                       scheduler="serial")
-    previous = st.set_memory_budget(1_000_000)
+    previous = st.set_memory_budget(2_000_000)  # a tile's .ply write needs ~1.1 MB, the raster 3.1 MB
     try:
         with pytest.raises(OutputTooLargeError, match=r"the raster: 643 x 1197 cells"):
             batch(str(tif), tmp_path / "whole", tile_size=40, interval=100.0, scheduler="serial")

@@ -586,7 +586,7 @@ def test_gltf_positions_of_a_globe_round_within_float32_of_its_radius(tmp_path, 
     sphere = trimesh.creation.icosphere(subdivisions=3)
     mesh = trimesh.Trimesh(sphere.vertices * radius * 1.0001 + centre, sphere.faces, process=False)
     half = np.abs(mesh.vertices - mesh.bounds.mean(axis=0)).max()  # half the extent, about the radius
-    back = trimesh.load(save_mesh(mesh, tmp_path / f"globe{ext}"), force="mesh", process=False)  # node applied
+    back = read_mesh(save_mesh(mesh, tmp_path / f"globe{ext}"))  # node applied, its y-up world turned back z-up
     error = np.abs(back.vertices - mesh.vertices).max()
     assert error <= np.spacing(np.float32(half)) / 2 * (1 + 1e-9), error  # half a float32 step at the radius
 
@@ -1530,7 +1530,8 @@ def test_a_gltf_with_sparse_positions_is_refused_not_read_as_its_base_values(tmp
                 + struct.pack("<II", len(text), 0x4E4F534A) + text + struct.pack("<II", len(blob), 0x004E4942) + blob)
 
     (tmp_path / "dense.glb").write_bytes(glb(False))
-    np.testing.assert_array_equal(read_mesh(tmp_path / "dense.glb").vertices, points)
+    # read as glTF's y-up world turned z-up: (x, y, z) -> (x, -z, y)
+    np.testing.assert_array_equal(read_mesh(tmp_path / "dense.glb").vertices, points[:, [0, 2, 1]] * [1, -1, 1])
     (tmp_path / "sparse.glb").write_bytes(glb(True))
     with pytest.raises(DataFileError, match=r"cannot read '.*sparse\.glb' as a mesh: ValueError: glTF accessor 0 \(a "
                                             r"primitive's POSITION\) is sparse, which trimesh's reader reads as its "
@@ -1658,3 +1659,85 @@ def test_face_colours_count_against_the_write_budget(tmp_path):
             export.save_mesh(mesh, tmp_path / "coloured.glb")
     finally:
         st.set_memory_budget(previous)
+
+
+def _gltf_tree(path) -> dict:
+    data = path.read_bytes()
+    if data[:4] == b"glTF":
+        data = data[20 : 20 + int.from_bytes(data[12:16], "little")]
+    return json.loads(data)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+@pytest.mark.parametrize("kind", ["plain", "large", "textured", "large textured", "points"])
+def test_a_gltf_world_is_y_up_and_reads_back_z_up_exactly(tmp_path, ext, kind):
+    # glTF 2.0 §3.4: +Y up. The node held the z-up positions unturned: Blender (y-up to its z-up) showed the terrain
+    # standing on its edge, three.js and model-viewer orbited it about the wrong axis
+    z = np.add.outer(np.arange(5.0), np.arange(6.0) ** 1.5) * 10.0 + 0.123
+    origin = (376328.655, 3807902.827) if "large" in kind else (0.0, 0.0)
+    mesh = st.heightfield_mesh(z, spacing=(30.0, -30.0), origin=origin)  # row 0 to the north
+    if "textured" in kind:
+        mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(mesh.vertices), 2)),
+                                                    image=Image.new("RGB", (4, 4), "red"))  # fmt: skip
+    if kind == "points":
+        mesh = trimesh.Trimesh(mesh.vertices, np.zeros((0, 3), np.int64), process=False)
+    out = save_mesh(mesh, tmp_path / f"t{ext}")
+    (node,) = _gltf_tree(out)["nodes"]
+    s = float(np.sqrt(0.5))
+    if "textured" in kind:  # trimesh's writer: the same turn and translation as a matrix (column-major)
+        matrix = np.array(node["matrix"]).reshape(4, 4).T
+        rotation, translation = matrix[:3, :3], matrix[:3, 3]
+        assert np.array_equal(rotation, [[1, 0, 0], [0, 0, 1], [0, -1, 0]])
+    else:
+        assert node["rotation"] == [-s, 0.0, 0.0, s]
+        translation = np.array(node.get("translation", [0.0, 0.0, 0.0]))
+    lo = mesh.vertices.min(axis=0)
+    hi = mesh.vertices.max(axis=0)
+    if "large" in kind:  # the local origin (floor of the centre) in the world frame: (ox, oz, -oy)
+        offset = np.floor(lo / 2 + hi / 2)
+        assert translation.tolist() == [offset[0], offset[2], -offset[1]]
+    else:
+        offset = np.zeros(3)
+        assert translation.tolist() == [0.0, 0.0, 0.0]
+    # the file as a viewer sees it: heights along +Y, north (+y) along -Z
+    world = np.asarray(trimesh.load(out, process=False).to_geometry().vertices)
+    expected = (np.asarray(mesh.vertices) - offset).astype(np.float32).astype(np.float64) + offset
+    np.testing.assert_allclose(world, expected[:, [0, 2, 1]] * [1, 1, -1], rtol=0, atol=1e-6)
+    assert world[:, 1].max() == pytest.approx(z.max(), abs=1e-3)
+    assert world[:, 1].min() == pytest.approx(z.min(), abs=1e-3)
+    north = np.argmax(mesh.vertices[:, 1])
+    assert world[north, 2] == world[:, 2].min()
+    # read_mesh undoes the turn: the vertices as written, bit for bit (float32 relative to the local origin)
+    back = read_mesh(out)
+    assert np.array_equal(np.asarray(back.vertices), expected)
+    if "textured" not in kind and kind != "points":
+        assert len(back.faces) == len(mesh.faces) and st.Terrain.from_mesh(back).kind == "tin"
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_y_up_gltf_from_another_tool_reads_z_up_and_steps(tmp_path, ext):
+    # Blender's and three.js' glTF exports hold y up (glTF 2.0 §3.4); read_mesh gave them as stored, and a terrain from
+    # one was refused as folding over in xy
+    z = np.add.outer(np.arange(8.0), np.arange(9.0)) * 5.0 + np.random.default_rng(1).random((8, 9))
+    terrain = st.heightfield_mesh(z, spacing=(10.0, -10.0), origin=(100.0, 200.0))
+    y_up = terrain.copy()
+    y_up.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # (x, y, z) -> (x, z, -y)
+    assert np.allclose(y_up.vertices[:, 1], terrain.vertices[:, 2])
+    out = tmp_path / f"blender{ext}"
+    trimesh.Scene(y_up).export(out)  # a y-up scene, no node rotation
+    back = read_mesh(out)
+    np.testing.assert_allclose(back.vertices, terrain.vertices, rtol=0, atol=1e-4)
+    steps = st.stepped(st.Terrain.from_mesh(back), interval=10.0)
+    assert len(steps.faces) and np.ptp(steps.vertices[:, 2]) > 20.0
+
+
+def test_a_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tmp_path):
+    # stepterrain's glTF files held z up before they were turned y-up: generator "stepterrain" and no node rotation;
+    # read_mesh reads them as they were written, not turned
+    z = np.add.outer(np.arange(4.0), np.arange(5.0)) * 3.0
+    mesh = st.heightfield_mesh(z, spacing=(2.0, -2.0))
+    out = save_mesh(mesh, tmp_path / "old.gltf")
+    tree = json.loads(out.read_text())
+    del tree["nodes"][0]["rotation"]  # as the old writer wrote it
+    out.write_text(json.dumps(tree))
+    assert np.array_equal(read_mesh(out).vertices, mesh.vertices)

@@ -41,7 +41,8 @@ def test_real_stepped_terrain_round_trips_with_colors(tmp_path, real_stepped, ex
     # UTM metres: STL's float32 rounds them by up to 0.125 m here, and says so
     with pytest.warns(UserWarning, match="stores float32") if ext == ".stl" else contextlib.nullcontext():
         out = save_mesh(real_stepped, tmp_path / f"steps{ext}")
-    back = trimesh.load(out, force="mesh", process=False)
+    # read_mesh: a glTF's world is y-up, read back z-up
+    back = read_mesh(out) if ext in (".glb", ".gltf") else trimesh.load(out, force="mesh", process=False)
     assert_valid_mesh(back)
     if ext in (".stl", ".3mf", ".obj"):  # these formats weld or split vertices their own way
         assert len(back.faces) == len(real_stepped.faces)

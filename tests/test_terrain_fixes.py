@@ -732,12 +732,13 @@ def test_a_tin_read_from_stl_or_from_a_gltf_of_two_parts_steps_welded(tmp_path, 
     path = tmp_path / f"tin{ext}"
     if ext == ".stl":
         tin.export(path)
-    else:  # two parts, each with its own copy of the points on the seam
+    else:  # two parts, each with its own copy of the points on the seam; y-up, as glTF holds them (read z-up)
         half = len(tin.faces) // 2
         scene = trimesh.Scene()
+        y_up = tin.vertices[:, [0, 2, 1]] * [1, 1, -1]
         for part in (tin.faces[:half], tin.faces[half:]):
             used = np.unique(part)
-            scene.add_geometry(trimesh.Trimesh(tin.vertices[used], np.searchsorted(used, part), process=False))
+            scene.add_geometry(trimesh.Trimesh(y_up[used], np.searchsorted(used, part), process=False))
         scene.export(path)
     read = read_mesh(path)
     assert len(read.vertices) > len(tin.vertices)  # copies: read as the file holds them
@@ -770,10 +771,11 @@ def test_welding_keeps_points_apart_where_colours_differ_or_a_face_would_lose_a_
 
 
 def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
-    """glTF's y is up: Blender and three.js export a terrain with its heights along y, and read_mesh (as trimesh)
-    gives the coordinates as stored. Such a TIN folds over or overlaps itself in xy, and the refusal spoke only of
-    decimation and Delaunay. It now says the faces face along y and names the turn to z-up (what Blender's importer
-    does), after which the TIN steps as the z-up one."""
+    """Blender and three.js export a terrain to OBJ (and glTF) with its heights along y, and read_mesh gives an OBJ's
+    coordinates as stored (the format has no axis convention). Such a TIN folds over or overlaps itself in xy, and the
+    refusal spoke only of decimation and Delaunay. It now says the faces face along y and names the turn to z-up
+    (what Blender's importer does), after which the TIN steps as the z-up one. A glTF is y-up by its spec: read_mesh
+    turns it z-up itself, and it steps as it is."""
     from stepterrain.export import read_mesh
 
     tin = _sheet(6, 7, spacing=10.0)
@@ -781,7 +783,7 @@ def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
     y_up = tin.copy()
     y_up.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))  # as glTF exporters store it
     np.testing.assert_allclose(y_up.vertices[:, 1], tin.vertices[:, 2], atol=1e-9)
-    path = tmp_path / "blender.glb"
+    path = tmp_path / "blender.obj"
     y_up.export(path)
     mesh = read_mesh(path)
     hint = r"Its faces face along y more than along z, .* if it is one, turn it z-up, mesh\.apply_transform\("
@@ -795,6 +797,9 @@ def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
     mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # the turn the message names
     want = st.stepped(tin, interval=2.0)
     got = st.stepped(mesh, interval=2.0)
+    assert len(got.faces) == len(want.faces) and got.area == pytest.approx(want.area, rel=1e-5)
+    y_up.export(tmp_path / "blender.glb")  # glTF: y-up by its spec, read z-up
+    got = st.stepped(read_mesh(tmp_path / "blender.glb"), interval=2.0)
     assert len(got.faces) == len(want.faces) and got.area == pytest.approx(want.area, rel=1e-5)
     for other in (trimesh.creation.box(), trimesh.creation.icosphere(), _joined(_sheet(), _sheet(z=9.0))):
         with pytest.raises(InvalidInputError) as info:  # not terrains with y up: no such hint
@@ -817,7 +822,8 @@ def test_a_utm_tin_rounded_by_a_float32_file_is_refused_saying_so(tmp_path):
                           Delaunay(xy - xy.min(axis=0)).simplices, process=False)
     assert len(st.stepped(tin, interval=1.0).faces)
     path = tmp_path / "utm.glb"
-    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Trimesh(tin.vertices.astype(np.float32), tin.faces,
+    y_up = tin.vertices[:, [0, 2, 1]] * [1, 1, -1]  # as glTF holds it (read_mesh turns it z-up)
+    path.write_bytes(trimesh.exchange.gltf.export_glb(trimesh.Trimesh(y_up.astype(np.float32), tin.faces,
                                                                        process=False).scene()))
     rounded = read_mesh(path)
     assert 0.0 < np.abs(rounded.vertices - tin.vertices).max() <= 0.125

@@ -677,7 +677,8 @@ def test_cli_texture_texel_size_shades_the_finer_grid_and_drapes_it(tmp_path, sm
     embedded = np.asarray(back.visual.material.baseColorTexture.convert("RGB"))
     assert embedded.shape == (160, 200, 3) and np.array_equal(embedded, fine)
     uv = np.asarray(back.visual.uv)
-    xy = np.asarray(back.vertices)[:, :2]  # the nodes' x 0..49, y -39..0; the texture's extent half a node beyond
+    world = np.asarray(back.vertices)  # glTF's y-up world, as trimesh and viewers read it: y is -z there
+    xy = np.c_[world[:, 0], -world[:, 2]]  # the nodes' x 0..49, y -39..0; the texture's extent half a node beyond
     assert np.allclose(uv[:, 0], (xy[:, 0] + 0.5) / 50) and np.allclose(uv[:, 1], (xy[:, 1] + 39.5) / 40)
 
 
