@@ -604,6 +604,13 @@ def _coarsened(terrain: Terrain, factor: int) -> Terrain:
         raise InvalidInputError(f"coarsen={factor}: {exc}") from None
 
 
+def _of_files(source: Any) -> bool:
+    """Whether a batch ``source`` names DEM files (a path, a glob, a folder, or a list of paths), which load_dem reads:
+    what ``height_unit`` and ``band`` apply to."""
+    return isinstance(source, (str, os.PathLike)) or (
+        isinstance(source, (list, tuple)) and all(isinstance(f, (str, os.PathLike)) for f in source))
+
+
 def _check_crop(terrain: Terrain, crop: ArrayLike) -> None:
     """:meth:`Terrain.crop`'s refusals of ``crop`` for ``terrain`` but that of nodata only, named as
     :func:`_reshaped_source` names them (a GeoTIFF read only in the crop's window is checked so first)."""
@@ -1597,9 +1604,7 @@ def batch(
         from .io import check_height_unit
 
         height_unit = check_height_unit(height_unit)
-        if not isinstance(source, (str, os.PathLike, list, tuple)) or (
-            isinstance(source, (list, tuple)) and not all(isinstance(f, (str, os.PathLike)) for f in source)
-        ):
+        if not _of_files(source):
             raise InvalidInputError(
                 f"height_unit applies to DEM files, read by load_dem; got a {type(source).__name__} source "
                 f"(its heights are used as they are)"
@@ -1608,9 +1613,7 @@ def batch(
         if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)) or band < 1:
             raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
         band = int(band)
-        if not isinstance(source, (str, os.PathLike, list, tuple)) or (
-            isinstance(source, (list, tuple)) and not all(isinstance(f, (str, os.PathLike)) for f in source)
-        ):
+        if not _of_files(source):
             raise InvalidInputError(
                 f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "
                 f"source, which holds one band; got band={band}"

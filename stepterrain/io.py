@@ -504,15 +504,22 @@ def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
     :func:`load_dem` and :func:`~stepterrain.batch.load_series` read .npz files through this."""
     if _check_magic(file, (_ZIP_MAGIC, _EMPTY_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive").startswith(_NPY_MAGIC):
         return read_npy(file)  # a .npy saved under an .npz name: a plain array (its size checked too)
+    return _each_npz_member(file, _npz_member)
+
+
+def _each_npz_member(file: Path, read: Callable[[Any, str, Path], Any]) -> dict[str, Any]:
+    """``{key: read(archive, key, file)}`` for the members of the .npz archive ``file`` (an archive, not a .npy under
+    an .npz name: :func:`read_npz` and :func:`npz_member_ndims` test that first), an unreadable archive or member a
+    DataFileError in :func:`read_npz`'s words."""
     try:
-        archive = np.load(file, allow_pickle=False)
+        archive = np.load(file, allow_pickle=False)  # the zip directory only
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
         ) from exc
     try:
         with archive:
-            return {key: _npz_member(archive, key, file) for key in archive.files}
+            return {key: read(archive, key, file) for key in archive.files}
     except DataFileError:
         raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
@@ -528,21 +535,7 @@ def npz_member_ndims(file: Path) -> dict[str, int] | int:
     the memory budget; unreadable archives), in its words; a member's damaged data is left to the read."""
     if _check_magic(file, (_ZIP_MAGIC, _EMPTY_ZIP_MAGIC, _NPY_MAGIC), "a NumPy .npz archive").startswith(_NPY_MAGIC):
         return read_npy(file, mmap_mode="r").ndim  # a map: its header only
-    try:
-        archive = np.load(file, allow_pickle=False)  # the zip directory only
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise DataFileError(
-            f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
-        ) from exc
-    try:
-        with archive:
-            return {key: _npz_member_ndim(archive, key, file) for key in archive.files}
-    except DataFileError:
-        raise
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise DataFileError(
-            f"cannot read {str(file)!r}: a member of the .npz archive is unreadable ({exc})"
-        ) from exc
+    return _each_npz_member(file, _npz_member_ndim)
 
 
 def _npz_member_ndim(archive: Any, key: str, file: Path) -> int:
