@@ -1647,7 +1647,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates; a glTF's world, y-up by its spec, turned
     z-up, (x, y, z) -> (x, -z, y): a file :func:`save_mesh` wrote gives back exactly the vertices written, to float32's
     rounding about its local origin, and one written before its glTF files were turned y-up, whose nodes were not
-    rotated, as it stands), plus what it misses in the files
+    rotated (generator "stepterrain", or a textured mesh whose metadata names a stepterrain generator, as the CLI's
+    do), as it stands), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
     ``force="mesh"`` dropped) comes back as a mesh without faces, an empty glTF (a node without a mesh) with its
     node's ``extras`` as its metadata (trimesh drops them), a glTF's vertex colours come back as sRGB bytes
@@ -1872,13 +1873,32 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
 
 def _stored_z_up(tree: dict[str, Any] | None) -> bool:
     """True for a glTF whose world holds z up, against glTF's convention (§3.4: +Y up): one stepterrain wrote before it
-    turned its meshes y-up, generator "stepterrain" and no node rotated (its nodes held a translation at most). Every
-    other glTF is y-up, and :func:`read_mesh` turns it z-up."""
+    turned its meshes y-up, no node rotated (its nodes held a translation at most, or a matrix of one) and either
+    generator "stepterrain" (its own writer) or, a textured mesh, which trimesh's writer wrote under trimesh's
+    generator, a mesh whose ``extras`` name a stepterrain generator (the metadata the CLI writes: ``texture --mesh``,
+    ``globe --texture``; those read on their edge when only the asset's generator was looked at). Every other glTF is
+    y-up, and :func:`read_mesh` turns it z-up."""
     if not isinstance(tree, dict) or not isinstance(tree.get("asset"), dict):
         return False
-    nodes = tree.get("nodes")
-    return (tree["asset"].get("generator") == "stepterrain" and isinstance(nodes, list)
-            and not any(isinstance(node, dict) and ("rotation" in node or "matrix" in node) for node in nodes))
+    nodes, meshes = tree.get("nodes"), tree.get("meshes")
+    if not isinstance(nodes, list):
+        return False
+    ours = tree["asset"].get("generator") == "stepterrain" or (isinstance(meshes, list) and any(
+        isinstance(mesh, dict) and isinstance(mesh.get("extras"), dict)
+        and str(mesh["extras"].get("generator", "")).split(" ")[0] == "stepterrain" for mesh in meshes))
+    return ours and not any(isinstance(node, dict)
+                            and ("rotation" in node or not _translation_matrix(node.get("matrix"))) for node in nodes)
+
+
+def _translation_matrix(matrix: Any) -> bool:
+    """True for a glTF node's ``matrix`` (column-major, 16 numbers) that translates at most, or none given."""
+    if matrix is None:
+        return True
+    try:
+        m = np.asarray(matrix, dtype=np.float64).reshape(4, 4).T
+    except (TypeError, ValueError):
+        return False
+    return bool(np.array_equal(m[:3, :3], np.eye(3)) and np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]))
 
 
 def _empty_gltf_extras(file: Path) -> dict[str, Any]:
