@@ -1748,7 +1748,7 @@ def test_a_textured_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tm
     # a textured mesh (stepterrain texture --mesh, globe --texture) was written by trimesh's writer, generator trimesh,
     # its node's matrix a translation at most, and the CLI's metadata (generator "stepterrain ...") in the mesh's
     # extras: read_mesh turned such a file as a y-up one, the terrain on its edge (heights along -y)
-    z = np.add.outer(np.arange(4.0), np.arange(5.0)) * 3.0
+    z = 10.0 + np.add.outer(np.arange(4.0), np.sin(np.arange(5.0))) * 0.5
     mesh = st.heightfield_mesh(z, spacing=(2.0, -2.0), origin=(500000.0, 4000000.0) if large else (0.0, 0.0))
     mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(mesh.vertices), 2)),
                                                 image=Image.new("RGB", (4, 4), (200, 100, 50)))
@@ -1771,3 +1771,9 @@ def test_a_textured_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tm
     del tree["meshes"][0]["extras"]["generator"]
     out.write_text(json.dumps(tree))
     assert np.ptp(read_mesh(out).vertices[:, 1]) == pytest.approx(np.ptp(mesh.vertices[:, 2]))
+    # a stepterrain glTF that trimesh loaded as one mesh (its y-up world) and wrote again keeps the metadata, but
+    # no node matrix: y-up, read turned
+    again = trimesh.load(save_mesh(mesh, tmp_path / "new.glb"), force="mesh", process=False)
+    assert again.metadata["generator"] == "stepterrain texture"
+    again.export(tmp_path / "again.glb")
+    np.testing.assert_allclose(read_mesh(tmp_path / "again.glb").vertices, mesh.vertices, rtol=0, atol=1e-3)
