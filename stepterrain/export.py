@@ -1647,7 +1647,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     trimesh's reader (``force="mesh"``: a scene's meshes in world coordinates; a glTF's world, y-up by its spec, turned
     z-up, (x, y, z) -> (x, -z, y): a file :func:`save_mesh` wrote gives back exactly the vertices written, to float32's
     rounding about its local origin, and one written before its glTF files were turned y-up, whose nodes were not
-    rotated, as it stands), plus what it misses in the files
+    rotated (generator "stepterrain", or a textured mesh whose metadata names a stepterrain generator, as the CLI's
+    do, and whose faces face along z where its coordinates are small), as it stands), plus what it misses in the files
     :func:`save_mesh` writes: a file of points (vertices without faces; trimesh reads a point cloud, which
     ``force="mesh"`` dropped) comes back as a mesh without faces, an empty glTF (a node without a mesh) with its
     node's ``extras`` as its metadata (trimesh drops them), a glTF's vertex colours come back as sRGB bytes
@@ -1688,8 +1689,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         gltf = file.suffix.lower() in (".glb", ".gltf")
         color, y_up = None, False
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
-            y_up = not _stored_z_up(_check_dense_gltf(file))
+            stored_z_up = _stored_z_up(_check_dense_gltf(file))
             scene = trimesh.load_scene(file, process=False)
+            y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
                 scene.apply_transform(_Y_UP_TO_Z_UP)
             color = _color_attribute(scene)
@@ -1870,15 +1872,58 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     return tree if isinstance(tree, dict) else None
 
 
-def _stored_z_up(tree: dict[str, Any] | None) -> bool:
+def _stored_z_up(tree: dict[str, Any] | None) -> bool | None:
     """True for a glTF whose world holds z up, against glTF's convention (§3.4: +Y up): one stepterrain wrote before it
-    turned its meshes y-up, generator "stepterrain" and no node rotated (its nodes held a translation at most). Every
-    other glTF is y-up, and :func:`read_mesh` turns it z-up."""
+    turned its meshes y-up, no node rotated (its nodes held a translation at most) and generator "stepterrain" (its
+    own writer), or, a textured mesh, which trimesh's writer wrote under trimesh's generator, a mesh whose ``extras``
+    name a stepterrain generator (the metadata the CLI writes: ``texture --mesh``, ``globe --texture``; those read on
+    their edge when only the asset's generator was looked at) with a node matrix of its offset (a translation). Such
+    a file without a matrix (small coordinates) is None, undecided: the same as a stepterrain glTF that trimesh
+    loaded as a mesh (its y-up world) and wrote again, the extras kept; :func:`read_mesh` then looks at which way its
+    faces face (:func:`_faces_along_z`). Every other glTF is y-up (False), and :func:`read_mesh` turns it z-up."""
     if not isinstance(tree, dict) or not isinstance(tree.get("asset"), dict):
         return False
-    nodes = tree.get("nodes")
-    return (tree["asset"].get("generator") == "stepterrain" and isinstance(nodes, list)
-            and not any(isinstance(node, dict) and ("rotation" in node or "matrix" in node) for node in nodes))
+    nodes, meshes = tree.get("nodes"), tree.get("meshes")
+    if not isinstance(nodes, list):
+        return False
+    if any(isinstance(node, dict) and ("rotation" in node or not _translation_matrix(node.get("matrix")))
+           for node in nodes):
+        return False
+    if tree["asset"].get("generator") == "stepterrain":
+        return True
+    ours = isinstance(meshes, list) and any(
+        isinstance(mesh, dict) and isinstance(mesh.get("extras"), dict)
+        and str(mesh["extras"].get("generator", "")).split(" ")[0] == "stepterrain" for mesh in meshes)
+    if not ours:
+        return False
+    return True if any(isinstance(node, dict) and "matrix" in node for node in nodes) else None
+
+
+def _faces_along_z(scene: trimesh.Scene) -> bool:
+    """True where the faces of ``scene`` (its world, as stored) face along z, mostly one way (a z-up terrain's, summed
+    by area), more than along y; False for a y-up terrain, and for a closed surface (a globe, a box) facing no
+    one way."""
+    net, total = np.zeros(3), np.zeros(3)
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geometry = scene.geometry.get(name)
+        if isinstance(geometry, trimesh.Trimesh) and len(geometry.faces):
+            normals = (np.asarray(transform)[:3, :3] @ (geometry.face_normals * geometry.area_faces[:, None]).T).T
+            net += normals.sum(axis=0)
+            total += np.abs(normals).sum(axis=0)
+    net = np.abs(net)  # x is x in either frame: z against y only
+    return bool(net[2] > net[1] and net[2] > 0.5 * total[2])
+
+
+def _translation_matrix(matrix: Any) -> bool:
+    """True for a glTF node's ``matrix`` (column-major, 16 numbers) that translates at most, or none given."""
+    if matrix is None:
+        return True
+    try:
+        m = np.asarray(matrix, dtype=np.float64).reshape(4, 4).T
+    except (TypeError, ValueError):
+        return False
+    return bool(np.array_equal(m[:3, :3], np.eye(3)) and np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]))
 
 
 def _empty_gltf_extras(file: Path) -> dict[str, Any]:

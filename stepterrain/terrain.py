@@ -682,11 +682,11 @@ class Terrain:
                 f"terrain mesh faces must project one-to-one onto the xy plane; none of its "
                 f"{counted(len(faces), 'face')} with finite heights has an area in xy (the points lie on a line or at "
                 f"one point: x over {span[0]:.6g}, y over {span[1]:.6g}), so it is no height field"
-                f"{_y_up_hint(points, faces)}"
+                f"{_y_up_hint(points, faces, flipped)}"
             )
         if negative.any():
             raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
-                                    + _y_up_hint(points, faces) + _float32_hint(points, point_used))
+                                    + _y_up_hint(points, faces, flipped) + _float32_hint(points, point_used))
         welded = _welded(points, faces, visual)
         try:
             edges, face_edges = _edge_table(welded, len(points), np.flatnonzero(valid))
@@ -713,7 +713,7 @@ class Terrain:
                 f"{named} faces must project one-to-one onto the xy plane; faces {int(kept[first])} and "
                 f"{int(kept[second])} overlap in xy around ({x:.10g}, {y:.10g}) (at least {count} of its {len(faces)} "
                 "faces with finite heights overlap another: two sheets one above the other, or a surface that wraps "
-                f"over itself){_y_up_hint(points, faces)}{_float32_hint(points, point_used)}"
+                f"over itself){_y_up_hint(points, faces, flipped)}{_float32_hint(points, point_used)}"
             )
         return cls(
             kind="tin",
@@ -1069,18 +1069,28 @@ def _node_span(lo: float, hi: float, origin: float, step: float, n: int) -> tupl
 _FOLDS_NAMED = 5
 
 
-def _y_up_hint(points: NDArray[np.float64], faces: NDArray[np.int64]) -> str:
+def _y_up_hint(points: NDArray[np.float64], faces: NDArray[np.int64], flipped: bool = False) -> str:
     """What to add to the refusal of a TIN that is a height field along y, not z: a terrain read from a file with y
     up (Blender's OBJ export by default, three.js' exporters; OBJ, PLY and STL have no axis convention, and read_mesh
     gives their coordinates as stored, while it turns a glTF, y-up by its spec, z-up itself), which folds or lies on
     a line in xy. Told apart by the faces' areas seen along each axis (signed: a surface facing up one axis), the
-    largest along y; "" for other meshes."""
+    largest along y; "" for other meshes. The turn named follows the way the faces face (as the file winds them:
+    ``flipped``, the caller reversed them), counter-clockwise seen from above as glTF and most exporters wind them:
+    along +y, +90 degrees about x; along -y, a terrain's heights run down y (a glTF holding z up against its spec, as
+    trimesh's own export writes a z-up mesh, which read_mesh turned as y-up), -90 degrees: the +90 degree turn stepped
+    such a terrain upside down (its heights negated) without a word."""
     corners = points[faces]
     with np.errstate(over="ignore", invalid="ignore"):
         normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        net, total = np.abs(normal.sum(axis=0)), np.abs(normal).sum(axis=0)
+        signed = normal.sum(axis=0)
+        net, total = np.abs(signed), np.abs(normal).sum(axis=0)
     if not (net[1] > max(net[0], net[2]) and net[1] > 0.5 * total[1]):  # NaN (inf coordinates) too
         return ""
+    if (signed[1] < 0) != flipped:  # heights down y: a z-up glTF (against glTF's spec) that read_mesh turned
+        return (". Its faces face along y more than along z, as a terrain's do in a file with y up, but down y, as "
+                "when a glTF holds its terrain z up against glTF's spec (trimesh's own export of a z-up mesh writes "
+                "it so) and read_mesh turned it as y-up: if it is one, turn it z-up, "
+                "mesh.apply_transform(trimesh.transformations.rotation_matrix(-np.pi / 2, [1, 0, 0]))")
     return (". Its faces face along y more than along z, as a terrain's do in a file with y up (Blender's OBJ "
             "export, three.js' exporters; read_mesh gives an OBJ's, PLY's or STL's coordinates as stored, and turns a "
             "glTF z-up): if it is one, turn it z-up, "

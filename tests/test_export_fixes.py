@@ -1741,3 +1741,39 @@ def test_a_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tmp_path):
     del tree["nodes"][0]["rotation"]  # as the old writer wrote it
     out.write_text(json.dumps(tree))
     assert np.array_equal(read_mesh(out).vertices, mesh.vertices)
+
+
+@pytest.mark.parametrize("large", [False, True])
+def test_a_textured_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tmp_path, large):
+    # a textured mesh (stepterrain texture --mesh, globe --texture) was written by trimesh's writer, generator trimesh,
+    # its node's matrix a translation at most, and the CLI's metadata (generator "stepterrain ...") in the mesh's
+    # extras: read_mesh turned such a file as a y-up one, the terrain on its edge (heights along -y)
+    z = 10.0 + np.add.outer(np.arange(4.0), np.sin(np.arange(5.0))) * 0.5
+    mesh = st.heightfield_mesh(z, spacing=(2.0, -2.0), origin=(500000.0, 4000000.0) if large else (0.0, 0.0))
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.random.default_rng(0).random((len(mesh.vertices), 2)),
+                                                image=Image.new("RGB", (4, 4), (200, 100, 50)))
+    mesh.metadata["generator"] = "stepterrain texture"
+    out = save_mesh(mesh, tmp_path / "old.gltf")
+    tree = json.loads(out.read_text())
+    node = tree["nodes"][0]
+    assert tree["asset"]["generator"] != "stepterrain"
+    assert tree["meshes"][0]["extras"]["generator"] == "stepterrain texture"
+    turn = np.asarray(node.pop("matrix")).reshape(4, 4).T
+    if large:  # as the old writer wrote it: the same positions, the offset untouched by any turn
+        old = np.eye(4)
+        old[:3, 3] = turn[:3, :3].T @ turn[:3, 3]
+        node["matrix"] = old.T.reshape(-1).tolist()
+    out.write_text(json.dumps(tree))
+    back = read_mesh(out)
+    assert np.ptp(back.vertices[:, 2]) == pytest.approx(np.ptp(mesh.vertices[:, 2]))  # heights along z
+    np.testing.assert_allclose(back.vertices, mesh.vertices, rtol=0, atol=1e-6)
+    # the same file without stepterrain's metadata (trimesh's own export of a z-up mesh) is y-up by glTF's spec
+    del tree["meshes"][0]["extras"]["generator"]
+    out.write_text(json.dumps(tree))
+    assert np.ptp(read_mesh(out).vertices[:, 1]) == pytest.approx(np.ptp(mesh.vertices[:, 2]))
+    # a stepterrain glTF that trimesh loaded as one mesh (its y-up world) and wrote again keeps the metadata, but
+    # no node matrix: y-up, read turned
+    again = trimesh.load(save_mesh(mesh, tmp_path / "new.glb"), force="mesh", process=False)
+    assert again.metadata["generator"] == "stepterrain texture"
+    again.export(tmp_path / "again.glb")
+    np.testing.assert_allclose(read_mesh(tmp_path / "again.glb").vertices, mesh.vertices, rtol=0, atol=1e-3)

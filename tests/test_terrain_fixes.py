@@ -807,6 +807,29 @@ def test_a_y_up_terrain_is_refused_with_the_turn_that_makes_it_z_up(tmp_path):
         assert "along y" not in str(info.value)
 
 
+def test_a_z_up_gltf_read_turned_is_refused_with_the_turn_that_keeps_it_right_side_up(tmp_path):
+    """trimesh's own export (mesh.export("x.glb")) writes a z-up terrain's coordinates as stored, against glTF's y-up
+    spec; read_mesh turns any glTF z-up, so the terrain's heights run down y, and the refusal named the +90 degree
+    turn of a y-up file: followed, the terrain stepped upside down (heights negated, mirrored), without a word. The
+    hint now follows the way the faces face and names -90 degrees, after which it steps as the z-up TIN."""
+    from stepterrain.export import read_mesh
+
+    tin = _sheet(6, 7, spacing=10.0)
+    tin.vertices[:, 2] = 100.0 + 4.0 * tin.vertices[:, 2]
+    tin.export(tmp_path / "trimesh.glb")  # z up as stored: glTF readers show it on its edge
+    mesh = read_mesh(tmp_path / "trimesh.glb")
+    with pytest.raises(InvalidInputError, match=r"faces face along y more than along z, .* turn it z-up, "
+                                                r"mesh\.apply_transform\(trimesh\.transformations\.rotation_matrix"
+                                                r"\(-np\.pi / 2, \[1, 0, 0\]\)\)") as info:
+        st.stepped(mesh, interval=2.0)
+    turn = float(str(info.value).split("rotation_matrix(")[1].split(" / 2")[0].replace("np.pi", "1"))
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(turn * np.pi / 2, [1, 0, 0]))  # the turn named
+    np.testing.assert_allclose(mesh.vertices, tin.vertices, atol=1e-4)  # right side up, not mirrored
+    want, got = st.stepped(tin, interval=2.0), st.stepped(mesh, interval=2.0)
+    assert len(got.faces) == len(want.faces) and got.area == pytest.approx(want.area, rel=1e-5)
+    np.testing.assert_allclose(got.bounds, want.bounds, atol=1e-4)
+
+
 def test_a_utm_tin_rounded_by_a_float32_file_is_refused_saying_so(tmp_path):
     """A glTF (or STL) written by another program holds float32 positions; at a UTM northing those lie 0.25 m apart,
     so a dense TIN at map coordinates comes back with its points rounded and some faces folded. The refusal spoke of
