@@ -248,7 +248,7 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> tuple[in
     the image's (width, height) from its header, for :func:`_refuse_gdal_image_extent` (None where Pillow cannot
     read it)."""
     from .texture import _check_extent
-    from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff, _world_file_hint
+    from .texture_lod import _georeferenced_extent, _georeferencing, _read_tiff, _tiff_as_stored, _world_file_hint
 
     if path is None:
         if extent is not None:
@@ -265,6 +265,7 @@ def _check_image(path: str | None, extent: tuple[float, ...] | None) -> tuple[in
 
         try:  # the header only
             with Image.open(file) as image:
+                _tiff_as_stored(image)  # a TIFF's size as stored (drawn so), not as its Orientation tag turns it
                 return image.size
         except Exception:  # noqa: BLE001 - a TIFF only GDAL reads: left to image_layer, unchecked
             return None

@@ -163,11 +163,12 @@ def _source_image(image: Any, dataset: Any = None) -> tuple[NDArray[np.uint8], s
 
             try:
                 with Image.open(path) as picture:
+                    orientation = _tiff_as_stored(picture)  # not turned by Pillow, as GDAL (the window read) reads it
                     # its pixels are decoded whole (level 0): checked first, as a GeoTIFF read with rasterio is
                     _check_read_budget(path, (len(picture.getbands()), picture.height, picture.width),
                                        np.dtype(np.uint8), "the image")
                     image = picture_uint8(picture, f"image {str(path)!r}", alpha=True)
-                    _warn_exif_orientation(picture, path)
+                    _warn_exif_orientation(picture, path, orientation=orientation)
             except (InvalidInputError, OutputTooLargeError):  # readable, but not an image a pyramid holds, or too big
                 raise
             except (UnidentifiedImageError, OSError, ValueError, Image.DecompressionBombError) as exc:
@@ -223,14 +224,16 @@ _EXIF_TURNS = {2: "mirrored left to right", 3: "rotated 180°", 4: "mirrored top
                7: "mirrored and rotated 90° clockwise", 8: "rotated 90° counter-clockwise"}
 
 
-def _warn_exif_orientation(picture: Any, path: Path, exif: Any = None) -> None:
+def _warn_exif_orientation(picture: Any, path: Path, exif: Any = None, orientation: int | None = None) -> None:
     """Warn when an image file carries an EXIF orientation other than 1: viewers show it turned, the pyramid (as GDAL
     and QGIS) takes its stored pixels, so an extent given for the picture as seen places it turned. ``exif``: its
-    EXIF already read (a ``PIL.Image.Exif``), else ``picture.getexif()``."""
-    try:
-        orientation = (picture.getexif() if exif is None else exif).get(0x0112)
-    except Exception:  # noqa: BLE001 - unreadable EXIF: nothing to say
-        return
+    EXIF already read (a ``PIL.Image.Exif``), else ``picture.getexif()``; ``orientation``: a TIFF's Orientation tag
+    as :func:`_tiff_as_stored` took it out of ``picture`` (its EXIF no longer holds it)."""
+    if orientation is None:
+        try:
+            orientation = (picture.getexif() if exif is None else exif).get(0x0112)
+        except Exception:  # noqa: BLE001 - unreadable EXIF: nothing to say
+            return
     turn = _EXIF_TURNS.get(orientation)
     if turn is None:
         return
@@ -238,6 +241,27 @@ def _warn_exif_orientation(picture: Any, path: Path, exif: Any = None) -> None:
     warnings.warn(f"image {str(path)!r} has EXIF orientation {orientation} ({turn} to view): it is drawn as stored, "
                   f"{width} x {height} pixels, as GDAL reads it; to use it as viewers show it, build from "
                   "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))", stacklevel=caller_stacklevel())
+
+
+def _tiff_as_stored(picture: Any) -> int | None:
+    """The Orientation tag (274) of ``picture``, a TIFF opened with Pillow and not decoded yet, taken out of it so
+    that Pillow decodes its pixels as stored, as GDAL reads them (and :func:`_warn_exif_orientation` says so); None
+    for another format or without the tag. Pillow (13: every TIFF; earlier, one libtiff decodes, compressed) turns a
+    TIFF by its tag as it decodes it and then drops the tag: a whole read drew it turned, over GDAL's extent of the
+    stored pixels (stretched for a 90° turn), unlike the window read (rasterio), without the warning; an uncompressed
+    grey or palette TIFF turned 90° came out scrambled (Pillow maps its stored rows at the turned size)."""
+    if getattr(picture, "format", None) != "TIFF":
+        return None
+    tags = picture.tag_v2
+    orientation = tags.get(274)
+    if orientation is None:
+        return None
+    del tags[274]
+    with contextlib.suppress(Exception):  # its EXIF, read at open, holds the tag that Pillow turns by
+        picture.getexif().pop(274, None)
+    if 256 in tags and 257 in tags:  # the size Pillow gives (turned for a 90° turn at open): the stored one
+        picture._size = (int(tags[256]), int(tags[257]))
+    return int(orientation) if isinstance(orientation, int) else None
 
 
 def _read_tiff(path: Path, read: Callable[[Any], Any], any_format: bool = False, dataset: Any = None) -> Any:
@@ -550,7 +574,8 @@ class ImagePyramid:
         image : (H, W) or (H, W, C) uint8 array, a numpy memmap, or a path (.npy is memory-mapped; PNG, JPEG,
             TIFF are read with Pillow, and a TIFF of 8-bit bands or a PNG as Pillow reads them with rasterio, a band
             of rows at a time, never whole: see Notes; a transparent colour, and a GeoTIFF's nodata or mask band,
-            read with rasterio, become alpha; an EXIF orientation is not applied, as GDAL does not apply it: warned)
+            read with rasterio, become alpha; an EXIF orientation, or a TIFF's Orientation tag, is not applied, as
+            GDAL does not apply it: warned)
         extent : (xmin, xmax, ymin, ymax), optional
             World extent of the image's outer pixel edges (default: a GeoTIFF's own bounds, or a JPEG's or PNG's
             from the world file beside it (``.jgw``, ``.pgw``, ``.wld``, or an ``.aux.xml``), read with rasterio,
@@ -1550,6 +1575,7 @@ def _pillow_mode(path: Path) -> tuple[str, bool, bool, Callable[[], None]] | Non
     try:
         with Image.open(path) as picture:
             exif = None
+            orientation = _tiff_as_stored(picture)  # its size as stored, for the warning
             if picture.format == "PNG" and "exif" not in picture.info:
                 # an eXIf chunk after the image data, or none: Pillow's getexif() decoded the whole image to look
                 exif = Image.Exif()
@@ -1560,7 +1586,7 @@ def _pillow_mode(path: Path) -> tuple[str, bool, bool, Callable[[], None]] | Non
                 with contextlib.suppress(Exception):  # unreadable EXIF: nothing to warn of
                     exif = picture.getexif()
             return (picture.mode, "transparency" in picture.info, bool(picture.info.get("interlace")),
-                    lambda: _warn_exif_orientation(picture, path, exif))
+                    lambda: _warn_exif_orientation(picture, path, exif, orientation))
     except Exception:  # noqa: BLE001 - UnidentifiedImageError, DecompressionBombError, OSError: rasterio reads it
         return None
 

@@ -840,3 +840,35 @@ def test_an_image_files_exif_orientation_is_warned_of_once_without_decoding_it(t
         f"image {str(path)!r} has EXIF orientation 6 (rotated 90° clockwise to view): it is drawn as stored, 30 x 20 "
         "pixels, as GDAL reads it; to use it as viewers show it, build from "
         "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))"]
+
+
+@pytest.mark.parametrize("compression", [None, "tiff_deflate"])
+@pytest.mark.parametrize("orientation", [3, 6])
+def test_a_tiff_with_an_orientation_tag_is_drawn_as_stored_read_whole_or_by_bands(tmp_path, compression, orientation):
+    """Pillow turns a TIFF by its Orientation tag (274) as it decodes it (13: every TIFF; earlier, a compressed one)
+    and drops the tag: ImagePyramid.build reading a palette TIFF whole drew it turned (10 x 6 pixels stored, 6 x 10
+    drawn, over the world file's 20 x 12 m: stretched), without the orientation warning (an uncompressed one turned
+    90 degrees came out scrambled), while an RGB TIFF read by bands with rasterio was drawn as stored and warned of,
+    as documented. Both are drawn as stored now, over the same extent, with one warning naming the stored size."""
+    pytest.importorskip("rasterio")
+    import PIL.Image
+
+    palette = PIL.Image.fromarray(np.random.default_rng(15).integers(0, 256, (6, 10, 3), dtype=np.uint8)).quantize(8)
+    stored = np.asarray(palette.convert("RGB"))
+    options = {"compression": compression} if compression else {}
+    paths = {"whole": tmp_path / "palette.tif", "by bands": tmp_path / "rgb.tif"}
+    palette.save(paths["whole"], tiffinfo={274: orientation}, **options)
+    palette.convert("RGB").save(paths["by bands"], tiffinfo={274: orientation}, **options)
+    for path in paths.values():  # 2 m pixels, the top left corner at (1000, 2000)
+        path.with_suffix(".tfw").write_text("2\n0\n0\n-2\n1001\n1999\n")
+    turn = {3: "rotated 180°", 6: "rotated 90° clockwise"}[orientation]
+    for how, path in paths.items():
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with ImagePyramid.build(path, device="cpu") as pyramid:
+                np.testing.assert_array_equal(pyramid.levels[0], stored, err_msg=how)
+                assert pyramid.extent == (1000.0, 1020.0, 1988.0, 2000.0), how
+        assert [str(w.message) for w in caught if "orientation" in str(w.message)] == [
+            f"image {str(path)!r} has EXIF orientation {orientation} ({turn} to view): it is drawn as stored, 10 x 6 "
+            "pixels, as GDAL reads it; to use it as viewers show it, build from "
+            "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))"], how
