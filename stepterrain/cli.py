@@ -434,7 +434,7 @@ _MEMORY_BUDGET_HELP = ("largest output, DEM read or render a step may allocate: 
                        "(default: the library's, 16 GiB); a run over it stops with exit status 2 before allocating")
 
 #: What a refusal over the memory budget (stepterrain._compaction.check_budget) says, as a command-line user raises it.
-_CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE, e.g. --memory-budget 32GiB)"
+_CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE)"
 
 
 #: Subcommands that live in their capability's own module ``stepterrain._cli_<name>``; each module defines

@@ -1418,3 +1418,42 @@ def test_steps_checks_the_mesh_file_against_the_budget_before_the_render(tmp_pat
     assert re.search(r"error: writing '.*m\.stl' \(\.stl, a mesh of [0-9,]+ faces and [0-9,]+ vertices\) would "
                      r"need", err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.npy"]
+
+
+_UNITS = {"KiB": 1024, "MiB": 1024**2, "GiB": 1024**3, "TiB": 1024**4}
+
+
+def _suggested_budget(message: str) -> int:
+    """The bytes of a budget refusal's "to at least 20GiB", checked to cover the need it states (and not by 10x)."""
+    need = re.search(r"would need ([\d,.]+) (MiB|bytes)", message)
+    figure = re.search(r"to at least (\d+)(KiB|MiB|GiB|TiB)\b", message)
+    assert need and figure, message
+    need_bytes = float(need.group(1).replace(",", "")) * (1024**2 if need.group(2) == "MiB" else 1)
+    suggested = int(figure.group(1)) * _UNITS[figure.group(2)]
+    assert need_bytes <= suggested < 10 * max(need_bytes, 1024), message
+    return suggested
+
+
+def test_a_refusal_over_the_memory_budget_suggests_a_budget_that_covers_the_need(tmp_path, capsys):
+    """A run over the memory budget said "e.g. --memory-budget 32GiB" whatever it needed: 32 GiB for a run that
+    needed a megabyte, and 32 GiB again for one that needed 100 GiB (which refused again). The refusal suggests the
+    need rounded up to one significant digit of its unit now, on the command line and in the library alike, and
+    following it the run goes through."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    budget = "1KiB"
+    for _ in range(4):  # each refusal (the mesh, then its writing) suggests enough for itself
+        code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--memory-budget", budget)
+        if code == 0:
+            break
+        assert code == 2 and "--memory-budget SIZE" in err and "32GiB" not in err, err
+        budget = str(_suggested_budget(err))
+    assert code == 0 and (tmp_path / "m.glb").exists(), err
+    surface = np.zeros((40, 40)) + np.arange(40)
+    with pytest.raises(st.errors.OutputTooLargeError, match="stepterrain.set_memory_budget") as refused:
+        st.stepped(surface, interval=1, memory_budget=1024)
+    mesh = st.stepped(surface, interval=1, memory_budget=_suggested_budget(str(refused.value)))
+    assert len(mesh.faces) > 0
+    with pytest.raises(st.errors.OutputTooLargeError) as refused:  # a need over 32 GiB: not 32 GiB again
+        st._compaction.check_budget(100 * 1024**3, "the stepped mesh", 1024**3)
+    assert "to at least 100GiB" in str(refused.value)
