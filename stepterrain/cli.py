@@ -198,6 +198,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _coarsen_factor(text: str) -> int:
+    """A ``--coarsen N``: a whole number >= 2; 1 keeps every node, refused as the other options that do nothing are
+    (:func:`_positive_int`'s refusal for the rest)."""
+    value = _positive_int(text)
+    if value == 1:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number >= 2 (N x N nodes averaged into one); 1 keeps every node: leave --coarsen out; "
+            f"got {text!r}")
+    return value
+
+
 def _cell_size(text: str) -> tuple[float, ...]:
     """A ``--spacing``: one cell size D or dx,dy, positive metres."""
     what = "one cell size D or dx,dy in positive metres"
@@ -218,7 +229,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
                         "prints; a geographic DEM's local metres); of a GeoTIFF only this window is read")
-    p.add_argument("--coarsen", type=_positive_int, metavar="N",
+    p.add_argument("--coarsen", type=_coarsen_factor, metavar="N",
                    help="average N x N blocks of nodes into one (nodata ignored), after --crop: a DEM too big "
                         "for the memory budget, or more detail than needed")
 

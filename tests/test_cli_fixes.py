@@ -1457,3 +1457,23 @@ def test_a_refusal_over_the_memory_budget_suggests_a_budget_that_covers_the_need
     with pytest.raises(st.errors.OutputTooLargeError) as refused:  # a need over 32 GiB: not 32 GiB again
         st._compaction.check_budget(100 * 1024**3, "the stepped mesh", 1024**3)
     assert "to at least 100GiB" in str(refused.value)
+
+
+@pytest.mark.parametrize("command", ["steps", "closeup", "texture", "batch"])
+def test_coarsen_1_is_refused_as_keeping_every_node(capsys, tmp_path, command):
+    """--coarsen 1 was accepted and did nothing (Terrain.coarsen(1) is the terrain itself, as documented), while the
+    other options that do nothing are refused by name: it is refused now, before the DEM is read, saying it keeps
+    every node; --coarsen 2 still runs."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    out = tmp_path / ("out" if command == "batch" else "o.glb" if command == "steps" else "o.png")
+    args = [command, dem, "--coarsen", "1", "-o", out]
+    if command == "closeup":
+        args += ["--center", "5,-5", "--radius", "3"]
+    code, _, err = run(capsys, *args)
+    assert code == 2, err
+    assert "--coarsen" in err and "1 keeps every node" in err and "Traceback" not in err, err
+    assert not out.exists()
+    if command == "steps":
+        code, _, err = run(capsys, command, dem, "--coarsen", "2", "-o", out)
+        assert code == 0 and out.stat().st_size > 0, err
