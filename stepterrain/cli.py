@@ -587,15 +587,31 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
                                 f"({error.strerror})") from error
 
 
+def _name_max(folder: Path) -> int:
+    """The longest file name, in bytes, ``folder`` takes (``os.pathconf``'s ``PC_NAME_MAX``; 255 where unknown)."""
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (AttributeError, ValueError, OSError):  # no pathconf (Windows), no such name or folder
+        return 255
+
+
 def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[str, str | None],
                       outputs: dict[str, Path | None]) -> None:
     """Refuse, before any work, a side file ``sides`` of the output ``option`` ``path`` (a textured OBJ's .mtl and
     texture image, :func:`~stepterrain.export._side_files`) that is an input file (``inputs``: name -> path) or
     another output (``outputs``: option -> path). ``texture --image terrain_texture.png --mesh terrain.obj`` replaced
     the orthophoto given with the OBJ's texture image of the same name, without a word; ``-o terrain_texture.png
-    --mesh terrain.obj`` wrote the texture and then refused the mesh."""
+    --mesh terrain.obj`` wrote the texture and then refused the mesh. A side file's name longer than its folder
+    allows (``PC_NAME_MAX``, else 255 bytes: ``<stem>_terrain_texture.png`` of a long stem) is refused too: it failed
+    only after all the work, and after the other outputs were written."""
     for side in sides:
         key = Path(os.path.abspath(side))
+        limit = _name_max(key.parent)
+        if len(os.fsencode(key.name)) > limit:
+            raise InvalidInputError(
+                f"{option} {str(path)!r} writes {key.name!r} beside it (its "
+                f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), a name of "
+                f"{len(os.fsencode(key.name))} bytes, over the {limit} its folder allows; give {option} a shorter name")
         for name, given in [*inputs.items(), *outputs.items()]:
             if not given:
                 continue

@@ -1477,3 +1477,31 @@ def test_coarsen_1_is_refused_as_keeping_every_node(capsys, tmp_path, command):
     if command == "steps":
         code, _, err = run(capsys, command, dem, "--coarsen", "2", "-o", out)
         assert code == 0 and out.stat().st_size > 0, err
+
+
+@pytest.mark.parametrize("command", ["texture", "globe"])
+def test_a_textured_obj_whose_side_file_name_is_too_long_is_refused_before_any_work(capsys, tmp_path, command):
+    """An OBJ name that fits (245 + 4 bytes) whose texture image beside it does not (``<stem>_terrain_texture.png``,
+    the globe's ``<stem>_material_0.png``: over 255 bytes) failed "File name too long" only after all the work, -o
+    (texture's image) already written. Refused before any work now, naming the option and the side file."""
+    import os
+
+    from PIL import Image
+
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX") if hasattr(os, "pathconf") else 255
+    obj = tmp_path / ("a" * (limit - 10) + ".obj")
+    if command == "texture":
+        dem = tmp_path / "dem.npy"
+        np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+        args, option, side = ["texture", dem, "-o", tmp_path / "t.png", "--mesh", obj], "--mesh", "_terrain_texture"
+    else:
+        picture = tmp_path / "earth.png"
+        Image.fromarray(np.full((32, 64, 3), (200, 30, 30), np.uint8)).save(picture)
+        args = ["globe", "--face-size", "9", "--error", "0", "--no-camera", "--texture", picture, "-o", obj]
+        option, side = "--output", "_material_0"
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = run(capsys, *args)
+    assert code == 2, err
+    assert f"{option} {str(obj)!r} writes 'a" in err and f"{side}.png' beside it" in err, err
+    assert f"over the {limit} its folder allows" in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
