@@ -76,7 +76,7 @@ def _tile(text: str) -> int | tuple[int, int]:
 
 def add_parser(commands: Any) -> None:
     """Add the ``batch`` subcommand to the ``stepterrain`` parser."""
-    from .cli import _add_band, _add_device, _add_height_unit, _cell_size, _floats, _path, _positive_int, _window
+    from .cli import _add_band, _add_device, _add_height_unit, _cell_size, _coarsen_factor, _floats, _path, _window
     from .export import MESH_EXTENSIONS
     from .stepped import TARGET_STEPS
 
@@ -102,7 +102,7 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the nodes inside this extent (the coordinates `stepterrain info` prints) of the one "
                         "raster cut with --tile, or of every frame of a series; not for several files or a folder")
-    p.add_argument("--coarsen", type=_positive_int, metavar="N",
+    p.add_argument("--coarsen", type=_coarsen_factor, metavar="N",
                    help="average N x N blocks of nodes into one (nodata ignored), after --crop: the raster before "
                         "--tile cuts it (--tile then counts coarse cells; the tiles still weld), every frame, or "
                         "each file")

@@ -79,8 +79,23 @@ def check_budget(nbytes: int, what: str, budget: int | None = None, *,
     if nbytes > limit:
         raise OutputTooLargeError(
             f"{what} would need {_size_text(nbytes)}, over the memory budget of {_size_text(limit)}; {hint}, or "
-            f"{_budget_hint}"
+            f"{_budget_hint}{_budget_figure(nbytes)}"
         )
+
+
+def _budget_figure(nbytes: int) -> str:
+    """What a refusal's hint adds: " to at least 20GiB", the need rounded up to one significant digit of its largest
+    unit (KiB to TiB, a size --memory-budget reads; ``20 * 1024**3`` bytes for the library), so that the budget
+    suggested covers it (a fixed "e.g. 32GiB" did not, past 32 GiB); nothing for a need beyond 1024 TiB."""
+    nbytes = int(nbytes)
+    if nbytes > 1024**5:
+        return ""
+    for power, unit in ((4, "TiB"), (3, "GiB"), (2, "MiB"), (1, "KiB")):
+        if nbytes >= 1024**power or power == 1:
+            step = 10 ** (len(str(max(nbytes // 1024**power, 1))) - 1)  # one significant digit of the whole units
+            count = -(-nbytes // (step * 1024**power)) * step  # rounded up
+            return f" to at least {count}{unit}"
+    return ""
 
 
 def _size_text(nbytes: int) -> str:

@@ -198,6 +198,17 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _coarsen_factor(text: str) -> int:
+    """A ``--coarsen N``: a whole number >= 2; 1 keeps every node, refused as the other options that do nothing are
+    (:func:`_positive_int`'s refusal for the rest)."""
+    value = _positive_int(text)
+    if value == 1:
+        raise argparse.ArgumentTypeError(
+            f"expected a whole number >= 2 (N x N nodes averaged into one); 1 keeps every node: leave --coarsen out; "
+            f"got {text!r}")
+    return value
+
+
 def _cell_size(text: str) -> tuple[float, ...]:
     """A ``--spacing``: one cell size D or dx,dy, positive metres."""
     what = "one cell size D or dx,dy in positive metres"
@@ -218,7 +229,7 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
                         "prints; a geographic DEM's local metres); of a GeoTIFF only this window is read")
-    p.add_argument("--coarsen", type=_positive_int, metavar="N",
+    p.add_argument("--coarsen", type=_coarsen_factor, metavar="N",
                    help="average N x N blocks of nodes into one (nodata ignored), after --crop: a DEM too big "
                         "for the memory budget, or more detail than needed")
 
@@ -434,7 +445,7 @@ _MEMORY_BUDGET_HELP = ("largest output, DEM read or render a step may allocate: 
                        "(default: the library's, 16 GiB); a run over it stops with exit status 2 before allocating")
 
 #: What a refusal over the memory budget (stepterrain._compaction.check_budget) says, as a command-line user raises it.
-_CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE, e.g. --memory-budget 32GiB)"
+_CLI_BUDGET_HINT = "raise the budget (--memory-budget SIZE)"
 
 
 #: Subcommands that live in their capability's own module ``stepterrain._cli_<name>``; each module defines
@@ -576,15 +587,31 @@ def _check_outputs(inputs: dict[str, str | None] | None = None, /, **paths: Path
                                 f"({error.strerror})") from error
 
 
+def _name_max(folder: Path) -> int:
+    """The longest file name, in bytes, ``folder`` takes (``os.pathconf``'s ``PC_NAME_MAX``; 255 where unknown)."""
+    try:
+        return int(os.pathconf(folder, "PC_NAME_MAX"))
+    except (AttributeError, ValueError, OSError):  # no pathconf (Windows), no such name or folder
+        return 255
+
+
 def _check_side_files(option: str, path: Path, sides: list[Path], inputs: dict[str, str | None],
                       outputs: dict[str, Path | None]) -> None:
     """Refuse, before any work, a side file ``sides`` of the output ``option`` ``path`` (a textured OBJ's .mtl and
     texture image, :func:`~stepterrain.export._side_files`) that is an input file (``inputs``: name -> path) or
     another output (``outputs``: option -> path). ``texture --image terrain_texture.png --mesh terrain.obj`` replaced
     the orthophoto given with the OBJ's texture image of the same name, without a word; ``-o terrain_texture.png
-    --mesh terrain.obj`` wrote the texture and then refused the mesh."""
+    --mesh terrain.obj`` wrote the texture and then refused the mesh. A side file's name longer than its folder
+    allows (``PC_NAME_MAX``, else 255 bytes: ``<stem>_terrain_texture.png`` of a long stem) is refused too: it failed
+    only after all the work, and after the other outputs were written."""
     for side in sides:
         key = Path(os.path.abspath(side))
+        limit = _name_max(key.parent)
+        if len(os.fsencode(key.name)) > limit:
+            raise InvalidInputError(
+                f"{option} {str(path)!r} writes {key.name!r} beside it (its "
+                f"{'material' if key.suffix.lower() == '.mtl' else 'texture image'}), a name of "
+                f"{len(os.fsencode(key.name))} bytes, over the {limit} its folder allows; give {option} a shorter name")
         for name, given in [*inputs.items(), *outputs.items()]:
             if not given:
                 continue

@@ -1418,3 +1418,90 @@ def test_steps_checks_the_mesh_file_against_the_budget_before_the_render(tmp_pat
     assert re.search(r"error: writing '.*m\.stl' \(\.stl, a mesh of [0-9,]+ faces and [0-9,]+ vertices\) would "
                      r"need", err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["small.npy"]
+
+
+_UNITS = {"KiB": 1024, "MiB": 1024**2, "GiB": 1024**3, "TiB": 1024**4}
+
+
+def _suggested_budget(message: str) -> int:
+    """The bytes of a budget refusal's "to at least 20GiB", checked to cover the need it states (and not by 10x)."""
+    need = re.search(r"would need ([\d,.]+) (MiB|bytes)", message)
+    figure = re.search(r"to at least (\d+)(KiB|MiB|GiB|TiB)\b", message)
+    assert need and figure, message
+    need_bytes = float(need.group(1).replace(",", "")) * (1024**2 if need.group(2) == "MiB" else 1)
+    suggested = int(figure.group(1)) * _UNITS[figure.group(2)]
+    assert need_bytes <= suggested < 10 * max(need_bytes, 1024), message
+    return suggested
+
+
+def test_a_refusal_over_the_memory_budget_suggests_a_budget_that_covers_the_need(tmp_path, capsys):
+    """A run over the memory budget said "e.g. --memory-budget 32GiB" whatever it needed: 32 GiB for a run that
+    needed a megabyte, and 32 GiB again for one that needed 100 GiB (which refused again). The refusal suggests the
+    need rounded up to one significant digit of its unit now, on the command line and in the library alike, and
+    following it the run goes through."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    budget = "1KiB"
+    for _ in range(4):  # each refusal (the mesh, then its writing) suggests enough for itself
+        code, out, err = run(capsys, "steps", dem, "-o", tmp_path / "m.glb", "--memory-budget", budget)
+        if code == 0:
+            break
+        assert code == 2 and "--memory-budget SIZE" in err and "32GiB" not in err, err
+        budget = str(_suggested_budget(err))
+    assert code == 0 and (tmp_path / "m.glb").exists(), err
+    surface = np.zeros((40, 40)) + np.arange(40)
+    with pytest.raises(st.errors.OutputTooLargeError, match="stepterrain.set_memory_budget") as refused:
+        st.stepped(surface, interval=1, memory_budget=1024)
+    mesh = st.stepped(surface, interval=1, memory_budget=_suggested_budget(str(refused.value)))
+    assert len(mesh.faces) > 0
+    with pytest.raises(st.errors.OutputTooLargeError) as refused:  # a need over 32 GiB: not 32 GiB again
+        st._compaction.check_budget(100 * 1024**3, "the stepped mesh", 1024**3)
+    assert "to at least 100GiB" in str(refused.value)
+
+
+@pytest.mark.parametrize("command", ["steps", "closeup", "texture", "batch"])
+def test_coarsen_1_is_refused_as_keeping_every_node(capsys, tmp_path, command):
+    """--coarsen 1 was accepted and did nothing (Terrain.coarsen(1) is the terrain itself, as documented), while the
+    other options that do nothing are refused by name: it is refused now, before the DEM is read, saying it keeps
+    every node; --coarsen 2 still runs."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+    out = tmp_path / ("out" if command == "batch" else "o.glb" if command == "steps" else "o.png")
+    args = [command, dem, "--coarsen", "1", "-o", out]
+    if command == "closeup":
+        args += ["--center", "5,-5", "--radius", "3"]
+    code, _, err = run(capsys, *args)
+    assert code == 2, err
+    assert "--coarsen" in err and "1 keeps every node" in err and "Traceback" not in err, err
+    assert not out.exists()
+    if command == "steps":
+        code, _, err = run(capsys, command, dem, "--coarsen", "2", "-o", out)
+        assert code == 0 and out.stat().st_size > 0, err
+
+
+@pytest.mark.parametrize("command", ["texture", "globe"])
+def test_a_textured_obj_whose_side_file_name_is_too_long_is_refused_before_any_work(capsys, tmp_path, command):
+    """An OBJ name that fits (245 + 4 bytes) whose texture image beside it does not (``<stem>_terrain_texture.png``,
+    the globe's ``<stem>_material_0.png``: over 255 bytes) failed "File name too long" only after all the work, -o
+    (texture's image) already written. Refused before any work now, naming the option and the side file."""
+    import os
+
+    from PIL import Image
+
+    limit = os.pathconf(tmp_path, "PC_NAME_MAX") if hasattr(os, "pathconf") else 255
+    obj = tmp_path / ("a" * (limit - 10) + ".obj")
+    if command == "texture":
+        dem = tmp_path / "dem.npy"
+        np.save(dem, np.random.default_rng(0).random((12, 14)) * 100)
+        args, option, side = ["texture", dem, "-o", tmp_path / "t.png", "--mesh", obj], "--mesh", "_terrain_texture"
+    else:
+        picture = tmp_path / "earth.png"
+        Image.fromarray(np.full((32, 64, 3), (200, 30, 30), np.uint8)).save(picture)
+        args = ["globe", "--face-size", "9", "--error", "0", "--no-camera", "--texture", picture, "-o", obj]
+        option, side = "--output", "_material_0"
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, _, err = run(capsys, *args)
+    assert code == 2, err
+    assert f"{option} {str(obj)!r} writes 'a" in err and f"{side}.png' beside it" in err, err
+    assert f"over the {limit} its folder allows" in err and "Traceback" not in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
