@@ -1486,6 +1486,9 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
         try:
             picture = Image.open(image)  # type: ignore[arg-type]
             try:
+                from .texture_lod import _tiff_as_stored
+
+                _tiff_as_stored(picture)  # its stored pixels, as a PNG's or JPEG's: Pillow turns a TIFF by its tag
                 if _kept_jpeg(picture):
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)

@@ -1154,3 +1154,35 @@ def test_a_jpeg_texture_draped_on_the_globe_is_embedded_as_the_file_s_bytes(tmp_
     for name in ("grey.jpg", "earth.png"):
         mime, data = _glb_texture(save_mesh(drape_texture(mesh, tmp_path / name), tmp_path / f"{name}.glb"))
         assert mime == "image/png", name
+
+
+@pytest.mark.parametrize("orientation", [3, 6])
+def test_a_tiff_texture_with_an_orientation_tag_is_draped_as_stored(tmp_path, orientation):
+    """drape_texture(mesh, "earth.tif") and ``globe --texture earth.tif`` of a TIFF with an Orientation tag (274):
+    Pillow 13 turns every TIFF by the tag as it decodes it, so the drape took the turned pixels (a 32 x 64 texture
+    draped 64 x 32: the whole globe's texture turned; an uncompressed grey one turned 90 degrees came out scrambled),
+    where a PNG's or JPEG's EXIF orientation is not applied: the texture is the file's stored pixels. Now a TIFF is
+    draped as stored too, as GDAL reads it."""
+    from PIL import Image
+
+    from stepterrain.cli import main
+    from stepterrain.globe import drape_texture
+
+    rng = np.random.default_rng(7)
+    rgb = rng.integers(0, 256, (32, 64, 3), dtype=np.uint8)
+    grey = rng.integers(0, 256, (32, 64), dtype=np.uint8)
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    for name, pixels, expected, options in [("rgb.tif", rgb, rgb, {"compression": "tiff_deflate"}),
+                                            ("grey.tif", grey, np.repeat(grey[:, :, None], 3, axis=2), {})]:
+        path = tmp_path / name
+        Image.fromarray(pixels).save(path, tiffinfo={274: orientation}, **options)
+        textured = drape_texture(mesh, path)
+        assert np.array_equal(np.asarray(textured.visual.material.image.convert("RGB")), expected), name
+        assert np.array_equal(textured.visual.uv, drape_texture(mesh, expected).visual.uv)
+    # the CLI drapes the same stored pixels (an OBJ's side image is them)
+    assert main(["-q", "globe", "--face-size", "9", "--error", "0", "--no-camera", "--texture",
+                 str(tmp_path / "rgb.tif"), "-o", str(tmp_path / "obj" / "earth.obj")]) == 0
+    side = [p for p in (tmp_path / "obj").iterdir() if p.suffix == ".png"]
+    assert len(side) == 1
+    with Image.open(side[0]) as written:
+        assert np.array_equal(np.asarray(written.convert("RGB")), rgb)
