@@ -32,6 +32,7 @@ from .cli import (
     _refuse_degrees,
     _refuse_unused,
     _size,
+    _surface_size,
     _window,
 )
 from .errors import DataFileError, InvalidInputError, MissingDependencyError
@@ -419,11 +420,15 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             (f"--mesh {mesh_out}", mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")),
             ("--png", png is not None)) if wanted]
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None)
-    if png is not None:  # the render holds the texture too, one texel per node or --texel-size's: before any work
+    if png is not None:  # the render holds the texture too, one texel per node or --texel-size's, and its copies of
+        # the mesh draped: the DEM's surface (at least that, stepped by --interval): before any work
         render._check_render_budget(args.size[0], args.size[1], "--size",
                                     texture=grid[1] if grid is not None else terrain.shape,
                                     smaller_texture="a larger --texel-size (or --crop the DEM)" if grid is not None else
-                                    "a smaller texture (one texel per DEM node: --coarsen or --crop the DEM)")
+                                    "a smaller texture (one texel per DEM node: --coarsen or --crop the DEM)",
+                                    mesh=_surface_size(terrain), at_least=args.interval is not None,
+                                    mesh_hint=("give a larger --interval, " if args.interval is not None else "give ")
+                                    + "--coarsen N or a --crop, or leave --png out")
     picture = None
     if args.image is not None:
         from .texture_lod import image_layer

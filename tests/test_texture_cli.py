@@ -1019,22 +1019,56 @@ def test_cli_texture_png_counts_the_texture_against_the_budget_before_any_work(t
     """--png counted only its --size window against --memory-budget; the render holds the draped texture too (16
     bytes a texel), which render_textured_mesh now counts. The run checks it with the window once the DEM is read,
     before the texture is composed: exit 2 naming --size and the texture's texels, nothing written."""
-    window = render._render_bytes(64, 48)
-    with_texture = render._render_bytes(64, 48, texels=40 * 50)
-    budget = (window + with_texture) // 2  # the window alone fits
+    mesh = {"vertices": 40 * 50, "faces": 2 * 39 * 49}  # the draped DEM's surface, whose render copies count too
+    window = render._render_bytes(400, 300, **mesh)
+    with_texture = render._render_bytes(400, 300, texels=40 * 50, **mesh)
+    budget = (window + with_texture) // 2  # the window (and the mesh) alone fit
     out = tmp_path / "t.png"
-    code = main(["texture", str(small_dem), "-o", str(out), "--png", str(tmp_path / "r.png"), "--size", "64x48",
+    code = main(["texture", str(small_dem), "-o", str(out), "--png", str(tmp_path / "r.png"), "--size", "400x300",
                  "--memory-budget", str(budget), "--device", "cpu"])
     err = capsys.readouterr().err
-    assert code == 2 and "an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh with a 50 x 40 texel " \
+    assert code == 2 and "an off-screen render of 400 x 300 pixels (--size 400x300) of a mesh with a 50 x 40 texel " \
                          "texture would need" in err, err
     assert "topographic texture" not in err and not out.exists() and not (tmp_path / "r.png").exists()
     # the hint names what makes the texture smaller here: a texel a node without --texel-size, else a larger one
     assert "give a smaller --size or a smaller texture (one texel per DEM node: --coarsen or --crop the DEM)" in err
-    window = render._render_bytes(1024, 768)  # a window larger than the texture's composition needs
+    window = render._render_bytes(1024, 768, **mesh)  # a window larger than the texture's composition needs
     budget = window + render._TEXTURE_BYTES_PER_TEXEL * 150 * 120 // 2
     code = main(["texture", str(small_dem), "--spacing", "30", "--texel-size", "10", "-o", str(out), "--png",
                  str(tmp_path / "r.png"), "--size", "1024x768", "--memory-budget", str(budget), "--device", "cpu"])
     err = capsys.readouterr().err
     assert code == 2 and "of a mesh with a 150 x 120 texel texture would need" in err, err
     assert "give a smaller --size or a larger --texel-size (or --crop the DEM), or raise" in err, err
+
+
+@pytest.mark.parametrize("interval", [None, "5"])
+def test_cli_texture_png_counts_the_draped_mesh_against_the_budget_before_any_work(tmp_path, capsys, monkeypatch,
+                                                                                   interval):
+    """The render's copies of the draped mesh count against --memory-budget too (render._check_render_budget's
+    mesh term), but texture --png checked only the window and the texture before the work: a budget they fit and
+    the mesh's copies do not composed the texture, draped and stepped the mesh, then was refused by the library.
+    Now the DEM's surface (at least that, stepped by --interval) is checked with them once the DEM is read: exit 2
+    naming the faces and how to make the mesh smaller, before the texture is composed; nothing written."""
+    from stepterrain import texture
+
+    def no_compose(*args, **kwargs):
+        raise AssertionError("the texture was composed before the render's mesh was checked")
+
+    monkeypatch.setattr(texture, "_composed_pair", no_compose)
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.random.default_rng(0).random((80, 80)) * 100)
+    textured = render._render_bytes(64, 48, texels=80 * 80)
+    with_mesh = render._render_bytes(64, 48, texels=80 * 80, vertices=80 * 80, faces=2 * 79 * 79)
+    assert 2 * textured < with_mesh  # the mesh's copies weigh most
+    budget = (textured + with_mesh) // 2  # the window and the texture fit, the mesh's copies not
+    out, png = tmp_path / "t.png", tmp_path / "r.png"
+    code = main(["--memory-budget", str(budget), "texture", str(dem), "-o", str(out), "--png", str(png),
+                 "--size", "64x48", "--device", "cpu"] + (["--interval", interval] if interval else []))
+    err = capsys.readouterr().err
+    at_least = "at least " if interval else ""
+    assert code == 2 and ("an off-screen render of 64 x 48 pixels (--size 64x48) of a mesh with a 80 x 80 texel "
+                          f"texture and of {at_least}12,482 faces and 6,400 vertices would need") in err, err
+    more = "a larger --interval, " if interval else ""
+    assert f"give {more}--coarsen N or a --crop, or leave --png out (its copies for rendering grow" in err, err
+    assert "topographic texture" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy"]
