@@ -1007,6 +1007,27 @@ def test_property_a_fence_cut_by_the_terrains_edge_is_closed(mask, fx, fy, w, h,
     assert _odd_feet(strip) == []
 
 
+def _whole_image_texture_rgb(image, xy, extent, below):
+    """_texture_rgb's colours as they were computed before session 30, from the whole ``image`` in float32 (RGBA
+    premultiplied, laid over ``below``, (n, 3)): the reference of the two tests below."""
+    xmin, xmax, ymin, ymax = extent
+    h, w = image.shape[:2]
+    fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin), 0, 1) * (w - 1)
+    fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin), 0, 1) * (h - 1)
+    j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
+    i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
+    tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
+    img = np.asarray(image).astype(np.float32)
+    if img.shape[2] == 4:
+        img[..., :3] *= img[..., 3:] / 255.0
+    top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
+    bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
+    sampled = top + ty * (bottom - top)
+    if img.shape[2] == 4:
+        sampled = sampled[:, :3] + (1.0 - sampled[:, 3:] / 255.0) * np.asarray(below, np.float32)
+    return np.clip(np.rint(sampled), 0, 255).astype(np.uint8)
+
+
 def test_texture_colours_convert_only_the_texels_they_sample():
     """_texture_rgb (a close-up's or overview's aerial image, every frame) converted the whole image to float32 and,
     for RGBA, premultiplied all of it on every call: 66 ms a frame for a 2048 x 2048 RGBA texture under 20 000
@@ -1033,22 +1054,8 @@ def test_texture_colours_convert_only_the_texels_they_sample():
     rgba[..., 3] = np.where(rng.random((64, 96)) < 0.3, 0, rgba[..., 3])
 
     def whole_image(image, below=None):  # the formula as it was, over the whole image
-        h, w = image.shape[:2]
-        fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin), 0, 1) * (w - 1)
-        fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin), 0, 1) * (h - 1)
-        j0, i0 = np.minimum(np.floor(fx).astype(np.int64), w - 2), np.minimum(np.floor(fy).astype(np.int64), h - 2)
-        tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
-        img = image.astype(np.float32)
-        if img.shape[2] == 4:
-            img[..., :3] *= img[..., 3:] / 255.0
-        top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
-        bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
-        sampled = top + ty * (bottom - top)
-        if img.shape[2] == 4:
-            below = (np.asarray(below, np.float32) if below is not None
-                     else np.float32(255.0) * np.asarray(_DEFAULT_COLOR, np.float32))
-            sampled = sampled[:, :3] + (1.0 - sampled[:, 3:] / 255.0) * below
-        return np.clip(np.rint(sampled), 0, 255).astype(np.uint8)
+        below = (below if below is not None else np.float32(255.0) * np.asarray(_DEFAULT_COLOR, np.float32))
+        return _whole_image_texture_rgb(image, xy, t.extent, below)
 
     for image, below in ((rgba, None), (rgba, under), (np.ascontiguousarray(rgba[..., :3]), None)):
         calls.clear()
@@ -1076,21 +1083,7 @@ def test_an_overview_texture_is_sampled_at_its_vertices_without_a_float_copy_of_
     under = rng.integers(0, 256, (500, 3), dtype=np.uint8)
 
     def whole_image_floats(image, under):  # the former sampling, from the whole image in float32
-        h, w = image.shape[:2]
-        fx = np.clip((xy[:, 0] - xmin) / (xmax - xmin), 0, 1) * (w - 1)
-        fy = np.clip((ymax - xy[:, 1]) / (ymax - ymin), 0, 1) * (h - 1)
-        j0 = np.minimum(np.floor(fx).astype(np.int64), w - 2)
-        i0 = np.minimum(np.floor(fy).astype(np.int64), h - 2)
-        tx, ty = (fx - j0)[:, None], (fy - i0)[:, None]
-        img = image.astype(np.float32)
-        if img.shape[2] == 4:
-            img[..., :3] *= img[..., 3:] / 255.0
-        top = img[i0, j0] + tx * (img[i0, j0 + 1] - img[i0, j0])
-        bottom = img[i0 + 1, j0] + tx * (img[i0 + 1, j0 + 1] - img[i0 + 1, j0])
-        sampled = top + ty * (bottom - top)
-        if img.shape[2] == 4:
-            sampled = sampled[:, :3] + (1.0 - sampled[:, 3:] / 255.0) * np.asarray(under, np.float32)
-        return np.clip(np.rint(sampled), 0, 255).astype(np.uint8)
+        return _whole_image_texture_rgb(image, xy, t.extent, under)
 
     for shape in ((7, 9, 3), (7, 9, 4), (2, 2, 4), (1000, 1000, 4)):
         image = rng.integers(0, 256, shape, dtype=np.uint8)
