@@ -192,13 +192,14 @@ def _load_geotiff_grid(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     left out: the globe reads degrees."""
     import warnings
 
-    from .io import _spherical_eqc, describe_dem, load_dem
+    from .io import _lonlat_grid, _spherical_eqc, load_dem
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=r".* degrees read as local metres with one spacing")
         terrain = load_dem(file)
     eqc = _spherical_eqc(terrain.crs)
-    step = describe_dem(terrain)["lonlat_step"]
+    lonlat = _lonlat_grid(terrain)  # describe_dem's lonlat_step, without its passes over the heights
+    step = lonlat[1] if lonlat else None
     if eqc is None or step is None or terrain.origin != (0.0, 0.0):
         raise InvalidInputError(f"INPUT {str(file)!r} must be a GeoTIFF in a geographic CRS (degrees: EPSG:4326); got "
                                 f"CRS {terrain.crs or 'none'}; gdalwarp -t_srs EPSG:4326 makes it one")

@@ -839,7 +839,8 @@ def _surface_size(terrain: Any) -> tuple[int, int]:
         return rows * cols, 2 * (rows - 1) * (cols - 1)
     finite = np.isfinite(terrain.heights)
     upper, lower = finite_triangles(finite)
-    return int(np.count_nonzero(used_nodes(finite))), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
+    used = used_nodes(finite, (upper, lower))  # the nodes of those triangles, which are not asked again
+    return int(np.count_nonzero(used)), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
 
 
 def _size(path: Path | str) -> str:

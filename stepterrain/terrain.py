@@ -147,10 +147,12 @@ def _min_max(values: NDArray[Any]) -> tuple[float, ...]:
     return (float(values.min()), float(values.max())) if values.size else ()
 
 
-def used_nodes(finite: NDArray[np.bool_]) -> NDArray[np.bool_]:
+def used_nodes(finite: NDArray[np.bool_],
+               triangles: tuple[NDArray[np.bool_], NDArray[np.bool_]] | None = None) -> NDArray[np.bool_]:
     """Per grid node (of the last two axes of ``finite``, the nodes' finite flags), whether a triangle with three
-    finite heights uses it: the nodes of a stepped mesh. A finite node whose every cell touches nodata is in none."""
-    upper, lower = finite_triangles(finite)
+    finite heights uses it: the nodes of a stepped mesh. A finite node whose every cell touches nodata is in none.
+    ``triangles``: :func:`finite_triangles` of ``finite`` where the caller has them already."""
+    upper, lower = finite_triangles(finite) if triangles is None else triangles
     used = np.zeros_like(finite)
     used[..., :-1, :-1] |= upper | lower
     used[..., :-1, 1:] |= upper

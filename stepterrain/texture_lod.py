@@ -647,7 +647,7 @@ class ImagePyramid:
         """
         with contextlib.ExitStack() as files:
             opened: dict[str, Any] = {}  # the file opened with rasterio, read whole below if not by bands: one open
-            tiff = _WindowedTiff.open(image, files, png=True, opened=opened)  # a TIFF of 8-bit bands, a PNG: by bands
+            tiff = _WindowedTiff.open(image, files, opened=opened)  # a TIFF of 8-bit bands, a PNG: by bands
             return cls._build(image, tiff, opened.get("dataset"), extent=extent, storage=storage,
                               anisotropic=anisotropic, band_bytes=band_bytes, device=device, crs=crs)
 
@@ -1456,9 +1456,9 @@ class _WindowedTiff:
             self.block_rows = max(1, int(dataset.block_shapes[0][0]))
 
     @classmethod
-    def open(cls, image: Any, stack: contextlib.ExitStack, png: bool = False,
+    def open(cls, image: Any, stack: contextlib.ExitStack,
              opened: dict[str, Any] | None = None) -> _WindowedTiff | None:
-        """The image file ``image`` opened in ``stack`` when it is such a TIFF (with ``png``, or a PNG that Pillow
+        """The image file ``image`` opened in ``stack`` when it is such a TIFF (or a PNG that Pillow
         reads as L, RGB or RGBA, not interlaced, without a GDAL mask: GDAL decodes it row by row to the same bytes),
         else None (nothing is refused here: :meth:`ImagePyramid.build` reads it, refusing what it refuses; the
         rasterio dataset it opened, open until ``stack`` closes, as ``opened["dataset"]``)."""
@@ -1466,7 +1466,7 @@ class _WindowedTiff:
             return None
         path = Path(image)
         suffix = path.suffix.lower()
-        if suffix not in ((".tif", ".tiff", ".png") if png else (".tif", ".tiff")) or not path.is_file():
+        if suffix not in (".tif", ".tiff", ".png") or not path.is_file():
             return None
         try:
             from rasterio.enums import ColorInterp, MaskFlags
@@ -1659,7 +1659,7 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     if texel_size is not None:
         sx = sy = finite_number(texel_size, "texel_size", positive=True)
     with contextlib.ExitStack() as stack:
-        tiff = _WindowedTiff.open(image, stack, png=True)  # a GeoTIFF (a PNG): only the window read, never the whole
+        tiff = _WindowedTiff.open(image, stack)  # a GeoTIFF (a PNG): only the window read, never the whole
         if tiff is None:  # a file it cannot read is refused here
             pyramid = stack.enter_context(ImagePyramid.build(image, extent=extent, device=device))
         else:
