@@ -39,7 +39,6 @@ from .terrain import (
     as_terrain,
     crop_of_nodata,
     first_index,
-    header_grid,
     unwrapped_longitudes,
 )
 
@@ -258,8 +257,9 @@ def read_dem(
     crop: Sequence[float] | None = None, option: str = "crop", refuse: Callable[[Terrain], None] | None = None,
 ) -> Terrain:
     """:func:`load_dem`, its ``crop`` refusals named ``option`` (the CLI's "--crop") and, with ``crop``, ``refuse``
-    called with the whole grid before it is cropped (for a GeoTIFF, a :func:`~stepterrain.terrain.header_grid`:
-    geometry and CRS, no heights), to refuse a crop the caller's own way before any pixel of it is read."""
+    called with the whole grid before it is cropped (for a GeoTIFF, a
+    :meth:`~stepterrain.terrain.Terrain._geometry_only`: geometry and CRS, no heights), to refuse a crop the
+    caller's own way before any pixel of it is read."""
     if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
         raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
     if height_unit is not None:
@@ -930,7 +930,7 @@ def _geotiff_header(
     file: Path, shape: tuple[int, int], transform: Any, crs_obj: Any, crs: str | None, height_unit: str | None,
 ) -> tuple[Terrain, _Placement]:
     """The whole grid of a GeoTIFF of ``shape`` as :func:`_load_geotiff` places it (its warnings and refusals told),
-    from its header alone: a :func:`~stepterrain.terrain.header_grid` (no heights) and its placement, whose
+    from its header alone: a :meth:`~stepterrain.terrain.Terrain._geometry_only` (no heights) and its placement, whose
     :func:`_check_placed` warnings are told once the heights are read."""
     if transform.is_identity:
         _warn_crs_without_geotransform(file, crs_obj, crs)
@@ -940,8 +940,8 @@ def _geotiff_header(
                            geographic=bool(crs_obj is not None and crs_obj.is_geographic), metres=None,
                            height_unit=height_unit)
     try:
-        header = header_grid(shape, spacing=place.spacing, origin=place.origin, crs=place.crs, source=place.source,
-                             height_unit=height_unit)
+        header = Terrain._geometry_only(shape, place.spacing, place.origin, place.crs, source=place.source,
+                                        height_unit=height_unit)
     except InvalidInputError as exc:  # as _grid refuses the whole grid's geometry
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
     return header, place

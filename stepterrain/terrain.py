@@ -896,8 +896,7 @@ class Terrain:
         """The ``extent`` of :meth:`crop` checked, as 4 floats, and the first and last row and column of the nodes it
         keeps, ``(bounds, (i0, i1), (j0, j1))``; its refusals but that of nodata only (:func:`crop_of_nodata`). Only
         the grid's shape, spacing, origin and crs are read (no height): :func:`~stepterrain.io.load_dem` asks it of a
-        :func:`header_grid` before it reads a GeoTIFF's window, and the batch of a crop of a :meth:`_geometry_only`
-        grid."""
+        :meth:`_geometry_only` grid (the whole grid of a GeoTIFF before it reads its window; batch's crop)."""
         self._grid_only("crop", "cut its mesh instead, e.g. with trimesh's slice_plane")
         try:
             bounds = real_numbers(extent, "extent", "(xmin, xmax, ymin, ymax)")
@@ -1036,15 +1035,6 @@ def crop_of_nodata(bounds: tuple[float, ...], shape: tuple[int, ...]) -> Invalid
     """:meth:`Terrain.crop`'s refusal of an extent (``bounds``, checked) whose kept nodes (``shape``) are all
     nodata."""
     return InvalidInputError(f"extent {tuple(bounds)} holds only nodata ({shape[0]} x {shape[1]} nodes)")
-
-
-def header_grid(shape: tuple[int, int], *, spacing: tuple[float, float], origin: tuple[float, float],
-                crs: str | None, source: str | None, height_unit: str | None) -> Terrain:
-    """A grid Terrain of ``shape`` (:meth:`Terrain._geometry_only`: geometry checked as :meth:`Terrain.from_heights`
-    checks it, heights one read-only zero broadcast over it, no memory per node): the whole grid of a file
-    :func:`~stepterrain.io.load_dem` reads only a window of, to place the window (:meth:`Terrain._crop_nodes`) and
-    name the grid's extent in refusals. Its heights mean nothing: it is never meshed."""
-    return Terrain._geometry_only(shape, spacing, origin, crs, source=source, height_unit=height_unit)
 
 
 #: How far outside ``Terrain.crop``'s extent a node may lie and still be kept, in coordinate units: the rounding of
