@@ -1687,9 +1687,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if own is not None:
                 return own
         gltf = file.suffix.lower() in (".glb", ".gltf")
-        color, y_up = None, False
+        color, y_up, tree = None, False, None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
-            stored_z_up = _stored_z_up(_check_dense_gltf(file))
+            tree = _check_dense_gltf(file)  # its JSON, read once
+            stored_z_up = _stored_z_up(tree)
             scene = trimesh.load_scene(file, process=False)
             y_up = not (_faces_along_z(scene) if stored_z_up is None else stored_z_up)
             if y_up:  # glTF's world is y-up (§3.4); ours z-up. Exact for save_mesh's files: their turn undone
@@ -1703,7 +1704,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
             loaded = _read_points(file, gltf and y_up) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
-                loaded.metadata.update(_empty_gltf_extras(file))
+                loaded.metadata.update(_empty_gltf_extras(file, tree))
             if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
                 _check_format(file)
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
@@ -1926,18 +1927,20 @@ def _translation_matrix(matrix: Any) -> bool:
     return bool(np.array_equal(m[:3, :3], np.eye(3)) and np.array_equal(m[3], [0.0, 0.0, 0.0, 1.0]))
 
 
-def _empty_gltf_extras(file: Path) -> dict[str, Any]:
+def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
     """The ``extras`` of the one node of a glTF or GLB ``file`` without meshes: an empty mesh as :func:`save_mesh`
     writes it, its metadata there (glTF has no mesh without a primitive), which trimesh's reader drops: ``stepterrain
-    info`` of a batch's tile of sea showed none of the metadata of its other tiles. {} for any other file."""
-    try:
-        data = file.read_bytes()
-        if data[:4] == b"glTF":
-            (json_length,) = struct.unpack_from("<I", data, 12)
-            data = data[20 : 20 + json_length]
-        tree = json.loads(data)
-    except (OSError, ValueError, struct.error):
-        return {}
+    info`` of a batch's tile of sea showed none of the metadata of its other tiles. {} for any other file. ``tree``:
+    the file's JSON where :func:`_check_dense_gltf` has read it (None: read here)."""
+    if tree is None:
+        try:
+            data = file.read_bytes()
+            if data[:4] == b"glTF":
+                (json_length,) = struct.unpack_from("<I", data, 12)
+                data = data[20 : 20 + json_length]
+            tree = json.loads(data)
+        except (OSError, ValueError, struct.error):
+            return {}
     nodes = tree.get("nodes") if isinstance(tree, dict) else None
     if tree.get("meshes") or not isinstance(nodes, list) or len(nodes) != 1 or not isinstance(nodes[0], dict):
         return {}
