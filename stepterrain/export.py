@@ -958,7 +958,8 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
                 fh.write(part)
         return
     try:  # a textured mesh: trimesh packs the lengths as uint32 (numpy's OverflowError beyond)
-        data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False)
+        data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False,
+                                                tree_postprocessor=_sampler_postprocessor(mesh))
     except (OverflowError, struct.error):
         _refuse_glb_size(target, None, mesh)
     if len(data) > _GLB_MAX_BYTES:
@@ -1004,7 +1005,8 @@ def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, 
         tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
         return
     files = trimesh.exchange.gltf.export_gltf(
-        _gltf_scene(mesh, target, frame), include_normals=False, merge_buffers=True, embed_buffers=True
+        _gltf_scene(mesh, target, frame), include_normals=False, merge_buffers=True, embed_buffers=True,
+        tree_postprocessor=_sampler_postprocessor(mesh),
     )
     tree = json.loads(files["model.gltf"])
     if not tree.get("bufferViews"):  # no faces: trimesh writes a 0-byte buffer and [], which glTF forbids
@@ -2629,6 +2631,43 @@ def _source_jpeg(image: Any) -> bytes | None:
     return data if same else None
 
 
+#: glTF sampler wrap modes by name (glTF 2.0 §5.26, sampler.wrapS / wrapT).
+GLTF_WRAP = {"REPEAT": 10497, "CLAMP_TO_EDGE": 33071, "MIRRORED_REPEAT": 33648}
+
+
+def texture_wrap(material: Any) -> tuple[str, str] | None:
+    """The (u, v) wrap modes a textured mesh's ``material`` asks its sampler for, names of :data:`GLTF_WRAP` (its
+    ``wrap`` attribute: :func:`~stepterrain.globe.drape_texture` sets ("REPEAT", "CLAMP_TO_EDGE"), the image
+    periodic in longitude, not from pole to pole), or None: glTF's default sampler, REPEAT both ways."""
+    wrap = getattr(material, "wrap", None)
+    if wrap is None:
+        return None
+    wrap = tuple(wrap)
+    if len(wrap) != 2 or not all(mode in GLTF_WRAP for mode in wrap):
+        raise InvalidInputError(f"material.wrap must be two of {sorted(GLTF_WRAP)} (u, v); got {wrap!r}")
+    return wrap[0], wrap[1]
+
+
+def _sampler_postprocessor(mesh: trimesh.Trimesh) -> Any:
+    """trimesh's tree_postprocessor that gives the texture of ``mesh``'s material its :func:`texture_wrap` as a glTF
+    sampler, or None when the material asks for none. trimesh writes no sampler, so a viewer wrapped a globe's
+    plate-carrée image from pole to pole (glTF's default REPEAT in v): with mipmaps, the texels at one pole blended
+    with those at the other, a grey diamond at the north pole and a dark spot at the white south pole."""
+    wrap = texture_wrap(getattr(mesh.visual, "material", None)) if mesh.visual.kind == "texture" else None
+    if wrap is None:
+        return None
+
+    def add_sampler(tree: dict[str, Any]) -> None:
+        if not tree.get("textures"):
+            return
+        samplers = tree.setdefault("samplers", [])
+        samplers.append({"wrapS": GLTF_WRAP[wrap[0]], "wrapT": GLTF_WRAP[wrap[1]]})
+        for texture in tree["textures"]:
+            texture["sampler"] = len(samplers) - 1
+
+    return add_sampler
+
+
 def _textured_material(material: Any) -> Any:
     """The material a textured mesh is written to glTF with. trimesh's ``SimpleMaterial`` (an image given as
     ``TextureVisuals(uv=..., image=...)``, as :func:`~stepterrain.globe.drape_texture` makes it) became
@@ -2641,9 +2680,12 @@ def _textured_material(material: Any) -> Any:
     if isinstance(material, trimesh.visual.material.SimpleMaterial):
         image = material.image
         mode, cutoff = _texture_alpha_mode(image)
-        return trimesh.visual.material.PBRMaterial(
+        pbr = trimesh.visual.material.PBRMaterial(
             name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
             metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True, alphaMode=mode, alphaCutoff=cutoff)
+        if texture_wrap(material) is not None:  # the sampler the texture asks for (a globe's drape)
+            pbr.wrap = texture_wrap(material)
+        return pbr
     if isinstance(material, trimesh.visual.material.PBRMaterial):
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"

@@ -1530,7 +1530,9 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     its western corners at u + 1 (glTF's default REPEAT wrap), so no face spans the whole image; a corner
     at a pole gets a copy per face with the mean u of the face's other corners. The copies sit exactly on
     the original positions, so the surface stays crack-free; faces, their order and ``face_attributes`` are
-    unchanged.
+    unchanged. The material's ``wrap`` is ("REPEAT", "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler
+    that repeats the image in u (longitude) and clamps it in v, and renders sample it so, so that no pole's colour
+    blends with the other pole's in the mipmaps.
 
     Raises
     ------
@@ -1591,6 +1593,10 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
                           face_attributes={k: np.asarray(a) for k, a in mesh.face_attributes.items()})  # fmt: skip
     out.metadata.pop("node_entry", None)  # vertex -> node entry does not hold for the copies
     out.visual = trimesh.visual.TextureVisuals(uv=uv, image=picture if picture is not None else Image.fromarray(pixels))
+    # the image wraps around in longitude, not from pole to pole: glTF's default sampler (REPEAT both ways) blended
+    # each pole's texels with the other pole's in the mipmaps, a grey diamond at the north pole of the Blue Marble and
+    # a dark spot at its white south pole (the GLB's sampler and the render clamp v)
+    out.visual.material.wrap = ("REPEAT", "CLAMP_TO_EDGE")
     return out
 
 

@@ -458,7 +458,7 @@ def render_mesh(
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
     if textured is not None:  # it drew in the plain tan: a draped DEM or a GLB read back lost its texture
-        add_kwargs.update(texture=_texture(pv, poly, *textured))
+        add_kwargs.update(texture=_texture(pv, poly, *textured, clamp=source is not None and _clamped(source[2])))
     elif rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)
@@ -1025,7 +1025,7 @@ def render_textured_mesh(
     pv = _import_pyvista()
     _check_background(pv, background)
     poly = _polydata(pv, local, mesh.faces)
-    mesh_kwargs = dict(texture=_texture(pv, poly, uv, picture), smooth_shading=False,
+    mesh_kwargs = dict(texture=_texture(pv, poly, uv, picture, clamp=_clamped(source[2])), smooth_shading=False,
                        ambient=_AMBIENT if lighting else 1.0, diffuse=_DIFFUSE if lighting else 0.0, specular=0.0,
                        lighting=lighting)
     return _shoot(pv, poly, mesh_kwargs, local=local, faces=mesh.faces, finite=finite, box=box,
@@ -1063,8 +1063,47 @@ def _texture_shape(image: Any) -> tuple[int, int]:
 
 def _decoded_texture(uv: Any, image: Any, material: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
     """The (UVs, texture picture) a textured mesh is drawn with, from its :func:`_texture_source`: the image decoded,
-    both checked (an InvalidInputError for bad ones)."""
-    return _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material), material)
+    both checked (an InvalidInputError for bad ones); for a material whose ``wrap`` repeats u and clamps v (a globe's
+    drape), :func:`_periodic_columns`' picture, drawn clamped (:func:`_texture`'s ``clamp``)."""
+    uv, picture = _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material),
+                                                           material)
+    if _clamped(material):
+        uv, picture = _periodic_columns(uv, picture)
+    return uv, picture
+
+
+def _clamped(material: Any) -> bool:
+    """Whether a texture with ``material`` is drawn clamped to its edges: its ``wrap`` (see
+    :func:`~stepterrain.export.texture_wrap`) clamps v (VTK wraps both ways alike; u repeats through
+    :func:`_periodic_columns`)."""
+    from .export import texture_wrap
+
+    wrap = texture_wrap(material)
+    return wrap is not None and wrap[1] == "CLAMP_TO_EDGE"
+
+
+#: Columns of the texture repeated beyond a periodic texture's UVs on each side (:func:`_periodic_columns`), a multiple
+#: of the mipmap blocks it keeps aligned: the coarser levels' texels at the ends blend with the right neighbours up to
+#: blocks of this many columns.
+_PERIODIC_MARGIN = 256
+
+
+def _periodic_columns(uv: NDArray[np.float32], picture: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArray[Any]]:
+    """(UVs, picture) for a texture that repeats in u and is clamped in v, drawn with one clamped wrap (VTK's is the
+    same both ways): the picture's columns repeated over the UVs' u range and :data:`_PERIODIC_MARGIN` beyond on each
+    side, starting at a multiple of it (the mipmaps' blocks as the picture's), and u moved into it. With VTK's
+    REPEAT both ways, each pole of a globe's drape blended with the other's in the mipmaps (a grey diamond at the
+    north pole of the Blue Marble, a dark spot at its white south pole)."""
+    if picture.ndim < 2 or not len(uv) or not picture.shape[1]:
+        return uv, picture
+    cols = picture.shape[1]
+    u = uv[:, 0].astype(np.float64) * cols
+    start = (math.floor(u.min()) // _PERIODIC_MARGIN - 1) * _PERIODIC_MARGIN
+    stop = (math.ceil(u.max()) // _PERIODIC_MARGIN + 2) * _PERIODIC_MARGIN
+    wide = np.ascontiguousarray(picture[:, np.arange(start, stop) % cols])
+    out = np.array(uv, dtype=np.float32)
+    out[:, 0] = (u - start) / (stop - start)
+    return out, wide
 
 
 def _base_color_factor(picture: NDArray[np.uint8], material: Any) -> NDArray[np.uint8]:
@@ -1097,8 +1136,9 @@ def _base_color_factor(picture: NDArray[np.uint8], material: Any) -> NDArray[np.
     return out
 
 
-def _texture(pv: Any, poly: Any, uv: NDArray[np.float32], picture: NDArray[np.uint8]) -> Any:
-    """The pv.Texture of ``picture`` for ``poly``, whose texture coordinates become ``uv``."""
+def _texture(pv: Any, poly: Any, uv: NDArray[np.float32], picture: NDArray[np.uint8], clamp: bool = False) -> Any:
+    """The pv.Texture of ``picture`` for ``poly``, whose texture coordinates become ``uv``; ``clamp``: clamped to its
+    edges (see :func:`_clamped`), else repeated (glTF's default sampler)."""
     poly.active_texture_coordinates = uv
     texture = pv.Texture(picture)  # row 0 = the top of the image (v = 1)
     texture.interpolate = True  # linear, as a glTF viewer samples the GLB: nearest drew a magnified texel as a block
@@ -1108,6 +1148,8 @@ def _texture(pv: Any, poly: Any, uv: NDArray[np.float32], picture: NDArray[np.ui
     # isotropic, as three.js's default: VTK's 4x anisotropic filtering blended a constant-UV face's texel with its
     # neighbours on Mesa's llvmpipe (a face of one texel came out in a mix of two)
     texture.SetMaximumAnisotropicFiltering(1.0)
+    if clamp:
+        texture.SetWrap(texture.ClampToEdge)
     return texture
 
 

@@ -1186,3 +1186,61 @@ def test_a_tiff_texture_with_an_orientation_tag_is_draped_as_stored(tmp_path, or
     assert len(side) == 1
     with Image.open(side[0]) as written:
         assert np.array_equal(np.asarray(written.convert("RGB")), rgb)
+
+
+def _two_pole_texture():
+    """A plate-carrée texture whose poles differ: ice white south of 70° S, dark blue north of 70° N, green between."""
+    image = np.empty((128, 256, 3), np.uint8)
+    image[:] = (40, 140, 40)
+    image[:20] = (10, 10, 110)  # north
+    image[-20:] = (235, 235, 235)  # south
+    return image
+
+
+def test_a_globe_drape_samples_its_poles_without_the_other_pole_s_colour(tmp_path):
+    """The textured globe's poles, with mipmaps, showed a grey diamond at the north pole of the Blue Marble and a
+    dark spot at its white south pole: glTF's default sampler (trimesh writes none) and VTK's texture repeat the
+    image in v as well as in u, so at the coarse mip levels the pole triangles take (their u span of 45 to 90
+    degrees of longitude) each pole's texels blended with the other pole's. drape_texture now asks for REPEAT in u
+    and CLAMP_TO_EDGE in v: the GLB's texture gets that sampler (valid glTF) and the render clamps v."""
+    import json
+    import struct
+
+    from stepterrain.export import save_mesh
+    from stepterrain.globe import drape_texture
+
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    mesh = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=33, device="cpu").mesh()
+    textured = drape_texture(mesh, _two_pole_texture())
+    uv = np.asarray(textured.visual.uv)
+    assert np.ptp(uv[textured.faces][:, :, 0], axis=1).max() <= 0.5  # no face spans the image
+    for name in ("globe.glb", "globe.gltf"):
+        path = save_mesh(textured, tmp_path / name)
+        data = path.read_bytes()
+        if name.endswith(".glb"):
+            data = data[20 : 20 + struct.unpack_from("<I", data, 12)[0]]
+        tree = json.loads(data)
+        (texture,) = tree["textures"]
+        assert tree["samplers"][texture["sampler"]] == {"wrapS": 10497, "wrapT": 33071}
+
+
+@needs_render
+def test_a_globe_drape_renders_its_poles_in_their_own_colours():
+    """The render of the test above: a camera over each pole, unlit, sees the pole's own colour at the middle of the
+    picture (it saw the two poles' mean at the coarse mip levels of the pole triangles), and the antimeridian's
+    faces (u past 1) still show the image's own colours (no smear across the whole image)."""
+    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from
+    from stepterrain.render import render_textured_mesh
+
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    mesh = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=33, device="cpu").mesh()
+    image = _two_pole_texture()
+    textured = drape_texture(mesh, image)
+    for latitude, colour in ((90.0, image[0, 0]), (-90.0, image[-1, 0]), (0.0, image[64, 0])):
+        camera = look_from(latitude, 180.0, 3 * EARTH_RADIUS)
+        picture = render_textured_mesh(textured, window_size=(160, 160), lighting=False, anti_aliasing=False,
+                                       camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
+        middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
+        assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
