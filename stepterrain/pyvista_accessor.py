@@ -174,6 +174,11 @@ class StepTerrainAccessor:
         """Stepped terrain of the grid as ``pyvista.PolyData`` (see :func:`stepterrain.stepped`; ``memory_budget``
         as there: bytes the output may take, else an OutputTooLargeError naming its size).
 
+        A per-node ``gamma`` array may be (H, W) or hold one value per point, (N,), as pyvista's point data does
+        (``gamma=grid["gamma"]``), on every grid: whether the grid steps as a grid Terrain (an ImageData, an evenly
+        spaced RectilinearGrid) or as a TIN (a StructuredGrid, an unevenly spaced RectilinearGrid), point k is node
+        (k // W, k % W).
+
         Returns
         -------
         pyvista.PolyData
@@ -198,10 +203,33 @@ class StepTerrainAccessor:
 
         if interval is None and levels is None:
             raise InvalidInputError("give interval (uniform isovalues) or levels (explicit isovalues)")
-        mesh = stepped(self.terrain(elevation), interval=interval, levels=levels, base=base, gamma=gamma,
+        terrain = self.terrain(elevation)
+        mesh = stepped(terrain, interval=interval, levels=levels, base=base, gamma=self._node_gamma(gamma, terrain),
                        colors=colors, solid=solid, floor=floor, memory_budget=memory_budget,
                        device=device)  # fmt: skip
         return to_polydata(mesh)
+
+    def _node_gamma(self, gamma: Any, terrain: Terrain | trimesh.Trimesh) -> Any:
+        """A per-node ``gamma`` laid out as the terrain :meth:`terrain` made takes it: (H, W) for a grid Terrain, (N,)
+        for a TIN on the grid's points (in point order, row-major as the heights). A γ array had to match the kind of
+        terrain the grid happened to become: pyvista's (N,) point data was refused on an ImageData, an (H, W) array
+        on a StructuredGrid, and a RectilinearGrid wanted one or the other by whether its coordinates were even. Any
+        other γ (a scalar, a callable, a Lens, a shape that fits neither) is passed on as it is, for stepped's checks.
+        """
+        from .stepped import Lens
+
+        if callable(gamma) or isinstance(gamma, Lens):
+            return gamma
+        try:
+            shape = np.shape(gamma)
+        except Exception:  # noqa: BLE001 - a ragged sequence, an unreadable object: stepped() names it
+            return gamma
+        nx, ny = (int(d) for d in self._dataset.dimensions[:2])
+        if isinstance(terrain, Terrain) and shape == (ny * nx,):
+            return np.reshape(gamma, (ny, nx))
+        if not isinstance(terrain, Terrain) and shape == (ny, nx):
+            return np.reshape(gamma, -1)
+        return gamma
 
 
 def to_polydata(mesh: trimesh.Trimesh) -> Any:
