@@ -1275,7 +1275,8 @@ def stepped_series(
     A frame with bad heights, or with no finite height at all (as :func:`stepped` refuses such a terrain), is an
     :class:`InvalidInputError` naming its index (``frames[k]``): for a (T, H, W) stack before the first frame,
     for an iterable when that frame is reached; so is, for an iterable, ``gamma`` or ``colors`` that does not fit
-    a frame (its shape, its own count of isovalues).
+    a frame (its shape, its own count of isovalues), and for a stack a ``gamma`` that fails on a frame after the
+    first (an array NaN at a node that frame holds a height at, a callable that fails on its points).
     """
     check_flag(progress, "progress")
     if spacing is not None:  # once, so that their errors name no frame
@@ -1352,8 +1353,12 @@ def stepped_series(
                 interval=interval,
             )  # fmt: skip
         except InvalidInputError as exc:  # e.g. colors with a row per isovalue of another frame: name this frame
-            if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
-                raise
+            if values is not None:  # a stack: every frame shares the isovalues and the shape, so what does not fit
+                # them fails at the first frame, as for stepped(); a later frame fails for what is its own (a γ array
+                # NaN where frame 0 had nodata, a γ callable failing on its points), which names the frame
+                if k == 0:
+                    raise
+                raise InvalidInputError(f"frames[{k}]: {exc}") from exc.__cause__
             # the cause kept: a gamma callable's own exception
             raise InvalidInputError(f"frames[{k}] ({counted(len(frame_values), 'isovalue')}, shape {t.shape}): {exc}") \
                 from exc.__cause__

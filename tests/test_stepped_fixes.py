@@ -709,3 +709,33 @@ def test_a_tins_face_colours_are_carried_onto_its_steps(solid, tmp_path):
     assert np.isfinite(full.vertices[full.faces[owner[~walls]]]).all()  # never a dropped face's colour
     back = read_mesh(save_mesh(mesh, tmp_path / "steps.ply"))
     np.testing.assert_array_equal(np.asarray(back.visual.face_colors), got)
+
+
+def test_a_stack_names_the_later_frame_a_gamma_fails_on():
+    """stepped_series of a (T, H, W) stack re-raised a frame's error as it was, on the grounds that every frame of a
+    stack shares its isovalues and shape so that the first frame fails: but a γ array made from frame 0's heights
+    (NaN at its nodata, as stepped() allows) fails at the first later frame with a height there, and a γ callable may
+    fail on one frame's points only. The error ("gamma must lie in [0, 1]; got nan at index (1, 1)") named no frame,
+    where the same frames as a list name theirs. Found by stepping frames whose nodata moves. Now frames[k] is named,
+    the callable's exception kept as the cause."""
+    frames = np.random.default_rng(0).random((3, 5, 6)) * 10
+    frames[0, 1, 1] = np.nan
+    gamma = np.where(np.isnan(frames[0]), np.nan, 0.5)  # γ per node from frame 0: NaN at its nodata
+    series = st.stepped_series(frames, interval=2.0, gamma=gamma, device="cpu")
+    assert len(next(series).faces) > 0
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: gamma must lie in \[0, 1\].* at index \(1, 1\)"):
+        next(series)
+
+    def fails_late(points):
+        if len(points) > 400:  # frame 2's, three times as steep: more vertices
+            raise ValueError("out of the camera's range")
+        return np.full(len(points), 0.5)
+
+    frames = np.random.default_rng(1).random((3, 5, 6)) * 10
+    frames[2] *= 3
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: gamma, a callable .* raised ValueError") as info:
+        list(st.stepped_series(frames, interval=2.0, gamma=fails_late, device="cpu"))
+    assert isinstance(info.value.__cause__, ValueError)
+    # a γ that fits no frame still fails at the first, as stepped() words it
+    with pytest.raises(st.InvalidInputError, match=r"^gamma must be shape \(5, 6\)"):
+        next(st.stepped_series(frames, interval=2.0, gamma=np.full((4, 4), 0.5), device="cpu"))
