@@ -269,3 +269,29 @@ def test_accessor_takes_a_per_point_gamma_whichever_way_the_grid_steps():
             if np.isfinite(z):
                 at = np.flatnonzero((a.points[:, :2] == point).all(axis=1) & np.isclose(a.points[:, 2], z, atol=1e-4))
                 assert at.size, (type(grid).__name__, point, z)
+
+
+def test_to_polydata_keeps_face_colours_and_from_polydata_gives_them_back(tmp_path):
+    """to_polydata kept vertex colours only: a stepped TIN's face colours (carried onto its steps) were dropped, and
+    save_mesh or render_mesh of that PolyData gave a plain mesh. They are now cell data RGBA (also the active scalars
+    colors_rgba, plotted as colours), and from_polydata (save_mesh's way in) gives them back as the face colours,
+    not as face attributes beside level and wall."""
+    import stepterrain as st
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+
+    heights = np.random.default_rng(5).uniform(0, 60, (5, 6))
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0))
+    colours = np.random.default_rng(6).integers(0, 256, (len(tin.faces), 4)).astype(np.uint8)
+    tin.visual = trimesh.visual.ColorVisuals(tin, face_colors=colours)
+    mesh = st.stepped(tin, interval=10.0, device="cpu")
+    assert mesh.visual.kind == "face"
+    poly = to_polydata(mesh)
+    np.testing.assert_array_equal(poly.cell_data["RGBA"], mesh.visual.face_colors)
+    assert poly.cell_data.active_scalars_name == RGBA_ALIAS
+    back = from_polydata(poly)
+    assert back.visual.kind == "face"
+    np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors)
+    assert set(back.face_attributes) == {"level", "wall"}
+    written = read_mesh(save_mesh(poly, tmp_path / "steps.ply"))
+    np.testing.assert_array_equal(written.visual.face_colors, mesh.visual.face_colors)
