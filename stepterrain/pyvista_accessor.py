@@ -174,6 +174,11 @@ class StepTerrainAccessor:
         """Stepped terrain of the grid as ``pyvista.PolyData`` (see :func:`stepterrain.stepped`; ``memory_budget``
         as there: bytes the output may take, else an OutputTooLargeError naming its size).
 
+        A per-node ``gamma`` array may be (H, W) or hold one value per point, (N,), as pyvista's point data does
+        (``gamma=grid["gamma"]``), on every grid: whether the grid steps as a grid Terrain (an ImageData, an evenly
+        spaced RectilinearGrid) or as a TIN (a StructuredGrid, an unevenly spaced RectilinearGrid), point k is node
+        (k // W, k % W).
+
         Returns
         -------
         pyvista.PolyData
@@ -198,17 +203,41 @@ class StepTerrainAccessor:
 
         if interval is None and levels is None:
             raise InvalidInputError("give interval (uniform isovalues) or levels (explicit isovalues)")
-        mesh = stepped(self.terrain(elevation), interval=interval, levels=levels, base=base, gamma=gamma,
+        terrain = self.terrain(elevation)
+        mesh = stepped(terrain, interval=interval, levels=levels, base=base, gamma=self._node_gamma(gamma, terrain),
                        colors=colors, solid=solid, floor=floor, memory_budget=memory_budget,
                        device=device)  # fmt: skip
         return to_polydata(mesh)
+
+    def _node_gamma(self, gamma: Any, terrain: Terrain | trimesh.Trimesh) -> Any:
+        """A per-node ``gamma`` laid out as the terrain :meth:`terrain` made takes it: (H, W) for a grid Terrain, (N,)
+        for a TIN on the grid's points (in point order, row-major as the heights). A γ array had to match the kind of
+        terrain the grid happened to become: pyvista's (N,) point data was refused on an ImageData, an (H, W) array
+        on a StructuredGrid, and a RectilinearGrid wanted one or the other by whether its coordinates were even. Any
+        other γ (a scalar, a callable, a Lens, a shape that fits neither) is passed on as it is, for stepped's checks.
+        """
+        from .stepped import Lens
+
+        if callable(gamma) or isinstance(gamma, Lens):
+            return gamma
+        try:
+            shape = np.shape(gamma)
+        except Exception:  # noqa: BLE001 - a ragged sequence, an unreadable object: stepped() names it
+            return gamma
+        nx, ny = (int(d) for d in self._dataset.dimensions[:2])
+        if isinstance(terrain, Terrain) and shape == (ny * nx,):
+            return np.reshape(gamma, (ny, nx))
+        if not isinstance(terrain, Terrain) and shape == (ny, nx):
+            return np.reshape(gamma, -1)
+        return gamma
 
 
 def to_polydata(mesh: trimesh.Trimesh) -> Any:
     """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, face attributes, vertex colours, metadata.
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
-    point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours). Face attributes
+    point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); face colours (a TIN's,
+    carried onto its steps) likewise as cell data. Face attributes
     become cell data (bools as uint8), ``isovalues`` a float64 ``field_data`` array, and every metadata item that
     is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as
     ``pv.wrap`` keeps them; an item that is not is left out with a warning naming it. :func:`from_polydata` is the
@@ -231,6 +260,10 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
         # buffer, no copy) under RGBA_ALIAS are the active scalars, so the default plot shows the level colours.
         poly.point_data[RGBA_ALIAS] = poly.point_data["RGBA"]
         poly.point_data.active_scalars_name = RGBA_ALIAS
+    elif mesh.visual.kind == "face":  # a TIN's face colours carried onto its steps: per cell, as VTK holds them
+        poly.cell_data["RGBA"] = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
+        poly.cell_data[RGBA_ALIAS] = poly.cell_data["RGBA"]
+        poly.cell_data.active_scalars_name = RGBA_ALIAS
     if "isovalues" in mesh.metadata:
         poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
     # only the isovalues were kept (source, CRS, gamma, floor dropped), where pv.wrap keeps them in user_dict
@@ -255,7 +288,8 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
 
     Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
     active scalars named ``*_rgb``/``*_rgba``), uint8 with 3 or 4 columns, become the vertex colours (pv.to_trimesh
-    leaves them as a plain vertex attribute, so they were not written nor drawn); other point data become vertex
+    leaves them as a plain vertex attribute, so they were not written nor drawn), or else the cell data ``colors_rgba``
+    (else ``RGBA``), uint8 with 3 or 4 columns, the face colours; other point data become vertex
     attributes (normals and texture coordinates aside: a PolyData holds no texture image, drape it instead). Cell
     data become face attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data
     (``isovalues`` as a list) become the metadata. ``name`` names the argument in errors.
@@ -294,9 +328,18 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
             skipped |= {colour_name} | {n for n in (RGBA_ALIAS, "RGBA") if n in point_data and
                                         np.array_equal(np.asarray(point_data[n]), values)}  # fmt: skip
     vertex_attributes = {n: np.array(point_data[n]) for n in point_data.keys() if n not in skipped}
+    face_colors = None
+    if colors is None:  # face colours, as to_polydata keeps them: cell data colors_rgba (else RGBA)
+        cell_colour = next((n for n in (RGBA_ALIAS, "RGBA") if n in cell_data), None)
+        values = np.asarray(cell_data[cell_colour]) if cell_colour is not None else None
+        if values is not None and values.dtype == np.uint8 and values.ndim == 2 and values.shape[1] in (3, 4):
+            face_colors = values.copy()
     face_attributes = {}
     for key in cell_data.keys():
         if key == cell_data.active_normals_name:
+            continue
+        if face_colors is not None and key in (RGBA_ALIAS, "RGBA") and np.array_equal(np.asarray(cell_data[key]),
+                                                                                      face_colors):
             continue
         values = np.array(cell_data[key])
         if key == "wall" and values.dtype == np.uint8 and values.max(initial=0) <= 1:  # bool as uint8 in VTK
@@ -307,8 +350,8 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
         if key != USER_DICT_KEY and key not in metadata:
             values = np.array(poly.field_data[key])
             metadata[key] = values.tolist() if key == "isovalues" else values
-    return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors, face_attributes=face_attributes,
-                           vertex_attributes=vertex_attributes, metadata=metadata)
+    return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors, face_colors=face_colors,
+                           face_attributes=face_attributes, vertex_attributes=vertex_attributes, metadata=metadata)
 
 
 def _uniform_step(coords: NDArray[np.float64]) -> float | None:

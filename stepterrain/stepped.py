@@ -429,6 +429,7 @@ class StepArrays:
     face_walls: NDArray[np.bool_]
     vertex_count: int
     face_count: int
+    face_sources: NDArray[np.int64] | None = None  # (F,) the terrain face (a TIN's) each output face was cut from
 
 
 def thresholds_of(values: NDArray[np.float32]) -> NDArray[np.float32]:
@@ -539,6 +540,7 @@ def step_arrays(
     gamma: float | None = None,
     want_steps: bool = False,
     extra_vertex_bytes: int = 0,
+    want_face_sources: bool = False,
 ) -> StepArrays:
     """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions.
 
@@ -547,6 +549,8 @@ def step_arrays(
     vertex pass blends as it writes (kernels/stepped.py, DirectBlend) into ``vertices``, the world positions
     :func:`blend` would give, and writes no ``points`` (``step_heights`` only with ``want_steps``).
     ``extra_vertex_bytes``: what the caller adds per vertex (colours), counted against ``memory_budget`` too.
+    ``want_face_sources``: a TIN's result also holds, per output face, the terrain face it was cut from (each
+    triangle's faces lie at its offset of the face scan), for face colours carried over.
     """
     iso = _isovalue_struct(values, device)
     grid = terrain.kind == "grid"
@@ -617,6 +621,9 @@ def step_arrays(
             device=device,
         )
         face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
+    face_sources = None
+    if want_face_sources and not grid:
+        face_sources = np.repeat(np.arange(n_cells, dtype=np.int64), np.diff(host_copy(face_offsets)[:n_cells + 1]))
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
     _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
 
@@ -667,6 +674,7 @@ def step_arrays(
         face_walls=to_numpy(walls_np, walls_wp, (face_count,)).view(np.bool_),
         vertex_count=vertex_count,
         face_count=face_count,
+        face_sources=face_sources,
     )
 
 
@@ -835,6 +843,7 @@ def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, c
     scalar γ blended in the vertex pass, any other by :func:`blend`); the colours counted against the budget."""
     arrays = step_arrays(t, values, device=device, want_sources=_needs_sources(t, gamma, colors),
                          memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
+                         want_face_sources=colors is None and t.face_index is not None,
                          **_direct_blend(gamma, colors))  # fmt: skip
     vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=device)
     return arrays, vertices
@@ -844,7 +853,8 @@ def _needs_sources(terrain: Terrain, gamma: GammaLike, colors: Any) -> bool:
     if type(gamma) is float and terrain.visual is None:  # a scalar γ, nothing carried over
         return False
     per_node_gamma = not isinstance(gamma, Lens) and not callable(gamma) and _gamma_ndim(gamma) > 0
-    carries_visual = terrain.visual is not None and colors is None
+    # face colours follow the faces (StepArrays.face_sources), not the vertices
+    carries_visual = terrain.visual is not None and colors is None and terrain.face_index is None
     return per_node_gamma or carries_visual
 
 
@@ -914,8 +924,14 @@ def _check_carried_visual(terrain: Terrain) -> None:
 
 
 def _carry_visual(terrain: Terrain, arrays: StepArrays) -> Any:
-    """Input vertex colors or UVs interpolated onto the output vertices with the crossings' β."""
+    """Input vertex colors or UVs interpolated onto the output vertices with the crossings' β; a TIN's face colours
+    onto the faces cut from each of its triangles (terraces and walls alike)."""
     visual = terrain.visual
+    if terrain.face_index is not None and arrays.face_sources is not None:
+        rgba = np.asarray(visual.face_colors, dtype=np.uint8)
+        return trimesh.visual.ColorVisuals(face_colors=rgba[terrain.face_index[arrays.face_sources]])
+    if arrays.sources is None:
+        return None
     sources = host_copy(arrays.sources)
     betas = host_copy(arrays.betas).astype(np.float64)[:, None]
     if isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "vertex":
@@ -964,8 +980,8 @@ def stepped(
     colors : str or (L, 3|4) array, optional
         Hypsometric vertex colors by level: a matplotlib colormap name (sampled evenly over its land colours:
         'terrain' without its sea-blue first quarter, see :data:`LAND_START`) or one color per isovalue. By default
-        the input's vertex colors or UVs (a TIN with a visual) are carried over; on a solid the skirt and base are
-        grey, or take the UVs of the surface above them.
+        the input's vertex colors or UVs (a TIN with a visual) are carried over, and a TIN's face colours onto the
+        faces cut from each triangle; on a solid the skirt and base are grey, or take the UVs of the surface above them.
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
@@ -1154,7 +1170,7 @@ def _assemble(
         vertex_colors = np.take(table, vertex_levels, axis=0, mode="clip",
                                 out=recycled_empty((len(vertex_levels), table.shape[1]), np.uint8))
     carried = None  # the input's vertex colours or UVs on the output vertices
-    if vertex_colors is None and t.visual is not None and arrays.sources is not None:
+    if vertex_colors is None and t.visual is not None:
         carried = _carry_visual(t, arrays)
     if solid:
         from .mesh import close_solid
@@ -1183,7 +1199,7 @@ def _assemble(
             skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - len(source), 1))
             vertex_colors = np.concatenate([vertex_colors[source], skirt])
         if carried is not None:
-            carried = _solid_visual(carried, vertices, source)
+            carried = _solid_visual(carried, vertices, source, kept, extra)
         metadata["floor"] = floor_z
     elif floor is not None:
         raise InvalidInputError("floor applies only with solid=True")
@@ -1201,12 +1217,17 @@ def _assemble(
     return mesh
 
 
-def _solid_visual(carried: Any, vertices: NDArray[np.float64], source: NDArray[np.int64]) -> Any:
+def _solid_visual(carried: Any, vertices: NDArray[np.float64], source: NDArray[np.int64], kept: NDArray[np.bool_],
+                  extra: int) -> Any:
     """The carried visual of a surface on its solid (:func:`~stepterrain.mesh.close_solid`'s ``vertices``, the
-    surface's first, and ``source``, the surface vertex each of those is or copies): vertex colours with a grey skirt
-    and base, as ``colors=`` gives them; UVs with each skirt and base vertex taking those of a surface vertex on its
-    xy (the texture runs straight down the skirt)."""
+    surface's first, ``source``, the surface vertex each of those is or copies, ``kept``, the surface faces kept, and
+    ``extra``, the skirt and base faces after them): vertex or face colours with a grey skirt and base, as ``colors=``
+    gives them; UVs with each skirt and base vertex taking those of a surface vertex on its xy (the texture runs
+    straight down the skirt)."""
     n = len(source)
+    if isinstance(carried, trimesh.visual.ColorVisuals) and carried.kind == "face":
+        skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (extra, 1))
+        return trimesh.visual.ColorVisuals(face_colors=np.concatenate([carried.face_colors[kept], skirt]))
     if isinstance(carried, trimesh.visual.ColorVisuals):
         skirt = np.tile(np.array([[96, 96, 96, 255]], np.uint8), (len(vertices) - n, 1))
         return trimesh.visual.ColorVisuals(vertex_colors=np.concatenate([carried.vertex_colors[source], skirt]))
@@ -1254,7 +1275,8 @@ def stepped_series(
     A frame with bad heights, or with no finite height at all (as :func:`stepped` refuses such a terrain), is an
     :class:`InvalidInputError` naming its index (``frames[k]``): for a (T, H, W) stack before the first frame,
     for an iterable when that frame is reached; so is, for an iterable, ``gamma`` or ``colors`` that does not fit
-    a frame (its shape, its own count of isovalues).
+    a frame (its shape, its own count of isovalues), and for a stack a ``gamma`` that fails on a frame after the
+    first (an array NaN at a node that frame holds a height at, a callable that fails on its points).
     """
     check_flag(progress, "progress")
     if spacing is not None:  # once, so that their errors name no frame
@@ -1331,8 +1353,12 @@ def stepped_series(
                 interval=interval,
             )  # fmt: skip
         except InvalidInputError as exc:  # e.g. colors with a row per isovalue of another frame: name this frame
-            if values is not None:  # a stack: every frame shares the isovalues and the shape, so the first fails
-                raise
+            if values is not None:  # a stack: every frame shares the isovalues and the shape, so what does not fit
+                # them fails at the first frame, as for stepped(); a later frame fails for what is its own (a γ array
+                # NaN where frame 0 had nodata, a γ callable failing on its points), which names the frame
+                if k == 0:
+                    raise
+                raise InvalidInputError(f"frames[{k}]: {exc}") from exc.__cause__
             # the cause kept: a gamma callable's own exception
             raise InvalidInputError(f"frames[{k}] ({counted(len(frame_values), 'isovalue')}, shape {t.shape}): {exc}") \
                 from exc.__cause__

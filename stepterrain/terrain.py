@@ -467,7 +467,8 @@ class Terrain:
     reach the cached uploads, nodata flag and height range; :meth:`from_heights` and :meth:`from_mesh` copy once
     while checking. ``height_unit`` is the length unit a grid's heights were read in, as its source named it
     (:func:`~stepterrain.io.load_dem`: ``height_unit=`` or the file's own; "ft", "m"), the heights being metres
-    since; None when no unit was named: the heights are as stored.
+    since; None when no unit was named: the heights are as stored. ``face_index``: a TIN's faces' rows in the mesh
+    given (faces with nodata left out), kept where its visual holds face colours, which the steps carry (else None).
     """
 
     kind: Literal["grid", "tin"]
@@ -483,6 +484,7 @@ class Terrain:
     source: str | None = None
     visual: Any = None
     height_unit: str | None = None
+    face_index: NDArray[np.int64] | None = None
     _device_cache: dict = field(default_factory=dict, repr=False, compare=False)
     _owned: InitVar[bool] = False  # the constructors' own arrays (or a borrow within one call): no copy
 
@@ -494,7 +496,7 @@ class Terrain:
         # views, so that changing them in place raises instead of stepping stale caches. Arrays a caller gave
         # Terrain(...) directly are copied first: a read-only view of them still changed with the caller's array
         # while the caches kept the old heights (a stepped mesh clamped to the old height range, silently)
-        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used", "face_index"):
             array = getattr(self, name)
             if not isinstance(array, np.ndarray):
                 continue
@@ -519,7 +521,7 @@ class Terrain:
                                                      "in, e.g. 'ft'"))
         set_field(self, "_device_cache", {})
         if self.kind == "grid":
-            extra = [name for name in ("points", "faces", "edges", "face_edges", "point_used")
+            extra = [name for name in ("points", "faces", "edges", "face_edges", "point_used", "face_index")
                      if getattr(self, name) is not None]
             if extra:
                 raise InvalidInputError(f"a Terrain of kind 'grid' takes heights, spacing and origin; got "
@@ -551,7 +553,7 @@ class Terrain:
                 raise InvalidInputError(f"heights of a Terrain of kind 'tin' are its points' z (None to take them); "
                                         f"got {_described(self.heights)} that differs from points[:, 2]")
         built = Terrain._build_tin(trimesh.Trimesh(points, faces, process=False), self.visual, self.source)
-        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):  # the tables rebuilt
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used", "face_index"):  # rebuilt
             set_field(self, name, getattr(built, name))
         set_field(self, "spacing", (1.0, 1.0))
         set_field(self, "origin", (0.0, 0.0))
@@ -727,6 +729,8 @@ class Terrain:
             point_used=point_used,
             source=source,
             visual=visual,
+            # which input face each kept face is, for the face colours the steps carry (stepped._carry_visual)
+            face_index=np.flatnonzero(valid) if _face_coloured(visual) else None,
             _owned=True,
         )
 
@@ -1139,6 +1143,11 @@ def _folded_message(
         f"mesh.faces[mesh.face_normals[:, 2] {sign} 0]).any(axis=1)); or mesh the grid with stepterrain.adaptive_mesh "
         "(an RTIN within a vertical error bound, which never folds)"
     )
+
+
+def _face_coloured(visual: Any) -> bool:
+    """Whether a TIN's ``visual`` holds face colours (one per face of the mesh given)."""
+    return isinstance(visual, trimesh.visual.ColorVisuals) and visual.kind == "face"
 
 
 def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) -> NDArray[np.int64]:

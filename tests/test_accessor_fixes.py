@@ -236,3 +236,62 @@ def test_accessor_takes_memory_budget():
     with pytest.raises(OutputTooLargeError, match=r"would need [\d,]+ bytes, over the memory budget of 1,000 bytes"):
         grid.stepterrain.stepped(interval=50, memory_budget=1000)
     assert grid.stepterrain.stepped(interval=50, memory_budget=10**8).n_cells > 0
+
+
+def test_accessor_takes_a_per_point_gamma_whichever_way_the_grid_steps():
+    """A per-node γ had to be (H, W) on an ImageData or an evenly spaced RectilinearGrid (a grid Terrain) but (N,) on
+    a StructuredGrid or an unevenly spaced RectilinearGrid (a TIN): pyvista's own point data (grid["gamma"], (N,))
+    was refused on the first, and whether a RectilinearGrid wanted one or the other hung on its coordinates being even
+    to 1e-6. Found by stepping one grid as each kind with one γ array. Both shapes are now taken on every grid, the
+    same node for the same point, giving the same steps."""
+    rng = np.random.default_rng(4)
+    rows, cols = 5, 7
+    heights = rng.uniform(0, 40, (rows, cols))
+    heights[2, 3] = np.nan
+    gamma = rng.random((rows, cols))
+    xs, ys = 30.0 * np.arange(cols), 9000.0 - 20.0 * np.arange(rows)
+    x, y = np.meshgrid(xs, ys, indexing="ij")  # (W, H): dimensions (W, H, 1), points x fastest
+    structured = pv.StructuredGrid(x, y, np.zeros_like(x))
+    even = pv.RectilinearGrid(xs, ys, [0.0])
+    uneven = pv.RectilinearGrid(np.r_[xs[:3], xs[3:] + 12.0], ys, [0.0])
+    image = pv.ImageData(dimensions=(cols, rows, 1), spacing=(30.0, 20.0, 1.0), origin=(0.0, 9000.0, 0.0),
+                         direction_matrix=np.diag([1.0, -1.0, 1.0]))
+    for grid in (image, even, structured, uneven):
+        grid["elevation"] = heights.ravel()
+        grid["gamma"] = gamma.ravel()
+        a = grid.stepterrain.stepped(interval=5.0, gamma=grid["gamma"], solid=True)
+        b = grid.stepterrain.stepped(interval=5.0, gamma=gamma, solid=True)
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(a.regular_faces, b.regular_faces)
+        # γ blended node by node: each finite node's height is (1 - γ) h + γ α at its own point
+        expected = (1 - gamma) * heights + gamma * (np.round(heights / 5.0) * 5.0)
+        for point, z in zip(grid.points[:, :2], expected.ravel(), strict=True):
+            if np.isfinite(z):
+                at = np.flatnonzero((a.points[:, :2] == point).all(axis=1) & np.isclose(a.points[:, 2], z, atol=1e-4))
+                assert at.size, (type(grid).__name__, point, z)
+
+
+def test_to_polydata_keeps_face_colours_and_from_polydata_gives_them_back(tmp_path):
+    """to_polydata kept vertex colours only: a stepped TIN's face colours (carried onto its steps) were dropped, and
+    save_mesh or render_mesh of that PolyData gave a plain mesh. They are now cell data RGBA (also the active scalars
+    colors_rgba, plotted as colours), and from_polydata (save_mesh's way in) gives them back as the face colours,
+    not as face attributes beside level and wall."""
+    import stepterrain as st
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+
+    heights = np.random.default_rng(5).uniform(0, 60, (5, 6))
+    tin = st.heightfield_mesh(heights, spacing=(30.0, 30.0))
+    colours = np.random.default_rng(6).integers(0, 256, (len(tin.faces), 4)).astype(np.uint8)
+    tin.visual = trimesh.visual.ColorVisuals(tin, face_colors=colours)
+    mesh = st.stepped(tin, interval=10.0, device="cpu")
+    assert mesh.visual.kind == "face"
+    poly = to_polydata(mesh)
+    np.testing.assert_array_equal(poly.cell_data["RGBA"], mesh.visual.face_colors)
+    assert poly.cell_data.active_scalars_name == RGBA_ALIAS
+    back = from_polydata(poly)
+    assert back.visual.kind == "face"
+    np.testing.assert_array_equal(back.visual.face_colors, mesh.visual.face_colors)
+    assert set(back.face_attributes) == {"level", "wall"}
+    written = read_mesh(save_mesh(poly, tmp_path / "steps.ply"))
+    np.testing.assert_array_equal(written.visual.face_colors, mesh.visual.face_colors)

@@ -670,3 +670,72 @@ def test_a_solid_of_a_grid_with_nodata_asks_its_triangles_once(monkeypatch):
     lone[0, 0] = 5.0
     with pytest.raises(st.InvalidInputError, match="solid=True needs a surface"):
         st.stepped(lone, interval=1.0, solid=True, floor=10.0)
+
+
+@pytest.mark.parametrize("solid", [False, True])
+def test_a_tins_face_colours_are_carried_onto_its_steps(solid, tmp_path):
+    """A TIN with face colours (a land-cover map per triangle; what read_mesh gives for a PLY or 3MF coloured per
+    face) was stepped into a plain mesh: the docstring carries "the input's vertex colors or UVs", and face colours
+    were dropped without a word. Found by stepping TINs with each kind of visual. Every output face now takes the
+    colour of the input triangle it was cut from (terrace and wall alike; a solid's skirt and base grey, as for
+    vertex colours), also when faces with nodata are left out, and a PLY keeps them."""
+    from stepterrain.export import read_mesh, save_mesh
+
+    rng = np.random.default_rng(6)
+    heights = rng.normal(size=(7, 9)).cumsum(0).cumsum(1) * 3 + 0.1
+    heights[2, 5] = np.nan  # faces with nodata are dropped: the colours must not shift onto the wrong faces
+    full = st.heightfield_mesh(np.nan_to_num(heights, nan=1.0), spacing=(2.0, -3.0), origin=(500.0, 900.0))
+    full.vertices[:, 2] = heights.reshape(-1)  # the nodata node's faces are given too
+    colours = rng.integers(0, 256, (len(full.faces), 4)).astype(np.uint8)
+    colours[:, 3] = 255
+    full.visual = trimesh.visual.ColorVisuals(full, face_colors=colours)
+    mesh = st.stepped(full, interval=2.0, gamma=0.7, solid=solid, device="cpu")
+    assert mesh.visual.kind == "face"
+    got = np.asarray(mesh.visual.face_colors)
+    assert got.shape == (len(mesh.faces), 4)
+    ours = mesh.face_attributes["level"] >= 0  # the surface's faces (a solid's skirt and base: level -1)
+    assert (got[~ours, :3] == 96).all()
+    # each surface face lies inside the input triangle whose colour it has: the one its centroid lies deepest in
+    a, b, c = (full.vertices[full.faces[:, k], :2] for k in range(3))
+    p = mesh.triangles_center[ours, :2][:, None, :]
+    def cross(u, v, w):  # noqa: E306 - twice the signed area of (u, v, w), per centroid and input triangle
+        return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0])
+    depth = np.minimum(np.minimum(cross(a, b, p), cross(b, c, p)), cross(c, a, p)) * np.sign(cross(a, b, c))
+    owner = np.argmax(np.nan_to_num(depth, nan=-np.inf), axis=1)
+    walls = mesh.face_attributes["wall"][ours]
+    # a wall stands on an input edge shared by two triangles: its colour is one of theirs; a terrace's is its own
+    np.testing.assert_array_equal(got[ours][~walls], colours[owner[~walls]])
+    assert np.isin(got[ours][walls].view(np.uint32), colours.view(np.uint32)).all()
+    assert np.isfinite(full.vertices[full.faces[owner[~walls]]]).all()  # never a dropped face's colour
+    back = read_mesh(save_mesh(mesh, tmp_path / "steps.ply"))
+    np.testing.assert_array_equal(np.asarray(back.visual.face_colors), got)
+
+
+def test_a_stack_names_the_later_frame_a_gamma_fails_on():
+    """stepped_series of a (T, H, W) stack re-raised a frame's error as it was, on the grounds that every frame of a
+    stack shares its isovalues and shape so that the first frame fails: but a γ array made from frame 0's heights
+    (NaN at its nodata, as stepped() allows) fails at the first later frame with a height there, and a γ callable may
+    fail on one frame's points only. The error ("gamma must lie in [0, 1]; got nan at index (1, 1)") named no frame,
+    where the same frames as a list name theirs. Found by stepping frames whose nodata moves. Now frames[k] is named,
+    the callable's exception kept as the cause."""
+    frames = np.random.default_rng(0).random((3, 5, 6)) * 10
+    frames[0, 1, 1] = np.nan
+    gamma = np.where(np.isnan(frames[0]), np.nan, 0.5)  # γ per node from frame 0: NaN at its nodata
+    series = st.stepped_series(frames, interval=2.0, gamma=gamma, device="cpu")
+    assert len(next(series).faces) > 0
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[1\]: gamma must lie in \[0, 1\].* at index \(1, 1\)"):
+        next(series)
+
+    def fails_late(points):
+        if len(points) > 400:  # frame 2's, three times as steep: more vertices
+            raise ValueError("out of the camera's range")
+        return np.full(len(points), 0.5)
+
+    frames = np.random.default_rng(1).random((3, 5, 6)) * 10
+    frames[2] *= 3
+    with pytest.raises(st.InvalidInputError, match=r"^frames\[2\]: gamma, a callable .* raised ValueError") as info:
+        list(st.stepped_series(frames, interval=2.0, gamma=fails_late, device="cpu"))
+    assert isinstance(info.value.__cause__, ValueError)
+    # a γ that fits no frame still fails at the first, as stepped() words it
+    with pytest.raises(st.InvalidInputError, match=r"^gamma must be shape \(5, 6\)"):
+        next(st.stepped_series(frames, interval=2.0, gamma=np.full((4, 4), 0.5), device="cpu"))
