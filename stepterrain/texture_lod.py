@@ -1659,9 +1659,12 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     if texel_size is not None:
         sx = sy = finite_number(texel_size, "texel_size", positive=True)
     with contextlib.ExitStack() as stack:
-        tiff = _WindowedTiff.open(image, stack)  # a GeoTIFF (a PNG): only the window read, never the whole
-        if tiff is None:  # a file it cannot read is refused here
-            pyramid = stack.enter_context(ImagePyramid.build(image, extent=extent, device=device))
+        opened: dict[str, Any] = {}  # the file opened with rasterio, read whole below if not by windows: one open
+        tiff = _WindowedTiff.open(image, stack, opened=opened)  # a GeoTIFF (a PNG): only the window read
+        if tiff is None:  # ImagePyramid.build of it (a file it cannot read is refused here)
+            pyramid = stack.enter_context(ImagePyramid._build(
+                image, None, opened.get("dataset"), extent=extent, storage=None, anisotropic=False,
+                band_bytes=_BAND_BYTES, device=device, crs=None))
         else:
             placement = _placement(image, extent, None, tiff.georeferencing, tiff.shape[:2])
             pyramid = ImagePyramid._header(tiff.shape, placement[0], placement[1])
