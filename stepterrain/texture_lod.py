@@ -398,25 +398,34 @@ def _may_change(array: NDArray[Any]) -> bool:
         return True
 
 
+def _write_bands(path: Path, height: int, rows: int, band: Callable[[int, int], NDArray[np.uint8]],
+                 level: Path | None = None) -> None:
+    """Write an image of ``height`` rows into the raw file ``path``, ``rows`` rows at a time: ``band(r0, r1)`` gives
+    rows r0..r1 (whole rows, C order in the file), each freed once written, a memmap's pages dropped from the
+    resident set. A failure is a DataFileError naming the pyramid level ``level`` (default ``path``)."""
+    name = str(path if level is None else level)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError as exc:
+        raise DataFileError(f"cannot write the pyramid level {name!r}: {exc.strerror}") from exc
+    try:
+        for r0 in range(0, height, rows):  # a handful of bands, never a loop over pixels
+            data = band(r0, min(height, r0 + rows))
+            _write_at(fd, data, r0 * (data.size // len(data)))
+            if isinstance(data, np.memmap):  # its pages stayed resident: the whole image by the end
+                _drop_resident(data)
+            del data
+    except OSError as exc:
+        raise DataFileError(f"cannot write the pyramid level {name!r}: {exc}") from exc
+    finally:
+        os.close(fd)
+
+
 def _snapshot(source: NDArray[np.uint8], path: Path, band_bytes: int) -> NDArray[np.uint8]:
     """Copy ``source`` into the raw file ``path`` band by band (memory bounded by ``band_bytes``) and map it
     read-only: the pyramid's level 0, which later edits of ``source`` leave alone."""
     height, width, channels = source.shape
-    band = max(1, band_bytes // max(1, width * channels))
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
-    try:
-        for r0 in range(0, height, band):  # a handful of bands, never a loop over pixels
-            rows = source[r0 : r0 + band]
-            _write_at(fd, rows, r0 * width * channels)
-            if isinstance(rows, np.memmap):  # its pages stayed resident: the whole image by the end
-                _drop_resident(rows)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
-    finally:
-        os.close(fd)
+    _write_bands(path, height, max(1, band_bytes // max(1, width * channels)), lambda r0, r1: source[r0:r1])
     return np.memmap(path, dtype=np.uint8, mode="r", shape=source.shape)
 
 
@@ -427,37 +436,25 @@ def _stream_level_0(tiff: _WindowedTiff, path: Path, band_bytes: int) -> int:
     which no pixel is masked has no alpha, which only the last band tells (its alpha is then dropped, file to
     file)."""
     height, width, channels = tiff.shape
-    row_bytes = width * channels
-    rows = max(1, band_bytes // row_bytes)
+    rows = max(1, band_bytes // (width * channels))
     if rows > tiff.block_rows:
         rows -= rows % tiff.block_rows
     masked = False
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
-    try:
-        for r0 in range(0, height, rows):  # a handful of bands, never a loop over pixels
-            band = tiff.rows((0, height, 0, width), r0, min(height, r0 + rows))
-            masked = masked or (tiff.masked and not band[:, :, -1].all())
-            _write_at(fd, band, r0 * row_bytes)
-            del band
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
-    finally:
-        os.close(fd)
+
+    def band(r0: int, r1: int) -> NDArray[np.uint8]:
+        nonlocal masked
+        pixels = tiff.rows((0, height, 0, width), r0, r1)
+        masked = masked or (tiff.masked and not pixels[:, :, -1].all())
+        return pixels
+
+    _write_bands(path, height, rows, band)
     if not tiff.masked or masked:
         return channels
     # a mask with every pixel valid: the whole read gives RGB (_nodata_mask's None), so level 0 drops the alpha
     reader = _Reader(None, str(path), shape=(height, width, channels))
     rgb = path.with_name(path.name + ".rgb")
     try:
-        fd = os.open(rgb, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        try:
-            for r0 in range(0, height, rows):
-                _write_at(fd, reader.rows(r0, min(height, r0 + rows))[:, :, :3], r0 * width * 3)
-        finally:
-            os.close(fd)
+        _write_bands(rgb, height, rows, lambda r0, r1: reader.rows(r0, r1)[:, :, :3], level=path)
         os.replace(rgb, path)
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
