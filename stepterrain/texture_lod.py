@@ -340,18 +340,32 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     return _read_tiff(path, lambda dataset: _raster_pixels(path, dataset))
 
 
-def _raster_pixels(path: Path, dataset: Any) -> NDArray[np.uint8]:
-    """The pixels of :func:`_raster_uint8` from its open rasterio ``dataset``."""
+def _image_bands(dataset: Any) -> tuple[list[int], list[int]]:
+    """The bands (0-based) of the open rasterio ``dataset`` as an image's channels, as :func:`_raster_uint8` takes
+    them, and its alpha band ([] or one): of the bands whose colour interpretation is not alpha the first three
+    (RGB), or the first three times (grey as RGB), then the first alpha band."""
     from rasterio.enums import ColorInterp
 
-    count, types = dataset.count, sorted(set(dataset.dtypes))
     alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
+    colour = [k for k in range(dataset.count) if k not in alphas]
+    return (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas, alphas
+
+
+def _all_valid(dataset: Any) -> bool:
+    """Whether the open rasterio ``dataset`` has no GDAL mask (nodata, a mask band): every band all valid."""
+    from rasterio.enums import MaskFlags
+
+    return all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums)
+
+
+def _raster_pixels(path: Path, dataset: Any) -> NDArray[np.uint8]:
+    """The pixels of :func:`_raster_uint8` from its open rasterio ``dataset``."""
+    count, types = dataset.count, sorted(set(dataset.dtypes))
+    bands, _ = _image_bands(dataset)
     if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
         raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
                                 f"{counted(count, 'band')} of {', '.join(types)}")
     _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
-    colour = [k for k in range(count) if k not in alphas]
-    bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
     # band by band, 16 bits scaled by a table: all bands through float64 at once peaked at 18 bytes a cell,
     # four and a half times what the budget counted
     image = np.empty((dataset.height, dataset.width, len(bands)), dtype=np.uint8)
@@ -372,9 +386,7 @@ def _nodata_mask(dataset: Any, shape: tuple[int, ...]) -> NDArray[np.uint8] | No
     """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) of an open
     rasterio ``dataset`` when some pixel is missing, else None (nothing masked, another shape than ``shape``).
     Pillow reads nodata as ordinary pixels: an orthophoto's collar tagged nodata=0 was draped opaque black."""
-    from rasterio.enums import MaskFlags
-
-    if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
+    if _all_valid(dataset):
         return None
     mask = dataset.dataset_mask()
     if mask.shape != tuple(shape) or mask.min() == 255:
@@ -1466,16 +1478,16 @@ class _WindowedTiff:
         if suffix not in (".tif", ".tiff", ".png") or not path.is_file():
             return None
         try:
-            from rasterio.enums import ColorInterp, MaskFlags
+            import rasterio  # noqa: F401 - only whether it is there
         except ImportError:
             return None
         try:
             dataset = stack.enter_context(open_raster(path))
             if opened is not None:
                 opened["dataset"] = dataset
-            count, types, interps = dataset.count, set(dataset.dtypes), list(dataset.colorinterp)
+            count, types, (bands, alphas) = dataset.count, set(dataset.dtypes), _image_bands(dataset)
             jpeg = str(getattr(dataset.compression, "name", dataset.compression)).lower() in ("jpeg", "ojpeg")
-            masked = not all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums)
+            masked = not _all_valid(dataset)
             structure = {**dataset.tags(ns="IMAGE_STRUCTURE"), **dataset.tags(1, ns="IMAGE_STRUCTURE")}
         except Exception:  # noqa: BLE001 - GDAL cannot read it: ImagePyramid.build says what is wrong
             return None
@@ -1485,9 +1497,6 @@ class _WindowedTiff:
             # GDAL gives the stored values: Pillow inverts a min-is-white grey (0 is white) and scales 1-7 bit
             # samples to 0-255 (a 4-bit 15 is 255), so the windows were the negative, or nearly black
             return None
-        alphas = [k for k, interp in enumerate(interps) if interp == ColorInterp.alpha][:1]
-        colour = [k for k in range(count) if k not in alphas]
-        bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas  # as _raster_pixels takes them
         found = _pillow_mode(path)
         if found is None and suffix == ".png":  # past Pillow's decompression-bomb limit: refused as the whole read
             return None
