@@ -546,19 +546,26 @@ def _check_write_budget(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
                       + (f" or a format that needs less memory ({', '.join(less)}, from the least)" if less else ""))
 
 
+def _face_outside(faces: NDArray[Any], vertex_count: int) -> int | None:
+    """The first of ``faces`` (F, 3) with an index outside the ``vertex_count`` vertices, else None."""
+    if len(faces) == 0:
+        return None
+    if faces.dtype == np.int64 and faces.flags.c_contiguous:
+        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
+        if int(faces.view(np.uint64).max()) < vertex_count:
+            return None
+    elif faces.min() >= 0 and faces.max() < vertex_count:
+        return None
+    return int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
+
+
 def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
     """Refuse faces that index outside the vertices (``process=False`` meshes keep them): every writer put them in
     the file as they were (a -1 became 4294967295 in glTF), except STL's, which raised trimesh's IndexError."""
     faces = np.asarray(mesh.faces)
-    if len(faces) == 0:
+    bad = _face_outside(faces, vertex_count)
+    if bad is None:
         return
-    if faces.dtype == np.int64 and faces.flags.c_contiguous:
-        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
-        if int(faces.view(np.uint64).max()) < vertex_count:
-            return
-    elif faces.min() >= 0 and faces.max() < vertex_count:
-        return
-    bad = int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
     raise InvalidInputError(
         f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
         f"has {counted(vertex_count, 'vertex', 'vertices')}"
@@ -1709,13 +1716,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_format(file)
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
             _check_format(file)
-        if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):  # a PLY's or glTF's indices as stored
-            faces = np.asarray(loaded.faces)
-            outside = (faces < 0) | (faces >= len(loaded.vertices))
-            if outside.any():
-                bad = int(np.flatnonzero(outside.any(axis=1))[0])
-                raise ValueError(f"face {bad} names vertex {int(faces[bad][outside[bad]][0])}, and the file has "
-                                 f"{counted(len(loaded.vertices), 'vertex', 'vertices')}")
+        if isinstance(loaded, trimesh.Trimesh):  # a PLY's or glTF's indices as stored
+            faces, count = np.asarray(loaded.faces), len(loaded.vertices)
+            bad = _face_outside(faces, count)
+            if bad is not None:
+                row = faces[bad]
+                raise ValueError(f"face {bad} names vertex {int(row[(row < 0) | (row >= count)][0])}, and the file "
+                                 f"has {counted(count, 'vertex', 'vertices')}")
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _check_ply_rows(loaded)
             _ply_attributes(loaded)
