@@ -1617,9 +1617,9 @@ def batch(
                 f"(its heights are used as they are)"
             )
     if band is not None:
-        if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)) or band < 1:
-            raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
-        band = int(band)
+        from .io import check_band
+
+        band = check_band(band)
         if not _of_files(source):
             raise InvalidInputError(
                 f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "

@@ -260,8 +260,7 @@ def read_dem(
     called with the whole grid before it is cropped (for a GeoTIFF, a
     :meth:`~stepterrain.terrain.Terrain._geometry_only`: geometry and CRS, no heights), to refuse a crop the
     caller's own way before any pixel of it is read."""
-    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
-        raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    band = check_band(band)
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
     file = as_path(path, "path")
@@ -1803,6 +1802,13 @@ def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str |
     if (_unit_factor(unit) or factor) is None or vertical == 1.0:
         return unit, crs, factor  # heights refused by unit, or the vertical part is in metres and still applies
     return unit, horizontal, factor
+
+
+def check_band(band: Any) -> int:
+    """``band`` as an int when it is a positive 1-based band number (:func:`load_dem`), else an InvalidInputError."""
+    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
+        raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    return int(band)
 
 
 def check_height_unit(height_unit: Any) -> str:
