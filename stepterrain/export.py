@@ -31,7 +31,7 @@ import warnings
 import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import trimesh
@@ -1832,6 +1832,13 @@ def _white_material(material: Any) -> bool:
     return factor is None or bool((np.asarray(factor) == 255).all())
 
 
+def _glb_json(stream: BinaryIO, head: bytes) -> Any:
+    """The JSON chunk of a GLB (glTF 2.0 §4.4.3: its first chunk) parsed, ``head`` the file's first 20 bytes (its
+    header and the chunk's) read from ``stream``, which is left after the chunk, at the binary chunk's header. A
+    struct.error where ``head`` is too short for the chunk's length, json's ValueError for a chunk cut short."""
+    return json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+
+
 def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     """Raise a ValueError where a primitive of the glTF or GLB ``file`` takes its positions or indices from a sparse
     accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
@@ -1846,7 +1853,7 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                 raise ValueError("a GLB (binary glTF: it starts with b'glTF') under the extension .gltf, which names "
                                  "the JSON form: rename it .glb")
             if head[:4] == b"glTF" and len(head) == 20:
-                tree = json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+                tree = _glb_json(stream, head)
             elif file.suffix.lower() == ".gltf":
                 text = head + stream.read()
                 try:
@@ -1941,11 +1948,9 @@ def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
     the file's JSON where :func:`_check_dense_gltf` has read it (None: read here)."""
     if tree is None:
         try:
-            data = file.read_bytes()
-            if data[:4] == b"glTF":
-                (json_length,) = struct.unpack_from("<I", data, 12)
-                data = data[20 : 20 + json_length]
-            tree = json.loads(data)
+            with open(file, "rb") as stream:
+                head = stream.read(20)
+                tree = _glb_json(stream, head) if head[:4] == b"glTF" else json.loads(head + stream.read())
         except (OSError, ValueError, struct.error):
             return {}
     nodes = tree.get("nodes") if isinstance(tree, dict) else None
@@ -1960,18 +1965,18 @@ def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
     embedded (as :func:`save_mesh` writes it); None for any other layout. Read for a file of points, whose colours
     trimesh's PointCloud holds only as rounded bytes."""
     try:
-        data = file.read_bytes()
-        if data[:4] == b"glTF":
-            (json_length,) = struct.unpack_from("<I", data, 12)
-            tree = json.loads(data[20 : 20 + json_length])
-            at = 20 + json_length
-            binary = data[at + 8 : at + 8 + struct.unpack_from("<I", data, at)[0]] if len(data) >= at + 8 else b""
-        else:
-            tree = json.loads(data)
-            uri = (tree.get("buffers") or [{}])[0].get("uri", "")
-            if not uri.startswith("data:"):
-                return None
-            binary = base64.b64decode(uri.split(",", 1)[1])
+        with open(file, "rb") as stream:
+            head = stream.read(20)
+            if head[:4] == b"glTF":
+                tree = _glb_json(stream, head)
+                chunk = stream.read(8)  # the binary chunk's header: its length
+                binary = stream.read()[: struct.unpack_from("<I", chunk)[0]] if len(chunk) == 8 else b""
+            else:
+                tree = json.loads(head + stream.read())
+                uri = (tree.get("buffers") or [{}])[0].get("uri", "")
+                if not uri.startswith("data:"):
+                    return None
+                binary = base64.b64decode(uri.split(",", 1)[1])
         meshes = tree.get("meshes") or []
         if len(meshes) != 1 or len(meshes[0].get("primitives", [])) != 1 or len(tree.get("buffers", [])) != 1:
             return None
