@@ -685,9 +685,10 @@ def _png_options(picture: Any) -> dict[str, Any]:
 
 
 # The last large PNG save_image wrote: (its pixels' digest, its path, the file's (inode, size, mtime)), so that a glTF
-# texture of the same pixels takes the file's bytes (_encoded_textures) instead of deflating them again. The stamp is
-# the temporary file's, taken before the rename (which keeps the inode, size and mtime): stamped after it, at the
-# path, it could be another writer's file that replaced this one in between, paired with this one's digest.
+# texture of the same pixels takes the file's bytes (_encoded_textures) instead of deflating them again (not the CLI's
+# PNGs that no mesh drapes, _save_image's reused=False: their pixels are not hashed, and the entry before stays). The
+# stamp is the temporary file's, taken before the rename (which keeps the inode, size and mtime): stamped after it, at
+# the path, it could be another writer's file that replaced this one in between, paired with this one's digest.
 _LAST_PNG: list[tuple[bytes, Path, tuple[int, int, int]]] = []
 
 
@@ -783,6 +784,14 @@ def save_image(
     ...     picture.size
     (6, 4)
     """
+    return _save_image(image, path, extent=extent, crs=crs)
+
+
+def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any = None, crs: str | None = None,
+                reused: bool = True) -> Path:
+    """:func:`save_image`; ``reused=False`` where no later :func:`save_mesh` can take the PNG's bytes (the CLI's
+    outputs that nothing drapes): its pixels are not hashed for :data:`_LAST_PNG` (0.3 s at 77 M texels), which
+    keeps the large PNG written before."""
     from PIL import Image
 
     target = _target(path)
@@ -819,7 +828,7 @@ def save_image(
                 picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
-        if suffix == ".png" and _png_options(picture):  # a large one: a glTF of the same texture takes its bytes
+        if suffix == ".png" and reused and _png_options(picture):  # a large one: a glTF of it takes its bytes
             with contextlib.suppress(OSError):
                 stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
     _record_owner([target], target)
