@@ -2249,8 +2249,7 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     if kind == "vertex":  # ColorVisuals.copy() would also build face colours
         out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=np.array(mesh.visual.vertex_colors))
     elif kind is not None:
-        out.visual = mesh.visual.copy()
-        _share_texture_images(getattr(mesh.visual, "material", None), getattr(out.visual, "material", None))
+        out.visual = _texture_copy(mesh.visual)
     out.units = mesh.units
     merged = dict(mesh.metadata)
     if metadata:
@@ -2261,21 +2260,28 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     return out
 
 
-def _share_texture_images(material: Any, copied: Any) -> None:
-    """Give ``copied`` (the prepared copy's material) the texture images of ``material`` opened from a JPEG
-    themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with ``Image.copy()``, which drops its ``format``
-    and file name, so such a texture was written as a PNG three times its size (and an OBJ's ``.png``), and
-    :func:`_jpeg_data` could not find its file. The writers replace images on the copy (:func:`_pil_textures`,
-    :func:`_encoded_textures`), never change them in place; other images keep their copies."""
+def _texture_copy(original: Any, **kwargs: Any) -> Any:
+    """``original.copy(**kwargs)`` (a mesh, a visual or a material), its material given the texture images of
+    ``original``'s opened from a JPEG themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with
+    ``Image.copy()``, which drops its ``format`` and file name, so such a texture was written as a PNG three times its
+    size (and an OBJ's ``.png``), and :func:`_jpeg_data` could not find its file. The writers replace images on the
+    copy (:func:`_pil_textures`, :func:`_encoded_textures`), never change them in place; other images keep their
+    copies."""
     from PIL import Image
 
+    def material_of(thing: Any) -> Any:
+        visual = thing.visual if isinstance(thing, trimesh.Trimesh) else thing
+        return visual if isinstance(visual, trimesh.visual.material.Material) else getattr(visual, "material", None)
+
+    copied = original.copy(**kwargs)
+    material, mine = material_of(original), material_of(copied)
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
-    if type(copied) is not type(material):
-        return
-    for slot in slots:
-        image = getattr(material, slot, None)
-        if isinstance(image, Image.Image) and image.format == "JPEG":
-            setattr(copied, slot, image)
+    if type(mine) is type(material):
+        for slot in slots:
+            image = getattr(material, slot, None)
+            if isinstance(image, Image.Image) and image.format == "JPEG":
+                setattr(mine, slot, image)
+    return copied
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
@@ -2546,9 +2552,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     transform = _Z_UP_TO_Y_UP.copy()  # exact 0 and ±1: trimesh writes it as the node's matrix
     if _is_large(bounds):
         offset = _local_origin(bounds)
-        copied = mesh.copy(include_cache=False)  # its material's copy dropped a JPEG's format (Image.copy())
-        _share_texture_images(getattr(mesh.visual, "material", None), getattr(copied.visual, "material", None))
-        mesh = copied
+        mesh = _texture_copy(mesh, include_cache=False)
         mesh.vertices = vertices - offset
         transform[:3, 3] = _Z_UP_TO_Y_UP[:3, :3] @ offset + 0.0  # in the world frame
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
@@ -2669,8 +2673,7 @@ def _textured_material(material: Any) -> Any:
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
         if material.metallicFactor is None or unset_alpha:
-            material, original = material.copy(), material
-            _share_texture_images(original, material)  # a JPEG stays one (Image.copy() dropped its format)
+            material = _texture_copy(material)  # a JPEG stays one
         if material.metallicFactor is None:
             material.metallicFactor = 0.0
         if unset_alpha:
