@@ -273,9 +273,9 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             continue
         print(failure_line(line.strip()), file=progress.stream, flush=True)
     if png is not None and (report.done or report.skipped):
-        from .export import save_image
+        from .export import _save_image
 
         progress.stage("render", f"rendering an overview {args.size[0]}x{args.size[1]}")
-        save_image(overview_image(report, window_size=args.size), png)
+        _save_image(overview_image(report, window_size=args.size), png, reused=False)  # no mesh takes its bytes
         progress.done(str(png))
     return 0 if report.ok else 1

@@ -377,6 +377,6 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     progress.done(_size(written))
     if image is not None:
         progress.stage("write_png", f"writing {png}")
-        export.save_image(image, png)
+        export._save_image(image, png, reused=False)
         progress.done(_size(png))
     return 0

@@ -492,13 +492,16 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             progress.done()
 
     progress.stage("write", f"writing {out}")
-    export.save_image(image, out, **_georeference(out, composite.extent, terrain.crs))
+    textured = mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # they keep a texture
+    # the mesh's texture is this image (not over_white's RGB): the mesh takes the PNG's bytes, its pixels hashed for it
+    reused = draped is not None and textured and over_white is None
+    export._save_image(image, out, reused=reused, **_georeference(out, composite.extent, terrain.crs))
     progress.done(_size(out))
     if normals is not None:
         if holes is not None:
             normals = np.dstack([normals, np.where(holes, 0, 255).astype(np.uint8)])
-        export.save_image(tx._north_up(terrain, normals), normals_out,
-                          **_georeference(normals_out, tx.terrain_extent(terrain), terrain.crs))
+        export._save_image(tx._north_up(terrain, normals), normals_out, reused=False,
+                           **_georeference(normals_out, tx.terrain_extent(terrain), terrain.crs))
         progress.say(f"wrote {normals_out} ({_size(normals_out)})")
     if draped is not None and mesh_out is not None:
         metadata = {"generator": "stepterrain texture", **_input_metadata(args),
@@ -508,10 +511,9 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             metadata["image"] = str(args.image)
         if args.texel_size is not None:
             metadata["texel_size"] = args.texel_size
-        textured = mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # the formats that keep a texture
         export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:
-        export.save_image(shot, png)
+        export._save_image(shot, png, reused=False)
         progress.say(f"wrote {png} ({_size(png)})")
     return 0

@@ -402,12 +402,10 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     (0, 0), and those keys were ignored without a word. An ``.npz``'s ``units`` converts the heights to metres as
     :func:`~stepterrain.io.load_dem` converts them (a unit it does not know is a DataFileError)."""
     from .io import (
-        _NPZ_NOT_HEIGHTS,
         _heights_in_metres,
         _npz_text,
         nodata_as_nan,
         npz_georeference_keys,
-        npz_heights_key,
         npz_missing,
         npz_nodata,
         read_npy,
@@ -419,10 +417,8 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     missing = None
     if isinstance(loaded, np.ndarray):
         stack, what, nodata = loaded, "array", None
-    else:  # the key load_dem reads ('elevation' ..., 2-D or 3-D here) decides: not any 3-D member
-        key = npz_heights_key(loaded, (2, 3))
-        if key is None:  # a (T, H, W) mask is no series of heights
-            key = next((k for k in loaded if loaded[k].ndim == 3 and k not in _NPZ_NOT_HEIGHTS), None)
+    else:
+        key = _series_key(loaded)
         if key is None or loaded[key].ndim != 3:
             return None
         unread = [name for name in loaded if name == "transform"] + npz_georeference_keys(loaded)
@@ -447,6 +443,19 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
     return heights
 
 
+def _series_key(arrays: Mapping[str, Any]) -> str | None:
+    """The member of an .npz's ``arrays`` (anything with an ``ndim`` by key) that :func:`load_series` reads as the
+    heights (a series where it is 3-D): the key load_dem reads (``elevation`` ..., 2-D or 3-D here) decides, not
+    any 3-D member; without one, the first 3-D member that is no mask or georeferencing (a (T, H, W) mask is no
+    series of heights); else None."""
+    from .io import _NPZ_NOT_HEIGHTS, npz_heights_key
+
+    key = npz_heights_key(arrays, (2, 3))
+    if key is None:
+        key = next((k for k in arrays if arrays[k].ndim == 3 and k not in _NPZ_NOT_HEIGHTS), None)
+    return key
+
+
 def _series_or_none(path: Path) -> NDArray[np.float32] | None:
     """The (T, H, W) series in an .npy or .npz file that load_dem refused, else None (not a series, or no good)."""
     if path.suffix.lower() not in (".npy", ".npz"):
@@ -466,7 +475,7 @@ def _one_raster_file(path: Path) -> bool:
         return False
     if suffix not in (".npy", ".npz"):
         return True
-    from .io import _NPZ_NOT_HEIGHTS, npz_heights_key, npz_member_ndims, read_npy
+    from .io import npz_member_ndims, read_npy
 
     try:
         if suffix == ".npy":
@@ -478,9 +487,7 @@ def _one_raster_file(path: Path) -> bool:
         return ndims != 3
     # load_series's choice of the heights (None: one raster), from the members' dimensions
     shaped = {name: np.empty((0,) * ndim) for name, ndim in ndims.items()}
-    key = npz_heights_key(shaped, (2, 3))
-    if key is None:
-        key = next((k for k in shaped if shaped[k].ndim == 3 and k not in _NPZ_NOT_HEIGHTS), None)
+    key = _series_key(shaped)
     return key is None or shaped[key].ndim != 3
 
 
@@ -1610,9 +1617,9 @@ def batch(
                 f"(its heights are used as they are)"
             )
     if band is not None:
-        if isinstance(band, (bool, np.bool_)) or not isinstance(band, (int, np.integer)) or band < 1:
-            raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
-        band = int(band)
+        from .io import check_band
+
+        band = check_band(band)
         if not _of_files(source):
             raise InvalidInputError(
                 f"band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a {type(source).__name__} "

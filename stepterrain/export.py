@@ -31,7 +31,7 @@ import warnings
 import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 import trimesh
@@ -546,19 +546,26 @@ def _check_write_budget(mesh: trimesh.Trimesh, ext: str, target: Path) -> None:
                       + (f" or a format that needs less memory ({', '.join(less)}, from the least)" if less else ""))
 
 
+def _face_outside(faces: NDArray[Any], vertex_count: int) -> int | None:
+    """The first of ``faces`` (F, 3) with an index outside the ``vertex_count`` vertices, else None."""
+    if len(faces) == 0:
+        return None
+    if faces.dtype == np.int64 and faces.flags.c_contiguous:
+        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
+        if int(faces.view(np.uint64).max()) < vertex_count:
+            return None
+    elif faces.min() >= 0 and faces.max() < vertex_count:
+        return None
+    return int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
+
+
 def _check_faces(mesh: trimesh.Trimesh, vertex_count: int) -> None:
     """Refuse faces that index outside the vertices (``process=False`` meshes keep them): every writer put them in
     the file as they were (a -1 became 4294967295 in glTF), except STL's, which raised trimesh's IndexError."""
     faces = np.asarray(mesh.faces)
-    if len(faces) == 0:
+    bad = _face_outside(faces, vertex_count)
+    if bad is None:
         return
-    if faces.dtype == np.int64 and faces.flags.c_contiguous:
-        # one reduction instead of min and max: as uint64 a negative index is >= 2**63, beyond any vertex count
-        if int(faces.view(np.uint64).max()) < vertex_count:
-            return
-    elif faces.min() >= 0 and faces.max() < vertex_count:
-        return
-    bad = int(np.flatnonzero(((faces < 0) | (faces >= vertex_count)).any(axis=1))[0])
     raise InvalidInputError(
         f"mesh faces must index its vertices (0 to {vertex_count - 1}); face {bad} is {faces[bad].tolist()}; the mesh "
         f"has {counted(vertex_count, 'vertex', 'vertices')}"
@@ -678,9 +685,10 @@ def _png_options(picture: Any) -> dict[str, Any]:
 
 
 # The last large PNG save_image wrote: (its pixels' digest, its path, the file's (inode, size, mtime)), so that a glTF
-# texture of the same pixels takes the file's bytes (_encoded_textures) instead of deflating them again. The stamp is
-# the temporary file's, taken before the rename (which keeps the inode, size and mtime): stamped after it, at the
-# path, it could be another writer's file that replaced this one in between, paired with this one's digest.
+# texture of the same pixels takes the file's bytes (_encoded_textures) instead of deflating them again (not the CLI's
+# PNGs that no mesh drapes, _save_image's reused=False: their pixels are not hashed, and the entry before stays). The
+# stamp is the temporary file's, taken before the rename (which keeps the inode, size and mtime): stamped after it, at
+# the path, it could be another writer's file that replaced this one in between, paired with this one's digest.
 _LAST_PNG: list[tuple[bytes, Path, tuple[int, int, int]]] = []
 
 
@@ -776,6 +784,14 @@ def save_image(
     ...     picture.size
     (6, 4)
     """
+    return _save_image(image, path, extent=extent, crs=crs)
+
+
+def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any = None, crs: str | None = None,
+                reused: bool = True) -> Path:
+    """:func:`save_image`; ``reused=False`` where no later :func:`save_mesh` can take the PNG's bytes (the CLI's
+    outputs that nothing drapes): its pixels are not hashed for :data:`_LAST_PNG` (0.3 s at 77 M texels), which
+    keeps the large PNG written before."""
     from PIL import Image
 
     target = _target(path)
@@ -812,7 +828,7 @@ def save_image(
                 picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
-        if suffix == ".png" and _png_options(picture):  # a large one: a glTF of the same texture takes its bytes
+        if suffix == ".png" and reused and _png_options(picture):  # a large one: a glTF of it takes its bytes
             with contextlib.suppress(OSError):
                 stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
     _record_owner([target], target)
@@ -1711,13 +1727,13 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                 _check_format(file)
         if file.suffix.lower() == ".stl":  # anything as an empty STL, and an ASCII one cut short as its first solids
             _check_format(file)
-        if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):  # a PLY's or glTF's indices as stored
-            faces = np.asarray(loaded.faces)
-            outside = (faces < 0) | (faces >= len(loaded.vertices))
-            if outside.any():
-                bad = int(np.flatnonzero(outside.any(axis=1))[0])
-                raise ValueError(f"face {bad} names vertex {int(faces[bad][outside[bad]][0])}, and the file has "
-                                 f"{counted(len(loaded.vertices), 'vertex', 'vertices')}")
+        if isinstance(loaded, trimesh.Trimesh):  # a PLY's or glTF's indices as stored
+            faces, count = np.asarray(loaded.faces), len(loaded.vertices)
+            bad = _face_outside(faces, count)
+            if bad is not None:
+                row = faces[bad]
+                raise ValueError(f"face {bad} names vertex {int(row[(row < 0) | (row >= count)][0])}, and the file "
+                                 f"has {counted(count, 'vertex', 'vertices')}")
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _check_ply_rows(loaded)
             _ply_attributes(loaded)
@@ -1827,6 +1843,13 @@ def _white_material(material: Any) -> bool:
     return factor is None or bool((np.asarray(factor) == 255).all())
 
 
+def _glb_json(stream: BinaryIO, head: bytes) -> Any:
+    """The JSON chunk of a GLB (glTF 2.0 §4.4.3: its first chunk) parsed, ``head`` the file's first 20 bytes (its
+    header and the chunk's) read from ``stream``, which is left after the chunk, at the binary chunk's header. A
+    struct.error where ``head`` is too short for the chunk's length, json's ValueError for a chunk cut short."""
+    return json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+
+
 def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
     """Raise a ValueError where a primitive of the glTF or GLB ``file`` takes its positions or indices from a sparse
     accessor (glTF 2.0 §3.6.2.3: base values, or zeros, with some elements replaced): trimesh's reader ignores the
@@ -1841,7 +1864,7 @@ def _check_dense_gltf(file: Path) -> dict[str, Any] | None:
                 raise ValueError("a GLB (binary glTF: it starts with b'glTF') under the extension .gltf, which names "
                                  "the JSON form: rename it .glb")
             if head[:4] == b"glTF" and len(head) == 20:
-                tree = json.loads(stream.read(struct.unpack_from("<I", head, 12)[0]))
+                tree = _glb_json(stream, head)
             elif file.suffix.lower() == ".gltf":
                 text = head + stream.read()
                 try:
@@ -1936,11 +1959,9 @@ def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
     the file's JSON where :func:`_check_dense_gltf` has read it (None: read here)."""
     if tree is None:
         try:
-            data = file.read_bytes()
-            if data[:4] == b"glTF":
-                (json_length,) = struct.unpack_from("<I", data, 12)
-                data = data[20 : 20 + json_length]
-            tree = json.loads(data)
+            with open(file, "rb") as stream:
+                head = stream.read(20)
+                tree = _glb_json(stream, head) if head[:4] == b"glTF" else json.loads(head + stream.read())
         except (OSError, ValueError, struct.error):
             return {}
     nodes = tree.get("nodes") if isinstance(tree, dict) else None
@@ -1955,18 +1976,18 @@ def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
     embedded (as :func:`save_mesh` writes it); None for any other layout. Read for a file of points, whose colours
     trimesh's PointCloud holds only as rounded bytes."""
     try:
-        data = file.read_bytes()
-        if data[:4] == b"glTF":
-            (json_length,) = struct.unpack_from("<I", data, 12)
-            tree = json.loads(data[20 : 20 + json_length])
-            at = 20 + json_length
-            binary = data[at + 8 : at + 8 + struct.unpack_from("<I", data, at)[0]] if len(data) >= at + 8 else b""
-        else:
-            tree = json.loads(data)
-            uri = (tree.get("buffers") or [{}])[0].get("uri", "")
-            if not uri.startswith("data:"):
-                return None
-            binary = base64.b64decode(uri.split(",", 1)[1])
+        with open(file, "rb") as stream:
+            head = stream.read(20)
+            if head[:4] == b"glTF":
+                tree = _glb_json(stream, head)
+                chunk = stream.read(8)  # the binary chunk's header: its length
+                binary = stream.read()[: struct.unpack_from("<I", chunk)[0]] if len(chunk) == 8 else b""
+            else:
+                tree = json.loads(head + stream.read())
+                uri = (tree.get("buffers") or [{}])[0].get("uri", "")
+                if not uri.startswith("data:"):
+                    return None
+                binary = base64.b64decode(uri.split(",", 1)[1])
         meshes = tree.get("meshes") or []
         if len(meshes) != 1 or len(meshes[0].get("primitives", [])) != 1 or len(tree.get("buffers", [])) != 1:
             return None
@@ -2230,8 +2251,7 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     if kind == "vertex":  # ColorVisuals.copy() would also build face colours
         out.visual = trimesh.visual.ColorVisuals(out, vertex_colors=np.array(mesh.visual.vertex_colors))
     elif kind is not None:
-        out.visual = mesh.visual.copy()
-        _share_texture_images(getattr(mesh.visual, "material", None), getattr(out.visual, "material", None))
+        out.visual = _texture_copy(mesh.visual)
     out.units = mesh.units
     merged = dict(mesh.metadata)
     if metadata:
@@ -2242,21 +2262,28 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     return out
 
 
-def _share_texture_images(material: Any, copied: Any) -> None:
-    """Give ``copied`` (the prepared copy's material) the texture images of ``material`` opened from a JPEG
-    themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with ``Image.copy()``, which drops its ``format``
-    and file name, so such a texture was written as a PNG three times its size (and an OBJ's ``.png``), and
-    :func:`_jpeg_data` could not find its file. The writers replace images on the copy (:func:`_pil_textures`,
-    :func:`_encoded_textures`), never change them in place; other images keep their copies."""
+def _texture_copy(original: Any, **kwargs: Any) -> Any:
+    """``original.copy(**kwargs)`` (a mesh, a visual or a material), its material given the texture images of
+    ``original``'s opened from a JPEG themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with
+    ``Image.copy()``, which drops its ``format`` and file name, so such a texture was written as a PNG three times its
+    size (and an OBJ's ``.png``), and :func:`_jpeg_data` could not find its file. The writers replace images on the
+    copy (:func:`_pil_textures`, :func:`_encoded_textures`), never change them in place; other images keep their
+    copies."""
     from PIL import Image
 
+    def material_of(thing: Any) -> Any:
+        visual = thing.visual if isinstance(thing, trimesh.Trimesh) else thing
+        return visual if isinstance(visual, trimesh.visual.material.Material) else getattr(visual, "material", None)
+
+    copied = original.copy(**kwargs)
+    material, mine = material_of(original), material_of(copied)
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
-    if type(copied) is not type(material):
-        return
-    for slot in slots:
-        image = getattr(material, slot, None)
-        if isinstance(image, Image.Image) and image.format == "JPEG":
-            setattr(copied, slot, image)
+    if type(mine) is type(material):
+        for slot in slots:
+            image = getattr(material, slot, None)
+            if isinstance(image, Image.Image) and image.format == "JPEG":
+                setattr(mine, slot, image)
+    return copied
 
 
 def _attributes(attributes: Mapping[str, Any], count: int) -> dict[str, NDArray[Any]]:
@@ -2527,9 +2554,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     transform = _Z_UP_TO_Y_UP.copy()  # exact 0 and ±1: trimesh writes it as the node's matrix
     if _is_large(bounds):
         offset = _local_origin(bounds)
-        copied = mesh.copy(include_cache=False)  # its material's copy dropped a JPEG's format (Image.copy())
-        _share_texture_images(getattr(mesh.visual, "material", None), getattr(copied.visual, "material", None))
-        mesh = copied
+        mesh = _texture_copy(mesh, include_cache=False)
         mesh.vertices = vertices - offset
         transform[:3, 3] = _Z_UP_TO_Y_UP[:3, :3] @ offset + 0.0  # in the world frame
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
@@ -2690,8 +2715,7 @@ def _textured_material(material: Any) -> Any:
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
         if material.metallicFactor is None or unset_alpha:
-            material, original = material.copy(), material
-            _share_texture_images(original, material)  # a JPEG stays one (Image.copy() dropped its format)
+            material = _texture_copy(material)  # a JPEG stays one
         if material.metallicFactor is None:
             material.metallicFactor = 0.0
         if unset_alpha:

@@ -1181,8 +1181,8 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     if counted_faces:
         leaf_bytes += 8 + 4 * any(chunk is not None for chunk in mask_chunks)
     vertex_bytes = _MESH_VERTEX_BYTES + (4 if split is None else 0)
-    check_budget(n_vertices * vertex_bytes + n_leaves * (_MESH_FACE_BYTES + leaf_bytes) + 4 * faces * n * n
-                 + level_scratch,
+    held = n_leaves * leaf_bytes + 4 * faces * n * n + level_scratch  # beside the mesh's arrays, in both checks
+    check_budget(n_vertices * vertex_bytes + n_leaves * _MESH_FACE_BYTES + held,
                  f"the mesh ({n_vertices:,} vertices, up to {n_leaves:,} faces)",
                  hint="raise the error or narrow the view")
     leaves = _concat(leaf_chunks, wp.vec4i, device, share=True)  # read by the face passes only
@@ -1217,8 +1217,7 @@ def _extract(grid: Any, params: Any, view: Any, users: list[UserMetric], levels:
     culled = n_faces < n_leaves
     if culled:  # the kept faces as int32, then remapped onto the vertices still used, then as int64 (trimesh's);
         # the used flags, their offsets and the used vertices and entries (no wide faces: those are the int64 ones)
-        check_budget(n_vertices * (vertex_bytes + 8 + 28) + n_leaves * leaf_bytes + 4 * faces * n * n
-                     + level_scratch + n_faces * (12 + 4 + 12 + 24),
+        check_budget(n_vertices * (vertex_bytes + 8 + 28) + n_faces * (12 + 4 + 12 + 24) + held,
                      f"the mesh ({n_vertices:,} vertices before culling, {n_faces:,} faces kept of {n_leaves:,})",
                      hint="raise the error or narrow the view")
     # nothing culled: the kernel writes the final int64 faces (trimesh's dtype; on the CPU straight into numpy), not

@@ -260,8 +260,7 @@ def read_dem(
     called with the whole grid before it is cropped (for a GeoTIFF, a
     :meth:`~stepterrain.terrain.Terrain._geometry_only`: geometry and CRS, no heights), to refuse a crop the
     caller's own way before any pixel of it is read."""
-    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
-        raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    band = check_band(band)
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
     file = as_path(path, "path")
@@ -543,17 +542,15 @@ def _npz_member_ndim(archive: Any, key: str, file: Path) -> int:
     reads its bytes, a 0-d array)."""
     name = f"{key}.npy" if f"{key}.npy" in archive.zip.namelist() else key
     with archive.zip.open(name) as member:
-        _check_declared_size(member, archive.zip.getinfo(name).file_size, file, f"member {key!r}")
-    with archive.zip.open(name) as member:
-        if member.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
-            return 0
-        member.seek(0)
-        version = np.lib.format.read_magic(member)
-        read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-        if read is not None:
-            shape, _, dtype = read(member)
-            if not dtype.hasobject:
-                return len(shape)
+        header = _check_declared_size(member, archive.zip.getinfo(name).file_size, file, f"member {key!r}")
+    if header is None:  # none read: not an .npy, another header version, or one NumPy cannot parse (raised here)
+        with archive.zip.open(name) as member:
+            if member.read(len(np.lib.format.MAGIC_PREFIX)) != np.lib.format.MAGIC_PREFIX:
+                return 0
+            member.seek(0)
+            header = _npy_header(member)
+    if header is not None and not header[1].hasobject:
+        return len(header[0])
     return _npz_member(archive, key, file).ndim  # another header version, or pickled objects: as read_npz reads it
 
 
@@ -1039,22 +1036,33 @@ def _check_magic(file: Path, magics: tuple[bytes, ...], expected: str) -> bytes:
     return head
 
 
-def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
+def _npy_header(handle: Any) -> tuple[tuple[int, ...], np.dtype] | None:
+    """(shape, dtype) of the .npy header at the start of the stream ``handle`` (left after it); None for a header
+    version NumPy's readers (1.0, 2.0) do not take. NumPy's ValueError for a header it cannot parse."""
+    version = np.lib.format.read_magic(handle)
+    read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+    if read is None:
+        return None
+    shape, _, dtype = read(handle)
+    return shape, dtype
+
+
+def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> tuple[tuple[int, ...], np.dtype] | None:
     """Refuse an .npy stream (at its start, ``size`` bytes in all) whose header declares more data than follows
     it: NumPy allocates the declared shape before reading, so a 100-byte file declaring 10^8 x 10^8 floats
     raised a MemoryError for 71 PiB. Refuse one the memory budget cannot hold as well (:func:`_check_read_budget`),
-    memory-mapped or not: every caller copies it. A header NumPy cannot parse is left to ``np.load``'s own error."""
+    memory-mapped or not: every caller copies it. A header NumPy cannot parse is left to ``np.load``'s own error.
+    The header read (:func:`_npy_header`), else None."""
     try:
-        version = np.lib.format.read_magic(handle)
-        read = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
-        if read is None:
-            return
-        shape, _, dtype = read(handle)
+        header = _npy_header(handle)
+        if header is None:
+            return None
+        shape, dtype = header
         start = handle.tell()
     except (ValueError, OSError, EOFError, zipfile.BadZipFile):
-        return
+        return None
     if dtype.hasobject:
-        return  # pickled: refused by np.load (allow_pickle=False)
+        return header  # pickled: refused by np.load (allow_pickle=False)
     declared = math.prod(int(n) for n in shape) * dtype.itemsize
     if declared > size - start:
         raise DataFileError(
@@ -1062,6 +1070,7 @@ def _check_declared_size(handle: Any, size: int, file: Path, what: str) -> None:
             f"the file holds {max(size - start, 0):,} bytes after its header (truncated or corrupt)"
         )
     _check_read_budget(file, tuple(shape), dtype, what)
+    return header
 
 
 def _check_read_budget(file: Path, shape: tuple[int, ...], dtype: np.dtype, what: str = "the raster",
@@ -1803,6 +1812,13 @@ def _vertical_unit(unit: str | None, crs: str | None) -> tuple[str | None, str |
     if (_unit_factor(unit) or factor) is None or vertical == 1.0:
         return unit, crs, factor  # heights refused by unit, or the vertical part is in metres and still applies
     return unit, horizontal, factor
+
+
+def check_band(band: Any) -> int:
+    """``band`` as an int when it is a positive 1-based band number (:func:`load_dem`), else an InvalidInputError."""
+    if isinstance(band, bool) or not isinstance(band, (int, np.integer)) or band < 1:
+        raise InvalidInputError(f"band must be a positive 1-based band number; got {band!r}")
+    return int(band)
 
 
 def check_height_unit(height_unit: Any) -> str:

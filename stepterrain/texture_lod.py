@@ -340,18 +340,32 @@ def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
     return _read_tiff(path, lambda dataset: _raster_pixels(path, dataset))
 
 
-def _raster_pixels(path: Path, dataset: Any) -> NDArray[np.uint8]:
-    """The pixels of :func:`_raster_uint8` from its open rasterio ``dataset``."""
+def _image_bands(dataset: Any) -> tuple[list[int], list[int]]:
+    """The bands (0-based) of the open rasterio ``dataset`` as an image's channels, as :func:`_raster_uint8` takes
+    them, and its alpha band ([] or one): of the bands whose colour interpretation is not alpha the first three
+    (RGB), or the first three times (grey as RGB), then the first alpha band."""
     from rasterio.enums import ColorInterp
 
-    count, types = dataset.count, sorted(set(dataset.dtypes))
     alphas = [k for k, interp in enumerate(dataset.colorinterp) if interp == ColorInterp.alpha][:1]
+    colour = [k for k in range(dataset.count) if k not in alphas]
+    return (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas, alphas
+
+
+def _all_valid(dataset: Any) -> bool:
+    """Whether the open rasterio ``dataset`` has no GDAL mask (nodata, a mask band): every band all valid."""
+    from rasterio.enums import MaskFlags
+
+    return all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums)
+
+
+def _raster_pixels(path: Path, dataset: Any) -> NDArray[np.uint8]:
+    """The pixels of :func:`_raster_uint8` from its open rasterio ``dataset``."""
+    count, types = dataset.count, sorted(set(dataset.dtypes))
+    bands, _ = _image_bands(dataset)
     if not 1 <= count <= 4 or types not in (["uint8"], ["uint16"]):
         raise InvalidInputError(f"image {str(path)!r} must be an 8-bit or 16-bit image of 1-4 bands; got "
                                 f"{counted(count, 'band')} of {', '.join(types)}")
     _check_read_budget(path, (count, dataset.height, dataset.width), np.dtype(types[0]), "the image")
-    colour = [k for k in range(count) if k not in alphas]
-    bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas
     # band by band, 16 bits scaled by a table: all bands through float64 at once peaked at 18 bytes a cell,
     # four and a half times what the budget counted
     image = np.empty((dataset.height, dataset.width, len(bands)), dtype=np.uint8)
@@ -372,9 +386,7 @@ def _nodata_mask(dataset: Any, shape: tuple[int, ...]) -> NDArray[np.uint8] | No
     """A GeoTIFF's GDAL mask (nodata, a mask band; rasterio's ``dataset_mask``: 0 missing, 255 valid) of an open
     rasterio ``dataset`` when some pixel is missing, else None (nothing masked, another shape than ``shape``).
     Pillow reads nodata as ordinary pixels: an orthophoto's collar tagged nodata=0 was draped opaque black."""
-    from rasterio.enums import MaskFlags
-
-    if all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums):
+    if _all_valid(dataset):
         return None
     mask = dataset.dataset_mask()
     if mask.shape != tuple(shape) or mask.min() == 255:
@@ -398,25 +410,34 @@ def _may_change(array: NDArray[Any]) -> bool:
         return True
 
 
+def _write_bands(path: Path, height: int, rows: int, band: Callable[[int, int], NDArray[np.uint8]],
+                 level: Path | None = None) -> None:
+    """Write an image of ``height`` rows into the raw file ``path``, ``rows`` rows at a time: ``band(r0, r1)`` gives
+    rows r0..r1 (whole rows, C order in the file), each freed once written, a memmap's pages dropped from the
+    resident set. A failure is a DataFileError naming the pyramid level ``level`` (default ``path``)."""
+    name = str(path if level is None else level)
+    try:
+        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    except OSError as exc:
+        raise DataFileError(f"cannot write the pyramid level {name!r}: {exc.strerror}") from exc
+    try:
+        for r0 in range(0, height, rows):  # a handful of bands, never a loop over pixels
+            data = band(r0, min(height, r0 + rows))
+            _write_at(fd, data, r0 * (data.size // len(data)))
+            if isinstance(data, np.memmap):  # its pages stayed resident: the whole image by the end
+                _drop_resident(data)
+            del data
+    except OSError as exc:
+        raise DataFileError(f"cannot write the pyramid level {name!r}: {exc}") from exc
+    finally:
+        os.close(fd)
+
+
 def _snapshot(source: NDArray[np.uint8], path: Path, band_bytes: int) -> NDArray[np.uint8]:
     """Copy ``source`` into the raw file ``path`` band by band (memory bounded by ``band_bytes``) and map it
     read-only: the pyramid's level 0, which later edits of ``source`` leave alone."""
     height, width, channels = source.shape
-    band = max(1, band_bytes // max(1, width * channels))
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
-    try:
-        for r0 in range(0, height, band):  # a handful of bands, never a loop over pixels
-            rows = source[r0 : r0 + band]
-            _write_at(fd, rows, r0 * width * channels)
-            if isinstance(rows, np.memmap):  # its pages stayed resident: the whole image by the end
-                _drop_resident(rows)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
-    finally:
-        os.close(fd)
+    _write_bands(path, height, max(1, band_bytes // max(1, width * channels)), lambda r0, r1: source[r0:r1])
     return np.memmap(path, dtype=np.uint8, mode="r", shape=source.shape)
 
 
@@ -427,37 +448,25 @@ def _stream_level_0(tiff: _WindowedTiff, path: Path, band_bytes: int) -> int:
     which no pixel is masked has no alpha, which only the last band tells (its alpha is then dropped, file to
     file)."""
     height, width, channels = tiff.shape
-    row_bytes = width * channels
-    rows = max(1, band_bytes // row_bytes)
+    rows = max(1, band_bytes // (width * channels))
     if rows > tiff.block_rows:
         rows -= rows % tiff.block_rows
     masked = False
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
-    try:
-        for r0 in range(0, height, rows):  # a handful of bands, never a loop over pixels
-            band = tiff.rows((0, height, 0, width), r0, min(height, r0 + rows))
-            masked = masked or (tiff.masked and not band[:, :, -1].all())
-            _write_at(fd, band, r0 * row_bytes)
-            del band
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
-    finally:
-        os.close(fd)
+
+    def band(r0: int, r1: int) -> NDArray[np.uint8]:
+        nonlocal masked
+        pixels = tiff.rows((0, height, 0, width), r0, r1)
+        masked = masked or (tiff.masked and not pixels[:, :, -1].all())
+        return pixels
+
+    _write_bands(path, height, rows, band)
     if not tiff.masked or masked:
         return channels
     # a mask with every pixel valid: the whole read gives RGB (_nodata_mask's None), so level 0 drops the alpha
     reader = _Reader(None, str(path), shape=(height, width, channels))
     rgb = path.with_name(path.name + ".rgb")
     try:
-        fd = os.open(rgb, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-        try:
-            for r0 in range(0, height, rows):
-                _write_at(fd, reader.rows(r0, min(height, r0 + rows))[:, :, :3], r0 * width * 3)
-        finally:
-            os.close(fd)
+        _write_bands(rgb, height, rows, lambda r0, r1: reader.rows(r0, r1)[:, :, :3], level=path)
         os.replace(rgb, path)
     except OSError as exc:
         raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
@@ -1469,16 +1478,16 @@ class _WindowedTiff:
         if suffix not in (".tif", ".tiff", ".png") or not path.is_file():
             return None
         try:
-            from rasterio.enums import ColorInterp, MaskFlags
+            import rasterio  # noqa: F401 - only whether it is there
         except ImportError:
             return None
         try:
             dataset = stack.enter_context(open_raster(path))
             if opened is not None:
                 opened["dataset"] = dataset
-            count, types, interps = dataset.count, set(dataset.dtypes), list(dataset.colorinterp)
+            count, types, (bands, alphas) = dataset.count, set(dataset.dtypes), _image_bands(dataset)
             jpeg = str(getattr(dataset.compression, "name", dataset.compression)).lower() in ("jpeg", "ojpeg")
-            masked = not all(flags == [MaskFlags.all_valid] for flags in dataset.mask_flag_enums)
+            masked = not _all_valid(dataset)
             structure = {**dataset.tags(ns="IMAGE_STRUCTURE"), **dataset.tags(1, ns="IMAGE_STRUCTURE")}
         except Exception:  # noqa: BLE001 - GDAL cannot read it: ImagePyramid.build says what is wrong
             return None
@@ -1488,9 +1497,6 @@ class _WindowedTiff:
             # GDAL gives the stored values: Pillow inverts a min-is-white grey (0 is white) and scales 1-7 bit
             # samples to 0-255 (a 4-bit 15 is 255), so the windows were the negative, or nearly black
             return None
-        alphas = [k for k, interp in enumerate(interps) if interp == ColorInterp.alpha][:1]
-        colour = [k for k in range(count) if k not in alphas]
-        bands = (colour[:3] if len(colour) >= 3 else colour[:1] * 3) + alphas  # as _raster_pixels takes them
         found = _pillow_mode(path)
         if found is None and suffix == ".png":  # past Pillow's decompression-bomb limit: refused as the whole read
             return None
@@ -1659,9 +1665,12 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
     if texel_size is not None:
         sx = sy = finite_number(texel_size, "texel_size", positive=True)
     with contextlib.ExitStack() as stack:
-        tiff = _WindowedTiff.open(image, stack)  # a GeoTIFF (a PNG): only the window read, never the whole
-        if tiff is None:  # a file it cannot read is refused here
-            pyramid = stack.enter_context(ImagePyramid.build(image, extent=extent, device=device))
+        opened: dict[str, Any] = {}  # the file opened with rasterio, read whole below if not by windows: one open
+        tiff = _WindowedTiff.open(image, stack, opened=opened)  # a GeoTIFF (a PNG): only the window read
+        if tiff is None:  # ImagePyramid.build of it (a file it cannot read is refused here)
+            pyramid = stack.enter_context(ImagePyramid._build(
+                image, None, opened.get("dataset"), extent=extent, storage=None, anisotropic=False,
+                band_bytes=_BAND_BYTES, device=device, crs=None))
         else:
             placement = _placement(image, extent, None, tiff.georeferencing, tiff.shape[:2])
             pyramid = ImagePyramid._header(tiff.shape, placement[0], placement[1])

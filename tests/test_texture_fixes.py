@@ -792,6 +792,44 @@ def test_cli_texture_obj_side_image_is_the_written_pngs_bytes(tmp_path, monkeypa
     assert again.read_bytes() == rle.getvalue()
 
 
+def test_cli_pngs_no_mesh_takes_are_not_hashed_and_keep_the_texture_for_the_mesh(tmp_path, monkeypatch):
+    """save_image hashed every large PNG (0.3 s at 77 M texels) so that a later GLB or OBJ could take its bytes, also
+    the CLI's PNGs no mesh drapes: `texture -o tex.png` alone, its --normals map (which, written after the texture,
+    also displaced it: the GLB deflated the texture again), a --png render. Those are not hashed now; the texture a
+    --mesh drapes is, and the GLB takes its bytes (decoding to the texture) with a --normals PNG written between."""
+    from PIL import Image
+
+    from stepterrain import export
+    from stepterrain.cli import main
+
+    monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    hashed = []
+    digest = export._pixels_digest
+
+    def counting(picture, *args, **kwargs):
+        hashed.append(picture.size)
+        return digest(picture, *args, **kwargs)
+
+    monkeypatch.setattr(export, "_pixels_digest", counting)
+    export._LAST_PNG.clear()
+    out, normals = tmp_path / "tex.png", tmp_path / "normals.png"
+    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+                 "--normals", str(normals), "--device", "cpu"]) == 0
+    assert hashed == [] and export._LAST_PNG == []
+    glb = tmp_path / "out.glb"
+    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+                 "--normals", str(normals), "--mesh", str(glb), "--device", "cpu"]) == 0
+    assert hashed == [(150, 120), (150, 120)]  # the texture once written, its drape once asked
+    assert export._LAST_PNG[0][1] == out.absolute()
+    assert out.read_bytes() in glb.read_bytes()
+    with Image.open(out) as picture:
+        texture = np.asarray(picture)
+    embedded = trimesh.load(glb, force="mesh").visual.material.baseColorTexture
+    assert np.array_equal(np.asarray(embedded), texture)
+
+
 @pytest.mark.parametrize("kind, dtype, shape", [("thematic", np.uint8, (600, 500, 3)),
                                                  ("thematic", np.float32, (600, 500, 4)),
                                                  ("luminance", np.uint8, (600, 500))])
