@@ -247,7 +247,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
-        band=args.band,
+        band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's heights and georeferencing are known only item by item (tiles and series are checked up front): a

@@ -2089,3 +2089,58 @@ def test_batch_crop_of_a_geotiff_to_tile_reads_only_the_crops_window(tmp_path, c
         np.testing.assert_array_equal(a.faces, b.faces)
     assert len(list((tmp_path / "cli").glob("*.ply"))) == 9 and not (tmp_path / "x").exists()
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("series", [False, True], ids=["mosaic", "contact_sheet"])
+def test_an_overview_over_the_memory_budget_is_refused_before_any_item_is_written(tmp_path, capsys, series):
+    """``stepterrain batch --png`` checked the overview's render against the memory budget only once every tile had
+    been stepped and written (minutes of work), then refused it: the mosaic of the tiles weighs what their meshes do,
+    however small the --size. batch's ``overview_size`` (the CLI's --png --size) checks it from the plan, counting at
+    least the tiles' surfaces (each frame's in its cell of a contact sheet), before any item runs; a budget the check
+    refuses refuses the render after the run too, and one it passes renders."""
+    from stepterrain import render, set_memory_budget
+    from stepterrain.batch import overview_image
+    from stepterrain.cli import main
+    from stepterrain.errors import OutputTooLargeError
+
+    n = 65 if series else 129
+    z = np.add.outer(np.arange(n), np.arange(n)).astype(np.float32)  # a few steps: each item fits the budget
+    z = np.stack([z + k for k in range(4)]) if series else z
+    z[..., 40, 7] = np.nan  # nodata: fewer triangles counted
+    if series:  # one render per frame, in a 40 x 30 cell of the 80 x 60 window: the largest frame counts
+        size, surface = (80, 60), (65 * 65 - 1, 2 * 64 * 64 - 6)
+        window = render._render_bytes(40, 30, vertices=surface[0], faces=surface[1])
+    else:  # sixteen tiles of 33 x 33 nodes, their shared borders counted in each
+        size, surface = (200, 150), (16 * 33 * 33 - 1, 16 * 2 * 32 * 32 - 6)
+        window = render._render_bytes(200, 150, vertices=surface[0], faces=surface[1])
+    options = dict(tile_size=None if series else 32, interval=40.0, scheduler="serial", format=".glb")
+    previous = set_memory_budget(window - 1)
+    try:
+        out = tmp_path / "refused"
+        with pytest.raises(OutputTooLargeError, match=r"of a mesh of at least "
+                           + f"{surface[1]:,} faces and {surface[0]:,} vertices" + r" would need .*; give coarsen= "
+                           r"or a crop= \(fewer nodes per item\), or render no overview"):
+            batch(z, out, overview_size=size, **options)
+        assert not out.exists()  # nothing stepped, nothing written
+        report = batch(z, out, **options)  # without the check: the render itself is refused after the run
+        assert report.ok
+        with pytest.raises(OutputTooLargeError):
+            overview_image(report, window_size=size)
+        set_memory_budget(window)
+        assert batch(z, tmp_path / "passed", overview_size=size, **options).ok
+    finally:
+        set_memory_budget(previous)
+
+    # the command line: refused before the folder is made, naming its options
+    source = tmp_path / "z.npy"
+    np.save(source, z)
+    tile = [] if series else ["--tile", "32"]
+    if not render.offscreen_available()[0]:
+        return
+    out = tmp_path / "cli"
+    assert main(["-q", "batch", str(source), *tile, "--interval", "40", "-o", str(out), "--scheduler", "serial",
+                 "--png", str(tmp_path / "o.png"), "--size", f"{size[0]}x{size[1]}",
+                 "--memory-budget", str(window - 1)]) == 2
+    err = capsys.readouterr().err
+    assert "give --coarsen or a --crop (fewer nodes per item), or leave --png out" in err, err
+    assert not out.exists() and not (tmp_path / "o.png").exists()
