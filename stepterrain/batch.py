@@ -2291,7 +2291,8 @@ def overview_image(
     ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
     cells sharing the window. The picture is ``window_size`` (H = its height, W = its width) either way.
-    At most ``max_items`` outputs are read, after the window is checked against the memory budget (an
+    At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
+    raster, with a warning saying so), after the window is checked against the memory budget (an
     OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
     """
     import trimesh
@@ -2306,11 +2307,16 @@ def overview_image(
         raise InvalidInputError(f"max_items must be an int >= 1; got {max_items!r}")
     if mosaic is not None:
         check_flag(mosaic, "mosaic")  # "no" was truthy: a mosaic
-    paths = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path][:max_items]
+    written = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path]
+    paths = written[:max_items]
     if not paths:
         raise InvalidInputError("the batch wrote no output to show")
     if mosaic is None:
         mosaic = all(Path(p).stem.startswith("tile_") for p in paths)
+    if mosaic and len(written) > len(paths):  # a jagged strip of the raster's first tile rows, said nowhere
+        warnings.warn(f"the overview's mosaic shows the first {len(paths)} of the {len(written)} outputs: the rest of "
+                      "the raster is left out of the picture; give a larger max_items= or tile_size (fewer tiles)",
+                      stacklevel=2)
     meshes = [read_mesh(p) for p in (paths if mosaic else paths[:16])]  # a 3MF's colours too
     if mosaic:
         tints = np.array([[0.93, 0.93, 0.93], [1.0, 1.0, 1.0]])

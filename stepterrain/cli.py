@@ -974,7 +974,8 @@ _OPTION_PHRASES = {
     "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by",
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
-              "render no overview": "leave --png out"},  # batch._check_overview's hint
+              "render no overview": "leave --png out",  # batch._check_overview's hint
+              "a larger max_items= or --tile": "a larger --tile"},  # overview_image's partial mosaic
     "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},

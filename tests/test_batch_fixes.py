@@ -2144,3 +2144,30 @@ def test_an_overview_over_the_memory_budget_is_refused_before_any_item_is_writte
     err = capsys.readouterr().err
     assert "give --coarsen or a --crop (fewer nodes per item), or leave --png out" in err, err
     assert not out.exists() and not (tmp_path / "o.png").exists()
+
+
+def test_an_overview_mosaic_of_part_of_the_tiles_says_so(tmp_path):
+    """overview_image reads the first max_items (64) outputs: ``stepterrain batch --tile 64 --png`` of the embedded DEM
+    (209 tiles) drew a jagged strip of its first tile rows as "the welded tiles", without a word. A mosaic that leaves
+    tiles out now warns, naming how many it shows; one of every tile, and a contact sheet (up to 16 items, as
+    documented), do not."""
+    import warnings
+
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = batch(z, tmp_path / "tiles", tile_size=2, interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 16
+    with pytest.warns(UserWarning, match=r"^the overview's mosaic shows the first 5 of the 16 outputs: the rest of "
+                                         r"the raster is left out of the picture; give a larger max_items= or "
+                                         r"tile_size \(fewer tiles\)$"):
+        overview_image(report, window_size=(64, 48), max_items=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        overview_image(report, window_size=(64, 48), max_items=16)
+        frames = batch(np.stack([z] * 3), tmp_path / "frames", interval=2.0, scheduler="serial", format=".ply")
+        overview_image(frames, window_size=(64, 48), max_items=2)  # a contact sheet: up to max_items items
