@@ -2171,3 +2171,25 @@ def test_an_overview_mosaic_of_part_of_the_tiles_says_so(tmp_path):
         overview_image(report, window_size=(64, 48), max_items=16)
         frames = batch(np.stack([z] * 3), tmp_path / "frames", interval=2.0, scheduler="serial", format=".ply")
         overview_image(frames, window_size=(64, 48), max_items=2)  # a contact sheet: up to max_items items
+
+
+def test_the_cli_says_when_no_overview_is_written(tmp_path, capsys):
+    """``stepterrain batch ... --png out.png`` whose every item failed wrote no overview, without a word: the failures
+    and exit status 1 said nothing of the PNG asked for. It says so now; a run with outputs writes it."""
+    from stepterrain import render
+    from stepterrain.cli import main
+
+    if not render.offscreen_available()[0]:
+        pytest.skip("no off-screen OpenGL context")
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    (tiles / "a.npy").write_bytes(b"garbage")
+    png = tmp_path / "overview.png"
+    argv = ["-q", "batch", str(tiles), "--interval", "5", "--scheduler", "serial", "--png", str(png), "--size", "64x48"]
+    assert main([*argv, "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert f"stepterrain: no overview written to {png}: every item failed, none has an output to show" in err, err
+    assert not png.exists()
+    np.save(tiles / "a.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    assert main([*argv, "-o", str(tmp_path / "out")]) == 0
+    assert "no overview" not in capsys.readouterr().err and png.stat().st_size > 0
