@@ -2290,7 +2290,8 @@ def overview_image(
 
     ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
-    cells sharing the window. The picture is ``window_size`` (H = its height, W = its width) either way.
+    cells sharing the window (an empty item's, a frame of nodata only, stays blank). The picture is ``window_size``
+    (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
     raster, with a warning saying so), after the window is checked against the memory budget (an
     OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
@@ -2318,6 +2319,9 @@ def overview_image(
                       "the raster is left out of the picture; give a larger max_items= or tile_size (fewer tiles)",
                       stacklevel=2)
     meshes = [read_mesh(p) for p in (paths if mosaic else paths[:16])]  # a 3MF's colours too
+    if not any(len(mesh.faces) for mesh in meshes):  # render_mesh's "mesh has no faces", after the whole run
+        raise InvalidInputError(f"every output the overview shows ({len(meshes)} of {len(written)}) is an empty mesh "
+                                "(no triangle with three finite heights: nodata only); nothing to render")
     if mosaic:
         tints = np.array([[0.93, 0.93, 0.93], [1.0, 1.0, 1.0]])
         parts = []
@@ -2339,6 +2343,8 @@ def overview_image(
     ys = [r * height // rows for r in range(rows + 1)]
     sheet = np.full((height, width, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
+        if len(mesh.faces) == 0:  # an empty item (a frame of nodata only): its cell stays blank; it failed the sheet
+            continue
         r, c = divmod(k, cols)
         w, h = xs[c + 1] - xs[c], ys[r + 1] - ys[r]
         picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale)[..., :3]

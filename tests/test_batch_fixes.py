@@ -2193,3 +2193,33 @@ def test_the_cli_says_when_no_overview_is_written(tmp_path, capsys):
     np.save(tiles / "a.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
     assert main([*argv, "-o", str(tmp_path / "out")]) == 0
     assert "no overview" not in capsys.readouterr().err and png.stat().st_size > 0
+
+
+def test_the_contact_sheet_leaves_an_empty_frame_blank(tmp_path):
+    """A frame of nodata only is written as an empty mesh and counts as done (batch's Notes), but the contact sheet
+    rendered it as any other: ``stepterrain batch series.npy --png`` wrote every frame, then failed with exit status 2,
+    "mesh has no faces; nothing to render". Its cell stays blank now, the other frames drawn; outputs that are all
+    empty are refused as such."""
+    import dataclasses
+
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+    from stepterrain.errors import InvalidInputError
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    z = np.stack([np.add.outer(np.arange(9.0), np.arange(9.0) ** 1.5)] * 4).astype(np.float32)
+    z[1] = np.nan
+    report = batch(z, tmp_path / "frames", interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 4
+    sheet = overview_image(report, window_size=(100, 80))  # 2 x 2 cells of 50 x 40
+    drawn = (sheet < 250).any(axis=2)
+    assert not drawn[:40, 50:].any()  # frame 1's cell
+    for r, c in [(0, 0), (1, 0), (1, 1)]:
+        assert drawn[r * 40 : (r + 1) * 40, c * 50 : (c + 1) * 50].mean() > 0.05, (r, c)
+    with pytest.raises(InvalidInputError, match=r"^every output the overview shows \(1 of 4\) is an empty mesh "
+                                                r"\(no triangle with three finite heights: nodata only\); nothing to "
+                                                r"render$"):
+        overview_image(dataclasses.replace(report, results=report.results[1:] + report.results[:1]),
+                       window_size=(100, 80), max_items=1)  # the empty frame first
