@@ -52,7 +52,9 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     tiles = output.with_name(f"{output.stem}_tiles")
     report = batch(terrain, tiles, tile_size=args.tile, interval=args.interval, base=0.5, colors="terrain",
-                   scheduler=args.scheduler, workers=args.workers, device=args.device)  # fmt: skip
+                   scheduler=args.scheduler, workers=args.workers, device=args.device,
+                   overview_size=tuple(args.window))  # its render checked against the memory budget first
+    # fmt: skip
     print(report.summary(), file=sys.stderr)
     if not (report.done or report.skipped):  # every tile failed (listed above): no picture to render, exit 1
         return 1

@@ -247,7 +247,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
             "generator": "stepterrain batch",
             "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
-        band=args.band,
+        band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
     # a folder's heights and georeferencing are known only item by item (tiles and series are checked up front): a
@@ -272,7 +272,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         if not progress.quiet and line.startswith("  failed "):  # the bar wrote it as the item failed: once
             continue
         print(failure_line(line.strip()), file=progress.stream, flush=True)
-    if png is not None and (report.done or report.skipped):
+    if png is not None and not (report.done or report.skipped):  # the run's exit status 1 alone said nothing of it
+        print(failure_line(f"no overview written to {png}: every item failed, none has an output to show"),
+              file=progress.stream, flush=True)
+    elif png is not None:
         from .export import _save_image
 
         progress.stage("render", f"rendering an overview {args.size[0]}x{args.size[1]}")

@@ -82,6 +82,7 @@ from .terrain import (
     number_or_nan,
     unmasked,
     used_height_range,
+    used_nodes,
 )
 
 __all__ = [
@@ -1410,6 +1411,7 @@ def batch(
     height_unit: str | None = None,
     band: int | None = None,
     device: wp.DeviceLike = None,
+    overview_size: tuple[int, int] | None = None,
 ) -> BatchReport:
     """Step many terrains, one mesh file each, on dask.distributed (or serially).
 
@@ -1498,6 +1500,13 @@ def batch(
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
         "cuda:0") or a ``warp.Device``. With ``scheduler="serial"`` the items run in this process, so an unknown or
         absent device is refused (a :class:`~stepterrain.errors.DeviceError`) before any work.
+    overview_size : (width, height), optional
+        The ``window_size`` of an :func:`overview_image` (its defaults otherwise) to be rendered from the report:
+        its render is checked against the memory budget before any item runs, counting at least the surface of
+        every tile it shows (the mosaic of up to 64) or of the largest frame of its contact sheet, so that a render
+        over the budget is refused (an :class:`~stepterrain.errors.OutputTooLargeError`) before the items are
+        stepped and written, not after. A folder's or list's files are read only by the items: their overview is
+        checked when it is rendered.
 
     Returns
     -------
@@ -1522,6 +1531,8 @@ def batch(
         worker within that time.
     MissingDependencyError
         dask/distributed are not installed (``scheduler="serial"`` needs neither).
+    OutputTooLargeError
+        With ``overview_size``: the overview's render would exceed the memory budget (before any item runs).
 
     Notes
     -----
@@ -1717,6 +1728,8 @@ def batch(
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
+    if overview_size is not None:  # refused after every item was stepped and written, minutes of work
+        _check_overview(items, src, overview_size)
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
@@ -2225,6 +2238,53 @@ def _is_client(obj: Any) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------- overview
+#: What makes an overview's meshes smaller, in the budget's hint of :func:`_check_overview`.
+_OVERVIEW_HINT = "give coarsen= or a crop= (fewer nodes per item), or render no overview"
+#: The outputs :func:`overview_image` reads by default: a mosaic's tiles, a contact sheet's items.
+_MOSAIC_ITEMS, _SHEET_ITEMS = 64, 16
+
+
+def _surface_counts(heights: NDArray[np.float32]) -> tuple[int, int]:
+    """(vertices, faces) of the surface of an (H, W) block of heights, the fewest its stepped mesh has: a vertex per
+    node a triangle with three finite heights uses, a terrace face per such triangle (as the steps command counts)."""
+    rows, cols = heights.shape
+    finite = np.isfinite(heights)
+    if finite.all():
+        return rows * cols, 2 * (rows - 1) * (cols - 1)
+    upper, lower = finite_triangles(finite)
+    used = used_nodes(finite, (upper, lower))
+    return int(np.count_nonzero(used)), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
+
+
+def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_size: Any) -> None:
+    """:func:`batch`'s ``overview_size``: the render of :func:`overview_image` (its defaults) of these items, every
+    one written, checked against the memory budget from the plan, before any item runs: the mosaic of the first
+    :data:`_MOSAIC_ITEMS` tiles (their surfaces together), or the largest of the first :data:`_SHEET_ITEMS` frames
+    in its cell of the contact sheet. A folder's files (``src`` None) are read by the items only: not checked."""
+    from . import render
+
+    try:
+        width, height, _ = render._check_window(overview_size, 2.0)
+    except InvalidInputError as exc:  # window_size is overview_image's name for it
+        raise InvalidInputError(str(exc).replace("window_size", "overview_size", 1)) from None
+    render._check_render_budget(width, height, "overview_size")  # the window alone, as overview_image checks it
+    if src is None or not items:
+        return
+    name = "overview_size"
+    if items[0].kind == "tile":
+        counts = [_surface_counts(src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]])
+                  for i in items[:_MOSAIC_ITEMS]]
+        mesh = (sum(v for v, _ in counts), sum(f for _, f in counts))
+    else:  # each frame is rendered on its own, in a cell of the window (overview_image's grid; 8 pixels at least)
+        shown = items[:_SHEET_ITEMS]
+        mesh = max((_surface_counts(src.heights[i.index]) for i in shown), key=lambda vf: (vf[1], vf[0]))
+        cols = math.ceil(math.sqrt(len(shown)))
+        rows = math.ceil(len(shown) / cols)
+        width, height = max(-(-width // cols), 8), max(-(-height // rows), 8)
+        name = "contact-sheet cell"
+    render._check_render_budget(width, height, name, mesh=mesh, mesh_hint=_OVERVIEW_HINT, at_least=True)
+
+
 def overview_image(
     report: BatchReport,
     *,
@@ -2237,8 +2297,10 @@ def overview_image(
 
     ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
-    cells sharing the window. The picture is ``window_size`` (H = its height, W = its width) either way.
-    At most ``max_items`` outputs are read, after the window is checked against the memory budget (an
+    cells sharing the window (an empty item's, a frame of nodata only, stays blank). The picture is ``window_size``
+    (H = its height, W = its width) either way.
+    At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
+    raster, with a warning saying so), after the window is checked against the memory budget (an
     OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
     """
     import trimesh
@@ -2253,12 +2315,20 @@ def overview_image(
         raise InvalidInputError(f"max_items must be an int >= 1; got {max_items!r}")
     if mosaic is not None:
         check_flag(mosaic, "mosaic")  # "no" was truthy: a mosaic
-    paths = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path][:max_items]
+    written = [Path(r.path) for r in report.results if r.status in ("done", "skipped") and r.path]
+    paths = written[:max_items]
     if not paths:
         raise InvalidInputError("the batch wrote no output to show")
     if mosaic is None:
         mosaic = all(Path(p).stem.startswith("tile_") for p in paths)
+    if mosaic and len(written) > len(paths):  # a jagged strip of the raster's first tile rows, said nowhere
+        warnings.warn(f"the overview's mosaic shows the first {len(paths)} of the {len(written)} outputs: the rest of "
+                      "the raster is left out of the picture; give a larger max_items= or tile_size (fewer tiles)",
+                      stacklevel=2)
     meshes = [read_mesh(p) for p in (paths if mosaic else paths[:16])]  # a 3MF's colours too
+    if not any(len(mesh.faces) for mesh in meshes):  # render_mesh's "mesh has no faces", after the whole run
+        raise InvalidInputError(f"every output the overview shows ({len(meshes)} of {len(written)}) is an empty mesh "
+                                "(no triangle with three finite heights: nodata only); nothing to render")
     if mosaic:
         tints = np.array([[0.93, 0.93, 0.93], [1.0, 1.0, 1.0]])
         parts = []
@@ -2280,6 +2350,8 @@ def overview_image(
     ys = [r * height // rows for r in range(rows + 1)]
     sheet = np.full((height, width, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
+        if len(mesh.faces) == 0:  # an empty item (a frame of nodata only): its cell stays blank; it failed the sheet
+            continue
         r, c = divmod(k, cols)
         w, h = xs[c + 1] - xs[c], ys[r + 1] - ys[r]
         picture = render.render_mesh(mesh, window_size=(max(w, 8), max(h, 8)), z_scale=z_scale)[..., :3]

@@ -961,7 +961,8 @@ _OPTION_ALIASES = {
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
                 "close-up color": "--color", "close-up stepped interval": "--stepped", "interval": "--stepped",
                 "window_size": "--size"},
-    "batch": {"tile_size": "--tile", "window_size": "--size"},  # "tile_size applies to one raster" reached it as it was
+    # "tile_size applies to one raster" reached it as it was; overview_size is batch's window_size of its --png
+    "batch": {"tile_size": "--tile", "window_size": "--size", "overview_size": "--size"},
     "globe": {"window_size": "--size"},
     "texture": {"window_size": "--size"},
 }
@@ -972,7 +973,9 @@ _OPTION_PHRASES = {
     "steps": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
     "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by",
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
-              ": spacing applies to DEM files": ": --spacing applies to DEM files"},
+              ": spacing applies to DEM files": ": --spacing applies to DEM files",
+              "render no overview": "leave --png out",  # batch._check_overview's hint
+              "a larger max_items= or --tile": "a larger --tile"},  # overview_image's partial mosaic
     "globe": {"raise the error": "raise --error", "--radius + exaggeration": "--radius + --exaggeration"},
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},

@@ -2089,3 +2089,137 @@ def test_batch_crop_of_a_geotiff_to_tile_reads_only_the_crops_window(tmp_path, c
         np.testing.assert_array_equal(a.faces, b.faces)
     assert len(list((tmp_path / "cli").glob("*.ply"))) == 9 and not (tmp_path / "x").exists()
     capsys.readouterr()
+
+
+@pytest.mark.parametrize("series", [False, True], ids=["mosaic", "contact_sheet"])
+def test_an_overview_over_the_memory_budget_is_refused_before_any_item_is_written(tmp_path, capsys, series):
+    """``stepterrain batch --png`` checked the overview's render against the memory budget only once every tile had
+    been stepped and written (minutes of work), then refused it: the mosaic of the tiles weighs what their meshes do,
+    however small the --size. batch's ``overview_size`` (the CLI's --png --size) checks it from the plan, counting at
+    least the tiles' surfaces (each frame's in its cell of a contact sheet), before any item runs; a budget the check
+    refuses refuses the render after the run too, and one it passes renders."""
+    from stepterrain import render, set_memory_budget
+    from stepterrain.batch import overview_image
+    from stepterrain.cli import main
+    from stepterrain.errors import OutputTooLargeError
+
+    n = 65 if series else 129
+    z = np.add.outer(np.arange(n), np.arange(n)).astype(np.float32)  # a few steps: each item fits the budget
+    z = np.stack([z + k for k in range(4)]) if series else z
+    z[..., 40, 7] = np.nan  # nodata: fewer triangles counted
+    if series:  # one render per frame, in a 40 x 30 cell of the 80 x 60 window: the largest frame counts
+        size, surface = (80, 60), (65 * 65 - 1, 2 * 64 * 64 - 6)
+        window = render._render_bytes(40, 30, vertices=surface[0], faces=surface[1])
+    else:  # sixteen tiles of 33 x 33 nodes, their shared borders counted in each
+        size, surface = (200, 150), (16 * 33 * 33 - 1, 16 * 2 * 32 * 32 - 6)
+        window = render._render_bytes(200, 150, vertices=surface[0], faces=surface[1])
+    options = dict(tile_size=None if series else 32, interval=40.0, scheduler="serial", format=".glb")
+    previous = set_memory_budget(window - 1)
+    try:
+        out = tmp_path / "refused"
+        with pytest.raises(OutputTooLargeError, match=r"of a mesh of at least "
+                           + f"{surface[1]:,} faces and {surface[0]:,} vertices" + r" would need .*; give coarsen= "
+                           r"or a crop= \(fewer nodes per item\), or render no overview"):
+            batch(z, out, overview_size=size, **options)
+        assert not out.exists()  # nothing stepped, nothing written
+        report = batch(z, out, **options)  # without the check: the render itself is refused after the run
+        assert report.ok
+        with pytest.raises(OutputTooLargeError):
+            overview_image(report, window_size=size)
+        set_memory_budget(window)
+        assert batch(z, tmp_path / "passed", overview_size=size, **options).ok
+    finally:
+        set_memory_budget(previous)
+
+    # the command line: refused before the folder is made, naming its options
+    source = tmp_path / "z.npy"
+    np.save(source, z)
+    tile = [] if series else ["--tile", "32"]
+    if not render.offscreen_available()[0]:
+        return
+    out = tmp_path / "cli"
+    assert main(["-q", "batch", str(source), *tile, "--interval", "40", "-o", str(out), "--scheduler", "serial",
+                 "--png", str(tmp_path / "o.png"), "--size", f"{size[0]}x{size[1]}",
+                 "--memory-budget", str(window - 1)]) == 2
+    err = capsys.readouterr().err
+    assert "give --coarsen or a --crop (fewer nodes per item), or leave --png out" in err, err
+    assert not out.exists() and not (tmp_path / "o.png").exists()
+
+
+def test_an_overview_mosaic_of_part_of_the_tiles_says_so(tmp_path):
+    """overview_image reads the first max_items (64) outputs: ``stepterrain batch --tile 64 --png`` of the embedded DEM
+    (209 tiles) drew a jagged strip of its first tile rows as "the welded tiles", without a word. A mosaic that leaves
+    tiles out now warns, naming how many it shows; one of every tile, and a contact sheet (up to 16 items, as
+    documented), do not."""
+    import warnings
+
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    report = batch(z, tmp_path / "tiles", tile_size=2, interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 16
+    with pytest.warns(UserWarning, match=r"^the overview's mosaic shows the first 5 of the 16 outputs: the rest of "
+                                         r"the raster is left out of the picture; give a larger max_items= or "
+                                         r"tile_size \(fewer tiles\)$"):
+        overview_image(report, window_size=(64, 48), max_items=5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        overview_image(report, window_size=(64, 48), max_items=16)
+        frames = batch(np.stack([z] * 3), tmp_path / "frames", interval=2.0, scheduler="serial", format=".ply")
+        overview_image(frames, window_size=(64, 48), max_items=2)  # a contact sheet: up to max_items items
+
+
+def test_the_cli_says_when_no_overview_is_written(tmp_path, capsys):
+    """``stepterrain batch ... --png out.png`` whose every item failed wrote no overview, without a word: the failures
+    and exit status 1 said nothing of the PNG asked for. It says so now; a run with outputs writes it."""
+    from stepterrain import render
+    from stepterrain.cli import main
+
+    if not render.offscreen_available()[0]:
+        pytest.skip("no off-screen OpenGL context")
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    (tiles / "a.npy").write_bytes(b"garbage")
+    png = tmp_path / "overview.png"
+    argv = ["-q", "batch", str(tiles), "--interval", "5", "--scheduler", "serial", "--png", str(png), "--size", "64x48"]
+    assert main([*argv, "-o", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert f"stepterrain: no overview written to {png}: every item failed, none has an output to show" in err, err
+    assert not png.exists()
+    np.save(tiles / "a.npy", np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    assert main([*argv, "-o", str(tmp_path / "out")]) == 0
+    assert "no overview" not in capsys.readouterr().err and png.stat().st_size > 0
+
+
+def test_the_contact_sheet_leaves_an_empty_frame_blank(tmp_path):
+    """A frame of nodata only is written as an empty mesh and counts as done (batch's Notes), but the contact sheet
+    rendered it as any other: ``stepterrain batch series.npy --png`` wrote every frame, then failed with exit status 2,
+    "mesh has no faces; nothing to render". Its cell stays blank now, the other frames drawn; outputs that are all
+    empty are refused as such."""
+    import dataclasses
+
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+    from stepterrain.errors import InvalidInputError
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    z = np.stack([np.add.outer(np.arange(9.0), np.arange(9.0) ** 1.5)] * 4).astype(np.float32)
+    z[1] = np.nan
+    report = batch(z, tmp_path / "frames", interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 4
+    sheet = overview_image(report, window_size=(100, 80))  # 2 x 2 cells of 50 x 40
+    drawn = (sheet < 250).any(axis=2)
+    assert not drawn[:40, 50:].any()  # frame 1's cell
+    for r, c in [(0, 0), (1, 0), (1, 1)]:
+        assert drawn[r * 40 : (r + 1) * 40, c * 50 : (c + 1) * 50].mean() > 0.05, (r, c)
+    with pytest.raises(InvalidInputError, match=r"^every output the overview shows \(1 of 4\) is an empty mesh "
+                                                r"\(no triangle with three finite heights: nodata only\); nothing to "
+                                                r"render$"):
+        overview_image(dataclasses.replace(report, results=report.results[1:] + report.results[:1]),
+                       window_size=(100, 80), max_items=1)  # the empty frame first
