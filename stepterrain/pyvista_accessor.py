@@ -209,10 +209,13 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours). Face attributes
-    become cell data (bools as uint8), ``isovalues`` a float64 ``field_data`` array, and every metadata item that
-    is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as
-    ``pv.wrap`` keeps them; an item that is not is left out with a warning naming it. :func:`from_polydata` is the
-    way back.
+    become cell data and vertex attributes point data (bools as uint8), a textured mesh's UVs (one per vertex) the
+    active texture coordinates (its image is not data of a PolyData: plot with
+    ``texture=np.asarray(mesh.visual.material.baseColorTexture)``), ``isovalues`` a float64 ``field_data`` array,
+    and every metadata item that is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF
+    extras) goes to ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's
+    ``node_entry``, a close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any
+    other item is left out with a warning naming it. :func:`from_polydata` is the way back.
     """
     from .export import json_metadata
 
@@ -224,6 +227,15 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
         array = np.asarray(values)
         if array.shape[:1] == (len(faces),):
             poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else array
+    # vertex attributes (a close-up layer's mask_factor, a PLY's properties) and a draped mesh's UVs were dropped,
+    # where pv.wrap keeps them: pl.add_mesh(poly, texture=...) found no texture coordinates
+    for name, values in mesh.vertex_attributes.items():
+        array = np.asarray(values)
+        if array.shape[:1] == (len(mesh.vertices),) and array.dtype.kind in "biuf":
+            poly.point_data[name] = array.astype(np.uint8) if array.dtype == bool else array
+    uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
+    if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
+        poly.active_texture_coordinates = np.asarray(uv, dtype=np.float64)
     if mesh.visual.kind == "vertex":
         poly.point_data["RGBA"] = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         # pyvista shows an array as colours (no colormap, no scalar bar) only when its name ends in "_rgb" or
@@ -237,12 +249,22 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     kept, dropped = {}, []
     for key, value in mesh.metadata.items():
         try:
-            kept.update(json_metadata({key: value}))
+            item = json_metadata({key: value})
         except InvalidInputError:
+            item = {}
+        kept.update(item)
+        # "_" items are private (trimesh's "_ply_raw"), as in glTF extras; the isovalues are a field_data array above
+        if item or str(key).startswith("_") or key == "isovalues":
+            continue
+        # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
+        array = value if isinstance(value, np.ndarray) else None
+        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str):
+            poly.field_data[key] = array.astype(np.uint8) if array.dtype == bool else array
+        else:
             dropped.append(key)
     if dropped:
-        warnings.warn(f"to_polydata: mesh.metadata items {dropped!r} are not JSON and were left out of user_dict",
-                      stacklevel=caller_stacklevel())
+        warnings.warn(f"to_polydata: mesh.metadata items {dropped!r} are not JSON (or are lists too long for "
+                      "glTF extras) and were left out of user_dict", stacklevel=caller_stacklevel())
     if kept:
         poly.user_dict.update(kept)
     return poly

@@ -236,3 +236,40 @@ def test_accessor_takes_memory_budget():
     with pytest.raises(OutputTooLargeError, match=r"would need [\d,]+ bytes, over the memory budget of 1,000 bytes"):
         grid.stepterrain.stepped(interval=50, memory_budget=1000)
     assert grid.stepterrain.stepped(interval=50, memory_budget=10**8).n_cells > 0
+
+
+def test_to_polydata_keeps_uvs_vertex_attributes_and_long_metadata_arrays_as_pv_wrap_does():
+    """to_polydata dropped a draped mesh's UVs (pl.add_mesh(poly, texture=...) found no texture coordinates), the
+    vertex attributes (a close-up layer's mask_factor) and, without the warning its docstring promises, metadata
+    arrays too long for user_dict (a globe's node_entry), all of which pv.wrap keeps. UVs are now the active texture
+    coordinates, vertex attributes point data, such arrays field data; from_polydata brings the last two back."""
+    import warnings
+
+    import stepterrain as st
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+    from stepterrain.texture import TextureLayer
+
+    heights = np.random.default_rng(3).uniform(0, 90, (70, 80))
+    mesh = st.stepped(st.Terrain.from_heights(heights), interval=20)
+    layer = TextureLayer("luminance", np.linspace(0, 1, 20).reshape(4, 5), (-0.5, 79.5, -0.5, 69.5))
+    textured = st.drape(mesh, layer)
+    poly = to_polydata(textured)
+    assert np.array_equal(poly.active_texture_coordinates, textured.visual.uv)
+    assert np.array_equal(poly.cell_data["level"], mesh.face_attributes["level"])
+
+    n = len(mesh.vertices)
+    mask = np.linspace(0.0, 1.0, n, dtype=np.float32)
+    entry = np.arange(n, dtype=np.int32)[::-1].copy()
+    plain = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False, vertex_attributes={"mask_factor": mask},
+                            metadata={"node_entry": entry, "closeup": 0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing left out, so no warning
+        poly = to_polydata(plain)
+    assert np.array_equal(poly.point_data["mask_factor"], mask) and poly.point_data["mask_factor"].dtype == np.float32
+    assert np.array_equal(poly.field_data["node_entry"], entry) and poly.user_dict["closeup"] == 0
+    back = from_polydata(poly)
+    assert np.array_equal(back.vertex_attributes["mask_factor"], mask)
+    assert np.array_equal(back.metadata["node_entry"], entry) and back.metadata["closeup"] == 0
+    plain.metadata["ids"] = list(range(5000))  # a list too long for user_dict, and no array: named
+    with pytest.warns(UserWarning, match=r"\['ids'\] are not JSON"):
+        to_polydata(plain)
