@@ -276,7 +276,8 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
     Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
-    active scalars named ``*_rgb``/``*_rgba``), uint8 with 3 or 4 columns, become the vertex colours (pv.to_trimesh
+    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), uint8 with 3
+    or 4 columns, become the vertex colours (pv.to_trimesh
     leaves them as a plain vertex attribute, so they were not written nor drawn); other point data become vertex
     attributes (normals and texture coordinates aside: a PolyData holds no texture image, drape it instead). Cell
     data become face attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data
@@ -303,7 +304,8 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
     point_data, cell_data = poly.point_data, poly.cell_data
     skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name}
-    colour_name = next((n for n in (RGBA_ALIAS, "RGBA") if n in point_data), None)
+    # "RGB": pv.read of a PLY without alpha, or of an OBJ, (VTK's readers) rendered tan, its colours a vertex attribute
+    colour_name = next((n for n in (RGBA_ALIAS, "RGBA", "RGB") if n in point_data), None)
     active = point_data.active_scalars_name
     if colour_name is None and active is not None and active.lower().endswith(("_rgb", "_rgba")):
         colour_name = active

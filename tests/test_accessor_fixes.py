@@ -273,3 +273,32 @@ def test_to_polydata_keeps_uvs_vertex_attributes_and_long_metadata_arrays_as_pv_
     plain.metadata["ids"] = list(range(5000))  # a list too long for user_dict, and no array: named
     with pytest.warns(UserWarning, match=r"\['ids'\] are not JSON"):
         to_polydata(plain)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj"])
+def test_from_polydata_takes_the_rgb_colours_vtks_readers_give(tmp_path, suffix):
+    """pv.read of a PLY without alpha, or of an OBJ with vertex colours, names them "RGB" (VTK's readers); from_polydata
+    took only colors_rgba, RGBA or active *_rgb scalars, so render_mesh(pv.read(path)) drew the mesh in plain tan and
+    save_mesh wrote it uncoloured. "RGB" is now taken as the vertex colours."""
+    from stepterrain.export import save_mesh
+    from stepterrain.pyvista_accessor import from_polydata
+
+    _, mesh = _coloured_steps()
+    path = tmp_path / f"steps{suffix}"
+    if suffix == ".ply":  # a PLY of RGB only, as pyvista (VTK) writes one
+        poly = pv.PolyData.from_regular_faces(mesh.vertices, mesh.faces)
+        poly.point_data["RGB"] = mesh.visual.vertex_colors[:, :3]
+        poly.save(path, texture="RGB")
+    else:
+        save_mesh(mesh, path)
+    read = pv.read(path)
+    assert "RGB" in read.point_data and read.point_data["RGB"].shape[1] == 3
+    back = from_polydata(read)
+    assert back.visual.kind == "vertex" and "RGB" not in back.vertex_attributes
+    rgb = np.asarray(mesh.visual.vertex_colors)[:, :3]
+    # a writer may reorder or duplicate vertices (PLY: float32): each read vertex has the colour of the mesh's there
+    nearest = np.array([np.argmin(np.abs(mesh.vertices - v).sum(axis=1)) for v in back.vertices])
+    got = np.asarray(back.visual.vertex_colors)[:, :3].astype(int)  # OBJ: floats in [0, 1], read back within 1
+    assert np.abs(got - rgb[nearest]).max() <= 1 and np.ptp(got, axis=0).min() > 50  # the level colours, not one
+    kwargs = {"window_size": (48, 32)}
+    assert np.abs(render.render_mesh(read, **kwargs).astype(int) - render.render_mesh(mesh, **kwargs)).mean() < 2.0
