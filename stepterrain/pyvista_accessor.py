@@ -210,8 +210,9 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours). Face attributes
     become cell data and vertex attributes point data (bools as uint8), a textured mesh's UVs (one per vertex) the
-    active texture coordinates (its image is not data of a PolyData: plot with
-    ``texture=np.asarray(mesh.visual.material.baseColorTexture)``), ``isovalues`` a float64 ``field_data`` array,
+    active texture coordinates (its image is not data of a PolyData: plot with ``texture=np.asarray(image)``, the
+    image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for a globe's ``drape_texture``),
+    ``isovalues`` a float64 ``field_data`` array,
     and every metadata item that is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF
     extras) goes to ``user_dict``, as ``pv.wrap`` keeps them; a numeric array too long for that (a globe's
     ``node_entry``, a close-up layer's ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any
