@@ -331,3 +331,18 @@ def test_face_colours_go_to_pyvista_and_back(tmp_path):
     assert np.array_equal(render.render_mesh(poly, **kwargs), expected)
     # the PLY's float32 points move an edge pixel or two; tan (_DEFAULT_COLOR) differed by far more
     assert np.abs(render.render_mesh(read, **kwargs).astype(int) - expected).mean() < 1.0
+
+
+def test_a_pyvista_dataset_without_the_accessor_is_not_told_to_step_itself(tmp_path):
+    """A MultiBlock (pv.read of a GLB) or an UnstructuredGrid given as a mesh was told to pass "its steps,
+    mesh.stepterrain.stepped(...)", an accessor only ImageData, RectilinearGrid and StructuredGrid have (an
+    AttributeError for whoever followed it). Only those grids are told so; every dataset is told of its surface."""
+    from stepterrain.export import save_mesh
+
+    for dataset in (pv.MultiBlock([pv.Sphere()]), pv.UnstructuredGrid(pv.Sphere())):
+        assert not hasattr(dataset, "stepterrain")
+        with pytest.raises(InvalidInputError, match=r"pass its surface, mesh\.extract_surface\(\)\.triangulate\(\)\)"):
+            save_mesh(dataset, tmp_path / "never.glb")
+        assert not (tmp_path / "never.glb").exists()
+    with pytest.raises(InvalidInputError, match=r"or its steps, mesh\.stepterrain\.stepped\(\.\.\.\)"):
+        render.render_mesh(pv.ImageData(dimensions=(3, 3, 1)), window_size=(48, 32))
