@@ -100,6 +100,10 @@ def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None)
     width = xmax - xmin
     eye = ((xmin + xmax) / 2 - 0.2 * width, ymin - 1.2 * (ymax - ymin), 1.1 * width)
     plotter.camera_position = [eye, ((xmin + xmax) / 2, (ymin + ymax) / 2, lo * scene.z_scale), (0, 0, 1)]
+    # that view direction, at the distance that shows the whole terrain: the eye placed by hand cut off its west and
+    # east ends (docs/interactive.png); the bounding sphere VTK fits leaves a margin, most of it taken back by zoom
+    plotter.reset_camera()
+    plotter.camera.zoom(1.35)
     return scene
 
 

@@ -35,9 +35,12 @@ def mesh_argument(mesh: Any, name: str = "mesh", hint: str = "") -> trimesh.Trim
             from .pyvista_accessor import from_polydata
 
             return from_polydata(mesh, name)
-        # a grid (ImageData, ...): its surface, or its steps, is a PolyData
-        hint = (f" (a pyvista.{type(mesh).__name__}: pass its surface, {name}.extract_surface().triangulate(), or "
-                f"its steps, {name}.stepterrain.stepped(...)){hint}")
+        # a grid (ImageData, ...): its surface, or its steps, is a PolyData; only the accessor's grids have steps (a
+        # MultiBlock, pv.read's of a GLB, or an UnstructuredGrid was told of a .stepterrain it does not have)
+        steps = (f", or its steps, {name}.stepterrain.stepped(...)"
+                 if isinstance(mesh, (pv.ImageData, pv.RectilinearGrid, pv.StructuredGrid)) else "")
+        hint = (f" (a pyvista.{type(mesh).__name__}: pass its surface, {name}.extract_surface().triangulate()"
+                f"{steps}){hint}")
     raise InvalidInputError(f"{name} must be a trimesh.Trimesh or a pyvista.PolyData of triangles{hint}; got "
                             f"{type(mesh).__name__}")
 

@@ -236,12 +236,15 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, face attributes, vertex colours, metadata.
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
-    point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); face colours (a TIN's,
-    carried onto its steps) likewise as cell data. Face attributes
-    become cell data (bools as uint8), ``isovalues`` a float64 ``field_data`` array, and every metadata item that
-    is JSON (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as
-    ``pv.wrap`` keeps them; an item that is not is left out with a warning naming it. :func:`from_polydata` is the
-    way back.
+    point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to
+    cell data so. Face attributes become cell data and vertex attributes point data (bools as uint8), a textured
+    mesh's UVs (one per vertex) the active texture coordinates (its image is not data of a PolyData: plot with
+    ``texture=np.asarray(image)``, the image being ``mesh.visual.material.baseColorTexture``, or ``.image`` for a
+    globe's ``drape_texture``), ``isovalues`` a float64 ``field_data`` array, and every metadata item that is JSON
+    (values as :func:`~stepterrain.export.save_mesh` writes them to glTF extras) goes to ``user_dict``, as
+    ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a close-up layer's
+    ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any
+    other item is left out with a warning naming it. :func:`from_polydata` is the way back.
     """
     from .export import json_metadata
 
@@ -253,29 +256,46 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
         array = np.asarray(values)
         if array.shape[:1] == (len(faces),):
             poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else array
-    if mesh.visual.kind == "vertex":
-        poly.point_data["RGBA"] = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
+    # vertex attributes (a close-up layer's mask_factor, a PLY's properties) and a draped mesh's UVs were dropped,
+    # where pv.wrap keeps them: pl.add_mesh(poly, texture=...) found no texture coordinates
+    for name, values in mesh.vertex_attributes.items():
+        array = np.asarray(values)
+        if array.shape[:1] == (len(mesh.vertices),) and array.dtype.kind in "biuf":
+            poly.point_data[name] = array.astype(np.uint8) if array.dtype == bool else array
+    uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
+    if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
+        poly.active_texture_coordinates = np.asarray(uv, dtype=np.float64)
+    if mesh.visual.kind in ("vertex", "face"):  # colours by face (a PLY or 3MF read back) were dropped
+        data = poly.point_data if mesh.visual.kind == "vertex" else poly.cell_data
+        colors = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else mesh.visual.face_colors
+        data["RGBA"] = np.asarray(colors, dtype=np.uint8)
         # pyvista shows an array as colours (no colormap, no scalar bar) only when its name ends in "_rgb" or
         # "_rgba": steps.plot() drew "RGBA" through viridis, with a bar of 'RGBA' magnitudes. The same bytes (one
         # buffer, no copy) under RGBA_ALIAS are the active scalars, so the default plot shows the level colours.
-        poly.point_data[RGBA_ALIAS] = poly.point_data["RGBA"]
-        poly.point_data.active_scalars_name = RGBA_ALIAS
-    elif mesh.visual.kind == "face":  # a TIN's face colours carried onto its steps: per cell, as VTK holds them
-        poly.cell_data["RGBA"] = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
-        poly.cell_data[RGBA_ALIAS] = poly.cell_data["RGBA"]
-        poly.cell_data.active_scalars_name = RGBA_ALIAS
+        data[RGBA_ALIAS] = data["RGBA"]
+        data.active_scalars_name = RGBA_ALIAS
     if "isovalues" in mesh.metadata:
         poly.field_data["isovalues"] = np.asarray(mesh.metadata["isovalues"], dtype=np.float64)
     # only the isovalues were kept (source, CRS, gamma, floor dropped), where pv.wrap keeps them in user_dict
     kept, dropped = {}, []
     for key, value in mesh.metadata.items():
         try:
-            kept.update(json_metadata({key: value}))
+            item = json_metadata({key: value})
         except InvalidInputError:
+            item = {}
+        kept.update(item)
+        # "_" items are private (trimesh's "_ply_raw"), as in glTF extras; the isovalues are a field_data array above
+        if item or str(key).startswith("_") or key == "isovalues":
+            continue
+        # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
+        array = value if isinstance(value, np.ndarray) else None
+        if array is not None and array.dtype.kind in "biuf" and isinstance(key, str):
+            poly.field_data[key] = array.astype(np.uint8) if array.dtype == bool else array
+        else:
             dropped.append(key)
     if dropped:
-        warnings.warn(f"to_polydata: mesh.metadata items {dropped!r} are not JSON and were left out of user_dict",
-                      stacklevel=caller_stacklevel())
+        warnings.warn(f"to_polydata: mesh.metadata items {dropped!r} are not JSON (or are lists too long for "
+                      "glTF extras) and were left out of user_dict", stacklevel=caller_stacklevel())
     if kept:
         poly.user_dict.update(kept)
     return poly
@@ -287,12 +307,13 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     :func:`~stepterrain.render.render_mesh` and :func:`~stepterrain.texture.drape` call on a PolyData given to them.
 
     Points and faces are copied as they are (float64, int64). The point data ``colors_rgba`` (else ``RGBA``, else
-    active scalars named ``*_rgb``/``*_rgba``), uint8 with 3 or 4 columns, become the vertex colours (pv.to_trimesh
-    leaves them as a plain vertex attribute, so they were not written nor drawn), or else the cell data ``colors_rgba``
-    (else ``RGBA``), uint8 with 3 or 4 columns, the face colours; other point data become vertex
-    attributes (normals and texture coordinates aside: a PolyData holds no texture image, drape it instead). Cell
-    data become face attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data
-    (``isovalues`` as a list) become the metadata. ``name`` names the argument in errors.
+    ``RGB``, as VTK's PLY and OBJ readers name colours, else active scalars named ``*_rgb``/``*_rgba``), uint8 with 3
+    or 4 columns, become the vertex colours (pv.to_trimesh leaves them as a plain vertex attribute, so they were not
+    written nor drawn); without them, cell data found so (a PLY's face colours, :func:`to_polydata`'s of a mesh
+    coloured by face) become the face colours. Other point data become vertex attributes (normals and texture
+    coordinates aside: a PolyData holds no texture image, drape it instead). Other cell data become face
+    attributes, ``wall`` (0/1) as bool again. ``user_dict`` items and the other field data (``isovalues`` as a
+    list) become the metadata. ``name`` names the argument in errors.
 
     Raises
     ------
@@ -314,32 +335,13 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
     vertices = np.array(poly.points, dtype=np.float64)
     faces = np.array(poly.regular_faces, dtype=np.int64) if poly.n_cells else np.zeros((0, 3), np.int64)
     point_data, cell_data = poly.point_data, poly.cell_data
-    skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name}
-    colour_name = next((n for n in (RGBA_ALIAS, "RGBA") if n in point_data), None)
-    active = point_data.active_scalars_name
-    if colour_name is None and active is not None and active.lower().endswith(("_rgb", "_rgba")):
-        colour_name = active
-    colors = None
-    if colour_name is not None:
-        values = np.asarray(point_data[colour_name])
-        if values.dtype == np.uint8 and values.ndim == 2 and values.shape[1] in (3, 4):
-            colors = values.copy()
-            # "RGBA" and its alias share one buffer (to_polydata): neither is a vertex attribute besides
-            skipped |= {colour_name} | {n for n in (RGBA_ALIAS, "RGBA") if n in point_data and
-                                        np.array_equal(np.asarray(point_data[n]), values)}  # fmt: skip
+    colors, colour_names = _colours(point_data)
+    face_colors, face_colour_names = _colours(cell_data) if colors is None else (None, set())
+    skipped = {point_data.active_normals_name, point_data.active_texture_coordinates_name} | colour_names
     vertex_attributes = {n: np.array(point_data[n]) for n in point_data.keys() if n not in skipped}
-    face_colors = None
-    if colors is None:  # face colours, as to_polydata keeps them: cell data colors_rgba (else RGBA)
-        cell_colour = next((n for n in (RGBA_ALIAS, "RGBA") if n in cell_data), None)
-        values = np.asarray(cell_data[cell_colour]) if cell_colour is not None else None
-        if values is not None and values.dtype == np.uint8 and values.ndim == 2 and values.shape[1] in (3, 4):
-            face_colors = values.copy()
     face_attributes = {}
     for key in cell_data.keys():
-        if key == cell_data.active_normals_name:
-            continue
-        if face_colors is not None and key in (RGBA_ALIAS, "RGBA") and np.array_equal(np.asarray(cell_data[key]),
-                                                                                      face_colors):
+        if key == cell_data.active_normals_name or key in face_colour_names:
             continue
         values = np.array(cell_data[key])
         if key == "wall" and values.dtype == np.uint8 and values.max(initial=0) <= 1:  # bool as uint8 in VTK
@@ -352,6 +354,24 @@ def from_polydata(poly: Any, name: str = "mesh") -> trimesh.Trimesh:
             metadata[key] = values.tolist() if key == "isovalues" else values
     return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors, face_colors=face_colors,
                            face_attributes=face_attributes, vertex_attributes=vertex_attributes, metadata=metadata)
+
+
+def _colours(data: Any) -> tuple[NDArray[np.uint8] | None, set[str]]:
+    """The colours among a PolyData's point or cell ``data`` (see :func:`from_polydata`), a copy, and the names of
+    the arrays they are (none of them an attribute besides), else (None, no names)."""
+    # "RGB": pv.read of a PLY without alpha, or of an OBJ, (VTK's readers) rendered tan, its colours a vertex attribute
+    colour_name = next((n for n in (RGBA_ALIAS, "RGBA", "RGB") if n in data), None)
+    active = data.active_scalars_name
+    if colour_name is None and active is not None and active.lower().endswith(("_rgb", "_rgba")):
+        colour_name = active
+    if colour_name is None:
+        return None, set()
+    values = np.asarray(data[colour_name])
+    if values.dtype != np.uint8 or values.ndim != 2 or values.shape[1] not in (3, 4):
+        return None, set()
+    # "RGBA" and its alias share one buffer (to_polydata): neither is an attribute besides
+    same = {n for n in (RGBA_ALIAS, "RGBA") if n in data and np.array_equal(np.asarray(data[n]), values)}
+    return values.copy(), {colour_name} | same
 
 
 def _uniform_step(coords: NDArray[np.float64]) -> float | None:

@@ -295,3 +295,111 @@ def test_to_polydata_keeps_face_colours_and_from_polydata_gives_them_back(tmp_pa
     assert set(back.face_attributes) == {"level", "wall"}
     written = read_mesh(save_mesh(poly, tmp_path / "steps.ply"))
     np.testing.assert_array_equal(written.visual.face_colors, mesh.visual.face_colors)
+def test_to_polydata_keeps_uvs_vertex_attributes_and_long_metadata_arrays_as_pv_wrap_does():
+    """to_polydata dropped a draped mesh's UVs (pl.add_mesh(poly, texture=...) found no texture coordinates), the
+    vertex attributes (a close-up layer's mask_factor) and, without the warning its docstring promises, metadata
+    arrays too long for user_dict (a globe's node_entry), all of which pv.wrap keeps. UVs are now the active texture
+    coordinates, vertex attributes point data, such arrays field data; from_polydata brings the last two back."""
+    import warnings
+
+    import stepterrain as st
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+    from stepterrain.texture import TextureLayer
+
+    heights = np.random.default_rng(3).uniform(0, 90, (70, 80))
+    mesh = st.stepped(st.Terrain.from_heights(heights), interval=20)
+    layer = TextureLayer("luminance", np.linspace(0, 1, 20).reshape(4, 5), (-0.5, 79.5, -0.5, 69.5))
+    textured = st.drape(mesh, layer)
+    poly = to_polydata(textured)
+    assert np.array_equal(poly.active_texture_coordinates, textured.visual.uv)
+    assert np.array_equal(poly.cell_data["level"], mesh.face_attributes["level"])
+
+    n = len(mesh.vertices)
+    mask = np.linspace(0.0, 1.0, n, dtype=np.float32)
+    entry = np.arange(n, dtype=np.int32)[::-1].copy()
+    plain = trimesh.Trimesh(mesh.vertices, mesh.faces, process=False, vertex_attributes={"mask_factor": mask},
+                            metadata={"node_entry": entry, "closeup": 0})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # nothing left out, so no warning
+        poly = to_polydata(plain)
+    assert np.array_equal(poly.point_data["mask_factor"], mask) and poly.point_data["mask_factor"].dtype == np.float32
+    assert np.array_equal(poly.field_data["node_entry"], entry) and poly.user_dict["closeup"] == 0
+    back = from_polydata(poly)
+    assert np.array_equal(back.vertex_attributes["mask_factor"], mask)
+    assert np.array_equal(back.metadata["node_entry"], entry) and back.metadata["closeup"] == 0
+    plain.metadata["ids"] = list(range(5000))  # a list too long for user_dict, and no array: named
+    with pytest.warns(UserWarning, match=r"\['ids'\] are not JSON"):
+        to_polydata(plain)
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".obj"])
+def test_from_polydata_takes_the_rgb_colours_vtks_readers_give(tmp_path, suffix):
+    """pv.read of a PLY without alpha, or of an OBJ with vertex colours, names them "RGB" (VTK's readers); from_polydata
+    took only colors_rgba, RGBA or active *_rgb scalars, so render_mesh(pv.read(path)) drew the mesh in plain tan and
+    save_mesh wrote it uncoloured. "RGB" is now taken as the vertex colours."""
+    from stepterrain.export import save_mesh
+    from stepterrain.pyvista_accessor import from_polydata
+
+    _, mesh = _coloured_steps()
+    path = tmp_path / f"steps{suffix}"
+    if suffix == ".ply":  # a PLY of RGB only, as pyvista (VTK) writes one
+        poly = pv.PolyData.from_regular_faces(mesh.vertices, mesh.faces)
+        poly.point_data["RGB"] = mesh.visual.vertex_colors[:, :3]
+        poly.save(path, texture="RGB")
+    else:
+        save_mesh(mesh, path)
+    read = pv.read(path)
+    assert "RGB" in read.point_data and read.point_data["RGB"].shape[1] == 3
+    back = from_polydata(read)
+    assert back.visual.kind == "vertex" and "RGB" not in back.vertex_attributes
+    rgb = np.asarray(mesh.visual.vertex_colors)[:, :3]
+    # a writer may reorder or duplicate vertices (PLY: float32): each read vertex has the colour of the mesh's there
+    nearest = np.array([np.argmin(np.abs(mesh.vertices - v).sum(axis=1)) for v in back.vertices])
+    got = np.asarray(back.visual.vertex_colors)[:, :3].astype(int)  # OBJ: floats in [0, 1], read back within 1
+    assert np.abs(got - rgb[nearest]).max() <= 1 and np.ptp(got, axis=0).min() > 50  # the level colours, not one
+    kwargs = {"window_size": (48, 32)}
+    assert np.abs(render.render_mesh(read, **kwargs).astype(int) - render.render_mesh(mesh, **kwargs)).mean() < 2.0
+
+
+def test_face_colours_go_to_pyvista_and_back(tmp_path):
+    """A mesh coloured by face (a PLY or 3MF read back) lost its colours both ways: to_polydata kept vertex colours
+    only, and from_polydata (render_mesh(pv.read("faces.ply")), save_mesh of it) took the cell data "RGBA" VTK's PLY
+    reader gives as a plain face attribute, so the mesh rendered tan. They are now cell data colours, and back."""
+    from stepterrain.export import save_mesh
+    from stepterrain.pyvista_accessor import from_polydata, to_polydata
+
+    _, steps = _coloured_steps()
+    colours = np.random.default_rng(4).integers(0, 256, (len(steps.faces), 4), dtype=np.uint8)
+    colours[:, 3] = 255
+    mesh = trimesh.Trimesh(steps.vertices, steps.faces, process=False, face_colors=colours,
+                           face_attributes={"level": steps.face_attributes["level"]})
+    poly = to_polydata(mesh)
+    assert np.array_equal(poly.cell_data["RGBA"], colours) and poly.cell_data.active_scalars_name == RGBA_ALIAS
+    assert np.array_equal(poly.cell_data["level"], steps.face_attributes["level"])
+    back = from_polydata(poly)
+    assert back.visual.kind == "face" and np.array_equal(back.visual.face_colors, colours)
+    assert set(back.face_attributes) == {"level"}
+    path = tmp_path / "faces.ply"
+    save_mesh(mesh, path)
+    read = pv.read(path)
+    assert np.array_equal(from_polydata(read).visual.face_colors, colours)
+    kwargs = {"window_size": (48, 32)}
+    expected = render.render_mesh(mesh, **kwargs)
+    assert np.array_equal(render.render_mesh(poly, **kwargs), expected)
+    # the PLY's float32 points move an edge pixel or two; tan (_DEFAULT_COLOR) differed by far more
+    assert np.abs(render.render_mesh(read, **kwargs).astype(int) - expected).mean() < 1.0
+
+
+def test_a_pyvista_dataset_without_the_accessor_is_not_told_to_step_itself(tmp_path):
+    """A MultiBlock (pv.read of a GLB) or an UnstructuredGrid given as a mesh was told to pass "its steps,
+    mesh.stepterrain.stepped(...)", an accessor only ImageData, RectilinearGrid and StructuredGrid have (an
+    AttributeError for whoever followed it). Only those grids are told so; every dataset is told of its surface."""
+    from stepterrain.export import save_mesh
+
+    for dataset in (pv.MultiBlock([pv.Sphere()]), pv.UnstructuredGrid(pv.Sphere())):
+        assert not hasattr(dataset, "stepterrain")
+        with pytest.raises(InvalidInputError, match=r"pass its surface, mesh\.extract_surface\(\)\.triangulate\(\)\)"):
+            save_mesh(dataset, tmp_path / "never.glb")
+        assert not (tmp_path / "never.glb").exists()
+    with pytest.raises(InvalidInputError, match=r"or its steps, mesh\.stepterrain\.stepped\(\.\.\.\)"):
+        render.render_mesh(pv.ImageData(dimensions=(3, 3, 1)), window_size=(48, 32))

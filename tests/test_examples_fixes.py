@@ -218,3 +218,21 @@ def test_animations_refuse_frames_over_the_memory_budget_before_any_work(name, a
     err = capsys.readouterr().err
     assert "--frames" in err and "over the memory budget" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []
+
+
+@needs_render
+def test_interactive_initial_view_shows_the_whole_terrain(tmp_path):
+    """The initial view's eye was placed by hand: it cut off the terrain's west and east ends (docs/interactive.png
+    showed the mesh running off both sides). The camera now keeps that direction at the distance that frames it
+    all: the image's left and right columns, and its bottom row, are background."""
+    import numpy as np
+    from PIL import Image
+
+    example = load_example("interactive")
+    out = tmp_path / "view.png"
+    assert example.main(["--size", "40", "--window", "160", "120", "--output", str(out), "--device", "cpu"]) == 0
+    image = np.asarray(Image.open(out))[..., :3]
+    terrain = (image < 250).any(axis=2)
+    terrain[:30] = False  # the sliders
+    assert terrain.sum() > 0.25 * terrain.size, "the terrain fills much of the view"
+    assert not terrain[:, 0].any() and not terrain[:, -1].any() and not terrain[-1].any()
