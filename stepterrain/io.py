@@ -124,7 +124,8 @@ def load_dem(
         antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a ``nodata`` number,
         0-d or in a one-element array, marks missing cells, and so do a boolean ``mask`` (True = missing, as in a
         NumPy masked array: ``np.savez(..., elevation=m.data, mask=m.mask)``) and ``valid`` (True = present) of the
-        heights' shape, either or both), ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
+        heights' shape (or 0-d, for every cell: ``m.mask`` is a 0-d False when no cell is masked), either or both),
+        ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
         alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
         8 bits) or
@@ -1131,8 +1132,9 @@ def npz_missing(
 ) -> NDArray[np.bool_] | None:
     """The cells an .npz marks missing beside its heights ``arrays[key]`` by a boolean ``mask`` (True = missing, as
     in NumPy's masked arrays: ``np.savez(..., elevation=m.data, mask=m.mask)``) and/or ``valid`` (True = present),
-    of the heights' shape; both: a cell is missing if either says so. None without them (or for heights that are not
-    2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
+    of the heights' shape, or 0-d for every cell (NumPy's ``nomask``, the ``m.mask`` of a masked array with no cell
+    masked, saves as a 0-d False); both: a cell is missing if either says so. None without them (or for heights that
+    are not 2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
     read as heights (0 or -32768 pits), and a 0/255 integer mask (GDAL's mask band, 255 = valid) means the opposite
     of a 0/1 one.
 
@@ -1147,7 +1149,9 @@ def npz_missing(
         value = arrays.get(name)
         if value is None:
             continue
-        if value.dtype != np.bool_ or value.shape not in shapes:
+        # a 0-d one is NumPy's nomask, the m.mask of a masked array with no cell masked (np.ma.masked_equal(z, -9999)
+        # of a tile without voids): np.False_, saved as a 0-d False, meaning every cell of the heights
+        if value.dtype != np.bool_ or value.shape not in (*shapes, ()):
             meaning = "present" if present else "missing"
             hint = ""
             if value.dtype.kind in "iu" and value.size and set(np.unique(value).tolist()) <= {0, 1, 255}:
@@ -1161,7 +1165,7 @@ def npz_missing(
             )
         cells = ~value if present else value
         missing = cells if missing is None else missing | cells
-    if missing is not None and missing.shape != heights.shape:  # a frame's mask: the same cells of every frame
+    if missing is not None and missing.shape != heights.shape:  # a frame's or a 0-d mask: the same cells of each frame
         missing = np.broadcast_to(missing, heights.shape)
     return missing
 

@@ -1523,3 +1523,30 @@ def test_load_dem_crop_checks_only_the_window_against_the_memory_budget(tmp_path
             load_dem(path, crop=extent)
     finally:
         st.set_memory_budget(previous)
+
+
+def test_an_npz_mask_of_a_masked_array_with_no_cell_masked_reads_every_cell(tmp_path):
+    """np.savez(..., elevation=m.data, mask=m.mask), the recipe load_dem's docstring gives, was refused for a masked
+    array with no cell masked ("'mask' must be a boolean array of the heights' shape (3, 4) ...; got bool of shape
+    ()"): NumPy then keeps m.mask as nomask, np.False_, saved as a 0-d False (np.ma.masked_equal(z, -9999) of a tile
+    without voids). A 0-d mask or valid applies to every cell, of a grid and of a series, beside a full one too."""
+    from stepterrain.batch import load_series
+
+    z = np.arange(12.0, dtype=np.float32).reshape(3, 4)
+    clean = np.ma.masked_equal(z, -9999.0)
+    assert clean.mask.shape == ()  # NumPy's nomask: the case at hand
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    np.savez(tmp_path / "clean.npz", elevation=clean.data, mask=clean.mask, transform=transform, crs="EPSG:32611")
+    np.savez(tmp_path / "plain.npz", elevation=clean.data, mask=clean.mask)
+    np.savez(tmp_path / "valid.npz", elevation=clean.data, valid=np.True_)
+    for name in ("clean.npz", "plain.npz", "valid.npz"):
+        np.testing.assert_array_equal(load_dem(tmp_path / name).heights, z, err_msg=name)
+    holes = np.eye(3, 4, dtype=bool)
+    np.savez(tmp_path / "both.npz", elevation=z, mask=holes, valid=np.True_)  # the full mask still marks its cells
+    np.testing.assert_array_equal(np.isnan(load_dem(tmp_path / "both.npz").heights), holes)
+    np.savez(tmp_path / "none.npz", elevation=z, valid=np.False_)  # a 0-d "no cell valid": all nodata, refused
+    with pytest.raises(DataFileError, match=r"none\.npz.*all nodata"):
+        load_dem(tmp_path / "none.npz")
+    series = np.ma.masked_equal(np.stack([z, z + 1.0]), -9999.0)
+    np.savez(tmp_path / "series.npz", heights=series.data, mask=series.mask)
+    np.testing.assert_array_equal(load_series(tmp_path / "series.npz"), series.data)
