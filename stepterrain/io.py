@@ -202,7 +202,9 @@ def load_dem(
         EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
         through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
-        named; a GeoTIFF CRS ignored for want of a geotransform; a grid georeferenced without a CRS whose
+        named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
+        ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
+        keeps it); a grid georeferenced without a CRS whose
         coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
         times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
         give it.
@@ -745,7 +747,35 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
         array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
     heights = _elevation(array, file, f"{mode} image", nodata)
     heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
+    _warn_png_georeferencing(file)
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+
+
+def _warn_png_georeferencing(file: Path) -> None:
+    """Warn, at the caller of :func:`load_dem`, when GDAL would georeference the PNG heightmap ``file`` by a world
+    file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, any case) or by a geotransform in its ``dem.png.aux.xml``
+    (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at (0, 0), and a 30 m DEM
+    exported so was meshed 30 times too steep, away from its place, without a word (the texture readers place such
+    a PNG by its world file)."""
+    found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
+                                                                        file.with_suffix(ext.upper()))
+                  if side.is_file()), None)
+    if found is None:
+        aux = file.with_name(file.name + ".aux.xml")
+        try:
+            found = aux if aux.is_file() and "<GeoTransform>" in aux.read_text(errors="replace") else None
+        except OSError:
+            found = None
+    if found is None:
+        return
+    prj = next((side for side in (file.with_suffix(".prj"), file.with_suffix(".PRJ")) if side.is_file()), None)
+    srs = f"-a_srs {prj.name} " if prj is not None else ""
+    warnings.warn(
+        f"{file.name}: its georeferencing in {found.name} is not read: load_dem reads a PNG heightmap as an "
+        f"unreferenced grid, spacing (1, -1) and origin (0, 0); to place it, make it a GeoTIFF, which GDAL reads "
+        f"with it (`gdal_translate {srs}{file.name} {file.stem}.tif`), or give its cell size (the CLI's --spacing)",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:

@@ -1550,3 +1550,36 @@ def test_an_npz_mask_of_a_masked_array_with_no_cell_masked_reads_every_cell(tmp_
     series = np.ma.masked_equal(np.stack([z, z + 1.0]), -9999.0)
     np.savez(tmp_path / "series.npz", heights=series.data, mask=series.mask)
     np.testing.assert_array_equal(load_series(tmp_path / "series.npz"), series.data)
+
+
+def test_a_png_heightmaps_world_file_or_aux_xml_georeferencing_is_named_not_dropped_silently(tmp_path):
+    """A 16-bit PNG heightmap exported by a GIS with its world file (dem.pgw, as GDAL and QGIS write it) or a
+    geotransform in dem.png.aux.xml was read as 1 m cells at (0, 0) without a word: a 30 m DEM meshed 30 times too
+    steep, far from its place (the texture readers place such a PNG by its world file). load_dem still reads it
+    unreferenced, as documented, but warns at the caller, naming the file not read and the gdal_translate (with
+    the .prj's CRS) that makes it a GeoTIFF placed by it; a PNG without one does not warn."""
+    z = (np.arange(12, dtype=np.uint16).reshape(3, 4) * 100)
+    Image.fromarray(z).save(tmp_path / "dem.png")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plain = load_dem(tmp_path / "dem.png")
+    (tmp_path / "dem.pgw").write_text("30\n0\n0\n-30\n500015\n3999985\n")
+    (tmp_path / "dem.prj").write_text('PROJCS["WGS 84 / UTM zone 11N"]')
+    told = (r"dem\.png: its georeferencing in dem\.pgw is not read: .*spacing \(1, -1\) and origin \(0, 0\).*"
+            r"`gdal_translate -a_srs dem\.prj dem\.png dem\.tif`")
+    with pytest.warns(UserWarning, match=told) as got:
+        t = load_dem(tmp_path / "dem.png")
+    assert got[0].filename == __file__  # at the caller's line
+    assert t.spacing == plain.spacing == (1.0, -1.0) and t.origin == (0.0, 0.0)
+    np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    (tmp_path / "dem.pgw").unlink()
+    (tmp_path / "dem.prj").unlink()
+    (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <GeoTransform> 5.0e+05, 3.0e+01, 0.0, 4.0e+06, 0.0, "
+                                              "-3.0e+01</GeoTransform>\n</PAMDataset>\n")
+    with pytest.warns(UserWarning, match=r"its georeferencing in dem\.png\.aux\.xml is not read.*"
+                                         r"`gdal_translate dem\.png dem\.tif`"):
+        load_dem(tmp_path / "dem.png")
+    (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <Metadata/>\n</PAMDataset>\n")  # no geotransform
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(tmp_path / "dem.png")
