@@ -73,6 +73,10 @@ _GENERIC_KEYS = ("heights", "elevation", "z")
 #: (they were ignored, the grid read as 1 m cells at (0, 0)).
 _NPZ_GEOREFERENCE = ("crs", "dx", "dy", "dx_m", "dy_m", "spacing", "origin", "x", "y", "lat", "lon", "units_xy",
                      "cellsize", "xllcorner", "yllcorner", "bounds", "extent")  # fmt: skip
+#: .npz keys that would scale the stored heights (GDAL's band scale and offset, CF's scale_factor and add_offset:
+#: value * scale + offset), which load_dem does not read: refused when they change the values (they were ignored, an
+#: int16 grid of decimetres read as metres, 10 times too high).
+_NPZ_SCALING = {"scale": 1.0, "offset": 0.0, "scale_factor": 1.0, "add_offset": 0.0, "scales": 1.0, "offsets": 0.0}
 #: 2-D .npz members that are never the heights (an archive of one unnamed array and a 'mask' reads the array).
 _NPZ_NOT_HEIGHTS = ("transform", "mask", "valid")
 _NPY_MAGIC = b"\x93NUMPY"
@@ -224,9 +228,10 @@ def load_dem(
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, a ``mask`` or ``valid`` that is not a boolean array of the heights'
-        shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS, nothing but nodata, heights in a
-        unit that is not a known length unit:
+        ``nodata`` that is not one real number, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
+        heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
+        boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
+        nothing but nodata, heights in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -572,6 +577,8 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     if key is None and len(two_d) == 1:
         key = two_d[0]
     latlon = "transform" not in arrays and "lat" in arrays and "lon" in arrays
+    if key is not None:
+        refuse_npz_scaling(arrays, key, file)
     if key is not None and ("transform" in arrays or latlon):
         heights = _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file))
         crs = _npz_text(arrays, "crs", file)
@@ -646,6 +653,28 @@ def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
     :func:`load_dem` refuses them without a ``transform`` or a ``lat`` and ``lon`` pair, and
     :func:`~stepterrain.batch.load_series` (which reads no georeferencing) always, rather than ignore them."""
     return [name for name in arrays if name in _NPZ_GEOREFERENCE]
+
+
+def refuse_npz_scaling(arrays: Mapping[str, Any], key: str, file: Path) -> None:
+    """A DataFileError when an .npz holds a scale or offset of its heights ``arrays[key]`` (:data:`_NPZ_SCALING`:
+    ``scale``/``offset`` as rasterio names a band's, ``scale_factor``/``add_offset`` as CF and xarray do) that is a
+    number other than 1 or 0: :func:`load_dem` (and :func:`~stepterrain.batch.load_series`) take the heights as
+    stored, so an int16 grid of decimetres saved with ``scale=0.1`` read as metres, 10 times too high."""
+    found = []
+    for name, identity in _NPZ_SCALING.items():
+        value = arrays.get(name)
+        if value is None or value.size != 1 or value.dtype.kind not in "iuf":  # not one number: metadata of its own
+            continue
+        number = float(value.reshape(()))
+        if number != identity:
+            found.append(f"{name}={number:g}")
+    if found:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected heights as stored beside {key!r}; got {', '.join(found)}, a scale "
+            "of the stored values (height = value * scale + offset) that load_dem does not read (the heights would "
+            "be taken as stored): save them scaled, e.g. np.savez(..., elevation=np.where(z == nodata, np.nan, "
+            "z * scale + offset)), without those keys"
+        )
 
 
 def _latlon_geotransform(

@@ -1583,3 +1583,29 @@ def test_a_png_heightmaps_world_file_or_aux_xml_georeferencing_is_named_not_drop
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_dem(tmp_path / "dem.png")
+
+
+def test_an_npz_scale_or_offset_of_the_heights_is_refused_not_ignored(tmp_path):
+    """np.savez(..., elevation=src.read(1), scale=src.scales[0], offset=src.offsets[0]) of an int16 GeoTIFF of
+    decimetres (or CF's scale_factor/add_offset, as xarray encodes them) was read as stored: heights 10 times too
+    high, the offset lost, without a word. A scale other than 1 or an offset other than 0 is refused now, by load_dem
+    and load_series, naming them and how to save the heights scaled; 1 and 0 (no scaling) and text read as before."""
+    from stepterrain.batch import load_series
+
+    z = np.array([[10234, 10250, 10300], [10111, 10090, 10020], [9990, 9900, 9850]], np.int16)  # decimetres
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    for name, extra, got in (
+        ("scale.npz", {"scale": 0.1, "transform": transform, "crs": "EPSG:32611"}, "scale=0.1"),
+        ("cf.npz", {"scale_factor": np.float32(0.5), "add_offset": [100.0]}, "scale_factor=0.5, add_offset=100"),
+        ("offset.npz", {"offsets": np.array([-500.0]), "scales": np.array([1.0])}, "offsets=-500"),
+    ):
+        np.savez(tmp_path / name, elevation=z, **extra)
+        with pytest.raises(DataFileError, match=rf"{name}.*beside 'elevation'; got {got}, a scale of the stored "
+                                                r"values \(height = value \* scale \+ offset\) that load_dem does not "
+                                                r"read.*z \* scale \+ offset"):
+            load_dem(tmp_path / name)
+    np.savez(tmp_path / "series.npz", heights=np.stack([z, z]), scale_factor=0.1)
+    with pytest.raises(DataFileError, match=r"series\.npz.*got scale_factor=0\.1"):
+        load_series(tmp_path / "series.npz")
+    np.savez(tmp_path / "identity.npz", elevation=z, scale=1.0, offset=0, scale_factor="1:24000")
+    np.testing.assert_array_equal(load_dem(tmp_path / "identity.npz").heights, z.astype(np.float32))
