@@ -945,6 +945,7 @@ def _load_geotiff(
     if unmasked is not None:
         mask = unmasked if mask is np.ma.nomask else np.logical_or(mask, unmasked, out=unmasked)
     del unmasked
+    _warn_void_values(file, masked.data, None if mask is np.ma.nomask else mask, f"band {band}")
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         array = masked.data.astype(np.float64)
         array *= scale
@@ -1252,6 +1253,39 @@ def _elevation(
     return nodata_as_nan(array, file, what, nodata, missing)
 
 
+def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
+    """Warn, at the caller of :func:`load_dem`, when cells of the stored values ``data`` that no nodata value or mask
+    marks (``missing``, of its shape, or None) hold the lowest value of a signed integer dtype of 16 bits or more
+    (-32768, the void of SRTM and most int16 DEMs) or of a float dtype (-3.4028235e+38, ArcGIS's float32 NoData): no
+    elevation, but a file that lost its nodata value. They were read as heights without a word: a pit 33 km deep in
+    the mesh, or "3.4e+37 levels" refused by stepped. One reduction finds the lowest value; only when it is the
+    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size)."""
+    kind = data.dtype.kind
+    if data.size == 0 or not (kind == "f" or (kind == "i" and data.dtype.itemsize >= 2)):
+        return
+    sentinel = (np.finfo if kind == "f" else np.iinfo)(data.dtype).min
+    lowest = np.fmin.reduce(data, axis=None) if kind == "f" else data.min()  # fmin: NaN cells pass over
+    if lowest != sentinel:
+        return
+    count, rows = 0, max(1, (1 << 20) // max(1, data[0].size))
+    for start in range(0, data.shape[0], rows):
+        hit = data[start:start + rows] == sentinel
+        if missing is not None:
+            hit &= ~missing[start:start + rows]
+        count += int(np.count_nonzero(hit))
+    if count:
+        value = f"{float(sentinel):.8g}" if kind == "f" else str(int(sentinel))
+        hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
+                f"save a 'nodata' of {value} beside the heights" if file.suffix.lower() == ".npz" else
+                f"save it as an .npz with a 'nodata' of {value}")
+        warnings.warn(
+            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
+            f"{data.dtype} value, which marks voids, but no nodata value or mask of the file marks them: read as "
+            f"heights; if they are voids, declare it ({hint})",
+            stacklevel=caller_stacklevel(),
+        )
+
+
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
     missing: NDArray[np.bool_] | None = None,
@@ -1267,6 +1301,7 @@ def nodata_as_nan(
             hits = equals_nodata(array, nodata)
     if missing is not None:
         hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
+    _warn_void_values(file, array, hits, what)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX

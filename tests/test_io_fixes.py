@@ -1609,3 +1609,53 @@ def test_an_npz_scale_or_offset_of_the_heights_is_refused_not_ignored(tmp_path):
         load_series(tmp_path / "series.npz")
     np.savez(tmp_path / "identity.npz", elevation=z, scale=1.0, offset=0, scale_factor="1:24000")
     np.testing.assert_array_equal(load_dem(tmp_path / "identity.npz").heights, z.astype(np.float32))
+
+
+def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named_as_a_likely_void(tmp_path):
+    """An int16 DEM whose nodata tag was lost (SRTM voids are -32768) or a float32 one holding ArcGIS's NoData
+    -3.4028235e+38 without declaring it was read as heights without a word: a pit 33 km deep in the mesh, or
+    stepped's "3.4e+37 levels" refusal naming no void. They are still read as stored (as GDAL reads them), but
+    load_dem warns at the caller, counting the cells and naming the nodata value to declare; cells a nodata value or
+    mask marks, other dtypes' extremes (a 16-bit PNG's 65535 peak) and a crop's window without them do not warn."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    def geotiff(name, z, **profile):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", height=z.shape[0], width=z.shape[1], count=1,
+                           dtype=z.dtype, crs="EPSG:32611", transform=Affine(30.0, 0.0, 500000.0, 0.0, -30.0,
+                                                                             4000000.0), **profile) as dataset:
+            dataset.write(z, 1)
+        return tmp_path / name
+
+    def told(path, **kwargs):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            terrain = load_dem(path, **kwargs)
+        return terrain, [str(w.message) for w in caught if "marks voids" in str(w.message)], caught
+
+    z = np.add.outer(np.arange(5), np.arange(6)).astype(np.int16) * 10 + 1000
+    z[1, 2] = z[3, 4] = -32768
+    terrain, messages, caught = told(geotiff("voids.tif", z))
+    assert messages == ["voids.tif: 2 cells of band 1 hold -32768, the lowest int16 value, which marks voids, but no "
+                        "nodata value or mask of the file marks them: read as heights; if they are voids, declare it "
+                        "(`gdal_edit.py -a_nodata -32768 voids.tif`)"]
+    assert caught[0].filename == __file__
+    np.testing.assert_array_equal(terrain.heights, z.astype(np.float32))  # read as stored, as documented
+    assert told(geotiff("window.tif", z), crop=(500000, 500050, 3999900, 4000000))[1] == []  # a window without them
+    assert len(told(tmp_path / "window.tif", crop=(500000, 500100, 3999900, 4000000))[1]) == 1  # with one
+    terrain, messages, _ = told(geotiff("declared.tif", z, nodata=-32768))
+    assert messages == [] and np.isnan(terrain.heights).sum() == 2
+    f = z.astype(np.float32)
+    f[1, 2] = f[3, 4] = np.finfo(np.float32).min
+    assert told(geotiff("arcgis.tif", f, nodata=float(np.finfo(np.float32).min)))[1] == []
+    np.save(tmp_path / "lowest.npy", f)
+    assert told(tmp_path / "lowest.npy")[1] == [
+        "lowest.npy: 2 cells of array hold -3.4028235e+38, the lowest float32 value, which marks voids, but no nodata "
+        "value or mask of the file marks them: read as heights; if they are voids, declare it (save it as an .npz with "
+        "a 'nodata' of -3.4028235e+38)"]
+    np.savez(tmp_path / "other.npz", elevation=z, nodata=-9999)  # another nodata value: the -32768 cells unmarked
+    assert told(tmp_path / "other.npz")[1][0].endswith("(save a 'nodata' of -32768 beside the heights)")
+    np.savez(tmp_path / "masked.npz", elevation=z, mask=z == -32768)
+    assert told(tmp_path / "masked.npz")[1] == []
+    Image.fromarray(np.where(z < 0, 65535, z).astype(np.uint16)).save(tmp_path / "peak.png")
+    assert told(tmp_path / "peak.png")[1] == []
