@@ -208,7 +208,9 @@ def load_dem(
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
         named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
         ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
-        keeps it); a grid georeferenced without a CRS whose
+        keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
+        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
+        and named with the nodata value to declare; a grid georeferenced without a CRS whose
         coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
         times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
         give it.
