@@ -32,7 +32,7 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
-from .io import equals_nodata, npz_nodata
+from .io import _NPZ_SCALING, equals_nodata, npz_missing, npz_nodata, refuse_npz_scaling
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
 
@@ -95,8 +95,9 @@ def add_parser(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value are "
-                        "refused: fill them first), or a GeoTIFF in degrees (EPSG:4326; nodata refused as well); "
+                   help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value, "
+                        "or marked by a boolean mask or valid, are refused: fill them first), or a GeoTIFF in degrees "
+                        "(EPSG:4326; nodata refused as well); "
                         "default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
@@ -166,20 +167,28 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         try:
             lat, lon, elevation = np.asarray(data["lat"]), np.asarray(data["lon"]), np.asarray(data["elevation"])
             nodata = npz_nodata(data["nodata"] if "nodata" in data.files else None, file)
+            # a boolean mask/valid and a scale, as load_dem reads and refuses them (they were ignored here)
+            beside = {key: np.asarray(data[key]) for key in ("mask", "valid", *_NPZ_SCALING) if key in data.files}
         except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
             raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
     if elevation.ndim != 2:  # the progress line reads its shape before Globe.from_latlon checks it
         raise InvalidInputError(f"{path!r}: 'elevation' must be a 2-D (H, W) array; got shape {elevation.shape}")
+    refuse_npz_scaling(beside, "elevation", file)
+    # the cells a boolean mask or valid marks (as io.load_dem reads them) were meshed as their stored values
+    missing = npz_missing({"elevation": elevation, **beside}, "elevation", file)
+    marked_by = [" or ".join(repr(key) for key in ("mask", "valid") if key in beside)] if missing is not None else []
     if nodata is not None and elevation.dtype.kind in "iuf":  # (other dtypes: Globe.from_latlon names them)
         # the nodata cells (as io.load_dem finds them) were meshed as heights: a -32768 m pit per missing cell
         with np.errstate(over="ignore"):  # a nodata beyond the dtype: no cell
-            missing = equals_nodata(elevation, nodata)
-        if missing.any():
-            row, col = np.argwhere(missing)[0]
-            cells = _counted(int(missing.sum()), "nodata cell")
-            raise InvalidInputError(f"{path!r}: 'elevation' has {cells} (nodata {nodata:g}; first at row {row}, "
-                                    f"column {col}); the globe needs a height everywhere: fill "
-                                    "them first (e.g. from neighbours)")
+            hits = equals_nodata(elevation, nodata)
+        missing = hits if missing is None else hits | missing
+        marked_by.insert(0, f"nodata {nodata:g}")
+    if missing is not None and missing.any():
+        row, col = np.argwhere(missing)[0]
+        cells = _counted(int(missing.sum()), "nodata cell")
+        raise InvalidInputError(f"{path!r}: 'elevation' has {cells} ({', '.join(marked_by)}; first at row {row}, "
+                                f"column {col}); the globe needs a height everywhere: fill "
+                                "them first (e.g. from neighbours)")
     return lat, lon, elevation
 
 

@@ -411,6 +411,7 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
         npz_nodata,
         read_npy,
         read_npz,
+        refuse_npz_scaling,
     )
 
     file = Path(os.fspath(path))
@@ -430,6 +431,7 @@ def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
                 "would be ignored: drop those keys to mesh it unreferenced, or save each frame as a 2-D .npz with its "
                 "georeferencing for load_dem (a folder of them is a batch source)"
             )
+        refuse_npz_scaling(loaded, key, file)  # as load_dem refuses a scale it does not read
         stack, what, nodata = loaded[key], repr(key), npz_nodata(loaded.get("nodata"), file)
     if stack.ndim != 3:
         return None

@@ -73,6 +73,10 @@ _GENERIC_KEYS = ("heights", "elevation", "z")
 #: (they were ignored, the grid read as 1 m cells at (0, 0)).
 _NPZ_GEOREFERENCE = ("crs", "dx", "dy", "dx_m", "dy_m", "spacing", "origin", "x", "y", "lat", "lon", "units_xy",
                      "cellsize", "xllcorner", "yllcorner", "bounds", "extent")  # fmt: skip
+#: .npz keys that would scale the stored heights (GDAL's band scale and offset, CF's scale_factor and add_offset:
+#: value * scale + offset), which load_dem does not read: refused when they change the values (they were ignored, an
+#: int16 grid of decimetres read as metres, 10 times too high).
+_NPZ_SCALING = {"scale": 1.0, "offset": 0.0, "scale_factor": 1.0, "add_offset": 0.0, "scales": 1.0, "offsets": 0.0}
 #: 2-D .npz members that are never the heights (an archive of one unnamed array and a 'mask' reads the array).
 _NPZ_NOT_HEIGHTS = ("transform", "mask", "valid")
 _NPY_MAGIC = b"\x93NUMPY"
@@ -124,7 +128,8 @@ def load_dem(
         antimeridian, [179.5, -179.5, ...]: a step of 1 degree, read as [179.5, 180.5, ...]); a ``nodata`` number,
         0-d or in a one-element array, marks missing cells, and so do a boolean ``mask`` (True = missing, as in a
         NumPy masked array: ``np.savez(..., elevation=m.data, mask=m.mask)``) and ``valid`` (True = present) of the
-        heights' shape, either or both), ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
+        heights' shape (or 0-d, for every cell: ``m.mask`` is a 0-d False when no cell is masked), either or both),
+        ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
         alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
         8 bits) or
@@ -201,7 +206,11 @@ def load_dem(
         EPSG:3031 by 3 % at the poles); a UTM grid of a zone's extent and a small local grid do not. It is measured
         through PROJ (so with rasterio only) at up to 7 x 7 nodes of the grid, its corners and edges included; the
         message names the worst node and its scales. Also: a grid converted to metres whose heights' unit is not
-        named; a GeoTIFF CRS ignored for want of a geotransform; a grid georeferenced without a CRS whose
+        named; a GeoTIFF CRS ignored for want of a geotransform; a PNG's world file (``.pgw``, ``.wld``) or
+        ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
+        keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
+        int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
+        and named with the nodata value to declare; a grid georeferenced without a CRS whose
         coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
         times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
         give it.
@@ -221,9 +230,10 @@ def load_dem(
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, a ``mask`` or ``valid`` that is not a boolean array of the heights'
-        shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS, nothing but nodata, heights in a
-        unit that is not a known length unit:
+        ``nodata`` that is not one real number, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
+        heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
+        boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
+        nothing but nodata, heights in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -566,6 +576,8 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
     if key is None and len(two_d) == 1:
         key = two_d[0]
     latlon = "transform" not in arrays and "lat" in arrays and "lon" in arrays
+    if key is not None:
+        refuse_npz_scaling(arrays, key, file)
     if key is not None and ("transform" in arrays or latlon):
         heights = _elevation(arrays[key], file, repr(key), nodata, npz_missing(arrays, key, file))
         crs = _npz_text(arrays, "crs", file)
@@ -640,6 +652,28 @@ def npz_georeference_keys(arrays: Mapping[str, Any]) -> list[str]:
     :func:`load_dem` refuses them without a ``transform`` or a ``lat`` and ``lon`` pair, and
     :func:`~stepterrain.batch.load_series` (which reads no georeferencing) always, rather than ignore them."""
     return [name for name in arrays if name in _NPZ_GEOREFERENCE]
+
+
+def refuse_npz_scaling(arrays: Mapping[str, Any], key: str, file: Path) -> None:
+    """A DataFileError when an .npz holds a scale or offset of its heights ``arrays[key]`` (:data:`_NPZ_SCALING`:
+    ``scale``/``offset`` as rasterio names a band's, ``scale_factor``/``add_offset`` as CF and xarray do) that is a
+    number other than 1 or 0: :func:`load_dem` (and :func:`~stepterrain.batch.load_series`) take the heights as
+    stored, so an int16 grid of decimetres saved with ``scale=0.1`` read as metres, 10 times too high."""
+    found = []
+    for name, identity in _NPZ_SCALING.items():
+        value = arrays.get(name)
+        if value is None or value.size != 1 or value.dtype.kind not in "iuf":  # not one number: metadata of its own
+            continue
+        number = float(value.reshape(()))
+        if number != identity:
+            found.append(f"{name}={number:g}")
+    if found:
+        raise DataFileError(
+            f"cannot read {str(file)!r}: expected heights as stored beside {key!r}; got {', '.join(found)}, a scale "
+            "of the stored values (height = value * scale + offset) that load_dem does not read (the heights would "
+            "be taken as stored): save them scaled, e.g. np.savez(..., elevation=np.where(z == nodata, np.nan, "
+            "z * scale + offset)), without those keys"
+        )
 
 
 def _latlon_geotransform(
@@ -741,7 +775,35 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
         array = np.where(array[..., 1] == 0, np.float32(np.nan), array[..., 0].astype(np.float32))
     heights = _elevation(array, file, f"{mode} image", nodata)
     heights, unit = _heights_in_metres(heights, height_unit, file, "height_unit")
+    _warn_png_georeferencing(file)
     return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=unit)
+
+
+def _warn_png_georeferencing(file: Path) -> None:
+    """Warn, at the caller of :func:`load_dem`, when GDAL would georeference the PNG heightmap ``file`` by a world
+    file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, any case) or by a geotransform in its ``dem.png.aux.xml``
+    (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at (0, 0), and a 30 m DEM
+    exported so was meshed 30 times too steep, away from its place, without a word (the texture readers place such
+    a PNG by its world file)."""
+    found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
+                                                                        file.with_suffix(ext.upper()))
+                  if side.is_file()), None)
+    if found is None:
+        aux = file.with_name(file.name + ".aux.xml")
+        try:
+            found = aux if aux.is_file() and "<GeoTransform>" in aux.read_text(errors="replace") else None
+        except OSError:
+            found = None
+    if found is None:
+        return
+    prj = next((side for side in (file.with_suffix(".prj"), file.with_suffix(".PRJ")) if side.is_file()), None)
+    srs = f"-a_srs {prj.name} " if prj is not None else ""
+    warnings.warn(
+        f"{file.name}: its georeferencing in {found.name} is not read: load_dem reads a PNG heightmap as an "
+        f"unreferenced grid, spacing (1, -1) and origin (0, 0); to place it, make it a GeoTIFF, which GDAL reads "
+        f"with it (`gdal_translate {srs}{file.name} {file.stem}.tif`), or give its cell size (the CLI's --spacing)",
+        stacklevel=caller_stacklevel(),
+    )
 
 
 def picture_uint8(picture: Any, what: str, *, alpha: bool = False) -> NDArray[np.uint8]:
@@ -882,6 +944,7 @@ def _load_geotiff(
     if unmasked is not None:
         mask = unmasked if mask is np.ma.nomask else np.logical_or(mask, unmasked, out=unmasked)
     del unmasked
+    _warn_void_values(file, masked.data, None if mask is np.ma.nomask else mask, f"band {band}")
     if scale != 1.0 or offset != 0.0:  # stored values -> heights, GDAL's convention: value * scale + offset
         array = masked.data.astype(np.float64)
         array *= scale
@@ -1140,8 +1203,9 @@ def npz_missing(
 ) -> NDArray[np.bool_] | None:
     """The cells an .npz marks missing beside its heights ``arrays[key]`` by a boolean ``mask`` (True = missing, as
     in NumPy's masked arrays: ``np.savez(..., elevation=m.data, mask=m.mask)``) and/or ``valid`` (True = present),
-    of the heights' shape; both: a cell is missing if either says so. None without them (or for heights that are not
-    2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
+    of the heights' shape, or 0-d for every cell (NumPy's ``nomask``, the ``m.mask`` of a masked array with no cell
+    masked, saves as a 0-d False); both: a cell is missing if either says so. None without them (or for heights that
+    are not 2-D, refused as such). Any other dtype or shape is a DataFileError: such keys were ignored, the masked cells
     read as heights (0 or -32768 pits), and a 0/255 integer mask (GDAL's mask band, 255 = valid) means the opposite
     of a 0/1 one.
 
@@ -1156,7 +1220,9 @@ def npz_missing(
         value = arrays.get(name)
         if value is None:
             continue
-        if value.dtype != np.bool_ or value.shape not in shapes:
+        # a 0-d one is NumPy's nomask, the m.mask of a masked array with no cell masked (np.ma.masked_equal(z, -9999)
+        # of a tile without voids): np.False_, saved as a 0-d False, meaning every cell of the heights
+        if value.dtype != np.bool_ or value.shape not in (*shapes, ()):
             meaning = "present" if present else "missing"
             hint = ""
             if value.dtype.kind in "iu" and value.size and set(np.unique(value).tolist()) <= {0, 1, 255}:
@@ -1170,7 +1236,7 @@ def npz_missing(
             )
         cells = ~value if present else value
         missing = cells if missing is None else missing | cells
-    if missing is not None and missing.shape != heights.shape:  # a frame's mask: the same cells of every frame
+    if missing is not None and missing.shape != heights.shape:  # a frame's or a 0-d mask: the same cells of each frame
         missing = np.broadcast_to(missing, heights.shape)
     return missing
 
@@ -1198,6 +1264,39 @@ def _elevation(
     return nodata_as_nan(array, file, what, nodata, missing)
 
 
+def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
+    """Warn, at the caller of :func:`load_dem`, when cells of the stored values ``data`` that no nodata value or mask
+    marks (``missing``, of its shape, or None) hold the lowest value of a signed integer dtype of 16 bits or more
+    (-32768, the void of SRTM and most int16 DEMs) or of a float dtype (-3.4028235e+38, ArcGIS's float32 NoData): no
+    elevation, but a file that lost its nodata value. They were read as heights without a word: a pit 33 km deep in
+    the mesh, or "3.4e+37 levels" refused by stepped. One reduction finds the lowest value; only when it is the
+    sentinel are its cells counted, a block of rows at a time (no temporary of the grid's size)."""
+    kind = data.dtype.kind
+    if data.size == 0 or not (kind == "f" or (kind == "i" and data.dtype.itemsize >= 2)):
+        return
+    sentinel = (np.finfo if kind == "f" else np.iinfo)(data.dtype).min
+    lowest = np.fmin.reduce(data, axis=None) if kind == "f" else data.min()  # fmin: NaN cells pass over
+    if lowest != sentinel:
+        return
+    count, rows = 0, max(1, (1 << 20) // max(1, data[0].size))
+    for start in range(0, data.shape[0], rows):
+        hit = data[start:start + rows] == sentinel
+        if missing is not None:
+            hit &= ~missing[start:start + rows]
+        count += int(np.count_nonzero(hit))
+    if count:
+        value = f"{float(sentinel):.8g}" if kind == "f" else str(int(sentinel))
+        hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
+                f"save a 'nodata' of {value} beside the heights" if file.suffix.lower() == ".npz" else
+                f"save it as an .npz with a 'nodata' of {value}")
+        warnings.warn(
+            f"{file.name}: {counted(count, 'cell')} of {what} {'holds' if count == 1 else 'hold'} {value}, the lowest "
+            f"{data.dtype} value, which marks voids, but no nodata value or mask of the file marks them: read as "
+            f"heights; if they are voids, declare it ({hint})",
+            stacklevel=caller_stacklevel(),
+        )
+
+
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
     missing: NDArray[np.bool_] | None = None,
@@ -1213,6 +1312,7 @@ def nodata_as_nan(
             hits = equals_nodata(array, nodata)
     if missing is not None:
         hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
+    _warn_void_values(file, array, hits, what)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX

@@ -254,6 +254,38 @@ def test_the_cli_refuses_nodata_cells_of_a_global_npz_by_name(tmp_path, capsys, 
     assert main(argv) == 0 and out.exists()
 
 
+def test_the_cli_refuses_the_masked_cells_and_the_scale_of_a_global_npz_as_load_dem_reads_them(tmp_path, capsys):
+    """``stepterrain globe`` read a global .npz's 'elevation', 'lat', 'lon' and 'nodata' only: a boolean 'mask'
+    (np.savez(..., elevation=m.data, mask=m.mask)) or 'valid' beside them was ignored, its cells meshed as their
+    stored values (-32768 m pits), and a 'scale'/'offset' too (heights 10 times too high). Masked cells are refused
+    now as nodata cells are, naming what marks them, and a scale as load_dem refuses it; a masked array's mask with
+    no cell masked (NumPy's 0-d nomask) meshes."""
+    from stepterrain.cli import main
+
+    elevation = np.zeros((180, 360), np.int16)
+    elevation[3, 7] = elevation[100, 200] = -32768
+    grid, out = tmp_path / "grid.npz", tmp_path / "g.ply"
+    argv = ["globe", str(grid), "--face-size", "9", "--no-camera", "-o", str(out), "--device", "cpu"]
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, mask=elevation == -32768)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert f"error: {str(grid)!r}: 'elevation' has 2 nodata cells ('mask'; first at row 3, column 7); the globe " \
+           "needs a height everywhere" in err, err
+    valid = np.ones(elevation.shape, bool)
+    valid[50, 60] = False
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, valid=valid, nodata=np.int16(-32768))
+    assert main(argv) == 2
+    assert "has 3 nodata cells (nodata -32768, 'valid'; first at row 3, column 7)" in capsys.readouterr().err
+    elevation[elevation == -32768] = 0
+    np.savez(grid, elevation=elevation, lat=LAT1, lon=LON1, scale_factor=0.1)
+    assert main(argv) == 2
+    assert "got scale_factor=0.1, a scale of the stored values" in capsys.readouterr().err
+    assert not out.exists()
+    clean = np.ma.masked_equal(elevation, -32768)  # no cell masked: its mask is a 0-d False
+    np.savez(grid, elevation=clean.data, lat=LAT1, lon=LON1, mask=clean.mask)
+    assert main(argv) == 0 and out.exists()
+
+
 def test_a_finite_height_beyond_float32_is_named_as_such():
     """A finite float64 height of 1e39 overflowed to inf in the float32 cast (with numpy's RuntimeWarning) and was
     reported as one of the 'NaN or infinite values' to fill, for the globe and the planar mesh alike."""

@@ -1523,3 +1523,139 @@ def test_load_dem_crop_checks_only_the_window_against_the_memory_budget(tmp_path
             load_dem(path, crop=extent)
     finally:
         st.set_memory_budget(previous)
+
+
+def test_an_npz_mask_of_a_masked_array_with_no_cell_masked_reads_every_cell(tmp_path):
+    """np.savez(..., elevation=m.data, mask=m.mask), the recipe load_dem's docstring gives, was refused for a masked
+    array with no cell masked ("'mask' must be a boolean array of the heights' shape (3, 4) ...; got bool of shape
+    ()"): NumPy then keeps m.mask as nomask, np.False_, saved as a 0-d False (np.ma.masked_equal(z, -9999) of a tile
+    without voids). A 0-d mask or valid applies to every cell, of a grid and of a series, beside a full one too."""
+    from stepterrain.batch import load_series
+
+    z = np.arange(12.0, dtype=np.float32).reshape(3, 4)
+    clean = np.ma.masked_equal(z, -9999.0)
+    assert clean.mask.shape == ()  # NumPy's nomask: the case at hand
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    np.savez(tmp_path / "clean.npz", elevation=clean.data, mask=clean.mask, transform=transform, crs="EPSG:32611")
+    np.savez(tmp_path / "plain.npz", elevation=clean.data, mask=clean.mask)
+    np.savez(tmp_path / "valid.npz", elevation=clean.data, valid=np.True_)
+    for name in ("clean.npz", "plain.npz", "valid.npz"):
+        np.testing.assert_array_equal(load_dem(tmp_path / name).heights, z, err_msg=name)
+    holes = np.eye(3, 4, dtype=bool)
+    np.savez(tmp_path / "both.npz", elevation=z, mask=holes, valid=np.True_)  # the full mask still marks its cells
+    np.testing.assert_array_equal(np.isnan(load_dem(tmp_path / "both.npz").heights), holes)
+    np.savez(tmp_path / "none.npz", elevation=z, valid=np.False_)  # a 0-d "no cell valid": all nodata, refused
+    with pytest.raises(DataFileError, match=r"none\.npz.*all nodata"):
+        load_dem(tmp_path / "none.npz")
+    series = np.ma.masked_equal(np.stack([z, z + 1.0]), -9999.0)
+    np.savez(tmp_path / "series.npz", heights=series.data, mask=series.mask)
+    np.testing.assert_array_equal(load_series(tmp_path / "series.npz"), series.data)
+
+
+def test_a_png_heightmaps_world_file_or_aux_xml_georeferencing_is_named_not_dropped_silently(tmp_path):
+    """A 16-bit PNG heightmap exported by a GIS with its world file (dem.pgw, as GDAL and QGIS write it) or a
+    geotransform in dem.png.aux.xml was read as 1 m cells at (0, 0) without a word: a 30 m DEM meshed 30 times too
+    steep, far from its place (the texture readers place such a PNG by its world file). load_dem still reads it
+    unreferenced, as documented, but warns at the caller, naming the file not read and the gdal_translate (with
+    the .prj's CRS) that makes it a GeoTIFF placed by it; a PNG without one does not warn."""
+    z = (np.arange(12, dtype=np.uint16).reshape(3, 4) * 100)
+    Image.fromarray(z).save(tmp_path / "dem.png")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        plain = load_dem(tmp_path / "dem.png")
+    (tmp_path / "dem.pgw").write_text("30\n0\n0\n-30\n500015\n3999985\n")
+    (tmp_path / "dem.prj").write_text('PROJCS["WGS 84 / UTM zone 11N"]')
+    told = (r"dem\.png: its georeferencing in dem\.pgw is not read: .*spacing \(1, -1\) and origin \(0, 0\).*"
+            r"`gdal_translate -a_srs dem\.prj dem\.png dem\.tif`")
+    with pytest.warns(UserWarning, match=told) as got:
+        t = load_dem(tmp_path / "dem.png")
+    assert got[0].filename == __file__  # at the caller's line
+    assert t.spacing == plain.spacing == (1.0, -1.0) and t.origin == (0.0, 0.0)
+    np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    (tmp_path / "dem.pgw").unlink()
+    (tmp_path / "dem.prj").unlink()
+    (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <GeoTransform> 5.0e+05, 3.0e+01, 0.0, 4.0e+06, 0.0, "
+                                              "-3.0e+01</GeoTransform>\n</PAMDataset>\n")
+    with pytest.warns(UserWarning, match=r"its georeferencing in dem\.png\.aux\.xml is not read.*"
+                                         r"`gdal_translate dem\.png dem\.tif`"):
+        load_dem(tmp_path / "dem.png")
+    (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <Metadata/>\n</PAMDataset>\n")  # no geotransform
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(tmp_path / "dem.png")
+
+
+def test_an_npz_scale_or_offset_of_the_heights_is_refused_not_ignored(tmp_path):
+    """np.savez(..., elevation=src.read(1), scale=src.scales[0], offset=src.offsets[0]) of an int16 GeoTIFF of
+    decimetres (or CF's scale_factor/add_offset, as xarray encodes them) was read as stored: heights 10 times too
+    high, the offset lost, without a word. A scale other than 1 or an offset other than 0 is refused now, by load_dem
+    and load_series, naming them and how to save the heights scaled; 1 and 0 (no scaling) and text read as before."""
+    from stepterrain.batch import load_series
+
+    z = np.array([[10234, 10250, 10300], [10111, 10090, 10020], [9990, 9900, 9850]], np.int16)  # decimetres
+    transform = np.array([500000.0, 30.0, 0.0, 4000000.0, 0.0, -30.0])
+    for name, extra, got in (
+        ("scale.npz", {"scale": 0.1, "transform": transform, "crs": "EPSG:32611"}, "scale=0.1"),
+        ("cf.npz", {"scale_factor": np.float32(0.5), "add_offset": [100.0]}, "scale_factor=0.5, add_offset=100"),
+        ("offset.npz", {"offsets": np.array([-500.0]), "scales": np.array([1.0])}, "offsets=-500"),
+    ):
+        np.savez(tmp_path / name, elevation=z, **extra)
+        with pytest.raises(DataFileError, match=rf"{name}.*beside 'elevation'; got {got}, a scale of the stored "
+                                                r"values \(height = value \* scale \+ offset\) that load_dem does not "
+                                                r"read.*z \* scale \+ offset"):
+            load_dem(tmp_path / name)
+    np.savez(tmp_path / "series.npz", heights=np.stack([z, z]), scale_factor=0.1)
+    with pytest.raises(DataFileError, match=r"series\.npz.*got scale_factor=0\.1"):
+        load_series(tmp_path / "series.npz")
+    np.savez(tmp_path / "identity.npz", elevation=z, scale=1.0, offset=0, scale_factor="1:24000")
+    np.testing.assert_array_equal(load_dem(tmp_path / "identity.npz").heights, z.astype(np.float32))
+
+
+def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named_as_a_likely_void(tmp_path):
+    """An int16 DEM whose nodata tag was lost (SRTM voids are -32768) or a float32 one holding ArcGIS's NoData
+    -3.4028235e+38 without declaring it was read as heights without a word: a pit 33 km deep in the mesh, or
+    stepped's "3.4e+37 levels" refusal naming no void. They are still read as stored (as GDAL reads them), but
+    load_dem warns at the caller, counting the cells and naming the nodata value to declare; cells a nodata value or
+    mask marks, other dtypes' extremes (a 16-bit PNG's 65535 peak) and a crop's window without them do not warn."""
+    import rasterio
+    from rasterio.transform import Affine
+
+    def geotiff(name, z, **profile):
+        with rasterio.open(tmp_path / name, "w", driver="GTiff", height=z.shape[0], width=z.shape[1], count=1,
+                           dtype=z.dtype, crs="EPSG:32611", transform=Affine(30.0, 0.0, 500000.0, 0.0, -30.0,
+                                                                             4000000.0), **profile) as dataset:
+            dataset.write(z, 1)
+        return tmp_path / name
+
+    def told(path, **kwargs):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            terrain = load_dem(path, **kwargs)
+        return terrain, [str(w.message) for w in caught if "marks voids" in str(w.message)], caught
+
+    z = np.add.outer(np.arange(5), np.arange(6)).astype(np.int16) * 10 + 1000
+    z[1, 2] = z[3, 4] = -32768
+    terrain, messages, caught = told(geotiff("voids.tif", z))
+    assert messages == ["voids.tif: 2 cells of band 1 hold -32768, the lowest int16 value, which marks voids, but no "
+                        "nodata value or mask of the file marks them: read as heights; if they are voids, declare it "
+                        "(`gdal_edit.py -a_nodata -32768 voids.tif`)"]
+    assert caught[0].filename == __file__
+    np.testing.assert_array_equal(terrain.heights, z.astype(np.float32))  # read as stored, as documented
+    assert told(geotiff("window.tif", z), crop=(500000, 500050, 3999900, 4000000))[1] == []  # a window without them
+    assert len(told(tmp_path / "window.tif", crop=(500000, 500100, 3999900, 4000000))[1]) == 1  # with one
+    terrain, messages, _ = told(geotiff("declared.tif", z, nodata=-32768))
+    assert messages == [] and np.isnan(terrain.heights).sum() == 2
+    f = z.astype(np.float32)
+    f[1, 2] = f[3, 4] = np.finfo(np.float32).min
+    assert told(geotiff("arcgis.tif", f, nodata=float(np.finfo(np.float32).min)))[1] == []
+    np.save(tmp_path / "lowest.npy", f)
+    assert told(tmp_path / "lowest.npy")[1] == [
+        "lowest.npy: 2 cells of array hold -3.4028235e+38, the lowest float32 value, which marks voids, but no nodata "
+        "value or mask of the file marks them: read as heights; if they are voids, declare it (save it as an .npz with "
+        "a 'nodata' of -3.4028235e+38)"]
+    np.savez(tmp_path / "other.npz", elevation=z, nodata=-9999)  # another nodata value: the -32768 cells unmarked
+    assert told(tmp_path / "other.npz")[1][0].endswith("(save a 'nodata' of -32768 beside the heights)")
+    np.savez(tmp_path / "masked.npz", elevation=z, mask=z == -32768)
+    assert told(tmp_path / "masked.npz")[1] == []
+    Image.fromarray(np.where(z < 0, 65535, z).astype(np.uint16)).save(tmp_path / "peak.png")
+    assert told(tmp_path / "peak.png")[1] == []
