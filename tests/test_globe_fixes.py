@@ -1244,3 +1244,33 @@ def test_a_globe_drape_renders_its_poles_in_their_own_colours():
                                        camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
         middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
         assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+
+
+@needs_render
+def test_a_globe_drape_read_back_keeps_its_sampler_and_its_poles(tmp_path):
+    """trimesh's glTF reader ignores samplers: a globe drape's GLB read back (read_mesh) lost its wrap, rendered its
+    poles blended with each other again and was written again without its sampler. read_mesh now gives the
+    material the sampler's wrap modes (from the JSON it has read): the re-export keeps the sampler and the renders
+    over the poles show each pole's own colour (the mean of the two before)."""
+    import json
+    import struct
+
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from
+    from stepterrain.render import render_textured_mesh
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=17, device="cpu").mesh()
+    image = _two_pole_texture()
+    back = read_mesh(save_mesh(drape_texture(mesh, image), tmp_path / "globe.glb"))
+    assert back.visual.material.wrap == ("REPEAT", "CLAMP_TO_EDGE")
+    data = save_mesh(back, tmp_path / "again.glb").read_bytes()
+    tree = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    (texture,) = tree["textures"]
+    assert tree["samplers"][texture["sampler"]] == {"wrapS": 10497, "wrapT": 33071}
+    for latitude, colour in ((90.0, image[0, 0]), (-90.0, image[-1, 0]), (0.0, image[64, 0])):
+        camera = look_from(latitude, 180.0, 3 * EARTH_RADIUS)
+        picture = render_textured_mesh(back, window_size=(160, 160), lighting=False, anti_aliasing=False,
+                                       camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
+        middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
+        assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+
