@@ -2687,7 +2687,8 @@ GLTF_WRAP = {"REPEAT": 10497, "CLAMP_TO_EDGE": 33071, "MIRRORED_REPEAT": 33648}
 def texture_wrap(material: Any) -> tuple[str, str] | None:
     """The (u, v) wrap modes a textured mesh's ``material`` asks its sampler for, names of :data:`GLTF_WRAP` (its
     ``wrap`` attribute: :func:`~stepterrain.globe.drape_texture` sets ("REPEAT", "CLAMP_TO_EDGE"), the image
-    periodic in longitude, not from pole to pole), or None: glTF's default sampler, REPEAT both ways."""
+    periodic in longitude, not from pole to pole; :func:`~stepterrain.texture.drape` ("CLAMP_TO_EDGE",
+    "CLAMP_TO_EDGE"), the image ending at the terrain's border), or None: glTF's default sampler, REPEAT both ways."""
     wrap = getattr(material, "wrap", None)
     if wrap is None:
         return None
