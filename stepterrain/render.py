@@ -433,6 +433,9 @@ def render_mesh(
         # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]), mesh=size)
     textured = _decoded_texture(*source) if source is not None else None
+    if textured is not None:  # the picture as drawn, as render_textured_mesh counts it: a globe drape's is widened
+        # by _periodic_columns (256 columns each side and more: 13-25 % of the Blue Marble's), counted as the image
+        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape, mesh=size)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:

@@ -1274,3 +1274,18 @@ def test_a_globe_drape_read_back_keeps_its_sampler_and_its_poles(tmp_path):
         middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
         assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
 
+
+def test_render_mesh_counts_a_globe_drape_s_widened_texture_against_the_budget(budget):
+    """render_mesh counted a globe drape's texture at the image's size, then drew the picture _periodic_columns
+    widens (the image's columns repeated over the UVs' u range and 256 columns beyond each side: a 256-column image
+    drawn 1024 wide), past the budget; render_textured_mesh counted the widened one. Both refuse now."""
+    from stepterrain.globe import drape_texture
+    from stepterrain.render import _render_bytes, render_mesh, render_textured_mesh
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    textured = drape_texture(mesh, _two_pole_texture())
+    image_only = _render_bytes(64, 64, texels=128 * 256, vertices=len(textured.vertices), faces=len(textured.faces))
+    budget(image_only + 1024)
+    for render in (render_mesh, render_textured_mesh):
+        with pytest.raises(OutputTooLargeError, match=r"a 1024 x 128 texel texture"):
+            render(textured, window_size=(64, 64))
