@@ -1289,3 +1289,19 @@ def test_render_mesh_counts_a_globe_drape_s_widened_texture_against_the_budget(b
     for render in (render_mesh, render_textured_mesh):
         with pytest.raises(OutputTooLargeError, match=r"a 1024 x 128 texel texture"):
             render(textured, window_size=(64, 64))
+
+
+@needs_render
+def test_render_view_of_a_globe_drape_read_back_keeps_its_poles(tmp_path):
+    """render_view draws a copy of the mesh in the view's frame; trimesh's PBRMaterial.copy drops the material's
+    wrap, so a globe drape read back from its GLB (a PBR material) was drawn repeating v again: the pole blended with
+    the other pole (75 levels off the drape's own render at the north pole). The copy keeps the wrap now."""
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from, render_view
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=17, device="cpu").mesh()
+    textured = drape_texture(mesh, _two_pole_texture())
+    back = read_mesh(save_mesh(textured, tmp_path / "globe.glb"))
+    camera = look_from(90.0, 180.0, 3 * EARTH_RADIUS)
+    drawn, again = (render_view(m, camera, window_size=(64, 64)).astype(int) for m in (textured, back))
+    assert np.abs(drawn - again).max() <= 4
