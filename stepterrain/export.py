@@ -1671,7 +1671,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     ``force="mesh"`` dropped) comes back as a mesh without faces, an empty glTF (a node without a mesh) with its
     node's ``extras`` as its metadata (trimesh drops them), a glTF's vertex colours come back as sRGB bytes
     (``COLOR_0`` is linear: trimesh's reader took its values as bytes, darker; a file :func:`save_mesh` wrote gives
-    exactly the bytes written), and a 3MF of one mesh object (as :func:`save_mesh`
+    exactly the bytes written), a glTF texture's sampler comes back as its material's ``wrap`` (:func:`texture_wrap`:
+    trimesh's reader ignores samplers, so a globe's drape read back rendered its poles blended and was written again
+    without it), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
@@ -1742,6 +1744,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
             _srgb_vertex_colors(loaded, color)
+            _gltf_sampler_wrap(loaded, tree)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
         raise DataFileError(f"cannot read {str(file)!r} as a mesh: {type(exc).__name__}: {exc}") from exc
     return loaded  # type: ignore[no-any-return]
@@ -1832,6 +1835,48 @@ def _srgb_vertex_colors(mesh: trimesh.Trimesh, color: NDArray[Any] | None) -> No
     rgba[:, : values.shape[1]] = values[:, :4]
     rgba[:, :3] = _linear_to_srgb(rgba[:, :3])
     mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=np.rint(np.clip(rgba, 0, 1) * 255).astype(np.uint8))
+
+
+def _gltf_sampler_wrap(mesh: trimesh.Trimesh, tree: Any) -> None:
+    """Give the material of ``mesh``, read from a glTF whose JSON is ``tree`` (:func:`_check_dense_gltf`'s), the wrap
+    modes of its base colour texture's sampler as its ``wrap`` (:func:`texture_wrap`), where the primitives' textures
+    all have the same ones and they are not glTF's default (REPEAT both ways). trimesh's reader ignores samplers: a
+    globe's drape read back (u repeated, v clamped) rendered with each pole blended with the other in the mipmaps,
+    and was written again without its sampler."""
+    material = getattr(mesh.visual, "material", None)
+    if mesh.visual.kind != "texture" or getattr(material, "baseColorTexture", None) is None:
+        return
+    if not isinstance(tree, Mapping):
+        return
+
+    def entry(within: Any, key: str, index: Any) -> Mapping[str, Any]:
+        """within[key][index] where that is a JSON object, else {} (a file of odd JSON is left to trimesh)."""
+        items = within.get(key) if isinstance(within, Mapping) else None
+        ok = isinstance(items, list) and isinstance(index, int) and 0 <= index < len(items)
+        return items[index] if ok and isinstance(items[index], Mapping) else {}
+
+    def member(within: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+        value = within.get(key)
+        return value if isinstance(value, Mapping) else {}
+
+    names = {code: name for name, code in GLTF_WRAP.items()}
+    modes: set[tuple[str | None, ...]] = set()
+    meshes = tree.get("meshes")
+    for k in range(len(meshes) if isinstance(meshes, list) else 0):
+        primitives = entry(tree, "meshes", k).get("primitives")
+        for n in range(len(primitives) if isinstance(primitives, list) else 0):
+            material_json = entry(tree, "materials", entry(entry(tree, "meshes", k), "primitives", n).get("material"))
+            base = member(member(material_json, "pbrMetallicRoughness"), "baseColorTexture")
+            if not base:  # an untextured primitive
+                continue
+            sampler = entry(tree, "samplers", entry(tree, "textures", base.get("index")).get("sampler"))
+            codes = (sampler.get("wrapS", GLTF_WRAP["REPEAT"]), sampler.get("wrapT", GLTF_WRAP["REPEAT"]))
+            modes.add(tuple(names.get(code) if type(code) is int else None for code in codes))
+    if len(modes) != 1:  # no texture read, or textures wrapped differently (trimesh packs them into one image)
+        return
+    (wrap,) = modes
+    if None not in wrap and wrap != ("REPEAT", "REPEAT"):  # (an unknown mode: the file is invalid; left as default)
+        material.wrap = wrap
 
 
 def _white_material(material: Any) -> bool:
@@ -2268,7 +2313,8 @@ def _texture_copy(original: Any, **kwargs: Any) -> Any:
     ``Image.copy()``, which drops its ``format`` and file name, so such a texture was written as a PNG three times its
     size (and an OBJ's ``.png``), and :func:`_jpeg_data` could not find its file. The writers replace images on the
     copy (:func:`_pil_textures`, :func:`_encoded_textures`), never change them in place; other images keep their
-    copies."""
+    copies. The copy also gets the material's ``wrap`` (:func:`texture_wrap`), which ``PBRMaterial.copy`` dropped: a
+    terrain drape's GLB was written without its clamping sampler."""
     from PIL import Image
 
     def material_of(thing: Any) -> Any:
@@ -2279,6 +2325,8 @@ def _texture_copy(original: Any, **kwargs: Any) -> Any:
     material, mine = material_of(original), material_of(copied)
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
     if type(mine) is type(material):
+        if getattr(material, "wrap", None) is not None:
+            mine.wrap = material.wrap
         for slot in slots:
             image = getattr(material, slot, None)
             if isinstance(image, Image.Image) and image.format == "JPEG":
@@ -2663,7 +2711,8 @@ GLTF_WRAP = {"REPEAT": 10497, "CLAMP_TO_EDGE": 33071, "MIRRORED_REPEAT": 33648}
 def texture_wrap(material: Any) -> tuple[str, str] | None:
     """The (u, v) wrap modes a textured mesh's ``material`` asks its sampler for, names of :data:`GLTF_WRAP` (its
     ``wrap`` attribute: :func:`~stepterrain.globe.drape_texture` sets ("REPEAT", "CLAMP_TO_EDGE"), the image
-    periodic in longitude, not from pole to pole), or None: glTF's default sampler, REPEAT both ways."""
+    periodic in longitude, not from pole to pole; :func:`~stepterrain.texture.drape` ("CLAMP_TO_EDGE",
+    "CLAMP_TO_EDGE"), the image ending at the terrain's border), or None: glTF's default sampler, REPEAT both ways."""
     wrap = getattr(material, "wrap", None)
     if wrap is None:
         return None

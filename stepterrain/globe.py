@@ -1761,6 +1761,9 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     frame = _view_frame(camera)
     centre = box.mean(axis=0)
     local = mesh.copy()
+    wrap = getattr(getattr(mesh.visual, "material", None), "wrap", None)
+    if wrap is not None:  # trimesh's PBRMaterial.copy drops it (a drape read back from its GLB): the poles blended
+        local.visual.material.wrap = wrap
     local.vertices = (np.asarray(mesh.vertices, dtype=np.float64) - centre) @ frame.T
     local_box = render._finite_bounds(np.asarray(local.vertices))
     middle = local_box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``

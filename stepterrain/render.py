@@ -433,6 +433,9 @@ def render_mesh(
         # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]), mesh=size)
     textured = _decoded_texture(*source) if source is not None else None
+    if textured is not None:  # the picture as drawn, as render_textured_mesh counts it: a globe drape's is widened
+        # by _periodic_columns (256 columns each side and more: 13-25 % of the Blue Marble's), counted as the image
+        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape, mesh=size)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -1064,18 +1067,21 @@ def _texture_shape(image: Any) -> tuple[int, int]:
 def _decoded_texture(uv: Any, image: Any, material: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
     """The (UVs, texture picture) a textured mesh is drawn with, from its :func:`_texture_source`: the image decoded,
     both checked (an InvalidInputError for bad ones); for a material whose ``wrap`` repeats u and clamps v (a globe's
-    drape), :func:`_periodic_columns`' picture, drawn clamped (:func:`_texture`'s ``clamp``)."""
+    drape), :func:`_periodic_columns`' picture, drawn clamped (:func:`_texture`'s ``clamp``); one that clamps both
+    (a terrain's drape) is drawn clamped as it is."""
+    from .export import texture_wrap
+
     uv, picture = _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material),
                                                            material)
-    if _clamped(material):
+    if _clamped(material) and texture_wrap(material)[0] != "CLAMP_TO_EDGE":
         uv, picture = _periodic_columns(uv, picture)
     return uv, picture
 
 
 def _clamped(material: Any) -> bool:
     """Whether a texture with ``material`` is drawn clamped to its edges: its ``wrap`` (see
-    :func:`~stepterrain.export.texture_wrap`) clamps v (VTK wraps both ways alike; u repeats through
-    :func:`_periodic_columns`)."""
+    :func:`~stepterrain.export.texture_wrap`) clamps v (VTK wraps both ways alike; a u that repeats does so through
+    :func:`_periodic_columns`, one that clamps as v)."""
     from .export import texture_wrap
 
     wrap = texture_wrap(material)

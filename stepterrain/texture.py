@@ -1681,7 +1681,10 @@ def _covering_image(image: NDArray[np.uint8], layer: TextureLayer, vertices: NDA
 def drape(mesh: trimesh.Trimesh, layer: TextureLayer, *, background: Sequence[float] = (1.0, 1.0, 1.0),
           name: str = "terrain texture") -> trimesh.Trimesh:
     """The mesh with ``layer`` as its texture: UVs from the vertices' xy through the layer's texture matrix, the
-    image (composited over ``background``) as the base colour of a PBR material (metallic 0, roughness 1).
+    image (composited over ``background``) as the base colour of a PBR material (metallic 0, roughness 1), whose
+    ``wrap`` is ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE"): GLB/glTF exports give the texture a sampler clamped to the image's
+    edges, and renders sample it so, so that the terrain's border does not blend with the opposite border's texels in
+    the mipmaps.
 
     Works on any mesh of the library whose xy lie in the layer's world coordinates (stepped terrain, a
     heightfield, a TIN; a pyvista PolyData of triangles as its Trimesh, see
@@ -1725,5 +1728,9 @@ def _draped(mesh: trimesh.Trimesh, layer: TextureLayer, image: NDArray[np.uint8]
                           metadata=dict(mesh.metadata))
     out.face_attributes = dict(mesh.face_attributes)
     out.visual = trimesh.visual.TextureVisuals(uv=uv, material=material)
+    # the UVs lie inside the image, which does not go on past its edges: glTF's default sampler (REPEAT both ways) and
+    # VTK's blended the terrain's edge texels with the opposite edge's in the coarse mipmaps (a line of the wrong
+    # colour along the border when zoomed out); the GLB's sampler and the render clamp both ways
+    out.visual.material.wrap = ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE")
     return out
 

@@ -1276,3 +1276,64 @@ def test_a_globe_drape_renders_its_poles_in_their_own_colours():
                                        camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
         middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
         assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+
+
+@needs_render
+def test_a_globe_drape_read_back_keeps_its_sampler_and_its_poles(tmp_path):
+    """trimesh's glTF reader ignores samplers: a globe drape's GLB read back (read_mesh) lost its wrap, rendered its
+    poles blended with each other again and was written again without its sampler. read_mesh now gives the
+    material the sampler's wrap modes (from the JSON it has read): the re-export keeps the sampler and the renders
+    over the poles show each pole's own colour (the mean of the two before)."""
+    import json
+    import struct
+
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from
+    from stepterrain.render import render_textured_mesh
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=17, device="cpu").mesh()
+    image = _two_pole_texture()
+    back = read_mesh(save_mesh(drape_texture(mesh, image), tmp_path / "globe.glb"))
+    assert back.visual.material.wrap == ("REPEAT", "CLAMP_TO_EDGE")
+    data = save_mesh(back, tmp_path / "again.glb").read_bytes()
+    tree = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    (texture,) = tree["textures"]
+    assert tree["samplers"][texture["sampler"]] == {"wrapS": 10497, "wrapT": 33071}
+    for latitude, colour in ((90.0, image[0, 0]), (-90.0, image[-1, 0]), (0.0, image[64, 0])):
+        camera = look_from(latitude, 180.0, 3 * EARTH_RADIUS)
+        picture = render_textured_mesh(back, window_size=(160, 160), lighting=False, anti_aliasing=False,
+                                       camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
+        middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
+        assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+
+
+def test_render_mesh_counts_a_globe_drape_s_widened_texture_against_the_budget(budget):
+    """render_mesh counted a globe drape's texture at the image's size, then drew the picture _periodic_columns
+    widens (the image's columns repeated over the UVs' u range and 256 columns beyond each side: a 256-column image
+    drawn 1024 wide), past the budget; render_textured_mesh counted the widened one. Both refuse now."""
+    from stepterrain.globe import drape_texture
+    from stepterrain.render import _render_bytes, render_mesh, render_textured_mesh
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=9, device="cpu").mesh()
+    textured = drape_texture(mesh, _two_pole_texture())
+    image_only = _render_bytes(64, 64, texels=128 * 256, vertices=len(textured.vertices), faces=len(textured.faces))
+    budget(image_only + 1024)
+    for render in (render_mesh, render_textured_mesh):
+        with pytest.raises(OutputTooLargeError, match=r"a 1024 x 128 texel texture"):
+            render(textured, window_size=(64, 64))
+
+
+@needs_render
+def test_render_view_of_a_globe_drape_read_back_keeps_its_poles(tmp_path):
+    """render_view draws a copy of the mesh in the view's frame; trimesh's PBRMaterial.copy drops the material's
+    wrap, so a globe drape read back from its GLB (a PBR material) was drawn repeating v again: the pole blended with
+    the other pole (75 levels off the drape's own render at the north pole). The copy keeps the wrap now."""
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from, render_view
+
+    mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=17, device="cpu").mesh()
+    textured = drape_texture(mesh, _two_pole_texture())
+    back = read_mesh(save_mesh(textured, tmp_path / "globe.glb"))
+    camera = look_from(90.0, 180.0, 3 * EARTH_RADIUS)
+    drawn, again = (render_view(m, camera, window_size=(64, 64)).astype(int) for m in (textured, back))
+    assert np.abs(drawn - again).max() <= 4

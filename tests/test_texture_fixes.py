@@ -31,6 +31,7 @@ from stepterrain.texture import (
     weighted_add,
 )
 
+from .conftest import needs_render
 from .reference_texture import hillshade_reference, occlusion_reference, real_dem_crop, shadows_reference
 
 RAD = math.radians
@@ -866,3 +867,97 @@ def test_rgba_allocates_no_more_than_its_budget_check_counted(monkeypatch, kind,
     else:
         expected[..., :3] = scaled[..., None]
     np.testing.assert_array_equal(out, expected)
+
+
+# ------------------------------------------------------------------------------------------ texture wrap
+def _two_edge_drape():
+    """A flat 512 x 512 terrain draped with a texture whose west 32 columns are red, east 32 blue, green between."""
+    from stepterrain import heightfield_mesh
+    from stepterrain.texture import drape
+
+    image = np.zeros((512, 512, 3), np.uint8)
+    image[:] = (40, 160, 40)
+    image[:, :32] = (220, 30, 30)
+    image[:, -32:] = (30, 30, 220)
+    mesh = heightfield_mesh(np.zeros((33, 33)), spacing=(16.0, 16.0))
+    return drape(mesh, TextureLayer("thematic", image, (-8.0, 520.0, -8.0, 520.0)))
+
+
+def test_a_terrain_drape_s_texture_is_clamped_at_its_edges(tmp_path):
+    """A terrain drape's UVs lie inside its image, but trimesh writes no glTF sampler, so viewers repeated the image
+    (glTF's default) and, in the coarse mip levels, blended the terrain's border with the opposite border's texels.
+    The drape's material now asks for CLAMP_TO_EDGE both ways: the GLB's and glTF's texture get that sampler (valid
+    glTF), and read_mesh gives it back (trimesh's reader ignores samplers), so a mesh read back is written again
+    with it."""
+    import json
+    import struct
+
+    from stepterrain.export import read_mesh, save_mesh
+
+    from . import gltf_validator
+
+    textured = _two_edge_drape()
+    assert textured.visual.material.wrap == ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE")
+
+    def sampler(path):
+        data = path.read_bytes()
+        if path.suffix == ".glb":
+            data = data[20 : 20 + struct.unpack_from("<I", data, 12)[0]]
+        tree = json.loads(data)
+        (texture,) = tree["textures"]
+        return tree["samplers"][texture["sampler"]]
+
+    paths = []
+    for name in ("terrain.glb", "terrain.gltf"):
+        path = save_mesh(textured, tmp_path / name)
+        assert sampler(path) == {"wrapS": 33071, "wrapT": 33071}
+        back = read_mesh(path)
+        assert back.visual.material.wrap == ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE")
+        again = save_mesh(back, tmp_path / f"again_{name}")
+        assert sampler(again) == {"wrapS": 33071, "wrapT": 33071}
+        paths += [path, again]
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate(paths)) == []
+
+
+@needs_render
+@pytest.mark.parametrize("renderer", ["render_textured_mesh", "render_mesh"])
+def test_a_terrain_drape_renders_its_borders_in_their_own_colours(renderer):
+    """Seen from low over its south edge (the far part foreshortened: a coarse mip level), the drape's west border
+    (red) showed up to a third blue and its east border (blue) a third red: the render repeated the texture, so the
+    coarse mip levels' edge texels blended with the opposite edge's. Clamped, each border keeps its own colour (a
+    share of the other of 30 / 250, as the pure colour has, or a little more from the green beside it)."""
+    import stepterrain.render as render
+
+    kwargs = {"lighting": False} if renderer == "render_textured_mesh" else {}
+    picture = getattr(render, renderer)(_two_edge_drape(), window_size=(200, 200), camera=(math.pi, 0.12),
+                                        background="black", **kwargs).astype(int)
+    drawn = picture.sum(axis=2) > 30
+    west, east = [], []
+    for row in np.flatnonzero(drawn.any(axis=1)):
+        cols = np.flatnonzero(drawn[row])
+        if len(cols) >= 6:
+            west.append(picture[row, cols[0]])
+            east.append(picture[row, cols[-1]])
+    west, east = np.array(west), np.array(east)
+    assert len(west) > 10  # the rows the terrain covers, seen from low
+    assert (west[:, 2] / (west[:, 0] + west[:, 2])).max() < 0.2  # blue in the red border: 0.33 repeated
+    assert (east[:, 0] / (east[:, 0] + east[:, 2])).max() < 0.2
+
+
+def test_the_texture_command_s_mesh_clamps_its_texture(tmp_path):
+    """``stepterrain texture --mesh`` drapes its DEM as drape does: its GLB's texture repeated (no sampler) and
+    blended the terrain's borders with the opposite ones in the coarse mip levels; it now has a clamping sampler."""
+    import json
+    import struct
+
+    from stepterrain.cli import main
+
+    dem = tmp_path / "hill.npy"
+    np.save(dem, np.arange(30 * 40, dtype=np.float32).reshape(30, 40) % 17)
+    glb = tmp_path / "t.glb"
+    assert main(["texture", str(dem), "-o", str(tmp_path / "t.png"), "--mesh", str(glb), "--device", "cpu"]) == 0
+    data = glb.read_bytes()
+    tree = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
+    (texture,) = tree["textures"]
+    assert tree["samplers"][texture["sampler"]] == {"wrapS": 33071, "wrapT": 33071}
