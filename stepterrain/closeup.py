@@ -1352,6 +1352,24 @@ def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
             "or over nodata); make it larger or move it onto the terrain")
 
 
+def _check_content(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer]) -> None:
+    """An InvalidInputError for a close-up that would be drawn without content: without ``anchor.band`` its content
+    is the faces with a corner of m >= ``anchor.outline_level`` (:func:`_content_faces`), and a ROI that reaches the
+    terrain with its soft edge only (its centre just off the extent's edge, its core over nodata or between the
+    nodes) has none. The render came out as the overview alone (or with a fence about nothing), without a word."""
+    for k, (cu, layer) in enumerate(zip(items, layers, strict=True)):
+        top = float(layer.mask_factor.max()) if len(layer.mask_factor) else 0.0
+        if cu.anchor.band or top >= cu.anchor.outline_level:
+            continue
+        bx0, bx1, by0, by1 = cu.roi.box
+        where = "grid node" if t.kind == "grid" else "TIN point"
+        raise InvalidInputError(
+            f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] reaches the terrain with its soft "
+            f"edge only: its mask is at most {top:.3g} at every {where} with a height under it, below the anchor's "
+            f"outline_level {cu.anchor.outline_level:g}, so the close-up would have no content; move its centre onto "
+            f"the terrain (off its edge, off nodata) or make it larger")
+
+
 def _lone_heights_under(t: Terrain, roi: ROI) -> int:
     """How many nodes (points) with a height, inside ``roi``'s box, have a mask factor above 0 but lie on no triangle
     with three heights (error path only: a pass over the box's nodes)."""
@@ -2222,7 +2240,8 @@ def render_closeups(
     Raises
     ------
     InvalidInputError
-        Too many close-ups for the window, a ROI outside the terrain, bad options.
+        Too many close-ups for the window, a ROI outside the terrain or reaching it with its soft edge only (m below
+        ``anchor.outline_level`` at every node under it, without ``anchor.band``: no content to draw), bad options.
     OutputTooLargeError
         The window's passes (about 64 bytes per pixel) exceed the memory budget, checked before any work.
     MissingDependencyError
@@ -2276,6 +2295,7 @@ def render_closeups(
             anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
         layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
+        _check_content(t, items, layers)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
         if len(memo) >= 8 and memo_key not in memo:
@@ -2419,6 +2439,7 @@ def closeup_scene(
     parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
               _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
     layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
+    _check_content(t, items, layers)
     strips = anchor_strips(t, items, time=time, device=device)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))

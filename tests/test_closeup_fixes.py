@@ -13,7 +13,15 @@ from hypothesis import strategies as hs
 from hypothesis.extra import numpy as hnp
 
 from stepterrain import render
-from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
+from stepterrain.closeup import (
+    ROI,
+    AnchorStyle,
+    CloseUp,
+    animate_closeups,
+    closeup_layers,
+    closeup_scene,
+    render_closeups,
+)
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
 from .reference_closeup import nodata_gradient, surface_heights
@@ -1179,3 +1187,34 @@ def test_closeup_layers_budget_counts_what_the_cull_holds_not_only_its_joined_in
         closeup_layers(t, [cu], memory_budget=2 * joined_only, device="cpu")
     (layer,) = closeup_layers(t, [cu], memory_budget=163 * n_points + 96 * n_faces, device="cpu")
     assert len(layer.faces) == n_faces and len(layer.vertices) == n_points
+
+
+def test_closeup_reaching_the_terrain_with_its_soft_edge_only_is_refused_not_drawn_as_nothing():
+    from stepterrain.terrain import Terrain
+
+    # a ROI whose centre lies just off the extent's edge (or whose core lies over nodata) reached the terrain with its
+    # soft edge only: m < outline_level at every node under it, so no face was content and no fence stood on the
+    # terrain; `stepterrain closeup --roi` wrote the overview alone (exit 0), the scene a barely lifted sliver
+    t = terrain()  # extent x [1000, 1080], y [2000, 2064], spacing 2
+    off_edge = ROI.circle((1000.0 - 0.95 * 12.0, 2030.0), 12.0)  # 0.6 inside: m <= 0.16 at the nodes of x = 1000
+    heights = hills()
+    y, x = np.mgrid[0:33, 0:41]
+    heights[np.hypot(x * 2.0 - 40.0, y * 2.0 - 30.0) < 11.0] = np.nan  # the core (m >= 0.5 within 10.8) is nodata
+    holed = Terrain.from_heights(heights, spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+    in_hole = ROI.circle((1040.0, 2030.0), 12.0)
+    for terrain_, roi in ((t, off_edge), (holed, in_hole)):
+        (layer,) = closeup_layers(terrain_, [CloseUp(roi)], device="cpu")  # the kernels' layer is still returned
+        assert 0 < layer.mask_factor.max() < 0.5
+        for cu in (CloseUp(roi, offset=(0.0, 0.0, 60.0)), CloseUp(roi, anchor=AnchorStyle(outline_level=0.4))):
+            with pytest.raises(InvalidInputError, match=r"^closeups\[0\]: ROI box .* reaches the terrain with its soft "
+                                                        r"edge only: its mask is at most 0\.\d+ at every grid node"):
+                closeup_scene(terrain_, [cu], device="cpu")
+        if AVAILABLE:
+            with pytest.raises(InvalidInputError, match="soft edge only"):
+                render_closeups(terrain_, [CloseUp(roi)], window_size=SIZE, device="cpu")
+        # with band the soft edge is drawn (stretched, with the anchor): not refused
+        scene = closeup_scene(terrain_, [CloseUp(roi, anchor=AnchorStyle(band=True))], device="cpu")
+        assert (scene.face_attributes["layer"] == 1).any()
+    # a low outline level that the nodes reach draws the close-up
+    scene = closeup_scene(t, [CloseUp(off_edge, anchor=AnchorStyle(outline_level=0.1))], device="cpu")
+    assert (scene.face_attributes["layer"] == 2).any()
