@@ -2593,7 +2593,8 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio.
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
-    second), [0.001, 1000] for an MP4."""
+    second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
+    takes any size."""
     from .export import _target, atomic_path
 
     target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
@@ -2602,6 +2603,8 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
     fps = _check_fps(fps, suffix)
     stack = _check_frames(frames)
+    if suffix == ".mp4":
+        _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
     import imageio.v3 as iio
 
     if suffix == ".mp4":
@@ -2626,6 +2629,15 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
                 raise
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from exc
     return target
+
+
+def _check_mp4_size(width: int, height: int, name: str) -> None:
+    """An InvalidInputError unless an MP4's frames have an even width and height: H.264 in 4:2:0 colour (what players
+    take) codes whole 2 x 2 blocks, and imageio resized a 321 x 241 frame to 322 x 242 (every frame stretched, the
+    video not the size asked for) with only a printed warning."""
+    if width % 2 or height % 2:
+        raise InvalidInputError(f"{name} of an MP4 must have an even width and height (H.264 codes 2 x 2 colour "
+                                f"blocks; a GIF takes any size); got {width}x{height}")
 
 
 def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> None:

@@ -1218,3 +1218,30 @@ def test_closeup_reaching_the_terrain_with_its_soft_edge_only_is_refused_not_dra
     # a low outline level that the nodes reach draws the close-up
     scene = closeup_scene(t, [CloseUp(off_edge, anchor=AnchorStyle(outline_level=0.1))], device="cpu")
     assert (scene.face_attributes["layer"] == 2).any()
+
+
+def test_mp4_of_odd_sized_frames_is_refused_not_stretched(tmp_path, capsys):
+    # H.264 (4:2:0) codes 2 x 2 colour blocks: imageio resized 33 x 21 frames to 34 x 22 (each frame stretched, the
+    # video not the size asked for, save_animation's "keep the frame size" broken) with only a printed warning; the
+    # CLI rendered every frame of --size 321x241 first
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+
+    from stepterrain import cli
+    from stepterrain.closeup import save_animation
+
+    frames = [np.full((21, 33, 3), 40 * k, np.uint8) for k in range(3)]
+    with pytest.raises(InvalidInputError, match=r"^frames of an MP4 must have an even width and height .*got 33x21$"):
+        save_animation(frames, tmp_path / "odd.mp4", fps=5.0)
+    assert not list(tmp_path.iterdir())
+    gif = save_animation(frames, tmp_path / "odd.gif", fps=5.0)  # a GIF takes any size
+    assert iio.imread(gif, index=None).shape[1:3] == (21, 33)
+    even = save_animation([f[:20, :32] for f in frames], tmp_path / "even.mp4", fps=5.0)
+    assert iio.imread(even, index=None, plugin="FFMPEG").shape[1:3] == (20, 32)
+    dem = tmp_path / "dem.npy"
+    np.save(dem, hills())
+    argv = ["-q", "closeup", str(dem), "--size", "321x241", "-o", str(tmp_path / "p.png"), "--gif",
+            str(tmp_path / "spin.mp4"), "--frames", "2"]
+    assert cli.main(argv) == 2
+    assert "--size of an MP4 must have an even width and height" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "even.mp4", "odd.gif"]
