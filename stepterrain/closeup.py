@@ -93,7 +93,7 @@ _MAX_CLOSEUPS = 16
 
 
 # ------------------------------------------------------------------------------------------------ helpers
-_MAX_MASK_RESOLUTION = 16385  # texels along a shape mask's longer side: 1 GiB of float32 at most
+_MAX_MASK_RESOLUTION = 16385  # texels along each side of a shape mask: 1 GiB of float32 at most
 #: The smallest positive float32 (a subnormal): a height band's edge below it is 0 in the float32 ramp.
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
@@ -165,18 +165,18 @@ def _check_edge_width(width: float, depth: float, what: str) -> None:
         raise InvalidInputError(f"edge_width must be at most {what} ({depth:g}), where m reaches 1; got {width:g}")
 
 
-def _mask_grid(size: tuple[float, float], resolution: int) -> tuple[int, int]:
-    """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, 3 to 16385."""
+def _mask_grid(resolution: int) -> tuple[int, int]:
+    """(rows, cols) of a shape mask: ``resolution`` texels along each side, odd, 3 to 16385 (texels as long as the
+    side over which they spread). Square texels left the shorter side of an elongated shape a handful of texels:
+    a 10000 x 100 rectangle got 3 rows (its rim and centre), so m was a tent, 0.2 at 10 m inside its long edge
+    instead of 1, and its outline ran at half its width."""
     if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer)):
         raise InvalidInputError(f"mask resolution must be a whole number of texels; got {resolution!r}")
     resolution = int(resolution)
     if not 3 <= resolution <= _MAX_MASK_RESOLUTION:
         raise InvalidInputError(f"mask resolution must lie in [3, {_MAX_MASK_RESOLUTION}] texels per side; got "
                                 f"{resolution}")
-    w, h = size
-    cols = resolution if w >= h else max(3, int(round(resolution * w / h)))
-    rows = resolution if h >= w else max(3, int(round(resolution * h / w)))
-    return rows | 1, cols | 1
+    return resolution | 1, resolution | 1
 
 
 def _texel_xy(center: tuple[float, float], size: tuple[float, float], rows: int, cols: int):
@@ -293,7 +293,7 @@ class ROI:
         width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         _check_edge_width(width, min(a, b), "the shorter semi-axis")
         size = (2 * a, 2 * b)
-        rows, cols = _mask_grid(size, resolution)
+        rows, cols = _mask_grid(resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
         distance = np.hypot(x, y) - a if a == b else _ellipse_distance(x, y, a, b)
         return cls(center, size, _smooth_edge(distance, width), "ellipse")
@@ -317,7 +317,7 @@ class ROI:
             raise InvalidInputError(f"corner_radius must be at most half the shorter side {min(w, h) / 2}; got {rc}")
         width = min(w, h) / 10 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         _check_edge_width(width, min(w, h) / 2, "half the shorter side")
-        rows, cols = _mask_grid((w, h), resolution)
+        rows, cols = _mask_grid(resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
         return cls(center, (w, h), _smooth_edge(distance, width), "rounded_rectangle")

@@ -1245,3 +1245,24 @@ def test_mp4_of_odd_sized_frames_is_refused_not_stretched(tmp_path, capsys):
     assert cli.main(argv) == 2
     assert "--size of an MP4 must have an even width and height" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "even.mp4", "odd.gif"]
+
+
+@pytest.mark.parametrize("make", [lambda: ROI.rectangle((0.0, 0.0), (10000.0, 100.0), edge_width=10.0),
+                                  lambda: ROI.rectangle((0.0, 0.0), (100.0, 10000.0), edge_width=10.0),
+                                  lambda: ROI.ellipse((0.0, 0.0), (5000.0, 50.0), edge_width=10.0),
+                                  lambda: ROI.rounded_rectangle((0.0, 0.0), (1000.0, 100.0), edge_width=10.0)])
+def test_an_elongated_shapes_mask_resolves_its_shorter_side(make):
+    # the mask had square texels, `resolution` along the longer side: a 10000 x 100 m strip (a road, a river) got 3
+    # texel rows (its rim and centre), so m was a tent across it, 0.2 at 10 m inside its long edge instead of 1, and
+    # its outline (the fence) ran at half its width; 10:1 was off by 0.06 at that depth
+    roi = make()
+    w, h = roi.size
+    across = np.linspace(-0.5, 0.5, 401) * min(w, h)  # across the shorter side, through the centre
+    points = np.column_stack([across, np.zeros_like(across)]) if w < h else np.column_stack([np.zeros_like(across),
+                                                                                              across])
+    depth = min(w, h) / 2 - np.abs(across)  # distance to the long edge (the ends lie far away)
+    x = np.clip(depth / 10.0, 0.0, 1.0)
+    np.testing.assert_allclose(roi.factor(points), x * x * (3 - 2 * x), atol=0.02)
+    (line,) = roi.outline(0.5)  # at m = 0.5: 5 m inside the long edges
+    half = np.abs(line[:, 0] if w < h else line[:, 1]).max()
+    assert half == pytest.approx(min(w, h) / 2 - 5.0, abs=0.5)
