@@ -134,6 +134,7 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         AnchorStyle,
         CloseUp,
         _check_fps,
+        _check_mp4_size,
         animate_closeups,
         max_closeups,
         render_closeups,
@@ -173,6 +174,8 @@ def _run_closeup(args: argparse.Namespace, progress: Any) -> int:
         raise InvalidInputError(f"--fps must be a positive number; got {args.fps:g}")
     if anim is not None:  # a rate the format cannot store failed (or wrote a broken MP4) after every frame
         _check_fps(args.fps, anim.suffix.lower(), "--fps")
+        if anim.suffix.lower() == ".mp4":  # refused here, not after rendering every frame
+            _check_mp4_size(*args.size, "--size")
     if not math.isfinite(args.spin) or args.spin == 0:
         raise InvalidInputError(f"--spin must be a non-zero number of turns per second; got {args.spin}")
     if anim is None:  # (after their values, which are named first)

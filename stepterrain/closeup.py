@@ -93,7 +93,7 @@ _MAX_CLOSEUPS = 16
 
 
 # ------------------------------------------------------------------------------------------------ helpers
-_MAX_MASK_RESOLUTION = 16385  # texels along a shape mask's longer side: 1 GiB of float32 at most
+_MAX_MASK_RESOLUTION = 16385  # texels along each side of a shape mask: 1 GiB of float32 at most
 #: The smallest positive float32 (a subnormal): a height band's edge below it is 0 in the float32 ramp.
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
@@ -165,18 +165,18 @@ def _check_edge_width(width: float, depth: float, what: str) -> None:
         raise InvalidInputError(f"edge_width must be at most {what} ({depth:g}), where m reaches 1; got {width:g}")
 
 
-def _mask_grid(size: tuple[float, float], resolution: int) -> tuple[int, int]:
-    """(rows, cols) of a shape mask: ``resolution`` texels along the longer side, odd, 3 to 16385."""
+def _mask_grid(resolution: int) -> tuple[int, int]:
+    """(rows, cols) of a shape mask: ``resolution`` texels along each side, odd, 3 to 16385 (texels as long as the
+    side over which they spread). Square texels left the shorter side of an elongated shape a handful of texels:
+    a 10000 x 100 rectangle got 3 rows (its rim and centre), so m was a tent, 0.2 at 10 m inside its long edge
+    instead of 1, and its outline ran at half its width."""
     if isinstance(resolution, (bool, np.bool_)) or not isinstance(resolution, (int, np.integer)):
         raise InvalidInputError(f"mask resolution must be a whole number of texels; got {resolution!r}")
     resolution = int(resolution)
     if not 3 <= resolution <= _MAX_MASK_RESOLUTION:
         raise InvalidInputError(f"mask resolution must lie in [3, {_MAX_MASK_RESOLUTION}] texels per side; got "
                                 f"{resolution}")
-    w, h = size
-    cols = resolution if w >= h else max(3, int(round(resolution * w / h)))
-    rows = resolution if h >= w else max(3, int(round(resolution * h / w)))
-    return rows | 1, cols | 1
+    return resolution | 1, resolution | 1
 
 
 def _texel_xy(center: tuple[float, float], size: tuple[float, float], rows: int, cols: int):
@@ -293,7 +293,7 @@ class ROI:
         width = min(a, b) / 5 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         _check_edge_width(width, min(a, b), "the shorter semi-axis")
         size = (2 * a, 2 * b)
-        rows, cols = _mask_grid(size, resolution)
+        rows, cols = _mask_grid(resolution)
         x, y = _texel_xy((0, 0), size, rows, cols)
         distance = np.hypot(x, y) - a if a == b else _ellipse_distance(x, y, a, b)
         return cls(center, size, _smooth_edge(distance, width), "ellipse")
@@ -317,7 +317,7 @@ class ROI:
             raise InvalidInputError(f"corner_radius must be at most half the shorter side {min(w, h) / 2}; got {rc}")
         width = min(w, h) / 10 if edge_width is None else finite_number(edge_width, "edge_width", lo=0.0)
         _check_edge_width(width, min(w, h) / 2, "half the shorter side")
-        rows, cols = _mask_grid((w, h), resolution)
+        rows, cols = _mask_grid(resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
         return cls(center, (w, h), _smooth_edge(distance, width), "rounded_rectangle")
@@ -1352,6 +1352,24 @@ def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
             "or over nodata); make it larger or move it onto the terrain")
 
 
+def _check_content(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer]) -> None:
+    """An InvalidInputError for a close-up that would be drawn without content: without ``anchor.band`` its content
+    is the faces with a corner of m >= ``anchor.outline_level`` (:func:`_content_faces`), and a ROI that reaches the
+    terrain with its soft edge only (its centre just off the extent's edge, its core over nodata or between the
+    nodes) has none. The render came out as the overview alone (or with a fence about nothing), without a word."""
+    for k, (cu, layer) in enumerate(zip(items, layers, strict=True)):
+        top = float(layer.mask_factor.max()) if len(layer.mask_factor) else 0.0
+        if cu.anchor.band or top >= cu.anchor.outline_level:
+            continue
+        bx0, bx1, by0, by1 = cu.roi.box
+        where = "grid node" if t.kind == "grid" else "TIN point"
+        raise InvalidInputError(
+            f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] reaches the terrain with its soft "
+            f"edge only: its mask is at most {top:.3g} at every {where} with a height under it, below the anchor's "
+            f"outline_level {cu.anchor.outline_level:g}, so the close-up would have no content; move its centre onto "
+            f"the terrain (off its edge, off nodata) or make it larger")
+
+
 def _lone_heights_under(t: Terrain, roi: ROI) -> int:
     """How many nodes (points) with a height, inside ``roi``'s box, have a mask factor above 0 but lie on no triangle
     with three heights (error path only: a pass over the box's nodes)."""
@@ -2222,7 +2240,8 @@ def render_closeups(
     Raises
     ------
     InvalidInputError
-        Too many close-ups for the window, a ROI outside the terrain, bad options.
+        Too many close-ups for the window, a ROI outside the terrain or reaching it with its soft edge only (m below
+        ``anchor.outline_level`` at every node under it, without ``anchor.band``: no content to draw), bad options.
     OutputTooLargeError
         The window's passes (about 64 bytes per pixel) exceed the memory budget, checked before any work.
     MissingDependencyError
@@ -2276,6 +2295,7 @@ def render_closeups(
             anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
     else:
         layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
+        _check_content(t, items, layers)
         strips = anchor_strips(t, items, time=time, device=device)
         anchors, contents, boards, drawn = _frame_geometry(t, items, layers, strips, scalars, cmap, image_texture)
         if len(memo) >= 8 and memo_key not in memo:
@@ -2419,6 +2439,7 @@ def closeup_scene(
     parts = [(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64),
               _rgba(overview_rgb, len(mesh.vertices), _color("#dcd1bd", "color")), 0)]
     layers = closeup_layers(t, items, time=time, colors=cmap, device=device)
+    _check_content(t, items, layers)
     strips = anchor_strips(t, items, time=time, device=device)
     for k, (cu, layer, strip) in enumerate(zip(items, layers, strips, strict=True)):
         rgb = _layer_rgb(t, layer, cu, (scalars, cmap, None))
@@ -2572,7 +2593,8 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
     """Write frames as a looping GIF or an MP4 (by extension), atomically, through imageio.
 
     ``fps`` must be a rate the format stores: [0.001526, 100] for a GIF (frame delays in whole hundredths of a
-    second), [0.001, 1000] for an MP4."""
+    second), [0.001, 1000] for an MP4. An MP4 keeps the frame size, which must be even both ways (H.264); a GIF
+    takes any size."""
     from .export import _target, atomic_path
 
     target = _target(path)  # 5 or b"x.gif" raised pathlib's TypeError
@@ -2581,6 +2603,8 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
         raise InvalidInputError(f"animation path must end in .gif or .mp4; got {str(path)!r}")
     fps = _check_fps(fps, suffix)
     stack = _check_frames(frames)
+    if suffix == ".mp4":
+        _check_mp4_size(stack[0].shape[1], stack[0].shape[0], "frames")
     import imageio.v3 as iio
 
     if suffix == ".mp4":
@@ -2605,6 +2629,15 @@ def save_animation(frames: Sequence[NDArray[np.uint8]], path: str | os.PathLike[
                 raise
             raise DataFileError(f"cannot write {str(target)!r}: {exc.strerror or exc}") from exc
     return target
+
+
+def _check_mp4_size(width: int, height: int, name: str) -> None:
+    """An InvalidInputError unless an MP4's frames have an even width and height: H.264 in 4:2:0 colour (what players
+    take) codes whole 2 x 2 blocks, and imageio resized a 321 x 241 frame to 322 x 242 (every frame stretched, the
+    video not the size asked for) with only a printed warning."""
+    if width % 2 or height % 2:
+        raise InvalidInputError(f"{name} of an MP4 must have an even width and height (H.264 codes 2 x 2 colour "
+                                f"blocks; a GIF takes any size); got {width}x{height}")
 
 
 def _write_gif(frames: Sequence[NDArray[np.uint8]], tmp: Path, fps: float) -> None:

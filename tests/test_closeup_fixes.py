@@ -13,7 +13,15 @@ from hypothesis import strategies as hs
 from hypothesis.extra import numpy as hnp
 
 from stepterrain import render
-from stepterrain.closeup import ROI, AnchorStyle, CloseUp, animate_closeups, closeup_scene, render_closeups
+from stepterrain.closeup import (
+    ROI,
+    AnchorStyle,
+    CloseUp,
+    animate_closeups,
+    closeup_layers,
+    closeup_scene,
+    render_closeups,
+)
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
 from .reference_closeup import nodata_gradient, surface_heights
@@ -1179,3 +1187,82 @@ def test_closeup_layers_budget_counts_what_the_cull_holds_not_only_its_joined_in
         closeup_layers(t, [cu], memory_budget=2 * joined_only, device="cpu")
     (layer,) = closeup_layers(t, [cu], memory_budget=163 * n_points + 96 * n_faces, device="cpu")
     assert len(layer.faces) == n_faces and len(layer.vertices) == n_points
+
+
+def test_closeup_reaching_the_terrain_with_its_soft_edge_only_is_refused_not_drawn_as_nothing():
+    from stepterrain.terrain import Terrain
+
+    # a ROI whose centre lies just off the extent's edge (or whose core lies over nodata) reached the terrain with its
+    # soft edge only: m < outline_level at every node under it, so no face was content and no fence stood on the
+    # terrain; `stepterrain closeup --roi` wrote the overview alone (exit 0), the scene a barely lifted sliver
+    t = terrain()  # extent x [1000, 1080], y [2000, 2064], spacing 2
+    off_edge = ROI.circle((1000.0 - 0.95 * 12.0, 2030.0), 12.0)  # 0.6 inside: m <= 0.16 at the nodes of x = 1000
+    heights = hills()
+    y, x = np.mgrid[0:33, 0:41]
+    heights[np.hypot(x * 2.0 - 40.0, y * 2.0 - 30.0) < 11.0] = np.nan  # the core (m >= 0.5 within 10.8) is nodata
+    holed = Terrain.from_heights(heights, spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+    in_hole = ROI.circle((1040.0, 2030.0), 12.0)
+    for terrain_, roi in ((t, off_edge), (holed, in_hole)):
+        (layer,) = closeup_layers(terrain_, [CloseUp(roi)], device="cpu")  # the kernels' layer is still returned
+        assert 0 < layer.mask_factor.max() < 0.5
+        for cu in (CloseUp(roi, offset=(0.0, 0.0, 60.0)), CloseUp(roi, anchor=AnchorStyle(outline_level=0.4))):
+            with pytest.raises(InvalidInputError, match=r"^closeups\[0\]: ROI box .* reaches the terrain with its soft "
+                                                        r"edge only: its mask is at most 0\.\d+ at every grid node"):
+                closeup_scene(terrain_, [cu], device="cpu")
+        if AVAILABLE:
+            with pytest.raises(InvalidInputError, match="soft edge only"):
+                render_closeups(terrain_, [CloseUp(roi)], window_size=SIZE, device="cpu")
+        # with band the soft edge is drawn (stretched, with the anchor): not refused
+        scene = closeup_scene(terrain_, [CloseUp(roi, anchor=AnchorStyle(band=True))], device="cpu")
+        assert (scene.face_attributes["layer"] == 1).any()
+    # a low outline level that the nodes reach draws the close-up
+    scene = closeup_scene(t, [CloseUp(off_edge, anchor=AnchorStyle(outline_level=0.1))], device="cpu")
+    assert (scene.face_attributes["layer"] == 2).any()
+
+
+def test_mp4_of_odd_sized_frames_is_refused_not_stretched(tmp_path, capsys):
+    # H.264 (4:2:0) codes 2 x 2 colour blocks: imageio resized 33 x 21 frames to 34 x 22 (each frame stretched, the
+    # video not the size asked for, save_animation's "keep the frame size" broken) with only a printed warning; the
+    # CLI rendered every frame of --size 321x241 first
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    import imageio.v3 as iio
+
+    from stepterrain import cli
+    from stepterrain.closeup import save_animation
+
+    frames = [np.full((21, 33, 3), 40 * k, np.uint8) for k in range(3)]
+    with pytest.raises(InvalidInputError, match=r"^frames of an MP4 must have an even width and height .*got 33x21$"):
+        save_animation(frames, tmp_path / "odd.mp4", fps=5.0)
+    assert not list(tmp_path.iterdir())
+    gif = save_animation(frames, tmp_path / "odd.gif", fps=5.0)  # a GIF takes any size
+    assert iio.imread(gif, index=None).shape[1:3] == (21, 33)
+    even = save_animation([f[:20, :32] for f in frames], tmp_path / "even.mp4", fps=5.0)
+    assert iio.imread(even, index=None, plugin="FFMPEG").shape[1:3] == (20, 32)
+    dem = tmp_path / "dem.npy"
+    np.save(dem, hills())
+    argv = ["-q", "closeup", str(dem), "--size", "321x241", "-o", str(tmp_path / "p.png"), "--gif",
+            str(tmp_path / "spin.mp4"), "--frames", "2"]
+    assert cli.main(argv) == 2
+    assert "--size of an MP4 must have an even width and height" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "even.mp4", "odd.gif"]
+
+
+@pytest.mark.parametrize("make", [lambda: ROI.rectangle((0.0, 0.0), (10000.0, 100.0), edge_width=10.0),
+                                  lambda: ROI.rectangle((0.0, 0.0), (100.0, 10000.0), edge_width=10.0),
+                                  lambda: ROI.ellipse((0.0, 0.0), (5000.0, 50.0), edge_width=10.0),
+                                  lambda: ROI.rounded_rectangle((0.0, 0.0), (1000.0, 100.0), edge_width=10.0)])
+def test_an_elongated_shapes_mask_resolves_its_shorter_side(make):
+    # the mask had square texels, `resolution` along the longer side: a 10000 x 100 m strip (a road, a river) got 3
+    # texel rows (its rim and centre), so m was a tent across it, 0.2 at 10 m inside its long edge instead of 1, and
+    # its outline (the fence) ran at half its width; 10:1 was off by 0.06 at that depth
+    roi = make()
+    w, h = roi.size
+    across = np.linspace(-0.5, 0.5, 401) * min(w, h)  # across the shorter side, through the centre
+    points = np.column_stack([across, np.zeros_like(across)]) if w < h else np.column_stack([np.zeros_like(across),
+                                                                                              across])
+    depth = min(w, h) / 2 - np.abs(across)  # distance to the long edge (the ends lie far away)
+    x = np.clip(depth / 10.0, 0.0, 1.0)
+    np.testing.assert_allclose(roi.factor(points), x * x * (3 - 2 * x), atol=0.02)
+    (line,) = roi.outline(0.5)  # at m = 0.5: 5 m inside the long edges
+    half = np.abs(line[:, 0] if w < h else line[:, 1]).max()
+    assert half == pytest.approx(min(w, h) / 2 - 5.0, abs=0.5)
