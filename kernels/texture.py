@@ -1082,11 +1082,15 @@ def adjust_layer(
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per pixel: CesiumJS's imagery-layer adjustments in its order (brightness, contrast, hue,
-    saturation, gamma), then alpha, the split (keep one side of a vertical line) and the cutout rectangle."""
+    """One thread per pixel: CesiumJS's imagery-layer adjustments in its order (gamma on the sampled colour, then
+    brightness, contrast, hue, saturation; clamped to [0, 1] last, as Cesium's framebuffer clamps), then alpha, the
+    split (keep one side of a vertical line) and the cutout rectangle."""
     i, j = pixel_of(wp.tid() + thread_offset, frame.cols)
     x = image[i, j]
-    rgb = wp.vec3(x[0], x[1], x[2])
+    rgb = wp.vec3(x[0], x[1], x[2])  # in [0, 1], as TextureLayer.rgba clamps it
+    if adjustment.one_over_gamma != 1.0:  # pow(color, vec3(oneOverGamma)), first since CesiumJS 1.53
+        rgb = wp.vec3(wp.pow(rgb[0], adjustment.one_over_gamma), wp.pow(rgb[1], adjustment.one_over_gamma),
+                      wp.pow(rgb[2], adjustment.one_over_gamma))
     rgb = rgb * adjustment.brightness  # mix(0, color, brightness)
     rgb = wp.vec3(0.5, 0.5, 0.5) + (rgb - wp.vec3(0.5, 0.5, 0.5)) * adjustment.contrast
     if adjustment.hue != 0.0:
@@ -1094,9 +1098,6 @@ def adjust_layer(
     luma = wp.dot(rgb, wp.vec3(0.2125, 0.7154, 0.0721))
     rgb = wp.vec3(luma, luma, luma) + (rgb - wp.vec3(luma, luma, luma)) * adjustment.saturation
     rgb = wp.vec3(wp.clamp(rgb[0], 0.0, 1.0), wp.clamp(rgb[1], 0.0, 1.0), wp.clamp(rgb[2], 0.0, 1.0))
-    if adjustment.one_over_gamma != 1.0:
-        rgb = wp.vec3(wp.pow(rgb[0], adjustment.one_over_gamma), wp.pow(rgb[1], adjustment.one_over_gamma),
-                      wp.pow(rgb[2], adjustment.one_over_gamma))
     alpha = x[3] * adjustment.alpha
     if adjustment.split_side != 0:
         u = (float(j) + 0.5) / float(frame.cols)

@@ -1359,10 +1359,11 @@ def adjust(
 ) -> TextureLayer:
     """The per-layer adjustments of a CesiumJS ``ImageryLayer``, as one per-pixel kernel.
 
-    In Cesium's order: brightness ``c · b``, contrast ``0.5 + (c − 0.5) · k``, hue rotation by ``hue`` radians
-    in YIQ, saturation ``mix(luma, c, s)`` with luma weights (0.2125, 0.7154, 0.0721), gamma ``c^(1/γ)``
-    (after clamping to [0, 1]), then alpha × ``alpha``; ``split`` keeps the layer only left ("left") or right
-    ("right") of the vertical line at ``split_position`` (a fraction of the width); ``cutout`` =
+    In Cesium's order (``sampleAndBlend`` of its GlobeFS.glsl since CesiumJS 1.53): gamma ``c^(1/γ)`` of the
+    layer's colour, brightness ``c · b``, contrast ``0.5 + (c − 0.5) · k``, hue rotation by ``hue`` radians in
+    YIQ, saturation ``mix(luma, c, s)`` with luma weights (0.2125, 0.7154, 0.0721), the result clamped to [0, 1]
+    (as Cesium's framebuffer clamps it), then alpha × ``alpha``; ``split`` keeps the layer only left ("left") or
+    right ("right") of the vertical line at ``split_position`` (a fraction of the width); ``cutout`` =
     (xmin, xmax, ymin, ymax) world rectangle where the layer is transparent. Defaults (1, 1, 1, 0, 1, 1) leave
     the layer unchanged, as in Cesium. Cesium's ``czm_hue`` writes the YIQ matrices row by row into GLSL's
     column-major ``mat3``; here the textbook YIQ matrices are applied (hue 0 is the identity in both, and a

@@ -961,3 +961,22 @@ def test_the_texture_command_s_mesh_clamps_its_texture(tmp_path):
     tree = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
     (texture,) = tree["textures"]
     assert tree["samplers"][texture["sampler"]] == {"wrapS": 33071, "wrapT": 33071}
+# ------------------------------------------------------------------------------------------ Cesium's adjustment order
+@pytest.mark.parametrize("grey, params, expected", [
+    # CesiumJS (GlobeFS.glsl sampleAndBlend, since 1.53) raises the sampled colour to 1/gamma first, then brightness:
+    # 0.5^(1/2) * 0.5, not (0.5 * 0.5)^(1/2) = 0.5 as with gamma last
+    (0.5, dict(brightness=0.5, gamma=2.0), 0.5 ** 0.5 * 0.5),
+    # brightness past 1 clamped at the end (the framebuffer's clamp), after gamma: 0.25^(1/2) * 3 = 1.5 -> 1
+    (0.25, dict(brightness=3.0, gamma=2.0), 1.0),
+    # gamma then contrast: 0.5 + (0.25^(1/2) - 0.5) * 1.5 = 0.5 (gamma last: (0.125)^(1/2) = 0.354)
+    (0.25, dict(contrast=1.5, gamma=2.0), 0.5),
+])
+def test_adjust_applies_gamma_first_as_cesium_does(grey, params, expected):
+    """adjust() applied gamma last (after brightness, contrast, hue and saturation, as CesiumJS did before 1.53),
+    while its docstring promised Cesium's order: CesiumJS applies ``pow(color, 1/gamma)`` to the sampled colour first,
+    so a layer with brightness or contrast and gamma set came out other than in Cesium (grey 0.5 with brightness 0.5,
+    gamma 2: 0.354 in Cesium, 0.5 here)."""
+    layer = TextureLayer("thematic", np.full((2, 3, 3), grey, np.float32), (0.0, 3.0, 0.0, 2.0))
+    out = adjust(layer, device="cpu", **params).rgba()
+    np.testing.assert_allclose(out[..., :3], expected, atol=1e-6)
+    np.testing.assert_allclose(out[..., 3], 1.0)

@@ -92,8 +92,8 @@ def test_modulate_formula(device):
 
 
 def cesium_reference(rgb, alpha, brightness, contrast, hue, saturation, gamma, layer_alpha):
-    """CesiumJS GlobeFS order, in float64."""
-    c = rgb.astype(np.float64) * brightness
+    """CesiumJS GlobeFS order (gamma first, since 1.53), in float64."""
+    c = rgb.astype(np.float64) ** (1 / gamma) * brightness
     c = 0.5 + (c - 0.5) * contrast
     if hue:
         yiq = c @ np.array([[0.299, 0.587, 0.114], [0.595716, -0.274453, -0.321263],
@@ -104,8 +104,7 @@ def cesium_reference(rgb, alpha, brightness, contrast, hue, saturation, gamma, l
         c = yiq @ np.array([[1.0, 0.9563, 0.6210], [1.0, -0.2721, -0.6474], [1.0, -1.1070, 1.7046]]).T
     luma = c @ np.array([0.2125, 0.7154, 0.0721])
     c = luma[..., None] + (c - luma[..., None]) * saturation
-    c = np.clip(c, 0, 1) ** (1 / gamma)
-    return c, alpha * layer_alpha
+    return np.clip(c, 0, 1), alpha * layer_alpha
 
 
 @pytest.mark.parametrize("params", [
