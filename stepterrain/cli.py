@@ -48,8 +48,8 @@ examples:
   stepterrain steps --levels 400,800,1200,1600,2000 --colormap viridis -o levels.obj
   stepterrain steps --lens-relative 0.5,0.5,0.2 -o lens.glb --png lens.png
       original terrain inside a soft circular lens at the centre, steps outside (paper 000, Fig. 4)
-  stepterrain steps --interval 200 --base 0.5 --solid --floor 0 -o print.3mf
-      a watertight solid for 3D printing (--base 0.5: no integer height sits on a threshold), with its colours;
+  stepterrain steps --interval 200 --solid --floor 0 -o print.3mf
+      a watertight solid for 3D printing (also where integer heights sit on thresholds), with its colours;
       .stl holds float32, which rounds UTM coordinates by centimetres (a warning says by how much)
 """
 

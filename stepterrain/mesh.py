@@ -117,7 +117,8 @@ def close_solid(
 
     Zero-volume fins are removed first: where heights sit exactly on a threshold along a ridge line, two walls
     stand back to back on the same vertices (a terrace of zero width); both go, and so do vertices no face
-    uses any more.
+    uses any more. (:func:`~stepterrain.stepped.stepped` steps a solid from heights moved off the thresholds, so
+    its surfaces have no such fin, and no twin vertex whose vertical edge four walls share at a saddle.)
 
     Returns the new vertices (the surface's first, then the base), the faces (kept input faces first, then the
     added ones), the mask of input faces kept, the number of faces added, and per surface vertex the input vertex

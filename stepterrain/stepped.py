@@ -24,7 +24,7 @@ import math
 import numbers
 import warnings
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -985,7 +985,8 @@ def stepped(
     solid : bool
         Close the surface with side skirts and a flat base at ``floor`` (default: one interval below the
         lowest isovalue or the lower surface that γ < 1 gives under explicit ``levels``; with ``levels``, a
-        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing. A ``floor``
+        tenth of their span, at least 0.1): a watertight, consistently wound volume for 3D printing, also where
+        heights sit on a threshold (they are stepped from one float32 step above it: see Notes). A ``floor``
         not below the surface's lowest point is refused; where the heights tell that point (a TIN, a grid without
         nodata: the lowest height blended with its isovalue), before stepping.
     spacing, origin : (dx, dy), (x0, y0)
@@ -1016,10 +1017,13 @@ def stepped(
     Every node snaps to its nearest isovalue; a height exactly on a threshold t_i = (α_i + α_i+1) / 2
     belongs to the upper level (real DEMs with integer heights hit thresholds often; the rule is applied
     identically in every pass). Where such heights line a ridge, the upper level's terrace has zero width
-    and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold); such
-    back-to-back fins are removed from solids. A solid is guaranteed watertight when no height sits
-    exactly on a threshold (a warning says so otherwise; shift ``base`` by a fraction of the interval,
-    e.g. 0.5 m for integer DEMs, to avoid it); where two nodata holes meet at a single node, that node gets
+    and two walls stand back to back (edge-manifold holds wherever no height sits on a threshold). A solid is
+    watertight and consistently wound whatever the heights: it is stepped from the heights with those on a
+    threshold moved up by one float32 step (``np.nextafter``; the same level, so at γ = 1 every node keeps its
+    isovalue bit for bit, and only the walls' crossings next to such a node move, within float32 rounding), so its
+    top is the stepped surface of the heights so nudged and the surface without ``solid`` is unchanged (only levels
+    a few float32 steps apart, where the next float32 value up is itself a threshold, leave such a height as it is,
+    with a warning that the solid may leak there); where two nodata holes meet at a single node, that node gets
     one copy per side, so the solid stays watertight there. Each edge crossing a threshold owns a wall bottom and top
     vertex, shared by both triangles of the edge, so the mesh is crack-free: its boundary lies on the input's boundary,
     terraces face +z and walls face the lower terrace. Cost: O(nodes + edges + output) on the device,
@@ -1054,6 +1058,8 @@ def stepped(
         _check_carried_visual(t)
     if solid and floor is not None:
         _refuse_floor_above_surface(t, values, gamma, floor)  # before stepping; close_solid has the final word
+    if solid:
+        t = _off_thresholds(t, values)
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget)
     return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
@@ -1137,6 +1143,41 @@ def _refuse_floor_above_surface(t: Terrain, values: NDArray[np.float32], gamma: 
         f"{float(np.float32(h)):g} and its isovalue {alpha:g}, γ varying in [0, 1]); got {floor_z:.9g}")
 
 
+def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
+    """The terrain a solid is stepped from: ``t`` itself, or, where a height the surface uses sits exactly on a
+    threshold t_i = (α_i + α_i+1) / 2, a copy with such heights moved up by one float32 step (``np.nextafter``).
+
+    A height on a threshold belongs to the upper level, and so does the next float32 value up: every node keeps its
+    level (at γ = 1 its isovalue, bit for bit); only the walls' crossings on its edges move, by about one float32 step
+    of the height over the edge's rise (at γ < 1 the node by (1 - γ) of one step). The surface then has no twin
+    vertex and no zero-width terrace: two walls back to back on a ridge of such heights, or four meeting on one node's
+    vertical edge at a saddle, left solids that were not watertight (about a third of small random integer grids
+    stepped with interval 2, and the embedded DEM at intervals 20, 50 and 100 with base 0). Where the next float32
+    value is itself a threshold (levels a few float32 steps apart), the height stays, with a warning that the solid
+    may leak there."""
+    thresholds = thresholds_of(values)
+    if not t._uses_height_in(thresholds):  # the heights the surface uses: a TIN's unused points cannot leak
+        return t
+    heights = t.heights
+    on = np.flatnonzero(np.isin(heights.reshape(-1), thresholds))
+    up = np.nextafter(heights.reshape(-1)[on], np.float32(np.inf))
+    stays = np.isin(up, thresholds)
+    if stays.any():
+        warnings.warn(
+            "some heights sit exactly on a threshold (α_i + α_i+1) / 2 that lies one float32 step below the next; "
+            "the solid may not be watertight there. Give levels further apart.",
+            stacklevel=caller_stacklevel(),
+        )
+        on, up = on[~stays], up[~stays]
+    nudged = heights.copy()
+    nudged.reshape(-1)[on] = up
+    if t.kind == "grid":  # a fresh cache: the uploads, nodata flag and ranges belong to the heights
+        return replace(t, heights=nudged, _device_cache={}, _owned=True)
+    points = t.points.copy()  # a TIN's heights are its points' z as float32
+    points[on, 2] = up
+    return replace(t, heights=nudged, points=points, _device_cache={}, _owned=True)
+
+
 def _assemble(
     t: Terrain,
     arrays: StepArrays,
@@ -1178,15 +1219,6 @@ def _assemble(
         if len(faces) == 0:
             raise InvalidInputError("solid=True needs a surface to close; the terrain has no triangle with three "
                                     "finite heights (all cells touch nodata)")
-        # the heights the surface uses: a TIN's unused points (no face) cannot make it leak
-        if t._uses_height_in(thresholds_of(values)):
-            warnings.warn(
-                "some heights sit exactly on a threshold (α_i + α_i+1) / 2; the solid may not be watertight "
-                "there. Shift base by a fraction of the interval (e.g. base=0.5, on the command line --base 0.5, for "
-                "integer heights).",
-                stacklevel=caller_stacklevel(),
-            )
-
         try:  # faces, hence vertices (checked above)
             floor_z = (default_floor(values, float(vertices[:, 2].min()), interval) if floor is None
                        else as_number(floor))

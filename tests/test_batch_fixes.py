@@ -765,14 +765,15 @@ def test_items_whose_worker_died_are_submitted_again(tmp_path):
 
 def test_a_warning_every_item_gives_alike_is_said_once(tmp_path):
     """Each item's warnings are recorded and said again by the caller (serial runs too, since STL's rounding is
-    said once per batch); a message every tile gives alike (a solid's heights on a threshold) is said once, as
-    Python's "default" filter said it when the serial run warned directly."""
+    said once per batch); a message every tile gives alike (a solid's heights on a threshold that lies one float32 step
+    below the next) is said once, as Python's "default" filter said it when the serial run warned directly."""
     import warnings
 
-    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)  # whole heights on the thresholds
+    z = (np.add.outer(np.arange(9.0), np.arange(9.0)) % 3).astype(np.float32)  # 1.0 in every tile, on t_0
+    levels = [float(np.nextafter(np.float32(1), np.float32(0))), 1.0, 1.0 + 2.0**-22]  # t_1 = 1 + 2^-23
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("default")
-        report = batch(z, tmp_path / "out", tile_size=4, interval=2.0, solid=True, scheduler="serial")
+        report = batch(z, tmp_path / "out", tile_size=4, levels=levels, solid=True, scheduler="serial")
     assert report.ok and sum("watertight" in m for r in report.done for m in r.warnings) >= 2
     said = [str(w.message) for w in caught if "watertight" in str(w.message)]
     assert len(said) == 1 and caught[0].filename == __file__
@@ -1690,13 +1691,14 @@ def test_serial_batches_in_two_threads_leave_the_warning_machinery_to_the_proces
         return result
 
     monkeypatch.setattr(batch_module, "_run_item", overlapping)
-    heights = np.add.outer(np.arange(12), np.arange(12)).astype(np.float32) * 10.0  # heights on the thresholds
+    heights = (np.add.outer(np.arange(12), np.arange(12)) % 3).astype(np.float32)  # 1.0 on t_0, one step below t_1
+    levels = [float(np.nextafter(np.float32(1), np.float32(0))), 1.0, 1.0 + 2.0**-22]
     before = list(warnings.filters)
     reports, errors = {}, []
 
     def run(k):
         try:
-            reports[k] = batch(heights, output_dir=tmp_path / f"out{k}", tile_size=12, interval=20.0, base=0.0,
+            reports[k] = batch(heights, output_dir=tmp_path / f"out{k}", tile_size=12, levels=levels,
                                solid=True, scheduler="serial", progress=False)
         except Exception as exc:  # noqa: BLE001 - reported below
             errors.append(exc)

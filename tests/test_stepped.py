@@ -737,24 +737,35 @@ def test_solid_colours_a_pinch_vertexs_copy_as_its_original():
     assert (mesh.visual.vertex_colors[~top] == [96, 96, 96, 255]).all()
 
 
-def test_solid_warns_when_heights_sit_on_thresholds():
-    with pytest.warns(UserWarning, match="exactly on a threshold"):
-        st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
+def test_solid_is_watertight_when_heights_sit_on_thresholds():
+    """Heights on a threshold step as the heights one float32 step above them (the same level) for a solid: no
+    twin vertex, no warning, a watertight solid whose terraces lie on their isovalues."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        mesh = st.stepped(np.array([[0.0, 1.0], [1.0, 2.0]]), interval=2.0, solid=True)
+    assert mesh.is_watertight and mesh.is_volume
+    assert set(mesh.vertices[:, 2].tolist()) == {-2.0, 0.0, 2.0}
 
 
-def test_solid_threshold_warning_ignores_a_tins_unused_points():
-    """A point no face uses cannot open the solid: its height on a threshold gives no warning; a used one does."""
+def test_solid_of_a_tin_with_points_on_thresholds():
+    """A TIN's used point on a threshold is stepped from one float32 step above it, as a grid's node: no warning,
+    a watertight solid; a point no face uses is left as it is."""
     import warnings
 
     vertices = np.array([[0, 0, 0.25], [4, 0, 1.25], [0, 4, 2.25], [4, 4, 3.25], [9, 9, 2.0]], float)
     faces = np.array([[0, 1, 3], [0, 3, 2]])
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")
-        mesh = st.stepped(trimesh.Trimesh(vertices, faces, process=False), interval=1.0, base=0.5, solid=True)
-    assert mesh.is_watertight
-    vertices[1, 2] = 2.0  # a used point on the threshold 2.0 between isovalues 1.5 and 2.5
-    with pytest.warns(UserWarning, match="exactly on a threshold"):
-        st.stepped(trimesh.Trimesh(vertices, faces, process=False), interval=1.0, base=0.5, solid=True)
+    for z in (1.25, 2.0):  # 2.0: a used point on the threshold 2.0 between isovalues 1.5 and 2.5
+        vertices[1, 2] = z
+        tin = trimesh.Trimesh(vertices, faces, process=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            mesh = st.stepped(tin, interval=1.0, base=0.5, solid=True)
+        assert mesh.is_watertight and mesh.is_volume
+        assert tin.vertices[1, 2] == z  # the caller's mesh is not changed
+        surface = st.stepped(tin, interval=1.0, base=0.5)
+        assert mesh.volume == pytest.approx(volume_under(surface) - mesh.metadata["floor"] * 16.0, rel=1e-6)
 
 
 def test_lens_shows_the_original_inside_and_steps_outside(dem):
