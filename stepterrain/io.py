@@ -1499,6 +1499,47 @@ def _placement(
     return _Placement(spacing, (0.0, 0.0), local_crs, source, None)
 
 
+#: What :func:`degrees_as_local_metres` names the grid in its refusals and warnings when it has no ``source``.
+_GIVEN_GRID = "the heights"
+
+
+def degrees_as_local_metres(
+    shape: tuple[int, int], spacing: tuple[float, float], origin: tuple[float, float], crs: str | None,
+    source: str | None,
+) -> tuple[tuple[float, float], tuple[float, float], str | None, str] | None:
+    """For :meth:`Terrain.from_heights` (and a grid Terrain built directly) whose ``crs`` is geographic: its
+    ``spacing`` and ``origin`` (node (0, 0)) are degrees, placed as :func:`load_dem` places a file in degrees (local
+    metres, origin (0, 0), a spherical ``+proj=eqc`` CRS; the same warnings) as (spacing, origin, crs, source); None
+    for any other ``crs`` (projected, local, none: the grid is in its own units). Built as given, such a grid had
+    cells of a thousandth of a metre under heights in metres: slopes 10^5 too steep (an ROI's ``slope_above``
+    marked the whole terrain, renders asked for z_scale 8e-5). An InvalidInputError naming crs, spacing and origin
+    when they are no degrees (latitudes beyond ±90, longitudes over more than 360: metres labelled geographic)."""
+    if not crs or crs.lstrip().lower().startswith("+proj=eqc") or not _is_geographic(crs):
+        return None
+    name = source or _GIVEN_GRID
+    file = Path(_GIVEN_GRID)
+    (dx, dy), (x0, y0) = spacing, origin
+    geotransform = np.array([x0 - 0.5 * dx, dx, 0.0, y0 - 0.5 * dy, 0.0, dy], dtype=np.float64)  # cell corners
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            place = _placement(file, shape, geotransform, crs, geographic=True, metres=None, height_unit=None)
+    except DataFileError as exc:
+        reason = str(exc).split(": ", 1)[-1]
+        raise InvalidInputError(
+            f"crs {crs!r} is geographic, so spacing {tuple(spacing)} and origin {tuple(origin)} are read as degrees "
+            f"(and made local metres, as load_dem makes a file in degrees), but {reason.split(', but ', 1)[-1]}; if "
+            "they are metres, pass the projected CRS they are in (or crs=None)"
+        ) from exc
+    for warning in caught:  # told at the caller's line, naming the grid as the caller did
+        text = str(warning.message)
+        if text.startswith(f"{_GIVEN_GRID}: "):
+            text = f"{name}: {text[len(_GIVEN_GRID) + 2:]}"
+        warnings.warn(text, warning.category, stacklevel=caller_stacklevel())
+    assert place.source is not None
+    return place.spacing, place.origin, place.crs, name + place.source[len(_GIVEN_GRID):]
+
+
 def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
     """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS looks given in degrees: its
     nodes lie within longitudes and latitudes (x in [-180, 360], y in [-90, 90]) and its heights span more than

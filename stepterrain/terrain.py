@@ -443,6 +443,18 @@ def _heights_array(
     return out, lo, hi
 
 
+def _in_metres(shape: tuple[int, ...], spacing: tuple[float, float], origin: tuple[float, float], crs: str | None,
+               source: str | None) -> tuple[tuple[float, float], tuple[float, float], str | None, str | None]:
+    """(spacing, origin, crs, source) of a grid as the Terrain keeps them: a geographic ``crs``'s degrees made local
+    metres as load_dem makes a file's (:func:`stepterrain.io.degrees_as_local_metres`), anything else as given."""
+    if not crs:
+        return spacing, origin, crs, source
+    from .io import degrees_as_local_metres  # io imports this module
+
+    placed = degrees_as_local_metres((int(shape[0]), int(shape[1])), spacing, origin, crs, source)
+    return (spacing, origin, crs, source) if placed is None else placed
+
+
 def _described(value: Any) -> str:
     """A short description of an argument's value for an error message: an array's shape and dtype, else its repr."""
     if isinstance(value, np.ndarray):
@@ -529,8 +541,11 @@ class Terrain:
             array, lo, hi = _heights_array(self.heights)
             set_field(self, "heights", array)  # a copy: unshared with the array given
             spacing, origin = grid_geometry(self.spacing, self.origin, array.shape)
+            spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, self.crs, self.source)
             set_field(self, "spacing", spacing)
             set_field(self, "origin", origin)
+            set_field(self, "crs", crs)
+            set_field(self, "source", source)
             self._device_cache["has_nodata"] = math.isnan(lo)
             if not math.isnan(lo):
                 self._device_cache["height_range"] = (lo, hi)
@@ -572,13 +587,17 @@ class Terrain:
         _borrow: bool = False,
     ) -> Terrain:
         """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero;
-        ``height_unit`` the length unit the heights were read in, now metres (see the class). (``_borrow`` is
-        internal: see :func:`as_terrain`.)"""
+        ``height_unit`` the length unit the heights were read in, now metres (see the class). A geographic ``crs``
+        (EPSG:4326, ...) makes ``spacing`` and ``origin`` degrees, read into local metres as
+        :func:`~stepterrain.io.load_dem` reads a file in degrees (origin (0, 0) at node (0, 0), a spherical
+        ``+proj=eqc`` crs, the degrees in ``source``): the same Terrain as load_dem of the grid saved as a GeoTIFF.
+        (``_borrow`` is internal: see :func:`as_terrain`.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         height_unit = optional_text(height_unit, "height_unit", "the unit the heights were read in, e.g. 'ft'")
         array, lo, hi = _heights_array(heights, borrow=_borrow)
         spacing, origin = grid_geometry(spacing, origin, array.shape)
+        spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source)
         terrain = cls(
             kind="grid",
             heights=array,

@@ -922,3 +922,40 @@ def test_an_edge_used_twice_in_one_direction_is_refused_naming_the_faces():
         st.stepped(doubled, interval=0.2)
     doubled.update_faces(doubled.unique_faces())
     assert len(st.stepped(doubled, interval=0.2).faces) == len(st.stepped(mesh, interval=0.2).faces)
+
+
+def test_a_grid_built_in_degrees_is_read_into_local_metres_as_load_dem_reads_the_same_geotiff(tmp_path):
+    """Terrain.from_heights(h, spacing=(0.000833, -0.000833), origin=(lon, lat), crs="EPSG:4326") kept its degrees as
+    metres: cells of a millimetre under heights of hundreds of metres, slopes 10^5 too steep (an ROI's slope_above
+    marked 99.5 % of the terrain steep, renders asked for z_scale 8e-5). It now gives the Terrain load_dem gives for
+    the same grid written as a GeoTIFF; a projected or no CRS keeps the grid as given; metres labelled geographic are
+    refused naming crs, spacing and origin."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    rng = np.random.default_rng(4)
+    heights = (1500.0 + 300.0 * rng.random((40, 50))).astype(np.float32)
+    step, lon, lat = 0.000833, -105.5, 40.1
+    built = st.Terrain.from_heights(heights, spacing=(step, -step), origin=(lon, lat), crs="EPSG:4326")
+    path = tmp_path / "dem.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=40, width=50, count=1, dtype="float32", crs="EPSG:4326",
+                       transform=Affine(step, 0.0, lon - 0.5 * step, 0.0, -step, lat + 0.5 * step)) as dst:
+        dst.write(heights, 1)
+    read = st.load_dem(path)
+    assert built.spacing == read.spacing and built.origin == read.origin == (0.0, 0.0)
+    assert built.crs == read.crs and built.crs.startswith("+proj=eqc")
+    assert 70.0 < built.spacing[0] < 72.0 and -93.0 < built.spacing[1] < -92.0  # metres, dy north-up
+    np.testing.assert_array_equal(built.heights, read.heights)
+    assert "EPSG:4326 degrees as local metres" in built.source
+    direct = st.Terrain(kind="grid", heights=heights, spacing=(step, -step), origin=(lon, lat), crs="EPSG:4326")
+    assert (direct.spacing, direct.origin, direct.crs) == (read.spacing, read.origin, read.crs)
+    roi = st.ROI.slope_above(built, 45.0)  # a few cells of 300 m relief over 65 m: steep, but not all of them
+    assert 0.0 < float(np.mean(np.asarray(roi.mask) > 0.5)) < 0.9
+
+    for crs in ("EPSG:32613", None):  # metres stay metres
+        kept = st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(480000.0, 4440000.0), crs=crs)
+        assert (kept.spacing, kept.origin, kept.crs) == ((30.0, -30.0), (480000.0, 4440000.0), crs)
+    with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:4326' is geographic, so spacing \(30\.0, -30\.0\) and "
+                                                r"origin \(480000\.0, 4440000\.0\) are read as degrees .*latitudes run "
+                                                r".*pass the projected CRS they are in \(or crs=None\)$"):
+        st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(480000.0, 4440000.0), crs="EPSG:4326")
