@@ -56,6 +56,9 @@ def main(argv: list[str] | None = None) -> int:
             import imageio_ffmpeg  # noqa: F401
         except ImportError:
             parser.error("--gif: MP4 output needs imageio-ffmpeg: pip install 'stepterrain[video]'")
+        if args.window[0] % 2 or args.window[1] % 2:  # save_animation refused it after the renders and the PNG
+            parser.error(f"--window of an MP4 must have an even width and height (H.264 codes 2 x 2 colour blocks; "
+                         f"a GIF takes any size); got {args.window[0]}x{args.window[1]}")
     with usage_errors(parser):  # a value the library refuses: a usage error (exit 2), not a traceback
         return run(args)
 

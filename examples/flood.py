@@ -24,7 +24,8 @@ import numpy as np
 
 from stepterrain import get_memory_budget
 from stepterrain.cli import usage_errors
-from stepterrain.errors import MissingDependencyError, OutputTooLargeError
+from stepterrain.closeup import save_animation
+from stepterrain.errors import InvalidInputError, MissingDependencyError, OutputTooLargeError
 from stepterrain.export import atomic_path, save_image
 from stepterrain.texture import TextureAnimation, blend, modulate, terrain_layer, topographic_layer
 
@@ -44,18 +45,11 @@ def require_video() -> None:
 
 
 def write_mp4(frames: list[np.ndarray], path: Path) -> Path:
-    """H.264 MP4 of the RGB frames through imageio's ffmpeg plugin, written atomically.
-
-    The container is named (``-f mp4``): the temporary file's ``.tmp`` suffix would not tell ffmpeg. The frames keep
-    their size (H.264 takes even sides only: an odd one is stretched by a pixel)."""
+    """H.264 MP4 of the RGB frames, written atomically by the library's :func:`~stepterrain.closeup.save_animation`:
+    the frames keep their size, which must be even both ways (:func:`run` checks the crop before any work; imageio
+    stretched an odd-sized frame by a pixel, with only a printed warning), and a truncated MP4 is refused."""
     require_video()
-    import imageio.v3 as iio
-
-    with atomic_path(path) as tmp:
-        iio.imwrite(tmp, np.stack([f[..., :3] for f in frames]), extension=".mp4", plugin="FFMPEG",
-                    fps=1000.0 / FRAME_MS, codec="libx264", output_params=["-f", "mp4"],
-                    macro_block_size=2)  # keep the frame size (imageio's 16 stretched a 20 x 20 crop to 32 x 32)
-    return path
+    return save_animation(frames, path, fps=1000.0 / FRAME_MS)
 
 
 def water_layer(terrain, level: float, lo: float, hi: float):
@@ -96,6 +90,11 @@ def main(argv: list[str] | None = None) -> int:
 def run(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     terrain = crop_sample(args.size)
+    rows, cols = terrain.shape
+    if args.mp4 and (rows % 2 or cols % 2):  # before any work: the GIF and PNG were written, then the MP4 stretched
+        raise InvalidInputError(f"--mp4 needs frames of an even width and height (H.264 codes 2 x 2 colour blocks; "
+                                f"the GIF takes any size); --size {args.size} crops {cols} x {rows} nodes, one pixel "
+                                "each: give an even --size, no larger than the DEM's shorter side")
     held = args.frames * terrain.heights.size * 3 * (3 if args.mp4 else 2)  # the frames, the GIF's (and MP4's) stack
     if held > get_memory_budget():  # every frame is kept for the GIF: a large --frames ran out of memory
         raise OutputTooLargeError(

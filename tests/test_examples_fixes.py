@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
+
+from stepterrain.errors import InvalidInputError
 
 from .conftest import needs_render
 from .test_examples import EXAMPLES, assert_usage_error_writing_nothing, load_example
@@ -130,6 +133,39 @@ def test_flood_mp4_keeps_the_frame_size(tmp_path):
     last = gif[-1][..., :3].astype(float)
     np.testing.assert_allclose(video[-1].reshape(-1, 3).mean(0), last.reshape(-1, 3).mean(0), atol=8)
     assert np.corrcoef(video[-1].astype(float).mean(-1).ravel(), last.mean(-1).ravel())[0, 1] > 0.8
+
+
+def test_flood_mp4_refuses_an_odd_frame_size_before_writing_anything(tmp_path, capsys):
+    """--size 21 --mp4 wrote the GIF and the PNG at 21 x 21 and an MP4 that imageio stretched to 22 x 22 (a printed
+    warning only): the example wrote MP4 through imageio itself, past the even-size check of the library's
+    save_animation. Now it writes through save_animation, and an odd crop is a usage error before any work."""
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    example = load_example("flood")
+    out = tmp_path / "flood.png"
+    argv = ["--size", "21", "--frames", "2", "--keyframes", "2", "--mp4", "--output", str(out), "--device", "cpu"]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "--mp4 needs frames of an even width and height" in err and "crops 21 x 21 nodes" in err
+    assert list(tmp_path.iterdir()) == []
+    with pytest.raises(InvalidInputError, match=r"^frames of an MP4 must have an even width and height"):
+        example.write_mp4([np.zeros((21, 20, 3), np.uint8)] * 2, tmp_path / "odd.mp4")  # its own writer checks too
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_closeup_mappings_refuses_an_odd_mp4_window_before_rendering(tmp_path, capsys):
+    """--window 201 150 --gif spin.mp4 rendered the overview and the spin, wrote the PNG and only then had
+    save_animation refuse the odd width: a failed command left the PNG behind. Now a usage error before any work."""
+    pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
+    example = load_example("closeup_mappings")
+    argv = ["--size", "48", "--window", "201", "150", "--frames", "2", "--gif", str(tmp_path / "spin.mp4"),
+            "--output", str(tmp_path / "out.png"), "--device", "cpu"]
+    with pytest.raises(SystemExit) as exit_info:
+        example.main(argv)
+    assert exit_info.value.code == 2
+    assert "--window of an MP4 must have an even width and height" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_batch_tiles_exits_1_when_every_tile_failed(tmp_path, monkeypatch, capsys):
