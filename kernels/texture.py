@@ -1239,3 +1239,171 @@ def reduce_band(
                 total += wr * row_sum
         denominator = weight_sum if by_alpha else area
         dst_out[local_r, local_c, ch] = wp.uint8((wp.int64(2) * total + denominator) // (wp.int64(2) * denominator))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# contour lines
+# ---------------------------------------------------------------------------------------------------------
+
+
+@wp.struct
+class TexelSampling:
+    """Where texel (r, c) of a north-up texture samples a :class:`HeightGrid`: at node coordinates
+    ``start + (c * step[0], r * step[1])`` (column u, row v; integers are nodes), bilinearly."""
+
+    rows: wp.int32
+    cols: wp.int32
+    start: wp.vec2
+    step: wp.vec2
+
+
+@wp.struct
+class ContourStyle:
+    """Contour levels and how their lines are drawn: uniform ``base + k * interval`` when ``levels`` is empty, else
+    the explicit strictly increasing ``levels``; line k is an index line when ``index_every`` > 0 divides k (k
+    from 0 at ``base``, or the position in ``levels``). Widths are halved, in texels; colours straight RGBA."""
+
+    levels: wp.array[wp.float64]
+    base: wp.float64
+    interval: wp.float64
+    half_width: wp.float32
+    index_half_width: wp.float32
+    index_every: wp.int32
+    color: wp.vec4
+    index_color: wp.vec4
+
+
+@wp.func
+def height_at(grid: HeightGrid, u: wp.float32, v: wp.float32) -> wp.vec2:
+    """(height, weight of data) of the grid's bilinear interpolant at node coordinates (u, v), clamped to the grid:
+    the corners with data weighted and renormalised, so a nodata (NaN) corner spreads no NaN; (0, 0) where no
+    corner of non-zero weight has data."""
+    u = wp.clamp(u, 0.0, float(grid.cols - 1))
+    v = wp.clamp(v, 0.0, float(grid.rows - 1))
+    j0 = wp.int32(wp.floor(u))
+    i0 = wp.int32(wp.floor(v))
+    fu = u - float(j0)
+    fv = v - float(i0)
+    j1 = wp.min(j0 + 1, grid.cols - 1)
+    i1 = wp.min(i0 + 1, grid.rows - 1)
+    total = wp.float32(0.0)
+    weight = wp.float32(0.0)
+    for corner in range(4):
+        ci = wp.where(corner >= 2, i1, i0)
+        cj = wp.where(corner % 2 == 1, j1, j0)
+        w = wp.where(corner >= 2, fv, 1.0 - fv) * wp.where(corner % 2 == 1, fu, 1.0 - fu)
+        if w > 0.0:
+            h = grid.heights[ci, cj]
+            if not wp.isnan(h):
+                total += w * h
+                weight += w
+    if weight > 0.0:
+        return wp.vec2(total / weight, weight)
+    return wp.vec2(0.0, 0.0)
+
+
+@wp.func
+def texel_height(grid: HeightGrid, sampling: TexelSampling, r: wp.int32, c: wp.int32) -> wp.vec2:
+    """:func:`height_at` the centre of texel (r, c); (0, 0) (no data) beyond the texture."""
+    if r < 0 or r >= sampling.rows or c < 0 or c >= sampling.cols:
+        return wp.vec2(0.0, 0.0)
+    return height_at(grid, sampling.start[0] + float(c) * sampling.step[0],
+                     sampling.start[1] + float(r) * sampling.step[1])
+
+
+@wp.func
+def texel_slope(before: wp.vec2, centre: wp.float32, after: wp.vec2) -> wp.float32:
+    """Height change per texel along one axis: the central difference, one-sided where a neighbour has no data
+    (beyond the texture, nodata), 0 where neither has."""
+    if before[1] > 0.0 and after[1] > 0.0:
+        return (after[0] - before[0]) * 0.5
+    if after[1] > 0.0:
+        return after[0] - centre
+    if before[1] > 0.0:
+        return centre - before[0]
+    return 0.0
+
+
+@wp.func
+def line_coverage(distance: wp.float32, half_width: wp.float32) -> wp.float32:
+    """The part of a texel (a unit box) that a straight line ``2 * half_width`` texels wide covers, its centre line
+    ``distance`` texels from the texel's centre, across the line: > 0.5 exactly when distance < half_width (for
+    lines at least a texel wide), 1 within half_width - 0.5."""
+    return wp.clamp(wp.min(distance + half_width, 0.5) - wp.max(distance - half_width, -0.5), 0.0, 1.0)
+
+
+@wp.func
+def level_distance(gap: wp.float64, slope: wp.float32) -> wp.float32:
+    """Texels from a texel to a level ``gap`` (>= 0) height units away where the height changes by ``slope`` per
+    texel: gap / slope, the first-order estimate; on flat ground (slope 0) 0 exactly on the level, else far."""
+    if slope > 0.0:
+        return wp.min(wp.float32(gap / wp.float64(slope)), 1.0e30)
+    if gap == wp.float64(0.0):
+        return 0.0
+    return 1.0e30
+
+
+@wp.func
+def is_index_line(k: wp.float64, every: wp.int32) -> wp.bool:
+    """Whether line k (a whole number, any sign) is an index line: ``every`` > 0 divides it."""
+    if every <= 0:
+        return False
+    n = wp.float64(every)
+    return k - n * wp.floor(k / n) == wp.float64(0.0)
+
+
+@wp.func
+def contour_line(style: ContourStyle, k: wp.float64, gap: wp.float64, slope: wp.float32, best: wp.vec4) -> wp.vec4:
+    """``best`` (straight RGBA, alpha the coverage) or line k's, ``gap`` height units away, where it covers more."""
+    index = is_index_line(k, style.index_every)
+    half = wp.where(index, style.index_half_width, style.half_width)
+    colour = wp.where(index, style.index_color, style.color)
+    coverage = line_coverage(level_distance(gap, slope), half) * colour[3]
+    if coverage > best[3]:
+        return wp.vec4(colour[0], colour[1], colour[2], coverage)
+    return best
+
+
+@wp.kernel
+def draw_contours(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    sampling: TexelSampling,
+    style: ContourStyle,
+    # outputs
+    rgba_out: wp.array2d[wp.vec4],
+):
+    """One thread per texel: its height at the texel's centre and the height's change per texel (central
+    differences of the neighbouring texels' heights); the two levels around the height (the one at or below, the
+    one above) each drawn as an anti-aliased line of its width by the distance |h - level| / |grad h| texels; the
+    stronger kept, straight colour, alpha its coverage times the centre's weight of data (0 over nodata)."""
+    r, c = pixel_of(wp.tid() + thread_offset, sampling.cols)
+    centre = texel_height(grid, sampling, r, c)
+    best = wp.vec4(style.color[0], style.color[1], style.color[2], 0.0)
+    if centre[1] > 0.0:
+        h = centre[0]
+        gx = texel_slope(texel_height(grid, sampling, r, c - 1), h, texel_height(grid, sampling, r, c + 1))
+        gy = texel_slope(texel_height(grid, sampling, r - 1, c), h, texel_height(grid, sampling, r + 1, c))
+        slope = wp.sqrt(gx * gx + gy * gy)
+        h64 = wp.float64(h)
+        n = style.levels.shape[0]
+        if n == 0:
+            q = (h64 - style.base) / style.interval
+            k = wp.floor(q)
+            best = contour_line(style, k, (q - k) * style.interval, slope, best)
+            best = contour_line(style, k + wp.float64(1.0), (k + wp.float64(1.0) - q) * style.interval, slope, best)
+        else:
+            lo = wp.int32(0)  # the first level above h: binary search
+            hi = n
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if style.levels[mid] <= h64:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            if lo > 0:
+                best = contour_line(style, wp.float64(lo - 1), h64 - style.levels[lo - 1], slope, best)
+            if lo < n:
+                best = contour_line(style, wp.float64(lo), style.levels[lo] - h64, slope, best)
+        best = wp.vec4(best[0], best[1], best[2], best[3] * wp.min(centre[1], 1.0))
+    rgba_out[r, c] = best

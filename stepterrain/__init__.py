@@ -6,7 +6,8 @@ One entry point per capability (paper):
 - global terrain on the cube sphere and planar adaptive meshes (paper 003): :class:`Globe`,
   :func:`adaptive_mesh`; one :class:`Camera` (stepterrain.camera) for the globe and the texture LOD
 - close-ups, detail + overview (paper 001): :class:`CloseUp`, :class:`ROI`, :func:`render_closeups`
-- terrain textures (paper 004): :func:`hillshade`, :func:`topographic_layer`, :func:`drape`,
+- terrain textures (paper 004): :func:`hillshade`, :func:`topographic_layer`, :func:`contour_layer`,
+  :func:`drape`,
   :class:`ImagePyramid`, :class:`TextureTree` (the full set lives in :mod:`stepterrain.texture` and
   :mod:`stepterrain.texture_lod`)
 - batches on Dask: :func:`batch`
@@ -57,8 +58,8 @@ _LAZY: dict[str, str] = {
     **dict.fromkeys(("CloseUp", "ROI", "AnchorStyle", "render_closeups", "animate_closeups", "save_animation",
                      "closeup_scene"), "closeup"),
     **dict.fromkeys(("TextureLayer", "Pipeline", "TextureAnimation", "hillshade", "cast_shadows",
-                     "ambient_occlusion", "normal_map", "relight", "topographic_layer", "terrain_layer", "drape",
-                     "highlight_lens", "thematic_lens"), "texture"),
+                     "ambient_occlusion", "normal_map", "relight", "topographic_layer", "contour_layer",
+                     "terrain_layer", "drape", "highlight_lens", "thematic_lens"), "texture"),
     **dict.fromkeys(("ImagePyramid", "TextureTree", "PatchQuadtree"), "texture_lod"),
 }
 

@@ -49,6 +49,9 @@ examples:
   stepterrain texture --shadows --occlusion 0.5 --azimuth 270 --altitude 20 -o low_sun.png
   stepterrain texture --shadows -o tex.png --mesh out/steps.glb --interval 100 --png out/steps.png
       the texture draped on the stepped terrain (100 m steps), GLB with the image embedded, and a render
+  stepterrain texture --shadows --contours 100 -o topo.png
+      contour lines every 100 m (every 5th, from 0 m, an index line: twice as wide, darker) over the shaded colours
+  stepterrain texture --contours 50 --contour-width 1.5 --contour-color 0.2,0.2,0.2 --contour-index 0 -o c.png
   stepterrain texture --normals normals.png -o shade.png
       also the normals encoded as RGB (relight them later without recomputing, paper 004 §7.4)
   stepterrain texture dem.tif --image ortho.tif --colormap none --shadows -o draped.tif --mesh out/ortho.glb
@@ -128,6 +131,18 @@ def add_parser(commands: Any) -> None:
                         "texture is checked against --memory-budget, and a textured --mesh or --png refuses more than "
                         f"{_GPU_TEXTURE_LIMIT} texels a side (the largest texture GPUs load); --normals stay on the "
                         "DEM's grid")
+    p.add_argument("--contours", type=float, metavar="M",
+                   help="contour lines every M height units (levels 0, M, 2M, ...), drawn last, over the shaded "
+                        "colours and --image (unshaded, as on a topographic map), anti-aliased, their width in texels "
+                        "of the texture (on --texel-size's grid too); not over the DEM's nodata")
+    p.add_argument("--contour-width", type=float, default=None, metavar="TEXELS",
+                   help="with --contours: line width in texels (default 1); index lines are twice as wide")
+    p.add_argument("--contour-color", type=_floats(None, "r,g,b or r,g,b,a in [0, 1]"), default=None,
+                   metavar="R,G,B", help="with --contours: line colour, r,g,b (or r,g,b,a) in [0, 1] (default "
+                                         "0.55,0.32,0.14, a map's contour brown); index lines 30%% darker")
+    p.add_argument("--contour-index", type=int, default=None, metavar="N",
+                   help="with --contours: every Nth line (0, N x M, 2N x M, ... in height) is an index line, twice as "
+                        "wide and darker (default 5; 0: none)")
     p.add_argument("--normals", type=_path, metavar="OUT.png", help="also write the normals encoded as RGB "
                    "(.png, or .tif: a GeoTIFF; RGBA, alpha 0 at nodata, for a DEM with nodata)")
     _add_device(p)
@@ -158,23 +173,24 @@ _GPU_TEXTURE_LIMIT = 16384
 #: its grid) and its copies for the file, the drape and the render (Pillow keeps RGB as 4 bytes a pixel); measured
 #: 30 (-o) and 42 (with --mesh) on Big Tujunga at 7 m, 14 M texels.
 _COMPOSE_BYTES_PER_TEXEL = 48
+#: Bytes per texel --contours adds: the contour layer's float32 RGBA, alive while it is laid over the texture.
+_CONTOUR_BYTES_PER_TEXEL = 16
 
 
 def _texel_grid(terrain: Any, texel: float) -> tuple[tuple[float, float, float, float], tuple[int, int]]:
     """``--texel-size``'s pixel grid: the DEM's texture extent (its node extent plus half a cell, the extent of a
     texture on its nodes) cut into whole texels no larger than ``texel`` (a size within a part in 10^9 of dividing
     it exactly divides it: 10 over a 30 m grid is three texels a cell), as (extent, (rows, cols))."""
-    from .texture import terrain_extent
+    from .texture import _texel_grid as texel_grid  # the grid contour_layer(texel_size=) draws on too
 
-    extent = terrain_extent(terrain)
-    width, height = extent[1] - extent[0], extent[3] - extent[2]
-    cols, rows = (max(1, math.ceil(span / texel * (1.0 - 1e-9))) for span in (width, height))
-    return extent, (rows, cols)
+    return texel_grid(terrain, texel)
 
 
-def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> tuple[Any, tuple[int, int]]:
+def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
+                      contours: bool = False) -> tuple[Any, tuple[int, int]]:
     """``--texel-size`` once the DEM is loaded, before any work: no coarser than its node spacing, its texture within
-    the memory budget and, for a textured mesh or a render (``textured_gpu`` names it), a GPU's texture size."""
+    the memory budget (with ``contours``, their float32 RGBA layer too) and, for a textured mesh or a render
+    (``textured_gpu`` names it), a GPU's texture size."""
     from ._compaction import check_budget
     from .io import _lonlat_grid
 
@@ -191,7 +207,7 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None) -> t
         larger = (f"give a larger --texel-size, in metres: a DEM in degrees is read as local metres (its node spacing "
                   f"{sx:g} x {sy:g} m), not in degrees (or --crop the DEM)")
     extent, (rows, cols) = _texel_grid(terrain, texel)
-    check_budget(_COMPOSE_BYTES_PER_TEXEL * rows * cols,
+    check_budget((_COMPOSE_BYTES_PER_TEXEL + (_CONTOUR_BYTES_PER_TEXEL if contours else 0)) * rows * cols,
                  f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
                  "written)", hint=larger)
     if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:
@@ -236,9 +252,9 @@ def _check_unshaded(args: argparse.Namespace) -> None:
         raise InvalidInputError(f"--z-factor has no effect with --hillshade none unless --shadows, --occlusion or "
                                 f"--normals use the relief; got --z-factor {args.z_factor:g}")
     if (args.colormap.lower() == "none" and args.image is None and not args.shadows
-            and not args.occlusion > 0):
+            and not args.occlusion > 0 and args.contours is None):
         raise InvalidInputError("--hillshade none with --colormap none and no --image, --shadows or --occlusion "
-                                "leaves nothing to draw (a plain white texture); give one of them")
+                                "leaves nothing to draw (a plain white texture) but --contours; give one of them")
 
 
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> tuple[int, int] | None:
@@ -352,6 +368,41 @@ def _drape_stand_in() -> Any:
     return tx._draped(triangle, layer, pixels, np.ones(3), _DRAPE_MATERIAL)
 
 
+def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
+    """``--contours`` and its options as :func:`~stepterrain.texture.contour_layer`'s keywords, checked before any
+    work (the library's errors renamed to the options); None without --contours, whose options are then refused
+    (they drew nothing)."""
+    from .texture import _contour_colour
+
+    given = {"--contour-width": args.contour_width, "--contour-color": args.contour_color,
+             "--contour-index": args.contour_index}
+    if args.contours is None:
+        for option, value in given.items():
+            if value is not None:
+                raise InvalidInputError(f"{option} applies only with --contours (the contour interval)")
+        return None
+    if not (math.isfinite(args.contours) and args.contours > 0):
+        raise InvalidInputError(f"--contours must be a positive contour interval (the DEM's height units); got "
+                                f"{args.contours:g}")
+    options: dict[str, Any] = {"interval": args.contours}
+    if args.contour_width is not None:
+        if not (math.isfinite(args.contour_width) and args.contour_width > 0):
+            raise InvalidInputError(f"--contour-width must be a positive number of texels; got {args.contour_width:g}")
+        options["width"] = args.contour_width
+    if args.contour_color is not None:
+        try:
+            _contour_colour(args.contour_color, "--contour-color")
+        except InvalidInputError as exc:
+            shown = ",".join(f"{v:g}" for v in args.contour_color)
+            raise InvalidInputError(f"{str(exc).split('; got')[0]}; got {shown}") from None
+        options["color"] = args.contour_color
+    if args.contour_index is not None:
+        if args.contour_index < 0:
+            raise InvalidInputError(f"--contour-index must be 0 (no index lines) or more; got {args.contour_index}")
+        options["index_every"] = args.contour_index
+    return options
+
+
 def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     from . import export, render
     from . import texture as tx
@@ -406,6 +457,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         _refuse_unused(render_options, "--png (the render of the draped mesh)", "without --png")
     if png is not None:
         render.require_offscreen()
+    contour_options = _contour_options(args)
     if args.texel_size is not None and not (math.isfinite(args.texel_size) and args.texel_size > 0):
         raise InvalidInputError(f"--texel-size must be a positive number of the DEM's units (metres) per texel; got "
                                 f"{args.texel_size:g}")
@@ -419,7 +471,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
         textured = [name for name, wanted in (
             (f"--mesh {mesh_out}", mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")),
             ("--png", png is not None)) if wanted]
-        grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None)
+        grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None,
+                                 contours=args.contours is not None)
     if png is not None:  # the render holds the texture too, one texel per node or --texel-size's, and its copies of
         # the mesh draped: the DEM's surface (at least that, stepped by --interval): before any work
         render._check_render_budget(args.size[0], args.size[1], "--size",
@@ -448,7 +501,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
 
     what = ", ".join([("hillshade " + args.method) if args.method != "none" else "no hillshade"]
                      + (["shadows"] if args.shadows else [])
-                     + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else []))
+                     + ([f"occlusion {args.occlusion:g}"] if args.occlusion > 0 else [])
+                     + ([f"contours every {args.contours:g}"] if args.contours is not None else []))
     progress.stage("texture", f"topographic texture on {device}: {what}")
     # degrees wrapped into one turn: the library's radians-or-degrees warning (past 4π) is for API callers
     azimuth = math.radians(args.azimuth % 360.0) if given["azimuth"] else None
@@ -472,6 +526,13 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     over = white if holes is not None and (mesh_out is not None or png is not None) else None
     image, over_white = tx._composed_pair(topo, hypsometric, picture, extent, shape,
                                           None if holes is not None else white, over, device)
+    if contour_options is not None:  # the contour lines last, unshaded, over both textures (as blend lays them)
+        lines = tx.contour_layer(terrain, texel_size=args.texel_size, device=device, **contour_options)
+        assert lines.frame == (extent, shape), (lines.frame, extent, shape)
+        for picture_out in (image, over_white):
+            if picture_out is not None:
+                tx._lay_over_uint8(picture_out, lines)
+        del lines
     composite = tx.TextureLayer("thematic", image, extent, name="texture")  # its grid, for the drape's UVs
     normals = tx.normal_map(terrain, z_factor=args.z_factor, device=device) if normals_out else None
     progress.done(f"{image.shape[1]} x {image.shape[0]} pixels")
@@ -511,6 +572,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             metadata["image"] = str(args.image)
         if args.texel_size is not None:
             metadata["texel_size"] = args.texel_size
+        if args.contours is not None:
+            metadata["contours"] = args.contours
         export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import inspect
 import math
+import numbers
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -60,6 +61,7 @@ __all__ = [
     "normal_map",
     "relight",
     "topographic_layer",
+    "contour_layer",
     "terrain_layer",
     "blend",
     "weighted_add",
@@ -1053,6 +1055,203 @@ def topographic_layer(
                         name="topographic")
 
 
+#: The colour of :func:`contour_layer`'s lines: a topographic map's contour brown.
+CONTOUR_COLOR = (0.55, 0.32, 0.14)
+
+
+def _texel_grid(t: Terrain, texel_size: float) -> tuple[Extent, tuple[int, int]]:
+    """The pixel grid of a texture of ``texel_size`` texels over a grid terrain: its texture extent (the node extent
+    plus half a cell, :func:`terrain_extent`) cut into whole texels no larger than ``texel_size`` (a size within a
+    part in 10^9 of dividing it exactly divides it: 10 over a 30 m grid is three texels a cell), as
+    (extent, (rows, cols))."""
+    extent = terrain_extent(t)
+    width, height = extent[1] - extent[0], extent[3] - extent[2]
+    cols, rows = (max(1, math.ceil(span / texel_size * (1.0 - 1e-9))) for span in (width, height))
+    return extent, (rows, cols)
+
+
+def _texel_sampling(t: Terrain, extent: Extent, shape: tuple[int, int]) -> texture_kernels.TexelSampling:
+    """Where the texel centres of the north-up pixel grid (extent, shape) fall among the terrain's nodes."""
+    rows, cols = shape
+    sampling = texture_kernels.TexelSampling()
+    sampling.rows, sampling.cols = rows, cols
+    (dx, dy), (ox, oy) = t.spacing, t.origin
+    if shape == t.heights.shape and extent == terrain_extent(t):  # one texel per node: exactly on the nodes
+        start = (0.0 if dx > 0 else cols - 1.0, rows - 1.0 if dy > 0 else 0.0)
+        step = (1.0 if dx > 0 else -1.0, -1.0 if dy > 0 else 1.0)
+    else:
+        xmin, xmax, ymin, ymax = extent
+        px, py = (xmax - xmin) / cols, (ymax - ymin) / rows
+        start = ((xmin + px / 2 - ox) / dx, (ymax - py / 2 - oy) / dy)
+        step = (px / dx, -py / dy)
+    sampling.start = wp.vec2(*start)
+    sampling.step = wp.vec2(*step)
+    return sampling
+
+
+def _contour_levels(interval: Any, levels: Any, base: Any) -> tuple[NDArray[np.float64], float, float]:
+    """(explicit levels, base, interval): exactly one of ``interval`` (> 0) and ``levels`` (strictly increasing)."""
+    if (interval is None) == (levels is None):
+        raise InvalidInputError("give exactly one of interval= (contour levels base + k * interval) or levels= "
+                                f"(explicit, strictly increasing); got interval={interval!r}, "
+                                f"levels={'None' if levels is None else '[...]'}")
+    if levels is None:
+        return np.zeros(0, np.float64), _finite(base, "base"), _finite(interval, "interval", positive=True)
+    if not (isinstance(base, numbers.Real) and not isinstance(base, (bool, np.bool_)) and base == 0.0):
+        raise InvalidInputError(f"base applies only to interval= (contour levels base + k * interval), not to "
+                                f"levels= (absolute heights); got base={base!r} with levels")
+    values = real_numbers(levels, "levels", "a sequence of contour heights")
+    if values.ndim > 1:
+        raise InvalidInputError(f"levels must be a 1-D sequence of contour heights; got shape {values.shape}")
+    values = values.reshape(-1)
+    if values.size == 0:
+        raise InvalidInputError("levels must hold at least one contour height; got an empty sequence")
+    if not np.isfinite(values).all():
+        raise InvalidInputError(f"levels must be finite; got {values.tolist()[:10]}")
+    bad = np.flatnonzero(values[1:] <= values[:-1])
+    if bad.size:
+        i = int(bad[0]) + 1
+        raise InvalidInputError(f"levels must be strictly increasing; got levels[{i - 1}]={values[i - 1]!r} and "
+                                f"levels[{i}]={values[i]!r}")
+    return np.ascontiguousarray(values), 0.0, 1.0
+
+
+def _contour_colour(value: Any, name: str) -> tuple[float, float, float, float]:
+    """A straight RGBA colour from RGB or RGBA in [0, 1], the error naming ``name``."""
+    try:
+        c = real_numbers(value, name, "an RGB or RGBA colour of numbers in [0, 1]").reshape(-1)
+    except InvalidInputError:
+        c = np.full(0, np.nan)
+    if c.shape not in ((3,), (4,)) or not np.isfinite(c).all() or c.min() < 0 or c.max() > 1:
+        raise InvalidInputError(f"{name} must be an RGB or RGBA colour of numbers in [0, 1]; got {value!r}")
+    return tuple(float(v) for v in (c if c.size == 4 else np.append(c, 1.0)))  # type: ignore[return-value]
+
+
+def contour_layer(
+    terrain: Terrain | ArrayLike,
+    *,
+    interval: float | None = None,
+    levels: ArrayLike | None = None,
+    base: float = 0.0,
+    width: float = 1.0,
+    color: ArrayLike = CONTOUR_COLOR,
+    index_every: int = 5,
+    index_width: float | None = None,
+    index_color: ArrayLike | None = None,
+    texel_size: float | None = None,
+    spacing: ArrayLike | None = None,
+    device: wp.DeviceLike = None,
+) -> TextureLayer:
+    """Contour lines as a thematic RGBA layer, its alpha the lines' coverage: lay it over other layers with
+    :func:`blend` (``blend(texture, contours)``), drape it like any layer.
+
+    Each texel samples the terrain's height at its centre, as the other layers place their texels (one texel per
+    grid node by default, pixel (i, j) = node (i, j) turned north-up; with ``texel_size``, the bilinear
+    interpolant at the centres of a finer grid), and its height's change per texel from the neighbouring texels
+    (central differences; one-sided beside nodata and the border). A level passing ``d = |h - level| / |∇h|``
+    texels away (the first-order distance) draws an anti-aliased line: alpha is the part of the texel a straight
+    line ``width`` texels wide covers, > 0.5 exactly where d < width / 2 (lines at least one texel wide), 1 within
+    (width - 1) / 2. Flat ground (∇h = 0) draws a line only exactly on a level (a plateau at a level is all line).
+    Where several levels pass within a texel (slopes steeper than an interval per texel) the lines merge.
+
+    Parameters
+    ----------
+    terrain : Terrain or (H, W) array_like
+        Heights (NaN = nodata: no lines there, alpha 0, and none drawn towards it from its neighbours' NaN); a raw
+        array takes ``spacing`` (dx, dy), default (1, 1).
+    interval, levels : float or sequence of float
+        Exactly one: the contour interval (levels ``base + k * interval``, every k) or explicit strictly increasing
+        contour heights. For lines on a stepped mesh's walls, draw the thresholds its heights split at:
+        ``levels=st.stepped.thresholds_of(st.isovalues(terrain.finite_height_range, interval=100.0))``
+        (lines at ``base + k * interval`` lie in the middle of its terraces, on the continuous heightfield's
+        contours).
+    base : float
+        With ``interval``: the height of line 0 (an index line).
+    width : float
+        Line width in texels, > 0 (thinner than a texel: fainter, alpha at most ``width``).
+    color : RGB or RGBA in [0, 1]
+        The lines' colour (straight alpha; an alpha < 1 scales the coverage). Default :data:`CONTOUR_COLOR`.
+    index_every : int
+        Every ``index_every``-th line (k divisible by it: ``base`` and every ``index_every * interval`` from it;
+        with ``levels``, its positions 0, n, 2n, ...) is an index contour, drawn ``index_width`` wide in
+        ``index_color``, as topographic maps draw them; 0 for none.
+    index_width : float, optional
+        Index lines' width in texels (default twice ``width``).
+    index_color : RGB or RGBA in [0, 1], optional
+        Index lines' colour (default ``color``, darker by 30%).
+    texel_size : float, optional
+        World units per texel (as ``stepterrain texture --texel-size``): the terrain's texture extent cut into whole
+        texels no larger than it, no larger than the node spacing; default one texel per node. The heights are
+        the bilinear interpolant's (nodata corners left out, their weight fading the alpha); in the half cell beyond
+        the outer nodes, the edge's, as the other layers are sampled there.
+    device : warp device, optional
+
+    Returns
+    -------
+    TextureLayer
+        ``thematic`` (h, w, 4) float32 straight RGBA over :func:`terrain_extent`, transparent between lines.
+
+    Raises
+    ------
+    InvalidInputError
+        Both or neither of ``interval`` and ``levels``; a non-positive or non-finite interval, width or
+        index_width; levels empty, non-finite or not strictly increasing; ``base`` with ``levels``; a colour not
+        RGB(A) in [0, 1]; ``index_every`` not a whole number >= 0; a texel_size not positive or larger than the
+        node spacing; a terrain that is not a regular heightfield.
+    OutputTooLargeError
+        The float32 RGBA (16 bytes a texel) over the memory budget.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from stepterrain.texture import contour_layer
+    >>> ramp = np.tile(np.arange(8.0, dtype=np.float32), (3, 1))   # height = column
+    >>> layer = contour_layer(ramp, interval=4.0, index_every=0, device="cpu")
+    >>> layer.image[1, :, 3].round(2).tolist()
+    [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]
+    """
+    t = _grid_terrain(terrain, spacing)
+    values, base, interval = _contour_levels(interval, levels, base)
+    width = _finite(width, "width", positive=True)
+    index_width = 2.0 * width if index_width is None else _finite(index_width, "index_width", positive=True)
+    rgba = _contour_colour(color, "color")
+    index_rgba = (*(0.7 * c for c in rgba[:3]), rgba[3]) if index_color is None else \
+        _contour_colour(index_color, "index_color")
+    if isinstance(index_every, (bool, np.bool_)) or not isinstance(index_every, (int, np.integer)) or index_every < 0:
+        raise InvalidInputError(f"index_every must be a whole number >= 0 (0: no index lines); got {index_every!r}")
+    if index_every > np.iinfo(np.int32).max:
+        raise InvalidInputError(f"index_every must be below 2**31; got {index_every!r}")
+    if texel_size is None:
+        extent, shape = terrain_extent(t), t.heights.shape
+    else:
+        texel_size = _finite(texel_size, "texel_size", positive=True)
+        node = min(abs(t.spacing[0]), abs(t.spacing[1]))
+        if texel_size > node * (1.0 + 1e-9):
+            raise InvalidInputError(f"texel_size must be no larger than the terrain's node spacing ({node:g}; None "
+                                    f"is one texel per node): it makes the texture finer; got {texel_size:g}")
+        extent, shape = _texel_grid(t, texel_size)
+    rows, cols = (int(n) for n in shape)
+    check_budget(16 * rows * cols, f"the {cols} x {rows} float32 RGBA contour layer",
+                 hint="give a larger texel_size (or crop the terrain)")
+    dev = resolve_device(device)
+    style = texture_kernels.ContourStyle()
+    style.levels = wp.array(values, dtype=wp.float64, device=dev)
+    style.base, style.interval = base, interval
+    style.half_width, style.index_half_width = width / 2.0, index_width / 2.0
+    style.index_every = int(index_every)
+    style.color, style.index_color = wp.vec4(*rgba), wp.vec4(*index_rgba)
+    if dev.is_cpu:
+        host = np.empty((rows, cols, 4), np.float32)
+        out = wp.array(host, dtype=wp.vec4, device=dev, copy=False)
+    else:
+        host, out = None, wp.empty((rows, cols), dtype=wp.vec4, device=dev)
+    launch(texture_kernels.draw_contours, dim=rows * cols,
+           inputs=[_height_grid(t, 1.0, dev), _texel_sampling(t, extent, (rows, cols)), style], outputs=[out],
+           device=dev)
+    image = host if host is not None else host_copy(out).reshape(rows, cols, 4)
+    return TextureLayer("thematic", image, extent, name="contours")
+
+
 # ---------------------------------------------------------------------------------------------- operations
 def _frame(extent: Extent, shape: tuple[int, int]) -> texture_kernels.PixelFrame:
     """Pixel centres relative to the local origin (xmin, ymax) of ``extent``: float32 stays precise for UTM."""
@@ -1735,3 +1934,25 @@ def _draped(mesh: trimesh.Trimesh, layer: TextureLayer, image: NDArray[np.uint8]
     out.visual.material.wrap = ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE")
     return out
 
+
+
+def _lay_over_uint8(image: NDArray[np.uint8], layer: TextureLayer, rows_at_once: int = 1024) -> None:
+    """``layer`` (straight RGBA on the same pixel grid) laid over the uint8 RGB or RGBA ``image`` in place, as
+    :func:`blend` lays ``b`` over ``a`` and ``to_uint8`` rounds it (``stepterrain texture --contours``): coverage c =
+    the layer's alpha; alpha ``c + alpha_a (1 − c)``, colour ``(c · b + (1 − c) · alpha_a · a) / alpha``. A band of
+    rows at a time: the float32 temporaries stay small beside the texture."""
+    rgba = layer.image
+    for start in range(0, image.shape[0], rows_at_once):
+        band = image[start:start + rows_at_once]
+        top = rgba[start:start + rows_at_once]
+        c = top[..., 3:].astype(np.float32)
+        under = band[..., :3].astype(np.float32) / np.float32(255.0)
+        if band.shape[2] == 3:
+            rgb = top[..., :3] * c + under * (1.0 - c)
+        else:
+            alpha_a = band[..., 3:].astype(np.float32) / np.float32(255.0)
+            alpha = c + alpha_a * (1.0 - c)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rgb = np.where(alpha > 0, (top[..., :3] * c + under * alpha_a * (1.0 - c)) / alpha, under)
+            band[..., 3] = np.round(np.clip(alpha[..., 0], 0.0, 1.0) * 255.0).astype(np.uint8)
+        band[..., :3] = np.round(np.clip(rgb, 0.0, 1.0) * 255.0).astype(np.uint8)
