@@ -339,9 +339,10 @@ def save_mesh(
         Any mesh; it is not modified. A PolyData of triangles (``grid.stepterrain.stepped``'s) is written as its Trimesh
         (:func:`~stepterrain.pyvista_accessor.from_polydata`: colours, level/wall, metadata kept). ``face_attributes``
         (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k)
-        arrays) are kept by ``.ply`` only, as properties of its face and vertex elements; glTF, OBJ, STL and 3MF drop
-        them. Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without
-        their alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
+        arrays) are kept by ``.ply`` only, as properties of its face and vertex elements (a bool as uchar 0/1, named
+        in a header comment so that :func:`read_mesh` gives it back as bool); glTF, OBJ, STL and 3MF drop them.
+        Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their
+        alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
         (the face element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and
         ``.obj`` have no per-face colour and store each vertex as the mean of its faces' colours (call
         ``mesh.unmerge_vertices()`` first to keep them exact), and ``.stl`` drops them. A texture (UVs and an image) is
@@ -1675,7 +1676,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
-    keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
+    keeps there, as written: an (N, k) array as columns ``name_0`` ...; a bool, written as uchar 0/1 (PLY has no
+    boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` of a PLY stepterrain wrote
+    before it named them, so ``mesh.faces[mesh.face_attributes["wall"]]`` are the walls) come back as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
     a mesh read and written again lost them), and the metadata :func:`save_mesh` wrote in its header comments as
     the mesh's ``metadata`` (trimesh's reader skips comments). An OBJ whose faces name vertex indices only
@@ -1736,8 +1739,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                                  f"has {counted(count, 'vertex', 'vertices')}")
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _check_ply_rows(loaded)
-            _ply_attributes(loaded)
-            loaded.metadata.update(_ply_metadata(file))
+            metadata, booleans = _ply_comments(file)
+            _ply_attributes(loaded, booleans)
+            loaded.metadata.update(metadata)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
@@ -1776,10 +1780,12 @@ def _check_ply_rows(mesh: trimesh.Trimesh) -> None:
                              f"{rows}; is it cut short?")
 
 
-def _ply_attributes(mesh: trimesh.Trimesh) -> None:
+def _ply_attributes(mesh: trimesh.Trimesh, booleans: Mapping[str, Iterable[str]] | None = None) -> None:
     """Give ``mesh``, read from a PLY, the other numeric scalar properties of its vertex and face elements as its
     ``vertex_attributes`` and ``face_attributes`` (one per vertex or face; trimesh's reader keeps them only in
-    ``metadata["_ply_raw"]``)."""
+    ``metadata["_ply_raw"]``); the columns ``booleans`` names by element (:func:`_ply_comments`: bools written as
+    uchar 0/1) as bool again."""
+    booleans = booleans or {}
     raw = (mesh.metadata or {}).get("_ply_raw")
     if not isinstance(raw, Mapping):
         return
@@ -1796,7 +1802,10 @@ def _ply_attributes(mesh: trimesh.Trimesh) -> None:
             column = np.asarray(column)
             if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
                 continue
-            attributes.setdefault(str(name), column.astype(column.dtype.newbyteorder("=")))
+            column = column.astype(column.dtype.newbyteorder("="))
+            if name in booleans.get(element, ()) and column.dtype.kind in "bu" and column.max(initial=0) <= 1:
+                column = column.astype(bool)  # written from a bool: `faces[wall]` took rows 0 and 1, not the walls
+            attributes.setdefault(str(name), column)
 
 
 def _color_attribute(scene: Any) -> NDArray[Any] | None:
@@ -2342,8 +2351,9 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
+    booleans: dict[str, list[str]] = {"vertex": [], "face": []}  # columns written from bools, as uchar 0/1
     vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns]
-                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]))
+                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]), booleans["vertex"])
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
     face_columns: list[tuple[str, NDArray[Any]]] = []
     if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
@@ -2351,10 +2361,11 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
         # dropped
         face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
         face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]])
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]], booleans["face"])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
+    header += [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names]
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")
@@ -2378,11 +2389,14 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
 #: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
 _PLY_METADATA = "comment stepterrain-metadata "
+#: The start of the PLY header's comment lines that name a column written from a bool attribute (PLY has no boolean
+#: type: it is written as uchar 0/1), ``comment stepterrain-bool face wall``: :func:`read_mesh` gives it back as bool.
+_PLY_BOOL = "comment stepterrain-bool "
 #: The most characters of metadata JSON on one comment line: with its start, a header line of at most 430 characters.
 #: PLY readers read header lines into fixed buffers: MeshLab's (vcglib) 512 bytes, rply's 1024, VTK's 4096 (pyvista
 #: read nothing from a file with a longer line).
 _PLY_METADATA_PIECE = 400
-#: How far into a PLY file :func:`_ply_metadata` looks for the end of its header.
+#: How far into a PLY file :func:`_ply_comments` looks for the end of its header.
 _PLY_HEADER_LIMIT = 64 << 20
 
 
@@ -2402,35 +2416,47 @@ def _ply_metadata_pieces(metadata: Mapping[str, Any]) -> list[str]:
     return [text[start : start + _PLY_METADATA_PIECE] for start in range(0, len(text), _PLY_METADATA_PIECE)]
 
 
-def _ply_metadata(file: Path) -> dict[str, Any]:
+def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
     """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
-    lines, :func:`_ply_metadata_pieces`); {} without any, or when they do not join into a JSON object (a header
-    edited by hand: the mesh is still read)."""
-    pieces = []
-    start = _PLY_METADATA.encode("ascii")
+    lines, :func:`_ply_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
+    edited by hand, the mesh is still read), and the columns it wrote from bools, by element (its
+    ``comment stepterrain-bool`` lines). A file stepterrain wrote before it named them (``comment written by
+    stepterrain`` and no such line) had bools too: its face ``wall`` is :func:`~stepterrain.stepped`'s flag."""
+    pieces, booleans, ours = [], {"vertex": set(), "face": set()}, False
+    start, flag = _PLY_METADATA.encode("ascii"), _PLY_BOOL.encode("ascii")
     with open(file, "rb") as stream:
         if stream.readline(16).strip() != b"ply":
-            return {}
+            return {}, booleans
         while stream.tell() < _PLY_HEADER_LIMIT:
             line = stream.readline(1 << 20)
             if not line or line.strip() == b"end_header":
                 break
             if line.startswith(start):
                 pieces.append(line[len(start) :].strip())
-    if not pieces:
-        return {}
-    try:
-        value = json.loads(b"".join(pieces).decode("ascii"))
-    except ValueError:  # UnicodeDecodeError and JSONDecodeError
-        return {}
-    return value if isinstance(value, dict) else {}
+            elif line.startswith(flag):
+                element, _, name = line[len(flag) :].decode("ascii", "replace").strip().partition(" ")
+                booleans.setdefault(element, set()).add(name)
+            elif line.strip() == b"comment written by stepterrain":
+                ours = True
+    if ours and not any(booleans.values()):
+        booleans["face"].add("wall")
+    value: Any = {}
+    if pieces:
+        try:
+            value = json.loads(b"".join(pieces).decode("ascii"))
+        except ValueError:  # UnicodeDecodeError and JSONDecodeError
+            value = {}
+    return (value if isinstance(value, dict) else {}), booleans
 
 
-def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:
+def _ply_columns(
+    attributes: Mapping[str, NDArray[Any]], taken: Iterable[str], booleans: list[str] | None = None
+) -> list[tuple[str, NDArray[Any]]]:
     """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types. A name that
     is no plain ASCII word, or is one of the element's own properties (``taken``: also the names readers take for
     normals or UVs, ``nx`` or ``u``), is written under a word made from it (``level-2`` -> ``level_2``, ``x`` ->
-    ``x_attr``), with a warning naming both: they were dropped."""
+    ``x_attr``), with a warning naming both: they were dropped. The names of the columns of bool arrays (written as
+    uchar 0/1) are appended to ``booleans``."""
     used = set(taken)
     renamed: list[str] = []
     columns: list[tuple[str, NDArray[Any]]] = []
@@ -2449,6 +2475,8 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
         if word + suffix != name:
             renamed.append(f"{name!r} as {word + suffix!r}")
         used.update(names)
+        if booleans is not None and np.asarray(values).dtype.kind == "b":
+            booleans.extend(names)
         if array.ndim == 1:
             columns.append((names[0], array))
         else:

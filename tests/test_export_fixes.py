@@ -1777,3 +1777,35 @@ def test_a_textured_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tm
     assert again.metadata["generator"] == "stepterrain texture"
     again.export(tmp_path / "again.glb")
     np.testing.assert_allclose(read_mesh(tmp_path / "again.glb").vertices, mesh.vertices, rtol=0, atol=1e-3)
+
+
+def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
+    """PLY has no boolean type, so save_mesh writes stepped's ``wall`` (and any bool attribute) as uchar, and
+    read_mesh gave it back as uint8: ``mesh.faces[back.face_attributes["wall"]]`` took rows 0 and 1 over and over
+    instead of the walls. The header now names the columns written from bools (a comment readers skip), and read_mesh
+    turns them back; a file written before that, by stepterrain, gets its 0/1 ``wall`` back as bool."""
+    mesh = st.stepped(np.add.outer(np.arange(12.0), np.arange(10.0)) * 3.0, interval=7.0, spacing=(10.0, -10.0))
+    wall = mesh.face_attributes["wall"]
+    assert wall.dtype == bool and 0 < wall.sum() < len(wall)
+    mesh.vertex_attributes["odd"] = np.arange(len(mesh.vertices)) % 2 == 1
+    mesh.face_attributes["flags"] = np.stack([wall, ~wall], axis=1)
+    out = save_mesh(mesh, tmp_path / "steps.ply")
+    assert b"property uchar wall" in out.read_bytes()[:2000]  # readers that do not know the comment see 0/1
+    for back in (read_mesh(out), read_mesh(save_mesh(read_mesh(out), tmp_path / "again.ply"))):
+        assert back.face_attributes["wall"].dtype == bool
+        np.testing.assert_array_equal(back.face_attributes["wall"], wall)
+        np.testing.assert_array_equal(back.faces[back.face_attributes["wall"]], mesh.faces[wall])
+        assert back.vertex_attributes["odd"].dtype == bool
+        np.testing.assert_array_equal(back.vertex_attributes["odd"], mesh.vertex_attributes["odd"])
+        assert back.face_attributes["flags_1"].dtype == bool
+        np.testing.assert_array_equal(back.face_attributes["flags_1"], ~wall)
+        assert back.face_attributes["level"].dtype == np.int32
+    # a PLY stepterrain wrote before: no such comment, its 0/1 wall is stepped's flag; other uchar columns stay
+    data = out.read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    old = b"\n".join(line for line in head.split(b"\n") if b"stepterrain-bool" not in line) + b"end_header\n" + body
+    (tmp_path / "old.ply").write_bytes(old)
+    back = read_mesh(tmp_path / "old.ply")
+    assert back.face_attributes["wall"].dtype == bool
+    np.testing.assert_array_equal(back.face_attributes["wall"], wall)
+    assert back.vertex_attributes["odd"].dtype == np.uint8
