@@ -1798,12 +1798,15 @@ def _ply_attributes(mesh: trimesh.Trimesh, booleans: Mapping[str, Iterable[str]]
             columns = dict(data)
         else:
             continue
+        flags = set(booleans.get(element, ()))
+        if element == "face" and "stepped" in booleans and {"level", "wall"} <= set(columns):
+            flags.add("wall")
         for name, column in columns.items():
             column = np.asarray(column)
             if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
                 continue
             column = column.astype(column.dtype.newbyteorder("="))
-            if name in booleans.get(element, ()) and column.dtype.kind in "bu" and column.max(initial=0) <= 1:
+            if name in flags and column.dtype.kind in "bu" and column.max(initial=0) <= 1:
                 column = column.astype(bool)  # written from a bool: `faces[wall]` took rows 0 and 1, not the walls
             attributes.setdefault(str(name), column)
 
@@ -2421,7 +2424,8 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
     lines, :func:`_ply_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
     edited by hand, the mesh is still read), and the columns it wrote from bools, by element (its
     ``comment stepterrain-bool`` lines). A file stepterrain wrote before it named them (``comment written by
-    stepterrain`` and no such line) had bools too: its face ``wall`` is :func:`~stepterrain.stepped`'s flag."""
+    stepterrain`` and no such line) is marked ``"stepped"``: its face ``wall`` beside a ``level`` is
+    :func:`~stepterrain.stepped`'s flag."""
     pieces, booleans, ours = [], {"vertex": set(), "face": set()}, False
     start, flag = _PLY_METADATA.encode("ascii"), _PLY_BOOL.encode("ascii")
     with open(file, "rb") as stream:
@@ -2439,7 +2443,7 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
             elif line.strip() == b"comment written by stepterrain":
                 ours = True
     if ours and not any(booleans.values()):
-        booleans["face"].add("wall")
+        booleans["stepped"] = set()  # an older file of ours: a 0/1 face wall beside a level is stepped's flag
     value: Any = {}
     if pieces:
         try:

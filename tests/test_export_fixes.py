@@ -1809,3 +1809,8 @@ def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
     assert back.face_attributes["wall"].dtype == bool
     np.testing.assert_array_equal(back.face_attributes["wall"], wall)
     assert back.vertex_attributes["odd"].dtype == np.uint8
+    # a uint8 attribute of 0/1 written as such stays uint8, wall or not
+    box = trimesh.creation.box()
+    box.face_attributes.update(wall=(np.arange(12) % 2).astype(np.uint8), mark=(np.arange(12) % 2).astype(np.uint8))
+    back = read_mesh(save_mesh(box, tmp_path / "box.ply"))
+    assert back.face_attributes["wall"].dtype == back.face_attributes["mark"].dtype == np.uint8
