@@ -3,6 +3,7 @@ its fix)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import stat
@@ -1814,3 +1815,26 @@ def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
     box.face_attributes.update(wall=(np.arange(12) % 2).astype(np.uint8), mark=(np.arange(12) % 2).astype(np.uint8))
     back = read_mesh(save_mesh(box, tmp_path / "box.ply"))
     assert back.face_attributes["wall"].dtype == back.face_attributes["mark"].dtype == np.uint8
+
+
+def test_a_tin_closeup_or_adaptive_mesh_of_a_dem_names_its_crs_in_the_file_and_steps_with_it(tmp_path, capsys):
+    """stepped's mesh records the DEM's CRS and source, so the files it is written to name them, but the other meshes
+    of a DEM in UTM did not: dem.mesh() (``stepterrain texture --mesh`` drapes it), adaptive_mesh(dem) and
+    closeup_scene(dem, ...) were written without a CRS (``stepterrain info`` showed UTM bounds in no CRS), and the
+    stepped mesh of a TIN read back from a file that names its CRS named none."""
+    dem = st.Terrain.from_heights(np.add.outer(np.arange(17.0), np.sin(np.arange(17.0))) * 10.0, spacing=(30.0, -30.0),
+                                  origin=(390000.0, 3800000.0), crs="EPSG:32611", source="dem.tif")
+    placed = {"crs": "EPSG:32611", "source": "dem.tif"}
+    cu = st.CloseUp(st.ROI.circle((390240.0, 3799760.0), 100.0), scale=1.5, offset=(0, 0, 300))
+    tin = dataclasses.replace(st.Terrain.from_mesh(dem.mesh()), crs="EPSG:32611", source="t.ply")
+    assert {k: tin.mesh().metadata[k] for k in placed} == {"crs": "EPSG:32611", "source": "t.ply"}
+    for mesh in (dem.mesh(), st.adaptive_mesh(dem, error=1.0), st.closeup_scene(dem, [cu])):
+        assert {k: mesh.metadata.get(k) for k in placed} == placed
+        for ext in (".glb", ".ply"):
+            out = save_mesh(mesh, tmp_path / f"m{ext}")
+            assert cli.main(["info", str(out), "--json"]) == 0
+            assert json.loads(capsys.readouterr().out)["meta.crs"] == "EPSG:32611"
+            if "closeups" not in mesh.metadata:  # a TIN: its steps name the CRS and source the file names
+                steps = st.stepped(read_mesh(out), interval=20.0)
+                assert {k: steps.metadata.get(k) for k in placed} == placed
+    assert "crs" not in st.stepped(st.heightfield_mesh(np.eye(3)), interval=0.5).metadata  # none where none is known
