@@ -350,7 +350,8 @@ def save_mesh(
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
-        shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
+        shortest text that reads back as the same float64), ``.ply`` (binary; float64 coordinates, float32 where
+        that holds every vertex exactly), ``.stl`` (binary),
         ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
@@ -362,8 +363,9 @@ def save_mesh(
         The lowest and highest corner (x, y, z) of a set of meshes written one by one that share vertices (tiles
         of one raster, as :func:`~stepterrain.batch.batch` writes them). How coordinates are stored is then
         decided by these, the same for every mesh of the set, instead of by the mesh's own bounds: glTF's node
-        translation (the floor of their centre) and PLY's float32 or float64. A vertex the meshes share is
-        then stored identically in each, so they weld exactly. Need not contain the mesh.
+        translation (the floor of their centre) and PLY's float64 beyond 65536 (below it, a PLY is float32 where
+        float32 holds every vertex exactly, else float64). A vertex the meshes share is then stored identically in
+        each (or, in PLY, read back identically), so they weld exactly. Need not contain the mesh.
 
     Returns
     -------
@@ -620,7 +622,8 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
 def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
     node translation (:func:`_local_origin`). numpy's cast made them infinite
-    (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
+    (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536 or where float32 rounds), OBJ and 3MF (text)
+    hold any finite value."""
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
@@ -2342,15 +2345,16 @@ _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vert
 
 
 def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
-    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA vertex or face colours,
-    attributes."""
+    """Binary little-endian PLY: vertices (float64 beyond 65536 or where float32 would round them, else float32),
+    RGBA vertex or face colours, attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
-    vertex_columns: list[tuple[str, NDArray[Any]]] = [
-        ("x", vertices[:, 0].astype(coordinate)),
-        ("y", vertices[:, 1].astype(coordinate)),
-        ("z", vertices[:, 2].astype(coordinate)),
-    ]
+    xyz = [vertices[:, k].astype(coordinate) for k in range(3)]
+    if coordinate.itemsize == 4 and not all(np.array_equal(xyz[k], vertices[:, k]) for k in range(3)):
+        # float64 where float32 would round (60000.123 by 1.9 mm): .ply keeps the vertices; a set's tiles still weld,
+        # a float32 one holding its shared vertices exactly as the float64 one beside it does
+        xyz = [vertices[:, k].astype("<f8") for k in range(3)]
+    vertex_columns: list[tuple[str, NDArray[Any]]] = [("x", xyz[0]), ("y", xyz[1]), ("z", xyz[2])]
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
