@@ -352,7 +352,8 @@ def save_mesh(
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
         shortest text that reads back as the same float64), ``.ply`` (binary; float64 coordinates, float32 where
         that holds every vertex exactly), ``.stl`` (binary),
-        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        ``.3mf`` (exact coordinates, in the unit it declares, millimetres: a terrain in metres is scaled for a
+        print in the slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
