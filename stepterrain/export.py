@@ -2373,7 +2373,8 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
-    header += [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names]
+    header += [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
+               if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")

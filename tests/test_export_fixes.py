@@ -1810,6 +1810,13 @@ def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
     assert back.face_attributes["wall"].dtype == bool
     np.testing.assert_array_equal(back.face_attributes["wall"], wall)
     assert back.vertex_attributes["odd"].dtype == np.uint8
+    # a bool named like trimesh's texture comment is not named in one (trimesh looked for an image): it stays uchar
+    mesh.face_attributes["TextureFile"] = wall
+    named = save_mesh(mesh, tmp_path / "named.ply")
+    assert b"TextureFile" not in b"".join(line for line in named.read_bytes()[:4000].split(b"\n")
+                                          if line.startswith(b"comment"))
+    back = read_mesh(named)
+    assert back.face_attributes["TextureFile"].dtype == np.uint8 and back.face_attributes["wall"].dtype == bool
     # a uint8 attribute of 0/1 written as such stays uint8, wall or not
     box = trimesh.creation.box()
     box.face_attributes.update(wall=(np.arange(12) % 2).astype(np.uint8), mark=(np.arange(12) % 2).astype(np.uint8))
