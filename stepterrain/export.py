@@ -1681,8 +1681,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ...; a bool, written as uchar 0/1 (PLY has no
-    boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` of a PLY stepterrain wrote
-    before it named them, so ``mesh.faces[mesh.face_attributes["wall"]]`` are the walls) come back as the mesh's
+    boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` beside a ``level`` of a PLY
+    stepterrain wrote before it named them, so ``mesh.faces[mesh.face_attributes["wall"]]`` are the walls) come back
+    as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
     a mesh read and written again lost them), and the metadata :func:`save_mesh` wrote in its header comments as
     the mesh's ``metadata`` (trimesh's reader skips comments). An OBJ whose faces name vertex indices only
