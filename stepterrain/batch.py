@@ -232,7 +232,8 @@ class _Source:
     #: (min, max) of the whole source when a check found them without nodata (:func:`_shared_levels` reuses them)
     height_range: tuple[float, float] | None = None
     #: tiles: (lowest, highest) corner of the whole raster's surface, export.save_mesh's ``shared_bounds``, so
-    #: that every tile stores the vertices it shares with its neighbours identically (glTF, PLY: float32)
+    #: that every tile stores the vertices it shares with its neighbours identically (glTF: float32 about one
+    #: origin; PLY: float32 or float64, read back identically)
     bounds: tuple[tuple[float, float, float], tuple[float, float, float]] | None = None
 
 

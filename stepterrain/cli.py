@@ -60,6 +60,7 @@ examples:
   stepterrain info dem.tif --json
   stepterrain info out/terrain.glb
       a mesh: vertices, faces, bounds, watertightness, vertex or face colours, the metadata stepterrain wrote
+      (and, for a .ply, how many levels its faces lie on and how many are walls)
 """
 
 _MAIN_EPILOG = """\
@@ -929,6 +930,14 @@ def _mesh_summary(path: Path) -> dict[str, Any]:
         "vertex_colors": bool(mesh.visual.kind == "vertex"),
         "face_colors": bool(mesh.visual.kind == "face"),  # PLY and 3MF keep them (glTF: vertex means)
     }
+    # stepped's face attributes, which a .ply keeps: the levels its faces lie on (a solid's skirts and base, -1, are
+    # none) and its walls
+    attributes = mesh.face_attributes
+    level, wall = attributes.get("level"), attributes.get("wall")
+    if isinstance(level, np.ndarray) and level.ndim == 1 and level.dtype.kind in "iu" and len(level) == len(mesh.faces):
+        summary["levels"] = int(len(np.unique(level[level >= 0])))
+    if isinstance(wall, np.ndarray) and wall.dtype == np.bool_ and wall.shape == (len(mesh.faces),):
+        summary["wall_faces"] = int(wall.sum())
     for key, value in (mesh.metadata or {}).items():
         if isinstance(value, str):  # an STL header is 80 bytes padded with NULs, which made the text output binary
             value = value.strip("\x00").strip()

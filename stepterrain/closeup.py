@@ -2420,6 +2420,7 @@ def closeup_scene(
     ``anchor.inactive`` says, as :func:`render_closeups` draws it (left out, gray, or a quarter of the opacity).
     ``face_attributes["layer"]``: 0 for the overview, 2k + 1 for close-up k, 2k + 2 for its anchor. ``scalars`` and
     ``cmap`` map the overview and the close-ups as in :func:`render_closeups` (stepped close-ups included).
+    ``metadata`` holds the number of close-ups, the terrain's source and, where it has one, its CRS.
 
     Examples
     --------
@@ -2459,7 +2460,8 @@ def closeup_scene(
     layer_ids = np.concatenate([np.full(len(p[1]), p[3], np.int32) for p in parts])
     return trimesh.Trimesh(vertices, faces, process=False, vertex_colors=colors,
                            face_attributes={"layer": layer_ids},
-                           metadata={"closeups": len(items), "source": t.source or "array"})
+                           metadata={"closeups": len(items), "source": t.source or "array",
+                                     **({"crs": t.crs} if t.crs else {})})
 
 
 def _rgba(rgb: NDArray[np.uint8] | None, n: int, fallback: tuple[float, float, float]) -> NDArray[np.uint8]:

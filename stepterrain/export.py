@@ -339,9 +339,10 @@ def save_mesh(
         Any mesh; it is not modified. A PolyData of triangles (``grid.stepterrain.stepped``'s) is written as its Trimesh
         (:func:`~stepterrain.pyvista_accessor.from_polydata`: colours, level/wall, metadata kept). ``face_attributes``
         (e.g. ``level``, ``wall`` of :func:`~stepterrain.stepped`) and ``vertex_attributes`` (numeric (N,) or (N, k)
-        arrays) are kept by ``.ply`` only, as properties of its face and vertex elements; glTF, OBJ, STL and 3MF drop
-        them. Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without
-        their alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
+        arrays) are kept by ``.ply`` only, as properties of its face and vertex elements (a bool as uchar 0/1, named
+        in a header comment so that :func:`read_mesh` gives it back as bool); glTF, OBJ, STL and 3MF drop them.
+        Vertex colours (RGBA bytes) are kept by ``.glb``/``.gltf``, ``.ply`` and ``.3mf``, by ``.obj`` without their
+        alpha (its ``v x y z r g b`` lines hold RGB), and dropped by ``.stl``. Face colours are kept by ``.ply``
         (the face element's red, green, blue, alpha) and ``.3mf`` (each triangle's colour); ``.glb``/``.gltf`` and
         ``.obj`` have no per-face colour and store each vertex as the mean of its faces' colours (call
         ``mesh.unmerge_vertices()`` first to keep them exact), and ``.stl`` drops them. A texture (UVs and an image) is
@@ -349,8 +350,10 @@ def save_mesh(
     path : str or path-like
         Target file; missing folders are created. Extensions: ``.glb``, ``.gltf`` (one self-contained
         file, buffers embedded as base64 data URIs), ``.obj`` (coordinates and UVs exact: each written as the
-        shortest text that reads back as the same float64), ``.ply`` (binary), ``.stl`` (binary),
-        ``.3mf`` (exact coordinates, vertex or face colours as a colour group: a colour 3D print keeps its tints;
+        shortest text that reads back as the same float64), ``.ply`` (binary; float64 coordinates, float32 where
+        that holds every vertex exactly), ``.stl`` (binary),
+        ``.3mf`` (exact coordinates, in the unit it declares, millimetres: a terrain in metres is scaled for a
+        print in the slicer; vertex or face colours as a colour group: a colour 3D print keeps its tints;
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
@@ -361,8 +364,9 @@ def save_mesh(
         The lowest and highest corner (x, y, z) of a set of meshes written one by one that share vertices (tiles
         of one raster, as :func:`~stepterrain.batch.batch` writes them). How coordinates are stored is then
         decided by these, the same for every mesh of the set, instead of by the mesh's own bounds: glTF's node
-        translation (the floor of their centre) and PLY's float32 or float64. A vertex the meshes share is
-        then stored identically in each, so they weld exactly. Need not contain the mesh.
+        translation (the floor of their centre) and PLY's float64 beyond 65536 (below it, a PLY is float32 where
+        float32 holds every vertex exactly, else float64). A vertex the meshes share is then stored identically in
+        each (or, in PLY, read back identically), so they weld exactly. Need not contain the mesh.
 
     Returns
     -------
@@ -619,7 +623,8 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
 def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
     node translation (:func:`_local_origin`). numpy's cast made them infinite
-    (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536), OBJ and 3MF (text) hold any finite value."""
+    (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536 or where float32 rounds), OBJ and 3MF (text)
+    hold any finite value."""
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
@@ -1677,7 +1682,10 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
     as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
-    keeps there, as written: an (N, k) array as columns ``name_0`` ..., a bool as uint8) come back as the mesh's
+    keeps there, as written: an (N, k) array as columns ``name_0`` ...; a bool, written as uchar 0/1 (PLY has no
+    boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` beside a ``level`` of a PLY
+    stepterrain wrote before it named them, so ``mesh.faces[mesh.face_attributes["wall"]]`` are the walls) come back
+    as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
     a mesh read and written again lost them), and the metadata :func:`save_mesh` wrote in its header comments as
     the mesh's ``metadata`` (trimesh's reader skips comments). An OBJ whose faces name vertex indices only
@@ -1738,8 +1746,9 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
                                  f"has {counted(count, 'vertex', 'vertices')}")
         if file.suffix.lower() == ".ply" and isinstance(loaded, trimesh.Trimesh):
             _check_ply_rows(loaded)
-            _ply_attributes(loaded)
-            loaded.metadata.update(_ply_metadata(file))
+            metadata, booleans = _ply_comments(file)
+            _ply_attributes(loaded, booleans)
+            loaded.metadata.update(metadata)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file)
@@ -1779,10 +1788,12 @@ def _check_ply_rows(mesh: trimesh.Trimesh) -> None:
                              f"{rows}; is it cut short?")
 
 
-def _ply_attributes(mesh: trimesh.Trimesh) -> None:
+def _ply_attributes(mesh: trimesh.Trimesh, booleans: Mapping[str, Iterable[str]] | None = None) -> None:
     """Give ``mesh``, read from a PLY, the other numeric scalar properties of its vertex and face elements as its
     ``vertex_attributes`` and ``face_attributes`` (one per vertex or face; trimesh's reader keeps them only in
-    ``metadata["_ply_raw"]``)."""
+    ``metadata["_ply_raw"]``); the columns ``booleans`` names by element (:func:`_ply_comments`: bools written as
+    uchar 0/1) as bool again."""
+    booleans = booleans or {}
     raw = (mesh.metadata or {}).get("_ply_raw")
     if not isinstance(raw, Mapping):
         return
@@ -1795,11 +1806,17 @@ def _ply_attributes(mesh: trimesh.Trimesh) -> None:
             columns = dict(data)
         else:
             continue
+        flags = set(booleans.get(element, ()))
+        if element == "face" and "stepped" in booleans and {"level", "wall"} <= set(columns):
+            flags.add("wall")
         for name, column in columns.items():
             column = np.asarray(column)
             if name in _PLY_OWN[element] or column.ndim != 1 or column.dtype.kind not in "biuf" or len(column) != count:
                 continue
-            attributes.setdefault(str(name), column.astype(column.dtype.newbyteorder("=")))
+            column = column.astype(column.dtype.newbyteorder("="))
+            if name in flags and column.dtype.kind in "bu" and column.max(initial=0) <= 1:
+                column = column.astype(bool)  # written from a bool: `faces[wall]` took rows 0 and 1, not the walls
+            attributes.setdefault(str(name), column)
 
 
 def _color_attribute(scene: Any) -> NDArray[Any] | None:
@@ -2378,20 +2395,22 @@ _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vert
 
 
 def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
-    """Binary little-endian PLY: vertices (float32, or float64 beyond 65536), RGBA vertex or face colours,
-    attributes."""
+    """Binary little-endian PLY: vertices (float64 beyond 65536 or where float32 would round them, else float32),
+    RGBA vertex or face colours, attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
-    vertex_columns: list[tuple[str, NDArray[Any]]] = [
-        ("x", vertices[:, 0].astype(coordinate)),
-        ("y", vertices[:, 1].astype(coordinate)),
-        ("z", vertices[:, 2].astype(coordinate)),
-    ]
+    xyz = [vertices[:, k].astype(coordinate) for k in range(3)]
+    if coordinate.itemsize == 4 and not all(np.array_equal(xyz[k], vertices[:, k]) for k in range(3)):
+        # float64 where float32 would round (60000.123 by 1.9 mm): .ply keeps the vertices; a set's tiles still weld,
+        # a float32 one holding its shared vertices exactly as the float64 one beside it does
+        xyz = [vertices[:, k].astype("<f8") for k in range(3)]
+    vertex_columns: list[tuple[str, NDArray[Any]]] = [("x", xyz[0]), ("y", xyz[1]), ("z", xyz[2])]
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
         vertex_columns += [(name, rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
+    booleans: dict[str, list[str]] = {"vertex": [], "face": []}  # columns written from bools, as uchar 0/1
     vertex_columns += _ply_columns(mesh.vertex_attributes, [name for name, _ in vertex_columns]
-                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]))
+                                  + list(_PLY_RESERVED | _PLY_OWN["vertex"]), booleans["vertex"])
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3).astype("<i4")
     face_columns: list[tuple[str, NDArray[Any]]] = []
     if mesh.visual.kind == "face" and len(faces) and len(mesh.visual.face_colors) == len(faces):
@@ -2399,10 +2418,12 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
         # dropped
         face_rgba = np.asarray(mesh.visual.face_colors, dtype=np.uint8)
         face_columns += [(name, face_rgba[:, k]) for k, name in enumerate(("red", "green", "blue", "alpha"))]
-    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]])
+    face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]], booleans["face"])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
+    header += [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
+               if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")
@@ -2426,11 +2447,14 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
 #: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
 _PLY_METADATA = "comment stepterrain-metadata "
+#: The start of the PLY header's comment lines that name a column written from a bool attribute (PLY has no boolean
+#: type: it is written as uchar 0/1), ``comment stepterrain-bool face wall``: :func:`read_mesh` gives it back as bool.
+_PLY_BOOL = "comment stepterrain-bool "
 #: The most characters of metadata JSON on one comment line: with its start, a header line of at most 430 characters.
 #: PLY readers read header lines into fixed buffers: MeshLab's (vcglib) 512 bytes, rply's 1024, VTK's 4096 (pyvista
 #: read nothing from a file with a longer line).
 _PLY_METADATA_PIECE = 400
-#: How far into a PLY file :func:`_ply_metadata` looks for the end of its header.
+#: How far into a PLY file :func:`_ply_comments` looks for the end of its header.
 _PLY_HEADER_LIMIT = 64 << 20
 
 
@@ -2450,35 +2474,48 @@ def _ply_metadata_pieces(metadata: Mapping[str, Any]) -> list[str]:
     return [text[start : start + _PLY_METADATA_PIECE] for start in range(0, len(text), _PLY_METADATA_PIECE)]
 
 
-def _ply_metadata(file: Path) -> dict[str, Any]:
+def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
     """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
-    lines, :func:`_ply_metadata_pieces`); {} without any, or when they do not join into a JSON object (a header
-    edited by hand: the mesh is still read)."""
-    pieces = []
-    start = _PLY_METADATA.encode("ascii")
+    lines, :func:`_ply_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
+    edited by hand, the mesh is still read), and the columns it wrote from bools, by element (its
+    ``comment stepterrain-bool`` lines). A file stepterrain wrote before it named them (``comment written by
+    stepterrain`` and no such line) is marked ``"stepped"``: its face ``wall`` beside a ``level`` is
+    :func:`~stepterrain.stepped`'s flag."""
+    pieces, booleans, ours = [], {"vertex": set(), "face": set()}, False
+    start, flag = _PLY_METADATA.encode("ascii"), _PLY_BOOL.encode("ascii")
     with open(file, "rb") as stream:
         if stream.readline(16).strip() != b"ply":
-            return {}
+            return {}, booleans
         while stream.tell() < _PLY_HEADER_LIMIT:
             line = stream.readline(1 << 20)
             if not line or line.strip() == b"end_header":
                 break
             if line.startswith(start):
                 pieces.append(line[len(start) :].strip())
-    if not pieces:
-        return {}
-    try:
-        value = json.loads(b"".join(pieces).decode("ascii"))
-    except ValueError:  # UnicodeDecodeError and JSONDecodeError
-        return {}
-    return value if isinstance(value, dict) else {}
+            elif line.startswith(flag):
+                element, _, name = line[len(flag) :].decode("ascii", "replace").strip().partition(" ")
+                booleans.setdefault(element, set()).add(name)
+            elif line.strip() == b"comment written by stepterrain":
+                ours = True
+    if ours and not any(booleans.values()):
+        booleans["stepped"] = set()  # an older file of ours: a 0/1 face wall beside a level is stepped's flag
+    value: Any = {}
+    if pieces:
+        try:
+            value = json.loads(b"".join(pieces).decode("ascii"))
+        except ValueError:  # UnicodeDecodeError and JSONDecodeError
+            value = {}
+    return (value if isinstance(value, dict) else {}), booleans
 
 
-def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -> list[tuple[str, NDArray[Any]]]:
+def _ply_columns(
+    attributes: Mapping[str, NDArray[Any]], taken: Iterable[str], booleans: list[str] | None = None
+) -> list[tuple[str, NDArray[Any]]]:
     """Attribute arrays as named PLY scalar columns ((N, k) -> name_0 .. name_k-1) of standard types. A name that
     is no plain ASCII word, or is one of the element's own properties (``taken``: also the names readers take for
     normals or UVs, ``nx`` or ``u``), is written under a word made from it (``level-2`` -> ``level_2``, ``x`` ->
-    ``x_attr``), with a warning naming both: they were dropped."""
+    ``x_attr``), with a warning naming both: they were dropped. The names of the columns of bool arrays (written as
+    uchar 0/1) are appended to ``booleans``."""
     used = set(taken)
     renamed: list[str] = []
     columns: list[tuple[str, NDArray[Any]]] = []
@@ -2497,6 +2534,8 @@ def _ply_columns(attributes: Mapping[str, NDArray[Any]], taken: Iterable[str]) -
         if word + suffix != name:
             renamed.append(f"{name!r} as {word + suffix!r}")
         used.update(names)
+        if booleans is not None and np.asarray(values).dtype.kind == "b":
+            booleans.extend(names)
         if array.ndim == 1:
             columns.append((names[0], array))
         else:

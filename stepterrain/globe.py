@@ -1338,7 +1338,8 @@ def adaptive_mesh(
     -------
     trimesh.Trimesh
         Welded, counter-clockwise seen from +z, vertices at grid nodes;
-        ``metadata["node_index"]`` gives each vertex's (row, column).
+        ``metadata["node_index"]`` gives each vertex's (row, column); a Terrain's CRS and source are its
+        ``metadata["crs"]`` and ``["source"]``, as :func:`~stepterrain.stepped` records them.
 
     Raises
     ------
@@ -1363,7 +1364,10 @@ def adaptive_mesh(
                                     "hierarchy needs a regular grid)")
         if spacing is not None or origin is not None:
             raise InvalidInputError("spacing/origin apply to raw (H, W) arrays only; the Terrain already has them")
+        placed = {key: value for key, value in (("crs", heights.crs), ("source", heights.source)) if value}
         heights, spacing, origin = heights.heights, heights.spacing, heights.origin
+    else:
+        placed = {}
     z = _height_grid(heights, "heights")
     spacing = 1.0 if spacing is None else spacing
     origin = (0.0, 0.0) if origin is None else origin
@@ -1430,6 +1434,7 @@ def adaptive_mesh(
     if flip_x:
         col = cols - 1 - col
     mesh.metadata["node_index"] = np.column_stack([row, col])
+    mesh.metadata.update(placed)  # a Terrain's CRS and source, as stepped's mesh records them (save_mesh writes them)
     mesh.face_attributes.pop("cube_face", None)
     if ox or oy:
         mesh.vertices = mesh.vertices + np.array([ox, oy, 0.0])

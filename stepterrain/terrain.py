@@ -877,8 +877,9 @@ class Terrain:
 
     def mesh(self) -> trimesh.Trimesh:
         """The terrain as a ``trimesh.Trimesh`` (see :func:`heightfield_mesh`)."""
-        if self.kind == "tin":
-            return trimesh.Trimesh(self.points, self.faces, process=False)
+        if self.kind == "tin":  # its CRS and source, as heightfield_mesh records a grid's
+            placed = {key: value for key, value in (("crs", self.crs), ("source", self.source)) if value}
+            return trimesh.Trimesh(self.points, self.faces, process=False, metadata=placed)
         return heightfield_mesh(self)
 
     # ------------------------------------------------------------------ smaller grids
@@ -1504,7 +1505,8 @@ def heightfield_mesh(
     trimesh.Trimesh
         Vertex k is grid node k in row-major order, z = height; two triangles per cell, wound
         counter-clockwise seen from +z. With nodata, no face touches a NaN node and the NaN nodes are
-        removed (``metadata["node_index"]`` maps vertices back to grid nodes).
+        removed (``metadata["node_index"]`` maps vertices back to grid nodes). A Terrain's CRS and source are its
+        ``metadata["crs"]`` and ``["source"]``, as :func:`~stepterrain.stepped` records them.
 
     Raises
     ------
@@ -1546,6 +1548,10 @@ def heightfield_mesh(
         axis=1,
     )
     metadata: dict[str, Any] = {"grid_shape": (rows, cols), "spacing": (dx, dy), "origin": t.origin}
+    if t.crs:  # a Terrain's CRS and source, as stepped's mesh records them: a file of dem.mesh() named no CRS
+        metadata["crs"] = t.crs
+    if t.source:
+        metadata["source"] = t.source
     vertices, faces, kept = without_nan_nodes(vertices, faces)
     if kept is not None:
         metadata["node_index"] = kept

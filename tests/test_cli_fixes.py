@@ -1505,3 +1505,27 @@ def test_a_textured_obj_whose_side_file_name_is_too_long_is_refused_before_any_w
     assert f"{option} {str(obj)!r} writes 'a" in err and f"{side}.png' beside it" in err, err
     assert f"over the {limit} its folder allows" in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+def test_info_counts_the_levels_and_walls_a_ply_keeps(tmp_path, capsys):
+    """`stepterrain info` of a stepped .ply said nothing of the levels and walls it keeps (its face attributes
+    ``level`` and ``wall``, which the other formats drop): now how many levels its faces lie on (a solid's skirts
+    and base, level -1, on none) and how many faces are walls, as the mesh itself counts them."""
+    import json
+
+    from stepterrain.export import save_mesh
+
+    solid = st.stepped(np.add.outer(np.arange(12.0), np.sin(np.arange(10.0))) * 4.0 + 0.3, interval=5.0,
+                       spacing=(10.0, -10.0), solid=True)
+    level, wall = solid.face_attributes["level"], solid.face_attributes["wall"]
+    assert (level == -1).any() and wall.any()
+    for ext in (".ply", ".glb"):
+        code, out, err = run(capsys, "info", save_mesh(solid, tmp_path / f"solid{ext}"), "--json")
+        assert code == 0, err
+        summary = json.loads(out)
+        if ext == ".ply":
+            assert summary["levels"] == len(set(level.tolist()) - {-1}) == len(solid.metadata["isovalues"])
+            assert summary["wall_faces"] == int(wall.sum())
+            assert summary["watertight"] is True and summary["faces"] == len(solid.faces)
+        else:  # a glTF holds no face attributes: nothing is said, rather than 0
+            assert "levels" not in summary and "wall_faces" not in summary

@@ -3,6 +3,7 @@ its fix)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import stat
@@ -1777,3 +1778,90 @@ def test_a_textured_stepterrain_gltf_written_before_the_turn_still_reads_z_up(tm
     assert again.metadata["generator"] == "stepterrain texture"
     again.export(tmp_path / "again.glb")
     np.testing.assert_allclose(read_mesh(tmp_path / "again.glb").vertices, mesh.vertices, rtol=0, atol=1e-3)
+
+
+def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
+    """PLY has no boolean type, so save_mesh writes stepped's ``wall`` (and any bool attribute) as uchar, and
+    read_mesh gave it back as uint8: ``mesh.faces[back.face_attributes["wall"]]`` took rows 0 and 1 over and over
+    instead of the walls. The header now names the columns written from bools (a comment readers skip), and read_mesh
+    turns them back; a file written before that, by stepterrain, gets its 0/1 ``wall`` back as bool."""
+    mesh = st.stepped(np.add.outer(np.arange(12.0), np.arange(10.0)) * 3.0, interval=7.0, spacing=(10.0, -10.0))
+    wall = mesh.face_attributes["wall"]
+    assert wall.dtype == bool and 0 < wall.sum() < len(wall)
+    mesh.vertex_attributes["odd"] = np.arange(len(mesh.vertices)) % 2 == 1
+    mesh.face_attributes["flags"] = np.stack([wall, ~wall], axis=1)
+    out = save_mesh(mesh, tmp_path / "steps.ply")
+    assert b"property uchar wall" in out.read_bytes()[:2000]  # readers that do not know the comment see 0/1
+    for back in (read_mesh(out), read_mesh(save_mesh(read_mesh(out), tmp_path / "again.ply"))):
+        assert back.face_attributes["wall"].dtype == bool
+        np.testing.assert_array_equal(back.face_attributes["wall"], wall)
+        np.testing.assert_array_equal(back.faces[back.face_attributes["wall"]], mesh.faces[wall])
+        assert back.vertex_attributes["odd"].dtype == bool
+        np.testing.assert_array_equal(back.vertex_attributes["odd"], mesh.vertex_attributes["odd"])
+        assert back.face_attributes["flags_1"].dtype == bool
+        np.testing.assert_array_equal(back.face_attributes["flags_1"], ~wall)
+        assert back.face_attributes["level"].dtype == np.int32
+    # a PLY stepterrain wrote before: no such comment, its 0/1 wall is stepped's flag; other uchar columns stay
+    data = out.read_bytes()
+    head, body = data.split(b"end_header\n", 1)
+    old = b"\n".join(line for line in head.split(b"\n") if b"stepterrain-bool" not in line) + b"end_header\n" + body
+    (tmp_path / "old.ply").write_bytes(old)
+    back = read_mesh(tmp_path / "old.ply")
+    assert back.face_attributes["wall"].dtype == bool
+    np.testing.assert_array_equal(back.face_attributes["wall"], wall)
+    assert back.vertex_attributes["odd"].dtype == np.uint8
+    # a bool named like trimesh's texture comment is not named in one (trimesh looked for an image): it stays uchar
+    mesh.face_attributes["TextureFile"] = wall
+    named = save_mesh(mesh, tmp_path / "named.ply")
+    assert b"TextureFile" not in b"".join(line for line in named.read_bytes()[:4000].split(b"\n")
+                                          if line.startswith(b"comment"))
+    back = read_mesh(named)
+    assert back.face_attributes["TextureFile"].dtype == np.uint8 and back.face_attributes["wall"].dtype == bool
+    # a uint8 attribute of 0/1 written as such stays uint8, wall or not
+    box = trimesh.creation.box()
+    box.face_attributes.update(wall=(np.arange(12) % 2).astype(np.uint8), mark=(np.arange(12) % 2).astype(np.uint8))
+    back = read_mesh(save_mesh(box, tmp_path / "box.ply"))
+    assert back.face_attributes["wall"].dtype == back.face_attributes["mark"].dtype == np.uint8
+
+
+def test_a_tin_closeup_or_adaptive_mesh_of_a_dem_names_its_crs_in_the_file_and_steps_with_it(tmp_path, capsys):
+    """stepped's mesh records the DEM's CRS and source, so the files it is written to name them, but the other meshes
+    of a DEM in UTM did not: dem.mesh() (``stepterrain texture --mesh`` drapes it), adaptive_mesh(dem) and
+    closeup_scene(dem, ...) were written without a CRS (``stepterrain info`` showed UTM bounds in no CRS), and the
+    stepped mesh of a TIN read back from a file that names its CRS named none."""
+    dem = st.Terrain.from_heights(np.add.outer(np.arange(17.0), np.sin(np.arange(17.0))) * 10.0, spacing=(30.0, -30.0),
+                                  origin=(390000.0, 3800000.0), crs="EPSG:32611", source="dem.tif")
+    placed = {"crs": "EPSG:32611", "source": "dem.tif"}
+    cu = st.CloseUp(st.ROI.circle((390240.0, 3799760.0), 100.0), scale=1.5, offset=(0, 0, 300))
+    tin = dataclasses.replace(st.Terrain.from_mesh(dem.mesh()), crs="EPSG:32611", source="t.ply")
+    assert {k: tin.mesh().metadata[k] for k in placed} == {"crs": "EPSG:32611", "source": "t.ply"}
+    for mesh in (dem.mesh(), st.adaptive_mesh(dem, error=1.0), st.closeup_scene(dem, [cu])):
+        assert {k: mesh.metadata.get(k) for k in placed} == placed
+        for ext in (".glb", ".ply"):
+            out = save_mesh(mesh, tmp_path / f"m{ext}")
+            assert cli.main(["info", str(out), "--json"]) == 0
+            assert json.loads(capsys.readouterr().out)["meta.crs"] == "EPSG:32611"
+            if "closeups" not in mesh.metadata:  # a TIN: its steps name the CRS and source the file names
+                steps = st.stepped(read_mesh(out), interval=20.0)
+                assert {k: steps.metadata.get(k) for k in placed} == placed
+    assert "crs" not in st.stepped(st.heightfield_mesh(np.eye(3)), interval=0.5).metadata  # none where none is known
+
+
+def test_a_ply_keeps_coordinates_below_65536_that_float32_rounds(tmp_path):
+    """A PLY stored coordinates up to 65536 as float32, so local metres such as 60000.123 came back up to 1/256 off
+    (1.9 mm here), though save_mesh's Notes say .ply keeps float64 and the STL warning, for this very rounding,
+    said to write .ply to keep it. Such a mesh is now written as float64; one float32 holds exactly (a grid of
+    integer spacing and float32 heights) stays float32, half the size: tiles of a set still weld, a float32 tile
+    holding its shared vertices exactly, as the float64 tile beside it does."""
+    mesh = st.heightfield_mesh(np.random.default_rng(0).random((6, 7)) * 10, spacing=(30.3, -30.7),
+                               origin=(60000.123, 50000.456))
+    with pytest.warns(UserWarning, match=r"write \.ply, \.obj or \.3mf to keep float64"):
+        save_mesh(mesh, tmp_path / "m.stl")
+    out = save_mesh(mesh, tmp_path / "m.ply")
+    assert b"property double x" in out.read_bytes()[:1000]
+    np.testing.assert_array_equal(read_mesh(out).vertices, mesh.vertices)
+    exact = st.heightfield_mesh(np.add.outer(np.arange(8.0), np.arange(9.0)).astype(np.float32) * np.float32(1.7),
+                                spacing=(30.0, -30.0), origin=(1000.0, 2000.0))
+    out = save_mesh(exact, tmp_path / "exact.ply")
+    assert b"property float x" in out.read_bytes()[:1000]
+    np.testing.assert_array_equal(read_mesh(out).vertices, exact.vertices)
