@@ -1505,3 +1505,37 @@ def test_a_textured_obj_whose_side_file_name_is_too_long_is_refused_before_any_w
     assert f"{option} {str(obj)!r} writes 'a" in err and f"{side}.png' beside it" in err, err
     assert f"over the {limit} its folder allows" in err and "Traceback" not in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # nothing written
+
+
+@needs_render
+def test_ctrl_c_as_vtk_loads_ends_the_run_as_interrupted(tmp_path):
+    """Ctrl-C while VTK's rendering modules loaded (the first render of `steps --png`, about a second on a busy
+    machine) crashed the process (SIGSEGV, a core dump) or ended it with a 30-line traceback of "ImportError: Failed to
+    load vtkRenderingContextOpenGL2" and exit status 1. The modules now load whole, then the run ends as after any
+    Ctrl-C: exit status 130, "stepterrain: interrupted", no file written."""
+    import os
+    import subprocess
+    import sys
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(24.0), np.arange(24.0)).astype(np.float32))
+    # the SIGINT comes as VTK's 2D rendering module loads (pyvista.plotting's), as a user's Ctrl-C may
+    script = f"""
+import os, signal, sys
+import vtkmodules
+from stepterrain.cli import main
+load = vtkmodules.VTKLoader.exec_module
+def exec_module(self, module):
+    if module.__name__ == "vtkmodules.vtkRenderingContext2D":
+        os.kill(os.getpid(), signal.SIGINT)
+    load(self, module)
+vtkmodules.VTKLoader.exec_module = exec_module
+sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "10", "--device", "cpu", "-o", {str(tmp_path / "t.glb")!r},
+               "--png", {str(tmp_path / "t.png")!r}, "--size", "64x48"]))
+"""
+    (tmp_path / "run.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    assert done.returncode == 130, (done.returncode, done.stderr[-2000:])
+    assert done.stderr.strip().splitlines() == ["stepterrain: interrupted"], done.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py"]
