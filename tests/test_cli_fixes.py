@@ -1539,3 +1539,34 @@ sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "10", "--device", "cpu
     assert done.returncode == 130, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == ["stepterrain: interrupted"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py"]
+
+
+def test_ctrl_c_as_the_package_loads_is_not_ignored(tmp_path):
+    """trimesh catches every exception of its optional imports, KeyboardInterrupt too: Ctrl-C in the first second of
+    a command (trimesh importing scipy, as `import stepterrain` loads it) was swallowed and the command ran on to its
+    end and wrote its output (or failed later with "TypeError: unsupported operand type(s) for |: 'ExceptionWrapper'
+    and 'NoneType'"). The package's imports now hold the signal back and it ends the start-up once they are done."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "t.glb"
+    script = f"""
+import os, signal, sys
+class Interrupt:
+    def find_spec(self, name, path=None, target=None):
+        if name == "scipy.spatial":  # trimesh's import, in its try block
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+sys.meta_path.insert(0, Interrupt())
+from stepterrain.cli import main
+sys.exit(main(["-q", "steps", "--interval", "10", "--device", "cpu", "-o", {str(out)!r}]))
+"""
+    (tmp_path / "run.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    assert done.returncode == -signal.SIGINT, (done.returncode, done.stderr[-2000:])  # as after any Ctrl-C at start
+    assert done.stderr.rstrip().endswith("KeyboardInterrupt"), done.stderr[-2000:]
+    assert not out.exists()
