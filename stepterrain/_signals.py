@@ -15,7 +15,7 @@ __all__ = ["signals_held"]
 @contextmanager
 def signals_held() -> Iterator[None]:
     """Hold back SIGINT and SIGTERM while the block runs; a signal that came meanwhile goes to its own handler when
-    the block ends (Ctrl-C: KeyboardInterrupt there).
+    the block ends, also when it ends with an exception (Ctrl-C: KeyboardInterrupt there, the exception its context).
 
     A LocalCluster interrupted while its nannies started was never closed: dask's exit hook then failed on it
     ("Exception ignored in atexit callback ... AssertionError: Status.init"); heights half scattered or tasks half
@@ -44,6 +44,9 @@ def signals_held() -> Iterator[None]:
     finally:
         for number, handler in held.items():
             signal.signal(number, handler)
-    for number, handler in held.items():
-        if number in came:
-            handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
+        # also when the block failed: the failure is most likely the signal's own doing (the terminal's Ctrl-C reaches
+        # the LocalCluster's worker processes too, which died as they started), and the user asked to stop; it was
+        # lost, and `batch` ended "error: cannot start a LocalCluster ... Nanny failed to start", exit status 2
+        for number, handler in held.items():
+            if number in came:
+                handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
