@@ -961,7 +961,8 @@ _OPTION_ALIASES = {
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
                 "close-up color": "--color", "close-up stepped interval": "--stepped", "interval": "--stepped",
                 "window_size": "--size"},
-    "batch": {"tile_size": "--tile", "window_size": "--size"},  # "tile_size applies to one raster" reached it as it was
+    "batch": {"tile_size": "--tile", "window_size": "--size",  # "tile_size applies to one raster" reached it as it was
+              "output_dir": "--output"},  # "output_dir '/dev/stdout' exists and is not a folder"
     "globe": {"window_size": "--size"},
     "texture": {"window_size": "--size"},
 }

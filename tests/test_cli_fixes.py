@@ -1570,3 +1570,17 @@ sys.exit(main(["-q", "steps", "--interval", "10", "--device", "cpu", "-o", {str(
     assert done.returncode == -signal.SIGINT, (done.returncode, done.stderr[-2000:])  # as after any Ctrl-C at start
     assert done.stderr.rstrip().endswith("KeyboardInterrupt"), done.stderr[-2000:]
     assert not out.exists()
+
+
+def test_batch_output_that_is_a_file_is_refused_naming_the_option(tmp_path, capsys):
+    """`stepterrain batch -o /dev/stdout` (or -o an existing file) said "error: output_dir '/dev/stdout' exists and is
+    not a folder": the library's argument, which the command line never named; it names --output now."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    taken = tmp_path / "taken.glb"
+    taken.write_bytes(b"mine")
+    for out in (taken, "/dev/stdout"):
+        code, _, err = run(capsys, "-q", "batch", dem, "--interval", "2", "--scheduler", "serial", "-o", out)
+        assert code == 2 and err.strip() == f"stepterrain batch: error: --output {str(out)!r} exists and is not a " \
+                                            "folder", err
+    assert taken.read_bytes() == b"mine" and sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "taken.glb"]
