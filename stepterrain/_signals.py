@@ -14,8 +14,9 @@ __all__ = ["signals_held"]
 
 @contextmanager
 def signals_held() -> Iterator[None]:
-    """Hold back SIGINT and SIGTERM while the block runs; a signal that came meanwhile goes to its own handler when
-    the block ends, also when it ends with an exception (Ctrl-C: KeyboardInterrupt there, the exception its context).
+    """Hold back SIGINT, SIGTERM and SIGHUP while the block runs; a signal that came meanwhile goes to its own handler
+    when the block ends, also when it ends with an exception (Ctrl-C: KeyboardInterrupt there, the exception its
+    context).
 
     A LocalCluster interrupted while its nannies started was never closed: dask's exit hook then failed on it
     ("Exception ignored in atexit callback ... AssertionError: Status.init"); heights half scattered or tasks half
@@ -34,7 +35,7 @@ def signals_held() -> Iterator[None]:
             held[signum](signum, frame)
         came.append(signum)
 
-    for number in (signal.SIGINT, getattr(signal, "SIGTERM", None)):
+    for number in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
         handler = None if number is None else signal.getsignal(number)
         if callable(handler):
             held[number] = handler  # type: ignore[index]

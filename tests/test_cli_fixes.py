@@ -1584,3 +1584,36 @@ def test_batch_output_that_is_a_file_is_refused_naming_the_option(tmp_path, caps
         assert code == 2 and err.strip() == f"stepterrain batch: error: --output {str(out)!r} exists and is not a " \
                                             "folder", err
     assert taken.read_bytes() == b"mine" and sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "taken.glb"]
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "SIGHUP"), reason="POSIX's SIGHUP")
+def test_sighup_ends_a_run_as_sigterm_does(tmp_path):
+    """SIGHUP (the terminal closed, the ssh connection dropped) killed a command outright: the file being written
+    stayed as a hidden partial file ('.terrain.glb.1a2b3c4d.tmp', tens of MB for a large mesh). It now ends the run
+    as SIGTERM does: exit status 129, "stepterrain: hung up", the partial file removed, the old output kept."""
+    import os
+    import subprocess
+    import sys
+
+    dem, out = tmp_path / "dem.npy", tmp_path / "terrain.glb"
+    np.save(dem, np.add.outer(np.arange(12.0), np.arange(12.0)).astype(np.float32))
+    out.write_bytes(b"the old terrain")
+    script = f"""
+import os, signal, sys
+import stepterrain.export as export
+from stepterrain.cli import main
+def writer(mesh, tmp, target, bounds, *shared):
+    tmp.write_bytes(b"glTF half a file")
+    os.kill(os.getpid(), signal.SIGHUP)
+export._WRITERS[".glb"] = writer
+if __name__ == "__main__":
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as a shell's command has it, also under a runner ignoring it
+    sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "2", "--device", "cpu", "-o", {str(out)!r}]))
+"""
+    (tmp_path / "run.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    assert done.returncode == 129, (done.returncode, done.stderr[-2000:])
+    assert done.stderr.strip().splitlines() == ["stepterrain: hung up"], done.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py", "terrain.glb"]
+    assert out.read_bytes() == b"the old terrain"
