@@ -26,28 +26,34 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from ._compaction import get_memory_budget, set_memory_budget
-from ._device import get_cpu_threads, get_output_pool_limit, set_cpu_threads, set_output_pool_limit
-from .batch import BatchReport
-from .errors import (
-    DataFileError,
-    DeviceError,
-    InvalidInputError,
-    MissingDependencyError,
-    OutputTooLargeError,
-    SchedulerError,
-    StepTerrainError,
-)
-from .io import load_dem, sample_dem
-from .stepped import Lens, circular_lens, isovalues, stepped_series
+from ._signals import signals_held as _signals_held
 
-if TYPE_CHECKING:  # type checkers see the entry points
-    from .batch import batch
-    from .stepped import stepped
-else:  # the modules themselves, callable as their entry points (stepterrain._callable_module): st.batch(...) and
-    # st.batch.LOCAL_CLUSTER_MALLOC, st.stepped(...) and st.stepped.thresholds_of all work
-    from . import batch, stepped
-from .terrain import Terrain, heightfield_mesh
+# Ctrl-C while the dependencies load (a second or two) is held back until they are loaded: trimesh catches any
+# exception of its optional imports, KeyboardInterrupt too, so a Ctrl-C then was ignored (the command ran on to
+# its end) or broke trimesh ("TypeError: unsupported operand type(s) for |: 'ExceptionWrapper' ..." later on)
+with _signals_held():
+    from ._compaction import get_memory_budget, set_memory_budget
+    from ._device import get_cpu_threads, get_output_pool_limit, set_cpu_threads, set_output_pool_limit
+    from .batch import BatchReport
+    from .errors import (
+        DataFileError,
+        DeviceError,
+        InvalidInputError,
+        MissingDependencyError,
+        OutputTooLargeError,
+        SchedulerError,
+        StepTerrainError,
+    )
+    from .io import load_dem, sample_dem
+    from .stepped import Lens, circular_lens, isovalues, stepped_series
+
+    if TYPE_CHECKING:  # type checkers see the entry points
+        from .batch import batch
+        from .stepped import stepped
+    else:  # the modules themselves, callable as their entry points (stepterrain._callable_module): st.batch(...) and
+        # st.batch.LOCAL_CLUSTER_MALLOC, st.stepped(...) and st.stepped.thresholds_of all work
+        from . import batch, stepped
+    from .terrain import Terrain, heightfield_mesh
 
 __version__ = "0.1.0"
 

@@ -38,7 +38,7 @@ exit status: 0 every item written or complete already; 1 some items failed (list
 2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable, a --floor
 not below the stepped surface of every item, a --spacing for DEM files that all place their nodes themselves, a
 --coarsen that leaves every item too few nodes or only nodata); 130 interrupted (Ctrl-C), 143 terminated
-(SIGTERM): finished outputs are kept, partial files removed, and a rerun goes on from there.
+(SIGTERM), 129 hung up (SIGHUP): finished outputs are kept, partial files removed, and a rerun goes on from there.
 """
 
 

@@ -29,7 +29,6 @@ import math
 import os
 import platform
 import re
-import signal
 import sys
 import threading
 import time
@@ -47,6 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from ._files import as_path
+from ._signals import signals_held
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -1171,43 +1171,6 @@ LOCAL_CLUSTER_CONFIG: dict[str, Any] = {
 LOCAL_CLUSTER_MALLOC: dict[str, int] = {"MALLOC_MMAP_THRESHOLD_": 1 << 30, "MALLOC_TRIM_THRESHOLD_": 1 << 30}
 
 
-@contextmanager
-def _signals_held() -> Iterator[None]:
-    """Hold back SIGINT and SIGTERM while dask starts something that an exception in the middle leaves half made;
-    a signal that came meanwhile goes to its own handler when the block ends (Ctrl-C: KeyboardInterrupt there).
-
-    A LocalCluster interrupted while its nannies started was never closed: dask's exit hook then failed on it
-    ("Exception ignored in atexit callback ... AssertionError: Status.init"); heights half scattered or tasks half
-    submitted reached a scheduler whose client had closed, which logged a CRITICAL traceback for each of them.
-    Only a Python handler is held back (a signal ignored or left to the system stays so), and only in the main
-    thread, the one Python's handlers run in. The same signal a second time goes to its handler at once: a second
-    Ctrl-C still ends a start or a scatter that hangs."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: dict[int, Any] = {}
-    came: list[int] = []
-
-    def hold(signum: int, frame: Any) -> None:
-        if signum in came:
-            held[signum](signum, frame)
-        came.append(signum)
-
-    for number in (signal.SIGINT, getattr(signal, "SIGTERM", None)):
-        handler = None if number is None else signal.getsignal(number)
-        if callable(handler):
-            held[number] = handler  # type: ignore[index]
-            signal.signal(number, hold)  # type: ignore[arg-type]
-    try:
-        yield
-    finally:
-        for number, handler in held.items():
-            signal.signal(number, handler)
-    for number, handler in held.items():
-        if number in came:
-            handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
-
-
 def _silence_dask_logs() -> list[tuple[logging.Logger, int]]:
     """Turn dask.distributed's loggers in this process off; return their levels before."""
     loggers = [logging.getLogger("distributed")] + [
@@ -1340,7 +1303,7 @@ def _connect(
     if scheduler is None:
         client = cluster = None
         try:
-            with _signals_held():  # Ctrl-C as the workers start: the cluster is closed below, not left half made
+            with signals_held():  # Ctrl-C as the workers start: the cluster is closed below, not left half made
                 cluster = start_local_cluster(workers)
                 client = Client(cluster, timeout=connect_timeout)
         except BaseException:
@@ -2166,7 +2129,7 @@ def _run_dask(
     # they "failed: cancelled" after 0 attempts, about half a LocalCluster's items when one of its two workers died.
     lost: dict[str, int] = {}
     try:
-        with _signals_held():  # Ctrl-C here cancels all of them below, not those submitted so far
+        with signals_held():  # Ctrl-C here cancels all of them below, not those submitted so far
             # each task gets its own block of the heights (scattered once), not the whole raster on every worker
             blocks = client.scatter([heights(g) for g in groups], hash=False) if src is not None else None
             futures = {submit(g, blocks[k] if blocks is not None else None): g for k, g in enumerate(groups)}

@@ -970,8 +970,9 @@ _OPTION_ALIASES = {
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
                 "close-up color": "--color", "close-up stepped interval": "--stepped", "interval": "--stepped",
                 "window_size": "--size"},
-    # "tile_size applies to one raster" reached it as it was; overview_size is batch's window_size of its --png
-    "batch": {"tile_size": "--tile", "window_size": "--size", "overview_size": "--size"},
+    # "tile_size applies to one raster" reached it as it was; overview_size is batch's window_size of its --png;
+    # "output_dir '/dev/stdout' exists and is not a folder"
+    "batch": {"tile_size": "--tile", "window_size": "--size", "overview_size": "--size", "output_dir": "--output"},
     "globe": {"window_size": "--size"},
     "texture": {"window_size": "--size"},
 }
@@ -1097,7 +1098,7 @@ def _warning_line(command: str, sub: argparse.ArgumentParser | None = None) -> A
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``stepterrain`` command; return the exit status (0 ok, 2 bad input or usage, 130 interrupted, 143
-    terminated: SIGTERM, which ends the run as Ctrl-C does, its partial files removed).
+    terminated: SIGTERM, which ends the run as Ctrl-C does, its partial files removed; 129 for SIGHUP likewise).
 
     ``argv`` defaults to ``sys.argv[1:]``. Errors derived from :class:`~stepterrain.errors.StepTerrainError`
     print one line on stderr, without a traceback.
@@ -1120,7 +1121,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     progress = Progress(quiet=args.quiet)
     previous_budget = get_memory_budget()
     previous_hint = budget_hint(_CLI_BUDGET_HINT)  # refusals in this process name the option
-    previous_term = _terminate_as_interrupt()
+    previous_terms = _terminate_as_interrupt()
     try:
         if args.memory_budget is not None:  # for this run only: main() may be called in-process
             set_memory_budget(args.memory_budget)
@@ -1146,40 +1147,55 @@ def main(argv: Sequence[str] | None = None) -> int:
         return EXIT_USAGE
     except KeyboardInterrupt as exc:
         if isinstance(exc, _Terminated):
-            print("stepterrain: terminated", file=sys.stderr)
-            return EXIT_TERMINATED
+            hung_up = exc.signum == getattr(signal, "SIGHUP", None)
+            with contextlib.suppress(OSError):  # the terminal that hung up takes no more lines (EIO)
+                print(f"stepterrain: {'hung up' if hung_up else 'terminated'}", file=sys.stderr)
+            return EXIT_HUNG_UP if hung_up else EXIT_TERMINATED
         print("stepterrain: interrupted", file=sys.stderr)
         return 130
     finally:
         set_memory_budget(previous_budget)
         budget_hint(previous_hint)
-        if previous_term is not None:
-            signal.signal(signal.SIGTERM, previous_term)
+        for number, handler in previous_terms.items():
+            signal.signal(number, handler)
 
 
 #: The exit status of a run ended by SIGTERM (128 + 15, as a shell reports a command that SIGTERM killed).
 EXIT_TERMINATED = 143
 
 
+#: The exit status of a run ended by SIGHUP (128 + 1: its terminal closed, its ssh connection dropped).
+EXIT_HUNG_UP = 129
+
+
 class _Terminated(KeyboardInterrupt):
-    """SIGTERM during a command, raised as Ctrl-C raises KeyboardInterrupt, so that the run ends as after Ctrl-C."""
+    """SIGTERM (or SIGHUP) during a command, raised as Ctrl-C raises KeyboardInterrupt, so that the run ends as after
+    Ctrl-C; ``signum`` is the signal's number."""
+
+    def __init__(self, signum: int = signal.SIGTERM) -> None:
+        super().__init__()
+        self.signum = signum
 
 
 def _raise_terminated(signum: int, frame: Any) -> None:
-    raise _Terminated
+    raise _Terminated(signum)
 
 
-def _terminate_as_interrupt() -> Any:
-    """Make SIGTERM raise :class:`_Terminated` while the command runs; return the handler to put back, or None
-    when it was left alone. `kill`, `timeout` or a job scheduler's SIGTERM killed the process outright: the file
-    being written stayed as a hidden partial file (tens of MB of a tile), batch's manifest lost its last second of
-    finished items and the LocalCluster's semaphores were reported leaked. Only the system's default action is
-    replaced (a program that calls main() and handles SIGTERM keeps its handler), and only in the main thread."""
-    if not hasattr(signal, "SIGTERM") or threading.current_thread() is not threading.main_thread():
-        return None
-    if signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL:
-        return None
-    return signal.signal(signal.SIGTERM, _raise_terminated)
+def _terminate_as_interrupt() -> dict[int, Any]:
+    """Make SIGTERM and SIGHUP raise :class:`_Terminated` while the command runs; return the handlers to put back
+    ({signal: handler}, empty where none was replaced). `kill`, `timeout` or a job scheduler's SIGTERM killed the
+    process outright: the file being written stayed as a hidden partial file (tens of MB of a tile), batch's manifest
+    lost its last second of finished items and the LocalCluster's semaphores were reported leaked; SIGHUP (the
+    terminal closed, the ssh connection dropped) left the same. Only the system's default action is replaced (a
+    program that calls main() and handles SIGTERM keeps its handler; `nohup`'s ignored SIGHUP stays ignored), and
+    only in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    previous = {}
+    for number in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
+        if number is not None and signal.getsignal(number) is signal.SIG_DFL:
+            previous[number] = signal.signal(number, _raise_terminated)
+    return previous
 
 
 #: The exit status of a run whose standard output was closed by its reader (128 + SIGPIPE, as a shell reports a

@@ -28,6 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget
 from ._memo import derived
+from ._signals import signals_held
 from .errors import InvalidInputError, MissingDependencyError, counted
 from .mesh import mesh_argument
 from .terrain import check_flag, finite_or_nan, is_name, number_or_nan, real_numbers, real_vector
@@ -107,7 +108,12 @@ def _default_theme(pv: Any) -> Any:
 def _import_pyvista() -> Any:
     _select_backend()
     try:
-        import pyvista
+        # Ctrl-C while VTK's extension modules load (pyvista.plotting's, on the first pv.Color or Plotter) crashed the
+        # process (SIGSEGV) or came out as "ImportError: Failed to load vtkRenderingContextOpenGL2": held back, it is
+        # a KeyboardInterrupt once they are loaded
+        with signals_held():
+            import pyvista
+            import pyvista.plotting  # noqa: F401 - loaded here, not on pyvista's first use of it
     except ImportError as exc:  # pragma: no cover - pyvista is a core dependency
         raise MissingDependencyError(f"rendering needs pyvista: pip install 'pyvista>=0.44' ({exc})") from exc
     # every plotter here is made with off_screen=True; pyvista.OFF_SCREEN, which it set, is the caller's: set, it

@@ -1405,6 +1405,39 @@ def test_ctrl_c_while_the_local_cluster_starts_closes_it(tmp_path, capfd, unrais
     assert interrupted_run_leaves(out, capfd, unraisable) == []  # nothing written: the folder made is removed
 
 
+def test_ctrl_c_that_fails_the_local_cluster_start_ends_as_interrupted(tmp_path, capsys, monkeypatch):
+    """The terminal's Ctrl-C reaches the LocalCluster's worker processes too: as they started, they died of it, and
+    the start failed. The Ctrl-C held back meanwhile was then lost: `stepterrain batch` ended "error: cannot start a
+    LocalCluster of 2 worker processes: Nanny failed to start. (from a script, call batch() under `if __name__ ==
+    '__main__':` ...)", exit status 2. It ends as interrupted now: exit status 130, nothing written."""
+    import os
+    import signal
+
+    import distributed
+
+    from stepterrain import cli
+
+    class DiesOfTheCtrlC:
+        def __init__(self, *args, **kwargs):
+            os.kill(os.getpid(), signal.SIGINT)  # the user's Ctrl-C, to the whole process group
+            raise RuntimeError("Nanny failed to start.")  # as the workers' own share of it ends their start
+
+    monkeypatch.setattr(distributed, "LocalCluster", DiesOfTheCtrlC)
+    src = tmp_path / "dem.npy"
+    np.save(src, np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    out = tmp_path / "out"
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the tests run with it ignored
+    try:
+        code = cli.main(["batch", str(src), "--tile", "4", "--interval", "2", "--workers", "1", "-o", str(out)])
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # Python's handler is back
+    finally:
+        signal.signal(signal.SIGINT, before)
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert err.rstrip().splitlines()[-1] == "stepterrain: interrupted" and "Nanny" not in err, err
+    assert not out.exists() or list(out.iterdir()) == []
+
+
 def test_a_run_of_many_items_on_the_local_cluster_ends_without_dask_errors(tmp_path, capfd):
     # every `stepterrain batch` of some hundreds of small tiles on the default LocalCluster, written in full, ended
     # with a worker's "distributed.worker - ERROR - Failed to communicate with scheduler during heartbeat" and a

@@ -1529,3 +1529,115 @@ def test_info_counts_the_levels_and_walls_a_ply_keeps(tmp_path, capsys):
             assert summary["watertight"] is True and summary["faces"] == len(solid.faces)
         else:  # a glTF holds no face attributes: nothing is said, rather than 0
             assert "levels" not in summary and "wall_faces" not in summary
+
+
+@needs_render
+def test_ctrl_c_as_vtk_loads_ends_the_run_as_interrupted(tmp_path):
+    """Ctrl-C while VTK's rendering modules loaded (the first render of `steps --png`, about a second on a busy
+    machine) crashed the process (SIGSEGV, a core dump) or ended it with a 30-line traceback of "ImportError: Failed to
+    load vtkRenderingContextOpenGL2" and exit status 1. The modules now load whole, then the run ends as after any
+    Ctrl-C: exit status 130, "stepterrain: interrupted", no file written."""
+    import os
+    import subprocess
+    import sys
+
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(24.0), np.arange(24.0)).astype(np.float32))
+    # the SIGINT comes as VTK's 2D rendering module loads (pyvista.plotting's), as a user's Ctrl-C may
+    script = f"""
+import os, signal, sys
+import vtkmodules
+from stepterrain.cli import main
+load = vtkmodules.VTKLoader.exec_module
+def exec_module(self, module):
+    if module.__name__ == "vtkmodules.vtkRenderingContext2D":
+        os.kill(os.getpid(), signal.SIGINT)
+    load(self, module)
+vtkmodules.VTKLoader.exec_module = exec_module
+sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "10", "--device", "cpu", "-o", {str(tmp_path / "t.glb")!r},
+               "--png", {str(tmp_path / "t.png")!r}, "--size", "64x48"]))
+"""
+    (tmp_path / "run.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    assert done.returncode == 130, (done.returncode, done.stderr[-2000:])
+    assert done.stderr.strip().splitlines() == ["stepterrain: interrupted"], done.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py"]
+
+
+def test_ctrl_c_as_the_package_loads_is_not_ignored(tmp_path):
+    """trimesh catches every exception of its optional imports, KeyboardInterrupt too: Ctrl-C in the first second of
+    a command (trimesh importing scipy, as `import stepterrain` loads it) was swallowed and the command ran on to its
+    end and wrote its output (or failed later with "TypeError: unsupported operand type(s) for |: 'ExceptionWrapper'
+    and 'NoneType'"). The package's imports now hold the signal back and it ends the start-up once they are done."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "t.glb"
+    script = f"""
+import os, signal, sys
+class Interrupt:
+    def find_spec(self, name, path=None, target=None):
+        if name == "scipy.spatial":  # trimesh's import, in its try block
+            sys.meta_path.remove(self)
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+sys.meta_path.insert(0, Interrupt())
+from stepterrain.cli import main
+sys.exit(main(["-q", "steps", "--interval", "10", "--device", "cpu", "-o", {str(out)!r}]))
+"""
+    (tmp_path / "run.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    assert done.returncode == -signal.SIGINT, (done.returncode, done.stderr[-2000:])  # as after any Ctrl-C at start
+    assert done.stderr.rstrip().endswith("KeyboardInterrupt"), done.stderr[-2000:]
+    assert not out.exists()
+
+
+def test_batch_output_that_is_a_file_is_refused_naming_the_option(tmp_path, capsys):
+    """`stepterrain batch -o /dev/stdout` (or -o an existing file) said "error: output_dir '/dev/stdout' exists and is
+    not a folder": the library's argument, which the command line never named; it names --output now."""
+    dem = tmp_path / "dem.npy"
+    np.save(dem, np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32))
+    taken = tmp_path / "taken.glb"
+    taken.write_bytes(b"mine")
+    for out in (taken, "/dev/stdout"):
+        code, _, err = run(capsys, "-q", "batch", dem, "--interval", "2", "--scheduler", "serial", "-o", out)
+        assert code == 2 and err.strip() == f"stepterrain batch: error: --output {str(out)!r} exists and is not a " \
+                                            "folder", err
+    assert taken.read_bytes() == b"mine" and sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "taken.glb"]
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "SIGHUP"), reason="POSIX's SIGHUP")
+def test_sighup_ends_a_run_as_sigterm_does(tmp_path):
+    """SIGHUP (the terminal closed, the ssh connection dropped) killed a command outright: the file being written
+    stayed as a hidden partial file ('.terrain.glb.1a2b3c4d.tmp', tens of MB for a large mesh). It now ends the run
+    as SIGTERM does: exit status 129, "stepterrain: hung up", the partial file removed, the old output kept."""
+    import os
+    import subprocess
+    import sys
+
+    dem, out = tmp_path / "dem.npy", tmp_path / "terrain.glb"
+    np.save(dem, np.add.outer(np.arange(12.0), np.arange(12.0)).astype(np.float32))
+    out.write_bytes(b"the old terrain")
+    script = f"""
+import os, signal, sys
+import stepterrain.export as export
+from stepterrain.cli import main
+def writer(mesh, tmp, target, bounds, *shared):
+    tmp.write_bytes(b"glTF half a file")
+    os.kill(os.getpid(), signal.SIGHUP)
+export._WRITERS[".glb"] = writer
+if __name__ == "__main__":
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as a shell's command has it, also under a runner ignoring it
+    sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "2", "--device", "cpu", "-o", {str(out)!r}]))
+"""
+    (tmp_path / "run.py").write_text(script)
+    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    assert done.returncode == 129, (done.returncode, done.stderr[-2000:])
+    assert done.stderr.strip().splitlines() == ["stepterrain: hung up"], done.stderr[-2000:]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py", "terrain.glb"]
+    assert out.read_bytes() == b"the old terrain"

@@ -1,0 +1,53 @@
+"""Ctrl-C (SIGINT) and SIGTERM held back while third-party code runs that an exception in its middle leaves half
+made: a dask cluster starting (batch), VTK's extension modules loading (render)."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+__all__ = ["signals_held"]
+
+
+@contextmanager
+def signals_held() -> Iterator[None]:
+    """Hold back SIGINT, SIGTERM and SIGHUP while the block runs; a signal that came meanwhile goes to its own handler
+    when the block ends, also when it ends with an exception (Ctrl-C: KeyboardInterrupt there, the exception its
+    context).
+
+    A LocalCluster interrupted while its nannies started was never closed: dask's exit hook then failed on it
+    ("Exception ignored in atexit callback ... AssertionError: Status.init"); heights half scattered or tasks half
+    submitted reached a scheduler whose client had closed, which logged a CRITICAL traceback for each of them.
+    Only a Python handler is held back (a signal ignored or left to the system stays so), and only in the main
+    thread, the one Python's handlers run in. The same signal a second time goes to its handler at once: a second
+    Ctrl-C still ends a start or a scatter that hangs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: dict[int, Any] = {}
+    came: list[int] = []
+
+    def hold(signum: int, frame: Any) -> None:
+        if signum in came:
+            held[signum](signum, frame)
+        came.append(signum)
+
+    for number in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
+        handler = None if number is None else signal.getsignal(number)
+        if callable(handler):
+            held[number] = handler  # type: ignore[index]
+            signal.signal(number, hold)  # type: ignore[arg-type]
+    try:
+        yield
+    finally:
+        for number, handler in held.items():
+            signal.signal(number, handler)
+        # also when the block failed: the failure is most likely the signal's own doing (the terminal's Ctrl-C reaches
+        # the LocalCluster's worker processes too, which died as they started), and the user asked to stop; it was
+        # lost, and `batch` ended "error: cannot start a LocalCluster ... Nanny failed to start", exit status 2
+        for number, handler in held.items():
+            if number in came:
+                handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
