@@ -664,7 +664,9 @@ class CloseUp:
         from the fixed direction ``billboard_view`` (azimuth, elevation; radians, the elevation in [-π/2, π/2]),
         placed where the close-up is (§II.C). The azimuth is the direction the view comes *from*, clockwise from
         north (+y), as a camera's in :func:`stepterrain.render.render_mesh`: 0 looks from the north, π/2 from
-        the east, π (the default, at 89° elevation: nearly from above) from the south.
+        the east, π (the default, at 89° elevation: nearly from above) from the south. A spinning billboard keeps
+        one size and place over its spin: it is fitted from its content's bounding cylinder about the spin axis,
+        which turning keeps, so it comes out somewhat smaller than the same close-up still (fitted to its box).
     stepped : float, optional
         MPFR (§IV.A): the close-up shows the stepped terrain (paper 000) at this interval, γ = ``gamma``, its
         levels colored by ``cmap``, else by the colormap the render or scene was given (``cmap`` of
@@ -2356,8 +2358,10 @@ def render_closeups(
                 if not cu.active and cu.anchor.inactive == "faint":
                     alpha *= 0.25
                 passes.append((np.asarray(anchor_color, np.float32) * 255, alpha, z, True, False, rect))
-            if k in boards:
-                image, coverage, z = renderer.render_billboard(*boards[k][:3], cu.billboard_view, boards[k][3])
+            if k in boards:  # a spinning one sized by what turning keeps (its cylinder about the spin axis)
+                axis = None if cu.spin is None else np.add(cu.roi.center, cu.offset[:2])
+                image, coverage, z = renderer.render_billboard(*boards[k][:3], cu.billboard_view, boards[k][3],
+                                                               axis=axis)
                 passes.append((image, coverage.astype(np.float32), z, False, True, (0, 0, width, height)))
             elif k in content_images:
                 image, z, rect = content_images[k]

@@ -1747,14 +1747,22 @@ class LayeredRenderer:
 
     @_quietly
     def render_billboard(self, vertices: ArrayLike, faces: ArrayLike, rgb: ArrayLike | None,
-                         view: tuple[float, float], anchor_points: ArrayLike
+                         view: tuple[float, float], anchor_points: ArrayLike, *, axis: ArrayLike | None = None
                          ) -> tuple[NDArray[np.uint8], NDArray[np.bool_], NDArray[np.float32]]:
         """An overview-independent close-up (paper 001 §II.C): an orthographic render from the fixed direction
         ``view`` (azimuth, elevation) pasted over the screen box of ``anchor_points`` (N, 3).
 
         ``vertices``, ``faces`` and ``rgb`` (or None: the default tan) as for :meth:`set_mesh`; as there, a NaN
         vertex is left out of the framing (its faces are not drawn). Returns the full-window color, coverage and
-        depth (0 where covered: a billboard lies in front)."""
+        depth (0 where covered: a billboard lies in front).
+
+        ``axis``: (x, y) of the vertical axis the content and ``anchor_points`` turn about (a spinning close-up).
+        The picture is then fitted from their bounding cylinders about it, which do not change as they turn: the
+        content's (its largest distance from the axis and its height range) as seen from ``view``, into the screen
+        box of the anchor points' cylinder, and centred there with the axis in the middle. The picture keeps one
+        size and place over a spin (fitted to the turned content's box, it shrank by a quarter and more as the
+        box's corners turned away from the screen axes), at the cost of being somewhat smaller than the box fit of
+        content that does not turn (None)."""
         vertices = np.asarray(_layer_rows(vertices, "vertices", "(V, 3) coordinates"), dtype=np.float64)
         # an infinite vertex left VTK's render blank, one NaN vertex made the centre (every coordinate) NaN
         bounds = _finite_bounds(vertices, "vertices")
@@ -1767,10 +1775,20 @@ class LayeredRenderer:
             rgb = _layer_rgb(rgb, len(vertices), "rgb")
         direction = real_vector(view, "view", "(azimuth, elevation) in radians, finite", 2)  # it named "camera"
         anchor_points = _layer_rows(anchor_points, "anchor_points", "(N, 3) world points")
+        spin_axis = None if axis is None else real_vector(axis, "axis", "finite (x, y)", 2)
         width, height = self.size
         color = np.zeros((height, width, 3), np.uint8)
         coverage = np.zeros((height, width), bool)
         depth = np.full((height, width), np.inf, np.float32)
+        finite = np.isfinite(anchor_points).all(axis=1)
+        if spin_axis is not None and finite.any():  # the anchor points' cylinder about the axis: turns keep it
+            ring = np.linspace(0.0, 2 * math.pi, 64, endpoint=False)
+            top = anchor_points[finite]
+            # a 64-gon about the largest radius, widened to hold its circle
+            radius = float(np.hypot(*(top[:, :2] - spin_axis).T).max()) / math.cos(math.pi / 64)
+            circle = spin_axis + radius * np.column_stack([np.cos(ring), np.sin(ring)])
+            anchor_points = np.vstack([np.column_stack([circle, np.full(len(ring), z)])
+                                       for z in (top[:, 2].min(), top[:, 2].max())])
         pixels = self.project(anchor_points)
         pixels = pixels[np.isfinite(pixels).all(axis=1)]
         if len(pixels) == 0:
@@ -1781,9 +1799,19 @@ class LayeredRenderer:
         bw, bh = c1 - c0, r1 - r0
         if bw < 8 or bh < 8:
             return color, coverage, depth
-        centre = (bounds[0] + bounds[1]) / 2
+        if spin_axis is None:
+            centre = (bounds[0] + bounds[1]) / 2
+        else:
+            centre = np.array([spin_axis[0], spin_axis[1], (bounds[0, 2] + bounds[1, 2]) / 2])
         local = vertices - centre
         local[:, 2] *= self.z_scale
+        fit = None
+        if spin_axis is not None:
+            fit = _spin_fit(local, direction, pixels, (width, height))
+            if fit is None:
+                return color, coverage, depth
+            c0, r0, c1, r1 = fit[0]
+            bw, bh = c1 - c0, r1 - r0
         plotter = self._new_plotter((bw, bh))
         try:
             poly = _polydata(self._pv, local, faces)
@@ -1810,6 +1838,13 @@ class LayeredRenderer:
             right /= np.linalg.norm(right)
             up = np.cross(right, forward)
             half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * bh / bw) * 1.02
+            if fit is not None:  # the axis at its place on screen, at the scale of the cylinders' fit
+                _, per_unit, (dx, dy) = fit
+                focal = -dx / per_unit * right + dy / per_unit * up
+                distance = float(np.linalg.norm(np.subtract(position[0], position[1]))) + float(np.linalg.norm(focal))
+                position = [tuple((focal - forward * distance).tolist()), tuple(focal.tolist()), position[2]]
+                plotter.camera_position = position
+                half_h = bh / 2 / per_unit
             plotter.camera.parallel_scale = float(half_h)
             plotter.camera.clipping_range = _clipping_range(plotter.camera_position, box)
             image, z = self._read(plotter)
@@ -1834,3 +1869,35 @@ class LayeredRenderer:
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _spin_fit(local: NDArray[np.float64], view: NDArray[np.float64], pixels: NDArray[np.float64],
+              size: tuple[int, int]) -> tuple[tuple[int, int, int, int], float, tuple[float, float]] | None:
+    """A turning billboard's picture (:meth:`LayeredRenderer.render_billboard` with ``axis``): ``local`` its content
+    about the axis (x = y = 0) and its mid-height (z = 0), z scaled; ``view`` (azimuth, elevation); ``pixels`` the
+    projected cylinder of its anchor points. Its content's cylinder seen from ``view`` fitted into their screen box
+    and centred there: the pixel box (col0, row0, col1, row1), end exclusive, cut to the window ``size``; pixels per
+    world unit; and the offset (columns, rows) of the axis from the cut box's centre. None: no pixel left."""
+    position = _camera_position(tuple(view.tolist()), np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), 1.0)
+    forward = np.subtract(position[1], position[0])
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    points = local[np.isfinite(local).all(axis=1)]
+    radius = float(np.hypot(points[:, 0], points[:, 1]).max())
+    half_z = float(np.abs(points[:, 2]).max())
+    # a horizontal circle of radius r spans r·|e_xy| along a screen axis e, a vertical segment of ±h h·|e_z|
+    half_w, half_h = ((radius * math.hypot(e[0], e[1]) + half_z * abs(e[2])) * 1.02 for e in (right, up))
+    low, high = pixels.min(axis=0), pixels.max(axis=0)
+    per_unit = float(min((high[0] - low[0]) / (2 * half_w) if half_w > 0 else math.inf,
+                         (high[1] - low[1]) / (2 * half_h) if half_h > 0 else math.inf))
+    if not math.isfinite(per_unit) or per_unit <= 0:
+        return None
+    cx, cy = (low + high) / 2
+    width, height = size
+    c0, r0 = max(math.floor(cx - half_w * per_unit), 0), max(math.floor(cy - half_h * per_unit), 0)
+    c1, r1 = min(math.ceil(cx + half_w * per_unit), width), min(math.ceil(cy + half_h * per_unit), height)
+    if c1 - c0 < 1 or r1 - r0 < 1:
+        return None
+    return (c0, r0, c1, r1), per_unit, (cx - (c0 + c1) / 2, cy - (r0 + r1) / 2)

@@ -1266,3 +1266,30 @@ def test_an_elongated_shapes_mask_resolves_its_shorter_side(make):
     (line,) = roi.outline(0.5)  # at m = 0.5: 5 m inside the long edges
     half = np.abs(line[:, 0] if w < h else line[:, 1]).max()
     assert half == pytest.approx(min(w, h) / 2 - 5.0, abs=0.5)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_spinning_billboard_keeps_its_size_and_place_over_the_spin(monkeypatch):
+    """A spinning billboard's camera was fitted to the box of its turned content, pasted into the screen box of its
+    turned fence top: both grow and shrink as the content turns, and the picture pulsed over a spin (its area fell
+    by a quarter at 45°, to a fifth at 135°). It is now fitted from the content's cylinder about the spin axis,
+    which turning keeps: one size, one centre."""
+    coverages = []
+    real = render.LayeredRenderer.render_billboard
+
+    def spy(self, *args, **kwargs):
+        out = real(self, *args, **kwargs)
+        coverages.append(out[1].copy())
+        return out
+
+    monkeypatch.setattr(render.LayeredRenderer, "render_billboard", spy)
+    cu = CloseUp(ROI.rectangle((1040.0, 2030.0), (32.0, 16.0)), scale=1.5, offset=(0.0, 0.0, 60.0), color="red",
+                 view="billboard", scalars="slope", spin=(0.125, 1))
+    animate_closeups(terrain(), [cu], frames=5, fps=1.0, window_size=(320, 240), device="cpu")  # 0°, 45°, ..., 180°
+    assert len(coverages) == 5
+    areas = np.array([c.sum() for c in coverages])
+    centres = np.array([np.argwhere(c).mean(axis=0) for c in coverages])
+    assert areas.min() > 200
+    assert areas.max() <= 1.03 * areas.min(), areas
+    assert np.abs(centres - centres[0]).max() <= 1.5, centres
