@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import numpy as np
@@ -872,3 +873,67 @@ def test_a_tiff_with_an_orientation_tag_is_drawn_as_stored_read_whole_or_by_band
             f"image {str(path)!r} has EXIF orientation {orientation} ({turn} to view): it is drawn as stored, 10 x 6 "
             "pixels, as GDAL reads it; to use it as viewers show it, build from "
             "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))"], how
+
+
+def test_a_texture_load_that_fails_in_the_background_is_raised_to_the_caller():
+    """TextureCache's background thread swallowed a loader's exception (a corrupt tile mid-stream): the patch was left
+    neither loaded nor pending, so every frame requested it again (hundreds of failing loads a frame) and drew its
+    parent without a word; wait() raised it only when it happened to catch the load still in flight."""
+    from stepterrain.errors import DataFileError
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    calls = []
+
+    def loader(patch):
+        calls.append(patch)
+        if patch is not tree.root:
+            raise OSError("tile_7.jpg: corrupt JPEG data")
+        return np.array(patch.image())
+
+    cache = TextureCache(budget=1 << 30, loader=loader)
+    raised = []
+    with pyramid:
+        cache.load_now(tree.root)
+        for _ in range(5):  # frames: a failure is raised by the next frame's traversal or by wait()
+            try:
+                render_with_textures(quadtree.root, [tree.root], camera, cache=cache)
+                cache.wait()
+            except DataFileError as error:
+                raised.append(error)
+        while True:  # the failures left over
+            try:
+                cache.wait()
+                break
+            except DataFileError as error:
+                raised.append(error)
+        assert len(calls) > 1 and len(raised) == len(calls) - 1  # every failed load reached the caller, once
+        assert all(isinstance(error.__cause__, OSError) for error in raised)
+        assert all(re.fullmatch(r"loading the texture patch at pyramid level \d+, window rows \d+:\d+, columns "
+                                r"\d+:\d+ failed: OSError: tile_7.jpg: corrupt JPEG data", str(error))
+                   for error in raised)
+    cache.close()
+
+
+def test_a_texture_cache_never_holds_more_than_its_budget_even_for_one_patch_larger_than_it():
+    """A patch whose data alone was larger than the budget was kept (the eviction stopped at one patch), so the bytes
+    held went past the budget without a word; it is now refused by name, the bytes held stay within the budget."""
+    from stepterrain.errors import OutputTooLargeError
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        small = min((m for m in tree.patches() if m.nbytes > 0), key=lambda m: m.nbytes)
+        big = max(tree.patches(), key=lambda m: m.nbytes)
+        budget = big.nbytes - 1
+        cache = TextureCache(budget=budget)
+        cache.load_now(small)
+        with pytest.raises(OutputTooLargeError, match=rf"takes {big.nbytes} bytes, more than the cache's budget of "
+                                                      rf"{budget} bytes"):
+            cache.load_now(big)
+        assert cache.bytes_loaded <= budget and not cache.is_loaded(big) and cache.is_loaded(small)
+        cache.close()
