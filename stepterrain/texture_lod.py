@@ -17,6 +17,7 @@ the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid sha
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import mmap
 import os
@@ -1729,18 +1730,36 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
 # ---------------------------------------------------------------------------------------------- camera, errors
 def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     """γ(N) (§4, Fig. 2): the screen length in pixels of a vertical segment of length e(N) centred at the point
-    of B(N) nearest to the camera; 0 for a patch without children."""
+    of B(N) inside the view frustum nearest to the camera (:meth:`Camera.nearest_visible_point`; of B(N) where it
+    misses the frustum); 0 for a patch without children."""
     if patch.is_leaf:
         return 0.0
-    p = camera.nearest_point(patch.box)
+    p = _nearest_point(camera, patch.box)
     half = np.array([0.0, 0.0, patch.error / 2.0])
     return camera.segment_pixels(p - half, p + half)
 
 
+@functools.lru_cache(maxsize=4096)  # γ and τ of one patch (and its parent reduction) ask for the same point
+def _nearest_box_point(camera: Camera, box: bytes) -> NDArray[np.float64]:
+    corners = np.frombuffer(box, dtype=np.float64).reshape(2, 3)
+    point = camera.nearest_visible_point(corners)
+    point = camera.nearest_point(corners) if point is None else point  # the box misses the view: as before
+    point.flags.writeable = False
+    return point
+
+
+def _nearest_point(camera: Camera, box: NDArray[np.float64]) -> NDArray[np.float64]:
+    """p of §4: the point of B(N) inside the view frustum nearest to the camera position (the box's nearest point
+    where the box misses the frustum). The box's own nearest point was taken, outside the view wherever the eye is
+    over the terrain: straight below the eye, where the vertical segment of γ lies along the eye's ray, so γ(root)
+    was 0 pixels and any view from above the highest peak drew the root alone."""
+    return _nearest_box_point(camera, np.ascontiguousarray(box, dtype=np.float64).tobytes())
+
+
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
-    """The screen size in pixels of one texel of M at the point of B(N) nearest to the camera (τ without the
+    """The screen size in pixels of one texel of M at the point of B(N) in view nearest to the camera (τ without the
     leaf convention): the longer of the projected x segment of length w and y segment of length h."""
-    p = camera.nearest_point(geometry.box)
+    p = _nearest_point(camera, geometry.box)
     w, h = texture.texel_size
     dx, dy = np.array([w / 2.0, 0.0, 0.0]), np.array([0.0, h / 2.0, 0.0])
     return max(camera.segment_pixels(p - dx, p + dx), camera.segment_pixels(p - dy, p + dy))

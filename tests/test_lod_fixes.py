@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 import warnings
 
@@ -937,3 +938,36 @@ def test_a_texture_cache_never_holds_more_than_its_budget_even_for_one_patch_lar
             cache.load_now(big)
         assert cache.bytes_loaded <= budget and not cache.is_loaded(big) and cache.is_loaded(small)
         cache.close()
+
+
+@pytest.mark.parametrize("pitch", [30.0, 45.0, 60.0])
+def test_a_view_from_above_the_terrain_refines_the_patches_in_view(pitch):
+    """γ(N) and τ(N, M) took the point of B(N) nearest to the eye, not (as §4 says) the nearest one inside the view
+    frustum: for an eye above the terrain that is the point straight below it, out of view for a camera pitched down
+    30-60 degrees, where γ's vertical segment lies along the eye's ray and projects to 0 pixels. So any such view drew
+    the root alone (Big Tujunga from 300 m above its highest peak: one patch with a 481 m error)."""
+    from scipy.optimize import nnls
+
+    from stepterrain.texture_lod import visual_geometric_error
+
+    rng = np.random.default_rng(5)
+    heights = np.cumsum(np.cumsum(rng.normal(0.0, 1.0, (129, 129)), axis=0), axis=1).astype(np.float32)
+    quadtree = PatchQuadtree(heights, leaf_size=8, spacing=(30.0, 30.0))
+    root = quadtree.root
+    xmin, xmax, ymin, ymax = root.domain
+    eye = np.array([0.5 * (xmin + xmax), ymin + 0.25 * (ymax - ymin), root.box[1, 2] + 300.0])
+    camera = Camera(tuple(eye), tuple(eye + [0.0, math.cos(math.radians(pitch)), -math.sin(math.radians(pitch))]),
+                    viewport=(800, 600))
+    # an independent p: feasible for the 12 half-spaces (frustum and box) and optimal by its KKT certificate
+    p = camera.nearest_visible_point(root.box)
+    planes = np.concatenate([camera.planes(), np.c_[np.r_[-np.eye(3), np.eye(3)], np.r_[root.box[0], -root.box[1]]]])
+    slack = planes[:, :3] @ p + planes[:, 3]
+    assert slack.max() <= 1e-6
+    _, residual = nnls(planes[np.abs(slack) <= 1e-6, :3].T, 2.0 * (eye - p))
+    assert residual <= 1e-6 * np.linalg.norm(eye - p)
+    pixels, depth = camera.project(np.stack([p - [0, 0, root.error / 2], p + [0, 0, root.error / 2]]))
+    expected = math.inf if depth.min() < camera.near else float(np.linalg.norm(pixels[0] - pixels[1]))
+    assert visual_geometric_error(root, camera) == pytest.approx(expected, rel=1e-9) and expected > 1.0
+    items = render_with_textures(root, [], camera)
+    assert len(items) > 1 and all(item.geometry.is_leaf or visual_geometric_error(item.geometry, camera) <= 1.0
+                                  for item in items)
