@@ -9,6 +9,7 @@ detail (paper 004) its pixel projection for the screen-space errors γ(N) and τ
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -215,6 +216,46 @@ class Camera:
         box = _box(box)
         return np.clip(np.asarray(self.eye, dtype=np.float64), box[0], box[1])
 
+    def nearest_visible_point(self, box: NDArray[np.float64]) -> NDArray[np.float64] | None:
+        """The point of the box inside the view frustum nearest to the camera position (paper 004 §4's p for γ(N)
+        and τ(N, M)), or None where the box and the frustum do not meet.
+
+        Exact: the nearest point of the convex polytope box ∩ frustum (12 half-spaces) is the projection of the eye
+        onto the intersection of at most three of their planes, so the nearest feasible one of those projections is
+        it. The box's own nearest point (:meth:`nearest_point`) may lie outside the view: straight below an eye
+        above the terrain, where a vertical segment lies along the eye's ray and projects to 0 pixels.
+        """
+        box = _box(box)
+        eye = np.asarray(self.eye, dtype=np.float64)
+        # the box's faces as half-spaces n . x + a <= 0: -x + xmin <= 0, ..., x - xmax <= 0, ...
+        faces = np.c_[np.r_[-np.eye(3), np.eye(3)], np.r_[box[0], -box[1]]]
+        planes = np.concatenate([self.planes(), faces])
+        normals, offsets = planes[:, :3], planes[:, 3]
+        scale = max(1.0, float(np.abs(eye).max()), float(np.abs(box).max()))
+        nearest = np.clip(eye, box[0], box[1])  # the box's nearest point: the answer where it is in view
+        with np.errstate(over="ignore", invalid="ignore"):
+            if ((normals @ nearest + offsets) <= 1e-9 * scale).all():
+                return nearest
+        candidates = []
+        for combos in _PLANE_SETS:
+            n = normals[combos]  # (m, k, 3)
+            gram = n @ n.transpose(0, 2, 1)
+            with np.errstate(divide="ignore", invalid="ignore"):  # parallel planes: a singular Gram matrix
+                regular = np.abs(np.linalg.det(gram)) > 1e-12
+            if not regular.any():
+                continue
+            n, gram = n[regular], gram[regular]
+            rhs = n @ eye + offsets[combos[regular]]  # (m, k)
+            lam = np.linalg.solve(gram, rhs[..., None])[..., 0]
+            candidates.append(eye - np.einsum("mk,mkd->md", lam, n))
+        points = np.concatenate(candidates)
+        with np.errstate(over="ignore", invalid="ignore"):
+            feasible = ((points @ normals.T + offsets) <= 1e-9 * scale).all(axis=1)
+        if not feasible.any():
+            return None
+        points = points[feasible]
+        return points[np.argmin(((points - eye) ** 2).sum(axis=1))]
+
     def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
         """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
         px, depth = self.project(np.stack([_point(a, "a"), _point(b, "b")]))
@@ -223,6 +264,9 @@ class Camera:
         with np.errstate(over="ignore"):  # a magnification near float64's limit (fov 1e-300): inf pixels, refine
             return float(np.linalg.norm(px[0] - px[1]))
 
+
+# every set of one, two and three of the 12 planes (6 of the frustum, 6 of the box): the nearest point's active sets
+_PLANE_SETS = [np.array(list(itertools.combinations(range(12), k)), dtype=np.intp) for k in (1, 2, 3)]
 
 _BOX = "an axis-aligned box [(xmin, ymin, zmin), (xmax, ymax, zmax)] with max >= min"
 

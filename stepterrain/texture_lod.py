@@ -17,6 +17,7 @@ the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid sha
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import mmap
 import os
@@ -1729,18 +1730,36 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
 # ---------------------------------------------------------------------------------------------- camera, errors
 def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     """γ(N) (§4, Fig. 2): the screen length in pixels of a vertical segment of length e(N) centred at the point
-    of B(N) nearest to the camera; 0 for a patch without children."""
+    of B(N) inside the view frustum nearest to the camera (:meth:`Camera.nearest_visible_point`; of B(N) where it
+    misses the frustum); 0 for a patch without children."""
     if patch.is_leaf:
         return 0.0
-    p = camera.nearest_point(patch.box)
+    p = _nearest_point(camera, patch.box)
     half = np.array([0.0, 0.0, patch.error / 2.0])
     return camera.segment_pixels(p - half, p + half)
 
 
+@functools.lru_cache(maxsize=4096)  # γ and τ of one patch (and its parent reduction) ask for the same point
+def _nearest_box_point(camera: Camera, box: bytes) -> NDArray[np.float64]:
+    corners = np.frombuffer(box, dtype=np.float64).reshape(2, 3)
+    point = camera.nearest_visible_point(corners)
+    point = camera.nearest_point(corners) if point is None else point  # the box misses the view: as before
+    point.flags.writeable = False
+    return point
+
+
+def _nearest_point(camera: Camera, box: NDArray[np.float64]) -> NDArray[np.float64]:
+    """p of §4: the point of B(N) inside the view frustum nearest to the camera position (the box's nearest point
+    where the box misses the frustum). The box's own nearest point was taken, outside the view wherever the eye is
+    over the terrain: straight below the eye, where the vertical segment of γ lies along the eye's ray, so γ(root)
+    was 0 pixels and any view from above the highest peak drew the root alone."""
+    return _nearest_box_point(camera, np.ascontiguousarray(box, dtype=np.float64).tobytes())
+
+
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
-    """The screen size in pixels of one texel of M at the point of B(N) nearest to the camera (τ without the
+    """The screen size in pixels of one texel of M at the point of B(N) in view nearest to the camera (τ without the
     leaf convention): the longer of the projected x segment of length w and y segment of length h."""
-    p = camera.nearest_point(geometry.box)
+    p = _nearest_point(camera, geometry.box)
     w, h = texture.texel_size
     dx, dy = np.array([w / 2.0, 0.0, 0.0]), np.array([0.0, h / 2.0, 0.0])
     return max(camera.segment_pixels(p - dx, p + dx), camera.segment_pixels(p - dy, p + dy))
@@ -1759,7 +1778,12 @@ class TextureCache:
     """Texture data loaded on demand in a background thread, least recently used evicted over ``budget`` bytes.
 
     ``request`` never blocks (§4: "non-blocking!!!"); ``loader(M)`` (default: a copy of ``M.image()``) runs in
-    the background thread. ``is_loaded`` marks the patch as recently used.
+    the background thread. ``is_loaded`` marks the patch as recently used. The bytes held never exceed ``budget``:
+    a patch whose data alone is larger fails to load (:class:`~stepterrain.errors.OutputTooLargeError`). A load
+    that fails (the loader raised: a corrupt or missing tile) is raised to the caller as a
+    :class:`~stepterrain.errors.DataFileError` naming the patch, from the loader's exception, by the next
+    :meth:`request`, :meth:`load_now`, :meth:`wait` or :func:`render_with_textures` with this cache; once raised it
+    is forgotten, so a later request loads the patch again.
     """
 
     def __init__(self, budget: int = 256 * 1024**2, loader: Callable[[TexturePatch], Any] | None = None,
@@ -1774,6 +1798,7 @@ class TextureCache:
         self.loader = loader or (lambda patch: np.array(patch.image()))
         self._loaded: OrderedDict[int, tuple[TexturePatch, Any, int]] = OrderedDict()
         self._pending: dict[int, Future] = {}
+        self._failed: OrderedDict[int, tuple[TexturePatch, Exception]] = OrderedDict()  # not yet raised
         self._lock = threading.Lock()
         self._executor = ThreadPoolExecutor(max_workers=workers, thread_name_prefix="stepterrain-texture")
         self.bytes_loaded = 0
@@ -1792,7 +1817,9 @@ class TextureCache:
             return None if item is None else item[1]
 
     def request(self, patch: TexturePatch) -> None:
-        """Start loading ``patch`` in the background unless it is loaded or on its way."""
+        """Start loading ``patch`` in the background unless it is loaded or on its way (raising a failed load
+        first)."""
+        self._raise_failed()
         with self._lock:
             if id(patch) in self._loaded or id(patch) in self._pending:
                 return
@@ -1805,6 +1832,7 @@ class TextureCache:
             future = self._pending.get(id(patch))
         if future is not None:
             future.result()
+        self._raise_failed()
         return self.get(patch)
 
     def wait(self) -> None:
@@ -1813,14 +1841,31 @@ class TextureCache:
             with self._lock:
                 futures = list(self._pending.values())
             if not futures:
+                self._raise_failed()
                 return
             for future in futures:
                 future.result()
+
+    def _raise_failed(self) -> None:
+        """Raise the oldest failed load not yet raised (a background thread's exception was lost: the patch was
+        requested again every frame, failing each time, and its parent drawn without a word)."""
+        with self._lock:
+            if not self._failed:
+                return
+            _, (patch, error) = self._failed.popitem(last=False)
+        r0, r1, c0, c1 = patch.window
+        kind = OutputTooLargeError if isinstance(error, OutputTooLargeError) else DataFileError
+        raise kind(f"loading the texture patch at pyramid level {patch.level}, window rows {r0}:{r1}, "
+                            f"columns {c0}:{c1} failed: {type(error).__name__}: {error}") from error
 
     def _load(self, patch: TexturePatch) -> None:
         try:
             data = self.loader(patch)
             size = int(getattr(data, "nbytes", patch.nbytes))
+            if size > self.budget:  # it was kept anyway, alone: the bytes held went past the budget
+                raise OutputTooLargeError(f"its data takes {size} bytes, more than the cache's budget of "
+                                          f"{self.budget} bytes (raise budget or lower the TextureTree's "
+                                          "max_texture_size)")
             with self._lock:
                 self._loaded[id(patch)] = (patch, data, size)
                 self.bytes_loaded += size
@@ -1828,6 +1873,9 @@ class TextureCache:
                     _, (_, _, old) = self._loaded.popitem(last=False)
                     self.bytes_loaded -= old
                     self.evictions += 1
+        except Exception as error:  # kept for the caller: a thread's exception went nowhere
+            with self._lock:
+                self._failed[id(patch)] = (patch, error)
         finally:
             with self._lock:
                 self._pending.pop(id(patch), None)
@@ -1896,6 +1944,8 @@ def render_with_textures(
         raise InvalidInputError(f"camera must be a stepterrain Camera; got {type(camera).__name__}")
     if cache is not None and not isinstance(cache, TextureCache):
         raise InvalidInputError(f"cache must be a TextureCache or None; got {type(cache).__name__}")
+    if cache is not None:
+        cache._raise_failed()  # a load failed since the last frame
     if isinstance(textures, TexturePatch) or not isinstance(textures, Sequence):
         raise InvalidInputError(f"textures must be a sequence of texture tree roots (TextureTree.root); got "
                                 f"{type(textures).__name__}")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import re
 import warnings
 
 import numpy as np
@@ -872,3 +874,100 @@ def test_a_tiff_with_an_orientation_tag_is_drawn_as_stored_read_whole_or_by_band
             f"image {str(path)!r} has EXIF orientation {orientation} ({turn} to view): it is drawn as stored, 10 x 6 "
             "pixels, as GDAL reads it; to use it as viewers show it, build from "
             "np.asarray(PIL.ImageOps.exif_transpose(Image.open(path)))"], how
+
+
+def test_a_texture_load_that_fails_in_the_background_is_raised_to_the_caller():
+    """TextureCache's background thread swallowed a loader's exception (a corrupt tile mid-stream): the patch was left
+    neither loaded nor pending, so every frame requested it again (hundreds of failing loads a frame) and drew its
+    parent without a word; wait() raised it only when it happened to catch the load still in flight."""
+    from stepterrain.errors import DataFileError
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    calls = []
+
+    def loader(patch):
+        calls.append(patch)
+        if patch is not tree.root:
+            raise OSError("tile_7.jpg: corrupt JPEG data")
+        return np.array(patch.image())
+
+    cache = TextureCache(budget=1 << 30, loader=loader)
+    raised = []
+    with pyramid:
+        cache.load_now(tree.root)
+        for _ in range(5):  # frames: a failure is raised by the next frame's traversal or by wait()
+            try:
+                render_with_textures(quadtree.root, [tree.root], camera, cache=cache)
+                cache.wait()
+            except DataFileError as error:
+                raised.append(error)
+        while True:  # the failures left over
+            try:
+                cache.wait()
+                break
+            except DataFileError as error:
+                raised.append(error)
+        assert len(calls) > 1 and len(raised) == len(calls) - 1  # every failed load reached the caller, once
+        assert all(isinstance(error.__cause__, OSError) for error in raised)
+        assert all(re.fullmatch(r"loading the texture patch at pyramid level \d+, window rows \d+:\d+, columns "
+                                r"\d+:\d+ failed: OSError: tile_7.jpg: corrupt JPEG data", str(error))
+                   for error in raised)
+    cache.close()
+
+
+def test_a_texture_cache_never_holds_more_than_its_budget_even_for_one_patch_larger_than_it():
+    """A patch whose data alone was larger than the budget was kept (the eviction stopped at one patch), so the bytes
+    held went past the budget without a word; it is now refused by name, the bytes held stay within the budget."""
+    from stepterrain.errors import OutputTooLargeError
+    from stepterrain.texture_lod import TextureCache
+
+    from .test_texture_lod import lod_setup
+
+    quadtree, tree, pyramid, camera = lod_setup()
+    with pyramid:
+        small = min((m for m in tree.patches() if m.nbytes > 0), key=lambda m: m.nbytes)
+        big = max(tree.patches(), key=lambda m: m.nbytes)
+        budget = big.nbytes - 1
+        cache = TextureCache(budget=budget)
+        cache.load_now(small)
+        with pytest.raises(OutputTooLargeError, match=rf"takes {big.nbytes} bytes, more than the cache's budget of "
+                                                      rf"{budget} bytes"):
+            cache.load_now(big)
+        assert cache.bytes_loaded <= budget and not cache.is_loaded(big) and cache.is_loaded(small)
+        cache.close()
+
+
+@pytest.mark.parametrize("pitch", [30.0, 45.0, 60.0])
+def test_a_view_from_above_the_terrain_refines_the_patches_in_view(pitch):
+    """γ(N) and τ(N, M) took the point of B(N) nearest to the eye, not (as §4 says) the nearest one inside the view
+    frustum: for an eye above the terrain that is the point straight below it, out of view for a camera pitched down
+    30-60 degrees, where γ's vertical segment lies along the eye's ray and projects to 0 pixels. So any such view drew
+    the root alone (Big Tujunga from 300 m above its highest peak: one patch with a 481 m error)."""
+    from scipy.optimize import nnls
+
+    from stepterrain.texture_lod import visual_geometric_error
+
+    rng = np.random.default_rng(5)
+    heights = np.cumsum(np.cumsum(rng.normal(0.0, 1.0, (129, 129)), axis=0), axis=1).astype(np.float32)
+    quadtree = PatchQuadtree(heights, leaf_size=8, spacing=(30.0, 30.0))
+    root = quadtree.root
+    xmin, xmax, ymin, ymax = root.domain
+    eye = np.array([0.5 * (xmin + xmax), ymin + 0.25 * (ymax - ymin), root.box[1, 2] + 300.0])
+    camera = Camera(tuple(eye), tuple(eye + [0.0, math.cos(math.radians(pitch)), -math.sin(math.radians(pitch))]),
+                    viewport=(800, 600))
+    # an independent p: feasible for the 12 half-spaces (frustum and box) and optimal by its KKT certificate
+    p = camera.nearest_visible_point(root.box)
+    planes = np.concatenate([camera.planes(), np.c_[np.r_[-np.eye(3), np.eye(3)], np.r_[root.box[0], -root.box[1]]]])
+    slack = planes[:, :3] @ p + planes[:, 3]
+    assert slack.max() <= 1e-6
+    _, residual = nnls(planes[np.abs(slack) <= 1e-6, :3].T, 2.0 * (eye - p))
+    assert residual <= 1e-6 * np.linalg.norm(eye - p)
+    pixels, depth = camera.project(np.stack([p - [0, 0, root.error / 2], p + [0, 0, root.error / 2]]))
+    expected = math.inf if depth.min() < camera.near else float(np.linalg.norm(pixels[0] - pixels[1]))
+    assert visual_geometric_error(root, camera) == pytest.approx(expected, rel=1e-9) and expected > 1.0
+    items = render_with_textures(root, [], camera)
+    assert len(items) > 1 and all(item.geometry.is_leaf or visual_geometric_error(item.geometry, camera) <= 1.0
+                                  for item in items)
