@@ -73,7 +73,8 @@ def check_promises(page: str, ns: dict, folder: Path) -> None:
     if page == "README.md":
         assert isinstance(ns["mesh"], trimesh.Trimesh) and len(ns["mesh"].faces) > 0
         assert (folder / "steps.glb").stat().st_size > 0
-        assert len(ns["solid"].faces) > len(ns["mesh"].faces)  # skirts and base (watertight: tests/test_stepped.py)
+        assert len(ns["solid"].faces) > len(ns["mesh"].faces)  # skirts and base
+        assert ns["solid"].is_watertight, "solid=True: watertight, also where integer heights sit on thresholds"
         assert isinstance(ns["tin"], trimesh.Trimesh) and len(ns["tin"].faces) > 0
         z = ns["grid"].vertices[:, 2]
         assert np.isin(np.round(z, 4), [0, 10, 25, 50, 100]).all(), "levels=[...]: heights on the levels"
