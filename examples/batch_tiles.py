@@ -51,6 +51,7 @@ def run(args: argparse.Namespace) -> int:
                                    origin=dem.origin, crs=dem.crs, source=dem.source)  # fmt: skip
     output = Path(args.output)
     tiles = output.with_name(f"{output.stem}_tiles")
+    # base 0.5: no integer SRTM height sits on a threshold, so no node gets a twin vertex (solids need no such shift)
     report = batch(terrain, tiles, tile_size=args.tile, interval=args.interval, base=0.5, colors="terrain",
                    scheduler=args.scheduler, workers=args.workers, device=args.device,
                    overview_size=tuple(args.window))  # its render checked against the memory budget first

@@ -7,7 +7,9 @@ The embedded Big Tujunga DEM (30 m SRTM), cropped and subsampled to about SIZE x
 2. a hypsometric thematic layer (colours by height), modulated by the topographic layer (Fig. 5);
 3. a thematic lens: a circular visibility layer blends in a second thematic layer (slope classes) around a
    hot spot (§5, Fig. 3 right), and a highlight lens brightens it (Fig. 3 centre);
-4. the composite draped on the stepped terrain (paper 000) and rendered off-screen.
+4. contour lines laid over it all, unshaded as a map prints them: every other isovalue of the steps (the
+   middle of every other terrace: every 200 m on the default crop, stepped every 100 m), an index line every fifth;
+5. the composite draped on the stepped terrain (paper 000) and rendered off-screen.
 
 Left panel: the composite texture seen from above; right panel: the draped stepped terrain.
 
@@ -30,6 +32,7 @@ from stepterrain.cli import nice_interval, usage_errors
 from stepterrain.render import render_textured_mesh, save_png
 from stepterrain.texture import (
     Pipeline,
+    contour_layer,
     drape,
     highlight_lens,
     terrain_layer,
@@ -85,16 +88,17 @@ def run(args: argparse.Namespace) -> int:
     xmin, xmax, ymin, ymax = terrain.extent
     centre = (xmin + 0.62 * (xmax - xmin), ymin + 0.45 * (ymax - ymin))
     radius = 0.22 * min(xmax - xmin, ymax - ymin)
+    interval = nice_interval(terrain.height_range, target=12)
     composite = (
         Pipeline()
         .blend(terrain_layer(terrain, slopes), thematic_lens(centre, radius))   # §5 thematic lens
         .modulate(topo)                                                          # §7 topographic layer
         .modulate(highlight_lens(centre, radius * 1.15, strength=0.2))         # §5 highlight lens
+        .blend(contour_layer(terrain, interval=2 * interval, device=args.device))  # contour lines
         .apply(terrain_layer(terrain, hyps), device=args.device)
     )
     print(f"layers: {time.perf_counter() - start:.2f} s", file=sys.stderr)
 
-    interval = nice_interval(terrain.height_range, target=12)
     mesh = drape(st.stepped(terrain, interval=interval, device=args.device), composite)
     width, height = args.panel
     top = np.asarray(composite.to_uint8(background=(1, 1, 1)))

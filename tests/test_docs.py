@@ -73,7 +73,8 @@ def check_promises(page: str, ns: dict, folder: Path) -> None:
     if page == "README.md":
         assert isinstance(ns["mesh"], trimesh.Trimesh) and len(ns["mesh"].faces) > 0
         assert (folder / "steps.glb").stat().st_size > 0
-        assert len(ns["solid"].faces) > len(ns["mesh"].faces)  # skirts and base (watertight: tests/test_stepped.py)
+        assert len(ns["solid"].faces) > len(ns["mesh"].faces)  # skirts and base
+        assert ns["solid"].is_watertight, "solid=True: watertight, also where integer heights sit on thresholds"
         assert isinstance(ns["tin"], trimesh.Trimesh) and len(ns["tin"].faces) > 0
         z = ns["grid"].vertices[:, 2]
         assert np.isin(np.round(z, 4), [0, 10, 25, 50, 100]).all(), "levels=[...]: heights on the levels"
@@ -136,3 +137,93 @@ def test_help_examples_parse():
             assert args.command == name
             checked += 1
     assert checked >= 20
+
+
+# ------------------------------------------------------------- docs/batch.md's table of what each mesh format keeps
+def format_table() -> dict[str, dict[str, str]]:
+    """docs/batch.md's table, {extension: {column: cell}}, a row naming several extensions under each."""
+    lines = (ROOT / "docs" / "batch.md").read_text(encoding="utf-8").splitlines()
+    start = next(k for k, line in enumerate(lines) if line.startswith("| format | coordinates"))
+    columns = [c.strip() for c in lines[start].strip("|").split("|")]
+    table = {}
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = dict(zip(columns, (c.strip() for c in line.strip("|").split("|")), strict=True))
+        for ext in re.findall(r"`(\.\w+)`", cells["format"]):
+            table[ext] = cells
+    return table
+
+
+def test_the_format_table_holds_on_round_trips(tmp_path):
+    """Each row's cells, read as claims (exact float64, float32, PLY's float32 only where exact, RGBA or RGB, a
+    texture's image, UVs and sampler, `level`/`wall` kept or dropped, metadata kept or dropped), hold for a stepped
+    solid at UTM-sized coordinates saved by save_mesh and read back by read_mesh."""
+    import warnings
+
+    from stepterrain.export import read_mesh, save_mesh, texture_wrap
+    from stepterrain.texture import drape, topographic_layer
+
+    table = format_table()
+    assert sorted(table) == [".3mf", ".glb", ".gltf", ".obj", ".ply", ".stl"], sorted(table)
+    h = np.asarray(st.sample_dem().heights[:12, :16], np.float64)
+    dem = st.Terrain.from_heights(h, spacing=(30.0, -30.0), origin=(60000.123, 3798000.7))
+    mesh = st.stepped(dem, interval=50.0, colors="terrain", solid=True, device="cpu")
+    mesh.visual.vertex_colors[:, 3] = 200  # an alpha to keep or drop
+    textured = drape(st.stepped(dem, interval=50.0, device="cpu"), topographic_layer(dem, device="cpu"))
+    for ext, row in table.items():
+        path = tmp_path / f"m{ext}"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # .stl's float32 warning (its cell says so)
+            save_mesh(mesh, path)
+        back = read_mesh(path)
+        coords = row["coordinates"]
+        if coords.startswith("float64"):
+            assert np.array_equal(back.vertices, mesh.vertices), f"{ext}: coordinates are not kept exactly"
+        elif "three points per face" in coords:
+            assert coords.startswith("float32") and len(back.faces) == len(mesh.faces)
+            got, want = back.triangles.reshape(-1, 3), mesh.triangles.reshape(-1, 3)
+            assert np.array_equal(got, want.astype(np.float32).astype(np.float64)), f"{ext}: not float32 of each point"
+        else:
+            assert coords.startswith("float32")
+            gap = np.abs(back.vertices - mesh.vertices).max()
+            assert 0 <= gap <= np.spacing(np.float32(np.ptp(mesh.vertices, axis=0).max())), (ext, gap)
+        if ext == ".ply":
+            header = path.read_bytes().split(b"end_header")[0]
+            assert b"property double x" in header  # float64 where float32 would round 60000.123
+            small = tmp_path / "small.ply"  # "float32 where that holds every vertex exactly"
+            save_mesh(st.stepped(np.array([[0.0, 1, 2], [1, 2, 3], [2, 3, 4]]), interval=1.0, base=0.5, device="cpu"),
+                      small)
+            assert b"property float x" in small.read_bytes().split(b"end_header")[0]
+        colours = row["vertex colours"]
+        if colours == "dropped":
+            assert back.visual.kind is None, ext
+        else:
+            rgb = back.visual.vertex_colors
+            assert np.array_equal(rgb[:, :3], mesh.visual.vertex_colors[:, :3]), f"{ext}: colours not kept"
+            want_alpha = 255 if "no alpha" in colours else 200
+            assert (rgb[:, 3] == want_alpha).all(), (ext, colours, np.unique(rgb[:, 3]))
+        attributes = row["`level`, `wall`, other attributes"]
+        if attributes.startswith("kept"):
+            assert back.face_attributes["wall"].dtype == bool
+            assert np.array_equal(back.face_attributes["wall"], mesh.face_attributes["wall"])
+            assert np.array_equal(back.face_attributes["level"], mesh.face_attributes["level"])
+        else:
+            assert attributes == "dropped" and not {"level", "wall"} & set(back.face_attributes), ext
+        if row["metadata"] == "dropped":
+            assert "isovalues" not in back.metadata, ext
+        else:
+            assert list(back.metadata["isovalues"]) == list(mesh.metadata["isovalues"]), ext
+        texture = row["texture"]
+        if texture == "dropped":
+            continue
+        path = tmp_path / f"t{ext}"
+        save_mesh(textured, path)
+        back = read_mesh(path)
+        assert "image and UVs" in texture and back.visual.kind == "texture", ext
+        assert np.allclose(back.visual.uv, textured.visual.uv, atol=1e-6), ext
+        wrap = texture_wrap(back.visual.material)
+        if "sampler" in texture:
+            assert wrap == ("CLAMP_TO_EDGE", "CLAMP_TO_EDGE"), (ext, wrap)  # drape's sampler, read back
+        else:
+            assert wrap is None, (ext, wrap)
