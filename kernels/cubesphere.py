@@ -110,6 +110,8 @@ class CubeSphereGrid:
     cols_valid: wp.int32  # planar only: columns of the input before padding to n
     heights: wp.array[wp.float32]  # per entry: exaggerated elevation z
     positions: wp.array[wp.vec3]  # per entry: planet-centred (planar: local) position, float32
+    # the cube: 1 / ||w|| per quarter-face slot (|2j - N| / 2)·(N/2 + 1) + |2i - N| / 2 (angle_tables'; planar: empty)
+    inverse_lengths: wp.array[wp.float64]
 
 
 @wp.struct
@@ -277,6 +279,32 @@ def entry_position64(grid: CubeSphereGrid, entry: wp.int32) -> wp.vec3d:
     if grid.planar != 0:
         return wp.vec3d(wp.float64(j) * grid.spacing[0], wp.float64(i) * grid.spacing[1], z)
     return (grid.radius + z) * node_direction(cube_point(face, i, j, grid.cells))
+
+
+@wp.func
+def face_position64(grid: CubeSphereGrid, i: wp.int32, j: wp.int32, z: wp.float32) -> wp.vec3d:
+    """float64 position (R + z) · w / ||w|| of face node (i, j) in its face's own frame: the bits of
+    :func:`entry_position64` up to the cube's rotation onto the face (a signed permutation), with 1 / ||w|| read from
+    ``grid.inverse_lengths`` (the same division of the same exact integer sum as :func:`node_direction`'s)."""
+    x = 2 * j - grid.cells
+    y = 2 * i - grid.cells
+    slot = (wp.abs(x) >> 1) * ((grid.cells >> 1) + 1) + (wp.abs(y) >> 1)
+    w = wp.vec3d(wp.float64(x), wp.float64(y), wp.float64(grid.cells))
+    return (grid.radius + wp.float64(z)) * (w * load(grid.inverse_lengths, slot))
+
+
+@wp.func
+def look_ahead_error(grid: CubeSphereGrid, base: wp.int32, i: wp.int32, j: wp.int32, a: wp.vec2i,
+                     b: wp.vec2i) -> wp.float64:
+    """The 1-level look-ahead error |v - (a + b)/2| of face node (i, j) splitting the hypotenuse (a, b) on the cube
+    (§7.1, Abb. 5b), on the float64 positions the mesh's vertices have (:func:`face_position64`; the distance is
+    the same in the face's own frame). The float32 ``grid.positions`` round each coordinate by up to 0.25 m at the
+    earth's radius, and e measured on them fell up to 0.65 m short of the mesh's own error."""
+    n = grid.n
+    v = face_position64(grid, i, j, load(grid.heights, base + i * n + j))
+    pa = face_position64(grid, a[0], a[1], load(grid.heights, base + a[0] * n + a[1]))
+    pb = face_position64(grid, b[0], b[1], load(grid.heights, base + b[0] * n + b[1]))
+    return wp.length(v - wp.float64(0.5) * (pa + pb))
 
 
 @wp.func
@@ -1059,13 +1087,11 @@ def saturate_leaf_parameters(
     entry = first
     while entry < last:
         if ((i + j) & 1) != 0:
-            step = wp.int32(1)  # i even, j odd: the hypotenuse runs along j
+            step = wp.vec2i(0, 1)  # i even, j odd: the hypotenuse runs along j
             if (i & 1) != 0:
-                step = n  # i odd, j even: along i
-            v = bounds.to_vec3d(grid.positions[entry])
-            pa = bounds.to_vec3d(grid.positions[entry + step])
-            pb = bounds.to_vec3d(grid.positions[entry - step])
-            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+                step = wp.vec2i(1, 0)  # i odd, j even: along i
+            node = wp.vec2i(i, j)
+            e = look_ahead_error(grid, face * nn, i, j, node + step, node - step)
             values_out[entry] = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
         j += 1
         if j == n:
@@ -1073,6 +1099,7 @@ def saturate_leaf_parameters(
             i += 1
             if i == n:
                 i = 0
+                face += 1
         entry += 1
 
 
@@ -1104,14 +1131,12 @@ def saturate_cell_centres(
     while entry < last:
         if (i & j & 1) != 0:
             kind = ((i >> 1) + (j >> 1)) & 1
-            hyp = wp.int32(n + 1)  # kind 0: a = (i + 1, j + 1)
+            dj = wp.int32(1)  # kind 0: a = (i + 1, j + 1)
             if kind != 0:
-                hyp = n - 1  # kind 1: a = (i + 1, j - 1)
+                dj = -1  # kind 1: a = (i + 1, j - 1)
             v = bounds.to_vec3d(grid.positions[entry])
             z_v = wp.float64(grid.heights[entry])
-            pa = bounds.to_vec3d(grid.positions[entry + hyp])
-            pb = bounds.to_vec3d(grid.positions[entry - hyp])
-            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            e = look_ahead_error(grid, face * nn, i, j, wp.vec2i(i + 1, j + dj), wp.vec2i(i - 1, j - dj))
             w_v = to_vec3d_i(wp.vec3i(2 * j - cells, 2 * i - cells, cells))
             r = wp.float64(0.0)
             h = wp.float64(0.0)
@@ -1234,9 +1259,10 @@ def saturate_node_parameters(
     """One thread per node copy at ``depth``: e, r, h, α as the max over its children plus its own share,
     with the level-wise margin that keeps saturation and nesting true in floating point (§6, §7.1).
 
-    r from the float32 positions (in float64); h from the heights, h(v) = max |z_v - z_c| + h(c) (§6); α from
-    the nodes' exact cube directions. The absolute margin |v| · 2^-22 per level covers the float32 rounding
-    of the positions the metrics see (< 0.45 m per node at the earth's radius)."""
+    e from the float64 positions (:func:`look_ahead_error`); r from the float32 positions (in float64); h from
+    the heights, h(v) = max |z_v - z_c| + h(c) (§6); α from the nodes' exact cube directions. The absolute margin
+    |v| · 2^-22 per level covers the float32 rounding of the positions the metrics see (< 0.45 m per node at the
+    earth's radius)."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     padded = wp.int32(0)
@@ -1288,9 +1314,7 @@ def saturate_node_parameters(
             # (s >= 2 here: the planar levels with s = 1 are saturate_planar_fine's)
             e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
         else:
-            pa = bounds.to_vec3d(grid.positions[base + a[0] * grid.n + a[1]])
-            pb = bounds.to_vec3d(grid.positions[base + b[0] * grid.n + b[1]])
-            e = wp.length(v - wp.float64(0.5) * (pa + pb))
+            e = look_ahead_error(grid, base, i, j, a, b)
             if with_angle != 0:
                 w_v = to_vec3d_i(local_point(i, j, grid.cells))  # angles are invariant under the face's rotation
         r = wp.float64(0.0)

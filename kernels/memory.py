@@ -38,6 +38,8 @@ def load(a: wp.array[wp.int32], i: wp.int32) -> wp.int32: ...  # pragma: no cove
 @wp.func_native(_LOAD)
 def load(a: wp.array[wp.float32], i: wp.int32) -> wp.float32: ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_LOAD)
+def load(a: wp.array[wp.float64], i: wp.int32) -> wp.float64: ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_LOAD)
 def load(a: wp.array[wp.vec3], i: wp.int32) -> wp.vec3: ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_LOAD)
 def load(a: wp.array[wp.vec2], i: wp.int32) -> wp.vec2: ...  # pragma: no cover  # noqa: F811

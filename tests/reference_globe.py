@@ -90,10 +90,13 @@ def bisection_tree(cells: int):
     return levels, children, hypotenuse
 
 
-def node_parameters(pos32: np.ndarray, cells: int) -> dict[tuple[int, int, int], tuple[float, float, float, float]]:
-    """Exact (float64, no margins) e, r, h, α per cube point from the float32 positions."""
+def node_parameters(pos32: np.ndarray, cells: int, exact: np.ndarray | None = None
+                    ) -> dict[tuple[int, int, int], tuple[float, float, float, float]]:
+    """Exact (float64, no margins) e, r, h, α per cube point from the float32 positions; e from ``exact`` (the float64
+    positions of :func:`positions`, which the mesh's vertices have) when given."""
     by_point = entries_by_point(cells)
     p = {pt: pos32[entries[0]].astype(np.float64) for pt, entries in by_point.items()}
+    q = p if exact is None else {pt: exact[entries[0]] for pt, entries in by_point.items()}
     _, children, hypotenuse = bisection_tree(cells)
     out: dict = {}
 
@@ -102,7 +105,7 @@ def node_parameters(pos32: np.ndarray, cells: int) -> dict[tuple[int, int, int],
             return out[pt]
         v = p[pt]
         a, b = hypotenuse[pt]
-        e = float(np.linalg.norm(v - 0.5 * (p[a] + p[b])))
+        e = float(np.linalg.norm(q[pt] - 0.5 * (q[a] + q[b])))
         r = h = alpha = 0.0
         for c in children.get(pt, ()):
             ce, cr, ch, ca = visit(c)

@@ -203,7 +203,8 @@ def test_hierarchy_matches_reference_and_is_saturated_and_nested(small_globe):
     pos32 = g.positions.reshape(-1, 3)
     params = {k: v.reshape(-1).astype(np.float64) for k, v in g.node_parameters().items()}
     by_point = ref.entries_by_point(cells)
-    exact = ref.node_parameters(pos32, cells)
+    # e on the float64 positions the mesh's vertices have; r, h, α on the float32 ones the metrics see
+    exact = ref.node_parameters(pos32, cells, ref.positions(g.heights.reshape(-1).astype(np.float64), cells, g.radius))
     _, children, _ = ref.bisection_tree(cells)
     p = {pt: pos32[e[0]].astype(np.float64) for pt, e in by_point.items()}
     assert len(exact) == 6 * cells**2 + 2 - 8  # every node but the cube corners refines a triangle
