@@ -980,8 +980,8 @@ _OPTION_ALIASES = {
 #: Library arguments named as plain words in mid-sentence, which the general rule leaves alone (a plain word may be
 #: just a word: "gives 2000 levels"), per subcommand: the library's phrase and the command line's.
 _OPTION_PHRASES = {
-    "steps": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by"},
-    "batch": {"bring base closer": "bring --base closer", "Shift base by": "Shift --base by",
+    "steps": {"bring base closer": "bring --base closer"},
+    "batch": {"bring base closer": "bring --base closer",
               # batch._check_unreferenced's, in a failed item's line ("failed KEY: InvalidInputError: spacing ...")
               ": spacing applies to DEM files": ": --spacing applies to DEM files",
               "render no overview": "leave --png out",  # batch._check_overview's hint
@@ -991,8 +991,8 @@ _OPTION_PHRASES = {
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
 }
 
-#: The library's own pointer to the option after an argument now spelled as that option: "--base 0.5, on the
-#: command line --base 0.5," said it twice.
+#: The library's own pointer to the option after an argument now spelled as that option ("--crop ..., on the command
+#: line --crop ...") would say it twice.
 _SAID_TWICE = re.compile(r"(--[a-z][a-z0-9-]* [^\s,;()]+), on the command line \1")
 
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
