@@ -1729,14 +1729,30 @@ def image_layer(image: ArrayLike | str | os.PathLike[str], terrain: Terrain, *, 
 
 # ---------------------------------------------------------------------------------------------- camera, errors
 def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
-    """γ(N) (§4, Fig. 2): the screen length in pixels of a vertical segment of length e(N) centred at the point
+    """γ(N) (§4, Fig. 2): the screen length in pixels of a vertical segment of length e(N) centred at the point p
     of B(N) inside the view frustum nearest to the camera (:meth:`Camera.nearest_visible_point`; of B(N) where it
-    misses the frustum); 0 for a patch without children."""
+    misses the frustum), raised to f · e(N) · |p − eye| / depth(p)², the longest a segment of length e(N) at p
+    projects in any direction (f the focal length in pixels); 0 for a patch without children.
+
+    Deviation from the paper: its vertical segment alone degenerates where it lies along the line of sight. For a
+    camera looking (nearly) straight down, a map view, p is the point right below the eye wherever that is in view,
+    the segment projects to 0 pixels, so γ(root) was 0 and the root was drawn alone (Big Tujunga from 3 km above:
+    one patch with a 676 m error, while tilting the view past half the field of view drew hundreds). The bound is
+    the paper's value on the optical axis when the segment is perpendicular to it, never below it (to first order),
+    and continuous in the view direction; the error's true on-screen size at the other visible points of B(N),
+    farther from the eye, exceeds it at most by perspective's off-axis stretch 1 / cos² of their angle off the axis
+    (1.48 at the corners of a 45-degree 4:3 view)."""
     if patch.is_leaf:
         return 0.0
     p = _nearest_point(camera, patch.box)
     half = np.array([0.0, 0.0, patch.error / 2.0])
-    return camera.segment_pixels(p - half, p + half)
+    vertical = camera.segment_pixels(p - half, p + half)
+    offset = p - np.asarray(camera.eye, dtype=np.float64)
+    depth = float(offset @ camera.frame()[0])
+    if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
+        return math.inf
+    with np.errstate(over="ignore"):
+        return max(vertical, float(camera.focal_pixels * patch.error * np.linalg.norm(offset) / depth ** 2))
 
 
 @functools.lru_cache(maxsize=4096)  # γ and τ of one patch (and its parent reduction) ask for the same point

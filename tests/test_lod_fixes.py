@@ -967,7 +967,66 @@ def test_a_view_from_above_the_terrain_refines_the_patches_in_view(pitch):
     assert residual <= 1e-6 * np.linalg.norm(eye - p)
     pixels, depth = camera.project(np.stack([p - [0, 0, root.error / 2], p + [0, 0, root.error / 2]]))
     expected = math.inf if depth.min() < camera.near else float(np.linalg.norm(pixels[0] - pixels[1]))
-    assert visual_geometric_error(root, camera) == pytest.approx(expected, rel=1e-9) and expected > 1.0
+    # raised to the longest projection of e(N) at p in any direction (test_a_map_view_straight_down_...)
+    bound = camera.focal_pixels * root.error * np.linalg.norm(p - eye) / ((p - eye) @ camera.frame()[0]) ** 2
+    assert visual_geometric_error(root, camera) == pytest.approx(max(expected, bound), rel=1e-9) and expected > 1.0
     items = render_with_textures(root, [], camera)
     assert len(items) > 1 and all(item.geometry.is_leaf or visual_geometric_error(item.geometry, camera) <= 1.0
                                   for item in items)
+
+
+def _largest_projection(camera, p, length, directions):
+    """Independent of Camera.project and texture_lod: the longest screen length in pixels, over ``directions``, of a
+    segment of ``length`` centred at p, by a pinhole projection built from eye, target, up, fov and viewport."""
+    eye, target = np.array(camera.eye), np.array(camera.target)
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    right = np.cross(forward, camera.up)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    focal = camera.viewport[1] / 2.0 / math.tan(camera.fov / 2.0)
+
+    def screen(points):
+        rel = points - eye
+        return focal * np.c_[rel @ right, rel @ up] / (rel @ forward)[:, None]
+
+    ends = screen(p + directions * length / 2), screen(p - directions * length / 2)
+    return float(np.linalg.norm(ends[0] - ends[1], axis=1).max())
+
+
+@pytest.mark.parametrize("above", [300.0, 3000.0])
+def test_a_map_view_straight_down_refines_like_a_slightly_tilted_one(above):
+    """For a camera looking straight down (a map view), the point of B(N) in view nearest to the eye is the one right
+    below it, where γ's vertical segment lies along the eye's ray and projects to 0 pixels: γ was 0, so
+    render_with_textures drew the root alone (Big Tujunga from 3 km above: one patch with a 676 m error) until the view
+    tilted past half the field of view (25 degrees: 208 patches). γ is now raised to the longest projection of a
+    segment of length e(N) at p in any direction: every drawn pair still satisfies γ ≤ γ_user or is a leaf, checked
+    by an independent projection of e(N) at p in 2000 directions, and the patch count is continuous in the tilt."""
+    from stepterrain.texture_lod import visual_geometric_error
+
+    rng = np.random.default_rng(7)
+    heights = np.cumsum(np.cumsum(rng.normal(0.0, 1.0, (129, 129)), axis=0), axis=1).astype(np.float32)
+    quadtree = PatchQuadtree(heights, leaf_size=8, spacing=(30.0, 30.0))
+    root = quadtree.root
+    xmin, xmax, ymin, ymax = root.domain
+    eye = np.array([0.5 * (xmin + xmax), 0.5 * (ymin + ymax), root.box[1, 2] + above])
+    directions = rng.normal(size=(2000, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    counts = {}
+    for tilt in (0.0, 2.0, 5.0, 10.0, 30.0):
+        a = math.radians(tilt)
+        camera = Camera(tuple(eye), tuple(eye + [0.0, math.sin(a), -math.cos(a)]), up=(0.0, 1.0, 0.0),
+                        viewport=(800, 600))
+        items = render_with_textures(root, [], camera)
+        counts[tilt] = len(items)
+        for item in items:
+            n = item.geometry
+            if n.is_leaf:
+                continue
+            gamma = visual_geometric_error(n, camera)
+            p = camera.nearest_visible_point(n.box)
+            assert p is not None and gamma <= 1.0
+            # the error's on-screen size at p, in any direction (the vertical one among them), is within γ_user
+            assert _largest_projection(camera, p, n.error, np.r_[directions, [[0.0, 0.0, 1.0]]]) <= 1.0 + 1e-3
+        assert counts[tilt] > 4 and root not in [item.geometry for item in items], (tilt, counts)
+    # continuous in the tilt: no jump from the root alone to hundreds of patches as the view leaves the nadir
+    assert max(counts.values()) <= 2.5 * min(counts.values()), counts
