@@ -30,7 +30,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._compaction import check_budget, count_buffer, exclusive_offsets
-from ._device import host_copy, launch, recycled_empty, resolve_device, scratch
+from ._device import MIN_THREAD_ELEMENTS, host_copy, launch, recycled_empty, resolve_device, scratch
 from .errors import InvalidInputError, caller_stacklevel, counted
 from .kernels import texture as texture_kernels
 from .mesh import mesh_argument
@@ -1240,14 +1240,16 @@ def contour_layer(
     style.half_width, style.index_half_width = width / 2.0, index_width / 2.0
     style.index_every = int(index_every)
     style.color, style.index_color = wp.vec4(*rgba), wp.vec4(*index_rgba)
+    grid = _height_grid(t, 1.0, dev)
     if dev.is_cpu:
-        host = np.empty((rows, cols, 4), np.float32)
+        host = recycled_empty((rows, cols, 4), np.float32)
         out = wp.array(host, dtype=wp.vec4, device=dev, copy=False)
     else:
         host, out = None, wp.empty((rows, cols), dtype=wp.vec4, device=dev)
-    launch(texture_kernels.draw_contours, dim=rows * cols,
-           inputs=[_height_grid(t, 1.0, dev), _texel_sampling(t, extent, (rows, cols)), style], outputs=[out],
-           device=dev)
+    runs = -(-cols // texture_kernels.CONTOUR_RUN)  # a thread a run of texels of a row
+    launch(texture_kernels.draw_contours, dim=rows * runs,
+           inputs=[grid, _texel_sampling(t, extent, (rows, cols)), style], outputs=[out], device=dev,
+           min_dim=max(1, MIN_THREAD_ELEMENTS // texture_kernels.CONTOUR_RUN))
     image = host if host is not None else host_copy(out).reshape(rows, cols, 4)
     return TextureLayer("thematic", image, extent, name="contours")
 

@@ -980,3 +980,33 @@ def test_adjust_applies_gamma_first_as_cesium_does(grey, params, expected):
     out = adjust(layer, device="cpu", **params).rgba()
     np.testing.assert_allclose(out[..., :3], expected, atol=1e-6)
     np.testing.assert_allclose(out[..., 3], 1.0)
+
+
+# ------------------------------------------------------------------------------------------ contour layer's memory
+def test_a_contour_layer_over_the_memory_budget_is_refused_before_it_is_allocated():
+    """contour_layer's float32 RGBA is 16 bytes a texel, and texel_size multiplies the texels (a 30 m DEM drawn at
+    0.1 m: 90 000 texels a node): the library function, not only ``stepterrain texture --contours``, refuses a layer
+    over the memory budget with an OutputTooLargeError naming the size and the way out, before allocating it."""
+    import tracemalloc
+
+    import stepterrain as st
+    from stepterrain.texture import contour_layer
+
+    ramp = np.add.outer(np.arange(20.0), np.arange(30.0)).astype(np.float32)
+    terrain = st.Terrain.from_heights(ramp, spacing=(30.0, -30.0))
+    with pytest.raises(st.OutputTooLargeError, match=r"the 9000000 x 6000000 float32 RGBA contour layer would need "
+                                                     r".* over the memory budget .*give a larger texel_size"):
+        contour_layer(terrain, interval=5.0, texel_size=1e-4, device="cpu")  # 5.4e13 texels: 786 TiB
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        tracemalloc.start()
+        with pytest.raises(st.OutputTooLargeError, match=r"the 900 x 600 float32 RGBA contour layer .* 8\.2 MiB"):
+            contour_layer(terrain, interval=5.0, texel_size=1.0, device="cpu")  # 900 x 600 texels: 8.2 MiB
+        assert tracemalloc.get_traced_memory()[1] < 1 << 20  # refused before the 8.2 MiB were allocated
+        tracemalloc.stop()
+        layer = contour_layer(terrain, interval=5.0, texel_size=3.0, device="cpu")  # 300 x 200 texels: 938 KiB
+    finally:
+        tracemalloc.stop()
+        st.set_memory_budget(previous)
+    assert layer.shape == (200, 300) and layer.image.nbytes == 16 * 200 * 300
+    assert (layer.image[..., 3] > 0.5).any()
