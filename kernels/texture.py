@@ -1246,9 +1246,6 @@ def reduce_band(
 # ---------------------------------------------------------------------------------------------------------
 
 
-CONTOUR_RUN = wp.constant(64)  # texels of a row one draw_contours thread draws (amortises the per-thread cost)
-
-
 @wp.struct
 class TexelSampling:
     """Where texel (r, c) of a north-up texture samples a :class:`HeightGrid`: at node coordinates
@@ -1445,13 +1442,15 @@ def draw_level_pair(style: ContourStyle, k: wp.float64, below: wp.bool, gap_belo
 @wp.kernel
 def draw_contours(
     thread_offset: wp.int32,
+    run: wp.int32,
     grid: HeightGrid,
     sampling: TexelSampling,
     style: ContourStyle,
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per run of up to CONTOUR_RUN texels of a row. A texel's height is the bilinear interpolant at its
+    """One thread per run of up to ``run`` texels of a row (on CUDA 1: a thread a texel, neighbours' stores
+    adjacent; on the CPU ``stepterrain.texture.CONTOUR_RUN``). A texel's height is the bilinear interpolant at its
     centre, and its change per texel the central differences of the neighbouring texels' heights; the two levels
     around the height (the one at or below, the one above) each drawn as an anti-aliased line of its width by the
     distance |h - level| / |grad h| texels; the stronger kept, straight colour, alpha its coverage times the
@@ -1462,10 +1461,10 @@ def draw_contours(
     (:func:`line_near`) is skipped before its float64 division (3-4x faster on the CPU than a thread a texel that
     did all of that per texel; the same values)."""
     t = wp.tid() + thread_offset
-    runs = (sampling.cols + CONTOUR_RUN - 1) // CONTOUR_RUN
+    runs = (sampling.cols + run - 1) // run
     r = t // runs
-    c0 = (t - r * runs) * CONTOUR_RUN
-    c1 = wp.min(c0 + CONTOUR_RUN, sampling.cols)
+    c0 = (t - r * runs) * run
+    c1 = wp.min(c0 + run, sampling.cols)
     heights = grid.heights
     nodata = grid.has_nodata
     x0 = sampling.start[0]

@@ -1059,6 +1059,11 @@ def topographic_layer(
 CONTOUR_COLOR = (0.55, 0.32, 0.14)
 
 
+#: Texels of a row one contour_layer thread draws on the CPU, sliding the heights along (amortises the per-thread
+#: cost; on CUDA a thread draws one texel).
+CONTOUR_RUN = 64
+
+
 def _texel_grid(t: Terrain, texel_size: float) -> tuple[Extent, tuple[int, int]]:
     """The pixel grid of a texture of ``texel_size`` texels over a grid terrain: its texture extent (the node extent
     plus half a cell, :func:`terrain_extent`) cut into whole texels no larger than ``texel_size`` (a size within a
@@ -1246,10 +1251,10 @@ def contour_layer(
         out = wp.array(host, dtype=wp.vec4, device=dev, copy=False)
     else:
         host, out = None, wp.empty((rows, cols), dtype=wp.vec4, device=dev)
-    runs = -(-cols // texture_kernels.CONTOUR_RUN)  # a thread a run of texels of a row
-    launch(texture_kernels.draw_contours, dim=rows * runs,
-           inputs=[grid, _texel_sampling(t, extent, (rows, cols)), style], outputs=[out], device=dev,
-           min_dim=max(1, MIN_THREAD_ELEMENTS // texture_kernels.CONTOUR_RUN))
+    run = CONTOUR_RUN if dev.is_cpu else 1  # texels of a row a thread draws
+    launch(texture_kernels.draw_contours, dim=rows * -(-cols // run),
+           inputs=[run, grid, _texel_sampling(t, extent, (rows, cols)), style], outputs=[out], device=dev,
+           min_dim=max(1, MIN_THREAD_ELEMENTS // run))
     image = host if host is not None else host_copy(out).reshape(rows, cols, 4)
     return TextureLayer("thematic", image, extent, name="contours")
 
