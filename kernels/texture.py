@@ -1539,3 +1539,50 @@ def draw_contours(
         j1 = n1
         fu = fn
         c += 1
+
+
+@wp.func
+def unit_to_uint8(x: wp.float32) -> wp.uint8:
+    """NumPy's ``np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)`` in float32 (halves to even)."""
+    return wp.uint8(wp.int32(wp.rint(wp.clamp(x, 0.0, 1.0) * 255.0)))
+
+
+@wp.kernel
+def lay_over_uint8(
+    thread_offset: wp.int32,
+    run: wp.int32,
+    layer: wp.array2d[wp.vec4],
+    # outputs
+    image: wp.array3d[wp.uint8],
+):
+    """Straight RGBA ``layer`` laid over the uint8 RGB or RGBA ``image`` (same rows and columns) in place, a thread a
+    run of ``run`` texels of the image in row-major order, in float32 with NumPy's operations in NumPy's order
+    (``stepterrain.texture._lay_over_uint8``): coverage c = the layer's alpha; over RGB the colour
+    ``b c + a (1 - c)``; over RGBA alpha ``c + alpha_a (1 - c)`` and colour ``(b c + a alpha_a (1 - c)) / alpha``
+    (``a`` where alpha is 0); rounded half to even."""
+    cols = layer.shape[1]
+    total = layer.shape[0] * cols
+    first = (wp.tid() + thread_offset) * run
+    last = wp.min(first + run, total)
+    n = first
+    while n < last:
+        r = n // cols
+        c = n - r * cols
+        top = layer[r, c]
+        cover = top[3]
+        rest = 1.0 - cover
+        if image.shape[2] == 3:
+            for ch in range(3):
+                under = wp.float32(image[r, c, ch]) / 255.0
+                image[r, c, ch] = unit_to_uint8(top[ch] * cover + under * rest)
+        else:
+            alpha_a = wp.float32(image[r, c, 3]) / 255.0
+            alpha = cover + alpha_a * rest
+            for ch in range(3):
+                under = wp.float32(image[r, c, ch]) / 255.0
+                value = under
+                if alpha > 0.0:
+                    value = (top[ch] * cover + under * alpha_a * rest) / alpha
+                image[r, c, ch] = unit_to_uint8(value)
+            image[r, c, 3] = unit_to_uint8(alpha)
+        n += 1
