@@ -1391,6 +1391,14 @@ def bilinear_height(heights: wp.array2d[wp.float32], nodata: wp.int32, i0: wp.in
 
 
 @wp.func
+def on_grid(start: wp.float32, step: wp.float32, texels: wp.int32, nodes: wp.int32) -> wp.bool:
+    """Whether the first and the last of ``texels`` coordinates ``start + k * step`` lie on the ``nodes`` of a grid
+    axis (a whole ``start`` and a step of +-1: all of them then, unclamped)."""
+    last = start + float(texels - 1) * step
+    return start >= 0.0 and start <= float(nodes - 1) and last >= 0.0 and last <= float(nodes - 1)
+
+
+@wp.func
 def line_near(gap: wp.float64, slope: wp.float32, slope64: wp.float64, reach: wp.float64) -> wp.bool:
     """Whether a level ``gap`` height units away may cover some of the texel; False where it surely covers none:
     gap > reach * slope, reach the widest line's half width plus half a texel, times 1 + 2^-20 (more than the
@@ -1457,7 +1465,8 @@ def draw_contours(
     centre's weight of data (0 over nodata).
 
     The heights slide along the row (three new samples a texel, not five: the texel right of the centre, the ones
-    above and below it), each row's part of the sampling is computed once, and a level surely too far to draw
+    above and below it; at one texel per node without nodata, three reads), each row's part of the sampling is
+    computed once, and a level surely too far to draw
     (:func:`line_near`) is skipped before its float64 division (3-4x faster on the CPU than a thread a texel that
     did all of that per texel; the same values)."""
     t = wp.tid() + thread_offset
@@ -1481,6 +1490,13 @@ def draw_contours(
     inverse = wp.float64(1.0) / wp.float64(wp.max(style.index_every, 1))  # index_lines' reciprocal
     n = style.levels.shape[0]
     none = wp.vec2(0.0, 0.0)
+    # one texel per node (every texel centre on a node inside the grid, no nodata): the heights are the nodes'
+    y0 = sampling.start[1]
+    dy = sampling.step[1]
+    on_nodes = (nodata == 0 and wp.abs(dx) == 1.0 and wp.abs(dy) == 1.0 and x0 == wp.floor(x0)
+                and y0 == wp.floor(y0) and on_grid(x0, dx, sampling.cols, grid.cols)
+                and on_grid(y0, dy, sampling.rows, grid.rows))
+    step = wp.int32(dx)
     j0, j1, fu = sample_axis(x0, dx, c0, grid.cols)
     left = none
     if c0 > 0:
@@ -1494,17 +1510,27 @@ def draw_contours(
         n1 = j1
         fn = fu
         if c + 1 < sampling.cols:
-            n0, n1, fn = sample_axis(x0, dx, c + 1, grid.cols)
-            right = bilinear_height(heights, nodata, i0, i1, fv, n0, n1, fn)
+            if on_nodes:  # bilinear_height's read of a node, without sample_axis
+                n0 = j0 + step
+                right = wp.vec2(load(heights, i0, n0), 1.0)
+            else:
+                n0, n1, fn = sample_axis(x0, dx, c + 1, grid.cols)
+                right = bilinear_height(heights, nodata, i0, i1, fv, n0, n1, fn)
         best = wp.vec4(style.color[0], style.color[1], style.color[2], 0.0)
         if centre[1] > 0.0:
             h = centre[0]
             up = none
             down = none
-            if has_up:
-                up = bilinear_height(heights, nodata, a0, a1, fa, j0, j1, fu)
-            if has_down:
-                down = bilinear_height(heights, nodata, b0, b1, fb, j0, j1, fu)
+            if on_nodes:
+                if has_up:
+                    up = wp.vec2(load(heights, a0, j0), 1.0)
+                if has_down:
+                    down = wp.vec2(load(heights, b0, j0), 1.0)
+            else:
+                if has_up:
+                    up = bilinear_height(heights, nodata, a0, a1, fa, j0, j1, fu)
+                if has_down:
+                    down = bilinear_height(heights, nodata, b0, b1, fb, j0, j1, fu)
             gx = texel_slope(left, h, right)
             gy = texel_slope(up, h, down)
             slope = wp.sqrt(gx * gx + gy * gy)
