@@ -7,11 +7,16 @@
 2. Image pyramid of a W x H RGB image stored as a memory-mapped .npy: ``ImagePyramid.build`` (Warp,
    area-weighted, memory-mapped levels) against Pillow (``Image.reduce(2)`` repeated, the image in RAM).
    Time and peak memory, each in a fresh subprocess (peak = rise of VmHWM over the resident set before).
+3. Contour lines on an N² DEM (``--cases contours``, not run by default; ``--contour-size``, ``--contour-interval``):
+   ``stepterrain.texture.contour_layer`` (Warp, one texel per node, an index line every 5th) against what a user
+   would do instead: matplotlib's ``contour`` on the same grid, drawn with Agg into an image of the same size
+   (lines one pixel wide, index lines two), both measured in the same run.
 
 Everything is pinned to one CPU core (``sched_setaffinity``; gdaldem with ``taskset``) unless ``--all-cores``;
 times are the best of ``--repeat`` runs.
 
     python benchmarks/run_texture.py --dem-size 4096 --image 16384 8192 --repeat 3 --output /tmp/texture.md
+    python benchmarks/run_texture.py --cases contours --contour-size 2048 --repeat 3
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ if str(_HERE.parent) not in sys.path:
 HILLSHADE_GOAL = 1.0   # ours with shadows / gdaldem without: goal <= 1 (no slower)
 PYRAMID_SECONDS_GOAL = 5.0
 PYRAMID_PEAK_GOAL = 1024**3
+CONTOUR_INDEX_EVERY = 5  # both contenders draw every 5th line as an index line, twice as wide
 
 
 def find_dem() -> Path:
@@ -127,6 +133,62 @@ def bench_hillshade(size: int, repeat: int, pin: list[str]) -> dict:
     return out
 
 
+def matplotlib_contours(z: np.ndarray, levels: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """What a matplotlib user does for contour lines over a texture: ``contour`` on the grid (north-up, one pixel a
+    node), rasterised by Agg into an RGBA image of the grid's size; lines 1 pixel wide (0.72 pt at 100 dpi), index
+    lines 2."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rows, cols = z.shape
+    fig = Figure(figsize=(cols / 100, rows / 100), dpi=100, facecolor="none")  # transparent between lines
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0, 0, 1, 1))
+    ax.set_axis_off()
+    ax.contour(z, levels=levels, colors=[(0.55, 0.32, 0.14)], linewidths=np.where(index, 1.44, 0.72))
+    ax.set_xlim(-0.5, cols - 0.5)  # node (i, j) at pixel (i, j): row 0 at the top, as the layer's north-up
+    ax.set_ylim(rows - 0.5, -0.5)
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())
+
+
+def bench_contours(size: int, interval: float, repeat: int) -> dict:
+    """contour_layer against matplotlib's contour + Agg on the same N² grid, one texel (pixel) a node."""
+    import stepterrain.texture as tx
+
+    z = tiled_dem(size)
+    spacing = (30.0, -30.0)
+    lo, hi = float(np.nanmin(z)), float(np.nanmax(z))
+    k = np.arange(np.floor(lo / interval), np.ceil(hi / interval) + 1)
+    levels, index = k * interval, k % CONTOUR_INDEX_EVERY == 0
+    tx.contour_layer(z[:64, :64], interval=interval, spacing=spacing, device="cpu")  # compile / load
+    matplotlib_contours(z[:64, :64], levels, index)  # import matplotlib
+    out = {"size": size, "pixels": z.size, "interval": interval, "levels": int(levels.size)}
+    layer = None
+
+    def warp() -> None:
+        nonlocal layer
+        layer = tx.contour_layer(z, interval=interval, index_every=CONTOUR_INDEX_EVERY, spacing=spacing, device="cpu")
+
+    image = None
+
+    def mpl() -> None:
+        nonlocal image
+        image = matplotlib_contours(z, levels, index)
+
+    out["warp_contours"] = best(warp, repeat)
+    out["matplotlib_contours"] = best(mpl, repeat)
+    out["walls"] = dict(zip(["warp_contours", "matplotlib_contours"], WALL[-2:], strict=True))
+    assert layer is not None and image is not None and image.shape[:2] == layer.shape
+    lines, drawn = layer.image[..., 3] > 0.5, image[..., 3] > 127  # the two images' line texels, side by side
+    out["line_fraction"] = {"warp_contours": float(lines.mean()), "matplotlib_contours": float(drawn.mean())}
+    near = np.pad(lines, 1)  # the layer's line texels and their 8 neighbours
+    near = np.logical_or.reduce([near[1 + di: near.shape[0] - 1 + di, 1 + dj: near.shape[1] - 1 + dj]
+                                 for di in (-1, 0, 1) for dj in (-1, 0, 1)])
+    out["matplotlib_near"] = float((drawn & near).sum() / max(int(drawn.sum()), 1))
+    return out
+
+
 _PEAK = textwrap.dedent("""
     import os, sys, time, json
     import numpy as np
@@ -199,8 +261,7 @@ def machine() -> str:
             f"warp-lang {warp.__version__}")
 
 
-def report(hs: dict, pyr: dict, args: argparse.Namespace) -> str:
-    n = hs["size"]
+def report(hs: dict | None, pyr: dict | None, args: argparse.Namespace, contours: dict | None = None) -> str:
     lines = [f"## Textures (issue 5 §7) — {_dt.datetime.now(_dt.timezone.utc):%Y-%m-%d %H:%M} UTC", "",
              f"Command: `python benchmarks/run_texture.py {' '.join(sys.argv[1:])}`", "",
              f"- **Machine**: {machine()}. "
@@ -209,8 +270,22 @@ def report(hs: dict, pyr: dict, args: argparse.Namespace) -> str:
              f"- Best of {args.repeat} runs each. CPU time = user + system (gdaldem's as a child process, start-up "
              "and GeoTIFF writing included); wall time beside it (it includes waiting for the shared core). "
              "Pyramids: a fresh process per run.",
-             "",
-             f"### Hillshade on a {n}² DEM (Big Tujunga SRTM 30 m, mirror-tiled), CPU", "",
+             ""]
+    goals: list[str] = []
+    if hs is not None:
+        lines += _hillshade_report(hs, goals)
+    if pyr is not None:
+        lines += _pyramid_report(pyr, goals)
+    if contours is not None:
+        lines += _contour_report(contours)
+    if goals:
+        lines += ["| goal | measured | met? |", "|---|---|---|", *goals]
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def _hillshade_report(hs: dict, goals: list[str]) -> list[str]:
+    n = hs["size"]
+    lines = [f"### Hillshade on a {n}² DEM (Big Tujunga SRTM 30 m, mirror-tiled), CPU", "",
              "| contender | CPU time (s) | vs gdaldem | wall time (s) |", "|---|---|---|---|"]
     gd = hs.get("gdaldem_hillshade")
     for key, name in (("warp_hillshade", "Warp hillshade"), ("warp_shadows_only", "Warp shadows only (sweep)"),
@@ -222,25 +297,45 @@ def report(hs: dict, pyr: dict, args: argparse.Namespace) -> str:
             lines.append(f"| {name} | {hs[key]:.3f} | {ratio} | {hs['walls'][key]:.3f} |")
     lines += ["", f"Shadow rays: {hs['rays_per_s'] / 1e6:.1f} M rays/s (one ray per pixel, O(1) each by the sweep).",
               ""]
+    if gd:
+        ratio = hs["warp_hillshade_shadows"] / gd
+        goals.append(f"| hillshade + shadows no slower than gdaldem hillshade (one core, {n}², CPU time) | "
+                     f"{hs['warp_hillshade_shadows']:.3f} s vs {gd:.3f} s = {ratio:.2f}× | "
+                     f"{'met' if ratio <= HILLSHADE_GOAL + 0.005 else 'not met'} |")
+    return lines
+
+
+def _pyramid_report(pyr: dict, goals: list[str]) -> list[str]:
     w, h = pyr["width"], pyr["height"]
-    lines += [f"### Pyramid of a {w} × {h} RGB image ({pyr['bytes'] / 1e6:.0f} MB, memory-mapped .npy)", "",
-              "| contender | CPU time (s) | wall time (s) | peak memory rise (MB) | levels |", "|---|---|---|---|---|"]
+    lines = [f"### Pyramid of a {w} × {h} RGB image ({pyr['bytes'] / 1e6:.0f} MB, memory-mapped .npy)", "",
+             "| contender | CPU time (s) | wall time (s) | peak memory rise (MB) | levels |", "|---|---|---|---|---|"]
     for key, name in (("warp", "Warp ImagePyramid.build"), ("pillow", "Pillow Image.reduce(2) chain (in RAM)")):
         r = pyr[key]
         lines.append(f"| {name} | {r['cpu']:.2f} | {r['seconds']:.2f} | {r['peak'] / 1e6:.0f} | {r['levels']} |")
-    lines += ["", "| goal | measured | met? |", "|---|---|---|"]
-    if gd:
-        ratio = hs["warp_hillshade_shadows"] / gd
-        lines.append(f"| hillshade + shadows no slower than gdaldem hillshade (one core, {n}², CPU time) | "
-                     f"{hs['warp_hillshade_shadows']:.3f} s vs {gd:.3f} s = {ratio:.2f}× | "
-                     f"{'met' if ratio <= HILLSHADE_GOAL + 0.005 else 'not met'} |")
+    lines.append("")
     r = pyr["warp"]
-    lines.append(f"| pyramid {w}×{h} RGB under 5 s | CPU {r['cpu']:.2f} s, wall {r['seconds']:.2f} s (best) | "
+    goals.append(f"| pyramid {w}×{h} RGB under 5 s | CPU {r['cpu']:.2f} s, wall {r['seconds']:.2f} s (best) | "
                  f"{'met' if r['cpu'] < PYRAMID_SECONDS_GOAL else 'not met'} (CPU time); "
                  f"{'met' if r['seconds'] < PYRAMID_SECONDS_GOAL else 'not met'} (wall) |")
-    lines.append(f"| pyramid peak memory under 1 GB | {r['peak_max'] / 1e6:.0f} MB (worst run) | "
+    goals.append(f"| pyramid peak memory under 1 GB | {r['peak_max'] / 1e6:.0f} MB (worst run) | "
                  f"{'met' if r['peak_max'] < PYRAMID_PEAK_GOAL else 'not met'} |")
-    return "\n".join(lines) + "\n"
+    return lines
+
+
+def _contour_report(c: dict) -> list[str]:
+    n, mpl = c["size"], c["matplotlib_contours"]
+    lines = [f"### Contour lines on a {n}² DEM (Big Tujunga SRTM 30 m, mirror-tiled), every {c['interval']:g} m "
+             f"({c['levels']} levels, every {CONTOUR_INDEX_EVERY}th an index line), one texel a node, CPU", "",
+             "| contender | CPU time (s) | vs matplotlib | wall time (s) | ns a texel (CPU) | line texels |",
+             "|---|---|---|---|---|---|"]
+    for key, name in (("warp_contours", "**Warp contour_layer** (float32 RGBA)"),
+                      ("matplotlib_contours", "matplotlib contour + Agg (RGBA image of the same size)")):
+        lines.append(f"| {name} | {c[key]:.3f} | {c[key] / mpl:.2f}× | {c['walls'][key]:.3f} | "
+                     f"{c[key] / c['pixels'] * 1e9:.1f} | {c['line_fraction'][key]:.1%} |")
+    lines += ["", "Line texels: the share of texels with alpha over one half (the two draw different widths; a "
+                  f"sanity check, not a quality measure); {c['matplotlib_near']:.1%} of matplotlib's line pixels lie "
+                  "within a texel of the layer's.", ""]
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -250,15 +345,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--all-cores", action="store_true")
     parser.add_argument("--output", type=Path)
+    parser.add_argument("--cases", nargs="+", choices=("hillshade", "pyramid", "contours"),
+                        default=["hillshade", "pyramid"],
+                        help="which benchmarks to run (default: hillshade pyramid; contours is opt-in)")
+    parser.add_argument("--contour-size", type=int, default=2048, metavar="N",
+                        help="contours: the DEM's N² (default 2048)")
+    parser.add_argument("--contour-interval", type=float, default=50.0, metavar="M",
+                        help="contours: the contour interval in metres (default 50)")
     args = parser.parse_args(argv)
     pin_cmd: list[str] = []
     if not args.all_cores:
         os.sched_setaffinity(0, {sorted(os.sched_getaffinity(0))[0]})
         if shutil.which("taskset"):
             pin_cmd = ["taskset", "-c", str(sorted(os.sched_getaffinity(0))[0])]
-    hs = bench_hillshade(args.dem_size, args.repeat, pin_cmd)
-    pyr = bench_pyramid(args.image[0], args.image[1], args.repeat, not args.all_cores)
-    text = report(hs, pyr, args)
+    hs = bench_hillshade(args.dem_size, args.repeat, pin_cmd) if "hillshade" in args.cases else None
+    pyr = bench_pyramid(args.image[0], args.image[1], args.repeat, not args.all_cores) \
+        if "pyramid" in args.cases else None
+    contours = bench_contours(args.contour_size, args.contour_interval, args.repeat) \
+        if "contours" in args.cases else None
+    text = report(hs, pyr, args, contours)
     print(text)
     if args.output:
         args.output.write_text(text)

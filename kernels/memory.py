@@ -12,7 +12,8 @@ Contract: every array passed here is 1-D and contiguous (the kernels' own buffer
 below checks that; in release mode nothing does, which is the point. CUDA compiles the same pointer arithmetic.
 
 Users: ``kernels/stepped.py``; the refinement and mesh output of ``kernels/cubesphere.py`` and the plane loops
-of ``kernels/bounds.py`` (the globe's far view: kernels 31 -> 27 ms, see cubesphere's module docstring).
+of ``kernels/bounds.py`` (the globe's far view: kernels 31 -> 27 ms, see cubesphere's module docstring); the
+hillshade and contour rows of ``kernels/texture.py`` (2-D, below).
 
 Overloads: one per element type these kernels use (Warp resolves ``load``/``store`` by argument types).
 
@@ -99,6 +100,8 @@ def load(a: wp.array2d[wp.uint8], i: wp.int32, j: wp.int32) -> wp.uint8: ...  # 
 def store(a: wp.array2d[wp.float32], i: wp.int32, j: wp.int32, v: wp.float32): ...  # pragma: no cover  # noqa: F811
 @wp.func_native(_STORE2)
 def store(a: wp.array2d[wp.uint8], i: wp.int32, j: wp.int32, v: wp.uint8): ...  # pragma: no cover  # noqa: F811
+@wp.func_native(_STORE2)
+def store(a: wp.array2d[wp.vec4], i: wp.int32, j: wp.int32, v: wp.vec4): ...  # pragma: no cover  # noqa: F811
 # fmt: on
 
 

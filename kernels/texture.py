@@ -1274,44 +1274,6 @@ class ContourStyle:
 
 
 @wp.func
-def height_at(grid: HeightGrid, u: wp.float32, v: wp.float32) -> wp.vec2:
-    """(height, weight of data) of the grid's bilinear interpolant at node coordinates (u, v), clamped to the grid:
-    the corners with data weighted and renormalised, so a nodata (NaN) corner spreads no NaN; (0, 0) where no
-    corner of non-zero weight has data."""
-    u = wp.clamp(u, 0.0, float(grid.cols - 1))
-    v = wp.clamp(v, 0.0, float(grid.rows - 1))
-    j0 = wp.int32(wp.floor(u))
-    i0 = wp.int32(wp.floor(v))
-    fu = u - float(j0)
-    fv = v - float(i0)
-    j1 = wp.min(j0 + 1, grid.cols - 1)
-    i1 = wp.min(i0 + 1, grid.rows - 1)
-    total = wp.float32(0.0)
-    weight = wp.float32(0.0)
-    for corner in range(4):
-        ci = wp.where(corner >= 2, i1, i0)
-        cj = wp.where(corner % 2 == 1, j1, j0)
-        w = wp.where(corner >= 2, fv, 1.0 - fv) * wp.where(corner % 2 == 1, fu, 1.0 - fu)
-        if w > 0.0:
-            h = grid.heights[ci, cj]
-            if not wp.isnan(h):
-                total += w * h
-                weight += w
-    if weight > 0.0:
-        return wp.vec2(total / weight, weight)
-    return wp.vec2(0.0, 0.0)
-
-
-@wp.func
-def texel_height(grid: HeightGrid, sampling: TexelSampling, r: wp.int32, c: wp.int32) -> wp.vec2:
-    """:func:`height_at` the centre of texel (r, c); (0, 0) (no data) beyond the texture."""
-    if r < 0 or r >= sampling.rows or c < 0 or c >= sampling.cols:
-        return wp.vec2(0.0, 0.0)
-    return height_at(grid, sampling.start[0] + float(c) * sampling.step[0],
-                     sampling.start[1] + float(r) * sampling.step[1])
-
-
-@wp.func
 def texel_slope(before: wp.vec2, centre: wp.float32, after: wp.vec2) -> wp.float32:
     """Height change per texel along one axis: the central difference, one-sided where a neighbour has no data
     (beyond the texture, nodata), 0 where neither has."""
@@ -1353,9 +1315,9 @@ def is_index_line(k: wp.float64, every: wp.int32) -> wp.bool:
 
 
 @wp.func
-def contour_line(style: ContourStyle, k: wp.float64, gap: wp.float64, slope: wp.float32, best: wp.vec4) -> wp.vec4:
-    """``best`` (straight RGBA, alpha the coverage) or line k's, ``gap`` height units away, where it covers more."""
-    index = is_index_line(k, style.index_every)
+def contour_line(style: ContourStyle, index: wp.bool, gap: wp.float64, slope: wp.float32, best: wp.vec4) -> wp.vec4:
+    """``best`` (straight RGBA, alpha the coverage) or the line's, ``gap`` height units away (an index line if
+    ``index``), where it covers more."""
     half = wp.where(index, style.index_half_width, style.half_width)
     colour = wp.where(index, style.index_color, style.color)
     coverage = line_coverage(level_distance(gap, slope), half) * colour[3]
@@ -1364,46 +1326,289 @@ def contour_line(style: ContourStyle, k: wp.float64, gap: wp.float64, slope: wp.
     return best
 
 
+@wp.func
+def sample_axis(start: wp.float32, step: wp.float32, k: wp.int32, n: wp.int32):
+    """One axis of where texel index ``k`` samples the grid (:class:`TexelSampling`): (node index 0, node index 1,
+    fraction) among ``n`` nodes, the coordinate ``start + k * step`` clamped to the grid."""
+    x = wp.clamp(start + float(k) * step, 0.0, float(n - 1))
+    i0 = wp.int32(wp.floor(x))
+    return i0, wp.min(i0 + 1, n - 1), x - float(i0)
+
+
+@wp.func
+def bilinear_height(heights: wp.array2d[wp.float32], nodata: wp.int32, i0: wp.int32, i1: wp.int32, fv: wp.float32,
+                    j0: wp.int32, j1: wp.int32, fu: wp.float32) -> wp.vec2:
+    """(height, weight of data) of the grid's bilinear interpolant at the node coordinates whose two
+    :func:`sample_axis` parts are given: the corners with data weighted and renormalised, so a nodata (NaN) corner
+    spreads no NaN; (0, 0) where no corner of non-zero weight has data. Without ``nodata`` (a grid without NaN) no
+    branches, the same values (but for the sign of a zero height, which draws the same lines): a corner of weight 0
+    adds a zero, and a texel on a node (both fractions 0: every texel at one texel per node) reads that node."""
+    if nodata == 0:
+        if fu == 0.0 and fv == 0.0:
+            return wp.vec2(load(heights, i0, j0), 1.0)
+        w0 = (1.0 - fv) * (1.0 - fu)
+        w1 = (1.0 - fv) * fu
+        w2 = fv * (1.0 - fu)
+        w3 = fv * fu
+        total = wp.float32(0.0) + w0 * load(heights, i0, j0)
+        total = total + w1 * load(heights, i0, j1)
+        total = total + w2 * load(heights, i1, j0)
+        total = total + w3 * load(heights, i1, j1)
+        weight = wp.float32(0.0) + w0
+        weight = weight + w1
+        weight = weight + w2
+        weight = weight + w3
+        return wp.vec2(total / weight, weight)
+    total = wp.float32(0.0)
+    weight = wp.float32(0.0)
+    w = (1.0 - fv) * (1.0 - fu)
+    if w > 0.0:
+        h = load(heights, i0, j0)
+        if not wp.isnan(h):
+            total += w * h
+            weight += w
+    w = (1.0 - fv) * fu
+    if w > 0.0:
+        h = load(heights, i0, j1)
+        if not wp.isnan(h):
+            total += w * h
+            weight += w
+    w = fv * (1.0 - fu)
+    if w > 0.0:
+        h = load(heights, i1, j0)
+        if not wp.isnan(h):
+            total += w * h
+            weight += w
+    w = fv * fu
+    if w > 0.0:
+        h = load(heights, i1, j1)
+        if not wp.isnan(h):
+            total += w * h
+            weight += w
+    if weight > 0.0:
+        return wp.vec2(total / weight, weight)
+    return wp.vec2(0.0, 0.0)
+
+
+@wp.func
+def on_grid(start: wp.float32, step: wp.float32, texels: wp.int32, nodes: wp.int32) -> wp.bool:
+    """Whether the first and the last of ``texels`` coordinates ``start + k * step`` lie on the ``nodes`` of a grid
+    axis (a whole ``start`` and a step of +-1: all of them then, unclamped)."""
+    last = start + float(texels - 1) * step
+    return start >= 0.0 and start <= float(nodes - 1) and last >= 0.0 and last <= float(nodes - 1)
+
+
+@wp.func
+def line_near(gap: wp.float64, slope: wp.float32, slope64: wp.float64, reach: wp.float64) -> wp.bool:
+    """Whether a level ``gap`` height units away may cover some of the texel; False where it surely covers none:
+    gap > reach * slope, reach the widest line's half width plus half a texel, times 1 + 2^-20 (more than the
+    roundings of reach * slope, of gap / slope and of its float32), so that :func:`level_distance` is more than half
+    a texel beyond either half width (:func:`line_coverage` 0). Saves the line's division, and its index test, on
+    most texels."""
+    if slope > 0.0:
+        if gap > reach * slope64:
+            return False
+    return True
+
+
+@wp.func
+def index_lines(k: wp.float64, every: wp.int32, inverse: wp.float64) -> wp.vec2i:
+    """(:func:`is_index_line` of line k, of line k + 1) as 0 or 1, without its division where that is exact
+    (|k| < 2^51, ``inverse`` = 1 / every): ``every`` divides a whole number m exactly when
+    m == every * round(m * inverse), the quotient then within far less than half of a whole number of
+    m * inverse."""
+    if every <= 0:
+        return wp.vec2i(0, 0)
+    n = wp.float64(every)
+    if wp.abs(k) < wp.float64(2251799813685248.0):
+        k1 = k + wp.float64(1.0)
+        return wp.vec2i(wp.where(k - n * wp.round(k * inverse) == wp.float64(0.0), 1, 0),
+                        wp.where(k1 - n * wp.round(k1 * inverse) == wp.float64(0.0), 1, 0))
+    return wp.vec2i(wp.where(is_index_line(k, every), 1, 0),
+                    wp.where(is_index_line(k + wp.float64(1.0), every), 1, 0))
+
+
+@wp.func
+def draw_level_pair(style: ContourStyle, k: wp.float64, below: wp.bool, gap_below: wp.float64, above: wp.bool,
+                    gap_above: wp.float64, slope: wp.float32, reach: wp.float64, inverse: wp.float64,
+                    best: wp.vec4) -> wp.vec4:
+    """:func:`contour_line` of line k ``gap_below`` under the texel's height (if ``below``: there is one), then of
+    line k + 1 ``gap_above`` over it (if ``above``), the same values in the same order; a line :func:`line_near`
+    rules out skipped."""
+    slope64 = wp.float64(slope)
+    near_below = below and line_near(gap_below, slope, slope64, reach)
+    near_above = above and line_near(gap_above, slope, slope64, reach)
+    if near_below or near_above:
+        index = index_lines(k, style.index_every, inverse)
+        if near_below:
+            best = contour_line(style, index[0] != 0, gap_below, slope, best)
+        if near_above:
+            best = contour_line(style, index[1] != 0, gap_above, slope, best)
+    return best
+
+
 @wp.kernel
 def draw_contours(
     thread_offset: wp.int32,
+    run: wp.int32,
     grid: HeightGrid,
     sampling: TexelSampling,
     style: ContourStyle,
     # outputs
     rgba_out: wp.array2d[wp.vec4],
 ):
-    """One thread per texel: its height at the texel's centre and the height's change per texel (central
-    differences of the neighbouring texels' heights); the two levels around the height (the one at or below, the
-    one above) each drawn as an anti-aliased line of its width by the distance |h - level| / |grad h| texels; the
-    stronger kept, straight colour, alpha its coverage times the centre's weight of data (0 over nodata)."""
-    r, c = pixel_of(wp.tid() + thread_offset, sampling.cols)
-    centre = texel_height(grid, sampling, r, c)
-    best = wp.vec4(style.color[0], style.color[1], style.color[2], 0.0)
-    if centre[1] > 0.0:
-        h = centre[0]
-        gx = texel_slope(texel_height(grid, sampling, r, c - 1), h, texel_height(grid, sampling, r, c + 1))
-        gy = texel_slope(texel_height(grid, sampling, r - 1, c), h, texel_height(grid, sampling, r + 1, c))
-        slope = wp.sqrt(gx * gx + gy * gy)
-        h64 = wp.float64(h)
-        n = style.levels.shape[0]
-        if n == 0:
-            q = (h64 - style.base) / style.interval
-            k = wp.floor(q)
-            best = contour_line(style, k, (q - k) * style.interval, slope, best)
-            best = contour_line(style, k + wp.float64(1.0), (k + wp.float64(1.0) - q) * style.interval, slope, best)
+    """One thread per run of up to ``run`` texels of a row (on CUDA 1: a thread a texel, neighbours' stores
+    adjacent; on the CPU ``stepterrain.texture.CONTOUR_RUN``). A texel's height is the bilinear interpolant at its
+    centre, and its change per texel the central differences of the neighbouring texels' heights; the two levels
+    around the height (the one at or below, the one above) each drawn as an anti-aliased line of its width by the
+    distance |h - level| / |grad h| texels; the stronger kept, straight colour, alpha its coverage times the
+    centre's weight of data (0 over nodata).
+
+    The heights slide along the row (three new samples a texel, not five: the texel right of the centre, the ones
+    above and below it; at one texel per node without nodata, three reads), each row's part of the sampling is
+    computed once, and a level surely too far to draw
+    (:func:`line_near`) is skipped before its float64 division (3-4x faster on the CPU than a thread a texel that
+    did all of that per texel; the same values)."""
+    t = wp.tid() + thread_offset
+    runs = (sampling.cols + run - 1) // run
+    r = t // runs
+    c0 = (t - r * runs) * run
+    c1 = wp.min(c0 + run, sampling.cols)
+    heights = grid.heights
+    nodata = grid.has_nodata
+    x0 = sampling.start[0]
+    dx = sampling.step[0]
+    i0, i1, fv = sample_axis(sampling.start[1], sampling.step[1], r, grid.rows)
+    a0, a1, fa = sample_axis(sampling.start[1], sampling.step[1], r - 1, grid.rows)  # the row above
+    b0, b1, fb = sample_axis(sampling.start[1], sampling.step[1], r + 1, grid.rows)  # the row below
+    has_up = r > 0
+    has_down = r + 1 < sampling.rows
+    widest = wp.max(style.half_width, style.index_half_width)  # line_near's reach, a hair beyond widest + 1/2
+    reach = (wp.float64(widest) + wp.float64(0.5)) * wp.float64(1.00000095367431640625)
+    if widest >= 1.0e29:  # level_distance's 1e30 cap could leave such lines drawn: never skip
+        reach = wp.float64(wp.inf)
+    inverse = wp.float64(1.0) / wp.float64(wp.max(style.index_every, 1))  # index_lines' reciprocal
+    n = style.levels.shape[0]
+    none = wp.vec2(0.0, 0.0)
+    # one texel per node (every texel centre on a node inside the grid, no nodata): the heights are the nodes'
+    y0 = sampling.start[1]
+    dy = sampling.step[1]
+    on_nodes = (nodata == 0 and wp.abs(dx) == 1.0 and wp.abs(dy) == 1.0 and x0 == wp.floor(x0)
+                and y0 == wp.floor(y0) and on_grid(x0, dx, sampling.cols, grid.cols)
+                and on_grid(y0, dy, sampling.rows, grid.rows))
+    step = wp.int32(dx)
+    j0, j1, fu = sample_axis(x0, dx, c0, grid.cols)
+    left = none
+    if c0 > 0:
+        l0, l1, fl = sample_axis(x0, dx, c0 - 1, grid.cols)
+        left = bilinear_height(heights, nodata, i0, i1, fv, l0, l1, fl)
+    centre = bilinear_height(heights, nodata, i0, i1, fv, j0, j1, fu)
+    c = c0
+    while c < c1:
+        right = none
+        n0 = j0
+        n1 = j1
+        fn = fu
+        if c + 1 < sampling.cols:
+            if on_nodes:  # bilinear_height's read of a node, without sample_axis
+                n0 = j0 + step
+                right = wp.vec2(load(heights, i0, n0), 1.0)
+            else:
+                n0, n1, fn = sample_axis(x0, dx, c + 1, grid.cols)
+                right = bilinear_height(heights, nodata, i0, i1, fv, n0, n1, fn)
+        best = wp.vec4(style.color[0], style.color[1], style.color[2], 0.0)
+        if centre[1] > 0.0:
+            h = centre[0]
+            up = none
+            down = none
+            if on_nodes:
+                if has_up:
+                    up = wp.vec2(load(heights, a0, j0), 1.0)
+                if has_down:
+                    down = wp.vec2(load(heights, b0, j0), 1.0)
+            else:
+                if has_up:
+                    up = bilinear_height(heights, nodata, a0, a1, fa, j0, j1, fu)
+                if has_down:
+                    down = bilinear_height(heights, nodata, b0, b1, fb, j0, j1, fu)
+            gx = texel_slope(left, h, right)
+            gy = texel_slope(up, h, down)
+            slope = wp.sqrt(gx * gx + gy * gy)
+            h64 = wp.float64(h)
+            if n == 0:
+                q = (h64 - style.base) / style.interval
+                k = wp.floor(q)
+                best = draw_level_pair(style, k, True, (q - k) * style.interval, True,
+                                       (k + wp.float64(1.0) - q) * style.interval, slope, reach, inverse, best)
+            else:
+                lo = wp.int32(0)  # the first level above h: binary search
+                hi = n
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if style.levels[mid] <= h64:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                below = wp.float64(0.0)  # line lo - 1 (none below the first level), then line lo (none above the last)
+                above = wp.float64(0.0)
+                if lo > 0:
+                    below = h64 - style.levels[lo - 1]
+                if lo < n:
+                    above = style.levels[lo] - h64
+                best = draw_level_pair(style, wp.float64(lo - 1), lo > 0, below, lo < n, above, slope, reach, inverse,
+                                       best)
+            best = wp.vec4(best[0], best[1], best[2], best[3] * wp.min(centre[1], 1.0))
+        store(rgba_out, r, c, best)
+        left = centre
+        centre = right
+        j0 = n0
+        j1 = n1
+        fu = fn
+        c += 1
+
+
+@wp.func
+def unit_to_uint8(x: wp.float32) -> wp.uint8:
+    """NumPy's ``np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)`` in float32 (halves to even)."""
+    return wp.uint8(wp.int32(wp.rint(wp.clamp(x, 0.0, 1.0) * 255.0)))
+
+
+@wp.kernel
+def lay_over_uint8(
+    thread_offset: wp.int32,
+    run: wp.int32,
+    layer: wp.array2d[wp.vec4],
+    # outputs
+    image: wp.array3d[wp.uint8],
+):
+    """Straight RGBA ``layer`` laid over the uint8 RGB or RGBA ``image`` (same rows and columns) in place, a thread a
+    run of ``run`` texels of the image in row-major order, in float32 with NumPy's operations in NumPy's order
+    (``stepterrain.texture._lay_over_uint8``): coverage c = the layer's alpha; over RGB the colour
+    ``b c + a (1 - c)``; over RGBA alpha ``c + alpha_a (1 - c)`` and colour ``(b c + a alpha_a (1 - c)) / alpha``
+    (``a`` where alpha is 0); rounded half to even."""
+    cols = layer.shape[1]
+    total = layer.shape[0] * cols
+    first = (wp.tid() + thread_offset) * run
+    last = wp.min(first + run, total)
+    n = first
+    while n < last:
+        r = n // cols
+        c = n - r * cols
+        top = layer[r, c]
+        cover = top[3]
+        rest = 1.0 - cover
+        if image.shape[2] == 3:
+            for ch in range(3):
+                under = wp.float32(image[r, c, ch]) / 255.0
+                image[r, c, ch] = unit_to_uint8(top[ch] * cover + under * rest)
         else:
-            lo = wp.int32(0)  # the first level above h: binary search
-            hi = n
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if style.levels[mid] <= h64:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            if lo > 0:
-                best = contour_line(style, wp.float64(lo - 1), h64 - style.levels[lo - 1], slope, best)
-            if lo < n:
-                best = contour_line(style, wp.float64(lo), style.levels[lo] - h64, slope, best)
-        best = wp.vec4(best[0], best[1], best[2], best[3] * wp.min(centre[1], 1.0))
-    rgba_out[r, c] = best
+            alpha_a = wp.float32(image[r, c, 3]) / 255.0
+            alpha = cover + alpha_a * rest
+            for ch in range(3):
+                under = wp.float32(image[r, c, ch]) / 255.0
+                value = under
+                if alpha > 0.0:
+                    value = (top[ch] * cover + under * alpha_a * rest) / alpha
+                image[r, c, ch] = unit_to_uint8(value)
+            image[r, c, 3] = unit_to_uint8(alpha)
+        n += 1

@@ -980,3 +980,68 @@ def test_adjust_applies_gamma_first_as_cesium_does(grey, params, expected):
     out = adjust(layer, device="cpu", **params).rgba()
     np.testing.assert_allclose(out[..., :3], expected, atol=1e-6)
     np.testing.assert_allclose(out[..., 3], 1.0)
+
+
+# ------------------------------------------------------------------------------------------ contour layer's memory
+def test_a_contour_layer_over_the_memory_budget_is_refused_before_it_is_allocated():
+    """contour_layer's float32 RGBA is 16 bytes a texel, and texel_size multiplies the texels (a 30 m DEM drawn at
+    0.1 m: 90 000 texels a node): the library function, not only ``stepterrain texture --contours``, refuses a layer
+    over the memory budget with an OutputTooLargeError naming the size and the way out, before allocating it."""
+    import tracemalloc
+
+    import stepterrain as st
+    from stepterrain.texture import contour_layer
+
+    ramp = np.add.outer(np.arange(20.0), np.arange(30.0)).astype(np.float32)
+    terrain = st.Terrain.from_heights(ramp, spacing=(30.0, -30.0))
+    with pytest.raises(st.OutputTooLargeError, match=r"the 9000000 x 6000000 float32 RGBA contour layer would need "
+                                                     r".* over the memory budget .*give a larger texel_size"):
+        contour_layer(terrain, interval=5.0, texel_size=1e-4, device="cpu")  # 5.4e13 texels: 786 TiB
+    previous = st.set_memory_budget(1 << 20)
+    try:
+        tracemalloc.start()
+        with pytest.raises(st.OutputTooLargeError, match=r"the 900 x 600 float32 RGBA contour layer .* 8\.2 MiB"):
+            contour_layer(terrain, interval=5.0, texel_size=1.0, device="cpu")  # 900 x 600 texels: 8.2 MiB
+        assert tracemalloc.get_traced_memory()[1] < 1 << 20  # refused before the 8.2 MiB were allocated
+        tracemalloc.stop()
+        layer = contour_layer(terrain, interval=5.0, texel_size=3.0, device="cpu")  # 300 x 200 texels: 938 KiB
+    finally:
+        tracemalloc.stop()
+        st.set_memory_budget(previous)
+    assert layer.shape == (200, 300) and layer.image.nbytes == 16 * 200 * 300
+    assert (layer.image[..., 3] > 0.5).any()
+
+
+@pytest.mark.parametrize("width, index_width, base, every", [
+    (1.0, 2.0, 0.0, 5),
+    (0.4, 3.0, 0.3, 3),
+    (3.0, 1.0, -2.0, 1),
+    (2e29, 2e29, 0.0, 2),  # wider than the far-line skip handles (level_distance caps at 1e30): never skipped
+    (1.0, 2.0, -2.0**54, 4),  # line numbers k past 2^51: the index test's divisions, not its reciprocal
+    (1.0, 2.0, 0.0, 2**31 - 1),
+])
+def test_contour_lines_on_a_ramp_follow_the_documented_coverage(width, index_width, base, every):
+    """draw_contours skips a line too far to cover a texel before dividing, and tests index lines with a reciprocal:
+    on a ramp (0.75 height units a texel) every texel's alpha is still the documented box coverage of the nearer
+    levels' lines, ``d = |h - level| / |grad h|`` texels away, the wider and darker index lines where k divides."""
+    from stepterrain.texture import contour_layer
+
+    rows, cols = 5, 90
+    heights = np.tile((0.75 * np.arange(cols)).astype(np.float32), (rows, 1))
+    layer = contour_layer(heights, interval=4.0, base=base, width=width, index_width=index_width,
+                          color=(0.2, 0.4, 0.6, 0.9), index_color=(0.1, 0.1, 0.1, 0.7), index_every=every,
+                          device="cpu")
+    h = heights[2, 1:-1].astype(np.float64)  # interior texels: the central difference is 0.75
+    q = (h - base) / 4.0
+    k = np.floor(q)
+    alpha = np.zeros_like(h)
+    for line, gap in ((k, (q - k) * 4.0), (k + 1.0, (k + 1.0 - q) * 4.0)):
+        index = (line - every * np.floor(line / every)) == 0
+        half = np.where(index, index_width / 2, width / 2).astype(np.float32)
+        d = np.minimum((gap / np.float64(np.float32(0.75))).astype(np.float32), np.float32(1e30))
+        cover = np.clip(np.minimum(d + half, np.float32(0.5)) - np.maximum(d - half, np.float32(-0.5)), 0, 1)
+        alpha = np.maximum(alpha, cover * np.where(index, np.float32(0.7), np.float32(0.9)))
+    np.testing.assert_allclose(layer.image[2, 1:-1, 3], alpha, atol=1e-6)
+    assert (layer.image[2, 1:-1, 3] > 0).any()
+    if width < 1e28 and abs(base) < 1e9:  # (past 2^52 in float64 every height rounds onto a level)
+        assert (layer.image[2, 1:-1, 3] == 0).any()  # texels far from any line: the skip ran
