@@ -247,6 +247,25 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     return float(f"{best:.6g}")
 
 
+def given_levels(levels: Any, base: Any, uniform: str, expected: str, item: str) -> NDArray[np.float64]:
+    """Explicit ``levels`` as float64, checked: 1-D, at least one, finite real numbers, and ``base`` left at 0 (levels
+    are absolute: an offset was a slip). ``uniform`` names what ``interval=`` gives instead, ``expected`` what a
+    sequence of levels is and ``item`` one of them, in the errors (:func:`isovalues`; the texture's contour levels)."""
+    if not (isinstance(base, numbers.Real) and not isinstance(base, (bool, np.bool_)) and base == 0.0):
+        raise InvalidInputError(f"base applies only to interval= ({uniform}), not to levels=; got base={base!r} with "
+                                "levels")
+    # real numbers only: text ("5"), bools and complex values are slips, a masked entry is NaN (refused below)
+    values = real_numbers(levels, "levels", expected)
+    if values.ndim > 1:
+        raise InvalidInputError(f"levels must be a 1-D sequence of {item}s; got shape {values.shape}")
+    values = values.reshape(-1)
+    if values.size == 0:
+        raise InvalidInputError(f"levels must hold at least one {item}; got an empty sequence")
+    if not np.all(np.isfinite(values)):
+        raise InvalidInputError(f"levels must be finite; got {values.tolist()[:10]}")
+    return values
+
+
 def isovalues(
     height_range: tuple[float, float],
     *,
@@ -285,18 +304,8 @@ def isovalues(
     if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
         raise InvalidInputError(f"height_range must be finite (min, max) with min <= max; got {height_range!r}")
     if levels is not None:
-        if not (isinstance(base, numbers.Real) and base == 0.0):  # levels are absolute: an offset was a slip
-            raise InvalidInputError(f"base applies only to interval= (uniform isovalues base + k * interval), not "
-                                    f"to levels=; got base={base!r} with levels")
-        # real numbers only: text ("5"), bools and complex values are slips, a masked entry is NaN (refused below)
-        values64 = real_numbers(levels, "levels", "a sequence of numbers")
-        if values64.ndim > 1:
-            raise InvalidInputError(f"levels must be a 1-D sequence of isovalues; got shape {values64.shape}")
-        values64 = values64.reshape(-1)
-        if values64.size == 0:
-            raise InvalidInputError("levels must hold at least one isovalue; got an empty sequence")
-        if not np.all(np.isfinite(values64)):
-            raise InvalidInputError(f"levels must be finite; got {values64.tolist()[:10]}")
+        values64 = given_levels(levels, base, "uniform isovalues base + k * interval", "a sequence of numbers",
+                                "isovalue")
         if np.abs(values64).max() > FLOAT32_MAX:
             raise InvalidInputError(f"levels must fit in float32 (|x| < 3.4e+38); got {values64.tolist()[:10]}")
         values = values64.astype(np.float32)

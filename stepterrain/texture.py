@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import inspect
 import math
-import numbers
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -34,7 +33,7 @@ from ._device import MIN_THREAD_ELEMENTS, host_copy, launch, recycled_empty, res
 from .errors import InvalidInputError, caller_stacklevel, counted
 from .kernels import texture as texture_kernels
 from .mesh import mesh_argument
-from .stepped import LENS_TEXEL_BYTES
+from .stepped import LENS_TEXEL_BYTES, given_levels
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -1102,17 +1101,8 @@ def _contour_levels(interval: Any, levels: Any, base: Any) -> tuple[NDArray[np.f
                                 f"levels={'None' if levels is None else '[...]'}")
     if levels is None:
         return np.zeros(0, np.float64), _finite(base, "base"), _finite(interval, "interval", positive=True)
-    if not (isinstance(base, numbers.Real) and not isinstance(base, (bool, np.bool_)) and base == 0.0):
-        raise InvalidInputError(f"base applies only to interval= (contour levels base + k * interval), not to "
-                                f"levels= (absolute heights); got base={base!r} with levels")
-    values = real_numbers(levels, "levels", "a sequence of contour heights")
-    if values.ndim > 1:
-        raise InvalidInputError(f"levels must be a 1-D sequence of contour heights; got shape {values.shape}")
-    values = values.reshape(-1)
-    if values.size == 0:
-        raise InvalidInputError("levels must hold at least one contour height; got an empty sequence")
-    if not np.isfinite(values).all():
-        raise InvalidInputError(f"levels must be finite; got {values.tolist()[:10]}")
+    values = given_levels(levels, base, "contour levels base + k * interval", "a sequence of contour heights",
+                          "contour height")
     bad = np.flatnonzero(values[1:] <= values[:-1])
     if bad.size:
         i = int(bad[0]) + 1
