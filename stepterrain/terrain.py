@@ -568,8 +568,10 @@ class Terrain:
                 raise InvalidInputError(f"heights of a Terrain of kind 'tin' are its points' z (None to take them); "
                                         f"got {_described(self.heights)} that differs from points[:, 2]")
         built = Terrain._build_tin(trimesh.Trimesh(points, faces, process=False), self.visual, self.source)
-        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used", "face_index"):  # rebuilt
+        for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):  # rebuilt
             set_field(self, name, getattr(built, name))
+        set_field(self, "face_index", None if built.face_index is None else
+                  _given_face_index(self.face_index, len(faces), self.visual)[built.face_index])
         set_field(self, "spacing", (1.0, 1.0))
         set_field(self, "origin", (0.0, 0.0))
 
@@ -1163,6 +1165,29 @@ def _folded_message(
         f"mesh.faces[mesh.face_normals[:, 2] {sign} 0]).any(axis=1)); or mesh the grid with stepterrain.adaptive_mesh "
         "(an RTIN within a vertical error bound, which never folds)"
     )
+
+
+def _given_face_index(given: Any, n_faces: int, visual: Any) -> NDArray[np.int64]:
+    """The row of a face-coloured ``visual`` each of the ``n_faces`` faces given to ``Terrain(kind='tin', ...)`` has:
+    ``given`` (a TIN's own face_index, as ``dataclasses.replace`` passes it: its faces are the kept ones, its visual
+    the mesh's, faces with nodata included), or one row per face where None. Checked: an index rebuilt from the
+    faces alone shifted the colours of every face after a dropped one, silently."""
+    n_colors = len(visual.face_colors)
+    if given is None:
+        if n_colors != n_faces:
+            raise InvalidInputError(
+                f"a Terrain of kind 'tin' with face colours needs one visual.face_colors row per face ({n_faces}), "
+                f"or face_index naming each face's row; got {counted(n_colors, 'row')} and no face_index"
+            )
+        return np.arange(n_faces, dtype=np.int64)
+    index = np.asarray(unmasked(given))
+    if (index.dtype.kind not in "iu" or index.shape != (n_faces,)
+            or (n_faces and (index.min() < 0 or index.max() >= n_colors))):
+        raise InvalidInputError(
+            f"face_index must hold, per face, its row of visual.face_colors: shape ({n_faces},), integers from 0 to "
+            f"{n_colors - 1}; got {_described(given)}"
+        )
+    return index.astype(np.int64)
 
 
 def _face_coloured(visual: Any) -> bool:

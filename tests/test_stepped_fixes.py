@@ -822,3 +822,32 @@ def test_solid_of_the_embedded_dem_on_thresholds_is_watertight():
     values = np.asarray(mesh.metadata["isovalues"], np.float32)
     _solid_checks(mesh, surface, mesh.metadata["floor"], values)
     assert mesh.vertices[:, 2].max() == surface.vertices[:, 2].max()
+
+
+def _nodata_face_coloured_tin() -> tuple[trimesh.Trimesh, st.Terrain]:
+    """A face-coloured TIN whose first face touches a NaN height (dropped): its kept faces are rows 1 and 2."""
+    points = np.array([[0, 0, 0], [1, 0, 1], [0, 1, 2], [1, 1, np.nan], [2, 0, 1.5], [2, 1, 2.5]], float)
+    faces = np.array([[1, 3, 2], [0, 1, 2], [1, 4, 5]])
+    colours = np.array([[255, 0, 0, 255], [0, 255, 0, 255], [0, 0, 255, 255]], np.uint8)
+    mesh = trimesh.Trimesh(points, faces, face_colors=colours, process=False)
+    return mesh, st.Terrain.from_mesh(mesh)
+
+
+def test_replaced_tin_keeps_its_face_colours_rows():
+    """dataclasses.replace of a face-coloured TIN with nodata faces dropped rebuilt face_index from the kept faces
+    (0, 1) while visual.face_colors kept a row per face of the mesh given: every step took the colour of the face
+    before it, silently. The given face_index is composed; without one, a visual whose rows are not one per face is
+    refused."""
+    import dataclasses
+
+    _, tin = _nodata_face_coloured_tin()
+    np.testing.assert_array_equal(tin.face_index, [1, 2])
+    replaced = dataclasses.replace(tin, source="survey")
+    np.testing.assert_array_equal(replaced.face_index, [1, 2])
+    want = np.asarray(st.stepped(tin, interval=0.5).visual.face_colors)
+    np.testing.assert_array_equal(np.asarray(st.stepped(replaced, interval=0.5).visual.face_colors), want)
+    assert not (want[:, :3] == [255, 0, 0]).all(axis=1).any()  # the dropped face's red is on no step
+    with pytest.raises(st.InvalidInputError, match=r"one visual.face_colors row per face \(2\).*got 3 rows"):
+        st.Terrain(kind="tin", heights=None, points=tin.points, faces=tin.faces, visual=tin.visual)
+    with pytest.raises(st.InvalidInputError, match="face_index must hold"):
+        dataclasses.replace(tin, face_index=np.array([1, 3]))
