@@ -78,6 +78,8 @@ _SOURCE_BYTES = 8 + 4
 _FACE_BYTES = 24 + 4 + 1
 #: Per vertex with colors=: its RGBA and the level index _assemble looks it up by (int64).
 _COLOR_BYTES = 4 + 8
+#: Per output face of a face-coloured TIN: the terrain face it was cut from (int64) and its RGBA (_carry_visual).
+_FACE_SOURCE_BYTES = 8 + 4
 
 
 def _let_trimesh_write_bool_ply() -> None:
@@ -630,18 +632,20 @@ def step_arrays(
             device=device,
         )
         face_offsets, face_count = exclusive_offsets(face_counts, "stepped.faces")
-    face_sources = None
-    if want_face_sources and not grid:
-        face_sources = np.repeat(np.arange(n_cells, dtype=np.int64), np.diff(host_copy(face_offsets)[:n_cells + 1]))
+    want_face_sources = want_face_sources and not grid
     # per triangle and band a polygon of at most 5 vertices (3 terraces), 2 wall faces per threshold
     _check_int32_total(face_counts, (2 if grid else 1) * n_cells * 5 * len(values), "faces")
 
     vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0) + int(extra_vertex_bytes)
+    face_bytes = _FACE_BYTES + (_FACE_SOURCE_BYTES if want_face_sources else 0)
     check_budget(
-        vertex_count * vertex_bytes + face_count * _FACE_BYTES,
+        vertex_count * vertex_bytes + face_count * face_bytes,
         f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
         memory_budget,
     )
+    face_sources = None
+    if want_face_sources:
+        face_sources = np.repeat(np.arange(n_cells, dtype=np.int64), np.diff(host_copy(face_offsets)[:n_cells + 1]))
 
     direct = stepped_kernels.DirectBlend()
     direct.points, direct.steps = 1, 1

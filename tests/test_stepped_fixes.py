@@ -851,3 +851,17 @@ def test_replaced_tin_keeps_its_face_colours_rows():
         st.Terrain(kind="tin", heights=None, points=tin.points, faces=tin.faces, visual=tin.visual)
     with pytest.raises(st.InvalidInputError, match="face_index must hold"):
         dataclasses.replace(tin, face_index=np.array([1, 3]))
+
+
+def test_face_coloured_tin_counts_its_face_sources_against_the_budget():
+    """A face-coloured TIN's per-face sources (int64) and carried RGBA were allocated before the budget check and
+    not counted: a budget covering only the vertices and faces let them through. Now 12 bytes per face more."""
+    _, tin = _nodata_face_coloured_tin()
+    mesh = st.stepped(tin, interval=0.5)
+    vertex_bytes, face_bytes = stepped_module._VERTEX_BYTES, stepped_module._FACE_BYTES
+    bare = len(mesh.vertices) * vertex_bytes + len(mesh.faces) * face_bytes
+    with pytest.raises(st.OutputTooLargeError, match="memory_budget"):
+        st.stepped(tin, interval=0.5, memory_budget=bare)
+    budget = bare + len(mesh.faces) * stepped_module._FACE_SOURCE_BYTES
+    again = st.stepped(tin, interval=0.5, memory_budget=budget)
+    np.testing.assert_array_equal(np.asarray(again.visual.face_colors), np.asarray(mesh.visual.face_colors))
