@@ -925,8 +925,17 @@ def _level_colors(colors: Any, n_levels: int) -> NDArray[np.uint8]:
 
 def _check_carried_visual(terrain: Terrain) -> None:
     """Refuse, before the passes, texture coordinates :func:`_carry_visual` cannot interpolate: not one (u, v) row
-    per TIN vertex (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the kernels ran)."""
+    per TIN vertex (trimesh keeps a short ``visual.uv``; indexing it raised an IndexError after the kernels ran);
+    and face colours with no row for some face (a ``ColorVisuals(face_colors=...)`` built apart from the mesh keeps
+    the rows given)."""
     visual = terrain.visual
+    if terrain.face_index is not None and len(terrain.face_index):
+        n_colors, needed = len(visual.face_colors), int(terrain.face_index.max()) + 1
+        if n_colors < needed:
+            raise InvalidInputError(
+                f"terrain mesh visual.face_colors must hold one RGBA row per face (at least {needed}) to be carried "
+                f"onto the steps; got {counted(n_colors, 'row')} (give colors= to colour the steps instead)"
+            )
     if isinstance(visual, trimesh.visual.TextureVisuals) and visual.uv is not None:
         uv = np.asarray(visual.uv)
         if uv.ndim != 2 or len(uv) != len(terrain.points):
@@ -1400,6 +1409,8 @@ def stepped_series(
             values if height_range is None else isovalues(height_range, interval=interval, levels=levels, base=base)
         )
         try:
+            if t.visual is not None and colors is None:
+                _check_carried_visual(t)
             arrays, vertices = _stepped_arrays(t, frame_values, gamma, colors, dev)
             mesh = _assemble(
                 t, arrays, vertices, frame_values, gamma=gamma, colors=colors, solid=False, floor=None,

@@ -865,3 +865,19 @@ def test_face_coloured_tin_counts_its_face_sources_against_the_budget():
     budget = bare + len(mesh.faces) * stepped_module._FACE_SOURCE_BYTES
     again = st.stepped(tin, interval=0.5, memory_budget=budget)
     np.testing.assert_array_equal(np.asarray(again.visual.face_colors), np.asarray(mesh.visual.face_colors))
+
+
+def test_short_detached_face_colours_are_refused_before_stepping():
+    """A TIN whose visual is a ColorVisuals(face_colors=...) built apart from the mesh keeps the rows given: with
+    fewer rows than faces, stepped() raised numpy's IndexError after the kernels ran (and stepped_series too). Now
+    an InvalidInputError naming visual.face_colors, before the passes; colors= still steps it."""
+    points = np.array([[0, 0, 0], [1, 0, 1], [0, 1, 2], [1, 1, 3.0]])
+    visual = trimesh.visual.ColorVisuals(face_colors=np.array([[255, 0, 0, 255]], np.uint8))
+    mesh = trimesh.Trimesh(points, [[0, 1, 2], [1, 3, 2]], visual=visual, process=False)
+    assert len(mesh.visual.face_colors) == 1
+    message = r"visual.face_colors must hold one RGBA row per face \(at least 2\).*got 1 row"
+    with pytest.raises(st.InvalidInputError, match=message):
+        st.stepped(mesh, interval=0.5)
+    with pytest.raises(st.InvalidInputError, match=message):
+        list(st.stepped_series([mesh], interval=0.5))
+    assert len(st.stepped(mesh, interval=0.5, colors="terrain").faces) > 0
