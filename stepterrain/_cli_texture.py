@@ -253,8 +253,8 @@ def _check_unshaded(args: argparse.Namespace) -> None:
                                 f"--normals use the relief; got --z-factor {args.z_factor:g}")
     if (args.colormap.lower() == "none" and args.image is None and not args.shadows
             and not args.occlusion > 0 and args.contours is None):
-        raise InvalidInputError("--hillshade none with --colormap none and no --image, --shadows or --occlusion "
-                                "leaves nothing to draw (a plain white texture) but --contours; give one of them")
+        raise InvalidInputError("--hillshade none with --colormap none and no --image, --shadows, --occlusion or "
+                                "--contours leaves nothing to draw (a plain white texture); give one of them")
 
 
 def _check_image(path: str | None, extent: tuple[float, ...] | None) -> tuple[int, int] | None:
@@ -397,8 +397,9 @@ def _contour_options(args: argparse.Namespace) -> dict[str, Any] | None:
             raise InvalidInputError(f"{str(exc).split('; got')[0]}; got {shown}") from None
         options["color"] = args.contour_color
     if args.contour_index is not None:
-        if args.contour_index < 0:
-            raise InvalidInputError(f"--contour-index must be 0 (no index lines) or more; got {args.contour_index}")
+        if not 0 <= args.contour_index <= np.iinfo(np.int32).max:  # contour_layer's bound, by the option's name
+            raise InvalidInputError(f"--contour-index must be 0 (no index lines) or more, below 2**31; got "
+                                    f"{args.contour_index}")
         options["index_every"] = args.contour_index
     return options
 
@@ -527,8 +528,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     image, over_white = tx._composed_pair(topo, hypsometric, picture, extent, shape,
                                           None if holes is not None else white, over, device)
     if contour_options is not None:  # the contour lines last, unshaded, over both textures (as blend lays them)
+        # on the composite's grid (both from texture._texel_grid, or the DEM's nodes; _lay_over_uint8 checks the shape)
         lines = tx.contour_layer(terrain, texel_size=args.texel_size, device=device, **contour_options)
-        assert lines.frame == (extent, shape), (lines.frame, extent, shape)
         for picture_out in (image, over_white):
             if picture_out is not None:
                 tx._lay_over_uint8(picture_out, lines)

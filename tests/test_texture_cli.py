@@ -595,8 +595,8 @@ def test_cli_texture_hillshade_none_drapes_an_image_unshaded_and_shadows_still_d
     (["--altitude", "30"], "--altitude has no effect with --hillshade none"),
     (["--z-factor", "2"], "--z-factor has no effect with --hillshade none unless --shadows, --occlusion or --normals "
                           "use the relief; got --z-factor 2"),
-    (["--colormap", "none"], "--hillshade none with --colormap none and no --image, --shadows or --occlusion leaves "
-                             "nothing to draw"),
+    (["--colormap", "none"], "--hillshade none with --colormap none and no --image, --shadows, --occlusion or "
+                             "--contours leaves nothing to draw"),
     (["--shadows", "--occlusion", "nan"], "--occlusion must be finite; got nan"),
     (["--shadows", "--shadow-strength", "1.5"], "--shadow-strength must lie in [0, 1]"),
 ])

@@ -325,6 +325,8 @@ def test_cli_contours_help_and_refusals(tmp_path, ramp_dem, capsys):
         (["--contours", "5", "--contour-color", "2,0,0"], "--contour-color must be an RGB"),
         (["--contours", "5", "--contour-color", "1,0"], "--contour-color must be an RGB"),
         (["--contours", "5", "--contour-index", "-1"], "--contour-index must be 0"),
+        (["--contours", "5", "--contour-index", str(2**31)], "--contour-index must be 0 (no index lines) or more, "
+                                                              "below 2**31; got 2147483648"),
     ]:
         assert main(["texture", str(path), "-o", out, "--device", "cpu", *argv]) == 2, argv
         err = capsys.readouterr().err
