@@ -65,6 +65,7 @@ from .terrain import (
     unmasked,
     unshared,
     used_height_range,
+    used_nodes,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -1190,6 +1191,12 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
         return t
     heights = t.heights
     on = np.flatnonzero(np.isin(heights.reshape(-1), thresholds))
+    # only the heights the surface uses: a TIN's unused points and a grid's nodes isolated by nodata are in no mesh
+    # (they warned that the solid may leak where it has no vertex)
+    if t.kind == "tin":
+        on = on[t.point_used[on] != 0]
+    elif t.has_nodata:
+        on = on[used_nodes(np.isfinite(heights)).reshape(-1)[on]]
     up = np.nextafter(heights.reshape(-1)[on], np.float32(np.inf))
     stays = np.isin(up, thresholds)
     if stays.any():

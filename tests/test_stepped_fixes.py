@@ -881,3 +881,24 @@ def test_short_detached_face_colours_are_refused_before_stepping():
     with pytest.raises(st.InvalidInputError, match=message):
         list(st.stepped_series([mesh], interval=0.5))
     assert len(st.stepped(mesh, interval=0.5, colors="terrain").faces) > 0
+
+
+def test_solid_does_not_warn_for_heights_no_triangle_uses():
+    """solid=True nudged, and warned for, every height on a threshold whose next float32 value is another
+    threshold, a TIN's unused point and a grid node isolated by nodata included: a warning that the solid may leak
+    where it has no vertex. Only the heights the surface uses are considered now; the solids are unchanged."""
+    levels = np.array([1.0, 1.9999991655349731, 1.9999992847442627, 1.9999995231628418, 3.0], np.float32)
+    low, stuck = (float(x) for x in thresholds_of(levels)[:2])
+    assert np.nextafter(np.float32(stuck), np.float32(np.inf)) in thresholds_of(levels)  # it would warn if used
+    points = np.array([[0, 0, 1], [1, 0, low], [0, 1, 2.5], [1, 1, 3.0]])
+    faces = [[0, 1, 2], [1, 3, 2]]
+    stray = trimesh.Trimesh(np.vstack([points, [5, 5, stuck]]), faces, process=False)
+    grid = np.array([[1, low, np.nan, stuck], [2.5, 3.0, np.nan, np.nan]], np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tin_solid = st.stepped(stray, levels=levels, solid=True)
+        grid_solid = st.stepped(grid, levels=levels, solid=True)
+    bare = st.stepped(trimesh.Trimesh(points, faces, process=False), levels=levels, solid=True)
+    np.testing.assert_array_equal(tin_solid.faces, bare.faces)
+    np.testing.assert_array_equal(tin_solid.vertices, bare.vertices)
+    assert tin_solid.is_watertight and grid_solid.is_watertight
