@@ -173,18 +173,6 @@ _GPU_TEXTURE_LIMIT = 16384
 #: its grid) and its copies for the file, the drape and the render (Pillow keeps RGB as 4 bytes a pixel); measured
 #: 30 (-o) and 42 (with --mesh) on Big Tujunga at 7 m, 14 M texels.
 _COMPOSE_BYTES_PER_TEXEL = 48
-#: Bytes per texel --contours adds: the contour layer's float32 RGBA, alive while it is laid over the texture.
-_CONTOUR_BYTES_PER_TEXEL = 16
-
-
-def _texel_grid(terrain: Any, texel: float) -> tuple[tuple[float, float, float, float], tuple[int, int]]:
-    """``--texel-size``'s pixel grid: the DEM's texture extent (its node extent plus half a cell, the extent of a
-    texture on its nodes) cut into whole texels no larger than ``texel`` (a size within a part in 10^9 of dividing
-    it exactly divides it: 10 over a 30 m grid is three texels a cell), as (extent, (rows, cols))."""
-    from .texture import _texel_grid as texel_grid  # the grid contour_layer(texel_size=) draws on too
-
-    return texel_grid(terrain, texel)
-
 
 def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
                       contours: bool = False) -> tuple[Any, tuple[int, int]]:
@@ -193,12 +181,13 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
     (``textured_gpu`` names it), a GPU's texture size."""
     from ._compaction import check_budget
     from .io import _lonlat_grid
+    from .texture import _CONTOUR_TEXEL_BYTES, _coarser_than_nodes, _texel_grid  # the grid contour_layer draws on
 
     sx, sy = abs(float(terrain.spacing[0])), abs(float(terrain.spacing[1]))
     # square texels no coarser than the nodes either way: a geographic DEM's x and y spacings differ, and a texel of
     # the larger made the texture coarser than the DEM along the other
-    spacing = min(sx, sy)
-    if texel > spacing * (1.0 + 1e-9):
+    spacing = _coarser_than_nodes(terrain, texel)
+    if spacing is not None:
         shown = f"{spacing:g}" if sx == sy else f"{spacing:g}, the smaller of its {sx:g} x {sy:g}"
         raise InvalidInputError(f"--texel-size must be no larger than the DEM's node spacing ({shown}; the default is "
                                 f"one texel per node): it makes the texture finer; got --texel-size {texel:g}")
@@ -207,7 +196,7 @@ def _check_texel_size(terrain: Any, texel: float, textured_gpu: str | None,
         larger = (f"give a larger --texel-size, in metres: a DEM in degrees is read as local metres (its node spacing "
                   f"{sx:g} x {sy:g} m), not in degrees (or --crop the DEM)")
     extent, (rows, cols) = _texel_grid(terrain, texel)
-    check_budget((_COMPOSE_BYTES_PER_TEXEL + (_CONTOUR_BYTES_PER_TEXEL if contours else 0)) * rows * cols,
+    check_budget((_COMPOSE_BYTES_PER_TEXEL + (_CONTOUR_TEXEL_BYTES if contours else 0)) * rows * cols,
                  f"the {cols} x {rows} texel texture of --texel-size {texel:g} (while it is composed and "
                  "written)", hint=larger)
     if textured_gpu is not None and max(rows, cols) > _GPU_TEXTURE_LIMIT:

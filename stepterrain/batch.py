@@ -78,11 +78,11 @@ from .terrain import (
     finite_or_nan,
     finite_triangles,
     float32_heights,
+    grid_surface_counts,
     lowest_used_height,
     number_or_nan,
     unmasked,
     used_height_range,
-    used_nodes,
 )
 
 __all__ = [
@@ -2210,16 +2210,10 @@ _OVERVIEW_HINT = "give coarsen= or a crop= (fewer nodes per item), or render no 
 _MOSAIC_ITEMS, _SHEET_ITEMS = 64, 16
 
 
-def _surface_counts(heights: NDArray[np.float32]) -> tuple[int, int]:
-    """(vertices, faces) of the surface of an (H, W) block of heights, the fewest its stepped mesh has: a vertex per
-    node a triangle with three finite heights uses, a terrace face per such triangle (as the steps command counts)."""
-    rows, cols = heights.shape
-    finite = np.isfinite(heights)
-    if finite.all():
-        return rows * cols, 2 * (rows - 1) * (cols - 1)
-    upper, lower = finite_triangles(finite)
-    used = used_nodes(finite, (upper, lower))
-    return int(np.count_nonzero(used)), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
+def _sheet_grid(n_items: int) -> tuple[int, int]:
+    """(rows, cols) of :func:`overview_image`'s contact sheet of ``n_items`` cells (and :func:`_check_overview`'s)."""
+    cols = math.ceil(math.sqrt(n_items))
+    return math.ceil(n_items / cols), cols
 
 
 def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_size: Any) -> None:
@@ -2238,14 +2232,13 @@ def _check_overview(items: Sequence[BatchItem], src: _Source | None, overview_si
         return
     name = "overview_size"
     if items[0].kind == "tile":
-        counts = [_surface_counts(src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]])
+        counts = [grid_surface_counts(src.heights[i.rows[0] : i.rows[1], i.cols[0] : i.cols[1]])
                   for i in items[:_MOSAIC_ITEMS]]
         mesh = (sum(v for v, _ in counts), sum(f for _, f in counts))
     else:  # each frame is rendered on its own, in a cell of the window (overview_image's grid; 8 pixels at least)
         shown = items[:_SHEET_ITEMS]
-        mesh = max((_surface_counts(src.heights[i.index]) for i in shown), key=lambda vf: (vf[1], vf[0]))
-        cols = math.ceil(math.sqrt(len(shown)))
-        rows = math.ceil(len(shown) / cols)
+        mesh = max((grid_surface_counts(src.heights[i.index]) for i in shown), key=lambda vf: (vf[1], vf[0]))
+        rows, cols = _sheet_grid(len(shown))
         width, height = max(-(-width // cols), 8), max(-(-height // rows), 8)
         name = "contact-sheet cell"
     render._check_render_budget(width, height, name, mesh=mesh, mesh_hint=_OVERVIEW_HINT, at_least=True)
@@ -2256,7 +2249,7 @@ def overview_image(
     *,
     window_size: tuple[int, int] = (1280, 800),
     mosaic: bool | None = None,
-    max_items: int = 64,
+    max_items: int = _MOSAIC_ITEMS,
     z_scale: float = 2.0,
 ) -> NDArray[np.uint8]:
     """An off-screen picture of a batch's outputs: the welded mosaic of tiles, or a contact sheet of items.
@@ -2291,7 +2284,7 @@ def overview_image(
         warnings.warn(f"the overview's mosaic shows the first {len(paths)} of the {len(written)} outputs: the rest of "
                       "the raster is left out of the picture; give a larger max_items= or tile_size (fewer tiles)",
                       stacklevel=2)
-    meshes = [read_mesh(p) for p in (paths if mosaic else paths[:16])]  # a 3MF's colours too
+    meshes = [read_mesh(p) for p in (paths if mosaic else paths[:_SHEET_ITEMS])]  # a 3MF's colours too
     if not any(len(mesh.faces) for mesh in meshes):  # render_mesh's "mesh has no faces", after the whole run
         raise InvalidInputError(f"every output the overview shows ({len(meshes)} of {len(written)}) is an empty mesh "
                                 "(no triangle with three finite heights: nodata only); nothing to render")
@@ -2306,9 +2299,7 @@ def overview_image(
             mesh.visual = trimesh.visual.ColorVisuals(mesh, vertex_colors=rgba)
             parts.append(mesh)
         return render.render_mesh(trimesh.util.concatenate(parts), window_size=(width, height), z_scale=z_scale)
-    n = len(meshes)
-    cols = math.ceil(math.sqrt(n))
-    rows = math.ceil(n / cols)
+    rows, cols = _sheet_grid(len(meshes))
     # the cells share the window's pixels exactly: width // cols per cell made the sheet narrower or shorter than
     # window_size (1280 x 798 for 1280 x 800 and 10 items), and a 16-pixel floor per cell wider or taller (64 x 48
     # for 40 x 40); a cell below the 8 pixels a render takes is rendered at 8 and scaled down to it

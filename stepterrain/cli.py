@@ -831,17 +831,11 @@ _STEPS_RENDER_HINT = "give a larger --interval, --coarsen N or a --crop, or leav
 def _surface_size(terrain: Any) -> tuple[int, int]:
     """(vertices, faces) of ``terrain``'s own surface, the fewest its stepped mesh has: a vertex per node a triangle
     with three finite heights uses, at least a terrace face per such triangle (walls and twins add more)."""
-    from .terrain import finite_triangles, used_nodes
+    from .terrain import grid_surface_counts
 
     if terrain.kind == "tin":
         return int(np.count_nonzero(terrain.point_used)), len(terrain.faces)  # the faces with three finite heights
-    rows, cols = terrain.shape
-    if not terrain.has_nodata:
-        return rows * cols, 2 * (rows - 1) * (cols - 1)
-    finite = np.isfinite(terrain.heights)
-    upper, lower = finite_triangles(finite)
-    used = used_nodes(finite, (upper, lower))  # the nodes of those triangles, which are not asked again
-    return int(np.count_nonzero(used)), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
+    return grid_surface_counts(terrain.heights, terrain.has_nodata)
 
 
 def _size(path: Path | str) -> str:

@@ -161,6 +161,24 @@ def used_nodes(finite: NDArray[np.bool_],
     return used
 
 
+def grid_surface_counts(heights: NDArray[np.float32], has_nodata: bool | None = None) -> tuple[int, int]:
+    """(vertices, faces) of the surface of an (H, W) grid of heights, the fewest its stepped mesh has: a vertex per
+    node a triangle with three finite heights uses, a terrace face per such triangle (walls and twins add more).
+    ``has_nodata``: whether some height is NaN, where the caller knows (:attr:`Terrain.has_nodata`)."""
+    rows, cols = heights.shape
+    finite = None
+    if has_nodata is None:
+        finite = np.isfinite(heights)
+        has_nodata = not finite.all()
+    if not has_nodata:
+        return rows * cols, 2 * (rows - 1) * (cols - 1)
+    if finite is None:
+        finite = np.isfinite(heights)
+    upper, lower = finite_triangles(finite)
+    used = used_nodes(finite, (upper, lower))  # the nodes of those triangles, which are not asked again
+    return int(np.count_nonzero(used)), int(np.count_nonzero(upper)) + int(np.count_nonzero(lower))
+
+
 def is_real_dtype(dtype: np.dtype) -> bool:
     """True for a dtype of real numbers: signed or unsigned integers and floats, not bools. ``np.issubdtype(dtype,
     np.integer)`` also holds for ``timedelta64`` (numpy makes it a subtype of signedinteger): durations were taken

@@ -1063,6 +1063,17 @@ CONTOUR_COLOR = (0.55, 0.32, 0.14)
 CONTOUR_RUN = 64
 
 
+#: Bytes per texel of :func:`contour_layer`'s float32 RGBA (``stepterrain texture --contours`` counts it too).
+_CONTOUR_TEXEL_BYTES = 16
+
+
+def _coarser_than_nodes(t: Terrain, texel_size: float) -> float | None:
+    """The smaller node spacing of the grid terrain ``t`` where ``texel_size`` exceeds it (beyond a part in 10^9: a
+    texel size makes a texture finer, never coarser, either way), else None."""
+    node = min(abs(float(t.spacing[0])), abs(float(t.spacing[1])))
+    return node if texel_size > node * (1.0 + 1e-9) else None
+
+
 def _texel_grid(t: Terrain, texel_size: float) -> tuple[Extent, tuple[int, int]]:
     """The pixel grid of a texture of ``texel_size`` texels over a grid terrain: its texture extent (the node extent
     plus half a cell, :func:`terrain_extent`) cut into whole texels no larger than ``texel_size`` (a size within a
@@ -1220,13 +1231,13 @@ def contour_layer(
         extent, shape = terrain_extent(t), t.heights.shape
     else:
         texel_size = _finite(texel_size, "texel_size", positive=True)
-        node = min(abs(t.spacing[0]), abs(t.spacing[1]))
-        if texel_size > node * (1.0 + 1e-9):
+        node = _coarser_than_nodes(t, texel_size)
+        if node is not None:
             raise InvalidInputError(f"texel_size must be no larger than the terrain's node spacing ({node:g}; None "
                                     f"is one texel per node): it makes the texture finer; got {texel_size:g}")
         extent, shape = _texel_grid(t, texel_size)
     rows, cols = (int(n) for n in shape)
-    check_budget(16 * rows * cols, f"the {cols} x {rows} float32 RGBA contour layer",
+    check_budget(_CONTOUR_TEXEL_BYTES * rows * cols, f"the {cols} x {rows} float32 RGBA contour layer",
                  hint="give a larger texel_size (or crop the terrain)")
     dev = resolve_device(device)
     style = texture_kernels.ContourStyle()
