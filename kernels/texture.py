@@ -1582,10 +1582,11 @@ def lay_over_uint8(
     image: wp.array3d[wp.uint8],
 ):
     """Straight RGBA ``layer`` laid over the uint8 RGB or RGBA ``image`` (same rows and columns) in place, a thread a
-    run of ``run`` texels of the image in row-major order, in float32 with NumPy's operations in NumPy's order
-    (``stepterrain.texture._lay_over_uint8``): coverage c = the layer's alpha; over RGB the colour
-    ``b c + a (1 - c)``; over RGBA alpha ``c + alpha_a (1 - c)`` and colour ``(b c + a alpha_a (1 - c)) / alpha``
-    (``a`` where alpha is 0); rounded half to even."""
+    run of ``run`` texels of the image in row-major order, in float32, each formula evaluated in the order written
+    here (as NumPy evaluated it: ``stepterrain.texture.blend`` laying ``b`` over ``a``, ``to_uint8`` rounding):
+    coverage c = the layer's alpha; over RGB the colour ``b * c + a * (1 - c)``; over RGBA alpha
+    ``c + alpha_a * (1 - c)`` and colour ``(b * c + a * alpha_a * (1 - c)) / alpha`` (``a`` where alpha is 0);
+    rounded half to even."""
     cols = layer.shape[1]
     total = layer.shape[0] * cols
     first = (wp.tid() + thread_offset) * run

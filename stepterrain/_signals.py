@@ -1,5 +1,6 @@
-"""Ctrl-C (SIGINT) and SIGTERM held back while third-party code runs that an exception in its middle leaves half
-made: a dask cluster starting (batch), VTK's extension modules loading (render)."""
+"""Ctrl-C (SIGINT), SIGTERM and SIGHUP held back while third-party code runs that an exception in its middle leaves
+half made: the package's own imports in ``__init__.py`` (trimesh swallows any exception of its optional imports,
+KeyboardInterrupt too), a dask cluster starting (batch), VTK's extension modules loading (render)."""
 
 from __future__ import annotations
 

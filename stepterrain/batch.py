@@ -1694,7 +1694,7 @@ def batch(
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
-    if overview_size is not None:  # refused after every item was stepped and written, minutes of work
+    if overview_size is not None:  # before any item runs (once refused only after every item was written)
         _check_overview(items, src, overview_size)
     _check_scheduler(scheduler)
     folder, made = _check_output_dir(output_dir)

@@ -964,8 +964,9 @@ _OPTION_ALIASES = {
     "closeup": {"close-up scale": "--scale", "close-up offset": "--offset", "close-up rotation": "--rotation",
                 "close-up color": "--color", "close-up stepped interval": "--stepped", "interval": "--stepped",
                 "window_size": "--size"},
-    # "tile_size applies to one raster" reached it as it was; overview_size is batch's window_size of its --png;
-    # "output_dir '/dev/stdout' exists and is not a folder"
+    # tile_size: "tile_size applies to one raster" reached the user as it was; window_size: overview_image's, of the
+    # --png; overview_size: batch's name for that window_size; output_dir: "output_dir '/dev/stdout' exists and is
+    # not a folder"
     "batch": {"tile_size": "--tile", "window_size": "--size", "overview_size": "--size", "output_dir": "--output"},
     "globe": {"window_size": "--size"},
     "texture": {"window_size": "--size"},
@@ -984,10 +985,6 @@ _OPTION_PHRASES = {
     # a rotated, south-up or east-to-west GeoTIFF --image (texture_lod's refusal names image_layer's argument)
     "texture": {"pass extent=(xmin, xmax, ymin, ymax)": "give --image-extent xmin,xmax,ymin,ymax"},
 }
-
-#: The library's own pointer to the option after an argument now spelled as that option ("--crop ..., on the command
-#: line --crop ...") would say it twice.
-_SAID_TWICE = re.compile(r"(--[a-z][a-z0-9-]* [^\s,;()]+), on the command line \1")
 
 #: closeup's ``closeups[k]: ROI box ...``: the k-th ROI (counted from 1), given by --roi or --roi-relative.
 _CLOSEUP_INDEX = re.compile(r"^closeups\[(\d+)\]: (?=ROI box)")
@@ -1049,7 +1046,7 @@ def _as_option(message: str, sub: argparse.ArgumentParser | None) -> str:
         text = text.replace(phrase, spelled)
     if text.startswith("--device must be one of "):  # the library's device=None is the option left out here
         text = text.replace(" (or None); got", ", or left out for Warp's default; got", 1)
-    return _SAID_TWICE.sub(r"\1", text)
+    return text
 
 
 def _leading_as_option(message: str, sub: argparse.ArgumentParser, command: str) -> str:
