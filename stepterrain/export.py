@@ -2422,8 +2422,9 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
-    header += [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
-               if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
+    flags = [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
+             if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
+    header += flags or [_PLY_BOOL.rstrip()]  # the bare marker: no bools, a file of before the lines is legacy
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")
@@ -2478,10 +2479,11 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
     """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
     lines, :func:`_ply_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
     edited by hand, the mesh is still read), and the columns it wrote from bools, by element (its
-    ``comment stepterrain-bool`` lines). A file stepterrain wrote before it named them (``comment written by
-    stepterrain`` and no such line) is marked ``"stepped"``: its face ``wall`` beside a ``level`` is
+    ``comment stepterrain-bool`` lines; a bare ``comment stepterrain-bool`` where there are none). A file
+    stepterrain wrote before it named them (``comment written by stepterrain`` and no such line) is marked
+    ``"stepped"``: its face ``wall`` beside a ``level`` is
     :func:`~stepterrain.stepped`'s flag."""
-    pieces, booleans, ours = [], {"vertex": set(), "face": set()}, False
+    pieces, booleans, ours, marked = [], {"vertex": set(), "face": set()}, False, False
     start, flag = _PLY_METADATA.encode("ascii"), _PLY_BOOL.encode("ascii")
     with open(file, "rb") as stream:
         if stream.readline(16).strip() != b"ply":
@@ -2495,9 +2497,12 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
             elif line.startswith(flag):
                 element, _, name = line[len(flag) :].decode("ascii", "replace").strip().partition(" ")
                 booleans.setdefault(element, set()).add(name)
+                marked = True
+            elif line.strip() == flag.strip():  # the bare marker: a file naming its bools, none of them
+                marked = True
             elif line.strip() == b"comment written by stepterrain":
                 ours = True
-    if ours and not any(booleans.values()):
+    if ours and not marked:
         booleans["stepped"] = set()  # an older file of ours: a 0/1 face wall beside a level is stepped's flag
     value: Any = {}
     if pieces:

@@ -1824,6 +1824,25 @@ def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
     assert back.face_attributes["wall"].dtype == back.face_attributes["mark"].dtype == np.uint8
 
 
+def test_a_ply_written_today_without_bools_keeps_a_uint8_wall_beside_a_level(tmp_path):
+    """A PLY save_mesh writes with no bool attribute had no ``comment stepterrain-bool`` line, so read_mesh took it
+    for one written before those lines and gave a uint8 0/1 ``wall`` beside a ``level`` back as bool. The header
+    now always carries the marker (bare without bools); only a file of ours without it is legacy."""
+    box = trimesh.creation.box()
+    wall = (np.arange(12) % 2).astype(np.uint8)
+    box.face_attributes.update(wall=wall, level=np.arange(12, dtype=np.int32))
+    out = save_mesh(box, tmp_path / "box.ply")
+    assert b"comment stepterrain-bool\n" in out.read_bytes()[:2000]
+    back = read_mesh(out)
+    assert back.face_attributes["wall"].dtype == np.uint8
+    np.testing.assert_array_equal(back.face_attributes["wall"], wall)
+    # the same file without the marker is one stepterrain wrote before: its 0/1 wall beside a level is stepped's
+    head, body = out.read_bytes().split(b"end_header\n", 1)
+    old = b"\n".join(line for line in head.split(b"\n") if b"stepterrain-bool" not in line) + b"end_header\n" + body
+    (tmp_path / "old.ply").write_bytes(old)
+    assert read_mesh(tmp_path / "old.ply").face_attributes["wall"].dtype == bool
+
+
 def test_a_tin_closeup_or_adaptive_mesh_of_a_dem_names_its_crs_in_the_file_and_steps_with_it(tmp_path, capsys):
     """stepped's mesh records the DEM's CRS and source, so the files it is written to name them, but the other meshes
     of a DEM in UTM did not: dem.mesh() (``stepterrain texture --mesh`` drapes it), adaptive_mesh(dem) and
