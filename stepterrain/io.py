@@ -957,7 +957,7 @@ def _load_geotiff(
     del mask
     if window is not None and not np.isfinite(array).any():
         raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}")  # as Terrain.crop refuses it
-    heights = _elevation(array, file, f"band {band}")
+    heights = _elevation(array, file, f"band {band}", warn_voids=False)  # warned above, on the values as stored
     del array  # a float64 band's copy, before the heights are converted to metres
     heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
     if header is not None and place is not None:  # the crop's nodes, where Terrain.crop puts them
@@ -1243,11 +1243,11 @@ def npz_missing(
 
 def _elevation(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
-    missing: NDArray[np.bool_] | None = None,
+    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True,
 ) -> NDArray[np.float32]:
     """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
     (non-finite values, cells equal to ``nodata``, compared in the array's own dtype, and cells True in
-    ``missing``, of the array's shape)."""
+    ``missing``, of the array's shape). ``warn_voids``: see :func:`nodata_as_nan`."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -1261,7 +1261,7 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
-    return nodata_as_nan(array, file, what, nodata, missing)
+    return nodata_as_nan(array, file, what, nodata, missing, warn_voids=warn_voids)
 
 
 def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
@@ -1299,20 +1299,22 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
 
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
-    missing: NDArray[np.bool_] | None = None,
+    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True,
 ) -> NDArray[np.float32]:
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
     values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
     array of ``array``'s shape: an .npz ``mask``/``valid``, see :func:`npz_missing`). A finite value beyond float32
     (in a cell not missing) or nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array
-    (a memory map) is read into memory."""
+    (a memory map) is read into memory. ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the
+    caller warned on the values as stored: a GeoTIFF's band, before its scale and offset)."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
             hits = equals_nodata(array, nodata)
     if missing is not None:
         hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
-    _warn_void_values(file, array, hits, what)
+    if warn_voids:
+        _warn_void_values(file, array, hits, what)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX
