@@ -1651,8 +1651,8 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     # a float band warned twice: on the values as stored, and again when its heights passed through nodata_as_nan
     terrain, messages, _ = told(geotiff("undeclared.tif", f))
     assert messages == ["undeclared.tif: 2 cells of band 1 hold -3.4028235e+38, the lowest float32 value, which marks "
-                        "voids, but no nodata value or mask of the file marks them: read as heights; if they are voids, "
-                        "declare it (`gdal_edit.py -a_nodata -3.4028235e+38 undeclared.tif`)"]
+                        "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
+                        "voids, declare it (`gdal_edit.py -a_nodata -3.4028235e+38 undeclared.tif`)"]
     np.testing.assert_array_equal(terrain.heights, f)
     np.save(tmp_path / "lowest.npy", f)
     assert told(tmp_path / "lowest.npy")[1] == [
