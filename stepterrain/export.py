@@ -516,9 +516,14 @@ def save_mesh(
 #: Measured as the process's peak RSS (VmHWM) less that before the call: a stepped mesh of 9.1 M faces and 4.6 M
 #: vertices with vertex colours took 317 MiB as .glb, 379 .obj, 1100 .ply, 2408 .stl, 175 .3mf and 1416 .gltf; an
 #: unmerged mesh of 3.9 M faces and 11.7 M vertices 181, 136, 728, 1012, 75 and 1077 MiB (nothing was checked: a
-#: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %.
+#: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %. PLY's, measured
+#: again since it writes float64 wherever float32 would round (:func:`_ply_bytes` holds the vertices as float64, the
+#: float32 try and the float64 columns at once): Big Tujunga's stepped mesh (interval 20 m, 2.7 M vertices, 5.3 M
+#: faces, local coordinates + 0.123, vertex colours) 632 MiB, unmerged (16.0 M vertices) 2063 MiB, as peak RSS and
+#: tracemalloc alike: 112 bytes a vertex, 68 a face (65 and 66 where float32 holds them; 40 and 144 were measured
+#: for float32 and took the unmerged mesh as 1345 MiB).
 _WRITE_BYTES: dict[str, tuple[int, int]] = {
-    ".glb": (24, 40), ".gltf": (64, 176), ".obj": (16, 48), ".ply": (40, 144), ".stl": (8, 352), ".3mf": (4, 28),
+    ".glb": (24, 40), ".gltf": (64, 176), ".obj": (16, 48), ".ply": (144, 88), ".stl": (8, 352), ".3mf": (4, 28),
 }
 #: What face colours add (per face) where a format has none and writes each vertex as the mean of its faces' colours
 #: (glTF, OBJ), or packs them per face (PLY, 3MF): the unmerged mesh above with face colours took 1276 MiB more as
