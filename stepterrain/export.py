@@ -499,6 +499,8 @@ def save_mesh(
     prepared = _prepared_mesh(mesh, extras)
     if ext in _TEXTURED and prepared.visual.kind == "texture":
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
+        if ext in (".glb", ".gltf"):  # its sampler's wrap (_sampler_postprocessor): a bad one was refused in the
+            texture_wrap(getattr(prepared.visual, "material", None))  # writer, after atomic_path made the folders
     with atomic_path(target) as tmp:
         try:
             writer(prepared, tmp, target, bounds, frame)

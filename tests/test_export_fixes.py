@@ -1908,3 +1908,19 @@ def test_a_ply_keeps_coordinates_below_65536_that_float32_rounds(tmp_path):
     out = save_mesh(exact, tmp_path / "exact.ply")
     assert b"property float x" in out.read_bytes()[:1000]
     np.testing.assert_array_equal(read_mesh(out).vertices, exact.vertices)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_bad_texture_wrap_is_refused_before_any_folder_is_made(ext, tmp_path):
+    """A textured mesh's material.wrap (its glTF sampler) was checked inside the glTF writer, after atomic_path had
+    made the target's missing folders: save_mesh refused ('REPEAT', 'MIRROR') but left an empty folder behind. It is
+    checked with the texture's image, before anything is made."""
+    mesh = trimesh.creation.box()
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(np.zeros((4, 4, 3), np.uint8)))
+    material.wrap = ("REPEAT", "MIRROR")
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.full((len(mesh.vertices), 2), 0.5), material=material)
+    with pytest.raises(InvalidInputError, match=r"material.wrap must be two of .*got \('REPEAT', 'MIRROR'\)"):
+        save_mesh(mesh, tmp_path / "new" / "deeper" / f"m{ext}")
+    assert list(tmp_path.iterdir()) == []
+    material.wrap = ("REPEAT", "CLAMP_TO_EDGE")  # a good one is written as before
+    assert save_mesh(mesh, tmp_path / "new" / f"m{ext}").is_file()
