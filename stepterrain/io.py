@@ -781,10 +781,11 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
 
 def _warn_png_georeferencing(file: Path) -> None:
     """Warn, at the caller of :func:`load_dem`, when GDAL would georeference the PNG heightmap ``file`` by a world
-    file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, any case) or by a geotransform in its ``dem.png.aux.xml``
-    (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at (0, 0), and a 30 m DEM
-    exported so was meshed 30 times too steep, away from its place, without a word (the texture readers place such
-    a PNG by its world file)."""
+    file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, in lower or UPPER case) or by a geotransform in its
+    ``dem.png.aux.xml`` (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at
+    (0, 0), and a 30 m DEM exported so was meshed 30 times too steep, away from its place, without a word (the
+    texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
+    would read (:func:`_prj_files`)."""
     found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
                                                                         file.with_suffix(ext.upper()))
                   if side.is_file()), None)
@@ -796,7 +797,7 @@ def _warn_png_georeferencing(file: Path) -> None:
             found = None
     if found is None:
         return
-    prj = next((side for side in (file.with_suffix(".prj"), file.with_suffix(".PRJ")) if side.is_file()), None)
+    prj = next((side for side in _prj_files(file) if side.is_file()), None)  # as prj_crs looks (dem.png.prj too)
     srs = f"-a_srs {prj.name} " if prj is not None else ""
     warnings.warn(
         f"{file.name}: its georeferencing in {found.name} is not read: load_dem reads a PNG heightmap as an "
@@ -1039,6 +1040,13 @@ def _missing_beyond_gdal_mask(
     return missing
 
 
+def _prj_files(path: Path) -> list[Path]:
+    """The .prj files that may hold the CRS of the raster ``path``, in the order :func:`prj_crs` reads them:
+    ``ortho.prj``, ``ortho.PRJ``, ``ortho.jpg.prj``, ``ortho.jpg.PRJ``."""
+    return [path.with_suffix(ext) for ext in (".prj", ".PRJ")] + [path.with_name(path.name + ext)
+                                                                  for ext in (".prj", ".PRJ")]
+
+
 def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
     a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
@@ -1046,9 +1054,7 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
-    prjs = [path.with_suffix(ext) for ext in (".prj", ".PRJ")] + [path.with_name(path.name + ext)
-                                                                  for ext in (".prj", ".PRJ")]
-    for prj in prjs:
+    for prj in _prj_files(path):
         if not prj.is_file():
             continue
         from rasterio.crs import CRS

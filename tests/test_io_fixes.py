@@ -1572,8 +1572,11 @@ def test_a_png_heightmaps_world_file_or_aux_xml_georeferencing_is_named_not_drop
     assert got[0].filename == __file__  # at the caller's line
     assert t.spacing == plain.spacing == (1.0, -1.0) and t.origin == (0.0, 0.0)
     np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    (tmp_path / "dem.prj").rename(tmp_path / "dem.png.prj")  # as prj_crs reads it too: named in the command
+    with pytest.warns(UserWarning, match=r"`gdal_translate -a_srs dem\.png\.prj dem\.png dem\.tif`"):
+        load_dem(tmp_path / "dem.png")
     (tmp_path / "dem.pgw").unlink()
-    (tmp_path / "dem.prj").unlink()
+    (tmp_path / "dem.png.prj").unlink()
     (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <GeoTransform> 5.0e+05, 3.0e+01, 0.0, 4.0e+06, 0.0, "
                                               "-3.0e+01</GeoTransform>\n</PAMDataset>\n")
     with pytest.warns(UserWarning, match=r"its georeferencing in dem\.png\.aux\.xml is not read.*"
