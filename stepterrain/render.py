@@ -468,7 +468,7 @@ def render_mesh(
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
     if textured is not None:  # it drew in the plain tan: a draped DEM or a GLB read back lost its texture
-        add_kwargs.update(texture=_texture(pv, poly, *textured, clamp=source is not None and _clamped(source[2])))
+        add_kwargs.update(texture=_texture(pv, poly, *textured, clamp=_clamped(source[2])))
     elif rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)
