@@ -499,6 +499,8 @@ def save_mesh(
     prepared = _prepared_mesh(mesh, extras)
     if ext in _TEXTURED and prepared.visual.kind == "texture":
         _pil_textures(getattr(prepared.visual, "material", None))  # before any folder or file is made
+        if ext in (".glb", ".gltf"):  # its sampler's wrap (_sampler_postprocessor): a bad one was refused in the
+            texture_wrap(getattr(prepared.visual, "material", None))  # writer, after atomic_path made the folders
     with atomic_path(target) as tmp:
         try:
             writer(prepared, tmp, target, bounds, frame)
@@ -516,9 +518,14 @@ def save_mesh(
 #: Measured as the process's peak RSS (VmHWM) less that before the call: a stepped mesh of 9.1 M faces and 4.6 M
 #: vertices with vertex colours took 317 MiB as .glb, 379 .obj, 1100 .ply, 2408 .stl, 175 .3mf and 1416 .gltf; an
 #: unmerged mesh of 3.9 M faces and 11.7 M vertices 181, 136, 728, 1012, 75 and 1077 MiB (nothing was checked: a
-#: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %.
+#: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %. PLY's, measured
+#: again since it writes float64 wherever float32 would round (:func:`_ply_bytes` holds the vertices as float64, the
+#: float32 try and the float64 columns at once): Big Tujunga's stepped mesh (interval 20 m, 2.7 M vertices, 5.3 M
+#: faces, local coordinates + 0.123, vertex colours) 632 MiB, unmerged (16.0 M vertices) 2063 MiB, as peak RSS and
+#: tracemalloc alike: 112 bytes a vertex, 68 a face (65 and 66 where float32 holds them; 40 and 144 were measured
+#: for float32 and took the unmerged mesh as 1345 MiB).
 _WRITE_BYTES: dict[str, tuple[int, int]] = {
-    ".glb": (24, 40), ".gltf": (64, 176), ".obj": (16, 48), ".ply": (40, 144), ".stl": (8, 352), ".3mf": (4, 28),
+    ".glb": (24, 40), ".gltf": (64, 176), ".obj": (16, 48), ".ply": (144, 88), ".stl": (8, 352), ".3mf": (4, 28),
 }
 #: What face colours add (per face) where a format has none and writes each vertex as the mean of its faces' colours
 #: (glTF, OBJ), or packs them per face (PLY, 3MF): the unmerged mesh above with face colours took 1276 MiB more as
@@ -2422,8 +2429,9 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
     header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
-    header += [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
-               if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
+    flags = [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
+             if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
+    header += flags or [_PLY_BOOL.rstrip()]  # the bare marker: no bools, a file of before the lines is legacy
     header.append(f"element vertex {len(vertices)}")
     header += [f"property {_PLY_TYPES[column.dtype.str]} {name}" for name, column in vertex_columns]
     header.append(f"element face {len(faces)}")
@@ -2478,10 +2486,11 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
     """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
     lines, :func:`_ply_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
     edited by hand, the mesh is still read), and the columns it wrote from bools, by element (its
-    ``comment stepterrain-bool`` lines). A file stepterrain wrote before it named them (``comment written by
-    stepterrain`` and no such line) is marked ``"stepped"``: its face ``wall`` beside a ``level`` is
+    ``comment stepterrain-bool`` lines; a bare ``comment stepterrain-bool`` where there are none). A file
+    stepterrain wrote before it named them (``comment written by stepterrain`` and no such line) is marked
+    ``"stepped"``: its face ``wall`` beside a ``level`` is
     :func:`~stepterrain.stepped`'s flag."""
-    pieces, booleans, ours = [], {"vertex": set(), "face": set()}, False
+    pieces, booleans, ours, marked = [], {"vertex": set(), "face": set()}, False, False
     start, flag = _PLY_METADATA.encode("ascii"), _PLY_BOOL.encode("ascii")
     with open(file, "rb") as stream:
         if stream.readline(16).strip() != b"ply":
@@ -2495,9 +2504,12 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
             elif line.startswith(flag):
                 element, _, name = line[len(flag) :].decode("ascii", "replace").strip().partition(" ")
                 booleans.setdefault(element, set()).add(name)
+                marked = True
+            elif line.strip() == flag.strip():  # the bare marker: a file naming its bools, none of them
+                marked = True
             elif line.strip() == b"comment written by stepterrain":
                 ours = True
-    if ours and not any(booleans.values()):
+    if ours and not marked:
         booleans["stepped"] = set()  # an older file of ours: a 0/1 face wall beside a level is stepped's flag
     value: Any = {}
     if pieces:

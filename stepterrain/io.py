@@ -781,10 +781,11 @@ def _load_png(file: Path, height_unit: str | None) -> Terrain:
 
 def _warn_png_georeferencing(file: Path) -> None:
     """Warn, at the caller of :func:`load_dem`, when GDAL would georeference the PNG heightmap ``file`` by a world
-    file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, any case) or by a geotransform in its ``dem.png.aux.xml``
-    (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at (0, 0), and a 30 m DEM
-    exported so was meshed 30 times too steep, away from its place, without a word (the texture readers place such
-    a PNG by its world file)."""
+    file beside it (``dem.pgw``, ``dem.pngw``, ``dem.wld``, in lower or UPPER case) or by a geotransform in its
+    ``dem.png.aux.xml`` (as a GIS exports a PNG): load_dem reads a PNG as an unreferenced grid of 1 m cells at
+    (0, 0), and a 30 m DEM exported so was meshed 30 times too steep, away from its place, without a word (the
+    texture readers place such a PNG by its world file). The command it suggests names the .prj :func:`prj_crs`
+    would read (:func:`_prj_files`)."""
     found = next((side for ext in (".pgw", ".pngw", ".wld") for side in (file.with_suffix(ext),
                                                                         file.with_suffix(ext.upper()))
                   if side.is_file()), None)
@@ -796,7 +797,7 @@ def _warn_png_georeferencing(file: Path) -> None:
             found = None
     if found is None:
         return
-    prj = next((side for side in (file.with_suffix(".prj"), file.with_suffix(".PRJ")) if side.is_file()), None)
+    prj = next((side for side in _prj_files(file) if side.is_file()), None)  # as prj_crs looks (dem.png.prj too)
     srs = f"-a_srs {prj.name} " if prj is not None else ""
     warnings.warn(
         f"{file.name}: its georeferencing in {found.name} is not read: load_dem reads a PNG heightmap as an "
@@ -957,7 +958,7 @@ def _load_geotiff(
     del mask
     if window is not None and not np.isfinite(array).any():
         raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}")  # as Terrain.crop refuses it
-    heights = _elevation(array, file, f"band {band}")
+    heights = _elevation(array, file, f"band {band}", warn_voids=False)  # warned above, on the values as stored
     del array  # a float64 band's copy, before the heights are converted to metres
     heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
     if header is not None and place is not None:  # the crop's nodes, where Terrain.crop puts them
@@ -1039,6 +1040,13 @@ def _missing_beyond_gdal_mask(
     return missing
 
 
+def _prj_files(path: Path) -> list[Path]:
+    """The .prj files that may hold the CRS of the raster ``path``, in the order :func:`prj_crs` reads them:
+    ``ortho.prj``, ``ortho.PRJ``, ``ortho.jpg.prj``, ``ortho.jpg.PRJ``."""
+    return [path.with_suffix(ext) for ext in (".prj", ".PRJ")] + [path.with_name(path.name + ext)
+                                                                  for ext in (".prj", ".PRJ")]
+
+
 def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInputError) -> str | None:
     """The CRS in a .prj file beside the raster ``path`` (``ortho.prj`` or ``ortho.jpg.prj``, the ESRI convention for
     a world file's CRS, which GDAL does not read for a TIFF, JPEG or PNG: their CRS was unknown), for a raster GDAL
@@ -1046,9 +1054,7 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
-    prjs = [path.with_suffix(ext) for ext in (".prj", ".PRJ")] + [path.with_name(path.name + ext)
-                                                                  for ext in (".prj", ".PRJ")]
-    for prj in prjs:
+    for prj in _prj_files(path):
         if not prj.is_file():
             continue
         from rasterio.crs import CRS
@@ -1243,11 +1249,11 @@ def npz_missing(
 
 def _elevation(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
-    missing: NDArray[np.bool_] | None = None,
+    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True,
 ) -> NDArray[np.float32]:
     """Check that ``array`` is an (H, W) real grid of at least 2 x 2 nodes; float32 with NaN nodata
     (non-finite values, cells equal to ``nodata``, compared in the array's own dtype, and cells True in
-    ``missing``, of the array's shape)."""
+    ``missing``, of the array's shape). ``warn_voids``: see :func:`nodata_as_nan`."""
     where = f"cannot read {str(file)!r}"
     if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
         raise DataFileError(
@@ -1261,7 +1267,7 @@ def _elevation(
         raise DataFileError(
             f"{where}: expected an elevation grid of at least 2 x 2 nodes; got {what} of shape {array.shape}"
         )
-    return nodata_as_nan(array, file, what, nodata, missing)
+    return nodata_as_nan(array, file, what, nodata, missing, warn_voids=warn_voids)
 
 
 def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_] | None, what: str) -> None:
@@ -1299,20 +1305,22 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
 
 def nodata_as_nan(
     array: NDArray[Any], file: Path, what: str, nodata: float | None = None,
-    missing: NDArray[np.bool_] | None = None,
+    missing: NDArray[np.bool_] | None = None, *, warn_voids: bool = True,
 ) -> NDArray[np.float32]:
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
     values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
     array of ``array``'s shape: an .npz ``mask``/``valid``, see :func:`npz_missing`). A finite value beyond float32
     (in a cell not missing) or nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array
-    (a memory map) is read into memory."""
+    (a memory map) is read into memory. ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the
+    caller warned on the values as stored: a GeoTIFF's band, before its scale and offset)."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
             hits = equals_nodata(array, nodata)
     if missing is not None:
         hits = missing.copy() if hits is None else np.logical_or(hits, missing, out=hits)
-    _warn_void_values(file, array, hits, what)
+    if warn_voids:
+        _warn_void_values(file, array, hits, what)
     if array.dtype.kind == "f" and array.dtype.itemsize > 4:  # finite in float64, inf in float32: not nodata
         big = array > FLOAT32_MAX  # |array| > FLOAT32_MAX in boolean temporaries (np.abs made a float64 copy)
         big |= array < -FLOAT32_MAX

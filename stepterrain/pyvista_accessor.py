@@ -233,7 +233,8 @@ class StepTerrainAccessor:
 
 
 def to_polydata(mesh: trimesh.Trimesh) -> Any:
-    """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, face attributes, vertex colours, metadata.
+    """A stepped ``trimesh.Trimesh`` as ``pyvista.PolyData``: faces, vertex and face colours and attributes, UVs,
+    metadata.
 
     ``pv.wrap`` of a Trimesh drops its vertex colours (pyvista carries vertex attributes only); this keeps them as
     point data ``RGBA`` (uint8), also the active scalars ``colors_rgba`` (plotted as colours); colours by face go to

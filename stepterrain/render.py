@@ -18,7 +18,7 @@ import numbers
 import os
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, Literal
 
@@ -438,7 +438,8 @@ def render_mesh(
     if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
         # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]), mesh=size)
-    textured = _decoded_texture(*source) if source is not None else None
+    textured = None if source is None else _decoded_texture(*source, check=lambda shape: _check_render_budget(
+        width, height, anti_aliasing=anti_aliasing, texture=shape, mesh=size))
     if textured is not None:  # the picture as drawn, as render_textured_mesh counts it: a globe drape's is widened
         # by _periodic_columns (256 columns each side and more: 13-25 % of the Blue Marble's), counted as the image
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape, mesh=size)
@@ -467,7 +468,7 @@ def render_mesh(
         poly.cell_data[key] = value
     add_kwargs: dict[str, Any] = {}
     if textured is not None:  # it drew in the plain tan: a draped DEM or a GLB read back lost its texture
-        add_kwargs.update(texture=_texture(pv, poly, *textured, clamp=source is not None and _clamped(source[2])))
+        add_kwargs.update(texture=_texture(pv, poly, *textured, clamp=_clamped(source[2])))
     elif rgb is not None:
         poly.point_data["rgb"] = rgb
         add_kwargs.update(scalars="rgb", rgb=True)
@@ -1025,7 +1026,9 @@ def render_textured_mesh(
                                                                anti_aliasing, view_angle)
     # the texels counted from the texture's size before it is decoded (see render_mesh)
     _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]))
-    uv, picture = _decoded_texture(*source)
+    uv, picture = _decoded_texture(*source, check=lambda shape: _check_render_budget(
+        width, height, anti_aliasing=anti_aliasing, ssaa=len(shape) == 3 and shape[2] == 4, texture=shape,
+        mesh=(len(local), len(mesh.faces))))
     translucent = picture.ndim == 3 and picture.shape[2] == 4
     # the texture's texels too; SSAA, not MSAA, for a translucent one (see _shoot): more memory
     _check_render_budget(width, height, anti_aliasing=anti_aliasing, ssaa=translucent, texture=picture.shape,
@@ -1070,17 +1073,19 @@ def _texture_shape(image: Any) -> tuple[int, int]:
     return (int(shape[0]), int(shape[1])) if len(shape) >= 2 else (0, 0)
 
 
-def _decoded_texture(uv: Any, image: Any, material: Any) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
+def _decoded_texture(uv: Any, image: Any, material: Any, check: Callable[[tuple[int, ...]], None] | None = None
+                     ) -> tuple[NDArray[np.float32], NDArray[np.uint8]]:
     """The (UVs, texture picture) a textured mesh is drawn with, from its :func:`_texture_source`: the image decoded,
     both checked (an InvalidInputError for bad ones); for a material whose ``wrap`` repeats u and clamps v (a globe's
     drape), :func:`_periodic_columns`' picture, drawn clamped (:func:`_texture`'s ``clamp``); one that clamps both
-    (a terrain's drape) is drawn clamped as it is."""
+    (a terrain's drape) is drawn clamped as it is. ``check``: called with the widened picture's shape before it is
+    made (the caller's render budget: UVs spanning many periods widen it as many times)."""
     from .export import texture_wrap
 
     uv, picture = _texture_coordinates(uv), _texture_alpha(_base_color_factor(_texture_picture(image), material),
                                                            material)
     if _clamped(material) and texture_wrap(material)[0] != "CLAMP_TO_EDGE":
-        uv, picture = _periodic_columns(uv, picture)
+        uv, picture = _periodic_columns(uv, picture, check)
     return uv, picture
 
 
@@ -1100,18 +1105,24 @@ def _clamped(material: Any) -> bool:
 _PERIODIC_MARGIN = 256
 
 
-def _periodic_columns(uv: NDArray[np.float32], picture: NDArray[np.uint8]) -> tuple[NDArray[np.float32], NDArray[Any]]:
+def _periodic_columns(uv: NDArray[np.float32], picture: NDArray[np.uint8],
+                      check: Callable[[tuple[int, ...]], None] | None = None
+                      ) -> tuple[NDArray[np.float32], NDArray[Any]]:
     """(UVs, picture) for a texture that repeats in u and is clamped in v, drawn with one clamped wrap (VTK's is the
     same both ways): the picture's columns repeated over the UVs' u range and :data:`_PERIODIC_MARGIN` beyond on each
     side, starting at a multiple of it (the mipmaps' blocks as the picture's), and u moved into it. With VTK's
     REPEAT both ways, each pole of a globe's drape blended with the other's in the mipmaps (a grey diamond at the
-    north pole of the Blue Marble, a dark spot at its white south pole)."""
+    north pole of the Blue Marble, a dark spot at its white south pole). ``check`` (the render budget's) is called
+    with the widened picture's shape before it is made: UVs spanning many periods allocated it many times over
+    (a MemoryError, not the budget's OutputTooLargeError)."""
     if picture.ndim < 2 or not len(uv) or not picture.shape[1]:
         return uv, picture
     cols = picture.shape[1]
     u = uv[:, 0].astype(np.float64) * cols
     start = (math.floor(u.min()) // _PERIODIC_MARGIN - 1) * _PERIODIC_MARGIN
     stop = (math.ceil(u.max()) // _PERIODIC_MARGIN + 2) * _PERIODIC_MARGIN
+    if check is not None:
+        check((picture.shape[0], stop - start, *picture.shape[2:]))
     wide = np.ascontiguousarray(picture[:, np.arange(start, stop) % cols])
     out = np.array(uv, dtype=np.float32)
     out[:, 0] = (u - start) / (stop - start)

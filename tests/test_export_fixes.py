@@ -1643,6 +1643,30 @@ def test_a_mesh_whose_write_is_over_the_memory_budget_is_refused_before_any_work
         st.set_memory_budget(previous)
 
 
+def test_a_ply_write_in_float64_takes_no_more_than_its_budget_check_counts(tmp_path):
+    """PLY's write bytes were measured when it wrote float32 coordinates; it writes float64 wherever float32 would
+    round them, holding the float64 vertices, the float32 try and the float64 columns at once: an unmerged mesh
+    (3 vertices a face) with vertex colours took ~50 % more than the budget check counted. Its peak (tracemalloc)
+    is now within the count."""
+    import tracemalloc
+
+    from stepterrain import export
+
+    mesh = trimesh.creation.icosphere(subdivisions=5)
+    mesh.unmerge_vertices()
+    mesh.vertices = mesh.vertices * 1000.0 + 0.123  # float32 rounds them: written as float64
+    mesh.visual.vertex_colors = np.full((len(mesh.vertices), 4), 200, np.uint8)
+    per_vertex, per_face = export._WRITE_BYTES[".ply"]
+    tracemalloc.start()
+    try:
+        out = export.save_mesh(mesh, tmp_path / "m.ply")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert b"property double x" in out.read_bytes()[:1000]
+    assert peak <= per_vertex * len(mesh.vertices) + per_face * len(mesh.faces)
+
+
 def test_face_colours_count_against_the_write_budget(tmp_path):
     """glTF and OBJ have no per-face colour and write each vertex as the mean of its faces' colours: ~340 bytes a
     face more measured (1.3 GiB on a 3.9 M-face mesh), checked too."""
@@ -1824,6 +1848,25 @@ def test_read_mesh_gives_a_plys_boolean_attributes_back_as_bool(tmp_path):
     assert back.face_attributes["wall"].dtype == back.face_attributes["mark"].dtype == np.uint8
 
 
+def test_a_ply_written_today_without_bools_keeps_a_uint8_wall_beside_a_level(tmp_path):
+    """A PLY save_mesh writes with no bool attribute had no ``comment stepterrain-bool`` line, so read_mesh took it
+    for one written before those lines and gave a uint8 0/1 ``wall`` beside a ``level`` back as bool. The header
+    now always carries the marker (bare without bools); only a file of ours without it is legacy."""
+    box = trimesh.creation.box()
+    wall = (np.arange(12) % 2).astype(np.uint8)
+    box.face_attributes.update(wall=wall, level=np.arange(12, dtype=np.int32))
+    out = save_mesh(box, tmp_path / "box.ply")
+    assert b"comment stepterrain-bool\n" in out.read_bytes()[:2000]
+    back = read_mesh(out)
+    assert back.face_attributes["wall"].dtype == np.uint8
+    np.testing.assert_array_equal(back.face_attributes["wall"], wall)
+    # the same file without the marker is one stepterrain wrote before: its 0/1 wall beside a level is stepped's
+    head, body = out.read_bytes().split(b"end_header\n", 1)
+    old = b"\n".join(line for line in head.split(b"\n") if b"stepterrain-bool" not in line) + b"end_header\n" + body
+    (tmp_path / "old.ply").write_bytes(old)
+    assert read_mesh(tmp_path / "old.ply").face_attributes["wall"].dtype == bool
+
+
 def test_a_tin_closeup_or_adaptive_mesh_of_a_dem_names_its_crs_in_the_file_and_steps_with_it(tmp_path, capsys):
     """stepped's mesh records the DEM's CRS and source, so the files it is written to name them, but the other meshes
     of a DEM in UTM did not: dem.mesh() (``stepterrain texture --mesh`` drapes it), adaptive_mesh(dem) and
@@ -1865,3 +1908,19 @@ def test_a_ply_keeps_coordinates_below_65536_that_float32_rounds(tmp_path):
     out = save_mesh(exact, tmp_path / "exact.ply")
     assert b"property float x" in out.read_bytes()[:1000]
     np.testing.assert_array_equal(read_mesh(out).vertices, exact.vertices)
+
+
+@pytest.mark.parametrize("ext", [".glb", ".gltf"])
+def test_a_bad_texture_wrap_is_refused_before_any_folder_is_made(ext, tmp_path):
+    """A textured mesh's material.wrap (its glTF sampler) was checked inside the glTF writer, after atomic_path had
+    made the target's missing folders: save_mesh refused ('REPEAT', 'MIRROR') but left an empty folder behind. It is
+    checked with the texture's image, before anything is made."""
+    mesh = trimesh.creation.box()
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(np.zeros((4, 4, 3), np.uint8)))
+    material.wrap = ("REPEAT", "MIRROR")
+    mesh.visual = trimesh.visual.TextureVisuals(uv=np.full((len(mesh.vertices), 2), 0.5), material=material)
+    with pytest.raises(InvalidInputError, match=r"material.wrap must be two of .*got \('REPEAT', 'MIRROR'\)"):
+        save_mesh(mesh, tmp_path / "new" / "deeper" / f"m{ext}")
+    assert list(tmp_path.iterdir()) == []
+    material.wrap = ("REPEAT", "CLAMP_TO_EDGE")  # a good one is written as before
+    assert save_mesh(mesh, tmp_path / "new" / f"m{ext}").is_file()

@@ -1572,8 +1572,11 @@ def test_a_png_heightmaps_world_file_or_aux_xml_georeferencing_is_named_not_drop
     assert got[0].filename == __file__  # at the caller's line
     assert t.spacing == plain.spacing == (1.0, -1.0) and t.origin == (0.0, 0.0)
     np.testing.assert_array_equal(t.heights, z.astype(np.float32))
+    (tmp_path / "dem.prj").rename(tmp_path / "dem.png.prj")  # as prj_crs reads it too: named in the command
+    with pytest.warns(UserWarning, match=r"`gdal_translate -a_srs dem\.png\.prj dem\.png dem\.tif`"):
+        load_dem(tmp_path / "dem.png")
     (tmp_path / "dem.pgw").unlink()
-    (tmp_path / "dem.prj").unlink()
+    (tmp_path / "dem.png.prj").unlink()
     (tmp_path / "dem.png.aux.xml").write_text("<PAMDataset>\n  <GeoTransform> 5.0e+05, 3.0e+01, 0.0, 4.0e+06, 0.0, "
                                               "-3.0e+01</GeoTransform>\n</PAMDataset>\n")
     with pytest.warns(UserWarning, match=r"its georeferencing in dem\.png\.aux\.xml is not read.*"
@@ -1648,6 +1651,12 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     f = z.astype(np.float32)
     f[1, 2] = f[3, 4] = np.finfo(np.float32).min
     assert told(geotiff("arcgis.tif", f, nodata=float(np.finfo(np.float32).min)))[1] == []
+    # a float band warned twice: on the values as stored, and again when its heights passed through nodata_as_nan
+    terrain, messages, _ = told(geotiff("undeclared.tif", f))
+    assert messages == ["undeclared.tif: 2 cells of band 1 hold -3.4028235e+38, the lowest float32 value, which marks "
+                        "voids, but no nodata value or mask of the file marks them: read as heights; if they are "
+                        "voids, declare it (`gdal_edit.py -a_nodata -3.4028235e+38 undeclared.tif`)"]
+    np.testing.assert_array_equal(terrain.heights, f)
     np.save(tmp_path / "lowest.npy", f)
     assert told(tmp_path / "lowest.npy")[1] == [
         "lowest.npy: 2 cells of array hold -3.4028235e+38, the lowest float32 value, which marks voids, but no nodata "

@@ -1113,3 +1113,29 @@ def test_layered_renderer_counts_every_mesh_it_holds_against_the_budget():
             assert sorted(renderer._meshes) == ["a", "b"]  # refused before it was uploaded
     finally:
         st.set_memory_budget(previous)
+
+
+@pytest.mark.parametrize("name", ["render_mesh", "render_textured_mesh"])
+def test_a_periodic_texture_spanning_many_periods_is_refused_before_it_is_widened(name):
+    """A texture that repeats in u and is clamped in v (a globe's drape) is drawn from its columns repeated over the
+    UVs' u range, and that widened picture was made before the render budget was checked: UVs spanning 2000 periods
+    of a 256² image allocated ~400 MB first (a MemoryError for a larger one) where the budget refused it. The
+    widened shape is checked before it is made."""
+    import tracemalloc
+
+    mesh = trimesh.creation.box()
+    uv = np.zeros((len(mesh.vertices), 2))
+    uv[:, 0], uv[:, 1] = np.linspace(0.0, 2000.0, len(mesh.vertices)), 0.5
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(np.zeros((256, 256, 3), np.uint8)))
+    material.wrap = ("REPEAT", "CLAMP_TO_EDGE")
+    mesh.visual = trimesh.visual.TextureVisuals(uv=uv, material=material)
+    previous = st.set_memory_budget(200 << 20)
+    tracemalloc.start()
+    try:
+        with pytest.raises(OutputTooLargeError, match="512768 x 256 texel texture"):
+            getattr(render, name)(mesh, window_size=(64, 48))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+        st.set_memory_budget(previous)
+    assert peak < 20 << 20  # the widened picture is 256 x 512768 x 3 bytes = 394 MB
