@@ -294,17 +294,52 @@ def face_position64(grid: CubeSphereGrid, i: wp.int32, j: wp.int32, z: wp.float3
 
 
 @wp.func
+def planet_vector(face: wp.int32, q: wp.vec3d) -> wp.vec3d:
+    """A face-local float64 vector in the planet frame: :func:`frame_rotate`'s signed permutation (exact)."""
+    x = q[1]  # face 5
+    y = q[0]
+    z = -q[2]
+    if face == 0:
+        x = q[0]
+        y = q[1]
+        z = q[2]
+    elif face == 1:
+        x = q[2]
+        y = -q[1]
+        z = q[0]
+    elif face == 2:
+        x = -q[1]
+        y = q[2]
+        z = -q[0]
+    elif face == 3:
+        x = -q[0]
+        y = -q[2]
+        z = -q[1]
+    elif face == 4:
+        x = -q[2]
+        y = -q[0]
+        z = q[1]
+    return wp.vec3d(x, y, z)
+
+
+@wp.func
 def look_ahead_error(grid: CubeSphereGrid, base: wp.int32, i: wp.int32, j: wp.int32, a: wp.vec2i,
                      b: wp.vec2i) -> wp.float64:
     """The 1-level look-ahead error |v - (a + b)/2| of face node (i, j) splitting the hypotenuse (a, b) on the cube
-    (§7.1, Abb. 5b), on the float64 positions the mesh's vertices have (:func:`face_position64`; the distance is
-    the same in the face's own frame). The float32 ``grid.positions`` round each coordinate by up to 0.25 m at the
-    earth's radius, and e measured on them fell up to 0.65 m short of the mesh's own error."""
+    (§7.1, Abb. 5b), on the float64 positions the mesh's vertices have (:func:`face_position64`). The float32
+    ``grid.positions`` round each coordinate by up to 0.25 m at the earth's radius, and e measured on them fell up
+    to 0.65 m short of the mesh's own error.
+
+    The difference is turned into the planet frame (exact) before its length: the copies of a seam node, each in
+    its own face's frame, see its components permuted and sign-flipped, and summed in that order (CUDA fuses the
+    multiply-adds, NVRTC's ``--fmad=true``) their e could part by a bit, one side of the seam refining and the
+    other not; in one frame every copy does the same arithmetic on the same bits (:class:`NodeParameters`), which
+    are those of :func:`entry_position64`'s vertices."""
     n = grid.n
     v = face_position64(grid, i, j, load(grid.heights, base + i * n + j))
     pa = face_position64(grid, a[0], a[1], load(grid.heights, base + a[0] * n + a[1]))
     pb = face_position64(grid, b[0], b[1], load(grid.heights, base + b[0] * n + b[1]))
-    return wp.length(v - wp.float64(0.5) * (pa + pb))
+    return wp.length(planet_vector(base / (n * n), v - wp.float64(0.5) * (pa + pb)))
 
 
 @wp.func
@@ -1261,8 +1296,8 @@ def saturate_node_parameters(
 
     e from the float64 positions (:func:`look_ahead_error`); r from the float32 positions (in float64); h from
     the heights, h(v) = max |z_v - z_c| + h(c) (§6); α from the nodes' exact cube directions. The absolute margin
-    |v| · 2^-22 per level covers the float32 rounding of the positions the metrics see (< 0.45 m per node at the
-    earth's radius)."""
+    |v| · 2^-22 per level covers the float32 rounding of the positions r sees (< 0.45 m per node at the earth's
+    radius); e, on the float64 positions, is rounded up by the same factor into float32."""
     first = (wp.tid() + thread_offset) * chunk
     last = wp.min(first + chunk, count)
     padded = wp.int32(0)

@@ -12,11 +12,11 @@ nodes, also across the face seams. :func:`adaptive_mesh` runs the same hierarchy
 over the nodes (μ = e is a per-node predicate, and saturation makes the levels' walk unnecessary).
 
 Precision: node positions are float32 relative to the planet centre (0.5 m resolution at the earth's radius);
-every metric and bounding-shape formula runs in float64 on those float32 inputs, and the per-level margins
+the bounding shapes and view metrics run in float64 on those float32 inputs, and the per-level margins
 (relative 2^-20, §6) keep saturation and nesting exact in floating point. Output mesh vertices are float64,
 computed from the integer cube point: each lies at R + exaggeration·z from the centre to ~1e-15 relative. The
-geometric error e is measured on those float64 positions (on the float32 ones it fell up to 0.65 m short of the
-mesh's own error).
+geometric error e is measured on those float64 vertices, not on the float32 positions (there it fell up to
+0.65 m short of the mesh's own error), with the same bits on every copy of a seam node.
 """
 
 from __future__ import annotations
@@ -1733,6 +1733,7 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     budget is refused (an OutputTooLargeError) before any work, as :func:`~stepterrain.render.render_mesh` refuses
     it."""
     from . import render
+    from .export import _texture_copy
 
     # a per_face list, None: an AttributeError on .bounds; a pyvista PolyData as its Trimesh
     mesh = mesh_argument(mesh, hint=" (render the meshes of per_face=True one by one)")
@@ -1769,10 +1770,7 @@ def render_view(mesh: trimesh.Trimesh, camera: Camera, *, window_size: tuple[int
     # equatorial plane: a close view over New Zealand was lit from below the horizon and came out dim)
     frame = _view_frame(camera)
     centre = box.mean(axis=0)
-    local = mesh.copy()
-    wrap = getattr(getattr(mesh.visual, "material", None), "wrap", None)
-    if wrap is not None:  # trimesh's PBRMaterial.copy drops it (a drape read back from its GLB): the poles blended
-        local.visual.material.wrap = wrap
+    local = _texture_copy(mesh)  # with the material's wrap, which PBRMaterial.copy drops: the poles blended
     local.vertices = (np.asarray(mesh.vertices, dtype=np.float64) - centre) @ frame.T
     local_box = render._finite_bounds(np.asarray(local.vertices))
     middle = local_box.mean(axis=0)  # render_mesh takes an explicit camera relative to the centre of ``bounds``

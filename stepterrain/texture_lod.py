@@ -1751,7 +1751,7 @@ def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     depth = float(offset @ camera.frame()[0])
     if not depth > 0.0:  # p behind the eye (a box out of view, or around the eye): refine, as segment_pixels does
         return math.inf
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", divide="ignore"):  # a huge error, or depth² underflowing to 0: inf
         return max(vertical, float(camera.focal_pixels * patch.error * np.linalg.norm(offset) / depth ** 2))
 
 

@@ -8,6 +8,8 @@ import warnings
 
 import numpy as np
 import pytest
+import warp as wp
+from stepterrain.kernels import cubesphere as cs
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
@@ -1390,3 +1392,77 @@ def test_the_geometric_error_bounds_the_meshs_own_float64_vertices():
     for error in errors:
         _, kept = _face_grids(globe.mesh(error=float(error), per_face=True), cells)
         assert exact[~kept].max() <= error, (error, float(exact[~kept].max()))
+
+
+@wp.kernel
+def _seam_look_ahead_errors(grid: cs.CubeSphereGrid, nodes: wp.array[wp.vec4i], out: wp.array2d[wp.float64]):
+    """Per edge node (face, i, j, s) splitting its hypotenuse along the edge: the kernels' look-ahead error and the
+    distance on the mesh's own vertices (:func:`cs.entry_position64`) in the planet frame."""
+    q = nodes[wp.tid()]
+    step = wp.vec2i(q[3], 0)
+    if q[1] == 0 or q[1] == grid.cells:
+        step = wp.vec2i(0, q[3])
+    node = wp.vec2i(q[1], q[2])
+    a = node + step
+    b = node - step
+    out[wp.tid(), 0] = cs.look_ahead_error(grid, q[0] * grid.n * grid.n, q[1], q[2], a, b)
+    v = cs.entry_position64(grid, cs.node_entry(grid.cells, 0, q[0], q[1], q[2]))
+    pa = cs.entry_position64(grid, cs.node_entry(grid.cells, 0, q[0], a[0], a[1]))
+    pb = cs.entry_position64(grid, cs.node_entry(grid.cells, 0, q[0], b[0], b[1]))
+    out[wp.tid(), 1] = wp.length(v - wp.float64(0.5) * (pa + pb))
+
+
+def _seam_copies(cells):
+    """Entries of the face-edge nodes and, per entry, the index of its cube point (equal on the copies)."""
+    n = cells + 1
+    i, j = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    edge = (i == 0) | (j == 0) | (i == cells) | (j == cells)
+    local = np.stack([2 * j[edge] - cells, 2 * i[edge] - cells, np.full(int(edge.sum()), cells)], axis=1)
+    points, entries = [], []
+    for f, frame in enumerate(cs.FACE_FRAMES):
+        point = np.empty_like(local)
+        for k, axis in enumerate(frame):
+            point[:, abs(axis) - 1] = np.sign(axis) * local[:, k]
+        points.append(point)
+        entries.append(f * n * n + i[edge] * n + j[edge])
+    _, group = np.unique(np.concatenate(points), axis=0, return_inverse=True)
+    return np.concatenate(entries), group.ravel()
+
+
+def _differing_copies(values, group):
+    """Indices of the values whose bits differ from their group's first value."""
+    first = np.empty(group.max() + 1, dtype=values.dtype)
+    first[group[::-1]] = values[::-1]
+    bits = f"u{values.itemsize}"
+    return np.flatnonzero(values.view(bits) != first[group].view(bits))
+
+
+def test_the_copies_of_a_seam_node_have_the_same_parameter_bits(device):
+    """Each copy of a seam node measured its look-ahead error e in its own face's frame, where the difference
+    vector's components come as a signed permutation of the other copies'; summed in frame order (``wp.length``;
+    CUDA's fused multiply-adds round order-dependently) the copies' e could part by a bit and, after
+    e · (1 + 2^-22) rounds to float32, one side of the seam refine and the other not. The difference is now turned
+    into the planet frame first: every copy's float64 e is the bits of the distance on the mesh's own vertices in
+    the planet frame, and the saturated (e, r, h, α) of the copies are bit-identical on the embedded relief.
+    (No differing pair of copies showed on the CPU before: there an edge node's difference has its two cube-normal
+    components of equal magnitude, so the frame order did not matter without fused multiply-adds; the face-frame
+    e did differ from the planet frame's by a bit.)"""
+    for face_size in (129, 257):
+        globe = Globe.sample(face_size=face_size, device=device)
+        cells = globe.cells
+        n = cells + 1
+        entries, group = _seam_copies(cells)
+        for name, values in globe.node_parameters().items():
+            values = values.reshape(-1)[entries]
+            assert _differing_copies(values, group).size == 0, (face_size, name)
+        f, i, j = entries // (n * n), entries % (n * n) // n, entries % n
+        along = np.where((i == 0) | (i == cells), j, i)
+        inner = (along > 0) & (along < cells)  # the cube's corners split no hypotenuse
+        nodes = np.stack([f, i, j, along & -along], axis=1)[inner].astype(np.int32)
+        errors = wp.zeros((len(nodes), 2), dtype=wp.float64, device=device)
+        wp.launch(_seam_look_ahead_errors, dim=len(nodes),
+                  inputs=[globe._grid, wp.array(nodes, dtype=wp.vec4i, device=device)], outputs=[errors],
+                  device=device)
+        errors = errors.numpy()
+        assert (errors[:, 0].view(np.uint64) == errors[:, 1].view(np.uint64)).all(), face_size
+        assert _differing_copies(errors[:, 0].copy(), group[inner]).size == 0, face_size
