@@ -65,7 +65,6 @@ from .terrain import (
     unmasked,
     unshared,
     used_height_range,
-    used_nodes,
 )
 
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
@@ -1187,16 +1186,12 @@ def _off_thresholds(t: Terrain, values: NDArray[np.float32]) -> Terrain:
     value is itself a threshold (levels a few float32 steps apart), the height stays, with a warning that the solid
     may leak there."""
     thresholds = thresholds_of(values)
-    if not t._uses_height_in(thresholds):  # the heights the surface uses: a TIN's unused points cannot leak
-        return t
-    heights = t.heights
-    on = np.flatnonzero(np.isin(heights.reshape(-1), thresholds))
     # only the heights the surface uses: a TIN's unused points and a grid's nodes isolated by nodata are in no mesh
     # (they warned that the solid may leak where it has no vertex)
-    if t.kind == "tin":
-        on = on[t.point_used[on] != 0]
-    elif t.has_nodata:
-        on = on[used_nodes(np.isfinite(heights)).reshape(-1)[on]]
+    on = t._used_nodes_in(thresholds)
+    if on.size == 0:
+        return t
+    heights = t.heights
     up = np.nextafter(heights.reshape(-1)[on], np.float32(np.inf))
     stays = np.isin(up, thresholds)
     if stays.any():

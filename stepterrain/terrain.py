@@ -828,18 +828,16 @@ class Terrain:
             return bool(self.point_used.any())
         return not self.has_nodata or self._used_span()[1]
 
-    def _uses_height_in(self, values: ArrayLike) -> bool:
-        """Whether a height the surface uses (:meth:`used_heights`) is one of ``values``, without copying the used
-        heights: a grid's heights are compared where they lie, and only when one of ``values`` is among them and the
-        grid has nodata are its triangles asked whether one uses such a node."""
+    def _used_nodes_in(self, values: ArrayLike) -> NDArray[np.intp]:
+        """The flat indices of the nodes (a TIN's points) the surface uses (:meth:`used_heights`) whose height is one
+        of ``values``, without copying the used heights: a grid's heights are compared where they lie, and only when
+        one of ``values`` is among them and the grid has nodata are its triangles asked whether one uses such a node."""
+        on = np.flatnonzero(np.isin(self.heights.reshape(-1), values))  # NaN (nodata) is in no values
         if self.kind == "tin":
-            return bool(np.isin(self.used_heights(), values).any())
-        found = np.isin(self.heights, values)  # NaN (nodata) is in no values
-        if not found.any():
-            return False
-        if not self.has_nodata:
-            return True
-        return bool((found & used_nodes(np.isfinite(self.heights))).any())
+            return on[self.point_used[on] != 0]
+        if on.size == 0 or not self.has_nodata:
+            return on
+        return on[used_nodes(np.isfinite(self.heights)).reshape(-1)[on]]
 
     @property
     def finite_height_range(self) -> tuple[float, float]:
