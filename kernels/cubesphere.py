@@ -323,7 +323,7 @@ def planet_vector(face: wp.int32, q: wp.vec3d) -> wp.vec3d:
 
 
 @wp.func
-def look_ahead_error(grid: CubeSphereGrid, base: wp.int32, i: wp.int32, j: wp.int32, a: wp.vec2i,
+def look_ahead_error(grid: CubeSphereGrid, face: wp.int32, i: wp.int32, j: wp.int32, a: wp.vec2i,
                      b: wp.vec2i) -> wp.float64:
     """The 1-level look-ahead error |v - (a + b)/2| of face node (i, j) splitting the hypotenuse (a, b) on the cube
     (§7.1, Abb. 5b), on the float64 positions the mesh's vertices have (:func:`face_position64`). The float32
@@ -336,10 +336,11 @@ def look_ahead_error(grid: CubeSphereGrid, base: wp.int32, i: wp.int32, j: wp.in
     other not; in one frame every copy does the same arithmetic on the same bits (:class:`NodeParameters`), which
     are those of :func:`entry_position64`'s vertices."""
     n = grid.n
+    base = face * n * n
     v = face_position64(grid, i, j, load(grid.heights, base + i * n + j))
     pa = face_position64(grid, a[0], a[1], load(grid.heights, base + a[0] * n + a[1]))
     pb = face_position64(grid, b[0], b[1], load(grid.heights, base + b[0] * n + b[1]))
-    return wp.length(planet_vector(base / (n * n), v - wp.float64(0.5) * (pa + pb)))
+    return wp.length(planet_vector(face, v - wp.float64(0.5) * (pa + pb)))
 
 
 @wp.func
@@ -1126,7 +1127,7 @@ def saturate_leaf_parameters(
             if (i & 1) != 0:
                 step = wp.vec2i(1, 0)  # i odd, j even: along i
             node = wp.vec2i(i, j)
-            e = look_ahead_error(grid, face * nn, i, j, node + step, node - step)
+            e = look_ahead_error(grid, face, i, j, node + step, node - step)
             values_out[entry] = wp.vec4(wp.float32(e * (wp.float64(1.0) + ABSOLUTE_MARGIN)), 0.0, 0.0, 0.0)
         j += 1
         if j == n:
@@ -1171,7 +1172,7 @@ def saturate_cell_centres(
                 dj = -1  # kind 1: a = (i + 1, j - 1)
             v = bounds.to_vec3d(grid.positions[entry])
             z_v = wp.float64(grid.heights[entry])
-            e = look_ahead_error(grid, face * nn, i, j, wp.vec2i(i + 1, j + dj), wp.vec2i(i - 1, j - dj))
+            e = look_ahead_error(grid, face, i, j, wp.vec2i(i + 1, j + dj), wp.vec2i(i - 1, j - dj))
             w_v = to_vec3d_i(wp.vec3i(2 * j - cells, 2 * i - cells, cells))
             r = wp.float64(0.0)
             h = wp.float64(0.0)
@@ -1349,7 +1350,7 @@ def saturate_node_parameters(
             # (s >= 2 here: the planar levels with s = 1 are saturate_planar_fine's)
             e = wp.max(triangle_true_error(grid, face, a, b, apex), triangle_true_error(grid, face, a, b, mate))
         else:
-            e = look_ahead_error(grid, base, i, j, a, b)
+            e = look_ahead_error(grid, face, i, j, a, b)
             if with_angle != 0:
                 w_v = to_vec3d_i(local_point(i, j, grid.cells))  # angles are invariant under the face's rotation
         r = wp.float64(0.0)

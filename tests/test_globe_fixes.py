@@ -1405,7 +1405,7 @@ def _seam_look_ahead_errors(grid: cs.CubeSphereGrid, nodes: wp.array[wp.vec4i], 
     node = wp.vec2i(q[1], q[2])
     a = node + step
     b = node - step
-    out[wp.tid(), 0] = cs.look_ahead_error(grid, q[0] * grid.n * grid.n, q[1], q[2], a, b)
+    out[wp.tid(), 0] = cs.look_ahead_error(grid, q[0], q[1], q[2], a, b)
     v = cs.entry_position64(grid, cs.node_entry(grid.cells, 0, q[0], q[1], q[2]))
     pa = cs.entry_position64(grid, cs.node_entry(grid.cells, 0, q[0], a[0], a[1]))
     pb = cs.entry_position64(grid, cs.node_entry(grid.cells, 0, q[0], b[0], b[1]))
