@@ -282,7 +282,7 @@ def plan_items(
             return _file_items(files), None
         if not path.exists():
             raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)")
-        from .io import load_dem
+        from .io import read_dem
 
         if tile_size is None:
             series = load_series(path) if path.suffix.lower() in (".npy", ".npz") else None
@@ -303,13 +303,10 @@ def plan_items(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         try:
-            if crop is not None and path.suffix.lower() in (".tif", ".tiff"):  # the crop's window only
-                from .io import read_dem
-
-                terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=crop,
-                                   refuse=lambda whole: _check_crop(whole, crop))
-            else:
-                terrain = load_dem(path, height_unit=height_unit, band=1 if band is None else band)
+            # a GeoTIFF's crop: its window only (other files are cropped by _reshaped_source)
+            window = crop if path.suffix.lower() in (".tif", ".tiff") else None
+            terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
+                               refuse=lambda whole: _check_crop(whole, crop))
         except DataFileError:
             # a (T, H, W) series file with tile_size said "cannot read ...: expected a 2-D (H, W) elevation grid",
             # as if the file were broken; a series in memory says what the option is for
@@ -622,11 +619,13 @@ def _of_files(source: Any) -> bool:
         isinstance(source, (list, tuple)) and all(isinstance(f, (str, os.PathLike)) for f in source))
 
 
-def _check_crop(terrain: Terrain, crop: ArrayLike) -> None:
-    """:meth:`Terrain.crop`'s refusals of ``crop`` for ``terrain`` but that of nodata only, named as
-    :func:`_reshaped_source` names them (a GeoTIFF read only in the crop's window is checked so first)."""
+def _check_crop(terrain: Terrain, crop: ArrayLike) -> tuple[tuple[float, float, float, float], tuple[int, int],
+                                                           tuple[int, int]]:
+    """:meth:`Terrain._crop_nodes` of ``crop`` for ``terrain``: :meth:`Terrain.crop`'s refusals but that of nodata
+    only, named as :func:`_reshaped_source` names them (a GeoTIFF read only in the crop's window is checked so
+    first)."""
     try:
-        terrain._crop_nodes(crop)
+        return terrain._crop_nodes(crop)
     except InvalidInputError as exc:
         raise InvalidInputError(f"crop {exc}") from None  # "crop extent (...) holds 0 x 0 nodes ..."
 
@@ -643,10 +642,7 @@ def _reshaped_source(src: _Source, crop: ArrayLike | None, coarsen: int | None) 
                                    src.crs)  # the CRS for crop's refusal of an extent in degrees
     heights = src.heights
     if crop is not None:
-        try:
-            _, (i0, i1), (j0, j1) = probe._crop_nodes(crop)
-        except InvalidInputError as exc:
-            raise InvalidInputError(f"crop {exc}") from None  # "crop extent (...) holds 0 x 0 nodes ..."
+        _, (i0, i1), (j0, j1) = _check_crop(probe, crop)
         (dx, dy), (ox, oy) = src.spacing, src.origin
         i1, j1 = i1 + 1, j1 + 1
         heights = heights[..., i0:i1, j0:j1]

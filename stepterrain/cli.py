@@ -241,19 +241,18 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     is refused); then ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and
     ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop`` without ``--spacing`` is load_dem's
     ``crop``: a GeoTIFF's window is all that is read (a crop of a file over the memory budget), the same nodes."""
-    from .io import load_dem, own_placement, read_dem, sample_dem
+    from .io import own_placement, read_dem, sample_dem
 
     def refuse(whole: Any) -> None:
         assert crop is not None
         _refuse_degrees(whole, crop, "--crop")
         _refuse_gdal_order(whole, crop)
 
-    if path and crop is not None and spacing is None:
-        terrain = read_dem(path, band=1 if band is None else band, height_unit=height_unit, crop=crop,
-                           option="--crop", refuse=refuse)
-        crop = None  # done
-    elif path:
-        terrain = load_dem(path, band=1 if band is None else band, height_unit=height_unit)
+    if path:  # load_dem, with --crop unless --spacing must place the grid first
+        terrain = read_dem(path, band=1 if band is None else band, height_unit=height_unit,
+                           crop=crop if spacing is None else None, option="--crop", refuse=refuse)
+        if spacing is None:
+            crop = None  # done
     elif height_unit is not None:
         raise InvalidInputError(
             f"--height-unit applies to an INPUT file; the embedded DEM is in metres; got {height_unit!r}")
