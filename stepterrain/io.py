@@ -956,25 +956,23 @@ def _load_geotiff(
     if mask is not np.ma.nomask:
         np.copyto(array, np.nan, where=mask)
     del mask
-    if window is not None and not np.isfinite(array).any():
-        raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}")  # as Terrain.crop refuses it
-    heights = _elevation(array, file, f"band {band}", warn_voids=False)  # warned above, on the values as stored
+    try:
+        heights = _elevation(array, file, f"band {band}", warn_voids=False)  # warned above, on the values as stored
+    except Exception:
+        if window is not None and not np.isfinite(array).any():  # as Terrain.crop refuses it
+            raise InvalidInputError(f"{option}: {crop_of_nodata(bounds, array.shape)}") from None
+        raise
     del array  # a float64 band's copy, before the heights are converted to metres
     heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
-    if header is not None and place is not None:  # the crop's nodes, where Terrain.crop puts them
+    if header is None or place is None:  # the whole file, placed now (its warnings after the heights')
+        place = _geotiff_placement(file, shape, transform, crs_obj, crs, height_unit)
+        spacing, origin, crs, source = place.spacing, place.origin, place.crs, place.source
+    else:  # the crop's nodes, where Terrain.crop puts them
         (dx, dy), (ox, oy) = header.spacing, header.origin
-        terrain = _grid(file, heights, spacing=(dx, dy), origin=(ox + j0 * dx, oy + i0 * dy), crs=header.crs,
-                        source=header.source, height_unit=header.height_unit)
-        _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its crop's heights
-        return terrain
-    if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
-        _warn_crs_without_geotransform(file, crs_obj, crs)
-        return _grid(file, heights, spacing=(1.0, -1.0), origin=(0.0, 0.0), crs=None, height_unit=height_unit)
-    geotransform = np.array(transform.to_gdal(), dtype=np.float64)
-    geographic = bool(crs_obj is not None and crs_obj.is_geographic)
-    return _georeferenced(
-        file, heights, geotransform, crs, geographic=geographic, metres=None, height_unit=height_unit
-    )
+        spacing, origin, crs, source = (dx, dy), (ox + j0 * dx, oy + i0 * dy), header.crs, header.source
+    terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
+    _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
+    return terrain
 
 
 def _warn_crs_without_geotransform(file: Path, crs_obj: Any, crs: str | None) -> None:
@@ -993,19 +991,26 @@ def _geotiff_header(
     """The whole grid of a GeoTIFF of ``shape`` as :func:`_load_geotiff` places it (its warnings and refusals told),
     from its header alone: a :meth:`~stepterrain.terrain.Terrain._geometry_only` (no heights) and its placement, whose
     :func:`_check_placed` warnings are told once the heights are read."""
-    if transform.is_identity:
-        _warn_crs_without_geotransform(file, crs_obj, crs)
-        place = _Placement((1.0, -1.0), (0.0, 0.0), None, file.name, None)
-    else:
-        place = _placement(file, shape, np.array(transform.to_gdal(), dtype=np.float64), crs,
-                           geographic=bool(crs_obj is not None and crs_obj.is_geographic), metres=None,
-                           height_unit=height_unit)
+    place = _geotiff_placement(file, shape, transform, crs_obj, crs, height_unit)
     try:
         header = Terrain._geometry_only(shape, place.spacing, place.origin, place.crs, source=place.source,
                                         height_unit=height_unit)
     except InvalidInputError as exc:  # as _grid refuses the whole grid's geometry
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc
     return header, place
+
+
+def _geotiff_placement(
+    file: Path, shape: tuple[int, int], transform: Any, crs_obj: Any, crs: str | None, height_unit: str | None,
+) -> _Placement:
+    """Where :func:`_load_geotiff` puts the nodes of a GeoTIFF's grid of ``shape`` (:func:`_placement`; a file
+    without a geotransform at spacing (1, -1), origin (0, 0), its CRS ignored with a warning), from its header."""
+    if transform.is_identity:  # no geotransform (rasterio then reports the identity): a plain TIFF, north-up
+        _warn_crs_without_geotransform(file, crs_obj, crs)
+        return _Placement((1.0, -1.0), (0.0, 0.0), None, file.name, None)
+    return _placement(file, shape, np.array(transform.to_gdal(), dtype=np.float64), crs,
+                      geographic=bool(crs_obj is not None and crs_obj.is_geographic), metres=None,
+                      height_unit=height_unit)
 
 
 def equals_nodata(array: NDArray[Any], nodata: float) -> NDArray[np.bool_]:
