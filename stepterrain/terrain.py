@@ -473,6 +473,27 @@ def _in_metres(shape: tuple[int, ...], spacing: tuple[float, float], origin: tup
     return (spacing, origin, crs, source) if placed is None else placed
 
 
+def _grid_fields(
+    heights: ArrayLike, spacing: Any, origin: Any, crs: str | None, source: str | None, *, borrow: bool = False,
+) -> tuple[NDArray[np.float32], tuple[float, float], tuple[float, float], str | None, str | None, dict[str, Any]]:
+    """A grid Terrain's (heights, spacing, origin, crs, source) checked as :meth:`Terrain.from_heights` and a grid
+    built directly keep them (:func:`_heights_array`, :func:`grid_geometry`, :func:`_in_metres`), and its first
+    cache entries: the checks' min and max answer has_nodata and, without nodata, height_range (no further passes)."""
+    array, lo, hi = _heights_array(heights, borrow=borrow)
+    spacing, origin = grid_geometry(spacing, origin, array.shape)
+    spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source)
+    cache: dict[str, Any] = {"has_nodata": math.isnan(lo)}
+    if not math.isnan(lo):
+        cache["height_range"] = (lo, hi)
+    return array, spacing, origin, crs, source, cache
+
+
+def _placed_metadata(t: Terrain) -> dict[str, Any]:
+    """A Terrain's CRS and source, those set, as a mesh's metadata records them (as stepped's mesh does): a file of
+    dem.mesh() named no CRS."""
+    return {key: value for key, value in (("crs", t.crs), ("source", t.source)) if value}
+
+
 def _described(value: Any) -> str:
     """A short description of an argument's value for an error message: an array's shape and dtype, else its repr."""
     if isinstance(value, np.ndarray):
@@ -556,17 +577,14 @@ class Terrain:
             if extra:
                 raise InvalidInputError(f"a Terrain of kind 'grid' takes heights, spacing and origin; got "
                                         f"{', '.join(extra)} too (a TIN's fields: use kind='tin' or Terrain.from_mesh)")
-            array, lo, hi = _heights_array(self.heights)
+            array, spacing, origin, crs, source, cache = _grid_fields(self.heights, self.spacing, self.origin,
+                                                                      self.crs, self.source)
             set_field(self, "heights", array)  # a copy: unshared with the array given
-            spacing, origin = grid_geometry(self.spacing, self.origin, array.shape)
-            spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, self.crs, self.source)
             set_field(self, "spacing", spacing)
             set_field(self, "origin", origin)
             set_field(self, "crs", crs)
             set_field(self, "source", source)
-            self._device_cache["has_nodata"] = math.isnan(lo)
-            if not math.isnan(lo):
-                self._device_cache["height_range"] = (lo, hi)
+            self._device_cache.update(cache)
             return
         if self.points is None or self.faces is None:
             raise InvalidInputError("a Terrain of kind 'tin' needs points (N, 3) and faces (F, 3); got "
@@ -615,9 +633,7 @@ class Terrain:
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         height_unit = optional_text(height_unit, "height_unit", "the unit the heights were read in, e.g. 'ft'")
-        array, lo, hi = _heights_array(heights, borrow=_borrow)
-        spacing, origin = grid_geometry(spacing, origin, array.shape)
-        spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source)
+        array, spacing, origin, crs, source, cache = _grid_fields(heights, spacing, origin, crs, source, borrow=_borrow)
         terrain = cls(
             kind="grid",
             heights=array,
@@ -628,10 +644,7 @@ class Terrain:
             height_unit=height_unit,
             _owned=True,
         )
-        # the checks' min and max answer has_nodata and, without nodata, height_range: no further passes
-        terrain._device_cache["has_nodata"] = math.isnan(lo)
-        if not math.isnan(lo):
-            terrain._device_cache["height_range"] = (lo, hi)
+        terrain._device_cache.update(cache)  # has_nodata and height_range from the checks: no further passes
         return terrain
 
     @classmethod
@@ -896,8 +909,7 @@ class Terrain:
     def mesh(self) -> trimesh.Trimesh:
         """The terrain as a ``trimesh.Trimesh`` (see :func:`heightfield_mesh`)."""
         if self.kind == "tin":  # its CRS and source, as heightfield_mesh records a grid's
-            placed = {key: value for key, value in (("crs", self.crs), ("source", self.source)) if value}
-            return trimesh.Trimesh(self.points, self.faces, process=False, metadata=placed)
+            return trimesh.Trimesh(self.points, self.faces, process=False, metadata=_placed_metadata(self))
         return heightfield_mesh(self)
 
     # ------------------------------------------------------------------ smaller grids
@@ -1588,11 +1600,8 @@ def heightfield_mesh(
         [t.origin[0] + j.reshape(-1) * dx, t.origin[1] + i.reshape(-1) * dy, t.heights.reshape(-1).astype(np.float64)],
         axis=1,
     )
-    metadata: dict[str, Any] = {"grid_shape": (rows, cols), "spacing": (dx, dy), "origin": t.origin}
-    if t.crs:  # a Terrain's CRS and source, as stepped's mesh records them: a file of dem.mesh() named no CRS
-        metadata["crs"] = t.crs
-    if t.source:
-        metadata["source"] = t.source
+    metadata: dict[str, Any] = {"grid_shape": (rows, cols), "spacing": (dx, dy), "origin": t.origin,
+                                **_placed_metadata(t)}
     vertices, faces, kept = without_nan_nodes(vertices, faces)
     if kept is not None:
         metadata["node_index"] = kept
