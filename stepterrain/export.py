@@ -2331,8 +2331,8 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     return out
 
 
-def _texture_copy(original: Any, **kwargs: Any) -> Any:
-    """``original.copy(**kwargs)`` (a mesh, a visual or a material), its material given the texture images of
+def _texture_copy(original: Any) -> Any:
+    """``original.copy()`` (a mesh, a visual or a material), its material given the texture images of
     ``original``'s opened from a JPEG themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with
     ``Image.copy()``, which drops its ``format`` and file name, so such a texture was written as a PNG three times its
     size (and an OBJ's ``.png``), and :func:`_jpeg_data` could not find its file. The writers replace images on the
@@ -2345,7 +2345,7 @@ def _texture_copy(original: Any, **kwargs: Any) -> Any:
         visual = thing.visual if isinstance(thing, trimesh.Trimesh) else thing
         return visual if isinstance(visual, trimesh.visual.material.Material) else getattr(visual, "material", None)
 
-    copied = original.copy(**kwargs)
+    copied = original.copy()
     material, mine = material_of(original), material_of(copied)
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
     if type(mine) is type(material):
@@ -2641,10 +2641,11 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
 
 
 def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
-    """One node holding ``mesh`` (a prepared copy: its visual may be replaced); large coordinates move into the node
-    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it. Vertex attributes
-    are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare KeyError for an integer or
-    bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as VEC4)."""
+    """One node holding ``mesh`` (a prepared copy: its visual, material and vertices may be replaced); large
+    coordinates move into the node translation (float64 in JSON); a texture's material as :func:`_textured_material`
+    makes it. Vertex attributes are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare
+    KeyError for an integer or bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as
+    VEC4)."""
     mesh.vertex_attributes.clear()  # the prepared copy's own dict
     material = getattr(mesh.visual, "material", None)
     if mesh.visual.kind == "texture" and material is not None:
@@ -2653,8 +2654,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     transform = _Z_UP_TO_Y_UP.copy()  # exact 0 and ±1: trimesh writes it as the node's matrix
     if _is_large(bounds):
         offset = _local_origin(bounds)
-        mesh = _texture_copy(mesh, include_cache=False)
-        mesh.vertices = vertices - offset
+        mesh.vertices = vertices - offset  # a new array: the caller's (shared with the prepared copy) stays as it is
         transform[:3, 3] = _Z_UP_TO_Y_UP[:3, :3] @ offset + 0.0  # in the world frame
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
         _encoded_textures(mesh.visual.material)  # the prepared copy's own material (or _textured_material's)
@@ -2798,10 +2798,11 @@ def _textured_material(material: Any) -> Any:
     ``TextureVisuals(uv=..., image=...)``, as :func:`~stepterrain.globe.drape_texture` makes it) became
     baseColorFactor 0.4 (its default diffuse grey, multiplying the texture: the drape at 40 % brightness) and no
     metallicFactor (glTF's default 1: dark metal); it is now the image with a white factor (a colour without one),
-    metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` keeps what it sets;
-    an unset metallicFactor becomes 0, an unset alphaMode that of its texture. The alphaMode follows the texture
-    (:func:`_texture_alpha_mode`): glTF's default, OPAQUE, showed its transparent texels (nodata, outside a
-    lens) as whatever colour they hold. Other materials are written as trimesh writes them."""
+    metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` (the prepared copy's
+    own, changed in place) keeps what it sets; an unset metallicFactor becomes 0, an unset alphaMode that of its
+    texture. The alphaMode follows the texture (:func:`_texture_alpha_mode`): glTF's default, OPAQUE, showed its
+    transparent texels (nodata, outside a lens) as whatever colour they hold. Other materials are written as trimesh
+    writes them."""
     if isinstance(material, trimesh.visual.material.SimpleMaterial):
         image = material.image
         mode, cutoff = _texture_alpha_mode(image)
@@ -2814,9 +2815,7 @@ def _textured_material(material: Any) -> Any:
     if isinstance(material, trimesh.visual.material.PBRMaterial):
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
-        if material.metallicFactor is None or unset_alpha:
-            material = _texture_copy(material)  # a JPEG stays one
-        if material.metallicFactor is None:
+        if material.metallicFactor is None:  # the prepared copy's own material: changed in place
             material.metallicFactor = 0.0
         if unset_alpha:
             material.alphaMode, material.alphaCutoff = mode, cutoff
