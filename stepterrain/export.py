@@ -519,7 +519,7 @@ def save_mesh(
 #: vertices with vertex colours took 317 MiB as .glb, 379 .obj, 1100 .ply, 2408 .stl, 175 .3mf and 1416 .gltf; an
 #: unmerged mesh of 3.9 M faces and 11.7 M vertices 181, 136, 728, 1012, 75 and 1077 MiB (nothing was checked: a
 #: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %. PLY's, measured
-#: again since it writes float64 wherever float32 would round (:func:`_ply_bytes` holds the vertices as float64, the
+#: again since it writes float64 wherever float32 would round (:func:`_ply_parts` holds the vertices as float64, the
 #: float32 try and the float64 columns at once): Big Tujunga's stepped mesh (interval 20 m, 2.7 M vertices, 5.3 M
 #: faces, local coordinates + 0.123, vertex colours) 632 MiB, unmerged (16.0 M vertices) 2063 MiB, as peak RSS and
 #: tracemalloc alike: 112 bytes a vertex, 68 a face (65 and 66 where float32 holds them; 40 and 144 were measured
@@ -1504,7 +1504,9 @@ def _alpha_map(sidecars: dict[str, bytes], mtl_name: str, material: Any) -> dict
 
 
 def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    tmp.write_bytes(_ply_bytes(mesh, frame))
+    with tmp.open("wb") as fh:  # part by part: joining them first would copy the whole file once more
+        for part in _ply_parts(mesh, frame):
+            fh.write(part)
 
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
@@ -2401,16 +2403,17 @@ _PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vert
 # coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
 
 
-def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
-    """Binary little-endian PLY: vertices (float64 beyond 65536 or where float32 would round them, else float32),
-    RGBA vertex or face colours, attributes."""
+def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
+    """Binary little-endian PLY, as its header, vertex block and face block (bytes-like, written one after another):
+    vertices (float64 beyond 65536 or where float32 would round them, else float32), RGBA vertex or face colours,
+    attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
-    xyz = [vertices[:, k].astype(coordinate) for k in range(3)]
+    xyz = [vertices[:, k].astype(coordinate, copy=False) for k in range(3)]  # float64: views, not copies
     if coordinate.itemsize == 4 and not all(np.array_equal(xyz[k], vertices[:, k]) for k in range(3)):
         # float64 where float32 would round (60000.123 by 1.9 mm): .ply keeps the vertices; a set's tiles still weld,
         # a float32 one holding its shared vertices exactly as the float64 one beside it does
-        xyz = [vertices[:, k].astype("<f8") for k in range(3)]
+        xyz = [vertices[:, k].astype("<f8", copy=False) for k in range(3)]
     vertex_columns: list[tuple[str, NDArray[Any]]] = [("x", xyz[0]), ("y", xyz[1]), ("z", xyz[2])]
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
@@ -2450,7 +2453,7 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     face_block["vertex_indices"] = faces
     for name, column in face_columns:
         face_block[name] = column
-    return ("\n".join(header) + "\n").encode("ascii") + vertex_block.tobytes() + face_block.tobytes()
+    return [("\n".join(header) + "\n").encode("ascii"), vertex_block.view(np.uint8), face_block.view(np.uint8)]
 
 
 #: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
