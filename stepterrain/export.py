@@ -1724,7 +1724,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if own is not None:
                 return own
         gltf = file.suffix.lower() in (".glb", ".gltf")
-        color, y_up, tree = None, False, None
+        color, tree, scene = None, None, None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
@@ -1739,7 +1739,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             order = {"maintain_order": True} if plain_obj else {}
             loaded = trimesh.load(file, force="mesh", process=False, **order)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-            loaded = _read_points(file, gltf and y_up) or loaded
+            loaded = _read_points(file, scene) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file, tree))
             if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
@@ -2158,12 +2158,10 @@ def _check_format(file: Path) -> None:
                                      "statement (v, vt, vn, f, o, g, usemtl, ...); is it of another format?")
 
 
-def _read_points(file: Path, y_up: bool = False) -> trimesh.Trimesh | None:
-    """The point clouds of ``file`` (in world coordinates, with their colours; ``y_up``: a glTF's, turned z-up) as one
-    mesh without faces; None without any."""
-    loaded = trimesh.load(file, process=False)
-    if y_up and isinstance(loaded, trimesh.Scene):
-        loaded.apply_transform(_Y_UP_TO_Z_UP)
+def _read_points(file: Path, scene: trimesh.Scene | None = None) -> trimesh.Trimesh | None:
+    """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None without
+    any. ``scene``: a glTF's, as :func:`read_mesh` loaded it (and turned z-up), not loaded again."""
+    loaded = scene if scene is not None else trimesh.load(file, process=False)
     parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
     clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
     if not clouds:
