@@ -1760,7 +1760,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded.metadata.update(metadata)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
-                color = _gltf_color_0(file)
+                color = _gltf_color_0(file, tree)
             _srgb_vertex_colors(loaded, color)
             _gltf_sampler_wrap(loaded, tree)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
@@ -2042,19 +2042,24 @@ def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
     return dict(extras) if isinstance(extras, dict) else {}
 
 
-def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
+def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
     """The COLOR_0 values, in [0, 1], of a glTF or GLB ``file`` holding one mesh of one primitive with its buffer
     embedded (as :func:`save_mesh` writes it); None for any other layout. Read for a file of points, whose colours
-    trimesh's PointCloud holds only as rounded bytes."""
+    trimesh's PointCloud holds only as rounded bytes. ``tree``: the file's JSON where :func:`_check_dense_gltf` has
+    read it (None: read here; a GLB's binary chunk is read past it)."""
     try:
         with open(file, "rb") as stream:
             head = stream.read(20)
             if head[:4] == b"glTF":
-                tree = _glb_json(stream, head)
+                if tree is None:
+                    tree = _glb_json(stream, head)
+                else:  # to the binary chunk's header, after the JSON chunk (as _glb_json leaves the stream)
+                    stream.seek(20 + struct.unpack_from("<I", head, 12)[0])
                 chunk = stream.read(8)  # the binary chunk's header: its length
                 binary = stream.read()[: struct.unpack_from("<I", chunk)[0]] if len(chunk) == 8 else b""
             else:
-                tree = json.loads(head + stream.read())
+                if tree is None:
+                    tree = json.loads(head + stream.read())
                 uri = (tree.get("buffers") or [{}])[0].get("uri", "")
                 if not uri.startswith("data:"):
                     return None
