@@ -1357,12 +1357,11 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
             material.diffuse = np.array([255, 255, 255, 255], np.uint8)
             material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
     image = getattr(material, "image", None)
-    if isinstance(image, Image.Image) and image.format in (None, "PNG"):  # trimesh's to_obj writes it as PNG
+    # trimesh's to_obj writes a PNG (or one opened from none) as PNG: encoded once, as a glTF's texture; a JPEG as the
+    # file's bytes, as a glTF's (_encoded_image)
+    if isinstance(image, Image.Image) and image.format in (None, "PNG", "JPEG"):
         material = copy.copy(material)  # the mesh's own (a SimpleMaterial): _alpha_map reads its image after
-        material.image = _EncodedImage(_png_data(image), "PNG")  # once, as a glTF's texture (_encoded_textures)
-    elif isinstance(image, Image.Image) and image.format == "JPEG":  # the file's bytes, as a glTF's (_jpeg_data)
-        material = copy.copy(material)
-        material.image = _EncodedImage(_jpeg_data(image), "JPEG")
+        material.image = _encoded_image(image)
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
         name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
@@ -2699,10 +2698,15 @@ def _encoded_textures(material: Any) -> None:
         image = getattr(material, slot, None)
         if not isinstance(image, Image.Image):
             continue
-        if image.format == "JPEG":
-            setattr(material, slot, _EncodedImage(_jpeg_data(image), "JPEG"))
-        else:
-            setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
+        setattr(material, slot, _encoded_image(image))
+
+
+def _encoded_image(image: Any) -> _EncodedImage:
+    """A PIL image as an :class:`_EncodedImage`: one opened from a JPEG as JPEG bytes (:func:`_jpeg_data`), any other
+    as PNG bytes (:func:`_png_data`)."""
+    if image.format == "JPEG":
+        return _EncodedImage(_jpeg_data(image), "JPEG")
+    return _EncodedImage(_png_data(image), "PNG")
 
 
 def _png_data(image: Any) -> bytes:
