@@ -2399,7 +2399,8 @@ _PLY_TYPES: dict[str, str] = {
     "<f4": "float",
     "<f8": "double",
 }
-_PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vertex_indices"})
+#: The other element's own property names (:data:`_PLY_OWN` holds each element's): not written as a column either.
+_PLY_RESERVED = frozenset({"x", "y", "z", "vertex_indices"})
 # An attribute is not written under a name readers take for something else (:data:`_PLY_OWN`: ``nx``, ``u``, ``s``
 # ... of a vertex, ``texcoord`` of a face): trimesh's reader and VTK's made such a column normals or texture
 # coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
