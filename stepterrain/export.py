@@ -831,16 +831,16 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     pixels = np.ascontiguousarray(array)
     picture = Image.fromarray(pixels)  # uint8 (H, W, 3|4) -> RGB or RGBA
     _check_owner([target], target)
-    stamp = None
+    stamp, options = None, _png_options(picture)
     with atomic_path(target) as tmp:
         try:
             if suffix == ".png":
-                picture.save(tmp, format="PNG", **_png_options(picture))
+                picture.save(tmp, format="PNG", **options)
             else:
                 picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
-        if suffix == ".png" and reused and _png_options(picture):  # a large one: a glTF of it takes its bytes
+        if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
             with contextlib.suppress(OSError):
                 stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
     _record_owner([target], target)
@@ -2131,12 +2131,12 @@ def _check_format(file: Path) -> None:
     GLB under the wrong extension, random bytes, an STL cut short) as an empty mesh, which ``stepterrain info``
     described as one; and an ASCII STL of several solids cut short was read as the solids before the cut."""
     suffix = file.suffix.lower()
-    size = file.stat().st_size
-    with open(file, "rb") as stream:
-        head = stream.read(4096)
-        stream.seek(max(size - 4096, 0))
-        tail = stream.read()
     if suffix == ".stl":
+        size = file.stat().st_size
+        with open(file, "rb") as stream:
+            head = stream.read(4096)
+            stream.seek(max(size - 4096, 0))
+            tail = stream.read()
         count = int.from_bytes(head[80:84], "little") if size >= 84 else None
         if count is not None and size == 84 + 50 * count:
             return  # a binary STL (of no triangles, as trimesh read it)
@@ -2713,10 +2713,11 @@ def _encoded_image(image: Any) -> _EncodedImage:
 def _png_data(image: Any) -> bytes:
     """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`): the bytes of the large PNG it
     last wrote when that holds the same pixels (:func:`_written_png`), else encoded here."""
-    data = _written_png(image) if _png_options(image) else None
+    options = _png_options(image)
+    data = _written_png(image) if options else None
     if data is None:
         buffer = io.BytesIO()
-        image.save(buffer, format="PNG", **_png_options(image))
+        image.save(buffer, format="PNG", **options)
         data = buffer.getvalue()
     return data
 
@@ -2820,8 +2821,9 @@ def _textured_material(material: Any) -> Any:
         pbr = trimesh.visual.material.PBRMaterial(
             name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
             metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True, alphaMode=mode, alphaCutoff=cutoff)
-        if texture_wrap(material) is not None:  # the sampler the texture asks for (a globe's drape)
-            pbr.wrap = texture_wrap(material)
+        wrap = texture_wrap(material)
+        if wrap is not None:  # the sampler the texture asks for (a globe's drape)
+            pbr.wrap = wrap
         return pbr
     if isinstance(material, trimesh.visual.material.PBRMaterial):
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
