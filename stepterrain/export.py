@@ -519,7 +519,7 @@ def save_mesh(
 #: vertices with vertex colours took 317 MiB as .glb, 379 .obj, 1100 .ply, 2408 .stl, 175 .3mf and 1416 .gltf; an
 #: unmerged mesh of 3.9 M faces and 11.7 M vertices 181, 136, 728, 1012, 75 and 1077 MiB (nothing was checked: a
 #: 956 MiB mesh took 560 MiB more as .glb, 690 as .obj). Fitted to both and rounded up by about 30 %. PLY's, measured
-#: again since it writes float64 wherever float32 would round (:func:`_ply_bytes` holds the vertices as float64, the
+#: again since it writes float64 wherever float32 would round (:func:`_ply_parts` holds the vertices as float64, the
 #: float32 try and the float64 columns at once): Big Tujunga's stepped mesh (interval 20 m, 2.7 M vertices, 5.3 M
 #: faces, local coordinates + 0.123, vertex colours) 632 MiB, unmerged (16.0 M vertices) 2063 MiB, as peak RSS and
 #: tracemalloc alike: 112 bytes a vertex, 68 a face (65 and 66 where float32 holds them; 40 and 144 were measured
@@ -831,16 +831,16 @@ def _save_image(image: ArrayLike, path: str | os.PathLike[str], *, extent: Any =
     pixels = np.ascontiguousarray(array)
     picture = Image.fromarray(pixels)  # uint8 (H, W, 3|4) -> RGB or RGBA
     _check_owner([target], target)
-    stamp = None
+    stamp, options = None, _png_options(picture)
     with atomic_path(target) as tmp:
         try:
             if suffix == ".png":
-                picture.save(tmp, format="PNG", **_png_options(picture))
+                picture.save(tmp, format="PNG", **options)
             else:
                 picture.save(tmp, format="TIFF", compression="tiff_deflate")
         except OSError as exc:
             raise DataFileError(f"cannot write {str(target)!r}: {exc}") from exc
-        if suffix == ".png" and reused and _png_options(picture):  # a large one: a glTF of it takes its bytes
+        if suffix == ".png" and reused and options:  # a large one: a glTF of it takes its bytes
             with contextlib.suppress(OSError):
                 stamp = _file_stamp(tmp)  # the bytes written, before the rename (see _LAST_PNG)
     _record_owner([target], target)
@@ -1357,12 +1357,11 @@ def _obj_material(mesh: trimesh.Trimesh, mtl_name: str) -> tuple[dict[str, bytes
             material.diffuse = np.array([255, 255, 255, 255], np.uint8)
             material.specular = np.array([0, 0, 0, 255], np.uint8)  # matte, as the glTF material
     image = getattr(material, "image", None)
-    if isinstance(image, Image.Image) and image.format in (None, "PNG"):  # trimesh's to_obj writes it as PNG
+    # trimesh's to_obj writes a PNG (or one opened from none) as PNG: encoded once, as a glTF's texture; a JPEG as the
+    # file's bytes, as a glTF's (_encoded_image)
+    if isinstance(image, Image.Image) and image.format in (None, "PNG", "JPEG"):
         material = copy.copy(material)  # the mesh's own (a SimpleMaterial): _alpha_map reads its image after
-        material.image = _EncodedImage(_png_data(image), "PNG")  # once, as a glTF's texture (_encoded_textures)
-    elif isinstance(image, Image.Image) and image.format == "JPEG":  # the file's bytes, as a glTF's (_jpeg_data)
-        material = copy.copy(material)
-        material.image = _EncodedImage(_jpeg_data(image), "JPEG")
+        material.image = _encoded_image(image)
     name = material.name
     if isinstance(name, str):  # one word for newmtl / usemtl: a line break in it started a statement of its own in
         name = "_".join(name.split())  # the OBJ ("v 9 9 9" shifted every face) and the MTL, and map_Kd lost the image
@@ -1504,7 +1503,9 @@ def _alpha_map(sidecars: dict[str, bytes], mtl_name: str, material: Any) -> dict
 
 
 def _write_ply(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
-    tmp.write_bytes(_ply_bytes(mesh, frame))
+    with tmp.open("wb") as fh:  # part by part: joining them first would copy the whole file once more
+        for part in _ply_parts(mesh, frame):
+            fh.write(part)
 
 
 def _write_stl(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
@@ -1722,7 +1723,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             if own is not None:
                 return own
         gltf = file.suffix.lower() in (".glb", ".gltf")
-        color, y_up, tree = None, False, None
+        color, tree, scene = None, None, None
         if gltf:  # trimesh.load(force="mesh") is load_scene().to_mesh(), which drops COLOR_0 beside a material
             tree = _check_dense_gltf(file)  # its JSON, read once
             stored_z_up = _stored_z_up(tree)
@@ -1737,7 +1738,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             order = {"maintain_order": True} if plain_obj else {}
             loaded = trimesh.load(file, force="mesh", process=False, **order)
         if isinstance(loaded, trimesh.Trimesh) and len(loaded.vertices) == 0:
-            loaded = _read_points(file, gltf and y_up) or loaded
+            loaded = _read_points(file, scene) or loaded
             if gltf and len(loaded.vertices) == 0:  # an empty mesh's metadata, in its node's extras
                 loaded.metadata.update(_empty_gltf_extras(file, tree))
             if len(loaded.vertices) == 0 and file.suffix.lower() == ".obj":  # trimesh reads anything as an empty OBJ
@@ -1758,7 +1759,7 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             loaded.metadata.update(metadata)
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
-                color = _gltf_color_0(file)
+                color = _gltf_color_0(file, tree)
             _srgb_vertex_colors(loaded, color)
             _gltf_sampler_wrap(loaded, tree)
     except Exception as exc:  # noqa: BLE001 - trimesh and the XML reader raise many kinds for a bad file
@@ -2040,19 +2041,24 @@ def _empty_gltf_extras(file: Path, tree: Any = None) -> dict[str, Any]:
     return dict(extras) if isinstance(extras, dict) else {}
 
 
-def _gltf_color_0(file: Path) -> NDArray[np.float64] | None:
+def _gltf_color_0(file: Path, tree: Any = None) -> NDArray[np.float64] | None:
     """The COLOR_0 values, in [0, 1], of a glTF or GLB ``file`` holding one mesh of one primitive with its buffer
     embedded (as :func:`save_mesh` writes it); None for any other layout. Read for a file of points, whose colours
-    trimesh's PointCloud holds only as rounded bytes."""
+    trimesh's PointCloud holds only as rounded bytes. ``tree``: the file's JSON where :func:`_check_dense_gltf` has
+    read it (None: read here; a GLB's binary chunk is read past it)."""
     try:
         with open(file, "rb") as stream:
             head = stream.read(20)
             if head[:4] == b"glTF":
-                tree = _glb_json(stream, head)
+                if tree is None:
+                    tree = _glb_json(stream, head)
+                else:  # to the binary chunk's header, after the JSON chunk (as _glb_json leaves the stream)
+                    stream.seek(20 + struct.unpack_from("<I", head, 12)[0])
                 chunk = stream.read(8)  # the binary chunk's header: its length
                 binary = stream.read()[: struct.unpack_from("<I", chunk)[0]] if len(chunk) == 8 else b""
             else:
-                tree = json.loads(head + stream.read())
+                if tree is None:
+                    tree = json.loads(head + stream.read())
                 uri = (tree.get("buffers") or [{}])[0].get("uri", "")
                 if not uri.startswith("data:"):
                     return None
@@ -2125,12 +2131,12 @@ def _check_format(file: Path) -> None:
     GLB under the wrong extension, random bytes, an STL cut short) as an empty mesh, which ``stepterrain info``
     described as one; and an ASCII STL of several solids cut short was read as the solids before the cut."""
     suffix = file.suffix.lower()
-    size = file.stat().st_size
-    with open(file, "rb") as stream:
-        head = stream.read(4096)
-        stream.seek(max(size - 4096, 0))
-        tail = stream.read()
     if suffix == ".stl":
+        size = file.stat().st_size
+        with open(file, "rb") as stream:
+            head = stream.read(4096)
+            stream.seek(max(size - 4096, 0))
+            tail = stream.read()
         count = int.from_bytes(head[80:84], "little") if size >= 84 else None
         if count is not None and size == 84 + 50 * count:
             return  # a binary STL (of no triangles, as trimesh read it)
@@ -2156,12 +2162,10 @@ def _check_format(file: Path) -> None:
                                      "statement (v, vt, vn, f, o, g, usemtl, ...); is it of another format?")
 
 
-def _read_points(file: Path, y_up: bool = False) -> trimesh.Trimesh | None:
-    """The point clouds of ``file`` (in world coordinates, with their colours; ``y_up``: a glTF's, turned z-up) as one
-    mesh without faces; None without any."""
-    loaded = trimesh.load(file, process=False)
-    if y_up and isinstance(loaded, trimesh.Scene):
-        loaded.apply_transform(_Y_UP_TO_Z_UP)
+def _read_points(file: Path, scene: trimesh.Scene | None = None) -> trimesh.Trimesh | None:
+    """The point clouds of ``file`` (in world coordinates, with their colours) as one mesh without faces; None without
+    any. ``scene``: a glTF's, as :func:`read_mesh` loaded it (and turned z-up), not loaded again."""
+    loaded = scene if scene is not None else trimesh.load(file, process=False)
     parts = loaded.dump() if isinstance(loaded, trimesh.Scene) else [loaded]
     clouds = [part for part in parts if isinstance(part, trimesh.PointCloud) and len(part.vertices)]
     if not clouds:
@@ -2331,8 +2335,8 @@ def _prepared_mesh(mesh: trimesh.Trimesh, metadata: Mapping[str, Any] | None) ->
     return out
 
 
-def _texture_copy(original: Any, **kwargs: Any) -> Any:
-    """``original.copy(**kwargs)`` (a mesh, a visual or a material), its material given the texture images of
+def _texture_copy(original: Any) -> Any:
+    """``original.copy()`` (a mesh, a visual or a material), its material given the texture images of
     ``original``'s opened from a JPEG themselves: trimesh's ``PBRMaterial.copy`` copied each PIL image with
     ``Image.copy()``, which drops its ``format`` and file name, so such a texture was written as a PNG three times its
     size (and an OBJ's ``.png``), and :func:`_jpeg_data` could not find its file. The writers replace images on the
@@ -2345,7 +2349,7 @@ def _texture_copy(original: Any, **kwargs: Any) -> Any:
         visual = thing.visual if isinstance(thing, trimesh.Trimesh) else thing
         return visual if isinstance(visual, trimesh.visual.material.Material) else getattr(visual, "material", None)
 
-    copied = original.copy(**kwargs)
+    copied = original.copy()
     material, mine = material_of(original), material_of(copied)
     slots = next((names for kind, names in _TEXTURE_SLOTS if isinstance(material, kind)), ())
     if type(mine) is type(material):
@@ -2395,22 +2399,24 @@ _PLY_TYPES: dict[str, str] = {
     "<f4": "float",
     "<f8": "double",
 }
-_PLY_RESERVED = frozenset({"x", "y", "z", "red", "green", "blue", "alpha", "vertex_indices"})
+#: The other element's own property names (:data:`_PLY_OWN` holds each element's): not written as a column either.
+_PLY_RESERVED = frozenset({"x", "y", "z", "vertex_indices"})
 # An attribute is not written under a name readers take for something else (:data:`_PLY_OWN`: ``nx``, ``u``, ``s``
 # ... of a vertex, ``texcoord`` of a face): trimesh's reader and VTK's made such a column normals or texture
 # coordinates, read_mesh left it out, and a face attribute named ``texcoord`` made the file unreadable.
 
 
-def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
-    """Binary little-endian PLY: vertices (float64 beyond 65536 or where float32 would round them, else float32),
-    RGBA vertex or face colours, attributes."""
+def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
+    """Binary little-endian PLY, as its header, vertex block and face block (bytes-like, written one after another):
+    vertices (float64 beyond 65536 or where float32 would round them, else float32), RGBA vertex or face colours,
+    attributes."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     coordinate = np.dtype("<f8" if _is_large(bounds) else "<f4")
-    xyz = [vertices[:, k].astype(coordinate) for k in range(3)]
+    xyz = [vertices[:, k].astype(coordinate, copy=False) for k in range(3)]  # float64: views, not copies
     if coordinate.itemsize == 4 and not all(np.array_equal(xyz[k], vertices[:, k]) for k in range(3)):
         # float64 where float32 would round (60000.123 by 1.9 mm): .ply keeps the vertices; a set's tiles still weld,
         # a float32 one holding its shared vertices exactly as the float64 one beside it does
-        xyz = [vertices[:, k].astype("<f8") for k in range(3)]
+        xyz = [vertices[:, k].astype("<f8", copy=False) for k in range(3)]
     vertex_columns: list[tuple[str, NDArray[Any]]] = [("x", xyz[0]), ("y", xyz[1]), ("z", xyz[2])]
     if mesh.visual.kind == "vertex" and len(mesh.visual.vertex_colors) == len(vertices):
         rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
@@ -2450,7 +2456,7 @@ def _ply_bytes(mesh: trimesh.Trimesh, bounds: Bounds) -> bytes:
     face_block["vertex_indices"] = faces
     for name, column in face_columns:
         face_block[name] = column
-    return ("\n".join(header) + "\n").encode("ascii") + vertex_block.tobytes() + face_block.tobytes()
+    return [("\n".join(header) + "\n").encode("ascii"), vertex_block.view(np.uint8), face_block.view(np.uint8)]
 
 
 #: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
@@ -2641,10 +2647,11 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
 
 
 def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
-    """One node holding ``mesh`` (a prepared copy: its visual may be replaced); large coordinates move into the node
-    translation (float64 in JSON); a texture's material as :func:`_textured_material` makes it. Vertex attributes
-    are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare KeyError for an integer or
-    bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as VEC4)."""
+    """One node holding ``mesh`` (a prepared copy: its visual, material and vertices may be replaced); large
+    coordinates move into the node translation (float64 in JSON); a texture's material as :func:`_textured_material`
+    makes it. Vertex attributes are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare
+    KeyError for an integer or bool one ('i8') and wrote the others as custom attributes of its own layout (uint8 as
+    VEC4)."""
     mesh.vertex_attributes.clear()  # the prepared copy's own dict
     material = getattr(mesh.visual, "material", None)
     if mesh.visual.kind == "texture" and material is not None:
@@ -2653,8 +2660,7 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
     transform = _Z_UP_TO_Y_UP.copy()  # exact 0 and ±1: trimesh writes it as the node's matrix
     if _is_large(bounds):
         offset = _local_origin(bounds)
-        mesh = _texture_copy(mesh, include_cache=False)
-        mesh.vertices = vertices - offset
+        mesh.vertices = vertices - offset  # a new array: the caller's (shared with the prepared copy) stays as it is
         transform[:3, 3] = _Z_UP_TO_Y_UP[:3, :3] @ offset + 0.0  # in the world frame
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):
         _encoded_textures(mesh.visual.material)  # the prepared copy's own material (or _textured_material's)
@@ -2693,19 +2699,25 @@ def _encoded_textures(material: Any) -> None:
         image = getattr(material, slot, None)
         if not isinstance(image, Image.Image):
             continue
-        if image.format == "JPEG":
-            setattr(material, slot, _EncodedImage(_jpeg_data(image), "JPEG"))
-        else:
-            setattr(material, slot, _EncodedImage(_png_data(image), "PNG"))
+        setattr(material, slot, _encoded_image(image))
+
+
+def _encoded_image(image: Any) -> _EncodedImage:
+    """A PIL image as an :class:`_EncodedImage`: one opened from a JPEG as JPEG bytes (:func:`_jpeg_data`), any other
+    as PNG bytes (:func:`_png_data`)."""
+    if image.format == "JPEG":
+        return _EncodedImage(_jpeg_data(image), "JPEG")
+    return _EncodedImage(_png_data(image), "PNG")
 
 
 def _png_data(image: Any) -> bytes:
     """A PIL image as PNG bytes, as :func:`save_image` writes it (:func:`_png_options`): the bytes of the large PNG it
     last wrote when that holds the same pixels (:func:`_written_png`), else encoded here."""
-    data = _written_png(image) if _png_options(image) else None
+    options = _png_options(image)
+    data = _written_png(image) if options else None
     if data is None:
         buffer = io.BytesIO()
-        image.save(buffer, format="PNG", **_png_options(image))
+        image.save(buffer, format="PNG", **options)
         data = buffer.getvalue()
     return data
 
@@ -2798,25 +2810,25 @@ def _textured_material(material: Any) -> Any:
     ``TextureVisuals(uv=..., image=...)``, as :func:`~stepterrain.globe.drape_texture` makes it) became
     baseColorFactor 0.4 (its default diffuse grey, multiplying the texture: the drape at 40 % brightness) and no
     metallicFactor (glTF's default 1: dark metal); it is now the image with a white factor (a colour without one),
-    metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` keeps what it sets;
-    an unset metallicFactor becomes 0, an unset alphaMode that of its texture. The alphaMode follows the texture
-    (:func:`_texture_alpha_mode`): glTF's default, OPAQUE, showed its transparent texels (nodata, outside a
-    lens) as whatever colour they hold. Other materials are written as trimesh writes them."""
+    metallic 0, roughness 1 and double-sided, as :func:`_terrain_material`. A ``PBRMaterial`` (the prepared copy's
+    own, changed in place) keeps what it sets; an unset metallicFactor becomes 0, an unset alphaMode that of its
+    texture. The alphaMode follows the texture (:func:`_texture_alpha_mode`): glTF's default, OPAQUE, showed its
+    transparent texels (nodata, outside a lens) as whatever colour they hold. Other materials are written as trimesh
+    writes them."""
     if isinstance(material, trimesh.visual.material.SimpleMaterial):
         image = material.image
         mode, cutoff = _texture_alpha_mode(image)
         pbr = trimesh.visual.material.PBRMaterial(
             name=material.name, baseColorTexture=image, baseColorFactor=None if image is not None else material.diffuse,
             metallicFactor=0.0, roughnessFactor=1.0, doubleSided=True, alphaMode=mode, alphaCutoff=cutoff)
-        if texture_wrap(material) is not None:  # the sampler the texture asks for (a globe's drape)
-            pbr.wrap = texture_wrap(material)
+        wrap = texture_wrap(material)
+        if wrap is not None:  # the sampler the texture asks for (a globe's drape)
+            pbr.wrap = wrap
         return pbr
     if isinstance(material, trimesh.visual.material.PBRMaterial):
         mode, cutoff = _texture_alpha_mode(material.baseColorTexture)
         unset_alpha = material.alphaMode is None and mode != "OPAQUE"
-        if material.metallicFactor is None or unset_alpha:
-            material = _texture_copy(material)  # a JPEG stays one
-        if material.metallicFactor is None:
+        if material.metallicFactor is None:  # the prepared copy's own material: changed in place
             material.metallicFactor = 0.0
         if unset_alpha:
             material.alphaMode, material.alphaCutoff = mode, cutoff
