@@ -438,11 +438,10 @@ def render_mesh(
     if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
         # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]), mesh=size)
+    # the picture as drawn: a globe drape's is widened by _periodic_columns (256 columns each side and more: 13-25 %
+    # of the Blue Marble's), counted by its check= before it is made (any other keeps the size counted above)
     textured = None if source is None else _decoded_texture(*source, check=lambda shape: _check_render_budget(
         width, height, anti_aliasing=anti_aliasing, texture=shape, mesh=size))
-    if textured is not None:  # the picture as drawn, as render_textured_mesh counts it: a globe drape's is widened
-        # by _periodic_columns (256 columns each side and more: 13-25 % of the Blue Marble's), counted as the image
-        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape, mesh=size)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
