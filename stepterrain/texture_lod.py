@@ -993,31 +993,24 @@ def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[i
     width = w_c1 - w_c0
     src_row_bytes = int(reader.shape[1]) * channels
     band = max(1, band_bytes // max(1, 2 * src_row_bytes))  # target rows per band (~2 source rows each)
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
-    try:
-        for r0 in range(w_r0, w_r1, band):  # a handful of bands per level, never a loop over pixels
-            r1 = min(w_r1, r0 + band)
-            s0 = (r0 * n_rows) // m_rows
-            s1 = min(n_rows, -((-r1 * n_rows) // m_rows))
-            src = reader.rows(s0 - o_r, s1 - o_r)
-            src_wp = wp.array(src, dtype=wp.uint8, device=device, copy=not device.is_cpu)
-            if device.is_cpu:
-                dst = np.empty((r1 - r0, width, channels), dtype=np.uint8)
-                dst_wp = wp.array(dst, dtype=wp.uint8, device=device, copy=False)
-            else:
-                dst_wp = wp.empty((r1 - r0, width, channels), dtype=wp.uint8, device=device)
-            launch(texture_kernels.reduce_band, dim=(r1 - r0) * width,
-                   inputs=[src_wp, s0, o_c, wp.vec2i(n_rows, n_cols), r0, w_c0, wp.vec2i(m_rows, m_cols)],
-                   outputs=[dst_wp], device=device)
-            data = dst if device.is_cpu else host_copy(dst_wp)
-            _write_at(fd, data, (r0 - w_r0) * width * channels)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
-    finally:
-        os.close(fd)
+
+    def reduced(a: int, b: int) -> NDArray[np.uint8]:  # target rows w_r0 + a .. w_r0 + b
+        r0, r1 = w_r0 + a, w_r0 + b
+        s0 = (r0 * n_rows) // m_rows
+        s1 = min(n_rows, -((-r1 * n_rows) // m_rows))
+        src = reader.rows(s0 - o_r, s1 - o_r)
+        src_wp = wp.array(src, dtype=wp.uint8, device=device, copy=not device.is_cpu)
+        if device.is_cpu:
+            dst = np.empty((r1 - r0, width, channels), dtype=np.uint8)
+            dst_wp = wp.array(dst, dtype=wp.uint8, device=device, copy=False)
+        else:
+            dst_wp = wp.empty((r1 - r0, width, channels), dtype=wp.uint8, device=device)
+        launch(texture_kernels.reduce_band, dim=(r1 - r0) * width,
+               inputs=[src_wp, s0, o_c, wp.vec2i(n_rows, n_cols), r0, w_c0, wp.vec2i(m_rows, m_cols)],
+               outputs=[dst_wp], device=device)
+        return dst if device.is_cpu else host_copy(dst_wp)
+
+    _write_bands(path, w_r1 - w_r0, band, reduced)
 
 
 def _source_window(window: tuple[int, int, int, int], src_shape: tuple[int, int],
