@@ -274,20 +274,14 @@ def _read_tiff(path: Path, read: Callable[[Any], Any], any_format: bool = False,
     suffix = path.suffix.lower()
     if suffix not in (".tif", ".tiff") and (not any_format or suffix == ".npy"):
         return None
-    if dataset is not None:
+    if dataset is None:
         try:
-            return read(dataset)
-        except (InvalidInputError, OutputTooLargeError, DataFileError):
-            raise
-        except Exception:  # noqa: BLE001 - GDAL cannot read it either
+            import rasterio  # noqa: F401 - only whether it is there
+        except ImportError:
             return None
     try:
-        import rasterio  # noqa: F401 - only whether it is there
-    except ImportError:
-        return None
-    try:
-        with open_raster(path) as dataset:
-            return read(dataset)
+        with open_raster(path) if dataset is None else contextlib.nullcontext(dataset) as opened:
+            return read(opened)
     except (InvalidInputError, OutputTooLargeError, DataFileError):
         raise
     except Exception:  # noqa: BLE001 - GDAL cannot read it either
@@ -298,8 +292,8 @@ def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any],
     """A :func:`_read_tiff` reader giving (image, nodata mask or None, georeferencing or None) in one open: ``image``
     as Pillow read it, or (None) its pixels read with rasterio (:func:`_raster_uint8`); the mask of a 3-channel
     image (:func:`_nodata_mask`); :func:`_georeferencing` (its CRS from a .prj beside it where GDAL reads none:
-    :func:`_prj_crs`). A mask or georeferencing GDAL cannot read is None, and the others stand, as when each was
-    read in an open of its own."""
+    :func:`~stepterrain.io.prj_crs`). A mask or georeferencing GDAL cannot read is None, and the others stand, as
+    when each was read in an open of its own."""
 
     def read(dataset: Any) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None, Any]:
         pixels = _raster_pixels(path, dataset) if image is None else image
@@ -314,21 +308,15 @@ def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any],
 
 def _dataset_georeferencing(path: Path, dataset: Any) -> Any:
     """:func:`_georeferencing` of the open rasterio ``dataset`` of image ``path``, its CRS from a .prj beside it
-    where GDAL reads none (:func:`_prj_crs`); None where GDAL cannot read it."""
+    where GDAL reads none (:func:`~stepterrain.io.prj_crs`); None where GDAL cannot read it."""
     georeferencing = None
     with contextlib.suppress(Exception):
         georeferencing = _georeferencing(dataset)
     if georeferencing is not None and georeferencing[2] is None and not georeferencing[0].is_identity:
-        georeferencing = (*georeferencing[:2], _prj_crs(path))
+        # ``ortho.prj`` or ``ortho.jpg.prj``, which GDAL does not read for a JPEG or PNG; a .prj that is no CRS is
+        # refused, naming it: the image would be taken in the terrain's CRS without a word
+        georeferencing = (*georeferencing[:2], prj_crs(path, "image"))
     return georeferencing
-
-
-def _prj_crs(path: Path) -> str | None:
-    """The CRS in a .prj file beside the image ``path`` (:func:`~stepterrain.io.prj_crs`: ``ortho.prj`` or
-    ``ortho.jpg.prj``, which GDAL does not read for a JPEG or PNG), for an image GDAL georeferences without a CRS;
-    None without one. A .prj that is no CRS is refused, naming it: the image would be taken in the terrain's CRS
-    without a word."""
-    return prj_crs(path, "image")
 
 
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
