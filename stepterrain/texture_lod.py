@@ -17,7 +17,6 @@ the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid sha
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import mmap
 import os
@@ -1725,7 +1724,11 @@ def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     (1.48 at the corners of a 45-degree 4:3 view)."""
     if patch.is_leaf:
         return 0.0
-    p = _nearest_point(camera, patch.box)
+    return _geometric_error_at(patch, camera, _nearest_point(camera, patch.box))
+
+
+def _geometric_error_at(patch: GeometryPatch, camera: Camera, p: NDArray[np.float64]) -> float:
+    """γ(N) of a patch with children (:func:`visual_geometric_error`) at its :func:`_nearest_point` ``p``."""
     half = np.array([0.0, 0.0, patch.error / 2.0])
     vertical = camera.segment_pixels(p - half, p + half)
     offset = p - np.asarray(camera.eye, dtype=np.float64)
@@ -1736,27 +1739,24 @@ def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
         return max(vertical, float(camera.focal_pixels * patch.error * np.linalg.norm(offset) / depth ** 2))
 
 
-@functools.lru_cache(maxsize=4096)  # γ and τ of one patch (and its parent reduction) ask for the same point
-def _nearest_box_point(camera: Camera, box: bytes) -> NDArray[np.float64]:
-    corners = np.frombuffer(box, dtype=np.float64).reshape(2, 3)
-    point = camera.nearest_visible_point(corners)
-    point = camera.nearest_point(corners) if point is None else point  # the box misses the view: as before
-    point.flags.writeable = False
-    return point
-
-
 def _nearest_point(camera: Camera, box: NDArray[np.float64]) -> NDArray[np.float64]:
     """p of §4: the point of B(N) inside the view frustum nearest to the camera position (the box's nearest point
     where the box misses the frustum). The box's own nearest point was taken, outside the view wherever the eye is
     over the terrain: straight below the eye, where the vertical segment of γ lies along the eye's ray, so γ(root)
     was 0 pixels and any view from above the highest peak drew the root alone."""
-    return _nearest_box_point(camera, np.ascontiguousarray(box, dtype=np.float64).tobytes())
+    corners = np.ascontiguousarray(box, dtype=np.float64)
+    point = camera.nearest_visible_point(corners)
+    return camera.nearest_point(corners) if point is None else point  # the box misses the view: as before
 
 
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
     """The screen size in pixels of one texel of M at the point of B(N) in view nearest to the camera (τ without the
     leaf convention): the longer of the projected x segment of length w and y segment of length h."""
-    p = _nearest_point(camera, geometry.box)
+    return _texel_pixels_at(texture, camera, _nearest_point(camera, geometry.box))
+
+
+def _texel_pixels_at(texture: TexturePatch, camera: Camera, p: NDArray[np.float64]) -> float:
+    """:func:`texel_pixels` at the geometry patch's :func:`_nearest_point` ``p``."""
     w, h = texture.texel_size
     dx, dy = np.array([w / 2.0, 0.0, 0.0]), np.array([0.0, h / 2.0, 0.0])
     return max(camera.segment_pixels(p - dx, p + dx), camera.segment_pixels(p - dy, p + dy))
@@ -1768,6 +1768,11 @@ def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera:
     if texture.is_leaf:
         return 0.0
     return texel_pixels(geometry, texture, camera)
+
+
+def _texture_error_at(texture: TexturePatch, camera: Camera, p: NDArray[np.float64]) -> float:
+    """:func:`visual_texture_error` at the geometry patch's :func:`_nearest_point` ``p``."""
+    return 0.0 if texture.is_leaf else _texel_pixels_at(texture, camera, p)
 
 
 # ---------------------------------------------------------------------------------------------- loading
@@ -1965,8 +1970,9 @@ def render_with_textures(
         node, current = stack.pop()
         if not camera.box_visible(node.box):
             continue
-        tau = max((visual_texture_error(node, m, camera) for m in current if m is not None), default=0.0)
-        if not node.is_leaf and (visual_geometric_error(node, camera) > gamma_user or tau > tau_user):
+        p = _nearest_point(camera, node.box)  # γ's and every τ's of this patch
+        tau = max((_texture_error_at(m, camera, p) for m in current if m is not None), default=0.0)
+        if not node.is_leaf and (_geometric_error_at(node, camera, p) > gamma_user or tau > tau_user):
             children = [(child, [m.child_for(child) if m is not None else None for m in current])
                         for child in node.children]
             stack.extend(reversed(children))
@@ -1978,13 +1984,13 @@ def render_with_textures(
                 chosen.append(None)
                 lighting.append(flags[k])
                 continue
-            while m.parent is not None and visual_texture_error(node, m.parent, camera) <= tau_user:
+            while m.parent is not None and _texture_error_at(m.parent, camera, p) <= tau_user:
                 m = m.parent  # reduction of texture data
             while m is not None and cache is not None and not cache.is_loaded(m):
                 cache.request(m)  # non-blocking; the parent stands in meanwhile
                 m = m.parent
             chosen.append(m)
-            lighting.append(flags[k] and (m is None or (m.is_leaf and texel_pixels(node, m, camera) > tau_user)))
+            lighting.append(flags[k] and (m is None or (m.is_leaf and _texel_pixels_at(m, camera, p) > tau_user)))
         out.append(DrawItem(node, tuple(chosen), tuple(lighting)))
     return out
 
