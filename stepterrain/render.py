@@ -1844,9 +1844,7 @@ class LayeredRenderer:
             corners = _box_corners(box) - np.asarray(position[1])
             forward = np.asarray(position[1]) - np.asarray(position[0])
             forward /= np.linalg.norm(forward)
-            right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
-            right /= np.linalg.norm(right)
-            up = np.cross(right, forward)
+            right, up = _screen_axes(forward, np.asarray(position[2], dtype=np.float64))
             half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * bh / bw) * 1.02
             if fit is not None:  # the axis at its place on screen, at the scale of the cylinders' fit
                 _, per_unit, (dx, dy) = fit
@@ -1891,9 +1889,7 @@ def _spin_fit(local: NDArray[np.float64], view: NDArray[np.float64], pixels: NDA
     position = _camera_position(tuple(view.tolist()), np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), 1.0)
     forward = np.subtract(position[1], position[0])
     forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
+    right, up = _screen_axes(forward, np.asarray(position[2], dtype=np.float64))
     points = local[np.isfinite(local).all(axis=1)]
     radius = float(np.hypot(points[:, 0], points[:, 1]).max())
     half_z = float(np.abs(points[:, 2]).max())
