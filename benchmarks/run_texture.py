@@ -140,12 +140,14 @@ def matplotlib_contours(z: np.ndarray, levels: np.ndarray, index: np.ndarray) ->
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
+    import stepterrain.texture as tx
+
     rows, cols = z.shape
     fig = Figure(figsize=(cols / 100, rows / 100), dpi=100, facecolor="none")  # transparent between lines
     FigureCanvasAgg(fig)
     ax = fig.add_axes((0, 0, 1, 1))
     ax.set_axis_off()
-    ax.contour(z, levels=levels, colors=[(0.55, 0.32, 0.14)], linewidths=np.where(index, 1.44, 0.72))
+    ax.contour(z, levels=levels, colors=[tx.CONTOUR_COLOR], linewidths=np.where(index, 1.44, 0.72))
     ax.set_xlim(-0.5, cols - 0.5)  # node (i, j) at pixel (i, j): row 0 at the top, as the layer's north-up
     ax.set_ylim(rows - 0.5, -0.5)
     fig.canvas.draw()

@@ -1000,6 +1000,21 @@ def byte_texel(image: wp.array3d[wp.uint8], i: wp.int32, j: wp.int32) -> wp.vec4
                    alpha)
 
 
+@wp.func
+def unit_to_uint8(x: wp.float32) -> wp.uint8:
+    """NumPy's ``np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)`` in float32 (halves to even)."""
+    return wp.uint8(wp.int32(wp.rint(wp.clamp(x, 0.0, 1.0) * 255.0)))
+
+
+@wp.func
+def write_over_background(c: wp.vec4, background: wp.vec3, image: wp.array3d[wp.uint8], i: wp.int32, j: wp.int32):
+    """Texel (i, j) of ``image``: the RGB of ``c`` composited over ``background`` by its alpha, as uint8
+    (:func:`unit_to_uint8`; ``TextureLayer.to_uint8``'s)."""
+    a = c[3]
+    for k in range(3):
+        image[i, j, k] = unit_to_uint8(c[k] * a + background[k] * (1.0 - a))
+
+
 @wp.kernel
 def compose_texture(
     thread_offset: wp.int32,
@@ -1046,18 +1061,12 @@ def compose_texture(
         h = clamped(layer_at(frame, colours, colours_matrix, colours_mode, i, j))
         c = clamped(modulated(h, c))
     if over_background == 1:
-        a = c[3]
-        for k in range(3):
-            v = c[k] * a + background[k] * (1.0 - a)
-            image_out[i, j, k] = wp.uint8(wp.rint(wp.clamp(v, 0.0, 1.0) * 255.0))
+        write_over_background(c, background, image_out, i, j)
     else:
         for k in range(4):
             image_out[i, j, k] = wp.uint8(wp.rint(c[k] * 255.0))
         if over_background == 2:
-            a = c[3]
-            for k in range(3):
-                v = c[k] * a + background[k] * (1.0 - a)
-                over_out[i, j, k] = wp.uint8(wp.rint(wp.clamp(v, 0.0, 1.0) * 255.0))
+            write_over_background(c, background, over_out, i, j)
 
 
 @wp.func
@@ -1565,12 +1574,6 @@ def draw_contours(
         j1 = n1
         fu = fn
         c += 1
-
-
-@wp.func
-def unit_to_uint8(x: wp.float32) -> wp.uint8:
-    """NumPy's ``np.round(np.clip(x, 0, 1) * 255).astype(np.uint8)`` in float32 (halves to even)."""
-    return wp.uint8(wp.int32(wp.rint(wp.clamp(x, 0.0, 1.0) * 255.0)))
 
 
 @wp.kernel

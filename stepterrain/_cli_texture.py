@@ -400,6 +400,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
 
     out = _check_output(args.output, IMAGE_EXTENSIONS, "--output")
     mesh_out = _check_output(args.mesh, MESH_EXTENSIONS, "--mesh") if args.mesh else None
+    textured_mesh = mesh_out is not None and mesh_out.suffix.lower() in export._TEXTURED  # they keep a texture
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     normals_out = _check_output(args.normals, IMAGE_EXTENSIONS, "--normals") if args.normals else None
     if any(_is_tiff(path) for path in (out, normals_out)) and importlib.util.find_spec("rasterio") is None:
@@ -459,7 +460,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
     grid = None  # --texel-size: the texture's (extent, shape), finer than the DEM's nodes
     if args.texel_size is not None:
         textured = [name for name, wanted in (
-            (f"--mesh {mesh_out}", mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")),
+            (f"--mesh {mesh_out}", textured_mesh),
             ("--png", png is not None)) if wanted]
         grid = _check_texel_size(terrain, args.texel_size, " and ".join(textured) or None,
                                  contours=args.contours is not None)
@@ -543,9 +544,8 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             progress.done()
 
     progress.stage("write", f"writing {out}")
-    textured = mesh_out is not None and mesh_out.suffix.lower() in (".glb", ".gltf", ".obj")  # they keep a texture
     # the mesh's texture is this image (not over_white's RGB): the mesh takes the PNG's bytes, its pixels hashed for it
-    reused = draped is not None and textured and over_white is None
+    reused = draped is not None and textured_mesh and over_white is None
     export._save_image(image, out, reused=reused, **_georeference(out, composite.extent, terrain.crs))
     progress.done(_size(out))
     if normals is not None:
@@ -564,7 +564,7 @@ def _run_texture(args: argparse.Namespace, progress: Progress) -> int:
             metadata["texel_size"] = args.texel_size
         if args.contours is not None:
             metadata["contours"] = args.contours
-        export.save_mesh(draped if textured else _texture_colours(draped), mesh_out, metadata=metadata)
+        export.save_mesh(draped if textured_mesh else _texture_colours(draped), mesh_out, metadata=metadata)
         progress.say(f"wrote {mesh_out} ({_size(mesh_out)})")
     if shot is not None:
         export._save_image(shot, png, reused=False)

@@ -438,11 +438,10 @@ def render_mesh(
     if source is not None:  # its texels count too (only the window did: a 17000² texture took 4.6 GB), counted
         # from its size before it is decoded (a PIL image opened from a file: decoding it was the largest allocation)
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=_texture_shape(source[1]), mesh=size)
+    # the picture as drawn: a globe drape's is widened by _periodic_columns (256 columns each side and more: 13-25 %
+    # of the Blue Marble's), counted by its check= before it is made (any other keeps the size counted above)
     textured = None if source is None else _decoded_texture(*source, check=lambda shape: _check_render_budget(
         width, height, anti_aliasing=anti_aliasing, texture=shape, mesh=size))
-    if textured is not None:  # the picture as drawn, as render_textured_mesh counts it: a globe drape's is widened
-        # by _periodic_columns (256 columns each side and more: 13-25 % of the Blue Marble's), counted as the image
-        _check_render_budget(width, height, anti_aliasing=anti_aliasing, texture=textured[1].shape, mesh=size)
     face_attributes = {}
     if scalars == "level":
         if "level" not in mesh.face_attributes:
@@ -1845,9 +1844,7 @@ class LayeredRenderer:
             corners = _box_corners(box) - np.asarray(position[1])
             forward = np.asarray(position[1]) - np.asarray(position[0])
             forward /= np.linalg.norm(forward)
-            right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
-            right /= np.linalg.norm(right)
-            up = np.cross(right, forward)
+            right, up = _screen_axes(forward, np.asarray(position[2], dtype=np.float64))
             half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * bh / bw) * 1.02
             if fit is not None:  # the axis at its place on screen, at the scale of the cylinders' fit
                 _, per_unit, (dx, dy) = fit
@@ -1892,9 +1889,7 @@ def _spin_fit(local: NDArray[np.float64], view: NDArray[np.float64], pixels: NDA
     position = _camera_position(tuple(view.tolist()), np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]), 1.0)
     forward = np.subtract(position[1], position[0])
     forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(position[2], dtype=np.float64))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
+    right, up = _screen_axes(forward, np.asarray(position[2], dtype=np.float64))
     points = local[np.isfinite(local).all(axis=1)]
     radius = float(np.hypot(points[:, 0], points[:, 1]).max())
     half_z = float(np.abs(points[:, 2]).max())

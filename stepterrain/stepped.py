@@ -249,6 +249,15 @@ def nice_interval(height_range: tuple[float, float], target: int = TARGET_STEPS)
     return float(f"{best:.6g}")
 
 
+def one_of_interval_or_levels(interval: Any, levels: Any, uniform: str) -> None:
+    """An InvalidInputError unless exactly one of ``interval`` and ``levels`` is given; ``uniform`` names what
+    ``interval=`` gives, in the error (:func:`isovalues`; the texture's contour levels)."""
+    if (interval is None) == (levels is None):
+        given = "None" if levels is None else "[...]"
+        raise InvalidInputError(f"give exactly one of interval= ({uniform}) or levels= (explicit, strictly "
+                                f"increasing); got interval={interval!r}, levels={given}")
+
+
 def given_levels(levels: Any, base: Any, uniform: str, expected: str, item: str) -> NDArray[np.float64]:
     """Explicit ``levels`` as float64, checked: 1-D, at least one, finite real numbers, and ``base`` left at 0 (levels
     are absolute: an offset was a slip). ``uniform`` names what ``interval=`` gives instead, ``expected`` what a
@@ -294,11 +303,7 @@ def isovalues(
     >>> st.isovalues((3.0, 21.0), interval=10.0).tolist()
     [0.0, 10.0, 20.0, 30.0]
     """
-    if (interval is None) == (levels is None):
-        raise InvalidInputError(
-            "give exactly one of interval= (uniform isovalues base + k * interval) or levels= (explicit, "
-            f"strictly increasing); got interval={interval!r}, levels={'None' if levels is None else '[...]'}"
-        )
+    one_of_interval_or_levels(interval, levels, "uniform isovalues base + k * interval")
     try:
         lo, hi = (as_number(v) for v in height_range)
     except (TypeError, ValueError):  # text, bools, an int beyond float64 (10**400): as_number refuses them

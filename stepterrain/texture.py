@@ -33,7 +33,7 @@ from ._device import MIN_THREAD_ELEMENTS, host_copy, launch, recycled_empty, res
 from .errors import InvalidInputError, caller_stacklevel, counted
 from .kernels import texture as texture_kernels
 from .mesh import mesh_argument
-from .stepped import LENS_TEXEL_BYTES, given_levels
+from .stepped import LENS_TEXEL_BYTES, given_levels, one_of_interval_or_levels
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -1106,10 +1106,7 @@ def _texel_sampling(t: Terrain, extent: Extent, shape: tuple[int, int]) -> textu
 
 def _contour_levels(interval: Any, levels: Any, base: Any) -> tuple[NDArray[np.float64], float, float]:
     """(explicit levels, base, interval): exactly one of ``interval`` (> 0) and ``levels`` (strictly increasing)."""
-    if (interval is None) == (levels is None):
-        raise InvalidInputError("give exactly one of interval= (contour levels base + k * interval) or levels= "
-                                f"(explicit, strictly increasing); got interval={interval!r}, "
-                                f"levels={'None' if levels is None else '[...]'}")
+    one_of_interval_or_levels(interval, levels, "contour levels base + k * interval")
     if levels is None:
         return np.zeros(0, np.float64), _finite(base, "base"), _finite(interval, "interval", positive=True)
     values = given_levels(levels, base, "contour levels base + k * interval", "a sequence of contour heights",

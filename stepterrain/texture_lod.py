@@ -17,7 +17,6 @@ the parent as fallback (:class:`TextureCache`, LRU memory budget) and hybrid sha
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import mmap
 import os
@@ -274,20 +273,14 @@ def _read_tiff(path: Path, read: Callable[[Any], Any], any_format: bool = False,
     suffix = path.suffix.lower()
     if suffix not in (".tif", ".tiff") and (not any_format or suffix == ".npy"):
         return None
-    if dataset is not None:
+    if dataset is None:
         try:
-            return read(dataset)
-        except (InvalidInputError, OutputTooLargeError, DataFileError):
-            raise
-        except Exception:  # noqa: BLE001 - GDAL cannot read it either
+            import rasterio  # noqa: F401 - only whether it is there
+        except ImportError:
             return None
     try:
-        import rasterio  # noqa: F401 - only whether it is there
-    except ImportError:
-        return None
-    try:
-        with open_raster(path) as dataset:
-            return read(dataset)
+        with open_raster(path) if dataset is None else contextlib.nullcontext(dataset) as opened:
+            return read(opened)
     except (InvalidInputError, OutputTooLargeError, DataFileError):
         raise
     except Exception:  # noqa: BLE001 - GDAL cannot read it either
@@ -298,8 +291,8 @@ def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any],
     """A :func:`_read_tiff` reader giving (image, nodata mask or None, georeferencing or None) in one open: ``image``
     as Pillow read it, or (None) its pixels read with rasterio (:func:`_raster_uint8`); the mask of a 3-channel
     image (:func:`_nodata_mask`); :func:`_georeferencing` (its CRS from a .prj beside it where GDAL reads none:
-    :func:`_prj_crs`). A mask or georeferencing GDAL cannot read is None, and the others stand, as when each was
-    read in an open of its own."""
+    :func:`~stepterrain.io.prj_crs`). A mask or georeferencing GDAL cannot read is None, and the others stand, as
+    when each was read in an open of its own."""
 
     def read(dataset: Any) -> tuple[NDArray[np.uint8], NDArray[np.uint8] | None, Any]:
         pixels = _raster_pixels(path, dataset) if image is None else image
@@ -314,21 +307,15 @@ def _tiff_reader(path: Path, image: NDArray[np.uint8] | None) -> Callable[[Any],
 
 def _dataset_georeferencing(path: Path, dataset: Any) -> Any:
     """:func:`_georeferencing` of the open rasterio ``dataset`` of image ``path``, its CRS from a .prj beside it
-    where GDAL reads none (:func:`_prj_crs`); None where GDAL cannot read it."""
+    where GDAL reads none (:func:`~stepterrain.io.prj_crs`); None where GDAL cannot read it."""
     georeferencing = None
     with contextlib.suppress(Exception):
         georeferencing = _georeferencing(dataset)
     if georeferencing is not None and georeferencing[2] is None and not georeferencing[0].is_identity:
-        georeferencing = (*georeferencing[:2], _prj_crs(path))
+        # ``ortho.prj`` or ``ortho.jpg.prj``, which GDAL does not read for a JPEG or PNG; a .prj that is no CRS is
+        # refused, naming it: the image would be taken in the terrain's CRS without a word
+        georeferencing = (*georeferencing[:2], prj_crs(path, "image"))
     return georeferencing
-
-
-def _prj_crs(path: Path) -> str | None:
-    """The CRS in a .prj file beside the image ``path`` (:func:`~stepterrain.io.prj_crs`: ``ortho.prj`` or
-    ``ortho.jpg.prj``, which GDAL does not read for a JPEG or PNG), for an image GDAL georeferences without a CRS;
-    None without one. A .prj that is no CRS is refused, naming it: the image would be taken in the terrain's CRS
-    without a word."""
-    return prj_crs(path, "image")
 
 
 def _raster_uint8(path: Path) -> NDArray[np.uint8] | None:
@@ -993,31 +980,24 @@ def _reduce_file(reader: _Reader, src_shape: tuple[int, int], dst_shape: tuple[i
     width = w_c1 - w_c0
     src_row_bytes = int(reader.shape[1]) * channels
     band = max(1, band_bytes // max(1, 2 * src_row_bytes))  # target rows per band (~2 source rows each)
-    try:
-        fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc.strerror}") from exc
-    try:
-        for r0 in range(w_r0, w_r1, band):  # a handful of bands per level, never a loop over pixels
-            r1 = min(w_r1, r0 + band)
-            s0 = (r0 * n_rows) // m_rows
-            s1 = min(n_rows, -((-r1 * n_rows) // m_rows))
-            src = reader.rows(s0 - o_r, s1 - o_r)
-            src_wp = wp.array(src, dtype=wp.uint8, device=device, copy=not device.is_cpu)
-            if device.is_cpu:
-                dst = np.empty((r1 - r0, width, channels), dtype=np.uint8)
-                dst_wp = wp.array(dst, dtype=wp.uint8, device=device, copy=False)
-            else:
-                dst_wp = wp.empty((r1 - r0, width, channels), dtype=wp.uint8, device=device)
-            launch(texture_kernels.reduce_band, dim=(r1 - r0) * width,
-                   inputs=[src_wp, s0, o_c, wp.vec2i(n_rows, n_cols), r0, w_c0, wp.vec2i(m_rows, m_cols)],
-                   outputs=[dst_wp], device=device)
-            data = dst if device.is_cpu else host_copy(dst_wp)
-            _write_at(fd, data, (r0 - w_r0) * width * channels)
-    except OSError as exc:
-        raise DataFileError(f"cannot write the pyramid level {str(path)!r}: {exc}") from exc
-    finally:
-        os.close(fd)
+
+    def reduced(a: int, b: int) -> NDArray[np.uint8]:  # target rows w_r0 + a .. w_r0 + b
+        r0, r1 = w_r0 + a, w_r0 + b
+        s0 = (r0 * n_rows) // m_rows
+        s1 = min(n_rows, -((-r1 * n_rows) // m_rows))
+        src = reader.rows(s0 - o_r, s1 - o_r)
+        src_wp = wp.array(src, dtype=wp.uint8, device=device, copy=not device.is_cpu)
+        if device.is_cpu:
+            dst = np.empty((r1 - r0, width, channels), dtype=np.uint8)
+            dst_wp = wp.array(dst, dtype=wp.uint8, device=device, copy=False)
+        else:
+            dst_wp = wp.empty((r1 - r0, width, channels), dtype=wp.uint8, device=device)
+        launch(texture_kernels.reduce_band, dim=(r1 - r0) * width,
+               inputs=[src_wp, s0, o_c, wp.vec2i(n_rows, n_cols), r0, w_c0, wp.vec2i(m_rows, m_cols)],
+               outputs=[dst_wp], device=device)
+        return dst if device.is_cpu else host_copy(dst_wp)
+
+    _write_bands(path, w_r1 - w_r0, band, reduced)
 
 
 def _source_window(window: tuple[int, int, int, int], src_shape: tuple[int, int],
@@ -1744,7 +1724,11 @@ def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
     (1.48 at the corners of a 45-degree 4:3 view)."""
     if patch.is_leaf:
         return 0.0
-    p = _nearest_point(camera, patch.box)
+    return _geometric_error_at(patch, camera, _nearest_point(camera, patch.box))
+
+
+def _geometric_error_at(patch: GeometryPatch, camera: Camera, p: NDArray[np.float64]) -> float:
+    """γ(N) of a patch with children (:func:`visual_geometric_error`) at its :func:`_nearest_point` ``p``."""
     half = np.array([0.0, 0.0, patch.error / 2.0])
     vertical = camera.segment_pixels(p - half, p + half)
     offset = p - np.asarray(camera.eye, dtype=np.float64)
@@ -1755,27 +1739,24 @@ def visual_geometric_error(patch: GeometryPatch, camera: Camera) -> float:
         return max(vertical, float(camera.focal_pixels * patch.error * np.linalg.norm(offset) / depth ** 2))
 
 
-@functools.lru_cache(maxsize=4096)  # γ and τ of one patch (and its parent reduction) ask for the same point
-def _nearest_box_point(camera: Camera, box: bytes) -> NDArray[np.float64]:
-    corners = np.frombuffer(box, dtype=np.float64).reshape(2, 3)
-    point = camera.nearest_visible_point(corners)
-    point = camera.nearest_point(corners) if point is None else point  # the box misses the view: as before
-    point.flags.writeable = False
-    return point
-
-
 def _nearest_point(camera: Camera, box: NDArray[np.float64]) -> NDArray[np.float64]:
     """p of §4: the point of B(N) inside the view frustum nearest to the camera position (the box's nearest point
     where the box misses the frustum). The box's own nearest point was taken, outside the view wherever the eye is
     over the terrain: straight below the eye, where the vertical segment of γ lies along the eye's ray, so γ(root)
     was 0 pixels and any view from above the highest peak drew the root alone."""
-    return _nearest_box_point(camera, np.ascontiguousarray(box, dtype=np.float64).tobytes())
+    corners = np.ascontiguousarray(box, dtype=np.float64)
+    point = camera.nearest_visible_point(corners)
+    return camera.nearest_point(corners) if point is None else point  # the box misses the view: as before
 
 
 def texel_pixels(geometry: GeometryPatch, texture: TexturePatch, camera: Camera) -> float:
     """The screen size in pixels of one texel of M at the point of B(N) in view nearest to the camera (τ without the
     leaf convention): the longer of the projected x segment of length w and y segment of length h."""
-    p = _nearest_point(camera, geometry.box)
+    return _texel_pixels_at(texture, camera, _nearest_point(camera, geometry.box))
+
+
+def _texel_pixels_at(texture: TexturePatch, camera: Camera, p: NDArray[np.float64]) -> float:
+    """:func:`texel_pixels` at the geometry patch's :func:`_nearest_point` ``p``."""
     w, h = texture.texel_size
     dx, dy = np.array([w / 2.0, 0.0, 0.0]), np.array([0.0, h / 2.0, 0.0])
     return max(camera.segment_pixels(p - dx, p + dx), camera.segment_pixels(p - dy, p + dy))
@@ -1787,6 +1768,11 @@ def visual_texture_error(geometry: GeometryPatch, texture: TexturePatch, camera:
     if texture.is_leaf:
         return 0.0
     return texel_pixels(geometry, texture, camera)
+
+
+def _texture_error_at(texture: TexturePatch, camera: Camera, p: NDArray[np.float64]) -> float:
+    """:func:`visual_texture_error` at the geometry patch's :func:`_nearest_point` ``p``."""
+    return 0.0 if texture.is_leaf else _texel_pixels_at(texture, camera, p)
 
 
 # ---------------------------------------------------------------------------------------------- loading
@@ -1984,8 +1970,9 @@ def render_with_textures(
         node, current = stack.pop()
         if not camera.box_visible(node.box):
             continue
-        tau = max((visual_texture_error(node, m, camera) for m in current if m is not None), default=0.0)
-        if not node.is_leaf and (visual_geometric_error(node, camera) > gamma_user or tau > tau_user):
+        p = _nearest_point(camera, node.box)  # γ's and every τ's of this patch
+        tau = max((_texture_error_at(m, camera, p) for m in current if m is not None), default=0.0)
+        if not node.is_leaf and (_geometric_error_at(node, camera, p) > gamma_user or tau > tau_user):
             children = [(child, [m.child_for(child) if m is not None else None for m in current])
                         for child in node.children]
             stack.extend(reversed(children))
@@ -1997,13 +1984,13 @@ def render_with_textures(
                 chosen.append(None)
                 lighting.append(flags[k])
                 continue
-            while m.parent is not None and visual_texture_error(node, m.parent, camera) <= tau_user:
+            while m.parent is not None and _texture_error_at(m.parent, camera, p) <= tau_user:
                 m = m.parent  # reduction of texture data
             while m is not None and cache is not None and not cache.is_loaded(m):
                 cache.request(m)  # non-blocking; the parent stands in meanwhile
                 m = m.parent
             chosen.append(m)
-            lighting.append(flags[k] and (m is None or (m.is_leaf and texel_pixels(node, m, camera) > tau_user)))
+            lighting.append(flags[k] and (m is None or (m.is_leaf and _texel_pixels_at(m, camera, p) > tau_user)))
         out.append(DrawItem(node, tuple(chosen), tuple(lighting)))
     return out
 
