@@ -37,11 +37,11 @@ from .io import _NPZ_SCALING, equals_nodata, npz_missing, npz_nodata, refuse_npz
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
 
 
-def _drape_side_files(out: Path, texture: str) -> list[Path]:
+def _drape_side_files(out: Path, jpeg: bool) -> list[Path]:
     """The side files the --output writes for a --texture drape (a textured OBJ's .mtl and image): those of a
-    one-triangle mesh draped as :func:`~stepterrain.globe.drape_texture` drapes the globe with ``texture`` (a JPEG
-    it embeds as it is is written as .jpeg, see :func:`~stepterrain.globe._kept_jpeg`; only its header is read
-    here, an unreadable file is named when the texture is read)."""
+    one-triangle mesh draped as :func:`~stepterrain.globe.drape_texture` drapes the globe with the texture; ``jpeg``
+    whether it is a JPEG the drape embeds as it is (written as .jpeg, see :func:`~stepterrain.globe._kept_jpeg`):
+    the picture :func:`~stepterrain.globe._texture_image` read, not the file opened again."""
     if out.suffix.lower() != ".obj":
         return []
     import io
@@ -50,14 +50,9 @@ def _drape_side_files(out: Path, texture: str) -> list[Path]:
     from PIL import Image
 
     from .export import _side_files
-    from .globe import _drape_texture, _kept_jpeg
+    from .globe import _drape_texture
 
     picture = None
-    try:
-        with Image.open(texture) as source:
-            jpeg = _kept_jpeg(source)
-    except (OSError, ValueError, Image.DecompressionBombError):
-        jpeg = False
     if jpeg:
         buffer = io.BytesIO()
         Image.new("RGB", (4, 2)).save(buffer, format="JPEG")
@@ -279,9 +274,6 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
         raise InvalidInputError(f"--texture colours the mesh and the --png render; an .stl --output holds no colours: "
                                 f"got --texture {args.texture!r} with --output {args.output!r} and no --png")
     _check_outputs({"INPUT": args.input, "--texture": args.texture}, output=out, png=png)
-    if args.texture is not None:  # a textured OBJ's .mtl and texture image, named as drape_texture's will be
-        _check_side_files("--output", out, _drape_side_files(out, args.texture),
-                          {"INPUT": args.input, "--texture": args.texture}, {"--png": png})
     # a --radius Globe.from_latlon refuses (NaN, <= 0, beyond float32 positions) is named there, after the loading
     radius = args.radius if 0 < args.radius <= float(np.finfo(np.float32).max) / 4 else 0.0
     # the default eye 3R above 30N 10E: R the --radius (a fixed 3 earth radii showed a larger planet as a patch of
@@ -318,6 +310,9 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     # the image before the work: a missing, unreadable or non-image --texture failed after the globe was built
     # decoded once for both drapes; a JPEG used as is (picture) is embedded as its file's bytes, not a PNG 3x larger
     pixels, picture = _texture_image(args.texture) if args.texture else (None, None)
+    if args.texture is not None:  # a textured OBJ's .mtl and texture image, named as drape_texture's will be
+        _check_side_files("--output", out, _drape_side_files(out, picture is not None),
+                          {"INPUT": args.input, "--texture": args.texture}, {"--png": png})
     if png is not None and pixels is not None:  # the render holds the draped texture too (16 bytes a texel)
         render._check_render_budget(args.size[0], args.size[1], "--size", texture=pixels.shape,
                                     smaller_texture="a smaller --texture image (resampled to fewer pixels)")
