@@ -1032,7 +1032,7 @@ def stepped(
         index (a wall's lower level; -1 on a solid's skirts and base, which ``wall`` does not mark) and
         ``face_attributes["wall"]`` marks walls. ``metadata`` records the isovalues, γ, source and CRS (a
         ``trimesh.Trimesh`` TIN's: its own ``metadata["crs"]`` and ``["source"]``, as a file read back by
-        :func:`~stepterrain.export.read_mesh` names them).
+        :func:`~stepterrain.export.read_mesh` names them, which :meth:`Terrain.from_mesh` carries).
 
     Raises
     ------
@@ -1093,12 +1093,7 @@ def stepped(
     mesh = _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
     )
-    if isinstance(terrain, trimesh.Trimesh):  # a TIN's CRS and source, as its metadata names them (a file read
-        for key in ("crs", "source"):  # back with read_mesh): the stepped mesh of a TIN in UTM named no CRS
-            value = terrain.metadata.get(key)
-            if isinstance(value, str) and value.strip() and key not in mesh.metadata:
-                mesh.metadata[key] = value
-    return mesh
+    return mesh  # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
 
 
 def snapped_isovalue(h: np.float32, values: NDArray[np.float32]) -> np.float32:

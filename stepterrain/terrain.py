@@ -494,6 +494,13 @@ def _placed_metadata(t: Terrain) -> dict[str, Any]:
     return {key: value for key, value in (("crs", t.crs), ("source", t.source)) if value}
 
 
+def _metadata_text(mesh: trimesh.Trimesh, key: str) -> str | None:
+    """A mesh's ``metadata[key]`` when it is text that is not blank (a file's CRS or source, as
+    :func:`_placed_metadata` records them), else None: other values (numbers, objects a loader left) name nothing."""
+    value = mesh.metadata.get(key)
+    return value if isinstance(value, str) and value.strip() else None
+
+
 def _described(value: Any) -> str:
     """A short description of an argument's value for an error message: an array's shape and dtype, else its repr."""
     if isinstance(value, np.ndarray):
@@ -603,7 +610,8 @@ class Terrain:
                                                                    equal_nan=given.dtype.kind == "f"):
                 raise InvalidInputError(f"heights of a Terrain of kind 'tin' are its points' z (None to take them); "
                                         f"got {_described(self.heights)} that differs from points[:, 2]")
-        built = Terrain._build_tin(trimesh.Trimesh(points, faces, process=False), self.visual, self.source)
+        built = Terrain._build_tin(trimesh.Trimesh(points, faces, process=False), self.visual, self.source,
+                                   self.crs)
         for name in ("heights", "points", "faces", "edges", "face_edges", "point_used"):  # rebuilt
             set_field(self, name, getattr(built, name))
         set_field(self, "face_index", None if built.face_index is None else
@@ -659,23 +667,31 @@ class Terrain:
         spiral ramp over itself, a triangle inside another's face: an intersection of positive area; faces that
         only touch, at a corner or along an edge, are fine) and edges shared by more than two faces are refused,
         the error naming two overlapping faces and a point of xy inside both. The result
-        (edge table and device uploads included) is cached on the mesh and reused while its vertices, faces
-        and visual stay the same.
+        (edge table and device uploads included) is cached on the mesh and reused while its vertices, faces,
+        visual, CRS and source stay the same.
+
+        The mesh's ``metadata["crs"]`` and ``["source"]`` (a file read back with
+        :func:`~stepterrain.export.read_mesh`, a :meth:`mesh` or stepped mesh: text, not blank) become the TIN's
+        ``crs`` and ``source`` (``source`` given here wins), so every mesh made of it (:func:`~stepterrain.stepped`,
+        close-ups, drapes) names them as a grid's do.
         """
         if not isinstance(mesh, trimesh.Trimesh):
             raise InvalidInputError(f"terrain mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
         source = optional_text(source, "source", "where the mesh comes from, e.g. a file name")
+        crs, named = (_metadata_text(mesh, key) for key in ("crs", "source"))
+        source = named if source is None else source
         visual = mesh.visual if mesh.visual.defined else None
         key = hash(mesh)
         cached = getattr(mesh, "_stepterrain_terrain", None)
-        if cached is not None and cached[0] == key and cached[1].visual is visual and cached[1].source == source:
+        if (cached is not None and cached[0] == key and cached[1].visual is visual and cached[1].source == source
+                and cached[1].crs == crs):
             return cached[1]
-        terrain = cls._build_tin(mesh, visual, source)
+        terrain = cls._build_tin(mesh, visual, source, crs)
         mesh._stepterrain_terrain = (key, terrain)
         return terrain
 
     @classmethod
-    def _build_tin(cls, mesh: trimesh.Trimesh, visual: Any, source: str | None) -> Terrain:
+    def _build_tin(cls, mesh: trimesh.Trimesh, visual: Any, source: str | None, crs: str | None) -> Terrain:
         points = np.array(mesh.vertices, dtype=np.float64)
         faces = np.array(mesh.faces, dtype=np.int64).reshape(-1, 3)
         if len(faces) == 0:
@@ -779,6 +795,7 @@ class Terrain:
             edges=edges,
             face_edges=face_edges,
             point_used=point_used,
+            crs=crs,
             source=source,
             visual=visual,
             # which input face each kept face is, for the face colours the steps carry (stepped._carry_visual)

@@ -959,3 +959,30 @@ def test_a_grid_built_in_degrees_is_read_into_local_metres_as_load_dem_reads_the
                                                 r"origin \(480000\.0, 4440000\.0\) are read as degrees .*latitudes run "
                                                 r".*pass the projected CRS they are in \(or crs=None\)$"):
         st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(480000.0, 4440000.0), crs="EPSG:4326")
+
+
+def test_from_mesh_carries_the_mesh_s_crs_and_source_to_the_tin_and_its_steps(tmp_path):
+    """Only stepped(mesh) copied a TIN's ``metadata["crs"]`` and ``["source"]`` onto its result: Terrain.from_mesh
+    dropped them, so stepped(Terrain.from_mesh(mesh)), describe_dem and every other mesh built from the Terrain (a
+    DEM's mesh read back from a file in UTM) named no CRS. from_mesh now reads them (text, not blank; a source given
+    wins), and the cache does not hand back a TIN of the mesh's old CRS."""
+    from stepterrain.export import read_mesh, save_mesh
+    from stepterrain.io import describe_dem
+
+    dem = st.sample_dem().crop((390000.0, 391500.0, 3800000.0, 3801200.0))
+    mesh = read_mesh(save_mesh(dem.mesh(), tmp_path / "dem.ply"))
+    assert mesh.metadata["crs"] == dem.crs == "EPSG:32611"
+    tin = st.Terrain.from_mesh(mesh)
+    assert (tin.kind, tin.crs, tin.source) == ("tin", "EPSG:32611", mesh.metadata["source"])
+    assert describe_dem(tin)["crs"] == "EPSG:32611"
+    direct, via_terrain = st.stepped(mesh, interval=50.0), st.stepped(tin, interval=50.0)
+    np.testing.assert_array_equal(direct.vertices, via_terrain.vertices)
+    for steps in (direct, via_terrain):
+        assert (steps.metadata["crs"], steps.metadata["source"]) == ("EPSG:32611", mesh.metadata["source"])
+    assert st.Terrain.from_mesh(mesh, source="given.ply").source == "given.ply"  # the argument wins
+    mesh.metadata["crs"] = "EPSG:32612"  # a changed CRS: not the cached TIN of the old one
+    assert st.Terrain.from_mesh(mesh).crs == "EPSG:32612"
+    for value in ("  ", 32611, None):  # blank or not text: no CRS
+        mesh.metadata["crs"] = value
+        assert st.Terrain.from_mesh(mesh).crs is None
+        assert "crs" not in st.stepped(mesh, interval=50.0).metadata
