@@ -1413,6 +1413,16 @@ def _check_placed(file: Path, place: _Placement, terrain: Terrain) -> None:
         _check_degrees_without_crs(file, terrain)
 
 
+class _NotDegrees(DataFileError):
+    """:func:`_placement`'s refusal of a grid whose CRS is geographic but whose nodes are no degrees (latitudes beyond
+    ±90, longitudes over more than 360): ``reason`` what its nodes give, which :func:`degrees_as_local_metres` names
+    for the spacing and origin given instead of the file."""
+
+    def __init__(self, file: Path, crs: str | None, reason: str) -> None:
+        super().__init__(f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but {reason}")
+        self.reason = reason
+
+
 def _placement(
     file: Path,
     shape: tuple[int, ...],
@@ -1422,10 +1432,13 @@ def _placement(
     geographic: bool,
     metres: tuple[float, float] | None,
     height_unit: str | None,
+    name: str | None = None,
 ) -> _Placement:
     """The placement of a grid of ``shape`` by :func:`_georeferenced`, from its geotransform, CRS and shape alone
     (no heights), its refusals and warnings but those of :func:`_check_placed` given: :func:`load_dem` places a
-    GeoTIFF's whole grid so before it reads a window of it (``crop=``)."""
+    GeoTIFF's whole grid so before it reads a window of it (``crop=``). ``name`` what the warnings and ``source`` call
+    the grid (default the file's name); a geographic grid's nodes that are no degrees are a :class:`_NotDegrees`."""
+    name = file.name if name is None else name
     x0, dx, row_x, y0, col_y, dy = (float(v) for v in geotransform)
     if not _negligible_rotation(row_x, col_y, dx, dy, shape):
         raise DataFileError(
@@ -1444,14 +1457,14 @@ def _placement(
             unit, factor, metre_crs = projected
             if height_unit is None:
                 warnings.warn(
-                    f"{file.name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
+                    f"{name}: {crs} is in {unit} units, so spacing and origin were converted to metres; the "
                     f"heights are kept as stored (the file does not name their unit): if they are in {unit} too, "
                     f"pass height_unit={unit!r} (metres per unit: {factor:.10g})",
                     stacklevel=caller_stacklevel(),
                 )
-            source = f"{file.name} ({crs} {unit} as metres: x {factor:.10g})"
+            source = f"{name} ({crs} {unit} as metres: x {factor:.10g})"
         return _Placement((dx * factor, dy * factor), (node_x * factor, node_y * factor), metre_crs,
-                          source or file.name, (crs, (node_x, node_y), (dx, dy), tuple(shape), factor))
+                          source or name, (crs, (node_x, node_y), (dx, dy), tuple(shape), factor))
 
     body = _geographic_body(crs)
     if body.degrees != 1.0 or body.meridian != 0.0 or body.east != 1.0:  # grads (EPSG:4807), longitudes east of
@@ -1462,17 +1475,16 @@ def _placement(
     rows = shape[0]
     node_lats = (node_y, node_y + (rows - 1) * dy)
     if not all(abs(lat) <= 90.0 + 1e-9 for lat in node_lats):  # metres would be made of impossible degrees
-        raise DataFileError(
-            f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node latitudes run "
-            f"from {min(node_lats):.9g} to {max(node_lats):.9g}; expected them within [-90, 90] (a projected grid "
-            "labelled with a geographic CRS?)"
+        raise _NotDegrees(
+            file, crs, f"the grid's node latitudes run from {min(node_lats):.9g} to {max(node_lats):.9g}; expected "
+            "them within [-90, 90] (a projected grid labelled with a geographic CRS?)"
         )
     lon_span = (shape[1] - 1) * abs(dx)
     if lon_span > 360.0 + 1e-9:  # the nodes went round the globe more than once: a strip wider than the earth
-        raise DataFileError(
-            f"cannot read {str(file)!r}: {crs or 'its CRS'} is geographic (degrees), but the grid's node longitudes "
-            f"span {lon_span:.9g} degrees ({shape[1]} columns of {abs(dx):.9g}); expected at most 360 (a "
-            "projected grid labelled with a geographic CRS, or a wrong longitude step?)"
+        raise _NotDegrees(
+            file, crs, f"the grid's node longitudes span {lon_span:.9g} degrees ({shape[1]} columns of "
+            f"{abs(dx):.9g}); expected at most 360 (a projected grid labelled with a geographic CRS, or a wrong "
+            "longitude step?)"
         )
     centre_lat = y0 + 0.5 * rows * dy
     # R as the crs writes it (10 digits: the mean radius of Mars is 3389526.666...): metres from another R read back
@@ -1489,7 +1501,7 @@ def _placement(
         lat_ts = math.degrees(math.acos(cos_ts)) if cos_ts <= 1.0 else math.nan
     spacing = (math.copysign(abs(metres[0]), dx), math.copysign(abs(metres[1]), dy))
     _check_local_metres(file, crs, (node_x, node_x + (shape[1] - 1) * dx), node_y + np.arange(rows) * dy,
-                        (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)), body)
+                        (abs(metres[0]) / abs(dx), abs(metres[1]) / abs(dy)), body, name=name)
     local_crs: str | None = (
         f"+proj=eqc +lat_ts={lat_ts:.9f} +lat_0={node_y:.9f} +lon_0={node_x:.9f} "
         f"+x_0=0 +y_0=0 +R={radius:.10g} +units=m +no_defs"
@@ -1500,13 +1512,13 @@ def _placement(
         if math.isnan(lat_ts):
             local_crs, how = None, "dx_m, dy_m from the file, no CRS"
             warnings.warn(
-                f"{file.name}: its dx_m, dy_m ({metres[0]:.10g}, {metres[1]:.10g} m) give more metres per degree of "
+                f"{name}: its dx_m, dy_m ({metres[0]:.10g}, {metres[1]:.10g} m) give more metres per degree of "
                 f"longitude than of latitude, which no equidistant cylindrical projection of a sphere does: the grid "
                 "keeps them, without a CRS",
                 stacklevel=caller_stacklevel(),
             )
     source = (
-        f"{file.name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
+        f"{name} ({crs or 'geographic'} degrees as local metres: node (0, 0) at lon {node_x:.9f}, "
         f"lat {node_y:.9f}; {how})"
     )
     return _Placement(spacing, (0.0, 0.0), local_crs, source, None)
@@ -1529,28 +1541,19 @@ def degrees_as_local_metres(
     when they are no degrees (latitudes beyond ±90, longitudes over more than 360: metres labelled geographic)."""
     if not crs or crs.lstrip().lower().startswith("+proj=eqc") or not _is_geographic(crs):
         return None
-    name = source or _GIVEN_GRID
-    file = Path(_GIVEN_GRID)
     (dx, dy), (x0, y0) = spacing, origin
     geotransform = np.array([x0 - 0.5 * dx, dx, 0.0, y0 - 0.5 * dy, 0.0, dy], dtype=np.float64)  # cell corners
-    try:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            place = _placement(file, shape, geotransform, crs, geographic=True, metres=None, height_unit=None)
-    except DataFileError as exc:
-        reason = str(exc).split(": ", 1)[-1]
+    try:  # its warnings (told at the caller's line) and source name the grid as the caller did
+        place = _placement(Path(_GIVEN_GRID), shape, geotransform, crs, geographic=True, metres=None,
+                           height_unit=None, name=source or _GIVEN_GRID)
+    except _NotDegrees as exc:
         raise InvalidInputError(
             f"crs {crs!r} is geographic, so spacing {tuple(spacing)} and origin {tuple(origin)} are read as degrees "
-            f"(and made local metres, as load_dem makes a file in degrees), but {reason.split(', but ', 1)[-1]}; if "
-            "they are metres, pass the projected CRS they are in (or crs=None)"
+            f"(and made local metres, as load_dem makes a file in degrees), but {exc.reason}; if they are metres, "
+            "pass the projected CRS they are in (or crs=None)"
         ) from exc
-    for warning in caught:  # told at the caller's line, naming the grid as the caller did
-        text = str(warning.message)
-        if text.startswith(f"{_GIVEN_GRID}: "):
-            text = f"{name}: {text[len(_GIVEN_GRID) + 2:]}"
-        warnings.warn(text, warning.category, stacklevel=caller_stacklevel())
     assert place.source is not None
-    return place.spacing, place.origin, place.crs, name + place.source[len(_GIVEN_GRID):]
+    return place.spacing, place.origin, place.crs, place.source
 
 
 def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
@@ -1679,13 +1682,13 @@ def local_metres_error(node_lats: NDArray[np.float64], per_degree: tuple[float, 
 
 def _check_local_metres(
     file: Path, crs: str | None, lons: tuple[float, float], node_lats: NDArray[np.float64],
-    per_degree: tuple[float, float], body: _Body = _EARTH,
+    per_degree: tuple[float, float], body: _Body = _EARTH, *, name: str | None = None,
 ) -> None:
     """Warn, at the caller of :func:`load_dem`, when a geographic grid's one local spacing errs by more than
     :data:`_LOCAL_METRES_TOLERANCE` against WGS 84 (another body's own ellipsoid, ``body``) somewhere in its rows
     (:func:`local_metres_error`): a tall grid, or one far from the equator, whose east-west metres drift with cos φ.
     ``lons`` are its first and last node longitudes, for the hint (an earth CRS's, as a projection on another body
-    has no EPSG code)."""
+    has no EPSG code). ``name`` what the warning calls the grid (default the file's name)."""
     error = local_metres_error(node_lats, per_degree, body)
     if error <= _LOCAL_METRES_TOLERANCE:
         return
@@ -1694,7 +1697,7 @@ def _check_local_metres(
     if math.isinf(error):
         how = "an unbounded amount (a row of nodes at a pole, where a degree of longitude is 0 m)"
     warnings.warn(
-        f"{file.name}: {crs or 'geographic'} degrees read as local metres with one spacing "
+        f"{file.name if name is None else name}: {crs or 'geographic'} degrees read as local metres with one spacing "
         f"({per_degree[0]:.6g} m per degree of longitude, {per_degree[1]:.6g} m per degree of latitude) err against "
         f"{body.name if body.earth else f'the {body.name} ellipsoid'}'s ground distances and cell areas by "
         f"{how} over its node latitudes {low:.6g} to {high:.6g} ({high - low:.6g} degrees), more than "

@@ -986,3 +986,28 @@ def test_from_mesh_carries_the_mesh_s_crs_and_source_to_the_tin_and_its_steps(tm
         mesh.metadata["crs"] = value
         assert st.Terrain.from_mesh(mesh).crs is None
         assert "crs" not in st.stepped(mesh, interval=50.0).metadata
+
+
+def test_from_heights_in_degrees_names_the_grid_as_given_in_its_warnings_refusals_and_source():
+    """degrees_as_local_metres places the degrees as load_dem places a file's (io._placement): the warnings and the
+    source name the grid by the ``source`` given ("the heights" without one), at the caller's line, and a refusal
+    names crs, spacing and origin with the nodes' reason (latitudes or longitudes), not a file."""
+    import warnings
+
+    heights = np.add.outer(np.arange(51.0), np.arange(4.0)).astype(np.float32)  # 50 degrees of latitude: the one
+    for source, name in (("tile.tif", "tile.tif"), (None, "the heights")):  # spacing errs, and is told
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t = st.Terrain.from_heights(heights, spacing=(1.0, -1.0), origin=(10.0, 60.0), crs="EPSG:4326",
+                                        source=source)
+        told = [w for w in caught if "degrees read as local metres with one spacing" in str(w.message)]
+        assert len(told) == 1 and str(told[0].message).startswith(f"{name}: EPSG:4326 degrees read as local metres")
+        assert told[0].filename == __file__
+        assert t.source.startswith(f"{name} (EPSG:4326 degrees as local metres: node (0, 0) at lon 10.000000000")
+    refused = (r"^crs 'EPSG:4326' is geographic, so spacing \(1\.0, -1\.0\) and origin \(-180\.0, 10\.0\) are read "
+               r"as degrees \(and made local metres, as load_dem makes a file in degrees\), but the grid's node "
+               r"longitudes span 399 degrees \(400 columns of 1\); expected at most 360 \(.*\); if they are metres, "
+               r"pass the projected CRS they are in \(or crs=None\)$")
+    with pytest.raises(InvalidInputError, match=refused):
+        st.Terrain.from_heights(np.zeros((3, 400), np.float32), spacing=(1.0, -1.0), origin=(-180.0, 10.0),
+                                crs="EPSG:4326")
