@@ -1362,9 +1362,12 @@ def _grid(
     source: str | None = None,
     height_unit: str | None = None,
 ) -> Terrain:
+    """The Terrain of a file's ``heights``, placed (``spacing``, ``origin`` and ``crs``) by :func:`_placement` or
+    unreferenced (``crs`` None): from_heights does not look the CRS up again (``_placed``)."""
     try:
         return Terrain.from_heights(
-            heights, spacing=spacing, origin=origin, crs=crs, source=source or file.name, height_unit=height_unit
+            heights, spacing=spacing, origin=origin, crs=crs, source=source or file.name, height_unit=height_unit,
+            _placed=True,
         )
     except InvalidInputError as exc:
         raise DataFileError(f"cannot read {str(file)!r}: {exc}") from exc

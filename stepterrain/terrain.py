@@ -475,13 +475,17 @@ def _in_metres(shape: tuple[int, ...], spacing: tuple[float, float], origin: tup
 
 def _grid_fields(
     heights: ArrayLike, spacing: Any, origin: Any, crs: str | None, source: str | None, *, borrow: bool = False,
+    placed: bool = False,
 ) -> tuple[NDArray[np.float32], tuple[float, float], tuple[float, float], str | None, str | None, dict[str, Any]]:
     """A grid Terrain's (heights, spacing, origin, crs, source) checked as :meth:`Terrain.from_heights` and a grid
     built directly keep them (:func:`_heights_array`, :func:`grid_geometry`, :func:`_in_metres`), and its first
-    cache entries: the checks' min and max answer has_nodata and, without nodata, height_range (no further passes)."""
+    cache entries: the checks' min and max answer has_nodata and, without nodata, height_range (no further passes).
+    ``placed``: ``crs``, ``spacing`` and ``origin`` are a placed grid's already (a Terrain's own, crop or coarsened,
+    or load_dem's placement of a file): :func:`_in_metres`, which would look the CRS up again, is skipped."""
     array, lo, hi = _heights_array(heights, borrow=borrow)
     spacing, origin = grid_geometry(spacing, origin, array.shape)
-    spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source)
+    if not placed:
+        spacing, origin, crs, source = _in_metres(array.shape, spacing, origin, crs, source)
     cache: dict[str, Any] = {"has_nodata": math.isnan(lo)}
     if not math.isnan(lo):
         cache["height_range"] = (lo, hi)
@@ -631,17 +635,20 @@ class Terrain:
         source: str | None = None,
         height_unit: str | None = None,
         _borrow: bool = False,
+        _placed: bool = False,
     ) -> Terrain:
         """A regular heightfield: ``heights`` (H, W), NaN for nodata; ``spacing`` (dx, dy) non-zero;
         ``height_unit`` the length unit the heights were read in, now metres (see the class). A geographic ``crs``
         (EPSG:4326, ...) makes ``spacing`` and ``origin`` degrees, read into local metres as
         :func:`~stepterrain.io.load_dem` reads a file in degrees (origin (0, 0) at node (0, 0), a spherical
         ``+proj=eqc`` crs, the degrees in ``source``): the same Terrain as load_dem of the grid saved as a GeoTIFF.
-        (``_borrow`` is internal: see :func:`as_terrain`.)"""
+        (``_borrow`` is internal: see :func:`as_terrain`; so is ``_placed``: ``crs``, ``spacing`` and ``origin`` of a
+        grid placed already, a Terrain's own or :func:`~stepterrain.io.load_dem`'s, not looked up again.)"""
         crs = optional_text(crs, "crs", "e.g. 'EPSG:32611'")
         source = optional_text(source, "source", "where the heights come from, e.g. a file name")
         height_unit = optional_text(height_unit, "height_unit", "the unit the heights were read in, e.g. 'ft'")
-        array, spacing, origin, crs, source, cache = _grid_fields(heights, spacing, origin, crs, source, borrow=_borrow)
+        array, spacing, origin, crs, source, cache = _grid_fields(heights, spacing, origin, crs, source, borrow=_borrow,
+                                                                  placed=_placed)
         terrain = cls(
             kind="grid",
             heights=array,
@@ -1099,7 +1106,7 @@ class Terrain:
     def _subgrid(self, heights: NDArray[np.float32], spacing: tuple[float, float],
                  origin: tuple[float, float]) -> Terrain:
         return Terrain.from_heights(np.ascontiguousarray(heights), spacing=spacing, origin=origin, crs=self.crs,
-                                    source=self.source, height_unit=self.height_unit)
+                                    source=self.source, height_unit=self.height_unit, _placed=True)  # its own CRS
 
 
 def crop_of_nodata(bounds: tuple[float, ...], shape: tuple[int, ...]) -> InvalidInputError:

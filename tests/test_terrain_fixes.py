@@ -1011,3 +1011,32 @@ def test_from_heights_in_degrees_names_the_grid_as_given_in_its_warnings_refusal
     with pytest.raises(InvalidInputError, match=refused):
         st.Terrain.from_heights(np.zeros((3, 400), np.float32), spacing=(1.0, -1.0), origin=(-180.0, 10.0),
                                 crs="EPSG:4326")
+
+
+def test_a_placed_grid_s_crs_is_not_looked_up_again_by_load_dem_or_its_crops(monkeypatch):
+    """load_dem placed a file (io._placement), then Terrain.from_heights looked its CRS up again
+    (degrees_as_local_metres: a rasterio CRS parse and is_geographic for EPSG:32611), and so did every crop and
+    coarsening of a Terrain, whose CRS is placed already. Only a grid given in a CRS is placed now: once, with the
+    same refusal for degrees that are none."""
+    import stepterrain.io as stio
+
+    placed = stio.degrees_as_local_metres
+    calls: list[str | None] = []
+
+    def counted(shape, spacing, origin, crs, source):
+        calls.append(crs)
+        return placed(shape, spacing, origin, crs, source)
+
+    monkeypatch.setattr(stio, "degrees_as_local_metres", counted)
+    dem = st.sample_dem()
+    x0, x1, y0, y1 = dem.extent
+    crop = dem.crop((x0, (x0 + x1) / 2, y0, (y0 + y1) / 2))
+    coarse = dem.coarsen(4)
+    assert calls == [] and dem.crs == crop.crs == coarse.crs == "EPSG:32611"
+    heights = np.add.outer(np.arange(40.0), np.arange(50.0)).astype(np.float32)
+    geo = st.Terrain.from_heights(heights, spacing=(0.000833, -0.000833), origin=(-105.5, 40.1), crs="EPSG:4326")
+    part = geo.crop((0.0, 20 * geo.spacing[0], 20 * geo.spacing[1], 0.0))
+    assert calls == ["EPSG:4326"] and geo.crs.startswith("+proj=eqc") and part.crs == geo.crs
+    assert part.spacing == geo.spacing and part.heights.shape == (21, 21)
+    with pytest.raises(InvalidInputError, match=r"^crs 'EPSG:4326' is geographic, .* latitudes run "):
+        st.Terrain.from_heights(heights, spacing=(30.0, -30.0), origin=(480000.0, 4440000.0), crs="EPSG:4326")
