@@ -330,6 +330,7 @@ def save_mesh(
     *,
     metadata: Mapping[str, Any] | None = None,
     shared_bounds: ArrayLike | None = None,
+    origin: ArrayLike | None = None,
 ) -> Path:
     """Write a mesh to ``path`` in the format its extension names, atomically.
 
@@ -367,6 +368,14 @@ def save_mesh(
         translation (the floor of their centre) and PLY's float64 beyond 65536 (below it, a PLY is float32 where
         float32 holds every vertex exactly, else float64). A vertex the meshes share is then stored identically in
         each (or, in PLY, read back identically), so they weld exactly. Need not contain the mesh.
+    origin : (3,) array_like, optional
+        The point (x, y, z) a ``.glb``/``.gltf`` stores its float32 positions relative to, floored to whole units:
+        the node translation, in place of the one ``shared_bounds`` or the mesh's bounds give (the floor of their
+        centre beyond 65536). Each vertex is stored within float32's rounding of its distance from it (2^-24
+        relative), so give the eye of a close view of a globe: the vertices near the eye are then stored as
+        finely as the view shows them, where the centre of a view's mesh, which spans thousands of km (the coarse
+        triangles at its border and on the far side), moved those under an eye 100 m up by 0.3 m. Ignored by the
+        other formats, which store coordinates as they are.
 
     Returns
     -------
@@ -445,7 +454,8 @@ def save_mesh(
     translation (float64 in the JSON: the floor of the centre of the bounds, (ox, oz, -oy) in the turned world frame)
     and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
-    0.03 mm on a 1 km tile, 0.25 m on a whole globe); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
+    0.03 mm on a 1 km tile, 0.25 m on a whole globe), or from ``origin`` when given (then the translation, at any
+    magnitude); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
     meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
@@ -492,7 +502,8 @@ def save_mesh(
             f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
-    _check_float32_reach(bounds, ext, target, frame)
+    anchor = _origin_argument(origin)
+    _check_float32_reach(bounds, ext, target, frame, anchor)
     if ext == ".glb":
         _check_glb_size(mesh, target)
     _check_write_budget(mesh, ext, target)
@@ -503,7 +514,10 @@ def save_mesh(
             texture_wrap(getattr(prepared.visual, "material", None))  # writer, after atomic_path made the folders
     with atomic_path(target) as tmp:
         try:
-            writer(prepared, tmp, target, bounds, frame)
+            if ext in (".glb", ".gltf"):
+                writer(prepared, tmp, target, bounds, frame, anchor)
+            else:
+                writer(prepared, tmp, target, bounds, frame)
         except OSError as exc:
             if isinstance(exc, DataFileError):
                 raise
@@ -627,7 +641,27 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
     return corners[0], corners[1]
 
 
-def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) -> None:
+def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
+    """``save_mesh``'s ``origin`` as 3 float64, floored (whole units: the translation in the JSON is then short and
+    tiles given the same origin store shared vertices identically), checked; None when not given."""
+    if origin is None:
+        return None
+    try:  # real numbers only: text, bools and ints beyond float64 refused by name
+        point = real_numbers(origin, "origin", "3 finite numbers (x, y, z)")
+    except InvalidInputError:
+        point = np.empty(0)
+    if point.shape != (3,) or not np.isfinite(point).all():
+        raise InvalidInputError(f"origin must be 3 finite numbers (x, y, z); got {origin!r:.200}")
+    return np.floor(point) + 0.0  # no -0 in the JSON
+
+
+def _gltf_offset(frame: Bounds, origin: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """glTF's node translation: save_mesh's ``origin`` when given, else :func:`_local_origin` of ``frame``."""
+    return _local_origin(frame) if origin is None else origin
+
+
+def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds,
+                         origin: NDArray[np.float64] | None = None) -> None:
     """Refuse coordinates that the format's float32 cannot hold: STL stores them as they are, glTF relative to the
     node translation (:func:`_local_origin`). numpy's cast made them infinite
     (invalid files) with a RuntimeWarning only. PLY (float64 beyond 65536 or where float32 rounds), OBJ and 3MF (text)
@@ -635,7 +669,7 @@ def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) 
     if bounds is None or ext not in (".stl", ".glb", ".gltf"):
         return
     lo, hi = bounds
-    offset = _local_origin(frame)  # glTF's node translation
+    offset = _gltf_offset(frame, origin)  # glTF's node translation
     if ext == ".stl":
         reach = np.maximum(np.abs(lo), np.abs(hi))
     else:
@@ -643,7 +677,8 @@ def _check_float32_reach(bounds: Bounds, ext: str, target: Path, frame: Bounds) 
     if (reach <= FLOAT32_MAX).all():
         return
     axis = int(np.argmax(reach))
-    what = "coordinates" if ext == ".stl" else "coordinates relative to the mesh's centre"
+    what = "coordinates" if ext == ".stl" else (
+        "coordinates relative to the mesh's centre" if origin is None else "coordinates relative to the origin")
     raise InvalidInputError(
         f"cannot write {str(target)!r}: {ext} stores float32 {what}, |x| < {FLOAT32_MAX:.2g}; the mesh's "
         f"{'xyz'[axis]} reaches {float(reach[axis]):.6g}{'' if ext == '.stl' else ' from it'}: write .ply or .obj "
@@ -962,10 +997,11 @@ def _is_large(bounds: Bounds) -> bool:
 
 
 # ---------------------------------------------------------------------------------------------- writers
-def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
+def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds,
+               origin: NDArray[np.float64] | None = None) -> None:
     empty = _empty_gltf(mesh)
     if empty or _direct_gltf(mesh):
-        tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds, frame)
+        tree, blocks = _empty_document(mesh, target) if empty else _gltf_document(mesh, target, bounds, frame, origin)
         header = json.dumps(tree, separators=(",", ":")).encode("utf-8")
         header += b" " * (-len(header) % 4)  # chunks are 4-byte aligned; JSON pads with spaces
         binary: list[Any] = []  # the binary chunk (an empty mesh has none: glTF 2.0 §4.4.3.3, optional)
@@ -986,7 +1022,7 @@ def _write_glb(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
                 fh.write(part)
         return
     try:  # a textured mesh: trimesh packs the lengths as uint32 (numpy's OverflowError beyond)
-        data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame), include_normals=False,
+        data = trimesh.exchange.gltf.export_glb(_gltf_scene(mesh, target, frame, origin), include_normals=False,
                                                 tree_postprocessor=_sampler_postprocessor(mesh))
     except (OverflowError, struct.error):
         _refuse_glb_size(target, None, mesh)
@@ -1022,18 +1058,19 @@ def _refuse_glb_size(target: Path, size: int | None, mesh: trimesh.Trimesh) -> N
     )
 
 
-def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds) -> None:
+def _write_gltf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, frame: Bounds,
+                origin: NDArray[np.float64] | None = None) -> None:
     if _empty_gltf(mesh):
         tmp.write_text(json.dumps(_empty_document(mesh, target)[0], separators=(",", ":")), encoding="utf-8")
         return
     if _direct_gltf(mesh):
-        tree, blocks = _gltf_document(mesh, target, bounds, frame)
+        tree, blocks = _gltf_document(mesh, target, bounds, frame, origin)
         binary = b"".join(memoryview(block).cast("B") for block in blocks)
         tree["buffers"][0]["uri"] = "data:application/octet-stream;base64," + base64.b64encode(binary).decode("ascii")
         tmp.write_text(json.dumps(tree, separators=(",", ":")), encoding="utf-8")
         return
     files = trimesh.exchange.gltf.export_gltf(
-        _gltf_scene(mesh, target, frame), include_normals=False, merge_buffers=True, embed_buffers=True,
+        _gltf_scene(mesh, target, frame, origin), include_normals=False, merge_buffers=True, embed_buffers=True,
         tree_postprocessor=_sampler_postprocessor(mesh),
     )
     tree = json.loads(files["model.gltf"])
@@ -1122,13 +1159,13 @@ def _terrain_material(blend: bool) -> dict[str, Any]:
 
 
 def _gltf_document(
-    mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds
+    mesh: trimesh.Trimesh, target: Path, bounds: Bounds, frame: Bounds, origin: NDArray[np.float64] | None = None
 ) -> tuple[dict[str, Any], list[Any]]:
     """glTF JSON and binary buffer of one triangle primitive: POSITION (float32, relative to the node
     translation beyond 65536), indices (uint32), COLOR_0 (linear float32 RGBA, from the sRGB bytes) when the mesh
     has vertex colours (face colours: each vertex the mean of its faces'); no normals (flat shading);
     ``mesh.metadata`` as the mesh ``extras``. ``frame`` (save_mesh's ``shared_bounds``) decides the translation in
-    place of ``bounds``. A mesh without faces is a points primitive
+    place of ``bounds``, and ``origin`` (save_mesh's) in place of both. A mesh without faces is a points primitive
     (mode 0, no indices): its vertices are kept (trimesh's writer dropped them and wrote an empty file). The one
     material is :func:`_terrain_material`."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
@@ -1139,8 +1176,8 @@ def _gltf_document(
     # the float32 positions and uint32 indices on recycled memory (a large tile's are tens of MB, written once)
     positions = recycled_empty(vertices.shape, np.dtype("<f4"))
     node["rotation"] = list(_Z_UP_TO_Y_UP_QUATERNION)  # z-up positions, a y-up world (glTF 2.0 §3.4)
-    if _is_large(frame):
-        offset = _local_origin(frame)
+    if _is_large(frame) or origin is not None:
+        offset = _gltf_offset(frame, origin)
         np.subtract(vertices, offset, out=positions, casting="unsafe")  # in float64, rounded once to float32
         node["translation"] = [float(v) + 0.0 for v in _Z_UP_TO_Y_UP[:3, :3] @ offset]  # in the world frame; no -0
     else:
@@ -1660,8 +1697,9 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
 
 
 # One writer per extension: (prepared mesh, temporary path to fill, final target, vertex bounds, the bounds that
-# decide how coordinates are stored: save_mesh's shared_bounds, else the vertex bounds) -> None.
-_WRITERS: dict[str, Callable[[trimesh.Trimesh, Path, Path, Bounds, Bounds], None]] = {
+# decide how coordinates are stored: save_mesh's shared_bounds, else the vertex bounds) -> None; the glTF writers
+# take save_mesh's origin (floored, or None) as a sixth argument.
+_WRITERS: dict[str, Callable[..., None]] = {
     ".glb": _write_glb,
     ".gltf": _write_gltf,
     ".obj": _write_obj,
@@ -2646,7 +2684,8 @@ def _json_value(value: Any, where: str | None = None, depth: int = 0) -> Any:
     return str(value)
 
 
-def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.Scene:
+def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds,
+                origin: NDArray[np.float64] | None = None) -> trimesh.Scene:
     """One node holding ``mesh`` (a prepared copy: its visual, material and vertices may be replaced); large
     coordinates move into the node translation (float64 in JSON); a texture's material as :func:`_textured_material`
     makes it. Vertex attributes are dropped, as :func:`_gltf_document` drops them: trimesh's writer raised a bare
@@ -2658,8 +2697,8 @@ def _gltf_scene(mesh: trimesh.Trimesh, target: Path, bounds: Bounds) -> trimesh.
         mesh.visual = trimesh.visual.TextureVisuals(uv=mesh.visual.uv, material=_textured_material(material))
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     transform = _Z_UP_TO_Y_UP.copy()  # exact 0 and ±1: trimesh writes it as the node's matrix
-    if _is_large(bounds):
-        offset = _local_origin(bounds)
+    if _is_large(bounds) or origin is not None:
+        offset = _gltf_offset(bounds, origin)
         mesh.vertices = vertices - offset  # a new array: the caller's (shared with the prepared copy) stays as it is
         transform[:3, 3] = _Z_UP_TO_Y_UP[:3, :3] @ offset + 0.0  # in the world frame
     if mesh.visual.kind == "texture" and isinstance(mesh.visual.material, trimesh.visual.material.PBRMaterial):

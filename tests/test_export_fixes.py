@@ -1924,3 +1924,42 @@ def test_a_bad_texture_wrap_is_refused_before_any_folder_is_made(ext, tmp_path):
     assert list(tmp_path.iterdir()) == []
     material.wrap = ("REPEAT", "CLAMP_TO_EDGE")  # a good one is written as before
     assert save_mesh(mesh, tmp_path / "new" / f"m{ext}").is_file()
+
+
+@pytest.mark.parametrize("ext,textured", [(".glb", False), (".gltf", False), (".glb", True)],
+                         ids=["glb", "gltf", "textured_glb"])
+def test_save_mesh_origin_is_the_gltf_node_translation(tmp_path, ext, textured):
+    """glTF positions were stored relative to the floor of the centre of the bounds only: a view of a globe spans
+    thousands of km, so the vertices near its eye were rounded to float32 steps of that reach (0.25 m on the earth).
+    ``origin`` is the node translation (floored): each vertex read back within float32's rounding of its own distance
+    from it, by the direct writer and by trimesh's (a textured mesh) alike."""
+    earth = trimesh.creation.icosphere(subdivisions=4, radius=6_371_000.0)
+    eye = earth.vertices[0] * (1.0 + 1e-5) + [0.3, -0.7, 0.45]  # 64 m above a vertex, not on whole metres
+    if textured:
+        uv = np.random.default_rng(0).random((len(earth.vertices), 2))
+        earth.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.new("RGB", (4, 4), (200, 120, 40)))
+    out = save_mesh(earth, tmp_path / f"earth{ext}", origin=eye)
+    back = np.asarray(read_mesh(out).vertices, dtype=np.float64)
+    exact = np.asarray(earth.vertices, dtype=np.float64)
+    distance = np.linalg.norm(exact - eye, axis=1)
+    error = np.linalg.norm(back - exact, axis=1)
+    assert error[0] <= 1e-5  # 64 m from the eye (float32 steps of 4 µm there): 0.2 m off relative to the centre
+    assert (error <= 2.0**-23 * (distance + 2.0)).all(), float((error / distance).max())
+    tree = json.loads(out.read_text()) if ext == ".gltf" else None
+    if tree is not None:  # the eye's floor in glTF's y-up world: (ox, oz, -oy)
+        o = np.floor(eye)
+        assert tree["nodes"][0]["translation"] == [o[0], o[2], -o[1]]
+
+
+@pytest.mark.parametrize("origin", [[0, 0, np.nan], [1, 2], "abc", [True, 0, 0], [10**400, 0, 0]])
+def test_save_mesh_origin_is_checked(tmp_path, origin):
+    with pytest.raises(InvalidInputError, match=r"^origin must be 3 finite numbers \(x, y, z\); got"):
+        save_mesh(trimesh.creation.box(), tmp_path / "box.glb", origin=origin)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_save_mesh_origin_beyond_float32_is_refused(tmp_path):
+    with pytest.raises(InvalidInputError, match=r"float32 coordinates relative to the origin.*reaches 1e\+39 from it"):
+        save_mesh(trimesh.creation.box(), tmp_path / "box.glb", origin=[1e39, 0, 0])
+    assert list(tmp_path.iterdir()) == []
+    save_mesh(trimesh.creation.box(), tmp_path / "box.ply", origin=[1e39, 0, 0])  # PLY stores them as they are

@@ -363,3 +363,23 @@ def test_globe_png_counts_the_texture_against_the_budget_before_any_work(tmp_pat
     # the hint names the command's own way to a smaller texture (it has no texel size, which the hint suggested)
     assert "give a smaller --size or a smaller --texture image (resampled to fewer pixels)" in err, err
     assert "texel size" not in err, err
+
+
+def test_globe_close_view_glb_is_stored_relative_to_the_eye(tmp_path):
+    """A close view's GLB stored its float32 positions relative to the centre of the mesh's bounds, and a view's mesh
+    spans thousands of km (the coarse triangles at the border of the view and on the far side, inside the frustum):
+    the vertices under an eye 100 m up were read back up to 0.3 m off, a 0.3 m jump of a vertex 5 km from the
+    eye. The positions are now stored relative to the eye (its floor, the node translation): each vertex read back
+    within float32's rounding of its own distance from the eye, the same fraction of the view everywhere."""
+    glb, ply = tmp_path / "close.glb", tmp_path / "close.ply"
+    for out in (glb, ply):  # (0, 0): the centre node of the +x cube face lies under the eye
+        assert main(["-q", "globe", "--face-size", "65", "--eye", "0,0,100", "--error", "0.5", "-o", str(out),
+                     "--device", "cpu"]) == 0
+    from stepterrain.export import read_mesh
+    stored, exact = read_mesh(glb).vertices, read_mesh(ply).vertices  # the PLY holds the float64 vertices
+    assert exact.dtype == np.float64 and stored.shape == exact.shape and np.ptp(exact, axis=0).max() > 1e6
+    eye = np.array([6_371_100.0, 0.0, 0.0])
+    distance = np.linalg.norm(exact - eye, axis=1)
+    assert distance.min() < 10_000.0  # a vertex near the eye
+    error = np.linalg.norm(stored - exact, axis=1)
+    assert (error <= 2.0**-23 * (distance + 2.0)).all(), float((error / distance).max())
