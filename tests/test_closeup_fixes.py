@@ -1293,3 +1293,36 @@ def test_spinning_billboard_keeps_its_size_and_place_over_the_spin(monkeypatch):
     assert areas.min() > 200
     assert areas.max() <= 1.03 * areas.min(), areas
     assert np.abs(centres - centres[0]).max() <= 1.5, centres
+
+
+def test_roi_box_collapsed_in_float32_is_refused_not_read_out_of_bounds():
+    """A ROI narrower than float32 resolves at its local coordinates (1e-4 wide at x = 5000) has x0 == x1 on the
+    device: a node on that x gave u = 0 / 0 = NaN, which passed the kernel's box test (NaN compares false), and
+    int32(floor(NaN)) indexed the mask some 2^31 texels before it (a segfault on the CPU, an assertion in Warp's
+    debug mode). Such a point now lies outside the box, as ROI.factor takes it, and the close-up that holds no
+    terrain is refused by name. In a fresh interpreter, Warp in debug mode: the out-of-bounds read is caught."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import warp as wp
+        wp.config.quiet = True
+        wp.config.mode = "debug"
+        import numpy as np
+        import stepterrain as st
+        from stepterrain.closeup import ROI, CloseUp, closeup_layers
+        from stepterrain.errors import InvalidInputError
+
+        t = st.terrain.as_terrain(np.zeros((101, 101), np.float32), spacing=(100.0, 100.0), origin=(0.0, 0.0))
+        roi = ROI((5000.0, 5000.0), (1e-4, 2000.0), np.ones((3, 3), np.float32))
+        assert np.float32(roi.box[0]) == np.float32(roi.box[1])  # the box collapses on the device
+        assert roi.factor([[5000.0, 5000.0]])[0] == 1.0  # in float64 the node lies inside
+        try:
+            closeup_layers(t, [CloseUp(roi, scale=2.0, offset=(0.0, 0.0, 10.0))], device="cpu")
+        except InvalidInputError as exc:
+            assert "holds no terrain" in str(exc), exc
+            print("refused")
+    """)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and result.stdout.strip() == "refused", (result.returncode, result.stderr[-2000:])
