@@ -120,7 +120,7 @@ def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
         raise DeviceError(f"inputs live on different devices: {sorted(data_devices)}; move them to one device")
     if data_devices:
         name = data_devices.pop()
-        if device is not None and str(wp.get_device(device)) != name:
+        if device is not None and str(resolve_device(device)) != name:  # a bad name named as below, not Warp's error
             raise DeviceError(f"device={device!r} but the input arrays live on {name!r}")
         return wp.get_device(name)
     if str(device).startswith("cuda") and not wp.is_cuda_available():
