@@ -1326,3 +1326,22 @@ def test_roi_box_collapsed_in_float32_is_refused_not_read_out_of_bounds():
     """)
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
     assert result.returncode == 0 and result.stdout.strip() == "refused", (result.returncode, result.stderr[-2000:])
+
+
+def test_closeup_sources_beyond_int32_are_refused(monkeypatch):
+    """The cull indexes the joined source points and faces with int32 (faces cast by astype(np.int32), counts and
+    offsets of n + 1 slots, launch dims): past 2^31 - 1 they wrapped into a wrong mesh or an out-of-range read,
+    whatever memory_budget= allowed. The guard is checked at its boundary with the limit lowered (no 2^31 arrays)."""
+    import stepterrain.closeup as closeup_module
+    from stepterrain.terrain import as_terrain
+
+    t = as_terrain(np.zeros((41, 41), np.float32))
+    cu = CloseUp(ROI.circle((20.0, 20.0), 6.0), scale=2.0, offset=(0.0, 0.0, 10.0))
+    source = closeup_module._grid_source(t, cu.roi.box)
+    most = max(len(source.points), len(source.faces)) + 1  # the count slots: n + 1 of them
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", most - 1, raising=False)
+    with pytest.raises(OutputTooLargeError, match=r"int32.*whatever the memory budget"):
+        closeup_layers(t, [cu], device="cpu")
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", most, raising=False)
+    (layer,) = closeup_layers(t, [cu], device="cpu")
+    assert len(layer.faces) > 0
