@@ -1057,6 +1057,10 @@ _ROI_UPLOADS: dict[Any, Any] = {}
 
 def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.float64]],
                    local_origin: tuple[float, float], device: wp.Device) -> closeup_kernels.CloseUpLayers:
+    texels = sum(cu.roi.mask.size for cu in closeups)
+    if texels > _MAX_INT32:  # packed in one array: int32 offsets and row · cols + column in the kernels' lookup
+        raise OutputTooLargeError(f"the close-ups' masks hold {texels:,} texels together, over the {_MAX_INT32:,} that "
+                                  "the kernels' int32 indices can hold; use coarser masks or fewer close-ups")
     ox, oy = local_origin
     shift = np.eye(4)
     shift[:2, 3] = (ox, oy)

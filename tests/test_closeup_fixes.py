@@ -1336,12 +1336,34 @@ def test_closeup_sources_beyond_int32_are_refused(monkeypatch):
     from stepterrain.terrain import as_terrain
 
     t = as_terrain(np.zeros((41, 41), np.float32))
-    cu = CloseUp(ROI.circle((20.0, 20.0), 6.0), scale=2.0, offset=(0.0, 0.0, 10.0))
+    cu = CloseUp(ROI.circle((20.0, 20.0), 6.0, resolution=5), scale=2.0, offset=(0.0, 0.0, 10.0))
     source = closeup_module._grid_source(t, cu.roi.box)
     most = max(len(source.points), len(source.faces)) + 1  # the count slots: n + 1 of them
+    assert cu.roi.mask.size < most - 1  # the geometry, not the mask, reaches it
     monkeypatch.setattr(closeup_module, "_MAX_INT32", most - 1, raising=False)
     with pytest.raises(OutputTooLargeError, match=r"int32.*whatever the memory budget"):
         closeup_layers(t, [cu], device="cpu")
     monkeypatch.setattr(closeup_module, "_MAX_INT32", most, raising=False)
     (layer,) = closeup_layers(t, [cu], device="cpu")
     assert len(layer.faces) > 0
+
+
+def test_closeup_masks_beyond_int32_texels_are_refused(monkeypatch):
+    """Every close-up's mask is packed into one array that the kernels index with int32 (each mask's offset, cast by
+    astype(np.int32), plus row · cols + column): masks of 2^31 texels or more together (eight shape masks at their
+    largest resolution, or one large painted mask) wrapped into reads outside the packed masks. Checked at the guard's
+    boundary with the limit lowered (no 2^31-texel masks)."""
+    import stepterrain.closeup as closeup_module
+    from stepterrain.terrain import as_terrain
+
+    t = as_terrain(np.zeros((21, 21), np.float32))
+    items = [CloseUp(ROI.circle((x, 10.0), 2.0, resolution=150), scale=2.0, offset=(0.0, 0.0, 10.0))
+             for x in (6.0, 14.0)]
+    texels = sum(cu.roi.mask.size for cu in items)
+    sources = [closeup_module._grid_source(t, cu.roi.box) for cu in items]
+    assert sum(len(s.points) + len(s.faces) for s in sources) < texels  # the masks, not the geometry, reach it
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", texels - 1, raising=False)
+    with pytest.raises(OutputTooLargeError, match=rf"{texels:,} texels.*int32"):
+        closeup_layers(t, items, device="cpu")
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", texels, raising=False)
+    assert all(len(layer.faces) for layer in closeup_layers(t, items, device="cpu"))
