@@ -45,11 +45,13 @@ class TransferFunctions:
 
 @wp.func
 def mask_factor(p: wp.vec3, k: wp.int32, layers: CloseUpLayers) -> wp.float32:
-    """Bilinear lookup of close-up k's mask at p's xy; 0 outside the ROI box."""
+    """Bilinear lookup of close-up k's mask at p's xy; 0 outside the ROI box (and where u or v is NaN: a box that
+    collapses to one float32 value gives 0 / 0 on its edge, which the comparisons must not let through to the
+    int32 texel index, as ``ROI.factor`` takes it)."""
     box = layers.boxes[k]
     u = (p[0] - box[0]) / (box[2] - box[0])
     v = (p[1] - box[1]) / (box[3] - box[1])
-    if u < 0.0 or u > 1.0 or v < 0.0 or v > 1.0:
+    if not (u >= 0.0 and u <= 1.0 and v >= 0.0 and v <= 1.0):
         return 0.0
     info = layers.mask_info[k]
     rows = info[1]

@@ -120,7 +120,7 @@ def resolve_device(device: wp.DeviceLike = None, *arrays: Any) -> wp.Device:
         raise DeviceError(f"inputs live on different devices: {sorted(data_devices)}; move them to one device")
     if data_devices:
         name = data_devices.pop()
-        if device is not None and str(wp.get_device(device)) != name:
+        if device is not None and str(resolve_device(device)) != name:  # a bad name named as below, not Warp's error
             raise DeviceError(f"device={device!r} but the input arrays live on {name!r}")
         return wp.get_device(name)
     if str(device).startswith("cuda") and not wp.is_cuda_available():
@@ -188,6 +188,7 @@ class _RecyclingPool:
         self._free: list[np.ndarray] = []  # uint8 blocks, oldest returned first
         self._lent = 0  # bytes of blocks on loan
         self._lock = threading.RLock()  # a loan may die (and return) inside take(), on the same thread
+        self._taking = False  # inside _take: a block returned then is appended, not trimmed (see _give_back)
 
     def empty(self, shape: tuple[int, ...], dtype: Any, touched: bool = False) -> np.ndarray:
         dtype = np.dtype(dtype)
@@ -219,17 +220,23 @@ class _RecyclingPool:
 
     def _take(self, nbytes: int) -> np.ndarray | None:
         with self._lock:
-            fits = [k for k, b in enumerate(self._free) if nbytes <= b.nbytes <= 2 * nbytes + (1 << 20)]
-            if not fits:
-                return None
-            k = min(fits, key=lambda k: self._free[k].nbytes)
-            return self._free.pop(k)
+            self._taking = True
+            try:
+                fits = [k for k, b in enumerate(self._free) if nbytes <= b.nbytes <= 2 * nbytes + (1 << 20)]
+                if not fits:
+                    return None
+                k = min(fits, key=lambda k: self._free[k].nbytes)
+                return self._free.pop(k)
+            finally:
+                self._taking = False
+                self._trim()
 
     def _give_back(self, block: np.ndarray) -> None:
         with self._lock:
             self._lent -= block.nbytes
-            self._free.append(block)
-            self._trim()
+            self._free.append(block)  # at the end: the indices _take may hold stay valid
+            if not self._taking:  # a loan that died inside _take (a collection there, same thread): trimmed after
+                self._trim()  # it, since trimming pops the front and _take's k then named the next block
 
     def _trim(self) -> None:
         total = self.free_bytes

@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import Same, derived
-from .errors import DataFileError, InvalidInputError, MissingDependencyError, counted
+from .errors import DataFileError, InvalidInputError, MissingDependencyError, OutputTooLargeError, counted
 from .io import degrees_hint
 from .kernels import closeup as closeup_kernels
 from .kernels import compaction as compaction_kernels
@@ -98,6 +98,9 @@ _MAX_MASK_RESOLUTION = 16385  # texels along each side of a shape mask: 1 GiB of
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
 _MAX_OFFSET = 1e12
+#: The most an int32 index holds: the cull (kernels/closeup.py) indexes the joined source points and faces with int32,
+#: and its count buffers have one slot more than either.
+_MAX_INT32 = (1 << 31) - 1
 #: largest |angle| of a close-up's rotation and billboard azimuth, radians (1024 turns): 1e308 was taken, and a spin
 #: added to an angle that large was lost to rounding (the animation stood still); a larger value is likely degrees
 _MAX_ANGLE = 2 * math.pi * 1024
@@ -1054,6 +1057,10 @@ _ROI_UPLOADS: dict[Any, Any] = {}
 
 def _layers_struct(closeups: Sequence[CloseUp], matrices: Sequence[NDArray[np.float64]],
                    local_origin: tuple[float, float], device: wp.Device) -> closeup_kernels.CloseUpLayers:
+    texels = sum(cu.roi.mask.size for cu in closeups)
+    if texels > _MAX_INT32:  # packed in one array: int32 offsets and row · cols + column in the kernels' lookup
+        raise OutputTooLargeError(f"the close-ups' masks hold {texels:,} texels together, over the {_MAX_INT32:,} that "
+                                  "the kernels' int32 indices can hold; use coarser masks or fewer close-ups")
     ox, oy = local_origin
     shift = np.eye(4)
     shift[:2, 3] = (ox, oy)
@@ -1168,6 +1175,9 @@ def closeup_layers(
     InvalidInputError
         A close-up's ROI lies outside the terrain or holds none of it (its mask 0 at every node with a height: a
         ROI smaller than the grid spacing, between nodes, or over nodata), or a bad close-up.
+    OutputTooLargeError
+        The close-ups' source geometry exceeds the memory budget, or the 2^31 - 1 points or faces that the cull's
+        int32 indices hold.
 
     Notes
     -----
@@ -1223,6 +1233,12 @@ def closeup_layers(
     check_budget(sum(len(src.points) for src in sources) * _CULL_POINT_BYTES
                  + sum(len(src.faces) for src in sources) * _CULL_FACE_BYTES, "close-up geometry", memory_budget,
                  hint="use smaller ROIs or fewer close-ups")
+    for items_name, count in (("points", sum(len(src.points) for src in sources)),
+                              ("faces", sum(len(src.faces) for src in sources))):
+        if count + 1 > _MAX_INT32:  # past it the int32 faces, counts and offsets wrap, whatever the budget allows
+            raise OutputTooLargeError(f"close-up geometry would hold {count:,} source {items_name}, over the "
+                                      f"{_MAX_INT32 - 1:,} that the cull's int32 indices can hold, whatever the memory "
+                                      "budget; use smaller ROIs or fewer close-ups")
     # the concatenated inputs and their uploads, kept for the same sources (the kernels only read them)
     def join() -> tuple[Any, ...]:
         n_points = np.array([len(s.points) for s in sources])

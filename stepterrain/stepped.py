@@ -589,6 +589,11 @@ def step_arrays(
         # are scanned (kernels/stepped.py, Offsets). The faces of chunks with a cell that needs the vertex offsets
         # to be counted are counted after that scan.
         n_slots, n_cells = 4 * n_nodes, (topo.rows - 1) * (topo.cols - 1)
+        if n_slots > _INT32_MAX:  # the kernels index slot 4·n (+ 0..3) in int32: past it count_grid wrote out of bounds
+            raise OutputTooLargeError(
+                f"a grid of {topo.rows} x {topo.cols} nodes needs {n_slots:,} int32 vertex slots (4 a node), more "
+                f"than the {_INT32_MAX:,} one call can index; {SMALLER_HINT}, or step it in tiles (stepterrain.batch)"
+            )
         n_chunks = chunked_threads(n_nodes, device)
         local = scratch("stepped.vertices.local", n_slots, wp.int32, device, streamed=True)
         totals = count_buffer("stepped.vertices", n_chunks, device)
@@ -1039,7 +1044,8 @@ def stepped(
     InvalidInputError
         Bad heights, isovalues, γ, colors or floor (see :func:`isovalues`).
     OutputTooLargeError
-        The predicted output exceeds the memory budget.
+        The predicted output exceeds the memory budget, or what one call's int32 indices hold (2^31 - 1 vertices
+        or faces; a grid of at most 2^29 - 1 nodes, 4 vertex slots a node), whatever the budget.
 
     Notes
     -----

@@ -1293,3 +1293,77 @@ def test_spinning_billboard_keeps_its_size_and_place_over_the_spin(monkeypatch):
     assert areas.min() > 200
     assert areas.max() <= 1.03 * areas.min(), areas
     assert np.abs(centres - centres[0]).max() <= 1.5, centres
+
+
+def test_roi_box_collapsed_in_float32_is_refused_not_read_out_of_bounds():
+    """A ROI narrower than float32 resolves at its local coordinates (1e-4 wide at x = 5000) has x0 == x1 on the
+    device: a node on that x gave u = 0 / 0 = NaN, which passed the kernel's box test (NaN compares false), and
+    int32(floor(NaN)) indexed the mask some 2^31 texels before it (a segfault on the CPU, an assertion in Warp's
+    debug mode). Such a point now lies outside the box, as ROI.factor takes it, and the close-up that holds no
+    terrain is refused by name. In a fresh interpreter, Warp in debug mode: the out-of-bounds read is caught."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent("""
+        import warp as wp
+        wp.config.quiet = True
+        wp.config.mode = "debug"
+        import numpy as np
+        import stepterrain as st
+        from stepterrain.closeup import ROI, CloseUp, closeup_layers
+        from stepterrain.errors import InvalidInputError
+
+        t = st.terrain.as_terrain(np.zeros((101, 101), np.float32), spacing=(100.0, 100.0), origin=(0.0, 0.0))
+        roi = ROI((5000.0, 5000.0), (1e-4, 2000.0), np.ones((3, 3), np.float32))
+        assert np.float32(roi.box[0]) == np.float32(roi.box[1])  # the box collapses on the device
+        assert roi.factor([[5000.0, 5000.0]])[0] == 1.0  # in float64 the node lies inside
+        try:
+            closeup_layers(t, [CloseUp(roi, scale=2.0, offset=(0.0, 0.0, 10.0))], device="cpu")
+        except InvalidInputError as exc:
+            assert "holds no terrain" in str(exc), exc
+            print("refused")
+    """)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and result.stdout.strip() == "refused", (result.returncode, result.stderr[-2000:])
+
+
+def test_closeup_sources_beyond_int32_are_refused(monkeypatch):
+    """The cull indexes the joined source points and faces with int32 (faces cast by astype(np.int32), counts and
+    offsets of n + 1 slots, launch dims): past 2^31 - 1 they wrapped into a wrong mesh or an out-of-range read,
+    whatever memory_budget= allowed. The guard is checked at its boundary with the limit lowered (no 2^31 arrays)."""
+    import stepterrain.closeup as closeup_module
+    from stepterrain.terrain import as_terrain
+
+    t = as_terrain(np.zeros((41, 41), np.float32))
+    cu = CloseUp(ROI.circle((20.0, 20.0), 6.0, resolution=5), scale=2.0, offset=(0.0, 0.0, 10.0))
+    source = closeup_module._grid_source(t, cu.roi.box)
+    most = max(len(source.points), len(source.faces)) + 1  # the count slots: n + 1 of them
+    assert cu.roi.mask.size < most - 1  # the geometry, not the mask, reaches it
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", most - 1, raising=False)
+    with pytest.raises(OutputTooLargeError, match=r"int32.*whatever the memory budget"):
+        closeup_layers(t, [cu], device="cpu")
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", most, raising=False)
+    (layer,) = closeup_layers(t, [cu], device="cpu")
+    assert len(layer.faces) > 0
+
+
+def test_closeup_masks_beyond_int32_texels_are_refused(monkeypatch):
+    """Every close-up's mask is packed into one array that the kernels index with int32 (each mask's offset, cast by
+    astype(np.int32), plus row · cols + column): masks of 2^31 texels or more together (eight shape masks at their
+    largest resolution, or one large painted mask) wrapped into reads outside the packed masks. Checked at the guard's
+    boundary with the limit lowered (no 2^31-texel masks)."""
+    import stepterrain.closeup as closeup_module
+    from stepterrain.terrain import as_terrain
+
+    t = as_terrain(np.zeros((21, 21), np.float32))
+    items = [CloseUp(ROI.circle((x, 10.0), 2.0, resolution=150), scale=2.0, offset=(0.0, 0.0, 10.0))
+             for x in (6.0, 14.0)]
+    texels = sum(cu.roi.mask.size for cu in items)
+    sources = [closeup_module._grid_source(t, cu.roi.box) for cu in items]
+    assert sum(len(s.points) + len(s.faces) for s in sources) < texels  # the masks, not the geometry, reach it
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", texels - 1, raising=False)
+    with pytest.raises(OutputTooLargeError, match=rf"{texels:,} texels.*int32"):
+        closeup_layers(t, items, device="cpu")
+    monkeypatch.setattr(closeup_module, "_MAX_INT32", texels, raising=False)
+    assert all(len(layer.faces) for layer in closeup_layers(t, items, device="cpu"))

@@ -61,3 +61,17 @@ def test_threads_growing_the_shared_pool_at_once_leave_one_pool_and_shut_down_th
     assert all(pool._shutdown for pool in replaced), f"{sum(not p._shutdown for p in replaced)} pools left running"
     device_module._prefault(np.ones(16 * device_module._PAGE, np.uint8), 4)  # fewer helpers: the same pool
     assert device_module._executor is current
+
+
+@pytest.mark.parametrize("device", ["nonsense", "cuda:7", 5])
+def test_resolve_device_names_a_bad_device_beside_input_arrays(device):
+    """With input arrays, ``device=`` was passed to ``wp.get_device`` unchecked: an unknown name (or CUDA on a machine
+    without it) raised Warp's bare ValueError / RuntimeError instead of the DeviceError the docstring promises."""
+    import warp as wp
+
+    from stepterrain.errors import DeviceError
+
+    array = wp.zeros(3, dtype=wp.float32, device="cpu")
+    with pytest.raises(DeviceError, match="device"):
+        device_module.resolve_device(device, array)
+    assert str(device_module.resolve_device("cpu", array)) == "cpu"  # the arrays' own device is still accepted

@@ -152,3 +152,36 @@ def test_threads_borrowing_at_once_get_their_own_memory(small_outputs):
     for (v, f), (ev, ef) in zip(results, expected, strict=True):
         np.testing.assert_array_equal(v, ev)
         np.testing.assert_array_equal(f, ef)
+
+
+def test_a_loan_returned_inside_take_does_not_shift_the_block_taken():
+    """A loan may die inside ``_take`` on the same thread (a collection run by one of its allocations frees a dropped
+    mesh; the RLock lets its finalizer in). Its return trimmed the oldest free block off the front of the list between
+    ``_take`` choosing index k and popping it: the pop took the next block, smaller than asked for, and the new output
+    was laid over too little memory. Here the chosen block's ``nbytes``, read by the choice, drops the last reference
+    to a loan (its real finalizer runs)."""
+    mib = 1 << 20
+    pool = _device._RecyclingPool(23 * mib)
+    loans = [pool.empty((_device.RECYCLE_MIN_BYTES,), np.uint8)]  # a block on loan
+    assert isinstance(loans[0].base, _device._Loan)
+    reads = []
+
+    class Chosen(np.ndarray):
+        @property
+        def nbytes(self):  # the comprehension reads it, then min's key: the loan dies there
+            reads.append(1)
+            if len(reads) == 2:
+                loans.clear()
+            return super().nbytes
+
+    small = np.empty(5 * mib, np.uint8)  # oldest: too small, trimmed first
+    chosen = np.empty(10 * mib, np.uint8).view(Chosen)
+    smaller = np.empty(8 * mib + 1, np.uint8)  # too small for the request
+    with pool._lock:
+        pool._free[:] = [small, chosen, smaller]
+        pool.limit = 28 * mib  # the returned 9 MiB block pushes them past it: the oldest (5 MiB) is trimmed
+    taken = int(pool.empty((10 * mib,), np.uint8).ctypes.data)  # only its address: reading it past 8 MiB crashed
+    assert len(reads) >= 2 and not loans  # the loan died inside _take
+    assert taken != int(smaller.ctypes.data), "a 10 MiB output laid over the 8 MiB block"
+    assert taken == int(chosen.ctypes.data)
+    assert all(b.nbytes >= 0 for b in pool._free) and pool.free_bytes <= pool.limit

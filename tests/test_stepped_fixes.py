@@ -902,3 +902,20 @@ def test_solid_does_not_warn_for_heights_no_triangle_uses():
     np.testing.assert_array_equal(tin_solid.faces, bare.faces)
     np.testing.assert_array_equal(tin_solid.vertices, bare.vertices)
     assert tin_solid.is_watertight and grid_solid.is_watertight
+
+
+def test_grid_past_the_int32_vertex_slots_is_refused_before_the_count_pass(monkeypatch):
+    """A grid's vertex pass (kernels/stepped.py, count_grid and its readers) keeps 4 int32-indexed slots a node at
+    ``4 * n``: from 2^29 nodes (a 23171² DEM, 2 GiB of float32 heights, under the default budget) that product
+    wrapped and count_grid streamed its prefixes to negative offsets (memory written outside the slot array) before
+    any total or budget was checked. Such a grid is refused up front; the guard is checked at its boundary with the
+    limit lowered (no 2^29-node grid)."""
+    import stepterrain.stepped as stepped_module
+
+    heights = np.add.outer(np.arange(20.0), np.arange(30.0))
+    slots = 4 * heights.size
+    monkeypatch.setattr(stepped_module, "_INT32_MAX", slots - 1)
+    with pytest.raises(st.OutputTooLargeError, match=r"20 x 30 nodes.*2,400 int32 vertex slots"):
+        st.stepped(heights, interval=20.0, device="cpu")
+    monkeypatch.setattr(stepped_module, "_INT32_MAX", slots)
+    assert len(st.stepped(heights, interval=20.0, device="cpu").faces) > 0
