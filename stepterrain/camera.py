@@ -256,6 +256,26 @@ class Camera:
         points = points[feasible]
         return points[np.argmin(((points - eye) ** 2).sum(axis=1))]
 
+    def visible_corners(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(k, 3) float64: the corners of the convex polytope box ∩ view frustum (12 half-spaces), each where three of
+        their planes meet; (0, 3) where the box and the frustum do not meet. Every point of the box in view is a
+        convex combination of them, so a convex function of the point (or of its image on the screen: the pinhole
+        projection maps the polytope, in front of the eye, onto the convex polygon of its corners' images) is
+        largest in view at one of them, and a linear one (the depth) smallest at one of them (paper 004 §4's
+        screen-space errors bounded over all of B(N) in view, not at one point)."""
+        box = _box(box)
+        faces = np.c_[np.r_[-np.eye(3), np.eye(3)], np.r_[box[0], -box[1]]]
+        planes = np.concatenate([self.planes(), faces])
+        normals, offsets = planes[:, :3], planes[:, 3]
+        scale = max(1.0, float(np.abs(self.eye).max()), float(np.abs(box).max()))
+        combos = _PLANE_SETS[2]
+        n = normals[combos]  # (220, 3, 3)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            regular = np.abs(np.linalg.det(n)) > 1e-12  # parallel planes (a flat box's two faces) meet in no point
+            points = np.linalg.solve(n[regular], -offsets[combos[regular]][..., None])[..., 0]
+            feasible = ((points @ normals.T + offsets) <= 1e-9 * scale).all(axis=1)
+        return points[feasible]
+
     def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
         """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
         px, depth = self.project(np.stack([_point(a, "a"), _point(b, "b")]))
