@@ -1748,15 +1748,15 @@ class _InView:
 
 def _in_view(camera: Camera, box: NDArray[np.float64]) -> _InView:
     """B(N) in view, for γ(N) and every τ(N, M) of the patch: the corners of B(N) ∩ view frustum
-    (:meth:`Camera.visible_corners`) and p, its point nearest to the camera (:meth:`Camera.nearest_visible_point`);
+    (:meth:`Camera.visible_corners`) and p, its point nearest to the camera (:meth:`Camera.nearest_visible_point`),
+    both by :meth:`Camera.visible_part`;
     where the box misses the frustum (:meth:`Camera.box_visible` is conservative), the box's point nearest to the
     camera stands for both, as before. The box's own nearest point had been taken for p, outside the view wherever
     the eye is over the terrain: straight below the eye, where the vertical segment of γ lies along the eye's ray,
     so γ(root) was 0 pixels and any view from above the highest peak drew the root alone."""
     corners = np.ascontiguousarray(box, dtype=np.float64)
-    nearest = camera.nearest_visible_point(corners)
-    points = camera.visible_corners(corners) if nearest is not None else np.empty((0, 3))
-    if not len(points):
+    nearest, points = camera.visible_part(corners)
+    if nearest is None or not len(points):
         nearest = camera.nearest_point(corners)
         points = nearest[None]
     axes = np.stack(camera.frame())
