@@ -225,6 +225,22 @@ class Camera:
         it. The box's own nearest point (:meth:`nearest_point`) may lie outside the view: straight below an eye
         above the terrain, where a vertical segment lies along the eye's ray and projects to 0 pixels.
         """
+        return self.visible_part(box, corners=False)[0]
+
+    def visible_corners(self, box: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(k, 3) float64: the corners of the convex polytope box ∩ view frustum (12 half-spaces), each where three of
+        their planes meet; (0, 3) where the box and the frustum do not meet. Every point of the box in view is a
+        convex combination of them, so a convex function of the point (or of its image on the screen: the pinhole
+        projection maps the polytope, in front of the eye, onto the convex polygon of its corners' images) is
+        largest in view at one of them, and a linear one (the depth) smallest at one of them (paper 004 §4's
+        screen-space errors bounded over all of B(N) in view, not at one point)."""
+        return self.visible_part(box)[1]
+
+    def visible_part(self, box: NDArray[np.float64], corners: bool = True) -> tuple[
+            NDArray[np.float64] | None, NDArray[np.float64]]:
+        """(:meth:`nearest_visible_point`, :meth:`visible_corners`) of the box, from one set of plane intersections
+        (the corners are the feasible points where three planes meet, among the nearest point's candidates); with
+        ``corners=False`` the corners come back empty and a box whose own nearest point is in view solves nothing."""
         box = _box(box)
         eye = np.asarray(self.eye, dtype=np.float64)
         # the box's faces as half-spaces n . x + a <= 0: -x + xmin <= 0, ..., x - xmax <= 0, ...
@@ -234,10 +250,15 @@ class Camera:
         scale = max(1.0, float(np.abs(eye).max()), float(np.abs(box).max()))
         nearest = np.clip(eye, box[0], box[1])  # the box's nearest point: the answer where it is in view
         with np.errstate(over="ignore", invalid="ignore"):
-            if ((normals @ nearest + offsets) <= 1e-9 * scale).all():
-                return nearest
-        candidates = []
-        for combos in _PLANE_SETS:
+            inside = bool(((normals @ nearest + offsets) <= 1e-9 * scale).all())
+        if inside and not corners:
+            return nearest, np.empty((0, 3))
+        # the corners: where three independent planes meet (the eye's projection onto their intersection, a point)
+        n = normals[_PLANE_SETS[2]]  # (220, 3, 3)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # parallel planes: a singular matrix
+            regular = np.abs(np.linalg.det(n)) > 1e-6  # the Gram matrix's determinant above 1e-12, as below
+            candidates = [np.linalg.solve(n[regular], -offsets[_PLANE_SETS[2][regular]][..., None])[..., 0]]
+        for combos in _PLANE_SETS[:2] if not inside else ():
             n = normals[combos]  # (m, k, 3)
             gram = n @ n.transpose(0, 2, 1)
             with np.errstate(divide="ignore", invalid="ignore"):  # parallel planes: a singular Gram matrix
@@ -251,10 +272,13 @@ class Camera:
         points = np.concatenate(candidates)
         with np.errstate(over="ignore", invalid="ignore"):
             feasible = ((points @ normals.T + offsets) <= 1e-9 * scale).all(axis=1)
+        found = points[:len(candidates[0])][feasible[:len(candidates[0])]] if corners else np.empty((0, 3))
+        if inside:
+            return nearest, found
         if not feasible.any():
-            return None
+            return None, found
         points = points[feasible]
-        return points[np.argmin(((points - eye) ** 2).sum(axis=1))]
+        return points[np.argmin(((points - eye) ** 2).sum(axis=1))], found
 
     def segment_pixels(self, a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
         """Screen length in pixels of the segment a-b (inf when it reaches behind the near plane)."""
