@@ -1,7 +1,8 @@
 """Mesh and image export by file extension, written atomically (temporary file in the target folder + rename).
 
 Shared output room of every capability (papers 000-004): glTF/GLB (flat-shaded, metadata in ``extras``),
-OBJ, PLY (metadata in header comments), STL and 3MF meshes, and PNG images.
+OBJ (metadata in comments), PLY (metadata in header comments), STL (no metadata) and 3MF (metadata in a model
+metadata element) meshes, and PNG images.
 
     from stepterrain.export import save_mesh
     save_mesh(mesh, "out/steps.glb", metadata={"interval": 100.0})
@@ -32,6 +33,7 @@ import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any, BinaryIO
+from xml.sax.saxutils import escape as xml_escape
 
 import numpy as np
 import trimesh
@@ -358,7 +360,11 @@ def save_mesh(
         a triangle naming one vertex twice, of no area, is left out, as 3MF requires).
     metadata : mapping, optional
         Merged over ``mesh.metadata`` and stored in the glTF mesh ``extras`` and, as JSON, in a ``.ply``'s header
-        (``comment stepterrain-metadata {...}`` lines; see Notes); ignored by OBJ, STL and 3MF.
+        (``comment stepterrain-metadata {...}`` lines; see Notes), at the top of an ``.obj`` (``# stepterrain-metadata
+        {...}`` comment lines, split as PLY's) and in a ``.3mf``'s model (``<metadata name="stepterrain:metadata"
+        preserve="1">{...}</metadata>``, the namespace ``urn:stepterrain:3mf:metadata`` declared on the model), all
+        of which :func:`read_mesh` gives back; ``.stl`` has no place for it and drops it (a GIS user's crs, source and
+        levels: write another format to keep them).
         JSON values: str, number, bool, None, and lists (or tuples) and dicts of those with string keys; numpy
         scalars and arrays become numbers and lists.
     shared_bounds : (2, 3) array_like, optional
@@ -448,8 +454,11 @@ def save_mesh(
     in ``mesh.metadata`` (put there by a loader or other code) are written as their ``str``. A ``.ply`` holds the
     same values as one compact JSON object (ASCII, no whitespace: spaces in strings as ``\\u0020``) on header lines
     ``comment stepterrain-metadata <text>``, split into pieces of at most 400 characters joined back in order (PLY
-    readers read header lines into fixed buffers: MeshLab's of 512 bytes, VTK's of 4096); usually one line. Readers
-    that do not know it skip comments; :func:`read_mesh` gives it back as the mesh's metadata. glTF accessors
+    readers read header lines into fixed buffers: MeshLab's of 512 bytes, VTK's of 4096); usually one line. An ``.obj``
+    holds the same pieces on comment lines ``# stepterrain-metadata <text>`` after its first line (no piece ends in
+    a backslash, which would continue the line), a ``.3mf`` the whole text in its model's ``stepterrain:metadata``
+    element. Readers that do not know them skip comments and other namespaces' metadata (lib3mf reads the 3MF in
+    strict mode without a warning); :func:`read_mesh` gives it back as the mesh's metadata. glTF accessors
     are float32, so when coordinates exceed 65536 (UTM metres, a globe) the vertices are stored relative to a node
     translation (float64 in the JSON: the floor of the centre of the bounds, (ox, oz, -oy) in the turned world frame)
     and loaders that apply the scene graph
@@ -1309,8 +1318,9 @@ def _side_files(mesh: trimesh.Trimesh, path: str | os.PathLike[str]) -> list[Pat
 def _write_obj_text(
     mesh: trimesh.Trimesh, tmp: Path, mtl_name: str, material: str | None, uv: NDArray[Any] | None
 ) -> None:
-    """:func:`_write_obj`'s ``.obj`` text into ``tmp``: ``mtllib mtl_name`` and ``usemtl material`` (None: no
-    texture), ``v`` lines (RGB for vertex colours), ``vt`` lines of ``uv`` and ``f`` lines."""
+    """:func:`_write_obj`'s ``.obj`` text into ``tmp``: the metadata as ``# stepterrain-metadata <piece>`` comments
+    (:func:`_metadata_pieces`), ``mtllib mtl_name`` and ``usemtl material`` (None: no texture), ``v`` lines (RGB
+    for vertex colours), ``vt`` lines of ``uv`` and ``f`` lines."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     colors = None
@@ -1318,6 +1328,8 @@ def _write_obj_text(
         colors = np.asarray(mesh.visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0  # OBJ's colour is RGB
     with tmp.open("w", encoding="utf-8", newline="\n") as fh:
         fh.write("# written by stepterrain\n")
+        for piece in _metadata_pieces(mesh.metadata):  # comments: the crs, source, isovalues ... (read_mesh's)
+            fh.write(f"{_OBJ_METADATA}{piece}\n")
         name = mesh.metadata.get("name")
         if isinstance(name, str) and name.split():  # one line: a line break in a name started a new statement
             fh.write(f"o {' '.join(name.split())}\n")
@@ -1598,6 +1610,11 @@ _3MF_RELS = (
     '<Relationship Target="/3D/3dmodel.model" Id="rel0" '
     'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>'
 )
+#: The namespace of the 3MF's own metadata (:func:`_write_3mf`): a URN, as no web page stands behind it.
+_3MF_NAMESPACE = "urn:stepterrain:3mf:metadata"
+_3MF_PREFIX = "stepterrain"
+#: The name of the model's metadata element that holds the mesh's metadata as JSON.
+_3MF_METADATA = f"{_3MF_PREFIX}:metadata"
 _ROWS_PER_WRITE = 1 << 16  # OBJ lines and 3MF vertices or triangles formatted at a time
 
 
@@ -1652,7 +1669,10 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
     p3; trimesh's writer dropped them), or face colours as each triangle's p1. Written by us, streamed into the
     zip: no lxml or networkx needed. A triangle naming one vertex twice (no area: trimesh's loader makes one of a
     sliver when it merges vertices) is left out: 3MF's v1, v2 and v3 MUST be distinct (core spec §4.1.4.1), and
-    it was written as it was."""
+    it was written as it was. The mesh's metadata is the model's ``<metadata name="stepterrain:metadata"
+    preserve="1">`` (its compact JSON text, :func:`_metadata_pieces` joined; the core spec, §2.3.1, allows names of
+    other namespaces, the prefix declared on the model; ``preserve`` asks an editor to keep it): it was dropped,
+    and a GIS user's 3MF lost its crs."""
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     distinct = (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 2] != faces[:, 0])
@@ -1674,9 +1694,14 @@ def _write_3mf(mesh: trimesh.Trimesh, tmp: Path, target: Path, bounds: Bounds, f
         archive.writestr(_3mf_member("[Content_Types].xml"), _3MF_CONTENT_TYPES)
         archive.writestr(_3mf_member("_rels/.rels"), _3MF_RELS)
         with archive.open(_3mf_member("3D/3dmodel.model"), "w", force_zip64=True) as out, _behind(out) as write:
-            write(b'<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
-                      b'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
-                      b'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"><resources>')
+            text = "".join(_metadata_pieces(mesh.metadata))  # ASCII JSON: only & < > to escape in XML
+            own = f' xmlns:{_3MF_PREFIX}="{_3MF_NAMESPACE}"' if text else ""
+            write('<?xml version="1.0" encoding="UTF-8"?>\n<model unit="millimeter" xml:lang="en-US" '
+                  'xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02" '
+                  f'xmlns:m="http://schemas.microsoft.com/3dmanufacturing/material/2015/02"{own}>')
+            if text:
+                write(f'<metadata name="{_3MF_METADATA}" preserve="1">{xml_escape(text)}</metadata>')
+            write(b"<resources>")
             obj = b'<object id="1" type="model">'
             if palette is not None:
                 colors = "".join(f'<m:color color="#{r:02X}{g:02X}{b:02X}{a:02X}"/>' for r, g, b, a in palette.tolist())
@@ -1726,7 +1751,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     trimesh's reader ignores samplers, so a globe's drape read back rendered its poles blended and was written again
     without it), and a 3MF of one mesh object (as :func:`save_mesh`
     writes it) is read by stepterrain, streamed, with its colour group (trimesh's reader ignores ``m:colorgroup``)
-    as vertex colours, or face colours where one vertex has corners of several colours. A PLY's other numeric
+    as vertex colours, or face colours where one vertex has corners of several colours, and its
+    ``stepterrain:metadata`` element as the mesh's metadata. A PLY's other numeric
     properties of its vertex and face elements (the ``face_attributes`` and ``vertex_attributes`` :func:`save_mesh`
     keeps there, as written: an (N, k) array as columns ``name_0`` ...; a bool, written as uchar 0/1 (PLY has no
     boolean type) and named in a header comment, as bool again, as is a 0/1 ``wall`` beside a ``level`` of a PLY
@@ -1734,7 +1760,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
     as the mesh's
     ``vertex_attributes`` and ``face_attributes`` (trimesh's reader left them in ``metadata["_ply_raw"]`` only, and
     a mesh read and written again lost them), and the metadata :func:`save_mesh` wrote in its header comments as
-    the mesh's ``metadata`` (trimesh's reader skips comments). An OBJ whose faces name vertex indices only
+    the mesh's ``metadata`` (trimesh's reader skips comments), as are an OBJ's ``# stepterrain-metadata`` comments
+    (over trimesh's ``name``; an STL's is only its header). An OBJ whose faces name vertex indices only
     (``f 1 2 3``: one :func:`save_mesh` writes without a texture) keeps the vertices no face names, in their
     order, as the other formats do (trimesh's reader dropped them: ``stepterrain info`` counted fewer vertices than
     were written); one with texture or normal indices comes back with the vertices its faces name, one per
@@ -1795,6 +1822,8 @@ def read_mesh(path: str | os.PathLike[str]) -> trimesh.Trimesh:
             metadata, booleans = _ply_comments(file)
             _ply_attributes(loaded, booleans)
             loaded.metadata.update(metadata)
+        if file.suffix.lower() == ".obj" and isinstance(loaded, trimesh.Trimesh):
+            loaded.metadata.update(_obj_metadata(file))
         if gltf and isinstance(loaded, trimesh.Trimesh):
             if color is None and len(loaded.faces) == 0:  # points: trimesh rounds COLOR_0 to bytes, the file's
                 color = _gltf_color_0(file, tree)
@@ -2230,7 +2259,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     corner colours p1, p2, p3 into the group its pid, or its object's, names; trimesh's reader ignores them) as
     vertex colours, or face colours where one vertex has corners of several colours. Streamed (iterparse, elements
     cleared as read, numbers in compact arrays): trimesh's reader holds the whole XML tree, 9.8 GB for the embedded
-    DEM's 4.3 M-face solid. None for anything else (several objects, components, a build transform, no model):
+    DEM's 4.3 M-face solid. The model's ``stepterrain:metadata`` element (:func:`_write_3mf`) becomes the mesh's
+    metadata. None for anything else (several objects, components, a build transform, no model):
     trimesh reads those."""
     import array
     import xml.etree.ElementTree as ET
@@ -2243,6 +2273,7 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     container: Any = None  # the <vertices> or <triangles> being read: emptied after each child, so memory stays flat
     default_pid = default_index = -1
     pid_ids: dict[str, int] = {}
+    own: list[bytes] = []  # the text of its stepterrain:metadata element (_write_3mf)
     with zipfile.ZipFile(file) as archive:
         models = [name for name in archive.namelist() if name.lower().endswith(".model")]
         if len(models) != 1:
@@ -2280,6 +2311,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
                     group.append(_3mf_rgba(element.get("color", "")))
                 elif tag == _3MF_MATERIAL + "colorgroup":
                     group = None
+                elif tag == _3MF_CORE + "metadata" and element.get("name") == _3MF_METADATA and container is None:
+                    own.append((element.text or "").strip().encode("ascii", "replace"))
                 else:
                     continue
                 element.clear()
@@ -2293,6 +2326,8 @@ def _read_3mf(file: Path) -> trimesh.Trimesh | None:
     if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):
         return None  # trimesh words what is wrong with it
     mesh = trimesh.Trimesh(vertices, faces, process=False)
+    if own:
+        mesh.metadata.update(_metadata_from_pieces(own))
     names = {index: name for name, index in pid_ids.items()}
     pids = np.unique(triangles[:, 3])
     if len(pids) != 1 or names.get(int(pids[0])) not in groups:
@@ -2472,7 +2507,7 @@ def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
     face_columns += _ply_columns(mesh.face_attributes, ["count", *_PLY_RESERVED, *_PLY_OWN["face"]], booleans["face"])
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by stepterrain"]
-    header += [f"{_PLY_METADATA}{piece}" for piece in _ply_metadata_pieces(mesh.metadata)]
+    header += [f"{_PLY_METADATA}{piece}" for piece in _metadata_pieces(mesh.metadata)]
     flags = [f"{_PLY_BOOL}{element} {name}" for element, names in booleans.items() for name in names
              if "texturefile" not in name.lower()]  # trimesh's reader takes a line naming it for a texture's file
     header += flags or [_PLY_BOOL.rstrip()]  # the bare marker: no bools, a file of before the lines is legacy
@@ -2497,8 +2532,10 @@ def _ply_parts(mesh: trimesh.Trimesh, bounds: Bounds) -> list[Any]:
     return [("\n".join(header) + "\n").encode("ascii"), vertex_block.view(np.uint8), face_block.view(np.uint8)]
 
 
-#: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_ply_metadata_pieces`).
+#: The start of the PLY header's comment lines that hold a mesh's metadata (:func:`_metadata_pieces`).
 _PLY_METADATA = "comment stepterrain-metadata "
+#: The start of the OBJ's comment lines, at its top, that hold a mesh's metadata (:func:`_metadata_pieces`).
+_OBJ_METADATA = "# stepterrain-metadata "
 #: The start of the PLY header's comment lines that name a column written from a bool attribute (PLY has no boolean
 #: type: it is written as uchar 0/1), ``comment stepterrain-bool face wall``: :func:`read_mesh` gives it back as bool.
 _PLY_BOOL = "comment stepterrain-bool "
@@ -2510,25 +2547,62 @@ _PLY_METADATA_PIECE = 400
 _PLY_HEADER_LIMIT = 64 << 20
 
 
-def _ply_metadata_pieces(metadata: Mapping[str, Any]) -> list[str]:
+def _metadata_pieces(metadata: Mapping[str, Any]) -> list[str]:
     """A mesh's metadata (JSON-safe: :func:`_prepared_mesh`'s, as a glTF's ``extras`` holds it) as the pieces of
-    one compact JSON text, in order, for the PLY header's ``comment stepterrain-metadata <piece>`` lines (none
-    without metadata). The text has no whitespace, so a reader that splits header lines into words sees the piece as
+    one compact JSON text, in order, for the PLY header's ``comment stepterrain-metadata <piece>`` lines and the
+    OBJ's ``# stepterrain-metadata <piece>`` comments (none without metadata; a 3MF's metadata element holds them
+    joined). The text has no whitespace, so a reader that splits header lines into words sees the piece as
     one word, and joining the pieces gives it back: ASCII only, spaces in strings written ``\\u0020``, and the
-    words readers look for anywhere in a line (trimesh takes ``TextureFile`` in any line for a texture's file name,
-    ``end_header`` ends a header) escaped by their last letter. Each piece is at most :data:`_PLY_METADATA_PIECE`
-    characters: a crs, spacing and origin fit on one line."""
+    words readers look for anywhere in a line (trimesh takes ``TextureFile`` in any PLY line for a texture's file
+    name and ``mtllib`` in any OBJ line for its material file, ``end_header`` ends a header) escaped by their last
+    letter. Each piece is at most :data:`_PLY_METADATA_PIECE` characters (a crs, spacing and origin fit on one
+    line) and does not end with a backslash, which continues an OBJ line onto the next (trimesh joined them): a
+    backslash in a string is written ``\\u005c``, so a backslash in the text starts an escape and the cut goes
+    before it."""
     if not metadata:
         return []
-    text = json.dumps(metadata, ensure_ascii=True, allow_nan=False, separators=(",", ":")).replace(" ", "\\u0020")
-    text = re.sub(r"(?i)end_heade(r)|texturefil(e)",
+    text = json.dumps(metadata, ensure_ascii=True, allow_nan=False, separators=(",", ":"))
+    text = text.replace("\\\\", "\\u005c").replace(" ", "\\u0020")  # left to right: as JSON reads its escapes
+    text = re.sub(r"(?i)end_heade(r)|texturefil(e)|mtlli(b)",
                   lambda found: f"{found.group(0)[:-1]}\\u{ord(found.group(0)[-1]):04x}", text)
-    return [text[start : start + _PLY_METADATA_PIECE] for start in range(0, len(text), _PLY_METADATA_PIECE)]
+    pieces, start = [], 0
+    while start < len(text):
+        end = min(start + _PLY_METADATA_PIECE, len(text))
+        if text[end - 1] == "\\":  # an escape's start (never after another backslash: see above)
+            end -= 1
+        pieces.append(text[start:end])
+        start = end
+    return pieces
+
+
+def _metadata_from_pieces(pieces: Iterable[bytes]) -> dict[str, Any]:
+    """The metadata :func:`_metadata_pieces` split into ``pieces`` (read from a file, in order), joined back; {}
+    when they do not join into a JSON object (a file edited by hand: the mesh is still read)."""
+    try:
+        value = json.loads(b"".join(pieces).decode("ascii"))
+    except ValueError:  # UnicodeDecodeError and JSONDecodeError
+        return {}
+    return value if isinstance(value, dict) else {}
+
+
+def _obj_metadata(file: Path) -> dict[str, Any]:
+    """The metadata :func:`save_mesh` wrote in the OBJ ``file``'s ``# stepterrain-metadata <piece>`` comments
+    (:func:`_metadata_pieces`), read from the comments and blank lines it starts with; {} without any."""
+    pieces: list[bytes] = []
+    start = _OBJ_METADATA.encode("ascii")
+    with open(file, "rb") as stream:
+        while stream.tell() < _PLY_HEADER_LIMIT:
+            line = stream.readline(1 << 20)
+            if line.startswith(start):
+                pieces.append(line[len(start) :].strip())
+            elif not line or (line.strip() and not line.startswith(b"#")):  # the first statement
+                break
+    return _metadata_from_pieces(pieces) if pieces else {}
 
 
 def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
     """The metadata :func:`save_mesh` wrote in the header of the PLY ``file`` (its ``comment stepterrain-metadata``
-    lines, :func:`_ply_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
+    lines, :func:`_metadata_pieces`; {} without any, or when they do not join into a JSON object: a header
     edited by hand, the mesh is still read), and the columns it wrote from bools, by element (its
     ``comment stepterrain-bool`` lines; a bare ``comment stepterrain-bool`` where there are none). A file
     stepterrain wrote before it named them (``comment written by stepterrain`` and no such line) is marked
@@ -2555,13 +2629,7 @@ def _ply_comments(file: Path) -> tuple[dict[str, Any], dict[str, set[str]]]:
                 ours = True
     if ours and not marked:
         booleans["stepped"] = set()  # an older file of ours: a 0/1 face wall beside a level is stepped's flag
-    value: Any = {}
-    if pieces:
-        try:
-            value = json.loads(b"".join(pieces).decode("ascii"))
-        except ValueError:  # UnicodeDecodeError and JSONDecodeError
-            value = {}
-    return (value if isinstance(value, dict) else {}), booleans
+    return (_metadata_from_pieces(pieces) if pieces else {}), booleans
 
 
 def _ply_columns(

@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import contextlib
+import json
 
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st_h
 from PIL import Image
 
 import stepterrain as st
@@ -187,3 +190,109 @@ def test_non_finite_vertices_are_refused(tmp_path, bad):
     with pytest.raises(InvalidInputError, match="vertices must be finite.*1 of 3"):
         save_mesh(mesh, tmp_path / "bad.glb")
     assert list(tmp_path.iterdir()) == []
+
+
+# ------------------------------------------------------------- metadata in OBJ and 3MF (they dropped it)
+def _own_metadata(mesh: trimesh.Trimesh) -> dict:
+    """A mesh's metadata less what trimesh's readers add (``name``/``node`` from the file name, ``_ply_raw``)."""
+    return {k: v for k, v in mesh.metadata.items() if not k.startswith("_") and k not in ("name", "node")}
+
+
+@pytest.mark.parametrize("ext", [".obj", ".3mf"])
+def test_obj_and_3mf_keep_the_metadata_and_the_ply_positions(tmp_path, ext):
+    """A stepped UTM DEM written as OBJ or 3MF reads back with its metadata (crs, source, isovalues, gamma: a GIS
+    user's georeference; both dropped it, so ``stepterrain info`` showed no CRS) equal to the PLY round trip's and
+    to the JSON of the mesh's, and with the same vertices as the PLY and GLB round trips (world coordinates, no
+    offset left in the metadata)."""
+    dem = st.sample_dem().coarsen(8)
+    mesh = st.stepped(dem, interval=100.0, device="cpu")
+    assert mesh.metadata["crs"] == "EPSG:32611"
+    ply = read_mesh(save_mesh(mesh, tmp_path / "m.ply"))
+    glb = read_mesh(save_mesh(mesh, tmp_path / "m.glb"))
+    back = read_mesh(save_mesh(mesh, tmp_path / f"m{ext}"))
+    assert _own_metadata(back) == _own_metadata(ply) == json.loads(json.dumps(mesh.metadata))
+    np.testing.assert_array_equal(back.vertices, ply.vertices)
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    gap = np.abs(back.vertices - glb.vertices).max()  # glTF: float32 about its node translation
+    assert gap <= np.spacing(np.float32(np.ptp(mesh.vertices, axis=0).max())), gap
+    np.testing.assert_array_equal(back.faces, mesh.faces)
+
+
+@pytest.mark.parametrize("ext", [".obj", ".3mf"])
+def test_awkward_metadata_survives_obj_and_3mf_and_trimesh_still_reads_them(tmp_path, ext):
+    """Metadata longer than one comment line (a fine interval's isovalues), with spaces, line breaks, a trailing
+    backslash at a piece's end, XML's special characters, non-ASCII text and the words readers look for anywhere
+    (``mtllib``: trimesh's OBJ reader takes the rest of the first line holding it for a material file) comes back
+    equal; trimesh reads both files as the same mesh, an OBJ's metadata lines are comments of at most 430 characters,
+    and lib3mf reads the 3MF in strict mode without a warning and finds the metadata."""
+    mesh = st.stepped(np.array([[0.0, 1, 2], [1, 2, 3], [2, 3, 4]]), interval=1.0, base=0.5, device="cpu")
+    awkward = {
+        "crs": 'PROJCS["WGS 84 / UTM zone 11N",GEOGCS["WGS 84"]]',
+        "note": "a <b> & 'c' \"d\"\nline two\\",
+        "place": "Zürich – Ōsaka",
+        "source": "mtllib usemtl end_header TextureFile.png",
+        "isovalues": [0.125 * k for k in range(400)],
+        "path": "\\" * 399 + "x",
+        "nested": {"origin": [376328.6554542635, 3807902.8276283755], "flag": True, "none": None},
+    }
+    out = save_mesh(mesh, tmp_path / f"m{ext}", metadata=awkward)
+    back = read_mesh(out)
+    assert _own_metadata(back) == {**json.loads(json.dumps(mesh.metadata)), **awkward}
+    np.testing.assert_array_equal(back.vertices, mesh.vertices)
+    loaded = trimesh.load(out, force="mesh", process=False)
+    assert len(loaded.faces) == len(mesh.faces)
+    np.testing.assert_allclose(np.sort(loaded.vertices, axis=0), np.sort(mesh.vertices, axis=0))
+    if ext == ".obj":
+        lines = out.read_text(encoding="utf-8").splitlines()
+        meta = [line for line in lines if "stepterrain-metadata" in line]
+        assert len(meta) > 1 and all(line.startswith("# stepterrain-metadata ") and len(line) <= 430 for line in meta)
+        assert all(line.isascii() and not line.endswith("\\") for line in meta)
+        assert not (tmp_path / "m.mtl").exists() and loaded.visual.kind is None
+        return
+    lib3mf = pytest.importorskip("lib3mf")
+    model = lib3mf.get_wrapper().CreateModel()
+    reader = model.QueryReader("3mf")
+    reader.SetStrictModeActive(True)
+    reader.ReadFromFile(str(out))
+    assert reader.GetWarningCount() == 0
+    group = model.GetMetaDataGroup()
+    found = {}
+    for k in range(group.GetMetaDataCount()):
+        item = group.GetMetaData(k)
+        found[(item.GetNameSpace(), item.GetName())] = item.GetValue()
+    assert len(found) == 1
+    (value,) = found.values()
+    assert json.loads(value)["place"] == awkward["place"]
+
+
+def test_info_shows_the_crs_of_an_obj_and_a_3mf(tmp_path):
+    """``stepterrain info`` (its summary) names the CRS and source of a stepped DEM written as OBJ or 3MF, as it did
+    for PLY and glTF only."""
+    from stepterrain.cli import _mesh_summary
+
+    mesh = st.stepped(st.sample_dem().coarsen(16), interval=200.0, device="cpu")
+    for ext in (".ply", ".obj", ".3mf"):
+        summary = _mesh_summary(save_mesh(mesh, tmp_path / f"m{ext}"))
+        assert summary["meta.crs"] == "EPSG:32611", ext
+        assert summary["meta.source"] == mesh.metadata["source"], ext
+
+
+_json_leaf = st_h.none() | st_h.booleans() | st_h.integers(-10**12, 10**12) | st_h.floats(allow_nan=False,
+                                                                                          allow_infinity=False)
+_json_text = st_h.text(st_h.sampled_from(list("\\\\ \"ab<&>\nü€mtllibend_header")), max_size=60)
+_json_values = st_h.recursive(_json_leaf | _json_text, lambda inner: st_h.lists(inner, max_size=30)
+                              | st_h.dictionaries(_json_text, inner, max_size=5), max_leaves=60)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st_h.dictionaries(_json_text, _json_values, min_size=1, max_size=8))
+def test_metadata_pieces_join_back_and_never_end_in_a_backslash(metadata):
+    """The pieces of the PLY and OBJ comment lines (and the 3MF's text, joined): ASCII without whitespace, at most
+    400 characters, none ending in a backslash (an OBJ line's continuation), and joined back the metadata."""
+    from stepterrain.export import _metadata_from_pieces, _metadata_pieces
+
+    pieces = _metadata_pieces(metadata)
+    assert pieces and all(0 < len(p) <= 400 and p.isascii() and not p.endswith("\\") for p in pieces)
+    assert not any(c.isspace() for p in pieces for c in p)
+    assert "mtllib" not in "".join(pieces).lower() and "end_header" not in "".join(pieces).lower()
+    assert _metadata_from_pieces(p.encode("ascii") for p in pieces) == json.loads(json.dumps(metadata))
