@@ -73,6 +73,32 @@ def offset_angle(u_hat: wp.vec3d, p_hat: wp.vec3d, alpha_sc: wp.vec2d) -> wp.vec
 
 
 @wp.func
+def within_opening(g: wp.vec2d, alpha_sc: wp.vec2d) -> wp.int32:
+    """1 when γ = β - α <= 0 (β <= α), given (sin γ, cos γ) of :func:`offset_angle` and (sin α, cos α): sin γ <= 0,
+    but for γ = π (β = π, α = 0: a point straight below the centre, opposite a cone of opening 0), where sin γ is 0
+    as at γ = -π (β = 0, α = π). sin γ <= 0 with cos γ <= -1/2 is γ <= -2π/3, which needs cos α <= -1/2, or γ near
+    π by rounding, with cos α near 1."""
+    if g[0] > wp.float64(0.0):
+        return 0
+    if g[1] > wp.float64(-0.5) or alpha_sc[1] < wp.float64(0.5):
+        return 1
+    return 0
+
+
+@wp.func
+def rim_distance(v_len: wp.float64, g: wp.vec2d, t: wp.float64) -> wp.float64:
+    """|v - t u| for a unit u at the angle γ from v, (sin γ, cos γ) = g: the law of cosines as
+    sqrt((|v| - t)² + 2 |v| t (1 - cos γ)), with 1 - cos γ = sin² γ / (1 + cos γ) while cos γ > 0: the form
+    |v|² - 2 |v| t cos γ + t² of paper 003 cancels to about sqrt(ε) |v| (1.5e-8 |v| too far) with the eye near
+    the rim."""
+    one_minus_cos = wp.float64(1.0) - g[1]
+    if g[1] > wp.float64(0.0):
+        one_minus_cos = g[0] * g[0] / (wp.float64(1.0) + g[1])
+    radial = v_len - t
+    return wp.sqrt(radial * radial + wp.float64(2.0) * v_len * t * one_minus_cos)
+
+
+@wp.func
 def eye_distance_sphere(p: wp.vec3d, r: wp.float64, eye: wp.vec3d) -> wp.float64:
     """d(v, B_sphere) = ||p - v|| - r, clamped at 0 (paper 003 §7.2)."""
     return wp.max(wp.length(p - eye) - r, wp.float64(0.0))
@@ -101,7 +127,7 @@ def eye_distance_cone_unit(p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64, al
     g = offset_angle(v_hat, p_hat, alpha_sc)
     sin_g = g[0]
     cos_g = g[1]
-    if sin_g <= wp.float64(0.0):  # β <= α: the eye lies above, inside or below the frustum
+    if within_opening(g, alpha_sc) != 0:  # β <= α: the eye lies above, inside or below the frustum
         if v_len > top:  # case 1: above the top
             return v_len - top
         if v_len < bottom:  # case 3: below the bottom
@@ -111,10 +137,8 @@ def eye_distance_cone_unit(p_hat: wp.vec3d, p_len: wp.float64, h: wp.float64, al
         if v_len * cos_g >= bottom and v_len * cos_g <= top:  # case 5: t1 <= |v| <= t2, the mantle
             return v_len * sin_g
         if v_len * cos_g > top:  # case 4: |v| > t2, rim of the top
-            d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * top + top * top
-            return wp.sqrt(wp.max(d2, wp.float64(0.0)))
-    d2 = v_len * v_len - wp.float64(2.0) * v_len * cos_g * bottom + bottom * bottom  # case 6: rim of the bottom
-    return wp.sqrt(wp.max(d2, wp.float64(0.0)))
+            return rim_distance(v_len, g, top)
+    return rim_distance(v_len, g, bottom)  # case 6: rim of the bottom
 
 
 @wp.func
@@ -130,7 +154,7 @@ def plane_distance_cone_unit(plane: wp.vec4d, p_hat: wp.vec3d, p_len: wp.float64
     """:func:`plane_distance_cone` with the axis p = p_len · p_hat and (sin α, cos α) given."""
     n = wp.vec3d(plane[0], plane[1], plane[2])
     g = offset_angle(n, p_hat, alpha_sc)
-    if g[0] <= wp.float64(0.0):  # case 1: γ <= 0, the top straight along n
+    if within_opening(g, alpha_sc) != 0:  # case 1: γ <= 0, the top straight along n
         return plane[3] + (p_len + h)
     if g[1] >= wp.float64(0.0):  # case 2: 0 < γ <= 90°, the rim of the top
         return plane[3] + g[1] * (p_len + h)
