@@ -1293,3 +1293,40 @@ def test_spinning_billboard_keeps_its_size_and_place_over_the_spin(monkeypatch):
     assert areas.min() > 200
     assert areas.max() <= 1.03 * areas.min(), areas
     assert np.abs(centres - centres[0]).max() <= 1.5, centres
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_billboard_at_the_windows_edge_is_cut_by_it_not_squeezed_into_what_shows():
+    """A billboard whose screen box reached past the window's edge was fitted whole into the part inside the window:
+    squeezed (a quarter of its height lost) and shifted as it neared the edge, and gone once less than 8 pixels of it
+    showed. It now keeps the size and place of its whole screen box, and the window's edge cuts it."""
+    from stepterrain.terrain import grid_faces
+
+    renderer = render.LayeredRenderer(window_size=(200, 160))
+    try:
+        ground = np.array([[0, 0, 0], [1000, 0, 0], [1000, 1000, 0], [0, 1000, 0]], float)
+        renderer.set_mesh("overview", ground, np.array([[0, 1, 2], [0, 2, 3]]))
+        renderer.set_view("top", np.array([[0, 0, 0], [1000, 1000, 10]]))
+        xs, ys = np.meshgrid(np.linspace(0, 100, 11), np.linspace(0, 100, 11))
+        content = np.column_stack([xs.ravel(), ys.ravel(), 50 + 10 * np.sin(xs.ravel() / 20)])
+        top = np.array([[0, 0, 60], [100, 0, 60], [100, 100, 60], [0, 100, 60]], float)
+
+        def covered(shift: float) -> tuple[np.ndarray, np.ndarray]:
+            at = np.array([shift, 450.0, 0.0])
+            _color, coverage, _depth = renderer.render_billboard(content + at, grid_faces(11, 11), None,
+                                                                 (np.pi, np.radians(89.0)), top + at)
+            return coverage, renderer.project(top + at)
+
+        inside, _ = covered(450.0)
+        rows = np.flatnonzero(inside.any(axis=1))
+        for shift in (1080.0, 1100.0, 1110.0):  # its screen box about 190-206, 193-208, 194-210: the window ends at 200
+            coverage, pixels = covered(shift)
+            assert pixels[:, 0].max() > 200 > pixels[:, 0].min() + 4
+            seen_rows = np.flatnonzero(coverage.any(axis=1))
+            seen_cols = np.flatnonzero(coverage.any(axis=0))
+            assert len(seen_rows) and abs(seen_rows[0] - rows[0]) <= 1 and abs(seen_rows[-1] - rows[-1]) <= 1, \
+                (shift, seen_rows, rows)
+            assert seen_cols[-1] == 199 and abs(seen_cols[0] - pixels[:, 0].min()) <= 1.5, (shift, seen_cols, pixels)
+    finally:
+        renderer.close()
