@@ -1738,7 +1738,8 @@ class LayeredRenderer:
         width, height = self.size
         c0, r0 = np.floor(pixels.min(axis=0)).astype(int) - 2
         c1, r1 = np.ceil(pixels.max(axis=0)).astype(int) + 3
-        return max(c0, 0), max(r0, 0), min(max(c1, 0), width), min(max(r1, 0), height)
+        # each side inside the window: a box wholly right of or below it was (col0 > col1 = width), a rect refused
+        return (min(max(c0, 0), width), min(max(r0, 0), height), min(max(c1, 0), width), min(max(r1, 0), height))
 
     def project(self, points: ArrayLike) -> NDArray[np.float64]:
         """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top); NaN for a

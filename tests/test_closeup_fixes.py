@@ -17,6 +17,7 @@ from stepterrain.closeup import (
     ROI,
     AnchorStyle,
     CloseUp,
+    anchor_strips,
     animate_closeups,
     closeup_layers,
     closeup_scene,
@@ -1328,5 +1329,33 @@ def test_a_billboard_at_the_windows_edge_is_cut_by_it_not_squeezed_into_what_sho
             assert len(seen_rows) and abs(seen_rows[0] - rows[0]) <= 1 and abs(seen_rows[-1] - rows[-1]) <= 1, \
                 (shift, seen_rows, rows)
             assert seen_cols[-1] == 199 and abs(seen_cols[0] - pixels[:, 0].min()) <= 1.5, (shift, seen_cols, pixels)
+    finally:
+        renderer.close()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("camera", ["top", "oblique", (0.5, 0.6)])
+def test_a_camera_framing_away_from_the_closeups_renders_the_overview_alone(camera):
+    """A close-up whose screen box lay wholly right of or below the window (the camera's ``bounds`` framing another
+    part of the terrain) got a read-back rect (col0 > col1 = width) that the renderer refused: "rect must lie in the
+    window" instead of a frame. Outside the screen boxes of its content and fence every pixel is the bare overview's
+    (none, where the close-up lies beyond the frame)."""
+    t = terrain()
+    box = [[1000.0, 2000.0, 0.0], [1016.0, 2012.0, 60.0]]
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        bare = render_closeups(t, [], window_size=SIZE, bounds=box, camera=camera, renderer=renderer, device="cpu")
+        for centre in ((1068.0, 2052.0), (1068.0, 2010.0), (1010.0, 2052.0)):  # north and east of the frame
+            cu = CloseUp(ROI.circle(centre, 8.0), scale=1.5, offset=(0.0, 0.0, 30.0), color="red")
+            image = render_closeups(t, [cu], window_size=SIZE, bounds=box, camera=camera, renderer=renderer,
+                                    device="cpu")
+            layer = closeup_layers(t, [cu], device="cpu")[0]
+            fence = anchor_strips(t, [cu], device="cpu")[0]
+            footprint = np.zeros(bare.shape[:2], bool)
+            for points in (layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3], fence.vertices):
+                rect = renderer.screen_rect(points) or (0, 0, *SIZE)  # None: partly behind the eye
+                footprint[rect[1]: rect[3], rect[0]: rect[2]] = True
+            np.testing.assert_array_equal(image[~footprint], bare[~footprint])
     finally:
         renderer.close()
