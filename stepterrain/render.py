@@ -1807,19 +1807,18 @@ class LayeredRenderer:
         fc0, fr0 = np.floor(pixels.min(axis=0)).astype(int)
         fc1, fr1 = np.ceil(pixels.max(axis=0)).astype(int)
         c0, r0, c1, r1 = max(fc0, 0), max(fr0, 0), min(fc1, width), min(fr1, height)
-        if spin_axis is None:  # the picture keeps its whole screen box; the window's edge cuts it (it was fitted
-            # whole into the part inside the window: squeezed and shifted near the edge, gone below 8 pixels there)
-            if fc1 - fc0 < 8 or fr1 - fr0 < 8 or c1 <= c0 or r1 <= r0:
-                return color, coverage, depth
-            if c1 - c0 < 8:  # rendered at least 8 pixels wide and tall, inside the whole box, then cut
+        # the picture keeps its whole screen box and the window's edge cuts it: it was fitted whole into the part
+        # inside the window (squeezed and shifted near the edge) and left out below 8 pixels there
+        if fc1 - fc0 < 8 or fr1 - fr0 < 8 or c1 <= c0 or r1 <= r0:  # too small a picture, or none in the window
+            return color, coverage, depth
+        if spin_axis is None:  # rendered at least 8 pixels wide and tall, inside the whole box, then cut (a spinning
+            if c1 - c0 < 8:  # one's part is cut by _spin_fit)
                 c0 = max(fc0, c1 - 8)
                 c1 = c0 + 8
             if r1 - r0 < 8:
                 r0 = max(fr0, r1 - 8)
                 r1 = r0 + 8
         bw, bh = c1 - c0, r1 - r0
-        if bw < 8 or bh < 8:
-            return color, coverage, depth
         if spin_axis is None:
             centre = (bounds[0] + bounds[1]) / 2
         else:

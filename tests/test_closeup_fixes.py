@@ -1329,6 +1329,12 @@ def test_a_billboard_at_the_windows_edge_is_cut_by_it_not_squeezed_into_what_sho
             assert len(seen_rows) and abs(seen_rows[0] - rows[0]) <= 1 and abs(seen_rows[-1] - rows[-1]) <= 1, \
                 (shift, seen_rows, rows)
             assert seen_cols[-1] == 199 and abs(seen_cols[0] - pixels[:, 0].min()) <= 1.5, (shift, seen_cols, pixels)
+        at = np.array([1130.0, 450.0, 0.0])  # spinning: 2 of its picture's columns in the window, no longer left out
+        _color, coverage, _depth = renderer.render_billboard(content + at, grid_faces(11, 11), None,
+                                                             (np.pi, np.radians(89.0)), top + at, axis=(1180.0, 500.0))
+        seen_rows = np.flatnonzero(coverage.any(axis=1))
+        assert len(seen_rows) and abs(seen_rows[0] - rows[0]) <= 1 and abs(seen_rows[-1] - rows[-1]) <= 1, seen_rows
+        assert np.flatnonzero(coverage.any(axis=0))[-1] == 199
     finally:
         renderer.close()
 
