@@ -2267,14 +2267,16 @@ def render_closeups(
 
     Notes
     -----
-    Passes, in the order of generation: the overview; then per close-up its anchor (the fence strip and the
-    soft-edge faces with 0 < m < 1, unlit, in the close-up's color, opacity = transfer function of t per
-    pixel, depth-tested against what lies below) and its content (faces with m = 1, lit, drawn over what
-    lies below). A billboard close-up's content is an orthographic render from ``billboard_view`` pasted over
-    the screen box of its transformed outline. With no close-ups the result is the overview pass itself.
-    Anchor and content passes are read back and composited only inside their screen boxes (the projected
-    corners of their bounds: no fragment falls outside), so their cost beyond rasterising follows their size
-    on screen, not the window's; the images equal full-window passes and compositing bit for bit.
+    Passes, in the order of generation: the overview; then per close-up its anchor (the fence strip, and with
+    ``anchor.band`` the soft-edge faces with 0 < m < 1; unlit, in the close-up's color, opacity = transfer function
+    of t per pixel, depth-tested against what lies below) and its content (the faces with a corner of m >=
+    ``anchor.outline_level`` fully transformed, with ``anchor.band`` those with m = 1; lit, drawn over what lies
+    below: of overlapping close-ups the later one in ``closeups`` is on top). A billboard close-up's content is an
+    orthographic render from ``billboard_view`` pasted over the screen box of its transformed outline. With no
+    close-ups the result is the overview pass itself. Anchor and content passes are read back and composited only
+    inside their screen boxes (the projected corners of their bounds: no fragment falls outside), so their cost
+    beyond rasterising follows their size on screen, not the window's; the images equal full-window passes and
+    compositing bit for bit.
     """
     import time as _time
 

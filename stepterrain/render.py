@@ -1738,7 +1738,8 @@ class LayeredRenderer:
         width, height = self.size
         c0, r0 = np.floor(pixels.min(axis=0)).astype(int) - 2
         c1, r1 = np.ceil(pixels.max(axis=0)).astype(int) + 3
-        return max(c0, 0), max(r0, 0), min(max(c1, 0), width), min(max(r1, 0), height)
+        # each side inside the window: a box wholly right of or below it was (col0 > col1 = width), a rect refused
+        return (min(max(c0, 0), width), min(max(r0, 0), height), min(max(c1, 0), width), min(max(r1, 0), height))
 
     def project(self, points: ArrayLike) -> NDArray[np.float64]:
         """Pixel (column, row) of world points (N, 3) in the current view (row 0 at the top); NaN for a
@@ -1803,12 +1804,21 @@ class LayeredRenderer:
         pixels = pixels[np.isfinite(pixels).all(axis=1)]
         if len(pixels) == 0:
             return color, coverage, depth
-        c0, r0 = np.floor(pixels.min(axis=0)).astype(int)
-        c1, r1 = np.ceil(pixels.max(axis=0)).astype(int)
-        c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, width), min(r1, height)
-        bw, bh = c1 - c0, r1 - r0
-        if bw < 8 or bh < 8:
+        fc0, fr0 = np.floor(pixels.min(axis=0)).astype(int)
+        fc1, fr1 = np.ceil(pixels.max(axis=0)).astype(int)
+        c0, r0, c1, r1 = max(fc0, 0), max(fr0, 0), min(fc1, width), min(fr1, height)
+        # the picture keeps its whole screen box and the window's edge cuts it: it was fitted whole into the part
+        # inside the window (squeezed and shifted near the edge) and left out below 8 pixels there
+        if fc1 - fc0 < 8 or fr1 - fr0 < 8 or c1 <= c0 or r1 <= r0:  # too small a picture, or none in the window
             return color, coverage, depth
+        if spin_axis is None:  # rendered at least 8 pixels wide and tall, inside the whole box, then cut (a spinning
+            if c1 - c0 < 8:  # one's part is cut by _spin_fit)
+                c0 = max(fc0, c1 - 8)
+                c1 = c0 + 8
+            if r1 - r0 < 8:
+                r0 = max(fr0, r1 - 8)
+                r1 = r0 + 8
+        bw, bh = c1 - c0, r1 - r0
         if spin_axis is None:
             centre = (bounds[0] + bounds[1]) / 2
         else:
@@ -1845,7 +1855,16 @@ class LayeredRenderer:
             forward = np.asarray(position[1]) - np.asarray(position[0])
             forward /= np.linalg.norm(forward)
             right, up = _screen_axes(forward, np.asarray(position[2], dtype=np.float64))
-            half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * bh / bw) * 1.02
+            full_w, full_h = fc1 - fc0, fr1 - fr0
+            half_h = max(np.abs(corners @ up).max(), np.abs(corners @ right).max() * full_h / full_w) * 1.02
+            if fit is None and (bw, bh) != (full_w, full_h):  # the rendered part of the whole box, at its scale
+                per_unit = full_h / (2 * half_h)
+                dx, dy = (c0 + c1 - fc0 - fc1) / 2, (r0 + r1 - fr0 - fr1) / 2  # its centre from the box's, pixels
+                shift = dx / per_unit * right - dy / per_unit * up
+                position = [tuple((np.asarray(position[0]) + shift).tolist()),
+                            tuple((np.asarray(position[1]) + shift).tolist()), position[2]]
+                plotter.camera_position = position
+                half_h = bh / 2 / per_unit
             if fit is not None:  # the axis at its place on screen, at the scale of the cylinders' fit
                 _, per_unit, (dx, dy) = fit
                 focal = -dx / per_unit * right + dy / per_unit * up
@@ -1860,9 +1879,11 @@ class LayeredRenderer:
             with contextlib.suppress(Exception):
                 plotter.close()
         covered = np.isfinite(z)
-        color[r0:r1, c0:c1] = image
-        coverage[r0:r1, c0:c1] = covered
-        depth[r0:r1, c0:c1] = np.where(covered, 0.0, np.inf)
+        window = (slice(max(r0, 0), min(r1, height)), slice(max(c0, 0), min(c1, width)))
+        part = (slice(window[0].start - r0, window[0].stop - r0), slice(window[1].start - c0, window[1].stop - c0))
+        color[window] = image[part]
+        coverage[window] = covered[part]
+        depth[window] = np.where(covered[part], 0.0, np.inf)
         return color, coverage, depth
 
     @_quietly

@@ -17,6 +17,7 @@ from stepterrain.closeup import (
     ROI,
     AnchorStyle,
     CloseUp,
+    anchor_strips,
     animate_closeups,
     closeup_layers,
     closeup_scene,
@@ -1367,3 +1368,74 @@ def test_closeup_masks_beyond_int32_texels_are_refused(monkeypatch):
         closeup_layers(t, items, device="cpu")
     monkeypatch.setattr(closeup_module, "_MAX_INT32", texels, raising=False)
     assert all(len(layer.faces) for layer in closeup_layers(t, items, device="cpu"))
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_billboard_at_the_windows_edge_is_cut_by_it_not_squeezed_into_what_shows():
+    """A billboard whose screen box reached past the window's edge was fitted whole into the part inside the window:
+    squeezed (a quarter of its height lost) and shifted as it neared the edge, and gone once less than 8 pixels of it
+    showed. It now keeps the size and place of its whole screen box, and the window's edge cuts it."""
+    from stepterrain.terrain import grid_faces
+
+    renderer = render.LayeredRenderer(window_size=(200, 160))
+    try:
+        ground = np.array([[0, 0, 0], [1000, 0, 0], [1000, 1000, 0], [0, 1000, 0]], float)
+        renderer.set_mesh("overview", ground, np.array([[0, 1, 2], [0, 2, 3]]))
+        renderer.set_view("top", np.array([[0, 0, 0], [1000, 1000, 10]]))
+        xs, ys = np.meshgrid(np.linspace(0, 100, 11), np.linspace(0, 100, 11))
+        content = np.column_stack([xs.ravel(), ys.ravel(), 50 + 10 * np.sin(xs.ravel() / 20)])
+        top = np.array([[0, 0, 60], [100, 0, 60], [100, 100, 60], [0, 100, 60]], float)
+
+        def covered(shift: float) -> tuple[np.ndarray, np.ndarray]:
+            at = np.array([shift, 450.0, 0.0])
+            _color, coverage, _depth = renderer.render_billboard(content + at, grid_faces(11, 11), None,
+                                                                 (np.pi, np.radians(89.0)), top + at)
+            return coverage, renderer.project(top + at)
+
+        inside, _ = covered(450.0)
+        rows = np.flatnonzero(inside.any(axis=1))
+        for shift in (1080.0, 1100.0, 1110.0):  # its screen box about 190-206, 193-208, 194-210: the window ends at 200
+            coverage, pixels = covered(shift)
+            assert pixels[:, 0].max() > 200 > pixels[:, 0].min() + 4
+            seen_rows = np.flatnonzero(coverage.any(axis=1))
+            seen_cols = np.flatnonzero(coverage.any(axis=0))
+            assert len(seen_rows) and abs(seen_rows[0] - rows[0]) <= 1 and abs(seen_rows[-1] - rows[-1]) <= 1, \
+                (shift, seen_rows, rows)
+            assert seen_cols[-1] == 199 and abs(seen_cols[0] - pixels[:, 0].min()) <= 1.5, (shift, seen_cols, pixels)
+        at = np.array([1130.0, 450.0, 0.0])  # spinning: 2 of its picture's columns in the window, no longer left out
+        _color, coverage, _depth = renderer.render_billboard(content + at, grid_faces(11, 11), None,
+                                                             (np.pi, np.radians(89.0)), top + at, axis=(1180.0, 500.0))
+        seen_rows = np.flatnonzero(coverage.any(axis=1))
+        assert len(seen_rows) and abs(seen_rows[0] - rows[0]) <= 1 and abs(seen_rows[-1] - rows[-1]) <= 1, seen_rows
+        assert np.flatnonzero(coverage.any(axis=0))[-1] == 199
+    finally:
+        renderer.close()
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+@pytest.mark.parametrize("camera", ["top", "oblique", (0.5, 0.6)])
+def test_a_camera_framing_away_from_the_closeups_renders_the_overview_alone(camera):
+    """A close-up whose screen box lay wholly right of or below the window (the camera's ``bounds`` framing another
+    part of the terrain) got a read-back rect (col0 > col1 = width) that the renderer refused: "rect must lie in the
+    window" instead of a frame. Outside the screen boxes of its content and fence every pixel is the bare overview's
+    (none, where the close-up lies beyond the frame)."""
+    t = terrain()
+    box = [[1000.0, 2000.0, 0.0], [1016.0, 2012.0, 60.0]]
+    renderer = render.LayeredRenderer(window_size=SIZE)
+    try:
+        bare = render_closeups(t, [], window_size=SIZE, bounds=box, camera=camera, renderer=renderer, device="cpu")
+        for centre in ((1068.0, 2052.0), (1068.0, 2010.0), (1010.0, 2052.0)):  # north and east of the frame
+            cu = CloseUp(ROI.circle(centre, 8.0), scale=1.5, offset=(0.0, 0.0, 30.0), color="red")
+            image = render_closeups(t, [cu], window_size=SIZE, bounds=box, camera=camera, renderer=renderer,
+                                    device="cpu")
+            layer = closeup_layers(t, [cu], device="cpu")[0]
+            fence = anchor_strips(t, [cu], device="cpu")[0]
+            footprint = np.zeros(bare.shape[:2], bool)
+            for points in (layer.original @ layer.matrix[:3, :3].T + layer.matrix[:3, 3], fence.vertices):
+                rect = renderer.screen_rect(points) or (0, 0, *SIZE)  # None: partly behind the eye
+                footprint[rect[1]: rect[3], rect[0]: rect[2]] = True
+            np.testing.assert_array_equal(image[~footprint], bare[~footprint])
+    finally:
+        renderer.close()
