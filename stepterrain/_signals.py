@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["signals_held"]
+__all__ = ["signals_held", "sigint_blocked_for_children"]
 
 
 @contextmanager
@@ -52,3 +52,32 @@ def signals_held() -> Iterator[None]:
         for number, handler in held.items():
             if number in came:
                 handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
+
+
+@contextmanager
+def sigint_blocked_for_children() -> Iterator[None]:
+    """Block SIGINT in this thread while the block runs, so that the threads it starts, and the processes those
+    spawn, start with SIGINT blocked (a thread inherits its creator's signal mask; fork and exec keep it); a Ctrl-C
+    meanwhile stays pending and goes to this process's handler when the block ends (inside :func:`signals_held`:
+    held back until that ends).
+
+    The terminal's Ctrl-C goes to its whole foreground process group: the LocalCluster's worker processes got it too,
+    and those still importing the package as they started (multiprocessing's spawn runs the main script) each printed
+    a KeyboardInterrupt traceback above the command's "stepterrain: interrupted". The workers are the cluster's to
+    stop (this process closes it after a Ctrl-C): started from the cluster's event loop thread, made in this block,
+    they never see SIGINT, also those the nanny restarts later. SIGTERM and SIGHUP still end them (silently: Python
+    has no handler of its own for them). multiprocessing's resource tracker starts first, here: the thread that starts
+    it unblocks SIGINT as it returns (``resource_tracker.ensure_running``), which was the cluster's event loop thread,
+    as it made the workers' queues: their threads, and so the workers, had SIGINT unblocked again. A no-op off the
+    main thread and where the system has no signal masks."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)

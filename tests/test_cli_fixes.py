@@ -1641,3 +1641,47 @@ if __name__ == "__main__":
     assert done.stderr.strip().splitlines() == ["stepterrain: hung up"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py", "terrain.glb"]
     assert out.read_bytes() == b"the old terrain"
+
+
+def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path):
+    """The terminal's Ctrl-C reaches the whole foreground process group: the LocalCluster's worker processes too,
+    which were importing the package as they started (multiprocessing's spawn runs the main script) and each printed a
+    KeyboardInterrupt traceback of some thirty lines above the command's own "stepterrain: interrupted". The
+    workers now start with SIGINT blocked: the command's process closes them after a Ctrl-C, and ends as documented
+    (exit status 130, one line)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    psutil = pytest.importorskip("psutil")
+    pytest.importorskip("distributed")
+    out = tmp_path / "tiles"
+    proc = subprocess.Popen([sys.executable, "-m", "stepterrain", "-q", "batch", "--tile", "32", "--device", "cpu",
+                             "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path, start_new_session=True,  # its own process group, as a terminal's job
+                            env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    try:
+        workers: list = []
+        deadline = time.monotonic() + 90
+        while len(workers) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+            try:
+                workers = [child for child in psutil.Process(proc.pid).children(recursive=True)
+                           if "spawn_main" in " ".join(child.cmdline())]
+            except psutil.Error:
+                workers = []
+        assert len(workers) == 2, "the LocalCluster's two worker processes did not start"
+        time.sleep(0.3)  # they import stepterrain (seconds)
+        os.killpg(proc.pid, signal.SIGINT)  # the user's Ctrl-C, to the whole process group
+        _, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, (proc.returncode, err[-3000:])
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert err.strip().splitlines() == ["stepterrain: interrupted"], err[-3000:]
+    assert not out.exists() or not [p for p in out.iterdir() if p.suffix in (".glb", ".tmp") and
+                                    p.name.startswith(".")]  # no partial file left
