@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from ._files import as_path
-from ._signals import sigint_blocked_for_children, signals_held
+from ._signals import signals_held, terminal_signals_blocked_for_children
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -1300,7 +1300,7 @@ def _connect(
         client = cluster = None
         try:
             with signals_held():  # Ctrl-C as the workers start: the cluster is closed below, not left half made
-                with sigint_blocked_for_children():  # its event loop thread, and so the workers, never see Ctrl-C
+                with terminal_signals_blocked_for_children():  # its loop thread, and so the workers: no Ctrl-C
                     cluster = start_local_cluster(workers)
                 client = Client(cluster, timeout=connect_timeout)
         except BaseException:

@@ -1643,12 +1643,17 @@ if __name__ == "__main__":
     assert out.read_bytes() == b"the old terrain"
 
 
-def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path):
+@pytest.mark.parametrize("signame, code, line", [("SIGINT", 130, "stepterrain: interrupted"),
+                                                 ("SIGHUP", 129, "stepterrain: hung up")])
+def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path, signame, code, line):
     """The terminal's Ctrl-C reaches the whole foreground process group: the LocalCluster's worker processes too,
     which were importing the package as they started (multiprocessing's spawn runs the main script) and each printed a
     KeyboardInterrupt traceback of some thirty lines above the command's own "stepterrain: interrupted". The
     workers now start with SIGINT blocked: the command's process closes them after a Ctrl-C, and ends as documented
-    (exit status 130, one line)."""
+    (exit status 130, one line). A closed terminal's SIGHUP (the shell sends it to the job's process group) killed
+    multiprocessing's resource tracker, whose relaunched successor printed a KeyError traceback for each of the
+    workers' semaphores, and the workers, whose lost connections printed a CommClosedError traceback: both now start
+    with SIGHUP blocked too, and the run ends with exit status 129 and one line."""
     import os
     import signal
     import subprocess
@@ -1674,14 +1679,14 @@ def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path)
                 workers = []
         assert len(workers) == 2, "the LocalCluster's two worker processes did not start"
         time.sleep(0.3)  # they import stepterrain (seconds)
-        os.killpg(proc.pid, signal.SIGINT)  # the user's Ctrl-C, to the whole process group
+        os.killpg(proc.pid, getattr(signal, signame))  # the user's Ctrl-C (or closed terminal), to the whole group
         _, err = proc.communicate(timeout=90)
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
-    assert proc.returncode == 130, (proc.returncode, err[-3000:])
+    assert proc.returncode == code, (proc.returncode, err[-3000:])
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
-    assert err.strip().splitlines() == ["stepterrain: interrupted"], err[-3000:]
+    assert err.strip().splitlines() == [line], err[-3000:]
     assert not out.exists() or not [p for p in out.iterdir() if p.suffix in (".glb", ".tmp") and
                                     p.name.startswith(".")]  # no partial file left
