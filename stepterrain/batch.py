@@ -1280,6 +1280,33 @@ def _check_scheduler(scheduler: Any) -> None:
 MAX_CONNECT_TIMEOUT = 86400.0
 
 
+class _SyncCancelFilter(logging.Filter):
+    """Drops the one record of dask's ``distributed.utils.sync`` interrupted before its call started: its ``cancel``
+    callback reads its ``future`` before that is set ("NameError: cannot access free variable 'future' where it is not
+    associated with a value"), which tornado logs with its traceback (an upstream bug, distributed 2026.8)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        if not isinstance(error, NameError) or error.__traceback__ is None:
+            return True
+        last = error.__traceback__
+        while last.tb_next is not None:
+            last = last.tb_next
+        code = last.tb_frame.f_code
+        return not (code.co_name == "cancel" and Path(code.co_filename).parts[-2:] == ("distributed", "utils.py"))
+
+
+_SYNC_CANCEL_FILTER = _SyncCancelFilter()
+
+
+def _quiet_dask_sync_cancel() -> None:
+    """Keep tornado's log of this process from printing dask's `sync` cancel NameError (:class:`_SyncCancelFilter`).
+    SIGTERM or Ctrl-C while `stepterrain batch` waited on a dask call that the client's busy event loop had not
+    started yet printed that traceback after "stepterrain: terminated". Once a process: adding the filter again
+    keeps one."""
+    logging.getLogger("tornado.application").addFilter(_SYNC_CANCEL_FILTER)
+
+
 def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
@@ -1292,6 +1319,7 @@ def _connect(
             "batch on dask needs dask and distributed: pip install 'stepterrain[batch]' "
             "(or pass scheduler='serial')"
         ) from exc
+    _quiet_dask_sync_cancel()
     if isinstance(scheduler, Client):
         address = scheduler.scheduler.address if scheduler.scheduler else "?"
         _require_workers(scheduler, f"the dask client's scheduler {address}", connect_timeout)

@@ -1690,3 +1690,54 @@ def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path,
     assert err.strip().splitlines() == [line], err[-3000:]
     assert not out.exists() or not [p for p in out.iterdir() if p.suffix in (".glb", ".tmp") and
                                     p.name.startswith(".")]  # no partial file left
+
+
+def test_interrupt_of_a_dask_call_not_yet_started_logs_no_name_error(caplog):
+    """A SIGTERM (or Ctrl-C) as `stepterrain batch` waited on a dask call that the client's busy event loop had not
+    started yet ended, after "stepterrain: terminated", with a traceback from the loop thread: distributed.utils.sync's
+    `cancel` reads its `future` before it is set ("NameError: cannot access free variable 'future'"), which tornado
+    logs. batch's connections drop that record (and only it) from tornado's log."""
+    import logging
+    import os
+    import signal
+    import threading
+    import time
+
+    pytest.importorskip("distributed")
+    from distributed.utils import LoopRunner, sync
+
+    from stepterrain import batch as batch_module
+
+    runner = LoopRunner(asynchronous=False)
+    runner.start()
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        batch_module._quiet_dask_sync_cancel()  # as _connect does, once a process
+        batch_module._quiet_dask_sync_cancel()
+        loop = runner.loop
+        loop.add_callback(time.sleep, 1.0)  # the loop is busy: the call below does not start before the interrupt
+        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+        caplog.set_level(logging.ERROR, logger="tornado.application")
+        with pytest.raises(KeyboardInterrupt):
+            sync(loop, _sleep_briefly)
+        time.sleep(1.5)  # the loop runs sync's `cancel`, then the call
+        errors = [record for record in caplog.records if record.exc_info and isinstance(record.exc_info[1], NameError)]
+        loop.add_callback(_raise_name_error)  # any other NameError in a callback is still logged
+        time.sleep(0.3)
+        others = [record for record in caplog.records if record.exc_info and isinstance(record.exc_info[1], NameError)]
+    finally:
+        signal.signal(signal.SIGINT, before)
+        runner.stop()
+    assert errors == []
+    assert len(others) == 1
+    assert len(logging.getLogger("tornado.application").filters) == 1  # installed once
+
+
+def _raise_name_error() -> None:
+    raise NameError("name 'future' is not defined", name="future")
+
+
+async def _sleep_briefly() -> None:
+    import asyncio
+
+    await asyncio.sleep(0.01)
