@@ -69,6 +69,8 @@ def terminal_signals_blocked_for_children() -> Iterator[None]:
     a KeyError traceback for each semaphore the workers had registered. The workers are the cluster's to stop (this
     process closes it after either signal): started from the cluster's event loop thread, made in this block, they
     never see them, also those the nanny restarts later; SIGTERM still ends them (the nanny's own way to stop one).
+    batch.start_local_cluster makes only that thread in this block, not the whole cluster: this thread's mask is back
+    before the workers start, so a second Ctrl-C still ends a start that hangs.
     multiprocessing's resource tracker starts here, with both blocked: ``resource_tracker.ensure_running`` unblocks
     SIGINT in the thread that starts it as it returns, which was the cluster's event loop thread (as it made the
     workers' queues): their threads, and so the workers, had SIGINT unblocked again. A no-op off the main thread

@@ -1227,7 +1227,14 @@ def start_local_cluster(workers: int) -> Any:
     """
     import dask
     from distributed import LocalCluster
+    from distributed.utils import LoopRunner
 
+    # the cluster's event loop thread, made with SIGINT and SIGHUP blocked: the workers, which it (and the threads it
+    # makes) spawns, inherit the mask and never see the terminal's Ctrl-C or hang-up (this process closes them); this
+    # thread's own mask is back before the workers start, so a second Ctrl-C still ends a start that hangs
+    with terminal_signals_blocked_for_children():
+        runner = LoopRunner(asynchronous=False)
+        runner.start()
     environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **LOCAL_CLUSTER_MALLOC}
     # a nanny takes a pre-spawn variable from this process's os.environ before the configuration, and writes its
     # own into os.environ when it spawns its worker: after any earlier LocalCluster of the session (dask's
@@ -1240,7 +1247,7 @@ def start_local_cluster(workers: int) -> Any:
         # the nannies hand this configuration to their workers, and set the environment before they start them
         with dask.config.set({**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}):
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                silence_logs=logging.ERROR)  # fmt: skip
+                                silence_logs=logging.ERROR, loop=runner.loop)  # fmt: skip
     except (OSError, RuntimeError, TimeoutError) as exc:
         raise SchedulerError(
             f"cannot start a LocalCluster of {workers} worker processes: {exc} (from a script, call batch() under "
@@ -1248,6 +1255,7 @@ def start_local_cluster(workers: int) -> Any:
         ) from exc
     finally:
         _restore_environ(before)
+        runner.stop()  # this one's share of the loop: it runs on until the cluster (and its clients) let it go
 
 
 def _restore_environ(before: Mapping[str, str | None]) -> None:
@@ -1328,8 +1336,7 @@ def _connect(
         client = cluster = None
         try:
             with signals_held():  # Ctrl-C as the workers start: the cluster is closed below, not left half made
-                with terminal_signals_blocked_for_children():  # its loop thread, and so the workers: no Ctrl-C
-                    cluster = start_local_cluster(workers)
+                cluster = start_local_cluster(workers)
                 client = Client(cluster, timeout=connect_timeout)
         except BaseException:
             with _dask_logs_silenced():
