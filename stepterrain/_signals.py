@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["signals_held"]
+__all__ = ["signals_held", "terminal_signals_blocked_for_children"]
 
 
 @contextmanager
@@ -52,3 +52,39 @@ def signals_held() -> Iterator[None]:
         for number, handler in held.items():
             if number in came:
                 handler(number, None)  # Python's default SIGINT handler raises KeyboardInterrupt here
+
+
+@contextmanager
+def terminal_signals_blocked_for_children() -> Iterator[None]:
+    """Block SIGINT and SIGHUP in this thread while the block runs, so that the threads it starts, and the processes
+    those spawn, start with them blocked (a thread inherits its creator's signal mask; fork and exec keep it); such a
+    signal meanwhile stays pending and goes to this process's handler when the block ends (inside
+    :func:`signals_held`: held back until that ends).
+
+    The terminal's Ctrl-C goes to its whole foreground process group: the LocalCluster's worker processes got it too,
+    and those still importing the package as they started (multiprocessing's spawn runs the main script) each printed
+    a KeyboardInterrupt traceback above the command's "stepterrain: interrupted". A closed terminal's SIGHUP (the
+    shell sends it to each job's process group) killed the workers, whose lost connections printed CommClosedError
+    tracebacks and whose outputs were lost, and multiprocessing's resource tracker, whose relaunched successor printed
+    a KeyError traceback for each semaphore the workers had registered. The workers are the cluster's to stop (this
+    process closes it after either signal): started from the cluster's event loop thread, made in this block, they
+    never see them, also those the nanny restarts later; SIGTERM still ends them (the nanny's own way to stop one).
+    batch.start_local_cluster makes only that thread in this block, not the whole cluster: this thread's mask is back
+    before the workers start, so a second Ctrl-C still ends a start that hangs.
+    multiprocessing's resource tracker starts here, with both blocked: ``resource_tracker.ensure_running`` unblocks
+    SIGINT in the thread that starts it as it returns, which was the cluster's event loop thread (as it made the
+    workers' queues): their threads, and so the workers, had SIGINT unblocked again. A no-op off the main thread
+    and where the system has no signal masks."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    signals = {signal.SIGINT, signal.SIGHUP}
+    before = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        resource_tracker.ensure_running()  # unblocks SIGINT (and SIGTERM) here as it returns: blocked again below
+        signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, before)

@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
 from ._files import as_path
-from ._signals import signals_held
+from ._signals import signals_held, terminal_signals_blocked_for_children
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -1227,7 +1227,14 @@ def start_local_cluster(workers: int) -> Any:
     """
     import dask
     from distributed import LocalCluster
+    from distributed.utils import LoopRunner
 
+    # the cluster's event loop thread, made with SIGINT and SIGHUP blocked: the workers, which it (and the threads it
+    # makes) spawns, inherit the mask and never see the terminal's Ctrl-C or hang-up (this process closes them); this
+    # thread's own mask is back before the workers start, so a second Ctrl-C still ends a start that hangs
+    with terminal_signals_blocked_for_children():
+        runner = LoopRunner(asynchronous=False)
+        runner.start()
     environ = {**dask.config.get("distributed.nanny.pre-spawn-environ", {}), **LOCAL_CLUSTER_MALLOC}
     # a nanny takes a pre-spawn variable from this process's os.environ before the configuration, and writes its
     # own into os.environ when it spawns its worker: after any earlier LocalCluster of the session (dask's
@@ -1240,7 +1247,7 @@ def start_local_cluster(workers: int) -> Any:
         # the nannies hand this configuration to their workers, and set the environment before they start them
         with dask.config.set({**LOCAL_CLUSTER_CONFIG, "distributed.nanny.pre-spawn-environ": environ}):
             return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=":0",
-                                silence_logs=logging.ERROR)  # fmt: skip
+                                silence_logs=logging.ERROR, loop=runner.loop)  # fmt: skip
     except (OSError, RuntimeError, TimeoutError) as exc:
         raise SchedulerError(
             f"cannot start a LocalCluster of {workers} worker processes: {exc} (from a script, call batch() under "
@@ -1248,6 +1255,7 @@ def start_local_cluster(workers: int) -> Any:
         ) from exc
     finally:
         _restore_environ(before)
+        runner.stop()  # this one's share of the loop: it runs on until the cluster (and its clients) let it go
 
 
 def _restore_environ(before: Mapping[str, str | None]) -> None:
@@ -1280,6 +1288,33 @@ def _check_scheduler(scheduler: Any) -> None:
 MAX_CONNECT_TIMEOUT = 86400.0
 
 
+class _SyncCancelFilter(logging.Filter):
+    """Drops the one record of dask's ``distributed.utils.sync`` interrupted before its call started: its ``cancel``
+    callback reads its ``future`` before that is set ("NameError: cannot access free variable 'future' where it is not
+    associated with a value"), which tornado logs with its traceback (an upstream bug, distributed 2026.8)."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        error = record.exc_info[1] if record.exc_info else None
+        if not isinstance(error, NameError) or error.__traceback__ is None:
+            return True
+        last = error.__traceback__
+        while last.tb_next is not None:
+            last = last.tb_next
+        code = last.tb_frame.f_code
+        return not (code.co_name == "cancel" and Path(code.co_filename).parts[-2:] == ("distributed", "utils.py"))
+
+
+_SYNC_CANCEL_FILTER = _SyncCancelFilter()
+
+
+def _quiet_dask_sync_cancel() -> None:
+    """Keep tornado's log of this process from printing dask's `sync` cancel NameError (:class:`_SyncCancelFilter`).
+    SIGTERM or Ctrl-C while `stepterrain batch` waited on a dask call that the client's busy event loop had not
+    started yet printed that traceback after "stepterrain: terminated". Once a process: adding the filter again
+    keeps one."""
+    logging.getLogger("tornado.application").addFilter(_SYNC_CANCEL_FILTER)
+
+
 def _connect(
     scheduler: Any, workers: int, connect_timeout: float
 ) -> tuple[Any, Any, str, bool]:
@@ -1292,6 +1327,7 @@ def _connect(
             "batch on dask needs dask and distributed: pip install 'stepterrain[batch]' "
             "(or pass scheduler='serial')"
         ) from exc
+    _quiet_dask_sync_cancel()
     if isinstance(scheduler, Client):
         address = scheduler.scheduler.address if scheduler.scheduler else "?"
         _require_workers(scheduler, f"the dask client's scheduler {address}", connect_timeout)

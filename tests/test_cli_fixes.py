@@ -1641,3 +1641,103 @@ if __name__ == "__main__":
     assert done.stderr.strip().splitlines() == ["stepterrain: hung up"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py", "terrain.glb"]
     assert out.read_bytes() == b"the old terrain"
+
+
+@pytest.mark.parametrize("signame, code, line", [("SIGINT", 130, "stepterrain: interrupted"),
+                                                 ("SIGHUP", 129, "stepterrain: hung up")])
+def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path, signame, code, line):
+    """The terminal's Ctrl-C reaches the whole foreground process group: the LocalCluster's worker processes too,
+    which were importing the package as they started (multiprocessing's spawn runs the main script) and each printed a
+    KeyboardInterrupt traceback of some thirty lines above the command's own "stepterrain: interrupted". The
+    workers now start with SIGINT blocked: the command's process closes them after a Ctrl-C, and ends as documented
+    (exit status 130, one line). A closed terminal's SIGHUP (the shell sends it to the job's process group) killed
+    multiprocessing's resource tracker, whose relaunched successor printed a KeyError traceback for each of the
+    workers' semaphores, and the workers, whose lost connections printed a CommClosedError traceback: both now start
+    with SIGHUP blocked too, and the run ends with exit status 129 and one line."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    psutil = pytest.importorskip("psutil")
+    pytest.importorskip("distributed")
+    out = tmp_path / "tiles"
+    proc = subprocess.Popen([sys.executable, "-m", "stepterrain", "-q", "batch", "--tile", "32", "--device", "cpu",
+                             "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path, start_new_session=True,  # its own process group, as a terminal's job
+                            env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+    try:
+        workers: list = []
+        deadline = time.monotonic() + 90
+        while len(workers) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+            try:
+                workers = [child for child in psutil.Process(proc.pid).children(recursive=True)
+                           if "spawn_main" in " ".join(child.cmdline())]
+            except psutil.Error:
+                workers = []
+        assert len(workers) == 2, "the LocalCluster's two worker processes did not start"
+        time.sleep(0.3)  # they import stepterrain (seconds)
+        os.killpg(proc.pid, getattr(signal, signame))  # the user's Ctrl-C (or closed terminal), to the whole group
+        _, err = proc.communicate(timeout=90)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == code, (proc.returncode, err[-3000:])
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    assert err.strip().splitlines() == [line], err[-3000:]
+    assert not out.exists() or not [p for p in out.iterdir() if p.suffix in (".glb", ".tmp") and
+                                    p.name.startswith(".")]  # no partial file left
+
+
+def test_interrupt_of_a_dask_call_not_yet_started_logs_no_name_error(caplog):
+    """A SIGTERM (or Ctrl-C) as `stepterrain batch` waited on a dask call that the client's busy event loop had not
+    started yet ended, after "stepterrain: terminated", with a traceback from the loop thread: distributed.utils.sync's
+    `cancel` reads its `future` before it is set ("NameError: cannot access free variable 'future'"), which tornado
+    logs. batch's connections drop that record (and only it) from tornado's log."""
+    import logging
+    import os
+    import signal
+    import threading
+    import time
+
+    pytest.importorskip("distributed")
+    from distributed.utils import LoopRunner, sync
+
+    from stepterrain import batch as batch_module
+
+    runner = LoopRunner(asynchronous=False)
+    runner.start()
+    before = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        batch_module._quiet_dask_sync_cancel()  # as _connect does, once a process
+        batch_module._quiet_dask_sync_cancel()
+        loop = runner.loop
+        loop.add_callback(time.sleep, 1.0)  # the loop is busy: the call below does not start before the interrupt
+        threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT)).start()
+        caplog.set_level(logging.ERROR, logger="tornado.application")
+        with pytest.raises(KeyboardInterrupt):
+            sync(loop, _sleep_briefly)
+        time.sleep(1.5)  # the loop runs sync's `cancel`, then the call
+        errors = [record for record in caplog.records if record.exc_info and isinstance(record.exc_info[1], NameError)]
+        loop.add_callback(_raise_name_error)  # any other NameError in a callback is still logged
+        time.sleep(0.3)
+        others = [record for record in caplog.records if record.exc_info and isinstance(record.exc_info[1], NameError)]
+    finally:
+        signal.signal(signal.SIGINT, before)
+        runner.stop()
+    assert errors == []
+    assert len(others) == 1
+    assert len(logging.getLogger("tornado.application").filters) == 1  # installed once
+
+
+def _raise_name_error() -> None:
+    raise NameError("name 'future' is not defined", name="future")
+
+
+async def _sleep_briefly() -> None:
+    import asyncio
+
+    await asyncio.sleep(0.01)
