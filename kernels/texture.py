@@ -656,12 +656,17 @@ def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
 
 
 @wp.func
-def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32) -> wp.float32:
-    """How far node (i, j) lies along the away-from-light direction (world units, from the grid's centre: the
-    same float32 value whichever way the rows and columns run)."""
-    x = (float(j) - 0.5 * float(grid.cols - 1)) * grid.spacing[0]
-    y = (float(i) - 0.5 * float(grid.rows - 1)) * grid.spacing[1]
-    return x * sweep.away[0] + y * sweep.away[1]
+def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.float32:
+    """How far the point of node (i, j)'s straight line at its major index (``error`` less along the minor axis)
+    lies along the away-from-light direction (world units, from the grid's centre: the same float32 value whichever
+    way the rows and columns run)."""
+    fi = float(i) - 0.5 * float(grid.rows - 1)
+    fj = float(j) - 0.5 * float(grid.cols - 1)
+    if sweep.major_j == 0:
+        fj = fj - error
+    else:
+        fi = fi - error
+    return fj * grid.spacing[0] * sweep.away[0] + fi * grid.spacing[1] * sweep.away[1]
 
 
 @wp.func
@@ -804,6 +809,9 @@ def sweep_occlusion(
         offset = sweep.c_min + sweep.minor_offsets[major]
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
+        error = load(sweep.minor_error, major)  # each node taken onto its straight line, as sweep_shadows takes it
+        side = wp.where(error > 0.0, -1, 1)
+        sideways = wp.abs(error)
         while line < hi:
             minor = line + offset
             i = minor
@@ -815,7 +823,9 @@ def sweep_occlusion(
             if not wp.isnan(h):
                 base = load(offsets, line)
                 top = load(tops, line)
-                p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
+                if sideways != 0.0:
+                    h = h + sideways * across_line(grid, sweep, i, j, minor, side, h)
+                p = wp.vec2(distance_away(grid, sweep, i, j, error), h * grid.z_factor)
                 # drop hull points that are not above the segment from their predecessor to p
                 while top >= 1:
                     a = load(hull_out, base + top - 1)

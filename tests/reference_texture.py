@@ -6,7 +6,8 @@
 * ``shadows_reference``: brute-force ray march from every node towards the light over the nodes of its
   digital line (O(n) per node), in float64, each node taken sideways onto the straight line (linear interpolation
   towards the neighbour across it).
-* ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
+* ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction (the
+  nodes taken onto the straight line as for the shadows).
 * ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64 (colour weighted by alpha in
   an image with alpha).
 * ``reduce_rounded_reference``: the same halving in exact rationals, rounded half up to integers.
@@ -234,13 +235,13 @@ def compass(k, n):
 
 
 def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0) -> np.ndarray:
-    z = np.asarray(heights, dtype=np.float64) * z_factor
-    rows, cols = z.shape
+    raw = np.asarray(heights, dtype=np.float64) * z_factor
     dx, dy = spacing
-    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    total = np.zeros(z.shape)
+    total = np.zeros(raw.shape)
     for k in range(directions):
-        steps, away = _line_nodes(z.shape, spacing, compass(k, directions))
+        steps, away = _line_nodes(raw.shape, spacing, compass(k, directions))
+        z, i, j = _on_straight_lines(raw, spacing, compass(k, directions))  # every node onto its straight line
+        z = np.where(np.isfinite(raw), z, np.nan)
         t = j * dx * away[0] + i * dy * away[1]
         best = np.full(z.shape, -np.inf)
         for inside, ii, jj in steps:
@@ -252,7 +253,7 @@ def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0
         with np.errstate(invalid="ignore"):
             sine = np.where(best > 0, best / np.sqrt(1 + best * best), 0.0)
         total += sine / directions
-    return np.where(np.isfinite(z), 1 - total, np.nan)
+    return np.where(np.isfinite(raw), 1 - total, np.nan)
 
 
 def reduce_axis(image: np.ndarray, axis: int) -> np.ndarray:

@@ -374,6 +374,23 @@ def test_occlusion_open_ground_and_pit(device):
     assert ao[4, 4] < 0.4 and ao[0, 0] == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("spacing", [(1.0, 1.0), (30.0, -30.0), (2.0, 0.5)])
+@pytest.mark.parametrize("directions", [12, 16])
+def test_occlusion_of_a_plane_is_its_slopes_horizons(device, spacing, directions):
+    """On a plane the horizon towards a direction is the plane's rise that way (none where it falls), the same at
+    every node with a node before it on each line: 1 − mean(sin(atan(max(0, ∇z · d)))). The digital lines' own nodes
+    zig-zagged a node sideways, and their cross slope raised the horizons: 0.69-0.73 against 0.7425 on a 45° plane
+    at 16 directions."""
+    a, b = 0.3, 1.0  # dz/dx, dz/dy
+    heights = tilted(rows=40, cols=44, a=a, b=b, spacing=spacing)
+    ao = ambient_occlusion(heights, directions=directions, spacing=spacing, device=device)
+    sines = []
+    for k in range(directions):
+        s = max(0.0, a * math.sin(2 * math.pi * k / directions) + b * math.cos(2 * math.pi * k / directions))
+        sines.append(s / math.sqrt(1 + s * s))
+    np.testing.assert_allclose(ao[3:-3, 3:-3], 1.0 - np.mean(sines), atol=1e-5)
+
+
 @pytest.mark.parametrize("directions", [0, 361, 10**9, 2.0, True])
 def test_occlusion_directions_are_bounded(directions):
     """10**9 directions ran one sweep of launches each: effectively a hang; now refused by name."""
