@@ -58,6 +58,8 @@ class Sweep:
     """
 
     minor_offsets: wp.array[wp.int32]
+    # minor_offsets[k] less the straight line's exact minor offset at major index k (in [-0.5, 0.5]; 0 on a diagonal)
+    minor_error: wp.array[wp.float32]
     n_lines: wp.int32
     increasing: wp.int32  # 1 when minor_offsets never decreases (slope >= 0), 0 when it never increases
     major_j: wp.int32
@@ -654,12 +656,44 @@ def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
 
 
 @wp.func
-def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32) -> wp.float32:
-    """How far node (i, j) lies along the away-from-light direction (world units, from the grid's centre: the
-    same float32 value whichever way the rows and columns run)."""
-    x = (float(j) - 0.5 * float(grid.cols - 1)) * grid.spacing[0]
-    y = (float(i) - 0.5 * float(grid.rows - 1)) * grid.spacing[1]
-    return x * sweep.away[0] + y * sweep.away[1]
+def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.float32:
+    """How far the point of node (i, j)'s straight line at its major index (``error`` less along the minor axis)
+    lies along the away-from-light direction (world units, from the grid's centre: the same float32 value whichever
+    way the rows and columns run)."""
+    fi = float(i) - 0.5 * float(grid.rows - 1)
+    fj = float(j) - 0.5 * float(grid.cols - 1)
+    if sweep.major_j == 0:
+        fj = fj - error
+    else:
+        fi = fi - error
+    return fj * grid.spacing[0] * sweep.away[0] + fi * grid.spacing[1] * sweep.away[1]
+
+
+@wp.func
+def node_at_minor(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, minor: wp.int32) -> wp.float32:
+    """The height at minor index ``minor`` (inside the grid) of node (i, j)'s major index."""
+    if sweep.major_j == 0:
+        return load(grid.heights, i, minor)
+    return load(grid.heights, minor, j)
+
+
+@wp.func
+def across_line(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, minor: wp.int32, side: wp.int32,
+                h: wp.float32) -> wp.float32:
+    """The height's change per minor index from node (i, j) (height ``h``, minor index ``minor``) towards ``side``
+    (±1): to that neighbour, else (beyond the border or at nodata) extrapolated from the opposite one, as gdaldem's
+    border is (linearly), else 0."""
+    ahead = minor + side
+    if ahead >= 0 and ahead < sweep.n_minor:
+        value = node_at_minor(grid, sweep, i, j, ahead)
+        if grid.has_nodata == 0 or not wp.isnan(value):
+            return value - h
+    behind = minor - side
+    if behind >= 0 and behind < sweep.n_minor:
+        value = node_at_minor(grid, sweep, i, j, behind)
+        if grid.has_nodata == 0 or not wp.isnan(value):
+            return h - value
+    return wp.float32(0.0)
 
 
 @wp.kernel
@@ -694,6 +728,13 @@ def sweep_shadows(
         offset = sweep.c_min + sweep.minor_offsets[major]
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
+        # each node taken to its straight line's point at this major index (the same sideways step for every line):
+        # its height interpolated linearly towards the minor neighbour across the line, its distance the point's;
+        # the node's own height and position zig-zagged a node sideways, and a plane sloping across the light
+        # shadowed itself in bands
+        error = load(sweep.minor_error, major)
+        side = wp.where(error > 0.0, -1, 1)
+        weight = wp.abs(error)
         while line < hi:
             minor = line + offset
             i = minor
@@ -705,8 +746,15 @@ def sweep_shadows(
             if grid.has_nodata != 0 and wp.isnan(h):
                 store(shadow_out, i, j, wp.uint8(0))
             else:
-                g = h * grid.z_factor + ((float(j) - centre_j) * sweep.rise[0]
-                                         + (float(i) - centre_i) * sweep.rise[1])
+                fi = float(i) - centre_i
+                fj = float(j) - centre_j
+                if weight != 0.0:
+                    h = h + weight * across_line(grid, sweep, i, j, minor, side, h)
+                    if sweep.major_j == 0:
+                        fj = fj - error
+                    else:
+                        fi = fi - error
+                g = h * grid.z_factor + (fj * sweep.rise[0] + fi * sweep.rise[1])
                 if g < load(horizons, line):
                     store(shadow_out, i, j, wp.uint8(1))
                 else:
@@ -761,6 +809,9 @@ def sweep_occlusion(
         offset = sweep.c_min + sweep.minor_offsets[major]
         line = wp.max(first, -offset)
         hi = wp.min(last, sweep.n_minor - offset)
+        error = load(sweep.minor_error, major)  # each node taken onto its straight line, as sweep_shadows takes it
+        side = wp.where(error > 0.0, -1, 1)
+        sideways = wp.abs(error)
         while line < hi:
             minor = line + offset
             i = minor
@@ -772,7 +823,9 @@ def sweep_occlusion(
             if not wp.isnan(h):
                 base = load(offsets, line)
                 top = load(tops, line)
-                p = wp.vec2(distance_away(grid, sweep, i, j), h * grid.z_factor)
+                if sideways != 0.0:
+                    h = h + sideways * across_line(grid, sweep, i, j, minor, side, h)
+                p = wp.vec2(distance_away(grid, sweep, i, j, error), h * grid.z_factor)
                 # drop hull points that are not above the segment from their predecessor to p
                 while top >= 1:
                     a = load(hull_out, base + top - 1)

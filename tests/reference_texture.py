@@ -4,8 +4,10 @@
   edge, the edge column repeated in the first and last rows), the GDAL variants in float64. ``maplibre_reference``
   repeats the edge, as MapLibre's backfilled DEM border does.
 * ``shadows_reference``: brute-force ray march from every node towards the light over the nodes of its
-  digital line (O(n) per node), in float64.
-* ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction.
+  digital line (O(n) per node), in float64, each node taken sideways onto the straight line (linear interpolation
+  towards the neighbour across it).
+* ``occlusion_reference``: the horizon angle of every node over all earlier nodes of its line, per direction (the
+  nodes taken onto the straight line as for the shadows).
 * ``reduce_reference``: the area-weighted halving of an image axis by axis, in float64 (colour weighted by alpha in
   an image with alpha).
 * ``reduce_rounded_reference``: the same halving in exact rationals, rounded half up to integers.
@@ -164,13 +166,51 @@ def _line_nodes(shape, spacing, azimuth):
     return steps, away
 
 
-def shadows_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
-                      z_factor=1.0) -> np.ndarray:
-    z = np.asarray(heights, dtype=np.float64) * z_factor
+def _on_straight_lines(z, spacing, azimuth):
+    """Every node taken sideways (along the minor axis) onto the straight line its digital line follows: its height
+    interpolated linearly towards the neighbour across the line (beyond the border or at nodata extrapolated from
+    the opposite neighbour, else its own) and its (i, j) there, as float64 arrays."""
+    major_j, n_major, n_minor, _forward, offsets, _away = line_geometry(z.shape, spacing, azimuth)
     rows, cols = z.shape
     dx, dy = spacing
-    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    steps, away = _line_nodes(z.shape, spacing, azimuth)
+    sin_az, cos_az = azimuth if isinstance(azimuth, tuple) else (math.sin(azimuth), math.cos(azimuth))
+    ti, tj = cos_az / dy, sin_az / dx
+    k = np.arange(n_major, dtype=np.float64)
+    if max(abs(ti), abs(tj)) <= min(abs(ti), abs(tj)) * (1 + 1e-9):
+        error = np.zeros(n_major)
+    else:
+        slope = ti / tj if major_j else tj / ti
+        error = offsets - slope * (k - (n_major - 1) / 2)
+    error = error.astype(np.float32).astype(np.float64)  # as the kernel holds it
+    error[np.abs(error) < 1e-6] = 0.0  # a millionth of a node sideways (a light along an axis): not moved
+    zz = z.T if major_j else z  # (major, minor)
+    e = error[:, None]
+    side = np.where(e > 0, -1, 1) * np.ones_like(zz, dtype=np.int64)
+    minor = np.arange(n_minor)[None, :] + 0 * side
+
+    def at(m):
+        inside = (m >= 0) & (m < n_minor)
+        return np.where(inside, zz[np.arange(n_major)[:, None], np.clip(m, 0, n_minor - 1)], np.nan)
+
+    ahead, behind = at(minor + side), at(minor - side)
+    change = np.where(np.isfinite(ahead), ahead - zz, np.where(np.isfinite(behind), zz - behind, 0.0))
+    h = np.where(e != 0, zz + np.abs(e) * change, zz)
+    position = minor - e
+    major = np.broadcast_to(k[:, None], zz.shape)
+    if major_j:
+        return h.T, position.T, major.T
+    return h, major, position
+
+
+def shadows_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE,
+                      z_factor=1.0) -> np.ndarray:
+    """A node is in shadow when an earlier point of its line rises above the ray from its point to the light; every
+    node is taken onto its straight line first (:func:`_on_straight_lines`), so the points of a line are collinear."""
+    raw = np.asarray(heights, dtype=np.float64) * z_factor
+    dx, dy = spacing
+    steps, away = _line_nodes(raw.shape, spacing, azimuth)
+    z, i, j = _on_straight_lines(raw, spacing, azimuth)
+    z = np.where(np.isfinite(raw), z, np.nan)
     t = j * dx * away[0] + i * dy * away[1]
     tan = math.tan(altitude)
     shadow = np.zeros(z.shape, dtype=bool)
@@ -195,13 +235,13 @@ def compass(k, n):
 
 
 def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0) -> np.ndarray:
-    z = np.asarray(heights, dtype=np.float64) * z_factor
-    rows, cols = z.shape
+    raw = np.asarray(heights, dtype=np.float64) * z_factor
     dx, dy = spacing
-    i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
-    total = np.zeros(z.shape)
+    total = np.zeros(raw.shape)
     for k in range(directions):
-        steps, away = _line_nodes(z.shape, spacing, compass(k, directions))
+        steps, away = _line_nodes(raw.shape, spacing, compass(k, directions))
+        z, i, j = _on_straight_lines(raw, spacing, compass(k, directions))  # every node onto its straight line
+        z = np.where(np.isfinite(raw), z, np.nan)
         t = j * dx * away[0] + i * dy * away[1]
         best = np.full(z.shape, -np.inf)
         for inside, ii, jj in steps:
@@ -213,7 +253,7 @@ def occlusion_reference(heights, spacing=(1.0, 1.0), directions=16, z_factor=1.0
         with np.errstate(invalid="ignore"):
             sine = np.where(best > 0, best / np.sqrt(1 + best * best), 0.0)
         total += sine / directions
-    return np.where(np.isfinite(z), 1 - total, np.nan)
+    return np.where(np.isfinite(raw), 1 - total, np.nan)
 
 
 def reduce_axis(image: np.ndarray, axis: int) -> np.ndarray:
@@ -354,3 +394,29 @@ def maplibre_reference(heights, spacing=(1.0, 1.0), method="standard", azimuths=
             raise ValueError(method)
     nodata = np.isnan(np.asarray(heights, dtype=np.float64))
     return np.where(nodata[..., None], np.nan, out)
+
+
+def shadows_continuous(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=ALTITUDE, step=0.25) -> np.ndarray:
+    """The shadow by definition: a node is shadowed when the terrain (bilinear between nodes) rises above the ray
+    from it towards the light somewhere inside the grid, marched in steps of ``step`` of the smaller spacing."""
+    z = np.asarray(heights, dtype=np.float64)
+    rows, cols = z.shape
+    dx, dy = spacing
+    i, j = np.meshgrid(np.arange(rows, dtype=np.float64), np.arange(cols, dtype=np.float64), indexing="ij")
+    di, dj = math.cos(azimuth) / dy, math.sin(azimuth) / dx  # index steps per world unit towards the light
+    tan = math.tan(altitude)
+    shadow = np.zeros(z.shape, dtype=bool)
+    ds = step * min(abs(dx), abs(dy))
+    d = ds
+    while True:
+        ii, jj = i + di * d, j + dj * d
+        inside = (ii >= 0) & (ii <= rows - 1) & (jj >= 0) & (jj <= cols - 1)
+        if not inside.any():
+            return shadow.astype(np.uint8)
+        i0 = np.clip(np.floor(ii).astype(int), 0, rows - 2)
+        j0 = np.clip(np.floor(jj).astype(int), 0, cols - 2)
+        fi, fj = ii - i0, jj - j0
+        h = (z[i0, j0] * (1 - fi) * (1 - fj) + z[i0 + 1, j0] * fi * (1 - fj) + z[i0, j0 + 1] * (1 - fi) * fj
+             + z[i0 + 1, j0 + 1] * fi * fj)
+        shadow |= inside & (h > z + d * tan)
+        d += ds
