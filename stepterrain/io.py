@@ -230,7 +230,8 @@ def load_dem(
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
+        ``nodata`` that is not one real number, an .npz in degrees with one of ``dx_m``/``dy_m`` or either not
+        finite, non-zero metres, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
         heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
         nothing but nodata, heights in a unit that is not a known length unit:
@@ -608,6 +609,12 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             units_xy = _npz_text(arrays, "units_xy", file) or ""
             geographic = _is_geographic(crs) or "degree" in units_xy.lower()
         metres = None
+        if geographic and ("dx_m" in arrays) != ("dy_m" in arrays):  # one was ignored: metres from R and the degrees
+            given, missing = ("dx_m", "dy_m") if "dx_m" in arrays else ("dy_m", "dx_m")
+            raise DataFileError(
+                f"cannot read {str(file)!r}: expected both 'dx_m' and 'dy_m' (the metres per cell of its degrees) or "
+                f"neither; got {given!r} without {missing!r}"
+            )
         if geographic and "dx_m" in arrays and "dy_m" in arrays:
             dx_m, dy_m = arrays["dx_m"], arrays["dy_m"]
             if dx_m.size != 1 or dy_m.size != 1 or dx_m.dtype.kind not in "iuf" or dy_m.dtype.kind not in "iuf":
@@ -616,6 +623,11 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
+            if not all(math.isfinite(m) and m != 0.0 for m in metres):  # warned of "100 %" errors, then "spacing"
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'dx_m' and 'dy_m' must be finite, non-zero metres per cell; "
+                    f"got {metres[0]!r} and {metres[1]!r}"
+                )
         named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
         unit, crs, factor = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
         heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)

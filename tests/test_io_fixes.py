@@ -1668,3 +1668,28 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     assert told(tmp_path / "masked.npz")[1] == []
     Image.fromarray(np.where(z < 0, 65535, z).astype(np.uint16)).save(tmp_path / "peak.png")
     assert told(tmp_path / "peak.png")[1] == []
+
+
+@pytest.mark.parametrize(
+    ("dx_m", "dy_m", "message"),
+    [(0.0, 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 0\.0 and 1111\.0"),
+     (float("nan"), 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got nan and 1111\.0"),
+     (785.0, float("inf"), r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 785\.0 and inf"),
+     (785.0, None, r"both 'dx_m' and 'dy_m'.*got 'dx_m' without 'dy_m'"),
+     (None, 1111.0, r"both 'dx_m' and 'dy_m'.*got 'dy_m' without 'dx_m'")],
+)  # fmt: skip
+def test_npz_dx_m_dy_m_that_are_no_metres_are_refused_by_name(tmp_path, dx_m, dy_m, message):
+    """An .npz in degrees with dx_m = 0, NaN or inf warned that its metres erred "by up to 100 %" ("nan %", or that
+    NaN gave "more metres per degree of longitude than of latitude") and then failed on "spacing must be non-zero"
+    or "a pair of finite numbers", naming a spacing the file does not hold; one of dx_m, dy_m without the other was
+    ignored without a word (the grid's metres then came from R and the degrees). Now a DataFileError names the keys,
+    before any warning."""
+    z = np.arange(231.0, dtype=np.float32).reshape(11, 21)
+    transform = np.array([10.0, 0.01, 0.0, 45.0, 0.0, -0.01])
+    keys = {name: value for name, value in (("dx_m", dx_m), ("dy_m", dy_m)) if value is not None}
+    np.savez(tmp_path / "m.npz", elevation=z, transform=transform, crs="EPSG:4326", **keys)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(DataFileError, match=r"m\.npz.*" + message):
+            load_dem(tmp_path / "m.npz")
+    assert [str(w.message) for w in caught] == []
