@@ -522,13 +522,18 @@ def _each_npz_member(file: Path, read: Callable[[Any, str, Path], Any]) -> dict[
     an .npz name: :func:`read_npz` and :func:`npz_member_ndims` test that first), an unreadable archive or member a
     DataFileError in :func:`read_npz`'s words."""
     try:
-        archive = np.load(file, allow_pickle=False)  # the zip directory only
+        handle = open(file, "rb")  # opened here: np.load left the file open when zipfile refused it (truncated)
+        try:
+            archive = np.load(handle, allow_pickle=False)  # the zip directory only
+        except BaseException:
+            handle.close()
+            raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
         ) from exc
     try:
-        with archive:
+        with handle, archive:
             return {key: read(archive, key, file) for key in archive.files}
     except DataFileError:
         raise

@@ -1693,3 +1693,20 @@ def test_npz_dx_m_dy_m_that_are_no_metres_are_refused_by_name(tmp_path, dx_m, dy
         with pytest.raises(DataFileError, match=r"m\.npz.*" + message):
             load_dem(tmp_path / "m.npz")
     assert [str(w.message) for w in caught] == []
+
+
+def test_a_truncated_npz_leaves_no_file_open(tmp_path):
+    """A truncated .npz (a copy cut short: the zip's central directory lost) was refused, but np.load, which opens
+    the file itself, left it open when zipfile failed on it: a ResourceWarning per file, and a handle held until the
+    garbage collector found it (a batch over a folder of damaged downloads). The file is opened and closed here."""
+    import gc
+
+    np.savez(tmp_path / "whole.npz", elevation=np.arange(2000.0).reshape(40, 50))
+    data = (tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(DataFileError, match=r"cut\.npz.*expected a NumPy \.npz archive; got unreadable content"):
+            load_dem(tmp_path / "cut.npz")
+        gc.collect()
+    assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
