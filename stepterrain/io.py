@@ -234,7 +234,8 @@ def load_dem(
         finite, non-zero metres, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
         heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
-        nothing but nodata, heights in a unit that is not a known length unit:
+        nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
+        in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -911,6 +912,12 @@ def _load_geotiff(
                     f"{what}, not elevation data"
                 )
             scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
+            if not (math.isfinite(scale) and scale != 0.0 and math.isfinite(offset)):  # 0: one flat height, silently
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected band {band}'s scale and offset (height = value * scale + "
+                    f"offset) to be a finite, non-zero scale and a finite offset; got scale {scale!r}, offset "
+                    f"{offset!r} (if the values are heights as stored: `gdal_edit.py -scale 1 -offset 0 {file.name}`)"
+                )
             file_unit = dataset.units[band - 1]
             transform = dataset.transform
             crs_obj = dataset.crs

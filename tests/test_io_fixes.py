@@ -1710,3 +1710,25 @@ def test_a_truncated_npz_leaves_no_file_open(tmp_path):
             load_dem(tmp_path / "cut.npz")
         gc.collect()
     assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
+
+
+@pytest.mark.parametrize(("scale", "offset"), [(0.0, 0.0), (0.0, 250.0), (float("nan"), 0.0), (0.1, float("nan")),
+                                               (float("inf"), 0.0), (1.0, float("-inf"))])  # fmt: skip
+def test_a_geotiff_scale_of_zero_or_not_finite_is_refused_naming_it(tmp_path, scale, offset):
+    """A band whose scale is 0 (a producer's placeholder) read every cell as the offset: a flat terrain at 0 m (or
+    250 m), silently, its relief lost; a NaN or infinite scale or offset made every height NaN and was refused as
+    "all nodata", which the file is not. Now a DataFileError names the band's scale and offset."""
+    rasterio = pytest.importorskip("rasterio")
+
+    z = (np.arange(20, dtype=np.int16) * 7).reshape(4, 5)
+    path = tmp_path / "scaled.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=4, width=5, count=1, dtype="int16", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as ds:  # fmt: skip
+        ds.write(z, 1)
+        ds.scales, ds.offsets = (scale,), (offset,)
+    message = (r"scaled\.tif.*expected band 1's scale and offset \(height = value \* scale \+ offset\) to be a finite, "
+               rf"non-zero scale and a finite offset; got scale {scale!r}, offset {offset!r}")
+    with pytest.raises(DataFileError, match=message):
+        load_dem(path)
+    with pytest.raises(DataFileError, match=message):  # the window of a crop too
+        load_dem(path, crop=(500015.0, 500075.0, 3999900.0, 3999985.0))
