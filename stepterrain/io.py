@@ -210,8 +210,8 @@ def load_dem(
         ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
         keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
         int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
-        and named with the nodata value to declare; a grid georeferenced without a CRS whose
-        coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
+        and named with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot
+        read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
         times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
         give it.
 
@@ -1433,8 +1433,19 @@ def _check_placed(file: Path, place: _Placement, terrain: Terrain) -> None:
     if place.projected is None:
         return
     _check_projected_metres(file, *place.projected)
-    if place.projected[0] is None:
-        _check_degrees_without_crs(file, terrain)
+    crs = place.projected[0]
+    if crs is None or _unreadable_crs(crs):  # one PROJ cannot read (an .npz's crs="4326") says no more than none
+        _check_degrees_without_crs(file, terrain, crs)
+
+
+def _unreadable_crs(crs: str) -> bool:
+    """Whether rasterio is installed and cannot read ``crs`` (an .npz's ``crs="4326"``, an EPSG code that does not
+    exist, a free-text name): :func:`load_dem` keeps such a CRS and reads the grid's coordinates as metres."""
+    try:
+        import rasterio.crs  # noqa: F401  (without it no CRS is read: nothing to tell)
+    except ImportError:
+        return False
+    return _crs_object(crs) is None
 
 
 def _placement(
@@ -1577,8 +1588,9 @@ def degrees_as_local_metres(
     return place.spacing, place.origin, place.crs, name + place.source[len(_GIVEN_GRID):]
 
 
-def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
-    """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS looks given in degrees: its
+def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = None) -> None:
+    """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS (or with ``crs``, one that
+    PROJ cannot read: :func:`_unreadable_crs`) looks given in degrees: its
     nodes lie within longitudes and latitudes (x in [-180, 360], y in [-90, 90]) and its heights span more than
     :data:`_DEGREES_RELIEF` times its width and height. Read as metres (a GeoTIFF whose CRS was lost, a world file
     without its .prj), an SRTM tile became a needle a few centimetres wide under hundreds of metres of relief,
@@ -1598,7 +1610,8 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
         hint = "save it beside the 'transform' (crs='EPSG:4326')"
     dx, dy = terrain.spacing
     warnings.warn(
-        f"{name}: it names no CRS, so its coordinates were read as metres, but they look like degrees: nodes at x "
+        f"{name}: {'it names no CRS' if crs is None else f'its CRS {crs!r} is not one PROJ can read'}, so its "
+        f"coordinates were read as metres, but they look like degrees: nodes at x "
         f"{x_min:.9g} to {x_max:.9g}, y {y_min:.9g} to {y_max:.9g} (cells of {abs(dx):.6g} x {abs(dy):.6g}) under "
         f"heights spanning {high - low:.6g}, {(high - low) / across:.3g} times the grid's size; if they are degrees, "
         f"give the file its CRS: {hint}",

@@ -1732,3 +1732,26 @@ def test_a_geotiff_scale_of_zero_or_not_finite_is_refused_naming_it(tmp_path, sc
         load_dem(path)
     with pytest.raises(DataFileError, match=message):  # the window of a crop too
         load_dem(path, crop=(500015.0, 500075.0, 3999900.0, 3999985.0))
+
+
+@pytest.mark.parametrize("crs", ["4326", "EPSG:99999", "WGS 84 lon/lat"])
+def test_a_grid_in_degrees_under_a_crs_proj_cannot_read_warns_as_one_without_a_crs(tmp_path, crs):
+    """An .npz in degrees saved with a CRS that PROJ cannot read (crs="4326", an EPSG code that does not exist, a
+    free-text name) was read as metres with its CRS kept, without a word: a needle a few centimetres wide under
+    hundreds of metres of relief, as a grid with no CRS at all was before it warned. An unreadable CRS says no more
+    than none, so it warns the same, naming the CRS; a readable projected one does not."""
+    pytest.importorskip("rasterio")
+    with np.load(SHARED_DATA / "front_range_srtmgl3_3arcsec.npz") as data:
+        z, transform = data["elevation"][:40, :50], data["transform"]
+    np.savez(tmp_path / "front.npz", elevation=z, transform=transform, crs=crs)
+    message = (rf"front\.npz: its CRS {re.escape(repr(crs))} is not one PROJ can read, so its coordinates were read as "
+               r"metres, but they look like degrees: nodes at x -105\.81.*give the file its CRS: save it beside the "
+               r"'transform' \(crs='EPSG:4326'\)")
+    with pytest.warns(UserWarning, match=message):
+        terrain = load_dem(tmp_path / "front.npz")
+    assert terrain.crs == crs and terrain.spacing == (transform[1], transform[5])  # read as before
+    np.savez(tmp_path / "utm.npz", elevation=z, transform=np.array([450000.0, 90.0, 0.0, 4480000.0, 0.0, -90.0]),
+             crs="EPSG:99999")  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(tmp_path / "utm.npz")  # metres by the look of them: nothing to say
