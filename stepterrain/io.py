@@ -211,9 +211,9 @@ def load_dem(
         keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
         int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
         and named with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot
-        read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
-        times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
-        give it.
+        read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to
+        360 and y -90 to 90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile
+        was a needle centimetres wide), naming the CRS to give it.
 
     Raises
     ------
