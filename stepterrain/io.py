@@ -1193,10 +1193,9 @@ def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
         _check_declared_size(member, archive.zip.getinfo(name).file_size, file, f"member {key!r}")
     try:
         return np.asarray(archive[key])
-    except ValueError as exc:  # object arrays need pickle, which stays off
-        raise DataFileError(
-            f"cannot read {str(file)!r}: member {key!r} holds Python objects ({exc})"
-        ) from exc
+    except ValueError as exc:  # object arrays need pickle, which stays off; else a damaged member (a header cut short)
+        what = "holds Python objects" if "allow_pickle" in str(exc) else "is unreadable"
+        raise DataFileError(f"cannot read {str(file)!r}: member {key!r} {what} ({exc})") from exc
 
 
 def _npz_one(value: Any, key: str, kinds: str, expected: str, file: Path) -> NDArray[Any] | None:

@@ -1755,3 +1755,21 @@ def test_a_grid_in_degrees_under_a_crs_proj_cannot_read_warns_as_one_without_a_c
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         load_dem(tmp_path / "utm.npz")  # metres by the look of them: nothing to say
+
+
+def test_an_npz_member_cut_short_is_called_unreadable_not_python_objects(tmp_path):
+    """A member of an .npz whose .npy header was cut short (a damaged archive) was refused as "member 'elevation'
+    holds Python objects (EOF: reading array header ...)": every ValueError of NumPy's read was taken for the
+    allow_pickle refusal. Now it is called unreadable; a member of Python objects is still named as such."""
+    import io
+    import zipfile
+
+    buffer = io.BytesIO()
+    np.save(buffer, np.arange(12.0).reshape(3, 4))
+    with zipfile.ZipFile(tmp_path / "cut.npz", "w") as archive:
+        archive.writestr("elevation.npy", buffer.getvalue()[:100])
+    with pytest.raises(DataFileError, match=r"cut\.npz': member 'elevation' is unreadable \(EOF: reading array header"):
+        load_dem(tmp_path / "cut.npz")
+    np.savez(tmp_path / "objects.npz", elevation=np.array([[1, "a"], [2, None]], dtype=object))
+    with pytest.raises(DataFileError, match=r"objects\.npz': member 'elevation' holds Python objects"):
+        load_dem(tmp_path / "objects.npz")
