@@ -210,10 +210,10 @@ def load_dem(
         ``.aux.xml`` geotransform, which is not read (the message gives the ``gdal_translate`` to a GeoTIFF that
         keeps it); cells no nodata value or mask marks that hold the lowest value of a signed integer (-32768 in
         int16, SRTM's void) or float dtype (-3.4028235e+38 in float32, ArcGIS's NoData), read as heights, counted
-        and named with the nodata value to declare; a grid georeferenced without a CRS whose
-        coordinates look like degrees (nodes within x -180 to 360 and y -90 to 90, heights spanning more than 100
-        times its width and height: read as metres, an SRTM tile was a needle centimetres wide), naming the CRS to
-        give it.
+        and named with the nodata value to declare; a grid georeferenced without a CRS (or with one PROJ cannot
+        read, kept as given: an .npz's ``crs="4326"``) whose coordinates look like degrees (nodes within x -180 to
+        360 and y -90 to 90, heights spanning more than 100 times its width and height: read as metres, an SRTM tile
+        was a needle centimetres wide), naming the CRS to give it.
 
     Raises
     ------
@@ -230,10 +230,12 @@ def load_dem(
         unevenly spaced,
         an .npz with keys that would georeference it (``crs``, ``dx``/``dy``, ``spacing``/``origin``, ``x``/``y``,
         one of ``lat`` and ``lon``, ...) but neither a ``transform`` nor both ``lat`` and ``lon``, an .npz
-        ``nodata`` that is not one real number, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
+        ``nodata`` that is not one real number, an .npz in degrees with one of ``dx_m``/``dy_m`` or either not
+        finite, non-zero metres, an .npz ``scale``/``offset`` (``scale_factor``/``add_offset``) of its
         heights other than 1/0 (not read: the heights are taken as stored), a ``mask`` or ``valid`` that is not a
         boolean array of the heights' shape, a .prj beside a GeoTIFF georeferenced without a CRS that is no CRS,
-        nothing but nodata, heights in a unit that is not a known length unit:
+        nothing but nodata, a GeoTIFF band's scale that is 0 or not finite or offset that is not finite, heights
+        in a unit that is not a known length unit:
         "degC", "meters above sea level"; ``height_unit`` overrides it), or is a GeoTIFF
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
@@ -521,13 +523,18 @@ def _each_npz_member(file: Path, read: Callable[[Any, str, Path], Any]) -> dict[
     an .npz name: :func:`read_npz` and :func:`npz_member_ndims` test that first), an unreadable archive or member a
     DataFileError in :func:`read_npz`'s words."""
     try:
-        archive = np.load(file, allow_pickle=False)  # the zip directory only
+        handle = open(file, "rb")  # opened here: np.load left the file open when zipfile refused it (truncated)
+        try:
+            archive = np.load(handle, allow_pickle=False)  # the zip directory only
+        except BaseException:
+            handle.close()
+            raise
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"
         ) from exc
     try:
-        with archive:
+        with handle, archive:
             return {key: read(archive, key, file) for key in archive.files}
     except DataFileError:
         raise
@@ -608,6 +615,12 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
             units_xy = _npz_text(arrays, "units_xy", file) or ""
             geographic = _is_geographic(crs) or "degree" in units_xy.lower()
         metres = None
+        if geographic and ("dx_m" in arrays) != ("dy_m" in arrays):  # one was ignored: metres from R and the degrees
+            given, missing = ("dx_m", "dy_m") if "dx_m" in arrays else ("dy_m", "dx_m")
+            raise DataFileError(
+                f"cannot read {str(file)!r}: expected both 'dx_m' and 'dy_m' (the metres per cell of its degrees) or "
+                f"neither; got {given!r} without {missing!r}"
+            )
         if geographic and "dx_m" in arrays and "dy_m" in arrays:
             dx_m, dy_m = arrays["dx_m"], arrays["dy_m"]
             if dx_m.size != 1 or dy_m.size != 1 or dx_m.dtype.kind not in "iuf" or dy_m.dtype.kind not in "iuf":
@@ -616,6 +629,11 @@ def _load_npz(file: Path, height_unit: str | None) -> Terrain:
                     f"got {dx_m.tolist()!r} and {dy_m.tolist()!r}"
                 )
             metres = (float(dx_m.reshape(())), float(dy_m.reshape(())))
+            if not all(math.isfinite(m) and m != 0.0 for m in metres):  # warned of "100 %" errors, then "spacing"
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: 'dx_m' and 'dy_m' must be finite, non-zero metres per cell; "
+                    f"got {metres[0]!r} and {metres[1]!r}"
+                )
         named_by = "height_unit" if height_unit else "its 'units'" if "units" in arrays else f"its CRS {crs}"
         unit, crs, factor = _vertical_unit(height_unit or _npz_text(arrays, "units", file), crs)
         heights, height_unit = _heights_in_metres(heights, unit, file, named_by, factor)
@@ -894,6 +912,12 @@ def _load_geotiff(
                     f"{what}, not elevation data"
                 )
             scale, offset = dataset.scales[band - 1], dataset.offsets[band - 1]
+            if not (math.isfinite(scale) and scale != 0.0 and math.isfinite(offset)):  # 0: one flat height, silently
+                raise DataFileError(
+                    f"cannot read {str(file)!r}: expected band {band}'s scale and offset (height = value * scale + "
+                    f"offset) to be a finite, non-zero scale and a finite offset; got scale {scale!r}, offset "
+                    f"{offset!r} (if the values are heights as stored: `gdal_edit.py -scale 1 -offset 0 {file.name}`)"
+                )
             file_unit = dataset.units[band - 1]
             transform = dataset.transform
             crs_obj = dataset.crs
@@ -1169,10 +1193,9 @@ def _npz_member(archive: Any, key: str, file: Path) -> NDArray[Any]:
         _check_declared_size(member, archive.zip.getinfo(name).file_size, file, f"member {key!r}")
     try:
         return np.asarray(archive[key])
-    except ValueError as exc:  # object arrays need pickle, which stays off
-        raise DataFileError(
-            f"cannot read {str(file)!r}: member {key!r} holds Python objects ({exc})"
-        ) from exc
+    except ValueError as exc:  # object arrays need pickle, which stays off; else a damaged member (a header cut short)
+        what = "holds Python objects" if "allow_pickle" in str(exc) else "is unreadable"
+        raise DataFileError(f"cannot read {str(file)!r}: member {key!r} {what} ({exc})") from exc
 
 
 def _npz_one(value: Any, key: str, kinds: str, expected: str, file: Path) -> NDArray[Any] | None:
@@ -1412,8 +1435,19 @@ def _check_placed(file: Path, place: _Placement, terrain: Terrain) -> None:
     if place.projected is None:
         return
     _check_projected_metres(file, *place.projected)
-    if place.projected[0] is None:
-        _check_degrees_without_crs(file, terrain)
+    crs = place.projected[0]
+    if crs is None or _unreadable_crs(crs):  # one PROJ cannot read (an .npz's crs="4326") says no more than none
+        _check_degrees_without_crs(file, terrain, crs)
+
+
+def _unreadable_crs(crs: str) -> bool:
+    """Whether rasterio is installed and cannot read ``crs`` (an .npz's ``crs="4326"``, an EPSG code that does not
+    exist, a free-text name): :func:`load_dem` keeps such a CRS and reads the grid's coordinates as metres."""
+    try:
+        import rasterio.crs  # noqa: F401  (without it no CRS is read: nothing to tell)
+    except ImportError:
+        return False
+    return _crs_object(crs) is None
 
 
 class _NotDegrees(DataFileError):
@@ -1559,8 +1593,9 @@ def degrees_as_local_metres(
     return place.spacing, place.origin, place.crs, place.source
 
 
-def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
-    """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS looks given in degrees: its
+def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = None) -> None:
+    """Warn, at the caller of :func:`load_dem`, when a grid georeferenced without a CRS (or with ``crs``, one that
+    PROJ cannot read: :func:`_unreadable_crs`) looks given in degrees: its
     nodes lie within longitudes and latitudes (x in [-180, 360], y in [-90, 90]) and its heights span more than
     :data:`_DEGREES_RELIEF` times its width and height. Read as metres (a GeoTIFF whose CRS was lost, a world file
     without its .prj), an SRTM tile became a needle a few centimetres wide under hundreds of metres of relief,
@@ -1580,7 +1615,8 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain) -> None:
         hint = "save it beside the 'transform' (crs='EPSG:4326')"
     dx, dy = terrain.spacing
     warnings.warn(
-        f"{name}: it names no CRS, so its coordinates were read as metres, but they look like degrees: nodes at x "
+        f"{name}: {'it names no CRS' if crs is None else f'its CRS {crs!r} is not one PROJ can read'}, so its "
+        f"coordinates were read as metres, but they look like degrees: nodes at x "
         f"{x_min:.9g} to {x_max:.9g}, y {y_min:.9g} to {y_max:.9g} (cells of {abs(dx):.6g} x {abs(dy):.6g}) under "
         f"heights spanning {high - low:.6g}, {(high - low) / across:.3g} times the grid's size; if they are degrees, "
         f"give the file its CRS: {hint}",

@@ -1668,3 +1668,108 @@ def test_the_lowest_value_of_a_signed_or_float_dtype_unmarked_by_nodata_is_named
     assert told(tmp_path / "masked.npz")[1] == []
     Image.fromarray(np.where(z < 0, 65535, z).astype(np.uint16)).save(tmp_path / "peak.png")
     assert told(tmp_path / "peak.png")[1] == []
+
+
+@pytest.mark.parametrize(
+    ("dx_m", "dy_m", "message"),
+    [(0.0, 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 0\.0 and 1111\.0"),
+     (float("nan"), 1111.0, r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got nan and 1111\.0"),
+     (785.0, float("inf"), r"'dx_m' and 'dy_m' must be finite, non-zero metres per cell; got 785\.0 and inf"),
+     (785.0, None, r"both 'dx_m' and 'dy_m'.*got 'dx_m' without 'dy_m'"),
+     (None, 1111.0, r"both 'dx_m' and 'dy_m'.*got 'dy_m' without 'dx_m'")],
+)  # fmt: skip
+def test_npz_dx_m_dy_m_that_are_no_metres_are_refused_by_name(tmp_path, dx_m, dy_m, message):
+    """An .npz in degrees with dx_m = 0, NaN or inf warned that its metres erred "by up to 100 %" ("nan %", or that
+    NaN gave "more metres per degree of longitude than of latitude") and then failed on "spacing must be non-zero"
+    or "a pair of finite numbers", naming a spacing the file does not hold; one of dx_m, dy_m without the other was
+    ignored without a word (the grid's metres then came from R and the degrees). Now a DataFileError names the keys,
+    before any warning."""
+    z = np.arange(231.0, dtype=np.float32).reshape(11, 21)
+    transform = np.array([10.0, 0.01, 0.0, 45.0, 0.0, -0.01])
+    keys = {name: value for name, value in (("dx_m", dx_m), ("dy_m", dy_m)) if value is not None}
+    np.savez(tmp_path / "m.npz", elevation=z, transform=transform, crs="EPSG:4326", **keys)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(DataFileError, match=r"m\.npz.*" + message):
+            load_dem(tmp_path / "m.npz")
+    assert [str(w.message) for w in caught] == []
+
+
+def test_a_truncated_npz_leaves_no_file_open(tmp_path):
+    """A truncated .npz (a copy cut short: the zip's central directory lost) was refused, but np.load, which opens
+    the file itself, left it open when zipfile failed on it: a ResourceWarning per file, and a handle held until the
+    garbage collector found it (a batch over a folder of damaged downloads). The file is opened and closed here."""
+    import gc
+
+    np.savez(tmp_path / "whole.npz", elevation=np.arange(2000.0).reshape(40, 50))
+    data = (tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(DataFileError, match=r"cut\.npz.*expected a NumPy \.npz archive; got unreadable content"):
+            load_dem(tmp_path / "cut.npz")
+        gc.collect()
+    assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
+
+
+@pytest.mark.parametrize(("scale", "offset"), [(0.0, 0.0), (0.0, 250.0), (float("nan"), 0.0), (0.1, float("nan")),
+                                               (float("inf"), 0.0), (1.0, float("-inf"))])  # fmt: skip
+def test_a_geotiff_scale_of_zero_or_not_finite_is_refused_naming_it(tmp_path, scale, offset):
+    """A band whose scale is 0 (a producer's placeholder) read every cell as the offset: a flat terrain at 0 m (or
+    250 m), silently, its relief lost; a NaN or infinite scale or offset made every height NaN and was refused as
+    "all nodata", which the file is not. Now a DataFileError names the band's scale and offset."""
+    rasterio = pytest.importorskip("rasterio")
+
+    z = (np.arange(20, dtype=np.int16) * 7).reshape(4, 5)
+    path = tmp_path / "scaled.tif"
+    with rasterio.open(path, "w", driver="GTiff", height=4, width=5, count=1, dtype="int16", crs="EPSG:32611",
+                       transform=rasterio.Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0)) as ds:  # fmt: skip
+        ds.write(z, 1)
+        ds.scales, ds.offsets = (scale,), (offset,)
+    message = (r"scaled\.tif.*expected band 1's scale and offset \(height = value \* scale \+ offset\) to be a finite, "
+               rf"non-zero scale and a finite offset; got scale {scale!r}, offset {offset!r}")
+    with pytest.raises(DataFileError, match=message):
+        load_dem(path)
+    with pytest.raises(DataFileError, match=message):  # the window of a crop too
+        load_dem(path, crop=(500015.0, 500075.0, 3999900.0, 3999985.0))
+
+
+@pytest.mark.parametrize("crs", ["4326", "EPSG:99999", "WGS 84 lon/lat"])
+def test_a_grid_in_degrees_under_a_crs_proj_cannot_read_warns_as_one_without_a_crs(tmp_path, crs):
+    """An .npz in degrees saved with a CRS that PROJ cannot read (crs="4326", an EPSG code that does not exist, a
+    free-text name) was read as metres with its CRS kept, without a word: a needle a few centimetres wide under
+    hundreds of metres of relief, as a grid with no CRS at all was before it warned. An unreadable CRS says no more
+    than none, so it warns the same, naming the CRS; a readable projected one does not."""
+    pytest.importorskip("rasterio")
+    with np.load(SHARED_DATA / "front_range_srtmgl3_3arcsec.npz") as data:
+        z, transform = data["elevation"][:40, :50], data["transform"]
+    np.savez(tmp_path / "front.npz", elevation=z, transform=transform, crs=crs)
+    message = (rf"front\.npz: its CRS {re.escape(repr(crs))} is not one PROJ can read, so its coordinates were read as "
+               r"metres, but they look like degrees: nodes at x -105\.81.*give the file its CRS: save it beside the "
+               r"'transform' \(crs='EPSG:4326'\)")
+    with pytest.warns(UserWarning, match=message):
+        terrain = load_dem(tmp_path / "front.npz")
+    assert terrain.crs == crs and terrain.spacing == (transform[1], transform[5])  # read as before
+    np.savez(tmp_path / "utm.npz", elevation=z, transform=np.array([450000.0, 90.0, 0.0, 4480000.0, 0.0, -90.0]),
+             crs="EPSG:99999")  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        load_dem(tmp_path / "utm.npz")  # metres by the look of them: nothing to say
+
+
+def test_an_npz_member_cut_short_is_called_unreadable_not_python_objects(tmp_path):
+    """A member of an .npz whose .npy header was cut short (a damaged archive) was refused as "member 'elevation'
+    holds Python objects (EOF: reading array header ...)": every ValueError of NumPy's read was taken for the
+    allow_pickle refusal. Now it is called unreadable; a member of Python objects is still named as such."""
+    import io
+    import zipfile
+
+    buffer = io.BytesIO()
+    np.save(buffer, np.arange(12.0).reshape(3, 4))
+    with zipfile.ZipFile(tmp_path / "cut.npz", "w") as archive:
+        archive.writestr("elevation.npy", buffer.getvalue()[:100])
+    with pytest.raises(DataFileError, match=r"cut\.npz': member 'elevation' is unreadable \(EOF: reading array header"):
+        load_dem(tmp_path / "cut.npz")
+    np.savez(tmp_path / "objects.npz", elevation=np.array([[1, "a"], [2, None]], dtype=object))
+    with pytest.raises(DataFileError, match=r"objects\.npz': member 'elevation' holds Python objects"):
+        load_dem(tmp_path / "objects.npz")
