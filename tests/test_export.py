@@ -366,7 +366,7 @@ def test_3mf_is_written_without_lxml_or_networkx(tmp_path, monkeypatch):
 
 
 # ---------------------------------------------------------------------------------------------- atomicity
-def failing_writer(mesh, tmp, target, bounds, frame):
+def failing_writer(mesh, tmp, *_):  # a .glb writer also takes the anchor
     tmp.write_bytes(b"partial glb bytes")
     raise RuntimeError("exporter died midway")
 
@@ -389,7 +389,7 @@ def test_failed_export_keeps_existing_target(tmp_path, monkeypatch):
 
 
 def test_os_error_in_writer_becomes_data_file_error(tmp_path, monkeypatch):
-    def disk_full(mesh, tmp, target, bounds, frame):
+    def disk_full(mesh, tmp, *_):
         raise OSError(28, "No space left on device")
 
     monkeypatch.setitem(export._WRITERS, ".stl", disk_full)
