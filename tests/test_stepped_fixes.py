@@ -902,3 +902,37 @@ def test_solid_does_not_warn_for_heights_no_triangle_uses():
     np.testing.assert_array_equal(tin_solid.faces, bare.faces)
     np.testing.assert_array_equal(tin_solid.vertices, bare.vertices)
     assert tin_solid.is_watertight and grid_solid.is_watertight
+
+
+def _rolled_triangles(mesh):
+    """The mesh's triangles as sorted rows of corner coordinates, each rotated to start at its smallest corner
+    (winding kept): an order-free comparison of two meshes' faces."""
+    tri = mesh.vertices[mesh.faces]
+    keys = [min(range(3), key=lambda k, t=t: tuple(t[k])) for t in tri]
+    rolled = np.array([np.roll(t, -k, axis=0) for t, k in zip(tri, keys, strict=True)]).reshape(-1, 9)
+    return rolled[np.lexsort(rolled.T[::-1])]
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st_.integers(0, 2**31 - 1), solid=st_.booleans())
+def test_a_tin_with_faces_wound_either_way_steps_as_the_one_wound_up(seed, solid):
+    """A TIN some of whose faces are wound clockwise and the others counter-clockwise (two tiles of a DEM from
+    exporters of opposite conventions, merged; a triangle soup whose faces were flipped one by one) projects
+    one-to-one onto the xy plane, yet was refused as folding over ("wound against the rest", with advice on
+    decimation): only a mesh wound all one way was turned up. Faces wound down that overlap no other face now turn
+    up, and the TIN steps as the one wound consistently; real folds are still refused (they overlap their
+    neighbours: test_folded_faces_are_counted_named_placed_and_the_hints_in_the_refusal_work)."""
+    rng = np.random.default_rng(seed)
+    heights = st.sample_dem().heights[::8, ::8][:24, :20].astype(np.float64)
+    up = st.heightfield_mesh(heights, spacing=(30.0, -30.0), origin=(376000.0, 3807000.0))
+    down = rng.random(len(up.faces)) < rng.choice([0.1, 0.5, 0.9])
+    centre = up.triangles_center[:, 0] < np.median(up.vertices[:, 0])
+    down = down if rng.random() < 0.5 else centre  # single faces, or a whole tile
+    faces = np.where(down[:, None], up.faces[:, ::-1], up.faces)
+    mixed = trimesh.Trimesh(up.vertices, faces, process=False)
+    want = st.stepped(up, interval=50.0, solid=solid)
+    got = st.stepped(mixed, interval=50.0, solid=solid)
+    np.testing.assert_array_equal(_rolled_triangles(got), _rolled_triangles(want))
+    assert_valid_mesh(got)
+    if solid:
+        assert got.is_watertight and got.volume == pytest.approx(want.volume, rel=1e-12)
