@@ -936,3 +936,15 @@ def test_a_tin_with_faces_wound_either_way_steps_as_the_one_wound_up(seed, solid
     assert_valid_mesh(got)
     if solid:
         assert got.is_watertight and got.volume == pytest.approx(want.volume, rel=1e-12)
+
+
+def test_a_count_of_levels_just_over_the_limit_is_given_exactly():
+    """interval=1 over heights [0, 1e6] gives 1,000,001 levels, one over the limit: the refusal rounded the count to
+    three digits, "gives 1e+06 levels; at most 1,000,000 are supported", which reads as within it. A count under a
+    billion is now written out; larger ones stay rounded (test_stepped: "gives 1e+300 levels")."""
+    heights = np.array([[0.0, 5e5], [2.5e5, 1e6]])
+    with pytest.raises(st.InvalidInputError, match=r"gives 1,000,001 levels; at most 1,000,000 are supported"):
+        st.stepped(heights, interval=1.0)
+    with pytest.raises(st.InvalidInputError, match=r"gives 2,000,001 levels; at most 1,000,000 are supported"):
+        st.isovalues((0.0, 1e6), interval=0.5)
+    assert len(st.isovalues((0.0, 999_999.0), interval=1.0)) == 1_000_000
