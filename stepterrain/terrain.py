@@ -769,12 +769,15 @@ class Terrain:
             folded = InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
                                        + _y_up_hint(points, faces, flipped) + _float32_hint(points, point_used))
             # Faces wound down that overlap no other face are only wound the other way (tiles from exporters of
-            # opposite conventions, merged): turned up. A face that folds over shares an edge with a neighbour,
-            # run the other way; turned, the two run it the same way, which the edge table refuses, as it refuses
-            # a face turned onto another one (the overlap check): either is the fold refused.
+            # opposite conventions, merged): turned up. A face that folds over shares an edge with a neighbour, run
+            # the other way; turned, the two run it the same way in xy (refused here, also where the points are kept
+            # apart, as in a soup with a colour per corner) and the edge table refuses it as well, as the overlap
+            # check refuses a face turned onto another one: either way the fold is refused.
             faces = faces.copy()
             faces[negative] = faces[negative, ::-1]
             positive = positive | negative
+            if _same_way_in_xy(xy, faces[positive]):
+                raise folded
         welded = _welded(points, faces, visual)
         try:
             edges, face_edges = _edge_table(welded, len(points), np.flatnonzero(valid))
@@ -1300,6 +1303,15 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
         canonical[apart] = np.flatnonzero(apart)
         welded = canonical[faces]
     return welded
+
+
+def _same_way_in_xy(xy: NDArray[np.float64], faces: NDArray[np.int64]) -> bool:
+    """Whether two of ``faces`` (of positive area, wound counter-clockwise) run an edge between the same two xy
+    positions the same way: in a TIN that projects one-to-one every edge inside has one face on either side, which
+    run it opposite ways, so the two overlap (a fold turned up lies over the neighbour it folded across)."""
+    ends = xy[faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)].reshape(-1, 4) + 0.0  # -0.0 as 0.0
+    keys = np.sort(np.ascontiguousarray(ends).view(np.dtype((np.void, 32))).reshape(-1))
+    return bool((keys[1:] == keys[:-1]).any())
 
 
 def _edge_table(faces: NDArray[np.int64], n_points: int,

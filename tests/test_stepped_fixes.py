@@ -930,6 +930,9 @@ def test_a_tin_with_faces_wound_either_way_steps_as_the_one_wound_up(seed, solid
     down = down if rng.random() < 0.5 else centre  # single faces, or a whole tile
     faces = np.where(down[:, None], up.faces[:, ::-1], up.faces)
     mixed = trimesh.Trimesh(up.vertices, faces, process=False)
+    if rng.random() < 0.3:  # as an STL file holds it: three points of its own per face
+        mixed = trimesh.Trimesh(up.vertices[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3),
+                                process=False)
     want = st.stepped(up, interval=50.0, solid=solid)
     got = st.stepped(mixed, interval=50.0, solid=solid)
     np.testing.assert_array_equal(_rolled_triangles(got), _rolled_triangles(want))
@@ -948,3 +951,21 @@ def test_a_count_of_levels_just_over_the_limit_is_given_exactly():
     with pytest.raises(st.InvalidInputError, match=r"gives 2,000,001 levels; at most 1,000,000 are supported"):
         st.isovalues((0.0, 1e6), interval=0.5)
     assert len(st.isovalues((0.0, 999_999.0), interval=1.0)) == 1_000_000
+
+
+@pytest.mark.parametrize("moved", [(1.4, 0.3), (1.0 + 1e-6, 1e-6)], ids=["across", "onto its neighbour"])
+@pytest.mark.parametrize("kind", ["welded", "soup", "coloured soup"])
+def test_a_fold_is_refused_however_its_points_are_shared(kind, moved):
+    """Faces wound down turn up only where no face then runs an edge of another the same way in xy (a fold does,
+    with the neighbour it folds over): a triangle soup whose points stay apart (one vertex colour per corner) shares
+    no edge by index, and a fold there, too small for the overlap check, was stepped when wound faces were turned."""
+    base = st.heightfield_mesh(np.random.default_rng(1).random((9, 12)) * 3.0)
+    points = base.vertices.copy()
+    points[4 * 12 + 5, :2] += moved
+    mesh = trimesh.Trimesh(points, base.faces, process=False)
+    if kind != "welded":
+        soup = points[base.faces].reshape(-1, 3)
+        colours = np.random.default_rng(0).integers(0, 255, (len(soup), 4)).astype(np.uint8) if kind != "soup" else None
+        mesh = trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), vertex_colors=colours, process=False)
+    with pytest.raises(st.InvalidInputError, match=r"faces with finite heights fold over \(wound against the rest\)"):
+        st.stepped(mesh, interval=0.5)
