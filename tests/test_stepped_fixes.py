@@ -908,8 +908,9 @@ def _rolled_triangles(mesh):
     """The mesh's triangles as sorted rows of corner coordinates, each rotated to start at its smallest corner
     (winding kept): an order-free comparison of two meshes' faces."""
     tri = mesh.vertices[mesh.faces]
-    keys = [min(range(3), key=lambda k, t=t: tuple(t[k])) for t in tri]
-    rolled = np.array([np.roll(t, -k, axis=0) for t, k in zip(tri, keys, strict=True)]).reshape(-1, 9)
+    _, rank = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)  # corners ranked by their coordinates
+    first = np.argmin(rank.reshape(-1, 3), axis=1)
+    rolled = tri[np.arange(len(tri))[:, None], (first[:, None] + np.arange(3)) % 3].reshape(-1, 9)
     return rolled[np.lexsort(rolled.T[::-1])]
 
 
