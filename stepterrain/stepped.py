@@ -359,9 +359,10 @@ def isovalues(
         )
     k0, k1 = math.floor(k0f), math.ceil(k1f)
     if k1 - k0 + 1 > MAX_LEVELS:
+        count = k1 - k0 + 1  # written out where rounding would hide how far over the limit it is (1e+06: 1,000,001)
         raise InvalidInputError(
-            f"interval={step:g} over heights [{lo:g}, {hi:g}] gives {float(k1 - k0 + 1):.3g} levels; at most "
-            f"{MAX_LEVELS:,} are supported"
+            f"interval={step:g} over heights [{lo:g}, {hi:g}] gives "
+            f"{f'{count:,}' if count < 10**9 else f'{float(count):.3g}'} levels; at most {MAX_LEVELS:,} are supported"
         )
     far = max(abs(k0f), abs(k1f))
     if far > _EXACT_COUNT and abs(base) > step * _EXACT_COUNT:  # base's rounding error alone exceeds an interval:

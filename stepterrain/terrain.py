@@ -666,7 +666,8 @@ class Terrain:
     def from_mesh(cls, mesh: trimesh.Trimesh, *, source: str | None = None) -> Terrain:
         """A TIN from a ``trimesh.Trimesh`` whose faces project one-to-one onto the xy plane.
 
-        Faces touching a non-finite height are dropped (nodata); a mesh wound clockwise is flipped; points that
+        Faces touching a non-finite height are dropped (nodata); faces wound clockwise seen from above (the whole
+        mesh, or some of its faces: tiles from exporters of opposite conventions, merged) are turned up; points that
         coincide (the same x, y and z, and vertex colour or UV) are welded, so a triangle soup (an STL file) or a
         mesh of several parts (a glTF's primitives) steps as one welded surface, and its solid has no walls inside
         (a per-node γ array is read at the first of such points);
@@ -763,13 +764,26 @@ class Terrain:
                 f"one point: x over {span[0]:.6g}, y over {span[1]:.6g}), so it is no height field"
                 f"{_y_up_hint(points, faces, flipped)}"
             )
+        folded = None
         if negative.any():
-            raise InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
-                                    + _y_up_hint(points, faces, flipped) + _float32_hint(points, point_used))
+            folded = InvalidInputError(_folded_message(points, faces, negative, np.flatnonzero(valid), flipped, source)
+                                       + _y_up_hint(points, faces, flipped) + _float32_hint(points, point_used))
+            # Faces wound down that overlap no other face are only wound the other way (tiles from exporters of
+            # opposite conventions, merged): turned up. A face that folds over shares an edge with a neighbour, run
+            # the other way; turned, the two run it the same way in xy (refused here, also where the points are kept
+            # apart, as in a soup with a colour per corner) and the edge table refuses it as well, as the overlap
+            # check refuses a face turned onto another one: either way the fold is refused.
+            faces = faces.copy()
+            faces[negative] = faces[negative, ::-1]
+            positive = positive | negative
+            if _same_way_in_xy(xy, faces[positive]):
+                raise folded
         welded = _welded(points, faces, visual)
         try:
             edges, face_edges = _edge_table(welded, len(points), np.flatnonzero(valid))
         except InvalidInputError:
+            if folded is not None:
+                raise folded from None
             if welded is faces:
                 raise
             # coincident points kept apart (two copies of a face, welded, share their edges): as given, the overlap
@@ -783,6 +797,8 @@ class Terrain:
         corner = used_xy.min(axis=0)
         with np.errstate(over="ignore"):  # a stray point (on no kept face) far away may go to inf: no face's
             overlap = _overlap_in_xy(xy - corner, faces, positive, face_edges, len(edges))
+        if overlap is not None and folded is not None:
+            raise folded
         if overlap is not None:  # faces that do not fold, stacked or wrapped over each other (see _overlap_in_xy)
             first, second, point, count = overlap
             kept = np.flatnonzero(valid)  # the faces' indices in the mesh given
@@ -1287,6 +1303,15 @@ def _welded(points: NDArray[np.float64], faces: NDArray[np.int64], visual: Any) 
         canonical[apart] = np.flatnonzero(apart)
         welded = canonical[faces]
     return welded
+
+
+def _same_way_in_xy(xy: NDArray[np.float64], faces: NDArray[np.int64]) -> bool:
+    """Whether two of ``faces`` (of positive area, wound counter-clockwise) run an edge between the same two xy
+    positions the same way: in a TIN that projects one-to-one every edge inside has one face on either side, which
+    run it opposite ways, so the two overlap (a fold turned up lies over the neighbour it folded across)."""
+    ends = xy[faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)].reshape(-1, 4) + 0.0  # -0.0 as 0.0
+    keys = np.sort(np.ascontiguousarray(ends).view(np.dtype((np.void, 32))).reshape(-1))
+    return bool((keys[1:] == keys[:-1]).any())
 
 
 def _edge_table(faces: NDArray[np.int64], n_points: int,

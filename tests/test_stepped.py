@@ -626,10 +626,12 @@ def test_clockwise_tin_is_flipped_and_folded_tin_refused():
     clockwise = trimesh.Trimesh(base.vertices, base.faces[:, ::-1], process=False)
     mesh = st.stepped(clockwise, interval=1.0)
     assert (mesh.face_normals[~mesh.face_attributes["wall"], 2] > 0).all()
-    folded = base.faces.copy()
-    folded[0] = folded[0, ::-1]
+    # a face wound the other way alone does not fold (test_a_tin_with_faces_wound_either_way_steps_as_the_one_wound_up)
+    # the middle node moved across its neighbours' edge does
+    folded = base.vertices.copy()
+    folded[4, :2] = [0.4, 1.8]
     with pytest.raises(st.InvalidInputError, match="fold"):
-        st.stepped(trimesh.Trimesh(base.vertices, folded, process=False), interval=1.0)
+        st.stepped(trimesh.Trimesh(folded, base.faces, process=False), interval=1.0)
 
 
 def test_negative_dy_keeps_counter_clockwise_faces(dem):

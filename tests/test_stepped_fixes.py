@@ -919,3 +919,71 @@ def test_grid_past_the_int32_vertex_slots_is_refused_before_the_count_pass(monke
         st.stepped(heights, interval=20.0, device="cpu")
     monkeypatch.setattr(stepped_module, "_INT32_MAX", slots)
     assert len(st.stepped(heights, interval=20.0, device="cpu").faces) > 0
+
+
+def _rolled_triangles(mesh):
+    """The mesh's triangles as sorted rows of corner coordinates, each rotated to start at its smallest corner
+    (winding kept): an order-free comparison of two meshes' faces."""
+    tri = mesh.vertices[mesh.faces]
+    _, rank = np.unique(tri.reshape(-1, 3), axis=0, return_inverse=True)  # corners ranked by their coordinates
+    first = np.argmin(rank.reshape(-1, 3), axis=1)
+    rolled = tri[np.arange(len(tri))[:, None], (first[:, None] + np.arange(3)) % 3].reshape(-1, 9)
+    return rolled[np.lexsort(rolled.T[::-1])]
+
+
+@settings(max_examples=12, deadline=None)
+@given(seed=st_.integers(0, 2**31 - 1), solid=st_.booleans())
+def test_a_tin_with_faces_wound_either_way_steps_as_the_one_wound_up(seed, solid):
+    """A TIN some of whose faces are wound clockwise and the others counter-clockwise (two tiles of a DEM from
+    exporters of opposite conventions, merged; a triangle soup whose faces were flipped one by one) projects
+    one-to-one onto the xy plane, yet was refused as folding over ("wound against the rest", with advice on
+    decimation): only a mesh wound all one way was turned up. Faces wound down that overlap no other face now turn
+    up, and the TIN steps as the one wound consistently; real folds are still refused (they overlap their
+    neighbours: test_folded_faces_are_counted_named_placed_and_the_hints_in_the_refusal_work)."""
+    rng = np.random.default_rng(seed)
+    heights = st.sample_dem().heights[::8, ::8][:24, :20].astype(np.float64)
+    up = st.heightfield_mesh(heights, spacing=(30.0, -30.0), origin=(376000.0, 3807000.0))
+    down = rng.random(len(up.faces)) < rng.choice([0.1, 0.5, 0.9])
+    centre = up.triangles_center[:, 0] < np.median(up.vertices[:, 0])
+    down = down if rng.random() < 0.5 else centre  # single faces, or a whole tile
+    faces = np.where(down[:, None], up.faces[:, ::-1], up.faces)
+    mixed = trimesh.Trimesh(up.vertices, faces, process=False)
+    if rng.random() < 0.3:  # as an STL file holds it: three points of its own per face
+        mixed = trimesh.Trimesh(up.vertices[faces].reshape(-1, 3), np.arange(3 * len(faces)).reshape(-1, 3),
+                                process=False)
+    want = st.stepped(up, interval=50.0, solid=solid)
+    got = st.stepped(mixed, interval=50.0, solid=solid)
+    np.testing.assert_array_equal(_rolled_triangles(got), _rolled_triangles(want))
+    assert_valid_mesh(got)
+    if solid:
+        assert got.is_watertight and got.volume == pytest.approx(want.volume, rel=1e-12)
+
+
+def test_a_count_of_levels_just_over_the_limit_is_given_exactly():
+    """interval=1 over heights [0, 1e6] gives 1,000,001 levels, one over the limit: the refusal rounded the count to
+    three digits, "gives 1e+06 levels; at most 1,000,000 are supported", which reads as within it. A count under a
+    billion is now written out; larger ones stay rounded (test_stepped: "gives 1e+300 levels")."""
+    heights = np.array([[0.0, 5e5], [2.5e5, 1e6]])
+    with pytest.raises(st.InvalidInputError, match=r"gives 1,000,001 levels; at most 1,000,000 are supported"):
+        st.stepped(heights, interval=1.0)
+    with pytest.raises(st.InvalidInputError, match=r"gives 2,000,001 levels; at most 1,000,000 are supported"):
+        st.isovalues((0.0, 1e6), interval=0.5)
+    assert len(st.isovalues((0.0, 999_999.0), interval=1.0)) == 1_000_000
+
+
+@pytest.mark.parametrize("moved", [(1.4, 0.3), (1.0 + 1e-6, 1e-6)], ids=["across", "onto its neighbour"])
+@pytest.mark.parametrize("kind", ["welded", "soup", "coloured soup"])
+def test_a_fold_is_refused_however_its_points_are_shared(kind, moved):
+    """Faces wound down turn up only where no face then runs an edge of another the same way in xy (a fold does,
+    with the neighbour it folds over): a triangle soup whose points stay apart (one vertex colour per corner) shares
+    no edge by index, and a fold there, too small for the overlap check, was stepped when wound faces were turned."""
+    base = st.heightfield_mesh(np.random.default_rng(1).random((9, 12)) * 3.0)
+    points = base.vertices.copy()
+    points[4 * 12 + 5, :2] += moved
+    mesh = trimesh.Trimesh(points, base.faces, process=False)
+    if kind != "welded":
+        soup = points[base.faces].reshape(-1, 3)
+        colours = np.random.default_rng(0).integers(0, 255, (len(soup), 4)).astype(np.uint8) if kind != "soup" else None
+        mesh = trimesh.Trimesh(soup, np.arange(len(soup)).reshape(-1, 3), vertex_colors=colours, process=False)
+    with pytest.raises(st.InvalidInputError, match=r"faces with finite heights fold over \(wound against the rest\)"):
+        st.stepped(mesh, interval=0.5)
