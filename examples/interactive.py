@@ -13,6 +13,8 @@ lens that shows the original terrain inside it. Every change re-steps the grid t
 from __future__ import annotations
 
 import argparse
+import itertools
+import math
 import sys
 from pathlib import Path
 
@@ -101,10 +103,27 @@ def build(plotter: pv.Plotter, grid: pv.ImageData, *, device: str | None = None)
     eye = ((xmin + xmax) / 2 - 0.2 * width, ymin - 1.2 * (ymax - ymin), 1.1 * width)
     plotter.camera_position = [eye, ((xmin + xmax) / 2, (ymin + ymax) / 2, lo * scene.z_scale), (0, 0, 1)]
     # that view direction, at the distance that shows the whole terrain: the eye placed by hand cut off its west and
-    # east ends (docs/interactive.png); the bounding sphere VTK fits leaves a margin, most of it taken back by zoom
+    # east ends (docs/interactive.png); the bounding sphere VTK fits leaves a margin, taken back by fitting the view
+    # angle to the terrain's projected box (a fixed zoom suited landscape windows only: a portrait one cut the ends)
     plotter.reset_camera()
-    plotter.camera.zoom(1.35)
+    fit_view(plotter, scene.mesh.bounds)
     return scene
+
+
+def fit_view(plotter: pv.Plotter, bounds: tuple[float, ...], *, side: float = 0.95, top: float = 0.6) -> None:
+    """Narrow (or widen) the camera's view angle so that the box ``bounds`` (xmin, xmax, ymin, ymax, zmin, zmax)
+    fills the window: its projection within ``side`` of the window's half-width and half-height from the centre,
+    and below ``top`` of its half-height above it (the sliders lie above)."""
+    corners = np.array(list(itertools.product(bounds[0:2], bounds[2:4], bounds[4:6])))
+    width, height = plotter.window_size
+    matrix = plotter.camera.GetCompositeProjectionTransformMatrix(width / height, -1, 1)
+    project = np.array([[matrix.GetElement(i, j) for j in range(4)] for i in range(4)])
+    clip = np.column_stack([corners, np.ones(len(corners))]) @ project.T
+    x, y = clip[:, 0] / clip[:, 3], clip[:, 1] / clip[:, 3]  # normalized device coordinates, -1 to 1
+    reach = max(np.abs(x).max() / side, y.max() / top, -y.min() / side)
+    # screen coordinates scale with tan(view angle / 2): the one angle that brings the box to its reach
+    angle = math.radians(plotter.camera.view_angle)
+    plotter.camera.view_angle = math.degrees(2.0 * math.atan(math.tan(angle / 2.0) * reach))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -207,7 +207,7 @@ class StepTerrainAccessor:
         mesh = stepped(terrain, interval=interval, levels=levels, base=base, gamma=self._node_gamma(gamma, terrain),
                        colors=colors, solid=solid, floor=floor, memory_budget=memory_budget,
                        device=device)  # fmt: skip
-        return to_polydata(mesh)
+        return _to_polydata(mesh, share=True)  # the mesh is this call's own: its buffers need no copy
 
     def _node_gamma(self, gamma: Any, terrain: Terrain | trimesh.Trimesh) -> Any:
         """A per-node ``gamma`` laid out as the terrain :meth:`terrain` made takes it: (H, W) for a grid Terrain, (N,)
@@ -246,30 +246,42 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
     ``pv.wrap`` keeps them; a numeric array too long for that (a globe's ``node_entry``, a close-up layer's
     ``source_faces``) is a ``field_data`` array, as ``pv.wrap`` keeps it; any
     other item is left out with a warning naming it. :func:`from_polydata` is the way back.
+
+    The PolyData's points and data arrays are its own copies (as ``pv.wrap`` makes them): they were the mesh's own
+    buffers, so exaggerating the PolyData's heights (``poly.points[:, 2] *= 3``) or setting its colours changed the
+    Trimesh too, and what was saved from it afterwards. Only VTK's connectivity is ``mesh.faces``' buffer (VTK does
+    not change it in place; a copy of it cost as much again as the conversion).
     """
+    return _to_polydata(mesh, share=False)
+
+
+def _to_polydata(mesh: trimesh.Trimesh, share: bool) -> Any:
+    """:func:`to_polydata`; ``share``: hand the mesh's own buffers to VTK, no copy (for a mesh nothing else holds, as
+    :meth:`StepTerrainAccessor.stepped`'s)."""
     from .export import json_metadata
 
+    own = np.asarray if share else np.array  # np.array copies
     faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
     # VTK's offsets and connectivity on the faces as they are: a padded [3, a, b, c] copy took 2.5 s and 550 MB
     # more for 13 M faces (a 2600² grid stepped), almost all of grid.stepterrain.stepped's time past the kernels
-    poly = pv.PolyData.from_regular_faces(np.asarray(mesh.vertices, dtype=np.float64), faces, deep=False)
+    poly = pv.PolyData.from_regular_faces(own(mesh.vertices, dtype=np.float64), faces, deep=False)
     for name, values in mesh.face_attributes.items():
         array = np.asarray(values)
         if array.shape[:1] == (len(faces),):
-            poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else array
+            poly.cell_data[name] = array.astype(np.uint8) if array.dtype == bool else own(array)
     # vertex attributes (a close-up layer's mask_factor, a PLY's properties) and a draped mesh's UVs were dropped,
     # where pv.wrap keeps them: pl.add_mesh(poly, texture=...) found no texture coordinates
     for name, values in mesh.vertex_attributes.items():
         array = np.asarray(values)
         if array.shape[:1] == (len(mesh.vertices),) and array.dtype.kind in "biuf":
-            poly.point_data[name] = array.astype(np.uint8) if array.dtype == bool else array
+            poly.point_data[name] = array.astype(np.uint8) if array.dtype == bool else own(array)
     uv = getattr(mesh.visual, "uv", None) if mesh.visual.kind == "texture" else None
     if uv is not None and np.shape(uv) == (len(mesh.vertices), 2):
-        poly.active_texture_coordinates = np.asarray(uv, dtype=np.float64)
+        poly.active_texture_coordinates = own(uv, dtype=np.float64)
     if mesh.visual.kind in ("vertex", "face"):  # colours by face (a PLY or 3MF read back) were dropped
         data = poly.point_data if mesh.visual.kind == "vertex" else poly.cell_data
         colors = mesh.visual.vertex_colors if mesh.visual.kind == "vertex" else mesh.visual.face_colors
-        data["RGBA"] = np.asarray(colors, dtype=np.uint8)
+        data["RGBA"] = own(colors, dtype=np.uint8)
         # pyvista shows an array as colours (no colormap, no scalar bar) only when its name ends in "_rgb" or
         # "_rgba": steps.plot() drew "RGBA" through viridis, with a bar of 'RGBA' magnitudes. The same bytes (one
         # buffer, no copy) under RGBA_ALIAS are the active scalars, so the default plot shows the level colours.
@@ -291,7 +303,7 @@ def to_polydata(mesh: trimesh.Trimesh) -> Any:
         # an array past glTF extras' length (a globe's per-vertex node_entry) was left out without a word
         array = value if isinstance(value, np.ndarray) else None
         if array is not None and array.dtype.kind in "biuf" and isinstance(key, str):
-            poly.field_data[key] = array.astype(np.uint8) if array.dtype == bool else array
+            poly.field_data[key] = array.astype(np.uint8) if array.dtype == bool else own(array)
         else:
             dropped.append(key)
     if dropped:

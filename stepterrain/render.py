@@ -534,7 +534,10 @@ def _frame_mesh(
 ) -> tuple[int, int, NDArray[np.float64], NDArray[np.float64], NDArray[np.bool_], NDArray[np.float64]]:
     """Check the arguments every render shares (before pyvista loads, so a bad one is named even where it
     is missing); return (width, height, vertices, local vertices recentred on the framed box with z scaled,
-    finite-vertex mask, local box). The window's memory is checked against the budget first."""
+    mask of the vertices drawn (finite and used by a face), local box). The window's memory is checked against the
+    budget first. The camera is fitted to the vertices drawn: those no face uses (trimesh's ``update_faces`` keeps
+    every vertex, a PLY may hold loose points) framed the whole of them, a mesh cut down to a part rendered as a small
+    patch in a picture framed for all of it."""
     if not isinstance(mesh, trimesh.Trimesh):
         raise InvalidInputError(f"mesh must be a trimesh.Trimesh; got {type(mesh).__name__}")
     if len(mesh.faces) == 0:
@@ -547,8 +550,11 @@ def _frame_mesh(
     finite = np.isfinite(vertices).all(axis=1)
     if not finite.all():  # an infinite vertex, even one no face uses, left VTK's render blank, without a word
         finite_or_nan(vertices, "mesh.vertices")
+    used = np.zeros(len(vertices), dtype=bool)
+    used[np.asarray(mesh.faces).reshape(-1)] = True
+    finite &= used
     if not finite.any():
-        raise InvalidInputError("mesh has no finite vertex")
+        raise InvalidInputError("mesh has no finite vertex used by a face")
     if bounds is None:
         lo, hi = vertices[finite].min(axis=0), vertices[finite].max(axis=0)
     else:
@@ -878,9 +884,9 @@ def _box_corners(box: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _fit_points(camera: CameraLike, local: NDArray[np.float64], finite: NDArray[np.bool_], aspect: float,
                 view_angle: float) -> list[tuple[float, ...]]:
-    """:func:`_camera_position` framing the finite vertices of ``local`` themselves (not their box): fitted to at most
-    ~100k of them, evenly strided, then to those the fit left outside the view, until none is (the strided ones
-    alone missed a tower or a mast of a few vertices, cut off at the picture's edge)."""
+    """:func:`_camera_position` framing the vertices of ``local`` drawn (``finite``) themselves (not their box): fitted
+    to at most ~100k of them, evenly strided, then to those the fit left outside the view, until none is (the strided
+    ones alone missed a tower or a mast of a few vertices, cut off at the picture's edge)."""
     points = local[finite]
     stride = max(1, len(points) // 100_000)
     framed = points[::stride]

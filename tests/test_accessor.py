@@ -236,3 +236,26 @@ def test_interactive_example_names_a_bad_size_or_window(tmp_path, capsys, args, 
         example.main([*args, "--output", str(out), "--device", "cpu"])
     assert exit_info.value.code == 2 and match in capsys.readouterr().err
     assert not out.exists()
+
+
+@needs_offscreen
+@pytest.mark.parametrize("window", [(120, 160), (160, 120), (240, 80)])
+def test_interactive_examples_initial_view_shows_the_whole_terrain_in_any_window(tmp_path, window):
+    """The initial view was VTK's bounding-sphere fit zoomed by a fixed 1.35, which suits a landscape window: in a
+    portrait one (--window 240 320) the terrain's west and east ends were cut off at the picture's sides. Found by
+    writing the PNG in windows of several shapes. The view is now fitted to the terrain's projected box, below the
+    sliders, in any window."""
+    example = load_example("interactive")
+    out = tmp_path / "interactive.png"
+    assert example.main(["--size", "40", "--window", *map(str, window), "--output", str(out), "--device", "cpu"]) == 0
+    from PIL import Image
+
+    with Image.open(out) as image:
+        drawn = (np.asarray(image) < 245).any(axis=2)
+    width, height = window
+    below = drawn[int(0.3 * height):]  # the sliders and their labels lie above
+    assert not below[:, 0].any() and not below[:, -1].any() and not below[-1].any()  # nothing cut at the sides
+    columns = np.flatnonzero(below.any(axis=0))
+    rows = np.flatnonzero(below.any(axis=1))
+    # and it fills the window across or down (a fit that shrank it to a dot would pass the test above)
+    assert (columns[-1] - columns[0]) > 0.8 * width or (rows[-1] - rows[0]) > 0.55 * height

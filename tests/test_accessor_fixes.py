@@ -403,3 +403,51 @@ def test_a_pyvista_dataset_without_the_accessor_is_not_told_to_step_itself(tmp_p
         assert not (tmp_path / "never.glb").exists()
     with pytest.raises(InvalidInputError, match=r"or its steps, mesh\.stepterrain\.stepped\(\.\.\.\)"):
         render.render_mesh(pv.ImageData(dimensions=(3, 3, 1)), window_size=(48, 32))
+
+
+def test_to_polydata_gives_a_polydata_of_its_own_not_a_view_of_the_meshs_arrays():
+    """to_polydata handed the mesh's own buffers to VTK: exaggerating the PolyData's heights in pyvista's way
+    (``poly.points[:, 2] *= 3``, as examples/interactive.py does to its steps) multiplied the Trimesh's too, and a
+    GLB saved from it afterwards was exaggerated, without a word; setting the PolyData's colours or levels rewrote
+    the mesh's vertex colours and face attributes. pv.wrap copies them. Found by editing the PolyData of a stepped
+    mesh and comparing the mesh with a copy made before. Only the connectivity is still shared (VTK does not
+    change it in place; see test_to_polydata_hands_the_faces_to_vtk_without_a_padded_copy)."""
+    import copy
+
+    import stepterrain as st
+    from stepterrain.pyvista_accessor import to_polydata
+    from stepterrain.texture import TextureLayer
+
+    heights = np.random.default_rng(5).uniform(0, 90, (30, 40))
+    coloured = st.stepped(st.Terrain.from_heights(heights), interval=20, colors="terrain", device="cpu")
+    coloured.vertex_attributes["mask_factor"] = np.linspace(0.0, 1.0, len(coloured.vertices), dtype=np.float32)
+    coloured.metadata["node_entry"] = np.arange(len(coloured.vertices), dtype=np.int32)
+    layer = TextureLayer("luminance", np.linspace(0, 1, 20).reshape(4, 5), (-0.5, 39.5, -0.5, 29.5))
+    textured = st.drape(st.stepped(st.Terrain.from_heights(heights), interval=20, device="cpu"), layer)
+    for mesh in (coloured, textured):
+        before = copy.deepcopy(mesh)
+        poly = to_polydata(mesh)
+        poly.points[:, 2] *= 3.0
+        for data in (poly.point_data, poly.cell_data, poly.field_data):
+            for name in data.keys():
+                if name != "_PYVISTA_USER_DICT":
+                    np.asarray(data[name])[...] = 0
+        if poly.active_texture_coordinates is not None:
+            poly.active_texture_coordinates[...] = 0.5
+        np.testing.assert_array_equal(mesh.vertices, before.vertices)
+        np.testing.assert_array_equal(mesh.faces, before.faces)
+        for name, values in before.face_attributes.items():
+            np.testing.assert_array_equal(mesh.face_attributes[name], values, err_msg=name)
+        for name, values in before.vertex_attributes.items():
+            np.testing.assert_array_equal(mesh.vertex_attributes[name], values, err_msg=name)
+        for name in ("node_entry",):
+            if name in before.metadata:
+                np.testing.assert_array_equal(mesh.metadata[name], before.metadata[name])
+        if mesh.visual.kind == "vertex":
+            np.testing.assert_array_equal(mesh.visual.vertex_colors, before.visual.vertex_colors)
+        else:
+            np.testing.assert_array_equal(mesh.visual.uv, before.visual.uv)
+        # and the other way round: the mesh edited in place leaves the PolyData as it was made
+        poly = to_polydata(mesh)
+        mesh.vertices[:, 2] += 1000.0
+        assert poly.points[:, 2].max() < 1000.0

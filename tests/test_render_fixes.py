@@ -625,13 +625,15 @@ def test_a_fitted_camera_frames_every_vertex_of_a_large_mesh():
     ground = np.array([[0, 0, 0], [800, 0, 0], [800, 800, 0], [0, 800, 0]], float)
     tower = trimesh.creation.box(extents=(60, 60, 2000))
     tower.vertices += (400, 700, 1000)
-    filler = np.full((250_000, 3), 400.0)  # unused vertices on the ground (framed too) set the stride to 2
+    # vertices on the ground (framed too: each used by a degenerate face, which draws nothing) set the stride to 2
+    filler = np.full((250_000, 3), 400.0)
     filler[:, 2] = 0.0
     pairs = np.repeat(np.asarray(tower.vertices), 2, axis=0)
     pairs[::2] = (400.0, 400.0, 0.0)  # each tower vertex after a ground one: the tower's at odd indices, none strided
     vertices = np.concatenate([ground, filler, pairs])
     tower_index = len(ground) + len(filler) + 1 + 2 * np.arange(len(tower.vertices))
-    faces = np.concatenate([[[0, 1, 2], [0, 2, 3]], tower_index[np.asarray(tower.faces)]])
+    points = np.repeat(np.r_[len(ground) + np.arange(len(filler)), tower_index - 1], 3).reshape(-1, 3)
+    faces = np.concatenate([[[0, 1, 2], [0, 2, 3]], points, tower_index[np.asarray(tower.faces)]])
     mesh = trimesh.Trimesh(vertices, faces, process=False)
     assert len(vertices) // 100_000 == 2 and (tower_index % 2 == 1).all()
     image = render.render_mesh(mesh, window_size=(200, 150))
@@ -1139,3 +1141,32 @@ def test_a_periodic_texture_spanning_many_periods_is_refused_before_it_is_widene
         tracemalloc.stop()
         st.set_memory_budget(previous)
     assert peak < 20 << 20  # the widened picture is 256 x 512768 x 3 bytes = 394 MB
+
+
+@needs_render
+@pytest.mark.parametrize("name", ["render_mesh", "render_textured_mesh"])
+def test_vertices_no_face_uses_do_not_move_the_fitted_camera(name):
+    """The camera was fitted to every finite vertex, those no face uses included: a stepped DEM cut down to its
+    eastern part with trimesh's ``update_faces`` (which keeps every vertex) rendered as a small patch in the corner
+    of a picture framed for the whole DEM (10 % of the pixels drawn, 50 % once the unused vertices were removed).
+    VTK draws faces only: a render is the same with or without the vertices no face uses."""
+    from stepterrain.texture import drape, topographic_layer
+
+    dem = st.sample_dem()
+    terrain = st.Terrain.from_heights(dem.heights[::16, ::16], spacing=(480.0, -480.0), origin=dem.origin)
+    mesh = st.stepped(terrain, interval=200.0, colors="terrain", device="cpu")
+    if name == "render_textured_mesh":
+        mesh = drape(mesh, topographic_layer(terrain, device="cpu"))
+    east = mesh.triangles_center[:, 0] > np.quantile(mesh.vertices[:, 0], 0.7)
+    cut = mesh.copy()
+    cut.update_faces(east)
+    assert len(np.unique(cut.faces)) < 0.5 * len(cut.vertices)  # most vertices are used by no face
+    clean = cut.copy()
+    clean.remove_unreferenced_vertices()
+    for camera in ("oblique", "top", (1.0, 0.4)):
+        with_unused = getattr(render, name)(cut, window_size=(96, 64), camera=camera)
+        without = getattr(render, name)(clean, window_size=(96, 64), camera=camera)
+        # framed: 0.21 to 0.42 of the picture (the oblique view drew 0.11 of it before)
+        assert (without < 250).any(axis=2).mean() > 0.15
+        # the same picture, to the float rounding of the recentred vertices (a gray level at a few edge pixels)
+        assert (np.abs(with_unused.astype(int) - without).max(axis=2) > 8).mean() < 0.01, camera
