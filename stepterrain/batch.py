@@ -273,11 +273,17 @@ def plan_items(
                 raise InvalidInputError(
                     f"tile_size applies to one raster, not to a folder of tiles; got a folder {str(path)!r}"
                 )
-            files = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _DEM_EXTENSIONS)
+            found = [p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _DEM_EXTENSIONS]
+            # hidden files left out, as the shell glob tiles/*.tif leaves them: macOS's AppleDouble "._t.tif" beside
+            # every tile on a FAT/exFAT drive was an item each, failing as unreadable (exit status 1)
+            files = sorted(p for p in found if not p.name.startswith("."))
             if not files:
+                hidden = len(found) - len(files)
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
                     f"{', '.join(_DEM_EXTENSIONS)}"
+                    + (f" ({hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out)"
+                       if hidden else "")
                 )
             return _file_items(files), None
         if not path.exists():
@@ -1380,7 +1386,8 @@ def batch(
     Parameters
     ----------
     source
-        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it: ``dem.tif`` writes
+        A folder of DEM files (.npy .npz .png .tif, hidden ones left out as a shell glob leaves them: macOS's
+        ``._dem.tif`` companions; one output per file, named after it: ``dem.tif`` writes
         ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
         ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and

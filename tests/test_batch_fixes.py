@@ -2258,3 +2258,29 @@ def test_the_contact_sheet_leaves_an_empty_frame_blank(tmp_path):
                                                 r"render$"):
         overview_image(dataclasses.replace(report, results=report.results[1:] + report.results[:1]),
                        window_size=(100, 80), max_items=1)  # the empty frame first
+
+
+def test_a_folders_hidden_files_are_left_out_as_a_shell_glob_leaves_them(tmp_path):
+    # a folder of tiles copied from macOS onto a FAT/exFAT drive holds an AppleDouble companion "._t.tif" beside every
+    # "t.tif": each was an item that failed ("not recognized as being in a supported file format"), so a folder
+    # whose tiles were all good ended with exit status 1 and half its items failed; `stepterrain batch tiles/*.tif`,
+    # which the docs give as the same thing, never saw them (the shell's * skips names starting with a dot)
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32) * 3
+    for name in ("a", "b"):
+        np.save(folder / f"{name}.npy", z)
+        (folder / f"._{name}.npy").write_bytes(b"Mac OS X        \x00\x05\x16\x07")  # AppleDouble header
+    np.save(folder / ".hidden.npy", z)
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial")
+    assert report.ok, report.summary()
+    assert sorted(r.key for r in report.done) == ["a", "b"]
+    for name in ("._a", "._b", ".hidden"):
+        assert not any(p.name.startswith(name) for p in (tmp_path / "out").iterdir())
+    # a folder holding only hidden DEM files says so
+    for path in folder.glob("[ab].npy"):
+        path.unlink()
+    from stepterrain.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match=r"holds no DEM file.*3 hidden"):
+        batch(folder, tmp_path / "out2", interval=2.0, scheduler="serial")
