@@ -161,6 +161,9 @@ class BatchReport:
     scheduler: str = "serial"
     #: what else the run found in the output folder: an unreadable manifest, outputs in another format
     notes: list[str] = field(default_factory=list)
+    #: what the items are: ``"tile"`` (of one raster), ``"file"`` (of a folder or list) or ``"frame"`` (of a series);
+    #: None when not known (a report made by hand: :func:`overview_image` then goes by the outputs' names)
+    kind: Literal["tile", "file", "frame"] | None = None
 
     @property
     def done(self) -> list[ItemResult]:
@@ -1843,7 +1846,8 @@ def _run_locked(
                      f"({shown}), made with that run's input and options, not this one's: redo or remove them before "
                      "using the folder")
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
-                         time.perf_counter() - start, description, notes)  # fmt: skip
+                         time.perf_counter() - start, description, notes,
+                         kind=items[0].kind if items else None)  # fmt: skip
     return report
 
 
@@ -2257,7 +2261,8 @@ def overview_image(
 ) -> NDArray[np.uint8]:
     """An off-screen picture of a batch's outputs: the welded mosaic of tiles, or a contact sheet of items.
 
-    ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
+    ``mosaic`` (default: when the items are tiles of one raster, not the files of a folder whatever their names)
+    renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
     cells sharing the window (an empty item's, a frame of nodata only, stays blank). The picture is ``window_size``
     (H = its height, W = its width) either way.
@@ -2281,8 +2286,9 @@ def overview_image(
     paths = written[:max_items]
     if not paths:
         raise InvalidInputError("the batch wrote no output to show")
-    if mosaic is None:
-        mosaic = all(Path(p).stem.startswith("tile_") for p in paths)
+    if mosaic is None:  # by the items: a folder of a user's tile_*.tif files was drawn as one mesh, not a sheet
+        mosaic = report.kind == "tile" if report.kind is not None else all(
+            re.fullmatch(r"tile_r\d+_c\d+", Path(p).stem) for p in paths)
     if mosaic and len(written) > len(paths):  # a jagged strip of the raster's first tile rows, said nowhere
         warnings.warn(f"the overview's mosaic shows the first {len(paths)} of the {len(written)} outputs: the rest of "
                       "the raster is left out of the picture; give a larger max_items= or tile_size (fewer tiles)",

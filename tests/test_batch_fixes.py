@@ -2284,3 +2284,33 @@ def test_a_folders_hidden_files_are_left_out_as_a_shell_glob_leaves_them(tmp_pat
 
     with pytest.raises(InvalidInputError, match=r"holds no DEM file.*3 hidden"):
         batch(folder, tmp_path / "out2", interval=2.0, scheduler="serial")
+
+
+@pytest.mark.render
+def test_the_overview_of_a_folder_whose_files_are_named_tile_is_a_contact_sheet(tmp_path):
+    # overview_image chose the mosaic by the outputs' names (all starting with "tile_"), so a folder of a user's
+    # tile_*.tif files (a common naming) was rendered as one mesh in world coordinates, not the contact sheet the
+    # docs give a folder: unreferenced .npy tiles (each at (0, 0)) drawn on top of each other, tiles of several UTM
+    # zones hundreds of km apart as specks. The batch's items decide: tiles of one raster, or not
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    np.save(folder / "tile_001.npy", z)
+    np.save(folder / "tile_002.npy", z[::-1] * 2)
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 2
+    size = (96, 48)
+    sheet = overview_image(report, window_size=size)
+    np.testing.assert_array_equal(sheet, overview_image(report, window_size=size, mosaic=False))
+    drawn = (sheet < 250).any(axis=2)
+    assert drawn[:, :48].mean() > 0.05 and drawn[:, 48:].mean() > 0.05  # one file in each cell
+    # the tiles of one raster are still a mosaic, whatever the folder
+    tiles = batch(z, tmp_path / "raster", tile_size=4, interval=2.0, scheduler="serial", format=".ply")
+    np.testing.assert_array_equal(overview_image(tiles, window_size=size),
+                                  overview_image(tiles, window_size=size, mosaic=True))
