@@ -219,6 +219,18 @@ class _Options:
     #: the GeoTIFF band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
     #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
     band: int | None = dataclasses.field(default=None, repr=False)
+    #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
+    #: is resolved against it on a worker that runs in another folder (:func:`_on_worker`); out of the repr
+    cwd: str | None = dataclasses.field(default=None, repr=False)
+
+
+def _on_worker(path: str, cwd: str | None) -> str:
+    """``path`` as the caller meant it, on a worker whose working folder is not the caller's ``cwd`` (dask workers
+    started elsewhere, by ssh or systemd): a relative path resolved against ``cwd``; as given otherwise (the serial run,
+    a LocalCluster's workers), so that the outputs and error messages are the serial run's."""
+    if cwd is None or os.path.isabs(path) or os.getcwd() == cwd:
+        return path
+    return os.path.join(cwd, path)
 
 
 @dataclass(frozen=True)
@@ -820,9 +832,12 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
 
     from .stepped import stepped
 
-    target = Path(output_dir) / f"{item.key}{options.ext}"
+    target = Path(output_dir) / f"{item.key}{options.ext}"  # as reported: the caller's path
+    # a worker started in another folder than the caller's read tiles/a.tif and wrote out/ there: relative to its own
+    written = Path(_on_worker(output_dir, options.cwd)) / target.name
+    read = item if item.path is None else dataclasses.replace(item, path=_on_worker(item.path, options.cwd))
     try:
-        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen,
+        terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                 options.band)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if item.kind != "file" and not _has_surface(terrain):
@@ -837,7 +852,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
             )  # fmt: skip
         with replacing_without_flush():  # a tile a crash empties fails the manifest's size check: redone, not lost
-            save_mesh(mesh, target, metadata=metadata, shared_bounds=None if source is None else source.bounds)
+            save_mesh(mesh, written, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
     except StepTerrainError as exc:
         if _transient(exc):
@@ -853,7 +868,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     return ItemResult(
         item.key, "done", path=str(target), attempts=1, seconds=time.perf_counter() - start,
         cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
-        bytes=target.stat().st_size,
+        bytes=written.stat().st_size,
     )  # fmt: skip
 
 
@@ -2107,6 +2122,7 @@ def _run_dask(
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
+    options = dataclasses.replace(options, cwd=os.getcwd())  # relative paths resolved on workers elsewhere
     nthreads = client.nthreads()  # every worker's (scheduler_info lists only the first 5 in some dask versions)
     workers = max(1, len(nthreads)) if local else 1
     threads = max(1, sum(nthreads.values()))

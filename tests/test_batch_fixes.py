@@ -2314,3 +2314,34 @@ def test_the_overview_of_a_folder_whose_files_are_named_tile_is_a_contact_sheet(
     tiles = batch(z, tmp_path / "raster", tile_size=4, interval=2.0, scheduler="serial", format=".ply")
     np.testing.assert_array_equal(overview_image(tiles, window_size=size),
                                   overview_image(tiles, window_size=size, mosaic=True))
+
+
+def test_relative_paths_reach_workers_started_in_another_folder(tmp_path, monkeypatch):
+    # `stepterrain batch tiles -o out --scheduler tcp://...` from /data/project, its dask workers started elsewhere
+    # (by ssh or systemd, in $HOME): the workers were handed the relative paths as given, so every file item failed
+    # "DEM file 'tiles/a.npy' does not exist", and the tiles of one raster were written into out/ under the workers'
+    # folder, the report saying "written" and the manifest recording files that were not in the caller's out/
+    distributed = pytest.importorskip("distributed")
+    elsewhere = tmp_path / "workers_home"
+    elsewhere.mkdir()
+    here = tmp_path / "project"
+    (here / "tiles").mkdir(parents=True)
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    for name in ("a", "b"):
+        np.save(here / "tiles" / f"{name}.npy", z)
+    monkeypatch.chdir(elsewhere)  # the worker processes start in this folder
+    cluster_options = dict(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None)
+    with distributed.LocalCluster(**cluster_options) as cluster, distributed.Client(cluster) as client:
+        monkeypatch.chdir(here)
+        files = batch("tiles", "out_files", interval=2.0, scheduler=client, format=".ply")
+        tiles = batch(z, "out_tiles", tile_size=4, interval=2.0, scheduler=client, format=".ply")
+    for report, folder, n in [(files, "out_files", 2), (tiles, "out_tiles", 4)]:
+        assert report.ok and len(report.done) == n, report.summary()
+        for result in report.done:
+            assert Path(result.path).parent == Path(folder)  # as a serial run reports it: relative
+            assert (here / result.path).stat().st_size == result.bytes
+    assert list(elsewhere.iterdir()) == []  # nothing written where the workers run
+    # the same bytes as a serial run (the metadata's input as given)
+    serial = batch("tiles", "serial", interval=2.0, scheduler="serial", format=".ply")
+    for a, b in zip(serial.done, files.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
