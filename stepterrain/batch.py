@@ -302,7 +302,8 @@ def plan_items(
                 )
             return _file_items(files), None
         if not path.exists():
-            raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)")
+            raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)"
+                                + _unmatched_glob(path))
         from .io import read_dem
 
         if tile_size is None:
@@ -367,7 +368,8 @@ def plan_items(
         missing = [str(f) for f in files if not f.exists()]
         if missing:
             raise DataFileError(f"source file {missing[0]!r} does not exist"
-                                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+                                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else "")
+                                + _unmatched_glob(Path(missing[0])))
         seen: dict[Path, Path] = {}
         for f in files:
             same = seen.setdefault(f.resolve(), f)
@@ -404,6 +406,13 @@ def plan_items(
     lo, hi = finite_or_nan(heights, "source")
     known = None if math.isnan(lo) else (lo, hi)
     return items, _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster", height_range=known)
+
+
+def _unmatched_glob(path: Path) -> str:
+    """What to add to "does not exist" of a path that holds a shell wildcard: the shell passes a glob that matches
+    no file on as written (tiles/n3*.tif), which read as the name of a file."""
+    return ("; it reads as a shell glob that matched no file (the shell passes such a pattern on as written)"
+            if any(ch in path.name for ch in "*?[") else "")
 
 
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:

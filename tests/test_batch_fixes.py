@@ -2345,3 +2345,26 @@ def test_relative_paths_reach_workers_started_in_another_folder(tmp_path, monkey
     serial = batch("tiles", "serial", interval=2.0, scheduler="serial", format=".ply")
     for a, b in zip(serial.done, files.done, strict=True):
         assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+
+
+def test_a_shell_glob_that_matched_no_file_is_said_to_be_one(tmp_path, capsys):
+    # `stepterrain batch tiles/n3*.tif` with no such file: the shell passes the pattern on as written, and the error
+    # said "source 'tiles/n3*.tif' does not exist (expected a DEM file or a folder of tiles)", as if a file of that
+    # name were meant
+    from stepterrain import cli
+
+    (tmp_path / "tiles").mkdir()
+    a = tmp_path / "tiles" / "a.npy"
+    np.save(a, np.zeros((3, 3), np.float32))
+    out = tmp_path / "out"
+    pattern = str(tmp_path / "tiles" / "n3*.tif")
+    for inputs in ([pattern], [str(a), pattern]):
+        argv = ["batch", *inputs, "--interval", "1", "--scheduler", "serial", "-q", "-o", str(out)]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{pattern!r} does not exist" in err and "a shell glob that matched no file" in err, err
+        assert not out.exists()
+    # a missing file of no pattern keeps its message
+    assert cli.main(["batch", str(tmp_path / "nope.tif"), "--interval", "1", "--scheduler", "serial", "-q", "-o",
+                     str(out)]) == 2
+    assert "matched no file" not in capsys.readouterr().err
