@@ -288,7 +288,10 @@ def plan_items(
                 raise InvalidInputError(
                     f"tile_size applies to one raster, not to a folder of tiles; got a folder {str(path)!r}"
                 )
-            found = [p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _DEM_EXTENSIONS]
+            # a broken link too (is_file() is False for it): an item that fails "does not exist", not a tile left
+            # out without a word
+            found = [p for p in path.iterdir() if (p.is_file() or (p.is_symlink() and not p.exists()))
+                     and p.suffix.lower() in _DEM_EXTENSIONS]
             # hidden files left out, as the shell glob tiles/*.tif leaves them: macOS's AppleDouble "._t.tif" beside
             # every tile on a FAT/exFAT drive was an item each, failing as unreadable (exit status 1)
             files = sorted(p for p in found if not p.name.startswith("."))

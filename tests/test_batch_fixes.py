@@ -2368,3 +2368,17 @@ def test_a_shell_glob_that_matched_no_file_is_said_to_be_one(tmp_path, capsys):
     assert cli.main(["batch", str(tmp_path / "nope.tif"), "--interval", "1", "--scheduler", "serial", "-q", "-o",
                      str(out)]) == 2
     assert "matched no file" not in capsys.readouterr().err
+
+
+def test_a_folders_broken_link_is_an_item_that_fails_not_a_tile_left_out_unsaid(tmp_path):
+    # a folder of links to tiles on another disk (or a share not mounted): a link whose tile had gone was left out of
+    # the items without a word (Path.is_file() is False for it), the run "ok" with that tile's mesh missing
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32) * 3
+    np.save(folder / "a.npy", z)
+    (folder / "b.npy").symlink_to(tmp_path / "elsewhere" / "b.npy")
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial")
+    assert [r.key for r in report.done] == ["a"]
+    assert [r.key for r in report.failed] == ["b"] and "does not exist" in report.failed[0].error
+    assert not report.ok
