@@ -128,7 +128,9 @@ def add_parser(commands: Any) -> None:
                         "the files of a folder each spread the colours over their own levels, so one height "
                         "would differ in colour between neighbours; tiles and frames share levels and colours)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
-    p.add_argument("--floor", type=float, metavar="Z", help="base height of --solid")
+    p.add_argument("--floor", type=float, metavar="Z",
+                   help="base height of --solid (default: one under the whole raster or series; each file of a "
+                        "folder its own)")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
                         "(default: a LocalCluster of --workers processes)")

@@ -161,6 +161,9 @@ class BatchReport:
     scheduler: str = "serial"
     #: what else the run found in the output folder: an unreadable manifest, outputs in another format
     notes: list[str] = field(default_factory=list)
+    #: what the items are: ``"tile"`` (of one raster), ``"file"`` (of a folder or list) or ``"frame"`` (of a series);
+    #: None when not known (a report made by hand: :func:`overview_image` then goes by the outputs' names)
+    kind: Literal["tile", "file", "frame"] | None = None
 
     @property
     def done(self) -> list[ItemResult]:
@@ -216,6 +219,18 @@ class _Options:
     #: the GeoTIFF band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
     #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
     band: int | None = dataclasses.field(default=None, repr=False)
+    #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
+    #: is resolved against it on a worker that runs in another folder (:func:`_on_worker`); out of the repr
+    cwd: str | None = dataclasses.field(default=None, repr=False)
+
+
+def _on_worker(path: str, cwd: str | None) -> str:
+    """``path`` as the caller meant it, on a worker whose working folder is not the caller's ``cwd`` (dask workers
+    started elsewhere, by ssh or systemd): a relative path resolved against ``cwd``; as given otherwise (the serial run,
+    a LocalCluster's workers), so that the outputs and error messages are the serial run's."""
+    if cwd is None or os.path.isabs(path) or os.getcwd() == cwd:
+        return path
+    return os.path.join(cwd, path)
 
 
 @dataclass(frozen=True)
@@ -273,15 +288,25 @@ def plan_items(
                 raise InvalidInputError(
                     f"tile_size applies to one raster, not to a folder of tiles; got a folder {str(path)!r}"
                 )
-            files = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _DEM_EXTENSIONS)
+            # a broken link too (is_file() is False for it): an item that fails "does not exist", not a tile left
+            # out without a word
+            found = [p for p in path.iterdir() if (p.is_file() or (p.is_symlink() and not p.exists()))
+                     and p.suffix.lower() in _DEM_EXTENSIONS]
+            # hidden files left out, as the shell glob tiles/*.tif leaves them: macOS's AppleDouble "._t.tif" beside
+            # every tile on a FAT/exFAT drive was an item each, failing as unreadable (exit status 1)
+            files = sorted(p for p in found if not p.name.startswith("."))
             if not files:
+                hidden = len(found) - len(files)
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
                     f"{', '.join(_DEM_EXTENSIONS)}"
+                    + (f" ({hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out)"
+                       if hidden else "")
                 )
             return _file_items(files), None
         if not path.exists():
-            raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)")
+            raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)"
+                                + _unmatched_glob(path))
         from .io import read_dem
 
         if tile_size is None:
@@ -346,7 +371,8 @@ def plan_items(
         missing = [str(f) for f in files if not f.exists()]
         if missing:
             raise DataFileError(f"source file {missing[0]!r} does not exist"
-                                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+                                + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else "")
+                                + _unmatched_glob(Path(missing[0])))
         seen: dict[Path, Path] = {}
         for f in files:
             same = seen.setdefault(f.resolve(), f)
@@ -383,6 +409,13 @@ def plan_items(
     lo, hi = finite_or_nan(heights, "source")
     known = None if math.isnan(lo) else (lo, hi)
     return items, _Source(heights, (1.0, 1.0), (0.0, 0.0), None, "raster", height_range=known)
+
+
+def _unmatched_glob(path: Path) -> str:
+    """What to add to "does not exist" of a path that holds a shell wildcard: the shell passes a glob that matches
+    no file on as written (tiles/n3*.tif), which read as the name of a file."""
+    return ("; it reads as a shell glob that matched no file (the shell passes such a pattern on as written)"
+            if any(ch in path.name for ch in "*?[") else "")
 
 
 def load_series(path: str | os.PathLike[str]) -> NDArray[np.float32] | None:
@@ -811,9 +844,12 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
 
     from .stepped import stepped
 
-    target = Path(output_dir) / f"{item.key}{options.ext}"
+    target = Path(output_dir) / f"{item.key}{options.ext}"  # as reported: the caller's path
+    # a worker started in another folder than the caller's read tiles/a.tif and wrote out/ there: relative to its own
+    written = Path(_on_worker(output_dir, options.cwd)) / target.name
+    read = item if item.path is None else dataclasses.replace(item, path=_on_worker(item.path, options.cwd))
     try:
-        terrain = _item_terrain(item, source, options.height_unit, options.file_spacing, options.coarsen,
+        terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                 options.band)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
         if item.kind != "file" and not _has_surface(terrain):
@@ -828,7 +864,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
                 colors=options.colors, solid=options.solid, floor=options.floor, device=options.device,
             )  # fmt: skip
         with replacing_without_flush():  # a tile a crash empties fails the manifest's size check: redone, not lost
-            save_mesh(mesh, target, metadata=metadata, shared_bounds=None if source is None else source.bounds)
+            save_mesh(mesh, written, metadata=metadata, shared_bounds=None if source is None else source.bounds)
         n_faces, n_vertices = len(mesh.faces), len(mesh.vertices)
     except StepTerrainError as exc:
         if _transient(exc):
@@ -844,7 +880,7 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
     return ItemResult(
         item.key, "done", path=str(target), attempts=1, seconds=time.perf_counter() - start,
         cpu_seconds=time.process_time() - cpu_start, faces=n_faces, vertices=n_vertices,
-        bytes=target.stat().st_size,
+        bytes=written.stat().st_size,
     )  # fmt: skip
 
 
@@ -1416,7 +1452,8 @@ def batch(
     Parameters
     ----------
     source
-        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it: ``dem.tif`` writes
+        A folder of DEM files (.npy .npz .png .tif, hidden ones left out as a shell glob leaves them: macOS's
+        ``._dem.tif`` companions; one output per file, named after it: ``dem.tif`` writes
         ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
         ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
@@ -1872,7 +1909,8 @@ def _run_locked(
                      f"({shown}), made with that run's input and options, not this one's: redo or remove them before "
                      "using the folder")
     report = BatchReport(folder, [results[i.key] for i in items if i.key in results],
-                         time.perf_counter() - start, description, notes)  # fmt: skip
+                         time.perf_counter() - start, description, notes,
+                         kind=items[0].kind if items else None)  # fmt: skip
     return report
 
 
@@ -2132,6 +2170,7 @@ def _run_dask(
     from distributed import as_completed
 
     client, _cluster, _description, local = connection
+    options = dataclasses.replace(options, cwd=os.getcwd())  # relative paths resolved on workers elsewhere
     nthreads = client.nthreads()  # every worker's (scheduler_info lists only the first 5 in some dask versions)
     workers = max(1, len(nthreads)) if local else 1
     threads = max(1, sum(nthreads.values()))
@@ -2286,7 +2325,8 @@ def overview_image(
 ) -> NDArray[np.uint8]:
     """An off-screen picture of a batch's outputs: the welded mosaic of tiles, or a contact sheet of items.
 
-    ``mosaic`` (default: when the items are tiles) renders the outputs together in world coordinates, each
+    ``mosaic`` (default: when the items are tiles of one raster, not the files of a folder whatever their names)
+    renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
     cells sharing the window (an empty item's, a frame of nodata only, stays blank). The picture is ``window_size``
     (H = its height, W = its width) either way.
@@ -2310,8 +2350,9 @@ def overview_image(
     paths = written[:max_items]
     if not paths:
         raise InvalidInputError("the batch wrote no output to show")
-    if mosaic is None:
-        mosaic = all(Path(p).stem.startswith("tile_") for p in paths)
+    if mosaic is None:  # by the items: a folder of a user's tile_*.tif files was drawn as one mesh, not a sheet
+        mosaic = report.kind == "tile" if report.kind is not None else all(
+            re.fullmatch(r"tile_r\d+_c\d+", Path(p).stem) for p in paths)
     if mosaic and len(written) > len(paths):  # a jagged strip of the raster's first tile rows, said nowhere
         warnings.warn(f"the overview's mosaic shows the first {len(paths)} of the {len(written)} outputs: the rest of "
                       "the raster is left out of the picture; give a larger max_items= or tile_size (fewer tiles)",

@@ -2258,3 +2258,127 @@ def test_the_contact_sheet_leaves_an_empty_frame_blank(tmp_path):
                                                 r"render$"):
         overview_image(dataclasses.replace(report, results=report.results[1:] + report.results[:1]),
                        window_size=(100, 80), max_items=1)  # the empty frame first
+
+
+def test_a_folders_hidden_files_are_left_out_as_a_shell_glob_leaves_them(tmp_path):
+    # a folder of tiles copied from macOS onto a FAT/exFAT drive holds an AppleDouble companion "._t.tif" beside every
+    # "t.tif": each was an item that failed ("not recognized as being in a supported file format"), so a folder
+    # whose tiles were all good ended with exit status 1 and half its items failed; `stepterrain batch tiles/*.tif`,
+    # which the docs give as the same thing, never saw them (the shell's * skips names starting with a dot)
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32) * 3
+    for name in ("a", "b"):
+        np.save(folder / f"{name}.npy", z)
+        (folder / f"._{name}.npy").write_bytes(b"Mac OS X        \x00\x05\x16\x07")  # AppleDouble header
+    np.save(folder / ".hidden.npy", z)
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial")
+    assert report.ok, report.summary()
+    assert sorted(r.key for r in report.done) == ["a", "b"]
+    for name in ("._a", "._b", ".hidden"):
+        assert not any(p.name.startswith(name) for p in (tmp_path / "out").iterdir())
+    # a folder holding only hidden DEM files says so
+    for path in folder.glob("[ab].npy"):
+        path.unlink()
+    from stepterrain.errors import InvalidInputError
+
+    with pytest.raises(InvalidInputError, match=r"holds no DEM file.*3 hidden"):
+        batch(folder, tmp_path / "out2", interval=2.0, scheduler="serial")
+
+
+@pytest.mark.render
+def test_the_overview_of_a_folder_whose_files_are_named_tile_is_a_contact_sheet(tmp_path):
+    # overview_image chose the mosaic by the outputs' names (all starting with "tile_"), so a folder of a user's
+    # tile_*.tif files (a common naming) was rendered as one mesh in world coordinates, not the contact sheet the
+    # docs give a folder: unreferenced .npy tiles (each at (0, 0)) drawn on top of each other, tiles of several UTM
+    # zones hundreds of km apart as specks. The batch's items decide: tiles of one raster, or not
+    from stepterrain import render
+    from stepterrain.batch import overview_image
+
+    ok, reason = render.offscreen_available()
+    if not ok:
+        pytest.skip(f"no off-screen OpenGL context: {reason}")
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    np.save(folder / "tile_001.npy", z)
+    np.save(folder / "tile_002.npy", z[::-1] * 2)
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial", format=".ply")
+    assert report.ok and len(report.done) == 2
+    size = (96, 48)
+    sheet = overview_image(report, window_size=size)
+    np.testing.assert_array_equal(sheet, overview_image(report, window_size=size, mosaic=False))
+    drawn = (sheet < 250).any(axis=2)
+    assert drawn[:, :48].mean() > 0.05 and drawn[:, 48:].mean() > 0.05  # one file in each cell
+    # the tiles of one raster are still a mosaic, whatever the folder
+    tiles = batch(z, tmp_path / "raster", tile_size=4, interval=2.0, scheduler="serial", format=".ply")
+    np.testing.assert_array_equal(overview_image(tiles, window_size=size),
+                                  overview_image(tiles, window_size=size, mosaic=True))
+
+
+def test_relative_paths_reach_workers_started_in_another_folder(tmp_path, monkeypatch):
+    # `stepterrain batch tiles -o out --scheduler tcp://...` from /data/project, its dask workers started elsewhere
+    # (by ssh or systemd, in $HOME): the workers were handed the relative paths as given, so every file item failed
+    # "DEM file 'tiles/a.npy' does not exist", and the tiles of one raster were written into out/ under the workers'
+    # folder, the report saying "written" and the manifest recording files that were not in the caller's out/
+    distributed = pytest.importorskip("distributed")
+    elsewhere = tmp_path / "workers_home"
+    elsewhere.mkdir()
+    here = tmp_path / "project"
+    (here / "tiles").mkdir(parents=True)
+    z = np.add.outer(np.arange(9.0), np.arange(9.0)).astype(np.float32)
+    for name in ("a", "b"):
+        np.save(here / "tiles" / f"{name}.npy", z)
+    monkeypatch.chdir(elsewhere)  # the worker processes start in this folder
+    cluster_options = dict(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None)
+    with distributed.LocalCluster(**cluster_options) as cluster, distributed.Client(cluster) as client:
+        monkeypatch.chdir(here)
+        files = batch("tiles", "out_files", interval=2.0, scheduler=client, format=".ply")
+        tiles = batch(z, "out_tiles", tile_size=4, interval=2.0, scheduler=client, format=".ply")
+    for report, folder, n in [(files, "out_files", 2), (tiles, "out_tiles", 4)]:
+        assert report.ok and len(report.done) == n, report.summary()
+        for result in report.done:
+            assert Path(result.path).parent == Path(folder)  # as a serial run reports it: relative
+            assert (here / result.path).stat().st_size == result.bytes
+    assert list(elsewhere.iterdir()) == []  # nothing written where the workers run
+    # the same bytes as a serial run (the metadata's input as given)
+    serial = batch("tiles", "serial", interval=2.0, scheduler="serial", format=".ply")
+    for a, b in zip(serial.done, files.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+
+
+def test_a_shell_glob_that_matched_no_file_is_said_to_be_one(tmp_path, capsys):
+    # `stepterrain batch tiles/n3*.tif` with no such file: the shell passes the pattern on as written, and the error
+    # said "source 'tiles/n3*.tif' does not exist (expected a DEM file or a folder of tiles)", as if a file of that
+    # name were meant
+    from stepterrain import cli
+
+    (tmp_path / "tiles").mkdir()
+    a = tmp_path / "tiles" / "a.npy"
+    np.save(a, np.zeros((3, 3), np.float32))
+    out = tmp_path / "out"
+    pattern = str(tmp_path / "tiles" / "n3*.tif")
+    for inputs in ([pattern], [str(a), pattern]):
+        argv = ["batch", *inputs, "--interval", "1", "--scheduler", "serial", "-q", "-o", str(out)]
+        assert cli.main(argv) == 2
+        err = capsys.readouterr().err
+        assert f"{pattern!r} does not exist" in err and "a shell glob that matched no file" in err, err
+        assert not out.exists()
+    # a missing file of no pattern keeps its message
+    assert cli.main(["batch", str(tmp_path / "nope.tif"), "--interval", "1", "--scheduler", "serial", "-q", "-o",
+                     str(out)]) == 2
+    assert "matched no file" not in capsys.readouterr().err
+
+
+def test_a_folders_broken_link_is_an_item_that_fails_not_a_tile_left_out_unsaid(tmp_path):
+    # a folder of links to tiles on another disk (or a share not mounted): a link whose tile had gone was left out of
+    # the items without a word (Path.is_file() is False for it), the run "ok" with that tile's mesh missing
+    folder = tmp_path / "tiles"
+    folder.mkdir()
+    z = np.add.outer(np.arange(6.0), np.arange(7.0)).astype(np.float32) * 3
+    np.save(folder / "a.npy", z)
+    (folder / "b.npy").symlink_to(tmp_path / "elsewhere" / "b.npy")
+    report = batch(folder, tmp_path / "out", interval=2.0, scheduler="serial")
+    assert [r.key for r in report.done] == ["a"]
+    assert [r.key for r in report.failed] == ["b"] and "does not exist" in report.failed[0].error
+    assert not report.ok
