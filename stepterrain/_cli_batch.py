@@ -262,7 +262,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
                       ("the only input places its nodes itself", "all {n} inputs place their nodes themselves"),
                       ": leave --spacing out")
     if args.band is not None:  # load_dem's, for files of one band
-        _refuse_alike(report, "band applies to GeoTIFF only; ", f"--band {args.band} applies to GeoTIFF only; ",
+        _refuse_alike(report, "band applies to GDAL rasters only; ",
+                      f"--band {args.band} applies to GDAL rasters only; ",
                       ("the only input holds one band", "all {n} inputs hold one band"), ": leave --band out",
                       after="holds one band, ")
     if args.coarsen is not None:  # batch._coarsened's

@@ -68,6 +68,7 @@ from .export import (
     save_mesh,
     unwritable_reason,
 )
+from .io import GDAL_FORMATS, SUPPORTED_EXTENSIONS
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -107,7 +108,10 @@ LOCK_NAME = ".stepterrain-batch.lock"
 #: recorded; 1 (read too): keyed by item, one format per folder
 _MANIFEST_VERSION = 2
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
-_DEM_EXTENSIONS = (".npy", ".npz", ".png", ".tif", ".tiff")
+_DEM_EXTENSIONS = SUPPORTED_EXTENSIONS
+#: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
+#: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
+_FOLDER_EXTENSIONS = tuple(ext for ext in SUPPORTED_EXTENSIONS if ext != ".vrt")
 _MANIFEST_FLUSH_S = 1.0
 
 
@@ -273,11 +277,11 @@ def plan_items(
                 raise InvalidInputError(
                     f"tile_size applies to one raster, not to a folder of tiles; got a folder {str(path)!r}"
                 )
-            files = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _DEM_EXTENSIONS)
+            files = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in _FOLDER_EXTENSIONS)
             if not files:
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
-                    f"{', '.join(_DEM_EXTENSIONS)}"
+                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named)"
                 )
             return _file_items(files), None
         if not path.exists():
@@ -294,8 +298,8 @@ def plan_items(
                     )
                 if band is not None and band != 1:  # as load_dem refuses a band of a format with one
                     raise InvalidInputError(
-                        f"band applies to GeoTIFF only; the (T, H, W) series {str(path)!r} holds one band, got "
-                        f"band={band}"
+                        f"band applies to GDAL rasters only; the (T, H, W) series "
+                        f"{str(path)!r} holds one band, got band={band}"
                     )
                 # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
                 return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
@@ -304,7 +308,7 @@ def plan_items(
             )
         try:
             # a GeoTIFF's crop: its window only (other files are cropped by _reshaped_source)
-            window = crop if path.suffix.lower() in (".tif", ".tiff") else None
+            window = crop if path.suffix.lower() in GDAL_FORMATS else None
             terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
                                refuse=lambda whole: _check_crop(whole, crop))
         except DataFileError:
@@ -885,6 +889,7 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
 _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{name}.aux.xml", "{stem}.aux", "{name}.msk", "{stem}.tab", "{stem}.tfw", "{stem}.tifw", "{stem}.tiffw",
     "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd", "{stem}.prj", "{name}.prj",
+    "{stem}.hdr", "{stem}.stx", "{stem}.blw", "{stem}.rrd",  # a .bil/.flt's header and statistics, an .img's overviews
 )
 
 
@@ -907,7 +912,7 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) 
     parts = [identity(file)]
     folder, name = os.path.split(file)
     stem, ext = os.path.splitext(name)
-    if ext.lower() in (".tif", ".tiff"):
+    if ext.lower() in GDAL_FORMATS:
         if folder not in listings:
             names: dict[str, list[str]] | None = {}
             try:
@@ -1645,7 +1650,7 @@ def batch(
     # a GeoTIFF to tile with crop is read only in the crop's window (a crop of a raster over the memory budget), but
     # for a spacing=, which places the raster (and so the crop) anew after it is read
     windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
-        source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in (".tif", ".tiff")
+        source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in GDAL_FORMATS
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band,
                             crop=crop if windowed else None)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}

@@ -44,8 +44,17 @@ from .terrain import (
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
 
+#: Raster formats :func:`load_dem` reads through rasterio (GDAL), as it reads a GeoTIFF, by extension: the format's
+#: name for messages. Dispatch is by this list, not by trying GDAL on any file: a folder of tiles holds sidecars GDAL
+#: opens too (a .bil's .hdr, a .prj, an .aux.xml), and an unknown extension says what is read.
+GDAL_FORMATS: dict[str, str] = {
+    ".tif": "GeoTIFF", ".tiff": "GeoTIFF", ".asc": "an ESRI ASCII grid", ".hgt": "an SRTM tile",
+    ".img": "an ERDAS Imagine raster", ".vrt": "a GDAL virtual raster (VRT)", ".bil": "an ESRI BIL raster",
+    ".flt": "an ESRI float grid", ".dem": "a USGS DEM", ".dt0": "a DTED tile", ".dt1": "a DTED tile",
+    ".dt2": "a DTED tile",
+}
 #: File extensions :func:`load_dem` reads (lower case; matching is case-insensitive).
-SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", ".tif", ".tiff")
+SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", *GDAL_FORMATS)
 
 #: Mean earth radius (IUGG R1, metres) used to turn geographic degrees into local metres.
 EARTH_RADIUS_M = 6371008.8
@@ -286,9 +295,10 @@ def read_dem(
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
         )
     require_regular_file(file, "DEM file", "DEM path")
-    if ext not in (".tif", ".tiff") and band != 1:
+    if ext not in GDAL_FORMATS and band != 1:
         raise InvalidInputError(
-            f"band applies to GeoTIFF only; {str(file)!r} holds one band, got band={band}"
+            f"band applies to GDAL rasters only; {str(file)!r} holds one band, got "
+            f"band={band}"
         )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
@@ -888,7 +898,7 @@ def _load_geotiff(
         from rasterio.windows import Window
     except ImportError as exc:
         raise MissingDependencyError(
-            "reading GeoTIFF needs rasterio: pip install 'stepterrain[geo]'"
+            f"reading {_gdal_format(file)} needs rasterio: pip install 'stepterrain[geo]'"
         ) from exc
 
     window = header = place = None
@@ -955,7 +965,7 @@ def _load_geotiff(
             unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
+            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({exc})"
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -997,6 +1007,13 @@ def _load_geotiff(
     terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
     _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
     return terrain
+
+
+def _gdal_format(file: Path) -> str:
+    """The name of the raster format of ``file``'s extension, as messages name it: "GeoTIFF", "an SRTM tile (.hgt)"."""
+    ext = file.suffix.lower()
+    name = GDAL_FORMATS.get(ext, "a raster GDAL reads")
+    return name if name == "GeoTIFF" else f"{name} ({ext})"
 
 
 def _warn_crs_without_geotransform(file: Path, crs_obj: Any, crs: str | None) -> None:
@@ -1321,6 +1338,8 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     if count:
         value = f"{float(sentinel):.8g}" if kind == "f" else str(int(sentinel))
         hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
+                f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`"
+                if file.suffix.lower() in GDAL_FORMATS else
                 f"save a 'nodata' of {value} beside the heights" if file.suffix.lower() == ".npz" else
                 f"save it as an .npz with a 'nodata' of {value}")
         warnings.warn(
@@ -1611,6 +1630,8 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = N
     if file.suffix.lower() in (".tif", ".tiff"):
         hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
                 f"`gdal_edit.py -a_srs EPSG:4326 {name}`")
+    elif file.suffix.lower() in GDAL_FORMATS:
+        hint = f"put a .prj with it beside the file ({file.with_suffix('.prj').name})"
     else:
         hint = "save it beside the 'transform' (crs='EPSG:4326')"
     dx, dy = terrain.spacing
@@ -1859,7 +1880,7 @@ def _reprojection_hint(
     if not code:
         return "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
                "(stepterrain globe)"
-    if file.suffix.lower() in (".tif", ".tiff"):
+    if file.suffix.lower() in GDAL_FORMATS:
         return f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
     return f"reproject it first, e.g. to {target}" + ("" if target.startswith(code) else f", {code}")
 

@@ -452,7 +452,7 @@ def test_bad_band(tmp_path, band):
 
 def test_band_on_single_band_format(tmp_path):
     np.save(tmp_path / "z.npy", np.zeros((2, 2)))
-    with pytest.raises(InvalidInputError, match="band applies to GeoTIFF only"):
+    with pytest.raises(InvalidInputError, match="band applies to GDAL rasters only"):
         load_dem(tmp_path / "z.npy", band=2)
 
 
