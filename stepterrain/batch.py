@@ -1421,7 +1421,9 @@ def batch(
     Parameters
     ----------
     source
-        A folder of DEM files (.npy .npz .png .tif; one output per file, named after it: ``dem.tif`` writes
+        A folder of DEM files (those :func:`~stepterrain.io.load_dem` reads, ``SUPPORTED_EXTENSIONS``, but a
+        ``.vrt``, which beside tiles is their mosaic: name it to read it; one output per file, named after it:
+        ``dem.tif`` writes
         ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
         ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and

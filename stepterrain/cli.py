@@ -473,7 +473,8 @@ def _add_steps(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
+                        "the embedded Big Tujunga DEM")
     _add_input_options(p)
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
@@ -510,7 +511,7 @@ def _add_info(commands: Any) -> None:
     p = commands.add_parser(
         "info",
         help="describe a DEM or a mesh file",
-        description="Print a summary of a DEM (.npy .npz .png .tif) or a mesh "
+        description="Print a summary of a DEM (.npy .npz .png .tif .asc .hgt .img .vrt ...) or a mesh "
                     "(.glb .gltf .obj .ply .stl .3mf). It only reads files: no --device.",
         epilog=_INFO_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

@@ -48,7 +48,7 @@ __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EA
 #: name for messages. Dispatch is by this list, not by trying GDAL on any file: a folder of tiles holds sidecars GDAL
 #: opens too (a .bil's .hdr, a .prj, an .aux.xml), and an unknown extension says what is read.
 GDAL_FORMATS: dict[str, str] = {
-    ".tif": "GeoTIFF", ".tiff": "GeoTIFF", ".asc": "an ESRI ASCII grid", ".hgt": "an SRTM tile",
+    ".tif": "a GeoTIFF", ".tiff": "a GeoTIFF", ".asc": "an ESRI ASCII grid", ".hgt": "an SRTM tile",
     ".img": "an ERDAS Imagine raster", ".vrt": "a GDAL virtual raster (VRT)", ".bil": "an ESRI BIL raster",
     ".flt": "an ESRI float grid", ".dem": "a USGS DEM", ".dt0": "a DTED tile", ".dt1": "a DTED tile",
     ".dt2": "a DTED tile",
@@ -141,11 +141,20 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
         alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
-        8 bits) or
-        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        8 bits),
+        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
+        read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
+        windows alike; below, what is said of a GeoTIFF holds for them): ``.asc`` (ESRI ASCII grid; ``xllcorner``
+        and ``xllcenter`` both place node (0, 0) at the top-left cell's centre; its CRS from the ``.prj`` beside
+        it, none without one), ``.hgt`` (SRTM tile, placed by its name ``N34W119.hgt``, -32768 voids as nodata),
+        ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
+        and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
+        ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF, ...) is refused as an
+        unknown extension: ``gdal_translate -of GTiff`` converts it.
     band : int
-        1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
-        band; the file's mask (nodata, an internal mask or an alpha band) marks its missing cells.
+        1-based raster band to read; GeoTIFF and the other GDAL rasters only (the other formats hold one band). It
+        must be a grey or undefined band; the file's mask (nodata, an internal mask or an alpha band) marks its
+        missing cells.
     height_unit : str, optional
         The heights' length unit, overriding the one the file names (if any): "m", "ft", "US survey foot", "km",
         "cm", ... (see Returns). For a file that names none (a PNG, a plain array) or one not on that list
@@ -249,7 +258,7 @@ def load_dem(
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
-        A GeoTIFF is given and rasterio is not installed.
+        A GeoTIFF or another GDAL raster (``.asc``, ``.hgt``, ...) is given and rasterio is not installed.
     OutputTooLargeError
         The file's declared cells (with a GeoTIFF's ``crop``, its window's) exceed the memory budget
         (:func:`stepterrain.set_memory_budget`), checked from its header before reading. What is checked is the
@@ -898,7 +907,8 @@ def _load_geotiff(
         from rasterio.windows import Window
     except ImportError as exc:
         raise MissingDependencyError(
-            f"reading {_gdal_format(file)} needs rasterio: pip install 'stepterrain[geo]'"
+            f"reading {'GeoTIFF' if file.suffix.lower() in ('.tif', '.tiff') else _gdal_format(file)} needs "
+            "rasterio: pip install 'stepterrain[geo]'"
         ) from exc
 
     window = header = place = None
@@ -1010,10 +1020,10 @@ def _load_geotiff(
 
 
 def _gdal_format(file: Path) -> str:
-    """The name of the raster format of ``file``'s extension, as messages name it: "GeoTIFF", "an SRTM tile (.hgt)"."""
+    """The raster format of ``file``'s extension as messages name it: "a GeoTIFF", "an SRTM tile (.hgt)"."""
     ext = file.suffix.lower()
     name = GDAL_FORMATS.get(ext, "a raster GDAL reads")
-    return name if name == "GeoTIFF" else f"{name} ({ext})"
+    return name if name == "a GeoTIFF" else f"{name} ({ext})"
 
 
 def _warn_crs_without_geotransform(file: Path, crs_obj: Any, crs: str | None) -> None:

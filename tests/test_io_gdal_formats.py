@@ -237,3 +237,38 @@ def test_batch_picks_up_gdal_formats_from_a_folder_but_not_a_vrt_mosaic(tmp_path
     # a .vrt named on its own is read
     items, _ = plan_items([tmp_path / "mosaic.vrt"])
     assert len(items) == 1
+
+
+def test_ascii_grid_in_degrees_reads_its_prj(tmp_path):
+    """An .asc in degrees without a .prj warns, naming the .prj to put beside it; with one it is geographic, placed
+    as the GeoTIFF of the same grid in EPSG:4326."""
+    z = _heights((6, 6)) * 10
+    step = 1 / 1200
+    _write_asc(tmp_path / "dem.asc", z, ["xllcorner -118.5", "yllcorner 34.0", f"cellsize {step!r}"])
+    with pytest.warns(UserWarning, match=r"put a \.prj with it beside the file \(dem\.prj\)"):
+        st.load_dem(tmp_path / "dem.asc")
+    (tmp_path / "dem.prj").write_text(rasterio.crs.CRS.from_epsg(4326).to_wkt())
+    reference = st.load_dem(_write(tmp_path / "ref.tif", z, "GTiff", Affine(step, 0, -118.5, 0, -step, 34 + 6 * step),
+                                   crs="EPSG:4326"))
+    _same(st.load_dem(tmp_path / "dem.asc"), reference)
+    # node (0, 0) at the top-left cell's centre: half a cell in from xllcorner
+    assert "node (0, 0) at lon -118.499583333, lat 34.004583333" in st.load_dem(tmp_path / "dem.asc").source
+
+
+def test_cli_steps_texture_and_batch_read_gdal_formats(tmp_path, capsys):
+    from stepterrain import cli
+    z = _heights((12, 14))
+    _write_asc(tmp_path / "dem.asc", z, ["xllcorner 500000", "yllcorner 4000000", "cellsize 10"])
+    assert cli.main(["-q", "steps", str(tmp_path / "dem.asc"), "--interval", "10", "-o", str(tmp_path / "a.ply"),
+                     "--device", "cpu"]) == 0
+    assert (tmp_path / "a.ply").stat().st_size > 0
+    assert cli.main(["-q", "texture", str(tmp_path / "dem.asc"), "-o", str(tmp_path / "t.png"),
+                     "--device", "cpu"]) == 0
+    assert (tmp_path / "t.png").stat().st_size > 0
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    _write(tiles / "a.bil", z, "EHdr", _TRANSFORM)
+    _write(tiles / "b.img", z, "HFA", _TRANSFORM)
+    assert cli.main(["-q", "batch", str(tiles), "--interval", "10", "--format", ".ply", "-o", str(tmp_path / "out"),
+                     "--scheduler", "serial", "--device", "cpu"]) == 0
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.ply")) == ["a.ply", "b.ply"]
