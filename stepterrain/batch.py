@@ -882,7 +882,8 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     return out
 
 
-#: Files beside a GeoTIFF that GDAL reads with it when load_dem opens it (``{name}``: the file's name, ``{stem}``:
+#: Files beside a GeoTIFF (or another raster of :data:`~stepterrain.io.GDAL_FORMATS`) that GDAL reads with it when
+#: load_dem opens it (``{name}``: the file's name, ``{stem}``:
 #: without its extension), matched in any case: the PAM .aux.xml (georeferencing, CRS, nodata, scale and offset,
 #: over the file's own), a .msk mask, a MapInfo .tab or a world file (the georeferencing of a TIFF without its
 #: own), RPCs (which make load_dem refuse it) and the .prj load_dem reads itself (the CRS of a world file's grid)
@@ -895,7 +896,8 @@ _GEOTIFF_SIDECARS: tuple[str, ...] = (
 
 def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) -> str:
     """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, and of the
-    sidecar files GDAL reads with a GeoTIFF (:data:`_GEOTIFF_SIDECARS`).
+    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`; not the files a
+    .vrt names as its sources).
 
     ctime and inode catch a file rewritten with its size and mtime kept (``cp -p``, ``os.utime``, ``touch -r``):
     every write or metadata change sets ctime on Linux and macOS (on Windows ``st_ctime`` is the creation time,

@@ -272,3 +272,27 @@ def test_cli_steps_texture_and_batch_read_gdal_formats(tmp_path, capsys):
     assert cli.main(["-q", "batch", str(tiles), "--interval", "10", "--format", ".ply", "-o", str(tmp_path / "out"),
                      "--scheduler", "serial", "--device", "cpu"]) == 0
     assert sorted(p.name for p in (tmp_path / "out").glob("*.ply")) == ["a.ply", "b.ply"]
+
+
+def test_a_bil_header_corrected_in_place_redoes_its_batch_item(tmp_path):
+    """A .bil's georeferencing lies in the .hdr beside it: the batch fingerprint holds it, as a GeoTIFF's world file,
+    so a rerun after the header was corrected (same size) does not skip the item with its mesh at the old origin."""
+    import trimesh
+
+    from stepterrain.batch import batch
+    folder = tmp_path / "dems"
+    folder.mkdir()
+    _write(folder / "dem.bil", _heights((5, 6)), "EHdr", Affine(10.0, 0, 1000.0, 0, -10.0, 2000.0))
+    out = tmp_path / "out"
+
+    def lowest_y():
+        report = batch(folder, out, interval=5.0, format=".ply", scheduler="serial")
+        assert report.ok
+        return len(report.done), float(np.asarray(trimesh.load(out / "dem.ply", process=False).vertices)[:, 1].min())
+
+    assert lowest_y() == (1, 2000.0 - 5.0 - 40.0)
+    header = (folder / "dem.hdr").read_text()
+    assert "ULYMAP" in header and "1995" in header
+    (folder / "dem.hdr").write_text(header.replace("1995", "2995"))  # corrected in place: same size
+    assert lowest_y() == (1, 2995.0 - 40.0)
+    assert lowest_y() == (0, 2995.0 - 40.0)  # unchanged: skipped
