@@ -229,7 +229,8 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                         "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
-                        "prints; a geographic DEM's local metres); of a GeoTIFF only this window is read")
+                        "prints; a geographic DEM's local metres); of a GeoTIFF (or .asc, .hgt, ...: a GDAL raster) "
+                        "only this window is read")
     p.add_argument("--coarsen", type=_coarsen_factor, metavar="N",
                    help="average N x N blocks of nodes into one (nodata ignored), after --crop: a DEM too big "
                         "for the memory budget, or more detail than needed")
