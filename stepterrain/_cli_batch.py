@@ -21,7 +21,7 @@ examples:
   stepterrain batch --tile 256 -o out/tiles
       the embedded Big Tujunga DEM cut into 256-cell tiles (shared borders), one .glb each, 2 local workers
   stepterrain batch dem_tiles/ --interval 50 --format .ply -o out/ply
-      every DEM file in a folder (.npy .npz .png .tif), one PLY each
+      every DEM file in a folder (.npy .npz .png .tif .asc .hgt .img .bil ...; not a .vrt), one PLY each
   stepterrain batch npy_tiles/ --spacing 30 --coarsen 2 --interval 50 -o out/half
       .npy tiles (no georeferencing) of 30 m cells, each averaged to 60 m
   stepterrain batch big.tif --crop 380000,390000,3790000,3800000 --coarsen 4 --tile 256 -o out/
@@ -194,7 +194,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
                                 "its own file name")
     source_folder = Path(files[0]).resolve() if len(files) == 1 and Path(files[0]).is_dir() else None
     if png is not None and png.resolve().parent == source_folder:
-        # a folder's DEM files are its .npy .npz .png .tif: the next run read the overview as a tile and failed on it
+        # a folder's DEM files are its .npy .npz .png .tif ...: a rerun read the overview as a tile and failed on it
         raise InvalidInputError(f"--png {str(png)!r} lies in the INPUT folder {args.input!r}, where a rerun would read "
                                 "it as a DEM tile; write the overview elsewhere")
     if args.connect_timeout is not None and args.scheduler == "serial":  # no cluster to reach: ignored without a word
@@ -264,7 +264,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
                       ("the only input places its nodes itself", "all {n} inputs place their nodes themselves"),
                       ": leave --spacing out")
     if args.band is not None:  # load_dem's, for files of one band
-        _refuse_alike(report, "band applies to GeoTIFF only; ", f"--band {args.band} applies to GeoTIFF only; ",
+        _refuse_alike(report, "band applies to GDAL rasters only; ",
+                      f"--band {args.band} applies to GDAL rasters only; ",
                       ("the only input holds one band", "all {n} inputs hold one band"), ": leave --band out",
                       after="holds one band, ")
     if args.coarsen is not None:  # batch._coarsened's

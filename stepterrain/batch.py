@@ -68,6 +68,7 @@ from .export import (
     save_mesh,
     unwritable_reason,
 )
+from .io import GDAL_FORMATS, SUPPORTED_EXTENSIONS
 from .terrain import (
     FLOAT32_MAX,
     Terrain,
@@ -107,7 +108,10 @@ LOCK_NAME = ".stepterrain-batch.lock"
 #: recorded; 1 (read too): keyed by item, one format per folder
 _MANIFEST_VERSION = 2
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
-_DEM_EXTENSIONS = (".npy", ".npz", ".png", ".tif", ".tiff")
+_DEM_EXTENSIONS = SUPPORTED_EXTENSIONS
+#: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
+#: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
+_FOLDER_EXTENSIONS = tuple(ext for ext in SUPPORTED_EXTENSIONS if ext != ".vrt")
 _MANIFEST_FLUSH_S = 1.0
 
 
@@ -291,7 +295,7 @@ def plan_items(
             # a broken link too (is_file() is False for it): an item that fails "does not exist", not a tile left
             # out without a word
             found = [p for p in path.iterdir() if (p.is_file() or (p.is_symlink() and not p.exists()))
-                     and p.suffix.lower() in _DEM_EXTENSIONS]
+                     and p.suffix.lower() in _FOLDER_EXTENSIONS]
             # hidden files left out, as the shell glob tiles/*.tif leaves them: macOS's AppleDouble "._t.tif" beside
             # every tile on a FAT/exFAT drive was an item each, failing as unreadable (exit status 1)
             files = sorted(p for p in found if not p.name.startswith("."))
@@ -299,7 +303,7 @@ def plan_items(
                 hidden = len(found) - len(files)
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
-                    f"{', '.join(_DEM_EXTENSIONS)}"
+                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named)"
                     + (f" ({hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out)"
                        if hidden else "")
                 )
@@ -319,8 +323,8 @@ def plan_items(
                     )
                 if band is not None and band != 1:  # as load_dem refuses a band of a format with one
                     raise InvalidInputError(
-                        f"band applies to GeoTIFF only; the (T, H, W) series {str(path)!r} holds one band, got "
-                        f"band={band}"
+                        f"band applies to GDAL rasters only; the (T, H, W) series "
+                        f"{str(path)!r} holds one band, got band={band}"
                     )
                 # a file's rows run north to south, as load_dem reads a 2-D file: spacing (1, -1)
                 return _frame_items(series), _Source(series, (1.0, -1.0), (0.0, 0.0), None, path.name)
@@ -329,7 +333,7 @@ def plan_items(
             )
         try:
             # a GeoTIFF's crop: its window only (other files are cropped by _reshaped_source)
-            window = crop if path.suffix.lower() in (".tif", ".tiff") else None
+            window = crop if path.suffix.lower() in GDAL_FORMATS else None
             terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
                                refuse=lambda whole: _check_crop(whole, crop))
         except DataFileError:
@@ -914,19 +918,22 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
     return out
 
 
-#: Files beside a GeoTIFF that GDAL reads with it when load_dem opens it (``{name}``: the file's name, ``{stem}``:
+#: Files beside a GeoTIFF (or another raster of :data:`~stepterrain.io.GDAL_FORMATS`) that GDAL reads with it when
+#: load_dem opens it (``{name}``: the file's name, ``{stem}``:
 #: without its extension), matched in any case: the PAM .aux.xml (georeferencing, CRS, nodata, scale and offset,
 #: over the file's own), a .msk mask, a MapInfo .tab or a world file (the georeferencing of a TIFF without its
 #: own), RPCs (which make load_dem refuse it) and the .prj load_dem reads itself (the CRS of a world file's grid)
 _GEOTIFF_SIDECARS: tuple[str, ...] = (
     "{name}.aux.xml", "{stem}.aux", "{name}.msk", "{stem}.tab", "{stem}.tfw", "{stem}.tifw", "{stem}.tiffw",
     "{stem}.wld", "{stem}.rpb", "{stem}_rpc.txt", "{stem}.imd", "{stem}.prj", "{name}.prj",
+    "{stem}.hdr", "{stem}.stx", "{stem}.blw", "{stem}.rrd",  # a .bil/.flt's header and statistics, an .img's overviews
 )
 
 
 def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) -> str:
     """A file item's input as the fingerprint sees it: path, size, mtime, ctime and inode of the file, and of the
-    sidecar files GDAL reads with a GeoTIFF (:data:`_GEOTIFF_SIDECARS`).
+    sidecar files GDAL reads with a GeoTIFF or another GDAL raster (:data:`_GEOTIFF_SIDECARS`; not the files a
+    .vrt names as its sources).
 
     ctime and inode catch a file rewritten with its size and mtime kept (``cp -p``, ``os.utime``, ``touch -r``):
     every write or metadata change sets ctime on Linux and macOS (on Windows ``st_ctime`` is the creation time,
@@ -943,7 +950,7 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) 
     parts = [identity(file)]
     folder, name = os.path.split(file)
     stem, ext = os.path.splitext(name)
-    if ext.lower() in (".tif", ".tiff"):
+    if ext.lower() in GDAL_FORMATS:
         if folder not in listings:
             names: dict[str, list[str]] | None = {}
             try:
@@ -1452,8 +1459,9 @@ def batch(
     Parameters
     ----------
     source
-        A folder of DEM files (.npy .npz .png .tif, hidden ones left out as a shell glob leaves them: macOS's
-        ``._dem.tif`` companions; one output per file, named after it: ``dem.tif`` writes
+        A folder of DEM files (those :func:`~stepterrain.io.load_dem` reads, ``SUPPORTED_EXTENSIONS``, but a
+        ``.vrt``, which beside tiles is their mosaic: name it to read it; hidden ones left out as a shell glob leaves
+        them: macOS's ``._dem.tif`` companions; one output per file, named after it: ``dem.tif`` writes
         ``dem.glb``, files sharing a stem in any case their whole names, ``a.npy`` and ``A.npz`` ``a_npy`` and
         ``A_npz``; two that would still write one file where case is ignored are refused), a list of DEM files,
         a ``.npy``/``.npz`` file holding one (T, H, W) series (read as :func:`load_series` reads it: NaN, inf and
@@ -1682,7 +1690,7 @@ def batch(
     # a GeoTIFF to tile with crop is read only in the crop's window (a crop of a raster over the memory budget), but
     # for a spacing=, which places the raster (and so the crop) anew after it is read
     windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
-        source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in (".tif", ".tiff")
+        source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in GDAL_FORMATS
     items, src = plan_items(source, tile_size=tile_size, height_unit=height_unit, band=band,
                             crop=crop if windowed else None)
     own = _LIBRARY_KEYS | {key for item in items[:1] for key in _item_metadata(item)}

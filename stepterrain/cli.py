@@ -229,7 +229,8 @@ def _add_input_options(p: argparse.ArgumentParser) -> None:
                         "GeoTIFF without a geotransform), read as 1 m otherwise; rows run north to south")
     p.add_argument("--crop", type=_floats(4, "xmin,xmax,ymin,ymax"), metavar="xmin,xmax,ymin,ymax",
                    help="keep the DEM's nodes inside this extent, in its coordinates (those `stepterrain info` "
-                        "prints; a geographic DEM's local metres); of a GeoTIFF only this window is read")
+                        "prints; a geographic DEM's local metres); of a GeoTIFF (or .asc, .hgt, ...: a GDAL raster) "
+                        "only this window is read")
     p.add_argument("--coarsen", type=_coarsen_factor, metavar="N",
                    help="average N x N blocks of nodes into one (nodata ignored), after --crop: a DEM too big "
                         "for the memory budget, or more detail than needed")
@@ -473,7 +474,8 @@ def _add_steps(commands: Any) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="DEM file (.npy .npz .png .tif); default: the embedded Big Tujunga DEM")
+                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
+                        "the embedded Big Tujunga DEM")
     _add_input_options(p)
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
@@ -510,7 +512,7 @@ def _add_info(commands: Any) -> None:
     p = commands.add_parser(
         "info",
         help="describe a DEM or a mesh file",
-        description="Print a summary of a DEM (.npy .npz .png .tif) or a mesh "
+        description="Print a summary of a DEM (.npy .npz .png .tif .asc .hgt .img .vrt ...) or a mesh "
                     "(.glb .gltf .obj .ply .stl .3mf). It only reads files: no --device.",
         epilog=_INFO_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

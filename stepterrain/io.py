@@ -44,8 +44,17 @@ from .terrain import (
 
 __all__ = ["load_dem", "sample_dem", "describe_dem", "SUPPORTED_EXTENSIONS", "EARTH_RADIUS_M"]
 
+#: Raster formats :func:`load_dem` reads through rasterio (GDAL), as it reads a GeoTIFF, by extension: the format's
+#: name for messages. Dispatch is by this list, not by trying GDAL on any file: a folder of tiles holds sidecars GDAL
+#: opens too (a .bil's .hdr, a .prj, an .aux.xml), and an unknown extension says what is read.
+GDAL_FORMATS: dict[str, str] = {
+    ".tif": "a GeoTIFF", ".tiff": "a GeoTIFF", ".asc": "an ESRI ASCII grid", ".hgt": "an SRTM tile",
+    ".img": "an ERDAS Imagine raster", ".vrt": "a GDAL virtual raster (VRT)", ".bil": "an ESRI BIL raster",
+    ".flt": "an ESRI float grid", ".dem": "a USGS DEM", ".dt0": "a DTED tile", ".dt1": "a DTED tile",
+    ".dt2": "a DTED tile",
+}
 #: File extensions :func:`load_dem` reads (lower case; matching is case-insensitive).
-SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", ".tif", ".tiff")
+SUPPORTED_EXTENSIONS: tuple[str, ...] = (".npy", ".npz", ".png", *GDAL_FORMATS)
 
 #: Mean earth radius (IUGG R1, metres) used to turn geographic degrees into local metres.
 EARTH_RADIUS_M = 6371008.8
@@ -132,11 +141,20 @@ def load_dem(
         ``.png`` (8- or 16-bit greyscale heightmap, values are heights, a 2- or
         4-bit one's scaled to 0-255 as Pillow reads them; a transparent grey value (tRNS) or, in 8-bit grey +
         alpha, alpha 0 marks missing cells, as GDAL reads them; 16-bit grey + alpha is refused: Pillow reads it as
-        8 bits) or
-        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio).
+        8 bits),
+        ``.tif``/``.tiff`` (GeoTIFF, needs rasterio) or another raster GDAL reads, through rasterio as a GeoTIFF is
+        read (its georeferencing, CRS, nodata, scale and offset, unit, a .prj beside it, ``band`` and ``crop``
+        windows alike; below, what is said of a GeoTIFF holds for them): ``.asc`` (ESRI ASCII grid; ``xllcorner``
+        and ``xllcenter`` both place node (0, 0) at the top-left cell's centre; its CRS from the ``.prj`` beside
+        it, none without one), ``.hgt`` (SRTM tile, placed by its name ``N34W119.hgt``, -32768 voids as nodata),
+        ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
+        and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
+        ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF, ...) is refused as an
+        unknown extension: ``gdal_translate -of GTiff`` converts it.
     band : int
-        1-based raster band to read; GeoTIFF only (other formats hold one band). It must be a grey or undefined
-        band; the file's mask (nodata, an internal mask or an alpha band) marks its missing cells.
+        1-based raster band to read; GeoTIFF and the other GDAL rasters only (the other formats hold one band). It
+        must be a grey or undefined band; the file's mask (nodata, an internal mask or an alpha band) marks its
+        missing cells.
     height_unit : str, optional
         The heights' length unit, overriding the one the file names (if any): "m", "ft", "US survey foot", "km",
         "cm", ... (see Returns). For a file that names none (a PNG, a plain array) or one not on that list
@@ -240,7 +258,7 @@ def load_dem(
         georeferenced only by ground control points (GCPs) or rational polynomial coefficients (RPCs), which is
         not a regular grid until warped (``gdalwarp`` makes it one; the message gives the command).
     MissingDependencyError
-        A GeoTIFF is given and rasterio is not installed.
+        A GeoTIFF or another GDAL raster (``.asc``, ``.hgt``, ...) is given and rasterio is not installed.
     OutputTooLargeError
         The file's declared cells (with a GeoTIFF's ``crop``, its window's) exceed the memory budget
         (:func:`stepterrain.set_memory_budget`), checked from its header before reading. What is checked is the
@@ -286,9 +304,10 @@ def read_dem(
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
         )
     require_regular_file(file, "DEM file", "DEM path")
-    if ext not in (".tif", ".tiff") and band != 1:
+    if ext not in GDAL_FORMATS and band != 1:
         raise InvalidInputError(
-            f"band applies to GeoTIFF only; {str(file)!r} holds one band, got band={band}"
+            f"band applies to GDAL rasters only; {str(file)!r} holds one band, got "
+            f"band={band}"
         )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
@@ -888,7 +907,8 @@ def _load_geotiff(
         from rasterio.windows import Window
     except ImportError as exc:
         raise MissingDependencyError(
-            "reading GeoTIFF needs rasterio: pip install 'stepterrain[geo]'"
+            f"reading {'GeoTIFF' if file.suffix.lower() in ('.tif', '.tiff') else _gdal_format(file)} needs "
+            "rasterio: pip install 'stepterrain[geo]'"
         ) from exc
 
     window = header = place = None
@@ -955,7 +975,7 @@ def _load_geotiff(
             unmasked = _missing_beyond_gdal_mask(dataset, band, masked.data, window)
     except RasterioError as exc:
         raise DataFileError(
-            f"cannot read {str(file)!r}: expected a GeoTIFF; got unreadable content ({exc})"
+            f"cannot read {str(file)!r}: expected {_gdal_format(file)}; got unreadable content ({exc})"
         ) from exc
 
     if masked.dtype == np.bool_ or masked.dtype.kind not in "iuf":  # a complex band kept its real part silently
@@ -997,6 +1017,13 @@ def _load_geotiff(
     terrain = _grid(file, heights, spacing=spacing, origin=origin, crs=crs, source=source, height_unit=height_unit)
     _check_placed(file, place, terrain)  # a grid without a CRS that looks like degrees: told by its (crop's) heights
     return terrain
+
+
+def _gdal_format(file: Path) -> str:
+    """The raster format of ``file``'s extension as messages name it: "a GeoTIFF", "an SRTM tile (.hgt)"."""
+    ext = file.suffix.lower()
+    name = GDAL_FORMATS.get(ext, "a raster GDAL reads")
+    return name if name == "a GeoTIFF" else f"{name} ({ext})"
 
 
 def _warn_crs_without_geotransform(file: Path, crs_obj: Any, crs: str | None) -> None:
@@ -1321,6 +1348,8 @@ def _warn_void_values(file: Path, data: NDArray[Any], missing: NDArray[np.bool_]
     if count:
         value = f"{float(sentinel):.8g}" if kind == "f" else str(int(sentinel))
         hint = (f"`gdal_edit.py -a_nodata {value} {file.name}`" if file.suffix.lower() in (".tif", ".tiff") else
+                f"`gdal_translate -a_nodata {value} {file.name} {file.stem}.tif`"
+                if file.suffix.lower() in GDAL_FORMATS else
                 f"save a 'nodata' of {value} beside the heights" if file.suffix.lower() == ".npz" else
                 f"save it as an .npz with a 'nodata' of {value}")
         warnings.warn(
@@ -1611,6 +1640,8 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = N
     if file.suffix.lower() in (".tif", ".tiff"):
         hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
                 f"`gdal_edit.py -a_srs EPSG:4326 {name}`")
+    elif file.suffix.lower() in GDAL_FORMATS:
+        hint = f"put a .prj with it beside the file ({file.with_suffix('.prj').name})"
     else:
         hint = "save it beside the 'transform' (crs='EPSG:4326')"
     dx, dy = terrain.spacing
@@ -1859,7 +1890,7 @@ def _reprojection_hint(
     if not code:
         return "reproject it to a projected CRS of its region first, or mesh a global grid on the globe " \
                "(stepterrain globe)"
-    if file.suffix.lower() in (".tif", ".tiff"):
+    if file.suffix.lower() in GDAL_FORMATS:
         return f"reproject it first: `gdalwarp -r bilinear -t_srs {code} {file.name} {file.stem}_m.tif`, {target}"
     return f"reproject it first, e.g. to {target}" + ("" if target.startswith(code) else f", {code}")
 

@@ -1294,7 +1294,7 @@ def test_band_picks_the_band_of_a_multiband_geotiff_input(tmp_path, capsys):
     for argv, message in [
         (("info", path, "--band", "4"), "--band must be between 1 and 3 for"),
         (("-q", "steps", tmp_path / "one.npy", "--band", "2", "-o", tmp_path / "x.ply"),
-         "--band applies to GeoTIFF only"),
+         "--band applies to GDAL rasters only"),
         (("info", "--band", "2"), "--band applies to a GeoTIFF INPUT; the embedded DEM holds one band"),
         (("info", tmp_path / "b3.ply", "--band", "2"), "--band applies to a GeoTIFF DEM;"),
     ]:
@@ -1351,7 +1351,7 @@ def test_batch_band_reaches_every_file_its_fingerprint_and_metadata(tmp_path, ca
     np.save(tmp_path / "series.npy", np.stack([z, z]))
     for source, tile, band, message in [
         (z, 3, 2, "band applies to DEM files (a GeoTIFF's bands), read by load_dem; got a ndarray source"),
-        (tmp_path / "series.npy", None, 2, "band applies to GeoTIFF only; the (T, H, W) series"),
+        (tmp_path / "series.npy", None, 2, "band applies to GDAL rasters only; the (T, H, W) series"),
         (folder / "a.tif", 3, 3, "band must be between 1 and 2 for"),  # one raster to tile: read before any work
     ]:
         with pytest.raises(InvalidInputError, match=re.escape(message)):
@@ -1360,7 +1360,7 @@ def test_batch_band_reaches_every_file_its_fingerprint_and_metadata(tmp_path, ca
         batch(folder, tmp_path / "x", interval=2.0, scheduler="serial", band=0)
     failed = batch([tmp_path / "one.npy", folder / "a.tif"], tmp_path / "y", interval=2.0, scheduler="serial",
                    band=2)
-    assert len(failed.done) == 1 and "band applies to GeoTIFF only" in failed.failed[0].error
+    assert len(failed.done) == 1 and "band applies to GDAL rasters only" in failed.failed[0].error
 
     code, _, err = run(capsys, "-q", "batch", folder, "--band", "2", "--interval", "2", "--scheduler", "serial",
                        "--format", ".ply", "-o", tmp_path / "cli")
@@ -1373,7 +1373,7 @@ def test_batch_band_reaches_every_file_its_fingerprint_and_metadata(tmp_path, ca
     np.save(npys / "one.npy", z)
     code, _, err = run(capsys, "-q", "batch", npys, "--band", "2", "--interval", "2", "--scheduler", "serial",
                        "-o", tmp_path / "n")
-    assert code == 2 and "--band 2 applies to GeoTIFF only; the only input holds one band" in err, err
+    assert code == 2 and "--band 2 applies to GDAL rasters only; the only input holds one band" in err, err
     assert not (tmp_path / "x").exists() and not (tmp_path / "emb").exists()
 
 

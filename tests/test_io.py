@@ -431,11 +431,11 @@ def test_missing_file(tmp_path):
 
 
 def test_unknown_extension(tmp_path):
-    (tmp_path / "dem.asc").write_text("ncols 2\n")
+    (tmp_path / "dem.txt").write_text("ncols 2\n")  # an .asc is read now, as GDAL reads it
     with pytest.raises(
-        InvalidInputError, match=r"unknown DEM extension '\.asc'; supported: \.npy, \.npz, \.png"
+        InvalidInputError, match=r"unknown DEM extension '\.txt'; supported: \.npy, \.npz, \.png"
     ):
-        load_dem(tmp_path / "dem.asc")
+        load_dem(tmp_path / "dem.txt")
 
 
 def test_directory_is_refused(tmp_path):
@@ -452,7 +452,7 @@ def test_bad_band(tmp_path, band):
 
 def test_band_on_single_band_format(tmp_path):
     np.save(tmp_path / "z.npy", np.zeros((2, 2)))
-    with pytest.raises(InvalidInputError, match="band applies to GeoTIFF only"):
+    with pytest.raises(InvalidInputError, match="band applies to GDAL rasters only"):
         load_dem(tmp_path / "z.npy", band=2)
 
 
