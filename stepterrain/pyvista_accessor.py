@@ -56,10 +56,10 @@ class StepTerrainAccessor:
     array named by ``elevation``, else an array under one of :data:`ELEVATION_NAMES` (the active scalars if they
     are one, else the first in that order: pyvista makes the first array added the active scalars, so
     ``grid["gamma"] = ...; grid["elevation"] = ...`` steps the elevation), else the active scalars (the common
-    ``grid["data"] = heights``). A StructuredGrid is a surface of its own: whose points' z are not all equal, and
-    with no array under :data:`ELEVATION_NAMES`, it steps its points' z, and says so in a warning when its active
-    scalars (``grid["slope"] = ...``) were passed over (``elevation="slope"`` steps them); a flat one (all z equal)
-    steps its active scalars, as an ImageData does, and one without point data its z. Elevation found only in cell
+    ``grid["data"] = heights``). A StructuredGrid whose points' z are not all equal (a surface of its own) and with
+    no array under :data:`ELEVATION_NAMES` steps its points' z, and says so in a warning when its active scalars
+    (``grid["slope"] = ...``) were passed over (``elevation="slope"`` steps them); a flat one (all z equal) steps
+    its active scalars, as an ImageData does; one without point data steps its z. Elevation found only in cell
     data (one value per cell, under one of :data:`ELEVATION_NAMES`) is refused, naming
     ``grid.cell_data_to_point_data()``: steps are cut at nodes.
     """
