@@ -26,12 +26,16 @@ from .terrain import Terrain, finite_or_nan, float32_heights, grid_faces
 
 __all__ = ["StepTerrainAccessor", "to_polydata", "from_polydata", "ELEVATION_NAMES", "RGBA_ALIAS"]
 
-#: Point-data names tried, in order, when ``elevation`` is not given and the grid has no active scalars.
+#: Point-data names of elevation, in order of preference when ``elevation`` is not given (an array under one of them
+#: wins over active scalars of another name; among several, the active scalars if they are one, else the first).
 ELEVATION_NAMES = ("elevation", "Elevation", "height", "heights", "z", "Z")
 
 #: The point-data name under which the stepped colours ("RGBA") are also the active scalars: pyvista plots an
 #: array ending in "_rgba" as colours, so ``steps.plot()`` shows them (``"RGBA"`` needs ``rgb=True``).
 RGBA_ALIAS = "colors_rgba"
+
+#: The choice of a StructuredGrid's points' z as its elevation (no point-data array is stepped).
+_POINTS_Z = object()
 
 #: What to do with elevation found in cell data: the terraces are cut at grid nodes.
 _CELL_DATA_HINT = " (stepping needs one height per point: convert with grid.cell_data_to_point_data())"
@@ -49,10 +53,15 @@ class StepTerrainAccessor:
 
     The grid must be one node thick in z (dimensions (W, H, 1)); an ImageData's direction_matrix may flip x and/or
     y (``np.diag([1, -1, 1])``: a north-up raster's rows as they are), not rotate. Elevation is the point-data
-    array named by ``elevation``, else the active scalars, else the first of :data:`ELEVATION_NAMES`; a
-    StructuredGrid without any of them uses its points' z. Elevation found only in cell data (one value per cell,
-    under one of :data:`ELEVATION_NAMES`) is refused, naming ``grid.cell_data_to_point_data()``: steps are cut at
-    nodes.
+    array named by ``elevation``, else an array under one of :data:`ELEVATION_NAMES` (the active scalars if they
+    are one, else the first in that order: pyvista makes the first array added the active scalars, so
+    ``grid["gamma"] = ...; grid["elevation"] = ...`` steps the elevation), else the active scalars (the common
+    ``grid["data"] = heights``). A StructuredGrid whose points' z are not all equal (a surface of its own) and with
+    no array under :data:`ELEVATION_NAMES` steps its points' z, and says so in a warning when its active scalars
+    (``grid["slope"] = ...``) were passed over (``elevation="slope"`` steps them); a flat one (all z equal) steps
+    its active scalars, as an ImageData does; one without point data steps its z. Elevation found only in cell
+    data (one value per cell, under one of :data:`ELEVATION_NAMES`) is refused, naming
+    ``grid.cell_data_to_point_data()``: steps are cut at nodes.
     """
 
     def __init__(self, dataset: Any) -> None:
@@ -86,9 +95,9 @@ class StepTerrainAccessor:
                 )
             chosen = name
         else:
-            chosen = ds.point_data.active_scalars_name
-            if chosen is None:
-                chosen = next((n for n in ELEVATION_NAMES if n in ds.point_data), None)
+            chosen = self._default_elevation_name()
+            if chosen is _POINTS_Z:
+                return np.asarray(ds.points[:, 2], dtype=np.float64)
         if chosen is None:
             # elevation in cell data (one value per cell, not per node): a StructuredGrid fell back to its points'
             # z without a word, a flat grid (z = 0) stepping into one flat terrace whatever the cell data held
@@ -107,6 +116,33 @@ class StepTerrainAccessor:
                 f"dtype {values.dtype}"
             )
         return values
+
+    def _default_elevation_name(self) -> str | object | None:
+        """The point-data array stepped without ``elevation=`` (see the class docstring), ``_POINTS_Z`` for a
+        StructuredGrid's points' z, None for none. pyvista makes the first array added the active scalars, so the
+        active scalars alone decided: ``grid["gamma"] = ...; grid["elevation"] = ...`` stepped gamma, and a
+        StructuredGrid whose points' z are its heights stepped any array added to it (``grid["slope"] = ...``: nearly
+        flat terraces), both without a word."""
+        ds = self._dataset
+        active = ds.point_data.active_scalars_name
+        if active in ELEVATION_NAMES:  # the choice among several elevation-named arrays
+            return active
+        named = next((n for n in ELEVATION_NAMES if n in ds.point_data), None)
+        if named is not None or active is None:
+            return named
+        if isinstance(ds, pv.StructuredGrid):
+            z = np.asarray(ds.points[:, 2], dtype=np.float64)
+            z = z[np.isfinite(z)]
+            if z.size and z.min() != z.max():  # a real surface: its z are the heights, not some other array's values
+                warnings.warn(
+                    f"the StructuredGrid's points' z are stepped as its elevation, not its active scalars {active!r} "
+                    f"(no point-data array under {', '.join(map(repr, ELEVATION_NAMES))}); pass elevation={active!r} "
+                    f"to step that array, or set grid['elevation'] = grid.points[:, 2] to step the z without this "
+                    "warning",
+                    stacklevel=caller_stacklevel(),
+                )
+                return _POINTS_Z
+        return active
 
     def terrain(self, elevation: str | None = None) -> Terrain | trimesh.Trimesh:
         """The grid as what :func:`~stepterrain.stepped` takes: a grid Terrain (an ImageData, an evenly spaced

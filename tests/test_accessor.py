@@ -92,7 +92,9 @@ def test_named_elevation_and_active_scalars():
     grid = image_grid(heights)
     grid["other"] = np.zeros(grid.n_points)
     grid.set_active_scalars("other")
-    assert np.ptp(grid.stepterrain.elevation()) == 0  # the active scalars win
+    # an array named as elevation wins over active scalars of another name; elevation= steps any array
+    np.testing.assert_array_equal(grid.stepterrain.elevation(), heights)
+    assert np.ptp(grid.stepterrain.elevation("other")) == 0
     np.testing.assert_array_equal(grid.stepterrain.elevation("elevation"), heights)
     steps = grid.stepterrain.stepped(levels=[0.0, 3.0, 6.0], elevation="elevation")
     assert set(np.round(steps.points[:, 2], 4)) == {0.0, 3.0, 6.0}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 import pyvista as pv
@@ -451,3 +453,47 @@ def test_to_polydata_gives_a_polydata_of_its_own_not_a_view_of_the_meshs_arrays(
         poly = to_polydata(mesh)
         mesh.vertices[:, 2] += 1000.0
         assert poly.points[:, 2].max() < 1000.0
+
+
+def test_an_elevation_named_array_wins_over_active_scalars_of_another_name():
+    """pyvista makes the first array added the active scalars, so ``grid["gamma"] = ...; grid["elevation"] = ...``
+    stepped gamma, not the elevation, without a word. An array under one of ELEVATION_NAMES now wins over active
+    scalars of another name (elevation="gamma" still steps gamma); several such arrays: the first in that order."""
+    heights = np.add.outer(np.arange(5.0) * 7.0, np.arange(6.0) * 3.0)
+    grid = pv.ImageData(dimensions=(6, 5, 1))
+    grid["gamma"] = np.full(grid.n_points, 0.5)
+    grid["elevation"] = heights.ravel()
+    assert grid.point_data.active_scalars_name == "gamma"  # the trap: pyvista's choice, not the user's
+    np.testing.assert_array_equal(grid.stepterrain.elevation(), heights)
+    steps = grid.stepterrain.stepped(interval=5.0, gamma=grid["gamma"])
+    assert np.ptp(steps.points[:, 2]) >= 40.0
+    np.testing.assert_array_equal(grid.stepterrain.elevation("gamma"), np.full((5, 6), 0.5))
+    grid["height"] = heights.ravel() * 2.0  # a second elevation-named array: "elevation" comes first in the order
+    np.testing.assert_array_equal(grid.stepterrain.elevation(), heights)
+    grid.set_active_scalars("height")  # active scalars under an elevation name are the choice among them
+    np.testing.assert_array_equal(grid.stepterrain.elevation(), heights * 2.0)
+
+
+def test_structured_grid_with_only_another_array_steps_its_points_z_with_a_warning():
+    """A StructuredGrid whose heights are its points' z, plus any array (``grid["slope"] = ...``, then the active
+    scalars), stepped the slope values: nearly flat terraces, without a word. Its points' z are stepped now, with
+    a warning naming the array and ``elevation="slope"``, which still steps it; a flat StructuredGrid (all z equal)
+    steps the array as an ImageData does, without a warning."""
+    x, y = np.meshgrid(np.linspace(0, 100, 9), np.linspace(0, 60, 7))
+    z = 10 * np.sin(x / 30) + y / 3
+    grid = pv.StructuredGrid(x, y, z)
+    slope = np.abs(np.cos(grid.points[:, 0] / 30.0)) / 3.0  # one value per point, in the grid's point order
+    grid["slope"] = slope
+    assert grid.point_data.active_scalars_name == "slope"
+    with pytest.warns(UserWarning, match=r"points' z.*'slope'.*elevation='slope'"):
+        steps = grid.stepterrain.stepped(interval=5.0)
+    on = steps.points[:, 2] / 5.0  # γ = 1: every vertex on an isovalue k * 5, over the points' z range
+    assert np.allclose(on, np.round(on), atol=1e-5) and np.ptp(steps.points[:, 2]) >= 20.0
+    with pytest.warns(UserWarning, match="'slope'"):
+        np.testing.assert_array_equal(grid.stepterrain.elevation().ravel(), grid.points[:, 2].astype(np.float32))
+    np.testing.assert_array_equal(grid.stepterrain.elevation("slope").ravel(), slope.astype(np.float32))
+    flat = pv.StructuredGrid(x, y, np.zeros_like(x))
+    flat["data"] = grid.points[:, 2]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(flat.stepterrain.elevation().ravel(), grid.points[:, 2].astype(np.float32))
