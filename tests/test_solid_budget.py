@@ -97,19 +97,22 @@ def _actual_bytes(mesh):
 def test_the_prediction_bounds_the_solid_for_random_grids(rows, cols, seed, interval, holes, below, integers):
     """The predicted boundary is at least the surface's boundary edges, and the predicted skirt and base at least the
     closed mesh's arrays (vertices, faces, levels, walls, colours); heights on thresholds (integers), nodata holes
-    (pinches between them) and floors far below included."""
+    (pinches between them) and floors far below included. The need is accepted as the budget, one byte less not."""
     rng = np.random.default_rng(seed)
     heights = rng.normal(0.0, 6.0, size=(rows, cols)).cumsum(0).cumsum(1).astype(np.float32)
     if integers:
         heights = np.round(heights)
     heights.reshape(-1)[rng.integers(0, rows * cols, size=holes)] = np.nan
-    _, (v, f, b, faces) = _need(heights, interval)
+    need, (v, f, b, faces) = _need(heights, interval, colors="terrain")
     if f == 0:
         return  # no triangle with three finite heights: nothing to close (refused by stepped)
     assert b >= len(boundary_edges(faces))
     floor = None if below is None else float(np.nanmin(heights)) - interval - below
-    mesh = st.stepped(heights, interval=interval, solid=True, floor=floor, colors="terrain")
+    options = {"interval": interval, "solid": True, "floor": floor, "colors": "terrain"}
+    mesh = st.stepped(heights, memory_budget=need, **options)
     assert stepped_module.solid_bytes(v, f, b) >= _actual_bytes(mesh)
+    with pytest.raises(st.OutputTooLargeError, match="stepped solid"):
+        st.stepped(heights, memory_budget=need - 1, **options)
 
 
 def test_the_prediction_bounds_a_tin_solid():
