@@ -80,6 +80,17 @@ _FACE_BYTES = 24 + 4 + 1
 _COLOR_BYTES = 4 + 8
 #: Per output face of a face-coloured TIN: the terrain face it was cut from (int64) and its RGBA (_carry_visual).
 _FACE_SOURCE_BYTES = 8 + 4
+#: A solid's bytes (:func:`solid_bytes`) per vertex of the closed mesh: its position (float64) and what a visual adds
+#: (RGBA, or a UV in float64); per face of it: the face, level and wall as ``_FACE_BYTES`` and a face colour.
+_SOLID_VERTEX_BYTES = 24 + 16
+_SOLID_FACE_BYTES = _FACE_BYTES + 4
+#: close_solid's work arrays per surface face and vertex at their peak (boundary_edges' int64 edge keys, three a face,
+#: with their sorted copy and masked temporary; exact_keys' copies and sort of the xy; the terraces and their base
+#: copies), and a fixed part where there is a face: boundary_edges' 4 MiB bit table and small arrays. tracemalloc
+#: peaks stay below these (tests/test_solid_budget.py).
+_SOLID_WORK_FACE_BYTES = 80
+_SOLID_WORK_VERTEX_BYTES = 64
+_SOLID_WORK_FIXED = 5 << 20
 
 
 def _let_trimesh_write_bool_ply() -> None:
@@ -558,6 +569,7 @@ def step_arrays(
     want_steps: bool = False,
     extra_vertex_bytes: int = 0,
     want_face_sources: bool = False,
+    solid_boundary: int | None = None,
 ) -> StepArrays:
     """Run the vertex and face count -> scan -> emit passes; see kernels/stepped.py for the conventions.
 
@@ -568,6 +580,8 @@ def step_arrays(
     ``extra_vertex_bytes``: what the caller adds per vertex (colours), counted against ``memory_budget`` too.
     ``want_face_sources``: a TIN's result also holds, per output face, the terrain face it was cut from (each
     triangle's faces lie at its offset of the face scan), for face colours carried over.
+    ``solid_boundary``: for a solid, the most boundary edges its surface can have (:func:`solid_boundary_edges`);
+    the solid's skirt and base (:func:`solid_bytes`) are then checked against the budget with the surface.
     """
     iso = _isovalue_struct(values, device)
     grid = terrain.kind == "grid"
@@ -649,11 +663,17 @@ def step_arrays(
 
     vertex_bytes = _VERTEX_BYTES + (_SOURCE_BYTES if want_sources else 0) + int(extra_vertex_bytes)
     face_bytes = _FACE_BYTES + (_FACE_SOURCE_BYTES if want_face_sources else 0)
-    check_budget(
-        vertex_count * vertex_bytes + face_count * face_bytes,
-        f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
-        memory_budget,
-    )
+    surface_bytes = vertex_count * vertex_bytes + face_count * face_bytes
+    if solid_boundary is None:
+        check_budget(surface_bytes, f"the stepped mesh ({vertex_count:,} vertices, {face_count:,} faces)",
+                     memory_budget)
+    else:
+        check_budget(
+            surface_bytes + solid_bytes(vertex_count, face_count, solid_boundary),
+            f"the stepped solid (a surface of {vertex_count:,} vertices and {face_count:,} faces, up to "
+            f"{solid_boundary:,} boundary edges for its skirt, and its base)",
+            memory_budget,
+        )
     face_sources = None
     if want_face_sources:
         face_sources = np.repeat(np.arange(n_cells, dtype=np.int64), np.diff(host_copy(face_offsets)[:n_cells + 1]))
@@ -700,6 +720,54 @@ def step_arrays(
         face_count=face_count,
         face_sources=face_sources,
     )
+
+
+def solid_boundary_edges(t: Terrain, values: NDArray[np.float32]) -> int:
+    """At most how many boundary edges the stepped surface of ``t`` has (the edges a solid's skirt hangs from), from
+    the heights alone, before stepping: per terrain edge that can lie on the boundary of the triangles, 2 k + 3 for its
+    k crossed thresholds (k walls' vertical sides and the k + 1 pieces between them, and a twin's vertical edge at
+    either end; §3.2: a node's level is the count of thresholds at or below its height). A grid's candidates are its
+    outer ring and every side and diagonal of a cell touching nodata; a TIN's, the edges of one face. An edge with a
+    nodata end is in no triangle."""
+    thresholds = thresholds_of(values)
+
+    def edges(a: NDArray[np.float32], b: NDArray[np.float32]) -> int:
+        ok = np.isfinite(a) & np.isfinite(b)
+        a, b = a[ok], b[ok]
+        k = np.abs(np.searchsorted(thresholds, a, side="right") - np.searchsorted(thresholds, b, side="right"))
+        return int(2 * k.sum(dtype=np.int64)) + 3 * len(k)
+
+    if t.kind != "grid":
+        if t.edges is None or t.face_edges is None or len(t.edges) == 0:
+            return 0
+        once = np.bincount(t.face_edges.reshape(-1), minlength=len(t.edges)) == 1
+        ends = t.edges[once]
+        return edges(t.heights[ends[:, 0]], t.heights[ends[:, 1]])
+    h = t.heights
+    if h.shape[0] < 2 or h.shape[1] < 2:
+        return 0
+    total = (edges(h[0, :-1], h[0, 1:]) + edges(h[-1, :-1], h[-1, 1:])
+             + edges(h[:-1, 0], h[1:, 0]) + edges(h[:-1, -1], h[1:, -1]))  # fmt: skip
+    if t.has_nodata:  # a hole's boundary runs along the cells that touch it
+        bad = ~np.isfinite(h)
+        r, c = np.nonzero(bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:])
+        h00, h01, h10, h11 = h[r, c], h[r, c + 1], h[r + 1, c], h[r + 1, c + 1]
+        total += sum(edges(a, b) for a, b in ((h00, h01), (h10, h11), (h00, h10), (h01, h11), (h00, h11), (h01, h10)))
+    return total
+
+
+def solid_bytes(vertex_count: int, face_count: int, boundary_edges: int) -> int:
+    """At most the bytes :func:`~stepterrain.mesh.close_solid` and :func:`stepped`'s assembly allocate to close a
+    stepped surface of ``vertex_count`` vertices and ``face_count`` faces with at most ``boundary_edges`` boundary
+    edges (:func:`solid_boundary_edges`) into a solid, beyond the surface's own arrays: the closed mesh (its copy of
+    the surface, at most one copy of a vertex per boundary edge at a pinch, one base vertex per vertex, a base face
+    per terrace and at most 3 skirt faces per boundary edge) with its levels, walls and visual, and the work arrays
+    of building it."""
+    v, f, b = int(vertex_count), int(face_count), int(boundary_edges)
+    vertices = 2 * (v + b)
+    faces = f + (f + 3 * b)
+    work = _SOLID_WORK_FACE_BYTES * f + _SOLID_WORK_VERTEX_BYTES * v + (_SOLID_WORK_FIXED if f else 0)
+    return vertices * _SOLID_VERTEX_BYTES + faces * _SOLID_FACE_BYTES + work
 
 
 def _check_vertex_total(counts: wp.array, n_nodes: int, n_slots: int, n_levels: int) -> None:
@@ -862,12 +930,15 @@ def _direct_blend(gamma: GammaLike, colors: Any) -> dict[str, Any]:
 
 
 def _stepped_arrays(t: Terrain, values: NDArray[np.float32], gamma: GammaLike, colors: Any, device: wp.Device,
-                    memory_budget: int | None = None) -> tuple[StepArrays, NDArray[np.float64]]:
+                    memory_budget: int | None = None,
+                    solid: bool = False) -> tuple[StepArrays, NDArray[np.float64]]:
     """The passes of :func:`stepped` and :func:`stepped_series`: the arrays and the blended world vertices (a
-    scalar γ blended in the vertex pass, any other by :func:`blend`); the colours counted against the budget."""
+    scalar γ blended in the vertex pass, any other by :func:`blend`); the colours, and a ``solid``'s skirt and base,
+    counted against the budget."""
     arrays = step_arrays(t, values, device=device, want_sources=_needs_sources(t, gamma, colors),
                          memory_budget=memory_budget, extra_vertex_bytes=0 if colors is None else _COLOR_BYTES,
                          want_face_sources=colors is None and t.face_index is not None,
+                         solid_boundary=solid_boundary_edges(t, values) if solid else None,
                          **_direct_blend(gamma, colors))  # fmt: skip
     vertices = arrays.vertices if arrays.vertices is not None else blend(t, arrays, gamma, device=device)
     return arrays, vertices
@@ -1026,8 +1097,10 @@ def stepped(
         Grid geometry when ``terrain`` is a raw array (default (1, 1) and (0, 0)).
     memory_budget : int, optional
         Bytes the output may take (default :func:`get_memory_budget`); checked after the count pass, before the
-        output is allocated: vertices, faces and their work arrays, and the colours when ``colors`` is given (a
-        solid's skirt and base, in proportion to the boundary, are not counted).
+        output is allocated: vertices, faces and their work arrays, and the colours when ``colors`` is given. A
+        solid counts its skirt and base too, with the work of building them (at most
+        :func:`~stepterrain.stepped.solid_bytes`: about 4-5 times the surface's bytes, the skirt's share growing
+        with the levels crossed along the boundary), before the surface is allocated.
     device : warp device, optional
         ``"cpu"``, ``"cuda:0"``, ... (default: Warp's default device).
 
@@ -1096,7 +1169,7 @@ def stepped(
         _refuse_floor_above_surface(t, values, gamma, floor)  # before stepping; close_solid has the final word
     if solid:
         t = _off_thresholds(t, values)
-    arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget)
+    arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
     mesh = _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
     )
