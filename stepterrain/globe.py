@@ -597,7 +597,9 @@ class Globe:
         -------
         trimesh.Trimesh (or a list of six)
             Welded: each node once, counter-clockwise seen from outside; ``face_attributes["cube_face"]``,
-            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level).
+            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level); with a
+            camera ``metadata["eye"]`` (its eye, x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's
+            float32 positions relative to it unless given another ``origin``).
 
         Raises
         ------
@@ -629,9 +631,14 @@ class Globe:
             altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
             distance_scale = max(altitude, self.radius * math.pi / 2 / self.cells)
         view = _view(camera, error, names, bounds, _positive(distance_scale, "distance_scale"), self.device)
-        return _extract(self._grid, self._params, view, users, self.levels, faces=6,
+        mesh = _extract(self._grid, self._params, view, users, self.levels, faces=6,
                         cull=bool(cull and camera is not None and "clip" in names), per_face=per_face,
                         device=self.device)
+        if camera is not None:  # save_mesh's default glTF origin: stored relative to the eye, a close view keeps
+            # the vertices near it to float32's rounding of their distance from it (the bounds' centre: 0.3 m off)
+            for part in mesh if per_face else [mesh]:
+                part.metadata["eye"] = [float(c) for c in camera.eye]
+        return mesh
 
 
 # ------------------------------------------------------------------------------------------ shared machinery
