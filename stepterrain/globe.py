@@ -572,7 +572,11 @@ class Globe:
             μ = e, the saturated geometric error in metres; with the distance metric μ = e · (ℓ / d)², so
             ``error`` is the error in metres tolerated at distance ℓ = ``distance_scale`` from the eye, and
             the tolerance grows with the square of the distance (§7.2). ``error=0`` refines every
-            node not clipped: with no camera, the full-resolution sphere.
+            node not clipped: with no camera, the full-resolution sphere. e is the paper's one-level look-ahead
+            error (§7.1: a node's distance from the midpoint of the edge it splits, saturated over its
+            descendants), so every node left out has e <= ε, but its distance from the mesh sums the steps of the
+            levels between: it may exceed ε (the embedded relief at face size 129: within ε up to 500 m, up to
+            2.7 km from the mesh at 2 km). :func:`adaptive_mesh`'s planar e is the true vertical error, a bound.
         camera : Camera, optional
             Eye and frustum for the distance and clip metrics (ignored without one). The eye must lie above the
             terrain surface in its direction (radius plus the node heights interpolated there).
