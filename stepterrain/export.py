@@ -383,7 +383,7 @@ def save_mesh(
         triangles at its border and on the far side), moved those under an eye 100 m up by 0.3 m. By default the
         eye a view's mesh records (``metadata["eye"]``, which :meth:`~stepterrain.globe.Globe.mesh` sets with a
         camera) when it lies within one diagonal of the mesh's bounds (not for a mesh scaled or moved far from it
-        since). Ignored by the other formats, which store coordinates as they are.
+        since) and no ``shared_bounds`` are given. Ignored by the other formats, which store coordinates as they are.
 
     Returns
     -------
@@ -513,7 +513,8 @@ def save_mesh(
             f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
-    anchor = _origin_argument(origin) if origin is not None else _recorded_eye(mesh.metadata, extras, bounds)
+    anchor = _origin_argument(origin) if origin is not None or shared_bounds is not None else \
+        _recorded_eye(mesh.metadata, extras, bounds)  # a set's shared bounds store shared vertices alike: kept
     _check_float32_reach(bounds, ext, target, frame, anchor)
     if ext == ".glb":
         _check_glb_size(mesh, target)

@@ -1493,6 +1493,10 @@ def test_a_close_view_saved_by_the_library_is_stored_relative_to_its_eye(tmp_pat
     error = np.linalg.norm(back.vertices - exact, axis=1)
     assert (error <= 2.0**-23 * (distance + 2.0)).all(), float((error / distance).max())
     assert back.metadata["eye"] == list(camera.eye)  # read back: saved again, the same origin
+    # shared_bounds (a set of meshes stored alike) keep their translation, the floor of their centre: rounded there
+    save_mesh(mesh, tmp_path / "shared.glb", shared_bounds=mesh.bounds)
+    shared = np.linalg.norm(read_mesh(tmp_path / "shared.glb").vertices - exact, axis=1)
+    assert (shared > 2.0**-23 * (distance + 2.0)).any()  # not within the eye's rounding everywhere
     # scaled to km, the recorded eye lies 6,000 km from a mesh 13,000 m across: the bounds' centre is kept
     km = mesh.copy()
     km.apply_scale(1e-3)
