@@ -341,9 +341,23 @@ def _run_globe(args: argparse.Namespace, progress: Progress) -> int:
     mesh = globe.mesh(error=args.error, camera=None if args.no_camera else camera, bounds=bounds,
                       metrics=metrics, cull=not args.no_cull)
     progress.done(f"{_counted(len(mesh.faces), 'triangle')}, {_counted(len(mesh.vertices), 'vertex', 'vertices')}")
-    if len(mesh.faces) == 0:
-        raise InvalidInputError("the view sees no part of the globe (every triangle was clipped); "
-                                "point the eye at the earth or pass --no-cull")
+    if len(mesh.faces) == 0:  # an eye above the terrain looking down sees it: the --tilt looks past the limb
+        # the sphere through the highest node lies within asin(top / |eye|) of straight down, and the view's lowest
+        # edge half the --view-angle below its centre: a --tilt below their sum sees (a part of) that sphere
+        top = globe.radius + float(globe.heights.max())
+        limb = math.degrees(math.asin(min(1.0, top / float(np.linalg.norm(camera.eye)))))
+        lowest = args.tilt - args.view_angle / 2
+        where = f"--eye {lat_deg:.12g},{lon_deg:.12g},{altitude:.12g}"
+        if lowest < limb:  # it sees that sphere but not the terrain below it (at its limb): no bound to name
+            raise InvalidInputError(f"the view sees no part of the globe (every triangle was clipped) from {where} "
+                                    f"with --tilt {args.tilt:g}; lower --tilt, widen --view-angle, bring the --eye "
+                                    "closer, or pass --no-cull")
+        raise InvalidInputError(
+            f"the view sees no part of the globe (every triangle was clipped): from {where} the globe lies within "
+            f"{limb:.4g} degrees of straight down, and the view's lowest edge looks {lowest:.4g} degrees from it "
+            f"(--tilt {args.tilt:g} less half the --view-angle {args.view_angle:g}); lower --tilt {args.tilt:g} "
+            f"below {limb + args.view_angle / 2:.4g} degrees, widen --view-angle, bring the --eye closer, or pass "
+            "--no-cull")
 
     textured = None
     keeps_texture = out.suffix.lower() in (".glb", ".gltf", ".obj")

@@ -380,8 +380,10 @@ def save_mesh(
         centre beyond 65536). Each vertex is stored within float32's rounding of its distance from it (2^-24
         relative), so give the eye of a close view of a globe: the vertices near the eye are then stored as
         finely as the view shows them, where the centre of a view's mesh, which spans thousands of km (the coarse
-        triangles at its border and on the far side), moved those under an eye 100 m up by 0.3 m. Ignored by the
-        other formats, which store coordinates as they are.
+        triangles at its border and on the far side), moved those under an eye 100 m up by 0.3 m. By default the
+        eye a view's mesh records (``metadata["eye"]``, which :meth:`~stepterrain.globe.Globe.mesh` sets with a
+        camera) when it lies within one diagonal of the mesh's bounds (not for a mesh scaled or moved far from it
+        since) and no ``shared_bounds`` are given. Ignored by the other formats, which store coordinates as they are.
 
     Returns
     -------
@@ -511,7 +513,8 @@ def save_mesh(
             f"{ext} stores triangles only (the points would be lost); write .ply, .obj, .glb or .gltf to keep them"
         )
     frame = _shared_bounds(shared_bounds) or bounds  # how coordinates are stored: a set's, or the mesh's own
-    anchor = _origin_argument(origin)
+    anchor = _origin_argument(origin) if origin is not None or shared_bounds is not None else \
+        _recorded_eye(mesh.metadata, extras, bounds)  # a set's shared bounds store shared vertices alike: kept
     _check_float32_reach(bounds, ext, target, frame, anchor)
     if ext == ".glb":
         _check_glb_size(mesh, target)
@@ -662,6 +665,27 @@ def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
     if point.shape != (3,) or not np.isfinite(point).all():
         raise InvalidInputError(f"origin must be 3 finite numbers (x, y, z); got {origin!r:.200}")
     return np.floor(point) + 0.0  # no -0 in the JSON
+
+
+def _recorded_eye(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> NDArray[np.float64] | None:
+    """The default ``origin`` of :func:`save_mesh`: the eye a view's mesh records (``metadata["eye"]``, as
+    :meth:`~stepterrain.globe.Globe.mesh` does; ``metadata`` given to save_mesh over the mesh's own), floored, when it
+    is 3 finite numbers lying within one diagonal of the mesh's bounds. Farther (a mesh scaled or moved since, its
+    eye stale), its float32 positions would round worse than about the bounds' centre: None, the centre kept."""
+    eye = given["eye"] if "eye" in given else recorded.get("eye") if isinstance(recorded, Mapping) else None
+    if eye is None or bounds is None or isinstance(eye, (str, bytes)):
+        return None
+    try:
+        point = np.asarray(eye, dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if point.shape != (3,) or not np.isfinite(point).all():
+        return None
+    lo, hi = bounds
+    outside = np.maximum(np.maximum(lo - point, point - hi), 0.0)
+    if np.linalg.norm(outside) > np.linalg.norm(hi - lo):
+        return None
+    return np.floor(point) + 0.0
 
 
 def _gltf_offset(frame: Bounds, origin: NDArray[np.float64] | None) -> NDArray[np.float64]:

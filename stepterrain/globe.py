@@ -572,7 +572,11 @@ class Globe:
             μ = e, the saturated geometric error in metres; with the distance metric μ = e · (ℓ / d)², so
             ``error`` is the error in metres tolerated at distance ℓ = ``distance_scale`` from the eye, and
             the tolerance grows with the square of the distance (§7.2). ``error=0`` refines every
-            node not clipped: with no camera, the full-resolution sphere.
+            node not clipped: with no camera, the full-resolution sphere. e is the paper's one-level look-ahead
+            error (§7.1: a node's distance from the midpoint of the edge it splits, saturated over its
+            descendants), so every node left out has e <= ε, but its distance from the mesh sums the steps of the
+            levels between: it may exceed ε (the embedded relief at face size 129: within ε up to 500 m, up to
+            2.7 km from the mesh at 2 km). :func:`adaptive_mesh`'s planar e is the true vertical error, a bound.
         camera : Camera, optional
             Eye and frustum for the distance and clip metrics (ignored without one). The eye must lie above the
             terrain surface in its direction (radius plus the node heights interpolated there).
@@ -597,7 +601,9 @@ class Globe:
         -------
         trimesh.Trimesh (or a list of six)
             Welded: each node once, counter-clockwise seen from outside; ``face_attributes["cube_face"]``,
-            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level).
+            ``metadata["node_entry"]`` (vertex -> node entry), ``metadata["levels"]`` (triangles per level); with a
+            camera ``metadata["eye"]`` (its eye, x, y, z: :func:`~stepterrain.export.save_mesh` stores a glTF's
+            float32 positions relative to it unless given another ``origin``).
 
         Raises
         ------
@@ -629,9 +635,14 @@ class Globe:
             altitude = np.linalg.norm(camera.eye) - self.radius if camera is not None else 0.0
             distance_scale = max(altitude, self.radius * math.pi / 2 / self.cells)
         view = _view(camera, error, names, bounds, _positive(distance_scale, "distance_scale"), self.device)
-        return _extract(self._grid, self._params, view, users, self.levels, faces=6,
+        mesh = _extract(self._grid, self._params, view, users, self.levels, faces=6,
                         cull=bool(cull and camera is not None and "clip" in names), per_face=per_face,
                         device=self.device)
+        if camera is not None:  # save_mesh's default glTF origin: stored relative to the eye, a close view keeps
+            # the vertices near it to float32's rounding of their distance from it (the bounds' centre: 0.3 m off)
+            for part in mesh if per_face else [mesh]:
+                part.metadata["eye"] = [float(c) for c in camera.eye]
+        return mesh
 
 
 # ------------------------------------------------------------------------------------------ shared machinery

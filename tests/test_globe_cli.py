@@ -383,3 +383,24 @@ def test_globe_close_view_glb_is_stored_relative_to_the_eye(tmp_path):
     assert distance.min() < 10_000.0  # a vertex near the eye
     error = np.linalg.norm(stored - exact, axis=1)
     assert (error <= 2.0**-23 * (distance + 2.0)).all(), float((error / distance).max())
+
+
+def test_a_view_tilted_off_the_globe_names_the_view_options(tmp_path, capsys):
+    """A view tilted past the globe's limb sees nothing, and the refusal said only "point the eye at the earth or
+    pass --no-cull", naming neither --tilt nor how far the globe lies from straight down. It now names the --eye and
+    --tilt given, the limb's angle from straight down (asin((R + highest) / |eye|)) and the largest --tilt that sees
+    the globe (that angle plus half the --view-angle), and the options to change; a --tilt below it meshes."""
+    out = tmp_path / "g.glb"
+    base = ["globe", "--face-size", "9", "--eye", "0,0,20000000", "--view-angle", "30", "-o", str(out),
+            "--device", "cpu"]
+    assert main([*base, "--tilt", "80"]) == 2
+    err = capsys.readouterr().err
+    top = 6_371_000.0 + 8_000.0  # the embedded relief's highest node at face size 9 lies below 8 km
+    limb = np.degrees(np.arcsin(top / (6_371_000.0 + 2e7)))
+    found = re.search(r"the globe lies within ([\d.]+) degrees of straight down.* lower --tilt 80 below "
+                      r"([\d.]+) degrees", err)
+    assert found and "--eye 0,0,20000000" in err and "--view-angle" in err and "--no-cull" in err, err
+    assert abs(float(found[1]) - limb) < 0.2 and abs(float(found[2]) - (limb + 15.0)) < 0.2, err
+    assert not out.exists()
+    assert main([*base, "--tilt", f"{float(found[2]) - 1.0:.6g}"]) == 0  # just below the bound: sees the globe
+    assert main([*base, "--tilt", f"{float(found[2]) + 1.0:.6g}"]) == 2  # just above it: sees nothing

@@ -13,7 +13,7 @@ from stepterrain.kernels import cubesphere as cs
 
 import stepterrain._compaction as compaction
 from stepterrain.errors import InvalidInputError, OutputTooLargeError
-from stepterrain.globe import Camera, Globe, adaptive_mesh
+from stepterrain.globe import Camera, Globe, adaptive_mesh, look_from
 
 from .conftest import needs_render
 
@@ -1466,3 +1466,40 @@ def test_the_copies_of_a_seam_node_have_the_same_parameter_bits(device):
         errors = errors.numpy()
         assert (errors[:, 0].view(np.uint64) == errors[:, 1].view(np.uint64)).all(), face_size
         assert _differing_copies(errors[:, 0].copy(), group[inner]).size == 0, face_size
+
+
+def test_a_close_view_saved_by_the_library_is_stored_relative_to_its_eye(tmp_path):
+    """``stepterrain globe`` wrote a view's GLB relative to the eye (``origin=camera.eye``), but a library user's
+    ``save_mesh(globe.mesh(camera=...), "view.glb")`` stored it relative to the centre of the mesh's bounds, which
+    spans thousands of km: the vertices under an eye 100 m up came back up to 0.3 m off. ``Globe.mesh`` now records
+    the eye in ``metadata["eye"]`` and ``save_mesh`` takes it as the origin when none is given: each vertex within
+    float32's rounding of its own distance from the eye. A mesh moved away from its recorded eye (scaled to km)
+    keeps the centre of its bounds (the stale eye would round it far worse)."""
+    from stepterrain.export import read_mesh, save_mesh
+
+    lat = np.linspace(89.5, -89.5, 180)
+    lon = np.linspace(-179.5, 179.5, 360)
+    z = 1000.0 * np.cos(np.radians(lat))[:, None] * np.sin(np.radians(3 * lon))[None, :]
+    globe = Globe.from_latlon(z, lat, lon, face_size=65, device="cpu")
+    camera = look_from(0.0, 0.0, 100.0 + globe._height_under(np.array([1.0, 0.0, 0.0])))
+    mesh = globe.mesh(error=0.5, camera=camera)
+    assert mesh.metadata["eye"] == list(camera.eye)
+    exact = np.asarray(mesh.vertices)
+    assert np.ptp(exact, axis=0).max() > 1e6  # the view's mesh spans thousands of km
+    distance = np.linalg.norm(exact - np.asarray(camera.eye), axis=1)
+    assert distance.min() < 10_000.0  # a vertex near the eye
+    save_mesh(mesh, tmp_path / "view.glb")
+    back = read_mesh(tmp_path / "view.glb")
+    error = np.linalg.norm(back.vertices - exact, axis=1)
+    assert (error <= 2.0**-23 * (distance + 2.0)).all(), float((error / distance).max())
+    assert back.metadata["eye"] == list(camera.eye)  # read back: saved again, the same origin
+    # shared_bounds (a set of meshes stored alike) keep their translation, the floor of their centre: rounded there
+    save_mesh(mesh, tmp_path / "shared.glb", shared_bounds=mesh.bounds)
+    shared = np.linalg.norm(read_mesh(tmp_path / "shared.glb").vertices - exact, axis=1)
+    assert (shared > 2.0**-23 * (distance + 2.0)).any()  # not within the eye's rounding everywhere
+    # scaled to km, the recorded eye lies 6,000 km from a mesh 13,000 m across: the bounds' centre is kept
+    km = mesh.copy()
+    km.apply_scale(1e-3)
+    save_mesh(km, tmp_path / "km.glb")
+    scale = np.abs(km.vertices).max()
+    assert np.abs(read_mesh(tmp_path / "km.glb").vertices - km.vertices).max() <= 2.0**-23 * scale
