@@ -32,7 +32,7 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
-from .io import _NPZ_SCALING, equals_nodata, npz_missing, npz_nodata, refuse_npz_scaling
+from .io import _NPZ_SCALING, GDAL_FORMATS, equals_nodata, npz_missing, npz_nodata, refuse_npz_scaling
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
 
@@ -91,8 +91,9 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value, "
-                        "or marked by a boolean mask or valid, are refused: fill them first), or a GeoTIFF in degrees "
-                        "(EPSG:4326; nodata refused as well); "
+                        "or marked by a boolean mask or valid, are refused: fill them first), or a raster in degrees "
+                        "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ...; EPSG:4326; nodata refused "
+                        "as well); "
                         "default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")
@@ -142,11 +143,11 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise DataFileError(f"INPUT {path!r} does not exist")
     if not file.is_file():
         raise DataFileError(f"INPUT {path!r} is not a file")
-    if file.suffix.lower() in (".tif", ".tiff"):
+    if file.suffix.lower() in GDAL_FORMATS:  # a GeoTIFF, .asc, .hgt, .img, .vrt, ...: as load_dem reads them
         return _load_geotiff_grid(file)
     if file.suffix.lower() != ".npz":
-        raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a GeoTIFF in degrees; "
-                                f"got {path!r}")
+        raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a raster in degrees "
+                                f"({' '.join(GDAL_FORMATS)}); got {path!r}")
     try:
         data = np.load(file)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
@@ -188,12 +189,12 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _load_geotiff_grid(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """A global GeoTIFF in a geographic CRS as (lat, lon, elevation): the heights as load_dem reads them (nodata, an
-    internal mask, scale and offset, a height unit, a .prj; missing cells as NaN, which the globe refuses: fill them
-    first), and the node degrees of its rows and columns from the degrees it read (stored order: north-first for a
-    north-up file, longitudes 0..360 or -180..180 as the file has them). It was refused as not an .npz: a GIS user's
-    global grid (ETOPO, GEBCO) is a GeoTIFF. load_dem's warning that its local metres err far from the equator is
-    left out: the globe reads degrees."""
+    """A global GeoTIFF (or any raster of io.GDAL_FORMATS) in a geographic CRS as (lat, lon, elevation): the heights
+    as load_dem reads them (nodata, an internal mask, scale and offset, a height unit, a .prj; missing cells as NaN,
+    which the globe refuses: fill them first), and the node degrees of its rows and columns from the degrees it read
+    (stored order: north-first for a north-up file, longitudes 0..360 or -180..180 as the file has them). It was
+    refused as not an .npz: a GIS user's global grid (ETOPO, GEBCO) is a GeoTIFF. load_dem's warning that its local
+    metres err far from the equator is left out: the globe reads degrees."""
     import warnings
 
     from .io import _lonlat_grid, _spherical_eqc, load_dem
@@ -205,7 +206,7 @@ def _load_geotiff_grid(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     lonlat = _lonlat_grid(terrain)  # describe_dem's lonlat_step, without its passes over the heights
     step = lonlat[1] if lonlat else None
     if eqc is None or step is None or terrain.origin != (0.0, 0.0):
-        raise InvalidInputError(f"INPUT {str(file)!r} must be a GeoTIFF in a geographic CRS (degrees: EPSG:4326); got "
+        raise InvalidInputError(f"INPUT {str(file)!r} must be a raster in a geographic CRS (degrees: EPSG:4326); got "
                                 f"CRS {terrain.crs or 'none'}; gdalwarp -t_srs EPSG:4326 makes it one")
     _, _, lat_0, lon_0, _, _ = eqc  # node (0, 0), the origin of load_dem's local metres
     rows, cols = terrain.shape

@@ -75,12 +75,51 @@ def test_globe_from_a_geotiff_in_degrees(tmp_path, capsys):
     projected = geotiff("utm.tif", z, Affine(30.0, 0.0, 500000.0, 0.0, -30.0, 4000000.0), crs="EPSG:32611")
     holes = z.copy()
     holes[3, 4] = -32768
-    for path, message in [(projected, "must be a GeoTIFF in a geographic CRS (degrees: EPSG:4326); got CRS EPSG:32611"),
+    for path, message in [(projected, "must be a raster in a geographic CRS (degrees: EPSG:4326); got CRS EPSG:32611"),
                           (geotiff("holes.tif", holes, Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0), nodata=-32768),
                            "elevation has 1 NaN or infinite value (first at row 3, column 4)")]:
         assert main(["globe", str(path), "--face-size", "9", "-o", str(tmp_path / "x.glb")]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "x.glb").exists()
+
+
+def test_globe_from_other_rasters_in_degrees_as_load_dem_reads_them(tmp_path, capsys):
+    """load_dem reads every GDAL raster of io.GDAL_FORMATS (.asc, .img, .vrt, ...); the globe took only a GeoTIFF and
+    refused an ESRI ASCII grid or a VRT of a global grid as "must be a .npz". Each gives the .npz's mesh."""
+    rasterio = pytest.importorskip("rasterio")
+    from rasterio.transform import Affine
+
+    z = (np.add.outer(np.arange(18), np.arange(36)) % 50 * 100).astype(np.float32)
+    lat, lon = 85.0 - 10.0 * np.arange(18), 5.0 + 10.0 * np.arange(36)
+    transform = Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0)
+
+    def mesh(source):
+        out = tmp_path / f"{Path(source).name}.ply"
+        code = main(["-q", "globe", str(source), "--face-size", "9", "--no-camera", "--error", "0", "-o", str(out)])
+        assert code == 0, capsys.readouterr().err
+        return trimesh.load(out, process=False)
+
+    grid = tmp_path / "grid.npz"
+    np.savez(grid, elevation=z, lat=lat, lon=lon)
+    expected = mesh(grid)
+    tif = tmp_path / "g.tif"
+    for path, driver in ((tmp_path / "g.asc", "AAIGrid"), (tmp_path / "g.img", "HFA"), (tif, "GTiff")):
+        with rasterio.open(path, "w", driver=driver, width=36, height=18, count=1, dtype="float32",
+                           crs="EPSG:4326", transform=transform) as ds:  # fmt: skip
+            ds.write(z, 1)
+    vrt = tmp_path / "g.vrt"
+    vrt.write_text("""<VRTDataset rasterXSize="36" rasterYSize="18"><SRS>EPSG:4326</SRS>
+<GeoTransform>0, 10, 0, 90, 0, -10</GeoTransform><VRTRasterBand dataType="Float32" band="1"><SimpleSource>
+<SourceFilename relativeToVRT="1">g.tif</SourceFilename><SourceBand>1</SourceBand></SimpleSource></VRTRasterBand>
+</VRTDataset>""")
+    for path in (tmp_path / "g.asc", tmp_path / "g.img", vrt):
+        got = mesh(path)
+        assert np.allclose(got.vertices, expected.vertices, rtol=0, atol=1e-3), path.name
+        assert np.array_equal(got.faces, expected.faces)
+    bad = tmp_path / "g.txt"
+    bad.write_text("x")
+    assert main(["globe", str(bad), "--face-size", "9", "-o", str(tmp_path / "x.glb")]) == 2
+    assert "or a raster in degrees (.tif .tiff .asc" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
