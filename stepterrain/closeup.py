@@ -153,10 +153,16 @@ def _seconds(time: Any) -> float:
     return t
 
 
-def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np.float32]:
-    """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between."""
+def _smooth_edge(distance: NDArray[np.float64], edge_width: float, closed: bool = False) -> NDArray[np.float32]:
+    """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between.
+
+    A hard edge (``edge_width`` 0) with ``closed`` counts the shape's boundary (d = 0) as inside: a rectangle's
+    boundary is its box's own rim, where the mask's outer texels lie, and with them at 0 a hard rectangle over a
+    terrain's whole extent had m = 0 at every rim node (a 2 x 2 grid's all four) and was refused as holding no
+    terrain. A curved shape stays open: its boundary touches the box rim at single texels only, which as 1 would
+    stick out as one-texel spikes."""
     if edge_width <= 0:
-        return (distance < 0).astype(np.float32)
+        return (distance <= 0 if closed else distance < 0).astype(np.float32)
     with np.errstate(over="ignore"):
         x = np.clip(-distance / edge_width, 0.0, 1.0)
     return (x * x * (3.0 - 2.0 * x)).astype(np.float32)
@@ -304,7 +310,9 @@ class ROI:
     @classmethod
     def rectangle(cls, center: ArrayLike, size: ArrayLike, *, edge_width: float | None = None,
                   resolution: int = 129) -> ROI:
-        """An axis-aligned rectangle of ``size`` = (width, height); soft edge (default min side / 10)."""
+        """An axis-aligned rectangle of ``size`` = (width, height); soft edge (default min side / 10). A hard edge
+        (``edge_width`` 0) is closed: m = 1 on the box's rim too, so a box over the terrain's whole extent holds all
+        of it."""
         return cls.rounded_rectangle(center, size, corner_radius=0.0, edge_width=edge_width,
                                      resolution=resolution)._named("rectangle")
 
@@ -323,7 +331,7 @@ class ROI:
         rows, cols = _mask_grid(resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
-        return cls(center, (w, h), _smooth_edge(distance, width), "rounded_rectangle")
+        return cls(center, (w, h), _smooth_edge(distance, width, closed=True), "rounded_rectangle")
 
     def _named(self, shape: str) -> ROI:
         return replace(self, shape=shape)
@@ -1351,14 +1359,11 @@ _CULL_FACE_BYTES = 12 + (8 + 12 + 4) + (24 + 24 + 4 + 8)
 def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
     """Why close-up k has no geometry: its mask is 0 at every node (point) of a triangle with three heights under
     it; where some node with a height has m > 0 but joins no such triangle (a grid node with nodata all around it, a
-    TIN point on no face), that is named: the message said its mask was 0 at every node with a height."""
+    TIN point on no face), that is named: the message said its mask was 0 at every node with a height. Otherwise it
+    says what the box holds (no node, only nodata, or nodes with a height where m = 0): it guessed "a ROI smaller
+    than the grid spacing" of any box, also of one over the whole terrain whose hard edge left m = 0 on its rim."""
     bx0, bx1, by0, by1 = cu.roi.box
-    if t.kind == "grid":
-        spacing = f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}"
-        where = "grid node"
-    else:
-        spacing = "the TIN's point spacing"
-        where = "TIN point"
+    where = "grid node" if t.kind == "grid" else "TIN point"
     head = f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: "
     lone = _lone_heights_under(t, cu.roi)
     if lone:  # it said "its mask is 0 at every grid node with a height" of nodes with a height inside the ROI
@@ -1366,8 +1371,36 @@ def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
         nodes = counted(lone, f"{where} with a height", f"{where}s with a height")
         return (head + f"its mask is above 0 only at {nodes} that {'joins' if lone == 1 else 'join'} no triangle "
                 f"with three heights (the overview has no surface there{around}); move it onto the terrain")
-    return (head + f"its mask is 0 at every {where} with a height (a ROI smaller than {spacing}, between the nodes, "
-            "or over nodata); make it larger or move it onto the terrain")
+    xy, heights = _nodes_in_box(t, cu.roi.box)
+    finite = np.isfinite(heights)
+    if not len(xy):
+        spacing = (f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}" if t.kind == "grid"
+                   else "the TIN's point spacing")
+        why = f"its box holds no {where} (it lies between the nodes, at {spacing})"
+    elif not finite.any():
+        why = f"the {counted(len(xy), where)} in its box {'is' if len(xy) == 1 else 'are'} nodata"
+    else:
+        n = int(finite.sum())
+        why = (f"the ROI's mask factor m is 0 at {'the' if n == 1 else 'all'} "
+               f"{counted(n, f'{where} with a height', f'{where}s with a height')} in its box")
+    return (head + f"its mask is 0 at every {where} with a height ({why}); make it larger or move it onto the "
+            "terrain")
+
+
+def _nodes_in_box(t: Terrain, box: tuple[float, float, float, float]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float32]]:
+    """The world xy (N, 2) and heights (N,) of the grid nodes (TIN points) inside ``box``, rim included (error
+    path only)."""
+    if t.kind == "grid":
+        i0, i1, j0, j1 = _grid_window(t, box)
+        jj, ii = np.meshgrid(np.arange(j0, j1 + 1), np.arange(i0, i1 + 1))
+        xy = np.column_stack([t.origin[0] + jj.reshape(-1) * t.spacing[0],
+                              t.origin[1] + ii.reshape(-1) * t.spacing[1]])
+        heights = t.heights[i0: i1 + 1, j0: j1 + 1].reshape(-1)
+    else:
+        xy, heights = t.points[:, :2].astype(np.float64), t.heights
+    inside = (xy[:, 0] >= box[0]) & (xy[:, 0] <= box[1]) & (xy[:, 1] >= box[2]) & (xy[:, 1] <= box[3])
+    return xy[inside], heights[inside]
 
 
 def _check_content(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer]) -> None:

@@ -587,9 +587,10 @@ def test_a_roi_that_holds_no_terrain_is_refused_by_name(mapping):
     heights = hills()
     heights[5:25, 5:25] = np.nan
     t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
-    for roi in (ROI.circle((305.0, 255.0), 4.0), ROI.circle((150.0, 150.0), 40.0)):  # inside one cell; in the hole
+    for roi, why in ((ROI.circle((305.0, 255.0), 4.0), "between the nodes, at the grid spacing 10 x 10"),  # in a cell
+                     (ROI.circle((150.0, 150.0), 40.0), "the 81 grid nodes in its box are nodata")):  # in the hole
         cu = CloseUp(roi, offset=(0.0, 0.0, 50.0), **mapping)
-        expected = r"^closeups\[1\]: ROI box .* holds no terrain: .*grid spacing 10 x 10"
+        expected = rf"^closeups\[1\]: ROI box .* holds no terrain: .*{why}"
         with pytest.raises(InvalidInputError, match=expected):
             closeup_layers(t, [CloseUp(ROI.circle((305.0, 255.0), 30.0)), cu], device="cpu")
         with pytest.raises(InvalidInputError, match=r"closeups\[0\]: ROI box .* holds no terrain"):
@@ -1439,3 +1440,60 @@ def test_a_camera_framing_away_from_the_closeups_renders_the_overview_alone(came
             np.testing.assert_array_equal(image[~footprint], bare[~footprint])
     finally:
         renderer.close()
+
+
+@pytest.mark.parametrize("n", [2, 3, 7])
+def test_a_hard_rectangle_over_the_whole_extent_holds_all_of_the_terrain(n):
+    """A hard-edged rectangle (edge_width=0) whose box is the terrain's extent: its mask was 0 on the box's rim where
+    the boundary nodes sit, so a 2 x 2 grid (four corner nodes) was refused as holding no terrain and larger grids
+    lost their rim. The hard rectangle is closed: every node is inside (m = 1) and the close-up is the whole terrain
+    moved by M."""
+    from stepterrain.terrain import Terrain
+
+    rng = np.random.default_rng(n)
+    t = Terrain.from_heights(rng.uniform(0, 50, (n, n)).astype(np.float32), spacing=(10.0, 10.0), origin=(5.0, 7.0))
+    x0, x1, y0, y1 = t.extent
+    roi = ROI.rectangle(((x0 + x1) / 2, (y0 + y1) / 2), (x1 - x0, y1 - y0), edge_width=0)
+    layer = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 100.0))], device="cpu")[0]
+    mesh = t.mesh()
+    assert len(layer.faces) == len(mesh.faces)
+    assert np.all(layer.mask_factor == 1.0)
+    np.testing.assert_allclose(layer.vertices, layer.original + [0.0, 0.0, 100.0], atol=1e-3)
+    jj, ii = np.meshgrid(np.arange(n), np.arange(n))
+    nodes = np.column_stack([x0 + 10.0 * jj.ravel(), y0 + 10.0 * ii.ravel()])
+    assert np.all(roi.factor(nodes) == 1.0)
+
+
+def test_a_soft_or_curved_hard_edge_keeps_its_mask():
+    """The closed hard edge is the rectangle's: soft edges and a hard circle keep m = 0 on the box rim."""
+    assert ROI.rectangle((0.0, 0.0), (10.0, 4.0)).mask[0].max() == 0.0
+    circle = ROI.circle((0.0, 0.0), 5.0, edge_width=0).mask
+    assert circle[0].max() == circle[-1].max() == circle[:, 0].max() == circle[:, -1].max() == 0.0
+    hard = ROI.rectangle((0.0, 0.0), (10.0, 4.0), edge_width=0).mask
+    assert hard.min() == 1.0
+
+
+def test_a_roi_without_terrain_is_told_what_its_box_holds_not_a_guessed_cause():
+    """"holds no terrain" blamed "a ROI smaller than the grid spacing, between the nodes, or over nodata" whatever
+    the ROI: a box over many nodes with a height whose mask is 0 at all of them was told it was too small. The
+    message now says what the box holds."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills()
+    heights[5:25, 5:25] = np.nan
+    t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
+    ring = np.zeros((141, 141), np.float32)
+    ring[1::20, 1::20] = 1.0  # m > 0 only off the nodes: the 140 x 140 box has 15 x 15 nodes with a height, m = 0
+    painted = ROI.painted(ring, (330.0, 200.0), (140.0, 140.0))
+    cases = [
+        (painted, r"its mask is 0 at every grid node with a height \(the ROI's mask factor m is 0 at all 225 grid "
+                  r"nodes with a height in its box\)"),
+        (ROI.circle((150.0, 150.0), 40.0), r"\(the 81 grid nodes in its box are nodata\)"),
+        (ROI.circle((305.0, 255.0), 4.0), r"\(its box holds no grid node \(it lies between the nodes, at the grid "
+                                          r"spacing 10 x 10\)\)"),
+    ]
+    for roi, expected in cases:
+        with pytest.raises(InvalidInputError, match=r"holds no terrain: .*" + expected) as info:
+            closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+        assert "smaller than" not in str(info.value)
