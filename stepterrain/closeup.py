@@ -407,7 +407,8 @@ class ROI:
     @classmethod
     def stepped_level(cls, terrain: Terrain | ArrayLike, level: int, *, interval: float | None = None,
                       levels: ArrayLike | None = None, base: float = 0.0, region: ArrayLike | None = None) -> ROI:
-        """A generated mask: the nodes whose stepped level (paper 000) is ``level`` (an isovalue index)."""
+        """A generated mask: the nodes whose stepped level (paper 000) is ``level`` (an isovalue index). A level
+        that holds no height of the terrain (of the ``region``) is refused, naming the levels that do."""
         from .stepped import isovalues, thresholds_of
 
         t = as_terrain(terrain)
@@ -426,6 +427,18 @@ class ROI:
         heights, center, size = _terrain_window(t, region)
         with np.errstate(invalid="ignore"):
             m = ((heights >= low) & (heights < high)).astype(np.float32)
+        if not m.any():  # an empty ROI was refused only when it met the terrain, as "holds no terrain"
+            finite = heights[np.isfinite(heights)]
+            held = np.unique(np.searchsorted(thresholds, finite, side="right")) if len(thresholds) else \
+                np.zeros(min(len(finite), 1), np.int64)
+            where = "the terrain"
+            if region is not None:  # checked by _terrain_window: four numbers
+                r = np.asarray(region, np.float64).reshape(-1)
+                where += f" in region x [{r[0]:g}, {r[1]:g}], y [{r[2]:g}, {r[3]:g}]"
+            them = (f"the levels that hold terrain there are {_index_ranges(held)}" if len(held)
+                    else "it has no finite height")
+            raise InvalidInputError(f"level {level} (isovalue {float(values[level]):g}) holds no height of {where}, so "
+                                    f"the ROI would be empty; {them}")
         return cls(center, size, m, "stepped_level")
 
     # -------------------------------------------------------------------------- geometry
@@ -487,6 +500,17 @@ class ROI:
             np.clip(line[:, 0], xmin, xmax, out=line[:, 0])
             np.clip(line[:, 1], ymin, ymax, out=line[:, 1])
         return lines
+
+
+def _index_ranges(indices: NDArray[np.integer]) -> str:
+    """Sorted distinct indices as runs for a message: [1, 2, 3, 5] -> "1..3, 5"."""
+    runs: list[list[int]] = []
+    for i in indices.tolist():
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(f"{a}" if a == b else f"{a}..{b}" for a, b in runs)
 
 
 def _gradient(heights: NDArray[np.floating], dy: float, dx: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

@@ -1497,3 +1497,36 @@ def test_a_roi_without_terrain_is_told_what_its_box_holds_not_a_guessed_cause():
         with pytest.raises(InvalidInputError, match=r"holds no terrain: .*" + expected) as info:
             closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
         assert "smaller than" not in str(info.value)
+
+
+def test_an_empty_stepped_level_is_refused_when_the_roi_is_built():
+    """ROI.stepped_level took a level with no terrain (the sample DEM's level 0 at 200 m: isovalue 200 holds heights
+    below 300 m, the DEM starts at 315 m) and made an all-zero ROI, refused only later as "holds no terrain". It is
+    now refused at once, naming the level and the levels that hold terrain (checked against the stepped levels of
+    the heights by NumPy)."""
+    import stepterrain as st
+    from stepterrain.stepped import isovalues, thresholds_of
+
+    t = st.sample_dem()
+    values = np.asarray(isovalues(t.height_range, interval=200.0), np.float32)
+    finite = t.heights[np.isfinite(t.heights)]
+    held = sorted(set(np.digitize(finite, thresholds_of(values)).tolist()))
+    assert held == list(range(held[0], held[-1] + 1)) and held[0] > 0 and held[-1] < len(values) - 1
+    for level in (0, len(values) - 1):
+        with pytest.raises(InvalidInputError, match=rf"^level {level} \(isovalue {values[level]:g}\) holds no height "
+                                                    rf"of the terrain, so the ROI would be empty; the levels that "
+                                                    rf"hold terrain there are {held[0]}\.\.{held[-1]}$"):
+            ROI.stepped_level(t, level, interval=200.0)
+    for level in held:
+        assert ROI.stepped_level(t, level, interval=200.0).mask.max() == 1.0
+    x0, x1, y0, y1 = t.extent
+    region = (x0, x0 + 2000.0, y0, y0 + 2000.0)  # a corner: some of the levels only
+    in_region = []
+    for level in held:
+        try:
+            assert ROI.stepped_level(t, level, interval=200.0, region=region).mask.max() == 1.0
+            in_region.append(level)
+        except InvalidInputError as exc:
+            assert re.match(rf"level {level} .* holds no height of the terrain in region x \[{x0:g}, .*\], so the ROI "
+                            rf"would be empty; the levels that hold terrain there are ", str(exc)), exc
+    assert in_region and in_region != held
