@@ -1653,28 +1653,27 @@ def anchor_strips(
            str(device))  # the scale sets how far the outline is thinned
     fixed = derived(t.cached(("closeup", "anchor-static"), dict), key, rois, lambda: _anchor_static(t, items, device))
     if fixed is None:
-        rung_count = max(cu.anchor.rungs for cu in items)
         return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
-                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
+                            np.zeros(0, np.float32), _closeup_color(cu, k), cu.anchor.rungs, 0.0)
                 for k, cu in enumerate(items)]
-    total, rung_count, outline_layer, outline_wp, layer_wp, tf, v_bounds, layer_faces = fixed
+    total, (nv, layer_rungs_wp, vertex_start_wp), outline_layer, outline_wp, layer_wp, tf, v_bounds, layer_faces = \
+        fixed
     layers = _layers_struct(items, matrices, t.local_origin, device)
     lengths = wp.empty(total, dtype=wp.float32, device=device)
     launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
     max_len = np.zeros(len(items), np.float32)
     np.maximum.at(max_len, outline_layer, lengths.numpy())
-    nv = total * (rung_count + 1)
     vertices = wp.empty(nv, dtype=wp.vec3, device=device)
     distance = wp.empty(nv, dtype=wp.float32, device=device)
     opacity = wp.empty(nv, dtype=wp.float32, device=device)
     launch(closeup_kernels.emit_anchor_vertices, total,
-           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, rung_count],
+           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, layer_rungs_wp, vertex_start_wp],
            [vertices, distance, opacity], device)
     v = _world(host_copy(vertices), ox, oy)
     d, a = distance.numpy(), opacity.numpy()
     return [
         AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], layer_faces[k], d[v_bounds[k]: v_bounds[k + 1]],
-                    a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k), rung_count, float(max_len[k]))
+                    a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k), cu.anchor.rungs, float(max_len[k]))
         for k, cu in enumerate(items)
     ]
 
@@ -1884,29 +1883,36 @@ def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> t
         heights.append(z_line)
         layer_ids.append(np.full(len(line), k, np.int32))
         total += len(line)
-    rung_count = max(cu.anchor.rungs for cu in items)  # one launch: every strip gets the largest rung count
     xy = np.concatenate(points)
     z = np.concatenate(heights)
     outline = np.column_stack([xy[:, 0] - ox, xy[:, 1] - oy, z]).astype(np.float32)
     outline_layer = np.concatenate(layer_ids)
     seg = np.concatenate(segments).astype(np.int32)
-    faces = wp.empty(len(seg) * 2 * rung_count, dtype=wp.vec3i, device=device)
-    launch(closeup_kernels.emit_anchor_faces, len(seg), [to_device(seg, wp.vec2i, device), rung_count], [faces],
-           device)
+    # each close-up its own anchor.rungs, still one launch: per point its first strip vertex, per segment its first
+    # face (every strip was given the largest rung count of the call, and AnchorStrip.rungs said so)
+    layer_rungs = np.array([cu.anchor.rungs for cu in items], np.int64)
+    point_rungs = layer_rungs[outline_layer]
+    vertex_start = np.concatenate([[0], np.cumsum(point_rungs + 1)])  # (points + 1,): the last is the total
+    seg_layer = outline_layer[seg[:, 0]]
+    face_start = np.concatenate([[0], np.cumsum(2 * layer_rungs[seg_layer])])
+    layer_rungs_wp = to_device(layer_rungs.astype(np.int32), wp.int32, device)
+    vertex_start_wp = to_device(vertex_start[:-1].astype(np.int32), wp.int32, device)
+    layer_wp = wp.array(outline_layer, dtype=wp.int32, device=device)
+    faces = wp.empty(int(face_start[-1]), dtype=wp.vec3i, device=device)
+    launch(closeup_kernels.emit_anchor_faces, len(seg),
+           [to_device(seg, wp.vec2i, device), layer_wp, layer_rungs_wp, vertex_start_wp,
+            to_device(face_start[:-1].astype(np.int32), wp.int32, device)], [faces], device)
     f = host_copy(faces).astype(np.int64)
-    v_layer = np.repeat(outline_layer, rung_count + 1)
-    f_layer = np.repeat(outline_layer[seg[:, 0]], 2 * rung_count)
-    v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
-    f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
+    v_bounds = vertex_start[np.searchsorted(outline_layer, np.arange(len(items) + 1))]
+    f_bounds = face_start[np.searchsorted(seg_layer, np.arange(len(items) + 1))]
     layer_faces = []
     for k in range(len(items)):
         fk = f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k]
         fk.setflags(write=False)
         layer_faces.append(fk)
     outline_wp = wp.array(outline, dtype=wp.vec3, device=device)
-    layer_wp = wp.array(outline_layer, dtype=wp.int32, device=device)
-    return (total, rung_count, outline_layer, outline_wp, layer_wp, _transfer_struct(items, device), v_bounds,
-            layer_faces)
+    return (total, (int(vertex_start[-1]), layer_rungs_wp, vertex_start_wp), outline_layer, outline_wp, layer_wp,
+            _transfer_struct(items, device), v_bounds, layer_faces)
 
 
 # ------------------------------------------------------------------------------------------------ compositing

@@ -1530,3 +1530,29 @@ def test_an_empty_stepped_level_is_refused_when_the_roi_is_built():
             assert re.match(rf"level {level} .* holds no height of the terrain in region x \[{x0:g}, .*\], so the ROI "
                             rf"would be empty; the levels that hold terrain there are ", str(exc)), exc
     assert in_region and in_region != held
+
+
+def test_each_anchor_strip_has_the_rungs_its_closeup_asked_for():
+    """anchor_strips gave every close-up of a call the largest anchor.rungs among them (one launch), so a close-up
+    asking for 2 rungs drawn beside one asking for 16 got 16 (AnchorStrip.rungs said 16). Each strip now has its own,
+    still in one launch, and equals the strip of its close-up alone bit for bit: P·(rungs + 1) vertices on the
+    segments from V_O to M·V_O, 2·rungs faces per outline segment."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+    cus = [CloseUp(ROI.circle((1020.0, 2020.0), 8.0), offset=(0.0, 0.0, 40.0), anchor=AnchorStyle(rungs=2)),
+           CloseUp(ROI.circle((1060.0, 2040.0), 10.0), offset=(5.0, 0.0, 60.0), anchor=AnchorStyle(rungs=16)),
+           CloseUp(ROI.rectangle((1040.0, 2015.0), (12.0, 8.0)), offset=(0.0, 5.0, 30.0), anchor=AnchorStyle(rungs=5))]
+    together = anchor_strips(t, cus, device="cpu")
+    for cu, strip in zip(cus, together, strict=True):
+        rungs = cu.anchor.rungs
+        assert strip.rungs == rungs
+        (alone,) = anchor_strips(t, [cu], device="cpu")
+        for name in ("vertices", "faces", "distance", "opacity"):
+            np.testing.assert_array_equal(getattr(strip, name), getattr(alone, name), err_msg=name)
+        points = len(strip.vertices) // (rungs + 1)
+        assert points * (rungs + 1) == len(strip.vertices) and points >= 3
+        rung = strip.vertices.reshape(points, rungs + 1, 3)
+        steps = np.diff(rung, axis=1)  # evenly spaced along each rung
+        np.testing.assert_allclose(steps, np.repeat(steps[:, :1], rungs, axis=1), atol=1e-3)
+        assert len(strip.faces) % (2 * rungs) == 0 and strip.faces.max() < len(strip.vertices)
