@@ -2322,7 +2322,9 @@ def render_closeups(
     ------
     InvalidInputError
         Too many close-ups for the window, a ROI outside the terrain or reaching it with its soft edge only (m below
-        ``anchor.outline_level`` at every node under it, without ``anchor.band``: no content to draw), bad options.
+        ``anchor.outline_level`` at every node under it, without ``anchor.band``: no content to draw), a camera
+        fitted to the overview and close-ups (no ``bounds``) that would show the overview under a pixel (a
+        close-up moved absurdly far), bad options.
     OutputTooLargeError
         The window's passes (about 64 bytes per pixel) exceed the memory budget, checked before any work.
     MissingDependencyError
@@ -2415,12 +2417,15 @@ def render_closeups(
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
+        fitted = box is None and (isinstance(camera, str) or np.shape(camera) == (2,))
         if box is None:
             boxes = [renderer.bounds_of("overview")]
             for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
                 boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box, view_angle=view_angle)
+        if fitted and items:
+            _check_framed(t, items, drawn, box, camera, (width, height), renderer.z_scale, view_angle)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
         anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
@@ -2455,6 +2460,51 @@ def render_closeups(
     finally:
         if own:
             renderer.close()
+
+
+def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], box: NDArray[np.float64],
+                  camera: Any, size: tuple[int, int], z_scale: float, view_angle: float) -> None:
+    """An InvalidInputError when the fitted ``camera`` (a name or angles) framing ``box``, the overview and its
+    close-ups together, shows the overview as under a pixel both ways: a close-up moved absurdly far (offset 1e7 m
+    from an 80 m terrain) widened the box until the overview and the close-up both came out under a pixel, and the
+    image was blank without a word (the fitted camera's own check looks at the whole box, which is wide enough). As
+    that check refuses a box too thin to see, this refuses a frame that loses the terrain; the close-up contents
+    (``drawn``: their bounds where drawn) under a pixel are named with it. A tiny close-up over a visible overview
+    (scale 1e-3) is the caller's choice and drawn as before; with ``bounds`` (or an explicit camera position) the
+    framing is the caller's, and what falls outside it or under a pixel is not drawn, as before. Sizes are those
+    of the parts' bounding boxes, an upper bound of what they cover."""
+    from .render import _box_corners, _camera_position, _pixel_extent
+
+    xmin, xmax, ymin, ymax = t.extent
+    zmin, zmax = t.height_range
+    overview = np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]])
+    origin = np.asarray(box, np.float64).mean(axis=0)
+
+    def local(bounds: Any) -> NDArray[np.float64]:  # as LayeredRenderer.set_view: relative, z scaled
+        corners = _box_corners(np.asarray(bounds, np.float64) - origin)
+        corners[:, 2] *= z_scale
+        return corners
+
+    position = _camera_position(camera, local(box), size[0] / size[1], view_angle)
+    small = []
+    parts = [("the overview", overview)] + [(f"closeups[{k}]'s content", drawn[k]) for k in range(len(items))
+                                             if drawn.get(k) is not None]
+    for name, bounds in parts:
+        extent = max(_pixel_extent(local(bounds), position, size, view_angle))
+        if extent < 1.0:
+            small.append(f"{name} ({extent:.2g} px)")
+    if not small or not small[0].startswith("the overview"):
+        return
+    centre = overview.mean(axis=0)
+    reach = [0.0 if drawn.get(k) is None else float(np.abs(np.asarray(drawn[k]) - centre).max())
+             for k in range(len(items))]
+    far = int(np.argmax(reach))
+    lo, hi = box
+    raise InvalidInputError(
+        f"the camera fitted to the overview and its close-ups would show {' and '.join(small)} under a pixel: the "
+        f"framed box x [{lo[0]:.6g}, {hi[0]:.6g}], y [{lo[1]:.6g}, {hi[1]:.6g}], z [{lo[2]:.6g}, {hi[2]:.6g}] is "
+        f"wide because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
+        f"{reach[far]:.3g} from the terrain's centre; move it nearer, or frame what to see with bounds")
 
 
 def _check_scalars(scalars: Any, name: str = "scalars") -> None:
@@ -2596,6 +2646,8 @@ def animate_closeups(
                                 f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
+    camera = options.get("camera", "oblique")
+    first_drawn: dict[int, Any] | None = None  # frame 0's close-ups where drawn, when the box is fitted here
     if box is None:  # the box swept by the close-ups, at every frame's turns (9 evenly spaced times could all fall on
         boxes = []  # the same phase of a spin and miss the turned close-up), and the terrain
         turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
@@ -2603,16 +2655,24 @@ def animate_closeups(
         for time in times[np.sort(first)]:
             layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
                                     device=device)  # the stepped sources the frames use, kept for them
-            for cu, layer in zip(items, layers, strict=True):
+            drawn = {}
+            for k, (cu, layer) in enumerate(zip(items, layers, strict=True)):
                 # where the close-up is drawn, as render_closeups frames it (its face split kept for the frames)
                 used = None if cu.anchor.band or cu.view == "billboard" else _content_split(t, layer, cu)[2]
-                bounds = _drawn_bounds(layer, cu, used)
+                bounds = drawn[k] = _drawn_bounds(layer, cu, used)
                 if bounds is not None:
                     boxes.append(bounds)
+            if first_drawn is None:  # times[0] = 0 comes first
+                first_drawn = drawn
         xmin, xmax, ymin, ymax = t.extent
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
+    if first_drawn is not None and (isinstance(camera, str) or np.shape(camera) == (2,)) and items:
+        # the box fitted here, checked as render_closeups checks its own, before any frame
+        z_scale = render._check_window((width, height), options.get("z_scale", 1.0))[2]
+        view_angle = render._check_view_angle(options.get("view_angle", render._VIEW_ANGLE))
+        _check_framed(t, items, first_drawn, box, camera, (width, height), z_scale, view_angle)
     renderer = render.LayeredRenderer(window_size=(width, height), background=options.get("background", "white"),
                                       z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
     steps: Any = times

@@ -27,7 +27,7 @@ from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
 from .reference_closeup import nodata_gradient, surface_heights
 from .test_closeup import hills
-from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
+from .test_closeup_render import AVAILABLE, REASON, SIZE, one, red_pixels, terrain
 
 
 @pytest.mark.render
@@ -1556,3 +1556,27 @@ def test_each_anchor_strip_has_the_rungs_its_closeup_asked_for():
         steps = np.diff(rung, axis=1)  # evenly spaced along each rung
         np.testing.assert_allclose(steps, np.repeat(steps[:, :1], rungs, axis=1), atol=1e-3)
         assert len(strip.faces) % (2 * rungs) == 0 and strip.faces.max() < len(strip.vertices)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_closeup_moved_absurdly_far_is_refused_not_rendered_blank():
+    """A close-up 1e7 m off an 80 m terrain: the camera fitted to the overview and close-ups together framed a box
+    1e7 m wide (wide enough for the fitted camera's check), where the overview and the close-up both came out under
+    a pixel, and the image was blank (every pixel the background) without a word. It is refused as the fitted
+    camera's too-thin box is; a near close-up and the same far one in a caller's own frame still render."""
+    t = terrain()
+    far = one(offset=(1e7, 0.0, 60.0))
+    with pytest.raises(InvalidInputError, match=r"^the camera fitted to the overview and its close-ups would show the "
+                                                r"overview \(.* px\) and closeups\[0\]'s content \(.* px\) under a "
+                                                r"pixel: .*closeups\[0\] \(offset \(10000000.0, 0.0, 60.0\)\)"):
+        render_closeups(t, [far], window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"closeups\[1\] \(offset \(10000000.0, 0.0, 60.0\)\) is drawn"):
+        render_closeups(t, [one(), far], window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"would show the overview .* under a pixel"):  # its own fitted box
+        animate_closeups(t, [far], frames=2, window_size=SIZE, device="cpu")
+    assert len(animate_closeups(t, [one()], frames=2, window_size=SIZE, device="cpu")) == 2
+    near = render_closeups(t, [one()], window_size=SIZE, device="cpu")
+    assert red_pixels(near).sum() > 100
+    framed = render_closeups(t, [far], window_size=SIZE, device="cpu", bounds=[(1000, 2000, 0), (1080, 2064, 160)])
+    assert (framed != 255).any(axis=2).sum() > 1000  # the overview, drawn in the caller's frame
