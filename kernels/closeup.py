@@ -228,25 +228,29 @@ def emit_anchor_vertices(
     layers: CloseUpLayers,
     max_lengths: wp.array[wp.float32],
     tf: TransferFunctions,
-    rungs: wp.int32,
+    layer_rungs: wp.array[wp.int32],
+    vertex_start: wp.array[wp.int32],
     # outputs
     vertices_out: wp.array[wp.vec3],
     distances_out: wp.array[wp.float32],
     opacities_out: wp.array[wp.float32],
 ):
-    """One thread per outline point: its rungs + 1 strip vertices from V_O to M·V_O, with t and opacity."""
+    """One thread per outline point i: the rungs + 1 strip vertices of its close-up's ``layer_rungs`` from V_O to
+    M·V_O, with t and opacity, at ``vertex_start[i]`` on (each close-up its own rung count, in one launch)."""
     i = wp.tid() + thread_offset
     k = outline_layer[i]
+    rungs = layer_rungs[k]
     p = outline[i]
     q = apply(layers.matrices[k], p)
     d = max_lengths[k]
+    start = vertex_start[i]
     for r in range(rungs + 1):
         s = wp.float32(r) / wp.float32(rungs)
         v = p + s * (q - p)
         t = wp.float32(0.0)
         if d > 0.0:
             t = wp.min(wp.length(v - p) / d, 1.0)
-        slot = i * (rungs + 1) + r
+        slot = start + r
         vertices_out[slot] = v
         distances_out[slot] = t
         opacities_out[slot] = transfer(t, k, tf)
@@ -256,15 +260,21 @@ def emit_anchor_vertices(
 def emit_anchor_faces(
     thread_offset: wp.int32,
     segments: wp.array[wp.vec2i],
-    rungs: wp.int32,
+    outline_layer: wp.array[wp.int32],
+    layer_rungs: wp.array[wp.int32],
+    vertex_start: wp.array[wp.int32],
+    face_start: wp.array[wp.int32],
     # outputs
     faces_out: wp.array[wp.vec3i],
 ):
-    """One thread per outline segment (a, b): the 2·rungs triangles of its fence panel."""
+    """One thread per outline segment (a, b) of one close-up: the 2·rungs triangles of its fence panel (its close-up's
+    ``layer_rungs``), at ``face_start[i]`` on, between the rungs at ``vertex_start`` of a and b."""
     i = wp.tid() + thread_offset
     seg = segments[i]
-    a = seg[0] * (rungs + 1)
-    b = seg[1] * (rungs + 1)
+    rungs = layer_rungs[outline_layer[seg[0]]]
+    a = vertex_start[seg[0]]
+    b = vertex_start[seg[1]]
+    f = face_start[i]
     for r in range(rungs):
-        faces_out[i * 2 * rungs + 2 * r] = wp.vec3i(a + r, b + r, b + r + 1)
-        faces_out[i * 2 * rungs + 2 * r + 1] = wp.vec3i(a + r, b + r + 1, a + r + 1)
+        faces_out[f + 2 * r] = wp.vec3i(a + r, b + r, b + r + 1)
+        faces_out[f + 2 * r + 1] = wp.vec3i(a + r, b + r + 1, a + r + 1)

@@ -153,10 +153,16 @@ def _seconds(time: Any) -> float:
     return t
 
 
-def _smooth_edge(distance: NDArray[np.float64], edge_width: float) -> NDArray[np.float32]:
-    """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between."""
+def _smooth_edge(distance: NDArray[np.float64], edge_width: float, closed: bool = False) -> NDArray[np.float32]:
+    """m from a signed distance (negative inside): 1 for d <= -edge_width, 0 for d >= 0, smoothstep between.
+
+    A hard edge (``edge_width`` 0) with ``closed`` counts the shape's boundary (d = 0) as inside: a rectangle's
+    boundary is its box's own rim, where the mask's outer texels lie, and with them at 0 a hard rectangle over a
+    terrain's whole extent had m = 0 at every rim node (a 2 x 2 grid's all four) and was refused as holding no
+    terrain. A curved shape stays open: its boundary touches the box rim at single texels only, which as 1 would
+    stick out as one-texel spikes."""
     if edge_width <= 0:
-        return (distance < 0).astype(np.float32)
+        return (distance <= 0 if closed else distance < 0).astype(np.float32)
     with np.errstate(over="ignore"):
         x = np.clip(-distance / edge_width, 0.0, 1.0)
     return (x * x * (3.0 - 2.0 * x)).astype(np.float32)
@@ -304,7 +310,9 @@ class ROI:
     @classmethod
     def rectangle(cls, center: ArrayLike, size: ArrayLike, *, edge_width: float | None = None,
                   resolution: int = 129) -> ROI:
-        """An axis-aligned rectangle of ``size`` = (width, height); soft edge (default min side / 10)."""
+        """An axis-aligned rectangle of ``size`` = (width, height); soft edge (default min side / 10). A hard edge
+        (``edge_width`` 0) is closed: m = 1 on the box's rim too, so a box over the terrain's whole extent holds all
+        of it."""
         return cls.rounded_rectangle(center, size, corner_radius=0.0, edge_width=edge_width,
                                      resolution=resolution)._named("rectangle")
 
@@ -323,7 +331,7 @@ class ROI:
         rows, cols = _mask_grid(resolution)
         x, y = _texel_xy((0, 0), (w, h), rows, cols)
         distance = _box_distance(x, y, w / 2 - rc, h / 2 - rc) - rc
-        return cls(center, (w, h), _smooth_edge(distance, width), "rounded_rectangle")
+        return cls(center, (w, h), _smooth_edge(distance, width, closed=True), "rounded_rectangle")
 
     def _named(self, shape: str) -> ROI:
         return replace(self, shape=shape)
@@ -399,7 +407,8 @@ class ROI:
     @classmethod
     def stepped_level(cls, terrain: Terrain | ArrayLike, level: int, *, interval: float | None = None,
                       levels: ArrayLike | None = None, base: float = 0.0, region: ArrayLike | None = None) -> ROI:
-        """A generated mask: the nodes whose stepped level (paper 000) is ``level`` (an isovalue index)."""
+        """A generated mask: the nodes whose stepped level (paper 000) is ``level`` (an isovalue index). A level
+        that holds no height of the terrain (of the ``region``) is refused, naming the levels that do."""
         from .stepped import isovalues, thresholds_of
 
         t = as_terrain(terrain)
@@ -418,6 +427,18 @@ class ROI:
         heights, center, size = _terrain_window(t, region)
         with np.errstate(invalid="ignore"):
             m = ((heights >= low) & (heights < high)).astype(np.float32)
+        if not m.any():  # an empty ROI was refused only when it met the terrain, as "holds no terrain"
+            finite = heights[np.isfinite(heights)]
+            held = np.unique(np.searchsorted(thresholds, finite, side="right")) if len(thresholds) else \
+                np.zeros(min(len(finite), 1), np.int64)
+            where = "the terrain"
+            if region is not None:  # checked by _terrain_window: four numbers
+                r = np.asarray(region, np.float64).reshape(-1)
+                where += f" in region x [{r[0]:g}, {r[1]:g}], y [{r[2]:g}, {r[3]:g}]"
+            them = (f"the levels that hold terrain there are {_index_ranges(held)}" if len(held)
+                    else "it has no finite height")
+            raise InvalidInputError(f"level {level} (isovalue {float(values[level]):g}) holds no height of {where}, so "
+                                    f"the ROI would be empty; {them}")
         return cls(center, size, m, "stepped_level")
 
     # -------------------------------------------------------------------------- geometry
@@ -479,6 +500,17 @@ class ROI:
             np.clip(line[:, 0], xmin, xmax, out=line[:, 0])
             np.clip(line[:, 1], ymin, ymax, out=line[:, 1])
         return lines
+
+
+def _index_ranges(indices: NDArray[np.integer]) -> str:
+    """Sorted distinct indices as runs for a message: [1, 2, 3, 5] -> "1..3, 5"."""
+    runs: list[list[int]] = []
+    for i in indices.tolist():
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ", ".join(f"{a}" if a == b else f"{a}..{b}" for a, b in runs)
 
 
 def _gradient(heights: NDArray[np.floating], dy: float, dx: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -1351,14 +1383,11 @@ _CULL_FACE_BYTES = 12 + (8 + 12 + 4) + (24 + 24 + 4 + 8)
 def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
     """Why close-up k has no geometry: its mask is 0 at every node (point) of a triangle with three heights under
     it; where some node with a height has m > 0 but joins no such triangle (a grid node with nodata all around it, a
-    TIN point on no face), that is named: the message said its mask was 0 at every node with a height."""
+    TIN point on no face), that is named: the message said its mask was 0 at every node with a height. Otherwise it
+    says what the box holds (no node, only nodata, or nodes with a height where m = 0): it guessed "a ROI smaller
+    than the grid spacing" of any box, also of one over the whole terrain whose hard edge left m = 0 on its rim."""
     bx0, bx1, by0, by1 = cu.roi.box
-    if t.kind == "grid":
-        spacing = f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}"
-        where = "grid node"
-    else:
-        spacing = "the TIN's point spacing"
-        where = "TIN point"
+    where = "grid node" if t.kind == "grid" else "TIN point"
     head = f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: "
     lone = _lone_heights_under(t, cu.roi)
     if lone:  # it said "its mask is 0 at every grid node with a height" of nodes with a height inside the ROI
@@ -1366,8 +1395,36 @@ def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
         nodes = counted(lone, f"{where} with a height", f"{where}s with a height")
         return (head + f"its mask is above 0 only at {nodes} that {'joins' if lone == 1 else 'join'} no triangle "
                 f"with three heights (the overview has no surface there{around}); move it onto the terrain")
-    return (head + f"its mask is 0 at every {where} with a height (a ROI smaller than {spacing}, between the nodes, "
-            "or over nodata); make it larger or move it onto the terrain")
+    xy, heights = _nodes_in_box(t, cu.roi.box)
+    finite = np.isfinite(heights)
+    if not len(xy):
+        spacing = (f"the grid spacing {abs(t.spacing[0]):g} x {abs(t.spacing[1]):g}" if t.kind == "grid"
+                   else "the TIN's point spacing")
+        why = f"its box holds no {where} (it lies between the nodes, at {spacing})"
+    elif not finite.any():
+        why = f"the {counted(len(xy), where)} in its box {'is' if len(xy) == 1 else 'are'} nodata"
+    else:
+        n = int(finite.sum())
+        why = (f"the ROI's mask factor m is 0 at {'the' if n == 1 else 'all'} "
+               f"{counted(n, f'{where} with a height', f'{where}s with a height')} in its box")
+    return (head + f"its mask is 0 at every {where} with a height ({why}); make it larger or move it onto the "
+            "terrain")
+
+
+def _nodes_in_box(t: Terrain, box: tuple[float, float, float, float]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float32]]:
+    """The world xy (N, 2) and heights (N,) of the grid nodes (TIN points) inside ``box``, rim included (error
+    path only)."""
+    if t.kind == "grid":
+        i0, i1, j0, j1 = _grid_window(t, box)
+        jj, ii = np.meshgrid(np.arange(j0, j1 + 1), np.arange(i0, i1 + 1))
+        xy = np.column_stack([t.origin[0] + jj.reshape(-1) * t.spacing[0],
+                              t.origin[1] + ii.reshape(-1) * t.spacing[1]])
+        heights = t.heights[i0: i1 + 1, j0: j1 + 1].reshape(-1)
+    else:
+        xy, heights = t.points[:, :2].astype(np.float64), t.heights
+    inside = (xy[:, 0] >= box[0]) & (xy[:, 0] <= box[1]) & (xy[:, 1] >= box[2]) & (xy[:, 1] <= box[3])
+    return xy[inside], heights[inside]
 
 
 def _check_content(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseUpLayer]) -> None:
@@ -1596,28 +1653,27 @@ def anchor_strips(
            str(device))  # the scale sets how far the outline is thinned
     fixed = derived(t.cached(("closeup", "anchor-static"), dict), key, rois, lambda: _anchor_static(t, items, device))
     if fixed is None:
-        rung_count = max(cu.anchor.rungs for cu in items)
         return [AnchorStrip(k, np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.float32),
-                            np.zeros(0, np.float32), _closeup_color(cu, k), rung_count, 0.0)
+                            np.zeros(0, np.float32), _closeup_color(cu, k), cu.anchor.rungs, 0.0)
                 for k, cu in enumerate(items)]
-    total, rung_count, outline_layer, outline_wp, layer_wp, tf, v_bounds, layer_faces = fixed
+    total, (nv, layer_rungs_wp, vertex_start_wp), outline_layer, outline_wp, layer_wp, tf, v_bounds, layer_faces = \
+        fixed
     layers = _layers_struct(items, matrices, t.local_origin, device)
     lengths = wp.empty(total, dtype=wp.float32, device=device)
     launch(closeup_kernels.anchor_lengths, total, [outline_wp, layer_wp, layers], [lengths], device)
     max_len = np.zeros(len(items), np.float32)
     np.maximum.at(max_len, outline_layer, lengths.numpy())
-    nv = total * (rung_count + 1)
     vertices = wp.empty(nv, dtype=wp.vec3, device=device)
     distance = wp.empty(nv, dtype=wp.float32, device=device)
     opacity = wp.empty(nv, dtype=wp.float32, device=device)
     launch(closeup_kernels.emit_anchor_vertices, total,
-           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, rung_count],
+           [outline_wp, layer_wp, layers, to_device(max_len, wp.float32, device), tf, layer_rungs_wp, vertex_start_wp],
            [vertices, distance, opacity], device)
     v = _world(host_copy(vertices), ox, oy)
     d, a = distance.numpy(), opacity.numpy()
     return [
         AnchorStrip(k, v[v_bounds[k]: v_bounds[k + 1]], layer_faces[k], d[v_bounds[k]: v_bounds[k + 1]],
-                    a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k), rung_count, float(max_len[k]))
+                    a[v_bounds[k]: v_bounds[k + 1]], _closeup_color(cu, k), cu.anchor.rungs, float(max_len[k]))
         for k, cu in enumerate(items)
     ]
 
@@ -1827,29 +1883,36 @@ def _anchor_static(t: Terrain, items: Sequence[CloseUp], device: wp.Device) -> t
         heights.append(z_line)
         layer_ids.append(np.full(len(line), k, np.int32))
         total += len(line)
-    rung_count = max(cu.anchor.rungs for cu in items)  # one launch: every strip gets the largest rung count
     xy = np.concatenate(points)
     z = np.concatenate(heights)
     outline = np.column_stack([xy[:, 0] - ox, xy[:, 1] - oy, z]).astype(np.float32)
     outline_layer = np.concatenate(layer_ids)
     seg = np.concatenate(segments).astype(np.int32)
-    faces = wp.empty(len(seg) * 2 * rung_count, dtype=wp.vec3i, device=device)
-    launch(closeup_kernels.emit_anchor_faces, len(seg), [to_device(seg, wp.vec2i, device), rung_count], [faces],
-           device)
+    # each close-up its own anchor.rungs, still one launch: per point its first strip vertex, per segment its first
+    # face (every strip was given the largest rung count of the call, and AnchorStrip.rungs said so)
+    layer_rungs = np.array([cu.anchor.rungs for cu in items], np.int64)
+    point_rungs = layer_rungs[outline_layer]
+    vertex_start = np.concatenate([[0], np.cumsum(point_rungs + 1)])  # (points + 1,): the last is the total
+    seg_layer = outline_layer[seg[:, 0]]
+    face_start = np.concatenate([[0], np.cumsum(2 * layer_rungs[seg_layer])])
+    layer_rungs_wp = to_device(layer_rungs.astype(np.int32), wp.int32, device)
+    vertex_start_wp = to_device(vertex_start[:-1].astype(np.int32), wp.int32, device)
+    layer_wp = wp.array(outline_layer, dtype=wp.int32, device=device)
+    faces = wp.empty(int(face_start[-1]), dtype=wp.vec3i, device=device)
+    launch(closeup_kernels.emit_anchor_faces, len(seg),
+           [to_device(seg, wp.vec2i, device), layer_wp, layer_rungs_wp, vertex_start_wp,
+            to_device(face_start[:-1].astype(np.int32), wp.int32, device)], [faces], device)
     f = host_copy(faces).astype(np.int64)
-    v_layer = np.repeat(outline_layer, rung_count + 1)
-    f_layer = np.repeat(outline_layer[seg[:, 0]], 2 * rung_count)
-    v_bounds = np.searchsorted(v_layer, np.arange(len(items) + 1))
-    f_bounds = np.searchsorted(f_layer, np.arange(len(items) + 1))
+    v_bounds = vertex_start[np.searchsorted(outline_layer, np.arange(len(items) + 1))]
+    f_bounds = face_start[np.searchsorted(seg_layer, np.arange(len(items) + 1))]
     layer_faces = []
     for k in range(len(items)):
         fk = f[f_bounds[k]: f_bounds[k + 1]] - v_bounds[k]
         fk.setflags(write=False)
         layer_faces.append(fk)
     outline_wp = wp.array(outline, dtype=wp.vec3, device=device)
-    layer_wp = wp.array(outline_layer, dtype=wp.int32, device=device)
-    return (total, rung_count, outline_layer, outline_wp, layer_wp, _transfer_struct(items, device), v_bounds,
-            layer_faces)
+    return (total, (int(vertex_start[-1]), layer_rungs_wp, vertex_start_wp), outline_layer, outline_wp, layer_wp,
+            _transfer_struct(items, device), v_bounds, layer_faces)
 
 
 # ------------------------------------------------------------------------------------------------ compositing
@@ -2259,7 +2322,9 @@ def render_closeups(
     ------
     InvalidInputError
         Too many close-ups for the window, a ROI outside the terrain or reaching it with its soft edge only (m below
-        ``anchor.outline_level`` at every node under it, without ``anchor.band``: no content to draw), bad options.
+        ``anchor.outline_level`` at every node under it, without ``anchor.band``: no content to draw), a camera
+        fitted to the overview and close-ups (no ``bounds``) that would show the overview under a pixel (a
+        close-up moved absurdly far), bad options.
     OutputTooLargeError
         The window's passes (about 64 bytes per pixel) exceed the memory budget, checked before any work.
     MissingDependencyError
@@ -2352,12 +2417,15 @@ def render_closeups(
             mesh = t.mesh()
             rgb = _overview_rgb(t, mesh, scalars, cmap, image_texture)
             renderer.set_mesh("overview", mesh.vertices, mesh.faces, rgb=rgb, key=overview_key)
+        fitted = box is None and (isinstance(camera, str) or np.shape(camera) == (2,))
         if box is None:
             boxes = [renderer.bounds_of("overview")]
             for k, strip in enumerate(strips):  # the close-ups where they are drawn (not their blended V_C)
                 boxes += [b for b in (drawn[k], render._finite_bounds(strip.vertices)) if b is not None]
             box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
         renderer.set_view(camera, box, view_angle=view_angle)
+        if fitted and items:
+            _check_framed(t, items, drawn, box, camera, (width, height), renderer.z_scale, view_angle)
         base, base_depth = renderer.render(["overview"], reuse=reuse_overview)
         # each layer comes back cut to its screen box: read-backs and compositing follow its size on screen
         anchor_images = renderer.render_layers("anchor", anchors, merge=merge_passes, crop=True)
@@ -2392,6 +2460,51 @@ def render_closeups(
     finally:
         if own:
             renderer.close()
+
+
+def _check_framed(t: Terrain, items: Sequence[CloseUp], drawn: dict[int, Any], box: NDArray[np.float64],
+                  camera: Any, size: tuple[int, int], z_scale: float, view_angle: float) -> None:
+    """An InvalidInputError when the fitted ``camera`` (a name or angles) framing ``box``, the overview and its
+    close-ups together, shows the overview as under a pixel both ways: a close-up moved absurdly far (offset 1e7 m
+    from an 80 m terrain) widened the box until the overview and the close-up both came out under a pixel, and the
+    image was blank without a word (the fitted camera's own check looks at the whole box, which is wide enough). As
+    that check refuses a box too thin to see, this refuses a frame that loses the terrain; the close-up contents
+    (``drawn``: their bounds where drawn) under a pixel are named with it. A tiny close-up over a visible overview
+    (scale 1e-3) is the caller's choice and drawn as before; with ``bounds`` (or an explicit camera position) the
+    framing is the caller's, and what falls outside it or under a pixel is not drawn, as before. Sizes are those
+    of the parts' bounding boxes, an upper bound of what they cover."""
+    from .render import _box_corners, _camera_position, _pixel_extent
+
+    xmin, xmax, ymin, ymax = t.extent
+    zmin, zmax = t.height_range
+    overview = np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]])
+    origin = np.asarray(box, np.float64).mean(axis=0)
+
+    def local(bounds: Any) -> NDArray[np.float64]:  # as LayeredRenderer.set_view: relative, z scaled
+        corners = _box_corners(np.asarray(bounds, np.float64) - origin)
+        corners[:, 2] *= z_scale
+        return corners
+
+    position = _camera_position(camera, local(box), size[0] / size[1], view_angle)
+    small = []
+    parts = [("the overview", overview)] + [(f"closeups[{k}]'s content", drawn[k]) for k in range(len(items))
+                                             if drawn.get(k) is not None]
+    for name, bounds in parts:
+        extent = max(_pixel_extent(local(bounds), position, size, view_angle))
+        if extent < 1.0:
+            small.append(f"{name} ({extent:.2g} px)")
+    if not small or not small[0].startswith("the overview"):
+        return
+    centre = overview.mean(axis=0)
+    reach = [0.0 if drawn.get(k) is None else float(np.abs(np.asarray(drawn[k]) - centre).max())
+             for k in range(len(items))]
+    far = int(np.argmax(reach))
+    lo, hi = box
+    raise InvalidInputError(
+        f"the camera fitted to the overview and its close-ups would show {' and '.join(small)} under a pixel: the "
+        f"framed box x [{lo[0]:.6g}, {hi[0]:.6g}], y [{lo[1]:.6g}, {hi[1]:.6g}], z [{lo[2]:.6g}, {hi[2]:.6g}] is "
+        f"wide because closeups[{far}] (offset {tuple(float(v) for v in items[far].offset)}) is drawn "
+        f"{reach[far]:.3g} from the terrain's centre; move it nearer, or frame what to see with bounds")
 
 
 def _check_scalars(scalars: Any, name: str = "scalars") -> None:
@@ -2533,6 +2646,8 @@ def animate_closeups(
                                 f"is finite; got {fps:g}")
     times = np.arange(frames) / fps
     box = options.pop("bounds", None)
+    camera = options.get("camera", "oblique")
+    first_drawn: dict[int, Any] | None = None  # frame 0's close-ups where drawn, when the box is fitted here
     if box is None:  # the box swept by the close-ups, at every frame's turns (9 evenly spaced times could all fall on
         boxes = []  # the same phase of a spin and miss the turned close-up), and the terrain
         turns = np.array([[cu.turn(float(time)) for cu in items] for time in times]).reshape(len(times), -1)
@@ -2540,16 +2655,24 @@ def animate_closeups(
         for time in times[np.sort(first)]:
             layers = closeup_layers(t, items, time=float(time), colors=options.get("cmap", "terrain"),
                                     device=device)  # the stepped sources the frames use, kept for them
-            for cu, layer in zip(items, layers, strict=True):
+            drawn = {}
+            for k, (cu, layer) in enumerate(zip(items, layers, strict=True)):
                 # where the close-up is drawn, as render_closeups frames it (its face split kept for the frames)
                 used = None if cu.anchor.band or cu.view == "billboard" else _content_split(t, layer, cu)[2]
-                bounds = _drawn_bounds(layer, cu, used)
+                bounds = drawn[k] = _drawn_bounds(layer, cu, used)
                 if bounds is not None:
                     boxes.append(bounds)
+            if first_drawn is None:  # times[0] = 0 comes first
+                first_drawn = drawn
         xmin, xmax, ymin, ymax = t.extent
         zmin, zmax = t.height_range
         boxes.append(np.array([[xmin, ymin, zmin], [xmax, ymax, zmax]]))
         box = np.array([np.min([b[0] for b in boxes], 0), np.max([b[1] for b in boxes], 0)])
+    if first_drawn is not None and (isinstance(camera, str) or np.shape(camera) == (2,)) and items:
+        # the box fitted here, checked as render_closeups checks its own, before any frame
+        z_scale = render._check_window((width, height), options.get("z_scale", 1.0))[2]
+        view_angle = render._check_view_angle(options.get("view_angle", render._VIEW_ANGLE))
+        _check_framed(t, items, first_drawn, box, camera, (width, height), z_scale, view_angle)
     renderer = render.LayeredRenderer(window_size=(width, height), background=options.get("background", "white"),
                                       z_scale=options.get("z_scale", 1.0))  # render_closeups checks it is this one
     steps: Any = times

@@ -27,7 +27,7 @@ from stepterrain.errors import InvalidInputError, OutputTooLargeError
 
 from .reference_closeup import nodata_gradient, surface_heights
 from .test_closeup import hills
-from .test_closeup_render import AVAILABLE, REASON, SIZE, one, terrain
+from .test_closeup_render import AVAILABLE, REASON, SIZE, one, red_pixels, terrain
 
 
 @pytest.mark.render
@@ -587,9 +587,10 @@ def test_a_roi_that_holds_no_terrain_is_refused_by_name(mapping):
     heights = hills()
     heights[5:25, 5:25] = np.nan
     t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
-    for roi in (ROI.circle((305.0, 255.0), 4.0), ROI.circle((150.0, 150.0), 40.0)):  # inside one cell; in the hole
+    for roi, why in ((ROI.circle((305.0, 255.0), 4.0), "between the nodes, at the grid spacing 10 x 10"),  # in a cell
+                     (ROI.circle((150.0, 150.0), 40.0), "the 81 grid nodes in its box are nodata")):  # in the hole
         cu = CloseUp(roi, offset=(0.0, 0.0, 50.0), **mapping)
-        expected = r"^closeups\[1\]: ROI box .* holds no terrain: .*grid spacing 10 x 10"
+        expected = rf"^closeups\[1\]: ROI box .* holds no terrain: .*{why}"
         with pytest.raises(InvalidInputError, match=expected):
             closeup_layers(t, [CloseUp(ROI.circle((305.0, 255.0), 30.0)), cu], device="cpu")
         with pytest.raises(InvalidInputError, match=r"closeups\[0\]: ROI box .* holds no terrain"):
@@ -1439,3 +1440,143 @@ def test_a_camera_framing_away_from_the_closeups_renders_the_overview_alone(came
             np.testing.assert_array_equal(image[~footprint], bare[~footprint])
     finally:
         renderer.close()
+
+
+@pytest.mark.parametrize("n", [2, 3, 7])
+def test_a_hard_rectangle_over_the_whole_extent_holds_all_of_the_terrain(n):
+    """A hard-edged rectangle (edge_width=0) whose box is the terrain's extent: its mask was 0 on the box's rim where
+    the boundary nodes sit, so a 2 x 2 grid (four corner nodes) was refused as holding no terrain and larger grids
+    lost their rim. The hard rectangle is closed: every node is inside (m = 1) and the close-up is the whole terrain
+    moved by M."""
+    from stepterrain.terrain import Terrain
+
+    rng = np.random.default_rng(n)
+    t = Terrain.from_heights(rng.uniform(0, 50, (n, n)).astype(np.float32), spacing=(10.0, 10.0), origin=(5.0, 7.0))
+    x0, x1, y0, y1 = t.extent
+    roi = ROI.rectangle(((x0 + x1) / 2, (y0 + y1) / 2), (x1 - x0, y1 - y0), edge_width=0)
+    layer = closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 100.0))], device="cpu")[0]
+    mesh = t.mesh()
+    assert len(layer.faces) == len(mesh.faces)
+    assert np.all(layer.mask_factor == 1.0)
+    np.testing.assert_allclose(layer.vertices, layer.original + [0.0, 0.0, 100.0], atol=1e-3)
+    jj, ii = np.meshgrid(np.arange(n), np.arange(n))
+    nodes = np.column_stack([x0 + 10.0 * jj.ravel(), y0 + 10.0 * ii.ravel()])
+    assert np.all(roi.factor(nodes) == 1.0)
+
+
+def test_a_soft_or_curved_hard_edge_keeps_its_mask():
+    """The closed hard edge is the rectangle's: soft edges and a hard circle keep m = 0 on the box rim."""
+    assert ROI.rectangle((0.0, 0.0), (10.0, 4.0)).mask[0].max() == 0.0
+    circle = ROI.circle((0.0, 0.0), 5.0, edge_width=0).mask
+    assert circle[0].max() == circle[-1].max() == circle[:, 0].max() == circle[:, -1].max() == 0.0
+    hard = ROI.rectangle((0.0, 0.0), (10.0, 4.0), edge_width=0).mask
+    assert hard.min() == 1.0
+
+
+def test_a_roi_without_terrain_is_told_what_its_box_holds_not_a_guessed_cause():
+    """"holds no terrain" blamed "a ROI smaller than the grid spacing, between the nodes, or over nodata" whatever
+    the ROI: a box over many nodes with a height whose mask is 0 at all of them was told it was too small. The
+    message now says what the box holds."""
+    from stepterrain.closeup import closeup_layers
+    from stepterrain.terrain import Terrain
+
+    heights = hills()
+    heights[5:25, 5:25] = np.nan
+    t = Terrain.from_heights(heights, spacing=(10.0, 10.0), origin=(0.0, 0.0))
+    ring = np.zeros((141, 141), np.float32)
+    ring[1::20, 1::20] = 1.0  # m > 0 only off the nodes: the 140 x 140 box has 15 x 15 nodes with a height, m = 0
+    painted = ROI.painted(ring, (330.0, 200.0), (140.0, 140.0))
+    cases = [
+        (painted, r"its mask is 0 at every grid node with a height \(the ROI's mask factor m is 0 at all 225 grid "
+                  r"nodes with a height in its box\)"),
+        (ROI.circle((150.0, 150.0), 40.0), r"\(the 81 grid nodes in its box are nodata\)"),
+        (ROI.circle((305.0, 255.0), 4.0), r"\(its box holds no grid node \(it lies between the nodes, at the grid "
+                                          r"spacing 10 x 10\)\)"),
+    ]
+    for roi, expected in cases:
+        with pytest.raises(InvalidInputError, match=r"holds no terrain: .*" + expected) as info:
+            closeup_layers(t, [CloseUp(roi, offset=(0.0, 0.0, 50.0))], device="cpu")
+        assert "smaller than" not in str(info.value)
+
+
+def test_an_empty_stepped_level_is_refused_when_the_roi_is_built():
+    """ROI.stepped_level took a level with no terrain (the sample DEM's level 0 at 200 m: isovalue 200 holds heights
+    below 300 m, the DEM starts at 315 m) and made an all-zero ROI, refused only later as "holds no terrain". It is
+    now refused at once, naming the level and the levels that hold terrain (checked against the stepped levels of
+    the heights by NumPy)."""
+    import stepterrain as st
+    from stepterrain.stepped import isovalues, thresholds_of
+
+    t = st.sample_dem()
+    values = np.asarray(isovalues(t.height_range, interval=200.0), np.float32)
+    finite = t.heights[np.isfinite(t.heights)]
+    held = sorted(set(np.digitize(finite, thresholds_of(values)).tolist()))
+    assert held == list(range(held[0], held[-1] + 1)) and held[0] > 0 and held[-1] < len(values) - 1
+    for level in (0, len(values) - 1):
+        with pytest.raises(InvalidInputError, match=rf"^level {level} \(isovalue {values[level]:g}\) holds no height "
+                                                    rf"of the terrain, so the ROI would be empty; the levels that "
+                                                    rf"hold terrain there are {held[0]}\.\.{held[-1]}$"):
+            ROI.stepped_level(t, level, interval=200.0)
+    for level in held:
+        assert ROI.stepped_level(t, level, interval=200.0).mask.max() == 1.0
+    x0, x1, y0, y1 = t.extent
+    region = (x0, x0 + 2000.0, y0, y0 + 2000.0)  # a corner: some of the levels only
+    in_region = []
+    for level in held:
+        try:
+            assert ROI.stepped_level(t, level, interval=200.0, region=region).mask.max() == 1.0
+            in_region.append(level)
+        except InvalidInputError as exc:
+            assert re.match(rf"level {level} .* holds no height of the terrain in region x \[{x0:g}, .*\], so the ROI "
+                            rf"would be empty; the levels that hold terrain there are ", str(exc)), exc
+    assert in_region and in_region != held
+
+
+def test_each_anchor_strip_has_the_rungs_its_closeup_asked_for():
+    """anchor_strips gave every close-up of a call the largest anchor.rungs among them (one launch), so a close-up
+    asking for 2 rungs drawn beside one asking for 16 got 16 (AnchorStrip.rungs said 16). Each strip now has its own,
+    still in one launch, and equals the strip of its close-up alone bit for bit: P·(rungs + 1) vertices on the
+    segments from V_O to M·V_O, 2·rungs faces per outline segment."""
+    from stepterrain.terrain import Terrain
+
+    t = Terrain.from_heights(hills(), spacing=(2.0, 2.0), origin=(1000.0, 2000.0))
+    cus = [CloseUp(ROI.circle((1020.0, 2020.0), 8.0), offset=(0.0, 0.0, 40.0), anchor=AnchorStyle(rungs=2)),
+           CloseUp(ROI.circle((1060.0, 2040.0), 10.0), offset=(5.0, 0.0, 60.0), anchor=AnchorStyle(rungs=16)),
+           CloseUp(ROI.rectangle((1040.0, 2015.0), (12.0, 8.0)), offset=(0.0, 5.0, 30.0), anchor=AnchorStyle(rungs=5))]
+    together = anchor_strips(t, cus, device="cpu")
+    for cu, strip in zip(cus, together, strict=True):
+        rungs = cu.anchor.rungs
+        assert strip.rungs == rungs
+        (alone,) = anchor_strips(t, [cu], device="cpu")
+        for name in ("vertices", "faces", "distance", "opacity"):
+            np.testing.assert_array_equal(getattr(strip, name), getattr(alone, name), err_msg=name)
+        points = len(strip.vertices) // (rungs + 1)
+        assert points * (rungs + 1) == len(strip.vertices) and points >= 3
+        rung = strip.vertices.reshape(points, rungs + 1, 3)
+        steps = np.diff(rung, axis=1)  # evenly spaced along each rung
+        np.testing.assert_allclose(steps, np.repeat(steps[:, :1], rungs, axis=1), atol=1e-3)
+        assert len(strip.faces) % (2 * rungs) == 0 and strip.faces.max() < len(strip.vertices)
+
+
+@pytest.mark.render
+@pytest.mark.skipif(not AVAILABLE, reason=f"no off-screen OpenGL context: {REASON}")
+def test_a_closeup_moved_absurdly_far_is_refused_not_rendered_blank():
+    """A close-up 1e7 m off an 80 m terrain: the camera fitted to the overview and close-ups together framed a box
+    1e7 m wide (wide enough for the fitted camera's check), where the overview and the close-up both came out under
+    a pixel, and the image was blank (every pixel the background) without a word. It is refused as the fitted
+    camera's too-thin box is; a near close-up and the same far one in a caller's own frame still render."""
+    t = terrain()
+    far = one(offset=(1e7, 0.0, 60.0))
+    with pytest.raises(InvalidInputError, match=r"^the camera fitted to the overview and its close-ups would show the "
+                                                r"overview \(.* px\) and closeups\[0\]'s content \(.* px\) under a "
+                                                r"pixel: .*closeups\[0\] \(offset \(10000000.0, 0.0, 60.0\)\)"):
+        render_closeups(t, [far], window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"closeups\[1\] \(offset \(10000000.0, 0.0, 60.0\)\) is drawn"):
+        render_closeups(t, [one(), far], window_size=SIZE, device="cpu")
+    with pytest.raises(InvalidInputError, match=r"would show the overview .* under a pixel"):  # its own fitted box
+        animate_closeups(t, [far], frames=2, window_size=SIZE, device="cpu")
+    assert len(animate_closeups(t, [one()], frames=2, window_size=SIZE, device="cpu")) == 2
+    near = render_closeups(t, [one()], window_size=SIZE, device="cpu")
+    assert red_pixels(near).sum() > 100
+    framed = render_closeups(t, [far], window_size=SIZE, device="cpu", bounds=[(1000, 2000, 0), (1080, 2064, 160)])
+    assert (framed != 255).any(axis=2).sum() > 1000  # the overview, drawn in the caller's frame
