@@ -795,9 +795,10 @@ def sweep_occlusion(
     """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA), walked in lockstep as in
     :func:`sweep_shadows`, whose loop it repeats (the bundle span and the node's (i, j) as shared functions made
     the occlusion 6-10 % slower, RESULTS.md "Session 24"): the horizon angle of each node towards the light side
-    (the upper convex hull of its line's earlier nodes, a stack at ``offsets[line]`` whose last index is
-    ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at least 0, to ``occlusion_out``. Each line
-    sees its nodes in the same order as when walked alone, so the values do not depend on the bundle."""
+    (the upper convex hull of its line's earlier points, each node taken onto its straight line as there, a stack
+    at ``offsets[line]`` whose last index is ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at
+    least 0, to ``occlusion_out``. Each line sees its nodes in the same order as when walked alone, so the values
+    do not depend on the bundle."""
     first = (wp.tid() + thread_offset) * lines_per_thread
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
