@@ -66,7 +66,7 @@ def sin_cos(alpha: wp.float64) -> wp.vec2d:
 @wp.func
 def offset_angle(u_hat: wp.vec3d, p_hat: wp.vec3d, alpha_sc: wp.vec2d) -> wp.vec2d:
     """(sin γ, cos γ) of γ = β - α, β the angle between unit vectors u and p (no libm call): γ <= 0 iff
-    sin γ <= 0, and γ < 90° iff cos γ > 0 (β, α in [0, π])."""
+    sin γ <= 0 but at γ = π (:func:`within_opening` tells them apart), and γ < 90° iff cos γ > 0 (β, α in [0, π])."""
     cb = wp.dot(u_hat, p_hat)
     sb = wp.length(wp.cross(u_hat, p_hat))
     return wp.vec2d(sb * alpha_sc[1] - cb * alpha_sc[0], cb * alpha_sc[1] + sb * alpha_sc[0])

@@ -656,17 +656,24 @@ def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
 
 
 @wp.func
-def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.float32:
-    """How far the point of node (i, j)'s straight line at its major index (``error`` less along the minor axis)
-    lies along the away-from-light direction (world units, from the grid's centre: the same float32 value whichever
-    way the rows and columns run)."""
+def line_point(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.vec2:
+    """(row, column) of the point of node (i, j)'s straight line at its major index (``error`` less along the minor
+    axis), from the grid's centre in nodes: the same float32 values whichever way the rows and columns run."""
     fi = float(i) - 0.5 * float(grid.rows - 1)
     fj = float(j) - 0.5 * float(grid.cols - 1)
     if sweep.major_j == 0:
         fj = fj - error
     else:
         fi = fi - error
-    return fj * grid.spacing[0] * sweep.away[0] + fi * grid.spacing[1] * sweep.away[1]
+    return wp.vec2(fi, fj)
+
+
+@wp.func
+def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.float32:
+    """How far the point of node (i, j)'s straight line at its major index (:func:`line_point`) lies along the
+    away-from-light direction (world units, from the grid's centre)."""
+    f = line_point(grid, sweep, i, j, error)
+    return f[1] * grid.spacing[0] * sweep.away[0] + f[0] * grid.spacing[1] * sweep.away[1]
 
 
 @wp.func
@@ -709,16 +716,16 @@ def sweep_shadows(
     """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA: one thread per line),
     walked away from the light in lockstep, each line keeping its running horizon max(h + t tan(alt)).
 
-    A node is in shadow when an earlier node of its line lies above the ray from the node to the light,
-    i.e. when h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node. Walking a bundle
+    A node is in shadow when an earlier point of its line lies above the ray from its point to the light, i.e. when
+    h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node; every node stands for the point of
+    its straight line at its major index (:func:`line_point`, its height interpolated across the line by
+    :func:`across_line`), the rise measured from the grid's centre as in :func:`distance_away`. Walking a bundle
     in lockstep touches neighbouring nodes one after another (cache lines are reused on CPUs).
     """
     first = (wp.tid() + thread_offset) * lines_per_thread
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
         horizons[line] = wp.float32(-3.0e38)
-    centre_i = 0.5 * float(grid.rows - 1)  # the rise measured from the grid's centre, as in distance_away
-    centre_j = 0.5 * float(grid.cols - 1)
     span_first = line_span(sweep, first)
     span_last = line_span(sweep, last - 1)
     span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
@@ -746,15 +753,10 @@ def sweep_shadows(
             if grid.has_nodata != 0 and wp.isnan(h):
                 store(shadow_out, i, j, wp.uint8(0))
             else:
-                fi = float(i) - centre_i
-                fj = float(j) - centre_j
                 if weight != 0.0:
                     h = h + weight * across_line(grid, sweep, i, j, minor, side, h)
-                    if sweep.major_j == 0:
-                        fj = fj - error
-                    else:
-                        fi = fi - error
-                g = h * grid.z_factor + (fj * sweep.rise[0] + fi * sweep.rise[1])
+                f = line_point(grid, sweep, i, j, error)
+                g = h * grid.z_factor + (f[1] * sweep.rise[0] + f[0] * sweep.rise[1])
                 if g < load(horizons, line):
                     store(shadow_out, i, j, wp.uint8(1))
                 else:
@@ -793,9 +795,10 @@ def sweep_occlusion(
     """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA), walked in lockstep as in
     :func:`sweep_shadows`, whose loop it repeats (the bundle span and the node's (i, j) as shared functions made
     the occlusion 6-10 % slower, RESULTS.md "Session 24"): the horizon angle of each node towards the light side
-    (the upper convex hull of its line's earlier nodes, a stack at ``offsets[line]`` whose last index is
-    ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at least 0, to ``occlusion_out``. Each line
-    sees its nodes in the same order as when walked alone, so the values do not depend on the bundle."""
+    (the upper convex hull of its line's earlier points, each node taken onto its straight line as there, a stack
+    at ``offsets[line]`` whose last index is ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at
+    least 0, to ``occlusion_out``. Each line sees its nodes in the same order as when walked alone, so the values
+    do not depend on the bundle."""
     first = (wp.tid() + thread_offset) * lines_per_thread
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):

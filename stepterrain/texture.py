@@ -454,12 +454,7 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float 
         slope, forward = toward_j / toward_i, -1 if toward_i > 0 else 1
         if abs(toward_i) <= abs(toward_j) * (1.0 + 1e-9):
             slope = math.copysign(1.0, slope)
-    offsets = minor_offsets(n_major, slope)
-    if abs(slope) == 1.0:  # exact diagonals: through nodes
-        error = np.zeros(n_major, np.float32)
-    else:  # odd under the flips minor_offsets is symmetric under (k - (n - 1)/2 and slope negated), exactly
-        error = (offsets - slope * (np.arange(n_major, dtype=np.float64) - 0.5 * (n_major - 1))).astype(np.float32)
-        error[np.abs(error) < _NEGLIGIBLE_SIDESTEP] = 0.0  # a light along an axis (cos 90° = 6e-17): none
+    offsets, error = _digital_lines(n_major, slope)
     c_min = -int(offsets.max())
     c_max = n_minor - 1 - int(offsets.min())
     sweep.minor_offsets = wp.array(offsets, dtype=wp.int32, device=device)
@@ -499,11 +494,22 @@ def minor_offsets(n_major: int, slope: float) -> NDArray[np.int32]:
     nodes: reversing the major axis maps k − (n − 1)/2 to its negative as the slope changes sign, reversing the
     minor axis negates the slope, and the rounding is odd. Anchored at k = 0 with ``floor(x + 0.5)`` the lines of
     the two layouts differed by the fraction of slope · (n − 1), and the shadows and occlusion with them."""
+    return _digital_lines(n_major, slope)[0]
+
+
+def _digital_lines(n_major: int, slope: float) -> tuple[NDArray[np.int32], NDArray[np.float32]]:
+    """:func:`minor_offsets` and, at each major index, how far they lie beyond the straight line's exact offset
+    slope · (k − (n_major − 1)/2) (``Sweep.minor_error``, in [-1/2, 1/2]; 0 on exact diagonals, which run through
+    nodes, and below :data:`_NEGLIGIBLE_SIDESTEP`). The rounding is odd, so the sidesteps are too: the layouts with
+    reversed rows or columns take their nodes the same way onto the same straight lines."""
     k = np.arange(n_major, dtype=np.float64)
     if abs(slope) == 1.0:  # exact diagonals: every line through nodes
-        return (slope * k).astype(np.int32)
+        return (slope * k).astype(np.int32), np.zeros(n_major, np.float32)
     x = slope * (k - 0.5 * (n_major - 1))
-    return (np.sign(x) * np.ceil(np.abs(x) - 0.5)).astype(np.int32)
+    offsets = np.sign(x) * np.ceil(np.abs(x) - 0.5)
+    error = (offsets - x).astype(np.float32)
+    error[np.abs(error) < _NEGLIGIBLE_SIDESTEP] = 0.0  # a light along an axis (cos 90° = 6e-17): none
+    return offsets.astype(np.int32), error
 
 
 def _shadow_array(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, altitude: float,

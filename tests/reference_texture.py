@@ -124,7 +124,8 @@ def hillshade_reference(heights, spacing=(1.0, 1.0), azimuth=AZIMUTH, altitude=A
 
 def line_geometry(shape, spacing, azimuth):
     """Major axis, walking direction, digital-line offsets and the away-from-light unit vector (the azimuth in
-    radians or as its (sin, cos)). The lines are
+    radians or as its (sin, cos)), and the straight lines' exact offsets (float64; the digital ones on a diagonal,
+    whose lines run through nodes). The lines are
     anchored at the middle of the major axis and rounded symmetrically, so a layout with reversed rows or columns
     (dy or dx negated) has the same lines through the same terrain."""
     rows, cols = shape
@@ -138,16 +139,18 @@ def line_geometry(shape, spacing, azimuth):
     k = np.arange(n_major, dtype=np.float64)
     if max(abs(ti), abs(tj)) <= min(abs(ti), abs(tj)) * (1 + 1e-9):  # a diagonal: exactly through nodes
         offsets = (np.sign(slope) * k).astype(np.int64)
+        exact = offsets.astype(np.float64)
     else:  # nearest to the line through the middle of the major axis, halves towards it (symmetric under flips)
         x = slope * (k - (n_major - 1) / 2)
         offsets = np.where(x >= 0, np.ceil(x - 0.5), np.floor(x + 0.5)).astype(np.int64)
+        exact = x
     away = (-sin_az, -cos_az)
-    return major_j, n_major, n_minor, forward, offsets, away
+    return major_j, n_major, n_minor, forward, offsets, away, exact
 
 
 def _line_nodes(shape, spacing, azimuth):
     """For every node: its list of earlier nodes on its line (nearest first), as index arrays per step."""
-    major_j, n_major, n_minor, forward, offsets, away = line_geometry(shape, spacing, azimuth)
+    major_j, n_major, n_minor, forward, offsets, away, _exact = line_geometry(shape, spacing, azimuth)
     rows, cols = shape
     i, j = np.meshgrid(np.arange(rows), np.arange(cols), indexing="ij")
     major = j if major_j else i
@@ -170,18 +173,9 @@ def _on_straight_lines(z, spacing, azimuth):
     """Every node taken sideways (along the minor axis) onto the straight line its digital line follows: its height
     interpolated linearly towards the neighbour across the line (beyond the border or at nodata extrapolated from
     the opposite neighbour, else its own) and its (i, j) there, as float64 arrays."""
-    major_j, n_major, n_minor, _forward, offsets, _away = line_geometry(z.shape, spacing, azimuth)
-    rows, cols = z.shape
-    dx, dy = spacing
-    sin_az, cos_az = azimuth if isinstance(azimuth, tuple) else (math.sin(azimuth), math.cos(azimuth))
-    ti, tj = cos_az / dy, sin_az / dx
+    major_j, n_major, n_minor, _forward, offsets, _away, exact = line_geometry(z.shape, spacing, azimuth)
     k = np.arange(n_major, dtype=np.float64)
-    if max(abs(ti), abs(tj)) <= min(abs(ti), abs(tj)) * (1 + 1e-9):
-        error = np.zeros(n_major)
-    else:
-        slope = ti / tj if major_j else tj / ti
-        error = offsets - slope * (k - (n_major - 1) / 2)
-    error = error.astype(np.float32).astype(np.float64)  # as the kernel holds it
+    error = (offsets - exact).astype(np.float32).astype(np.float64)  # as the kernel holds it
     error[np.abs(error) < 1e-6] = 0.0  # a millionth of a node sideways (a light along an axis): not moved
     zz = z.T if major_j else z  # (major, minor)
     e = error[:, None]
