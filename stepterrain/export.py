@@ -2567,7 +2567,8 @@ _PLY_BOOL = "comment stepterrain-bool "
 #: PLY readers read header lines into fixed buffers: MeshLab's (vcglib) 512 bytes, rply's 1024, VTK's 4096 (pyvista
 #: read nothing from a file with a longer line).
 _PLY_METADATA_PIECE = 400
-#: How far into a PLY file :func:`_ply_comments` looks for the end of its header.
+#: How far into a PLY file :func:`_ply_comments` looks for the end of its header, and into an OBJ
+#: :func:`_obj_metadata` for its first statement.
 _PLY_HEADER_LIMIT = 64 << 20
 
 
