@@ -466,8 +466,8 @@ def save_mesh(
     translation (float64 in the JSON: the floor of the centre of the bounds, (ox, oz, -oy) in the turned world frame)
     and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
-    0.03 mm on a 1 km tile, 0.25 m on a whole globe), or from ``origin`` when given (then the translation, at any
-    magnitude); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
+    0.03 mm on a 1 km tile, 0.25 m on a whole globe), or from ``origin`` when given, or the eye a view's mesh
+    records (then the translation, at any magnitude); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
     meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
