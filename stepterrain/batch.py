@@ -275,8 +275,8 @@ def plan_items(
     crop: ArrayLike | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
     """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
-    cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes are those
-    :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
+    (or another GDAL raster) cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes
+    are those :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
 
     Examples
     --------
@@ -332,7 +332,7 @@ def plan_items(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         try:
-            # a GeoTIFF's crop: its window only (other files are cropped by _reshaped_source)
+            # a GDAL raster's crop: its window only (other files are cropped by _reshaped_source)
             window = crop if path.suffix.lower() in GDAL_FORMATS else None
             terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
                                refuse=lambda whole: _check_crop(whole, crop))
@@ -1687,7 +1687,7 @@ def batch(
             "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
             "Terrain without a visual"
         )
-    # a GeoTIFF to tile with crop is read only in the crop's window (a crop of a raster over the memory budget), but
+    # a GDAL raster to tile with crop is read only in the crop's window (a crop of one over the memory budget), but
     # for a spacing=, which places the raster (and so the crop) anew after it is read
     windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
         source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in GDAL_FORMATS
