@@ -220,7 +220,7 @@ class _Options:
     #: metadata's ``spacing`` and ``coarsen``, part of the repr, record them for the fingerprint)
     file_spacing: tuple[float, float] | None = dataclasses.field(default=None, repr=False)
     coarsen: int | None = dataclasses.field(default=None, repr=False)
-    #: the GeoTIFF band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
+    #: the GDAL raster band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
     #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
     band: int | None = dataclasses.field(default=None, repr=False)
     #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
@@ -1492,7 +1492,7 @@ def batch(
     crop : (xmin, xmax, ymin, ymax), optional
         Keep the source's nodes inside this extent (:meth:`~stepterrain.terrain.Terrain.crop`, in the source's
         coordinates) before it is cut into tiles (``tile_size`` counts the cropped raster's cells), or in every frame
-        of a series. A GeoTIFF to tile (without ``spacing``) is read only in the crop's window
+        of a series. A GeoTIFF (or another GDAL raster) to tile (without ``spacing``) is read only in the crop's window
         (:func:`~stepterrain.io.load_dem`'s ``crop``): a part of a raster too big for the memory budget. Not for a
         folder or list of DEM files, which each cover their own extent. Recorded as ``crop`` in every output's
         metadata.
@@ -1536,8 +1536,9 @@ def batch(
         Not for arrays, Terrains or (T, H, W) series, whose heights are used as they are.
     band : int, optional
         The 1-based band of the DEM files (a folder, a list, or one raster file cut into tiles) to read the heights
-        from, as :func:`~stepterrain.io.load_dem` takes it (default: the first): a GeoTIFF's; a file of another
-        format holds one band and refuses another (in a folder or list: its item fails, naming it). Recorded as
+        from, as :func:`~stepterrain.io.load_dem` takes it (default: the first): a GeoTIFF's (or another GDAL
+        raster's: ``.img``, ``.vrt``, ...); a ``.npy``, ``.npz`` or PNG holds one band and refuses another (in a folder
+        or list: its item fails, naming it). Recorded as
         ``band`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
@@ -1580,9 +1581,10 @@ def batch(
     Notes
     -----
     An item is complete when the manifest records its output file with the same fingerprint (its input: the file's
-    absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
-    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does not
-    change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten with its
+    absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF or another
+    GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of
+    its heights; and the options but the device, which does not change a bit of the output) and that file exists with
+    the recorded size. The ctime catches a file rewritten with its
     size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a file renamed,
     moved or restored from a backup (and every file item of a run made before stepterrain recorded ctime and inode) is
     redone once. The manifest records each file, so an item's outputs in two formats (a ``.glb`` run, then a ``.ply``

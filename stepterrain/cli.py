@@ -246,7 +246,8 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     """The DEM at ``path`` (``--height-unit`` and ``--band`` applied), else the embedded one (where a unit or a band
     is refused); then ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and
     ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop`` without ``--spacing`` is load_dem's
-    ``crop``: a GeoTIFF's window is all that is read (a crop of a file over the memory budget), the same nodes."""
+    ``crop``: a GeoTIFF's (or another GDAL raster's) window is all that is read (a crop of a file over the memory
+    budget), the same nodes."""
     from .io import own_placement, read_dem, sample_dem
 
     def refuse(whole: Any) -> None:
