@@ -108,7 +108,6 @@ LOCK_NAME = ".stepterrain-batch.lock"
 #: recorded; 1 (read too): keyed by item, one format per folder
 _MANIFEST_VERSION = 2
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
-_DEM_EXTENSIONS = SUPPORTED_EXTENSIONS
 #: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
 #: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
 _FOLDER_EXTENSIONS = tuple(ext for ext in SUPPORTED_EXTENSIONS if ext != ".vrt")
@@ -366,10 +365,10 @@ def plan_items(
             raise InvalidInputError(
                 f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
                 f"in it), or its files")
-        bad = [str(f) for f in files if f.suffix.lower() not in _DEM_EXTENSIONS]
+        bad = [str(f) for f in files if f.suffix.lower() not in SUPPORTED_EXTENSIONS]
         if bad:
             raise InvalidInputError(
-                f"source files must end in {', '.join(_DEM_EXTENSIONS)}; got {bad[0]!r}"
+                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)}; got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         missing = [str(f) for f in files if not f.exists()]
@@ -509,7 +508,7 @@ def _one_raster_file(path: Path) -> bool:
     or ``.npz``'s headers read only: the CLI read an .npz whole here, then again as the series or the raster item).
     False when it cannot tell (a file whose headers it cannot read): the single-file source says why."""
     suffix = path.suffix.lower()
-    if not path.is_file() or suffix not in _DEM_EXTENSIONS:
+    if not path.is_file() or suffix not in SUPPORTED_EXTENSIONS:
         return False
     if suffix not in (".npy", ".npz"):
         return True
