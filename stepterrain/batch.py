@@ -302,9 +302,9 @@ def plan_items(
                 hidden = len(found) - len(files)
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
-                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named)"
-                    + (f" ({hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out)"
-                       if hidden else "")
+                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named"
+                    + (f"; {hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out"
+                       if hidden else "") + ")"
                 )
             return _file_items(files), None
         if not path.exists():
