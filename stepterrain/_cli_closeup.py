@@ -56,9 +56,6 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
-                        "the embedded Big Tujunga DEM")
     _add_input_options(p)
     p.add_argument("--roi", type=_floats(3, "x,y,r"), action=_RoiAction, metavar="x,y,r",
                    help="a close-up's ROI: centre and radius (half size) in world units; repeat for more")

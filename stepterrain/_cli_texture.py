@@ -81,9 +81,6 @@ def add_parser(commands: Any) -> None:
         epilog=_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
-                        "the embedded Big Tujunga DEM")
     _add_input_options(p)
     p.add_argument("--hillshade", "--method", dest="method", default="standard", metavar="METHOD",
                    choices=("standard", "multidirectional", "combined", "igor", "none"),

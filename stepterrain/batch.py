@@ -108,7 +108,6 @@ LOCK_NAME = ".stepterrain-batch.lock"
 #: recorded; 1 (read too): keyed by item, one format per folder
 _MANIFEST_VERSION = 2
 _SCHEDULER_RE = re.compile(r"^(tcp|tls|inproc|ucx|ws|wss)://[^\s/:]+(:\d{1,5})?/?$")
-_DEM_EXTENSIONS = SUPPORTED_EXTENSIONS
 #: The DEM files a folder source is read for: all but a .vrt, which in a folder of tiles is the mosaic of them
 #: (gdalbuildvrt's), so its heights would be meshed twice (a .vrt named as a file, or in a glob, is read)
 _FOLDER_EXTENSIONS = tuple(ext for ext in SUPPORTED_EXTENSIONS if ext != ".vrt")
@@ -220,7 +219,7 @@ class _Options:
     #: metadata's ``spacing`` and ``coarsen``, part of the repr, record them for the fingerprint)
     file_spacing: tuple[float, float] | None = dataclasses.field(default=None, repr=False)
     coarsen: int | None = dataclasses.field(default=None, repr=False)
-    #: the GeoTIFF band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
+    #: the GDAL raster band the DEM files' heights are read from (:func:`~stepterrain.io.load_dem`'s ``band``), None for
     #: the first; out of the repr as ``height_unit`` (:func:`_fingerprints` adds it when set)
     band: int | None = dataclasses.field(default=None, repr=False)
     #: the caller's working folder, set for dask workers (:func:`_run_dask`): a relative output folder or DEM file
@@ -275,8 +274,8 @@ def plan_items(
     crop: ArrayLike | None = None,
 ) -> tuple[list[BatchItem], _Source | None]:
     """The items :func:`batch` would run for ``source`` (see there), and the in-memory source they slice. A GeoTIFF
-    cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes are those
-    :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
+    (or another GDAL raster) cut into tiles is read only in the window of ``crop`` (load_dem's ``crop``: its nodes
+    are those :meth:`Terrain.crop` keeps); other sources ignore it (:func:`batch` crops them after).
 
     Examples
     --------
@@ -303,9 +302,9 @@ def plan_items(
                 hidden = len(found) - len(files)
                 raise InvalidInputError(
                     f"source folder {str(path)!r} holds no DEM file; expected files ending in "
-                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named)"
-                    + (f" ({hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out)"
-                       if hidden else "")
+                    f"{', '.join(_FOLDER_EXTENSIONS)} (a .vrt is read only when named"
+                    + (f"; {hidden} hidden file{'s' * (hidden != 1)}, named with a leading '.', left out"
+                       if hidden else "") + ")"
                 )
             return _file_items(files), None
         if not path.exists():
@@ -332,7 +331,7 @@ def plan_items(
                 f"source {str(path)!r} is one 2-D raster: give tile_size (the CLI's --tile) to cut it into tiles"
             )
         try:
-            # a GeoTIFF's crop: its window only (other files are cropped by _reshaped_source)
+            # a GDAL raster's crop: its window only (other files are cropped by _reshaped_source)
             window = crop if path.suffix.lower() in GDAL_FORMATS else None
             terrain = read_dem(path, height_unit=height_unit, band=1 if band is None else band, crop=window,
                                refuse=lambda whole: _check_crop(whole, crop))
@@ -366,10 +365,10 @@ def plan_items(
             raise InvalidInputError(
                 f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
                 f"in it), or its files")
-        bad = [str(f) for f in files if f.suffix.lower() not in _DEM_EXTENSIONS]
+        bad = [str(f) for f in files if f.suffix.lower() not in SUPPORTED_EXTENSIONS]
         if bad:
             raise InvalidInputError(
-                f"source files must end in {', '.join(_DEM_EXTENSIONS)}; got {bad[0]!r}"
+                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)}; got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         missing = [str(f) for f in files if not f.exists()]
@@ -509,7 +508,7 @@ def _one_raster_file(path: Path) -> bool:
     or ``.npz``'s headers read only: the CLI read an .npz whole here, then again as the series or the raster item).
     False when it cannot tell (a file whose headers it cannot read): the single-file source says why."""
     suffix = path.suffix.lower()
-    if not path.is_file() or suffix not in _DEM_EXTENSIONS:
+    if not path.is_file() or suffix not in SUPPORTED_EXTENSIONS:
         return False
     if suffix not in (".npy", ".npz"):
         return True
@@ -1492,7 +1491,7 @@ def batch(
     crop : (xmin, xmax, ymin, ymax), optional
         Keep the source's nodes inside this extent (:meth:`~stepterrain.terrain.Terrain.crop`, in the source's
         coordinates) before it is cut into tiles (``tile_size`` counts the cropped raster's cells), or in every frame
-        of a series. A GeoTIFF to tile (without ``spacing``) is read only in the crop's window
+        of a series. A GeoTIFF (or another GDAL raster) to tile (without ``spacing``) is read only in the crop's window
         (:func:`~stepterrain.io.load_dem`'s ``crop``): a part of a raster too big for the memory budget. Not for a
         folder or list of DEM files, which each cover their own extent. Recorded as ``crop`` in every output's
         metadata.
@@ -1536,8 +1535,9 @@ def batch(
         Not for arrays, Terrains or (T, H, W) series, whose heights are used as they are.
     band : int, optional
         The 1-based band of the DEM files (a folder, a list, or one raster file cut into tiles) to read the heights
-        from, as :func:`~stepterrain.io.load_dem` takes it (default: the first): a GeoTIFF's; a file of another
-        format holds one band and refuses another (in a folder or list: its item fails, naming it). Recorded as
+        from, as :func:`~stepterrain.io.load_dem` takes it (default: the first): a GeoTIFF's (or another GDAL
+        raster's: ``.img``, ``.vrt``, ...); a ``.npy``, ``.npz`` or PNG holds one band and refuses another (in a folder
+        or list: its item fails, naming it). Recorded as
         ``band`` in every output's metadata. Not for arrays, Terrains or (T, H, W) series.
     device : warp device, optional
         Where each worker runs the kernels (default: Warp's default device on that worker): a name ("cpu",
@@ -1580,9 +1580,10 @@ def batch(
     Notes
     -----
     An item is complete when the manifest records its output file with the same fingerprint (its input: the file's
-    absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF: world file,
-    ``.aux.xml``, ``.msk``, ``.tab``, RPCs; or a hash of its heights; and the options but the device, which does not
-    change a bit of the output) and that file exists with the recorded size. The ctime catches a file rewritten with its
+    absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF or another
+    GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of
+    its heights; and the options but the device, which does not change a bit of the output) and that file exists with
+    the recorded size. The ctime catches a file rewritten with its
     size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a file renamed,
     moved or restored from a backup (and every file item of a run made before stepterrain recorded ctime and inode) is
     redone once. The manifest records each file, so an item's outputs in two formats (a ``.glb`` run, then a ``.ply``
@@ -1687,7 +1688,7 @@ def batch(
             "tiles: its tiles would lose the colours stepped() carries over; give colors= (a colormap name) or a "
             "Terrain without a visual"
         )
-    # a GeoTIFF to tile with crop is read only in the crop's window (a crop of a raster over the memory budget), but
+    # a GDAL raster to tile with crop is read only in the crop's window (a crop of one over the memory budget), but
     # for a spacing=, which places the raster (and so the crop) anew after it is read
     windowed = crop is not None and spacing is None and tile_size is not None and isinstance(
         source, (str, os.PathLike)) and Path(os.fspath(source)).suffix.lower() in GDAL_FORMATS

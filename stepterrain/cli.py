@@ -182,10 +182,11 @@ def _add_height_unit(p: argparse.ArgumentParser, help: str | None = None) -> Non
 
 
 def _add_band(p: argparse.ArgumentParser) -> None:
-    """``--band``: load_dem's ``band``, the GeoTIFF band an INPUT's heights are read from (the first, else)."""
+    """``--band``: load_dem's ``band``, the band of a GeoTIFF (or another GDAL raster) an INPUT's heights are read
+    from (the first, else)."""
     p.add_argument("--band", type=_positive_int, default=None, metavar="N",
-                   help="the 1-based band of a GeoTIFF INPUT to read the heights from (default 1, as GDAL's tools "
-                        "read it); other formats hold one band")
+                   help="the 1-based band of a GeoTIFF INPUT (or .img, .vrt, ...: a GDAL raster) to read the heights "
+                        "from (default 1, as GDAL's tools read it); .npy, .npz and PNG hold one band")
 
 
 def _positive_int(text: str) -> int:
@@ -220,8 +221,12 @@ def _cell_size(text: str) -> tuple[float, ...]:
 
 
 def _add_input_options(p: argparse.ArgumentParser) -> None:
-    """The INPUT DEM's options: ``--height-unit``, ``--spacing``, ``--crop`` and ``--coarsen`` (see
-    :func:`_load_input`)."""
+    """The one DEM INPUT of steps, closeup and texture and its options: ``--height-unit``, ``--band``, ``--spacing``,
+    ``--crop`` and ``--coarsen`` (see :func:`_load_input`). The formats its help lists are load_dem's (one list for
+    the three subcommands)."""
+    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
+                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
+                        "the embedded Big Tujunga DEM")
     _add_height_unit(p)
     _add_band(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
@@ -241,7 +246,8 @@ def _load_input(path: str | None, height_unit: str | None, *, spacing: Sequence[
     """The DEM at ``path`` (``--height-unit`` and ``--band`` applied), else the embedded one (where a unit or a band
     is refused); then ``--spacing`` (a grid load_dem could not place), ``--crop`` (:meth:`Terrain.crop`) and
     ``--coarsen`` (:meth:`Terrain.coarsen`, block means). A file's ``--crop`` without ``--spacing`` is load_dem's
-    ``crop``: a GeoTIFF's window is all that is read (a crop of a file over the memory budget), the same nodes."""
+    ``crop``: a GeoTIFF's (or another GDAL raster's) window is all that is read (a crop of a file over the memory
+    budget), the same nodes."""
     from .io import own_placement, read_dem, sample_dem
 
     def refuse(whole: Any) -> None:
@@ -473,9 +479,6 @@ def _add_steps(commands: Any) -> None:
         epilog=_STEPS_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
-                        "the embedded Big Tujunga DEM")
     _add_input_options(p)
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",

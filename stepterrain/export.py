@@ -394,7 +394,8 @@ def save_mesh(
     ------
     InvalidInputError
         ``mesh`` is not a ``trimesh.Trimesh``, has non-finite vertices or faces indexing outside them, has
-        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre), would make
+        coordinates beyond float32 for a format that stores float32 (STL; glTF relative to its centre or
+        ``origin``), ``shared_bounds`` are not finite (2, 3) corners or ``origin`` not 3 finite numbers, would make
         a ``.glb`` over 4 GiB (its lengths are 32-bit; the message names the formats that hold it), the
         extension is unknown (the message lists the supported ones), has vertices but no faces for ``.stl`` or
         ``.3mf`` (which hold triangles only), or ``metadata`` holds a value that is not
@@ -465,8 +466,8 @@ def save_mesh(
     translation (float64 in the JSON: the floor of the centre of the bounds, (ox, oz, -oy) in the turned world frame)
     and loaders that apply the scene graph
     get world coordinates back, each within float32's rounding of its distance from that centre (2^-24 relative:
-    0.03 mm on a 1 km tile, 0.25 m on a whole globe), or from ``origin`` when given (then the translation, at any
-    magnitude); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
+    0.03 mm on a 1 km tile, 0.25 m on a whole globe), or from ``origin`` when given, or the eye a view's mesh
+    records (then the translation, at any magnitude); ``.ply``, ``.obj`` and ``.3mf`` keep float64. Textured OBJ
     meshes also write ``<stem>.mtl`` and their images ``<stem>_<material>.png`` (``.jpeg`` for an image opened from
     a JPEG) beside ``path`` (whitespace in the stem becomes ``_``: OBJ and MTL readers split file names on it; an
     image with transparent texels is also the MTL's dissolve, ``map_d -imfchan m``; its ``Kd`` is white and ``Ks``
@@ -643,14 +644,20 @@ def _shared_bounds(shared_bounds: ArrayLike | None) -> Bounds:
     """``save_mesh``'s ``shared_bounds`` as (lo, hi) float64, checked; None when not given."""
     if shared_bounds is None:
         return None
-    try:  # real numbers only: an int beyond float64 (10**400) raised numpy's OverflowError, True was 1.0
-        corners = real_numbers(shared_bounds, "shared_bounds", "finite (2, 3) corners (lowest, highest)")
-    except InvalidInputError:
-        corners = np.empty(0)
-    if corners.shape != (2, 3) or not np.isfinite(corners).all():
-        raise InvalidInputError(
-            f"shared_bounds must be finite (2, 3) corners (lowest, highest); got {shared_bounds!r:.200}")
+    corners = _finite_argument(shared_bounds, "shared_bounds", (2, 3), "finite (2, 3) corners (lowest, highest)")
     return corners[0], corners[1]
+
+
+def _finite_argument(value: ArrayLike, name: str, shape: tuple[int, ...], expected: str) -> NDArray[np.float64]:
+    """``value`` (save_mesh's ``shared_bounds`` or ``origin``) as float64 of ``shape``, finite, else an
+    InvalidInputError "``name`` must be ``expected``; got ..." (its repr cut at 200 characters)."""
+    try:  # real numbers only: an int beyond float64 (10**400) raised numpy's OverflowError, True was 1.0, text
+        array = real_numbers(value, name, expected)
+    except InvalidInputError:
+        array = np.empty(0)
+    if array.shape != shape or not np.isfinite(array).all():
+        raise InvalidInputError(f"{name} must be {expected}; got {value!r:.200}")
+    return array
 
 
 def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
@@ -658,13 +665,7 @@ def _origin_argument(origin: ArrayLike | None) -> NDArray[np.float64] | None:
     tiles given the same origin store shared vertices identically), checked; None when not given."""
     if origin is None:
         return None
-    try:  # real numbers only: text, bools and ints beyond float64 refused by name
-        point = real_numbers(origin, "origin", "3 finite numbers (x, y, z)")
-    except InvalidInputError:
-        point = np.empty(0)
-    if point.shape != (3,) or not np.isfinite(point).all():
-        raise InvalidInputError(f"origin must be 3 finite numbers (x, y, z); got {origin!r:.200}")
-    return np.floor(point) + 0.0  # no -0 in the JSON
+    return np.floor(_finite_argument(origin, "origin", (3,), "3 finite numbers (x, y, z)")) + 0.0  # no -0 in JSON
 
 
 def _recorded_eye(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> NDArray[np.float64] | None:
@@ -2567,7 +2568,8 @@ _PLY_BOOL = "comment stepterrain-bool "
 #: PLY readers read header lines into fixed buffers: MeshLab's (vcglib) 512 bytes, rply's 1024, VTK's 4096 (pyvista
 #: read nothing from a file with a longer line).
 _PLY_METADATA_PIECE = 400
-#: How far into a PLY file :func:`_ply_comments` looks for the end of its header.
+#: How far into a PLY file :func:`_ply_comments` looks for the end of its header, and into an OBJ
+#: :func:`_obj_metadata` for its first statement.
 _PLY_HEADER_LIMIT = 64 << 20
 
 

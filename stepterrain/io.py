@@ -306,8 +306,7 @@ def read_dem(
     require_regular_file(file, "DEM file", "DEM path")
     if ext not in GDAL_FORMATS and band != 1:
         raise InvalidInputError(
-            f"band applies to GDAL rasters only; {str(file)!r} holds one band, got "
-            f"band={band}"
+            f"band applies to GDAL rasters only; {str(file)!r} holds one band, got band={band}"
         )
     reader = {".npy": _load_npy, ".npz": _load_npz, ".png": _load_png}.get(ext)
     try:
