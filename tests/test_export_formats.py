@@ -147,6 +147,16 @@ def test_solid_3mf_and_stl_are_watertight(tmp_path):
 
 
 
+def strict_3mf_model(lib3mf, path):
+    """The 3MF Consortium's lib3mf model of ``path``, read in strict mode with no warning."""
+    model = lib3mf.get_wrapper().CreateModel()
+    reader = model.QueryReader("3mf")
+    reader.SetStrictModeActive(True)
+    reader.ReadFromFile(str(path))
+    assert reader.GetWarningCount() == 0
+    return model
+
+
 def test_3mf_keeps_positions_faces_and_vertex_colours(tmp_path):
     """The 3MF writer: positions exact (repr), the faces as they are, and the vertex colours as a colorgroup with
     each triangle's corner colours (trimesh's writer dropped them; a colour 3D print lost its hypsometric tints).
@@ -171,11 +181,7 @@ def test_3mf_keeps_positions_faces_and_vertex_colours(tmp_path):
     rgba = np.asarray(mesh.visual.vertex_colors, dtype=np.uint8)
     expected = ["#" + "".join(f"{c:02X}" for c in rgba[v]) for v in mesh.faces.reshape(-1)]
     assert [palette[i] for i in corners.reshape(-1)] == expected
-    model = lib3mf.get_wrapper().CreateModel()
-    reader = model.QueryReader("3mf")
-    reader.SetStrictModeActive(True)
-    reader.ReadFromFile(str(out))
-    assert reader.GetWarningCount() == 0
+    model = strict_3mf_model(lib3mf, out)
     objects = model.GetMeshObjects()
     assert objects.MoveNext()
     lib_mesh = objects.GetCurrentMeshObject()
@@ -250,11 +256,7 @@ def test_awkward_metadata_survives_obj_and_3mf_and_trimesh_still_reads_them(tmp_
         assert not (tmp_path / "m.mtl").exists() and loaded.visual.kind is None
         return
     lib3mf = pytest.importorskip("lib3mf")
-    model = lib3mf.get_wrapper().CreateModel()
-    reader = model.QueryReader("3mf")
-    reader.SetStrictModeActive(True)
-    reader.ReadFromFile(str(out))
-    assert reader.GetWarningCount() == 0
+    model = strict_3mf_model(lib3mf, out)
     group = model.GetMetaDataGroup()
     found = {}
     for k in range(group.GetMetaDataCount()):

@@ -35,6 +35,14 @@ def test_globe_from_an_npz_grid(tmp_path):
     assert out.stat().st_size > 0
 
 
+def globe_ply(source, tmp_path, capsys):
+    """The whole globe of ``source`` (face size 9, no camera, every node) written as PLY by the CLI and read back."""
+    out = tmp_path / f"{Path(source).name}.ply"
+    code = main(["-q", "globe", str(source), "--face-size", "9", "--no-camera", "--error", "0", "-o", str(out)])
+    assert code == 0, capsys.readouterr().err
+    return trimesh.load(out, process=False)
+
+
 def test_globe_from_a_geotiff_in_degrees(tmp_path, capsys):
     """A global GeoTIFF (ETOPO, GEBCO: the GIS user's global grid) was refused as "INPUT must be a .npz". It is read as
     load_dem reads it (here scale and offset), its node degrees from its geotransform, longitudes 0..360 or
@@ -55,10 +63,7 @@ def test_globe_from_a_geotiff_in_degrees(tmp_path, capsys):
         return path
 
     def mesh(source):
-        out = tmp_path / f"{Path(source).stem}.ply"
-        code = main(["-q", "globe", str(source), "--face-size", "9", "--no-camera", "--error", "0", "-o", str(out)])
-        assert code == 0, capsys.readouterr().err
-        return trimesh.load(out, process=False)
+        return globe_ply(source, tmp_path, capsys)
 
     grid = tmp_path / "grid.npz"
     np.savez(grid, elevation=z * 10.0 + 5.0, lat=lat, lon=lon)
@@ -94,10 +99,7 @@ def test_globe_from_other_rasters_in_degrees_as_load_dem_reads_them(tmp_path, ca
     transform = Affine(10.0, 0.0, 0.0, 0.0, -10.0, 90.0)
 
     def mesh(source):
-        out = tmp_path / f"{Path(source).name}.ply"
-        code = main(["-q", "globe", str(source), "--face-size", "9", "--no-camera", "--error", "0", "-o", str(out)])
-        assert code == 0, capsys.readouterr().err
-        return trimesh.load(out, process=False)
+        return globe_ply(source, tmp_path, capsys)
 
     grid = tmp_path / "grid.npz"
     np.savez(grid, elevation=z, lat=lat, lon=lon)
