@@ -1170,10 +1170,10 @@ def stepped(
     if solid:
         t = _off_thresholds(t, values)
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
-    mesh = _assemble(
+    # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
+    return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
     )
-    return mesh  # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
 
 
 def snapped_isovalue(h: np.float32, values: NDArray[np.float32]) -> np.float32:
