@@ -177,17 +177,24 @@ def _boundary_edges_reference(h, thresholds):
 
 
 @settings(max_examples=25, deadline=None)
-@given(rows=hs.integers(2, 40), cols=hs.integers(2, 40), seed=hs.integers(0, 2**16), holes=hs.floats(0.0, 1.0))
-def test_the_boundary_bound_of_a_grid_matches_its_reference(rows, cols, seed, holes):
+@given(rows=hs.integers(2, 40), cols=hs.integers(2, 40), seed=hs.integers(0, 2**16), holes=hs.floats(0.0, 1.0),
+       block=hs.integers(1, 200))
+def test_the_boundary_bound_of_a_grid_matches_its_reference(rows, cols, seed, holes, block):
     """solid_boundary_edges counts each candidate edge as the reference does, whatever the holes (none, some, all
-    but a few), so the rows taken a block at a time and the cells wholly nodata left out change no count."""
+    but a few) and the nodes read at a time (``block``: one row to all of them), so the rows taken a block at a time
+    and the cells wholly nodata left out change no count."""
     rng = np.random.default_rng(seed)
     h = rng.uniform(0.0, 50.0, (rows, cols)).astype(np.float32)
     h[rng.random((rows, cols)) < holes] = np.nan
     t = as_terrain(h)
     values = st.isovalues((0.0, 50.0), interval=3.0)
     expected = _boundary_edges_reference(h, stepped_module.thresholds_of(values))
-    assert stepped_module.solid_boundary_edges(t, values) == expected
+    default = stepped_module._SOLID_BOUNDARY_BLOCK
+    stepped_module._SOLID_BOUNDARY_BLOCK = block  # not monkeypatch: hypothesis runs the examples in one test call
+    try:
+        assert stepped_module.solid_boundary_edges(t, values) == expected
+    finally:
+        stepped_module._SOLID_BOUNDARY_BLOCK = default
 
 
 def test_the_boundary_bound_of_a_grid_half_nodata_takes_little_memory():
