@@ -1262,11 +1262,10 @@ def closeup_layers(
                 src.scalars = _vertex_scalars(t, src.points, cu.scalars)
             cache[key] = src
         sources.append(src)
-    check_budget(sum(len(src.points) for src in sources) * _CULL_POINT_BYTES
-                 + sum(len(src.faces) for src in sources) * _CULL_FACE_BYTES, "close-up geometry", memory_budget,
-                 hint="use smaller ROIs or fewer close-ups")
-    for items_name, count in (("points", sum(len(src.points) for src in sources)),
-                              ("faces", sum(len(src.faces) for src in sources))):
+    total_points, total_faces = sum(len(src.points) for src in sources), sum(len(src.faces) for src in sources)
+    check_budget(total_points * _CULL_POINT_BYTES + total_faces * _CULL_FACE_BYTES, "close-up geometry",
+                 memory_budget, hint="use smaller ROIs or fewer close-ups")
+    for items_name, count in (("points", total_points), ("faces", total_faces)):
         if count + 1 > _MAX_INT32:  # past it the int32 faces, counts and offsets wrap, whatever the budget allows
             raise OutputTooLargeError(f"close-up geometry would hold {count:,} source {items_name}, over the "
                                       f"{_MAX_INT32 - 1:,} that the cull's int32 indices can hold, whatever the memory "

@@ -91,6 +91,9 @@ _SOLID_FACE_BYTES = _FACE_BYTES + 4
 _SOLID_WORK_FACE_BYTES = 80
 _SOLID_WORK_VERTEX_BYTES = 64
 _SOLID_WORK_FIXED = 5 << 20
+#: Nodes of a grid with nodata that :func:`solid_boundary_edges` reads at a time (its masks and the candidate cells'
+#: temporaries stay a few MiB, whatever the grid's size).
+_SOLID_BOUNDARY_BLOCK = 1 << 18
 
 
 def _let_trimesh_write_bool_ply() -> None:
@@ -727,8 +730,8 @@ def solid_boundary_edges(t: Terrain, values: NDArray[np.float32]) -> int:
     the heights alone, before stepping: per terrain edge that can lie on the boundary of the triangles, 2 k + 3 for its
     k crossed thresholds (k walls' vertical sides and the k + 1 pieces between them, and a twin's vertical edge at
     either end; §3.2: a node's level is the count of thresholds at or below its height). A grid's candidates are its
-    outer ring and every side and diagonal of a cell touching nodata; a TIN's, the edges of one face. An edge with a
-    nodata end is in no triangle."""
+    outer ring and every side and diagonal of a cell with both heights and nodata; a TIN's, the edges of one face. An
+    edge with a nodata end is in no triangle."""
     thresholds = thresholds_of(values)
 
     def edges(a: NDArray[np.float32], b: NDArray[np.float32]) -> int:
@@ -748,11 +751,19 @@ def solid_boundary_edges(t: Terrain, values: NDArray[np.float32]) -> int:
         return 0
     total = (edges(h[0, :-1], h[0, 1:]) + edges(h[-1, :-1], h[-1, 1:])
              + edges(h[:-1, 0], h[1:, 0]) + edges(h[:-1, -1], h[1:, -1]))  # fmt: skip
-    if t.has_nodata:  # a hole's boundary runs along the cells that touch it
-        bad = ~np.isfinite(h)
-        r, c = np.nonzero(bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:])
-        h00, h01, h10, h11 = h[r, c], h[r, c + 1], h[r + 1, c], h[r + 1, c + 1]
-        total += sum(edges(a, b) for a, b in ((h00, h01), (h10, h11), (h00, h10), (h01, h11), (h00, h11), (h01, h10)))
+    if t.has_nodata:  # a hole's boundary runs along the cells that touch it and hold a height too (the edges of a
+        # cell wholly nodata count nothing); rows a block at a time: this runs before the budget is checked, and a
+        # sea of nodata made index and height arrays for each of its cells (~30 bytes a node)
+        block = max(1, _SOLID_BOUNDARY_BLOCK // h.shape[1])
+        for r0 in range(0, h.shape[0] - 1, block):
+            rows = h[r0:r0 + block + 1]  # the cells of rows r0 .. r0 + block - 1 and their lower and upper nodes
+            bad = ~np.isfinite(rows)
+            cell_bad = bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:]
+            cell_bad &= ~(bad[:-1, :-1] & bad[1:, :-1] & bad[:-1, 1:] & bad[1:, 1:])
+            r, c = np.nonzero(cell_bad)
+            h00, h01, h10, h11 = rows[r, c], rows[r, c + 1], rows[r + 1, c], rows[r + 1, c + 1]
+            total += sum(edges(a, b) for a, b in ((h00, h01), (h10, h11), (h00, h10), (h01, h11), (h00, h11),
+                                                  (h01, h10)))
     return total
 
 
@@ -1170,10 +1181,10 @@ def stepped(
     if solid:
         t = _off_thresholds(t, values)
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
-    mesh = _assemble(
+    # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
+    return _assemble(
         t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
     )
-    return mesh  # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
 
 
 def snapped_isovalue(h: np.float32, values: NDArray[np.float32]) -> np.float32:

@@ -150,3 +150,67 @@ def test_a_solids_peak_stays_within_its_predicted_bytes(case):
     finally:
         tracemalloc.stop()
     assert 0.4 * need <= peak <= need, (peak, need)
+
+
+def _boundary_edges_reference(h, thresholds):
+    """solid_boundary_edges of a grid, as first written: every candidate edge of the outer ring and of each cell
+    touching nodata, with 2 k + 3 per edge of two finite ends crossing k thresholds."""
+    level = np.searchsorted(thresholds, np.where(np.isfinite(h), h, 0), side="right").reshape(-1)
+    ok = np.isfinite(h).reshape(-1)
+    total = 0
+
+    def add(a, b):
+        both = ok[a] & ok[b]
+        return int((2 * np.abs(level[a] - level[b]) + 3)[both].sum())
+
+    rows, cols = h.shape
+    index = np.arange(h.size).reshape(h.shape)
+    for a, b in ((index[0, :-1], index[0, 1:]), (index[-1, :-1], index[-1, 1:]), (index[:-1, 0], index[1:, 0]),
+                 (index[:-1, -1], index[1:, -1])):
+        total += add(a, b)
+    bad = ~np.isfinite(h)
+    r, c = np.nonzero(bad[:-1, :-1] | bad[1:, :-1] | bad[:-1, 1:] | bad[1:, 1:])
+    i00, i01, i10, i11 = index[r, c], index[r, c + 1], index[r + 1, c], index[r + 1, c + 1]
+    for a, b in ((i00, i01), (i10, i11), (i00, i10), (i01, i11), (i00, i11), (i01, i10)):
+        total += add(a, b)
+    return total
+
+
+@settings(max_examples=25, deadline=None)
+@given(rows=hs.integers(2, 40), cols=hs.integers(2, 40), seed=hs.integers(0, 2**16), holes=hs.floats(0.0, 1.0),
+       block=hs.integers(1, 200))
+def test_the_boundary_bound_of_a_grid_matches_its_reference(rows, cols, seed, holes, block):
+    """solid_boundary_edges counts each candidate edge as the reference does, whatever the holes (none, some, all
+    but a few) and the nodes read at a time (``block``: one row to all of them), so the rows taken a block at a time
+    and the cells wholly nodata left out change no count."""
+    rng = np.random.default_rng(seed)
+    h = rng.uniform(0.0, 50.0, (rows, cols)).astype(np.float32)
+    h[rng.random((rows, cols)) < holes] = np.nan
+    t = as_terrain(h)
+    values = st.isovalues((0.0, 50.0), interval=3.0)
+    expected = _boundary_edges_reference(h, stepped_module.thresholds_of(values))
+    default = stepped_module._SOLID_BOUNDARY_BLOCK
+    stepped_module._SOLID_BOUNDARY_BLOCK = block  # not monkeypatch: hypothesis runs the examples in one test call
+    try:
+        assert stepped_module.solid_boundary_edges(t, values) == expected
+    finally:
+        stepped_module._SOLID_BOUNDARY_BLOCK = default
+
+
+def test_the_boundary_bound_of_a_grid_half_nodata_takes_little_memory():
+    """The bound is computed before the budget check, so it must not itself take memory in proportion to the grid:
+    a grid half nodata (a coast: the sea is nodata) made index and height arrays for every cell touching nodata, the
+    sea's cells wholly nodata included (~30 bytes a node here, 180 MB for a 6000² DEM before any check). Now only
+    the cells where nodata meets heights are candidates, and the grid's rows are taken a block at a time."""
+    h = np.linspace(0.0, 100.0, 1500 * 1500, dtype=np.float32).reshape(1500, 1500)
+    h[:, 700:] = np.nan
+    t = as_terrain(h)
+    values = st.isovalues(t.height_range, interval=1.0)
+    assert t.has_nodata  # cached before the peak is measured
+    tracemalloc.start()
+    try:
+        stepped_module.solid_boundary_edges(t, values)
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < h.size  # under a byte a node
