@@ -1531,6 +1531,16 @@ def test_info_counts_the_levels_and_walls_a_ply_keeps(tmp_path, capsys):
             assert "levels" not in summary and "wall_faces" not in summary
 
 
+def as_a_terminal_job() -> None:
+    """``preexec_fn`` of a child that a test interrupts: SIGINT and SIGHUP at their defaults, as a terminal's job has
+    them. A test run under nohup, or put in the background by a non-interactive shell (`.ci/run &`), ignores both, a
+    child inherits that, and Python then installs no KeyboardInterrupt handler: the signals did nothing (exit 0)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
 @needs_render
 def test_ctrl_c_as_vtk_loads_ends_the_run_as_interrupted(tmp_path):
     """Ctrl-C while VTK's rendering modules loaded (the first render of `steps --png`, about a second on a busy
@@ -1559,7 +1569,8 @@ sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "10", "--device", "cpu
 """
     (tmp_path / "run.py").write_text(script)
     done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
+                          preexec_fn=as_a_terminal_job)
     assert done.returncode == 130, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == ["stepterrain: interrupted"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py"]
@@ -1590,7 +1601,8 @@ sys.exit(main(["-q", "steps", "--interval", "10", "--device", "cpu", "-o", {str(
 """
     (tmp_path / "run.py").write_text(script)
     done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
+                          preexec_fn=as_a_terminal_job)
     assert done.returncode == -signal.SIGINT, (done.returncode, done.stderr[-2000:])  # as after any Ctrl-C at start
     assert done.stderr.rstrip().endswith("KeyboardInterrupt"), done.stderr[-2000:]
     assert not out.exists()
@@ -1636,7 +1648,8 @@ if __name__ == "__main__":
 """
     (tmp_path / "run.py").write_text(script)
     done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
+                          preexec_fn=as_a_terminal_job)
     assert done.returncode == 129, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == ["stepterrain: hung up"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py", "terrain.glb"]
@@ -1666,7 +1679,8 @@ def test_batch_ctrl_c_as_the_workers_start_prints_no_worker_tracebacks(tmp_path,
     proc = subprocess.Popen([sys.executable, "-m", "stepterrain", "-q", "batch", "--tile", "32", "--device", "cpu",
                              "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=tmp_path, start_new_session=True,  # its own process group, as a terminal's job
-                            env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])})
+                            env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
+                            preexec_fn=as_a_terminal_job)
     try:
         workers: list = []
         deadline = time.monotonic() + 90
