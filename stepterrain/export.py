@@ -674,13 +674,11 @@ def _recorded_eye(recorded: Any, given: Mapping[str, Any], bounds: Bounds) -> ND
     is 3 finite numbers lying within one diagonal of the mesh's bounds. Farther (a mesh scaled or moved since, its
     eye stale), its float32 positions would round worse than about the bounds' centre: None, the centre kept."""
     eye = given["eye"] if "eye" in given else recorded.get("eye") if isinstance(recorded, Mapping) else None
-    if eye is None or bounds is None or isinstance(eye, (str, bytes)):
+    if eye is None or bounds is None:
         return None
-    try:
-        point = np.asarray(eye, dtype=np.float64)
-    except (TypeError, ValueError):
-        return None
-    if point.shape != (3,) or not np.isfinite(point).all():
+    try:  # as save_mesh's origin is read, but an eye it cannot take is left, not refused
+        point = _finite_argument(eye, "eye", (3,), "3 finite numbers (x, y, z)")
+    except InvalidInputError:
         return None
     lo, hi = bounds
     outside = np.maximum(np.maximum(lo - point, point - hi), 0.0)
