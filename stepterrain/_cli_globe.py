@@ -32,7 +32,7 @@ from .cli import (
 )
 from .errors import DataFileError, InvalidInputError
 from .export import MESH_EXTENSIONS
-from .io import _NPZ_SCALING, GDAL_FORMATS, equals_nodata, npz_missing, npz_nodata, refuse_npz_scaling
+from .io import _NPZ_SCALING, GDAL_FORMATS, equals_nodata, npz_missing, npz_nodata, open_npz, refuse_npz_scaling
 
 _EARTH_RADIUS = 6_371_000.0  # --radius's default (globe.EARTH_RADIUS, not imported before the command runs)
 
@@ -149,13 +149,14 @@ def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         raise InvalidInputError(f"INPUT must be a .npz with elevation, lat and lon arrays, or a raster in degrees "
                                 f"({' '.join(GDAL_FORMATS)}); got {path!r}")
     try:
-        data = np.load(file)
+        handle, data = open_npz(file)
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(f"cannot read {path!r} as .npz: {exc}") from exc
     if isinstance(data, np.ndarray):
+        handle.close()
         raise DataFileError(f"{path!r} must be an .npz archive with arrays 'elevation', 'lat' and 'lon'; "
                             "got one .npy array")
-    with data:
+    with handle, data:
         missing = [key for key in ("elevation", "lat", "lon") if key not in data.files]
         if missing:
             raise DataFileError(f"{path!r} must hold arrays 'elevation', 'lat' and 'lon'; missing "

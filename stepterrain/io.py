@@ -18,7 +18,7 @@ import warnings
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Literal, NamedTuple
+from typing import Any, BinaryIO, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -536,17 +536,25 @@ def read_npz(file: Path) -> dict[str, NDArray[Any]] | NDArray[Any]:
     return _each_npz_member(file, _npz_member)
 
 
+def open_npz(file: Path) -> tuple[BinaryIO, Any]:
+    """``np.load(file, allow_pickle=False)`` on a file opened here, and that file: the caller closes it (``with
+    handle, archive:``; an .npy's array is read whole). np.load left the file it opened itself open when zipfile
+    refused it (a truncated archive): a ResourceWarning, a handle held until the garbage collector found it. Its
+    errors are np.load's."""
+    handle = open(file, "rb")
+    try:
+        return handle, np.load(handle, allow_pickle=False)
+    except BaseException:
+        handle.close()
+        raise
+
+
 def _each_npz_member(file: Path, read: Callable[[Any, str, Path], Any]) -> dict[str, Any]:
     """``{key: read(archive, key, file)}`` for the members of the .npz archive ``file`` (an archive, not a .npy under
     an .npz name: :func:`read_npz` and :func:`npz_member_ndims` test that first), an unreadable archive or member a
     DataFileError in :func:`read_npz`'s words."""
     try:
-        handle = open(file, "rb")  # opened here: np.load left the file open when zipfile refused it (truncated)
-        try:
-            archive = np.load(handle, allow_pickle=False)  # the zip directory only
-        except BaseException:
-            handle.close()
-            raise
+        handle, archive = open_npz(file)  # the zip directory only
     except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
         raise DataFileError(
             f"cannot read {str(file)!r}: expected a NumPy .npz archive; got unreadable content ({exc})"

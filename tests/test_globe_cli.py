@@ -445,3 +445,21 @@ def test_a_view_tilted_off_the_globe_names_the_view_options(tmp_path, capsys):
     assert not out.exists()
     assert main([*base, "--tilt", f"{float(found[2]) - 1.0:.6g}"]) == 0  # just below the bound: sees the globe
     assert main([*base, "--tilt", f"{float(found[2]) + 1.0:.6g}"]) == 2  # just above it: sees nothing
+
+
+def test_globe_truncated_npz_leaves_no_file_open(tmp_path, capsys):
+    """A truncated .npz INPUT (its zip directory cut off) was refused, but np.load, which opened the file itself,
+    left it open when zipfile failed on it (a ResourceWarning), as load_dem's reading did before io.open_npz."""
+    import gc
+    import warnings
+
+    np.savez(tmp_path / "whole.npz", elevation=np.zeros((4, 8)), lat=np.zeros(4), lon=np.zeros(8))
+    data = (tmp_path / "whole.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(data[: len(data) // 2])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["-q", "globe", str(tmp_path / "cut.npz"), "--face-size", "9", "-o",
+                     str(tmp_path / "x.glb")]) == 2
+        gc.collect()
+    assert "cut.npz' as .npz" in capsys.readouterr().err
+    assert [str(w.message) for w in caught if issubclass(w.category, ResourceWarning)] == []
