@@ -1967,7 +1967,6 @@ def _draped(mesh: trimesh.Trimesh, layer: TextureLayer, image: NDArray[np.uint8]
     return out
 
 
-
 def _lay_over_uint8(image: NDArray[np.uint8], layer: TextureLayer) -> None:
     """``layer`` (straight RGBA on the same pixel grid) laid over the uint8 RGB or RGBA ``image`` in place, as
     :func:`blend` lays ``b`` over ``a`` and ``to_uint8`` rounds it (``stepterrain texture --contours``): coverage c =

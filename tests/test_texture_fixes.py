@@ -613,6 +613,17 @@ def _png_encodes(monkeypatch) -> list[tuple[int, int]]:
     return sizes
 
 
+def _hill(tmp_path, name: str = "hill.npy", hole: bool = False) -> str:
+    """A 40 x 50 Gaussian hill 100 m high saved as ``tmp_path/name`` (a nodata block at rows 10-14, columns 20-29 with
+    ``hole``); its path as a string."""
+    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
+    heights = (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32)
+    if hole:
+        heights[10:15, 20:30] = np.nan
+    np.save(tmp_path / name, heights)
+    return str(tmp_path / name)
+
+
 def test_a_large_png_is_deflated_with_z_rle_and_decodes_to_the_same_pixels(tmp_path, monkeypatch):
     """save_image deflates a PNG of more than export._FAST_PNG_PIXELS pixels with zlib's Z_RLE strategy (about 4x
     faster than the default level 6: 29-31 s of a 77 M texel texture's 38 s went to deflating it): the file decodes
@@ -651,11 +662,10 @@ def test_cli_texture_glb_takes_the_written_pngs_bytes_instead_of_deflating_the_t
     from . import gltf_validator
 
     monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
-    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
-    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    dem = _hill(tmp_path)
     sizes = _png_encodes(monkeypatch)
     out, glb = tmp_path / "tex.png", tmp_path / "out.glb"
-    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+    assert main(["texture", dem, "--spacing", "30", "--texel-size", "10", "-o", str(out),
                  "--mesh", str(glb), "--device", "cpu"]) == 0
     with Image.open(out) as picture:
         texture = np.asarray(picture)
@@ -732,10 +742,7 @@ def test_cli_texture_of_a_dem_with_nodata_composes_once_for_the_file_and_the_dra
     from stepterrain import texture as tx
     from stepterrain.cli import main
 
-    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
-    heights = (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32)
-    heights[10:15, 20:30] = np.nan
-    np.save(tmp_path / "holes.npy", heights)
+    dem = _hill(tmp_path, "holes.npy", hole=True)
     launches = []
     original = tx.launch
 
@@ -745,7 +752,7 @@ def test_cli_texture_of_a_dem_with_nodata_composes_once_for_the_file_and_the_dra
 
     monkeypatch.setattr(tx, "launch", counting)
     out, glb = tmp_path / "tex.png", tmp_path / "out.glb"
-    assert main(["texture", str(tmp_path / "holes.npy"), "--spacing", "30", "-o", str(out), "--mesh", str(glb),
+    assert main(["texture", dem, "--spacing", "30", "-o", str(out), "--mesh", str(glb),
                  "--device", "cpu"]) == 0
     assert launches.count("compose_texture") == 1
     with Image.open(out) as picture:
@@ -770,11 +777,10 @@ def test_cli_texture_obj_side_image_is_the_written_pngs_bytes(tmp_path, monkeypa
     from stepterrain.cli import main
 
     monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
-    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
-    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    dem = _hill(tmp_path)
     sizes = _png_encodes(monkeypatch)
     out, obj = tmp_path / "tex.png", tmp_path / "out.obj"
-    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+    assert main(["texture", dem, "--spacing", "30", "--texel-size", "10", "-o", str(out),
                  "--mesh", str(obj), "--device", "cpu"]) == 0
     assert sizes == [(2, 2), (150, 120)]  # the 2 x 2 stand-in whose side files are checked before any work, once
     (side,) = [p for p in tmp_path.glob("out_*.png")]
@@ -804,8 +810,7 @@ def test_cli_pngs_no_mesh_takes_are_not_hashed_and_keep_the_texture_for_the_mesh
     from stepterrain.cli import main
 
     monkeypatch.setattr(export, "_FAST_PNG_PIXELS", 5000, raising=False)
-    i, j = np.meshgrid(np.arange(40), np.arange(50), indexing="ij")
-    np.save(tmp_path / "hill.npy", (100 * np.exp(-((i - 20) ** 2 + (j - 25) ** 2) / 80.0)).astype(np.float32))
+    dem = _hill(tmp_path)
     hashed = []
     digest = export._pixels_digest
 
@@ -816,11 +821,11 @@ def test_cli_pngs_no_mesh_takes_are_not_hashed_and_keep_the_texture_for_the_mesh
     monkeypatch.setattr(export, "_pixels_digest", counting)
     export._LAST_PNG.clear()
     out, normals = tmp_path / "tex.png", tmp_path / "normals.png"
-    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+    assert main(["texture", dem, "--spacing", "30", "--texel-size", "10", "-o", str(out),
                  "--normals", str(normals), "--device", "cpu"]) == 0
     assert hashed == [] and export._LAST_PNG == []
     glb = tmp_path / "out.glb"
-    assert main(["texture", str(tmp_path / "hill.npy"), "--spacing", "30", "--texel-size", "10", "-o", str(out),
+    assert main(["texture", dem, "--spacing", "30", "--texel-size", "10", "-o", str(out),
                  "--normals", str(normals), "--mesh", str(glb), "--device", "cpu"]) == 0
     assert hashed == [(150, 120), (150, 120)]  # the texture once written, its drape once asked
     assert export._LAST_PNG[0][1] == out.absolute()
