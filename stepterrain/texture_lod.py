@@ -1759,7 +1759,7 @@ def _in_view(camera: Camera, box: NDArray[np.float64]) -> _InView:
     if nearest is None or not len(points):
         nearest = camera.nearest_point(corners)
         points = nearest[None]
-    axes = np.stack(camera.frame())
+    axes = camera._frustum[1]
     rel = (points - np.asarray(camera.eye, dtype=np.float64)) @ axes.T  # (k, 3): depth, right, up
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):  # a point behind the eye: inf, refined later
         return _InView(float(rel[:, 0].min()), rel[:, 1] / rel[:, 0], rel[:, 2] / rel[:, 0], axes, nearest)

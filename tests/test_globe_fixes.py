@@ -1231,6 +1231,20 @@ def _two_pole_texture():
     return image
 
 
+def _assert_poles_show_their_own_colours(textured, image):
+    """Unlit renders from a camera over each pole and over the equator at the antimeridian: the middle of each
+    picture shows the image's own colour there (the north pole's, the south pole's, the equator's)."""
+    from stepterrain.globe import EARTH_RADIUS, look_from
+    from stepterrain.render import render_textured_mesh
+
+    for latitude, colour in ((90.0, image[0, 0]), (-90.0, image[-1, 0]), (0.0, image[64, 0])):
+        camera = look_from(latitude, 180.0, 3 * EARTH_RADIUS)
+        picture = render_textured_mesh(textured, window_size=(160, 160), lighting=False, anti_aliasing=False,
+                                       camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
+        middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
+        assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+
+
 def test_a_globe_drape_samples_its_poles_without_the_other_pole_s_colour(tmp_path):
     """The textured globe's poles, with mipmaps, showed a grey diamond at the north pole of the Blue Marble and a
     dark spot at its white south pole: glTF's default sampler (trimesh writes none) and VTK's texture repeat the
@@ -1264,20 +1278,14 @@ def test_a_globe_drape_renders_its_poles_in_their_own_colours():
     """The render of the test above: a camera over each pole, unlit, sees the pole's own colour at the middle of the
     picture (it saw the two poles' mean at the coarse mip levels of the pole triangles), and the antimeridian's
     faces (u past 1) still show the image's own colours (no smear across the whole image)."""
-    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from
-    from stepterrain.render import render_textured_mesh
+    from stepterrain.globe import drape_texture
 
     lat = np.linspace(89.5, -89.5, 180)
     lon = np.linspace(-179.5, 179.5, 360)
     mesh = Globe.from_latlon(np.zeros((180, 360)), lat, lon, face_size=33, device="cpu").mesh()
     image = _two_pole_texture()
     textured = drape_texture(mesh, image)
-    for latitude, colour in ((90.0, image[0, 0]), (-90.0, image[-1, 0]), (0.0, image[64, 0])):
-        camera = look_from(latitude, 180.0, 3 * EARTH_RADIUS)
-        picture = render_textured_mesh(textured, window_size=(160, 160), lighting=False, anti_aliasing=False,
-                                       camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
-        middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
-        assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+    _assert_poles_show_their_own_colours(textured, image)
 
 
 @needs_render
@@ -1290,8 +1298,7 @@ def test_a_globe_drape_read_back_keeps_its_sampler_and_its_poles(tmp_path):
     import struct
 
     from stepterrain.export import read_mesh, save_mesh
-    from stepterrain.globe import EARTH_RADIUS, drape_texture, look_from
-    from stepterrain.render import render_textured_mesh
+    from stepterrain.globe import drape_texture
 
     mesh = Globe.from_latlon(np.zeros((180, 360)), LAT1, LON1, face_size=17, device="cpu").mesh()
     image = _two_pole_texture()
@@ -1301,12 +1308,7 @@ def test_a_globe_drape_read_back_keeps_its_sampler_and_its_poles(tmp_path):
     tree = json.loads(data[20 : 20 + struct.unpack_from("<I", data, 12)[0]])
     (texture,) = tree["textures"]
     assert tree["samplers"][texture["sampler"]] == {"wrapS": 10497, "wrapT": 33071}
-    for latitude, colour in ((90.0, image[0, 0]), (-90.0, image[-1, 0]), (0.0, image[64, 0])):
-        camera = look_from(latitude, 180.0, 3 * EARTH_RADIUS)
-        picture = render_textured_mesh(back, window_size=(160, 160), lighting=False, anti_aliasing=False,
-                                       camera=[tuple(camera.eye), tuple(camera.target), tuple(camera.up)])
-        middle = picture[70:90, 70:90].reshape(-1, 3).astype(float)
-        assert np.abs(middle - colour).max() <= 12, (latitude, middle.mean(axis=0), colour)
+    _assert_poles_show_their_own_colours(back, image)
 
 
 def test_render_mesh_counts_a_globe_drape_s_widened_texture_against_the_budget(budget):
