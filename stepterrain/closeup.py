@@ -30,6 +30,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import Same, derived
@@ -98,9 +99,6 @@ _MAX_MASK_RESOLUTION = 16385  # texels along each side of a shape mask: 1 GiB of
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
 _MAX_OFFSET = 1e12
-#: The most an int32 index holds: the cull (kernels/closeup.py) indexes the joined source points and faces with int32,
-#: and its count buffers have one slot more than either.
-_MAX_INT32 = (1 << 31) - 1
 #: largest |angle| of a close-up's rotation and billboard azimuth, radians (1024 turns): 1e308 was taken, and a spin
 #: added to an angle that large was lost to rounding (the animation stood still); a larger value is likely degrees
 _MAX_ANGLE = 2 * math.pi * 1024
