@@ -59,6 +59,10 @@ def set_memory_budget(nbytes: int) -> int:
     return previous
 
 
+#: The most an int32 index, count or offset holds: the kernels' counts, their exclusive offsets and the indices
+#: they write are int32, so a total past it wraps whatever the memory budget allows (stepped, globe, close-ups).
+MAX_INT32 = (1 << 31) - 1
+
 #: What makes a stepped output smaller: the default hint of :func:`check_budget`.
 SMALLER_HINT = "crop or coarsen the input (Terrain.crop, Terrain.coarsen; --crop, --coarsen) or coarsen the isovalues"
 

@@ -30,6 +30,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import host_copy, launch, launch_chunked, resolve_device, to_device
 from ._memo import Same, derived
@@ -98,9 +99,6 @@ _MAX_MASK_RESOLUTION = 16385  # texels along each side of a shape mask: 1 GiB of
 _FLOAT32_SMALLEST = float(np.finfo(np.float32).smallest_subnormal)
 _MAX_SCALE = 1e6  # close-up scale and offset bounds: transformed positions stay finite in float32
 _MAX_OFFSET = 1e12
-#: The most an int32 index holds: the cull (kernels/closeup.py) indexes the joined source points and faces with int32,
-#: and its count buffers have one slot more than either.
-_MAX_INT32 = (1 << 31) - 1
 #: largest |angle| of a close-up's rotation and billboard azimuth, radians (1024 turns): 1e308 was taken, and a spin
 #: added to an angle that large was lost to rounding (the animation stood still); a larger value is likely degrees
 _MAX_ANGLE = 2 * math.pi * 1024
@@ -878,8 +876,8 @@ def _check_in_terrain(terrain: Terrain, closeups: Sequence[CloseUp]) -> None:
         bx0, bx1, by0, by1 = cu.roi.box
         if bx1 < xmin or bx0 > xmax or by1 < ymin or by0 > ymax:
             raise InvalidInputError(
-                f"closeups[{i}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] lies outside the terrain's "
-                f"extent x [{xmin:g}, {xmax:g}], y [{ymin:g}, {ymax:g}]{degrees_hint(terrain, (bx0, bx1, by0, by1))}")
+                f"{_roi_box_named(i, cu)} lies outside the terrain's extent x [{xmin:g}, {xmax:g}], y [{ymin:g}, "
+                f"{ymax:g}]{degrees_hint(terrain, (bx0, bx1, by0, by1))}")
 
 
 # ------------------------------------------------------------------------------------------------ geometry
@@ -1379,15 +1377,25 @@ _CULL_POINT_BYTES = (12 + 4) + (12 + 4 + 8 + 12 + 4 + 4) + (24 + 24 + 12 + 12 + 
 _CULL_FACE_BYTES = 12 + (8 + 12 + 4) + (24 + 24 + 4 + 8)
 
 
+def _roi_box_named(k: int, cu: CloseUp) -> str:
+    """Close-up k and its ROI's box, as the close-ups' errors begin."""
+    bx0, bx1, by0, by1 = cu.roi.box
+    return f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}]"
+
+
+def _node_word(t: Terrain) -> str:
+    """What the close-ups' errors call one of ``t``'s nodes."""
+    return "grid node" if t.kind == "grid" else "TIN point"
+
+
 def _no_terrain_message(t: Terrain, k: int, cu: CloseUp) -> str:
     """Why close-up k has no geometry: its mask is 0 at every node (point) of a triangle with three heights under
     it; where some node with a height has m > 0 but joins no such triangle (a grid node with nodata all around it, a
     TIN point on no face), that is named: the message said its mask was 0 at every node with a height. Otherwise it
     says what the box holds (no node, only nodata, or nodes with a height where m = 0): it guessed "a ROI smaller
     than the grid spacing" of any box, also of one over the whole terrain whose hard edge left m = 0 on its rim."""
-    bx0, bx1, by0, by1 = cu.roi.box
-    where = "grid node" if t.kind == "grid" else "TIN point"
-    head = f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] holds no terrain: "
+    where = _node_word(t)
+    head = f"{_roi_box_named(k, cu)} holds no terrain: "
     lone = _lone_heights_under(t, cu.roi)
     if lone:  # it said "its mask is 0 at every grid node with a height" of nodes with a height inside the ROI
         around = f": nodata around {'it' if lone == 1 else 'them'}" if t.kind == "grid" else ""
@@ -1435,11 +1443,9 @@ def _check_content(t: Terrain, items: Sequence[CloseUp], layers: Sequence[CloseU
         top = float(layer.mask_factor.max()) if len(layer.mask_factor) else 0.0
         if cu.anchor.band or top >= cu.anchor.outline_level:
             continue
-        bx0, bx1, by0, by1 = cu.roi.box
-        where = "grid node" if t.kind == "grid" else "TIN point"
         raise InvalidInputError(
-            f"closeups[{k}]: ROI box x [{bx0:g}, {bx1:g}], y [{by0:g}, {by1:g}] reaches the terrain with its soft "
-            f"edge only: its mask is at most {top:.3g} at every {where} with a height under it, below the anchor's "
+            f"{_roi_box_named(k, cu)} reaches the terrain with its soft edge only: its mask is at most {top:.3g} at "
+            f"every {_node_word(t)} with a height under it, below the anchor's "
             f"outline_level {cu.anchor.outline_level:g}, so the close-up would have no content; move its centre onto "
             f"the terrain (off its edge, off nodata) or make it larger")
 

@@ -36,6 +36,7 @@ import trimesh
 import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
+from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import check_budget, count_buffer, exclusive_offsets, get_memory_budget
 from ._device import (
     empty_shared,
@@ -95,7 +96,6 @@ _MAX_CELLS = 1 << 14
 #: The most triangles a refinement level may hold: its ``counts`` (2 per triangle and 2 more), their offsets and
 #: the thread ids are int32 (2 · 1,073,741,822 + 2 = 2^31 - 1). The mesh's faces (one ``keep`` count each and one
 #: more) stop at _MAX_INT32 - 1. Only a memory budget above ~50 GiB lets a view come near either.
-_MAX_INT32 = (1 << 31) - 1
 _MAX_LEVEL_TRIANGLES = (_MAX_INT32 - 2) // 2
 #: Planar meshes without a view refine in one pass over the nodes (False: the breadth-first levels; tests
 #: compare both).

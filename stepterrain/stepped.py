@@ -33,6 +33,7 @@ import warp as wp
 from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
+from ._compaction import MAX_INT32 as _MAX_INT32
 from ._compaction import SMALLER_HINT, budget_value, check_budget, count_buffer, exclusive_offsets
 from ._device import (
     chunk_shift,
@@ -70,7 +71,6 @@ from .terrain import (
 __all__ = ["stepped", "stepped_series", "isovalues", "nice_interval", "Lens", "circular_lens", "GammaLike"]
 
 MAX_LEVELS = 1_000_000
-_INT32_MAX = 2**31 - 1
 
 # bytes per output vertex / face while a mesh is being built (device work arrays + the numpy result)
 _VERTEX_BYTES = 12 + 4 + 24
@@ -607,10 +607,10 @@ def step_arrays(
         # are scanned (kernels/stepped.py, Offsets). The faces of chunks with a cell that needs the vertex offsets
         # to be counted are counted after that scan.
         n_slots, n_cells = 4 * n_nodes, (topo.rows - 1) * (topo.cols - 1)
-        if n_slots > _INT32_MAX:  # the kernels index slot 4·n (+ 0..3) in int32: past it count_grid wrote out of bounds
+        if n_slots > _MAX_INT32:  # the kernels index slot 4·n (+ 0..3) in int32: past it count_grid wrote out of bounds
             raise OutputTooLargeError(
                 f"a grid of {topo.rows} x {topo.cols} nodes needs {n_slots:,} int32 vertex slots (4 a node), more "
-                f"than the {_INT32_MAX:,} one call can index; {SMALLER_HINT}, or step it in tiles (stepterrain.batch)"
+                f"than the {_MAX_INT32:,} one call can index; {SMALLER_HINT}, or step it in tiles (stepterrain.batch)"
             )
         n_chunks = chunked_threads(n_nodes, device)
         local = scratch("stepped.vertices.local", n_slots, wp.int32, device, streamed=True)
@@ -789,12 +789,12 @@ def _check_vertex_total(counts: wp.array, n_nodes: int, n_slots: int, n_levels: 
 def _check_int32_total(counts: wp.array, bound: int, what: str) -> None:
     """Refuse a count pass whose int32 scan may have wrapped: where ``bound`` (the most the counts can add up
     to) exceeds int32, they are summed in int64 on the host, and a total beyond int32 raises with its size."""
-    if bound <= _INT32_MAX:
+    if bound <= _MAX_INT32:
         return
     total = int(host_copy(counts).sum(dtype=np.int64))
-    if total > _INT32_MAX:
+    if total > _MAX_INT32:
         raise OutputTooLargeError(
-            f"the stepped mesh would have {total:,} {what}, more than the {_INT32_MAX:,} one call can index; "
+            f"the stepped mesh would have {total:,} {what}, more than the {_MAX_INT32:,} one call can index; "
             + SMALLER_HINT
         )
 

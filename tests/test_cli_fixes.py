@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -1541,15 +1544,21 @@ def as_a_terminal_job() -> None:
     signal.signal(signal.SIGHUP, signal.SIG_DFL)
 
 
+def run_as_a_terminal_job(script: str, folder: Path) -> subprocess.CompletedProcess:
+    """``script`` written to ``folder``/run.py and run there in a child (:func:`as_a_terminal_job`) that imports this
+    checkout's stepterrain, its output captured."""
+    (folder / "run.py").write_text(script)
+    return subprocess.run([sys.executable, str(folder / "run.py")], capture_output=True, text=True, timeout=120,
+                          cwd=folder, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
+                          preexec_fn=as_a_terminal_job)
+
+
 @needs_render
 def test_ctrl_c_as_vtk_loads_ends_the_run_as_interrupted(tmp_path):
     """Ctrl-C while VTK's rendering modules loaded (the first render of `steps --png`, about a second on a busy
     machine) crashed the process (SIGSEGV, a core dump) or ended it with a 30-line traceback of "ImportError: Failed to
     load vtkRenderingContextOpenGL2" and exit status 1. The modules now load whole, then the run ends as after any
     Ctrl-C: exit status 130, "stepterrain: interrupted", no file written."""
-    import os
-    import subprocess
-    import sys
 
     dem = tmp_path / "dem.npy"
     np.save(dem, np.add.outer(np.arange(24.0), np.arange(24.0)).astype(np.float32))
@@ -1567,10 +1576,7 @@ vtkmodules.VTKLoader.exec_module = exec_module
 sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "10", "--device", "cpu", "-o", {str(tmp_path / "t.glb")!r},
                "--png", {str(tmp_path / "t.png")!r}, "--size", "64x48"]))
 """
-    (tmp_path / "run.py").write_text(script)
-    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
-                          preexec_fn=as_a_terminal_job)
+    done = run_as_a_terminal_job(script, tmp_path)
     assert done.returncode == 130, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == ["stepterrain: interrupted"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py"]
@@ -1581,10 +1587,7 @@ def test_ctrl_c_as_the_package_loads_is_not_ignored(tmp_path):
     a command (trimesh importing scipy, as `import stepterrain` loads it) was swallowed and the command ran on to its
     end and wrote its output (or failed later with "TypeError: unsupported operand type(s) for |: 'ExceptionWrapper'
     and 'NoneType'"). The package's imports now hold the signal back and it ends the start-up once they are done."""
-    import os
     import signal
-    import subprocess
-    import sys
 
     out = tmp_path / "t.glb"
     script = f"""
@@ -1599,10 +1602,7 @@ sys.meta_path.insert(0, Interrupt())
 from stepterrain.cli import main
 sys.exit(main(["-q", "steps", "--interval", "10", "--device", "cpu", "-o", {str(out)!r}]))
 """
-    (tmp_path / "run.py").write_text(script)
-    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
-                          preexec_fn=as_a_terminal_job)
+    done = run_as_a_terminal_job(script, tmp_path)
     assert done.returncode == -signal.SIGINT, (done.returncode, done.stderr[-2000:])  # as after any Ctrl-C at start
     assert done.stderr.rstrip().endswith("KeyboardInterrupt"), done.stderr[-2000:]
     assert not out.exists()
@@ -1627,9 +1627,6 @@ def test_sighup_ends_a_run_as_sigterm_does(tmp_path):
     """SIGHUP (the terminal closed, the ssh connection dropped) killed a command outright: the file being written
     stayed as a hidden partial file ('.terrain.glb.1a2b3c4d.tmp', tens of MB for a large mesh). It now ends the run
     as SIGTERM does: exit status 129, "stepterrain: hung up", the partial file removed, the old output kept."""
-    import os
-    import subprocess
-    import sys
 
     dem, out = tmp_path / "dem.npy", tmp_path / "terrain.glb"
     np.save(dem, np.add.outer(np.arange(12.0), np.arange(12.0)).astype(np.float32))
@@ -1646,10 +1643,7 @@ if __name__ == "__main__":
     signal.signal(signal.SIGHUP, signal.SIG_DFL)  # as a shell's command has it, also under a runner ignoring it
     sys.exit(main(["-q", "steps", {str(dem)!r}, "--interval", "2", "--device", "cpu", "-o", {str(out)!r}]))
 """
-    (tmp_path / "run.py").write_text(script)
-    done = subprocess.run([sys.executable, str(tmp_path / "run.py")], capture_output=True, text=True, timeout=120,
-                          cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(Path(st.__file__).parents[1])},
-                          preexec_fn=as_a_terminal_job)
+    done = run_as_a_terminal_job(script, tmp_path)
     assert done.returncode == 129, (done.returncode, done.stderr[-2000:])
     assert done.stderr.strip().splitlines() == ["stepterrain: hung up"], done.stderr[-2000:]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["dem.npy", "run.py", "terrain.glb"]

@@ -103,14 +103,9 @@ def test_closeup_mappings_refuses_an_mp4_without_imageio_ffmpeg_before_any_work(
     import sys
 
     monkeypatch.setitem(sys.modules, "imageio_ffmpeg", None)  # import imageio_ffmpeg raises ImportError
-    example = load_example("closeup_mappings")
     argv = ["--size", "48", "--window", "200", "150", "--frames", "2", "--gif", str(tmp_path / "spin.mp4"),
             "--output", str(tmp_path / "out.png"), "--device", "cpu"]
-    with pytest.raises(SystemExit) as exit_info:
-        example.main(argv)
-    assert exit_info.value.code == 2
-    assert "pip install 'stepterrain[video]'" in capsys.readouterr().err
-    assert list(tmp_path.iterdir()) == []
+    assert_usage_error_writing_nothing("closeup_mappings", argv, "pip install 'stepterrain[video]'", tmp_path, capsys)
 
 
 def test_flood_mp4_keeps_the_frame_size(tmp_path):
@@ -158,14 +153,10 @@ def test_closeup_mappings_refuses_an_odd_mp4_window_before_rendering(tmp_path, c
     """--window 201 150 --gif spin.mp4 rendered the overview and the spin, wrote the PNG and only then had
     save_animation refuse the odd width: a failed command left the PNG behind. Now a usage error before any work."""
     pytest.importorskip("imageio_ffmpeg", reason="MP4 output needs imageio-ffmpeg (pip install 'stepterrain[video]')")
-    example = load_example("closeup_mappings")
     argv = ["--size", "48", "--window", "201", "150", "--frames", "2", "--gif", str(tmp_path / "spin.mp4"),
             "--output", str(tmp_path / "out.png"), "--device", "cpu"]
-    with pytest.raises(SystemExit) as exit_info:
-        example.main(argv)
-    assert exit_info.value.code == 2
-    assert "--window of an MP4 must have an even width and height" in capsys.readouterr().err
-    assert list(tmp_path.iterdir()) == []
+    assert_usage_error_writing_nothing("closeup_mappings", argv, "--window of an MP4 must have an even width and "
+                                       "height", tmp_path, capsys)
 
 
 def test_batch_tiles_exits_1_when_every_tile_failed(tmp_path, monkeypatch, capsys):

@@ -914,10 +914,10 @@ def test_grid_past_the_int32_vertex_slots_is_refused_before_the_count_pass(monke
 
     heights = np.add.outer(np.arange(20.0), np.arange(30.0))
     slots = 4 * heights.size
-    monkeypatch.setattr(stepped_module, "_INT32_MAX", slots - 1)
+    monkeypatch.setattr(stepped_module, "_MAX_INT32", slots - 1)
     with pytest.raises(st.OutputTooLargeError, match=r"20 x 30 nodes.*2,400 int32 vertex slots"):
         st.stepped(heights, interval=20.0, device="cpu")
-    monkeypatch.setattr(stepped_module, "_INT32_MAX", slots)
+    monkeypatch.setattr(stepped_module, "_MAX_INT32", slots)
     assert len(st.stepped(heights, interval=20.0, device="cpu").faces) > 0
 
 
