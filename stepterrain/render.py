@@ -335,6 +335,29 @@ def _colors_rgb(mesh: trimesh.Trimesh, kind: Literal["vertex", "face"]) -> NDArr
     return None
 
 
+def _material_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
+    """Per vertex, the colour of a mesh's material without a texture, (N, 3) uint8 or (N, 4) where it blends, as a
+    glTF or OBJ viewer shows it; None when the visual has no such material. A PBR material's baseColorFactor is
+    linear (glTF §3.9.2): shown sRGB-encoded, its alpha used as the material's alphaMode says (as
+    :func:`_base_color_factor` and :func:`_texture_alpha` treat a texture's); a plain material's (an OBJ's ``Kd``)
+    diffuse colour as it is. A GLB of one plain-coloured mesh (trimesh reads it as TextureVisuals without UVs) and
+    an OBJ with a ``.mtl`` rendered in the uniform tan instead."""
+    visual = mesh.visual
+    material = getattr(visual, "material", None)
+    if not isinstance(visual, trimesh.visual.TextureVisuals) or material is None:
+        return None
+    if isinstance(material, trimesh.visual.material.PBRMaterial):
+        if material.baseColorFactor is None:
+            return None
+        white = np.full((1, 1, 3), 255, dtype=np.uint8)
+        color = _texture_alpha(_base_color_factor(white, material), material).reshape(-1)
+    elif isinstance(material, trimesh.visual.material.SimpleMaterial) and material.diffuse is not None:
+        color = np.asarray(material.diffuse, dtype=np.uint8).reshape(-1)[:3]
+    else:
+        return None
+    return np.ascontiguousarray(np.broadcast_to(color, (len(mesh.vertices), len(color))))
+
+
 def render_mesh(
     mesh: trimesh.Trimesh,
     *,
@@ -377,7 +400,8 @@ def render_mesh(
         all 0 or 1, such as (1, 0, 0), are refused as ambiguous). Opaque: one with an alpha below 1 is refused (the
         image has no alpha channel).
     scalars : None, "level" or "height"
-        None: the mesh's texture or vertex colors if it has them, else its face colors, else a uniform light tan.
+        None: the mesh's texture or vertex colors if it has them, else its face colors, else its material's colour (a
+        plain-coloured GLB's baseColorFactor, an OBJ's ``Kd``), else a uniform light tan.
         "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z.
         Both use ``cmap``.
     cmap : str
@@ -457,6 +481,8 @@ def render_mesh(
 
     rgb = _colors_rgb(mesh, "vertex") if scalars is None else None
     face_rgb = _colors_rgb(mesh, "face") if scalars is None and rgb is None else None
+    if scalars is None and textured is None and rgb is None and face_rgb is None:
+        rgb = _material_rgb(mesh)  # one colour, as a vertex colour: alpha and depth peeling as for those
     if face_rgb is not None:  # a colour per face costs more than one per vertex
         _check_render_budget(width, height, anti_aliasing=anti_aliasing, mesh=size, face_colors=True)
 

@@ -1170,3 +1170,55 @@ def test_vertices_no_face_uses_do_not_move_the_fitted_camera(name):
         assert (without < 250).any(axis=2).mean() > 0.15
         # the same picture, to the float rounding of the recentred vertices (a gray level at a few edge pixels)
         assert (np.abs(with_unused.astype(int) - without).max(axis=2) > 8).mean() < 0.01, camera
+
+
+def _plain_box(material):
+    box = trimesh.creation.box(extents=(4.0, 4.0, 1.0))
+    box.visual = trimesh.visual.TextureVisuals(material=material)
+    return box
+
+
+@needs_render
+def test_a_plain_coloured_material_renders_in_its_colour_not_tan(tmp_path):
+    """A GLB of one plain-coloured mesh (a PBR baseColorFactor, no texture: trimesh reads it back as TextureVisuals
+    without UVs) and an OBJ with a .mtl Kd rendered in the uniform tan. Now in the material's colour: glTF's linear
+    factor shown sRGB-encoded, as a viewer shows it (red 0.5 linear: 188 before lighting), the OBJ's Kd as it is."""
+    pbr = trimesh.visual.material.PBRMaterial(baseColorFactor=[128, 0, 0, 255])
+    glb = tmp_path / "red.glb"
+    st.export.save_mesh(_plain_box(pbr), glb)
+    simple = trimesh.visual.material.SimpleMaterial(diffuse=[20, 40, 230, 255])
+    obj = tmp_path / "blue.obj"
+    _plain_box(simple).export(obj)
+
+    def centre(mesh):
+        image = render.render_mesh(mesh, window_size=(64, 64), camera="top")
+        return image[28:36, 28:36].reshape(-1, 3).astype(float).mean(axis=0)
+
+    plain = centre(trimesh.creation.box(extents=(4.0, 4.0, 1.0)))  # the tan, lit: all channels similar
+    red = centre(st.export.read_mesh(glb))
+    blue = centre(trimesh.load(obj, force="mesh"))
+    white = centre(_plain_box(trimesh.visual.material.PBRMaterial(baseColorFactor=[255, 255, 255, 255])))
+    assert plain.min() > 120 and red[1] < 5 and red[2] < 5 and blue[0] < blue[2] / 4
+    shade = white[0] / 255  # the lighting on a face seen from the top
+    assert red[0] == pytest.approx(188 * shade, abs=4)
+    assert blue == pytest.approx(np.array([20, 40, 230]) * shade, abs=4)
+
+
+@needs_render
+def test_a_blended_plain_material_shows_what_lies_behind():
+    """A plain material's alpha blends where its alphaMode is BLEND (and only there), as a glTF viewer shows it."""
+    def square(color, mode, z):
+        box = trimesh.creation.box(extents=(4.0, 4.0, 0.1))
+        box.apply_translation([0, 0, z])
+        box.visual = trimesh.visual.TextureVisuals(
+            material=trimesh.visual.material.PBRMaterial(baseColorFactor=color, alphaMode=mode))
+        return box
+
+    def centre(front_mode):
+        front = square([255, 0, 0, 128], front_mode, 1.0)
+        image = render.render_mesh(front, window_size=(64, 64), camera="top")
+        return image[28:36, 28:36].reshape(-1, 3).astype(float).mean(axis=0)
+
+    assert centre("OPAQUE")[1] < 5 and centre("OPAQUE")[0] > 150  # opaque red
+    blended = centre("BLEND")  # the box's top and bottom, each half red, over the white background
+    assert blended[1] == pytest.approx(255 * (1 - 128 / 255) ** 2, abs=6) and blended[0] > 200
