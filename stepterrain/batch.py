@@ -1613,10 +1613,10 @@ def batch(
     ``shared_bounds`` (one glTF node translation, one PLY coordinate type for all), so a vertex two tiles share is
     stored as the same bits in both and the tiles weld exactly; glTF's float32 positions are then relative to the centre
     of the raster's bounds (about 8 mm resolution 100 km from it).
-    A tile or frame with
-    no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
-    ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
-    refuses it as not elevation data). Cost per item: one
+    A tile, frame or file of a folder with
+    no triangle of three finite heights (sea off a coast, a tile file of sea cut from a coastal raster, all nodata,
+    which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is written as an empty mesh, its
+    ``extras`` saying ``"empty"``, and counts as done (a rerun skips it), also for a solid. Cost per item: one
     :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
     run scales with the workers until the disk or the scheduler saturates. The default LocalCluster starts its
     worker processes by *spawn*: a script that calls :func:`batch` needs the usual
@@ -2353,8 +2353,8 @@ def overview_image(
     ``mosaic`` (default: when the items are tiles of one raster, not the files of a folder whatever their names)
     renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
-    cells sharing the window (an empty item's, a frame of nodata only, stays blank). The picture is ``window_size``
-    (H = its height, W = its width) either way.
+    cells sharing the window (an empty item's, a frame or file of nodata only, stays blank). The picture is
+    ``window_size`` (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
     raster, with a warning saying so), after the window is checked against the memory budget (an
     OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
@@ -2405,7 +2405,8 @@ def overview_image(
     ys = [r * height // rows for r in range(rows + 1)]
     sheet = np.full((height, width, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
-        if len(mesh.faces) == 0:  # an empty item (a frame of nodata only): its cell stays blank; it failed the sheet
+        if len(mesh.faces) == 0:  # an empty item (a frame or file of nodata only): its cell stays blank (it failed
+            # the sheet)
             continue
         r, c = divmod(k, cols)
         w, h = xs[c + 1] - xs[c], ys[r + 1] - ys[r]

@@ -1394,8 +1394,9 @@ def nodata_as_nan(
     values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
     array of ``array``'s shape: an .npz ``mask``/``valid``, see :func:`npz_missing`). A finite value beyond float32
     (in a cell not missing) or nothing but nodata (read as all NaN within :func:`read_dem`'s ``nodata_only``) is a
-    DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is read into memory. ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the
-    caller warned on the values as stored: a GeoTIFF's band, before its scale and offset)."""
+    DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is read into memory.
+    ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the caller warned on the values as stored: a
+    GeoTIFF's band, before its scale and offset)."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
