@@ -1488,8 +1488,8 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
 
 
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
-    """An (H, W, 3|4) uint8 image from a path (16-bit greyscale files too: :func:`~stepterrain.io.picture_uint8`)
-    or an array."""
+    """An (H, W, 3|4) uint8 image from a path (16-bit greyscale files too, and a file's alpha band or transparent
+    colour as (H, W, 4): :func:`~stepterrain.io.picture_uint8`) or an array."""
     return _texture_image(image)[0]
 
 
@@ -1512,7 +1512,7 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
                 else:
-                    image = picture_uint8(picture, f"texture {str(image)!r}")
+                    image = picture_uint8(picture, f"texture {str(image)!r}", alpha=True)
             finally:
                 if kept is None:
                     picture.close()
@@ -1542,7 +1542,8 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     """A copy of a globe mesh textured with a global plate-carrée image (paper 003 §5.3: a global texture
     draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded: the path of an RGB JPEG
     embeds the file's own bytes (the image is used as it is: see :func:`~stepterrain.export.save_mesh`'s Notes),
-    any other image its pixels, as PNG.
+    any other image its pixels, as PNG (its alpha kept: an (H, W, 4) array's, a file's alpha band or transparent
+    colour).
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
     90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
