@@ -34,7 +34,8 @@ examples:
       an existing dask cluster (connect timeout --connect-timeout, default 10 s)
   stepterrain batch --tile 256 -o out/tiles            (again: complete outputs are skipped)
 
-exit status: 0 every item written or complete already; 1 some items failed (listed with their reasons);
+exit status: 0 every item written (a tile, frame or file of nodata only, sea off a coast, as an empty mesh) or
+complete already; 1 some items failed (listed with their reasons);
 2 bad input (unknown format, unreadable source, output folder not writable, scheduler unreachable, a --floor
 not below the stepped surface of every item, a --spacing for DEM files that all place their nodes themselves, a
 --coarsen that leaves every item too few nodes or only nodata); 130 interrupted (Ctrl-C), 143 terminated

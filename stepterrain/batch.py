@@ -590,14 +590,22 @@ def _item_terrain(item: BatchItem, source: _Source | None, height_unit: str | No
                   spacing: tuple[float, float] | None = None, coarsen: int | None = None,
                   band: int | None = None) -> Terrain:
     if item.kind == "file":
-        from .io import load_dem
+        from .io import read_dem
 
-        terrain = load_dem(item.path, height_unit=height_unit, band=1 if band is None else band)  # type: ignore[arg-type]
+        # a file of nodata only (a tile of sea cut from a coastal raster) is read, all NaN: an empty item, as a tile
+        # of one raster is, not refused as not elevation data as load_dem refuses it
+        terrain = read_dem(item.path, height_unit=height_unit, band=1 if band is None else band,  # type: ignore[arg-type]
+                           nodata_only=True)
         if spacing is not None:
             _check_unreferenced(terrain.crs, terrain.spacing, terrain.origin, str(item.path))
             terrain = Terrain.from_heights(terrain.heights, spacing=spacing, source=terrain.source,
                                            height_unit=terrain.height_unit)  # fmt: skip
-        return terrain if coarsen is None else _coarsened(terrain, coarsen)
+        if coarsen is None:
+            return terrain
+        if terrain.has_nodata and not np.isfinite(terrain.heights).any():  # nodata only: stays so, an empty item
+            _, shape, coarse_spacing, origin = _coarse_geometry(terrain, coarsen)  # (coarsen refuses nodata only)
+            return terrain._subgrid(np.full(shape, np.nan, np.float32), coarse_spacing, origin)
+        return _coarsened(terrain, coarsen)
     assert source is not None
     frame0, row0, col0 = source.offset
     if item.kind == "frame":
@@ -638,6 +646,14 @@ def _file_spacing(spacing: ArrayLike) -> tuple[float, float]:
         raise InvalidInputError(f"spacing must be one cell size D or (dx, dy) in positive metres for DEM files with "
                                 f"no georeferencing (rows run north to south); got {spacing!r}")
     return float(values[0]), -float(values[-1])
+
+
+def _coarse_geometry(terrain: Terrain, factor: int) -> Any:
+    """``terrain._coarse_geometry(factor)``, its refusal named as :func:`_coarsened` names it."""
+    try:
+        return terrain._coarse_geometry(factor)
+    except InvalidInputError as exc:
+        raise InvalidInputError(f"coarsen={factor}: {exc}") from None
 
 
 def _coarsened(terrain: Terrain, factor: int) -> Terrain:
@@ -855,10 +871,10 @@ def _run_item(item: BatchItem, source: _Source | None, options: _Options, output
         terrain = _item_terrain(read, source, options.height_unit, options.file_spacing, options.coarsen,
                                 options.band)
         metadata = {"generator": "stepterrain.batch", **dict(options.metadata), **_item_metadata(item)}
-        if item.kind != "file" and not _has_surface(terrain):
-            # a piece of the source with no triangle of three finite heights (sea off a coast, a gap in a series):
-            # an empty mesh, as stepped() gives for finite nodes that make no triangle, also for a solid; a tile
-            # file that is all nodata is refused by load_dem instead, as not elevation data
+        if not _has_surface(terrain):
+            # an item with no triangle of three finite heights (sea off a coast, a gap in a series, a tile file of
+            # sea): an empty mesh, as stepped() gives for finite nodes that make no triangle, also for a solid (which
+            # stepped refuses), marked "empty" whether the item is a piece of one source or a file of a folder
             mesh = trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64), process=False)
             metadata["empty"] = "no triangle with three finite heights (nodata)"
         else:
@@ -1597,10 +1613,10 @@ def batch(
     ``shared_bounds`` (one glTF node translation, one PLY coordinate type for all), so a vertex two tiles share is
     stored as the same bits in both and the tiles weld exactly; glTF's float32 positions are then relative to the centre
     of the raster's bounds (about 8 mm resolution 100 km from it).
-    A tile or frame with
-    no triangle of three finite heights (sea off a coast) is written as an empty mesh, its ``extras`` saying
-    ``"empty"``, and counts as done, also for a solid; a tile *file* that is all nodata fails (``load_dem``
-    refuses it as not elevation data). Cost per item: one
+    A tile, frame or file of a folder with
+    no triangle of three finite heights (sea off a coast, a tile file of sea cut from a coastal raster, all nodata,
+    which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is written as an empty mesh, its
+    ``extras`` saying ``"empty"``, and counts as done (a rerun skips it), also for a solid. Cost per item: one
     :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
     run scales with the workers until the disk or the scheduler saturates. The default LocalCluster starts its
     worker processes by *spawn*: a script that calls :func:`batch` needs the usual
@@ -2337,8 +2353,8 @@ def overview_image(
     ``mosaic`` (default: when the items are tiles of one raster, not the files of a folder whatever their names)
     renders the outputs together in world coordinates, each
     tile tinted a little differently so the seams show; otherwise up to 16 items are rendered side by side, in
-    cells sharing the window (an empty item's, a frame of nodata only, stays blank). The picture is ``window_size``
-    (H = its height, W = its width) either way.
+    cells sharing the window (an empty item's, a frame or file of nodata only, stays blank). The picture is
+    ``window_size`` (H = its height, W = its width) either way.
     At most ``max_items`` outputs are read (the first, in item order: a mosaic of more tiles shows only part of the
     raster, with a warning saying so), after the window is checked against the memory budget (an
     OutputTooLargeError, as :func:`stepterrain.render.render_mesh` raises).
@@ -2389,7 +2405,8 @@ def overview_image(
     ys = [r * height // rows for r in range(rows + 1)]
     sheet = np.full((height, width, 3), 255, np.uint8)
     for k, mesh in enumerate(meshes):
-        if len(mesh.faces) == 0:  # an empty item (a frame of nodata only): its cell stays blank; it failed the sheet
+        if len(mesh.faces) == 0:  # an empty item (a frame or file of nodata only): its cell stays blank (it failed
+            # the sheet)
             continue
         r, c = divmod(k, cols)
         w, h = xs[c + 1] - xs[c], ys[r + 1] - ys[r]

@@ -1488,8 +1488,8 @@ def elevation_colors(elevation: ArrayLike) -> NDArray[np.uint8]:
 
 
 def _texture_pixels(image: ArrayLike | str) -> NDArray[np.uint8]:
-    """An (H, W, 3|4) uint8 image from a path (16-bit greyscale files too: :func:`~stepterrain.io.picture_uint8`)
-    or an array."""
+    """An (H, W, 3|4) uint8 image from a path (16-bit greyscale files too, and a file's alpha band or transparent
+    colour as (H, W, 4): :func:`~stepterrain.io.picture_uint8`) or an array."""
     return _texture_image(image)[0]
 
 
@@ -1512,7 +1512,7 @@ def _texture_image(image: ArrayLike | str) -> tuple[NDArray[np.uint8], Any]:
                     picture.load()  # its pixels, and Pillow closes the file it opened
                     kept, image = picture, np.asarray(picture)
                 else:
-                    image = picture_uint8(picture, f"texture {str(image)!r}")
+                    image = picture_uint8(picture, f"texture {str(image)!r}", alpha=True)
             finally:
                 if kept is None:
                     picture.close()
@@ -1542,7 +1542,8 @@ def drape_texture(mesh: trimesh.Trimesh, image: ArrayLike | str) -> trimesh.Trim
     """A copy of a globe mesh textured with a global plate-carrée image (paper 003 §5.3: a global texture
     draped by latitude and longitude), for GLB/glTF/OBJ export with the image embedded: the path of an RGB JPEG
     embeds the file's own bytes (the image is used as it is: see :func:`~stepterrain.export.save_mesh`'s Notes),
-    any other image its pixels, as PNG.
+    any other image its pixels, as PNG (its alpha kept: an (H, W, 4) array's, a file's alpha band or transparent
+    colour).
 
     Each vertex gets u = (λ + 180°) / 360°, v = (φ + 90°) / 180° from its direction (row 0 of the image at
     90° N, column 0 at 180° W; v up, as trimesh stores UVs). A face across the antimeridian gets copies of
@@ -1621,7 +1622,9 @@ def _drape_texture(mesh: trimesh.Trimesh, pixels: NDArray[np.uint8], picture: An
 
 def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint8]:
     """(V, 4) uint8 RGBA per vertex from a global plate-carrée image (row 0 at 90° N, column 0 at 180° W),
-    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude).
+    bilinear at each vertex's direction (paper 003 §5.3: a global texture draped by latitude and longitude). An
+    (H, W, 4) image's alpha is kept (bilinear; its colour is weighted by alpha, so that transparent texels' colour
+    does not darken the opaque ones' next to them), an RGB image's is 255.
 
     Raises
     ------
@@ -1666,7 +1669,20 @@ def drape_colors(vertices: ArrayLike, image: ArrayLike | str) -> NDArray[np.uint
     top = (1 - tx) * p[y0, x0] + tx * p[y0, x1]
     bottom = (1 - tx) * p[y0 + 1, x0] + tx * p[y0 + 1, x1]
     rgb = (1 - ty) * top + ty * bottom
-    return np.column_stack([np.round(rgb).astype(np.uint8), np.full(len(v), 255, np.uint8)])
+    if pixels.shape[2] == 3 or (pixels[..., 3] == 255).all():  # opaque: alpha 255
+        return np.column_stack([np.round(rgb).astype(np.uint8), np.full(len(v), 255, np.uint8)])
+    # the texture's alpha, bilinear, and its colour weighted by alpha (premultiplied): a transparent texel's colour
+    # (the black of nodata) does not bleed into its opaque neighbours'; a vertex among transparent texels only keeps
+    # their plain bilinear colour. The alpha was dropped: transparent texels came out opaque in whatever RGB they hold
+    a = pixels[..., 3].astype(np.float64)
+    corners = [(y0, x0, (1 - ty) * (1 - tx)), (y0, x1, (1 - ty) * tx), (y0 + 1, x0, ty * (1 - tx)),
+               (y0 + 1, x1, ty * tx)]
+    weights = [(y, x, w * a[y, x][:, None]) for y, x, w in corners]
+    alpha = sum(w for _, _, w in weights)
+    covered = alpha[:, 0] > 0
+    weighted = sum(w * p[y, x] for y, x, w in weights)
+    rgb[covered] = weighted[covered] / alpha[covered]
+    return np.column_stack([np.round(rgb).astype(np.uint8), np.round(alpha[:, 0]).astype(np.uint8)])
 
 
 def look_from(latitude: float, longitude: float, altitude: float, *, tilt: float = 0.0, heading: float = 0.0,

@@ -9,6 +9,7 @@ Shared input room of every capability (papers 000-004); the embedded Big Tujunga
 
 from __future__ import annotations
 
+import contextvars
 import importlib.resources
 import math
 import os
@@ -89,6 +90,9 @@ _NPZ_SCALING = {"scale": 1.0, "offset": 0.0, "scale_factor": 1.0, "add_offset": 
 #: 2-D .npz members that are never the heights (an archive of one unnamed array and a 'mask' reads the array).
 _NPZ_NOT_HEIGHTS = ("transform", "mask", "valid")
 _NPY_MAGIC = b"\x93NUMPY"
+#: Whether :func:`nodata_as_nan` reads a grid of nodata only as all NaN instead of refusing it: set by
+#: :func:`read_dem`'s ``nodata_only`` for its own read (this thread or task only).
+_NODATA_ONLY: contextvars.ContextVar[bool] = contextvars.ContextVar("stepterrain_nodata_only", default=False)
 _ZIP_MAGIC = b"PK\x03\x04"
 _EMPTY_ZIP_MAGIC = b"PK\x05\x06"  # a zip with no members starts at its end-of-directory record: np.savez()
 _GEOGRAPHIC_CODES = frozenset({"EPSG:4326", "EPSG:4269", "EPSG:4258", "EPSG:4979", "OGC:CRS84", "CRS:84"})
@@ -285,11 +289,26 @@ def load_dem(
 def read_dem(
     path: str | os.PathLike[str], *, band: int = 1, height_unit: str | None = None,
     crop: Sequence[float] | None = None, option: str = "crop", refuse: Callable[[Terrain], None] | None = None,
+    nodata_only: bool = False,
 ) -> Terrain:
     """:func:`load_dem`, its ``crop`` refusals named ``option`` (the CLI's "--crop") and, with ``crop``, ``refuse``
     called with the whole grid before it is cropped (for a GeoTIFF, a
     :meth:`~stepterrain.terrain.Terrain._geometry_only`: geometry and CRS, no heights), to refuse a crop the
-    caller's own way before any pixel of it is read."""
+    caller's own way before any pixel of it is read. ``nodata_only``: a grid of nodata only is read (all heights
+    NaN, placed as any other) instead of refused as not elevation data: a batch's tile file of sea off a coast, an
+    empty item (:mod:`stepterrain.batch`)."""
+    token = _NODATA_ONLY.set(nodata_only)
+    try:
+        return _read_dem(path, band, height_unit, crop, option, refuse)
+    finally:
+        _NODATA_ONLY.reset(token)
+
+
+def _read_dem(
+    path: str | os.PathLike[str], band: int, height_unit: str | None, crop: Sequence[float] | None, option: str,
+    refuse: Callable[[Terrain], None] | None,
+) -> Terrain:
+    """:func:`read_dem`, its ``nodata_only`` set."""
     band = check_band(band)
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
@@ -1374,9 +1393,10 @@ def nodata_as_nan(
     """Real ``array`` (any shape: a (T, H, W) series too) as C-contiguous float32 with NaN nodata: non-finite
     values, cells equal to ``nodata`` (compared in the array's own dtype) and cells True in ``missing`` (a boolean
     array of ``array``'s shape: an .npz ``mask``/``valid``, see :func:`npz_missing`). A finite value beyond float32
-    (in a cell not missing) or nothing but nodata is a DataFileError naming ``file`` and ``what``. A read-only array
-    (a memory map) is read into memory. ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the
-    caller warned on the values as stored: a GeoTIFF's band, before its scale and offset)."""
+    (in a cell not missing) or nothing but nodata (read as all NaN within :func:`read_dem`'s ``nodata_only``) is a
+    DataFileError naming ``file`` and ``what``. A read-only array (a memory map) is read into memory.
+    ``warn_voids``: :func:`_warn_void_values` on ``array`` (False where the caller warned on the values as stored: a
+    GeoTIFF's band, before its scale and offset)."""
     hits = None
     if nodata is not None:
         with np.errstate(over="ignore"):  # a nodata beyond the dtype (1e40, -99999 in float16) is inf: no finite cell
@@ -1403,7 +1423,7 @@ def nodata_as_nan(
         heights[hits] = np.nan
     finite = np.isfinite(heights)
     if not finite.all():
-        if not finite.any():
+        if not finite.any() and not _NODATA_ONLY.get():
             raise DataFileError(
                 f"cannot read {str(file)!r}: expected elevation data; got {what} that is all nodata"
             )

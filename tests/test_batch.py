@@ -1179,3 +1179,85 @@ def test_a_tile_of_nodata_is_an_empty_mesh_and_done(tmp_path, solid):
         assert gltf_validator.problems(gltf_validator.validate([r.path for r in report.done])) == []
     again = batch(z, tmp_path / "out", tile_size=16, **kwargs)
     assert again.ok and len(again.skipped) == 4 and not again.done
+
+
+def coast_folder(folder: Path) -> Path:
+    """A real DEM cut into 2 x 2 GeoTIFF tiles of 17 x 17 nodes (UTM 11N, 120 m, sharing their border nodes), as GIS
+    users cut a coastal raster: ``sea.tif`` is nodata only (-9999, the file's nodata) and ``shore.tif`` holds one
+    finite row, which makes no triangle; ``land_*.tif`` are whole."""
+    rasterio = pytest.importorskip("rasterio", reason="GeoTIFFs are written with rasterio")
+    from rasterio.transform import Affine
+
+    folder.mkdir(parents=True)
+    z = real_dem(TUJUNGA, size=33, step=4)
+    for name, r0, c0 in [("land_a", 0, 0), ("land_b", 0, 16), ("sea", 16, 0), ("shore", 16, 16)]:
+        block = z[r0 : r0 + 17, c0 : c0 + 17].copy()
+        if name == "sea":
+            block[:] = -9999.0
+        elif name == "shore":
+            block[1:] = -9999.0
+        with rasterio.open(folder / f"{name}.tif", "w", driver="GTiff", height=17, width=17, count=1,
+                           dtype="float32", crs="EPSG:32611", nodata=-9999.0,
+                           transform=Affine(120.0, 0.0, 380000.0 + 120 * c0, 0.0, -120.0, 3800000.0 - 120 * r0),
+                           ) as f:  # fmt: skip
+            f.write(block, 1)
+    return folder
+
+
+@pytest.mark.parametrize("solid", [False, True], ids=["surface", "solid"])
+def test_a_tile_file_of_nodata_is_an_empty_mesh_and_done(tmp_path, solid):
+    """A folder of tiles cut from a coastal raster: a tile *file* of nodata only (sea) failed the run ('expected
+    elevation data; got band 1 that is all nodata', exit status 1, redone by every rerun), where a tile of nodata cut
+    by batch from one raster is an empty mesh, done; a file whose finite nodes make no triangle (one row) was written
+    without the "empty" mark, and failed as a solid ('needs a surface to close'). Both are written as empty meshes,
+    marked "empty", done and skipped by the rerun, as the tiles of one raster are; load_dem still refuses the sea
+    file on its own, and the contact sheet leaves its cell blank."""
+    src = coast_folder(tmp_path / "tiles")
+    kwargs = {"interval": 100.0, "solid": solid, "format": ".glb", "scheduler": "serial"}
+    report = batch(src, tmp_path / "out", **kwargs)
+    assert report.ok and [r.key for r in report.done] == ["land_a", "land_b", "sea", "shore"], report.summary()
+    manifest = json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())
+    assert set(manifest["items"]) == {"land_a.glb", "land_b.glb", "sea.glb", "shore.glb"}
+    for r in report.done:
+        data = Path(r.path).read_bytes()
+        assert len(load(r.path).faces) == r.faces
+        if r.key.startswith("land"):  # stepped as on its own
+            alone = stepped(load_dem(src / f"{r.key}.tif"), interval=100.0, solid=solid)
+            assert r.faces == len(alone.faces) > 0 and b'"empty"' not in data
+        else:
+            assert r.faces == r.vertices == 0 and b'"empty"' in data and f"{r.key}.tif".encode() in data  # its input
+    if gltf_validator.available()[0]:
+        assert gltf_validator.problems(gltf_validator.validate([r.path for r in report.done])) == []
+    again = batch(src, tmp_path / "out", **kwargs)
+    assert again.ok and len(again.skipped) == 4 and not again.done
+    from stepterrain import render
+
+    if render.offscreen_available()[0]:  # a contact sheet of 2 x 2 cells of 50 x 40: the empty ones stay blank
+        drawn = (overview_image(again, window_size=(100, 80)) < 250).any(axis=2)
+        assert drawn[:40, :50].mean() > 0.05 and drawn[:40, 50:].mean() > 0.05 and not drawn[40:].any()
+    with pytest.raises(DataFileError, match=r"sea\.tif'.*got band 1 that is all nodata$"):
+        load_dem(src / "sea.tif")  # a single file of sea is still no elevation data
+
+
+def test_cli_batch_of_a_coast_folder_exits_0_and_its_rerun_skips_the_sea(tmp_path, capsys):
+    """``stepterrain batch tiles/ --solid --coarsen 2 --png``: the sea tile file failed (exit status 1, and every rerun
+    redid it; with --coarsen, a tile of nodata only would be refused as coarsen's 'nodata only'); it is an empty item
+    now, the overview drawn, the rerun skipping all four, while ``steps sea.tif`` still refuses the file."""
+    src = coast_folder(tmp_path / "tiles")
+    out, png = tmp_path / "out", tmp_path / "overview.png"
+    argv = ["batch", str(src), "--interval", "100", "--solid", "--coarsen", "2", "-o", str(out), "--scheduler",
+            "serial", "--format", ".ply"]
+    from stepterrain import render
+
+    drawn = render.offscreen_available()[0]
+    assert cli.main([*argv, *(["--png", str(png)] if drawn else [])]) == 0, capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "4 written, 0 complete already, 0 failed" in err and "failed" not in err.replace("0 failed", ""), err
+    assert len(load(out / "sea.ply").faces) == len(load(out / "shore.ply").faces) == 0
+    coarse = load_dem(src / "land_a.tif").coarsen(2)
+    assert len(load(out / "land_a.ply").faces) == len(stepped(coarse, interval=100.0, solid=True).faces) > 0
+    assert not drawn or png.stat().st_size > 0
+    assert cli.main(argv) == 0
+    assert "0 written, 4 complete already, 0 failed" in capsys.readouterr().err
+    assert cli.main(["steps", str(src / "sea.tif"), "--interval", "100", "-o", str(tmp_path / "sea.ply")]) != 0
+    assert "got band 1 that is all nodata" in capsys.readouterr().err and not (tmp_path / "sea.ply").exists()

@@ -881,6 +881,33 @@ def test_colours_by_elevation_and_draped_image(small_globe):
         look_from(100.0, 0.0, 1.0e6)
 
 
+def test_drape_colors_keeps_a_textures_alpha(small_globe):
+    """An RGBA texture with transparent nodata (here the eastern hemisphere: alpha 0, black) draped as vertex colours
+    came out opaque (alpha 255 everywhere: drape_colors dropped the alpha, though drape_texture keeps it), the
+    transparent half black. The alpha is kept, bilinear as the colour is (the same as draping the alpha as a grey
+    RGB image), and the colour is weighted by it: no vertex near the edge is darkened by the transparent black."""
+    from stepterrain.globe import drape_colors
+
+    vertices = small_globe.mesh(error=500.0).vertices
+    image = np.zeros((90, 180, 4), np.uint8)
+    image[:, :90] = (255, 0, 0, 255)  # the western hemisphere opaque red, the eastern transparent
+    colours = drape_colors(vertices, image)
+    lon = np.degrees(np.arctan2(vertices[:, 1], vertices[:, 0]))
+    assert (colours[(lon > 10) & (lon < 170), 3] == 0).all() and (colours[(lon < -10) & (lon > -170), 3] == 255).all()
+    alpha = image[..., 3]
+    np.testing.assert_array_equal(colours[:, 3], drape_colors(vertices, np.dstack([alpha] * 3))[:, 0])
+    seen = colours[:, 3] > 0
+    assert 0 < (seen & (colours[:, 3] < 255)).sum() and (colours[seen, :3] == (255, 0, 0)).all()  # edge: no fringe
+    # an opaque RGBA image is its RGB; a uniform alpha keeps the colours of the RGB
+    rgb = np.random.default_rng(5).integers(0, 256, (90, 180, 3), dtype=np.uint8)
+    opaque = drape_colors(vertices, rgb)
+    assert (opaque[:, 3] == 255).all()
+    np.testing.assert_array_equal(drape_colors(vertices, np.dstack([rgb, np.full((90, 180), 255, np.uint8)])), opaque)
+    half = drape_colors(vertices, np.dstack([rgb, np.full((90, 180), 128, np.uint8)]))
+    np.testing.assert_array_equal(half[:, :3], opaque[:, :3])
+    assert (half[:, 3] == 128).all()
+
+
 def test_a_16_bit_grayscale_texture_file_is_read_by_its_range(tmp_path):
     """Pillow's convert("RGB") of a 16-bit grayscale PNG (mode I;16) saturates every value above 255: a relief
     texture came out 99.6 % white, silently, in drape_colors / drape_texture and `stepterrain globe --texture`.

@@ -251,6 +251,30 @@ def test_globe_texture_is_embedded_in_the_glb(tmp_path):
     assert len(back.faces) == 12 * 16**2 and len(back.visual.uv) == len(back.vertices)
 
 
+def test_globe_texture_file_with_transparent_nodata_keeps_its_alpha(tmp_path):
+    """An RGBA PNG --texture whose eastern half is nodata (alpha 0, black): the .ply's vertex colours were opaque
+    black there (the file was read as RGB, its alpha dropped, and drape_colors set alpha 255), and the .glb's
+    texture was opaque. Both keep its alpha now, as an RGBA array given to drape_texture keeps it."""
+    from PIL import Image
+
+    from stepterrain.export import read_mesh
+
+    image = np.zeros((32, 64, 4), np.uint8)
+    image[:, :32] = (200, 30, 30, 255)
+    Image.fromarray(image).save(tmp_path / "overlay.png")
+    argv = ["-q", "globe", "--face-size", "17", "--error", "0", "--no-camera", "--texture",
+            str(tmp_path / "overlay.png")]
+    assert main([*argv, "-o", str(tmp_path / "earth.ply")]) == 0
+    mesh = read_mesh(tmp_path / "earth.ply")
+    colours = np.asarray(mesh.visual.vertex_colors)
+    lon = np.degrees(np.arctan2(mesh.vertices[:, 1], mesh.vertices[:, 0]))
+    assert (colours[(lon > 10) & (lon < 170), 3] == 0).all()
+    assert (colours[(lon < -10) & (lon > -170)] == (200, 30, 30, 255)).all()
+    assert main([*argv, "-o", str(tmp_path / "earth.glb")]) == 0
+    texture = trimesh.load(tmp_path / "earth.glb", force="mesh", process=False).visual.material.baseColorTexture
+    np.testing.assert_array_equal(np.asarray(texture.convert("RGBA")), image)
+
+
 @pytest.mark.parametrize("texture", ["missing.png", "folder", "notes.png", "dot.png"])
 def test_globe_texture_is_checked_before_the_work(tmp_path, capsys, monkeypatch, texture):
     """--texture was read only after the globe was built and meshed: a missing file, a folder, a text file or an
