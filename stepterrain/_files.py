@@ -4,12 +4,13 @@ save_image, batch's output folder) and an input path naming an existing regular 
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 from typing import Any
 
 from .errors import DataFileError, InvalidInputError
 
-__all__ = ["as_path", "require_regular_file"]
+__all__ = ["as_path", "require_regular_file", "gdal_path", "GdalPath", "URL_FILE_SYSTEMS"]
 
 
 def as_path(value: Any, name: str) -> Path:
@@ -35,3 +36,65 @@ def require_regular_file(file: Path, missing: str, irregular: str) -> None:
         raise DataFileError(f"{missing} {str(file)!r} does not exist")
     if not regular:
         raise DataFileError(f"{irregular} {str(file)!r} is not a regular file")
+
+
+#: URL schemes read through GDAL, and the GDAL virtual file system each maps to (as rasterio maps them): an http(s)
+#: or ftp URL keeps its whole text after /vsicurl/; a bucket URL (s3://bucket/key) its bucket and key.
+URL_FILE_SYSTEMS = {"http": "/vsicurl/", "https": "/vsicurl/", "ftp": "/vsicurl/", "s3": "/vsis3/", "gs": "/vsigs/",
+                    "az": "/vsiaz/", "azure": "/vsiaz/", "oss": "/vsioss/", "swift": "/vsiswift/"}
+_URL = re.compile(r"([A-Za-z][A-Za-z0-9+.-]+)://(.*)", re.DOTALL)
+
+
+class GdalPath(type(Path())):  # type: ignore[misc]
+    """A path GDAL reads (a ``/vsi...`` virtual file system path, a URL) as a Path of the file it names: ``name``,
+    ``suffix`` and ``stem`` are those of the file inside (``/vsizip//data/srtm.zip/N46E007.hgt``: ``N46E007.hgt``;
+    a URL's without its query; ``/vsigzip/dem.tif.gz``: ``dem.tif``), while ``str()`` gives the text as given (for
+    messages: the URL) and ``os.fspath()`` the GDAL path, exactly (a Path turns the ``//`` of an absolute path
+    inside /vsizip/ into one ``/``, a relative path to GDAL). It exists nowhere on the local file system
+    (``exists()`` is False), and the paths made from it (``with_suffix``, ``parent``) are plain paths of the
+    display text. Made by :func:`gdal_path`."""
+
+    _gdal: str | None = None
+    _given: str | None = None
+
+    def __str__(self) -> str:
+        return self._given if self._given is not None else super().__str__()
+
+    def __fspath__(self) -> str:
+        return self._gdal if self._gdal is not None else super().__fspath__()
+
+    def __repr__(self) -> str:
+        return f"GdalPath({str(self)!r})"
+
+
+def gdal_path(text: str) -> GdalPath | None:
+    """``text`` as a :class:`GdalPath` when it names a file through a GDAL virtual file system: a path starting with
+    ``/vsi`` (``/vsizip/``, ``/vsigzip/``, ``/vsitar/``, ``/vsicurl/``, ``/vsis3/``, ...), kept as given, or a URL of
+    one of :data:`URL_FILE_SYSTEMS`'s schemes, mapped to its file system as rasterio maps it (``https://h/dem.tif``:
+    ``/vsicurl/https://h/dem.tif``; ``s3://bucket/dem.tif``: ``/vsis3/bucket/dem.tif``); else None (a local path).
+    Another URL scheme is refused (a DataFileError naming it and those read)."""
+    if text.startswith("/vsi"):
+        return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
+    found = _URL.fullmatch(text)
+    if found is None:
+        return None
+    scheme, rest = found.group(1).lower(), found.group(2)
+    if scheme == "file":  # a local file named as a URL
+        return None
+    system = URL_FILE_SYSTEMS.get(scheme)
+    if system is None:
+        raise DataFileError(f"cannot read {text!r}: unknown URL scheme {scheme + '://'!r}; expected a local file, a "
+                            f"GDAL virtual path (/vsizip/..., /vsicurl/...) or a URL of "
+                            f"{', '.join(s + '://' for s in URL_FILE_SYSTEMS)}")
+    return _made(system + (text if system == "/vsicurl/" else rest), text, text)
+
+
+def _made(gdal: str, display: str, given: str | None = None) -> GdalPath:
+    """The GdalPath of the GDAL path ``gdal``, named by ``display`` (a URL's path, without its query), ``given`` as
+    the user wrote it (``gdal`` if None)."""
+    display = _URL.sub(lambda m: m.group(2), display.split("?", 1)[0].split("#", 1)[0])
+    if display.lower().endswith(".gz") and "/vsigzip/" in gdal:  # the gzip stream's file: dem.tif
+        display = display[:-3]
+    path = GdalPath(display or gdal)
+    path._gdal, path._given = gdal, gdal if given is None else given
+    return path

@@ -18,14 +18,14 @@ import threading
 import warnings
 import zipfile
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any, BinaryIO, Literal, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
-from ._files import as_path, require_regular_file
+from ._files import URL_FILE_SYSTEMS, GdalPath, as_path, gdal_path, require_regular_file
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -312,9 +312,12 @@ def _read_dem(
     band = check_band(band)
     if height_unit is not None:
         height_unit = check_height_unit(height_unit)
-    file = as_path(path, "path")
+    file = dem_path(path)
     ext = file.suffix.lower()
-    if ext not in SUPPORTED_EXTENSIONS:
+    if isinstance(file, GdalPath):  # GDAL reads it, by the extension of the file inside (a URL's path)
+        if ext not in GDAL_FORMATS:
+            raise InvalidInputError(_virtual_refusal(file))
+    elif ext not in SUPPORTED_EXTENSIONS:
         if os.path.isdir(file):  # `steps tiles/` said "unknown DEM extension '(none)'"
             raise DataFileError(f"DEM path {str(file)!r} is a folder; expected a DEM file "
                                 f"({', '.join(SUPPORTED_EXTENSIONS)})")
@@ -322,7 +325,8 @@ def _read_dem(
             f"cannot read {str(file)!r}: unknown DEM extension {file.suffix or '(none)'!r}; "
             f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
         )
-    require_regular_file(file, "DEM file", "DEM path")
+    else:
+        require_regular_file(file, "DEM file", "DEM path")
     if ext not in GDAL_FORMATS and band != 1:
         raise InvalidInputError(
             f"band applies to GDAL rasters only; {str(file)!r} holds one band, got band={band}"
@@ -346,6 +350,64 @@ def _read_dem(
         return terrain.crop(crop)
     except InvalidInputError as exc:
         raise InvalidInputError(f"{option}: {exc}") from None
+
+
+def dem_path(path: str | os.PathLike[str]) -> Path:
+    """The file :func:`load_dem` reads for ``path``: a :class:`~stepterrain._files.GdalPath` for a GDAL virtual path
+    (``/vsizip/...``, ``/vsigzip/...``, ``/vsicurl/...``) or a URL (``https://``, ``s3://``, ...), and for a local
+    ``.zip`` holding one raster of :data:`GDAL_FORMATS` (:func:`zip_member`); the Path of a local file otherwise.
+    A path argument that is no str or path-like is an InvalidInputError."""
+    file = as_path(path, "path")
+    text = os.fspath(path)
+    virtual = gdal_path(text) if isinstance(text, str) else None
+    if virtual is not None:
+        return virtual
+    if file.suffix.lower() == ".zip":
+        return zip_member(file)
+    return file
+
+
+def zip_member(file: Path) -> GdalPath:
+    """The ``/vsizip/`` path of the one raster GDAL reads (an extension of :data:`GDAL_FORMATS`) in the local zip
+    ``file`` (an SRTM download, ``N46E007.SRTMGL1.hgt.zip``): its sidecars (a .bil's .hdr, a .prj, an .aux.xml) are
+    read beside it by GDAL. A zip of none, or of several (a zip of tiles: which one is meant?), is refused (a
+    DataFileError naming them: ``/vsizip/<zip>/<name>`` picks one), as is a file that is no zip."""
+    require_regular_file(file, "DEM file", "DEM path")
+    try:
+        with zipfile.ZipFile(file) as archive:
+            names = [info.filename for info in archive.infolist() if not info.is_dir()]
+    except (OSError, zipfile.BadZipFile) as exc:
+        raise DataFileError(f"cannot read {str(file)!r}: expected a zip archive holding a DEM; got {exc}") from exc
+    rasters = [n for n in names if PurePosixPath(n).suffix.lower() in GDAL_FORMATS
+               and not any(part.startswith(("__MACOSX", "._")) for part in PurePosixPath(n).parts)]
+    given = str(file)
+    if len(rasters) != 1:
+        found = ("holds no raster GDAL reads; it holds " + (", ".join(repr(n) for n in names[:10])
+                                                             + (f" and {len(names) - 10} more" if len(names) > 10
+                                                                else "") if names else "nothing")
+                 if not rasters else
+                 f"holds {len(rasters)} rasters: " + ", ".join(repr(n) for n in rasters[:10])
+                 + (f" and {len(rasters) - 10} more" if len(rasters) > 10 else "")
+                 + f"; name the one to read, e.g. '/vsizip/{given}/{rasters[0]}'")
+        raise DataFileError(f"cannot read {given!r}: expected a zip holding one DEM ({', '.join(GDAL_FORMATS)}); it "
+                            + found)
+    member = GdalPath(f"{given}/{rasters[0]}")
+    member._gdal, member._given = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}", given
+    return member
+
+
+def _virtual_refusal(file: GdalPath) -> str:
+    """Why :func:`load_dem` refuses the GDAL virtual path or URL ``file``: an extension GDAL is not asked to read."""
+    ext = file.suffix.lower()
+    if ext in SUPPORTED_EXTENSIONS:  # .npy .npz .png: read by NumPy and Pillow from local files only
+        why = f"{ext} files are read from a local file only"
+    elif ext == ".zip":
+        why = f"name the file inside the zip: '{str(file)}/<name>{next(iter(GDAL_FORMATS))}'"
+    else:
+        why = f"unknown DEM extension {file.suffix or '(none)'!r} of {file.name!r}"
+    return (f"cannot read {str(file)!r}: a GDAL virtual path (/vsizip/, /vsigzip/, /vsicurl/, ...) or a URL "
+            f"({', '.join(s + '://' for s in URL_FILE_SYSTEMS)}) is read through GDAL, as a raster of "
+            f"{', '.join(GDAL_FORMATS)} (by the extension of the file it names); {why}")
 
 
 def own_placement(crs: str | None, spacing: tuple[float, float], origin: tuple[float, float]) -> str | None:
@@ -917,7 +979,7 @@ def open_raster(path: str | os.PathLike[str]) -> Any:
 
     with _OPEN_QUIETLY, warnings.catch_warnings():
         warnings.simplefilter("ignore", NotGeoreferencedWarning)
-        return rasterio.open(path)
+        return rasterio.open(os.fspath(path))  # a GdalPath's GDAL path (its str() is the text as given)
 
 
 def _load_geotiff(
@@ -939,7 +1001,16 @@ def _load_geotiff(
 
     window = header = place = None
     try:
-        with open_raster(file) as dataset:
+        try:
+            opened = open_raster(file)
+        except RasterioError as exc:
+            if not isinstance(file, GdalPath):
+                raise
+            # a missing file inside a zip, an unreachable URL: GDAL's reason, not "unreadable content"
+            gdal = os.fspath(file)
+            raise DataFileError(f"cannot read {str(file)!r}" + (f" (GDAL path {gdal!r})" if gdal != str(file) else "")
+                                + f": GDAL cannot open it as {_gdal_format(file)}: {exc}") from exc
+        with opened as dataset:
             if band > dataset.count:
                 raise InvalidInputError(
                     f"band must be between 1 and {dataset.count} for {str(file)!r}; got band={band}"
@@ -1136,6 +1207,8 @@ def prj_crs(path: Path, what: str, refusal: type[StepTerrainError] = InvalidInpu
     ``what`` the raster is ("image", "DEM"): the raster would be taken in no CRS, or another's, without a word. Its
     extension in either case (``DEM.PRJ`` beside ``DEM.TIF``, as DOS-era ESRI data ships it, and GDAL reads the world
     file ``DEM.TFW``)."""
+    if isinstance(path, GdalPath):  # only local files are looked for beside it
+        return None
     for prj in _prj_files(path):
         if not prj.is_file():
             continue
