@@ -152,7 +152,15 @@ def add_parser(commands: Any) -> None:
 
 def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentParser) -> int:
     from . import render
-    from .batch import MAX_CONNECT_TIMEOUT, _check_ext, _one_raster_file, batch, overview_image
+    from .batch import (
+        MAX_CONNECT_TIMEOUT,
+        _absolute,
+        _check_ext,
+        _one_raster_file,
+        _virtual_source,
+        batch,
+        overview_image,
+    )
     from .cli import (
         _as_option,
         _check_output,
@@ -172,7 +180,9 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
                                 "item): give one file, or leave --tile out")
     # one DEM file without --tile (a shell glob that matched one, tiles/*.tif) is one item, as several are: it was
     # refused with "give --tile to cut it into tiles"; a (T, H, W) series stays one item per frame
-    listed = len(files) > 1 or (len(files) == 1 and args.tile is None and _one_raster_file(Path(files[0])))
+    # a raster in a zip or at a URL (/vsizip/..., https://...) is one file too; a zip of several tiles is refused
+    listed = len(files) > 1 or (len(files) == 1 and args.tile is None and (_one_raster_file(Path(files[0]))
+                                                                           or _virtual_source(files[0]) is not None))
     args.input = files if listed else files[0] if files else None
     png = _check_output(args.png, (".png",), "--png") if args.png else None
     if not (0.0 <= args.gamma <= 1.0):
@@ -248,7 +258,7 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         # folder (or by its absolute path) keeps its complete tiles instead of redoing them all
         metadata={"generator": "stepterrain batch"} if source_folder is not None or listed else {  # each file's
             "generator": "stepterrain batch",
-            "input": os.path.abspath(args.input) if args.input else "embedded Big Tujunga DEM"},
+            "input": _absolute(args.input) if args.input else "embedded Big Tujunga DEM"},
         height_unit=args.height_unit, spacing=args.spacing, crop=args.crop, coarsen=args.coarsen, device=args.device,
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
     )  # fmt: skip

@@ -138,11 +138,19 @@ def add_parser(commands: Any) -> None:
 
 
 def _load_grid(path: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    file = Path(path)
-    if not file.exists():
+    from ._files import gdal_path
+    from .io import _virtual_refusal, dem_path
+
+    virtual = gdal_path(path)  # a /vsizip/... path or a URL: read by GDAL, as load_dem reads it
+    if virtual is not None and virtual.suffix.lower() not in GDAL_FORMATS:
+        raise InvalidInputError(_virtual_refusal(virtual))
+    file = Path(path) if virtual is None else virtual
+    if virtual is None and not file.exists():
         raise DataFileError(f"INPUT {path!r} does not exist")
-    if not file.is_file():
+    if virtual is None and not file.is_file():
         raise DataFileError(f"INPUT {path!r} is not a file")
+    if file.suffix.lower() == ".zip":  # a zip of one raster (an SRTM download), as load_dem reads it
+        file = dem_path(file)
     if file.suffix.lower() in GDAL_FORMATS:  # a GeoTIFF, .asc, .hgt, .img, .vrt, ...: as load_dem reads them
         return _load_geotiff_grid(file)
     if file.suffix.lower() != ".npz":

@@ -10,7 +10,7 @@ from typing import Any
 
 from .errors import DataFileError, InvalidInputError
 
-__all__ = ["as_path", "require_regular_file", "gdal_path", "GdalPath", "URL_FILE_SYSTEMS"]
+__all__ = ["as_path", "require_regular_file", "gdal_path", "GdalPath", "URL_FILE_SYSTEMS", "local_archive"]
 
 
 def as_path(value: Any, name: str) -> Path:
@@ -98,3 +98,27 @@ def _made(gdal: str, display: str, given: str | None = None) -> GdalPath:
     path = GdalPath(display or gdal)
     path._gdal, path._given = gdal, gdal if given is None else given
     return path
+
+
+#: GDAL's archive file systems, whose path names a local archive file first (``/vsizip/<archive>/<member>``).
+_ARCHIVES = {"/vsizip/": (".zip", ".kmz", ".ods", ".xlsx"), "/vsitar/": (".tar", ".tgz", ".tar.gz"),
+             "/vsigzip/": (".gz",), "/vsi7z/": (".7z",), "/vsirar/": (".rar",)}
+
+
+def local_archive(file: GdalPath) -> str | None:
+    """The local archive file a GDAL path reads from (``/vsizip//data/srtm.zip/N46E007.hgt``: ``/data/srtm.zip``),
+    for a file's identity (batch's fingerprint); None for a remote one (a URL, ``/vsizip//vsicurl/...``)."""
+    text = os.fspath(file)
+    for prefix, extensions in _ARCHIVES.items():
+        if not text.startswith(prefix):
+            continue
+        rest = text[len(prefix):]
+        if rest.startswith("/vsi"):
+            return None
+        lowered = rest.lower()
+        for ext in extensions:
+            end = lowered.find(ext + "/") if prefix != "/vsigzip/" else -1
+            if end >= 0:
+                return rest[:end + len(ext)]
+        return rest if any(lowered.endswith(ext) for ext in extensions) else None
+    return None

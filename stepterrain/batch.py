@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._callable_module import make_module_callable
 from ._compaction import BUDGET_HINT, budget_hint, get_memory_budget
-from ._files import as_path
+from ._files import GdalPath, as_path
 from ._signals import signals_held, terminal_signals_blocked_for_children
 from .errors import (
     DataFileError,
@@ -286,7 +286,12 @@ def plan_items(
     """
     if isinstance(source, (str, os.PathLike)):
         path = Path(os.fspath(source))
-        if path.is_dir():
+        virtual = _virtual_source(source)
+        if virtual is not None:  # a raster GDAL reads in a zip or at a URL: one file item, or cut into tiles
+            if tile_size is None:
+                return _file_items([virtual]), None
+            path = virtual
+        elif path.is_dir():
             if tile_size is not None:
                 raise InvalidInputError(
                     f"tile_size applies to one raster, not to a folder of tiles; got a folder {str(path)!r}"
@@ -307,7 +312,7 @@ def plan_items(
                        if hidden else "") + ")"
                 )
             return _file_items(files), None
-        if not path.exists():
+        if virtual is None and not path.exists():
             raise DataFileError(f"source {str(path)!r} does not exist (expected a DEM file or a folder of tiles)"
                                 + _unmatched_glob(path))
         from .io import read_dem
@@ -356,7 +361,8 @@ def plan_items(
     if isinstance(source, Sequence) and not isinstance(source, np.ndarray) and source and all(
         isinstance(s, (str, os.PathLike)) for s in source
     ):
-        files = [Path(os.fspath(s)) for s in source]
+        # a raster in a zip or at a URL (/vsizip/..., https://..., a .zip of one) as GDAL reads it: a GdalPath
+        files = [_virtual_source(s) or Path(os.fspath(s)) for s in source]
         # checked here, as one file or a folder is: a folder among them was named "must end in .npy ...", a missing
         # file failed as an item after the cluster had started and the others were written, and a file given twice
         # (tiles/*.tif tiles/a.tif) was refused as two files writing one output, "rename one"
@@ -371,14 +377,14 @@ def plan_items(
                 f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)}; got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
-        missing = [str(f) for f in files if not f.exists()]
+        missing = [str(f) for f in files if not isinstance(f, GdalPath) and not f.exists()]
         if missing:
             raise DataFileError(f"source file {missing[0]!r} does not exist"
                                 + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else "")
                                 + _unmatched_glob(Path(missing[0])))
         seen: dict[Path, Path] = {}
         for f in files:
-            same = seen.setdefault(f.resolve(), f)
+            same = seen.setdefault(Path(os.fspath(f)) if isinstance(f, GdalPath) else f.resolve(), f)
             if same is not f:
                 twice = repr(str(f)) if str(same) == str(f) else f"as {str(same)!r} and {str(f)!r}"
                 raise InvalidInputError(f"source names one file twice, {twice}; give each file once")
@@ -501,6 +507,22 @@ def _series_or_none(path: Path) -> NDArray[np.float32] | None:
         return load_series(path)
     except DataFileError:
         return None
+
+
+def _virtual_source(source: str | os.PathLike[str]) -> Path | None:
+    """The file a source names through GDAL (:func:`~stepterrain.io.dem_path`): a ``/vsizip/...`` path or a URL, or
+    a local ``.zip`` of one raster (one of several is refused, naming them: a zip is no folder of tiles here); None
+    for a local file or folder."""
+    from ._files import gdal_path
+    from .io import dem_path
+
+    text = os.fspath(source)
+    if not isinstance(text, str):
+        return None
+    if isinstance(source, GdalPath) or gdal_path(text) is not None or (text.lower().endswith(".zip")
+                                                                       and os.path.isfile(text)):
+        return dem_path(source)
+    return None
 
 
 def _one_raster_file(path: Path) -> bool:
@@ -921,7 +943,7 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
         h = hashlib.blake2b(head, digest_size=16)
         # a file by its absolute path, as _file_identity names it: the same folder given as "tiles" and then as
         # "/data/tiles" (or from another working folder) redid every item
-        h.update(repr(item if item.path is None else dataclasses.replace(item, path=os.path.abspath(item.path)))
+        h.update(repr(item if item.path is None else dataclasses.replace(item, path=_absolute(item.path)))
                  .encode())  # fmt: skip
         if item.kind == "file":
             h.update(_file_identity(item.path, listings).encode())  # type: ignore[arg-type]
@@ -931,6 +953,14 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
             h.update(np.ascontiguousarray(block).tobytes())
         out[item.key] = h.hexdigest()
     return out
+
+
+def _absolute(path: str) -> str:
+    """A file item's path made absolute for its fingerprint; a GDAL virtual path or URL as given (os.path.abspath
+    turned ``/vsizip//data/a.zip/t.tif`` into another path and a URL into one under the working folder)."""
+    from ._files import gdal_path
+
+    return path if gdal_path(path) is not None else os.path.abspath(path)
 
 
 #: Files beside a GeoTIFF (or another raster of :data:`~stepterrain.io.GDAL_FORMATS`) that GDAL reads with it when
@@ -961,6 +991,12 @@ def _file_identity(path: str, listings: dict[str, dict[str, list[str]] | None]) 
             return f"{file}|unreadable"
         return f"{file}|{st.st_size}|{st.st_mtime_ns}|{st.st_ctime_ns}|{st.st_ino}"
 
+    from ._files import gdal_path, local_archive
+
+    virtual = gdal_path(path)
+    if virtual is not None:  # the local archive it lies in (a zip's, a gzip's), else its path alone (a URL)
+        archive = local_archive(virtual)
+        return f"{path}|" + (identity(os.path.abspath(archive)) if archive else "remote")
     file = os.path.abspath(path)
     parts = [identity(file)]
     folder, name = os.path.split(file)

@@ -357,6 +357,8 @@ def dem_path(path: str | os.PathLike[str]) -> Path:
     (``/vsizip/...``, ``/vsigzip/...``, ``/vsicurl/...``) or a URL (``https://``, ``s3://``, ...), and for a local
     ``.zip`` holding one raster of :data:`GDAL_FORMATS` (:func:`zip_member`); the Path of a local file otherwise.
     A path argument that is no str or path-like is an InvalidInputError."""
+    if isinstance(path, GdalPath):
+        return path
     file = as_path(path, "path")
     text = os.fspath(path)
     virtual = gdal_path(text) if isinstance(text, str) else None
@@ -391,8 +393,8 @@ def zip_member(file: Path) -> GdalPath:
                  + f"; name the one to read, e.g. '/vsizip/{given}/{rasters[0]}'")
         raise DataFileError(f"cannot read {given!r}: expected a zip holding one DEM ({', '.join(GDAL_FORMATS)}); it "
                             + found)
-    member = GdalPath(f"{given}/{rasters[0]}")
-    member._gdal, member._given = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}", given
+    member = GdalPath(f"{given}/{rasters[0]}")  # its name that of the member; str() the GDAL path, which reads it
+    member._gdal = member._given = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
     return member
 
 
