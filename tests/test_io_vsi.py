@@ -1,0 +1,198 @@
+"""DEMs read through GDAL's virtual file systems, as a GIS user names them to every GDAL tool: a zip of SRTM tiles
+(``/vsizip/srtm.zip/N39W106.hgt``, or the ``.zip`` itself when it holds one raster), a gzip (``/vsigzip/``) and a
+URL (``https://``, mapped to ``/vsicurl/``). They were refused as "does not exist" before rasterio saw the path."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import time
+import warnings
+import zipfile
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+from stepterrain import cli
+from stepterrain._files import gdal_path
+from stepterrain.errors import DataFileError, InvalidInputError
+
+rasterio = pytest.importorskip("rasterio")
+from affine import Affine  # noqa: E402
+
+_FRONT_RANGE = "/work/shared/data/front_range_srtmgl3_3arcsec.tif"
+
+
+def _geotiff(path, terrain):
+    """``terrain`` (a grid) written as the GeoTIFF load_dem reads back as it: node (0, 0) at the top-left cell's
+    centre."""
+    (dx, dy), (x0, y0) = terrain.spacing, terrain.origin
+    h = terrain.heights
+    with rasterio.open(path, "w", driver="GTiff", height=h.shape[0], width=h.shape[1], count=1, dtype="float32",
+                       crs=terrain.crs, transform=Affine(dx, 0.0, x0 - dx / 2, 0.0, dy, y0 - dy / 2),
+                       nodata=np.nan) as out:
+        out.write(h, 1)
+    return path
+
+
+@pytest.fixture(scope="module")
+def tiles(tmp_path_factory):
+    """The sample DEM (coarsened 4 x 4, for speed) as dem.tif, zipped alone (one.zip), beside a second raster
+    (two.zip) and gzipped (dem.tif.gz)."""
+    folder = tmp_path_factory.mktemp("vsi")
+    tif = _geotiff(folder / "dem.tif", st.sample_dem().coarsen(4))
+    with zipfile.ZipFile(folder / "one.zip", "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.write(tif, "dem.tif")
+    with zipfile.ZipFile(folder / "two.zip", "w") as archive:
+        archive.write(tif, "dem.tif")
+        archive.write(tif, "west/b.tif")
+    with zipfile.ZipFile(folder / "readme.zip", "w") as archive:
+        archive.writestr("README.txt", "no raster here")
+    (folder / "dem.tif.gz").write_bytes(gzip.compress(tif.read_bytes()))
+    return folder
+
+
+def _same(a, b):
+    assert a.shape == b.shape and a.spacing == b.spacing and a.origin == b.origin and a.crs == b.crs
+    np.testing.assert_array_equal(a.heights, b.heights)
+
+
+def test_vsizip_vsigzip_and_a_zip_of_one_raster_read_as_the_geotiff(tiles, monkeypatch):
+    reference = st.load_dem(tiles / "dem.tif")
+    absolute = f"/vsizip/{tiles / 'one.zip'}/dem.tif"
+    assert absolute.startswith("/vsizip//")  # GDAL's absolute form, which a Path would turn into a relative one
+    for given in (absolute, tiles / "one.zip", str(tiles / "one.zip"), f"/vsigzip/{tiles / 'dem.tif.gz'}"):
+        terrain = st.load_dem(given)
+        _same(terrain, reference)
+        assert terrain.source == "dem.tif"  # the file inside, as the plain file's
+    monkeypatch.chdir(tiles)  # a relative path inside /vsizip/, as GDAL reads it
+    _same(st.load_dem("/vsizip/one.zip/dem.tif"), reference)
+    _same(st.load_dem("one.zip", crop=(reference.origin[0], reference.origin[0] + 600, reference.origin[1] - 600,
+                                       reference.origin[1])),
+          reference.crop((reference.origin[0], reference.origin[0] + 600, reference.origin[1] - 600,
+                          reference.origin[1])))
+
+
+def _srtm_tile(folder):
+    """A real SRTM GL3 tile, N39W106.hgt (1201 x 1201 big-endian int16, -32768 voids): the Front Range DEM of
+    shared/data placed at its cells (its nodes lie on the tile's 3 arc-second nodes), voids elsewhere, and the tile
+    as a download zips it (N39W106.SRTMGL3.hgt.zip)."""
+    with rasterio.open(_FRONT_RANGE) as source:
+        data = source.read(1)
+        lon, lat = source.xy(559, 0)  # the first row at or below 40 N
+    row, col = round((40 - lat) * 1200), round((lon + 106) * 1200)
+    assert (row, col) == (0, 221)
+    tile = np.full((1201, 1201), -32768, ">i2")
+    tile[0:199, 221:979] = data[559:758, :]
+    hgt = folder / "N39W106.hgt"
+    tile.tofile(hgt)
+    archive = folder / "N39W106.SRTMGL3.hgt.zip"
+    with zipfile.ZipFile(archive, "w", zipfile.ZIP_DEFLATED) as out:
+        out.write(hgt, "N39W106.hgt")
+    return hgt, archive, data[559:758, :]
+
+
+def test_srtm_hgt_in_a_zip_is_placed_by_its_name_with_voids(tmp_path):
+    hgt, archive, covered = _srtm_tile(tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a 1-degree tile's local-metres warning, the plain file's too
+        reference = st.load_dem(hgt)
+        for given in (archive, f"/vsizip/{archive}/N39W106.hgt"):
+            terrain = st.load_dem(given)
+            _same(terrain, reference)
+            assert terrain.source.startswith("N39W106.hgt")  # placed by its name: node (0, 0) at 106 W, 40 N
+            assert "lon -106.000000000, lat 40.000000000" in terrain.source
+            assert np.isnan(terrain.heights).sum() == 1201 * 1201 - covered.size  # -32768 voids are nodata
+            np.testing.assert_array_equal(terrain.heights[0:199, 221:979], covered.astype(np.float32))
+
+
+def test_zip_of_several_rasters_or_none_and_a_missing_inner_file_are_refused(tiles):
+    with pytest.raises(DataFileError, match=r"two\.zip.*2 rasters: 'dem\.tif', 'west/b\.tif'.*/vsizip/"):
+        st.load_dem(tiles / "two.zip")
+    with pytest.raises(DataFileError, match=r"readme\.zip.*no raster.*'README\.txt'"):
+        st.load_dem(tiles / "readme.zip")
+    missing = f"/vsizip/{tiles / 'one.zip'}/N46E007.hgt"
+    with pytest.raises(DataFileError, match=rf"cannot read '{missing}': GDAL cannot open it .*does not exist"):
+        st.load_dem(missing)
+    with pytest.raises(InvalidInputError, match=r"name the file inside the zip"):
+        st.load_dem(f"/vsizip/{tiles / 'one.zip'}")
+    with pytest.raises(InvalidInputError, match=r"/vsizip/.*\.npy files are read from a local file only"):
+        st.load_dem(f"/vsizip/{tiles / 'one.zip'}/dem.npy")
+
+
+def test_url_is_read_by_gdal_and_an_unreachable_one_is_a_data_file_error(monkeypatch):
+    assert os.fspath(gdal_path("https://example.org/dem/cog.tif?sig=1")) == "/vsicurl/https://example.org/dem/cog.tif?sig=1"
+    assert gdal_path("https://example.org/dem/cog.tif?sig=1").name == "cog.tif"
+    assert os.fspath(gdal_path("s3://bucket/srtm/N46E007.hgt")) == "/vsis3/bucket/srtm/N46E007.hgt"
+    assert os.fspath(gdal_path("gs://bucket/dem.tif")) == "/vsigs/bucket/dem.tif"
+    assert gdal_path("dem.tif") is None and gdal_path("/data/dem.tif") is None
+    with pytest.raises(DataFileError, match=r"unknown URL scheme 'gopher://'"):
+        gdal_path("gopher://host/dem.tif")
+    monkeypatch.setenv("GDAL_HTTP_TIMEOUT", "5")  # nothing listens on port 9: refused at once, never a hang
+    monkeypatch.setenv("GDAL_HTTP_CONNECTTIMEOUT", "5")
+    start = time.monotonic()
+    with pytest.raises(DataFileError, match=r"cannot read 'http://127\.0\.0\.1:9/x\.tif' \(GDAL path "
+                                            r"'/vsicurl/http://127\.0\.0\.1:9/x\.tif'\): GDAL cannot open it"):
+        st.load_dem("http://127.0.0.1:9/x.tif")
+    assert time.monotonic() - start < 30
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def run(capsys, *argv):
+    code = cli.main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_info_reads_a_vsizip_path_and_a_zip(tiles, capsys):
+    reference = st.load_dem(tiles / "dem.tif")
+    for given in (f"/vsizip/{tiles / 'one.zip'}/dem.tif", tiles / "one.zip"):
+        code, out, err = run(capsys, "info", given, "--json")
+        assert code == 0, err
+        summary = json.loads(out)
+        assert summary["source"] == "dem.tif" and summary["crs"] == reference.crs
+        assert tuple(summary["shape"]) == reference.shape
+
+
+def test_cli_steps_writes_the_mesh_of_a_vsizip_dem(tiles, tmp_path, capsys):
+    out = tmp_path / "zipped.ply"
+    code, _, err = run(capsys, "steps", f"/vsizip/{tiles / 'one.zip'}/dem.tif", "--interval", "200", "-o", out)
+    assert code == 0, err
+    plain = tmp_path / "plain.ply"
+    code, _, err = run(capsys, "steps", tiles / "dem.tif", "--interval", "200", "-o", plain)
+    assert code == 0, err
+    import trimesh
+
+    a, b = trimesh.load(out, process=False), trimesh.load(plain, process=False)
+    np.testing.assert_array_equal(a.vertices, b.vertices)
+    np.testing.assert_array_equal(a.faces, b.faces)
+
+
+@pytest.mark.parametrize("command", ["info", "steps"])
+def test_cli_missing_inner_file_and_unreachable_url_are_clear_errors(tiles, tmp_path, capsys, monkeypatch, command):
+    monkeypatch.setenv("GDAL_HTTP_TIMEOUT", "5")
+    monkeypatch.setenv("GDAL_HTTP_CONNECTTIMEOUT", "5")
+    extra = ("-o", tmp_path / "out.ply") if command == "steps" else ()
+    missing = f"/vsizip/{tiles / 'one.zip'}/N46E007.hgt"
+    for given, reason in ((missing, "does not exist in the file system"),
+                          ("http://127.0.0.1:9/x.tif", "GDAL cannot open it"),
+                          (tiles / "two.zip", "holds 2 rasters")):
+        code, _, err = run(capsys, command, given, *extra)
+        assert code != 0
+        assert f"cannot read '{given}'" in err and reason in err, err
+        assert "Traceback" not in err
+    assert not (tmp_path / "out.ply").exists()
+
+
+def test_cli_batch_names_a_vsizip_file_item_after_the_inner_file(tiles, tmp_path, capsys):
+    out = tmp_path / "meshes"
+    code, _, err = run(capsys, "batch", f"/vsizip/{tiles / 'one.zip'}/dem.tif", "--interval", "200",
+                       "--scheduler", "serial", "-o", out)
+    assert code == 0, err
+    assert sorted(p.name for p in out.iterdir()) == ["dem.glb", "stepterrain-batch.json"]
+    code, _, err = run(capsys, "batch", f"/vsizip/{tiles / 'one.zip'}/dem.tif", "--interval", "200",
+                       "--scheduler", "serial", "-o", out)  # resumed: the zip is unchanged
+    assert code == 0, err
+    assert "1 complete already" in err
