@@ -91,7 +91,9 @@ def add_parser(commands: Any) -> None:
     )
     p.add_argument("input", nargs="*", type=_path, metavar="INPUT",
                    help="a folder of DEM files, several DEM files (a shell glob: tiles/*.tif; one DEM file without "
-                        "--tile is one item too), a (T, H, W) .npy/.npz series, or one DEM to cut with --tile; "
+                        "--tile is one item too, as is a GDAL virtual path or URL, /vsizip/srtm.zip/N46E007.hgt, or "
+                        "a .zip holding one raster: a zip of tiles is no folder here), a (T, H, W) .npy/.npz series, "
+                        "or one DEM to cut with --tile; "
                         "default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     _add_band(p)

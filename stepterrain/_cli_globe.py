@@ -92,8 +92,8 @@ def add_parser(commands: Any) -> None:
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
                    help="global grid .npz (elevation, lat, lon in degrees; cells equal to an optional nodata value, "
                         "or marked by a boolean mask or valid, are refused: fill them first), or a raster in degrees "
-                        "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ...; EPSG:4326; nodata refused "
-                        "as well); "
+                        "(a GeoTIFF or any other load_dem reads: .asc .hgt .img .vrt ..., a GDAL virtual path or URL "
+                        "to one, /vsizip/srtm.zip/N46E007.hgt, or a .zip of one; EPSG:4326; nodata refused as well); "
                         "default: the embedded ETOPO 2022 20'")
     p.add_argument("--face-size", type=int, default=257, metavar="N",
                    help="nodes per cube face edge, 2^k+1 (default 257; the paper uses 1025)")

@@ -220,13 +220,18 @@ def _cell_size(text: str) -> tuple[float, ...]:
     return values
 
 
+#: The DEM files an INPUT may name (load_dem's), for the help of steps, closeup, texture and info.
+INPUT_HELP = ("DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2), a GDAL virtual path or URL to "
+              "one of the GDAL rasters (/vsizip/srtm.zip/N46E007.hgt, /vsigzip/dem.tif.gz, https://.../cog.tif, "
+              "s3://bucket/dem.tif) or a .zip holding one")
+
+
 def _add_input_options(p: argparse.ArgumentParser) -> None:
     """The one DEM INPUT of steps, closeup and texture and its options: ``--height-unit``, ``--band``, ``--spacing``,
     ``--crop`` and ``--coarsen`` (see :func:`_load_input`). The formats its help lists are load_dem's (one list for
     the three subcommands)."""
     p.add_argument("input", nargs="?", type=_path, metavar="INPUT",
-                   help="DEM file (.npy .npz .png .tif .asc .hgt .img .vrt .bil .flt .dem .dt0-2); default: "
-                        "the embedded Big Tujunga DEM")
+                   help=INPUT_HELP + "; default: the embedded Big Tujunga DEM")
     _add_height_unit(p)
     _add_band(p)
     p.add_argument("--spacing", type=_cell_size, metavar="D|dx,dy",
@@ -520,7 +525,9 @@ def _add_info(commands: Any) -> None:
         epilog=_INFO_EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("file", nargs="?", type=_path, metavar="FILE", help="default: the embedded DEM")
+    p.add_argument("file", nargs="?", type=_path, metavar="FILE",
+                   help=INPUT_HELP + ", or a mesh file (.glb .gltf .obj .ply .stl .3mf, local); default: the embedded "
+                                     "DEM")
     _add_height_unit(p, help="a DEM's heights' length unit (m, ft, US survey foot, km, ...), for a file that names "
                               "none or one not known; not for a mesh")
     _add_band(p)

@@ -154,7 +154,17 @@ def load_dem(
         ``.img`` (ERDAS Imagine), ``.vrt`` (GDAL virtual raster, its sources read where it names them), ``.bil``
         and ``.flt`` (ESRI band-interleaved and float grids, with their ``.hdr``), ``.dem`` (USGS DEM) and
         ``.dt0``/``.dt1``/``.dt2`` (DTED): :data:`GDAL_FORMATS`. Another GDAL format (netCDF, ...) is refused as an
-        unknown extension: ``gdal_translate -of GTiff`` converts it.
+        unknown extension: ``gdal_translate -of GTiff`` converts it. These are read through GDAL's virtual file
+        systems too, as GDAL tools take them, by the extension of the file named inside (a ``.hgt`` in a zip is
+        placed by its name, its -32768 voids nodata, as the plain tile): ``/vsizip/srtm.zip/N46E007.hgt``
+        (``/vsizip//abs/tiles.zip/dem.tif`` for an absolute path), ``/vsigzip/dem.tif.gz``, ``/vsitar/...``,
+        ``/vsicurl/https://...`` and a URL, mapped as rasterio maps it (``https://``/``http://``/``ftp://`` to
+        ``/vsicurl/``, ``s3://`` to ``/vsis3/``, ``gs://`` to ``/vsigs/``, ``az://`` to ``/vsiaz/``, ...: GDAL's
+        ``GDAL_HTTP_*``/``AWS_*`` settings apply); ``source`` is then the inner file's name, no ``.prj`` beside it is
+        looked for, and ``.npy``/``.npz``/``.png`` are refused there (read from local files only). A local ``.zip``
+        is read as the ``/vsizip/`` path of the one raster of :data:`GDAL_FORMATS` it holds (an SRTM download,
+        ``N46E007.SRTMGL1.hgt.zip``; its sidecars beside it in the zip); one of several is refused, naming them
+        (``/vsizip/<zip>/<name>`` picks one).
     band : int
         1-based raster band to read; GeoTIFF and the other GDAL rasters only (the other formats hold one band). It
         must be a grey or undefined band; the file's mask (nodata, an internal mask or an alpha band) marks its
@@ -240,11 +250,15 @@ def load_dem(
     Raises
     ------
     InvalidInputError
-        Unknown extension (the message lists the supported ones), ``band`` not a valid band number,
+        Unknown extension (the message lists the supported ones; a virtual path's or URL's inner file of
+        ``.npy``/``.npz``/``.png``, or another extension, says what GDAL is asked to read), ``band`` not a valid band
+        number,
         ``height_unit`` not a known length unit (the message lists them), or a ``crop`` that
         :meth:`Terrain.crop <stepterrain.terrain.Terrain.crop>` refuses (its message after ``crop:``).
     DataFileError
-        The file does not exist, cannot be read, or is not elevation data (a colour image, another image format
+        The file does not exist, cannot be read (a virtual path or URL GDAL cannot open: a file missing from the zip,
+        an unreachable URL, with GDAL's reason; a URL scheme GDAL has no file system for; a ``.zip`` holding no
+        raster of :data:`GDAL_FORMATS`, or several), or is not elevation data (a colour image, another image format
         under a .png name, a GeoTIFF band that is colour, alpha or other imagery, a 1-D array, text, an archive
         without a 2-D array, a rotated grid (rotation terms that move no node by more than 1e-6 of a cell over the
         grid, the float noise some tools write, are taken as 0), a geographic grid whose latitudes lie beyond ±90
