@@ -196,3 +196,10 @@ def test_cli_batch_names_a_vsizip_file_item_after_the_inner_file(tiles, tmp_path
                        "--scheduler", "serial", "-o", out)  # resumed: the zip is unchanged
     assert code == 0, err
     assert "1 complete already" in err
+    zipped = tiles / "one.zip"  # the archive rewritten: its item is redone (the fingerprint stats the local zip)
+    stat = zipped.stat()
+    os.utime(zipped, ns=(stat.st_atime_ns, stat.st_mtime_ns + 1_000_000_000))
+    code, _, err = run(capsys, "batch", f"/vsizip/{zipped}/dem.tif", "--interval", "200", "--scheduler", "serial",
+                       "-o", out)
+    assert code == 0, err
+    assert "1 written, 0 complete already" in err
