@@ -656,11 +656,19 @@ def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
 
 
 @wp.func
+def node_point(grid: HeightGrid, i: wp.int32, j: wp.int32) -> wp.vec2:
+    """(row, column) of node (i, j) from the grid's centre in nodes: the same float32 values whichever way the rows
+    and columns run."""
+    return wp.vec2(float(i) - 0.5 * float(grid.rows - 1), float(j) - 0.5 * float(grid.cols - 1))
+
+
+@wp.func
 def line_point(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.vec2:
     """(row, column) of the point of node (i, j)'s straight line at its major index (``error`` less along the minor
-    axis), from the grid's centre in nodes: the same float32 values whichever way the rows and columns run."""
-    fi = float(i) - 0.5 * float(grid.rows - 1)
-    fj = float(j) - 0.5 * float(grid.cols - 1)
+    axis), from the grid's centre in nodes (:func:`node_point`; error 0: the node's own, bit for bit)."""
+    f = node_point(grid, i, j)
+    fi = f[0]
+    fj = f[1]
     if sweep.major_j == 0:
         fj = fj - error
     else:
@@ -669,10 +677,9 @@ def line_point(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: 
 
 
 @wp.func
-def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.float32:
-    """How far the point of node (i, j)'s straight line at its major index (:func:`line_point`) lies along the
-    away-from-light direction (world units, from the grid's centre)."""
-    f = line_point(grid, sweep, i, j, error)
+def distance_away(grid: HeightGrid, sweep: Sweep, f: wp.vec2) -> wp.float32:
+    """How far the point ``f`` (row, column from the grid's centre in nodes: :func:`line_point`,
+    :func:`node_point`) lies along the away-from-light direction (world units, from the grid's centre)."""
     return f[1] * grid.spacing[0] * sweep.away[0] + f[0] * grid.spacing[1] * sweep.away[1]
 
 
@@ -767,6 +774,54 @@ def sweep_shadows(
 
 
 @wp.kernel
+def sweep_shadows_on_nodes(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    sweep: Sweep,
+    lines_per_thread: wp.int32,
+    horizons: wp.array[wp.float32],
+    # outputs
+    shadow_out: wp.array2d[wp.uint8],
+):
+    """:func:`sweep_shadows` for a sweep whose nodes all lie on their straight lines (``minor_error`` 0 at every
+    major index: a light along an axis or a diagonal, ``stepterrain.texture._sweep``): the same bits without
+    reading the sideways steps or interpolating across the line (4096², 315°: one core, see _shadow_array)."""
+    first = (wp.tid() + thread_offset) * lines_per_thread
+    last = wp.min(first + lines_per_thread, sweep.n_lines)
+    for line in range(first, last):
+        horizons[line] = wp.float32(-3.0e38)
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+    k = wp.int32(0)
+    while k < span[1] - span[0]:
+        major = walk_major(sweep, span, k)
+        offset = sweep.c_min + sweep.minor_offsets[major]
+        line = wp.max(first, -offset)
+        hi = wp.min(last, sweep.n_minor - offset)
+        while line < hi:
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
+            h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
+            if grid.has_nodata != 0 and wp.isnan(h):
+                store(shadow_out, i, j, wp.uint8(0))
+            else:
+                f = node_point(grid, i, j)
+                g = h * grid.z_factor + (f[1] * sweep.rise[0] + f[0] * sweep.rise[1])
+                if g < load(horizons, line):
+                    store(shadow_out, i, j, wp.uint8(1))
+                else:
+                    store(shadow_out, i, j, wp.uint8(0))
+                    store(horizons, line, g)
+            line += 1
+        k += 1
+
+
+@wp.kernel
 def count_line_nodes(
     thread_offset: wp.int32,
     sweep: Sweep,
@@ -828,7 +883,70 @@ def sweep_occlusion(
                 top = load(tops, line)
                 if sideways != 0.0:
                     h = h + sideways * across_line(grid, sweep, i, j, minor, side, h)
-                p = wp.vec2(distance_away(grid, sweep, i, j, error), h * grid.z_factor)
+                p = wp.vec2(distance_away(grid, sweep, line_point(grid, sweep, i, j, error)), h * grid.z_factor)
+                # drop hull points that are not above the segment from their predecessor to p
+                while top >= 1:
+                    a = load(hull_out, base + top - 1)
+                    b = load(hull_out, base + top)
+                    cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+                    if cross >= 0.0:
+                        top -= 1
+                    else:
+                        break
+                if top >= 0:
+                    q = load(hull_out, base + top)
+                    rise = q[1] - p[1]
+                    run = p[0] - q[0]
+                    if rise > 0.0 and run > 0.0:
+                        store(occlusion_out, i, j,
+                              load(occlusion_out, i, j) + weight * rise / wp.sqrt(rise * rise + run * run))
+                top += 1
+                store(hull_out, base + top, p)
+                store(tops, line, top)
+            line += 1
+        k += 1
+
+
+@wp.kernel
+def sweep_occlusion_on_nodes(
+    thread_offset: wp.int32,
+    grid: HeightGrid,
+    sweep: Sweep,
+    lines_per_thread: wp.int32,
+    offsets: wp.array[wp.int32],
+    weight: wp.float32,
+    tops: wp.array[wp.int32],
+    # outputs
+    hull_out: wp.array[wp.vec2],
+    occlusion_out: wp.array2d[wp.float32],
+):
+    """:func:`sweep_occlusion` for a sweep whose nodes all lie on their straight lines (``minor_error`` 0 at every
+    major index, as :func:`sweep_shadows_on_nodes`): the same bits without the sideways steps."""
+    first = (wp.tid() + thread_offset) * lines_per_thread
+    last = wp.min(first + lines_per_thread, sweep.n_lines)
+    for line in range(first, last):
+        store(tops, line, -1)  # index of the hull's last point, relative to the line's base
+    span_first = line_span(sweep, first)
+    span_last = line_span(sweep, last - 1)
+    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+    k = wp.int32(0)
+    while k < span[1] - span[0]:
+        major = walk_major(sweep, span, k)
+        offset = sweep.c_min + sweep.minor_offsets[major]
+        line = wp.max(first, -offset)
+        hi = wp.min(last, sweep.n_minor - offset)
+        while line < hi:
+            minor = line + offset
+            i = minor
+            j = major
+            if sweep.major_j == 0:
+                i = major
+                j = minor
+            h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
+            if not wp.isnan(h):
+                base = load(offsets, line)
+                top = load(tops, line)
+                p = wp.vec2(distance_away(grid, sweep, node_point(grid, i, j)), h * grid.z_factor)
                 # drop hull points that are not above the segment from their predecessor to p
                 while top >= 1:
                     a = load(hull_out, base + top - 1)
