@@ -921,7 +921,9 @@ def sweep_occlusion_on_nodes(
     occlusion_out: wp.array2d[wp.float32],
 ):
     """:func:`sweep_occlusion` for a sweep whose nodes all lie on their straight lines (``minor_error`` 0 at every
-    major index, as :func:`sweep_shadows_on_nodes`): the same bits without the sideways steps."""
+    major index, as :func:`sweep_shadows_on_nodes`): the same bits without the sideways steps. It repeats that
+    kernel's loop: the hull step as a @wp.func shared by the two ran the occlusion 3-5 % slower (2048², 8 and 16
+    directions, one core)."""
     first = (wp.tid() + thread_offset) * lines_per_thread
     last = wp.min(first + lines_per_thread, sweep.n_lines)
     for line in range(first, last):
