@@ -530,7 +530,7 @@ def _shadow_array(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, 
     if device.is_cpu and sweep.major_j == 1 and grid.heights.strides[0] % 4096 == 0:
         bundle = _LINES_PER_THREAD_CPU_ALIASED_ROWS
     horizons = scratch("texture.horizons", n_lines, wp.float32, device)
-    kernel = texture_kernels.sweep_shadows_on_nodes if on_nodes else texture_kernels.sweep_shadows
+    kernel = texture_kernels.SWEEP_SHADOWS[sweep.major_j, on_nodes]
     launch(kernel, dim=-(-n_lines // bundle), inputs=[grid, sweep, bundle, horizons],
            outputs=[out], device=device)
     return out
@@ -652,7 +652,7 @@ def ambient_occlusion(
         offsets, _total = exclusive_offsets(counts, name="texture.lines")
         bundle = _OCCLUSION_LINES_PER_THREAD_CPU[sweep.major_j] if dev.is_cpu else 1
         tops = scratch("texture.tops", n_lines, wp.int32, dev)
-        kernel = texture_kernels.sweep_occlusion_on_nodes if on_nodes else texture_kernels.sweep_occlusion
+        kernel = texture_kernels.SWEEP_OCCLUSION[sweep.major_j, on_nodes]
         launch(kernel, dim=-(-n_lines // bundle),
                inputs=[grid, sweep, bundle, offsets, weight, tops], outputs=[hull, occlusion], device=dev)
     ao = _result(host, occlusion)  # float32, the caller's: 1 - occlusion in place
