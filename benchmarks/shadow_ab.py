@@ -22,10 +22,15 @@ def main(root: str) -> None:
 
     wp.config.quiet = True
     import stepterrain as st
+    from stepterrain import kernels
     from stepterrain import texture as tx
 
-    if not st.__file__.startswith(str(Path(root).resolve())):
-        raise SystemExit(f"imported stepterrain from {st.__file__}, not from {root}")
+    # a tree without stepterrain/kernels (a checkout) gets its kernels from the running venv's editable install:
+    # another worktree's, timed under this tree's name
+    for module in (st, kernels):
+        if not module.__file__.startswith(str(Path(root).resolve())):
+            raise SystemExit(f"imported {module.__name__} from {module.__file__}, not from {root} (run a checkout "
+                             "with its own venv's python, or copy its kernels/ to stepterrain/kernels)")
     dem = st.sample_dem()
     z = np.tile(dem.heights, (7, 4))[:4096, :4096].copy()
     tx.cast_shadows(z[:64, :64], spacing=dem.spacing, device="cpu")  # compile / load

@@ -656,12 +656,12 @@ def walk_major(sweep: Sweep, span: wp.vec2i, k: wp.int32) -> wp.int32:
 
 
 @wp.func
-def line_point(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.vec2:
+def line_point(grid: HeightGrid, major_j: wp.int32, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.vec2:
     """(row, column) of the point of node (i, j)'s straight line at its major index (``error`` less along the minor
     axis), from the grid's centre in nodes: the same float32 values whichever way the rows and columns run."""
     fi = float(i) - 0.5 * float(grid.rows - 1)
     fj = float(j) - 0.5 * float(grid.cols - 1)
-    if sweep.major_j == 0:
+    if major_j == 0:
         fj = fj - error
     else:
         fi = fi - error
@@ -669,101 +669,131 @@ def line_point(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: 
 
 
 @wp.func
-def distance_away(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, error: wp.float32) -> wp.float32:
-    """How far the point of node (i, j)'s straight line at its major index (:func:`line_point`) lies along the
-    away-from-light direction (world units, from the grid's centre)."""
-    f = line_point(grid, sweep, i, j, error)
+def distance_away(grid: HeightGrid, sweep: Sweep, f: wp.vec2) -> wp.float32:
+    """How far the point ``f`` of a straight line (:func:`line_point`) lies along the away-from-light direction
+    (world units, from the grid's centre)."""
     return f[1] * grid.spacing[0] * sweep.away[0] + f[0] * grid.spacing[1] * sweep.away[1]
 
 
 @wp.func
-def node_at_minor(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, minor: wp.int32) -> wp.float32:
+def node_at_minor(grid: HeightGrid, major_j: wp.int32, i: wp.int32, j: wp.int32, minor: wp.int32) -> wp.float32:
     """The height at minor index ``minor`` (inside the grid) of node (i, j)'s major index."""
-    if sweep.major_j == 0:
+    if major_j == 0:
         return load(grid.heights, i, minor)
     return load(grid.heights, minor, j)
 
 
 @wp.func
-def across_line(grid: HeightGrid, sweep: Sweep, i: wp.int32, j: wp.int32, minor: wp.int32, side: wp.int32,
-                h: wp.float32) -> wp.float32:
+def across_line(grid: HeightGrid, sweep: Sweep, major_j: wp.int32, i: wp.int32, j: wp.int32, minor: wp.int32,
+                side: wp.int32, h: wp.float32) -> wp.float32:
     """The height's change per minor index from node (i, j) (height ``h``, minor index ``minor``) towards ``side``
     (±1): to that neighbour, else (beyond the border or at nodata) extrapolated from the opposite one, as gdaldem's
     border is (linearly), else 0."""
     ahead = minor + side
     if ahead >= 0 and ahead < sweep.n_minor:
-        value = node_at_minor(grid, sweep, i, j, ahead)
+        value = node_at_minor(grid, major_j, i, j, ahead)
         if grid.has_nodata == 0 or not wp.isnan(value):
             return value - h
     behind = minor - side
     if behind >= 0 and behind < sweep.n_minor:
-        value = node_at_minor(grid, sweep, i, j, behind)
+        value = node_at_minor(grid, major_j, i, j, behind)
         if grid.has_nodata == 0 or not wp.isnan(value):
             return h - value
     return wp.float32(0.0)
 
 
-@wp.kernel
-def sweep_shadows(
-    thread_offset: wp.int32,
-    grid: HeightGrid,
-    sweep: Sweep,
-    lines_per_thread: wp.int32,
-    horizons: wp.array[wp.float32],
-    # outputs
-    shadow_out: wp.array2d[wp.uint8],
-):
-    """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA: one thread per line),
-    walked away from the light in lockstep, each line keeping its running horizon max(h + t tan(alt)).
+def _variant_name(kernel: str, major_j: int, on_nodes: bool) -> str:
+    return f"{kernel}_{('rows', 'columns')[major_j]}{'_on_nodes' if on_nodes else ''}"
 
-    A node is in shadow when an earlier point of its line lies above the ray from its point to the light, i.e. when
-    h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node; every node stands for the point of
-    its straight line at its major index (:func:`line_point`, its height interpolated across the line by
-    :func:`across_line`), the rise measured from the grid's centre as in :func:`distance_away`. Walking a bundle
-    in lockstep touches neighbouring nodes one after another (cache lines are reused on CPUs).
-    """
-    first = (wp.tid() + thread_offset) * lines_per_thread
-    last = wp.min(first + lines_per_thread, sweep.n_lines)
-    for line in range(first, last):
-        horizons[line] = wp.float32(-3.0e38)
-    span_first = line_span(sweep, first)
-    span_last = line_span(sweep, last - 1)
-    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
-    k = wp.int32(0)
-    while k < span[1] - span[0]:
-        major = walk_major(sweep, span, k)
-        offset = sweep.c_min + sweep.minor_offsets[major]
-        line = wp.max(first, -offset)
-        hi = wp.min(last, sweep.n_minor - offset)
-        # each node taken to its straight line's point at this major index (the same sideways step for every line):
-        # its height interpolated linearly towards the minor neighbour across the line, its distance the point's;
-        # the node's own height and position zig-zagged a node sideways, and a plane sloping across the light
-        # shadowed itself in bands
-        error = load(sweep.minor_error, major)
-        side = wp.where(error > 0.0, -1, 1)
-        weight = wp.abs(error)
-        while line < hi:
-            minor = line + offset
-            i = minor
-            j = major
-            if sweep.major_j == 0:
-                i = major
-                j = minor
-            h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
-            if grid.has_nodata != 0 and wp.isnan(h):
-                store(shadow_out, i, j, wp.uint8(0))
-            else:
-                if weight != 0.0:
-                    h = h + weight * across_line(grid, sweep, i, j, minor, side, h)
-                f = line_point(grid, sweep, i, j, error)
-                g = h * grid.z_factor + (f[1] * sweep.rise[0] + f[0] * sweep.rise[1])
-                if g < load(horizons, line):
-                    store(shadow_out, i, j, wp.uint8(1))
-                else:
+
+def _sweep_shadows(major_j: int, on_nodes: bool) -> wp.Kernel:
+    """The shadow sweep kernel (:data:`SWEEP_SHADOWS`) compiled for one sweep: ``major_j`` 0 (lines advancing along
+    rows) or 1 (columns); ``on_nodes`` True where every node lies on its straight line (``Sweep.minor_error`` 0 at
+    every major index: a light along an axis, or a diagonal of square cells), which reads no sideways steps. Both
+    are ``wp.static``, each variant's loop compiled for its own case: with the sweep's ``major_j`` read at every
+    node and the zero steps read and applied, 4096² on one core took 20° 78 -> 50 ms, 300° ~148 -> ~110 ms,
+    315° 59 -> 37 ms, 90° 71 -> 44 ms (best of 7, two rounds); the same bits."""
+
+    @wp.kernel(name=_variant_name("sweep_shadows", major_j, on_nodes))
+    def sweep_shadows(
+        thread_offset: wp.int32,
+        grid: HeightGrid,
+        sweep: Sweep,
+        lines_per_thread: wp.int32,
+        horizons: wp.array[wp.float32],
+        # outputs
+        shadow_out: wp.array2d[wp.uint8],
+    ):
+        """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA: one thread per line),
+        walked away from the light in lockstep, each line keeping its running horizon max(h + t tan(alt)).
+
+        A node is in shadow when an earlier point of its line lies above the ray from its point to the light, i.e.
+        when h_q + t_q tan(alt) > h_p + t_p tan(alt) for some earlier q: O(1) per node; every node stands for the
+        point of its straight line at its major index (:func:`line_point`, its height interpolated across the line
+        by :func:`across_line`), the rise measured from the grid's centre as in :func:`distance_away`. Walking a
+        bundle in lockstep touches neighbouring nodes one after another (cache lines are reused on CPUs).
+        """
+        first = (wp.tid() + thread_offset) * lines_per_thread
+        last = wp.min(first + lines_per_thread, sweep.n_lines)
+        for line in range(first, last):
+            horizons[line] = wp.float32(-3.0e38)
+        span_first = line_span(sweep, first)
+        span_last = line_span(sweep, last - 1)
+        span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+        # the rise of line_point's point, t tan(alt) = column * rise[0] + row * rise[1]: the major index's term
+        # once per major index, the minor index's at each node (the same products and sum: addition commutes)
+        centre_minor = 0.5 * float(grid.cols - 1)
+        rise_minor = sweep.rise[0]
+        if wp.static(major_j == 1):
+            centre_minor = 0.5 * float(grid.rows - 1)
+            rise_minor = sweep.rise[1]
+        k = wp.int32(0)
+        while k < span[1] - span[0]:
+            major = walk_major(sweep, span, k)
+            offset = sweep.c_min + sweep.minor_offsets[major]
+            line = wp.max(first, -offset)
+            hi = wp.min(last, sweep.n_minor - offset)
+            rise_major = (float(major) - 0.5 * float(grid.rows - 1)) * sweep.rise[1]
+            if wp.static(major_j == 1):
+                rise_major = (float(major) - 0.5 * float(grid.cols - 1)) * sweep.rise[0]
+            # each node taken to its straight line's point at this major index (the same sideways step for every
+            # line): its height interpolated linearly towards the minor neighbour across the line, its distance the
+            # point's; the node's own height and position zig-zagged a node sideways, and a plane sloping across the
+            # light shadowed itself in bands
+            error = wp.float32(0.0)
+            if wp.static(not on_nodes):
+                error = load(sweep.minor_error, major)
+            side = wp.where(error > 0.0, -1, 1)
+            weight = wp.abs(error)
+            while line < hi:
+                minor = line + offset
+                i = minor
+                j = major
+                if wp.static(major_j == 0):
+                    i = major
+                    j = minor
+                h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
+                if grid.has_nodata != 0 and wp.isnan(h):
                     store(shadow_out, i, j, wp.uint8(0))
-                    store(horizons, line, g)
-            line += 1
-        k += 1
+                else:
+                    if wp.static(not on_nodes):
+                        if weight != 0.0:
+                            h = h + weight * across_line(grid, sweep, wp.static(major_j), i, j, minor, side, h)
+                    g = h * grid.z_factor + (((float(minor) - centre_minor) - error) * rise_minor + rise_major)
+                    if g < load(horizons, line):
+                        store(shadow_out, i, j, wp.uint8(1))
+                    else:
+                        store(shadow_out, i, j, wp.uint8(0))
+                        store(horizons, line, g)
+                line += 1
+            k += 1
+
+    return sweep_shadows
+
+
+#: The shadow sweep kernels by (``Sweep.major_j``, on_nodes): see :func:`_sweep_shadows`.
+SWEEP_SHADOWS = {(major_j, on_nodes): _sweep_shadows(major_j, on_nodes) for major_j in (0, 1)
+                 for on_nodes in (False, True)}
 
 
 @wp.kernel
@@ -779,77 +809,92 @@ def count_line_nodes(
     counts[line] = span[1] - span[0]
 
 
-@wp.kernel
-def sweep_occlusion(
-    thread_offset: wp.int32,
-    grid: HeightGrid,
-    sweep: Sweep,
-    lines_per_thread: wp.int32,
-    offsets: wp.array[wp.int32],
-    weight: wp.float32,
-    tops: wp.array[wp.int32],
-    # outputs
-    hull_out: wp.array[wp.vec2],
-    occlusion_out: wp.array2d[wp.float32],
-):
-    """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA), walked in lockstep as in
-    :func:`sweep_shadows`, whose loop it repeats (the bundle span and the node's (i, j) as shared functions made
-    the occlusion 6-10 % slower, RESULTS.md "Session 24"): the horizon angle of each node towards the light side
-    (the upper convex hull of its line's earlier points, each node taken onto its straight line as there, a stack
-    at ``offsets[line]`` whose last index is ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at
-    least 0, to ``occlusion_out``. Each line sees its nodes in the same order as when walked alone, so the values
-    do not depend on the bundle."""
-    first = (wp.tid() + thread_offset) * lines_per_thread
-    last = wp.min(first + lines_per_thread, sweep.n_lines)
-    for line in range(first, last):
-        store(tops, line, -1)  # index of the hull's last point, relative to the line's base
-    span_first = line_span(sweep, first)
-    span_last = line_span(sweep, last - 1)
-    span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
-    k = wp.int32(0)
-    while k < span[1] - span[0]:
-        major = walk_major(sweep, span, k)
-        offset = sweep.c_min + sweep.minor_offsets[major]
-        line = wp.max(first, -offset)
-        hi = wp.min(last, sweep.n_minor - offset)
-        error = load(sweep.minor_error, major)  # each node taken onto its straight line, as sweep_shadows takes it
-        side = wp.where(error > 0.0, -1, 1)
-        sideways = wp.abs(error)
-        while line < hi:
-            minor = line + offset
-            i = minor
-            j = major
-            if sweep.major_j == 0:
-                i = major
-                j = minor
-            h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
-            if not wp.isnan(h):
-                base = load(offsets, line)
-                top = load(tops, line)
-                if sideways != 0.0:
-                    h = h + sideways * across_line(grid, sweep, i, j, minor, side, h)
-                p = wp.vec2(distance_away(grid, sweep, i, j, error), h * grid.z_factor)
-                # drop hull points that are not above the segment from their predecessor to p
-                while top >= 1:
-                    a = load(hull_out, base + top - 1)
-                    b = load(hull_out, base + top)
-                    cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
-                    if cross >= 0.0:
-                        top -= 1
-                    else:
-                        break
-                if top >= 0:
-                    q = load(hull_out, base + top)
-                    rise = q[1] - p[1]
-                    run = p[0] - q[0]
-                    if rise > 0.0 and run > 0.0:
-                        store(occlusion_out, i, j,
-                              load(occlusion_out, i, j) + weight * rise / wp.sqrt(rise * rise + run * run))
-                top += 1
-                store(hull_out, base + top, p)
-                store(tops, line, top)
-            line += 1
-        k += 1
+def _sweep_occlusion(major_j: int, on_nodes: bool) -> wp.Kernel:
+    """The occlusion sweep kernel (:data:`SWEEP_OCCLUSION`) compiled for one sweep, as :func:`_sweep_shadows`
+    compiles the shadow sweep's."""
+
+    @wp.kernel(name=_variant_name("sweep_occlusion", major_j, on_nodes))
+    def sweep_occlusion(
+        thread_offset: wp.int32,
+        grid: HeightGrid,
+        sweep: Sweep,
+        lines_per_thread: wp.int32,
+        offsets: wp.array[wp.int32],
+        weight: wp.float32,
+        tops: wp.array[wp.int32],
+        # outputs
+        hull_out: wp.array[wp.vec2],
+        occlusion_out: wp.array2d[wp.float32],
+    ):
+        """One thread per bundle of ``lines_per_thread`` adjacent sweep lines (1 on CUDA), walked in lockstep as in
+        the shadow sweep (:func:`_sweep_shadows`), whose loop it repeats (the bundle span and the node's (i, j) as
+        shared functions made the occlusion 6-10 % slower, RESULTS.md "Session 24"; the hull step as one, 3-5 %):
+        the horizon angle of each node towards the light side (the upper convex hull of its line's earlier points,
+        each node taken onto its straight line as there, a stack at ``offsets[line]`` whose last index is
+        ``tops[line]``, amortised O(1)); adds weight * sin(horizon angle), at least 0, to ``occlusion_out``. Each
+        line sees its nodes in the same order as when walked alone, so the values do not depend on the bundle."""
+        first = (wp.tid() + thread_offset) * lines_per_thread
+        last = wp.min(first + lines_per_thread, sweep.n_lines)
+        for line in range(first, last):
+            store(tops, line, -1)  # index of the hull's last point, relative to the line's base
+        span_first = line_span(sweep, first)
+        span_last = line_span(sweep, last - 1)
+        span = wp.vec2i(wp.min(span_first[0], span_last[0]), wp.max(span_first[1], span_last[1]))
+        k = wp.int32(0)
+        while k < span[1] - span[0]:
+            major = walk_major(sweep, span, k)
+            offset = sweep.c_min + sweep.minor_offsets[major]
+            line = wp.max(first, -offset)
+            hi = wp.min(last, sweep.n_minor - offset)
+            error = wp.float32(0.0)  # each node taken onto its straight line, as the shadow sweep takes it
+            if wp.static(not on_nodes):
+                error = load(sweep.minor_error, major)
+            side = wp.where(error > 0.0, -1, 1)
+            sideways = wp.abs(error)
+            while line < hi:
+                minor = line + offset
+                i = minor
+                j = major
+                if wp.static(major_j == 0):
+                    i = major
+                    j = minor
+                h = load(grid.heights, i, j)  # (unchecked, kernels/memory.py: the span keeps (i, j) in the grid)
+                if not wp.isnan(h):
+                    base = load(offsets, line)
+                    top = load(tops, line)
+                    if wp.static(not on_nodes):
+                        if sideways != 0.0:
+                            h = h + sideways * across_line(grid, sweep, wp.static(major_j), i, j, minor, side, h)
+                    p = wp.vec2(distance_away(grid, sweep, line_point(grid, wp.static(major_j), i, j, error)),
+                                h * grid.z_factor)
+                    # drop hull points that are not above the segment from their predecessor to p
+                    while top >= 1:
+                        a = load(hull_out, base + top - 1)
+                        b = load(hull_out, base + top)
+                        cross = (b[0] - a[0]) * (p[1] - a[1]) - (b[1] - a[1]) * (p[0] - a[0])
+                        if cross >= 0.0:
+                            top -= 1
+                        else:
+                            break
+                    if top >= 0:
+                        q = load(hull_out, base + top)
+                        rise = q[1] - p[1]
+                        run = p[0] - q[0]
+                        if rise > 0.0 and run > 0.0:
+                            store(occlusion_out, i, j,
+                                  load(occlusion_out, i, j) + weight * rise / wp.sqrt(rise * rise + run * run))
+                    top += 1
+                    store(hull_out, base + top, p)
+                    store(tops, line, top)
+                line += 1
+            k += 1
+
+    return sweep_occlusion
+
+
+#: The occlusion sweep kernels by (``Sweep.major_j``, on_nodes): see :func:`_sweep_occlusion`.
+SWEEP_OCCLUSION = {(major_j, on_nodes): _sweep_occlusion(major_j, on_nodes) for major_j in (0, 1)
+                   for on_nodes in (False, True)}
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -434,9 +434,10 @@ _NEGLIGIBLE_SIDESTEP = 1e-6
 
 
 def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float | tuple[float, float],
-           altitude: float, device: wp.Device) -> tuple[texture_kernels.Sweep, int]:
-    """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py) and their count; the
-    azimuth in radians or as its (sine, cosine)."""
+           altitude: float, device: wp.Device) -> tuple[texture_kernels.Sweep, int, bool]:
+    """Digital sweep lines parallel to the light's azimuth (see kernels/texture.py), their count and whether every
+    node lies on its straight line (``minor_error`` 0 at every major index, exactly: an axis or a diagonal, whose
+    sweeps may skip the sideways steps); the azimuth in radians or as its (sine, cosine)."""
     rows, cols = shape
     dx, dy = spacing
     sin_az, cos_az = azimuth if isinstance(azimuth, tuple) else (math.sin(azimuth), math.cos(azimuth))
@@ -466,7 +467,7 @@ def _sweep(shape: tuple[int, int], spacing: tuple[float, float], azimuth: float 
     sweep.away = wp.vec2(-sin_az, -cos_az)
     tan_altitude = math.tan(altitude) if altitude < math.pi / 2 else 3.0e38
     sweep.rise = wp.vec2(dx * -sin_az * tan_altitude, dy * -cos_az * tan_altitude)
-    return sweep, sweep.n_lines
+    return sweep, sweep.n_lines, not error.any()
 
 
 def compass(k: int, n: int) -> tuple[float, float]:
@@ -524,12 +525,13 @@ def _shadow_array(t: Terrain, grid: texture_kernels.HeightGrid, azimuth: float, 
     if altitude >= math.pi / 2:
         out.zero_()
         return out
-    sweep, n_lines = _sweep(t.heights.shape, t.spacing, azimuth, altitude, device)
+    sweep, n_lines, on_nodes = _sweep(t.heights.shape, t.spacing, azimuth, altitude, device)
     bundle = _LINES_PER_THREAD_CPU[sweep.major_j] if device.is_cpu else 1
     if device.is_cpu and sweep.major_j == 1 and grid.heights.strides[0] % 4096 == 0:
         bundle = _LINES_PER_THREAD_CPU_ALIASED_ROWS
     horizons = scratch("texture.horizons", n_lines, wp.float32, device)
-    launch(texture_kernels.sweep_shadows, dim=-(-n_lines // bundle), inputs=[grid, sweep, bundle, horizons],
+    kernel = texture_kernels.SWEEP_SHADOWS[sweep.major_j, on_nodes]
+    launch(kernel, dim=-(-n_lines // bundle), inputs=[grid, sweep, bundle, horizons],
            outputs=[out], device=device)
     return out
 
@@ -643,13 +645,15 @@ def ambient_occlusion(
     hull = scratch("texture.hull", t.heights.size, wp.vec2, dev)
     weight = 1.0 / int(directions)
     for k in range(int(directions)):  # one pass per direction (a handful), never per pixel
-        sweep, n_lines = _sweep(t.heights.shape, t.spacing, compass(k, int(directions)), math.radians(45.0), dev)
+        sweep, n_lines, on_nodes = _sweep(t.heights.shape, t.spacing, compass(k, int(directions)), math.radians(45.0),
+                                          dev)
         counts = count_buffer("texture.lines", n_lines, dev)
         launch(texture_kernels.count_line_nodes, dim=n_lines, inputs=[sweep], outputs=[counts], device=dev)
         offsets, _total = exclusive_offsets(counts, name="texture.lines")
         bundle = _OCCLUSION_LINES_PER_THREAD_CPU[sweep.major_j] if dev.is_cpu else 1
         tops = scratch("texture.tops", n_lines, wp.int32, dev)
-        launch(texture_kernels.sweep_occlusion, dim=-(-n_lines // bundle),
+        kernel = texture_kernels.SWEEP_OCCLUSION[sweep.major_j, on_nodes]
+        launch(kernel, dim=-(-n_lines // bundle),
                inputs=[grid, sweep, bundle, offsets, weight, tops], outputs=[hull, occlusion], device=dev)
     ao = _result(host, occlusion)  # float32, the caller's: 1 - occlusion in place
     np.subtract(np.float32(1.0), ao, out=ao)

@@ -343,7 +343,7 @@ def test_shadow_bundles_of_rows_a_page_apart_give_the_bits_of_one_line_per_threa
     launch = texture_module.launch
 
     def spy(kernel, dim, inputs, **kwargs):
-        if kernel is texture_module.texture_kernels.sweep_shadows:
+        if kernel.key.startswith("sweep_shadows"):
             seen.append(inputs[2])
         return launch(kernel, dim=dim, inputs=inputs, **kwargs)
 
@@ -362,6 +362,68 @@ def test_shadow_bundles_of_rows_a_page_apart_give_the_bits_of_one_line_per_threa
     assert seen[0] == 8 and seen[2] == 8  # the aliased rows' bundle, along rows 4 KiB apart
     narrow = cast_shadows(heights[:, :1000].copy(), spacing=spacing, azimuth=np.radians(90.0), device="cpu")
     assert seen[-1] == 16 and narrow.shape == (40, 1000)
+
+
+def _sweeps_launched(monkeypatch, on_nodes):
+    """Spy on the sweep launches (kernel names in order); ``on_nodes`` False: every sweep told its nodes are off
+    their straight lines, so the general kernels run where the on-node ones would."""
+    import stepterrain.texture as texture_module
+
+    names = []
+    launch, sweep = texture_module.launch, texture_module._sweep
+
+    def spy(kernel, *args, **kwargs):
+        names.append(kernel.key)
+        return launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(texture_module, "launch", spy)
+    if not on_nodes:
+        monkeypatch.setattr(texture_module, "_sweep", lambda *a: (*sweep(*a)[:2], False))
+    return names
+
+
+@pytest.mark.parametrize("spacing", [(30.0, -30.0), (30.0, -25.0)])
+def test_sweeps_along_an_axis_or_a_diagonal_skip_the_sideways_steps_bit_for_bit(device, monkeypatch, spacing):
+    """Lights along an axis, or along a diagonal of square cells, sweep lines whose nodes lie on their straight
+    lines (every sideways step 0): the on-node kernels give the general kernels' bits, on a real DEM with nodata
+    and on random heights, down to grazing light; other azimuths keep the general kernel."""
+    dem = real_dem("big_tujunga_srtm_30m_utm11n.npz", size=96, step=1)[:70, :83].copy()
+    dem[30:33, 40:46] = np.nan
+    rng = np.random.default_rng(7)
+    grids = [dem, st.sample_dem().heights, rng.normal(0.0, 20.0, (41, 57)).astype(np.float32)]
+    square = spacing[0] == -spacing[1]
+    for heights in grids:
+        for azimuth in (0, 90, 180, 270, 45, 135, 225, 315, 300):
+            on_nodes = azimuth % 90 == 0 or square and azimuth != 300
+            for altitude in (0.5, 5.0, 45.0):
+                light = {"azimuth": RAD(azimuth), "altitude": RAD(altitude), "spacing": spacing, "device": device}
+                with monkeypatch.context() as m:
+                    names = _sweeps_launched(m, True)
+                    fast = cast_shadows(heights, **light)
+                assert len(names) == 1 and names[0].startswith("sweep_shadows_")
+                assert names[0].endswith("_on_nodes") == on_nodes
+                with monkeypatch.context() as m:
+                    names = _sweeps_launched(m, False)
+                    general = cast_shadows(heights, **light)
+                assert len(names) == 1 and not names[0].endswith("_on_nodes")
+                np.testing.assert_array_equal(fast, general)
+                if altitude == 5.0:
+                    assert 0 < fast.sum() < np.isfinite(heights).sum()
+        for directions in (4, 8, 16, 6):
+            with monkeypatch.context() as m:
+                names = _sweeps_launched(m, True)
+                fast = ambient_occlusion(heights, directions=directions, spacing=spacing, device=device)
+            swept = [name for name in names if name.startswith("sweep_occlusion_")]
+            axes = [k for k in range(directions) if 4 * k % directions == 0]
+            diagonals = [k for k in range(directions) if 8 * k % directions == 0 and k not in axes]
+            expected = len(axes) + (len(diagonals) if square else 0)
+            assert len(swept) == directions
+            assert sum(name.endswith("_on_nodes") for name in swept) == expected
+            with monkeypatch.context() as m:
+                names = _sweeps_launched(m, False)
+                general = ambient_occlusion(heights, directions=directions, spacing=spacing, device=device)
+            assert not any(name.endswith("_on_nodes") for name in names)
+            np.testing.assert_array_equal(fast.view(np.uint32), general.view(np.uint32))
 
 
 def test_occlusion_open_ground_and_pit(device):
