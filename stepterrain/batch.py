@@ -1824,6 +1824,9 @@ def batch(
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
+    if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
+        options = _files_levels(items, options, None if interval is None else float(interval), levels, base, retries,
+                                bool(progress))  # fmt: skip
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
         _check_overview(items, src, overview_size)
     _check_scheduler(scheduler)
@@ -2025,13 +2028,94 @@ def _levels_and_range(
     return values, (lo, hi), interval
 
 
+def _files_range(
+    items: Sequence[BatchItem], options: _Options, retries: int, progress: bool
+) -> tuple[tuple[float, float], str] | None:
+    """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
+    :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
+    ``spacing``, ``coarsen``), and the file holding the lowest; None when no file has a triangle of three finite
+    heights. One file in memory at a time, read once more than its item reads it. A file that cannot be read is left
+    out (its item fails with the reason); a transient OSError under the read (EIO, ETIMEDOUT, ...: a disk or network
+    hiccup) is retried ``retries`` times, then raised: levels from the other files alone would differ from those of
+    a run that read it."""
+    bar = None
+    if progress and len(items) > 1:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(items), desc="stepterrain batch: height range", unit="file")
+    lo, hi, lowest = math.inf, -math.inf, ""
+    try:
+        for item in items:
+            for attempt in range(retries + 1):
+                try:
+                    terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
+                                            options.band)  # fmt: skip
+                except Exception as exc:  # noqa: BLE001 - its item reports it (an unreadable file fails there)
+                    if _transient(exc) and attempt < retries:
+                        continue
+                    if _transient(exc):
+                        raise DataFileError(
+                            f"cannot read {item.path!r} for the height range every file's levels come from "
+                            f"({type(exc).__name__}: {exc}); run again when it can be read") from exc
+                    terrain = None
+                break
+            if terrain is not None and _has_surface(terrain):  # an empty item (nodata only) moves no level
+                a, b = terrain.height_range
+                if a < lo:
+                    lo, lowest = a, str(item.path)
+                hi = max(hi, b)
+            del terrain
+            if bar is not None:
+                bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    return None if lowest == "" else ((lo, hi), lowest)
+
+
+def _files_levels(
+    items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
+    retries: int, progress: bool,
+) -> _Options:
+    """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
+    them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
+    all files (:func:`_files_range`; explicit ``levels`` as given), so that a height gets one colour in every file,
+    and a solid's default floor under the lowest of all files, so that every file stands on one base; an explicit
+    ``floor`` checked against every file here, refused once before any item runs, naming the file whose surface it
+    does not lie below. The files are read only when that matters: a colormap over ``interval`` levels, or a
+    solid. ``options`` as they are when no file has a surface (every item is empty)."""
+    if not (options.solid or (options.colors is not None and levels is None)):
+        return options  # explicit levels without a solid: every file has them already; no colours: none to match
+    found = _files_range(items, options, retries, progress)
+    if found is None:
+        return options
+    (lo, hi), lowest = found
+    from .stepped import isovalues
+
+    if levels is None:
+        values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, base=base))
+        options = dataclasses.replace(options, interval=None, levels=values, base=0.0)
+    else:
+        values = options.levels  # type: ignore[assignment]
+    if options.solid and options.floor is not None:
+        _check_floor_over(lo, lowest, values, options.gamma, options.floor)
+    elif options.solid:
+        options = dataclasses.replace(options, floor=_floor_under(lo, values, options.gamma, interval))
+    return options
+
+
 def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
     """The default floor of a solid over the whole source, :func:`~stepterrain.stepped`'s for the whole raster: one
     interval (without one, a tenth of the levels' span) below the lowest isovalue or the lowest vertex of the whole
     stepped surface. Each tile or frame stepped alone put its floor under its *own* lowest vertex, and without the
     interval (the items get the shared levels) a tenth of the span down: tiles that did not meet at their base, and
     under a floor other than the whole raster's. None when no triangle has three finite heights."""
-    h = lowest_used_height(src.heights, src.height_range)  # the source's checks found it without nodata
+    return _floor_under(lowest_used_height(src.heights, src.height_range), values, gamma, interval)
+
+
+def _floor_under(h: float | None, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
+    """:func:`_shared_floor` of the lowest height ``h`` a triangle uses over the whole source (a raster, a series, or
+    every file of a folder); None for none."""
     if h is None:
         return None
     from .stepped import default_floor, snapped_isovalue
@@ -2051,7 +2135,12 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     uses, α(h) the isovalue it snaps to (monotone in h, so no vertex lies lower); tiles share their border nodes,
     so their triangles are the raster's. The floor ``close_solid`` checks per item, known here at once.
     """
-    h = lowest_used_height(src.heights, src.height_range)  # the source's checks found it without nodata
+    _check_floor_over(lowest_used_height(src.heights, src.height_range), src.name, values, gamma, floor)
+
+
+def _check_floor_over(h: float | None, name: str, values: tuple[float, ...], gamma: float, floor: float) -> None:
+    """:func:`_check_floor` of the lowest height ``h`` a triangle uses over the whole source, ``name`` the source (or,
+    in a folder, the file) holding it."""
     if h is None:
         return  # no surface at all: each item says so
     from .stepped import lowest_surface
@@ -2060,7 +2149,7 @@ def _check_floor(src: _Source, values: tuple[float, ...], gamma: float, floor: f
     if floor >= lowest:  # without the rounding margin: a floor on the point itself is refused once, up front
         raise InvalidInputError(
             f"floor (the CLI's --floor) must lie below the lowest point {lowest:.9g} of the stepped surface of "
-            f"{src.name} (its lowest height {h:g} on the isovalue {alpha:g}, γ = {gamma:g}); got {floor:.9g}"
+            f"{name} (its lowest height {h:g} on the isovalue {alpha:g}, γ = {gamma:g}); got {floor:.9g}"
         )
 
 
