@@ -2098,7 +2098,8 @@ def _files_levels(
     else:
         values = options.levels  # type: ignore[assignment]
     if options.solid and options.floor is not None:
-        _check_floor_over(lo, lowest, values, options.gamma, options.floor)
+        _check_floor_over(lo, f"{lowest!r} (the lowest of the {counted(len(items), 'file')}, which share one floor)",
+                          values, options.gamma, options.floor)  # fmt: skip
     elif options.solid:
         options = dataclasses.replace(options, floor=_floor_under(lo, values, options.gamma, interval))
     return options

@@ -493,21 +493,22 @@ def test_cli_batch_floor_above_the_surface_exits_2_once(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--floor" in err and "got 1e+09" in err and err.count("error") == 1 and "failed" not in err
     assert not out.exists()
-    # a folder's heights are known only item by item: when the floor fails every item, one line and exit 2
+    # a folder's files share one floor, checked against every file before any item runs: refused once, naming the
+    # file whose surface it does not lie below (each item failed on its own, after the cluster had started)
     src = make_folder(tmp_path / "in")
     assert cli.main(["-q", "batch", str(src), "--interval", "10", "--solid", "--floor", "1e9", "-o", str(out),
                      "--scheduler", "serial"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("stepterrain batch: error: --floor 1e+09 must lie below the stepped surface of every "
-                          "input; it lies above all 3 (e.g. dem_0: floor must lie below") and err.count("\n") == 1
-    assert not list(out.glob("*.glb"))
-    # when some items pass, the others are failures of their own data: listed one by one, exit 1
+    assert err.startswith("stepterrain batch: error: --floor must lie below the lowest point 0 of the stepped surface "
+                          f"of {str(src / 'dem_2.npy')!r} (the lowest of the 3 files") and err.count("\n") == 1, err
+    assert "got 1e+09" in err and not list(out.glob("*.glb"))
+    # one file below the floor refuses the floor for all: the files stand on one base
     np.save(src / "dem_low.npy", np.full((4, 4), -1e10, np.float32))
     assert cli.main(["batch", str(src), "--interval", "1e9", "--solid", "--floor", "-1e9", "-o", str(out),
-                     "--scheduler", "serial"]) == 1
+                     "--scheduler", "serial"]) == 2
     err = capsys.readouterr().err
-    assert "stepterrain: failed dem_low: InvalidInputError: floor must lie below" in err and "error:" not in err
-    assert sorted(p.name for p in out.glob("*.glb")) == ["dem_0.glb", "dem_1.glb", "dem_2.glb"]
+    assert f"of {str(src / 'dem_low.npy')!r} (the lowest of the 4 files" in err and "failed" not in err, err
+    assert not list(out.glob("*.glb"))
 
 
 @pytest.mark.parametrize(

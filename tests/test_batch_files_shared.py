@@ -1,0 +1,183 @@
+"""A folder or list of DEM tiles shares one set of levels and one solid floor, as tiles of one raster do.
+
+Each file of a folder was stepped as ``stepped(load_dem(file), ...)``: its colormap spread over its own levels (one
+height, two colours in neighbouring tiles: seams in a tileset) and its solid's default floor under its own lowest
+vertex (printed tiles on different bases). Every test here failed before the files shared one height range."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import stepterrain as st
+from stepterrain import cli
+from stepterrain.batch import MANIFEST_NAME, batch
+from stepterrain.errors import InvalidInputError
+from stepterrain.export import read_mesh
+from stepterrain.io import load_dem
+from stepterrain.stepped import isovalues, stepped
+
+rasterio = pytest.importorskip("rasterio", reason="GeoTIFF tiles are written with rasterio")
+
+
+def _write_tif(path: Path, z: np.ndarray, x0: float, y0: float, dx: float, dy: float, crs: str | None) -> None:
+    from rasterio.transform import Affine
+
+    with rasterio.open(path, "w", driver="GTiff", width=z.shape[1], height=z.shape[0], count=1, dtype="float32",
+                       crs=crs, nodata=-9999.0, transform=Affine(dx, 0.0, x0 - dx / 2, 0.0, -abs(dy), y0 + abs(dy) / 2),
+                       ) as f:  # fmt: skip
+        f.write(np.where(np.isnan(z), -9999.0, z).astype(np.float32), 1)
+
+
+def strips(folder: Path, n: int, step: int = 1, sea: bool = False) -> tuple[st.Terrain, list[Path]]:
+    """The embedded DEM (every ``step``-th node) cut into ``n`` GeoTIFF strips west to east that share their border
+    column of nodes, as a GIS user cuts a raster into tiles; ``sea``: and a tile of nodata only south of them."""
+    whole = st.sample_dem()
+    z = whole.heights[::step, ::step]
+    (dx, dy), (x0, y0) = (whole.spacing[0] * step, whole.spacing[1] * step), whole.origin
+    terrain = st.Terrain.from_heights(z, spacing=(dx, dy), origin=(x0, y0), crs=whole.crs)
+    folder.mkdir(parents=True, exist_ok=True)
+    cuts = np.linspace(0, z.shape[1] - 1, n + 1).round().astype(int)
+    files = []
+    for k in range(n):
+        c0, c1 = int(cuts[k]), int(cuts[k + 1])
+        files.append(folder / f"tile_{k}.tif")
+        _write_tif(files[-1], z[:, c0 : c1 + 1], x0 + c0 * dx, y0, dx, dy, whole.crs)
+    if sea:
+        files.append(folder / "tile_sea.tif")
+        _write_tif(files[-1], np.full((9, 9), np.nan, np.float32), x0, y0 + z.shape[0] * dy, dx, dy, whole.crs)
+    return terrain, files
+
+
+def colours_by_height(path: Path | str) -> dict[float, set[tuple[int, ...]]]:
+    mesh = read_mesh(path)
+    rgb = np.asarray(mesh.visual.vertex_colors)[:, :3]
+    out: dict[float, set[tuple[int, ...]]] = {}
+    for z, c in zip(np.asarray(mesh.vertices)[:, 2].tolist(), map(tuple, rgb.tolist()), strict=True):
+        out.setdefault(z, set()).add(c)
+    return out
+
+
+def test_a_height_has_one_colour_in_every_file(tmp_path):
+    # the lead's check: the embedded DEM's west and east halves (sharing a column), interval 100, 'terrain': at
+    # 1300 m the west half's vertices were [158 131 101] and the east half's [224 215 136]
+    terrain, files = strips(tmp_path / "tiles", 2)
+    report = batch(tmp_path / "tiles", tmp_path / "out", interval=100.0, colors="terrain", format=".ply",
+                   scheduler="serial")  # fmt: skip
+    assert report.ok and [r.key for r in report.done] == ["tile_0", "tile_1"], report.summary()
+    west, east = (colours_by_height(r.path) for r in report.done)
+    shared = sorted(set(west) & set(east) & {float(v) for v in isovalues(terrain.height_range, interval=100.0)})
+    assert 1300.0 in shared and len(shared) >= 10
+    for z in shared:
+        assert len(west[z]) == 1 and west[z] == east[z], (z, west[z], east[z])
+    # the colours of the whole raster stepped at once: the files' levels are the whole's
+    whole = stepped(terrain, interval=100.0, colors="terrain")
+    at = np.asarray(whole.vertices)[:, 2] == 1300.0
+    assert {tuple(c) for c in np.asarray(whole.visual.vertex_colors)[at, :3].tolist()} == west[1300.0]
+    for r, f in zip(report.done, files, strict=True):  # the geometry is each file's own, bit for bit
+        alone = stepped(load_dem(f), interval=100.0)
+        mesh = read_mesh(r.path)
+        assert np.array_equal(np.asarray(mesh.vertices), np.asarray(alone.vertices))
+        assert np.array_equal(np.asarray(mesh.faces), np.asarray(alone.faces))
+
+
+def test_solids_of_a_folder_stand_on_one_floor(tmp_path):
+    terrain, files = strips(tmp_path / "tiles", 3, step=4)
+    lows = [float(np.nanmin(load_dem(f).heights)) for f in files]
+    assert len({float(isovalues((lo, lo), interval=100.0)[0]) for lo in lows}) > 1  # the files' own floors differ
+    report = batch(files, tmp_path / "out", interval=100.0, solid=True, format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 3, report.summary()
+    floors = {float(np.asarray(read_mesh(r.path).vertices)[:, 2].min()) for r in report.done}
+    # the floor the whole raster's solid has: one interval under its lowest isovalue
+    assert floors == {float(np.asarray(stepped(terrain, interval=100.0, solid=True).vertices)[:, 2].min())}
+    for r in report.done:
+        mesh = read_mesh(r.path)
+        assert mesh.is_watertight and mesh.is_volume
+
+
+def test_a_floor_above_one_files_lowest_point_is_refused_up_front_naming_it(tmp_path):
+    _, files = strips(tmp_path / "tiles", 3, step=4)
+    lowest = [float(isovalues((h, h), interval=100.0)[0]) for h in
+              (float(np.nanmin(load_dem(f).heights)) for f in files)]  # γ = 1: the isovalue the lowest node snaps to
+    order = np.argsort(lowest)
+    floor = (lowest[order[0]] + lowest[order[1]]) / 2  # under every file's surface but the lowest one's
+    assert lowest[order[0]] < floor < lowest[order[1]]
+    with pytest.raises(InvalidInputError, match=rf"floor .*must lie below the lowest point .* of the stepped surface of "
+                                                rf"'{files[order[0]]}' \(the lowest of the 3 files"):
+        batch(tmp_path / "tiles", tmp_path / "out", interval=100.0, solid=True, floor=floor, scheduler="serial")
+    assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())  # before any item ran
+    report = batch(tmp_path / "tiles", tmp_path / "out", interval=100.0, solid=True, floor=lowest[order[0]] - 1.0,
+                   format=".ply", scheduler="serial")  # fmt: skip
+    assert report.ok and {float(np.asarray(read_mesh(r.path).vertices)[:, 2].min()) for r in report.done} == {
+        lowest[order[0]] - 1.0}
+
+
+def test_a_tile_of_nodata_moves_no_level_and_a_rerun_skips(tmp_path):
+    terrain, files = strips(tmp_path / "tiles", 2, step=2, sea=True)
+    kwargs = {"interval": 100.0, "colors": "terrain", "solid": True, "format": ".ply", "scheduler": "serial"}
+    report = batch(tmp_path / "tiles", tmp_path / "out", **kwargs)
+    assert report.ok and [r.key for r in report.done] == ["tile_0", "tile_1", "tile_sea"], report.summary()
+    assert report.done[2].faces == 0
+    west, east = (colours_by_height(r.path) for r in report.done[:2])
+    shared = set(west) & set(east) & {float(v) for v in isovalues(terrain.height_range, interval=100.0)}
+    assert len(shared) >= 5 and all(west[z] == east[z] for z in shared)
+    manifest = json.loads((tmp_path / "out" / MANIFEST_NAME).read_text())
+    again = batch(tmp_path / "tiles", tmp_path / "out", **kwargs)
+    assert again.ok and len(again.skipped) == 3 and not again.done
+    assert json.loads((tmp_path / "out" / MANIFEST_NAME).read_text()) == manifest
+    # a file rewritten with the same heights: its item alone is redone (the levels stay)
+    _write_tif(files[0], load_dem(files[0]).heights, *load_dem(files[0]).origin, *load_dem(files[0]).spacing,
+               terrain.crs)  # fmt: skip
+    again = batch(tmp_path / "tiles", tmp_path / "out", **kwargs)
+    assert [r.key for r in again.done] == ["tile_0"] and len(again.skipped) == 2
+    # a file whose heights reach a new level: the levels of every file change, so every item is redone
+    east = load_dem(files[1])
+    higher = east.heights.copy()
+    higher[5, 5] = terrain.height_range[1] + 250.0
+    _write_tif(files[1], higher, *east.origin, *east.spacing, terrain.crs)
+    again = batch(tmp_path / "tiles", tmp_path / "out", **kwargs)
+    assert again.ok and [r.key for r in again.done] == ["tile_0", "tile_1", "tile_sea"], again.summary()
+    top = float(isovalues((0.0, terrain.height_range[1] + 250.0), interval=100.0)[-1])
+    assert max(colours_by_height(again.done[0].path)) < top  # the west file's colours spread to the new level too
+    west, east = (colours_by_height(r.path) for r in again.done[:2])
+    assert all(west[z] == east[z] for z in set(west) & set(east) & shared)
+
+
+def test_the_files_are_read_as_their_items_read_them(tmp_path):
+    # the range of the heights each item steps: in feet, converted to metres (height_unit), and coarsened
+    terrain, files = strips(tmp_path / "tiles", 2, step=4)
+    feet = tmp_path / "feet"
+    feet.mkdir()
+    for f in files:
+        dem = load_dem(f)
+        _write_tif(feet / f.name, dem.heights / 0.3048, *dem.origin, *dem.spacing, terrain.crs)
+    report = batch(feet, tmp_path / "out", interval=100.0, colors="terrain", height_unit="ft", coarsen=2,
+                   scheduler="serial")  # fmt: skip
+    assert report.ok
+    coarse = [load_dem(f, height_unit="ft").coarsen(2) for f in (feet / f.name for f in files)]
+    lo, hi = min(c.height_range[0] for c in coarse), max(c.height_range[1] for c in coarse)
+    expected = isovalues((lo, hi), interval=100.0).tolist()
+    for r in report.done:
+        from .test_export import glb_json
+
+        assert glb_json(Path(r.path))["meshes"][0]["extras"]["isovalues"] == pytest.approx(expected)
+
+
+def test_cli_batch_of_a_folder_shares_colours_and_floor(tmp_path, capsys):
+    _, files = strips(tmp_path / "tiles", 2, step=2)
+    out = tmp_path / "out"
+    argv = ["-q", "batch", str(tmp_path / "tiles"), "--interval", "100", "--colormap", "terrain", "--solid",
+            "--format", ".ply", "-o", str(out), "--scheduler", "serial"]
+    assert cli.main(argv) == 0, capsys.readouterr().err
+    west, east = (colours_by_height(out / f"{f.stem}.ply") for f in files)
+    floors = {min(c) for c in (west, east)}
+    assert len(floors) == 1
+    shared = set(west) & set(east) - floors
+    assert len(shared) >= 5 and all(west[z] == east[z] for z in shared)
+    assert cli.main(argv[1:]) == 0
+    assert "0 written, 2 complete already, 0 failed" in capsys.readouterr().err
+    assert os.path.getsize(out / MANIFEST_NAME) > 0
