@@ -127,13 +127,13 @@ def add_parser(commands: Any) -> None:
     p.add_argument("--gamma", type=float, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
     p.add_argument("--colormap", default="none", metavar="NAME",
-                   help="matplotlib colormap for level colors, or 'none' (default none, unlike steps' terrain: "
-                        "the files of a folder each spread the colours over their own levels, so one height "
-                        "would differ in colour between neighbours; tiles and frames share levels and colours)")
+                   help="matplotlib colormap for level colors, or 'none' (default none, unlike steps' terrain); "
+                        "tiles, frames and the files of a folder share their levels, so a height has one colour in "
+                        "all of them (a folder's files are read once more first, for their common height range)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
     p.add_argument("--floor", type=float, metavar="Z",
-                   help="base height of --solid (default: one under the whole raster or series; each file of a "
-                        "folder its own)")
+                   help="base height of --solid (default: one step under the whole raster, series or folder, "
+                        "shared by every item)")
     p.add_argument("--scheduler", metavar="ADDR",
                    help="an existing dask scheduler, e.g. tcp://host:8786; 'serial' runs in this process "
                         "(default: a LocalCluster of --workers processes)")
@@ -265,9 +265,10 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
         band=args.band, overview_size=None if png is None else args.size,  # its render checked before the items run
     )  # fmt: skip
     progress.done(f"{len(report.done)} written, {len(report.skipped)} complete already, {len(report.failed)} failed")
-    # a folder's heights and georeferencing are known only item by item (tiles and series are checked up front): a
-    # floor above every item's surface, a --spacing for files that all place their nodes themselves, a --coarsen
-    # every file refuses, is a usage error, said once, not a list of identical failures
+    # a folder's georeferencing is known only item by item (tiles and series are checked up front, and a floor
+    # against every file's lowest height): a floor that close_solid still refuses for every item (within the float32
+    # rounding of a γ < 1 blend), a --spacing for files that all place their nodes themselves, a --coarsen every file
+    # refuses, is a usage error, said once, not a list of identical failures
     if args.floor is not None:  # mesh.close_solid's
         _refuse_alike(report, "floor must lie below", f"--floor {args.floor:g} must lie below the stepped surface of "
                       "every input; it lies above ", ("the only one", "all {n}"), "", after=": ")

@@ -1529,10 +1529,17 @@ def batch(
     interval, levels, base, gamma, colors, solid, floor
         As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
         tiles the isovalues come from the whole source's height range, so every item shares them (tiles
-        weld, frames keep their levels). A folder needs ``interval`` or ``levels``. A solid tile or frame is
-        closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
-        source's solid has in :func:`~stepterrain.stepped` (the whole raster, or the series as one raster), so
-        every item stands on the same base; a file of a folder is stepped as ``stepped(load_dem(file), ...)``.
+        weld, frames keep their levels). A folder needs ``interval`` or ``levels``; its files (or a list's) share
+        them too: with ``colors`` or ``solid``, every file is read once before the items run (one at a time, as its
+        item reads it: ``height_unit``, ``band``, ``spacing``, ``coarsen``; a file of nodata only, or one that
+        cannot be read, left out) for the height range of all of them, the isovalues of ``interval`` over it given
+        to every file, so that a height has one colour in every file (a file stepped alone spread the colormap over
+        its own levels: colour seams between neighbouring tiles), the geometry unchanged. A solid tile, frame or
+        file is closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
+        source's solid has in :func:`~stepterrain.stepped` (the whole raster, the series as one raster, or all the
+        files: one interval under the lowest isovalue of all), so every item stands on the same base. For each
+        file's own levels and floor, step the files one by one (:func:`~stepterrain.stepped`, ``stepterrain
+        steps``); ``levels`` and ``floor`` given are every file's as they are.
     spacing, origin : (dx, dy), (x0, y0)
         Grid geometry of an array source (default (1, 1) and (0, 0)). ``spacing`` also applies to DEM files with no
         georeferencing (.npy, a PNG heightmap, a GeoTIFF without a geotransform; a folder's, a list's, one raster's
@@ -1614,9 +1621,8 @@ def batch(
         Unknown format, bad source (an array with an infinite height, or a finite one beyond float32, included;
         NaN is nodata; a list of files holding a folder or one file twice), tile size, isovalues, scheduler address
         or ``metadata`` (not a mapping of JSON values); a ``floor`` not below the lowest point of the stepped
-        surface of every tile or frame (a folder's files are read by the items, so there each item fails on its
-        own); a Terrain with a visual (vertex colours or UVs, which its tiles would lose) unless ``colors`` or
-        ``solid`` is given.
+        surface of every tile, frame or file (a folder's: naming the file with the lowest surface); a Terrain with
+        a visual (vertex colours or UVs, which its tiles would lose) unless ``colors`` or ``solid`` is given.
     DataFileError
         The source (or a file of a list of them) does not exist, or ``output_dir`` cannot be created or written,
         or another batch run is using it (before any work; the message names that run's pid, host and start
@@ -1633,22 +1639,24 @@ def batch(
     -----
     An item is complete when the manifest records its output file with the same fingerprint (its input: the file's
     absolute path, size, mtime, ctime and inode, and those of the sidecar files GDAL reads with a GeoTIFF or another
-    GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of
-    its heights; and the options but the device, which does not change a bit of the output) and that file exists with
-    the recorded size. The ctime catches a file rewritten with its
-    size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation time; a file renamed,
-    moved or restored from a backup (and every file item of a run made before stepterrain recorded ctime and inode) is
-    redone once. The manifest records each file, so an item's outputs in two formats (a ``.glb`` run, then a ``.ply``
-    one into the same folder) are both kept and complete; ``report.notes`` says when the folder holds these items in
-    another format too, when it holds outputs of items this run does not have (an earlier run's other tile size or
-    source: left as they were), when a failed item keeps an earlier run's output, and when the manifest could not be
-    read (cut short or edited by hand: every item is redone and the manifest written afresh). Every file is written to a
-    temporary file and renamed, and the manifest is updated only after the rename, so a killed run leaves complete
-    outputs or none and a rerun redoes only what is missing (removing the temporary files the killed run left
-    half-written). Tiles are written with the whole raster's bounds as :func:`~stepterrain.export.save_mesh`'s
-    ``shared_bounds`` (one glTF node translation, one PLY coordinate type for all), so a vertex two tiles share is
-    stored as the same bits in both and the tiles weld exactly; glTF's float32 positions are then relative to the centre
-    of the raster's bounds (about 8 mm resolution 100 km from it).
+    GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of its
+    heights; and the options but the device, which does not change a bit of the output; the isovalues and floor a
+    folder's files share among them, so that a file whose heights reach a new level redoes every file, and a file
+    rewritten within the levels only its own item) and that file exists with the recorded size. The shared height
+    range of a folder reads every file again on a rerun too (one file in memory at a time). The ctime catches a file
+    rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation
+    time; a file renamed, moved or restored from a backup (and every file item of a run made before stepterrain
+    recorded ctime and inode) is redone once. The manifest records each file, so an item's outputs in two formats (a
+    ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete; ``report.notes`` says when the
+    folder holds these items in another format too, when it holds outputs of items this run does not have (an earlier
+    run's other tile size or source: left as they were), when a failed item keeps an earlier run's output, and when
+    the manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
+    afresh). Every file is written to a temporary file and renamed, and the manifest is updated only after the rename,
+    so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the temporary
+    files the killed run left half-written). Tiles are written with the whole raster's bounds as
+    :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type for
+    all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's float32
+    positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it).
     A tile, frame or file of a folder with
     no triangle of three finite heights (sea off a coast, a tile file of sea cut from a coastal raster, all nodata,
     which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is written as an empty mesh, its

@@ -106,8 +106,8 @@ def test_a_floor_above_one_files_lowest_point_is_refused_up_front_naming_it(tmp_
     order = np.argsort(lowest)
     floor = (lowest[order[0]] + lowest[order[1]]) / 2  # under every file's surface but the lowest one's
     assert lowest[order[0]] < floor < lowest[order[1]]
-    with pytest.raises(InvalidInputError, match=rf"floor .*must lie below the lowest point .* of the stepped surface of "
-                                                rf"'{files[order[0]]}' \(the lowest of the 3 files"):
+    refused = rf"floor .*must lie below the lowest point .* of the stepped surface of '{files[order[0]]}' \(the lowest"
+    with pytest.raises(InvalidInputError, match=refused + " of the 3 files"):
         batch(tmp_path / "tiles", tmp_path / "out", interval=100.0, solid=True, floor=floor, scheduler="serial")
     assert not (tmp_path / "out").exists() or not list((tmp_path / "out").iterdir())  # before any item ran
     report = batch(tmp_path / "tiles", tmp_path / "out", interval=100.0, solid=True, floor=lowest[order[0]] - 1.0,
