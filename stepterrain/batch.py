@@ -2042,8 +2042,9 @@ def _files_range(
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
     ``spacing``, ``coarsen``), and the file holding the lowest; None when no file has a triangle of three finite
-    heights. One file in memory at a time, read once more than its item reads it. A file that cannot be read is left
-    out (its item fails with the reason); a transient OSError under the read (EIO, ETIMEDOUT, ...: a disk or network
+    heights. One file in memory at a time, read once more than its item reads it. A file that cannot be read (a
+    :class:`~stepterrain.errors.StepTerrainError`, which fails its item without retries) is left out, its item
+    failing with the reason; a transient OSError under the read (EIO, ETIMEDOUT, ...: a disk or network
     hiccup) is retried ``retries`` times, then raised: levels from the other files alone would differ from those of
     a run that read it."""
     bar = None
@@ -2058,7 +2059,7 @@ def _files_range(
                 try:
                     terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
                                             options.band)  # fmt: skip
-                except Exception as exc:  # noqa: BLE001 - its item reports it (an unreadable file fails there)
+                except StepTerrainError as exc:  # its item fails with it (an unreadable file), as it fails there
                     if _transient(exc) and attempt < retries:
                         continue
                     if _transient(exc):

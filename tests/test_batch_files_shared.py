@@ -181,3 +181,52 @@ def test_cli_batch_of_a_folder_shares_colours_and_floor(tmp_path, capsys):
     assert cli.main(argv[1:]) == 0
     assert "0 written, 2 complete already, 0 failed" in capsys.readouterr().err
     assert os.path.getsize(out / MANIFEST_NAME) > 0
+
+
+def test_dask_workers_get_the_shared_levels_and_floor(tmp_path):
+    # the levels and floor are found in this process and reach every worker with the options
+    distributed = pytest.importorskip("distributed", reason="needs dask.distributed")
+    _, files = strips(tmp_path / "tiles", 3, step=4)
+    kwargs = {"interval": 100.0, "colors": "terrain", "solid": True, "format": ".ply"}
+    serial = batch(files, tmp_path / "serial", scheduler="serial", **kwargs)
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=":0")
+    with cluster, distributed.Client(cluster) as client:
+        on_dask = batch(files, tmp_path / "dask", scheduler=client, progress=True, **kwargs)
+    assert serial.ok and on_dask.ok and len(on_dask.done) == 3
+    for a, b in zip(serial.done, on_dask.done, strict=True):
+        assert Path(a.path).read_bytes() == Path(b.path).read_bytes()
+    assert len({float(np.asarray(read_mesh(r.path).vertices)[:, 2].min()) for r in on_dask.done}) == 1
+
+
+def test_an_unreadable_file_fails_its_item_and_a_disk_error_is_retried_or_refuses_the_run(tmp_path, monkeypatch):
+    import errno
+
+    import stepterrain.io as io
+    from stepterrain.errors import DataFileError
+
+    _, files = strips(tmp_path / "tiles", 2, step=4)
+    (tmp_path / "tiles" / "tile_bad.tif").write_bytes(b"II*\x00 not a GeoTIFF")
+    kwargs = {"interval": 100.0, "colors": "terrain", "format": ".ply", "scheduler": "serial"}
+    report = batch(tmp_path / "tiles", tmp_path / "out", **kwargs)
+    assert [r.key for r in report.done] == ["tile_0", "tile_1"] and [r.key for r in report.failed] == ["tile_bad"]
+    west, east = (colours_by_height(r.path) for r in report.done)
+    assert all(west[z] == east[z] for z in set(west) & set(east))
+    (tmp_path / "tiles" / "tile_bad.tif").unlink()
+    real, calls = io.read_dem, []
+
+    def flaky(path, **kwargs):  # the east file's disk fails with EIO `fails` times
+        calls.append(str(path))
+        if str(path) == str(files[1]) and calls.count(str(path)) <= fails:
+            raise DataFileError(f"cannot read {str(path)!r}") from OSError(errno.EIO, "Input/output error")
+        return real(path, **kwargs)
+
+    monkeypatch.setattr(io, "read_dem", flaky)
+    fails = 1  # retried in the range pass: the levels are those of both files
+    report = batch(tmp_path / "tiles", tmp_path / "out2", retries=1, **kwargs)
+    assert report.ok and calls.count(str(files[1])) == 3  # twice for the range, once for its item
+    assert [r.bytes for r in report.done] == [r.bytes for r in batch(files, tmp_path / "out3", **kwargs).done]
+    calls.clear()
+    fails = 10  # still failing: the run is refused before any item, naming the file
+    with pytest.raises(DataFileError, match=rf"cannot read '{files[1]}' for the height range every file's levels"):
+        batch(tmp_path / "tiles", tmp_path / "out4", retries=1, **kwargs)
+    assert not (tmp_path / "out4").exists()  # refused before the output folder is made
