@@ -1832,12 +1832,13 @@ def batch(
     if interval is not None:  # the isovalues are base + k * interval: both recorded (a long list keeps its ends only)
         steps = (("interval", float(interval)), ("base", float(base)))
         options = dataclasses.replace(options, metadata=options.metadata + steps)
-    if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
-        options = _files_levels(items, options, None if interval is None else float(interval), levels, base, retries,
-                                bool(progress))  # fmt: skip
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
         _check_overview(items, src, overview_size)
     _check_scheduler(scheduler)
+    if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
+        # (after the cheap checks: every file is read, and a bad scheduler address was refused only after that)
+        options = _files_levels(items, options, None if interval is None else float(interval), levels, base, retries,
+                                bool(progress))  # fmt: skip
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
     try:
