@@ -1748,7 +1748,10 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = N
     x_min, x_max, y_min, y_max = terrain.extent
     if not (-180.0 <= x_min and x_max <= 360.0 and -90.0 <= y_min and y_max <= 90.0):
         return
-    low, high = terrain.height_range
+    try:
+        low, high = terrain.height_range
+    except InvalidInputError:  # nodata only (read_dem's nodata_only: a batch's tile file of sea): no relief to judge
+        return
     across = max(x_max - x_min, y_max - y_min)
     if not high - low > _DEGREES_RELIEF * across:
         return
