@@ -51,8 +51,9 @@ class GdalPath(type(Path())):  # type: ignore[misc]
     a URL's without its query; ``/vsigzip/dem.tif.gz``: ``dem.tif``), while ``str()`` gives the text as given (for
     messages: the URL) and ``os.fspath()`` the GDAL path, exactly (a Path turns the ``//`` of an absolute path
     inside /vsizip/ into one ``/``, a relative path to GDAL). It exists nowhere on the local file system
-    (``exists()`` is False), and the paths made from it (``with_suffix``, ``parent``) are plain paths of the
-    display text. Made by :func:`gdal_path`."""
+    (``exists()`` is False), and the paths made from it (``with_suffix``, ``parent``) are GdalPaths of the display
+    text without a GDAL path of their own (their ``os.fspath()`` is that text). A copy or a pickle (a dask worker's
+    argument) keeps both texts. Made by :func:`gdal_path`."""
 
     _gdal: str | None = None
     _given: str | None = None
@@ -65,6 +66,18 @@ class GdalPath(type(Path())):  # type: ignore[misc]
 
     def __repr__(self) -> str:
         return f"GdalPath({str(self)!r})"
+
+    def __reduce__(self) -> tuple[Any, tuple[str, str | None, str | None]]:
+        # a Path pickles (and copies) as its parts: the GDAL path and the given text were lost, os.fspath() then the
+        # display text (/vsizip//data/a.zip/t.tif read as the relative /vsizip/data/a.zip/t.tif)
+        return _restored, (super().__str__(), self._gdal, self._given)
+
+
+def _restored(display: str, gdal: str | None, given: str | None) -> GdalPath:
+    """The GdalPath named ``display`` reading the GDAL path ``gdal``, given as ``given``."""
+    path = GdalPath(display)
+    path._gdal, path._given = gdal, given
+    return path
 
 
 def gdal_path(text: str) -> GdalPath | None:
@@ -95,9 +108,7 @@ def _made(gdal: str, display: str, given: str | None = None) -> GdalPath:
     display = _URL.sub(lambda m: m.group(2), display.split("?", 1)[0].split("#", 1)[0])
     if display.lower().endswith(".gz") and "/vsigzip/" in gdal:  # the gzip stream's file: dem.tif
         display = display[:-3]
-    path = GdalPath(display or gdal)
-    path._gdal, path._given = gdal, gdal if given is None else given
-    return path
+    return _restored(display or gdal, gdal, gdal if given is None else given)
 
 
 #: GDAL's archive file systems, whose path names a local archive file first (``/vsizip/<archive>/<member>``).

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
-from ._files import URL_FILE_SYSTEMS, GdalPath, as_path, gdal_path, require_regular_file
+from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, require_regular_file
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -407,9 +407,8 @@ def zip_member(file: Path) -> GdalPath:
                  + f"; name the one to read, e.g. '/vsizip/{given}/{rasters[0]}'")
         raise DataFileError(f"cannot read {given!r}: expected a zip holding one DEM ({', '.join(GDAL_FORMATS)}); it "
                             + found)
-    member = GdalPath(f"{given}/{rasters[0]}")  # its name that of the member; str() the GDAL path, which reads it
-    member._gdal = member._given = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
-    return member
+    gdal = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
+    return _restored(f"{given}/{rasters[0]}", gdal, gdal)  # named as the member; str() the GDAL path, which reads it
 
 
 def _virtual_refusal(file: GdalPath) -> str:

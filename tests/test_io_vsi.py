@@ -139,6 +139,28 @@ def test_url_is_read_by_gdal_and_an_unreachable_one_is_a_data_file_error(monkeyp
     assert time.monotonic() - start < 30
 
 
+
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+def test_a_gdal_path_pickled_or_copied_reads_the_same_file(tiles, how):
+    """A GdalPath pickles (a dask worker's argument) and copies as a Path does, by its parts: its GDAL path and the
+    text as given were lost, ``/vsizip//abs/one.zip/dem.tif`` coming back as the relative
+    ``/vsizip/abs/one.zip/dem.tif`` (GDAL: no such file) and a URL as its host and path, no longer a URL."""
+    import copy
+    import pickle
+
+    from stepterrain.io import dem_path
+
+    again = (lambda p: pickle.loads(pickle.dumps(p))) if how == "pickle" else copy.deepcopy
+    paths = [gdal_path(f"/vsizip/{tiles / 'one.zip'}/dem.tif"), dem_path(tiles / "one.zip"),
+             gdal_path("https://example.org/dem/cog.tif?sig=1")]
+    for path in paths:
+        back = again(path)
+        assert (os.fspath(back), str(back), back.name) == (os.fspath(path), str(path), path.name)
+    reference = st.load_dem(tiles / "dem.tif")
+    _same(st.load_dem(again(paths[0])), reference)
+    _same(st.load_dem(again(paths[1])), reference)
+
+
 # ------------------------------------------------------------------------------------------ CLI
 def run(capsys, *argv):
     code = cli.main([str(a) for a in argv])
