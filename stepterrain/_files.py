@@ -85,15 +85,21 @@ def gdal_path(text: str) -> GdalPath | None:
     ``/vsi`` (``/vsizip/``, ``/vsigzip/``, ``/vsitar/``, ``/vsicurl/``, ``/vsis3/``, ...), kept as given, or a URL of
     one of :data:`URL_FILE_SYSTEMS`'s schemes, mapped to its file system as rasterio maps it (``https://h/dem.tif``:
     ``/vsicurl/https://h/dem.tif``; ``s3://bucket/dem.tif``: ``/vsis3/bucket/dem.tif``); else None (a local path).
-    Another URL scheme is refused (a DataFileError naming it and those read)."""
+    Another URL scheme is refused (a DataFileError naming it and those read), and so is a ``file://`` URL (naming
+    the local path to give)."""
     if text.startswith("/vsi"):
         return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
     found = _URL.fullmatch(text)
     if found is None:
         return None
     scheme, rest = found.group(1).lower(), found.group(2)
-    if scheme == "file":  # a local file named as a URL
-        return None
+    if scheme == "file":  # a local file named as a URL: read as a local path it was 'file:/data/dem.tif', "does not
+        # exist" (a Path joins the slashes), and GDAL has no file system for it
+        from urllib.parse import urlsplit
+        from urllib.request import url2pathname
+
+        raise DataFileError(f"cannot read {text!r}: a file:// URL names a local file; give its path, "
+                            f"{url2pathname(urlsplit(text).path)!r}")
     system = URL_FILE_SYSTEMS.get(scheme)
     if system is None:
         raise DataFileError(f"cannot read {text!r}: unknown URL scheme {scheme + '://'!r}; expected a local file, a "

@@ -7,6 +7,7 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import re
 import time
 import warnings
 import zipfile
@@ -138,6 +139,18 @@ def test_url_is_read_by_gdal_and_an_unreachable_one_is_a_data_file_error(monkeyp
         st.load_dem("http://127.0.0.1:9/x.tif")
     assert time.monotonic() - start < 30
 
+
+def test_a_file_url_is_refused_naming_the_path_to_give(tiles, capsys):
+    """A file:// URL was let through as a local path, which a Path made 'file:/...': "DEM file 'file:/tmp/.../dem.tif'
+    does not exist" of a file that exists. It is refused naming the path to give, by load_dem, batch and the CLI."""
+    url = (tiles / "dem.tif").as_uri()
+    said = re.escape(f"cannot read '{url}': a file:// URL names a local file; give its path, '{tiles / 'dem.tif'}'")
+    with pytest.raises(DataFileError, match=said):
+        st.load_dem(url)
+    with pytest.raises(DataFileError, match=said):
+        st.batch.plan_items([url])
+    code, _, err = run(capsys, "info", url)
+    assert code == 2 and f"cannot read '{url}': a file:// URL names a local file" in err
 
 
 @pytest.mark.parametrize("how", ["pickle", "deepcopy"])
