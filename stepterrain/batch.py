@@ -371,10 +371,12 @@ def plan_items(
             raise InvalidInputError(
                 f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
                 f"in it), or its files")
-        bad = [str(f) for f in files if f.suffix.lower() not in SUPPORTED_EXTENSIONS]
+        # a .zip that is no file here is missing (one that is was read as its raster): it was "must end in ..."
+        bad = [str(f) for f in files if f.suffix.lower() not in (*SUPPORTED_EXTENSIONS, ".zip")]
         if bad:
             raise InvalidInputError(
-                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)}; got {bad[0]!r}"
+                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)} (or name a GDAL virtual path, a URL or a "
+                f".zip holding one raster); got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         missing = [str(f) for f in files if not isinstance(f, GdalPath) and not f.exists()]

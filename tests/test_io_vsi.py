@@ -174,6 +174,18 @@ def test_a_gdal_path_pickled_or_copied_reads_the_same_file(tiles, how):
     _same(st.load_dem(again(paths[1])), reference)
 
 
+
+def test_a_missing_zip_among_source_files_is_named_missing(tiles):
+    """Among several source files, a .zip that does not exist was refused as "source files must end in .npy, ...",
+    where the same zip, there, is read as its raster: it is named as missing, as a missing .tif is."""
+    from stepterrain.batch import plan_items
+
+    with pytest.raises(DataFileError, match=r"source file '.*missing\.zip' does not exist"):
+        plan_items([tiles / "dem.tif", tiles / "missing.zip"])
+    with pytest.raises(InvalidInputError, match=r"must end in .*\.zip holding one raster\); got '.*notes\.txt'"):
+        plan_items([tiles / "dem.tif", tiles / "notes.txt"])
+
+
 # ------------------------------------------------------------------------------------------ CLI
 def run(capsys, *argv):
     code = cli.main([str(a) for a in argv])
