@@ -1755,7 +1755,9 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = N
     if not high - low > _DEGREES_RELIEF * across:
         return
     name = file.name
-    if file.suffix.lower() in (".tif", ".tiff"):
+    if isinstance(file, GdalPath):  # in a zip or at a URL: no .prj beside it is read, and gdal_edit cannot edit it
+        hint = f"`gdal_translate -a_srs EPSG:4326 {os.fspath(file)} {file.stem}.tif` writes a copy that names it"
+    elif file.suffix.lower() in (".tif", ".tiff"):
         hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
                 f"`gdal_edit.py -a_srs EPSG:4326 {name}`")
     elif file.suffix.lower() in GDAL_FORMATS:

@@ -186,6 +186,25 @@ def test_a_missing_zip_among_source_files_is_named_missing(tiles):
         plan_items([tiles / "dem.tif", tiles / "notes.txt"])
 
 
+
+def test_a_zipped_grid_in_degrees_without_a_crs_is_told_a_hint_that_works(tmp_path):
+    """A GeoTIFF without a CRS whose nodes look like degrees is read as metres with a warning; read from a zip its
+    hint said to put a .prj beside the file, or gdal_edit it, neither of which reaches a file in a zip (no .prj is
+    looked for there): it gives the gdal_translate that writes a local copy naming the CRS."""
+    heights = st.sample_dem().coarsen(8).heights[:50, :50]
+    terrain = st.Terrain.from_heights(heights, spacing=(0.001, -0.001), origin=(7.0, 46.0))
+    tif = _geotiff(tmp_path / "alps.tif", terrain)
+    with zipfile.ZipFile(tmp_path / "alps.zip", "w") as archive:
+        archive.write(tif, "alps.tif")
+    with pytest.warns(UserWarning, match=r"look like degrees.*put a \.prj with it beside the file"):
+        st.load_dem(tif)
+    with pytest.warns(UserWarning, match=r"look like degrees") as told:
+        st.load_dem(tmp_path / "alps.zip")
+    said = " ".join(str(w.message) for w in told)
+    assert f"gdal_translate -a_srs EPSG:4326 /vsizip/{tmp_path / 'alps.zip'}/alps.tif alps.tif" in said, said
+    assert ".prj" not in said and "gdal_edit" not in said
+
+
 # ------------------------------------------------------------------------------------------ CLI
 def run(capsys, *argv):
     code = cli.main([str(a) for a in argv])
