@@ -205,6 +205,30 @@ def test_a_zipped_grid_in_degrees_without_a_crs_is_told_a_hint_that_works(tmp_pa
     assert ".prj" not in said and "gdal_edit" not in said
 
 
+
+def test_a_virtual_file_item_is_read_by_a_worker_in_another_folder(tiles, tmp_path, monkeypatch):
+    """A dask worker started in another folder resolves a file item's relative path against the caller's (batch's
+    _on_worker): a URL was joined to that folder ('/caller/https://h/x.tif', a local file that does not exist), and
+    a relative /vsizip/ or /vsigzip/ path, starting with '/', was kept as given: GDAL looked for its archive in the
+    worker's folder. Its archive is resolved instead, as the fingerprint names it: the same zip from another folder
+    keeps its items complete."""
+    from stepterrain.batch import _absolute, _on_worker
+
+    reference = st.load_dem(tiles / "dem.tif")
+    elsewhere = tmp_path / "worker"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    url = "https://example.org/dem/cog.tif?sig=1"
+    assert _on_worker(url, str(tiles)) == url
+    assert _on_worker(f"/vsizip/{tiles / 'one.zip'}/dem.tif", str(tiles)) == f"/vsizip/{tiles / 'one.zip'}/dem.tif"
+    for relative in ("/vsizip/one.zip/dem.tif", "/vsigzip/dem.tif.gz"):
+        _same(st.load_dem(_on_worker(relative, str(tiles))), reference)
+    assert _on_worker("dem.tif", str(tiles)) == str(tiles / "dem.tif")  # a plain file, as before
+    named = _absolute(f"/vsizip/{tiles / 'one.zip'}/dem.tif")
+    monkeypatch.chdir(tiles)
+    assert _absolute("/vsizip/one.zip/dem.tif") == named and _absolute(url) == url
+
+
 # ------------------------------------------------------------------------------------------ CLI
 def run(capsys, *argv):
     code = cli.main([str(a) for a in argv])
