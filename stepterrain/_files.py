@@ -1,5 +1,7 @@
 """The path checks shared by the readers and writers: a path argument as a Path (load_dem, save_mesh and
-save_image, batch's output folder) and an input path naming an existing regular file (load_dem, read_mesh)."""
+save_image, batch's output folder), an input path naming an existing regular file (load_dem, read_mesh), and the
+paths GDAL reads through its virtual file systems (a ``/vsizip/`` path, a URL: :class:`GdalPath`, :func:`gdal_path`,
+:func:`local_archive`)."""
 
 from __future__ import annotations
 
