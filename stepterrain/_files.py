@@ -1,5 +1,7 @@
 """The path checks shared by the readers and writers: a path argument as a Path (load_dem, save_mesh and
-save_image, batch's output folder) and an input path naming an existing regular file (load_dem, read_mesh)."""
+save_image, batch's output folder), an input path naming an existing regular file (load_dem, read_mesh), and the
+paths GDAL reads through its virtual file systems (a ``/vsizip/`` path, a URL: :class:`GdalPath`, :func:`gdal_path`,
+:func:`local_archive`)."""
 
 from __future__ import annotations
 
@@ -51,8 +53,9 @@ class GdalPath(type(Path())):  # type: ignore[misc]
     a URL's without its query; ``/vsigzip/dem.tif.gz``: ``dem.tif``), while ``str()`` gives the text as given (for
     messages: the URL) and ``os.fspath()`` the GDAL path, exactly (a Path turns the ``//`` of an absolute path
     inside /vsizip/ into one ``/``, a relative path to GDAL). It exists nowhere on the local file system
-    (``exists()`` is False), and the paths made from it (``with_suffix``, ``parent``) are plain paths of the
-    display text. Made by :func:`gdal_path`."""
+    (``exists()`` is False), and the paths made from it (``with_suffix``, ``parent``) are GdalPaths of the display
+    text without a GDAL path of their own (their ``os.fspath()`` is that text). A copy or a pickle (a dask worker's
+    argument) keeps both texts. Made by :func:`gdal_path`."""
 
     _gdal: str | None = None
     _given: str | None = None
@@ -66,21 +69,39 @@ class GdalPath(type(Path())):  # type: ignore[misc]
     def __repr__(self) -> str:
         return f"GdalPath({str(self)!r})"
 
+    def __reduce__(self) -> tuple[Any, tuple[str, str | None, str | None]]:
+        # a Path pickles (and copies) as its parts: the GDAL path and the given text were lost, os.fspath() then the
+        # display text (/vsizip//data/a.zip/t.tif read as the relative /vsizip/data/a.zip/t.tif)
+        return _restored, (super().__str__(), self._gdal, self._given)
+
+
+def _restored(display: str, gdal: str | None, given: str | None) -> GdalPath:
+    """The GdalPath named ``display`` reading the GDAL path ``gdal``, given as ``given``."""
+    path = GdalPath(display)
+    path._gdal, path._given = gdal, given
+    return path
+
 
 def gdal_path(text: str) -> GdalPath | None:
     """``text`` as a :class:`GdalPath` when it names a file through a GDAL virtual file system: a path starting with
     ``/vsi`` (``/vsizip/``, ``/vsigzip/``, ``/vsitar/``, ``/vsicurl/``, ``/vsis3/``, ...), kept as given, or a URL of
     one of :data:`URL_FILE_SYSTEMS`'s schemes, mapped to its file system as rasterio maps it (``https://h/dem.tif``:
     ``/vsicurl/https://h/dem.tif``; ``s3://bucket/dem.tif``: ``/vsis3/bucket/dem.tif``); else None (a local path).
-    Another URL scheme is refused (a DataFileError naming it and those read)."""
+    Another URL scheme is refused (a DataFileError naming it and those read), and so is a ``file://`` URL (naming
+    the local path to give)."""
     if text.startswith("/vsi"):
         return _made(text, text.split("/vsicurl/", 1)[-1])  # a URL's own path, for its name
     found = _URL.fullmatch(text)
     if found is None:
         return None
     scheme, rest = found.group(1).lower(), found.group(2)
-    if scheme == "file":  # a local file named as a URL
-        return None
+    if scheme == "file":  # a local file named as a URL: read as a local path it was 'file:/data/dem.tif', "does not
+        # exist" (a Path joins the slashes), and GDAL has no file system for it
+        from urllib.parse import urlsplit
+        from urllib.request import url2pathname
+
+        raise DataFileError(f"cannot read {text!r}: a file:// URL names a local file; give its path, "
+                            f"{url2pathname(urlsplit(text).path)!r}")
     system = URL_FILE_SYSTEMS.get(scheme)
     if system is None:
         raise DataFileError(f"cannot read {text!r}: unknown URL scheme {scheme + '://'!r}; expected a local file, a "
@@ -95,9 +116,7 @@ def _made(gdal: str, display: str, given: str | None = None) -> GdalPath:
     display = _URL.sub(lambda m: m.group(2), display.split("?", 1)[0].split("#", 1)[0])
     if display.lower().endswith(".gz") and "/vsigzip/" in gdal:  # the gzip stream's file: dem.tif
         display = display[:-3]
-    path = GdalPath(display or gdal)
-    path._gdal, path._given = gdal, gdal if given is None else given
-    return path
+    return _restored(display or gdal, gdal, gdal if given is None else given)
 
 
 #: GDAL's archive file systems, whose path names a local archive file first (``/vsizip/<archive>/<member>``).

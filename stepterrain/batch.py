@@ -230,10 +230,31 @@ class _Options:
 def _on_worker(path: str, cwd: str | None) -> str:
     """``path`` as the caller meant it, on a worker whose working folder is not the caller's ``cwd`` (dask workers
     started elsewhere, by ssh or systemd): a relative path resolved against ``cwd``; as given otherwise (the serial run,
-    a LocalCluster's workers), so that the outputs and error messages are the serial run's."""
-    if cwd is None or os.path.isabs(path) or os.getcwd() == cwd:
+    a LocalCluster's workers), so that the outputs and error messages are the serial run's. A GDAL virtual path or
+    URL: :func:`_virtual_from` (a URL was joined to ``cwd``, and ``/vsizip/t.zip/a.tif`` kept, its zip looked for in
+    the worker's folder)."""
+    if cwd is None or os.getcwd() == cwd:
         return path
-    return os.path.join(cwd, path)
+    virtual = _virtual_from(path, cwd)
+    if virtual is not None:
+        return virtual
+    return path if os.path.isabs(path) else os.path.join(cwd, path)
+
+
+def _virtual_from(path: str, cwd: str) -> str | None:
+    """The GDAL virtual path or URL ``path`` as read from the folder ``cwd``: the relative local archive of
+    ``/vsizip/t.zip/a.tif`` (``/vsigzip/``, ``/vsitar/`` ...) made absolute, ``/vsizip//cwd/t.zip/a.tif``; an absolute
+    or remote one (a URL, ``/vsicurl/...``) as given. None for a local path."""
+    from ._files import gdal_path, local_archive
+
+    virtual = gdal_path(path)
+    if virtual is None:
+        return None
+    archive = local_archive(virtual)
+    if archive is None or os.path.isabs(archive):
+        return path
+    head = path.index("/", 1) + 1  # after the file system's prefix (/vsizip/), where local_archive found the archive
+    return path[:head] + os.path.abspath(os.path.join(cwd, archive)) + path[head + len(archive):]
 
 
 @dataclass(frozen=True)
@@ -371,10 +392,12 @@ def plan_items(
             raise InvalidInputError(
                 f"source lists the folder {str(folder)!r} among DEM files; give the folder alone (one item per file "
                 f"in it), or its files")
-        bad = [str(f) for f in files if f.suffix.lower() not in SUPPORTED_EXTENSIONS]
+        # a .zip that is no file here is missing (one that is was read as its raster): it was "must end in ..."
+        bad = [str(f) for f in files if f.suffix.lower() not in (*SUPPORTED_EXTENSIONS, ".zip")]
         if bad:
             raise InvalidInputError(
-                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)}; got {bad[0]!r}"
+                f"source files must end in {', '.join(SUPPORTED_EXTENSIONS)} (or name a GDAL virtual path, a URL or a "
+                f".zip holding one raster); got {bad[0]!r}"
                 + (f" and {len(bad) - 1} more" if len(bad) > 1 else "")
             )
         missing = [str(f) for f in files if not isinstance(f, GdalPath) and not f.exists()]
@@ -956,11 +979,11 @@ def _fingerprints(items: Sequence[BatchItem], source: _Source | None, options: _
 
 
 def _absolute(path: str) -> str:
-    """A file item's path made absolute for its fingerprint; a GDAL virtual path or URL as given (os.path.abspath
-    turned ``/vsizip//data/a.zip/t.tif`` into another path and a URL into one under the working folder)."""
-    from ._files import gdal_path
-
-    return path if gdal_path(path) is not None else os.path.abspath(path)
+    """A file item's path made absolute for its fingerprint; a GDAL virtual path or URL by :func:`_virtual_from`
+    (os.path.abspath turned ``/vsizip//data/a.zip/t.tif`` into another path and a URL into one under the working
+    folder), a relative archive's path made absolute as a plain file's is."""
+    virtual = _virtual_from(path, os.getcwd())
+    return virtual if virtual is not None else os.path.abspath(path)
 
 
 #: Files beside a GeoTIFF (or another raster of :data:`~stepterrain.io.GDAL_FORMATS`) that GDAL reads with it when

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._compaction import check_budget
-from ._files import URL_FILE_SYSTEMS, GdalPath, as_path, gdal_path, require_regular_file
+from ._files import URL_FILE_SYSTEMS, GdalPath, _restored, as_path, gdal_path, require_regular_file
 from .errors import (
     DataFileError,
     InvalidInputError,
@@ -407,9 +407,8 @@ def zip_member(file: Path) -> GdalPath:
                  + f"; name the one to read, e.g. '/vsizip/{given}/{rasters[0]}'")
         raise DataFileError(f"cannot read {given!r}: expected a zip holding one DEM ({', '.join(GDAL_FORMATS)}); it "
                             + found)
-    member = GdalPath(f"{given}/{rasters[0]}")  # its name that of the member; str() the GDAL path, which reads it
-    member._gdal = member._given = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
-    return member
+    gdal = f"/vsizip/{os.path.abspath(file)}/{rasters[0]}"
+    return _restored(f"{given}/{rasters[0]}", gdal, gdal)  # named as the member; str() the GDAL path, which reads it
 
 
 def _virtual_refusal(file: GdalPath) -> str:
@@ -1748,12 +1747,17 @@ def _check_degrees_without_crs(file: Path, terrain: Terrain, crs: str | None = N
     x_min, x_max, y_min, y_max = terrain.extent
     if not (-180.0 <= x_min and x_max <= 360.0 and -90.0 <= y_min and y_max <= 90.0):
         return
-    low, high = terrain.height_range
+    try:
+        low, high = terrain.height_range
+    except InvalidInputError:  # nodata only (read_dem's nodata_only: a batch's tile file of sea): no relief to judge
+        return
     across = max(x_max - x_min, y_max - y_min)
     if not high - low > _DEGREES_RELIEF * across:
         return
     name = file.name
-    if file.suffix.lower() in (".tif", ".tiff"):
+    if isinstance(file, GdalPath):  # in a zip or at a URL: no .prj beside it is read, and gdal_edit cannot edit it
+        hint = f"`gdal_translate -a_srs EPSG:4326 {os.fspath(file)} {file.stem}.tif` writes a copy that names it"
+    elif file.suffix.lower() in (".tif", ".tiff"):
         hint = (f"put a .prj with it beside the file ({file.with_suffix('.prj').name}), or assign it: "
                 f"`gdal_edit.py -a_srs EPSG:4326 {name}`")
     elif file.suffix.lower() in GDAL_FORMATS:

@@ -341,14 +341,17 @@ def _material_rgb(mesh: trimesh.Trimesh) -> NDArray[np.uint8] | None:
     linear (glTF §3.9.2): shown sRGB-encoded, its alpha used as the material's alphaMode says (as
     :func:`_base_color_factor` and :func:`_texture_alpha` treat a texture's); a plain material's (an OBJ's ``Kd``)
     diffuse colour as it is. A GLB of one plain-coloured mesh (trimesh reads it as TextureVisuals without UVs) and
-    an OBJ with a ``.mtl`` rendered in the uniform tan instead."""
+    an OBJ with a ``.mtl`` rendered in the uniform tan instead. An opaque white factor is no colour (None): the
+    material :func:`~stepterrain.export.save_mesh` writes for a mesh without colours, which
+    :func:`~stepterrain.export.read_mesh` reads back as plain, renders in the tan as the mesh did."""
     visual = mesh.visual
     material = getattr(visual, "material", None)
     if not isinstance(visual, trimesh.visual.TextureVisuals) or material is None:
         return None
     if isinstance(material, trimesh.visual.material.PBRMaterial):
-        if material.baseColorFactor is None:
-            return None
+        factor = material.baseColorFactor
+        if factor is None or (np.asarray(factor) == 255).all():  # white multiplies nothing: the material save_mesh
+            return None  # gives a mesh without colours, read_mesh reads as plain (trimesh.load as this material)
         white = np.full((1, 1, 3), 255, dtype=np.uint8)
         color = _texture_alpha(_base_color_factor(white, material), material).reshape(-1)
     elif isinstance(material, trimesh.visual.material.SimpleMaterial) and material.diffuse is not None:
@@ -401,7 +404,7 @@ def render_mesh(
         image has no alpha channel).
     scalars : None, "level" or "height"
         None: the mesh's texture or vertex colors if it has them, else its face colors, else its material's colour (a
-        plain-coloured GLB's baseColorFactor, an OBJ's ``Kd``), else a uniform light tan.
+        plain-coloured GLB's baseColorFactor other than opaque white, an OBJ's ``Kd``), else a uniform light tan.
         "level": faces colored by ``face_attributes["level"]`` (stepped meshes); "height": vertices colored by z.
         Both use ``cmap``.
     cmap : str

@@ -1262,3 +1262,23 @@ def test_cli_batch_of_a_coast_folder_exits_0_and_its_rerun_skips_the_sea(tmp_pat
     assert "0 written, 4 complete already, 0 failed" in capsys.readouterr().err
     assert cli.main(["steps", str(src / "sea.tif"), "--interval", "100", "-o", str(tmp_path / "sea.ply")]) != 0
     assert "got band 1 that is all nodata" in capsys.readouterr().err and not (tmp_path / "sea.ply").exists()
+
+
+def test_a_tile_file_of_nodata_without_a_crs_is_an_empty_item_too(tmp_path):
+    """ESRI ASCII grids with no .prj (5 m cells at (0, 0): a CRS-less grid inside the box of degrees): the sea tile of
+    nodata only failed 'terrain has no finite height (all nodata)', the check whether its coordinates look like
+    degrees asking for its height range, where the GeoTIFF tiles with a CRS were empty items."""
+    src = tmp_path / "tiles"
+    src.mkdir()
+    z = real_dem(TUJUNGA, size=17, step=4)
+    for name, block in (("land", z), ("sea", np.full_like(z, -9999.0))):
+        rows = "\n".join(" ".join(f"{v:.3f}" for v in row) for row in block)
+        (src / f"{name}.asc").write_text(f"ncols {z.shape[1]}\nnrows {z.shape[0]}\nxllcorner 0\nyllcorner 0\n"
+                                         f"cellsize 5\nNODATA_value -9999\n{rows}\n")
+    report = batch(src, tmp_path / "out", interval=100.0, format=".glb", scheduler="serial")
+    assert report.ok and [r.key for r in report.done] == ["land", "sea"], report.summary()
+    land, sea = report.done
+    assert land.faces == len(stepped(load_dem(src / "land.asc"), interval=100.0).faces) > 0
+    assert sea.faces == 0 and b'"empty"' in Path(sea.path).read_bytes()
+    with pytest.raises(DataFileError, match=r"sea\.asc'.*all nodata$"):
+        load_dem(src / "sea.asc")  # on its own still no elevation data

@@ -7,6 +7,7 @@ from __future__ import annotations
 import gzip
 import json
 import os
+import re
 import time
 import warnings
 import zipfile
@@ -137,6 +138,95 @@ def test_url_is_read_by_gdal_and_an_unreachable_one_is_a_data_file_error(monkeyp
                                             r"'/vsicurl/http://127\.0\.0\.1:9/x\.tif'\): GDAL cannot open it"):
         st.load_dem("http://127.0.0.1:9/x.tif")
     assert time.monotonic() - start < 30
+
+
+def test_a_file_url_is_refused_naming_the_path_to_give(tiles, capsys):
+    """A file:// URL was let through as a local path, which a Path made 'file:/...': "DEM file 'file:/tmp/.../dem.tif'
+    does not exist" of a file that exists. It is refused naming the path to give, by load_dem, batch and the CLI."""
+    url = (tiles / "dem.tif").as_uri()
+    said = re.escape(f"cannot read '{url}': a file:// URL names a local file; give its path, '{tiles / 'dem.tif'}'")
+    with pytest.raises(DataFileError, match=said):
+        st.load_dem(url)
+    with pytest.raises(DataFileError, match=said):
+        st.batch.plan_items([url])
+    code, _, err = run(capsys, "info", url)
+    assert code == 2 and f"cannot read '{url}': a file:// URL names a local file" in err
+
+
+@pytest.mark.parametrize("how", ["pickle", "deepcopy"])
+def test_a_gdal_path_pickled_or_copied_reads_the_same_file(tiles, how):
+    """A GdalPath pickles (a dask worker's argument) and copies as a Path does, by its parts: its GDAL path and the
+    text as given were lost, ``/vsizip//abs/one.zip/dem.tif`` coming back as the relative
+    ``/vsizip/abs/one.zip/dem.tif`` (GDAL: no such file) and a URL as its host and path, no longer a URL."""
+    import copy
+    import pickle
+
+    from stepterrain.io import dem_path
+
+    again = (lambda p: pickle.loads(pickle.dumps(p))) if how == "pickle" else copy.deepcopy
+    paths = [gdal_path(f"/vsizip/{tiles / 'one.zip'}/dem.tif"), dem_path(tiles / "one.zip"),
+             gdal_path("https://example.org/dem/cog.tif?sig=1")]
+    for path in paths:
+        back = again(path)
+        assert (os.fspath(back), str(back), back.name) == (os.fspath(path), str(path), path.name)
+    reference = st.load_dem(tiles / "dem.tif")
+    _same(st.load_dem(again(paths[0])), reference)
+    _same(st.load_dem(again(paths[1])), reference)
+
+
+
+def test_a_missing_zip_among_source_files_is_named_missing(tiles):
+    """Among several source files, a .zip that does not exist was refused as "source files must end in .npy, ...",
+    where the same zip, there, is read as its raster: it is named as missing, as a missing .tif is."""
+    from stepterrain.batch import plan_items
+
+    with pytest.raises(DataFileError, match=r"source file '.*missing\.zip' does not exist"):
+        plan_items([tiles / "dem.tif", tiles / "missing.zip"])
+    with pytest.raises(InvalidInputError, match=r"must end in .*\.zip holding one raster\); got '.*notes\.txt'"):
+        plan_items([tiles / "dem.tif", tiles / "notes.txt"])
+
+
+
+def test_a_zipped_grid_in_degrees_without_a_crs_is_told_a_hint_that_works(tmp_path):
+    """A GeoTIFF without a CRS whose nodes look like degrees is read as metres with a warning; read from a zip its
+    hint said to put a .prj beside the file, or gdal_edit it, neither of which reaches a file in a zip (no .prj is
+    looked for there): it gives the gdal_translate that writes a local copy naming the CRS."""
+    heights = st.sample_dem().coarsen(8).heights[:50, :50]
+    terrain = st.Terrain.from_heights(heights, spacing=(0.001, -0.001), origin=(7.0, 46.0))
+    tif = _geotiff(tmp_path / "alps.tif", terrain)
+    with zipfile.ZipFile(tmp_path / "alps.zip", "w") as archive:
+        archive.write(tif, "alps.tif")
+    with pytest.warns(UserWarning, match=r"look like degrees.*put a \.prj with it beside the file"):
+        st.load_dem(tif)
+    with pytest.warns(UserWarning, match=r"look like degrees") as told:
+        st.load_dem(tmp_path / "alps.zip")
+    said = " ".join(str(w.message) for w in told)
+    assert f"gdal_translate -a_srs EPSG:4326 /vsizip/{tmp_path / 'alps.zip'}/alps.tif alps.tif" in said, said
+    assert ".prj" not in said and "gdal_edit" not in said
+
+
+
+def test_a_virtual_file_item_is_read_by_a_worker_in_another_folder(tiles, tmp_path, monkeypatch):
+    """A dask worker started in another folder resolves a file item's relative path against the caller's (batch's
+    _on_worker): a URL was joined to that folder ('/caller/https://h/x.tif', a local file that does not exist), and
+    a relative /vsizip/ or /vsigzip/ path, starting with '/', was kept as given: GDAL looked for its archive in the
+    worker's folder. Its archive is resolved instead, as the fingerprint names it: the same zip from another folder
+    keeps its items complete."""
+    from stepterrain.batch import _absolute, _on_worker
+
+    reference = st.load_dem(tiles / "dem.tif")
+    elsewhere = tmp_path / "worker"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    url = "https://example.org/dem/cog.tif?sig=1"
+    assert _on_worker(url, str(tiles)) == url
+    assert _on_worker(f"/vsizip/{tiles / 'one.zip'}/dem.tif", str(tiles)) == f"/vsizip/{tiles / 'one.zip'}/dem.tif"
+    for relative in ("/vsizip/one.zip/dem.tif", "/vsigzip/dem.tif.gz"):
+        _same(st.load_dem(_on_worker(relative, str(tiles))), reference)
+    assert _on_worker("dem.tif", str(tiles)) == str(tiles / "dem.tif")  # a plain file, as before
+    named = _absolute(f"/vsizip/{tiles / 'one.zip'}/dem.tif")
+    monkeypatch.chdir(tiles)
+    assert _absolute("/vsizip/one.zip/dem.tif") == named and _absolute(url) == url
 
 
 # ------------------------------------------------------------------------------------------ CLI

@@ -1197,9 +1197,8 @@ def test_a_plain_coloured_material_renders_in_its_colour_not_tan(tmp_path):
     plain = centre(trimesh.creation.box(extents=(4.0, 4.0, 1.0)))  # the tan, lit: all channels similar
     red = centre(st.export.read_mesh(glb))
     blue = centre(trimesh.load(obj, force="mesh"))
-    white = centre(_plain_box(trimesh.visual.material.PBRMaterial(baseColorFactor=[255, 255, 255, 255])))
     assert plain.min() > 120 and red[1] < 5 and red[2] < 5 and blue[0] < blue[2] / 4
-    shade = white[0] / 255  # the lighting on a face seen from the top
+    shade = plain[0] / (render._DEFAULT_COLOR[0] * 255)  # the lighting on a face seen from the top
     assert red[0] == pytest.approx(188 * shade, abs=4)
     assert blue == pytest.approx(np.array([20, 40, 230]) * shade, abs=4)
 
@@ -1222,3 +1221,22 @@ def test_a_blended_plain_material_shows_what_lies_behind():
     assert centre("OPAQUE")[1] < 5 and centre("OPAQUE")[0] > 150  # opaque red
     blended = centre("BLEND")  # the box's top and bottom, each half red, over the white background
     assert blended[1] == pytest.approx(255 * (1 - 128 / 255) ** 2, abs=6) and blended[0] > 200
+
+
+@needs_render
+def test_a_white_material_renders_in_the_tan_as_read_mesh_reads_it(tmp_path):
+    """save_mesh gives a mesh without colours a white material (baseColorFactor 1: COLOR_0, or white, is the colour),
+    which read_mesh reads back as the plain mesh it is; trimesh.load reads it as TextureVisuals of that material, which
+    rendered white (on the white background) once a plain material's colour was drawn, where the same file read by
+    read_mesh, and the mesh before it was saved, render in the tan."""
+    box = trimesh.creation.box(extents=(4.0, 4.0, 1.0))
+    glb = tmp_path / "plain.glb"
+    st.export.save_mesh(box, glb)
+    loaded = trimesh.load(glb, force="mesh", process=False)
+    assert isinstance(loaded.visual, trimesh.visual.TextureVisuals)  # the white PBR material, no UVs
+    loaded.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))  # glTF's y-up to z-up
+    np.testing.assert_allclose(loaded.vertices, st.export.read_mesh(glb).vertices, atol=1e-6)
+    white = _plain_box(trimesh.visual.material.PBRMaterial(baseColorFactor=[255, 255, 255, 255]))
+    tan = render.render_mesh(box, window_size=(64, 64), camera="top")
+    for mesh in (loaded, white):
+        np.testing.assert_array_equal(render.render_mesh(mesh, window_size=(64, 64), camera="top"), tan)
