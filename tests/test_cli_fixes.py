@@ -631,13 +631,14 @@ def test_a_batch_floor_refusal_names_the_option_once(tmp_path, capsys):
 
 
 # ------------------------------------------------------------------------------- library names as options (h20)
-def test_a_folder_without_isovalues_names_the_options(tmp_path, capsys):
-    """batch on a folder without --interval or --levels said "needs interval or levels": library arguments, not
-    the options the user types; only a message's leading argument was spelled as an option."""
+def test_a_folder_without_isovalues_is_stepped_at_the_default_interval(tmp_path, capsys):
+    """batch on a folder without --interval or --levels said "needs interval or levels" (library arguments, not
+    the options the user types: h20); its files share one height range now, which gives the default interval, as
+    steps picks it for one DEM (the rewriting of names mid-message is checked on other messages below)."""
     code, out, err = run(capsys, "-q", "batch", tile_folder(tmp_path / "tiles"), "--scheduler", "serial",
                          "-o", tmp_path / "out")
-    assert code == 2
-    assert "stepterrain batch: error: a folder or list of DEM files needs --interval or --levels" in err
+    assert code == 0, err
+    assert sorted(p.name for p in (tmp_path / "out").glob("*.glb")) == ["t0.glb", "t1.glb"]
 
 
 def test_a_globe_over_the_budget_names_the_face_size_option(tmp_path, capsys):
