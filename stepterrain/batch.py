@@ -1565,10 +1565,13 @@ def batch(
     interval, levels, base, gamma, colors, solid, floor
         As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
         tiles the isovalues come from the whole source's height range, so every item shares them (tiles
-        weld, frames keep their levels). A folder needs ``interval`` or ``levels``; its files (or a list's) share
-        them too: with ``colors`` or ``solid``, every file is read once before the items run (one at a time, as its
+        weld, frames keep their levels). A folder's files (or a list's) share them too: with ``colors``, ``solid``
+        or neither ``interval`` nor ``levels``, every file is read once before the items run (one at a time, as its
         item reads it: ``height_unit``, ``band``, ``spacing``, ``coarsen``; a file of nodata only, or one that
-        cannot be read, left out) for the height range of all of them, the isovalues of ``interval`` over it given
+        cannot be read, left out; a file whose range the folder's manifest records, unchanged since, not read
+        again) for the height range of all of them, the isovalues of ``interval`` (without ``interval`` and
+        ``levels``: :func:`~stepterrain.stepped.nice_interval` of that range, as :func:`~stepterrain.stepped` picks
+        it for one raster, recorded as ``interval`` and ``base`` in every output's metadata) over it given
         to every file, so that a height has one colour in every file (a file stepped alone spread the colormap over
         its own levels: colour seams between neighbouring tiles), the geometry unchanged. A solid tile, frame or
         file is closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
@@ -1678,28 +1681,28 @@ def batch(
     GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of its
     heights; and the options but the device, which does not change a bit of the output; the isovalues and floor a
     folder's files share among them, so that a file whose heights reach a new level redoes every file, and a file
-    rewritten within the levels only its own item) and that file exists with the recorded size. The shared height
-    range of a folder reads every file again on a rerun too (one file in memory at a time). The ctime catches a file
-    rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation
-    time; a file renamed, moved or restored from a backup (and every file item of a run made before stepterrain
-    recorded ctime and inode) is redone once. The manifest records each file, so an item's outputs in two formats (a
-    ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete; ``report.notes`` says when the
-    folder holds these items in another format too, when it holds outputs of items this run does not have (an earlier
-    run's other tile size or source: left as they were), when a failed item keeps an earlier run's output, and when
-    the manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
+    rewritten within the levels only its own item) and that file exists with the recorded size. The manifest also
+    records the height range of each file of a folder, by the file's identity as the fingerprint sees it and the
+    options it is read with, so that a rerun reads only the files changed since for the shared range. The ctime
+    catches a file rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is
+    the creation time; a file renamed, moved or restored from a backup (and every file item of a run made before
+    stepterrain recorded ctime and inode) is redone once. The manifest records each file, so an item's outputs in two
+    formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete; ``report.notes`` says
+    when the folder holds these items in another format too, when it holds outputs of items this run does not have (an
+    earlier run's other tile size or source: left as they were), when a failed item keeps an earlier run's output, and
+    when the manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
     afresh). Every file is written to a temporary file and renamed, and the manifest is updated only after the rename,
     so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the temporary
     files the killed run left half-written). Tiles are written with the whole raster's bounds as
     :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type for
     all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's float32
-    positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it).
-    A tile, frame or file of a folder with
-    no triangle of three finite heights (sea off a coast, a tile file of sea cut from a coastal raster, all nodata,
-    which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is written as an empty mesh, its
-    ``extras`` saying ``"empty"``, and counts as done (a rerun skips it), also for a solid. Cost per item: one
-    :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
-    run scales with the workers until the disk or the scheduler saturates. The default LocalCluster starts its
-    worker processes by *spawn*: a script that calls :func:`batch` needs the usual
+    positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it). A tile,
+    frame or file of a folder with no triangle of three finite heights (sea off a coast, a tile file of sea cut from a
+    coastal raster, all nodata, which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is
+    written as an empty mesh, its ``extras`` saying ``"empty"``, and counts as done (a rerun skips it), also for a
+    solid. Cost per item: one :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run
+    independently, so the run scales with the workers until the disk or the scheduler saturates. The default
+    LocalCluster starts its worker processes by *spawn*: a script that calls :func:`batch` needs the usual
     ``if __name__ == "__main__":`` guard.
 
     References
