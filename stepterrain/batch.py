@@ -1876,8 +1876,9 @@ def batch(
     ranges = None  # the files' height ranges to record in the manifest (None: none read, the recorded ones kept)
     if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
         # (after the cheap checks: every file is read, and a bad scheduler address was refused only after that)
+        recorded_ranges = _read_ranges(as_path(output_dir, "output_dir"))  # each unchanged file's, not read again
         options, ranges = _files_levels(items, options, None if interval is None else float(interval), levels, base,
-                                        retries, bool(progress), _read_ranges(Path(output_dir)))  # fmt: skip
+                                        retries, bool(progress), recorded_ranges)  # fmt: skip
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
     try:

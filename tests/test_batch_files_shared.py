@@ -356,3 +356,12 @@ def test_cli_batch_of_a_folder_needs_no_interval_and_colours_as_steps(tmp_path, 
     assert cli.main(["-q", "batch", str(tmp_path / "tiles"), "--format", ".stl", "--colormap", "terrain", "-o",
                      str(tmp_path / "stl2"), "--scheduler", "serial"]) == 2  # fmt: skip
     assert "--format .stl holds no colours" in capsys.readouterr().err
+
+
+def test_a_bad_output_dir_is_refused_before_any_file_is_read(tmp_path, monkeypatch):
+    # the range pass ran before output_dir was checked: every file was read, then the argument refused
+    strips(tmp_path / "tiles", 2, step=4)
+    calls = _count_reads(monkeypatch)
+    with pytest.raises(InvalidInputError, match="output_dir must be a str or os.PathLike; got int"):
+        batch(tmp_path / "tiles", 123, interval=100.0, colors="terrain", scheduler="serial")
+    assert calls == []
