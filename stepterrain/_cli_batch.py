@@ -118,18 +118,19 @@ def add_parser(commands: Any) -> None:
                         "(default 256 for the embedded DEM)")
     iso = p.add_mutually_exclusive_group()
     iso.add_argument("--interval", type=float, metavar="M",
-                     help=f"uniform isovalues base + k*M (series and tiles: default a round M giving "
-                          f"~{TARGET_STEPS} steps over the whole source; a folder needs it or --levels)")
+                     help=f"uniform isovalues base + k*M (default a round M giving ~{TARGET_STEPS} steps over "
+                          f"the whole source: a raster's tiles, a series' frames, all the files of a folder)")
     iso.add_argument("--levels", type=_floats(None, "comma-separated heights a,b,c"), metavar="a,b,c",
                      help="explicit, strictly increasing isovalues")
     p.add_argument("--base", type=float, metavar="B",
                    help="isovalue offset for --interval (default 0); not with --levels")
     p.add_argument("--gamma", type=float, default=1.0, metavar="G",
                    help="blend in [0, 1]: 0 = original surface, 1 = fully stepped (default 1)")
-    p.add_argument("--colormap", default="none", metavar="NAME",
-                   help="matplotlib colormap for level colors, or 'none' (default none, unlike steps' terrain); "
-                        "tiles, frames and the files of a folder share their levels, so a height has one colour in "
-                        "all of them (a folder's files are read once more first, for their common height range)")
+    p.add_argument("--colormap", default=None, metavar="NAME",
+                   help="matplotlib colormap for level colors, or 'none' (default terrain, land part, as steps; "
+                        "none for --format .stl, which holds no colours); tiles, frames and the files of a folder "
+                        "share their levels, so a height has one colour in all of them (a folder's files are read "
+                        "once more first, for their common height range, recorded for reruns)")
     p.add_argument("--solid", action="store_true", help="watertight solids (for .stl/.3mf printing)")
     p.add_argument("--floor", type=float, metavar="Z",
                    help="base height of --solid (default: one step under the whole raster, series or folder, "
@@ -218,6 +219,8 @@ def _run_batch(args: argparse.Namespace, progress: Any, sub: argparse.ArgumentPa
     if not (math.isfinite(args.connect_timeout) and 0 < args.connect_timeout <= MAX_CONNECT_TIMEOUT):
         raise InvalidInputError(f"--connect-timeout must be a positive number of seconds up to "
                                 f"{MAX_CONNECT_TIMEOUT:g} (a day); got {args.connect_timeout:g}")
+    if args.colormap is None:  # steps' default; an STL holds no colours (steps drops them there unsaid too)
+        args.colormap = "none" if _check_ext(args.format) == ".stl" else "terrain"
     _colormap(args.colormap)  # an unknown name fails here, before the cluster starts
     if args.colormap.lower() != "none" and _check_ext(args.format) == ".stl":  # the colours were dropped unsaid
         raise InvalidInputError(f"--colormap colours the meshes by level; --format .stl holds no colours (the --png "

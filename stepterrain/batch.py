@@ -1076,9 +1076,45 @@ def _read_manifest(output_dir: Path) -> tuple[dict[str, Any], str | None]:
     return items, None
 
 
-def _write_manifest(output_dir: Path, entries: Mapping[str, Any]) -> None:
+def _write_manifest(output_dir: Path, entries: Mapping[str, Any], ranges: Mapping[str, Any] | None = None) -> None:
+    """The manifest: its items, and the height ranges of a folder's files (:func:`_files_range`) when given."""
+    data: dict[str, Any] = {"version": _MANIFEST_VERSION, "items": entries}
+    if ranges is not None:
+        data["ranges"] = ranges
     with atomic_path(output_dir / MANIFEST_NAME) as tmp:
-        tmp.write_text(json.dumps({"version": _MANIFEST_VERSION, "items": entries}, indent=1), encoding="utf-8")
+        tmp.write_text(json.dumps(data, indent=1), encoding="utf-8")
+
+
+def _read_ranges(output_dir: Path) -> dict[str, Any]:
+    """The height ranges of a folder's files the manifest in ``output_dir`` records (:func:`_files_range`), by
+    :func:`_range_key`: ``[min, max]`` or None (no surface). Empty when there is none, or it cannot be read (the
+    manifest's own reading says why); an entry of another form is left out. Read before the folder is locked:
+    an entry is keyed by the file's identity, so one another run wrote is still that file's range."""
+    try:
+        data = json.loads((output_dir / MANIFEST_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+    found = data.get("ranges") if isinstance(data, dict) else None
+    if not isinstance(found, dict):
+        return {}
+    out: dict[str, Any] = {}
+    for key, value in found.items():
+        if value is None:
+            out[key] = None
+        elif (isinstance(value, list) and len(value) == 2
+              and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value)
+              and value[0] <= value[1]):  # fmt: skip
+            out[key] = [float(value[0]), float(value[1])]
+    return out
+
+
+def _range_key(item: BatchItem, options: _Options, listings: dict[str, dict[str, list[str]] | None]) -> str:
+    """A file's key in the manifest's height ranges: its identity as the fingerprint sees it (:func:`_file_identity`:
+    path, size, mtime, ctime and inode, and its GDAL sidecars') and the options its heights are read with."""
+    read = [options.height_unit, options.band, options.coarsen,
+            None if options.file_spacing is None else list(options.file_spacing)]  # fmt: skip
+    ident = _file_identity(item.path, listings)  # type: ignore[arg-type]
+    return hashlib.blake2b(json.dumps([ident, read]).encode(), digest_size=16).hexdigest()
 
 
 def _is_complete(entry: Any, fingerprint: str, output_dir: Path, name: str) -> bool:
@@ -1552,10 +1588,13 @@ def batch(
     interval, levels, base, gamma, colors, solid, floor
         As in :func:`~stepterrain.stepped` (``gamma`` a scalar, ``colors`` a colormap name). For series and
         tiles the isovalues come from the whole source's height range, so every item shares them (tiles
-        weld, frames keep their levels). A folder needs ``interval`` or ``levels``; its files (or a list's) share
-        them too: with ``colors`` or ``solid``, every file is read once before the items run (one at a time, as its
+        weld, frames keep their levels). A folder's files (or a list's) share them too: with ``colors``, ``solid``
+        or neither ``interval`` nor ``levels``, every file is read once before the items run (one at a time, as its
         item reads it: ``height_unit``, ``band``, ``spacing``, ``coarsen``; a file of nodata only, or one that
-        cannot be read, left out) for the height range of all of them, the isovalues of ``interval`` over it given
+        cannot be read, left out; a file whose range the folder's manifest records, unchanged since, not read
+        again) for the height range of all of them, the isovalues of ``interval`` (without ``interval`` and
+        ``levels``: :func:`~stepterrain.stepped.nice_interval` of that range, as :func:`~stepterrain.stepped` picks
+        it for one raster, recorded as ``interval`` and ``base`` in every output's metadata) over it given
         to every file, so that a height has one colour in every file (a file stepped alone spread the colormap over
         its own levels: colour seams between neighbouring tiles), the geometry unchanged. A solid tile, frame or
         file is closed on its own (skirts along its edges and a flat base), without ``floor`` at the one the whole
@@ -1665,28 +1704,28 @@ def batch(
     GDAL raster: world file, ``.aux.xml``, ``.msk``, ``.tab``, RPCs, ``.prj``, a ``.bil``'s ``.hdr``; or a hash of its
     heights; and the options but the device, which does not change a bit of the output; the isovalues and floor a
     folder's files share among them, so that a file whose heights reach a new level redoes every file, and a file
-    rewritten within the levels only its own item) and that file exists with the recorded size. The shared height
-    range of a folder reads every file again on a rerun too (one file in memory at a time). The ctime catches a file
-    rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is the creation
-    time; a file renamed, moved or restored from a backup (and every file item of a run made before stepterrain
-    recorded ctime and inode) is redone once. The manifest records each file, so an item's outputs in two formats (a
-    ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete; ``report.notes`` says when the
-    folder holds these items in another format too, when it holds outputs of items this run does not have (an earlier
-    run's other tile size or source: left as they were), when a failed item keeps an earlier run's output, and when
-    the manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
+    rewritten within the levels only its own item) and that file exists with the recorded size. The manifest also
+    records the height range of each file of a folder, by the file's identity as the fingerprint sees it and the
+    options it is read with, so that a rerun reads only the files changed since for the shared range. The ctime
+    catches a file rewritten with its size and mtime kept (``cp -p``) on Linux and macOS, not on Windows, where it is
+    the creation time; a file renamed, moved or restored from a backup (and every file item of a run made before
+    stepterrain recorded ctime and inode) is redone once. The manifest records each file, so an item's outputs in two
+    formats (a ``.glb`` run, then a ``.ply`` one into the same folder) are both kept and complete; ``report.notes`` says
+    when the folder holds these items in another format too, when it holds outputs of items this run does not have (an
+    earlier run's other tile size or source: left as they were), when a failed item keeps an earlier run's output, and
+    when the manifest could not be read (cut short or edited by hand: every item is redone and the manifest written
     afresh). Every file is written to a temporary file and renamed, and the manifest is updated only after the rename,
     so a killed run leaves complete outputs or none and a rerun redoes only what is missing (removing the temporary
     files the killed run left half-written). Tiles are written with the whole raster's bounds as
     :func:`~stepterrain.export.save_mesh`'s ``shared_bounds`` (one glTF node translation, one PLY coordinate type for
     all), so a vertex two tiles share is stored as the same bits in both and the tiles weld exactly; glTF's float32
-    positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it).
-    A tile, frame or file of a folder with
-    no triangle of three finite heights (sea off a coast, a tile file of sea cut from a coastal raster, all nodata,
-    which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is written as an empty mesh, its
-    ``extras`` saying ``"empty"``, and counts as done (a rerun skips it), also for a solid. Cost per item: one
-    :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run independently, so the
-    run scales with the workers until the disk or the scheduler saturates. The default LocalCluster starts its
-    worker processes by *spawn*: a script that calls :func:`batch` needs the usual
+    positions are then relative to the centre of the raster's bounds (about 8 mm resolution 100 km from it). A tile,
+    frame or file of a folder with no triangle of three finite heights (sea off a coast, a tile file of sea cut from a
+    coastal raster, all nodata, which :func:`~stepterrain.io.load_dem` refuses on its own as not elevation data) is
+    written as an empty mesh, its ``extras`` saying ``"empty"``, and counts as done (a rerun skips it), also for a
+    solid. Cost per item: one :func:`~stepterrain.stepped` (O(nodes + output)) plus the export; the items run
+    independently, so the run scales with the workers until the disk or the scheduler saturates. The default
+    LocalCluster starts its worker processes by *spawn*: a script that calls :func:`batch` needs the usual
     ``if __name__ == "__main__":`` guard.
 
     References
@@ -1831,12 +1870,11 @@ def batch(
         _check_floor(src, level_values, gamma_value, float(floor))  # heights at hand: refused once, not per item
     elif solid and src is not None and level_values is not None:  # every tile or frame on the whole source's floor
         floor = _shared_floor(src, level_values, gamma_value, None if interval is None else float(interval))
-    if src is None and interval is None and levels is None:
-        raise InvalidInputError("a folder or list of DEM files needs interval= or levels= (shared by every file)")
-    if src is None:  # no shared height range: check interval/levels/base now, not once per item
-        from .stepped import isovalues
+    if src is None:  # no shared height range yet: check interval/levels/base now, not once per item (neither given:
+        from .stepped import isovalues  # the default interval over all files, found with their range below)
 
-        isovalues((0.0, 0.0), interval=interval, levels=levels, base=base)
+        isovalues((0.0, 0.0), interval=1.0 if interval is None and levels is None else interval, levels=levels,
+                  base=base)  # fmt: skip
     if colors is not None:
         from .stepped import colormap
 
@@ -1858,15 +1896,18 @@ def batch(
     if overview_size is not None:  # before any item runs (once refused only after every item was written)
         _check_overview(items, src, overview_size)
     _check_scheduler(scheduler)
+    ranges = None  # the files' height ranges to record in the manifest (None: none read, the recorded ones kept)
     if src is None and items:  # a folder's or list's files: one height range, so one set of levels and one floor
         # (after the cheap checks: every file is read, and a bad scheduler address was refused only after that)
-        options = _files_levels(items, options, None if interval is None else float(interval), levels, base, retries,
-                                bool(progress))  # fmt: skip
+        recorded_ranges = _read_ranges(as_path(output_dir, "output_dir"))  # each unchanged file's, not read again
+        options, ranges = _files_levels(items, options, None if interval is None else float(interval), levels, base,
+                                        retries, bool(progress), recorded_ranges)  # fmt: skip
     folder, made = _check_output_dir(output_dir)
     lock = _FolderLock(folder)  # before anything is read or removed there: another run may be writing it
     try:
         run = dict(scheduler=scheduler, workers=workers, retries=retries, resume=resume, timeout=timeout)
-        return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, **run)
+        return _run_locked(items, src, options, folder, made, lock, progress=progress, start=start, ranges=ranges,
+                           **run)
     finally:
         lock.release()
 
@@ -1886,8 +1927,10 @@ def _run_locked(
     timeout: float,
     progress: bool | Callable[[str], str],
     start: float,
+    ranges: tuple[dict[str, Any], bool] | None = None,
 ) -> BatchReport:
-    """:func:`batch` once the arguments are checked and the output folder is locked."""
+    """:func:`batch` once the arguments are checked and the output folder is locked; ``ranges``: the files' height
+    ranges to record in the manifest (:func:`_files_range`) and whether they differ from those it records."""
     ext = options.ext
     outputs = [f"{item.key}{ext}" for item in items]
     _remove_partial(folder, outputs + [MANIFEST_NAME])
@@ -1926,7 +1969,7 @@ def _run_locked(
     # options (or never recorded), and out/*.glb loaded it with this run's outputs without a word
     earlier = {item.key for item in todo if os.path.lexists(folder / f"{item.key}{ext}")}
 
-    recorder = _Recorder(folder, manifest, fingerprints)
+    recorder = _Recorder(folder, manifest, fingerprints, ranges)
     serial = isinstance(scheduler, str) and scheduler == "serial"
     # a nanny writes its pre-spawn variables into os.environ again when it restarts a worker that died: put back
     # when the default cluster is closed, as start_local_cluster puts them back once its workers have started
@@ -2061,24 +2104,41 @@ def _levels_and_range(
 
 
 def _files_range(
-    items: Sequence[BatchItem], options: _Options, retries: int, progress: bool
-) -> tuple[tuple[float, float], str] | None:
+    items: Sequence[BatchItem], options: _Options, retries: int, progress: bool,
+    cached: Mapping[str, Any] | None = None,
+) -> tuple[tuple[tuple[float, float], str] | None, dict[str, Any]]:
     """The (min, max) of the heights a triangle uses over every file of a folder or list (each file's
     :attr:`~stepterrain.terrain.Terrain.height_range`, read as its item reads it: ``height_unit``, ``band``,
-    ``spacing``, ``coarsen``), and the file holding the lowest; None when no file has a triangle of three finite
-    heights. One file in memory at a time, read once more than its item reads it. A file that cannot be read (a
+    ``spacing``, ``coarsen``), and the file holding the lowest (None when no file has a triangle of three finite
+    heights); and each file's range by :func:`_range_key` (``[min, max]``, None for no surface; not a file that
+    could not be read), for the manifest. A file whose key ``cached`` holds (the manifest of an earlier run: the same
+    file, unchanged, read with the same options) is not read again; every other one is, one file in memory at a
+    time, read once more than its item reads it. A file that cannot be read (a
     :class:`~stepterrain.errors.StepTerrainError`, which fails its item without retries) is left out, its item
     failing with the reason; a transient OSError under the read (EIO, ETIMEDOUT, ...: a disk or network
     hiccup) is retried ``retries`` times, then raised: levels from the other files alone would differ from those of
     a run that read it."""
+    cached = {} if cached is None else cached
+    listings: dict[str, dict[str, list[str]] | None] = {}
+    keys = [_range_key(item, options, listings) for item in items]
     bar = None
-    if progress and len(items) > 1:
+    unread = sum(key not in cached for key in keys)
+    if progress and unread > 1:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(items), desc="stepterrain batch: height range", unit="file")
+        bar = tqdm(total=unread, desc="stepterrain batch: height range", unit="file")
     lo, hi, lowest = math.inf, -math.inf, ""
+    ranges: dict[str, Any] = {}
     try:
-        for item in items:
+        for item, key in zip(items, keys, strict=True):
+            if key in cached:  # recorded by an earlier run: the same file, read alike
+                ranges[key] = cached[key]
+                if ranges[key] is not None:
+                    a, b = ranges[key]
+                    if a < lo:
+                        lo, lowest = a, str(item.path)
+                    hi = max(hi, b)
+                continue
             for attempt in range(retries + 1):
                 try:
                     terrain = _item_terrain(item, None, options.height_unit, options.file_spacing, options.coarsen,
@@ -2093,39 +2153,52 @@ def _files_range(
                     terrain = None
                 break
             if terrain is not None and _has_surface(terrain):  # an empty item (nodata only) moves no level
-                a, b = terrain.height_range
+                a, b = (float(v) for v in terrain.height_range)
+                ranges[key] = [a, b]
                 if a < lo:
                     lo, lowest = a, str(item.path)
                 hi = max(hi, b)
+            elif terrain is not None:
+                ranges[key] = None
             del terrain
             if bar is not None:
                 bar.update(1)
     finally:
         if bar is not None:
             bar.close()
-    return None if lowest == "" else ((lo, hi), lowest)
+    return (None if lowest == "" else ((lo, hi), lowest)), ranges
 
 
 def _files_levels(
     items: Sequence[BatchItem], options: _Options, interval: float | None, levels: ArrayLike | None, base: float,
-    retries: int, progress: bool,
-) -> _Options:
+    retries: int, progress: bool, cached: Mapping[str, Any] | None = None,
+) -> tuple[_Options, tuple[dict[str, Any], bool] | None]:
     """``options`` with the levels and floor every file of a folder or list shares, as tiles of one raster share
     them (:func:`_levels_and_range`, :func:`_shared_floor`): the isovalues of ``interval`` over the height range of
     all files (:func:`_files_range`; explicit ``levels`` as given), so that a height gets one colour in every file,
     and a solid's default floor under the lowest of all files, so that every file stands on one base; an explicit
     ``floor`` checked against every file here, refused once before any item runs, naming the file whose surface it
-    does not lie below. The files are read only when that matters: a colormap over ``interval`` levels, or a
-    solid. ``options`` as they are when no file has a surface (every item is empty)."""
-    if not (options.solid or (options.colors is not None and levels is None)):
-        return options  # explicit levels without a solid: every file has them already; no colours: none to match
-    found = _files_range(items, options, retries, progress)
+    does not lie below. Without ``interval`` and ``levels``, the default interval over that range
+    (:func:`~stepterrain.stepped.nice_interval`, as :func:`~stepterrain.stepped` picks it for one raster), recorded
+    in the metadata as tiles of one raster record theirs. The files are read only when that matters: a colormap over
+    ``interval`` levels, a solid, or no interval yet; a file whose range the manifest records (``cached``, by
+    :func:`_range_key`) is not read again. ``options`` as they are when no file has a surface (every item is
+    empty). Also the files' ranges for the manifest and whether they differ from ``cached`` (None: none read)."""
+    if not (options.solid or (options.colors is not None and levels is None) or (interval is None and levels is None)):
+        return options, None  # explicit levels without a solid: every file has them already; no colours: none to match
+    found, ranges = _files_range(items, options, retries, progress, cached)
+    changed = cached is None or any(cached.get(key, ...) != value for key, value in ranges.items()) or (
+        set(cached) != set(ranges))  # fmt: skip
     if found is None:
-        return options
+        return options, (ranges, changed)
     (lo, hi), lowest = found
-    from .stepped import isovalues
+    from .stepped import isovalues, nice_interval
 
     if levels is None:
+        if interval is None:  # steps' default for one raster, over all the files
+            interval = nice_interval((lo, hi))
+            steps = (("interval", float(interval)), ("base", float(base)))
+            options = dataclasses.replace(options, metadata=options.metadata + steps)
         values = tuple(float(v) for v in isovalues((lo, hi), interval=interval, base=base))
         options = dataclasses.replace(options, interval=None, levels=values, base=0.0)
     else:
@@ -2135,7 +2208,7 @@ def _files_levels(
                           values, options.gamma, options.floor)  # fmt: skip
     elif options.solid:
         options = dataclasses.replace(options, floor=_floor_under(lo, values, options.gamma, interval))
-    return options
+    return options, (ranges, changed)
 
 
 def _shared_floor(src: _Source, values: tuple[float, ...], gamma: float, interval: float | None) -> float | None:
@@ -2194,10 +2267,14 @@ class _Recorder:
     atomically and complete without it, and a rerun redoes what it does not record. The entries stay to write at
     the next flush; :attr:`unrecorded` says how many outputs of this run the manifest on disk lacks, and why."""
 
-    def __init__(self, folder: Path, entries: dict[str, Any], fingerprints: Mapping[str, str]) -> None:
+    def __init__(self, folder: Path, entries: dict[str, Any], fingerprints: Mapping[str, str],
+                 ranges: tuple[dict[str, Any], bool] | None = None) -> None:
         self.folder, self.entries, self.fingerprints = folder, entries, fingerprints
+        self.ranges = None if ranges is None else ranges[0]  # a folder's files' height ranges, recorded with them
         self.last = 0.0
         self.pending = 0  # outputs of this run added since the manifest was last written
+        # ranges the manifest does not record yet: a rerun whose every item is skipped writes them too
+        self.ranges_pending = ranges is not None and ranges[1]
         self.error: str | None = None  # why the last rewrite failed (None: it did not)
 
     def add(self, result: ItemResult) -> None:
@@ -2216,19 +2293,22 @@ class _Recorder:
             self.flush()
 
     def flush(self) -> None:
-        if self.pending:  # entries added since the manifest was last written
+        if self.pending or self.ranges_pending:  # entries (or ranges) added since the manifest was last written
             try:
-                _write_manifest(self.folder, self.entries)
+                if self.ranges is None:
+                    _write_manifest(self.folder, self.entries)
+                else:
+                    _write_manifest(self.folder, self.entries, self.ranges)
             except OSError as exc:  # also the DataFileError of atomic_path: ENOSPC ended the whole run, unattributed
                 self.error = exc.strerror or str(exc)
             else:
-                self.pending, self.error = 0, None
+                self.pending, self.ranges_pending, self.error = 0, False, None
             self.last = time.monotonic()
 
     @property
     def unrecorded(self) -> str | None:
         """A note when the manifest on disk lacks outputs of this run (its last rewrite failed), else None."""
-        if self.error is None:
+        if self.error is None or not self.pending:  # the ranges alone: read again by the next run
             return None
         return (f"the manifest {MANIFEST_NAME} could not be written ({self.error}): it does not record "
                 f"{counted(self.pending, 'output')} of this run (written complete), which a rerun redoes")

@@ -387,10 +387,19 @@ def test_unreadable_tile_is_reported_and_the_rest_proceed(tmp_path):
     assert not (tmp_path / "out" / "dem_bad.obj").exists()
 
 
-def test_folder_needs_isovalues_and_dems(tmp_path):
+def test_folder_gets_the_default_isovalues_and_needs_dems(tmp_path):
+    # without interval or levels a folder was refused; its files share one height range now, so it gets the
+    # default interval over that range (as stepped() over one raster)
+    from stepterrain.stepped import isovalues, nice_interval
+
     src = make_folder(tmp_path / "in")
-    with pytest.raises(InvalidInputError, match="needs interval= or levels="):
-        batch(src, tmp_path / "out", scheduler="serial")
+    report = batch(src, tmp_path / "out", format=".ply", scheduler="serial")
+    assert report.ok and len(report.done) == 3
+    heights = [np.load(src / f"dem_{k}.npy") for k in range(3)]
+    lo, hi = float(min(h.min() for h in heights)), float(max(h.max() for h in heights))
+    levels = {float(v) for v in isovalues((lo, hi), interval=nice_interval((lo, hi)))}
+    for r in report.done:
+        assert {float(z) for z in np.asarray(trimesh.load(r.path, force="mesh").vertices)[:, 2]} <= levels
     (tmp_path / "empty").mkdir()
     with pytest.raises(InvalidInputError, match="holds no DEM file"):
         batch(tmp_path / "empty", tmp_path / "out", interval=1.0, scheduler="serial")

@@ -230,3 +230,138 @@ def test_an_unreadable_file_fails_its_item_and_a_disk_error_is_retried_or_refuse
     with pytest.raises(DataFileError, match=rf"cannot read '{files[1]}' for the height range every file's levels"):
         batch(tmp_path / "tiles", tmp_path / "out4", retries=1, **kwargs)
     assert not (tmp_path / "out4").exists()  # refused before the output folder is made
+
+
+# ---------------------------------------------------------------------------------- follow-ups (h177)
+def test_a_folder_without_interval_or_levels_gets_the_default_interval_of_all_files(tmp_path):
+    # refused with "a folder or list of DEM files needs interval= or levels="; steps picks nice_interval over one
+    # raster's heights, and a folder's files now share one range: that interval over all of them, recorded
+    from stepterrain.stepped import nice_interval
+
+    from .test_export import glb_json
+
+    terrain, files = strips(tmp_path / "tiles", 2, step=4)
+    report = batch(tmp_path / "tiles", tmp_path / "out", base=5.0, scheduler="serial")
+    assert report.ok and [r.key for r in report.done] == ["tile_0", "tile_1"], report.summary()
+    interval = nice_interval(terrain.height_range)
+    expected = isovalues(terrain.height_range, interval=interval, base=5.0).tolist()
+    for r in report.done:
+        extras = glb_json(Path(r.path))["meshes"][0]["extras"]
+        assert extras["interval"] == interval and extras["base"] == 5.0
+        assert extras["isovalues"] == pytest.approx(expected)
+    # the files' steps are the whole raster's steps at that interval
+    whole = {float(z) for z in np.asarray(stepped(terrain, interval=interval, base=5.0).vertices)[:, 2]}
+    assert set().union(*({float(z) for z in np.asarray(read_mesh(r.path).vertices)[:, 2]}
+                         for r in report.done)) == whole  # fmt: skip
+    assert len(batch(files, tmp_path / "out", base=5.0, scheduler="serial").skipped) == 2
+
+
+def _count_reads(monkeypatch) -> list[str]:
+    import stepterrain.io as io
+
+    real, calls = io.read_dem, []
+
+    def counted_read(path, **kwargs):
+        calls.append(Path(path).name)
+        return real(path, **kwargs)
+
+    monkeypatch.setattr(io, "read_dem", counted_read)
+    return calls
+
+
+def test_a_rerun_reads_no_unchanged_file_for_the_range(tmp_path, monkeypatch):
+    # every rerun read every file of the folder again for the shared height range, also when every item was then
+    # skipped: each file's range is recorded in the manifest by the file's identity and read options
+    terrain, files = strips(tmp_path / "tiles", 3, step=4)
+    calls = _count_reads(monkeypatch)
+    kwargs = {"interval": 100.0, "colors": "terrain", "solid": True, "format": ".ply", "scheduler": "serial"}
+    out = tmp_path / "out"
+    first = batch(tmp_path / "tiles", out, **kwargs)
+    assert first.ok and sorted(calls) == sorted(2 * [f.name for f in files])  # the range pass, then the item
+    calls.clear()
+    again = batch(tmp_path / "tiles", out, **kwargs)
+    assert len(again.skipped) == 3 and calls == []
+    # another height unit reads them again (and the items: other heights); the manifest keeps this run's ranges
+    calls.clear()
+    assert batch(tmp_path / "tiles", out, height_unit="ft", **kwargs).ok and len(calls) == 6
+    calls.clear()
+    assert len(batch(tmp_path / "tiles", out, height_unit="ft", **kwargs).skipped) == 3 and calls == []
+    assert len(batch(tmp_path / "tiles", out, **kwargs).done) == 3 and len(calls) == 6
+    # a file touched (mtime changed, heights not): read again for the range, its item alone redone
+    stat = files[2].stat()
+    os.utime(files[2], ns=(stat.st_atime_ns, stat.st_mtime_ns + 10**9))
+    calls.clear()
+    again = batch(tmp_path / "tiles", out, **kwargs)
+    assert [r.key for r in again.done] == ["tile_2"] and calls == ["tile_2.tif", "tile_2.tif"]
+    # a file rewritten higher: its new range is used, not the recorded one
+    east = load_dem(files[2])
+    higher = east.heights.copy()
+    higher[3, 3] = terrain.height_range[1] + 250.0
+    _write_tif(files[2], higher, *east.origin, *east.spacing, terrain.crs)
+    calls.clear()
+    again = batch(tmp_path / "tiles", out, **kwargs)
+    assert again.ok and len(again.done) == 3 and calls.count("tile_2.tif") == 2 and len(calls) == 4
+    # (every item redone: the shared levels moved) and the outputs are those of a run that read every file
+    fresh = batch(tmp_path / "tiles", tmp_path / "fresh", **kwargs)
+    assert [Path(r.path).read_bytes() for r in again.done] == [Path(r.path).read_bytes() for r in fresh.done]
+    calls.clear()
+    assert len(batch(tmp_path / "tiles", out, **kwargs).skipped) == 3 and calls == []
+
+
+def test_ranges_a_manifest_lacks_are_read_once_and_then_recorded(tmp_path, monkeypatch):
+    # a manifest of a run before the ranges were recorded (or with an entry edited into another form): its items
+    # stay complete, the files are read once more and their ranges recorded although no item is redone
+    _, files = strips(tmp_path / "tiles", 2, step=4)
+    kwargs = {"interval": 100.0, "colors": "terrain", "format": ".ply", "scheduler": "serial"}
+    out = tmp_path / "out"
+    assert batch(tmp_path / "tiles", out, **kwargs).ok
+    manifest = json.loads((out / MANIFEST_NAME).read_text())
+    assert len(manifest["ranges"]) == 2
+    key = sorted(manifest["ranges"])[0]
+    manifest["ranges"] = {key: ["low", 3.0]}
+    (out / MANIFEST_NAME).write_text(json.dumps(manifest))
+    calls = _count_reads(monkeypatch)
+    again = batch(tmp_path / "tiles", out, **kwargs)
+    assert len(again.skipped) == 2 and len(calls) == 2
+    assert len(json.loads((out / MANIFEST_NAME).read_text())["ranges"]) == 2
+    calls.clear()
+    assert len(batch(tmp_path / "tiles", out, **kwargs).skipped) == 2 and calls == []
+
+
+def test_cli_batch_of_a_folder_needs_no_interval_and_colours_as_steps(tmp_path, capsys):
+    # `stepterrain batch FOLDER -o out` was refused (needs --interval or --levels), and its meshes were grey unless
+    # --colormap was given (default none, unlike steps' terrain); now as steps: a default interval, terrain colours
+    from stepterrain.stepped import nice_interval
+
+    terrain, files = strips(tmp_path / "tiles", 2, step=4)
+    out = tmp_path / "out"
+    assert cli.main(["-q", "batch", str(tmp_path / "tiles"), "--format", ".ply", "-o", str(out), "--scheduler",
+                     "serial"]) == 0, capsys.readouterr().err  # fmt: skip
+    west, east = (colours_by_height(out / f"{f.stem}.ply") for f in files)
+    values = {float(v) for v in isovalues(terrain.height_range, interval=nice_interval(terrain.height_range))}
+    shared = set(west) & set(east) & values
+    assert len(shared) >= 5 and all(west[z] == east[z] and len(west[z]) == 1 for z in shared)
+    assert len({c for z in shared for c in west[z]}) == len(shared)  # coloured by level, not one grey
+    steps_out = tmp_path / "whole.ply"
+    np.save(tmp_path / "whole.npy", terrain.heights)
+    assert cli.main(["-q", "steps", str(tmp_path / "whole.npy"), "--interval", str(nice_interval(
+        terrain.height_range)), "-o", str(steps_out)]) == 0  # fmt: skip
+    whole = colours_by_height(steps_out)
+    assert all(whole[z] == west[z] for z in shared)  # steps' default colours
+    # .stl holds no colours: no colormap by default, as steps writes an .stl without one; a named one still refused
+    assert cli.main(["-q", "batch", str(tmp_path / "tiles"), "--format", ".stl", "-o", str(tmp_path / "stl"),
+                     "--scheduler", "serial"]) == 0  # fmt: skip
+    assert sorted(p.name for p in (tmp_path / "stl").glob("*.stl")) == ["tile_0.stl", "tile_1.stl"]
+    capsys.readouterr()
+    assert cli.main(["-q", "batch", str(tmp_path / "tiles"), "--format", ".stl", "--colormap", "terrain", "-o",
+                     str(tmp_path / "stl2"), "--scheduler", "serial"]) == 2  # fmt: skip
+    assert "--format .stl holds no colours" in capsys.readouterr().err
+
+
+def test_a_bad_output_dir_is_refused_before_any_file_is_read(tmp_path, monkeypatch):
+    # the range pass ran before output_dir was checked: every file was read, then the argument refused
+    strips(tmp_path / "tiles", 2, step=4)
+    calls = _count_reads(monkeypatch)
+    with pytest.raises(InvalidInputError, match="output_dir must be a str or os.PathLike; got int"):
+        batch(tmp_path / "tiles", 123, interval=100.0, colors="terrain", scheduler="serial")
+    assert calls == []
