@@ -858,8 +858,10 @@ def test_library_names_that_leaked_to_the_command_line_are_spelled_as_options(tm
          "error: --tile applies to one raster, not to a folder of tiles", ""),
         (["batch", folder, "--interval", "1", "--base", "1e20", "--scheduler", "serial", "-o", tmp_path / "b"],
          "error: --interval 1 with --base 1e+20, more than 2**53", "bring --base closer"),  # up front: any heights
+        (["batch", folder, "--interval", "1e-5", "--colormap", "none", "--scheduler", "serial", "-o",
+          tmp_path / "b"], "failed t0: InvalidInputError: --interval 1e-05 over heights", ""),  # per item
         (["batch", folder, "--interval", "1e-5", "--scheduler", "serial", "-o", tmp_path / "b"],
-         "failed t0: InvalidInputError: --interval 1e-05 over heights", ""),
+         "error: --interval 1e-05 over heights", ""),  # coloured (the default): up front, the files' range
         (["closeup", dem, "--roi", "3,-3,2", "--stepped", "1e-9", "-o", tmp_path / "c.glb"],
          "error: --stepped 1e-09 over heights [1000, 1011] gives", ""),
     ]
