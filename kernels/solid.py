@@ -1,0 +1,316 @@
+"""Warp kernels that close a stepped surface into a watertight solid (``stepterrain.mesh.close_solid``; paper 000
+§4 prints the stepped terrain as a solid: side skirts from the boundary down to a flat base).
+
+Everything here is integer bookkeeping over the surface's faces, count -> scan -> emit as elsewhere:
+
+* a vertex -> corner table (CSR) without a sort: :func:`count_keys` counts the corners at each vertex (atomic adds),
+  an exclusive scan gives each vertex its bucket, :func:`fill_buckets` drops each corner into its vertex's bucket
+  through an atomic cursor (the order inside a bucket may differ between runs on CUDA; only counts are read from it).
+* boundary edges: a half-edge (a, b) is on the boundary iff exactly one half-edge of the mesh has the undirected key
+  {a, b}; :func:`edge_uses` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
+  flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
+* fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
+  a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
+* the base: :func:`emit_base_vertices` writes each column's base vertex, :func:`count_base_faces` and
+  :func:`emit_base_faces` the terraces flattened and reversed, without those a column collapses to zero area.
+
+Kernels take ``thread_offset, count, chunk`` first (``stepterrain._device.launch_chunked``). Faces are flat int32
+arrays (3 per face); indices fit int32 (``close_solid`` checks).
+"""
+
+from __future__ import annotations
+
+import warp as wp
+
+from .memory import load
+
+wp.set_module_options({"enable_backward": False})  # integer work only: no adjoints, nothing to contract
+
+
+@wp.kernel
+def count_keys(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    keys: wp.array[wp.int32],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One element per item: add one to its key's count (``counts_out`` zeroed first)."""
+    first = (wp.tid() + thread_offset) * chunk
+    t = first
+    last = wp.min(first + chunk, count)
+    while t < last:
+        wp.atomic_add(counts_out, load(keys, t), 1)
+        t += 1
+
+
+@wp.kernel
+def fill_buckets(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    keys: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    cursor_out: wp.array[wp.int32],
+    items_out: wp.array[wp.int32],
+):
+    """One element per item: write its index into its key's bucket (``offsets``: the exclusive scan of the key
+    counts; ``cursor_out`` zeroed first)."""
+    first = (wp.tid() + thread_offset) * chunk
+    t = first
+    last = wp.min(first + chunk, count)
+    while t < last:
+        k = load(keys, t)
+        slot = wp.atomic_add(cursor_out, k, 1)
+        items_out[load(offsets, k) + slot] = t
+        t += 1
+
+
+@wp.func
+def edge_uses(faces: wp.array[wp.int32], offsets: wp.array[wp.int32], corners: wp.array[wp.int32],
+              a: wp.int32, b: wp.int32) -> wp.int32:
+    """How many half-edges of the mesh have the undirected key {a, b}, counted among the corners of a or b (whichever
+    has fewer): a corner at a whose next corner is b starts (a, b), one whose previous corner is b ends (b, a); a
+    degenerate (a, a) is counted once, by its start."""
+    u = a
+    w = b
+    if load(offsets, b + 1) - load(offsets, b) < load(offsets, a + 1) - load(offsets, a):
+        u = b
+        w = a
+    n = wp.int32(0)
+    s = load(offsets, u)
+    end = load(offsets, u + 1)
+    while s < end:
+        c = load(corners, s)
+        j = c % 3
+        base = c - j
+        if load(faces, base + (j + 1) % 3) == w:
+            n += 1
+        if u != w and load(faces, base + (j + 2) % 3) == w:
+            n += 1
+        s += 1
+    return n
+
+
+@wp.kernel
+def count_boundary(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    corners: wp.array[wp.int32],
+    # outputs
+    flags_out: wp.array[wp.int32],
+    counts_out: wp.array[wp.int32],
+):
+    """One element per face: ``flags_out[f]`` has bit j set where the half-edge leaving corner j is a boundary edge
+    (its undirected key used once); ``counts_out[thread]`` counts them over the thread's chunk."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    total = wp.int32(0)
+    while f < last:
+        bits = wp.int32(0)
+        for j in range(3):
+            a = load(faces, 3 * f + j)
+            b = load(faces, 3 * f + (j + 1) % 3)
+            if edge_uses(faces, offsets, corners, a, b) == 1:
+                bits = bits | (1 << j)
+                total += 1
+        flags_out[f] = bits
+        f += 1
+    counts_out[wp.tid() + thread_offset] = total
+
+
+@wp.kernel
+def emit_boundary(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    flags: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    edges_out: wp.array[wp.int64],
+):
+    """One element per face: its boundary edges (a, b), as wound, from the thread's offset on (flat: 2 per edge)."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    o = load(offsets, wp.tid() + thread_offset)
+    while f < last:
+        bits = load(flags, f)
+        for j in range(3):
+            if bits & (1 << j):
+                edges_out[2 * o] = wp.int64(load(faces, 3 * f + j))
+                edges_out[2 * o + 1] = wp.int64(load(faces, 3 * f + (j + 1) % 3))
+                o += 1
+        f += 1
+
+
+@wp.kernel
+def wall_quads(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    first_walls: wp.array[wp.int32],
+    second_walls: wp.array[wp.int32],
+    # outputs
+    quads_out: wp.array[wp.vec4i],
+    keys_out: wp.array[wp.int32],
+):
+    """One element per wall pair (u_top, v_top, v_bottom), (u_top, v_bottom, u_bottom): its four vertices (the
+    first face's and the second's last) sorted, and the smallest as its key."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        f = load(first_walls, p)
+        g = load(second_walls, p)
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        d = load(faces, 3 * g + 2)
+        # a sorting network of four
+        lo = wp.min(a, b)
+        b = wp.max(a, b)
+        a = lo
+        lo = wp.min(c, d)
+        d = wp.max(c, d)
+        c = lo
+        lo = wp.min(a, c)
+        c = wp.max(a, c)
+        a = lo
+        lo = wp.min(b, d)
+        d = wp.max(b, d)
+        b = lo
+        lo = wp.min(b, c)
+        c = wp.max(b, c)
+        b = lo
+        q = wp.vec4i(a, b, c, d)
+        quads_out[p] = q
+        keys_out[p] = q[0]
+        p += 1
+
+
+@wp.kernel
+def find_fins(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    quads: wp.array[wp.vec4i],
+    offsets: wp.array[wp.int32],
+    pairs: wp.array[wp.int32],
+    # outputs
+    fins_out: wp.array[wp.uint8],
+):
+    """One element per wall pair: 1 where another pair has the same sorted quad (found in the bucket of the quad's
+    smallest vertex), else 0."""
+    first = (wp.tid() + thread_offset) * chunk
+    p = first
+    last = wp.min(first + chunk, count)
+    while p < last:
+        q = quads[p]
+        hit = wp.uint8(0)
+        s = load(offsets, q[0])
+        end = load(offsets, q[0] + 1)
+        while s < end:
+            r = load(pairs, s)
+            if r != p:
+                o = quads[r]
+                if o[1] == q[1] and o[2] == q[2] and o[3] == q[3]:
+                    hit = wp.uint8(1)
+            s += 1
+        fins_out[p] = hit
+        p += 1
+
+
+@wp.kernel
+def emit_base_vertices(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    vertices: wp.array[wp.float64],
+    column: wp.array[wp.int32],
+    floor: wp.float64,
+    # outputs
+    base_out: wp.array[wp.float64],
+):
+    """One element per surface vertex: its column's base vertex (its x, y at ``floor``; flat, 3 per vertex). The
+    vertices of a column share their x and y bit for bit, so its writers write the same values."""
+    first = (wp.tid() + thread_offset) * chunk
+    i = first
+    last = wp.min(first + chunk, count)
+    while i < last:
+        o = 3 * load(column, i)
+        base_out[o] = load(vertices, 3 * i)
+        base_out[o + 1] = load(vertices, 3 * i + 1)
+        base_out[o + 2] = floor
+        i += 1
+
+
+@wp.func
+def base_face_ok(faces: wp.array[wp.int32], terrace: wp.array[wp.uint8], column: wp.array[wp.int32],
+                 f: wp.int32) -> wp.bool:
+    """Whether face f is a terrace whose three columns differ (its base face has an area)."""
+    if terrace[f] == wp.uint8(0):
+        return False
+    a = load(column, load(faces, 3 * f))
+    b = load(column, load(faces, 3 * f + 1))
+    c = load(column, load(faces, 3 * f + 2))
+    return a != b and b != c and a != c
+
+
+@wp.kernel
+def count_base_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    terrace: wp.array[wp.uint8],
+    column: wp.array[wp.int32],
+    # outputs
+    counts_out: wp.array[wp.int32],
+):
+    """One element per face: ``counts_out[thread]`` counts the base faces of the thread's chunk."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    total = wp.int32(0)
+    while f < last:
+        if base_face_ok(faces, terrace, column, f):
+            total += 1
+        f += 1
+    counts_out[wp.tid() + thread_offset] = total
+
+
+@wp.kernel
+def emit_base_faces(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    terrace: wp.array[wp.uint8],
+    column: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    first_base: wp.int64,
+    # outputs
+    faces_out: wp.array[wp.int64],
+):
+    """One element per face: a terrace's base face, its columns' base vertices (``first_base`` + column) in reverse
+    order, from the thread's offset on (flat, 3 per face)."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    o = load(offsets, wp.tid() + thread_offset)
+    while f < last:
+        if base_face_ok(faces, terrace, column, f):
+            faces_out[3 * o] = first_base + wp.int64(load(column, load(faces, 3 * f + 2)))
+            faces_out[3 * o + 1] = first_base + wp.int64(load(column, load(faces, 3 * f + 1)))
+            faces_out[3 * o + 2] = first_base + wp.int64(load(column, load(faces, 3 * f)))
+            o += 1
+        f += 1
