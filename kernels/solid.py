@@ -4,10 +4,11 @@
 Everything here is integer bookkeeping over the surface's faces, count -> scan -> emit as elsewhere:
 
 * a vertex -> corner table (CSR) without a sort: :func:`count_keys` counts the corners at each vertex (atomic adds),
-  an exclusive scan gives each vertex its bucket, :func:`fill_buckets` drops each corner into its vertex's bucket
-  through an atomic cursor (the order inside a bucket may differ between runs on CUDA; only counts are read from it).
+  an exclusive scan gives each vertex its bucket, :func:`fill_corners` drops each corner, as its face's next and
+  previous vertex, into its vertex's bucket through an atomic cursor (the order inside a bucket may differ between
+  runs; only counts are read from it). :func:`fill_buckets` does the same for any int keys.
 * boundary edges: a half-edge (a, b) is on the boundary iff exactly one half-edge of the mesh has the undirected key
-  {a, b}; :func:`edge_uses` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
+  {a, b}; :func:`is_boundary` counts them among the corners of a or b, whichever has fewer. :func:`count_boundary`
   flags them per face and counts them per thread, :func:`emit_boundary` writes them in face and corner order.
 * fins (two walls back to back on the same four vertices): :func:`wall_quads` sorts each wall pair's four vertices,
   a CSR keyed by each quad's smallest vertex groups the candidates, :func:`find_fins` flags the repeated quads.
@@ -68,12 +69,37 @@ def fill_buckets(
         t += 1
 
 
+@wp.kernel
+def fill_corners(
+    thread_offset: wp.int32,
+    count: wp.int32,
+    chunk: wp.int32,
+    faces: wp.array[wp.int32],
+    offsets: wp.array[wp.int32],
+    # outputs
+    cursor_out: wp.array[wp.int32],
+    items_out: wp.array[wp.vec2i],
+):
+    """One element per face: drop each corner into its vertex's bucket as (next vertex, previous vertex) of the
+    face (``offsets``: the exclusive scan of the corner counts per vertex; ``cursor_out`` zeroed first)."""
+    first = (wp.tid() + thread_offset) * chunk
+    f = first
+    last = wp.min(first + chunk, count)
+    while f < last:
+        a = load(faces, 3 * f)
+        b = load(faces, 3 * f + 1)
+        c = load(faces, 3 * f + 2)
+        items_out[load(offsets, a) + wp.atomic_add(cursor_out, a, 1)] = wp.vec2i(b, c)
+        items_out[load(offsets, b) + wp.atomic_add(cursor_out, b, 1)] = wp.vec2i(c, a)
+        items_out[load(offsets, c) + wp.atomic_add(cursor_out, c, 1)] = wp.vec2i(a, b)
+        f += 1
+
+
 @wp.func
-def edge_uses(faces: wp.array[wp.int32], offsets: wp.array[wp.int32], corners: wp.array[wp.int32],
-              a: wp.int32, b: wp.int32) -> wp.int32:
-    """How many half-edges of the mesh have the undirected key {a, b}, counted among the corners of a or b (whichever
-    has fewer): a corner at a whose next corner is b starts (a, b), one whose previous corner is b ends (b, a); a
-    degenerate (a, a) is counted once, by its start."""
+def is_boundary(offsets: wp.array[wp.int32], corners: wp.array[wp.vec2i], a: wp.int32, b: wp.int32) -> wp.bool:
+    """Whether exactly one half-edge of the mesh has the undirected key {a, b}, counted among the corners of a or b
+    (whichever has fewer; stops at the second): a corner at u whose next vertex is w starts (u, w), one whose
+    previous vertex is w ends (w, u); a degenerate (a, a) is counted once, by its start."""
     u = a
     w = b
     if load(offsets, b + 1) - load(offsets, b) < load(offsets, a + 1) - load(offsets, a):
@@ -82,16 +108,14 @@ def edge_uses(faces: wp.array[wp.int32], offsets: wp.array[wp.int32], corners: w
     n = wp.int32(0)
     s = load(offsets, u)
     end = load(offsets, u + 1)
-    while s < end:
+    while s < end and n < 2:
         c = load(corners, s)
-        j = c % 3
-        base = c - j
-        if load(faces, base + (j + 1) % 3) == w:
+        if c[0] == w:
             n += 1
-        if u != w and load(faces, base + (j + 2) % 3) == w:
+        if u != w and c[1] == w:
             n += 1
         s += 1
-    return n
+    return n == 1
 
 
 @wp.kernel
@@ -101,7 +125,7 @@ def count_boundary(
     chunk: wp.int32,
     faces: wp.array[wp.int32],
     offsets: wp.array[wp.int32],
-    corners: wp.array[wp.int32],
+    corners: wp.array[wp.vec2i],
     # outputs
     flags_out: wp.array[wp.int32],
     counts_out: wp.array[wp.int32],
@@ -117,7 +141,7 @@ def count_boundary(
         for j in range(3):
             a = load(faces, 3 * f + j)
             b = load(faces, 3 * f + (j + 1) % 3)
-            if edge_uses(faces, offsets, corners, a, b) == 1:
+            if is_boundary(offsets, corners, a, b):
                 bits = bits | (1 << j)
                 total += 1
         flags_out[f] = bits
