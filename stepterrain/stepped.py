@@ -1183,7 +1183,8 @@ def stepped(
     arrays, vertices = _stepped_arrays(t, values, gamma, colors, dev, memory_budget, solid)
     # a TIN's CRS and source: Terrain.from_mesh reads them from its metadata, _assemble records them
     return _assemble(
-        t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval
+        t, arrays, vertices, values, gamma=gamma, colors=colors, solid=solid, floor=floor, interval=interval,
+        device=dev,
     )
 
 
@@ -1312,6 +1313,7 @@ def _assemble(
     solid: bool,
     floor: float | None,
     interval: float | None,
+    device: wp.Device | None = None,
 ) -> trimesh.Trimesh:
     faces = arrays.faces
     face_levels = arrays.face_levels
@@ -1347,7 +1349,7 @@ def _assemble(
                        else as_number(floor))
         except (TypeError, ValueError, OverflowError):
             raise InvalidInputError(f"floor must be a number (the base height of the solid); got {floor!r}") from None
-        vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z)
+        vertices, faces, kept, extra, source = close_solid(vertices, faces, ~face_walls, floor_z, device)
         face_levels = np.concatenate([face_levels[kept], np.full(extra, -1, np.int32)])
         face_walls = np.concatenate([face_walls[kept], np.zeros(extra, bool)])
         if vertex_colors is not None:  # a surface vertex (or its copy at a pinch) keeps its colour; the base is grey
