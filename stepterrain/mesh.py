@@ -18,7 +18,7 @@ import warp as wp
 from numpy.typing import NDArray
 
 from ._compaction import MAX_INT32
-from ._device import chunked_threads, init_warp, launch_chunked, read_int32, recycled_empty, to_device
+from ._device import chunked_threads, init_warp, launch_chunked, read_int32, to_device
 from .errors import InvalidInputError, OutputTooLargeError
 from .kernels import solid as kernels
 from .terrain import FLOAT32_MAX
@@ -276,7 +276,7 @@ def close_solid(
     n_columns = int(column.max()) + 1
     column32 = to_device(column, wp.int32, device)
 
-    out_vertices = recycled_empty((n + n_columns, 3), np.float64)
+    out_vertices = np.empty((n + n_columns, 3), np.float64)
     out_vertices[:n] = vertices
     if device.is_cpu:
         base = wp.array(out_vertices[n:].reshape(-1), dtype=wp.float64, device=device, copy=False)
@@ -310,7 +310,7 @@ def close_solid(
     m, p = len(a), int(plain.sum())
     h = m - p
     n_skirts = m + p + 2 * h
-    out_faces = recycled_empty((len(faces) + n_skirts + n_base, 3), np.int64)
+    out_faces = np.empty((len(faces) + n_skirts + n_base, 3), np.int64)
     out_faces[:len(faces)] = faces
     # skirts: every [b, A, B], then [b, a, A] where no vertical edge arrives at a, else [b, a, x] and [b, x, A]
     skirts = out_faces[len(faces):len(faces) + n_skirts]

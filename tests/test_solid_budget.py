@@ -139,7 +139,7 @@ def test_a_solids_peak_stays_within_its_predicted_bytes(case):
         heights, interval = _ramp(4000.0), 1.0
     else:
         rng = np.random.default_rng(11)
-        n = 120 if case == "walk" else 12  # small: boundary_edges' fixed 4 MiB bit table is most of it
+        n = 120 if case == "walk" else 12  # small: the fixed part (small arrays) counts most
         heights, interval = rng.normal(size=(n, n)).cumsum(0).cumsum(1).astype(np.float32), 2.0
     need, _ = _need(heights, interval)
     st.stepped(heights, interval=interval, solid=True)  # kernels loaded, caches warm
